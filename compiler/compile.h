@@ -1,0 +1,18 @@
+/* compile.h — the compiler's stages, called in order by npg_compile(). */
+#ifndef NPG_COMPILE_H
+#define NPG_COMPILE_H
+
+#include "ir.h"
+
+bool is_keyword(const char *s);
+/* compiler/parse.c: tokens to declarations; reads `use`d modules. */
+Decl *parse_program(Ctx *ctx, const SrcFile *file);
+/* compiler/sema.c: names, fn inlining, types, every rule of DESIGN §3. */
+Program *sema_program(Ctx *ctx, const SrcFile *file, Decl *decls);
+/* compiler/dumpast.c: -dp, the parsed declarations. */
+void dump_decls(FILE *out, const Decl *d);
+/* compiler/npg.c: the stage program of a compiled NpgProgram (tests, backends). */
+struct NpgProgram;
+Program *npg_program_ir(const struct NpgProgram *p);
+
+#endif

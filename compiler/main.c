@@ -1,0 +1,66 @@
+/* main.c — the npgc driver. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "npg.h"
+
+static void usage(FILE *out) {
+  fputs("usage: npgc check PROG.npg [--json] [-d<letters>]\n"
+        "\n"
+        "  check   parse, type-check and lower PROG.npg; print its stages (kind, shape,\n"
+        "          inputs, degrees, tensor orders, symbolic nonzeros), its basis classes\n"
+        "          with the reason of every merge, and the reduced evaluation cost.\n"
+        "  --json  the same report as JSON.\n"
+        "  -dLETTERS  dump the IR after stages: p parse, l lower, b basis classes.\n"
+        "\n"
+        "Not yet implemented: emit, train, eval, verify, bench.\n",
+        out);
+}
+
+int main(int argc, char **argv) {
+  if (argc < 2 || strcmp(argv[1], "-h") == 0 || strcmp(argv[1], "--help") == 0) {
+    usage(argc < 2 ? stderr : stdout);
+    return argc < 2 ? 2 : 0;
+  }
+  const char *cmd = argv[1];
+  if (strcmp(cmd, "check") != 0) {
+    if (!strcmp(cmd, "emit") || !strcmp(cmd, "train") || !strcmp(cmd, "eval") || !strcmp(cmd, "verify") ||
+        !strcmp(cmd, "bench")) {
+      fprintf(stderr, "npgc: '%s' is not implemented yet\n", cmd);
+      return 2;
+    }
+    fprintf(stderr, "npgc: unknown command '%s'\n", cmd);
+    usage(stderr);
+    return 2;
+  }
+  const char *path = NULL;
+  bool json = false;
+  NpgOptions opt = {0};
+  for (int i = 2; i < argc; i++) {
+    if (strcmp(argv[i], "--json") == 0) json = true;
+    else if (strncmp(argv[i], "-d", 2) == 0 && argv[i][2]) opt.dump = argv[i] + 2, opt.dump_out = stdout;
+    else if (strncmp(argv[i], "--std=", 6) == 0) opt.std_dir = argv[i] + 6;
+    else if (argv[i][0] == '-' && argv[i][1]) {
+      fprintf(stderr, "npgc: unknown option '%s'\n", argv[i]);
+      return 2;
+    } else if (path) {
+      fprintf(stderr, "npgc: more than one program given ('%s' and '%s')\n", path, argv[i]);
+      return 2;
+    } else path = argv[i];
+  }
+  if (!path) {
+    fprintf(stderr, "npgc: check needs a program\n");
+    return 2;
+  }
+  NpgProgram *p = npg_compile(path, &opt);
+  int rc = 0;
+  if (!npg_ok(p)) {
+    fputs(npg_error(p), stderr);
+    rc = 1;
+  } else {
+    npg_report(p, stdout, json);
+  }
+  npg_free(p);
+  return rc;
+}

@@ -1,0 +1,89 @@
+/* npg.c — npg_compile(): the pipeline, one line per stage (STYLE: the
+ * table of contents of the compiler). */
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "compile.h"
+#include "npg.h"
+
+#ifndef NPG_STDLIB_DIR
+#define NPG_STDLIB_DIR "stdlib"
+#endif
+
+struct NpgProgram {
+  Ctx ctx;
+  Program *prog;
+  const char *error;
+  bool is_static;   /* the out-of-memory result, not allocated */
+};
+
+static bool wants(const NpgOptions *opt, char letter) { return opt->dump && strchr(opt->dump, letter); }
+
+/* The pipeline proper; user errors longjmp out of it to npg_compile(). */
+static void compile(NpgProgram *np, const char *path, const NpgOptions *opt) {
+  Ctx *ctx = &np->ctx;
+  FILE *dump = opt->dump_out ? opt->dump_out : stderr;
+  const SrcFile *file;
+  if (opt->source) {
+    file = source_from_string(ctx, path, opt->source, strlen(opt->source));
+  } else {
+    file = read_source(ctx, path);
+    if (!file) error_plain(ctx, "cannot read '%s': %s", path, strerror(errno));
+  }
+  Decl *decls = parse_program(ctx, file);
+  if (wants(opt, 'p')) dump_decls(dump, decls);
+  Program *prog = sema_program(ctx, file, decls);
+  lower_program(ctx, prog);
+  verify_program(ctx, prog);
+  if (wants(opt, 'l')) dump_stages(dump, prog);
+  basis_classes(ctx, prog);
+  verify_program(ctx, prog);
+  if (wants(opt, 'b')) dump_classes(dump, prog);
+  np->prog = prog;
+  np->error = "";
+}
+
+/* Run the pipeline with ctx->on_error armed; false on a user error. */
+static bool guarded_compile(NpgProgram *np, const char *path, const NpgOptions *opt) {
+  jmp_buf env;
+  np->ctx.on_error = &env;
+  bool ok = setjmp(env) == 0;
+  if (ok) compile(np, path, opt);
+  np->ctx.on_error = NULL;
+  return ok;
+}
+
+NpgProgram *npg_compile(const char *path, const NpgOptions *options) {
+  static const NpgOptions defaults = {0};
+  const NpgOptions *opt = options ? options : &defaults;
+  NpgProgram *np = calloc(1, sizeof *np);
+  if (!np) {
+    static NpgProgram oom = {.error = "error: out of memory\n", .is_static = true};
+    return &oom;
+  }
+  np->ctx.std_dir = opt->std_dir ? opt->std_dir : NPG_STDLIB_DIR;
+  if (!guarded_compile(np, path, opt)) {
+    np->error = np->ctx.msg ? np->ctx.msg : "error: compilation failed\n";
+    np->prog = NULL;
+  }
+  return np;
+}
+
+bool npg_ok(const NpgProgram *p) { return p && p->prog != NULL; }
+
+const char *npg_error(const NpgProgram *p) { return p ? p->error : "error: no program\n"; }
+
+void npg_report(const NpgProgram *p, FILE *out, bool json) {
+  if (!npg_ok(p)) return;
+  if (json) dump_json(out, p->prog);
+  else dump_program(out, p->prog);
+}
+
+void npg_free(NpgProgram *p) {
+  if (!p || p->is_static) return;
+  arena_release(&p->ctx.arena);
+  free(p);
+}
+
+Program *npg_program_ir(const NpgProgram *p) { return p ? p->prog : NULL; }

@@ -1,0 +1,317 @@
+/* ast.h — source text, arena, diagnostics, the expression graph and symbols.
+ *
+ * This is the shared vocabulary of every stage of the compiler: the parser
+ * (compiler/parse.c) builds Nodes and Decls, the checker (compiler/sema.c)
+ * resolves names to Syms and types every Node, the lowering (ir/lower.c)
+ * turns checked stages into the canonical form of ir/ir.h.
+ *
+ * Memory: everything lives in the compilation's arena (Ctx.arena) and is
+ * released at once by ctx_free(). User errors longjmp back to npg_compile().
+ */
+#ifndef NPG_AST_H
+#define NPG_AST_H
+
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdio.h>
+
+#define NPG_HIDDEN __attribute__((visibility("hidden")))
+
+/* ---------------------------------------------------------------- sources */
+
+typedef struct SrcFile {
+  const char *name;  /* path as given by the user, used in diagnostics */
+  const char *text;  /* NUL-terminated contents */
+  size_t len;        /* bytes, excluding the terminating NUL */
+} SrcFile;
+
+typedef struct Loc {
+  const SrcFile *file;
+  int line, col;     /* 1-based */
+  size_t off;        /* byte offset of the token */
+} Loc;
+
+/* ---------------------------------------------------------------- arena */
+
+typedef struct ArenaBlock ArenaBlock;
+typedef struct Arena {
+  ArenaBlock *head;
+  size_t used_total;
+} Arena;
+
+/* The one allocation hook: tests replace it to make allocation fail (STYLE:
+ * Lua ltests.c). It has malloc's contract. */
+extern void *(*npg_alloc_hook)(size_t size);
+
+typedef struct Ctx Ctx;
+void *arena_alloc(Ctx *ctx, size_t size);            /* zeroed; never NULL */
+char *arena_strdup(Ctx *ctx, const char *s);
+char *arena_strndup(Ctx *ctx, const char *s, size_t n);
+char *arena_printf(Ctx *ctx, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+void *arena_grow(Ctx *ctx, void *old, size_t old_size, size_t new_size);
+void arena_release(Arena *arena);   /* frees every block */
+
+/* Growable array of pointers, in the arena. */
+typedef struct PtrVec {
+  void **v;
+  int n, cap;
+} PtrVec;
+void vec_push(Ctx *ctx, PtrVec *vec, void *p);
+
+/* ---------------------------------------------------------------- context */
+
+typedef struct Node Node;
+typedef struct Decl Decl;
+typedef struct Sym Sym;
+typedef struct Program Program;
+
+struct Ctx {
+  Arena arena;
+  jmp_buf *on_error;     /* where user errors and OOM jump to */
+  char *msg;             /* the diagnostic text of the error (arena) */
+  Loc err_loc;           /* location of the error */
+  bool failed;
+  const char *std_dir;   /* directory with npg/<module>.npg */
+  PtrVec files;          /* SrcFile*, every file read */
+  int uniq;              /* counter for fresh names */
+  FILE *notes;           /* optional stream for non-fatal notes, may be NULL */
+};
+
+/* User error: "file:line:col: error: message", the source line, a caret.
+ * Never returns: jumps to ctx->on_error. */
+_Noreturn void error_at(Ctx *ctx, Loc loc, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+/* The same, with an extra "note:" line pointing at a second location. */
+_Noreturn void error_note(Ctx *ctx, Loc loc, Loc note, const char *note_msg,
+                          const char *fmt, ...) __attribute__((format(printf, 5, 6)));
+/* An error at a node: adds "note: inlined from here" lines for fn calls. */
+_Noreturn void error_node(Ctx *ctx, const Node *n, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+/* Error without a source location (files, data). */
+_Noreturn void error_plain(Ctx *ctx, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+/* Internal error: a broken invariant of the compiler itself. */
+_Noreturn void internal_error(Ctx *ctx, const char *file, int line, const char *what);
+#define iassert(ctx, cond) \
+  do { if (!(cond)) internal_error((ctx), __FILE__, __LINE__, #cond); } while (0)
+
+/* ---------------------------------------------------------------- nodes */
+
+typedef enum NodeKind {
+#define NODE(k, name, sym) N_##k,
+#include "ops.def"
+#undef NODE
+  N__COUNT
+} NodeKind;
+
+typedef enum Builtin {
+  B_NONE = 0,
+#define BUILTIN(id, name, arity, alg) B_##id,
+#include "ops.def"
+#undef BUILTIN
+  B__COUNT
+} Builtin;
+
+extern const char *const node_kind_name[N__COUNT];
+extern const char *const node_kind_sym[N__COUNT];
+typedef struct BuiltinInfo {
+  const char *name;
+  int arity;
+  bool algebraic;
+} BuiltinInfo;
+extern const BuiltinInfo builtin_info[B__COUNT];
+Builtin builtin_lookup(const char *name);
+
+/* Variability of an expression: what it depends on. Ordered. */
+typedef enum Var {
+  V_CONST,    /* numbers, dims, index variables */
+  V_PARAM,    /* also params: a coefficient, computed at bind time */
+  V_VARYING,  /* depends on an input, stage or extern: algebraic rules apply */
+} Var;
+
+#define MAX_STATIC 4
+#define MAX_AXES 8
+
+/* The type of a checked expression. */
+typedef struct Type {
+  int nstatic;                 /* static (trailing, small) shape, e.g. [3] */
+  int shape[MAX_STATIC];
+  Var var;
+  bool is_int;                 /* integer valued (index arithmetic) */
+  bool is_bool;                /* a condition */
+  int nwhole;                  /* >0: a whole quantity over these dims */
+  Sym *whole[MAX_AXES];
+  Sym *op;                     /* non-NULL: an operator value (op, op^r) */
+} Type;
+
+struct Node {
+  NodeKind kind;
+  Loc loc;
+  Node *inl;           /* the fn call this node was inlined from, or NULL */
+  /* N_NUM */
+  double num;
+  bool is_int;
+  /* N_NAME, N_CALL (callee), N_SUM (variable) */
+  const char *name;
+  bool global_only;    /* N_NAME from a fn body: skips the caller's index vars */
+  /* operands: N_INDEX base=a, args; N_CALL args; binary a, b; unary a;
+   * N_SUM: a=lo, b=hi, c=body; N_IF: a=cond, b=then, c=else */
+  Node *a, *b, *c;
+  Node **args;
+  int nargs;
+  /* N_RAT */
+  long p, q;
+  /* after sema */
+  Sym *sym;            /* N_NAME/N_INDEX: the quantity, param, dim or variable */
+  Builtin builtin;     /* N_CALL */
+  Type ty;
+};
+
+Node *new_node(Ctx *ctx, NodeKind kind, Loc loc);
+Node *new_num(Ctx *ctx, double v, bool is_int, Loc loc);
+Node *clone_node(Ctx *ctx, const Node *n);      /* deep copy */
+void print_node(FILE *out, const Node *n);      /* source-like text */
+char *node_str(Ctx *ctx, const Node *n);        /* the same, in the arena */
+
+/* ---------------------------------------------------------------- decls */
+
+typedef enum DeclKind {
+  D_DIM,      /* dim F, V */
+  D_PARAM,    /* param tri : int[F, 3] */
+  D_INPUT,    /* input g : real[V, 3] */
+  D_STAGE,    /* name[i:N, ...] = expr  (and output name... = expr) */
+  D_OP,       /* op M[i:N, j:N] = expr */
+  D_EXTERN,   /* extern v[i:F, j:F] of g */
+  D_FN,       /* fn name(a, b) = expr */
+  D_SHARE,    /* share a, b */
+  D_BASIS,    /* basis a, b: max 60, energy 0.999 */
+  D_INLINE,   /* inline c */
+  D_USE,      /* use geometry */
+  D_OUTPUT,   /* output name  (marks an existing quantity) */
+} DeclKind;
+
+typedef struct IndexVarDecl {
+  const char *name;
+  const char *dim;
+  Loc loc, dim_loc;
+} IndexVarDecl;
+
+typedef struct Axis {       /* one axis of a declared type */
+  const char *dim;          /* NULL for a static axis */
+  int size;                 /* static size */
+  Loc loc;
+} Axis;
+
+struct Decl {
+  DeclKind kind;
+  Loc loc;                  /* the keyword or the defined name */
+  const char *name;
+  Loc name_loc;
+  /* D_PARAM / D_INPUT: element type and axes */
+  bool is_int;
+  Axis axes[MAX_AXES];
+  int naxes;
+  /* D_STAGE / D_OP / D_EXTERN: index variables */
+  IndexVarDecl ivars[MAX_AXES];
+  int nivars;
+  Node *body;               /* D_STAGE / D_OP / D_FN */
+  /* D_FN parameters; D_DIM/D_SHARE/D_BASIS/D_INLINE/D_EXTERN(of) names */
+  const char **names;
+  Loc *name_locs;
+  int nnames;
+  bool is_output;
+  /* D_BASIS options (negative when not given) */
+  int basis_max;
+  double basis_energy;
+  /* D_OP: "on u -> p" */
+  const char *on_from, *on_to;
+  Loc on_loc;
+  Decl *next;
+};
+
+/* ---------------------------------------------------------------- symbols */
+
+typedef enum SymKind {
+  SYM_DIM,      /* a size bound from data */
+  SYM_PARAM,    /* data fixed at train time */
+  SYM_INPUT,    /* varies per evaluation, gets a basis */
+  SYM_STAGE,    /* a named definition: gets a basis unless inlined */
+  SYM_OP,       /* a linear operator: entries polynomial in stages */
+  SYM_EXTERN,   /* a black-box stage */
+  SYM_FN,       /* an inlined helper */
+  SYM_IVAR,     /* an index variable of a stage or op */
+  SYM_SUMVAR,   /* the variable of a sum */
+  SYM_FNARG,    /* a fn argument during checking */
+} SymKind;
+
+struct Sym {
+  SymKind kind;
+  const char *name;
+  Loc loc;
+  Decl *decl;
+  int id;                       /* index in its program list */
+  /* shape of a quantity: dim axes then static axes */
+  int ndims;
+  Sym *dims[MAX_AXES];
+  int nstatic;
+  int shape[MAX_STATIC];
+  bool is_int;
+  /* SYM_IVAR / SYM_SUMVAR: the dim the variable ranges over (NULL: a sum
+   * with explicit bounds) */
+  Sym *range;
+  /* SYM_STAGE, SYM_OP, SYM_EXTERN */
+  Sym *ivars[MAX_AXES];         /* the stage's index variables (implicit ones too) */
+  int nivars;
+  Node *body;                   /* checked body */
+  bool is_output;
+  bool inlined;                 /* `inline name` */
+  bool introduced;              /* created by the compiler (y.t1) */
+  Loc introduced_at;
+  Sym *introduced_for;
+  /* SYM_EXTERN */
+  Sym **of;
+  int nof;
+  /* SYM_OP: row dims are ivars[0..nrow), columns ivars[nrow..nivars) */
+  int nrow;
+  Sym *on_from, *on_to;
+  /* SYM_FN */
+  int nargs;
+  const char **argnames;
+  bool expanding;               /* recursion detection */
+  /* basis options from `basis` (negative: default) */
+  int basis_max;
+  double basis_energy;
+  struct Stage *stage;          /* canonical form, after lowering */
+  int klass;                    /* basis class, after basis_classes() */
+};
+
+/* ---------------------------------------------------------------- tokens */
+
+typedef enum TokKind {
+  TK_EOF,
+  TK_IDENT,
+  TK_NUM,
+  TK_PUNCT,
+} TokKind;
+
+typedef struct Token {
+  TokKind kind;
+  Loc loc;
+  const char *text;  /* identifier or punctuation spelling (arena) */
+  int len;
+  double num;
+  bool is_int;
+  bool bol;          /* first token on its line */
+} Token;
+
+/* compiler/lex.re: tokenize a whole file; the array ends with TK_EOF. */
+Token *lex_file(Ctx *ctx, const SrcFile *file, int *ntok);
+
+/* ---------------------------------------------------------------- misc */
+
+/* Read a whole file into the arena; NULL if it cannot be read (errno set). */
+SrcFile *read_source(Ctx *ctx, const char *path);
+SrcFile *source_from_string(Ctx *ctx, const char *name, const char *text, size_t len);
+
+#endif

@@ -1,0 +1,198 @@
+/* ir.h — the stage program: canonical form of every stage and basis classes.
+ *
+ * DESIGN §4. Every stage value is a sum of terms
+ *
+ *     y = Σ_t  M_{t,k}^{r_k} ⋯ M_{t,1}^{r_1} q_t
+ *
+ * where q_t is a polynomial field (one polynomial per static component of y,
+ * per entry of y's index domain) whose monomials are a coefficient times
+ * entries of named quantities (atoms), and each M is either a diagonal
+ * operator (its diagonal again a polynomial field over y's entries) or a
+ * declared `op`, whose entries are a polynomial field over the op's rows and
+ * columns. ops[0] is applied first (innermost).
+ *
+ * Coefficients, guards and index expressions are expression Nodes over index
+ * variables (Sym SYM_IVAR/SYM_SUMVAR), dims, params and numbers.
+ */
+#ifndef NPG_IR_H
+#define NPG_IR_H
+
+#include "ast.h"
+
+/* An entry of a named quantity: q[idx...], dim axes then static axes. */
+typedef struct Atom {
+  Sym *q;
+  int nidx;
+  Node **idx;
+} Atom;
+
+/* A summation variable of a monomial with dim-valued bounds (sums with
+ * literal bounds are unrolled during lowering). */
+typedef struct SumVar {
+  Sym *var;
+  Node *lo, *hi;   /* inclusive */
+} SumVar;
+
+/* guard ? coef * Π atoms : 0, summed over sums. */
+typedef struct Mono {
+  Node *guard;     /* boolean Node, NULL = always */
+  Node *coef;      /* real Node (never NULL) */
+  int nsums;
+  SumVar *sums;
+  int natoms;
+  Atom *atoms;
+} Mono;
+
+typedef struct Poly {
+  int n, cap;
+  Mono **m;
+} Poly;
+
+/* One polynomial per static component (flattened, row-major). */
+typedef struct Field {
+  int ncomp;
+  Poly *comp;
+} Field;
+
+typedef enum OpKind {
+  OPK_DIAG,   /* diag(field): from `/` and negative or fractional powers */
+  OPK_DECL,   /* a declared `op` */
+} OpKind;
+
+/* An operator to a rational power p/q (q > 0, gcd 1, p/q not a
+ * non-negative integer for OPK_DIAG). */
+typedef struct OpPow {
+  OpKind kind;
+  Field *diag;     /* OPK_DIAG */
+  Sym *op;         /* OPK_DECL */
+  long p, q;
+} OpPow;
+
+/* One tensor of a term: the monomials of a polynomial field that read the
+ * same multiset of quantities (DESIGN §1: "one basis per input axis"). */
+typedef struct TensorGroup {
+  int order;        /* output axis (+ column axis for operators) + inputs */
+  int ninputs;
+  Sym *inputs[16];  /* sorted multiset of quantities contracted */
+  int nmono;        /* monomials over all components */
+  char *nnz;        /* symbolic nonzero count, e.g. "6·F" */
+  bool nnz_bound;   /* guards make nnz an upper bound */
+  bool symmetric;   /* repeated inputs (x ⊗ x): stored packed */
+} TensorGroup;
+
+typedef struct TensorList {
+  int n;
+  TensorGroup *g;
+} TensorList;
+
+typedef struct Term {
+  int nops;
+  OpPow *ops;            /* ops[0] innermost */
+  Field *num;            /* the polynomial q_t */
+  /* analysis (lower.c) */
+  Sym *named_num;        /* q_t is exactly a named quantity (identity map) */
+  TensorList num_tensors;
+  TensorList *op_tensors;  /* per op: its tensor groups (row, col, inputs) */
+} Term;
+
+typedef enum StageKind {
+  ST_CONTRACT,  /* polynomial: Σ Q ⊗ x ⊗ … + c */
+  ST_APPLY,     /* declared operators to positive integer powers */
+  ST_INVERSE,   /* operators to negative integer powers */
+  ST_ROOT,      /* operators to fractional powers (eigendecomposition) */
+  ST_EXTERN,    /* black box, learned map in reduced space */
+  ST_INPUT,     /* an input: only a basis */
+} StageKind;
+extern const char *const stage_kind_name[];
+
+typedef struct Stage {
+  Sym *sym;
+  StageKind kind;
+  int nterms;
+  Term **terms;
+  int ncomp;             /* product of static shape */
+  int klass;             /* basis class id */
+} Stage;
+
+/* A declared operator's entries, lowered once. */
+typedef struct OpDef {
+  Sym *sym;
+  Field *entries;        /* one component; over the op's ivars (rows, cols) */
+  TensorList tensors;
+} OpDef;
+
+/* A reason two quantities share a basis. */
+typedef struct Merge {
+  Sym *a, *b;
+  char *reason;          /* "h = diag(r)^-1 s (inverse: numerator lives in the result's basis)" */
+  Loc loc;
+} Merge;
+
+/* A numerator that has no basis of its own but whose snapshots join the
+ * class of its result (DESIGN §4). */
+typedef struct Joiner {
+  Stage *stage;
+  int term;
+} Joiner;
+
+typedef struct BasisClass {
+  int id;
+  PtrVec members;        /* Sym* */
+  PtrVec joiners;        /* Joiner* */
+  int basis_max;         /* -1: default */
+  double basis_energy;   /* <0: default */
+  char *size_name;       /* m_<first member> */
+} BasisClass;
+
+struct Program {
+  Ctx *ctx;              /* the compilation this program lives in */
+  const SrcFile *main;
+  PtrVec dims, params, inputs, externs, ops, fns;  /* Sym* */
+  PtrVec quantities;     /* Sym* with a basis, in evaluation order: inputs,
+                            then stages and externs */
+  PtrVec stages;         /* Stage*, in evaluation order (introduced ones too) */
+  PtrVec opdefs;         /* OpDef* */
+  PtrVec outputs;        /* Sym* */
+  PtrVec shares;         /* Decl* */
+  PtrVec merges;         /* Merge* */
+  PtrVec classes;        /* BasisClass* */
+  PtrVec notes;          /* char*: things the compiler did that the user should know */
+  Decl *decls;
+};
+
+/* ---------------------------------------------------------------- polys */
+
+Mono *mono_const(Ctx *ctx, Node *coef);
+Poly *poly_new(Ctx *ctx);
+void poly_push(Ctx *ctx, Poly *p, Mono *m);
+bool poly_is_zero(const Poly *p);
+Field *field_new(Ctx *ctx, int ncomp);
+int mono_degree(const Mono *m);
+int field_degree(const Field *f);
+
+/* Canonical text of polynomials, fields and terms (also used as a key for
+ * structural equality). */
+void print_mono(FILE *out, const Mono *m);
+void print_poly(FILE *out, const Poly *p);
+void print_field(FILE *out, const Field *f);
+void print_term(FILE *out, const Term *t);
+char *field_key(Ctx *ctx, const Field *f);
+
+/* ---------------------------------------------------------------- passes */
+
+/* ir/lower.c: canonical form of every stage and op (program->stages). */
+void lower_program(Ctx *ctx, Program *prog);
+/* ir/basis.c: union-find basis classes with reasons. */
+void basis_classes(Ctx *ctx, Program *prog);
+/* ir/verify.c: structural invariants; internal_error on violation. */
+void verify_program(Ctx *ctx, const Program *prog);
+/* ir/dump.c: the human readable IR (npgc check) and its JSON form. */
+void dump_program(FILE *out, const Program *prog);
+void dump_stages(FILE *out, const Program *prog);
+void dump_classes(FILE *out, const Program *prog);
+void dump_json(FILE *out, const Program *prog);
+/* ir/cost.c: reduced evaluation cost formula in basis sizes. */
+char *cost_formula(Ctx *ctx, const Program *prog);
+char *stage_cost(Ctx *ctx, const Program *prog, const Stage *st);
+
+#endif

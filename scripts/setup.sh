@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# setup.sh — install the Debian packages npg needs, and only the missing ones.
+#
+# Idempotent and quiet when everything is there; otherwise it says what it
+# installs. demo.sh and test.sh call it first, so a fresh Debian 12 machine
+# needs nothing but this repository.
+set -euo pipefail
+
+packages=(
+  cmake gcc make pkg-config
+  re2c                        # lexer generator (compiler/lex.re)
+  libopenblas-dev liblapacke-dev  # dense linear algebra: PCA, reduced solves
+  libtcc-dev tcc              # in-memory JIT; tcc ships libtcc1.a and the headers
+  libcmocka-dev               # unit tests
+  clang libclang-rt-14-dev    # libFuzzer for the front-end fuzz target
+  python3-numpy               # benchmark peer only
+)
+
+missing=()
+for pkg in "${packages[@]}"; do
+  # `dpkg -s` also succeeds for removed packages that left config files,
+  # so look at the status line rather than the exit code alone.
+  if ! dpkg -s "$pkg" 2>/dev/null | grep -q '^Status: install ok installed'; then
+    missing+=("$pkg")
+  fi
+done
+
+[ ${#missing[@]} -eq 0 ] && exit 0
+
+echo "setup.sh: installing ${missing[*]}"
+sudo=()
+if [ "$(id -u)" -ne 0 ]; then
+  sudo=(sudo)
+fi
+"${sudo[@]}" env DEBIAN_FRONTEND=noninteractive apt-get update
+"${sudo[@]}" env DEBIAN_FRONTEND=noninteractive \
+  apt-get install -y --no-install-recommends "${missing[@]}"

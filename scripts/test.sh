@@ -1,0 +1,63 @@
+#!/usr/bin/env bash
+# test.sh — the one test command (README, .ci/run). Exits non-zero on any failure.
+#
+#   1. plain build (build/):          every ctest test
+#   2. sanitizer build (build-asan/): every ctest test under ASan + UBSan, leaks fatal
+#   3. fuzz build (build-fuzz/):      libFuzzer on the front end for NPG_FUZZ_SECONDS (60)
+#
+# Builds are incremental; delete a build directory to start it afresh.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+
+fuzz_seconds=${NPG_FUZZ_SECONDS:-60}
+
+header() {
+  printf '\n==================== %s ====================\n' "$*"
+}
+
+bash scripts/setup.sh
+
+header "1/3 plain build (build/)"
+cmake -S . -B build -DCMAKE_BUILD_TYPE=RelWithDebInfo
+cmake --build build -j2
+ctest --test-dir build --output-on-failure
+
+# The sanitizer and fuzz builds are Debug so that assertions and the
+# between-stage IR verifiers run too.
+header "2/3 AddressSanitizer + UndefinedBehaviorSanitizer (build-asan/)"
+cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DNPG_SANITIZE=ON
+cmake --build build-asan -j2
+ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 \
+UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+  ctest --test-dir build-asan --output-on-failure
+
+header "3/3 fuzz the front end for ${fuzz_seconds} s (build-fuzz/)"
+CC=clang cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=Debug -DNPG_FUZZ=ON
+cmake --build build-fuzz -j2
+
+# Seed corpus: every .npg in the tree, tracked or not. libFuzzer adds the
+# inputs it finds to the first corpus directory, so it is a scratch copy;
+# the flattened path keeps same-named files in different folders apart.
+corpus=build-fuzz/corpus
+artifacts=build-fuzz/artifacts
+rm -rf "$corpus"
+mkdir -p "$corpus" "$artifacts"
+nseeds=0
+while IFS= read -r -d '' f; do
+  name=${f#./}
+  cp "$f" "$corpus/${name//\//_}"
+  nseeds=$((nseeds + 1))
+done < <(find . -name '*.npg' -not -path './build*' -not -path './.git/*' -print0)
+
+# Run from the repository root so the target's default std_dir "stdlib" resolves.
+log=build-fuzz/fuzz.log
+echo "fuzz_frontend: $nseeds seed files, ${fuzz_seconds} s, log in $log"
+if ! build-fuzz/fuzz_frontend -max_total_time="$fuzz_seconds" -rss_limit_mb=4096 -timeout=10 \
+    -print_final_stats=1 -artifact_prefix="$artifacts/" "$corpus" >"$log" 2>&1; then
+  tail -n 80 "$log"
+  echo "test.sh: fuzz_frontend failed; the crashing input is in $artifacts/" >&2
+  exit 1
+fi
+grep -E '^(Done|stat::number_of_executed_units|stat::new_units_added)' "$log" || true
+
+header "all phases passed"
