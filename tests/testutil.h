@@ -1,0 +1,96 @@
+/* testutil.h — compiling programs in tests. */
+#ifndef NPG_TESTUTIL_H
+#define NPG_TESTUTIL_H
+
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "compile.h"
+#include "npg.h"
+
+/* Compile source text named `name`; the stdlib is the repository's. */
+static inline NpgProgram *compile_text(const char *name, const char *text) {
+  NpgOptions opt = {0};
+  opt.source = text;
+  opt.std_dir = "stdlib";
+  return npg_compile(name, &opt);
+}
+
+static inline NpgProgram *compile_file(const char *path) {
+  NpgOptions opt = {0};
+  opt.std_dir = "stdlib";
+  return npg_compile(path, &opt);
+}
+
+static inline Program *ir_ok(NpgProgram *p) {
+  if (!npg_ok(p)) fail_msg("compilation failed:\n%s", npg_error(p));
+  return npg_program_ir(p);
+}
+
+static inline const Stage *find_stage(const Program *prog, const char *name) {
+  for (int i = 0; i < prog->stages.n; i++) {
+    const Stage *st = prog->stages.v[i];
+    if (strcmp(st->sym->name, name) == 0) return st;
+  }
+  fail_msg("no stage '%s'", name);
+  return NULL;
+}
+
+static inline const Sym *find_quantity(const Program *prog, const char *name) {
+  for (int i = 0; i < prog->quantities.n; i++) {
+    const Sym *s = prog->quantities.v[i];
+    if (strcmp(s->name, name) == 0) return s;
+  }
+  fail_msg("no quantity '%s'", name);
+  return NULL;
+}
+
+/* The class of `name` as a sorted, comma separated list of members. */
+static inline char *class_of(const Program *prog, const char *name, char *buf, size_t n) {
+  const Sym *s = find_quantity(prog, name);
+  const BasisClass *c = prog->classes.v[s->klass];
+  const char *names[64];
+  int k = 0;
+  for (int i = 0; i < c->members.n && k < 64; i++) names[k++] = ((Sym *)c->members.v[i])->name;
+  for (int i = 0; i < k; i++)
+    for (int j = i + 1; j < k; j++)
+      if (strcmp(names[j], names[i]) < 0) {
+        const char *t = names[i];
+        names[i] = names[j];
+        names[j] = t;
+      }
+  buf[0] = 0;
+  for (int i = 0; i < k; i++) {
+    strncat(buf, names[i], n - strlen(buf) - 1);
+    if (i + 1 < k) strncat(buf, ",", n - strlen(buf) - 1);
+  }
+  return buf;
+}
+
+/* Largest tensor order among all tensors of a stage (numerators, diagonal
+ * operators and declared operators' entries). */
+static inline int max_order(const Program *prog, const Stage *st) {
+  int m = 0;
+  for (int t = 0; t < st->nterms; t++) {
+    const Term *tm = st->terms[t];
+    for (int g = 0; g < tm->num_tensors.n; g++)
+      if (tm->num_tensors.g[g].order > m) m = tm->num_tensors.g[g].order;
+    for (int k = 0; k < tm->nops; k++) {
+      const TensorList *tl = &tm->op_tensors[k];
+      if (tm->ops[k].kind == OPK_DECL)
+        for (int i = 0; i < prog->opdefs.n; i++)
+          if (((OpDef *)prog->opdefs.v[i])->sym == tm->ops[k].op) tl = &((OpDef *)prog->opdefs.v[i])->tensors;
+      for (int g = 0; g < tl->n; g++)
+        if (tl->g[g].order > m) m = tl->g[g].order;
+    }
+  }
+  return m;
+}
+
+#endif
