@@ -23,3 +23,23 @@ void dump_decls(FILE *out, const Decl *d) {
     fputc('\n', out);
   }
 }
+
+/* -ds: every definition after checking: fn calls inlined, sqrt/root/if
+ * rewritten, exponents as rational literals. */
+void dump_checked(FILE *out, const Program *prog) {
+  fputs("definitions (checked):\n", out);
+  for (const Decl *d = prog->decls; d; d = d->next) {
+    if (d->kind != D_STAGE && d->kind != D_OP) continue;
+    const Sym *s = NULL;
+    for (int i = 0; i < prog->quantities.n && !s; i++)
+      if (((Sym *)prog->quantities.v[i])->decl == d) s = prog->quantities.v[i];
+    for (int i = 0; i < prog->ops.n && !s; i++)
+      if (((Sym *)prog->ops.v[i])->decl == d) s = prog->ops.v[i];
+    fprintf(out, "  %s%s %s", d->kind == D_OP ? "op " : "", d->name, s && s->inlined ? "(inlined) " : "");
+    if (s && s->body) {
+      fputs("= ", out);
+      print_node(out, s->body);
+    }
+    fputc('\n', out);
+  }
+}

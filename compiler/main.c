@@ -12,7 +12,7 @@ static void usage(FILE *out) {
         "          inputs, degrees, tensor orders, symbolic nonzeros), its basis classes\n"
         "          with the reason of every merge, and the reduced evaluation cost.\n"
         "  --json  the same report as JSON.\n"
-        "  -dLETTERS  dump the IR after stages: p parse, l lower, b basis classes.\n"
+        "  -dLETTERS  dump the IR after stages: p parse, s check, l lower, b basis classes.\n"
         "\n"
         "Not yet implemented: emit, train, eval, verify, bench.\n",
         out);

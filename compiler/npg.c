@@ -34,6 +34,7 @@ static void compile(NpgProgram *np, const char *path, const NpgOptions *opt) {
   Decl *decls = parse_program(ctx, file);
   if (wants(opt, 'p')) dump_decls(dump, decls);
   Program *prog = sema_program(ctx, file, decls);
+  if (wants(opt, 's')) dump_checked(dump, prog);
   lower_program(ctx, prog);
   verify_program(ctx, prog);
   if (wants(opt, 'l')) dump_stages(dump, prog);

@@ -1096,6 +1096,8 @@ Program *sema_program(Ctx *ctx, const SrcFile *file, Decl *decls) {
           error_at(ctx, d->name_locs[i], "only a stage can be inlined; '%s' is a %s", q->name, kind_word(q));
         if (q->is_output) error_at(ctx, d->name_locs[i], "'%s' is an output and cannot be inlined", q->name);
         q->inlined = true;
+        q->inline_loc = d->name_locs[i];
+        vec_push(ctx, &prog->inlined, q);
       }
       break;
     case D_OUTPUT:

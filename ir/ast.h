@@ -265,7 +265,8 @@ struct Sym {
   int nivars;
   Node *body;                   /* checked body */
   bool is_output;
-  bool inlined;                 /* `inline name` */
+  bool inlined;                 /* `inline name`, or a constant definition */
+  Loc inline_loc;               /* the `inline` statement naming it (line 0: constant) */
   bool introduced;              /* created by the compiler (y.t1) */
   Loc introduced_at;
   Sym *introduced_for;

@@ -153,6 +153,7 @@ struct Program {
   PtrVec stages;         /* Stage*, in evaluation order (introduced ones too) */
   PtrVec opdefs;         /* OpDef* */
   PtrVec outputs;        /* Sym* */
+  PtrVec inlined;        /* Sym*: stages named by `inline` */
   PtrVec shares;         /* Decl* */
   PtrVec merges;         /* Merge* */
   PtrVec classes;        /* BasisClass* */

@@ -1051,10 +1051,31 @@ static void lower_op(Lowerer *L, Sym *op) {
   vec_push(ctx, &L->prog->opdefs, od);
 }
 
+/* `inline c` folds c into its consumers; DESIGN §4 allows it only for a
+ * linear quantity (otherwise folding raises the consumers' tensor orders
+ * behind the user's back). */
+static void check_inline(Lowerer *L, Sym *s) {
+  L->cur = s;
+  PtrVec open = {0};
+  g_open_sums = &open;
+  Value *v = lower(L, s->body, NULL);
+  for (int i = 0; i < v->terms.n; i++) {
+    Term *t = v->terms.v[i];
+    if (t->nops)
+      error_at(L->ctx, s->inline_loc, "cannot inline '%s': it is not polynomial (it divides or takes a root); "
+               "only a linear quantity can be folded into its consumers", s->name);
+    int deg = field_degree(t->num);
+    if (deg > 1)
+      error_at(L->ctx, s->inline_loc, "cannot inline '%s': it has degree %d in its inputs; only a linear quantity "
+               "can be folded into its consumers", s->name, deg);
+  }
+}
+
 void lower_program(Ctx *ctx, Program *prog) {
   Lowerer L = {0};
   L.ctx = ctx;
   L.prog = prog;
+  for (int i = 0; i < prog->inlined.n; i++) check_inline(&L, prog->inlined.v[i]);
   for (Decl *d = prog->decls; d; d = d->next) {
     if (d->kind != D_STAGE && d->kind != D_OP && d->kind != D_EXTERN) continue;
     Sym *s = NULL;
