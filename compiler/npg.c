@@ -52,6 +52,10 @@ static bool guarded_compile(NpgProgram *np, const char *path, const NpgOptions *
   bool ok = setjmp(env) == 0;
   if (ok) compile(np, path, opt);
   np->ctx.on_error = NULL;
+  if (np->ctx.open_file) {
+    fclose(np->ctx.open_file);
+    np->ctx.open_file = NULL;
+  }
   return ok;
 }
 

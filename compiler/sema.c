@@ -460,7 +460,7 @@ static Node *subst(Checker *ck, const Node *n, Subst *map, int nmap, Node *call)
     c->a = subst(ck, n->a, map, nmap, call);
     c->b = subst(ck, n->b, map, nmap, call);
     Subst *m2 = arena_alloc(ck->ctx, sizeof(Subst) * (size_t)(nmap + 1));
-    memcpy(m2, map, sizeof(Subst) * (size_t)nmap);
+    if (nmap) memcpy(m2, map, sizeof(Subst) * (size_t)nmap);
     m2[nmap].name = n->name;
     m2[nmap].rename = arena_printf(ck->ctx, "%s#%d", n->name, ++ck->ctx->uniq);
     c->name = m2[nmap].rename;

@@ -85,7 +85,7 @@ void *arena_grow(Ctx *ctx, void *old, size_t old_size, size_t new_size) {
 
 char *arena_strndup(Ctx *ctx, const char *s, size_t n) {
   char *p = arena_alloc(ctx, n + 1);
-  memcpy(p, s, n);
+  if (n) memcpy(p, s, n);
   p[n] = 0;
   return p;
 }
@@ -214,38 +214,31 @@ SrcFile *source_from_string(Ctx *ctx, const char *name, const char *text, size_t
 SrcFile *read_source(Ctx *ctx, const char *path) {
   FILE *fp = fopen(path, "rb");
   if (!fp) return NULL;
+  ctx->open_file = fp;  /* closed by npg_compile if an allocation fails below */
   size_t cap = 4096, len = 0;
-  char *buf = malloc(cap);
-  if (!buf) {
-    fclose(fp);
-    errno = ENOMEM;
-    return NULL;
-  }
+  char *buf = arena_alloc(ctx, cap);
   for (;;) {
-    if (len == cap) {
-      char *nb = realloc(buf, cap * 2);
-      if (!nb) {
-        free(buf);
-        fclose(fp);
-        errno = ENOMEM;
-        return NULL;
-      }
-      buf = nb;
+    if (len + 1 >= cap) {
+      buf = arena_grow(ctx, buf, len, cap * 2);
       cap *= 2;
     }
-    size_t got = fread(buf + len, 1, cap - len, fp);
+    size_t got = fread(buf + len, 1, cap - 1 - len, fp);
     len += got;
     if (got == 0) break;
   }
   int bad = ferror(fp);
+  ctx->open_file = NULL;
   fclose(fp);
   if (bad) {
-    free(buf);
     errno = EIO;
     return NULL;
   }
-  SrcFile *f = source_from_string(ctx, path, buf, len);
-  free(buf);
+  buf[len] = 0;  /* arena memory is zeroed; explicit for the reader */
+  SrcFile *f = arena_alloc(ctx, sizeof *f);
+  f->name = arena_strdup(ctx, path);
+  f->text = buf;
+  f->len = len;
+  vec_push(ctx, &ctx->files, f);
   return f;
 }
 

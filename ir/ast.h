@@ -76,7 +76,7 @@ struct Ctx {
   const char *std_dir;   /* directory with npg/<module>.npg */
   PtrVec files;          /* SrcFile*, every file read */
   int uniq;              /* counter for fresh names */
-  FILE *notes;           /* optional stream for non-fatal notes, may be NULL */
+  FILE *open_file;       /* a file being read, closed if an error jumps out */
 };
 
 /* User error: "file:line:col: error: message", the source line, a caret.

@@ -317,8 +317,8 @@ static Mono *mono_mul(Lowerer *L, const Mono *a, const Mono *b) {
   m->coef = mk_bin(L, N_MUL, a->coef, b->coef);
   m->nsums = a->nsums + b->nsums;
   m->sums = arena_alloc(L->ctx, sizeof(SumVar) * (size_t)(m->nsums + 1));
-  memcpy(m->sums, a->sums, sizeof(SumVar) * (size_t)a->nsums);
-  memcpy(m->sums + a->nsums, b->sums, sizeof(SumVar) * (size_t)b->nsums);
+  if (a->nsums) memcpy(m->sums, a->sums, sizeof(SumVar) * (size_t)a->nsums);
+  if (b->nsums) memcpy(m->sums + a->nsums, b->sums, sizeof(SumVar) * (size_t)b->nsums);
   m->natoms = a->natoms + b->natoms;
   m->atoms = arena_alloc(L->ctx, sizeof(Atom) * (size_t)(m->natoms + 1));
   /* Merge by quantity id so x*y and y*x print (and key) alike. */

@@ -134,12 +134,12 @@ void tensor_groups(Ctx *ctx, const Field *f, int base_order, Sym *const *ivars, 
       qsort(in, (size_t)nin, sizeof in[0], cmp_sym);
       int k;
       for (k = 0; k < ng; k++)
-        if (g[k].ninputs == nin && memcmp(g[k].inputs, in, sizeof(Sym *) * (size_t)nin) == 0) break;
+        if (g[k].ninputs == nin && (nin == 0 || memcmp(g[k].inputs, in, sizeof(Sym *) * (size_t)nin) == 0)) break;
       if (k == ng) {
         if (ng == 64) error_plain(ctx, "a stage has more than 64 distinct tensors");
         memset(&g[k], 0, sizeof g[k]);
         g[k].ninputs = nin;
-        memcpy(g[k].inputs, in, sizeof(Sym *) * (size_t)nin);
+        if (nin) memcpy(g[k].inputs, in, sizeof(Sym *) * (size_t)nin);
         g[k].order = base_order + nin;
         for (int a = 1; a < nin; a++)
           if (in[a] == in[a - 1]) g[k].symmetric = true;
