@@ -16,6 +16,7 @@
  * Coefficients (anything over params, numbers and index variables) stay
  * expression Nodes with the index variables substituted.
  */
+#include <stdlib.h>
 #include <string.h>
 
 #include "ir.h"
@@ -1011,6 +1012,89 @@ static Sym *named_numerator(const Sym *s, const Field *f) {
 
 void tensor_groups(Ctx *ctx, const Field *f, int base_order, Sym *const *ivars, int nivars, TensorList *out);
 
+/* ---------------------------------------------------------------- like monomials */
+
+static char *text_of(Ctx *ctx, void (*print)(FILE *, const void *), const void *x) {
+  char *buf = NULL;
+  size_t len = 0;
+  FILE *f = open_memstream(&buf, &len);
+  if (!f) error_plain(ctx, "out of memory");
+  print(f, x);
+  fclose(f);
+  char *s = arena_strdup(ctx, buf ? buf : "");
+  free(buf);
+  return s;
+}
+
+static void print_atom(FILE *out, const void *p) {
+  const Atom *a = p;
+  fprintf(out, "%s[", a->q->name);
+  for (int i = 0; i < a->nidx; i++) {
+    if (i) fputc(',', out);
+    print_node(out, a->idx[i]);
+  }
+  fputc(']', out);
+}
+
+static void print_mono_shape(FILE *out, const void *p) {  /* everything but the coefficient */
+  const Mono *m = p;
+  if (m->guard) print_node(out, m->guard);
+  fputc('|', out);
+  for (int s = 0; s < m->nsums; s++) {
+    fprintf(out, "%s=", m->sums[s].var->name);
+    print_node(out, m->sums[s].lo);
+    fputs("..", out);
+    print_node(out, m->sums[s].hi);
+    fputc(';', out);
+  }
+  fputc('|', out);
+  for (int a = 0; a < m->natoms; a++) print_atom(out, &m->atoms[a]);
+}
+
+/* Sort each monomial's atoms into a canonical order and add the
+ * coefficients of monomials that read the same entries (g_a g_b and g_b g_a
+ * are one tensor entry); drop monomials whose coefficients cancel. */
+static void combine_like(Lowerer *L, Poly *p) {
+  Ctx *ctx = L->ctx;
+  char **keys = arena_alloc(ctx, sizeof(char *) * (size_t)(p->n + 1));
+  Poly out = {0};
+  char **out_keys = arena_alloc(ctx, sizeof(char *) * (size_t)(p->n + 1));
+  for (int i = 0; i < p->n; i++) {
+    Mono *m = mono_copy(L, p->m[i]);
+    char **ak = arena_alloc(ctx, sizeof(char *) * (size_t)(m->natoms + 1));
+    for (int a = 0; a < m->natoms; a++) ak[a] = text_of(ctx, print_atom, &m->atoms[a]);
+    for (int a = 1; a < m->natoms; a++)
+      for (int b = a; b > 0 && strcmp(ak[b - 1], ak[b]) > 0; b--) {
+        char *tk = ak[b];
+        ak[b] = ak[b - 1];
+        ak[b - 1] = tk;
+        Atom ta = m->atoms[b];
+        m->atoms[b] = m->atoms[b - 1];
+        m->atoms[b - 1] = ta;
+      }
+    keys[i] = text_of(ctx, print_mono_shape, m);
+    int j;
+    for (j = 0; j < out.n; j++)
+      if (strcmp(out_keys[j], keys[i]) == 0) break;
+    if (j < out.n) {
+      Mono *o = mono_copy(L, out.m[j]);
+      o->coef = mk_bin(L, N_ADD, o->coef, m->coef);
+      out.m[j] = o;
+    } else {
+      out_keys[out.n] = keys[i];
+      poly_push(ctx, &out, m);
+    }
+  }
+  Poly kept = {0};
+  for (int i = 0; i < out.n; i++)
+    if (!is_num(out.m[i]->coef, 0)) poly_push(ctx, &kept, out.m[i]);
+  *p = kept;
+}
+
+static void combine_field(Lowerer *L, Field *f) {
+  for (int c = 0; c < f->ncomp; c++) combine_like(L, &f->comp[c]);
+}
+
 static Stage *stage_from_value(Lowerer *L, Sym *s, Value *v) {
   Ctx *ctx = L->ctx;
   Stage *st = arena_alloc(ctx, sizeof *st);
@@ -1022,6 +1106,9 @@ static Stage *stage_from_value(Lowerer *L, Sym *s, Value *v) {
   st->kind = kind_of_terms(st->terms, st->nterms);
   for (int i = 0; i < st->nterms; i++) {
     Term *t = st->terms[i];
+    combine_field(L, t->num);
+    for (int k = 0; k < t->nops; k++)
+      if (t->ops[k].kind == OPK_DIAG) combine_field(L, t->ops[k].diag);
     if (t->nops) t->named_num = named_numerator(s, t->num);
     if (!t->named_num) tensor_groups(ctx, t->num, 1, s->ivars, s->nivars, &t->num_tensors);
     t->op_tensors = arena_alloc(ctx, sizeof(TensorList) * (size_t)(t->nops + 1));
@@ -1047,6 +1134,7 @@ static void lower_op(Lowerer *L, Sym *op) {
   OpDef *od = arena_alloc(ctx, sizeof *od);
   od->sym = op;
   od->entries = v->terms.n ? ((Term *)v->terms.v[0])->num : field_new(ctx, 1);
+  combine_field(L, od->entries);
   tensor_groups(ctx, od->entries, 2, op->ivars, op->nivars, &od->tensors);
   vec_push(ctx, &L->prog->opdefs, od);
 }

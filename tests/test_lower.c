@@ -196,7 +196,8 @@ static void share_and_apply(void **state) {
   npg_free(p);
 }
 
-/* Sums with dim bounds stay symbolic; literal bounds are unrolled. */
+/* Sums with dim bounds stay symbolic; literal bounds are unrolled; like
+ * monomials are combined. */
 static void sums(void **state) {
   (void)state;
   NpgProgram *p = compile_text("m.npg",
@@ -210,8 +211,11 @@ static void sums(void **state) {
   assert_int_equal(y->terms[0]->num->comp[0].n, 1);
   assert_int_equal(y->terms[0]->num->comp[0].m[0]->nsums, 1);
   assert_string_equal(y->terms[0]->num_tensors.g[0].nnz, "N^2");
+  /* unrolled into three equal monomials, combined into 3 x[i]^2 */
   const Stage *z = find_stage(prog, "z");
-  assert_int_equal(z->terms[0]->num->comp[0].n, 3);
+  assert_int_equal(z->terms[0]->num->comp[0].n, 1);
+  assert_true(z->terms[0]->num->comp[0].m[0]->coef->kind == N_NUM);
+  assert_true(z->terms[0]->num->comp[0].m[0]->coef->num == 3);
   npg_free(p);
 }
 
