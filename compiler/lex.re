@@ -5,6 +5,7 @@
  * white space; each token records whether it is the first on its line so
  * the parser can require one statement per line.
  */
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -46,6 +47,9 @@ static void push(Lexer *lx, TokKind kind, const unsigned char *s, const unsigned
   if (kind == TK_NUM) {
     t->is_int = strpbrk(t->text, ".eE") == NULL;
     t->num = strtod(t->text, NULL);
+    if (t->is_int && t->num > 9007199254740992.0)
+      error_at(lx->ctx, t->loc, "integer literal '%s' is too large (at most 2^53)", t->text);
+    if (!isfinite(t->num)) error_at(lx->ctx, t->loc, "number '%s' is out of the range of double precision", t->text);
   }
 }
 

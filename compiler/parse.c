@@ -7,10 +7,13 @@
 
 #include "compile.h"
 
+#define MAX_NESTING 200  /* deeper expressions are refused, not a stack overflow */
+
 typedef struct Parser {
   Ctx *ctx;
   Token *tok;
   int pos, n;
+  int depth;            /* expression nesting */
   bool is_module;       /* a `use`d file: only fn and use allowed */
   PtrVec *used;         /* module names already imported */
 } Parser;
@@ -44,6 +47,22 @@ static const char *describe(Parser *p, Token *t) {
   }
 }
 
+/* Where to report that something is missing before token t: if t starts
+ * a new line (or is the end of the file), right after the previous token,
+ * since that is where the user stopped writing. */
+static Loc missing_at(Parser *p, Token *t, const char **found) {
+  if ((t->bol || t->kind == TK_EOF) && p->pos > 0) {
+    Token *prev = &p->tok[p->pos - 1];
+    Loc l = prev->loc;
+    l.col += prev->len;
+    l.off += (size_t)prev->len;
+    *found = t->kind == TK_EOF ? "end of file" : "end of line";
+    return l;
+  }
+  *found = describe(p, t);
+  return t->loc;
+}
+
 static bool accept(Parser *p, const char *s) {
   if (is_punct(peek(p), s)) {
     next(p);
@@ -54,7 +73,11 @@ static bool accept(Parser *p, const char *s) {
 
 static Token *expect(Parser *p, const char *s, const char *what) {
   Token *t = peek(p);
-  if (!is_punct(t, s)) error_at(p->ctx, t->loc, "expected '%s' %s, found %s", s, what, describe(p, t));
+  if (!is_punct(t, s)) {
+    const char *found;
+    Loc at = missing_at(p, t, &found);
+    error_at(p->ctx, at, "expected '%s' %s, found %s", s, what, found);
+  }
   return next(p);
 }
 
@@ -69,7 +92,11 @@ static void expect_close(Parser *p, const char *s, Token *open) {
 
 static Token *expect_ident(Parser *p, const char *what) {
   Token *t = peek(p);
-  if (t->kind != TK_IDENT) error_at(p->ctx, t->loc, "expected %s, found %s", what, describe(p, t));
+  if (t->kind != TK_IDENT || (t->bol && p->pos > 0)) {
+    const char *found;
+    Loc at = missing_at(p, t, &found);
+    error_at(p->ctx, at, "expected %s, found %s", what, found);
+  }
   return next(p);
 }
 
@@ -117,8 +144,7 @@ static Node *parse_primary(Parser *p) {
     return n;
   }
   if (t->kind == TK_IDENT) {
-    if (is_keyword(t->text))
-      error_at(ctx, t->loc, "expected an expression, found keyword '%s' (is a line break missing?)", t->text);
+    if (is_keyword(t->text)) error_at(ctx, t->loc, "'%s' is a keyword and cannot be used as a name", t->text);
     next(p);
     if (strcmp(t->text, "sum") == 0 && is_punct(peek(p), "(")) {
       Token *open = next(p);
@@ -145,7 +171,9 @@ static Node *parse_primary(Parser *p) {
     n->name = t->text;
     return n;
   }
-  error_at(ctx, t->loc, "expected an expression, found %s", describe(p, t));
+  const char *found;
+  Loc at = missing_at(p, t, &found);
+  error_at(ctx, at, "expected an expression, found %s", found);
 }
 
 /* postfix = primary { "[" expr { "," expr } "]" } */
@@ -153,7 +181,7 @@ static Node *parse_postfix(Parser *p) {
   Node *e = parse_primary(p);
   while (is_punct(peek(p), "[") && !peek(p)->bol) {
     Token *open = next(p);
-    Node *n = new_node(p->ctx, N_INDEX, open->loc);
+    Node *n = new_node(p->ctx, N_INDEX, e->loc);  /* diagnostics point at the name */
     n->a = e;
     n->args = parse_list(p, "]", open, &n->nargs);
     if (n->nargs == 0) error_at(p->ctx, open->loc, "empty index list");
@@ -163,6 +191,8 @@ static Node *parse_postfix(Parser *p) {
 }
 
 static Node *parse_unary(Parser *p);
+static Node *parse_unary1(Parser *p, Token *t);
+static void operand_follows(Parser *p, Token *op);
 
 /* power = postfix [ "^" unary ] */
 static Node *parse_power(Parser *p) {
@@ -170,6 +200,7 @@ static Node *parse_power(Parser *p) {
   Token *t = peek(p);
   if (is_punct(t, "^")) {
     next(p);
+    operand_follows(p, t);
     Node *n = new_node(p->ctx, N_POW, t->loc);
     n->a = base;
     n->b = parse_unary(p);
@@ -181,6 +212,13 @@ static Node *parse_power(Parser *p) {
 /* unary = ( "-" | "+" | "!" ) unary | power */
 static Node *parse_unary(Parser *p) {
   Token *t = peek(p);
+  if (++p->depth > MAX_NESTING) error_at(p->ctx, t->loc, "expression nested too deeply (more than %d levels)", MAX_NESTING);
+  Node *n = parse_unary1(p, t);
+  p->depth--;
+  return n;
+}
+
+static Node *parse_unary1(Parser *p, Token *t) {
   if (is_punct(t, "-") || is_punct(t, "!")) {
     next(p);
     Node *n = new_node(p->ctx, is_punct(t, "-") ? N_NEG : N_NOT, t->loc);
@@ -192,6 +230,14 @@ static Node *parse_unary(Parser *p) {
     return parse_unary(p);
   }
   return parse_power(p);
+}
+
+/* A binary operator at the end of a line whose right operand would be the
+ * start of the next statement ("x +" then "s = ..."): report the operator. */
+static void operand_follows(Parser *p, Token *op) {
+  Token *t = peek(p);
+  if (t->kind == TK_EOF || (t->bol && t->kind == TK_IDENT && (is_keyword(t->text) || is_punct(peek2(p), "="))))
+    error_at(p->ctx, op->loc, "expected an expression after '%s' at the end of the line", op->text);
 }
 
 static Node *binary(Parser *p, NodeKind k, Token *t, Node *a, Node *b) {
@@ -206,9 +252,11 @@ static Node *parse_mul(Parser *p) {
   Node *e = parse_unary(p);
   for (;;) {
     Token *t = peek(p);
-    if (is_punct(t, "*")) e = (next(p), binary(p, N_MUL, t, e, parse_unary(p)));
-    else if (is_punct(t, "/")) e = (next(p), binary(p, N_DIV, t, e, parse_unary(p)));
-    else return e;
+    NodeKind k = is_punct(t, "*") ? N_MUL : is_punct(t, "/") ? N_DIV : N_NUM;
+    if (k == N_NUM) return e;
+    next(p);
+    operand_follows(p, t);
+    e = binary(p, k, t, e, parse_unary(p));
   }
 }
 
@@ -217,9 +265,11 @@ static Node *parse_add(Parser *p) {
   Node *e = parse_mul(p);
   for (;;) {
     Token *t = peek(p);
-    if (is_punct(t, "+")) e = (next(p), binary(p, N_ADD, t, e, parse_mul(p)));
-    else if (is_punct(t, "-")) e = (next(p), binary(p, N_SUB, t, e, parse_mul(p)));
-    else return e;
+    NodeKind k = is_punct(t, "+") ? N_ADD : is_punct(t, "-") ? N_SUB : N_NUM;
+    if (k == N_NUM) return e;
+    next(p);
+    operand_follows(p, t);
+    e = binary(p, k, t, e, parse_mul(p));
   }
 }
 
@@ -370,9 +420,13 @@ static Decl *parse_opdef(Parser *p) {
   if (is_ident(peek(p), "on") && !peek(p)->bol) {
     Token *on = next(p);
     d->on_loc = on->loc;
-    d->on_from = expect_name(p, "the column quantity after 'on'")->text;
+    Token *from = expect_name(p, "the column quantity after 'on'");
+    d->on_from = from->text;
+    d->on_loc = from->loc;
     expect(p, "->", "between the quantities of 'on u -> p'");
-    d->on_to = expect_name(p, "the row quantity after '->'")->text;
+    Token *to = expect_name(p, "the row quantity after '->'");
+    d->on_to = to->text;
+    d->on_to_loc = to->loc;
   }
   return d;
 }
@@ -408,6 +462,8 @@ static void parse_stmt(Parser *p, Decl ***tail) {
   if (t->kind != TK_IDENT) error_at(ctx, t->loc, "expected a declaration or a definition, found %s", describe(p, t));
   next(p);
   const char *kw = t->text;
+  if (is_keyword(kw) && (is_punct(peek(p), "=") || (is_punct(peek(p), "[") && strcmp(kw, "output") != 0)))
+    error_at(ctx, t->loc, "'%s' is a keyword and cannot be used as a name", kw);
   if (p->is_module && strcmp(kw, "fn") != 0 && strcmp(kw, "use") != 0)
     error_at(ctx, t->loc, "a module may contain only 'fn' and 'use' statements");
   if (strcmp(kw, "dim") == 0) {
@@ -485,6 +541,10 @@ static void parse_stmt(Parser *p, Decl ***tail) {
       d->is_output = true;
     } else {
       n = expect_name(p, "a name after 'output'");
+      Token *after = peek(p);
+      if (after->kind != TK_EOF && !after->bol && !is_punct(after, ",") && !is_punct(after, "[") &&
+          !is_punct(after, "=") && !is_punct(after, ";"))
+        error_at(ctx, after->loc, "expected '=' in the definition of output '%s', found %s", n->text, describe(p, after));
       if (is_punct(peek(p), "[") || is_punct(peek(p), "=")) {
         d = parse_def(p, D_STAGE, n);
         d->is_output = true;
@@ -502,8 +562,8 @@ static void parse_stmt(Parser *p, Decl ***tail) {
       if (is_punct(after, ":"))
         error_at(ctx, after->loc, "'%s : type' declares nothing: write 'param %s : ...' or 'input %s : ...'", kw,
                  kw, kw);
-      if (after->kind == TK_IDENT && !after->bol)
-        error_at(ctx, t->loc, "unknown statement '%s'", kw);
+      if (after->kind != TK_EOF && !after->bol)
+        error_at(ctx, after->loc, "expected '=' or '[' after '%s' to define it, found %s", kw, describe(p, after));
       error_at(ctx, after->loc, "expected '=' or '[' after '%s' to define it, found %s", kw, describe(p, after));
     }
     d = parse_def(p, D_STAGE, t);

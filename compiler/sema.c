@@ -22,6 +22,7 @@ typedef struct Checker {
   int cur_order;         /* position of cur in source order */
   PtrVec sums;           /* Sym* of enclosing sums, innermost last */
   int depth;             /* fn expansion depth */
+  long expanded;         /* nodes created by fn expansion, bounded */
   bool in_cond;          /* checking a condition (for messages) */
 } Checker;
 
@@ -39,20 +40,21 @@ static Sym *new_sym(Checker *ck, SymKind kind, const char *name, Loc loc) {
   return s;
 }
 
+/* What a name is, with its article: "an input", "a stage". */
 static const char *kind_word(const Sym *s) {
   switch (s->kind) {
-  case SYM_DIM: return "dim";
-  case SYM_PARAM: return "param";
-  case SYM_INPUT: return "input";
-  case SYM_STAGE: return "stage";
-  case SYM_OP: return "op";
-  case SYM_EXTERN: return "extern";
-  case SYM_FN: return "fn";
-  case SYM_IVAR: return "index variable";
-  case SYM_SUMVAR: return "summation variable";
-  case SYM_FNARG: return "fn argument";
+  case SYM_DIM: return "a dim";
+  case SYM_PARAM: return "a param";
+  case SYM_INPUT: return "an input";
+  case SYM_STAGE: return "a stage";
+  case SYM_OP: return "an op";
+  case SYM_EXTERN: return "an extern";
+  case SYM_FN: return "a fn";
+  case SYM_IVAR: return "an index variable";
+  case SYM_SUMVAR: return "a summation variable";
+  case SYM_FNARG: return "a fn argument";
   }
-  return "name";
+  return "a name";
 }
 
 static Sym *find_global(Checker *ck, const char *name) {
@@ -395,9 +397,11 @@ static void check_index(Checker *ck, Node *n) {
        base->sym->kind == SYM_EXTERN)) {
     Sym *q = base->sym;
     int naxes = q->ndims + q->nstatic;
-    if (n->nargs > naxes)
-      error_node(ctx, n, "'%s' has %d ax%s (%s) but %d indices are given", q->name, naxes, naxes == 1 ? "is" : "es",
-                 sym_type_str(ctx, q), n->nargs);
+    if (n->nargs > naxes) {
+      if (naxes == 0) error_node(ctx, n, "'%s' is a scalar (%s) and cannot be indexed", q->name, sym_type_str(ctx, q));
+      error_node(ctx, n, "'%s' has %d ax%s (%s) but %d ind%s given", q->name, naxes, naxes == 1 ? "is" : "es",
+                 sym_type_str(ctx, q), n->nargs, n->nargs == 1 ? "ex is" : "ices are");
+    }
     if (n->nargs < q->ndims)
       error_node(ctx, n, "'%s' has %d dim ax%s (%s): index all of them (only static axes may be left out)", q->name,
                  q->ndims, q->ndims == 1 ? "is" : "es", sym_type_str(ctx, q));
@@ -412,7 +416,9 @@ static void check_index(Checker *ck, Node *n) {
     return;
   }
   /* Component selection of a vector-valued expression. */
-  if (base->ty.nwhole) no_whole(ck, base, "before selecting components");
+  if (base->ty.nwhole)
+    error_node(ctx, base, "'%s' is a whole quantity over %s and cannot be indexed here; define it as a stage first "
+               "(name = %s) and index the stage", node_str(ctx, base), shape_str(ctx, &base->ty), node_str(ctx, base));
   if (n->nargs > base->ty.nstatic)
     error_node(ctx, n, "too many indices: '%s' is a %s value", node_str(ctx, base), shape_str(ctx, &base->ty));
   for (int i = 0; i < n->nargs; i++) {
@@ -437,12 +443,33 @@ typedef struct Subst {
   const char *rename;  /* or rename (summation variable of the body) */
 } Subst;
 
+#define MAX_EXPANDED 2000000
+
+/* Node count of a tree, stopping once past `limit`. */
+static long count_nodes(const Node *n, long limit) {
+  if (!n || limit <= 0) return 0;
+  long c = 1 + count_nodes(n->a, limit - 1);
+  c += count_nodes(n->b, limit - c);
+  c += count_nodes(n->c, limit - c);
+  for (int i = 0; i < n->nargs && c < limit; i++) c += count_nodes(n->args[i], limit - c);
+  return c;
+}
+
 static Node *subst(Checker *ck, const Node *n, Subst *map, int nmap, Node *call) {
   if (!n) return NULL;
+  if (++ck->expanded > MAX_EXPANDED)
+    error_node(ck->ctx, call, "fn calls expand to more than %d expression nodes; define intermediate stages instead",
+               MAX_EXPANDED);
   if (n->kind == N_NAME) {
     for (int i = nmap - 1; i >= 0; i--)
       if (strcmp(map[i].name, n->name) == 0) {
-        if (map[i].arg) return clone_node(ck->ctx, map[i].arg);
+        if (map[i].arg) {
+          ck->expanded += count_nodes(map[i].arg, MAX_EXPANDED + 1);
+          if (ck->expanded > MAX_EXPANDED)
+            error_node(ck->ctx, call, "fn calls expand to more than %d expression nodes; define intermediate stages instead",
+                       MAX_EXPANDED);
+          return clone_node(ck->ctx, map[i].arg);
+        }
         Node *c = clone_node(ck->ctx, n);
         c->name = map[i].rename;
         c->inl = call;
@@ -486,10 +513,13 @@ static Node *inline_fn(Checker *ck, Node *call, Sym *fn) {
     error_note(ctx, call->loc, fn->loc, "defined here",
                "recursion in fn '%s': fns are inlined, so a fn cannot call itself", fn->name);
   if (ck->depth >= 64) error_node(ctx, call, "fn calls nested too deeply (more than 64)");
+  /* Arguments are checked in the caller's scope first (f(f(a)) is not
+   * recursion); the checked copies substituted into the body are not
+   * checked again. */
   Subst *map = arena_alloc(ctx, sizeof(Subst) * (size_t)(fn->nargs + 1));
   for (int i = 0; i < fn->nargs; i++) {
     map[i].name = fn->argnames[i];
-    map[i].arg = call->args[i];
+    map[i].arg = call->args[i] = check(ck, call->args[i]);
   }
   Node *body = subst(ck, fn->body, map, fn->nargs, call);
   fn->expanding = true;
@@ -502,6 +532,30 @@ static Node *inline_fn(Checker *ck, Node *call, Sym *fn) {
 
 /* ---------------------------------------------------------------- calls */
 
+static char *op_cols(Ctx *ctx, const Sym *op) {
+  char *s = "";
+  for (int i = op->nrow; i < op->nivars; i++) s = arena_printf(ctx, "%s%s%s", s, i > op->nrow ? ", " : "", op->ivars[i]->range->name);
+  return s;
+}
+
+static bool op_square(const Sym *op) {
+  if (op->nrow * 2 != op->nivars) return false;
+  for (int i = 0; i < op->nrow; i++)
+    if (op->ivars[i]->range != op->ivars[op->nrow + i]->range) return false;
+  return true;
+}
+
+/* Operators are reduced with the result's basis on both axes (DESIGN §4),
+ * which needs a square operator. */
+static void check_op_power(Checker *ck, const Node *opn, const char *how) {
+  Sym *op = opn->ty.op;
+  if (!op_square(op))
+    error_node(ck->ctx, opn,
+               "operator '%s' is not square (rows [%s], columns [%s]) and cannot be %s: an operator is reduced with "
+               "its result's basis on both axes; write the product as a sum over the columns instead",
+               op->name, op->nrow ? op->ivars[0]->range->name : "", op_cols(ck->ctx, op), how);
+}
+
 static Node *check_solve(Checker *ck, Node *n) {
   Ctx *ctx = ck->ctx;
   Node *m = n->args[0] = check(ck, n->args[0]);
@@ -510,18 +564,16 @@ static Node *check_solve(Checker *ck, Node *n) {
     error_node(ctx, m, "solve() takes an operator declared with 'op' as its first argument; for elementwise division write a / b");
   Sym *op = m->ty.op;
   int nrow = op->nrow, ncol = op->nivars - op->nrow;
-  bool square = nrow == ncol;
-  for (int i = 0; square && i < nrow; i++) square = op->ivars[i]->range == op->ivars[nrow + i]->range;
-  if (!square) error_node(ctx, m, "solve() needs a square operator, but '%s' is not square", op->name);
+  if (!op_square(op)) error_node(ctx, m, "solve() needs a square operator, but '%s' is not square", op->name);
   no_op_value(ck, x, "as the right-hand side of solve()");
-  if (!x->ty.nwhole)
-    error_node(ctx, x, "the right-hand side of solve(%s, x) must be a whole quantity over the operator's columns", op->name);
-  if (x->ty.nstatic)
-    error_node(ctx, x, "the right-hand side of solve(%s, x) must have no static axes (found %s)", op->name,
-               shape_str(ctx, &x->ty));
+  const char *xs = node_str(ctx, x);
+  if (!x->ty.nwhole || x->ty.nstatic)
+    error_node(ctx, x, "the right-hand side of solve(%s, %s) must be a whole quantity over [%s], found %s", op->name, xs,
+               op_cols(ctx, op), shape_str(ctx, &x->ty));
   for (int i = 0; i < ncol; i++)
     if (x->ty.nwhole != ncol || x->ty.whole[i] != op->ivars[nrow + i]->range)
-      error_node(ctx, x, "shape mismatch in solve(%s, x): x is %s", op->name, shape_str(ctx, &x->ty));
+      error_node(ctx, x, "shape mismatch in solve(%s, %s): the columns of '%s' are [%s] but '%s' is %s", op->name, xs,
+                 op->name, op_cols(ctx, op), xs, shape_str(ctx, &x->ty));
   Type t = {0};
   t.var = V_VARYING;
   t.nwhole = nrow;
@@ -539,9 +591,7 @@ static Node *check_root(Checker *ck, Node *n) {
   if (!m->ty.op)
     error_node(ctx, m, "root() takes a square operator declared with 'op'; for an elementwise root write x^(1/2)");
   Sym *op = m->ty.op;
-  bool square = op->nrow * 2 == op->nivars;
-  for (int i = 0; square && i < op->nrow; i++) square = op->ivars[i]->range == op->ivars[op->nrow + i]->range;
-  if (!square) error_node(ctx, m, "root() needs a square operator, but '%s' is not square", op->name);
+  if (!op_square(op)) error_node(ctx, m, "root() needs a square operator, but '%s' is not square", op->name);
   long p, d;
   if (!rational_literal(q, &p, &d) || d != 1 || p < 1)
     error_node(ctx, q, "the degree of root(M, q) must be a positive integer literal");
@@ -572,7 +622,7 @@ static Node *check_call(Checker *ck, Node *n) {
   Ctx *ctx = ck->ctx;
   Sym *fn = find_global(ck, n->name);
   if (fn && fn->kind == SYM_FN) return inline_fn(ck, n, fn);
-  if (fn) error_node(ctx, n, "'%s' is a %s, not a function", n->name, kind_word(fn));
+  if (fn) error_node(ctx, n, "'%s' is %s, not a function", n->name, kind_word(fn));
   Builtin b = builtin_lookup(n->name);
   if (!b || b == B_SUMF) {
     if (strcmp(n->name, "sum") == 0) error_node(ctx, n, "sum needs the form sum(k = a..b, expr)");
@@ -652,6 +702,16 @@ static Node *check_sum(Checker *ck, Node *n) {
       error_node(ctx, bnd, "the bounds of a sum must be integer expressions of numbers and dims, found '%s'",
                  node_str(ctx, bnd));
   }
+  if (!strchr(n->name, '#')) {
+    for (int i = 0; i < ck->sums.n; i++)
+      if (strcmp(((Sym *)ck->sums.v[i])->name, n->name) == 0)
+        error_node(ctx, n, "summation variable '%s' shadows the variable of an enclosing sum", n->name);
+    if (ck->cur)
+      for (int i = 0; i < ck->cur->nivars; i++)
+        if (ck->cur->ivars[i] && strcmp(ck->cur->ivars[i]->name, n->name) == 0)
+          error_node(ctx, n, "summation variable '%s' shadows the index variable '%s' of '%s'", n->name, n->name,
+                     ck->cur->name);
+  }
   Sym *v = new_sym(ck, SYM_SUMVAR, n->name, n->loc);
   long lo, hi, lo2, hi2;
   if (int_range(n->a, &lo, &lo2) && int_range(n->b, &hi, &hi2) && lo == lo2 && hi == hi2) {
@@ -701,7 +761,13 @@ static Node *check_pow(Checker *ck, Node *n) {
     return n;
   }
   long p, q;
+  if (e->kind == N_NUM && e->is_int && fabs(e->num) > 64)
+    error_node(ctx, e, "exponent %s is too large (at most 64 in magnitude)", node_str(ctx, e));
+  if (e->kind == N_DIV && e->b->kind == N_NUM && e->b->num == 0)
+    error_node(ctx, e->b, "zero denominator in the exponent");
   if (!rational_literal(e, &p, &q)) {
+    if (e->kind == N_NUM && e->is_int)
+      error_node(ctx, e, "exponent %s is too large (at most 64 in magnitude)", node_str(ctx, e));
     if (e->kind == N_NUM)
       error_node(ctx, e, "non-integer exponent %s is not a rational literal: write it as a fraction, e.g. x^(1/2)",
                  node_str(ctx, e));
@@ -718,6 +784,7 @@ static Node *check_pow(Checker *ck, Node *n) {
   n->ty = n->a->ty;
   if (n->a->ty.op) {
     if (p == 0) error_node(ctx, e, "an operator to the power 0 is the identity; leave it out");
+    check_op_power(ck, n->a, "raised to a power");
     return n;  /* an operator value M^(p/q) */
   }
   n->ty.is_int = false;
@@ -759,12 +826,13 @@ static Node *check_binary(Checker *ck, Node *n) {
     int nrow = op->nrow, ncol = op->nivars - op->nrow;
     no_op_value(ck, b, "as the operand of an operator");
     if (b->ty.nwhole != ncol || b->ty.nstatic)
-      error_node(ctx, b, "'%s * x' needs x to be a whole quantity over the operator's columns, found %s", op->name,
-                 shape_str(ctx, &b->ty));
+      error_node(ctx, b, "'%s * %s' needs a whole quantity over the operator's columns [%s], found %s", op->name,
+                 node_str(ctx, b), op_cols(ctx, op), shape_str(ctx, &b->ty));
     for (int i = 0; i < ncol; i++)
       if (b->ty.whole[i] != op->ivars[nrow + i]->range)
-        error_node(ctx, b, "shape mismatch in '%s * x': column %d of '%s' is %s but x has %s", op->name, i, op->name,
-                   op->ivars[nrow + i]->range->name, b->ty.whole[i]->name);
+        error_node(ctx, b, "shape mismatch in '%s * %s': the columns of '%s' are [%s] but '%s' is %s", op->name,
+                   node_str(ctx, b), op->name, op_cols(ctx, op), node_str(ctx, b), shape_str(ctx, &b->ty));
+    check_op_power(ck, a, "applied with '*'");
     Type t = {0};
     t.var = V_VARYING;
     t.nwhole = nrow;
@@ -781,11 +849,23 @@ static Node *check_binary(Checker *ck, Node *n) {
   }
   if (a->ty.op) error_node(ctx, a, "operators cannot be added or subtracted; declare an op whose entries are the sum");
   n->ty = broadcast(ck, n, sym, a, b);
-  if (n->kind == N_DIV) n->ty.is_int = false;
+  if (n->kind == N_DIV) {
+    n->ty.is_int = false;
+    if (b->kind == N_NUM && b->num == 0) error_node(ctx, b, "division by zero");
+  }
   return n;
 }
 
+static Node *check_node(Checker *ck, Node *n);
+
 static Node *check(Checker *ck, Node *n) {
+  if (n->checked) return n;
+  n = check_node(ck, n);
+  n->checked = true;
+  return n;
+}
+
+static Node *check_node(Checker *ck, Node *n) {
   Ctx *ctx = ck->ctx;
   switch (n->kind) {
   case N_NUM:
@@ -863,7 +943,7 @@ static Node *check(Checker *ck, Node *n) {
 static void declare(Checker *ck, Sym *s) {
   Sym *old = find_global(ck, s->name);
   if (old)
-    error_note(ck->ctx, s->loc, old->loc, "previous definition is here", "redefinition of '%s' (already a %s)", s->name,
+    error_note(ck->ctx, s->loc, old->loc, "previous definition is here", "redefinition of '%s' (already %s)", s->name,
                kind_word(old));
   if (builtin_lookup(s->name) || strcmp(s->name, "pi") == 0)
     error_at(ck->ctx, s->loc, "'%s' is a builtin and cannot be redefined", s->name);
@@ -874,7 +954,7 @@ static void declare(Checker *ck, Sym *s) {
 static Sym *lookup_dim(Checker *ck, const char *name, Loc loc) {
   Sym *d = find_global(ck, name);
   if (!d) error_at(ck->ctx, loc, "unknown dim '%s' (declare it with 'dim %s')", name, name);
-  if (d->kind != SYM_DIM) error_at(ck->ctx, loc, "'%s' is a %s, not a dim", name, kind_word(d));
+  if (d->kind != SYM_DIM) error_at(ck->ctx, loc, "'%s' is %s, not a dim", name, kind_word(d));
   return d;
 }
 
@@ -896,7 +976,7 @@ static Sym *need_quantity(Checker *ck, const char *name, Loc loc, const char *wh
   Sym *s = find_global(ck, name);
   if (!s) error_at(ck->ctx, loc, "unknown name '%s'", name);
   if (s->kind != SYM_INPUT && s->kind != SYM_STAGE && s->kind != SYM_EXTERN)
-    error_at(ck->ctx, loc, "%s: '%s' is a %s, not a quantity with a basis (input, stage or extern)", what, name,
+    error_at(ck->ctx, loc, "%s: '%s' is %s, not a quantity with a basis (input, stage or extern)", what, name,
              kind_word(s));
   return s;
 }
@@ -961,7 +1041,7 @@ static void check_op(Checker *ck, Sym *s, Decl *d) {
   s->body = body;
   if (d->on_from) {
     s->on_from = need_quantity(ck, d->on_from, d->on_loc, "'on'");
-    s->on_to = need_quantity(ck, d->on_to, d->on_loc, "'on'");
+    s->on_to = need_quantity(ck, d->on_to, d->on_to_loc, "'on'");
   }
 }
 
@@ -1093,7 +1173,7 @@ Program *sema_program(Ctx *ctx, const SrcFile *file, Decl *decls) {
         Sym *q = find_global(&ck, d->names[i]);
         if (!q) error_at(ctx, d->name_locs[i], "unknown name '%s'", d->names[i]);
         if (q->kind != SYM_STAGE)
-          error_at(ctx, d->name_locs[i], "only a stage can be inlined; '%s' is a %s", q->name, kind_word(q));
+          error_at(ctx, d->name_locs[i], "only a stage can be inlined; '%s' is %s", q->name, kind_word(q));
         if (q->is_output) error_at(ctx, d->name_locs[i], "'%s' is an output and cannot be inlined", q->name);
         q->inlined = true;
         q->inline_loc = d->name_locs[i];
@@ -1105,7 +1185,7 @@ Program *sema_program(Ctx *ctx, const SrcFile *file, Decl *decls) {
         Sym *q = find_global(&ck, d->names[i]);
         if (!q) error_at(ctx, d->name_locs[i], "unknown name '%s'", d->names[i]);
         if (q->kind != SYM_INPUT && q->kind != SYM_STAGE && q->kind != SYM_EXTERN && q->kind != SYM_OP)
-          error_at(ctx, d->name_locs[i], "'%s' is a %s and cannot be an output", q->name, kind_word(q));
+          error_at(ctx, d->name_locs[i], "'%s' is %s and cannot be an output", q->name, kind_word(q));
         q->is_output = true;
       }
       break;

@@ -155,6 +155,7 @@ struct Node {
   /* N_NAME, N_CALL (callee), N_SUM (variable) */
   const char *name;
   bool global_only;    /* N_NAME from a fn body: skips the caller's index vars */
+  bool checked;        /* typed by sema (a substituted fn argument is not checked twice) */
   /* operands: N_INDEX base=a, args; N_CALL args; binary a, b; unary a;
    * N_SUM: a=lo, b=hi, c=body; N_IF: a=cond, b=then, c=else */
   Node *a, *b, *c;
@@ -226,7 +227,7 @@ struct Decl {
   double basis_energy;
   /* D_OP: "on u -> p" */
   const char *on_from, *on_to;
-  Loc on_loc;
+  Loc on_loc, on_to_loc;
   Decl *next;
 };
 
@@ -276,6 +277,7 @@ struct Sym {
   /* SYM_OP: row dims are ivars[0..nrow), columns ivars[nrow..nivars) */
   int nrow;
   Sym *on_from, *on_to;
+  bool applied;                 /* used in some stage */
   /* SYM_FN */
   int nargs;
   const char **argnames;

@@ -41,16 +41,24 @@ static char *term_brief(Ctx *ctx, const Stage *st, const Term *t) {
     char *base;
     if (o->kind == OPK_DECL) base = arena_printf(ctx, "%s", o->op->name);
     else {
-      /* name the quantities the diagonal reads */
-      char *in = "";
+      /* a named quantity itself, or "degree-d polynomial in g, n" */
       const Field *f = o->diag;
-      for (int c = 0; c < f->ncomp; c++)
-        for (int i = 0; i < f->comp[c].n; i++)
-          for (int a = 0; a < f->comp[c].m[i]->natoms; a++) {
-            const char *nm = f->comp[c].m[i]->atoms[a].q->name;
-            if (!strstr(in, nm)) in = arena_printf(ctx, "%s%s%s", in, *in ? "," : "", nm);
-          }
-      base = arena_printf(ctx, "diag(%s)", *in ? in : "1");
+      const Mono *m0 = f->comp[0].n ? f->comp[0].m[0] : NULL;
+      bool single = f->ncomp >= 1 && m0 && f->comp[0].n == 1 && m0->natoms == 1 && !m0->guard;
+      for (int c = 1; c < f->ncomp && single; c++)
+        single = f->comp[c].n == 1 && f->comp[c].m[0]->natoms == 1 && f->comp[c].m[0]->atoms[0].q == m0->atoms[0].q;
+      if (single) {
+        base = arena_printf(ctx, "diag(%s)", m0->atoms[0].q->name);
+      } else {
+        char *in = "";
+        for (int c = 0; c < f->ncomp; c++)
+          for (int i = 0; i < f->comp[c].n; i++)
+            for (int a = 0; a < f->comp[c].m[i]->natoms; a++) {
+              const char *nm = f->comp[c].m[i]->atoms[a].q->name;
+              if (!strstr(in, nm)) in = arena_printf(ctx, "%s%s%s", in, *in ? ", " : "", nm);
+            }
+        base = arena_printf(ctx, "diag(degree-%d polynomial in %s)", field_degree(f), *in ? in : "nothing");
+      }
     }
     if (o->q == 1) s = arena_printf(ctx, "%s %s^%ld", s, base, o->p);
     else s = arena_printf(ctx, "%s %s^(%ld/%ld)", s, base, o->p, o->q);

@@ -54,7 +54,7 @@ static Node *mk_bin(Lowerer *L, NodeKind k, Node *a, Node *b) {
     case N_SUB: return mk_num(L, a->num - b->num);
     case N_MUL: return mk_num(L, a->num * b->num);
     case N_DIV:
-      if (b->num != 0 && a->num / b->num == (double)(long)(a->num / b->num)) return mk_num(L, a->num / b->num);
+      if (b->num != 0) return mk_num(L, a->num / b->num);  /* the value the evaluator would compute */
       break;
     default: break;
     }
@@ -342,8 +342,14 @@ static void poly_add(Lowerer *L, Poly *dst, const Poly *src, Node *guard) {
   for (int i = 0; i < src->n; i++) poly_push(L->ctx, dst, mono_guarded(L, src->m[i], guard));
 }
 
+#define MAX_MONOMIALS 200000
+
 static Poly poly_mul(Lowerer *L, const Poly *a, const Poly *b) {
   Poly p = {0};
+  if ((long)a->n * (long)b->n > MAX_MONOMIALS)
+    error_at(L->ctx, L->cur->loc,
+             "'%s' expands to more than %d monomials per entry; name intermediate quantities (each name is a basis "
+             "and keeps tensor orders low, paper §4.2)", L->cur->name, MAX_MONOMIALS);
   for (int i = 0; i < a->n; i++)
     for (int j = 0; j < b->n; j++) poly_push(L->ctx, &p, mono_mul(L, a->m[i], b->m[j]));
   return p;
@@ -834,6 +840,7 @@ static Sym *op_value(Lowerer *L, Node *n, long *p, long *q) {
 }
 
 static Value *apply_op(Lowerer *L, Sym *op, long p, long q, Value *x) {
+  op->applied = true;
   Value *r = val_new(L, x->ncomp);
   for (int i = 0; i < x->terms.n; i++) {
     Term *t = term_copy(L, x->terms.v[i]);
@@ -1156,6 +1163,16 @@ static void check_inline(Lowerer *L, Sym *s) {
     if (deg > 1)
       error_at(L->ctx, s->inline_loc, "cannot inline '%s': it has degree %d in its inputs; only a linear quantity "
                "can be folded into its consumers", s->name, deg);
+    const Sym *first = NULL;
+    for (int c = 0; c < t->num->ncomp; c++)
+      for (int m = 0; m < t->num->comp[c].n; m++)
+        for (int a = 0; a < t->num->comp[c].m[m]->natoms; a++) {
+          const Sym *q = t->num->comp[c].m[m]->atoms[a].q;
+          if (first && q != first)
+            error_at(L->ctx, s->inline_loc, "cannot inline '%s': it reads both '%s' and '%s'; only a linear quantity "
+                     "of one input can be folded into its consumers (DESIGN §4)", s->name, first->name, q->name);
+          first = q;
+        }
   }
 }
 
@@ -1192,6 +1209,13 @@ void lower_program(Ctx *ctx, Program *prog) {
     }
   }
   g_open_sums = NULL;
+  /* An output operator hands back B_row^T M B_col: it needs bases. */
+  for (int i = 0; i < prog->ops.n; i++) {
+    Sym *op = prog->ops.v[i];
+    if (op->is_output && !op->applied && !op->on_from)
+      error_at(ctx, op->loc, "output operator '%s' has no bases: it is never applied in the program; name the "
+               "quantities whose bases reduce it with 'on u -> p'", op->name);
+  }
   /* Quantities with a basis, in evaluation order: inputs, then stages. */
   PtrVec q = {0};
   for (int i = 0; i < prog->inputs.n; i++) vec_push(ctx, &q, prog->inputs.v[i]);
