@@ -166,7 +166,16 @@ void dump_classes(FILE *out, const Program *prog) {
   for (int i = 0; i < prog->classes.n; i++) {
     const BasisClass *c = prog->classes.v[i];
     fprintf(out, "  %s: {", c->size_name);
-    for (int k = 0; k < c->members.n; k++) fprintf(out, "%s%s", k ? ", " : "", ((Sym *)c->members.v[k])->name);
+    for (int k = 0; k < c->members.n; k++) {
+      const Sym *m = c->members.v[k];
+      fprintf(out, "%s%s", k ? ", " : "", m->name);
+      if (m->basis_max > 0 || m->basis_energy > 0) {
+        fputs(" (", out);
+        if (m->basis_max > 0) fprintf(out, "max %d%s", m->basis_max, m->basis_energy > 0 ? ", " : "");
+        if (m->basis_energy > 0) fprintf(out, "energy %g", m->basis_energy);
+        fputc(')', out);
+      }
+    }
     fputc('}', out);
     for (int k = 0; k < c->joiners.n; k++) {
       const Joiner *j = c->joiners.v[k];
@@ -220,6 +229,7 @@ void dump_program(FILE *out, const Program *prog) {
   }
   dump_classes(out, prog);
   for (int i = 0; i < prog->notes.n; i++) fprintf(out, "note: %s\n", (char *)prog->notes.v[i]);
+  fputs("basis defaults: energy 0.999, max 60 per member (DESIGN §5)\n", out);
   fputs("reduced cost per evaluation (multiply-adds; m_X = basis size of class X, S = training samples):\n", out);
   fprintf(out, "  %s\n", cost_formula(prog->ctx, prog));
 }
@@ -329,7 +339,19 @@ void dump_json(FILE *out, const Program *prog) {
       if (k) fputc(',', out);
       json_str(out, ((Sym *)c->members.v[k])->name);
     }
-    fputs("],\"numerators\":[", out);
+    fputs("],\"options\":{", out);
+    int nopt = 0;
+    for (int k = 0; k < c->members.n; k++) {
+      const Sym *m = c->members.v[k];
+      if (m->basis_max <= 0 && m->basis_energy <= 0) continue;
+      fprintf(out, "%s", nopt++ ? "," : "");
+      json_str(out, m->name);
+      fputs(":{", out);
+      if (m->basis_max > 0) fprintf(out, "\"max\":%d%s", m->basis_max, m->basis_energy > 0 ? "," : "");
+      if (m->basis_energy > 0) fprintf(out, "\"energy\":%.17g", m->basis_energy);
+      fputc('}', out);
+    }
+    fputs("},\"numerators\":[", out);
     for (int k = 0; k < c->joiners.n; k++) {
       const Joiner *j = c->joiners.v[k];
       fprintf(out, "%s{\"stage\":", k ? "," : "");

@@ -240,6 +240,90 @@ static void allocation_failure(void **state) {
   }
 }
 
+/* Programs as test data: every .npg file in tests/programs states its expected
+ * classes ("# expect-class: {a, b}") and stage kinds ("# expect-kind: y
+ * inverse"); both are checked here, and every class must be listed. */
+#include <dirent.h>
+#include <stdio.h>
+
+static int check_expectations(const char *path) {
+  FILE *f = fopen(path, "r");
+  if (!f) fail_msg("cannot read %s", path);
+  NpgProgram *p = compile_file(path);
+  Program *prog = ir_ok(p);
+  int failures = 0, nclass = 0;
+  char line[1024];
+  while (fgets(line, sizeof line, f)) {
+    char *nl = strchr(line, '\n');
+    if (nl) *nl = 0;
+    if (strncmp(line, "# expect-class: {", 17) == 0) {
+      char want[512] = "", *q = line + 17, *end = strchr(q, '}');
+      if (!end) continue;
+      *end = 0;
+      /* sorted, comma separated, no spaces */
+      char *names[32];
+      int n = 0;
+      for (char *tok = strtok(q, ", "); tok && n < 32; tok = strtok(NULL, ", ")) names[n++] = tok;
+      if (n == 0) continue;
+      for (int i = 0; i < n; i++)
+        for (int j = i + 1; j < n; j++)
+          if (strcmp(names[j], names[i]) < 0) {
+            char *t = names[i];
+            names[i] = names[j];
+            names[j] = t;
+          }
+      for (int i = 0; i < n; i++) {
+        strcat(want, names[i]);
+        if (i + 1 < n) strcat(want, ",");
+      }
+      char got[512];
+      class_of(prog, names[0], got, sizeof got);
+      if (strcmp(got, want) != 0) {
+        print_message("%s: class of %s is {%s}, expected {%s}\n", path, names[0], got, want);
+        failures++;
+      }
+      nclass++;
+    } else if (strncmp(line, "# expect-kind: ", 15) == 0) {
+      char name[128];
+      const char *kind = NULL;
+      if (sscanf(line + 15, "%127s", name) != 1) continue;
+      kind = line + 15 + strlen(name);
+      while (*kind == ' ') kind++;
+      const Stage *st = find_stage(prog, name);
+      if (strcmp(stage_kind_name[st->kind], kind) != 0) {
+        print_message("%s: stage %s is %s, expected %s\n", path, name, stage_kind_name[st->kind], kind);
+        failures++;
+      }
+    }
+  }
+  if (nclass && nclass != prog->classes.n) {
+    print_message("%s: %d classes, but %d are listed\n", path, prog->classes.n, nclass);
+    failures++;
+  }
+  fclose(f);
+  npg_free(p);
+  return failures;
+}
+
+static void programs_carry_expectations(void **state) {
+  (void)state;
+  DIR *d = opendir("tests/programs");
+  assert_non_null(d);
+  int n = 0, failures = 0;
+  struct dirent *e;
+  while ((e = readdir(d))) {
+    size_t l = strlen(e->d_name);
+    if (l < 5 || strcmp(e->d_name + l - 4, ".npg") != 0) continue;
+    char path[1024];
+    snprintf(path, sizeof path, "tests/programs/%s", e->d_name);
+    failures += check_expectations(path);
+    n++;
+  }
+  closedir(d);
+  assert_true(n >= 12);
+  assert_int_equal(failures, 0);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(eq3_structure),
@@ -251,6 +335,7 @@ int main(void) {
       cmocka_unit_test(share_and_apply),
       cmocka_unit_test(sums),
       cmocka_unit_test(allocation_failure),
+      cmocka_unit_test(programs_carry_expectations),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
