@@ -56,6 +56,8 @@ static bool guarded_compile(NpgProgram *np, const char *path, const NpgOptions *
     fclose(np->ctx.open_file);
     np->ctx.open_file = NULL;
   }
+  free(np->ctx.pending_free);
+  np->ctx.pending_free = NULL;
   return ok;
 }
 
@@ -79,10 +81,26 @@ bool npg_ok(const NpgProgram *p) { return p && p->prog != NULL; }
 
 const char *npg_error(const NpgProgram *p) { return p ? p->error : "error: no program\n"; }
 
+/* Printing allocates (cost formulas) in the program's arena, so the error
+ * handler is armed here too: an allocation failure ends the report with a
+ * message instead of a jump to nowhere. */
+static bool guarded_report(NpgProgram *np, FILE *out, bool json) {
+  jmp_buf env;
+  np->ctx.on_error = &env;
+  bool ok = setjmp(env) == 0;
+  if (ok) {
+    if (json) dump_json(out, np->prog);
+    else dump_program(out, np->prog);
+  }
+  np->ctx.on_error = NULL;
+  free(np->ctx.pending_free);
+  np->ctx.pending_free = NULL;
+  return ok;
+}
+
 void npg_report(const NpgProgram *p, FILE *out, bool json) {
   if (!npg_ok(p)) return;
-  if (json) dump_json(out, p->prog);
-  else dump_program(out, p->prog);
+  if (!guarded_report((NpgProgram *)p, out, json)) fprintf(out, "\n%s", p->ctx.msg ? p->ctx.msg : "error: out of memory\n");
 }
 
 void npg_free(NpgProgram *p) {

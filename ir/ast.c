@@ -375,14 +375,22 @@ void print_node(FILE *out, const Node *n) {
   }
 }
 
-char *node_str(Ctx *ctx, const Node *n) {
+char *print_to_arena(Ctx *ctx, void (*print)(FILE *, const void *), const void *x) {
   char *buf = NULL;
   size_t len = 0;
   FILE *f = open_memstream(&buf, &len);
   if (!f) error_plain(ctx, "out of memory");
-  print_node(f, n);
+  print(f, x);
   fclose(f);
-  char *s = arena_strdup(ctx, buf ? buf : "");
+  /* arena_alloc may jump out on allocation failure: npg_compile frees
+   * the pending buffer then. */
+  ctx->pending_free = buf;
+  char *s = arena_strndup(ctx, buf ? buf : "", buf ? len : 0);
+  ctx->pending_free = NULL;
   free(buf);
   return s;
 }
+
+static void print_node_cb(FILE *out, const void *n) { print_node(out, n); }
+
+char *node_str(Ctx *ctx, const Node *n) { return print_to_arena(ctx, print_node_cb, n); }

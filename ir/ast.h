@@ -77,6 +77,7 @@ struct Ctx {
   PtrVec files;          /* SrcFile*, every file read */
   int uniq;              /* counter for fresh names */
   FILE *open_file;       /* a file being read, closed if an error jumps out */
+  char *pending_free;    /* a malloc'd buffer being copied, freed if an error jumps out */
 };
 
 /* User error: "file:line:col: error: message", the source line, a caret.
@@ -174,6 +175,8 @@ Node *new_num(Ctx *ctx, double v, bool is_int, Loc loc);
 Node *clone_node(Ctx *ctx, const Node *n);      /* deep copy */
 void print_node(FILE *out, const Node *n);      /* source-like text */
 char *node_str(Ctx *ctx, const Node *n);        /* the same, in the arena */
+/* Text printed by `print(out, x)`, in the arena. */
+char *print_to_arena(Ctx *ctx, void (*print)(FILE *, const void *), const void *x);
 
 /* ---------------------------------------------------------------- decls */
 

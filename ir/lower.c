@@ -1022,15 +1022,7 @@ void tensor_groups(Ctx *ctx, const Field *f, int base_order, Sym *const *ivars, 
 /* ---------------------------------------------------------------- like monomials */
 
 static char *text_of(Ctx *ctx, void (*print)(FILE *, const void *), const void *x) {
-  char *buf = NULL;
-  size_t len = 0;
-  FILE *f = open_memstream(&buf, &len);
-  if (!f) error_plain(ctx, "out of memory");
-  print(f, x);
-  fclose(f);
-  char *s = arena_strdup(ctx, buf ? buf : "");
-  free(buf);
-  return s;
+  return print_to_arena(ctx, print, x);
 }
 
 static void print_atom(FILE *out, const void *p) {

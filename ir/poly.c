@@ -117,14 +117,6 @@ void print_term(FILE *out, const Term *t) {
   if (t->nops) fputc(')', out);
 }
 
-char *field_key(Ctx *ctx, const Field *f) {
-  char *buf = NULL;
-  size_t len = 0;
-  FILE *mf = open_memstream(&buf, &len);
-  if (!mf) error_plain(ctx, "out of memory");
-  print_field(mf, f);
-  fclose(mf);
-  char *s = arena_strdup(ctx, buf ? buf : "");
-  free(buf);
-  return s;
-}
+static void print_field_cb(FILE *out, const void *f) { print_field(out, f); }
+
+char *field_key(Ctx *ctx, const Field *f) { return print_to_arena(ctx, print_field_cb, f); }
