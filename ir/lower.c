@@ -16,6 +16,7 @@
  * Coefficients (anything over params, numbers and index variables) stay
  * expression Nodes with the index variables substituted.
  */
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -43,7 +44,10 @@ static Value *lower(Lowerer *L, Node *n, Env *env);
 
 /* ---------------------------------------------------------------- coefficient nodes */
 
-static Node *mk_num(Lowerer *L, double v) { return new_num(L->ctx, v, v == (double)(long)v, (Loc){0}); }
+static Node *mk_num(Lowerer *L, double v) {
+  bool is_int = fabs(v) < 9007199254740992.0 && v == floor(v);  /* no cast of out-of-range doubles */
+  return new_num(L->ctx, v, is_int, (Loc){0});
+}
 
 static bool is_num(const Node *n, double v) { return n && n->kind == N_NUM && n->num == v; }
 
