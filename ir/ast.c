@@ -302,6 +302,15 @@ static void print_sub(FILE *out, const Node *n, int min_prec) {
   if (paren) fputc(')', out);
 }
 
+static void print_args(FILE *out, const Node *n, char open, char close) {
+  fputc(open, out);
+  for (int i = 0; i < n->nargs; i++) {
+    if (i) fputs(", ", out);
+    print_node(out, n->args[i]);
+  }
+  fputc(close, out);
+}
+
 void print_node(FILE *out, const Node *n) {
   if (!n) {
     fputs("<null>", out);
@@ -313,30 +322,13 @@ void print_node(FILE *out, const Node *n) {
   case N_NAME: fputs(n->sym ? n->sym->name : n->name, out); break;
   case N_INDEX:
     print_sub(out, n->a, 9);
-    fputc('[', out);
-    for (int i = 0; i < n->nargs; i++) {
-      if (i) fputs(", ", out);
-      print_node(out, n->args[i]);
-    }
-    fputc(']', out);
+    print_args(out, n, '[', ']');
     break;
   case N_CALL:
     fputs(n->name, out);
-    fputc('(', out);
-    for (int i = 0; i < n->nargs; i++) {
-      if (i) fputs(", ", out);
-      print_node(out, n->args[i]);
-    }
-    fputc(')', out);
+    print_args(out, n, '(', ')');
     break;
-  case N_VEC:
-    fputc('[', out);
-    for (int i = 0; i < n->nargs; i++) {
-      if (i) fputs(", ", out);
-      print_node(out, n->args[i]);
-    }
-    fputc(']', out);
-    break;
+  case N_VEC: print_args(out, n, '[', ']'); break;
   case N_SUM:
     fprintf(out, "sum(%s = ", n->sym ? n->sym->name : n->name);
     print_node(out, n->a);

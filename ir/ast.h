@@ -289,6 +289,7 @@ struct Sym {
   int basis_max;
   double basis_energy;
   struct Stage *stage;          /* canonical form, after lowering */
+  struct OpDef *opdef;          /* SYM_OP: its lowered entries */
   int klass;                    /* basis class, after basis_classes() */
 };
 

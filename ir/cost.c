@@ -54,12 +54,6 @@ static void tensors_cost(Ctx *ctx, const Program *prog, Poly2 *p, const TensorLi
   }
 }
 
-static const OpDef *opdef_of(const Program *prog, const Sym *op) {
-  for (int i = 0; i < prog->opdefs.n; i++)
-    if (((OpDef *)prog->opdefs.v[i])->sym == op) return prog->opdefs.v[i];
-  return NULL;
-}
-
 static void stage_poly(Ctx *ctx, const Program *prog, const Stage *st, Poly2 *p) {
   const char *y = size_of(prog, st->sym);
   if (st->kind == ST_EXTERN) {
@@ -78,7 +72,7 @@ static void stage_poly(Ctx *ctx, const Program *prog, const Stage *st, Poly2 *p)
       const OpPow *o = &tm->ops[k];
       if (o->kind == OPK_DIAG) tensors_cost(ctx, prog, p, &tm->op_tensors[k], y, 2);
       else {
-        const OpDef *od = opdef_of(prog, o->op);
+        const OpDef *od = o->op->opdef;
         if (od) tensors_cost(ctx, prog, p, &od->tensors, y, 2);
       }
       const char *s3[3] = {y, y, y};

@@ -37,12 +37,6 @@ static void print_group(FILE *out, const TensorGroup *g, const char *first, bool
   fputc('\n', out);
 }
 
-static const OpDef *opdef_of(const Program *prog, const Sym *op) {
-  for (int i = 0; i < prog->opdefs.n; i++)
-    if (((OpDef *)prog->opdefs.v[i])->sym == op) return prog->opdefs.v[i];
-  return NULL;
-}
-
 /* Degree of the stage in each quantity it reads: the largest multiplicity
  * in any of its tensors. */
 typedef struct Degrees {
@@ -81,7 +75,7 @@ static Degrees stage_degrees(const Program *prog, const Stage *st) {
     for (int k = 0; k < tm->nops; k++) {
       if (tm->ops[k].kind == OPK_DIAG) note_degrees(&dg, &tm->op_tensors[k]);
       else {
-        const OpDef *od = opdef_of(prog, tm->ops[k].op);
+        const OpDef *od = tm->ops[k].op->opdef;
         if (od) note_degrees(&dg, &od->tensors);
       }
     }
@@ -132,7 +126,7 @@ static void print_stage(FILE *out, const Program *prog, const Stage *st, bool ca
       fputs(o->kind == OPK_DIAG ? " (diagonal, reduced with the stage's basis on both axes):\n"
                                 : " (declared op, reduced with the stage's basis on both axes):\n",
             out);
-      const TensorList *tl = o->kind == OPK_DIAG ? &tm->op_tensors[k] : &opdef_of(prog, o->op)->tensors;
+      const TensorList *tl = o->kind == OPK_DIAG ? &tm->op_tensors[k] : &o->op->opdef->tensors;
       for (int g = 0; g < tl->n; g++) {
         fputs("        tensor ", out);
         print_group(out, &tl->g[g], "row", true);
@@ -315,7 +309,7 @@ void dump_json(FILE *out, const Program *prog) {
           fputc(',', out);
         }
         fprintf(out, "\"power\":[%ld,%ld],\"tensors\":", o->p, o->q);
-        json_tensors(out, o->kind == OPK_DIAG ? &tm->op_tensors[k] : &opdef_of(prog, o->op)->tensors);
+        json_tensors(out, o->kind == OPK_DIAG ? &tm->op_tensors[k] : &o->op->opdef->tensors);
         fputc('}', out);
       }
       fputs("],\"numerator\":", out);

@@ -761,6 +761,27 @@ static Value *assemble(Lowerer *L, Piece *ps, int np, int ncomp) {
   return val_merge(L, out);
 }
 
+/* The value whose component j is component src[j] of v. */
+static Value *val_pick(Lowerer *L, const Value *v, int ncomp, const int *src) {
+  Value *r = val_new(L, ncomp);
+  for (int i = 0; i < v->terms.n; i++) {
+    Term *t = v->terms.v[i];
+    Term *c = term_new(L, ncomp);
+    for (int k = 0; k < t->nops; k++) {
+      OpPow o = t->ops[k];
+      if (o.kind == OPK_DIAG) {
+        Field *d = field_new(L->ctx, ncomp);
+        for (int j = 0; j < ncomp; j++) poly_add(L, &d->comp[j], &t->ops[k].diag->comp[src[j]], NULL);
+        o.diag = d;
+      }
+      push_op(L, c, o);
+    }
+    for (int j = 0; j < ncomp; j++) poly_add(L, &c->num->comp[j], &t->num->comp[src[j]], NULL);
+    vec_push(L->ctx, &r->terms, c);
+  }
+  return val_merge(L, r);
+}
+
 /* ---------------------------------------------------------------- references */
 
 /* Entries of a varying quantity q: q[args...] with the remaining static
@@ -788,24 +809,9 @@ static Value *ref_value(Lowerer *L, Sym *q, Node **args, int nargs, Env *env) {
     if (given_static == 0) return full;
     int base = 0;
     for (int i = 0; i < given_static; i++) base = base * q->shape[i] + fixed[i];
-    base *= ncomp;
-    Value *r = val_new(L, ncomp);
-    for (int i = 0; i < full->terms.n; i++) {
-      Term *t = full->terms.v[i];
-      Term *c = term_new(L, ncomp);
-      for (int k = 0; k < t->nops; k++) {
-        OpPow o = t->ops[k];
-        if (o.kind == OPK_DIAG) {
-          Field *d = field_new(ctx, ncomp);
-          for (int j = 0; j < ncomp; j++) poly_add(L, &d->comp[j], &t->ops[k].diag->comp[base + j], NULL);
-          o.diag = d;
-        }
-        push_op(L, c, o);
-      }
-      for (int j = 0; j < ncomp; j++) poly_add(L, &c->num->comp[j], &t->num->comp[base + j], NULL);
-      vec_push(ctx, &r->terms, c);
-    }
-    return val_merge(L, r);
+    int *src = arena_alloc(ctx, sizeof(int) * (size_t)ncomp);
+    for (int j = 0; j < ncomp; j++) src[j] = base * ncomp + j;
+    return val_pick(L, full, ncomp, src);
   }
   Value *v = val_new(L, ncomp);
   Term *t = term_new(L, ncomp);
@@ -902,25 +908,9 @@ static Value *lower(Lowerer *L, Node *n, Env *env) {
         (n->sym->kind == SYM_INPUT || n->sym->kind == SYM_STAGE || n->sym->kind == SYM_EXTERN))
       return ref_value(L, n->sym, n->args, n->nargs, env);
     else {
-      Value *base = lower(L, n->a, env);
-      Value *r = val_new(L, ncomp);
-      for (int i = 0; i < base->terms.n; i++) {
-        Term *t = base->terms.v[i];
-        Term *c = term_new(L, ncomp);
-        for (int k = 0; k < t->nops; k++) {
-          OpPow o = t->ops[k];
-          if (o.kind == OPK_DIAG) {
-            Field *d = field_new(ctx, ncomp);
-            for (int j = 0; j < ncomp; j++)
-              poly_add(L, &d->comp[j], &o.diag->comp[select_flat(L, n, env, j)], NULL);
-            o.diag = d;
-          }
-          push_op(L, c, o);
-        }
-        for (int j = 0; j < ncomp; j++) poly_add(L, &c->num->comp[j], &t->num->comp[select_flat(L, n, env, j)], NULL);
-        vec_push(ctx, &r->terms, c);
-      }
-      return val_merge(L, r);
+      int *src = arena_alloc(ctx, sizeof(int) * (size_t)ncomp);
+      for (int j = 0; j < ncomp; j++) src[j] = select_flat(L, n, env, j);
+      return val_pick(L, lower(L, n->a, env), ncomp, src);
     }
   case N_ADD: return val_add(L, lower(L, n->a, env), lower(L, n->b, env));
   case N_SUB: return val_add(L, lower(L, n->a, env), val_scale(L, lower(L, n->b, env), mk_num(L, -1)));
@@ -1136,6 +1126,7 @@ static void lower_op(Lowerer *L, Sym *op) {
   if (v->terms.n > 1 || (v->terms.n == 1 && ((Term *)v->terms.v[0])->nops)) v = introduce(L, v, op->body, NULL);
   OpDef *od = arena_alloc(ctx, sizeof *od);
   od->sym = op;
+  op->opdef = od;
   od->entries = v->terms.n ? ((Term *)v->terms.v[0])->num : field_new(ctx, 1);
   combine_field(L, od->entries);
   tensor_groups(ctx, od->entries, 2, op->ivars, op->nivars, &od->tensors);

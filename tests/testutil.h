@@ -83,9 +83,7 @@ static inline int max_order(const Program *prog, const Stage *st) {
       if (tm->num_tensors.g[g].order > m) m = tm->num_tensors.g[g].order;
     for (int k = 0; k < tm->nops; k++) {
       const TensorList *tl = &tm->op_tensors[k];
-      if (tm->ops[k].kind == OPK_DECL)
-        for (int i = 0; i < prog->opdefs.n; i++)
-          if (((OpDef *)prog->opdefs.v[i])->sym == tm->ops[k].op) tl = &((OpDef *)prog->opdefs.v[i])->tensors;
+      if (tm->ops[k].kind == OPK_DECL) tl = &tm->ops[k].op->opdef->tensors;
       for (int g = 0; g < tl->n; g++)
         if (tl->g[g].order > m) m = tl->g[g].order;
     }

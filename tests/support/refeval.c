@@ -472,12 +472,6 @@ static double eval_poly(RefData *d, const Poly *p, const Env *env) {
   return s;
 }
 
-static const OpDef *opdef_of(const Program *prog, const Sym *op) {
-  for (int i = 0; i < prog->opdefs.n; i++)
-    if (((OpDef *)prog->opdefs.v[i])->sym == op) return prog->opdefs.v[i];
-  return NULL;
-}
-
 void ref_eval_canonical(RefData *d, const Stage *st, double *out) {
   const Sym *s = st->sym;
   size_t ne = n_entries(d, s);
@@ -501,7 +495,7 @@ void ref_eval_canonical(RefData *d, const Stage *st, double *out) {
             v[e * (size_t)nc + (size_t)c] *= rpow(eval_poly(d, &o->diag->comp[c], env), o->p, o->q);
         }
       } else {
-        const OpDef *od = opdef_of(d->prog, o->op);
+        const OpDef *od = o->op->opdef;
         size_t nm = n_entries(d, o->op);
         double *M = malloc(sizeof(double) * nm);
         for (size_t e = 0; e < nm; e++) M[e] = eval_poly(d, &od->entries->comp[0], entry_env(d, o->op, e, cells));
