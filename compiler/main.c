@@ -1,4 +1,5 @@
 /* main.c — the npgc driver. */
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -14,8 +15,59 @@ static void usage(FILE *out) {
         "  --json  the same report as JSON.\n"
         "  -dLETTERS  dump the IR after stages: p parse, s check, l lower, b basis classes.\n"
         "\n"
-        "Not yet implemented: emit, train, eval, verify, bench.\n",
+        "       npgc emit PROG.npg -o FILE.c\n"
+        "\n"
+        "  emit    write the generated C of the full evaluator (one function per stage)\n"
+        "          and the bind-time gather checker; it compiles standalone with cc -c.\n"
+        "\n"
+        "Not yet implemented: train, eval, verify, bench.\n",
         out);
+}
+
+/* npgc emit PROG.npg -o FILE.c: written to FILE.c.tmp, renamed when complete. */
+static int cmd_emit(int argc, char **argv) {
+  const char *path = NULL, *outpath = NULL;
+  NpgOptions opt = {0};
+  for (int i = 2; i < argc; i++) {
+    if (strcmp(argv[i], "-o") == 0 && i + 1 < argc) outpath = argv[++i];
+    else if (strncmp(argv[i], "--std=", 6) == 0) opt.std_dir = argv[i] + 6;
+    else if (argv[i][0] == '-') {
+      fprintf(stderr, "npgc emit: unknown option '%s'\n", argv[i]);
+      return 2;
+    } else path = argv[i];
+  }
+  if (!path || !outpath) {
+    fprintf(stderr, "usage: npgc emit PROG.npg -o FILE.c\n");
+    return 2;
+  }
+  NpgProgram *p = npg_compile(path, &opt);
+  if (!npg_ok(p)) {
+    fputs(npg_error(p), stderr);
+    npg_free(p);
+    return 1;
+  }
+  char tmp[4096];
+  snprintf(tmp, sizeof tmp, "%s.tmp", outpath);
+  FILE *f = fopen(tmp, "w");
+  if (!f) {
+    fprintf(stderr, "npgc emit: cannot write %s: %s\n", tmp, strerror(errno));
+    npg_free(p);
+    return 1;
+  }
+  int rc = npg_emit_full(p, f);
+  if (fclose(f) != 0 && rc == 0) {
+    fprintf(stderr, "npgc emit: cannot write %s: %s\n", tmp, strerror(errno));
+    rc = -1;
+  } else if (rc != 0) {
+    fputs(npg_error(p), stderr);
+  }
+  if (rc == 0 && rename(tmp, outpath) != 0) {
+    fprintf(stderr, "npgc emit: cannot rename %s to %s: %s\n", tmp, outpath, strerror(errno));
+    rc = -1;
+  }
+  if (rc != 0) remove(tmp);
+  npg_free(p);
+  return rc == 0 ? 0 : 1;
 }
 
 int main(int argc, char **argv) {
@@ -24,8 +76,9 @@ int main(int argc, char **argv) {
     return argc < 2 ? 2 : 0;
   }
   const char *cmd = argv[1];
+  if (strcmp(cmd, "emit") == 0) return cmd_emit(argc, argv);
   if (strcmp(cmd, "check") != 0) {
-    if (!strcmp(cmd, "emit") || !strcmp(cmd, "train") || !strcmp(cmd, "eval") || !strcmp(cmd, "verify") ||
+    if (!strcmp(cmd, "train") || !strcmp(cmd, "eval") || !strcmp(cmd, "verify") ||
         !strcmp(cmd, "bench")) {
       fprintf(stderr, "npgc: '%s' is not implemented yet\n", cmd);
       return 2;

@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "compile.h"
+#include "emit.h"
 #include "npg.h"
 
 #ifndef NPG_STDLIB_DIR
@@ -101,6 +102,26 @@ static bool guarded_report(NpgProgram *np, FILE *out, bool json) {
 void npg_report(const NpgProgram *p, FILE *out, bool json) {
   if (!npg_ok(p)) return;
   if (!guarded_report((NpgProgram *)p, out, json)) fprintf(out, "\n%s", p->ctx.msg ? p->ctx.msg : "error: out of memory\n");
+}
+
+static bool guarded_emit(NpgProgram *np, FILE *out) {
+  jmp_buf env;
+  np->ctx.on_error = &env;
+  bool ok = setjmp(env) == 0;
+  if (ok) emit_full(&np->ctx, np->prog, out);
+  np->ctx.on_error = NULL;
+  free(np->ctx.pending_free);
+  np->ctx.pending_free = NULL;
+  return ok;
+}
+
+int npg_emit_full(NpgProgram *p, FILE *out) {
+  if (!npg_ok(p)) return -1;
+  if (!guarded_emit(p, out)) {
+    p->error = p->ctx.msg ? p->ctx.msg : "error: code generation failed\n";
+    return -1;
+  }
+  return 0;
 }
 
 void npg_free(NpgProgram *p) {

@@ -713,6 +713,7 @@ static Node *check_sum(Checker *ck, Node *n) {
                      ck->cur->name);
   }
   Sym *v = new_sym(ck, SYM_SUMVAR, n->name, n->loc);
+  v->id = ++ctx->uniq;  /* distinct C names for generated loops */
   long lo, hi, lo2, hi2;
   if (int_range(n->a, &lo, &lo2) && int_range(n->b, &hi, &hi2) && lo == lo2 && hi == hi2) {
     if (hi < lo) error_node(ctx, n, "empty sum: the bounds %ld..%ld are inclusive and decreasing", lo, hi);

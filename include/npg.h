@@ -46,6 +46,11 @@ NPG_API const char *npg_error(const NpgProgram *p);
 NPG_API void npg_report(const NpgProgram *p, FILE *out, bool json);
 NPG_API void npg_free(NpgProgram *p);
 
+/* Write the generated C of the full evaluator (every stage, the bind-time
+ * gather checker) and the tensor builders to `out`. Returns 0, or -1 with
+ * the reason in npg_error(). The C compiles standalone (cc -c). */
+NPG_API int npg_emit_full(NpgProgram *p, FILE *out);
+
 #ifdef __cplusplus
 }
 #endif

@@ -296,6 +296,7 @@ static Mono *mono_rename(Lowerer *L, const Mono *m, Sym *from) {
   Sym *to = arena_alloc(L->ctx, sizeof *to);
   *to = *from;
   to->name = arena_printf(L->ctx, "%s'%d", from->name, ++L->ctx->uniq);
+  to->id = L->ctx->uniq;
   Mono *c = mono_copy(L, m);
   c->guard = subst_node(L, m->guard, from, to);
   c->coef = subst_node(L, m->coef, from, to);

@@ -1,0 +1,438 @@
+/* emit_full.c — the full evaluator and the bind-time gather checker as C
+ * (DESIGN §6). One function per stage, named after it, with its source line
+ * in a comment; loops over the stage's index domain with gathers; tensors
+ * are never materialized. Diagonal operators are applied entry by entry;
+ * declared operators are assembled densely and applied through the runtime
+ * (LAPACKE, info checked). */
+#include <stdlib.h>
+#include <string.h>
+
+#include "emit.h"
+
+/* ---------------------------------------------------------------- helpers */
+
+static void indent(FILE *out, int depth) {
+  for (int i = 0; i < depth; i++) fputs("  ", out);
+}
+
+/* The source line of a location, safe inside a C comment. */
+char *emit_source_line(Ctx *ctx, Loc loc) {
+  if (!loc.file) return "";
+  const char *t = loc.file->text;
+  size_t s = loc.off, e;
+  while (s > 0 && t[s - 1] != '\n') s--;
+  for (e = s; e < loc.file->len && t[e] != '\n' && t[e] != '\r'; e++) {}
+  char *line = arena_strndup(ctx, t + s, e - s);
+  for (char *c = line; *c; c++) {
+    if (c[0] == '*' && c[1] == '/') c[1] = '|';
+    if (c[0] == '/' && c[1] == '*') c[1] = '|';
+    if ((unsigned char)*c < 32 || (unsigned char)*c > 126) *c = ' ';
+  }
+  while (*line == ' ') line++;
+  return line;
+}
+
+/* Loops over the index domain of `s`; the entry's flat index is e_.
+ * Returns the depth inside. */
+static int open_entry_loops(Emit *e, FILE *out, const Sym *s, int depth) {
+  for (int i = 0; i < s->nivars; i++) {
+    const char *v = emit_name(e, s->ivars[i]);
+    emit_use(e, s->ivars[i]->range);
+    indent(out, depth + i);
+    fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, s->ivars[i]->range), v);
+  }
+  depth += s->nivars;
+  indent(out, depth);
+  fputs("const npg_idx e_ = ", out);
+  if (!s->nivars) fputc('0', out);
+  for (int i = 1; i < s->nivars; i++) fputc('(', out);
+  for (int i = 0; i < s->nivars; i++) {
+    if (i) fprintf(out, " * %s + ", emit_name(e, s->ivars[i]->range));
+    fputs(emit_name(e, s->ivars[i]), out);
+    if (i) fputc(')', out);
+  }
+  fputs(";\n", out);
+  indent(out, depth);
+  fputs("(void)e_;\n", out);
+  return depth;
+}
+
+static void close_loops(FILE *out, int from, int to) {
+  for (int d = from - 1; d >= to; d--) {
+    indent(out, d);
+    fputs("}\n", out);
+  }
+}
+
+static void emit_atom(Emit *e, FILE *out, const Atom *a) {
+  emit_use(e, a->q);
+  fprintf(out, "%s[", emit_name(e, a->q));
+  emit_offset(e, out, a->q, a->idx, a->nidx);
+  fputc(']', out);
+}
+
+/* acc += the polynomial's value, as statements: sums as loops, guards
+ * evaluated before any gather they protect. */
+static void emit_poly(Emit *e, FILE *out, const Poly *p, const char *acc, int depth) {
+  for (int i = 0; i < p->n; i++) {
+    const Mono *m = p->m[i];
+    int d = depth;
+    for (int s = 0; s < m->nsums; s++) {
+      const char *k = emit_name(e, m->sums[s].var);
+      indent(out, d++);
+      fprintf(out, "for (npg_idx %s = ", k);
+      emit_cexpr(e, out, m->sums[s].lo);
+      fprintf(out, "; %s <= ", k);
+      emit_cexpr(e, out, m->sums[s].hi);
+      fprintf(out, "; %s++)\n", k);
+    }
+    if (m->guard) {
+      indent(out, d++);
+      fputs("if (", out);
+      emit_cexpr(e, out, m->guard);
+      fputs(")\n", out);
+    }
+    indent(out, d);
+    fprintf(out, "%s += ", acc);
+    bool one = m->coef->kind == N_NUM && m->coef->num == 1 && m->natoms;
+    if (!one) emit_cexpr(e, out, m->coef);
+    for (int a = 0; a < m->natoms; a++) {
+      if (a || !one) fputs(" * ", out);
+      emit_atom(e, out, &m->atoms[a]);
+    }
+    fputs(";\n", out);
+  }
+}
+
+/* t <- t * d^(p/q), with the cheap forms for the common powers. */
+static void emit_apply_diag(FILE *out, const char *t, const char *d, long p, long q, int depth) {
+  indent(out, depth);
+  if (q == 1 && p == -1) fprintf(out, "%s /= %s;\n", t, d);
+  else if (q == 1 && p == -2) fprintf(out, "%s /= %s * %s;\n", t, d, d);
+  else if (q == 2 && p == -1) fprintf(out, "%s /= sqrt(%s);\n", t, d);
+  else if (q == 2 && p == 1) fprintf(out, "%s *= sqrt(%s);\n", t, d);
+  else if (q == 2 && p == -3) fprintf(out, "%s /= %s * sqrt(%s);\n", t, d, d);
+  else if (q == 3 && p == 1) fprintf(out, "%s *= cbrt(%s);\n", t, d);
+  else if (q == 3 && p == -1) fprintf(out, "%s /= cbrt(%s);\n", t, d);
+  else fprintf(out, "%s *= pow(%s, %ld.0 / %ld.0);\n", t, d, p, q);
+}
+
+static bool term_has_decl(const Term *t) {
+  for (int k = 0; k < t->nops; k++)
+    if (t->ops[k].kind == OPK_DECL) return true;
+  return false;
+}
+
+/* ---------------------------------------------------------------- stages */
+
+static void emit_stage_body(Emit *e, FILE *out, const Stage *st) {
+  const Sym *s = st->sym;
+  int nc = st->ncomp;
+  const char *y = emit_name(e, s);
+  emit_use(e, s);
+  bool any_entrywise = false;
+  for (int t = 0; t < st->nterms; t++) any_entrywise |= !term_has_decl(st->terms[t]);
+  int depth = open_entry_loops(e, out, s, 1);
+  for (int c = 0; c < nc; c++) {
+    indent(out, depth);
+    fprintf(out, "double y%d_ = 0.0;\n", c);
+  }
+  for (int t = 0; t < st->nterms && any_entrywise; t++) {
+    const Term *tm = st->terms[t];
+    if (term_has_decl(tm)) continue;
+    indent(out, depth);
+    fprintf(out, "{ /* term %d */\n", t + 1);
+    for (int c = 0; c < nc; c++) {
+      indent(out, depth + 1);
+      fputs("double t_ = 0.0;\n", out);
+      emit_poly(e, out, &tm->num->comp[c], "t_", depth + 1);
+      for (int k = 0; k < tm->nops; k++) {
+        indent(out, depth + 1);
+        fprintf(out, "{\n");
+        indent(out, depth + 2);
+        fputs("double d_ = 0.0;\n", out);
+        emit_poly(e, out, &tm->ops[k].diag->comp[c], "d_", depth + 2);
+        emit_apply_diag(out, "t_", "d_", tm->ops[k].p, tm->ops[k].q, depth + 2);
+        indent(out, depth + 1);
+        fputs("}\n", out);
+      }
+      indent(out, depth + 1);
+      fprintf(out, "y%d_ += t_;\n", c);
+      if (c + 1 < nc) {
+        indent(out, depth);
+        fprintf(out, "}\n");
+        indent(out, depth);
+        fprintf(out, "{\n");
+      }
+    }
+    indent(out, depth);
+    fputs("}\n", out);
+  }
+  for (int c = 0; c < nc; c++) {
+    indent(out, depth);
+    fprintf(out, "%s[e_ * %d + %d] = y%d_;\n", y, nc, c, c);
+  }
+  close_loops(out, depth, 1);
+
+  /* Terms with declared operators: the whole vector, then dense operators. */
+  for (int t = 0; t < st->nterms; t++) {
+    const Term *tm = st->terms[t];
+    if (!term_has_decl(tm)) continue;
+    iassert(e->ctx, nc == 1);
+    fprintf(out, "  { /* term %d: declared operators */\n", t + 1);
+    fputs("    npg_idx n_ = 1;\n", out);
+    for (int i = 0; i < s->nivars; i++) {
+      emit_use(e, s->ivars[i]->range);
+      fprintf(out, "    n_ *= %s;\n", emit_name(e, s->ivars[i]->range));
+    }
+    fputs("    double *v_ = c->rt->scratch(c, n_);\n    if (!v_) return -1;\n", out);
+    int d = open_entry_loops(e, out, s, 2);
+    indent(out, d);
+    fputs("double t_ = 0.0;\n", out);
+    emit_poly(e, out, &tm->num->comp[0], "t_", d);
+    for (int k = 0; k < tm->nops; k++) {
+      if (tm->ops[k].kind != OPK_DIAG) continue;
+      /* a diagonal applied before every declared operator */
+      bool inner = true;
+      for (int j = 0; j < k; j++) inner &= tm->ops[j].kind == OPK_DIAG;
+      iassert(e->ctx, inner);
+      indent(out, d);
+      fputs("{\n", out);
+      indent(out, d + 1);
+      fputs("double d_ = 0.0;\n", out);
+      emit_poly(e, out, &tm->ops[k].diag->comp[0], "d_", d + 1);
+      emit_apply_diag(out, "t_", "d_", tm->ops[k].p, tm->ops[k].q, d + 1);
+      indent(out, d);
+      fputs("}\n", out);
+    }
+    indent(out, d);
+    fputs("v_[e_] = t_;\n", out);
+    close_loops(out, d, 2);
+    for (int k = 0; k < tm->nops; k++) {
+      if (tm->ops[k].kind != OPK_DECL) continue;
+      const Sym *op = tm->ops[k].op;
+      fprintf(out, "    { /* %s^(%ld/%ld) */\n", op->name, tm->ops[k].p, tm->ops[k].q);
+      fputs("      double *m_ = c->rt->scratch(c, n_ * n_);\n", out);
+      fputs("      if (!m_) { c->rt->release(c, v_); return -1; }\n", out);
+      int od = open_entry_loops(e, out, op, 3);
+      indent(out, od);
+      fputs("double t_ = 0.0;\n", out);
+      emit_poly(e, out, &op->opdef->entries->comp[0], "t_", od);
+      indent(out, od);
+      fputs("m_[e_] = t_;\n", out);
+      close_loops(out, od, 3);
+      fprintf(out, "      int bad_ = c->rt->op_power(c, \"%s\", \"%s\", n_, m_, %ld, %ld, v_);\n", s->name, op->name,
+              tm->ops[k].p, tm->ops[k].q);
+      fputs("      c->rt->release(c, m_);\n", out);
+      fputs("      if (bad_) { c->rt->release(c, v_); return -1; }\n", out);
+      fputs("    }\n", out);
+    }
+    fprintf(out, "    for (npg_idx e_ = 0; e_ < n_; e_++) %s[e_] += v_[e_];\n", y);
+    fputs("    c->rt->release(c, v_);\n", out);
+    fputs("  }\n", out);
+  }
+}
+
+/* A function whose prologue declares exactly what its body used. */
+static void emit_function(Emit *e, FILE *out, const char *signature, const Sym *writes,
+                          void (*body)(Emit *, FILE *, const void *), const void *arg) {
+  char *buf = NULL;
+  size_t len = 0;
+  FILE *b = open_memstream(&buf, &len);
+  if (!b) error_plain(e->ctx, "out of memory");
+  emit_reset_used(e);
+  body(e, b, arg);
+  fclose(b);
+  e->ctx->pending_free = buf;
+  fprintf(out, "%s {\n  (void)c;\n", signature);
+  emit_prologue(e, out, writes != NULL, writes);
+  fputs(buf ? buf : "", out);
+  fputs("  return 0;\n}\n\n", out);
+  e->ctx->pending_free = NULL;
+  free(buf);
+}
+
+static void stage_body_cb(Emit *e, FILE *out, const void *st) { emit_stage_body(e, out, st); }
+
+/* ---------------------------------------------------------------- gather checks */
+
+/* Check every dim-axis index inside n (a param gather) before it is used. */
+static void emit_node_checks(Emit *e, FILE *out, const Node *n, const Sym *where, int depth);
+
+/* idx indexes axis `axis` (a dim) of q: report if out of range. */
+static void emit_index_check(Emit *e, FILE *out, const Sym *q, int axis, const Node *idx, const Sym *where,
+                             int depth) {
+  emit_node_checks(e, out, idx, where, depth);
+  const Sym *dim = q->dims[axis];
+  /* An index variable over the same dim is in range by construction. */
+  if (idx->kind == N_NAME && idx->sym && (idx->sym->kind == SYM_IVAR || idx->sym->kind == SYM_SUMVAR) &&
+      idx->sym->range == dim)
+    return;
+  emit_use(e, dim);
+  int t = e->tmp++;
+  indent(out, depth);
+  fprintf(out, "{ const npg_idx v%d_ = ", t);
+  emit_cexpr(e, out, idx);
+  fprintf(out, "; if (v%d_ < 0 || v%d_ >= %s) { ", t, t, emit_name(e, dim));
+  int dim_id = emit_index_of(&e->prog->dims, dim);
+  if (idx->kind == N_INDEX && idx->sym && idx->sym->kind == SYM_PARAM) {
+    const Sym *p = idx->sym;
+    fprintf(out, "npg_idx w_[%d] = {", idx->nargs);
+    for (int i = 0; i < idx->nargs; i++) {
+      if (i) fputs(", ", out);
+      emit_cexpr(e, out, idx->args[i]);
+    }
+    fprintf(out, "}; c->rt->gather_error(c, \"%s\", %d, %d, w_, v%d_, %d); return -1; } }\n", where->name,
+            emit_index_of(&e->prog->params, p), idx->nargs, t, dim_id);
+  } else {
+    fprintf(out, "npg_idx w_[%d] = {", where->nivars ? where->nivars : 1);
+    for (int i = 0; i < where->nivars; i++) fprintf(out, "%s%s", i ? ", " : "", emit_name(e, where->ivars[i]));
+    if (!where->nivars) fputc('0', out);
+    fprintf(out, "}; c->rt->gather_error(c, \"%s\", -1, %d, w_, v%d_, %d); return -1; } }\n", where->name,
+            where->nivars, t, dim_id);
+  }
+}
+
+static void emit_node_checks(Emit *e, FILE *out, const Node *n, const Sym *where, int depth) {
+  if (!n) return;
+  if (n->kind == N_INDEX && n->sym && n->sym->kind == SYM_PARAM) {
+    for (int i = 0; i < n->nargs && i < n->sym->ndims; i++) emit_index_check(e, out, n->sym, i, n->args[i], where, depth);
+    return;
+  }
+  if (n->kind == N_SUM || n->kind == N_IF) return; /* inner guards/loops: checked when evaluated (rare) */
+  emit_node_checks(e, out, n->a, where, depth);
+  emit_node_checks(e, out, n->b, where, depth);
+  emit_node_checks(e, out, n->c, where, depth);
+  for (int i = 0; i < n->nargs; i++) emit_node_checks(e, out, n->args[i], where, depth);
+}
+
+static void emit_poly_checks(Emit *e, FILE *out, const Poly *p, const Sym *where, int depth) {
+  for (int i = 0; i < p->n; i++) {
+    const Mono *m = p->m[i];
+    int d = depth;
+    indent(out, d++);
+    fputs("{\n", out);
+    for (int s = 0; s < m->nsums; s++) {
+      const char *k = emit_name(e, m->sums[s].var);
+      indent(out, d++);
+      fprintf(out, "for (npg_idx %s = ", k);
+      emit_cexpr(e, out, m->sums[s].lo);
+      fprintf(out, "; %s <= ", k);
+      emit_cexpr(e, out, m->sums[s].hi);
+      fprintf(out, "; %s++) {\n", k);
+    }
+    emit_node_checks(e, out, m->guard, where, d);
+    if (m->guard) {
+      indent(out, d++);
+      fputs("if (", out);
+      emit_cexpr(e, out, m->guard);
+      fputs(") {\n", out);
+    }
+    emit_node_checks(e, out, m->coef, where, d);
+    for (int a = 0; a < m->natoms; a++)
+      for (int k = 0; k < m->atoms[a].q->ndims; k++) emit_index_check(e, out, m->atoms[a].q, k, m->atoms[a].idx[k], where, d);
+    close_loops(out, d, depth + 1);
+    indent(out, depth);
+    fputs("}\n", out);
+  }
+}
+
+static void emit_field_checks(Emit *e, FILE *out, const Field *f, const Sym *where, int depth) {
+  for (int c = 0; c < f->ncomp; c++) emit_poly_checks(e, out, &f->comp[c], where, depth);
+}
+
+static void check_stage_cb(Emit *e, FILE *out, const void *arg) {
+  const Stage *st = arg;
+  int d = open_entry_loops(e, out, st->sym, 1);
+  for (int t = 0; t < st->nterms; t++) {
+    const Term *tm = st->terms[t];
+    emit_field_checks(e, out, tm->num, st->sym, d);
+    for (int k = 0; k < tm->nops; k++)
+      if (tm->ops[k].kind == OPK_DIAG) emit_field_checks(e, out, tm->ops[k].diag, st->sym, d);
+  }
+  close_loops(out, d, 1);
+}
+
+static void check_op_cb(Emit *e, FILE *out, const void *arg) {
+  const OpDef *od = arg;
+  int d = open_entry_loops(e, out, od->sym, 1);
+  emit_field_checks(e, out, od->entries, od->sym, d);
+  close_loops(out, d, 1);
+}
+
+/* ---------------------------------------------------------------- the unit */
+
+static const char *fn_name(Emit *e, const char *prefix, const Sym *s) {
+  char *n = arena_printf(e->ctx, "%s%s", prefix, s->name);
+  for (char *c = n; *c; c++)
+    if (!((*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || (*c >= '0' && *c <= '9') || *c == '_')) *c = '_';
+  return n;
+}
+
+void emit_header(Emit *e, const char *what) {
+  fprintf(e->out, "/* %s of %s, generated by npgc. */\n\n", what, e->prog->main->name);
+  fputs(npg_abi_header, e->out);
+  fputs("\n", e->out);
+}
+
+Emit *emit_new(Ctx *ctx, const Program *prog, FILE *out) {
+  Emit *e = arena_alloc(ctx, sizeof *e);
+  e->ctx = ctx;
+  e->prog = prog;
+  e->out = out;
+  e->used_dim = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->dims.n + 1));
+  e->used_param = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->params.n + 1));
+  e->used_q = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->quantities.n + 1));
+  return e;
+}
+
+void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
+  Emit *e = emit_new(ctx, prog, out);
+  emit_header(e, "Full evaluator");
+  for (int i = 0; i < prog->stages.n; i++) {
+    const Stage *st = prog->stages.v[i];
+    if (st->kind == ST_EXTERN) continue;
+    const Sym *s = st->sym;
+    if (s->introduced)
+      fprintf(out, "/* %s: introduced for %s, from %s:%d\n   %s */\n", s->name, s->introduced_for->name,
+              s->loc.file ? s->loc.file->name : "?", s->loc.line, emit_source_line(ctx, s->loc));
+    else
+      fprintf(out, "/* %s: %s, %s:%d\n   %s */\n", s->name, stage_kind_name[st->kind],
+              s->loc.file ? s->loc.file->name : "?", s->loc.line, emit_source_line(ctx, s->loc));
+    emit_function(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "stage_", s)), s,
+                  stage_body_cb, st);
+  }
+  fputs("/* Every stage in evaluation order (externs are given with the inputs). */\n", out);
+  fputs("int npg_full(const NpgCtx *c) {\n", out);
+  for (int i = 0; i < prog->stages.n; i++) {
+    const Stage *st = prog->stages.v[i];
+    if (st->kind == ST_EXTERN) continue;
+    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "stage_", st->sym));
+  }
+  fputs("  return 0;\n}\n\n", out);
+
+  /* Bind-time gather checks: every index into a dim, where its guard holds. */
+  for (int i = 0; i < prog->stages.n; i++) {
+    const Stage *st = prog->stages.v[i];
+    if (st->kind == ST_EXTERN) continue;
+    fprintf(out, "/* gathers of %s */\n", st->sym->name);
+    emit_function(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "check_", st->sym)), NULL,
+                  check_stage_cb, st);
+  }
+  for (int i = 0; i < prog->opdefs.n; i++) {
+    const OpDef *od = prog->opdefs.v[i];
+    fprintf(out, "/* gathers of operator %s */\n", od->sym->name);
+    emit_function(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "check_op_", od->sym)), NULL,
+                  check_op_cb, od);
+  }
+  fputs("/* Every gather in range of its dim where its guard holds: run once per binding. */\n", out);
+  fputs("int npg_check(const NpgCtx *c) {\n", out);
+  for (int i = 0; i < prog->stages.n; i++) {
+    const Stage *st = prog->stages.v[i];
+    if (st->kind == ST_EXTERN) continue;
+    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "check_", st->sym));
+  }
+  for (int i = 0; i < prog->opdefs.n; i++)
+    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "check_op_", ((OpDef *)prog->opdefs.v[i])->sym));
+  fputs("  return 0;\n}\n", out);
+}

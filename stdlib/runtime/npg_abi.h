@@ -1,0 +1,79 @@
+/* npg_abi.h — the one interface between libnpg and generated C.
+ *
+ * This file is compiled into libnpg AND embedded verbatim (by CMake, as a
+ * string) at the top of every generated C file, so the two can never
+ * disagree. It includes no system header: libtcc compiles generated code
+ * in memory without them, and the libm functions generated code uses are
+ * declared here with their standard prototypes (the host resolves them).
+ *
+ * Data layout: every array is C order over its dim axes, then its static
+ * axes: q[i, j, c] of q : real[F, F, 3] is q[(i*F + j)*3 + c].
+ */
+#ifndef NPG_ABI_H
+#define NPG_ABI_H
+
+#define NPG_ABI_VERSION 1
+
+typedef long npg_idx;
+
+double sqrt(double);
+double cbrt(double);
+double pow(double, double);
+double exp(double);
+double log(double);
+double sin(double);
+double cos(double);
+double tan(double);
+double atan(double);
+double atan2(double, double);
+double tanh(double);
+double fabs(double);
+double floor(double);
+double fmin(double, double);
+double fmax(double, double);
+
+typedef struct NpgRt NpgRt;
+
+/* One evaluation context: bound data and where values go. */
+typedef struct NpgCtx {
+  const npg_idx *dims;          /* size of every dim, in program order */
+  const double *const *params;  /* real params, in program order (NULL for int ones) */
+  const npg_idx *const *iparams; /* int params, in program order (NULL for real ones) */
+  double *const *q;             /* every quantity with a basis, in program order:
+                                   inputs and externs are read, stages written */
+  const NpgRt *rt;
+  long sample;                  /* sample number, for messages */
+  void *host;                   /* the runtime's own state */
+} NpgCtx;
+
+/* A tensor entry sink for the tensor builder: entries of one tensor arrive
+ * in output-major order (non-decreasing `row`). `col` is the column of an
+ * operator tensor, -1 for a contraction. `in` holds `nin` flat offsets into
+ * the contracted quantities, in the tensor's input order. */
+typedef struct NpgSink {
+  void *user;
+  int (*entry)(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef);
+} NpgSink;
+
+struct NpgRt {
+  /* y <- M^(p/q) y for dense row-major n x n M (overwritten). Negative
+   * integer powers by LU (info checked); fractional powers of a symmetric
+   * positive semidefinite M by eigendecomposition. Non-zero on failure,
+   * after recording a message naming `stage` and `op`. */
+  int (*op_power)(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long p, long q, double *y);
+  /* Scratch memory for one evaluation (zeroed); NULL after recording an error. */
+  double *(*scratch)(const NpgCtx *c, npg_idx count);
+  void (*release)(const NpgCtx *c, double *p);
+  /* Bind-time check of a gather: `value` indexes dim `dim`; `param` is the
+   * param read (or -1 when the index is a compound expression) at entry
+   * `entry[0..nentry)`; `stage` is where it is used. Records the message. */
+  void (*gather_error)(const NpgCtx *c, const char *stage, int param, int nentry, const npg_idx *entry,
+                       npg_idx value, int dim);
+};
+
+/* Entry points of generated code (prefixed when several programs share a
+ * process). Each returns 0, or -1 after the runtime recorded an error. */
+typedef int (*NpgStageFn)(const NpgCtx *c);
+typedef int (*NpgBuildFn)(const NpgCtx *c, NpgSink *sink);
+
+#endif

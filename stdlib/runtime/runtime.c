@@ -1,0 +1,173 @@
+/* runtime.c — dense operator powers, scratch memory and error messages for
+ * generated code. Every LAPACK call's info is checked and turned into a
+ * message a user understands (STYLE). */
+#include "runtime.h"
+
+#include <lapacke.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static void record(const NpgCtx *c, const char *fmt, ...) {
+  NpgHost *h = c->host;
+  if (!h || h->msg[0]) return;  /* keep the first error */
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(h->msg, sizeof h->msg, fmt, ap);
+  va_end(ap);
+}
+
+static double *scratch(const NpgCtx *c, npg_idx count) {
+  if (count < 0 || (size_t)count > ((size_t)-1) / sizeof(double) / 2) {
+    record(c, "sample %ld: scratch of %ld doubles is too large", c->sample, (long)count);
+    return NULL;
+  }
+  double *p = calloc(count ? (size_t)count : 1, sizeof(double));
+  if (!p) record(c, "sample %ld: out of memory (%ld doubles of scratch)", c->sample, (long)count);
+  return p;
+}
+
+static void release(const NpgCtx *c, double *p) {
+  (void)c;
+  free(p);
+}
+
+/* 1-norm of a row-major n x n matrix, for the condition estimate. */
+static double norm1(const double *M, npg_idx n) {
+  double best = 0;
+  for (npg_idx j = 0; j < n; j++) {
+    double s = 0;
+    for (npg_idx i = 0; i < n; i++) s += fabs(M[i * n + j]);
+    if (s > best) best = s;
+  }
+  return best;
+}
+
+/* y <- M^-k y by LU: one factorization, k solves. */
+static int inverse_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long k, double *y) {
+  lapack_int *piv = malloc(sizeof(lapack_int) * (size_t)(n ? n : 1));
+  if (!piv) {
+    record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+    return -1;
+  }
+  double anorm = norm1(M, n);
+  lapack_int info = LAPACKE_dgetrf(LAPACK_ROW_MAJOR, (lapack_int)n, (lapack_int)n, M, (lapack_int)n, piv);
+  if (info < 0) {
+    record(c, "sample %ld: stage '%s': LAPACK dgetrf rejected argument %d (a bug in npg)", c->sample, stage, (int)-info);
+    free(piv);
+    return -1;
+  }
+  double rcond = 0;
+  if (info == 0) LAPACKE_dgecon(LAPACK_ROW_MAJOR, '1', (lapack_int)n, M, (lapack_int)n, anorm, &rcond);
+  if (info > 0 || !(rcond > 1e-15)) {
+    record(c, "sample %ld: stage '%s': operator %s is singular (rcond %.1e)", c->sample, stage, op, rcond);
+    free(piv);
+    return -1;
+  }
+  for (long r = 0; r < k; r++) {
+    info = LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', (lapack_int)n, 1, M, (lapack_int)n, piv, y, 1);
+    if (info != 0) {
+      record(c, "sample %ld: stage '%s': LAPACK dgetrs failed (info %d)", c->sample, stage, (int)info);
+      free(piv);
+      return -1;
+    }
+  }
+  free(piv);
+  return 0;
+}
+
+/* y <- M^(p/q) y for symmetric positive semidefinite M: V diag(w^(p/q)) V^T y. */
+static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long p, long q, double *y) {
+  double asym = 0, scale = 0;
+  for (npg_idx i = 0; i < n; i++)
+    for (npg_idx j = 0; j < n; j++) {
+      asym = fmax(asym, fabs(M[i * n + j] - M[j * n + i]));
+      scale = fmax(scale, fabs(M[i * n + j]));
+    }
+  if (asym > 1e-12 * (scale > 0 ? scale : 1)) {
+    record(c, "sample %ld: stage '%s': operator %s is not symmetric (max |M - M^T| = %.1e), so its power %ld/%ld is undefined",
+           c->sample, stage, op, asym, p, q);
+    return -1;
+  }
+  double *w = malloc(sizeof(double) * (size_t)(n ? n : 1));
+  double *t = malloc(sizeof(double) * (size_t)(n ? n : 1));
+  if (!w || !t) {
+    free(w);
+    free(t);
+    record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+    return -1;
+  }
+  lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, M, (lapack_int)n, w);
+  int rc = 0;
+  if (info != 0) {
+    record(c, "sample %ld: stage '%s': eigendecomposition of operator %s failed to converge (info %d)", c->sample, stage,
+           op, (int)info);
+    rc = -1;
+  }
+  double wmax = 0;
+  for (npg_idx i = 0; i < n && rc == 0; i++) wmax = fmax(wmax, fabs(w[i]));
+  for (npg_idx i = 0; i < n && rc == 0; i++)
+    if (w[i] < -1e-12 * (wmax > 0 ? wmax : 1) || (p < 0 && w[i] <= 0)) {
+      record(c, "sample %ld: stage '%s': operator %s is not positive %sdefinite (eigenvalue %.3g), so its power %ld/%ld is undefined",
+             c->sample, stage, op, p < 0 ? "" : "semi", w[i], p, q);
+      rc = -1;
+    }
+  if (rc == 0) {
+    double r = (double)p / (double)q;
+    for (npg_idx k = 0; k < n; k++) {
+      double s = 0;
+      for (npg_idx i = 0; i < n; i++) s += M[i * n + k] * y[i];
+      double wk = w[k] < 0 ? 0 : w[k];
+      t[k] = s * pow(wk, r);
+    }
+    for (npg_idx i = 0; i < n; i++) {
+      double s = 0;
+      for (npg_idx k = 0; k < n; k++) s += M[i * n + k] * t[k];
+      y[i] = s;
+    }
+  }
+  free(w);
+  free(t);
+  return rc;
+}
+
+static int op_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long p, long q, double *y) {
+  if (q != 1) return sym_power(c, stage, op, n, M, p, q, y);
+  if (p < 0) return inverse_power(c, stage, op, n, M, -p, y);
+  /* positive integer power: repeated products */
+  double *t = malloc(sizeof(double) * (size_t)(n ? n : 1));
+  if (!t) {
+    record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+    return -1;
+  }
+  for (long r = 0; r < p; r++) {
+    for (npg_idx i = 0; i < n; i++) {
+      double s = 0;
+      for (npg_idx j = 0; j < n; j++) s += M[i * n + j] * y[j];
+      t[i] = s;
+    }
+    memcpy(y, t, sizeof(double) * (size_t)n);
+  }
+  free(t);
+  return 0;
+}
+
+static void gather_error(const NpgCtx *c, const char *stage, int param, int nentry, const npg_idx *entry, npg_idx value,
+                         int dim) {
+  NpgHost *h = c->host;
+  char at[256] = "";
+  size_t len = 0;
+  for (int i = 0; i < nentry && len + 24 < sizeof at; i++)
+    len += (size_t)snprintf(at + len, sizeof at - len, "%s%ld", i ? ", " : "", (long)entry[i]);
+  const char *dname = h && h->dim_names ? h->dim_names[dim] : "?";
+  long dsize = (long)c->dims[dim];
+  if (param >= 0 && h && h->param_files)
+    record(c, "%s: entry [%s] = %ld is out of range for dim %s (size %ld), used as an index in stage '%s'",
+           h->param_files[param], at, (long)value, dname, dsize, stage);
+  else
+    record(c, "stage '%s' at [%s]: index %ld is out of range for dim %s (size %ld)", stage, at, (long)value, dname, dsize);
+}
+
+const NpgRt npg_runtime = {op_power, scratch, release, gather_error};
