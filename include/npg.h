@@ -51,6 +51,47 @@ NPG_API void npg_free(NpgProgram *p);
  * the reason in npg_error(). The C compiles standalone (cc -c). */
 NPG_API int npg_emit_full(NpgProgram *p, FILE *out);
 
+/* ---------------------------------------------------------------- full evaluation
+ *
+ *     NpgFull *f = npg_full_new(p, NPG_TCC);       // generate + compile (libtcc)
+ *     npg_full_bind_params(f, "DATA");             // DATA/<param>.npy; dims from shapes
+ *     npg_full_set(f, "g", 2, shape, values, "g"); // an input (or extern) of one sample
+ *     if (npg_full_eval(f, 0)) fputs(npg_full_error(f), stderr);
+ *     const double *b = npg_full_get(f, "b", &n); // every stage value is kept
+ *     npg_full_free(f);
+ *
+ * The evaluator keeps pointers into `p`: free it before npg_free(p). Values
+ * handed back belong to the evaluator and change with the next evaluation.
+ * Every function returns 0, or -1 with a message in npg_full_error() naming
+ * the file or the stage and sample; after an error the evaluator refuses
+ * further work until npg_full_clear_error(). */
+typedef struct NpgFull NpgFull;
+typedef enum NpgBackend {
+  NPG_TCC,  /* libtcc, in memory (default) */
+  NPG_CC,   /* the system compiler (CC, default cc) at -O3 -march=native, dlopen */
+} NpgBackend;
+
+NPG_API NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend);
+NPG_API const char *npg_full_error(const NpgFull *f);
+NPG_API void npg_full_clear_error(NpgFull *f);
+/* Forget every dim, param and value (to bind data of other sizes). */
+NPG_API void npg_full_unbind(NpgFull *f);
+/* Every param from DIR/<name>.npy (float64 for real, int32/int64 for int). */
+NPG_API int npg_full_bind_params(NpgFull *f, const char *data_dir);
+/* A param from memory (ints as whole doubles); `from` names it in messages. */
+NPG_API int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape, const double *values,
+                               const char *from);
+/* An input or extern (or a param) for the next evaluation: dims then static axes. */
+NPG_API int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, const double *values,
+                         const char *from);
+/* Evaluate every stage; gathers are checked once per binding first. */
+NPG_API int npg_full_eval(NpgFull *f, long sample);
+/* The value of a quantity (input, extern or stage), C order; NULL if unknown. */
+NPG_API const double *npg_full_get(const NpgFull *f, const char *name, size_t *count);
+/* The bound size of a dim, -1 if unbound or unknown. */
+NPG_API long npg_full_dim(const NpgFull *f, const char *name);
+NPG_API void npg_full_free(NpgFull *f);
+
 #ifdef __cplusplus
 }
 #endif

@@ -1,0 +1,333 @@
+/* full.c — the full evaluator as a library object: generate C, compile it
+ * (libtcc or cc), bind params and dims, check gathers once, evaluate
+ * samples, hand back every stage value. */
+#include <errno.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "compile.h"
+#include "emit.h"
+#include "jit.h"
+#include "npg.h"
+#include "npy.h"
+#include "runtime.h"
+
+struct NpgFull {
+  Program *prog;
+  JitModule *jit;
+  NpgStageFn full, check;
+  char error[1024];
+  npg_idx *dims;            /* -1 while unbound */
+  char **dim_from;          /* which file or call bound each dim */
+  double **params;          /* real params */
+  npg_idx **iparams;        /* int params */
+  char **param_files;
+  double **q;               /* every quantity */
+  size_t *qcount;
+  bool checked;             /* gathers checked for the current binding */
+  NpgHost host;
+  const char **dim_names, **param_names;
+};
+
+static int fail(NpgFull *f, const char *fmt, ...) {
+  if (f->error[0]) return -1;
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(f->error, sizeof f->error, fmt, ap);
+  va_end(ap);
+  return -1;
+}
+
+const char *npg_full_error(const NpgFull *f) { return f ? f->error : "no evaluator"; }
+
+static int find(const PtrVec *v, const char *name) {
+  for (int i = 0; i < v->n; i++)
+    if (strcmp(((Sym *)v->v[i])->name, name) == 0) return i;
+  return -1;
+}
+
+NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
+  NpgFull *f = calloc(1, sizeof *f);
+  if (!f) return NULL;
+  if (!npg_ok(p)) {
+    fail(f, "%s", npg_error(p));
+    return f;
+  }
+  Program *prog = f->prog = npg_program_ir(p);
+  char *src = NULL;
+  size_t len = 0;
+  FILE *mem = open_memstream(&src, &len);
+  if (!mem || npg_emit_full(p, mem) != 0) {
+    if (mem) fclose(mem);
+    free(src);
+    fail(f, "%s", npg_error(p));
+    return f;
+  }
+  fclose(mem);
+  char err[1024];
+  f->jit = jit_compile(src, backend == NPG_CC, err, sizeof err);
+  free(src);
+  if (!f->jit) {
+    fail(f, "%s", err);
+    return f;
+  }
+  f->full = (NpgStageFn)jit_symbol(f->jit, "npg_full");
+  f->check = (NpgStageFn)jit_symbol(f->jit, "npg_check");
+  if (!f->full || !f->check) {
+    fail(f, "generated code lacks its entry points (a bug in npg)");
+    return f;
+  }
+  int nd = prog->dims.n, np = prog->params.n, nq = prog->quantities.n;
+  f->dims = calloc((size_t)nd + 1, sizeof *f->dims);
+  f->dim_from = calloc((size_t)nd + 1, sizeof *f->dim_from);
+  f->params = calloc((size_t)np + 1, sizeof *f->params);
+  f->iparams = calloc((size_t)np + 1, sizeof *f->iparams);
+  f->param_files = calloc((size_t)np + 1, sizeof *f->param_files);
+  f->q = calloc((size_t)nq + 1, sizeof *f->q);
+  f->qcount = calloc((size_t)nq + 1, sizeof *f->qcount);
+  f->dim_names = calloc((size_t)nd + 1, sizeof *f->dim_names);
+  f->param_names = calloc((size_t)np + 1, sizeof *f->param_names);
+  if (!f->dims || !f->dim_from || !f->params || !f->iparams || !f->param_files || !f->q || !f->qcount ||
+      !f->dim_names || !f->param_names) {
+    fail(f, "out of memory");
+    return f;
+  }
+  for (int i = 0; i < nd; i++) {
+    f->dims[i] = -1;
+    f->dim_names[i] = ((Sym *)prog->dims.v[i])->name;
+  }
+  for (int i = 0; i < np; i++) f->param_names[i] = ((Sym *)prog->params.v[i])->name;
+  f->host.dim_names = f->dim_names;
+  f->host.param_names = f->param_names;
+  f->host.param_files = (const char *const *)f->param_files;
+  return f;
+}
+
+/* Bind the dims of `s` from a shape (dims then static axes); `from` names
+ * the source in messages. */
+static int bind_shape(NpgFull *f, const Sym *s, int ndim, const long *shape, const char *from) {
+  if (ndim != s->ndims + s->nstatic)
+    return fail(f, "%s: '%s' has %d ax%s, but the array has %d", from, s->name, s->ndims + s->nstatic,
+                s->ndims + s->nstatic == 1 ? "is" : "es", ndim);
+  for (int i = 0; i < s->nstatic; i++)
+    if (shape[s->ndims + i] != s->shape[i])
+      return fail(f, "%s: axis %d of '%s' is static with size %d, but the array has %ld", from, s->ndims + i, s->name,
+                  s->shape[i], shape[s->ndims + i]);
+  for (int i = 0; i < s->ndims; i++) {
+    int d = emit_index_of(&f->prog->dims, s->dims[i]);
+    if (f->dims[d] < 0) {
+      f->dims[d] = shape[i];
+      free(f->dim_from[d]);
+      f->dim_from[d] = strdup(from);
+      f->checked = false;
+    } else if (f->dims[d] != shape[i]) {
+      return fail(f, "dim %s is %ld in %s but %ld in %s", s->dims[i]->name, (long)f->dims[d],
+                  f->dim_from[d] ? f->dim_from[d] : "an earlier binding", shape[i], from);
+    }
+  }
+  return 0;
+}
+
+static size_t count_of(NpgFull *f, const Sym *s) {
+  size_t n = 1;
+  for (int i = 0; i < s->ndims; i++) n *= (size_t)f->dims[emit_index_of(&f->prog->dims, s->dims[i])];
+  for (int i = 0; i < s->nstatic; i++) n *= (size_t)s->shape[i];
+  return n;
+}
+
+/* A param from memory: doubles (int params must hold whole numbers). */
+int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape, const double *values,
+                       const char *from) {
+  if (f->error[0]) return -1;
+  int k = find(&f->prog->params, name);
+  if (k < 0) return fail(f, "%s: the program has no param '%s'", from, name);
+  const Sym *s = f->prog->params.v[k];
+  if (bind_shape(f, s, ndim, shape, from)) return -1;
+  size_t n = count_of(f, s);
+  free(f->params[k]);
+  free(f->iparams[k]);
+  f->params[k] = NULL;
+  f->iparams[k] = NULL;
+  if (s->is_int) {
+    f->iparams[k] = malloc(sizeof(npg_idx) * (n ? n : 1));
+    if (!f->iparams[k]) return fail(f, "out of memory");
+    for (size_t i = 0; i < n; i++) {
+      if (values[i] != (double)(npg_idx)values[i])
+        return fail(f, "%s: int param '%s' holds %g at flat entry %zu, not a whole number", from, name, values[i], i);
+      f->iparams[k][i] = (npg_idx)values[i];
+    }
+  } else {
+    f->params[k] = malloc(sizeof(double) * (n ? n : 1));
+    if (!f->params[k]) return fail(f, "out of memory");
+    for (size_t i = 0; i < n; i++) {
+      if (values[i] != values[i] || values[i] - values[i] != 0)
+        return fail(f, "%s: param '%s' holds %s at flat entry %zu", from, name, values[i] != values[i] ? "NaN" : "an infinity", i);
+      f->params[k][i] = values[i];
+    }
+  }
+  free(f->param_files[k]);
+  f->param_files[k] = strdup(from);
+  f->checked = false;
+  return 0;
+}
+
+int npg_full_bind_params(NpgFull *f, const char *data_dir) {
+  if (f->error[0]) return -1;
+  for (int k = 0; k < f->prog->params.n; k++) {
+    const Sym *s = f->prog->params.v[k];
+    char path[4096], err[1024];
+    snprintf(path, sizeof path, "%s/%s.npy", data_dir, s->name);
+    NpyArray a;
+    if (npy_read(path, &a, err, sizeof err) != 0) return fail(f, "%s", err);
+    if (s->is_int ? a.type == NPY_F64 : a.type != NPY_F64) {
+      npy_free(&a);
+      return fail(f, "%s: param '%s' is declared %s but the array is %s", path, s->name, s->is_int ? "int" : "real",
+                  npy_type_name(a.type));
+    }
+    double *v = malloc(sizeof(double) * (a.count ? a.count : 1));
+    if (!v) {
+      npy_free(&a);
+      return fail(f, "out of memory");
+    }
+    for (size_t i = 0; i < a.count; i++)
+      v[i] = a.type == NPY_F64 ? ((double *)a.data)[i]
+             : a.type == NPY_I32 ? (double)((int *)a.data)[i]
+                                 : (double)((long long *)a.data)[i];
+    int rc = npg_full_set_param(f, s->name, a.ndim, a.shape, v, path);
+    free(v);
+    npy_free(&a);
+    if (rc) return -1;
+  }
+  return 0;
+}
+
+int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, const double *values, const char *from) {
+  if (f->error[0]) return -1;
+  int k = find(&f->prog->quantities, name);
+  if (k < 0) {
+    if (find(&f->prog->params, name) >= 0) return npg_full_set_param(f, name, ndim, shape, values, from);
+    return fail(f, "%s: the program has no input or param '%s'", from, name);
+  }
+  const Sym *s = f->prog->quantities.v[k];
+  if (s->kind != SYM_INPUT && s->kind != SYM_EXTERN)
+    return fail(f, "%s: '%s' is a stage; only inputs, externs and params are set", from, name);
+  if (bind_shape(f, s, ndim, shape, from)) return -1;
+  size_t n = count_of(f, s);
+  if (f->qcount[k] != n) {
+    free(f->q[k]);
+    f->q[k] = malloc(sizeof(double) * (n ? n : 1));
+    if (!f->q[k]) return fail(f, "out of memory");
+    f->qcount[k] = n;
+  }
+  for (size_t i = 0; i < n; i++)
+    if (values[i] != values[i] || values[i] - values[i] != 0)
+      return fail(f, "%s: '%s' holds %s at flat entry %zu", from, name, values[i] != values[i] ? "NaN" : "an infinity", i);
+  memcpy(f->q[k], values, sizeof(double) * n);
+  return 0;
+}
+
+static NpgCtx context(NpgFull *f, long sample) {
+  NpgCtx c;
+  c.dims = f->dims;
+  c.params = (const double *const *)f->params;
+  c.iparams = (const npg_idx *const *)f->iparams;
+  c.q = f->q;
+  c.rt = &npg_runtime;
+  c.sample = sample;
+  c.host = &f->host;
+  return c;
+}
+
+int npg_full_eval(NpgFull *f, long sample) {
+  if (f->error[0]) return -1;
+  const Program *prog = f->prog;
+  for (int i = 0; i < prog->dims.n; i++)
+    if (f->dims[i] < 0) return fail(f, "dim %s is not bound: no param or input over it was given", f->dim_names[i]);
+  for (int k = 0; k < prog->params.n; k++)
+    if (!f->params[k] && !f->iparams[k])
+      return fail(f, "param '%s' is not bound", ((Sym *)prog->params.v[k])->name);
+  for (int k = 0; k < prog->quantities.n; k++) {
+    const Sym *s = prog->quantities.v[k];
+    size_t n = count_of(f, s);
+    if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) {
+      if (!f->q[k] || f->qcount[k] != n)
+        return fail(f, "%s '%s' is not set for sample %ld", s->kind == SYM_INPUT ? "input" : "extern", s->name, sample);
+    } else if (f->qcount[k] != n) {
+      free(f->q[k]);
+      f->q[k] = calloc(n ? n : 1, sizeof(double));
+      if (!f->q[k]) return fail(f, "out of memory");
+      f->qcount[k] = n;
+    }
+  }
+  NpgCtx c = context(f, sample);
+  f->host.msg[0] = 0;
+  if (!f->checked) {
+    if (f->check(&c) != 0) return fail(f, "%s", f->host.msg);
+    f->checked = true;
+  }
+  if (f->full(&c) != 0) return fail(f, "%s", f->host.msg);
+  return 0;
+}
+
+const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
+  int k = find(&f->prog->quantities, name);
+  if (k < 0) return NULL;
+  if (count) *count = f->qcount[k];
+  return f->q[k];
+}
+
+long npg_full_dim(const NpgFull *f, const char *name) {
+  int k = find(&f->prog->dims, name);
+  return k < 0 ? -1 : (long)f->dims[k];
+}
+
+void npg_full_clear_error(NpgFull *f) { f->error[0] = 0; }
+
+void npg_full_unbind(NpgFull *f) {
+  if (!f->prog) return;
+  for (int i = 0; i < f->prog->dims.n; i++) {
+    f->dims[i] = -1;
+    free(f->dim_from[i]);
+    f->dim_from[i] = NULL;
+  }
+  for (int i = 0; i < f->prog->params.n; i++) {
+    free(f->params[i]);
+    free(f->iparams[i]);
+    free(f->param_files[i]);
+    f->params[i] = NULL;
+    f->iparams[i] = NULL;
+    f->param_files[i] = NULL;
+  }
+  for (int i = 0; i < f->prog->quantities.n; i++) {
+    free(f->q[i]);
+    f->q[i] = NULL;
+    f->qcount[i] = 0;
+  }
+  f->checked = false;
+  f->error[0] = 0;
+}
+
+void npg_full_free(NpgFull *f) {
+  if (!f) return;
+  jit_free(f->jit);
+  if (f->prog) {
+    for (int i = 0; i < f->prog->dims.n; i++) free(f->dim_from[i]);
+    for (int i = 0; i < f->prog->params.n; i++) {
+      free(f->params[i]);
+      free(f->iparams[i]);
+      free(f->param_files[i]);
+    }
+    for (int i = 0; i < f->prog->quantities.n; i++) free(f->q[i]);
+  }
+  free(f->dims);
+  free(f->dim_from);
+  free(f->params);
+  free(f->iparams);
+  free(f->param_files);
+  free(f->q);
+  free(f->qcount);
+  free(f->dim_names);
+  free(f->param_names);
+  free(f);
+}

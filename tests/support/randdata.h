@@ -1,0 +1,20 @@
+/* randdata.h — random but well-posed data for a program (tests). */
+#ifndef NPG_RANDDATA_H
+#define NPG_RANDDATA_H
+
+#include <stdbool.h>
+#include <stddef.h>
+
+#include "ir.h"
+
+/* Fill `out` (count values) for param, input or extern `s` of `prog`, every
+ * dim of size n: inputs and externs in [0.5, 1.5]; real params in
+ * [0.1, 0.3] (keeps operators like I - rho p well conditioned); int params
+ * in [0, n) with distinct entries along the last axis and no two rows the
+ * same set (no degenerate triangles or tetrahedra); with `padded`, int
+ * params that some guard tests get -1 in about one entry in four. Returns
+ * true when it padded. */
+bool rand_fill(const Program *prog, const Sym *s, long n, unsigned *seed, bool padded, double *out, size_t count);
+double rand_uniform(unsigned *seed, double lo, double hi);
+
+#endif
