@@ -44,6 +44,9 @@ Emit *emit_new(Ctx *ctx, const Program *prog, FILE *out);
 void emit_header(Emit *e, const char *what);
 char *emit_source_line(Ctx *ctx, Loc loc);
 void emit_full(Ctx *ctx, const Program *prog, FILE *out);
+/* A function `signature` whose prologue declares what `body` used. */
+void emit_function_sig(Emit *e, FILE *out, const char *signature, const Sym *writes,
+                       void (*body)(Emit *, FILE *, const void *), const void *arg);
 /* backends/emit_builder.c */
 void emit_builders(Ctx *ctx, const Program *prog, FILE *out);
 /* The name of the builder function of tensor `group` of `field` (0 = the

@@ -234,7 +234,7 @@ static void emit_stage_body(Emit *e, FILE *out, const Stage *st) {
 }
 
 /* A function whose prologue declares exactly what its body used. */
-static void emit_function(Emit *e, FILE *out, const char *signature, const Sym *writes,
+void emit_function_sig(Emit *e, FILE *out, const char *signature, const Sym *writes,
                           void (*body)(Emit *, FILE *, const void *), const void *arg) {
   char *buf = NULL;
   size_t len = 0;
@@ -399,7 +399,7 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
     else
       fprintf(out, "/* %s: %s, %s:%d\n   %s */\n", s->name, stage_kind_name[st->kind],
               s->loc.file ? s->loc.file->name : "?", s->loc.line, emit_source_line(ctx, s->loc));
-    emit_function(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "stage_", s)), s,
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "stage_", s)), s,
                   stage_body_cb, st);
   }
   fputs("/* Every stage in evaluation order (externs are given with the inputs). */\n", out);
@@ -416,13 +416,13 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
     const Stage *st = prog->stages.v[i];
     if (st->kind == ST_EXTERN) continue;
     fprintf(out, "/* gathers of %s */\n", st->sym->name);
-    emit_function(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "check_", st->sym)), NULL,
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "check_", st->sym)), NULL,
                   check_stage_cb, st);
   }
   for (int i = 0; i < prog->opdefs.n; i++) {
     const OpDef *od = prog->opdefs.v[i];
     fprintf(out, "/* gathers of operator %s */\n", od->sym->name);
-    emit_function(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "check_op_", od->sym)), NULL,
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "check_op_", od->sym)), NULL,
                   check_op_cb, od);
   }
   fputs("/* Every gather in range of its dim where its guard holds: run once per binding. */\n", out);

@@ -8,6 +8,7 @@
 
 #include "compile.h"
 #include "emit.h"
+#include "full.h"
 #include "jit.h"
 #include "npg.h"
 #include "npy.h"
@@ -269,6 +270,18 @@ int npg_full_eval(NpgFull *f, long sample) {
   if (f->full(&c) != 0) return fail(f, "%s", f->host.msg);
   return 0;
 }
+
+int full_build(NpgFull *f, const char *name, NpgSink *sink) {
+  if (f->error[0]) return -1;
+  NpgBuildFn fn = (NpgBuildFn)jit_symbol(f->jit, name);
+  if (!fn) return fail(f, "no tensor builder '%s' in the generated code", name);
+  NpgCtx c = context(f, 0);
+  f->host.msg[0] = 0;
+  if (fn(&c, sink) != 0) return fail(f, "%s", f->host.msg[0] ? f->host.msg : "the tensor sink refused an entry");
+  return 0;
+}
+
+long full_dim_size(const NpgFull *f, int k) { return (long)f->dims[k]; }
 
 const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
   int k = find(&f->prog->quantities, name);

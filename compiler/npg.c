@@ -108,7 +108,10 @@ static bool guarded_emit(NpgProgram *np, FILE *out) {
   jmp_buf env;
   np->ctx.on_error = &env;
   bool ok = setjmp(env) == 0;
-  if (ok) emit_full(&np->ctx, np->prog, out);
+  if (ok) {
+    emit_full(&np->ctx, np->prog, out);
+    emit_builders(&np->ctx, np->prog, out);
+  }
   np->ctx.on_error = NULL;
   free(np->ctx.pending_free);
   np->ctx.pending_free = NULL;

@@ -298,7 +298,7 @@ static const Env *entry_env(RefData *d, const Sym *s, size_t e, Env *cells) {
 /* ---------------------------------------------------------------- dense operators */
 
 /* M^(p/q) applied to x (n entries), M dense row-major n x n. */
-static bool apply_power(RefData *d, double *M, int n, long p, long q, double *x) {
+bool ref_apply_power(RefData *d, double *M, int n, long p, long q, double *x) {
   double *A = malloc(sizeof(double) * (size_t)n * (size_t)n);
   double *y = malloc(sizeof(double) * (size_t)n);
   bool ok = true;
@@ -410,7 +410,7 @@ static void eval_whole(RefData *d, const Sym *s, const Node *n, double *out) {
     if (n->kind == N_CALL) p = -p;
     eval_whole(d, s, x, out);
     double *M = op_matrix_ast(d, op);
-    apply_power(d, M, (int)ne, p, q, out);
+    ref_apply_power(d, M, (int)ne, p, q, out);
     free(M);
     break;
   }
@@ -499,7 +499,7 @@ void ref_eval_canonical(RefData *d, const Stage *st, double *out) {
         size_t nm = n_entries(d, o->op);
         double *M = malloc(sizeof(double) * nm);
         for (size_t e = 0; e < nm; e++) M[e] = eval_poly(d, &od->entries->comp[0], entry_env(d, o->op, e, cells));
-        apply_power(d, M, (int)ne, o->p, o->q, v);
+        ref_apply_power(d, M, (int)ne, o->p, o->q, v);
         free(M);
       }
     }

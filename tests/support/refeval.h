@@ -3,6 +3,7 @@
 #ifndef NPG_REFEVAL_H
 #define NPG_REFEVAL_H
 
+#include <stdbool.h>
 #include <stddef.h>
 
 #include "ir.h"
@@ -22,6 +23,9 @@ double *ref_values(RefData *d, const Sym *q);
 void ref_eval_direct(RefData *d, const Sym *s, double *out);
 /* The stage value from its canonical form (reads upstream stages' storage). */
 void ref_eval_canonical(RefData *d, const Stage *st, double *out);
+/* x <- M^(p/q) x for a dense row-major n x n M (overwritten): LU for
+ * integer powers, eigendecomposition for fractional ones. */
+bool ref_apply_power(RefData *d, double *M, int n, long p, long q, double *x);
 /* First evaluation problem (index out of range, singular operator), or NULL. */
 const char *ref_error(RefData *d);
 

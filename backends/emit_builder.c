@@ -1,0 +1,201 @@
+/* emit_builder.c — the tensor builders (DESIGN §6): for every tensor of
+ * every term, a function that streams its sparse entries
+ *
+ *     (row, col, offsets of the contracted entries, coefficient)
+ *
+ * to an NpgSink in output-major order, ready for pre-multiplication. A
+ * numerator tensor's row is the flat entry of the stage (col -1); a
+ * diagonal operator's entries lie on its diagonal (row == col); a declared
+ * operator's row and column are flat over its row and column index
+ * variables. The inputs of an entry come in the tensor's input order
+ * (TensorGroup.inputs). */
+#include <stdlib.h>
+#include <string.h>
+
+#include "emit.h"
+
+static void indent(FILE *out, int depth) {
+  for (int i = 0; i < depth; i++) fputs("  ", out);
+}
+
+static char *c_ident(Ctx *ctx, const char *s) {
+  char *n = arena_strdup(ctx, s);
+  for (char *c = n; *c; c++)
+    if (!((*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || (*c >= '0' && *c <= '9') || *c == '_')) *c = '_';
+  return n;
+}
+
+char *builder_name(Ctx *ctx, const Program *prog, const Stage *st, int term, int field, int group, const Sym *op) {
+  (void)prog;
+  if (!st) return arena_printf(ctx, "npg_build_op_%s_g%d", c_ident(ctx, op->name), group);
+  return arena_printf(ctx, "npg_build_%s_t%d_f%d_g%d", c_ident(ctx, st->sym->name), term, field, group);
+}
+
+static int cmp_sym(const Sym *x, const Sym *y) {
+  if (x->id != y->id) return x->id < y->id ? -1 : 1;
+  return strcmp(x->name, y->name);
+}
+
+/* The atoms of m in the tensor's input order; false if m is not in `g`. */
+static bool mono_in_group(const Mono *m, const TensorGroup *g, int *order) {
+  if (m->natoms != g->ninputs) return false;
+  bool used[64] = {0};
+  for (int k = 0; k < g->ninputs; k++) {
+    int found = -1;
+    for (int a = 0; a < m->natoms && found < 0; a++)
+      if (!used[a] && cmp_sym(m->atoms[a].q, g->inputs[k]) == 0) found = a;
+    if (found < 0) return false;
+    used[found] = true;
+    order[k] = found;
+  }
+  return true;
+}
+
+typedef struct BuildArgs {
+  const Field *field;
+  const TensorGroup *group;
+  const Sym *domain;     /* whose index variables are looped over */
+  int kind;              /* 0 numerator, 1 diagonal operator, 2 declared operator */
+  int ncomp;
+} BuildArgs;
+
+/* Flat index over ivars [from, to) of `s`, as C. */
+static void emit_flat(Emit *e, FILE *out, const Sym *s, int from, int to) {
+  if (from >= to) {
+    fputc('0', out);
+    return;
+  }
+  for (int i = from + 1; i < to; i++) fputc('(', out);
+  for (int i = from; i < to; i++) {
+    if (i > from) {
+      emit_use(e, s->ivars[i]->range);
+      fprintf(out, " * %s + ", emit_name(e, s->ivars[i]->range));
+    }
+    fputs(emit_name(e, s->ivars[i]), out);
+    if (i > from) fputc(')', out);
+  }
+}
+
+static void build_body(Emit *e, FILE *out, const void *arg) {
+  const BuildArgs *b = arg;
+  const Sym *s = b->domain;
+  const TensorGroup *g = b->group;
+  for (int i = 0; i < s->nivars; i++) {
+    const char *v = emit_name(e, s->ivars[i]);
+    emit_use(e, s->ivars[i]->range);
+    indent(out, 1 + i);
+    fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, s->ivars[i]->range), v);
+  }
+  int depth = 1 + s->nivars;
+  int nrow = b->kind == 2 ? s->nrow : s->nivars;
+  indent(out, depth);
+  fputs("const npg_idx e_ = ", out);
+  emit_flat(e, out, s, 0, nrow);
+  fputs(";\n", out);
+  if (b->kind == 2) {
+    indent(out, depth);
+    fputs("const npg_idx col_ = ", out);
+    emit_flat(e, out, s, nrow, s->nivars);
+    fputs(";\n", out);
+  }
+  indent(out, depth);
+  fprintf(out, "npg_idx in_[%d] = {0};\n", g->ninputs ? g->ninputs : 1);
+  indent(out, depth);
+  fputs("(void)in_;\n", out);
+  for (int c = 0; c < b->ncomp; c++) {
+    const Poly *p = &b->field->comp[c];
+    for (int i = 0; i < p->n; i++) {
+      const Mono *m = p->m[i];
+      int order[64];
+      if (!mono_in_group(m, g, order)) continue;
+      int d = depth;
+      indent(out, d++);
+      fputs("{\n", out);
+      for (int k = 0; k < m->nsums; k++) {
+        const char *kv = emit_name(e, m->sums[k].var);
+        indent(out, d++);
+        fprintf(out, "for (npg_idx %s = ", kv);
+        emit_cexpr(e, out, m->sums[k].lo);
+        fprintf(out, "; %s <= ", kv);
+        emit_cexpr(e, out, m->sums[k].hi);
+        fprintf(out, "; %s++) {\n", kv);
+      }
+      if (m->guard) {
+        indent(out, d++);
+        fputs("if (", out);
+        emit_cexpr(e, out, m->guard);
+        fputs(") {\n", out);
+      }
+      for (int k = 0; k < g->ninputs; k++) {
+        const Atom *a = &m->atoms[order[k]];
+        indent(out, d);
+        fprintf(out, "in_[%d] = ", k);
+        emit_offset(e, out, a->q, a->idx, a->nidx);
+        fputs(";\n", out);
+      }
+      indent(out, d);
+      const char *row = arena_printf(e->ctx, "e_ * %d + %d", b->ncomp, c);
+      const char *col = b->kind == 0 ? "-1" : b->kind == 1 ? row : "col_";
+      if (m->coef->kind == N_NUM) {
+        fprintf(out, "if (sink->entry(sink->user, %s, %s, %d, in_, ", row, col, g->ninputs);
+        emit_cexpr(e, out, m->coef);
+        fputs(")) return -1;\n", out);
+      } else { /* coefficients such as delta(i, j) are zero off their support: not an entry */
+        fputs("{ const double k_ = ", out);
+        emit_cexpr(e, out, m->coef);
+        fprintf(out, "; if (k_ != 0.0 && sink->entry(sink->user, %s, %s, %d, in_, k_)) return -1; }\n", row, col,
+                g->ninputs);
+      }
+      for (int k = d - 1; k >= depth; k--) {
+        indent(out, k);
+        fputs("}\n", out);
+      }
+    }
+  }
+  for (int i = s->nivars; i >= 1; i--) {
+    indent(out, i);
+    fputs("}\n", out);
+  }
+  /* a builder reads offsets, never values: declare no quantity */
+  memset(e->used_q, 0, sizeof(bool) * (size_t)e->prog->quantities.n);
+}
+
+static void emit_one(Emit *e, const char *name, const char *what, BuildArgs *b) {
+  fprintf(e->out, "/* %s: order %d, %d monomial%s, nnz %s%s */\n", what, b->group->order, b->group->nmono,
+          b->group->nmono == 1 ? "" : "s", b->group->nnz_bound ? "<= " : "", b->group->nnz);
+  emit_function_sig(e, e->out, arena_printf(e->ctx, "int %s(const NpgCtx *c, NpgSink *sink)", name), NULL, build_body, b);
+}
+
+/* Builders after the full evaluator, in the same translation unit. */
+void emit_builders(Ctx *ctx, const Program *prog, FILE *out) {
+  Emit *e = emit_new(ctx, prog, out);
+  fputs("/* ---------------------------------------------------------------- tensor builders */\n\n", out);
+  for (int i = 0; i < prog->stages.n; i++) {
+    const Stage *st = prog->stages.v[i];
+    for (int t = 0; t < st->nterms; t++) {
+      const Term *tm = st->terms[t];
+      if (!tm->named_num)
+        for (int g = 0; g < tm->num_tensors.n; g++) {
+          BuildArgs b = {tm->num, &tm->num_tensors.g[g], st->sym, 0, st->ncomp};
+          emit_one(e, builder_name(ctx, prog, st, t, 0, g, NULL),
+                   arena_printf(ctx, "%s term %d numerator, tensor %d", st->sym->name, t + 1, g + 1), &b);
+        }
+      for (int k = 0; k < tm->nops; k++) {
+        if (tm->ops[k].kind != OPK_DIAG) continue;
+        for (int g = 0; g < tm->op_tensors[k].n; g++) {
+          BuildArgs b = {tm->ops[k].diag, &tm->op_tensors[k].g[g], st->sym, 1, st->ncomp};
+          emit_one(e, builder_name(ctx, prog, st, t, k + 1, g, NULL),
+                   arena_printf(ctx, "%s term %d diagonal operator %d, tensor %d", st->sym->name, t + 1, k + 1, g + 1), &b);
+        }
+      }
+    }
+  }
+  for (int i = 0; i < prog->opdefs.n; i++) {
+    const OpDef *od = prog->opdefs.v[i];
+    for (int g = 0; g < od->tensors.n; g++) {
+      BuildArgs b = {od->entries, &od->tensors.g[g], od->sym, 2, 1};
+      emit_one(e, builder_name(ctx, prog, NULL, 0, 0, g, od->sym),
+               arena_printf(ctx, "operator %s, tensor %d", od->sym->name, g + 1), &b);
+    }
+  }
+}

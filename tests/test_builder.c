@@ -1,0 +1,212 @@
+/* test_builder.c — the tensor builders: for every example and test program,
+ * every stage rebuilt from its tensors' streamed entries by a simple
+ * reference contraction loop equals the generated full evaluator's value
+ * (1e-12 relative, the exactness of lowering of DESIGN §4 seen through the
+ * tensors); entries arrive output-major; their count equals the symbolic
+ * nonzero count npgc check reports (at most, where guards make it a bound). */
+#include <dirent.h>
+#include <math.h>
+#include <stdio.h>
+
+#include "emit.h"
+#include "full.h"
+#include "support/randdata.h"
+#include "support/refeval.h"
+#include "testutil.h"
+
+typedef struct Collect {
+  const Program *prog;
+  NpgFull *f;
+  const TensorGroup *g;
+  double *out;          /* numerator or diagonal: [rows]; declared operator: [rows * ncols] */
+  long ncols;
+  long last_row;
+  long count;
+  bool ordered, diag_ok;
+  bool diag;            /* entries must have row == col */
+} Collect;
+
+static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
+  Collect *k = user;
+  if (row < k->last_row) k->ordered = false;
+  k->last_row = row;
+  if (k->diag && row != col) k->diag_ok = false;
+  double v = coef;
+  for (int i = 0; i < nin; i++) v *= npg_full_get(k->f, k->g->inputs[i]->name, NULL)[in[i]];
+  if (k->ncols) k->out[row * k->ncols + col] += v;
+  else k->out[row] += v;
+  k->count++;
+  return 0;
+}
+
+/* Value of a symbolic count like "18·F^2 + 3·F" with every dim = n. */
+static long eval_count(const char *s, long n) {
+  long total = 0;
+  while (*s) {
+    long term = 1;
+    if (*s >= '0' && *s <= '9') term = strtol(s, (char **)&s, 10);
+    while (*s && *s != ' ') {
+      if (strncmp(s, "·", strlen("·")) == 0) {
+        s += strlen("·");
+        continue;
+      }
+      if ((*s >= 'A' && *s <= 'Z') || (*s >= 'a' && *s <= 'z')) {
+        while ((*s >= 'A' && *s <= 'Z') || (*s >= 'a' && *s <= 'z') || (*s >= '0' && *s <= '9') || *s == '_') s++;
+        long p = 1;
+        if (*s == '^') p = strtol(s + 1, (char **)&s, 10);
+        for (long i = 0; i < p; i++) term *= n;
+        continue;
+      }
+      s++;
+    }
+    total += term;
+    while (*s == ' ' || *s == '+') s++;
+  }
+  return total;
+}
+
+static int run_group(Collect *k, const char *name, const TensorGroup *g, long n, const char *path, const char *what) {
+  k->g = g;
+  k->last_row = -1;
+  k->count = 0;
+  k->ordered = k->diag_ok = true;
+  NpgSink sink = {k, on_entry};
+  if (full_build(k->f, name, &sink) != 0) {
+    print_message("%s: %s: %s\n", path, what, npg_full_error(k->f));
+    return 1;
+  }
+  int bad = 0;
+  long expect = eval_count(g->nnz, n);
+  if (!k->ordered) print_message("%s: %s: entries not in output-major order\n", path, what), bad++;
+  if (!k->diag_ok) print_message("%s: %s: a diagonal operator entry off the diagonal\n", path, what), bad++;
+  if (g->nnz_bound ? k->count > expect : k->count != expect)
+    print_message("%s: %s: %ld entries, nnz formula '%s' gives %ld\n", path, what, k->count, g->nnz, expect), bad++;
+  return bad;
+}
+
+static double rpow(double b, long p, long q) {
+  if (q == 1) return pow(b, (double)p);
+  return pow(b, (double)p / (double)q);
+}
+
+static int check_program(const char *path, double *worst) {
+  NpgProgram *p = compile_file(path);
+  Program *prog = ir_ok(p);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  int failures = 0;
+  const long n = 6;
+  unsigned seed = 4321u;
+  RefData *d = ref_new(prog, n);
+  PtrVec given = {0};
+  for (int i = 0; i < prog->params.n; i++) vec_push(prog->ctx, &given, prog->params.v[i]);
+  for (int i = 0; i < prog->quantities.n; i++) {
+    const Sym *s = prog->quantities.v[i];
+    if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) vec_push(prog->ctx, &given, (void *)s);
+  }
+  for (int i = 0; i < given.n; i++) {
+    const Sym *s = given.v[i];
+    size_t cnt = ref_count(d, s);
+    double *v = ref_values(d, s);
+    rand_fill(prog, s, n, &seed, false, v, cnt);
+    long shape[MAX_AXES + MAX_STATIC];
+    for (int a = 0; a < s->ndims; a++) shape[a] = n;
+    for (int a = 0; a < s->nstatic; a++) shape[s->ndims + a] = s->shape[a];
+    if (npg_full_set(f, s->name, s->ndims + s->nstatic, shape, v, s->name)) fail_msg("%s", npg_full_error(f));
+  }
+  if (npg_full_eval(f, 0)) fail_msg("%s: %s", path, npg_full_error(f));
+  for (int i = 0; i < prog->stages.n; i++) {
+    const Stage *st = prog->stages.v[i];
+    if (st->kind == ST_EXTERN) continue;
+    size_t count = ref_count(d, st->sym);
+    size_t ne = count / (size_t)st->ncomp;
+    double *y = calloc(count, sizeof(double)), *num = calloc(count, sizeof(double)), *dg = calloc(count, sizeof(double));
+    Collect k = {prog, f, NULL, NULL, 0, 0, 0, true, true, false};
+    for (int t = 0; t < st->nterms; t++) {
+      const Term *tm = st->terms[t];
+      memset(num, 0, sizeof(double) * count);
+      if (tm->named_num) {
+        memcpy(num, npg_full_get(f, tm->named_num->name, NULL), sizeof(double) * count);
+      } else {
+        k.out = num;
+        k.ncols = 0;
+        k.diag = false;
+        for (int g = 0; g < tm->num_tensors.n; g++)
+          failures += run_group(&k, builder_name(prog->ctx, prog, st, t, 0, g, NULL), &tm->num_tensors.g[g], n, path,
+                                st->sym->name);
+      }
+      for (int o = 0; o < tm->nops; o++) {
+        const OpPow *op = &tm->ops[o];
+        if (op->kind == OPK_DIAG) {
+          memset(dg, 0, sizeof(double) * count);
+          k.out = dg;
+          k.ncols = 0;
+          k.diag = true;
+          for (int g = 0; g < tm->op_tensors[o].n; g++)
+            failures += run_group(&k, builder_name(prog->ctx, prog, st, t, o + 1, g, NULL), &tm->op_tensors[o].g[g], n,
+                                  path, st->sym->name);
+          for (size_t e = 0; e < count; e++) num[e] *= rpow(dg[e], op->p, op->q);
+        } else {
+          double *M = calloc(ne * ne, sizeof(double));
+          k.out = M;
+          k.ncols = (long)ne;
+          k.diag = false;
+          const OpDef *od = op->op->opdef;
+          for (int g = 0; g < od->tensors.n; g++)
+            failures += run_group(&k, builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op), &od->tensors.g[g], n, path,
+                                  op->op->name);
+          if (!ref_apply_power(d, M, (int)ne, op->p, op->q, num)) fail_msg("%s: singular operator in the reference", path);
+          free(M);
+        }
+      }
+      for (size_t e = 0; e < count; e++) y[e] += num[e];
+    }
+    const double *full = npg_full_get(f, st->sym->name, NULL);
+    double dn = 0, dd = 0;
+    for (size_t e = 0; e < count; e++) {
+      dn = fmax(dn, fabs(y[e] - full[e]));
+      dd = fmax(dd, fabs(full[e]));
+    }
+    double rel = dd > 0 ? dn / dd : dn;
+    if (!(rel <= 1e-12)) {
+      print_message("%s: stage %s: tensor form differs from the full evaluator by %.3g\n", path, st->sym->name, rel);
+      failures++;
+    }
+    *worst = fmax(*worst, rel);
+    free(y);
+    free(num);
+    free(dg);
+  }
+  ref_free(d);
+  npg_full_free(f);
+  npg_free(p);
+  return failures;
+}
+
+static void tensor_form_equals_full(void **state) {
+  (void)state;
+  const char *dirs[] = {"examples/rational", "examples/radiosity", "examples/fluids", "tests/programs"};
+  int n = 0, failures = 0;
+  double worst = 0;
+  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) {
+    DIR *dd = opendir(dirs[i]);
+    if (!dd) continue;
+    struct dirent *e;
+    while ((e = readdir(dd))) {
+      size_t l = strlen(e->d_name);
+      if (l < 5 || strcmp(e->d_name + l - 4, ".npg") != 0) continue;
+      char path[1024];
+      snprintf(path, sizeof path, "%s/%s", dirs[i], e->d_name);
+      failures += check_program(path, &worst);
+      n++;
+    }
+    closedir(dd);
+  }
+  print_message("%d programs: tensor form vs full evaluator, worst relative difference %.2g\n", n, worst);
+  assert_true(n >= 20);
+  assert_int_equal(failures, 0);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {cmocka_unit_test(tensor_form_equals_full)};
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
