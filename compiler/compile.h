@@ -12,6 +12,8 @@ Program *sema_program(Ctx *ctx, const SrcFile *file, Decl *decls);
 /* compiler/dumpast.c: -dp, the parsed declarations. */
 void dump_decls(FILE *out, const Decl *d);
 void dump_checked(FILE *out, const Program *prog);
+/* compiler/eval.c: the `npgc eval` command. */
+int npgc_eval(int argc, char **argv);
 /* compiler/npg.c: the stage program of a compiled NpgProgram (tests, backends). */
 struct NpgProgram;
 Program *npg_program_ir(const struct NpgProgram *p);

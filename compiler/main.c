@@ -4,6 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "compile.h"
 #include "npg.h"
 
 static void usage(FILE *out) {
@@ -16,11 +17,16 @@ static void usage(FILE *out) {
         "  -dLETTERS  dump the IR after stages: p parse, s check, l lower, b basis classes.\n"
         "\n"
         "       npgc emit PROG.npg -o FILE.c\n"
+        "       npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc]\n"
         "\n"
         "  emit    write the generated C of the full evaluator (one function per stage)\n"
         "          and the bind-time gather checker; it compiles standalone with cc -c.\n"
         "\n"
-        "Not yet implemented: train, eval, verify, bench.\n",
+        "  eval    --full: evaluate the full program on every sample of IN/<input>.npy\n"
+        "          (leading sample axis; params from DATA/<param>.npy) and write every\n"
+        "          output as OUT/<name>.npy. --cc compiles with the system compiler at -O3.\n"
+        "\n"
+        "Not yet implemented: train, reduced eval, verify, bench.\n",
         out);
 }
 
@@ -77,8 +83,9 @@ int main(int argc, char **argv) {
   }
   const char *cmd = argv[1];
   if (strcmp(cmd, "emit") == 0) return cmd_emit(argc, argv);
+  if (strcmp(cmd, "eval") == 0) return npgc_eval(argc, argv);
   if (strcmp(cmd, "check") != 0) {
-    if (!strcmp(cmd, "train") || !strcmp(cmd, "eval") || !strcmp(cmd, "verify") ||
+    if (!strcmp(cmd, "train") || !strcmp(cmd, "verify") ||
         !strcmp(cmd, "bench")) {
       fprintf(stderr, "npgc: '%s' is not implemented yet\n", cmd);
       return 2;

@@ -1,0 +1,227 @@
+/* test_bind.c — binding data: every malformed case gets a message naming
+ * the file (or the stage and sample) and the problem, exactly. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <unistd.h>
+
+#include "npy.h"
+#include "testutil.h"
+
+static char dir[256];
+
+static void put(const char *name, NpyType t, int nd, const long *shape, const void *data) {
+  char path[512], err[512];
+  snprintf(path, sizeof path, "%s/%s.npy", dir, name);
+  if (npy_write(path, t, nd, shape, data, err, sizeof err)) fail_msg("%s", err);
+}
+
+static void rm(const char *name) {
+  char path[512];
+  snprintf(path, sizeof path, "%s/%s.npy", dir, name);
+  unlink(path);
+}
+
+/* A well-formed radiosity binding: F = 4 faces of a tetrahedron, V = 4. */
+static const long F = 4, V = 4;
+static long long tri[4][3] = {{0, 1, 2}, {0, 3, 1}, {0, 2, 3}, {1, 3, 2}};
+static double rho[4] = {0.2, 0.3, 0.4, 0.5};
+
+static void good_data(void) {
+  long s2[2] = {F, 3}, s1[1] = {F};
+  put("tri", NPY_I64, 2, s2, tri);
+  put("rho", NPY_F64, 1, s1, rho);
+}
+
+static NpgFull *radiosity(NpgProgram **pp) {
+  *pp = compile_file("examples/radiosity/formfactors.npg");
+  ir_ok(*pp);
+  NpgFull *f = npg_full_new(*pp, NPG_TCC);
+  assert_string_equal(npg_full_error(f), "");
+  return f;
+}
+
+static char *msg(const char *fmt, const char *a) {
+  static char buf[1024];
+  snprintf(buf, sizeof buf, fmt, a, a, a);
+  return buf;
+}
+
+static void expect_bind_error(const char *want) {
+  NpgProgram *p;
+  NpgFull *f = radiosity(&p);
+  assert_int_equal(npg_full_bind_params(f, dir), -1);
+  assert_string_equal(npg_full_error(f), want);
+  npg_full_free(f);
+  npg_free(p);
+}
+
+static void missing_file(void **state) {
+  (void)state;
+  good_data();
+  rm("rho");
+  char want[1024];
+  snprintf(want, sizeof want, "%s/rho.npy: cannot open: No such file or directory", dir);
+  NpgProgram *p;
+  NpgFull *f = radiosity(&p);
+  assert_int_equal(npg_full_bind_params(f, dir), -1);
+  assert_non_null(strstr(npg_full_error(f), "/rho.npy"));
+  assert_non_null(strstr(npg_full_error(f), "No such file or directory"));
+  npg_full_free(f);
+  npg_free(p);
+  (void)want;
+}
+
+static void wrong_dtype(void **state) {
+  (void)state;
+  good_data();
+  double t[12];
+  for (int i = 0; i < 12; i++) t[i] = (double)tri[i / 3][i % 3];
+  long s2[2] = {F, 3};
+  put("tri", NPY_F64, 2, s2, t);
+  expect_bind_error(msg("%s/tri.npy: param 'tri' is declared int but the array is float64", dir));
+}
+
+static void dim_mismatch_names_both_files(void **state) {
+  (void)state;
+  good_data();
+  double r[7] = {0};
+  long s1[1] = {7};
+  put("rho", NPY_F64, 1, s1, r);
+  char want[1024];
+  snprintf(want, sizeof want, "dim F is 4 in %s/tri.npy but 7 in %s/rho.npy", dir, dir);
+  expect_bind_error(want);
+}
+
+static void static_axis_mismatch(void **state) {
+  (void)state;
+  good_data();
+  long long t[16] = {0};
+  long s2[2] = {F, 4};
+  put("tri", NPY_I64, 2, s2, t);
+  expect_bind_error(msg("%s/tri.npy: axis 1 of 'tri' is static with size 3, but the array has 4", dir));
+}
+
+static void wrong_rank(void **state) {
+  (void)state;
+  good_data();
+  long long t[12] = {0};
+  long s1[1] = {12};
+  put("tri", NPY_I64, 1, s1, t);
+  expect_bind_error(msg("%s/tri.npy: 'tri' has 2 axes, but the array has 1", dir));
+}
+
+static void nan_in_param(void **state) {
+  (void)state;
+  good_data();
+  double r[4] = {0.2, 0.3, 0.0 / 0.0, 0.5};
+  long s1[1] = {F};
+  put("rho", NPY_F64, 1, s1, r);
+  expect_bind_error(msg("%s/rho.npy: param 'rho' holds NaN at flat entry 2", dir));
+}
+
+/* An index out of range in tri.npy: found once at bind time (the first
+ * evaluation), naming the file, the entry and the dim. */
+static void gather_out_of_range(void **state) {
+  (void)state;
+  good_data();
+  long long t[4][3];
+  memcpy(t, tri, sizeof t);
+  t[2][1] = 9;
+  long s2[2] = {F, 3};
+  put("tri", NPY_I64, 2, s2, t);
+  NpgProgram *p;
+  NpgFull *f = radiosity(&p);
+  assert_int_equal(npg_full_bind_params(f, dir), 0);
+  double g[12], e[4] = {1, 0, 0, 0}, v[16];
+  for (int i = 0; i < 12; i++) g[i] = (double)((i * 7) % 5) + 0.1 * i;
+  for (int i = 0; i < 16; i++) v[i] = 1;
+  long sg[2] = {V, 3}, se[1] = {F}, sv[2] = {F, F};
+  assert_int_equal(npg_full_set(f, "g", 2, sg, g, "g"), 0);
+  assert_int_equal(npg_full_set(f, "e", 1, se, e, "e"), 0);
+  assert_int_equal(npg_full_set(f, "v", 2, sv, v, "v"), 0);
+  assert_int_equal(npg_full_eval(f, 0), -1);
+  char want[1024];
+  snprintf(want, sizeof want, "%s/tri.npy: entry [2, 1] = 9 is out of range for dim V (size 4), used as an index in stage 'n'",
+           dir);
+  assert_string_equal(npg_full_error(f), want);
+  npg_full_free(f);
+  npg_free(p);
+}
+
+static void nan_in_input(void **state) {
+  (void)state;
+  good_data();
+  NpgProgram *p;
+  NpgFull *f = radiosity(&p);
+  assert_int_equal(npg_full_bind_params(f, dir), 0);
+  double g[12] = {0.0 / 0.0};
+  long sg[2] = {V, 3};
+  assert_int_equal(npg_full_set(f, "g", 2, sg, g, "IN/g.npy"), -1);
+  assert_string_equal(npg_full_error(f), "IN/g.npy: 'g' holds NaN at flat entry 0");
+  npg_full_free(f);
+  npg_free(p);
+}
+
+/* Singular and indefinite operators: the stage, the operator and the sample. */
+static void singular_and_indefinite(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("ops.npg",
+                               "dim N\n"
+                               "param a : real[N, N]\n"
+                               "input x : real[N]\n"
+                               "op M[i:N, j:N] = a[i, j]\n"
+                               "output y = solve(M, x)\n"
+                               "output z = root(M, 2) * x\n");
+  ir_ok(p);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  double zero[4] = {0, 0, 0, 0}, neg[4] = {-1, 0, 0, -1}, x[2] = {1, 2};
+  long s2[2] = {2, 2}, s1[1] = {2};
+  assert_int_equal(npg_full_set(f, "a", 2, s2, zero, "a"), 0);
+  assert_int_equal(npg_full_set(f, "x", 1, s1, x, "x"), 0);
+  assert_int_equal(npg_full_eval(f, 12), -1);
+  assert_string_equal(npg_full_error(f), "sample 12: stage 'y': operator M is singular (rcond 0.0e+00)");
+  npg_full_clear_error(f);
+  assert_int_equal(npg_full_set(f, "a", 2, s2, neg, "a"), 0);
+  assert_int_equal(npg_full_eval(f, 3), -1);
+  assert_string_equal(npg_full_error(f),
+                      "sample 3: stage 'z': operator M is not positive semidefinite (eigenvalue -1), so its power 1/2 "
+                      "is undefined");
+  npg_full_free(f);
+  npg_free(p);
+}
+
+static void unbound_dim(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("u.npg", "dim N\ninput x : real[N]\noutput y[i:N] = x[i] * x[i]\n");
+  ir_ok(p);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  assert_int_equal(npg_full_eval(f, 0), -1);
+  assert_string_equal(npg_full_error(f), "dim N is not bound: no param or input over it was given");
+  npg_full_free(f);
+  npg_free(p);
+}
+
+static int setup(void **state) {
+  (void)state;
+  snprintf(dir, sizeof dir, "/tmp/npg-bind-XXXXXX");
+  return mkdtemp(dir) ? 0 : -1;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  rm("tri");
+  rm("rho");
+  rmdir(dir);
+  return 0;
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(missing_file),         cmocka_unit_test(wrong_dtype),
+      cmocka_unit_test(dim_mismatch_names_both_files), cmocka_unit_test(static_axis_mismatch),
+      cmocka_unit_test(wrong_rank),           cmocka_unit_test(nan_in_param),
+      cmocka_unit_test(gather_out_of_range),  cmocka_unit_test(nan_in_input),
+      cmocka_unit_test(singular_and_indefinite), cmocka_unit_test(unbound_dim),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
