@@ -44,7 +44,7 @@ void emit_use(Emit *e, const Sym *s) {
   case SYM_INPUT:
   case SYM_STAGE:
   case SYM_EXTERN:
-    if ((k = emit_index_of(&e->prog->quantities, s)) >= 0) e->used_q[k] = true;
+    if ((k = emit_index_of(&e->prog->slots, s)) >= 0) e->used_q[k] = true;
     break;
   default: break;
   }
@@ -53,7 +53,7 @@ void emit_use(Emit *e, const Sym *s) {
 void emit_reset_used(Emit *e) {
   memset(e->used_dim, 0, sizeof(bool) * (size_t)(e->prog->dims.n + 1));
   memset(e->used_param, 0, sizeof(bool) * (size_t)(e->prog->params.n + 1));
-  memset(e->used_q, 0, sizeof(bool) * (size_t)(e->prog->quantities.n + 1));
+  memset(e->used_q, 0, sizeof(bool) * (size_t)(e->prog->slots.n + 1));
 }
 
 void emit_double(FILE *out, double v) {
@@ -232,12 +232,14 @@ void emit_prologue(Emit *e, FILE *out, bool write_stage, const Sym *stage) {
   for (int i = 0; i < prog->params.n; i++)
     if (e->used_param[i]) {
       const Sym *p = prog->params.v[i];
-      if (p->is_int) fprintf(out, "  const npg_idx *const %s = c->iparams[%d];\n", emit_name(e, p), i);
-      else fprintf(out, "  const double *const %s = c->params[%d];\n", emit_name(e, p), i);
+      if (p->is_int) fprintf(out, "  const npg_idx *restrict const %s = c->iparams[%d];\n", emit_name(e, p), i);
+      else fprintf(out, "  const double *restrict const %s = c->params[%d];\n", emit_name(e, p), i);
     }
-  for (int i = 0; i < prog->quantities.n; i++) {
-    const Sym *q = prog->quantities.v[i];
-    if (write_stage && q == stage) fprintf(out, "  double *const %s = c->q[%d];\n", emit_name(e, q), i);
-    else if (e->used_q[i]) fprintf(out, "  const double *const %s = c->q[%d];\n", emit_name(e, q), i);
+  for (int i = 0; i < prog->slots.n; i++) {
+    const Sym *q = prog->slots.v[i];
+    /* restrict: the stage written never aliases what it reads, so the C
+     * compiler may hoist loads out of the inner loops */
+    if (write_stage && q == stage) fprintf(out, "  double *restrict const %s = c->q[%d];\n", emit_name(e, q), i);
+    else if (e->used_q[i]) fprintf(out, "  const double *restrict const %s = c->q[%d];\n", emit_name(e, q), i);
   }
 }

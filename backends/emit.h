@@ -18,6 +18,7 @@ typedef struct Emit {
   FILE *out;
   bool *used_dim, *used_param, *used_q;
   int tmp;               /* counter for temporaries */
+  const Sym *direct_for; /* definition whose whole references are being emitted */
 } Emit;
 
 /* The C name of a symbol: quantities Q_<name>, params P_<name>, dims
@@ -47,6 +48,11 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out);
 /* A function `signature` whose prologue declares what `body` used. */
 void emit_function_sig(Emit *e, FILE *out, const char *signature, const Sym *writes,
                        void (*body)(Emit *, FILE *, const void *), const void *arg);
+/* backends/emit_direct.c: can the stage be evaluated from its source
+ * expression (no declared operators)? Then component `comp` of its value at
+ * the current entry, as C. */
+bool emit_direct_ok(const Stage *st);
+void emit_direct_entry(Emit *e, FILE *out, const Stage *st, int comp);
 /* backends/emit_builder.c */
 void emit_builders(Ctx *ctx, const Program *prog, FILE *out);
 /* The name of the builder function of tensor `group` of `field` (0 = the

@@ -157,7 +157,7 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
     fputs("}\n", out);
   }
   /* a builder reads offsets, never values: declare no quantity */
-  memset(e->used_q, 0, sizeof(bool) * (size_t)e->prog->quantities.n);
+  memset(e->used_q, 0, sizeof(bool) * (size_t)e->prog->slots.n);
 }
 
 static void emit_one(Emit *e, const char *name, const char *what, BuildArgs *b) {

@@ -130,6 +130,17 @@ static void emit_stage_body(Emit *e, FILE *out, const Stage *st) {
   int nc = st->ncomp;
   const char *y = emit_name(e, s);
   emit_use(e, s);
+  if (emit_direct_ok(st)) { /* the source expression, entry by entry */
+    int depth = open_entry_loops(e, out, s, 1);
+    for (int c = 0; c < nc; c++) {
+      indent(out, depth);
+      fprintf(out, "%s[e_ * %d + %d] = ", y, nc, c);
+      emit_direct_entry(e, out, st, c);
+      fputs(";\n", out);
+    }
+    close_loops(out, depth, 1);
+    return;
+  }
   bool any_entrywise = false;
   for (int t = 0; t < st->nterms; t++) any_entrywise |= !term_has_decl(st->terms[t]);
   int depth = open_entry_loops(e, out, s, 1);
@@ -382,7 +393,7 @@ Emit *emit_new(Ctx *ctx, const Program *prog, FILE *out) {
   e->out = out;
   e->used_dim = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->dims.n + 1));
   e->used_param = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->params.n + 1));
-  e->used_q = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->quantities.n + 1));
+  e->used_q = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->slots.n + 1));
   return e;
 }
 
@@ -402,10 +413,27 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
     emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "stage_", s)), s,
                   stage_body_cb, st);
   }
+  /* Temps: inlined stages that read inputs, computed once (the reduced
+   * model folds them into its tensors; the full evaluator need not). */
+  for (int i = 0; i < prog->temps.n; i++) {
+    const Sym *s = prog->temps.v[i];
+    fprintf(out, "/* %s: inlined (computed once here), %s:%d\n   %s */\n", s->name, s->loc.file ? s->loc.file->name : "?",
+            s->loc.line, emit_source_line(ctx, s->loc));
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "temp_", s)), s,
+                      stage_body_cb, s->stage);
+  }
   fputs("/* Every stage in evaluation order (externs are given with the inputs). */\n", out);
   fputs("int npg_full(const NpgCtx *c) {\n", out);
+  bool *done = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->temps.n + 1));
   for (int i = 0; i < prog->stages.n; i++) {
     const Stage *st = prog->stages.v[i];
+    for (int t = 0; t < prog->temps.n; t++) {
+      const Sym *tmp = prog->temps.v[t];
+      if (!done[t] && tmp->id < st->sym->id) {
+        fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "temp_", tmp));
+        done[t] = true;
+      }
+    }
     if (st->kind == ST_EXTERN) continue;
     fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "stage_", st->sym));
   }
@@ -418,6 +446,12 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
     fprintf(out, "/* gathers of %s */\n", st->sym->name);
     emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "check_", st->sym)), NULL,
                   check_stage_cb, st);
+  }
+  for (int i = 0; i < prog->temps.n; i++) {
+    const Sym *s = prog->temps.v[i];
+    fprintf(out, "/* gathers of %s */\n", s->name);
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "check_temp_", s)), NULL,
+                      check_stage_cb, s->stage);
   }
   for (int i = 0; i < prog->opdefs.n; i++) {
     const OpDef *od = prog->opdefs.v[i];
@@ -432,6 +466,8 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
     if (st->kind == ST_EXTERN) continue;
     fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "check_", st->sym));
   }
+  for (int i = 0; i < prog->temps.n; i++)
+    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "check_temp_", prog->temps.v[i]));
   for (int i = 0; i < prog->opdefs.n; i++)
     fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "check_op_", ((OpDef *)prog->opdefs.v[i])->sym));
   fputs("  return 0;\n}\n", out);

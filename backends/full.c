@@ -79,7 +79,7 @@ NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
     fail(f, "generated code lacks its entry points (a bug in npg)");
     return f;
   }
-  int nd = prog->dims.n, np = prog->params.n, nq = prog->quantities.n;
+  int nd = prog->dims.n, np = prog->params.n, nq = prog->slots.n;
   f->dims = calloc((size_t)nd + 1, sizeof *f->dims);
   f->dim_from = calloc((size_t)nd + 1, sizeof *f->dim_from);
   f->params = calloc((size_t)np + 1, sizeof *f->params);
@@ -205,12 +205,12 @@ int npg_full_bind_params(NpgFull *f, const char *data_dir) {
 
 int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, const double *values, const char *from) {
   if (f->error[0]) return -1;
-  int k = find(&f->prog->quantities, name);
+  int k = find(&f->prog->slots, name);
   if (k < 0) {
     if (find(&f->prog->params, name) >= 0) return npg_full_set_param(f, name, ndim, shape, values, from);
     return fail(f, "%s: the program has no input or param '%s'", from, name);
   }
-  const Sym *s = f->prog->quantities.v[k];
+  const Sym *s = f->prog->slots.v[k];
   if (s->kind != SYM_INPUT && s->kind != SYM_EXTERN)
     return fail(f, "%s: '%s' is a stage; only inputs, externs and params are set", from, name);
   if (bind_shape(f, s, ndim, shape, from)) return -1;
@@ -248,8 +248,8 @@ int npg_full_eval(NpgFull *f, long sample) {
   for (int k = 0; k < prog->params.n; k++)
     if (!f->params[k] && !f->iparams[k])
       return fail(f, "param '%s' is not bound", ((Sym *)prog->params.v[k])->name);
-  for (int k = 0; k < prog->quantities.n; k++) {
-    const Sym *s = prog->quantities.v[k];
+  for (int k = 0; k < prog->slots.n; k++) {
+    const Sym *s = prog->slots.v[k];
     size_t n = count_of(f, s);
     if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) {
       if (!f->q[k] || f->qcount[k] != n)
@@ -284,7 +284,7 @@ int full_build(NpgFull *f, const char *name, NpgSink *sink) {
 long full_dim_size(const NpgFull *f, int k) { return (long)f->dims[k]; }
 
 const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
-  int k = find(&f->prog->quantities, name);
+  int k = find(&f->prog->slots, name);
   if (k < 0) return NULL;
   if (count) *count = f->qcount[k];
   return f->q[k];
@@ -312,7 +312,7 @@ void npg_full_unbind(NpgFull *f) {
     f->iparams[i] = NULL;
     f->param_files[i] = NULL;
   }
-  for (int i = 0; i < f->prog->quantities.n; i++) {
+  for (int i = 0; i < f->prog->slots.n; i++) {
     free(f->q[i]);
     f->q[i] = NULL;
     f->qcount[i] = 0;
@@ -331,7 +331,7 @@ void npg_full_free(NpgFull *f) {
       free(f->iparams[i]);
       free(f->param_files[i]);
     }
-    for (int i = 0; i < f->prog->quantities.n; i++) free(f->q[i]);
+    for (int i = 0; i < f->prog->slots.n; i++) free(f->q[i]);
   }
   free(f->dims);
   free(f->dim_from);

@@ -61,7 +61,7 @@ int npgc_eval(int argc, char **argv) {
   Program *prog = npg_program_ir(p);
   int rc = 1;
   NpgFull *f = npg_full_new(p, cc ? NPG_CC : NPG_TCC);
-  Given *given = calloc((size_t)prog->quantities.n + 1, sizeof *given);
+  Given *given = calloc((size_t)prog->slots.n + 1, sizeof *given);
   int ngiven = 0;
   double **outs = calloc((size_t)prog->outputs.n + 1, sizeof *outs);
   size_t *outcount = calloc((size_t)prog->outputs.n + 1, sizeof *outcount);
@@ -77,8 +77,8 @@ int npgc_eval(int argc, char **argv) {
     goto done;
   }
   /* Inputs and externs, every sample at once. */
-  for (int i = 0; i < prog->quantities.n; i++) {
-    const Sym *s = prog->quantities.v[i];
+  for (int i = 0; i < prog->slots.n; i++) {
+    const Sym *s = prog->slots.v[i];
     if (s->kind != SYM_INPUT && s->kind != SYM_EXTERN) continue;
     Given *gv = &given[ngiven];
     gv->sym = s;

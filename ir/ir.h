@@ -154,6 +154,10 @@ struct Program {
   PtrVec opdefs;         /* OpDef* */
   PtrVec outputs;        /* Sym* */
   PtrVec inlined;        /* Sym*: stages named by `inline` */
+  PtrVec temps;          /* Sym*: inlined stages that read inputs: folded into the
+                            tensors, but computed once by the full evaluator */
+  PtrVec slots;          /* Sym*: what generated code holds values of (NpgCtx.q):
+                            quantities, then temps */
   PtrVec shares;         /* Decl* */
   PtrVec merges;         /* Merge* */
   PtrVec classes;        /* BasisClass* */

@@ -1137,11 +1137,17 @@ static void lower_op(Lowerer *L, Sym *op) {
 /* `inline c` folds c into its consumers; DESIGN §4 allows it only for a
  * linear quantity (otherwise folding raises the consumers' tensor orders
  * behind the user's back). */
+static Stage *stage_from_value(Lowerer *L, Sym *s, Value *v);
+
 static void check_inline(Lowerer *L, Sym *s) {
   L->cur = s;
   PtrVec open = {0};
   g_open_sums = &open;
   Value *v = lower(L, s->body, NULL);
+  if (s->body->ty.var == V_VARYING) { /* a temp of the full evaluator */
+    s->stage = stage_from_value(L, s, v);
+    vec_push(L->ctx, &L->prog->temps, s);
+  }
   for (int i = 0; i < v->terms.n; i++) {
     Term *t = v->terms.v[i];
     if (t->nops)
@@ -1169,6 +1175,13 @@ void lower_program(Ctx *ctx, Program *prog) {
   L.ctx = ctx;
   L.prog = prog;
   for (int i = 0; i < prog->inlined.n; i++) check_inline(&L, prog->inlined.v[i]);
+  /* temps are computed in definition order (a temp may read an earlier one) */
+  for (int i = 1; i < prog->temps.n; i++)
+    for (int j = i; j > 0 && ((Sym *)prog->temps.v[j - 1])->id > ((Sym *)prog->temps.v[j])->id; j--) {
+      void *t = prog->temps.v[j];
+      prog->temps.v[j] = prog->temps.v[j - 1];
+      prog->temps.v[j - 1] = t;
+    }
   for (Decl *d = prog->decls; d; d = d->next) {
     if (d->kind != D_STAGE && d->kind != D_OP && d->kind != D_EXTERN) continue;
     Sym *s = NULL;
@@ -1209,4 +1222,8 @@ void lower_program(Ctx *ctx, Program *prog) {
   for (int i = 0; i < prog->inputs.n; i++) vec_push(ctx, &q, prog->inputs.v[i]);
   for (int i = 0; i < prog->stages.n; i++) vec_push(ctx, &q, ((Stage *)prog->stages.v[i])->sym);
   prog->quantities = q;
+  PtrVec slots = {0};
+  for (int i = 0; i < q.n; i++) vec_push(ctx, &slots, q.v[i]);
+  for (int i = 0; i < prog->temps.n; i++) vec_push(ctx, &slots, prog->temps.v[i]);
+  prog->slots = slots;
 }

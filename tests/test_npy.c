@@ -475,6 +475,7 @@ static void bad_headers(void **state) {
       {1, "{'descr': '<u8', 'fortran_order': False, 'shape': ()}", 8, "unsupported dtype '<u8' " SUPPORTED},
       {1, "{'descr': '|b1', 'fortran_order': False, 'shape': ()}", 1, "unsupported dtype '|b1' " SUPPORTED},
       {1, "{'descr': '<f8 ', 'fortran_order': False, 'shape': ()}", 8, "unsupported dtype '<f8 ' " SUPPORTED},
+      {1, "{'descr': '<f\\'8', 'fortran_order': False, 'shape': ()}", 8, "unsupported dtype '<f\\'8' " SUPPORTED},
       {1, "{'descr': [('a', '<f8')], 'fortran_order': False, 'shape': ()}", 8,
        "unsupported dtype [('a', '<f8')] " SUPPORTED},
       {1, "{'descr': 8, 'fortran_order': False, 'shape': ()}", 8, "unsupported dtype 8 " SUPPORTED},

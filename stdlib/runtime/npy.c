@@ -4,8 +4,9 @@
  * what the file holds before anything is allocated, and the header dict —
  * a Python literal that numpy itself reads with ast.literal_eval — is parsed
  * by hand without recursion, so no input can exhaust the stack, read out of
- * bounds or make us allocate more than the file holds. The writer reproduces numpy.save's bytes exactly, so a file npgc
- * writes is indistinguishable from one the user made with numpy.
+ * bounds or make us allocate more than the file holds. The writer reproduces
+ * numpy.save's bytes exactly, so a file npgc writes is indistinguishable from
+ * one the user made with numpy.
  */
 #define _POSIX_C_SOURCE 200809L /* fileno, fstat, fsync, getpid */
 
@@ -363,7 +364,7 @@ static int parse_shape(const Report *r, Span v, int allow_long_suffix, size_t si
 static int parse_header(const Report *r, const char *header, size_t len, int major, NpyArray *a, size_t *size,
                         int *swap) {
   HeaderDict d = {0};
-  int fortran;
+  int fortran = 0;
   if (parse_dict(r, header, len, &d) || parse_descr(r, d.descr, &a->type, size, swap) ||
       parse_fortran_order(r, d.fortran_order, &fortran) || parse_shape(r, d.shape, major < 3, *size, a))
     return -1;

@@ -1,0 +1,133 @@
+/* bench_full.c — the generated full evaluator of the radiosity form factors
+ * (bench/formfactors.npg) against hand-written C (bench/ff_hand.c, -O3
+ * -march=native) in the same run, for F = 500, 1000, 2000; and the time from
+ * .npg source to a callable evaluator through libtcc and through cc.
+ *
+ *     build/bench_full [reps]
+ *
+ * Prints figures, not pass/fail. */
+#define _POSIX_C_SOURCE 200809L
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "ff_hand.h"
+#include "meshgen.h"
+#include "npg.h"
+
+static double now(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+static const char *PROG = "bench/formfactors.npg";
+
+static NpgFull *evaluator(NpgProgram *p, NpgBackend b, const Mesh *m, const double *v) {
+  NpgFull *f = npg_full_new(p, b);
+  double *t = malloc(sizeof(double) * (size_t)m->F * 3);
+  for (long i = 0; i < m->F * 3; i++) t[i] = m->tri[i];
+  long st[2] = {m->F, 3}, sg[2] = {m->V, 3}, sv[2] = {m->F, m->F};
+  npg_full_set_param(f, "tri", 2, st, t, "tri");
+  npg_full_set(f, "g", 2, sg, m->g, "g");
+  npg_full_set(f, "v", 2, sv, v, "v");
+  free(t);
+  if (npg_full_eval(f, 0) != 0) {
+    fprintf(stderr, "bench_full: %s\n", npg_full_error(f));
+    exit(1);
+  }
+  return f;
+}
+
+static double best_eval(NpgFull *f, int reps) {
+  double best = 1e30;
+  for (int r = 0; r < reps; r++) {
+    double t0 = now();
+    npg_full_eval(f, r);
+    best = fmin(best, now() - t0);
+  }
+  return best;
+}
+
+int main(int argc, char **argv) {
+  int reps = argc > 1 ? atoi(argv[1]) : 5;
+  if (reps < 1) reps = 1;
+  NpgOptions opt = {0};
+  opt.std_dir = "stdlib";
+
+  /* Source to callable: parse, check, lower, emit, compile, relocate. */
+  double best_tcc = 1e30, best_cc = 1e30;
+  for (int r = 0; r < 20; r++) {
+    double t0 = now();
+    NpgProgram *p = npg_compile(PROG, &opt);
+    NpgFull *f = npg_full_new(p, NPG_TCC);
+    double t1 = now();
+    if (!npg_ok(p) || npg_full_error(f)[0]) {
+      fprintf(stderr, "bench_full: %s%s\n", npg_error(p), npg_full_error(f));
+      return 1;
+    }
+    best_tcc = fmin(best_tcc, t1 - t0);
+    npg_full_free(f);
+    npg_free(p);
+  }
+  for (int r = 0; r < 3; r++) {
+    double t0 = now();
+    NpgProgram *p = npg_compile(PROG, &opt);
+    NpgFull *f = npg_full_new(p, NPG_CC);
+    best_cc = fmin(best_cc, now() - t0);
+    npg_full_free(f);
+    npg_free(p);
+  }
+  printf("source to callable (%s): libtcc %.2f ms (goal < 20 ms), cc -O3 %.0f ms\n\n", PROG, 1e3 * best_tcc,
+         1e3 * best_cc);
+
+  printf("full evaluation of the form factors, best of %d (seconds; ratio = npg / hand-written)\n", reps);
+  printf("%6s %12s %12s %8s %12s %8s %10s\n", "F", "hand -O3", "npg cc", "ratio", "npg libtcc", "ratio", "max rel diff");
+  NpgProgram *p = npg_compile(PROG, &opt);
+  if (!npg_ok(p)) {
+    fputs(npg_error(p), stderr);
+    return 1;
+  }
+  long sizes[] = {500, 1000, 2000};
+  for (int k = 0; k < 3; k++) {
+    long F = sizes[k];
+    Mesh m;
+    char err[256];
+    if (mesh_room(F, 0.5, &m, err, sizeof err)) {
+      fprintf(stderr, "bench_full: %s\n", err);
+      return 1;
+    }
+    size_t FF = (size_t)F * (size_t)F;
+    double *v = malloc(sizeof(double) * FF);
+    for (size_t i = 0; i < FF; i++) v[i] = 1;
+    double *n = malloc(sizeof(double) * (size_t)F * 3), *s = malloc(sizeof(double) * FF), *r = malloc(sizeof(double) * FF),
+           *h = malloc(sizeof(double) * FF), *c = malloc(sizeof(double) * FF), *d = malloc(sizeof(double) * FF),
+           *a = malloc(sizeof(double) * (size_t)F), *pp = malloc(sizeof(double) * FF);
+    ff_hand(F, m.V, m.g, m.tri, v, n, s, r, h, c, d, a, pp); /* warm up, fault the pages */
+    double hand = 1e30;
+    for (int rep = 0; rep < reps; rep++) {
+      double t0 = now();
+      ff_hand(F, m.V, m.g, m.tri, v, n, s, r, h, c, d, a, pp);
+      hand = fmin(hand, now() - t0);
+    }
+    NpgFull *fc = evaluator(p, NPG_CC, &m, v);
+    double tcc_cc = best_eval(fc, reps);
+    NpgFull *ft = evaluator(p, NPG_TCC, &m, v);
+    double tcc_t = best_eval(ft, reps < 3 ? reps : 3);
+    const double *q = npg_full_get(fc, "p", NULL);
+    double dn = 0, dd = 0;
+    for (size_t i = 0; i < FF; i++) {
+      dn = fmax(dn, fabs(q[i] - pp[i]));
+      dd = fmax(dd, fabs(pp[i]));
+    }
+    printf("%6ld %12.5f %12.5f %8.2f %12.5f %8.2f %10.1e\n", F, hand, tcc_cc, tcc_cc / hand, tcc_t, tcc_t / hand, dn / dd);
+    npg_full_free(fc);
+    npg_full_free(ft);
+    free(v), free(n), free(s), free(r), free(h), free(c), free(d), free(a), free(pp);
+    mesh_free(&m);
+  }
+  npg_free(p);
+  return 0;
+}
