@@ -239,7 +239,8 @@ void emit_prologue(Emit *e, FILE *out, bool write_stage, const Sym *stage) {
     const Sym *q = prog->slots.v[i];
     /* restrict: the stage written never aliases what it reads, so the C
      * compiler may hoist loads out of the inner loops */
-    if (write_stage && q == stage) fprintf(out, "  double *restrict const %s = c->q[%d];\n", emit_name(e, q), i);
+    if ((write_stage && q == stage) || (e->writes && e->writes[i]))
+      fprintf(out, "  double *restrict const %s = c->q[%d];\n", emit_name(e, q), i);
     else if (e->used_q[i]) fprintf(out, "  const double *restrict const %s = c->q[%d];\n", emit_name(e, q), i);
   }
 }

@@ -19,6 +19,12 @@ typedef struct Emit {
   bool *used_dim, *used_param, *used_q;
   int tmp;               /* counter for temporaries */
   const Sym *direct_for; /* definition whose whole references are being emitted */
+  /* a fused group being emitted: members[0..upto) are computed at the
+   * current entry (locals l_<name>_<comp>), loop variables are loopvar[] */
+  const Stage *const *fuse;
+  int nfuse, fuse_upto;
+  const char **loopvar;
+  bool *writes;          /* per slot: the function writes it */
 } Emit;
 
 /* The C name of a symbol: quantities Q_<name>, params P_<name>, dims
@@ -52,6 +58,11 @@ void emit_function_sig(Emit *e, FILE *out, const char *signature, const Sym *wri
  * expression (no declared operators)? Then component `comp` of its value at
  * the current entry, as C. */
 bool emit_direct_ok(const Stage *st);
+/* Can stage `cand` join the fused group members[0..n) (same domain; every
+ * read of a member at the same entry, or rematerializable)? */
+bool emit_fusable(const Stage *const *members, int n, const Stage *cand);
+/* The fused loop of members[0..n): every member at every entry. */
+void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n);
 void emit_direct_entry(Emit *e, FILE *out, const Stage *st, int comp);
 /* backends/emit_builder.c */
 void emit_builders(Ctx *ctx, const Program *prog, FILE *out);

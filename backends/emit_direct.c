@@ -115,6 +115,32 @@ static void entry(Emit *e, FILE *out, const Sym *q, Node *const *args, int nargs
     sidx[i] = c % q->shape[i];
     c /= q->shape[i];
   }
+  if (q->kind == SYM_STAGE && !q->inlined && e->fuse) {
+    int k = -1;
+    for (int m = 0; m < e->fuse_upto; m++)
+      if (e->fuse[m]->sym == q) k = m;
+    if (k >= 0) {
+      bool identity = true;
+      for (int i = 0; i < q->ndims; i++) identity &= strcmp(idx[i], e->loopvar[i]) == 0;
+      int flat = 0;
+      for (int i = 0; i < given_static; i++) flat = flat * q->shape[i] + (int)sidx[i];
+      for (int i = given_static; i < q->nstatic; i++) flat = flat * q->shape[i] + (int)sidx[i];
+      if (identity) { /* computed at this entry already */
+        fprintf(out, "l_%d_%d", k, flat);
+        return;
+      }
+      /* another entry of a member: rematerialized from its expression */
+      const DEnv *e2 = NULL;
+      for (int i = 0; i < q->ndims; i++) e2 = bind(e, e2, q->ivars[i], idx[i], false, 0);
+      const Sym *saved = e->direct_for;
+      e->direct_for = q;
+      fputc('(', out);
+      direct(e, out, q->body, flat, e2);
+      fputc(')', out);
+      e->direct_for = saved;
+      return;
+    }
+  }
   if (q->kind == SYM_STAGE && q->inlined && !q->stage) { /* a constant definition: substituted */
     const DEnv *e2 = NULL;
     for (int i = 0; i < q->ndims; i++) e2 = bind(e, e2, q->ivars[i], idx[i], false, 0);
@@ -233,6 +259,16 @@ static void direct(Emit *e, FILE *out, const Node *n, int comp, const DEnv *env)
   case N_SUB: binop(e, out, n, comp, env, "-"); return;
   case N_MUL: binop(e, out, n, comp, env, "*"); return;
   case N_DIV:
+    if (n->b->ty.var != V_VARYING) {
+      /* dividing by a coefficient is multiplying by it (DESIGN §3): the
+       * reciprocal is loop invariant and hoisted by the C compiler */
+      fputc('(', out);
+      sub(e, out, n->a, comp, env);
+      fputs(" * (1.0 / ", out);
+      sub(e, out, n->b, comp, env);
+      fputs("))", out);
+      return;
+    }
     fputs("((double)", out);
     sub(e, out, n->a, comp, env);
     fputs(" / ", out);
@@ -345,4 +381,109 @@ void emit_direct_entry(Emit *e, FILE *out, const Stage *st, int comp) {
   e->direct_for = st->sym;
   direct(e, out, st->sym->body, comp, NULL);
   e->direct_for = NULL;
+}
+
+/* ---------------------------------------------------------------- fusion */
+
+static bool same_domain(const Sym *a, const Sym *b) {
+  if (a->nivars != b->nivars || a->nivars == 0) return false;
+  for (int i = 0; i < a->nivars; i++)
+    if (a->ivars[i]->range != b->ivars[i]->range) return false;
+  return true;
+}
+
+static int member_of(const Stage *const *members, int n, const Sym *q) {
+  for (int m = 0; m < n; m++)
+    if (members[m]->sym == q) return m;
+  return -1;
+}
+
+static bool remat_ok(const Stage *const *members, int n, const Stage *q, int depth);
+
+/* Every read of a member inside `x` is at the entry of `self` (identity)
+ * when `identity_ok`, or rematerializable. */
+static bool reads_ok(const Stage *const *members, int n, const Node *x, const Sym *self, bool identity_ok, int depth) {
+  if (!x) return true;
+  if ((x->kind == N_INDEX || x->kind == N_NAME) && x->sym && x->sym->kind == SYM_STAGE && !x->sym->inlined) {
+    int m = member_of(members, n, x->sym);
+    if (m >= 0) {
+      bool identity = identity_ok && x->kind == N_INDEX && x->nargs >= x->sym->ndims;
+      for (int i = 0; identity && i < x->sym->ndims; i++)
+        identity = x->args[i]->kind == N_NAME && x->args[i]->sym == self->ivars[i];
+      if (x->kind == N_NAME && identity_ok && x->sym->ndims == 0) identity = true;
+      if (!identity && !remat_ok(members, n, members[m], depth + 1)) return false;
+    }
+  }
+  if (x->kind == N_INDEX && x->a && x->a->kind == N_NAME) {
+    for (int i = 0; i < x->nargs; i++)
+      if (!reads_ok(members, n, x->args[i], self, identity_ok, depth)) return false;
+    return true;
+  }
+  if (!reads_ok(members, n, x->a, self, identity_ok, depth) || !reads_ok(members, n, x->b, self, identity_ok, depth) ||
+      !reads_ok(members, n, x->c, self, identity_ok, depth))
+    return false;
+  for (int i = 0; i < x->nargs; i++)
+    if (!reads_ok(members, n, x->args[i], self, identity_ok, depth)) return false;
+  return true;
+}
+
+/* Recomputing q at another entry needs only what was computed before the
+ * group (reads of members inside it are rematerialized in turn). */
+static bool remat_ok(const Stage *const *members, int n, const Stage *q, int depth) {
+  if (depth > 4) return false;
+  return reads_ok(members, n, q->sym->body, q->sym, false, depth);
+}
+
+bool emit_fusable(const Stage *const *members, int n, const Stage *cand) {
+  if (!emit_direct_ok(cand) || cand->sym->body->ty.nwhole) return false;
+  if (n == 0) return cand->sym->nivars > 0;
+  if (!same_domain(members[0]->sym, cand->sym)) return false;
+  return reads_ok(members, n, cand->sym->body, cand->sym, true, 0);
+}
+
+void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
+  const Sym *first = members[0]->sym;
+  e->loopvar = arena_alloc(e->ctx, sizeof(char *) * (size_t)(first->nivars + 1));
+  for (int i = 0; i < first->nivars; i++) {
+    const char *v = emit_name(e, first->ivars[i]);
+    e->loopvar[i] = v;
+    emit_use(e, first->ivars[i]->range);
+    for (int k = 0; k <= i; k++) fputs("  ", out);
+    fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, first->ivars[i]->range), v);
+  }
+  int depth = first->nivars + 1;
+  char pad[64];
+  snprintf(pad, sizeof pad, "%*s", 2 * depth, "");
+  fprintf(out, "%sconst npg_idx e_ = ", pad);
+  for (int i = 1; i < first->nivars; i++) fputc('(', out);
+  for (int i = 0; i < first->nivars; i++) {
+    if (i) fprintf(out, " * %s + ", emit_name(e, first->ivars[i]->range));
+    fputs(e->loopvar[i], out);
+    if (i) fputc(')', out);
+  }
+  fputs(";\n", out);
+  e->fuse = members;
+  e->nfuse = n;
+  for (int m = 0; m < n; m++) {
+    const Stage *st = members[m];
+    const Sym *s = st->sym;
+    const DEnv *env = NULL;
+    for (int i = 0; i < s->nivars; i++) env = bind(e, env, s->ivars[i], e->loopvar[i], false, 0);
+    e->fuse_upto = m;
+    fprintf(out, "%s/* %s */\n", pad, s->name);
+    for (int c = 0; c < st->ncomp; c++) {
+      e->direct_for = s;
+      fprintf(out, "%sconst double l_%d_%d = ", pad, m, c);
+      direct(e, out, s->body, c, env);
+      fputs(";\n", out);
+      emit_use(e, s);
+      fprintf(out, "%s%s[e_ * %d + %d] = l_%d_%d;\n", pad, emit_name(e, s), st->ncomp, c, m, c);
+    }
+  }
+  e->fuse = NULL;
+  e->direct_for = NULL;
+  for (int i = first->nivars; i >= 1; i--) {
+    for (int k = 0; k < i; k++) fputs("  ", out);
+    fputs("}\n", out);
+  }
 }

@@ -397,22 +397,40 @@ Emit *emit_new(Ctx *ctx, const Program *prog, FILE *out) {
   return e;
 }
 
+typedef struct Group {
+  const Stage **members;
+  int n;
+} Group;
+
+static void group_body_cb(Emit *e, FILE *out, const void *arg) {
+  const Group *g = arg;
+  emit_direct_group(e, out, g->members, g->n);
+}
+
+static bool node_reads_sym(const Node *n, const Sym *s) {
+  if (!n) return false;
+  if ((n->kind == N_NAME || n->kind == N_INDEX) && n->sym == s) return true;
+  if (node_reads_sym(n->a, s) || node_reads_sym(n->b, s) || node_reads_sym(n->c, s)) return true;
+  for (int i = 0; i < n->nargs; i++)
+    if (node_reads_sym(n->args[i], s)) return true;
+  return false;
+}
+
+/* A temp defined among the group's members that reads one of them must be
+ * computed between them: the group cannot be fused across it. */
+static bool temp_splits(const Program *prog, const Stage *const *members, int n, const Stage *next) {
+  for (int t = 0; t < prog->temps.n; t++) {
+    const Sym *tmp = prog->temps.v[t];
+    if (tmp->id > members[0]->sym->id && tmp->id < next->sym->id)
+      for (int m = 0; m < n; m++)
+        if (node_reads_sym(tmp->body, members[m]->sym)) return true;
+  }
+  return false;
+}
+
 void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
   Emit *e = emit_new(ctx, prog, out);
   emit_header(e, "Full evaluator");
-  for (int i = 0; i < prog->stages.n; i++) {
-    const Stage *st = prog->stages.v[i];
-    if (st->kind == ST_EXTERN) continue;
-    const Sym *s = st->sym;
-    if (s->introduced)
-      fprintf(out, "/* %s: introduced for %s, from %s:%d\n   %s */\n", s->name, s->introduced_for->name,
-              s->loc.file ? s->loc.file->name : "?", s->loc.line, emit_source_line(ctx, s->loc));
-    else
-      fprintf(out, "/* %s: %s, %s:%d\n   %s */\n", s->name, stage_kind_name[st->kind],
-              s->loc.file ? s->loc.file->name : "?", s->loc.line, emit_source_line(ctx, s->loc));
-    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "stage_", s)), s,
-                  stage_body_cb, st);
-  }
   /* Temps: inlined stages that read inputs, computed once (the reduced
    * model folds them into its tensors; the full evaluator need not). */
   for (int i = 0; i < prog->temps.n; i++) {
@@ -422,20 +440,111 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
     emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "temp_", s)), s,
                       stage_body_cb, s->stage);
   }
+  /* Stages; consecutive stages over one domain are fused into one loop
+   * nest (each still written whole), reads of a fused stage at another
+   * entry rematerialized from its expression. */
+  PtrVec calls = {0}; /* char*: function to call, in order */
+  PtrVec call_ids = {0};
+  const Stage **st_all = (const Stage **)prog->stages.v;
+  for (int i = 0; i < prog->stages.n;) {
+    const Stage *st = st_all[i];
+    if (st->kind == ST_EXTERN) {
+      i++;
+      continue;
+    }
+    Group *g = arena_alloc(ctx, sizeof *g);
+    g->members = arena_alloc(ctx, sizeof(Stage *) * (size_t)(prog->stages.n + 1));
+    const Stage **before = arena_alloc(ctx, sizeof(Stage *) * (size_t)(prog->stages.n + 1));
+    int nbefore = 0, end = i + 1;
+    if (emit_fusable(g->members, 0, st)) {
+      g->members[g->n++] = st;
+      for (int j = i + 1; j < prog->stages.n; j++) {
+        const Stage *x = st_all[j];
+        if (x->kind == ST_EXTERN) continue; /* given, not computed */
+        if (emit_fusable(g->members, g->n, x) && !temp_splits(prog, g->members, g->n, x)) {
+          g->members[g->n++] = x;
+          end = j + 1;
+          continue;
+        }
+        /* a stage that reads no member can be computed before the group */
+        bool independent = !temp_splits(prog, g->members, g->n, x);
+        for (int m = 0; m < g->n && independent; m++) independent = !node_reads_sym(x->sym->body, g->members[m]->sym);
+        for (int t = 0; t < x->nterms && independent; t++)
+          for (int k = 0; k < x->terms[t]->nops && independent; k++)
+            if (x->terms[t]->ops[k].kind == OPK_DECL)
+              for (int m = 0; m < g->n && independent; m++)
+                independent = !node_reads_sym(x->terms[t]->ops[k].op->body, g->members[m]->sym);
+        if (!independent || x->sym->introduced) break;
+        before[nbefore++] = x;
+      }
+      if (g->n < 2) nbefore = 0;
+      /* only stages up to the last member move */
+      while (nbefore > 0 && before[nbefore - 1]->sym->id > g->members[g->n - 1]->sym->id) nbefore--;
+    }
+    const Sym *s = st->sym;
+    for (int b = 0; b < nbefore; b++) {
+      const Sym *bs = before[b]->sym;
+      fprintf(out, "/* %s: %s, %s:%d (computed before the fused stages it does not read)\n   %s */\n", bs->name,
+              stage_kind_name[before[b]->kind], bs->loc.file ? bs->loc.file->name : "?", bs->loc.line,
+              emit_source_line(ctx, bs->loc));
+      const char *bname = fn_name(e, "stage_", bs);
+      emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", bname), bs, stage_body_cb, before[b]);
+      vec_push(ctx, &calls, (void *)bname);
+      vec_push(ctx, &call_ids, (void *)before[b]);
+    }
+    if (g->n >= 2) {
+      char *name = "fused";
+      fprintf(out, "/* stages");
+      for (int m = 0; m < g->n; m++) {
+        const Sym *ms = g->members[m]->sym;
+        fprintf(out, "%s %s (%s:%d: %s)", m ? "," : "", ms->name, ms->loc.file ? ms->loc.file->name : "?", ms->loc.line,
+                emit_source_line(ctx, ms->loc));
+        name = arena_printf(ctx, "%s_%s", name, fn_name(e, "", ms));
+      }
+      fputs(", fused: one pass over their common domain */\n", out);
+      e->writes = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->slots.n + 1));
+      for (int m = 0; m < g->n; m++) e->writes[emit_index_of(&prog->slots, g->members[m]->sym)] = true;
+      emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", name), NULL, group_body_cb, g);
+      e->writes = NULL;
+      vec_push(ctx, &calls, name);
+      vec_push(ctx, &call_ids, (void *)g->members[g->n - 1]);
+      i = end;
+      continue;
+    }
+    if (s->introduced)
+      fprintf(out, "/* %s: introduced for %s, from %s:%d\n   %s */\n", s->name, s->introduced_for->name,
+              s->loc.file ? s->loc.file->name : "?", s->loc.line, emit_source_line(ctx, s->loc));
+    else
+      fprintf(out, "/* %s: %s, %s:%d\n   %s */\n", s->name, stage_kind_name[st->kind],
+              s->loc.file ? s->loc.file->name : "?", s->loc.line, emit_source_line(ctx, s->loc));
+    const char *fname = fn_name(e, "stage_", s);
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fname), s, stage_body_cb, st);
+    vec_push(ctx, &calls, (void *)fname);
+    vec_push(ctx, &call_ids, (void *)st);
+    i++;
+  }
   fputs("/* Every stage in evaluation order (externs are given with the inputs). */\n", out);
   fputs("int npg_full(const NpgCtx *c) {\n", out);
   bool *done = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->temps.n + 1));
-  for (int i = 0; i < prog->stages.n; i++) {
-    const Stage *st = prog->stages.v[i];
+  for (int k = 0; k < calls.n; k++) {
+    const Stage *last = call_ids.v[k];
+    /* temps defined before the first member of this call */
+    const Stage *firstst = last;
+    for (int i = 0; i < prog->stages.n; i++)
+      if (st_all[i] == last) {
+        for (int j = i; j >= 0; j--)
+          if (j < prog->stages.n && st_all[j]->kind != ST_EXTERN) firstst = st_all[j];
+        break;
+      }
+    (void)firstst;
     for (int t = 0; t < prog->temps.n; t++) {
       const Sym *tmp = prog->temps.v[t];
-      if (!done[t] && tmp->id < st->sym->id) {
+      if (!done[t] && tmp->id < last->sym->id) {
         fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "temp_", tmp));
         done[t] = true;
       }
     }
-    if (st->kind == ST_EXTERN) continue;
-    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "stage_", st->sym));
+    fprintf(out, "  if (%s(c)) return -1;\n", (char *)calls.v[k]);
   }
   fputs("  return 0;\n}\n\n", out);
 

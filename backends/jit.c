@@ -141,7 +141,7 @@ static JitModule *compile_cc(const char *source, char *err, size_t errlen) {
     return NULL;
   }
   const char *cc = getenv("CC");
-  char *argv[] = {(char *)(cc && *cc ? cc : "cc"), "-O3", "-march=native", "-ffp-contract=off", "-fPIC", "-shared", "-o", so, src, "-lm", NULL};
+  char *argv[] = {(char *)(cc && *cc ? cc : "cc"), "-O3", "-march=native", "-ffp-contract=off", "-fno-trapping-math", "-fno-math-errno", "-fPIC", "-shared", "-o", so, src, "-lm", NULL};
   if (run(argv, err, errlen, log) != 0) {
     remove_dir(m);
     free(m);
