@@ -274,7 +274,7 @@ Node *clone_node(Ctx *ctx, const Node *n) {
 }
 
 static void print_num(FILE *out, double v) {
-  if (v == (double)(long long)v && v > -1e15 && v < 1e15)
+  if (v > -1e15 && v < 1e15 && v == (double)(long long)v) /* range first: no out-of-range cast */
     fprintf(out, "%lld", (long long)v);
   else
     fprintf(out, "%.17g", v);
