@@ -102,7 +102,7 @@ static void bin(Emit *e, FILE *out, const Node *n, const char *op) {
   fputc(')', out);
 }
 
-static const char *math_name(Builtin b) {
+const char *emit_math_name(Builtin b) {
   switch (b) {
   case B_EXP: return "exp";
   case B_LOG: return "log";
@@ -209,8 +209,8 @@ void emit_cexpr(Emit *e, FILE *out, const Node *n) {
       fputs("))", out);
       return;
     }
-    if (math_name(n->builtin)) {
-      fprintf(out, "%s(", math_name(n->builtin));
+    if (emit_math_name(n->builtin)) {
+      fprintf(out, "%s(", emit_math_name(n->builtin));
       for (int i = 0; i < n->nargs; i++) {
         if (i) fputs(", ", out);
         fputs("(double)", out);

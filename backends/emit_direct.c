@@ -195,24 +195,6 @@ static void binop(Emit *e, FILE *out, const Node *n, int comp, const DEnv *env, 
   fputc(')', out);
 }
 
-static const char *math_name(Builtin b) {
-  switch (b) {
-  case B_EXP: return "exp";
-  case B_LOG: return "log";
-  case B_SIN: return "sin";
-  case B_COS: return "cos";
-  case B_TAN: return "tan";
-  case B_ATAN: return "atan";
-  case B_ATAN2: return "atan2";
-  case B_ABS: return "fabs";
-  case B_FLOOR: return "floor";
-  case B_MIN: return "fmin";
-  case B_MAX: return "fmax";
-  case B_TANH: return "tanh";
-  default: return NULL;
-  }
-}
-
 static void direct(Emit *e, FILE *out, const Node *n, int comp, const DEnv *env) {
   switch (n->kind) {
   case N_NUM: emit_double(out, n->num); return;
@@ -353,8 +335,8 @@ static void direct(Emit *e, FILE *out, const Node *n, int comp, const DEnv *env)
       fputs("))", out);
       return;
     }
-    if (math_name(n->builtin)) {
-      fprintf(out, "%s(", math_name(n->builtin));
+    if (emit_math_name(n->builtin)) {
+      fprintf(out, "%s(", emit_math_name(n->builtin));
       for (int i = 0; i < n->nargs; i++) {
         if (i) fputs(", ", out);
         fputs("(double)", out);

@@ -24,18 +24,6 @@ static int bind_random(RefData *d, const Program *prog, long n, unsigned seed, b
   return npad;
 }
 
-/* Relative max-norm difference; NaN where exactly one side is NaN. */
-static double rel_diff(const double *a, const double *b, size_t n) {
-  double num = 0, den = 0;
-  for (size_t i = 0; i < n; i++) {
-    if (isnan(a[i]) != isnan(b[i])) return NAN;
-    if (isnan(a[i])) continue;
-    num = fmax(num, fabs(a[i] - b[i]));
-    den = fmax(den, fabs(a[i]));
-  }
-  return den > 0 ? num / den : num;
-}
-
 static int check_program(const char *path) {
   NpgProgram *p = compile_file(path);
   if (!npg_ok(p)) {

@@ -12,17 +12,6 @@
 #include "support/refeval.h"
 #include "testutil.h"
 
-static double rel_diff(const double *a, const double *b, size_t n) {
-  double num = 0, den = 0;
-  for (size_t i = 0; i < n; i++) {
-    if (isnan(a[i]) != isnan(b[i])) return NAN;
-    if (isnan(a[i])) continue;
-    num = fmax(num, fabs(a[i] - b[i]));
-    den = fmax(den, fabs(a[i]));
-  }
-  return den > 0 ? num / den : num;
-}
-
 /* Shape of s with every dim of size n. */
 static int shape_of(const Sym *s, long n, long *shape) {
   for (int i = 0; i < s->ndims; i++) shape[i] = n;

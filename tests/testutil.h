@@ -2,6 +2,7 @@
 #ifndef NPG_TESTUTIL_H
 #define NPG_TESTUTIL_H
 
+#include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -89,6 +90,19 @@ static inline int max_order(const Program *prog, const Stage *st) {
     }
   }
   return m;
+}
+
+/* Relative max-norm difference of b from a; NaN where exactly one side is
+ * NaN. */
+static inline double rel_diff(const double *a, const double *b, size_t n) {
+  double num = 0, den = 0;
+  for (size_t i = 0; i < n; i++) {
+    if (isnan(a[i]) != isnan(b[i])) return NAN;
+    if (isnan(a[i])) continue;
+    num = fmax(num, fabs(a[i] - b[i]));
+    den = fmax(den, fabs(a[i]));
+  }
+  return den > 0 ? num / den : num;
 }
 
 #endif
