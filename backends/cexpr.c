@@ -67,8 +67,7 @@ void emit_double(FILE *out, double v) {
   if (!strpbrk(buf, ".eEn")) fputs(".0", out);
 }
 
-void emit_offset(Emit *e, FILE *out, const Sym *q, Node *const *idx, int nidx) {
-  emit_use(e, q);
+void emit_offset_texts(Emit *e, FILE *out, const Sym *q, char *const *idx) {
   int naxes = q->ndims + q->nstatic;
   if (naxes == 0) {
     fputc('0', out);
@@ -78,20 +77,42 @@ void emit_offset(Emit *e, FILE *out, const Sym *q, Node *const *idx, int nidx) {
   for (int i = 1; i < naxes; i++) fputc('(', out);
   for (int i = 0; i < naxes; i++) {
     if (i) {
-      fputs(" * ", out);
       if (i < q->ndims) {
         emit_use(e, q->dims[i]);
-        fputs(emit_name(e, q->dims[i]), out);
+        fprintf(out, " * %s + ", emit_name(e, q->dims[i]));
+      } else {
+        fprintf(out, " * %d + ", q->shape[i - q->ndims]);
       }
-      else fprintf(out, "%d", q->shape[i - q->ndims]);
-      fputs(" + ", out);
     }
-    fputc('(', out);
-    if (i < nidx) emit_cexpr(e, out, idx[i]);
-    else fputc('0', out);
-    fputc(')', out);
+    fprintf(out, "(%s)", idx[i]);
     if (i) fputc(')', out);
   }
+}
+
+static void cexpr_cb(FILE *out, const void *arg) {
+  const void *const *a = arg;
+  emit_cexpr((Emit *)a[0], out, a[1]);
+}
+
+void emit_offset(Emit *e, FILE *out, const Sym *q, Node *const *idx, int nidx) {
+  emit_use(e, q);
+  int naxes = q->ndims + q->nstatic;
+  char **texts = arena_alloc(e->ctx, sizeof(char *) * (size_t)(naxes + 1));
+  for (int i = 0; i < naxes; i++) {
+    const void *arg[2] = {e, i < nidx ? idx[i] : NULL};
+    texts[i] = i < nidx ? print_to_arena(e->ctx, cexpr_cb, arg) : "0";
+  }
+  emit_offset_texts(e, out, q, texts);
+}
+
+void emit_sum_loop(Emit *e, FILE *out, const SumVar *sv, int depth, bool brace) {
+  const char *k = emit_name(e, sv->var);
+  for (int i = 0; i < depth; i++) fputs("  ", out);
+  fprintf(out, "for (npg_idx %s = ", k);
+  emit_cexpr(e, out, sv->lo);
+  fprintf(out, "; %s <= ", k);
+  emit_cexpr(e, out, sv->hi);
+  fprintf(out, "; %s++)%s\n", k, brace ? " {" : "");
 }
 
 static void bin(Emit *e, FILE *out, const Node *n, const char *op) {

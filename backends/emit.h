@@ -33,7 +33,11 @@ typedef struct Emit {
 const char *emit_name(Emit *e, const Sym *s);
 /* A coefficient, guard or index expression as C. */
 void emit_cexpr(Emit *e, FILE *out, const Node *n);
-/* The flat offset of q[idx...] as C. */
+/* The flat offset of q[idx...] as C (from nodes, or from C texts). */
+void emit_offset_texts(Emit *e, FILE *out, const Sym *q, char *const *idx);
+/* `for (npg_idx k = lo; k <= hi; k++)` of a summation variable, with an
+ * opening brace when asked. */
+void emit_sum_loop(Emit *e, FILE *out, const SumVar *sv, int depth, bool brace);
 void emit_offset(Emit *e, FILE *out, const Sym *q, Node *const *idx, int nidx);
 /* A double literal that C reads back exactly. */
 void emit_double(FILE *out, double v);

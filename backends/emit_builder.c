@@ -111,15 +111,7 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
       int d = depth;
       indent(out, d++);
       fputs("{\n", out);
-      for (int k = 0; k < m->nsums; k++) {
-        const char *kv = emit_name(e, m->sums[k].var);
-        indent(out, d++);
-        fprintf(out, "for (npg_idx %s = ", kv);
-        emit_cexpr(e, out, m->sums[k].lo);
-        fprintf(out, "; %s <= ", kv);
-        emit_cexpr(e, out, m->sums[k].hi);
-        fprintf(out, "; %s++) {\n", kv);
-      }
+      for (int k = 0; k < m->nsums; k++) emit_sum_loop(e, out, &m->sums[k], d++, true);
       if (m->guard) {
         indent(out, d++);
         fputs("if (", out);

@@ -72,29 +72,6 @@ static long const_value(Emit *e, const Node *n, const DEnv *env) {
   }
 }
 
-/* q[idx...] where idx are C texts for the dim axes and numbers for the
- * static axes. */
-static void offset_text(Emit *e, FILE *out, const Sym *q, char **idx) {
-  int naxes = q->ndims + q->nstatic;
-  if (naxes == 0) {
-    fputc('0', out);
-    return;
-  }
-  for (int i = 1; i < naxes; i++) fputc('(', out);
-  for (int i = 0; i < naxes; i++) {
-    if (i) {
-      if (i < q->ndims) {
-        emit_use(e, q->dims[i]);
-        fprintf(out, " * %s + ", emit_name(e, q->dims[i]));
-      } else {
-        fprintf(out, " * %d + ", q->shape[i - q->ndims]);
-      }
-    }
-    fprintf(out, "(%s)", idx[i]);
-    if (i) fputc(')', out);
-  }
-}
-
 /* Entry of param or quantity q indexed by args (dim axes, some static
  * axes); comp enumerates the static axes left. Inlined and constant
  * definitions are substituted. */
@@ -157,7 +134,7 @@ static void entry(Emit *e, FILE *out, const Sym *q, Node *const *args, int nargs
   for (int i = 0; i < q->nstatic; i++) idx[q->ndims + i] = arena_printf(e->ctx, "%ld", sidx[i]);
   emit_use(e, q);
   fprintf(out, "%s[", emit_name(e, q));
-  offset_text(e, out, q, idx);
+  emit_offset_texts(e, out, q, idx);
   fputc(']', out);
 }
 

@@ -77,15 +77,7 @@ static void emit_poly(Emit *e, FILE *out, const Poly *p, const char *acc, int de
   for (int i = 0; i < p->n; i++) {
     const Mono *m = p->m[i];
     int d = depth;
-    for (int s = 0; s < m->nsums; s++) {
-      const char *k = emit_name(e, m->sums[s].var);
-      indent(out, d++);
-      fprintf(out, "for (npg_idx %s = ", k);
-      emit_cexpr(e, out, m->sums[s].lo);
-      fprintf(out, "; %s <= ", k);
-      emit_cexpr(e, out, m->sums[s].hi);
-      fprintf(out, "; %s++)\n", k);
-    }
+    for (int s = 0; s < m->nsums; s++) emit_sum_loop(e, out, &m->sums[s], d++, false);
     if (m->guard) {
       indent(out, d++);
       fputs("if (", out);
@@ -323,15 +315,7 @@ static void emit_poly_checks(Emit *e, FILE *out, const Poly *p, const Sym *where
     int d = depth;
     indent(out, d++);
     fputs("{\n", out);
-    for (int s = 0; s < m->nsums; s++) {
-      const char *k = emit_name(e, m->sums[s].var);
-      indent(out, d++);
-      fprintf(out, "for (npg_idx %s = ", k);
-      emit_cexpr(e, out, m->sums[s].lo);
-      fprintf(out, "; %s <= ", k);
-      emit_cexpr(e, out, m->sums[s].hi);
-      fprintf(out, "; %s++) {\n", k);
-    }
+    for (int s = 0; s < m->nsums; s++) emit_sum_loop(e, out, &m->sums[s], d++, true);
     emit_node_checks(e, out, m->guard, where, d);
     if (m->guard) {
       indent(out, d++);

@@ -182,25 +182,14 @@ static int check_program(const char *path, double *worst) {
   return failures;
 }
 
+static int check_cb(const char *path, void *worst) { return check_program(path, worst); }
+
 static void tensor_form_equals_full(void **state) {
   (void)state;
   const char *dirs[] = {"examples/rational", "examples/radiosity", "examples/fluids", "tests/programs"};
   int n = 0, failures = 0;
   double worst = 0;
-  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) {
-    DIR *dd = opendir(dirs[i]);
-    if (!dd) continue;
-    struct dirent *e;
-    while ((e = readdir(dd))) {
-      size_t l = strlen(e->d_name);
-      if (l < 5 || strcmp(e->d_name + l - 4, ".npg") != 0) continue;
-      char path[1024];
-      snprintf(path, sizeof path, "%s/%s", dirs[i], e->d_name);
-      failures += check_program(path, &worst);
-      n++;
-    }
-    closedir(dd);
-  }
+  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += for_each_program(dirs[i], check_cb, &worst, &n);
   print_message("%d programs: tensor form vs full evaluator, worst relative difference %.2g\n", n, worst);
   assert_true(n >= 20);
   assert_int_equal(failures, 0);

@@ -79,28 +79,17 @@ static int check_program(const char *path) {
   return failures;
 }
 
-static int check_dir(const char *dir, int *nprog) {
-  DIR *dd = opendir(dir);
-  if (!dd) return 0;
-  int failures = 0;
-  struct dirent *e;
-  while ((e = readdir(dd))) {
-    size_t l = strlen(e->d_name);
-    if (l < 5 || strcmp(e->d_name + l - 4, ".npg") != 0) continue;
-    char path[1024];
-    snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
-    failures += check_program(path);
-    (*nprog)++;
-  }
-  closedir(dd);
-  return failures;
+
+static int check_cb(const char *path, void *arg) {
+  (void)arg;
+  return check_program(path);
 }
 
 static void examples_exact(void **state) {
   (void)state;
   int n = 0, failures = 0;
   const char *dirs[] = {"examples/rational", "examples/radiosity", "examples/fluids"};
-  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += check_dir(dirs[i], &n);
+  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += for_each_program(dirs[i], check_cb, NULL, &n);
   assert_true(n >= 2);
   assert_int_equal(failures, 0);
 }
@@ -108,7 +97,7 @@ static void examples_exact(void **state) {
 static void test_programs_exact(void **state) {
   (void)state;
   int n = 0;
-  int failures = check_dir("tests/programs", &n);
+  int failures = for_each_program("tests/programs", check_cb, NULL, &n);
   assert_int_equal(failures, 0);
 }
 

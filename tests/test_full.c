@@ -100,29 +100,23 @@ static int check_program(const char *path, double *worst_ref, double *worst_cc) 
   return failures;
 }
 
-static int check_dir(const char *dir, int *n, double *wr, double *wc) {
-  DIR *dd = opendir(dir);
-  if (!dd) return 0;
-  int failures = 0;
-  struct dirent *e;
-  while ((e = readdir(dd))) {
-    size_t l = strlen(e->d_name);
-    if (l < 5 || strcmp(e->d_name + l - 4, ".npg") != 0) continue;
-    char path[1024];
-    snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
-    failures += check_program(path, wr, wc);
-    (*n)++;
-  }
-  closedir(dd);
-  return failures;
+
+typedef struct Worst {
+  double ref, cc;
+} Worst;
+
+static int check_cb(const char *path, void *arg) {
+  Worst *w = arg;
+  return check_program(path, &w->ref, &w->cc);
 }
 
 static void generated_equals_reference(void **state) {
   (void)state;
   int n = 0, failures = 0;
-  double wr = 0, wc = 0;
+  Worst w = {0, 0};
   const char *dirs[] = {"examples/rational", "examples/radiosity", "examples/fluids", "tests/programs"};
-  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += check_dir(dirs[i], &n, &wr, &wc);
+  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += for_each_program(dirs[i], check_cb, &w, &n);
+  double wr = w.ref, wc = w.cc;
   print_message("%d programs: generated vs reference worst %.2g, tcc vs cc worst %.2g\n", n, wr, wc);
   assert_true(n >= 20);
   assert_int_equal(failures, 0);

@@ -305,21 +305,15 @@ static int check_expectations(const char *path) {
   return failures;
 }
 
+static int expectations_cb(const char *path, void *arg) {
+  (void)arg;
+  return check_expectations(path);
+}
+
 static void programs_carry_expectations(void **state) {
   (void)state;
-  DIR *d = opendir("tests/programs");
-  assert_non_null(d);
-  int n = 0, failures = 0;
-  struct dirent *e;
-  while ((e = readdir(d))) {
-    size_t l = strlen(e->d_name);
-    if (l < 5 || strcmp(e->d_name + l - 4, ".npg") != 0) continue;
-    char path[1024];
-    snprintf(path, sizeof path, "tests/programs/%s", e->d_name);
-    failures += check_expectations(path);
-    n++;
-  }
-  closedir(d);
+  int n = 0;
+  int failures = for_each_program("tests/programs", expectations_cb, NULL, &n);
   assert_true(n >= 12);
   assert_int_equal(failures, 0);
 }
