@@ -14,6 +14,8 @@ void dump_decls(FILE *out, const Decl *d);
 void dump_checked(FILE *out, const Program *prog);
 /* compiler/eval.c: the `npgc eval` command. */
 int npgc_eval(int argc, char **argv);
+/* compiler/reduce_cmds.c: train, reduced eval, verify, bench. */
+int npgc_reduce(int argc, char **argv);
 /* compiler/npg.c: the stage program of a compiled NpgProgram (tests, backends). */
 struct NpgProgram;
 Program *npg_program_ir(const struct NpgProgram *p);

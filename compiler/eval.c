@@ -48,10 +48,7 @@ int npgc_eval(int argc, char **argv) {
     else return usage();
   }
   if (!prog_path || !data || !in || !outdir) return usage();
-  if (!full) {
-    fputs("npgc eval: reduced evaluation needs a trained model (npgc train), not implemented yet; use --full\n", stderr);
-    return 2;
-  }
+  if (!full) return npgc_reduce(argc, argv);
   NpgProgram *p = npg_compile(prog_path, &opt);
   if (!npg_ok(p)) {
     fputs(npg_error(p), stderr);

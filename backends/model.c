@@ -1,0 +1,209 @@
+/* model.c — a reduced model to and from MODEL/ (DESIGN §2): the manifest
+ * holds the dims, the classes with their sizes and the energy captured per
+ * member, which inverse operators factor by Cholesky; every basis, reduced
+ * tensor, projection and extern table is one .npy. The layout is recomputed
+ * from the program (whose hash the store checks) and every array's shape
+ * is checked against it, naming the file. */
+#include <stdlib.h>
+#include <string.h>
+
+#include "model_store.h"
+#include "reduce.h"
+
+/* Visit every reduced tensor of a model. */
+#define FOR_TENSORS(m, x)                                                              \
+  for (int i_ = 0; i_ < (m)->nstages; i_++)                                            \
+    for (int t_ = 0; t_ < (m)->stages[i_].nterms; t_++)                                \
+      for (RTerm *rt_ = &(m)->stages[i_].terms[t_]; rt_; rt_ = NULL)                    \
+        for (int k_ = -1; k_ < rt_->nops; k_++)                                        \
+          for (int g_ = 0; g_ < (k_ < 0 ? rt_->nnum : rt_->ops[k_].ntensors); g_++)    \
+            for (RTensor *x = k_ < 0 ? &rt_->num[g_] : &rt_->ops[k_].t[g_]; x; x = NULL)
+
+static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quantities.v[q])->name; }
+
+int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
+  ModelStore s;
+  model_store_init(&s);
+  s.program_hash = m->program_hash;
+  int bad = 0;
+  char line[4096];
+  size_t len = 0;
+  len += (size_t)snprintf(line, sizeof line, "dims");
+  for (int i = 0; i < m->ndims && len < sizeof line; i++)
+    len += (size_t)snprintf(line + len, sizeof line - len, " %s=%ld", ((Sym *)m->prog->dims.v[i])->name, m->dims[i]);
+  bad |= model_store_meta(&s, "%s", line);
+  bad |= model_store_meta(&s, "samples %ld", m->samples);
+  if (m->param_hashes) bad |= model_store_meta(&s, "params %s", m->param_hashes);
+  size_t tb = 0, total = model_bytes(m, &tb);
+  bad |= model_store_meta(&s, "bytes %zu tensors %zu", total, tb);
+  for (int c = 0; c < m->nclasses; c++) {
+    const RClass *rc = &m->classes[c];
+    bad |= model_store_meta(&s, "class %d %s n %ld m %ld", c, rc->label, rc->n, rc->m);
+    for (int i = 0; i < rc->nmembers; i++) {
+      const RMember *mb = &rc->members[i];
+      bad |= model_store_meta(&s, "member %d %s cap %d energy %.17g kept %d captured %.17g", c, mb->name, mb->cap,
+                              mb->energy, mb->kept, mb->captured);
+    }
+    char name[64];
+    snprintf(name, sizeof name, "basis_%d", c);
+    long shape[2] = {rc->n, rc->m};
+    bad |= model_store_add(&s, name, 2, shape, rc->B);
+  }
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    for (int t = 0; t < rs->nterms; t++) {
+      const RTerm *rt = &rs->terms[t];
+      for (int k = 0; k < rt->nops; k++)
+        if (rt->ops[k].spd) bad |= model_store_meta(&s, "spd %s %d %d", rs->st->sym->name, t, k);
+      if (rt->proj) {
+        long shape[2] = {m->classes[m->qclass[rs->q]].m, m->classes[m->qclass[rt->named_q]].m};
+        bad |= model_store_add(&s, rt->proj_name, 2, shape, rt->proj);
+      }
+    }
+  }
+  FOR_TENSORS(m, x) {
+    long shape[2] = {x->rows, x->cols};
+    bad |= model_store_add(&s, x->name, 2, shape, x->data);
+  }
+  for (int i = 0; i < m->nexterns; i++) {
+    const RExtern *x = &m->externs[i];
+    char name[512];
+    snprintf(name, sizeof name, "extern_%s_inputs", qname(m, x->q));
+    long shape[2] = {x->S, x->d};
+    bad |= model_store_add(&s, name, 2, shape, x->X);
+    snprintf(name, sizeof name, "extern_%s_values", qname(m, x->q));
+    shape[1] = m->classes[m->qclass[x->q]].m;
+    bad |= model_store_add(&s, name, 2, shape, x->Z);
+  }
+  int rc = -1;
+  if (bad) snprintf(err, errlen, "%s: out of memory assembling the model", dir);
+  else rc = model_store_write(dir, &s, err, errlen);
+  model_store_free(&s);
+  return rc;
+}
+
+/* Copy array `name` of shape rows x cols out of the store. */
+static int take(const ModelStore *s, const char *dir, const char *name, long rows, long cols, double **out, char *err,
+                size_t errlen) {
+  const NpyArray *a = model_store_array(s, name);
+  if (!a) {
+    snprintf(err, errlen, "%s/manifest: no array '%s': the model is incomplete", dir, name);
+    return -1;
+  }
+  if (a->ndim != 2 || a->shape[0] != rows || a->shape[1] != cols) {
+    snprintf(err, errlen, "%s/%s.npy: shape %ldx%ld, the program and the model's bases need %ldx%ld", dir, name,
+             a->ndim > 0 ? a->shape[0] : 0, a->ndim > 1 ? a->shape[1] : 0, rows, cols);
+    return -1;
+  }
+  *out = malloc(sizeof(double) * (size_t)(rows * cols) + 1);
+  if (!*out) {
+    snprintf(err, errlen, "%s/%s.npy: out of memory", dir, name);
+    return -1;
+  }
+  memcpy(*out, a->data, sizeof(double) * (size_t)(rows * cols));
+  return 0;
+}
+
+Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
+  ModelStore s;
+  Model *m = NULL;
+  long *dims = NULL;
+  if (model_store_read(dir, model_program_hash(prog), &s, err, errlen) != 0) return NULL;
+  /* dims */
+  dims = calloc((size_t)prog->dims.n + 1, sizeof(long));
+  const char *d = model_store_find(&s, "dims");
+  if (!dims || !d) {
+    snprintf(err, errlen, "%s/manifest: no 'dims' line", dir);
+    goto fail;
+  }
+  for (int i = 0; i < prog->dims.n; i++) {
+    const char *name = ((Sym *)prog->dims.v[i])->name;
+    size_t nl = strlen(name);
+    const char *p = d;
+    dims[i] = -1;
+    while ((p = strstr(p, name)) != NULL) {
+      if ((p == d || p[-1] == ' ') && p[nl] == '=') {
+        dims[i] = strtol(p + nl + 1, NULL, 10);
+        break;
+      }
+      p += nl;
+    }
+    if (dims[i] < 0) {
+      snprintf(err, errlen, "%s/manifest: no size for dim %s", dir, name);
+      goto fail;
+    }
+  }
+  if (!(m = model_layout(prog, dims, err, errlen))) goto fail;
+  const char *ns = model_store_find(&s, "samples");
+  m->samples = ns ? strtol(ns, NULL, 10) : 0;
+  const char *ph = model_store_find(&s, "params");
+  if (ph && !(m->param_hashes = strdup(ph))) goto oom;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    char name[64];
+    snprintf(name, sizeof name, "basis_%d", c);
+    const NpyArray *a = model_store_array(&s, name);
+    if (!a || a->ndim != 2 || a->shape[0] != rc->n) {
+      snprintf(err, errlen, "%s/%s.npy: %s, class %s needs %ld rows", dir, name, a ? "wrong shape" : "missing",
+               rc->label, rc->n);
+      goto fail;
+    }
+    rc->m = a->shape[1];
+    if (take(&s, dir, name, rc->n, rc->m, &rc->B, err, errlen)) goto fail;
+  }
+  /* member statistics, for reports */
+  for (int i = 0; i < s.nmeta; i++) {
+    int c, cap, kept;
+    double energy, captured;
+    char name[512];
+    if (sscanf(s.meta[i], "member %d %511s cap %d energy %lf kept %d captured %lf", &c, name, &cap, &energy, &kept,
+               &captured) == 6 &&
+        c >= 0 && c < m->nclasses)
+      for (int k = 0; k < m->classes[c].nmembers; k++)
+        if (strcmp(m->classes[c].members[k].name, name) == 0) {
+          RMember *mb = &m->classes[c].members[k];
+          mb->cap = cap, mb->energy = energy, mb->kept = kept, mb->captured = captured;
+        }
+    char stage[512];
+    int t, k;
+    if (sscanf(s.meta[i], "spd %511s %d %d", stage, &t, &k) == 3)
+      for (int j = 0; j < m->nstages; j++)
+        if (strcmp(m->stages[j].st->sym->name, stage) == 0 && t >= 0 && t < m->stages[j].nterms && k >= 0 &&
+            k < m->stages[j].terms[t].nops)
+          m->stages[j].terms[t].ops[k].spd = true;
+  }
+  model_size_tensors(m);
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    for (int t = 0; t < rs->nterms; t++) {
+      RTerm *rt = &rs->terms[t];
+      if (rt->proj_name &&
+          take(&s, dir, rt->proj_name, m->classes[m->qclass[rs->q]].m, m->classes[m->qclass[rt->named_q]].m,
+               &rt->proj, err, errlen))
+        goto fail;
+    }
+  }
+  FOR_TENSORS(m, x) {
+    if (take(&s, dir, x->name, x->rows, x->cols, &x->data, err, errlen)) goto fail;
+  }
+  for (int i = 0; i < m->nexterns; i++) {
+    RExtern *x = &m->externs[i];
+    char name[512];
+    snprintf(name, sizeof name, "extern_%s_inputs", qname(m, x->q));
+    const NpyArray *a = model_store_array(&s, name);
+    x->S = a && a->ndim == 2 ? a->shape[0] : 0;
+    if (take(&s, dir, name, x->S, x->d, &x->X, err, errlen)) goto fail;
+    snprintf(name, sizeof name, "extern_%s_values", qname(m, x->q));
+    if (take(&s, dir, name, x->S, m->classes[m->qclass[x->q]].m, &x->Z, err, errlen)) goto fail;
+  }
+  free(dims);
+  model_store_free(&s);
+  return m;
+oom:
+  snprintf(err, errlen, "%s: out of memory loading the model", dir);
+fail:
+  free(dims);
+  model_store_free(&s);
+  model_free(m);
+  return NULL;
+}

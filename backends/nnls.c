@@ -1,0 +1,346 @@
+/* nnls.c — Lawson–Hanson non-negative least squares and the convex
+ * combination of the learned model for extern stages (paper §8.3, eq. 17).
+ *
+ * nnls_solve() is the active-set method of Lawson & Hanson, "Solving Least
+ * Squares Problems" (1974), ch. 23: move the index of largest gradient into
+ * the passive set P, solve the unconstrained least-squares problem on the
+ * columns of P, and while that solution has a non-positive entry step back
+ * towards the previous iterate until an entry of P reaches zero and leaves
+ * P. Every subproblem is one LAPACK dgelsd call on the passive columns
+ * (nothing is factorized by hand: at these sizes, d + 1 ≤ a few hundred
+ * rows, refactorizing costs less than updating a QR and cannot drift).
+ *
+ * The sum-to-one constraint of nnls_convex() is enforced exactly, not by a
+ * penalty row of weight λ. Since Σ w = 1, the residual is
+ *
+ *     Xᵀ w − x = C w,   C = [x̂_1 − x̂, …, x̂_S − x̂]   (d × S),
+ *
+ * so eq. 17 asks for the point of the convex hull of C's columns nearest
+ * the origin. That point comes from a single NNLS problem (the device
+ * Lawson–Hanson use for least-distance programming, ch. 23):
+ *
+ *     u = argmin_{u ≥ 0} ‖[C; 1ᵀ] u − e_{d+1}‖₂,   w = u / Σ u.
+ *
+ * Why: with t = Σu and u = t v (v in the simplex) the objective is
+ * t² ‖C v‖² + (t − 1)², minimized over v by the minimizers of eq. 17 whatever
+ * t > 0 is, and over t by t = 1 / (1 + min ‖C v‖²) ∈ (0, 1]. So Σu never
+ * vanishes, w ≥ 0 holds exactly (NNLS sets inactive entries to exact zeros)
+ * and Σw = 1 to rounding — against a λ row, which leaves Σw − 1 of order
+ * ‖residual‖ / λ² and squares the condition number of the subproblems as
+ * λ grows, and needs a λ chosen per problem. C is divided by its largest
+ * column norm first (eq. 17 is invariant under scaling C), so that the
+ * appended row of ones and C have the same scale: the result does not depend
+ * on the units of x̂. The price, shared by any exact method, is accuracy
+ * ~ ε · dist(x̂, hull) / diameter(hull) when x̂ is far outside a small hull.
+ */
+#include <cblas.h>
+#include <float.h>
+#include <lapacke.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+
+#include "ast.h" /* npg_alloc_hook */
+#include "nnls.h"
+
+static int fail(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static int fail(char *err, size_t errlen, const char *fmt, ...) {
+  if (err && errlen) {
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(err, errlen, fmt, ap);
+    va_end(ap);
+  }
+  return -1;
+}
+
+/* `count` elements of `size` bytes from the allocation hook; NULL on
+ * overflow or failure. Never asks for 0 bytes (malloc may return NULL). */
+static void *alloc_array(size_t count, size_t size) {
+  if (count == 0) count = 1;
+  if (count > SIZE_MAX / size) return NULL;
+  return npg_alloc_hook(count * size);
+}
+
+static int max_int(int a, int b) { return a > b ? a : b; }
+
+/* Index states of the active-set method. */
+enum {
+  AT_ZERO,   /* w_j = 0, may enter P */
+  PASSIVE,   /* j in P: w_j > 0, solved for */
+  REJECTED,  /* entered P but its least-squares value was ≤ 0 (rounding): skipped until w changes */
+};
+
+typedef struct Solver {
+  int m, n;
+  const double *A, *b;  /* the problem, A row-major m × n */
+  double *cols;         /* passive columns A_P, column-major m × k; dgelsd overwrites it */
+  double *rhs;          /* max(m, n) entries: b in, z_P out */
+  double *sv;           /* singular values of A_P */
+  double *work;         /* dgelsd workspace, grown on demand */
+  lapack_int *iwork;
+  size_t nwork, niwork;
+  char *err;
+  size_t errlen;
+} Solver;
+
+/* Make the dgelsd workspaces hold `nwork` doubles and `niwork` ints. */
+static int reserve(Solver *s, size_t nwork, size_t niwork) {
+  if (nwork > s->nwork) {
+    free(s->work);
+    s->work = alloc_array(nwork, sizeof(double));
+    s->nwork = s->work ? nwork : 0;
+  }
+  if (niwork > s->niwork) {
+    free(s->iwork);
+    s->iwork = alloc_array(niwork, sizeof(lapack_int));
+    s->niwork = s->iwork ? niwork : 0;
+  }
+  if (!s->work || !s->iwork)
+    return fail(s->err, s->errlen, "nnls: out of memory for the LAPACK workspace (%d × %d problem)", s->m, s->n);
+  return 0;
+}
+
+/* z ← argmin ‖A_P z_P − b‖₂, z = 0 off the passive set `P` (`k` indices).
+ * dgelsd (SVD, minimum-norm solution) rather than dgels (QR): a passive set
+ * that is numerically rank deficient — two training samples that nearly
+ * coincide — then gives a bounded answer instead of garbage. */
+static int solve_passive(Solver *s, const int *P, int k, double *z) {
+  int m = s->m, n = s->n;
+  int ld = max_int(max_int(m, k), 1);
+  for (int c = 0; c < k; c++)
+    for (int i = 0; i < m; i++) s->cols[(size_t)c * m + i] = s->A[(size_t)i * n + P[c]];
+  for (int i = 0; i < ld; i++) s->rhs[i] = i < m ? s->b[i] : 0;
+
+  /* Singular values below rcond · σ_max count as zero: only rounding-level
+   * dependence is cut, so a well-conditioned A_P gets its exact LS solution. */
+  double rcond = 10.0 * ld * DBL_EPSILON;
+  lapack_int rank = 0, iwq = 0;
+  double wq = 0;
+  lapack_int info = LAPACKE_dgelsd_work(LAPACK_COL_MAJOR, m, k, 1, s->cols, max_int(m, 1), s->rhs, ld, s->sv, rcond,
+                                        &rank, &wq, -1, &iwq);
+  if (info != 0)
+    return fail(s->err, s->errlen, "nnls: LAPACK dgelsd rejected argument %d in its workspace query (a bug in npg)",
+                (int)-info);
+  /* LIWORK ≥ 3·mn·nlvl + 11·mn; nlvl ≤ log2(mn) + 1 bounds it for any
+   * SMLSIZ, in case the query leaves iwork[0] alone (old LAPACK). */
+  int mn = m < k ? m : k, nlvl = 1;
+  while ((1 << (nlvl - 1)) < mn && nlvl < 31) nlvl++;
+  size_t niwork = (size_t)3 * mn * nlvl + (size_t)11 * mn + 1;
+  if ((size_t)iwq > niwork) niwork = (size_t)iwq;
+  if (reserve(s, (size_t)wq + 1, niwork)) return -1;
+  info = LAPACKE_dgelsd_work(LAPACK_COL_MAJOR, m, k, 1, s->cols, max_int(m, 1), s->rhs, ld, s->sv, rcond, &rank,
+                             s->work, (lapack_int)s->nwork, s->iwork);
+  if (info < 0) return fail(s->err, s->errlen, "nnls: LAPACK dgelsd rejected argument %d (a bug in npg)", (int)-info);
+  if (info > 0)
+    return fail(s->err, s->errlen,
+                "nnls: the SVD of the %d × %d passive columns did not converge (LAPACK dgelsd info %d): "
+                "are the entries of A of wildly different magnitudes?",
+                m, k, (int)info);
+  for (int j = 0; j < n; j++) z[j] = 0;
+  for (int c = 0; c < k; c++) z[P[c]] = s->rhs[c];
+  return 0;
+}
+
+/* r ← b − A w, g ← Aᵀ r (the negative gradient of ½‖A w − b‖²). */
+static void residual_gradient(const Solver *s, const double *w, double *r, double *g) {
+  for (int i = 0; i < s->m; i++) r[i] = s->b[i];
+  if (s->m == 0) {
+    for (int j = 0; j < s->n; j++) g[j] = 0;
+    return;
+  }
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, s->m, s->n, -1.0, s->A, s->n, w, 1, 1.0, r, 1);
+  cblas_dgemv(CblasRowMajor, CblasTrans, s->m, s->n, 1.0, s->A, s->n, r, 1, 0.0, g, 1);
+}
+
+int nnls_solve(int m, int n, const double *A, const double *b, double *w, char *err, size_t errlen) {
+  if (err && errlen) err[0] = '\0';
+  if (m < 0 || n < 0) return fail(err, errlen, "nnls: bad problem size %d × %d", m, n);
+  if ((m > 0 && n > 0 && !A) || (m > 0 && !b) || (n > 0 && !w)) return fail(err, errlen, "nnls: NULL argument");
+  for (int i = 0; i < m; i++) {
+    for (int j = 0; j < n; j++)
+      if (!isfinite(A[(size_t)i * n + j]))
+        return fail(err, errlen, "nnls: A[%d][%d] is not finite (%g)", i, j, A[(size_t)i * n + j]);
+    if (!isfinite(b[i])) return fail(err, errlen, "nnls: b[%d] is not finite (%g)", i, b[i]);
+  }
+  for (int j = 0; j < n; j++) w[j] = 0;
+  if (n == 0) return 0;
+
+  Solver s = {.m = m, .n = n, .A = A, .b = b, .err = err, .errlen = errlen};
+  int ld = max_int(m, n);
+  s.cols = alloc_array((size_t)max_int(m, 1) * (size_t)n, sizeof(double));
+  s.rhs = alloc_array((size_t)ld, sizeof(double));
+  s.sv = alloc_array((size_t)ld, sizeof(double));
+  double *z = alloc_array((size_t)n, sizeof(double));
+  double *r = alloc_array((size_t)m, sizeof(double));
+  double *g = alloc_array((size_t)n, sizeof(double));
+  int *P = alloc_array((size_t)n, sizeof(int));
+  unsigned char *state = alloc_array((size_t)n, 1);
+  int rc = 0;
+  if (!s.cols || !s.rhs || !s.sv || !z || !r || !g || !P || !state) {
+    rc = fail(err, errlen, "nnls: out of memory (%d × %d problem)", m, n);
+    goto done;
+  }
+  for (int j = 0; j < n; j++) state[j] = AT_ZERO;
+
+  /* Scales for the stopping tolerance: the rounding error of g_j is about
+   * ε · max(m, n) · ‖a_j‖ · (‖b‖ + ‖A‖ ‖w‖₁). */
+  double amax = 0, bnorm = 0;
+  for (int j = 0; j < n; j++) {
+    double c = 0;
+    for (int i = 0; i < m; i++) c += A[(size_t)i * n + j] * A[(size_t)i * n + j];
+    amax = fmax(amax, sqrt(c));
+  }
+  for (int i = 0; i < m; i++) bnorm += b[i] * b[i];
+  bnorm = sqrt(bnorm);
+
+  int max_iter = max_int(3 * n, 30), iter = 0, k = 0; /* k = |P| */
+  for (;;) {
+    residual_gradient(&s, w, r, g);
+    double wsum = 0;
+    for (int j = 0; j < n; j++) wsum += w[j];
+    double tol = 10.0 * DBL_EPSILON * ld * amax * (bnorm + amax * wsum);
+
+    /* KKT: stop when no index at zero has a descent direction. */
+    int j = -1;
+    double gmax = tol;
+    for (int t = 0; t < n; t++)
+      if (state[t] == AT_ZERO && g[t] > gmax) gmax = g[t], j = t;
+    if (j < 0) break;
+    if (iter == max_iter) {
+      rc = fail(err, errlen,
+                "nnls: no convergence in %d iterations (%d × %d problem, largest gradient %.2e, tolerance %.2e)",
+                max_iter, m, n, gmax, tol);
+      break;
+    }
+    iter++;
+
+    P[k++] = j;
+    state[j] = PASSIVE;
+    if (solve_passive(&s, P, k, z)) {
+      rc = -1;
+      break;
+    }
+    if (!(z[j] > 0)) {
+      /* In exact arithmetic g_j > 0 implies z_j > 0 (Lawson–Hanson, ch.
+       * 23); here it failed by rounding. Taking j would cycle, so skip it
+       * until the iterate moves. */
+      k--;
+      state[j] = REJECTED;
+      continue;
+    }
+    for (int t = 0; t < n; t++)
+      if (state[t] == REJECTED) state[t] = AT_ZERO;
+
+    /* Inner loop: while z leaves the feasible set, move w towards z as far
+     * as feasibility allows and drop the indices that reach zero. Each pass
+     * removes at least one index, so it ends. */
+    for (;;) {
+      double alpha = INFINITY;
+      int q = -1;
+      for (int c = 0; c < k; c++) {
+        int i = P[c];
+        if (z[i] > 0) continue;
+        double den = w[i] - z[i];
+        double a = den > 0 ? w[i] / den : 0;
+        if (a < alpha) alpha = a, q = i;
+      }
+      if (q < 0) break; /* z_P > 0: feasible */
+      for (int c = 0; c < k; c++) {
+        int i = P[c];
+        w[i] += alpha * (z[i] - w[i]);
+      }
+      w[q] = 0;
+      int kept = 0;
+      for (int c = 0; c < k; c++) {
+        int i = P[c];
+        if (w[i] > 0) {
+          P[kept++] = i;
+        } else {
+          w[i] = 0;
+          state[i] = AT_ZERO;
+        }
+      }
+      k = kept;
+      if (k == 0) break;
+      if (solve_passive(&s, P, k, z)) {
+        rc = -1;
+        goto done;
+      }
+    }
+    for (int c = 0; c < k; c++) w[P[c]] = z[P[c]];
+  }
+
+done:
+  free(s.cols);
+  free(s.rhs);
+  free(s.sv);
+  free(s.work);
+  free(s.iwork);
+  free(z);
+  free(r);
+  free(g);
+  free(P);
+  free(state);
+  return rc;
+}
+
+/* paper §8.3, eq. 17: w = argmin ‖Xᵀ w − x‖ over the simplex, as one NNLS
+ * problem (see the top of this file). */
+int nnls_convex(int S, int d, const double *X, const double *x, double *w, char *err, size_t errlen) {
+  if (err && errlen) err[0] = '\0';
+  if (S < 1) return fail(err, errlen, "learned model: no training samples (S = %d)", S);
+  if (d < 0) return fail(err, errlen, "learned model: bad input dimension %d", d);
+  if ((d > 0 && (!X || !x)) || !w) return fail(err, errlen, "learned model: NULL argument");
+  for (int s = 0; s < S; s++)
+    for (int i = 0; i < d; i++)
+      if (!isfinite(X[(size_t)s * d + i]))
+        return fail(err, errlen, "learned model: component %d of training input %d is not finite (%g)", i, s,
+                    X[(size_t)s * d + i]);
+  for (int i = 0; i < d; i++)
+    if (!isfinite(x[i]))
+      return fail(err, errlen, "learned model: component %d of the input to predict is not finite (%g)", i, x[i]);
+
+  int m = d + 1;
+  double *E = alloc_array((size_t)m * (size_t)S, sizeof(double));
+  double *f = alloc_array((size_t)m, sizeof(double));
+  if (!E || !f) {
+    free(E);
+    free(f);
+    return fail(err, errlen, "learned model: out of memory for %d training samples of dimension %d", S, d);
+  }
+
+  /* E = [C / σ; 1ᵀ], σ the largest column norm of C = X − x (0 when every
+   * training input equals x: then any convex combination is exact). */
+  double sigma = 0;
+  for (int s = 0; s < S; s++) {
+    double c = 0;
+    for (int i = 0; i < d; i++) {
+      double diff = X[(size_t)s * d + i] - x[i];
+      c += diff * diff;
+    }
+    sigma = fmax(sigma, sqrt(c));
+  }
+  double inv = sigma > 0 && isfinite(1 / sigma) ? 1 / sigma : 1;
+  for (int i = 0; i < d; i++)
+    for (int s = 0; s < S; s++) E[(size_t)i * S + s] = (X[(size_t)s * d + i] - x[i]) * inv;
+  for (int s = 0; s < S; s++) E[(size_t)d * S + s] = 1;
+  for (int i = 0; i < d; i++) f[i] = 0;
+  f[d] = 1;
+
+  char why[512];
+  int rc = nnls_solve(m, S, E, f, w, why, sizeof why);
+  free(E);
+  free(f);
+
+  double t = 0;
+  for (int s = 0; s < S; s++) t += w[s];
+  if (t > 0)
+    for (int s = 0; s < S; s++) w[s] /= t;
+  if (rc) return fail(err, errlen, "learned model (%d training samples of dimension %d): %s", S, d, why);
+  if (!(t > 0)) /* Σu ≥ 1 / (1 + 1) after scaling: cannot happen */
+    return fail(err, errlen, "learned model: the weights of the convex combination vanished (Σu = %g; a bug in npg)", t);
+  return 0;
+}

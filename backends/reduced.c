@@ -1,0 +1,692 @@
+/* reduced.c — the reduced model's layout and the reduced evaluator
+ * (DESIGN §1, §6; paper §4).
+ *
+ * Every stage is evaluated on reduced coordinates in the order of the full
+ * program:
+ *
+ *     ŷ = Σ_t  (M̂_{t,k})^{r_k} ⋯ (M̂_{t,1})^{r_1} ŵ_t,
+ *
+ * ŵ_t the term's reduced numerator (its pre-multiplied tensors contracted
+ * with the reduced inputs, or a named numerator's coordinates), each M̂ =
+ * BᵀMB contracted the same way. Contractions are dense matrix-vector
+ * products over the last axis first (OpenBLAS dgemv), each reading its
+ * tensor once; inverse powers factor M̂ once (Cholesky when training showed
+ * the operator positive definite, LU otherwise, the condition estimated);
+ * fractional powers go through the eigendecomposition (dsyevd). */
+#include <cblas.h>
+#include <lapacke.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "emit.h"
+#include "nnls.h"
+#include "reduce.h"
+
+/* ---------------------------------------------------------------- packed symmetric powers */
+
+long sym_len(long m, int k) {
+  /* C(m + k - 1, k), exact in integers for the sizes that fit in memory */
+  long r = 1;
+  for (int i = 1; i <= k; i++) r = r * (m + i - 1) / i;
+  return r;
+}
+
+/* Advance the sorted multi-index a[0..k) (a[0] <= … <= a[k-1] < m) to the
+ * next in lexicographic order; false after the last. */
+static bool next_sorted(long m, int k, long *a) {
+  int i = k - 1;
+  while (i >= 0 && a[i] == m - 1) i--;
+  if (i < 0) return false;
+  a[i]++;
+  for (int j = i + 1; j < k; j++) a[j] = a[i];
+  return true;
+}
+
+void sym_power(long m, int k, const double *x, double *z) {
+  if (k == 1) {
+    memcpy(z, x, sizeof(double) * (size_t)m);
+    return;
+  }
+  if (k == 2) {
+    long p = 0;
+    for (long a = 0; a < m; a++)
+      for (long b = a; b < m; b++) z[p++] = x[a] * x[b];
+    return;
+  }
+  long a[RT_MAX_IN] = {0}, p = 0;
+  do {
+    double v = 1;
+    for (int l = 0; l < k; l++) v *= x[a[l]];
+    z[p++] = v;
+  } while (next_sorted(m, k, a));
+}
+
+/* Σ over the distinct arrangements of the multiset a[0..k) assigned to
+ * positions 0..k-1 of Π rows[pos][value]. */
+static double arrangements(int k, const long *a, const double *const *rows, int pos, bool *used) {
+  if (pos == k) return 1;
+  double s = 0;
+  for (int i = 0; i < k; i++) {
+    if (used[i] || (i > 0 && a[i] == a[i - 1] && !used[i - 1])) continue; /* each distinct value once */
+    used[i] = true;
+    s += rows[pos][a[i]] * arrangements(k, a, rows, pos + 1, used);
+    used[i] = false;
+  }
+  return s;
+}
+
+void sym_outer(long m, int k, const double *const *rows, double *v) {
+  if (k == 1) {
+    memcpy(v, rows[0], sizeof(double) * (size_t)m);
+    return;
+  }
+  if (k == 2) {
+    const double *r0 = rows[0], *r1 = rows[1];
+    long p = 0;
+    for (long a = 0; a < m; a++) {
+      v[p++] = r0[a] * r1[a];
+      for (long b = a + 1; b < m; b++) v[p++] = r0[a] * r1[b] + r0[b] * r1[a];
+    }
+    return;
+  }
+  long a[RT_MAX_IN] = {0}, p = 0;
+  bool used[RT_MAX_IN] = {0};
+  do v[p++] = arrangements(k, a, rows, 0, used);
+  while (next_sorted(m, k, a));
+}
+
+/* ---------------------------------------------------------------- layout */
+
+static long quantity_count(const Program *prog, const long *dims, const Sym *s) {
+  long n = 1;
+  for (int i = 0; i < s->ndims; i++) n *= dims[emit_index_of(&prog->dims, s->dims[i])];
+  for (int i = 0; i < s->nstatic; i++) n *= s->shape[i];
+  return n;
+}
+
+static char *dupf(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static char *dupf(const char *fmt, ...) {
+  char buf[1024];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(buf, sizeof buf, fmt, ap);
+  va_end(ap);
+  return strdup(buf);
+}
+
+/* File stems keep [A-Za-z0-9_.-]. */
+static char *file_stem(char *s) {
+  for (char *c = s; c && *c; c++)
+    if (!((*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || (*c >= '0' && *c <= '9') || *c == '_' ||
+          *c == '.' || *c == '-'))
+      *c = '_';
+  return s;
+}
+
+/* The distinct inputs of a tensor group (its sorted multiset in runs). */
+static bool tensor_inputs(const Program *prog, const TensorGroup *g, RTensor *t) {
+  t->group = g;
+  t->nin = 0;
+  for (int i = 0; i < g->ninputs; i++) {
+    int q = emit_index_of(&prog->quantities, g->inputs[i]);
+    if (q < 0) return false;
+    if (t->nin > 0 && t->in_q[t->nin - 1] == q) {
+      t->in_mult[t->nin - 1]++;
+      continue;
+    }
+    t->in_q[t->nin] = q;
+    t->in_mult[t->nin] = 1;
+    t->nin++;
+  }
+  return true;
+}
+
+static char *class_label(const BasisClass *bc) {
+  size_t len = 3;
+  for (int i = 0; i < bc->members.n; i++) len += strlen(((Sym *)bc->members.v[i])->name) + 1;
+  char *s = malloc(len);
+  if (!s) return NULL;
+  strcpy(s, "{");
+  for (int i = 0; i < bc->members.n; i++) {
+    if (i) strcat(s, ",");
+    strcat(s, ((Sym *)bc->members.v[i])->name);
+  }
+  strcat(s, "}");
+  return s;
+}
+
+Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
+  Model *m = calloc(1, sizeof *m);
+  if (!m) goto oom;
+  m->prog = prog;
+  m->program_hash = model_program_hash(prog);
+  m->ndims = prog->dims.n;
+  m->dims = calloc((size_t)m->ndims + 1, sizeof(long));
+  m->nq = prog->quantities.n;
+  m->qclass = calloc((size_t)m->nq + 1, sizeof(int));
+  m->nclasses = prog->classes.n;
+  m->classes = calloc((size_t)m->nclasses + 1, sizeof(RClass));
+  m->nstages = prog->stages.n;
+  m->stages = calloc((size_t)m->nstages + 1, sizeof(RStage));
+  m->externs = calloc((size_t)prog->externs.n + 1, sizeof(RExtern));
+  if (!m->dims || !m->qclass || !m->classes || !m->stages || !m->externs) goto oom;
+  for (int i = 0; i < m->ndims; i++) m->dims[i] = dims[i];
+  for (int q = 0; q < m->nq; q++) m->qclass[q] = ((Sym *)prog->quantities.v[q])->klass;
+
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    const BasisClass *bc = prog->classes.v[c];
+    rc->bc = bc;
+    if (!(rc->label = class_label(bc))) goto oom;
+    rc->n = quantity_count(prog, dims, bc->members.v[0]);
+    rc->nmembers = bc->members.n + bc->joiners.n;
+    if (!(rc->members = calloc((size_t)rc->nmembers, sizeof(RMember)))) goto oom;
+    for (int i = 0; i < bc->members.n; i++) {
+      const Sym *s = bc->members.v[i];
+      rc->members[i].q = emit_index_of(&prog->quantities, s);
+      if (!(rc->members[i].name = strdup(s->name))) goto oom;
+      if (quantity_count(prog, dims, s) != rc->n) {
+        snprintf(err, errlen, "class %s: '%s' has %ld entries but '%s' has %ld", rc->label, s->name,
+                 quantity_count(prog, dims, s), ((Sym *)bc->members.v[0])->name, rc->n);
+        model_free(m);
+        return NULL;
+      }
+    }
+    for (int j = 0; j < bc->joiners.n; j++) {
+      const Joiner *jn = bc->joiners.v[j];
+      RMember *mb = &rc->members[bc->members.n + j];
+      mb->q = -1;
+      mb->joiner = jn;
+      if (!(mb->name = dupf("%s.num%d", jn->stage->sym->name, jn->term + 1))) goto oom;
+    }
+  }
+
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    const Stage *st = prog->stages.v[i];
+    rs->st = st;
+    rs->q = emit_index_of(&prog->quantities, st->sym);
+    if (rs->q < 0) {
+      snprintf(err, errlen, "stage '%s' has no basis (a bug in npg)", st->sym->name);
+      model_free(m);
+      return NULL;
+    }
+    if (st->kind == ST_EXTERN) {
+      RExtern *x = &m->externs[m->nexterns++];
+      x->q = rs->q;
+      for (int k = 0; k < st->sym->nof && x->nin < RT_MAX_IN; k++)
+        x->in_q[x->nin++] = emit_index_of(&prog->quantities, st->sym->of[k]);
+      continue;
+    }
+    rs->nterms = st->nterms;
+    if (!(rs->terms = calloc((size_t)st->nterms + 1, sizeof(RTerm)))) goto oom;
+    const char *sn = st->sym->name;
+    for (int t = 0; t < st->nterms; t++) {
+      const Term *tm = st->terms[t];
+      RTerm *rt = &rs->terms[t];
+      rt->term = tm;
+      rt->named_q = -1;
+      if (tm->named_num) {
+        rt->named_q = emit_index_of(&prog->quantities, tm->named_num);
+        if (m->qclass[rt->named_q] != m->qclass[rs->q] && !(rt->proj_name = file_stem(dupf("proj_%s_t%d", sn, t))))
+          goto oom;
+      } else {
+        rt->nnum = tm->num_tensors.n;
+        if (!(rt->num = calloc((size_t)rt->nnum + 1, sizeof(RTensor)))) goto oom;
+        for (int g = 0; g < rt->nnum; g++) {
+          RTensor *rtn = &rt->num[g];
+          rtn->kind = RT_NUM;
+          if (!tensor_inputs(prog, &tm->num_tensors.g[g], rtn)) goto nobasis;
+          rtn->name = file_stem(dupf("t_%s_t%d_f0_g%d", sn, t, g));
+          rtn->builder = strdup(builder_name(prog->ctx, prog, st, t, 0, g, NULL));
+          if (!rtn->name || !rtn->builder) goto oom;
+        }
+      }
+      rt->nops = tm->nops;
+      if (!(rt->ops = calloc((size_t)tm->nops + 1, sizeof(ROp)))) goto oom;
+      for (int k = 0; k < tm->nops; k++) {
+        ROp *ro = &rt->ops[k];
+        const OpPow *op = &tm->ops[k];
+        ro->op = op;
+        const TensorList *tl = op->kind == OPK_DIAG ? &tm->op_tensors[k] : &op->op->opdef->tensors;
+        ro->ntensors = tl->n;
+        if (!(ro->t = calloc((size_t)tl->n + 1, sizeof(RTensor)))) goto oom;
+        for (int g = 0; g < tl->n; g++) {
+          RTensor *rtn = &ro->t[g];
+          rtn->kind = op->kind == OPK_DIAG ? RT_DIAG : RT_DECL;
+          if (!tensor_inputs(prog, &tl->g[g], rtn)) goto nobasis;
+          rtn->name = file_stem(dupf("t_%s_t%d_op%d_g%d", sn, t, k + 1, g));
+          rtn->builder = strdup(op->kind == OPK_DIAG ? builder_name(prog->ctx, prog, st, t, k + 1, g, NULL)
+                                                     : builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op));
+          if (!rtn->name || !rtn->builder) goto oom;
+        }
+      }
+    }
+  }
+  return m;
+nobasis:
+  snprintf(err, errlen, "a tensor reads a quantity without a basis (a bug in npg)");
+  model_free(m);
+  return NULL;
+oom:
+  snprintf(err, errlen, "out of memory while laying out the reduced model");
+  model_free(m);
+  return NULL;
+}
+
+static void free_tensor(RTensor *t) {
+  free(t->name);
+  free(t->builder);
+  free(t->data);
+}
+
+void model_free(Model *m) {
+  if (!m) return;
+  for (int c = 0; m->classes && c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    free(rc->label);
+    free(rc->B);
+    for (int i = 0; rc->members && i < rc->nmembers; i++) free(rc->members[i].name);
+    free(rc->members);
+  }
+  for (int i = 0; m->stages && i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    for (int t = 0; rs->terms && t < rs->nterms; t++) {
+      RTerm *rt = &rs->terms[t];
+      for (int g = 0; rt->num && g < rt->nnum; g++) free_tensor(&rt->num[g]);
+      free(rt->num);
+      free(rt->proj);
+      free(rt->proj_name);
+      for (int k = 0; rt->ops && k < rt->nops; k++) {
+        for (int g = 0; g < rt->ops[k].ntensors; g++) free_tensor(&rt->ops[k].t[g]);
+        free(rt->ops[k].t);
+      }
+      free(rt->ops);
+    }
+    free(rs->terms);
+  }
+  for (int i = 0; m->externs && i < m->nexterns; i++) {
+    free(m->externs[i].X);
+    free(m->externs[i].Z);
+  }
+  free(m->externs);
+  free(m->stages);
+  free(m->classes);
+  free(m->qclass);
+  free(m->dims);
+  free(m->param_hashes);
+  free(m);
+}
+
+static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
+
+void model_size_tensors(Model *m) {
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    long my = qm(m, rs->q);
+    for (int t = 0; t < rs->nterms; t++) {
+      RTerm *rt = &rs->terms[t];
+      for (int k = -1; k < rt->nops; k++) {
+        int n = k < 0 ? rt->nnum : rt->ops[k].ntensors;
+        for (int g = 0; g < n; g++) {
+          RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
+          x->rows = x->kind == RT_NUM ? my : x->kind == RT_DIAG ? my * (my + 1) / 2 : my * my;
+          x->cols = 1;
+          for (int j = 0; j < x->nin; j++) {
+            x->in_len[j] = sym_len(qm(m, x->in_q[j]), x->in_mult[j]);
+            x->cols *= x->in_len[j];
+          }
+        }
+      }
+    }
+  }
+  for (int i = 0; i < m->nexterns; i++) {
+    RExtern *x = &m->externs[i];
+    x->d = 0;
+    for (int j = 0; j < x->nin; j++) x->d += qm(m, x->in_q[j]);
+  }
+}
+
+size_t model_bytes(const Model *m, size_t *tensor_bytes) {
+  size_t total = 0, tb = 0;
+  for (int c = 0; c < m->nclasses; c++) total += sizeof(double) * (size_t)(m->classes[c].n * m->classes[c].m);
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    for (int t = 0; t < rs->nterms; t++) {
+      const RTerm *rt = &rs->terms[t];
+      for (int k = -1; k < rt->nops; k++) {
+        int n = k < 0 ? rt->nnum : rt->ops[k].ntensors;
+        for (int g = 0; g < n; g++) {
+          const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
+          tb += sizeof(double) * (size_t)(x->rows * x->cols);
+        }
+      }
+      if (rt->proj) tb += sizeof(double) * (size_t)(qm(m, rs->q) * qm(m, rt->named_q));
+    }
+  }
+  for (int i = 0; i < m->nexterns; i++)
+    total += sizeof(double) * (size_t)(m->externs[i].S * (m->externs[i].d + qm(m, m->externs[i].q)));
+  if (tensor_bytes) *tensor_bytes = tb;
+  return total + tb;
+}
+
+uint64_t model_program_hash(const Program *prog) {
+  uint64_t h = 1469598103934665603ull;
+  for (int i = 0; i < prog->ctx->files.n; i++) {
+    const SrcFile *f = prog->ctx->files.v[i];
+    for (size_t k = 0; k < f->len; k++) {
+      h ^= (unsigned char)f->text[k];
+      h *= 1099511628211ull;
+    }
+    h ^= 0xff;
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+
+/* ---------------------------------------------------------------- reduced evaluation */
+
+struct Reduced {
+  Model *m;
+  double **x;             /* reduced coordinates of every quantity */
+  double *v, *acc;        /* a term's vector, a contraction's result (max m, max rows) */
+  double *buf[2];         /* contraction intermediates */
+  double *z;              /* packed powers of the inputs of one tensor */
+  double *M, *M2, *w;     /* a reduced operator, its factor, eigenvalues */
+  lapack_int *piv;
+  long maxm;
+  bool given_externs;     /* externs projected by the caller, not learned */
+  char error[1024];
+};
+
+const char *reduced_error(const Reduced *r) { return r->error; }
+
+static int rfail(Reduced *r, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static int rfail(Reduced *r, const char *fmt, ...) {
+  if (r->error[0]) return -1;
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(r->error, sizeof r->error, fmt, ap);
+  va_end(ap);
+  return -1;
+}
+
+void reduced_free(Reduced *r) {
+  if (!r) return;
+  for (int q = 0; r->x && q < r->m->nq; q++) free(r->x[q]);
+  free(r->x);
+  free(r->v);
+  free(r->acc);
+  free(r->buf[0]);
+  free(r->buf[1]);
+  free(r->z);
+  free(r->M);
+  free(r->M2);
+  free(r->w);
+  free(r->piv);
+  free(r);
+}
+
+Reduced *reduced_new(Model *m, char *err, size_t errlen) {
+  Reduced *r = calloc(1, sizeof *r);
+  if (!r) goto oom;
+  r->m = m;
+  if (!(r->x = calloc((size_t)m->nq + 1, sizeof(double *)))) goto oom;
+  long maxm = 1, maxbuf = 1, maxz = 1;
+  for (int c = 0; c < m->nclasses; c++) maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
+  for (int q = 0; q < m->nq; q++)
+    if (!(r->x[q] = calloc((size_t)qm(m, q) + 1, sizeof(double)))) goto oom;
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    for (int t = 0; t < rs->nterms; t++) {
+      RTerm *rt = &rs->terms[t];
+      for (int k = -1; k < rt->nops; k++) {
+        int n = k < 0 ? rt->nnum : rt->ops[k].ntensors;
+        for (int g = 0; g < n; g++) {
+          const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
+          long zs = 0, inter = x->rows;
+          for (int j = 0; j < x->nin; j++) zs += x->in_len[j];
+          for (int j = 0; j + 1 < x->nin; j++) inter *= x->in_len[j];
+          maxz = zs > maxz ? zs : maxz;
+          maxbuf = inter > maxbuf ? inter : maxbuf;
+        }
+      }
+    }
+  }
+  r->maxm = maxm;
+  r->v = calloc((size_t)maxm, sizeof(double));
+  r->acc = calloc((size_t)(maxm * maxm), sizeof(double));
+  r->buf[0] = calloc((size_t)maxbuf, sizeof(double));
+  r->buf[1] = calloc((size_t)maxbuf, sizeof(double));
+  r->z = calloc((size_t)maxz, sizeof(double));
+  r->M = calloc((size_t)(maxm * maxm), sizeof(double));
+  r->M2 = calloc((size_t)(maxm * maxm), sizeof(double));
+  r->w = calloc((size_t)maxm, sizeof(double));
+  r->piv = calloc((size_t)maxm, sizeof(lapack_int));
+  if (!r->v || !r->acc || !r->buf[0] || !r->buf[1] || !r->z || !r->M || !r->M2 || !r->w || !r->piv) goto oom;
+  return r;
+oom:
+  snprintf(err, errlen, "out of memory for the reduced evaluator");
+  reduced_free(r);
+  return NULL;
+}
+
+double *reduced_coords(Reduced *r, int q) { return r->x[q]; }
+
+void reduced_project(Reduced *r, int q, const double *x) {
+  const RClass *c = &r->m->classes[r->m->qclass[q]];
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)c->n, (int)c->m, 1.0, c->B, (int)c->m, x, 1, 0.0, r->x[q], 1);
+}
+
+void reduced_lift(const Reduced *r, int q, double *y) {
+  const RClass *c = &r->m->classes[r->m->qclass[q]];
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)c->n, (int)c->m, 1.0, c->B, (int)c->m, r->x[q], 1, 0.0, y, 1);
+}
+
+/* out[0..rows) += T ⊗ z_1 ⊗ … ⊗ z_n: the last axis first, each step one
+ * dgemv; the first step reads the whole tensor once. */
+static void contract(Reduced *r, const RTensor *t, double *out) {
+  if (t->nin == 0) {
+    cblas_daxpy((int)t->rows, 1.0, t->data, 1, out, 1);
+    return;
+  }
+  const double *z[RT_MAX_IN];
+  double *zp = r->z;
+  for (int j = 0; j < t->nin; j++) {
+    const double *x = r->x[t->in_q[j]];
+    if (t->in_mult[j] == 1) {
+      z[j] = x;
+      continue;
+    }
+    sym_power(qm(r->m, t->in_q[j]), t->in_mult[j], x, zp);
+    z[j] = zp;
+    zp += t->in_len[j];
+  }
+  long lead = t->rows;
+  for (int j = 0; j + 1 < t->nin; j++) lead *= t->in_len[j];
+  const double *src = t->data;
+  int b = 0;
+  for (int j = t->nin - 1; j >= 0; j--) {
+    long cols = t->in_len[j];
+    double *dst = j == 0 ? out : r->buf[b];
+    double beta = j == 0 ? 1.0 : 0.0;
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)lead, (int)cols, 1.0, src, (int)cols, z[j], 1, beta, dst, 1);
+    src = dst;
+    b ^= 1;
+    if (j > 0) lead /= t->in_len[j - 1];
+  }
+}
+
+/* The reduced operator of one op of a term, dense my x my in r->M. */
+static void assemble_op(Reduced *r, const ROp *ro, long my) {
+  memset(r->acc, 0, sizeof(double) * (size_t)(my * my));
+  for (int g = 0; g < ro->ntensors; g++) contract(r, &ro->t[g], r->acc);
+  if (ro->op->kind == OPK_DIAG) { /* unpack the upper triangle */
+    long p = 0;
+    for (long a = 0; a < my; a++)
+      for (long b = a; b < my; b++) {
+        r->M[a * my + b] = r->M[b * my + a] = r->acc[p];
+        p++;
+      }
+  } else {
+    memcpy(r->M, r->acc, sizeof(double) * (size_t)(my * my));
+  }
+}
+
+static const char *op_label(const ROp *ro, int term, int k, char *buf, size_t n) {
+  if (ro->op->kind == OPK_DECL) snprintf(buf, n, "%s", ro->op->op->name);
+  else snprintf(buf, n, "diag (term %d, operator %d)", term + 1, k + 1);
+  return buf;
+}
+
+static double one_norm(const double *M, long n) {
+  double best = 0;
+  for (long j = 0; j < n; j++) {
+    double s = 0;
+    for (long i = 0; i < n; i++) s += fabs(M[i * n + j]);
+    best = s > best ? s : best;
+  }
+  return best;
+}
+
+/* v <- M̂^(p/q) v, M̂ in r->M (destroyed). */
+static int apply_power(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, long my, double *v, long sample) {
+  const OpPow *op = ro->op;
+  const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
+  char lab[256];
+  const char *sn = rs->st->sym->name;
+  int n = (int)my;
+  if (op->q == 1 && op->p > 0) {
+    for (long i = 0; i < op->p; i++) {
+      cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, 1.0, r->M, n, v, 1, 0.0, r->w, 1);
+      memcpy(v, r->w, sizeof(double) * (size_t)n);
+    }
+    return 0;
+  }
+  if (op->q == 1) {
+    double anorm = one_norm(r->M, my), rcond = 0;
+    bool chol = false;
+    if (ro->spd) { /* paper §4: BᵀMB of a positive definite M is positive definite */
+      memcpy(r->M2, r->M, sizeof(double) * (size_t)(my * my));
+      if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'U', n, r->M2, n) == 0 &&
+          LAPACKE_dpocon(LAPACK_ROW_MAJOR, 'U', n, r->M2, n, anorm, &rcond) == 0 && rcond > 1e-15)
+        chol = true;
+    }
+    if (!chol) {
+      memcpy(r->M2, r->M, sizeof(double) * (size_t)(my * my));
+      lapack_int info = LAPACKE_dgetrf(LAPACK_ROW_MAJOR, n, n, r->M2, n, r->piv);
+      if (info > 0)
+        return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (exact zero pivot %d): "
+                        "basis of class %s too small?",
+                     sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, (int)info, c->label);
+      if (info < 0) return rfail(r, "stage %s: LAPACK dgetrf argument %d (a bug in npg)", sn, (int)-info);
+      LAPACKE_dgecon(LAPACK_ROW_MAJOR, '1', n, r->M2, n, anorm, &rcond);
+      if (!(rcond > 1e-15))
+        return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (rcond %.3g): basis of "
+                        "class %s too small?",
+                     sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, rcond, c->label);
+    }
+    for (long i = 0; i < -op->p; i++) {
+      if (chol) LAPACKE_dpotrs(LAPACK_ROW_MAJOR, 'U', n, 1, r->M2, n, v, 1);
+      else LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', n, 1, r->M2, n, r->piv, v, 1);
+    }
+    return 0;
+  }
+  /* fractional power of a symmetric positive semidefinite operator */
+  lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', n, r->M, n, r->w);
+  if (info != 0)
+    return rfail(r, "stage %s (class %s): eigendecomposition of reduced operator %s failed at sample %ld (info %d)",
+                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, (int)info);
+  double big = 0;
+  for (int i = 0; i < n; i++) big = fmax(big, fabs(r->w[i]));
+  double tol = 1e-12 * (big > 0 ? big : 1);
+  for (int i = 0; i < n; i++) {
+    double lam = r->w[i];
+    if (lam < -tol)
+      return rfail(r, "stage %s (class %s): reduced operator %s is indefinite at sample %ld (eigenvalue %.3g, largest "
+                      "%.3g): a root needs a positive semidefinite operator",
+                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, lam, big);
+    if (op->p < 0 && lam <= tol)
+      return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (eigenvalue %.3g, largest "
+                      "%.3g, condition estimate %.3g): basis of class %s too small?",
+                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, lam, big,
+                   lam > 0 ? big / lam : INFINITY, c->label);
+  }
+  /* v <- V diag(λ^(p/q)) Vᵀ v */
+  cblas_dgemv(CblasRowMajor, CblasTrans, n, n, 1.0, r->M, n, v, 1, 0.0, r->acc, 1);
+  for (int i = 0; i < n; i++) r->acc[i] *= r->w[i] > 0 ? pow(r->w[i], (double)op->p / (double)op->q) : 0.0;
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, 1.0, r->M, n, r->acc, 1, 0.0, v, 1);
+  return 0;
+}
+
+static int eval_extern(Reduced *r, const RExtern *x, long sample) {
+  double *in = malloc(sizeof(double) * (size_t)(x->d + 1)), *w = malloc(sizeof(double) * (size_t)(x->S + 1));
+  if (!in || !w) {
+    free(in);
+    free(w);
+    return rfail(r, "out of memory in extern '%s'", ((Sym *)r->m->prog->quantities.v[x->q])->name);
+  }
+  long off = 0;
+  for (int j = 0; j < x->nin; j++) {
+    long mj = qm(r->m, x->in_q[j]);
+    memcpy(in + off, r->x[x->in_q[j]], sizeof(double) * (size_t)mj);
+    off += mj;
+  }
+  char err[512] = "";
+  int rc = nnls_convex((int)x->S, (int)x->d, x->X, in, w, err, sizeof err);
+  if (rc == 0) {
+    long mz = qm(r->m, x->q);
+    cblas_dgemv(CblasRowMajor, CblasTrans, (int)x->S, (int)mz, 1.0, x->Z, (int)mz, w, 1, 0.0, r->x[x->q], 1);
+  }
+  free(in);
+  free(w);
+  if (rc != 0)
+    return rfail(r, "extern '%s' at sample %ld: learned model: %s", ((Sym *)r->m->prog->quantities.v[x->q])->name,
+                 sample, err);
+  return 0;
+}
+
+void reduced_use_given_externs(Reduced *r, bool on) { r->given_externs = on; }
+
+int reduced_eval_stage(Reduced *r, int i, long sample) {
+  if (r->error[0]) return -1;
+  Model *m = r->m;
+  const RStage *rs = &m->stages[i];
+  if (rs->st->kind == ST_EXTERN) {
+    if (r->given_externs) return 0;
+    for (int k = 0; k < m->nexterns; k++)
+      if (m->externs[k].q == rs->q) return eval_extern(r, &m->externs[k], sample);
+    return rfail(r, "extern '%s' has no learned model (a bug in npg)", rs->st->sym->name);
+  }
+  long my = qm(m, rs->q);
+  double *y = r->x[rs->q];
+  memset(y, 0, sizeof(double) * (size_t)my);
+  for (int t = 0; t < rs->nterms; t++) {
+    const RTerm *rt = &rs->terms[t];
+    double *v = r->v;
+    if (rt->named_q >= 0) {
+      const double *w = r->x[rt->named_q];
+      if (rt->proj)
+        cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)my, (int)qm(m, rt->named_q), 1.0, rt->proj,
+                    (int)qm(m, rt->named_q), w, 1, 0.0, v, 1);
+      else memcpy(v, w, sizeof(double) * (size_t)my);
+    } else {
+      memset(v, 0, sizeof(double) * (size_t)my);
+      for (int g = 0; g < rt->nnum; g++) contract(r, &rt->num[g], v);
+    }
+    for (int k = 0; k < rt->nops; k++) { /* innermost first (DESIGN §4) */
+      assemble_op(r, &rt->ops[k], my);
+      if (apply_power(r, rs, &rt->ops[k], t, k, my, v, sample)) return -1;
+    }
+    cblas_daxpy((int)my, 1.0, v, 1, y, 1);
+  }
+  return 0;
+}
+
+int reduced_eval(Reduced *r, long sample) {
+  for (int i = 0; i < r->m->nstages; i++)
+    if (reduced_eval_stage(r, i, sample)) return -1;
+  return 0;
+}

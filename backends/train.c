@@ -1,0 +1,332 @@
+/* train.c — training a reduced model (DESIGN §5; paper §8.2–§8.3):
+ *
+ *   1. snapshots: the full evaluator on every training sample; every
+ *      quantity's value and, for every operator term with an unnamed
+ *      numerator, the numerator's value (it joins the result's class:
+ *      DESIGN §4, "a numerator lives in the result's basis");
+ *   2. one orthonormal basis per class: a PCA per member (energy fraction
+ *      and cap per member), concatenated and re-orthonormalized, or with
+ *      --merge joint one PCA of the unit-scaled member blocks;
+ *   3. pre-multiplication of every tensor (premul.c);
+ *   4. the learned map of every extern (paper §8.3): the training samples'
+ *      reduced inputs and reduced values.
+ */
+#include <cblas.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "emit.h"
+#include "reduce.h"
+
+void progress_show(bool on, const char *what, long done, long total) {
+  if (!on) return;
+  int width = 30, fill = total > 0 ? (int)((double)done / (double)total * width) : width;
+  fprintf(stderr, "\r%-28s [", what);
+  for (int i = 0; i < width; i++) fputc(i < fill ? '#' : ' ', stderr);
+  fprintf(stderr, "] %ld/%ld", done, total);
+  if (done >= total) fputc('\n', stderr);
+  fflush(stderr);
+}
+
+static int tfail(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static int tfail(char *err, size_t errlen, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(err, errlen, fmt, ap);
+  va_end(ap);
+  return -1;
+}
+
+/* ---------------------------------------------------------------- fields through the builders */
+
+typedef struct FieldSum {
+  NpgFull *f;
+  const TensorGroup *g;
+  const double *in[16];
+  double *out;
+  long n;
+  bool diag;
+} FieldSum;
+
+static int sum_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
+  FieldSum *s = user;
+  (void)col;
+  if (row < 0 || row >= s->n) return -1;
+  double v = coef;
+  for (int i = 0; i < nin; i++) v *= s->in[i][in[i]];
+  s->out[row] += v;
+  return 0;
+}
+
+/* out[0..n) = the field whose tensors are `ts` (builders named in `ts`),
+ * evaluated on the current values of the evaluator. */
+static int field_value(NpgFull *f, const RTensor *ts, int nt, double *out, long n, char *err, size_t errlen) {
+  memset(out, 0, sizeof(double) * (size_t)n);
+  for (int g = 0; g < nt; g++) {
+    FieldSum s = {f, ts[g].group, {0}, out, n, false};
+    for (int i = 0; i < ts[g].group->ninputs; i++) s.in[i] = npg_full_get(f, ts[g].group->inputs[i]->name, NULL);
+    NpgSink sink = {&s, sum_entry};
+    if (full_build(f, ts[g].builder, &sink) != 0) return tfail(err, errlen, "%s", npg_full_error(f));
+  }
+  return 0;
+}
+
+/* ---------------------------------------------------------------- options */
+
+static void member_options(const Model *m, const RClass *c, RMember *mb, const TrainOptions *opt) {
+  mb->cap = opt->cap > 0 ? opt->cap : 60;
+  mb->energy = opt->energy > 0 ? opt->energy : 0.999;
+  const BasisClass *bc = c->bc;
+  if (bc->basis_max > 0) mb->cap = bc->basis_max;
+  if (bc->basis_energy > 0) mb->energy = bc->basis_energy;
+  const char *name = mb->name;
+  if (mb->q >= 0) {
+    const Sym *s = m->prog->quantities.v[mb->q];
+    if (s->basis_max > 0) mb->cap = s->basis_max;
+    if (s->basis_energy > 0) mb->energy = s->basis_energy;
+    name = s->name;
+  }
+  for (int i = 0; i < opt->noverride; i++)
+    if (strcmp(opt->override_name[i], name) == 0 || strcmp(opt->override_name[i], "*") == 0) {
+      if (opt->override_cap[i] > 0) mb->cap = opt->override_cap[i];
+      if (opt->override_energy[i] > 0) mb->energy = opt->override_energy[i];
+    }
+}
+
+/* ---------------------------------------------------------------- training */
+
+typedef struct Snapshots {
+  long S;
+  double ***X;      /* [class][member] n x S column-major */
+  double **opdiag;  /* per diagonal operator use: the least entry seen */
+} Snapshots;
+
+static void free_snapshots(Model *m, Snapshots *sn) {
+  for (int c = 0; sn->X && c < m->nclasses; c++) {
+    for (int i = 0; sn->X[c] && i < m->classes[c].nmembers; i++) free(sn->X[c][i]);
+    free(sn->X[c]);
+  }
+  free(sn->X);
+}
+
+/* Visit every diagonal operator (stage, term, op). */
+#define FOR_DIAG_OPS(m, rs, rt, ro)                                                   \
+  for (int i_ = 0; i_ < (m)->nstages; i_++)                                           \
+    for (RStage *rs = &(m)->stages[i_]; rs; rs = NULL)                                \
+      for (int t_ = 0; t_ < rs->nterms; t_++)                                         \
+        for (RTerm *rt = &rs->terms[t_]; rt; rt = NULL)                               \
+          for (int k_ = 0; k_ < rt->nops; k_++)                                       \
+            for (ROp *ro = &rt->ops[k_]; ro && ro->op->kind == OPK_DIAG; ro = NULL)
+
+static RTerm *joiner_term(Model *m, const Joiner *j) {
+  for (int i = 0; i < m->nstages; i++)
+    if (m->stages[i].st == j->stage) return &m->stages[i].terms[j->term];
+  return NULL;
+}
+
+Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                   size_t errlen) {
+  Model *m = NULL;
+  Snapshots sn = {0};
+  double *tmp = NULL;
+  long S = src->count;
+  err[0] = 0;
+  if (S < 1) {
+    tfail(err, errlen, "no training samples");
+    return NULL;
+  }
+  /* sample 0 binds every dim */
+  if (src->set(src->user, f, 0) != 0 || npg_full_eval(f, 0) != 0) {
+    tfail(err, errlen, "%s", npg_full_error(f));
+    return NULL;
+  }
+  long *dims = calloc((size_t)prog->dims.n + 1, sizeof(long));
+  if (!dims) return NULL;
+  for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(f, i);
+  m = model_layout(prog, dims, err, errlen);
+  free(dims);
+  if (!m) return NULL;
+  m->samples = S;
+
+  /* 1. snapshots */
+  size_t need = 0;
+  long maxn = 1;
+  for (int c = 0; c < m->nclasses; c++) {
+    need += sizeof(double) * (size_t)m->classes[c].n * (size_t)S * (size_t)m->classes[c].nmembers;
+    maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
+    for (int i = 0; i < m->classes[c].nmembers; i++) member_options(m, &m->classes[c], &m->classes[c].members[i], opt);
+  }
+  if (opt->mem && need > opt->mem) {
+    tfail(err, errlen,
+          "the snapshots need %.3g GB, more than the memory budget --mem %.3g GB; the method of snapshots by "
+          "recomputation is not implemented yet: raise --mem or train on fewer samples",
+          (double)need / 1e9, (double)opt->mem / 1e9);
+    goto fail;
+  }
+  sn.S = S;
+  if (!(sn.X = calloc((size_t)m->nclasses + 1, sizeof(double **)))) goto oom;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    if (!(sn.X[c] = calloc((size_t)rc->nmembers, sizeof(double *)))) goto oom;
+    for (int i = 0; i < rc->nmembers; i++)
+      if (!(sn.X[c][i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
+  }
+  if (!(tmp = malloc(sizeof(double) * (size_t)maxn))) goto oom;
+  FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
+  for (long k = 0; k < S; k++) {
+    if (k > 0 && (src->set(src->user, f, k) != 0 || npg_full_eval(f, k) != 0)) {
+      tfail(err, errlen, "%s", npg_full_error(f));
+      goto fail;
+    }
+    for (int c = 0; c < m->nclasses; c++) {
+      RClass *rc = &m->classes[c];
+      for (int i = 0; i < rc->nmembers; i++) {
+        RMember *mb = &rc->members[i];
+        double *col = sn.X[c][i] + (size_t)k * (size_t)rc->n;
+        if (mb->q >= 0) {
+          memcpy(col, npg_full_get(f, ((Sym *)prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)rc->n);
+        } else {
+          RTerm *rt = joiner_term(m, mb->joiner);
+          if (!rt || field_value(f, rt->num, rt->nnum, col, rc->n, err, errlen)) goto fail;
+        }
+      }
+    }
+    FOR_DIAG_OPS(m, rs, rt, ro) {
+      if (!ro->spd) continue;
+      long n = m->classes[m->qclass[rs->q]].n;
+      if (field_value(f, ro->t, ro->ntensors, tmp, n, err, errlen)) goto fail;
+      for (long e = 0; e < n && ro->spd; e++)
+        if (!(tmp[e] > 0)) ro->spd = false;
+    }
+    progress_show(opt->progress, "snapshots", k + 1, S);
+  }
+
+  /* 2. bases */
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
+    int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int));
+    int rc_ok = U && kk ? 0 : -1;
+    if (rc_ok == 0 && opt->joint && rc->nmembers > 1) {
+      /* one PCA of the members' blocks, each scaled to unit norm (DESIGN §5) */
+      size_t n = (size_t)rc->n * (size_t)S;
+      double *J = malloc(sizeof(double) * n * (size_t)rc->nmembers);
+      int cap = 0;
+      double energy = 1;
+      if (!J) rc_ok = -1;
+      for (int i = 0; J && i < rc->nmembers; i++) {
+        double nrm = cblas_dnrm2((int)n, sn.X[c][i], 1);
+        for (size_t e = 0; e < n; e++) J[(size_t)i * n + e] = nrm > 0 ? sn.X[c][i][e] / nrm : 0;
+        cap += rc->members[i].cap;
+        energy = fmin(energy, rc->members[i].energy);
+      }
+      double captured = 0;
+      if (J) rc_ok = pca_member(rc->n, S * rc->nmembers, J, cap, energy, &U[0], &kk[0], &captured, err, errlen);
+      free(J);
+      for (int i = 0; i < rc->nmembers; i++) {
+        rc->members[i].kept = kk[0];
+        rc->members[i].captured = captured;
+      }
+      if (rc_ok == 0) rc_ok = pca_merge(rc->n, 1, U, kk, &rc->B, &rc->m, err, errlen);
+    } else if (rc_ok == 0) {
+      for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
+        RMember *mb = &rc->members[i];
+        rc_ok = pca_member(rc->n, S, sn.X[c][i], mb->cap, mb->energy, &U[i], &kk[i], &mb->captured, err, errlen);
+        mb->kept = kk[i];
+      }
+      if (rc_ok == 0) rc_ok = pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen);
+    }
+    for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
+    free(U);
+    free(kk);
+    if (rc_ok != 0) {
+      if (!err[0]) tfail(err, errlen, "out of memory building the basis of class %s", rc->label);
+      goto fail;
+    }
+    if (rc_ok == 0 && opt->full_rank && rc->m < rc->n) {
+      /* the PCA directions first, then the rest of the space */
+      double *eye = calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
+      double *parts[2] = {rc->B, eye};
+      int ks[2] = {(int)rc->m, (int)rc->n};
+      if (!eye) goto oom;
+      for (long e = 0; e < rc->n; e++) eye[e * rc->n + e] = 1;
+      rc_ok = pca_merge(rc->n, 2, parts, ks, &B, &rc->m, err, errlen);
+      free(eye);
+      if (rc_ok != 0) goto fail;
+      free(rc->B);
+      rc->B = B;
+    }
+    if (rc->m == 0) {
+      tfail(err, errlen, "class %s: every training snapshot is zero, no basis can be built", rc->label);
+      goto fail;
+    }
+  }
+  model_size_tensors(m);
+
+  /* 3. projections between classes and pre-multiplication */
+  long ntensors = 0, done = 0;
+  for (int i = 0; i < m->nstages; i++)
+    for (int t = 0; t < m->stages[i].nterms; t++) {
+      RTerm *rt = &m->stages[i].terms[t];
+      ntensors += rt->nnum;
+      for (int k = 0; k < rt->nops; k++) ntensors += rt->ops[k].ntensors;
+    }
+  double flops = 0;
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    RClass *cy = &m->classes[m->qclass[rs->q]];
+    for (int t = 0; t < rs->nterms; t++) {
+      RTerm *rt = &rs->terms[t];
+      if (rt->proj_name) {
+        RClass *cw = &m->classes[m->qclass[rt->named_q]];
+        if (!(rt->proj = malloc(sizeof(double) * (size_t)(cy->m * cw->m)))) goto oom;
+        cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0, cy->B,
+                    (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
+      }
+      for (int k = -1; k < rt->nops; k++) {
+        int n = k < 0 ? rt->nnum : rt->ops[k].ntensors;
+        for (int g = 0; g < n; g++) {
+          RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
+          if (premultiply(m, f, x, cy->B, cy->n, cy->m, &flops, err, errlen)) goto fail;
+          progress_show(opt->progress, "pre-multiplication", ++done, ntensors);
+        }
+      }
+    }
+  }
+
+  /* 4. externs: reduced training inputs and values (paper §8.3) */
+  for (int i = 0; i < m->nexterns; i++) {
+    RExtern *x = &m->externs[i];
+    long mz = m->classes[m->qclass[x->q]].m;
+    x->S = S;
+    if (!(x->X = malloc(sizeof(double) * (size_t)(S * x->d + 1))) || !(x->Z = malloc(sizeof(double) * (size_t)(S * mz))))
+      goto oom;
+    for (long k = 0; k < S; k++) {
+      long off = 0;
+      for (int j = 0; j <= x->nin; j++) {
+        int q = j < x->nin ? x->in_q[j] : x->q;
+        int c = m->qclass[q];
+        RClass *rc = &m->classes[c];
+        int mi = 0;
+        while (rc->members[mi].q != q) mi++;
+        double *dst = j < x->nin ? x->X + k * x->d + off : x->Z + k * mz;
+        cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m,
+                    sn.X[c][mi] + (size_t)k * (size_t)rc->n, 1, 0.0, dst, 1);
+        if (j < x->nin) off += rc->m;
+      }
+    }
+  }
+  free(tmp);
+  free_snapshots(m, &sn);
+  return m;
+oom:
+  tfail(err, errlen, "out of memory while training");
+fail:
+  free(tmp);
+  free_snapshots(m, &sn);
+  model_free(m);
+  return NULL;
+}
