@@ -259,9 +259,11 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
       free(rc->B);
       rc->B = B;
     }
-    if (rc->m == 0) {
-      tfail(err, errlen, "class %s: every training snapshot is zero, no basis can be built", rc->label);
-      goto fail;
+    if (rc->m == 0) { /* every snapshot zero: one direction keeps the sizes non-empty; lifting gives 0 */
+      free(rc->B);
+      if (!(rc->B = calloc((size_t)rc->n, sizeof(double)))) goto oom;
+      rc->B[0] = 1;
+      rc->m = 1;
     }
   }
   model_size_tensors(m);

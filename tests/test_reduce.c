@@ -10,9 +10,12 @@
  *     ((BᵀM(x̃)B)^r Bᵀq(x̃) with LAPACK) to 1e-12, with truncated bases;
  *   - a corrupted, truncated or mismatched model is refused naming the file.
  */
+#include <cblas.h>
 #include <lapacke.h>
+#include <unistd.h>
 
 #include "emit.h"
+#include "meshgen.h"
 #include "model_store.h"
 #include "reduce.h"
 #include "support/randdata.h"
@@ -171,9 +174,523 @@ static void full_rank_reproduces_full(void **state) {
   assert_int_equal(failures, 0);
 }
 
+/* ---------------------------------------------------------------- explicit tensors */
+
+/* Dense explicit tensor of one group: [out (row, or row*n+col)][input offsets...]. */
+typedef struct Dense {
+  long nout;
+  int nin;
+  long nfull[RT_MAX_IN];   /* full size of each input position */
+  double *q;
+  long size;
+} Dense;
+
+static int dense_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
+  Dense *d = user;
+  long pos = d->nout == 0 ? 0 : row;
+  if (col >= 0 && d->nout > 0 && d->nfull[RT_MAX_IN - 1] > 0) pos = row * d->nfull[RT_MAX_IN - 1] + col;
+  for (int l = 0; l < nin; l++) pos = pos * d->nfull[l] + in[l];
+  if (pos < 0 || pos >= d->size) return -1;
+  d->q[pos] += coef;
+  return 0;
+}
+
+/* Lexicographic rank of the sorted multi-index a[0..k) over [0, m). */
+static long sorted_rank(long m, int k, const long *a) {
+  long idx[RT_MAX_IN] = {0}, r = 0;
+  for (;;) {
+    bool eq = true;
+    for (int l = 0; l < k; l++) eq = eq && idx[l] == a[l];
+    if (eq) return r;
+    int i = k - 1;
+    while (i >= 0 && idx[i] == m - 1) i--;
+    if (i < 0) return -1;
+    idx[i]++;
+    for (int j = i + 1; j < k; j++) idx[j] = idx[i];
+    r++;
+  }
+}
+
+static int cmp_long(const void *a, const void *b) {
+  long x = *(const long *)a, y = *(const long *)b;
+  return (x > y) - (x < y);
+}
+
+/* The pre-multiplied tensor `t` of a stage of class cy recomputed by brute
+ * force from the explicit tensor: every nonzero of Q times the explicit
+ * basis rows, accumulated into the packed layout. Returns the relative
+ * difference, or -1 when the tensor is too large to do this way. */
+static double brute_premul(const Model *m, NpgFull *f, const RTensor *t, const RClass *cy) {
+  const TensorGroup *g = t->group;
+  Dense d = {0};
+  d.nin = g->ninputs;
+  long ny = cy->n, my = cy->m;
+  d.nout = ny;
+  d.nfull[RT_MAX_IN - 1] = t->kind == RT_DECL ? ny : 0;
+  d.size = t->kind == RT_DECL ? ny * ny : ny;
+  const double *B[RT_MAX_IN];
+  long mm[RT_MAX_IN];
+  int owner[RT_MAX_IN];  /* distinct input of each position */
+  int pos = 0;
+  for (int j = 0; j < t->nin; j++)
+    for (int l = 0; l < t->in_mult[j]; l++, pos++) {
+      const RClass *c = &m->classes[m->qclass[t->in_q[j]]];
+      d.nfull[pos] = c->n;
+      B[pos] = c->B;
+      mm[pos] = c->m;
+      owner[pos] = j;
+      d.size *= c->n;
+    }
+  long red = t->rows;
+  for (int l = 0; l < d.nin; l++) red *= mm[l];
+  if (d.size > 4000000 || (double)d.size * (double)red > 4e8) return -1;
+  d.q = calloc((size_t)d.size, sizeof(double));
+  NpgSink sink = {&d, dense_entry};
+  if (full_build(f, t->builder, &sink)) fail_msg("%s", npg_full_error(f));
+  double *packed = calloc((size_t)(t->rows * t->cols), sizeof(double));
+  long fidx[RT_MAX_IN + 2];
+  for (long p = 0; p < d.size; p++) {
+    if (d.q[p] == 0) continue;
+    long rest = p;
+    for (int l = d.nin - 1; l >= 0; l--) fidx[l] = rest % d.nfull[l], rest /= d.nfull[l];
+    long row = t->kind == RT_DECL ? rest / ny : rest, col = t->kind == RT_DECL ? rest % ny : row;
+    /* every reduced output coordinate and every unpacked reduced input tuple */
+    long ridx[RT_MAX_IN] = {0};
+    for (;;) {
+      double in = d.q[p];
+      for (int l = 0; l < d.nin; l++) in *= B[l][fidx[l] * mm[l] + ridx[l]];
+      /* packed column */
+      long cidx = 0, l0 = 0;
+      for (int j = 0; j < t->nin; j++) {
+        long a[RT_MAX_IN];
+        for (int l = 0; l < t->in_mult[j]; l++) a[l] = ridx[l0 + l];
+        qsort(a, (size_t)t->in_mult[j], sizeof(long), cmp_long);
+        cidx = cidx * t->in_len[j] + sorted_rank(m->classes[m->qclass[t->in_q[j]]].m, t->in_mult[j], a);
+        l0 += t->in_mult[j];
+      }
+      const double *by = cy->B + row * my, *bc = cy->B + col * my;
+      long o = 0;
+      for (long a = 0; a < my; a++)
+        for (long b = t->kind == RT_NUM ? my - 1 : t->kind == RT_DIAG ? a : 0; b < my; b++, o++) {
+          double k = t->kind == RT_NUM ? by[a] : by[a] * bc[b];
+          packed[o * t->cols + cidx] += k * in;
+        }
+      int l = d.nin - 1;
+      while (l >= 0 && ridx[l] == mm[l] - 1) ridx[l--] = 0;
+      if (l < 0) break;
+      ridx[l]++;
+    }
+  }
+  (void)owner;
+  double diff = rel_max(t->data, packed, (size_t)(t->rows * t->cols));
+  free(packed);
+  free(d.q);
+  return diff;
+}
+
+/* A model of `path` trained on random data with caps of 3 (truncated,
+ * non-trivial bases). */
+typedef struct Trained {
+  NpgProgram *p;
+  Program *prog;
+  NpgFull *f;
+  MemSamples train;
+  Model *m;
+} Trained;
+
+static void train_small(Trained *tr, const char *path, int cap, long n) {
+  memset(tr, 0, sizeof *tr);
+  tr->p = compile_file(path);
+  tr->prog = ir_ok(tr->p);
+  tr->f = npg_full_new(tr->p, NPG_TCC);
+  mem_fill(&tr->train, tr->prog, tr->f, n, 12, 5u);
+  SampleSource src = {12, &tr->train, mem_set};
+  TrainOptions opt = {0};
+  opt.cap = cap;
+  opt.energy = 1.0;
+  char err[2048] = "";
+  tr->m = train_model(tr->prog, tr->f, &src, &opt, err, sizeof err);
+  if (!tr->m) fail_msg("%s: training: %s", path, err);
+}
+
+static void trained_free(Trained *tr) {
+  model_free(tr->m);
+  mem_free(&tr->train);
+  npg_full_free(tr->f);
+  npg_free(tr->p);
+}
+
+typedef struct PremulStats {
+  double worst;
+  int tensors, skipped;
+  int kinds[3], orders[8], packed;
+} PremulStats;
+
+static int premul_program(const char *path, void *arg) {
+  PremulStats *ps = arg;
+  Trained tr;
+  train_small(&tr, path, 3, 4);
+  Model *m = tr.m;
+  int failures = 0;
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    const RClass *cy = &m->classes[m->qclass[rs->q]];
+    for (int t = 0; t < rs->nterms; t++) {
+      RTerm *rt = &rs->terms[t];
+      for (int k = -1; k < rt->nops; k++)
+        for (int g = 0; g < (k < 0 ? rt->nnum : rt->ops[k].ntensors); g++) {
+          const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
+          double d = brute_premul(m, tr.f, x, cy);
+          if (d < 0) {
+            ps->skipped++;
+            continue;
+          }
+          ps->tensors++;
+          ps->kinds[x->kind]++;
+          ps->orders[x->group->order < 8 ? x->group->order : 7]++;
+          for (int j = 0; j < x->nin; j++) ps->packed += x->in_mult[j] > 1;
+          ps->worst = fmax(ps->worst, d);
+          if (!(d <= 1e-12)) {
+            print_message("%s: tensor %s: pre-multiplied differs from brute force by %.3g\n", path, x->name, d);
+            failures++;
+          }
+        }
+    }
+  }
+  trained_free(&tr);
+  return failures;
+}
+
+static void premultiply_equals_brute_force(void **state) {
+  (void)state;
+  const char *dirs[] = {"examples/rational", "examples/radiosity", "examples/fluids", "tests/programs"};
+  int n = 0, failures = 0;
+  PremulStats ps = {0};
+  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += for_each_program(dirs[i], premul_program, &ps, &n);
+  print_message("%d programs, %d tensors (%d numerator, %d diagonal, %d declared; orders 2..5: %d %d %d %d; %d packed "
+                "symmetric axes; %d too large, skipped): worst relative difference %.2g\n",
+                n, ps.tensors, ps.kinds[0], ps.kinds[1], ps.kinds[2], ps.orders[2], ps.orders[3], ps.orders[4],
+                ps.orders[5], ps.packed, ps.skipped, ps.worst);
+  assert_int_equal(failures, 0);
+  for (int o = 2; o <= 5; o++) assert_true(ps.orders[o] > 0);
+  assert_true(ps.kinds[RT_DIAG] > 0 && ps.kinds[RT_DECL] > 0 && ps.packed > 0);
+}
+
+/* ---------------------------------------------------------------- reduced stages vs paper §4 densely */
+
+typedef struct FieldAt {
+  double *out;
+  long ncols;
+  const double *x[RT_MAX_IN];
+} FieldAt;
+
+static int field_at_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
+  FieldAt *fa = user;
+  double v = coef;
+  for (int l = 0; l < nin; l++) v *= fa->x[l][in[l]];
+  fa->out[fa->ncols ? row * fa->ncols + col : row] += v;
+  return 0;
+}
+
+/* Σ over tensors ts of their field at the lifted values xt[q]. */
+static void field_at(const Model *m, NpgFull *f, const RTensor *ts, int nt, double *const *xt, double *out, long ncols) {
+  FieldAt fa = {out, ncols, {0}};
+  for (int g = 0; g < nt; g++) {
+    int pos = 0;
+    for (int j = 0; j < ts[g].nin; j++)
+      for (int l = 0; l < ts[g].in_mult[j]; l++) fa.x[pos++] = xt[ts[g].in_q[j]];
+    NpgSink sink = {&fa, field_at_entry};
+    if (full_build(f, ts[g].builder, &sink)) fail_msg("%s", npg_full_error(f));
+  }
+  (void)m;
+}
+
+static int stages_program(const char *path, void *arg) {
+  double *worst = arg;
+  Trained tr;
+  train_small(&tr, path, 3, 4);
+  Model *m = tr.m;
+  Program *prog = tr.prog;
+  char err[1024];
+  Reduced *r = reduced_new(m, err, sizeof err);
+  RefData *rd = ref_new(prog, 4);
+  int failures = 0;
+  /* coordinates: the projections of a training sample's values */
+  if (mem_set(&tr.train, tr.f, 3) || npg_full_eval(tr.f, 3)) fail_msg("%s", npg_full_error(tr.f));
+  double **xt = calloc((size_t)m->nq, sizeof(double *));
+  for (int q = 0; q < m->nq; q++) {
+    const RClass *c = &m->classes[m->qclass[q]];
+    reduced_project(r, q, npg_full_get(tr.f, ((Sym *)prog->quantities.v[q])->name, NULL));
+    xt[q] = malloc(sizeof(double) * (size_t)c->n);
+    reduced_lift(r, q, xt[q]);
+  }
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    if (rs->st->kind == ST_EXTERN) continue;
+    const RClass *cy = &m->classes[m->qclass[rs->q]];
+    long n = cy->n, my = cy->m;
+    double *yhat = calloc((size_t)my, sizeof(double)), *v = malloc(sizeof(double) * (size_t)my);
+    double *full = malloc(sizeof(double) * (size_t)(n * n)), *Mh = malloc(sizeof(double) * (size_t)(my * my));
+    double *tmp = malloc(sizeof(double) * (size_t)(n * my));
+    for (int t = 0; t < rs->nterms; t++) {
+      const RTerm *rt = &rs->terms[t];
+      /* Bᵀ q(x̃) */
+      memset(full, 0, sizeof(double) * (size_t)n);
+      if (rt->named_q >= 0) memcpy(full, xt[rt->named_q], sizeof(double) * (size_t)n);
+      else field_at(m, tr.f, rt->num, rt->nnum, xt, full, 0);
+      cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)my, 1.0, cy->B, (int)my, full, 1, 0.0, v, 1);
+      for (int k = 0; k < rt->nops; k++) {
+        const ROp *ro = &rt->ops[k];
+        memset(full, 0, sizeof(double) * (size_t)(n * n));
+        if (ro->op->kind == OPK_DIAG) {
+          double *dg = calloc((size_t)n, sizeof(double));
+          field_at(m, tr.f, ro->t, ro->ntensors, xt, dg, 0);
+          for (long e = 0; e < n; e++) full[e * n + e] = dg[e];
+          free(dg);
+        } else {
+          field_at(m, tr.f, ro->t, ro->ntensors, xt, full, n);
+        }
+        /* M̂ = Bᵀ M B, then v <- M̂^(p/q) v by the reference's dense LAPACK */
+        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)my, (int)n, 1.0, full, (int)n, cy->B,
+                    (int)my, 0.0, tmp, (int)my);
+        cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, cy->B, (int)my, tmp,
+                    (int)my, 0.0, Mh, (int)my);
+        if (!ref_apply_power(rd, Mh, (int)my, ro->op->p, ro->op->q, v)) fail_msg("%s: dense formula failed", path);
+      }
+      for (long a = 0; a < my; a++) yhat[a] += v[a];
+    }
+    if (reduced_eval_stage(r, i, 0)) fail_msg("%s: %s", path, reduced_error(r));
+    double d = rel_max(reduced_coords(r, rs->q), yhat, (size_t)my);
+    *worst = fmax(*worst, d);
+    if (!(d <= 1e-12)) {
+      print_message("%s: stage %s: reduced differs from the dense formula by %.3g\n", path, rs->st->sym->name, d);
+      failures++;
+    }
+    /* the next stages read this stage's reduced value: keep the projection */
+    reduced_project(r, rs->q, npg_full_get(tr.f, rs->st->sym->name, NULL));
+    free(yhat), free(v), free(full), free(Mh), free(tmp);
+  }
+  for (int q = 0; q < m->nq; q++) free(xt[q]);
+  free(xt);
+  ref_free(rd);
+  reduced_free(r);
+  trained_free(&tr);
+  return failures;
+}
+
+static void reduced_stages_equal_dense_formulas(void **state) {
+  (void)state;
+  const char *dirs[] = {"examples/rational", "examples/radiosity", "examples/fluids", "tests/programs"};
+  int n = 0, failures = 0;
+  double worst = 0;
+  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += for_each_program(dirs[i], stages_program, &worst, &n);
+  print_message("%d programs: every reduced stage (contractions, inverses, roots) vs paper §4 densely, worst %.2g\n",
+                n, worst);
+  assert_int_equal(failures, 0);
+}
+
+/* ---------------------------------------------------------------- corrupted models */
+
+static void corrupted_model_named(void **state) {
+  (void)state;
+  Trained tr;
+  train_small(&tr, "examples/rational/rational.npg", 2, 4);
+  char dir[] = "/tmp/npg_model_XXXXXX", path[1024], err[2048];
+  assert_non_null(mkdtemp(dir));
+  char model[600];
+  snprintf(model, sizeof model, "%s/MODEL", dir);
+  assert_int_equal(model_save(tr.m, model, err, sizeof err), 0);
+  Model *ok = model_load(tr.prog, model, err, sizeof err);
+  if (!ok) fail_msg("%s", err);
+  model_free(ok);
+  /* a flipped byte */
+  snprintf(path, sizeof path, "%s/t_y_t0_op1_g0.npy", model);
+  FILE *f = fopen(path, "r+b");
+  assert_non_null(f);
+  fseek(f, 100, SEEK_SET);
+  int c = fgetc(f);
+  fseek(f, 100, SEEK_SET);
+  fputc(c ^ 0x10, f);
+  fclose(f);
+  assert_null(model_load(tr.prog, model, err, sizeof err));
+  assert_non_null(strstr(err, "t_y_t0_op1_g0.npy: checksum mismatch"));
+  /* truncated */
+  assert_int_equal(model_save(tr.m, model, err, sizeof err), 0);
+  snprintf(path, sizeof path, "%s/basis_1.npy", model);
+  assert_int_equal(truncate(path, 90), 0);
+  assert_null(model_load(tr.prog, model, err, sizeof err));
+  assert_non_null(strstr(err, "basis_1.npy"));
+  /* missing */
+  assert_int_equal(model_save(tr.m, model, err, sizeof err), 0);
+  snprintf(path, sizeof path, "%s/t_y_t0_f0_g0.npy", model);
+  assert_int_equal(remove(path), 0);
+  assert_null(model_load(tr.prog, model, err, sizeof err));
+  assert_non_null(strstr(err, "t_y_t0_f0_g0.npy"));
+  /* another program */
+  assert_int_equal(model_save(tr.m, model, err, sizeof err), 0);
+  NpgProgram *other = compile_text("other.npg", "input x : real[2]\noutput y = [x[0] / x[1], x[1]]\n");
+  assert_null(model_load(ir_ok(other), model, err, sizeof err));
+  assert_non_null(strstr(err, "manifest: model was trained for another program"));
+  npg_free(other);
+  /* clean up */
+  char cmd[700];
+  snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
+  assert_int_equal(system(cmd), 0);
+  trained_free(&tr);
+}
+
+/* ---------------------------------------------------------------- error falls with basis size */
+
+/* The radiosity program on the deforming room of bench/meshgen (F faces,
+ * convex: visibility 1): samples at deformations t. */
+typedef struct RoomSamples {
+  long F, V;
+  long S;
+  double *g;     /* S x V x 3 */
+  double *e;     /* S x F */
+  double *v;     /* F x F ones */
+} RoomSamples;
+
+static void room_samples(RoomSamples *rs, NpgFull *f, long F, long S, double t0, double dt) {
+  memset(rs, 0, sizeof *rs);
+  Mesh mesh;
+  char err[256];
+  if (mesh_room(F, 0.0, &mesh, err, sizeof err)) fail_msg("%s", err);
+  rs->F = F;
+  rs->V = mesh.V;
+  rs->S = S;
+  double *tri = malloc(sizeof(double) * (size_t)(3 * F)), *rho = malloc(sizeof(double) * (size_t)F);
+  for (long i = 0; i < 3 * F; i++) tri[i] = mesh.tri[i];
+  mesh_rho(&mesh, rho);
+  long ts[2] = {F, 3}, fs[1] = {F};
+  if (f && (npg_full_set_param(f, "tri", 2, ts, tri, "tri") || npg_full_set_param(f, "rho", 1, fs, rho, "rho")))
+    fail_msg("%s", npg_full_error(f));
+  free(tri);
+  free(rho);
+  rs->g = malloc(sizeof(double) * (size_t)(S * rs->V * 3));
+  rs->e = malloc(sizeof(double) * (size_t)(S * F));
+  rs->v = malloc(sizeof(double) * (size_t)(F * F));
+  for (long i = 0; i < F * F; i++) rs->v[i] = 1;
+  for (long k = 0; k < S; k++) {
+    Mesh mk;
+    if (mesh_room(F, t0 + dt * (double)k, &mk, err, sizeof err)) fail_msg("%s", err);
+    memcpy(rs->g + k * rs->V * 3, mk.g, sizeof(double) * (size_t)(rs->V * 3));
+    mesh_emission(&mk, rs->e + k * F);
+    unsigned seed = 17u + (unsigned)(1000.0 * (t0 + dt * (double)k));
+    for (long i = 0; i < F; i++) rs->e[k * F + i] += rand_uniform(&seed, 0.0, 0.3); /* light on every wall */
+    mesh_free(&mk);
+  }
+  mesh_free(&mesh);
+}
+
+static int room_set(void *user, NpgFull *f, long k) {
+  RoomSamples *rs = user;
+  long gs[2] = {rs->V, 3}, es[1] = {rs->F}, vs[2] = {rs->F, rs->F};
+  return npg_full_set(f, "g", 2, gs, rs->g + k * rs->V * 3, "g") || npg_full_set(f, "e", 1, es, rs->e + k * rs->F, "e") ||
+         npg_full_set(f, "v", 2, vs, rs->v, "v");
+}
+
+static void room_free(RoomSamples *rs) {
+  free(rs->g);
+  free(rs->e);
+  free(rs->v);
+}
+
+/* Mean over the test samples of ‖y − B ŷ‖ / ‖y‖ of output `out`. */
+static double mean_error(Program *prog, NpgFull *f, Model *m, void *test, int (*set)(void *, NpgFull *, long), long S,
+                         const char *out) {
+  char err[1024];
+  Reduced *r = reduced_new(m, err, sizeof err);
+  assert_non_null(r);
+  int qo = emit_index_of(&prog->quantities, find_quantity(prog, out));
+  double total = 0;
+  for (long k = 0; k < S; k++) {
+    if (set(test, f, k) || npg_full_eval(f, k)) fail_msg("%s", npg_full_error(f));
+    for (int q = 0; q < m->nq; q++) {
+      const Sym *s = prog->quantities.v[q];
+      if (s->kind == SYM_INPUT) reduced_project(r, q, npg_full_get(f, s->name, NULL));
+    }
+    if (reduced_eval(r, k)) fail_msg("%s", reduced_error(r));
+    size_t n;
+    const double *y = npg_full_get(f, out, &n);
+    double *yl = malloc(sizeof(double) * n), num = 0, den = 0;
+    reduced_lift(r, qo, yl);
+    for (size_t i = 0; i < n; i++) num += (y[i] - yl[i]) * (y[i] - yl[i]), den += y[i] * y[i];
+    total += sqrt(num / den);
+    free(yl);
+  }
+  reduced_free(r);
+  return total / (double)S;
+}
+
+static void error_falls_with_caps(void **state) {
+  (void)state;
+  const int caps[] = {2, 4, 8, 16, 32};
+  double err_rad[5], err_rat[2];
+  const int rat_caps[] = {1, 2}; /* y has 2 entries */
+  /* radiosity: train on 48 deformations of the room and lights, test between them */
+  NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
+  Program *prog = ir_ok(p);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  RoomSamples train, test;
+  room_samples(&train, f, 48, 48, 0.0, 1.0 / 47);
+  room_samples(&test, NULL, 48, 12, 0.5 / 47, 4.0 / 47);
+  for (int c = 0; c < 5; c++) {
+    SampleSource src = {train.S, &train, room_set};
+    TrainOptions opt = {0};
+    opt.cap = caps[c];
+    opt.energy = 1.0;
+    char err[2048] = "";
+    Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
+    if (!m) fail_msg("radiosity: %s", err);
+    err_rad[c] = mean_error(prog, f, m, &test, room_set, test.S, "b");
+    model_free(m);
+  }
+  room_free(&train);
+  room_free(&test);
+  npg_full_free(f);
+  npg_free(p);
+  /* rational (paper Eq. 3): random x in [0.5, 1.5]^2 */
+  p = compile_file("examples/rational/rational.npg");
+  prog = ir_ok(p);
+  f = npg_full_new(p, NPG_TCC);
+  MemSamples rtrain, rtest;
+  mem_fill(&rtrain, prog, f, 2, 40, 3u);
+  mem_fill(&rtest, prog, f, 2, 20, 4u);
+  for (int c = 0; c < 2; c++) {
+    SampleSource src = {rtrain.S, &rtrain, mem_set};
+    TrainOptions opt = {0};
+    opt.cap = rat_caps[c];
+    opt.energy = 1.0;
+    char err[2048] = "";
+    Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
+    if (!m) fail_msg("rational: %s", err);
+    err_rat[c] = mean_error(prog, f, m, &rtest, mem_set, rtest.S, "y");
+    model_free(m);
+  }
+  mem_free(&rtrain);
+  mem_free(&rtest);
+  npg_full_free(f);
+  npg_free(p);
+  print_message("mean relative L2 error of the output over held-out samples, by cap per member:\n");
+  print_message("  cap          ");
+  for (int c = 0; c < 5; c++) print_message(" %10d", caps[c]);
+  print_message("\n  radiosity b  ");
+  for (int c = 0; c < 5; c++) print_message(" %10.3e", err_rad[c]);
+  print_message("\n  rational y: cap 1 %.3e, cap 2 %.3e\n", err_rat[0], err_rat[1]);
+  /* falls: never rises by more than 5 %, and the largest cap is far better than the smallest */
+  for (int c = 1; c < 5; c++) assert_true(err_rad[c] <= err_rad[c - 1] * 1.05);
+  assert_true(err_rad[4] < err_rad[0] / 10);
+  assert_true(err_rat[1] < err_rat[0] / 10);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(full_rank_reproduces_full),
+      cmocka_unit_test(premultiply_equals_brute_force),
+      cmocka_unit_test(reduced_stages_equal_dense_formulas),
+      cmocka_unit_test(corrupted_model_named),
+      cmocka_unit_test(error_falls_with_caps),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
