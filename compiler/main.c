@@ -18,6 +18,11 @@ static void usage(FILE *out) {
         "\n"
         "       npgc emit PROG.npg -o FILE.c\n"
         "       npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc]\n"
+        "       npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--basis NAME:cap=N,energy=E]\n"
+        "                  [--merge concat|joint] [--mem BYTES] [--cc]\n"
+        "       npgc eval PROG.npg MODEL/ IN/ -o OUT/\n"
+        "       npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc]\n"
+        "       npgc bench PROG.npg MODEL/ TEST/ [--cc]\n"
         "\n"
         "  emit    write the generated C of the full evaluator (one function per stage)\n"
         "          and the bind-time gather checker; it compiles standalone with cc -c.\n"
@@ -25,8 +30,21 @@ static void usage(FILE *out) {
         "  eval    --full: evaluate the full program on every sample of IN/<input>.npy\n"
         "          (leading sample axis; params from DATA/<param>.npy) and write every\n"
         "          output as OUT/<name>.npy. --cc compiles with the system compiler at -O3.\n"
+        "          With MODEL/: the reduced evaluation; writes OUT/<name>.npy (lifted) and\n"
+        "          OUT/<name>.reduced.npy (reduced coordinates) for every output.\n"
         "\n"
-        "Not yet implemented: train, reduced eval, verify, bench.\n",
+        "  train   run the full program on every sample of DATA/ (params, inputs and\n"
+        "          externs with a leading sample axis), build one basis per class (PCA\n"
+        "          per member: energy 0.999 and cap 60 by default), pre-multiply every\n"
+        "          tensor, fit the learned map of every extern, write MODEL/.\n"
+        "\n"
+        "  verify  evaluate full and reduced on the held-out samples of TEST/ (which\n"
+        "          holds the same params) and report, per quantity, the relative error\n"
+        "          of the lifted reduced value, the projection floor and their\n"
+        "          difference (L2 and Linf); exit 1 when an output's mean L2 error\n"
+        "          exceeds --tol (default 1e-2).\n"
+        "\n"
+        "  bench   full vs reduced time per evaluation, speedup, reduced model memory.\n",
         out);
 }
 

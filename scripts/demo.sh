@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # demo.sh — the main demo: install what is missing, build, and show what the
 # compiler makes of the paper's Eq. 3 (examples/rational): its stages,
-# tensors, basis classes and costs; then generate samples and evaluate the
-# full program on them with the generated, JIT-compiled evaluator.
+# tensors, basis classes and costs; then generate training and held-out
+# samples, train the reduced model, verify it against the full evaluator,
+# evaluate it, and time full against reduced.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
@@ -18,10 +19,26 @@ run() {
 }
 
 work=build/demo/rational
+rm -rf "$work"
 mkdir -p "$work"
 run build/npgc check examples/rational/rational.npg
-run build/rational_data "$work/DATA" 1000 1
-run build/npgc eval examples/rational/rational.npg --full "$work/DATA" "$work/DATA" -o "$work/OUT"
+run build/rational_data "$work/TRAIN" 200 1
+run build/rational_data "$work/TEST" 100 2
+run build/npgc train examples/rational/rational.npg "$work/TRAIN" -o "$work/MODEL"
+run build/npgc verify examples/rational/rational.npg "$work/MODEL" "$work/TEST" --tol 1e-10
+run build/npgc eval examples/rational/rational.npg "$work/MODEL" "$work/TEST" -o "$work/OUT"
+run build/npgc bench examples/rational/rational.npg "$work/MODEL" "$work/TEST"
 echo
-echo "wrote $work/OUT/y.npy (1000 samples of y = f(x), paper Eq. 3)"
-echo "training, reduced evaluation and verification are not implemented yet (issue 4)"
+echo "wrote $work/MODEL (the reduced model: manifest + .npy) and $work/OUT/y.npy (reduced, lifted)"
+
+# The radiosity form factors of paper §8 on a deforming room (200 faces):
+# train on 40 deformations and lights, verify and time on 10 held out.
+work=build/demo/radiosity
+rm -rf "$work"
+mkdir -p "$work"
+run build/radiosity_data "$work/TRAIN" 200 40 0 1 1
+run build/radiosity_data "$work/TEST" 200 10 0.05 0.95 2
+cp "$work/TRAIN/tri.npy" "$work/TRAIN/rho.npy" "$work/TEST/"
+run build/npgc train examples/radiosity/formfactors.npg "$work/TRAIN" -o "$work/MODEL"
+run build/npgc verify examples/radiosity/formfactors.npg "$work/MODEL" "$work/TEST" --tol 0.02
+run build/npgc bench examples/radiosity/formfactors.npg "$work/MODEL" "$work/TEST" --cc

@@ -1,0 +1,52 @@
+#!/bin/sh
+# reduce.sh BUILD_DIR — the reduction commands end to end, as a user runs
+# them: train, verify (pass and fail by --tol), reduced eval checked against
+# numpy's evaluation of the paper's Eq. 3 (an independent oracle), a
+# corrupted model and foreign params refused naming the file, radiosity
+# trained and verified on the deforming room.
+set -eu
+B=$1
+W=$(mktemp -d /tmp/npg_cli_XXXXXX)
+trap 'rm -rf "$W"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+
+P=examples/rational/rational.npg
+"$B/rational_data" "$W/TRAIN" 200 1 >/dev/null
+"$B/rational_data" "$W/TEST" 50 2 >/dev/null
+"$B/npgc" train $P "$W/TRAIN" -o "$W/MODEL" >/dev/null || fail "train"
+"$B/npgc" verify $P "$W/MODEL" "$W/TEST" --tol 1e-10 >"$W/verify.txt" || fail "verify at full rank"
+grep -q '^y  *inverse' "$W/verify.txt" || fail "verify report lacks stage y"
+# cap 1: y is not representable; verify must exit 1 above --tol
+"$B/npgc" train $P "$W/TRAIN" -o "$W/SMALL" --cap 1 >/dev/null || fail "train --cap 1"
+if "$B/npgc" verify $P "$W/SMALL" "$W/TEST" --tol 1e-3 >/dev/null; then fail "verify passed a cap-1 model"; fi
+# reduced eval = Eq. 3 computed by numpy
+"$B/npgc" eval $P "$W/MODEL" "$W/TEST" -o "$W/OUT" || fail "reduced eval"
+/usr/bin/python3 - "$W" <<'PY' || fail "reduced eval differs from numpy"
+import sys, numpy as np
+w = sys.argv[1]
+x = np.load(w + "/TEST/x.npy"); y = np.load(w + "/OUT/y.npy")
+ref = np.stack([(x[:,0]*x[:,1] + x[:,1]**2) / x[:,0]**2, x[:,0]**2 / x[:,1]**2], axis=1)
+assert y.shape == ref.shape, (y.shape, ref.shape)
+err = np.max(np.abs(y - ref)) / np.max(np.abs(ref))
+print("reduced eval vs numpy: %.2e" % err)
+assert err < 1e-12
+assert np.load(w + "/OUT/y.reduced.npy").shape == (50, 2)
+PY
+# a corrupted model is named
+printf 'X' | dd of="$W/MODEL/basis_1.npy" bs=1 seek=100 conv=notrunc 2>/dev/null
+if "$B/npgc" verify $P "$W/MODEL" "$W/TEST" 2>"$W/err.txt"; then fail "corrupted model accepted"; fi
+grep -q "MODEL/basis_1.npy: checksum mismatch" "$W/err.txt" || fail "corruption message: $(cat "$W/err.txt")"
+
+# radiosity: train on 30 deformations, verify on 6 held out
+R=examples/radiosity/formfactors.npg
+"$B/radiosity_data" "$W/RTRAIN" 96 30 0 1 1 || fail "radiosity data"
+"$B/radiosity_data" "$W/RTEST" 96 6 0.05 0.95 2 || fail "radiosity data"
+cp "$W/RTRAIN/tri.npy" "$W/RTRAIN/rho.npy" "$W/RTEST/"
+"$B/npgc" train $R "$W/RTRAIN" -o "$W/RMODEL" >/dev/null || fail "radiosity train"
+"$B/npgc" verify $R "$W/RMODEL" "$W/RTEST" --tol 0.05 || fail "radiosity verify"
+# params that differ from training are refused naming the file
+"$B/radiosity_data" "$W/RHO" 96 2 0 1 3 >/dev/null
+/usr/bin/python3 -c "import numpy as np,sys; r=np.load(sys.argv[1]); np.save(sys.argv[1], r*0.9)" "$W/RHO/rho.npy"
+if "$B/npgc" verify $R "$W/RMODEL" "$W/RHO" 2>"$W/err.txt"; then fail "changed params accepted"; fi
+grep -q "RHO/rho.npy: param 'rho' differs from the one the model was trained with" "$W/err.txt" || fail "param message: $(cat "$W/err.txt")"
+echo "ok"
