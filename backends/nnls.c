@@ -2,13 +2,15 @@
  * combination of the learned model for extern stages (paper §8.3, eq. 17).
  *
  * nnls_solve() is the active-set method of Lawson & Hanson, "Solving Least
- * Squares Problems" (1974), ch. 23: move the index of largest gradient into
- * the passive set P, solve the unconstrained least-squares problem on the
+ * Squares Problems" (1974), ch. 23: move the index of steepest descent
+ * (per unit column norm: columns are equilibrated first) into the passive
+ * set P, solve the unconstrained least-squares problem on the
  * columns of P, and while that solution has a non-positive entry step back
  * towards the previous iterate until an entry of P reaches zero and leaves
  * P. Every subproblem is one LAPACK dgelsd call on the passive columns
- * (nothing is factorized by hand: at these sizes, d + 1 ≤ a few hundred
- * rows, refactorizing costs less than updating a QR and cannot drift).
+ * (nothing is factorized by hand: at the sizes of the learned model, d + 1
+ * rows and at most d + 1 passive columns, refactorizing from scratch is
+ * cheap and, unlike an updated QR, cannot accumulate error).
  *
  * The sum-to-one constraint of nnls_convex() is enforced exactly, not by a
  * penalty row of weight λ. Since Σ w = 1, the residual is
@@ -25,19 +27,21 @@
  * t² ‖C v‖² + (t − 1)², minimized over v by the minimizers of eq. 17 whatever
  * t > 0 is, and over t by t = 1 / (1 + min ‖C v‖²) ∈ (0, 1]. So Σu never
  * vanishes, w ≥ 0 holds exactly (NNLS sets inactive entries to exact zeros)
- * and Σw = 1 to rounding — against a λ row, which leaves Σw − 1 of order
- * ‖residual‖ / λ² and squares the condition number of the subproblems as
- * λ grows, and needs a λ chosen per problem. C is divided by its largest
+ * and Σw = 1 to rounding. A penalty row λ·1ᵀ (target λ) instead leaves
+ * Σw − 1 of order ‖C‖ ‖residual‖ / λ², worsens the conditioning of the
+ * subproblems as λ grows, and needs λ chosen per problem. C is divided by its largest
  * column norm first (eq. 17 is invariant under scaling C), so that the
  * appended row of ones and C have the same scale: the result does not depend
- * on the units of x̂. The price, shared by any exact method, is accuracy
- * ~ ε · dist(x̂, hull) / diameter(hull) when x̂ is far outside a small hull.
+ * on the units or origin of x̂. Accuracy degrades, roughly to
+ * ε · dist(x̂, hull) / diameter(hull), only when x̂ is far outside a small
+ * hull.
  */
 #include <cblas.h>
 #include <float.h>
 #include <lapacke.h>
 #include <math.h>
 #include <stdarg.h>
+#include <stdbool.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -168,8 +172,9 @@ int nnls_solve(int m, int n, const double *A, const double *b, double *w, char *
   for (int j = 0; j < n; j++) w[j] = 0;
   if (n == 0) return 0;
 
-  Solver s = {.m = m, .n = n, .A = A, .b = b, .err = err, .errlen = errlen};
+  Solver s = {.m = m, .n = n, .b = b, .err = err, .errlen = errlen};
   int ld = max_int(m, n);
+  double *unit = alloc_array((size_t)m * (size_t)n, sizeof(double));
   s.cols = alloc_array((size_t)max_int(m, 1) * (size_t)n, sizeof(double));
   s.rhs = alloc_array((size_t)ld, sizeof(double));
   s.sv = alloc_array((size_t)ld, sizeof(double));
@@ -177,42 +182,47 @@ int nnls_solve(int m, int n, const double *A, const double *b, double *w, char *
   double *r = alloc_array((size_t)m, sizeof(double));
   double *g = alloc_array((size_t)n, sizeof(double));
   int *P = alloc_array((size_t)n, sizeof(int));
+  double *colnorm = alloc_array((size_t)n, sizeof(double));
   unsigned char *state = alloc_array((size_t)n, 1);
   int rc = 0;
-  if (!s.cols || !s.rhs || !s.sv || !z || !r || !g || !P || !state) {
+  bool scaled = false; /* w holds the iterate of the scaled problem */
+  if (!unit || !s.cols || !s.rhs || !s.sv || !z || !r || !g || !P || !colnorm || !state) {
     rc = fail(err, errlen, "nnls: out of memory (%d × %d problem)", m, n);
     goto done;
   }
   for (int j = 0; j < n; j++) state[j] = AT_ZERO;
 
-  /* Scales for the stopping tolerance: the rounding error of g_j is about
-   * ε · max(m, n) · ‖a_j‖ · (‖b‖ + ‖A‖ ‖w‖₁). */
-  double amax = 0, bnorm = 0;
+  /* Solve for ŵ = D w with unit columns Â = A D⁻¹, D = diag(‖a_j‖): the
+   * problem and w ≥ 0 are unchanged, but the subproblems are equilibrated,
+   * one stopping tolerance fits every column (g_j of a column many decades
+   * below the largest is not lost in its rounding), and the entering column
+   * is the steepest per unit of column norm. A zero column never enters. */
   for (int j = 0; j < n; j++) {
-    double c = 0;
-    for (int i = 0; i < m; i++) c += A[(size_t)i * n + j] * A[(size_t)i * n + j];
-    amax = fmax(amax, sqrt(c));
+    colnorm[j] = m > 0 ? cblas_dnrm2(m, &A[j], n) : 0;
+    for (int i = 0; i < m; i++) unit[(size_t)i * n + j] = colnorm[j] > 0 ? A[(size_t)i * n + j] / colnorm[j] : 0;
   }
-  for (int i = 0; i < m; i++) bnorm += b[i] * b[i];
-  bnorm = sqrt(bnorm);
+  s.A = unit;
+  scaled = true;
+  double bnorm = m > 0 ? cblas_dnrm2(m, b, 1) : 0;
 
   int max_iter = max_int(3 * n, 30), iter = 0, k = 0; /* k = |P| */
   for (;;) {
     residual_gradient(&s, w, r, g);
+    /* The rounding error of ĝ_j = â_jᵀ r is about ε · max(m, n) · (‖b‖ + Σ ŵ). */
     double wsum = 0;
-    for (int j = 0; j < n; j++) wsum += w[j];
-    double tol = 10.0 * DBL_EPSILON * ld * amax * (bnorm + amax * wsum);
+    for (int t = 0; t < n; t++) wsum += w[t];
+    double tol = 10.0 * DBL_EPSILON * ld * (bnorm + wsum);
 
-    /* KKT: stop when no index at zero has a descent direction. */
+    /* KKT: stop when no index at zero has a descent direction beyond
+     * rounding; otherwise take the steepest one (Lawson–Hanson). */
     int j = -1;
-    double gmax = tol;
     for (int t = 0; t < n; t++)
-      if (state[t] == AT_ZERO && g[t] > gmax) gmax = g[t], j = t;
+      if (state[t] == AT_ZERO && g[t] > tol && (j < 0 || g[t] > g[j])) j = t;
     if (j < 0) break;
     if (iter == max_iter) {
       rc = fail(err, errlen,
                 "nnls: no convergence in %d iterations (%d × %d problem, largest gradient %.2e, tolerance %.2e)",
-                max_iter, m, n, gmax, tol);
+                max_iter, m, n, g[j], tol);
       break;
     }
     iter++;
@@ -274,6 +284,9 @@ int nnls_solve(int m, int n, const double *A, const double *b, double *w, char *
   }
 
 done:
+  if (scaled) /* back to w = D⁻¹ ŵ; a zero column has ŵ_j = 0 */
+    for (int j = 0; j < n; j++) w[j] = colnorm[j] > 0 ? w[j] / colnorm[j] : 0;
+  free(unit);
   free(s.cols);
   free(s.rhs);
   free(s.sv);
@@ -283,6 +296,7 @@ done:
   free(r);
   free(g);
   free(P);
+  free(colnorm);
   free(state);
   return rc;
 }
@@ -341,6 +355,7 @@ int nnls_convex(int S, int d, const double *X, const double *x, double *w, char 
     for (int s = 0; s < S; s++) w[s] /= t;
   if (rc) return fail(err, errlen, "learned model (%d training samples of dimension %d): %s", S, d, why);
   if (!(t > 0)) /* Σu ≥ 1 / (1 + 1) after scaling: cannot happen */
-    return fail(err, errlen, "learned model: the weights of the convex combination vanished (Σu = %g; a bug in npg)", t);
+    return fail(err, errlen, "learned model: the weights of the convex combination vanished (Σu = %g; a bug in npg)",
+                t);
   return 0;
 }

@@ -643,7 +643,7 @@ static int eval_extern(Reduced *r, const RExtern *x, long sample) {
   free(in);
   free(w);
   if (rc != 0)
-    return rfail(r, "extern '%s' at sample %ld: learned model: %s", ((Sym *)r->m->prog->quantities.v[x->q])->name,
+    return rfail(r, "extern '%s' at sample %ld: %s", ((Sym *)r->m->prog->quantities.v[x->q])->name,
                  sample, err);
   return 0;
 }
@@ -689,4 +689,23 @@ int reduced_eval(Reduced *r, long sample) {
   for (int i = 0; i < r->m->nstages; i++)
     if (reduced_eval_stage(r, i, sample)) return -1;
   return 0;
+}
+
+/* ---------------------------------------------------------------- for generated reduced code (emit_reduced.c) */
+
+const Model *reduced_model(const Reduced *r) { return r->m; }
+
+int reduced_apply_power(Reduced *r, int stage, int term, int op, long p, long q, const double *M, double *v,
+                        long sample) {
+  if (r->error[0]) return -1;
+  const Model *m = r->m;
+  if (stage < 0 || stage >= m->nstages || term < 0 || term >= m->stages[stage].nterms || op < 0 ||
+      op >= m->stages[stage].terms[term].nops || m->stages[stage].terms[term].ops[op].op->p != p ||
+      m->stages[stage].terms[term].ops[op].op->q != q)
+    return rfail(r, "generated reduced code asks for power %ld/%ld of operator %d of term %d of stage %d, which the "
+                    "model lacks (code generated for another model?)", p, q, op, term, stage);
+  const RStage *rs = &m->stages[stage];
+  long my = qm(m, rs->q);
+  memcpy(r->M, M, sizeof(double) * (size_t)(my * my));
+  return apply_power(r, rs, &rs->terms[term].ops[op], term, op, my, v, sample);
 }

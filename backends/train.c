@@ -12,6 +12,7 @@
  *      reduced inputs and reduced values.
  */
 #include <cblas.h>
+#include <lapacke.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdlib.h>
@@ -100,16 +101,24 @@ static void member_options(const Model *m, const RClass *c, RMember *mb, const T
 
 typedef struct Snapshots {
   long S;
-  double ***X;      /* [class][member] n x S column-major */
-  double **opdiag;  /* per diagonal operator use: the least entry seen */
+  double ***X;      /* [class][member] n x S column-major (NULL: method of snapshots) */
+  double ***U;      /* [class][member] its PCA basis, n x k row-major (method of snapshots) */
+  int **k;
 } Snapshots;
 
 static void free_snapshots(Model *m, Snapshots *sn) {
-  for (int c = 0; sn->X && c < m->nclasses; c++) {
-    for (int i = 0; sn->X[c] && i < m->classes[c].nmembers; i++) free(sn->X[c][i]);
-    free(sn->X[c]);
+  for (int c = 0; c < m->nclasses; c++) {
+    for (int i = 0; i < m->classes[c].nmembers; i++) {
+      if (sn->X && sn->X[c]) free(sn->X[c][i]);
+      if (sn->U && sn->U[c]) free(sn->U[c][i]);
+    }
+    if (sn->X) free(sn->X[c]);
+    if (sn->U) free(sn->U[c]);
+    if (sn->k) free(sn->k[c]);
   }
   free(sn->X);
+  free(sn->U);
+  free(sn->k);
 }
 
 /* Visit every diagonal operator (stage, term, op). */
@@ -125,6 +134,158 @@ static RTerm *joiner_term(Model *m, const Joiner *j) {
   for (int i = 0; i < m->nstages; i++)
     if (m->stages[i].st == j->stage) return &m->stages[i].terms[j->term];
   return NULL;
+}
+
+
+/* Set and evaluate training sample k. */
+static int eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, size_t errlen) {
+  if (src->set(src->user, f, k) != 0 || npg_full_eval(f, k) != 0) return tfail(err, errlen, "%s", npg_full_error(f));
+  return 0;
+}
+
+/* The current value of a class member (a quantity, or an unnamed numerator
+ * through its builders) into out[0..n). */
+static int member_value(Model *m, NpgFull *f, const RMember *mb, long n, double *out, char *err, size_t errlen) {
+  if (mb->q >= 0) {
+    memcpy(out, npg_full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)n);
+    return 0;
+  }
+  RTerm *rt = joiner_term(m, mb->joiner);
+  if (!rt) return tfail(err, errlen, "a numerator without its term (a bug in npg)");
+  return field_value(f, rt->num, rt->nnum, out, n, err, errlen);
+}
+
+/* A diagonal operator stays marked SPD while every training diagonal seen is
+ * positive (then BᵀDB is SPD for every basis: Cholesky). */
+static int check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen) {
+  FOR_DIAG_OPS(m, rs, rt, ro) {
+    if (!ro->spd) continue;
+    long n = m->classes[m->qclass[rs->q]].n;
+    if (field_value(f, ro->t, ro->ntensors, tmp, n, err, errlen)) return -1;
+    for (long e = 0; e < n && ro->spd; e++)
+      if (!(tmp[e] > 0)) ro->spd = false;
+  }
+  return 0;
+}
+
+/* The method of snapshots (DESIGN §5), for snapshots that do not fit in
+ * `mem`: no snapshot matrix is held whole. Pass 1 builds every member's
+ * S x S Gram matrix G = XᵀX holding a block of b samples at a time and
+ * recomputing the later samples against it (one pass when the budget holds
+ * half the samples, S/b passes in general); the eigenvectors of G give the
+ * basis U = X V Λ^(-1/2), formed in pass 2 by recomputing every sample once
+ * and adding its rank-one contribution. U[c][i], kk[c][i] per member. */
+static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, double ***U,
+                          int **kk, double *tmp, char *err, size_t errlen) {
+  long S = src->count, per = 0;
+  for (int c = 0; c < m->nclasses; c++) per += m->classes[c].n * m->classes[c].nmembers;
+  long b = (long)(opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1));
+  if (b < 1) b = 1;
+  if (b > S) b = S;
+  int rc = -1;
+  double ***G = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***H = calloc((size_t)m->nclasses + 1, sizeof(double **));
+  double *lam = malloc(sizeof(double) * (size_t)S);
+  if (!G || !H || !lam) goto oom;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    if (!(G[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(H[c] = calloc((size_t)rc->nmembers, sizeof(double *))))
+      goto oom;
+    for (int i = 0; i < rc->nmembers; i++)
+      if (!(G[c][i] = calloc((size_t)(S * S), sizeof(double))) ||
+          !(H[c][i] = malloc(sizeof(double) * (size_t)(rc->n * b))))
+        goto oom;
+  }
+  long passes = (S + b - 1) / b, done = 0, work = 0;
+  for (long i0 = 0; i0 < S; i0 += b) work += S - i0;
+  for (long i0 = 0; i0 < S; i0 += b) {
+    long i1 = i0 + b < S ? i0 + b : S, nb = i1 - i0;
+    for (long k = i0; k < S; k++) {
+      if (eval_sample(src, f, k, err, errlen)) goto done;
+      if (k < i1 && check_spd(m, f, tmp, err, errlen)) goto done;
+      for (int c = 0; c < m->nclasses; c++) {
+        RClass *rc = &m->classes[c];
+        for (int i = 0; i < rc->nmembers; i++) {
+          double *x = k < i1 ? H[c][i] + (k - i0) * rc->n : tmp;
+          if (member_value(m, f, &rc->members[i], rc->n, x, err, errlen)) goto done;
+          if (k < i1) continue;
+          /* G[I, k] = X_Iᵀ x_k */
+          double *g = lam;
+          cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)nb, (int)rc->n, 1.0, H[c][i], (int)rc->n, x, 1, 0.0, g, 1);
+          for (long a = 0; a < nb; a++) G[c][i][(i0 + a) * S + k] = G[c][i][k * S + i0 + a] = g[a];
+        }
+      }
+      progress_show(opt->progress, passes > 1 ? "snapshots (Gram, recomputing)" : "snapshots (Gram)", ++done, work);
+    }
+    for (int c = 0; c < m->nclasses; c++) {
+      RClass *rc = &m->classes[c];
+      for (int i = 0; i < rc->nmembers; i++) { /* G[I, I] = X_Iᵀ X_I */
+        double *gi = G[c][i] + i0 * S + i0;
+        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nb, (int)rc->n, 1.0, H[c][i], (int)rc->n,
+                    H[c][i], (int)rc->n, 0.0, gi, (int)S);
+      }
+    }
+  }
+  /* eigenvectors of every Gram matrix: the coefficients of the basis */
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    for (int i = 0; i < rc->nmembers; i++) {
+      RMember *mb = &rc->members[i];
+      lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)S, G[c][i], (lapack_int)S, lam);
+      if (info != 0) {
+        tfail(err, errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
+              rc->label, mb->name, (int)info);
+        goto done;
+      }
+      double total = 0, run = 0;
+      for (long a = 0; a < S; a++) total += fmax(lam[a], 0);
+      int k = 0;
+      mb->captured = 1;
+      if (total > 0) {
+        while (k < S && k < mb->cap && lam[S - 1 - k] > 1e-20 * lam[S - 1]) {
+          run += lam[S - 1 - k];
+          k++;
+          if (run >= mb->energy * total) break;
+        }
+        mb->captured = run / total;
+      }
+      mb->kept = kk[c][i] = k;
+      /* column a of W = V[:, S-1-a] / sqrt(λ), kept in G's place (S x k) */
+      for (long s2 = 0; s2 < S; s2++) {
+        double *row = G[c][i] + s2 * S;
+        for (int a = 0; a < k; a++) tmp[a] = row[S - 1 - a] / sqrt(lam[S - 1 - a]);
+        memcpy(row, tmp, sizeof(double) * (size_t)k);
+      }
+      if (!(U[c][i] = calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double)))) goto oom;
+    }
+  }
+  /* pass 2: U += x_s ⊗ W[s, :] */
+  for (long k = 0; k < S; k++) {
+    if (eval_sample(src, f, k, err, errlen)) goto done;
+    for (int c = 0; c < m->nclasses; c++) {
+      RClass *rc = &m->classes[c];
+      for (int i = 0; i < rc->nmembers; i++) {
+        if (!kk[c][i]) continue;
+        if (member_value(m, f, &rc->members[i], rc->n, tmp, err, errlen)) goto done;
+        cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, tmp, 1, G[c][i] + k * S, 1, U[c][i], kk[c][i]);
+      }
+    }
+    progress_show(opt->progress, "snapshots (basis)", k + 1, S);
+  }
+  rc = 0;
+  goto done;
+oom:
+  tfail(err, errlen, "out of memory for the Gram matrices of %ld samples", S);
+done:
+  for (int c = 0; c < m->nclasses; c++) {
+    for (int i = 0; G && G[c] && i < m->classes[c].nmembers; i++) free(G[c][i]);
+    for (int i = 0; H && H[c] && i < m->classes[c].nmembers; i++) free(H[c][i]);
+    if (G) free(G[c]);
+    if (H) free(H[c]);
+  }
+  free(G);
+  free(H);
+  free(lam);
+  return rc;
 }
 
 Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
@@ -159,49 +320,42 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
     maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
     for (int i = 0; i < m->classes[c].nmembers; i++) member_options(m, &m->classes[c], &m->classes[c].members[i], opt);
   }
-  if (opt->mem && need > opt->mem) {
+  bool gram = opt->mem && need > opt->mem;
+  if (gram && opt->joint) {
     tfail(err, errlen,
-          "the snapshots need %.3g GB, more than the memory budget --mem %.3g GB; the method of snapshots by "
-          "recomputation is not implemented yet: raise --mem or train on fewer samples",
+          "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise --mem "
+          "or use --merge concat (the method of snapshots)",
           (double)need / 1e9, (double)opt->mem / 1e9);
     goto fail;
   }
   sn.S = S;
   if (!(sn.X = calloc((size_t)m->nclasses + 1, sizeof(double **)))) goto oom;
+  if (!(sn.U = calloc((size_t)m->nclasses + 1, sizeof(double **))) || !(sn.k = calloc((size_t)m->nclasses + 1, sizeof(int *))))
+    goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(sn.X[c] = calloc((size_t)rc->nmembers, sizeof(double *)))) goto oom;
-    for (int i = 0; i < rc->nmembers; i++)
+    if (!(sn.X[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(sn.U[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn.k[c] = calloc((size_t)rc->nmembers, sizeof(int))))
+      goto oom;
+    for (int i = 0; !gram && i < rc->nmembers; i++)
       if (!(sn.X[c][i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
   }
-  if (!(tmp = malloc(sizeof(double) * (size_t)maxn))) goto oom;
+  if (!(tmp = malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S)))) goto oom;
   FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
-  for (long k = 0; k < S; k++) {
-    if (k > 0 && (src->set(src->user, f, k) != 0 || npg_full_eval(f, k) != 0)) {
-      tfail(err, errlen, "%s", npg_full_error(f));
-      goto fail;
-    }
-    for (int c = 0; c < m->nclasses; c++) {
-      RClass *rc = &m->classes[c];
-      for (int i = 0; i < rc->nmembers; i++) {
-        RMember *mb = &rc->members[i];
-        double *col = sn.X[c][i] + (size_t)k * (size_t)rc->n;
-        if (mb->q >= 0) {
-          memcpy(col, npg_full_get(f, ((Sym *)prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)rc->n);
-        } else {
-          RTerm *rt = joiner_term(m, mb->joiner);
-          if (!rt || field_value(f, rt->num, rt->nnum, col, rc->n, err, errlen)) goto fail;
-        }
+  if (gram) {
+    if (snapshot_bases(m, f, src, opt, sn.U, sn.k, tmp, err, errlen)) goto fail;
+  } else {
+    for (long k = 0; k < S; k++) {
+      if (k > 0 && eval_sample(src, f, k, err, errlen)) goto fail;
+      for (int c = 0; c < m->nclasses; c++) {
+        RClass *rc = &m->classes[c];
+        for (int i = 0; i < rc->nmembers; i++)
+          if (member_value(m, f, &rc->members[i], rc->n, sn.X[c][i] + (size_t)k * (size_t)rc->n, err, errlen))
+            goto fail;
       }
+      if (check_spd(m, f, tmp, err, errlen)) goto fail;
+      progress_show(opt->progress, "snapshots", k + 1, S);
     }
-    FOR_DIAG_OPS(m, rs, rt, ro) {
-      if (!ro->spd) continue;
-      long n = m->classes[m->qclass[rs->q]].n;
-      if (field_value(f, ro->t, ro->ntensors, tmp, n, err, errlen)) goto fail;
-      for (long e = 0; e < n && ro->spd; e++)
-        if (!(tmp[e] > 0)) ro->spd = false;
-    }
-    progress_show(opt->progress, "snapshots", k + 1, S);
   }
 
   /* 2. bases */
@@ -231,6 +385,8 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
         rc->members[i].captured = captured;
       }
       if (rc_ok == 0) rc_ok = pca_merge(rc->n, 1, U, kk, &rc->B, &rc->m, err, errlen);
+    } else if (rc_ok == 0 && gram) {
+      rc_ok = pca_merge(rc->n, rc->nmembers, sn.U[c], sn.k[c], &rc->B, &rc->m, err, errlen);
     } else if (rc_ok == 0) {
       for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
         RMember *mb = &rc->members[i];
@@ -306,20 +462,27 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
     x->S = S;
     if (!(x->X = malloc(sizeof(double) * (size_t)(S * x->d + 1))) || !(x->Z = malloc(sizeof(double) * (size_t)(S * mz))))
       goto oom;
-    for (long k = 0; k < S; k++) {
-      long off = 0;
+  }
+  for (long k = 0; k < S && m->nexterns > 0; k++) {
+    if (gram && eval_sample(src, f, k, err, errlen)) goto fail; /* recompute: no snapshot was kept */
+    for (int i = 0; i < m->nexterns; i++) {
+      RExtern *x = &m->externs[i];
+      long mz = m->classes[m->qclass[x->q]].m, off = 0;
       for (int j = 0; j <= x->nin; j++) {
         int q = j < x->nin ? x->in_q[j] : x->q;
-        int c = m->qclass[q];
-        RClass *rc = &m->classes[c];
-        int mi = 0;
-        while (rc->members[mi].q != q) mi++;
+        RClass *rc = &m->classes[m->qclass[q]];
+        const double *val = npg_full_get(f, ((Sym *)prog->quantities.v[q])->name, NULL);
+        if (!gram) {
+          int mi = 0;
+          while (rc->members[mi].q != q) mi++;
+          val = sn.X[m->qclass[q]][mi] + (size_t)k * (size_t)rc->n;
+        }
         double *dst = j < x->nin ? x->X + k * x->d + off : x->Z + k * mz;
-        cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m,
-                    sn.X[c][mi] + (size_t)k * (size_t)rc->n, 1, 0.0, dst, 1);
+        cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, val, 1, 0.0, dst, 1);
         if (j < x->nin) off += rc->m;
       }
     }
+    if (gram) progress_show(opt->progress, "extern samples", k + 1, S);
   }
   free(tmp);
   free_snapshots(m, &sn);

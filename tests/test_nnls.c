@@ -76,24 +76,25 @@ static double nnls_objective(int m, int n, const double *A, const double *b, con
   return f;
 }
 
-/* The scale of the gradient Aᵀ(A w − b): ‖A‖_F (‖b‖ + ‖A‖_F ‖w‖₁). */
-static double nnls_scale(int m, int n, const double *A, const double *b, const double *w) {
-  double a = 0, bb = 0, w1 = 0;
-  for (int i = 0; i < m * n; i++) a += A[i] * A[i];
-  for (int i = 0; i < m; i++) bb += b[i] * b[i];
-  for (int j = 0; j < n; j++) w1 += fabs(w[j]);
-  a = sqrt(a);
-  double s = a * (sqrt(bb) + a * w1);
-  return s > 0 ? s : 1;
-}
-
-/* Largest violation of the KKT conditions of min ‖A w − b‖, w ≥ 0, relative
- * to nnls_scale(): with g = Aᵀ(A w − b), g_j ≥ 0 where w_j = 0 and g_j = 0
- * where w_j > 0. A negative entry is infinitely wrong. */
+/* Largest violation of the KKT conditions of min ‖A w − b‖, w ≥ 0: with
+ * g = Aᵀ(A w − b), g_j ≥ 0 where w_j = 0 and g_j = 0 where w_j > 0. Each
+ * g_j is taken relative to its own scale ‖a_j‖ (‖b‖ + Σ_k ‖a_k‖ w_k), so a
+ * column many decades smaller than the others is checked as strictly as
+ * the largest. A negative entry is infinitely wrong. */
 static double nnls_kkt(int m, int n, const double *A, const double *b, const double *w) {
-  double worst = 0;
+  double *norm = malloc(sizeof(double) * (size_t)n), scale = 0;
+  for (int i = 0; i < m; i++) scale += b[i] * b[i];
+  scale = sqrt(scale);
   for (int j = 0; j < n; j++) {
-    if (!(w[j] >= 0)) return INFINITY;
+    double c = 0;
+    for (int i = 0; i < m; i++) c += A[i * n + j] * A[i * n + j];
+    norm[j] = sqrt(c);
+    scale += norm[j] * fabs(w[j]);
+  }
+  double worst = 0;
+  for (int j = 0; j < n && worst < INFINITY; j++) {
+    if (!(w[j] >= 0)) worst = INFINITY;
+    if (norm[j] == 0) continue;
     long double g = 0;
     for (int i = 0; i < m; i++) {
       long double r = -(long double)b[i];
@@ -101,9 +102,10 @@ static double nnls_kkt(int m, int n, const double *A, const double *b, const dou
       g += (long double)A[i * n + j] * r;
     }
     double v = w[j] > 0 ? fabs((double)g) : fmax(0, -(double)g);
-    worst = fmax(worst, v);
+    worst = fmax(worst, v / (norm[j] * (scale > 0 ? scale : 1)));
   }
-  return worst / nnls_scale(m, n, A, b, w);
+  free(norm);
+  return worst;
 }
 
 /* min ‖A w − b‖² over w ≥ 0 by enumerating every passive set P: the
@@ -317,6 +319,21 @@ static void nnls_interior_equals_least_squares(void **state) {
       if (!(fabs(w[j] - ls[j]) <= 1e-12)) fail_msg("%d × %d: w[%d] = %.17g, LS %.17g", m, n, j, w[j], ls[j]);
     free(A), free(b), free(ls), free(w);
   }
+
+  /* Columns scaled over 8 decades (κ(A) ~ 1e8), b = A·1: the subproblem
+   * solve must not cut small singular values that are signal. (The rounding
+   * of b alone, ~ε‖b‖ ≈ 1e-11, moves w_0 of the 1e-4 column by ~1e-7.) */
+  int m = 20, n = 9;
+  double *A = gauss_matrix(m, n), *b = zeros(m), *w = zeros(n);
+  for (int i = 0; i < m; i++)
+    for (int j = 0; j < n; j++) {
+      A[i * n + j] *= pow(10, j - 4);
+      b[i] += A[i * n + j];
+    }
+  solve_nnls(m, n, A, b, w);
+  for (int j = 0; j < n; j++)
+    if (!(fabs(w[j] - 1) <= 1e-6)) fail_msg("column scale 1e%d: w = %.17g, expected 1", j - 4, w[j]);
+  free(A), free(b), free(w);
 }
 
 static void nnls_known_active_sets(void **state) {
@@ -479,7 +496,8 @@ static void convex_invariance(void **state) {
     for (int i = 0; i < d; i++) y[i] = c * x[i] + shift * (i + 1);
     solve_convex(S, d, Y, y, w);
     for (int s = 0; s < S; s++)
-      if (!(fabs(w[s] - w0[s]) <= 1e-9)) fail_msg("scale %g shift %g: w[%d] = %.17g, unscaled %.17g", c, shift, s, w[s], w0[s]);
+      if (!(fabs(w[s] - w0[s]) <= 1e-9))
+        fail_msg("scale %g shift %g: w[%d] = %.17g, unscaled %.17g", c, shift, s, w[s], w0[s]);
   }
   free(X);
 }
@@ -524,12 +542,18 @@ static void nnls_random(void **state) {
       double *A = gauss_matrix(m, n), *b = gauss_matrix(m, 1), *w = zeros(n);
       if (trial % 2) /* non-negative, strongly correlated columns: the hard case for active sets */
         for (int k = 0; k < m * n; k++) A[k] = fabs(A[k]) + 1;
+      if (trial >= 2) /* columns scaled over 16 decades */
+        for (int j = 0; j < n; j++) {
+          double c = pow(10, 16 * uniform01() - 8);
+          for (int i = 0; i < m; i++) A[i * n + j] *= c;
+        }
       solve_nnls(m, n, A, b, w);
       double kkt = nnls_kkt(m, n, A, b, w);
       if (!(kkt <= 1e-12)) fail_msg("%d × %d trial %d: KKT violation %.3e", m, n, trial, kkt);
       if (n <= 12 && m >= n) {
         double f = nnls_objective(m, n, A, b, w), best = nnls_brute_force(m, n, A, b);
-        if (!(fabs(f - best) <= 1e-10 * (1 + best))) fail_msg("%d × %d: objective %.17g, brute force %.17g", m, n, f, best);
+        if (!(fabs(f - best) <= 1e-10 * (1 + best)))
+          fail_msg("%d × %d: objective %.17g, brute force %.17g", m, n, f, best);
       }
       free(A), free(b), free(w);
     }
@@ -538,7 +562,8 @@ static void nnls_random(void **state) {
 static void convex_random(void **state) {
   (void)state;
   seed(9);
-  const int sizes[][2] = {{5, 3}, {8, 2}, {9, 4}, {20, 5}, {50, 10}, {100, 60}, {200, 60}, {200, 5}, {200, 1}, {10, 60}, {60, 60}};
+  const int sizes[][2] = {{5, 3},   {8, 2},   {9, 4},   {20, 5},  {50, 10}, {100, 60},
+                          {200, 60}, {200, 5}, {200, 1}, {10, 60}, {60, 60}};
   for (size_t t = 0; t < sizeof sizes / sizeof *sizes; t++)
     for (int trial = 0; trial < 6; trial++) {
       int S = sizes[t][0], d = sizes[t][1];
@@ -564,7 +589,8 @@ static void convex_random(void **state) {
       if (kind == 0 && !(f <= 1e-20 * sc)) fail_msg("S=%d d=%d: x in the hull but residual² %.3e", S, d, f);
       if (S <= 12) {
         double best = convex_brute_force(S, d, X, x);
-        if (!(fabs(f - best) <= 1e-10 * sc)) fail_msg("S=%d d=%d: objective %.17g, dgglse enumeration %.17g", S, d, f, best);
+        if (!(fabs(f - best) <= 1e-10 * sc))
+          fail_msg("S=%d d=%d: objective %.17g, dgglse enumeration %.17g", S, d, f, best);
       }
       free(X), free(x), free(w);
     }

@@ -684,6 +684,52 @@ static void error_falls_with_caps(void **state) {
   assert_true(err_rat[1] < err_rat[0] / 10);
 }
 
+/* ---------------------------------------------------------------- method of snapshots */
+
+/* Training with a memory budget too small for the snapshots (the method of
+ * snapshots: Gram matrices by blocks of recomputed samples, then the basis
+ * by recomputation) gives the same bases as the in-memory SVD: same sizes,
+ * same projectors B Bᵀ. */
+static void method_of_snapshots_matches_memory(void **state) {
+  (void)state;
+  NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
+  Program *prog = ir_ok(p);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  RoomSamples train;
+  room_samples(&train, f, 24, 20, 0.0, 1.0 / 19);
+  SampleSource src = {train.S, &train, room_set};
+  TrainOptions opt = {0};
+  opt.cap = 8;
+  opt.energy = 0.9999;
+  char err[2048] = "";
+  Model *a = train_model(prog, f, &src, &opt, err, sizeof err);
+  if (!a) fail_msg("%s", err);
+  /* per sample: Σ n over members; a budget of ~6 samples forces 4 blocks */
+  size_t per = 0;
+  for (int c = 0; c < a->nclasses; c++) per += sizeof(double) * (size_t)(a->classes[c].n * a->classes[c].nmembers);
+  opt.mem = per * 12;
+  Model *b = train_model(prog, f, &src, &opt, err, sizeof err);
+  if (!b) fail_msg("%s", err);
+  double worst = 0;
+  for (int c = 0; c < a->nclasses; c++) {
+    const RClass *x = &a->classes[c], *y = &b->classes[c];
+    assert_int_equal(x->m, y->m);
+    for (long i = 0; i < x->n; i++)
+      for (long j = 0; j < x->n; j++) {
+        double px = 0, py = 0;
+        for (long k = 0; k < x->m; k++) px += x->B[i * x->m + k] * x->B[j * x->m + k], py += y->B[i * y->m + k] * y->B[j * y->m + k];
+        worst = fmax(worst, fabs(px - py));
+      }
+  }
+  print_message("method of snapshots (4 blocks) vs in-memory SVD: projectors differ by %.2g\n", worst);
+  assert_true(worst < 1e-7);
+  model_free(a);
+  model_free(b);
+  room_free(&train);
+  npg_full_free(f);
+  npg_free(p);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(full_rank_reproduces_full),
@@ -691,6 +737,7 @@ int main(void) {
       cmocka_unit_test(reduced_stages_equal_dense_formulas),
       cmocka_unit_test(corrupted_model_named),
       cmocka_unit_test(error_falls_with_caps),
+      cmocka_unit_test(method_of_snapshots_matches_memory),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
