@@ -6,6 +6,7 @@
 
 #include "compile.h"
 #include "npg.h"
+#include "reduce.h"
 
 static void usage(FILE *out) {
   fputs("usage: npgc check PROG.npg [--json] [-d<letters>]\n"
@@ -16,7 +17,7 @@ static void usage(FILE *out) {
         "  --json  the same report as JSON.\n"
         "  -dLETTERS  dump the IR after stages: p parse, s check, l lower, b basis classes.\n"
         "\n"
-        "       npgc emit PROG.npg -o FILE.c\n"
+        "       npgc emit PROG.npg [--reduced MODEL/] -o FILE.c\n"
         "       npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc]\n"
         "       npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--basis NAME:cap=N,energy=E]\n"
         "                  [--merge concat|joint] [--mem BYTES] [--cc]\n"
@@ -26,6 +27,9 @@ static void usage(FILE *out) {
         "\n"
         "  emit    write the generated C of the full evaluator (one function per stage)\n"
         "          and the bind-time gather checker; it compiles standalone with cc -c.\n"
+        "  --reduced MODEL/  instead, the reduced evaluator of the model trained in MODEL/,\n"
+        "          specialized to its sizes; the host passes the reduced tensors\n"
+        "          (NpgReducedCtx in npg_abi.h).\n"
         "\n"
         "  eval    --full: evaluate the full program on every sample of IN/<input>.npy\n"
         "          (leading sample axis; params from DATA/<param>.npy) and write every\n"
@@ -48,12 +52,14 @@ static void usage(FILE *out) {
         out);
 }
 
-/* npgc emit PROG.npg -o FILE.c: written to FILE.c.tmp, renamed when complete. */
+/* npgc emit PROG.npg [--reduced MODEL/] -o FILE.c: written to FILE.c.tmp,
+ * renamed when complete. */
 static int cmd_emit(int argc, char **argv) {
-  const char *path = NULL, *outpath = NULL;
+  const char *path = NULL, *outpath = NULL, *model_dir = NULL;
   NpgOptions opt = {0};
   for (int i = 2; i < argc; i++) {
     if (strcmp(argv[i], "-o") == 0 && i + 1 < argc) outpath = argv[++i];
+    else if (strcmp(argv[i], "--reduced") == 0 && i + 1 < argc) model_dir = argv[++i];
     else if (strncmp(argv[i], "--std=", 6) == 0) opt.std_dir = argv[i] + 6;
     else if (argv[i][0] == '-') {
       fprintf(stderr, "npgc emit: unknown option '%s'\n", argv[i]);
@@ -61,7 +67,7 @@ static int cmd_emit(int argc, char **argv) {
     } else path = argv[i];
   }
   if (!path || !outpath) {
-    fprintf(stderr, "usage: npgc emit PROG.npg -o FILE.c\n");
+    fprintf(stderr, "usage: npgc emit PROG.npg [--reduced MODEL/] -o FILE.c\n");
     return 2;
   }
   NpgProgram *p = npg_compile(path, &opt);
@@ -70,18 +76,28 @@ static int cmd_emit(int argc, char **argv) {
     npg_free(p);
     return 1;
   }
+  char err[2048] = "";
+  Model *m = NULL;
+  if (model_dir && !(m = model_load(npg_program_ir(p), model_dir, err, sizeof err))) {
+    fprintf(stderr, "error: %s\n", err);
+    npg_free(p);
+    return 1;
+  }
   char tmp[4096];
   snprintf(tmp, sizeof tmp, "%s.tmp", outpath);
   FILE *f = fopen(tmp, "w");
   if (!f) {
     fprintf(stderr, "npgc emit: cannot write %s: %s\n", tmp, strerror(errno));
+    model_free(m);
     npg_free(p);
     return 1;
   }
-  int rc = npg_emit_full(p, f);
+  int rc = m ? emit_reduced(m, f, err, sizeof err) : npg_emit_full(p, f);
   if (fclose(f) != 0 && rc == 0) {
     fprintf(stderr, "npgc emit: cannot write %s: %s\n", tmp, strerror(errno));
     rc = -1;
+  } else if (rc != 0 && m) {
+    fprintf(stderr, "error: %s\n", err);
   } else if (rc != 0) {
     fputs(npg_error(p), stderr);
   }
@@ -90,6 +106,7 @@ static int cmd_emit(int argc, char **argv) {
     rc = -1;
   }
   if (rc != 0) remove(tmp);
+  model_free(m);
   npg_free(p);
   return rc == 0 ? 0 : 1;
 }

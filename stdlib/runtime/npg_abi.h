@@ -76,4 +76,46 @@ struct NpgRt {
 typedef int (*NpgStageFn)(const NpgCtx *c);
 typedef int (*NpgBuildFn)(const NpgCtx *c, NpgSink *sink);
 
+/* ---------------------------------------------------------------- the reduced evaluator
+ *
+ * `npgc emit --reduced MODEL/` (backends/emit_reduced.c) writes C for one
+ * trained model, every size a literal. The reduced tensors are not in the
+ * code (they can be megabytes): the host passes them, with the coordinates
+ * and scratch memory, in an NpgReducedCtx. The generated file says what it
+ * expects: npg_reduced_coords = {number of quantities, m of each},
+ * npg_reduced_tensors = {number of tensors, rows x cols of each, in the
+ * order of NpgReducedCtx.t (listed in a comment at its top)}, and
+ * npg_reduced_work, the doubles of scratch. Every reduced vector and
+ * tensor is dense, row-major (backends/reduce.h). */
+typedef struct NpgReducedCtx NpgReducedCtx;
+
+typedef struct NpgReducedRt {
+  /* v <- M^(p/q) v, M (m x m, destroyed) the reduced operator number `op`
+   * of term `term` of stage number `stage` (0-based, the model's stage
+   * order, externs included). Negative integer powers by Cholesky or LU,
+   * fractional ones by eigendecomposition. Non-zero on failure, after the
+   * host recorded a message. */
+  int (*op_power)(const NpgReducedCtx *c, int stage, int term, int op, npg_idx m, double *M, long p, long q,
+                  double *v);
+  /* Write the coordinates of the extern of stage number `stage` (the
+   * learned map, paper §8.3). Non-zero on failure, as op_power. */
+  int (*learned)(const NpgReducedCtx *c, int stage);
+} NpgReducedRt;
+
+struct NpgReducedCtx {
+  double *const *x;             /* reduced coordinates of every quantity, program order:
+                                   inputs read, stages and externs written */
+  const double *const *t;       /* every reduced tensor, in the generated file's order */
+  double *work;                 /* npg_reduced_work doubles of scratch */
+  const NpgReducedRt *rt;
+  long sample;                  /* sample number, for messages */
+  void *host;                   /* the runtime's own state */
+};
+
+/* The entry points of generated reduced code: npg_reduced, every stage in
+ * order; npg_reduced_stage, stage number `stage` alone. Each returns 0, or
+ * -1 after the host recorded an error (or for a stage number out of range). */
+typedef int (*NpgReducedFn)(const NpgReducedCtx *c);
+typedef int (*NpgReducedStageFn)(const NpgReducedCtx *c, int stage);
+
 #endif

@@ -1,0 +1,645 @@
+/* emit_reduced.c — the reduced evaluator as C, specialized to one trained
+ * model (DESIGN §6; paper §4), and the host that compiles and runs it.
+ *
+ * The generated code does what reduced_eval() does (backends/reduced.c is
+ * the reference), with every size a literal: for each stage
+ *
+ *     ŷ = Σ_t  (M̂_{t,k})^{r_k} ⋯ (M̂_{t,1})^{r_1} ŵ_t,
+ *
+ * each contraction a loop nest over the last axis first (the first step
+ * reads its tensor once; rows are dot products with independent partial
+ * sums, which gcc turns into vector lanes without reassociating; tcc does
+ * not optimize, so the bodies stay simple with hoisted pointers and
+ * literal offsets). Dense linear algebra — inverse powers (Cholesky or
+ * LU), roots (eigendecomposition) — and the externs' learned maps are not
+ * hand-rolled: they call back into the runtime evaluator through
+ * NpgReducedRt (npg_abi.h), so both agree to rounding. The reduced tensors (megabytes) are not literals: the host
+ * passes pointers in NpgReducedCtx.t, in the order of model_slots(). */
+#include <setjmp.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "emit.h"
+#include "jit.h"
+#include "reduce.h"
+
+/* ---------------------------------------------------------------- the tensors the code reads */
+
+/* One entry of NpgReducedCtx.t: a reduced tensor, or the projection
+ * B_yᵀB_w of a named numerator whose class differs from its stage's. */
+typedef struct Slot {
+  const RTensor *t;
+  const RTerm *proj_of;
+  long rows, cols;
+  const double *data;
+} Slot;
+
+/* Every tensor in NpgReducedCtx.t order: stage by stage, term by term, the
+ * projection, the numerator's tensors, then each operator's. Fills `s`
+ * when non-NULL; returns the count. The emitter and the host share it. */
+static long model_slots(const Model *m, Slot *s) {
+  long n = 0;
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    long my = m->classes[m->qclass[rs->q]].m;
+    for (int t = 0; t < rs->nterms; t++) {
+      const RTerm *rt = &rs->terms[t];
+      if (rt->named_q >= 0 && rt->proj) {
+        if (s) s[n] = (Slot){NULL, rt, my, m->classes[m->qclass[rt->named_q]].m, rt->proj};
+        n++;
+      }
+      for (int k = -1; k < rt->nops; k++) {
+        int ng = k < 0 ? rt->nnum : rt->ops[k].ntensors;
+        for (int g = 0; g < ng; g++) {
+          const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
+          if (s) s[n] = (Slot){x, NULL, x->rows, x->cols, x->data};
+          n++;
+        }
+      }
+    }
+  }
+  return n;
+}
+
+/* ---------------------------------------------------------------- emitter state */
+
+typedef struct RedEmit {
+  const Model *m;
+  Ctx *ctx;
+  FILE *out;
+  Slot *slots;
+  long nslots;
+  /* scratch (NpgReducedCtx.work) offsets, in doubles */
+  long off_v, off_w, off_acc, off_M, off_buf[2], off_z, nwork;
+  /* what the stage being written uses, so its prologue declares exactly that */
+  bool use_v, use_w, use_acc, use_M;
+  bool *use_q;
+} RedEmit;
+
+static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
+
+static const char *qname(const Model *m, int q) { return ((const Sym *)m->prog->quantities.v[q])->name; }
+
+/* A C identifier: `prefix` then `name` with other characters as '_'. */
+static char *c_ident(Ctx *ctx, const char *prefix, const char *name) {
+  char *n = arena_printf(ctx, "%s%s", prefix, name);
+  for (char *c = n; *c; c++)
+    if (!((*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || (*c >= '0' && *c <= '9') || *c == '_')) *c = '_';
+  return n;
+}
+
+static const char *qvar(RedEmit *e, int q) {
+  e->use_q[q] = true;
+  return c_ident(e->ctx, "Q_", qname(e->m, q));
+}
+
+static long slot_of(const RedEmit *e, const RTensor *t, const RTerm *proj_of) {
+  for (long k = 0; k < e->nslots; k++)
+    if (t ? e->slots[k].t == t : e->slots[k].proj_of == proj_of) return k;
+  iassert(e->ctx, !"every tensor has a slot");
+  return -1;
+}
+
+/* Scratch sizes, as reduced_new() sizes the runtime evaluator's buffers. */
+static void plan_work(RedEmit *e) {
+  const Model *m = e->m;
+  long maxm = 1, maxbuf = 0, maxz = 0;
+  for (int c = 0; c < m->nclasses; c++) maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
+  for (long k = 0; k < e->nslots; k++) {
+    const RTensor *x = e->slots[k].t;
+    if (!x) continue;
+    long zs = 0, inter = x->rows;
+    for (int j = 0; j < x->nin; j++)
+      if (x->in_mult[j] > 1) zs += x->in_len[j];
+    for (int j = 0; j + 1 < x->nin; j++) inter *= x->in_len[j];
+    maxz = zs > maxz ? zs : maxz;
+    if (x->nin > 1) maxbuf = inter > maxbuf ? inter : maxbuf;
+  }
+  e->off_v = 0;
+  e->off_w = maxm;
+  e->off_acc = 2 * maxm;
+  e->off_M = e->off_acc + maxm * maxm;
+  e->off_buf[0] = e->off_M + maxm * maxm;
+  e->off_buf[1] = e->off_buf[0] + maxbuf;
+  e->off_z = e->off_buf[1] + maxbuf;
+  e->nwork = e->off_z + maxz;
+}
+
+static void indent(FILE *out, int depth) {
+  for (int i = 0; i < depth; i++) fputs("  ", out);
+}
+
+/* ---------------------------------------------------------------- loops */
+
+/* Partial sums s<r>_<k> of `rows` rows from row i, `acc` per row, summed as
+ * a balanced tree into dst[i + r]. */
+static void emit_dot_rows(FILE *out, int d, int rows, int acc, long n, const char *A, const char *z, const char *dst,
+                          const char *op) {
+  long nk = n / acc * acc;
+  for (int r = 0; r < rows; r++) {
+    indent(out, d);
+    if (r) fprintf(out, "const double *const a%d = a%d + %ld;\n", r, r - 1, n);
+    else fprintf(out, "const double *const a0 = %s + i * %ld;\n", A, n);
+  }
+  for (int r = 0; r < rows; r++) {
+    indent(out, d);
+    fputs("double ", out);
+    for (int k = 0; k < acc; k++) fprintf(out, "%ss%d_%d = 0.0", k ? ", " : "", r, k);
+    fputs(";\n", out);
+  }
+  indent(out, d);
+  fprintf(out, "for (npg_idx j = 0; j < %ld; j += %d) {\n", nk, acc);
+  for (int r = 0; r < rows; r++)
+    for (int k = 0; k < acc; k++) {
+      indent(out, d + 1);
+      if (k) fprintf(out, "s%d_%d += a%d[j + %d] * %s[j + %d];\n", r, k, r, k, z, k);
+      else fprintf(out, "s%d_0 += a%d[j] * %s[j];\n", r, r, z);
+    }
+  indent(out, d);
+  fputs("}\n", out);
+  for (int r = 0; r < rows; r++)
+    for (long j = nk; j < n; j++) {
+      indent(out, d);
+      fprintf(out, "s%d_%ld += a%d[%ld] * %s[%ld];\n", r, j - nk, r, j, z, j);
+    }
+  for (int r = 0; r < rows; r++) {
+    indent(out, d);
+    if (r) fprintf(out, "%s[i + %d] %s ", dst, r, op);
+    else fprintf(out, "%s[i] %s ", dst, op);
+    if (acc == 4) fprintf(out, "(s%d_0 + s%d_1) + (s%d_2 + s%d_3);\n", r, r, r, r);
+    else fprintf(out, "((s%d_0 + s%d_1) + (s%d_2 + s%d_3)) + ((s%d_4 + s%d_5) + (s%d_6 + s%d_7));\n", r, r, r, r, r, r, r, r);
+  }
+}
+
+/* dst[i] (+)= Σ_j A[i·n + j] z[j] for i < lead: one dgemv of the runtime
+ * evaluator. Rows of at most 8 are one unrolled sum each. Longer rows keep
+ * independent partial sums, which gcc makes vector lanes without
+ * reassociating anything: four rows at once with four sums each (their
+ * chains interleave, z is loaded once for four rows), or one row with
+ * eight sums when rows are long (64 and more). */
+static void emit_gemv(FILE *out, int d, long lead, long n, const char *A, const char *z, const char *dst, bool add) {
+  const char *op = add ? "+=" : "=";
+  if (n <= 8) {
+    indent(out, d);
+    fprintf(out, "for (npg_idx i = 0; i < %ld; i++) {\n", lead);
+    indent(out, d + 1);
+    if (n == 0) {
+      fprintf(out, "%s[i] %s 0.0;\n", dst, op);
+    } else {
+      fprintf(out, "const double *const a = %s + i * %ld;\n", A, n);
+      indent(out, d + 1);
+      fprintf(out, "%s[i] %s ", dst, op);
+      for (long j = 0; j < n; j++) fprintf(out, "%sa[%ld] * %s[%ld]", j ? " + " : "", j, z, j);
+      fputs(";\n", out);
+    }
+    indent(out, d);
+    fputs("}\n", out);
+    return;
+  }
+  int rows = n >= 64 ? 1 : 4, acc = n >= 64 ? 8 : 4;
+  long full = lead / rows * rows;
+  if (full > 0) {
+    indent(out, d);
+    if (rows > 1) fprintf(out, "for (npg_idx i = 0; i < %ld; i += %d) {\n", full, rows);
+    else fprintf(out, "for (npg_idx i = 0; i < %ld; i++) {\n", full);
+    emit_dot_rows(out, d + 1, rows, acc, n, A, z, dst, op);
+    indent(out, d);
+    fputs("}\n", out);
+  }
+  if (full < lead) { /* the rows left over */
+    indent(out, d);
+    fprintf(out, "for (npg_idx i = %ld; i < %ld; i++) {\n", full, lead);
+    emit_dot_rows(out, d + 1, 1, acc, n, A, z, dst, op);
+    indent(out, d);
+    fputs("}\n", out);
+  }
+}
+
+static void emit_fill(FILE *out, int d, long n, const char *dst, const char *value) {
+  indent(out, d);
+  fprintf(out, "for (npg_idx i = 0; i < %ld; i++) %s[i] = %s;\n", n, dst, value);
+}
+
+/* z[α] = Π_l x[α_l] over sorted multi-indices α, lexicographic (sym_power). */
+static void emit_sym_power(FILE *out, int d, long m, int k, const char *x, const char *z) {
+  indent(out, d);
+  fprintf(out, "double *p_ = %s;\n", z);
+  for (int l = 0; l < k; l++) {
+    indent(out, d + l);
+    if (l) fprintf(out, "for (npg_idx a%d = a%d; a%d < %ld; a%d++)\n", l, l - 1, l, m, l);
+    else fprintf(out, "for (npg_idx a0 = 0; a0 < %ld; a0++)\n", m);
+  }
+  indent(out, d + k);
+  fputs("*p_++ = ", out);
+  for (int l = 0; l < k; l++) fprintf(out, "%s%s[a%d]", l ? " * " : "", x, l);
+  fputs(";\n", out);
+}
+
+/* out[0..rows) += T ⊗ z_1 ⊗ … ⊗ z_n (contract() of the runtime): the last
+ * axis first, alternating between two scratch buffers. */
+static void emit_contract(RedEmit *e, int d, const RTensor *t, const char *dst) {
+  FILE *out = e->out;
+  long slot = slot_of(e, t, NULL);
+  indent(out, d);
+  fprintf(out, "{ /* %s: %ld x %ld", t->name, t->rows, t->cols);
+  for (int j = 0; j < t->nin; j++)
+    fprintf(out, ", %s%s (%ld)", qname(e->m, t->in_q[j]),
+            t->in_mult[j] > 1 ? arena_printf(e->ctx, "^%d packed", t->in_mult[j]) : "", t->in_len[j]);
+  fputs(" */\n", out);
+  indent(out, d + 1);
+  fprintf(out, "const double *const T = c->t[%ld];\n", slot);
+  if (t->nin == 0) {
+    indent(out, d + 1);
+    fprintf(out, "for (npg_idx i = 0; i < %ld; i++) %s[i] += T[i];\n", t->rows, dst);
+    indent(out, d);
+    fputs("}\n", out);
+    return;
+  }
+  const char *z[RT_MAX_IN];
+  long zoff = e->off_z;
+  for (int j = 0; j < t->nin; j++) {
+    const char *x = qvar(e, t->in_q[j]);
+    if (t->in_mult[j] == 1) {
+      z[j] = x;
+      continue;
+    }
+    z[j] = arena_printf(e->ctx, "z%d", j);
+    indent(out, d + 1);
+    fprintf(out, "double *const z%d = c->work + %ld; /* %s^%d packed */\n", j, zoff, qname(e->m, t->in_q[j]),
+            t->in_mult[j]);
+    indent(out, d + 1);
+    fputs("{\n", out);
+    emit_sym_power(out, d + 2, qm(e->m, t->in_q[j]), t->in_mult[j], x, z[j]);
+    indent(out, d + 1);
+    fputs("}\n", out);
+    zoff += t->in_len[j];
+  }
+  if (t->nin > 1) { /* intermediates: b0 after the first step, b1 after the second, ... */
+    indent(out, d + 1);
+    fprintf(out, "double *const b0 = c->work + %ld;\n", e->off_buf[0]);
+  }
+  if (t->nin > 2) {
+    indent(out, d + 1);
+    fprintf(out, "double *const b1 = c->work + %ld;\n", e->off_buf[1]);
+  }
+  long lead = t->rows;
+  for (int j = 0; j + 1 < t->nin; j++) lead *= t->in_len[j];
+  const char *src = "T";
+  int b = 0;
+  for (int j = t->nin - 1; j >= 0; j--) {
+    const char *to = j == 0 ? dst : b ? "b1" : "b0";
+    emit_gemv(out, d + 1, lead, t->in_len[j], src, z[j], to, j == 0);
+    src = to;
+    b ^= 1;
+    if (j > 0) lead /= t->in_len[j - 1];
+  }
+  indent(out, d);
+  fputs("}\n", out);
+}
+
+/* "M^(-1)", "(diagonal operator 1)^(-1/2)" */
+static const char *op_label(const ROp *ro, int k, char *buf, size_t n) {
+  char pw[64];
+  if (ro->op->q == 1) snprintf(pw, sizeof pw, "%ld", ro->op->p);
+  else snprintf(pw, sizeof pw, "%ld/%ld", ro->op->p, ro->op->q);
+  if (ro->op->kind == OPK_DECL) snprintf(buf, n, "%s^(%s)", ro->op->op->name, pw);
+  else snprintf(buf, n, "(diagonal operator %d)^(%s)", k + 1, pw);
+  return buf;
+}
+
+/* v <- (M̂)^(p/q) v for operator k of term t of stage number i. */
+static void emit_op(RedEmit *e, int i, int t, int k, const ROp *ro, long my) {
+  FILE *out = e->out;
+  char lab[256];
+  const OpPow *op = ro->op;
+  fprintf(out, "  /* %s%s */\n", op_label(ro, k, lab, sizeof lab), ro->spd ? ", positive definite in training" : "");
+  e->use_M = true;
+  if (op->kind == OPK_DIAG) { /* packed upper triangle, unpacked */
+    e->use_acc = true;
+    emit_fill(out, 1, my * (my + 1) / 2, "acc", "0.0");
+    for (int g = 0; g < ro->ntensors; g++) emit_contract(e, 1, &ro->t[g], "acc");
+    fprintf(out,
+            "  {\n"
+            "    const double *p_ = acc;\n"
+            "    for (npg_idx a = 0; a < %ld; a++)\n"
+            "      for (npg_idx b = a; b < %ld; b++) {\n"
+            "        const double d_ = *p_++;\n"
+            "        M[a * %ld + b] = d_;\n"
+            "        M[b * %ld + a] = d_;\n"
+            "      }\n"
+            "  }\n",
+            my, my, my, my);
+  } else {
+    emit_fill(out, 1, my * my, "M", "0.0");
+    for (int g = 0; g < ro->ntensors; g++) emit_contract(e, 1, &ro->t[g], "M");
+  }
+  if (op->q == 1 && op->p > 0) { /* positive integer powers: products */
+    e->use_w = true;
+    fprintf(out, "  for (int r_ = 0; r_ < %ld; r_++) {\n", op->p);
+    emit_gemv(out, 2, my, my, "M", "v", "w", false);
+    emit_fill(out, 2, my, "v", "w[i]");
+    fputs("  }\n", out);
+    return;
+  }
+  fprintf(out, "  if (c->rt->op_power(c, %d, %d, %d, %ld, M, %ld, %ld, v)) return -1;\n", i, t, k, my, op->p, op->q);
+}
+
+static void emit_stage_body(RedEmit *e, int i) {
+  const Model *m = e->m;
+  FILE *out = e->out;
+  const RStage *rs = &m->stages[i];
+  long my = qm(m, rs->q);
+  e->use_v = true;
+  emit_fill(out, 1, my, "y", "0.0");
+  for (int t = 0; t < rs->nterms; t++) {
+    const RTerm *rt = &rs->terms[t];
+    fprintf(out, "  /* term %d of %d */\n", t + 1, rs->nterms);
+    if (rt->named_q >= 0 && rt->proj) {
+      fprintf(out, "  { /* %s, projected: B(%s)^T B(%s), %ld x %ld */\n", qname(m, rt->named_q), qname(m, rs->q),
+              qname(m, rt->named_q), my, qm(m, rt->named_q));
+      fprintf(out, "    const double *const P = c->t[%ld];\n", slot_of(e, NULL, rt));
+      emit_gemv(out, 2, my, qm(m, rt->named_q), "P", qvar(e, rt->named_q), "v", false);
+      fputs("  }\n", out);
+    } else if (rt->named_q >= 0) {
+      emit_fill(out, 1, my, "v", arena_printf(e->ctx, "%s[i]", qvar(e, rt->named_q)));
+    } else {
+      emit_fill(out, 1, my, "v", "0.0");
+      for (int g = 0; g < rt->nnum; g++) emit_contract(e, 1, &rt->num[g], "v");
+    }
+    for (int k = 0; k < rt->nops; k++) emit_op(e, i, t, k, &rt->ops[k], my); /* innermost first (DESIGN §4) */
+    fprintf(out, "  for (npg_idx i = 0; i < %ld; i++) y[i] += v[i];\n", my);
+  }
+  fputs("  return 0;\n", out);
+}
+
+/* One stage: its body into memory first, so the prologue declares exactly
+ * what it used. */
+static void emit_stage(RedEmit *e, int i, const char *fname) {
+  const Model *m = e->m;
+  const RStage *rs = &m->stages[i];
+  const Sym *s = rs->st->sym;
+  const RClass *rc = &m->classes[m->qclass[rs->q]];
+  FILE *out = e->out;
+  e->use_v = e->use_w = e->use_acc = e->use_M = false;
+  memset(e->use_q, 0, sizeof(bool) * (size_t)m->nq);
+  char *body = NULL;
+  size_t len = 0;
+  FILE *mem = open_memstream(&body, &len);
+  iassert(e->ctx, mem);
+  e->ctx->open_file = mem; /* closed if an allocation failure jumps out */
+  e->out = mem;
+  emit_stage_body(e, i);
+  e->out = out;
+  e->ctx->open_file = NULL;
+  fclose(mem);
+  e->ctx->pending_free = body;
+  const char *file = s->loc.file ? s->loc.file->name : "?";
+  if (s->introduced)
+    fprintf(out, "/* %s: introduced for %s, from %s:%d; class %s, m = %ld\n   %s */\n", s->name,
+            s->introduced_for->name, file, s->loc.line, rc->label, rc->m, emit_source_line(e->ctx, s->loc));
+  else
+    fprintf(out, "/* %s: %s, %s:%d; class %s, m = %ld\n   %s */\n", s->name, stage_kind_name[rs->st->kind], file,
+            s->loc.line, rc->label, rc->m, emit_source_line(e->ctx, s->loc));
+  fprintf(out, "static int %s(const NpgReducedCtx *c) {\n", fname);
+  fprintf(out, "  double *const y = c->x[%d]; /* %s */\n", rs->q, s->name);
+  for (int q = 0; q < m->nq; q++)
+    if (e->use_q[q]) fprintf(out, "  const double *const %s = c->x[%d];\n", qvar(e, q), q);
+  if (e->use_v) fprintf(out, "  double *const v = c->work + %ld; /* a term */\n", e->off_v);
+  if (e->use_w) fprintf(out, "  double *const w = c->work + %ld;\n", e->off_w);
+  if (e->use_acc) fprintf(out, "  double *const acc = c->work + %ld; /* a diagonal operator, packed */\n", e->off_acc);
+  if (e->use_M) fprintf(out, "  double *const M = c->work + %ld; /* an operator, %ld x %ld */\n", e->off_M, rc->m, rc->m);
+  fwrite(body, 1, len, out);
+  fputs("}\n\n", out);
+  e->ctx->pending_free = NULL;
+  free(body);
+}
+
+static void emit_unit(RedEmit *e) {
+  const Model *m = e->m;
+  FILE *out = e->out;
+  fprintf(out, "/* Reduced evaluator of %s, generated by npgc: one trained model (%ld samples,\n"
+               "   program hash %016llx), every size a literal.\n",
+          m->prog->main->name, m->samples, (unsigned long long)m->program_hash);
+  for (int c = 0; c < m->nclasses; c++)
+    fprintf(out, "     class %-24s n = %-8ld m = %ld\n", m->classes[c].label, m->classes[c].n, m->classes[c].m);
+  fputs("*/\n\n", out);
+  fputs(npg_abi_header, out);
+  fputs("\n/* What the host passes (npg_abi.h, NpgReducedCtx): c->x[q] the coordinates of\n"
+        "   quantity q, c->t[k] tensor k (rows x cols, row-major):\n",
+        out);
+  for (long k = 0; k < e->nslots; k++) {
+    const Slot *s = &e->slots[k];
+    fprintf(out, "     %4ld  %-28s %ld x %ld\n", k,
+            s->t ? s->t->name : arena_printf(e->ctx, "%s", s->proj_of->proj_name ? s->proj_of->proj_name : "proj"),
+            s->rows, s->cols);
+  }
+  fputs("   and c->work npg_reduced_work doubles of scratch. */\n", out);
+  fprintf(out, "const npg_idx npg_reduced_coords[] = {%d", m->nq);
+  for (int q = 0; q < m->nq; q++) fprintf(out, ", %ld", qm(m, q));
+  fputs("};\n", out);
+  fprintf(out, "const npg_idx npg_reduced_tensors[] = {%ld", e->nslots);
+  for (long k = 0; k < e->nslots; k++) fprintf(out, ", %ld", e->slots[k].rows * e->slots[k].cols);
+  fputs("};\n", out);
+  fprintf(out, "const npg_idx npg_reduced_work = %ld;\n\n", e->nwork);
+
+  const char **fname = arena_alloc(e->ctx, sizeof(char *) * (size_t)(m->nstages + 1));
+  for (int i = 0; i < m->nstages; i++) {
+    if (m->stages[i].st->kind == ST_EXTERN) continue;
+    fname[i] = c_ident(e->ctx, "stage_", m->stages[i].st->sym->name);
+    emit_stage(e, i, fname[i]);
+  }
+  fputs("/* Every stage in evaluation order; externs through their learned maps. */\n"
+        "int npg_reduced(const NpgReducedCtx *c) {\n",
+        out);
+  for (int i = 0; i < m->nstages; i++) {
+    if (fname[i]) fprintf(out, "  if (%s(c)) return -1;\n", fname[i]);
+    else fprintf(out, "  if (c->rt->learned(c, %d)) return -1; /* extern %s */\n", i, m->stages[i].st->sym->name);
+  }
+  fputs("  return 0;\n}\n\n", out);
+  fputs("/* Stage number i alone (the model's order), from the current coordinates. */\n"
+        "int npg_reduced_stage(const NpgReducedCtx *c, int i) {\n"
+        "  switch (i) {\n",
+        out);
+  for (int i = 0; i < m->nstages; i++) {
+    if (fname[i]) fprintf(out, "  case %d: return %s(c);\n", i, fname[i]);
+    else fprintf(out, "  case %d: return c->rt->learned(c, %d);\n", i, i);
+  }
+  fputs("  default: return -1;\n  }\n}\n", out);
+}
+
+/* The arena may jump out on allocation failure: catch it here (as
+ * npg_emit_full does), since emit_reduced runs outside npg_compile. */
+static int guarded_unit(RedEmit *e, char *err, size_t errlen) {
+  Ctx *ctx = e->ctx;
+  jmp_buf env, *saved = ctx->on_error;
+  ctx->on_error = &env;
+  int rc = 0;
+  if (setjmp(env) == 0) {
+    emit_unit(e);
+  } else {
+    snprintf(err, errlen, "%s", ctx->msg ? ctx->msg : "error: generating the reduced evaluator failed");
+    if (ctx->open_file) fclose(ctx->open_file);
+    ctx->open_file = NULL;
+    rc = -1;
+  }
+  ctx->on_error = saved;
+  free(ctx->pending_free);
+  ctx->pending_free = NULL;
+  return rc;
+}
+
+int emit_reduced(const Model *m, FILE *out, char *err, size_t errlen) {
+  RedEmit e = {0};
+  e.m = m;
+  e.ctx = m->prog->ctx;
+  e.out = out;
+  e.nslots = model_slots(m, NULL);
+  e.slots = calloc((size_t)e.nslots + 1, sizeof *e.slots);
+  e.use_q = calloc((size_t)m->nq + 1, sizeof *e.use_q);
+  int rc = -1;
+  if (!e.slots || !e.use_q) {
+    snprintf(err, errlen, "out of memory while generating the reduced evaluator");
+  } else {
+    model_slots(m, e.slots);
+    plan_work(&e);
+    rc = guarded_unit(&e, err, errlen);
+    if (rc == 0 && ferror(out)) {
+      snprintf(err, errlen, "cannot write the reduced evaluator");
+      rc = -1;
+    }
+  }
+  free(e.slots);
+  free(e.use_q);
+  return rc;
+}
+
+/* ---------------------------------------------------------------- the host */
+
+struct RedJit {
+  const Model *m;
+  JitModule *jit;
+  NpgReducedFn fn;
+  NpgReducedStageFn stage_fn;
+  long nslots;
+  const double **t;         /* NpgReducedCtx.t */
+  double **x;               /* NpgReducedCtx.x, from the Reduced of each call */
+  double *work;
+  Reduced *r;               /* the Reduced of the current call */
+  char error[1024];
+};
+
+const char *reduced_jit_error(const RedJit *j) { return j ? j->error : "no reduced evaluator"; }
+
+static int host_op_power(const NpgReducedCtx *c, int stage, int term, int op, npg_idx m, double *M, long p, long q,
+                         double *v) {
+  RedJit *j = c->host;
+  (void)m;
+  return reduced_apply_power(j->r, stage, term, op, p, q, M, v, c->sample);
+}
+
+static int host_learned(const NpgReducedCtx *c, int stage) {
+  RedJit *j = c->host;
+  if (stage < 0 || stage >= j->m->nstages || j->m->stages[stage].st->kind != ST_EXTERN) return -1;
+  return reduced_eval_stage(j->r, stage, c->sample);
+}
+
+static const NpgReducedRt host_rt = {host_op_power, host_learned};
+
+void reduced_jit_free(RedJit *j) {
+  if (!j) return;
+  jit_free(j->jit);
+  free(j->t);
+  free(j->x);
+  free(j->work);
+  free(j);
+}
+
+/* The generated code's stated layout (npg_reduced_coords, _tensors) is the
+ * model's: it was generated for this model. */
+static bool layout_matches(RedJit *j, const Slot *slots) {
+  const npg_idx *coords = jit_symbol(j->jit, "npg_reduced_coords");
+  const npg_idx *tensors = jit_symbol(j->jit, "npg_reduced_tensors");
+  if (!coords || !tensors || coords[0] != j->m->nq || tensors[0] != j->nslots) return false;
+  for (int q = 0; q < j->m->nq; q++)
+    if (coords[1 + q] != qm(j->m, q)) return false;
+  for (long k = 0; k < j->nslots; k++)
+    if (tensors[1 + k] != slots[k].rows * slots[k].cols) return false;
+  return true;
+}
+
+RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
+  RedJit *j = calloc(1, sizeof *j);
+  char *src = NULL;
+  size_t len = 0;
+  Slot *slots = NULL;
+  if (!j) goto oom;
+  j->m = m;
+  FILE *mem = open_memstream(&src, &len);
+  if (!mem) goto oom;
+  int rc = emit_reduced(m, mem, err, errlen);
+  fclose(mem);
+  if (rc != 0) goto fail;
+  j->jit = jit_compile(src, cc, err, errlen);
+  free(src);
+  src = NULL;
+  if (!j->jit) goto fail;
+  j->fn = (NpgReducedFn)jit_symbol(j->jit, "npg_reduced");
+  j->stage_fn = (NpgReducedStageFn)jit_symbol(j->jit, "npg_reduced_stage");
+  const npg_idx *nwork = jit_symbol(j->jit, "npg_reduced_work");
+  j->nslots = model_slots(m, NULL);
+  slots = calloc((size_t)j->nslots + 1, sizeof *slots);
+  j->t = calloc((size_t)j->nslots + 1, sizeof *j->t);
+  j->x = calloc((size_t)m->nq + 1, sizeof *j->x);
+  if (!slots || !j->t || !j->x) goto oom;
+  model_slots(m, slots);
+  if (!j->fn || !j->stage_fn || !nwork || !layout_matches(j, slots)) {
+    snprintf(err, errlen, "generated reduced code lacks its entry points or disagrees with the model (a bug in npg)");
+    goto fail;
+  }
+  for (long k = 0; k < j->nslots; k++) {
+    if (!slots[k].data) {
+      snprintf(err, errlen, "reduced tensor %s has no data: the model is not trained",
+               slots[k].t ? slots[k].t->name : "(projection)");
+      goto fail;
+    }
+    j->t[k] = slots[k].data;
+  }
+  if (!(j->work = calloc((size_t)*nwork + 1, sizeof(double)))) goto oom;
+  free(slots);
+  return j;
+oom:
+  snprintf(err, errlen, "out of memory for the generated reduced evaluator");
+fail:
+  free(src);
+  free(slots);
+  reduced_jit_free(j);
+  return NULL;
+}
+
+/* Run stage `stage` (all of them when -1) of the generated code on the
+ * coordinates of `r`. */
+static int run(RedJit *j, Reduced *r, int stage, long sample) {
+  j->error[0] = 0;
+  if (reduced_model(r) != j->m) {
+    snprintf(j->error, sizeof j->error, "the reduced coordinates belong to another model than the generated code's");
+    return -1;
+  }
+  if (stage < -1 || stage >= j->m->nstages) {
+    snprintf(j->error, sizeof j->error, "no stage number %d: the model has %d", stage, j->m->nstages);
+    return -1;
+  }
+  for (int q = 0; q < j->m->nq; q++) j->x[q] = reduced_coords(r, q);
+  j->r = r;
+  NpgReducedCtx c = {j->x, j->t, j->work, &host_rt, sample, j};
+  int rc = stage < 0 ? j->fn(&c) : j->stage_fn(&c, stage);
+  j->r = NULL;
+  if (rc != 0) {
+    snprintf(j->error, sizeof j->error, "%s", reduced_error(r)[0] ? reduced_error(r) : "generated reduced code failed");
+    return -1;
+  }
+  return 0;
+}
+
+int reduced_jit_eval(RedJit *j, Reduced *r, long sample) { return run(j, r, -1, sample); }
+
+int reduced_jit_eval_stage(RedJit *j, Reduced *r, int stage, long sample) { return run(j, r, stage, sample); }
