@@ -14,72 +14,13 @@
 
 #include "emit.h"
 #include "reduce.h"
+#include "support/memsamples.h"
 #include "support/randdata.h"
 #include "testutil.h"
 
 /* ---------------------------------------------------------------- random samples in memory (as test_reduce.c) */
 
-typedef struct MemSamples {
-  int n;
-  const Sym *sym[64];
-  int nd[64];
-  long shape[64][MAX_AXES + MAX_STATIC];
-  size_t count[64];
-  double *val[64]; /* samples x count */
-} MemSamples;
 
-static size_t sym_count(const Sym *s, long n, long *shape) {
-  size_t c = 1;
-  for (int a = 0; a < s->ndims; a++) shape[a] = n, c *= (size_t)n;
-  for (int a = 0; a < s->nstatic; a++) shape[s->ndims + a] = s->shape[a], c *= (size_t)s->shape[a];
-  return c;
-}
-
-/* Params into `f` (when non-NULL); S samples of every input and extern. */
-static void mem_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, long S, unsigned seed) {
-  memset(ms, 0, sizeof *ms);
-  for (int i = 0; i < prog->params.n && f; i++) {
-    const Sym *s = prog->params.v[i];
-    long shape[MAX_AXES + MAX_STATIC];
-    size_t c = sym_count(s, n, shape);
-    double *v = malloc(sizeof(double) * c);
-    rand_fill(prog, s, n, &seed, false, v, c);
-    if (npg_full_set_param(f, s->name, s->ndims + s->nstatic, shape, v, s->name)) fail_msg("%s", npg_full_error(f));
-    free(v);
-  }
-  for (int i = 0; i < prog->quantities.n; i++) {
-    const Sym *s = prog->quantities.v[i];
-    if (s->kind != SYM_INPUT && s->kind != SYM_EXTERN) continue;
-    int k = ms->n++;
-    ms->sym[k] = s;
-    ms->nd[k] = s->ndims + s->nstatic;
-    ms->count[k] = sym_count(s, n, ms->shape[k]);
-    ms->val[k] = malloc(sizeof(double) * ms->count[k] * (size_t)S);
-    for (long j = 0; j < S; j++) rand_fill(prog, s, n, &seed, false, ms->val[k] + (size_t)j * ms->count[k], ms->count[k]);
-  }
-}
-
-static int mem_set(void *user, NpgFull *f, long k) {
-  MemSamples *ms = user;
-  for (int i = 0; i < ms->n; i++)
-    if (npg_full_set(f, ms->sym[i]->name, ms->nd[i], ms->shape[i], ms->val[i] + (size_t)k * ms->count[i],
-                     ms->sym[i]->name))
-      return -1;
-  return 0;
-}
-
-static void mem_free(MemSamples *ms) {
-  for (int i = 0; i < ms->n; i++) free(ms->val[i]);
-}
-
-static double rel_max(const double *a, const double *b, size_t n) {
-  double d = 0, s = 0;
-  for (size_t i = 0; i < n; i++) {
-    d = fmax(d, fabs(a[i] - b[i]));
-    s = fmax(s, fabs(b[i]));
-  }
-  return s > 0 ? d / s : d;
-}
 
 /* ---------------------------------------------------------------- a trained model */
 
@@ -98,7 +39,7 @@ static void train(Trained *tr, const char *path, const char *text, long n, long 
   tr->p = text ? compile_text(path, text) : compile_file(path);
   tr->prog = ir_ok(tr->p);
   tr->f = npg_full_new(tr->p, NPG_TCC);
-  mem_fill(&tr->train, tr->prog, tr->f, n, S, 5u);
+  if (mem_fill(&tr->train, tr->prog, tr->f, n, S, 5u)) fail_msg("binding random params failed");
   SampleSource src = {S, &tr->train, mem_set};
   TrainOptions opt = {0};
   opt.cap = cap;
@@ -194,7 +135,7 @@ static int generated_text(const char *path, const char *text, Stats *st) {
   for (int j = 0; j < 2; j++)
     if (!(jit[j] = reduced_jit_new(m, j == 1, err, sizeof err))) fail_msg("%s: %s", path, err);
   MemSamples held;
-  mem_fill(&held, prog, NULL, st->n, 3, 977u);
+  if (mem_fill(&held, prog, NULL, st->n, 3, 977u)) fail_msg("binding random params failed");
   for (long k = 0; k < 3; k++) {
     project_inputs(prog, &held, k, r, 3);
     int rc0 = reduced_eval(r[0], k);
@@ -213,7 +154,7 @@ static int generated_text(const char *path, const char *text, Stats *st) {
       for (int i = 0; i < m->nstages; i++) {
         int q = m->stages[i].q;
         long mq = m->classes[m->qclass[q]].m;
-        double d = rel_max(reduced_coords(r[j + 1], q), reduced_coords(r[0], q), (size_t)mq);
+        double d = rel_diff(reduced_coords(r[0], q), reduced_coords(r[j + 1], q), (size_t)mq);
         st->worst_chain = fmax(st->worst_chain, d);
         if (!(d <= st->chain_tol)) {
           print_message("%s (%s), sample %ld: stage %s differs end to end from the runtime by %.3g\n", path, be, k,
@@ -230,7 +171,7 @@ static int generated_text(const char *path, const char *text, Stats *st) {
         long mq = m->classes[m->qclass[q]].m;
         memset(reduced_coords(r[j + 1], q), 0, sizeof(double) * (size_t)mq);
         if (reduced_jit_eval_stage(jit[j], r[j + 1], i, k)) fail_msg("%s: %s", path, reduced_jit_error(jit[j]));
-        double d = rel_max(reduced_coords(r[j + 1], q), reduced_coords(r[0], q), (size_t)mq);
+        double d = rel_diff(reduced_coords(r[0], q), reduced_coords(r[j + 1], q), (size_t)mq);
         st->worst = fmax(st->worst, d);
         st->stages++;
         if (!(d <= 1e-12)) {

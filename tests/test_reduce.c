@@ -18,86 +18,23 @@
 #include "meshgen.h"
 #include "model_store.h"
 #include "reduce.h"
+#include "support/memsamples.h"
 #include "support/randdata.h"
 #include "support/refeval.h"
 #include "testutil.h"
 
 /* ---------------------------------------------------------------- random samples in memory */
 
-typedef struct MemSamples {
-  const Program *prog;
-  int n;
-  const Sym *sym[64];
-  int nd[64];
-  long shape[64][MAX_AXES + MAX_STATIC];
-  size_t count[64];
-  double *val[64];   /* samples x count */
-  long S;
-} MemSamples;
-
-static size_t sym_count(const Sym *s, long n, long *shape) {
-  size_t c = 1;
-  for (int a = 0; a < s->ndims; a++) shape[a] = n, c *= (size_t)n;
-  for (int a = 0; a < s->nstatic; a++) shape[s->ndims + a] = s->shape[a], c *= (size_t)s->shape[a];
-  return c;
-}
-
-/* Params into `f`; S samples of every input and extern. */
-static void mem_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, long S, unsigned seed) {
-  memset(ms, 0, sizeof *ms);
-  ms->prog = prog;
-  ms->S = S;
-  for (int i = 0; i < prog->params.n; i++) {
-    const Sym *s = prog->params.v[i];
-    long shape[MAX_AXES + MAX_STATIC];
-    size_t c = sym_count(s, n, shape);
-    double *v = malloc(sizeof(double) * c);
-    rand_fill(prog, s, n, &seed, false, v, c);
-    if (npg_full_set_param(f, s->name, s->ndims + s->nstatic, shape, v, s->name)) fail_msg("%s", npg_full_error(f));
-    free(v);
-  }
-  for (int i = 0; i < prog->quantities.n; i++) {
-    const Sym *s = prog->quantities.v[i];
-    if (s->kind != SYM_INPUT && s->kind != SYM_EXTERN) continue;
-    int k = ms->n++;
-    ms->sym[k] = s;
-    ms->nd[k] = s->ndims + s->nstatic;
-    ms->count[k] = sym_count(s, n, ms->shape[k]);
-    ms->val[k] = malloc(sizeof(double) * ms->count[k] * (size_t)S);
-    for (long j = 0; j < S; j++) rand_fill(prog, s, n, &seed, false, ms->val[k] + (size_t)j * ms->count[k], ms->count[k]);
-  }
-}
-
-static int mem_set(void *user, NpgFull *f, long k) {
-  MemSamples *ms = user;
-  for (int i = 0; i < ms->n; i++)
-    if (npg_full_set(f, ms->sym[i]->name, ms->nd[i], ms->shape[i], ms->val[i] + (size_t)k * ms->count[i],
-                     ms->sym[i]->name))
-      return -1;
-  return 0;
-}
-
-static void mem_free(MemSamples *ms) {
-  for (int i = 0; i < ms->n; i++) free(ms->val[i]);
-}
 
 static long largest_class(const Program *prog, long n) {
   long best = 1, shape[MAX_AXES + MAX_STATIC];
   for (int i = 0; i < prog->quantities.n; i++) {
-    size_t c = sym_count(prog->quantities.v[i], n, shape);
+    size_t c = mem_count(prog->quantities.v[i], n, shape);
     best = (long)c > best ? (long)c : best;
   }
   return best;
 }
 
-static double rel_max(const double *a, const double *b, size_t n) {
-  double d = 0, s = 0;
-  for (size_t i = 0; i < n; i++) {
-    d = fmax(d, fabs(a[i] - b[i]));
-    s = fmax(s, fabs(b[i]));
-  }
-  return s > 0 ? d / s : d;
-}
 
 /* ---------------------------------------------------------------- full rank */
 
@@ -109,8 +46,8 @@ static int full_rank_program(const char *path, void *worstp) {
   long S = largest_class(prog, n) + 4;
   if (S > 400) print_message("%s: largest class %ld entries\n", path, S - 4);
   NpgFull *f = npg_full_new(p, NPG_TCC);
-  MemSamples train, test;
-  mem_fill(&train, prog, f, n, S, 11u);
+  MemSamples train;
+  if (mem_fill(&train, prog, f, n, S, 11u)) fail_msg("binding random params failed");
   SampleSource src = {S, &train, mem_set};
   TrainOptions opt = {0};
   opt.cap = 1 << 20;
@@ -145,7 +82,7 @@ static int full_rank_program(const char *path, void *worstp) {
       const double *full = npg_full_get(f, s->name, &cnt);
       double *y = malloc(sizeof(double) * cnt);
       reduced_lift(r, q, y);
-      double d = rel_max(y, full, cnt);
+      double d = rel_diff(full, y, cnt);
       *worst = fmax(*worst, d);
       if (!(d <= 1e-10)) {
         print_message("%s: %s: full-rank reduced differs from full by %.3g\n", path, s->name, d);
@@ -154,7 +91,6 @@ static int full_rank_program(const char *path, void *worstp) {
       free(y);
     }
   }
-  (void)test;
   mem_free(&held);
   mem_free(&train);
   reduced_free(r);
@@ -282,7 +218,7 @@ static double brute_premul(const Model *m, NpgFull *f, const RTensor *t, const R
     }
   }
   (void)owner;
-  double diff = rel_max(t->data, packed, (size_t)(t->rows * t->cols));
+  double diff = rel_diff(packed, t->data, (size_t)(t->rows * t->cols));
   free(packed);
   free(d.q);
   return diff;
@@ -303,7 +239,7 @@ static void train_small(Trained *tr, const char *path, int cap, long n) {
   tr->p = compile_file(path);
   tr->prog = ir_ok(tr->p);
   tr->f = npg_full_new(tr->p, NPG_TCC);
-  mem_fill(&tr->train, tr->prog, tr->f, n, 12, 5u);
+  if (mem_fill(&tr->train, tr->prog, tr->f, n, 12, 5u)) fail_msg("binding random params failed");
   SampleSource src = {12, &tr->train, mem_set};
   TrainOptions opt = {0};
   opt.cap = cap;
@@ -460,7 +396,7 @@ static int stages_program(const char *path, void *arg) {
       for (long a = 0; a < my; a++) yhat[a] += v[a];
     }
     if (reduced_eval_stage(r, i, 0)) fail_msg("%s: %s", path, reduced_error(r));
-    double d = rel_max(reduced_coords(r, rs->q), yhat, (size_t)my);
+    double d = rel_diff(yhat, reduced_coords(r, rs->q), (size_t)my);
     *worst = fmax(*worst, d);
     if (!(d <= 1e-12)) {
       print_message("%s: stage %s: reduced differs from the dense formula by %.3g\n", path, rs->st->sym->name, d);
@@ -655,8 +591,8 @@ static void error_falls_with_caps(void **state) {
   prog = ir_ok(p);
   f = npg_full_new(p, NPG_TCC);
   MemSamples rtrain, rtest;
-  mem_fill(&rtrain, prog, f, 2, 40, 3u);
-  mem_fill(&rtest, prog, f, 2, 20, 4u);
+  if (mem_fill(&rtrain, prog, f, 2, 40, 3u)) fail_msg("binding random params failed");
+  if (mem_fill(&rtest, prog, f, 2, 20, 4u)) fail_msg("binding random params failed");
   for (int c = 0; c < 2; c++) {
     SampleSource src = {rtrain.S, &rtrain, mem_set};
     TrainOptions opt = {0};
