@@ -208,6 +208,18 @@ static Val combine(Cse *c, ValOp op, int a, int b, int k) {
 }
 
 int cse_op(Cse *c, ValOp op, int a, int b, int k) {
+  /* Exact identities only, in IEEE arithmetic with signed zeros: operands
+   * of + * == != commute; (q - p)^2 is (p - q)^2 (p - q is -(q - p), or
+   * +0 for both when p == q). Sharing then sees through the order in which
+   * the source wrote them: dist2(c_i, c_j) read transposed is dist2(c_i, c_j). */
+  if ((op == VAL_ADD || op == VAL_MUL || op == VAL_EQ || op == VAL_NE) && a > b) {
+    int t = a;
+    a = b, b = t;
+  }
+  if (op == VAL_MUL && a == b && c->v[a].op == VAL_SUB && c->v[a].a > c->v[a].b) {
+    const Val *d = &c->v[a];
+    a = b = cse_op(c, VAL_SUB, d->b, d->a, -1);
+  }
   /* integer index arithmetic: fold constants and units */
   if (op == VAL_ADD || op == VAL_MUL) {
     bool ints = c->v[a].is_int && c->v[b].is_int;
