@@ -253,6 +253,8 @@ void cse_hint(Cse *c, int v, const char *name) {
 
 bool cse_is_int(const Cse *c, int v) { return c->v[v].is_int; }
 
+int cse_nloops(const Cse *c) { return c->nloops; }
+
 void cse_root(Cse *c, int v) {
   if (c->nroots == c->rcap) {
     int cap = c->rcap ? 2 * c->rcap : 16;

@@ -28,6 +28,7 @@ typedef struct Emit {
   int **fused_val;
   int *loopvar;
   struct Cse *cse;       /* the values of the loop nest being built */
+  PtrVec soa;            /* Soa* (emit_direct.c): quantities the innermost loop reads per component */
   bool *writes;          /* per slot: the function writes it */
 } Emit;
 
@@ -122,6 +123,7 @@ int cse_op(Cse *c, ValOp op, int a, int b, int k);
 int cse_call(Cse *c, const char *fn, int a, int b);
 int cse_sum(Cse *c, int var, int lo, int hi, int body);
 bool cse_is_int(const Cse *c, int v);
+int cse_nloops(const Cse *c);
 /* Name v's local `name` (when it gets one and the name is free). */
 void cse_hint(Cse *c, int v, const char *name);
 void cse_root(Cse *c, int v);

@@ -63,11 +63,30 @@ static long const_value(Emit *e, const Node *n, const DEnv *env) {
   }
 }
 
+/* A quantity over one dim with static axes (small vectors per face, per
+ * vertex), read in the innermost loop of a nest at that loop's entry. Its
+ * components are copied once per call into one array each, so the loop
+ * reads them with unit stride, and vectorizes without shuffles. */
+typedef struct Soa {
+  const Sym *q;
+  bool *used;         /* per flat component: read, so its array is named */
+} Soa;
+
+static const char *soa_name(Emit *e, const Sym *q, int flat) {
+  return arena_printf(e->ctx, "S_%s_%d", emit_name(e, q) + 2, flat);
+}
+
 /* The value of an index or summation variable. */
 static int var_value(Emit *e, const Sym *s, const DEnv *env) {
   const DEnv *d = lookup(env, s);
   iassert(e->ctx, d);
   return d->is_const ? cse_num(e->cse, (double)d->value, true) : d->val;
+}
+
+static int ncomp_of_sym(const Sym *q) {
+  int c = 1;
+  for (int i = 0; i < q->nstatic; i++) c *= q->shape[i];
+  return c;
 }
 
 /* Entry of param or quantity q indexed by args (dim axes, some static
@@ -122,8 +141,23 @@ static int entry(Emit *e, const Sym *q, Node *const *args, int nargs, int comp, 
     e->direct_for = saved;
     return v;
   }
-  /* the flat offset ((i0 * D1 + i1) * S0 + c0) ... */
   emit_use(e, q);
+  int nl = cse_nloops(cs);
+  if (nl >= 2 && q->ndims == 1 && q->nstatic && !q->is_int && idx[0] == e->loopvar[nl - 1] &&
+      cse_in_range(cs, idx[0], q->dims[0])) {
+    Soa *so = NULL;
+    for (int i = 0; i < e->soa.n && !so; i++)
+      if (((Soa *)e->soa.v[i])->q == q) so = e->soa.v[i];
+    if (!so) {
+      so = arena_alloc(e->ctx, sizeof *so);
+      so->q = q;
+      so->used = arena_alloc(e->ctx, sizeof(bool) * (size_t)ncomp_of_sym(q));
+      vec_push(e->ctx, &e->soa, so);
+    }
+    so->used[flat] = true;
+    return cse_load(cs, soa_name(e, q, flat), false, idx[0], true);
+  }
+  /* the flat offset ((i0 * D1 + i1) * S0 + c0) ... */
   int off = -1;
   for (int i = 0; i < naxes; i++) {
     int x = i < q->ndims ? idx[i] : cse_num(cs, (double)sidx[i - q->ndims], true);
@@ -335,6 +369,42 @@ bool emit_fusable(const Stage *const *members, int n, const Stage *cand) {
   return reads_ok(members, n, cand->sym->body, cand->sym, true, 0);
 }
 
+/* The component arrays of e->soa, in one scratch block `soa_` (released
+ * by the caller when this returns true). */
+static bool emit_soa_copies(Emit *e, FILE *out) {
+  if (!e->soa.n) return false;
+  fputs("  /*", out);
+  for (int i = 0; i < e->soa.n; i++) fprintf(out, "%s %s", i ? "," : "", ((Soa *)e->soa.v[i])->q->name);
+  fputs(": one array per component, read with unit stride by the innermost loop */\n", out);
+  fputs("  double *const soa_ = c->rt->scratch(c, ", out);
+  for (int i = 0; i < e->soa.n; i++) {
+    const Sym *q = ((Soa *)e->soa.v[i])->q;
+    emit_use(e, q->dims[0]);
+    fprintf(out, "%s%s * %d", i ? " + " : "", emit_name(e, q->dims[0]), ncomp_of_sym(q));
+  }
+  fputs(");\n  if (!soa_) return -1;\n", out);
+  for (int i = 0; i < e->soa.n; i++) {
+    const Soa *so = e->soa.v[i];
+    const Sym *q = so->q;
+    const char *base = emit_name(e, q) + 2, *dim = emit_name(e, q->dims[0]);
+    int nc = ncomp_of_sym(q);
+    fprintf(out, "  double *const S_%s = soa_", base);
+    for (int k = 0; k < i; k++) {
+      const Sym *p = ((Soa *)e->soa.v[k])->q;
+      fprintf(out, " + %s * %d", emit_name(e, p->dims[0]), ncomp_of_sym(p));
+    }
+    fputs(";\n", out);
+    fprintf(out, "  for (npg_idx k_ = 0; k_ < %s; k_++)\n", dim);
+    fprintf(out, "    for (npg_idx c_ = 0; c_ < %d; c_++) S_%s[c_ * %s + k_] = %s[k_ * %d + c_];\n", nc, base, dim,
+            emit_name(e, q), nc);
+    for (int f = 0; f < nc; f++)
+      if (so->used[f])
+        fprintf(out, "  const double *restrict const %s = S_%s + %s%s%d;\n", soa_name(e, q, f), base, f ? dim : "",
+                f ? " * " : "", f);
+  }
+  return true;
+}
+
 /* The values of members[0..n) at the current entry of their common
  * domain, each member's components stored at e_; a read of a member at this
  * entry is its value, at another entry its expression again. */
@@ -381,6 +451,7 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
   e->fuse = NULL;
   e->direct_for = NULL;
   cse_plan(cs);
+  bool scratch = emit_soa_copies(e, out);
   cse_emit_level(cs, out, 0, 1);
   for (int i = 0; i < nl; i++) {
     const char *v = names[i];
@@ -415,5 +486,7 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
     indent(out, i);
     fputs("}\n", out);
   }
+  if (scratch) fputs("  c->rt->release(c, soa_);\n", out);
   e->cse = NULL;
+  e->soa.n = 0;
 }
