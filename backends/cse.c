@@ -255,6 +255,12 @@ bool cse_is_int(const Cse *c, int v) { return c->v[v].is_int; }
 
 int cse_nloops(const Cse *c) { return c->nloops; }
 
+bool cse_reads(const Cse *c, const char *array) {
+  for (int i = 0; i < c->n; i++)
+    if (c->v[i].reached && c->v[i].op == VAL_LOAD && strcmp(c->v[i].text, array) == 0) return true;
+  return false;
+}
+
 void cse_root(Cse *c, int v) {
   if (c->nroots == c->rcap) {
     int cap = c->rcap ? 2 * c->rcap : 16;

@@ -28,7 +28,7 @@ typedef struct Emit {
   int **fused_val;
   int *loopvar;
   struct Cse *cse;       /* the values of the loop nest being built */
-  PtrVec soa;            /* Soa* (emit_direct.c): quantities the innermost loop reads per component */
+  PtrVec soa;            /* Sym*: quantities the innermost loop reads from a copy per component */
   bool *writes;          /* per slot: the function writes it */
 } Emit;
 
@@ -128,6 +128,8 @@ int cse_nloops(const Cse *c);
 void cse_hint(Cse *c, int v, const char *name);
 void cse_root(Cse *c, int v);
 void cse_plan(Cse *c);
+/* After planning: is `array` read by what the nest stores? */
+bool cse_reads(const Cse *c, const char *array);
 void cse_emit_level(Cse *c, FILE *out, int level, int depth);
 void cse_emit_deps(Cse *c, FILE *out, int v, int depth);
 void cse_print(Cse *c, FILE *out, int v);

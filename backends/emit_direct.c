@@ -64,14 +64,9 @@ static long const_value(Emit *e, const Node *n, const DEnv *env) {
 }
 
 /* A quantity over one dim with static axes (small vectors per face, per
- * vertex), read in the innermost loop of a nest at that loop's entry. Its
- * components are copied once per call into one array each, so the loop
- * reads them with unit stride, and vectorizes without shuffles. */
-typedef struct Soa {
-  const Sym *q;
-  bool *used;         /* per flat component: read, so its array is named */
-} Soa;
-
+ * vertex), read in the innermost loop of a nest at that loop's entry, is
+ * read from a copy with one array per component (e->soa): unit stride, so
+ * the loop vectorizes without shuffles. The copy is made once per call. */
 static const char *soa_name(Emit *e, const Sym *q, int flat) {
   return arena_printf(e->ctx, "S_%s_%d", emit_name(e, q) + 2, flat);
 }
@@ -145,16 +140,7 @@ static int entry(Emit *e, const Sym *q, Node *const *args, int nargs, int comp, 
   int nl = cse_nloops(cs);
   if (nl >= 2 && q->ndims == 1 && q->nstatic && !q->is_int && idx[0] == e->loopvar[nl - 1] &&
       cse_in_range(cs, idx[0], q->dims[0])) {
-    Soa *so = NULL;
-    for (int i = 0; i < e->soa.n && !so; i++)
-      if (((Soa *)e->soa.v[i])->q == q) so = e->soa.v[i];
-    if (!so) {
-      so = arena_alloc(e->ctx, sizeof *so);
-      so->q = q;
-      so->used = arena_alloc(e->ctx, sizeof(bool) * (size_t)ncomp_of_sym(q));
-      vec_push(e->ctx, &e->soa, so);
-    }
-    so->used[flat] = true;
+    if (emit_index_of(&e->soa, q) < 0) vec_push(e->ctx, &e->soa, (void *)q);
     return cse_load(cs, soa_name(e, q, flat), false, idx[0], true);
   }
   /* the flat offset ((i0 * D1 + i1) * S0 + c0) ... */
@@ -374,23 +360,22 @@ bool emit_fusable(const Stage *const *members, int n, const Stage *cand) {
 static bool emit_soa_copies(Emit *e, FILE *out) {
   if (!e->soa.n) return false;
   fputs("  /*", out);
-  for (int i = 0; i < e->soa.n; i++) fprintf(out, "%s %s", i ? "," : "", ((Soa *)e->soa.v[i])->q->name);
+  for (int i = 0; i < e->soa.n; i++) fprintf(out, "%s %s", i ? "," : "", ((Sym *)e->soa.v[i])->name);
   fputs(": one array per component, read with unit stride by the innermost loop */\n", out);
   fputs("  double *const soa_ = c->rt->scratch(c, ", out);
   for (int i = 0; i < e->soa.n; i++) {
-    const Sym *q = ((Soa *)e->soa.v[i])->q;
+    const Sym *q = e->soa.v[i];
     emit_use(e, q->dims[0]);
     fprintf(out, "%s%s * %d", i ? " + " : "", emit_name(e, q->dims[0]), ncomp_of_sym(q));
   }
   fputs(");\n  if (!soa_) return -1;\n", out);
   for (int i = 0; i < e->soa.n; i++) {
-    const Soa *so = e->soa.v[i];
-    const Sym *q = so->q;
+    const Sym *q = e->soa.v[i];
     const char *base = emit_name(e, q) + 2, *dim = emit_name(e, q->dims[0]);
     int nc = ncomp_of_sym(q);
     fprintf(out, "  double *const S_%s = soa_", base);
     for (int k = 0; k < i; k++) {
-      const Sym *p = ((Soa *)e->soa.v[k])->q;
+      const Sym *p = e->soa.v[k];
       fprintf(out, " + %s * %d", emit_name(e, p->dims[0]), ncomp_of_sym(p));
     }
     fputs(";\n", out);
@@ -398,7 +383,7 @@ static bool emit_soa_copies(Emit *e, FILE *out) {
     fprintf(out, "    for (npg_idx c_ = 0; c_ < %d; c_++) S_%s[c_ * %s + k_] = %s[k_ * %d + c_];\n", nc, base, dim,
             emit_name(e, q), nc);
     for (int f = 0; f < nc; f++)
-      if (so->used[f])
+      if (cse_reads(e->cse, soa_name(e, q, f)))
         fprintf(out, "  const double *restrict const %s = S_%s + %s%s%d;\n", soa_name(e, q, f), base, f ? dim : "",
                 f ? " * " : "", f);
   }
