@@ -68,7 +68,7 @@ static long const_value(Emit *e, const Node *n, const DEnv *env) {
  * read from a copy with one array per component (e->soa): unit stride, so
  * the loop vectorizes without shuffles. The copy is made once per call. */
 static const char *soa_name(Emit *e, const Sym *q, int flat) {
-  return arena_printf(e->ctx, "S_%s_%d", emit_name(e, q) + 2, flat);
+  return arena_printf(e->ctx, "S%d_%s", flat, emit_name(e, q) + 2);
 }
 
 /* The value of an index or summation variable. */
