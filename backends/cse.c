@@ -5,7 +5,9 @@
  * under libtcc, which does neither; and gcc sees plain loops it vectorizes.
  *
  * Sharing and hoisting never change a result: a value is computed by the
- * same operations in the same order, only fewer times. Two things are never
+ * same operations in the same order, only fewer times (two spellings are
+ * one value only by an identity exact in IEEE arithmetic, cse_op). Two
+ * things are never
  * moved out of the place they were written: a read that may fall outside its
  * array where a guard does not hold (`if` branches, DESIGN §3: the branch
  * not taken is never evaluated), and anything that reads the variable of a

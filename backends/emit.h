@@ -87,18 +87,18 @@ typedef enum ValOp {
   VAL_NEG,    /* -a */
   VAL_NOT,    /* !a */
   VAL_DOUBLE, /* (double)a */
-  VAL_ADD,    /* a + b, and so on */
-  VAL_SUB,
-  VAL_MUL,
-  VAL_DIV,    /* a / b in double */
-  VAL_EQ,
-  VAL_NE,
-  VAL_LT,
-  VAL_LE,
-  VAL_GT,
-  VAL_GE,
-  VAL_AND,
-  VAL_OR,
+  VAL_ADD,    /* a + b */
+  VAL_SUB,    /* a - b */
+  VAL_MUL,    /* a * b */
+  VAL_DIV,    /* a / b, in double */
+  VAL_EQ,     /* a == b */
+  VAL_NE,     /* a != b */
+  VAL_LT,     /* a < b */
+  VAL_LE,     /* a <= b */
+  VAL_GT,     /* a > b */
+  VAL_GE,     /* a >= b */
+  VAL_AND,    /* a && b */
+  VAL_OR,     /* a || b */
   VAL_SELECT, /* a ? b : c, only the branch taken evaluated */
   VAL_CALL,   /* a libm function of a (and b) */
   VAL_SUM,    /* the sum of c over a summation variable from a to b */
