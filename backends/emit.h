@@ -24,7 +24,7 @@ typedef struct Emit {
   /* a fused group being emitted: members[0..upto) are computed at the
    * current entry (values fused_val[m][comp]); loop variables loopvar[] */
   const Stage *const *fuse;
-  int nfuse, fuse_upto;
+  int fuse_upto;
   int **fused_val;
   int *loopvar;
   struct Cse *cse;       /* the values of the loop nest being built */
@@ -38,11 +38,10 @@ typedef struct Emit {
 const char *emit_name(Emit *e, const Sym *s);
 /* A coefficient, guard or index expression as C. */
 void emit_cexpr(Emit *e, FILE *out, const Node *n);
-/* The flat offset of q[idx...] as C (from nodes, or from C texts). */
-void emit_offset_texts(Emit *e, FILE *out, const Sym *q, char *const *idx);
 /* `for (npg_idx k = lo; k <= hi; k++)` of a summation variable, with an
  * opening brace when asked. */
 void emit_sum_loop(Emit *e, FILE *out, const SumVar *sv, int depth, bool brace);
+/* The flat offset of q[idx...] as C. */
 void emit_offset(Emit *e, FILE *out, const Sym *q, Node *const *idx, int nidx);
 /* A double literal that C reads back exactly. */
 void emit_double(FILE *out, double v);

@@ -410,7 +410,6 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
   }
   if (flat < 0) flat = cse_num(cs, 0, true);
   e->fuse = members;
-  e->nfuse = n;
   e->fused_val = arena_alloc(e->ctx, sizeof(int *) * (size_t)n);
   int **offset = arena_alloc(e->ctx, sizeof(int *) * (size_t)n);
   for (int m = 0; m < n; m++) {
