@@ -67,7 +67,7 @@ void emit_double(FILE *out, double v) {
   if (!strpbrk(buf, ".eEn")) fputs(".0", out);
 }
 
-void emit_offset_texts(Emit *e, FILE *out, const Sym *q, char *const *idx) {
+static void offset_texts(Emit *e, FILE *out, const Sym *q, char *const *idx) {
   int naxes = q->ndims + q->nstatic;
   if (naxes == 0) {
     fputc('0', out);
@@ -102,7 +102,7 @@ void emit_offset(Emit *e, FILE *out, const Sym *q, Node *const *idx, int nidx) {
     const void *arg[2] = {e, i < nidx ? idx[i] : NULL};
     texts[i] = i < nidx ? print_to_arena(e->ctx, cexpr_cb, arg) : "0";
   }
-  emit_offset_texts(e, out, q, texts);
+  offset_texts(e, out, q, texts);
 }
 
 void emit_sum_loop(Emit *e, FILE *out, const SumVar *sv, int depth, bool brace) {

@@ -8,6 +8,8 @@
 #ifndef NPG_EMIT_H
 #define NPG_EMIT_H
 
+#include <stdint.h>
+
 #include "ir.h"
 
 /* The emitter's state: output, names in use, what the current function
@@ -20,10 +22,13 @@ typedef struct Emit {
   int tmp;               /* counter for temporaries */
   const Sym *direct_for; /* definition whose whole references are being emitted */
   /* a fused group being emitted: members[0..upto) are computed at the
-   * current entry (locals l_<name>_<comp>), loop variables are loopvar[] */
+   * current entry (values fused_val[m][comp]); loop variables loopvar[] */
   const Stage *const *fuse;
-  int nfuse, fuse_upto;
-  const char **loopvar;
+  int fuse_upto;
+  int **fused_val;
+  int *loopvar;
+  struct Cse *cse;       /* the values of the loop nest being built */
+  PtrVec soa;            /* Sym*: quantities the innermost loop reads from a copy per component */
   bool *writes;          /* per slot: the function writes it */
 } Emit;
 
@@ -33,11 +38,10 @@ typedef struct Emit {
 const char *emit_name(Emit *e, const Sym *s);
 /* A coefficient, guard or index expression as C. */
 void emit_cexpr(Emit *e, FILE *out, const Node *n);
-/* The flat offset of q[idx...] as C (from nodes, or from C texts). */
-void emit_offset_texts(Emit *e, FILE *out, const Sym *q, char *const *idx);
 /* `for (npg_idx k = lo; k <= hi; k++)` of a summation variable, with an
  * opening brace when asked. */
 void emit_sum_loop(Emit *e, FILE *out, const SumVar *sv, int depth, bool brace);
+/* The flat offset of q[idx...] as C. */
 void emit_offset(Emit *e, FILE *out, const Sym *q, Node *const *idx, int nidx);
 /* A double literal that C reads back exactly. */
 void emit_double(FILE *out, double v);
@@ -69,7 +73,65 @@ bool emit_direct_ok(const Stage *st);
 bool emit_fusable(const Stage *const *members, int n, const Stage *cand);
 /* The fused loop of members[0..n): every member at every entry. */
 void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n);
-void emit_direct_entry(Emit *e, FILE *out, const Stage *st, int comp);
+/* backends/cse.c: the values of one loop nest of `nloops` loops, each
+ * distinct subexpression once, printed in the outermost loop whose
+ * variables it reads. Build values bottom-up (ids), mark what the loop body
+ * stores as roots, plan, then print: cse_emit_level at the top of each loop
+ * but the innermost, cse_emit_deps before each statement of the innermost,
+ * cse_print for the statement's expressions. */
+typedef enum ValOp {
+  VAL_NUM,    /* a literal */
+  VAL_LEAF,   /* a loop, summation or other variable, or a dim: C text */
+  VAL_LOAD,   /* array[a] */
+  VAL_NEG,    /* -a */
+  VAL_NOT,    /* !a */
+  VAL_DOUBLE, /* (double)a */
+  VAL_ADD,    /* a + b */
+  VAL_SUB,    /* a - b */
+  VAL_MUL,    /* a * b */
+  VAL_DIV,    /* a / b, in double */
+  VAL_EQ,     /* a == b */
+  VAL_NE,     /* a != b */
+  VAL_LT,     /* a < b */
+  VAL_LE,     /* a <= b */
+  VAL_GT,     /* a > b */
+  VAL_GE,     /* a >= b */
+  VAL_AND,    /* a && b */
+  VAL_OR,     /* a || b */
+  VAL_SELECT, /* a ? b : c, only the branch taken evaluated */
+  VAL_CALL,   /* a libm function of a (and b) */
+  VAL_SUM,    /* the sum of c over a summation variable from a to b */
+} ValOp;
+typedef struct Cse Cse;
+Cse *cse_new(Ctx *ctx, int nloops);
+int cse_num(Cse *c, double v, bool is_int);
+/* A variable read as `text`: a loop variable of loop `level` (1-based;
+ * 0 outside the nest) ranging over `range` (or NULL). */
+int cse_leaf(Cse *c, const char *text, bool is_int, int level, const Sym *range);
+/* The variable of a summation loop: whatever reads it stays in the loop. */
+int cse_sumvar(Cse *c, const char *text);
+/* Is v a variable that ranges over `dim` (an index into dim in range)? */
+bool cse_in_range(const Cse *c, int v, const Sym *dim);
+/* Values built between cse_guard(c, 1) and cse_guard(c, -1) are evaluated
+ * only where a guard holds (an if branch, a summation body). */
+void cse_guard(Cse *c, int delta);
+/* array[offset]; `in_range`: the offset is in range wherever the nest
+ * evaluates it (else only where its guards hold). */
+int cse_load(Cse *c, const char *array, bool is_int, int offset, bool in_range);
+int cse_op(Cse *c, ValOp op, int a, int b, int k);
+int cse_call(Cse *c, const char *fn, int a, int b);
+int cse_sum(Cse *c, int var, int lo, int hi, int body);
+bool cse_is_int(const Cse *c, int v);
+int cse_nloops(const Cse *c);
+/* Name v's local `name` (when it gets one and the name is free). */
+void cse_hint(Cse *c, int v, const char *name);
+void cse_root(Cse *c, int v);
+void cse_plan(Cse *c);
+/* After planning: is `array` read by what the nest stores? */
+bool cse_reads(const Cse *c, const char *array);
+void cse_emit_level(Cse *c, FILE *out, int level, int depth);
+void cse_emit_deps(Cse *c, FILE *out, int v, int depth);
+void cse_print(Cse *c, FILE *out, int v);
 /* backends/emit_builder.c */
 void emit_builders(Ctx *ctx, const Program *prog, FILE *out);
 /* The name of the builder function of tensor `group` of `field` (0 = the

@@ -4,8 +4,9 @@
  * The canonical form expands products into monomials (63 per pair for the
  * radiosity distances), which is what the tensors need but not how to
  * evaluate a stage quickly; the source expression keeps the user's
- * factorization (centroids, dot products), and the C compiler hoists and
- * shares its subexpressions as in hand-written code. Stages whose terms
+ * factorization (centroids, dot products). It is built as values of the
+ * loop nest (cse.c), so each subexpression is computed once and in the
+ * outermost loop it can be, as in hand-written code. Stages whose terms
  * apply declared operators keep the canonical path (emit_full.c).
  * test_builder checks the two against each other: the tensor form must
  * equal this direct evaluation. */
@@ -14,15 +15,19 @@
 
 #include "emit.h"
 
+static void indent(FILE *out, int depth) {
+  for (int i = 0; i < depth; i++) fputs("  ", out);
+}
+
 typedef struct DEnv {
   const Sym *var;
-  const char *c;        /* C text of its value */
+  int val;              /* its value (cse), when not constant */
   bool is_const;
   long value;           /* when is_const (unrolled sums) */
   const struct DEnv *next;
 } DEnv;
 
-static void direct(Emit *e, FILE *out, const Node *n, int comp, const DEnv *env);
+static int build(Emit *e, const Node *n, int comp, const DEnv *env);
 
 static const DEnv *lookup(const DEnv *env, const Sym *s) {
   for (; env; env = env->next)
@@ -30,28 +35,14 @@ static const DEnv *lookup(const DEnv *env, const Sym *s) {
   return NULL;
 }
 
-static const DEnv *bind(Emit *e, const DEnv *env, const Sym *var, const char *c, bool is_const, long value) {
+static const DEnv *bind(Emit *e, const DEnv *env, const Sym *var, int val, bool is_const, long value) {
   DEnv *d = arena_alloc(e->ctx, sizeof *d);
   d->var = var;
-  d->c = c;
+  d->val = val;
   d->is_const = is_const;
   d->value = value;
   d->next = env;
   return d;
-}
-
-static char *text(Emit *e, const Node *n, const DEnv *env) {
-  char *buf = NULL;
-  size_t len = 0;
-  FILE *f = open_memstream(&buf, &len);
-  if (!f) error_plain(e->ctx, "out of memory");
-  direct(e, f, n, 0, env);
-  fclose(f);
-  e->ctx->pending_free = buf;
-  char *s = arena_strdup(e->ctx, buf ? buf : "");
-  e->ctx->pending_free = NULL;
-  free(buf);
-  return s;
 }
 
 /* The value of a constant integer index (component indices are constants
@@ -72,19 +63,43 @@ static long const_value(Emit *e, const Node *n, const DEnv *env) {
   }
 }
 
+/* A quantity over one dim with static axes (small vectors per face, per
+ * vertex), read in the innermost loop of a nest at that loop's entry, is
+ * read from a copy with one array per component (e->soa): unit stride, so
+ * the loop vectorizes without shuffles. The copy is made once per call. */
+static const char *soa_name(Emit *e, const Sym *q, int flat) {
+  return arena_printf(e->ctx, "S%d_%s", flat, emit_name(e, q) + 2);
+}
+
+/* The value of an index or summation variable. */
+static int var_value(Emit *e, const Sym *s, const DEnv *env) {
+  const DEnv *d = lookup(env, s);
+  iassert(e->ctx, d);
+  return d->is_const ? cse_num(e->cse, (double)d->value, true) : d->val;
+}
+
+static int ncomp_of_sym(const Sym *q) {
+  int c = 1;
+  for (int i = 0; i < q->nstatic; i++) c *= q->shape[i];
+  return c;
+}
+
 /* Entry of param or quantity q indexed by args (dim axes, some static
  * axes); comp enumerates the static axes left. Inlined and constant
  * definitions are substituted. */
-static void entry(Emit *e, FILE *out, const Sym *q, Node *const *args, int nargs, int comp, const DEnv *env) {
+static int entry(Emit *e, const Sym *q, Node *const *args, int nargs, int comp, const DEnv *env) {
+  Cse *cs = e->cse;
   int naxes = q->ndims + q->nstatic;
-  char **idx = arena_alloc(e->ctx, sizeof(char *) * (size_t)(naxes + 1));
+  int *idx = arena_alloc(e->ctx, sizeof(int) * (size_t)(naxes + 1));
   int given_static = nargs > q->ndims ? nargs - q->ndims : 0;
+  bool in_range = true;
   for (int i = 0; i < q->ndims; i++) {
-    if (nargs) idx[i] = text(e, args[i], env);
+    if (nargs) idx[i] = build(e, args[i], 0, env);
     else { /* whole reference: the definition's own index variables */
       iassert(e->ctx, e->direct_for && i < e->direct_for->nivars);
-      idx[i] = (char *)emit_name(e, e->direct_for->ivars[i]);
+      idx[i] = var_value(e, e->direct_for->ivars[i], env);
     }
+    in_range &= cse_in_range(cs, idx[i], q->dims[i]);
   }
   long sidx[MAX_STATIC];
   for (int i = 0; i < given_static; i++) sidx[i] = const_value(e, args[q->ndims + i], env);
@@ -92,50 +107,61 @@ static void entry(Emit *e, FILE *out, const Sym *q, Node *const *args, int nargs
     sidx[i] = c % q->shape[i];
     c /= q->shape[i];
   }
+  int flat = 0;
+  for (int i = 0; i < q->nstatic; i++) flat = flat * q->shape[i] + (int)sidx[i];
   if (q->kind == SYM_STAGE && !q->inlined && e->fuse) {
     int k = -1;
     for (int m = 0; m < e->fuse_upto; m++)
       if (e->fuse[m]->sym == q) k = m;
     if (k >= 0) {
       bool identity = true;
-      for (int i = 0; i < q->ndims; i++) identity &= strcmp(idx[i], e->loopvar[i]) == 0;
-      int flat = 0;
-      for (int i = 0; i < given_static; i++) flat = flat * q->shape[i] + (int)sidx[i];
-      for (int i = given_static; i < q->nstatic; i++) flat = flat * q->shape[i] + (int)sidx[i];
-      if (identity) { /* computed at this entry already */
-        fprintf(out, "l_%d_%d", k, flat);
-        return;
-      }
+      for (int i = 0; i < q->ndims; i++) identity &= idx[i] == e->loopvar[i];
+      if (identity) return e->fused_val[k][flat]; /* computed at this entry already */
       /* another entry of a member: rematerialized from its expression */
       const DEnv *e2 = NULL;
       for (int i = 0; i < q->ndims; i++) e2 = bind(e, e2, q->ivars[i], idx[i], false, 0);
       const Sym *saved = e->direct_for;
       e->direct_for = q;
-      fputc('(', out);
-      direct(e, out, q->body, flat, e2);
-      fputc(')', out);
+      int v = build(e, q->body, flat, e2);
       e->direct_for = saved;
-      return;
+      return v;
     }
   }
   if (q->kind == SYM_STAGE && q->inlined && !q->stage) { /* a constant definition: substituted */
     const DEnv *e2 = NULL;
     for (int i = 0; i < q->ndims; i++) e2 = bind(e, e2, q->ivars[i], idx[i], false, 0);
-    int flat = 0;
-    for (int i = 0; i < q->nstatic; i++) flat = flat * q->shape[i] + (int)sidx[i];
     const Sym *saved = e->direct_for;
     e->direct_for = q;
-    fputc('(', out);
-    direct(e, out, q->body, flat, e2);
-    fputc(')', out);
+    int v = build(e, q->body, flat, e2);
     e->direct_for = saved;
-    return;
+    return v;
   }
-  for (int i = 0; i < q->nstatic; i++) idx[q->ndims + i] = arena_printf(e->ctx, "%ld", sidx[i]);
   emit_use(e, q);
-  fprintf(out, "%s[", emit_name(e, q));
-  emit_offset_texts(e, out, q, idx);
-  fputc(']', out);
+  int nl = cse_nloops(cs);
+  if (nl >= 2 && q->ndims == 1 && q->nstatic && !q->is_int && idx[0] == e->loopvar[nl - 1] &&
+      cse_in_range(cs, idx[0], q->dims[0])) {
+    if (emit_index_of(&e->soa, q) < 0) vec_push(e->ctx, &e->soa, (void *)q);
+    return cse_load(cs, soa_name(e, q, flat), false, idx[0], true);
+  }
+  /* the flat offset ((i0 * D1 + i1) * S0 + c0) ... */
+  int off = -1;
+  for (int i = 0; i < naxes; i++) {
+    int x = i < q->ndims ? idx[i] : cse_num(cs, (double)sidx[i - q->ndims], true);
+    if (i == 0) {
+      off = x;
+      continue;
+    }
+    int size;
+    if (i < q->ndims) {
+      emit_use(e, q->dims[i]);
+      size = cse_leaf(cs, emit_name(e, q->dims[i]), true, 0, NULL);
+    } else {
+      size = cse_num(cs, q->shape[i - q->ndims], true);
+    }
+    off = cse_op(cs, VAL_ADD, cse_op(cs, VAL_MUL, off, size, -1), x, -1);
+  }
+  if (off < 0) off = cse_num(cs, 0, true);
+  return cse_load(cs, emit_name(e, q), q->kind == SYM_PARAM && q->is_int, off, in_range);
 }
 
 static int ncomp_of(const Type *t) {
@@ -160,167 +186,102 @@ static int select_flat(Emit *e, const Node *n, int comp, const DEnv *env) {
   return flat;
 }
 
-static void sub(Emit *e, FILE *out, const Node *n, int comp, const DEnv *env) {
-  direct(e, out, n, n->ty.nstatic ? comp : 0, env);
+static int sub(Emit *e, const Node *n, int comp, const DEnv *env) { return build(e, n, n->ty.nstatic ? comp : 0, env); }
+
+static int binop(Emit *e, const Node *n, int comp, const DEnv *env, ValOp op) {
+  int a = sub(e, n->a, comp, env);
+  return cse_op(e->cse, op, a, sub(e, n->b, comp, env), -1);
 }
 
-static void binop(Emit *e, FILE *out, const Node *n, int comp, const DEnv *env, const char *op) {
-  fputc('(', out);
-  sub(e, out, n->a, comp, env);
-  fprintf(out, " %s ", op);
-  sub(e, out, n->b, comp, env);
-  fputc(')', out);
-}
-
-static void direct(Emit *e, FILE *out, const Node *n, int comp, const DEnv *env) {
+static int build(Emit *e, const Node *n, int comp, const DEnv *env) {
+  Cse *cs = e->cse;
   switch (n->kind) {
-  case N_NUM: emit_double(out, n->num); return;
-  case N_RAT: emit_double(out, (double)n->p / (double)n->q); return;
+  case N_NUM: return cse_num(cs, n->num, n->ty.is_int && n->is_int);
+  case N_RAT: return cse_num(cs, (double)n->p / (double)n->q, false);
   case N_NAME: {
     const Sym *s = n->sym;
-    if (s->kind == SYM_IVAR || s->kind == SYM_SUMVAR) {
-      const DEnv *d = lookup(env, s);
-      if (d && d->is_const) fprintf(out, "%ld", d->value);
-      else fputs(d ? d->c : emit_name(e, s), out);
-      return;
-    }
+    if (s->kind == SYM_IVAR || s->kind == SYM_SUMVAR) return var_value(e, s, env);
     if (s->kind == SYM_DIM) {
       emit_use(e, s);
-      fputs(emit_name(e, s), out);
-      return;
+      return cse_leaf(cs, emit_name(e, s), true, 0, NULL);
     }
-    entry(e, out, s, NULL, 0, comp, env);
-    return;
+    return entry(e, s, NULL, 0, comp, env);
   }
   case N_INDEX:
-    if (n->a->kind == N_NAME && n->sym && n->sym->kind != SYM_OP) {
-      entry(e, out, n->sym, n->args, n->nargs, comp, env);
-      return;
-    }
-    direct(e, out, n->a, select_flat(e, n, comp, env), env);
-    return;
+    if (n->a->kind == N_NAME && n->sym && n->sym->kind != SYM_OP) return entry(e, n->sym, n->args, n->nargs, comp, env);
+    return build(e, n->a, select_flat(e, n, comp, env), env);
   case N_VEC: {
     int per = ncomp_of(&n->args[0]->ty);
-    direct(e, out, n->args[comp / per], comp % per, env);
-    return;
+    return build(e, n->args[comp / per], comp % per, env);
   }
-  case N_NEG:
-    fputs("(-", out);
-    sub(e, out, n->a, comp, env);
-    fputc(')', out);
-    return;
-  case N_NOT:
-    fputs("(!", out);
-    direct(e, out, n->a, 0, env);
-    fputc(')', out);
-    return;
-  case N_ADD: binop(e, out, n, comp, env, "+"); return;
-  case N_SUB: binop(e, out, n, comp, env, "-"); return;
-  case N_MUL: binop(e, out, n, comp, env, "*"); return;
-  case N_DIV:
-    if (n->b->ty.var != V_VARYING) {
-      /* dividing by a coefficient is multiplying by it (DESIGN §3): the
-       * reciprocal is loop invariant and hoisted by the C compiler */
-      fputc('(', out);
-      sub(e, out, n->a, comp, env);
-      fputs(" * (1.0 / ", out);
-      sub(e, out, n->b, comp, env);
-      fputs("))", out);
-      return;
-    }
-    fputs("((double)", out);
-    sub(e, out, n->a, comp, env);
-    fputs(" / ", out);
-    sub(e, out, n->b, comp, env);
-    fputc(')', out);
-    return;
-  case N_EQ: binop(e, out, n, comp, env, "=="); return;
-  case N_NE: binop(e, out, n, comp, env, "!="); return;
-  case N_LT: binop(e, out, n, comp, env, "<"); return;
-  case N_LE: binop(e, out, n, comp, env, "<="); return;
-  case N_GT: binop(e, out, n, comp, env, ">"); return;
-  case N_GE: binop(e, out, n, comp, env, ">="); return;
-  case N_AND: binop(e, out, n, comp, env, "&&"); return;
-  case N_OR: binop(e, out, n, comp, env, "||"); return;
-  case N_IF:
-    fputc('(', out);
-    direct(e, out, n->a, 0, env);
-    fputs(" ? ", out);
-    sub(e, out, n->b, comp, env);
-    fputs(" : ", out);
-    sub(e, out, n->c, comp, env);
-    fputc(')', out);
-    return;
+  case N_NEG: return cse_op(cs, VAL_NEG, sub(e, n->a, comp, env), -1, -1);
+  case N_NOT: return cse_op(cs, VAL_NOT, build(e, n->a, 0, env), -1, -1);
+  case N_ADD: return binop(e, n, comp, env, VAL_ADD);
+  case N_SUB: return binop(e, n, comp, env, VAL_SUB);
+  case N_MUL: return binop(e, n, comp, env, VAL_MUL);
+  case N_DIV: {
+    int a = sub(e, n->a, comp, env), b = sub(e, n->b, comp, env);
+    /* dividing by a coefficient is multiplying by it (DESIGN §3): the
+     * reciprocal is loop invariant */
+    if (n->b->ty.var != V_VARYING) b = cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), b, -1);
+    return cse_op(cs, n->b->ty.var != V_VARYING ? VAL_MUL : VAL_DIV, a, b, -1);
+  }
+  case N_EQ: return binop(e, n, comp, env, VAL_EQ);
+  case N_NE: return binop(e, n, comp, env, VAL_NE);
+  case N_LT: return binop(e, n, comp, env, VAL_LT);
+  case N_LE: return binop(e, n, comp, env, VAL_LE);
+  case N_GT: return binop(e, n, comp, env, VAL_GT);
+  case N_GE: return binop(e, n, comp, env, VAL_GE);
+  case N_AND: return binop(e, n, comp, env, VAL_AND);
+  case N_OR: return binop(e, n, comp, env, VAL_OR);
+  case N_IF: {
+    int cond = build(e, n->a, 0, env);
+    cse_guard(cs, 1);
+    int a = sub(e, n->b, comp, env), b = sub(e, n->c, comp, env);
+    cse_guard(cs, -1);
+    return cse_op(cs, VAL_SELECT, cond, a, b);
+  }
   case N_POW:
     if (n->b->kind == N_RAT) {
       long p = n->b->p, q = n->b->q;
-      if (q == 1 && p == 1) return sub(e, out, n->a, comp, env);
+      int a = sub(e, n->a, comp, env);
+      if (q == 1 && p == 1) return a;
       if (q == 2 && (p == 1 || p == -1)) {
-        fputs(p < 0 ? "(1.0 / sqrt(" : "sqrt(", out);
-        sub(e, out, n->a, comp, env);
-        fputs(p < 0 ? "))" : ")", out);
-        return;
+        int r = cse_call(cs, "sqrt", a, -1);
+        return p < 0 ? cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), r, -1) : r;
       }
-      if (q == 1 && p == -1) {
-        fputs("(1.0 / ", out);
-        sub(e, out, n->a, comp, env);
-        fputc(')', out);
-        return;
-      }
-      if (q == 3 && p == 1) {
-        fputs("cbrt(", out);
-        sub(e, out, n->a, comp, env);
-        fputc(')', out);
-        return;
-      }
+      if (q == 1 && p == -1) return cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), a, -1);
+      if (q == 3 && p == 1) return cse_call(cs, "cbrt", a, -1);
     }
-    fputs("pow(", out);
-    sub(e, out, n->a, comp, env);
-    fputs(", ", out);
-    direct(e, out, n->b, 0, env);
-    fputc(')', out);
-    return;
+    return cse_call(cs, "pow", sub(e, n->a, comp, env), build(e, n->b, 0, env));
   case N_SUM: {
     const Sym *v = n->sym;
     if (v->body) { /* literal bounds: unrolled */
       long lo = (long)v->body->args[0]->num, hi = (long)v->body->args[1]->num;
-      fputc('(', out);
+      int acc = -1;
       for (long k = lo; k <= hi; k++) {
-        if (k > lo) fputs(" + ", out);
-        sub(e, out, n->c, comp, bind(e, env, v, NULL, true, k));
+        int t = sub(e, n->c, comp, bind(e, env, v, -1, true, k));
+        acc = acc < 0 ? t : cse_op(cs, VAL_ADD, acc, t, -1);
       }
-      fputc(')', out);
-      return;
+      return acc < 0 ? cse_num(cs, 0.0, false) : acc;
     }
-    const char *k = emit_name(e, v);
-    int t = e->tmp++;
-    fprintf(out, "__extension__({ double s%d_ = 0.0; for (npg_idx %s = ", t, k);
-    direct(e, out, n->a, 0, env);
-    fprintf(out, "; %s <= ", k);
-    direct(e, out, n->b, 0, env);
-    fprintf(out, "; %s++) s%d_ += ", k, t);
-    sub(e, out, n->c, comp, env);
-    fprintf(out, "; s%d_; })", t);
-    return;
+    int lo = build(e, n->a, 0, env), hi = build(e, n->b, 0, env);
+    int var = cse_sumvar(cs, emit_name(e, v));
+    cse_guard(cs, 1); /* the body is not evaluated when the range is empty */
+    int body = sub(e, n->c, comp, bind(e, env, v, var, false, 0));
+    cse_guard(cs, -1);
+    return cse_sum(cs, var, lo, hi, body);
   }
   case N_CALL:
     if (n->builtin == B_DELTA) {
-      fputs("((double)(", out);
-      direct(e, out, n->args[0], 0, env);
-      fputs(" == ", out);
-      direct(e, out, n->args[1], 0, env);
-      fputs("))", out);
-      return;
+      int a = build(e, n->args[0], 0, env);
+      return cse_op(cs, VAL_DOUBLE, cse_op(cs, VAL_EQ, a, build(e, n->args[1], 0, env), -1), -1, -1);
     }
     if (emit_math_name(n->builtin)) {
-      fprintf(out, "%s(", emit_math_name(n->builtin));
-      for (int i = 0; i < n->nargs; i++) {
-        if (i) fputs(", ", out);
-        fputs("(double)", out);
-        sub(e, out, n->args[i], comp, env);
-      }
-      fputc(')', out);
-      return;
+      iassert(e->ctx, n->nargs >= 1 && n->nargs <= 2);
+      int a = sub(e, n->args[0], comp, env);
+      int b = n->nargs > 1 ? sub(e, n->args[1], comp, env) : -1;
+      return cse_call(cs, emit_math_name(n->builtin), a, b);
     }
     break;
   default: break;
@@ -334,12 +295,6 @@ bool emit_direct_ok(const Stage *st) {
     for (int k = 0; k < st->terms[t]->nops; k++)
       if (st->terms[t]->ops[k].kind == OPK_DECL) return false;
   return true;
-}
-
-void emit_direct_entry(Emit *e, FILE *out, const Stage *st, int comp) {
-  e->direct_for = st->sym;
-  direct(e, out, st->sym->body, comp, NULL);
-  e->direct_for = NULL;
 }
 
 /* ---------------------------------------------------------------- fusion */
@@ -400,49 +355,122 @@ bool emit_fusable(const Stage *const *members, int n, const Stage *cand) {
   return reads_ok(members, n, cand->sym->body, cand->sym, true, 0);
 }
 
+/* The component arrays of e->soa, in one scratch block `soa_` (released
+ * by the caller when this returns true). */
+static bool emit_soa_copies(Emit *e, FILE *out) {
+  if (!e->soa.n) return false;
+  fputs("  /*", out);
+  for (int i = 0; i < e->soa.n; i++) fprintf(out, "%s %s", i ? "," : "", ((Sym *)e->soa.v[i])->name);
+  fputs(": one array per component, read with unit stride by the innermost loop */\n", out);
+  fputs("  double *const soa_ = c->rt->scratch(c, ", out);
+  for (int i = 0; i < e->soa.n; i++) {
+    const Sym *q = e->soa.v[i];
+    emit_use(e, q->dims[0]);
+    fprintf(out, "%s%s * %d", i ? " + " : "", emit_name(e, q->dims[0]), ncomp_of_sym(q));
+  }
+  fputs(");\n  if (!soa_) return -1;\n", out);
+  for (int i = 0; i < e->soa.n; i++) {
+    const Sym *q = e->soa.v[i];
+    const char *base = emit_name(e, q) + 2, *dim = emit_name(e, q->dims[0]);
+    int nc = ncomp_of_sym(q);
+    fprintf(out, "  double *const S_%s = soa_", base);
+    for (int k = 0; k < i; k++) {
+      const Sym *p = e->soa.v[k];
+      fprintf(out, " + %s * %d", emit_name(e, p->dims[0]), ncomp_of_sym(p));
+    }
+    fputs(";\n", out);
+    fprintf(out, "  for (npg_idx k_ = 0; k_ < %s; k_++)\n", dim);
+    fprintf(out, "    for (npg_idx c_ = 0; c_ < %d; c_++) S_%s[c_ * %s + k_] = %s[k_ * %d + c_];\n", nc, base, dim,
+            emit_name(e, q), nc);
+    for (int f = 0; f < nc; f++)
+      if (cse_reads(e->cse, soa_name(e, q, f)))
+        fprintf(out, "  const double *restrict const %s = S_%s + %s%s%d;\n", soa_name(e, q, f), base, f ? dim : "",
+                f ? " * " : "", f);
+  }
+  return true;
+}
+
+/* The values of members[0..n) at the current entry of their common
+ * domain, each member's components stored at e_; a read of a member at this
+ * entry is its value, at another entry its expression again. */
 void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
   const Sym *first = members[0]->sym;
-  e->loopvar = arena_alloc(e->ctx, sizeof(char *) * (size_t)(first->nivars + 1));
-  for (int i = 0; i < first->nivars; i++) {
-    const char *v = emit_name(e, first->ivars[i]);
-    e->loopvar[i] = v;
-    emit_use(e, first->ivars[i]->range);
-    for (int k = 0; k <= i; k++) fputs("  ", out);
-    fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, first->ivars[i]->range), v);
+  int nl = first->nivars;
+  Cse *cs = e->cse = cse_new(e->ctx, nl);
+  e->loopvar = arena_alloc(e->ctx, sizeof(int) * (size_t)(nl + 1));
+  const char **names = arena_alloc(e->ctx, sizeof(char *) * (size_t)(nl + 1));
+  int flat = -1;
+  for (int i = 0; i < nl; i++) {
+    const Sym *dim = first->ivars[i]->range;
+    names[i] = emit_name(e, first->ivars[i]);
+    e->loopvar[i] = cse_leaf(cs, names[i], true, i + 1, dim);
+    emit_use(e, dim);
+    int size = cse_leaf(cs, emit_name(e, dim), true, 0, NULL);
+    flat = i ? cse_op(cs, VAL_ADD, cse_op(cs, VAL_MUL, flat, size, -1), e->loopvar[i], -1) : e->loopvar[i];
   }
-  int depth = first->nivars + 1;
-  char pad[64];
-  snprintf(pad, sizeof pad, "%*s", 2 * depth, "");
-  fprintf(out, "%sconst npg_idx e_ = ", pad);
-  for (int i = 1; i < first->nivars; i++) fputc('(', out);
-  for (int i = 0; i < first->nivars; i++) {
-    if (i) fprintf(out, " * %s + ", emit_name(e, first->ivars[i]->range));
-    fputs(e->loopvar[i], out);
-    if (i) fputc(')', out);
-  }
-  fputs(";\n", out);
+  if (flat < 0) flat = cse_num(cs, 0, true);
   e->fuse = members;
-  e->nfuse = n;
+  e->fused_val = arena_alloc(e->ctx, sizeof(int *) * (size_t)n);
+  int **offset = arena_alloc(e->ctx, sizeof(int *) * (size_t)n);
   for (int m = 0; m < n; m++) {
     const Stage *st = members[m];
     const Sym *s = st->sym;
     const DEnv *env = NULL;
     for (int i = 0; i < s->nivars; i++) env = bind(e, env, s->ivars[i], e->loopvar[i], false, 0);
     e->fuse_upto = m;
-    fprintf(out, "%s/* %s */\n", pad, s->name);
+    e->direct_for = s;
+    e->fused_val[m] = arena_alloc(e->ctx, sizeof(int) * (size_t)st->ncomp);
+    offset[m] = arena_alloc(e->ctx, sizeof(int) * (size_t)st->ncomp);
     for (int c = 0; c < st->ncomp; c++) {
-      e->direct_for = s;
-      fprintf(out, "%sconst double l_%d_%d = ", pad, m, c);
-      direct(e, out, s->body, c, env);
-      fputs(";\n", out);
-      emit_use(e, s);
-      fprintf(out, "%s%s[e_ * %d + %d] = l_%d_%d;\n", pad, emit_name(e, s), st->ncomp, c, m, c);
+      int v = e->fused_val[m][c] = build(e, s->body, c, env);
+      if (cse_is_int(cs, v)) v = e->fused_val[m][c] = cse_op(cs, VAL_DOUBLE, v, -1, -1);
+      const char *base = emit_name(e, s) + 2; /* without Q_ */
+      cse_hint(cs, v, st->ncomp > 1 ? arena_printf(e->ctx, "l_%s_%d", base, c) : arena_printf(e->ctx, "l_%s", base));
+      offset[m][c] = cse_op(cs, VAL_ADD, cse_op(cs, VAL_MUL, flat, cse_num(cs, st->ncomp, true), -1),
+                            cse_num(cs, c, true), -1);
+      cse_root(cs, v);
+      cse_root(cs, offset[m][c]);
     }
   }
   e->fuse = NULL;
   e->direct_for = NULL;
-  for (int i = first->nivars; i >= 1; i--) {
-    for (int k = 0; k < i; k++) fputs("  ", out);
+  cse_plan(cs);
+  bool scratch = emit_soa_copies(e, out);
+  cse_emit_level(cs, out, 0, 1);
+  for (int i = 0; i < nl; i++) {
+    const char *v = names[i];
+    if (i == nl - 1) {
+      indent(out, i + 1);
+      fputs("NPG_INDEPENDENT\n", out);
+    }
+    indent(out, i + 1);
+    fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, first->ivars[i]->range), v);
+    if (i + 1 < nl) cse_emit_level(cs, out, i + 1, i + 2);
+  }
+  int depth = nl + 1;
+  for (int m = 0; m < n; m++) {
+    const Stage *st = members[m];
+    if (n > 1) {
+      indent(out, depth);
+      fprintf(out, "/* %s */\n", st->sym->name);
+    }
+    for (int c = 0; c < st->ncomp; c++) {
+      cse_emit_deps(cs, out, e->fused_val[m][c], depth);
+      cse_emit_deps(cs, out, offset[m][c], depth);
+      indent(out, depth);
+      emit_use(e, st->sym);
+      fprintf(out, "%s[", emit_name(e, st->sym));
+      cse_print(cs, out, offset[m][c]);
+      fputs("] = ", out);
+      cse_print(cs, out, e->fused_val[m][c]);
+      fputs(";\n", out);
+    }
+  }
+  for (int i = nl; i >= 1; i--) {
+    indent(out, i);
     fputs("}\n", out);
   }
+  if (scratch) fputs("  c->rt->release(c, soa_);\n", out);
+  e->cse = NULL;
+  e->soa.n = 0;
 }

@@ -1,0 +1,457 @@
+/* cse.c — the values computed in one loop nest, as a graph: every distinct
+ * subexpression is built once (common subexpression elimination by hashing)
+ * and printed as a local in the outermost loop whose variables it reads
+ * (loop-invariant hoisting), so generated C does little work per entry even
+ * under libtcc, which does neither; and gcc sees plain loops it vectorizes.
+ *
+ * Sharing and hoisting never change a result: a value is computed by the
+ * same operations in the same order, only fewer times (two spellings are
+ * one value only by an identity exact in IEEE arithmetic, cse_op). Two
+ * things are never
+ * moved out of the place they were written: a read that may fall outside its
+ * array where a guard does not hold (`if` branches, DESIGN §3: the branch
+ * not taken is never evaluated), and anything that reads the variable of a
+ * summation loop (printed inside that loop). */
+#include <string.h>
+
+#include "emit.h"
+
+typedef struct Val {
+  ValOp op;
+  bool is_int;
+  double num;          /* VAL_NUM */
+  const char *text;    /* VAL_LEAF: C text; VAL_LOAD: array; VAL_CALL: function; VAL_SUM: variable */
+  int a, b, c;         /* operands, -1 when absent */
+  int level;           /* innermost loop of the nest whose variable it reads, 0 for none */
+  uint64_t pin;        /* summation variables it reads, one bit each */
+  bool unsafe;         /* reads what may be out of range outside its guard */
+  const Sym *range;    /* VAL_LEAF of an index variable: the dim it ranges over */
+  const char *hint;    /* name for its local */
+  /* planning */
+  bool reached, named, emitted;
+  int uses, eval;      /* users; the deepest loop it is evaluated in */
+  const char *local;
+  unsigned stamp;
+} Val;
+
+struct Cse {
+  Ctx *ctx;
+  Val *v;
+  int n, cap;
+  int *table;          /* open addressing: value ids, -1 empty */
+  int tcap;
+  int nloops;
+  int nbits;           /* summation variables given a bit */
+  int nlocals;
+  int *roots;
+  int nroots, rcap;
+  unsigned stamp;
+  int guard;           /* building inside this many guards (if branches, summations) */
+  const char **names;  /* locals named after hints, to keep them distinct */
+  int nnames;
+};
+
+Cse *cse_new(Ctx *ctx, int nloops) {
+  Cse *c = arena_alloc(ctx, sizeof *c);
+  c->ctx = ctx;
+  c->nloops = nloops;
+  c->tcap = 256;
+  c->table = arena_alloc(ctx, sizeof(int) * (size_t)c->tcap);
+  memset(c->table, -1, sizeof(int) * (size_t)c->tcap);
+  return c;
+}
+
+static unsigned long hash_val(const Val *x) {
+  unsigned long h = (unsigned long)x->op * 1000003u ^ (unsigned long)x->is_int;
+  unsigned long long bits;
+  memcpy(&bits, &x->num, sizeof bits);
+  h = (h ^ bits) * 1099511628211u;
+  h = (h ^ (unsigned long)(x->a + 1)) * 1099511628211u;
+  h = (h ^ (unsigned long)(x->b + 1)) * 1099511628211u;
+  h = (h ^ (unsigned long)(x->c + 1)) * 1099511628211u;
+  if (x->text)
+    for (const char *s = x->text; *s; s++) h = (h ^ (unsigned char)*s) * 1099511628211u;
+  return h;
+}
+
+static bool same_val(const Val *x, const Val *y) {
+  return x->op == y->op && x->is_int == y->is_int && memcmp(&x->num, &y->num, sizeof x->num) == 0 && x->a == y->a &&
+         x->b == y->b && x->c == y->c && (x->text == y->text || (x->text && y->text && strcmp(x->text, y->text) == 0));
+}
+
+static void rehash(Cse *c) {
+  int cap = c->tcap * 2;
+  int *t = arena_alloc(c->ctx, sizeof(int) * (size_t)cap);
+  memset(t, -1, sizeof(int) * (size_t)cap);
+  for (int i = 0; i < c->n; i++) {
+    unsigned long h = hash_val(&c->v[i]) & (unsigned long)(cap - 1);
+    while (t[h] >= 0) h = (h + 1) & (unsigned long)(cap - 1);
+    t[h] = i;
+  }
+  c->table = t;
+  c->tcap = cap;
+}
+
+/* The id of the value `x` describes: an existing one, or a new one. A value
+ * found again where it may be evaluated anywhere is safe from then on. */
+static int intern(Cse *c, Val x) {
+  unsigned long h = hash_val(&x) & (unsigned long)(c->tcap - 1);
+  for (; c->table[h] >= 0; h = (h + 1) & (unsigned long)(c->tcap - 1)) {
+    Val *y = &c->v[c->table[h]];
+    if (same_val(y, &x)) {
+      if (!x.unsafe) y->unsafe = false;
+      return c->table[h];
+    }
+  }
+  if (c->n == c->cap) {
+    int cap = c->cap ? 2 * c->cap : 64;
+    c->v = arena_grow(c->ctx, c->v, sizeof(Val) * (size_t)c->cap, sizeof(Val) * (size_t)cap);
+    c->cap = cap;
+  }
+  int id = c->n++;
+  c->v[id] = x;
+  c->table[h] = id;
+  if (2 * c->n > c->tcap) rehash(c);
+  return id;
+}
+
+static Val blank(ValOp op) {
+  Val x;
+  memset(&x, 0, sizeof x);
+  x.op = op;
+  x.a = x.b = x.c = -1;
+  return x;
+}
+
+int cse_num(Cse *c, double v, bool is_int) {
+  Val x = blank(VAL_NUM);
+  x.num = v;
+  x.is_int = is_int;
+  return intern(c, x);
+}
+
+int cse_leaf(Cse *c, const char *text, bool is_int, int level, const Sym *range) {
+  Val x = blank(VAL_LEAF);
+  x.text = text;
+  x.is_int = is_int;
+  int id = intern(c, x);
+  c->v[id].level = level;
+  c->v[id].range = range;
+  return id;
+}
+
+int cse_sumvar(Cse *c, const char *text) {
+  Val x = blank(VAL_LEAF);
+  x.text = text;
+  x.is_int = true;
+  int id = intern(c, x);
+  if (!c->v[id].pin) {
+    /* past 63 variables, they share the last bit and are never cleared
+     * (printed in place: correct, only slower) */
+    int bit = c->nbits < 63 ? c->nbits++ : 63;
+    c->v[id].pin = 1ull << bit;
+  }
+  return id;
+}
+
+bool cse_in_range(const Cse *c, int v, const Sym *dim) { return c->v[v].op == VAL_LEAF && c->v[v].range == dim; }
+
+void cse_guard(Cse *c, int delta) { c->guard += delta; }
+
+int cse_load(Cse *c, const char *array, bool is_int, int offset, bool in_range) {
+  Val x = blank(VAL_LOAD);
+  x.text = array;
+  x.is_int = is_int;
+  x.a = offset;
+  x.unsafe = (c->guard && !in_range) || c->v[offset].unsafe;
+  x.level = c->v[offset].level;
+  x.pin = c->v[offset].pin;
+  return intern(c, x);
+}
+
+static bool is_num(const Cse *c, int v, double k) {
+  return c->v[v].op == VAL_NUM && c->v[v].num == k;
+}
+
+/* A value of `op` over operands a, b, k (-1 when absent), not yet interned. */
+static Val combine(Cse *c, ValOp op, int a, int b, int k) {
+  Val x = blank(op);
+  x.a = a, x.b = b, x.c = k;
+  int ops[3] = {a, b, k};
+  for (int i = 0; i < 3; i++)
+    if (ops[i] >= 0) {
+      const Val *o = &c->v[ops[i]];
+      x.level = o->level > x.level ? o->level : x.level;
+      x.pin |= o->pin;
+      x.unsafe |= o->unsafe;
+    }
+  /* a choice or a summation evaluates its branches or body only where
+   * they are valid: evaluating it is as safe as the place it is built */
+  if (op == VAL_SELECT) x.unsafe = c->v[a].unsafe || (c->guard && x.unsafe);
+  if (op == VAL_SUM) x.unsafe = c->v[a].unsafe || c->v[b].unsafe || (c->guard && x.unsafe);
+  switch (op) {
+  case VAL_NEG: x.is_int = c->v[a].is_int; break;
+  case VAL_ADD:
+  case VAL_SUB:
+  case VAL_MUL: x.is_int = c->v[a].is_int && c->v[b].is_int; break;
+  case VAL_NOT:
+  case VAL_EQ:
+  case VAL_NE:
+  case VAL_LT:
+  case VAL_LE:
+  case VAL_GT:
+  case VAL_GE:
+  case VAL_AND:
+  case VAL_OR: x.is_int = true; break;
+  case VAL_SELECT: x.is_int = c->v[b].is_int && c->v[k].is_int; break;
+  default: x.is_int = false; break;
+  }
+  return x;
+}
+
+int cse_op(Cse *c, ValOp op, int a, int b, int k) {
+  /* Exact identities only, in IEEE arithmetic with signed zeros: operands
+   * of + * == != commute; (q - p)^2 is (p - q)^2 (p - q is -(q - p), or
+   * +0 for both when p == q). Sharing then sees through the order in which
+   * the source wrote them: dist2(c_i, c_j) read transposed is dist2(c_i, c_j). */
+  if ((op == VAL_ADD || op == VAL_MUL || op == VAL_EQ || op == VAL_NE) && a > b) {
+    int t = a;
+    a = b, b = t;
+  }
+  if (op == VAL_MUL && a == b && c->v[a].op == VAL_SUB && c->v[a].a > c->v[a].b) {
+    const Val *d = &c->v[a];
+    a = b = cse_op(c, VAL_SUB, d->b, d->a, -1);
+  }
+  /* integer index arithmetic: fold constants and units */
+  if (op == VAL_ADD || op == VAL_MUL) {
+    bool ints = c->v[a].is_int && c->v[b].is_int;
+    if (ints && c->v[a].op == VAL_NUM && c->v[b].op == VAL_NUM)
+      return cse_num(c, op == VAL_ADD ? c->v[a].num + c->v[b].num : c->v[a].num * c->v[b].num, true);
+    if (ints && op == VAL_ADD && is_num(c, b, 0)) return a;
+    if (ints && op == VAL_ADD && is_num(c, a, 0)) return b;
+    if (ints && op == VAL_MUL && is_num(c, b, 1)) return a;
+    if (ints && op == VAL_MUL && is_num(c, a, 1)) return b;
+  }
+  return intern(c, combine(c, op, a, b, k));
+}
+
+int cse_call(Cse *c, const char *fn, int a, int b) {
+  Val x = combine(c, VAL_CALL, a, b, -1);
+  x.text = fn;
+  return intern(c, x);
+}
+
+int cse_sum(Cse *c, int var, int lo, int hi, int body) {
+  Val x = combine(c, VAL_SUM, lo, hi, body);
+  x.text = c->v[var].text;
+  uint64_t bit = c->v[var].pin;
+  if (bit != 1ull << 63) x.pin &= ~bit;
+  return intern(c, x);
+}
+
+void cse_hint(Cse *c, int v, const char *name) {
+  if (!c->v[v].hint) c->v[v].hint = name;
+}
+
+bool cse_is_int(const Cse *c, int v) { return c->v[v].is_int; }
+
+int cse_nloops(const Cse *c) { return c->nloops; }
+
+bool cse_reads(const Cse *c, const char *array) {
+  for (int i = 0; i < c->n; i++)
+    if (c->v[i].reached && c->v[i].op == VAL_LOAD && strcmp(c->v[i].text, array) == 0) return true;
+  return false;
+}
+
+void cse_root(Cse *c, int v) {
+  if (c->nroots == c->rcap) {
+    int cap = c->rcap ? 2 * c->rcap : 16;
+    c->roots = arena_grow(c->ctx, c->roots, sizeof(int) * (size_t)c->rcap, sizeof(int) * (size_t)cap);
+    c->rcap = cap;
+  }
+  c->roots[c->nroots++] = v;
+}
+
+static void reach(Cse *c, int v) {
+  if (v < 0 || c->v[v].reached) return;
+  c->v[v].reached = true;
+  reach(c, c->v[v].a);
+  reach(c, c->v[v].b);
+  reach(c, c->v[v].c);
+}
+
+/* Which values get a local: those used twice, and those computed in a
+ * deeper loop than the one whose variables they read. Users have larger
+ * ids than what they use, so one sweep from the top sees every user of a
+ * value before the value. */
+void cse_plan(Cse *c) {
+  for (int i = 0; i < c->n; i++) c->v[i].eval = -1;
+  for (int r = 0; r < c->nroots; r++) {
+    reach(c, c->roots[r]);
+    c->v[c->roots[r]].uses++;
+    c->v[c->roots[r]].eval = c->nloops;
+  }
+  for (int i = c->n - 1; i >= 0; i--) {
+    Val *x = &c->v[i];
+    if (!x->reached) continue;
+    bool eligible = x->op != VAL_NUM && x->op != VAL_LEAF && !x->pin && !x->unsafe;
+    x->named = eligible && (x->uses >= 2 || x->level < x->eval);
+    /* where its operands are evaluated: in its loop when it has a local,
+     * where it is evaluated when printed in place, and in the summation
+     * loop (deeper than any loop of the nest) when it reads its variable */
+    int at = x->pin ? c->nloops + 1 : x->named ? x->level : x->eval;
+    int ops[3] = {x->a, x->b, x->c};
+    for (int k = 0; k < 3; k++)
+      if (ops[k] >= 0) {
+        Val *o = &c->v[ops[k]];
+        o->uses++;
+        if (at > o->eval) o->eval = at;
+      }
+  }
+}
+
+static void print_val(Cse *c, FILE *out, int v, bool top);
+
+static const char *binop_text(ValOp op) {
+  switch (op) {
+  case VAL_ADD: return "+";
+  case VAL_SUB: return "-";
+  case VAL_MUL: return "*";
+  case VAL_EQ: return "==";
+  case VAL_NE: return "!=";
+  case VAL_LT: return "<";
+  case VAL_LE: return "<=";
+  case VAL_GT: return ">";
+  case VAL_GE: return ">=";
+  case VAL_AND: return "&&";
+  case VAL_OR: return "||";
+  default: return NULL;
+  }
+}
+
+static void print_double_arg(Cse *c, FILE *out, int v) {
+  if (c->v[v].is_int) fputs("(double)", out);
+  print_val(c, out, v, false);
+}
+
+/* `top`: the outermost expression of a statement or an index, printed
+ * without its parentheses. */
+static void print_val(Cse *c, FILE *out, int v, bool top) {
+  const Val *x = &c->v[v];
+  if (x->emitted) {
+    fputs(x->local, out);
+    return;
+  }
+  const char *op = binop_text(x->op);
+  if (op) {
+    if (!top) fputc('(', out);
+    print_val(c, out, x->a, false);
+    fprintf(out, " %s ", op);
+    print_val(c, out, x->b, false);
+    if (!top) fputc(')', out);
+    return;
+  }
+  switch (x->op) {
+  case VAL_NUM:
+    if (x->is_int) fprintf(out, "%lld", (long long)x->num);
+    else emit_double(out, x->num);
+    return;
+  case VAL_LEAF: fputs(x->text, out); return;
+  case VAL_LOAD:
+    fprintf(out, "%s[", x->text);
+    print_val(c, out, x->a, true);
+    fputc(']', out);
+    return;
+  case VAL_NEG: fputs("(-", out); print_val(c, out, x->a, false); fputc(')', out); return;
+  case VAL_NOT: fputs("(!", out); print_val(c, out, x->a, false); fputc(')', out); return;
+  case VAL_DOUBLE: fputs("((double)", out); print_val(c, out, x->a, false); fputc(')', out); return;
+  case VAL_DIV:
+    if (!top) fputc('(', out);
+    print_double_arg(c, out, x->a);
+    fputs(" / ", out);
+    print_val(c, out, x->b, false);
+    if (!top) fputc(')', out);
+    return;
+  case VAL_SELECT:
+    if (!top) fputc('(', out);
+    print_val(c, out, x->a, false);
+    fputs(" ? ", out);
+    print_val(c, out, x->b, false);
+    fputs(" : ", out);
+    print_val(c, out, x->c, false);
+    if (!top) fputc(')', out);
+    return;
+  case VAL_CALL:
+    fprintf(out, "%s(", x->text);
+    print_double_arg(c, out, x->a);
+    if (x->b >= 0) {
+      fputs(", ", out);
+      print_double_arg(c, out, x->b);
+    }
+    fputc(')', out);
+    return;
+  case VAL_SUM:
+    fprintf(out, "__extension__({ double s%d_ = 0.0; for (npg_idx %s = ", v, x->text);
+    print_val(c, out, x->a, true);
+    fprintf(out, "; %s <= ", x->text);
+    print_val(c, out, x->b, false);
+    fprintf(out, "; %s++) s%d_ += ", x->text, v);
+    print_val(c, out, x->c, true);
+    fprintf(out, "; s%d_; })", v);
+    return;
+  default: break;
+  }
+  internal_error(c->ctx, __FILE__, __LINE__, "value not printed");
+}
+
+void cse_print(Cse *c, FILE *out, int v) { print_val(c, out, v, true); }
+
+static void indent(FILE *out, int depth) {
+  for (int i = 0; i < depth; i++) fputs("  ", out);
+}
+
+static const char *local_name(Cse *c, const Val *x) {
+  if (x->hint) {
+    bool taken = false;
+    for (int i = 0; i < c->nnames && !taken; i++) taken = strcmp(c->names[i], x->hint) == 0;
+    if (!taken) {
+      c->names = arena_grow(c->ctx, c->names, sizeof(char *) * (size_t)c->nnames, sizeof(char *) * (size_t)(c->nnames + 1));
+      c->names[c->nnames++] = x->hint;
+      return x->hint;
+    }
+  }
+  return arena_printf(c->ctx, "t%d", c->nlocals++);
+}
+
+static void emit_local(Cse *c, FILE *out, int v, int depth) {
+  Val *x = &c->v[v];
+  indent(out, depth);
+  fprintf(out, "const %s ", x->is_int ? "npg_idx" : "double");
+  const char *name = local_name(c, x);
+  fprintf(out, "%s = ", name);
+  print_val(c, out, v, true);
+  fputs(";\n", out);
+  x->local = name;
+  x->emitted = true;
+}
+
+void cse_emit_level(Cse *c, FILE *out, int level, int depth) {
+  for (int i = 0; i < c->n; i++)
+    if (c->v[i].named && !c->v[i].emitted && c->v[i].level == level) emit_local(c, out, i, depth);
+}
+
+static void emit_deps(Cse *c, FILE *out, int v, int depth) {
+  if (v < 0) return;
+  Val *x = &c->v[v];
+  if (x->emitted || x->stamp == c->stamp) return;
+  x->stamp = c->stamp;
+  emit_deps(c, out, x->a, depth);
+  emit_deps(c, out, x->b, depth);
+  emit_deps(c, out, x->c, depth);
+  if (x->named) emit_local(c, out, v, depth);
+}
+
+void cse_emit_deps(Cse *c, FILE *out, int v, int depth) {
+  c->stamp++;
+  emit_deps(c, out, v, depth);
+}
