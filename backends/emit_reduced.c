@@ -48,13 +48,9 @@ static long model_slots(const Model *m, Slot *s) {
         if (s) s[n] = (Slot){NULL, rt, my, m->classes[m->qclass[rt->named_q]].m, rt->proj};
         n++;
       }
-      for (int k = -1; k < rt->nops; k++) {
-        int ng = k < 0 ? rt->nnum : rt->ops[k].ntensors;
-        for (int g = 0; g < ng; g++) {
-          const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
-          if (s) s[n] = (Slot){x, NULL, x->rows, x->cols, x->data};
-          n++;
-        }
+      RTERM_FOR_TENSORS(rt, x) {
+        if (s) s[n] = (Slot){x, NULL, x->rows, x->cols, x->data};
+        n++;
       }
     }
   }

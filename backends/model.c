@@ -11,13 +11,11 @@
 #include "reduce.h"
 
 /* Visit every reduced tensor of a model. */
-#define FOR_TENSORS(m, x)                                                              \
-  for (int i_ = 0; i_ < (m)->nstages; i_++)                                            \
-    for (int t_ = 0; t_ < (m)->stages[i_].nterms; t_++)                                \
-      for (RTerm *rt_ = &(m)->stages[i_].terms[t_]; rt_; rt_ = NULL)                    \
-        for (int k_ = -1; k_ < rt_->nops; k_++)                                        \
-          for (int g_ = 0; g_ < (k_ < 0 ? rt_->nnum : rt_->ops[k_].ntensors); g_++)    \
-            for (RTensor *x = k_ < 0 ? &rt_->num[g_] : &rt_->ops[k_].t[g_]; x; x = NULL)
+#define FOR_TENSORS(m, x)                                           \
+  for (int i_ = 0; i_ < (m)->nstages; i_++)                         \
+    for (int t_ = 0; t_ < (m)->stages[i_].nterms; t_++)             \
+      for (RTerm *rt_ = &(m)->stages[i_].terms[t_]; rt_; rt_ = NULL) \
+        RTERM_FOR_TENSORS(rt_, x)
 
 static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quantities.v[q])->name; }
 

@@ -76,16 +76,23 @@ static const char *excerpt(char *buf, const char *s) {
   return buf;
 }
 
-/* A malloc'd printf, or NULL when out of memory. */
-__attribute__((format(printf, 1, 2))) static char *str_printf(const char *fmt, ...) {
-  va_list ap, ap2;
-  va_start(ap, fmt);
+/* A malloc'd vprintf, or NULL when out of memory. */
+static char *str_vprintf(const char *fmt, va_list ap) {
+  va_list ap2;
   va_copy(ap2, ap);
   int n = vsnprintf(NULL, 0, fmt, ap);
-  va_end(ap);
   char *s = n < 0 ? NULL : malloc((size_t)n + 1);
   if (s) vsnprintf(s, (size_t)n + 1, fmt, ap2);
   va_end(ap2);
+  return s;
+}
+
+/* A malloc'd printf, or NULL when out of memory. */
+__attribute__((format(printf, 1, 2))) static char *str_printf(const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  char *s = str_vprintf(fmt, ap);
+  va_end(ap);
   return s;
 }
 
@@ -240,14 +247,10 @@ static int append_meta(ModelStore *m, char *line) {
 }
 
 int model_store_meta(ModelStore *m, const char *fmt, ...) {
-  va_list ap, ap2;
+  va_list ap;
   va_start(ap, fmt);
-  va_copy(ap2, ap);
-  int n = vsnprintf(NULL, 0, fmt, ap);
+  char *line = str_vprintf(fmt, ap);
   va_end(ap);
-  char *line = n < 0 ? NULL : malloc((size_t)n + 1);
-  if (line) vsnprintf(line, (size_t)n + 1, fmt, ap2);
-  va_end(ap2);
   if (!line) return -1;
   if (!valid_meta(line)) {
     free(line);

@@ -65,6 +65,13 @@ typedef struct RTerm {
   ROp *ops;
 } RTerm;
 
+/* Every tensor x of term `rt`: its numerator's, then each operator's in
+ * order of application. */
+#define RTERM_FOR_TENSORS(rt, x)                                                     \
+  for (int k_ = -1; k_ < (rt)->nops; k_++)                                           \
+    for (int g_ = 0; g_ < (k_ < 0 ? (rt)->nnum : (rt)->ops[k_].ntensors); g_++)      \
+      for (RTensor *x = k_ < 0 ? &(rt)->num[g_] : &(rt)->ops[k_].t[g_]; x; x = NULL)
+
 typedef struct RStage {
   const Stage *st;
   int q;                    /* index in Program.quantities */

@@ -328,16 +328,12 @@ void model_size_tensors(Model *m) {
     long my = qm(m, rs->q);
     for (int t = 0; t < rs->nterms; t++) {
       RTerm *rt = &rs->terms[t];
-      for (int k = -1; k < rt->nops; k++) {
-        int n = k < 0 ? rt->nnum : rt->ops[k].ntensors;
-        for (int g = 0; g < n; g++) {
-          RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
-          x->rows = x->kind == RT_NUM ? my : x->kind == RT_DIAG ? my * (my + 1) / 2 : my * my;
-          x->cols = 1;
-          for (int j = 0; j < x->nin; j++) {
-            x->in_len[j] = sym_len(qm(m, x->in_q[j]), x->in_mult[j]);
-            x->cols *= x->in_len[j];
-          }
+      RTERM_FOR_TENSORS(rt, x) {
+        x->rows = x->kind == RT_NUM ? my : x->kind == RT_DIAG ? my * (my + 1) / 2 : my * my;
+        x->cols = 1;
+        for (int j = 0; j < x->nin; j++) {
+          x->in_len[j] = sym_len(qm(m, x->in_q[j]), x->in_mult[j]);
+          x->cols *= x->in_len[j];
         }
       }
     }
@@ -356,12 +352,8 @@ size_t model_bytes(const Model *m, size_t *tensor_bytes) {
     const RStage *rs = &m->stages[i];
     for (int t = 0; t < rs->nterms; t++) {
       const RTerm *rt = &rs->terms[t];
-      for (int k = -1; k < rt->nops; k++) {
-        int n = k < 0 ? rt->nnum : rt->ops[k].ntensors;
-        for (int g = 0; g < n; g++) {
-          const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
-          tb += sizeof(double) * (size_t)(x->rows * x->cols);
-        }
+      RTERM_FOR_TENSORS(rt, x) {
+        tb += sizeof(double) * (size_t)(x->rows * x->cols);
       }
       if (rt->proj) tb += sizeof(double) * (size_t)(qm(m, rs->q) * qm(m, rt->named_q));
     }
@@ -442,16 +434,12 @@ Reduced *reduced_new(Model *m, char *err, size_t errlen) {
     RStage *rs = &m->stages[i];
     for (int t = 0; t < rs->nterms; t++) {
       RTerm *rt = &rs->terms[t];
-      for (int k = -1; k < rt->nops; k++) {
-        int n = k < 0 ? rt->nnum : rt->ops[k].ntensors;
-        for (int g = 0; g < n; g++) {
-          const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
-          long zs = 0, inter = x->rows;
-          for (int j = 0; j < x->nin; j++) zs += x->in_len[j];
-          for (int j = 0; j + 1 < x->nin; j++) inter *= x->in_len[j];
-          maxz = zs > maxz ? zs : maxz;
-          maxbuf = inter > maxbuf ? inter : maxbuf;
-        }
+      RTERM_FOR_TENSORS(rt, x) {
+        long zs = 0, inter = x->rows;
+        for (int j = 0; j < x->nin; j++) zs += x->in_len[j];
+        for (int j = 0; j + 1 < x->nin; j++) inter *= x->in_len[j];
+        maxz = zs > maxz ? zs : maxz;
+        maxbuf = inter > maxbuf ? inter : maxbuf;
       }
     }
   }

@@ -44,12 +44,9 @@ static int tfail(char *err, size_t errlen, const char *fmt, ...) {
 /* ---------------------------------------------------------------- fields through the builders */
 
 typedef struct FieldSum {
-  NpgFull *f;
-  const TensorGroup *g;
-  const double *in[16];
+  const double *in[16];  /* the values of the tensor's inputs, in its input order */
   double *out;
   long n;
-  bool diag;
 } FieldSum;
 
 static int sum_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
@@ -67,7 +64,7 @@ static int sum_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_id
 static int field_value(NpgFull *f, const RTensor *ts, int nt, double *out, long n, char *err, size_t errlen) {
   memset(out, 0, sizeof(double) * (size_t)n);
   for (int g = 0; g < nt; g++) {
-    FieldSum s = {f, ts[g].group, {0}, out, n, false};
+    FieldSum s = {{0}, out, n};
     for (int i = 0; i < ts[g].group->ninputs; i++) s.in[i] = npg_full_get(f, ts[g].group->inputs[i]->name, NULL);
     NpgSink sink = {&s, sum_entry};
     if (full_build(f, ts[g].builder, &sink) != 0) return tfail(err, errlen, "%s", npg_full_error(f));
@@ -444,13 +441,9 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0, cy->B,
                     (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
       }
-      for (int k = -1; k < rt->nops; k++) {
-        int n = k < 0 ? rt->nnum : rt->ops[k].ntensors;
-        for (int g = 0; g < n; g++) {
-          RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
-          if (premultiply(m, f, x, cy->B, cy->n, cy->m, &flops, err, errlen)) goto fail;
-          progress_show(opt->progress, "pre-multiplication", ++done, ntensors);
-        }
+      RTERM_FOR_TENSORS(rt, x) {
+        if (premultiply(m, f, x, cy->B, cy->n, cy->m, &flops, err, errlen)) goto fail;
+        progress_show(opt->progress, "pre-multiplication", ++done, ntensors);
       }
     }
   }

@@ -17,46 +17,12 @@
 #include "support/memsamples.h"
 #include "support/randdata.h"
 #include "testutil.h"
-
-/* ---------------------------------------------------------------- random samples in memory (as test_reduce.c) */
-
-
+#include "trained.h"
 
 /* ---------------------------------------------------------------- a trained model */
 
-typedef struct Trained {
-  NpgProgram *p;
-  Program *prog;
-  NpgFull *f;
-  MemSamples train;
-  Model *m;
-} Trained;
-
-/* `path` (or `text` named `path`) trained on S random samples, every dim
- * of size n, caps of `cap`: truncated, non-trivial bases. */
-static void train(Trained *tr, const char *path, const char *text, long n, long S, int cap) {
-  memset(tr, 0, sizeof *tr);
-  tr->p = text ? compile_text(path, text) : compile_file(path);
-  tr->prog = ir_ok(tr->p);
-  tr->f = npg_full_new(tr->p, NPG_TCC);
-  if (mem_fill(&tr->train, tr->prog, tr->f, n, S, 5u)) fail_msg("binding random params failed");
-  SampleSource src = {S, &tr->train, mem_set};
-  TrainOptions opt = {0};
-  opt.cap = cap;
-  opt.energy = 1.0;
-  char err[2048] = "";
-  tr->m = train_model(tr->prog, tr->f, &src, &opt, err, sizeof err);
-  if (!tr->m) fail_msg("%s: training: %s", path, err);
-}
-
 static void train_small(Trained *tr, const char *path) { train(tr, path, NULL, 4, 12, 3); }
 
-static void trained_free(Trained *tr) {
-  model_free(tr->m);
-  mem_free(&tr->train);
-  npg_full_free(tr->f);
-  npg_free(tr->p);
-}
 
 /* Project the inputs of sample k of `ms` into every Reduced of r[0..n). */
 static void project_inputs(const Program *prog, const MemSamples *ms, long k, Reduced *const *r, int n) {

@@ -22,6 +22,7 @@
 #include "support/randdata.h"
 #include "support/refeval.h"
 #include "testutil.h"
+#include "trained.h"
 
 /* ---------------------------------------------------------------- random samples in memory */
 
@@ -224,37 +225,7 @@ static double brute_premul(const Model *m, NpgFull *f, const RTensor *t, const R
   return diff;
 }
 
-/* A model of `path` trained on random data with caps of 3 (truncated,
- * non-trivial bases). */
-typedef struct Trained {
-  NpgProgram *p;
-  Program *prog;
-  NpgFull *f;
-  MemSamples train;
-  Model *m;
-} Trained;
-
-static void train_small(Trained *tr, const char *path, int cap, long n) {
-  memset(tr, 0, sizeof *tr);
-  tr->p = compile_file(path);
-  tr->prog = ir_ok(tr->p);
-  tr->f = npg_full_new(tr->p, NPG_TCC);
-  if (mem_fill(&tr->train, tr->prog, tr->f, n, 12, 5u)) fail_msg("binding random params failed");
-  SampleSource src = {12, &tr->train, mem_set};
-  TrainOptions opt = {0};
-  opt.cap = cap;
-  opt.energy = 1.0;
-  char err[2048] = "";
-  tr->m = train_model(tr->prog, tr->f, &src, &opt, err, sizeof err);
-  if (!tr->m) fail_msg("%s: training: %s", path, err);
-}
-
-static void trained_free(Trained *tr) {
-  model_free(tr->m);
-  mem_free(&tr->train);
-  npg_full_free(tr->f);
-  npg_free(tr->p);
-}
+static void train_small(Trained *tr, const char *path, int cap, long n) { train(tr, path, NULL, n, 12, cap); }
 
 typedef struct PremulStats {
   double worst;
@@ -273,24 +244,22 @@ static int premul_program(const char *path, void *arg) {
     const RClass *cy = &m->classes[m->qclass[rs->q]];
     for (int t = 0; t < rs->nterms; t++) {
       RTerm *rt = &rs->terms[t];
-      for (int k = -1; k < rt->nops; k++)
-        for (int g = 0; g < (k < 0 ? rt->nnum : rt->ops[k].ntensors); g++) {
-          const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
-          double d = brute_premul(m, tr.f, x, cy);
-          if (d < 0) {
-            ps->skipped++;
-            continue;
-          }
-          ps->tensors++;
-          ps->kinds[x->kind]++;
-          ps->orders[x->group->order < 8 ? x->group->order : 7]++;
-          for (int j = 0; j < x->nin; j++) ps->packed += x->in_mult[j] > 1;
-          ps->worst = fmax(ps->worst, d);
-          if (!(d <= 1e-12)) {
-            print_message("%s: tensor %s: pre-multiplied differs from brute force by %.3g\n", path, x->name, d);
-            failures++;
-          }
+      RTERM_FOR_TENSORS(rt, x) {
+        double d = brute_premul(m, tr.f, x, cy);
+        if (d < 0) {
+          ps->skipped++;
+          continue;
         }
+        ps->tensors++;
+        ps->kinds[x->kind]++;
+        ps->orders[x->group->order < 8 ? x->group->order : 7]++;
+        for (int j = 0; j < x->nin; j++) ps->packed += x->in_mult[j] > 1;
+        ps->worst = fmax(ps->worst, d);
+        if (!(d <= 1e-12)) {
+          print_message("%s: tensor %s: pre-multiplied differs from brute force by %.3g\n", path, x->name, d);
+          failures++;
+        }
+      }
     }
   }
   trained_free(&tr);
