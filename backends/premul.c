@@ -14,15 +14,39 @@
  * of B_y[row] ⊗ B_y[row] (diagonal operator: BᵀDB is symmetric), or
  * B_y[row] ⊗ B_y[col] (declared operator). An input repeated k times
  * contributes its packed symmetrized power (reduce.h), so x ⊗ x is stored
- * once. All dense work is OpenBLAS dgemm. */
+ * once. All dense work is OpenBLAS dgemm.
+ *
+ * Map and reduce across output blocks: the builder's callback only records
+ * a block's entries; the block's keys are then split at row boundaries
+ * over worker threads (one per core), each accumulating its keys' rows of W
+ * and K with its own scratch; the block's final GEMM uses OpenBLAS's
+ * threads. A last x ⊗ x axis with many monomials per key is accumulated
+ * unpacked — one real GEMM of full basis rows per batch, folded into packed
+ * form — instead of one packed row per entry. */
 #include <cblas.h>
+#include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "reduce.h"
 
-#define PREMUL_PENDING 64          /* entries batched per GEMM of a key */
+#define PREMUL_PENDING 64               /* entries batched per GEMM of a key */
 #define PREMUL_BLOCK_BYTES (64L << 20)  /* bound on a block's W */
+#define PREMUL_UNPACK_MONOS 8           /* monomials per key from which x ⊗ x goes unpacked */
+#define PREMUL_MAX_WORKERS 8
+
+struct Premul;
+
+/* One worker's share of a block: keys [k0, k1), their entries [e0, e1). */
+typedef struct Worker {
+  struct Premul *p;
+  long k0, k1, e0, e1;
+  double *U, *V, *G;          /* pending U rows, V rows; unpacked flush scratch */
+  double *vec;                /* packed input vectors of one entry */
+  long npend, pend_key;
+  double flops;
+} Worker;
 
 typedef struct Premul {
   const Model *m;
@@ -32,54 +56,216 @@ typedef struct Premul {
   const double *Bin[RT_MAX_IN];
   long min[RT_MAX_IN], nin_full[RT_MAX_IN];
   long pre, last;             /* cols = pre * last: the last input axis apart */
+  bool unpack;                /* last axis x ⊗ x accumulated unpacked, folded per flush */
+  long mu;                    /* the last input's basis size m */
+  long ulen, vlen;            /* lengths of a U row and a V row */
   long KB, nkeys, row_start;  /* keys per block, keys in block, first key of the current row */
   long *key_row, *key_col;
   double *W;                  /* KB x cols */
   double *K;                  /* KB x rows */
-  long npend, pend_key;
-  double *U, *V;              /* PREMUL_PENDING x pre, x last */
-  double *vec;                /* packed input vectors of one entry */
-  double *kron;               /* running Kronecker product */
+  /* the block's entries, in stream order */
+  long nent, capent;
+  int nidx;                   /* input offsets per entry */
+  long *ent_key;
+  double *ent_coef;
+  npg_idx *ent_in;
+  int nworkers;
+  Worker wk[PREMUL_MAX_WORKERS];
   double flops;
   char *err;
   size_t errlen;
 } Premul;
 
-static void flush_pending(Premul *p) {
-  if (p->npend == 0) return;
-  double *Wk = p->W + p->pend_key * p->pre * p->last;
-  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)p->pre, (int)p->last, (int)p->npend, 1.0, p->U,
-              (int)p->pre, p->V, (int)p->last, 1.0, Wk, (int)p->last);
-  p->flops += 2.0 * (double)p->pre * (double)p->last * (double)p->npend;
-  p->npend = 0;
+/* Unpacked x ⊗ x: G = Σ_e U_eᵀ V_e over the pending entries, U_e =
+ * coef · prefix ⊗ B[i], V_e = B[j]; then fold into the packed row,
+ * w(a,a) += G[a,a], w(a,b) += G[a,b] + G[b,a] (sym_outer's coordinates). */
+static void flush_unpacked(Worker *w, double *Wk) {
+  const Premul *p = w->p;
+  long m = p->mu, pm = p->pre * m;
+  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)pm, (int)m, (int)w->npend, 1.0, w->U, (int)pm, w->V,
+              (int)m, 0.0, w->G, (int)m);
+  for (long q = 0; q < p->pre; q++) {
+    const double *g = w->G + q * m * m;
+    double *wr = Wk + q * p->last;
+    for (long a = 0; a < m; a++) {
+      const double *ga = g + a * m;
+      *wr++ += ga[a];
+      for (long b = a + 1; b < m; b++) *wr++ += ga[b] + g[b * m + a];
+    }
+  }
+}
+
+static void flush_pending(Worker *w) {
+  if (w->npend == 0) return;
+  const Premul *p = w->p;
+  double *Wk = p->W + w->pend_key * p->t->cols;
+  /* flops are counted as the packed product's, the useful work */
+  w->flops += 2.0 * (double)p->pre * (double)p->last * (double)w->npend;
+  if (p->unpack) flush_unpacked(w, Wk);
+  else if (w->npend == 1 && p->pre == 1) cblas_daxpy((int)p->last, w->U[0], w->V, 1, Wk, 1);
+  else
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)p->pre, (int)p->last, (int)w->npend, 1.0, w->U,
+                (int)p->pre, w->V, (int)p->last, 1.0, Wk, (int)p->last);
+  w->npend = 0;
+}
+
+/* K's row of key k: what the output basis contributes. */
+static void key_row(const Premul *p, long k) {
+  const RTensor *t = p->t;
+  long my = p->my;
+  double *Kk = p->K + k * t->rows;
+  const double *b = p->By + p->key_row[k] * my;
+  if (t->kind == RT_NUM) {
+    memcpy(Kk, b, sizeof(double) * (size_t)my);
+  } else if (t->kind == RT_DIAG) {
+    long q = 0;
+    for (long a = 0; a < my; a++)
+      for (long c = a; c < my; c++) Kk[q++] = b[a] * b[c];
+  } else {
+    const double *bc = p->By + p->key_col[k] * my;
+    for (long a = 0; a < my; a++)
+      for (long c = 0; c < my; c++) Kk[a * my + c] = b[a] * bc[c];
+  }
+}
+
+/* Append entry e to the worker's pending batch: U row = coef · v_1 ⊗ … ⊗
+ * v_{J-1}, V row = v_J (packed vectors of the inputs); unpacked x ⊗ x last:
+ * U row = coef · v_1 ⊗ … ⊗ v_{J-1} ⊗ B[i], V row = B[j]. */
+static void pend_entry(Worker *w, long e) {
+  const Premul *p = w->p;
+  const RTensor *t = p->t;
+  double coef = p->ent_coef[e];
+  const npg_idx *in = p->ent_in + e * p->nidx;
+  double *Ur = w->U + w->npend * p->ulen, *Vr = w->V + w->npend * p->vlen;
+  if (t->nin == 0) {
+    Ur[0] = coef;
+    Vr[0] = 1;
+    return;
+  }
+  int pos = 0, nk = 0; /* nk: factors of U's Kronecker product */
+  const double *v[RT_MAX_IN + 1];
+  long vl[RT_MAX_IN + 1];
+  double *vp = w->vec;
+  for (int j = 0; j < t->nin; j++) {
+    const double *rows[RT_MAX_IN];
+    for (int l = 0; l < t->in_mult[j]; l++, pos++) rows[l] = p->Bin[j] + in[pos] * p->min[j];
+    if (j == t->nin - 1 && p->unpack) {
+      v[nk] = rows[0];
+      vl[nk++] = p->mu;
+      memcpy(Vr, rows[1], sizeof(double) * (size_t)p->mu);
+    } else if (j == t->nin - 1) {
+      sym_outer(p->min[j], t->in_mult[j], rows, Vr);
+    } else {
+      sym_outer(p->min[j], t->in_mult[j], rows, vp);
+      v[nk] = vp;
+      vl[nk++] = t->in_len[j];
+      vp += t->in_len[j];
+    }
+  }
+  Ur[0] = coef;
+  long len = 1;
+  for (int j = 0; j < nk; j++) {
+    long lj = vl[j];
+    /* expand in place from the back: Ur[a*lj + b] = Ur[a] * v_j[b] */
+    for (long a = len - 1; a >= 0; a--) {
+      double ua = Ur[a];
+      for (long b = lj - 1; b >= 0; b--) Ur[a * lj + b] = ua * v[j][b];
+    }
+    len *= lj;
+  }
+}
+
+/* A worker's share: zero its W rows, fill its K rows, accumulate its entries. */
+static void *work(void *arg) {
+  Worker *w = arg;
+  const Premul *p = w->p;
+  long cols = p->t->cols;
+  memset(p->W + w->k0 * cols, 0, sizeof(double) * (size_t)((w->k1 - w->k0) * cols));
+  for (long k = w->k0; k < w->k1; k++) key_row(p, k);
+  w->npend = 0;
+  w->pend_key = -1;
+  for (long e = w->e0; e < w->e1; e++) {
+    long key = p->ent_key[e];
+    if (key != w->pend_key) {
+      flush_pending(w);
+      w->pend_key = key;
+    }
+    pend_entry(w, e);
+    if (++w->npend == PREMUL_PENDING) flush_pending(w);
+  }
+  flush_pending(w);
+  return NULL;
+}
+
+/* Split the block's keys over the workers at row boundaries, balancing
+ * entries (a row's keys, and so its entries, stay with one worker: entries
+ * of one row are contiguous in the stream and their keys are numbered
+ * together). */
+static void split_block(Premul *p) {
+  int nw = p->nworkers;
+  long kprev = 0, eprev = 0;
+  for (int i = 0; i < nw; i++) {
+    Worker *w = &p->wk[i];
+    long ks = p->nkeys, es = p->nent;
+    if (i + 1 < nw) {
+      long e = p->nent * (i + 1) / nw;
+      ks = e < p->nent ? p->ent_key[e] : p->nkeys;
+      while (ks > 0 && ks < p->nkeys && p->key_row[ks - 1] == p->key_row[ks]) ks--;
+      if (ks < kprev) ks = kprev;
+      es = eprev;
+      while (es < p->nent && p->ent_key[es] < ks) es++;
+    }
+    w->k0 = kprev;
+    w->k1 = ks;
+    w->e0 = eprev;
+    w->e1 = es;
+    kprev = ks;
+    eprev = es;
+  }
 }
 
 static void flush_block(Premul *p) {
-  flush_pending(p);
   if (p->nkeys == 0) return;
   RTensor *t = p->t;
-  long my = p->my;
-  for (long k = 0; k < p->nkeys; k++) {
-    double *Kk = p->K + k * t->rows;
-    const double *b = p->By + p->key_row[k] * my;
-    if (t->kind == RT_NUM) {
-      memcpy(Kk, b, sizeof(double) * (size_t)my);
-    } else if (t->kind == RT_DIAG) {
-      long q = 0;
-      for (long a = 0; a < my; a++)
-        for (long c = a; c < my; c++) Kk[q++] = b[a] * b[c];
-    } else {
-      const double *bc = p->By + p->key_col[k] * my;
-      for (long a = 0; a < my; a++)
-        for (long c = 0; c < my; c++) Kk[a * my + c] = b[a] * bc[c];
-    }
+  split_block(p);
+  pthread_t tid[PREMUL_MAX_WORKERS];
+  bool started[PREMUL_MAX_WORKERS] = {false};
+  /* the workers' small GEMMs on one BLAS thread each: OpenBLAS's own pool
+   * would otherwise be shared by the workers (process-global setting,
+   * restored for the block's GEMM) */
+  int blas_threads = openblas_get_num_threads();
+  if (p->nworkers > 1) openblas_set_num_threads(1);
+  for (int i = 1; i < p->nworkers; i++)
+    started[i] = p->wk[i].k1 > p->wk[i].k0 && pthread_create(&tid[i], NULL, work, &p->wk[i]) == 0;
+  work(&p->wk[0]);
+  for (int i = 1; i < p->nworkers; i++) {
+    if (started[i]) pthread_join(tid[i], NULL);
+    else if (p->wk[i].k1 > p->wk[i].k0) work(&p->wk[i]); /* no thread: do it here */
   }
+  if (p->nworkers > 1) openblas_set_num_threads(blas_threads);
   long cols = t->cols;
   cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)t->rows, (int)cols, (int)p->nkeys, 1.0, p->K,
               (int)t->rows, p->W, (int)cols, 1.0, t->data, (int)cols);
   p->flops += 2.0 * (double)t->rows * (double)cols * (double)p->nkeys;
   p->nkeys = 0;
   p->row_start = 0;
+  p->nent = 0;
+}
+
+static int grow_entries(Premul *p) {
+  long cap = p->capent ? 2 * p->capent : 4096;
+  long *k = realloc(p->ent_key, sizeof(long) * (size_t)cap);
+  if (k) p->ent_key = k;
+  double *c = realloc(p->ent_coef, sizeof(double) * (size_t)cap);
+  if (c) p->ent_coef = c;
+  npg_idx *in = realloc(p->ent_in, sizeof(npg_idx) * (size_t)(cap * (p->nidx ? p->nidx : 1)));
+  if (in) p->ent_in = in;
+  if (!k || !c || !in) {
+    snprintf(p->err, p->errlen, "out of memory pre-multiplying %s (%ld entries in a block)", p->t->name, cap);
+    return -1;
+  }
+  p->capent = cap;
+  return 0;
 }
 
 static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
@@ -90,6 +276,12 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
              (long)col, p->ny);
     return -1;
   }
+  for (int pos = 0, j = 0; j < t->nin; j++)
+    for (int l = 0; l < t->in_mult[j]; l++, pos++)
+      if (pos >= nin || in[pos] < 0 || in[pos] >= p->nin_full[j]) {
+        snprintf(p->err, p->errlen, "tensor %s: input offset out of range (a bug in npg)", t->name);
+        return -1;
+      }
   /* the key of this entry */
   long key = -1;
   bool same_row = p->nkeys > 0 && p->key_row[p->nkeys - 1] == row;
@@ -110,53 +302,27 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
     key = p->nkeys++;
     p->key_row[key] = row;
     p->key_col[key] = col;
-    memset(p->W + key * t->cols, 0, sizeof(double) * (size_t)t->cols);
   }
-  if (key != p->pend_key) {
-    flush_pending(p);
-    p->pend_key = key;
-  }
-  /* packed vectors of the inputs, then U row = coef · v_1 ⊗ … ⊗ v_{J-1}, V row = v_J */
-  double *Ur = p->U + p->npend * p->pre, *Vr = p->V + p->npend * p->last;
-  if (t->nin == 0) {
-    Ur[0] = coef;
-    Vr[0] = 1;
-  } else {
-    int pos = 0;
-    double *v[RT_MAX_IN];
-    double *vp = p->vec;
-    for (int j = 0; j < t->nin; j++) {
-      const double *rows[RT_MAX_IN];
-      for (int l = 0; l < t->in_mult[j]; l++, pos++) {
-        if (pos >= nin || in[pos] < 0 || in[pos] >= p->nin_full[j]) {
-          snprintf(p->err, p->errlen, "tensor %s: input offset out of range (a bug in npg)", t->name);
-          return -1;
-        }
-        rows[l] = p->Bin[j] + in[pos] * p->min[j];
-      }
-      v[j] = j == t->nin - 1 ? Vr : vp;
-      sym_outer(p->min[j], t->in_mult[j], rows, v[j]);
-      if (j < t->nin - 1) vp += t->in_len[j];
-    }
-    /* Kronecker product of v_0 … v_{J-2}, scaled by coef */
-    Ur[0] = coef;
-    long len = 1;
-    for (int j = 0; j + 1 < t->nin; j++) {
-      long lj = t->in_len[j];
-      /* expand in place from the back: Ur[a*lj + b] = Ur[a] * v_j[b] */
-      for (long a = len - 1; a >= 0; a--) {
-        double ua = Ur[a];
-        for (long b = lj - 1; b >= 0; b--) Ur[a * lj + b] = ua * v[j][b];
-      }
-      len *= lj;
-    }
-  }
-  if (++p->npend == PREMUL_PENDING) flush_pending(p);
+  if (p->nent == p->capent && grow_entries(p)) return -1;
+  p->ent_key[p->nent] = key;
+  p->ent_coef[p->nent] = coef;
+  if (p->nidx) memcpy(p->ent_in + p->nent * p->nidx, in, sizeof(npg_idx) * (size_t)p->nidx);
+  p->nent++;
   return 0;
+}
+
+static int workers_online(void) {
+  long n = sysconf(_SC_NPROCESSORS_ONLN);
+  return n < 1 ? 1 : n > PREMUL_MAX_WORKERS ? PREMUL_MAX_WORKERS : (int)n;
 }
 
 int premultiply(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
                 size_t errlen) {
+  return premultiply_unpacking(m, f, t, By, ny, my, PREMUL_UNPACK_MONOS, flops, err, errlen);
+}
+
+int premultiply_unpacking(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
+                          double *flops, char *err, size_t errlen) {
   Premul p = {0};
   p.m = m;
   p.t = t;
@@ -165,31 +331,45 @@ int premultiply(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, lon
   p.my = my;
   p.err = err;
   p.errlen = errlen;
-  p.pend_key = -1;
   long veclen = 1;
   for (int j = 0; j < t->nin; j++) {
     const RClass *c = &m->classes[m->qclass[t->in_q[j]]];
     p.Bin[j] = c->B;
     p.min[j] = c->m;
     p.nin_full[j] = c->n;
+    p.nidx += t->in_mult[j];
     veclen += t->in_len[j];
   }
   p.last = t->nin ? t->in_len[t->nin - 1] : 1;
   p.pre = t->cols / p.last;
+  /* many monomials per key on a last x ⊗ x axis: one real GEMM per batch
+   * instead of a packed row per entry (a GEMV) */
+  p.unpack = t->nin > 0 && t->in_mult[t->nin - 1] == 2 && t->group && t->group->nmono >= unpack_min_monos;
+  p.mu = t->nin ? p.min[t->nin - 1] : 1;
+  p.ulen = p.unpack ? p.pre * p.mu : p.pre;
+  p.vlen = p.unpack ? p.mu : p.last;
   long bytes_per_key = (long)sizeof(double) * (t->cols + t->rows);
   p.KB = PREMUL_BLOCK_BYTES / (bytes_per_key ? bytes_per_key : 1);
   if (p.KB > 1024) p.KB = 1024;
   if (p.KB < 1) p.KB = 1;
+  p.nworkers = workers_online();
   t->data = calloc((size_t)(t->rows * t->cols) + 1, sizeof(double));
   p.key_row = malloc(sizeof(long) * (size_t)p.KB);
   p.key_col = malloc(sizeof(long) * (size_t)p.KB);
   p.W = malloc(sizeof(double) * (size_t)(p.KB * t->cols));
   p.K = malloc(sizeof(double) * (size_t)(p.KB * t->rows));
-  p.U = malloc(sizeof(double) * (size_t)(PREMUL_PENDING * p.pre));
-  p.V = malloc(sizeof(double) * (size_t)(PREMUL_PENDING * p.last));
-  p.vec = malloc(sizeof(double) * (size_t)veclen);
+  bool ok = t->data && p.key_row && p.key_col && p.W && p.K;
+  for (int i = 0; i < p.nworkers; i++) {
+    Worker *w = &p.wk[i];
+    w->p = &p;
+    w->U = malloc(sizeof(double) * (size_t)(PREMUL_PENDING * p.ulen));
+    w->V = malloc(sizeof(double) * (size_t)(PREMUL_PENDING * p.vlen));
+    w->G = p.unpack ? malloc(sizeof(double) * (size_t)(p.ulen * p.mu)) : NULL;
+    w->vec = malloc(sizeof(double) * (size_t)veclen);
+    ok = ok && w->U && w->V && w->vec && (!p.unpack || w->G);
+  }
   int rc = -1;
-  if (!t->data || !p.key_row || !p.key_col || !p.W || !p.K || !p.U || !p.V || !p.vec) {
+  if (!ok) {
     snprintf(err, errlen, "out of memory pre-multiplying %s (%ld x %ld reduced entries)", t->name, t->rows, t->cols);
     goto done;
   }
@@ -200,6 +380,7 @@ int premultiply(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, lon
     goto done;
   }
   flush_block(&p);
+  for (int i = 0; i < p.nworkers; i++) p.flops += p.wk[i].flops;
   if (flops) *flops += p.flops;
   rc = 0;
 done:
@@ -207,9 +388,15 @@ done:
   free(p.key_col);
   free(p.W);
   free(p.K);
-  free(p.U);
-  free(p.V);
-  free(p.vec);
+  free(p.ent_key);
+  free(p.ent_coef);
+  free(p.ent_in);
+  for (int i = 0; i < p.nworkers; i++) {
+    free(p.wk[i].U);
+    free(p.wk[i].V);
+    free(p.wk[i].G);
+    free(p.wk[i].vec);
+  }
   if (rc != 0) {
     free(t->data);
     t->data = NULL;

@@ -193,9 +193,16 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
 /* Pre-multiply one tensor group: stream the builder's entries, accumulate
  * outer products of basis rows per output block, finish each block with a
  * GEMM against the output basis. `t` sized by model_size_tensors; fills
- * t->data. `flops` (optional) accumulates the arithmetic done. */
+ * t->data. `flops` (optional) accumulates the useful arithmetic (that of
+ * the packed products). */
 int premultiply(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
                 size_t errlen);
+/* The same, choosing the path for a last x ⊗ x axis: unpacked (one GEMM of
+ * full basis rows per batch, folded into packed form) when the group has at
+ * least unpack_min_monos monomials, packed per entry otherwise. premultiply
+ * uses 8; tests force each path. */
+int premultiply_unpacking(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
+                          double *flops, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- reduced evaluation (reduced.c) */
 
