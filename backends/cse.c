@@ -29,6 +29,7 @@ typedef struct Val {
   const char *hint;    /* name for its local */
   /* planning */
   bool reached, named, emitted;
+  bool pending;        /* declared; defined where its statement reads it */
   int uses, eval;      /* users; the deepest loop it is evaluated in */
   const char *local;
   unsigned stamp;
@@ -337,9 +338,17 @@ static void print_double_arg(Cse *c, FILE *out, int v) {
 /* `top`: the outermost expression of a statement or an index, printed
  * without its parentheses. */
 static void print_val(Cse *c, FILE *out, int v, bool top) {
-  const Val *x = &c->v[v];
+  Val *x = &c->v[v];
   if (x->emitted) {
     fputs(x->local, out);
+    return;
+  }
+  if (x->pending) { /* its one read in this statement defines it */
+    x->pending = false;
+    fprintf(out, "(%s = ", x->local);
+    print_val(c, out, v, true);
+    fputc(')', out);
+    x->emitted = true;
     return;
   }
   const char *op = binop_text(x->op);
@@ -404,8 +413,6 @@ static void print_val(Cse *c, FILE *out, int v, bool top) {
   internal_error(c->ctx, __FILE__, __LINE__, "value not printed");
 }
 
-void cse_print(Cse *c, FILE *out, int v) { print_val(c, out, v, true); }
-
 static void indent(FILE *out, int depth) {
   for (int i = 0; i < depth; i++) fputs("  ", out);
 }
@@ -423,6 +430,58 @@ static const char *local_name(Cse *c, const Val *x) {
   return arena_printf(c->ctx, "t%d", c->nlocals++);
 }
 
+static void emit_deps(Cse *c, FILE *out, int v, int depth);
+
+/* Does `op` evaluate each of its operands exactly once? */
+static bool evaluates_operands_once(ValOp op) {
+  return op != VAL_SELECT && op != VAL_AND && op != VAL_OR && op != VAL_SUM;
+}
+
+/* How many times printing v (when not a local yet) reads o. */
+static int printed_reads(const Cse *c, int v, int o) {
+  if (v < 0) return 0;
+  if (v == o) return 1;
+  const Val *x = &c->v[v];
+  if (x->emitted) return 0;
+  return printed_reads(c, x->a, o) + printed_reads(c, x->b, o) + printed_reads(c, x->c, o);
+}
+
+/* The locals a statement computing v (and printing `extra` too, when
+ * >= 0) reads, v excluded. An operand of v that the statement reads once,
+ * and no local before it reads at all, is only declared here and defined
+ * where the statement reads it, `(t = ...)`: libtcc keeps every local on
+ * the stack, and this saves it a reload per such value (gcc sees the same
+ * dataflow). The operands of v are evaluated once, so the assignment
+ * always runs, and it is the statement's only read of the local, so it is
+ * not unsequenced with another. */
+static void emit_operands(Cse *c, FILE *out, int v, int extra, int depth) {
+  Val *x = &c->v[v];
+  int ops[3] = {x->a, x->b, x->c};
+  bool inline_def[3];
+  for (int k = 0; k < 3; k++) {
+    const Val *o = ops[k] >= 0 ? &c->v[ops[k]] : NULL;
+    inline_def[k] = o && evaluates_operands_once(x->op) && o->named && !o->emitted && o->stamp != c->stamp;
+    if (!inline_def[k]) emit_deps(c, out, ops[k], depth);
+  }
+  if (extra >= 0) emit_deps(c, out, extra, depth);
+  for (int k = 0; k < 3; k++) {
+    if (!inline_def[k]) continue;
+    Val *o = &c->v[ops[k]];
+    if (o->emitted || o->stamp == c->stamp || printed_reads(c, v, ops[k]) + printed_reads(c, extra, ops[k]) != 1) {
+      emit_deps(c, out, ops[k], depth); /* a local before the statement after all */
+      continue;
+    }
+    o->stamp = c->stamp;
+    emit_deps(c, out, o->a, depth);
+    emit_deps(c, out, o->b, depth);
+    emit_deps(c, out, o->c, depth);
+    o->local = local_name(c, o);
+    o->pending = true;
+    indent(out, depth);
+    fprintf(out, "%s %s;\n", o->is_int ? "npg_idx" : "double", o->local);
+  }
+}
+
 static void emit_local(Cse *c, FILE *out, int v, int depth) {
   Val *x = &c->v[v];
   indent(out, depth);
@@ -437,7 +496,11 @@ static void emit_local(Cse *c, FILE *out, int v, int depth) {
 
 void cse_emit_level(Cse *c, FILE *out, int level, int depth) {
   for (int i = 0; i < c->n; i++)
-    if (c->v[i].named && !c->v[i].emitted && c->v[i].level == level) emit_local(c, out, i, depth);
+    if (c->v[i].named && !c->v[i].emitted && c->v[i].level == level) {
+      c->stamp++;
+      emit_operands(c, out, i, -1, depth);
+      emit_local(c, out, i, depth);
+    }
 }
 
 static void emit_deps(Cse *c, FILE *out, int v, int depth) {
@@ -445,13 +508,35 @@ static void emit_deps(Cse *c, FILE *out, int v, int depth) {
   Val *x = &c->v[v];
   if (x->emitted || x->stamp == c->stamp) return;
   x->stamp = c->stamp;
-  emit_deps(c, out, x->a, depth);
-  emit_deps(c, out, x->b, depth);
-  emit_deps(c, out, x->c, depth);
-  if (x->named) emit_local(c, out, v, depth);
+  if (!x->named) {
+    emit_deps(c, out, x->a, depth);
+    emit_deps(c, out, x->b, depth);
+    emit_deps(c, out, x->c, depth);
+    return;
+  }
+  emit_operands(c, out, v, -1, depth);
+  emit_local(c, out, v, depth);
 }
 
-void cse_emit_deps(Cse *c, FILE *out, int v, int depth) {
+void cse_emit_store(Cse *c, FILE *out, const char *array, int offset, int v, int depth) {
   c->stamp++;
-  emit_deps(c, out, v, depth);
+  Val *x = &c->v[v];
+  bool define = !x->emitted && x->stamp != c->stamp;
+  if (define) {
+    x->stamp = c->stamp;
+    emit_operands(c, out, v, offset, depth);
+  } else {
+    emit_deps(c, out, offset, depth);
+  }
+  indent(out, depth);
+  if (define && x->named) { /* read again later: a local too, without a reload (see emit_operands) */
+    x->local = local_name(c, x);
+    fprintf(out, "const %s %s = ", x->is_int ? "npg_idx" : "double", x->local);
+  }
+  fprintf(out, "%s[", array);
+  print_val(c, out, offset, true);
+  fputs("] = ", out);
+  print_val(c, out, v, true);
+  fputs(";\n", out);
+  if (define && x->named) x->emitted = true;
 }

@@ -77,8 +77,7 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n);
  * distinct subexpression once, printed in the outermost loop whose
  * variables it reads. Build values bottom-up (ids), mark what the loop body
  * stores as roots, plan, then print: cse_emit_level at the top of each loop
- * but the innermost, cse_emit_deps before each statement of the innermost,
- * cse_print for the statement's expressions. */
+ * but the innermost, then each store of the innermost with cse_emit_store. */
 typedef enum ValOp {
   VAL_NUM,    /* a literal */
   VAL_LEAF,   /* a loop, summation or other variable, or a dim: C text */
@@ -130,8 +129,9 @@ void cse_plan(Cse *c);
 /* After planning: is `array` read by what the nest stores? */
 bool cse_reads(const Cse *c, const char *array);
 void cse_emit_level(Cse *c, FILE *out, int level, int depth);
-void cse_emit_deps(Cse *c, FILE *out, int v, int depth);
-void cse_print(Cse *c, FILE *out, int v);
+/* The statement `array[offset] = v;` with the locals it reads before it;
+ * when v is read again later it becomes a local in the same statement. */
+void cse_emit_store(Cse *c, FILE *out, const char *array, int offset, int v, int depth);
 /* backends/emit_builder.c */
 void emit_builders(Ctx *ctx, const Program *prog, FILE *out);
 /* The name of the builder function of tensor `group` of `field` (0 = the

@@ -455,15 +455,8 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
       fprintf(out, "/* %s */\n", st->sym->name);
     }
     for (int c = 0; c < st->ncomp; c++) {
-      cse_emit_deps(cs, out, e->fused_val[m][c], depth);
-      cse_emit_deps(cs, out, offset[m][c], depth);
-      indent(out, depth);
       emit_use(e, st->sym);
-      fprintf(out, "%s[", emit_name(e, st->sym));
-      cse_print(cs, out, offset[m][c]);
-      fputs("] = ", out);
-      cse_print(cs, out, e->fused_val[m][c]);
-      fputs(";\n", out);
+      cse_emit_store(cs, out, emit_name(e, st->sym), offset[m][c], e->fused_val[m][c], depth);
     }
   }
   for (int i = nl; i >= 1; i--) {
