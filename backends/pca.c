@@ -4,7 +4,17 @@
  * like any other), truncated at an energy fraction and a cap; a class's
  * member bases concatenated and re-orthonormalized, dropping dependent
  * directions (paper §6.1: two 60-vector bases gave a 120-vector one). All
- * factorizations through LAPACKE. */
+ * factorizations through LAPACKE.
+ *
+ * Tall snapshot matrices (n ≥ 4 columns) go through their Gram matrix, the
+ * method of snapshots of DESIGN §5: G = XᵀX (one dsyrk or dgemm per block
+ * pair), its eigenvectors V (dsyevd), U = X V Σ⁻¹ (dgemm), one Cholesky-QR
+ * pass to restore orthonormality — an order of magnitude faster than a
+ * tall SVD, whose QR is bandwidth-bound. The Gram matrix resolves singular
+ * values only down to about √ε σ_max, so when a direction the result needs
+ * (kept, or to be told apart from a dependent one) lies below
+ * PCA_GRAM_TOL σ_max, the SVD (dgesdd) decides instead. */
+#include <cblas.h>
 #include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
@@ -15,6 +25,124 @@
 /* Singular values below this fraction of the largest are dependent
  * directions, not data. */
 #define PCA_RANK_TOL 1e-10
+/* Singular values the Gram route resolves: above this fraction of the largest. */
+#define PCA_GRAM_TOL 1e-6
+
+/* A block of columns of a snapshot matrix with n rows: column-major (ld n)
+ * or row-major (ld k). */
+typedef struct Cols {
+  const double *p;
+  long k;
+  bool colmajor;
+} Cols;
+
+static CBLAS_TRANSPOSE as_rows(const Cols *c) { return c->colmajor ? CblasTrans : CblasNoTrans; }
+static long ld(const Cols *c, long n) { return c->colmajor ? n : c->k; }
+
+typedef enum { GRAM_DONE, GRAM_UNRESOLVED, GRAM_FAILED } GramResult;
+
+/* Left singular vectors of X = [X_0 … X_{r-1}] (n rows, K columns) through
+ * the Gram matrix: on GRAM_DONE, *U (n x kept, row-major) and the singular
+ * values s[0..K) descending. `choose` picks how many to keep from s; it is
+ * told unresolved ones are below resolved (s below PCA_GRAM_TOL s[0]
+ * unreliable): GRAM_UNRESOLVED when it needs one. */
+typedef long (*ChooseFn)(const double *s, long K, const void *arg, bool *unresolved);
+
+static GramResult gram_basis(long n, int r, const Cols *X, ChooseFn choose, const void *arg, double *s, double **U,
+                             long *kept_out) {
+  long K = 0;
+  for (int i = 0; i < r; i++) K += X[i].k;
+  double *G = calloc((size_t)(K * K), sizeof(double)), *lam = malloc(sizeof(double) * (size_t)K);
+  double *W = NULL, *Ut = NULL;
+  GramResult res = GRAM_FAILED;
+  if (!G || !lam) goto done;
+  /* G = XᵀX, column-major K x K, upper triangle */
+  for (int i = 0, oi = 0; i < r; oi += (int)X[i].k, i++)
+    for (int j = i, oj = oi; j < r; oj += (int)X[j].k, j++) {
+      double *Gij = G + (size_t)oj * (size_t)K + (size_t)oi;
+      if (i == j)
+        cblas_dsyrk(CblasColMajor, CblasUpper, X[i].colmajor ? CblasTrans : CblasNoTrans, (int)X[i].k, (int)n, 1.0,
+                    X[i].p, (int)ld(&X[i], n), 0.0, Gij, (int)K);
+      else
+        cblas_dgemm(CblasColMajor, as_rows(&X[i]), X[j].colmajor ? CblasNoTrans : CblasTrans, (int)X[i].k,
+                    (int)X[j].k, (int)n, 1.0, X[i].p, (int)ld(&X[i], n), X[j].p, (int)ld(&X[j], n), 0.0, Gij, (int)K);
+    }
+  if (LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (lapack_int)K, G, (lapack_int)K, lam) != 0) goto done;
+  for (long i = 0; i < K; i++) s[i] = sqrt(fmax(lam[K - 1 - i], 0.0)); /* descending */
+  bool unresolved = false;
+  long kept = choose(s, K, arg, &unresolved);
+  if (unresolved || (kept > 0 && !(s[kept - 1] > PCA_GRAM_TOL * s[0]))) {
+    res = GRAM_UNRESOLVED;
+    goto done;
+  }
+  long kk = kept ? kept : 1;
+  /* W = V_kept Σ⁻¹ (K x kept, column-major), then Uᵀ = Σ_i W_iᵀ X_iᵀ
+   * (kept x n column-major = U row-major) */
+  W = malloc(sizeof(double) * (size_t)(K * kk));
+  Ut = calloc((size_t)(n * kk), sizeof(double));
+  if (!W || !Ut) goto done;
+  for (long j = 0; j < kept; j++)
+    for (long i = 0; i < K; i++) W[j * K + i] = G[(K - 1 - j) * K + i] / s[j];
+  for (int i = 0, oi = 0; i < r && kept > 0; oi += (int)X[i].k, i++)
+    cblas_dgemm(CblasColMajor, CblasTrans, as_rows(&X[i]), (int)kept, (int)n, (int)X[i].k, 1.0, W + oi, (int)K,
+                X[i].p, (int)ld(&X[i], n), 1.0, Ut, (int)kk);
+  if (kept > 0) { /* Cholesky-QR: C = UᵀU = RᵀR, U <- U R⁻¹ */
+    double *C = G; /* K x K >= kept x kept, no longer needed */
+    cblas_dsyrk(CblasColMajor, CblasUpper, CblasNoTrans, (int)kept, (int)n, 1.0, Ut, (int)kept, 0.0, C, (int)kept);
+    if (LAPACKE_dpotrf(LAPACK_COL_MAJOR, 'U', (lapack_int)kept, C, (lapack_int)kept) != 0) {
+      res = GRAM_UNRESOLVED;
+      goto done;
+    }
+    cblas_dtrsm(CblasColMajor, CblasLeft, CblasUpper, CblasTrans, CblasNonUnit, (int)kept, (int)n, 1.0, C, (int)kept,
+                Ut, (int)kept);
+  }
+  *U = Ut;
+  Ut = NULL;
+  *kept_out = kept;
+  res = GRAM_DONE;
+done:
+  free(G);
+  free(lam);
+  free(W);
+  free(Ut);
+  return res;
+}
+
+typedef struct MemberChoice {
+  int cap;
+  double energy;
+} MemberChoice;
+
+/* Keep directions by energy and cap, above the rank tolerance; unresolved
+ * when a kept direction, or the one whose smallness ended the count, is
+ * below what the Gram matrix resolves. */
+static long choose_member(const double *s, long K, const void *arg, bool *unresolved) {
+  const MemberChoice *mc = arg;
+  double total = 0, run = 0;
+  for (long i = 0; i < K; i++) total += s[i] * s[i];
+  long kept = 0;
+  if (!(total > 0)) return 0;
+  for (;;) {
+    if (kept == K || kept == mc->cap) break;
+    if (!(s[kept] > PCA_GRAM_TOL * s[0])) {
+      *unresolved = true; /* kept or dropped: only the SVD can tell */
+      break;
+    }
+    run += s[kept] * s[kept];
+    kept++;
+    if (run >= mc->energy * total) break;
+  }
+  return kept;
+}
+
+/* Keep every direction above the rank tolerance: the small ones cannot be
+ * told from dependent ones through the Gram matrix. */
+static long choose_independent(const double *s, long K, const void *arg, bool *unresolved) {
+  (void)arg;
+  for (long i = 0; i < K; i++)
+    if (!(s[i] > PCA_GRAM_TOL * s[0])) *unresolved = true;
+  return *unresolved ? 0 : K;
+}
 
 int pca_member(long n, long S, const double *X, int cap, double energy, double **U, int *k, double *captured,
                char *err, size_t errlen) {
@@ -22,6 +150,26 @@ int pca_member(long n, long S, const double *X, int cap, double energy, double *
   *k = 0;
   *captured = 1;
   long r = n < S ? n : S;
+  if (n >= 4 * S && S > 0) {
+    double *sg = malloc(sizeof(double) * (size_t)S), *Ug = NULL;
+    long kept = 0;
+    MemberChoice mc = {cap, energy};
+    Cols X1 = {X, S, true};
+    GramResult g = sg ? gram_basis(n, 1, &X1, choose_member, &mc, sg, &Ug, &kept) : GRAM_FAILED;
+    if (g == GRAM_DONE) {
+      double total = 0, run = 0;
+      for (long i = 0; i < S; i++) total += sg[i] * sg[i];
+      for (long i = 0; i < kept; i++) run += sg[i] * sg[i];
+      *captured = total > 0 ? run / total : 1;
+      *U = Ug;
+      *k = (int)kept;
+      free(sg);
+      return 0;
+    }
+    free(sg);
+    free(Ug);
+    /* unresolved or out of memory: the SVD below decides */
+  }
   double *A = malloc(sizeof(double) * (size_t)(n * S + 1));
   double *s = malloc(sizeof(double) * (size_t)(r + 1));
   double *u = malloc(sizeof(double) * (size_t)(n * r + 1));
@@ -84,6 +232,23 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
     memcpy(*B, U[0], sizeof(double) * (size_t)(n * K));
     *m = K;
     return 0;
+  }
+  if (n >= 4 * K) {
+    Cols X[64];
+    double *sg = malloc(sizeof(double) * (size_t)K), *Ug = NULL;
+    long kept = 0;
+    GramResult g = GRAM_FAILED;
+    if (r <= (int)(sizeof X / sizeof *X) && sg) {
+      for (int i = 0; i < r; i++) X[i] = (Cols){U[i], k[i], false};
+      g = gram_basis(n, r, X, choose_independent, NULL, sg, &Ug, &kept);
+    }
+    free(sg);
+    if (g == GRAM_DONE) {
+      *B = Ug;
+      *m = kept;
+      return 0;
+    }
+    free(Ug);
   }
   long rk = n < K ? n : K;
   double *A = malloc(sizeof(double) * (size_t)(n * K)), *s = malloc(sizeof(double) * (size_t)rk);
