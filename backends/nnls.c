@@ -7,7 +7,7 @@
  * set P, solve the unconstrained least-squares problem on the
  * columns of P, and while that solution has a non-positive entry step back
  * towards the previous iterate until an entry of P reaches zero and leaves
- * P. Every subproblem is one LAPACK dgelsd call on the passive columns
+ * P. Every subproblem is one LAPACK dgelsy call on the passive columns
  * (nothing is factorized by hand: at the sizes of the learned model, d + 1
  * rows and at most d + 1 passive columns, refactorizing from scratch is
  * cheap and, unlike an updated QR, cannot accumulate error).
@@ -80,69 +80,58 @@ enum {
 typedef struct Solver {
   int m, n;
   const double *A, *b;  /* the problem, A row-major m × n */
-  double *cols;         /* passive columns A_P, column-major m × k; dgelsd overwrites it */
+  double *cols;         /* passive columns A_P, column-major m × k; dgelsy overwrites it */
   double *rhs;          /* max(m, n) entries: b in, z_P out */
-  double *sv;           /* singular values of A_P */
-  double *work;         /* dgelsd workspace, grown on demand */
-  lapack_int *iwork;
-  size_t nwork, niwork;
+  double *work;         /* dgelsy workspace, grown on demand */
+  lapack_int *jpvt;     /* dgelsy column pivots, n entries */
+  size_t nwork;
   char *err;
   size_t errlen;
 } Solver;
 
-/* Make the dgelsd workspaces hold `nwork` doubles and `niwork` ints. */
-static int reserve(Solver *s, size_t nwork, size_t niwork) {
+/* Make the dgelsy workspace hold `nwork` doubles. */
+static int reserve(Solver *s, size_t nwork) {
   if (nwork > s->nwork) {
     free(s->work);
     s->work = alloc_array(nwork, sizeof(double));
     s->nwork = s->work ? nwork : 0;
   }
-  if (niwork > s->niwork) {
-    free(s->iwork);
-    s->iwork = alloc_array(niwork, sizeof(lapack_int));
-    s->niwork = s->iwork ? niwork : 0;
-  }
-  if (!s->work || !s->iwork)
+  if (!s->work)
     return fail(s->err, s->errlen, "nnls: out of memory for the LAPACK workspace (%d × %d problem)", s->m, s->n);
   return 0;
 }
 
 /* z ← argmin ‖A_P z_P − b‖₂, z = 0 off the passive set `P` (`k` indices).
- * dgelsd (SVD, minimum-norm solution) rather than dgels (QR): a passive set
- * that is numerically rank deficient — two training samples that nearly
- * coincide — then gives a bounded answer instead of garbage. */
+ * dgelsy (QR with column pivoting, then a complete orthogonal factorization
+ * where the rank is deficient: the minimum-norm solution) rather than dgels
+ * (QR): a passive set that is numerically rank deficient — two training
+ * samples that nearly coincide — then gives a bounded answer instead of
+ * garbage. (An SVD, dgelsd, does the same at several times the cost.) */
 static int solve_passive(Solver *s, const int *P, int k, double *z) {
   int m = s->m, n = s->n;
   int ld = max_int(max_int(m, k), 1);
   for (int c = 0; c < k; c++)
     for (int i = 0; i < m; i++) s->cols[(size_t)c * m + i] = s->A[(size_t)i * n + P[c]];
   for (int i = 0; i < ld; i++) s->rhs[i] = i < m ? s->b[i] : 0;
+  for (int c = 0; c < k; c++) s->jpvt[c] = 0;
 
-  /* Singular values below rcond · σ_max count as zero: only rounding-level
-   * dependence is cut, so a well-conditioned A_P gets its exact LS solution. */
+  /* Columns whose part beyond the span of the earlier ones is below
+   * rcond · the largest count as dependent: only rounding-level dependence
+   * is cut, so a well-conditioned A_P gets its exact LS solution. */
   double rcond = 10.0 * ld * DBL_EPSILON;
-  lapack_int rank = 0, iwq = 0;
-  double wq = 0;
-  lapack_int info = LAPACKE_dgelsd_work(LAPACK_COL_MAJOR, m, k, 1, s->cols, max_int(m, 1), s->rhs, ld, s->sv, rcond,
-                                        &rank, &wq, -1, &iwq);
-  if (info != 0)
-    return fail(s->err, s->errlen, "nnls: LAPACK dgelsd rejected argument %d in its workspace query (a bug in npg)",
-                (int)-info);
-  /* LIWORK ≥ 3·mn·nlvl + 11·mn; nlvl ≤ log2(mn) + 1 bounds it for any
-   * SMLSIZ, in case the query leaves iwork[0] alone (old LAPACK). */
-  int mn = m < k ? m : k, nlvl = 1;
-  while ((1 << (nlvl - 1)) < mn && nlvl < 31) nlvl++;
-  size_t niwork = (size_t)3 * mn * nlvl + (size_t)11 * mn + 1;
-  if ((size_t)iwq > niwork) niwork = (size_t)iwq;
-  if (reserve(s, (size_t)wq + 1, niwork)) return -1;
-  info = LAPACKE_dgelsd_work(LAPACK_COL_MAJOR, m, k, 1, s->cols, max_int(m, 1), s->rhs, ld, s->sv, rcond, &rank,
-                             s->work, (lapack_int)s->nwork, s->iwork);
-  if (info < 0) return fail(s->err, s->errlen, "nnls: LAPACK dgelsd rejected argument %d (a bug in npg)", (int)-info);
-  if (info > 0)
-    return fail(s->err, s->errlen,
-                "nnls: the SVD of the %d × %d passive columns did not converge (LAPACK dgelsd info %d): "
-                "are the entries of A of wildly different magnitudes?",
-                m, k, (int)info);
+  lapack_int rank = 0;
+  if (s->nwork == 0) { /* one workspace query, for the largest passive set */
+    double wq = 0;
+    lapack_int info = LAPACKE_dgelsy_work(LAPACK_COL_MAJOR, m, n, 1, s->cols, max_int(m, 1), s->rhs,
+                                          max_int(max_int(m, n), 1), s->jpvt, rcond, &rank, &wq, -1);
+    if (info != 0)
+      return fail(s->err, s->errlen, "nnls: LAPACK dgelsy rejected argument %d in its workspace query (a bug in npg)",
+                  (int)-info);
+    if (reserve(s, (size_t)wq + (size_t)(4 * (m + n)) + 1)) return -1;
+  }
+  lapack_int info = LAPACKE_dgelsy_work(LAPACK_COL_MAJOR, m, k, 1, s->cols, max_int(m, 1), s->rhs, ld, s->jpvt, rcond,
+                                        &rank, s->work, (lapack_int)s->nwork);
+  if (info != 0) return fail(s->err, s->errlen, "nnls: LAPACK dgelsy rejected argument %d (a bug in npg)", (int)-info);
   for (int j = 0; j < n; j++) z[j] = 0;
   for (int c = 0; c < k; c++) z[P[c]] = s->rhs[c];
   return 0;
@@ -177,7 +166,7 @@ int nnls_solve(int m, int n, const double *A, const double *b, double *w, char *
   double *unit = alloc_array((size_t)m * (size_t)n, sizeof(double));
   s.cols = alloc_array((size_t)max_int(m, 1) * (size_t)n, sizeof(double));
   s.rhs = alloc_array((size_t)ld, sizeof(double));
-  s.sv = alloc_array((size_t)ld, sizeof(double));
+  s.jpvt = alloc_array((size_t)n, sizeof(lapack_int));
   double *z = alloc_array((size_t)n, sizeof(double));
   double *r = alloc_array((size_t)m, sizeof(double));
   double *g = alloc_array((size_t)n, sizeof(double));
@@ -186,7 +175,7 @@ int nnls_solve(int m, int n, const double *A, const double *b, double *w, char *
   unsigned char *state = alloc_array((size_t)n, 1);
   int rc = 0;
   bool scaled = false; /* w holds the iterate of the scaled problem */
-  if (!unit || !s.cols || !s.rhs || !s.sv || !z || !r || !g || !P || !colnorm || !state) {
+  if (!unit || !s.cols || !s.rhs || !s.jpvt || !z || !r || !g || !P || !colnorm || !state) {
     rc = fail(err, errlen, "nnls: out of memory (%d × %d problem)", m, n);
     goto done;
   }
@@ -289,9 +278,8 @@ done:
   free(unit);
   free(s.cols);
   free(s.rhs);
-  free(s.sv);
+  free(s.jpvt);
   free(s.work);
-  free(s.iwork);
   free(z);
   free(r);
   free(g);
