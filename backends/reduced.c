@@ -12,7 +12,9 @@
  * products over the last axis first (OpenBLAS dgemv), each reading its
  * tensor once; inverse powers factor M̂ once (Cholesky when training showed
  * the operator positive definite, LU otherwise, the condition estimated);
- * fractional powers go through the eigendecomposition (dsyevd). */
+ * fractional powers tridiagonalize M̂ (dsytrd), diagonalize the tridiagonal
+ * by divide and conquer (dstedc) and apply both to the one vector, never
+ * forming M̂'s eigenvectors (apply_root). */
 #include <cblas.h>
 #include <lapacke.h>
 #include <math.h>
@@ -386,8 +388,12 @@ struct Reduced {
   double *v, *acc;        /* a term's vector, a contraction's result (max m, max rows) */
   double *buf[2];         /* contraction intermediates */
   double *z;              /* packed powers of the inputs of one tensor */
-  double *M, *M2, *w;     /* a reduced operator, its factor, eigenvalues */
+  double *M, *M2, *w;     /* a reduced operator, its factor, a scratch vector */
   lapack_int *piv;
+  /* LAPACK workspace of apply_power, sized for maxm once */
+  double *tau, *diag, *off; /* dsytrd: reflectors, T's diagonal and off-diagonal */
+  double *work;
+  lapack_int lwork, liwork, *iwork;
   long maxm;
   bool given_externs;     /* externs projected by the caller, not learned */
   char error[1024];
@@ -418,7 +424,30 @@ void reduced_free(Reduced *r) {
   free(r->M2);
   free(r->w);
   free(r->piv);
+  free(r->tau);
+  free(r->diag);
+  free(r->off);
+  free(r->work);
+  free(r->iwork);
   free(r);
+}
+
+/* apply_power's LAPACK workspace for operators up to maxm × maxm, once:
+ * dsytrd's optimal lwork (its blocked path), dstedc's 1 + 4m + m² and
+ * 3 + 5m, dpocon's 3m and dgecon's 4m. */
+static int power_workspace(Reduced *r) {
+  lapack_int n = (lapack_int)r->maxm;
+  double query = 0;
+  LAPACKE_dsytrd_work(LAPACK_COL_MAJOR, 'L', n, r->M, n, r->w, r->w, r->w, &query, -1);
+  r->lwork = (lapack_int)query;
+  if (r->lwork < 1 + 4 * n + n * n) r->lwork = 1 + 4 * n + n * n;
+  r->liwork = 3 + 5 * n;
+  r->tau = calloc((size_t)n + 1, sizeof(double));
+  r->diag = calloc((size_t)n + 1, sizeof(double));
+  r->off = calloc((size_t)n + 1, sizeof(double));
+  r->work = calloc((size_t)r->lwork, sizeof(double));
+  r->iwork = calloc((size_t)r->liwork, sizeof(lapack_int));
+  return r->tau && r->diag && r->off && r->work && r->iwork ? 0 : -1;
 }
 
 Reduced *reduced_new(Model *m, char *err, size_t errlen) {
@@ -454,6 +483,7 @@ Reduced *reduced_new(Model *m, char *err, size_t errlen) {
   r->w = calloc((size_t)maxm, sizeof(double));
   r->piv = calloc((size_t)maxm, sizeof(lapack_int));
   if (!r->v || !r->acc || !r->buf[0] || !r->buf[1] || !r->z || !r->M || !r->M2 || !r->w || !r->piv) goto oom;
+  if (power_workspace(r)) goto oom;
   return r;
 oom:
   snprintf(err, errlen, "out of memory for the reduced evaluator");
@@ -529,23 +559,131 @@ static const char *op_label(const ROp *ro, int term, int k, char *buf, size_t n)
   return buf;
 }
 
-static double one_norm(const double *M, long n) {
+/* ‖M‖₁, the largest column sum of row-major n × n M, summed row by row
+ * so that M is read with unit stride; `sum` holds the n column sums. */
+static double one_norm(const double *M, long n, double *sum) {
+  memset(sum, 0, sizeof(double) * (size_t)n);
+  for (long i = 0; i < n; i++)
+    for (long j = 0; j < n; j++) sum[j] += fabs(M[i * n + j]);
   double best = 0;
-  for (long j = 0; j < n; j++) {
-    double s = 0;
-    for (long i = 0; i < n; i++) s += fabs(M[i * n + j]);
-    best = s > best ? s : best;
-  }
+  for (long j = 0; j < n; j++) best = sum[j] > best ? sum[j] : best;
   return best;
+}
+
+/* OpenBLAS's threads slow apply_root down at the sizes of reduced
+ * operators (on 2 cores, 2 threads take 2 times as long as 1 at m = 20, 1.3
+ * at 120, 1.1 at 240; most of it in dsytrd's small BLAS 2 calls), so it
+ * runs on one thread and the count is put back after. (The inverse's
+ * factorizations gain nothing from one thread: they keep the caller's
+ * count.) The count is process-global: BLAS that another thread of the
+ * host calls meanwhile runs on one thread too. */
+static int blas_one_thread(void) {
+  int threads = openblas_get_num_threads();
+  if (threads > 1) openblas_set_num_threads(1);
+  return threads;
+}
+
+static void blas_restore_threads(int threads) {
+  if (threads > 1) openblas_set_num_threads(threads);
+}
+
+/* v <- M̂^p v for p < 0, M̂ in r->M (destroyed): one factorization, -p
+ * solves. M̂ is row-major, so LAPACK's column-major view of it is M̂ᵀ: the
+ * same matrix for Cholesky (M̂'s upper triangle is the view's lower one),
+ * and for LU the factors of M̂ᵀ solve M̂ with trans 'T'. No copies but the
+ * one that keeps M̂ for LU when Cholesky fails. */
+static int apply_inverse(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, int n, double *v,
+                         long sample) {
+  const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
+  char lab[256];
+  const char *sn = rs->st->sym->name;
+  double anorm = one_norm(r->M, n, r->w), rcond = 0; /* ‖M̂‖₁ = ‖M̂ᵀ‖∞ */
+  bool chol = false;
+  if (ro->spd) { /* paper §4: BᵀMB of a positive definite M is positive definite */
+    memcpy(r->M2, r->M, sizeof(double) * (size_t)n * (size_t)n);
+    if (LAPACKE_dpotrf_work(LAPACK_COL_MAJOR, 'L', n, r->M2, n) == 0 &&
+        LAPACKE_dpocon_work(LAPACK_COL_MAJOR, 'L', n, r->M2, n, anorm, &rcond, r->work, r->iwork) == 0 &&
+        rcond > 1e-15)
+      chol = true;
+  }
+  if (!chol) {
+    lapack_int info = LAPACKE_dgetrf_work(LAPACK_COL_MAJOR, n, n, r->M, n, r->piv);
+    if (info > 0)
+      return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (exact zero pivot %d): "
+                      "basis of class %s too small?",
+                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, (int)info, c->label);
+    if (info < 0) return rfail(r, "stage %s: LAPACK dgetrf argument %d (a bug in npg)", sn, (int)-info);
+    /* the ∞-norm condition of M̂ᵀ is the 1-norm condition of M̂ */
+    LAPACKE_dgecon_work(LAPACK_COL_MAJOR, 'I', n, r->M, n, anorm, &rcond, r->work, r->iwork);
+    if (!(rcond > 1e-15))
+      return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (rcond %.3g): basis of "
+                      "class %s too small?",
+                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, rcond, c->label);
+  }
+  for (long i = 0; i < -ro->op->p; i++) {
+    if (chol) LAPACKE_dpotrs_work(LAPACK_COL_MAJOR, 'L', n, 1, r->M2, n, v, n);
+    else LAPACKE_dgetrs_work(LAPACK_COL_MAJOR, 'T', n, 1, r->M, n, r->piv, v, n);
+  }
+  return 0;
+}
+
+/* v <- Q v (trans 'N') or Qᵀ v ('T'), Q dsytrd's reflectors in r->M and
+ * r->tau. LWORK 1 keeps dormtr on its reflector-by-reflector path: for one
+ * column the blocked path's triangular factors cost more than the product. */
+static lapack_int reflect(Reduced *r, int n, char trans, double *v) {
+  return LAPACKE_dormtr_work(LAPACK_COL_MAJOR, 'L', 'L', trans, n, 1, r->M, n, r->tau, v, n, r->work, 1);
+}
+
+/* v <- M̂^(p/q) v for symmetric positive semidefinite M̂ in r->M
+ * (destroyed), q > 1 (paper §4, root stage): M̂ = Q T Qᵀ (dsytrd; M̂'s
+ * row-major upper triangle is the column-major lower one), T = Z Λ Zᵀ
+ * (dstedc, Z in r->M2), v <- Q Z Λ^(p/q) Zᵀ Qᵀ v. Q stays dsytrd's
+ * reflectors: M̂'s eigenvectors QZ are never formed (dsyevd's back
+ * transformation, a quarter of its time at m = 120). */
+static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, int n, double *v, long sample) {
+  const OpPow *op = ro->op;
+  const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
+  char lab[256];
+  const char *sn = rs->st->sym->name;
+  double *lam = r->diag, *Z = r->M2, *u = r->w;
+  for (long i = 0; i < (long)n * n; i++)
+    if (!isfinite(r->M[i]))
+      return rfail(r, "stage %s (class %s): eigendecomposition of reduced operator %s failed at sample %ld (entries "
+                      "not finite)",
+                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample);
+  lapack_int info = LAPACKE_dsytrd_work(LAPACK_COL_MAJOR, 'L', n, r->M, n, lam, r->off, r->tau, r->work, r->lwork);
+  if (info == 0) info = reflect(r, n, 'T', v);
+  if (info != 0) return rfail(r, "stage %s: LAPACK dsytrd or dormtr argument %d (a bug in npg)", sn, (int)-info);
+  info = LAPACKE_dstedc_work(LAPACK_COL_MAJOR, 'I', n, lam, r->off, Z, n, r->work, r->lwork, r->iwork, r->liwork);
+  if (info != 0)
+    return rfail(r, "stage %s (class %s): eigendecomposition of reduced operator %s failed at sample %ld (LAPACK "
+                    "dstedc info %d)",
+                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, (int)info);
+  double big = 0, low = lam[0];
+  for (int i = 0; i < n; i++) big = fmax(big, fabs(lam[i])), low = fmin(low, lam[i]);
+  double tol = 1e-12 * (big > 0 ? big : 1);
+  if (low < -tol)
+    return rfail(r, "stage %s (class %s): reduced operator %s is indefinite at sample %ld (eigenvalue %.3g, largest "
+                    "%.3g): a root needs a positive semidefinite operator",
+                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, low, big);
+  if (op->p < 0 && low <= tol)
+    return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (eigenvalue %.3g, largest "
+                    "%.3g, condition estimate %.3g): basis of class %s too small?",
+                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, low, big, low > 0 ? big / low : INFINITY,
+                 c->label);
+  cblas_dgemv(CblasColMajor, CblasTrans, n, n, 1.0, Z, n, v, 1, 0.0, u, 1);
+  for (int i = 0; i < n; i++) u[i] *= lam[i] > 0 ? pow(lam[i], (double)op->p / (double)op->q) : 0.0;
+  cblas_dgemv(CblasColMajor, CblasNoTrans, n, n, 1.0, Z, n, u, 1, 0.0, v, 1);
+  info = reflect(r, n, 'N', v);
+  if (info != 0) return rfail(r, "stage %s: LAPACK dormtr argument %d (a bug in npg)", sn, (int)-info);
+  return 0;
 }
 
 /* v <- M̂^(p/q) v, M̂ in r->M (destroyed). */
 static int apply_power(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, long my, double *v, long sample) {
   const OpPow *op = ro->op;
-  const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
-  char lab[256];
-  const char *sn = rs->st->sym->name;
   int n = (int)my;
+  if (n == 0) return 0;
   if (op->q == 1 && op->p > 0) {
     for (long i = 0; i < op->p; i++) {
       cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, 1.0, r->M, n, v, 1, 0.0, r->w, 1);
@@ -553,60 +691,11 @@ static int apply_power(Reduced *r, const RStage *rs, const ROp *ro, int term, in
     }
     return 0;
   }
-  if (op->q == 1) {
-    double anorm = one_norm(r->M, my), rcond = 0;
-    bool chol = false;
-    if (ro->spd) { /* paper §4: BᵀMB of a positive definite M is positive definite */
-      memcpy(r->M2, r->M, sizeof(double) * (size_t)(my * my));
-      if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'U', n, r->M2, n) == 0 &&
-          LAPACKE_dpocon(LAPACK_ROW_MAJOR, 'U', n, r->M2, n, anorm, &rcond) == 0 && rcond > 1e-15)
-        chol = true;
-    }
-    if (!chol) {
-      memcpy(r->M2, r->M, sizeof(double) * (size_t)(my * my));
-      lapack_int info = LAPACKE_dgetrf(LAPACK_ROW_MAJOR, n, n, r->M2, n, r->piv);
-      if (info > 0)
-        return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (exact zero pivot %d): "
-                        "basis of class %s too small?",
-                     sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, (int)info, c->label);
-      if (info < 0) return rfail(r, "stage %s: LAPACK dgetrf argument %d (a bug in npg)", sn, (int)-info);
-      LAPACKE_dgecon(LAPACK_ROW_MAJOR, '1', n, r->M2, n, anorm, &rcond);
-      if (!(rcond > 1e-15))
-        return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (rcond %.3g): basis of "
-                        "class %s too small?",
-                     sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, rcond, c->label);
-    }
-    for (long i = 0; i < -op->p; i++) {
-      if (chol) LAPACKE_dpotrs(LAPACK_ROW_MAJOR, 'U', n, 1, r->M2, n, v, 1);
-      else LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', n, 1, r->M2, n, r->piv, v, 1);
-    }
-    return 0;
-  }
-  /* fractional power of a symmetric positive semidefinite operator */
-  lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', n, r->M, n, r->w);
-  if (info != 0)
-    return rfail(r, "stage %s (class %s): eigendecomposition of reduced operator %s failed at sample %ld (info %d)",
-                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, (int)info);
-  double big = 0;
-  for (int i = 0; i < n; i++) big = fmax(big, fabs(r->w[i]));
-  double tol = 1e-12 * (big > 0 ? big : 1);
-  for (int i = 0; i < n; i++) {
-    double lam = r->w[i];
-    if (lam < -tol)
-      return rfail(r, "stage %s (class %s): reduced operator %s is indefinite at sample %ld (eigenvalue %.3g, largest "
-                      "%.3g): a root needs a positive semidefinite operator",
-                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, lam, big);
-    if (op->p < 0 && lam <= tol)
-      return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (eigenvalue %.3g, largest "
-                      "%.3g, condition estimate %.3g): basis of class %s too small?",
-                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, lam, big,
-                   lam > 0 ? big / lam : INFINITY, c->label);
-  }
-  /* v <- V diag(λ^(p/q)) Vᵀ v */
-  cblas_dgemv(CblasRowMajor, CblasTrans, n, n, 1.0, r->M, n, v, 1, 0.0, r->acc, 1);
-  for (int i = 0; i < n; i++) r->acc[i] *= r->w[i] > 0 ? pow(r->w[i], (double)op->p / (double)op->q) : 0.0;
-  cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, 1.0, r->M, n, r->acc, 1, 0.0, v, 1);
-  return 0;
+  if (op->q == 1) return apply_inverse(r, rs, ro, term, k, n, v, sample);
+  int threads = blas_one_thread();
+  int rc = apply_root(r, rs, ro, term, k, n, v, sample);
+  blas_restore_threads(threads);
+  return rc;
 }
 
 static int eval_extern(Reduced *r, const RExtern *x, long sample) {

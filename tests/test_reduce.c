@@ -9,6 +9,10 @@
  *     declared operators);
  *   - every reduced stage equals the formulas of paper §4 computed densely
  *     ((BᵀM(x̃)B)^r Bᵀq(x̃) with LAPACK) to 1e-12, with truncated bases;
+ *   - a root of a given operator U diag(λ) Uᵀ equals U diag(λ^(p/q)) Uᵀ to
+ *     1e-12 for spectra that are spread, clustered or scalar, diagonal or
+ *     not, scaled near overflow or underflow; it fails naming an indefinite
+ *     operator, a singular one under a negative power, and one not finite;
  *   - a corrupted, truncated or mismatched model is refused naming the file;
  *   - PCA of tall snapshots through the Gram matrix: orthonormal, optimal energy.
  */
@@ -754,6 +758,147 @@ static void pca_gram_matches_svd(void **state) {
   free(U1), free(U2), free(B), free(X), free(Y);
 }
 
+/* ---------------------------------------------------------------- roots of given operators */
+
+/* Row-major n × n M = U diag(lam) Uᵀ, U orthogonal from the QR of a random
+ * matrix, or the identity with `diagonal`. */
+static void spectral_matrix(int n, const double *lam, bool diagonal, unsigned *seed, double *U, double *M) {
+  double *tau = malloc(sizeof(double) * (size_t)n);
+  for (int i = 0; i < n * n; i++) U[i] = diagonal ? i % (n + 1) == 0 : rand_uniform(seed, -1, 1);
+  if (!diagonal) {
+    LAPACKE_dgeqrf(LAPACK_ROW_MAJOR, n, n, U, n, tau);
+    LAPACKE_dorgqr(LAPACK_ROW_MAJOR, n, n, n, U, n, tau);
+  }
+  for (int i = 0; i < n; i++)
+    for (int j = 0; j < n; j++) {
+      double s = 0;
+      for (int k = 0; k < n; k++) s += U[i * n + k] * lam[k] * U[j * n + k];
+      M[i * n + j] = s;
+    }
+  free(tau);
+}
+
+/* Spectra of the operators below, eigenvalue i of n. */
+typedef enum Spectrum {
+  SP_SPREAD,    /* 1 down to 1e-3, geometrically */
+  SP_CLUSTERED, /* 1, 2, 3, each n/3 times */
+  SP_SCALAR,    /* every eigenvalue 3 */
+  SP_HALF_ZERO, /* half of them 0 (semidefinite) */
+  SP_NEGATIVE,  /* one eigenvalue -0.5 */
+} Spectrum;
+
+static double eigenvalue(Spectrum sp, int i, int n) {
+  switch (sp) {
+  case SP_SPREAD: return pow(1e-3, (double)i / (n - 1));
+  case SP_CLUSTERED: return 1 + i % 3;
+  case SP_SCALAR: return 3;
+  case SP_HALF_ZERO: return i < n / 2 ? 0 : 1 + (double)i / n;
+  case SP_NEGATIVE: return i == n / 2 ? -0.5 : 1 + (double)i / n;
+  }
+  return 0;
+}
+
+typedef struct RootCase {
+  Spectrum sp;
+  bool diagonal;   /* M diagonal: T's off-diagonal zero from the start */
+  int exponent;    /* M scaled by 2^exponent: the result by 2^(exponent·p/q) */
+  double tol;      /* relative to U diag(lam^(p/q)) Uᵀ v */
+  const char *err; /* or the failure's message holds this */
+} RootCase;
+
+/* M̂^(p/q) v of the root stage of `path` through reduced_apply_power, for
+ * operators of the spectra above, against U diag(lam^(p/q)) Uᵀ v; m[0] or
+ * (when set) m[1] gets the operators' size. */
+static int roots_of_program(const char *path, long n, double *worst, int *cases, int *m) {
+  Trained tr;
+  train(&tr, path, NULL, n, 40, 40);
+  int stage = -1;
+  for (int i = 0; i < tr.m->nstages; i++)
+    if (tr.m->stages[i].st->kind == ST_ROOT) stage = i;
+  assert_true(stage >= 0);
+  const RStage *rs = &tr.m->stages[stage];
+  const OpPow *op = rs->terms[0].ops[0].op;
+  int my = (int)tr.m->classes[tr.m->qclass[rs->q]].m;
+  m[m[0] ? 1 : 0] = my;
+  double power = (double)op->p / (double)op->q;
+  /* a semidefinite operator's positive root is only Hölder continuous at
+   * its zero eigenvalues: rounding ε in them becomes √ε in the result */
+  const RootCase table[] = {
+      {SP_SPREAD, false, 0, 1e-12, NULL},
+      {SP_SPREAD, true, 0, 1e-12, NULL},
+      {SP_SPREAD, false, 600, 1e-12, NULL},
+      {SP_SPREAD, false, -600, 1e-12, NULL},
+      {SP_CLUSTERED, false, 0, 1e-12, NULL},
+      {SP_CLUSTERED, true, -900, 1e-12, NULL},
+      {SP_SCALAR, false, 0, 1e-12, NULL},
+      {SP_HALF_ZERO, false, 0, 1e-6, op->p < 0 ? "singular at sample 3" : NULL},
+      {SP_NEGATIVE, false, 0, 0, "indefinite at sample 3 (eigenvalue -0.5, largest"},
+  };
+  size_t mm = (size_t)my * (size_t)my;
+  double *lam = malloc(sizeof(double) * (size_t)my), *U = malloc(sizeof(double) * mm), *M = malloc(sizeof(double) * mm);
+  double *v = malloc(sizeof(double) * (size_t)my), *y = malloc(sizeof(double) * (size_t)my);
+  double *want = malloc(sizeof(double) * (size_t)my);
+  unsigned seed = 11u;
+  char err[1024] = "";
+  int failures = 0;
+  for (size_t c = 0; c < sizeof table / sizeof *table; c++) {
+    const RootCase *rc = &table[c];
+    for (int i = 0; i < my; i++) lam[i] = eigenvalue(rc->sp, i, my), v[i] = rand_uniform(&seed, -1, 1);
+    spectral_matrix(my, lam, rc->diagonal, &seed, U, M);
+    cblas_dgemv(CblasRowMajor, CblasTrans, my, my, 1.0, U, my, v, 1, 0.0, y, 1);
+    for (int i = 0; i < my; i++) y[i] *= lam[i] > 0 ? pow(lam[i], power) : 0;
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, my, my, 1.0, U, my, y, 1, 0.0, want, 1);
+    for (size_t i = 0; i < mm; i++) M[i] = ldexp(M[i], rc->exponent);
+    Reduced *r = reduced_new(tr.m, err, sizeof err);
+    assert_non_null(r);
+    int got = reduced_apply_power(r, stage, 0, 0, op->p, op->q, M, v, 3);
+    (*cases)++;
+    if (rc->err) {
+      if (got != -1 || !strstr(reduced_error(r), rc->err)) {
+        print_message("%s: case %zu: expected a failure with '%s', got %d '%s'\n", path, c, rc->err, got,
+                      reduced_error(r));
+        failures++;
+      }
+    } else if (got != 0) {
+      print_message("%s: case %zu: %s\n", path, c, reduced_error(r));
+      failures++;
+    } else {
+      for (int i = 0; i < my; i++) v[i] = ldexp(v[i], -(int)lround(rc->exponent * power));
+      double d = rel_diff(want, v, (size_t)my);
+      if (rc->tol <= 1e-12) *worst = fmax(*worst, d);
+      if (!(d <= rc->tol)) {
+        print_message("%s: case %zu (m = %d): differs from U diag(lam^(p/q)) Uᵀ v by %.3g\n", path, c, my, d);
+        failures++;
+      }
+    }
+    reduced_free(r);
+  }
+  /* not finite */
+  Reduced *r = reduced_new(tr.m, err, sizeof err);
+  for (size_t i = 0; i < mm; i++) M[i] = i == (size_t)my + 1 ? NAN : 0;
+  if (reduced_apply_power(r, stage, 0, 0, op->p, op->q, M, v, 3) != -1 ||
+      !strstr(reduced_error(r), "eigendecomposition of reduced operator")) {
+    print_message("%s: NaN operator: '%s'\n", path, reduced_error(r));
+    failures++;
+  }
+  (*cases)++;
+  reduced_free(r);
+  free(lam), free(U), free(M), free(v), free(y), free(want);
+  trained_free(&tr);
+  return failures;
+}
+
+static void roots_of_given_operators(void **state) {
+  (void)state;
+  double worst = 0;
+  int cases = 0, failures = 0, m[2] = {0, 0};
+  failures += roots_of_program("tests/programs/negative_power_named.npg", 12, &worst, &cases, m); /* d a^(-1/2) */
+  failures += roots_of_program("tests/programs/root_of_op.npg", 16, &worst, &cases, m);          /* M^(1/2) x */
+  print_message("%d roots of given operators (m = %d, %d) vs U diag(lam^(p/q)) Uᵀ v, worst relative difference "
+                "%.2g\n", cases, m[0], m[1], worst);
+  assert_int_equal(failures, 0);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(full_rank_reproduces_full),
@@ -763,6 +908,7 @@ int main(void) {
       cmocka_unit_test(error_falls_with_caps),
       cmocka_unit_test(method_of_snapshots_matches_memory),
       cmocka_unit_test(pca_gram_matches_svd),
+      cmocka_unit_test(roots_of_given_operators),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
