@@ -13,12 +13,13 @@
  *      evaluation, for F = 500, 1000, 2000.
  *
  *     build/bench_reduce [1] [2] [3] [F=500,1000] [S=64] [caps=10,20,40,60]
- *                        [F3=500,1000,2000] [S3=24] [keep] [rerun]
+ *                        [F3=500,1000,2000] [S3=24] [C3=60] [keep] [rerun]
  *
  * Parts named run, none named: all three. F: part 1's face counts (the
  * first one is also part 2's); S: training samples of parts 1 and 2, cap
- * 60 per member there; caps: part 2's; F3, S3: part 3's own models (it also
- * reuses the cap-60 models of part 1); keep: leave part 2's model
+ * 60 per member there; caps: part 2's; F3, S3, C3: part 3's own models,
+ * one per face count and cap per member (it also reuses the cap-60 models
+ * of part 1); keep: leave part 2's model
  * directories in /tmp; rerun: pre-multiply every tensor a second time alone
  * (slow), not only the cheap ones. Run from the source root (it reads
  * bench/formfactors.npg, stdlib/ and bench/reduced_peer.py). Prints
@@ -763,8 +764,8 @@ static void forget(Trained *tr) {
 
 int main(int argc, char **argv) {
   bool part[4] = {false, false, false, false}, keep = false, rerun_all = false;
-  long F1[8] = {500, 1000}, F3[8] = {500, 1000, 2000}, caps[8] = {10, 20, 40, 60}, S = 64, S3 = 24;
-  int nF1 = 2, nF3 = 3, ncaps = 4;
+  long F1[8] = {500, 1000}, F3[8] = {500, 1000, 2000}, caps[8] = {10, 20, 40, 60}, C3[8] = {60}, S = 64, S3 = 24;
+  int nF1 = 2, nF3 = 3, ncaps = 4, nC3 = 1;
   for (int i = 1; i < argc; i++) {
     const char *a = argv[i];
     if (strlen(a) == 1 && a[0] >= '1' && a[0] <= '3') part[a[0] - '0'] = true;
@@ -773,11 +774,12 @@ int main(int argc, char **argv) {
     else if (strncmp(a, "caps=", 5) == 0) ncaps = parse_list(a + 5, caps, 8);
     else if (strncmp(a, "S=", 2) == 0) S = strtol(a + 2, NULL, 10);
     else if (strncmp(a, "S3=", 3) == 0) S3 = strtol(a + 3, NULL, 10);
+    else if (strncmp(a, "C3=", 3) == 0) nC3 = parse_list(a + 3, C3, 8);
     else if (strcmp(a, "keep") == 0) keep = true;
     else if (strcmp(a, "rerun") == 0) rerun_all = true;
     else {
       fprintf(stderr, "usage: bench_reduce [1] [2] [3] [F=500,1000] [S=64] [caps=10,20,40,60] [F3=500,1000,2000] "
-                      "[S3=24] [keep] [rerun]\n");
+                      "[S3=24] [C3=60] [keep] [rerun]\n");
       return 2;
     }
   }
@@ -862,15 +864,17 @@ int main(int argc, char **argv) {
     for (int i = 0; i < ncache; i++)
       if (cache[i] && cache[i]->cap == 60) part3_row(p, cache[i], &rows[nrows++]);
     for (int i = 0; i < ncache; i++) forget(cache[i]);
-    for (int i = 0; i < nF3; i++) {
-      Trained *tr = trained(p, F3[i], S3, 60, rerun_all);
-      printf("  trained F = %ld on %ld samples in %.1f s (snapshots %.1f s, PCA %.1f s, pre-multiplication %.1f s, "
-             "%.0f GFLOP/s)\n",
-             tr->F, tr->S, tr->t_train, tr->t_snap, tr->t_pca, tr->t_premul, tr->premul_flops / tr->t_premul / 1e9);
-      fflush(stdout);
-      part3_row(p, tr, &rows[nrows++]);
-      forget(tr);
-    }
+    for (int i = 0; i < nF3; i++)
+      for (int c = 0; c < nC3 && nrows < 16; c++) {
+        Trained *tr = trained(p, F3[i], S3, C3[c], rerun_all);
+        printf("  trained F = %ld on %ld samples, cap %ld, in %.1f s (snapshots %.1f s, PCA %.1f s, "
+               "pre-multiplication %.1f s, %.0f GFLOP/s)\n",
+               tr->F, tr->S, C3[c], tr->t_train, tr->t_snap, tr->t_pca, tr->t_premul,
+               tr->premul_flops / tr->t_premul / 1e9);
+        fflush(stdout);
+        part3_row(p, tr, &rows[nrows++]);
+        forget(tr);
+      }
     printf("  %5s %3s %-24s %6s %9s %9s %9s %9s %9s %6s %6s %6s %8s %8s\n", "F", "S", "m per class", "MB", "full cc",
            "full tcc", "reduced", "red. 1thr", "red. givn", "x cc", "x tcc", "x cc1", "err p", "floor p");
     for (int i = 0; i < nrows; i++) {
