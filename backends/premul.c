@@ -19,8 +19,11 @@
  * Map and reduce across output blocks: the builder's callback only records
  * a block's entries; the block's keys are then split at row boundaries
  * over worker threads (one per core), each accumulating its keys' rows of W
- * and K with its own scratch; the block's final GEMM uses OpenBLAS's
- * threads. A last x ⊗ x axis with many monomials per key is accumulated
+ * and K with its own scratch and finishing them with its own GEMM into its
+ * own sum of Q̂ (summed once at the end), BLAS on one thread throughout:
+ * one worker's per-key work overlaps another's GEMM, and no idle BLAS
+ * thread spins meanwhile. (Where the sums would not fit, the block's final
+ * GEMM is shared and runs on OpenBLAS's threads.) A last x ⊗ x axis with many monomials per key is accumulated
  * unpacked — one real GEMM of full basis rows per batch, folded into packed
  * form — instead of one packed row per entry. */
 #include <cblas.h>
@@ -32,9 +35,11 @@
 #include "reduce.h"
 
 #define PREMUL_PENDING 64               /* entries batched per GEMM of a key */
-#define PREMUL_BLOCK_BYTES (64L << 20)  /* bound on a block's W */
+#define PREMUL_BLOCK_BYTES (128L << 20) /* bound on a block's W */
+#define PREMUL_MAX_KEYS 2048            /* keys per block */
 #define PREMUL_UNPACK_MONOS 8           /* monomials per key from which x ⊗ x goes unpacked */
 #define PREMUL_MAX_WORKERS 8
+#define PREMUL_LOCAL_BYTES (256L << 20) /* bound on the workers' own sums */
 
 struct Premul;
 
@@ -45,6 +50,7 @@ typedef struct Worker {
   double *U, *V, *G;          /* pending U rows, V rows; unpacked flush scratch */
   double *vec;                /* packed input vectors of one entry */
   long npend, pend_key;
+  double *acc;                /* local: this worker's sum of its blocks' final GEMMs (rows x cols) */
   double flops;
 } Worker;
 
@@ -70,6 +76,7 @@ typedef struct Premul {
   double *ent_coef;
   npg_idx *ent_in;
   int nworkers;
+  bool local;                 /* each worker finishes its own keys (see flush_block) */
   Worker wk[PREMUL_MAX_WORKERS];
   double flops;
   char *err;
@@ -194,6 +201,12 @@ static void *work(void *arg) {
     if (++w->npend == PREMUL_PENDING) flush_pending(w);
   }
   flush_pending(w);
+  if (p->local && w->k1 > w->k0) {
+    const RTensor *t = p->t;
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)t->rows, (int)cols, (int)(w->k1 - w->k0), 1.0,
+                p->K + w->k0 * t->rows, (int)t->rows, p->W + w->k0 * cols, (int)cols, 1.0, w->acc, (int)cols);
+    w->flops += 2.0 * (double)t->rows * (double)cols * (double)(w->k1 - w->k0);
+  }
   return NULL;
 }
 
@@ -230,11 +243,10 @@ static void flush_block(Premul *p) {
   split_block(p);
   pthread_t tid[PREMUL_MAX_WORKERS];
   bool started[PREMUL_MAX_WORKERS] = {false};
-  /* the workers' small GEMMs on one BLAS thread each: OpenBLAS's own pool
-   * would otherwise be shared by the workers (process-global setting,
-   * restored for the block's GEMM) */
+  /* shared final GEMM: the workers' small GEMMs on one BLAS thread each,
+   * OpenBLAS's threads for the block's GEMM (local: one thread throughout) */
   int blas_threads = openblas_get_num_threads();
-  if (p->nworkers > 1) openblas_set_num_threads(1);
+  if (!p->local && p->nworkers > 1) openblas_set_num_threads(1);
   for (int i = 1; i < p->nworkers; i++)
     started[i] = p->wk[i].k1 > p->wk[i].k0 && pthread_create(&tid[i], NULL, work, &p->wk[i]) == 0;
   work(&p->wk[0]);
@@ -242,11 +254,13 @@ static void flush_block(Premul *p) {
     if (started[i]) pthread_join(tid[i], NULL);
     else if (p->wk[i].k1 > p->wk[i].k0) work(&p->wk[i]); /* no thread: do it here */
   }
-  if (p->nworkers > 1) openblas_set_num_threads(blas_threads);
-  long cols = t->cols;
-  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)t->rows, (int)cols, (int)p->nkeys, 1.0, p->K,
-              (int)t->rows, p->W, (int)cols, 1.0, t->data, (int)cols);
-  p->flops += 2.0 * (double)t->rows * (double)cols * (double)p->nkeys;
+  if (!p->local && p->nworkers > 1) openblas_set_num_threads(blas_threads);
+  if (!p->local) {
+    long cols = t->cols;
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)t->rows, (int)cols, (int)p->nkeys, 1.0, p->K,
+                (int)t->rows, p->W, (int)cols, 1.0, t->data, (int)cols);
+    p->flops += 2.0 * (double)t->rows * (double)cols * (double)p->nkeys;
+  }
   p->nkeys = 0;
   p->row_start = 0;
   p->nent = 0;
@@ -311,6 +325,12 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
   return 0;
 }
 
+long premul_keys_per_block(const RTensor *t) {
+  long bytes_per_key = (long)sizeof(double) * (t->cols + t->rows);
+  long kb = PREMUL_BLOCK_BYTES / (bytes_per_key ? bytes_per_key : 1);
+  return kb > PREMUL_MAX_KEYS ? PREMUL_MAX_KEYS : kb < 1 ? 1 : kb;
+}
+
 static int workers_online(void) {
   long n = sysconf(_SC_NPROCESSORS_ONLN);
   return n < 1 ? 1 : n > PREMUL_MAX_WORKERS ? PREMUL_MAX_WORKERS : (int)n;
@@ -348,11 +368,13 @@ int premultiply_unpacking(Model *m, NpgFull *f, RTensor *t, const double *By, lo
   p.mu = t->nin ? p.min[t->nin - 1] : 1;
   p.ulen = p.unpack ? p.pre * p.mu : p.pre;
   p.vlen = p.unpack ? p.mu : p.last;
-  long bytes_per_key = (long)sizeof(double) * (t->cols + t->rows);
-  p.KB = PREMUL_BLOCK_BYTES / (bytes_per_key ? bytes_per_key : 1);
-  if (p.KB > 1024) p.KB = 1024;
-  if (p.KB < 1) p.KB = 1;
+  p.KB = premul_keys_per_block(t);
   p.nworkers = workers_online();
+  /* each worker finishes its own keys into its own sum when the sums fit:
+   * no BLAS threads (which would spin while the workers run), the per-key
+   * work of one worker overlapping the other's GEMM */
+  p.local = p.nworkers > 1 && (double)t->rows * (double)t->cols * (double)(p.nworkers - 1) * sizeof(double) <=
+                                  (double)PREMUL_LOCAL_BYTES;
   t->data = calloc((size_t)(t->rows * t->cols) + 1, sizeof(double));
   p.key_row = malloc(sizeof(long) * (size_t)p.KB);
   p.key_col = malloc(sizeof(long) * (size_t)p.KB);
@@ -366,20 +388,27 @@ int premultiply_unpacking(Model *m, NpgFull *f, RTensor *t, const double *By, lo
     w->V = malloc(sizeof(double) * (size_t)(PREMUL_PENDING * p.vlen));
     w->G = p.unpack ? malloc(sizeof(double) * (size_t)(p.ulen * p.mu)) : NULL;
     w->vec = malloc(sizeof(double) * (size_t)veclen);
-    ok = ok && w->U && w->V && w->vec && (!p.unpack || w->G);
+    w->acc = !p.local ? NULL : i == 0 ? t->data : calloc((size_t)(t->rows * t->cols) + 1, sizeof(double));
+    ok = ok && w->U && w->V && w->vec && (!p.unpack || w->G) && (!p.local || w->acc);
   }
-  int rc = -1;
+  int rc = -1, blas_threads;
   if (!ok) {
     snprintf(err, errlen, "out of memory pre-multiplying %s (%ld x %ld reduced entries)", t->name, t->rows, t->cols);
     goto done;
   }
   err[0] = 0;
   NpgSink sink = {&p, on_entry};
-  if (full_build(f, t->builder, &sink) != 0) {
+  blas_threads = openblas_get_num_threads();
+  if (p.local) openblas_set_num_threads(1);
+  int built = full_build(f, t->builder, &sink);
+  if (built == 0) flush_block(&p);
+  if (p.local) openblas_set_num_threads(blas_threads);
+  if (built != 0) {
     if (!err[0]) snprintf(err, errlen, "%s", npg_full_error(f));
     goto done;
   }
-  flush_block(&p);
+  for (int i = 1; i < p.nworkers && p.local; i++)
+    cblas_daxpy((int)(t->rows * t->cols), 1.0, p.wk[i].acc, 1, t->data, 1);
   for (int i = 0; i < p.nworkers; i++) p.flops += p.wk[i].flops;
   if (flops) *flops += p.flops;
   rc = 0;
@@ -396,6 +425,7 @@ done:
     free(p.wk[i].V);
     free(p.wk[i].G);
     free(p.wk[i].vec);
+    if (i > 0) free(p.wk[i].acc);
   }
   if (rc != 0) {
     free(t->data);

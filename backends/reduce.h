@@ -203,6 +203,8 @@ int premultiply(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, lon
  * uses 8; tests force each path. */
 int premultiply_unpacking(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
                           double *flops, char *err, size_t errlen);
+/* Output keys (rows, or (row, col) pairs) pre-multiplied per block of t. */
+long premul_keys_per_block(const RTensor *t);
 
 /* ---------------------------------------------------------------- reduced evaluation (reduced.c) */
 

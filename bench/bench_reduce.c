@@ -246,11 +246,7 @@ typedef struct Trained {
   int nrerun;
 } Trained;
 
-static long keys_per_block(const RTensor *t) {
-  /* premul.c: PREMUL_BLOCK_BYTES / (8 (cols + rows)), in [1, 1024] */
-  long kb = (64L << 20) / ((long)sizeof(double) * (t->cols + t->rows));
-  return kb > 1024 ? 1024 : kb < 1 ? 1 : kb;
-}
+static long keys_per_block(const RTensor *t) { return premul_keys_per_block(t); }
 
 /* The builder's stream of one tensor, counted: entries, and keys as
  * premul.c makes them for a numerator or diagonal operator (a new key
