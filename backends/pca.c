@@ -15,6 +15,7 @@
  * (kept, or to be told apart from a dependent one) lies below
  * PCA_GRAM_TOL σ_max, the SVD (dgesdd) decides instead. */
 #include <cblas.h>
+#include <float.h>
 #include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
@@ -124,6 +125,9 @@ static long choose_member(const double *s, long K, const void *arg, bool *unreso
   if (!(total > 0)) return 0;
   for (;;) {
     if (kept == K || kept == mc->cap) break;
+    /* what is left is rounding (of the trace, of the snapshots): no
+     * direction below carries energy an SVD would resolve either */
+    if (kept > 0 && total - run <= (double)K * DBL_EPSILON * total) break;
     if (!(s[kept] > PCA_GRAM_TOL * s[0])) {
       *unresolved = true; /* kept or dropped: only the SVD can tell */
       break;
