@@ -23,9 +23,11 @@
  * own sum of Q̂ (summed once at the end), BLAS on one thread throughout:
  * one worker's per-key work overlaps another's GEMM, and no idle BLAS
  * thread spins meanwhile. (Where the sums would not fit, the block's final
- * GEMM is shared and runs on OpenBLAS's threads.) A last x ⊗ x axis with many monomials per key is accumulated
- * unpacked — one real GEMM of full basis rows per batch, folded into packed
- * form — instead of one packed row per entry. */
+ * GEMM is shared and runs on OpenBLAS's threads.)
+ *
+ * A last x ⊗ x axis with many monomials per key is accumulated unpacked —
+ * one real GEMM of full basis rows per batch, folded into packed form —
+ * instead of one packed row per entry. */
 #include <cblas.h>
 #include <pthread.h>
 #include <stdlib.h>
