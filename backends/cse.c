@@ -33,7 +33,22 @@ typedef struct Val {
   int uses, eval;      /* users; the deepest loop it is evaluated in */
   const char *local;
   unsigned stamp;
+  /* rows (cse_rows_plan) */
+  unsigned char row;   /* RowKind */
+  int outer;           /* ROW_COND: the outer loop variable; ROW_VALUE: the store it is computed in, or -1 */
+  int last;            /* ROW_VALUE: the last value reading it */
+  int buf;             /* ROW_VALUE: its scratch row, or -1 */
 } Val;
+
+/* What a value of the innermost loop is, row-wise (cse_rows_plan). */
+typedef enum RowKind {
+  ROW_NONE,   /* not of the innermost loop: a scalar per row */
+  ROW_INDEX,  /* the innermost loop variable */
+  ROW_OFFSET, /* it plus a scalar: a unit-stride offset */
+  ROW_COND,   /* the outer loop variable `outer` ==, != the innermost one */
+  ROW_LOAD,   /* a read at a unit-stride offset: a pointer into its array */
+  ROW_VALUE,  /* computed by a row kernel */
+} RowKind;
 
 struct Cse {
   Ctx *ctx;
@@ -539,4 +554,203 @@ void cse_emit_store(Cse *c, FILE *out, const char *array, int offset, int v, int
   print_val(c, out, v, true);
   fputs(";\n", out);
   if (define && x->named) x->emitted = true;
+}
+
+/* ---------------------------------------------------------------- rows
+ *
+ * libtcc neither vectorizes nor keeps values in registers, so its innermost
+ * loop costs several times gcc's. When every value of that loop is an
+ * elementwise + - * / of unit-stride reads and per-row scalars (or a choice
+ * on the diagonal, `if(i == j, ...)`), libtcc code computes a row at a
+ * time instead: one call of a gcc-compiled kernel (NpgRt.row_*) per value,
+ * over scratch rows or the row of the quantity it is stored in. Each value
+ * is the same IEEE operation on the same operands as in the scalar loop, so
+ * results are bit-identical. Where a choice's off-diagonal branch is
+ * computed on the diagonal too, its result is overwritten; the check below
+ * makes sure that computation reads nothing out of range (no unsafe value). */
+
+static bool row_scalar(const Cse *c, int v) {
+  const Val *x = &c->v[v];
+  return x->level < c->nloops && (x->op == VAL_NUM || x->op == VAL_LEAF || x->named);
+}
+
+static bool row_array(const Cse *c, int v) { return c->v[v].row == ROW_LOAD || c->v[v].row == ROW_VALUE; }
+
+static bool row_operand(const Cse *c, int v) { return row_scalar(c, v) || row_array(c, v); }
+
+/* The kind of value x (of the innermost loop), ROW_NONE when no kernel computes it. */
+static RowKind row_kind(Cse *c, Val *x) {
+  const Val *a = x->a >= 0 ? &c->v[x->a] : NULL, *b = x->b >= 0 ? &c->v[x->b] : NULL;
+  if (x->pin || x->unsafe) return ROW_NONE;
+  switch (x->op) {
+  case VAL_LEAF: return ROW_INDEX; /* the only leaf of the innermost loop is its variable */
+  case VAL_ADD:
+    if (x->is_int && ((a->row == ROW_INDEX && row_scalar(c, x->b)) || (b->row == ROW_INDEX && row_scalar(c, x->a))))
+      return ROW_OFFSET;
+    break;
+  case VAL_EQ:
+  case VAL_NE: {
+    const Val *o = a->row == ROW_INDEX ? b : a, *in = a->row == ROW_INDEX ? a : b;
+    if (in->row == ROW_INDEX && o->op == VAL_LEAF && o->level >= 1 && o->range && o->range == in->range) {
+      x->outer = a->row == ROW_INDEX ? x->b : x->a;
+      return ROW_COND;
+    }
+    return ROW_NONE;
+  }
+  case VAL_LOAD: return !x->is_int && (a->row == ROW_INDEX || a->row == ROW_OFFSET) ? ROW_LOAD : ROW_NONE;
+  default: break;
+  }
+  if (x->is_int) return ROW_NONE;
+  switch (x->op) {
+  case VAL_ADD:
+  case VAL_SUB:
+  case VAL_MUL:
+  case VAL_DIV: return row_operand(c, x->a) && row_operand(c, x->b) ? ROW_VALUE : ROW_NONE;
+  case VAL_NEG: return row_array(c, x->a) ? ROW_VALUE : ROW_NONE;
+  case VAL_SELECT: {
+    if (a->row != ROW_COND) return ROW_NONE;
+    int diagonal = a->op == VAL_EQ ? x->b : x->c, off = a->op == VAL_EQ ? x->c : x->b;
+    return row_scalar(c, diagonal) && row_operand(c, off) ? ROW_VALUE : ROW_NONE;
+  }
+  default: return ROW_NONE;
+  }
+}
+
+int cse_rows_plan(Cse *c, const CseStore *st, int nst) {
+  if (c->nloops < 1) return -1;
+  for (int i = 0; i < c->n; i++) {
+    Val *x = &c->v[i];
+    x->row = ROW_NONE;
+    x->outer = x->last = x->buf = -1;
+    if (!x->reached || x->level < c->nloops) continue;
+    if ((x->row = (unsigned char)row_kind(c, x)) == ROW_NONE) return -1;
+  }
+  for (int k = 0; k < nst; k++) {
+    const Val *o = &c->v[st[k].offset];
+    if ((o->row != ROW_INDEX && o->row != ROW_OFFSET) || !row_operand(c, st[k].val) || c->v[st[k].val].is_int) return -1;
+    Val *x = &c->v[st[k].val];
+    if (x->row == ROW_VALUE && x->outer < 0) x->outer = k; /* computed in its (first) store's row */
+  }
+  /* an off-diagonal branch read by its choice alone is computed in the
+   * choice's store row (then overwritten on the diagonal) */
+  for (int i = c->n - 1; i >= 0; i--) {
+    Val *x = &c->v[i];
+    if (x->row != ROW_VALUE || x->op != VAL_SELECT || x->outer < 0) continue;
+    Val *off = &c->v[c->v[x->a].op == VAL_EQ ? x->c : x->b];
+    if (off->row == ROW_VALUE && off->outer < 0 && off->uses == 1) off->outer = x->outer;
+  }
+  for (int i = 0; i < c->n; i++) {
+    Val *x = &c->v[i];
+    if (x->row != ROW_VALUE) continue;
+    int ops[3] = {x->a, x->b, x->c};
+    for (int k = 0; k < 3; k++)
+      if (ops[k] >= 0 && c->v[ops[k]].row == ROW_VALUE) c->v[ops[k]].last = i;
+  }
+  /* scratch rows: a value's row is taken before its operands' are given
+   * back, so a kernel never writes a row it reads */
+  int nbuf = 0, *busy = arena_alloc(c->ctx, sizeof(int) * (size_t)(c->n + 1));
+  for (int i = 0; i < c->n; i++) {
+    Val *x = &c->v[i];
+    if (x->row != ROW_VALUE) continue;
+    if (x->outer < 0) {
+      int b = 0;
+      while (b < nbuf && busy[b]) b++;
+      if (b == nbuf) nbuf++;
+      busy[b] = 1;
+      x->buf = b;
+    }
+    int ops[3] = {x->a, x->b, x->c};
+    for (int k = 0; k < 3; k++)
+      if (ops[k] >= 0 && c->v[ops[k]].row == ROW_VALUE && c->v[ops[k]].last == i && c->v[ops[k]].buf >= 0)
+        busy[c->v[ops[k]].buf] = 0;
+  }
+  return nbuf;
+}
+
+/* A kernel's row operand, or its scalar one (in double). */
+static void print_row_arg(Cse *c, FILE *out, int v) {
+  const Val *x = &c->v[v];
+  if (x->row == ROW_LOAD) fprintf(out, "l%d_", v);
+  else if (x->row == ROW_VALUE && x->buf >= 0) fprintf(out, "row%d_", x->buf);
+  else if (x->row == ROW_VALUE) fprintf(out, "w%d_", x->outer);
+  else print_double_arg(c, out, v);
+}
+
+/* The start of the row of a unit-stride offset: `array` or `array + base`. */
+static void print_row_start(Cse *c, FILE *out, const char *array, int offset) {
+  const Val *o = &c->v[offset];
+  fputs(array, out);
+  if (o->row == ROW_INDEX) return;
+  fputs(" + ", out);
+  print_val(c, out, c->v[o->a].row == ROW_INDEX ? o->b : o->a, false);
+}
+
+static const char *row_op_name(ValOp op) {
+  switch (op) {
+  case VAL_ADD: return "NPG_ROW_ADD";
+  case VAL_SUB: return "NPG_ROW_SUB";
+  case VAL_MUL: return "NPG_ROW_MUL";
+  default: return "NPG_ROW_DIV";
+  }
+}
+
+void cse_emit_rows(Cse *c, FILE *out, const CseStore *st, int nst, const char *len, int depth) {
+  for (int k = 0; k < nst; k++) {
+    indent(out, depth);
+    fprintf(out, "double *const w%d_ = ", k);
+    print_row_start(c, out, st[k].array, st[k].offset);
+    fputs(";\n", out);
+  }
+  for (int i = 0; i < c->n; i++) {
+    Val *x = &c->v[i];
+    if (x->row == ROW_LOAD) {
+      indent(out, depth);
+      fprintf(out, "const double *const l%d_ = ", i);
+      print_row_start(c, out, x->text, x->a);
+      fputs(";\n", out);
+    }
+    if (x->row != ROW_VALUE) continue;
+    indent(out, depth);
+    if (x->op == VAL_NEG) {
+      fprintf(out, "c->rt->row_unary(%s, NPG_ROW_NEG, ", len);
+    } else if (x->op == VAL_SELECT) {
+      bool eq = c->v[x->a].op == VAL_EQ;
+      int diagonal = eq ? x->b : x->c, off = eq ? x->c : x->b;
+      bool in_row = c->v[off].row == ROW_VALUE && c->v[off].buf < 0 && c->v[off].outer == x->outer; /* cse_rows_plan */
+      if (!in_row) {
+        fprintf(out, row_array(c, off) ? "c->rt->row_unary(%s, NPG_ROW_COPY, " : "c->rt->row_fill(%s, ", len);
+        print_row_arg(c, out, off);
+        fputs(", ", out);
+        print_row_arg(c, out, i);
+        fputs(");\n", out);
+        indent(out, depth);
+      }
+      print_row_arg(c, out, i);
+      fputc('[', out);
+      print_val(c, out, c->v[x->a].outer, true);
+      fputs("] = ", out);
+      print_double_arg(c, out, diagonal);
+      fputs(";\n", out);
+      continue;
+    } else {
+      const char *kind = row_array(c, x->a) ? row_array(c, x->b) ? "vv" : "vs" : "sv";
+      fprintf(out, "c->rt->row_%s(%s, %s, ", kind, len, row_op_name(x->op));
+      print_row_arg(c, out, x->a);
+      fputs(", ", out);
+      print_row_arg(c, out, x->b);
+    }
+    if (x->op == VAL_NEG) print_row_arg(c, out, x->a);
+    fputs(", ", out);
+    print_row_arg(c, out, i);
+    fputs(");\n", out);
+  }
+  /* stores not computed in their row: copies, and scalars filled in */
+  for (int k = 0; k < nst; k++) {
+    const Val *x = &c->v[st[k].val];
+    if (x->row == ROW_VALUE && x->outer == k) continue;
+    indent(out, depth);
+    fprintf(out, row_array(c, st[k].val) ? "c->rt->row_unary(%s, NPG_ROW_COPY, " : "c->rt->row_fill(%s, ", len);
+    print_row_arg(c, out, st[k].val);
+    fprintf(out, ", w%d_);\n", k);
+  }
 }

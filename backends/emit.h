@@ -132,6 +132,19 @@ void cse_emit_level(Cse *c, FILE *out, int level, int depth);
 /* The statement `array[offset] = v;` with the locals it reads before it;
  * when v is read again later it becomes a local in the same statement. */
 void cse_emit_store(Cse *c, FILE *out, const char *array, int offset, int v, int depth);
+/* A store of the innermost loop: array[offset] = val. */
+typedef struct CseStore {
+  const char *array;
+  int offset, val;
+} CseStore;
+/* After planning, for libtcc: can the innermost loop, storing st[0..nst),
+ * be computed a row at a time by the row kernels of NpgRt (unit-stride
+ * reads, per-row scalars, + - * /, choices on the diagonal)? Then the
+ * number of scratch rows it needs, else -1 (keep the scalar loop). */
+int cse_rows_plan(Cse *c, const CseStore *st, int nst);
+/* The kernel calls for one row of `len` entries, in place of the innermost
+ * loop; scratch rows are `row<k>_` (declared by the caller). */
+void cse_emit_rows(Cse *c, FILE *out, const CseStore *st, int nst, const char *len, int depth);
 /* backends/emit_builder.c */
 void emit_builders(Ctx *ctx, const Program *prog, FILE *out);
 /* The name of the builder function of tensor `group` of `field` (0 = the

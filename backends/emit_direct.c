@@ -435,10 +435,36 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
   e->fuse = NULL;
   e->direct_for = NULL;
   cse_plan(cs);
+  /* libtcc computes the innermost loop a row at a time when it can (cse.c, rows) */
+  int nst = 0;
+  for (int m = 0; m < n; m++) nst += members[m]->ncomp;
+  CseStore *st = arena_alloc(e->ctx, sizeof(CseStore) * (size_t)nst);
+  nst = 0;
+  for (int m = 0; m < n; m++)
+    for (int c = 0; c < members[m]->ncomp; c++) {
+      emit_use(e, members[m]->sym);
+      st[nst++] = (CseStore){emit_name(e, members[m]->sym), offset[m][c], e->fused_val[m][c]};
+    }
+  int nrows = nl >= 2 ? cse_rows_plan(cs, st, nst) : -1;
+  const char *len = nl ? emit_name(e, first->ivars[nl - 1]->range) : NULL;
   bool scratch = emit_soa_copies(e, out);
+  if (nrows > 0) {
+    fputs("#ifdef __TINYC__\n  /* scratch rows of the row kernels, 64-byte aligned, a stride apart */\n", out);
+    fprintf(out, "  const npg_idx rs_ = ((%s + 7) & ~(npg_idx)7) + 8;\n", len);
+    fprintf(out, "  double *const rows_ = c->rt->scratch(c, %d * rs_ + 8);\n", nrows);
+    fprintf(out, "  if (!rows_) {\n%s    return -1;\n  }\n", scratch ? "    c->rt->release(c, soa_);\n" : "");
+    fputs("  double *const row0_ = (double *)(((npg_idx)rows_ + 63) & ~(npg_idx)63);\n", out);
+    for (int k = 1; k < nrows; k++) fprintf(out, "  double *const row%d_ = row0_ + %d * rs_;\n", k, k);
+    fputs("#endif\n", out);
+  }
   cse_emit_level(cs, out, 0, 1);
   for (int i = 0; i < nl; i++) {
     const char *v = names[i];
+    if (i == nl - 1 && nrows >= 0) {
+      fputs("#ifdef __TINYC__\n", out);
+      cse_emit_rows(cs, out, st, nst, len, i + 1);
+      fputs("#else\n", out);
+    }
     if (i == nl - 1) {
       indent(out, i + 1);
       fputs("NPG_INDEPENDENT\n", out);
@@ -462,7 +488,9 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
   for (int i = nl; i >= 1; i--) {
     indent(out, i);
     fputs("}\n", out);
+    if (i == nl && nrows >= 0) fputs("#endif\n", out);
   }
+  if (nrows > 0) fputs("#ifdef __TINYC__\n  c->rt->release(c, rows_);\n#endif\n", out);
   if (scratch) fputs("  c->rt->release(c, soa_);\n", out);
   e->cse = NULL;
   e->soa.n = 0;

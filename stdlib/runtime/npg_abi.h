@@ -12,7 +12,7 @@
 #ifndef NPG_ABI_H
 #define NPG_ABI_H
 
-#define NPG_ABI_VERSION 1
+#define NPG_ABI_VERSION 2
 
 typedef long npg_idx;
 
@@ -33,6 +33,16 @@ double fmin(double, double);
 double fmax(double, double);
 
 typedef struct NpgRt NpgRt;
+
+/* The elementwise operation of a row kernel (NpgRt.row_*). */
+typedef enum NpgRowOp {
+  NPG_ROW_ADD, /* x + y */
+  NPG_ROW_SUB, /* x - y */
+  NPG_ROW_MUL, /* x * y */
+  NPG_ROW_DIV, /* x / y */
+  NPG_ROW_NEG, /* -x (row_unary) */
+  NPG_ROW_COPY /* x (row_unary) */
+} NpgRowOp;
 
 /* One evaluation context: bound data and where values go. */
 typedef struct NpgCtx {
@@ -69,6 +79,17 @@ struct NpgRt {
    * `entry[0..nentry)`; `stage` is where it is used. Records the message. */
   void (*gather_error)(const NpgCtx *c, const char *stage, int param, int nentry, const npg_idx *entry,
                        npg_idx value, int dim);
+  /* Row kernels, for libtcc code (which neither vectorizes nor keeps
+   * values in registers): out[k] = x[k] op y[k], x[k] op s, s op x[k],
+   * op x[k], or s, for 0 <= k < n. Each does exactly the IEEE operation
+   * of the scalar C expression (no contraction into fused multiply-add),
+   * so results are bit-identical to the loop they replace. `out` never
+   * overlaps an input. */
+  void (*row_vv)(npg_idx n, NpgRowOp op, const double *x, const double *y, double *out);
+  void (*row_vs)(npg_idx n, NpgRowOp op, const double *x, double s, double *out);
+  void (*row_sv)(npg_idx n, NpgRowOp op, double s, const double *y, double *out);
+  void (*row_unary)(npg_idx n, NpgRowOp op, const double *x, double *out);
+  void (*row_fill)(npg_idx n, double s, double *out);
 };
 
 /* Entry points of generated code (prefixed when several programs share a

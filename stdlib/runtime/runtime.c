@@ -170,4 +170,4 @@ static void gather_error(const NpgCtx *c, const char *stage, int param, int nent
     record(c, "stage '%s' at [%s]: index %ld is out of range for dim %s (size %ld)", stage, at, (long)value, dname, dsize);
 }
 
-const NpgRt npg_runtime = {op_power, scratch, release, gather_error};
+const NpgRt npg_runtime = {op_power, scratch, release, gather_error, rows_vv, rows_vs, rows_sv, rows_unary, rows_fill};

@@ -17,6 +17,13 @@ typedef struct NpgHost {
   const int *param_ndims;
 } NpgHost;
 
+/* stdlib/runtime/rows.c: the row kernels of NpgRt. */
+void rows_vv(npg_idx n, NpgRowOp op, const double *restrict x, const double *restrict y, double *restrict out);
+void rows_vs(npg_idx n, NpgRowOp op, const double *restrict x, double s, double *restrict out);
+void rows_sv(npg_idx n, NpgRowOp op, double s, const double *restrict y, double *restrict out);
+void rows_unary(npg_idx n, NpgRowOp op, const double *restrict x, double *restrict out);
+void rows_fill(npg_idx n, double s, double *restrict out);
+
 /* The runtime function table (NpgCtx.rt). */
 extern const NpgRt npg_runtime;
 
