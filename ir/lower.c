@@ -149,7 +149,9 @@ static Node *coef(Lowerer *L, Node *n, Env *env, int comp);
  * indexed by `args` (dim axes, then some static axes). */
 static Node *coef_entry(Lowerer *L, Sym *q, Node **args, int nargs, Env *env, int comp) {
   Ctx *ctx = L->ctx;
-  int rest = q->nstatic - (nargs - q->ndims);
+  /* static axes not given explicitly (a whole quantity, nargs = 0, gives none) */
+  int given = nargs > q->ndims ? nargs - q->ndims : 0;
+  int rest = q->nstatic - given;
   int idx_static[MAX_STATIC];
   /* Unflatten comp over the remaining static axes. */
   for (int i = q->nstatic - 1, c = comp; i >= q->nstatic - rest; i--) {
