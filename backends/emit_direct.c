@@ -84,6 +84,18 @@ static int ncomp_of_sym(const Sym *q) {
   return c;
 }
 
+/* q's body at the entry idx (dim axes), component flat: a definition
+ * substituted, its index variables bound to idx. */
+static int substitute(Emit *e, const Sym *q, const int *idx, int flat) {
+  const DEnv *e2 = NULL;
+  for (int i = 0; i < q->ndims; i++) e2 = bind(e, e2, q->ivars[i], idx[i], false, 0);
+  const Sym *saved = e->direct_for;
+  e->direct_for = q;
+  int v = build(e, q->body, flat, e2);
+  e->direct_for = saved;
+  return v;
+}
+
 /* Entry of param or quantity q indexed by args (dim axes, some static
  * axes); comp enumerates the static axes left. Inlined and constant
  * definitions are substituted. */
@@ -117,25 +129,10 @@ static int entry(Emit *e, const Sym *q, Node *const *args, int nargs, int comp, 
       bool identity = true;
       for (int i = 0; i < q->ndims; i++) identity &= idx[i] == e->loopvar[i];
       if (identity) return e->fused_val[k][flat]; /* computed at this entry already */
-      /* another entry of a member: rematerialized from its expression */
-      const DEnv *e2 = NULL;
-      for (int i = 0; i < q->ndims; i++) e2 = bind(e, e2, q->ivars[i], idx[i], false, 0);
-      const Sym *saved = e->direct_for;
-      e->direct_for = q;
-      int v = build(e, q->body, flat, e2);
-      e->direct_for = saved;
-      return v;
+      return substitute(e, q, idx, flat); /* another entry of a member: rematerialized */
     }
   }
-  if (q->kind == SYM_STAGE && q->inlined && !q->stage) { /* a constant definition: substituted */
-    const DEnv *e2 = NULL;
-    for (int i = 0; i < q->ndims; i++) e2 = bind(e, e2, q->ivars[i], idx[i], false, 0);
-    const Sym *saved = e->direct_for;
-    e->direct_for = q;
-    int v = build(e, q->body, flat, e2);
-    e->direct_for = saved;
-    return v;
-  }
+  if (q->kind == SYM_STAGE && q->inlined && !q->stage) return substitute(e, q, idx, flat); /* a constant definition */
   emit_use(e, q);
   int nl = cse_nloops(cs);
   if (nl >= 2 && q->ndims == 1 && q->nstatic && !q->is_int && idx[0] == e->loopvar[nl - 1] &&

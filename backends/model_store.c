@@ -61,20 +61,8 @@ __attribute__((format(printf, 4, 5))) static int fail(const Report *r, const cha
   return -1;
 }
 
-/* `s` printable in a message: at most 40 bytes, bytes outside printable
- * ASCII as \xNN, "..." when cut. `buf` holds EXCERPT_SIZE. */
-enum { EXCERPT_SIZE = 200 };
-static const char *excerpt(char *buf, const char *s) {
-  size_t o = 0, i = 0;
-  for (; s[i] && i < 40; i++) {
-    unsigned char c = (unsigned char)s[i];
-    if (c >= 0x20 && c < 0x7f) buf[o++] = (char)c;
-    else o += (size_t)snprintf(buf + o, 5, "\\x%02x", c);
-  }
-  if (s[i]) o += (size_t)snprintf(buf + o, 4, "...");
-  buf[o] = '\0';
-  return buf;
-}
+/* `s` printable in a message (npy_excerpt). `buf` holds NPY_EXCERPT_SIZE. */
+static const char *excerpt(char *buf, const char *s) { return npy_excerpt(buf, s, strlen(s)); }
 
 /* A malloc'd vprintf, or NULL when out of memory. */
 static char *str_vprintf(const char *fmt, va_list ap) {
@@ -344,7 +332,7 @@ static int scan_store_dir(const Report *r, const char *path, const char *what, i
     if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0) continue;
     char *file = str_printf("%s/%s", path, e->d_name);
     struct stat st;
-    char buf[EXCERPT_SIZE];
+    char buf[NPY_EXCERPT_SIZE];
     if (!file) rc = fail(r, path, 0, "out of memory");
     else if (lstat(file, &st) != 0) rc = fail(r, file, 0, "cannot examine: %s", strerror(errno));
     else if (!is_store_file(e->d_name) || !S_ISREG(st.st_mode))
@@ -433,7 +421,7 @@ static char *normalize_dir(const char *dir) {
 
 /* Check that `m` can be written and read back as it is. */
 static int check_store(const Report *r, const char *dir, const ModelStore *m) {
-  char buf[EXCERPT_SIZE];
+  char buf[NPY_EXCERPT_SIZE];
   for (int i = 0; i < m->nmeta; i++)
     if (!valid_meta(m->meta[i]))
       return fail(r, dir, 0, "metadata line %d is not a line 'key value...' with a key of its own: '%s'", i + 1,
@@ -633,7 +621,7 @@ static int split_words(char *line, char **words, int max) {
 
 /* array <name>.npy <shape> fnv1a64 <16 hex digits> */
 static int parse_array_line(const Report *r, const char *mpath, int ln, char *line, Listed *x) {
-  char *w[5], buf[EXCERPT_SIZE];
+  char *w[5], buf[NPY_EXCERPT_SIZE];
   if (split_words(line, w, 5) != 5)
     return fail(r, mpath, ln, "expected 'array <name>.npy <shape> " CHECKSUM_KIND " <16 hex digits>'");
   size_t n = strlen(w[1]);
@@ -657,7 +645,7 @@ static int parse_array_line(const Report *r, const char *mpath, int ln, char *li
  * lines into `m`, its array lines into `*listed` (malloc'd, `*nlisted`). */
 static int parse_manifest(const Report *r, const char *mpath, char *text, size_t len, uint64_t *program,
                           ModelStore *m, Listed **listed, int *nlisted) {
-  char buf[EXCERPT_SIZE];
+  char buf[NPY_EXCERPT_SIZE];
   int program_line = 0, ln = 0;
   *listed = NULL;
   *nlisted = 0;

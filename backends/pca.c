@@ -62,7 +62,7 @@ static GramResult gram_basis(long n, int r, const Cols *X, ChooseFn choose, cons
     for (int j = i, oj = oi; j < r; oj += (int)X[j].k, j++) {
       double *Gij = G + (size_t)oj * (size_t)K + (size_t)oi;
       if (i == j)
-        cblas_dsyrk(CblasColMajor, CblasUpper, X[i].colmajor ? CblasTrans : CblasNoTrans, (int)X[i].k, (int)n, 1.0,
+        cblas_dsyrk(CblasColMajor, CblasUpper, as_rows(&X[i]), (int)X[i].k, (int)n, 1.0,
                     X[i].p, (int)ld(&X[i], n), 0.0, Gij, (int)K);
       else
         cblas_dgemm(CblasColMajor, as_rows(&X[i]), X[j].colmajor ? CblasNoTrans : CblasTrans, (int)X[i].k,

@@ -246,7 +246,6 @@ typedef struct Trained {
   int nrerun;
 } Trained;
 
-static long keys_per_block(const RTensor *t) { return premul_keys_per_block(t); }
 
 /* The builder's stream of one tensor, counted: entries, and keys as
  * premul.c makes them for a numerator or diagonal operator (a new key
@@ -326,7 +325,7 @@ static Trained *train(NpgProgram *p, long F, long S, int cap, bool rerun_all) {
     TensorRun *run = &tr->runs[tr->nt];
     run->t = x;
     run->stage = rs->st->sym->name;
-    run->keys_per_block = keys_per_block(x);
+    run->keys_per_block = premul_keys_per_block(x);
     run->seconds = tr->nt == 0 ? NAN : w.t_premul[tr->nt + 1] - w.t_premul[tr->nt];
     run->rerun_seconds = NAN;
     Count c = {0, 0, 0};

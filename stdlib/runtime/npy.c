@@ -88,10 +88,7 @@ __attribute__((format(printf, 2, 3))) static int fail(const Report *r, const cha
   return -1;
 }
 
-/* `n` bytes of file text at `s`, printable in a message: at most 40 bytes,
- * bytes outside printable ASCII as \xNN, "..." when cut. `buf` holds 200. */
-enum { EXCERPT_SIZE = 200 };
-static const char *excerpt(char *buf, const char *s, size_t n) {
+const char *npy_excerpt(char *buf, const char *s, size_t n) {
   size_t o = 0;
   for (size_t i = 0; i < n && i < 40; i++) {
     unsigned char c = (unsigned char)s[i];
@@ -211,9 +208,9 @@ static int malformed(const Report *r, const char *header, const char *at, const 
  * numpy.load demands; only spaces may follow the '}' (numpy's padding). */
 static int parse_dict(const Report *r, const char *header, size_t len, HeaderDict *d) {
   const char *end = header + len, *p = skip_space(header, end);
-  char buf[EXCERPT_SIZE];
+  char buf[NPY_EXCERPT_SIZE];
   if (p == end) return fail(r, "header is not a dict: it is blank");
-  if (*p != '{') return fail(r, "header is not a dict: %s", excerpt(buf, p, (size_t)(end - p)));
+  if (*p != '{') return fail(r, "header is not a dict: %s", npy_excerpt(buf, p, (size_t)(end - p)));
   p++;
   for (;;) {
     p = skip_space(p, end);
@@ -225,7 +222,7 @@ static int parse_dict(const Report *r, const char *header, size_t len, HeaderDic
     Span name = {key + 1, (size_t)(p - key) - 2};
     int k = 0;
     while (k < 3 && !(strlen(keys[k]) == name.n && memcmp(keys[k], name.s, name.n) == 0)) k++;
-    if (k == 3) return fail(r, "header has unexpected key %s", excerpt(buf, key, (size_t)(p - key)));
+    if (k == 3) return fail(r, "header has unexpected key %s", npy_excerpt(buf, key, (size_t)(p - key)));
     if (d->seen[k]) return fail(r, "header has key '%s' twice", keys[k]);
     d->seen[k] = 1;
     p = skip_space(p, end);
@@ -257,7 +254,7 @@ static int parse_dict(const Report *r, const char *header, size_t len, HeaderDic
  * names what the file holds. `*swap` says the data must be byte-swapped for
  * this host. */
 static int parse_descr(const Report *r, Span v, NpyType *type, size_t *size, int *swap) {
-  char buf[EXCERPT_SIZE];
+  char buf[NPY_EXCERPT_SIZE];
   if (v.n == 5 && (v.s[0] == '\'' || v.s[0] == '"')) {
     const char *s = v.s + 1; /* e.g. <f8 */
     for (size_t i = 0; i < NTYPES; i++) {
@@ -273,14 +270,14 @@ static int parse_descr(const Report *r, Span v, NpyType *type, size_t *size, int
                     types[i].kind);
     }
   }
-  return fail(r, "unsupported dtype %s " SUPPORTED, excerpt(buf, v.s, v.n));
+  return fail(r, "unsupported dtype %s " SUPPORTED, npy_excerpt(buf, v.s, v.n));
 }
 
 static int parse_fortran_order(const Report *r, Span v, int *fortran) {
-  char buf[EXCERPT_SIZE];
+  char buf[NPY_EXCERPT_SIZE];
   if (v.n == 4 && memcmp(v.s, "True", 4) == 0) *fortran = 1;
   else if (v.n == 5 && memcmp(v.s, "False", 5) == 0) *fortran = 0;
-  else return fail(r, "'fortran_order' is not True or False: %s", excerpt(buf, v.s, v.n));
+  else return fail(r, "'fortran_order' is not True or False: %s", npy_excerpt(buf, v.s, v.n));
   return 0;
 }
 
@@ -288,7 +285,7 @@ static int parse_fortran_order(const Report *r, Span v, int *fortran) {
  * (with '_' between digits, as Python 3 allows), and in format 1.0/2.0 an
  * 'L' suffix, which Python 2 numpy wrote and numpy.load still strips. */
 static int parse_dim(const Report *r, Span v, int allow_long_suffix, long *dim) {
-  char buf[EXCERPT_SIZE];
+  char buf[NPY_EXCERPT_SIZE];
   const char *p = v.s, *end = v.s + v.n;
   int negative = 0;
   if (p < end && (*p == '+' || *p == '-')) negative = *p++ == '-';
@@ -297,15 +294,15 @@ static int parse_dim(const Report *r, Span v, int allow_long_suffix, long *dim) 
   int overflow = 0, digits = 0;
   for (; p < end; p++) {
     if (*p == '_' && digits && p + 1 < end && p[1] >= '0' && p[1] <= '9') continue;
-    if (*p < '0' || *p > '9') return fail(r, "shape entry %s is not an integer", excerpt(buf, v.s, v.n));
+    if (*p < '0' || *p > '9') return fail(r, "shape entry %s is not an integer", npy_excerpt(buf, v.s, v.n));
     unsigned d = (unsigned)(*p - '0');
     if (value > ((unsigned long)LONG_MAX - d) / 10) overflow = 1;
     else value = value * 10 + d;
     digits++;
   }
-  if (!digits) return fail(r, "shape entry %s is not an integer", excerpt(buf, v.s, v.n));
-  if (negative && value != 0) return fail(r, "shape entry %s is negative", excerpt(buf, v.s, v.n));
-  if (overflow) return fail(r, "shape entry %s is too large", excerpt(buf, v.s, v.n));
+  if (!digits) return fail(r, "shape entry %s is not an integer", npy_excerpt(buf, v.s, v.n));
+  if (negative && value != 0) return fail(r, "shape entry %s is negative", npy_excerpt(buf, v.s, v.n));
+  if (overflow) return fail(r, "shape entry %s is too large", npy_excerpt(buf, v.s, v.n));
   *dim = (long)value;
   return 0;
 }
@@ -336,13 +333,13 @@ static int split_tuple(Span v, Span *items, size_t *nitems) {
 /* The shape tuple into `a`'s ndim, shape and count, checking that `count`
  * elements of `size` bytes can be addressed. */
 static int parse_shape(const Report *r, Span v, int allow_long_suffix, size_t size, NpyArray *a) {
-  char buf[EXCERPT_SIZE];
+  char buf[NPY_EXCERPT_SIZE];
   Span items[NPY_MAX_DIMS];
   size_t nitems;
   if (!split_tuple(v, items, &nitems))
-    return fail(r, "'shape' is not a tuple of integers: %s", excerpt(buf, v.s, v.n));
+    return fail(r, "'shape' is not a tuple of integers: %s", npy_excerpt(buf, v.s, v.n));
   if (nitems > NPY_MAX_DIMS)
-    return fail(r, "shape %s has %zu dimensions; at most %d are supported", excerpt(buf, v.s, v.n), nitems,
+    return fail(r, "shape %s has %zu dimensions; at most %d are supported", npy_excerpt(buf, v.s, v.n), nitems,
                 NPY_MAX_DIMS);
   a->ndim = (int)nitems;
   int empty = 0;
@@ -354,7 +351,7 @@ static int parse_shape(const Report *r, Span v, int allow_long_suffix, size_t si
   a->count = empty ? 0 : 1;
   for (int i = 0; i < a->ndim && !empty; i++) {
     if ((size_t)a->shape[i] > SIZE_MAX / size / a->count)
-      return fail(r, "shape %s has too many elements", excerpt(buf, v.s, v.n));
+      return fail(r, "shape %s has too many elements", npy_excerpt(buf, v.s, v.n));
     a->count *= (size_t)a->shape[i];
   }
   return 0;

@@ -59,4 +59,10 @@ void npy_free(NpyArray *a);
 /* "float64", "int32", "int64" ("unknown" for a value outside NpyType). */
 const char *npy_type_name(NpyType t);
 
+/* `n` bytes of text at `s`, printable in a message: at most 40 bytes,
+ * bytes outside printable ASCII as \xNN, "..." when cut. `buf` holds
+ * NPY_EXCERPT_SIZE. Returns buf. */
+enum { NPY_EXCERPT_SIZE = 200 };
+const char *npy_excerpt(char *buf, const char *s, size_t n);
+
 #endif
