@@ -16,6 +16,7 @@
 #ifndef NPG_NNLS_H
 #define NPG_NNLS_H
 
+#include <stdbool.h>
 #include <stddef.h>
 
 /* Lawson–Hanson NNLS: minimize ‖A w − b‖₂ subject to w ≥ 0. `A` is `m` × `n`
@@ -25,6 +26,12 @@
  * max(3n, 30) outer iterations (then `w` holds the best iterate so far, which
  * is feasible: w ≥ 0). */
 int nnls_solve(int m, int n, const double *A, const double *b, double *w, char *err, size_t errlen);
+
+/* nnls_solve() with its subproblem solver chosen, for tests: `use_qr` false
+ * solves every subproblem by dgelsy (no shared QR); `gelsy_solves`, when not
+ * NULL, receives how many subproblems dgelsy solved. */
+int nnls_solve_with(int m, int n, const double *A, const double *b, double *w, bool use_qr, long *gelsy_solves,
+                    char *err, size_t errlen);
 
 /* The convex combination (paper §8.3, eq. 17): `X` is `S` × `d` row-major (the
  * training inputs x̂_s, one per row), `x` has `d` entries. Returns in `w` (`S`

@@ -393,6 +393,46 @@ static void nnls_active_constraints_random(void **state) {
   assert_true(active_cases >= 20); /* most trials exercise active constraints */
 }
 
+/* The shared QR and dgelsy solve the same subproblems: on the random
+ * problems of nnls_active_constraints_random both reach the same w with
+ * the same active set (the QR path never needing dgelsy there), and so
+ * they do on a problem with an ill-conditioned pair of columns. */
+static void nnls_qr_and_gelsy_agree(void **state) {
+  (void)state;
+  seed(2);
+  double worst = 0;
+  long gelsy_total = 0;
+  for (int trial = 0; trial < 40; trial++) {
+    int m = 6 + trial % 9, n = 2 + trial % 9;
+    if (n > m) n = m;
+    double *A = gauss_matrix(m, n), *b = gauss_matrix(m, 1), *wq = zeros(n), *wg = zeros(n);
+    char err[512];
+    long gq = -1, gg = -1;
+    assert_int_equal(nnls_solve_with(m, n, A, b, wq, true, &gq, err, sizeof err), 0);
+    assert_int_equal(nnls_solve_with(m, n, A, b, wg, false, &gg, err, sizeof err), 0);
+    assert_int_equal(gq, 0);
+    gelsy_total += gg;
+    double scale = 0;
+    for (int j = 0; j < n; j++) scale = fmax(scale, fabs(wg[j]));
+    for (int j = 0; j < n; j++) {
+      assert_true((wq[j] == 0) == (wg[j] == 0)); /* the same active set */
+      worst = fmax(worst, fabs(wq[j] - wg[j]) / fmax(scale, 1e-300));
+    }
+    free(A), free(b), free(wq), free(wg);
+  }
+  if (!(worst <= 1e-12)) fail_msg("QR and dgelsy paths differ by %.3e", worst);
+  assert_true(gelsy_total >= 40); /* the other path did run */
+
+  /* a1 = e1, a2 = (1, 1e-10, 0, -1e-9) (the pair's condition ≈ 1e9),
+   * a3 = e3, b = (1, 4e-9, 0.5, 0). */
+  double A[4 * 3] = {1, 1, 0, 0, 1e-10, 0, 0, 0, 1, 0, -1e-9, 0}, b[4] = {1, 4e-9, 0.5, 0}, wq[3], wg[3];
+  char err[512];
+  assert_int_equal(nnls_solve_with(4, 3, A, b, wq, true, NULL, err, sizeof err), 0);
+  assert_int_equal(nnls_solve_with(4, 3, A, b, wg, false, NULL, err, sizeof err), 0);
+  assert_true(nnls_kkt(4, 3, A, b, wq) < 1e-12);
+  for (int j = 0; j < 3; j++) assert_true(fabs(wq[j] - wg[j]) <= 1e-12);
+}
+
 /* ---------------------------------------------------------------- (b) convex combination */
 
 static void convex_training_sample_gets_all_weight(void **state) {
@@ -658,6 +698,7 @@ int main(void) {
       cmocka_unit_test(nnls_interior_equals_least_squares),
       cmocka_unit_test(nnls_known_active_sets),
       cmocka_unit_test(nnls_active_constraints_random),
+      cmocka_unit_test(nnls_qr_and_gelsy_agree),
       cmocka_unit_test(convex_training_sample_gets_all_weight),
       cmocka_unit_test(convex_recovers_weights),
       cmocka_unit_test(convex_outside_hull),
