@@ -382,6 +382,16 @@ uint64_t model_program_hash(const Program *prog) {
 
 /* ---------------------------------------------------------------- reduced evaluation */
 
+/* Below this many bytes of reduced tensors a whole evaluation runs its BLAS
+ * on one OpenBLAS thread: at these sizes a second thread gains nothing
+ * (bench_reduce, radiosity form factors, 2 cores: 0.08 MB 30 µs either
+ * way, 0.63 MB 108–133 µs on 2 threads against 108–109 on 1) and its
+ * pool thread, spinning after each threaded call, competes with the
+ * evaluation (at F = 1000, m = 10, 41–58 µs against 40–41 µs per reduced
+ * evaluation including the learned extern). From 4.95 MB on, two threads
+ * are faster (4 %, and 20 % at 16.6 MB). */
+#define REDUCED_ONE_THREAD_BYTES ((size_t)2 << 20)
+
 struct Reduced {
   Model *m;
   double **x;             /* reduced coordinates of every quantity */
@@ -396,6 +406,7 @@ struct Reduced {
   lapack_int lwork, liwork, *iwork;
   long maxm;
   bool given_externs;     /* externs projected by the caller, not learned */
+  bool one_thread;        /* tensors small enough that reduced_eval runs BLAS on one thread */
   char error[1024];
 };
 
@@ -473,6 +484,9 @@ Reduced *reduced_new(Model *m, char *err, size_t errlen) {
     }
   }
   r->maxm = maxm;
+  size_t tensor_bytes = 0;
+  model_bytes(m, &tensor_bytes);
+  r->one_thread = tensor_bytes < REDUCED_ONE_THREAD_BYTES;
   r->v = calloc((size_t)maxm, sizeof(double));
   r->acc = calloc((size_t)(maxm * maxm), sizeof(double));
   r->buf[0] = calloc((size_t)maxbuf, sizeof(double));
@@ -763,9 +777,11 @@ int reduced_eval_stage(Reduced *r, int i, long sample) {
 }
 
 int reduced_eval(Reduced *r, long sample) {
-  for (int i = 0; i < r->m->nstages; i++)
-    if (reduced_eval_stage(r, i, sample)) return -1;
-  return 0;
+  int threads = r->one_thread ? blas_one_thread() : 1;
+  int rc = 0;
+  for (int i = 0; i < r->m->nstages && rc == 0; i++) rc = reduced_eval_stage(r, i, sample);
+  if (r->one_thread) blas_restore_threads(threads);
+  return rc;
 }
 
 /* ---------------------------------------------------------------- for generated reduced code (emit_reduced.c) */

@@ -27,6 +27,7 @@
 #define _XOPEN_SOURCE 700
 #include <cblas.h>
 #include <ftw.h>
+#include <lapacke.h>
 #include <math.h>
 #include <pthread.h>
 #include <stdint.h>
@@ -423,6 +424,54 @@ static Bandwidth bandwidth(size_t bytes, double min_seconds) {
 
 static double bw_best(Bandwidth b) { return fmax(b.gemv, b.sum); }
 
+/* The factorizations alone: best seconds of the LAPACK calls reduced_eval
+ * makes for a root (dsytrd + dstedc, as apply_root) and for an inverse
+ * (dpotrf + dpocon, as apply_inverse) on a random n × n SPD matrix with
+ * a spread 0.9^k of eigenvalues, on one OpenBLAS thread: what those stages cost
+ * before a single tensor byte is read. */
+typedef struct Factor {
+  double root, inverse;
+} Factor;
+
+static Factor factor_seconds(int n, double min_seconds) {
+  Factor f = {0, 0};
+  if (n < 1) return f;
+  size_t nn = (size_t)n * (size_t)n;
+  double *X = random_array(nn, 5), *A = calloc(nn, sizeof(double)), *M = xmalloc(sizeof(double) * nn);
+  double *Z = xmalloc(sizeof(double) * nn), *d = xmalloc(sizeof(double) * (size_t)n);
+  double *e = xmalloc(sizeof(double) * (size_t)n), *tau = xmalloc(sizeof(double) * (size_t)n);
+  for (int k = 0; k < n; k++) /* A = Σ_k 0.9^k x_k x_kᵀ */
+    cblas_dsyr(CblasRowMajor, CblasUpper, n, pow(0.9, k), &X[(size_t)k * n], 1, A, n);
+  lapack_int lwork = 1 + 4 * n + n * n + 64 * n, liwork = 3 + 5 * n;
+  double *work = xmalloc(sizeof(double) * (size_t)lwork);
+  lapack_int *iwork = xmalloc(sizeof(lapack_int) * (size_t)liwork);
+  int threads = openblas_get_num_threads();
+  openblas_set_num_threads(1);
+  for (int which = 0; which < 2; which++) {
+    double best = 1e30, spent = 0;
+    for (int r = 0; r < 3 || spent < min_seconds; r++) {
+      memcpy(M, A, sizeof(double) * nn);
+      double t0 = now(), rcond = 0;
+      lapack_int info;
+      if (which == 0) {
+        info = LAPACKE_dsytrd_work(LAPACK_COL_MAJOR, 'L', n, M, n, d, e, tau, work, lwork);
+        if (info == 0) info = LAPACKE_dstedc_work(LAPACK_COL_MAJOR, 'I', n, d, e, Z, n, work, lwork, iwork, liwork);
+      } else {
+        info = LAPACKE_dpotrf_work(LAPACK_COL_MAJOR, 'L', n, M, n);
+        if (info == 0) info = LAPACKE_dpocon_work(LAPACK_COL_MAJOR, 'L', n, M, n, 1.0, &rcond, work, iwork);
+      }
+      double t = now() - t0;
+      if (info != 0) die("factor_seconds", "LAPACK failed on the SPD test matrix");
+      best = fmin(best, t), spent += t;
+    }
+    if (which == 0) f.root = best;
+    else f.inverse = best;
+  }
+  openblas_set_num_threads(threads);
+  free(X), free(A), free(M), free(Z), free(d), free(e), free(tau), free(work), free(iwork);
+  return f;
+}
+
 /* ---------------------------------------------------------------- part 1 */
 
 static void part1(Trained *tr, double square) {
@@ -595,6 +644,8 @@ typedef struct Part2Row {
   double bytes;
   Part2Run run[2]; /* OpenBLAS's default threads, and 1 */
   Bandwidth bw;    /* at the tensors' bytes */
+  long m_root, m_inv; /* class sizes of the root stage p and the inverse stage h */
+  Factor factor;      /* their LAPACK factorizations alone */
 } Part2Row;
 
 static void part2_row(Trained *tr, const char *base, bool keep, Part2Row *row) {
@@ -613,10 +664,12 @@ static void part2_row(Trained *tr, const char *base, bool keep, Part2Row *row) {
   Reduced *r = reduced_new(m, err, sizeof err);
   if (!r) die("reduced_new", err);
   reduced_use_given_externs(r, true);
-  int qg = -1, qv = -1;
+  int qg = -1, qv = -1, qp = -1, qh = -1;
   for (int q = 0; q < m->nq; q++) {
     if (strcmp(qname(m, q), "g") == 0) qg = q;
     if (strcmp(qname(m, q), "v") == 0) qv = q;
+    if (strcmp(qname(m, q), "p") == 0) qp = q;
+    if (strcmp(qname(m, q), "h") == 0) qh = q;
   }
   reduced_project(r, qg, test.g);
   reduced_project(r, qv, test.v);
@@ -626,6 +679,9 @@ static void part2_row(Trained *tr, const char *base, bool keep, Part2Row *row) {
   model_bytes(m, &tb);
   row->bytes = (double)tb;
   row->bw = bandwidth(tb, 0.5);
+  row->m_root = m->classes[m->qclass[qp]].m, row->m_inv = m->classes[m->qclass[qh]].m;
+  Factor fr = factor_seconds((int)row->m_root, 0.3), fi = factor_seconds((int)row->m_inv, 0.3);
+  row->factor.root = fr.root, row->factor.inverse = fi.inverse;
   int threads = openblas_get_num_threads();
   for (int k = 0; k < 2; k++) {
     Part2Run *run = &row->run[k];
@@ -840,6 +896,11 @@ int main(int argc, char **argv) {
     for (int i = 0; i < ncaps; i++) {
       printf("  cap %d: bandwidth over %.2f MB: %.1f GB/s (dgemv), %.1f GB/s (sum); numpy full reads %.2f MB\n",
              rows[i].cap, rows[i].bytes / 1e6, rows[i].bw.gemv, rows[i].bw.sum, rows[i].run[0].peer.bytes_full / 1e6);
+      printf("    LAPACK alone on a random SPD matrix of the stage's size, 1 thread: root p (dsytrd + dstedc, m = %ld) "
+             "%.1f µs, inverse h (dpotrf + dpocon, m = %ld) %.1f µs; together %.1fx bound L (%.1f µs)\n",
+             rows[i].m_root, 1e6 * rows[i].factor.root, rows[i].m_inv, 1e6 * rows[i].factor.inverse,
+             (rows[i].factor.root + rows[i].factor.inverse) / (rows[i].bytes / (bw_best(rows[i].bw) * 1e9)),
+             1e6 * rows[i].bytes / (bw_best(rows[i].bw) * 1e9));
       for (int k = 0; k < 2; k++) {
         const Part2Run *u = &rows[i].run[k];
         printf("    µs per stage, %d thread(s), npg:         %s\n", u->threads, u->stages);
