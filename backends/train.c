@@ -14,7 +14,6 @@
 #include <cblas.h>
 #include <lapacke.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -32,14 +31,6 @@ void progress_show(bool on, const char *what, long done, long total) {
   fflush(stderr);
 }
 
-static int tfail(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-static int tfail(char *err, size_t errlen, const char *fmt, ...) {
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(err, errlen, fmt, ap);
-  va_end(ap);
-  return -1;
-}
 
 /* ---------------------------------------------------------------- fields through the builders */
 
@@ -67,7 +58,7 @@ static int field_value(NpgFull *f, const RTensor *ts, int nt, double *out, long 
     FieldSum s = {{0}, out, n};
     for (int i = 0; i < ts[g].group->ninputs; i++) s.in[i] = npg_full_get(f, ts[g].group->inputs[i]->name, NULL);
     NpgSink sink = {&s, sum_entry};
-    if (full_build(f, ts[g].builder, &sink) != 0) return tfail(err, errlen, "%s", npg_full_error(f));
+    if (full_build(f, ts[g].builder, &sink) != 0) return npg_fail(err, errlen, "%s", npg_full_error(f));
   }
   return 0;
 }
@@ -136,7 +127,7 @@ static RTerm *joiner_term(Model *m, const Joiner *j) {
 
 /* Set and evaluate training sample k. */
 static int eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, size_t errlen) {
-  if (src->set(src->user, f, k) != 0 || npg_full_eval(f, k) != 0) return tfail(err, errlen, "%s", npg_full_error(f));
+  if (src->set(src->user, f, k) != 0 || npg_full_eval(f, k) != 0) return npg_fail(err, errlen, "%s", npg_full_error(f));
   return 0;
 }
 
@@ -148,7 +139,7 @@ static int member_value(Model *m, NpgFull *f, const RMember *mb, long n, double 
     return 0;
   }
   RTerm *rt = joiner_term(m, mb->joiner);
-  if (!rt) return tfail(err, errlen, "a numerator without its term (a bug in npg)");
+  if (!rt) return npg_fail(err, errlen, "a numerator without its term (a bug in npg)");
   return field_value(f, rt->num, rt->nnum, out, n, err, errlen);
 }
 
@@ -229,7 +220,7 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
       RMember *mb = &rc->members[i];
       lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)S, G[c][i], (lapack_int)S, lam);
       if (info != 0) {
-        tfail(err, errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
+        npg_fail(err, errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
               rc->label, mb->name, (int)info);
         goto done;
       }
@@ -271,7 +262,7 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
   rc = 0;
   goto done;
 oom:
-  tfail(err, errlen, "out of memory for the Gram matrices of %ld samples", S);
+  npg_fail(err, errlen, "out of memory for the Gram matrices of %ld samples", S);
 done:
   for (int c = 0; c < m->nclasses; c++) {
     for (int i = 0; G && G[c] && i < m->classes[c].nmembers; i++) free(G[c][i]);
@@ -293,12 +284,12 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   long S = src->count;
   err[0] = 0;
   if (S < 1) {
-    tfail(err, errlen, "no training samples");
+    npg_fail(err, errlen, "no training samples");
     return NULL;
   }
   /* sample 0 binds every dim */
   if (src->set(src->user, f, 0) != 0 || npg_full_eval(f, 0) != 0) {
-    tfail(err, errlen, "%s", npg_full_error(f));
+    npg_fail(err, errlen, "%s", npg_full_error(f));
     return NULL;
   }
   long *dims = calloc((size_t)prog->dims.n + 1, sizeof(long));
@@ -319,7 +310,7 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   }
   bool gram = opt->mem && need > opt->mem;
   if (gram && opt->joint) {
-    tfail(err, errlen,
+    npg_fail(err, errlen,
           "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise --mem "
           "or use --merge concat (the method of snapshots)",
           (double)need / 1e9, (double)opt->mem / 1e9);
@@ -396,7 +387,7 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
     free(U);
     free(kk);
     if (rc_ok != 0) {
-      if (!err[0]) tfail(err, errlen, "out of memory building the basis of class %s", rc->label);
+      if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
       goto fail;
     }
     if (rc_ok == 0 && opt->full_rank && rc->m < rc->n) {
@@ -481,7 +472,7 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   free_snapshots(m, &sn);
   return m;
 oom:
-  tfail(err, errlen, "out of memory while training");
+  npg_fail(err, errlen, "out of memory while training");
 fail:
   free(tmp);
   free_snapshots(m, &sn);

@@ -22,7 +22,8 @@ static void usage(FILE *out) {
         "       npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--basis NAME:cap=N,energy=E]\n"
         "                  [--merge concat|joint] [--mem BYTES] [--cc]\n"
         "       npgc eval PROG.npg MODEL/ IN/ -o OUT/\n"
-        "       npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc]\n"
+        "       npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc] [--exact] [--exact-size N]\n"
+        "       npgc verify PROG.npg --exact [--exact-size N] [--cc]\n"
         "       npgc bench PROG.npg MODEL/ TEST/ [--cc]\n"
         "\n"
         "  emit    write the generated C of the full evaluator (one function per stage)\n"
@@ -47,6 +48,11 @@ static void usage(FILE *out) {
         "          of the lifted reduced value, the projection floor and their\n"
         "          difference (L2 and Linf); exit 1 when an output's mean L2 error\n"
         "          exceeds --tol (default 1e-2).\n"
+        "  --exact the two exactness checks of the design (alone when MODEL/ and\n"
+        "          TEST/ are not given), on random data with every dim of a small size\n"
+        "          (--exact-size N; 6 and 4 by default): every stage rebuilt from its\n"
+        "          tensors equals the full evaluator to 1e-12, and a model with\n"
+        "          full-rank bases reproduces it to 1e-10. Exit 1 when one fails.\n"
         "\n"
         "  bench   full vs reduced time per evaluation, speedup, reduced model memory.\n",
         out);

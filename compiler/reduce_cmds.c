@@ -16,6 +16,7 @@
 
 #include "compile.h"
 #include "emit.h"
+#include "exact.h"
 #include "npy.h"
 #include "reduce.h"
 #include "samples.h"
@@ -24,6 +25,8 @@ typedef struct Common {
   const char *prog_path, *a, *b, *out;
   NpgOptions opt;
   bool cc;
+  bool exact;               /* verify: the exactness checks of DESIGN §4 */
+  long exact_size;          /* their size of every dim (0: exact.c's defaults) */
   double tol;
   bool tol_set;
   TrainOptions train;
@@ -90,7 +93,11 @@ static int usage(const char *cmd) {
     fputs("usage: npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--cc]   (reduced)\n"
           "       npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc]\n",
           stderr);
-  else fprintf(stderr, "usage: npgc %s PROG.npg MODEL/ TEST/ [--tol T] [--cc]\n", cmd);
+  else if (strcmp(cmd, "verify") == 0)
+    fputs("usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc] [--exact] [--exact-size N]\n"
+          "       npgc verify PROG.npg --exact [--exact-size N] [--cc]\n",
+          stderr);
+  else fprintf(stderr, "usage: npgc %s PROG.npg MODEL/ TEST/ [--cc]\n", cmd);
   return 2;
 }
 
@@ -107,6 +114,13 @@ static int parse(Common *c, int argc, char **argv) {
     bool has = i + 1 < argc, ok = true;
     if (strcmp(a, "-o") == 0 && has) c->out = argv[++i];
     else if (strcmp(a, "--cc") == 0) c->cc = true;
+    else if (strcmp(a, "--exact") == 0 && strcmp(c->cmd, "verify") == 0) c->exact = true;
+    else if (strcmp(a, "--exact-size") == 0 && has && strcmp(c->cmd, "verify") == 0) {
+      char *end;
+      c->exact = true;
+      c->exact_size = strtol(argv[++i], &end, 10);
+      ok = *end == 0 && c->exact_size >= 1 && c->exact_size <= 64;
+    }
     else if (strncmp(a, "--std=", 6) == 0) c->opt.std_dir = a + 6;
     else if (strcmp(a, "--tol") == 0 && has) {
       char *end;
@@ -399,7 +413,21 @@ static double worst_input(const Model *m, const RStage *rs, const ErrStat *st, l
   return w;
 }
 
+/* The exactness checks of DESIGN §4 (exact.h): 0 pass, 1 fail or error. */
+static int verify_exact(Common *c) {
+  NpgProgram *p = compile(c);
+  if (!p) return 1;
+  ExactOptions o = {c->exact_size, c->exact_size, 1u, c->cc ? NPG_CC : NPG_TCC, c->train.progress};
+  char err[2048] = "";
+  fflush(stdout);
+  int rc = exact_check(p, &o, stdout, err, sizeof err);
+  if (rc < 0) fprintf(stderr, "error: exactness checks of %s: %s\n", c->prog_path, err);
+  npg_free(p);
+  return rc == 0 ? 0 : 1;
+}
+
 static int cmd_verify(Common *c) {
+  if (c->exact && c->prog_path && !c->a && !c->b && !c->out) return verify_exact(c);
   if (!c->prog_path || !c->a || !c->b || c->out) return usage("verify");
   Session x;
   int rc = 1;
@@ -496,6 +524,10 @@ static int cmd_verify(Common *c) {
     }
   }
   if (rc == 0) printf("ok: every output within --tol %.3g\n", c->tol);
+  if (c->exact) {
+    printf("\n");
+    rc |= verify_exact(c);
+  }
 done:
   free(st);
   free(y);

@@ -102,6 +102,16 @@ static char *arena_vprintf(Ctx *ctx, const char *fmt, va_list ap) {
   return p;
 }
 
+int npg_fail(char *err, size_t errlen, const char *fmt, ...) {
+  if (err && errlen) {
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(err, errlen, fmt, ap);
+    va_end(ap);
+  }
+  return -1;
+}
+
 char *arena_printf(Ctx *ctx, const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);

@@ -45,6 +45,10 @@ typedef struct Arena {
  * Lua ltests.c). It has malloc's contract. */
 extern void *(*npg_alloc_hook)(size_t size);
 
+/* Library code's failures: the message formatted into `err` (when `err` and
+ * `errlen` are given), and -1 to return. */
+int npg_fail(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+
 typedef struct Ctx Ctx;
 void *arena_alloc(Ctx *ctx, size_t size);            /* zeroed; never NULL */
 char *arena_strdup(Ctx *ctx, const char *s);

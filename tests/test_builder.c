@@ -10,7 +10,7 @@
 
 #include "emit.h"
 #include "full.h"
-#include "support/randdata.h"
+#include "randdata.h"
 #include "support/refeval.h"
 #include "testutil.h"
 

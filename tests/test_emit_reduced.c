@@ -14,8 +14,8 @@
 
 #include "emit.h"
 #include "reduce.h"
-#include "support/memsamples.h"
-#include "support/randdata.h"
+#include "memsamples.h"
+#include "randdata.h"
 #include "testutil.h"
 #include "trained.h"
 

@@ -6,7 +6,7 @@
 #include <math.h>
 #include <stdio.h>
 
-#include "support/randdata.h"
+#include "randdata.h"
 #include "support/refeval.h"
 #include "testutil.h"
 
@@ -124,11 +124,61 @@ static void detects_a_wrong_lowering(void **state) {
   npg_free(p);
 }
 
+/* npgc verify --exact (exact.c), the product's own form of these checks:
+ * every example and test program passes both; a coefficient of the
+ * canonical form changed after compilation (so the tensor builders, made
+ * from it, disagree with the full evaluator, made from the source) fails
+ * both, and the report names the stage. */
+/* exact_check with the defaults; its report in *report (to free). */
+static int run_exact(NpgProgram *p, char *err, size_t errlen, char **report) {
+  ExactOptions o = {0, 0, 1u, NPG_TCC, false};
+  size_t len = 0;
+  FILE *out = open_memstream(report, &len);
+  int rc = exact_check(p, &o, out, err, errlen);
+  fclose(out);
+  return rc;
+}
+
+static int exact_cb(const char *path, void *arg) {
+  (void)arg;
+  NpgProgram *p = compile_file(path);
+  char err[2048] = "", *report = NULL;
+  int rc = run_exact(p, err, sizeof err, &report);
+  if (rc != 0) print_message("%s: exact_check %d: %s\n%s", path, rc, err, report);
+  free(report);
+  npg_free(p);
+  return rc != 0;
+}
+
+static void verify_exact_passes_and_fails(void **state) {
+  (void)state;
+  int n = 0, failures = 0;
+  const char *dirs[] = {"examples/rational", "examples/radiosity", "examples/fluids", "tests/programs"};
+  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += for_each_program(dirs[i], exact_cb, NULL, &n);
+  assert_true(n >= 20);
+  assert_int_equal(failures, 0);
+
+  NpgProgram *p = compile_file("examples/rational/rational.npg");
+  Program *prog = ir_ok(p);
+  Stage *y = prog->stages.v[0];
+  Mono *m = y->terms[0]->num->comp[0].m[0];
+  m->coef = new_num(prog->ctx, 1.0 + 1e-9, false, (Loc){0});
+  char err[2048] = "", *report = NULL;
+  int rc = run_exact(p, err, sizeof err, &report);
+  if (rc != 1) fail_msg("a wrong lowering passed (%d, %s):\n%s", rc, err, report);
+  assert_non_null(strstr(report, "FAIL: the tensor form differs"));
+  assert_non_null(strstr(report, "FAIL: the full-rank reduced value differs"));
+  assert_non_null(strstr(report, "\n     y "));
+  free(report);
+  npg_free(p);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(detects_a_wrong_lowering),
       cmocka_unit_test(examples_exact),
       cmocka_unit_test(test_programs_exact),
+      cmocka_unit_test(verify_exact_passes_and_fails),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -8,7 +8,7 @@
 #include <math.h>
 #include <stdio.h>
 
-#include "support/randdata.h"
+#include "randdata.h"
 #include "support/refeval.h"
 #include "testutil.h"
 

@@ -4,7 +4,7 @@
 #define NPG_TRAINED_H
 
 #include "reduce.h"
-#include "support/memsamples.h"
+#include "memsamples.h"
 
 typedef struct Trained {
   NpgProgram *p;

@@ -1,9 +1,9 @@
 #!/bin/sh
 # reduce.sh BUILD_DIR — the reduction commands end to end, as a user runs
-# them: train, verify (pass and fail by --tol), reduced eval checked against
-# numpy's evaluation of the paper's Eq. 3 (an independent oracle), a
-# corrupted model and foreign params refused naming the file, radiosity
-# trained and verified on the deforming room.
+# them: train, verify (pass and fail by --tol; --exact, the exactness checks),
+# reduced eval checked against numpy's evaluation of the paper's Eq. 3 (an
+# independent oracle), a corrupted model and foreign params refused naming
+# the file, radiosity trained and verified on the deforming room.
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_cli_XXXXXX)
@@ -16,6 +16,14 @@ P=examples/rational/rational.npg
 "$B/npgc" train $P "$W/TRAIN" -o "$W/MODEL" >/dev/null || fail "train"
 "$B/npgc" verify $P "$W/MODEL" "$W/TEST" --tol 1e-10 >"$W/verify.txt" || fail "verify at full rank"
 grep -q '^y  *inverse' "$W/verify.txt" || fail "verify report lacks stage y"
+# the exactness checks of DESIGN §4, alone and after the report
+"$B/npgc" verify $P --exact >"$W/exact.txt" || fail "verify --exact"
+grep -q '^  1. lowering' "$W/exact.txt" && grep -q '^  2. full rank' "$W/exact.txt" || fail "verify --exact report: $(cat "$W/exact.txt")"
+grep -q '^ok: the lowering is exact' "$W/exact.txt" || fail "verify --exact verdict"
+"$B/npgc" verify $P "$W/MODEL" "$W/TEST" --tol 1e-10 --exact-size 5 >"$W/both.txt" || fail "verify with --exact-size"
+grep -q '^y  *inverse' "$W/both.txt" && grep -q 'every dim 5' "$W/both.txt" || fail "verify report and checks: $(cat "$W/both.txt")"
+if "$B/npgc" verify $P --exact-size 0 2>/dev/null; then fail "--exact-size 0 accepted"; fi
+if "$B/npgc" verify $P 2>/dev/null; then fail "verify without a model or --exact accepted"; fi
 # cap 1: y is not representable; verify must exit 1 above --tol
 "$B/npgc" train $P "$W/TRAIN" -o "$W/SMALL" --cap 1 >/dev/null || fail "train --cap 1"
 if "$B/npgc" verify $P "$W/SMALL" "$W/TEST" --tol 1e-3 >/dev/null; then fail "verify passed a cap-1 model"; fi

@@ -19,7 +19,8 @@ int mem_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, long S, un
     const Sym *s = prog->params.v[i];
     long shape[MAX_AXES + MAX_STATIC];
     size_t c = mem_count(s, n, shape);
-    double *v = malloc(sizeof(double) * c);
+    double *v = malloc(sizeof(double) * (c ? c : 1));
+    if (!v) return -2;
     rand_fill(prog, s, n, &seed, false, v, c);
     int rc = npg_full_set_param(f, s->name, s->ndims + s->nstatic, shape, v, s->name);
     free(v);
@@ -28,11 +29,19 @@ int mem_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, long S, un
   for (int i = 0; i < prog->quantities.n; i++) {
     const Sym *s = prog->quantities.v[i];
     if (s->kind != SYM_INPUT && s->kind != SYM_EXTERN) continue;
+    if (ms->n == MEM_MAX_QUANTITIES) {
+      mem_free(ms);
+      return -2;
+    }
     int k = ms->n++;
     ms->sym[k] = s;
     ms->nd[k] = s->ndims + s->nstatic;
     ms->count[k] = mem_count(s, n, ms->shape[k]);
-    ms->val[k] = malloc(sizeof(double) * ms->count[k] * (size_t)S);
+    ms->val[k] = malloc(sizeof(double) * (ms->count[k] ? ms->count[k] : 1) * (size_t)(S > 0 ? S : 1));
+    if (!ms->val[k]) {
+      mem_free(ms);
+      return -2;
+    }
     for (long j = 0; j < S; j++) rand_fill(prog, s, n, &seed, false, ms->val[k] + (size_t)j * ms->count[k], ms->count[k]);
   }
   return 0;
@@ -48,5 +57,6 @@ int mem_set(void *user, NpgFull *f, long k) {
 }
 
 void mem_free(MemSamples *ms) {
-  for (int i = 0; i < ms->n; i++) free(ms->val[i]);
+  for (int i = 0; i < ms->n; i++) free(ms->val[i]), ms->val[i] = NULL;
+  ms->n = 0;
 }

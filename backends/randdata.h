@@ -1,4 +1,5 @@
-/* randdata.h — random but well-posed data for a program (tests). */
+/* randdata.h — random but well-posed data for a program: the exactness
+ * checks of `npgc verify --exact` (exact.c) and tests. */
 #ifndef NPG_RANDDATA_H
 #define NPG_RANDDATA_H
 

@@ -1,4 +1,4 @@
-/* randdata.c — random but well-posed data for a program (tests). */
+/* randdata.c — random but well-posed data for a program (randdata.h). */
 #include "randdata.h"
 
 #include <math.h>

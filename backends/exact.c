@@ -1,0 +1,263 @@
+/* exact.c — the exactness checks of DESIGN §4 on demand (exact.h).
+ *
+ * Check 1 rebuilds every stage from its tensor builders' entries, the same
+ * entries pre-multiplication consumes, contracted with the full evaluator's
+ * values of the stage's inputs; diagonal operators are applied entrywise,
+ * declared ones densely by the runtime's operator power (the routine the
+ * full evaluator calls). The full evaluator evaluates the source expression
+ * directly (emit_direct.c), so agreement means the lowering to tensors is
+ * exact. Check 2 trains on random samples with every basis completed to its
+ * class's full dimension and compares the lifted reduced values of every
+ * quantity with the full evaluator on held-out samples. */
+#include "exact.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "ast.h"
+#include "compile.h"
+#include "emit.h"
+#include "full.h"
+#include "memsamples.h"
+#include "reduce.h"
+#include "runtime.h"
+
+double rel_max_diff(const double *a, const double *b, size_t n) {
+  double num = 0, den = 0;
+  for (size_t i = 0; i < n; i++) {
+    if (isnan(a[i]) != isnan(b[i])) return NAN;
+    if (isnan(a[i])) continue;
+    num = fmax(num, fabs(a[i] - b[i]));
+    den = fmax(den, fabs(a[i]));
+  }
+  return den > 0 ? num / den : num;
+}
+
+/* ---------------------------------------------------------------- 1. lowering */
+
+typedef struct Sum {
+  const double *in[16]; /* the group's input quantities */
+  double *out;
+  long ncols;           /* 0: a vector; else row-major rows × ncols */
+} Sum;
+
+static int add_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
+  Sum *s = user;
+  double v = coef;
+  for (int i = 0; i < nin; i++) v *= s->in[i][in[i]];
+  if (s->ncols) s->out[row * s->ncols + col] += v;
+  else s->out[row] += v;
+  return 0;
+}
+
+/* out += the entries of tensor group `g` (builder `name`) contracted with
+ * the current values of its inputs. */
+static int sum_group(NpgFull *f, const char *name, const TensorGroup *g, double *out, long ncols, char *err,
+                     size_t errlen) {
+  Sum s = {.out = out, .ncols = ncols};
+  for (int i = 0; i < g->ninputs && i < 16; i++)
+    if (!(s.in[i] = npg_full_get(f, g->inputs[i]->name, NULL)))
+      return npg_fail(err, errlen, "tensor %s reads '%s', which the full evaluator does not hold (a bug in npg)", name,
+                   g->inputs[i]->name);
+  NpgSink sink = {&s, add_entry};
+  if (full_build(f, name, &sink) != 0) return npg_fail(err, errlen, "tensor %s: %s", name, npg_full_error(f));
+  return 0;
+}
+
+static double rational_pow(double b, long p, long q) { return q == 1 ? pow(b, (double)p) : pow(b, (double)p / (double)q); }
+
+/* y (count entries) <- stage `st` from its canonical form Σ_t Π M^r q_t. */
+static int stage_from_tensors(const Program *prog, NpgFull *f, const Stage *st, size_t count, double *y, char *err,
+                              size_t errlen) {
+  size_t ne = count / (size_t)(st->ncomp > 0 ? st->ncomp : 1);
+  double *num = calloc(count ? count : 1, sizeof(double)), *dg = calloc(count ? count : 1, sizeof(double));
+  int rc = 0;
+  if (!num || !dg) rc = npg_fail(err, errlen, "out of memory rebuilding stage %s", st->sym->name);
+  memset(y, 0, sizeof(double) * count);
+  for (int t = 0; t < st->nterms && rc == 0; t++) {
+    const Term *tm = st->terms[t];
+    memset(num, 0, sizeof(double) * count);
+    if (tm->named_num) {
+      const double *w = npg_full_get(f, tm->named_num->name, NULL);
+      if (!w) rc = npg_fail(err, errlen, "stage %s: numerator '%s' not held (a bug in npg)", st->sym->name, tm->named_num->name);
+      else memcpy(num, w, sizeof(double) * count);
+    }
+    for (int g = 0; g < tm->num_tensors.n && rc == 0 && !tm->named_num; g++)
+      rc = sum_group(f, builder_name(prog->ctx, prog, st, t, 0, g, NULL), &tm->num_tensors.g[g], num, 0, err, errlen);
+    for (int o = 0; o < tm->nops && rc == 0; o++) {
+      const OpPow *op = &tm->ops[o];
+      if (op->kind == OPK_DIAG) {
+        memset(dg, 0, sizeof(double) * count);
+        for (int g = 0; g < tm->op_tensors[o].n && rc == 0; g++)
+          rc = sum_group(f, builder_name(prog->ctx, prog, st, t, o + 1, g, NULL), &tm->op_tensors[o].g[g], dg, 0, err,
+                         errlen);
+        for (size_t e = 0; e < count && rc == 0; e++) num[e] *= rational_pow(dg[e], op->p, op->q);
+        continue;
+      }
+      double *M = ne <= 50000 ? calloc(ne > 0 ? ne * ne : 1, sizeof(double)) : NULL;
+      if (!M) {
+        rc = npg_fail(err, errlen, "stage %s: operator %s of %zu × %zu entries too large for the check", st->sym->name,
+                   op->op->name, ne, ne);
+        break;
+      }
+      const OpDef *od = op->op->opdef;
+      for (int g = 0; g < od->tensors.n && rc == 0; g++)
+        rc = sum_group(f, builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op), &od->tensors.g[g], M, (long)ne, err,
+                       errlen);
+      NpgHost host;
+      memset(&host, 0, sizeof host);
+      NpgCtx c = {.rt = &npg_runtime, .host = &host};
+      if (rc == 0 && npg_runtime.op_power(&c, st->sym->name, op->op->name, (npg_idx)ne, M, op->p, op->q, num) != 0)
+        rc = npg_fail(err, errlen, "on the random data: %s", host.msg);
+      free(M);
+    }
+    for (size_t e = 0; e < count && rc == 0; e++) y[e] += num[e];
+  }
+  free(num);
+  free(dg);
+  return rc;
+}
+
+/* Check 1; *failed set when a stage differs. */
+static int check_lowering(NpgProgram *p, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
+  Program *prog = npg_program_ir(p);
+  long n = o->n_lowering > 0 ? o->n_lowering : 6;
+  fprintf(out, "  1. lowering: every stage from its tensors' entries against the full evaluator, every dim %ld (bar "
+               "%.0e)\n",
+          n, EXACT_LOWERING_TOL);
+  NpgFull *f = npg_full_new(p, o->backend);
+  MemSamples ms;
+  memset(&ms, 0, sizeof ms);
+  int rc = 0;
+  if (npg_full_error(f)[0]) rc = npg_fail(err, errlen, "%s", npg_full_error(f));
+  else if ((rc = mem_fill(&ms, prog, f, n, 1, o->seed)) != 0)
+    rc = npg_fail(err, errlen, "%s", rc == -1 ? npg_full_error(f) : "out of memory for the random samples");
+  else if (mem_set(&ms, f, 0) != 0 || npg_full_eval(f, 0) != 0)
+    rc = npg_fail(err, errlen, "the full evaluator on the random data: %s", npg_full_error(f));
+  for (int i = 0; i < prog->stages.n && rc == 0; i++) {
+    const Stage *st = prog->stages.v[i];
+    if (st->kind == ST_EXTERN) continue;
+    long shape[MAX_AXES + MAX_STATIC];
+    size_t count = mem_count(st->sym, n, shape);
+    const double *full = npg_full_get(f, st->sym->name, NULL);
+    double *y = malloc(sizeof(double) * (count ? count : 1));
+    if (!y || !full) {
+      free(y);
+      rc = npg_fail(err, errlen, "stage %s: %s", st->sym->name, y ? "not held by the full evaluator" : "out of memory");
+      break;
+    }
+    rc = stage_from_tensors(prog, f, st, count, y, err, errlen);
+    if (rc == 0) {
+      double d = rel_max_diff(full, y, count);
+      bool bad = !(d <= EXACT_LOWERING_TOL);
+      *failed |= bad;
+      fprintf(out, "     %-16s %-11s %9.2e%s\n", st->sym->name, stage_kind_name[st->kind], d,
+              bad ? "  FAIL: the tensor form differs from the source expression" : "");
+    }
+    free(y);
+  }
+  mem_free(&ms);
+  npg_full_free(f);
+  return rc;
+}
+
+/* ---------------------------------------------------------------- 2. full rank */
+
+static int check_full_rank(NpgProgram *p, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
+  Program *prog = npg_program_ir(p);
+  long n = o->n_full_rank > 0 ? o->n_full_rank : 4, S = 1;
+  for (int i = 0; i < prog->quantities.n; i++) {
+    long shape[MAX_AXES + MAX_STATIC];
+    long c = (long)mem_count(prog->quantities.v[i], n, shape);
+    S = c > S ? c : S;
+  }
+  S += 4; /* more samples than the largest class's dimension: every snapshot matrix has full rank */
+  const long held_out = 3;
+  fprintf(out, "  2. full rank: every basis at its class's full dimension (%ld training samples), %ld held-out "
+               "samples, every dim %ld (bar %.0e)\n",
+          S, held_out, n, EXACT_FULL_RANK_TOL);
+  if (S > 20000)
+    return npg_fail(err, errlen, "the full-rank check would train on %ld samples of %ld entries; give a smaller size", S,
+                 S - 4);
+  NpgFull *f = npg_full_new(p, o->backend);
+  MemSamples train, held;
+  memset(&train, 0, sizeof train);
+  memset(&held, 0, sizeof held);
+  Model *m = NULL;
+  Reduced *r = NULL;
+  double *y = NULL, *worst = calloc((size_t)prog->quantities.n + 1, sizeof(double));
+  int rc = 0;
+  if (!worst) rc = npg_fail(err, errlen, "out of memory");
+  else if (npg_full_error(f)[0]) rc = npg_fail(err, errlen, "%s", npg_full_error(f));
+  else if ((rc = mem_fill(&train, prog, f, n, S, o->seed + 1)) != 0 ||
+           (rc = mem_fill(&held, prog, NULL, n, held_out, o->seed + 977)) != 0)
+    rc = npg_fail(err, errlen, "%s", rc == -1 ? npg_full_error(f) : "out of memory for the random samples");
+  if (rc == 0) {
+    SampleSource src = {S, &train, mem_set};
+    TrainOptions opt;
+    memset(&opt, 0, sizeof opt);
+    opt.cap = 1 << 20;
+    opt.energy = 1.0;
+    opt.full_rank = true;
+    opt.progress = o->progress;
+    char why[2048] = "";
+    if (!(m = train_model(prog, f, &src, &opt, why, sizeof why)))
+      rc = npg_fail(err, errlen, "training with full-rank bases on the random data: %s", why);
+    else if (!(r = reduced_new(m, why, sizeof why))) rc = npg_fail(err, errlen, "%s", why);
+    else if (!(y = malloc(sizeof(double) * (size_t)(S - 4))))
+      rc = npg_fail(err, errlen, "out of memory");
+  }
+  if (rc == 0) reduced_use_given_externs(r, true);
+  for (long k = 0; k < held_out && rc == 0; k++) {
+    if (mem_set(&held, f, k) != 0 || npg_full_eval(f, k) != 0) {
+      rc = npg_fail(err, errlen, "the full evaluator on held-out sample %ld: %s", k, npg_full_error(f));
+      break;
+    }
+    for (int i = 0; i < held.n; i++)
+      reduced_project(r, emit_index_of(&prog->quantities, held.sym[i]), held.val[i] + (size_t)k * held.count[i]);
+    if (reduced_eval(r, k) != 0) {
+      rc = npg_fail(err, errlen, "the reduced evaluator on held-out sample %ld: %s", k, reduced_error(r));
+      break;
+    }
+    for (int q = 0; q < m->nq; q++) {
+      size_t cnt = 0;
+      const double *full = npg_full_get(f, ((Sym *)prog->quantities.v[q])->name, &cnt);
+      if (!full || (long)cnt != m->classes[m->qclass[q]].n) {
+        rc = npg_fail(err, errlen, "quantity %s: full and reduced sizes differ (a bug in npg)",
+                   ((Sym *)prog->quantities.v[q])->name);
+        break;
+      }
+      reduced_lift(r, q, y);
+      double d = rel_max_diff(full, y, cnt);
+      worst[q] = isnan(d) || isnan(worst[q]) ? NAN : fmax(worst[q], d);
+    }
+  }
+  for (int q = 0; rc == 0 && q < m->nq; q++) {
+    const Sym *s = prog->quantities.v[q];
+    bool bad = !(worst[q] <= EXACT_FULL_RANK_TOL);
+    *failed |= bad;
+    fprintf(out, "     %-16s m = %-7ld %9.2e%s\n", s->name, m->classes[m->qclass[q]].m, worst[q],
+            bad ? "  FAIL: the full-rank reduced value differs from the full one" : "");
+  }
+  free(y);
+  free(worst);
+  reduced_free(r);
+  model_free(m);
+  mem_free(&train);
+  mem_free(&held);
+  npg_full_free(f);
+  return rc;
+}
+
+int exact_check(NpgProgram *p, const ExactOptions *o, FILE *out, char *err, size_t errlen) {
+  if (err && errlen) err[0] = '\0';
+  if (!p || !npg_ok(p)) return npg_fail(err, errlen, "the program does not compile");
+  fprintf(out, "exactness checks of DESIGN §4 on random data (seed %u)\n", o->seed);
+  bool failed = false;
+  if (check_lowering(p, o, out, &failed, err, errlen) != 0) return -1;
+  if (check_full_rank(p, o, out, &failed, err, errlen) != 0) return -1;
+  fprintf(out, failed ? "FAIL: an exactness check failed (a bug in npg: please report it with the program)\n"
+                      : "ok: the lowering is exact and full-rank bases reproduce the full evaluator\n");
+  return failed ? 1 : 0;
+}
