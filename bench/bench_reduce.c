@@ -635,6 +635,7 @@ typedef struct Part2Run {
   PeerResult peer;
   bool peer_ok;
   char stages[512], peer_stages[512], peer_stages_full[512]; /* µs per stage, "n 1.2 s 3.4 ..." */
+  double contract_seconds; /* npg, the contraction stages alone (sum of their best times) */
 } Part2Run;
 
 typedef struct Part2Row {
@@ -646,6 +647,8 @@ typedef struct Part2Row {
   Bandwidth bw;    /* at the tensors' bytes */
   long m_root, m_inv; /* class sizes of the root stage p and the inverse stage h */
   Factor factor;      /* their LAPACK factorizations alone */
+  double contract_bytes; /* bytes of the contraction stages' tensors */
+  char contract_names[128];
 } Part2Row;
 
 static void part2_row(Trained *tr, const char *base, bool keep, Part2Row *row) {
@@ -680,6 +683,20 @@ static void part2_row(Trained *tr, const char *base, bool keep, Part2Row *row) {
   row->bytes = (double)tb;
   row->bw = bandwidth(tb, 0.5);
   row->m_root = m->classes[m->qclass[qp]].m, row->m_inv = m->classes[m->qclass[qh]].m;
+  /* the contraction stages (no factorization): their tensors' bytes */
+  row->contract_bytes = 0;
+  len = 0;
+  row->contract_names[0] = 0;
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    if (rs->st->kind != ST_CONTRACT) continue;
+    len += (size_t)snprintf(row->contract_names + len, sizeof row->contract_names - len, "%s%s", len ? " " : "",
+                            qname(m, rs->q));
+    for (int t = 0; t < rs->nterms; t++) {
+      const RTerm *rt = &rs->terms[t];
+      RTERM_FOR_TENSORS(rt, x) { row->contract_bytes += sizeof(double) * (double)(x->rows * x->cols); }
+    }
+  }
   Factor fr = factor_seconds((int)row->m_root, 0.3), fi = factor_seconds((int)row->m_inv, 0.3);
   row->factor.root = fr.root, row->factor.inverse = fi.inverse;
   int threads = openblas_get_num_threads();
@@ -689,11 +706,14 @@ static void part2_row(Trained *tr, const char *base, bool keep, Part2Row *row) {
     openblas_set_num_threads(run->threads);
     run->c_seconds = best_of(eval_given, r, 1.0);
     len = 0;
+    run->contract_seconds = 0;
     for (int i = 0; i < m->nstages; i++) {
       StageCtx sc = {r, i};
       if (m->stages[i].st->kind == ST_EXTERN) continue;
+      double t = best_of(eval_stage, &sc, 0.1);
+      if (m->stages[i].st->kind == ST_CONTRACT) run->contract_seconds += t;
       len += (size_t)snprintf(run->stages + len, sizeof run->stages - len, " %s %.1f", qname(m, m->stages[i].q),
-                              1e6 * best_of(eval_stage, &sc, 0.1));
+                              1e6 * t);
     }
     run->peer_ok = run_peer(dir, run->threads, &run->peer, run->peer_stages, run->peer_stages_full,
                             sizeof run->peer_stages);
@@ -901,6 +921,15 @@ int main(int argc, char **argv) {
              rows[i].m_root, 1e6 * rows[i].factor.root, rows[i].m_inv, 1e6 * rows[i].factor.inverse,
              (rows[i].factor.root + rows[i].factor.inverse) / (rows[i].bytes / (bw_best(rows[i].bw) * 1e9)),
              1e6 * rows[i].bytes / (bw_best(rows[i].bw) * 1e9));
+      {
+        Bandwidth cb = bandwidth((size_t)rows[i].contract_bytes, 0.3);
+        double bound = rows[i].contract_bytes / (bw_best(cb) * 1e9);
+        printf("    contraction stages alone (%s): %.2f MB, bound %.2f µs (%.1f GB/s over as many bytes); npg %.2f µs "
+               "(%.2fx) on %d thread(s), %.2f µs (%.2fx) on 1\n",
+               rows[i].contract_names, rows[i].contract_bytes / 1e6, 1e6 * bound, bw_best(cb),
+               1e6 * rows[i].run[0].contract_seconds, rows[i].run[0].contract_seconds / bound, rows[i].run[0].threads,
+               1e6 * rows[i].run[1].contract_seconds, rows[i].run[1].contract_seconds / bound);
+      }
       for (int k = 0; k < 2; k++) {
         const Part2Run *u = &rows[i].run[k];
         printf("    µs per stage, %d thread(s), npg:         %s\n", u->threads, u->stages);
