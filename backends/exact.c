@@ -11,6 +11,8 @@
  * quantity with the full evaluator on held-out samples. */
 #include "exact.h"
 
+#include <float.h>
+#include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -38,28 +40,29 @@ double rel_max_diff(const double *a, const double *b, size_t n) {
 
 typedef struct Sum {
   const double *in[16]; /* the group's input quantities */
-  double *out;
-  long ncols;           /* 0: a vector; else row-major rows × ncols */
+  double *out, *mag;    /* Σ entry · inputs, and Σ |entry · inputs| (NULL: not kept) */
+  long ncols;           /* 0: vectors; else row-major rows × ncols */
 } Sum;
 
 static int add_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
   Sum *s = user;
   double v = coef;
   for (int i = 0; i < nin; i++) v *= s->in[i][in[i]];
-  if (s->ncols) s->out[row * s->ncols + col] += v;
-  else s->out[row] += v;
+  long k = s->ncols ? row * s->ncols + col : row;
+  s->out[k] += v;
+  if (s->mag) s->mag[k] += fabs(v);
   return 0;
 }
 
 /* out += the entries of tensor group `g` (builder `name`) contracted with
- * the current values of its inputs. */
-static int sum_group(NpgFull *f, const char *name, const TensorGroup *g, double *out, long ncols, char *err,
-                     size_t errlen) {
-  Sum s = {.out = out, .ncols = ncols};
+ * the current values of its inputs; mag (when not NULL) += their moduli. */
+static int sum_group(NpgFull *f, const char *name, const TensorGroup *g, double *out, double *mag, long ncols,
+                     char *err, size_t errlen) {
+  Sum s = {.out = out, .mag = mag, .ncols = ncols};
   for (int i = 0; i < g->ninputs && i < 16; i++)
     if (!(s.in[i] = npg_full_get(f, g->inputs[i]->name, NULL)))
       return npg_fail(err, errlen, "tensor %s reads '%s', which the full evaluator does not hold (a bug in npg)", name,
-                   g->inputs[i]->name);
+                      g->inputs[i]->name);
   NpgSink sink = {&s, add_entry};
   if (full_build(f, name, &sink) != 0) return npg_fail(err, errlen, "tensor %s: %s", name, npg_full_error(f));
   return 0;
@@ -67,55 +70,109 @@ static int sum_group(NpgFull *f, const char *name, const TensorGroup *g, double 
 
 static double rational_pow(double b, long p, long q) { return q == 1 ? pow(b, (double)p) : pow(b, (double)p / (double)q); }
 
-/* y (count entries) <- stage `st` from its canonical form Σ_t Π M^r q_t. */
-static int stage_from_tensors(const Program *prog, NpgFull *f, const Stage *st, size_t count, double *y, char *err,
-                              size_t errlen) {
-  size_t ne = count / (size_t)(st->ncomp > 0 ? st->ncomp : 1);
-  double *num = calloc(count ? count : 1, sizeof(double)), *dg = calloc(count ? count : 1, sizeof(double));
+/* κ₁(M)^|r| for a dense row-major n × n M (LU and LAPACK's condition
+ * estimate on a copy): how much a power r of M amplifies rounding-level
+ * differences of M and of the vector it acts on. Infinity when singular. */
+static double power_condition(const double *M, size_t n, long p, long q) {
+  if (n == 0) return 1;
+  double *A = malloc(sizeof(double) * n * n);
+  lapack_int *piv = malloc(sizeof(lapack_int) * n);
+  double kappa = INFINITY, anorm = 0, rcond = 0;
+  if (A && piv) {
+    memcpy(A, M, sizeof(double) * n * n);
+    for (size_t j = 0; j < n; j++) { /* row-major M is column-major Mᵀ: ‖M‖₁ = ‖Mᵀ‖∞ */
+      double sum = 0;
+      for (size_t i = 0; i < n; i++) sum += fabs(M[i * n + j]);
+      anorm = fmax(anorm, sum);
+    }
+    if (LAPACKE_dgetrf(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)n, A, (lapack_int)n, piv) == 0 &&
+        LAPACKE_dgecon(LAPACK_COL_MAJOR, 'I', (lapack_int)n, A, (lapack_int)n, anorm, &rcond) == 0 && rcond > 0)
+      kappa = pow(1 / rcond, fabs((double)p / (double)q));
+  }
+  free(A);
+  free(piv);
+  return kappa;
+}
+
+static double max_abs(const double *x, size_t n) {
+  double m = 0;
+  for (size_t i = 0; i < n; i++) m = fmax(m, fabs(x[i]));
+  return m;
+}
+
+/* y (count entries) <- stage `st` from its canonical form Σ_t Π M^r q_t,
+ * and scale <- the size of the rounding of that evaluation per entry (up to
+ * the factor ε): Σ_t of the term's magnitude times its condition. A
+ * polynomial's is Σ |coefficient · inputs| over its monomials (cancelling
+ * monomials — a volume from vertex positions — make it larger than the
+ * value); a diagonal power d^r adds |r| · Σ|monomials of d| / |d| of
+ * relative condition; a declared operator's power multiplies the relative
+ * condition of the whole vector by κ(M)^|r|. */
+static int stage_from_tensors(const Program *prog, NpgFull *f, const Stage *st, size_t count, double *y,
+                              double *scale, char *err, size_t errlen) {
+  size_t ne = count / (size_t)(st->ncomp > 0 ? st->ncomp : 1), n1 = count ? count : 1;
+  double *num = calloc(n1, sizeof(double)), *mag = calloc(n1, sizeof(double));
+  double *dg = calloc(n1, sizeof(double)), *dmag = calloc(n1, sizeof(double));
   int rc = 0;
-  if (!num || !dg) rc = npg_fail(err, errlen, "out of memory rebuilding stage %s", st->sym->name);
+  if (!num || !mag || !dg || !dmag) rc = npg_fail(err, errlen, "out of memory rebuilding stage %s", st->sym->name);
   memset(y, 0, sizeof(double) * count);
+  memset(scale, 0, sizeof(double) * count);
   for (int t = 0; t < st->nterms && rc == 0; t++) {
     const Term *tm = st->terms[t];
     memset(num, 0, sizeof(double) * count);
+    memset(mag, 0, sizeof(double) * count);
     if (tm->named_num) {
       const double *w = npg_full_get(f, tm->named_num->name, NULL);
-      if (!w) rc = npg_fail(err, errlen, "stage %s: numerator '%s' not held (a bug in npg)", st->sym->name, tm->named_num->name);
-      else memcpy(num, w, sizeof(double) * count);
+      if (!w) rc = npg_fail(err, errlen, "stage %s: numerator '%s' not held (a bug in npg)", st->sym->name,
+                            tm->named_num->name);
+      for (size_t e = 0; e < count && rc == 0; e++) num[e] = w[e], mag[e] = fabs(w[e]);
     }
     for (int g = 0; g < tm->num_tensors.n && rc == 0 && !tm->named_num; g++)
-      rc = sum_group(f, builder_name(prog->ctx, prog, st, t, 0, g, NULL), &tm->num_tensors.g[g], num, 0, err, errlen);
+      rc = sum_group(f, builder_name(prog->ctx, prog, st, t, 0, g, NULL), &tm->num_tensors.g[g], num, mag, 0, err,
+                     errlen);
     for (int o = 0; o < tm->nops && rc == 0; o++) {
       const OpPow *op = &tm->ops[o];
       if (op->kind == OPK_DIAG) {
         memset(dg, 0, sizeof(double) * count);
+        memset(dmag, 0, sizeof(double) * count);
         for (int g = 0; g < tm->op_tensors[o].n && rc == 0; g++)
-          rc = sum_group(f, builder_name(prog->ctx, prog, st, t, o + 1, g, NULL), &tm->op_tensors[o].g[g], dg, 0, err,
-                         errlen);
-        for (size_t e = 0; e < count && rc == 0; e++) num[e] *= rational_pow(dg[e], op->p, op->q);
+          rc = sum_group(f, builder_name(prog->ctx, prog, st, t, o + 1, g, NULL), &tm->op_tensors[o].g[g], dg, dmag, 0,
+                         err, errlen);
+        double r = fabs((double)op->p / (double)op->q);
+        for (size_t e = 0; e < count && rc == 0; e++) {
+          double pw = rational_pow(dg[e], op->p, op->q);
+          num[e] *= pw;
+          mag[e] = mag[e] * fabs(pw) + fabs(num[e]) * r * dmag[e] / fabs(dg[e]);
+        }
         continue;
       }
       double *M = ne <= 50000 ? calloc(ne > 0 ? ne * ne : 1, sizeof(double)) : NULL;
       if (!M) {
         rc = npg_fail(err, errlen, "stage %s: operator %s of %zu × %zu entries too large for the check", st->sym->name,
-                   op->op->name, ne, ne);
+                      op->op->name, ne, ne);
         break;
       }
       const OpDef *od = op->op->opdef;
       for (int g = 0; g < od->tensors.n && rc == 0; g++)
-        rc = sum_group(f, builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op), &od->tensors.g[g], M, (long)ne, err,
-                       errlen);
+        rc = sum_group(f, builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op), &od->tensors.g[g], M, NULL, (long)ne,
+                       err, errlen);
+      double kappa = rc == 0 ? power_condition(M, ne, op->p, op->q) : 1;
+      double cond_in = max_abs(mag, count) / fmax(max_abs(num, count), DBL_MIN);
       NpgHost host;
       memset(&host, 0, sizeof host);
       NpgCtx c = {.rt = &npg_runtime, .host = &host};
       if (rc == 0 && npg_runtime.op_power(&c, st->sym->name, op->op->name, (npg_idx)ne, M, op->p, op->q, num) != 0)
         rc = npg_fail(err, errlen, "on the random data: %s", host.msg);
+      double out_mag = kappa * fmax(cond_in, 1) * max_abs(num, count);
+      for (size_t e = 0; e < count && rc == 0; e++) mag[e] = out_mag;
       free(M);
     }
-    for (size_t e = 0; e < count && rc == 0; e++) y[e] += num[e];
+    for (size_t e = 0; e < count && rc == 0; e++) y[e] += num[e], scale[e] += mag[e];
   }
   free(num);
+  free(mag);
   free(dg);
+  free(dmag);
   return rc;
 }
 
@@ -147,14 +204,24 @@ static int check_lowering(NpgProgram *p, const ExactOptions *o, FILE *out, bool 
       rc = npg_fail(err, errlen, "stage %s: %s", st->sym->name, y ? "not held by the full evaluator" : "out of memory");
       break;
     }
-    rc = stage_from_tensors(prog, f, st, count, y, err, errlen);
+    double *scale = malloc(sizeof(double) * (count ? count : 1));
+    rc = scale ? stage_from_tensors(prog, f, st, count, y, scale, err, errlen)
+               : npg_fail(err, errlen, "out of memory rebuilding stage %s", st->sym->name);
     if (rc == 0) {
-      double d = rel_max_diff(full, y, count);
+      /* the difference relative to the larger of the value and the rounding
+       * scale of the canonical form: the two evaluate one function in
+       * different orders, so they may differ by ε × that scale */
+      double diff = 0, big = max_abs(full, count), sc = max_abs(scale, count);
+      for (size_t e = 0; e < count; e++)
+        diff = isnan(full[e]) != isnan(y[e]) ? NAN : fmax(diff, fabs(full[e] - y[e]));
+      double d = diff / fmax(fmax(big, sc), DBL_MIN);
       bool bad = !(d <= EXACT_LOWERING_TOL);
       *failed |= bad;
-      fprintf(out, "     %-16s %-11s %9.2e%s\n", st->sym->name, stage_kind_name[st->kind], d,
-              bad ? "  FAIL: the tensor form differs from the source expression" : "");
+      fprintf(out, "     %-16s %-11s %9.2e", st->sym->name, stage_kind_name[st->kind], d);
+      if (sc > 10 * big) fprintf(out, "  (of its rounding scale, %.1e times its largest value)", sc / fmax(big, DBL_MIN));
+      fprintf(out, "%s\n", bad ? "  FAIL: the tensor form differs from the source expression" : "");
     }
+    free(scale);
     free(y);
   }
   mem_free(&ms);

@@ -132,15 +132,25 @@ static int eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, s
 }
 
 /* The current value of a class member (a quantity, or an unnamed numerator
- * through its builders) into out[0..n). */
-static int member_value(Model *m, NpgFull *f, const RMember *mb, long n, double *out, char *err, size_t errlen) {
+ * through its builders) at sample k into out[0..n); refused when not
+ * finite, since a basis of it would be meaningless (and the SVD would fail
+ * without saying why). */
+static int member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n, double *out, char *err,
+                        size_t errlen) {
   if (mb->q >= 0) {
     memcpy(out, npg_full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)n);
-    return 0;
+  } else {
+    RTerm *rt = joiner_term(m, mb->joiner);
+    if (!rt) return npg_fail(err, errlen, "a numerator without its term (a bug in npg)");
+    if (field_value(f, rt->num, rt->nnum, out, n, err, errlen)) return -1;
   }
-  RTerm *rt = joiner_term(m, mb->joiner);
-  if (!rt) return npg_fail(err, errlen, "a numerator without its term (a bug in npg)");
-  return field_value(f, rt->num, rt->nnum, out, n, err, errlen);
+  for (long e = 0; e < n; e++)
+    if (!isfinite(out[e]))
+      return npg_fail(err, errlen,
+                      "training sample %ld: %s is not finite (entry %ld is %g): the sample makes it undefined (a "
+                      "division by zero or a root of a negative number in the program?)",
+                      k, mb->name, e, out[e]);
+  return 0;
 }
 
 /* A diagonal operator stays marked SPD while every training diagonal seen is
@@ -194,7 +204,7 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
         RClass *rc = &m->classes[c];
         for (int i = 0; i < rc->nmembers; i++) {
           double *x = k < i1 ? H[c][i] + (k - i0) * rc->n : tmp;
-          if (member_value(m, f, &rc->members[i], rc->n, x, err, errlen)) goto done;
+          if (member_value(m, f, &rc->members[i], k, rc->n, x, err, errlen)) goto done;
           if (k < i1) continue;
           /* G[I, k] = X_Iᵀ x_k */
           double *g = lam;
@@ -253,7 +263,7 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
       RClass *rc = &m->classes[c];
       for (int i = 0; i < rc->nmembers; i++) {
         if (!kk[c][i]) continue;
-        if (member_value(m, f, &rc->members[i], rc->n, tmp, err, errlen)) goto done;
+        if (member_value(m, f, &rc->members[i], k, rc->n, tmp, err, errlen)) goto done;
         cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, tmp, 1, G[c][i] + k * S, 1, U[c][i], kk[c][i]);
       }
     }
@@ -338,7 +348,7 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
       for (int c = 0; c < m->nclasses; c++) {
         RClass *rc = &m->classes[c];
         for (int i = 0; i < rc->nmembers; i++)
-          if (member_value(m, f, &rc->members[i], rc->n, sn.X[c][i] + (size_t)k * (size_t)rc->n, err, errlen))
+          if (member_value(m, f, &rc->members[i], k, rc->n, sn.X[c][i] + (size_t)k * (size_t)rc->n, err, errlen))
             goto fail;
       }
       if (check_spd(m, f, tmp, err, errlen)) goto fail;

@@ -421,7 +421,12 @@ static int verify_exact(Common *c) {
   char err[2048] = "";
   fflush(stdout);
   int rc = exact_check(p, &o, stdout, err, sizeof err);
-  if (rc < 0) fprintf(stderr, "error: exactness checks of %s: %s\n", c->prog_path, err);
+  if (rc < 0)
+    fprintf(stderr, "error: exactness checks of %s: %s%s\n", c->prog_path, err,
+            strstr(err, "not finite") || strstr(err, "singular") || strstr(err, "indefinite")
+                ? " (random data can be degenerate at small sizes, e.g. meshes with too few vertices: try a larger "
+                  "--exact-size)"
+                : "");
   npg_free(p);
   return rc == 0 ? 0 : 1;
 }

@@ -190,6 +190,32 @@ static void singular_and_indefinite(void **state) {
   npg_free(p);
 }
 
+/* An operator the data make non-finite (a division by zero in its
+ * entries): named as such, not as a LAPACK argument error. */
+static void operator_not_finite(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("inf.npg",
+                               "dim N\n"
+                               "param a : real[N, N]\n"
+                               "input x : real[N]\n"
+                               "input e : real[N]\n"
+                               "op M[i:N, j:N] = delta(i, j) + a[i, j] / x[i]\n"
+                               "output y = solve(M, e)\n");
+  ir_ok(p);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  double a[4] = {1, 2, 3, 4}, x[2] = {0, 1}, e[2] = {1, 1};
+  long s2[2] = {2, 2}, s1[1] = {2};
+  assert_int_equal(npg_full_set(f, "a", 2, s2, a, "a"), 0);
+  assert_int_equal(npg_full_set(f, "x", 1, s1, x, "x"), 0);
+  assert_int_equal(npg_full_set(f, "e", 1, s1, e, "e"), 0);
+  assert_int_equal(npg_full_eval(f, 5), -1);
+  assert_string_equal(npg_full_error(f),
+                      "sample 5: stage 'y': operator M is not finite (row 0, column 0 is inf): the sample makes it "
+                      "undefined (a division by zero or a root of a negative number in its entries?)");
+  npg_full_free(f);
+  npg_free(p);
+}
+
 static void unbound_dim(void **state) {
   (void)state;
   NpgProgram *p = compile_text("u.npg", "dim N\ninput x : real[N]\noutput y[i:N] = x[i] * x[i]\n");
@@ -221,7 +247,8 @@ int main(void) {
       cmocka_unit_test(dim_mismatch_names_both_files), cmocka_unit_test(static_axis_mismatch),
       cmocka_unit_test(wrong_rank),           cmocka_unit_test(nan_in_param),
       cmocka_unit_test(gather_out_of_range),  cmocka_unit_test(nan_in_input),
-      cmocka_unit_test(singular_and_indefinite), cmocka_unit_test(unbound_dim),
+      cmocka_unit_test(singular_and_indefinite), cmocka_unit_test(operator_not_finite),
+      cmocka_unit_test(unbound_dim),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -134,6 +134,20 @@ static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx
 }
 
 static int op_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long p, long q, double *y) {
+  /* LAPACKE refuses NaN as a bad argument: say what the data did instead */
+  for (npg_idx i = 0; i < n * n; i++)
+    if (!isfinite(M[i])) {
+      record(c, "sample %ld: stage '%s': operator %s is not finite (row %ld, column %ld is %g): the sample makes it "
+                "undefined (a division by zero or a root of a negative number in its entries?)",
+             c->sample, stage, op, (long)(i / n), (long)(i % n), M[i]);
+      return -1;
+    }
+  for (npg_idx i = 0; i < n; i++)
+    if (!isfinite(y[i])) {
+      record(c, "sample %ld: stage '%s': the vector operator %s acts on is not finite (entry %ld is %g)", c->sample,
+             stage, op, (long)i, y[i]);
+      return -1;
+    }
   if (q != 1) return sym_power(c, stage, op, n, M, p, q, y);
   if (p < 0) return inverse_power(c, stage, op, n, M, -p, y);
   /* positive integer power: repeated products */
