@@ -77,14 +77,11 @@ static double power_condition(const double *M, size_t n, long p, long q) {
   if (n == 0) return 1;
   double *A = malloc(sizeof(double) * n * n);
   lapack_int *piv = malloc(sizeof(lapack_int) * n);
-  double kappa = INFINITY, anorm = 0, rcond = 0;
+  double kappa = INFINITY, rcond = 0;
   if (A && piv) {
     memcpy(A, M, sizeof(double) * n * n);
-    for (size_t j = 0; j < n; j++) { /* row-major M is column-major Mᵀ: ‖M‖₁ = ‖Mᵀ‖∞ */
-      double sum = 0;
-      for (size_t i = 0; i < n; i++) sum += fabs(M[i * n + j]);
-      anorm = fmax(anorm, sum);
-    }
+    /* row-major M is column-major Mᵀ: ‖M‖₁ = ‖Mᵀ‖∞ */
+    double anorm = LAPACKE_dlange(LAPACK_COL_MAJOR, 'I', (lapack_int)n, (lapack_int)n, M, (lapack_int)n);
     if (LAPACKE_dgetrf(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)n, A, (lapack_int)n, piv) == 0 &&
         LAPACKE_dgecon(LAPACK_COL_MAJOR, 'I', (lapack_int)n, A, (lapack_int)n, anorm, &rcond) == 0 && rcond > 0)
       kappa = pow(1 / rcond, fabs((double)p / (double)q));

@@ -50,14 +50,10 @@ typedef struct Report {
 /* "<path>: <problem>", or "<path>:<line>: <problem>" when `line` > 0. */
 __attribute__((format(printf, 4, 5))) static int fail(const Report *r, const char *path, int line,
                                                       const char *fmt, ...) {
-  if (!r->err || r->errlen == 0) return -1;
-  int n = line > 0 ? snprintf(r->err, r->errlen, "%s:%d: ", path, line) : snprintf(r->err, r->errlen, "%s: ", path);
-  if (n >= 0 && (size_t)n < r->errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(r->err + n, r->errlen - (size_t)n, fmt, ap);
-    va_end(ap);
-  }
+  va_list ap;
+  va_start(ap, fmt);
+  npy_vfail(r->err, r->errlen, path, line, fmt, ap);
+  va_end(ap);
   return -1;
 }
 

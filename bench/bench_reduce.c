@@ -648,6 +648,7 @@ typedef struct Part2Row {
   long m_root, m_inv; /* class sizes of the root stage p and the inverse stage h */
   Factor factor;      /* their LAPACK factorizations alone */
   double contract_bytes; /* bytes of the contraction stages' tensors */
+  Bandwidth contract_bw;  /* streaming as many bytes */
   char contract_names[128];
 } Part2Row;
 
@@ -697,6 +698,7 @@ static void part2_row(Trained *tr, const char *base, bool keep, Part2Row *row) {
       RTERM_FOR_TENSORS(rt, x) { row->contract_bytes += sizeof(double) * (double)(x->rows * x->cols); }
     }
   }
+  row->contract_bw = bandwidth((size_t)row->contract_bytes, 0.3);
   Factor fr = factor_seconds((int)row->m_root, 0.3), fi = factor_seconds((int)row->m_inv, 0.3);
   row->factor.root = fr.root, row->factor.inverse = fi.inverse;
   int threads = openblas_get_num_threads();
@@ -922,7 +924,7 @@ int main(int argc, char **argv) {
              (rows[i].factor.root + rows[i].factor.inverse) / (rows[i].bytes / (bw_best(rows[i].bw) * 1e9)),
              1e6 * rows[i].bytes / (bw_best(rows[i].bw) * 1e9));
       {
-        Bandwidth cb = bandwidth((size_t)rows[i].contract_bytes, 0.3);
+        Bandwidth cb = rows[i].contract_bw;
         double bound = rows[i].contract_bytes / (bw_best(cb) * 1e9);
         printf("    contraction stages alone (%s): %.2f MB, bound %.2f µs (%.1f GB/s over as many bytes); npg %.2f µs "
                "(%.2fx) on %d thread(s), %.2f µs (%.2fx) on 1\n",

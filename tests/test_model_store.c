@@ -27,77 +27,22 @@
 
 #include "model_store.h"
 #include "npy.h"
+#include "testutil.h"
 
 #define PROGRAM UINT64_C(0x0123456789abcdef)
 #define ENOENT_TEXT "No such file or directory"
 
 /* ---------------------------------------------------------------- scratch files */
 
-static char scratch[256];
-
 static int make_scratch(void **state) {
   (void)state;
-  const char *tmpdir = getenv("TMPDIR");
-  snprintf(scratch, sizeof scratch, "%s/npg_test_model_store.XXXXXX", tmpdir && *tmpdir ? tmpdir : "/tmp");
-  return mkdtemp(scratch) ? 0 : -1;
-}
-
-/* Remove `path` and everything under it (scratch only; no symlinks are
- * followed since lstat sees them as files). */
-static void remove_tree(const char *path) {
-  struct stat st;
-  if (lstat(path, &st) != 0) return;
-  if (S_ISDIR(st.st_mode)) {
-    chmod(path, 0700);
-    DIR *d = opendir(path);
-    struct dirent *e;
-    char sub[1024];
-    while (d && (e = readdir(d))) {
-      if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0) continue;
-      snprintf(sub, sizeof sub, "%s/%s", path, e->d_name);
-      remove_tree(sub);
-    }
-    if (d) closedir(d);
-    rmdir(path);
-  } else {
-    unlink(path);
-  }
+  return scratch_make("npg_test_model_store");
 }
 
 static int remove_scratch(void **state) {
   (void)state;
   remove_tree(scratch);
   return 0;
-}
-
-/* "<scratch>/<name>" in `out` (512 bytes). */
-static char *scratch_path(char *out, const char *name) {
-  snprintf(out, 512, "%s/%s", scratch, name);
-  return out;
-}
-
-static void write_file(const char *path, const void *bytes, size_t n) {
-  FILE *f = fopen(path, "wb");
-  if (!f) fail_msg("cannot create %s: %s", path, strerror(errno));
-  if (fwrite(bytes, 1, n, f) != n || fclose(f) != 0) fail_msg("cannot write %s", path);
-}
-
-/* The whole of `path`, malloc'd and NUL-terminated, its size in `*n`. */
-static char *slurp(const char *path, size_t *n) {
-  FILE *f = fopen(path, "rb");
-  if (!f) fail_msg("cannot open %s: %s", path, strerror(errno));
-  char *buf = NULL;
-  size_t cap = 0;
-  *n = 0;
-  for (;;) {
-    buf = realloc(buf, (cap = 2 * cap + 4096) + 1);
-    size_t k = fread(buf + *n, 1, cap - *n, f);
-    *n += k;
-    if (k == 0) break;
-  }
-  fclose(f);
-  buf[*n] = '\0';
-  return buf;
 }
 
 /* Replace the first `from` in the text file `path` by `to`. */

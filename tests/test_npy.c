@@ -26,63 +26,22 @@
 #include <cmocka.h>
 
 #include "npy.h"
+#include "testutil.h"
 
 #define FIXTURES "tests/data/npy/"
 #define SUPPORTED "(supported: '<f8' float64, '<i4' int32, '<i8' int64)"
 
 /* ---------------------------------------------------------------- scratch files */
 
-static char scratch[256];
-
 static int make_scratch(void **state) {
   (void)state;
-  const char *tmpdir = getenv("TMPDIR");
-  snprintf(scratch, sizeof scratch, "%s/npg_test_npy.XXXXXX", tmpdir && *tmpdir ? tmpdir : "/tmp");
-  return mkdtemp(scratch) ? 0 : -1;
+  return scratch_make("npg_test_npy");
 }
 
 static int remove_scratch(void **state) {
   (void)state;
-  DIR *d = opendir(scratch);
-  if (!d) return -1;
-  struct dirent *e;
-  char path[512];
-  while ((e = readdir(d))) {
-    if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0) continue;
-    snprintf(path, sizeof path, "%s/%s", scratch, e->d_name);
-    if (unlink(path) != 0) rmdir(path);
-  }
-  closedir(d);
-  return rmdir(scratch);
-}
-
-/* "<scratch>/<name>" in `out` (512 bytes). */
-static char *scratch_path(char *out, const char *name) {
-  snprintf(out, 512, "%s/%s", scratch, name);
-  return out;
-}
-
-static void write_file(const char *path, const void *bytes, size_t n) {
-  FILE *f = fopen(path, "wb");
-  if (!f) fail_msg("cannot create %s: %s", path, strerror(errno));
-  if (fwrite(bytes, 1, n, f) != n || fclose(f) != 0) fail_msg("cannot write %s", path);
-}
-
-/* The whole of `path`, malloc'd, its size in `*n`. */
-static unsigned char *slurp(const char *path, size_t *n) {
-  FILE *f = fopen(path, "rb");
-  if (!f) fail_msg("cannot open %s: %s", path, strerror(errno));
-  unsigned char *buf = NULL;
-  size_t cap = 0;
-  *n = 0;
-  for (;;) {
-    buf = realloc(buf, cap = 2 * cap + 4096);
-    size_t k = fread(buf + *n, 1, cap - *n, f);
-    *n += k;
-    if (k == 0) break;
-  }
-  fclose(f);
-  return buf;
+  remove_tree(scratch);
+  return 0;
 }
 
 /* A .npy file: magic, version `major`.0, `header` verbatim, then `datalen`
@@ -240,7 +199,7 @@ static void write_matches_numpy(void **state) {
     if (npy_write(scratch_path(out, files[i]), a.type, a.ndim, a.shape, a.data, err, sizeof err) != 0)
       fail_msg("%s", err);
     size_t n_numpy, n_ours;
-    unsigned char *numpy = slurp(in, &n_numpy), *ours = slurp(out, &n_ours);
+    unsigned char *numpy = (unsigned char *)slurp(in, &n_numpy), *ours = (unsigned char *)slurp(out, &n_ours);
     if (n_numpy != n_ours || memcmp(numpy, ours, n_ours) != 0)
       fail_msg("%s: npy_write's bytes differ from numpy's (%zu vs %zu bytes)", files[i], n_ours, n_numpy);
     free(numpy);
@@ -274,7 +233,7 @@ static void round_trip(NpyType type, int ndim, const long *shape) {
 
   /* numpy's layout: version 1.0, the data on a 64-byte boundary after '\n' */
   size_t n;
-  unsigned char *file = slurp(path, &n);
+  unsigned char *file = (unsigned char *)slurp(path, &n);
   size_t start = 10 + (size_t)(file[8] | file[9] << 8);
   assert_memory_equal(file, "\x93NUMPY\x01\x00", 8);
   assert_int_equal(start % 64, 0);
@@ -669,7 +628,7 @@ static void every_prefix_and_corruption(void **state) {
   scratch_path(path, "mutant.npy");
   for (size_t s = 0; s < sizeof sources / sizeof *sources; s++) {
     size_t n;
-    unsigned char *good = slurp(sources[s], &n);
+    unsigned char *good = (unsigned char *)slurp(sources[s], &n);
     size_t header_end = 10 + (size_t)(good[8] | good[9] << 8) + (good[6] > 1 ? 2 : 0);
     NpyArray a;
     for (size_t len = 0; len < n; len++) {

@@ -4,6 +4,9 @@
 
 #include <math.h>
 #include <dirent.h>
+#include <errno.h>
+#include <sys/stat.h>
+#include <unistd.h>
 #include <setjmp.h>
 #include <stdio.h>
 #include <stdarg.h>
@@ -117,5 +120,73 @@ static inline int for_each_program(const char *dir, int (*check)(const char *pat
 /* Relative max-norm difference of b from a; NaN where exactly one side is
  * NaN (exact.h's, the measure npgc verify --exact reports). */
 static inline double rel_diff(const double *a, const double *b, size_t n) { return rel_max_diff(a, b, n); }
+
+/* ---------------------------------------------------------------- scratch files
+ * A test program's scratch directory (made by its group setup, removed by
+ * its teardown) and whole-file helpers. */
+
+__attribute__((unused)) static char scratch[256];
+
+/* scratch <- a new directory "$TMPDIR/<name>.XXXXXX"; 0 or -1. */
+static inline int scratch_make(const char *name) {
+  const char *tmpdir = getenv("TMPDIR");
+  snprintf(scratch, sizeof scratch, "%s/%s.XXXXXX", tmpdir && *tmpdir ? tmpdir : "/tmp", name);
+  return mkdtemp(scratch) ? 0 : -1;
+}
+
+/* Remove `path` and everything under it (scratch only; no symlinks are
+ * followed since lstat sees them as files). */
+static inline void remove_tree(const char *path) {
+  struct stat st;
+  if (lstat(path, &st) != 0) return;
+  if (S_ISDIR(st.st_mode)) {
+    chmod(path, 0700);
+    DIR *d = opendir(path);
+    struct dirent *e;
+    while (d && (e = readdir(d))) {
+      if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0) continue;
+      size_t len = strlen(path) + strlen(e->d_name) + 2;
+      char *sub = malloc(len);
+      if (!sub) break;
+      snprintf(sub, len, "%s/%s", path, e->d_name);
+      remove_tree(sub);
+      free(sub);
+    }
+    if (d) closedir(d);
+    rmdir(path);
+  } else {
+    unlink(path);
+  }
+}
+
+/* "<scratch>/<name>" in `out` (512 bytes). */
+static inline char *scratch_path(char *out, const char *name) {
+  snprintf(out, 512, "%s/%s", scratch, name);
+  return out;
+}
+
+static inline void write_file(const char *path, const void *bytes, size_t n) {
+  FILE *f = fopen(path, "wb");
+  if (!f) fail_msg("cannot create %s: %s", path, strerror(errno));
+  if (fwrite(bytes, 1, n, f) != n || fclose(f) != 0) fail_msg("cannot write %s", path);
+}
+
+/* The whole of `path`, malloc'd and NUL-terminated, its size in `*n`. */
+static inline char *slurp(const char *path, size_t *n) {
+  FILE *f = fopen(path, "rb");
+  if (!f) fail_msg("cannot open %s: %s", path, strerror(errno));
+  char *buf = NULL;
+  size_t cap = 0;
+  *n = 0;
+  for (;;) {
+    buf = realloc(buf, (cap = 2 * cap + 4096) + 1);
+    size_t k = fread(buf + *n, 1, cap - *n, f);
+    *n += k;
+    if (k == 0) break;
+  }
+  fclose(f);
+  buf[*n] = '\0';
+  return buf;
+}
 
 #endif

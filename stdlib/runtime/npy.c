@@ -76,15 +76,18 @@ typedef struct Report {
   size_t errlen;
 } Report;
 
+int npy_vfail(char *err, size_t errlen, const char *path, int line, const char *fmt, va_list ap) {
+  if (!err || errlen == 0) return -1;
+  int n = line > 0 ? snprintf(err, errlen, "%s:%d: ", path, line) : snprintf(err, errlen, "%s: ", path);
+  if (n >= 0 && (size_t)n < errlen) vsnprintf(err + n, errlen - (size_t)n, fmt, ap);
+  return -1;
+}
+
 __attribute__((format(printf, 2, 3))) static int fail(const Report *r, const char *fmt, ...) {
-  if (!r->err || r->errlen == 0) return -1;
-  int n = snprintf(r->err, r->errlen, "%s: ", r->path);
-  if (n >= 0 && (size_t)n < r->errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(r->err + n, r->errlen - (size_t)n, fmt, ap);
-    va_end(ap);
-  }
+  va_list ap;
+  va_start(ap, fmt);
+  npy_vfail(r->err, r->errlen, r->path, 0, fmt, ap);
+  va_end(ap);
   return -1;
 }
 

@@ -16,6 +16,7 @@
 #ifndef NPG_NPY_H
 #define NPG_NPY_H
 
+#include <stdarg.h>
 #include <stddef.h>
 
 typedef enum NpyType {
@@ -64,5 +65,9 @@ const char *npy_type_name(NpyType t);
  * NPY_EXCERPT_SIZE. Returns buf. */
 enum { NPY_EXCERPT_SIZE = 200 };
 const char *npy_excerpt(char *buf, const char *s, size_t n);
+
+/* A message naming a file: "<path>: <problem>", or "<path>:<line>: <problem>"
+ * when `line` > 0, into `err` (when `err` and `errlen` are given). Returns -1. */
+int npy_vfail(char *err, size_t errlen, const char *path, int line, const char *fmt, va_list ap);
 
 #endif
