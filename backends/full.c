@@ -2,6 +2,7 @@
  * (libtcc or cc), bind params and dims, check gathers once, evaluate
  * samples, hand back every stage value. */
 #include <errno.h>
+#include <math.h>
 #include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
@@ -27,6 +28,9 @@ struct NpgFull {
   double **q;               /* every quantity */
   size_t *qcount;
   bool checked;             /* gathers checked for the current binding */
+  bool *fresh;              /* set by npg_full_set since the last evaluation */
+  NpgExternFn *extern_fn;   /* per slot: the callback of an extern, or NULL */
+  void **extern_user;
   NpgHost host;
   const char **dim_names, **param_names;
 };
@@ -87,10 +91,13 @@ NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
   f->param_files = calloc((size_t)np + 1, sizeof *f->param_files);
   f->q = calloc((size_t)nq + 1, sizeof *f->q);
   f->qcount = calloc((size_t)nq + 1, sizeof *f->qcount);
+  f->fresh = calloc((size_t)nq + 1, sizeof *f->fresh);
+  f->extern_fn = calloc((size_t)nq + 1, sizeof *f->extern_fn);
+  f->extern_user = calloc((size_t)nq + 1, sizeof *f->extern_user);
   f->dim_names = calloc((size_t)nd + 1, sizeof *f->dim_names);
   f->param_names = calloc((size_t)np + 1, sizeof *f->param_names);
   if (!f->dims || !f->dim_from || !f->params || !f->iparams || !f->param_files || !f->q || !f->qcount ||
-      !f->dim_names || !f->param_names) {
+      !f->fresh || !f->extern_fn || !f->extern_user || !f->dim_names || !f->param_names) {
     fail(f, "out of memory");
     return f;
   }
@@ -225,6 +232,43 @@ int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, cons
     if (values[i] != values[i] || values[i] - values[i] != 0)
       return fail(f, "%s: '%s' holds %s at flat entry %zu", from, name, values[i] != values[i] ? "NaN" : "an infinity", i);
   memcpy(f->q[k], values, sizeof(double) * n);
+  f->fresh[k] = true;
+  return 0;
+}
+
+int npg_full_set_extern_fn(NpgFull *f, const char *name, NpgExternFn fn, void *user) {
+  if (f->error[0]) return -1;
+  int k = find(&f->prog->slots, name);
+  const Sym *s = k >= 0 ? f->prog->slots.v[k] : NULL;
+  if (!s || s->kind != SYM_EXTERN) return fail(f, "the program has no extern '%s'", name);
+  for (int i = 0; i < s->nof; i++)
+    if (s->of[i]->kind != SYM_INPUT)
+      return fail(f, "extern '%s' reads '%s', which is not an input: a callback runs before the stages, so give its "
+                     "values with npg_full_set instead", name, s->of[i]->name);
+  f->extern_fn[k] = fn;
+  f->extern_user[k] = user;
+  return 0;
+}
+
+/* Externs with a callback and no value given since the last evaluation. */
+static int call_externs(NpgFull *f, long sample) {
+  for (int k = 0; k < f->prog->slots.n; k++) {
+    const Sym *s = f->prog->slots.v[k];
+    if (!f->extern_fn[k] || f->fresh[k]) continue;
+    size_t n = count_of(f, s);
+    if (f->qcount[k] != n) {
+      free(f->q[k]);
+      f->q[k] = calloc(n ? n : 1, sizeof(double));
+      if (!f->q[k]) return fail(f, "out of memory");
+      f->qcount[k] = n;
+    }
+    if (f->extern_fn[k](f->extern_user[k], f, sample, f->q[k], n) != 0)
+      return fail(f, "extern '%s' failed at sample %ld (its callback returned an error)", s->name, sample);
+    for (size_t i = 0; i < n; i++)
+      if (!isfinite(f->q[k][i]))
+        return fail(f, "extern '%s' at sample %ld: the callback wrote %s at flat entry %zu", s->name, sample,
+                    isnan(f->q[k][i]) ? "NaN" : "an infinity", i);
+  }
   return 0;
 }
 
@@ -251,6 +295,7 @@ int npg_full_eval(NpgFull *f, long sample) {
   for (int k = 0; k < prog->slots.n; k++) {
     const Sym *s = prog->slots.v[k];
     size_t n = count_of(f, s);
+    if (s->kind == SYM_EXTERN && f->extern_fn[k] && !f->fresh[k]) continue; /* call_externs */
     if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) {
       if (!f->q[k] || f->qcount[k] != n)
         return fail(f, "%s '%s' is not set for sample %ld", s->kind == SYM_INPUT ? "input" : "extern", s->name, sample);
@@ -261,6 +306,8 @@ int npg_full_eval(NpgFull *f, long sample) {
       f->qcount[k] = n;
     }
   }
+  if (call_externs(f, sample) != 0) return -1;
+  memset(f->fresh, 0, sizeof(bool) * (size_t)prog->slots.n);
   NpgCtx c = context(f, sample);
   f->host.msg[0] = 0;
   if (!f->checked) {
@@ -282,6 +329,27 @@ int full_build(NpgFull *f, const char *name, NpgSink *sink) {
 }
 
 long full_dim_size(const NpgFull *f, int k) { return (long)f->dims[k]; }
+
+uint64_t full_param_hash(const NpgFull *f, int k, const char **from) {
+  const Sym *s = f->prog->params.v[k];
+  if (from) *from = f->param_files[k] ? f->param_files[k] : s->name;
+  if (!f->params[k] && !f->iparams[k]) return 0;
+  /* FNV-1a over the values as doubles: an int param hashes alike from int32
+   * and int64 files, and a param set from memory like one read from disk */
+  size_t n = count_of((NpgFull *)f, s);
+  uint64_t h = 0xcbf29ce484222325ull;
+  for (size_t i = 0; i < n; i++) {
+    double v = f->params[k] ? f->params[k][i] : (double)f->iparams[k][i];
+    unsigned char b[sizeof v];
+    memcpy(b, &v, sizeof v);
+    for (size_t j = 0; j < sizeof v; j++) h = (h ^ b[j]) * 0x100000001b3ull;
+  }
+  return h;
+}
+
+const Program *full_program(const NpgFull *f) { return f->prog; }
+
+int full_fail(NpgFull *f, const char *msg) { return fail(f, "%s", msg); }
 
 const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
   int k = find(&f->prog->slots, name);
@@ -316,6 +384,7 @@ void npg_full_unbind(NpgFull *f) {
     free(f->q[i]);
     f->q[i] = NULL;
     f->qcount[i] = 0;
+    f->fresh[i] = false;
   }
   f->checked = false;
   f->error[0] = 0;
@@ -340,6 +409,9 @@ void npg_full_free(NpgFull *f) {
   free(f->param_files);
   free(f->q);
   free(f->qcount);
+  free(f->fresh);
+  free(f->extern_fn);
+  free(f->extern_user);
   free(f->dim_names);
   free(f->param_names);
   free(f);

@@ -3,6 +3,8 @@
 #ifndef NPG_FULL_H
 #define NPG_FULL_H
 
+#include <stdint.h>
+
 #include "ir.h"
 #include "npg.h"
 #include "npg_abi.h"
@@ -12,5 +14,12 @@
 int full_build(NpgFull *f, const char *name, NpgSink *sink);
 /* The bound size of dim number k (program order). */
 long full_dim_size(const NpgFull *f, int k);
+/* A hash of the values of param number k as bound (0 when unbound), and in
+ * *from (optional) the file or call that bound it. */
+uint64_t full_param_hash(const NpgFull *f, int k, const char **from);
+/* The stage program the evaluator runs. */
+const Program *full_program(const NpgFull *f);
+/* Record `msg` as the evaluator's error (the first one stays); -1. */
+int full_fail(NpgFull *f, const char *msg);
 
 #endif

@@ -2,32 +2,142 @@
  * program on every sample of IN/ and write each output as OUT/<name>.npy
  * with a leading sample axis. Params come from DATA/<name>.npy; inputs and
  * externs from IN/<name>.npy (else DATA/), their first axis the samples.
- * Every output is written to a temporary name and renamed when complete,
- * after all samples succeeded: a failure leaves OUT/ as it was. */
+ * An `output op` is written as CSR: OUT/<name>.indptr.npy and
+ * OUT/<name>.indices.npy (its structure, the same for every sample) and
+ * OUT/<name>.data.npy (samples x nonzeros). Every file is written to a
+ * temporary name and renamed when complete, after all samples succeeded: a
+ * failure leaves OUT/ as it was. */
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "compile.h"
 #include "npg.h"
-#include "npy.h"
-
-typedef struct Given {
-  const Sym *sym;
-  NpyArray a;
-  char path[4096];
-} Given;
+#include "npgc.h"
 
 static int usage(void) {
-  fputs("usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc]\n", stderr);
+  fputs("usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc]\n"
+        "       npgc eval PROG.npg MODEL/ IN/ -o OUT/   (reduced)\n",
+        stderr);
   return 2;
 }
 
-static bool exists(const char *path) {
-  struct stat st;
-  return stat(path, &st) == 0;
+/* One output's values over every sample. */
+typedef struct Out {
+  NpgSymbol sym;
+  double *v;                /* samples x count */
+  size_t count;
+  NpgCsr csr;               /* an op: the structure of sample 0 */
+} Out;
+
+static int keep(Out *o, NpgFull *f, long k, long samples) {
+  size_t n = 0;
+  const double *v;
+  NpgCsr c = {0};
+  if (o->sym.kind == NPG_OP) {
+    if (npg_full_op(f, o->sym.name, &c) != 0) return -1;
+    n = (size_t)c.nnz;
+    v = c.data;
+    if (k > 0 && (c.nnz != o->csr.nnz || memcmp(c.indptr, o->csr.indptr, sizeof(long) * (size_t)(c.rows + 1)) ||
+                  memcmp(c.indices, o->csr.indices, sizeof(long) * (size_t)c.nnz))) {
+      fprintf(stderr, "error: output op '%s': its sparsity differs between samples 0 and %ld\n", o->sym.name, k);
+      npg_csr_free(&c);
+      return -1;
+    }
+  } else {
+    v = npg_full_get(f, o->sym.name, &n);
+  }
+  if (k == 0) {
+    o->count = n;
+    o->v = malloc(sizeof(double) * (n ? n : 1) * (size_t)samples);
+  }
+  int rc = 0;
+  if (!o->v) {
+    fputs("npgc eval: out of memory\n", stderr);
+    rc = -1;
+  } else {
+    memcpy(o->v + (size_t)k * n, v, sizeof(double) * n);
+  }
+  if (k == 0) o->csr = c;
+  else npg_csr_free(&c);
+  return rc;
+}
+
+static int write_out(const Out *o, NpgFull *f, const char *outdir, long samples) {
+  char path[4096], err[1024];
+  long shape[16];
+  int nd = 0, rc = 0;
+  shape[nd++] = samples;
+  if (o->sym.kind == NPG_OP) {
+    long ip[1] = {o->csr.rows + 1}, ix[1] = {o->csr.nnz};
+    snprintf(path, sizeof path, "%s/%s.indptr.npy", outdir, o->sym.name);
+    rc = npg_npy_write_i64(path, 1, ip, o->csr.indptr, err, sizeof err);
+    snprintf(path, sizeof path, "%s/%s.indices.npy", outdir, o->sym.name);
+    if (rc == 0) rc = npg_npy_write_i64(path, 1, ix, o->csr.indices, err, sizeof err);
+    shape[nd++] = o->csr.nnz;
+    snprintf(path, sizeof path, "%s/%s.data.npy", outdir, o->sym.name);
+  } else {
+    for (int i = 0; i < o->sym.ndims; i++) shape[nd++] = npg_full_dim(f, o->sym.dims[i]);
+    for (int i = 0; i < o->sym.nstatic; i++) shape[nd++] = o->sym.shape[i];
+    snprintf(path, sizeof path, "%s/%s.npy", outdir, o->sym.name);
+  }
+  if (rc == 0) rc = npg_npy_write(path, nd, shape, o->v, err, sizeof err);
+  if (rc != 0) fprintf(stderr, "error: %s\n", err);
+  return rc;
+}
+
+static int eval_full(NpgProgram *p, const char *data, const char *in, const char *outdir, bool cc) {
+  int rc = 1, nout = 0;
+  char err[2048] = "";
+  NpgFull *f = npg_full_new(p, cc ? NPG_CC : NPG_TCC);
+  NpgSamples *s = NULL;
+  Out *outs = calloc((size_t)npg_nsymbols(p) + 1, sizeof *outs);
+  if (!outs) {
+    fputs("npgc eval: out of memory\n", stderr);
+    goto done;
+  }
+  for (int i = 0; i < npg_nsymbols(p); i++)
+    if (npg_symbol(p, i, &outs[nout].sym) == 0 && outs[nout].sym.output) nout++;
+  if (npg_full_error(f)[0] || npg_full_bind_params(f, data) != 0) {
+    fprintf(stderr, "error: %s\n", npg_full_error(f));
+    goto done;
+  }
+  if (!(s = npg_samples_open(p, in, data, true, err, sizeof err))) {
+    fprintf(stderr, "error: %s\n", err);
+    goto done;
+  }
+  long samples = npg_samples_count(s);
+  bool tty = isatty(2);
+  for (long k = 0; k < samples; k++) {
+    if (npg_samples_set(s, f, k) != 0 || npg_full_eval(f, k) != 0) {
+      if (tty) fputc('\n', stderr);
+      fprintf(stderr, "error: %s\n", npg_full_error(f));
+      goto done;
+    }
+    for (int o = 0; o < nout; o++)
+      if (keep(&outs[o], f, k, samples) != 0) {
+        if (npg_full_error(f)[0]) fprintf(stderr, "error: %s\n", npg_full_error(f));
+        goto done;
+      }
+    npg_progress(tty, "full evaluation", k + 1, samples);
+  }
+  if (mkdir(outdir, 0777) != 0 && errno != EEXIST) {
+    fprintf(stderr, "error: cannot create %s: %s\n", outdir, strerror(errno));
+    goto done;
+  }
+  for (int o = 0; o < nout; o++)
+    if (write_out(&outs[o], f, outdir, samples) != 0) goto done;
+  rc = 0;
+done:
+  for (int o = 0; outs && o < nout; o++) {
+    free(outs[o].v);
+    npg_csr_free(&outs[o].csr);
+  }
+  free(outs);
+  npg_samples_free(s);
+  npg_full_free(f);
+  return rc;
 }
 
 int npgc_eval(int argc, char **argv) {
@@ -50,122 +160,9 @@ int npgc_eval(int argc, char **argv) {
   if (!prog_path || !data || !in || !outdir) return usage();
   if (!full) return npgc_reduce(argc, argv);
   NpgProgram *p = npg_compile(prog_path, &opt);
-  if (!npg_ok(p)) {
-    fputs(npg_error(p), stderr);
-    npg_free(p);
-    return 1;
-  }
-  Program *prog = npg_program_ir(p);
   int rc = 1;
-  NpgFull *f = npg_full_new(p, cc ? NPG_CC : NPG_TCC);
-  Given *given = calloc((size_t)prog->slots.n + 1, sizeof *given);
-  int ngiven = 0;
-  double **outs = calloc((size_t)prog->outputs.n + 1, sizeof *outs);
-  size_t *outcount = calloc((size_t)prog->outputs.n + 1, sizeof *outcount);
-  char err[1024];
-  long samples = -1;
-  const char *samples_from = NULL;
-  if (!given || !outs || !outcount) {
-    fputs("npgc eval: out of memory\n", stderr);
-    goto done;
-  }
-  if (npg_full_error(f)[0] || npg_full_bind_params(f, data) != 0) {
-    fprintf(stderr, "error: %s\n", npg_full_error(f));
-    goto done;
-  }
-  /* Inputs and externs, every sample at once. */
-  for (int i = 0; i < prog->slots.n; i++) {
-    const Sym *s = prog->slots.v[i];
-    if (s->kind != SYM_INPUT && s->kind != SYM_EXTERN) continue;
-    Given *gv = &given[ngiven];
-    gv->sym = s;
-    snprintf(gv->path, sizeof gv->path, "%s/%s.npy", in, s->name);
-    if (!exists(gv->path)) snprintf(gv->path, sizeof gv->path, "%s/%s.npy", data, s->name);
-    if (npy_read(gv->path, &gv->a, err, sizeof err) != 0) {
-      fprintf(stderr, "error: %s\n", err);
-      goto done;
-    }
-    ngiven++;
-    if (gv->a.type != NPY_F64) {
-      fprintf(stderr, "error: %s: %s '%s' must be float64, the array is %s\n", gv->path,
-              s->kind == SYM_INPUT ? "input" : "extern", s->name, npy_type_name(gv->a.type));
-      goto done;
-    }
-    if (gv->a.ndim < 1) {
-      fprintf(stderr, "error: %s: expected a leading sample axis, the array is 0-d\n", gv->path);
-      goto done;
-    }
-    if (samples < 0) {
-      samples = gv->a.shape[0];
-      samples_from = gv->path;
-    } else if (gv->a.shape[0] != samples) {
-      fprintf(stderr, "error: %s has %ld samples but %s has %ld\n", samples_from, samples, gv->path, gv->a.shape[0]);
-      goto done;
-    }
-  }
-  if (samples < 0) samples = 1; /* a program without inputs: one evaluation */
-  bool tty = isatty(2);
-  for (long k = 0; k < samples; k++) {
-    for (int i = 0; i < ngiven; i++) {
-      Given *gv = &given[i];
-      size_t per = gv->a.count / (size_t)(samples ? samples : 1);
-      if (npg_full_set(f, gv->sym->name, gv->a.ndim - 1, gv->a.shape + 1, (double *)gv->a.data + (size_t)k * per,
-                       gv->path) != 0)
-        break;
-    }
-    if (npg_full_eval(f, k) != 0) {
-      if (tty) fputc('\n', stderr);
-      fprintf(stderr, "error: %s\n", npg_full_error(f));
-      goto done;
-    }
-    for (int o = 0; o < prog->outputs.n; o++) {
-      const Sym *s = prog->outputs.v[o];
-      if (s->kind == SYM_OP) continue;
-      size_t n;
-      const double *v = npg_full_get(f, s->name, &n);
-      if (!outs[o]) {
-        outcount[o] = n;
-        outs[o] = malloc(sizeof(double) * (n ? n : 1) * (size_t)samples);
-        if (!outs[o]) {
-          fputs("npgc eval: out of memory\n", stderr);
-          goto done;
-        }
-      }
-      memcpy(outs[o] + (size_t)k * n, v, sizeof(double) * n);
-    }
-    if (tty && (k + 1 == samples || k % 16 == 0)) fprintf(stderr, "\rfull evaluation: sample %ld/%ld", k + 1, samples);
-  }
-  if (tty) fputc('\n', stderr);
-  if (mkdir(outdir, 0777) != 0 && errno != EEXIST) {
-    fprintf(stderr, "error: cannot create %s: %s\n", outdir, strerror(errno));
-    goto done;
-  }
-  for (int o = 0; o < prog->outputs.n; o++) {
-    const Sym *s = prog->outputs.v[o];
-    if (s->kind == SYM_OP) {
-      fprintf(stderr, "note: output op '%s' is not written by eval --full\n", s->name);
-      continue;
-    }
-    long shape[NPY_MAX_DIMS];
-    int nd = 0;
-    shape[nd++] = samples;
-    for (int i = 0; i < s->ndims && nd < NPY_MAX_DIMS; i++) shape[nd++] = npg_full_dim(f, s->dims[i]->name);
-    for (int i = 0; i < s->nstatic && nd < NPY_MAX_DIMS; i++) shape[nd++] = s->shape[i];
-    char path[4096];
-    snprintf(path, sizeof path, "%s/%s.npy", outdir, s->name);
-    if (npy_write(path, NPY_F64, nd, shape, outs[o], err, sizeof err) != 0) {
-      fprintf(stderr, "error: %s\n", err);
-      goto done;
-    }
-  }
-  rc = 0;
-done:
-  for (int i = 0; i < ngiven; i++) npy_free(&given[i].a);
-  for (int o = 0; outs && o < prog->outputs.n; o++) free(outs[o]);
-  free(outs);
-  free(outcount);
-  free(given);
-  npg_full_free(f);
+  if (!npg_ok(p)) fputs(npg_error(p), stderr);
+  else rc = eval_full(p, data, in, outdir, cc);
   npg_free(p);
   return rc;
 }

@@ -4,9 +4,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "compile.h"
 #include "npg.h"
-#include "reduce.h"
+#include "npgc.h"
 
 static void usage(FILE *out) {
   fputs("usage: npgc check PROG.npg [--json] [-d<letters>]\n"
@@ -82,10 +81,10 @@ static int cmd_emit(int argc, char **argv) {
     npg_free(p);
     return 1;
   }
-  char err[2048] = "";
-  Model *m = NULL;
-  if (model_dir && !(m = model_load(npg_program_ir(p), model_dir, err, sizeof err))) {
-    fprintf(stderr, "error: %s\n", err);
+  NpgModel *m = NULL;
+  if (model_dir && npg_model_error(m = npg_model_load(p, model_dir))[0]) {
+    fprintf(stderr, "error: %s\n", npg_model_error(m));
+    npg_model_free(m);
     npg_free(p);
     return 1;
   }
@@ -94,11 +93,12 @@ static int cmd_emit(int argc, char **argv) {
   FILE *f = fopen(tmp, "w");
   if (!f) {
     fprintf(stderr, "npgc emit: cannot write %s: %s\n", tmp, strerror(errno));
-    model_free(m);
+    npg_model_free(m);
     npg_free(p);
     return 1;
   }
-  int rc = m ? emit_reduced(m, f, err, sizeof err) : npg_emit_full(p, f);
+  char err[2048] = "";
+  int rc = m ? npg_model_emit(m, f, err, sizeof err) : npg_emit_full(p, f);
   if (fclose(f) != 0 && rc == 0) {
     fprintf(stderr, "npgc emit: cannot write %s: %s\n", tmp, strerror(errno));
     rc = -1;
@@ -112,7 +112,7 @@ static int cmd_emit(int argc, char **argv) {
     rc = -1;
   }
   if (rc != 0) remove(tmp);
-  model_free(m);
+  npg_model_free(m);
   npg_free(p);
   return rc == 0 ? 0 : 1;
 }

@@ -7,6 +7,7 @@
 #include "compile.h"
 #include "emit.h"
 #include "npg.h"
+#include "reduce.h"
 
 #ifndef NPG_STDLIB_DIR
 #define NPG_STDLIB_DIR "stdlib"
@@ -134,3 +135,34 @@ void npg_free(NpgProgram *p) {
 }
 
 Program *npg_program_ir(const NpgProgram *p) { return p ? p->prog : NULL; }
+
+int npg_nsymbols(const NpgProgram *np) {
+  const Program *prog = np->prog;
+  return prog ? prog->params.n + prog->quantities.n + prog->ops.n : 0;
+}
+
+int npg_symbol(const NpgProgram *np, int i, NpgSymbol *out) {
+  const Program *prog = np->prog;
+  if (!prog || i < 0 || i >= npg_nsymbols(np)) return -1;
+  const Sym *s = i < prog->params.n ? prog->params.v[i]
+                 : i < prog->params.n + prog->quantities.n ? prog->quantities.v[i - prog->params.n]
+                                                             : prog->ops.v[i - prog->params.n - prog->quantities.n];
+  memset(out, 0, sizeof *out);
+  out->name = s->name;
+  out->kind = s->kind == SYM_PARAM ? NPG_PARAM : s->kind == SYM_INPUT ? NPG_INPUT : s->kind == SYM_EXTERN ? NPG_EXTERN
+              : s->kind == SYM_OP ? NPG_OP : NPG_STAGE;
+  out->output = s->is_output;
+  if (s->kind == SYM_OP) {
+    out->ndims = s->nivars;
+    out->nrow = s->nrow;
+    for (int k = 0; k < s->nivars && k < 8; k++) out->dims[k] = s->ivars[k]->range->name;
+  } else {
+    out->ndims = s->ndims;
+    for (int k = 0; k < s->ndims && k < 8; k++) out->dims[k] = s->dims[k]->name;
+  }
+  out->nstatic = s->nstatic;
+  for (int k = 0; k < s->nstatic && k < 4; k++) out->shape[k] = s->shape[k];
+  return 0;
+}
+
+void npg_progress(bool on, const char *what, long done, long total) { progress_show(on, what, done, total); }

@@ -4,8 +4,8 @@
  *   npgc eval   PROG.npg MODEL/ IN/ -o OUT/  (reduced: coordinates and lifted outputs)
  *   npgc verify PROG.npg MODEL/ TEST/        (DESIGN §7: the auto-check)
  *   npgc bench  PROG.npg MODEL/ TEST/        (full vs reduced time, memory)
- */
-#include <cblas.h>
+ *
+ * A client of npg.h only: what these commands do, a C program can do. */
 #include <errno.h>
 #include <math.h>
 #include <stdlib.h>
@@ -14,12 +14,8 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "compile.h"
-#include "emit.h"
-#include "exact.h"
-#include "npy.h"
-#include "reduce.h"
-#include "samples.h"
+#include "npg.h"
+#include "npgc.h"
 
 typedef struct Common {
   const char *prog_path, *a, *b, *out;
@@ -29,7 +25,11 @@ typedef struct Common {
   long exact_size;          /* their size of every dim (0: exact.c's defaults) */
   double tol;
   bool tol_set;
-  TrainOptions train;
+  NpgTrainOptions train;
+  int nbasis;               /* --basis overrides */
+  const char **basis_name;
+  int *basis_cap;
+  double *basis_energy;
   const char *cmd;
 } Common;
 
@@ -52,28 +52,31 @@ static size_t parse_bytes(const char *s, bool *ok) {
 
 /* --basis NAME:cap=N,energy=E (NAME may be '*') */
 static bool parse_basis(Common *c, const char *s) {
-  TrainOptions *t = &c->train;
   const char *colon = strchr(s, ':');
   if (!colon || colon == s) return false;
-  int k = t->noverride++;
-  t->override_name = realloc(t->override_name, sizeof(char *) * (size_t)t->noverride);
-  t->override_cap = realloc(t->override_cap, sizeof(int) * (size_t)t->noverride);
-  t->override_energy = realloc(t->override_energy, sizeof(double) * (size_t)t->noverride);
-  if (!t->override_name || !t->override_cap || !t->override_energy) return false;
-  t->override_name[k] = strndup(s, (size_t)(colon - s));
-  t->override_cap[k] = -1;
-  t->override_energy[k] = -1;
+  int k = c->nbasis;
+  const char **names = realloc(c->basis_name, sizeof(char *) * (size_t)(k + 1));
+  if (names) c->basis_name = names;
+  int *caps = realloc(c->basis_cap, sizeof(int) * (size_t)(k + 1));
+  if (caps) c->basis_cap = caps;
+  double *energies = realloc(c->basis_energy, sizeof(double) * (size_t)(k + 1));
+  if (energies) c->basis_energy = energies;
+  if (!names || !caps || !energies) return false;
+  c->nbasis++;
+  c->basis_name[k] = strndup(s, (size_t)(colon - s));
+  c->basis_cap[k] = -1;
+  c->basis_energy[k] = -1;
   const char *p = colon + 1;
   while (*p) {
     char *end;
     if (strncmp(p, "cap=", 4) == 0) {
       long v = strtol(p + 4, &end, 10);
       if (end == p + 4 || v < 1) return false;
-      t->override_cap[k] = (int)v;
+      c->basis_cap[k] = (int)v;
     } else if (strncmp(p, "energy=", 7) == 0) {
       double v = strtod(p + 7, &end);
       if (end == p + 7 || !(v > 0 && v <= 1)) return false;
-      t->override_energy[k] = v;
+      c->basis_energy[k] = v;
     } else {
       return false;
     }
@@ -105,10 +108,7 @@ static int parse(Common *c, int argc, char **argv) {
   memset(c, 0, sizeof *c);
   c->cmd = argv[1];
   c->tol = 1e-2;
-  c->train.cap = 60;
-  c->train.energy = 0.999;
-  long pages = sysconf(_SC_PHYS_PAGES), psize = sysconf(_SC_PAGE_SIZE);
-  c->train.mem = pages > 0 && psize > 0 ? (size_t)pages * (size_t)psize / 2 : (size_t)8 << 30;
+  npg_train_options_default(&c->train);
   for (int i = 2; i < argc; i++) {
     const char *a = argv[i];
     bool has = i + 1 < argc, ok = true;
@@ -156,14 +156,18 @@ static int parse(Common *c, int argc, char **argv) {
     }
   }
   c->train.progress = isatty(2);
+  c->train.nbasis = c->nbasis;
+  c->train.basis_name = c->basis_name;
+  c->train.basis_cap = c->basis_cap;
+  c->train.basis_energy = c->basis_energy;
   return 0;
 }
 
 static void free_common(Common *c) {
-  for (int i = 0; i < c->train.noverride; i++) free((char *)c->train.override_name[i]);
-  free(c->train.override_name);
-  free(c->train.override_cap);
-  free(c->train.override_energy);
+  for (int i = 0; i < c->nbasis; i++) free((char *)c->basis_name[i]);
+  free(c->basis_name);
+  free(c->basis_cap);
+  free(c->basis_energy);
 }
 
 static NpgProgram *compile(Common *c) {
@@ -178,59 +182,57 @@ static NpgProgram *compile(Common *c) {
 
 /* ---------------------------------------------------------------- train */
 
-static void print_model(const Model *m, FILE *out) {
+static void print_model(const NpgModel *m, FILE *out) {
   fprintf(out, "%-24s %8s %6s  %s\n", "class", "n", "m", "members (kept / cap, energy captured)");
-  for (int c = 0; c < m->nclasses; c++) {
-    const RClass *rc = &m->classes[c];
-    fprintf(out, "%-24s %8ld %6ld ", rc->label, rc->n, rc->m);
-    for (int i = 0; i < rc->nmembers; i++)
-      fprintf(out, " %s %d/%d %.6f", rc->members[i].name, rc->members[i].kept, rc->members[i].cap,
-              rc->members[i].captured);
+  for (int c = 0; c < npg_model_nclasses(m); c++) {
+    NpgClassInfo ci;
+    npg_model_class(m, c, &ci);
+    fprintf(out, "%-24s %8ld %6ld ", ci.label, ci.n, ci.m);
+    for (int i = 0; i < ci.nmembers; i++) {
+      NpgMemberInfo mi;
+      npg_model_member(m, c, i, &mi);
+      fprintf(out, " %s %d/%d %.6f", mi.name, mi.kept, mi.cap, mi.captured);
+    }
     fputc('\n', out);
   }
-  size_t tb, total = model_bytes(m, &tb);
+  size_t tb, total = npg_model_bytes(m, &tb);
   fprintf(out, "reduced tensors: %.3f MB; model with bases: %.3f MB\n", (double)tb / 1e6, (double)total / 1e6);
 }
 
+/* The samples of DATA/ streamed into a trainer, as any C program would. */
 static int cmd_train(Common *c) {
   if (!c->prog_path || !c->a || !c->out || c->b) return usage("train");
   NpgProgram *p = compile(c);
   if (!p) return 1;
-  Program *prog = npg_program_ir(p);
   char err[2048] = "";
   int rc = 1;
-  SampleSet s = {0};
-  Model *m = NULL;
+  NpgSamples *s = NULL;
+  NpgTrainer *t = NULL;
+  NpgModel *m = NULL;
   NpgFull *f = npg_full_new(p, c->cc ? NPG_CC : NPG_TCC);
   if (npg_full_error(f)[0] || npg_full_bind_params(f, c->a) != 0) {
     fprintf(stderr, "error: %s\n", npg_full_error(f));
     goto done;
   }
-  if (samples_open(&s, prog, c->a, NULL, true, err, sizeof err) != 0) {
+  if (!(s = npg_samples_open(p, c->a, NULL, true, err, sizeof err))) {
     fprintf(stderr, "error: %s\n", err);
     goto done;
   }
-  SampleSource src = {s.count, &s, samples_set};
   double t0 = now();
-  m = train_model(prog, f, &src, &c->train, err, sizeof err);
-  if (!m) {
-    fprintf(stderr, "error: %s\n", err);
-    goto done;
+  t = npg_trainer_new(f, &c->train);
+  for (long k = 0; k < npg_samples_count(s) && !npg_trainer_error(t)[0]; k++)
+    if (npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0) break;
+  if (npg_full_error(f)[0]) fprintf(stderr, "error: %s\n", npg_full_error(f));
+  else if (!(m = npg_trainer_finish(t, c->out))) fprintf(stderr, "error: %s\n", npg_trainer_error(t));
+  else {
+    printf("trained %s on %ld samples in %.2f s -> %s\n", c->prog_path, npg_samples_count(s), now() - t0, c->out);
+    print_model(m, stdout);
+    rc = 0;
   }
-  if (!(m->param_hashes = samples_param_hashes(prog, c->a, err, sizeof err))) {
-    fprintf(stderr, "error: %s\n", err[0] ? err : "out of memory");
-    goto done;
-  }
-  if (model_save(m, c->out, err, sizeof err) != 0) {
-    fprintf(stderr, "error: %s\n", err);
-    goto done;
-  }
-  printf("trained %s on %ld samples in %.2f s -> %s\n", c->prog_path, s.count, now() - t0, c->out);
-  print_model(m, stdout);
-  rc = 0;
 done:
-  model_free(m);
-  samples_close(&s);
+  npg_model_free(m);
+  npg_trainer_free(t);
+  npg_samples_free(s);
   npg_full_free(f);
   npg_free(p);
   return rc;
@@ -240,57 +242,71 @@ done:
 
 typedef struct Session {
   NpgProgram *p;
-  Program *prog;
-  Model *m;
-  Reduced *r;
-  SampleSet s;
+  NpgModel *m;
+  NpgReduced *r;
+  NpgSamples *s;
   NpgFull *f;               /* only verify and bench */
+  int nsym;
+  NpgSymbol *sym;           /* every symbol of the program */
 } Session;
 
 static void close_session(Session *x) {
-  reduced_free(x->r);
-  model_free(x->m);
-  samples_close(&x->s);
+  npg_reduced_free(x->r);
+  npg_model_free(x->m);
+  npg_samples_free(x->s);
   npg_full_free(x->f);
+  free(x->sym);
   npg_free(x->p);
 }
 
 /* Compile, load MODEL/ (c->a), open the samples of c->b; with `full`, a
- * full evaluator bound to c->b's params. */
+ * full evaluator bound to c->b's params, which must be the model's. */
 static int open_session(Common *c, Session *x, bool full) {
   memset(x, 0, sizeof *x);
   char err[2048] = "";
   if (!(x->p = compile(c))) return -1;
-  x->prog = npg_program_ir(x->p);
-  if (!(x->m = model_load(x->prog, c->a, err, sizeof err)) || !(x->r = reduced_new(x->m, err, sizeof err))) {
-    fprintf(stderr, "error: %s\n", err);
+  x->nsym = npg_nsymbols(x->p);
+  if (!(x->sym = calloc((size_t)x->nsym + 1, sizeof *x->sym))) {
+    fputs("error: out of memory\n", stderr);
+    return -1;
+  }
+  for (int i = 0; i < x->nsym; i++) npg_symbol(x->p, i, &x->sym[i]);
+  x->m = npg_model_load(x->p, c->a);
+  if (npg_model_error(x->m)[0]) {
+    fprintf(stderr, "error: %s\n", npg_model_error(x->m));
+    return -1;
+  }
+  x->r = npg_reduced_new(x->m);
+  if (npg_reduced_error(x->r)[0]) {
+    fprintf(stderr, "error: %s\n", npg_reduced_error(x->r));
     return -1;
   }
   /* a full evaluation needs the extern values of the data; a reduced one learns them */
-  if (samples_open(&x->s, x->prog, c->b, NULL, full, err, sizeof err) != 0) {
+  if (!(x->s = npg_samples_open(x->p, c->b, NULL, full, err, sizeof err))) {
     fprintf(stderr, "error: %s\n", err);
     return -1;
   }
   if (full) {
-    if (samples_check_params(x->prog, c->b, x->m->param_hashes, err, sizeof err) != 0) {
-      fprintf(stderr, "error: %s\n", err);
-      return -1;
-    }
     x->f = npg_full_new(x->p, c->cc ? NPG_CC : NPG_TCC);
     if (npg_full_error(x->f)[0] || npg_full_bind_params(x->f, c->b) != 0) {
       fprintf(stderr, "error: %s\n", npg_full_error(x->f));
       return -1;
     }
+    if (npg_model_check_params(x->m, x->f, err, sizeof err) != 0) {
+      fprintf(stderr, "error: %s\n", err);
+      return -1;
+    }
   }
   /* the inputs' sizes must be the model's */
-  for (int i = 0; i < x->s.n; i++) {
-    const SampleFile *g = &x->s.files[i];
+  for (int i = 0; i < x->nsym; i++) {
+    if (x->sym[i].kind != NPG_INPUT) continue;
     size_t n;
-    samples_value(&x->s, i, 0, &n);
-    const RClass *rc = &x->m->classes[x->m->qclass[g->q]];
-    if ((long)n != rc->n) {
-      fprintf(stderr, "error: %s: '%s' has %zu entries per sample, the model was trained with %ld\n", g->path,
-              g->sym->name, n, rc->n);
+    NpgClassInfo ci;
+    npg_samples_get(x->s, x->sym[i].name, 0, &n);
+    npg_model_class(x->m, npg_model_class_of(x->m, x->sym[i].name), &ci);
+    if ((long)n != ci.n) {
+      fprintf(stderr, "error: %s/%s.npy: '%s' has %zu entries per sample, the model was trained with %ld\n", c->b,
+              x->sym[i].name, x->sym[i].name, n, ci.n);
       return -1;
     }
   }
@@ -299,128 +315,134 @@ static int open_session(Common *c, Session *x, bool full) {
 
 /* Project the inputs of sample k and evaluate the reduced model. */
 static int reduced_sample(Session *x, long k) {
-  for (int i = 0; i < x->s.n; i++)
-    if (x->s.files[i].sym->kind == SYM_INPUT) reduced_project(x->r, x->s.files[i].q, samples_value(&x->s, i, k, NULL));
-  return reduced_eval(x->r, k);
+  for (int i = 0; i < x->nsym; i++) {
+    if (x->sym[i].kind != NPG_INPUT) continue;
+    size_t n;
+    const double *v = npg_samples_get(x->s, x->sym[i].name, k, &n);
+    if (npg_reduced_set(x->r, x->sym[i].name, n, v) != 0) return -1;
+  }
+  return npg_reduced_eval(x->r, k);
 }
 
 /* ---------------------------------------------------------------- eval (reduced) */
 
+/* One output over every sample: lifted values and reduced coordinates, or
+ * an operator's reduced matrices. */
+typedef struct Out {
+  const NpgSymbol *sym;
+  long n, m;                /* full size and coordinates (an op: rows x cols in m) */
+  long rows, cols;
+  double *lifted, *coords;
+} Out;
+
+static int write_outputs(const Common *c, const Session *x, const Out *outs, int nout, long S) {
+  if (mkdir(c->out, 0777) != 0 && errno != EEXIST) {
+    fprintf(stderr, "error: cannot create %s: %s\n", c->out, strerror(errno));
+    return -1;
+  }
+  for (int o = 0; o < nout; o++) {
+    const Out *u = &outs[o];
+    char path[4096], err[2048];
+    long shape[16];
+    int nd = 0;
+    shape[nd++] = S;
+    if (u->sym->kind != NPG_OP) {
+      for (int i = 0; i < u->sym->ndims; i++) shape[nd++] = npg_model_dim(x->m, u->sym->dims[i]);
+      for (int i = 0; i < u->sym->nstatic; i++) shape[nd++] = u->sym->shape[i];
+      snprintf(path, sizeof path, "%s/%s.npy", c->out, u->sym->name);
+      if (npg_npy_write(path, nd, shape, u->lifted, err, sizeof err) != 0) goto fail;
+      long cs[2] = {S, u->m};
+      snprintf(path, sizeof path, "%s/%s.reduced.npy", c->out, u->sym->name);
+      if (npg_npy_write(path, 2, cs, u->coords, err, sizeof err) != 0) goto fail;
+    } else {
+      long os[3] = {S, u->rows, u->cols};
+      snprintf(path, sizeof path, "%s/%s.reduced.npy", c->out, u->sym->name);
+      if (npg_npy_write(path, 3, os, u->coords, err, sizeof err) != 0) goto fail;
+    }
+    continue;
+  fail:
+    fprintf(stderr, "error: %s\n", err);
+    return -1;
+  }
+  return 0;
+}
+
+/* Output o of sample k into its arrays. */
+static int keep_output(Session *x, Out *u, long k) {
+  if (u->sym->kind == NPG_OP) {
+    size_t cap = (size_t)u->m;
+    return npg_reduced_op(x->r, u->sym->name, u->coords + k * u->m, cap, &u->rows, &u->cols, NULL, NULL);
+  }
+  size_t m;
+  const double *v = npg_reduced_coords(x->r, u->sym->name, &m);
+  memcpy(u->coords + k * u->m, v, sizeof(double) * m);
+  return npg_reduced_lift(x->r, u->sym->name, u->lifted + k * u->n, (size_t)u->n);
+}
+
 static int cmd_eval_reduced(Common *c) {
   if (!c->prog_path || !c->a || !c->b || !c->out) return usage("eval");
   Session x;
-  int rc = 1;
-  double **lifted = NULL, **coords = NULL;
+  int rc = 1, nout = 0;
+  Out *outs = NULL;
   if (open_session(c, &x, false) != 0) goto done;
-  const Model *m = x.m;
-  int no = x.prog->outputs.n;
-  lifted = calloc((size_t)no + 1, sizeof(double *));
-  coords = calloc((size_t)no + 1, sizeof(double *));
-  if (!lifted || !coords) goto oom;
-  for (int o = 0; o < no; o++) {
-    const Sym *s = x.prog->outputs.v[o];
-    int q = emit_index_of(&x.prog->quantities, s);
-    if (q < 0) continue;
-    const RClass *rc = &m->classes[m->qclass[q]];
-    lifted[o] = malloc(sizeof(double) * (size_t)(rc->n * x.s.count + 1));
-    coords[o] = malloc(sizeof(double) * (size_t)(rc->m * x.s.count + 1));
-    if (!lifted[o] || !coords[o]) goto oom;
+  long S = npg_samples_count(x.s);
+  if (!(outs = calloc((size_t)x.nsym + 1, sizeof *outs))) goto oom;
+  for (int i = 0; i < x.nsym; i++) {
+    if (!x.sym[i].output) continue;
+    Out *u = &outs[nout++];
+    u->sym = &x.sym[i];
+    NpgClassInfo ci;
+    if (u->sym->kind == NPG_OP) { /* rows x cols of the reduced operator: at most the largest class squared */
+      for (int k = 0; k < npg_model_nclasses(x.m); k++)
+        if (npg_model_class(x.m, k, &ci) == 0 && ci.m * ci.m > u->m) u->m = ci.m * ci.m;
+    } else {
+      npg_model_class(x.m, npg_model_class_of(x.m, u->sym->name), &ci);
+      u->n = ci.n;
+      u->m = ci.m;
+    }
+    u->lifted = malloc(sizeof(double) * (size_t)(u->n * S + 1));
+    u->coords = malloc(sizeof(double) * (size_t)(u->m * S + 1));
+    if (!u->lifted || !u->coords) goto oom;
   }
-  for (long k = 0; k < x.s.count; k++) {
-    if (reduced_sample(&x, k) != 0) {
-      fprintf(stderr, "error: %s\n", reduced_error(x.r));
-      goto done;
-    }
-    for (int o = 0; o < no; o++) {
-      int q = emit_index_of(&x.prog->quantities, x.prog->outputs.v[o]);
-      if (q < 0) continue;
-      const RClass *rc = &m->classes[m->qclass[q]];
-      reduced_lift(x.r, q, lifted[o] + k * rc->n);
-      memcpy(coords[o] + k * rc->m, reduced_coords(x.r, q), sizeof(double) * (size_t)rc->m);
-    }
-    progress_show(c->train.progress && x.s.count > 1, "reduced evaluation", k + 1, x.s.count);
+  for (long k = 0; k < S; k++) {
+    if (reduced_sample(&x, k) != 0) goto failed;
+    for (int o = 0; o < nout; o++)
+      if (keep_output(&x, &outs[o], k) != 0) goto failed;
+    npg_progress(c->train.progress && S > 1, "reduced evaluation", k + 1, S);
   }
-  if (mkdir(c->out, 0777) != 0 && errno != EEXIST) {
-    fprintf(stderr, "error: cannot create %s: %s\n", c->out, strerror(errno));
-    goto done;
+  /* an operator's matrices were kept at the largest stride: pack them */
+  for (int o = 0; o < nout; o++) {
+    Out *u = &outs[o];
+    if (u->sym->kind != NPG_OP) continue;
+    for (long k = 1; k < S; k++)
+      memmove(u->coords + k * u->rows * u->cols, u->coords + k * u->m, sizeof(double) * (size_t)(u->rows * u->cols));
   }
-  for (int o = 0; o < no; o++) {
-    const Sym *s = x.prog->outputs.v[o];
-    int q = emit_index_of(&x.prog->quantities, s);
-    if (q < 0) {
-      fprintf(stderr, "note: output op '%s' is not written by eval\n", s->name);
-      continue;
-    }
-    const RClass *rc = &m->classes[m->qclass[q]];
-    long shape[NPY_MAX_DIMS];
-    int nd = 0;
-    shape[nd++] = x.s.count;
-    for (int i = 0; i < s->ndims && nd < NPY_MAX_DIMS; i++)
-      shape[nd++] = m->dims[emit_index_of(&x.prog->dims, s->dims[i])];
-    for (int i = 0; i < s->nstatic && nd < NPY_MAX_DIMS; i++) shape[nd++] = s->shape[i];
-    char path[4096], err[2048];
-    snprintf(path, sizeof path, "%s/%s.npy", c->out, s->name);
-    if (npy_write(path, NPY_F64, nd, shape, lifted[o], err, sizeof err) != 0) {
-      fprintf(stderr, "error: %s\n", err);
-      goto done;
-    }
-    long cs[2] = {x.s.count, rc->m};
-    snprintf(path, sizeof path, "%s/%s.reduced.npy", c->out, s->name);
-    if (npy_write(path, NPY_F64, 2, cs, coords[o], err, sizeof err) != 0) {
-      fprintf(stderr, "error: %s\n", err);
-      goto done;
-    }
-  }
-  rc = 0;
+  rc = write_outputs(c, &x, outs, nout, S) == 0 ? 0 : 1;
+  goto done;
+failed:
+  fprintf(stderr, "error: %s\n", npg_reduced_error(x.r));
   goto done;
 oom:
   fputs("error: out of memory\n", stderr);
 done:
-  for (int o = 0; lifted && o < x.prog->outputs.n; o++) free(lifted[o]);
-  for (int o = 0; coords && o < x.prog->outputs.n; o++) free(coords[o]);
-  free(lifted);
-  free(coords);
+  for (int o = 0; outs && o < nout; o++) {
+    free(outs[o].lifted);
+    free(outs[o].coords);
+  }
+  free(outs);
   close_session(&x);
   return rc;
 }
 
 /* ---------------------------------------------------------------- verify */
 
-typedef struct ErrStat {
-  double l2, linf, floor2, floorinf;    /* sums over samples (means at the end) */
-  double l2max, linfmax;
-} ErrStat;
-
-/* Quantities a stage reads (tensor inputs, named numerators), for "where
- * error grows". */
-static double worst_input(const Model *m, const RStage *rs, const ErrStat *st, long S) {
-  double w = 0;
-  for (int t = 0; t < rs->nterms; t++) {
-    const RTerm *rt = &rs->terms[t];
-    if (rt->named_q >= 0) w = fmax(w, st[rt->named_q].l2 / (double)S);
-    for (int k = -1; k < rt->nops; k++) {
-      int n = k < 0 ? rt->nnum : rt->ops[k].ntensors;
-      for (int g = 0; g < n; g++) {
-        const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
-        for (int j = 0; j < x->nin; j++) w = fmax(w, st[x->in_q[j]].l2 / (double)S);
-      }
-    }
-  }
-  if (rs->st->kind == ST_EXTERN)
-    for (int i = 0; i < m->nexterns; i++)
-      if (m->externs[i].q == rs->q)
-        for (int j = 0; j < m->externs[i].nin; j++) w = fmax(w, st[m->externs[i].in_q[j]].l2 / (double)S);
-  return w;
-}
-
-/* The exactness checks of DESIGN §4 (exact.h): 0 pass, 1 fail or error. */
+/* The exactness checks of the design (npg_verify_exact): 0 pass, 1 fail or error. */
 static int verify_exact(Common *c) {
   NpgProgram *p = compile(c);
   if (!p) return 1;
-  ExactOptions o = {c->exact_size, c->exact_size, 1u, c->cc ? NPG_CC : NPG_TCC, c->train.progress};
   char err[2048] = "";
   fflush(stdout);
-  int rc = exact_check(p, &o, stdout, err, sizeof err);
+  int rc = npg_verify_exact(p, c->exact_size, c->cc ? NPG_CC : NPG_TCC, c->train.progress, stdout, err, sizeof err);
   if (rc < 0)
     fprintf(stderr, "error: exactness checks of %s: %s%s\n", c->prog_path, err,
             strstr(err, "not finite") || strstr(err, "singular") || strstr(err, "indefinite")
@@ -431,112 +453,47 @@ static int verify_exact(Common *c) {
   return rc == 0 ? 0 : 1;
 }
 
+static void print_report(const Common *c, const NpgVerifyReport *rep) {
+  printf("verify %s against %s on %ld held-out samples (relative errors, mean over samples)\n", c->prog_path, c->a,
+         rep->samples);
+  printf("%-14s %-7s %5s %10s %10s %10s %10s %10s %10s\n", "quantity", "kind", "m", "L2 error", "floor", "own",
+         "max L2", "Linf error", "Linf floor");
+  for (int q = 0; q < rep->nrows; q++) {
+    const NpgVerifyRow *e = &rep->rows[q];
+    printf("%-14s %-7s %5ld %10.3e %10.3e %10.3e %10.3e %10.3e %10.3e%s\n", e->name, e->kind, e->m, e->l2, e->floor,
+           e->own, e->l2_max, e->linf, e->linf_floor, e->output ? "  (output)" : "");
+  }
+  if (rep->grows_at)
+    printf("error grows most at stage %s (+%.3e over the worst quantity it reads)\n", rep->grows_at, rep->growth);
+}
+
 static int cmd_verify(Common *c) {
   if (c->exact && c->prog_path && !c->a && !c->b && !c->out) return verify_exact(c);
   if (!c->prog_path || !c->a || !c->b || c->out) return usage("verify");
   Session x;
+  NpgVerifyReport rep;
+  memset(&rep, 0, sizeof rep);
   int rc = 1;
-  ErrStat *st = NULL;
-  double *y = NULL, *proj = NULL;
   if (open_session(c, &x, true) != 0) goto done;
-  Model *m = x.m;
-  long maxn = 1, maxm = 1;
-  for (int k = 0; k < m->nclasses; k++) {
-    maxn = m->classes[k].n > maxn ? m->classes[k].n : maxn;
-    maxm = m->classes[k].m > maxm ? m->classes[k].m : maxm;
-  }
-  st = calloc((size_t)m->nq + 1, sizeof *st);
-  y = malloc(sizeof(double) * (size_t)maxn);
-  proj = malloc(sizeof(double) * (size_t)maxm);
-  if (!st || !y || !proj) {
-    fputs("error: out of memory\n", stderr);
+  if (npg_verify(x.m, x.f, npg_samples_count(x.s), npg_samples_set, x.s, c->train.progress, &rep) != 0) {
+    fprintf(stderr, "error: %s\n", rep.error);
     goto done;
   }
-  long S = x.s.count;
-  for (long k = 0; k < S; k++) {
-    if (samples_set(&x.s, x.f, k) != 0 || npg_full_eval(x.f, k) != 0) {
-      fprintf(stderr, "error: %s\n", npg_full_error(x.f));
-      goto done;
-    }
-    if (reduced_sample(&x, k) != 0) {
-      fprintf(stderr, "error: %s\n", reduced_error(x.r));
-      goto done;
-    }
-    for (int q = 0; q < m->nq; q++) {
-      const RClass *rc = &m->classes[m->qclass[q]];
-      const double *full = npg_full_get(x.f, ((Sym *)x.prog->quantities.v[q])->name, NULL);
-      /* ‖y − B ŷ‖ and the projection floor ‖y − B Bᵀ y‖ (Arvo's discretization error) */
-      double ny = 0, nyinf = 0, e2 = 0, einf = 0, f2 = 0, finf = 0;
-      reduced_lift(x.r, q, y);
-      for (long e = 0; e < rc->n; e++) {
-        double d = full[e] - y[e];
-        ny += full[e] * full[e];
-        nyinf = fmax(nyinf, fabs(full[e]));
-        e2 += d * d;
-        einf = fmax(einf, fabs(d));
-      }
-      cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, full, 1, 0.0, proj, 1);
-      cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, proj, 1, 0.0, y, 1);
-      for (long e = 0; e < rc->n; e++) {
-        double d = full[e] - y[e];
-        f2 += d * d;
-        finf = fmax(finf, fabs(d));
-      }
-      double l2 = ny > 0 ? sqrt(e2 / ny) : sqrt(e2), linf = nyinf > 0 ? einf / nyinf : einf;
-      st[q].l2 += l2;
-      st[q].linf += linf;
-      st[q].floor2 += ny > 0 ? sqrt(f2 / ny) : sqrt(f2);
-      st[q].floorinf += nyinf > 0 ? finf / nyinf : finf;
-      st[q].l2max = fmax(st[q].l2max, l2);
-      st[q].linfmax = fmax(st[q].linfmax, linf);
-    }
-    progress_show(c->train.progress, "verification", k + 1, S);
-  }
-  printf("verify %s against %s on %ld held-out samples (relative errors, mean over samples)\n", c->prog_path, c->a, S);
-  printf("%-14s %-7s %5s %10s %10s %10s %10s %10s %10s\n", "quantity", "kind", "m", "L2 error", "floor", "own",
-         "max L2", "Linf error", "Linf floor");
-  double worst_growth = 0;
-  const char *grows_at = NULL;
-  for (int q = 0; q < m->nq; q++) {
-    const Sym *s = x.prog->quantities.v[q];
-    const ErrStat *e = &st[q];
-    const char *kind = s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage";
-    for (int i = 0; i < m->nstages; i++)
-      if (m->stages[i].q == q && m->stages[i].st->kind != ST_EXTERN) kind = stage_kind_name[m->stages[i].st->kind];
-    printf("%-14s %-7s %5ld %10.3e %10.3e %10.3e %10.3e %10.3e %10.3e%s\n", s->name, kind,
-           m->classes[m->qclass[q]].m, e->l2 / (double)S, e->floor2 / (double)S, (e->l2 - e->floor2) / (double)S,
-           e->l2max, e->linf / (double)S, e->floorinf / (double)S, s->is_output ? "  (output)" : "");
-  }
-  for (int i = 0; i < m->nstages; i++) {
-    const RStage *rs = &m->stages[i];
-    double g = st[rs->q].l2 / (double)S - worst_input(m, rs, st, S);
-    if (g > worst_growth) {
-      worst_growth = g;
-      grows_at = rs->st->sym->name;
-    }
-  }
-  if (grows_at)
-    printf("error grows most at stage %s (+%.3e over the worst quantity it reads)\n", grows_at, worst_growth);
+  print_report(c, &rep);
   rc = 0;
-  for (int o = 0; o < x.prog->outputs.n; o++) {
-    int q = emit_index_of(&x.prog->quantities, x.prog->outputs.v[o]);
-    if (q < 0) continue;
-    double e = st[q].l2 / (double)S;
-    if (e > c->tol) {
-      printf("FAIL: output %s: mean relative L2 error %.3e above --tol %.3g\n",
-             ((Sym *)x.prog->outputs.v[o])->name, e, c->tol);
+  for (int q = 0; q < rep.nrows; q++)
+    if (rep.rows[q].output && !(rep.rows[q].l2 <= c->tol)) {
+      printf("FAIL: output %s: mean relative L2 error %.3e above --tol %.3g\n", rep.rows[q].name, rep.rows[q].l2,
+             c->tol);
       rc = 1;
     }
-  }
   if (rc == 0) printf("ok: every output within --tol %.3g\n", c->tol);
   if (c->exact) {
     printf("\n");
     rc |= verify_exact(c);
   }
 done:
-  free(st);
-  free(y);
-  free(proj);
+  npg_verify_free(&rep);
   close_session(&x);
   return rc;
 }
@@ -548,10 +505,10 @@ static int cmd_bench(Common *c) {
   Session x;
   int rc = 1;
   if (open_session(c, &x, true) != 0) goto done;
-  long S = x.s.count;
+  long S = npg_samples_count(x.s);
   double tf = 0, tr = 0, tfbest = INFINITY, trbest = INFINITY;
   for (long k = 0; k < S; k++) {
-    if (samples_set(&x.s, x.f, k) != 0) {
+    if (npg_samples_set(x.s, x.f, k) != 0) {
       fprintf(stderr, "error: %s\n", npg_full_error(x.f));
       goto done;
     }
@@ -562,7 +519,7 @@ static int cmd_bench(Common *c) {
     }
     double t1 = now();
     if (reduced_sample(&x, k) != 0) {
-      fprintf(stderr, "error: %s\n", reduced_error(x.r));
+      fprintf(stderr, "error: %s\n", npg_reduced_error(x.r));
       goto done;
     }
     double t2 = now();
@@ -574,7 +531,7 @@ static int cmd_bench(Common *c) {
     }
   }
   long n = S > 1 ? S - 1 : 1;
-  size_t tb, total = model_bytes(x.m, &tb);
+  size_t tb, total = npg_model_bytes(x.m, &tb);
   printf("bench %s: %ld samples (%s backend for the full evaluator)\n", c->prog_path, S, c->cc ? "cc" : "libtcc");
   printf("full evaluation     %12.3e s per sample (best %.3e)\n", tf / (double)n, tfbest);
   printf("reduced evaluation  %12.3e s per sample (best %.3e), inputs projected, outputs not lifted\n",

@@ -1,18 +1,41 @@
-/* samples.c — reading the samples of a data directory (samples.h). */
+/* samples.c — reading the samples of a data directory (npg.h NpgSamples):
+ * every input and extern as DIR/<name>.npy with a leading sample axis,
+ * checked once (float64, one sample count across files), handed to the full
+ * evaluator one sample at a time. */
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 
+#include "compile.h"
 #include "emit.h"
-#include "model_store.h"
-#include "samples.h"
+#include "npg.h"
+#include "npy.h"
+
+typedef struct SampleFile {
+  const Sym *sym;
+  NpyArray a;
+  char path[4096];
+} SampleFile;
+
+typedef struct SampleSet {
+  const Program *prog;
+  int n;
+  SampleFile *files;
+  long count;               /* samples */
+} SampleSet;
+
+struct NpgSamples {
+  SampleSet s;
+};
+
+static void samples_close(SampleSet *s);
 
 static bool exists(const char *path) {
   struct stat st;
   return stat(path, &st) == 0;
 }
 
-int samples_open(SampleSet *s, const Program *prog, const char *dir, const char *fallback, bool externs, char *err,
+static int samples_open(SampleSet *s, const Program *prog, const char *dir, const char *fallback, bool externs, char *err,
                  size_t errlen) {
   memset(s, 0, sizeof *s);
   s->prog = prog;
@@ -28,8 +51,6 @@ int samples_open(SampleSet *s, const Program *prog, const char *dir, const char 
     if (sym->kind != SYM_INPUT && !(externs && sym->kind == SYM_EXTERN)) continue;
     SampleFile *g = &s->files[s->n];
     g->sym = sym;
-    g->slot = i;
-    g->q = emit_index_of(&prog->quantities, sym);
     snprintf(g->path, sizeof g->path, "%s/%s.npy", dir, sym->name);
     if (fallback && !exists(g->path)) snprintf(g->path, sizeof g->path, "%s/%s.npy", fallback, sym->name);
     if (npy_read(g->path, &g->a, err, errlen) != 0) goto fail;
@@ -59,14 +80,14 @@ fail:
   return -1;
 }
 
-const double *samples_value(const SampleSet *s, int i, long k, size_t *n) {
+static const double *samples_value(const SampleSet *s, int i, long k, size_t *n) {
   const SampleFile *g = &s->files[i];
   size_t per = s->count ? g->a.count / (size_t)s->count : 0;
   if (n) *n = per;
   return (const double *)g->a.data + (size_t)k * per;
 }
 
-int samples_set(void *user, NpgFull *f, long k) {
+static int samples_set(void *user, NpgFull *f, long k) {
   SampleSet *s = user;
   for (int i = 0; i < s->n; i++) {
     const SampleFile *g = &s->files[i];
@@ -76,72 +97,45 @@ int samples_set(void *user, NpgFull *f, long k) {
   return 0;
 }
 
-void samples_close(SampleSet *s) {
+static void samples_close(SampleSet *s) {
   for (int i = 0; s->files && i < s->n; i++) npy_free(&s->files[i].a);
   free(s->files);
   s->files = NULL;
   s->n = 0;
 }
 
-static int file_hash(const char *path, uint64_t *h, char *err, size_t errlen) {
-  FILE *f = fopen(path, "rb");
-  if (!f) {
-    snprintf(err, errlen, "%s: cannot read the param file", path);
-    return -1;
+
+NpgSamples *npg_samples_open(NpgProgram *p, const char *dir, const char *fallback, bool externs, char *err,
+                             size_t errlen) {
+  if (!npg_ok(p)) {
+    snprintf(err, errlen, "%s", npg_error(p));
+    return NULL;
   }
-  *h = model_hash_init();
-  char buf[1 << 16];
-  size_t got;
-  while ((got = fread(buf, 1, sizeof buf, f)) > 0) *h = model_hash_bytes(*h, buf, got);
-  fclose(f);
-  return 0;
+  NpgSamples *s = calloc(1, sizeof *s);
+  if (!s) {
+    snprintf(err, errlen, "out of memory");
+    return NULL;
+  }
+  if (samples_open(&s->s, npg_program_ir(p), dir, fallback, externs, err, errlen) != 0) {
+    free(s);
+    return NULL;
+  }
+  return s;
 }
 
-char *samples_param_hashes(const Program *prog, const char *dir, char *err, size_t errlen) {
-  size_t cap = 64 + (size_t)prog->params.n * 96, len = 0;
-  char *out = malloc(cap);
-  if (!out) return NULL;
-  out[0] = 0;
-  for (int i = 0; i < prog->params.n; i++) {
-    const Sym *p = prog->params.v[i];
-    char path[4096];
-    uint64_t h;
-    snprintf(path, sizeof path, "%s/%s.npy", dir, p->name);
-    if (file_hash(path, &h, err, errlen)) {
-      free(out);
-      return NULL;
-    }
-    if (strlen(p->name) + len + 24 >= cap) {
-      cap = cap * 2 + strlen(p->name);
-      char *n = realloc(out, cap);
-      if (!n) {
-        free(out);
-        return NULL;
-      }
-      out = n;
-    }
-    len += (size_t)sprintf(out + len, "%s%s=%016llx", len ? " " : "", p->name, (unsigned long long)h);
-  }
-  return out;
+long npg_samples_count(const NpgSamples *s) { return s->s.count; }
+
+const double *npg_samples_get(const NpgSamples *s, const char *name, long k, size_t *count) {
+  for (int i = 0; i < s->s.n; i++)
+    if (strcmp(s->s.files[i].sym->name, name) == 0 && k >= 0 && k < s->s.count)
+      return samples_value(&s->s, i, k, count);
+  return NULL;
 }
 
-int samples_check_params(const Program *prog, const char *dir, const char *recorded, char *err, size_t errlen) {
-  if (!recorded) return 0;
-  for (int i = 0; i < prog->params.n; i++) {
-    const Sym *p = prog->params.v[i];
-    char key[512], path[4096];
-    snprintf(key, sizeof key, "%s=", p->name);
-    const char *at = recorded;
-    while ((at = strstr(at, key)) && at != recorded && at[-1] != ' ') at++;
-    snprintf(path, sizeof path, "%s/%s.npy", dir, p->name);
-    uint64_t h;
-    if (file_hash(path, &h, err, errlen)) return -1;
-    if (!at || strtoull(at + strlen(key), NULL, 16) != h) {
-      snprintf(err, errlen, "%s: param '%s' differs from the one the model was trained with: retrain, or give the "
-                            "training data's params",
-               path, p->name);
-      return -1;
-    }
-  }
-  return 0;
+int npg_samples_set(void *samples, NpgFull *f, long k) { return samples_set(&((NpgSamples *)samples)->s, f, k); }
+
+void npg_samples_free(NpgSamples *s) {
+  if (!s) return;
+  samples_close(&s->s);
+  free(s);
 }

@@ -51,6 +51,31 @@ NPG_API void npg_free(NpgProgram *p);
  * the reason in npg_error(). The C compiles standalone (cc -c). */
 NPG_API int npg_emit_full(NpgProgram *p, FILE *out);
 
+/* ---------------------------------------------------------------- what a program declares */
+typedef enum NpgKind {
+  NPG_PARAM,   /* data fixed at training time */
+  NPG_INPUT,   /* varies per evaluation, has a basis */
+  NPG_EXTERN,  /* a black-box stage: given as data or by a callback */
+  NPG_STAGE,   /* a named definition */
+  NPG_OP,      /* a linear operator (`op`) */
+} NpgKind;
+typedef struct NpgSymbol {
+  const char *name;
+  NpgKind kind;
+  bool output;                 /* declared `output` */
+  int ndims;                   /* dim axes, named by dims[] */
+  const char *dims[8];         /* an op: its row dims, then its column dims */
+  int nrow;                    /* an op: how many of dims[] are rows */
+  int nstatic;                 /* static axes after the dims */
+  int shape[4];
+} NpgSymbol;
+/* Params, then quantities in evaluation order (inputs, stages and externs),
+ * then operators. npg_symbol returns 0, or -1 when i is out of range. */
+NPG_API int npg_nsymbols(const NpgProgram *p);
+NPG_API int npg_symbol(const NpgProgram *p, int i, NpgSymbol *out);
+/* Progress bar on stderr ("what [####    ] done/total"), when `on`. */
+NPG_API void npg_progress(bool on, const char *what, long done, long total);
+
 /* ---------------------------------------------------------------- full evaluation
  *
  *     NpgFull *f = npg_full_new(p, NPG_TCC);       // generate + compile (libtcc)
@@ -91,6 +116,225 @@ NPG_API const double *npg_full_get(const NpgFull *f, const char *name, size_t *c
 /* The bound size of a dim, -1 if unbound or unknown. */
 NPG_API long npg_full_dim(const NpgFull *f, const char *name);
 NPG_API void npg_full_free(NpgFull *f);
+
+/* Externs given by a C function instead of data: at every npg_full_eval
+ * the evaluator calls fn(user, f, sample, out, count) to fill the extern's
+ * `count` values (C order), unless npg_full_set gave it values since the
+ * last evaluation (a trainer replaying cached values). The function reads
+ * what it needs with npg_full_get: the extern's `of` quantities must be
+ * inputs (refused otherwise: their values would not exist yet). It returns
+ * 0, or non-zero to fail the evaluation ("extern 'v' failed at sample 3").
+ * fn NULL removes the callback. 0, or -1 with npg_full_error(). */
+typedef int (*NpgExternFn)(void *user, const NpgFull *f, long sample, double *out, size_t count);
+NPG_API int npg_full_set_extern_fn(NpgFull *f, const char *name, NpgExternFn fn, void *user);
+
+/* A sparse matrix in compressed sparse row form: row r holds the entries
+ * indices[indptr[r] .. indptr[r+1]) (columns increasing) with values data[...]
+ * (the layout scipy.sparse.csr_matrix reads). The arrays are malloc'd and
+ * owned by the struct: free them with npg_csr_free. */
+typedef struct NpgCsr {
+  long rows, cols, nnz;
+  long *indptr;    /* rows + 1 */
+  long *indices;   /* nnz */
+  double *data;    /* nnz */
+} NpgCsr;
+NPG_API void npg_csr_free(NpgCsr *c);
+
+/* The `output op` named `name` at the values of the last evaluation, as CSR
+ * (rows: the product of its row dims, columns of its column dims; every
+ * structurally non-zero entry, exact zeros included). 0, or -1 with
+ * npg_full_error() (unknown name, not an output op, no evaluation yet). */
+NPG_API int npg_full_op(NpgFull *f, const char *name, NpgCsr *out);
+
+/* ---------------------------------------------------------------- samples on disk
+ *
+ * A data directory holds DIR/<name>.npy for every param (no sample axis)
+ * and every input and extern (a leading sample axis), float64 (ints for int
+ * params). NpgSamples reads the inputs and externs once, checks them (type,
+ * one sample count across files) and hands out one sample at a time. */
+typedef struct NpgSamples NpgSamples;
+/* Open DIR's inputs and, when `externs`, its externs (else FALLBACK/<name>.npy
+ * when FALLBACK is non-NULL). NULL with a message naming the file in `err`. */
+NPG_API NpgSamples *npg_samples_open(NpgProgram *p, const char *dir, const char *fallback, bool externs, char *err,
+                                     size_t errlen);
+NPG_API long npg_samples_count(const NpgSamples *s);
+/* Sample k of `name` (count entries), NULL when the set does not hold it. */
+NPG_API const double *npg_samples_get(const NpgSamples *s, const char *name, long k, size_t *count);
+/* Set every input and extern of sample k in `f` (an NpgSampleFn). */
+NPG_API int npg_samples_set(void *samples, NpgFull *f, long k);
+NPG_API void npg_samples_free(NpgSamples *s);
+
+/* Write a float64 array as a .npy file (to a temporary name, renamed when
+ * complete). 0, or -1 with a message naming the file in `err`. */
+NPG_API int npg_npy_write(const char *path, int ndim, const long *shape, const double *data, char *err, size_t errlen);
+/* The same for int64 arrays (CSR index arrays). */
+NPG_API int npg_npy_write_i64(const char *path, int ndim, const long *shape, const long *data, char *err,
+                              size_t errlen);
+
+/* ---------------------------------------------------------------- training
+ *
+ *     NpgTrainOptions o;
+ *     npg_train_options_default(&o);
+ *     NpgTrainer *t = npg_trainer_new(f, &o);   // f: params bound (externs may be callbacks)
+ *     for (each sample of the simulation) {
+ *       npg_full_set(f, "g", ...); npg_full_eval(f, k);   // the simulation's own step
+ *       npg_trainer_add_full(t, f);              // or npg_trainer_set(...) + npg_trainer_add(t)
+ *     }
+ *     NpgModel *m = npg_trainer_finish(t, "MODEL");  // trains, writes MODEL/ as `npgc train` does
+ *     npg_trainer_free(t);
+ *
+ * The trainer keeps every sample's inputs and extern values (not its
+ * stages): in memory up to `mem` bytes, beyond that in an unnamed scratch
+ * file that disappears with the trainer. Finishing replays them through the
+ * full evaluator exactly as `npgc train` does (the same code), so the same
+ * samples give the same model. Extern values are taken once per sample (a
+ * callback is not called again when the samples are replayed). */
+typedef struct NpgTrainOptions {
+  int cap;                  /* basis cap per member (60) */
+  double energy;            /* PCA energy fraction per member (0.999) */
+  bool joint;               /* merge a class's members by one joint PCA (default: concatenate) */
+  size_t mem;               /* memory for snapshots and cached samples, bytes (half the RAM) */
+  bool progress;            /* progress bars on stderr */
+  int nbasis;               /* per-quantity overrides: name, cap (-1: default), energy (-1: default) */
+  const char *const *basis_name;
+  const int *basis_cap;
+  const double *basis_energy;
+} NpgTrainOptions;
+NPG_API void npg_train_options_default(NpgTrainOptions *o);
+
+typedef struct NpgTrainer NpgTrainer;
+typedef struct NpgModel NpgModel;
+/* A trainer that replays its samples through `f` (params bound; it must
+ * outlive the trainer). Never NULL but out of memory; errors through
+ * npg_trainer_error(), after which it refuses further work. */
+NPG_API NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o);
+NPG_API const char *npg_trainer_error(const NpgTrainer *t);
+/* Stage the values of an input or extern of the next sample (C order). */
+NPG_API int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape, const double *values);
+/* Add the staged sample: every input must be staged; an extern not staged
+ * is computed by evaluating the full program (its callback). */
+NPG_API int npg_trainer_add(NpgTrainer *t);
+/* Add the inputs and externs now held by `g` (an evaluator of the same
+ * program, after npg_full_eval). */
+NPG_API int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g);
+NPG_API long npg_trainer_samples(const NpgTrainer *t);
+/* Train on the samples added: snapshots, one basis per class, every tensor
+ * pre-multiplied, externs fitted. When `model_dir` is non-NULL the model is
+ * also written there (a temporary folder renamed when complete). NULL with
+ * npg_trainer_error() on failure. The model belongs to the caller. */
+NPG_API NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir);
+NPG_API void npg_trainer_free(NpgTrainer *t);
+
+/* ---------------------------------------------------------------- models
+ *
+ * A model is read-only once made: any number of NpgReduced evaluators, on
+ * any threads, may share one. It keeps pointers into its NpgProgram: free
+ * it before npg_free(). */
+NPG_API NpgModel *npg_model_load(NpgProgram *p, const char *dir);
+/* "" when the model is usable, else why not (loading names the file). */
+NPG_API const char *npg_model_error(const NpgModel *m);
+NPG_API int npg_model_save(NpgModel *m, const char *dir);
+NPG_API void npg_model_free(NpgModel *m);
+
+typedef struct NpgClassInfo {
+  const char *label;        /* "{b,e}" */
+  long n;                   /* full dimension: entries of each member */
+  long m;                   /* basis size */
+  int nmembers;
+} NpgClassInfo;
+typedef struct NpgMemberInfo {
+  const char *name;         /* a quantity, or "h.num1": the numerator of term 1 of h */
+  int kept, cap;            /* PCA vectors kept, and the cap */
+  double captured;          /* energy fraction captured */
+} NpgMemberInfo;
+NPG_API int npg_model_nclasses(const NpgModel *m);
+NPG_API int npg_model_class(const NpgModel *m, int c, NpgClassInfo *out);
+NPG_API int npg_model_member(const NpgModel *m, int c, int i, NpgMemberInfo *out);
+/* The class of a quantity (input, extern or stage), -1 if it has none. */
+NPG_API int npg_model_class_of(const NpgModel *m, const char *quantity);
+/* The orthonormal basis of class c, n x m row-major (owned by the model). */
+NPG_API const double *npg_model_basis(const NpgModel *m, int c);
+/* Bytes of the whole model; *tensor_bytes (optional) those of the reduced tensors. */
+NPG_API size_t npg_model_bytes(const NpgModel *m, size_t *tensor_bytes);
+NPG_API long npg_model_samples(const NpgModel *m);
+/* The size dim `name` had in training, -1 if unknown. */
+NPG_API long npg_model_dim(const NpgModel *m, const char *name);
+/* 0 when the params bound in `f` equal those the model was trained with
+ * (hashes of their values), else -1 with a message in `err` naming the param. */
+NPG_API int npg_model_check_params(const NpgModel *m, const NpgFull *f, char *err, size_t errlen);
+/* The reduced evaluator of the model as C specialized to its sizes
+ * (`npgc emit --reduced`). 0, or -1 with a message in `err`. */
+NPG_API int npg_model_emit(const NpgModel *m, FILE *out, char *err, size_t errlen);
+
+/* ---------------------------------------------------------------- reduced evaluation
+ *
+ *     NpgReduced *r = npg_reduced_new(m);
+ *     npg_reduced_set(r, "g", n, g);            // full values, projected: ĝ = Bᵀg
+ *     if (npg_reduced_eval(r, k)) fputs(npg_reduced_error(r), stderr);
+ *     npg_reduced_lift(r, "b", b, n);           // b = B b̂ into the caller's buffer
+ *
+ * One evaluator per thread; it owns its coordinates and scratch memory and
+ * only reads the model. Functions return 0, or -1 with npg_reduced_error()
+ * (naming the quantity, stage and sample); after an error the evaluator
+ * refuses further work until npg_reduced_clear_error(). */
+typedef struct NpgReduced NpgReduced;
+NPG_API NpgReduced *npg_reduced_new(const NpgModel *m);
+NPG_API const char *npg_reduced_error(const NpgReduced *r);
+NPG_API void npg_reduced_clear_error(NpgReduced *r);
+/* An input (or an extern, see npg_reduced_given_externs) from its `count`
+ * full-space values. */
+NPG_API int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double *values);
+/* The same from its `m` reduced coordinates. */
+NPG_API int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, const double *coords);
+/* With `on`, externs keep the values set by the caller instead of their
+ * learned map. */
+NPG_API void npg_reduced_given_externs(NpgReduced *r, bool on);
+NPG_API int npg_reduced_eval(NpgReduced *r, long sample);
+/* Reduced coordinates of any quantity (m of them), NULL if unknown. */
+NPG_API const double *npg_reduced_coords(const NpgReduced *r, const char *name, size_t *m);
+/* Lift a quantity to full space: out (count entries, the full size) = B x̂. */
+NPG_API int npg_reduced_lift(NpgReduced *r, const char *name, double *out, size_t count);
+/* The `output op` `name` reduced at the last evaluation: out (rows x cols,
+ * row-major, at most `cap` entries) = B_rowᵀ M B_col, with the bases of the
+ * classes *row_class and *col_class (npg_model_class). */
+NPG_API int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t cap, long *rows, long *cols,
+                           int *row_class, int *col_class);
+NPG_API void npg_reduced_free(NpgReduced *r);
+
+/* ---------------------------------------------------------------- verification
+ *
+ * The auto-check (`npgc verify`): on held-out samples, the full evaluator
+ * against the reduced one lifted to full space, per quantity. */
+typedef int (*NpgSampleFn)(void *user, NpgFull *f, long k);
+typedef struct NpgVerifyRow {
+  const char *name;
+  const char *kind;         /* "input", "extern", or the stage kind */
+  long m;                   /* basis size */
+  bool output;
+  double l2, floor, own;    /* means over samples: ‖y − Bŷ‖/‖y‖, ‖y − BBᵀy‖/‖y‖, their difference */
+  double l2_max;            /* the worst sample's L2 error */
+  long l2_max_sample;
+  double linf, linf_floor;  /* the same in the max norm */
+} NpgVerifyRow;
+typedef struct NpgVerifyReport {
+  long samples;
+  int nrows;
+  NpgVerifyRow *rows;       /* every quantity, program order */
+  const char *grows_at;     /* the stage where error grows most (NULL: none) */
+  double growth;            /* by how much over the worst quantity it reads */
+  char error[1024];         /* why the verification failed, when it returns -1 */
+} NpgVerifyReport;
+/* Run `samples` samples: set(user, f, k) sets sample k's inputs and externs
+ * in `f` (params bound, equal to the model's: checked). 0, or -1 with
+ * report->error. Free with npg_verify_free. */
+NPG_API int npg_verify(const NpgModel *m, NpgFull *f, long samples, NpgSampleFn set, void *user, bool progress,
+                       NpgVerifyReport *report);
+NPG_API void npg_verify_free(NpgVerifyReport *report);
+/* The design's two exactness checks on random data (`npgc verify --exact`),
+ * every dim of size `size` (0: defaults), report to `out`. 0 pass, 1 a
+ * check failed, -1 a check could not run (message in `err`). */
+NPG_API int npg_verify_exact(NpgProgram *p, long size, NpgBackend backend, bool progress, FILE *out, char *err,
+                             size_t errlen);
 
 #ifdef __cplusplus
 }

@@ -1,0 +1,25 @@
+/* api.h — what the public API's files share inside the facade layer: the
+ * structs behind NpgModel, and the param hashes a model records. */
+#ifndef NPG_API_INTERNAL_H
+#define NPG_API_INTERNAL_H
+
+#include "full.h"
+#include "npg.h"
+#include "reduce.h"
+
+struct NpgModel {
+  Model *m;                 /* NULL when loading failed */
+  char error[2048];
+};
+
+/* A model object owning `m` (NULL: out of memory, `m` freed). */
+NpgModel *api_model_wrap(Model *m);
+/* "name=<hex> …": the hashes of the values of every param bound in `f`
+ * (malloc'd; NULL when out of memory). */
+char *api_param_hashes(const NpgFull *f);
+/* The index of quantity `name` in Program.quantities, -1 if none. */
+int api_quantity(const Program *prog, const char *name);
+/* Shape of quantity `s` as bound in `f`: dims then static axes; ndim. */
+int api_shape(const NpgFull *f, const Sym *s, long *shape);
+
+#endif

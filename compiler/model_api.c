@@ -1,0 +1,337 @@
+/* model_api.c — trained models and reduced evaluation through npg.h
+ * (NpgModel, NpgReduced): loading and saving, what a model holds, inputs
+ * set in full or reduced form, evaluation, lifting, and `output op`
+ * operators in reduced form. */
+#include <cblas.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "api.h"
+#include "compile.h"
+#include "emit.h"
+
+/* ---------------------------------------------------------------- helpers shared by the facade */
+
+int api_quantity(const Program *prog, const char *name) {
+  for (int i = 0; i < prog->quantities.n; i++)
+    if (strcmp(((Sym *)prog->quantities.v[i])->name, name) == 0) return i;
+  return -1;
+}
+
+int api_shape(const NpgFull *f, const Sym *s, long *shape) {
+  int nd = 0;
+  for (int i = 0; i < s->ndims; i++) shape[nd++] = npg_full_dim(f, s->dims[i]->name);
+  for (int i = 0; i < s->nstatic; i++) shape[nd++] = s->shape[i];
+  return nd;
+}
+
+char *api_param_hashes(const NpgFull *f) {
+  const Program *prog = full_program(f);
+  size_t cap = 1, len = 0;
+  for (int i = 0; i < prog->params.n; i++) cap += strlen(((Sym *)prog->params.v[i])->name) + 19;
+  char *out = malloc(cap);
+  if (!out) return NULL;
+  out[0] = 0;
+  for (int i = 0; i < prog->params.n; i++)
+    len += (size_t)snprintf(out + len, cap - len, "%s%s=%016llx", i ? " " : "", ((Sym *)prog->params.v[i])->name,
+                            (unsigned long long)full_param_hash(f, i, NULL));
+  return out;
+}
+
+/* ---------------------------------------------------------------- models */
+
+NpgModel *api_model_wrap(Model *m) {
+  NpgModel *nm = calloc(1, sizeof *nm);
+  if (!nm) {
+    model_free(m);
+    return NULL;
+  }
+  nm->m = m;
+  return nm;
+}
+
+NpgModel *npg_model_load(NpgProgram *p, const char *dir) {
+  NpgModel *nm = calloc(1, sizeof *nm);
+  if (!nm) return NULL;
+  if (!npg_ok(p)) snprintf(nm->error, sizeof nm->error, "%s", npg_error(p));
+  else if (!(nm->m = model_load(npg_program_ir(p), dir, nm->error, sizeof nm->error)) && !nm->error[0])
+    snprintf(nm->error, sizeof nm->error, "%s: cannot load the model", dir);
+  return nm;
+}
+
+const char *npg_model_error(const NpgModel *m) { return m ? m->error : "out of memory"; }
+
+int npg_model_save(NpgModel *nm, const char *dir) {
+  if (!nm->m) return -1;
+  return model_save(nm->m, dir, nm->error, sizeof nm->error) == 0 ? 0 : -1;
+}
+
+void npg_model_free(NpgModel *nm) {
+  if (!nm) return;
+  model_free(nm->m);
+  free(nm);
+}
+
+int npg_model_nclasses(const NpgModel *nm) { return nm->m ? nm->m->nclasses : 0; }
+
+int npg_model_class(const NpgModel *nm, int c, NpgClassInfo *out) {
+  if (!nm->m || c < 0 || c >= nm->m->nclasses) return -1;
+  const RClass *rc = &nm->m->classes[c];
+  *out = (NpgClassInfo){rc->label, rc->n, rc->m, rc->nmembers};
+  return 0;
+}
+
+int npg_model_member(const NpgModel *nm, int c, int i, NpgMemberInfo *out) {
+  if (!nm->m || c < 0 || c >= nm->m->nclasses || i < 0 || i >= nm->m->classes[c].nmembers) return -1;
+  const RMember *mb = &nm->m->classes[c].members[i];
+  *out = (NpgMemberInfo){mb->name, mb->kept, mb->cap, mb->captured};
+  return 0;
+}
+
+int npg_model_class_of(const NpgModel *nm, const char *quantity) {
+  if (!nm->m) return -1;
+  int q = api_quantity(nm->m->prog, quantity);
+  return q < 0 ? -1 : nm->m->qclass[q];
+}
+
+const double *npg_model_basis(const NpgModel *nm, int c) {
+  return nm->m && c >= 0 && c < nm->m->nclasses ? nm->m->classes[c].B : NULL;
+}
+
+size_t npg_model_bytes(const NpgModel *nm, size_t *tensor_bytes) {
+  size_t tb = 0, total = nm->m ? model_bytes(nm->m, &tb) : 0;
+  if (tensor_bytes) *tensor_bytes = tb;
+  return total;
+}
+
+long npg_model_samples(const NpgModel *nm) { return nm->m ? nm->m->samples : 0; }
+
+long npg_model_dim(const NpgModel *nm, const char *name) {
+  if (!nm->m) return -1;
+  const Program *prog = nm->m->prog;
+  for (int i = 0; i < prog->dims.n; i++)
+    if (strcmp(((Sym *)prog->dims.v[i])->name, name) == 0) return nm->m->dims[i];
+  return -1;
+}
+
+int npg_model_check_params(const NpgModel *nm, const NpgFull *f, char *err, size_t errlen) {
+  const char *recorded = nm->m ? nm->m->param_hashes : NULL;
+  if (!recorded) return 0;
+  const Program *prog = full_program(f);
+  for (int i = 0; i < prog->params.n; i++) {
+    const Sym *p = prog->params.v[i];
+    char key[512];
+    snprintf(key, sizeof key, "%s=", p->name);
+    const char *at = recorded;
+    while ((at = strstr(at, key)) && at != recorded && at[-1] != ' ') at++;
+    const char *from;
+    uint64_t h = full_param_hash(f, i, &from);
+    if (!at || strtoull(at + strlen(key), NULL, 16) != h) {
+      snprintf(err, errlen, "%s: param '%s' differs from the one the model was trained with: retrain, or give the "
+                            "training data's params", from, p->name);
+      return -1;
+    }
+  }
+  return 0;
+}
+
+int npg_model_emit(const NpgModel *nm, FILE *out, char *err, size_t errlen) {
+  if (!nm->m) {
+    snprintf(err, errlen, "%s", nm->error);
+    return -1;
+  }
+  return emit_reduced(nm->m, out, err, errlen);
+}
+
+/* ---------------------------------------------------------------- reduced evaluation */
+
+struct NpgReduced {
+  const NpgModel *nm;
+  Reduced *r;
+  bool given_externs;
+  double *z;                /* npg_reduced_op: one tensor's input product (2 zcap) */
+  long zcap;
+  char error[1024];
+};
+
+static int rfail(NpgReduced *r, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static int rfail(NpgReduced *r, const char *fmt, ...) {
+  if (r->error[0]) return -1;
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(r->error, sizeof r->error, fmt, ap);
+  va_end(ap);
+  return -1;
+}
+
+NpgReduced *npg_reduced_new(const NpgModel *nm) {
+  NpgReduced *r = calloc(1, sizeof *r);
+  if (!r) return NULL;
+  r->nm = nm;
+  if (!nm || !nm->m) rfail(r, "%s", nm ? nm->error : "no model");
+  else if (!(r->r = reduced_new(nm->m, r->error, sizeof r->error)) && !r->error[0]) rfail(r, "out of memory");
+  return r;
+}
+
+const char *npg_reduced_error(const NpgReduced *r) {
+  if (!r) return "out of memory";
+  if (r->error[0] || !r->r) return r->error;
+  return reduced_error(r->r);
+}
+
+/* The evaluator's own error (an unknown name) or the one a stage recorded. */
+static bool failed(const NpgReduced *r) { return npg_reduced_error(r)[0] != 0; }
+
+void npg_reduced_clear_error(NpgReduced *r) {
+  r->error[0] = 0;
+  if (!r->r || !reduced_error(r->r)[0]) return;
+  /* a fresh evaluator with the same coordinates */
+  Model *m = r->nm->m;
+  Reduced *n = reduced_new(m, r->error, sizeof r->error);
+  if (!n) return;
+  for (int q = 0; q < m->nq; q++)
+    memcpy(reduced_coords(n, q), reduced_coords(r->r, q), sizeof(double) * (size_t)m->classes[m->qclass[q]].m);
+  reduced_use_given_externs(n, r->given_externs);
+  reduced_free(r->r);
+  r->r = n;
+}
+
+/* Quantity `name` that the caller may set: an input, or an extern when
+ * externs are given. -1 after recording why not. */
+static int settable(NpgReduced *r, const char *name) {
+  const Model *m = r->nm->m;
+  int q = api_quantity(m->prog, name);
+  if (q < 0) return rfail(r, "the program has no quantity '%s'", name);
+  const Sym *s = m->prog->quantities.v[q];
+  if (s->kind == SYM_INPUT || (s->kind == SYM_EXTERN && r->given_externs)) return q;
+  return rfail(r, "'%s' is %s: only inputs%s are set", name, s->kind == SYM_EXTERN ? "an extern" : "a stage",
+               s->kind == SYM_EXTERN ? " (and externs after npg_reduced_given_externs)" : " and externs");
+}
+
+int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double *values) {
+  if (failed(r)) return -1;
+  int q = settable(r, name);
+  if (q < 0) return -1;
+  const RClass *c = &r->nm->m->classes[r->nm->m->qclass[q]];
+  if ((long)count != c->n)
+    return rfail(r, "'%s' has %ld entries in the model, %zu were given", name, c->n, count);
+  for (size_t i = 0; i < count; i++)
+    if (!isfinite(values[i]))
+      return rfail(r, "'%s' holds %s at flat entry %zu", name, isnan(values[i]) ? "NaN" : "an infinity", i);
+  reduced_project(r->r, q, values);
+  return 0;
+}
+
+int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, const double *coords) {
+  if (failed(r)) return -1;
+  int q = settable(r, name);
+  if (q < 0) return -1;
+  const RClass *c = &r->nm->m->classes[r->nm->m->qclass[q]];
+  if ((long)m != c->m) return rfail(r, "'%s' has %ld reduced coordinates (class %s), %zu were given", name, c->m,
+                                    c->label, m);
+  memcpy(reduced_coords(r->r, q), coords, sizeof(double) * m);
+  return 0;
+}
+
+void npg_reduced_given_externs(NpgReduced *r, bool on) {
+  r->given_externs = on;
+  if (r->r) reduced_use_given_externs(r->r, on);
+}
+
+int npg_reduced_eval(NpgReduced *r, long sample) {
+  if (failed(r)) return -1;
+  return reduced_eval(r->r, sample);
+}
+
+const double *npg_reduced_coords(const NpgReduced *r, const char *name, size_t *m) {
+  if (!r->r) return NULL;
+  const Model *mo = r->nm->m;
+  int q = api_quantity(mo->prog, name);
+  if (q < 0) return NULL;
+  if (m) *m = (size_t)mo->classes[mo->qclass[q]].m;
+  return reduced_coords(r->r, q);
+}
+
+int npg_reduced_lift(NpgReduced *r, const char *name, double *out, size_t count) {
+  if (failed(r)) return -1;
+  const Model *m = r->nm->m;
+  int q = api_quantity(m->prog, name);
+  if (q < 0) return rfail(r, "the program has no quantity '%s'", name);
+  const RClass *c = &m->classes[m->qclass[q]];
+  if ((long)count != c->n) return rfail(r, "'%s' has %ld entries, a buffer of %zu was given", name, c->n, count);
+  reduced_lift(r->r, q, out);
+  return 0;
+}
+
+/* z = z_1 ⊗ … ⊗ z_n over the tensor's input axes (packed powers for
+ * repeated inputs): the column vector its rows are contracted with. */
+static int input_product(NpgReduced *r, const RTensor *t) {
+  long len = 1;
+  for (int j = 0; j < t->nin; j++) len *= t->in_len[j];
+  if (len > r->zcap) {
+    double *z = realloc(r->z, sizeof(double) * (size_t)(2 * len));
+    if (!z) return rfail(r, "out of memory");
+    r->z = z;
+    r->zcap = len;
+  }
+  double *z = r->z, *next = r->z + len;
+  z[0] = 1;
+  long have = 1;
+  const Model *m = r->nm->m;
+  for (int j = 0; j < t->nin; j++) {
+    long mj = m->classes[m->qclass[t->in_q[j]]].m;
+    const double *x = reduced_coords(r->r, t->in_q[j]);
+    double *packed = NULL;
+    if (t->in_mult[j] > 1) {
+      if (!(packed = malloc(sizeof(double) * (size_t)t->in_len[j]))) return rfail(r, "out of memory");
+      sym_power(mj, t->in_mult[j], x, packed);
+      x = packed;
+    }
+    for (long a = 0; a < have; a++)
+      for (long b = 0; b < t->in_len[j]; b++) next[a * t->in_len[j] + b] = z[a] * x[b];
+    have *= t->in_len[j];
+    memcpy(z, next, sizeof(double) * (size_t)have);
+    free(packed);
+  }
+  return 0;
+}
+
+int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t cap, long *rows, long *cols, int *row_class,
+                   int *col_class) {
+  if (failed(r)) return -1;
+  const Model *m = r->nm->m;
+  const RStage *rs = NULL;
+  const ROp *ro = NULL;
+  for (int i = 0; i < m->nstages && !ro; i++)
+    for (int t = 0; t < m->stages[i].nterms && !ro; t++)
+      for (int k = 0; k < m->stages[i].terms[t].nops && !ro; k++) {
+        const ROp *x = &m->stages[i].terms[t].ops[k];
+        if (x->op->kind == OPK_DECL && strcmp(x->op->op->name, name) == 0) rs = &m->stages[i], ro = x;
+      }
+  if (!ro) return rfail(r, "'%s' is not an operator applied in the program (an `output op` that no stage applies has "
+                           "no reduced form in the model)", name);
+  if (!ro->op->op->is_output) return rfail(r, "'%s' is not an output op", name);
+  int c = m->qclass[rs->q];
+  long my = m->classes[c].m;
+  if ((size_t)(my * my) > cap) return rfail(r, "operator %s is %ld x %ld, the buffer holds %zu", name, my, my, cap);
+  memset(out, 0, sizeof(double) * (size_t)(my * my));
+  for (int g = 0; g < ro->ntensors; g++) {
+    const RTensor *t = &ro->t[g];
+    if (input_product(r, t) != 0) return -1;
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)t->rows, (int)t->cols, 1.0, t->data, (int)t->cols, r->z, 1, 1.0,
+                out, 1);
+  }
+  *rows = *cols = my;
+  if (row_class) *row_class = c;
+  if (col_class) *col_class = c;
+  return 0;
+}
+
+void npg_reduced_free(NpgReduced *r) {
+  if (!r) return;
+  reduced_free(r->r);
+  free(r->z);
+  free(r);
+}

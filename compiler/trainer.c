@@ -1,0 +1,236 @@
+/* trainer.c — training from C, one sample at a time (npg.h NpgTrainer).
+ *
+ * A running simulation hands over each sample's inputs and extern values;
+ * the trainer keeps them (in memory up to a quarter of `mem`, the rest in
+ * an unnamed scratch file that disappears with the trainer) and, when
+ * finished, replays them through the full evaluator into train_model — the
+ * code `npgc train` runs, so the same samples give the same model. Stage
+ * values are never kept: training recomputes them (method of snapshots). */
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "api.h"
+#include "compile.h"
+
+struct NpgTrainer {
+  NpgFull *f;
+  const Program *prog;
+  NpgTrainOptions opt;
+  int nslots;
+  const Sym **slot;         /* inputs and externs, program order */
+  size_t *count;            /* entries of each, fixed by the first sample */
+  bool *staged;             /* npg_trainer_set since the last add */
+  size_t record;            /* doubles per sample: Σ count */
+  double *mem;              /* the first samples, record doubles each */
+  long in_mem, mem_cap;     /* samples held in `mem`, and room for */
+  FILE *scratch;            /* the others, in order */
+  long samples;
+  double *buf;              /* one record */
+  char error[2048];
+};
+
+static int tfail(NpgTrainer *t, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static int tfail(NpgTrainer *t, const char *fmt, ...) {
+  if (t->error[0]) return -1;
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(t->error, sizeof t->error, fmt, ap);
+  va_end(ap);
+  return -1;
+}
+
+static size_t half_the_ram(void) {
+  long pages = sysconf(_SC_PHYS_PAGES), psize = sysconf(_SC_PAGE_SIZE);
+  return pages > 0 && psize > 0 ? (size_t)pages * (size_t)psize / 2 : (size_t)8 << 30;
+}
+
+void npg_train_options_default(NpgTrainOptions *o) {
+  memset(o, 0, sizeof *o);
+  o->cap = 60;
+  o->energy = 0.999;
+  o->mem = half_the_ram();
+}
+
+NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
+  NpgTrainer *t = calloc(1, sizeof *t);
+  if (!t) return NULL;
+  if (o) t->opt = *o;
+  else npg_train_options_default(&t->opt);
+  if (t->opt.cap <= 0) t->opt.cap = 60;
+  if (!(t->opt.energy > 0 && t->opt.energy <= 1)) t->opt.energy = 0.999;
+  if (!t->opt.mem) t->opt.mem = half_the_ram();
+  t->f = f;
+  if (!f || npg_full_error(f)[0]) {
+    tfail(t, "%s", f ? npg_full_error(f) : "no full evaluator");
+    return t;
+  }
+  const Program *prog = t->prog = full_program(f);
+  t->slot = calloc((size_t)prog->slots.n + 1, sizeof *t->slot);
+  t->count = calloc((size_t)prog->slots.n + 1, sizeof *t->count);
+  t->staged = calloc((size_t)prog->slots.n + 1, sizeof *t->staged);
+  if (!t->slot || !t->count || !t->staged) {
+    tfail(t, "out of memory");
+    return t;
+  }
+  for (int i = 0; i < prog->slots.n; i++) {
+    const Sym *s = prog->slots.v[i];
+    if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) t->slot[t->nslots++] = s;
+  }
+  return t;
+}
+
+const char *npg_trainer_error(const NpgTrainer *t) { return t ? t->error : "out of memory"; }
+long npg_trainer_samples(const NpgTrainer *t) { return t->samples; }
+
+static int slot_of(const NpgTrainer *t, const char *name) {
+  for (int i = 0; i < t->nslots; i++)
+    if (strcmp(t->slot[i]->name, name) == 0) return i;
+  return -1;
+}
+
+int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape, const double *values) {
+  if (t->error[0]) return -1;
+  int i = slot_of(t, name);
+  if (i < 0) return tfail(t, "the program has no input or extern '%s'", name);
+  char from[256];
+  snprintf(from, sizeof from, "training sample %ld", t->samples);
+  if (npg_full_set(t->f, name, ndim, shape, values, from) != 0) return tfail(t, "%s", npg_full_error(t->f));
+  t->staged[i] = true;
+  return 0;
+}
+
+/* Append the values now in `g` as one sample. */
+static int record(NpgTrainer *t, const NpgFull *g) {
+  if (t->samples == 0) { /* the first sample fixes every size */
+    for (int i = 0; i < t->nslots; i++) {
+      if (!npg_full_get(g, t->slot[i]->name, &t->count[i]))
+        return tfail(t, "training sample 0: %s '%s' has no value", t->slot[i]->kind == SYM_INPUT ? "input" : "extern",
+                     t->slot[i]->name);
+      t->record += t->count[i];
+    }
+    t->mem_cap = (long)(t->opt.mem / 4 / (sizeof(double) * (t->record ? t->record : 1)));
+    if (!(t->buf = malloc(sizeof(double) * (t->record + 1)))) return tfail(t, "out of memory");
+  }
+  size_t off = 0;
+  for (int i = 0; i < t->nslots; i++) {
+    size_t n = 0;
+    const double *v = npg_full_get(g, t->slot[i]->name, &n);
+    if (!v || n != t->count[i])
+      return tfail(t, "training sample %ld: '%s' has %zu entries, sample 0 had %zu", t->samples, t->slot[i]->name,
+                   v ? n : 0, t->count[i]);
+    memcpy(t->buf + off, v, sizeof(double) * n);
+    off += n;
+  }
+  if (t->in_mem < t->mem_cap && t->in_mem == t->samples) {
+    if (t->in_mem % 64 == 0) {
+      double *m = realloc(t->mem, sizeof(double) * t->record * (size_t)(t->in_mem + 64));
+      if (!m) return tfail(t, "out of memory keeping training sample %ld", t->samples);
+      t->mem = m;
+    }
+    memcpy(t->mem + (size_t)t->in_mem * t->record, t->buf, sizeof(double) * t->record);
+    t->in_mem++;
+  } else {
+    if (!t->scratch && !(t->scratch = tmpfile()))
+      return tfail(t, "cannot create a scratch file for the training samples beyond --mem");
+    if (fwrite(t->buf, sizeof(double), t->record, t->scratch) != t->record)
+      return tfail(t, "cannot write training sample %ld to the scratch file (disk full?)", t->samples);
+  }
+  t->samples++;
+  memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
+  return 0;
+}
+
+int npg_trainer_add(NpgTrainer *t) {
+  if (t->error[0]) return -1;
+  bool need_eval = false;
+  for (int i = 0; i < t->nslots; i++) {
+    if (t->staged[i]) continue;
+    if (t->slot[i]->kind == SYM_INPUT)
+      return tfail(t, "training sample %ld: input '%s' is not set", t->samples, t->slot[i]->name);
+    need_eval = true;
+  }
+  /* externs not given: their callbacks fill them */
+  if (need_eval && npg_full_eval(t->f, t->samples) != 0) return tfail(t, "%s", npg_full_error(t->f));
+  return record(t, t->f);
+}
+
+int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {
+  if (t->error[0]) return -1;
+  if (npg_full_error(g)[0]) return tfail(t, "%s", npg_full_error(g));
+  return record(t, g);
+}
+
+/* SampleSource: sample k back into the evaluator. */
+static int replay(void *user, NpgFull *f, long k) {
+  NpgTrainer *t = user;
+  const double *v = t->mem + (size_t)k * t->record;
+  if (k >= t->in_mem) {
+    if (fseeko(t->scratch, (off_t)(k - t->in_mem) * (off_t)(t->record * sizeof(double)), SEEK_SET) != 0 ||
+        fread(t->buf, sizeof(double), t->record, t->scratch) != t->record)
+      return full_fail(f, "cannot read a training sample back from the scratch file");
+    v = t->buf;
+  }
+  char from[64];
+  snprintf(from, sizeof from, "training sample %ld", k);
+  for (int i = 0; i < t->nslots; i++) {
+    long shape[MAX_AXES + MAX_STATIC];
+    int nd = api_shape(f, t->slot[i], shape);
+    if (npg_full_set(f, t->slot[i]->name, nd, shape, v, from) != 0) return -1;
+    v += t->count[i];
+  }
+  return 0;
+}
+
+NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
+  if (t->error[0]) return NULL;
+  if (t->samples == 0) {
+    tfail(t, "no training samples were added");
+    return NULL;
+  }
+  TrainOptions o;
+  memset(&o, 0, sizeof o);
+  o.cap = t->opt.cap;
+  o.energy = t->opt.energy;
+  o.joint = t->opt.joint;
+  o.mem = t->opt.mem;
+  o.progress = t->opt.progress;
+  o.noverride = t->opt.nbasis;
+  o.override_name = (const char **)t->opt.basis_name;
+  o.override_cap = (int *)t->opt.basis_cap;
+  o.override_energy = (double *)t->opt.basis_energy;
+  SampleSource src = {t->samples, t, replay};
+  char err[2048] = "";
+  Model *m = train_model((Program *)t->prog, t->f, &src, &o, err, sizeof err);
+  if (!m) {
+    tfail(t, "%s", err);
+    return NULL;
+  }
+  if (!(m->param_hashes = api_param_hashes(t->f))) {
+    model_free(m);
+    tfail(t, "out of memory");
+    return NULL;
+  }
+  NpgModel *nm = api_model_wrap(m);
+  if (!nm) {
+    tfail(t, "out of memory");
+    return NULL;
+  }
+  if (model_dir && npg_model_save(nm, model_dir) != 0) {
+    tfail(t, "%s", npg_model_error(nm));
+    npg_model_free(nm);
+    return NULL;
+  }
+  return nm;
+}
+
+void npg_trainer_free(NpgTrainer *t) {
+  if (!t) return;
+  if (t->scratch) fclose(t->scratch);
+  free(t->slot);
+  free(t->count);
+  free(t->staged);
+  free(t->mem);
+  free(t->buf);
+  free(t);
+}

@@ -1,0 +1,173 @@
+/* verify.c — the auto-check through npg.h (`npgc verify`, DESIGN §7): on
+ * held-out samples, every quantity of the full evaluator against the
+ * reduced one lifted to full space; the projection floor ‖y − BBᵀy‖/‖y‖
+ * (the best any method can do in that basis: Arvo's discretization error),
+ * the reduction's own error, and the stage where error grows most. */
+#include <cblas.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "api.h"
+#include "compile.h"
+#include "exact.h"
+
+typedef struct ErrSum {
+  double l2, linf, floor2, floorinf;    /* sums over samples */
+} ErrSum;
+
+static int vfail(NpgVerifyReport *rep, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static int vfail(NpgVerifyReport *rep, const char *fmt, ...) {
+  if (rep->error[0]) return -1;
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(rep->error, sizeof rep->error, fmt, ap);
+  va_end(ap);
+  return -1;
+}
+
+/* The worst mean error among the quantities stage `rs` reads (tensor
+ * inputs, named numerators, an extern's inputs). */
+static double worst_input(const Model *m, const RStage *rs, const NpgVerifyRow *row) {
+  double w = 0;
+  for (int t = 0; t < rs->nterms; t++) {
+    const RTerm *rt = &rs->terms[t];
+    if (rt->named_q >= 0) w = fmax(w, row[rt->named_q].l2);
+    RTERM_FOR_TENSORS(rt, x)
+      for (int j = 0; j < x->nin; j++) w = fmax(w, row[x->in_q[j]].l2);
+  }
+  if (rs->st->kind == ST_EXTERN)
+    for (int i = 0; i < m->nexterns; i++)
+      if (m->externs[i].q == rs->q)
+        for (int j = 0; j < m->externs[i].nin; j++) w = fmax(w, row[m->externs[i].in_q[j]].l2);
+  return w;
+}
+
+/* Errors of quantity q at one sample: full value `full`, reduced `r`. */
+static void sample_errors(const RClass *rc, const double *full, Reduced *r, int q, double *y, double *proj,
+                          double out[4]) {
+  double ny = 0, nyinf = 0, e2 = 0, einf = 0, f2 = 0, finf = 0;
+  reduced_lift(r, q, y);
+  for (long e = 0; e < rc->n; e++) {
+    double d = full[e] - y[e];
+    ny += full[e] * full[e];
+    nyinf = fmax(nyinf, fabs(full[e]));
+    e2 += d * d;
+    einf = fmax(einf, fabs(d));
+  }
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, full, 1, 0.0, proj, 1);
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, proj, 1, 0.0, y, 1);
+  for (long e = 0; e < rc->n; e++) {
+    double d = full[e] - y[e];
+    f2 += d * d;
+    finf = fmax(finf, fabs(d));
+  }
+  out[0] = ny > 0 ? sqrt(e2 / ny) : sqrt(e2);
+  out[1] = nyinf > 0 ? einf / nyinf : einf;
+  out[2] = ny > 0 ? sqrt(f2 / ny) : sqrt(f2);
+  out[3] = nyinf > 0 ? finf / nyinf : finf;
+}
+
+static void fill_rows(const Model *m, const ErrSum *sum, long S, NpgVerifyReport *rep) {
+  const Program *prog = m->prog;
+  for (int q = 0; q < m->nq; q++) {
+    const Sym *s = prog->quantities.v[q];
+    NpgVerifyRow *row = &rep->rows[q];
+    row->name = s->name;
+    row->kind = s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage";
+    for (int i = 0; i < m->nstages; i++)
+      if (m->stages[i].q == q && m->stages[i].st->kind != ST_EXTERN) row->kind = stage_kind_name[m->stages[i].st->kind];
+    row->m = m->classes[m->qclass[q]].m;
+    row->output = s->is_output;
+    row->l2 = sum[q].l2 / (double)S;
+    row->floor = sum[q].floor2 / (double)S;
+    row->own = row->l2 - row->floor;
+    row->linf = sum[q].linf / (double)S;
+    row->linf_floor = sum[q].floorinf / (double)S;
+  }
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    double g = rep->rows[rs->q].l2 - worst_input(m, rs, rep->rows);
+    if (g > rep->growth) {
+      rep->growth = g;
+      rep->grows_at = rs->st->sym->name;
+    }
+  }
+}
+
+int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *user, bool progress,
+               NpgVerifyReport *rep) {
+  memset(rep, 0, sizeof *rep);
+  if (!nm->m) return vfail(rep, "%s", nm->error);
+  Model *m = nm->m;
+  if (npg_full_error(f)[0]) return vfail(rep, "%s", npg_full_error(f));
+  if (npg_model_check_params(nm, f, rep->error, sizeof rep->error) != 0) return -1;
+  if (S < 1) return vfail(rep, "no samples to verify on");
+  long maxn = 1, maxm = 1;
+  for (int k = 0; k < m->nclasses; k++) {
+    maxn = m->classes[k].n > maxn ? m->classes[k].n : maxn;
+    maxm = m->classes[k].m > maxm ? m->classes[k].m : maxm;
+  }
+  ErrSum *sum = calloc((size_t)m->nq + 1, sizeof *sum);
+  double *y = malloc(sizeof(double) * (size_t)maxn), *proj = malloc(sizeof(double) * (size_t)maxm);
+  rep->rows = calloc((size_t)m->nq + 1, sizeof *rep->rows);
+  char err[1024] = "";
+  Reduced *r = reduced_new(m, err, sizeof err);
+  int rc = 0;
+  if (!sum || !y || !proj || !rep->rows || !r) rc = vfail(rep, "%s", err[0] ? err : "out of memory");
+  rep->nrows = m->nq;
+  for (long k = 0; k < S && rc == 0; k++) {
+    if (set(user, f, k) != 0 || npg_full_eval(f, k) != 0) {
+      rc = vfail(rep, "%s", npg_full_error(f));
+      break;
+    }
+    for (int q = 0; q < m->nq; q++)
+      if (((Sym *)m->prog->quantities.v[q])->kind == SYM_INPUT)
+        reduced_project(r, q, npg_full_get(f, ((Sym *)m->prog->quantities.v[q])->name, NULL));
+    if (reduced_eval(r, k) != 0) {
+      rc = vfail(rep, "%s", reduced_error(r));
+      break;
+    }
+    for (int q = 0; q < m->nq; q++) {
+      const RClass *rc_ = &m->classes[m->qclass[q]];
+      size_t n = 0;
+      const double *full = npg_full_get(f, ((Sym *)m->prog->quantities.v[q])->name, &n);
+      if (!full || (long)n != rc_->n) {
+        rc = vfail(rep, "sample %ld: '%s' has %zu entries, the model was trained with %ld",
+                   k, ((Sym *)m->prog->quantities.v[q])->name, n, rc_->n);
+        break;
+      }
+      double e[4];
+      sample_errors(rc_, full, r, q, y, proj, e);
+      sum[q].l2 += e[0];
+      sum[q].linf += e[1];
+      sum[q].floor2 += e[2];
+      sum[q].floorinf += e[3];
+      if (e[0] > rep->rows[q].l2_max || k == 0) rep->rows[q].l2_max = e[0], rep->rows[q].l2_max_sample = k;
+    }
+    progress_show(progress, "verification", k + 1, S);
+  }
+  if (rc == 0) {
+    rep->samples = S;
+    fill_rows(m, sum, S, rep);
+  }
+  free(sum);
+  free(y);
+  free(proj);
+  reduced_free(r);
+  return rc;
+}
+
+void npg_verify_free(NpgVerifyReport *rep) {
+  if (!rep) return;
+  free(rep->rows);
+  rep->rows = NULL;
+  rep->nrows = 0;
+}
+
+int npg_verify_exact(NpgProgram *p, long size, NpgBackend backend, bool progress, FILE *out, char *err,
+                     size_t errlen) {
+  ExactOptions o = {size, size, 1u, backend, progress};
+  return exact_check(p, &o, out, err, errlen);
+}
