@@ -124,6 +124,8 @@ static int bind_shape(NpgFull *f, const Sym *s, int ndim, const long *shape, con
                   s->shape[i], shape[s->ndims + i]);
   for (int i = 0; i < s->ndims; i++) {
     int d = emit_index_of(&f->prog->dims, s->dims[i]);
+    if (shape[i] < 0)
+      return fail(f, "%s: axis %d of '%s' has a negative size (%ld)", from, i, s->name, shape[i]);
     if (f->dims[d] < 0) {
       f->dims[d] = shape[i];
       free(f->dim_from[d]);

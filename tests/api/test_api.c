@@ -1,0 +1,436 @@
+/* test_api.c — the whole pipeline through npg.h alone (compiled with only
+ * include/ on its include path): compile, train from memory, load, reduced
+ * evaluation, lifting, operators, verification; streamed training equal to
+ * `npgc train`; an extern by callback equal to the extern as data; one
+ * model shared by two threads.
+ *
+ *     test_api NPGC RADIOSITY_DATA   (paths of the two programs, from CMake)
+ */
+#include <dirent.h>
+#include <math.h>
+#include <pthread.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <cmocka.h>
+
+#include "npg.h"
+
+static const char *npgc_path, *radiosity_data_path;
+static char scratch[256];
+
+static void run(const char *fmt, ...) {
+  char cmd[4096];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(cmd, sizeof cmd, fmt, ap);
+  va_end(ap);
+  int rc = system(cmd);
+  if (rc != 0) fprintf(stderr, "command failed (%d): %s\n", rc, cmd);
+  assert_int_equal(rc, 0);
+}
+
+static NpgProgram *compile(const char *path) {
+  NpgProgram *p = npg_compile(path, NULL);
+  if (!npg_ok(p)) fputs(npg_error(p), stderr);
+  assert_true(npg_ok(p));
+  return p;
+}
+
+/* Every .npy of A is byte-identical in B (and the manifests list the same
+ * files): the models are the same to the last bit. */
+static void assert_same_model(const char *a, const char *b) {
+  DIR *d = opendir(a);
+  assert_non_null(d);
+  struct dirent *e;
+  int files = 0;
+  while ((e = readdir(d))) {
+    size_t n = strlen(e->d_name);
+    if (n < 5 || strcmp(e->d_name + n - 4, ".npy") != 0) continue;
+    char pa[1024], pb[1024];
+    snprintf(pa, sizeof pa, "%s/%s", a, e->d_name);
+    snprintf(pb, sizeof pb, "%s/%s", b, e->d_name);
+    FILE *fa = fopen(pa, "rb"), *fb = fopen(pb, "rb");
+    assert_non_null(fa);
+    if (!fb) fail_msg("%s is missing", pb);
+    int ca, cb;
+    do {
+      ca = fgetc(fa);
+      cb = fgetc(fb);
+      if (ca != cb) fail_msg("%s and %s differ", pa, pb);
+    } while (ca != EOF);
+    fclose(fa);
+    fclose(fb);
+    files++;
+  }
+  closedir(d);
+  assert_true(files >= 2);
+}
+
+/* ---------------------------------------------------------------- Eq. 3 */
+
+static double *random_x(long S, unsigned seed) {
+  double *x = malloc(sizeof(double) * (size_t)(2 * S));
+  srand(seed);
+  for (long k = 0; k < 2 * S; k++) x[k] = 0.5 + (double)rand() / RAND_MAX;
+  return x;
+}
+
+static void eq3_pipeline(void **state) {
+  (void)state;
+  NpgProgram *p = compile("examples/rational/rational.npg");
+  const long S = 60, shape[1] = {2};
+  double *x = random_x(S, 7);
+  /* the same samples on disk, for npgc train */
+  char data[512], stream[512], cli[512], err[1024];
+  snprintf(data, sizeof data, "%s/EQ3DATA", scratch);
+  snprintf(stream, sizeof stream, "%s/EQ3STREAM", scratch);
+  snprintf(cli, sizeof cli, "%s/EQ3CLI", scratch);
+  run("mkdir -p %s", data);
+  char path[1024];
+  snprintf(path, sizeof path, "%s/x.npy", data);
+  long xs[2] = {S, 2};
+  assert_int_equal(npg_npy_write(path, 2, xs, x, err, sizeof err), 0);
+  run("%s train examples/rational/rational.npg %s -o %s >/dev/null", npgc_path, data, cli);
+
+  /* streamed: the simulation sets x, evaluates, hands the values over */
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  NpgTrainer *t = npg_trainer_new(f, &o);
+  for (long k = 0; k < S; k++) {
+    assert_int_equal(npg_full_set(f, "x", 1, shape, x + 2 * k, "sim"), 0);
+    assert_int_equal(npg_full_eval(f, k), 0);
+    assert_int_equal(npg_trainer_add_full(t, f), 0);
+  }
+  assert_int_equal(npg_trainer_samples(t), S);
+  NpgModel *m = npg_trainer_finish(t, stream);
+  if (!m) fail_msg("%s", npg_trainer_error(t));
+  npg_trainer_free(t);
+  assert_same_model(stream, cli);
+
+  /* query */
+  int cy = npg_model_class_of(m, "y");
+  assert_true(cy >= 0);
+  NpgClassInfo ci;
+  assert_int_equal(npg_model_class(m, cy, &ci), 0);
+  assert_int_equal(ci.n, 2);
+  assert_true(ci.nmembers >= 2); /* y and its numerator */
+  NpgMemberInfo mi;
+  assert_int_equal(npg_model_member(m, cy, 0, &mi), 0);
+  assert_true(mi.kept >= 1 && mi.captured > 0.99);
+  assert_true(npg_model_bytes(m, NULL) > 0);
+  assert_int_equal(npg_model_samples(m), S);
+  assert_int_equal(npg_model_class_of(m, "nosuch"), -1);
+
+  /* a loaded model evaluates like the one in memory */
+  NpgModel *loaded = npg_model_load(p, stream);
+  assert_string_equal(npg_model_error(loaded), "");
+  NpgReduced *r = npg_reduced_new(m), *r2 = npg_reduced_new(loaded);
+  double held[2] = {1.3, 0.7}, y[2], y2[2];
+  assert_int_equal(npg_reduced_set(r, "x", 2, held), 0);
+  assert_int_equal(npg_reduced_eval(r, 0), 0);
+  assert_int_equal(npg_reduced_lift(r, "y", y, 2), 0);
+  /* reduced coordinates given directly */
+  size_t mx;
+  const double *xh = npg_reduced_coords(r, "x", &mx);
+  assert_int_equal(npg_reduced_set_coords(r2, "x", mx, xh), 0);
+  assert_int_equal(npg_reduced_eval(r2, 0), 0);
+  assert_int_equal(npg_reduced_lift(r2, "y", y2, 2), 0);
+  double ref[2] = {(1.3 * 0.7 + 0.7 * 0.7) / (1.3 * 1.3), 1.3 * 1.3 / (0.7 * 0.7)};
+  for (int i = 0; i < 2; i++) {
+    assert_true(fabs(y[i] - ref[i]) <= 1e-10 * fabs(ref[i])); /* full-rank classes: exact */
+    assert_true(y[i] == y2[i]);
+  }
+  /* errors are reported, not crashes */
+  assert_int_equal(npg_reduced_set(r2, "y", 2, held), -1);
+  assert_non_null(strstr(npg_reduced_error(r2), "only inputs"));
+  npg_reduced_clear_error(r2);
+  assert_string_equal(npg_reduced_error(r2), "");
+  assert_int_equal(npg_reduced_lift(r2, "x", y2, 3), -1);
+
+  /* verification as a call */
+  NpgFull *g = npg_full_new(p, NPG_TCC);
+  char test[512];
+  snprintf(test, sizeof test, "%s/EQ3TEST", scratch);
+  run("mkdir -p %s", test);
+  double *xt = random_x(10, 99);
+  long ts[2] = {10, 2};
+  snprintf(path, sizeof path, "%s/x.npy", test);
+  assert_int_equal(npg_npy_write(path, 2, ts, xt, err, sizeof err), 0);
+  NpgSamples *s = npg_samples_open(p, test, NULL, true, err, sizeof err);
+  assert_non_null(s);
+  NpgVerifyReport rep;
+  assert_int_equal(npg_verify(m, g, npg_samples_count(s), npg_samples_set, s, false, &rep), 0);
+  assert_int_equal(rep.samples, 10);
+  bool saw_y = false;
+  for (int i = 0; i < rep.nrows; i++)
+    if (strcmp(rep.rows[i].name, "y") == 0) {
+      saw_y = true;
+      assert_true(rep.rows[i].output);
+      assert_true(rep.rows[i].l2 < 1e-10);
+      assert_true(rep.rows[i].floor <= rep.rows[i].l2 + 1e-15);
+    }
+  assert_true(saw_y);
+  npg_verify_free(&rep);
+
+  npg_samples_free(s);
+  free(xt);
+  npg_reduced_free(r);
+  npg_reduced_free(r2);
+  npg_model_free(loaded);
+  npg_model_free(m);
+  npg_full_free(g);
+  npg_full_free(f);
+  free(x);
+  npg_free(p);
+}
+
+/* ---------------------------------------------------------------- radiosity: externs by data and by callback */
+
+typedef struct VisData {
+  const NpgSamples *s;
+  int calls;
+} VisData;
+
+/* The ray caster's stand-in: the visibility of the sample being added. */
+static int visibility(void *user, const NpgFull *f, long sample, double *out, size_t count) {
+  VisData *v = user;
+  size_t n;
+  const double *vis = npg_samples_get(v->s, "v", sample, &n);
+  if (!vis || n != count) return -1;
+  memcpy(out, vis, sizeof(double) * n);
+  v->calls++;
+  return 0;
+}
+
+static NpgModel *radiosity_model;
+static NpgProgram *radiosity_prog;
+
+static void radiosity_pipeline(void **state) {
+  (void)state;
+  const char *prog = "examples/radiosity/formfactors.npg";
+  char data[512], bydata[512], bycall[512], cli[512], err[1024];
+  snprintf(data, sizeof data, "%s/RDATA", scratch);
+  snprintf(bydata, sizeof bydata, "%s/RBYDATA", scratch);
+  snprintf(bycall, sizeof bycall, "%s/RBYCALL", scratch);
+  snprintf(cli, sizeof cli, "%s/RCLI", scratch);
+  run("%s %s 48 16 0 1 3 >/dev/null", radiosity_data_path, data);
+  run("%s train %s %s -o %s --cap 8 >/dev/null", npgc_path, prog, data, cli);
+  NpgProgram *p = radiosity_prog = compile(prog);
+  NpgSamples *s = npg_samples_open(p, data, NULL, true, err, sizeof err);
+  if (!s) fail_msg("%s", err);
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  o.cap = 8;
+
+  /* externs as data: every input and extern staged by name */
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  assert_int_equal(npg_full_bind_params(f, data), 0);
+  NpgTrainer *t = npg_trainer_new(f, &o);
+  size_t ng;
+  npg_samples_get(s, "g", 0, &ng);
+  long F = npg_full_dim(f, "F"), V = (long)ng / 3; /* V is bound by g, not by a param */
+  assert_int_equal(npg_full_dim(f, "V"), -1);
+  long gs[2] = {V, 3}, es[1] = {F}, vs[2] = {F, F};
+  for (long k = 0; k < npg_samples_count(s); k++) {
+    if (npg_trainer_set(t, "g", 2, gs, npg_samples_get(s, "g", k, NULL)) != 0) fail_msg("%s", npg_trainer_error(t));
+    assert_int_equal(npg_trainer_set(t, "e", 1, es, npg_samples_get(s, "e", k, NULL)), 0);
+    assert_int_equal(npg_trainer_set(t, "v", 2, vs, npg_samples_get(s, "v", k, NULL)), 0);
+    assert_int_equal(npg_trainer_add(t), 0);
+  }
+  NpgModel *m = npg_trainer_finish(t, bydata);
+  if (!m) fail_msg("%s", npg_trainer_error(t));
+  npg_trainer_free(t);
+  npg_model_free(m);
+  assert_same_model(bydata, cli);
+
+  /* the extern by callback: called once per sample, never again on replay */
+  NpgFull *fc = npg_full_new(p, NPG_TCC);
+  assert_int_equal(npg_full_bind_params(fc, data), 0);
+  VisData vd = {s, 0};
+  assert_int_equal(npg_full_set_extern_fn(fc, "v", visibility, &vd), 0);
+  t = npg_trainer_new(fc, &o);
+  for (long k = 0; k < npg_samples_count(s); k++) {
+    assert_int_equal(npg_trainer_set(t, "g", 2, gs, npg_samples_get(s, "g", k, NULL)), 0);
+    assert_int_equal(npg_trainer_set(t, "e", 1, es, npg_samples_get(s, "e", k, NULL)), 0);
+    assert_int_equal(npg_trainer_add(t), 0);
+  }
+  assert_int_equal(vd.calls, npg_samples_count(s));
+  m = npg_trainer_finish(t, bycall);
+  if (!m) fail_msg("%s", npg_trainer_error(t));
+  assert_int_equal(vd.calls, npg_samples_count(s));
+  npg_trainer_free(t);
+  assert_same_model(bycall, cli);
+
+  /* a missing input is named */
+  t = npg_trainer_new(fc, &o);
+  assert_int_equal(npg_trainer_add(t), -1);
+  assert_non_null(strstr(npg_trainer_error(t), "input 'g' is not set"));
+  npg_trainer_free(t);
+  /* a callback for something that is not an extern is refused */
+  assert_int_equal(npg_full_set_extern_fn(fc, "e", visibility, &vd), -1);
+  npg_full_free(fc);
+  npg_full_free(f);
+  npg_samples_free(s);
+  radiosity_model = m;
+}
+
+/* ---------------------------------------------------------------- one model, two threads */
+
+typedef struct Worker {
+  const NpgModel *m;
+  const double *g, *e;
+  long V, F, reps;
+  double *b;                /* the last result */
+  int rc;
+} Worker;
+
+static void *work(void *arg) {
+  Worker *w = arg;
+  NpgReduced *r = npg_reduced_new(w->m);
+  w->rc = 0;
+  for (long i = 0; i < w->reps && w->rc == 0; i++)
+    if (npg_reduced_set(r, "g", (size_t)(w->V * 3), w->g) || npg_reduced_set(r, "e", (size_t)w->F, w->e) ||
+        npg_reduced_eval(r, i) || npg_reduced_lift(r, "b", w->b, (size_t)w->F))
+      w->rc = -1;
+  npg_reduced_free(r);
+  return NULL;
+}
+
+static void shared_model_threads(void **state) {
+  (void)state;
+  assert_non_null(radiosity_model);
+  char data[512], err[1024];
+  snprintf(data, sizeof data, "%s/RDATA", scratch);
+  NpgSamples *s = npg_samples_open(radiosity_prog, data, NULL, false, err, sizeof err);
+  size_t ng, ne;
+  const double *g = npg_samples_get(s, "g", 5, &ng), *e = npg_samples_get(s, "e", 5, &ne);
+  Worker one = {radiosity_model, g, e, (long)ng / 3, (long)ne, 1, calloc(ne, sizeof(double)), 0};
+  work(&one);
+  assert_int_equal(one.rc, 0);
+  Worker w[2];
+  pthread_t th[2];
+  for (int i = 0; i < 2; i++) {
+    w[i] = one;
+    w[i].reps = 1000;
+    w[i].b = calloc(ne, sizeof(double));
+    assert_int_equal(pthread_create(&th[i], NULL, work, &w[i]), 0);
+  }
+  for (int i = 0; i < 2; i++) {
+    pthread_join(th[i], NULL);
+    assert_int_equal(w[i].rc, 0);
+    assert_memory_equal(w[i].b, one.b, sizeof(double) * ne);
+    free(w[i].b);
+  }
+  free(one.b);
+  npg_samples_free(s);
+}
+
+/* ---------------------------------------------------------------- output operators */
+
+static void output_operator(void **state) {
+  (void)state;
+  NpgProgram *p = compile("tests/programs/output_op.npg");
+  const long N = 7, S = 30;
+  double a[49];
+  srand(3);
+  for (int i = 0; i < 49; i++) a[i] = (double)rand() / RAND_MAX - 0.5;
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  long as[2] = {N, N}, ns[1] = {N};
+  assert_int_equal(npg_full_set_param(f, "a", 2, as, a, "a"), 0);
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  o.cap = 4; /* truncated bases: the identity must hold anyway */
+  NpgTrainer *t = npg_trainer_new(f, &o);
+  double w[7], x[7];
+  for (long k = 0; k < S; k++) {
+    for (int i = 0; i < N; i++) w[i] = 1 + 0.3 * sin((double)(k + i)), x[i] = cos(0.7 * (double)(k * i));
+    assert_int_equal(npg_trainer_set(t, "w", 1, ns, w), 0);
+    assert_int_equal(npg_trainer_set(t, "x", 1, ns, x), 0);
+    assert_int_equal(npg_trainer_add(t), 0);
+  }
+  NpgModel *m = npg_trainer_finish(t, NULL);
+  if (!m) fail_msg("%s", npg_trainer_error(t));
+  npg_trainer_free(t);
+  /* reduced operator at a held-out w */
+  NpgReduced *r = npg_reduced_new(m);
+  for (int i = 0; i < N; i++) w[i] = 1.1 + 0.2 * cos((double)i), x[i] = 0.5;
+  assert_int_equal(npg_reduced_set(r, "w", 7, w), 0);
+  assert_int_equal(npg_reduced_set(r, "x", 7, x), 0);
+  assert_int_equal(npg_reduced_eval(r, 0), 0);
+  double Mh[64];
+  long rows, cols;
+  int rc_, cc_;
+  assert_int_equal(npg_reduced_op(r, "K", Mh, 64, &rows, &cols, &rc_, &cc_), 0);
+  /* the full operator at the lifted w, densely: B_rowᵀ M B_col */
+  double wl[7];
+  assert_int_equal(npg_reduced_lift(r, "w", wl, 7), 0);
+  assert_int_equal(npg_full_set(f, "w", 1, ns, wl, "lifted"), 0);
+  assert_int_equal(npg_full_set(f, "x", 1, ns, x, "x"), 0);
+  assert_int_equal(npg_full_eval(f, 0), 0);
+  NpgCsr K;
+  assert_int_equal(npg_full_op(f, "K", &K), 0);
+  assert_int_equal(K.rows, N);
+  assert_int_equal(K.cols, N);
+  assert_int_equal(K.nnz, N * N);
+  double M[49] = {0};
+  for (long i = 0; i < K.rows; i++)
+    for (long k = K.indptr[i]; k < K.indptr[i + 1]; k++) M[i * N + K.indices[k]] = K.data[k];
+  for (int i = 0; i < N; i++)
+    for (int j = 0; j < N; j++) assert_true(fabs(M[i * N + j] - a[i * N + j] * wl[j]) <= 1e-15);
+  NpgClassInfo rci, cci;
+  npg_model_class(m, rc_, &rci);
+  npg_model_class(m, cc_, &cci);
+  assert_int_equal(rows, rci.m);
+  assert_int_equal(cols, cci.m);
+  const double *Br = npg_model_basis(m, rc_), *Bc = npg_model_basis(m, cc_);
+  double worst = 0, big = 0;
+  for (long i = 0; i < rows; i++)
+    for (long j = 0; j < cols; j++) {
+      double d = 0;
+      for (int u = 0; u < N; u++)
+        for (int v = 0; v < N; v++) d += Br[u * rows + i] * M[u * N + v] * Bc[v * cols + j];
+      worst = fmax(worst, fabs(d - Mh[i * cols + j]));
+      big = fmax(big, fabs(d));
+    }
+  assert_true(worst <= 1e-12 * big);
+  /* errors */
+  assert_int_equal(npg_full_op(f, "y", &K), -1);
+  npg_csr_free(&K);
+  npg_reduced_free(r);
+  npg_model_free(m);
+  npg_full_free(f);
+  npg_free(p);
+}
+
+static int teardown(void **state) {
+  (void)state;
+  npg_model_free(radiosity_model);
+  npg_free(radiosity_prog);
+  run("rm -rf %s", scratch);
+  return 0;
+}
+
+int main(int argc, char **argv) {
+  if (argc != 3) {
+    fprintf(stderr, "usage: test_api NPGC RADIOSITY_DATA\n");
+    return 2;
+  }
+  npgc_path = argv[1];
+  radiosity_data_path = argv[2];
+  snprintf(scratch, sizeof scratch, "/tmp/npg_test_api_%d", (int)getpid());
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(eq3_pipeline),
+      cmocka_unit_test(radiosity_pipeline),
+      cmocka_unit_test(shared_model_threads),
+      cmocka_unit_test(output_operator),
+  };
+  return cmocka_run_group_tests(tests, NULL, teardown);
+}
