@@ -3,7 +3,8 @@
 #
 #   1. plain build (build/):          every ctest test
 #   2. sanitizer build (build-asan/): every ctest test under ASan + UBSan, leaks fatal
-#   3. fuzz build (build-fuzz/):      libFuzzer on the front end for NPG_FUZZ_SECONDS (60)
+#   3. ThreadSanitizer (build-tsan/): the tests labelled `threads` (one model, many evaluators)
+#   4. fuzz build (build-fuzz/):      libFuzzer on the front end for NPG_FUZZ_SECONDS (60)
 #
 # Builds are incremental; delete a build directory to start it afresh.
 set -euo pipefail
@@ -17,21 +18,26 @@ header() {
 
 bash scripts/setup.sh
 
-header "1/3 plain build (build/)"
+header "1/4 plain build (build/)"
 cmake -S . -B build -DCMAKE_BUILD_TYPE=RelWithDebInfo
 cmake --build build -j2
 ctest --test-dir build --output-on-failure
 
 # The sanitizer and fuzz builds are Debug so that assertions and the
 # between-stage IR verifiers run too.
-header "2/3 AddressSanitizer + UndefinedBehaviorSanitizer (build-asan/)"
+header "2/4 AddressSanitizer + UndefinedBehaviorSanitizer (build-asan/)"
 cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DNPG_SANITIZE=ON
 cmake --build build-asan -j2
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 \
 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   ctest --test-dir build-asan --output-on-failure
 
-header "3/3 fuzz the front end for ${fuzz_seconds} s (build-fuzz/)"
+header "3/4 ThreadSanitizer: the tests labelled threads (build-tsan/)"
+cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=Debug -DNPG_TSAN=ON
+cmake --build build-tsan -j2 --target test_api npgc radiosity_data
+TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$PWD/tests/tsan.supp" ctest --test-dir build-tsan -L threads --output-on-failure
+
+header "4/4 fuzz the front end for ${fuzz_seconds} s (build-fuzz/)"
 CC=clang cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=Debug -DNPG_FUZZ=ON
 cmake --build build-fuzz -j2
 
