@@ -63,4 +63,36 @@ cp "$W/RTRAIN/tri.npy" "$W/RTRAIN/rho.npy" "$W/RTEST/"
 /usr/bin/python3 -c "import numpy as np,sys; r=np.load(sys.argv[1]); np.save(sys.argv[1], r*0.9)" "$W/RHO/rho.npy"
 if "$B/npgc" verify $R "$W/RMODEL" "$W/RHO" 2>"$W/err.txt"; then fail "changed params accepted"; fi
 grep -q "RHO/rho.npy: param 'rho' differs from the one the model was trained with" "$W/err.txt" || fail "param message: $(cat "$W/err.txt")"
+# params equal in value but stored as int32 instead of int64 are the same params
+/usr/bin/python3 -c "import numpy as np,sys; t=np.load(sys.argv[1]); np.save(sys.argv[1], t.astype(np.int32))" "$W/RTEST/tri.npy"
+"$B/npgc" verify $R "$W/RMODEL" "$W/RTEST" --tol 0.05 >/dev/null || fail "int32 copy of the params refused"
+
+# output operators: eval --full writes CSR triplets, reduced eval the reduced matrices
+O=tests/programs/output_op.npg
+mkdir -p "$W/ODATA"
+/usr/bin/python3 - "$W/ODATA" <<'PY'
+import sys, numpy as np
+d = sys.argv[1]; rng = np.random.default_rng(5)
+np.save(d + "/a.npy", rng.standard_normal((6, 6)))
+np.save(d + "/w.npy", 1 + 0.3 * rng.standard_normal((12, 6)))
+np.save(d + "/x.npy", rng.standard_normal((12, 6)))
+PY
+"$B/npgc" eval $O --full "$W/ODATA" "$W/ODATA" -o "$W/OFULL" 2>"$W/err.txt" || fail "eval --full of an output op: $(cat "$W/err.txt")"
+"$B/npgc" train $O "$W/ODATA" -o "$W/OMODEL" --cap 3 >/dev/null || fail "train output_op"
+"$B/npgc" eval $O "$W/OMODEL" "$W/ODATA" -o "$W/ORED" 2>"$W/err.txt" || fail "reduced eval of an output op: $(cat "$W/err.txt")"
+/usr/bin/python3 - "$W" <<'PY' || fail "output op files"
+import sys, numpy as np
+w = sys.argv[1]
+a = np.load(w + "/ODATA/a.npy"); ws = np.load(w + "/ODATA/w.npy")
+ip = np.load(w + "/OFULL/K.indptr.npy"); ix = np.load(w + "/OFULL/K.indices.npy"); data = np.load(w + "/OFULL/K.data.npy")
+assert ip.dtype == np.int64 and ix.dtype == np.int64 and data.shape == (12, ix.size), (ip.dtype, data.shape)
+for k in range(12):
+    K = np.zeros((6, 6))
+    for r in range(6):
+        K[r, ix[ip[r]:ip[r+1]]] = data[k, ip[r]:ip[r+1]]
+    assert np.allclose(K, a * ws[k][None, :], rtol=0, atol=1e-15), k
+red = np.load(w + "/ORED/K.reduced.npy")
+assert red.ndim == 3 and red.shape[0] == 12 and red.shape[1] == red.shape[2] and red.shape[1] <= 6, red.shape
+assert np.all(np.isfinite(red))
+PY
 echo "ok"
