@@ -332,20 +332,29 @@ int full_build(NpgFull *f, const char *name, NpgSink *sink) {
 
 long full_dim_size(const NpgFull *f, int k) { return (long)f->dims[k]; }
 
+uint64_t full_hash_values(const double *v, size_t n) {
+  /* FNV-1a over the values as doubles: an int param hashes alike from int32
+   * and int64 files, and a param set from memory like one read from disk */
+  uint64_t h = 0xcbf29ce484222325ull;
+  for (size_t i = 0; i < n; i++) {
+    unsigned char b[sizeof(double)];
+    memcpy(b, &v[i], sizeof(double));
+    for (size_t j = 0; j < sizeof(double); j++) h = (h ^ b[j]) * 0x100000001b3ull;
+  }
+  return h;
+}
+
 uint64_t full_param_hash(const NpgFull *f, int k, const char **from) {
   const Sym *s = f->prog->params.v[k];
   if (from) *from = f->param_files[k] ? f->param_files[k] : s->name;
   if (!f->params[k] && !f->iparams[k]) return 0;
-  /* FNV-1a over the values as doubles: an int param hashes alike from int32
-   * and int64 files, and a param set from memory like one read from disk */
   size_t n = count_of((NpgFull *)f, s);
-  uint64_t h = 0xcbf29ce484222325ull;
-  for (size_t i = 0; i < n; i++) {
-    double v = f->params[k] ? f->params[k][i] : (double)f->iparams[k][i];
-    unsigned char b[sizeof v];
-    memcpy(b, &v, sizeof v);
-    for (size_t j = 0; j < sizeof v; j++) h = (h ^ b[j]) * 0x100000001b3ull;
-  }
+  if (f->params[k]) return full_hash_values(f->params[k], n);
+  double *v = malloc(sizeof(double) * (n ? n : 1));
+  if (!v) return 0;
+  for (size_t i = 0; i < n; i++) v[i] = (double)f->iparams[k][i];
+  uint64_t h = full_hash_values(v, n);
+  free(v);
   return h;
 }
 

@@ -17,6 +17,8 @@ long full_dim_size(const NpgFull *f, int k);
 /* A hash of the values of param number k as bound (0 when unbound), and in
  * *from (optional) the file or call that bound it. */
 uint64_t full_param_hash(const NpgFull *f, int k, const char **from);
+/* The hash full_param_hash records: FNV-1a 64 of n doubles. */
+uint64_t full_hash_values(const double *v, size_t n);
 /* The stage program the evaluator runs. */
 const Program *full_program(const NpgFull *f);
 /* Record `msg` as the evaluator's error (the first one stays); -1. */

@@ -22,4 +22,8 @@ int api_quantity(const Program *prog, const char *name);
 /* Shape of quantity `s` as bound in `f`: dims then static axes; ndim. */
 int api_shape(const NpgFull *f, const Sym *s, long *shape);
 
+/* 0 when every reduced coordinate held by `r` is finite; else -1 with a
+ * message naming the first quantity in evaluation order that is not. */
+int api_reduced_not_finite(const Model *m, Reduced *r, long sample, char *err, size_t errlen);
+
 #endif

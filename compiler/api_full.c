@@ -6,6 +6,7 @@
  * pre-multiplication consumes. Summing coefficient × inputs at the values
  * of the last evaluation gives the operator itself, sparse as the program
  * wrote it: no dense n × n matrix is formed. */
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -114,6 +115,42 @@ int npg_full_op(NpgFull *f, const char *name, NpgCsr *out) {
   free(s.e);
   if (rc != 0) npg_csr_free(out);
   return rc;
+}
+
+/* "[2, 5]": the index of flat entry e of `s` as bound in `f`. */
+static void entry_index(NpgFull *f, const Sym *s, size_t e, char *buf, size_t len) {
+  long shape[MAX_AXES + MAX_STATIC], idx[MAX_AXES + MAX_STATIC];
+  int nd = 0;
+  for (int i = 0; i < s->ndims; i++) shape[nd++] = npg_full_dim(f, s->dims[i]->name);
+  for (int i = 0; i < s->nstatic; i++) shape[nd++] = s->shape[i];
+  for (int i = nd - 1; i >= 0; i--) {
+    idx[i] = shape[i] > 0 ? (long)(e % (size_t)shape[i]) : 0;
+    e = shape[i] > 0 ? e / (size_t)shape[i] : e;
+  }
+  size_t at = (size_t)snprintf(buf, len, "[");
+  for (int i = 0; i < nd && at < len; i++) at += (size_t)snprintf(buf + at, len - at, "%s%ld", i ? ", " : "", idx[i]);
+  if (at < len) snprintf(buf + at, len - at, "]");
+}
+
+int npg_full_check_finite(NpgFull *f, long sample) {
+  if (npg_full_error(f)[0]) return -1;
+  const Program *prog = full_program(f);
+  for (int q = 0; q < prog->quantities.n; q++) {
+    const Sym *s = prog->quantities.v[q];
+    size_t n = 0;
+    const double *v = npg_full_get(f, s->name, &n);
+    for (size_t e = 0; v && e < n; e++) {
+      if (isfinite(v[e])) continue;
+      char at[256], msg[1024];
+      entry_index(f, s, e, at, sizeof at);
+      snprintf(msg, sizeof msg, "sample %ld: %s '%s' is not finite: %s%s is %s%s", sample,
+               s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage", s->name, s->name, at,
+               isnan(v[e]) ? "NaN" : "an infinity",
+               s->kind == SYM_STAGE ? " (a division by zero or a root of a negative number at this sample?)" : "");
+      return full_fail(f, msg);
+    }
+  }
+  return 0;
 }
 
 void npg_csr_free(NpgCsr *c) {

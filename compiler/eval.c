@@ -16,12 +16,7 @@
 #include "npg.h"
 #include "npgc.h"
 
-static int usage(void) {
-  fputs("usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc]\n"
-        "       npgc eval PROG.npg MODEL/ IN/ -o OUT/   (reduced)\n",
-        stderr);
-  return 2;
-}
+static int usage(void) { return npgc_usage("eval", false); }
 
 /* One output's values over every sample. */
 typedef struct Out {
@@ -110,7 +105,7 @@ static int eval_full(NpgProgram *p, const char *data, const char *in, const char
   long samples = npg_samples_count(s);
   bool tty = isatty(2);
   for (long k = 0; k < samples; k++) {
-    if (npg_samples_set(s, f, k) != 0 || npg_full_eval(f, k) != 0) {
+    if (npg_samples_set(s, f, k) != 0 || npg_full_eval(f, k) != 0 || npg_full_check_finite(f, k) != 0) {
       if (tty) fputc('\n', stderr);
       fprintf(stderr, "error: %s\n", npg_full_error(f));
       goto done;
@@ -122,10 +117,7 @@ static int eval_full(NpgProgram *p, const char *data, const char *in, const char
       }
     npg_progress(tty, "full evaluation", k + 1, samples);
   }
-  if (mkdir(outdir, 0777) != 0 && errno != EEXIST) {
-    fprintf(stderr, "error: cannot create %s: %s\n", outdir, strerror(errno));
-    goto done;
-  }
+  if (npgc_make_parents(outdir, true) != 0) goto done;
   for (int o = 0; o < nout; o++)
     if (write_out(&outs[o], f, outdir, samples) != 0) goto done;
   rc = 0;
@@ -145,12 +137,14 @@ int npgc_eval(int argc, char **argv) {
   bool full = false, cc = false;
   NpgOptions opt = {0};
   for (int i = 2; i < argc; i++) {
+    if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) return npgc_usage("eval", true);
     if (strcmp(argv[i], "--full") == 0) full = true;
     else if (strcmp(argv[i], "--cc") == 0) cc = true;
     else if (strcmp(argv[i], "-o") == 0 && i + 1 < argc) outdir = argv[++i];
     else if (strncmp(argv[i], "--std=", 6) == 0) opt.std_dir = argv[i] + 6;
     else if (argv[i][0] == '-') {
-      fprintf(stderr, "npgc eval: unknown option '%s'\n", argv[i]);
+      fprintf(stderr, "npgc eval: %s '%s'\n", strcmp(argv[i], "-o") == 0 ? "missing the value of" : "unknown option",
+              argv[i]);
       return usage();
     } else if (!prog_path) prog_path = argv[i];
     else if (!data) data = argv[i];

@@ -8,7 +8,10 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <unistd.h>
+
 #include "api.h"
+#include "npy.h"
 #include "compile.h"
 #include "emit.h"
 
@@ -38,6 +41,21 @@ char *api_param_hashes(const NpgFull *f) {
     len += (size_t)snprintf(out + len, cap - len, "%s%s=%016llx", i ? " " : "", ((Sym *)prog->params.v[i])->name,
                             (unsigned long long)full_param_hash(f, i, NULL));
   return out;
+}
+
+int api_reduced_not_finite(const Model *m, Reduced *r, long sample, char *err, size_t errlen) {
+  for (int q = 0; q < m->nq; q++) {
+    const double *x = reduced_coords(r, q);
+    for (long i = 0; i < m->classes[m->qclass[q]].m; i++)
+      if (!isfinite(x[i])) {
+        const Sym *s = m->prog->quantities.v[q];
+        snprintf(err, errlen, "sample %ld: the reduced %s '%s' is not finite (coordinate %ld is %s)", sample,
+                 s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage", s->name, i,
+                 isnan(x[i]) ? "NaN" : "an infinity");
+        return -1;
+      }
+  }
+  return 0;
 }
 
 /* ---------------------------------------------------------------- models */
@@ -131,6 +149,42 @@ int npg_model_check_params(const NpgModel *nm, const NpgFull *f, char *err, size
     if (!at || strtoull(at + strlen(key), NULL, 16) != h) {
       snprintf(err, errlen, "%s: param '%s' differs from the one the model was trained with: retrain, or give the "
                             "training data's params", from, p->name);
+      return -1;
+    }
+  }
+  return 0;
+}
+
+int npg_model_check_params_dir(const NpgModel *nm, const char *dir, char *err, size_t errlen) {
+  const char *recorded = nm->m ? nm->m->param_hashes : NULL;
+  if (!recorded) return 0;
+  const Program *prog = nm->m->prog;
+  for (int i = 0; i < prog->params.n; i++) {
+    const Sym *p = prog->params.v[i];
+    char path[4096], key[512];
+    snprintf(path, sizeof path, "%s/%s.npy", dir, p->name);
+    if (access(path, F_OK) != 0) continue;
+    NpyArray a;
+    if (npy_read(path, &a, err, errlen) != 0) return -1;
+    double *v = malloc(sizeof(double) * (a.count ? a.count : 1));
+    if (!v) {
+      npy_free(&a);
+      snprintf(err, errlen, "out of memory");
+      return -1;
+    }
+    for (size_t e = 0; e < a.count; e++)
+      v[e] = a.type == NPY_F64 ? ((double *)a.data)[e]
+             : a.type == NPY_I32 ? (double)((int32_t *)a.data)[e]
+                                 : (double)((int64_t *)a.data)[e];
+    uint64_t h = full_hash_values(v, a.count);
+    free(v);
+    npy_free(&a);
+    snprintf(key, sizeof key, "%s=", p->name);
+    const char *at = recorded;
+    while ((at = strstr(at, key)) && at != recorded && at[-1] != ' ') at++;
+    if (!at || strtoull(at + strlen(key), NULL, 16) != h) {
+      snprintf(err, errlen, "%s: param '%s' differs from the one the model was trained with: retrain, or give the "
+                            "training data's params", path, p->name);
       return -1;
     }
   }
@@ -242,7 +296,10 @@ void npg_reduced_given_externs(NpgReduced *r, bool on) {
 
 int npg_reduced_eval(NpgReduced *r, long sample) {
   if (failed(r)) return -1;
-  return reduced_eval(r->r, sample);
+  if (reduced_eval(r->r, sample) != 0) return -1;
+  char msg[512];
+  if (api_reduced_not_finite(r->nm->m, r->r, sample, msg, sizeof msg)) return rfail(r, "%s", msg);
+  return 0;
 }
 
 const double *npg_reduced_coords(const NpgReduced *r, const char *name, size_t *m) {

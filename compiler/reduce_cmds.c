@@ -25,6 +25,7 @@ typedef struct Common {
   long exact_size;          /* their size of every dim (0: exact.c's defaults) */
   double tol;
   bool tol_set;
+  long reps;                /* bench: passes over the samples */
   NpgTrainOptions train;
   int nbasis;               /* --basis overrides */
   const char **basis_name;
@@ -37,17 +38,6 @@ static double now(void) {
   struct timespec t;
   clock_gettime(CLOCK_MONOTONIC, &t);
   return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
-}
-
-static size_t parse_bytes(const char *s, bool *ok) {
-  char *end;
-  double v = strtod(s, &end);
-  double mul = 1;
-  if (*end == 'k' || *end == 'K') mul = 1e3, end++;
-  else if (*end == 'M') mul = 1e6, end++;
-  else if (*end == 'G') mul = 1e9, end++;
-  *ok = end != s && *end == 0 && v > 0;
-  return (size_t)(v * mul);
 }
 
 /* --basis NAME:cap=N,energy=E (NAME may be '*') */
@@ -71,7 +61,7 @@ static bool parse_basis(Common *c, const char *s) {
     char *end;
     if (strncmp(p, "cap=", 4) == 0) {
       long v = strtol(p + 4, &end, 10);
-      if (end == p + 4 || v < 1) return false;
+      if (end == p + 4 || v < 1 || v > 1000000) return false;
       c->basis_cap[k] = (int)v;
     } else if (strncmp(p, "energy=", 7) == 0) {
       double v = strtod(p + 7, &end);
@@ -87,54 +77,35 @@ static bool parse_basis(Common *c, const char *s) {
   return true;
 }
 
-static int usage(const char *cmd) {
-  if (strcmp(cmd, "train") == 0)
-    fputs("usage: npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--basis NAME:cap=N,energy=E]\n"
-          "                  [--merge concat|joint] [--mem BYTES] [--cc]\n",
-          stderr);
-  else if (strcmp(cmd, "eval") == 0)
-    fputs("usage: npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--cc]   (reduced)\n"
-          "       npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc]\n",
-          stderr);
-  else if (strcmp(cmd, "verify") == 0)
-    fputs("usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc] [--exact] [--exact-size N]\n"
-          "       npgc verify PROG.npg --exact [--exact-size N] [--cc]\n",
-          stderr);
-  else fprintf(stderr, "usage: npgc %s PROG.npg MODEL/ TEST/ [--cc]\n", cmd);
-  return 2;
-}
+static int usage(const char *cmd) { return npgc_usage(cmd, false); }
 
 static int parse(Common *c, int argc, char **argv) {
   memset(c, 0, sizeof *c);
   c->cmd = argv[1];
   c->tol = 1e-2;
+  c->reps = 3;
   npg_train_options_default(&c->train);
   for (int i = 2; i < argc; i++) {
     const char *a = argv[i];
     bool has = i + 1 < argc, ok = true;
+    if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) return npgc_usage(c->cmd, true) - 1; /* -1: done */
     if (strcmp(a, "-o") == 0 && has) c->out = argv[++i];
     else if (strcmp(a, "--cc") == 0) c->cc = true;
     else if (strcmp(a, "--exact") == 0 && strcmp(c->cmd, "verify") == 0) c->exact = true;
     else if (strcmp(a, "--exact-size") == 0 && has && strcmp(c->cmd, "verify") == 0) {
-      char *end;
       c->exact = true;
-      c->exact_size = strtol(argv[++i], &end, 10);
-      ok = *end == 0 && c->exact_size >= 1 && c->exact_size <= 64;
+      ok = npgc_parse_long(argv[++i], 1, 64, &c->exact_size);
     }
     else if (strncmp(a, "--std=", 6) == 0) c->opt.std_dir = a + 6;
     else if (strcmp(a, "--tol") == 0 && has) {
-      char *end;
-      c->tol = strtod(argv[++i], &end);
       c->tol_set = true;
-      ok = *end == 0 && c->tol >= 0;
+      ok = npgc_parse_double(argv[++i], 0, INFINITY, false, &c->tol);
     } else if (strcmp(a, "--cap") == 0 && has) {
-      char *end;
-      c->train.cap = (int)strtol(argv[++i], &end, 10);
-      ok = *end == 0 && c->train.cap >= 1;
+      long cap = 0;
+      ok = npgc_parse_long(argv[++i], 1, 1000000, &cap);
+      c->train.cap = (int)cap;
     } else if (strcmp(a, "--energy") == 0 && has) {
-      char *end;
-      c->train.energy = strtod(argv[++i], &end);
-      ok = *end == 0 && c->train.energy > 0 && c->train.energy <= 1;
+      ok = npgc_parse_double(argv[++i], 0, 1, true, &c->train.energy);
     } else if (strcmp(a, "--basis") == 0 && has) {
       ok = parse_basis(c, argv[++i]);
     } else if (strcmp(a, "--merge") == 0 && has) {
@@ -142,9 +113,14 @@ static int parse(Common *c, int argc, char **argv) {
       c->train.joint = strcmp(v, "joint") == 0;
       ok = c->train.joint || strcmp(v, "concat") == 0;
     } else if (strcmp(a, "--mem") == 0 && has) {
-      c->train.mem = parse_bytes(argv[++i], &ok);
+      ok = npgc_parse_bytes(argv[++i], &c->train.mem);
+    } else if (strcmp(a, "--reps") == 0 && has && strcmp(c->cmd, "bench") == 0) {
+      ok = npgc_parse_long(argv[++i], 1, 1000000, &c->reps);
     } else if (a[0] == '-') {
-      fprintf(stderr, "npgc %s: unknown option '%s'\n", c->cmd, a);
+      bool valued = !strcmp(a, "-o") || !strcmp(a, "--tol") || !strcmp(a, "--cap") || !strcmp(a, "--energy") ||
+                    !strcmp(a, "--basis") || !strcmp(a, "--merge") || !strcmp(a, "--mem") ||
+                    !strcmp(a, "--exact-size") || !strcmp(a, "--reps");
+      fprintf(stderr, "npgc %s: %s '%s'\n", c->cmd, valued && !has ? "missing the value of" : "unknown option", a);
       return usage(c->cmd);
     } else if (!c->prog_path) c->prog_path = a;
     else if (!c->a) c->a = a;
@@ -202,6 +178,11 @@ static void print_model(const NpgModel *m, FILE *out) {
 /* The samples of DATA/ streamed into a trainer, as any C program would. */
 static int cmd_train(Common *c) {
   if (!c->prog_path || !c->a || !c->out || c->b) return usage("train");
+  if (npgc_same_file(c->out, c->a) || npgc_same_file(c->out, c->prog_path)) {
+    fprintf(stderr, "npgc train: -o %s is an input of the command; give the model its own folder\n", c->out);
+    return 1;
+  }
+  if (npgc_make_parents(c->out, false) != 0) return 1;
   NpgProgram *p = compile(c);
   if (!p) return 1;
   char err[2048] = "";
@@ -286,6 +267,10 @@ static int open_session(Common *c, Session *x, bool full) {
     fprintf(stderr, "error: %s\n", err);
     return -1;
   }
+  if (!full && npg_model_check_params_dir(x->m, c->b, err, sizeof err) != 0) {
+    fprintf(stderr, "error: %s\n", err);
+    return -1;
+  }
   if (full) {
     x->f = npg_full_new(x->p, c->cc ? NPG_CC : NPG_TCC);
     if (npg_full_error(x->f)[0] || npg_full_bind_params(x->f, c->b) != 0) {
@@ -336,10 +321,7 @@ typedef struct Out {
 } Out;
 
 static int write_outputs(const Common *c, const Session *x, const Out *outs, int nout, long S) {
-  if (mkdir(c->out, 0777) != 0 && errno != EEXIST) {
-    fprintf(stderr, "error: cannot create %s: %s\n", c->out, strerror(errno));
-    return -1;
-  }
+  if (npgc_make_parents(c->out, true) != 0) return -1;
   for (int o = 0; o < nout; o++) {
     const Out *u = &outs[o];
     char path[4096], err[2048];
@@ -500,47 +482,84 @@ done:
 
 /* ---------------------------------------------------------------- bench */
 
+/* Lift every output that is not an operator (the caller's buffer `y`). */
+static int lift_outputs(Session *x, double *y, size_t n) {
+  for (int i = 0; i < x->nsym; i++)
+    if (x->sym[i].output && x->sym[i].kind != NPG_OP) {
+      NpgClassInfo ci;
+      npg_model_class(x->m, npg_model_class_of(x->m, x->sym[i].name), &ci);
+      if ((size_t)ci.n > n || npg_reduced_lift(x->r, x->sym[i].name, y, (size_t)ci.n) != 0) return -1;
+    }
+  return 0;
+}
+
+static void print_speedup(const char *what, double full, double reduced) {
+  double s = full / reduced;
+  if (s >= 1) printf("%-20s %11.1fx faster reduced\n", what, s);
+  else printf("%-20s reduced is %.1fx slower\n", what, 1 / s);
+}
+
 static int cmd_bench(Common *c) {
   if (!c->prog_path || !c->a || !c->b || c->out) return usage("bench");
   Session x;
   int rc = 1;
+  double *y = NULL;
   if (open_session(c, &x, true) != 0) goto done;
   long S = npg_samples_count(x.s);
-  double tf = 0, tr = 0, tfbest = INFINITY, trbest = INFINITY;
-  for (long k = 0; k < S; k++) {
-    if (npg_samples_set(x.s, x.f, k) != 0) {
-      fprintf(stderr, "error: %s\n", npg_full_error(x.f));
-      goto done;
-    }
-    double t0 = now();
-    if (npg_full_eval(x.f, k) != 0) {
-      fprintf(stderr, "error: %s\n", npg_full_error(x.f));
-      goto done;
-    }
-    double t1 = now();
-    if (reduced_sample(&x, k) != 0) {
-      fprintf(stderr, "error: %s\n", npg_reduced_error(x.r));
-      goto done;
-    }
-    double t2 = now();
-    if (k > 0 || S == 1) { /* the first full evaluation also checks gathers */
+  size_t maxn = 1;
+  for (int k = 0; k < npg_model_nclasses(x.m); k++) {
+    NpgClassInfo ci;
+    npg_model_class(x.m, k, &ci);
+    maxn = (size_t)ci.n > maxn ? (size_t)ci.n : maxn;
+  }
+  if (!(y = malloc(sizeof(double) * maxn))) goto done;
+  double tf = 0, tr = 0, tl = 0, tfbest = INFINITY, trbest = INFINITY;
+  long timed = 0;
+  for (long rep = 0; rep < c->reps; rep++)
+    for (long k = 0; k < S; k++) {
+      if (npg_samples_set(x.s, x.f, k) != 0) {
+        fprintf(stderr, "error: %s\n", npg_full_error(x.f));
+        goto done;
+      }
+      double t0 = now();
+      if (npg_full_eval(x.f, k) != 0) {
+        fprintf(stderr, "error: %s\n", npg_full_error(x.f));
+        goto done;
+      }
+      double t1 = now();
+      if (reduced_sample(&x, k) != 0) {
+        fprintf(stderr, "error: %s\n", npg_reduced_error(x.r));
+        goto done;
+      }
+      double t2 = now();
+      if (lift_outputs(&x, y, maxn) != 0) {
+        fprintf(stderr, "error: %s\n", npg_reduced_error(x.r));
+        goto done;
+      }
+      double t3 = now();
+      if (rep == 0 && k == 0 && !(S == 1 && c->reps == 1)) continue; /* the first full evaluation also checks gathers */
       tf += t1 - t0;
       tr += t2 - t1;
+      tl += t3 - t2;
       tfbest = fmin(tfbest, t1 - t0);
-      trbest = fmin(trbest, t2 - t1);
+      trbest = fmin(trbest, t3 - t1);
+      timed++;
     }
-  }
-  long n = S > 1 ? S - 1 : 1;
   size_t tb, total = npg_model_bytes(x.m, &tb);
-  printf("bench %s: %ld samples (%s backend for the full evaluator)\n", c->prog_path, S, c->cc ? "cc" : "libtcc");
-  printf("full evaluation     %12.3e s per sample (best %.3e)\n", tf / (double)n, tfbest);
-  printf("reduced evaluation  %12.3e s per sample (best %.3e), inputs projected, outputs not lifted\n",
-         tr / (double)n, trbest);
-  printf("speedup             %12.1fx (mean), %.1fx (best)\n", tf / tr, tfbest / trbest);
+  printf("bench %s: %ld samples x %ld passes, %ld evaluations timed\n", c->prog_path, S, c->reps, timed);
+  printf("full evaluator: %s\n", c->cc ? "cc (the system compiler at -O3 -march=native)"
+                                        : "libtcc (npg's default; --cc times the system compiler at -O3)");
+  printf("full evaluation     %12.3e s per sample (best %.3e)\n", tf / (double)timed, tfbest);
+  printf("reduced evaluation  %12.3e s per sample (best %.3e), inputs projected and outputs lifted\n",
+         (tr + tl) / (double)timed, trbest);
+  printf("  of which lifting  %12.3e s per sample\n", tl / (double)timed);
+  print_speedup("speedup (mean)", tf, tr + tl);
+  print_speedup("speedup (best)", tfbest, trbest);
   printf("reduced model       %12.3f MB of reduced tensors, %.3f MB with bases and extern tables\n", (double)tb / 1e6,
          (double)total / 1e6);
   rc = 0;
 done:
+  free(y);
   close_session(&x);
   return rc;
 }
@@ -548,7 +567,8 @@ done:
 int npgc_reduce(int argc, char **argv) {
   Common c;
   int rc = parse(&c, argc, argv);
-  if (rc == 0) {
+  if (rc == -1) rc = 0; /* --help */
+  else if (rc == 0) {
     if (strcmp(c.cmd, "train") == 0) rc = cmd_train(&c);
     else if (strcmp(c.cmd, "eval") == 0) rc = cmd_eval_reduced(&c);
     else if (strcmp(c.cmd, "verify") == 0) rc = cmd_verify(&c);

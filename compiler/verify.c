@@ -118,7 +118,7 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
   if (!sum || !y || !proj || !rep->rows || !r) rc = vfail(rep, "%s", err[0] ? err : "out of memory");
   rep->nrows = m->nq;
   for (long k = 0; k < S && rc == 0; k++) {
-    if (set(user, f, k) != 0 || npg_full_eval(f, k) != 0) {
+    if (set(user, f, k) != 0 || npg_full_eval(f, k) != 0 || npg_full_check_finite(f, k) != 0) {
       rc = vfail(rep, "%s", npg_full_error(f));
       break;
     }
@@ -127,6 +127,10 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
         reduced_project(r, q, npg_full_get(f, ((Sym *)m->prog->quantities.v[q])->name, NULL));
     if (reduced_eval(r, k) != 0) {
       rc = vfail(rep, "%s", reduced_error(r));
+      break;
+    }
+    if (api_reduced_not_finite(m, r, k, rep->error, sizeof rep->error)) {
+      rc = -1;
       break;
     }
     for (int q = 0; q < m->nq; q++) {

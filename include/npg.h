@@ -117,6 +117,13 @@ NPG_API const double *npg_full_get(const NpgFull *f, const char *name, size_t *c
 NPG_API long npg_full_dim(const NpgFull *f, const char *name);
 NPG_API void npg_full_free(NpgFull *f);
 
+/* After an evaluation: 0 when every value is finite, else -1 with
+ * npg_full_error() naming the first quantity in evaluation order that
+ * holds a NaN or an infinity (where it arises, not where it spreads to),
+ * the sample and the entry's index ("sample 3: stage 'p' is not finite:
+ * p[2, 5] is NaN"). */
+NPG_API int npg_full_check_finite(NpgFull *f, long sample);
+
 /* Externs given by a C function instead of data: at every npg_full_eval
  * the evaluator calls fn(user, f, sample, out, count) to fill the extern's
  * `count` values (C order), unless npg_full_set gave it values since the
@@ -262,6 +269,9 @@ NPG_API long npg_model_dim(const NpgModel *m, const char *name);
 /* 0 when the params bound in `f` equal those the model was trained with
  * (hashes of their values), else -1 with a message in `err` naming the param. */
 NPG_API int npg_model_check_params(const NpgModel *m, const NpgFull *f, char *err, size_t errlen);
+/* The same for the param files DIR/<param>.npy that exist (a reduced
+ * evaluation needs no params, but must not accept different ones). */
+NPG_API int npg_model_check_params_dir(const NpgModel *m, const char *dir, char *err, size_t errlen);
 /* The reduced evaluator of the model as C specialized to its sizes
  * (`npgc emit --reduced`). 0, or -1 with a message in `err`. */
 NPG_API int npg_model_emit(const NpgModel *m, FILE *out, char *err, size_t errlen);

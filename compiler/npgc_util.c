@@ -1,0 +1,187 @@
+/* npgc_util.c — what every npgc command shares: its usage text, strict
+ * parsing of numbers, and the checks on output paths (npgc.h). */
+#include <errno.h>
+#include <limits.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "npgc.h"
+
+typedef struct Usage {
+  const char *cmd, *text;
+} Usage;
+
+static const Usage usages[] = {
+    {"check",
+     "usage: npgc check PROG.npg [--json] [-d<letters>] [--std=DIR]\n"
+     "\n"
+     "  Parse, type-check and lower PROG.npg; print its stages (kind, shape, inputs,\n"
+     "  degrees, tensor orders, symbolic nonzeros), its basis classes with the reason\n"
+     "  of every merge, and the reduced evaluation cost.\n"
+     "  --json       the same report as JSON\n"
+     "  -dLETTERS    dump the IR after stages: p parse, s check, l lower, b basis classes\n"
+     "  --std=DIR    the directory holding npg/<module>.npg\n"},
+    {"emit",
+     "usage: npgc emit PROG.npg [--reduced MODEL/] -o FILE.c [--std=DIR]\n"
+     "\n"
+     "  Write the generated C of the full evaluator (one function per stage) and the\n"
+     "  bind-time gather checker; it compiles standalone with cc -c.\n"
+     "  --reduced MODEL/  instead, the reduced evaluator of the model trained in MODEL/,\n"
+     "               specialized to its sizes (the host passes the reduced tensors,\n"
+     "               NpgReducedCtx in npg_abi.h)\n"
+     "  -o FILE.c    written to a temporary name and renamed when complete; missing\n"
+     "               parent directories are created; an input of the command is refused\n"},
+    {"eval",
+     "usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc] [--std=DIR]\n"
+     "       npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--std=DIR]\n"
+     "\n"
+     "  --full: evaluate the full program on every sample of IN/<input>.npy (leading\n"
+     "  sample axis; params from DATA/<param>.npy, inputs and externs from IN/, else\n"
+     "  DATA/) and write every output as OUT/<name>.npy; an `output op` as CSR:\n"
+     "  OUT/<name>.indptr.npy, OUT/<name>.indices.npy (int64) and OUT/<name>.data.npy\n"
+     "  (samples x nonzeros). A non-finite value is an error naming where it arises.\n"
+     "  With MODEL/: the reduced evaluation; writes OUT/<name>.npy (lifted) and\n"
+     "  OUT/<name>.reduced.npy (reduced coordinates; an output op: samples x m x m).\n"
+     "  Params in IN/ must be those the model was trained with.\n"
+     "  --cc         compile the full evaluator with the system compiler at -O3\n"
+     "  -o OUT/      created with its missing parents\n"},
+    {"train",
+     "usage: npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E]\n"
+     "                  [--basis NAME:cap=N,energy=E] [--merge concat|joint] [--mem BYTES]\n"
+     "                  [--cc] [--std=DIR]\n"
+     "\n"
+     "  Run the full program on every sample of DATA/ (params, and inputs and externs\n"
+     "  with a leading sample axis), build one basis per class, pre-multiply every\n"
+     "  tensor, fit the learned map of every extern, write MODEL/ (a temporary folder\n"
+     "  renamed when complete; missing parents are created).\n"
+     "  --cap N      basis vectors per member (60, 1..1000000)\n"
+     "  --energy E   energy fraction per member (0.999, in (0, 1])\n"
+     "  --basis NAME:cap=N,energy=E   per quantity ('*': every one)\n"
+     "  --merge      concat (one PCA per member, concatenated) or joint (one PCA)\n"
+     "  --mem BYTES  memory for snapshots (half the RAM; suffixes k, M, G, T)\n"
+     "  --cc         compile the full evaluator with the system compiler at -O3\n"},
+    {"verify",
+     "usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc] [--exact] [--exact-size N]\n"
+     "       npgc verify PROG.npg --exact [--exact-size N] [--cc]\n"
+     "\n"
+     "  Evaluate full and reduced on the held-out samples of TEST/ (same params as\n"
+     "  training) and report, per quantity, the relative error of the lifted reduced\n"
+     "  value, the projection floor and their difference (L2 and Linf), and the stage\n"
+     "  where error grows most. Exit 1 when an output's mean L2 error exceeds --tol\n"
+     "  (default 1e-2) or a value is not finite.\n"
+     "  --exact      the two exactness checks (alone when MODEL/ and TEST/ are not\n"
+     "               given), on random data with every dim of a small size: every stage\n"
+     "               rebuilt from its tensors equals the full evaluator to 1e-12, and a\n"
+     "               model with full-rank bases reproduces it to 1e-10\n"
+     "  --exact-size N   that size (1..64; 6 and 4 by default)\n"},
+    {"bench",
+     "usage: npgc bench PROG.npg MODEL/ TEST/ [--cc] [--reps N]\n"
+     "\n"
+     "  Time the full and the reduced evaluation of every sample of TEST/, N passes\n"
+     "  (3): the full evaluator (libtcc, npg's default, or --cc: the system compiler\n"
+     "  at -O3), the reduced one with its inputs projected and, reported apart and\n"
+     "  included in the total, its outputs lifted; the speedup; the model's memory.\n"},
+};
+
+int npgc_usage(const char *cmd, bool help) {
+  for (size_t i = 0; i < sizeof usages / sizeof usages[0]; i++)
+    if (strcmp(usages[i].cmd, cmd) == 0) {
+      fputs(usages[i].text, help ? stdout : stderr);
+      return help ? 0 : 2;
+    }
+  fprintf(stderr, "npgc: unknown command '%s'\n", cmd);
+  return 2;
+}
+
+void npgc_usage_all(FILE *out) {
+  fputs("usage: npgc COMMAND ... (npgc COMMAND --help for its whole usage)\n\n", out);
+  for (size_t i = 0; i < sizeof usages / sizeof usages[0]; i++) {
+    fputs(usages[i].text, out);
+    fputc('\n', out);
+  }
+}
+
+bool npgc_parse_long(const char *s, long lo, long hi, long *out) {
+  if (!s || !*s) return false;
+  char *end;
+  errno = 0;
+  long v = strtol(s, &end, 10);
+  if (errno || *end || v < lo || v > hi) return false;
+  *out = v;
+  return true;
+}
+
+bool npgc_parse_double(const char *s, double lo, double hi, bool lo_open, double *out) {
+  if (!s || !*s) return false;
+  char *end;
+  errno = 0;
+  double v = strtod(s, &end);
+  if (errno || *end || !isfinite(v) || v > hi || v < lo || (lo_open && v == lo)) return false;
+  *out = v;
+  return true;
+}
+
+bool npgc_parse_bytes(const char *s, size_t *out) {
+  if (!s || !*s) return false;
+  char *end;
+  errno = 0;
+  double v = strtod(s, &end);
+  double mul = 1;
+  if (*end == 'k' || *end == 'K') mul = 1e3, end++;
+  else if (*end == 'M') mul = 1e6, end++;
+  else if (*end == 'G') mul = 1e9, end++;
+  else if (*end == 'T') mul = 1e12, end++;
+  if (errno || end == s || *end || !isfinite(v) || !(v > 0) || v * mul >= (double)SIZE_MAX) return false;
+  *out = (size_t)(v * mul);
+  return *out > 0;
+}
+
+int npgc_make_parents(const char *path, bool self) {
+  char buf[4096];
+  snprintf(buf, sizeof buf, "%s", path);
+  size_t n = strlen(buf);
+  while (n > 1 && buf[n - 1] == '/') buf[--n] = 0;
+  if (!self) { /* the parent of `path` only */
+    char *slash = strrchr(buf, '/');
+    if (!slash) return 0;
+    *slash = 0;
+    if (!buf[0]) return 0;
+  }
+  for (char *p = buf + 1;; p++) {
+    bool last = *p == 0;
+    if (*p == '/' || last) {
+      char c = *p;
+      *p = 0;
+      if (mkdir(buf, 0777) != 0 && errno != EEXIST) {
+        fprintf(stderr, "error: cannot create %s: %s\n", buf, strerror(errno));
+        return -1;
+      }
+      struct stat st;
+      if (stat(buf, &st) != 0 || !S_ISDIR(st.st_mode)) {
+        fprintf(stderr, "error: %s exists and is not a directory\n", buf);
+        return -1;
+      }
+      *p = c;
+    }
+    if (last) break;
+  }
+  return 0;
+}
+
+bool npgc_same_file(const char *a, const char *b) {
+  struct stat sa, sb;
+  return a && b && stat(a, &sa) == 0 && stat(b, &sb) == 0 && sa.st_dev == sb.st_dev && sa.st_ino == sb.st_ino;
+}
+
+bool npgc_inside(const char *path, const char *dir) {
+  char parent[4096];
+  snprintf(parent, sizeof parent, "%s", path);
+  char *slash = strrchr(parent, '/');
+  if (!slash) snprintf(parent, sizeof parent, ".");
+  else if (slash == parent) parent[1] = 0;
+  else *slash = 0;
+  return npgc_same_file(parent, dir);
+}

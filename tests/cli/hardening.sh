@@ -1,0 +1,87 @@
+#!/bin/sh
+# hardening.sh BUILD_DIR — regression tests of the defects a hostile-input
+# trial found in npgc (non-finite values, foreign params, outputs that are
+# inputs, numbers misread, --help, missing parents, bench's report).
+set -eu
+B=$1
+W=$(mktemp -d /tmp/npg_hard_XXXXXX)
+trap 'rm -rf "$W"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+N=$B/npgc
+
+# 1. a root of a negative test entry: verify and eval --full fail naming stage, sample and entry
+cat >"$W/sqrt.npg" <<'NPG'
+dim N
+input x : real[N]
+output y[i:N] = x[i]^(1/2)
+NPG
+/usr/bin/python3 - "$W" <<'PY'
+import sys, numpy as np
+w = sys.argv[1]; rng = np.random.default_rng(1)
+import os
+os.makedirs(w + "/TR"); os.makedirs(w + "/TE")
+np.save(w + "/TR/x.npy", 1 + rng.random((20, 5)))
+x = 1 + rng.random((4, 5)); x[2, 3] = -0.5
+np.save(w + "/TE/x.npy", x)
+PY
+"$N" train "$W/sqrt.npg" "$W/TR" -o "$W/SM" >/dev/null || fail "train sqrt"
+if "$N" verify "$W/sqrt.npg" "$W/SM" "$W/TE" >"$W/out.txt" 2>"$W/err.txt"; then fail "verify passed a NaN"; fi
+grep -q "sample 2: stage 'y' is not finite: y\[3\] is NaN" "$W/err.txt" || fail "verify NaN message: $(cat "$W/err.txt")"
+if "$N" eval "$W/sqrt.npg" --full "$W/TE" "$W/TE" -o "$W/FO" 2>"$W/err.txt"; then fail "eval --full wrote a NaN"; fi
+grep -q "sample 2: stage 'y' is not finite: y\[3\] is NaN" "$W/err.txt" || fail "eval NaN message: $(cat "$W/err.txt")"
+test ! -e "$W/FO/y.npy" || fail "eval --full left an output with a NaN"
+# a NaN input to the reduced evaluation is named, not reported as a singular operator
+/usr/bin/python3 -c "import numpy as np,sys; x=np.load(sys.argv[1]); x[1,0]=np.nan; np.save(sys.argv[2], x)" "$W/TR/x.npy" "$W/nan.npy"
+mkdir "$W/NI"; mv "$W/nan.npy" "$W/NI/x.npy"
+if "$N" eval "$W/sqrt.npg" "$W/SM" "$W/NI" -o "$W/NO" 2>"$W/err.txt"; then fail "reduced eval of a NaN input"; fi
+grep -q "'x' holds NaN at flat entry 0" "$W/err.txt" || fail "NaN input message: $(cat "$W/err.txt")"
+
+# 2. reduced eval refuses params in IN/ that differ from the model's, as verify does
+R=examples/radiosity/formfactors.npg
+"$B/radiosity_data" "$W/RT" 24 8 0 1 1 >/dev/null
+"$N" train $R "$W/RT" -o "$W/RM" --cap 4 >/dev/null || fail "radiosity train"
+/usr/bin/python3 -c "import numpy as np,sys; r=np.load(sys.argv[1]); np.save(sys.argv[1], r*0.5)" "$W/RT/rho.npy"
+if "$N" eval $R "$W/RM" "$W/RT" -o "$W/RO" 2>"$W/err.txt"; then fail "reduced eval accepted other params"; fi
+grep -q "rho.npy: param 'rho' differs from the one the model was trained with" "$W/err.txt" || fail "eval params: $(cat "$W/err.txt")"
+if "$N" bench $R "$W/RM" "$W/RT" 2>"$W/err.txt" >/dev/null; then fail "bench accepted other params"; fi
+grep -q "param 'rho' differs" "$W/err.txt" || fail "bench params: $(cat "$W/err.txt")"
+
+# 3. an output path that is an input is refused, and the input survives
+cp "$W/sqrt.npg" "$W/keep.npg"
+if "$N" emit "$W/keep.npg" -o "$W/keep.npg" 2>"$W/err.txt"; then fail "emit over its program"; fi
+cmp -s "$W/sqrt.npg" "$W/keep.npg" || fail "emit replaced the program"
+if "$N" emit "$W/sqrt.npg" --reduced "$W/SM" -o "$W/SM/manifest" 2>"$W/err.txt"; then fail "emit into the model"; fi
+"$N" verify "$W/sqrt.npg" "$W/SM" "$W/TR" >/dev/null || fail "the model was damaged by emit"
+if "$N" train "$W/sqrt.npg" "$W/TR" -o "$W/TR" 2>"$W/err.txt"; then fail "train -o DATA accepted"; fi
+test -e "$W/TR/x.npy" || fail "train -o DATA removed the data"
+
+# 5. numbers are parsed strictly
+for bad in "--cap 4294967297" "--cap 0" "--cap 3x" "--energy 0" "--energy 1.5" "--mem 1Q" "--mem -1"; do
+  if "$N" train "$W/sqrt.npg" "$W/TR" -o "$W/X" $bad 2>"$W/err.txt"; then fail "train accepted $bad"; fi
+  grep -q "bad value for" "$W/err.txt" || fail "train $bad: $(cat "$W/err.txt")"
+done
+if "$N" verify "$W/sqrt.npg" "$W/SM" "$W/TR" --tol '' 2>"$W/err.txt"; then fail "--tol '' accepted"; fi
+if "$N" verify "$W/sqrt.npg" "$W/SM" "$W/TR" --tol nan 2>"$W/err.txt"; then fail "--tol nan accepted"; fi
+if "$N" verify "$W/sqrt.npg" --exact-size 99999999999999999999 2>"$W/err.txt"; then fail "huge --exact-size accepted"; fi
+if "$N" train "$W/sqrt.npg" "$W/TR" -o 2>"$W/err.txt"; then fail "-o without a value"; fi
+grep -q "missing the value of '-o'" "$W/err.txt" || fail "-o message: $(cat "$W/err.txt")"
+
+# 13. every command has a whole --help, on stdout, exit 0
+for cmd in check emit eval train verify bench; do
+  "$N" $cmd --help >"$W/help.txt" 2>&1 || fail "$cmd --help exit status"
+  grep -q "^usage: npgc $cmd" "$W/help.txt" || fail "$cmd --help: $(head -2 "$W/help.txt")"
+done
+"$N" eval --help | grep -q -- "--full" && "$N" eval --help | grep -q "MODEL/ IN/" || fail "eval usage incomplete"
+
+# 15. -o creates missing parents
+"$N" train "$W/sqrt.npg" "$W/TR" -o "$W/a/b/MODEL" >/dev/null || fail "train into a missing parent"
+"$N" eval "$W/sqrt.npg" "$W/a/b/MODEL" "$W/TR" -o "$W/c/d/OUT" || fail "eval into a missing parent"
+test -e "$W/c/d/OUT/y.npy" || fail "eval output"
+"$N" emit "$W/sqrt.npg" -o "$W/e/f/prog.c" || fail "emit into a missing parent"
+
+# 16. bench says which backend it timed, how often, includes lifting, never "0.0x"
+"$N" bench "$W/sqrt.npg" "$W/SM" "$W/TR" --reps 2 >"$W/bench.txt" || fail "bench"
+grep -q "20 samples x 2 passes, 39 evaluations timed" "$W/bench.txt" || fail "bench reps: $(cat "$W/bench.txt")"
+grep -q "^full evaluator: libtcc" "$W/bench.txt" && grep -q "of which lifting" "$W/bench.txt" || fail "bench report"
+if grep -q " 0\.0x" "$W/bench.txt"; then fail "bench printed 0.0x"; fi
+echo "ok"
