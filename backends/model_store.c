@@ -11,7 +11,7 @@
  * array file is hashed against its checksum before npy_read sees it, so a
  * corrupted, truncated, missing or swapped file is named rather than loaded.
  */
-#define _POSIX_C_SOURCE 200809L /* fsync, O_DIRECTORY, lstat, getpid */
+#define _GNU_SOURCE /* renameat2 (RENAME_EXCHANGE), fsync, O_DIRECTORY, lstat, getpid */
 
 #include "model_store.h"
 
@@ -20,6 +20,7 @@
 #include <fcntl.h>
 #include <inttypes.h>
 #include <limits.h>
+#include <signal.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -136,7 +137,7 @@ static int key_is(const char *line, const char *key) {
  * starting with a key that is not one the manifest itself uses. */
 static int valid_meta(const char *line) {
   return line && *line && *line != ' ' && *line != '\t' && !strchr(line, '\n') && !key_is(line, FORMAT_WORD) &&
-         !key_is(line, "program") && !key_is(line, "array");
+         !key_is(line, "program") && !key_is(line, "array") && !key_is(line, "manifest");
 }
 
 /* `shape` as "3x4" ("5" for one dim, "()" for none) into `buf` (SHAPE_TEXT). */
@@ -370,6 +371,35 @@ static int remove_stale(const Report *r, const char *path) {
   return remove_store_dir(r, path);
 }
 
+static int slurp(const Report *r, const char *path, char **text, size_t *len);
+
+/* Every .npy in the model directory `dir` is an array its manifest lists:
+ * replacing the model removes those, so a file the user put there is
+ * refused rather than lost. */
+static int check_listed(const Report *r, const char *dir) {
+  char *mpath = str_printf("%s/manifest", dir), *text = NULL;
+  size_t len = 0;
+  DIR *d = NULL;
+  int rc = mpath ? slurp(r, mpath, &text, &len) : fail(r, dir, 0, "out of memory");
+  if (rc == 0 && !(d = opendir(dir))) rc = fail(r, dir, 0, "cannot open the directory: %s", strerror(errno));
+  struct dirent *e;
+  while (rc == 0 && (e = readdir(d))) {
+    size_t n = strlen(e->d_name);
+    if (n <= 4 || strcmp(e->d_name + n - 4, ".npy") != 0) continue;
+    char *line = str_printf("\narray %s ", e->d_name);
+    char buf[NPY_EXCERPT_SIZE];
+    if (!line) rc = fail(r, dir, 0, "out of memory");
+    else if (!strstr(text, line))
+      rc = fail(r, dir, 0, "holds '%s', which its manifest does not list: refusing to replace the model (move the "
+                           "file elsewhere first)", excerpt(buf, e->d_name));
+    free(line);
+  }
+  if (d) closedir(d);
+  free(text);
+  free(mpath);
+  return rc;
+}
+
 /* Whether `dir` exists (`*exists`), and if so that it is a model directory
  * model_store_write may replace. */
 static int check_replaceable(const Report *r, const char *dir, int *exists) {
@@ -384,7 +414,7 @@ static int check_replaceable(const Report *r, const char *dir, int *exists) {
   if (entries > 0 && !model)
     return fail(r, dir, 0, "exists and is not a model (it has no model manifest): refusing to replace it");
   *exists = 1;
-  return 0;
+  return model ? check_listed(r, dir) : 0;
 }
 
 /* Make the entries of directory `path` durable. Some file systems cannot
@@ -411,6 +441,149 @@ static char *normalize_dir(const char *dir) {
   size_t n = strlen(dir);
   while (n > 1 && dir[n - 1] == '/') n--;
   return str_printf("%.*s", (int)n, dir);
+}
+
+/* ---------------------------------------------------------------- interruption
+ *
+ * A training killed while it writes leaves "<dir>.tmp.<pid>" (the new model,
+ * maybe incomplete) and, on the two-rename path, "<dir>.old.<pid>" (the
+ * previous one). SIGINT and SIGTERM remove the temporary folder before the
+ * process dies; after a SIGKILL the next write (or read) of the model finds
+ * what a dead process left: it moves a complete model into a missing `dir`,
+ * saying so, and removes the rest. */
+
+/* Test hook: NPG_TEST_INTERRUPT=<point>[:TERM|:INT] raises that signal
+ * (SIGKILL by default) at a named point of model_store_write: "arrays" (half
+ * the arrays written), "manifest" (all written, before the swap), "swap"
+ * (between the two renames, with NPG_TEST_NO_EXCHANGE=1), "cleanup" (the
+ * new model in place, the previous one not yet removed). */
+static void test_point(const char *point) {
+  const char *at = getenv("NPG_TEST_INTERRUPT");
+  size_t n = strlen(point);
+  if (!at || strncmp(at, point, n) != 0 || (at[n] && at[n] != ':')) return;
+  raise(!at[n] ? SIGKILL : strcmp(at + n + 1, "TERM") == 0 ? SIGTERM : strcmp(at + n + 1, "INT") == 0 ? SIGINT : SIGKILL);
+}
+
+/* What the signal handler removes: every file write_contents may create in
+ * the temporary folder, then the folder. Set before the handler is armed. */
+static struct {
+  char **paths;
+  int n;
+  char *dir;
+  struct sigaction saved_int, saved_term;
+  int armed;
+} cleanup;
+
+static void on_signal(int sig) {
+  for (int i = 0; i < cleanup.n; i++) unlink(cleanup.paths[i]);
+  rmdir(cleanup.dir);
+  sigaction(sig, sig == SIGINT ? &cleanup.saved_int : &cleanup.saved_term, NULL);
+  raise(sig);
+}
+
+static void disarm(void) {
+  if (cleanup.armed) {
+    sigaction(SIGINT, &cleanup.saved_int, NULL);
+    sigaction(SIGTERM, &cleanup.saved_term, NULL);
+    cleanup.armed = 0;
+  }
+  for (int i = 0; i < cleanup.n; i++) free(cleanup.paths[i]);
+  free(cleanup.paths);
+  cleanup.paths = NULL;
+  cleanup.n = 0;
+  cleanup.dir = NULL;
+}
+
+/* Arm SIGINT and SIGTERM to remove `tmp` and what `m` writes into it (one
+ * model write at a time per process: a second one is not armed). */
+static void arm(const char *tmp, const ModelStore *m) {
+  if (cleanup.paths) return;
+  char **paths = calloc((size_t)(2 * m->narrays + 1), sizeof *paths);
+  if (!paths) return;
+  cleanup.paths = paths;
+  long pid = (long)getpid();
+  for (int i = 0; i < m->narrays; i++) {
+    if ((paths[cleanup.n] = str_printf("%s/%s.npy", tmp, m->arrays[i].name))) cleanup.n++;
+    if ((paths[cleanup.n] = str_printf("%s/%s.npy.tmp.%ld", tmp, m->arrays[i].name, pid))) cleanup.n++;
+  }
+  if ((paths[cleanup.n] = str_printf("%s/manifest", tmp))) cleanup.n++;
+  cleanup.dir = (char *)tmp;
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_signal;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, &cleanup.saved_int);
+  sigaction(SIGTERM, &sa, &cleanup.saved_term);
+  cleanup.armed = 1;
+}
+
+/* A model directory whose manifest is whole: its last line is its checksum
+ * and matches (the manifest is written last, so the arrays are there). */
+static int is_complete(const char *path) {
+  char *mpath = str_printf("%s/manifest", path), *text = NULL, ignored[16];
+  Report quiet = {ignored, sizeof ignored};
+  size_t len = 0;
+  int ok = 0;
+  if (mpath && slurp(&quiet, mpath, &text, &len) == 0) {
+    char *last = len > 1 ? memrchr(text, '\n', len - 1) : NULL;
+    uint64_t want;
+    if (last && strncmp(last + 1, "manifest " CHECKSUM_KIND " ", strlen("manifest " CHECKSUM_KIND " ")) == 0) {
+      char hex[17] = {0};
+      memcpy(hex, last + 1 + strlen("manifest " CHECKSUM_KIND " "), 16);
+      ok = parse_hex64(hex, &want) == 0 &&
+           model_hash_bytes(model_hash_init(), text, (size_t)(last - text) + 1) == want;
+    }
+  }
+  free(text);
+  free(mpath);
+  return ok;
+}
+
+/* "<base>.tmp.<pid>" or "<base>.old.<pid>" of a process that is gone: its
+ * kind ('t' or 'o'), else 0. */
+static int dead_leftover(const char *name, const char *base) {
+  size_t n = strlen(base);
+  if (strncmp(name, base, n) != 0 || (strncmp(name + n, ".tmp.", 5) != 0 && strncmp(name + n, ".old.", 5) != 0))
+    return 0;
+  const char *digits = name + n + 5;
+  if (!*digits || strspn(digits, "0123456789") != strlen(digits) || strlen(digits) > 9) return 0;
+  long pid = strtol(digits, NULL, 10);
+  if (pid == (long)getpid() || kill((pid_t)pid, 0) == 0 || errno != ESRCH) return 0;
+  return name[n + 1];
+}
+
+/* What dead trainings left beside `dir`: a complete new model (else the
+ * previous one) moved into a missing `dir`, saying so on stderr; with
+ * `clean`, the rest removed. Failures here are not errors of the caller. */
+static void recover_interrupted(const char *dir, int clean) {
+  char *parent = parent_of(dir), ignored[16];
+  const char *slash = strrchr(dir, '/');
+  const char *base = slash ? slash + 1 : dir;
+  Report quiet = {ignored, sizeof ignored};
+  DIR *d = parent ? opendir(parent) : NULL;
+  struct stat st;
+  int missing = lstat(dir, &st) != 0 && errno == ENOENT;
+  for (int pass = 0; d && pass < 3; pass++) { /* complete new models, previous models, the rest */
+    rewinddir(d);
+    struct dirent *e;
+    while ((e = readdir(d))) {
+      int kind = dead_leftover(e->d_name, base);
+      if (!kind) continue;
+      char *path = str_printf("%s/%s", parent, e->d_name);
+      if (!path) continue;
+      if (pass < 2 && missing && (pass == 0 ? kind == 't' && is_complete(path) : kind == 'o') &&
+          rename(path, dir) == 0) {
+        fprintf(stderr, "npg: %s was missing after an interrupted training: moved in the %s model from %s\n", dir,
+                pass == 0 ? "new (complete)" : "previous", path);
+        missing = 0;
+      } else if (pass == 2 && clean) {
+        remove_store_dir(&quiet, path);
+      }
+      free(path);
+    }
+  }
+  if (d) closedir(d);
+  free(parent);
 }
 
 /* ---------------------------------------------------------------- writing */
@@ -454,20 +627,32 @@ static int write_contents(const Report *r, const char *tmp, const ModelStore *m)
      * what a later read will find rather than for what we meant to write. */
     else rc = hash_file(r, path, &checksums[i]);
     free(path);
+    if (i == m->narrays / 2) test_point("arrays");
   }
   char *path = rc == 0 ? str_printf("%s/manifest", tmp) : NULL;
   if (rc == 0 && !path) rc = fail(r, tmp, 0, "out of memory");
-  FILE *f = rc == 0 ? fopen(path, "wb") : NULL;
-  if (rc == 0 && !f) rc = fail(r, path, 0, "cannot create: %s", strerror(errno));
+  char *text = NULL;
+  size_t len = 0;
+  FILE *mem = rc == 0 ? open_memstream(&text, &len) : NULL;
+  if (rc == 0 && !mem) rc = fail(r, tmp, 0, "out of memory");
   if (rc == 0) {
-    fprintf(f, FORMAT_LINE "\nprogram %016" PRIx64 "\n", m->program_hash);
-    for (int i = 0; i < m->nmeta; i++) fprintf(f, "%s\n", m->meta[i]);
+    fprintf(mem, FORMAT_LINE "\nprogram %016" PRIx64 "\n", m->program_hash);
+    for (int i = 0; i < m->nmeta; i++) fprintf(mem, "%s\n", m->meta[i]);
     for (int i = 0; i < m->narrays; i++) {
       char shape[SHAPE_TEXT];
       const ModelArray *x = &m->arrays[i];
-      fprintf(f, "array %s.npy %s " CHECKSUM_KIND " %016" PRIx64 "\n", x->name,
+      fprintf(mem, "array %s.npy %s " CHECKSUM_KIND " %016" PRIx64 "\n", x->name,
               format_shape(shape, x->a.ndim, x->a.shape), checksums[i]);
     }
+    if (fclose(mem) != 0 || !text) rc = fail(r, tmp, 0, "out of memory");
+  }
+  FILE *f = rc == 0 ? fopen(path, "wb") : NULL;
+  if (rc == 0 && !f) rc = fail(r, path, 0, "cannot create: %s", strerror(errno));
+  if (rc == 0) {
+    /* the manifest vouches for itself too: its last line is the checksum of
+     * the lines before it, so an edited line is caught like a changed file */
+    fwrite(text, 1, len, f);
+    fprintf(f, "manifest " CHECKSUM_KIND " %016" PRIx64 "\n", model_hash_bytes(model_hash_init(), text, len));
     /* EINVAL: a file that cannot be synced at all, as npy_write allows. */
     int ok = !ferror(f) && fflush(f) == 0 && (fsync(fileno(f)) == 0 || errno == EINVAL);
     int saved = errno;
@@ -477,6 +662,7 @@ static int write_contents(const Report *r, const char *tmp, const ModelStore *m)
     }
     if (!ok) rc = fail(r, path, 0, "cannot write: %s", strerror(saved));
   }
+  free(text);
   free(path);
   free(checksums);
   return rc == 0 ? sync_dir(r, tmp) : rc;
@@ -496,6 +682,7 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
     rc = fail(&r, dir_arg, 0, "out of memory");
     goto done;
   }
+  recover_interrupted(dir, 1);
   /* Everything that can be refused is refused before anything is written. */
   if (check_store(&r, dir, m) || check_replaceable(&r, dir, &exists) || remove_stale(&r, tmp) ||
       remove_stale(&r, old)) {
@@ -506,16 +693,36 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
     rc = fail(&r, tmp, 0, "cannot create the directory: %s", strerror(errno));
     goto done;
   }
+  arm(tmp, m);
   if (write_contents(&r, tmp, m) != 0) {
+    disarm();
     rc = -1;
     goto discard;
   }
-  /* The swap: between the two renames `dir` is briefly absent, never half
-   * written; a crash there leaves the old model whole in `old`. */
+  test_point("manifest");
+  disarm();
+  /* The swap: one atomic exchange where the file system has it (the old
+   * model is then in `tmp`); otherwise two renames, between which `dir` is
+   * briefly absent, never half written — a crash there leaves both models
+   * whole, and the next read or write moves the new one in. */
+  if (exists && !getenv("NPG_TEST_NO_EXCHANGE") && renameat2(AT_FDCWD, tmp, AT_FDCWD, dir, RENAME_EXCHANGE) == 0) {
+    if (sync_dir(&r, parent) != 0) { /* as below: keep both */
+      rc = -1;
+      goto done;
+    }
+    test_point("cleanup");
+    char ignored[16];
+    Report quiet = {ignored, sizeof ignored};
+    if (remove_store_dir(&quiet, tmp) != 0)
+      rc = fail(&r, tmp, 0, "the new model in %s is complete, but the previous one could not be removed from here",
+                dir);
+    goto done;
+  }
   if (exists && rename(dir, old) != 0) {
     rc = fail(&r, dir, 0, "cannot move the previous model aside to %s: %s", old, strerror(errno));
     goto discard;
   }
+  if (exists) test_point("swap");
   if (rename(tmp, dir) != 0) {
     rc = fail(&r, dir, 0, "cannot move the new model in from %s: %s", tmp, strerror(errno));
     if (exists && rename(old, dir) != 0) {
@@ -535,6 +742,7 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
     rc = -1;
     goto done;
   }
+  if (exists) test_point("cleanup");
   if (exists && remove_store_dir(&r, old) != 0) {
     size_t n = err ? strlen(err) : 0;
     if (err && n < errlen)
@@ -638,11 +846,18 @@ static int parse_array_line(const Report *r, const char *mpath, int ln, char *li
 
 /* Parse the manifest `text` (modified in place: lines and words are cut out
  * of it) of file `mpath`: its program hash into `*program`, its metadata
- * lines into `m`, its array lines into `*listed` (malloc'd, `*nlisted`). */
+ * lines into `m`, its array lines into `*listed` (malloc'd, `*nlisted`);
+ * `*changed_line` is the checksum line when the lines before it do not
+ * hash to it, else 0. */
 static int parse_manifest(const Report *r, const char *mpath, char *text, size_t len, uint64_t *program,
-                          ModelStore *m, Listed **listed, int *nlisted) {
+                          ModelStore *m, Listed **listed, int *nlisted, int *changed_line) {
   char buf[NPY_EXCERPT_SIZE];
-  int program_line = 0, ln = 0;
+  int program_line = 0, ln = 0, checksum_line = 0;
+  /* the hash of the bytes before the last line, which must be its checksum */
+  size_t body = len;
+  while (body > 0 && text[body - 1] == '\n') body--;
+  while (body > 0 && text[body - 1] != '\n') body--;
+  uint64_t expect = 0, actual = model_hash_bytes(model_hash_init(), text, body);
   *listed = NULL;
   *nlisted = 0;
   if (len == 0) return fail(r, mpath, 1, "empty file: not a model manifest (expected '" FORMAT_LINE "')");
@@ -663,6 +878,12 @@ static int parse_manifest(const Report *r, const char *mpath, char *text, size_t
       /* the format line: nothing more to it */
     } else if (key_is(line, FORMAT_WORD)) {
       return fail(r, mpath, ln, "'" FORMAT_WORD "' may only be the first line");
+    } else if (key_is(line, "manifest")) {
+      char *w[3];
+      if (next != text + len) return fail(r, mpath, ln, "the 'manifest' checksum line must be the last");
+      if (split_words(line, w, 3) != 3 || strcmp(w[1], CHECKSUM_KIND) != 0 || parse_hex64(w[2], &expect) != 0)
+        return fail(r, mpath, ln, "expected 'manifest " CHECKSUM_KIND " <16 hex digits>'");
+      checksum_line = ln;
     } else if (key_is(line, "program")) {
       char *w[2];
       if (program_line) return fail(r, mpath, ln, "second 'program' line (the first is line %d)", program_line);
@@ -690,6 +911,11 @@ static int parse_manifest(const Report *r, const char *mpath, char *text, size_t
     line = next;
   }
   if (!program_line) return fail(r, mpath, 0, "no 'program' line");
+  if (!checksum_line)
+    return fail(r, mpath, 0, "no 'manifest' checksum line: cut short, or written by an older npg (retrain)");
+  /* compared by the caller once the arrays are checked: a changed file is
+   * named as such even when its manifest line was changed to match */
+  *changed_line = expect != actual ? checksum_line : 0;
   return 0;
 }
 
@@ -721,20 +947,23 @@ int model_store_read(const char *dir_arg, uint64_t expect_program_hash, ModelSto
   model_store_init(m);
   if (!dir_arg || !*dir_arg) return fail(&r, "(model directory)", 0, "the directory name is empty");
   char *dir = normalize_dir(dir_arg);
+  if (dir) recover_interrupted(dir, 0);
   char *mpath = dir ? str_printf("%s/manifest", dir) : NULL;
   char *text = NULL;
   size_t len = 0;
   Listed *listed = NULL;
-  int nlisted = 0, rc = 0;
+  int nlisted = 0, rc = 0, changed_line = 0;
   if (!mpath) rc = fail(&r, dir_arg, 0, "out of memory");
   if (rc == 0) rc = slurp(&r, mpath, &text, &len);
-  if (rc == 0) rc = parse_manifest(&r, mpath, text, len, &m->program_hash, m, &listed, &nlisted);
+  if (rc == 0) rc = parse_manifest(&r, mpath, text, len, &m->program_hash, m, &listed, &nlisted, &changed_line);
   if (rc == 0 && m->program_hash != expect_program_hash)
     rc = fail(&r, mpath, 0,
               "model was trained for another program (program hash %016" PRIx64 ", this program %016" PRIx64
               "): retrain",
               m->program_hash, expect_program_hash);
   for (int i = 0; i < nlisted && rc == 0; i++) rc = load_array(&r, dir, &listed[i], m);
+  if (rc == 0 && changed_line)
+    rc = fail(&r, mpath, changed_line, "checksum mismatch: the manifest was changed after training");
   if (rc) model_store_free(m);
   free(listed);
   free(text);

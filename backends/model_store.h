@@ -15,12 +15,19 @@
  *   <key> <value...>                              metadata lines, verbatim, in order
  *   array basis_0.npy 3x4 fnv1a64 89abcdef01234567  one line per array
  *
+ *   manifest fnv1a64 0123456789abcdef             always last: the hash of the lines before it
+ *
  * An array line gives the file, its shape ("3x4"; "5" for a vector, "()"
- * for a 0-d array) and the FNV-1a 64 hash of the whole .npy file's bytes.
+ * for a 0-d array) and the FNV-1a 64 hash of the whole .npy file's bytes;
+ * the last line vouches for the manifest itself, so no line of it can be
+ * added, changed or removed unnoticed.
  *
  * A model is replaced whole or not at all: model_store_write builds the new
- * one in "<dir>.tmp.<pid>" and swaps it in only once every byte is synced,
- * so an interrupted training never leaves a half model.
+ * one in "<dir>.tmp.<pid>" and swaps it in only once every byte is synced
+ * (one atomic renameat2 exchange where the file system has it), so an
+ * interrupted training never leaves a half model. SIGINT and SIGTERM remove
+ * the temporary folder; what a killed process left is recovered or removed
+ * by the next write, and a missing `dir` is recovered by the next read.
  */
 #ifndef NPG_MODEL_STORE_H
 #define NPG_MODEL_STORE_H
@@ -74,10 +81,11 @@ const char *model_store_find(const ModelStore *m, const char *key);
  * directory are synced, then an existing `dir` is renamed to
  * "<dir>.old.<pid>", the new one renamed to `dir`, and the old one removed.
  *
- * Only what a model store writes is ever removed — `manifest`, *.npy files
- * and leftovers of npy_write ("*.npy.tmp.<pid>") — so a `dir` that holds
- * anything else, or holds files but no model manifest, is refused before
- * anything is written. `dir` may not be a symbolic link.
+ * Only what a model store writes is ever removed — `manifest`, the .npy
+ * files its manifest lists and leftovers of npy_write ("*.npy.tmp.<pid>") —
+ * so a `dir` that holds anything else (an unlisted .npy too), or holds files
+ * but no model manifest, is refused before anything is written. `dir` may
+ * not be a symbolic link.
  *
  * 0 on success. Otherwise -1, `err` holds "<path>: <problem>", and `dir` is
  * as it was — with one exception, said in the message: when only the

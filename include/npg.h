@@ -149,8 +149,10 @@ NPG_API void npg_csr_free(NpgCsr *c);
 
 /* The `output op` named `name` at the values of the last evaluation, as CSR
  * (rows: the product of its row dims, columns of its column dims; every
- * structurally non-zero entry, exact zeros included). 0, or -1 with
- * npg_full_error() (unknown name, not an output op, no evaluation yet). */
+ * structurally non-zero entry, exact zeros included). `out` is overwritten
+ * (free a previous operator first). 0, or -1 with npg_full_error()
+ * (unknown name, not an output op, no evaluation yet); `out` then holds
+ * nothing. */
 NPG_API int npg_full_op(NpgFull *f, const char *name, NpgCsr *out);
 
 /* ---------------------------------------------------------------- samples on disk

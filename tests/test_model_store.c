@@ -61,6 +61,25 @@ static void edit_file(const char *path, const char *from, const char *to) {
   free(text);
 }
 
+/* Recompute the manifest's own checksum (its last line) after an edit, as a
+ * deliberate rewrite of the manifest would. */
+static void reseal(const char *path) {
+  size_t n;
+  char *text = slurp(path, &n);
+  char *last = strstr(text, "\nmanifest fnv1a64 ");
+  if (!last) fail_msg("%s: no checksum line", path);
+  size_t body = (size_t)(last - text) + 1;
+  char line[64];
+  int k = snprintf(line, sizeof line, "manifest fnv1a64 %016llx\n",
+                   (unsigned long long)model_hash_bytes(model_hash_init(), text, body));
+  char *out = malloc(body + (size_t)k);
+  memcpy(out, text, body);
+  memcpy(out + body, line, (size_t)k);
+  write_file(path, out, body + (size_t)k);
+  free(out);
+  free(text);
+}
+
 /* FNV-1a 64 of the file `path`'s bytes. */
 static uint64_t file_hash(const char *path) {
   size_t n;
@@ -266,6 +285,8 @@ static void round_trip(void **state) {
     o += snprintf(expected + o, sizeof expected - (size_t)o, "array %s fnv1a64 %016llx\n", lines[i],
                   (unsigned long long)got.arrays[i].checksum);
   }
+  snprintf(expected + o, sizeof expected - (size_t)o, "manifest fnv1a64 %016llx\n",
+           (unsigned long long)model_hash_bytes(model_hash_init(), expected, strlen(expected)));
   assert_string_equal(manifest, expected);
   free(manifest);
   model_store_free(&got);
@@ -449,6 +470,14 @@ static void refuse_to_replace(void **state) {
 /* ---------------------------------------------------------------- reading errors */
 
 /* A fresh example model in "<scratch>/<name>", its path in `dir`. */
+/* model_store_read(`dir`) succeeds. */
+static void expect_model_ok(const char *dir) {
+  ModelStore m;
+  char err[1024];
+  if (model_store_read(dir, PROGRAM, &m, err, sizeof err) != 0) fail_msg("%s", err);
+  model_store_free(&m);
+}
+
 static void fresh_model(char *dir, const char *name) {
   ModelStore m;
   example_model(&m);
@@ -619,14 +648,41 @@ static void malformed_manifest_lines(void **state) {
   snprintf(path, sizeof path, "%s/manifest", dir);
   size_t n;
   char *text = slurp(path, &n);
-  text[n - 2] = 'z';
+  size_t end6 = (size_t)(strstr(text, "\nmanifest ") - text); /* line 6 ends here */
+  char digit = text[end6 - 1];
+  text[end6 - 1] = 'z';
   write_file(path, text, n);
-  snprintf(want, sizeof want, "%s:6: bad checksum '%.15sz' (expected 16 hex digits)", path, text + n - 17);
+  snprintf(want, sizeof want, "%s:6: bad checksum '%.15sz' (expected 16 hex digits)", path, text + end6 - 16);
   expect_read_error(dir, PROGRAM, want);
+  text[end6 - 1] = digit;
   write_file(path, text, n - 1);
-  snprintf(want, sizeof want, "%s:6: last line has no newline: the file was cut short?", path);
+  snprintf(want, sizeof want, "%s:7: last line has no newline: the file was cut short?", path);
   expect_read_error(dir, PROGRAM, want);
   free(text);
+
+  /* the manifest's own checksum: a line added, changed or removed is caught
+   * (a forged 'spd' line would make the reduced solve use Cholesky on a
+   * non-symmetric operator), and so is a missing or misplaced checksum line */
+  fresh_model(dir, "manifest_sum");
+  snprintf(path, sizeof path, "%s/manifest", dir);
+  edit_file(path, "energy 0.999\n", "energy 0.999\nspd b 0 0\n");
+  snprintf(want, sizeof want, "%s:8: checksum mismatch: the manifest was changed after training", path);
+  expect_read_error(dir, PROGRAM, want);
+  reseal(path);
+  expect_model_ok(dir);
+  edit_file(path, "basis_classes 2\n", "");
+  snprintf(want, sizeof want, "%s:7: checksum mismatch: the manifest was changed after training", path);
+  expect_read_error(dir, PROGRAM, want);
+  text = slurp(path, &n);
+  write_file(path, text, (size_t)(strstr(text, "\nmanifest ") - text) + 1);
+  snprintf(want, sizeof want, "%s: no 'manifest' checksum line: cut short, or written by an older npg (retrain)", path);
+  expect_read_error(dir, PROGRAM, want);
+  free(text);
+  fresh_model(dir, "manifest_sum2");
+  snprintf(path, sizeof path, "%s/manifest", dir);
+  edit_file(path, "basis_classes 2\n", "manifest fnv1a64 0000000000000000\n");
+  snprintf(want, sizeof want, "%s:3: the 'manifest' checksum line must be the last", path);
+  expect_read_error(dir, PROGRAM, want);
 }
 
 /* Unknown metadata lines come back verbatim and in order. */
@@ -636,6 +692,7 @@ static void metadata_verbatim(void **state) {
   fresh_model(dir, "verbatim");
   snprintf(path, sizeof path, "%s/manifest", dir);
   edit_file(path, "energy 0.999\n", "energy 0.999\nnote  two  spaces, tab\there\n");
+  reseal(path);
   ModelStore m;
   char err[1024];
   if (model_store_read(dir, PROGRAM, &m, err, sizeof err) != 0) fail_msg("%s", err);

@@ -401,9 +401,11 @@ static void output_operator(void **state) {
       big = fmax(big, fabs(d));
     }
   assert_true(worst <= 1e-12 * big);
-  /* errors */
-  assert_int_equal(npg_full_op(f, "y", &K), -1);
+  /* errors: `out` is overwritten, so the previous operator is freed first */
   npg_csr_free(&K);
+  assert_int_equal(npg_full_op(f, "y", &K), -1);
+  assert_null(K.indptr);
+  assert_non_null(strstr(npg_full_error(f), "'y' is not an output op"));
   npg_reduced_free(r);
   npg_model_free(m);
   npg_full_free(f);
