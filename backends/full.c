@@ -139,6 +139,22 @@ static int bind_shape(NpgFull *f, const Sym *s, int ndim, const long *shape, con
   return 0;
 }
 
+/* "[2, 5]": the index of flat entry e of `s` as bound, into `buf`. */
+static const char *index_text(NpgFull *f, const Sym *s, size_t e, char *buf, size_t len) {
+  long shape[MAX_AXES + MAX_STATIC], idx[MAX_AXES + MAX_STATIC];
+  int nd = 0;
+  for (int i = 0; i < s->ndims; i++) shape[nd++] = (long)f->dims[emit_index_of(&f->prog->dims, s->dims[i])];
+  for (int i = 0; i < s->nstatic; i++) shape[nd++] = s->shape[i];
+  for (int i = nd - 1; i >= 0; i--) {
+    idx[i] = shape[i] > 0 ? (long)(e % (size_t)shape[i]) : 0;
+    e = shape[i] > 0 ? e / (size_t)shape[i] : e;
+  }
+  size_t at = (size_t)snprintf(buf, len, "[");
+  for (int i = 0; i < nd && at < len; i++) at += (size_t)snprintf(buf + at, len - at, "%s%ld", i ? ", " : "", idx[i]);
+  if (at < len) snprintf(buf + at, len - at, "]");
+  return buf;
+}
+
 static size_t count_of(NpgFull *f, const Sym *s) {
   size_t n = 1;
   for (int i = 0; i < s->ndims; i++) n *= (size_t)f->dims[emit_index_of(&f->prog->dims, s->dims[i])];
@@ -163,16 +179,20 @@ int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape
     f->iparams[k] = malloc(sizeof(npg_idx) * (n ? n : 1));
     if (!f->iparams[k]) return fail(f, "out of memory");
     for (size_t i = 0; i < n; i++) {
+      char at[128];
       if (values[i] != (double)(npg_idx)values[i])
-        return fail(f, "%s: int param '%s' holds %g at flat entry %zu, not a whole number", from, name, values[i], i);
+        return fail(f, "%s: int param '%s' holds %.17g at %s, not a whole number", from, name, values[i],
+                    index_text(f, s, i, at, sizeof at));
       f->iparams[k][i] = (npg_idx)values[i];
     }
   } else {
     f->params[k] = malloc(sizeof(double) * (n ? n : 1));
     if (!f->params[k]) return fail(f, "out of memory");
     for (size_t i = 0; i < n; i++) {
+      char at[128];
       if (values[i] != values[i] || values[i] - values[i] != 0)
-        return fail(f, "%s: param '%s' holds %s at flat entry %zu", from, name, values[i] != values[i] ? "NaN" : "an infinity", i);
+        return fail(f, "%s: param '%s' holds %s at %s", from, name, values[i] != values[i] ? "NaN" : "an infinity",
+                    index_text(f, s, i, at, sizeof at));
       f->params[k][i] = values[i];
     }
   }
@@ -191,9 +211,19 @@ int npg_full_bind_params(NpgFull *f, const char *data_dir) {
     NpyArray a;
     if (npy_read(path, &a, err, sizeof err) != 0) return fail(f, "%s", err);
     if (s->is_int ? a.type == NPY_F64 : a.type != NPY_F64) {
+      const char *type = npy_type_name(a.type); /* before npy_free forgets it */
       npy_free(&a);
       return fail(f, "%s: param '%s' is declared %s but the array is %s", path, s->name, s->is_int ? "int" : "real",
-                  npy_type_name(a.type));
+                  type);
+    }
+    /* int params travel as doubles: exact up to 2^53 */
+    for (size_t i = 0; a.type == NPY_I64 && i < a.count; i++) {
+      long long v = ((long long *)a.data)[i];
+      if (v > (1LL << 53) || v < -(1LL << 53)) {
+        npy_free(&a);
+        return fail(f, "%s: int param '%s' holds %lld at flat entry %zu, beyond 2^53 (npg holds int params exactly "
+                       "only up to 2^53)", path, s->name, v, i);
+      }
     }
     double *v = malloc(sizeof(double) * (a.count ? a.count : 1));
     if (!v) {
@@ -224,15 +254,18 @@ int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, cons
     return fail(f, "%s: '%s' is a stage; only inputs, externs and params are set", from, name);
   if (bind_shape(f, s, ndim, shape, from)) return -1;
   size_t n = count_of(f, s);
-  if (f->qcount[k] != n) {
+  if (f->qcount[k] != n || !f->q[k]) { /* a zero-size quantity still gets a buffer */
     free(f->q[k]);
     f->q[k] = malloc(sizeof(double) * (n ? n : 1));
     if (!f->q[k]) return fail(f, "out of memory");
     f->qcount[k] = n;
   }
-  for (size_t i = 0; i < n; i++)
+  for (size_t i = 0; i < n; i++) {
+    char at[128];
     if (values[i] != values[i] || values[i] - values[i] != 0)
-      return fail(f, "%s: '%s' holds %s at flat entry %zu", from, name, values[i] != values[i] ? "NaN" : "an infinity", i);
+      return fail(f, "%s: '%s' holds %s at %s", from, name, values[i] != values[i] ? "NaN" : "an infinity",
+                  index_text(f, s, i, at, sizeof at));
+  }
   memcpy(f->q[k], values, sizeof(double) * n);
   f->fresh[k] = true;
   return 0;

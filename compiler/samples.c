@@ -65,6 +65,22 @@ static int samples_open(SampleSet *s, const Program *prog, const char *dir, cons
                sym->ndims + sym->nstatic, sym->ndims + sym->nstatic == 1 ? "is" : "es", sym->name, g->a.ndim);
       goto fail;
     }
+    /* a NaN or an infinity is named by sample and index, once, here */
+    size_t per = 1;
+    for (int d = 1; d < g->a.ndim; d++) per *= (size_t)g->a.shape[d];
+    for (size_t e = 0; e < g->a.count; e++) {
+      double v = ((const double *)g->a.data)[e];
+      if (v - v == 0) continue;
+      char at[256];
+      size_t rest = per ? e % per : 0, o = (size_t)snprintf(at, sizeof at, "[");
+      long idx[NPY_MAX_DIMS];
+      for (int d = g->a.ndim - 1; d >= 1; d--) idx[d] = (long)(rest % (size_t)g->a.shape[d]), rest /= (size_t)g->a.shape[d];
+      for (int d = 1; d < g->a.ndim && o < sizeof at; d++) o += (size_t)snprintf(at + o, sizeof at - o, "%s%ld", d > 1 ? ", " : "", idx[d]);
+      if (o < sizeof at) snprintf(at + o, sizeof at - o, "]");
+      snprintf(err, errlen, "%s: %s '%s' holds %s at sample %zu, %s", g->path, sym->kind == SYM_INPUT ? "input" : "extern",
+               sym->name, v != v ? "NaN" : "an infinity", per ? e / per : 0, at);
+      goto fail;
+    }
     if (s->count < 0) {
       s->count = g->a.shape[0];
       count_from = g->path;

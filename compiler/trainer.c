@@ -188,6 +188,13 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
     tfail(t, "no training samples were added");
     return NULL;
   }
+  for (int i = 0; i < t->prog->dims.n; i++) {
+    const char *d = ((Sym *)t->prog->dims.v[i])->name;
+    if (npg_full_dim(t->f, d) == 0) {
+      tfail(t, "dim %s is 0 in the training data: the quantities over it have no entries to reduce", d);
+      return NULL;
+    }
+  }
   TrainOptions o;
   memset(&o, 0, sizeof o);
   o.cap = t->opt.cap;

@@ -116,7 +116,7 @@ static void nan_in_param(void **state) {
   double r[4] = {0.2, 0.3, 0.0 / 0.0, 0.5};
   long s1[1] = {F};
   put("rho", NPY_F64, 1, s1, r);
-  expect_bind_error(msg("%s/rho.npy: param 'rho' holds NaN at flat entry 2", dir));
+  expect_bind_error(msg("%s/rho.npy: param 'rho' holds NaN at [2]", dir));
 }
 
 /* An index out of range in tri.npy: found once at bind time (the first
@@ -157,7 +157,7 @@ static void nan_in_input(void **state) {
   double g[12] = {0.0 / 0.0};
   long sg[2] = {V, 3};
   assert_int_equal(npg_full_set(f, "g", 2, sg, g, "IN/g.npy"), -1);
-  assert_string_equal(npg_full_error(f), "IN/g.npy: 'g' holds NaN at flat entry 0");
+  assert_string_equal(npg_full_error(f), "IN/g.npy: 'g' holds NaN at [0, 0]");
   npg_full_free(f);
   npg_free(p);
 }

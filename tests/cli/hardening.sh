@@ -34,7 +34,7 @@ test ! -e "$W/FO/y.npy" || fail "eval --full left an output with a NaN"
 /usr/bin/python3 -c "import numpy as np,sys; x=np.load(sys.argv[1]); x[1,0]=np.nan; np.save(sys.argv[2], x)" "$W/TR/x.npy" "$W/nan.npy"
 mkdir "$W/NI"; mv "$W/nan.npy" "$W/NI/x.npy"
 if "$N" eval "$W/sqrt.npg" "$W/SM" "$W/NI" -o "$W/NO" 2>"$W/err.txt"; then fail "reduced eval of a NaN input"; fi
-grep -q "'x' holds NaN at flat entry 0" "$W/err.txt" || fail "NaN input message: $(cat "$W/err.txt")"
+grep -q "NI/x.npy: input 'x' holds NaN at sample 1, \[0\]" "$W/err.txt" || fail "NaN input message: $(cat "$W/err.txt")"
 
 # 2. reduced eval refuses params in IN/ that differ from the model's, as verify does
 R=examples/radiosity/formfactors.npg
@@ -84,4 +84,17 @@ test -e "$W/c/d/OUT/y.npy" || fail "eval output"
 grep -q "20 samples x 2 passes, 39 evaluations timed" "$W/bench.txt" || fail "bench reps: $(cat "$W/bench.txt")"
 grep -q "^full evaluator: libtcc" "$W/bench.txt" && grep -q "of which lifting" "$W/bench.txt" || fail "bench report"
 if grep -q " 0\.0x" "$W/bench.txt"; then fail "bench printed 0.0x"; fi
+# 8. a zero-size dim: evaluated, and refused by training with a message (no LAPACK error)
+mkdir "$W/Z"
+printf 'dim N\ninput x : real[N]\noutput y[i:N] = 2 * x[i]\n' >"$W/z.npg"
+/usr/bin/python3 -c "import numpy as np,sys; np.save(sys.argv[1], np.zeros((4, 0)))" "$W/Z/x.npy"
+"$N" eval "$W/z.npg" --full "$W/Z" "$W/Z" -o "$W/ZO" || fail "eval of a zero-size dim"
+if "$N" train "$W/z.npg" "$W/Z" -o "$W/ZM" >"$W/out.txt" 2>"$W/err.txt"; then fail "trained a zero-size dim"; fi
+grep -q "^error: dim N is 0 in the training data" "$W/err.txt" || fail "zero dim message: $(cat "$W/err.txt")"
+if grep -q DGESDD "$W/err.txt" "$W/out.txt"; then fail "LAPACK spoke"; fi
+
+# 12. an int64 file for a real param names its type
+/usr/bin/python3 -c "import numpy as np,sys; np.save(sys.argv[1], np.arange(24))" "$W/RT/rho.npy"
+if "$N" eval $R --full "$W/RT" "$W/RT" -o "$W/RO" 2>"$W/err.txt"; then fail "int64 rho accepted"; fi
+grep -q "param 'rho' is declared real but the array is int64" "$W/err.txt" || fail "int64 message: $(cat "$W/err.txt")"
 echo "ok"
