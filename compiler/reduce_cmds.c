@@ -438,12 +438,17 @@ static int verify_exact(Common *c) {
 static void print_report(const Common *c, const NpgVerifyReport *rep) {
   printf("verify %s against %s on %ld held-out samples (relative errors, mean over samples)\n", c->prog_path, c->a,
          rep->samples);
-  printf("%-14s %-7s %5s %10s %10s %10s %10s %10s %10s\n", "quantity", "kind", "m", "L2 error", "floor", "own",
+  int wn = 8, wk = 4; /* columns as wide as their widest entry */
+  for (int q = 0; q < rep->nrows; q++) {
+    wn = (int)strlen(rep->rows[q].name) > wn ? (int)strlen(rep->rows[q].name) : wn;
+    wk = (int)strlen(rep->rows[q].kind) > wk ? (int)strlen(rep->rows[q].kind) : wk;
+  }
+  printf("%-*s %-*s %5s %10s %10s %10s %10s %10s %10s\n", wn, "quantity", wk, "kind", "m", "L2 error", "floor", "own",
          "max L2", "Linf error", "Linf floor");
   for (int q = 0; q < rep->nrows; q++) {
     const NpgVerifyRow *e = &rep->rows[q];
-    printf("%-14s %-7s %5ld %10.3e %10.3e %10.3e %10.3e %10.3e %10.3e%s\n", e->name, e->kind, e->m, e->l2, e->floor,
-           e->own, e->l2_max, e->linf, e->linf_floor, e->output ? "  (output)" : "");
+    printf("%-*s %-*s %5ld %10.3e %10.3e %10.3e %10.3e %10.3e %10.3e%s\n", wn, e->name, wk, e->kind, e->m, e->l2,
+           e->floor, e->own, e->l2_max, e->linf, e->linf_floor, e->output ? "  (output)" : "");
   }
   if (rep->grows_at)
     printf("error grows most at stage %s (+%.3e over the worst quantity it reads)\n", rep->grows_at, rep->growth);
