@@ -38,6 +38,7 @@ typedef struct RunOptions {
   const char *out;
   int frames, particles, png_every, vtk_every, png_width;
   double pulse, period, mu, cfl, u0;
+  ProjectionMethod projection;
   TunnelSpec spec;
 } RunOptions;
 
@@ -45,6 +46,7 @@ static void usage(FILE *fp) {
   fputs("usage: npg-fluids tunnel-full --out DIR [--frames N] [--cells N] [--size S]\n"
         "                  [--pulse A] [--period P] [--mu MU] [--cfl C] [--u0 U]\n"
         "                  [--particles N] [--png-every K] [--vtk-every K] [--width PX]\n"
+        "                  [--projection stream|kkt]\n"
         "       npg-fluids mesh [--cells N] [--size S]\n"
         "\n"
         "tunnel-full: full-space simulation of the periodic wind tunnel (paper §5, §7.1).\n"
@@ -57,7 +59,9 @@ static void usage(FILE *fp) {
         "  --cfl C        dt = C * mean edge length / u0 (0.25)\n"
         "  --u0 U         initial uniform velocity along the tunnel, projected (1)\n"
         "  --particles N  marker particles, ten Euler substeps per frame (3000)\n"
-        "  --png-every K, --vtk-every K   output every K frames (1, 10)\n",
+        "  --png-every K, --vtk-every K   output every K frames (1, 10)\n"
+        "  --projection M stream: CHOLMOD on the stream function (default); kkt: UMFPACK on\n"
+        "                 the KKT system (the same minimizer)\n",
         fp);
 }
 
@@ -77,7 +81,8 @@ static int parse_real(const char *s, double *v) {
 
 static int parse_options(int argc, char **argv, RunOptions *o) {
   *o = (RunOptions){.frames = 200, .particles = 3000, .png_every = 1, .vtk_every = 10, .png_width = 800,
-                    .pulse = 0.2, .period = 100, .mu = 0.002, .cfl = 0.25, .u0 = 1, .spec = tunnel_spec_default()};
+                    .pulse = 0.2, .period = 100, .mu = 0.002, .cfl = 0.25, .u0 = 1, .projection = PROJ_STREAM_CHOLMOD,
+                    .spec = tunnel_spec_default()};
   for (int i = 2; i < argc; i++) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     int bad = 0;
@@ -95,6 +100,11 @@ static int parse_options(int argc, char **argv, RunOptions *o) {
     else if (!strcmp(a, "--mu")) bad = parse_real(v, &o->mu);
     else if (!strcmp(a, "--cfl")) bad = parse_real(v, &o->cfl);
     else if (!strcmp(a, "--u0")) bad = parse_real(v, &o->u0);
+    else if (!strcmp(a, "--projection")) {
+      if (!strcmp(v, "stream")) o->projection = PROJ_STREAM_CHOLMOD;
+      else if (!strcmp(v, "kkt")) o->projection = PROJ_KKT_UMFPACK;
+      else bad = 1;
+    }
     else {
       fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
       usage(stderr);
@@ -198,7 +208,7 @@ static int tunnel_full(const RunOptions *o) {
 
   FullSolver s;
   double u0[2] = {o->u0, 0};
-  if (solver_init(&s, &m, o->mu, dt, sigma_at(o, 0), u0, err, sizeof err) != 0) {
+  if (solver_init(&s, &m, o->projection, o->mu, dt, sigma_at(o, 0), u0, err, sizeof err) != 0) {
     fprintf(stderr, "npg-fluids: %s\n", err);
     mesh_free(&m);
     return 1;
@@ -319,6 +329,7 @@ static int tunnel_full(const RunOptions *o) {
               o->mu, o->u0, o->pulse);
       fprintf(fp, "  \"period_frames\": %g,\n  \"particles\": %d,\n", o->period, o->particles);
       fprintf(fp, "  \"mesh_seconds\": %.6g,\n  \"run_seconds\": %.6g,\n", t_mesh, t_run);
+      fprintf(fp, "  \"projection_method\": \"%s\",\n", projection_method_name(o->projection));
       fprintf(fp, "  \"full_step_seconds\": {\"total\": %.6g, \"advection\": %.6g, \"projection\": %.6g, "
                   "\"projection_factorization\": %.6g, \"projection_solve\": %.6g, \"deformation\": %.6g},\n",
               (s.seconds_advection + s.seconds_projection + s.seconds_deformation) / steps,

@@ -34,6 +34,7 @@ void mesh_free(Mesh *m) {
   free(m->bface);
   free(m->fkind);
   free(m->fcell);
+  free(m->vmaster);
   memset(m, 0, sizeof *m);
 }
 
@@ -243,10 +244,8 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
       m->tri[3 * c + 2] = t;
     }
   int *master = malloc(m->nv * sizeof *master);
-  if (match_periodic(raw, s, master, err, errlen) != 0) {
-    free(master);
-    return -1;
-  }
+  m->vmaster = master;
+  if (match_periodic(raw, s, master, err, errlen) != 0) return -1;
   int nh = 3 * m->nc;
   HalfEdge *he = malloc(nh * sizeof *he);
   for (int c = 0; c < m->nc; c++)
@@ -326,7 +325,6 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
   m->blend_r2 = 0.9 * room;
   if (m->blend_r2 <= 1.5 * m->blend_r1 && rc == 0)
     rc = fail(err, errlen, "mesh: obstacle of size %g leaves no room for the deformation blend", s->size);
-  free(master);
   return rc;
 }
 

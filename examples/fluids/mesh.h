@@ -50,6 +50,7 @@ typedef struct Mesh {
   int *bface;          /* [nb] boundary faces, the rows of D */
   int *fkind;          /* [nf] FaceKind */
   int *fcell;          /* [nf][2] the cell the normal points out of, the other (-1 on the boundary) */
+  int *vmaster;        /* [nv] the vertex itself, or for a vertex on x = L its periodic copy on x = 0 */
   int obstacle[3];     /* the obstacle's corner vertices */
   double obstacle_area0; /* obstacle area at rest */
   double blend_r1, blend_r2; /* deformation blend: 1 inside r1, 0 outside r2 (mesh_deform) */

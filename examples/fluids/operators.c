@@ -116,6 +116,7 @@ void ops_free(Ops *o) {
 
 void ops_set_geometry(Ops *o, const double *g) {
   const Mesh *m = o->m;
+  o->g = g;
   for (int c = 0; c < m->nc; c++) {
     o->area[c] = mesh_area(m, g, c);
     const int *t = m->tri + 3 * c;

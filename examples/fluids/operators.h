@@ -36,6 +36,7 @@ void csr_free(Csr *M);
 
 typedef struct Ops {
   const Mesh *m;
+  const double *g; /* the positions last set (the caller's array, not copied) */
   double *area; /* [C] V(g) at the geometry last set */
   Csr P;        /* at the geometry last set */
   Csr A;        /* at the flux last set */

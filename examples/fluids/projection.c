@@ -2,6 +2,8 @@
  * system (see projection.h). */
 #include "projection.h"
 
+#include "stream.h"
+
 #include <math.h>
 #include <stdbool.h>
 #include <stdarg.h>
@@ -58,10 +60,16 @@ static void triplets(Projection *pr, bool values) {
   pr->nt = t;
 }
 
-int projection_init(Projection *pr, const Ops *o, char *err, size_t errlen) {
+const char *projection_method_name(ProjectionMethod method) {
+  return method == PROJ_STREAM_CHOLMOD ? "stream-cholmod" : "kkt-umfpack";
+}
+
+int projection_init(Projection *pr, const Ops *o, ProjectionMethod method, char *err, size_t errlen) {
   memset(pr, 0, sizeof *pr);
   const Mesh *m = o->m;
   pr->o = o;
+  pr->method = method;
+  if (method == PROJ_STREAM_CHOLMOD) return stream_init(&pr->stream, o, err, errlen);
   pr->fidx = malloc(m->nf * sizeof *pr->fidx);
   for (int j = 0; j < m->nf; j++) pr->fidx[j] = m->fkind[j] == BF_INTERIOR ? pr->ni++ : -1;
   pr->n = pr->ni + m->nc - 1;
@@ -91,6 +99,7 @@ int projection_init(Projection *pr, const Ops *o, char *err, size_t errlen) {
 }
 
 void projection_free(Projection *pr) {
+  stream_free(pr->stream);
   if (pr->numeric) umfpack_di_free_numeric(&pr->numeric);
   if (pr->symbolic) umfpack_di_free_symbolic(&pr->symbolic);
   free(pr->fidx);
@@ -111,6 +120,8 @@ void projection_free(Projection *pr) {
 
 int projection_solve(Projection *pr, const double *u_in, const double *h, double *f, double *u_out, char *err,
                      size_t errlen) {
+  if (pr->stream)
+    return stream_solve(pr->stream, u_in, h, f, u_out, &pr->seconds_numeric, &pr->seconds_solve, err, errlen);
   const Ops *o = pr->o;
   const Mesh *m = o->m;
   double t0 = now();

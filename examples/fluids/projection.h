@@ -25,8 +25,18 @@
 
 #include "operators.h"
 
+/* How the projection is solved: the same minimizer either way (tested). */
+typedef enum ProjectionMethod {
+  PROJ_KKT_UMFPACK,    /* LU of the KKT system (any dimension) */
+  PROJ_STREAM_CHOLMOD, /* Cholesky on the stream function's null space (2D; stream.h) */
+} ProjectionMethod;
+
+typedef struct StreamProjection StreamProjection;
+
 typedef struct Projection {
   const Ops *o;
+  ProjectionMethod method;
+  StreamProjection *stream; /* PROJ_STREAM_CHOLMOD */
   int ni, n;        /* interior faces; KKT size ni + C - 1 */
   int *fidx;        /* [F] interior index of a face, -1 on the boundary */
   int nt;           /* triplets */
@@ -42,7 +52,9 @@ typedef struct Projection {
 } Projection;
 
 /* Pattern and symbolic analysis. 0, or -1 with the reason in `err`. */
-int projection_init(Projection *pr, const Ops *o, char *err, size_t errlen);
+int projection_init(Projection *pr, const Ops *o, ProjectionMethod method, char *err, size_t errlen);
+/* "kkt-umfpack" / "stream-cholmod". */
+const char *projection_method_name(ProjectionMethod method);
 void projection_free(Projection *pr);
 /* Project u_in [C][2] with the geometry in `o` (ops_set_geometry: g_{t+1})
  * and boundary fluxes from h [F] (only the boundary entries are read; NULL

@@ -11,8 +11,8 @@ static double now(void) {
   return t.tv_sec + 1e-9 * t.tv_nsec;
 }
 
-int solver_init(FullSolver *s, const Mesh *m, double mu, double dt, double sigma0, const double u0[2], char *err,
-                size_t errlen) {
+int solver_init(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, double sigma0,
+                const double u0[2], char *err, size_t errlen) {
   memset(s, 0, sizeof *s);
   s->m = m;
   s->mu = mu;
@@ -29,12 +29,16 @@ int solver_init(FullSolver *s, const Mesh *m, double mu, double dt, double sigma
   s->u = malloc(2 * (size_t)m->nc * sizeof(double));
   ops_init(&s->ops, m);
   integrator_init(&s->it, &s->ops);
-  if (projection_init(&s->pr, &s->ops, err, errlen) != 0 || mesh_deform(m, sigma0, s->g, err, errlen) != 0) {
+  if (mesh_deform(m, sigma0, s->g, err, errlen) != 0) {
+    solver_free(s);
+    return -1;
+  }
+  ops_set_geometry(&s->ops, s->g);
+  if (projection_init(&s->pr, &s->ops, method, err, errlen) != 0) {
     solver_free(s);
     return -1;
   }
   s->min_quality = mesh_min_quality(m, s->g, &s->worst_cell);
-  ops_set_geometry(&s->ops, s->g);
   for (int c = 0; c < m->nc; c++) s->u[2 * c] = u0[0], s->u[2 * c + 1] = u0[1];
   if (projection_solve(&s->pr, s->u, NULL, s->f, s->u, err, errlen) != 0) {
     solver_free(s);

@@ -36,8 +36,8 @@ typedef struct FullSolver {
 
 /* Mesh at obstacle scale sigma0, velocity u0 everywhere, projected (h = 0).
  * 0, or -1 with the reason in `err` (the solver is then freed). */
-int solver_init(FullSolver *s, const Mesh *m, double mu, double dt, double sigma0, const double u0[2], char *err,
-                size_t errlen);
+int solver_init(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, double sigma0,
+                const double u0[2], char *err, size_t errlen);
 void solver_free(FullSolver *s);
 /* One step to obstacle scale sigma_next. 0, or -1 with the reason (an
  * inverting deformation names the element; the state is then unchanged). */

@@ -6,7 +6,9 @@
  *   diffusion_projection_energy  diffusion and projection never increase it; the
  *                                projection is V-orthogonal (Pythagoras)
  *   divergence_free              projected fluxes on a moving mesh: div f = 0 and
- *                                D f = D h to solver tolerance
+ *                                D f = D h to solver tolerance, with either solver
+ *                                (stream function by CHOLMOD, KKT by UMFPACK), and the
+ *                                two agree
  *   inversion_refused            a deformation that inverts an element is refused,
  *                                naming it
  *   operators_match_npg          every operator assembled here equals npg's full
@@ -80,7 +82,7 @@ static void test_advection_energy(void **state) {
   char err[512];
   ops_init(&o, m);
   ops_set_geometry(&o, m->g0);
-  assert_int_equal(projection_init(&pr, &o, err, sizeof err), 0);
+  assert_int_equal(projection_init(&pr, &o, PROJ_STREAM_CHOLMOD, err, sizeof err), 0);
   integrator_init(&it, &o);
   double *f = malloc(m->nf * sizeof *f), *u = malloc(2 * m->nc * sizeof *u), *du = malloc(2 * m->nc * sizeof *du);
   divergence_free_flux(&o, &pr, f);
@@ -133,7 +135,6 @@ static void test_diffusion_projection_energy(void **state) {
   double *g = malloc(2 * m->nv * sizeof *g);
   assert_int_equal(mesh_deform(m, 1.1, g, err, sizeof err), 0);
   ops_set_geometry(&o, g);
-  assert_int_equal(projection_init(&pr, &o, err, sizeof err), 0);
   integrator_init(&it, &o);
   double *f = calloc(m->nf, sizeof *f), *u = malloc(2 * m->nc * sizeof *u), *up = malloc(2 * m->nc * sizeof *up);
   for (int i = 0; i < 2 * m->nc; i++) u[i] = rnd();
@@ -148,7 +149,9 @@ static void test_diffusion_projection_energy(void **state) {
     if (step == 0) print_message("diffusion: relative energy change %.3g\n", eb / ea - 1);
   }
   /* projection (paper §A.1): E(u) = E(u') + E(u - u'), so E(u') <= E(u) */
-  for (int round = 0; round < 3; round++) {
+  for (int round = 0; round < 4; round++) {
+    ProjectionMethod method = round % 2 ? PROJ_KKT_UMFPACK : PROJ_STREAM_CHOLMOD;
+    assert_int_equal(projection_init(&pr, &o, method, err, sizeof err), 0);
     for (int i = 0; i < 2 * m->nc; i++) u[i] = rnd() + 0.5;
     assert_int_equal(projection_solve(&pr, u, NULL, f, up, err, sizeof err), 0);
     double e = energy_of(&o, u), ep = energy_of(&o, up), eperp;
@@ -156,17 +159,17 @@ static void test_diffusion_projection_energy(void **state) {
     for (int i = 0; i < 2 * m->nc; i++) d[i] = u[i] - up[i];
     eperp = energy_of(&o, d);
     free(d);
-    print_message("projection: E %.6g -> %.6g, E(u - u') %.6g, Pythagoras defect %.3g\n", e, ep, eperp,
-                  (ep + eperp - e) / e);
+    print_message("projection (%s): E %.6g -> %.6g, E(u - u') %.6g, Pythagoras defect %.3g\n",
+                  projection_method_name(method), e, ep, eperp, (ep + eperp - e) / e);
     assert_true(ep <= e);
     assert_true(fabs(ep + eperp - e) <= 1e-10 * e);
+    projection_free(&pr);
   }
   free(g);
   free(f);
   free(u);
   free(up);
   integrator_free(&it);
-  projection_free(&pr);
   ops_free(&o);
 }
 
@@ -174,10 +177,15 @@ static void test_divergence_free(void **state) {
   (void)state;
   const Mesh *m = &mesh;
   char err[512];
-  /* a real moving-mesh step: obstacle scale 1 -> 1.05 */
-  FullSolver s;
+  /* a real moving-mesh step: obstacle scale 1 -> 1.05, both solvers in
+   * lockstep; they compute the same minimizer */
+  FullSolver both[2];
   double u0[2] = {1, 0};
-  assert_int_equal(solver_init(&s, m, 1e-3, 0.02, 1.0, u0, err, sizeof err), 0);
+  assert_int_equal(solver_init(&both[1], m, PROJ_KKT_UMFPACK, 1e-3, 0.02, 1.0, u0, err, sizeof err), 0);
+  for (int method = 0; method < 2; method++) {
+  FullSolver s = both[method];
+  if (method == 0) assert_int_equal(solver_init(&s, m, PROJ_STREAM_CHOLMOD, 1e-3, 0.02, 1.0, u0, err, sizeof err), 0);
+  print_message("%s:\n", projection_method_name(s.pr.method));
   double maxf = 0;
   for (int j = 0; j < m->nf; j++) maxf = fmax(maxf, fabs(s.f[j]));
   double div0 = projection_max_divergence(&s.ops, s.f);
@@ -200,7 +208,18 @@ static void test_divergence_free(void **state) {
     assert_true(div <= 1e-12 * maxf);
     assert_true(bmax == 0);
   }
-  solver_free(&s);
+  both[method] = s;
+  }
+  /* the two solvers' states after three steps */
+  double diff = 0, scale = 0;
+  for (int j = 0; j < m->nf; j++) {
+    diff = fmax(diff, fabs(both[0].f[j] - both[1].f[j]));
+    scale = fmax(scale, fabs(both[1].f[j]));
+  }
+  print_message("stream-cholmod vs kkt-umfpack after 3 steps: max |f1 - f2| / max |f| = %.3g\n", diff / scale);
+  assert_true(diff <= 1e-10 * scale);
+  solver_free(&both[0]);
+  solver_free(&both[1]);
 }
 
 static void test_inversion_refused(void **state) {
@@ -220,7 +239,7 @@ static void test_inversion_refused(void **state) {
   /* the solver refuses the step and keeps its state */
   FullSolver s;
   double u0[2] = {1, 0};
-  assert_int_equal(solver_init(&s, m, 1e-3, 0.02, 1.0, u0, err, sizeof err), 0);
+  assert_int_equal(solver_init(&s, m, PROJ_STREAM_CHOLMOD, 1e-3, 0.02, 1.0, u0, err, sizeof err), 0);
   double e = solver_energy(&s);
   assert_int_equal(solver_step(&s, 2.5, err, sizeof err), -1);
   assert_non_null(strstr(err, "inverts element "));
