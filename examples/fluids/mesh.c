@@ -323,7 +323,7 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
   double room = fmin(fmin(s->cy, s->H - s->cy), fmin(s->cx, s->L - s->cx));
   m->blend_r1 = 1.25 * R;
   m->blend_r2 = 0.9 * room;
-  if (m->blend_r2 <= 1.5 * m->blend_r1 && rc == 0)
+  if (m->blend_r2 <= 1.1 * m->blend_r1 && rc == 0)
     rc = fail(err, errlen, "mesh: obstacle of size %g leaves no room for the deformation blend", s->size);
   return rc;
 }
