@@ -8,8 +8,9 @@
  * Every run writes DIR/report.json (the figures), DIR/frames/frame_NNNN.png,
  * DIR/vtk/cells_NNNN.vtu and faces_NNNN.vtu with cells.pvd and faces.pvd (ParaView), and DIR/data/: the
  * params of fluids2d.npg (tri, edge, cface, csign, nbr, bface, mu) and the
- * per-frame inputs g, gdot, f, u with the induced fluxes h, one sample per
- * frame (leading axis), as .npy — the layout `npgc train` reads.
+ * per-frame inputs g, gdot, f, u with the induced fluxes h and the midpoint
+ * geometry gmid they were evaluated at, one sample per frame (leading axis),
+ * as .npy — the layout `npgc train` reads.
  */
 #include <errno.h>
 #include <math.h>
@@ -220,7 +221,7 @@ static int tunnel_full(const RunOptions *o) {
   size_t gv = 2 * (size_t)m.nv, uv = 2 * (size_t)m.nc, fv = m.nf;
   double *Sg = malloc(T * gv * sizeof(double)), *Sgdot = malloc(T * gv * sizeof(double));
   double *Su = malloc(T * uv * sizeof(double)), *Sf = malloc(T * fv * sizeof(double));
-  double *Sh = malloc(T * fv * sizeof(double));
+  double *Sh = malloc(T * fv * sizeof(double)), *Sgmid = malloc(T * gv * sizeof(double));
   double *energy = malloc((T + 1) * sizeof(double)), *divergence = malloc((T + 1) * sizeof(double));
   double *quality = malloc((T + 1) * sizeof(double)), *sigmas = malloc((T + 1) * sizeof(double));
   double *flux_scale = malloc((T + 1) * sizeof(double));
@@ -270,6 +271,7 @@ static int tunnel_full(const RunOptions *o) {
     }
     memcpy(Sgdot + t * gv, s.gdot, gv * sizeof(double));
     memcpy(Sh + t * fv, s.h, fv * sizeof(double));
+    memcpy(Sgmid + t * gv, s.gmid, gv * sizeof(double));
     double t1 = now();
     particles_advect(&part, &m, s.g, s.f, dt, 10);
     seconds_particles += now() - t1;
@@ -305,6 +307,7 @@ static int tunnel_full(const RunOptions *o) {
     rc |= save(dir_data, "u", NPY_F64, 3, su, Su);
     rc |= save(dir_data, "f", NPY_F64, 2, sf, Sf);
     rc |= save(dir_data, "h", NPY_F64, 2, sf, Sh);
+    rc |= save(dir_data, "gmid", NPY_F64, 3, sg, Sgmid);
     rc |= save(dir_data, "energy", NPY_F64, 1, (long[]){T + 1}, energy);
   }
   if (rc == 0) {
@@ -367,6 +370,7 @@ static int tunnel_full(const RunOptions *o) {
   free(Su);
   free(Sf);
   free(Sh);
+  free(Sgmid);
   free(energy);
   free(divergence);
   free(quality);
