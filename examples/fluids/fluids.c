@@ -86,9 +86,22 @@ static int parse_options(int argc, char **argv, RunOptions *o) {
                     .spec = tunnel_spec_default()};
   for (int i = 2; i < argc; i++) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-    int bad = 0;
-    if (!v) bad = 1;
-    else if (!strcmp(a, "--out")) o->out = v;
+    static const char *known[] = {"--out", "--frames", "--cells", "--particles", "--png-every", "--vtk-every",
+                                  "--width", "--size", "--pulse", "--period", "--mu", "--cfl", "--u0",
+                                  "--projection"};
+    int bad = 1;
+    for (size_t k = 0; k < sizeof known / sizeof *known; k++)
+      if (!strcmp(a, known[k])) bad = 0;
+    if (bad) {
+      fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
+      usage(stderr);
+      return -1;
+    }
+    if (!v) {
+      fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
+      return -1;
+    }
+    if (!strcmp(a, "--out")) o->out = v;
     else if (!strcmp(a, "--frames")) bad = parse_int(v, &o->frames);
     else if (!strcmp(a, "--cells")) bad = parse_int(v, &o->spec.cells);
     else if (!strcmp(a, "--particles")) bad = parse_int(v, &o->particles);
@@ -106,13 +119,8 @@ static int parse_options(int argc, char **argv, RunOptions *o) {
       else if (!strcmp(v, "kkt")) o->projection = PROJ_KKT_UMFPACK;
       else bad = 1;
     }
-    else {
-      fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
-      usage(stderr);
-      return -1;
-    }
     if (bad) {
-      fprintf(stderr, "npg-fluids: option '%s' needs a %s value\n", a, v ? "valid" : "");
+      fprintf(stderr, "npg-fluids: option '%s': invalid value '%s'\n", a, v);
       return -1;
     }
     i++;
