@@ -38,14 +38,14 @@ static double now(void) {
 typedef struct RunOptions {
   const char *out;
   int frames, particles, png_every, vtk_every, png_width;
-  double pulse, period, mu, cfl, u0;
+  double scale, pulse, period, mu, cfl, u0;
   ProjectionMethod projection;
   TunnelSpec spec;
 } RunOptions;
 
 static void usage(FILE *fp) {
   fputs("usage: npg-fluids tunnel-full --out DIR [--frames N] [--cells N] [--size S]\n"
-        "                  [--pulse A] [--period P] [--mu MU] [--cfl C] [--u0 U]\n"
+        "                  [--scale X] [--pulse A] [--period P] [--mu MU] [--cfl C] [--u0 U]\n"
         "                  [--particles N] [--png-every K] [--vtk-every K] [--width PX]\n"
         "                  [--projection stream|kkt]\n"
         "       npg-fluids mesh [--cells N] [--size S]\n"
@@ -54,7 +54,8 @@ static void usage(FILE *fp) {
         "  --frames N     steps, one per frame (200)\n"
         "  --cells N      target triangle count of the gmsh mesh (2000)\n"
         "  --size S       obstacle side length at rest, tunnel height 1 (0.3)\n"
-        "  --pulse A      obstacle scale 1 + A sin(2 pi t / P): 0 keeps it fixed (0.2)\n"
+        "  --scale X      mean obstacle scale, by deforming the --size mesh (1)\n"
+        "  --pulse A      obstacle scale X + A sin(2 pi t / P): 0 keeps it fixed (0.2)\n"
         "  --period P     frames per pulse (100)\n"
         "  --mu MU        viscosity of the graph Laplacian (0.002)\n"
         "  --cfl C        dt = C * mean edge length / u0 (0.25)\n"
@@ -82,12 +83,12 @@ static int parse_real(const char *s, double *v) {
 
 static int parse_options(int argc, char **argv, RunOptions *o) {
   *o = (RunOptions){.frames = 200, .particles = 3000, .png_every = 1, .vtk_every = 10, .png_width = 800,
-                    .pulse = 0.2, .period = 100, .mu = 0.002, .cfl = 0.25, .u0 = 1, .projection = PROJ_STREAM_CHOLMOD,
+                    .scale = 1, .pulse = 0.2, .period = 100, .mu = 0.002, .cfl = 0.25, .u0 = 1, .projection = PROJ_STREAM_CHOLMOD,
                     .spec = tunnel_spec_default()};
   for (int i = 2; i < argc; i++) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     static const char *known[] = {"--out", "--frames", "--cells", "--particles", "--png-every", "--vtk-every",
-                                  "--width", "--size", "--pulse", "--period", "--mu", "--cfl", "--u0",
+                                  "--width", "--size", "--scale", "--pulse", "--period", "--mu", "--cfl", "--u0",
                                   "--projection"};
     int bad = 1;
     for (size_t k = 0; k < sizeof known / sizeof *known; k++)
@@ -109,6 +110,7 @@ static int parse_options(int argc, char **argv, RunOptions *o) {
     else if (!strcmp(a, "--vtk-every")) bad = parse_int(v, &o->vtk_every);
     else if (!strcmp(a, "--width")) bad = parse_int(v, &o->png_width);
     else if (!strcmp(a, "--size")) bad = parse_real(v, &o->spec.size);
+    else if (!strcmp(a, "--scale")) bad = parse_real(v, &o->scale);
     else if (!strcmp(a, "--pulse")) bad = parse_real(v, &o->pulse);
     else if (!strcmp(a, "--period")) bad = parse_real(v, &o->period);
     else if (!strcmp(a, "--mu")) bad = parse_real(v, &o->mu);
@@ -140,7 +142,22 @@ static int make_dir(const char *path) {
   return 0;
 }
 
-static double sigma_at(const RunOptions *o, int frame) { return 1 + o->pulse * sin(2 * M_PI * frame / o->period); }
+/* Obstacle scale of frame t: the mesh is always gmsh's mesh at --size, deformed
+ * (so runs with different --scale share one topology, as paper Fig. 5's
+ * training and test runs must). */
+static double sigma_at(const RunOptions *o, int frame) {
+  return o->scale + o->pulse * sin(2 * M_PI * frame / o->period);
+}
+
+/* FNV-1a of the topology and rest positions: equal hashes, same mesh. */
+static unsigned long long mesh_hash(const Mesh *m) {
+  unsigned long long h = 1469598103934665603ull;
+  const unsigned char *p[2] = {(const unsigned char *)m->tri, (const unsigned char *)m->g0};
+  size_t n[2] = {3 * (size_t)m->nc * sizeof *m->tri, 2 * (size_t)m->nv * sizeof *m->g0};
+  for (int k = 0; k < 2; k++)
+    for (size_t i = 0; i < n[k]; i++) h = (h ^ p[k][i]) * 1099511628211ull;
+  return h;
+}
 
 static double mean_edge(const Mesh *m) {
   double s = 0;
@@ -336,6 +353,7 @@ static int tunnel_full(const RunOptions *o) {
               m.nb, m.nv);
       fprintf(fp, "  \"tunnel\": {\"L\": %g, \"H\": %g, \"obstacle_center\": [%g, %g], \"obstacle_size\": %g},\n",
               m.spec.L, m.spec.H, m.spec.cx, m.spec.cy, m.spec.size);
+      fprintf(fp, "  \"mesh_hash\": \"%016llx\",\n  \"scale\": %g,\n", mesh_hash(&m), o->scale);
       fprintf(fp, "  \"frames\": %d,\n  \"dt\": %.10g,\n  \"mu\": %g,\n  \"u0\": %g,\n  \"pulse\": %g,\n", T, dt,
               o->mu, o->u0, o->pulse);
       fprintf(fp, "  \"period_frames\": %g,\n  \"particles\": %d,\n", o->period, o->particles);

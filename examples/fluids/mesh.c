@@ -361,12 +361,12 @@ static double blend(const Mesh *m, double r) {
   return t * t * (3 - 2 * t);
 }
 
-int mesh_deform(const Mesh *m, double sigma, double *g, char *err, size_t errlen) {
+int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen) {
   const TunnelSpec *s = &m->spec;
   double A0 = m->obstacle_area0, LH = s->L * s->H;
   /* fluid area after the blend is LH - sigma^2 A0; the stretch kappa in y
-   * scales every area by kappa: kappa (LH - sigma^2 A0) = LH - A0 */
-  double kappa = (LH - A0) / (LH - sigma * sigma * A0);
+   * scales every area by kappa: kappa (LH - sigma^2 A0) = LH - sigma_ref^2 A0 */
+  double kappa = sigma == sigma_ref ? 1 : (LH - sigma_ref * sigma_ref * A0) / (LH - sigma * sigma * A0);
   for (int v = 0; v < m->nv; v++) {
     double x = m->g0[2 * v] - s->cx, y = m->g0[2 * v + 1] - s->cy;
     double w = 1 + (sigma - 1) * blend(m, hypot(x, y));

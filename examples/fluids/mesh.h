@@ -69,13 +69,16 @@ void mesh_free(Mesh *m);
 /* Deformed positions `g` [nv][2] for obstacle scale `sigma` (1 = rest):
  * vertices within blend_r1 of the obstacle centroid scale by sigma about it,
  * the factor blends smoothly (C1) to 1 at blend_r2, and then the whole
- * tunnel stretches in y about cy by kappa so that the fluid area stays
- * L*H - obstacle_area0 exactly (an incompressible fluid in a closed periodic
- * tunnel cannot let the obstacle grow otherwise: the walls give way).
+ * tunnel stretches in y about cy by kappa so that the fluid area stays what
+ * it is at scale `sigma_ref`, L*H - sigma_ref^2 obstacle_area0, exactly (an
+ * incompressible fluid in a closed periodic tunnel cannot let the obstacle
+ * grow otherwise: the walls give way). With sigma = sigma_ref, kappa = 1 and
+ * g is linear in sigma (a run with a fixed obstacle: runs at different
+ * scales then span each other, paper Fig. 5).
  * Checks every cell: 0 when none is inverted; otherwise -1 and `err` says
  * "deformation to obstacle scale S inverts element C (area A)", `g` then
  * holds the inverted positions (for inspection only). */
-int mesh_deform(const Mesh *m, double sigma, double *g, char *err, size_t errlen);
+int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen);
 
 /* Signed area of cell c at positions g. */
 double mesh_area(const Mesh *m, const double *g, int c);

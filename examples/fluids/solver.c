@@ -17,7 +17,7 @@ int solver_init(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu
   s->m = m;
   s->mu = mu;
   s->dt = dt;
-  s->sigma = sigma0;
+  s->sigma = s->sigma_ref = sigma0;
   size_t gv = 2 * (size_t)m->nv * sizeof(double);
   s->g = malloc(gv);
   s->g_next = malloc(gv);
@@ -29,7 +29,7 @@ int solver_init(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu
   s->u = malloc(2 * (size_t)m->nc * sizeof(double));
   ops_init(&s->ops, m);
   integrator_init(&s->it, &s->ops);
-  if (mesh_deform(m, sigma0, s->g, err, errlen) != 0) {
+  if (mesh_deform(m, sigma0, sigma0, s->g, err, errlen) != 0) {
     solver_free(s);
     return -1;
   }
@@ -65,7 +65,7 @@ void solver_free(FullSolver *s) {
 int solver_step(FullSolver *s, double sigma_next, char *err, size_t errlen) {
   const Mesh *m = s->m;
   double t0 = now();
-  if (mesh_deform(m, sigma_next, s->g_next, err, errlen) != 0) return -1;
+  if (mesh_deform(m, sigma_next, s->sigma_ref, s->g_next, err, errlen) != 0) return -1;
   s->min_quality = mesh_min_quality(m, s->g_next, &s->worst_cell);
   for (int i = 0; i < 2 * m->nv; i++) {
     s->gmid[i] = 0.5 * (s->g[i] + s->g_next[i]);

@@ -26,6 +26,7 @@ typedef struct FullSolver {
   Projection pr;
   double mu, dt;
   double sigma;       /* current obstacle scale */
+  double sigma_ref;   /* the scale whose fluid area the deformation keeps (mesh_deform) */
   double *g, *g_next, *gmid, *gdot; /* [V][2] */
   double *h, *phi, *f; /* [F] */
   double *u;          /* [C][2] */
@@ -34,7 +35,8 @@ typedef struct FullSolver {
   int worst_cell;
 } FullSolver;
 
-/* Mesh at obstacle scale sigma0, velocity u0 everywhere, projected (h = 0).
+/* Mesh at obstacle scale sigma0, velocity u0 everywhere, projected (h = 0);
+ * every later deformation keeps the fluid area of scale sigma0.
  * 0, or -1 with the reason in `err` (the solver is then freed). */
 int solver_init(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, double sigma0,
                 const double u0[2], char *err, size_t errlen);

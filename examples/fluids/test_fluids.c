@@ -10,7 +10,8 @@
  *                                (stream function by CHOLMOD, KKT by UMFPACK), and the
  *                                two agree
  *   inversion_refused            a deformation that inverts an element is refused,
- *                                naming it
+ *                                naming it; deformations keep the fluid area, and
+ *                                fixed obstacles are linear in their scale
  *   operators_match_npg          every operator assembled here equals npg's full
  *                                evaluator of examples/fluids/fluids2d.npg (1e-12)
  */
@@ -133,7 +134,7 @@ static void test_diffusion_projection_energy(void **state) {
   char err[512];
   ops_init(&o, m);
   double *g = malloc(2 * m->nv * sizeof *g);
-  assert_int_equal(mesh_deform(m, 1.1, g, err, sizeof err), 0);
+  assert_int_equal(mesh_deform(m, 1.1, 1.0, g, err, sizeof err), 0);
   ops_set_geometry(&o, g);
   integrator_init(&it, &o);
   double *f = calloc(m->nf, sizeof *f), *u = malloc(2 * m->nc * sizeof *u), *up = malloc(2 * m->nc * sizeof *up);
@@ -227,9 +228,25 @@ static void test_inversion_refused(void **state) {
   const Mesh *m = &mesh;
   char err[512] = "";
   double *g = malloc(2 * m->nv * sizeof *g);
-  assert_int_equal(mesh_deform(m, 1.2, g, err, sizeof err), 0);
-  assert_int_equal(mesh_deform(m, 0.8, g, err, sizeof err), 0);
-  assert_int_equal(mesh_deform(m, 2.5, g, err, sizeof err), -1);
+  assert_int_equal(mesh_deform(m, 1.2, 1.0, g, err, sizeof err), 0);
+  /* the walls give way: the fluid area of the reference scale is kept */
+  double area = m->spec.L * m->spec.H - m->obstacle_area0;
+  print_message("fluid area at scale 1.2: %.15g (rest %.15g)\n", mesh_fluid_area(m, g), area);
+  assert_true(fabs(mesh_fluid_area(m, g) - area) <= 1e-12 * area);
+  assert_int_equal(mesh_deform(m, 0.8, 1.0, g, err, sizeof err), 0);
+  assert_true(fabs(mesh_fluid_area(m, g) - area) <= 1e-12 * area);
+  /* fixed obstacles (sigma = sigma_ref) are linear in the scale: the medium
+   * one is the mean of the large and the small one (paper Fig. 5) */
+  double *g1 = malloc(2 * m->nv * sizeof *g1), *g2 = malloc(2 * m->nv * sizeof *g2), worst = 0;
+  assert_int_equal(mesh_deform(m, 0.8, 0.8, g1, err, sizeof err), 0);
+  assert_int_equal(mesh_deform(m, 1.2, 1.2, g2, err, sizeof err), 0);
+  assert_int_equal(mesh_deform(m, 1.0, 1.0, g, err, sizeof err), 0);
+  for (int i = 0; i < 2 * m->nv; i++) worst = fmax(worst, fabs(g[i] - (g1[i] + g2[i]) / 2));
+  print_message("fixed scale 1.0 vs the mean of 0.8 and 1.2: max difference %.3g\n", worst);
+  assert_true(worst <= 1e-14);
+  free(g1);
+  free(g2);
+  assert_int_equal(mesh_deform(m, 2.5, 1.0, g, err, sizeof err), -1);
   print_message("%s\n", err);
   const char *p = strstr(err, "inverts element ");
   assert_non_null(p);
@@ -296,7 +313,7 @@ static void test_operators_match_npg(void **state) {
   char err[512];
   double *g = malloc(2 * m->nv * sizeof *g), *gdot = malloc(2 * m->nv * sizeof *gdot);
   double *f = malloc(m->nf * sizeof *f), *u = malloc(2 * m->nc * sizeof *u);
-  assert_int_equal(mesh_deform(m, 1.15, g, err, sizeof err), 0);
+  assert_int_equal(mesh_deform(m, 1.15, 1.0, g, err, sizeof err), 0);
   for (int i = 0; i < 2 * m->nv; i++) gdot[i] = rnd();
   for (int j = 0; j < m->nf; j++) f[j] = rnd();
   for (int i = 0; i < 2 * m->nc; i++) u[i] = rnd();
