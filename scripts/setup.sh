@@ -14,6 +14,9 @@ packages=(
   libcmocka-dev               # unit tests
   clang libclang-rt-14-dev    # libFuzzer for the front-end fuzz target
   python3-numpy               # benchmark peer only
+  libgmsh-dev                 # examples/fluids: the wind tunnel's mesher (C API)
+  libsuitesparse-dev          # examples/fluids: UMFPACK for the pressure projection
+  libpng-dev                  # examples/fluids: PNG frames
 )
 
 missing=()

@@ -1,0 +1,383 @@
+/* mesh.c — the periodic wind tunnel meshed by gmsh (C API), its topology and
+ * its deformation (see mesh.h). */
+#include "mesh.h"
+
+#include <gmshc.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static int fail(char *err, size_t errlen, const char *fmt, ...) {
+  if (err && errlen) {
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(err, errlen, fmt, ap);
+    va_end(ap);
+  }
+  return -1;
+}
+
+TunnelSpec tunnel_spec_default(void) {
+  return (TunnelSpec){.L = 4.0, .H = 1.0, .cx = 1.0, .cy = 0.48, .size = 0.3, .cells = 2000};
+}
+
+void mesh_free(Mesh *m) {
+  free(m->g0);
+  free(m->tri);
+  free(m->edge);
+  free(m->cface);
+  free(m->csign);
+  free(m->nbr);
+  free(m->nshift);
+  free(m->bface);
+  free(m->fkind);
+  free(m->fcell);
+  free(m->vmaster);
+  memset(m, 0, sizeof *m);
+}
+
+double mesh_area(const Mesh *m, const double *g, int c) {
+  const double *a = g + 2 * m->tri[3 * c], *b = g + 2 * m->tri[3 * c + 1], *d = g + 2 * m->tri[3 * c + 2];
+  return 0.5 * ((b[0] - a[0]) * (d[1] - a[1]) - (b[1] - a[1]) * (d[0] - a[0]));
+}
+
+double mesh_fluid_area(const Mesh *m, const double *g) {
+  double s = 0;
+  for (int c = 0; c < m->nc; c++) s += mesh_area(m, g, c);
+  return s;
+}
+
+static double quality(const Mesh *m, const double *g, int c) {
+  double l2 = 0;
+  for (int k = 0; k < 3; k++) {
+    const double *a = g + 2 * m->tri[3 * c + k], *b = g + 2 * m->tri[3 * c + (k + 1) % 3];
+    l2 += (b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]);
+  }
+  return 4.0 * sqrt(3.0) * mesh_area(m, g, c) / l2;
+}
+
+double mesh_min_quality(const Mesh *m, const double *g, int *worst) {
+  double q = INFINITY;
+  int w = -1;
+  for (int c = 0; c < m->nc; c++) {
+    double qc = quality(m, g, c);
+    if (qc < q) q = qc, w = c;
+  }
+  if (worst) *worst = w;
+  return q;
+}
+
+/* ---------------------------------------------------------------- gmsh */
+
+/* The tunnel's geometry in gmsh's built-in kernel: outer loop with the
+ * right edge a periodic copy of the left one, the obstacle a hole. */
+static int gmsh_build(const TunnelSpec *s, double h, int *ierr) {
+  double L = s->L, H = s->H, R = s->size / sqrt(3.0);
+  int p1 = gmshModelGeoAddPoint(0, 0, 0, h, -1, ierr);
+  int p2 = gmshModelGeoAddPoint(L, 0, 0, h, -1, ierr);
+  int p3 = gmshModelGeoAddPoint(L, H, 0, h, -1, ierr);
+  int p4 = gmshModelGeoAddPoint(0, H, 0, h, -1, ierr);
+  int bottom = gmshModelGeoAddLine(p1, p2, -1, ierr);
+  int right = gmshModelGeoAddLine(p2, p3, -1, ierr);
+  int top = gmshModelGeoAddLine(p3, p4, -1, ierr);
+  int left = gmshModelGeoAddLine(p1, p4, -1, ierr); /* upward, like `right` */
+  int outer[4] = {bottom, right, top, -left};
+  int lo = gmshModelGeoAddCurveLoop(outer, 4, -1, 0, ierr);
+  double hq = h * 0.5; /* finer on the obstacle */
+  int q1 = gmshModelGeoAddPoint(s->cx - R, s->cy, 0, hq, -1, ierr);
+  int q2 = gmshModelGeoAddPoint(s->cx + R / 2, s->cy + s->size / 2, 0, hq, -1, ierr);
+  int q3 = gmshModelGeoAddPoint(s->cx + R / 2, s->cy - s->size / 2, 0, hq, -1, ierr);
+  int o[3] = {gmshModelGeoAddLine(q1, q3, -1, ierr), gmshModelGeoAddLine(q3, q2, -1, ierr),
+              gmshModelGeoAddLine(q2, q1, -1, ierr)};
+  int lh = gmshModelGeoAddCurveLoop(o, 3, -1, 0, ierr);
+  int loops[2] = {lo, lh};
+  gmshModelGeoAddPlaneSurface(loops, 2, -1, ierr);
+  gmshModelGeoSynchronize(ierr);
+  /* paper §7.1: a periodic tunnel. The mesh of `right` is the mesh of `left`
+   * translated by L (affine transform: 4x4 matrix by rows). */
+  double T[16] = {1, 0, 0, L, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  int rt[1] = {right}, lt[1] = {left};
+  gmshModelMeshSetPeriodic(1, rt, 1, lt, 1, T, 16, ierr);
+  return *ierr;
+}
+
+typedef struct RawMesh {
+  int nv, nc;
+  double *xy;
+  int *tri;
+} RawMesh;
+
+static int gmsh_mesh(const TunnelSpec *s, RawMesh *raw, char *err, size_t errlen) {
+  int ierr = 0;
+  gmshInitialize(0, NULL, 0, &ierr);
+  if (ierr) return fail(err, errlen, "gmsh: initialization failed");
+  gmshOptionSetNumber("General.Terminal", 0, &ierr);
+  gmshOptionSetNumber("General.Verbosity", 0, &ierr);
+  gmshModelAdd("tunnel", &ierr);
+  double area = s->L * s->H - sqrt(3.0) / 4 * s->size * s->size;
+  /* equilateral cells of the mean area, a little larger: the obstacle is
+   * meshed twice as fine and gmsh overshoots the count by about a third */
+  double h = 1.15 * sqrt(4.0 * area / (sqrt(3.0) * s->cells));
+  int rc = 0;
+  size_t *ntags = NULL, *etags = NULL, *enodes = NULL, nn = 0, ne = 0, nen = 0, ncoord = 0, npar = 0;
+  double *coord = NULL, *par = NULL;
+  if (gmsh_build(s, h, &ierr) != 0) {
+    rc = fail(err, errlen, "gmsh: building the tunnel geometry failed (code %d)", ierr);
+    goto done;
+  }
+  gmshModelMeshGenerate(2, &ierr);
+  if (ierr) {
+    rc = fail(err, errlen, "gmsh: meshing failed (code %d)", ierr);
+    goto done;
+  }
+  gmshModelMeshGetNodes(&ntags, &nn, &coord, &ncoord, &par, &npar, -1, -1, 0, 0, &ierr);
+  gmshModelMeshGetElementsByType(2, &etags, &ne, &enodes, &nen, -1, 0, 1, &ierr);
+  if (ierr || nn == 0 || ne == 0 || nen != 3 * ne) {
+    rc = fail(err, errlen, "gmsh: no triangles (code %d)", ierr);
+    goto done;
+  }
+  /* Node tags -> dense indices of the nodes triangles use. */
+  size_t maxtag = 0;
+  for (size_t i = 0; i < nn; i++)
+    if (ntags[i] > maxtag) maxtag = ntags[i];
+  int *index = malloc((maxtag + 1) * sizeof *index);
+  long *where = malloc((maxtag + 1) * sizeof *where);
+  for (size_t i = 0; i <= maxtag; i++) index[i] = -1, where[i] = -1;
+  for (size_t i = 0; i < nn; i++) where[ntags[i]] = (long)i;
+  raw->nc = (int)ne;
+  raw->tri = malloc(3 * ne * sizeof *raw->tri);
+  raw->xy = malloc(2 * nn * sizeof *raw->xy);
+  raw->nv = 0;
+  for (size_t i = 0; i < 3 * ne && rc == 0; i++) {
+    size_t t = enodes[i];
+    if (t > maxtag || where[t] < 0) {
+      rc = fail(err, errlen, "gmsh: triangle %zu uses unknown node %zu", i / 3, t);
+      break;
+    }
+    if (index[t] < 0) {
+      index[t] = raw->nv;
+      raw->xy[2 * raw->nv] = coord[3 * where[t]];
+      raw->xy[2 * raw->nv + 1] = coord[3 * where[t] + 1];
+      raw->nv++;
+    }
+    raw->tri[i] = index[t];
+  }
+  free(index);
+  free(where);
+done:
+  gmshFree(ntags);
+  gmshFree(coord);
+  gmshFree(par);
+  gmshFree(etags);
+  gmshFree(enodes);
+  gmshFinalize(&ierr);
+  return rc;
+}
+
+/* ---------------------------------------------------------------- topology */
+
+typedef struct HalfEdge {
+  int a, b;  /* the edge's key: periodic-identified vertex ids, a < b */
+  int c, k;  /* cell and local face */
+} HalfEdge;
+
+static int cmp_half(const void *x, const void *y) {
+  const HalfEdge *p = x, *q = y;
+  if (p->a != q->a) return p->a < q->a ? -1 : 1;
+  if (p->b != q->b) return p->b < q->b ? -1 : 1;
+  if (p->c != q->c) return p->c < q->c ? -1 : 1;
+  return p->k - q->k;
+}
+
+typedef struct YKey {
+  double y;
+  int v;
+} YKey;
+
+static int cmp_y(const void *x, const void *y) {
+  const YKey *p = x, *q = y;
+  return p->y < q->y ? -1 : p->y > q->y ? 1 : 0;
+}
+
+/* master[v]: v itself, or for a vertex on x = L its copy on x = 0. */
+static int match_periodic(const RawMesh *raw, const TunnelSpec *s, int *master, char *err, size_t errlen) {
+  double tol = 1e-9 * s->L;
+  YKey *left = malloc(raw->nv * sizeof *left);
+  int nl = 0, rc = 0;
+  for (int v = 0; v < raw->nv; v++) {
+    master[v] = v;
+    if (fabs(raw->xy[2 * v]) < tol) left[nl++] = (YKey){raw->xy[2 * v + 1], v};
+  }
+  qsort(left, nl, sizeof *left, cmp_y);
+  for (int v = 0; v < raw->nv && rc == 0; v++) {
+    if (fabs(raw->xy[2 * v] - s->L) >= tol) continue;
+    double y = raw->xy[2 * v + 1];
+    int lo = 0, hi = nl;
+    while (lo < hi) {
+      int mid = (lo + hi) / 2;
+      if (left[mid].y < y) lo = mid + 1;
+      else hi = mid;
+    }
+    int best = -1;
+    for (int i = lo - 1; i <= lo; i++)
+      if (i >= 0 && i < nl && fabs(left[i].y - y) < 1e-9 * s->H) best = left[i].v;
+    if (best < 0) rc = fail(err, errlen, "gmsh: node at (%g, %g) on the right edge has no periodic copy", s->L, y);
+    else master[v] = best;
+  }
+  free(left);
+  return rc;
+}
+
+static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen) {
+  const TunnelSpec *s = &m->spec;
+  m->nv = raw->nv;
+  m->nc = raw->nc;
+  m->g0 = raw->xy;
+  m->tri = raw->tri;
+  /* counter-clockwise cells */
+  for (int c = 0; c < m->nc; c++)
+    if (mesh_area(m, m->g0, c) < 0) {
+      int t = m->tri[3 * c + 1];
+      m->tri[3 * c + 1] = m->tri[3 * c + 2];
+      m->tri[3 * c + 2] = t;
+    }
+  int *master = malloc(m->nv * sizeof *master);
+  m->vmaster = master;
+  if (match_periodic(raw, s, master, err, errlen) != 0) return -1;
+  int nh = 3 * m->nc;
+  HalfEdge *he = malloc(nh * sizeof *he);
+  for (int c = 0; c < m->nc; c++)
+    for (int k = 0; k < 3; k++) {
+      int a = master[m->tri[3 * c + (k + 1) % 3]], b = master[m->tri[3 * c + (k + 2) % 3]];
+      he[3 * c + k] = (HalfEdge){a < b ? a : b, a < b ? b : a, c, k};
+    }
+  qsort(he, nh, sizeof *he, cmp_half);
+  m->cface = malloc(nh * sizeof *m->cface);
+  m->csign = malloc(nh * sizeof *m->csign);
+  m->nbr = malloc(nh * sizeof *m->nbr);
+  m->nshift = calloc(nh, sizeof *m->nshift);
+  m->edge = malloc(2 * nh * sizeof *m->edge);
+  m->fkind = malloc(nh * sizeof *m->fkind);
+  m->fcell = malloc(2 * nh * sizeof *m->fcell);
+  m->bface = malloc(nh * sizeof *m->bface);
+  m->nf = m->nb = 0;
+  int rc = 0;
+  for (int i = 0; i < nh && rc == 0;) {
+    int j = i + 1;
+    while (j < nh && he[j].a == he[i].a && he[j].b == he[i].b) j++;
+    if (j - i > 2) {
+      rc = fail(err, errlen, "mesh: edge (%d, %d) is shared by %d cells", he[i].a, he[i].b, j - i);
+      break;
+    }
+    int f = m->nf++;
+    int c0 = he[i].c, k0 = he[i].k;
+    int va = m->tri[3 * c0 + (k0 + 1) % 3], vb = m->tri[3 * c0 + (k0 + 2) % 3];
+    m->edge[2 * f] = va; /* counter-clockwise in c0: the normal points out of c0 */
+    m->edge[2 * f + 1] = vb;
+    m->cface[3 * c0 + k0] = f;
+    m->csign[3 * c0 + k0] = 1;
+    m->fcell[2 * f] = c0;
+    if (j - i == 2) {
+      int c1 = he[i + 1].c, k1 = he[i + 1].k;
+      m->cface[3 * c1 + k1] = f;
+      m->csign[3 * c1 + k1] = -1;
+      m->nbr[3 * c0 + k0] = c1;
+      m->nbr[3 * c1 + k1] = c0;
+      m->fcell[2 * f + 1] = c1;
+      m->fkind[f] = BF_INTERIOR;
+      /* periodic face: c1 sees the edge L away from where c0 sees it */
+      int wa = m->tri[3 * c1 + (k1 + 2) % 3]; /* c1 runs the edge the other way: its copy of va */
+      if (master[wa] != master[va]) wa = m->tri[3 * c1 + (k1 + 1) % 3];
+      double dx = m->g0[2 * wa] - m->g0[2 * va];
+      int sh = (int)lround(dx / s->L);
+      m->nshift[3 * c0 + k0] = sh;
+      m->nshift[3 * c1 + k1] = -sh;
+    } else {
+      m->nbr[3 * c0 + k0] = -1;
+      m->fcell[2 * f + 1] = -1;
+      double ya = m->g0[2 * va + 1], yb = m->g0[2 * vb + 1], xa = m->g0[2 * va], xb = m->g0[2 * vb];
+      double tol = 1e-9 * s->H;
+      if ((fabs(ya) < tol && fabs(yb) < tol) || (fabs(ya - s->H) < tol && fabs(yb - s->H) < tol))
+        m->fkind[f] = BF_WALL;
+      else if ((fabs(xa) < tol && fabs(xb) < tol) || (fabs(xa - s->L) < tol && fabs(xb - s->L) < tol))
+        rc = fail(err, errlen, "mesh: periodic edge at x = %g, y in [%g, %g] has no partner", xa, ya, yb);
+      else
+        m->fkind[f] = BF_OBSTACLE;
+      m->bface[m->nb++] = f;
+    }
+    i = j;
+  }
+  free(he);
+  /* the obstacle's corners */
+  double R = s->size / sqrt(3.0);
+  double corner[3][2] = {{s->cx - R, s->cy}, {s->cx + R / 2, s->cy + s->size / 2}, {s->cx + R / 2, s->cy - s->size / 2}};
+  for (int q = 0; q < 3; q++) {
+    m->obstacle[q] = -1;
+    for (int v = 0; v < m->nv; v++)
+      if (hypot(m->g0[2 * v] - corner[q][0], m->g0[2 * v + 1] - corner[q][1]) < 1e-9) m->obstacle[q] = v;
+    if (m->obstacle[q] < 0 && rc == 0) rc = fail(err, errlen, "mesh: obstacle corner %d not found among the nodes", q);
+  }
+  m->obstacle_area0 = sqrt(3.0) / 4 * s->size * s->size;
+  double room = fmin(fmin(s->cy, s->H - s->cy), fmin(s->cx, s->L - s->cx));
+  m->blend_r1 = 1.25 * R;
+  m->blend_r2 = 0.9 * room;
+  if (m->blend_r2 <= 1.1 * m->blend_r1 && rc == 0)
+    rc = fail(err, errlen, "mesh: obstacle of size %g leaves no room for the deformation blend", s->size);
+  return rc;
+}
+
+int mesh_tunnel(Mesh *m, const TunnelSpec *spec, char *err, size_t errlen) {
+  memset(m, 0, sizeof *m);
+  m->spec = *spec;
+  if (!(spec->L > 0 && spec->H > 0 && spec->size > 0 && spec->cells >= 8))
+    return fail(err, errlen, "tunnel: L, H and size must be positive and cells at least 8");
+  double R = spec->size / sqrt(3.0);
+  if (spec->cx - R <= 0 || spec->cx + R >= spec->L || spec->cy - spec->size / 2 <= 0 ||
+      spec->cy + spec->size / 2 >= spec->H)
+    return fail(err, errlen, "tunnel: an obstacle of size %g at (%g, %g) does not fit in the %g x %g tunnel",
+                spec->size, spec->cx, spec->cy, spec->L, spec->H);
+  RawMesh raw = {0};
+  if (gmsh_mesh(spec, &raw, err, errlen) != 0) {
+    free(raw.xy);
+    free(raw.tri);
+    return -1;
+  }
+  if (build_topology(m, &raw, err, errlen) != 0) {
+    mesh_free(m);
+    return -1;
+  }
+  return 0;
+}
+
+/* ---------------------------------------------------------------- deformation */
+
+/* C1 blend: 1 for r <= r1, 0 for r >= r2 (smoothstep between). */
+static double blend(const Mesh *m, double r) {
+  if (r <= m->blend_r1) return 1;
+  if (r >= m->blend_r2) return 0;
+  double t = (m->blend_r2 - r) / (m->blend_r2 - m->blend_r1);
+  return t * t * (3 - 2 * t);
+}
+
+int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen) {
+  const TunnelSpec *s = &m->spec;
+  double A0 = m->obstacle_area0, LH = s->L * s->H;
+  /* fluid area after the blend is LH - sigma^2 A0; the stretch kappa in y
+   * scales every area by kappa: kappa (LH - sigma^2 A0) = LH - sigma_ref^2 A0 */
+  double kappa = sigma == sigma_ref ? 1 : (LH - sigma_ref * sigma_ref * A0) / (LH - sigma * sigma * A0);
+  for (int v = 0; v < m->nv; v++) {
+    double x = m->g0[2 * v] - s->cx, y = m->g0[2 * v + 1] - s->cy;
+    double w = 1 + (sigma - 1) * blend(m, hypot(x, y));
+    g[2 * v] = s->cx + w * x;
+    g[2 * v + 1] = s->cy + kappa * w * y;
+  }
+  for (int c = 0; c < m->nc; c++) {
+    double a = mesh_area(m, g, c);
+    if (!(a > 0))
+      return fail(err, errlen, "deformation to obstacle scale %g inverts element %d (area %.3g, rest area %.3g)",
+                  sigma, c, a, mesh_area(m, m->g0, c));
+  }
+  return 0;
+}

@@ -1,0 +1,36 @@
+/* particles.h — massless marker particles (paper §6.5): each remembers the
+ * cell that contains it; its velocity is the local evaluation of Eq. 13,
+ * u_i = (V^-1(g) P(g) f)_i, from cell i's three vertices and three face
+ * fluxes only, constant in the cell; it moves by explicit Euler substeps and
+ * finds its new cell by walking across faces towards its new position (also
+ * after the mesh deforms). The walk crosses periodic faces (shifting the
+ * position by the tunnel length) and stops at walls, where the particle is
+ * put back onto the wall.
+ */
+#ifndef FLUIDS_PARTICLES_H
+#define FLUIDS_PARTICLES_H
+
+#include "mesh.h"
+
+typedef struct Particles {
+  int n;
+  double *x;   /* [n][2] */
+  int *cell;   /* [n] */
+  int *tag;    /* [n] colour class: the parity of the streak it started in */
+  long walk_steps; /* faces crossed, summed */
+} Particles;
+
+/* n particles uniformly distributed over 12 thin horizontal streaks of the
+ * fluid at positions g, tagged alternately. */
+void particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigned seed);
+void particles_free(Particles *p);
+/* Eq. 13 evaluated locally in cell c. */
+void particles_cell_velocity(const Mesh *m, const double *g, const double *f, int c, double u[2]);
+/* Walk from *cell towards x until a cell contains x (x is wrapped across
+ * periodic faces and clamped onto walls). Returns the faces crossed. */
+int particles_locate(const Mesh *m, const double *g, double x[2], int *cell);
+/* Advance every particle by dt in `substeps` Euler substeps through the flux
+ * field f on the mesh at g (paper: ten substeps per frame). */
+void particles_advect(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps);
+
+#endif

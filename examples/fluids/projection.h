@@ -1,0 +1,68 @@
+/* projection.h — pressure projection in full space (paper §5.3, Eq. 10, with
+ * the moving-boundary constraints of §5.4):
+ *
+ *     f = argmin 1/2 || u - V(g)^-1 P(g) f ||^2_V(g)
+ *         subject to  div f = 0  and  D f - D h = 0,
+ *
+ * then u = V^-1 P f (Eq. 13). The boundary fluxes are fixed by D f = D h, so
+ * the unknowns are the interior faces' fluxes; the objective's Hessian
+ * K = P^T V^-1 P couples the faces of a cell, so the Schur complement
+ * G K^-1 G^T is dense and the sparse route is the KKT system
+ *
+ *     [ K  G^T ] [ f ]   [ P^T u - K_ib h_b ]
+ *     [ G   0  ] [ l ] = [ -G_b h_b         ]
+ *
+ * factored by UMFPACK (symmetric indefinite, so LU): the symbolic analysis
+ * once per mesh (the pattern never changes), the numeric factorization once
+ * per geometry. The divergence rows of all cells sum to the boundary flux, so
+ * one row (the last cell's) is dropped; it holds when sum_b h_b = 0, which
+ * mesh_deform's area-preserving deformation guarantees.
+ */
+#ifndef FLUIDS_PROJECTION_H
+#define FLUIDS_PROJECTION_H
+
+#include <stddef.h>
+
+#include "operators.h"
+
+/* How the projection is solved: the same minimizer either way (tested). */
+typedef enum ProjectionMethod {
+  PROJ_KKT_UMFPACK,    /* LU of the KKT system (any dimension) */
+  PROJ_STREAM_CHOLMOD, /* Cholesky on the stream function's null space (2D; stream.h) */
+} ProjectionMethod;
+
+typedef struct StreamProjection StreamProjection;
+
+typedef struct Projection {
+  const Ops *o;
+  ProjectionMethod method;
+  StreamProjection *stream; /* PROJ_STREAM_CHOLMOD */
+  int ni, n;        /* interior faces; KKT size ni + C - 1 */
+  int *fidx;        /* [F] interior index of a face, -1 on the boundary */
+  int nt;           /* triplets */
+  int *ti, *tj;     /* [nt] */
+  double *tx;       /* [nt] */
+  int *map;         /* [nt] triplet -> position in the column form */
+  int *Ap, *Ai;     /* column form */
+  double *Ax;
+  void *symbolic, *numeric;
+  double control[20];   /* UMFPACK_CONTROL */
+  double *rhs, *x, *work_f, *work_u, *work_f2;
+  double seconds_numeric, seconds_solve;  /* accumulated */
+} Projection;
+
+/* Pattern and symbolic analysis. 0, or -1 with the reason in `err`. */
+int projection_init(Projection *pr, const Ops *o, ProjectionMethod method, char *err, size_t errlen);
+/* "kkt-umfpack" / "stream-cholmod". */
+const char *projection_method_name(ProjectionMethod method);
+void projection_free(Projection *pr);
+/* Project u_in [C][2] with the geometry in `o` (ops_set_geometry: g_{t+1})
+ * and boundary fluxes from h [F] (only the boundary entries are read; NULL
+ * for zero). Writes f [F] (boundary entries = h) and u_out = V^-1 P f.
+ * 0, or -1 with UMFPACK's status in `err`. */
+int projection_solve(Projection *pr, const double *u_in, const double *h, double *f, double *u_out, char *err,
+                     size_t errlen);
+/* max_c |sum of cell c's outward fluxes|. */
+double projection_max_divergence(const Ops *o, const double *f);
+
+#endif
