@@ -12,6 +12,7 @@
  *      reduced inputs and reduced values.
  */
 #include <cblas.h>
+#include <float.h>
 #include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
@@ -65,23 +66,62 @@ static int field_value(NpgFull *f, const RTensor *ts, int nt, double *out, long 
 
 /* ---------------------------------------------------------------- options */
 
+/* Whether override `name` (--basis NAME:...) names member `mb` of class
+ * `c`, and how specifically: 0 not at all, 1 '*', 2 its class (m_f as
+ * `npgc check` prints it, or its label {f,g}), 3 the member itself (a
+ * quantity, or a numerator f.num1). */
+static int override_level(const RClass *c, const RMember *mb, const char *name) {
+  if (strcmp(name, mb->name) == 0) return 3;
+  if (strcmp(name, c->label) == 0 || (c->bc->size_name && strcmp(name, c->bc->size_name) == 0)) return 2;
+  return strcmp(name, "*") == 0 ? 1 : 0;
+}
+
+/* Every --basis name must name something: a misspelt one would silently
+ * train with the defaults. */
+static int check_overrides(const Model *m, const TrainOptions *opt, char *err, size_t errlen) {
+  for (int i = 0; i < opt->noverride; i++) {
+    bool found = false;
+    for (int c = 0; c < m->nclasses && !found; c++)
+      for (int k = 0; k < m->classes[c].nmembers && !found; k++)
+        found = override_level(&m->classes[c], &m->classes[c].members[k], opt->override_name[i]) > 0;
+    if (found) continue;
+    char list[1024] = "";
+    size_t len = 0;
+    for (int c = 0; c < m->nclasses && len < sizeof list; c++) {
+      const RClass *rc = &m->classes[c];
+      len += (size_t)snprintf(list + len, sizeof list - len, "%s%s (", c ? "; " : "", rc->bc->size_name);
+      for (int k = 0; k < rc->nmembers && len < sizeof list; k++)
+        len += (size_t)snprintf(list + len, sizeof list - len, "%s%s", k ? ", " : "", rc->members[k].name);
+      if (len < sizeof list) len += (size_t)snprintf(list + len, sizeof list - len, ")");
+    }
+    return npg_fail(err, errlen,
+                    "--basis %s: no quantity, class or numerator of that name; classes (members): %s, or '*' for all",
+                    opt->override_name[i], list);
+  }
+  return 0;
+}
+
+/* A member's cap, energy and centering: the defaults, then the program's
+ * `basis` statements, then --basis from the least specific to the most. */
 static void member_options(const Model *m, const RClass *c, RMember *mb, const TrainOptions *opt) {
   mb->cap = opt->cap > 0 ? opt->cap : 60;
   mb->energy = opt->energy > 0 ? opt->energy : 0.999;
+  mb->center = !opt->uncentered;
   const BasisClass *bc = c->bc;
   if (bc->basis_max > 0) mb->cap = bc->basis_max;
   if (bc->basis_energy > 0) mb->energy = bc->basis_energy;
-  const char *name = mb->name;
   if (mb->q >= 0) {
     const Sym *s = m->prog->quantities.v[mb->q];
     if (s->basis_max > 0) mb->cap = s->basis_max;
     if (s->basis_energy > 0) mb->energy = s->basis_energy;
-    name = s->name;
+    if (s->basis_center >= 0) mb->center = s->basis_center;
   }
-  for (int i = 0; i < opt->noverride; i++)
-    if (strcmp(opt->override_name[i], name) == 0 || strcmp(opt->override_name[i], "*") == 0) {
+  for (int level = 1; level <= 3; level++)
+    for (int i = 0; i < opt->noverride; i++) {
+      if (override_level(c, mb, opt->override_name[i]) != level) continue;
       if (opt->override_cap[i] > 0) mb->cap = opt->override_cap[i];
       if (opt->override_energy[i] > 0) mb->energy = opt->override_energy[i];
+      if (opt->override_center && opt->override_center[i] >= 0) mb->center = opt->override_center[i];
     }
 }
 
@@ -172,7 +212,14 @@ static int check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen
  * recomputing the later samples against it (one pass when the budget holds
  * half the samples, S/b passes in general); the eigenvectors of G give the
  * basis U = X V Λ^(-1/2), formed in pass 2 by recomputing every sample once
- * and adding its rank-one contribution. U[c][i], kk[c][i] per member. */
+ * and adding its rank-one contribution. U[c][i], kk[c][i] per member.
+ *
+ * A centered member's snapshots are shifted by its first sample x₀ (on a
+ * deforming mesh that removes the dominant rest shape before any product,
+ * so nothing cancels), their mean d accumulated in pass 1; the centered
+ * Gram matrix is then J G J (J = I − 11ᵀ/S: the mean of a shift is
+ * removed exactly), its eigenvectors give U_c = (X − x₀1ᵀ − d1ᵀ) W, and
+ * the member's basis is the orthonormalization of [μ = x₀ + d, U_c]. */
 static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, double ***U,
                           int **kk, double *tmp, char *err, size_t errlen) {
   long S = src->count, per = 0;
@@ -183,15 +230,22 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
   int rc = -1;
   double ***G = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***H = calloc((size_t)m->nclasses + 1, sizeof(double **));
   double *lam = malloc(sizeof(double) * (size_t)S);
-  if (!G || !H || !lam) goto oom;
+  /* centered members: the shift x₀ and the sum of the shifted snapshots, then their mean */
+  double ***X0 = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***D = calloc((size_t)m->nclasses + 1, sizeof(double **));
+  if (!G || !H || !lam || !X0 || !D) goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(G[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(H[c] = calloc((size_t)rc->nmembers, sizeof(double *))))
+    if (!(G[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(H[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(X0[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(D[c] = calloc((size_t)rc->nmembers, sizeof(double *))))
       goto oom;
-    for (int i = 0; i < rc->nmembers; i++)
+    for (int i = 0; i < rc->nmembers; i++) {
       if (!(G[c][i] = calloc((size_t)(S * S), sizeof(double))) ||
           !(H[c][i] = malloc(sizeof(double) * (size_t)(rc->n * b))))
         goto oom;
+      if (rc->members[i].center &&
+          (!(X0[c][i] = malloc(sizeof(double) * (size_t)rc->n)) || !(D[c][i] = calloc((size_t)rc->n, sizeof(double)))))
+        goto oom;
+    }
   }
   long passes = (S + b - 1) / b, done = 0, work = 0;
   for (long i0 = 0; i0 < S; i0 += b) work += S - i0;
@@ -205,6 +259,11 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
         for (int i = 0; i < rc->nmembers; i++) {
           double *x = k < i1 ? H[c][i] + (k - i0) * rc->n : tmp;
           if (member_value(m, f, &rc->members[i], k, rc->n, x, err, errlen)) goto done;
+          if (X0[c][i]) {
+            if (k == 0) memcpy(X0[c][i], x, sizeof(double) * (size_t)rc->n);
+            cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, x, 1);
+            if (k < i1) cblas_daxpy((int)rc->n, 1.0, x, 1, D[c][i], 1);
+          }
           if (k < i1) continue;
           /* G[I, k] = X_Iᵀ x_k */
           double *g = lam;
@@ -228,6 +287,19 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
     RClass *rc = &m->classes[c];
     for (int i = 0; i < rc->nmembers; i++) {
       RMember *mb = &rc->members[i];
+      if (mb->center) { /* J G J, and d the mean of the shifted snapshots */
+        double *g = G[c][i], all = 0;
+        for (long a = 0; a < S; a++) {
+          double row = 0;
+          for (long e = 0; e < S; e++) row += g[a * S + e];
+          lam[a] = row / (double)S;
+          all += row;
+        }
+        all /= (double)S * (double)S;
+        for (long a = 0; a < S; a++)
+          for (long e = 0; e < S; e++) g[a * S + e] += all - lam[a] - lam[e];
+        cblas_dscal((int)rc->n, 1.0 / (double)S, D[c][i], 1);
+      }
       lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)S, G[c][i], (lapack_int)S, lam);
       if (info != 0) {
         npg_fail(err, errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
@@ -236,16 +308,23 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
       }
       double total = 0, run = 0;
       for (long a = 0; a < S; a++) total += fmax(lam[a], 0);
-      int k = 0;
+      int k = 0, cap = mb->center ? mb->cap - 1 : mb->cap;
       mb->captured = 1;
       if (total > 0) {
-        while (k < S && k < mb->cap && lam[S - 1 - k] > 1e-20 * lam[S - 1]) {
+        while (k < S && k < cap && lam[S - 1 - k] > 1e-20 * lam[S - 1]) {
+          /* what is left is rounding (a centered Gram matrix has a null vector, 1) */
+          if (k > 0 && total - run <= (double)S * DBL_EPSILON * total) break;
           run += lam[S - 1 - k];
           k++;
           if (run >= mb->energy * total) break;
         }
         mb->captured = run / total;
       }
+      mb->lost = fmax(0, 1 - mb->captured);
+      free(mb->sv);
+      if (!(mb->sv = malloc(sizeof(double) * (size_t)S))) goto oom;
+      mb->nsv = S;
+      for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
       mb->kept = kk[c][i] = k;
       /* column a of W = V[:, S-1-a] / sqrt(λ), kept in G's place (S x k) */
       for (long s2 = 0; s2 < S; s2++) {
@@ -264,10 +343,32 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
       for (int i = 0; i < rc->nmembers; i++) {
         if (!kk[c][i]) continue;
         if (member_value(m, f, &rc->members[i], k, rc->n, tmp, err, errlen)) goto done;
+        if (X0[c][i]) cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, tmp, 1);
         cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, tmp, 1, G[c][i] + k * S, 1, U[c][i], kk[c][i]);
       }
     }
     progress_show(opt->progress, "snapshots (basis)", k + 1, S);
+  }
+  /* centered members: U_c -= d (1ᵀW), then [μ, U_c] orthonormalized */
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    for (int i = 0; i < rc->nmembers; i++) {
+      if (!X0[c][i]) continue;
+      int k = kk[c][i];
+      for (int a = 0; a < k; a++) {
+        double w = 0;
+        for (long s2 = 0; s2 < S; s2++) w += G[c][i][s2 * S + a];
+        tmp[a] = w;
+      }
+      if (k > 0) cblas_dger(CblasRowMajor, (int)rc->n, k, -1.0, D[c][i], 1, tmp, 1, U[c][i], k);
+      cblas_daxpy((int)rc->n, 1.0, X0[c][i], 1, D[c][i], 1); /* μ = x₀ + d */
+      double *parts[2] = {D[c][i], U[c][i]}, *Q = NULL;
+      int ks[2] = {1, k}, mm = 0;
+      if (pca_in_order(rc->n, 2, parts, ks, &Q, &mm, err, errlen)) goto done;
+      free(U[c][i]);
+      U[c][i] = Q;
+      rc->members[i].kept = kk[c][i] = mm;
+    }
   }
   rc = 0;
   goto done;
@@ -277,13 +378,112 @@ done:
   for (int c = 0; c < m->nclasses; c++) {
     for (int i = 0; G && G[c] && i < m->classes[c].nmembers; i++) free(G[c][i]);
     for (int i = 0; H && H[c] && i < m->classes[c].nmembers; i++) free(H[c][i]);
+    for (int i = 0; X0 && X0[c] && i < m->classes[c].nmembers; i++) free(X0[c][i]);
+    for (int i = 0; D && D[c] && i < m->classes[c].nmembers; i++) free(D[c][i]);
     if (G) free(G[c]);
     if (H) free(H[c]);
+    if (X0) free(X0[c]);
+    if (D) free(D[c]);
   }
   free(G);
   free(H);
+  free(X0);
+  free(D);
   free(lam);
   return rc;
+}
+
+/* Record a member's PCA (its size, lost energy and spectrum). */
+static void take_pca(RMember *mb, PcaMember *p) {
+  mb->kept = p->k;
+  mb->lost = p->lost;
+  mb->captured = 1 - p->lost;
+  free(mb->sv);
+  mb->sv = p->sv;
+  mb->nsv = p->nsv;
+  p->sv = NULL;
+}
+
+/* The class basis by the paper's way (§6.1, §9): one PCA per member, the
+ * member bases concatenated and re-orthonormalized. X[i]: member i's
+ * snapshots, n x S column-major. */
+static int member_bases(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
+  double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
+  int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
+  for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
+    RMember *mb = &rc->members[i];
+    PcaMember p;
+    rc_ok = pca_basis(rc->n, S, X[i], mb->cap, mb->energy, mb->center, &p, err, errlen);
+    if (rc_ok) break;
+    U[i] = p.U;
+    kk[i] = p.k;
+    take_pca(mb, &p);
+  }
+  if (rc_ok == 0) rc_ok = pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen);
+  for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
+  free(U);
+  free(kk);
+  return rc_ok;
+}
+
+/* --merge joint (DESIGN §5): one PCA of the members' snapshot blocks, each
+ * scaled to unit norm first; centered (when the first member is), each
+ * block minus its own mean, and the class basis the orthonormalization of
+ * [μ_1 … μ_r, U_c], at most Σ cap vectors. Every member reports the joint
+ * PCA. */
+static int joint_basis(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
+  size_t n = (size_t)rc->n * (size_t)S;
+  int r = rc->nmembers, cap = 0, rc_ok = -1;
+  bool center = rc->members[0].center;
+  double energy = 1;
+  double *J = malloc(sizeof(double) * n * (size_t)r), *mu = malloc(sizeof(double) * (size_t)(rc->n * r + 1));
+  double **parts = calloc((size_t)r + 1, sizeof(double *));
+  int *ks = calloc((size_t)r + 1, sizeof(int));
+  PcaMember p = {0};
+  if (!J || !mu || !parts || !ks) goto done;
+  for (int i = 0; i < r; i++) {
+    double *Ji = J + (size_t)i * n, *mi = mu + (size_t)i * (size_t)rc->n;
+    memcpy(Ji, X[i], sizeof(double) * n);
+    if (center) {
+      pca_mean(rc->n, S, X[i], mi);
+      for (long s = 0; s < S; s++) cblas_daxpy((int)rc->n, -1.0, mi, 1, Ji + s * rc->n, 1);
+    }
+    double nrm = cblas_dnrm2((int)n, Ji, 1);
+    if (nrm > 0) cblas_dscal((int)n, 1 / nrm, Ji, 1);
+    cap += rc->members[i].cap;
+    energy = fmin(energy, rc->members[i].energy);
+    parts[i] = mi;
+    ks[i] = 1;
+  }
+  if (center) cap = cap > r ? cap - r : 0;
+  if (pca_basis(rc->n, S * r, J, cap, energy, false, &p, err, errlen)) goto done;
+  if (center) {
+    parts[r] = p.U;
+    ks[r] = p.k;
+    int mm = 0;
+    rc_ok = pca_in_order(rc->n, r + 1, parts, ks, &rc->B, &mm, err, errlen);
+    rc->m = mm;
+  } else {
+    rc_ok = pca_merge(rc->n, 1, &p.U, &p.k, &rc->B, &rc->m, err, errlen);
+  }
+  for (int i = 0; rc_ok == 0 && i < r; i++) {
+    RMember *mb = &rc->members[i];
+    mb->kept = (int)rc->m;
+    mb->lost = p.lost;
+    mb->captured = 1 - p.lost;
+    free(mb->sv);
+    mb->nsv = p.nsv;
+    if ((mb->sv = malloc(sizeof(double) * (size_t)(p.nsv + 1)))) memcpy(mb->sv, p.sv, sizeof(double) * (size_t)p.nsv);
+    else rc_ok = -1;
+  }
+done:
+  free(J);
+  free(mu);
+  free(parts);
+  free(ks);
+  free(p.U);
+  free(p.sv);
+  return rc_ok;
 }
 
 Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
@@ -318,6 +518,7 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
     maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
     for (int i = 0; i < m->classes[c].nmembers; i++) member_options(m, &m->classes[c], &m->classes[c].members[i], opt);
   }
+  if (check_overrides(m, opt, err, errlen)) goto fail;
   bool gram = opt->mem && need > opt->mem;
   if (gram && opt->joint) {
     npg_fail(err, errlen,
@@ -359,43 +560,10 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   /* 2. bases */
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
-    int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int));
-    int rc_ok = U && kk ? 0 : -1;
-    if (rc_ok == 0 && opt->joint && rc->nmembers > 1) {
-      /* one PCA of the members' blocks, each scaled to unit norm (DESIGN §5) */
-      size_t n = (size_t)rc->n * (size_t)S;
-      double *J = malloc(sizeof(double) * n * (size_t)rc->nmembers);
-      int cap = 0;
-      double energy = 1;
-      if (!J) rc_ok = -1;
-      for (int i = 0; J && i < rc->nmembers; i++) {
-        double nrm = cblas_dnrm2((int)n, sn.X[c][i], 1);
-        for (size_t e = 0; e < n; e++) J[(size_t)i * n + e] = nrm > 0 ? sn.X[c][i][e] / nrm : 0;
-        cap += rc->members[i].cap;
-        energy = fmin(energy, rc->members[i].energy);
-      }
-      double captured = 0;
-      if (J) rc_ok = pca_member(rc->n, S * rc->nmembers, J, cap, energy, &U[0], &kk[0], &captured, err, errlen);
-      free(J);
-      for (int i = 0; i < rc->nmembers; i++) {
-        rc->members[i].kept = kk[0];
-        rc->members[i].captured = captured;
-      }
-      if (rc_ok == 0) rc_ok = pca_merge(rc->n, 1, U, kk, &rc->B, &rc->m, err, errlen);
-    } else if (rc_ok == 0 && gram) {
-      rc_ok = pca_merge(rc->n, rc->nmembers, sn.U[c], sn.k[c], &rc->B, &rc->m, err, errlen);
-    } else if (rc_ok == 0) {
-      for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
-        RMember *mb = &rc->members[i];
-        rc_ok = pca_member(rc->n, S, sn.X[c][i], mb->cap, mb->energy, &U[i], &kk[i], &mb->captured, err, errlen);
-        mb->kept = kk[i];
-      }
-      if (rc_ok == 0) rc_ok = pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen);
-    }
-    for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
-    free(U);
-    free(kk);
+    int rc_ok = 0;
+    if (opt->joint && rc->nmembers > 1) rc_ok = joint_basis(rc, S, sn.X[c], err, errlen);
+    else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn.U[c], sn.k[c], &rc->B, &rc->m, err, errlen);
+    else rc_ok = member_bases(rc, S, sn.X[c], err, errlen);
     if (rc_ok != 0) {
       if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
       goto fail;

@@ -30,6 +30,7 @@ typedef struct Common {
   double tol;
   bool tol_set;
   TrainOptions train;
+  const char *spectra;      /* train --spectra DIR */
   const char *cmd;
 } Common;
 
@@ -50,7 +51,9 @@ static size_t parse_bytes(const char *s, bool *ok) {
   return (size_t)(v * mul);
 }
 
-/* --basis NAME:cap=N,energy=E (NAME may be '*') */
+/* --basis NAME:cap=N,energy=E,center=on|off (NAME: a quantity, a class, a
+ * numerator or '*', checked by training; `max=N` is accepted for `cap=N`, as
+ * in the language) */
 static bool parse_basis(Common *c, const char *s) {
   TrainOptions *t = &c->train;
   const char *colon = strchr(s, ':');
@@ -59,14 +62,16 @@ static bool parse_basis(Common *c, const char *s) {
   t->override_name = realloc(t->override_name, sizeof(char *) * (size_t)t->noverride);
   t->override_cap = realloc(t->override_cap, sizeof(int) * (size_t)t->noverride);
   t->override_energy = realloc(t->override_energy, sizeof(double) * (size_t)t->noverride);
-  if (!t->override_name || !t->override_cap || !t->override_energy) return false;
+  t->override_center = realloc(t->override_center, sizeof(int) * (size_t)t->noverride);
+  if (!t->override_name || !t->override_cap || !t->override_energy || !t->override_center) return false;
+  t->override_center[k] = -1;
   t->override_name[k] = strndup(s, (size_t)(colon - s));
   t->override_cap[k] = -1;
   t->override_energy[k] = -1;
   const char *p = colon + 1;
   while (*p) {
     char *end;
-    if (strncmp(p, "cap=", 4) == 0) {
+    if (strncmp(p, "cap=", 4) == 0 || strncmp(p, "max=", 4) == 0) {
       long v = strtol(p + 4, &end, 10);
       if (end == p + 4 || v < 1) return false;
       t->override_cap[k] = (int)v;
@@ -74,6 +79,11 @@ static bool parse_basis(Common *c, const char *s) {
       double v = strtod(p + 7, &end);
       if (end == p + 7 || !(v > 0 && v <= 1)) return false;
       t->override_energy[k] = v;
+    } else if (strncmp(p, "center=", 7) == 0) {
+      bool on = strncmp(p + 7, "on", 2) == 0, off = strncmp(p + 7, "off", 3) == 0;
+      if (!on && !off) return false;
+      t->override_center[k] = on;
+      end = (char *)p + 7 + (on ? 2 : 3);
     } else {
       return false;
     }
@@ -86,8 +96,10 @@ static bool parse_basis(Common *c, const char *s) {
 
 static int usage(const char *cmd) {
   if (strcmp(cmd, "train") == 0)
-    fputs("usage: npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--basis NAME:cap=N,energy=E]\n"
-          "                  [--merge concat|joint] [--mem BYTES] [--cc]\n",
+    fputs("usage: npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--center on|off]\n"
+          "                  [--basis NAME:cap=N,energy=E,center=on|off] [--merge concat|joint] [--mem BYTES]\n"
+          "                  [--spectra DIR] [--cc]\n"
+          "  NAME: a quantity, a class (m_x, as npgc check prints it), a numerator (y.num1) or '*'\n",
           stderr);
   else if (strcmp(cmd, "eval") == 0)
     fputs("usage: npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--cc]   (reduced)\n"
@@ -135,6 +147,12 @@ static int parse(Common *c, int argc, char **argv) {
       char *end;
       c->train.energy = strtod(argv[++i], &end);
       ok = *end == 0 && c->train.energy > 0 && c->train.energy <= 1;
+    } else if (strcmp(a, "--center") == 0 && has) {
+      const char *v = argv[++i];
+      c->train.uncentered = strcmp(v, "off") == 0;
+      ok = c->train.uncentered || strcmp(v, "on") == 0;
+    } else if (strcmp(a, "--spectra") == 0 && has) {
+      c->spectra = argv[++i];
     } else if (strcmp(a, "--basis") == 0 && has) {
       ok = parse_basis(c, argv[++i]);
     } else if (strcmp(a, "--merge") == 0 && has) {
@@ -164,6 +182,7 @@ static void free_common(Common *c) {
   free(c->train.override_name);
   free(c->train.override_cap);
   free(c->train.override_energy);
+  free(c->train.override_center);
 }
 
 static NpgProgram *compile(Common *c) {
@@ -177,20 +196,6 @@ static NpgProgram *compile(Common *c) {
 }
 
 /* ---------------------------------------------------------------- train */
-
-static void print_model(const Model *m, FILE *out) {
-  fprintf(out, "%-24s %8s %6s  %s\n", "class", "n", "m", "members (kept / cap, energy captured)");
-  for (int c = 0; c < m->nclasses; c++) {
-    const RClass *rc = &m->classes[c];
-    fprintf(out, "%-24s %8ld %6ld ", rc->label, rc->n, rc->m);
-    for (int i = 0; i < rc->nmembers; i++)
-      fprintf(out, " %s %d/%d %.6f", rc->members[i].name, rc->members[i].kept, rc->members[i].cap,
-              rc->members[i].captured);
-    fputc('\n', out);
-  }
-  size_t tb, total = model_bytes(m, &tb);
-  fprintf(out, "reduced tensors: %.3f MB; model with bases: %.3f MB\n", (double)tb / 1e6, (double)total / 1e6);
-}
 
 static int cmd_train(Common *c) {
   if (!c->prog_path || !c->a || !c->out || c->b) return usage("train");
@@ -225,8 +230,12 @@ static int cmd_train(Common *c) {
     fprintf(stderr, "error: %s\n", err);
     goto done;
   }
+  if (c->spectra && model_write_spectra(m, c->spectra, err, sizeof err) != 0) {
+    fprintf(stderr, "error: %s\n", err);
+    goto done;
+  }
   printf("trained %s on %ld samples in %.2f s -> %s\n", c->prog_path, s.count, now() - t0, c->out);
-  print_model(m, stdout);
+  report_training(m, stdout);
   rc = 0;
 done:
   model_free(m);
@@ -517,6 +526,12 @@ static int cmd_verify(Common *c) {
   }
   if (grows_at)
     printf("error grows most at stage %s (+%.3e over the worst quantity it reads)\n", grows_at, worst_growth);
+  double *means = malloc(sizeof(double) * 2 * (size_t)(m->nq + 1)); /* errors and floors, for the warnings */
+  if (means) {
+    for (int q = 0; q < m->nq; q++) means[q] = st[q].l2 / (double)S, means[m->nq + q] = st[q].floor2 / (double)S;
+    report_verify_warnings(m, means, means + m->nq, c->tol, stdout);
+    free(means);
+  }
   rc = 0;
   for (int o = 0; o < x.prog->outputs.n; o++) {
     int q = emit_index_of(&x.prog->quantities, x.prog->outputs.v[o]);
