@@ -1,0 +1,49 @@
+#!/bin/sh
+# bases.sh BUILD_DIR — the bases as a user meets them (issue 11): --basis
+# names checked (an unknown one refused with a message; a quantity, a class
+# and a numerator accepted), the training table (kept / cap, energy lost),
+# --center, the spectra in MODEL/ (listed with checksums) and --spectra DIR.
+set -eu
+B=$1
+W=$(mktemp -d /tmp/npg_bases_XXXXXX)
+trap 'rm -rf "$W"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+
+P=examples/rational/rational.npg
+"$B/rational_data" "$W/TRAIN" 100 1 >/dev/null
+# unknown names are refused, naming the name and what exists
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/M" --basis z:cap=3 >/dev/null 2>"$W/err.txt"; then fail "--basis z accepted"; fi
+grep -q -- "--basis z: no quantity, class or numerator of that name" "$W/err.txt" || fail "message: $(cat "$W/err.txt")"
+grep -q "m_y (y, y.num1)" "$W/err.txt" || fail "the message lists the classes: $(cat "$W/err.txt")"
+test ! -e "$W/M" || fail "a refused training left a model"
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/M" --basis x:size=3 >/dev/null 2>&1; then fail "--basis x:size=3 accepted"; fi
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/M" --center maybe >/dev/null 2>&1; then fail "--center maybe accepted"; fi
+# a quantity, a class and a numerator; cap and max are one option
+"$B/npgc" train $P "$W/TRAIN" -o "$W/M" --basis x:cap=1 --basis m_y:max=1 --basis y.num1:energy=0.5,center=off \
+  >"$W/train.txt" || fail "train with --basis"
+grep -q "^{x} .* x 1/1 lost [0-9].[0-9]e[-+][0-9]*$" "$W/train.txt" || fail "x's line: $(cat "$W/train.txt")"
+grep -q "y 1/1 lost .*, y.num1 1/1 lost .* (uncentered)" "$W/train.txt" || fail "y's line: $(cat "$W/train.txt")"
+grep -q "^warning: x (class {x}) hit its cap 1 with .* of its centered energy lost" "$W/train.txt" ||
+  fail "no warning at the cap: $(cat "$W/train.txt")"
+# spectra: in MODEL/ with checksums, and in --spectra DIR
+"$B/npgc" train $P "$W/TRAIN" -o "$W/M" --center off --spectra "$W/SPEC" >"$W/train.txt" || fail "train --center off"
+grep -q "x 2/60 lost 0.0e+00 (uncentered)" "$W/train.txt" || fail "uncentered table: $(cat "$W/train.txt")"
+grep -q "^member 0 x cap 60 energy 0.999 kept 2 captured 1 center 0 lost 0$" "$W/M/manifest" || fail "manifest member line"
+grep -q "^array spectrum_y.num1.npy 2 fnv1a64 " "$W/M/manifest" || fail "manifest lacks the spectrum array"
+grep -q "^file spectrum_x.csv fnv1a64 " "$W/M/manifest" || fail "manifest lacks the spectrum CSV"
+cmp "$W/M/spectrum_x.csv" "$W/SPEC/spectrum_x.csv" || fail "--spectra differs from MODEL/"
+/usr/bin/python3 - "$W" <<'PY' || fail "spectra differ from numpy's singular values"
+import sys, numpy as np
+w = sys.argv[1]
+x = np.load(w + "/TRAIN/x.npy")
+s = np.load(w + "/SPEC/spectrum_x.npy")
+ref = np.linalg.svd(x.T, compute_uv=False)
+assert np.allclose(s, ref, rtol=1e-12), (s, ref)
+rows = [l.split(",") for l in open(w + "/M/spectrum_x.csv") if l[0].isdigit()]
+assert [float(r[1]) for r in rows] == list(s)
+PY
+# a corrupted CSV is named
+printf 'X' >>"$W/M/spectrum_x.csv"
+if "$B/npgc" verify $P "$W/M" "$W/TRAIN" 2>"$W/err.txt" >/dev/null; then fail "corrupted CSV accepted"; fi
+grep -q "M/spectrum_x.csv: checksum mismatch" "$W/err.txt" || fail "CSV corruption message: $(cat "$W/err.txt")"
+echo "ok"
