@@ -72,10 +72,14 @@ int report_verify_warnings(const Model *m, const double *err, const double *floo
     int q = rs->q;
     if (rs->st->kind == ST_EXTERN || !(err[q] > 3 * floor[q]) || !(err[q] > 1e-12)) continue;
     int w = worst_read(m, rs, err);
+    double ratio = floor[q] > 0 ? err[q] / floor[q] : INFINITY;
+    char times[32];
+    if (ratio < 1000) snprintf(times, sizeof times, "%.1fx", ratio);
+    else snprintf(times, sizeof times, "over 1000x");
     fprintf(out,
-            "warning: stage %s: error %.2e is %.1fx its projection floor %.2e: the reduction, not its basis, loses "
+            "warning: stage %s: error %.2e is %s its projection floor %.2e: the reduction, not its basis, loses "
             "accuracy here",
-            rs->st->sym->name, err[q], floor[q] > 0 ? err[q] / floor[q] : INFINITY, floor[q]);
+            rs->st->sym->name, err[q], times, floor[q]);
     if (w >= 0)
       fprintf(out, " (it reads %s with error %.2e: a larger basis for it, --basis %s:cap=N; or name an "
               "intermediate to give it a basis, or inline one)\n",

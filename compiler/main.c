@@ -19,12 +19,14 @@ static void usage(FILE *out) {
         "\n"
         "       npgc emit PROG.npg [--reduced MODEL/] -o FILE.c\n"
         "       npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc]\n"
-        "       npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--basis NAME:cap=N,energy=E]\n"
-        "                  [--merge concat|joint] [--mem BYTES] [--cc]\n"
+        "       npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--center on|off]\n"
+        "                  [--basis NAME:cap=N,energy=E,center=on|off] [--merge concat|joint]\n"
+        "                  [--mem BYTES] [--spectra DIR] [--cc]\n"
         "       npgc eval PROG.npg MODEL/ IN/ -o OUT/\n"
         "       npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc] [--exact] [--exact-size N]\n"
         "       npgc verify PROG.npg --exact [--exact-size N] [--cc]\n"
         "       npgc bench PROG.npg MODEL/ TEST/ [--cc]\n"
+        "       npgc plot MODEL/ -o spectra.png\n"
         "\n"
         "  emit    write the generated C of the full evaluator (one function per stage)\n"
         "          and the bind-time gather checker; it compiles standalone with cc -c.\n"
@@ -40,8 +42,13 @@ static void usage(FILE *out) {
         "\n"
         "  train   run the full program on every sample of DATA/ (params, inputs and\n"
         "          externs with a leading sample axis), build one basis per class (PCA\n"
-        "          per member: energy 0.999 and cap 60 by default), pre-multiply every\n"
-        "          tensor, fit the learned map of every extern, write MODEL/.\n"
+        "          per member, centered: the mean kept and the centered energy truncated\n"
+        "          at 0.999, cap 60 by default; --center off: the paper's uncentered\n"
+        "          rule), pre-multiply every tensor, fit the learned map of every\n"
+        "          extern, write MODEL/ (with every member's singular values as .npy\n"
+        "          and CSV; --spectra DIR writes them there too).\n"
+        "          --basis NAME:cap=N,energy=E,center=on|off sets a quantity, a class\n"
+        "          (m_x) or a numerator (y.num1); an unknown NAME is an error.\n"
         "\n"
         "  verify  evaluate full and reduced on the held-out samples of TEST/ (which\n"
         "          holds the same params) and report, per quantity, the relative error\n"
@@ -54,7 +61,8 @@ static void usage(FILE *out) {
         "          tensors equals the full evaluator to 1e-12, and a model with\n"
         "          full-rank bases reproduces it to 1e-10. Exit 1 when one fails.\n"
         "\n"
-        "  bench   full vs reduced time per evaluation, speedup, reduced model memory.\n",
+        "  bench   full vs reduced time per evaluation, speedup, reduced model memory.\n"
+        "  plot    draw every member's singular values (log scale) as a PNG.\n",
         out);
 }
 
@@ -125,6 +133,7 @@ int main(int argc, char **argv) {
   const char *cmd = argv[1];
   if (strcmp(cmd, "emit") == 0) return cmd_emit(argc, argv);
   if (strcmp(cmd, "eval") == 0) return npgc_eval(argc, argv);
+  if (strcmp(cmd, "plot") == 0) return npgc_plot(argc, argv);
   if (!strcmp(cmd, "train") || !strcmp(cmd, "verify") || !strcmp(cmd, "bench")) return npgc_reduce(argc, argv);
   if (strcmp(cmd, "check") != 0) {
     fprintf(stderr, "npgc: unknown command '%s'\n", cmd);

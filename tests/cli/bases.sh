@@ -2,7 +2,8 @@
 # bases.sh BUILD_DIR — the bases as a user meets them (issue 11): --basis
 # names checked (an unknown one refused with a message; a quantity, a class
 # and a numerator accepted), the training table (kept / cap, energy lost),
-# --center, the spectra in MODEL/ (listed with checksums) and --spectra DIR.
+# --center, the spectra in MODEL/ (listed with checksums), --spectra DIR and
+# npgc plot.
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_bases_XXXXXX)
@@ -42,6 +43,11 @@ assert np.allclose(s, ref, rtol=1e-12), (s, ref)
 rows = [l.split(",") for l in open(w + "/M/spectrum_x.csv") if l[0].isdigit()]
 assert [float(r[1]) for r in rows] == list(s)
 PY
+# npgc plot draws the spectra as a PNG (checked by its signature and size)
+"$B/npgc" plot "$W/M" -o "$W/spectra.png" >/dev/null || fail "plot"
+/usr/bin/python3 -c "import sys; b=open(sys.argv[1],'rb').read(); assert b[:8]==b'\x89PNG\r\n\x1a\n' and len(b)>2000" "$W/spectra.png" ||
+  fail "plot wrote no PNG"
+if "$B/npgc" plot "$W/NONE" -o "$W/x.png" 2>/dev/null; then fail "plot of a missing model"; fi
 # a corrupted CSV is named
 printf 'X' >>"$W/M/spectrum_x.csv"
 if "$B/npgc" verify $P "$W/M" "$W/TRAIN" 2>"$W/err.txt" >/dev/null; then fail "corrupted CSV accepted"; fi
