@@ -2,6 +2,7 @@
 # bases.sh BUILD_DIR — the bases as a user meets them (issue 11): --basis
 # names checked (an unknown one refused with a message; a quantity, a class
 # and a numerator accepted), the training table (kept / cap, energy lost),
+# verify's warnings,
 # --center, the spectra in MODEL/ (listed with checksums), --spectra DIR and
 # npgc plot.
 set -eu
@@ -26,6 +27,13 @@ grep -q "^{x} .* x 1/1 lost [0-9].[0-9]e[-+][0-9]*$" "$W/train.txt" || fail "x's
 grep -q "y 1/1 lost .*, y.num1 1/1 lost .* (uncentered)" "$W/train.txt" || fail "y's line: $(cat "$W/train.txt")"
 grep -q "^warning: x (class {x}) hit its cap 1 with .* of its centered energy lost" "$W/train.txt" ||
   fail "no warning at the cap: $(cat "$W/train.txt")"
+# verify's warnings: x's one vector cannot hold the test samples, and y's
+# error is then its inputs', not its basis's
+"$B/rational_data" "$W/TEST" 30 2 >/dev/null
+if "$B/npgc" verify $P "$W/M" "$W/TEST" --tol 1e-3 >"$W/verify.txt"; then fail "verify passed a cap-1 input"; fi
+grep -q "^warning: input x: its projection floor .* exceeds --tol 0.001" "$W/verify.txt" || fail "input warning: $(cat "$W/verify.txt")"
+grep -q "^warning: stage y: error .* its projection floor .*it reads x with error .*--basis x:cap=N" "$W/verify.txt" ||
+  fail "stage warning: $(cat "$W/verify.txt")"
 # spectra: in MODEL/ with checksums, and in --spectra DIR
 "$B/npgc" train $P "$W/TRAIN" -o "$W/M" --center off --spectra "$W/SPEC" >"$W/train.txt" || fail "train --center off"
 grep -q "x 2/60 lost 0.0e+00 (uncentered)" "$W/train.txt" || fail "uncentered table: $(cat "$W/train.txt")"
