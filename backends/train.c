@@ -486,111 +486,130 @@ done:
   return rc_ok;
 }
 
-Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                   size_t errlen) {
-  Model *m = NULL;
-  Snapshots sn = {0};
-  double *tmp = NULL;
-  long S = src->count;
-  err[0] = 0;
-  if (S < 1) {
+/* The model's layout for the dims sample 0 binds, with every member's
+ * options set and the --basis names checked. NULL with `err`. */
+static Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                             size_t errlen) {
+  if (src->count < 1) {
     npg_fail(err, errlen, "no training samples");
     return NULL;
   }
-  /* sample 0 binds every dim */
-  if (src->set(src->user, f, 0) != 0 || npg_full_eval(f, 0) != 0) {
+  if (src->set(src->user, f, 0) != 0 || npg_full_eval(f, 0) != 0) { /* sample 0 binds every dim */
     npg_fail(err, errlen, "%s", npg_full_error(f));
     return NULL;
   }
   long *dims = calloc((size_t)prog->dims.n + 1, sizeof(long));
   if (!dims) return NULL;
   for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(f, i);
-  m = model_layout(prog, dims, err, errlen);
+  Model *m = model_layout(prog, dims, err, errlen);
   free(dims);
   if (!m) return NULL;
-  m->samples = S;
+  m->samples = src->count;
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; i < m->classes[c].nmembers; i++) member_options(m, &m->classes[c], &m->classes[c].members[i], opt);
+  if (check_overrides(m, opt, err, errlen)) {
+    model_free(m);
+    return NULL;
+  }
+  return m;
+}
 
-  /* 1. snapshots */
+/* Step 1: every member's snapshots in memory (sn->X), or, when they need
+ * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
+ * *gram set). Marks which diagonal operators stay SPD. */
+static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
+                          bool *gram, char *err, size_t errlen) {
+  long S = src->count, maxn = 1;
   size_t need = 0;
-  long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) {
     need += sizeof(double) * (size_t)m->classes[c].n * (size_t)S * (size_t)m->classes[c].nmembers;
     maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-    for (int i = 0; i < m->classes[c].nmembers; i++) member_options(m, &m->classes[c], &m->classes[c].members[i], opt);
   }
-  if (check_overrides(m, opt, err, errlen)) goto fail;
-  bool gram = opt->mem && need > opt->mem;
-  if (gram && opt->joint) {
-    npg_fail(err, errlen,
-          "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise --mem "
-          "or use --merge concat (the method of snapshots)",
-          (double)need / 1e9, (double)opt->mem / 1e9);
-    goto fail;
-  }
-  sn.S = S;
-  if (!(sn.X = calloc((size_t)m->nclasses + 1, sizeof(double **)))) goto oom;
-  if (!(sn.U = calloc((size_t)m->nclasses + 1, sizeof(double **))) || !(sn.k = calloc((size_t)m->nclasses + 1, sizeof(int *))))
+  *gram = opt->mem && need > opt->mem;
+  if (*gram && opt->joint)
+    return npg_fail(err, errlen,
+                    "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
+                    "--mem or use --merge concat (the method of snapshots)",
+                    (double)need / 1e9, (double)opt->mem / 1e9);
+  sn->S = S;
+  double *tmp = malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S));
+  if (!tmp || !(sn->X = calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->U = calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->k = calloc((size_t)m->nclasses + 1, sizeof(int *))))
     goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(sn.X[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(sn.U[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn.k[c] = calloc((size_t)rc->nmembers, sizeof(int))))
+    if (!(sn->X[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(sn->U[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn->k[c] = calloc((size_t)rc->nmembers, sizeof(int))))
       goto oom;
-    for (int i = 0; !gram && i < rc->nmembers; i++)
-      if (!(sn.X[c][i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
+    for (int i = 0; !*gram && i < rc->nmembers; i++)
+      if (!(sn->X[c][i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
   }
-  if (!(tmp = malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S)))) goto oom;
   FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
-  if (gram) {
-    if (snapshot_bases(m, f, src, opt, sn.U, sn.k, tmp, err, errlen)) goto fail;
-  } else {
-    for (long k = 0; k < S; k++) {
-      if (k > 0 && eval_sample(src, f, k, err, errlen)) goto fail;
-      for (int c = 0; c < m->nclasses; c++) {
-        RClass *rc = &m->classes[c];
-        for (int i = 0; i < rc->nmembers; i++)
-          if (member_value(m, f, &rc->members[i], k, rc->n, sn.X[c][i] + (size_t)k * (size_t)rc->n, err, errlen))
-            goto fail;
-      }
-      if (check_spd(m, f, tmp, err, errlen)) goto fail;
-      progress_show(opt->progress, "snapshots", k + 1, S);
+  int rc = 0;
+  if (*gram) rc = snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen);
+  for (long k = 0; !*gram && rc == 0 && k < S; k++) {
+    if (k > 0 && eval_sample(src, f, k, err, errlen)) rc = -1;
+    for (int c = 0; rc == 0 && c < m->nclasses; c++) {
+      RClass *cl = &m->classes[c];
+      for (int i = 0; rc == 0 && i < cl->nmembers; i++)
+        rc = member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
     }
+    if (rc == 0) rc = check_spd(m, f, tmp, err, errlen);
+    progress_show(opt->progress, "snapshots", k + 1, S);
   }
+  free(tmp);
+  return rc;
+oom:
+  free(tmp);
+  return npg_fail(err, errlen, "out of memory for the snapshots of %ld samples", S);
+}
 
-  /* 2. bases */
+/* A class basis completed to full rank (convergence tests: the PCA
+ * directions first, then the rest of the space), and one direction for a
+ * class whose every snapshot is zero (lifting gives 0). */
+static int complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
+  if (full_rank && rc->m < rc->n) {
+    double *eye = calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
+    double *parts[2] = {rc->B, eye};
+    int ks[2] = {(int)rc->m, (int)rc->n};
+    if (!eye) return npg_fail(err, errlen, "out of memory completing the basis of class %s", rc->label);
+    for (long e = 0; e < rc->n; e++) eye[e * rc->n + e] = 1;
+    int rc_ok = pca_merge(rc->n, 2, parts, ks, &B, &rc->m, err, errlen);
+    free(eye);
+    if (rc_ok != 0) return -1;
+    free(rc->B);
+    rc->B = B;
+  }
+  if (rc->m == 0) {
+    free(rc->B);
+    if (!(rc->B = calloc((size_t)rc->n, sizeof(double)))) return npg_fail(err, errlen, "out of memory");
+    rc->B[0] = 1;
+    rc->m = 1;
+  }
+  return 0;
+}
+
+/* Step 2: one basis per class (DESIGN §5), sized into the tensors. */
+static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOptions *opt, char *err, size_t errlen) {
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     int rc_ok = 0;
-    if (opt->joint && rc->nmembers > 1) rc_ok = joint_basis(rc, S, sn.X[c], err, errlen);
-    else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn.U[c], sn.k[c], &rc->B, &rc->m, err, errlen);
-    else rc_ok = member_bases(rc, S, sn.X[c], err, errlen);
+    if (opt->joint && rc->nmembers > 1) rc_ok = joint_basis(rc, sn->S, sn->X[c], err, errlen);
+    else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn->U[c], sn->k[c], &rc->B, &rc->m, err, errlen);
+    else rc_ok = member_bases(rc, sn->S, sn->X[c], err, errlen);
     if (rc_ok != 0) {
       if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
-      goto fail;
+      return -1;
     }
-    if (rc_ok == 0 && opt->full_rank && rc->m < rc->n) {
-      /* the PCA directions first, then the rest of the space */
-      double *eye = calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
-      double *parts[2] = {rc->B, eye};
-      int ks[2] = {(int)rc->m, (int)rc->n};
-      if (!eye) goto oom;
-      for (long e = 0; e < rc->n; e++) eye[e * rc->n + e] = 1;
-      rc_ok = pca_merge(rc->n, 2, parts, ks, &B, &rc->m, err, errlen);
-      free(eye);
-      if (rc_ok != 0) goto fail;
-      free(rc->B);
-      rc->B = B;
-    }
-    if (rc->m == 0) { /* every snapshot zero: one direction keeps the sizes non-empty; lifting gives 0 */
-      free(rc->B);
-      if (!(rc->B = calloc((size_t)rc->n, sizeof(double)))) goto oom;
-      rc->B[0] = 1;
-      rc->m = 1;
-    }
+    if (complete_basis(rc, opt->full_rank, err, errlen)) return -1;
   }
   model_size_tensors(m);
+  return 0;
+}
 
-  /* 3. projections between classes and pre-multiplication */
+/* Step 3: the projections between classes and every tensor pre-multiplied. */
+static int premultiply_all(Model *m, NpgFull *f, bool progress, char *err, size_t errlen) {
   long ntensors = 0, done = 0;
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) {
@@ -606,54 +625,71 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
       RTerm *rt = &rs->terms[t];
       if (rt->proj_name) {
         RClass *cw = &m->classes[m->qclass[rt->named_q]];
-        if (!(rt->proj = malloc(sizeof(double) * (size_t)(cy->m * cw->m)))) goto oom;
+        if (!(rt->proj = malloc(sizeof(double) * (size_t)(cy->m * cw->m))))
+          return npg_fail(err, errlen, "out of memory while training");
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0, cy->B,
                     (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
       }
       RTERM_FOR_TENSORS(rt, x) {
-        if (premultiply(m, f, x, cy->B, cy->n, cy->m, &flops, err, errlen)) goto fail;
-        progress_show(opt->progress, "pre-multiplication", ++done, ntensors);
+        if (premultiply(m, f, x, cy->B, cy->n, cy->m, &flops, err, errlen)) return -1;
+        progress_show(progress, "pre-multiplication", ++done, ntensors);
       }
     }
   }
+  return 0;
+}
 
-  /* 4. externs: reduced training inputs and values (paper §8.3) */
+/* Step 4: every extern's learned map (paper §8.3): the training samples'
+ * reduced inputs and values, from the snapshots or, after the method of
+ * snapshots, recomputed. */
+static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool progress,
+                       char *err, size_t errlen) {
+  long S = src->count;
   for (int i = 0; i < m->nexterns; i++) {
     RExtern *x = &m->externs[i];
     long mz = m->classes[m->qclass[x->q]].m;
     x->S = S;
     if (!(x->X = malloc(sizeof(double) * (size_t)(S * x->d + 1))) || !(x->Z = malloc(sizeof(double) * (size_t)(S * mz))))
-      goto oom;
+      return npg_fail(err, errlen, "out of memory while training");
   }
   for (long k = 0; k < S && m->nexterns > 0; k++) {
-    if (gram && eval_sample(src, f, k, err, errlen)) goto fail; /* recompute: no snapshot was kept */
+    if (gram && eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
     for (int i = 0; i < m->nexterns; i++) {
       RExtern *x = &m->externs[i];
       long mz = m->classes[m->qclass[x->q]].m, off = 0;
       for (int j = 0; j <= x->nin; j++) {
         int q = j < x->nin ? x->in_q[j] : x->q;
         RClass *rc = &m->classes[m->qclass[q]];
-        const double *val = npg_full_get(f, ((Sym *)prog->quantities.v[q])->name, NULL);
+        const double *val = npg_full_get(f, ((Sym *)m->prog->quantities.v[q])->name, NULL);
         if (!gram) {
           int mi = 0;
           while (rc->members[mi].q != q) mi++;
-          val = sn.X[m->qclass[q]][mi] + (size_t)k * (size_t)rc->n;
+          val = sn->X[m->qclass[q]][mi] + (size_t)k * (size_t)rc->n;
         }
         double *dst = j < x->nin ? x->X + k * x->d + off : x->Z + k * mz;
         cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, val, 1, 0.0, dst, 1);
         if (j < x->nin) off += rc->m;
       }
     }
-    if (gram) progress_show(opt->progress, "extern samples", k + 1, S);
+    if (gram) progress_show(progress, "extern samples", k + 1, S);
   }
-  free(tmp);
+  return 0;
+}
+
+/* Training as five named steps (DESIGN §5). */
+Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                   size_t errlen) {
+  Snapshots sn = {0};
+  bool gram = false;
+  err[0] = 0;
+  Model *m = begin_training(prog, f, src, opt, err, errlen);
+  if (!m || take_snapshots(m, f, src, opt, &sn, &gram, err, errlen) || build_bases(m, &sn, gram, opt, err, errlen) ||
+      premultiply_all(m, f, opt->progress, err, errlen) ||
+      fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen)) {
+    if (m) free_snapshots(m, &sn);
+    model_free(m);
+    return NULL;
+  }
   free_snapshots(m, &sn);
   return m;
-oom:
-  npg_fail(err, errlen, "out of memory while training");
-fail:
-  free(tmp);
-  free_snapshots(m, &sn);
-  model_free(m);
-  return NULL;
 }
