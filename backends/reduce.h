@@ -186,6 +186,56 @@ typedef struct SampleSource {
 Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen);
 
+/* Training for a search over basis sizes (npgc tune): the snapshots (in
+ * memory) and every member's ordered basis at its cap (pca_basis: for a
+ * centered member [μ, U_c,1, …]) once; then models whose members keep the
+ * first cap[c] vectors of theirs — the basis that cap would give at energy
+ * 1 — merged and re-pre-multiplied, with no new snapshot or SVD. */
+typedef struct TrainSet TrainSet;
+/* `opt` as for train_model (its energy should be 1: the caps decide); NULL
+ * with `err`. `f` and `src` must outlive the set. */
+TrainSet *train_set_new(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                        size_t errlen);
+int train_set_classes(const TrainSet *ts);
+/* The most vectors a member of class `c` has: caps above it change nothing. */
+int train_set_max_cap(const TrainSet *ts, int c);
+/* The model whose members of class c keep min(cap[c], what they have)
+ * vectors. NULL with `err`. */
+Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen);
+void train_set_free(TrainSet *ts);
+
+/* ---------------------------------------------------------------- basis sizes by error (tune.c) */
+
+typedef struct TuneTrial {
+  int *cap;                 /* per class: its members' cap */
+  long *m;                  /* per class: the basis size it gave */
+  double cost;              /* reduced multiply-adds (ir/cost.c) */
+  double err;               /* the worst output's mean relative L2 error on the validation samples */
+  bool uniform;             /* one cap for every class */
+} TuneTrial;
+
+typedef struct TuneResult {
+  int nclasses;
+  int ntrials;
+  TuneTrial *trials;        /* in the order tried */
+  int chosen;               /* the trial chosen, or -1 when the tolerance cannot be met */
+  int *best_cap;            /* the caps chosen (when unmet: the largest tried) */
+  int limiting;             /* when unmet: the class whose projection floor is the largest */
+  double limiting_floor;
+  bool limiting_saturated;  /* its members have no more directions in the training samples */
+} TuneResult;
+
+/* Choose every class's cap so that every output's mean relative L2 error
+ * on the samples of `valid` (evaluated in full by `f`, bound to the
+ * training params) is at most `tol` at the least reduced cost, caps at most
+ * `max_cap`: uniform caps 1, 2, … up to the first that meets `tol`, then
+ * each class bisected down with the others fixed, the costliest first.
+ * 0 (`out` filled; out->chosen < 0 when `tol` cannot be met, naming the
+ * limiting class), or -1 with `err`. tune_result_free() either way. */
+int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *valid, double tol, int max_cap,
+                bool progress, TuneResult *out, char *err, size_t errlen);
+void tune_result_free(TuneResult *r);
+
 /* A progress bar on stderr ("what [####    ] done/total"), when `on`. */
 void progress_show(bool on, const char *what, long done, long total);
 

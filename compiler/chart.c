@@ -38,6 +38,8 @@ int chart_png(const Chart *c, const char *path, int width, int height, char *err
       x0 = fmin(x0, x), x1 = fmax(x1, x), y0 = fmin(y0, y), y1 = fmax(y1, y);
     }
   if (!(x0 <= x1)) x0 = 0, x1 = 1, y0 = 0, y1 = 1; /* nothing to draw: empty axes */
+  double xpad = 0.03 * (x1 - x0);
+  x0 -= xpad, x1 += xpad;
   if (x1 - x0 < 1e-12) x0 -= 0.5, x1 += 0.5;
   if (y1 - y0 < 1e-12) y0 -= 0.5, y1 += 0.5;
   if (c->logy) y0 = floor(y0), y1 = ceil(y1);
@@ -45,7 +47,7 @@ int chart_png(const Chart *c, const char *path, int width, int height, char *err
   if (!c->logy) y0 -= pad, y1 += pad;
   cairo_surface_t *surf = cairo_image_surface_create(CAIRO_FORMAT_RGB24, width, height);
   cairo_t *cr = cairo_create(surf);
-  double L = 80, R = width - 200.0, T = 40, B = height - 55.0; /* plot area; the legend right of it */
+  double L = 80, R = width - 230.0, T = 40, B = height - 55.0; /* plot area; the legend right of it */
 #define PX(v) (L + ((v) - x0) / (x1 - x0) * (R - L))
 #define PY(v) (B - ((v) - y0) / (y1 - y0) * (B - T))
   cairo_set_source_rgb(cr, 1, 1, 1);
@@ -107,6 +109,12 @@ int chart_png(const Chart *c, const char *path, int width, int height, char *err
         pen = false;
         continue;
       }
+      if (cs->points) {
+        cairo_new_sub_path(cr);
+        cairo_arc(cr, PX(x), PY(y), 2.5, 0, 2 * M_PI);
+        cairo_fill(cr);
+        continue;
+      }
       if (pen) cairo_line_to(cr, PX(x), PY(y));
       else cairo_move_to(cr, PX(x), PY(y));
       pen = true;
@@ -115,7 +123,7 @@ int chart_png(const Chart *c, const char *path, int width, int height, char *err
     cairo_stroke(cr);
     if (cs->mark >= 0 && cs->mark < cs->n) {
       double x = axis_value(cs->x[cs->mark], c->logx), y = axis_value(cs->y[cs->mark], c->logy);
-      if (!isnan(x) && !isnan(y)) cairo_arc(cr, PX(x), PY(y), 4.5, 0, 2 * M_PI), cairo_fill(cr);
+      if (!isnan(x) && !isnan(y)) cairo_new_sub_path(cr), cairo_arc(cr, PX(x), PY(y), 5, 0, 2 * M_PI), cairo_fill(cr);
     }
     cairo_restore(cr);
     double ly = T + 10 + 18.0 * s;

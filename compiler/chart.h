@@ -11,6 +11,7 @@ typedef struct ChartSeries {
   int n;
   const double *x, *y;      /* n points; a point not finite (or ≤ 0 on a log axis) is skipped */
   int mark;                 /* index of a point to mark with a dot, or -1 */
+  bool points;              /* small dots instead of a line */
 } ChartSeries;
 
 typedef struct Chart {

@@ -18,6 +18,8 @@ int npgc_eval(int argc, char **argv);
 int npgc_reduce(int argc, char **argv);
 /* npgc plot MODEL/ -o spectra.png (plot.c, linked into npgc only) */
 int npgc_plot(int argc, char **argv);
+/* npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/ (tune.c, linked into npgc only) */
+int npgc_tune(int argc, char **argv);
 /* compiler/npg.c: the stage program of a compiled NpgProgram (tests, backends). */
 struct NpgProgram;
 Program *npg_program_ir(const struct NpgProgram *p);

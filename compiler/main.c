@@ -27,6 +27,7 @@ static void usage(FILE *out) {
         "       npgc verify PROG.npg --exact [--exact-size N] [--cc]\n"
         "       npgc bench PROG.npg MODEL/ TEST/ [--cc]\n"
         "       npgc plot MODEL/ -o spectra.png\n"
+        "       npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/ [--max-cap N] [--center on|off] [--png FILE]\n"
         "\n"
         "  emit    write the generated C of the full evaluator (one function per stage)\n"
         "          and the bind-time gather checker; it compiles standalone with cc -c.\n"
@@ -62,7 +63,11 @@ static void usage(FILE *out) {
         "          full-rank bases reproduces it to 1e-10. Exit 1 when one fails.\n"
         "\n"
         "  bench   full vs reduced time per evaluation, speedup, reduced model memory.\n"
-        "  plot    draw every member's singular values (log scale) as a PNG.\n",
+        "  plot    draw every member's singular values (log scale) as a PNG.\n"
+        "  tune    choose every class's basis size so that every output's mean relative\n"
+        "          error on VALID/ is under --tol at the least reduced cost (the cost\n"
+        "          npgc check prints); prints the candidates, writes the chosen model\n"
+        "          and a PNG of error against cost (MODEL-tune.png, or --png FILE).\n",
         out);
 }
 
@@ -134,6 +139,7 @@ int main(int argc, char **argv) {
   if (strcmp(cmd, "emit") == 0) return cmd_emit(argc, argv);
   if (strcmp(cmd, "eval") == 0) return npgc_eval(argc, argv);
   if (strcmp(cmd, "plot") == 0) return npgc_plot(argc, argv);
+  if (strcmp(cmd, "tune") == 0) return npgc_tune(argc, argv);
   if (!strcmp(cmd, "train") || !strcmp(cmd, "verify") || !strcmp(cmd, "bench")) return npgc_reduce(argc, argv);
   if (strcmp(cmd, "check") != 0) {
     fprintf(stderr, "npgc: unknown command '%s'\n", cmd);

@@ -63,7 +63,7 @@ int npgc_plot(int argc, char **argv) {
     /* the dot: the last centered direction kept (the mean is not in the spectrum) */
     int last = (got == 8 && center) ? kept - 2 : kept - 1;
     snprintf(labels[n], 600, "%s (%d kept%s)", name, kept, got == 8 && center ? ", centered" : "");
-    series[n] = (ChartSeries){labels[n], k, xs[n], ys[n], last < k ? last : k - 1};
+    series[n] = (ChartSeries){labels[n], k, xs[n], ys[n], last < k ? last : k - 1, false};
     n++;
   }
   char title[4200];

@@ -3,8 +3,8 @@
 # names checked (an unknown one refused with a message; a quantity, a class
 # and a numerator accepted), the training table (kept / cap, energy lost),
 # verify's warnings,
-# --center, the spectra in MODEL/ (listed with checksums), --spectra DIR and
-# npgc plot.
+# --center, the spectra in MODEL/ (listed with checksums), --spectra DIR,
+# npgc plot and npgc tune.
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_bases_XXXXXX)
@@ -56,6 +56,16 @@ PY
 /usr/bin/python3 -c "import sys; b=open(sys.argv[1],'rb').read(); assert b[:8]==b'\x89PNG\r\n\x1a\n' and len(b)>2000" "$W/spectra.png" ||
   fail "plot wrote no PNG"
 if "$B/npgc" plot "$W/NONE" -o "$W/x.png" 2>/dev/null; then fail "plot of a missing model"; fi
+# npgc tune: meets its tolerance (npgc verify agrees), writes the model and the PNG, and says plainly
+# when the tolerance cannot be met, naming the limiting class
+"$B/npgc" tune $P "$W/TRAIN" "$W/TEST" --tol 1e-8 -o "$W/TUNED" >"$W/tune.txt" || fail "tune: $(cat "$W/tune.txt")"
+grep -q "<- chosen" "$W/tune.txt" && grep -q "^chosen: cost .* m_x=2 m_y=2 -> " "$W/tune.txt" || fail "tune table: $(cat "$W/tune.txt")"
+"$B/npgc" verify $P "$W/TUNED" "$W/TEST" --tol 1e-8 >/dev/null || fail "the tuned model misses --tol"
+test -s "$W/TUNED-tune.png" || fail "tune wrote no PNG"
+if "$B/npgc" tune $P "$W/TRAIN" "$W/TEST" --tol 1e-3 --max-cap 1 -o "$W/TUNED1" >"$W/tune.txt"; then fail "tune met 1e-3 with one vector"; fi
+grep -q "^--tol 0.001 cannot be met: .*" "$W/tune.txt" && grep -q "^class m_x limits it: .*raise it" "$W/tune.txt" ||
+  fail "unmet message: $(cat "$W/tune.txt")"
+test ! -e "$W/TUNED1" || fail "an unmet tune wrote a model"
 # a corrupted CSV is named
 printf 'X' >>"$W/M/spectrum_x.csv"
 if "$B/npgc" verify $P "$W/M" "$W/TRAIN" 2>"$W/err.txt" >/dev/null; then fail "corrupted CSV accepted"; fi
