@@ -27,6 +27,10 @@ grep -q "^{x} .* x 1/1 lost [0-9].[0-9]e[-+][0-9]*$" "$W/train.txt" || fail "x's
 grep -q "y 1/1 lost .*, y.num1 1/1 lost .* (uncentered)" "$W/train.txt" || fail "y's line: $(cat "$W/train.txt")"
 grep -q "^warning: x (class {x}) hit its cap 1 with .* of its centered energy lost" "$W/train.txt" ||
   fail "no warning at the cap: $(cat "$W/train.txt")"
+# the program's basis statement says the same: cap, energy, center
+{ cat $P; echo "basis y: cap 1, center off"; } >"$W/opts.npg"
+"$B/npgc" train "$W/opts.npg" "$W/TRAIN" -o "$W/MO" >"$W/train.txt" || fail "train with a basis statement"
+grep -q "y 1/1 lost .* (uncentered), y.num1 2/60 lost" "$W/train.txt" || fail "basis statement ignored: $(cat "$W/train.txt")"
 # verify's warnings: x's one vector cannot hold the test samples, and y's
 # error is then its inputs', not its basis's
 "$B/rational_data" "$W/TEST" 30 2 >/dev/null
@@ -66,6 +70,15 @@ if "$B/npgc" tune $P "$W/TRAIN" "$W/TEST" --tol 1e-3 --max-cap 1 -o "$W/TUNED1" 
 grep -q "^--tol 0.001 cannot be met: .*" "$W/tune.txt" && grep -q "^class m_x limits it: .*raise it" "$W/tune.txt" ||
   fail "unmet message: $(cat "$W/tune.txt")"
 test ! -e "$W/TUNED1" || fail "an unmet tune wrote a model"
+# a model from before centering and spectra (member lines without center/lost, no spectra) still
+# loads, as uncentered; plot says what it lacks
+mkdir "$W/OLD"
+grep -v "spectrum_" "$W/M/manifest" | sed 's/ center [01] lost [^ ]*$//' >"$W/OLD/manifest"
+for f in "$W"/M/*.npy; do case "$f" in *spectrum_*) ;; *) cp "$f" "$W/OLD/" ;; esac; done
+"$B/npgc" verify $P "$W/OLD" "$W/TEST" --tol 1e-8 >/dev/null || fail "an old model no longer loads"
+if "$B/npgc" plot "$W/OLD" -o "$W/old.png" 2>"$W/err.txt"; then fail "plot of a model without spectra"; fi
+grep -q "member x has no spectrum (a model trained before spectra were kept: retrain it)" "$W/err.txt" ||
+  fail "old-model plot message: $(cat "$W/err.txt")"
 # a corrupted CSV is named
 printf 'X' >>"$W/M/spectrum_x.csv"
 if "$B/npgc" verify $P "$W/M" "$W/TRAIN" 2>"$W/err.txt" >/dev/null; then fail "corrupted CSV accepted"; fi
