@@ -79,6 +79,17 @@ for f in "$W"/M/*.npy; do case "$f" in *spectrum_*) ;; *) cp "$f" "$W/OLD/" ;; e
 if "$B/npgc" plot "$W/OLD" -o "$W/old.png" 2>"$W/err.txt"; then fail "plot of a model without spectra"; fi
 grep -q "member x has no spectrum (a model trained before spectra were kept: retrain it)" "$W/err.txt" ||
   fail "old-model plot message: $(cat "$W/err.txt")"
+# a deforming mesh whose rest shape dominates: centered (the default) at least 5x more accurate
+D=tests/programs/deforming_springs.npg
+/usr/bin/python3 tests/cli/deforming_springs_data.py "$W/MTRAIN" 60 7
+/usr/bin/python3 tests/cli/deforming_springs_data.py "$W/MTEST" 20 8
+for c in on off; do
+  "$B/npgc" train $D "$W/MTRAIN" -o "$W/MESH$c" --center $c >/dev/null || fail "train the mesh, --center $c"
+  "$B/npgc" verify $D "$W/MESH$c" "$W/MTEST" --tol 10 >"$W/mesh$c.txt" || fail "verify the mesh, --center $c"
+done
+on=$(awk '$1 == "f" { print $4 }' "$W/meshon.txt"); off=$(awk '$1 == "f" { print $4 }' "$W/meshoff.txt")
+/usr/bin/python3 -c "import sys; on, off = map(float, sys.argv[1:]); print('deforming springs: f error centered %.3e, uncentered %.3e' % (on, off)); assert on * 5 <= off" "$on" "$off" ||
+  fail "centered is not 5x better on the deforming mesh"
 # a corrupted CSV is named
 printf 'X' >>"$W/M/spectrum_x.csv"
 if "$B/npgc" verify $P "$W/M" "$W/TRAIN" 2>"$W/err.txt" >/dev/null; then fail "corrupted CSV accepted"; fi
