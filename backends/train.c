@@ -1,15 +1,20 @@
 /* train.c — training a reduced model (DESIGN §5; paper §8.2–§8.3):
  *
+ *   0. the layout, and every member's cap, energy fraction and centering
+ *      (defaults, the program's `basis` statements, --basis);
  *   1. snapshots: the full evaluator on every training sample; every
  *      quantity's value and, for every operator term with an unnamed
  *      numerator, the numerator's value (it joins the result's class:
  *      DESIGN §4, "a numerator lives in the result's basis");
- *   2. one orthonormal basis per class: a PCA per member (energy fraction
- *      and cap per member), concatenated and re-orthonormalized, or with
+ *   2. one orthonormal basis per class: a PCA per member (centered by
+ *      default: pca.c), concatenated and re-orthonormalized, or with
  *      --merge joint one PCA of the unit-scaled member blocks;
  *   3. pre-multiplication of every tensor (premul.c);
  *   4. the learned map of every extern (paper §8.3): the training samples'
  *      reduced inputs and reduced values.
+ *
+ * A TrainSet (npgc tune) runs 0–1 and every member's PCA once, then builds
+ * models of any caps from truncations of those bases, steps 2–4 only.
  */
 #include <cblas.h>
 #include <float.h>
