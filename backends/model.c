@@ -1,11 +1,17 @@
 /* model.c — a reduced model to and from MODEL/ (DESIGN §2): the manifest
- * holds the dims, the classes with their sizes and the energy captured per
- * member, which inverse operators factor by Cholesky; every basis, reduced
- * tensor, projection and extern table is one .npy. The layout is recomputed
+ * holds the dims, the classes with their sizes and, per member, its cap,
+ * energy fraction, centering, vectors kept and energy lost, which inverse
+ * operators factor by Cholesky; every basis, reduced tensor, projection,
+ * extern table and member spectrum is one .npy (the spectra also as CSV).
+ * A model written before centering existed (member lines without "center")
+ * loads as uncentered, its lost energy 1 − captured. The layout is recomputed
  * from the program (whose hash the store checks) and every array's shape
  * is checked against it, naming the file. */
+#include <errno.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "model_store.h"
 #include "reduce.h"
@@ -18,6 +24,24 @@
         RTERM_FOR_TENSORS(rt_, x)
 
 static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quantities.v[q])->name; }
+
+/* The CSV of a member's spectrum: k, σ_k, the energy fraction lost keeping
+ * the first k (malloc'd). */
+static char *spectrum_csv(const RMember *mb) {
+  size_t cap = 64 + 80 * (size_t)mb->nsv, len = 0;
+  char *t = malloc(cap);
+  if (!t) return NULL;
+  double total = 0, run = 0;
+  for (long i = 0; i < mb->nsv; i++) total += mb->sv[i] * mb->sv[i];
+  len += (size_t)snprintf(t + len, cap - len, "# %s: singular values of its %ssnapshots\nk,singular_value,lost\n",
+                          mb->name, mb->center ? "centered " : "");
+  for (long i = 0; i < mb->nsv; i++) {
+    run += mb->sv[i] * mb->sv[i];
+    len += (size_t)snprintf(t + len, cap - len, "%ld,%.17g,%.6e\n", i + 1, mb->sv[i],
+                            total > 0 ? fmax(0, 1 - run / total) : 0.0);
+  }
+  return t;
+}
 
 int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
   ModelStore s;
@@ -39,8 +63,16 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
     bad |= model_store_meta(&s, "class %d %s n %ld m %ld", c, rc->label, rc->n, rc->m);
     for (int i = 0; i < rc->nmembers; i++) {
       const RMember *mb = &rc->members[i];
-      bad |= model_store_meta(&s, "member %d %s cap %d energy %.17g kept %d captured %.17g", c, mb->name, mb->cap,
-                              mb->energy, mb->kept, mb->captured);
+      bad |= model_store_meta(&s, "member %d %s cap %d energy %.17g kept %d captured %.17g center %d lost %.17g", c,
+                              mb->name, mb->cap, mb->energy, mb->kept, mb->captured, mb->center ? 1 : 0, mb->lost);
+      char name[600];
+      long shape[1] = {mb->nsv};
+      snprintf(name, sizeof name, "spectrum_%s", mb->name);
+      bad |= model_store_add(&s, name, 1, shape, mb->sv);
+      char *csv = spectrum_csv(mb);
+      snprintf(name, sizeof name, "spectrum_%s.csv", mb->name);
+      bad |= csv ? model_store_add_text(&s, name, csv) : -1;
+      free(csv);
     }
     char name[64];
     snprintf(name, sizeof name, "basis_%d", c);
@@ -151,16 +183,25 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
   }
   /* member statistics, for reports */
   for (int i = 0; i < s.nmeta; i++) {
-    int c, cap, kept;
-    double energy, captured;
+    int c, cap, kept, center = 0;
+    double energy, captured, lost = -1;
     char name[512];
-    if (sscanf(s.meta[i], "member %d %511s cap %d energy %lf kept %d captured %lf", &c, name, &cap, &energy, &kept,
-               &captured) == 6 &&
-        c >= 0 && c < m->nclasses)
+    int got = sscanf(s.meta[i], "member %d %511s cap %d energy %lf kept %d captured %lf center %d lost %lf", &c, name,
+                     &cap, &energy, &kept, &captured, &center, &lost);
+    if (got >= 6 && c >= 0 && c < m->nclasses)
       for (int k = 0; k < m->classes[c].nmembers; k++)
         if (strcmp(m->classes[c].members[k].name, name) == 0) {
           RMember *mb = &m->classes[c].members[k];
           mb->cap = cap, mb->energy = energy, mb->kept = kept, mb->captured = captured;
+          mb->center = got == 8 && center != 0;
+          mb->lost = got == 8 ? lost : fmax(0, 1 - captured);
+          char sname[600];
+          snprintf(sname, sizeof sname, "spectrum_%s", name);
+          const NpyArray *a = model_store_array(&s, sname);
+          if (a && a->ndim == 1 && (mb->sv = malloc(sizeof(double) * (a->count + 1)))) {
+            memcpy(mb->sv, a->data, sizeof(double) * a->count);
+            mb->nsv = (long)a->count;
+          }
         }
     char stage[512];
     int t, k;
@@ -204,4 +245,24 @@ fail:
   model_store_free(&s);
   model_free(m);
   return NULL;
+}
+
+int model_write_spectra(const Model *m, const char *dir, char *err, size_t errlen) {
+  if (mkdir(dir, 0777) != 0 && errno != EEXIST) return npg_fail(err, errlen, "%s: cannot create: %s", dir, strerror(errno));
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; i < m->classes[c].nmembers; i++) {
+      const RMember *mb = &m->classes[c].members[i];
+      char path[4096];
+      long shape[1] = {mb->nsv};
+      snprintf(path, sizeof path, "%s/spectrum_%s.npy", dir, mb->name);
+      if (npy_write(path, NPY_F64, 1, shape, mb->sv, err, errlen) != 0) return -1;
+      snprintf(path, sizeof path, "%s/spectrum_%s.csv", dir, mb->name);
+      char *csv = spectrum_csv(mb);
+      FILE *f = csv ? fopen(path, "w") : NULL;
+      int ok = f && fputs(csv, f) >= 0;
+      if (f && fclose(f) != 0) ok = 0;
+      free(csv);
+      if (!ok) return npg_fail(err, errlen, "%s: cannot write: %s", path, strerror(errno));
+    }
+  return 0;
 }

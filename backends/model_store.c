@@ -21,6 +21,7 @@
 #include <inttypes.h>
 #include <limits.h>
 #include <signal.h>
+#include <stdbool.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -137,7 +138,7 @@ static int key_is(const char *line, const char *key) {
  * starting with a key that is not one the manifest itself uses. */
 static int valid_meta(const char *line) {
   return line && *line && *line != ' ' && *line != '\t' && !strchr(line, '\n') && !key_is(line, FORMAT_WORD) &&
-         !key_is(line, "program") && !key_is(line, "array") && !key_is(line, "manifest");
+         !key_is(line, "program") && !key_is(line, "array") && !key_is(line, "file") && !key_is(line, "manifest");
 }
 
 /* `shape` as "3x4" ("5" for one dim, "()" for none) into `buf` (SHAPE_TEXT). */
@@ -216,6 +217,8 @@ void model_store_free(ModelStore *m) {
     npy_free(&m->arrays[i].a);
   }
   free(m->arrays);
+  for (int i = 0; i < m->ntexts; i++) free(m->texts[i].name), free(m->texts[i].text);
+  free(m->texts);
   model_store_init(m);
 }
 
@@ -278,6 +281,33 @@ int model_store_add(ModelStore *m, const char *name, int ndim, const long *shape
   return append_array(m, name, &a, 0);
 }
 
+/* A text file's name: an array name ending in ".csv". */
+static int valid_text_name(const char *name) {
+  size_t n = name ? strlen(name) : 0;
+  return valid_name(name) && n > 4 && strcmp(name + n - 4, ".csv") == 0;
+}
+
+static int append_text(ModelStore *m, const char *name, const char *text, size_t len, uint64_t checksum) {
+  char *n = strdup(name), *t = malloc(len + 1);
+  ModelText *grown = n && t ? realloc(m->texts, ((size_t)m->ntexts + 1) * sizeof *grown) : NULL;
+  if (!grown) {
+    free(n), free(t);
+    return -1;
+  }
+  memcpy(t, text, len);
+  t[len] = '\0';
+  m->texts = grown;
+  m->texts[m->ntexts++] = (ModelText){n, t, checksum};
+  return 0;
+}
+
+int model_store_add_text(ModelStore *m, const char *name, const char *text) {
+  if (!valid_text_name(name) || !text) return -1;
+  for (int i = 0; i < m->ntexts; i++)
+    if (strcmp(m->texts[i].name, name) == 0) return -1;
+  return append_text(m, name, text, strlen(text), 0);
+}
+
 const NpyArray *model_store_array(const ModelStore *m, const char *name) {
   int i = find_array(m, name);
   return i < 0 ? NULL : &m->arrays[i].a;
@@ -300,6 +330,7 @@ const char *model_store_find(const ModelStore *m, const char *key) {
 static int is_store_file(const char *name) {
   size_t n = strlen(name);
   if (strcmp(name, "manifest") == 0 || (n > 4 && strcmp(name + n - 4, ".npy") == 0)) return 1;
+  if (n > 4 && strcmp(name + n - 4, ".csv") == 0) return 1;
   const char *tmp = strstr(name, ".npy.tmp.");
   if (!tmp || tmp == name) return 0;
   const char *pid = tmp + strlen(".npy.tmp.");
@@ -374,8 +405,8 @@ static int remove_stale(const Report *r, const char *path) {
 static int slurp(const Report *r, const char *path, char **text, size_t *len);
 
 /* Every .npy in the model directory `dir` is an array its manifest lists:
- * replacing the model removes those, so a file the user put there is
- * refused rather than lost. */
+ * replacing the model removes those (and the .csv files it lists), so a
+ * file the user put there is refused rather than lost. */
 static int check_listed(const Report *r, const char *dir) {
   char *mpath = str_printf("%s/manifest", dir), *text = NULL;
   size_t len = 0;
@@ -385,8 +416,9 @@ static int check_listed(const Report *r, const char *dir) {
   struct dirent *e;
   while (rc == 0 && (e = readdir(d))) {
     size_t n = strlen(e->d_name);
-    if (n <= 4 || strcmp(e->d_name + n - 4, ".npy") != 0) continue;
-    char *line = str_printf("\narray %s ", e->d_name);
+    int csv = n > 4 && strcmp(e->d_name + n - 4, ".csv") == 0;
+    if (!csv && (n <= 4 || strcmp(e->d_name + n - 4, ".npy") != 0)) continue;
+    char *line = str_printf(csv ? "\nfile %s " : "\narray %s ", e->d_name);
     char buf[NPY_EXCERPT_SIZE];
     if (!line) rc = fail(r, dir, 0, "out of memory");
     else if (!strstr(text, line))
@@ -498,7 +530,7 @@ static void disarm(void) {
  * model write at a time per process: a second one is not armed). */
 static void arm(const char *tmp, const ModelStore *m) {
   if (cleanup.paths) return;
-  char **paths = calloc((size_t)(2 * m->narrays + 1), sizeof *paths);
+  char **paths = calloc((size_t)(2 * m->narrays + m->ntexts + 1), sizeof *paths);
   if (!paths) return;
   cleanup.paths = paths;
   long pid = (long)getpid();
@@ -506,6 +538,8 @@ static void arm(const char *tmp, const ModelStore *m) {
     if ((paths[cleanup.n] = str_printf("%s/%s.npy", tmp, m->arrays[i].name))) cleanup.n++;
     if ((paths[cleanup.n] = str_printf("%s/%s.npy.tmp.%ld", tmp, m->arrays[i].name, pid))) cleanup.n++;
   }
+  for (int i = 0; i < m->ntexts; i++)
+    if ((paths[cleanup.n] = str_printf("%s/%s", tmp, m->texts[i].name))) cleanup.n++;
   if ((paths[cleanup.n] = str_printf("%s/manifest", tmp))) cleanup.n++;
   cleanup.dir = (char *)tmp;
   struct sigaction sa;
@@ -629,6 +663,22 @@ static int write_contents(const Report *r, const char *tmp, const ModelStore *m)
     free(path);
     if (i == m->narrays / 2) test_point("arrays");
   }
+  uint64_t *text_sums = rc == 0 ? calloc((size_t)m->ntexts + 1, sizeof *text_sums) : NULL;
+  if (rc == 0 && !text_sums) rc = fail(r, tmp, 0, "out of memory");
+  for (int i = 0; i < m->ntexts && rc == 0; i++) {
+    char *tpath = str_printf("%s/%s", tmp, m->texts[i].name);
+    FILE *tf = tpath ? fopen(tpath, "wb") : NULL;
+    if (!tpath) rc = fail(r, tmp, 0, "out of memory");
+    else if (!tf) rc = fail(r, tpath, 0, "cannot create: %s", strerror(errno));
+    else {
+      size_t len = strlen(m->texts[i].text);
+      int ok = fwrite(m->texts[i].text, 1, len, tf) == len && fflush(tf) == 0 &&
+               (fsync(fileno(tf)) == 0 || errno == EINVAL);
+      if (fclose(tf) != 0) ok = 0;
+      rc = ok ? hash_file(r, tpath, &text_sums[i]) : fail(r, tpath, 0, "cannot write: %s", strerror(errno));
+    }
+    free(tpath);
+  }
   char *path = rc == 0 ? str_printf("%s/manifest", tmp) : NULL;
   if (rc == 0 && !path) rc = fail(r, tmp, 0, "out of memory");
   char *text = NULL;
@@ -644,6 +694,8 @@ static int write_contents(const Report *r, const char *tmp, const ModelStore *m)
       fprintf(mem, "array %s.npy %s " CHECKSUM_KIND " %016" PRIx64 "\n", x->name,
               format_shape(shape, x->a.ndim, x->a.shape), checksums[i]);
     }
+    for (int i = 0; i < m->ntexts; i++)
+      fprintf(mem, "file %s " CHECKSUM_KIND " %016" PRIx64 "\n", m->texts[i].name, text_sums[i]);
     if (fclose(mem) != 0 || !text) rc = fail(r, tmp, 0, "out of memory");
   }
   FILE *f = rc == 0 ? fopen(path, "wb") : NULL;
@@ -665,6 +717,7 @@ static int write_contents(const Report *r, const char *tmp, const ModelStore *m)
   free(text);
   free(path);
   free(checksums);
+  free(text_sums);
   return rc == 0 ? sync_dir(r, tmp) : rc;
 }
 
@@ -900,6 +953,20 @@ static int parse_manifest(const Report *r, const char *mpath, char *text, size_t
       if (!grown) return fail(r, mpath, 0, "out of memory");
       *listed = grown;
       grown[(*nlisted)++] = x;
+    } else if (key_is(line, "file")) {
+      /* file <name>.csv fnv1a64 <16 hex digits>: kept as a Listed with ndim -1 */
+      char *w[4];
+      Listed x = {0};
+      if (split_words(line, w, 4) != 4 || !valid_text_name(w[1]) || strcmp(w[2], CHECKSUM_KIND) != 0 ||
+          parse_hex64(w[3], &x.checksum) != 0)
+        return fail(r, mpath, ln, "expected 'file <name>.csv " CHECKSUM_KIND " <16 hex digits>'");
+      x.name = w[1];
+      x.ndim = -1;
+      x.line = ln;
+      Listed *grown = realloc(*listed, ((size_t)*nlisted + 1) * sizeof *grown);
+      if (!grown) return fail(r, mpath, 0, "out of memory");
+      *listed = grown;
+      grown[(*nlisted)++] = x;
     } else if (*line == '\0') {
       return fail(r, mpath, ln, "empty line");
     } else if (*line == ' ' || *line == '\t') {
@@ -919,8 +986,25 @@ static int parse_manifest(const Report *r, const char *mpath, char *text, size_t
   return 0;
 }
 
+/* Check and load the text file `x` of directory `dir` into `m`. */
+static int load_text(const Report *r, const char *dir, const Listed *x, ModelStore *m) {
+  char *path = str_printf("%s/%s", dir, x->name), *text = NULL;
+  if (!path) return fail(r, dir, 0, "out of memory");
+  uint64_t h;
+  size_t len = 0;
+  int rc = hash_file(r, path, &h);
+  if (rc == 0 && h != x->checksum)
+    rc = fail(r, path, 0, "checksum mismatch: the file is corrupted or was changed after training");
+  if (rc == 0) rc = slurp(r, path, &text, &len);
+  if (rc == 0 && append_text(m, x->name, text, len, h) != 0) rc = fail(r, path, 0, "out of memory");
+  free(text);
+  free(path);
+  return rc;
+}
+
 /* Check and load the array file `x` of directory `dir` into `m`. */
 static int load_array(const Report *r, const char *dir, const Listed *x, ModelStore *m) {
+  if (x->ndim < 0) return load_text(r, dir, x, m);
   char *path = str_printf("%s/%s.npy", dir, x->name);
   if (!path) return fail(r, dir, 0, "out of memory");
   uint64_t h;
@@ -941,7 +1025,19 @@ static int load_array(const Report *r, const char *dir, const Listed *x, ModelSt
   return rc;
 }
 
-int model_store_read(const char *dir_arg, uint64_t expect_program_hash, ModelStore *m, char *err, size_t errlen) {
+static int read_store(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, char *err,
+                      size_t errlen);
+
+int model_store_read(const char *dir, uint64_t expect_program_hash, ModelStore *m, char *err, size_t errlen) {
+  return read_store(dir, true, expect_program_hash, m, err, errlen);
+}
+
+int model_store_read_any(const char *dir, ModelStore *m, char *err, size_t errlen) {
+  return read_store(dir, false, 0, m, err, errlen);
+}
+
+static int read_store(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, char *err,
+                      size_t errlen) {
   Report r = {err, errlen};
   if (err && errlen) err[0] = '\0';
   model_store_init(m);
@@ -956,7 +1052,7 @@ int model_store_read(const char *dir_arg, uint64_t expect_program_hash, ModelSto
   if (!mpath) rc = fail(&r, dir_arg, 0, "out of memory");
   if (rc == 0) rc = slurp(&r, mpath, &text, &len);
   if (rc == 0) rc = parse_manifest(&r, mpath, text, len, &m->program_hash, m, &listed, &nlisted, &changed_line);
-  if (rc == 0 && m->program_hash != expect_program_hash)
+  if (rc == 0 && check_program && m->program_hash != expect_program_hash)
     rc = fail(&r, mpath, 0,
               "model was trained for another program (program hash %016" PRIx64 ", this program %016" PRIx64
               "): retrain",

@@ -15,6 +15,7 @@
  *   <key> <value...>                              metadata lines, verbatim, in order
  *   array basis_0.npy 3x4 fnv1a64 89abcdef01234567  one line per array
  *
+ *   file spectrum_x.csv fnv1a64 0123456789abcdef   one line per text file
  *   manifest fnv1a64 0123456789abcdef             always last: the hash of the lines before it
  *
  * An array line gives the file, its shape ("3x4"; "5" for a vector, "()"
@@ -43,12 +44,21 @@ typedef struct ModelArray {
   uint64_t checksum; /* FNV-1a 64 of the .npy file, as model_store_read verified it; 0 after model_store_add */
 } ModelArray;
 
+/* A text file beside the arrays (a CSV for people and spreadsheets). */
+typedef struct ModelText {
+  char *name;        /* file name, ending in .csv */
+  char *text;
+  uint64_t checksum; /* FNV-1a 64 of the file, as model_store_read verified it; 0 after model_store_add_text */
+} ModelText;
+
 typedef struct ModelStore {
   uint64_t program_hash; /* the program the model was trained for */
   int nmeta;
   char **meta; /* ordered manifest lines "key value...", without '\n', written verbatim */
   int narrays;
   ModelArray *arrays;
+  int ntexts;
+  ModelText *texts;
 } ModelStore;
 
 /* An empty store: no metadata, no arrays, program hash 0. */
@@ -66,6 +76,10 @@ __attribute__((format(printf, 2, 3))) int model_store_meta(ModelStore *m, const 
  * not already in `m`. 0, or -1 (invalid argument or out of memory) with
  * `m` unchanged. */
 int model_store_add(ModelStore *m, const char *name, int ndim, const long *shape, const double *data);
+
+/* Append the text file `name` (a valid array name ending in ".csv", not
+ * already in `m`) holding `text`. 0, or -1 with `m` unchanged. */
+int model_store_add_text(ModelStore *m, const char *name, const char *text);
 
 /* The array `name`, or NULL if `m` has none of that name. */
 const NpyArray *model_store_array(const ModelStore *m, const char *name);
@@ -100,6 +114,10 @@ int model_store_write(const char *dir, const ModelStore *m, char *err, size_t er
  * and has the manifest's shape. 0, or -1 with `m` empty and `err` holding
  * "<file>[:<line>]: <problem>", naming the file that is wrong. */
 int model_store_read(const char *dir, uint64_t expect_program_hash, ModelStore *m, char *err, size_t errlen);
+
+/* model_store_read without the program check: for tools that look at any
+ * model (npgc plot). */
+int model_store_read_any(const char *dir, ModelStore *m, char *err, size_t errlen);
 
 /* Release everything `m` holds and leave it empty (model_store_init). */
 void model_store_free(ModelStore *m);

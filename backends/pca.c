@@ -1,10 +1,15 @@
 /* pca.c — bases from snapshots (DESIGN §5; paper §8.2).
  *
- * One PCA per member (uncentered, as the paper's: the mean is a direction
- * like any other), truncated at an energy fraction and a cap; a class's
- * member bases concatenated and re-orthonormalized, dropping dependent
- * directions (paper §6.1: two 60-vector bases gave a 120-vector one). All
- * factorizations through LAPACKE.
+ * One PCA per member, truncated at an energy fraction and a cap. Centered
+ * by default (pca_basis): the member's mean μ is always kept and the
+ * leading left singular vectors of the snapshots minus μ fill the rest, as
+ * many as reach the energy fraction of the *centered* energy — on a
+ * deforming mesh the rest shape dominates the uncentered energy, and the
+ * paper's uncentered rule (the mean a direction like any other) then drops
+ * the deformation modes. The basis stays linear: [μ, U_c] orthonormalized.
+ * A class's member bases are concatenated and re-orthonormalized, dropping
+ * dependent directions (paper §6.1: two 60-vector bases gave a 120-vector
+ * one). All factorizations through LAPACKE.
  *
  * Tall snapshot matrices (n ≥ 4 columns) go through their Gram matrix, the
  * method of snapshots of DESIGN §5: G = XᵀX (one dsyrk or dgemm per block
@@ -28,6 +33,9 @@
 #define PCA_RANK_TOL 1e-10
 /* Singular values the Gram route resolves: above this fraction of the largest. */
 #define PCA_GRAM_TOL 1e-6
+/* A direction whose remainder after removing the previous ones is below
+ * this fraction of its norm is dependent on them (pca_in_order). */
+#define PCA_DEPENDENT_TOL 1e-8
 
 /* A block of columns of a snapshot matrix with n rows: column-major (ld n)
  * or row-major (ld k). */
@@ -148,11 +156,14 @@ static long choose_independent(const double *s, long K, const void *arg, bool *u
   return *unresolved ? 0 : K;
 }
 
-int pca_member(long n, long S, const double *X, int cap, double energy, double **U, int *k, double *captured,
-               char *err, size_t errlen) {
+/* pca_member, also handing back the singular values (descending, *nsv of
+ * them, malloc'd) when `sv` is not NULL. */
+static int pca_core(long n, long S, const double *X, int cap, double energy, double **U, int *k, double *captured,
+                    double **sv, long *nsv, char *err, size_t errlen) {
   *U = NULL;
   *k = 0;
   *captured = 1;
+  if (sv) *sv = NULL, *nsv = 0;
   long r = n < S ? n : S;
   if (n >= 4 * S && S > 0) {
     double *sg = malloc(sizeof(double) * (size_t)S), *Ug = NULL;
@@ -167,7 +178,8 @@ int pca_member(long n, long S, const double *X, int cap, double energy, double *
       *captured = total > 0 ? run / total : 1;
       *U = Ug;
       *k = (int)kept;
-      free(sg);
+      if (sv) *sv = sg, *nsv = S;
+      else free(sg);
       return 0;
     }
     free(sg);
@@ -214,11 +226,101 @@ int pca_member(long n, long S, const double *X, int cap, double energy, double *
   }
   for (long i = 0; i < n; i++)
     for (int j = 0; j < kept; j++) out[i * kept + j] = u[(size_t)j * (size_t)n + (size_t)i];
-  free(s);
+  if (sv) *sv = s, *nsv = r;
+  else free(s);
   free(u);
   *U = out;
   *k = kept;
   return 0;
+}
+
+int pca_member(long n, long S, const double *X, int cap, double energy, double **U, int *k, double *captured,
+               char *err, size_t errlen) {
+  return pca_core(n, S, X, cap, energy, U, k, captured, NULL, NULL, err, errlen);
+}
+
+int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int *m, char *err, size_t errlen) {
+  long K = 0;
+  for (int i = 0; i < r; i++) K += k[i];
+  double *q = malloc(sizeof(double) * (size_t)(n * (K ? K : 1))), *v = malloc(sizeof(double) * (size_t)(n + 1));
+  double *c = malloc(sizeof(double) * (size_t)(K + 1));
+  *Q = NULL;
+  *m = 0;
+  if (!q || !v || !c) {
+    free(q), free(v), free(c);
+    snprintf(err, errlen, "out of memory orthonormalizing a basis of %ld entries", n);
+    return -1;
+  }
+  /* q is n x K row-major with leading dimension K; its first `kept` columns are the basis so far */
+  int kept = 0;
+  for (int i = 0; i < r; i++)
+    for (int j = 0; j < k[i]; j++) {
+      for (long e = 0; e < n; e++) v[e] = A[i][e * k[i] + j];
+      double norm0 = cblas_dnrm2((int)n, v, 1);
+      if (!(norm0 > 0)) continue;
+      for (int pass = 0; pass < 2 && kept > 0; pass++) { /* twice is enough (Kahan–Parlett) */
+        cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, kept, 1.0, q, (int)K, v, 1, 0.0, c, 1);
+        cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, kept, -1.0, q, (int)K, c, 1, 1.0, v, 1);
+      }
+      double norm = cblas_dnrm2((int)n, v, 1);
+      if (!(norm > PCA_DEPENDENT_TOL * norm0)) continue; /* numerically in the span of the previous ones */
+      for (long e = 0; e < n; e++) q[e * K + kept] = v[e] / norm;
+      kept++;
+    }
+  free(v), free(c);
+  double *out = malloc(sizeof(double) * (size_t)(n * (kept ? kept : 1)));
+  if (!out) {
+    free(q);
+    snprintf(err, errlen, "out of memory orthonormalizing a basis of %ld entries", n);
+    return -1;
+  }
+  for (long e = 0; e < n; e++) memcpy(out + e * kept, q + e * K, sizeof(double) * (size_t)kept);
+  free(q);
+  *Q = out;
+  *m = kept;
+  return 0;
+}
+
+void pca_mean(long n, long S, const double *X, double *mu) {
+  memset(mu, 0, sizeof(double) * (size_t)n);
+  for (long s = 0; s < S; s++) cblas_daxpy((int)n, 1.0 / (double)S, X + s * n, 1, mu, 1);
+}
+
+int pca_basis(long n, long S, const double *X, int cap, double energy, bool center, PcaMember *out, char *err,
+              size_t errlen) {
+  memset(out, 0, sizeof *out);
+  double captured = 1;
+  if (!center) {
+    int rc = pca_core(n, S, X, cap, energy, &out->U, &out->k, &captured, &out->sv, &out->nsv, err, errlen);
+    out->lost = fmax(0, 1 - captured);
+    return rc;
+  }
+  /* centered: [μ, U_c] with U_c the leading directions of X − μ1ᵀ, at most cap − 1 */
+  double *mu = malloc(sizeof(double) * (size_t)(n + 1)), *Xc = malloc(sizeof(double) * (size_t)(n * S + 1));
+  double *Uc = NULL;
+  int kc = 0, rc = -1;
+  if (!mu || !Xc) {
+    snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+    goto done;
+  }
+  pca_mean(n, S, X, mu);
+  for (long s = 0; s < S; s++)
+    for (long e = 0; e < n; e++) Xc[s * n + e] = X[s * n + e] - mu[e];
+  if (pca_core(n, S, Xc, cap > 1 ? cap - 1 : 0, energy, &Uc, &kc, &captured, &out->sv, &out->nsv, err, errlen))
+    goto done;
+  double *parts[2] = {mu, Uc};
+  int ks[2] = {1, kc};
+  rc = pca_in_order(n, 2, parts, ks, &out->U, &out->k, err, errlen);
+  out->lost = fmax(0, 1 - captured);
+done:
+  free(mu);
+  free(Xc);
+  free(Uc);
+  if (rc) {
+    free(out->sv);
+    out->sv = NULL;
+  }
+  return rc;
 }
 
 int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m, char *err, size_t errlen) {

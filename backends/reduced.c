@@ -290,7 +290,7 @@ void model_free(Model *m) {
     RClass *rc = &m->classes[c];
     free(rc->label);
     free(rc->B);
-    for (int i = 0; rc->members && i < rc->nmembers; i++) free(rc->members[i].name);
+    for (int i = 0; rc->members && i < rc->nmembers; i++) free(rc->members[i].name), free(rc->members[i].sv);
     free(rc->members);
   }
   for (int i = 0; m->stages && i < m->nstages; i++) {

@@ -1,17 +1,23 @@
 /* train.c — training a reduced model (DESIGN §5; paper §8.2–§8.3):
  *
+ *   0. the layout, and every member's cap, energy fraction and centering
+ *      (defaults, the program's `basis` statements, --basis);
  *   1. snapshots: the full evaluator on every training sample; every
  *      quantity's value and, for every operator term with an unnamed
  *      numerator, the numerator's value (it joins the result's class:
  *      DESIGN §4, "a numerator lives in the result's basis");
- *   2. one orthonormal basis per class: a PCA per member (energy fraction
- *      and cap per member), concatenated and re-orthonormalized, or with
+ *   2. one orthonormal basis per class: a PCA per member (centered by
+ *      default: pca.c), concatenated and re-orthonormalized, or with
  *      --merge joint one PCA of the unit-scaled member blocks;
  *   3. pre-multiplication of every tensor (premul.c);
  *   4. the learned map of every extern (paper §8.3): the training samples'
  *      reduced inputs and reduced values.
+ *
+ * A TrainSet (npgc tune) runs 0–1 and every member's PCA once, then builds
+ * models of any caps from truncations of those bases, steps 2–4 only.
  */
 #include <cblas.h>
+#include <float.h>
 #include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
@@ -65,23 +71,62 @@ static int field_value(NpgFull *f, const RTensor *ts, int nt, double *out, long 
 
 /* ---------------------------------------------------------------- options */
 
+/* Whether override `name` (--basis NAME:...) names member `mb` of class
+ * `c`, and how specifically: 0 not at all, 1 '*', 2 its class (m_f as
+ * `npgc check` prints it, or its label {f,g}), 3 the member itself (a
+ * quantity, or a numerator f.num1). */
+static int override_level(const RClass *c, const RMember *mb, const char *name) {
+  if (strcmp(name, mb->name) == 0) return 3;
+  if (strcmp(name, c->label) == 0 || (c->bc->size_name && strcmp(name, c->bc->size_name) == 0)) return 2;
+  return strcmp(name, "*") == 0 ? 1 : 0;
+}
+
+/* Every --basis name must name something: a misspelt one would silently
+ * train with the defaults. */
+static int check_overrides(const Model *m, const TrainOptions *opt, char *err, size_t errlen) {
+  for (int i = 0; i < opt->noverride; i++) {
+    bool found = false;
+    for (int c = 0; c < m->nclasses && !found; c++)
+      for (int k = 0; k < m->classes[c].nmembers && !found; k++)
+        found = override_level(&m->classes[c], &m->classes[c].members[k], opt->override_name[i]) > 0;
+    if (found) continue;
+    char list[1024] = "";
+    size_t len = 0;
+    for (int c = 0; c < m->nclasses && len < sizeof list; c++) {
+      const RClass *rc = &m->classes[c];
+      len += (size_t)snprintf(list + len, sizeof list - len, "%s%s (", c ? "; " : "", rc->bc->size_name);
+      for (int k = 0; k < rc->nmembers && len < sizeof list; k++)
+        len += (size_t)snprintf(list + len, sizeof list - len, "%s%s", k ? ", " : "", rc->members[k].name);
+      if (len < sizeof list) len += (size_t)snprintf(list + len, sizeof list - len, ")");
+    }
+    return npg_fail(err, errlen,
+                    "--basis %s: no quantity, class or numerator of that name; classes (members): %s, or '*' for all",
+                    opt->override_name[i], list);
+  }
+  return 0;
+}
+
+/* A member's cap, energy and centering: the defaults, then the program's
+ * `basis` statements, then --basis from the least specific to the most. */
 static void member_options(const Model *m, const RClass *c, RMember *mb, const TrainOptions *opt) {
   mb->cap = opt->cap > 0 ? opt->cap : 60;
   mb->energy = opt->energy > 0 ? opt->energy : 0.999;
+  mb->center = !opt->uncentered;
   const BasisClass *bc = c->bc;
   if (bc->basis_max > 0) mb->cap = bc->basis_max;
   if (bc->basis_energy > 0) mb->energy = bc->basis_energy;
-  const char *name = mb->name;
   if (mb->q >= 0) {
     const Sym *s = m->prog->quantities.v[mb->q];
     if (s->basis_max > 0) mb->cap = s->basis_max;
     if (s->basis_energy > 0) mb->energy = s->basis_energy;
-    name = s->name;
+    if (s->basis_center >= 0) mb->center = s->basis_center;
   }
-  for (int i = 0; i < opt->noverride; i++)
-    if (strcmp(opt->override_name[i], name) == 0 || strcmp(opt->override_name[i], "*") == 0) {
+  for (int level = 1; level <= 3; level++)
+    for (int i = 0; i < opt->noverride; i++) {
+      if (override_level(c, mb, opt->override_name[i]) != level) continue;
       if (opt->override_cap[i] > 0) mb->cap = opt->override_cap[i];
       if (opt->override_energy[i] > 0) mb->energy = opt->override_energy[i];
+      if (opt->override_center && opt->override_center[i] >= 0) mb->center = opt->override_center[i];
     }
 }
 
@@ -172,7 +217,14 @@ static int check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen
  * recomputing the later samples against it (one pass when the budget holds
  * half the samples, S/b passes in general); the eigenvectors of G give the
  * basis U = X V Λ^(-1/2), formed in pass 2 by recomputing every sample once
- * and adding its rank-one contribution. U[c][i], kk[c][i] per member. */
+ * and adding its rank-one contribution. U[c][i], kk[c][i] per member.
+ *
+ * A centered member's snapshots are shifted by its first sample x₀ (on a
+ * deforming mesh that removes the dominant rest shape before any product,
+ * so nothing cancels), their mean d accumulated in pass 1; the centered
+ * Gram matrix is then J G J (J = I − 11ᵀ/S: the mean of a shift is
+ * removed exactly), its eigenvectors give U_c = (X − x₀1ᵀ − d1ᵀ) W, and
+ * the member's basis is the orthonormalization of [μ = x₀ + d, U_c]. */
 static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, double ***U,
                           int **kk, double *tmp, char *err, size_t errlen) {
   long S = src->count, per = 0;
@@ -183,15 +235,22 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
   int rc = -1;
   double ***G = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***H = calloc((size_t)m->nclasses + 1, sizeof(double **));
   double *lam = malloc(sizeof(double) * (size_t)S);
-  if (!G || !H || !lam) goto oom;
+  /* centered members: the shift x₀ and the sum of the shifted snapshots, then their mean */
+  double ***X0 = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***D = calloc((size_t)m->nclasses + 1, sizeof(double **));
+  if (!G || !H || !lam || !X0 || !D) goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(G[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(H[c] = calloc((size_t)rc->nmembers, sizeof(double *))))
+    if (!(G[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(H[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(X0[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(D[c] = calloc((size_t)rc->nmembers, sizeof(double *))))
       goto oom;
-    for (int i = 0; i < rc->nmembers; i++)
+    for (int i = 0; i < rc->nmembers; i++) {
       if (!(G[c][i] = calloc((size_t)(S * S), sizeof(double))) ||
           !(H[c][i] = malloc(sizeof(double) * (size_t)(rc->n * b))))
         goto oom;
+      if (rc->members[i].center &&
+          (!(X0[c][i] = malloc(sizeof(double) * (size_t)rc->n)) || !(D[c][i] = calloc((size_t)rc->n, sizeof(double)))))
+        goto oom;
+    }
   }
   long passes = (S + b - 1) / b, done = 0, work = 0;
   for (long i0 = 0; i0 < S; i0 += b) work += S - i0;
@@ -205,6 +264,11 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
         for (int i = 0; i < rc->nmembers; i++) {
           double *x = k < i1 ? H[c][i] + (k - i0) * rc->n : tmp;
           if (member_value(m, f, &rc->members[i], k, rc->n, x, err, errlen)) goto done;
+          if (X0[c][i]) {
+            if (k == 0) memcpy(X0[c][i], x, sizeof(double) * (size_t)rc->n);
+            cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, x, 1);
+            if (k < i1) cblas_daxpy((int)rc->n, 1.0, x, 1, D[c][i], 1);
+          }
           if (k < i1) continue;
           /* G[I, k] = X_Iᵀ x_k */
           double *g = lam;
@@ -228,6 +292,19 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
     RClass *rc = &m->classes[c];
     for (int i = 0; i < rc->nmembers; i++) {
       RMember *mb = &rc->members[i];
+      if (mb->center) { /* J G J, and d the mean of the shifted snapshots */
+        double *g = G[c][i], all = 0;
+        for (long a = 0; a < S; a++) {
+          double row = 0;
+          for (long e = 0; e < S; e++) row += g[a * S + e];
+          lam[a] = row / (double)S;
+          all += row;
+        }
+        all /= (double)S * (double)S;
+        for (long a = 0; a < S; a++)
+          for (long e = 0; e < S; e++) g[a * S + e] += all - lam[a] - lam[e];
+        cblas_dscal((int)rc->n, 1.0 / (double)S, D[c][i], 1);
+      }
       lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)S, G[c][i], (lapack_int)S, lam);
       if (info != 0) {
         npg_fail(err, errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
@@ -236,16 +313,23 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
       }
       double total = 0, run = 0;
       for (long a = 0; a < S; a++) total += fmax(lam[a], 0);
-      int k = 0;
+      int k = 0, cap = mb->center ? mb->cap - 1 : mb->cap;
       mb->captured = 1;
       if (total > 0) {
-        while (k < S && k < mb->cap && lam[S - 1 - k] > 1e-20 * lam[S - 1]) {
+        while (k < S && k < cap && lam[S - 1 - k] > 1e-20 * lam[S - 1]) {
+          /* what is left is rounding (a centered Gram matrix has a null vector, 1) */
+          if (k > 0 && total - run <= (double)S * DBL_EPSILON * total) break;
           run += lam[S - 1 - k];
           k++;
           if (run >= mb->energy * total) break;
         }
         mb->captured = run / total;
       }
+      mb->lost = fmax(0, 1 - mb->captured);
+      free(mb->sv);
+      if (!(mb->sv = malloc(sizeof(double) * (size_t)S))) goto oom;
+      mb->nsv = S;
+      for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
       mb->kept = kk[c][i] = k;
       /* column a of W = V[:, S-1-a] / sqrt(λ), kept in G's place (S x k) */
       for (long s2 = 0; s2 < S; s2++) {
@@ -264,10 +348,32 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
       for (int i = 0; i < rc->nmembers; i++) {
         if (!kk[c][i]) continue;
         if (member_value(m, f, &rc->members[i], k, rc->n, tmp, err, errlen)) goto done;
+        if (X0[c][i]) cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, tmp, 1);
         cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, tmp, 1, G[c][i] + k * S, 1, U[c][i], kk[c][i]);
       }
     }
     progress_show(opt->progress, "snapshots (basis)", k + 1, S);
+  }
+  /* centered members: U_c -= d (1ᵀW), then [μ, U_c] orthonormalized */
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    for (int i = 0; i < rc->nmembers; i++) {
+      if (!X0[c][i]) continue;
+      int k = kk[c][i];
+      for (int a = 0; a < k; a++) {
+        double w = 0;
+        for (long s2 = 0; s2 < S; s2++) w += G[c][i][s2 * S + a];
+        tmp[a] = w;
+      }
+      if (k > 0) cblas_dger(CblasRowMajor, (int)rc->n, k, -1.0, D[c][i], 1, tmp, 1, U[c][i], k);
+      cblas_daxpy((int)rc->n, 1.0, X0[c][i], 1, D[c][i], 1); /* μ = x₀ + d */
+      double *parts[2] = {D[c][i], U[c][i]}, *Q = NULL;
+      int ks[2] = {1, k}, mm = 0;
+      if (pca_in_order(rc->n, 2, parts, ks, &Q, &mm, err, errlen)) goto done;
+      free(U[c][i]);
+      U[c][i] = Q;
+      rc->members[i].kept = kk[c][i] = mm;
+    }
   }
   rc = 0;
   goto done;
@@ -277,152 +383,238 @@ done:
   for (int c = 0; c < m->nclasses; c++) {
     for (int i = 0; G && G[c] && i < m->classes[c].nmembers; i++) free(G[c][i]);
     for (int i = 0; H && H[c] && i < m->classes[c].nmembers; i++) free(H[c][i]);
+    for (int i = 0; X0 && X0[c] && i < m->classes[c].nmembers; i++) free(X0[c][i]);
+    for (int i = 0; D && D[c] && i < m->classes[c].nmembers; i++) free(D[c][i]);
     if (G) free(G[c]);
     if (H) free(H[c]);
+    if (X0) free(X0[c]);
+    if (D) free(D[c]);
   }
   free(G);
   free(H);
+  free(X0);
+  free(D);
   free(lam);
   return rc;
 }
 
-Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                   size_t errlen) {
-  Model *m = NULL;
-  Snapshots sn = {0};
-  double *tmp = NULL;
-  long S = src->count;
-  err[0] = 0;
-  if (S < 1) {
+/* Record a member's PCA (its size, lost energy and spectrum). */
+static void take_pca(RMember *mb, PcaMember *p) {
+  mb->kept = p->k;
+  mb->lost = p->lost;
+  mb->captured = 1 - p->lost;
+  free(mb->sv);
+  mb->sv = p->sv;
+  mb->nsv = p->nsv;
+  p->sv = NULL;
+}
+
+/* The class basis by the paper's way (§6.1, §9): one PCA per member, the
+ * member bases concatenated and re-orthonormalized. X[i]: member i's
+ * snapshots, n x S column-major. */
+static int member_bases(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
+  double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
+  int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
+  for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
+    RMember *mb = &rc->members[i];
+    PcaMember p;
+    rc_ok = pca_basis(rc->n, S, X[i], mb->cap, mb->energy, mb->center, &p, err, errlen);
+    if (rc_ok) break;
+    U[i] = p.U;
+    kk[i] = p.k;
+    take_pca(mb, &p);
+  }
+  if (rc_ok == 0) rc_ok = pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen);
+  for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
+  free(U);
+  free(kk);
+  return rc_ok;
+}
+
+/* --merge joint (DESIGN §5): one PCA of the members' snapshot blocks, each
+ * scaled to unit norm first; centered (when the first member is), each
+ * block minus its own mean, and the class basis the orthonormalization of
+ * [μ_1 … μ_r, U_c], at most Σ cap vectors. Every member reports the joint
+ * PCA. */
+static int joint_basis(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
+  size_t n = (size_t)rc->n * (size_t)S;
+  int r = rc->nmembers, cap = 0, rc_ok = -1;
+  bool center = rc->members[0].center;
+  double energy = 1;
+  double *J = malloc(sizeof(double) * n * (size_t)r), *mu = malloc(sizeof(double) * (size_t)(rc->n * r + 1));
+  double **parts = calloc((size_t)r + 1, sizeof(double *));
+  int *ks = calloc((size_t)r + 1, sizeof(int));
+  PcaMember p = {0};
+  if (!J || !mu || !parts || !ks) goto done;
+  for (int i = 0; i < r; i++) {
+    double *Ji = J + (size_t)i * n, *mi = mu + (size_t)i * (size_t)rc->n;
+    memcpy(Ji, X[i], sizeof(double) * n);
+    if (center) {
+      pca_mean(rc->n, S, X[i], mi);
+      for (long s = 0; s < S; s++) cblas_daxpy((int)rc->n, -1.0, mi, 1, Ji + s * rc->n, 1);
+    }
+    double nrm = cblas_dnrm2((int)n, Ji, 1);
+    if (nrm > 0) cblas_dscal((int)n, 1 / nrm, Ji, 1);
+    cap += rc->members[i].cap;
+    energy = fmin(energy, rc->members[i].energy);
+    parts[i] = mi;
+    ks[i] = 1;
+  }
+  if (center) cap = cap > r ? cap - r : 0;
+  if (pca_basis(rc->n, S * r, J, cap, energy, false, &p, err, errlen)) goto done;
+  if (center) {
+    parts[r] = p.U;
+    ks[r] = p.k;
+    int mm = 0;
+    rc_ok = pca_in_order(rc->n, r + 1, parts, ks, &rc->B, &mm, err, errlen);
+    rc->m = mm;
+  } else {
+    rc_ok = pca_merge(rc->n, 1, &p.U, &p.k, &rc->B, &rc->m, err, errlen);
+  }
+  for (int i = 0; rc_ok == 0 && i < r; i++) {
+    RMember *mb = &rc->members[i];
+    mb->kept = (int)rc->m;
+    mb->lost = p.lost;
+    mb->captured = 1 - p.lost;
+    free(mb->sv);
+    mb->nsv = p.nsv;
+    if ((mb->sv = malloc(sizeof(double) * (size_t)(p.nsv + 1)))) memcpy(mb->sv, p.sv, sizeof(double) * (size_t)p.nsv);
+    else rc_ok = -1;
+  }
+done:
+  free(J);
+  free(mu);
+  free(parts);
+  free(ks);
+  free(p.U);
+  free(p.sv);
+  return rc_ok;
+}
+
+/* The model's layout for the dims sample 0 binds, with every member's
+ * options set and the --basis names checked. NULL with `err`. */
+static Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                             size_t errlen) {
+  if (src->count < 1) {
     npg_fail(err, errlen, "no training samples");
     return NULL;
   }
-  /* sample 0 binds every dim */
-  if (src->set(src->user, f, 0) != 0 || npg_full_eval(f, 0) != 0) {
+  if (src->set(src->user, f, 0) != 0 || npg_full_eval(f, 0) != 0) { /* sample 0 binds every dim */
     npg_fail(err, errlen, "%s", npg_full_error(f));
     return NULL;
   }
   long *dims = calloc((size_t)prog->dims.n + 1, sizeof(long));
   if (!dims) return NULL;
   for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(f, i);
-  m = model_layout(prog, dims, err, errlen);
+  Model *m = model_layout(prog, dims, err, errlen);
   free(dims);
   if (!m) return NULL;
-  m->samples = S;
+  m->samples = src->count;
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; i < m->classes[c].nmembers; i++) member_options(m, &m->classes[c], &m->classes[c].members[i], opt);
+  if (check_overrides(m, opt, err, errlen)) {
+    model_free(m);
+    return NULL;
+  }
+  return m;
+}
 
-  /* 1. snapshots */
+/* Step 1: every member's snapshots in memory (sn->X), or, when they need
+ * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
+ * *gram set). Marks which diagonal operators stay SPD. */
+static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
+                          bool *gram, char *err, size_t errlen) {
+  long S = src->count, maxn = 1;
   size_t need = 0;
-  long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) {
     need += sizeof(double) * (size_t)m->classes[c].n * (size_t)S * (size_t)m->classes[c].nmembers;
     maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-    for (int i = 0; i < m->classes[c].nmembers; i++) member_options(m, &m->classes[c], &m->classes[c].members[i], opt);
   }
-  bool gram = opt->mem && need > opt->mem;
-  if (gram && opt->joint) {
-    npg_fail(err, errlen,
-          "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise --mem "
-          "or use --merge concat (the method of snapshots)",
-          (double)need / 1e9, (double)opt->mem / 1e9);
-    goto fail;
-  }
-  sn.S = S;
-  if (!(sn.X = calloc((size_t)m->nclasses + 1, sizeof(double **)))) goto oom;
-  if (!(sn.U = calloc((size_t)m->nclasses + 1, sizeof(double **))) || !(sn.k = calloc((size_t)m->nclasses + 1, sizeof(int *))))
+  *gram = opt->mem && need > opt->mem;
+  if (*gram && opt->joint)
+    return npg_fail(err, errlen,
+                    "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
+                    "--mem or use --merge concat (the method of snapshots)",
+                    (double)need / 1e9, (double)opt->mem / 1e9);
+  sn->S = S;
+  double *tmp = malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S));
+  if (!tmp || !(sn->X = calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->U = calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->k = calloc((size_t)m->nclasses + 1, sizeof(int *))))
     goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(sn.X[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(sn.U[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn.k[c] = calloc((size_t)rc->nmembers, sizeof(int))))
+    if (!(sn->X[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(sn->U[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn->k[c] = calloc((size_t)rc->nmembers, sizeof(int))))
       goto oom;
-    for (int i = 0; !gram && i < rc->nmembers; i++)
-      if (!(sn.X[c][i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
+    for (int i = 0; !*gram && i < rc->nmembers; i++)
+      if (!(sn->X[c][i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
   }
-  if (!(tmp = malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S)))) goto oom;
   FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
-  if (gram) {
-    if (snapshot_bases(m, f, src, opt, sn.U, sn.k, tmp, err, errlen)) goto fail;
-  } else {
-    for (long k = 0; k < S; k++) {
-      if (k > 0 && eval_sample(src, f, k, err, errlen)) goto fail;
-      for (int c = 0; c < m->nclasses; c++) {
-        RClass *rc = &m->classes[c];
-        for (int i = 0; i < rc->nmembers; i++)
-          if (member_value(m, f, &rc->members[i], k, rc->n, sn.X[c][i] + (size_t)k * (size_t)rc->n, err, errlen))
-            goto fail;
-      }
-      if (check_spd(m, f, tmp, err, errlen)) goto fail;
-      progress_show(opt->progress, "snapshots", k + 1, S);
+  int rc = 0;
+  if (*gram) rc = snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen);
+  for (long k = 0; !*gram && rc == 0 && k < S; k++) {
+    if (k > 0 && eval_sample(src, f, k, err, errlen)) rc = -1;
+    for (int c = 0; rc == 0 && c < m->nclasses; c++) {
+      RClass *cl = &m->classes[c];
+      for (int i = 0; rc == 0 && i < cl->nmembers; i++)
+        rc = member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
     }
+    if (rc == 0) rc = check_spd(m, f, tmp, err, errlen);
+    progress_show(opt->progress, "snapshots", k + 1, S);
   }
+  free(tmp);
+  return rc;
+oom:
+  free(tmp);
+  return npg_fail(err, errlen, "out of memory for the snapshots of %ld samples", S);
+}
 
-  /* 2. bases */
+/* A class basis completed to full rank (convergence tests: the PCA
+ * directions first, then the rest of the space), and one direction for a
+ * class whose every snapshot is zero (lifting gives 0). */
+static int complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
+  if (full_rank && rc->m < rc->n) {
+    double *eye = calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
+    double *parts[2] = {rc->B, eye};
+    int ks[2] = {(int)rc->m, (int)rc->n};
+    if (!eye) return npg_fail(err, errlen, "out of memory completing the basis of class %s", rc->label);
+    for (long e = 0; e < rc->n; e++) eye[e * rc->n + e] = 1;
+    int rc_ok = pca_merge(rc->n, 2, parts, ks, &B, &rc->m, err, errlen);
+    free(eye);
+    if (rc_ok != 0) return -1;
+    free(rc->B);
+    rc->B = B;
+  }
+  if (rc->m == 0) {
+    free(rc->B);
+    if (!(rc->B = calloc((size_t)rc->n, sizeof(double)))) return npg_fail(err, errlen, "out of memory");
+    rc->B[0] = 1;
+    rc->m = 1;
+  }
+  return 0;
+}
+
+/* Step 2: one basis per class (DESIGN §5), sized into the tensors. */
+static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOptions *opt, char *err, size_t errlen) {
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
-    int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int));
-    int rc_ok = U && kk ? 0 : -1;
-    if (rc_ok == 0 && opt->joint && rc->nmembers > 1) {
-      /* one PCA of the members' blocks, each scaled to unit norm (DESIGN §5) */
-      size_t n = (size_t)rc->n * (size_t)S;
-      double *J = malloc(sizeof(double) * n * (size_t)rc->nmembers);
-      int cap = 0;
-      double energy = 1;
-      if (!J) rc_ok = -1;
-      for (int i = 0; J && i < rc->nmembers; i++) {
-        double nrm = cblas_dnrm2((int)n, sn.X[c][i], 1);
-        for (size_t e = 0; e < n; e++) J[(size_t)i * n + e] = nrm > 0 ? sn.X[c][i][e] / nrm : 0;
-        cap += rc->members[i].cap;
-        energy = fmin(energy, rc->members[i].energy);
-      }
-      double captured = 0;
-      if (J) rc_ok = pca_member(rc->n, S * rc->nmembers, J, cap, energy, &U[0], &kk[0], &captured, err, errlen);
-      free(J);
-      for (int i = 0; i < rc->nmembers; i++) {
-        rc->members[i].kept = kk[0];
-        rc->members[i].captured = captured;
-      }
-      if (rc_ok == 0) rc_ok = pca_merge(rc->n, 1, U, kk, &rc->B, &rc->m, err, errlen);
-    } else if (rc_ok == 0 && gram) {
-      rc_ok = pca_merge(rc->n, rc->nmembers, sn.U[c], sn.k[c], &rc->B, &rc->m, err, errlen);
-    } else if (rc_ok == 0) {
-      for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
-        RMember *mb = &rc->members[i];
-        rc_ok = pca_member(rc->n, S, sn.X[c][i], mb->cap, mb->energy, &U[i], &kk[i], &mb->captured, err, errlen);
-        mb->kept = kk[i];
-      }
-      if (rc_ok == 0) rc_ok = pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen);
-    }
-    for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
-    free(U);
-    free(kk);
+    int rc_ok = 0;
+    if (opt->joint && rc->nmembers > 1) rc_ok = joint_basis(rc, sn->S, sn->X[c], err, errlen);
+    else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn->U[c], sn->k[c], &rc->B, &rc->m, err, errlen);
+    else rc_ok = member_bases(rc, sn->S, sn->X[c], err, errlen);
     if (rc_ok != 0) {
       if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
-      goto fail;
+      return -1;
     }
-    if (rc_ok == 0 && opt->full_rank && rc->m < rc->n) {
-      /* the PCA directions first, then the rest of the space */
-      double *eye = calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
-      double *parts[2] = {rc->B, eye};
-      int ks[2] = {(int)rc->m, (int)rc->n};
-      if (!eye) goto oom;
-      for (long e = 0; e < rc->n; e++) eye[e * rc->n + e] = 1;
-      rc_ok = pca_merge(rc->n, 2, parts, ks, &B, &rc->m, err, errlen);
-      free(eye);
-      if (rc_ok != 0) goto fail;
-      free(rc->B);
-      rc->B = B;
-    }
-    if (rc->m == 0) { /* every snapshot zero: one direction keeps the sizes non-empty; lifting gives 0 */
-      free(rc->B);
-      if (!(rc->B = calloc((size_t)rc->n, sizeof(double)))) goto oom;
-      rc->B[0] = 1;
-      rc->m = 1;
-    }
+    if (complete_basis(rc, opt->full_rank, err, errlen)) return -1;
   }
   model_size_tensors(m);
+  return 0;
+}
 
-  /* 3. projections between classes and pre-multiplication */
+/* Step 3: the projections between classes and every tensor pre-multiplied. */
+static int premultiply_all(Model *m, NpgFull *f, bool progress, char *err, size_t errlen) {
   long ntensors = 0, done = 0;
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) {
@@ -438,54 +630,190 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
       RTerm *rt = &rs->terms[t];
       if (rt->proj_name) {
         RClass *cw = &m->classes[m->qclass[rt->named_q]];
-        if (!(rt->proj = malloc(sizeof(double) * (size_t)(cy->m * cw->m)))) goto oom;
+        if (!(rt->proj = malloc(sizeof(double) * (size_t)(cy->m * cw->m))))
+          return npg_fail(err, errlen, "out of memory while training");
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0, cy->B,
                     (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
       }
       RTERM_FOR_TENSORS(rt, x) {
-        if (premultiply(m, f, x, cy->B, cy->n, cy->m, &flops, err, errlen)) goto fail;
-        progress_show(opt->progress, "pre-multiplication", ++done, ntensors);
+        if (premultiply(m, f, x, cy->B, cy->n, cy->m, &flops, err, errlen)) return -1;
+        progress_show(progress, "pre-multiplication", ++done, ntensors);
       }
     }
   }
+  return 0;
+}
 
-  /* 4. externs: reduced training inputs and values (paper §8.3) */
+/* Step 4: every extern's learned map (paper §8.3): the training samples'
+ * reduced inputs and values, from the snapshots or, after the method of
+ * snapshots, recomputed. */
+static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool progress,
+                       char *err, size_t errlen) {
+  long S = src->count;
   for (int i = 0; i < m->nexterns; i++) {
     RExtern *x = &m->externs[i];
     long mz = m->classes[m->qclass[x->q]].m;
     x->S = S;
     if (!(x->X = malloc(sizeof(double) * (size_t)(S * x->d + 1))) || !(x->Z = malloc(sizeof(double) * (size_t)(S * mz))))
-      goto oom;
+      return npg_fail(err, errlen, "out of memory while training");
   }
   for (long k = 0; k < S && m->nexterns > 0; k++) {
-    if (gram && eval_sample(src, f, k, err, errlen)) goto fail; /* recompute: no snapshot was kept */
+    if (gram && eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
     for (int i = 0; i < m->nexterns; i++) {
       RExtern *x = &m->externs[i];
       long mz = m->classes[m->qclass[x->q]].m, off = 0;
       for (int j = 0; j <= x->nin; j++) {
         int q = j < x->nin ? x->in_q[j] : x->q;
         RClass *rc = &m->classes[m->qclass[q]];
-        const double *val = npg_full_get(f, ((Sym *)prog->quantities.v[q])->name, NULL);
+        const double *val = npg_full_get(f, ((Sym *)m->prog->quantities.v[q])->name, NULL);
         if (!gram) {
           int mi = 0;
           while (rc->members[mi].q != q) mi++;
-          val = sn.X[m->qclass[q]][mi] + (size_t)k * (size_t)rc->n;
+          val = sn->X[m->qclass[q]][mi] + (size_t)k * (size_t)rc->n;
         }
         double *dst = j < x->nin ? x->X + k * x->d + off : x->Z + k * mz;
         cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, val, 1, 0.0, dst, 1);
         if (j < x->nin) off += rc->m;
       }
     }
-    if (gram) progress_show(opt->progress, "extern samples", k + 1, S);
+    if (gram) progress_show(progress, "extern samples", k + 1, S);
   }
-  free(tmp);
+  return 0;
+}
+
+/* Training as five named steps (DESIGN §5). */
+Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                   size_t errlen) {
+  Snapshots sn = {0};
+  bool gram = false;
+  err[0] = 0;
+  Model *m = begin_training(prog, f, src, opt, err, errlen);
+  if (!m || take_snapshots(m, f, src, opt, &sn, &gram, err, errlen) || build_bases(m, &sn, gram, opt, err, errlen) ||
+      premultiply_all(m, f, opt->progress, err, errlen) ||
+      fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen)) {
+    if (m) free_snapshots(m, &sn);
+    model_free(m);
+    return NULL;
+  }
   free_snapshots(m, &sn);
   return m;
-oom:
-  npg_fail(err, errlen, "out of memory while training");
+}
+
+/* ---------------------------------------------------------------- truncations (npgc tune) */
+
+struct TrainSet {
+  Model *base;              /* layout, member options, SPD marks */
+  NpgFull *f;
+  const SampleSource *src;
+  bool progress;
+  Snapshots sn;             /* in memory */
+  PcaMember **pm;           /* [class][member]: its ordered basis at its cap */
+};
+
+void train_set_free(TrainSet *ts) {
+  if (!ts) return;
+  for (int c = 0; ts->pm && c < ts->base->nclasses; c++) {
+    for (int i = 0; ts->pm[c] && i < ts->base->classes[c].nmembers; i++) free(ts->pm[c][i].U), free(ts->pm[c][i].sv);
+    free(ts->pm[c]);
+  }
+  free(ts->pm);
+  if (ts->base) free_snapshots(ts->base, &ts->sn);
+  model_free(ts->base);
+  free(ts);
+}
+
+TrainSet *train_set_new(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                        size_t errlen) {
+  TrainSet *ts = calloc(1, sizeof *ts);
+  TrainOptions o = *opt;
+  bool gram = false;
+  err[0] = 0;
+  o.mem = 0; /* truncations re-use the snapshots: they stay in memory */
+  o.joint = false;
+  if (!ts) return NULL;
+  ts->f = f, ts->src = src, ts->progress = opt->progress;
+  if (!(ts->base = begin_training(prog, f, src, &o, err, errlen)) ||
+      take_snapshots(ts->base, f, src, &o, &ts->sn, &gram, err, errlen))
+    goto fail;
+  Model *m = ts->base;
+  if (!(ts->pm = calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    if (!(ts->pm[c] = calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
+    for (int i = 0; i < rc->nmembers; i++) {
+      RMember *mb = &rc->members[i];
+      if (pca_basis(rc->n, ts->sn.S, ts->sn.X[c][i], mb->cap, mb->energy, mb->center, &ts->pm[c][i], err, errlen))
+        goto fail;
+    }
+    progress_show(ts->progress, "member bases", c + 1, m->nclasses);
+  }
+  return ts;
 fail:
-  free(tmp);
-  free_snapshots(m, &sn);
-  model_free(m);
+  if (!err[0]) npg_fail(err, errlen, "out of memory while training");
+  train_set_free(ts);
   return NULL;
+}
+
+int train_set_classes(const TrainSet *ts) { return ts->base->nclasses; }
+
+int train_set_max_cap(const TrainSet *ts, int c) {
+  int k = 1;
+  for (int i = 0; i < ts->base->classes[c].nmembers; i++) k = ts->pm[c][i].k > k ? ts->pm[c][i].k : k;
+  return k;
+}
+
+/* Member `mb` keeping the first `k` of its ordered basis `p`: its report. */
+static int truncated_member(RMember *mb, const PcaMember *p, int cap, int k) {
+  double total = 0, run = 0;
+  int r = mb->center ? k - 1 : k; /* a centered basis starts with the mean */
+  for (long j = 0; j < p->nsv; j++) total += p->sv[j] * p->sv[j], run += j < r ? p->sv[j] * p->sv[j] : 0;
+  mb->cap = cap;
+  mb->kept = k;
+  mb->lost = total > 0 ? fmax(0, 1 - run / total) : 0;
+  mb->captured = 1 - mb->lost;
+  mb->nsv = p->nsv;
+  if (!(mb->sv = malloc(sizeof(double) * (size_t)(p->nsv + 1)))) return -1;
+  memcpy(mb->sv, p->sv, sizeof(double) * (size_t)p->nsv);
+  return 0;
+}
+
+Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
+  const Model *b = ts->base;
+  err[0] = 0;
+  Model *m = model_layout(b->prog, b->dims, err, errlen);
+  if (!m) return NULL;
+  m->samples = b->samples;
+  for (int i = 0; i < m->nstages; i++) /* the SPD marks the snapshots set */
+    for (int t = 0; t < m->stages[i].nterms; t++)
+      for (int k = 0; k < m->stages[i].terms[t].nops; k++) m->stages[i].terms[t].ops[k].spd = b->stages[i].terms[t].ops[k].spd;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
+    int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int)), ok = U && kk;
+    for (int i = 0; ok && i < rc->nmembers; i++) {
+      const PcaMember *p = &ts->pm[c][i];
+      RMember *mb = &rc->members[i];
+      mb->energy = b->classes[c].members[i].energy;
+      mb->center = b->classes[c].members[i].center;
+      kk[i] = cap[c] < p->k ? cap[c] : p->k;
+      if (!(U[i] = malloc(sizeof(double) * (size_t)(rc->n * (kk[i] ? kk[i] : 1)))) || truncated_member(mb, p, cap[c], kk[i]))
+        ok = 0;
+      for (long e = 0; ok && e < rc->n; e++) memcpy(U[i] + e * kk[i], p->U + e * p->k, sizeof(double) * (size_t)kk[i]);
+    }
+    int rc_ok = ok ? pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen) : -1;
+    for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
+    free(U);
+    free(kk);
+    if (rc_ok || complete_basis(rc, false, err, errlen)) {
+      if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
+      model_free(m);
+      return NULL;
+    }
+  }
+  model_size_tensors(m);
+  if (premultiply_all(m, ts->f, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, err, errlen)) {
+    model_free(m);
+    return NULL;
+  }
+  return m;
 }

@@ -16,6 +16,10 @@ void dump_checked(FILE *out, const Program *prog);
 int npgc_eval(int argc, char **argv);
 /* compiler/reduce_cmds.c: train, reduced eval, verify, bench. */
 int npgc_reduce(int argc, char **argv);
+/* npgc plot MODEL/ -o spectra.png (plot.c, linked into npgc only) */
+int npgc_plot(int argc, char **argv);
+/* npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/ (tune.c, linked into npgc only) */
+int npgc_tune(int argc, char **argv);
 /* compiler/npg.c: the stage program of a compiled NpgProgram (tests, backends). */
 struct NpgProgram;
 Program *npg_program_ir(const struct NpgProgram *p);

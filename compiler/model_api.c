@@ -11,6 +11,7 @@
 #include <unistd.h>
 
 #include "api.h"
+#include "model_store.h"
 #include "npy.h"
 #include "compile.h"
 #include "emit.h"
@@ -94,6 +95,73 @@ void npg_model_free(NpgModel *nm) {
 
 int npg_model_nclasses(const NpgModel *nm) { return nm->m ? nm->m->nclasses : 0; }
 
+/* One spectrum per member line of the manifest: "member C NAME cap N energy
+ * E kept K captured X [center 0|1 lost L]". */
+int npg_spectra_read(const char *dir, NpgSpectrum **out, int *count, char *err, size_t errlen) {
+  ModelStore st;
+  *out = NULL;
+  *count = 0;
+  if (model_store_read_any(dir, &st, err, errlen) != 0) return -1;
+  NpgSpectrum *sp = calloc((size_t)st.nmeta + 1, sizeof *sp);
+  int n = 0, rc = sp ? 0 : -1;
+  if (!sp) snprintf(err, errlen, "out of memory");
+  for (int i = 0; i < st.nmeta && rc == 0; i++) {
+    int c, cap, kept, center = 0;
+    double energy, captured, lost;
+    char name[512], aname[600];
+    int got = sscanf(st.meta[i], "member %d %511s cap %d energy %lf kept %d captured %lf center %d lost %lf", &c, name,
+                     &cap, &energy, &kept, &captured, &center, &lost);
+    if (got < 6) continue;
+    snprintf(aname, sizeof aname, "spectrum_%s", name);
+    const NpyArray *a = model_store_array(&st, aname);
+    if (!a || a->ndim != 1) {
+      snprintf(err, errlen, "%s/manifest: member %s has no spectrum (a model trained before spectra were kept: "
+                            "retrain it)", dir, name);
+      rc = -1;
+      break;
+    }
+    NpgSpectrum *x = &sp[n];
+    x->member = strdup(name);
+    x->sigma = malloc(sizeof(double) * (a->count ? a->count : 1));
+    if (!x->member || !x->sigma) {
+      snprintf(err, errlen, "out of memory");
+      rc = -1;
+    } else {
+      memcpy(x->sigma, a->data, sizeof(double) * a->count);
+      x->n = (long)a->count;
+      x->kept = kept;
+      x->cap = cap;
+      x->centered = got == 8 && center;
+    }
+    n++;
+  }
+  model_store_free(&st);
+  if (rc != 0) {
+    npg_spectra_free(sp, n);
+    return -1;
+  }
+  *out = sp;
+  *count = n;
+  return 0;
+}
+
+void npg_spectra_free(NpgSpectrum *s, int count) {
+  for (int i = 0; s && i < count; i++) free(s[i].member), free(s[i].sigma);
+  free(s);
+}
+
+void npg_model_report(const NpgModel *nm, FILE *out) {
+  if (nm->m) report_training(nm->m, out);
+}
+
+int npg_model_write_spectra(const NpgModel *nm, const char *dir, char *err, size_t errlen) {
+  if (!nm->m) {
+    snprintf(err, errlen, "%s", nm->error);
+    return -1;
+  }
+  return model_write_spectra(nm->m, dir, err, errlen);
+}
+
 int npg_model_class(const NpgModel *nm, int c, NpgClassInfo *out) {
   if (!nm->m || c < 0 || c >= nm->m->nclasses) return -1;
   const RClass *rc = &nm->m->classes[c];
@@ -155,10 +223,8 @@ int npg_model_check_params(const NpgModel *nm, const NpgFull *f, char *err, size
   return 0;
 }
 
-int npg_model_check_params_dir(const NpgModel *nm, const char *dir, char *err, size_t errlen) {
-  const char *recorded = nm->m ? nm->m->param_hashes : NULL;
-  if (!recorded) return 0;
-  const Program *prog = nm->m->prog;
+/* The param files of DIR that exist against the hashes `recorded`. */
+static int check_params_dir(const Program *prog, const char *recorded, const char *dir, char *err, size_t errlen) {
   for (int i = 0; i < prog->params.n; i++) {
     const Sym *p = prog->params.v[i];
     char path[4096], key[512];
@@ -189,6 +255,22 @@ int npg_model_check_params_dir(const NpgModel *nm, const char *dir, char *err, s
     }
   }
   return 0;
+}
+
+int npg_model_check_params_dir(const NpgModel *nm, const char *dir, char *err, size_t errlen) {
+  const char *recorded = nm->m ? nm->m->param_hashes : NULL;
+  return recorded ? check_params_dir(nm->m->prog, recorded, dir, err, errlen) : 0;
+}
+
+int npg_full_check_params_dir(const NpgFull *f, const char *dir, char *err, size_t errlen) {
+  char *recorded = api_param_hashes(f);
+  if (!recorded) {
+    snprintf(err, errlen, "out of memory");
+    return -1;
+  }
+  int rc = check_params_dir(full_program(f), recorded, dir, err, errlen);
+  free(recorded);
+  return rc;
 }
 
 int npg_model_emit(const NpgModel *nm, FILE *out, char *err, size_t errlen) {

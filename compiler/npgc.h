@@ -10,6 +10,10 @@ int npgc_eval(int argc, char **argv);
 /* reduce_cmds.c: train, reduced eval, verify, bench. */
 int npgc_reduce(int argc, char **argv);
 
+/* plot.c: npgc plot MODEL/ -o spectra.png (cairo, linked into npgc only). */
+int npgc_plot(int argc, char **argv);
+/* tune.c: npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/. */
+int npgc_tune(int argc, char **argv);
 /* npgc_util.c: the usage of `cmd` (to stdout and 0 for --help, else to
  * stderr and 2), and of every command. */
 int npgc_usage(const char *cmd, bool help);

@@ -49,9 +49,9 @@ static const Usage usages[] = {
      "  --cc         compile the full evaluator with the system compiler at -O3\n"
      "  -o OUT/      created with its missing parents\n"},
     {"train",
-     "usage: npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E]\n"
-     "                  [--basis NAME:cap=N,energy=E] [--merge concat|joint] [--mem BYTES]\n"
-     "                  [--cc] [--std=DIR]\n"
+     "usage: npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--center on|off]\n"
+     "                  [--basis NAME:cap=N,energy=E,center=on|off] [--merge concat|joint]\n"
+     "                  [--mem BYTES] [--spectra DIR] [--cc] [--std=DIR]\n"
      "\n"
      "  Run the full program on every sample of DATA/ (params, and inputs and externs\n"
      "  with a leading sample axis), build one basis per class, pre-multiply every\n"
@@ -59,7 +59,13 @@ static const Usage usages[] = {
      "  renamed when complete; missing parents are created).\n"
      "  --cap N      basis vectors per member (60, 1..1000000)\n"
      "  --energy E   energy fraction per member (0.999, in (0, 1])\n"
-     "  --basis NAME:cap=N,energy=E   per quantity ('*': every one)\n"
+     "  --center     on (default): each member's basis keeps its snapshots' mean and\n"
+     "               truncates the centered energy; off: the paper's uncentered rule\n"
+     "  --basis NAME:cap=N,energy=E,center=on|off   NAME a quantity, a class (m_x, as\n"
+     "               npgc check prints it), a numerator (y.num1) or '*'; unknown names\n"
+     "               are refused; max=N is accepted for cap=N\n"
+     "  --spectra DIR  every member's singular values also to DIR (.npy and CSV;\n"
+     "               MODEL/ always holds them)\n"
      "  --merge      concat (one PCA per member, concatenated) or joint (one PCA)\n"
      "  --mem BYTES  memory for snapshots (half the RAM; suffixes k, M, G, T)\n"
      "  --cc         compile the full evaluator with the system compiler at -O3\n"},
@@ -84,6 +90,20 @@ static const Usage usages[] = {
      "  (3): the full evaluator (libtcc, npg's default, or --cc: the system compiler\n"
      "  at -O3), the reduced one with its inputs projected and, reported apart and\n"
      "  included in the total, its outputs lifted; the speedup; the model's memory.\n"},
+    {"plot",
+     "usage: npgc plot MODEL/ -o spectra.png\n"
+     "\n"
+     "  Draw every member's singular values (relative to its largest, log scale) with a\n"
+     "  dot where its basis was truncated.\n"},
+    {"tune",
+     "usage: npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/ [--max-cap N] [--center on|off]\n"
+     "                 [--png FILE] [--cc]\n"
+     "\n"
+     "  Choose every class's basis size so that every output's mean relative L2 error on\n"
+     "  VALID/ (held-out samples, the same params) is under T at the least reduced cost\n"
+     "  (the cost npgc check prints); one snapshot pass and one SVD per member. Prints the\n"
+     "  candidates, writes the chosen model to MODEL/ and a PNG of error against cost\n"
+     "  (MODEL-tune.png, or --png FILE); says when T cannot be met and which class limits it.\n"},
 };
 
 int npgc_usage(const char *cmd, bool help) {

@@ -316,6 +316,7 @@ static Decl *new_decl(Parser *p, DeclKind kind, Loc loc) {
   d->loc = loc;
   d->basis_max = -1;
   d->basis_energy = -1;
+  d->basis_center = -1;
   return d;
 }
 
@@ -510,22 +511,30 @@ static void parse_stmt(Parser *p, Decl ***tail) {
   } else if (strcmp(kw, "basis") == 0) {
     d = new_decl(p, D_BASIS, t->loc);
     parse_names(p, d, "a quantity after 'basis'");
-    expect(p, ":", "after the quantities of 'basis' (basis x: max 60, energy 0.999)");
+    expect(p, ":", "after the quantities of 'basis' (basis x: cap 60, energy 0.999, center on)");
     do {
-      Token *o = expect_ident(p, "'max' or 'energy'");
+      /* `cap` as on the command line (--cap, --basis x:cap=N); `max` is its older name */
+      Token *o = expect_ident(p, "'cap', 'energy' or 'center'");
       Token *v = peek(p);
+      if (strcmp(o->text, "center") == 0) {
+        if (!is_ident(v, "on") && !is_ident(v, "off"))
+          error_at(ctx, v->loc, "expected 'on' or 'off' after 'center', found %s", describe(p, v));
+        next(p);
+        d->basis_center = strcmp(v->text, "on") == 0;
+        continue;
+      }
       if (v->kind != TK_NUM) error_at(ctx, v->loc, "expected a number after '%s', found %s", o->text, describe(p, v));
       next(p);
-      if (strcmp(o->text, "max") == 0) {
+      if (strcmp(o->text, "cap") == 0 || strcmp(o->text, "max") == 0) {
         if (!v->is_int || v->num < 1 || v->num > 100000)
-          error_at(ctx, v->loc, "'max' takes a whole number of basis vectors from 1 to 100000");
+          error_at(ctx, v->loc, "'%s' takes a whole number of basis vectors from 1 to 100000", o->text);
         d->basis_max = (int)v->num;
       } else if (strcmp(o->text, "energy") == 0) {
         if (!(v->num > 0 && v->num <= 1))
           error_at(ctx, v->loc, "'energy' is a fraction in (0, 1], found %s", v->text);
         d->basis_energy = v->num;
       } else {
-        error_at(ctx, o->loc, "unknown basis option '%s': expected 'max' or 'energy'", o->text);
+        error_at(ctx, o->loc, "unknown basis option '%s': expected 'cap', 'energy' or 'center'", o->text);
       }
     } while (accept(p, ","));
   } else if (strcmp(kw, "inline") == 0) {

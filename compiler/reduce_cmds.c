@@ -31,6 +31,8 @@ typedef struct Common {
   const char **basis_name;
   int *basis_cap;
   double *basis_energy;
+  int *basis_center;
+  const char *spectra;      /* train --spectra DIR */
   const char *cmd;
 } Common;
 
@@ -40,7 +42,9 @@ static double now(void) {
   return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
-/* --basis NAME:cap=N,energy=E (NAME may be '*') */
+/* --basis NAME:cap=N,energy=E,center=on|off (NAME: a quantity, a class, a
+ * numerator or '*', checked by training; `max=N` is accepted for `cap=N`,
+ * as in the language) */
 static bool parse_basis(Common *c, const char *s) {
   const char *colon = strchr(s, ':');
   if (!colon || colon == s) return false;
@@ -51,15 +55,18 @@ static bool parse_basis(Common *c, const char *s) {
   if (caps) c->basis_cap = caps;
   double *energies = realloc(c->basis_energy, sizeof(double) * (size_t)(k + 1));
   if (energies) c->basis_energy = energies;
-  if (!names || !caps || !energies) return false;
+  int *centers = realloc(c->basis_center, sizeof(int) * (size_t)(k + 1));
+  if (centers) c->basis_center = centers;
+  if (!names || !caps || !energies || !centers) return false;
   c->nbasis++;
+  c->basis_center[k] = -1;
   c->basis_name[k] = strndup(s, (size_t)(colon - s));
   c->basis_cap[k] = -1;
   c->basis_energy[k] = -1;
   const char *p = colon + 1;
   while (*p) {
     char *end;
-    if (strncmp(p, "cap=", 4) == 0) {
+    if (strncmp(p, "cap=", 4) == 0 || strncmp(p, "max=", 4) == 0) {
       long v = strtol(p + 4, &end, 10);
       if (end == p + 4 || v < 1 || v > 1000000) return false;
       c->basis_cap[k] = (int)v;
@@ -67,6 +74,11 @@ static bool parse_basis(Common *c, const char *s) {
       double v = strtod(p + 7, &end);
       if (end == p + 7 || !(v > 0 && v <= 1)) return false;
       c->basis_energy[k] = v;
+    } else if (strncmp(p, "center=", 7) == 0) {
+      bool on = strncmp(p + 7, "on", 2) == 0, off = strncmp(p + 7, "off", 3) == 0;
+      if (!on && !off) return false;
+      c->basis_center[k] = on;
+      end = (char *)p + 7 + (on ? 2 : 3);
     } else {
       return false;
     }
@@ -106,6 +118,12 @@ static int parse(Common *c, int argc, char **argv) {
       c->train.cap = (int)cap;
     } else if (strcmp(a, "--energy") == 0 && has) {
       ok = npgc_parse_double(argv[++i], 0, 1, true, &c->train.energy);
+    } else if (strcmp(a, "--center") == 0 && has) {
+      const char *v = argv[++i];
+      c->train.uncentered = strcmp(v, "off") == 0;
+      ok = c->train.uncentered || strcmp(v, "on") == 0;
+    } else if (strcmp(a, "--spectra") == 0 && has) {
+      c->spectra = argv[++i];
     } else if (strcmp(a, "--basis") == 0 && has) {
       ok = parse_basis(c, argv[++i]);
     } else if (strcmp(a, "--merge") == 0 && has) {
@@ -119,7 +137,8 @@ static int parse(Common *c, int argc, char **argv) {
     } else if (a[0] == '-') {
       bool valued = !strcmp(a, "-o") || !strcmp(a, "--tol") || !strcmp(a, "--cap") || !strcmp(a, "--energy") ||
                     !strcmp(a, "--basis") || !strcmp(a, "--merge") || !strcmp(a, "--mem") ||
-                    !strcmp(a, "--exact-size") || !strcmp(a, "--reps");
+                    !strcmp(a, "--exact-size") || !strcmp(a, "--reps") || !strcmp(a, "--center") ||
+                    !strcmp(a, "--spectra");
       fprintf(stderr, "npgc %s: %s '%s'\n", c->cmd, valued && !has ? "missing the value of" : "unknown option", a);
       return usage(c->cmd);
     } else if (!c->prog_path) c->prog_path = a;
@@ -136,6 +155,7 @@ static int parse(Common *c, int argc, char **argv) {
   c->train.basis_name = c->basis_name;
   c->train.basis_cap = c->basis_cap;
   c->train.basis_energy = c->basis_energy;
+  c->train.basis_center = c->basis_center;
   return 0;
 }
 
@@ -144,6 +164,7 @@ static void free_common(Common *c) {
   free(c->basis_name);
   free(c->basis_cap);
   free(c->basis_energy);
+  free(c->basis_center);
 }
 
 static NpgProgram *compile(Common *c) {
@@ -157,23 +178,6 @@ static NpgProgram *compile(Common *c) {
 }
 
 /* ---------------------------------------------------------------- train */
-
-static void print_model(const NpgModel *m, FILE *out) {
-  fprintf(out, "%-24s %8s %6s  %s\n", "class", "n", "m", "members (kept / cap, energy captured)");
-  for (int c = 0; c < npg_model_nclasses(m); c++) {
-    NpgClassInfo ci;
-    npg_model_class(m, c, &ci);
-    fprintf(out, "%-24s %8ld %6ld ", ci.label, ci.n, ci.m);
-    for (int i = 0; i < ci.nmembers; i++) {
-      NpgMemberInfo mi;
-      npg_model_member(m, c, i, &mi);
-      fprintf(out, " %s %d/%d %.6f", mi.name, mi.kept, mi.cap, mi.captured);
-    }
-    fputc('\n', out);
-  }
-  size_t tb, total = npg_model_bytes(m, &tb);
-  fprintf(out, "reduced tensors: %.3f MB; model with bases: %.3f MB\n", (double)tb / 1e6, (double)total / 1e6);
-}
 
 /* The samples of DATA/ streamed into a trainer, as any C program would. */
 static int cmd_train(Common *c) {
@@ -205,9 +209,11 @@ static int cmd_train(Common *c) {
     if (npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0) break;
   if (npg_full_error(f)[0]) fprintf(stderr, "error: %s\n", npg_full_error(f));
   else if (!(m = npg_trainer_finish(t, c->out))) fprintf(stderr, "error: %s\n", npg_trainer_error(t));
+  else if (c->spectra && npg_model_write_spectra(m, c->spectra, err, sizeof err) != 0)
+    fprintf(stderr, "error: %s\n", err);
   else {
     printf("trained %s on %ld samples in %.2f s -> %s\n", c->prog_path, npg_samples_count(s), now() - t0, c->out);
-    print_model(m, stdout);
+    npg_model_report(m, stdout);
     rc = 0;
   }
 done:
@@ -467,6 +473,7 @@ static int cmd_verify(Common *c) {
     goto done;
   }
   print_report(c, &rep);
+  npg_verify_warnings(x.m, &rep, c->tol, stdout);
   rc = 0;
   for (int q = 0; q < rep.nrows; q++)
     if (rep.rows[q].output && !(rep.rows[q].l2 <= c->tol)) {

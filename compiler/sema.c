@@ -36,6 +36,7 @@ static Sym *new_sym(Checker *ck, SymKind kind, const char *name, Loc loc) {
   s->loc = loc;
   s->basis_max = -1;
   s->basis_energy = -1;
+  s->basis_center = -1;
   s->klass = -1;
   return s;
 }
@@ -1167,6 +1168,7 @@ Program *sema_program(Ctx *ctx, const SrcFile *file, Decl *decls) {
         Sym *q = need_quantity(&ck, d->names[i], d->name_locs[i], "basis");
         if (d->basis_max > 0) q->basis_max = d->basis_max;
         if (d->basis_energy > 0) q->basis_energy = d->basis_energy;
+        if (d->basis_center >= 0) q->basis_center = d->basis_center;
       }
       break;
     case D_INLINE:

@@ -202,7 +202,9 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.joint = t->opt.joint;
   o.mem = t->opt.mem;
   o.progress = t->opt.progress;
+  o.uncentered = t->opt.uncentered;
   o.noverride = t->opt.nbasis;
+  o.override_center = (int *)t->opt.basis_center;
   o.override_name = (const char **)t->opt.basis_name;
   o.override_cap = (int *)t->opt.basis_cap;
   o.override_energy = (double *)t->opt.basis_energy;

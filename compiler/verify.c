@@ -175,3 +175,14 @@ int npg_verify_exact(NpgProgram *p, long size, NpgBackend backend, bool progress
   ExactOptions o = {size, size, 1u, backend, progress};
   return exact_check(p, &o, out, err, errlen);
 }
+
+int npg_verify_warnings(const NpgModel *nm, const NpgVerifyReport *rep, double tol, FILE *out) {
+  const Model *m = nm->m;
+  if (!m || rep->nrows != m->nq) return 0;
+  double *means = malloc(sizeof(double) * 2 * (size_t)(m->nq + 1)); /* errors and floors */
+  if (!means) return 0;
+  for (int q = 0; q < m->nq; q++) means[q] = rep->rows[q].l2, means[m->nq + q] = rep->rows[q].floor;
+  int n = report_verify_warnings(m, means, means + m->nq, tol, out);
+  free(means);
+  return n;
+}

@@ -180,6 +180,9 @@ NPG_API int npg_npy_write(const char *path, int ndim, const long *shape, const d
 NPG_API int npg_npy_write_i64(const char *path, int ndim, const long *shape, const long *data, char *err,
                               size_t errlen);
 
+/* Sets sample k's inputs and externs in `f` (npg_samples_set is one). */
+typedef int (*NpgSampleFn)(void *user, NpgFull *f, long k);
+
 /* ---------------------------------------------------------------- training
  *
  *     NpgTrainOptions o;
@@ -204,10 +207,15 @@ typedef struct NpgTrainOptions {
   bool joint;               /* merge a class's members by one joint PCA (default: concatenate) */
   size_t mem;               /* memory for snapshots and cached samples, bytes (half the RAM) */
   bool progress;            /* progress bars on stderr */
-  int nbasis;               /* per-quantity overrides: name, cap (-1: default), energy (-1: default) */
+  bool uncentered;          /* the paper's uncentered truncation (default: centered — each member's
+                               basis keeps its snapshots' mean and truncates the centered energy) */
+  int nbasis;               /* overrides: name (a quantity, a class m_x, a numerator y.num1, or '*'),
+                               cap (-1: default), energy (-1: default), center (1 on, 0 off, -1 default;
+                               basis_center may be NULL) */
   const char *const *basis_name;
   const int *basis_cap;
   const double *basis_energy;
+  const int *basis_center;
 } NpgTrainOptions;
 NPG_API void npg_train_options_default(NpgTrainOptions *o);
 
@@ -256,6 +264,25 @@ typedef struct NpgMemberInfo {
   int kept, cap;            /* PCA vectors kept, and the cap */
   double captured;          /* energy fraction captured */
 } NpgMemberInfo;
+/* The training table `npgc train` prints: per class its sizes, per member
+ * kept / cap and the energy lost (of the centered part when centered), and
+ * a warning where a member hit its cap with more than 1e-3 lost. */
+NPG_API void npg_model_report(const NpgModel *m, FILE *out);
+/* Every member's singular values into DIR as .npy and CSV (MODEL/ holds them
+ * too). 0, or -1 with `err`. */
+NPG_API int npg_model_write_spectra(const NpgModel *m, const char *dir, char *err, size_t errlen);
+/* Every member's singular values as MODEL/ holds them, read without the
+ * program (any model folder): `*out` (malloc'd, `*count` entries) until
+ * npg_spectra_free. 0, or -1 with `err` naming the file. */
+typedef struct NpgSpectrum {
+  char *member;             /* "s", or "h.num1" */
+  int kept, cap;            /* basis vectors kept, and the cap */
+  bool centered;            /* kept counts the mean, which the spectrum (of the centered snapshots) does not hold */
+  long n;
+  double *sigma;            /* n singular values, largest first */
+} NpgSpectrum;
+NPG_API int npg_spectra_read(const char *model_dir, NpgSpectrum **out, int *count, char *err, size_t errlen);
+NPG_API void npg_spectra_free(NpgSpectrum *s, int count);
 NPG_API int npg_model_nclasses(const NpgModel *m);
 NPG_API int npg_model_class(const NpgModel *m, int c, NpgClassInfo *out);
 NPG_API int npg_model_member(const NpgModel *m, int c, int i, NpgMemberInfo *out);
@@ -274,6 +301,8 @@ NPG_API int npg_model_check_params(const NpgModel *m, const NpgFull *f, char *er
 /* The same for the param files DIR/<param>.npy that exist (a reduced
  * evaluation needs no params, but must not accept different ones). */
 NPG_API int npg_model_check_params_dir(const NpgModel *m, const char *dir, char *err, size_t errlen);
+/* The same for the params bound in `f` against the files in DIR. */
+NPG_API int npg_full_check_params_dir(const NpgFull *f, const char *dir, char *err, size_t errlen);
 /* The reduced evaluator of the model as C specialized to its sizes
  * (`npgc emit --reduced`). 0, or -1 with a message in `err`. */
 NPG_API int npg_model_emit(const NpgModel *m, FILE *out, char *err, size_t errlen);
@@ -313,11 +342,43 @@ NPG_API int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t 
                            int *row_class, int *col_class);
 NPG_API void npg_reduced_free(NpgReduced *r);
 
+/* ---------------------------------------------------------------- basis sizes by error
+ *
+ * `npgc tune`: every class's cap chosen so that every output's mean relative
+ * L2 error on validation samples is at most `tol` at the least reduced cost
+ * (the cost `npgc check` prints). One snapshot pass and one SVD per member;
+ * every candidate is a truncation of those bases, re-pre-multiplied. */
+typedef struct NpgTuneTrial {
+  const long *m;            /* per class: the basis size */
+  double cost;              /* reduced multiply-adds */
+  double err;               /* the worst output's mean relative L2 error on the validation samples */
+  bool uniform;             /* one cap for every class */
+} NpgTuneTrial;
+typedef struct NpgTuneReport {
+  int nclasses;
+  const char **class_name;  /* per class: its size name, "m_x" */
+  int ntrials;
+  NpgTuneTrial *trials;     /* in the order tried */
+  int chosen;               /* the trial chosen; -1 when `tol` cannot be met */
+  const char *limiting;     /* then: the class whose projection floor is the largest */
+  double limiting_floor;
+  bool limiting_saturated;  /* its members have no more directions in the training samples */
+  char error[2048];         /* why the search failed, when it did */
+  void *priv;
+} NpgTuneReport;
+/* Train on `ntrain` samples (train(tuser, f, k) sets sample k in `f`, its
+ * params bound), validate on `nvalid` (valid(vuser, f, k)), caps at most
+ * `max_cap`; `o` (may be NULL) gives centering and progress. The chosen
+ * model, or NULL: report->error says why, or is "" when `tol` cannot be met
+ * (report->limiting). npg_tune_free(report) either way. */
+NPG_API NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long nvalid, NpgSampleFn valid,
+                           void *vuser, double tol, int max_cap, const NpgTrainOptions *o, NpgTuneReport *report);
+NPG_API void npg_tune_free(NpgTuneReport *report);
+
 /* ---------------------------------------------------------------- verification
  *
  * The auto-check (`npgc verify`): on held-out samples, the full evaluator
  * against the reduced one lifted to full space, per quantity. */
-typedef int (*NpgSampleFn)(void *user, NpgFull *f, long k);
 typedef struct NpgVerifyRow {
   const char *name;
   const char *kind;         /* "input", "extern", or the stage kind */
@@ -342,6 +403,10 @@ typedef struct NpgVerifyReport {
 NPG_API int npg_verify(const NpgModel *m, NpgFull *f, long samples, NpgSampleFn set, void *user, bool progress,
                        NpgVerifyReport *report);
 NPG_API void npg_verify_free(NpgVerifyReport *report);
+/* Warnings where they help: a stage whose own error exceeds 3x its
+ * projection floor (naming what it reads worst and the remedies), an input
+ * whose floor alone exceeds `tol`. Returns how many were printed. */
+NPG_API int npg_verify_warnings(const NpgModel *m, const NpgVerifyReport *report, double tol, FILE *out);
 /* The design's two exactness checks on random data (`npgc verify --exact`),
  * every dim of size `size` (0: defaults), report to `out`. 0 pass, 1 a
  * check failed, -1 a check could not run (message in `err`). */

@@ -232,6 +232,7 @@ struct Decl {
   /* D_BASIS options (negative when not given) */
   int basis_max;
   double basis_energy;
+  int basis_center;             /* 1 on, 0 off */
   /* D_OP: "on u -> p" */
   const char *on_from, *on_to;
   Loc on_loc, on_to_loc;
@@ -292,6 +293,7 @@ struct Sym {
   /* basis options from `basis` (negative: default) */
   int basis_max;
   double basis_energy;
+  int basis_center;             /* 1 on, 0 off (centered truncation, DESIGN §5) */
   struct Stage *stage;          /* canonical form, after lowering */
   struct OpDef *opdef;          /* SYM_OP: its lowered entries */
   int klass;                    /* basis class, after basis_classes() */

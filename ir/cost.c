@@ -121,3 +121,29 @@ char *cost_formula(Ctx *ctx, const Program *prog) {
   for (int i = 0; i < prog->stages.n; i++) stage_poly(ctx, prog, prog->stages.v[i], p);
   return poly_str(ctx, p);
 }
+
+double cost_value(const Program *prog, const long *m, long S) {
+  Ctx *ctx = prog->ctx;
+  Poly2 *p = arena_alloc(ctx, sizeof *p);
+  for (int i = 0; i < prog->stages.n; i++) stage_poly(ctx, prog, prog->stages.v[i], p);
+  double total = 0;
+  for (int i = 0; i < p->n; i++) {
+    /* the key is "m_a^2·m_b·S": factors joined by a middle dot, each "name" or "name^e" */
+    double v = p->m[i].k;
+    for (const char *f = p->m[i].key; *f;) {
+      const char *end = strstr(f, "\xc2\xb7"), *stop = end ? end : f + strlen(f), *hat = memchr(f, '^', (size_t)(stop - f));
+      size_t len = (size_t)((hat ? hat : stop) - f);
+      int e = hat ? atoi(hat + 1) : 1;
+      double x = 0;
+      if (len == 1 && *f == 'S') x = (double)S;
+      for (int c = 0; c < prog->classes.n; c++) {
+        const char *name = ((BasisClass *)prog->classes.v[c])->size_name;
+        if (strlen(name) == len && memcmp(name, f, len) == 0) x = (double)m[c];
+      }
+      for (int k = 0; k < e; k++) v *= x;
+      f = end ? end + 2 : stop;
+    }
+    total += v;
+  }
+  return total;
+}

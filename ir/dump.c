@@ -163,10 +163,11 @@ void dump_classes(FILE *out, const Program *prog) {
     for (int k = 0; k < c->members.n; k++) {
       const Sym *m = c->members.v[k];
       fprintf(out, "%s%s", k ? ", " : "", m->name);
-      if (m->basis_max > 0 || m->basis_energy > 0) {
-        fputs(" (", out);
-        if (m->basis_max > 0) fprintf(out, "max %d%s", m->basis_max, m->basis_energy > 0 ? ", " : "");
-        if (m->basis_energy > 0) fprintf(out, "energy %g", m->basis_energy);
+      if (m->basis_max > 0 || m->basis_energy > 0 || m->basis_center >= 0) {
+        const char *sep = " (";
+        if (m->basis_max > 0) fprintf(out, "%scap %d", sep, m->basis_max), sep = ", ";
+        if (m->basis_energy > 0) fprintf(out, "%senergy %g", sep, m->basis_energy), sep = ", ";
+        if (m->basis_center >= 0) fprintf(out, "%scenter %s", sep, m->basis_center ? "on" : "off");
         fputc(')', out);
       }
     }
@@ -223,7 +224,7 @@ void dump_program(FILE *out, const Program *prog) {
   }
   dump_classes(out, prog);
   for (int i = 0; i < prog->notes.n; i++) fprintf(out, "note: %s\n", (char *)prog->notes.v[i]);
-  fputs("basis defaults: energy 0.999, max 60 per member (DESIGN §5)\n", out);
+  fputs("basis defaults: energy 0.999, cap 60 per member, centered (DESIGN §5)\n", out);
   fputs("reduced cost per evaluation (multiply-adds; m_X = basis size of class X, S = training samples):\n", out);
   fprintf(out, "  %s\n", cost_formula(prog->ctx, prog));
 }
@@ -337,12 +338,14 @@ void dump_json(FILE *out, const Program *prog) {
     int nopt = 0;
     for (int k = 0; k < c->members.n; k++) {
       const Sym *m = c->members.v[k];
-      if (m->basis_max <= 0 && m->basis_energy <= 0) continue;
+      if (m->basis_max <= 0 && m->basis_energy <= 0 && m->basis_center < 0) continue;
       fprintf(out, "%s", nopt++ ? "," : "");
       json_str(out, m->name);
       fputs(":{", out);
-      if (m->basis_max > 0) fprintf(out, "\"max\":%d%s", m->basis_max, m->basis_energy > 0 ? "," : "");
-      if (m->basis_energy > 0) fprintf(out, "\"energy\":%.17g", m->basis_energy);
+      const char *sep = "";
+      if (m->basis_max > 0) fprintf(out, "%s\"cap\":%d", sep, m->basis_max), sep = ",";
+      if (m->basis_energy > 0) fprintf(out, "%s\"energy\":%.17g", sep, m->basis_energy), sep = ",";
+      if (m->basis_center >= 0) fprintf(out, "%s\"center\":%s", sep, m->basis_center ? "true" : "false");
       fputc('}', out);
     }
     fputs("},\"numerators\":[", out);

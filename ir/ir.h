@@ -199,5 +199,8 @@ void dump_json(FILE *out, const Program *prog);
 /* ir/cost.c: reduced evaluation cost formula in basis sizes. */
 char *cost_formula(Ctx *ctx, const Program *prog);
 char *stage_cost(Ctx *ctx, const Program *prog, const Stage *st);
+/* The same formula's value for class sizes m[c] (Program.classes order)
+ * and S training samples (allocates its monomials in prog->ctx's arena). */
+double cost_value(const Program *prog, const long *m, long S);
 
 #endif

@@ -641,6 +641,7 @@ static Value *introduce(Lowerer *L, Value *v, const Node *at, PtrVec *open_sums)
   s->introduced_at = at->loc;
   s->introduced_for = L->cur;
   s->basis_max = s->basis_energy = -1;
+  s->basis_center = -1;
   s->klass = -1;
   s->id = L->cur->id;  /* evaluated just before its user */
   for (int i = 0; i < L->cur->nivars; i++)

@@ -12,6 +12,7 @@ packages=(
   libopenblas-dev liblapacke-dev  # dense linear algebra: PCA, reduced solves
   libtcc-dev tcc              # in-memory JIT; tcc ships libtcc1.a and the headers
   libcmocka-dev               # unit tests
+  libcairo2-dev               # npgc plot: charts as PNG (linked into npgc only)
   clang libclang-rt-14-dev    # libFuzzer for the front-end fuzz target
   python3-numpy               # benchmark peer only
   libgmsh-dev                 # examples/fluids: the wind tunnel's mesher (C API)

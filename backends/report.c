@@ -1,0 +1,91 @@
+/* report.c — what training and verification tell the user about the bases
+ * (DESIGN §5, §7): per member the vectors kept against the cap and the
+ * energy lost, in scientific notation (0.999990 cannot tell 1 − 1e-5 from
+ * 1 − 1e-9), and the warnings that say what to change. */
+#include <math.h>
+#include <stdio.h>
+
+#include "reduce.h"
+
+/* A member that hits its cap with more than this fraction of its energy
+ * lost: the cap, not the energy fraction, decided its size. */
+#define REPORT_CAP_LOST 1e-3
+
+void report_training(const Model *m, FILE *out) {
+  fprintf(out, "%-24s %8s %6s  %s\n", "class", "n", "m",
+          "members: kept / cap, energy lost (of the centered energy when centered)");
+  for (int c = 0; c < m->nclasses; c++) {
+    const RClass *rc = &m->classes[c];
+    fprintf(out, "%-24s %8ld %6ld ", rc->label, rc->n, rc->m);
+    for (int i = 0; i < rc->nmembers; i++) {
+      const RMember *mb = &rc->members[i];
+      fprintf(out, "%s %s %d/%d lost %.1e%s", i ? "," : "", mb->name, mb->kept, mb->cap, mb->lost,
+              mb->center ? "" : " (uncentered)");
+    }
+    fputc('\n', out);
+  }
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; i < m->classes[c].nmembers; i++) {
+      const RMember *mb = &m->classes[c].members[i];
+      if (mb->kept >= mb->cap && mb->lost > REPORT_CAP_LOST)
+        fprintf(out,
+                "warning: %s (class %s) hit its cap %d with %.1e of its %senergy lost: raise it (--basis %s:cap=N) "
+                "or accept the loss\n",
+                mb->name, m->classes[c].label, mb->cap, mb->lost, mb->center ? "centered " : "", mb->name);
+    }
+  size_t tb, total = model_bytes(m, &tb);
+  fprintf(out, "reduced tensors: %.3f MB; model with bases: %.3f MB\n", (double)tb / 1e6, (double)total / 1e6);
+}
+
+/* The stage's input whose own error is largest: where a larger basis helps. */
+static int worst_read(const Model *m, const RStage *rs, const double *err) {
+  int best = -1;
+  for (int t = 0; t < rs->nterms; t++) {
+    const RTerm *rt = &rs->terms[t];
+    if (rt->named_q >= 0 && (best < 0 || err[rt->named_q] > err[best])) best = rt->named_q;
+    for (int k = -1; k < rt->nops; k++) {
+      int n = k < 0 ? rt->nnum : rt->ops[k].ntensors;
+      for (int g = 0; g < n; g++) {
+        const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
+        for (int j = 0; j < x->nin; j++)
+          if (best < 0 || err[x->in_q[j]] > err[best]) best = x->in_q[j];
+      }
+    }
+  }
+  return best;
+}
+
+int report_verify_warnings(const Model *m, const double *err, const double *floor, double tol, FILE *out) {
+  int n = 0;
+  for (int q = 0; q < m->nq; q++) {
+    const Sym *s = m->prog->quantities.v[q];
+    if (s->kind == SYM_INPUT && floor[q] > tol) {
+      fprintf(out,
+              "warning: input %s: its projection floor %.2e exceeds --tol %.3g: its basis cannot represent the test "
+              "samples (train with more or more varied samples, or a larger basis: --basis %s:cap=N,energy=E)\n",
+              s->name, floor[q], tol, s->name);
+      n++;
+    }
+  }
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    int q = rs->q;
+    if (rs->st->kind == ST_EXTERN || !(err[q] > 3 * floor[q]) || !(err[q] > 1e-12)) continue;
+    int w = worst_read(m, rs, err);
+    double ratio = floor[q] > 0 ? err[q] / floor[q] : INFINITY;
+    char times[32];
+    if (ratio < 1000) snprintf(times, sizeof times, "%.1fx", ratio);
+    else snprintf(times, sizeof times, "over 1000x");
+    fprintf(out,
+            "warning: stage %s: error %.2e is %s its projection floor %.2e: the reduction, not its basis, loses "
+            "accuracy here",
+            rs->st->sym->name, err[q], times, floor[q]);
+    if (w >= 0)
+      fprintf(out, " (it reads %s with error %.2e: a larger basis for it, --basis %s:cap=N; or name an "
+              "intermediate to give it a basis, or inline one)\n",
+              ((Sym *)m->prog->quantities.v[w])->name, err[w], ((Sym *)m->prog->quantities.v[w])->name);
+    else fputs(" (name an intermediate to give it a basis of its own, or inline one)\n", out);
+    n++;
+  }
+  return n;
+}

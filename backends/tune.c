@@ -1,0 +1,251 @@
+/* tune.c — basis sizes chosen by the error they give (issue 11, npgc tune):
+ * the fewest reduced multiply-adds (ir/cost.c's formula) at which every
+ * output's mean relative L2 error on validation samples is under a
+ * tolerance. Every trial truncates the members' bases of one TrainSet (one
+ * snapshot pass and one SVD per member) and re-pre-multiplies; nothing is
+ * retrained.
+ *
+ * The search: one cap for every class, 1, 2, … until the tolerance is met
+ * (class sizes, hence the cost, grow with the cap, so the first uniform cap
+ * that meets it is the cheapest uniform one); then, from there, each class
+ * in turn — the one whose growth costs most first — bisected down to the
+ * smallest cap that still meets it with the others fixed. Every accepted
+ * step meets the tolerance and costs no more, so the result costs no more
+ * than any uniform cap that meets the tolerance. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "emit.h"
+#include "reduce.h"
+
+typedef struct Valid {
+  long S;
+  int nq;
+  double **val;             /* [sample][q]: the full value of every quantity */
+} Valid;
+
+typedef struct Search {
+  TrainSet *ts;
+  Program *prog;
+  Valid v;
+  int nc;
+  int *maxk;                /* per class: the most vectors its members have, at most max_cap */
+  TuneResult *out;
+  bool progress;
+} Search;
+
+static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
+
+/* Full values of every quantity on every validation sample. */
+static int cache_valid(Search *s, NpgFull *f, const SampleSource *valid, const Model *layout, char *err, size_t errlen) {
+  s->v.S = valid->count;
+  s->v.nq = layout->nq;
+  if (!(s->v.val = calloc((size_t)valid->count + 1, sizeof(double *))))
+    return npg_fail(err, errlen, "out of memory for the validation samples");
+  long per = 0;
+  for (int q = 0; q < layout->nq; q++) per += qsize(layout, q);
+  for (long k = 0; k < valid->count; k++) {
+    if (valid->set(valid->user, f, k) != 0 || npg_full_eval(f, k) != 0)
+      return npg_fail(err, errlen, "validation sample %ld: %s", k, npg_full_error(f));
+    if (!(s->v.val[k] = malloc(sizeof(double) * (size_t)per))) return npg_fail(err, errlen, "out of memory");
+    long off = 0;
+    for (int q = 0; q < layout->nq; q++) {
+      memcpy(s->v.val[k] + off, npg_full_get(f, ((Sym *)s->prog->quantities.v[q])->name, NULL),
+             sizeof(double) * (size_t)qsize(layout, q));
+      off += qsize(layout, q);
+    }
+  }
+  return 0;
+}
+
+/* The offset of quantity q in a cached sample. */
+static long qoff(const Model *m, int q) {
+  long off = 0;
+  for (int i = 0; i < q; i++) off += qsize(m, i);
+  return off;
+}
+
+/* Mean over validation samples of every output's relative L2 error (the
+ * worst into *worst), and when `floor` is given every quantity's mean
+ * projection floor ‖y − BBᵀy‖/‖y‖. */
+static int validate(Search *s, Model *m, double *worst, double *floor, char *err, size_t errlen) {
+  Reduced *r = reduced_new(m, err, errlen);
+  if (!r) return -1;
+  long maxn = 1;
+  for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
+  double *y = malloc(sizeof(double) * (size_t)maxn), *e = calloc((size_t)s->prog->outputs.n + 1, sizeof(double));
+  int rc = y && e ? 0 : npg_fail(err, errlen, "out of memory");
+  if (floor) memset(floor, 0, sizeof(double) * (size_t)m->nq);
+  for (long k = 0; rc == 0 && k < s->v.S; k++) {
+    for (int q = 0; q < m->nq; q++)
+      if (((Sym *)s->prog->quantities.v[q])->kind == SYM_INPUT) reduced_project(r, q, s->v.val[k] + qoff(m, q));
+    if (reduced_eval(r, k) != 0) {
+      rc = npg_fail(err, errlen, "%s", reduced_error(r));
+      break;
+    }
+    for (int o = 0; o < s->prog->outputs.n; o++) {
+      int q = emit_index_of(&s->prog->quantities, s->prog->outputs.v[o]);
+      if (q < 0) continue;
+      const double *full = s->v.val[k] + qoff(m, q);
+      double num = 0, den = 0;
+      reduced_lift(r, q, y);
+      for (long i = 0; i < qsize(m, q); i++) num += (full[i] - y[i]) * (full[i] - y[i]), den += full[i] * full[i];
+      e[o] += (den > 0 ? sqrt(num / den) : sqrt(num)) / (double)s->v.S;
+    }
+    for (int q = 0; floor && q < m->nq; q++) {
+      const RClass *rc2 = &m->classes[m->qclass[q]];
+      const double *full = s->v.val[k] + qoff(m, q);
+      double *c = reduced_coords(r, q); /* scratch: Bᵀy, then y − BBᵀy */
+      double num = 0, den = 0;
+      for (long j = 0; j < rc2->m; j++) {
+        c[j] = 0;
+        for (long i = 0; i < rc2->n; i++) c[j] += rc2->B[i * rc2->m + j] * full[i];
+      }
+      for (long i = 0; i < rc2->n; i++) {
+        double d = full[i];
+        for (long j = 0; j < rc2->m; j++) d -= rc2->B[i * rc2->m + j] * c[j];
+        num += d * d, den += full[i] * full[i];
+      }
+      floor[q] += (den > 0 ? sqrt(num / den) : sqrt(num)) / (double)s->v.S;
+    }
+  }
+  *worst = 0;
+  for (int o = 0; rc == 0 && o < s->prog->outputs.n; o++) *worst = fmax(*worst, e[o]);
+  free(y);
+  free(e);
+  reduced_free(r);
+  return rc;
+}
+
+/* Evaluate caps `cap`: a new trial (reusing an identical one). Its index, or -1. */
+static int trial(Search *s, const int *cap, bool uniform, char *err, size_t errlen) {
+  TuneResult *out = s->out;
+  for (int t = 0; t < out->ntrials; t++)
+    if (memcmp(out->trials[t].cap, cap, sizeof(int) * (size_t)s->nc) == 0) return t;
+  TuneTrial *grown = realloc(out->trials, sizeof *grown * (size_t)(out->ntrials + 1));
+  if (!grown) return npg_fail(err, errlen, "out of memory");
+  out->trials = grown;
+  TuneTrial *tr = &out->trials[out->ntrials];
+  memset(tr, 0, sizeof *tr);
+  tr->cap = malloc(sizeof(int) * (size_t)s->nc);
+  tr->m = malloc(sizeof(long) * (size_t)s->nc);
+  if (!tr->cap || !tr->m) {
+    free(tr->cap), free(tr->m);
+    return npg_fail(err, errlen, "out of memory");
+  }
+  memcpy(tr->cap, cap, sizeof(int) * (size_t)s->nc);
+  tr->uniform = uniform;
+  out->ntrials++;
+  Model *m = train_set_model(s->ts, cap, err, errlen);
+  if (!m) return -1;
+  for (int c = 0; c < s->nc; c++) tr->m[c] = m->classes[c].m;
+  tr->cost = cost_value(s->prog, tr->m, m->samples);
+  int rc = validate(s, m, &tr->err, NULL, err, errlen);
+  model_free(m);
+  return rc ? -1 : out->ntrials - 1;
+}
+
+void tune_result_free(TuneResult *r) {
+  for (int t = 0; r->trials && t < r->ntrials; t++) free(r->trials[t].cap), free(r->trials[t].m);
+  free(r->trials);
+  free(r->best_cap);
+  memset(r, 0, sizeof *r);
+}
+
+int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *valid, double tol, int max_cap,
+                bool progress, TuneResult *out, char *err, size_t errlen) {
+  memset(out, 0, sizeof *out);
+  out->chosen = out->limiting = -1;
+  Search s = {ts, prog, {0}, train_set_classes(ts), NULL, out, progress};
+  out->nclasses = s.nc;
+  int *cap = calloc((size_t)s.nc + 1, sizeof(int)), rc = -1;
+  s.maxk = calloc((size_t)s.nc + 1, sizeof(int));
+  out->best_cap = calloc((size_t)s.nc + 1, sizeof(int));
+  Model *layout = NULL;
+  double *floor = NULL;
+  if (!cap || !s.maxk || !out->best_cap) goto oom;
+  int top = 1;
+  for (int c = 0; c < s.nc; c++) {
+    s.maxk[c] = train_set_max_cap(ts, c) < max_cap ? train_set_max_cap(ts, c) : max_cap;
+    top = s.maxk[c] > top ? s.maxk[c] : top;
+    cap[c] = 1;
+  }
+  if (!(layout = train_set_model(ts, cap, err, errlen)) || cache_valid(&s, f, valid, layout, err, errlen)) goto done;
+  /* 1. the cheapest uniform cap that meets tol */
+  int t = -1;
+  for (int u = 1; u <= top; u++) {
+    for (int c = 0; c < s.nc; c++) cap[c] = u < s.maxk[c] ? u : s.maxk[c];
+    if ((t = trial(&s, cap, true, err, errlen)) < 0) goto done;
+    if (out->trials[t].err <= tol) break;
+  }
+  if (out->trials[t].err > tol) {
+    /* unmet at the largest caps: the class whose projection floor is worst limits */
+    Model *m = train_set_model(ts, cap, err, errlen);
+    double worst;
+    if (!m || !(floor = malloc(sizeof(double) * (size_t)m->nq)) || validate(&s, m, &worst, floor, err, errlen)) {
+      model_free(m);
+      goto done;
+    }
+    for (int q = 0; q < m->nq; q++) {
+      int c = m->qclass[q];
+      if (out->limiting < 0 || floor[q] > out->limiting_floor) out->limiting = c, out->limiting_floor = floor[q];
+    }
+    out->limiting_saturated = out->limiting >= 0 && s.maxk[out->limiting] < max_cap;
+    model_free(m);
+    memcpy(out->best_cap, cap, sizeof(int) * (size_t)s.nc);
+    rc = 0;
+    goto done;
+  }
+  /* 2. each class bisected down, the costliest to grow first */
+  int *order = malloc(sizeof(int) * (size_t)s.nc);
+  double *gain = malloc(sizeof(double) * (size_t)s.nc);
+  long *m1 = malloc(sizeof(long) * (size_t)s.nc);
+  if (!order || !gain || !m1) {
+    free(order), free(gain), free(m1);
+    goto oom;
+  }
+  for (int c = 0; c < s.nc; c++) {
+    memcpy(m1, out->trials[t].m, sizeof(long) * (size_t)s.nc);
+    m1[c]++;
+    gain[c] = cost_value(prog, m1, layout->samples) - out->trials[t].cost;
+    order[c] = c;
+  }
+  for (int i = 0; i < s.nc; i++) /* by gain, descending */
+    for (int j = i + 1; j < s.nc; j++)
+      if (gain[order[j]] > gain[order[i]]) {
+        int x = order[i];
+        order[i] = order[j], order[j] = x;
+      }
+  int best = t;
+  for (int i = 0; i < s.nc; i++) {
+    int c = order[i], lo = 1, hi = cap[c];
+    while (lo < hi) {
+      int mid = (lo + hi) / 2, keep = cap[c];
+      cap[c] = mid;
+      int k = trial(&s, cap, false, err, errlen);
+      if (k < 0) {
+        free(order), free(gain), free(m1);
+        goto done;
+      }
+      if (out->trials[k].err <= tol && out->trials[k].cost <= out->trials[best].cost) hi = mid, best = k;
+      else lo = mid + 1, cap[c] = keep;
+      cap[c] = hi;
+    }
+  }
+  free(order), free(gain), free(m1);
+  out->chosen = best;
+  memcpy(out->best_cap, out->trials[best].cap, sizeof(int) * (size_t)s.nc);
+  rc = 0;
+  goto done;
+oom:
+  npg_fail(err, errlen, "out of memory");
+done:
+  for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);
+  free(s.v.val);
+  free(s.maxk);
+  free(cap);
+  free(floor);
+  model_free(layout);
+  return rc;
+}

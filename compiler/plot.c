@@ -1,0 +1,67 @@
+/* plot.c — npgc plot MODEL/ -o spectra.png: every member's singular values
+ * (relative to its largest, log scale), one curve per member, a dot where
+ * its basis was truncated (issue 11). Reads the spectra MODEL/ lists (any
+ * program's model: npg_spectra_read needs no program). */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "chart.h"
+#include "npg.h"
+#include "npgc.h"
+
+int npgc_plot(int argc, char **argv) {
+  const char *dir = NULL, *out = NULL;
+  for (int i = 2; i < argc; i++) {
+    if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) return npgc_usage("plot", true);
+    if (strcmp(argv[i], "-o") == 0 && i + 1 < argc) out = argv[++i];
+    else if (argv[i][0] == '-') {
+      fprintf(stderr, "npgc plot: %s '%s'\n", strcmp(argv[i], "-o") == 0 ? "missing the value of" : "unknown option",
+              argv[i]);
+      return npgc_usage("plot", false);
+    } else if (!dir) dir = argv[i];
+    else return npgc_usage("plot", false);
+  }
+  if (!dir || !out) return npgc_usage("plot", false);
+  NpgSpectrum *sp = NULL;
+  int n = 0, rc = 1;
+  char err[2048] = "";
+  if (npg_spectra_read(dir, &sp, &n, err, sizeof err) != 0) {
+    fprintf(stderr, "error: %s\n", err);
+    return 1;
+  }
+  ChartSeries *series = calloc((size_t)n + 1, sizeof *series);
+  char **labels = calloc((size_t)n + 1, sizeof *labels);
+  double **xs = calloc((size_t)n + 1, sizeof *xs), **ys = calloc((size_t)n + 1, sizeof *ys);
+  if (!series || !labels || !xs || !ys) goto oom;
+  for (int i = 0; i < n; i++) {
+    long k = sp[i].n;
+    xs[i] = malloc(sizeof(double) * (size_t)(k + 1));
+    ys[i] = malloc(sizeof(double) * (size_t)(k + 1));
+    labels[i] = malloc(600);
+    if (!xs[i] || !ys[i] || !labels[i]) goto oom;
+    for (long j = 0; j < k; j++) xs[i][j] = (double)(j + 1), ys[i][j] = sp[i].sigma[0] > 0 ? sp[i].sigma[j] / sp[i].sigma[0] : NAN;
+    /* the dot: the last centered direction kept (the mean is not in the spectrum) */
+    int last = sp[i].centered ? sp[i].kept - 2 : sp[i].kept - 1;
+    snprintf(labels[i], 600, "%s (%d kept%s)", sp[i].member, sp[i].kept, sp[i].centered ? ", centered" : "");
+    series[i] = (ChartSeries){labels[i], (int)k, xs[i], ys[i], last < k ? last : (int)k - 1, false};
+  }
+  char title[4200];
+  snprintf(title, sizeof title, "singular values of each member's snapshots: %s", dir);
+  Chart chart = {title, "k", "singular value / largest", false, true, n, series};
+  if (chart_png(&chart, out, 960, 540, err, sizeof err) != 0) {
+    fprintf(stderr, "error: %s\n", err);
+    goto done;
+  }
+  printf("%d spectra -> %s\n", n, out);
+  rc = 0;
+  goto done;
+oom:
+  fputs("error: out of memory\n", stderr);
+done:
+  for (int i = 0; i < n && xs && ys && labels; i++) free(xs[i]), free(ys[i]), free(labels[i]);
+  free(series), free(labels), free(xs), free(ys);
+  npg_spectra_free(sp, n);
+  return rc;
+}

@@ -1,0 +1,158 @@
+/* tune.c — npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/: every class's
+ * basis size chosen so that every output's mean relative error on VALID/ is
+ * under T at the least reduced cost (issue 11; the search is tune_search in
+ * backends/tune.c). Prints the candidates tried, writes the chosen model
+ * and a PNG of error against cost. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "chart.h"
+#include "npg.h"
+#include "npgc.h"
+
+static int usage(void) { return npgc_usage("tune", false); }
+
+/* "m_x=3 m_y=8" */
+static void print_sizes(const NpgTuneReport *r, const NpgTuneTrial *t) {
+  for (int c = 0; c < r->nclasses; c++) printf("%s%s=%ld", c ? " " : "", r->class_name[c], t->m[c]);
+}
+
+static int draw(const NpgTuneReport *r, double tol, const char *path, char *err, size_t errlen) {
+  double *x = malloc(sizeof(double) * (size_t)(r->ntrials + 1) * 4), *y = x ? x + r->ntrials + 1 : NULL;
+  double *ux = y ? y + r->ntrials + 1 : NULL, *uy = ux ? ux + r->ntrials + 1 : NULL;
+  if (!x) {
+    snprintf(err, errlen, "out of memory");
+    return -1;
+  }
+  int nu = 0, nt = 0, mark = -1;
+  for (int t = 0; t < r->ntrials; t++) {
+    if (r->trials[t].uniform) ux[nu] = r->trials[t].cost, uy[nu++] = r->trials[t].err;
+    if (t == r->chosen) mark = nt;
+    x[nt] = r->trials[t].cost, y[nt++] = r->trials[t].err;
+  }
+  double tx[2] = {INFINITY, -INFINITY}, ty[2] = {tol, tol};
+  for (int t = 0; t < nt; t++) tx[0] = fmin(tx[0], x[t]), tx[1] = fmax(tx[1], x[t]);
+  ChartSeries s[3] = {{"uniform caps", nu, ux, uy, -1, false},
+                      {"candidates (big dot: chosen)", nt, x, y, mark, true},
+                      {"tolerance", 2, tx, ty, -1, false}};
+  Chart c = {"npgc tune: worst output's mean relative error against reduced cost", "reduced multiply-adds",
+             "mean relative L2 error", true, true, 3, s};
+  int rc = chart_png(&c, path, 960, 540, err, errlen);
+  free(x);
+  return rc;
+}
+
+int npgc_tune(int argc, char **argv) {
+  const char *prog_path = NULL, *data = NULL, *valid = NULL, *out = NULL, *png = NULL;
+  double tol = -1;
+  long max_cap = 60;
+  bool cc = false;
+  NpgOptions opt = {0};
+  NpgTrainOptions topt;
+  npg_train_options_default(&topt);
+  for (int i = 2; i < argc; i++) {
+    const char *a = argv[i];
+    bool has = i + 1 < argc, ok = true;
+    if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) return npgc_usage("tune", true);
+    if (strcmp(a, "-o") == 0 && has) out = argv[++i];
+    else if (strcmp(a, "--png") == 0 && has) png = argv[++i];
+    else if (strcmp(a, "--tol") == 0 && has) ok = npgc_parse_double(argv[++i], 0, INFINITY, true, &tol);
+    else if (strcmp(a, "--max-cap") == 0 && has) ok = npgc_parse_long(argv[++i], 1, 100000, &max_cap);
+    else if (strcmp(a, "--center") == 0 && has) {
+      topt.uncentered = strcmp(argv[++i], "off") == 0;
+      ok = topt.uncentered || strcmp(argv[i], "on") == 0;
+    } else if (strcmp(a, "--cc") == 0) cc = true;
+    else if (strncmp(a, "--std=", 6) == 0) opt.std_dir = a + 6;
+    else if (a[0] == '-') {
+      fprintf(stderr, "npgc tune: %s '%s'\n", has ? "unknown option" : "missing the value of", a);
+      return usage();
+    } else if (!prog_path) prog_path = a;
+    else if (!data) data = a;
+    else if (!valid) valid = a;
+    else return usage();
+    if (!ok) {
+      fprintf(stderr, "npgc tune: bad value for %s: '%s'\n", a, argv[i]);
+      return 2;
+    }
+  }
+  if (!prog_path || !data || !valid || !out || tol < 0) return usage();
+  topt.progress = isatty(2);
+  char pngbuf[4096], err[2048] = "";
+  if (!png) { /* beside MODEL/, which holds only what a model store writes */
+    size_t n = strlen(out);
+    while (n > 1 && out[n - 1] == '/') n--;
+    snprintf(pngbuf, sizeof pngbuf, "%.*s-tune.png", (int)n, out);
+    png = pngbuf;
+  }
+  NpgProgram *p = npg_compile(prog_path, &opt);
+  if (!npg_ok(p)) {
+    fputs(npg_error(p), stderr);
+    npg_free(p);
+    return 1;
+  }
+  int rc = 1;
+  NpgSamples *ds = NULL, *vs = NULL;
+  NpgTuneReport r = {0};
+  NpgModel *m = NULL;
+  NpgFull *f = npg_full_new(p, cc ? NPG_CC : NPG_TCC);
+  if (npg_full_error(f)[0] || npg_full_bind_params(f, data) != 0) {
+    fprintf(stderr, "error: %s\n", npg_full_error(f));
+    goto done;
+  }
+  if (!(ds = npg_samples_open(p, data, NULL, true, err, sizeof err)) ||
+      !(vs = npg_samples_open(p, valid, NULL, true, err, sizeof err)) ||
+      npg_full_check_params_dir(f, valid, err, sizeof err) != 0) {
+    fprintf(stderr, "error: %s\n", err[0] ? err : "out of memory");
+    goto done;
+  }
+  m = npg_tune(f, npg_samples_count(ds), npg_samples_set, ds, npg_samples_count(vs), npg_samples_set, vs, tol,
+               (int)max_cap, &topt, &r);
+  if (!m && r.error[0]) {
+    fprintf(stderr, "error: %s\n", r.error);
+    goto done;
+  }
+  printf("tune %s: %d candidates (every class's cap; the basis sizes they give), worst output's mean relative L2 "
+         "error on %ld samples of %s\n",
+         prog_path, r.ntrials, npg_samples_count(vs), valid);
+  printf("%5s %-8s %14s %12s  %s\n", "trial", "kind", "cost", "error", "sizes");
+  for (int t = 0; t < r.ntrials; t++) {
+    const NpgTuneTrial *tr = &r.trials[t];
+    printf("%5d %-8s %14.6g %12.3e  ", t + 1, tr->uniform ? "uniform" : "class", tr->cost, tr->err);
+    print_sizes(&r, tr);
+    printf("%s%s\n", tr->err <= tol ? "  meets" : "", t == r.chosen ? "  <- chosen" : "");
+  }
+  if (draw(&r, tol, png, err, sizeof err) != 0) {
+    fprintf(stderr, "error: %s\n", err);
+    goto done;
+  }
+  if (!m) {
+    printf("--tol %.3g cannot be met: the smallest error reached is %.3e with every cap at its largest (%ld).\n"
+           "class %s limits it: its projection floor on %s is %.3e, and %s\n",
+           tol, r.trials[r.ntrials - 1].err, max_cap, r.limiting, valid, r.limiting_floor,
+           r.limiting_saturated ? "its members have no more directions in the training samples: train with more, "
+                                  "or more varied, samples"
+                                : "its members are at --max-cap: raise it");
+    printf("error against cost -> %s; no model written\n", png);
+    goto done;
+  }
+  if (npgc_make_parents(out, false) != 0 || npg_model_save(m, out) != 0) {
+    if (npg_model_error(m)[0]) fprintf(stderr, "error: %s\n", npg_model_error(m));
+    goto done;
+  }
+  const NpgTuneTrial *ch = &r.trials[r.chosen];
+  printf("chosen: cost %.6g, error %.3e (--tol %.3g): ", ch->cost, ch->err, tol);
+  print_sizes(&r, ch);
+  printf(" -> %s; error against cost -> %s\n", out, png);
+  rc = 0;
+done:
+  npg_model_free(m);
+  npg_tune_free(&r);
+  npg_samples_free(ds);
+  npg_samples_free(vs);
+  npg_full_free(f);
+  npg_free(p);
+  return rc;
+}

@@ -1,0 +1,70 @@
+/* tune_api.c — basis sizes chosen by error through npg.h (npg_tune): the
+ * search is tune_search (backends/tune.c) over one TrainSet. */
+#include <stdlib.h>
+#include <string.h>
+
+#include "api.h"
+#include "compile.h"
+
+NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long nvalid, NpgSampleFn valid,
+                   void *vuser, double tol, int max_cap, const NpgTrainOptions *o, NpgTuneReport *rep) {
+  memset(rep, 0, sizeof *rep);
+  rep->chosen = -1;
+  if (npg_full_error(f)[0]) {
+    snprintf(rep->error, sizeof rep->error, "%s", npg_full_error(f));
+    return NULL;
+  }
+  Program *prog = (Program *)full_program(f);
+  SampleSource tsrc = {ntrain, tuser, train}, vsrc = {nvalid, vuser, valid};
+  TrainOptions topt = {.cap = max_cap, .energy = 1.0, .uncentered = o && o->uncentered, .progress = o && o->progress};
+  if (o && o->mem) topt.mem = o->mem;
+  TuneResult *r = calloc(1, sizeof *r);
+  const char **names = calloc((size_t)prog->classes.n + 1, sizeof *names);
+  TrainSet *ts = NULL;
+  NpgModel *nm = NULL;
+  if (!r || !names) {
+    snprintf(rep->error, sizeof rep->error, "out of memory");
+    free(r);
+    free(names);
+    return NULL;
+  }
+  rep->priv = r;
+  rep->class_name = names;
+  for (int c = 0; c < prog->classes.n; c++) names[c] = ((BasisClass *)prog->classes.v[c])->size_name;
+  if (!(ts = train_set_new(prog, f, &tsrc, &topt, rep->error, sizeof rep->error)) ||
+      tune_search(ts, prog, f, &vsrc, tol, max_cap, topt.progress, r, rep->error, sizeof rep->error) != 0)
+    goto done;
+  rep->nclasses = r->nclasses;
+  rep->ntrials = r->ntrials;
+  if (!(rep->trials = calloc((size_t)r->ntrials + 1, sizeof *rep->trials))) {
+    snprintf(rep->error, sizeof rep->error, "out of memory");
+    goto done;
+  }
+  for (int t = 0; t < r->ntrials; t++)
+    rep->trials[t] = (NpgTuneTrial){r->trials[t].m, r->trials[t].cost, r->trials[t].err, r->trials[t].uniform};
+  rep->chosen = r->chosen;
+  if (r->chosen < 0) {
+    rep->limiting = names[r->limiting];
+    rep->limiting_floor = r->limiting_floor;
+    rep->limiting_saturated = r->limiting_saturated;
+    goto done;
+  }
+  Model *m = train_set_model(ts, r->best_cap, rep->error, sizeof rep->error);
+  if (m && !(m->param_hashes = api_param_hashes(f))) snprintf(rep->error, sizeof rep->error, "out of memory");
+  if (m && !m->param_hashes) model_free(m);
+  else if (m && !(nm = api_model_wrap(m))) snprintf(rep->error, sizeof rep->error, "out of memory");
+done:
+  train_set_free(ts);
+  return nm;
+}
+
+void npg_tune_free(NpgTuneReport *rep) {
+  if (!rep) return;
+  if (rep->priv) {
+    tune_result_free(rep->priv);
+    free(rep->priv);
+  }
+  free(rep->trials);
+  free((void *)rep->class_name);
+  memset(rep, 0, sizeof *rep);
+}
