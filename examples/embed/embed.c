@@ -9,7 +9,7 @@
  *    side from the same start; the program prints how far the reduced
  *    trajectory drifts from the full one.
  *
- *     embed [N] [STEPS]     (an N x N cloth, 16 and 400 by default)
+ *     embed [N] [STEPS] [ENERGY]   (an N x N cloth, 16, 400 steps, PCA energy 0.999)
  *
  * Only npg.h is included; the build links libnpg as any user's program. */
 #include <math.h>
@@ -101,8 +101,9 @@ static int fail(const char *what, const char *msg) {
 
 int main(int argc, char **argv) {
   long n = argc > 1 ? strtol(argv[1], NULL, 10) : 16, steps = argc > 2 ? strtol(argv[2], NULL, 10) : 400;
-  if (n < 3 || n > 200 || steps < 10 || steps > 100000) {
-    fprintf(stderr, "usage: embed [N 3..200] [STEPS 10..100000]\n");
+  double energy = argc > 3 ? strtod(argv[3], NULL) : 0.999;
+  if (n < 3 || n > 200 || steps < 10 || steps > 100000 || !(energy > 0 && energy <= 1)) {
+    fprintf(stderr, "usage: embed [N 3..200] [STEPS 10..100000] [ENERGY (0, 1]]\n");
     return 2;
   }
   const double k = 200.0;
@@ -118,7 +119,7 @@ int main(int argc, char **argv) {
   /* 1. full simulations under three winds, streamed into the trainer */
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  o.energy = 1 - 1e-8; /* the rest shape dominates the snapshots' energy: keep the small deformation modes */
+  o.energy = energy;
   NpgTrainer *t = npg_trainer_new(f, &o);
   const double winds[3] = {0, 4, 8};
   for (int w = 0; w < 3; w++) {
