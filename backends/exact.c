@@ -18,7 +18,6 @@
 #include <string.h>
 
 #include "ast.h"
-#include "compile.h"
 #include "emit.h"
 #include "full.h"
 #include "memsamples.h"
@@ -174,13 +173,12 @@ static int stage_from_tensors(const Program *prog, NpgFull *f, const Stage *st, 
 }
 
 /* Check 1; *failed set when a stage differs. */
-static int check_lowering(NpgProgram *p, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
-  Program *prog = npg_program_ir(p);
+static int check_lowering(Program *prog, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
   long n = o->n_lowering > 0 ? o->n_lowering : 6;
   fprintf(out, "  1. lowering: every stage from its tensors' entries against the full evaluator, every dim %ld (bar "
                "%.0e)\n",
           n, EXACT_LOWERING_TOL);
-  NpgFull *f = npg_full_new(p, o->backend);
+  NpgFull *f = full_new(prog, o->backend, NULL);
   MemSamples ms;
   memset(&ms, 0, sizeof ms);
   int rc = 0;
@@ -228,8 +226,7 @@ static int check_lowering(NpgProgram *p, const ExactOptions *o, FILE *out, bool 
 
 /* ---------------------------------------------------------------- 2. full rank */
 
-static int check_full_rank(NpgProgram *p, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
-  Program *prog = npg_program_ir(p);
+static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
   long n = o->n_full_rank > 0 ? o->n_full_rank : 4, S = 1;
   for (int i = 0; i < prog->quantities.n; i++) {
     long shape[MAX_AXES + MAX_STATIC];
@@ -244,7 +241,7 @@ static int check_full_rank(NpgProgram *p, const ExactOptions *o, FILE *out, bool
   if (S > 20000)
     return npg_fail(err, errlen, "the full-rank check would train on %ld samples of %ld entries; give a smaller size", S,
                  S - 4);
-  NpgFull *f = npg_full_new(p, o->backend);
+  NpgFull *f = full_new(prog, o->backend, NULL);
   MemSamples train, held;
   memset(&train, 0, sizeof train);
   memset(&held, 0, sizeof held);
@@ -314,13 +311,12 @@ static int check_full_rank(NpgProgram *p, const ExactOptions *o, FILE *out, bool
   return rc;
 }
 
-int exact_check(NpgProgram *p, const ExactOptions *o, FILE *out, char *err, size_t errlen) {
+int exact_check_program(Program *prog, const ExactOptions *o, FILE *out, char *err, size_t errlen) {
   if (err && errlen) err[0] = '\0';
-  if (!p || !npg_ok(p)) return npg_fail(err, errlen, "the program does not compile");
   fprintf(out, "exactness checks of DESIGN §4 on random data (seed %u)\n", o->seed);
   bool failed = false;
-  if (check_lowering(p, o, out, &failed, err, errlen) != 0) return -1;
-  if (check_full_rank(p, o, out, &failed, err, errlen) != 0) return -1;
+  if (check_lowering(prog, o, out, &failed, err, errlen) != 0) return -1;
+  if (check_full_rank(prog, o, out, &failed, err, errlen) != 0) return -1;
   fprintf(out, failed ? "FAIL: an exactness check failed (a bug in npg: please report it with the program)\n"
                       : "ok: the lowering is exact and full-rank bases reproduce the full evaluator\n");
   return failed ? 1 : 0;

@@ -2,11 +2,11 @@
  * (libtcc or cc), bind params and dims, check gathers once, evaluate
  * samples, hand back every stage value. */
 #include <errno.h>
+#include <setjmp.h>
 #include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "compile.h"
 #include "emit.h"
 #include "full.h"
 #include "jit.h"
@@ -48,21 +48,36 @@ static int find(const PtrVec *v, const char *name) {
   return -1;
 }
 
-NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
+int full_emit(Program *prog, FILE *out) {
+  Ctx *ctx = prog->ctx;
+  jmp_buf env;
+  ctx->on_error = &env;
+  bool ok = setjmp(env) == 0;
+  if (ok) {
+    emit_full(ctx, prog, out);
+    emit_builders(ctx, prog, out);
+  }
+  ctx->on_error = NULL;
+  free(ctx->pending_free);
+  ctx->pending_free = NULL;
+  return ok ? 0 : -1;
+}
+
+NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
   NpgFull *f = calloc(1, sizeof *f);
   if (!f) return NULL;
-  if (!npg_ok(p)) {
-    fail(f, "%s", npg_error(p));
+  if (refusal) {
+    fail(f, "%s", refusal);
     return f;
   }
-  Program *prog = f->prog = npg_program_ir(p);
+  f->prog = prog;
   char *src = NULL;
   size_t len = 0;
   FILE *mem = open_memstream(&src, &len);
-  if (!mem || npg_emit_full(p, mem) != 0) {
+  if (!mem || full_emit(prog, mem) != 0) {
     if (mem) fclose(mem);
     free(src);
-    fail(f, "%s", npg_error(p));
+    fail(f, "%s", !mem ? "out of memory" : prog->ctx->msg ? prog->ctx->msg : "error: code generation failed\n");
     return f;
   }
   fclose(mem);

@@ -5,7 +5,7 @@
 #include <string.h>
 
 #include "compile.h"
-#include "emit.h"
+#include "full.h"
 #include "npg.h"
 
 #ifndef NPG_STDLIB_DIR
@@ -29,7 +29,7 @@ static void compile(NpgProgram *np, const char *path, const NpgOptions *opt) {
   if (opt->source) {
     file = source_from_string(ctx, path, opt->source, strlen(opt->source));
   } else {
-    file = read_source(ctx, path);
+    file = source_read(ctx, path);
     if (!file) error_plain(ctx, "cannot read '%s': %s", path, strerror(errno));
   }
   Decl *decls = parse_program(ctx, file);
@@ -104,27 +104,17 @@ void npg_report(const NpgProgram *p, FILE *out, bool json) {
   if (!guarded_report((NpgProgram *)p, out, json)) fprintf(out, "\n%s", p->ctx.msg ? p->ctx.msg : "error: out of memory\n");
 }
 
-static bool guarded_emit(NpgProgram *np, FILE *out) {
-  jmp_buf env;
-  np->ctx.on_error = &env;
-  bool ok = setjmp(env) == 0;
-  if (ok) {
-    emit_full(&np->ctx, np->prog, out);
-    emit_builders(&np->ctx, np->prog, out);
-  }
-  np->ctx.on_error = NULL;
-  free(np->ctx.pending_free);
-  np->ctx.pending_free = NULL;
-  return ok;
-}
-
 int npg_emit_full(NpgProgram *p, FILE *out) {
   if (!npg_ok(p)) return -1;
-  if (!guarded_emit(p, out)) {
+  if (full_emit(p->prog, out) != 0) {
     p->error = p->ctx.msg ? p->ctx.msg : "error: code generation failed\n";
     return -1;
   }
   return 0;
+}
+
+NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
+  return npg_ok(p) ? full_new(p->prog, backend, NULL) : full_new(NULL, backend, npg_error(p));
 }
 
 void npg_free(NpgProgram *p) {
