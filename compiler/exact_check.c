@@ -1,5 +1,5 @@
 /* exact_check.c — `npgc verify --exact` for a compiled program: the
- * exactness checks of backends/exact.c run on its stage program. */
+ * exactness checks of backends/verify/exact.c run on its stage program. */
 #include "compile.h"
 #include "exact.h"
 #include "npg.h"

@@ -6,7 +6,8 @@
 
 #include "compile.h"
 #include "npg.h"
-#include "reduce.h"
+#include "reduced.h"
+#include "train.h"
 
 static void usage(FILE *out) {
   fputs("usage: npgc check PROG.npg [--json] [-d<letters>]\n"

@@ -18,8 +18,9 @@
 #include "emit.h"
 #include "exact.h"
 #include "npy.h"
-#include "reduce.h"
+#include "reduced.h"
 #include "samples.h"
+#include "train.h"
 
 typedef struct Common {
   const char *prog_path, *a, *b, *out;

@@ -6,7 +6,8 @@
 #define NPG_SAMPLES_H
 
 #include "npy.h"
-#include "reduce.h"
+#include "reduced.h"
+#include "train.h"
 
 typedef struct SampleFile {
   const Sym *sym;

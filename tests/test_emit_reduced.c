@@ -3,7 +3,7 @@
  *   - on every example (rational, radiosity) and test program, a model
  *     trained on random data with truncated bases evaluates, through the
  *     generated code compiled by libtcc and by cc, to the coordinates of
- *     the runtime reduced evaluator (backends/reduced.c) within 1e-12
+ *     the runtime reduced evaluator (backends/model/reduced.c) within 1e-12
  *     relative on every stage, on held-out samples (externs learned);
  *   - the emitted file compiles standalone with cc -Wall -Wextra, without
  *     a warning, and so does the output of `npgc emit --reduced MODEL/`;
@@ -13,9 +13,10 @@
 #include <unistd.h>
 
 #include "emit.h"
-#include "reduce.h"
 #include "memsamples.h"
 #include "randdata.h"
+#include "reduced.h"
+#include "train.h"
 #include "testutil.h"
 #include "trained.h"
 

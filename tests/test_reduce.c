@@ -22,11 +22,12 @@
 #include <unistd.h>
 
 #include "emit.h"
+#include "memsamples.h"
 #include "meshgen.h"
 #include "model_store.h"
-#include "reduce.h"
-#include "memsamples.h"
 #include "randdata.h"
+#include "reduced.h"
+#include "train.h"
 #include "support/refeval.h"
 #include "testutil.h"
 #include "trained.h"

@@ -3,8 +3,9 @@
 #ifndef NPG_TRAINED_H
 #define NPG_TRAINED_H
 
-#include "reduce.h"
 #include "memsamples.h"
+#include "reduced.h"
+#include "train.h"
 
 typedef struct Trained {
   NpgProgram *p;

@@ -99,7 +99,7 @@ typedef int (*NpgBuildFn)(const NpgCtx *c, NpgSink *sink);
 
 /* ---------------------------------------------------------------- the reduced evaluator
  *
- * `npgc emit --reduced MODEL/` (backends/emit_reduced.c) writes C for one
+ * `npgc emit --reduced MODEL/` (backends/model/emit_reduced.c) writes C for one
  * trained model, every size a literal. The reduced tensors are not in the
  * code (they can be megabytes): the host passes them, with the coordinates
  * and scratch memory, in an NpgReducedCtx. The generated file says what it
@@ -107,7 +107,7 @@ typedef int (*NpgBuildFn)(const NpgCtx *c, NpgSink *sink);
  * npg_reduced_tensors = {number of tensors, rows x cols of each, in the
  * order of NpgReducedCtx.t (listed in a comment at its top)}, and
  * npg_reduced_work, the doubles of scratch. Every reduced vector and
- * tensor is dense, row-major (backends/reduce.h). */
+ * tensor is dense, row-major (backends/model/model.h). */
 typedef struct NpgReducedCtx NpgReducedCtx;
 
 typedef struct NpgReducedRt {

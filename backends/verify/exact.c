@@ -21,8 +21,9 @@
 #include "emit.h"
 #include "full.h"
 #include "memsamples.h"
-#include "reduce.h"
+#include "reduced.h"
 #include "runtime.h"
+#include "train.h"
 
 double rel_max_diff(const double *a, const double *b, size_t n) {
   double num = 0, den = 0;

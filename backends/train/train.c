@@ -19,7 +19,7 @@
 #include <time.h>
 
 #include "emit.h"
-#include "reduce.h"
+#include "train.h"
 
 void progress_show(bool on, const char *what, long done, long total) {
   if (!on) return;

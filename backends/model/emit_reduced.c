@@ -21,7 +21,8 @@
 
 #include "emit.h"
 #include "jit.h"
-#include "reduce.h"
+#include "npg_abi.h"
+#include "reduced.h"
 
 /* ---------------------------------------------------------------- the tensors the code reads */
 
