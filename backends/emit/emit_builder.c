@@ -26,9 +26,9 @@ static char *c_ident(Ctx *ctx, const char *s) {
 }
 
 char *builder_name(Ctx *ctx, const Program *prog, const Stage *st, int term, int field, int group, const Sym *op) {
-  (void)prog;
-  if (!st) return arena_printf(ctx, "npg_build_op_%s_g%d", c_ident(ctx, op->name), group);
-  return arena_printf(ctx, "npg_build_%s_t%d_f%d_g%d", c_ident(ctx, st->sym->name), term, field, group);
+  if (!st) return emit_symbol_name(ctx, prog, arena_printf(ctx, "build_op_%s_g%d", c_ident(ctx, op->name), group));
+  return emit_symbol_name(ctx, prog,
+                          arena_printf(ctx, "build_%s_t%d_f%d_g%d", c_ident(ctx, st->sym->name), term, field, group));
 }
 
 static int cmp_sym(const Sym *x, const Sym *y) {

@@ -418,6 +418,28 @@ static bool temp_splits(const Program *prog, const Stage *const *members, int n,
   return false;
 }
 
+int emit_symbol(const Program *prog, const char *what, char *buf, size_t n) {
+  const char *path = prog->main && prog->main->name ? prog->main->name : "program";
+  const char *base = strrchr(path, '/') ? strrchr(path, '/') + 1 : path;
+  const char *dot = strrchr(base, '.');
+  size_t len = dot && dot > base ? (size_t)(dot - base) : strlen(base);
+  bool letter = len > 0 && ((base[0] >= 'a' && base[0] <= 'z') || (base[0] >= 'A' && base[0] <= 'Z'));
+  int total = snprintf(buf, n, "%s%.*s_npg_%s", letter ? "" : "p", (int)len, base, what);
+  for (size_t i = letter ? 0 : 1; buf && i < n && i < (letter ? 0 : 1) + len; i++) {
+    char c = buf[i];
+    if (!c) break;
+    if (!((c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '_')) buf[i] = '_';
+  }
+  return total;
+}
+
+char *emit_symbol_name(Ctx *ctx, const Program *prog, const char *what) {
+  int len = emit_symbol(prog, what, NULL, 0);
+  char *name = arena_alloc(ctx, (size_t)len + 1);
+  emit_symbol(prog, what, name, (size_t)len + 1);
+  return name;
+}
+
 void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
   Emit *e = emit_new(ctx, prog, out);
   emit_header(e, "Full evaluator");
@@ -514,7 +536,7 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
     i++;
   }
   fputs("/* Every stage in evaluation order (externs are given with the inputs). */\n", out);
-  fputs("int npg_full(const NpgCtx *c) {\n", out);
+  fprintf(out, "int %s(const NpgCtx *c) {\n", emit_symbol_name(ctx, prog, "full"));
   bool *done = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->temps.n + 1));
   for (int k = 0; k < calls.n; k++) {
     const Stage *last = call_ids.v[k];
@@ -559,7 +581,7 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
                   check_op_cb, od);
   }
   fputs("/* Every gather in range of its dim where its guard holds: run once per binding. */\n", out);
-  fputs("int npg_check(const NpgCtx *c) {\n", out);
+  fprintf(out, "int %s(const NpgCtx *c) {\n", emit_symbol_name(ctx, prog, "check"));
   for (int i = 0; i < prog->stages.n; i++) {
     const Stage *st = prog->stages.v[i];
     if (st->kind == ST_EXTERN) continue;

@@ -88,8 +88,11 @@ NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
     fail(f, "%s", err);
     return f;
   }
-  f->full = (NpgStageFn)jit_symbol(f->jit, "npg_full");
-  f->check = (NpgStageFn)jit_symbol(f->jit, "npg_check");
+  char full[1024], check[1024];
+  bool named = emit_symbol(prog, "full", full, sizeof full) < (int)sizeof full &&
+               emit_symbol(prog, "check", check, sizeof check) < (int)sizeof check;
+  f->full = named ? (NpgStageFn)jit_symbol(f->jit, full) : NULL;
+  f->check = named ? (NpgStageFn)jit_symbol(f->jit, check) : NULL;
   if (!f->full || !f->check) {
     fail(f, "generated code lacks its entry points (a bug in npg)");
     return f;

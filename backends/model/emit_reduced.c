@@ -430,14 +430,17 @@ static void emit_unit(RedEmit *e) {
             s->t ? s->t->name : arena_printf(e->ctx, "%s", s->proj_of->proj_name ? s->proj_of->proj_name : "proj"),
             s->rows, s->cols);
   }
-  fputs("   and c->work npg_reduced_work doubles of scratch. */\n", out);
-  fprintf(out, "const npg_idx npg_reduced_coords[] = {%d", m->nq);
+  const char *coords = emit_symbol_name(e->ctx, m->prog, "reduced_coords");
+  const char *tensors = emit_symbol_name(e->ctx, m->prog, "reduced_tensors");
+  const char *work = emit_symbol_name(e->ctx, m->prog, "reduced_work");
+  fprintf(out, "   and c->work %s doubles of scratch. */\n", work);
+  fprintf(out, "const npg_idx %s[] = {%d", coords, m->nq);
   for (int q = 0; q < m->nq; q++) fprintf(out, ", %ld", qm(m, q));
   fputs("};\n", out);
-  fprintf(out, "const npg_idx npg_reduced_tensors[] = {%ld", e->nslots);
+  fprintf(out, "const npg_idx %s[] = {%ld", tensors, e->nslots);
   for (long k = 0; k < e->nslots; k++) fprintf(out, ", %ld", e->slots[k].rows * e->slots[k].cols);
   fputs("};\n", out);
-  fprintf(out, "const npg_idx npg_reduced_work = %ld;\n\n", e->nwork);
+  fprintf(out, "const npg_idx %s = %ld;\n\n", work, e->nwork);
 
   const char **fname = arena_alloc(e->ctx, sizeof(char *) * (size_t)(m->nstages + 1));
   for (int i = 0; i < m->nstages; i++) {
@@ -445,18 +448,20 @@ static void emit_unit(RedEmit *e) {
     fname[i] = c_ident(e->ctx, "stage_", m->stages[i].st->sym->name);
     emit_stage(e, i, fname[i]);
   }
-  fputs("/* Every stage in evaluation order; externs through their learned maps. */\n"
-        "int npg_reduced(const NpgReducedCtx *c) {\n",
-        out);
+  fprintf(out,
+          "/* Every stage in evaluation order; externs through their learned maps. */\n"
+          "int %s(const NpgReducedCtx *c) {\n",
+          emit_symbol_name(e->ctx, m->prog, "reduced"));
   for (int i = 0; i < m->nstages; i++) {
     if (fname[i]) fprintf(out, "  if (%s(c)) return -1;\n", fname[i]);
     else fprintf(out, "  if (c->rt->learned(c, %d)) return -1; /* extern %s */\n", i, m->stages[i].st->sym->name);
   }
   fputs("  return 0;\n}\n\n", out);
-  fputs("/* Stage number i alone (the model's order), from the current coordinates. */\n"
-        "int npg_reduced_stage(const NpgReducedCtx *c, int i) {\n"
-        "  switch (i) {\n",
-        out);
+  fprintf(out,
+          "/* Stage number i alone (the model's order), from the current coordinates. */\n"
+          "int %s(const NpgReducedCtx *c, int i) {\n"
+          "  switch (i) {\n",
+          emit_symbol_name(e->ctx, m->prog, "reduced_stage"));
   for (int i = 0; i < m->nstages; i++) {
     if (fname[i]) fprintf(out, "  case %d: return %s(c);\n", i, fname[i]);
     else fprintf(out, "  case %d: return c->rt->learned(c, %d);\n", i, i);
@@ -551,11 +556,18 @@ void reduced_jit_free(RedJit *j) {
   free(j);
 }
 
-/* The generated code's stated layout (npg_reduced_coords, _tensors) is the
+/* The generated symbol `what` (emit_symbol: the program's prefix). */
+static void *entry(RedJit *j, const char *what) {
+  char name[1024];
+  if (emit_symbol(j->m->prog, what, name, sizeof name) >= (int)sizeof name) return NULL;
+  return jit_symbol(j->jit, name);
+}
+
+/* The generated code's stated layout (reduced_coords, _tensors) is the
  * model's: it was generated for this model. */
 static bool layout_matches(RedJit *j, const Slot *slots) {
-  const npg_idx *coords = jit_symbol(j->jit, "npg_reduced_coords");
-  const npg_idx *tensors = jit_symbol(j->jit, "npg_reduced_tensors");
+  const npg_idx *coords = entry(j, "reduced_coords");
+  const npg_idx *tensors = entry(j, "reduced_tensors");
   if (!coords || !tensors || coords[0] != j->m->nq || tensors[0] != j->nslots) return false;
   for (int q = 0; q < j->m->nq; q++)
     if (coords[1 + q] != qm(j->m, q)) return false;
@@ -580,9 +592,9 @@ RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
   free(src);
   src = NULL;
   if (!j->jit) goto fail;
-  j->fn = (NpgReducedFn)jit_symbol(j->jit, "npg_reduced");
-  j->stage_fn = (NpgReducedStageFn)jit_symbol(j->jit, "npg_reduced_stage");
-  const npg_idx *nwork = jit_symbol(j->jit, "npg_reduced_work");
+  j->fn = (NpgReducedFn)entry(j, "reduced");
+  j->stage_fn = (NpgReducedStageFn)entry(j, "reduced_stage");
+  const npg_idx *nwork = entry(j, "reduced_work");
   j->nslots = model_slots(m, NULL);
   slots = calloc((size_t)j->nslots + 1, sizeof *slots);
   j->t = calloc((size_t)j->nslots + 1, sizeof *j->t);
