@@ -10,6 +10,9 @@
  *   3. pre-multiplication of every tensor (premul.c);
  *   4. the learned map of every extern (paper §8.3): the training samples'
  *      reduced inputs and reduced values.
+ *
+ * train_model() is those steps in order (take_snapshots, build_bases,
+ * premultiply_tensors, fit_externs), after lay_out binds the dims.
  */
 #include <cblas.h>
 #include <lapacke.h>
@@ -286,31 +289,47 @@ done:
   return rc;
 }
 
-Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                   size_t errlen) {
-  Model *m = NULL;
-  Snapshots sn = {0};
-  double *tmp = NULL;
-  long S = src->count;
-  err[0] = 0;
-  if (S < 1) {
-    npg_fail(err, errlen, "no training samples");
-    return NULL;
-  }
-  /* sample 0 binds every dim */
-  if (src->set(src->user, f, 0) != 0 || npg_full_eval(f, 0) != 0) {
-    npg_fail(err, errlen, "%s", npg_full_error(f));
-    return NULL;
-  }
-  long *dims = calloc((size_t)prog->dims.n + 1, sizeof(long));
-  if (!dims) return NULL;
-  for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(f, i);
-  m = model_layout(prog, dims, err, errlen);
-  free(dims);
-  if (!m) return NULL;
-  m->samples = S;
+/* One training run: what every step reads and fills. */
+typedef struct Training {
+  Program *prog;
+  NpgFull *f;
+  const SampleSource *src;
+  const TrainOptions *opt;
+  char *err;
+  size_t errlen;
+  long S;           /* training samples */
+  Model *m;         /* the model being trained (owned until returned) */
+  Snapshots sn;
+  bool gram;        /* the method of snapshots: the snapshots exceed opt->mem */
+  double *tmp;      /* scratch of max(n, S) doubles */
+} Training;
 
-  /* 1. snapshots */
+static int out_of_memory(Training *tr) { return npg_fail(tr->err, tr->errlen, "out of memory while training"); }
+
+/* Sample 0 binds every dim; the model's layout at those sizes. */
+static int lay_out(Training *tr) {
+  Program *prog = tr->prog;
+  if (tr->S < 1) return npg_fail(tr->err, tr->errlen, "no training samples");
+  if (tr->src->set(tr->src->user, tr->f, 0) != 0 || npg_full_eval(tr->f, 0) != 0)
+    return npg_fail(tr->err, tr->errlen, "%s", npg_full_error(tr->f));
+  long *dims = calloc((size_t)prog->dims.n + 1, sizeof(long));
+  if (!dims) return -1;
+  for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(tr->f, i);
+  tr->m = model_layout(prog, dims, tr->err, tr->errlen);
+  free(dims);
+  if (!tr->m) return -1;
+  tr->m->samples = tr->S;
+  return 0;
+}
+
+/* 1. snapshots: every member's value on every sample, held whole, or
+ * (beyond opt->mem) folded into per-member bases by the method of
+ * snapshots. */
+static int take_snapshots(Training *tr) {
+  Model *m = tr->m;
+  const TrainOptions *opt = tr->opt;
+  Snapshots *sn = &tr->sn;
+  long S = tr->S;
   size_t need = 0;
   long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) {
@@ -318,111 +337,126 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
     maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
     for (int i = 0; i < m->classes[c].nmembers; i++) member_options(m, &m->classes[c], &m->classes[c].members[i], opt);
   }
-  bool gram = opt->mem && need > opt->mem;
-  if (gram && opt->joint) {
-    npg_fail(err, errlen,
-          "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise --mem "
-          "or use --merge concat (the method of snapshots)",
-          (double)need / 1e9, (double)opt->mem / 1e9);
-    goto fail;
-  }
-  sn.S = S;
-  if (!(sn.X = calloc((size_t)m->nclasses + 1, sizeof(double **)))) goto oom;
-  if (!(sn.U = calloc((size_t)m->nclasses + 1, sizeof(double **))) || !(sn.k = calloc((size_t)m->nclasses + 1, sizeof(int *))))
-    goto oom;
+  tr->gram = opt->mem && need > opt->mem;
+  if (tr->gram && opt->joint)
+    return npg_fail(tr->err, tr->errlen,
+                    "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
+                    "--mem or use --merge concat (the method of snapshots)",
+                    (double)need / 1e9, (double)opt->mem / 1e9);
+  sn->S = S;
+  if (!(sn->X = calloc((size_t)m->nclasses + 1, sizeof(double **)))) return out_of_memory(tr);
+  if (!(sn->U = calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->k = calloc((size_t)m->nclasses + 1, sizeof(int *))))
+    return out_of_memory(tr);
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(sn.X[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(sn.U[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn.k[c] = calloc((size_t)rc->nmembers, sizeof(int))))
-      goto oom;
-    for (int i = 0; !gram && i < rc->nmembers; i++)
-      if (!(sn.X[c][i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
+    if (!(sn->X[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(sn->U[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(sn->k[c] = calloc((size_t)rc->nmembers, sizeof(int))))
+      return out_of_memory(tr);
+    for (int i = 0; !tr->gram && i < rc->nmembers; i++)
+      if (!(sn->X[c][i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) return out_of_memory(tr);
   }
-  if (!(tmp = malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S)))) goto oom;
+  if (!(tr->tmp = malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S)))) return out_of_memory(tr);
   FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
-  if (gram) {
-    if (snapshot_bases(m, f, src, opt, sn.U, sn.k, tmp, err, errlen)) goto fail;
-  } else {
-    for (long k = 0; k < S; k++) {
-      if (k > 0 && eval_sample(src, f, k, err, errlen)) goto fail;
-      for (int c = 0; c < m->nclasses; c++) {
-        RClass *rc = &m->classes[c];
-        for (int i = 0; i < rc->nmembers; i++)
-          if (member_value(m, f, &rc->members[i], k, rc->n, sn.X[c][i] + (size_t)k * (size_t)rc->n, err, errlen))
-            goto fail;
-      }
-      if (check_spd(m, f, tmp, err, errlen)) goto fail;
-      progress_show(opt->progress, "snapshots", k + 1, S);
+  if (tr->gram) return snapshot_bases(m, tr->f, tr->src, opt, sn->U, sn->k, tr->tmp, tr->err, tr->errlen);
+  for (long k = 0; k < S; k++) {
+    if (k > 0 && eval_sample(tr->src, tr->f, k, tr->err, tr->errlen)) return -1;
+    for (int c = 0; c < m->nclasses; c++) {
+      RClass *rc = &m->classes[c];
+      for (int i = 0; i < rc->nmembers; i++)
+        if (member_value(m, tr->f, &rc->members[i], k, rc->n, sn->X[c][i] + (size_t)k * (size_t)rc->n, tr->err,
+                         tr->errlen))
+          return -1;
     }
+    if (check_spd(m, tr->f, tr->tmp, tr->err, tr->errlen)) return -1;
+    progress_show(opt->progress, "snapshots", k + 1, S);
   }
+  return 0;
+}
 
-  /* 2. bases */
+/* The PCA of class c from the snapshots: one PCA of the members' blocks,
+ * each scaled to unit norm (--merge joint, DESIGN §5), the members' bases
+ * of the method of snapshots merged, or a PCA per member merged. */
+static int class_pca(Training *tr, int c) {
+  RClass *rc = &tr->m->classes[c];
+  const Snapshots *sn = &tr->sn;
+  long S = tr->S;
+  char *err = tr->err;
+  size_t errlen = tr->errlen;
+  double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
+  int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int));
+  int rc_ok = U && kk ? 0 : -1;
+  if (rc_ok == 0 && tr->opt->joint && rc->nmembers > 1) {
+    size_t n = (size_t)rc->n * (size_t)S;
+    double *J = malloc(sizeof(double) * n * (size_t)rc->nmembers);
+    int cap = 0;
+    double energy = 1;
+    if (!J) rc_ok = -1;
+    for (int i = 0; J && i < rc->nmembers; i++) {
+      double nrm = cblas_dnrm2((int)n, sn->X[c][i], 1);
+      for (size_t e = 0; e < n; e++) J[(size_t)i * n + e] = nrm > 0 ? sn->X[c][i][e] / nrm : 0;
+      cap += rc->members[i].cap;
+      energy = fmin(energy, rc->members[i].energy);
+    }
+    double captured = 0;
+    if (J) rc_ok = pca_member(rc->n, S * rc->nmembers, J, cap, energy, &U[0], &kk[0], &captured, err, errlen);
+    free(J);
+    for (int i = 0; i < rc->nmembers; i++) {
+      rc->members[i].kept = kk[0];
+      rc->members[i].captured = captured;
+    }
+    if (rc_ok == 0) rc_ok = pca_merge(rc->n, 1, U, kk, &rc->B, &rc->m, err, errlen);
+  } else if (rc_ok == 0 && tr->gram) {
+    rc_ok = pca_merge(rc->n, rc->nmembers, sn->U[c], sn->k[c], &rc->B, &rc->m, err, errlen);
+  } else if (rc_ok == 0) {
+    for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
+      RMember *mb = &rc->members[i];
+      rc_ok = pca_member(rc->n, S, sn->X[c][i], mb->cap, mb->energy, &U[i], &kk[i], &mb->captured, err, errlen);
+      mb->kept = kk[i];
+    }
+    if (rc_ok == 0) rc_ok = pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen);
+  }
+  for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
+  free(U);
+  free(kk);
+  if (rc_ok != 0 && !err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
+  return rc_ok;
+}
+
+/* 2. one orthonormal basis per class; then every tensor's size. */
+static int build_bases(Training *tr) {
+  Model *m = tr->m;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
-    int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int));
-    int rc_ok = U && kk ? 0 : -1;
-    if (rc_ok == 0 && opt->joint && rc->nmembers > 1) {
-      /* one PCA of the members' blocks, each scaled to unit norm (DESIGN §5) */
-      size_t n = (size_t)rc->n * (size_t)S;
-      double *J = malloc(sizeof(double) * n * (size_t)rc->nmembers);
-      int cap = 0;
-      double energy = 1;
-      if (!J) rc_ok = -1;
-      for (int i = 0; J && i < rc->nmembers; i++) {
-        double nrm = cblas_dnrm2((int)n, sn.X[c][i], 1);
-        for (size_t e = 0; e < n; e++) J[(size_t)i * n + e] = nrm > 0 ? sn.X[c][i][e] / nrm : 0;
-        cap += rc->members[i].cap;
-        energy = fmin(energy, rc->members[i].energy);
-      }
-      double captured = 0;
-      if (J) rc_ok = pca_member(rc->n, S * rc->nmembers, J, cap, energy, &U[0], &kk[0], &captured, err, errlen);
-      free(J);
-      for (int i = 0; i < rc->nmembers; i++) {
-        rc->members[i].kept = kk[0];
-        rc->members[i].captured = captured;
-      }
-      if (rc_ok == 0) rc_ok = pca_merge(rc->n, 1, U, kk, &rc->B, &rc->m, err, errlen);
-    } else if (rc_ok == 0 && gram) {
-      rc_ok = pca_merge(rc->n, rc->nmembers, sn.U[c], sn.k[c], &rc->B, &rc->m, err, errlen);
-    } else if (rc_ok == 0) {
-      for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
-        RMember *mb = &rc->members[i];
-        rc_ok = pca_member(rc->n, S, sn.X[c][i], mb->cap, mb->energy, &U[i], &kk[i], &mb->captured, err, errlen);
-        mb->kept = kk[i];
-      }
-      if (rc_ok == 0) rc_ok = pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen);
-    }
-    for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
-    free(U);
-    free(kk);
-    if (rc_ok != 0) {
-      if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
-      goto fail;
-    }
-    if (rc_ok == 0 && opt->full_rank && rc->m < rc->n) {
+    if (class_pca(tr, c) != 0) return -1;
+    if (tr->opt->full_rank && rc->m < rc->n) {
       /* the PCA directions first, then the rest of the space */
       double *eye = calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
       double *parts[2] = {rc->B, eye};
       int ks[2] = {(int)rc->m, (int)rc->n};
-      if (!eye) goto oom;
+      if (!eye) return out_of_memory(tr);
       for (long e = 0; e < rc->n; e++) eye[e * rc->n + e] = 1;
-      rc_ok = pca_merge(rc->n, 2, parts, ks, &B, &rc->m, err, errlen);
+      int rc_ok = pca_merge(rc->n, 2, parts, ks, &B, &rc->m, tr->err, tr->errlen);
       free(eye);
-      if (rc_ok != 0) goto fail;
+      if (rc_ok != 0) return -1;
       free(rc->B);
       rc->B = B;
     }
     if (rc->m == 0) { /* every snapshot zero: one direction keeps the sizes non-empty; lifting gives 0 */
       free(rc->B);
-      if (!(rc->B = calloc((size_t)rc->n, sizeof(double)))) goto oom;
+      if (!(rc->B = calloc((size_t)rc->n, sizeof(double)))) return out_of_memory(tr);
       rc->B[0] = 1;
       rc->m = 1;
     }
   }
   model_size_tensors(m);
+  return 0;
+}
 
-  /* 3. projections between classes and pre-multiplication */
+/* 3. projections between classes and pre-multiplication of every tensor. */
+static int premultiply_tensors(Training *tr) {
+  Model *m = tr->m;
   long ntensors = 0, done = 0;
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) {
@@ -438,54 +472,69 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
       RTerm *rt = &rs->terms[t];
       if (rt->proj_name) {
         RClass *cw = &m->classes[m->qclass[rt->named_q]];
-        if (!(rt->proj = malloc(sizeof(double) * (size_t)(cy->m * cw->m)))) goto oom;
+        if (!(rt->proj = malloc(sizeof(double) * (size_t)(cy->m * cw->m)))) return out_of_memory(tr);
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0, cy->B,
                     (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
       }
       RTERM_FOR_TENSORS(rt, x) {
-        if (premultiply(m, f, x, cy->B, cy->n, cy->m, &flops, err, errlen)) goto fail;
-        progress_show(opt->progress, "pre-multiplication", ++done, ntensors);
+        if (premultiply(m, tr->f, x, cy->B, cy->n, cy->m, &flops, tr->err, tr->errlen)) return -1;
+        progress_show(tr->opt->progress, "pre-multiplication", ++done, ntensors);
       }
     }
   }
+  return 0;
+}
 
-  /* 4. externs: reduced training inputs and values (paper §8.3) */
+/* 4. externs: reduced training inputs and values (paper §8.3), from the
+ * snapshots, or recomputed per sample when none was kept. */
+static int fit_externs(Training *tr) {
+  Model *m = tr->m;
+  long S = tr->S;
   for (int i = 0; i < m->nexterns; i++) {
     RExtern *x = &m->externs[i];
     long mz = m->classes[m->qclass[x->q]].m;
     x->S = S;
     if (!(x->X = malloc(sizeof(double) * (size_t)(S * x->d + 1))) || !(x->Z = malloc(sizeof(double) * (size_t)(S * mz))))
-      goto oom;
+      return out_of_memory(tr);
   }
   for (long k = 0; k < S && m->nexterns > 0; k++) {
-    if (gram && eval_sample(src, f, k, err, errlen)) goto fail; /* recompute: no snapshot was kept */
+    if (tr->gram && eval_sample(tr->src, tr->f, k, tr->err, tr->errlen)) return -1;
     for (int i = 0; i < m->nexterns; i++) {
       RExtern *x = &m->externs[i];
       long mz = m->classes[m->qclass[x->q]].m, off = 0;
       for (int j = 0; j <= x->nin; j++) {
         int q = j < x->nin ? x->in_q[j] : x->q;
         RClass *rc = &m->classes[m->qclass[q]];
-        const double *val = npg_full_get(f, ((Sym *)prog->quantities.v[q])->name, NULL);
-        if (!gram) {
+        const double *val = npg_full_get(tr->f, ((Sym *)tr->prog->quantities.v[q])->name, NULL);
+        if (!tr->gram) {
           int mi = 0;
           while (rc->members[mi].q != q) mi++;
-          val = sn.X[m->qclass[q]][mi] + (size_t)k * (size_t)rc->n;
+          val = tr->sn.X[m->qclass[q]][mi] + (size_t)k * (size_t)rc->n;
         }
         double *dst = j < x->nin ? x->X + k * x->d + off : x->Z + k * mz;
         cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, val, 1, 0.0, dst, 1);
         if (j < x->nin) off += rc->m;
       }
     }
-    if (gram) progress_show(opt->progress, "extern samples", k + 1, S);
+    if (tr->gram) progress_show(tr->opt->progress, "extern samples", k + 1, S);
   }
-  free(tmp);
-  free_snapshots(m, &sn);
-  return m;
-oom:
-  npg_fail(err, errlen, "out of memory while training");
-fail:
-  free(tmp);
-  free_snapshots(m, &sn);
-  model_free(m);
-  return NULL;
+  return 0;
+}
+
+Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                   size_t errlen) {
+  err[0] = 0;
+  Training tr = {.prog = prog, .f = f, .src = src, .opt = opt, .err = err, .errlen = errlen, .S = src->count};
+  int rc = lay_out(&tr);
+  if (rc == 0) rc = take_snapshots(&tr);
+  if (rc == 0) rc = build_bases(&tr);
+  if (rc == 0) rc = premultiply_tensors(&tr);
+  if (rc == 0) rc = fit_externs(&tr);
+  free(tr.tmp);
+  if (tr.m) free_snapshots(tr.m, &tr.sn);
+  if (rc != 0) {
+    model_free(tr.m);
+    return NULL;
+  }
+  return tr.m;
 }
