@@ -102,7 +102,7 @@ static int generated_text(const char *path, const char *text, Stats *st) {
   for (int j = 0; j < 2; j++)
     if (!(jit[j] = reduced_jit_new(m, j == 1, err, sizeof err))) fail_msg("%s: %s", path, err);
   MemSamples held;
-  if (mem_fill(&held, prog, NULL, st->n, 3, 977u)) fail_msg("binding random params failed");
+  if (memsamples_fill(&held, prog, NULL, st->n, 3, 977u)) fail_msg("binding random params failed");
   for (long k = 0; k < 3; k++) {
     project_inputs(prog, &held, k, r, 3);
     int rc0 = reduced_eval(r[0], k);
@@ -151,7 +151,7 @@ static int generated_text(const char *path, const char *text, Stats *st) {
     if (rc0 != 0) print_message("%s, sample %ld: the runtime fails: %s\n", path, k, reduced_error(r[0]));
   }
   st->programs++;
-  mem_free(&held);
+  memsamples_free(&held);
   for (int j = 0; j < 2; j++) reduced_jit_free(jit[j]);
   for (int j = 0; j < 3; j++) reduced_free(r[j]);
   trained_free(&tr);

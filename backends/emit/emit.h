@@ -160,6 +160,6 @@ void emit_builders(Ctx *ctx, const Program *prog, FILE *out);
 /* The name of the builder function of tensor `group` of `field` (0 = the
  * numerator, k+1 = operator k) of term `term` of stage `st`; for a declared
  * op (st NULL) the entries' tensor `group`. */
-char *builder_name(Ctx *ctx, const Program *prog, const Stage *st, int term, int field, int group, const Sym *op);
+char *emit_builder_name(Ctx *ctx, const Program *prog, const Stage *st, int term, int field, int group, const Sym *op);
 
 #endif

@@ -157,7 +157,7 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
           rtn->kind = RT_NUM;
           if (!tensor_inputs(prog, &tm->num_tensors.g[g], rtn)) goto nobasis;
           rtn->name = file_stem(dupf("t_%s_t%d_f0_g%d", sn, t, g));
-          rtn->builder = strdup(builder_name(prog->ctx, prog, st, t, 0, g, NULL));
+          rtn->builder = strdup(emit_builder_name(prog->ctx, prog, st, t, 0, g, NULL));
           if (!rtn->name || !rtn->builder) goto oom;
         }
       }
@@ -175,8 +175,8 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
           rtn->kind = op->kind == OPK_DIAG ? RT_DIAG : RT_DECL;
           if (!tensor_inputs(prog, &tl->g[g], rtn)) goto nobasis;
           rtn->name = file_stem(dupf("t_%s_t%d_op%d_g%d", sn, t, k + 1, g));
-          rtn->builder = strdup(op->kind == OPK_DIAG ? builder_name(prog->ctx, prog, st, t, k + 1, g, NULL)
-                                                     : builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op));
+          rtn->builder = strdup(op->kind == OPK_DIAG ? emit_builder_name(prog->ctx, prog, st, t, k + 1, g, NULL)
+                                                     : emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op));
           if (!rtn->name || !rtn->builder) goto oom;
         }
       }

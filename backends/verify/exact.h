@@ -43,6 +43,6 @@ int exact_check_program(Program *prog, const ExactOptions *o, FILE *out, char *e
 
 /* max |a − b| / max |a| over n entries (NaN when one side alone is NaN at
  * an entry): the relative difference both checks report. */
-double rel_max_diff(const double *a, const double *b, size_t n);
+double exact_rel_max_diff(const double *a, const double *b, size_t n);
 
 #endif
