@@ -39,6 +39,22 @@ void reduced_lift(const Reduced *r, int q, double *y);
 /* Write the C translation unit of `m` to `out`. 0, or -1 with `err`. */
 int emit_reduced(const Model *m, FILE *out, char *err, size_t errlen);
 
+/* One entry of NpgReducedCtx.t: a reduced tensor, or the projection
+ * B_yᵀB_w of a named numerator whose class differs from its stage's. */
+typedef struct ReducedSlot {
+  const RTensor *t;
+  const RTerm *proj_of;
+  long rows, cols;
+  const double *data;
+} ReducedSlot;
+
+/* Every tensor in NpgReducedCtx.t order: stage by stage, term by term, the
+ * projection, the numerator's tensors, then each operator's. Fills `s`
+ * when non-NULL; returns the count. The emitter and reduced_jit.c share it. */
+long emit_reduced_slots(const Model *m, ReducedSlot *s);
+
+/* ---------------------------------------------------------------- compiled and run (reduced_jit.c) */
+
 /* The generated reduced evaluator of `m`, compiled (libtcc, or cc -O3 with
  * `cc`). `m` must outlive it; it holds one scratch buffer, so one
  * evaluation at a time. NULL with `err` on failure. */
