@@ -41,7 +41,8 @@
 #include "compile.h"
 #include "meshgen.h"
 #include "npg.h"
-#include "reduce.h"
+#include "reduced.h"
+#include "train.h"
 
 static const char *PROG = "bench/formfactors.npg";
 static const char *PEER = "bench/reduced_peer.py";

@@ -5,7 +5,8 @@
 
 #include "full.h"
 #include "npg.h"
-#include "reduce.h"
+#include "reduced.h"
+#include "train.h"
 
 struct NpgModel {
   Model *m;                 /* NULL when loading failed */

@@ -108,7 +108,7 @@ int npg_full_op(NpgFull *f, const char *name, NpgCsr *out) {
         rc = full_fail(f, msg);
       }
     NpgSink sink = {&s, add_entry};
-    if (rc == 0 && full_build(f, builder_name(prog->ctx, prog, NULL, 0, 0, g, op), &sink) != 0) rc = -1;
+    if (rc == 0 && full_build(f, emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op), &sink) != 0) rc = -1;
   }
   if (rc == 0 && (s.oom || to_csr(&s, axis_size(f, op, 0, op->nrow), axis_size(f, op, op->nrow, op->nivars), out)))
     rc = full_fail(f, "out of memory for the operator's entries");

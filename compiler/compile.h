@@ -4,6 +4,39 @@
 
 #include "ir.h"
 
+/* ---------------------------------------------------------------- sources (source.c) */
+
+/* Read a whole file into the arena; NULL if it cannot be read (errno set).
+ * The file stays in ctx->open_file while it is read, for npg_compile to
+ * close if an allocation failure jumps out. */
+SrcFile *source_read(Ctx *ctx, const char *path);
+/* `text` (of `len` bytes) as a source named `name`, copied into the arena. */
+SrcFile *source_from_string(Ctx *ctx, const char *name, const char *text, size_t len);
+
+/* ---------------------------------------------------------------- tokens (lex.re) */
+
+typedef enum TokKind {
+  TK_EOF,    /* end of the file */
+  TK_IDENT,  /* identifier or keyword */
+  TK_NUM,    /* number */
+  TK_PUNCT,  /* punctuation */
+} TokKind;
+
+typedef struct Token {
+  TokKind kind;
+  Loc loc;
+  const char *text;  /* identifier or punctuation spelling (arena) */
+  int len;
+  double num;
+  bool is_int;
+  bool bol;          /* first token on its line */
+} Token;
+
+/* compiler/lex.re: tokenize a whole file; the array ends with TK_EOF. */
+Token *lex_file(Ctx *ctx, const SrcFile *file, int *ntok);
+
+/* ---------------------------------------------------------------- stages */
+
 bool is_keyword(const char *s);
 /* compiler/parse.c: tokens to declarations; reads `use`d modules. */
 Decl *parse_program(Ctx *ctx, const SrcFile *file);
@@ -12,14 +45,11 @@ Program *sema_program(Ctx *ctx, const SrcFile *file, Decl *decls);
 /* compiler/dumpast.c: -dp, the parsed declarations. */
 void dump_decls(FILE *out, const Decl *d);
 void dump_checked(FILE *out, const Program *prog);
-/* compiler/eval.c: the `npgc eval` command. */
-int npgc_eval(int argc, char **argv);
-/* compiler/reduce_cmds.c: train, reduced eval, verify, bench. */
-int npgc_reduce(int argc, char **argv);
-/* npgc plot MODEL/ -o spectra.png (plot.c, linked into npgc only) */
-int npgc_plot(int argc, char **argv);
-/* npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/ (tune.c, linked into npgc only) */
-int npgc_tune(int argc, char **argv);
+/* compiler/exact_check.c: exact_check_program() (backends/exact.h) for a
+ * compiled NpgProgram; -1 with "the program does not compile" otherwise. */
+struct NpgProgram;
+struct ExactOptions;
+int exact_check(struct NpgProgram *p, const struct ExactOptions *o, FILE *out, char *err, size_t errlen);
 /* compiler/npg.c: the stage program of a compiled NpgProgram (tests, backends). */
 struct NpgProgram;
 Program *npg_program_ir(const struct NpgProgram *p);

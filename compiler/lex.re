@@ -9,7 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "ast.h"
+#include "compile.h"
 
 typedef struct Lexer {
   Ctx *ctx;

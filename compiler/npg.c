@@ -1,16 +1,30 @@
 /* npg.c — npg_compile(): the pipeline, one line per stage (STYLE: the
  * table of contents of the compiler). */
+#define _GNU_SOURCE /* dladdr */
+#include <dlfcn.h>
 #include <errno.h>
+#include <limits.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "compile.h"
-#include "emit.h"
+#include "full.h"
 #include "npg.h"
-#include "reduce.h"
+#include "reduced.h"
+#include "train.h"
 
 #ifndef NPG_STDLIB_DIR
 #define NPG_STDLIB_DIR "stdlib"
+#endif
+/* Where an installed libnpg.so and npgc find the stdlib, relative to their
+ * own directories (CMakeLists.txt: <datadir>/npg/stdlib). */
+#ifndef NPG_LIB_TO_STDLIB
+#define NPG_LIB_TO_STDLIB "../share/npg/stdlib"
+#endif
+#ifndef NPG_BIN_TO_STDLIB
+#define NPG_BIN_TO_STDLIB "../share/npg/stdlib"
 #endif
 
 struct NpgProgram {
@@ -20,6 +34,32 @@ struct NpgProgram {
   bool is_static;   /* the out-of-memory result, not allocated */
 };
 
+/* `rel` next to the file `path` (a library or executable), when that is a
+ * directory; NULL otherwise. */
+static const char *dir_beside(Ctx *ctx, const char *path, const char *rel) {
+  const char *slash = strrchr(path, '/');
+  if (!slash) return NULL;
+  char *dir = arena_printf(ctx, "%.*s/%s", (int)(slash - path), path, rel);
+  struct stat st;
+  return stat(dir, &st) == 0 && S_ISDIR(st.st_mode) ? dir : NULL;
+}
+
+/* The stdlib when NpgOptions.std_dir is NULL: the one installed beside the
+ * shared library holding this code (<prefix>/lib/libnpg.so), else beside the
+ * executable (<prefix>/bin/npgc, or a program linking libnpg.a), else the
+ * source tree's (the build tree: nothing is installed beside build/npgc). */
+static const char *default_std_dir(Ctx *ctx) {
+  const char *dir = NULL;
+  char exe[PATH_MAX], lib[PATH_MAX];
+  ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
+  exe[n > 0 ? n : 0] = '\0';
+  Dl_info info;
+  if (dladdr((void *)npg_compile, &info) && info.dli_fname && realpath(info.dli_fname, lib) && strcmp(lib, exe) != 0)
+    dir = dir_beside(ctx, lib, NPG_LIB_TO_STDLIB);
+  if (!dir && exe[0]) dir = dir_beside(ctx, exe, NPG_BIN_TO_STDLIB);
+  return dir ? dir : NPG_STDLIB_DIR;
+}
+
 static bool wants(const NpgOptions *opt, char letter) { return opt->dump && strchr(opt->dump, letter); }
 
 /* The pipeline proper; user errors longjmp out of it to npg_compile(). */
@@ -27,10 +67,11 @@ static void compile(NpgProgram *np, const char *path, const NpgOptions *opt) {
   Ctx *ctx = &np->ctx;
   FILE *dump = opt->dump_out ? opt->dump_out : stderr;
   const SrcFile *file;
+  if (!ctx->std_dir) ctx->std_dir = default_std_dir(ctx);
   if (opt->source) {
     file = source_from_string(ctx, path, opt->source, strlen(opt->source));
   } else {
-    file = read_source(ctx, path);
+    file = source_read(ctx, path);
     if (!file) error_plain(ctx, "cannot read '%s': %s", path, strerror(errno));
   }
   Decl *decls = parse_program(ctx, file);
@@ -71,7 +112,7 @@ NpgProgram *npg_compile(const char *path, const NpgOptions *options) {
     static NpgProgram oom = {.error = "error: out of memory\n", .is_static = true};
     return &oom;
   }
-  np->ctx.std_dir = opt->std_dir ? opt->std_dir : NPG_STDLIB_DIR;
+  np->ctx.std_dir = opt->std_dir;
   if (!guarded_compile(np, path, opt)) {
     np->error = np->ctx.msg ? np->ctx.msg : "error: compilation failed\n";
     np->prog = NULL;
@@ -105,27 +146,17 @@ void npg_report(const NpgProgram *p, FILE *out, bool json) {
   if (!guarded_report((NpgProgram *)p, out, json)) fprintf(out, "\n%s", p->ctx.msg ? p->ctx.msg : "error: out of memory\n");
 }
 
-static bool guarded_emit(NpgProgram *np, FILE *out) {
-  jmp_buf env;
-  np->ctx.on_error = &env;
-  bool ok = setjmp(env) == 0;
-  if (ok) {
-    emit_full(&np->ctx, np->prog, out);
-    emit_builders(&np->ctx, np->prog, out);
-  }
-  np->ctx.on_error = NULL;
-  free(np->ctx.pending_free);
-  np->ctx.pending_free = NULL;
-  return ok;
-}
-
 int npg_emit_full(NpgProgram *p, FILE *out) {
   if (!npg_ok(p)) return -1;
-  if (!guarded_emit(p, out)) {
+  if (full_emit(p->prog, out) != 0) {
     p->error = p->ctx.msg ? p->ctx.msg : "error: code generation failed\n";
     return -1;
   }
   return 0;
+}
+
+NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
+  return npg_ok(p) ? full_new(p->prog, backend, NULL) : full_new(NULL, backend, npg_error(p));
 }
 
 void npg_free(NpgProgram *p) {

@@ -445,7 +445,7 @@ static void parse_use(Parser *p, Token *kw, Decl ***tail) {
   vec_push(ctx, p->used, (void *)m->text);
   const char *dir = ctx->std_dir ? ctx->std_dir : ".";
   char *path = arena_printf(ctx, "%s/npg/%s.npg", dir, m->text);
-  SrcFile *f = read_source(ctx, path);
+  SrcFile *f = source_read(ctx, path);
   if (!f) error_at(ctx, m->loc, "cannot read module '%s' (%s): %s", m->text, path, strerror(errno));
   (void)kw;
   Parser sub = {0};

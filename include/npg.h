@@ -27,7 +27,8 @@ extern "C" {
 typedef struct NpgProgram NpgProgram;
 
 typedef struct NpgOptions {
-  const char *std_dir;  /* directory holding npg/<module>.npg; NULL: the built-in one */
+  const char *std_dir;  /* directory holding npg/<module>.npg; NULL: the installed one
+                           (<prefix>/share/npg/stdlib), else the source tree's */
   const char *dump;     /* letters of IR dumps to print to dump_out: p (parse),
                            s (checked), l (lowered), b (basis classes) */
   FILE *dump_out;       /* NULL: stderr */

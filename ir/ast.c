@@ -1,7 +1,6 @@
 /* ast.c — arena, diagnostics, expression nodes and their printer. */
 #include "ast.h"
 
-#include <errno.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -208,48 +207,6 @@ _Noreturn void internal_error(Ctx *ctx, const char *file, int line, const char *
   ctx->msg = arena_printf(ctx, "internal error: %s:%d: %s (a bug in npgc; please report it with the program)\n",
                           file, line, what);
   fail(ctx);
-}
-
-/* ---------------------------------------------------------------- sources */
-
-SrcFile *source_from_string(Ctx *ctx, const char *name, const char *text, size_t len) {
-  SrcFile *f = arena_alloc(ctx, sizeof *f);
-  f->name = arena_strdup(ctx, name);
-  f->text = arena_strndup(ctx, text, len);
-  f->len = len;
-  vec_push(ctx, &ctx->files, f);
-  return f;
-}
-
-SrcFile *read_source(Ctx *ctx, const char *path) {
-  FILE *fp = fopen(path, "rb");
-  if (!fp) return NULL;
-  ctx->open_file = fp;  /* closed by npg_compile if an allocation fails below */
-  size_t cap = 4096, len = 0;
-  char *buf = arena_alloc(ctx, cap);
-  for (;;) {
-    if (len + 1 >= cap) {
-      buf = arena_grow(ctx, buf, len, cap * 2);
-      cap *= 2;
-    }
-    size_t got = fread(buf + len, 1, cap - 1 - len, fp);
-    len += got;
-    if (got == 0) break;
-  }
-  int bad = ferror(fp);
-  ctx->open_file = NULL;
-  fclose(fp);
-  if (bad) {
-    errno = EIO;
-    return NULL;
-  }
-  buf[len] = 0;  /* arena memory is zeroed; explicit for the reader */
-  SrcFile *f = arena_alloc(ctx, sizeof *f);
-  f->name = arena_strdup(ctx, path);
-  f->text = buf;
-  f->len = len;
-  vec_push(ctx, &ctx->files, f);
-  return f;
 }
 
 /* ---------------------------------------------------------------- nodes */

@@ -3,7 +3,8 @@
  * This is the shared vocabulary of every stage of the compiler: the parser
  * (compiler/parse.c) builds Nodes and Decls, the checker (compiler/sema.c)
  * resolves names to Syms and types every Node, the lowering (ir/lower.c)
- * turns checked stages into the canonical form of ir/ir.h.
+ * turns checked stages into the canonical form of ir/ir.h. Reading files and
+ * the lexer's tokens belong to the front end (compiler/compile.h).
  *
  * Memory: everything lives in the compilation's arena (Ctx.arena) and is
  * released at once by ctx_free(). User errors longjmp back to npg_compile().
@@ -298,33 +299,5 @@ struct Sym {
   struct OpDef *opdef;          /* SYM_OP: its lowered entries */
   int klass;                    /* basis class, after basis_classes() */
 };
-
-/* ---------------------------------------------------------------- tokens */
-
-typedef enum TokKind {
-  TK_EOF,
-  TK_IDENT,
-  TK_NUM,
-  TK_PUNCT,
-} TokKind;
-
-typedef struct Token {
-  TokKind kind;
-  Loc loc;
-  const char *text;  /* identifier or punctuation spelling (arena) */
-  int len;
-  double num;
-  bool is_int;
-  bool bol;          /* first token on its line */
-} Token;
-
-/* compiler/lex.re: tokenize a whole file; the array ends with TK_EOF. */
-Token *lex_file(Ctx *ctx, const SrcFile *file, int *ntok);
-
-/* ---------------------------------------------------------------- misc */
-
-/* Read a whole file into the arena; NULL if it cannot be read (errno set). */
-SrcFile *read_source(Ctx *ctx, const char *path);
-SrcFile *source_from_string(Ctx *ctx, const char *name, const char *text, size_t len);
 
 #endif

@@ -165,12 +165,36 @@ struct Program {
   Decl *decls;
 };
 
+/* ---------------------------------------------------------------- coefficient nodes (coef.c) */
+
+/* Nodes built with constant operands folded as the evaluator would. */
+Node *coef_num(Ctx *ctx, double v);
+bool coef_is_num(const Node *n, double v);
+Node *coef_bin(Ctx *ctx, NodeKind k, Node *a, Node *b);
+Node *coef_neg(Ctx *ctx, Node *a);
+Node *coef_and(Ctx *ctx, Node *a, Node *b);  /* conjunction of guards; NULL means true */
+Node *coef_not(Ctx *ctx, Node *a);
+Node *coef_name(Ctx *ctx, Sym *s);
+
 /* ---------------------------------------------------------------- polys */
 
 Mono *mono_const(Ctx *ctx, Node *coef);
 Poly *poly_new(Ctx *ctx);
 void poly_push(Ctx *ctx, Poly *p, Mono *m);
 bool poly_is_zero(const Poly *p);
+/* Arithmetic (poly.c), every result in the arena; monomial products rename
+ * clashing summation variables, guards are conjoined. */
+Mono *mono_copy(Ctx *ctx, const Mono *m);
+Mono *mono_rename(Ctx *ctx, const Mono *m, Sym *from);  /* summation variable `from` made fresh */
+Mono *mono_mul(Ctx *ctx, const Mono *a, const Mono *b);
+Mono *mono_guarded(Ctx *ctx, const Mono *m, Node *guard);  /* m itself when guard is NULL */
+void poly_add(Ctx *ctx, Poly *dst, const Poly *src, Node *guard);
+Poly poly_mul(Ctx *ctx, const Poly *a, const Poly *b);
+Field *field_ones(Ctx *ctx, int ncomp);
+bool field_is_coef(const Field *f);  /* no monomial reads a quantity */
+/* Sort each monomial's atoms canonically, add the coefficients of
+ * monomials reading the same entries, drop those that cancel (poly.c). */
+void field_combine_like(Ctx *ctx, Field *f);
 Field *field_new(Ctx *ctx, int ncomp);
 int mono_degree(const Mono *m);
 int field_degree(const Field *f);

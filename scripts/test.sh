@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # test.sh — the one test command (README, .ci/run). Exits non-zero on any failure.
 #
-#   1. plain build (build/):          every ctest test
+#   1. plain build (build/):          no layer includes a higher one; every ctest test
 #   2. sanitizer build (build-asan/): every ctest test under ASan + UBSan, leaks fatal
 #   3. ThreadSanitizer (build-tsan/): the tests labelled `threads` (one model, many evaluators)
 #   4. fuzz build (build-fuzz/):      libFuzzer on the front end for NPG_FUZZ_SECONDS (60)
@@ -21,6 +21,7 @@ bash scripts/setup.sh
 header "1/4 plain build (build/)"
 cmake -S . -B build -DCMAKE_BUILD_TYPE=RelWithDebInfo
 cmake --build build -j2
+bash scripts/check_layers.sh build
 ctest --test-dir build --output-on-failure
 
 # The sanitizer and fuzz builds are Debug so that assertions and the

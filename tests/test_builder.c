@@ -107,7 +107,7 @@ static int check_program(const char *path, double *worst) {
     const Sym *s = given.v[i];
     size_t cnt = ref_count(d, s);
     double *v = ref_values(d, s);
-    rand_fill(prog, s, n, &seed, false, v, cnt);
+    randdata_fill(prog, s, n, &seed, false, v, cnt);
     long shape[MAX_AXES + MAX_STATIC];
     for (int a = 0; a < s->ndims; a++) shape[a] = n;
     for (int a = 0; a < s->nstatic; a++) shape[s->ndims + a] = s->shape[a];
@@ -131,7 +131,7 @@ static int check_program(const char *path, double *worst) {
         k.ncols = 0;
         k.diag = false;
         for (int g = 0; g < tm->num_tensors.n; g++)
-          failures += run_group(&k, builder_name(prog->ctx, prog, st, t, 0, g, NULL), &tm->num_tensors.g[g], n, path,
+          failures += run_group(&k, emit_builder_name(prog->ctx, prog, st, t, 0, g, NULL), &tm->num_tensors.g[g], n, path,
                                 st->sym->name);
       }
       for (int o = 0; o < tm->nops; o++) {
@@ -142,7 +142,7 @@ static int check_program(const char *path, double *worst) {
           k.ncols = 0;
           k.diag = true;
           for (int g = 0; g < tm->op_tensors[o].n; g++)
-            failures += run_group(&k, builder_name(prog->ctx, prog, st, t, o + 1, g, NULL), &tm->op_tensors[o].g[g], n,
+            failures += run_group(&k, emit_builder_name(prog->ctx, prog, st, t, o + 1, g, NULL), &tm->op_tensors[o].g[g], n,
                                   path, st->sym->name);
           for (size_t e = 0; e < count; e++) num[e] *= rpow(dg[e], op->p, op->q);
         } else {
@@ -152,7 +152,7 @@ static int check_program(const char *path, double *worst) {
           k.diag = false;
           const OpDef *od = op->op->opdef;
           for (int g = 0; g < od->tensors.n; g++)
-            failures += run_group(&k, builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op), &od->tensors.g[g], n, path,
+            failures += run_group(&k, emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op), &od->tensors.g[g], n, path,
                                   op->op->name);
           if (!ref_apply_power(d, M, (int)ne, op->p, op->q, num)) fail_msg("%s: singular operator in the reference", path);
           free(M);

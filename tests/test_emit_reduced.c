@@ -3,7 +3,7 @@
  *   - on every example (rational, radiosity) and test program, a model
  *     trained on random data with truncated bases evaluates, through the
  *     generated code compiled by libtcc and by cc, to the coordinates of
- *     the runtime reduced evaluator (backends/reduced.c) within 1e-12
+ *     the runtime reduced evaluator (backends/model/reduced.c) within 1e-12
  *     relative on every stage, on held-out samples (externs learned);
  *   - the emitted file compiles standalone with cc -Wall -Wextra, without
  *     a warning, and so does the output of `npgc emit --reduced MODEL/`;
@@ -13,9 +13,10 @@
 #include <unistd.h>
 
 #include "emit.h"
-#include "reduce.h"
 #include "memsamples.h"
 #include "randdata.h"
+#include "reduced.h"
+#include "train.h"
 #include "testutil.h"
 #include "trained.h"
 
@@ -101,7 +102,7 @@ static int generated_text(const char *path, const char *text, Stats *st) {
   for (int j = 0; j < 2; j++)
     if (!(jit[j] = reduced_jit_new(m, j == 1, err, sizeof err))) fail_msg("%s: %s", path, err);
   MemSamples held;
-  if (mem_fill(&held, prog, NULL, st->n, 3, 977u)) fail_msg("binding random params failed");
+  if (memsamples_fill(&held, prog, NULL, st->n, 3, 977u)) fail_msg("binding random params failed");
   for (long k = 0; k < 3; k++) {
     project_inputs(prog, &held, k, r, 3);
     int rc0 = reduced_eval(r[0], k);
@@ -150,7 +151,7 @@ static int generated_text(const char *path, const char *text, Stats *st) {
     if (rc0 != 0) print_message("%s, sample %ld: the runtime fails: %s\n", path, k, reduced_error(r[0]));
   }
   st->programs++;
-  mem_free(&held);
+  memsamples_free(&held);
   for (int j = 0; j < 2; j++) reduced_jit_free(jit[j]);
   for (int j = 0; j < 3; j++) reduced_free(r[j]);
   trained_free(&tr);
@@ -286,7 +287,11 @@ static void npgc_emit_reduced(void **state) {
     fclose(f);
     assert_int_equal(got, len);
     assert_memory_equal(written, mine, len);
-    assert_non_null(strstr(written, "int npg_reduced(const NpgReducedCtx *c)"));
+    /* the entry point carries the program's prefix (emit_symbol) */
+    char entry[512], sig[600];
+    emit_symbol(tr.prog, "reduced", entry, sizeof entry);
+    snprintf(sig, sizeof sig, "int %s(const NpgReducedCtx *c)", entry);
+    assert_non_null(strstr(written, sig));
     free(written);
     free(mine);
     model_free(loaded);

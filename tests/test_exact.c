@@ -15,11 +15,11 @@ static int bind_random(RefData *d, const Program *prog, long n, unsigned seed, b
   int npad = 0;
   for (int i = 0; i < prog->params.n; i++) {
     const Sym *s = prog->params.v[i];
-    npad += rand_fill(prog, s, n, &seed, padded, ref_values(d, s), ref_count(d, s));
+    npad += randdata_fill(prog, s, n, &seed, padded, ref_values(d, s), ref_count(d, s));
   }
   for (int i = 0; i < prog->quantities.n; i++) {
     const Sym *s = prog->quantities.v[i];
-    if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) rand_fill(prog, s, n, &seed, false, ref_values(d, s), ref_count(d, s));
+    if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) randdata_fill(prog, s, n, &seed, false, ref_values(d, s), ref_count(d, s));
   }
   return npad;
 }

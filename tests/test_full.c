@@ -33,7 +33,7 @@ static void bind_all(const Program *prog, RefData *d, NpgFull **fs, int nf, long
     const Sym *s = given.v[i];
     double *v = ref_values(d, s);
     size_t k = ref_count(d, s);
-    rand_fill(prog, s, n, &seed, padded && s->kind == SYM_PARAM, v, k);
+    randdata_fill(prog, s, n, &seed, padded && s->kind == SYM_PARAM, v, k);
     long shape[MAX_AXES + MAX_STATIC];
     int nd = shape_of(s, n, shape);
     for (int f = 0; f < nf; f++)

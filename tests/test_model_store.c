@@ -1,4 +1,4 @@
-/* test_model_store.c — backends/model_store.c: MODEL/ directories on disk
+/* test_model_store.c — backends/model/model_store.c: MODEL/ directories on disk
  * (DESIGN §2).
  *
  * A model written and read back is the same model, bit for bit; writing over

@@ -1,4 +1,4 @@
-/* test_nnls.c — backends/nnls.c: Lawson–Hanson NNLS and the convex
+/* test_nnls.c — backends/model/nnls.c: Lawson–Hanson NNLS and the convex
  * combination of the learned model for extern stages (paper §8.3, eq. 17).
  *
  * Oracles, independent of the solver's own code path:

@@ -26,11 +26,12 @@
 #include <unistd.h>
 
 #include "emit.h"
+#include "memsamples.h"
 #include "meshgen.h"
 #include "model_store.h"
-#include "reduce.h"
-#include "memsamples.h"
 #include "randdata.h"
+#include "reduced.h"
+#include "train.h"
 #include "support/refeval.h"
 #include "testutil.h"
 #include "trained.h"
@@ -41,7 +42,7 @@
 static long largest_class(const Program *prog, long n) {
   long best = 1, shape[MAX_AXES + MAX_STATIC];
   for (int i = 0; i < prog->quantities.n; i++) {
-    size_t c = mem_count(prog->quantities.v[i], n, shape);
+    size_t c = memsamples_count(prog->quantities.v[i], n, shape);
     best = (long)c > best ? (long)c : best;
   }
   return best;
@@ -59,8 +60,8 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   if (S > 400) print_message("%s: largest class %ld entries\n", path, S - 4);
   NpgFull *f = npg_full_new(p, NPG_TCC);
   MemSamples train;
-  if (mem_fill(&train, prog, f, n, S, 11u)) fail_msg("binding random params failed");
-  SampleSource src = {S, &train, mem_set};
+  if (memsamples_fill(&train, prog, f, n, S, 11u)) fail_msg("binding random params failed");
+  SampleSource src = {S, &train, memsamples_set};
   TrainOptions opt = {0};
   opt.cap = 1 << 20;
   opt.energy = 1.0;
@@ -81,12 +82,12 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   for (int i = 0; i < held.n; i++) {
     held.val[i] = malloc(sizeof(double) * held.count[i] * 3);
     for (long j = 0; j < 3; j++)
-      rand_fill(prog, held.sym[i], n, &seed, false, held.val[i] + (size_t)j * held.count[i], held.count[i]);
+      randdata_fill(prog, held.sym[i], n, &seed, false, held.val[i] + (size_t)j * held.count[i], held.count[i]);
   }
   held.S = 3;
   int failures = 0;
   for (long k = 0; k < 3; k++) {
-    if (mem_set(&held, f, k) || npg_full_eval(f, k)) fail_msg("%s: %s", path, npg_full_error(f));
+    if (memsamples_set(&held, f, k) || npg_full_eval(f, k)) fail_msg("%s: %s", path, npg_full_error(f));
     for (int i = 0; i < held.n; i++) reduced_project(r, emit_index_of(&prog->quantities, held.sym[i]), held.val[i] + (size_t)k * held.count[i]);
     if (reduced_eval(r, k)) fail_msg("%s: %s", path, reduced_error(r));
     for (int q = 0; q < m->nq; q++) {
@@ -105,8 +106,8 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
       free(y);
     }
   }
-  mem_free(&held);
-  mem_free(&train);
+  memsamples_free(&held);
+  memsamples_free(&train);
   reduced_free(r);
   model_free(m);
   npg_full_free(f);
@@ -359,7 +360,7 @@ static int stages_program(const char *path, void *arg) {
   RefData *rd = ref_new(prog, 4);
   int failures = 0;
   /* coordinates: the projections of a training sample's values */
-  if (mem_set(&tr.train, tr.f, 3) || npg_full_eval(tr.f, 3)) fail_msg("%s", npg_full_error(tr.f));
+  if (memsamples_set(&tr.train, tr.f, 3) || npg_full_eval(tr.f, 3)) fail_msg("%s", npg_full_error(tr.f));
   double **xt = calloc((size_t)m->nq, sizeof(double *));
   for (int q = 0; q < m->nq; q++) {
     const RClass *c = &m->classes[m->qclass[q]];
@@ -520,7 +521,7 @@ static void room_samples(RoomSamples *rs, NpgFull *f, long F, long S, double t0,
     memcpy(rs->g + k * rs->V * 3, mk.g, sizeof(double) * (size_t)(rs->V * 3));
     mesh_emission(&mk, rs->e + k * F);
     unsigned seed = 17u + (unsigned)(1000.0 * (t0 + dt * (double)k));
-    for (long i = 0; i < F; i++) rs->e[k * F + i] += rand_uniform(&seed, 0.0, 0.3); /* light on every wall */
+    for (long i = 0; i < F; i++) rs->e[k * F + i] += randdata_uniform(&seed, 0.0, 0.3); /* light on every wall */
     mesh_free(&mk);
   }
   mesh_free(&mesh);
@@ -598,21 +599,21 @@ static void error_falls_with_caps(void **state) {
   prog = ir_ok(p);
   f = npg_full_new(p, NPG_TCC);
   MemSamples rtrain, rtest;
-  if (mem_fill(&rtrain, prog, f, 2, 40, 3u)) fail_msg("binding random params failed");
-  if (mem_fill(&rtest, prog, f, 2, 20, 4u)) fail_msg("binding random params failed");
+  if (memsamples_fill(&rtrain, prog, f, 2, 40, 3u)) fail_msg("binding random params failed");
+  if (memsamples_fill(&rtest, prog, f, 2, 20, 4u)) fail_msg("binding random params failed");
   for (int c = 0; c < 2; c++) {
-    SampleSource src = {rtrain.S, &rtrain, mem_set};
+    SampleSource src = {rtrain.S, &rtrain, memsamples_set};
     TrainOptions opt = {0};
     opt.cap = rat_caps[c];
     opt.energy = 1.0;
     char err[2048] = "";
     Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
     if (!m) fail_msg("rational: %s", err);
-    err_rat[c] = mean_error(prog, f, m, &rtest, mem_set, rtest.S, "y");
+    err_rat[c] = mean_error(prog, f, m, &rtest, memsamples_set, rtest.S, "y");
     model_free(m);
   }
-  mem_free(&rtrain);
-  mem_free(&rtest);
+  memsamples_free(&rtrain);
+  memsamples_free(&rtest);
   npg_full_free(f);
   npg_free(p);
   print_message("mean relative L2 error of the output over held-out samples, by cap per member:\n");
@@ -777,11 +778,11 @@ static void tune_meets_tolerance_at_least_cost(void **state) {
   Program *prog = ir_ok(p);
   NpgFull *f = npg_full_new(p, NPG_TCC);
   MemSamples rtrain, rtest;
-  if (mem_fill(&rtrain, prog, f, 2, 40, 3u) || mem_fill(&rtest, prog, NULL, 2, 20, 4u)) fail_msg("random samples");
-  SampleSource src = {rtrain.S, &rtrain, mem_set};
-  check_tune("rational", prog, f, &src, &rtest, mem_set, rtest.S, "y", 1e-8, 3);
-  mem_free(&rtrain);
-  mem_free(&rtest);
+  if (memsamples_fill(&rtrain, prog, f, 2, 40, 3u) || memsamples_fill(&rtest, prog, NULL, 2, 20, 4u)) fail_msg("random samples");
+  SampleSource src = {rtrain.S, &rtrain, memsamples_set};
+  check_tune("rational", prog, f, &src, &rtest, memsamples_set, rtest.S, "y", 1e-8, 3);
+  memsamples_free(&rtrain);
+  memsamples_free(&rtest);
   npg_full_free(f);
   npg_free(p);
   p = compile_file("examples/radiosity/formfactors.npg");
@@ -943,7 +944,7 @@ static void pca_gram_matches_svd(void **state) {
  * matrix, or the identity with `diagonal`. */
 static void spectral_matrix(int n, const double *lam, bool diagonal, unsigned *seed, double *U, double *M) {
   double *tau = malloc(sizeof(double) * (size_t)n);
-  for (int i = 0; i < n * n; i++) U[i] = diagonal ? i % (n + 1) == 0 : rand_uniform(seed, -1, 1);
+  for (int i = 0; i < n * n; i++) U[i] = diagonal ? i % (n + 1) == 0 : randdata_uniform(seed, -1, 1);
   if (!diagonal) {
     LAPACKE_dgeqrf(LAPACK_ROW_MAJOR, n, n, U, n, tau);
     LAPACKE_dorgqr(LAPACK_ROW_MAJOR, n, n, n, U, n, tau);
@@ -1022,7 +1023,7 @@ static int roots_of_program(const char *path, long n, double *worst, int *cases,
   int failures = 0;
   for (size_t c = 0; c < sizeof table / sizeof *table; c++) {
     const RootCase *rc = &table[c];
-    for (int i = 0; i < my; i++) lam[i] = eigenvalue(rc->sp, i, my), v[i] = rand_uniform(&seed, -1, 1);
+    for (int i = 0; i < my; i++) lam[i] = eigenvalue(rc->sp, i, my), v[i] = randdata_uniform(&seed, -1, 1);
     spectral_matrix(my, lam, rc->diagonal, &seed, U, M);
     cblas_dgemv(CblasRowMajor, CblasTrans, my, my, 1.0, U, my, v, 1, 0.0, y, 1);
     for (int i = 0; i < my; i++) y[i] *= lam[i] > 0 ? pow(lam[i], power) : 0;

@@ -119,7 +119,7 @@ static inline int for_each_program(const char *dir, int (*check)(const char *pat
 
 /* Relative max-norm difference of b from a; NaN where exactly one side is
  * NaN (exact.h's, the measure npgc verify --exact reports). */
-static inline double rel_diff(const double *a, const double *b, size_t n) { return rel_max_diff(a, b, n); }
+static inline double rel_diff(const double *a, const double *b, size_t n) { return exact_rel_max_diff(a, b, n); }
 
 /* ---------------------------------------------------------------- scratch files
  * A test program's scratch directory (made by its group setup, removed by

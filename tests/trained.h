@@ -3,8 +3,9 @@
 #ifndef NPG_TRAINED_H
 #define NPG_TRAINED_H
 
-#include "reduce.h"
 #include "memsamples.h"
+#include "reduced.h"
+#include "train.h"
 
 typedef struct Trained {
   NpgProgram *p;
@@ -21,8 +22,8 @@ static inline void train(Trained *tr, const char *path, const char *text, long n
   tr->p = text ? compile_text(path, text) : compile_file(path);
   tr->prog = ir_ok(tr->p);
   tr->f = npg_full_new(tr->p, NPG_TCC);
-  if (mem_fill(&tr->train, tr->prog, tr->f, n, S, 5u)) fail_msg("binding random params failed");
-  SampleSource src = {S, &tr->train, mem_set};
+  if (memsamples_fill(&tr->train, tr->prog, tr->f, n, S, 5u)) fail_msg("binding random params failed");
+  SampleSource src = {S, &tr->train, memsamples_set};
   TrainOptions opt = {0};
   opt.cap = cap;
   opt.energy = 1.0;
@@ -33,7 +34,7 @@ static inline void train(Trained *tr, const char *path, const char *text, long n
 
 static inline void trained_free(Trained *tr) {
   model_free(tr->m);
-  mem_free(&tr->train);
+  memsamples_free(&tr->train);
   npg_full_free(tr->f);
   npg_free(tr->p);
 }

@@ -99,15 +99,17 @@ typedef int (*NpgBuildFn)(const NpgCtx *c, NpgSink *sink);
 
 /* ---------------------------------------------------------------- the reduced evaluator
  *
- * `npgc emit --reduced MODEL/` (backends/emit_reduced.c) writes C for one
+ * `npgc emit --reduced MODEL/` (backends/model/emit_reduced.c) writes C for one
  * trained model, every size a literal. The reduced tensors are not in the
  * code (they can be megabytes): the host passes them, with the coordinates
  * and scratch memory, in an NpgReducedCtx. The generated file says what it
- * expects: npg_reduced_coords = {number of quantities, m of each},
- * npg_reduced_tensors = {number of tensors, rows x cols of each, in the
+ * expects: P_npg_reduced_coords = {number of quantities, m of each},
+ * P_npg_reduced_tensors = {number of tensors, rows x cols of each, in the
  * order of NpgReducedCtx.t (listed in a comment at its top)}, and
- * npg_reduced_work, the doubles of scratch. Every reduced vector and
- * tensor is dense, row-major (backends/reduce.h). */
+ * P_npg_reduced_work, the doubles of scratch. P is the program's file stem
+ * (every external symbol of generated code carries it, so two programs'
+ * code links into one binary: emit_symbol in backends/emit/emit.h). Every reduced vector and
+ * tensor is dense, row-major (backends/model/model.h). */
 typedef struct NpgReducedCtx NpgReducedCtx;
 
 typedef struct NpgReducedRt {
@@ -127,14 +129,14 @@ struct NpgReducedCtx {
   double *const *x;             /* reduced coordinates of every quantity, program order:
                                    inputs read, stages and externs written */
   const double *const *t;       /* every reduced tensor, in the generated file's order */
-  double *work;                 /* npg_reduced_work doubles of scratch */
+  double *work;                 /* P_npg_reduced_work doubles of scratch */
   const NpgReducedRt *rt;
   long sample;                  /* sample number, for messages */
   void *host;                   /* the runtime's own state */
 };
 
-/* The entry points of generated reduced code: npg_reduced, every stage in
- * order; npg_reduced_stage, stage number `stage` alone. Each returns 0, or
+/* The entry points of generated reduced code: P_npg_reduced, every stage in
+ * order; P_npg_reduced_stage, stage number `stage` alone. Each returns 0, or
  * -1 after the host recorded an error (or for a stage number out of range). */
 typedef int (*NpgReducedFn)(const NpgReducedCtx *c);
 typedef int (*NpgReducedStageFn)(const NpgReducedCtx *c, int stage);

@@ -1,6 +1,6 @@
 /* rows.c — the row kernels of NpgRt (npg_abi.h): elementwise operations
  * over one row of a loop nest, which libtcc code calls in place of its
- * innermost loop (backends/cse.c, cse_emit_rows).
+ * innermost loop (backends/emit/cse.c, cse_emit_rows).
  *
  * CMake compiles this file at -O3 with -ffp-contract=off: -O3 so that gcc
  * vectorizes the loops (baseline SSE2, no -march=native: the library runs

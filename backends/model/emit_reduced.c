@@ -1,5 +1,5 @@
 /* emit_reduced.c — the reduced evaluator as C, specialized to one trained
- * model (DESIGN §6; paper §4), and the host that compiles and runs it.
+ * model (DESIGN §6; paper §4); reduced_jit.c compiles and runs it.
  *
  * The generated code does what reduced_eval() does (backends/reduced.c is
  * the reference), with every size a literal: for each stage
@@ -14,30 +14,19 @@
  * LU), roots (eigendecomposition) — and the externs' learned maps are not
  * hand-rolled: they call back into the runtime evaluator through
  * NpgReducedRt (npg_abi.h), so both agree to rounding. The reduced tensors (megabytes) are not literals: the host
- * passes pointers in NpgReducedCtx.t, in the order of model_slots(). */
+ * passes pointers in NpgReducedCtx.t, in the order of emit_reduced_slots(). */
 #include <setjmp.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "emit.h"
-#include "jit.h"
-#include "reduce.h"
+#include "npg_abi.h"
+#include "reduced.h"
 
 /* ---------------------------------------------------------------- the tensors the code reads */
 
-/* One entry of NpgReducedCtx.t: a reduced tensor, or the projection
- * B_yᵀB_w of a named numerator whose class differs from its stage's. */
-typedef struct Slot {
-  const RTensor *t;
-  const RTerm *proj_of;
-  long rows, cols;
-  const double *data;
-} Slot;
 
-/* Every tensor in NpgReducedCtx.t order: stage by stage, term by term, the
- * projection, the numerator's tensors, then each operator's. Fills `s`
- * when non-NULL; returns the count. The emitter and the host share it. */
-static long model_slots(const Model *m, Slot *s) {
+long emit_reduced_slots(const Model *m, ReducedSlot *s) {
   long n = 0;
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
@@ -45,11 +34,11 @@ static long model_slots(const Model *m, Slot *s) {
     for (int t = 0; t < rs->nterms; t++) {
       const RTerm *rt = &rs->terms[t];
       if (rt->named_q >= 0 && rt->proj) {
-        if (s) s[n] = (Slot){NULL, rt, my, m->classes[m->qclass[rt->named_q]].m, rt->proj};
+        if (s) s[n] = (ReducedSlot){NULL, rt, my, m->classes[m->qclass[rt->named_q]].m, rt->proj};
         n++;
       }
       RTERM_FOR_TENSORS(rt, x) {
-        if (s) s[n] = (Slot){x, NULL, x->rows, x->cols, x->data};
+        if (s) s[n] = (ReducedSlot){x, NULL, x->rows, x->cols, x->data};
         n++;
       }
     }
@@ -63,7 +52,7 @@ typedef struct RedEmit {
   const Model *m;
   Ctx *ctx;
   FILE *out;
-  Slot *slots;
+  ReducedSlot *slots;
   long nslots;
   /* scratch (NpgReducedCtx.work) offsets, in doubles */
   long off_v, off_w, off_acc, off_M, off_buf[2], off_z, nwork;
@@ -424,19 +413,22 @@ static void emit_unit(RedEmit *e) {
         "   quantity q, c->t[k] tensor k (rows x cols, row-major):\n",
         out);
   for (long k = 0; k < e->nslots; k++) {
-    const Slot *s = &e->slots[k];
+    const ReducedSlot *s = &e->slots[k];
     fprintf(out, "     %4ld  %-28s %ld x %ld\n", k,
             s->t ? s->t->name : arena_printf(e->ctx, "%s", s->proj_of->proj_name ? s->proj_of->proj_name : "proj"),
             s->rows, s->cols);
   }
-  fputs("   and c->work npg_reduced_work doubles of scratch. */\n", out);
-  fprintf(out, "const npg_idx npg_reduced_coords[] = {%d", m->nq);
+  const char *coords = emit_symbol_name(e->ctx, m->prog, "reduced_coords");
+  const char *tensors = emit_symbol_name(e->ctx, m->prog, "reduced_tensors");
+  const char *work = emit_symbol_name(e->ctx, m->prog, "reduced_work");
+  fprintf(out, "   and c->work %s doubles of scratch. */\n", work);
+  fprintf(out, "const npg_idx %s[] = {%d", coords, m->nq);
   for (int q = 0; q < m->nq; q++) fprintf(out, ", %ld", qm(m, q));
   fputs("};\n", out);
-  fprintf(out, "const npg_idx npg_reduced_tensors[] = {%ld", e->nslots);
+  fprintf(out, "const npg_idx %s[] = {%ld", tensors, e->nslots);
   for (long k = 0; k < e->nslots; k++) fprintf(out, ", %ld", e->slots[k].rows * e->slots[k].cols);
   fputs("};\n", out);
-  fprintf(out, "const npg_idx npg_reduced_work = %ld;\n\n", e->nwork);
+  fprintf(out, "const npg_idx %s = %ld;\n\n", work, e->nwork);
 
   const char **fname = arena_alloc(e->ctx, sizeof(char *) * (size_t)(m->nstages + 1));
   for (int i = 0; i < m->nstages; i++) {
@@ -444,18 +436,20 @@ static void emit_unit(RedEmit *e) {
     fname[i] = c_ident(e->ctx, "stage_", m->stages[i].st->sym->name);
     emit_stage(e, i, fname[i]);
   }
-  fputs("/* Every stage in evaluation order; externs through their learned maps. */\n"
-        "int npg_reduced(const NpgReducedCtx *c) {\n",
-        out);
+  fprintf(out,
+          "/* Every stage in evaluation order; externs through their learned maps. */\n"
+          "int %s(const NpgReducedCtx *c) {\n",
+          emit_symbol_name(e->ctx, m->prog, "reduced"));
   for (int i = 0; i < m->nstages; i++) {
     if (fname[i]) fprintf(out, "  if (%s(c)) return -1;\n", fname[i]);
     else fprintf(out, "  if (c->rt->learned(c, %d)) return -1; /* extern %s */\n", i, m->stages[i].st->sym->name);
   }
   fputs("  return 0;\n}\n\n", out);
-  fputs("/* Stage number i alone (the model's order), from the current coordinates. */\n"
-        "int npg_reduced_stage(const NpgReducedCtx *c, int i) {\n"
-        "  switch (i) {\n",
-        out);
+  fprintf(out,
+          "/* Stage number i alone (the model's order), from the current coordinates. */\n"
+          "int %s(const NpgReducedCtx *c, int i) {\n"
+          "  switch (i) {\n",
+          emit_symbol_name(e->ctx, m->prog, "reduced_stage"));
   for (int i = 0; i < m->nstages; i++) {
     if (fname[i]) fprintf(out, "  case %d: return %s(c);\n", i, fname[i]);
     else fprintf(out, "  case %d: return c->rt->learned(c, %d);\n", i, i);
@@ -489,14 +483,14 @@ int emit_reduced(const Model *m, FILE *out, char *err, size_t errlen) {
   e.m = m;
   e.ctx = m->prog->ctx;
   e.out = out;
-  e.nslots = model_slots(m, NULL);
+  e.nslots = emit_reduced_slots(m, NULL);
   e.slots = calloc((size_t)e.nslots + 1, sizeof *e.slots);
   e.use_q = calloc((size_t)m->nq + 1, sizeof *e.use_q);
   int rc = -1;
   if (!e.slots || !e.use_q) {
     snprintf(err, errlen, "out of memory while generating the reduced evaluator");
   } else {
-    model_slots(m, e.slots);
+    emit_reduced_slots(m, e.slots);
     plan_work(&e);
     rc = guarded_unit(&e, err, errlen);
     if (rc == 0 && ferror(out)) {
@@ -508,134 +502,3 @@ int emit_reduced(const Model *m, FILE *out, char *err, size_t errlen) {
   free(e.use_q);
   return rc;
 }
-
-/* ---------------------------------------------------------------- the host */
-
-struct RedJit {
-  const Model *m;
-  JitModule *jit;
-  NpgReducedFn fn;
-  NpgReducedStageFn stage_fn;
-  long nslots;
-  const double **t;         /* NpgReducedCtx.t */
-  double **x;               /* NpgReducedCtx.x, from the Reduced of each call */
-  double *work;
-  Reduced *r;               /* the Reduced of the current call */
-  char error[1024];
-};
-
-const char *reduced_jit_error(const RedJit *j) { return j ? j->error : "no reduced evaluator"; }
-
-static int host_op_power(const NpgReducedCtx *c, int stage, int term, int op, npg_idx m, double *M, long p, long q,
-                         double *v) {
-  RedJit *j = c->host;
-  (void)m;
-  return reduced_apply_power(j->r, stage, term, op, p, q, M, v, c->sample);
-}
-
-static int host_learned(const NpgReducedCtx *c, int stage) {
-  RedJit *j = c->host;
-  if (stage < 0 || stage >= j->m->nstages || j->m->stages[stage].st->kind != ST_EXTERN) return -1;
-  return reduced_eval_stage(j->r, stage, c->sample);
-}
-
-static const NpgReducedRt host_rt = {host_op_power, host_learned};
-
-void reduced_jit_free(RedJit *j) {
-  if (!j) return;
-  jit_free(j->jit);
-  free(j->t);
-  free(j->x);
-  free(j->work);
-  free(j);
-}
-
-/* The generated code's stated layout (npg_reduced_coords, _tensors) is the
- * model's: it was generated for this model. */
-static bool layout_matches(RedJit *j, const Slot *slots) {
-  const npg_idx *coords = jit_symbol(j->jit, "npg_reduced_coords");
-  const npg_idx *tensors = jit_symbol(j->jit, "npg_reduced_tensors");
-  if (!coords || !tensors || coords[0] != j->m->nq || tensors[0] != j->nslots) return false;
-  for (int q = 0; q < j->m->nq; q++)
-    if (coords[1 + q] != qm(j->m, q)) return false;
-  for (long k = 0; k < j->nslots; k++)
-    if (tensors[1 + k] != slots[k].rows * slots[k].cols) return false;
-  return true;
-}
-
-RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
-  RedJit *j = calloc(1, sizeof *j);
-  char *src = NULL;
-  size_t len = 0;
-  Slot *slots = NULL;
-  if (!j) goto oom;
-  j->m = m;
-  FILE *mem = open_memstream(&src, &len);
-  if (!mem) goto oom;
-  int rc = emit_reduced(m, mem, err, errlen);
-  fclose(mem);
-  if (rc != 0) goto fail;
-  j->jit = jit_compile(src, cc, err, errlen);
-  free(src);
-  src = NULL;
-  if (!j->jit) goto fail;
-  j->fn = (NpgReducedFn)jit_symbol(j->jit, "npg_reduced");
-  j->stage_fn = (NpgReducedStageFn)jit_symbol(j->jit, "npg_reduced_stage");
-  const npg_idx *nwork = jit_symbol(j->jit, "npg_reduced_work");
-  j->nslots = model_slots(m, NULL);
-  slots = calloc((size_t)j->nslots + 1, sizeof *slots);
-  j->t = calloc((size_t)j->nslots + 1, sizeof *j->t);
-  j->x = calloc((size_t)m->nq + 1, sizeof *j->x);
-  if (!slots || !j->t || !j->x) goto oom;
-  model_slots(m, slots);
-  if (!j->fn || !j->stage_fn || !nwork || !layout_matches(j, slots)) {
-    snprintf(err, errlen, "generated reduced code lacks its entry points or disagrees with the model (a bug in npg)");
-    goto fail;
-  }
-  for (long k = 0; k < j->nslots; k++) {
-    if (!slots[k].data) {
-      snprintf(err, errlen, "reduced tensor %s has no data: the model is not trained",
-               slots[k].t ? slots[k].t->name : "(projection)");
-      goto fail;
-    }
-    j->t[k] = slots[k].data;
-  }
-  if (!(j->work = calloc((size_t)*nwork + 1, sizeof(double)))) goto oom;
-  free(slots);
-  return j;
-oom:
-  snprintf(err, errlen, "out of memory for the generated reduced evaluator");
-fail:
-  free(src);
-  free(slots);
-  reduced_jit_free(j);
-  return NULL;
-}
-
-/* Run stage `stage` (all of them when -1) of the generated code on the
- * coordinates of `r`. */
-static int run(RedJit *j, Reduced *r, int stage, long sample) {
-  j->error[0] = 0;
-  if (reduced_model(r) != j->m) {
-    snprintf(j->error, sizeof j->error, "the reduced coordinates belong to another model than the generated code's");
-    return -1;
-  }
-  if (stage < -1 || stage >= j->m->nstages) {
-    snprintf(j->error, sizeof j->error, "no stage number %d: the model has %d", stage, j->m->nstages);
-    return -1;
-  }
-  for (int q = 0; q < j->m->nq; q++) j->x[q] = reduced_coords(r, q);
-  j->r = r;
-  NpgReducedCtx c = {j->x, j->t, j->work, &host_rt, sample, j};
-  int rc = stage < 0 ? j->fn(&c) : j->stage_fn(&c, stage);
-  j->r = NULL;
-  if (rc != 0) {
-    snprintf(j->error, sizeof j->error, "%s", reduced_error(r)[0] ? reduced_error(r) : "generated reduced code failed");
-    return -1;
-  }
-  return 0;
-}
-
-int reduced_jit_eval(RedJit *j, Reduced *r, long sample) { return run(j, r, -1, sample); }
-
-int reduced_jit_eval_stage(RedJit *j, Reduced *r, int stage, long sample) { return run(j, r, stage, sample); }

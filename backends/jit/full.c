@@ -3,11 +3,11 @@
  * samples, hand back every stage value. */
 #include <errno.h>
 #include <math.h>
+#include <setjmp.h>
 #include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "compile.h"
 #include "emit.h"
 #include "full.h"
 #include "jit.h"
@@ -52,21 +52,36 @@ static int find(const PtrVec *v, const char *name) {
   return -1;
 }
 
-NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
+int full_emit(Program *prog, FILE *out) {
+  Ctx *ctx = prog->ctx;
+  jmp_buf env;
+  ctx->on_error = &env;
+  bool ok = setjmp(env) == 0;
+  if (ok) {
+    emit_full(ctx, prog, out);
+    emit_builders(ctx, prog, out);
+  }
+  ctx->on_error = NULL;
+  free(ctx->pending_free);
+  ctx->pending_free = NULL;
+  return ok ? 0 : -1;
+}
+
+NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
   NpgFull *f = calloc(1, sizeof *f);
   if (!f) return NULL;
-  if (!npg_ok(p)) {
-    fail(f, "%s", npg_error(p));
+  if (refusal) {
+    fail(f, "%s", refusal);
     return f;
   }
-  Program *prog = f->prog = npg_program_ir(p);
+  f->prog = prog;
   char *src = NULL;
   size_t len = 0;
   FILE *mem = open_memstream(&src, &len);
-  if (!mem || npg_emit_full(p, mem) != 0) {
+  if (!mem || full_emit(prog, mem) != 0) {
     if (mem) fclose(mem);
     free(src);
-    fail(f, "%s", npg_error(p));
+    fail(f, "%s", !mem ? "out of memory" : prog->ctx->msg ? prog->ctx->msg : "error: code generation failed\n");
     return f;
   }
   fclose(mem);
@@ -77,8 +92,11 @@ NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
     fail(f, "%s", err);
     return f;
   }
-  f->full = (NpgStageFn)jit_symbol(f->jit, "npg_full");
-  f->check = (NpgStageFn)jit_symbol(f->jit, "npg_check");
+  char full[1024], check[1024];
+  bool named = emit_symbol(prog, "full", full, sizeof full) < (int)sizeof full &&
+               emit_symbol(prog, "check", check, sizeof check) < (int)sizeof check;
+  f->full = named ? (NpgStageFn)jit_symbol(f->jit, full) : NULL;
+  f->check = named ? (NpgStageFn)jit_symbol(f->jit, check) : NULL;
   if (!f->full || !f->check) {
     fail(f, "generated code lacks its entry points (a bug in npg)");
     return f;

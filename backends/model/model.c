@@ -1,20 +1,305 @@
-/* model.c — a reduced model to and from MODEL/ (DESIGN §2): the manifest
+/* model.c — the reduced model: its layout derived from the stage program,
+ * its size and program hash, and the model to and from MODEL/ (DESIGN §2): the manifest
  * holds the dims, the classes with their sizes and, per member, its cap,
  * energy fraction, centering, vectors kept and energy lost, which inverse
  * operators factor by Cholesky; every basis, reduced tensor, projection,
  * extern table and member spectrum is one .npy (the spectra also as CSV).
- * A model written before centering existed (member lines without "center")
- * loads as uncentered, its lost energy 1 − captured. The layout is recomputed
- * from the program (whose hash the store checks) and every array's shape
- * is checked against it, naming the file. */
+ * Member lines without "center" load as uncentered, their lost energy
+ * 1 − captured. The layout is recomputed from the program (whose hash the
+ * store checks) and every array's shape is checked against it, naming the
+ * file. */
 #include <errno.h>
 #include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 
+#include "emit.h"
+#include "model.h"
 #include "model_store.h"
-#include "reduce.h"
+
+/* ---------------------------------------------------------------- layout */
+
+static long quantity_count(const Program *prog, const long *dims, const Sym *s) {
+  long n = 1;
+  for (int i = 0; i < s->ndims; i++) n *= dims[emit_index_of(&prog->dims, s->dims[i])];
+  for (int i = 0; i < s->nstatic; i++) n *= s->shape[i];
+  return n;
+}
+
+static char *dupf(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static char *dupf(const char *fmt, ...) {
+  char buf[1024];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(buf, sizeof buf, fmt, ap);
+  va_end(ap);
+  return strdup(buf);
+}
+
+/* File stems keep [A-Za-z0-9_.-]. */
+static char *file_stem(char *s) {
+  for (char *c = s; c && *c; c++)
+    if (!((*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || (*c >= '0' && *c <= '9') || *c == '_' ||
+          *c == '.' || *c == '-'))
+      *c = '_';
+  return s;
+}
+
+/* The distinct inputs of a tensor group (its sorted multiset in runs). */
+static bool tensor_inputs(const Program *prog, const TensorGroup *g, RTensor *t) {
+  t->group = g;
+  t->nin = 0;
+  for (int i = 0; i < g->ninputs; i++) {
+    int q = emit_index_of(&prog->quantities, g->inputs[i]);
+    if (q < 0) return false;
+    if (t->nin > 0 && t->in_q[t->nin - 1] == q) {
+      t->in_mult[t->nin - 1]++;
+      continue;
+    }
+    t->in_q[t->nin] = q;
+    t->in_mult[t->nin] = 1;
+    t->nin++;
+  }
+  return true;
+}
+
+static char *class_label(const BasisClass *bc) {
+  size_t len = 3;
+  for (int i = 0; i < bc->members.n; i++) len += strlen(((Sym *)bc->members.v[i])->name) + 1;
+  char *s = malloc(len);
+  if (!s) return NULL;
+  strcpy(s, "{");
+  for (int i = 0; i < bc->members.n; i++) {
+    if (i) strcat(s, ",");
+    strcat(s, ((Sym *)bc->members.v[i])->name);
+  }
+  strcat(s, "}");
+  return s;
+}
+
+Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
+  Model *m = calloc(1, sizeof *m);
+  if (!m) goto oom;
+  m->prog = prog;
+  m->program_hash = model_program_hash(prog);
+  m->ndims = prog->dims.n;
+  m->dims = calloc((size_t)m->ndims + 1, sizeof(long));
+  m->nq = prog->quantities.n;
+  m->qclass = calloc((size_t)m->nq + 1, sizeof(int));
+  m->nclasses = prog->classes.n;
+  m->classes = calloc((size_t)m->nclasses + 1, sizeof(RClass));
+  m->nstages = prog->stages.n;
+  m->stages = calloc((size_t)m->nstages + 1, sizeof(RStage));
+  m->externs = calloc((size_t)prog->externs.n + 1, sizeof(RExtern));
+  if (!m->dims || !m->qclass || !m->classes || !m->stages || !m->externs) goto oom;
+  for (int i = 0; i < m->ndims; i++) m->dims[i] = dims[i];
+  for (int q = 0; q < m->nq; q++) m->qclass[q] = ((Sym *)prog->quantities.v[q])->klass;
+
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    const BasisClass *bc = prog->classes.v[c];
+    rc->bc = bc;
+    if (!(rc->label = class_label(bc))) goto oom;
+    rc->n = quantity_count(prog, dims, bc->members.v[0]);
+    rc->nmembers = bc->members.n + bc->joiners.n;
+    if (!(rc->members = calloc((size_t)rc->nmembers, sizeof(RMember)))) goto oom;
+    for (int i = 0; i < bc->members.n; i++) {
+      const Sym *s = bc->members.v[i];
+      rc->members[i].q = emit_index_of(&prog->quantities, s);
+      if (!(rc->members[i].name = strdup(s->name))) goto oom;
+      if (quantity_count(prog, dims, s) != rc->n) {
+        snprintf(err, errlen, "class %s: '%s' has %ld entries but '%s' has %ld", rc->label, s->name,
+                 quantity_count(prog, dims, s), ((Sym *)bc->members.v[0])->name, rc->n);
+        model_free(m);
+        return NULL;
+      }
+    }
+    for (int j = 0; j < bc->joiners.n; j++) {
+      const Joiner *jn = bc->joiners.v[j];
+      RMember *mb = &rc->members[bc->members.n + j];
+      mb->q = -1;
+      mb->joiner = jn;
+      if (!(mb->name = dupf("%s.num%d", jn->stage->sym->name, jn->term + 1))) goto oom;
+    }
+  }
+
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    const Stage *st = prog->stages.v[i];
+    rs->st = st;
+    rs->q = emit_index_of(&prog->quantities, st->sym);
+    if (rs->q < 0) {
+      snprintf(err, errlen, "stage '%s' has no basis (a bug in npg)", st->sym->name);
+      model_free(m);
+      return NULL;
+    }
+    if (st->kind == ST_EXTERN) {
+      RExtern *x = &m->externs[m->nexterns++];
+      x->q = rs->q;
+      for (int k = 0; k < st->sym->nof && x->nin < RT_MAX_IN; k++)
+        x->in_q[x->nin++] = emit_index_of(&prog->quantities, st->sym->of[k]);
+      continue;
+    }
+    rs->nterms = st->nterms;
+    if (!(rs->terms = calloc((size_t)st->nterms + 1, sizeof(RTerm)))) goto oom;
+    const char *sn = st->sym->name;
+    for (int t = 0; t < st->nterms; t++) {
+      const Term *tm = st->terms[t];
+      RTerm *rt = &rs->terms[t];
+      rt->term = tm;
+      rt->named_q = -1;
+      if (tm->named_num) {
+        rt->named_q = emit_index_of(&prog->quantities, tm->named_num);
+        if (m->qclass[rt->named_q] != m->qclass[rs->q] && !(rt->proj_name = file_stem(dupf("proj_%s_t%d", sn, t))))
+          goto oom;
+      } else {
+        rt->nnum = tm->num_tensors.n;
+        if (!(rt->num = calloc((size_t)rt->nnum + 1, sizeof(RTensor)))) goto oom;
+        for (int g = 0; g < rt->nnum; g++) {
+          RTensor *rtn = &rt->num[g];
+          rtn->kind = RT_NUM;
+          if (!tensor_inputs(prog, &tm->num_tensors.g[g], rtn)) goto nobasis;
+          rtn->name = file_stem(dupf("t_%s_t%d_f0_g%d", sn, t, g));
+          rtn->builder = strdup(emit_builder_name(prog->ctx, prog, st, t, 0, g, NULL));
+          if (!rtn->name || !rtn->builder) goto oom;
+        }
+      }
+      rt->nops = tm->nops;
+      if (!(rt->ops = calloc((size_t)tm->nops + 1, sizeof(ROp)))) goto oom;
+      for (int k = 0; k < tm->nops; k++) {
+        ROp *ro = &rt->ops[k];
+        const OpPow *op = &tm->ops[k];
+        ro->op = op;
+        const TensorList *tl = op->kind == OPK_DIAG ? &tm->op_tensors[k] : &op->op->opdef->tensors;
+        ro->ntensors = tl->n;
+        if (!(ro->t = calloc((size_t)tl->n + 1, sizeof(RTensor)))) goto oom;
+        for (int g = 0; g < tl->n; g++) {
+          RTensor *rtn = &ro->t[g];
+          rtn->kind = op->kind == OPK_DIAG ? RT_DIAG : RT_DECL;
+          if (!tensor_inputs(prog, &tl->g[g], rtn)) goto nobasis;
+          rtn->name = file_stem(dupf("t_%s_t%d_op%d_g%d", sn, t, k + 1, g));
+          rtn->builder = strdup(op->kind == OPK_DIAG ? emit_builder_name(prog->ctx, prog, st, t, k + 1, g, NULL)
+                                                     : emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op));
+          if (!rtn->name || !rtn->builder) goto oom;
+        }
+      }
+    }
+  }
+  return m;
+nobasis:
+  snprintf(err, errlen, "a tensor reads a quantity without a basis (a bug in npg)");
+  model_free(m);
+  return NULL;
+oom:
+  snprintf(err, errlen, "out of memory while laying out the reduced model");
+  model_free(m);
+  return NULL;
+}
+
+static void free_tensor(RTensor *t) {
+  free(t->name);
+  free(t->builder);
+  free(t->data);
+}
+
+void model_free(Model *m) {
+  if (!m) return;
+  for (int c = 0; m->classes && c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    free(rc->label);
+    free(rc->B);
+    for (int i = 0; rc->members && i < rc->nmembers; i++) free(rc->members[i].name), free(rc->members[i].sv);
+    free(rc->members);
+  }
+  for (int i = 0; m->stages && i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    for (int t = 0; rs->terms && t < rs->nterms; t++) {
+      RTerm *rt = &rs->terms[t];
+      for (int g = 0; rt->num && g < rt->nnum; g++) free_tensor(&rt->num[g]);
+      free(rt->num);
+      free(rt->proj);
+      free(rt->proj_name);
+      for (int k = 0; rt->ops && k < rt->nops; k++) {
+        for (int g = 0; g < rt->ops[k].ntensors; g++) free_tensor(&rt->ops[k].t[g]);
+        free(rt->ops[k].t);
+      }
+      free(rt->ops);
+    }
+    free(rs->terms);
+  }
+  for (int i = 0; m->externs && i < m->nexterns; i++) {
+    free(m->externs[i].X);
+    free(m->externs[i].Z);
+  }
+  free(m->externs);
+  free(m->stages);
+  free(m->classes);
+  free(m->qclass);
+  free(m->dims);
+  free(m->param_hashes);
+  free(m);
+}
+
+static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
+
+void model_size_tensors(Model *m) {
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    long my = qm(m, rs->q);
+    for (int t = 0; t < rs->nterms; t++) {
+      RTerm *rt = &rs->terms[t];
+      RTERM_FOR_TENSORS(rt, x) {
+        x->rows = x->kind == RT_NUM ? my : x->kind == RT_DIAG ? my * (my + 1) / 2 : my * my;
+        x->cols = 1;
+        for (int j = 0; j < x->nin; j++) {
+          x->in_len[j] = sym_len(qm(m, x->in_q[j]), x->in_mult[j]);
+          x->cols *= x->in_len[j];
+        }
+      }
+    }
+  }
+  for (int i = 0; i < m->nexterns; i++) {
+    RExtern *x = &m->externs[i];
+    x->d = 0;
+    for (int j = 0; j < x->nin; j++) x->d += qm(m, x->in_q[j]);
+  }
+}
+
+size_t model_bytes(const Model *m, size_t *tensor_bytes) {
+  size_t total = 0, tb = 0;
+  for (int c = 0; c < m->nclasses; c++) total += sizeof(double) * (size_t)(m->classes[c].n * m->classes[c].m);
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    for (int t = 0; t < rs->nterms; t++) {
+      const RTerm *rt = &rs->terms[t];
+      RTERM_FOR_TENSORS(rt, x) {
+        tb += sizeof(double) * (size_t)(x->rows * x->cols);
+      }
+      if (rt->proj) tb += sizeof(double) * (size_t)(qm(m, rs->q) * qm(m, rt->named_q));
+    }
+  }
+  for (int i = 0; i < m->nexterns; i++)
+    total += sizeof(double) * (size_t)(m->externs[i].S * (m->externs[i].d + qm(m, m->externs[i].q)));
+  if (tensor_bytes) *tensor_bytes = tb;
+  return total + tb;
+}
+
+uint64_t model_program_hash(const Program *prog) {
+  uint64_t h = 1469598103934665603ull;
+  for (int i = 0; i < prog->ctx->files.n; i++) {
+    const SrcFile *f = prog->ctx->files.v[i];
+    for (size_t k = 0; k < f->len; k++) {
+      h ^= (unsigned char)f->text[k];
+      h *= 1099511628211ull;
+    }
+    h ^= 0xff;
+    h *= 1099511628211ull;
+  }
+  return h;
+}
 
 /* Visit every reduced tensor of a model. */
 #define FOR_TENSORS(m, x)                                           \
@@ -22,6 +307,8 @@
     for (int t_ = 0; t_ < (m)->stages[i_].nterms; t_++)             \
       for (RTerm *rt_ = &(m)->stages[i_].terms[t_]; rt_; rt_ = NULL) \
         RTERM_FOR_TENSORS(rt_, x)
+
+/* ---------------------------------------------------------------- files */
 
 static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quantities.v[q])->name; }
 

@@ -34,7 +34,7 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "reduce.h"
+#include "train.h"
 
 #define PREMUL_PENDING 64               /* entries batched per GEMM of a key */
 #define PREMUL_BLOCK_BYTES (128L << 20) /* bound on a block's W */

@@ -18,14 +18,14 @@
 #include <string.h>
 
 #include "ast.h"
-#include "compile.h"
 #include "emit.h"
 #include "full.h"
 #include "memsamples.h"
-#include "reduce.h"
+#include "reduced.h"
 #include "runtime.h"
+#include "train.h"
 
-double rel_max_diff(const double *a, const double *b, size_t n) {
+double exact_rel_max_diff(const double *a, const double *b, size_t n) {
   double num = 0, den = 0;
   for (size_t i = 0; i < n; i++) {
     if (isnan(a[i]) != isnan(b[i])) return NAN;
@@ -125,7 +125,7 @@ static int stage_from_tensors(const Program *prog, NpgFull *f, const Stage *st, 
       for (size_t e = 0; e < count && rc == 0; e++) num[e] = w[e], mag[e] = fabs(w[e]);
     }
     for (int g = 0; g < tm->num_tensors.n && rc == 0 && !tm->named_num; g++)
-      rc = sum_group(f, builder_name(prog->ctx, prog, st, t, 0, g, NULL), &tm->num_tensors.g[g], num, mag, 0, err,
+      rc = sum_group(f, emit_builder_name(prog->ctx, prog, st, t, 0, g, NULL), &tm->num_tensors.g[g], num, mag, 0, err,
                      errlen);
     for (int o = 0; o < tm->nops && rc == 0; o++) {
       const OpPow *op = &tm->ops[o];
@@ -133,7 +133,7 @@ static int stage_from_tensors(const Program *prog, NpgFull *f, const Stage *st, 
         memset(dg, 0, sizeof(double) * count);
         memset(dmag, 0, sizeof(double) * count);
         for (int g = 0; g < tm->op_tensors[o].n && rc == 0; g++)
-          rc = sum_group(f, builder_name(prog->ctx, prog, st, t, o + 1, g, NULL), &tm->op_tensors[o].g[g], dg, dmag, 0,
+          rc = sum_group(f, emit_builder_name(prog->ctx, prog, st, t, o + 1, g, NULL), &tm->op_tensors[o].g[g], dg, dmag, 0,
                          err, errlen);
         double r = fabs((double)op->p / (double)op->q);
         for (size_t e = 0; e < count && rc == 0; e++) {
@@ -151,7 +151,7 @@ static int stage_from_tensors(const Program *prog, NpgFull *f, const Stage *st, 
       }
       const OpDef *od = op->op->opdef;
       for (int g = 0; g < od->tensors.n && rc == 0; g++)
-        rc = sum_group(f, builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op), &od->tensors.g[g], M, NULL, (long)ne,
+        rc = sum_group(f, emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op), &od->tensors.g[g], M, NULL, (long)ne,
                        err, errlen);
       double kappa = rc == 0 ? power_condition(M, ne, op->p, op->q) : 1;
       double cond_in = max_abs(mag, count) / fmax(max_abs(num, count), DBL_MIN);
@@ -174,26 +174,25 @@ static int stage_from_tensors(const Program *prog, NpgFull *f, const Stage *st, 
 }
 
 /* Check 1; *failed set when a stage differs. */
-static int check_lowering(NpgProgram *p, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
-  Program *prog = npg_program_ir(p);
+static int check_lowering(Program *prog, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
   long n = o->n_lowering > 0 ? o->n_lowering : 6;
   fprintf(out, "  1. lowering: every stage from its tensors' entries against the full evaluator, every dim %ld (bar "
                "%.0e)\n",
           n, EXACT_LOWERING_TOL);
-  NpgFull *f = npg_full_new(p, o->backend);
+  NpgFull *f = full_new(prog, o->backend, NULL);
   MemSamples ms;
   memset(&ms, 0, sizeof ms);
   int rc = 0;
   if (npg_full_error(f)[0]) rc = npg_fail(err, errlen, "%s", npg_full_error(f));
-  else if ((rc = mem_fill(&ms, prog, f, n, 1, o->seed)) != 0)
+  else if ((rc = memsamples_fill(&ms, prog, f, n, 1, o->seed)) != 0)
     rc = npg_fail(err, errlen, "%s", rc == -1 ? npg_full_error(f) : "out of memory for the random samples");
-  else if (mem_set(&ms, f, 0) != 0 || npg_full_eval(f, 0) != 0)
+  else if (memsamples_set(&ms, f, 0) != 0 || npg_full_eval(f, 0) != 0)
     rc = npg_fail(err, errlen, "the full evaluator on the random data: %s", npg_full_error(f));
   for (int i = 0; i < prog->stages.n && rc == 0; i++) {
     const Stage *st = prog->stages.v[i];
     if (st->kind == ST_EXTERN) continue;
     long shape[MAX_AXES + MAX_STATIC];
-    size_t count = mem_count(st->sym, n, shape);
+    size_t count = memsamples_count(st->sym, n, shape);
     const double *full = npg_full_get(f, st->sym->name, NULL);
     double *y = malloc(sizeof(double) * (count ? count : 1));
     if (!y || !full) {
@@ -221,19 +220,18 @@ static int check_lowering(NpgProgram *p, const ExactOptions *o, FILE *out, bool 
     free(scale);
     free(y);
   }
-  mem_free(&ms);
+  memsamples_free(&ms);
   npg_full_free(f);
   return rc;
 }
 
 /* ---------------------------------------------------------------- 2. full rank */
 
-static int check_full_rank(NpgProgram *p, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
-  Program *prog = npg_program_ir(p);
+static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
   long n = o->n_full_rank > 0 ? o->n_full_rank : 4, S = 1;
   for (int i = 0; i < prog->quantities.n; i++) {
     long shape[MAX_AXES + MAX_STATIC];
-    long c = (long)mem_count(prog->quantities.v[i], n, shape);
+    long c = (long)memsamples_count(prog->quantities.v[i], n, shape);
     S = c > S ? c : S;
   }
   S += 4; /* more samples than the largest class's dimension: every snapshot matrix has full rank */
@@ -244,7 +242,7 @@ static int check_full_rank(NpgProgram *p, const ExactOptions *o, FILE *out, bool
   if (S > 20000)
     return npg_fail(err, errlen, "the full-rank check would train on %ld samples of %ld entries; give a smaller size", S,
                  S - 4);
-  NpgFull *f = npg_full_new(p, o->backend);
+  NpgFull *f = full_new(prog, o->backend, NULL);
   MemSamples train, held;
   memset(&train, 0, sizeof train);
   memset(&held, 0, sizeof held);
@@ -254,11 +252,11 @@ static int check_full_rank(NpgProgram *p, const ExactOptions *o, FILE *out, bool
   int rc = 0;
   if (!worst) rc = npg_fail(err, errlen, "out of memory");
   else if (npg_full_error(f)[0]) rc = npg_fail(err, errlen, "%s", npg_full_error(f));
-  else if ((rc = mem_fill(&train, prog, f, n, S, o->seed + 1)) != 0 ||
-           (rc = mem_fill(&held, prog, NULL, n, held_out, o->seed + 977)) != 0)
+  else if ((rc = memsamples_fill(&train, prog, f, n, S, o->seed + 1)) != 0 ||
+           (rc = memsamples_fill(&held, prog, NULL, n, held_out, o->seed + 977)) != 0)
     rc = npg_fail(err, errlen, "%s", rc == -1 ? npg_full_error(f) : "out of memory for the random samples");
   if (rc == 0) {
-    SampleSource src = {S, &train, mem_set};
+    SampleSource src = {S, &train, memsamples_set};
     TrainOptions opt;
     memset(&opt, 0, sizeof opt);
     opt.cap = 1 << 20;
@@ -274,7 +272,7 @@ static int check_full_rank(NpgProgram *p, const ExactOptions *o, FILE *out, bool
   }
   if (rc == 0) reduced_use_given_externs(r, true);
   for (long k = 0; k < held_out && rc == 0; k++) {
-    if (mem_set(&held, f, k) != 0 || npg_full_eval(f, k) != 0) {
+    if (memsamples_set(&held, f, k) != 0 || npg_full_eval(f, k) != 0) {
       rc = npg_fail(err, errlen, "the full evaluator on held-out sample %ld: %s", k, npg_full_error(f));
       break;
     }
@@ -293,7 +291,7 @@ static int check_full_rank(NpgProgram *p, const ExactOptions *o, FILE *out, bool
         break;
       }
       reduced_lift(r, q, y);
-      double d = rel_max_diff(full, y, cnt);
+      double d = exact_rel_max_diff(full, y, cnt);
       worst[q] = isnan(d) || isnan(worst[q]) ? NAN : fmax(worst[q], d);
     }
   }
@@ -308,19 +306,18 @@ static int check_full_rank(NpgProgram *p, const ExactOptions *o, FILE *out, bool
   free(worst);
   reduced_free(r);
   model_free(m);
-  mem_free(&train);
-  mem_free(&held);
+  memsamples_free(&train);
+  memsamples_free(&held);
   npg_full_free(f);
   return rc;
 }
 
-int exact_check(NpgProgram *p, const ExactOptions *o, FILE *out, char *err, size_t errlen) {
+int exact_check_program(Program *prog, const ExactOptions *o, FILE *out, char *err, size_t errlen) {
   if (err && errlen) err[0] = '\0';
-  if (!p || !npg_ok(p)) return npg_fail(err, errlen, "the program does not compile");
   fprintf(out, "exactness checks of DESIGN §4 on random data (seed %u)\n", o->seed);
   bool failed = false;
-  if (check_lowering(p, o, out, &failed, err, errlen) != 0) return -1;
-  if (check_full_rank(p, o, out, &failed, err, errlen) != 0) return -1;
+  if (check_lowering(prog, o, out, &failed, err, errlen) != 0) return -1;
+  if (check_full_rank(prog, o, out, &failed, err, errlen) != 0) return -1;
   fprintf(out, failed ? "FAIL: an exactness check failed (a bug in npg: please report it with the program)\n"
                       : "ok: the lowering is exact and full-rank bases reproduce the full evaluator\n");
   return failed ? 1 : 0;

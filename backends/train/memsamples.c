@@ -5,23 +5,23 @@
 #include "memsamples.h"
 #include "randdata.h"
 
-size_t mem_count(const Sym *s, long n, long *shape) {
+size_t memsamples_count(const Sym *s, long n, long *shape) {
   size_t c = 1;
   for (int a = 0; a < s->ndims; a++) shape[a] = n, c *= (size_t)n;
   for (int a = 0; a < s->nstatic; a++) shape[s->ndims + a] = s->shape[a], c *= (size_t)s->shape[a];
   return c;
 }
 
-int mem_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, long S, unsigned seed) {
+int memsamples_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, long S, unsigned seed) {
   memset(ms, 0, sizeof *ms);
   ms->S = S;
   for (int i = 0; i < prog->params.n && f; i++) {
     const Sym *s = prog->params.v[i];
     long shape[MAX_AXES + MAX_STATIC];
-    size_t c = mem_count(s, n, shape);
+    size_t c = memsamples_count(s, n, shape);
     double *v = malloc(sizeof(double) * (c ? c : 1));
     if (!v) return -2;
-    rand_fill(prog, s, n, &seed, false, v, c);
+    randdata_fill(prog, s, n, &seed, false, v, c);
     int rc = npg_full_set_param(f, s->name, s->ndims + s->nstatic, shape, v, s->name);
     free(v);
     if (rc) return -1;
@@ -30,24 +30,24 @@ int mem_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, long S, un
     const Sym *s = prog->quantities.v[i];
     if (s->kind != SYM_INPUT && s->kind != SYM_EXTERN) continue;
     if (ms->n == MEM_MAX_QUANTITIES) {
-      mem_free(ms);
+      memsamples_free(ms);
       return -2;
     }
     int k = ms->n++;
     ms->sym[k] = s;
     ms->nd[k] = s->ndims + s->nstatic;
-    ms->count[k] = mem_count(s, n, ms->shape[k]);
+    ms->count[k] = memsamples_count(s, n, ms->shape[k]);
     ms->val[k] = malloc(sizeof(double) * (ms->count[k] ? ms->count[k] : 1) * (size_t)(S > 0 ? S : 1));
     if (!ms->val[k]) {
-      mem_free(ms);
+      memsamples_free(ms);
       return -2;
     }
-    for (long j = 0; j < S; j++) rand_fill(prog, s, n, &seed, false, ms->val[k] + (size_t)j * ms->count[k], ms->count[k]);
+    for (long j = 0; j < S; j++) randdata_fill(prog, s, n, &seed, false, ms->val[k] + (size_t)j * ms->count[k], ms->count[k]);
   }
   return 0;
 }
 
-int mem_set(void *user, NpgFull *f, long k) {
+int memsamples_set(void *user, NpgFull *f, long k) {
   MemSamples *ms = user;
   for (int i = 0; i < ms->n; i++)
     if (npg_full_set(f, ms->sym[i]->name, ms->nd[i], ms->shape[i], ms->val[i] + (size_t)k * ms->count[i],
@@ -56,7 +56,7 @@ int mem_set(void *user, NpgFull *f, long k) {
   return 0;
 }
 
-void mem_free(MemSamples *ms) {
+void memsamples_free(MemSamples *ms) {
   for (int i = 0; i < ms->n; i++) free(ms->val[i]), ms->val[i] = NULL;
   ms->n = 0;
 }

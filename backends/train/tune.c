@@ -17,7 +17,8 @@
 #include <string.h>
 
 #include "emit.h"
-#include "reduce.h"
+#include "reduced.h"
+#include "train.h"
 
 typedef struct Valid {
   long S;

@@ -19,6 +19,7 @@
 #include <stddef.h>
 #include <stdio.h>
 
+#include "ir.h"
 #include "npg.h"
 
 #define EXACT_LOWERING_TOL 1e-12
@@ -32,16 +33,16 @@ typedef struct ExactOptions {
   bool progress;      /* training's progress bars */
 } ExactOptions;
 
-/* Run both checks on `p` (compiled without errors) and print a report to
+/* Run both checks on `prog` (compiled without errors) and print a report to
  * `out`: per stage the relative difference of check 1, per quantity that
  * of check 2. Returns 0 when both pass, 1 when one fails (the report names
  * where), -1 when a check cannot run (message in `err`: the full evaluator
  * failed on the random data, an operator is singular there, out of
  * memory). */
-int exact_check(NpgProgram *p, const ExactOptions *o, FILE *out, char *err, size_t errlen);
+int exact_check_program(Program *prog, const ExactOptions *o, FILE *out, char *err, size_t errlen);
 
 /* max |a − b| / max |a| over n entries (NaN when one side alone is NaN at
  * an entry): the relative difference both checks report. */
-double rel_max_diff(const double *a, const double *b, size_t n);
+double exact_rel_max_diff(const double *a, const double *b, size_t n);
 
 #endif

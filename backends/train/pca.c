@@ -26,7 +26,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "reduce.h"
+#include "train.h"
 
 /* Singular values below this fraction of the largest are dependent
  * directions, not data. */

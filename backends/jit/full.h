@@ -9,6 +9,17 @@
 #include "npg.h"
 #include "npg_abi.h"
 
+/* The generated C of `prog`'s full evaluator (every stage, the bind-time
+ * gather checker) and its tensor builders, written to `out` with the
+ * compilation's error handler armed: 0, or -1 with the diagnostic in
+ * prog->ctx->msg. What npg_emit_full() writes. */
+int full_emit(Program *prog, FILE *out);
+/* The full evaluator of `prog`: its C generated and compiled (libtcc, or cc
+ * with NPG_CC). With `refusal` non-NULL, an evaluator that refuses all work
+ * with that message (the program did not compile). NULL only when out of
+ * memory; otherwise errors are in npg_full_error(). npg_full_new() is this
+ * for an NpgProgram. */
+NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal);
 /* Run the tensor builder `name` on the current binding (after an
  * evaluation bound everything). 0, or -1 with npg_full_error(). */
 int full_build(NpgFull *f, const char *name, NpgSink *sink);

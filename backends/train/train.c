@@ -25,7 +25,8 @@
 #include <time.h>
 
 #include "emit.h"
-#include "reduce.h"
+#include "reduced.h"
+#include "train.h"
 
 void progress_show(bool on, const char *what, long done, long total) {
   if (!on) return;

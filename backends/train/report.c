@@ -5,7 +5,7 @@
 #include <math.h>
 #include <stdio.h>
 
-#include "reduce.h"
+#include "train.h"
 
 /* A member that hits its cap with more than this fraction of its energy
  * lost: the cap, not the energy fraction, decided its size. */

@@ -3,7 +3,7 @@
 
 #include <math.h>
 
-double rand_uniform(unsigned *seed, double lo, double hi) {
+double randdata_uniform(unsigned *seed, double lo, double hi) {
   *seed = *seed * 1103515245u + 12345u;
   return lo + (hi - lo) * ((*seed >> 8) & 0xffffff) / (double)0x1000000;
 }
@@ -40,14 +40,14 @@ static bool guards_read(const Program *prog, const Sym *s) {
 }
 
 
-bool rand_fill(const Program *prog, const Sym *s, long n, unsigned *seed, bool padded, double *v, size_t k) {
+bool randdata_fill(const Program *prog, const Sym *s, long n, unsigned *seed, bool padded, double *v, size_t k) {
   bool did_pad = false;
   if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) {
-    for (size_t j = 0; j < k; j++) v[j] = rand_uniform(seed, 0.5, 1.5);
+    for (size_t j = 0; j < k; j++) v[j] = randdata_uniform(seed, 0.5, 1.5);
     return false;
   }
   if (!s->is_int) {
-    for (size_t j = 0; j < k; j++) v[j] = rand_uniform(seed, 0.1, 0.3);
+    for (size_t j = 0; j < k; j++) v[j] = randdata_uniform(seed, 0.1, 0.3);
     return false;
   }
   size_t row = s->nstatic ? (size_t)s->shape[s->nstatic - 1] : 1;
@@ -56,7 +56,7 @@ bool rand_fill(const Program *prog, const Sym *s, long n, unsigned *seed, bool p
     for (int tries = 0; tries < 200; tries++) {
       for (size_t j = r0; j < r0 + row; j++) {
         for (int t2 = 0; t2 < 100; t2++) {
-          v[j] = floor(rand_uniform(seed, 0, (double)n));
+          v[j] = floor(randdata_uniform(seed, 0, (double)n));
           bool repeated = false;
           for (size_t r = r0; r < j; r++) repeated |= v[r] == v[j];
           if (!repeated || row > (size_t)n) break;
@@ -76,7 +76,7 @@ bool rand_fill(const Program *prog, const Sym *s, long n, unsigned *seed, bool p
   if (padded && guards_read(prog, s)) {
     did_pad = true;
     for (size_t j = 0; j < k; j++)
-      if (rand_uniform(seed, 0, 1) < 0.25) v[j] = -1;
+      if (randdata_uniform(seed, 0, 1) < 0.25) v[j] = -1;
   }
   return did_pad;
 }

@@ -20,18 +20,18 @@ typedef struct MemSamples {
 } MemSamples;
 
 /* Entries of `s` with every dim of size n; its shape into `shape`. */
-size_t mem_count(const Sym *s, long n, long *shape);
+size_t memsamples_count(const Sym *s, long n, long *shape);
 
 /* Random params into `f` (when non-NULL), then S samples of every input
  * and extern (randdata.h), every dim of size n. 0; -1 when binding a
  * param failed (npg_full_error(f) says why), -2 when memory ran out or the
  * program has more than MEM_MAX_QUANTITIES inputs and externs (then `ms`
  * holds nothing to free). */
-int mem_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, long S, unsigned seed);
+int memsamples_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, long S, unsigned seed);
 
 /* SampleSource callback: sets sample k. */
-int mem_set(void *user, NpgFull *f, long k);
+int memsamples_set(void *user, NpgFull *f, long k);
 
-void mem_free(MemSamples *ms);
+void memsamples_free(MemSamples *ms);
 
 #endif

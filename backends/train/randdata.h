@@ -15,7 +15,7 @@
  * same set (no degenerate triangles or tetrahedra); with `padded`, int
  * params that some guard tests get -1 in about one entry in four. Returns
  * true when it padded. */
-bool rand_fill(const Program *prog, const Sym *s, long n, unsigned *seed, bool padded, double *out, size_t count);
-double rand_uniform(unsigned *seed, double lo, double hi);
+bool randdata_fill(const Program *prog, const Sym *s, long n, unsigned *seed, bool padded, double *out, size_t count);
+double randdata_uniform(unsigned *seed, double lo, double hi);
 
 #endif

@@ -61,6 +61,16 @@ Emit *emit_new(Ctx *ctx, const Program *prog, FILE *out);
 void emit_header(Emit *e, const char *what);
 char *emit_source_line(Ctx *ctx, Loc loc);
 void emit_full(Ctx *ctx, const Program *prog, FILE *out);
+/* The external name of generated symbol `what` ("full", "check",
+ * "build_y_t0_f0_g0", "reduced", ...): "<stem>_npg_<what>", <stem> the
+ * program's file stem with every character outside [A-Za-z0-9_] made '_'
+ * ("p" put before a stem that does not start with a letter). Every
+ * external symbol of a generated translation unit carries it, so the
+ * generated C of two programs links into one binary. Written to `buf` as
+ * snprintf does; returns the length of the whole name. */
+int emit_symbol(const Program *prog, const char *what, char *buf, size_t n);
+/* The same, in the arena. */
+char *emit_symbol_name(Ctx *ctx, const Program *prog, const char *what);
 /* A function `signature` whose prologue declares what `body` used. */
 void emit_function_sig(Emit *e, FILE *out, const char *signature, const Sym *writes,
                        void (*body)(Emit *, FILE *, const void *), const void *arg);
@@ -150,6 +160,6 @@ void emit_builders(Ctx *ctx, const Program *prog, FILE *out);
 /* The name of the builder function of tensor `group` of `field` (0 = the
  * numerator, k+1 = operator k) of term `term` of stage `st`; for a declared
  * op (st NULL) the entries' tensor `group`. */
-char *builder_name(Ctx *ctx, const Program *prog, const Stage *st, int term, int field, int group, const Sym *op);
+char *emit_builder_name(Ctx *ctx, const Program *prog, const Stage *st, int term, int field, int group, const Sym *op);
 
 #endif

@@ -25,10 +25,10 @@ static char *c_ident(Ctx *ctx, const char *s) {
   return n;
 }
 
-char *builder_name(Ctx *ctx, const Program *prog, const Stage *st, int term, int field, int group, const Sym *op) {
-  (void)prog;
-  if (!st) return arena_printf(ctx, "npg_build_op_%s_g%d", c_ident(ctx, op->name), group);
-  return arena_printf(ctx, "npg_build_%s_t%d_f%d_g%d", c_ident(ctx, st->sym->name), term, field, group);
+char *emit_builder_name(Ctx *ctx, const Program *prog, const Stage *st, int term, int field, int group, const Sym *op) {
+  if (!st) return emit_symbol_name(ctx, prog, arena_printf(ctx, "build_op_%s_g%d", c_ident(ctx, op->name), group));
+  return emit_symbol_name(ctx, prog,
+                          arena_printf(ctx, "build_%s_t%d_f%d_g%d", c_ident(ctx, st->sym->name), term, field, group));
 }
 
 static int cmp_sym(const Sym *x, const Sym *y) {
@@ -169,14 +169,14 @@ void emit_builders(Ctx *ctx, const Program *prog, FILE *out) {
       if (!tm->named_num)
         for (int g = 0; g < tm->num_tensors.n; g++) {
           BuildArgs b = {tm->num, &tm->num_tensors.g[g], st->sym, 0, st->ncomp};
-          emit_one(e, builder_name(ctx, prog, st, t, 0, g, NULL),
+          emit_one(e, emit_builder_name(ctx, prog, st, t, 0, g, NULL),
                    arena_printf(ctx, "%s term %d numerator, tensor %d", st->sym->name, t + 1, g + 1), &b);
         }
       for (int k = 0; k < tm->nops; k++) {
         if (tm->ops[k].kind != OPK_DIAG) continue;
         for (int g = 0; g < tm->op_tensors[k].n; g++) {
           BuildArgs b = {tm->ops[k].diag, &tm->op_tensors[k].g[g], st->sym, 1, st->ncomp};
-          emit_one(e, builder_name(ctx, prog, st, t, k + 1, g, NULL),
+          emit_one(e, emit_builder_name(ctx, prog, st, t, k + 1, g, NULL),
                    arena_printf(ctx, "%s term %d diagonal operator %d, tensor %d", st->sym->name, t + 1, k + 1, g + 1), &b);
         }
       }
@@ -186,7 +186,7 @@ void emit_builders(Ctx *ctx, const Program *prog, FILE *out) {
     const OpDef *od = prog->opdefs.v[i];
     for (int g = 0; g < od->tensors.n; g++) {
       BuildArgs b = {od->entries, &od->tensors.g[g], od->sym, 2, 1};
-      emit_one(e, builder_name(ctx, prog, NULL, 0, 0, g, od->sym),
+      emit_one(e, emit_builder_name(ctx, prog, NULL, 0, 0, g, od->sym),
                arena_printf(ctx, "operator %s, tensor %d", od->sym->name, g + 1), &b);
     }
   }

@@ -418,11 +418,34 @@ static bool temp_splits(const Program *prog, const Stage *const *members, int n,
   return false;
 }
 
-void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
-  Emit *e = emit_new(ctx, prog, out);
-  emit_header(e, "Full evaluator");
-  /* Temps: inlined stages that read inputs, computed once (the reduced
-   * model folds them into its tensors; the full evaluator need not). */
+int emit_symbol(const Program *prog, const char *what, char *buf, size_t n) {
+  const char *path = prog->main && prog->main->name ? prog->main->name : "program";
+  const char *base = strrchr(path, '/') ? strrchr(path, '/') + 1 : path;
+  const char *dot = strrchr(base, '.');
+  size_t len = dot && dot > base ? (size_t)(dot - base) : strlen(base);
+  bool letter = len > 0 && ((base[0] >= 'a' && base[0] <= 'z') || (base[0] >= 'A' && base[0] <= 'Z'));
+  int total = snprintf(buf, n, "%s%.*s_npg_%s", letter ? "" : "p", (int)len, base, what);
+  for (size_t i = letter ? 0 : 1; buf && i < n && i < (letter ? 0 : 1) + len; i++) {
+    char c = buf[i];
+    if (!c) break;
+    if (!((c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '_')) buf[i] = '_';
+  }
+  return total;
+}
+
+char *emit_symbol_name(Ctx *ctx, const Program *prog, const char *what) {
+  int len = emit_symbol(prog, what, NULL, 0);
+  char *name = arena_alloc(ctx, (size_t)len + 1);
+  emit_symbol(prog, what, name, (size_t)len + 1);
+  return name;
+}
+
+/* Temps: inlined stages that read inputs, computed once (the reduced
+ * model folds them into its tensors; the full evaluator need not). */
+static void emit_temps(Emit *e) {
+  Ctx *ctx = e->ctx;
+  const Program *prog = e->prog;
+  FILE *out = e->out;
   for (int i = 0; i < prog->temps.n; i++) {
     const Sym *s = prog->temps.v[i];
     fprintf(out, "/* %s: inlined (computed once here), %s:%d\n   %s */\n", s->name, s->loc.file ? s->loc.file->name : "?",
@@ -430,9 +453,16 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
     emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "temp_", s)), s,
                       stage_body_cb, s->stage);
   }
-  /* Stages; consecutive stages over one domain are fused into one loop
-   * nest (each still written whole), reads of a fused stage at another
-   * entry rematerialized from its expression. */
+}
+
+/* Stages; consecutive stages over one domain are fused into one loop nest
+ * (each still written whole), reads of a fused stage at another entry
+ * rematerialized from its expression. The functions to call in order go
+ * to `calls` (char*), the last stage each computes to `call_ids`. */
+static void emit_stages(Emit *e, PtrVec *calls_out, PtrVec *call_ids_out) {
+  Ctx *ctx = e->ctx;
+  const Program *prog = e->prog;
+  FILE *out = e->out;
   PtrVec calls = {0}; /* char*: function to call, in order */
   PtrVec call_ids = {0};
   const Stage **st_all = (const Stage **)prog->stages.v;
@@ -513,8 +543,19 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
     vec_push(ctx, &call_ids, (void *)st);
     i++;
   }
+  *calls_out = calls;
+  *call_ids_out = call_ids;
+}
+
+/* The entry point: every stage in evaluation order, each temp before the
+ * first call that needs it. */
+static void emit_entry(Emit *e, PtrVec calls, PtrVec call_ids) {
+  Ctx *ctx = e->ctx;
+  const Program *prog = e->prog;
+  FILE *out = e->out;
+  const Stage **st_all = (const Stage **)prog->stages.v;
   fputs("/* Every stage in evaluation order (externs are given with the inputs). */\n", out);
-  fputs("int npg_full(const NpgCtx *c) {\n", out);
+  fprintf(out, "int %s(const NpgCtx *c) {\n", emit_symbol_name(ctx, prog, "full"));
   bool *done = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->temps.n + 1));
   for (int k = 0; k < calls.n; k++) {
     const Stage *last = call_ids.v[k];
@@ -538,7 +579,14 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
   }
   fputs("  return 0;\n}\n\n", out);
 
-  /* Bind-time gather checks: every index into a dim, where its guard holds. */
+}
+
+/* Bind-time gather checks: every index into a dim, where its guard holds;
+ * the entry point that runs them all. */
+static void emit_checks(Emit *e) {
+  Ctx *ctx = e->ctx;
+  const Program *prog = e->prog;
+  FILE *out = e->out;
   for (int i = 0; i < prog->stages.n; i++) {
     const Stage *st = prog->stages.v[i];
     if (st->kind == ST_EXTERN) continue;
@@ -559,7 +607,7 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
                   check_op_cb, od);
   }
   fputs("/* Every gather in range of its dim where its guard holds: run once per binding. */\n", out);
-  fputs("int npg_check(const NpgCtx *c) {\n", out);
+  fprintf(out, "int %s(const NpgCtx *c) {\n", emit_symbol_name(ctx, prog, "check"));
   for (int i = 0; i < prog->stages.n; i++) {
     const Stage *st = prog->stages.v[i];
     if (st->kind == ST_EXTERN) continue;
@@ -570,4 +618,14 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
   for (int i = 0; i < prog->opdefs.n; i++)
     fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "check_op_", ((OpDef *)prog->opdefs.v[i])->sym));
   fputs("  return 0;\n}\n", out);
+}
+
+void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
+  Emit *e = emit_new(ctx, prog, out);
+  emit_header(e, "Full evaluator");
+  emit_temps(e);
+  PtrVec calls, call_ids;
+  emit_stages(e, &calls, &call_ids);
+  emit_entry(e, calls, call_ids);
+  emit_checks(e);
 }

@@ -1,0 +1,168 @@
+/* model.h — the reduced model: its layout derived from the stage program
+ * and its files (DESIGN §1, §2, §5, §7; paper §4, §8.2–§8.3). Training
+ * fills it (train/train.h); the reduced evaluator runs it (reduced.h).
+ *
+ * A model is fully determined by the program (whose hash it records) plus
+ * arrays: one orthonormal basis per basis class and one pre-multiplied
+ * tensor per tensor group of every term. The layout — which tensor belongs
+ * to which term, its axes and sizes — is recomputed from the program when a
+ * model is loaded; the files hold only numbers and the manifest.
+ *
+ * Reduced tensors (RTensor) are dense, row-major rows x cols:
+ *   rows: the reduced output coordinates — RT_NUM m (a numerator, in the
+ *         result's basis), RT_DIAG m(m+1)/2 (a diagonal operator reduced as
+ *         BᵀMB, symmetric: upper triangle packed row by row), RT_DECL m·m (a
+ *         declared operator BᵀMB);
+ *   cols: the product of one axis per distinct input; an input repeated k
+ *         times (x ⊗ x) gets one packed symmetric axis of C(m+k-1, k)
+ *         coordinates (sorted multi-indices in lexicographic order), so the
+ *         tensor is stored once, not k! times.
+ */
+#ifndef NPG_MODEL_H
+#define NPG_MODEL_H
+
+#include <stdint.h>
+#include <stdio.h>
+
+#include "ir.h"
+
+#define RT_MAX_IN 16
+
+typedef enum RtKind {
+  RT_NUM,   /* numerator tensor: rows = m_y */
+  RT_DIAG,  /* diagonal operator: rows = m_y (m_y + 1) / 2, packed symmetric */
+  RT_DECL,  /* declared operator: rows = m_y * m_y */
+} RtKind;
+
+typedef struct RTensor {
+  RtKind kind;
+  const TensorGroup *group;
+  char *name;               /* file stem in MODEL/ */
+  char *builder;            /* generated builder function */
+  int nin;                  /* distinct inputs */
+  int in_q[RT_MAX_IN];      /* their index in Program.quantities */
+  int in_mult[RT_MAX_IN];   /* multiplicity: > 1 is a packed symmetric axis */
+  long in_len[RT_MAX_IN];   /* C(m + k - 1, k) */
+  long rows, cols;
+  double *data;             /* rows x cols, row-major (owned) */
+} RTensor;
+
+typedef struct ROp {
+  const OpPow *op;
+  int ntensors;
+  RTensor *t;
+  bool spd;                 /* every training diagonal > 0: BᵀMB is SPD (Cholesky) */
+} ROp;
+
+typedef struct RTerm {
+  const Term *term;
+  int nnum;
+  RTensor *num;             /* unnamed numerator: its tensors */
+  int named_q;              /* named numerator: its quantity, else -1 */
+  double *proj;             /* B_yᵀ B_w when w's class differs from y's (m_y x m_w), else NULL */
+  char *proj_name;
+  int nops;
+  ROp *ops;
+} RTerm;
+
+/* Every tensor x of term `rt`: its numerator's, then each operator's in
+ * order of application. */
+#define RTERM_FOR_TENSORS(rt, x)                                                     \
+  for (int k_ = -1; k_ < (rt)->nops; k_++)                                           \
+    for (int g_ = 0; g_ < (k_ < 0 ? (rt)->nnum : (rt)->ops[k_].ntensors); g_++)      \
+      for (RTensor *x = k_ < 0 ? &(rt)->num[g_] : &(rt)->ops[k_].t[g_]; x; x = NULL)
+
+typedef struct RStage {
+  const Stage *st;
+  int q;                    /* index in Program.quantities */
+  int nterms;
+  RTerm *terms;
+} RStage;
+
+/* One member's contribution to a class basis: a quantity or an unnamed
+ * numerator (joiner). */
+typedef struct RMember {
+  char *name;               /* "s", or "h.num1" for the numerator of term 1 of h */
+  int q;                    /* quantity, or -1 for a joiner */
+  const Joiner *joiner;
+  int cap;                  /* basis cap */
+  double energy;            /* energy fraction */
+  bool center;              /* centered truncation: the mean kept, the rest by the centered energy */
+  int kept;                 /* basis vectors kept (the mean included when centered) */
+  double captured;          /* energy fraction captured: 1 − lost */
+  double lost;              /* energy fraction lost (of the centered energy when centered) */
+  double *sv;               /* singular values of its snapshots (centered when centered), descending (owned) */
+  long nsv;
+} RMember;
+
+typedef struct RClass {
+  const BasisClass *bc;
+  char *label;              /* "{b,e}" */
+  long n;                   /* full size (entries of every member) */
+  long m;                   /* basis size */
+  double *B;                /* n x m, row-major, orthonormal columns (owned) */
+  int nmembers;
+  RMember *members;
+} RClass;
+
+/* The learned map of an extern (paper §8.3). */
+typedef struct RExtern {
+  int q;                    /* the extern's quantity */
+  int nin;
+  int in_q[RT_MAX_IN];      /* the quantities it is `of` */
+  long d;                   /* Σ m of its inputs */
+  long S;                   /* training samples */
+  double *X;                /* S x d: the samples' reduced inputs (owned) */
+  double *Z;                /* S x m: the samples' reduced extern values (owned) */
+} RExtern;
+
+typedef struct Model {
+  Program *prog;
+  uint64_t program_hash;
+  int ndims;
+  long *dims;               /* bound sizes, program order */
+  int nclasses;
+  RClass *classes;
+  int nq;
+  int *qclass;              /* class of every quantity */
+  int nstages;
+  RStage *stages;           /* every stage in evaluation order (externs too) */
+  int nexterns;
+  RExtern *externs;
+  long samples;             /* training samples */
+  char *param_hashes;       /* "tri=<hex> rho=<hex>": what DATA/ held at training */
+} Model;
+
+/* ---------------------------------------------------------------- layout (model.c) */
+
+/* The model's structure for `prog` (no numbers yet). NULL on allocation failure. */
+Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen);
+void model_free(Model *m);
+/* Sizes of tensors once class sizes are known (rows, cols, in_len). */
+void model_size_tensors(Model *m);
+/* Bytes of every reduced tensor, basis, extern table. */
+size_t model_bytes(const Model *m, size_t *tensor_bytes);
+/* FNV-1a 64 of the program's source files (main file and used modules). */
+uint64_t model_program_hash(const Program *prog);
+
+/* ---------------------------------------------------------------- packed symmetric powers (sym.c) */
+
+/* Packed symmetric powers: C(m + k - 1, k). */
+long sym_len(long m, int k);
+/* z[α] = Π_l x[α_l] over sorted multi-indices α (lexicographic). */
+void sym_power(long m, int k, const double *x, double *z);
+/* v[α] = Σ over distinct arrangements π of α of Π_l row_l[π_l]: the packed
+ * symmetrization of row_1 ⊗ … ⊗ row_k (rows of one basis at k offsets). */
+void sym_outer(long m, int k, const double *const *rows, double *v);
+
+/* ---------------------------------------------------------------- files (model.c) */
+
+int model_save(const Model *m, const char *dir, char *err, size_t errlen);
+/* Every member's singular values as DIR/spectrum_<member>.npy and .csv
+ * (k, singular value, energy lost keeping the first k), DIR created if
+ * needed. The same files model_save lists in MODEL/. */
+int model_write_spectra(const Model *m, const char *dir, char *err, size_t errlen);
+/* Load MODEL/ for `prog` (hash checked), every array checked. */
+Model *model_load(Program *prog, const char *dir, char *err, size_t errlen);
+
+#endif

@@ -1,0 +1,82 @@
+/* reduced.h — the reduced evaluator of a model (paper §4: contractions,
+ * inverse and root operators, learned externs of §8.3), and the same
+ * evaluator generated as C specialized to one model. */
+#ifndef NPG_REDUCED_H
+#define NPG_REDUCED_H
+
+#include <stdbool.h>
+
+#include "model.h"
+
+/* ---------------------------------------------------------------- reduced evaluation (reduced.c) */
+
+typedef struct Reduced Reduced;
+Reduced *reduced_new(Model *m, char *err, size_t errlen);
+void reduced_free(Reduced *r);
+/* Reduced coordinates of quantity q (set for inputs, computed for stages). */
+double *reduced_coords(Reduced *r, int q);
+/* x̂ = Bᵀx for an input or extern given in full. */
+void reduced_project(Reduced *r, int q, const double *x);
+/* Evaluate every stage. 0, or -1 with the message in reduced_error(). */
+int reduced_eval(Reduced *r, long sample);
+/* Evaluate stage number i (Model.stages) from the current coordinates. */
+int reduced_eval_stage(Reduced *r, int i, long sample);
+/* With `on`, externs keep the coordinates the caller set (reduced_project)
+ * instead of the learned map: for tests and for verifying the rest. */
+void reduced_use_given_externs(Reduced *r, bool on);
+const char *reduced_error(const Reduced *r);
+/* y = B ŷ of quantity q into `y` (n entries). */
+void reduced_lift(const Reduced *r, int q, double *y);
+
+/* ---------------------------------------------------------------- generated reduced code (emit_reduced.c)
+ *
+ * The reduced evaluator as C specialized to one model (DESIGN §6): one
+ * function per stage, every size a literal, contractions as loops; the
+ * tensors come through NpgReducedCtx (npg_abi.h), operator powers and
+ * externs call back into the runtime evaluator (reduced_apply_power,
+ * reduced_eval_stage), so both agree to rounding. */
+
+/* Write the C translation unit of `m` to `out`. 0, or -1 with `err`. */
+int emit_reduced(const Model *m, FILE *out, char *err, size_t errlen);
+
+/* One entry of NpgReducedCtx.t: a reduced tensor, or the projection
+ * B_yᵀB_w of a named numerator whose class differs from its stage's. */
+typedef struct ReducedSlot {
+  const RTensor *t;
+  const RTerm *proj_of;
+  long rows, cols;
+  const double *data;
+} ReducedSlot;
+
+/* Every tensor in NpgReducedCtx.t order: stage by stage, term by term, the
+ * projection, the numerator's tensors, then each operator's. Fills `s`
+ * when non-NULL; returns the count. The emitter and reduced_jit.c share it. */
+long emit_reduced_slots(const Model *m, ReducedSlot *s);
+
+/* ---------------------------------------------------------------- compiled and run (reduced_jit.c) */
+
+/* The generated reduced evaluator of `m`, compiled (libtcc, or cc -O3 with
+ * `cc`). `m` must outlive it; it holds one scratch buffer, so one
+ * evaluation at a time. NULL with `err` on failure. */
+typedef struct RedJit RedJit;
+RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen);
+/* Evaluate every stage on the coordinates held in `r` (a Reduced of the
+ * same model: inputs set by reduced_project, results left in
+ * reduced_coords), as reduced_eval does. 0, or -1 with reduced_jit_error(j). */
+int reduced_jit_eval(RedJit *j, Reduced *r, long sample);
+/* Stage number `stage` (Model.stages) alone, as reduced_eval_stage does. */
+int reduced_jit_eval_stage(RedJit *j, Reduced *r, int stage, long sample);
+void reduced_jit_free(RedJit *j);
+
+/* The message of reduced_jit_eval's last failure. */
+const char *reduced_jit_error(const RedJit *j);
+
+/* For generated code (reduced.c): the model of `r`; v <- M̂^(p/q) v for
+ * operator `op` of term `term` of stage number `stage` (p/q checked
+ * against the model), M̂ given (m x m) — the runtime evaluator's own
+ * factorizations and messages. */
+const Model *reduced_model(const Reduced *r);
+int reduced_apply_power(Reduced *r, int stage, int term, int op, long p, long q, const double *M, double *v,
+                        long sample);
+
+#endif

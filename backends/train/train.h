@@ -1,0 +1,161 @@
+/* train.h — training a model (DESIGN §5; paper §8.2–§8.3): snapshots of
+ * every stage through the full evaluator, one PCA basis per class, every
+ * tensor pre-multiplied by the bases, externs fitted. */
+#ifndef NPG_TRAIN_H
+#define NPG_TRAIN_H
+
+#include <stdbool.h>
+#include <stddef.h>
+
+#include "full.h"
+#include "model.h"
+
+/* ---------------------------------------------------------------- training (train.c) */
+
+typedef struct TrainOptions {
+  int cap;                  /* default cap per member (60) */
+  double energy;            /* default energy fraction per member (0.999) */
+  bool joint;               /* --merge joint */
+  bool uncentered;          /* --center off: the paper's uncentered truncation (default: centered, DESIGN §5) */
+  bool full_rank;           /* complete every basis to its class's full dimension (convergence tests) */
+  size_t mem;               /* memory budget for snapshots, bytes */
+  bool progress;            /* progress bars on stderr */
+  /* overrides from the command line (--basis NAME:cap=N,energy=E,center=on|off), NAME a
+   * quantity, a class as `npgc check` names it (m_f), a numerator (f.num1) or '*';
+   * the more specific wins ('*' < class < member); an unknown NAME fails training */
+  int noverride;
+  const char **override_name;
+  int *override_cap;
+  double *override_energy;
+  int *override_center;     /* 1 on, 0 off, -1 not given (may be NULL: not given) */
+} TrainOptions;
+
+/* The source of samples: sets every input and extern of sample k. */
+typedef struct SampleSource {
+  long count;
+  void *user;
+  int (*set)(void *user, NpgFull *f, long k);
+} SampleSource;
+
+/* Train: snapshots of every stage and joining numerator on every sample,
+ * one basis per class, every tensor pre-multiplied, externs fitted. `f` is
+ * bound to the training params. NULL with `err` on failure. */
+Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                   size_t errlen);
+
+/* Training for a search over basis sizes (npgc tune): the snapshots (in
+ * memory) and every member's ordered basis at its cap (pca_basis: for a
+ * centered member [μ, U_c,1, …]) once; then models whose members keep the
+ * first cap[c] vectors of theirs — the basis that cap would give at energy
+ * 1 — merged and re-pre-multiplied, with no new snapshot or SVD. */
+typedef struct TrainSet TrainSet;
+/* `opt` as for train_model (its energy should be 1: the caps decide); NULL
+ * with `err`. `f` and `src` must outlive the set. */
+TrainSet *train_set_new(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                        size_t errlen);
+int train_set_classes(const TrainSet *ts);
+/* The most vectors a member of class `c` has: caps above it change nothing. */
+int train_set_max_cap(const TrainSet *ts, int c);
+/* The model whose members of class c keep min(cap[c], what they have)
+ * vectors. NULL with `err`. */
+Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen);
+void train_set_free(TrainSet *ts);
+
+/* ---------------------------------------------------------------- basis sizes by error (tune.c) */
+
+typedef struct TuneTrial {
+  int *cap;                 /* per class: its members' cap */
+  long *m;                  /* per class: the basis size it gave */
+  double cost;              /* reduced multiply-adds (ir/cost.c) */
+  double err;               /* the worst output's mean relative L2 error on the validation samples */
+  bool uniform;             /* one cap for every class */
+} TuneTrial;
+
+typedef struct TuneResult {
+  int nclasses;
+  int ntrials;
+  TuneTrial *trials;        /* in the order tried */
+  int chosen;               /* the trial chosen, or -1 when the tolerance cannot be met */
+  int *best_cap;            /* the caps chosen (when unmet: the largest tried) */
+  int limiting;             /* when unmet: the class whose projection floor is the largest */
+  double limiting_floor;
+  bool limiting_saturated;  /* its members have no more directions in the training samples */
+} TuneResult;
+
+/* Choose every class's cap so that every output's mean relative L2 error
+ * on the samples of `valid` (evaluated in full by `f`, bound to the
+ * training params) is at most `tol` at the least reduced cost, caps at most
+ * `max_cap`: uniform caps 1, 2, … up to the first that meets `tol`, then
+ * each class bisected down with the others fixed, the costliest first.
+ * 0 (`out` filled; out->chosen < 0 when `tol` cannot be met, naming the
+ * limiting class), or -1 with `err`. tune_result_free() either way. */
+int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *valid, double tol, int max_cap,
+                bool progress, TuneResult *out, char *err, size_t errlen);
+void tune_result_free(TuneResult *r);
+
+/* ---------------------------------------------------------------- reports (report.c) */
+
+/* The training table: per class its sizes, per member kept / cap and the
+ * energy lost; a warning for every member that hit its cap with more than
+ * 1e-3 of its energy lost. */
+void report_training(const Model *m, FILE *out);
+/* Verification warnings from the mean relative errors `err[q]` and
+ * projection floors `floor[q]` of every quantity: a stage whose error
+ * exceeds 3× its floor (naming what it reads worst and the remedies), an
+ * input whose floor exceeds `tol`. Returns how many were printed. */
+int report_verify_warnings(const Model *m, const double *err, const double *floor, double tol, FILE *out);
+
+/* A progress bar on stderr ("what [####    ] done/total"), when `on`. */
+void progress_show(bool on, const char *what, long done, long total);
+
+/* PCA of one member: X is n x S column-major (sample s at X + s*n). Keeps
+ * at most `cap` left singular vectors, the fewest reaching `energy`.
+ * Returns n x k row-major in *U (malloc'd), k, and the captured fraction. */
+int pca_member(long n, long S, const double *X, int cap, double energy, double **U, int *k, double *captured,
+               char *err, size_t errlen);
+/* One member's basis (DESIGN §5). */
+typedef struct PcaMember {
+  double *U;                /* n x k row-major, orthonormal (malloc'd) */
+  int k;
+  double lost;              /* energy fraction lost: of the centered energy when centered */
+  double *sv;               /* singular values (of X − μ1ᵀ when centered), descending, nsv (malloc'd) */
+  long nsv;
+} PcaMember;
+
+/* The basis of one member, X n x S column-major: uncentered, the leading
+ * left singular vectors as pca_member; `center`ed, the orthonormalization
+ * of [μ, U_c,1 … U_c,r] in that order, μ the snapshots' mean (always kept),
+ * U_c the left singular vectors of X − μ1ᵀ, r the fewest reaching `energy`
+ * of the centered energy, at most cap − 1 (a direction dependent on the
+ * previous ones dropped). 0, or -1 with `err` and nothing allocated. */
+int pca_basis(long n, long S, const double *X, int cap, double energy, bool center, PcaMember *out, char *err,
+              size_t errlen);
+/* Gram–Schmidt (twice) of the columns of A_0 … A_{r-1} (each n x k_i,
+ * row-major) in that order, dropping a column whose remainder is below 1e-8
+ * of its norm: n x m row-major whose first j columns span the first
+ * independent columns given. */
+int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int *m, char *err, size_t errlen);
+/* mu[0..n) = the mean of the S columns of X (n x S column-major). */
+void pca_mean(long n, long S, const double *X, double *mu);
+
+/* Orthonormal basis of the span of [U_1 … U_r] (each n x k_i, row-major),
+ * dropping dependent directions (σ < 1e-10 σ_max): n x m row-major. */
+int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m, char *err, size_t errlen);
+
+/* Pre-multiply one tensor group: stream the builder's entries, accumulate
+ * outer products of basis rows per output block, finish each block with a
+ * GEMM against the output basis. `t` sized by model_size_tensors; fills
+ * t->data. `flops` (optional) accumulates the useful arithmetic (that of
+ * the packed products). */
+int premultiply(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
+                size_t errlen);
+/* The same, choosing the path for a last x ⊗ x axis: unpacked (one GEMM of
+ * full basis rows per batch, folded into packed form) when the group has at
+ * least unpack_min_monos monomials, packed per entry otherwise. premultiply
+ * uses 8; tests force each path. */
+int premultiply_unpacking(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
+                          double *flops, char *err, size_t errlen);
+/* Output keys (rows, or (row, col) pairs) pre-multiplied per block of t. */
+long premul_keys_per_block(const RTensor *t);
+
+#endif

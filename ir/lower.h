@@ -1,0 +1,38 @@
+/* lower.h — what ir/lower.c (the stages) and ir/lower_expr.c (the
+ * expressions) share while lowering one program; private to the two. */
+#ifndef NPG_LOWER_H
+#define NPG_LOWER_H
+
+#include "ir.h"
+
+/* Index variables bound to coefficient expressions. */
+typedef struct Env {
+  Sym *var;
+  Node *val;
+  struct Env *next;
+} Env;
+
+/* A lowered expression: a sum of terms over `ncomp` static components. */
+typedef struct Value {
+  int ncomp;
+  PtrVec terms;   /* Term* */
+} Value;
+
+typedef struct Lowerer {
+  Ctx *ctx;
+  Program *prog;
+  Sym *cur;            /* the top-level definition being lowered */
+  int nintro;          /* introduced stages for cur */
+  PtrVec *open_sums;   /* summation variables open around the expression being lowered */
+} Lowerer;
+
+/* lower_expr.c: expression `n` in the canonical form, index variables from `env`. */
+Value *lower_expr(Lowerer *L, Node *n, Env *env);
+/* lower_expr.c: a stage "cur.tN" introduced for `v` (a divisor or root base
+ * that is not one operator-free polynomial term), `at` the expression it
+ * came from; the value reading it. */
+Value *lower_expr_introduce(Lowerer *L, Value *v, const Node *at, PtrVec *open_sums);
+/* lower.c: the stage of quantity `s` from its value. */
+Stage *lower_stage(Lowerer *L, Sym *s, Value *v);
+
+#endif
