@@ -1,0 +1,38 @@
+/* full.h — one full-space radiosity frame of the scene, what a user would run without
+ * npg: parameters -> g -> ray-cast v -> form factors p -> b, each step timed.
+ * The reduced frame (later: `train`, `run`, `demo`) replaces everything after g. */
+#ifndef RADIOSITY_FULL_H
+#define RADIOSITY_FULL_H
+
+#include <stddef.h>
+
+#include "scene.h"
+#include "visibility.h"
+
+typedef enum Solver {
+  SOLVER_LU,           /* LAPACK dgesv on the dense F x F matrix */
+  SOLVER_GAUSS_SEIDEL, /* sweeps to a relative update of 1e-14 */
+} Solver;
+
+typedef struct FullRadiosity {
+  Scene *scene;          /* borrowed; its g and e are the frame's */
+  Visibility *vis;
+  Solver solver;
+  int threads;
+  double *v, *p, *b;     /* F x F, F x F, F: the last frame's */
+  double t_vis, t_ff, t_solve; /* seconds of the last frame */
+  int sweeps;            /* Gauss–Seidel sweeps of the last frame; -1: it diverged and LU solved */
+} FullRadiosity;
+
+/* A full solver for `scene` with k visibility points per face (1, 4, 16). 0 or -1, err. */
+int full_new(FullRadiosity *fr, Scene *scene, int k, int threads, VisMode mode, Solver solver, char *err,
+             size_t errlen);
+void full_free(FullRadiosity *fr);
+/* Place the scene at p (NULL: keep g and e as they are) and solve: fills v, p, b. */
+int full_frame(FullRadiosity *fr, const SceneParams *p, char *err, size_t errlen);
+/* Only the solve, with `solver`, of the current p (into b); its seconds into *seconds. */
+int full_solve(FullRadiosity *fr, Solver solver, double *seconds, char *err, size_t errlen);
+const char *full_solver_name(Solver s);
+double full_now(void);
+
+#endif
