@@ -14,6 +14,9 @@ packages=(
   libcmocka-dev               # unit tests
   clang libclang-rt-14-dev    # libFuzzer for the front-end fuzz target
   python3-numpy               # benchmark peer only
+  libembree-dev               # examples/radiosity: ray-cast visibility and renders
+  libpng-dev                  # examples/radiosity: PNG renders
+  libcairo2-dev               # examples/radiosity: plots and labelled composites
 )
 
 missing=()

@@ -15,7 +15,9 @@ double full_now(void) {
   return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-const char *full_solver_name(Solver s) { return s == SOLVER_LU ? "lu" : "gauss-seidel"; }
+const char *full_solver_name(Solver s) {
+  return s == SOLVER_LU ? "lu" : s == SOLVER_GAUSS_SEIDEL ? "gauss-seidel" : "gmres";
+}
 
 int full_new(FullRadiosity *fr, Scene *scene, int k, int threads, VisMode mode, Solver solver, char *err,
              size_t errlen) {
@@ -55,7 +57,8 @@ int full_solve(FullRadiosity *fr, Solver solver, double *seconds, char *err, siz
   if (solver == SOLVER_LU) {
     rc = radiosity_solve_lu(s->F, s->rho, fr->p, s->e, fr->b, err, errlen);
   } else {
-    rc = radiosity_solve_gauss_seidel(s->F, s->rho, fr->p, s->e, fr->b, 1e-14, 2000, err, errlen);
+    rc = solver == SOLVER_GMRES ? radiosity_solve_gmres(s->F, s->rho, fr->p, s->e, fr->b, 1e-13, 3000, err, errlen)
+                                : radiosity_solve_gauss_seidel(s->F, s->rho, fr->p, s->e, fr->b, 1e-14, 2000, err, errlen);
     if (rc > 0) {
       fr->sweeps = rc, rc = 0;
     } else {

@@ -12,6 +12,8 @@
 typedef enum Solver {
   SOLVER_LU,           /* LAPACK dgesv on the dense F x F matrix */
   SOLVER_GAUSS_SEIDEL, /* sweeps to a relative update of 1e-14 */
+  SOLVER_GMRES,        /* restarted GMRES(30) to a relative residual of 1e-13 */
+  SOLVER_COUNT
 } Solver;
 
 typedef struct FullRadiosity {
@@ -21,7 +23,8 @@ typedef struct FullRadiosity {
   int threads;
   double *v, *p, *b;     /* F x F, F x F, F: the last frame's */
   double t_vis, t_ff, t_solve; /* seconds of the last frame */
-  int sweeps;            /* Gauss–Seidel sweeps of the last frame; -1: it diverged and LU solved */
+  int sweeps;            /* Gauss–Seidel sweeps or GMRES products of the last frame;
+                            -1: the iteration failed and LU solved */
 } FullRadiosity;
 
 /* A full solver for `scene` with k visibility points per face (1, 4, 16). 0 or -1, err. */

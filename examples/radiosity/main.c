@@ -5,9 +5,10 @@
  *       random interior points), print sizes and the minimum area; with --out, write the
  *       scene's arrays and a picture of it
  *   npg-radiosity full --out DIR [--faces N] [--frames K] [--vis-samples k] [--threads T]
- *                      [--vis-mode auto|single|stream|packet] [--solver auto|lu|gs]
+ *                      [--vis-mode auto|single|stream|packet] [--solver auto|lu|gs|gmres] [--ss S]
  *       full-space radiosity of both animations: per frame g, v, b_full (.npy) and a PNG,
- *       the scene's tri, rho, e once, plots, and report.json with the timings
+ *       the scene's tri, rho, e once, plots, and report.json with the timings; --ss S:
+ *       S x S samples per pixel (3)
  *
  * The reduced parts (train, run, demo) go through npg.h. */
 #include <errno.h>
@@ -30,19 +31,19 @@
 static void usage(FILE *out) {
   fputs("usage: npg-radiosity scene [--faces N] [--checks S] [--out DIR]\n"
         "       npg-radiosity full --out DIR [--faces N] [--frames K] [--vis-samples 1|4|16] [--threads T]\n"
-        "                          [--vis-mode auto|single|stream|packet] [--solver auto|lu|gs]\n",
+        "                          [--vis-mode auto|single|stream|packet] [--solver auto|lu|gs|gmres] [--ss S]\n",
         out);
 }
 
 typedef struct Options {
   long faces;
-  int frames, k, threads, checks;
+  int frames, k, threads, checks, ss;
   const char *out;
   const char *vis_mode, *solver;
 } Options;
 
 static int parse(int argc, char **argv, Options *o) {
-  *o = (Options){.faces = 800, .frames = 24, .k = 4, .threads = 2, .checks = 1000, .vis_mode = "auto", .solver = "auto"};
+  *o = (Options){.faces = 800, .frames = 24, .k = 4, .threads = 2, .checks = 1000, .ss = 3, .vis_mode = "auto", .solver = "auto"};
   for (int i = 2; i < argc; i++) {
     const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
     if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
@@ -62,6 +63,8 @@ static int parse(int argc, char **argv, Options *o) {
       o->k = (int)strtol(val, &end, 10);
     else if (!strcmp(a, "--threads"))
       o->threads = (int)strtol(val, &end, 10);
+    else if (!strcmp(a, "--ss"))
+      o->ss = (int)strtol(val, &end, 10);
     else if (!strcmp(a, "--checks"))
       o->checks = (int)strtol(val, &end, 10);
     else if (!strcmp(a, "--out"))
@@ -81,8 +84,8 @@ static int parse(int argc, char **argv, Options *o) {
     i++;
   }
   if (o->faces < 1 || o->faces > 20000 || o->frames < 2 || o->frames > 10000 || o->threads < 1 || o->threads > 64 ||
-      o->checks < 0) {
-    fprintf(stderr, "npg-radiosity: --faces 1..20000, --frames 2..10000, --threads 1..64\n");
+      o->checks < 0 || o->ss < 1 || o->ss > 8) {
+    fprintf(stderr, "npg-radiosity: --faces 1..20000, --frames 2..10000, --threads 1..64, --ss 1..8\n");
     return -1;
   }
   return 0;
@@ -225,9 +228,10 @@ static double room_mean(const Scene *s, const double *b, int bedroom) {
   return den > 0 ? num / den : 0;
 }
 
-static int render_frame(const Scene *s, const double *b, double exposure, const char *path, View *keep) {
+static int render_frame(const Scene *s, const double *b, double exposure, int ss, const char *path, View *keep) {
   Camera cam;
   render_camera_default(&cam);
+  cam.ss = ss;
   View view;
   Image img = {0};
   char err[512];
@@ -311,38 +315,48 @@ static int cmd_full(const Options *o) {
     if (!isnan(t_mode[m]) && t_mode[m] < tb) tb = t_mode[m], best = modes[m];
   if (mode_diff > 0) printf("visibility modes differ by up to %g\n", mode_diff);
 
-  /* 2. the solvers on the nominal scene */
-  Solver solver = !strcmp(o->solver, "lu") ? SOLVER_LU : SOLVER_GAUSS_SEIDEL;
-  if (full_new(&fr, &s, o->k, o->threads, best, solver, err, sizeof err) != 0 || full_frame(&fr, NULL, err, sizeof err)) {
+  /* 2. the solvers on the nominal scene: time each, check they agree, keep the fastest */
+  const char *solver_opt[SOLVER_COUNT] = {"lu", "gs", "gmres"};
+  int want = -1;
+  for (int q = 0; q < SOLVER_COUNT; q++)
+    if (!strcmp(o->solver, solver_opt[q])) want = q;
+  if (want < 0 && strcmp(o->solver, "auto")) {
+    fprintf(stderr, "npg-radiosity: --solver auto|lu|gs|gmres, not '%s'\n", o->solver);
+    goto done;
+  }
+  if (full_new(&fr, &s, o->k, o->threads, best, want < 0 ? SOLVER_LU : (Solver)want, err, sizeof err) != 0 ||
+      full_frame(&fr, NULL, err, sizeof err)) {
     fprintf(stderr, "npg-radiosity: %s\n", err);
     goto done;
   }
-  double t_lu = NAN, t_gs = NAN, res_lu = NAN, res_gs = NAN, lu_gs_diff = NAN;
-  int sweeps = 0;
+  double t_solver[SOLVER_COUNT] = {NAN, NAN, NAN}, res_solver[SOLVER_COUNT] = {NAN, NAN, NAN}, solver_diff = 0;
+  int iters[SOLVER_COUNT] = {0};
   bk = malloc(sizeof(double) * F);
-  if (strcmp(o->solver, "lu")) {
-    if (full_solve(&fr, SOLVER_GAUSS_SEIDEL, &t_gs, err, sizeof err)) goto solve_failed;
-    sweeps = fr.sweeps;
-    res_gs = radiosity_residual(F, s.rho, fr.p, s.e, fr.b);
-    memcpy(bk, fr.b, sizeof(double) * F);
-    printf("solve gauss-seidel %.3f s (%d sweeps, residual %.2e)\n", t_gs, sweeps, res_gs);
-  }
-  if (strcmp(o->solver, "gs")) {
-    if (full_solve(&fr, SOLVER_LU, &t_lu, err, sizeof err)) goto solve_failed;
-    res_lu = radiosity_residual(F, s.rho, fr.p, s.e, fr.b);
-    printf("solve lu           %.3f s (residual %.2e)\n", t_lu, res_lu);
-    if (!isnan(t_gs)) {
-      lu_gs_diff = 0;
-      double big = 0;
-      for (long f = 0; f < F; f++) lu_gs_diff = fmax(lu_gs_diff, fabs(bk[f] - fr.b[f])), big = fmax(big, fabs(fr.b[f]));
-      lu_gs_diff /= big;
+  double tbest = INFINITY;
+  int have_ref = 0;
+  for (int q = 0; q < SOLVER_COUNT; q++) {
+    if (want >= 0 && want != q) continue;
+    if (full_solve(&fr, (Solver)q, &t_solver[q], err, sizeof err)) goto solve_failed;
+    iters[q] = q == SOLVER_LU ? 0 : fr.sweeps;
+    res_solver[q] = radiosity_residual(F, s.rho, fr.p, s.e, fr.b);
+    printf("solve %-13s %.3f s (residual %.2e", full_solver_name((Solver)q), t_solver[q], res_solver[q]);
+    if (q == SOLVER_GAUSS_SEIDEL) printf(", %d sweeps", iters[q]);
+    if (q == SOLVER_GMRES) printf(", %d products", iters[q]);
+    printf(")\n");
+    if (!have_ref) {
+      memcpy(bk, fr.b, sizeof(double) * F);
+      have_ref = 1;
+    } else {
+      double big = 0, d = 0;
+      for (long f = 0; f < F; f++) d = fmax(d, fabs(bk[f] - fr.b[f])), big = fmax(big, fabs(bk[f]));
+      solver_diff = fmax(solver_diff, d / big);
     }
+    if (t_solver[q] < tbest && iters[q] >= 0) tbest = t_solver[q], fr.solver = (Solver)q;
   }
-  if (!strcmp(o->solver, "auto")) fr.solver = t_lu < t_gs ? SOLVER_LU : SOLVER_GAUSS_SEIDEL;
   printf("using visibility %s, solver %s\n", vis_mode_name(best), full_solver_name(fr.solver));
   double exposure = render_exposure(F, fr.b, s.rho);
   snprintf(path, sizeof path, "%s/nominal.png", o->out);
-  if (render_frame(&s, fr.b, exposure, path, NULL)) goto done;
+  if (render_frame(&s, fr.b, exposure, o->ss, path, NULL)) goto done;
 
   /* 3. the animations */
   int K = o->frames, tty = isatty(fileno(stdout));
@@ -366,7 +380,7 @@ static int cmd_full(const Options *o) {
           write_npy(dir, "b_full", NPY_F64, 1, sb, fr.b))
         goto done;
       snprintf(path, sizeof path, "%s/%s/frame_%04d.png", o->out, animation_name(a), k);
-      if (render_frame(&s, fr.b, exposure, path, NULL)) goto done;
+      if (render_frame(&s, fr.b, exposure, o->ss, path, NULL)) goto done;
       if (tty) {
         printf("\r%s frame %d/%d: visibility %.3f s, form factors %.3f s, solve %.3f s", animation_name(a), k + 1, K,
                fr.t_vis, fr.t_ff, fr.t_solve);
@@ -417,6 +431,7 @@ static int cmd_full(const Options *o) {
     vis1_diff = sqrt(num / den);
     Camera cam;
     render_camera_default(&cam);
+    cam.ss = o->ss;
     View view;
     Image im[3] = {{0}};
     if (render_view(&cam, sc->V, F, sc->g, sc->tri, &view, err, sizeof err)) goto solve_failed;
@@ -456,9 +471,11 @@ static int cmd_full(const Options *o) {
   fprintf(js, "  \"visibility_modes_seconds\": {\"single\": %.6g, \"stream\": %.6g, \"packet\": %.6g, \"rays\": %ld, "
               "\"used\": \"%s\", \"max_difference\": %.3g},\n",
           t_mode[0], t_mode[1], t_mode[2], rays, vis_mode_name(best), mode_diff);
-  fprintf(js, "  \"solvers\": {\"lu_seconds\": %.6g, \"gauss_seidel_seconds\": %.6g, \"gauss_seidel_sweeps\": %d, "
-              "\"lu_residual\": %.3g, \"gauss_seidel_residual\": %.3g, \"max_relative_difference\": %.3g, \"used\": \"%s\"},\n",
-          t_lu, t_gs, sweeps, res_lu, res_gs, lu_gs_diff, full_solver_name(fr.solver));
+  fprintf(js, "  \"solvers\": {\"lu_seconds\": %.6g, \"gauss_seidel_seconds\": %.6g, \"gmres_seconds\": %.6g, "
+              "\"gauss_seidel_sweeps\": %d, \"gmres_products\": %d, \"lu_residual\": %.3g, \"gauss_seidel_residual\": %.3g, "
+              "\"gmres_residual\": %.3g, \"max_relative_difference\": %.3g, \"used\": \"%s\"},\n",
+          t_solver[0], t_solver[1], t_solver[2], iters[1], iters[2], res_solver[0], res_solver[1], res_solver[2],
+          solver_diff, full_solver_name(fr.solver));
   fprintf(js, "  \"exposure\": %.6g,\n  \"centroid_visibility_relative_l2_difference\": %.6g,\n", exposure, vis1_diff);
   fprintf(js, "  \"per_frame\": {\n");
   for (int a = 0; a < ANIM_COUNT; a++) {
@@ -498,9 +515,15 @@ int main(int argc, char **argv) {
     return 0;
   }
   if (parse(argc, argv, &o)) return 2;
-  if (!strcmp(argv[1], "scene")) return cmd_scene(&o);
-  if (!strcmp(argv[1], "full")) return cmd_full(&o);
-  fprintf(stderr, "npg-radiosity: unknown command '%s'\n", argv[1]);
-  usage(stderr);
-  return 2;
+  int rc = 2;
+  if (!strcmp(argv[1], "scene"))
+    rc = cmd_scene(&o);
+  else if (!strcmp(argv[1], "full"))
+    rc = cmd_full(&o);
+  else {
+    fprintf(stderr, "npg-radiosity: unknown command '%s'\n", argv[1]);
+    usage(stderr);
+  }
+  render_shutdown();
+  return rc;
 }

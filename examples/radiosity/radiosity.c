@@ -1,6 +1,7 @@
 /* radiosity.c — form factors and the radiosity solve (radiosity.h). */
 #include "radiosity.h"
 
+#include <cblas.h>
 #include <lapacke.h>
 #include <math.h>
 #include <pthread.h>
@@ -124,6 +125,85 @@ int radiosity_solve_gauss_seidel(long F, const double *rho, const double *p, con
     if (change <= tol * big) return sweep;
   }
   return fail(err, errlen, "Gauss-Seidel: no convergence to %g in %d sweeps (is every albedo < 1?)", tol, max_sweeps);
+}
+
+/* y = (I − diag(rho) p) x: one pass over p through BLAS (threaded). */
+static void apply(long F, const double *rho, const double *p, const double *x, double *y) {
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)F, (int)F, 1.0, p, (int)F, x, 1, 0.0, y, 1);
+  for (long i = 0; i < F; i++) y[i] = x[i] - rho[i] * y[i];
+}
+
+/* Restarted GMRES(m) (Saad & Schultz 1986): Arnoldi with modified Gram–Schmidt, Givens
+ * rotations on the Hessenberg matrix, the residual norm read off the rotated right-hand
+ * side; the solution is updated at each restart and at convergence. */
+int radiosity_solve_gmres(long F, const double *rho, const double *p, const double *e, double *b, double tol,
+                          int max_matvecs, char *err, size_t errlen) {
+  enum { M = 30 };
+  double *V = malloc(sizeof(double) * (size_t)(M + 1) * F), *w = malloc(sizeof(double) * F);
+  double H[M + 1][M], cs[M], sn[M], g[M + 1], y[M];
+  if (!V || !w) {
+    free(V), free(w);
+    return fail(err, errlen, "GMRES: out of memory");
+  }
+  double enorm = cblas_dnrm2((int)F, e, 1);
+  if (enorm == 0) enorm = 1;
+  memcpy(b, e, sizeof(double) * F);
+  int matvecs = 0;
+  for (;;) {
+    apply(F, rho, p, b, w);
+    matvecs++;
+    for (long i = 0; i < F; i++) V[i] = e[i] - w[i];
+    double beta = cblas_dnrm2((int)F, V, 1);
+    if (!isfinite(beta)) {
+      free(V), free(w);
+      return fail(err, errlen, "GMRES: residual not finite after %d products", matvecs);
+    }
+    if (beta <= tol * enorm) break;
+    if (matvecs >= max_matvecs) {
+      free(V), free(w);
+      return fail(err, errlen, "GMRES: residual %.3g above %.3g after %d products", beta / enorm, tol, matvecs);
+    }
+    cblas_dscal((int)F, 1 / beta, V, 1);
+    memset(g, 0, sizeof g);
+    g[0] = beta;
+    int k = 0;
+    for (; k < M && matvecs < max_matvecs; k++) {
+      double *vk1 = V + (size_t)(k + 1) * F;
+      apply(F, rho, p, V + (size_t)k * F, vk1);
+      matvecs++;
+      for (int q = 0; q <= k; q++) {
+        H[q][k] = cblas_ddot((int)F, vk1, 1, V + (size_t)q * F, 1);
+        cblas_daxpy((int)F, -H[q][k], V + (size_t)q * F, 1, vk1, 1);
+      }
+      H[k + 1][k] = cblas_dnrm2((int)F, vk1, 1);
+      if (H[k + 1][k] > 0) cblas_dscal((int)F, 1 / H[k + 1][k], vk1, 1);
+      for (int q = 0; q < k; q++) {
+        double t = cs[q] * H[q][k] + sn[q] * H[q + 1][k];
+        H[q + 1][k] = -sn[q] * H[q][k] + cs[q] * H[q + 1][k];
+        H[q][k] = t;
+      }
+      double r = hypot(H[k][k], H[k + 1][k]);
+      cs[k] = H[k][k] / r;
+      sn[k] = H[k + 1][k] / r;
+      H[k][k] = r;
+      H[k + 1][k] = 0;
+      g[k + 1] = -sn[k] * g[k];
+      g[k] = cs[k] * g[k];
+      if (fabs(g[k + 1]) <= 0.1 * tol * enorm) {
+        k++;
+        break;
+      }
+    }
+    for (int q = k - 1; q >= 0; q--) {
+      double t = g[q];
+      for (int c = q + 1; c < k; c++) t -= H[q][c] * y[c];
+      y[q] = t / H[q][q];
+    }
+    for (int q = 0; q < k; q++) cblas_daxpy((int)F, y[q], V + (size_t)q * F, 1, b, 1);
+  }
+  free(V);
+  free(w);
+  return matvecs;
 }
 
 double radiosity_residual(long F, const double *rho, const double *p, const double *e, const double *b) {

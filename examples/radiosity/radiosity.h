@@ -1,6 +1,6 @@
 /* radiosity.h — full-space radiosity: the form factors of paper Eq. 15 exactly as
  * examples/radiosity/formfactors.npg computes them, and the solve of
- * (I − ρF) b = e (paper Eq. 14) by dense LU or Gauss–Seidel.
+ * (I − ρF) b = e (paper Eq. 14) by dense LU, Gauss–Seidel or GMRES.
  *
  * Form factors, per pair (i, j), with n_i = ½ (g1 − g0) × (g2 − g0) the area vector
  * (|n_i| = A_i) and cen_i the centroid of face i:
@@ -30,6 +30,13 @@ int radiosity_solve_lu(long F, const double *rho, const double *p, const double 
  * the reason in err when it did not converge. */
 int radiosity_solve_gauss_seidel(long F, const double *rho, const double *p, const double *e, double *b, double tol,
                                  int max_sweeps, char *err, size_t errlen);
+
+/* b by restarted GMRES(30) from b = e until the true residual ‖e − (I − diag(rho) p) b‖₂
+ * is below tol ‖e‖₂ (checked at every restart and at the end, not only estimated). Each
+ * product is one pass over p through BLAS dgemv. Returns the matrix–vector products
+ * used, or -1 with the reason in err after max_matvecs. */
+int radiosity_solve_gmres(long F, const double *rho, const double *p, const double *e, double *b, double tol,
+                          int max_matvecs, char *err, size_t errlen);
 
 /* ‖e − (I − diag(rho) p) b‖₂ / ‖e‖₂. */
 double radiosity_residual(long F, const double *rho, const double *p, const double *e, const double *b);

@@ -294,6 +294,11 @@ int scene_new(long faces, const SceneParams *p, Scene *s, char *err, size_t errl
     Patch *pt = &s->patch[k];
     pt->nu = cells(lu[k], h);
     pt->nv = cells(lv[k], h);
+    if (albedo[mat[k]] == 0) { /* an opening: at least 2 x 2 cells, so its light leaves from
+                                  more than two centroids */
+      pt->nu = pt->nu < 2 ? 2 : pt->nu;
+      pt->nv = pt->nv < 2 ? 2 : pt->nv;
+    }
     pt->mat = mat[k];
     pt->v0 = V;
     pt->f0 = F;

@@ -3,7 +3,7 @@
  *   visibility  exact on scenes with known answers: two facing squares (1), the same with a
  *               blocker between them (0), back to back (0), a closed box (1 wherever the
  *               faces face each other, 0 elsewhere), in every Embree mode and sampling
- *   solve       (I − ρF) b = e to 1e-10 relative on a small scene, by LU and Gauss–Seidel
+ *   solve       (I − ρF) b = e to 1e-10 relative on a small scene, by LU, Gauss–Seidel and GMRES
  *   rowsum      form-factor rows of a closed box sum to 1 within Eq. 15's known error
  *   scene       no degenerate or inverted triangle over the parameter box; fixed topology
  *   npg         the form factors and b equal npg's full evaluator of formfactors.npg
@@ -180,7 +180,7 @@ static void test_scene_partial(void **state) {
 static void test_solve_residual(void **state) {
   Scene s;
   char err[256];
-  assert_int_equal(scene_new(200, NULL, &s, err, sizeof err), 0);
+  assert_int_equal(scene_new(300, NULL, &s, err, sizeof err), 0);
   FullRadiosity fr;
   assert_int_equal(full_new(&fr, &s, 4, 2, VIS_STREAM, SOLVER_LU, err, sizeof err), 0);
   if (full_frame(&fr, NULL, err, sizeof err)) fail_msg("%s", err);
@@ -189,13 +189,21 @@ static void test_solve_residual(void **state) {
   memcpy(b_lu, fr.b, sizeof(double) * s.F);
   if (full_solve(&fr, SOLVER_GAUSS_SEIDEL, NULL, err, sizeof err)) fail_msg("%s", err);
   double res_gs = radiosity_residual(s.F, s.rho, fr.p, s.e, fr.b);
+  int sweeps = fr.sweeps;
   double diff = 0, big = 0;
   for (long f = 0; f < s.F; f++) diff = fmax(diff, fabs(fr.b[f] - b_lu[f])), big = fmax(big, fabs(b_lu[f]));
-  print_message("F %ld: residual LU %.2e, Gauss-Seidel %.2e (%d sweeps), max difference %.2e\n", s.F, res_lu,
-                res_gs, fr.sweeps, diff / big);
+  if (full_solve(&fr, SOLVER_GMRES, NULL, err, sizeof err)) fail_msg("%s", err);
+  double res_gmres = radiosity_residual(s.F, s.rho, fr.p, s.e, fr.b), diff_gmres = 0;
+  for (long f = 0; f < s.F; f++) diff_gmres = fmax(diff_gmres, fabs(fr.b[f] - b_lu[f]));
+  print_message("F %ld: residual LU %.2e, Gauss-Seidel %.2e (%d sweeps), GMRES %.2e (%d products); "
+                "max differences to LU %.2e, %.2e\n",
+                s.F, res_lu, res_gs, sweeps, res_gmres, fr.sweeps, diff / big, diff_gmres / big);
+  assert_true(sweeps > 0 && fr.sweeps > 0); /* neither fell back to LU */
   assert_true(res_lu <= 1e-10);
   assert_true(res_gs <= 1e-10);
+  assert_true(res_gmres <= 1e-10);
   assert_true(diff <= 1e-10 * big);
+  assert_true(diff_gmres <= 1e-10 * big);
   /* the light goes somewhere: every wall receives some, the openings keep their emission */
   for (long f = 0; f < s.F; f++) {
     assert_true(fr.b[f] >= s.e[f] - 1e-12);
