@@ -25,7 +25,7 @@ static int fail(char *err, size_t errlen, const char *fmt, ...) {
 }
 
 void render_camera_default(Camera *c) {
-  *c = (Camera){.eye = {5.075, -6.0, 8.0}, .at = {5.075, 2.3, 1.0}, .up = {0, 0, 1}, .fov_deg = 42,
+  *c = (Camera){.eye = {2.6, -6.2, 7.6}, .at = {5.3, 2.2, 0.5}, .up = {0, 0, 1}, .fov_deg = 46,
                 .width = 840, .height = 430, .ss = 3};
 }
 
