@@ -3,7 +3,7 @@
  *   npg-radiosity scene [--faces N] [--checks S] [--out DIR]
  *       build the scene, check every triangle over the parameter box (its corners and S
  *       random interior points), print sizes and the minimum area; with --out, write the
- *       scene's arrays and a picture of it
+ *       scene's arrays (tri, rho, e, g) and a picture of its albedo (scene.png)
  *   npg-radiosity full --out DIR [--faces N] [--frames K] [--vis-samples k] [--threads T]
  *                      [--vis-mode auto|single|stream|packet] [--solver auto|lu|gs|gmres] [--ss S]
  *       full-space radiosity of both animations: per frame g, v, b_full (.npy) and a PNG,
@@ -125,6 +125,8 @@ static int write_scene_arrays(const char *dir, const Scene *s) {
              : 0;
 }
 
+static int render_frame(const Scene *s, const double *b, double exposure, int ss, const char *path, View *keep);
+
 /* ---------------------------------------------------------------- scene */
 
 /* Walk the box: its corners, then random interior points; the worst area and cosine. */
@@ -183,6 +185,13 @@ static int cmd_scene(const Options *o) {
   if (o->out && !rc) {
     long sg[2] = {s.V, 3};
     if (mkdirs(o->out) || write_scene_arrays(o->out, &s) || write_npy(o->out, "g", NPY_F64, 2, sg, s.g)) rc = 1;
+    /* the picture: albedo, openings bright (no light transport) */
+    double *shade = malloc(sizeof(double) * s.F);
+    for (long f = 0; f < s.F; f++) shade[f] = s.rho[f] + s.e[f];
+    char path[4096];
+    snprintf(path, sizeof path, "%s/scene.png", o->out);
+    if (!rc && render_frame(&s, shade, 1.5, o->ss, path, NULL)) rc = 1;
+    free(shade);
   }
   scene_free(&s);
   return rc;
