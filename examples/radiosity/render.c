@@ -7,6 +7,7 @@
 #include <errno.h>
 #include <math.h>
 #include <png.h>
+#include <pthread.h>
 #include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -38,6 +39,58 @@ static void cross3(const double *a, const double *b, double *c) {
 static void normalize3(double *a) {
   double l = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
   for (int d = 0; d < 3; d++) a[d] /= l;
+}
+
+/* Primary rays for subpixel rows t, t + nt, ... of the view (two threads share the scene,
+ * which Embree allows for queries). */
+typedef struct CastJob {
+  const Camera *cam;
+  RTCScene scene;
+  const int *map;
+  long nf;
+  View *view;
+  int W, H, t, nt;
+} CastJob;
+
+static void *cast_rows(void *arg) {
+  const CastJob *job = arg;
+  const Camera *cam = job->cam;
+  int W = job->W, H = job->H;
+  double fw[3], rt[3], up[3];
+  for (int d = 0; d < 3; d++) fw[d] = cam->at[d] - cam->eye[d];
+  normalize3(fw);
+  cross3(fw, cam->up, rt);
+  normalize3(rt);
+  cross3(rt, fw, up);
+  double th = tan(cam->fov_deg * M_PI / 360.0), tw = th * (double)W / H;
+  struct RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  for (int y = job->t; y < H; y += job->nt)
+    for (int x = 0; x < W; x++) {
+      double sx = (2 * (x + 0.5) / W - 1) * tw, sy = (1 - 2 * (y + 0.5) / H) * th;
+      struct RTCRayHit rh;
+      rh.ray.org_x = (float)cam->eye[0];
+      rh.ray.org_y = (float)cam->eye[1];
+      rh.ray.org_z = (float)cam->eye[2];
+      rh.ray.dir_x = (float)(fw[0] + sx * rt[0] + sy * up[0]);
+      rh.ray.dir_y = (float)(fw[1] + sx * rt[1] + sy * up[1]);
+      rh.ray.dir_z = (float)(fw[2] + sx * rt[2] + sy * up[2]);
+      rh.ray.tnear = 0;
+      rh.ray.tfar = INFINITY;
+      rh.ray.time = 0;
+      rh.ray.mask = 0xFFFFFFFFu;
+      rh.ray.id = 0;
+      rh.ray.flags = 0;
+      rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+      rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
+      rtcIntersect1(job->scene, &ctx, &rh);
+      size_t at = (size_t)y * W + x;
+      int hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID && job->nf;
+      job->view->face[at] = hit ? job->map[rh.hit.primID] : -1;
+      job->view->u[at] = hit ? rh.hit.u : 0;
+      job->view->v[at] = hit ? rh.hit.v : 0;
+    }
+  return NULL;
 }
 
 int render_view(const Camera *cam, long V, long F, const double *g, const int *tri, View *view, char *err,
@@ -77,47 +130,25 @@ int render_view(const Camera *cam, long V, long F, const double *g, const int *t
   view->face = malloc(sizeof(int) * (size_t)W * H);
   view->u = malloc(sizeof(float) * (size_t)W * H);
   view->v = malloc(sizeof(float) * (size_t)W * H);
-  double fw[3], rt[3], up[3];
-  for (int d = 0; d < 3; d++) fw[d] = cam->at[d] - cam->eye[d];
-  normalize3(fw);
-  cross3(fw, cam->up, rt);
-  normalize3(rt);
-  cross3(rt, fw, up);
-  double th = tan(cam->fov_deg * M_PI / 360.0), tw = th * (double)W / H;
-  struct RTCIntersectContext ctx;
-  rtcInitIntersectContext(&ctx);
-  for (int y = 0; y < H; y++)
-    for (int x = 0; x < W; x++) {
-      double sx = (2 * (x + 0.5) / W - 1) * tw, sy = (1 - 2 * (y + 0.5) / H) * th;
-      struct RTCRayHit rh;
-      rh.ray.org_x = (float)cam->eye[0];
-      rh.ray.org_y = (float)cam->eye[1];
-      rh.ray.org_z = (float)cam->eye[2];
-      rh.ray.dir_x = (float)(fw[0] + sx * rt[0] + sy * up[0]);
-      rh.ray.dir_y = (float)(fw[1] + sx * rt[1] + sy * up[1]);
-      rh.ray.dir_z = (float)(fw[2] + sx * rt[2] + sy * up[2]);
-      rh.ray.tnear = 0;
-      rh.ray.tfar = INFINITY;
-      rh.ray.time = 0;
-      rh.ray.mask = 0xFFFFFFFFu;
-      rh.ray.id = 0;
-      rh.ray.flags = 0;
-      rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-      rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
-      rtcIntersect1(scene, &ctx, &rh);
-      size_t at = (size_t)y * W + x;
-      int hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID && nf;
-      view->face[at] = hit ? map[rh.hit.primID] : -1;
-      view->u[at] = hit ? rh.hit.u : 0;
-      view->v[at] = hit ? rh.hit.v : 0;
-    }
-  rtcReleaseScene(scene);
-  rtcReleaseDevice(dev);
-  free(map);
   if (!view->face || !view->u || !view->v) {
+    rtcReleaseScene(scene);
+    rtcReleaseDevice(dev);
+    free(map);
     render_view_free(view);
     return fail(err, errlen, "render: out of memory");
   }
+  CastJob job[2];
+  pthread_t th;
+  for (int t = 0; t < 2; t++) job[t] = (CastJob){cam, scene, map, nf, view, W, H, t, 2};
+  int threaded = pthread_create(&th, NULL, cast_rows, &job[1]) == 0;
+  cast_rows(&job[0]);
+  if (threaded)
+    pthread_join(th, NULL);
+  else
+    cast_rows(&job[1]);
+  rtcReleaseScene(scene);
+  rtcReleaseDevice(dev);
+  free(map);
   return 0;
 }
 

@@ -1,6 +1,6 @@
 /* render.h — pictures of a radiosity solution from a fixed camera.
  *
- * A cutaway view: primary rays cast with Embree against the faces that turn their front
+ * A cutaway view: primary rays cast with Embree (two threads) against the faces that turn their front
  * to the camera (the front walls and the ceilings face away from a camera above and in
  * front of the rooms, so it looks into both rooms like into a doll's house). Each pixel
  * averages ss x ss subpixels; a subpixel shows the radiosity interpolated from the face's
