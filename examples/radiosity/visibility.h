@@ -9,6 +9,8 @@
  * that leave the front of both faces and reach the other face unoccluded. Where either
  * face lies behind the other at the centroids (n_i . (c_j - c_i) <= 0 or
  * n_j . (c_i - c_j) <= 0, the cosines of the form factor, Eq. 15) v_ij = 0, and v_ii = 0.
+ * "Front" means a cosine above 1e-9, so that two faces of one flat wall (cosines 0, or
+ * ±1e-16 after rounding) get v = 0 whatever the rounding.
  *   - Several points, not the centroid alone: a binary centroid-to-centroid test flips
  *     whole form factors on and off as the door or a window edge sweeps across a segment;
  *     the fraction changes in steps of 1/k instead, which is both closer to the true
