@@ -12,12 +12,13 @@ packages=(
   libopenblas-dev liblapacke-dev  # dense linear algebra: PCA, reduced solves
   libtcc-dev tcc              # in-memory JIT; tcc ships libtcc1.a and the headers
   libcmocka-dev               # unit tests
-  libcairo2-dev               # npgc plot: charts as PNG (linked into npgc only)
+  libcairo2-dev               # npgc plot and the examples: charts as PNG (linked into npgc and the examples only)
   clang libclang-rt-14-dev    # libFuzzer for the front-end fuzz target
   python3-numpy               # benchmark peer only
   libgmsh-dev                 # examples/fluids: the wind tunnel's mesher (C API)
   libsuitesparse-dev          # examples/fluids: UMFPACK for the pressure projection
-  libpng-dev                  # examples/fluids: PNG frames
+  libembree-dev               # examples/radiosity: ray-cast visibility and renders
+  libpng-dev                  # examples/fluids, examples/radiosity: PNG frames and renders
 )
 
 missing=()
