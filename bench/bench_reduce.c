@@ -651,6 +651,9 @@ typedef struct Part2Row {
   double contract_bytes; /* bytes of the contraction stages' tensors */
   Bandwidth contract_bw;  /* streaming as many bytes */
   char contract_names[128];
+  double root_exact, root_krylov; /* stage p alone, 1 thread: eigendecomposition, Lanczos */
+  double root_steps, root_diff;   /* Lanczos steps per root, |p_krylov − p_exact| / |p_exact| */
+  long root_fallbacks;
 } Part2Row;
 
 static void part2_row(Trained *tr, const char *base, bool keep, Part2Row *row) {
@@ -720,6 +723,31 @@ static void part2_row(Trained *tr, const char *base, bool keep, Part2Row *row) {
     }
     run->peer_ok = run_peer(dir, run->threads, &run->peer, run->peer_stages, run->peer_stages_full,
                             sizeof run->peer_stages);
+  }
+  /* the root stage p alone on one thread: eigendecomposition against Lanczos, and their difference */
+  openblas_set_num_threads(1);
+  for (int i = 0; i < m->nstages; i++) {
+    if (m->stages[i].q != qp) continue;
+    long mp = m->classes[m->qclass[qp]].m, roots0, steps0, fb0, roots1, steps1, fb1;
+    double *pe = xmalloc(sizeof(double) * (size_t)(mp + 1));
+    StageCtx sc = {r, i};
+    reduced_krylov_roots(r, false);
+    row->root_exact = best_of(eval_stage, &sc, 0.2);
+    memcpy(pe, reduced_coords(r, qp), sizeof(double) * (size_t)mp);
+    reduced_krylov_roots(r, true);
+    reduced_root_stats(r, &roots0, &steps0, &fb0);
+    row->root_krylov = best_of(eval_stage, &sc, 0.2);
+    reduced_root_stats(r, &roots1, &steps1, &fb1);
+    row->root_steps = roots1 > roots0 ? (double)(steps1 - steps0) / (double)(roots1 - roots0 - (fb1 - fb0) + 1e-300) : 0;
+    row->root_fallbacks = fb1 - fb0;
+    double dn = 0, nn = 0;
+    for (long k = 0; k < mp; k++) {
+      double dk = reduced_coords(r, qp)[k] - pe[k];
+      dn += dk * dk, nn += pe[k] * pe[k];
+    }
+    row->root_diff = sqrt(dn / (nn > 0 ? nn : 1));
+    reduced_krylov_roots(r, false);
+    free(pe);
   }
   openblas_set_num_threads(threads);
   reduced_free(r);
@@ -924,6 +952,10 @@ int main(int argc, char **argv) {
              rows[i].m_root, 1e6 * rows[i].factor.root, rows[i].m_inv, 1e6 * rows[i].factor.inverse,
              (rows[i].factor.root + rows[i].factor.inverse) / (rows[i].bytes / (bw_best(rows[i].bw) * 1e9)),
              1e6 * rows[i].bytes / (bw_best(rows[i].bw) * 1e9));
+      printf("    root stage p (m = %ld) alone, 1 thread: eigendecomposition %.1f µs, Lanczos %.1f µs (%.2fx; %.1f steps "
+             "per root, %ld fell back to the eigendecomposition), difference %.1e relative\n",
+             rows[i].m_root, 1e6 * rows[i].root_exact, 1e6 * rows[i].root_krylov,
+             rows[i].root_exact / rows[i].root_krylov, rows[i].root_steps, rows[i].root_fallbacks, rows[i].root_diff);
       {
         Bandwidth cb = rows[i].contract_bw;
         double bound = rows[i].contract_bytes / (bw_best(cb) * 1e9);

@@ -287,6 +287,7 @@ struct NpgReduced {
   const NpgModel *nm;
   Reduced *r;
   bool given_externs;
+  bool exact_roots;
   double *z;                /* npg_reduced_op: one tensor's input product (2 zcap) */
   long zcap;
   char error[1024];
@@ -308,6 +309,7 @@ NpgReduced *npg_reduced_new(const NpgModel *nm) {
   r->nm = nm;
   if (!nm || !nm->m) rfail(r, "%s", nm ? nm->error : "no model");
   else if (!(r->r = reduced_new(nm->m, r->error, sizeof r->error)) && !r->error[0]) rfail(r, "out of memory");
+  if (r->r) reduced_krylov_roots(r->r, true);
   return r;
 }
 
@@ -330,6 +332,7 @@ void npg_reduced_clear_error(NpgReduced *r) {
   for (int q = 0; q < m->nq; q++)
     memcpy(reduced_coords(n, q), reduced_coords(r->r, q), sizeof(double) * (size_t)m->classes[m->qclass[q]].m);
   reduced_use_given_externs(n, r->given_externs);
+  reduced_krylov_roots(n, !r->exact_roots);
   reduced_free(r->r);
   r->r = n;
 }
@@ -369,6 +372,11 @@ int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, const doub
                                     c->label, m);
   memcpy(reduced_coords(r->r, q), coords, sizeof(double) * m);
   return 0;
+}
+
+void npg_reduced_exact_roots(NpgReduced *r, bool on) {
+  r->exact_roots = on;
+  if (r->r) reduced_krylov_roots(r->r, !on);
 }
 
 void npg_reduced_given_externs(NpgReduced *r, bool on) {

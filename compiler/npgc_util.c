@@ -36,7 +36,7 @@ static const Usage usages[] = {
      "               parent directories are created; an input of the command is refused\n"},
     {"eval",
      "usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc] [--std=DIR]\n"
-     "       npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--std=DIR]\n"
+     "       npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--exact-roots] [--std=DIR]\n"
      "\n"
      "  --full: evaluate the full program on every sample of IN/<input>.npy (leading\n"
      "  sample axis; params from DATA/<param>.npy, inputs and externs from IN/, else\n"
@@ -84,12 +84,14 @@ static const Usage usages[] = {
      "               model with full-rank bases reproduces it to 1e-10\n"
      "  --exact-size N   that size (1..64; 6 and 4 by default)\n"},
     {"bench",
-     "usage: npgc bench PROG.npg MODEL/ TEST/ [--cc] [--reps N]\n"
+     "usage: npgc bench PROG.npg MODEL/ TEST/ [--cc] [--reps N] [--exact-roots]\n"
      "\n"
      "  Time the full and the reduced evaluation of every sample of TEST/, N passes\n"
      "  (3): the full evaluator (libtcc, npg's default, or --cc: the system compiler\n"
      "  at -O3), the reduced one with its inputs projected and, reported apart and\n"
-     "  included in the total, its outputs lifted; the speedup; the model's memory.\n"},
+     "  included in the total, its outputs lifted; the speedup; the model's memory.\n"
+     "  --exact-roots  roots of reduced operators by eigendecomposition (the exact\n"
+     "               reference) instead of the Lanczos process (to 1e-10 relative)\n"},
     {"plot",
      "usage: npgc plot MODEL/ -o spectra.png\n"
      "\n"

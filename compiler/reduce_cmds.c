@@ -26,6 +26,7 @@ typedef struct Common {
   double tol;
   bool tol_set;
   long reps;                /* bench: passes over the samples */
+  bool exact_roots;         /* eval, bench: roots by eigendecomposition, not Lanczos */
   NpgTrainOptions train;
   int nbasis;               /* --basis overrides */
   const char **basis_name;
@@ -118,6 +119,8 @@ static int parse(Common *c, int argc, char **argv) {
       c->train.cap = (int)cap;
     } else if (strcmp(a, "--energy") == 0 && has) {
       ok = npgc_parse_double(argv[++i], 0, 1, true, &c->train.energy);
+    } else if (strcmp(a, "--exact-roots") == 0 && (!strcmp(c->cmd, "bench") || !strcmp(c->cmd, "eval"))) {
+      c->exact_roots = true;
     } else if (strcmp(a, "--center") == 0 && has) {
       const char *v = argv[++i];
       c->train.uncentered = strcmp(v, "off") == 0;
@@ -264,6 +267,7 @@ static int open_session(Common *c, Session *x, bool full) {
     return -1;
   }
   x->r = npg_reduced_new(x->m);
+  npg_reduced_exact_roots(x->r, c->exact_roots);
   if (npg_reduced_error(x->r)[0]) {
     fprintf(stderr, "error: %s\n", npg_reduced_error(x->r));
     return -1;

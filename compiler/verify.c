@@ -114,6 +114,7 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
   rep->rows = calloc((size_t)m->nq + 1, sizeof *rep->rows);
   char err[1024] = "";
   Reduced *r = reduced_new(m, err, sizeof err);
+  if (r) reduced_krylov_roots(r, true); /* what users run */
   int rc = 0;
   if (!sum || !y || !proj || !rep->rows || !r) rc = vfail(rep, "%s", err[0] ? err : "out of memory");
   rep->nrows = m->nq;

@@ -332,6 +332,11 @@ NPG_API int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, co
  * learned map. */
 NPG_API void npg_reduced_given_externs(NpgReduced *r, bool on);
 NPG_API int npg_reduced_eval(NpgReduced *r, long sample);
+/* Roots (fractional powers) of reduced operators are applied by the
+ * Lanczos process to an a-posteriori estimate of 1e-10 relative (falling
+ * back to the eigendecomposition where that is not faster); with `on`,
+ * always by the eigendecomposition (the exact reference). */
+NPG_API void npg_reduced_exact_roots(NpgReduced *r, bool on);
 /* Reduced coordinates of any quantity (m of them), NULL if unknown. */
 NPG_API const double *npg_reduced_coords(const NpgReduced *r, const char *name, size_t *m);
 /* Lift a quantity to full space: out (count entries, the full size) = B x̂. */

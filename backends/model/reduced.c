@@ -22,6 +22,7 @@
 #include <string.h>
 
 #include "emit.h"
+#include "krylov.h"
 #include "nnls.h"
 #include "reduced.h"
 
@@ -36,6 +37,11 @@
  * evaluation including the learned extern). From 4.95 MB on, two threads
  * are faster (4 %, and 20 % at 16.6 MB). */
 #define REDUCED_ONE_THREAD_BYTES ((size_t)2 << 20)
+
+/* The Lanczos roots' a-posteriori estimate is held below this (relative):
+ * four orders below the reduction's own error of the programs measured
+ * (radiosity: 1e-3 to 1e-2). */
+#define REDUCED_KRYLOV_TOL 1e-10
 
 static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
 
@@ -53,6 +59,9 @@ struct Reduced {
   lapack_int lwork, liwork, *iwork;
   long maxm;
   bool given_externs;     /* externs projected by the caller, not learned */
+  bool krylov_roots;      /* roots by the Lanczos process where it converges (krylov.h), else exact */
+  Krylov kr;
+  long root_steps, roots, root_fallbacks; /* statistics of the Krylov roots */
   bool one_thread;        /* tensors small enough that reduced_eval runs BLAS on one thread */
   char error[1024];
 };
@@ -87,6 +96,7 @@ void reduced_free(Reduced *r) {
   free(r->off);
   free(r->work);
   free(r->iwork);
+  krylov_free(&r->kr);
   free(r);
 }
 
@@ -144,7 +154,7 @@ Reduced *reduced_new(Model *m, char *err, size_t errlen) {
   r->w = calloc((size_t)maxm, sizeof(double));
   r->piv = calloc((size_t)maxm, sizeof(lapack_int));
   if (!r->v || !r->acc || !r->buf[0] || !r->buf[1] || !r->z || !r->M || !r->M2 || !r->w || !r->piv) goto oom;
-  if (power_workspace(r)) goto oom;
+  if (power_workspace(r) || krylov_init(&r->kr, maxm)) goto oom;
   return r;
 oom:
   snprintf(err, errlen, "out of memory for the reduced evaluator");
@@ -307,6 +317,17 @@ static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int
   char lab[256];
   const char *sn = rs->st->sym->name;
   double *lam = r->diag, *Z = r->M2, *u = r->w;
+  if (r->krylov_roots) { /* the eigendecomposition below only where Lanczos does not converge soon */
+    int steps;
+    double estimate;
+    int rc = krylov_power(&r->kr, n, r->M, op->p, op->q, REDUCED_KRYLOV_TOL, n / 2 + 8, v, &steps, &estimate);
+    r->roots++;
+    if (rc == 0) {
+      r->root_steps += steps;
+      return 0;
+    }
+    r->root_fallbacks++;
+  }
   for (long i = 0; i < (long)n * n; i++)
     if (!isfinite(r->M[i]))
       return rfail(r, "stage %s (class %s): eigendecomposition of reduced operator %s failed at sample %ld (entries "
@@ -387,6 +408,14 @@ static int eval_extern(Reduced *r, const RExtern *x, long sample) {
 }
 
 void reduced_use_given_externs(Reduced *r, bool on) { r->given_externs = on; }
+
+void reduced_krylov_roots(Reduced *r, bool on) { r->krylov_roots = on; }
+
+void reduced_root_stats(const Reduced *r, long *roots, long *steps, long *fallbacks) {
+  *roots = r->roots;
+  *steps = r->root_steps;
+  *fallbacks = r->root_fallbacks;
+}
 
 int reduced_eval_stage(Reduced *r, int i, long sample) {
   if (r->error[0]) return -1;

@@ -24,6 +24,16 @@ int reduced_eval_stage(Reduced *r, int i, long sample);
 /* With `on`, externs keep the coordinates the caller set (reduced_project)
  * instead of the learned map: for tests and for verifying the rest. */
 void reduced_use_given_externs(Reduced *r, bool on);
+/* With `on`, fractional powers (roots) of reduced operators are applied by
+ * the Lanczos process (krylov.h) to an a-posteriori estimate of 1e-10
+ * relative, falling back to the eigendecomposition where that would take
+ * more than n/2 + 8 steps or the operator looks singular or indefinite.
+ * Off (the default, and the exact reference of tests and `verify
+ * --exact`): always the eigendecomposition. */
+void reduced_krylov_roots(Reduced *r, bool on);
+/* Roots applied since reduced_new, their Lanczos steps, and how many fell
+ * back to the eigendecomposition. */
+void reduced_root_stats(const Reduced *r, long *roots, long *steps, long *fallbacks);
 const char *reduced_error(const Reduced *r);
 /* y = B ŷ of quantity q into `y` (n entries). */
 void reduced_lift(const Reduced *r, int q, double *y);

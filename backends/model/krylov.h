@@ -1,0 +1,37 @@
+/* krylov.h — a rational power of a symmetric positive definite matrix
+ * applied to one vector, M^(p/q) v, by the Lanczos process (with full
+ * reorthogonalization) on the Krylov space of v: v ← β Q_k f(T_k) e₁, f(λ) =
+ * λ^(p/q), T_k's eigendecomposition by LAPACK (dstev). The reduced
+ * evaluator's root stages use it instead of a dense eigendecomposition of M
+ * when it converges in fewer steps than that would cost; the
+ * eigendecomposition stays the exact reference (reduced_exact_roots). */
+#ifndef NPG_KRYLOV_H
+#define NPG_KRYLOV_H
+
+#include <stdbool.h>
+
+typedef struct Krylov {
+  long maxn;                /* the largest n the workspace holds */
+  double *Q;                /* Lanczos vectors, one per row (maxn + 1 rows of maxn) */
+  double *alpha, *beta;     /* T_k's diagonal and off-diagonal */
+  double *d, *e, *S, *work; /* dstev's copy of T_k, its eigenvectors, workspace */
+  double *c, *y, *prev, *w; /* f(T_k) e₁, the approximation, the previous one, a scratch vector */
+} Krylov;
+
+/* Workspace for n up to `maxn`. 0, or -1 when out of memory (then
+ * krylov_free is still safe). */
+int krylov_init(Krylov *k, long maxn);
+void krylov_free(Krylov *k);
+
+/* v ← M^(p/q) v for the row-major symmetric n x n M (not changed), `q` > 1
+ * or p < 0. Stops when two approximations 4 steps apart differ by less
+ * than `tol` relative (an a-posteriori estimate, in *estimate), or when the
+ * Krylov space is invariant (exact). Returns 0 when it converged (v
+ * overwritten, *steps the Lanczos steps taken); 1, with v unchanged, when
+ * it would take more than `max_steps` steps or T_k looks singular or
+ * indefinite (the caller then decomposes M, which also says why); -1 when
+ * LAPACK failed. */
+int krylov_power(Krylov *k, int n, const double *M, long p, long q, double tol, int max_steps, double *v, int *steps,
+                 double *estimate);
+
+#endif
