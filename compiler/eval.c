@@ -52,7 +52,7 @@ static int keep(Out *o, NpgFull *f, long k, long samples) {
     fputs("npgc eval: out of memory\n", stderr);
     rc = -1;
   } else {
-    memcpy(o->v + (size_t)k * n, v, sizeof(double) * n);
+    if (n) memcpy(o->v + (size_t)k * n, v, sizeof(double) * n);
   }
   if (k == 0) o->csr = c;
   else npg_csr_free(&c);

@@ -352,7 +352,7 @@ int npg_full_eval(NpgFull *f, long sample) {
     if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) {
       if (!f->q[k] || f->qcount[k] != n)
         return fail(f, "%s '%s' is not set for sample %ld", s->kind == SYM_INPUT ? "input" : "extern", s->name, sample);
-    } else if (f->qcount[k] != n) {
+    } else if (f->qcount[k] != n || !f->q[k]) {
       free(f->q[k]);
       f->q[k] = calloc(n ? n : 1, sizeof(double));
       if (!f->q[k]) return fail(f, "out of memory");
