@@ -1,56 +1,29 @@
 /* model_store.c — MODEL/ directories: a text manifest and one .npy per array
- * (see model_store.h for the manifest's format).
- *
- * Writing never exposes a half model: everything goes to "<dir>.tmp.<pid>",
- * is synced, and only then swapped with `dir` by two renames. Removing the
- * replaced model deletes only files a model store writes, each checked by
- * name before anything is touched, so a mistyped -o never costs the user a
- * directory of their own.
+ * (see model_store.h for the manifest's format): the store in memory and
+ * reading it back. Writing and the directories are model_store_dir.c.
  *
  * Reading trusts nothing: every manifest line is parsed strictly, and every
  * array file is hashed against its checksum before npy_read sees it, so a
  * corrupted, truncated, missing or swapped file is named rather than loaded.
  */
-#define _GNU_SOURCE /* renameat2 (RENAME_EXCHANGE), fsync, O_DIRECTORY, lstat, getpid */
+#define _POSIX_C_SOURCE 200809L
 
-#include "model_store.h"
+#include "model_store_impl.h"
 
-#include <dirent.h>
 #include <errno.h>
-#include <fcntl.h>
 #include <inttypes.h>
 #include <limits.h>
-#include <signal.h>
 #include <stdbool.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
-#include <unistd.h>
-
-#define FORMAT_LINE "npg-model 1"
-#define FORMAT_WORD "npg-model"
-#define CHECKSUM_KIND "fnv1a64"
-
-/* A manifest is a few lines per array; anything much larger is not one, and
- * the cap bounds what a wrong path makes us allocate. */
-#define MANIFEST_MAX ((size_t)16 << 20)
-
-/* Room for a shape as text: NPY_MAX_DIMS numbers of at most 20 digits and
- * their separators. */
-enum { SHAPE_TEXT = NPY_MAX_DIMS * 21 + 4 };
 
 /* ---------------------------------------------------------------- errors */
 
-/* Where a message goes (`err` may be NULL or `errlen` 0: no message). */
-typedef struct Report {
-  char *err;
-  size_t errlen;
-} Report;
 
 /* "<path>: <problem>", or "<path>:<line>: <problem>" when `line` > 0. */
-__attribute__((format(printf, 4, 5))) static int fail(const Report *r, const char *path, int line,
+__attribute__((format(printf, 4, 5))) int model_store_fail(const StoreReport *r, const char *path, int line,
                                                       const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);
@@ -60,7 +33,7 @@ __attribute__((format(printf, 4, 5))) static int fail(const Report *r, const cha
 }
 
 /* `s` printable in a message (npy_excerpt). `buf` holds NPY_EXCERPT_SIZE. */
-static const char *excerpt(char *buf, const char *s) { return npy_excerpt(buf, s, strlen(s)); }
+const char *model_store_excerpt(char *buf, const char *s) { return npy_excerpt(buf, s, strlen(s)); }
 
 /* A malloc'd vprintf, or NULL when out of memory. */
 static char *str_vprintf(const char *fmt, va_list ap) {
@@ -74,7 +47,7 @@ static char *str_vprintf(const char *fmt, va_list ap) {
 }
 
 /* A malloc'd printf, or NULL when out of memory. */
-__attribute__((format(printf, 1, 2))) static char *str_printf(const char *fmt, ...) {
+__attribute__((format(printf, 1, 2))) char *model_store_printf(const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);
   char *s = str_vprintf(fmt, ap);
@@ -96,9 +69,9 @@ uint64_t model_hash_bytes(uint64_t h, const void *p, size_t n) {
 }
 
 /* The FNV-1a 64 hash of the whole file `path` into `*h`. */
-static int hash_file(const Report *r, const char *path, uint64_t *h) {
+int model_store_hash_file(const StoreReport *r, const char *path, uint64_t *h) {
   FILE *f = fopen(path, "rb");
-  if (!f) return fail(r, path, 0, "cannot open: %s", strerror(errno));
+  if (!f) return model_store_fail(r, path, 0, "cannot open: %s", strerror(errno));
   unsigned char buf[1 << 14];
   uint64_t acc = model_hash_init();
   size_t n;
@@ -106,7 +79,7 @@ static int hash_file(const Report *r, const char *path, uint64_t *h) {
   int bad = ferror(f);
   int saved = errno;
   fclose(f);
-  if (bad) return fail(r, path, 0, "cannot read: %s", strerror(saved));
+  if (bad) return model_store_fail(r, path, 0, "cannot read: %s", strerror(saved));
   *h = acc;
   return 0;
 }
@@ -115,7 +88,7 @@ static int hash_file(const Report *r, const char *path, uint64_t *h) {
 
 /* An array name: [A-Za-z0-9_.-]+, not starting with '.', so it is one file
  * name in the model directory, never hidden, never "." or "..". */
-static int valid_name(const char *s) {
+int model_store_valid_name(const char *s) {
   if (!s || !*s || *s == '.') return 0;
   for (; *s; s++) {
     char c = *s;
@@ -136,20 +109,20 @@ static int key_is(const char *line, const char *key) {
 
 /* A metadata line the manifest can hold and give back verbatim: one line,
  * starting with a key that is not one the manifest itself uses. */
-static int valid_meta(const char *line) {
+int model_store_valid_meta(const char *line) {
   return line && *line && *line != ' ' && *line != '\t' && !strchr(line, '\n') && !key_is(line, FORMAT_WORD) &&
          !key_is(line, "program") && !key_is(line, "array") && !key_is(line, "file") && !key_is(line, "manifest");
 }
 
 /* `shape` as "3x4" ("5" for one dim, "()" for none) into `buf` (SHAPE_TEXT). */
-static const char *format_shape(char *buf, int ndim, const long *shape) {
+const char *model_store_format_shape(char *buf, int ndim, const long *shape) {
   if (ndim == 0) return strcpy(buf, "()");
   size_t o = 0;
   for (int i = 0; i < ndim; i++) o += (size_t)snprintf(buf + o, SHAPE_TEXT - o, i ? "x%ld" : "%ld", shape[i]);
   return buf;
 }
 
-/* The inverse of format_shape: 0, or -1 if `s` is not a shape. */
+/* The inverse of model_store_format_shape: 0, or -1 if `s` is not a shape. */
 static int parse_shape(const char *s, int *ndim, long *shape) {
   if (strcmp(s, "()") == 0) {
     *ndim = 0;
@@ -172,7 +145,7 @@ static int parse_shape(const char *s, int *ndim, long *shape) {
 }
 
 /* Exactly 16 hex digits into `*v`; 0, or -1. */
-static int parse_hex64(const char *s, uint64_t *v) {
+int model_store_parse_hex64(const char *s, uint64_t *v) {
   uint64_t x = 0;
   int i = 0;
   for (; s[i]; i++) {
@@ -191,7 +164,7 @@ static int parse_hex64(const char *s, uint64_t *v) {
 
 /* The number of elements of `shape` into `*count`: 0, or -1 if an extent
  * is negative or they could not be addressed as doubles. */
-static int shape_count(int ndim, const long *shape, size_t *count) {
+int model_store_shape_count(int ndim, const long *shape, size_t *count) {
   size_t c = 1;
   for (int i = 0; i < ndim; i++)
     if (shape[i] < 0) return -1;
@@ -240,7 +213,7 @@ int model_store_meta(ModelStore *m, const char *fmt, ...) {
   char *line = str_vprintf(fmt, ap);
   va_end(ap);
   if (!line) return -1;
-  if (!valid_meta(line)) {
+  if (!model_store_valid_meta(line)) {
     free(line);
     return -1;
   }
@@ -270,8 +243,8 @@ static int append_array(ModelStore *m, const char *name, NpyArray *a, uint64_t c
 
 int model_store_add(ModelStore *m, const char *name, int ndim, const long *shape, const double *data) {
   size_t count;
-  if (!valid_name(name) || find_array(m, name) >= 0 || ndim < 0 || ndim > NPY_MAX_DIMS ||
-      (ndim > 0 && !shape) || shape_count(ndim, shape, &count) != 0 || (count && !data))
+  if (!model_store_valid_name(name) || find_array(m, name) >= 0 || ndim < 0 || ndim > NPY_MAX_DIMS ||
+      (ndim > 0 && !shape) || model_store_shape_count(ndim, shape, &count) != 0 || (count && !data))
     return -1;
   NpyArray a = {.type = NPY_F64, .ndim = ndim, .count = count};
   for (int i = 0; i < ndim; i++) a.shape[i] = shape[i];
@@ -284,7 +257,7 @@ int model_store_add(ModelStore *m, const char *name, int ndim, const long *shape
 /* A text file's name: an array name ending in ".csv". */
 static int valid_text_name(const char *name) {
   size_t n = name ? strlen(name) : 0;
-  return valid_name(name) && n > 4 && strcmp(name + n - 4, ".csv") == 0;
+  return model_store_valid_name(name) && n > 4 && strcmp(name + n - 4, ".csv") == 0;
 }
 
 static int append_text(ModelStore *m, const char *name, const char *text, size_t len, uint64_t checksum) {
@@ -323,502 +296,6 @@ const char *model_store_find(const ModelStore *m, const char *key) {
   return NULL;
 }
 
-/* ---------------------------------------------------------------- directories */
-
-/* Names a model store writes into a model directory: the manifest, the
- * arrays, and what an interrupted npy_write leaves ("x.npy.tmp.<pid>"). */
-static int is_store_file(const char *name) {
-  size_t n = strlen(name);
-  if (strcmp(name, "manifest") == 0 || (n > 4 && strcmp(name + n - 4, ".npy") == 0)) return 1;
-  if (n > 4 && strcmp(name + n - 4, ".csv") == 0) return 1;
-  const char *tmp = strstr(name, ".npy.tmp.");
-  if (!tmp || tmp == name) return 0;
-  const char *pid = tmp + strlen(".npy.tmp.");
-  return *pid && strspn(pid, "0123456789") == strlen(pid);
-}
-
-/* Whether `path`'s first line says it is a model manifest. */
-static int is_model_manifest(const char *path) {
-  FILE *f = fopen(path, "rb");
-  if (!f) return 0;
-  char head[sizeof FORMAT_WORD] = {0};
-  size_t n = fread(head, 1, sizeof head, f);
-  fclose(f);
-  return n == sizeof head && memcmp(head, FORMAT_WORD " ", sizeof head) == 0;
-}
-
-/* Check that the directory `path` holds only regular files a model store
- * writes; `what` ends the refusal ("refusing to replace it"). `*entries`
- * counts them and `*model` says whether one is a model manifest. */
-static int scan_store_dir(const Report *r, const char *path, const char *what, int *entries, int *model) {
-  DIR *d = opendir(path);
-  if (!d) return fail(r, path, 0, "cannot open the directory: %s", strerror(errno));
-  int rc = 0;
-  *entries = *model = 0;
-  struct dirent *e;
-  while (rc == 0 && (e = readdir(d))) {
-    if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0) continue;
-    char *file = str_printf("%s/%s", path, e->d_name);
-    struct stat st;
-    char buf[NPY_EXCERPT_SIZE];
-    if (!file) rc = fail(r, path, 0, "out of memory");
-    else if (lstat(file, &st) != 0) rc = fail(r, file, 0, "cannot examine: %s", strerror(errno));
-    else if (!is_store_file(e->d_name) || !S_ISREG(st.st_mode))
-      rc = fail(r, path, 0, "holds '%s', which a model store never writes: %s", excerpt(buf, e->d_name), what);
-    else if (strcmp(e->d_name, "manifest") == 0) *model = is_model_manifest(file);
-    ++*entries;
-    free(file);
-  }
-  closedir(d);
-  return rc;
-}
-
-/* Remove the directory `path` and the model files in it, after checking
- * that it holds nothing else (it is left untouched if it does). */
-static int remove_store_dir(const Report *r, const char *path) {
-  int entries, model;
-  if (scan_store_dir(r, path, "refusing to remove it", &entries, &model)) return -1;
-  DIR *d = opendir(path);
-  if (!d) return fail(r, path, 0, "cannot open the directory: %s", strerror(errno));
-  int rc = 0;
-  struct dirent *e;
-  while (rc == 0 && (e = readdir(d))) {
-    if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0 || !is_store_file(e->d_name)) continue;
-    char *file = str_printf("%s/%s", path, e->d_name);
-    if (!file) rc = fail(r, path, 0, "out of memory");
-    else if (unlink(file) != 0 && errno != ENOENT) rc = fail(r, file, 0, "cannot remove: %s", strerror(errno));
-    free(file);
-  }
-  closedir(d);
-  if (rc == 0 && rmdir(path) != 0) rc = fail(r, path, 0, "cannot remove the directory: %s", strerror(errno));
-  return rc;
-}
-
-/* Remove `path` if it exists (a leftover of a process that had our pid). */
-static int remove_stale(const Report *r, const char *path) {
-  struct stat st;
-  if (lstat(path, &st) != 0) return errno == ENOENT ? 0 : fail(r, path, 0, "cannot examine: %s", strerror(errno));
-  if (!S_ISDIR(st.st_mode)) return fail(r, path, 0, "is in the way and is not a directory: refusing to remove it");
-  return remove_store_dir(r, path);
-}
-
-static int slurp(const Report *r, const char *path, char **text, size_t *len);
-
-/* Every .npy in the model directory `dir` is an array its manifest lists:
- * replacing the model removes those (and the .csv files it lists), so a
- * file the user put there is refused rather than lost. */
-static int check_listed(const Report *r, const char *dir) {
-  char *mpath = str_printf("%s/manifest", dir), *text = NULL;
-  size_t len = 0;
-  DIR *d = NULL;
-  int rc = mpath ? slurp(r, mpath, &text, &len) : fail(r, dir, 0, "out of memory");
-  if (rc == 0 && !(d = opendir(dir))) rc = fail(r, dir, 0, "cannot open the directory: %s", strerror(errno));
-  struct dirent *e;
-  while (rc == 0 && (e = readdir(d))) {
-    size_t n = strlen(e->d_name);
-    int csv = n > 4 && strcmp(e->d_name + n - 4, ".csv") == 0;
-    if (!csv && (n <= 4 || strcmp(e->d_name + n - 4, ".npy") != 0)) continue;
-    char *line = str_printf(csv ? "\nfile %s " : "\narray %s ", e->d_name);
-    char buf[NPY_EXCERPT_SIZE];
-    if (!line) rc = fail(r, dir, 0, "out of memory");
-    else if (!strstr(text, line))
-      rc = fail(r, dir, 0, "holds '%s', which its manifest does not list: refusing to replace the model (move the "
-                           "file elsewhere first)", excerpt(buf, e->d_name));
-    free(line);
-  }
-  if (d) closedir(d);
-  free(text);
-  free(mpath);
-  return rc;
-}
-
-/* Whether `dir` exists (`*exists`), and if so that it is a model directory
- * model_store_write may replace. */
-static int check_replaceable(const Report *r, const char *dir, int *exists) {
-  struct stat st;
-  *exists = 0;
-  if (lstat(dir, &st) != 0) return errno == ENOENT ? 0 : fail(r, dir, 0, "cannot examine: %s", strerror(errno));
-  if (S_ISLNK(st.st_mode))
-    return fail(r, dir, 0, "is a symbolic link: refusing to replace it (give the directory it points to)");
-  if (!S_ISDIR(st.st_mode)) return fail(r, dir, 0, "exists and is not a directory: refusing to replace it");
-  int entries, model;
-  if (scan_store_dir(r, dir, "refusing to replace it", &entries, &model)) return -1;
-  if (entries > 0 && !model)
-    return fail(r, dir, 0, "exists and is not a model (it has no model manifest): refusing to replace it");
-  *exists = 1;
-  return model ? check_listed(r, dir) : 0;
-}
-
-/* Make the entries of directory `path` durable. Some file systems cannot
- * sync a directory (EINVAL): nothing more can be done there. */
-static int sync_dir(const Report *r, const char *path) {
-  int fd = open(path, O_RDONLY | O_DIRECTORY);
-  if (fd < 0) return fail(r, path, 0, "cannot open the directory to sync it: %s", strerror(errno));
-  int rc = 0;
-  if (fsync(fd) != 0 && errno != EINVAL) rc = fail(r, path, 0, "cannot sync the directory: %s", strerror(errno));
-  close(fd);
-  return rc;
-}
-
-/* The directory holding `dir` (malloc'd): "." for a bare name. */
-static char *parent_of(const char *dir) {
-  const char *slash = strrchr(dir, '/');
-  if (!slash) return strdup(".");
-  if (slash == dir) return strdup("/");
-  return str_printf("%.*s", (int)(slash - dir), dir);
-}
-
-/* `dir` without trailing slashes (malloc'd; "/" stays "/"), or NULL. */
-static char *normalize_dir(const char *dir) {
-  size_t n = strlen(dir);
-  while (n > 1 && dir[n - 1] == '/') n--;
-  return str_printf("%.*s", (int)n, dir);
-}
-
-/* ---------------------------------------------------------------- interruption
- *
- * A training killed while it writes leaves "<dir>.tmp.<pid>" (the new model,
- * maybe incomplete) and, on the two-rename path, "<dir>.old.<pid>" (the
- * previous one). SIGINT and SIGTERM remove the temporary folder before the
- * process dies; after a SIGKILL the next write (or read) of the model finds
- * what a dead process left: it moves a complete model into a missing `dir`,
- * saying so, and removes the rest. */
-
-/* Test hook: NPG_TEST_INTERRUPT=<point>[:TERM|:INT] raises that signal
- * (SIGKILL by default) at a named point of model_store_write: "arrays" (half
- * the arrays written), "manifest" (all written, before the swap), "swap"
- * (between the two renames, with NPG_TEST_NO_EXCHANGE=1), "cleanup" (the
- * new model in place, the previous one not yet removed). */
-static void test_point(const char *point) {
-  const char *at = getenv("NPG_TEST_INTERRUPT");
-  size_t n = strlen(point);
-  if (!at || strncmp(at, point, n) != 0 || (at[n] && at[n] != ':')) return;
-  raise(!at[n] ? SIGKILL : strcmp(at + n + 1, "TERM") == 0 ? SIGTERM : strcmp(at + n + 1, "INT") == 0 ? SIGINT : SIGKILL);
-}
-
-/* What the signal handler removes: every file write_contents may create in
- * the temporary folder, then the folder. Set before the handler is armed. */
-static struct {
-  char **paths;
-  int n;
-  char *dir;
-  struct sigaction saved_int, saved_term;
-  int armed;
-} cleanup;
-
-static void on_signal(int sig) {
-  for (int i = 0; i < cleanup.n; i++) unlink(cleanup.paths[i]);
-  rmdir(cleanup.dir);
-  sigaction(sig, sig == SIGINT ? &cleanup.saved_int : &cleanup.saved_term, NULL);
-  raise(sig);
-}
-
-static void disarm(void) {
-  if (cleanup.armed) {
-    sigaction(SIGINT, &cleanup.saved_int, NULL);
-    sigaction(SIGTERM, &cleanup.saved_term, NULL);
-    cleanup.armed = 0;
-  }
-  for (int i = 0; i < cleanup.n; i++) free(cleanup.paths[i]);
-  free(cleanup.paths);
-  cleanup.paths = NULL;
-  cleanup.n = 0;
-  cleanup.dir = NULL;
-}
-
-/* Arm SIGINT and SIGTERM to remove `tmp` and what `m` writes into it (one
- * model write at a time per process: a second one is not armed). */
-static void arm(const char *tmp, const ModelStore *m) {
-  if (cleanup.paths) return;
-  char **paths = calloc((size_t)(2 * m->narrays + m->ntexts + 1), sizeof *paths);
-  if (!paths) return;
-  cleanup.paths = paths;
-  long pid = (long)getpid();
-  for (int i = 0; i < m->narrays; i++) {
-    if ((paths[cleanup.n] = str_printf("%s/%s.npy", tmp, m->arrays[i].name))) cleanup.n++;
-    if ((paths[cleanup.n] = str_printf("%s/%s.npy.tmp.%ld", tmp, m->arrays[i].name, pid))) cleanup.n++;
-  }
-  for (int i = 0; i < m->ntexts; i++)
-    if ((paths[cleanup.n] = str_printf("%s/%s", tmp, m->texts[i].name))) cleanup.n++;
-  if ((paths[cleanup.n] = str_printf("%s/manifest", tmp))) cleanup.n++;
-  cleanup.dir = (char *)tmp;
-  struct sigaction sa;
-  memset(&sa, 0, sizeof sa);
-  sa.sa_handler = on_signal;
-  sigemptyset(&sa.sa_mask);
-  sigaction(SIGINT, &sa, &cleanup.saved_int);
-  sigaction(SIGTERM, &sa, &cleanup.saved_term);
-  cleanup.armed = 1;
-}
-
-/* A model directory whose manifest is whole: its last line is its checksum
- * and matches (the manifest is written last, so the arrays are there). */
-static int is_complete(const char *path) {
-  char *mpath = str_printf("%s/manifest", path), *text = NULL, ignored[16];
-  Report quiet = {ignored, sizeof ignored};
-  size_t len = 0;
-  int ok = 0;
-  if (mpath && slurp(&quiet, mpath, &text, &len) == 0) {
-    char *last = len > 1 ? memrchr(text, '\n', len - 1) : NULL;
-    uint64_t want;
-    if (last && strncmp(last + 1, "manifest " CHECKSUM_KIND " ", strlen("manifest " CHECKSUM_KIND " ")) == 0) {
-      char hex[17] = {0};
-      memcpy(hex, last + 1 + strlen("manifest " CHECKSUM_KIND " "), 16);
-      ok = parse_hex64(hex, &want) == 0 &&
-           model_hash_bytes(model_hash_init(), text, (size_t)(last - text) + 1) == want;
-    }
-  }
-  free(text);
-  free(mpath);
-  return ok;
-}
-
-/* "<base>.tmp.<pid>" or "<base>.old.<pid>" of a process that is gone: its
- * kind ('t' or 'o'), else 0. */
-static int dead_leftover(const char *name, const char *base) {
-  size_t n = strlen(base);
-  if (strncmp(name, base, n) != 0 || (strncmp(name + n, ".tmp.", 5) != 0 && strncmp(name + n, ".old.", 5) != 0))
-    return 0;
-  const char *digits = name + n + 5;
-  if (!*digits || strspn(digits, "0123456789") != strlen(digits) || strlen(digits) > 9) return 0;
-  long pid = strtol(digits, NULL, 10);
-  if (pid == (long)getpid() || kill((pid_t)pid, 0) == 0 || errno != ESRCH) return 0;
-  return name[n + 1];
-}
-
-/* What dead trainings left beside `dir`: a complete new model (else the
- * previous one) moved into a missing `dir`, saying so on stderr; with
- * `clean`, the rest removed. Failures here are not errors of the caller. */
-static void recover_interrupted(const char *dir, int clean) {
-  char *parent = parent_of(dir), ignored[16];
-  const char *slash = strrchr(dir, '/');
-  const char *base = slash ? slash + 1 : dir;
-  Report quiet = {ignored, sizeof ignored};
-  DIR *d = parent ? opendir(parent) : NULL;
-  struct stat st;
-  int missing = lstat(dir, &st) != 0 && errno == ENOENT;
-  for (int pass = 0; d && pass < 3; pass++) { /* complete new models, previous models, the rest */
-    rewinddir(d);
-    struct dirent *e;
-    while ((e = readdir(d))) {
-      int kind = dead_leftover(e->d_name, base);
-      if (!kind) continue;
-      char *path = str_printf("%s/%s", parent, e->d_name);
-      if (!path) continue;
-      if (pass < 2 && missing && (pass == 0 ? kind == 't' && is_complete(path) : kind == 'o') &&
-          rename(path, dir) == 0) {
-        fprintf(stderr, "npg: %s was missing after an interrupted training: moved in the %s model from %s\n", dir,
-                pass == 0 ? "new (complete)" : "previous", path);
-        missing = 0;
-      } else if (pass == 2 && clean) {
-        remove_store_dir(&quiet, path);
-      }
-      free(path);
-    }
-  }
-  if (d) closedir(d);
-  free(parent);
-}
-
-/* ---------------------------------------------------------------- writing */
-
-/* Check that `m` can be written and read back as it is. */
-static int check_store(const Report *r, const char *dir, const ModelStore *m) {
-  char buf[NPY_EXCERPT_SIZE];
-  for (int i = 0; i < m->nmeta; i++)
-    if (!valid_meta(m->meta[i]))
-      return fail(r, dir, 0, "metadata line %d is not a line 'key value...' with a key of its own: '%s'", i + 1,
-                  m->meta[i] ? excerpt(buf, m->meta[i]) : "(null)");
-  for (int i = 0; i < m->narrays; i++) {
-    const ModelArray *x = &m->arrays[i];
-    size_t count;
-    if (!valid_name(x->name))
-      return fail(r, dir, 0, "array name '%s' is not a file stem of [A-Za-z0-9_.-] not starting with '.'",
-                  x->name ? excerpt(buf, x->name) : "(null)");
-    for (int j = 0; j < i; j++)
-      if (strcmp(m->arrays[j].name, x->name) == 0) return fail(r, dir, 0, "array name '%s' is used twice", x->name);
-    if (x->a.type != NPY_F64)
-      return fail(r, dir, 0, "array '%s' holds %s; a model holds float64 arrays", x->name, npy_type_name(x->a.type));
-    if (x->a.ndim < 0 || x->a.ndim > NPY_MAX_DIMS || shape_count(x->a.ndim, x->a.shape, &count) != 0 ||
-        count != x->a.count || (count && !x->a.data))
-      return fail(r, dir, 0, "array '%s' has an inconsistent shape, count or data (a bug in npg)", x->name);
-  }
-  return 0;
-}
-
-/* Write the arrays of `m`, then the manifest with their checksums, into the
- * existing empty directory `tmp`, and sync it all. */
-static int write_contents(const Report *r, const char *tmp, const ModelStore *m) {
-  uint64_t *checksums = calloc((size_t)m->narrays + 1, sizeof *checksums);
-  if (!checksums) return fail(r, tmp, 0, "out of memory");
-  int rc = 0;
-  for (int i = 0; i < m->narrays && rc == 0; i++) {
-    const ModelArray *x = &m->arrays[i];
-    char *path = str_printf("%s/%s.npy", tmp, x->name);
-    if (!path) rc = fail(r, tmp, 0, "out of memory");
-    else if (npy_write(path, NPY_F64, x->a.ndim, x->a.shape, x->a.data, r->err, r->errlen) != 0) rc = -1;
-    /* The checksum is of the bytes on disk, read back, so it vouches for
-     * what a later read will find rather than for what we meant to write. */
-    else rc = hash_file(r, path, &checksums[i]);
-    free(path);
-    if (i == m->narrays / 2) test_point("arrays");
-  }
-  uint64_t *text_sums = rc == 0 ? calloc((size_t)m->ntexts + 1, sizeof *text_sums) : NULL;
-  if (rc == 0 && !text_sums) rc = fail(r, tmp, 0, "out of memory");
-  for (int i = 0; i < m->ntexts && rc == 0; i++) {
-    char *tpath = str_printf("%s/%s", tmp, m->texts[i].name);
-    FILE *tf = tpath ? fopen(tpath, "wb") : NULL;
-    if (!tpath) rc = fail(r, tmp, 0, "out of memory");
-    else if (!tf) rc = fail(r, tpath, 0, "cannot create: %s", strerror(errno));
-    else {
-      size_t len = strlen(m->texts[i].text);
-      int ok = fwrite(m->texts[i].text, 1, len, tf) == len && fflush(tf) == 0 &&
-               (fsync(fileno(tf)) == 0 || errno == EINVAL);
-      if (fclose(tf) != 0) ok = 0;
-      rc = ok ? hash_file(r, tpath, &text_sums[i]) : fail(r, tpath, 0, "cannot write: %s", strerror(errno));
-    }
-    free(tpath);
-  }
-  char *path = rc == 0 ? str_printf("%s/manifest", tmp) : NULL;
-  if (rc == 0 && !path) rc = fail(r, tmp, 0, "out of memory");
-  char *text = NULL;
-  size_t len = 0;
-  FILE *mem = rc == 0 ? open_memstream(&text, &len) : NULL;
-  if (rc == 0 && !mem) rc = fail(r, tmp, 0, "out of memory");
-  if (rc == 0) {
-    fprintf(mem, FORMAT_LINE "\nprogram %016" PRIx64 "\n", m->program_hash);
-    for (int i = 0; i < m->nmeta; i++) fprintf(mem, "%s\n", m->meta[i]);
-    for (int i = 0; i < m->narrays; i++) {
-      char shape[SHAPE_TEXT];
-      const ModelArray *x = &m->arrays[i];
-      fprintf(mem, "array %s.npy %s " CHECKSUM_KIND " %016" PRIx64 "\n", x->name,
-              format_shape(shape, x->a.ndim, x->a.shape), checksums[i]);
-    }
-    for (int i = 0; i < m->ntexts; i++)
-      fprintf(mem, "file %s " CHECKSUM_KIND " %016" PRIx64 "\n", m->texts[i].name, text_sums[i]);
-    if (fclose(mem) != 0 || !text) rc = fail(r, tmp, 0, "out of memory");
-  }
-  FILE *f = rc == 0 ? fopen(path, "wb") : NULL;
-  if (rc == 0 && !f) rc = fail(r, path, 0, "cannot create: %s", strerror(errno));
-  if (rc == 0) {
-    /* the manifest vouches for itself too: its last line is the checksum of
-     * the lines before it, so an edited line is caught like a changed file */
-    fwrite(text, 1, len, f);
-    fprintf(f, "manifest " CHECKSUM_KIND " %016" PRIx64 "\n", model_hash_bytes(model_hash_init(), text, len));
-    /* EINVAL: a file that cannot be synced at all, as npy_write allows. */
-    int ok = !ferror(f) && fflush(f) == 0 && (fsync(fileno(f)) == 0 || errno == EINVAL);
-    int saved = errno;
-    if (fclose(f) != 0 && ok) {
-      ok = 0;
-      saved = errno;
-    }
-    if (!ok) rc = fail(r, path, 0, "cannot write: %s", strerror(saved));
-  }
-  free(text);
-  free(path);
-  free(checksums);
-  free(text_sums);
-  return rc == 0 ? sync_dir(r, tmp) : rc;
-}
-
-int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_t errlen) {
-  Report r = {err, errlen};
-  if (err && errlen) err[0] = '\0';
-  if (!dir_arg || !*dir_arg) return fail(&r, "(model directory)", 0, "the directory name is empty");
-  char *dir = normalize_dir(dir_arg);
-  long pid = (long)getpid();
-  char *tmp = dir ? str_printf("%s.tmp.%ld", dir, pid) : NULL;
-  char *old = dir ? str_printf("%s.old.%ld", dir, pid) : NULL;
-  char *parent = dir ? parent_of(dir) : NULL;
-  int exists = 0, rc = 0;
-  if (!dir || !tmp || !old || !parent) {
-    rc = fail(&r, dir_arg, 0, "out of memory");
-    goto done;
-  }
-  recover_interrupted(dir, 1);
-  /* Everything that can be refused is refused before anything is written. */
-  if (check_store(&r, dir, m) || check_replaceable(&r, dir, &exists) || remove_stale(&r, tmp) ||
-      remove_stale(&r, old)) {
-    rc = -1;
-    goto done;
-  }
-  if (mkdir(tmp, 0777) != 0) {
-    rc = fail(&r, tmp, 0, "cannot create the directory: %s", strerror(errno));
-    goto done;
-  }
-  arm(tmp, m);
-  if (write_contents(&r, tmp, m) != 0) {
-    disarm();
-    rc = -1;
-    goto discard;
-  }
-  test_point("manifest");
-  disarm();
-  /* The swap: one atomic exchange where the file system has it (the old
-   * model is then in `tmp`); otherwise two renames, between which `dir` is
-   * briefly absent, never half written — a crash there leaves both models
-   * whole, and the next read or write moves the new one in. */
-  if (exists && !getenv("NPG_TEST_NO_EXCHANGE") && renameat2(AT_FDCWD, tmp, AT_FDCWD, dir, RENAME_EXCHANGE) == 0) {
-    if (sync_dir(&r, parent) != 0) { /* as below: keep both */
-      rc = -1;
-      goto done;
-    }
-    test_point("cleanup");
-    char ignored[16];
-    Report quiet = {ignored, sizeof ignored};
-    if (remove_store_dir(&quiet, tmp) != 0)
-      rc = fail(&r, tmp, 0, "the new model in %s is complete, but the previous one could not be removed from here",
-                dir);
-    goto done;
-  }
-  if (exists && rename(dir, old) != 0) {
-    rc = fail(&r, dir, 0, "cannot move the previous model aside to %s: %s", old, strerror(errno));
-    goto discard;
-  }
-  if (exists) test_point("swap");
-  if (rename(tmp, dir) != 0) {
-    rc = fail(&r, dir, 0, "cannot move the new model in from %s: %s", tmp, strerror(errno));
-    if (exists && rename(old, dir) != 0) {
-      fail(&r, dir, 0, "cannot move the new model in from %s, nor the previous one back from %s: %s", tmp, old,
-           strerror(errno));
-      goto done; /* keep `tmp`: the message names both copies */
-    }
-    goto discard;
-  }
-  /* Until the parent is synced the swap may not survive a crash, so the
-   * previous model is kept if that fails. */
-  if (sync_dir(&r, parent) != 0) {
-    size_t n = err ? strlen(err) : 0;
-    if (err && n < errlen)
-      snprintf(err + n, errlen - n, " (the new model is in %s%s%s)", dir,
-               exists ? "; the previous one is kept in " : "", exists ? old : "");
-    rc = -1;
-    goto done;
-  }
-  if (exists) test_point("cleanup");
-  if (exists && remove_store_dir(&r, old) != 0) {
-    size_t n = err ? strlen(err) : 0;
-    if (err && n < errlen)
-      snprintf(err + n, errlen - n, " (the new model in %s is complete; remove %s by hand)", dir, old);
-    rc = -1;
-  }
-  goto done;
-discard:
-  /* The temporary directory holds only our files; its removal cannot make
-   * things worse, and its message is less useful than the first one. */
-  {
-    char ignored[16];
-    Report quiet = {ignored, sizeof ignored};
-    remove_store_dir(&quiet, tmp);
-  }
-done:
-  free(dir);
-  free(tmp);
-  free(old);
-  free(parent);
-  return rc;
-}
-
 /* ---------------------------------------------------------------- reading */
 
 /* An array line of the manifest, before its file is looked at. */
@@ -832,20 +309,20 @@ typedef struct Listed {
 
 /* The whole of `path` into a malloc'd, NUL-terminated `*text` of `*len`
  * bytes. */
-static int slurp(const Report *r, const char *path, char **text, size_t *len) {
+int model_store_slurp(const StoreReport *r, const char *path, char **text, size_t *len) {
   FILE *f = fopen(path, "rb");
-  if (!f) return fail(r, path, 0, "cannot open: %s", strerror(errno));
+  if (!f) return model_store_fail(r, path, 0, "cannot open: %s", strerror(errno));
   size_t cap = 4096, n = 0;
   char *buf = malloc(cap + 1);
-  int rc = buf ? 0 : fail(r, path, 0, "out of memory");
+  int rc = buf ? 0 : model_store_fail(r, path, 0, "out of memory");
   while (rc == 0) {
     n += fread(buf + n, 1, cap - n, f);
-    if (ferror(f)) rc = fail(r, path, 0, "cannot read: %s", strerror(errno));
+    if (ferror(f)) rc = model_store_fail(r, path, 0, "cannot read: %s", strerror(errno));
     else if (n < cap) break;
-    else if (cap >= MANIFEST_MAX) rc = fail(r, path, 0, "larger than %zu bytes: not a model manifest", MANIFEST_MAX);
+    else if (cap >= MANIFEST_MAX) rc = model_store_fail(r, path, 0, "larger than %zu bytes: not a model manifest", MANIFEST_MAX);
     else {
       char *grown = realloc(buf, 2 * cap + 1);
-      if (!grown) rc = fail(r, path, 0, "out of memory");
+      if (!grown) rc = model_store_fail(r, path, 0, "out of memory");
       else buf = grown, cap *= 2;
     }
   }
@@ -877,21 +354,21 @@ static int split_words(char *line, char **words, int max) {
 }
 
 /* array <name>.npy <shape> fnv1a64 <16 hex digits> */
-static int parse_array_line(const Report *r, const char *mpath, int ln, char *line, Listed *x) {
+static int parse_array_line(const StoreReport *r, const char *mpath, int ln, char *line, Listed *x) {
   char *w[5], buf[NPY_EXCERPT_SIZE];
   if (split_words(line, w, 5) != 5)
-    return fail(r, mpath, ln, "expected 'array <name>.npy <shape> " CHECKSUM_KIND " <16 hex digits>'");
+    return model_store_fail(r, mpath, ln, "expected 'array <name>.npy <shape> " CHECKSUM_KIND " <16 hex digits>'");
   size_t n = strlen(w[1]);
   if (n <= 4 || strcmp(w[1] + n - 4, ".npy") != 0)
-    return fail(r, mpath, ln, "array file '%s' does not end in .npy", excerpt(buf, w[1]));
+    return model_store_fail(r, mpath, ln, "array file '%s' does not end in .npy", model_store_excerpt(buf, w[1]));
   w[1][n - 4] = '\0';
-  if (!valid_name(w[1])) return fail(r, mpath, ln, "bad array name '%s'", excerpt(buf, w[1]));
+  if (!model_store_valid_name(w[1])) return model_store_fail(r, mpath, ln, "bad array name '%s'", model_store_excerpt(buf, w[1]));
   if (parse_shape(w[2], &x->ndim, x->shape) != 0)
-    return fail(r, mpath, ln, "bad shape '%s' (expected sizes joined by 'x', like 3x4)", excerpt(buf, w[2]));
+    return model_store_fail(r, mpath, ln, "bad shape '%s' (expected sizes joined by 'x', like 3x4)", model_store_excerpt(buf, w[2]));
   if (strcmp(w[3], CHECKSUM_KIND) != 0)
-    return fail(r, mpath, ln, "unknown checksum kind '%s' (expected " CHECKSUM_KIND ")", excerpt(buf, w[3]));
-  if (parse_hex64(w[4], &x->checksum) != 0)
-    return fail(r, mpath, ln, "bad checksum '%s' (expected 16 hex digits)", excerpt(buf, w[4]));
+    return model_store_fail(r, mpath, ln, "unknown checksum kind '%s' (expected " CHECKSUM_KIND ")", model_store_excerpt(buf, w[3]));
+  if (model_store_parse_hex64(w[4], &x->checksum) != 0)
+    return model_store_fail(r, mpath, ln, "bad checksum '%s' (expected 16 hex digits)", model_store_excerpt(buf, w[4]));
   x->name = w[1];
   x->line = ln;
   return 0;
@@ -902,7 +379,7 @@ static int parse_array_line(const Report *r, const char *mpath, int ln, char *li
  * lines into `m`, its array lines into `*listed` (malloc'd, `*nlisted`);
  * `*changed_line` is the checksum line when the lines before it do not
  * hash to it, else 0. */
-static int parse_manifest(const Report *r, const char *mpath, char *text, size_t len, uint64_t *program,
+static int parse_manifest(const StoreReport *r, const char *mpath, char *text, size_t len, uint64_t *program,
                           ModelStore *m, Listed **listed, int *nlisted, int *changed_line) {
   char buf[NPY_EXCERPT_SIZE];
   int program_line = 0, ln = 0, checksum_line = 0;
@@ -913,44 +390,44 @@ static int parse_manifest(const Report *r, const char *mpath, char *text, size_t
   uint64_t expect = 0, actual = model_hash_bytes(model_hash_init(), text, body);
   *listed = NULL;
   *nlisted = 0;
-  if (len == 0) return fail(r, mpath, 1, "empty file: not a model manifest (expected '" FORMAT_LINE "')");
+  if (len == 0) return model_store_fail(r, mpath, 1, "empty file: not a model manifest (expected '" FORMAT_LINE "')");
   for (char *line = text; line < text + len;) {
     char *nl = memchr(line, '\n', (size_t)(text + len - line));
     ln++;
-    if (!nl) return fail(r, mpath, ln, "last line has no newline: the file was cut short?");
+    if (!nl) return model_store_fail(r, mpath, ln, "last line has no newline: the file was cut short?");
     *nl = '\0';
     char *next = nl + 1;
-    if (strlen(line) != (size_t)(nl - line)) return fail(r, mpath, ln, "line holds a NUL byte");
+    if (strlen(line) != (size_t)(nl - line)) return model_store_fail(r, mpath, ln, "line holds a NUL byte");
     if (ln == 1 && strcmp(line, FORMAT_LINE) != 0) {
       if (key_is(line, FORMAT_WORD))
-        return fail(r, mpath, ln, "model format '%s' is not supported (this npgc reads '" FORMAT_LINE "')",
-                    excerpt(buf, line));
-      return fail(r, mpath, ln, "not a model manifest: first line is '%s', expected '" FORMAT_LINE "'",
-                  excerpt(buf, line));
+        return model_store_fail(r, mpath, ln, "model format '%s' is not supported (this npgc reads '" FORMAT_LINE "')",
+                    model_store_excerpt(buf, line));
+      return model_store_fail(r, mpath, ln, "not a model manifest: first line is '%s', expected '" FORMAT_LINE "'",
+                  model_store_excerpt(buf, line));
     } else if (ln == 1) {
       /* the format line: nothing more to it */
     } else if (key_is(line, FORMAT_WORD)) {
-      return fail(r, mpath, ln, "'" FORMAT_WORD "' may only be the first line");
+      return model_store_fail(r, mpath, ln, "'" FORMAT_WORD "' may only be the first line");
     } else if (key_is(line, "manifest")) {
       char *w[3];
-      if (next != text + len) return fail(r, mpath, ln, "the 'manifest' checksum line must be the last");
-      if (split_words(line, w, 3) != 3 || strcmp(w[1], CHECKSUM_KIND) != 0 || parse_hex64(w[2], &expect) != 0)
-        return fail(r, mpath, ln, "expected 'manifest " CHECKSUM_KIND " <16 hex digits>'");
+      if (next != text + len) return model_store_fail(r, mpath, ln, "the 'manifest' checksum line must be the last");
+      if (split_words(line, w, 3) != 3 || strcmp(w[1], CHECKSUM_KIND) != 0 || model_store_parse_hex64(w[2], &expect) != 0)
+        return model_store_fail(r, mpath, ln, "expected 'manifest " CHECKSUM_KIND " <16 hex digits>'");
       checksum_line = ln;
     } else if (key_is(line, "program")) {
       char *w[2];
-      if (program_line) return fail(r, mpath, ln, "second 'program' line (the first is line %d)", program_line);
-      if (split_words(line, w, 2) != 2 || parse_hex64(w[1], program) != 0)
-        return fail(r, mpath, ln, "expected 'program <16 hex digits>'");
+      if (program_line) return model_store_fail(r, mpath, ln, "second 'program' line (the first is line %d)", program_line);
+      if (split_words(line, w, 2) != 2 || model_store_parse_hex64(w[1], program) != 0)
+        return model_store_fail(r, mpath, ln, "expected 'program <16 hex digits>'");
       program_line = ln;
     } else if (key_is(line, "array")) {
       Listed x;
       if (parse_array_line(r, mpath, ln, line, &x)) return -1;
       for (int i = 0; i < *nlisted; i++)
         if (strcmp((*listed)[i].name, x.name) == 0)
-          return fail(r, mpath, ln, "array %s.npy listed twice (first on line %d)", x.name, (*listed)[i].line);
+          return model_store_fail(r, mpath, ln, "array %s.npy listed twice (first on line %d)", x.name, (*listed)[i].line);
       Listed *grown = realloc(*listed, ((size_t)*nlisted + 1) * sizeof *grown);
-      if (!grown) return fail(r, mpath, 0, "out of memory");
+      if (!grown) return model_store_fail(r, mpath, 0, "out of memory");
       *listed = grown;
       grown[(*nlisted)++] = x;
     } else if (key_is(line, "file")) {
@@ -958,28 +435,28 @@ static int parse_manifest(const Report *r, const char *mpath, char *text, size_t
       char *w[4];
       Listed x = {0};
       if (split_words(line, w, 4) != 4 || !valid_text_name(w[1]) || strcmp(w[2], CHECKSUM_KIND) != 0 ||
-          parse_hex64(w[3], &x.checksum) != 0)
-        return fail(r, mpath, ln, "expected 'file <name>.csv " CHECKSUM_KIND " <16 hex digits>'");
+          model_store_parse_hex64(w[3], &x.checksum) != 0)
+        return model_store_fail(r, mpath, ln, "expected 'file <name>.csv " CHECKSUM_KIND " <16 hex digits>'");
       x.name = w[1];
       x.ndim = -1;
       x.line = ln;
       Listed *grown = realloc(*listed, ((size_t)*nlisted + 1) * sizeof *grown);
-      if (!grown) return fail(r, mpath, 0, "out of memory");
+      if (!grown) return model_store_fail(r, mpath, 0, "out of memory");
       *listed = grown;
       grown[(*nlisted)++] = x;
     } else if (*line == '\0') {
-      return fail(r, mpath, ln, "empty line");
+      return model_store_fail(r, mpath, ln, "empty line");
     } else if (*line == ' ' || *line == '\t') {
-      return fail(r, mpath, ln, "line starts with a space (expected 'key value...')");
+      return model_store_fail(r, mpath, ln, "line starts with a space (expected 'key value...')");
     } else {
       char *copy = strdup(line);
-      if (!copy || append_meta(m, copy) != 0) return fail(r, mpath, 0, "out of memory");
+      if (!copy || append_meta(m, copy) != 0) return model_store_fail(r, mpath, 0, "out of memory");
     }
     line = next;
   }
-  if (!program_line) return fail(r, mpath, 0, "no 'program' line");
+  if (!program_line) return model_store_fail(r, mpath, 0, "no 'program' line");
   if (!checksum_line)
-    return fail(r, mpath, 0, "no 'manifest' checksum line: cut short, or written by an older npg (retrain)");
+    return model_store_fail(r, mpath, 0, "no 'manifest' checksum line: cut short, or written by an older npg (retrain)");
   /* compared by the caller once the arrays are checked: a changed file is
    * named as such even when its manifest line was changed to match */
   *changed_line = expect != actual ? checksum_line : 0;
@@ -987,39 +464,39 @@ static int parse_manifest(const Report *r, const char *mpath, char *text, size_t
 }
 
 /* Check and load the text file `x` of directory `dir` into `m`. */
-static int load_text(const Report *r, const char *dir, const Listed *x, ModelStore *m) {
-  char *path = str_printf("%s/%s", dir, x->name), *text = NULL;
-  if (!path) return fail(r, dir, 0, "out of memory");
+static int load_text(const StoreReport *r, const char *dir, const Listed *x, ModelStore *m) {
+  char *path = model_store_printf("%s/%s", dir, x->name), *text = NULL;
+  if (!path) return model_store_fail(r, dir, 0, "out of memory");
   uint64_t h;
   size_t len = 0;
-  int rc = hash_file(r, path, &h);
+  int rc = model_store_hash_file(r, path, &h);
   if (rc == 0 && h != x->checksum)
-    rc = fail(r, path, 0, "checksum mismatch: the file is corrupted or was changed after training");
-  if (rc == 0) rc = slurp(r, path, &text, &len);
-  if (rc == 0 && append_text(m, x->name, text, len, h) != 0) rc = fail(r, path, 0, "out of memory");
+    rc = model_store_fail(r, path, 0, "checksum mismatch: the file is corrupted or was changed after training");
+  if (rc == 0) rc = model_store_slurp(r, path, &text, &len);
+  if (rc == 0 && append_text(m, x->name, text, len, h) != 0) rc = model_store_fail(r, path, 0, "out of memory");
   free(text);
   free(path);
   return rc;
 }
 
 /* Check and load the array file `x` of directory `dir` into `m`. */
-static int load_array(const Report *r, const char *dir, const Listed *x, ModelStore *m) {
+static int load_array(const StoreReport *r, const char *dir, const Listed *x, ModelStore *m) {
   if (x->ndim < 0) return load_text(r, dir, x, m);
-  char *path = str_printf("%s/%s.npy", dir, x->name);
-  if (!path) return fail(r, dir, 0, "out of memory");
+  char *path = model_store_printf("%s/%s.npy", dir, x->name);
+  if (!path) return model_store_fail(r, dir, 0, "out of memory");
   uint64_t h;
   NpyArray a = {0};
   char got[SHAPE_TEXT], want[SHAPE_TEXT];
-  int rc = hash_file(r, path, &h);
+  int rc = model_store_hash_file(r, path, &h);
   if (rc == 0 && h != x->checksum)
-    rc = fail(r, path, 0, "checksum mismatch: the file is corrupted or was changed after training");
+    rc = model_store_fail(r, path, 0, "checksum mismatch: the file is corrupted or was changed after training");
   if (rc == 0) rc = npy_read(path, &a, r->err, r->errlen) != 0 ? -1 : 0;
   if (rc == 0 && a.type != NPY_F64)
-    rc = fail(r, path, 0, "holds %s elements; a model holds float64", npy_type_name(a.type));
+    rc = model_store_fail(r, path, 0, "holds %s elements; a model holds float64", npy_type_name(a.type));
   if (rc == 0 && (a.ndim != x->ndim || memcmp(a.shape, x->shape, (size_t)a.ndim * sizeof *a.shape) != 0))
-    rc = fail(r, path, 0, "shape %s, manifest says %s", format_shape(got, a.ndim, a.shape),
-              format_shape(want, x->ndim, x->shape));
-  if (rc == 0 && append_array(m, x->name, &a, h) != 0) rc = fail(r, path, 0, "out of memory");
+    rc = model_store_fail(r, path, 0, "shape %s, manifest says %s", model_store_format_shape(got, a.ndim, a.shape),
+              model_store_format_shape(want, x->ndim, x->shape));
+  if (rc == 0 && append_array(m, x->name, &a, h) != 0) rc = model_store_fail(r, path, 0, "out of memory");
   npy_free(&a);
   free(path);
   return rc;
@@ -1038,28 +515,28 @@ int model_store_read_any(const char *dir, ModelStore *m, char *err, size_t errle
 
 static int read_store(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, char *err,
                       size_t errlen) {
-  Report r = {err, errlen};
+  StoreReport r = {err, errlen};
   if (err && errlen) err[0] = '\0';
   model_store_init(m);
-  if (!dir_arg || !*dir_arg) return fail(&r, "(model directory)", 0, "the directory name is empty");
-  char *dir = normalize_dir(dir_arg);
-  if (dir) recover_interrupted(dir, 0);
-  char *mpath = dir ? str_printf("%s/manifest", dir) : NULL;
+  if (!dir_arg || !*dir_arg) return model_store_fail(&r, "(model directory)", 0, "the directory name is empty");
+  char *dir = model_store_normalize_dir(dir_arg);
+  if (dir) model_store_recover(dir, 0);
+  char *mpath = dir ? model_store_printf("%s/manifest", dir) : NULL;
   char *text = NULL;
   size_t len = 0;
   Listed *listed = NULL;
   int nlisted = 0, rc = 0, changed_line = 0;
-  if (!mpath) rc = fail(&r, dir_arg, 0, "out of memory");
-  if (rc == 0) rc = slurp(&r, mpath, &text, &len);
+  if (!mpath) rc = model_store_fail(&r, dir_arg, 0, "out of memory");
+  if (rc == 0) rc = model_store_slurp(&r, mpath, &text, &len);
   if (rc == 0) rc = parse_manifest(&r, mpath, text, len, &m->program_hash, m, &listed, &nlisted, &changed_line);
   if (rc == 0 && check_program && m->program_hash != expect_program_hash)
-    rc = fail(&r, mpath, 0,
+    rc = model_store_fail(&r, mpath, 0,
               "model was trained for another program (program hash %016" PRIx64 ", this program %016" PRIx64
               "): retrain",
               m->program_hash, expect_program_hash);
   for (int i = 0; i < nlisted && rc == 0; i++) rc = load_array(&r, dir, &listed[i], m);
   if (rc == 0 && changed_line)
-    rc = fail(&r, mpath, changed_line, "checksum mismatch: the manifest was changed after training");
+    rc = model_store_fail(&r, mpath, changed_line, "checksum mismatch: the manifest was changed after training");
   if (rc) model_store_free(m);
   free(listed);
   free(text);
