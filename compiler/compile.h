@@ -4,6 +4,11 @@
 
 #include "ir.h"
 
+/* The tallest expression tree the compiler takes (a chain x+x+…+x of N
+ * terms is N levels): the passes recurse over expressions, and beyond this
+ * a sanitizer build's stack would not hold them. */
+#define MAX_EXPR_HEIGHT 400
+
 /* ---------------------------------------------------------------- sources (source.c) */
 
 /* Read a whole file into the arena; NULL if it cannot be read (errno set).

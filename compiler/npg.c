@@ -72,7 +72,10 @@ static void compile(NpgProgram *np, const char *path, const NpgOptions *opt) {
     file = source_from_string(ctx, path, opt->source, strlen(opt->source));
   } else {
     file = source_read(ctx, path);
-    if (!file) error_plain(ctx, "cannot read '%s': %s", path, strerror(errno));
+    if (!file)
+      error_plain(ctx, "cannot read '%s': %s", path,
+                  errno == EFBIG ? "larger than 16 MB: not a program" : errno == EISDIR ? "it is a directory"
+                                                                            : strerror(errno));
   }
   Decl *decls = parse_program(ctx, file);
   if (wants(opt, 'p')) dump_decls(dump, decls);

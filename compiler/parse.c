@@ -308,6 +308,18 @@ static Node *parse_or(Parser *p) {
 
 static Node *parse_expr(Parser *p) { return parse_or(p); }
 
+/* A definition's body: an expression no taller than the passes take. */
+static Node *parse_body(Parser *p) {
+  Token *at = peek(p);
+  Node *body = parse_expr(p);
+  int h = node_height(body, MAX_EXPR_HEIGHT);
+  if (h < 0) error_plain(p->ctx, "out of memory");
+  if (h > MAX_EXPR_HEIGHT)
+    error_at(p->ctx, at->loc, "expression too deep (more than %d levels: a chain of that many terms, or nested "
+                              "calls); split it into named definitions or write it with sum()", MAX_EXPR_HEIGHT);
+  return body;
+}
+
 /* ---------------------------------------------------------------- statements */
 
 static Decl *new_decl(Parser *p, DeclKind kind, Loc loc) {
@@ -407,7 +419,7 @@ static Decl *parse_def(Parser *p, DeclKind kind, Token *name) {
     error_at(p->ctx, eq->loc, "expected '=' in the definition of '%s', found %s", name->text, describe(p, eq));
   }
   next(p);
-  d->body = parse_expr(p);
+  d->body = parse_body(p);
   return d;
 }
 
@@ -489,7 +501,7 @@ static void parse_stmt(Parser *p, Decl ***tail) {
     if (!is_punct(peek(p), ")")) parse_names(p, d, "a parameter name");
     expect_close(p, ")", open);
     expect(p, "=", arena_printf(ctx, "after the parameters of fn '%s'", n->text));
-    d->body = parse_expr(p);
+    d->body = parse_body(p);
   } else if (strcmp(kw, "op") == 0) {
     d = parse_opdef(p);
   } else if (strcmp(kw, "extern") == 0) {

@@ -91,6 +91,11 @@ Node *sema_inline_fn(Checker *ck, Node *call, Sym *fn) {
     map[i].arg = call->args[i] = sema_expr_check(ck, call->args[i]);
   }
   Node *body = subst(ck, fn->body, map, fn->nargs, call);
+  int h = node_height(body, MAX_EXPR_HEIGHT);
+  if (h < 0) error_plain(ctx, "out of memory");
+  if (h > MAX_EXPR_HEIGHT)
+    error_node(ctx, call, "expression too deep once fn '%s' is inlined (more than %d levels); split it into named "
+                          "definitions", fn->name, MAX_EXPR_HEIGHT);
   fn->expanding = true;
   ck->depth++;
   body = sema_expr_check(ck, body);

@@ -3,8 +3,13 @@
 #include <errno.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "compile.h"
+
+/* A program is text a person wrote; anything larger is not one, and the cap
+ * bounds what a wrong path (/dev/zero) makes us read. */
+#define SOURCE_MAX ((size_t)16 << 20)
 
 SrcFile *source_from_string(Ctx *ctx, const char *name, const char *text, size_t len) {
   SrcFile *f = arena_alloc(ctx, sizeof *f);
@@ -16,6 +21,11 @@ SrcFile *source_from_string(Ctx *ctx, const char *name, const char *text, size_t
 }
 
 SrcFile *source_read(Ctx *ctx, const char *path) {
+  struct stat st;
+  if (stat(path, &st) == 0 && S_ISDIR(st.st_mode)) {
+    errno = EISDIR;
+    return NULL;
+  }
   FILE *fp = fopen(path, "rb");
   if (!fp) return NULL;
   ctx->open_file = fp;  /* closed by npg_compile if an allocation fails below */
@@ -29,6 +39,12 @@ SrcFile *source_read(Ctx *ctx, const char *path) {
     size_t got = fread(buf + len, 1, cap - 1 - len, fp);
     len += got;
     if (got == 0) break;
+    if (len > SOURCE_MAX) {
+      ctx->open_file = NULL;
+      fclose(fp);
+      errno = EFBIG;
+      return NULL;
+    }
   }
   int bad = ferror(fp);
   ctx->open_file = NULL;

@@ -218,6 +218,41 @@ Node *new_node(Ctx *ctx, NodeKind kind, Loc loc) {
   return n;
 }
 
+int node_height(const Node *n, int limit) {
+  if (!n) return 0;
+  typedef struct Frame {
+    const Node *n;
+    int depth;
+  } Frame;
+  size_t cap = 256, top = 0;
+  Frame *st = malloc(sizeof(Frame) * cap);
+  if (!st) return -1;
+  st[top++] = (Frame){n, 1};
+  int height = 0;
+  while (top > 0) {
+    Frame f = st[--top];
+    if (f.depth > height) height = f.depth;
+    if (height > limit) break;
+    const Node *kids[3] = {f.n->a, f.n->b, f.n->c};
+    size_t need = top + 3 + (size_t)(f.n->nargs > 0 ? f.n->nargs : 0);
+    if (need > cap) {
+      while (cap < need) cap *= 2;
+      Frame *g = realloc(st, sizeof(Frame) * cap);
+      if (!g) {
+        free(st);
+        return -1;
+      }
+      st = g;
+    }
+    for (int k = 0; k < 3; k++)
+      if (kids[k]) st[top++] = (Frame){kids[k], f.depth + 1};
+    for (int k = 0; k < f.n->nargs; k++)
+      if (f.n->args[k]) st[top++] = (Frame){f.n->args[k], f.depth + 1};
+  }
+  free(st);
+  return height > limit ? limit + 1 : height;
+}
+
 Node *new_num(Ctx *ctx, double v, bool is_int, Loc loc) {
   Node *n = new_node(ctx, N_NUM, loc);
   n->num = v;

@@ -178,6 +178,11 @@ struct Node {
 Node *new_node(Ctx *ctx, NodeKind kind, Loc loc);
 Node *new_num(Ctx *ctx, double v, bool is_int, Loc loc);
 Node *clone_node(Ctx *ctx, const Node *n);      /* deep copy */
+/* The height of the tree at `n` (a leaf is 1), found without recursion,
+ * and `limit` + 1 as soon as it exceeds `limit`: the passes recurse over
+ * expressions, so a taller tree is refused before they run. -1 when out of
+ * memory. */
+int node_height(const Node *n, int limit);
 void print_node(FILE *out, const Node *n);      /* source-like text */
 char *node_str(Ctx *ctx, const Node *n);        /* the same, in the arena */
 /* Text printed by `print(out, x)`, in the arena. */

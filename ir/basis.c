@@ -30,7 +30,7 @@ static const char *rule_of(const Term *t) {
   }
   if (root) return "a root's operand lives in its result's basis (paper §4, rule iii)";
   if (inv) return "an inverse's numerator lives in its result's basis (paper §4.1, B_n = B_y)";
-  return "an operator is reduced with its result's basis on both axes (DESIGN §4)";
+  return "an operator is reduced with its result's basis on both axes (paper §4.1)";
 }
 
 /* "h = diag(r)^-1 s" — the term in a line, operators abbreviated. */

@@ -224,7 +224,7 @@ void dump_program(FILE *out, const Program *prog) {
   }
   dump_classes(out, prog);
   for (int i = 0; i < prog->notes.n; i++) fprintf(out, "note: %s\n", (char *)prog->notes.v[i]);
-  fputs("basis defaults: energy 0.999, cap 60 per member, centered (DESIGN §5)\n", out);
+  fputs("basis defaults: energy 0.999, cap 60 per member, centered (README: Reducing a program)\n", out);
   fputs("reduced cost per evaluation (multiply-adds; m_X = basis size of class X, S = training samples):\n", out);
   fprintf(out, "  %s\n", cost_formula(prog->ctx, prog));
 }

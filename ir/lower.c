@@ -125,7 +125,7 @@ static void check_inline(Lowerer *L, Sym *s) {
           const Sym *q = t->num->comp[c].m[m]->atoms[a].q;
           if (first && q != first)
             error_at(L->ctx, s->inline_loc, "cannot inline '%s': it reads both '%s' and '%s'; only a linear quantity "
-                     "of one input can be folded into its consumers (DESIGN §4)", s->name, first->name, q->name);
+                     "of one input can be folded into its consumers (paper §4.2)", s->name, first->name, q->name);
           first = q;
         }
   }

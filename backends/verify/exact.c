@@ -314,7 +314,7 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
 
 int exact_check_program(Program *prog, const ExactOptions *o, FILE *out, char *err, size_t errlen) {
   if (err && errlen) err[0] = '\0';
-  fprintf(out, "exactness checks of DESIGN §4 on random data (seed %u)\n", o->seed);
+  fprintf(out, "the exactness checks (README: npgc verify --exact) on random data (seed %u)\n", o->seed);
   bool failed = false;
   if (check_lowering(prog, o, out, &failed, err, errlen) != 0) return -1;
   if (check_full_rank(prog, o, out, &failed, err, errlen) != 0) return -1;

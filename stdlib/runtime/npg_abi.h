@@ -104,8 +104,9 @@ typedef int (*NpgBuildFn)(const NpgCtx *c, NpgSink *sink);
  * code (they can be megabytes): the host passes them, with the coordinates
  * and scratch memory, in an NpgReducedCtx. The generated file says what it
  * expects: P_npg_reduced_coords = {number of quantities, m of each},
- * P_npg_reduced_tensors = {number of tensors, rows x cols of each, in the
- * order of NpgReducedCtx.t (listed in a comment at its top)}, and
+ * P_npg_reduced_tensors = {number of tensors, then the element count (rows
+ * × cols) of each, in the order of NpgReducedCtx.t; their rows and columns
+ * are listed in a comment at the file's top}, and
  * P_npg_reduced_work, the doubles of scratch. P is the program's file stem
  * (every external symbol of generated code carries it, so two programs'
  * code links into one binary: emit_symbol in backends/emit/emit.h). Every reduced vector and
