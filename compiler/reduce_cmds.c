@@ -175,6 +175,27 @@ static void print_model(const NpgModel *m, FILE *out) {
   fprintf(out, "reduced tensors: %.3f MB; model with bases: %.3f MB\n", (double)tb / 1e6, (double)total / 1e6);
 }
 
+/* Every --basis NAME is '*' or a quantity with a basis (an input, a stage
+ * or an extern), as in a `basis` line of the program: a misspelt name is
+ * refused, not ignored. */
+static int check_basis_names(const Common *c, NpgProgram *p) {
+  for (int k = 0; k < c->nbasis; k++) {
+    const char *name = c->basis_name[k];
+    if (strcmp(name, "*") == 0) continue;
+    int kind = -1;
+    for (int i = 0; i < npg_nsymbols(p); i++) {
+      NpgSymbol sym;
+      if (npg_symbol(p, i, &sym) == 0 && strcmp(sym.name, name) == 0) kind = (int)sym.kind;
+    }
+    if (kind == NPG_INPUT || kind == NPG_EXTERN || kind == NPG_STAGE) continue;
+    fprintf(stderr, "npgc train: --basis %s: %s\n", name,
+            kind < 0 ? "the program has no quantity of that name"
+                     : "not a quantity with a basis (input, stage or extern)");
+    return -1;
+  }
+  return 0;
+}
+
 /* The samples of DATA/ streamed into a trainer, as any C program would. */
 static int cmd_train(Common *c) {
   if (!c->prog_path || !c->a || !c->out || c->b) return usage("train");
@@ -185,6 +206,10 @@ static int cmd_train(Common *c) {
   if (npgc_make_parents(c->out, false) != 0) return 1;
   NpgProgram *p = compile(c);
   if (!p) return 1;
+  if (check_basis_names(c, p) != 0) {
+    npg_free(p);
+    return 1;
+  }
   char err[2048] = "";
   int rc = 1;
   NpgSamples *s = NULL;
@@ -197,6 +222,10 @@ static int cmd_train(Common *c) {
   }
   if (!(s = npg_samples_open(p, c->a, NULL, true, err, sizeof err))) {
     fprintf(stderr, "error: %s\n", err);
+    goto done;
+  }
+  if (npg_samples_count(s) < 1) {
+    fprintf(stderr, "error: %s: no samples (the first axis of its inputs is 0)\n", c->a);
     goto done;
   }
   double t0 = now();
@@ -282,10 +311,14 @@ static int open_session(Common *c, Session *x, bool full) {
       return -1;
     }
   }
+  if (npg_samples_count(x->s) < 1) {
+    fprintf(stderr, "error: %s: no samples (the first axis of its inputs is 0)\n", c->b);
+    return -1;
+  }
   /* the inputs' sizes must be the model's */
   for (int i = 0; i < x->nsym; i++) {
     if (x->sym[i].kind != NPG_INPUT) continue;
-    size_t n;
+    size_t n = 0;
     NpgClassInfo ci;
     npg_samples_get(x->s, x->sym[i].name, 0, &n);
     npg_model_class(x->m, npg_model_class_of(x->m, x->sym[i].name), &ci);

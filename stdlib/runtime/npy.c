@@ -523,6 +523,7 @@ static size_t format_header(char *out, size_t outlen, NpyType type, int ndim, co
 
 /* `count` `size`-byte elements, little-endian whatever the host. */
 static int write_data(FILE *f, const unsigned char *data, size_t count, size_t size) {
+  if (count == 0) return 0; /* `data` may then be NULL, which fwrite may not see */
   if (host_is_little_endian()) return fwrite(data, size, count, f) == count ? 0 : -1;
   unsigned char chunk[4096];
   size_t per = sizeof chunk / size;
