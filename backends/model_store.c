@@ -926,7 +926,16 @@ static int load_array(const Report *r, const char *dir, const Listed *x, ModelSt
   uint64_t h;
   NpyArray a = {0};
   char got[SHAPE_TEXT], want[SHAPE_TEXT];
-  int rc = hash_file(r, path, &h);
+  /* a file far larger than its shape allows (a sparse 8 GB file) is refused
+   * before it is hashed: hashing it would take minutes */
+  struct stat st;
+  size_t count = 0;
+  int rc = 0;
+  if (stat(path, &st) == 0 && S_ISREG(st.st_mode) && shape_count(x->ndim, x->shape, &count) == 0 &&
+      (uintmax_t)st.st_size > (uintmax_t)count * sizeof(double) + NPY_HEADER_MAX + 16)
+    rc = fail(r, path, 0, "%jd bytes, more than an array of shape %s can take: the file is damaged or not the model's",
+              (intmax_t)st.st_size, format_shape(want, x->ndim, x->shape));
+  if (rc == 0) rc = hash_file(r, path, &h);
   if (rc == 0 && h != x->checksum)
     rc = fail(r, path, 0, "checksum mismatch: the file is corrupted or was changed after training");
   if (rc == 0) rc = npy_read(path, &a, r->err, r->errlen) != 0 ? -1 : 0;

@@ -28,7 +28,7 @@
 /* numpy.load refuses longer headers by default (format._MAX_HEADER_SIZE);
  * ours never exceed a few hundred bytes, and the cap bounds what a corrupted
  * length field can make us allocate. */
-#define HEADER_MAX 10000
+#define HEADER_MAX NPY_HEADER_MAX
 
 /* numpy.save pads the header so the data starts on this boundary
  * (format.ARRAY_ALIGN), and leaves room after the dict for the first axis to

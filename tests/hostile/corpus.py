@@ -137,7 +137,8 @@ def fixtures():
 def npy_cases():
     """Each recipe replaces one file of the data set D; the result is fed to
     eval --full, train and verify (against the model M). `{f}` in a message is
-    the damaged file's path."""
+    the damaged file's path. (No FIFO: npgc reads one as any Unix reader does,
+    waiting for its writer, and reading from a pipe is a feature.)"""
     x = {}   # name -> (bytes or array or a callable making the file, message)
     H = npy_header
     x["empty"] = (b"", "{f}: empty file")
@@ -213,6 +214,9 @@ def npy_cases():
     x["missing"] = (lambda p: None, "{f}: cannot open: No such file or directory")
     x["dangling_link"] = (lambda p: os.symlink("nowhere.npy", p), "{f}: cannot open: No such file or directory")
     x["link_to_dev_null"] = (lambda p: os.symlink("/dev/null", p), "{f}: empty file")
+    x["link_loop"] = (lambda p: os.symlink(os.path.basename(p), p), "{f}: cannot open: Too many levels of symbolic links")
+    x["sparse_8g"] = (lambda p: (write_path(p, npy_array(X)), os.truncate(p, 8 << 30)),
+                      "{f}: trailing garbage: expected 480 bytes of data, found 8589934464")
     for name, (blob, msg) in x.items():
         npy_data_case("x_" + name, "x.npy", blob, msg)
 
@@ -233,6 +237,11 @@ def npy_cases():
     p["missing"] = (lambda p: None, "{f}: cannot open: No such file or directory")
     for name, (blob, msg) in p.items():
         npy_data_case("rho_" + name, "rho.npy", blob, msg)
+
+
+def write_path(p, blob):
+    with open(p, "wb") as f:
+        f.write(blob)
 
 
 def make_file(rel, blob):
@@ -403,6 +412,8 @@ def model_cases():
                                "{m}/manifest: cannot read: Is a directory")
     c["manifest_dev_zero"] = (lambda d: (os.remove(path(d, "manifest")), os.symlink("/dev/zero", path(d, "manifest"))),
                               "{m}/manifest: larger than 16777216 bytes: not a model manifest")
+    c["manifest_sparse_8g"] = (lambda d: os.truncate(path(d, "manifest"), 8 << 30),
+                               "{m}/manifest: larger than 16777216 bytes: not a model manifest")
     c["manifest_binary"] = (lambda d: write(os.path.join(d, "manifest"), bytes(range(256))),
                             "{m}/manifest:1: line holds a NUL byte")
     c["manifest_format_2"] = (replace(b"npg-model", b"npg-model 2"), "{m}/manifest:1: model format 'npg-model 2'")
@@ -446,6 +457,8 @@ def model_cases():
     c["basis_deleted"] = (lambda d: os.remove(path(d, "basis_0.npy")), "{m}/basis_0.npy: cannot open")
     c["basis_directory"] = (lambda d: (os.remove(path(d, "basis_0.npy")), os.mkdir(path(d, "basis_0.npy"))),
                             "{m}/basis_0.npy: cannot read: Is a directory")
+    c["basis_sparse_8g"] = (lambda d: os.truncate(path(d, "basis_0.npy"), 8 << 30),
+                            "{m}/basis_0.npy: 8589934592 bytes, more than an array of shape 5x5 can take")
     c["bases_swapped"] = (lambda d: (os.rename(path(d, "basis_0.npy"), path(d, "t")),
                                      os.rename(path(d, "basis_1.npy"), path(d, "basis_0.npy")),
                                      os.rename(path(d, "t"), path(d, "basis_1.npy"))),
@@ -663,6 +676,9 @@ def program_cases():
     prog("many_terms_distinct", "input x : real[64]\noutput y = " +
          " + ".join("x[%d]*x[%d]" % (i, j) for i in range(64) for j in range(i, 64, 9)) + "\n", "", status=0)
     case("prog_dev_null", ["check", "/dev/null"], 1, "/dev/null:1:1: error: the program has no output")
+    write("prog/sparse.npg", "input x : real[2]\noutput y = x[0]\n")
+    os.truncate(path("prog/sparse.npg"), 8 << 30)
+    case("prog_sparse_8g", ["check", "prog/sparse.npg"], 1, "=error: 'prog/sparse.npg' is larger than 64 MB: not a program")
     case("prog_dev_zero", ["check", "/dev/zero"], 1, "=error: '/dev/zero' is larger than 64 MB: not a program")
     case("prog_directory", ["check", "prog"], 1, "=error: cannot read 'prog': it is a directory, not a program")
     case("prog_missing", ["check", "nosuch.npg"], 1, "=error: cannot read 'nosuch.npg': No such file or directory")
