@@ -51,7 +51,7 @@ static int keep(Out *o, NpgFull *f, long k, long samples) {
   if (!o->v) {
     fputs("npgc eval: out of memory\n", stderr);
     rc = -1;
-  } else {
+  } else if (n > 0) { /* an empty output's values may be NULL */
     memcpy(o->v + (size_t)k * n, v, sizeof(double) * n);
   }
   if (k == 0) o->csr = c;

@@ -300,6 +300,10 @@ def npy_other_cases():
     # accepted: the full evaluation of no samples is an empty output
     case("npy_no_samples_eval_full", ["eval", "vec.npg", "--full", "npy/no_samples", "npy/no_samples", "-o",
                                       "out/no_samples_full"], 0, "")
+    # accepted: a zero-size dim evaluates to empty outputs
+    data_dir("npy/zero_dim", {"x.npy": np.zeros((4, 0)), "z.npy": np.zeros((4, 0))})
+    case("npy_zero_size_dim_eval_full", ["eval", "two.npg", "--full", "npy/zero_dim", "npy/zero_dim", "-o",
+                                         "out/zero_dim"], 0, "")
     # a test set whose inputs have another size than the model's
     data_dir("npy/wider", {"rho.npy": 1 + RNG.random(6), "x.npy": 1 + RNG.random((3, 6))})
     case("npy_wider_eval_reduced", ["eval", "vec.npg", "M", "npy/wider", "-o", "out/wider"], 1, "npy/wider/rho.npy: " + DIFFERS)
