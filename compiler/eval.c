@@ -51,8 +51,8 @@ static int keep(Out *o, NpgFull *f, long k, long samples) {
   if (!o->v) {
     fputs("npgc eval: out of memory\n", stderr);
     rc = -1;
-  } else {
-    if (n) memcpy(o->v + (size_t)k * n, v, sizeof(double) * n);
+  } else if (n > 0) { /* an empty output's values may be NULL */
+    memcpy(o->v + (size_t)k * n, v, sizeof(double) * n);
   }
   if (k == 0) o->csr = c;
   else npg_csr_free(&c);
@@ -94,6 +94,16 @@ static int eval_full(NpgProgram *p, const char *data, const char *in, const char
   }
   for (int i = 0; i < npg_nsymbols(p); i++)
     if (npg_symbol(p, i, &outs[nout].sym) == 0 && outs[nout].sym.output) nout++;
+  /* IN/ falls back to DATA/ file by file, so a mistyped IN/ would silently
+   * evaluate the training data: both must be directories */
+  struct stat st;
+  for (int i = 0; i < 2; i++)
+    if (stat(i ? in : data, &st) != 0 || !S_ISDIR(st.st_mode)) {
+      bool found = stat(i ? in : data, &st) == 0;
+      fprintf(stderr, "error: %s (%s): %s\n", i ? in : data, i ? "IN/" : "DATA/",
+              found ? "not a directory" : strerror(errno));
+      goto done;
+    }
   if (npg_full_error(f)[0] || npg_full_bind_params(f, data) != 0) {
     fprintf(stderr, "error: %s\n", npg_full_error(f));
     goto done;

@@ -71,12 +71,88 @@ NpgModel *api_model_wrap(Model *m) {
   return nm;
 }
 
+/* The hash of the param named `key` ("name=") in the `recorded` "name=<hex>
+ * ..." of a model, or NULL. */
+static const char *param_hash_at(const char *recorded, const char *key) {
+  const char *at = recorded;
+  while ((at = strstr(at, key)) && at != recorded && at[-1] != ' ') at++;
+  return at;
+}
+
+/* A model trained through npg.h records the hash of every param it was
+ * trained with, so that other params can be refused: a 'params' line that
+ * lacks one is damaged. (A model without the line recorded none: one made
+ * by the trainer of backends/ directly.) */
+static int missing_param_hash(NpgModel *nm, const char *dir) {
+  const Program *prog = nm->m->prog;
+  for (int i = 0; nm->m->param_hashes && i < prog->params.n; i++) {
+    const char *name = ((const Sym *)prog->params.v[i])->name;
+    char key[512];
+    snprintf(key, sizeof key, "%s=", name);
+    if (!param_hash_at(nm->m->param_hashes, key)) {
+      snprintf(nm->error, sizeof nm->error,
+               "%s/manifest: no hash of param '%s' in its 'params' line: the model is damaged; retrain", dir, name);
+      return -1;
+    }
+  }
+  return 0;
+}
+
+/* `n` values of the model file DIR/`name`.npy (`name` printf'd): -1 after a
+ * message naming the first that is not finite. */
+__attribute__((format(printf, 5, 6))) static int finite_array(NpgModel *nm, const char *dir, const double *v, long n,
+                                                              const char *name, ...) {
+  for (long e = 0; v && e < n; e++)
+    if (!isfinite(v[e])) {
+      char file[512];
+      va_list ap;
+      va_start(ap, name);
+      vsnprintf(file, sizeof file, name, ap);
+      va_end(ap);
+      snprintf(nm->error, sizeof nm->error,
+               "%s/%s.npy: holds %s at flat entry %ld: a model's arrays are finite (the file is damaged; retrain)",
+               dir, file, isnan(v[e]) ? "NaN" : "an infinity", e);
+      return -1;
+    }
+  return 0;
+}
+
+/* Training refuses non-finite values, so a model never holds one: a NaN in
+ * a basis or tensor would only come out as NaN results far from its cause. */
+static int nonfinite_array(NpgModel *nm, const char *dir) {
+  const Model *m = nm->m;
+  for (int c = 0; c < m->nclasses; c++)
+    if (finite_array(nm, dir, m->classes[c].B, m->classes[c].n * m->classes[c].m, "basis_%d", c)) return -1;
+  for (int i = 0; i < m->nstages; i++)
+    for (int t = 0; t < m->stages[i].nterms; t++) {
+      RTerm *rt = &m->stages[i].terms[t];
+      if (rt->proj && finite_array(nm, dir, rt->proj, m->classes[m->qclass[m->stages[i].q]].m *
+                                                          m->classes[m->qclass[rt->named_q]].m, "%s", rt->proj_name))
+        return -1;
+      RTERM_FOR_TENSORS(rt, x) {
+        if (finite_array(nm, dir, x->data, x->rows * x->cols, "%s", x->name)) return -1;
+      }
+    }
+  for (int i = 0; i < m->nexterns; i++) {
+    const RExtern *x = &m->externs[i];
+    const char *name = ((const Sym *)m->prog->quantities.v[x->q])->name;
+    if (finite_array(nm, dir, x->X, x->S * x->d, "extern_%s_inputs", name) ||
+        finite_array(nm, dir, x->Z, x->S * m->classes[m->qclass[x->q]].m, "extern_%s_values", name))
+      return -1;
+  }
+  return 0;
+}
+
 NpgModel *npg_model_load(NpgProgram *p, const char *dir) {
   NpgModel *nm = calloc(1, sizeof *nm);
   if (!nm) return NULL;
   if (!npg_ok(p)) snprintf(nm->error, sizeof nm->error, "%s", npg_error(p));
   else if (!(nm->m = model_load(npg_program_ir(p), dir, nm->error, sizeof nm->error)) && !nm->error[0])
     snprintf(nm->error, sizeof nm->error, "%s: cannot load the model", dir);
+  else if (nm->m && (missing_param_hash(nm, dir) != 0 || nonfinite_array(nm, dir) != 0)) {
+    model_free(nm->m);
+    nm->m = NULL;
+  }
   return nm;
 }
 

@@ -8,6 +8,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include <stdio.h>
 
 #include "compile.h"
 #include "full.h"
@@ -62,6 +63,45 @@ static const char *default_std_dir(Ctx *ctx) {
 
 static bool wants(const NpgOptions *opt, char letter) { return opt->dump && strchr(opt->dump, letter); }
 
+/* A program is kilobytes; the cap stops a wrong path (/dev/zero, a data
+ * file) from reading until memory runs out. */
+#define SOURCE_MAX ((size_t)64 << 20)
+
+/* The program `path`, read whole: a directory, an unreadable file and one
+ * over SOURCE_MAX are user errors naming `path`. Files of unknown size
+ * (devices, pipes) are read in pieces up to the cap. */
+static const SrcFile *read_program(Ctx *ctx, const char *path) {
+  FILE *fp = fopen(path, "rb");
+  if (!fp) error_plain(ctx, "cannot read '%s': %s", path, strerror(errno));
+  ctx->open_file = fp; /* closed by guarded_compile if an error jumps out */
+  struct stat st;
+  if (fstat(fileno(fp), &st) == 0 && S_ISDIR(st.st_mode))
+    error_plain(ctx, "cannot read '%s': it is a directory, not a program", path);
+  size_t cap = 4096, len = 0;
+  char *buf = malloc(cap);
+  if (!buf) error_plain(ctx, "out of memory reading '%s'", path);
+  ctx->pending_free = buf; /* freed by guarded_compile if an error jumps out */
+  for (;;) {
+    if (len == cap) {
+      if (cap >= SOURCE_MAX) error_plain(ctx, "'%s' is larger than %zu MB: not a program", path, SOURCE_MAX >> 20);
+      char *grown = realloc(buf, cap * 2);
+      if (!grown) error_plain(ctx, "out of memory reading '%s' (%zu bytes so far)", path, len);
+      ctx->pending_free = buf = grown;
+      cap *= 2;
+    }
+    size_t got = fread(buf + len, 1, cap - len, fp);
+    len += got;
+    if (got == 0) break;
+  }
+  if (ferror(fp)) error_plain(ctx, "cannot read '%s': %s", path, strerror(errno ? errno : EIO));
+  ctx->open_file = NULL;
+  fclose(fp);
+  const SrcFile *file = source_from_string(ctx, path, buf, len);
+  ctx->pending_free = NULL;
+  free(buf);
+  return file;
+}
+
 /* The pipeline proper; user errors longjmp out of it to npg_compile(). */
 static void compile(NpgProgram *np, const char *path, const NpgOptions *opt) {
   Ctx *ctx = &np->ctx;
@@ -71,11 +111,7 @@ static void compile(NpgProgram *np, const char *path, const NpgOptions *opt) {
   if (opt->source) {
     file = source_from_string(ctx, path, opt->source, strlen(opt->source));
   } else {
-    file = source_read(ctx, path);
-    if (!file)
-      error_plain(ctx, "cannot read '%s': %s", path,
-                  errno == EFBIG ? "larger than 16 MB: not a program" : errno == EISDIR ? "it is a directory"
-                                                                            : strerror(errno));
+    file = read_program(ctx, path);
   }
   Decl *decls = parse_program(ctx, file);
   if (wants(opt, 'p')) dump_decls(dump, decls);

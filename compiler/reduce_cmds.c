@@ -206,6 +206,10 @@ static int cmd_train(Common *c) {
     fprintf(stderr, "error: %s\n", err);
     goto done;
   }
+  if (npg_samples_count(s) < 1) {
+    fprintf(stderr, "error: %s: no samples (the first axis of its inputs is 0)\n", c->a);
+    goto done;
+  }
   double t0 = now();
   t = npg_trainer_new(f, &c->train);
   for (long k = 0; k < npg_samples_count(s) && !npg_trainer_error(t)[0]; k++)
@@ -292,10 +296,14 @@ static int open_session(Common *c, Session *x, bool full) {
       return -1;
     }
   }
+  if (npg_samples_count(x->s) < 1) {
+    fprintf(stderr, "error: %s: no samples (the first axis of its inputs is 0)\n", c->b);
+    return -1;
+  }
   /* the inputs' sizes must be the model's */
   for (int i = 0; i < x->nsym; i++) {
     if (x->sym[i].kind != NPG_INPUT) continue;
-    size_t n;
+    size_t n = 0;
     NpgClassInfo ci;
     npg_samples_get(x->s, x->sym[i].name, 0, &n);
     npg_model_class(x->m, npg_model_class_of(x->m, x->sym[i].name), &ci);

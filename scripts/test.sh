@@ -4,7 +4,8 @@
 #   1. plain build (build/):          no layer includes a higher one; every ctest test
 #   2. sanitizer build (build-asan/): every ctest test under ASan + UBSan, leaks fatal
 #   3. ThreadSanitizer (build-tsan/): the tests labelled `threads` (one model, many evaluators)
-#   4. fuzz build (build-fuzz/):      libFuzzer on the front end for NPG_FUZZ_SECONDS (60)
+#   4. fuzz build (build-fuzz/):      libFuzzer on the front end for NPG_FUZZ_SECONDS (60), then on
+#                                     the .npy reader and the model manifest for a third of that each
 #
 # Builds are incremental; delete a build directory to start it afresh.
 set -euo pipefail
@@ -38,7 +39,7 @@ cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=Debug -DNPG_TSAN=ON
 cmake --build build-tsan -j2 --target test_api npgc radiosity_data
 TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$PWD/tests/tsan.supp" ctest --test-dir build-tsan -L threads --output-on-failure
 
-header "4/4 fuzz the front end for ${fuzz_seconds} s (build-fuzz/)"
+header "4/4 fuzz the front end, the .npy reader and the manifest (build-fuzz/)"
 CC=clang cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=Debug -DNPG_FUZZ=ON
 cmake --build build-fuzz -j2
 
@@ -66,5 +67,36 @@ if ! build-fuzz/fuzz_frontend -max_total_time="$fuzz_seconds" -rss_limit_mb=4096
   exit 1
 fi
 grep -E '^(Done|stat::number_of_executed_units|stat::new_units_added)' "$log" || true
+
+# The .npy reader and the model manifest, a third of the front end's time
+# each (at least 5 s). fuzz_npy: seeded with the .npy fixtures of the tests
+# and its regression inputs. fuzz_manifest: a model of Eq. 3 trained here
+# gives the arrays beside each input and, with the regression inputs, the
+# seed manifest.
+side_seconds=$((fuzz_seconds / 3 > 5 ? fuzz_seconds / 3 : 5))
+model=build-fuzz/manifest-model
+rm -rf build-fuzz/manifest-data "$model"
+build-fuzz/rational_data build-fuzz/manifest-data 20 1 >/dev/null
+ASAN_OPTIONS=detect_leaks=0 build-fuzz/npgc train examples/rational/rational.npg build-fuzz/manifest-data -o "$model" >/dev/null
+for target in fuzz_npy fuzz_manifest; do
+  corpus=build-fuzz/corpus_$target
+  rm -rf "$corpus"
+  mkdir -p "$corpus"
+  if [ "$target" = fuzz_npy ]; then
+    cp tests/data/npy/*.npy tests/fuzz/seeds_npy/* "$corpus"/
+  else
+    cp "$model/manifest" "$corpus/rational_manifest"
+    cp tests/fuzz/seeds_manifest/* "$corpus"/
+  fi
+  log=build-fuzz/$target.log
+  echo "$target: $(ls "$corpus" | wc -l) seed files, ${side_seconds} s, log in $log"
+  if ! NPG_FUZZ_MODEL=$model build-fuzz/$target -max_total_time="$side_seconds" -rss_limit_mb=4096 -timeout=10 \
+      -print_final_stats=1 -artifact_prefix="$artifacts/" "$corpus" >"$log" 2>&1; then
+    tail -n 80 "$log"
+    echo "test.sh: $target failed; the crashing input is in $artifacts/" >&2
+    exit 1
+  fi
+  grep -E '^(Done|stat::number_of_executed_units|stat::new_units_added)' "$log" || true
+done
 
 header "all phases passed"

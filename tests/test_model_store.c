@@ -395,13 +395,14 @@ static void failed_write_keeps_model(void **state) {
   /* the parent cannot take the temporary directory (root writes anywhere,
    * so only an ordinary user can see this one) */
   if (geteuid() != 0) {
-    char ro[512], inner[1024];
+    char ro[512], inner[600];
     scratch_path(ro, "readonly");
     assert_int_equal(mkdir(ro, 0777), 0);
     snprintf(inner, sizeof inner, "%s/model", ro);
     write_ok(inner, &m);
     chmod(ro, 0555);
-    snprintf(want, sizeof want, "%s.tmp.%ld: cannot create the directory: Permission denied", inner, pid);
+    snprintf(want, sizeof want, "%s: cannot create the model's temporary directory %s.tmp.%ld: Permission denied",
+             inner, inner, pid);
     expect_write_error(inner, &m, want);
     chmod(ro, 0755);
     expect_model(inner, &m);

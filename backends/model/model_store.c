@@ -18,6 +18,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 /* ---------------------------------------------------------------- errors */
 
@@ -440,6 +441,9 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
       x.name = w[1];
       x.ndim = -1;
       x.line = ln;
+      for (int i = 0; i < *nlisted; i++)
+        if (strcmp((*listed)[i].name, x.name) == 0)
+          return model_store_fail(r, mpath, ln, "file %s listed twice (first on line %d)", x.name, (*listed)[i].line);
       Listed *grown = realloc(*listed, ((size_t)*nlisted + 1) * sizeof *grown);
       if (!grown) return model_store_fail(r, mpath, 0, "out of memory");
       *listed = grown;
@@ -487,7 +491,16 @@ static int load_array(const StoreReport *r, const char *dir, const Listed *x, Mo
   uint64_t h;
   NpyArray a = {0};
   char got[SHAPE_TEXT], want[SHAPE_TEXT];
-  int rc = model_store_hash_file(r, path, &h);
+  /* a file far larger than its shape allows (a sparse 8 GB file) is refused
+   * before it is hashed: hashing it would take minutes */
+  struct stat st;
+  size_t count = 0;
+  int rc = 0;
+  if (stat(path, &st) == 0 && S_ISREG(st.st_mode) && model_store_shape_count(x->ndim, x->shape, &count) == 0 &&
+      (uintmax_t)st.st_size > (uintmax_t)count * sizeof(double) + NPY_HEADER_MAX + 16)
+    rc = model_store_fail(r, path, 0, "%jd bytes, more than an array of shape %s can take: the file is damaged or not "
+                                      "the model's", (intmax_t)st.st_size, model_store_format_shape(want, x->ndim, x->shape));
+  if (rc == 0) rc = model_store_hash_file(r, path, &h);
   if (rc == 0 && h != x->checksum)
     rc = model_store_fail(r, path, 0, "checksum mismatch: the file is corrupted or was changed after training");
   if (rc == 0) rc = npy_read(path, &a, r->err, r->errlen) != 0 ? -1 : 0;

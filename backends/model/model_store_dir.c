@@ -441,7 +441,7 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
     goto done;
   }
   if (mkdir(tmp, 0777) != 0) {
-    rc = model_store_fail(&r, tmp, 0, "cannot create the directory: %s", strerror(errno));
+    rc = model_store_fail(&r, dir, 0, "cannot create the model's temporary directory %s: %s", tmp, strerror(errno));
     goto done;
   }
   arm(tmp, m);

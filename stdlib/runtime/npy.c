@@ -28,7 +28,7 @@
 /* numpy.load refuses longer headers by default (format._MAX_HEADER_SIZE);
  * ours never exceed a few hundred bytes, and the cap bounds what a corrupted
  * length field can make us allocate. */
-#define HEADER_MAX 10000
+#define HEADER_MAX NPY_HEADER_MAX
 
 /* numpy.save pads the header so the data starts on this boundary
  * (format.ARRAY_ALIGN), and leaves room after the dict for the first axis to
@@ -523,6 +523,7 @@ static size_t format_header(char *out, size_t outlen, NpyType type, int ndim, co
 
 /* `count` `size`-byte elements, little-endian whatever the host. */
 static int write_data(FILE *f, const unsigned char *data, size_t count, size_t size) {
+  if (count == 0) return 0; /* `data` may then be NULL, which fwrite may not see */
   if (host_is_little_endian()) return fwrite(data, size, count, f) == count ? 0 : -1;
   unsigned char chunk[4096];
   size_t per = sizeof chunk / size;

@@ -27,6 +27,10 @@ typedef enum NpyType {
 
 #define NPY_MAX_DIMS 8
 
+/* The longest header npy_read accepts, in bytes (numpy.load's default
+ * limit): a file holds at most this, the 12 bytes before it and its data. */
+#define NPY_HEADER_MAX 10000
+
 typedef struct NpyArray {
   NpyType type;
   int ndim;
