@@ -12,7 +12,7 @@ static const double palette[][3] = {{0.12, 0.47, 0.71}, {1.0, 0.5, 0.05}, {0.17,
 int plot_lines(const char *path, const char *title, const char *xlabel, const char *ylabel, int nseries,
                const int *n, const double *const *x, const double *const *y, const char *const *labels, int logy,
                char *err, size_t errlen) {
-  const int W = 900, H = 560, L = 90, R = 170, T = 50, B = 60;
+  const int W = 940, H = 560, L = 110, R = 190, T = 50, B = 60;
   double x0 = INFINITY, x1 = -INFINITY, y0 = INFINITY, y1 = -INFINITY;
   for (int s = 0; s < nseries; s++)
     for (int k = 0; k < n[s]; k++) {
@@ -53,7 +53,9 @@ int plot_lines(const char *path, const char *title, const char *xlabel, const ch
       snprintf(buf, sizeof buf, "1e%d", (int)lround(v));
     else
       snprintf(buf, sizeof buf, "%.3g", v);
-    cairo_move_to(cr, 10, PY(v) + 4), cairo_show_text(cr, buf);
+    cairo_text_extents_t ext;
+    cairo_text_extents(cr, buf, &ext);
+    cairo_move_to(cr, L - 8 - ext.x_advance, PY(v) + 4), cairo_show_text(cr, buf);
   }
   for (int i = 0; i <= 5; i++) {
     double v = x0 + (x1 - x0) * i / 5;
@@ -70,7 +72,9 @@ int plot_lines(const char *path, const char *title, const char *xlabel, const ch
   cairo_set_font_size(cr, 13);
   cairo_move_to(cr, L + pw / 2 - 40, H - 15), cairo_show_text(cr, xlabel);
   cairo_save(cr);
-  cairo_move_to(cr, 24, T + ph / 2 + 60), cairo_rotate(cr, -M_PI / 2), cairo_show_text(cr, ylabel);
+  cairo_text_extents_t yl;
+  cairo_text_extents(cr, ylabel, &yl);
+  cairo_move_to(cr, 22, T + ph / 2 + yl.x_advance / 2), cairo_rotate(cr, -M_PI / 2), cairo_show_text(cr, ylabel);
   cairo_restore(cr);
   /* series */
   for (int s = 0; s < nseries; s++) {

@@ -52,6 +52,16 @@ static void lincomb(int n, double *out, int nm, const double *const *mats, const
   for (int i = 0; i < n; i++) out[(size_t)i * n + i] += c0;
 }
 
+static double norm1(int n, const double *A) {
+  double norm = 0;
+  for (int j = 0; j < n; j++) {
+    double s = 0;
+    for (int i = 0; i < n; i++) s += fabs(A[(size_t)i * n + j]);
+    if (s > norm) norm = s;
+  }
+  return norm;
+}
+
 int red_expm(int n, const double *X, double *out, double *work, int *pade, int *squarings) {
   size_t nn = (size_t)n * n;
   double *Xs = work, *A2 = work + nn, *A4 = work + 2 * nn, *A6 = work + 3 * nn, *A8 = work + 4 * nn;
@@ -62,19 +72,37 @@ int red_expm(int n, const double *X, double *out, double *work, int *pade, int *
     for (int i = 0; i < n; i++) s += fabs(X[(size_t)i * n + j]);
     if (s > norm) norm = s;
   }
-  int deg = 13, s = 0;
-  const int degs[] = {3, 5, 7, 9};
-  for (int k = 0; k < 4; k++)
-    if (norm <= theta[k]) {
-      deg = degs[k];
-      break;
-    }
-  if (deg == 13 && norm > theta[4]) s = (int)ceil(log2(norm / theta[4]));
-  double scale = ldexp(1.0, -s);
-  for (size_t i = 0; i < nn; i++) Xs[i] = X[i] * scale;
+  /* Degree and scaling (Al-Mohy and Higham 2009): from ‖X^k‖^(1/k) of the
+   * powers computed anyway, which for a nearly normal X (reduced advection
+   * is V̂-skew) is far below ‖X‖ and allows a lower degree. */
+  size_t bytes = nn * sizeof *Xs;
+  memcpy(Xs, X, bytes);
   mm(n, Xs, Xs, A2);
-  if (deg >= 5) mm(n, A2, A2, A4);
-  if (deg >= 7) mm(n, A2, A4, A6);
+  mm(n, A2, A2, A4);
+  mm(n, A2, A4, A6);
+  double d4 = pow(norm1(n, A4), 0.25), d6 = pow(norm1(n, A6), 1.0 / 6);
+  double eta1 = fmax(d4, d6);
+  int deg = 13, s = 0;
+  if (norm <= theta[0] || eta1 <= theta[0]) deg = 3;
+  else if (eta1 <= theta[1]) deg = 5;
+  else {
+    /* ‖X^8‖ ≤ ‖X^4‖², ‖X^10‖ ≤ ‖X^4‖ ‖X^6‖ (cheap bounds instead of estimates) */
+    double d8 = pow(norm1(n, A4) * norm1(n, A4), 1.0 / 8), d10 = pow(norm1(n, A4) * norm1(n, A6), 1.0 / 10);
+    double eta3 = fmax(d6, d8);
+    if (eta3 <= theta[2]) deg = 7;
+    else if (eta3 <= theta[3]) deg = 9;
+    else {
+      double eta5 = fmin(eta3, fmax(d8, d10));
+      if (eta5 > theta[4]) s = (int)ceil(log2(eta5 / theta[4]));
+    }
+  }
+  if (s > 0) {
+    double sc = ldexp(1.0, -s);
+    for (size_t i = 0; i < nn; i++) Xs[i] *= sc;
+    mm(n, Xs, Xs, A2);
+    mm(n, A2, A2, A4);
+    mm(n, A2, A4, A6);
+  }
   if (deg == 9) mm(n, A4, A4, A8);
   if (deg == 13) {
     const double *b = pade13;
