@@ -387,6 +387,14 @@ int tunnel_run(const TunnelOptions *o) {
       vtk_red[nvtk] = strdup(name);
       snprintf(path, sizeof path, "%s/%s", dvtk, name);
       if (!prc && output_vtu_cells(path, &m, gl, ut, err, sizeof err) != 0) prc = -1;
+      /* face fluxes of both runs (the reduced one lifted; its induced flux is
+       * not lifted: written as zero) */
+      snprintf(path, sizeof path, "%s/full_faces_%04d.vtu", dvtk, t);
+      if (!prc && output_vtu_faces(path, &m, s.g, s.f, s.h, err, sizeof err) != 0) prc = -1;
+      double *zero = calloc(nf, sizeof *zero);
+      snprintf(path, sizeof path, "%s/reduced_faces_%04d.vtu", dvtk, t);
+      if (!prc && output_vtu_faces(path, &m, gl, fb, zero, err, sizeof err) != 0) prc = -1;
+      free(zero);
       vtk_times[nvtk++] = t * dt;
       if (prc) {
         fprintf(stderr, "npg-fluids: %s\n", err);
