@@ -5,6 +5,7 @@
 #include <stdio.h>
 
 #include <cairo.h>
+#include <fontconfig/fontconfig.h>
 
 static const double palette[][3] = {{0.12, 0.47, 0.71}, {1.0, 0.5, 0.05}, {0.17, 0.63, 0.17}, {0.84, 0.15, 0.16},
                                     {0.58, 0.4, 0.74},  {0.55, 0.34, 0.29}, {0.89, 0.47, 0.76}, {0.5, 0.5, 0.5}};
@@ -151,4 +152,9 @@ int plot_side_by_side(const char *path, const char *left, const char *right, con
   cairo_surface_destroy(a);
   cairo_surface_destroy(b);
   return rc;
+}
+
+void plot_cleanup(void) {
+  cairo_debug_reset_static_data();
+  FcFini();
 }

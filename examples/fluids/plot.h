@@ -13,4 +13,8 @@ int plot_lines(const char *path, const char *title, const char *xlabel, const ch
 int plot_side_by_side(const char *path, const char *left, const char *right, const char *cap_left,
                       const char *cap_right, char *err, size_t errlen);
 
+/* Release cairo's and fontconfig's caches (at exit: a leak checker then
+ * sees nothing left). */
+void plot_cleanup(void);
+
 #endif

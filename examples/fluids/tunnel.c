@@ -670,5 +670,6 @@ done:
   npg_full_free(fe);
   npg_free(prog);
   mesh_free(&m);
+  plot_cleanup();
   return rc;
 }
