@@ -42,3 +42,14 @@ cp "$work/TRAIN/tri.npy" "$work/TRAIN/rho.npy" "$work/TEST/"
 run build/npgc train examples/radiosity/formfactors.npg "$work/TRAIN" -o "$work/MODEL"
 run build/npgc verify examples/radiosity/formfactors.npg "$work/MODEL" "$work/TEST" --tol 0.02
 run build/npgc bench examples/radiosity/formfactors.npg "$work/MODEL" "$work/TEST" --cc
+
+# The reduced fluid of paper §6–§7.1 (Fig. 5), short: full training runs with a
+# large and a small obstacle on an 800-cell periodic tunnel, streamed into npg
+# trainers (one model per basis size), the one-step error of a medium obstacle,
+# full and reduced frames side by side (build/npg-fluids tunnel --out DIR for the
+# 2,000-cell, 300-frame version).
+work=build/demo/fluids
+rm -rf "$work"
+run build/npg-fluids tunnel --out "$work" --cells 800 --frames 120 --sizes 8,16,32,64 --particles 1000 --png-every 40 --vtk-every 40
+echo
+echo "wrote $work/report.json, $work/plots/*.png, $work/frames/frame_NNNN.png (full | reduced), $work/vtk/*.pvd"

@@ -22,10 +22,11 @@
 
 #include <cblas.h>
 
-#include "npy.h"
+#include "npgbind.h"
 #include "output.h"
 #include "particles.h"
 #include "solver.h"
+#include "tunnel.h"
 
 #define ERRLEN 512
 
@@ -48,6 +49,9 @@ static void usage(FILE *fp) {
         "                  [--scale X] [--pulse A] [--period P] [--mu MU] [--cfl C] [--u0 U]\n"
         "                  [--particles N] [--png-every K] [--vtk-every K] [--width PX]\n"
         "                  [--projection stream|kkt]\n"
+        "       npg-fluids tunnel --out DIR [--frames N] [--cells N] [--sizes 8,16,32,64,128]\n"
+        "                  [--pulse A] [--period P] [--mu MU] [--cfl C] [--mg N] [--particles N]\n"
+        "                  [--png-every K] [--vtk-every K] [--width PX] [--keep-models 0|1]\n"
         "       npg-fluids mesh [--cells N] [--size S]\n"
         "\n"
         "tunnel-full: full-space simulation of the periodic wind tunnel (paper §5, §7.1).\n"
@@ -63,7 +67,15 @@ static void usage(FILE *fp) {
         "  --particles N  marker particles, ten Euler substeps per frame (3000)\n"
         "  --png-every K, --vtk-every K   output every K frames (1, 10)\n"
         "  --projection M stream: CHOLMOD on the stream function (default); kkt: UMFPACK on\n"
-        "                 the KKT system (the same minimizer)\n",
+        "                 the KKT system (the same minimizer)\n"
+        "\n"
+        "tunnel: paper Fig. 5. Full training runs with a large and a small obstacle (scales\n"
+        "  1.25 and 0.75, each pulsing by A, default 0.05) streamed into npg trainers, one\n"
+        "  model per basis size (--sizes: m_u; m_f = m_u / 2; --mg: cap of m_g, 5), a full\n"
+        "  test run with a medium obstacle (1.0) and per frame the one-step error of every\n"
+        "  model, the reduced test run of the largest model with particles; DIR/report.json,\n"
+        "  DIR/plots/*.png, DIR/frames/frame_NNNN.png (full | reduced), DIR/vtk/*.vtu, *.pvd.\n"
+        "  --frames N per run (300), --png-every and --vtk-every (25), --width (640)\n",
         fp);
 }
 
@@ -170,10 +182,29 @@ static double mean_edge(const Mesh *m) {
 
 /* ---------------------------------------------------------------- data/ */
 
-static int save(const char *dir, const char *name, NpyType type, int ndim, const long *shape, const void *data) {
+/* What an array holds: doubles, or ints (written as int64, as npg reads
+ * int params). */
+typedef enum SaveType { SAVE_F64, SAVE_INT } SaveType;
+
+static int save(const char *dir, const char *name, SaveType type, int ndim, const long *shape, const void *data) {
   char path[4096], err[ERRLEN];
   snprintf(path, sizeof path, "%s/%s.npy", dir, name);
-  if (npy_write(path, type, ndim, shape, data, err, sizeof err) != 0) {
+  int rc;
+  if (type == SAVE_F64) {
+    rc = npg_npy_write(path, ndim, shape, data, err, sizeof err);
+  } else {
+    size_t n = 1;
+    for (int i = 0; i < ndim; i++) n *= (size_t)shape[i];
+    long *v = malloc(sizeof(long) * (n ? n : 1));
+    if (!v) {
+      fprintf(stderr, "npg-fluids: out of memory writing %s\n", path);
+      return -1;
+    }
+    for (size_t i = 0; i < n; i++) v[i] = ((const int *)data)[i];
+    rc = npg_npy_write_i64(path, ndim, shape, v, err, sizeof err);
+    free(v);
+  }
+  if (rc != 0) {
     fprintf(stderr, "npg-fluids: %s\n", err);
     return -1;
   }
@@ -184,15 +215,27 @@ static int save(const char *dir, const char *name, NpyType type, int ndim, const
 static int save_params(const char *dir, const Mesh *m, double mu) {
   long c3[2] = {m->nc, 3}, f2[2] = {m->nf, 2}, b1[1] = {m->nb};
   int rc = 0;
-  rc |= save(dir, "tri", NPY_I32, 2, c3, m->tri);
-  rc |= save(dir, "edge", NPY_I32, 2, f2, m->edge);
-  rc |= save(dir, "cface", NPY_I32, 2, c3, m->cface);
-  rc |= save(dir, "csign", NPY_F64, 2, c3, m->csign);
-  rc |= save(dir, "nbr", NPY_I32, 2, c3, m->nbr);
-  rc |= save(dir, "bface", NPY_I32, 1, b1, m->bface);
-  rc |= save(dir, "mu", NPY_F64, 0, NULL, &mu);
-  rc |= save(dir, "g0", NPY_F64, 2, (long[]){m->nv, 2}, m->g0);
-  rc |= save(dir, "fkind", NPY_I32, 1, (long[]){m->nf}, m->fkind);
+  rc |= save(dir, "tri", SAVE_INT, 2, c3, m->tri);
+  rc |= save(dir, "edge", SAVE_INT, 2, f2, m->edge);
+  rc |= save(dir, "cface", SAVE_INT, 2, c3, m->cface);
+  rc |= save(dir, "csign", SAVE_F64, 2, c3, m->csign);
+  rc |= save(dir, "nbr", SAVE_INT, 2, c3, m->nbr);
+  rc |= save(dir, "bface", SAVE_INT, 1, b1, m->bface);
+  rc |= save(dir, "mu", SAVE_F64, 0, NULL, &mu);
+  /* the flat velocity layout's params: ucell, ucomp, unbr */
+  FluidParam p[FLUID_NPARAMS];
+  fluid_params(m, mu, p);
+  for (int i = 0; i < FLUID_NPARAMS; i++) {
+    if (strncmp(p[i].name, "u", 1) != 0) continue;
+    long n = p[i].shape[0] * (p[i].ndim == 2 ? p[i].shape[1] : 1);
+    int *iv = malloc(n * sizeof *iv);
+    for (long j = 0; j < n; j++) iv[j] = (int)p[i].v[j];
+    rc |= save(dir, p[i].name, SAVE_INT, p[i].ndim, p[i].shape, iv);
+    free(iv);
+  }
+  fluid_params_free(p);
+  rc |= save(dir, "g0", SAVE_F64, 2, (long[]){m->nv, 2}, m->g0);
+  rc |= save(dir, "fkind", SAVE_INT, 1, (long[]){m->nf}, m->fkind);
   return rc ? -1 : 0;
 }
 
@@ -325,15 +368,15 @@ static int tunnel_full(const RunOptions *o) {
     if (rc) fprintf(stderr, "npg-fluids: %s\n", e2);
   }
   if (rc == 0) {
-    long sg[3] = {T, m.nv, 2}, su[3] = {T, m.nc, 2}, sf[2] = {T, m.nf};
+    long sg[3] = {T, m.nv, 2}, su[2] = {T, 2 * (long)m.nc}, sf[2] = {T, m.nf};
     rc |= save_params(dir_data, &m, o->mu);
-    rc |= save(dir_data, "g", NPY_F64, 3, sg, Sg);
-    rc |= save(dir_data, "gdot", NPY_F64, 3, sg, Sgdot);
-    rc |= save(dir_data, "u", NPY_F64, 3, su, Su);
-    rc |= save(dir_data, "f", NPY_F64, 2, sf, Sf);
-    rc |= save(dir_data, "h", NPY_F64, 2, sf, Sh);
-    rc |= save(dir_data, "gmid", NPY_F64, 3, sg, Sgmid);
-    rc |= save(dir_data, "energy", NPY_F64, 1, (long[]){T + 1}, energy);
+    rc |= save(dir_data, "g", SAVE_F64, 3, sg, Sg);
+    rc |= save(dir_data, "gdot", SAVE_F64, 3, sg, Sgdot);
+    rc |= save(dir_data, "u", SAVE_F64, 2, su, Su);
+    rc |= save(dir_data, "f", SAVE_F64, 2, sf, Sf);
+    rc |= save(dir_data, "h", SAVE_F64, 2, sf, Sh);
+    rc |= save(dir_data, "gmid", SAVE_F64, 3, sg, Sgmid);
+    rc |= save(dir_data, "energy", SAVE_F64, 1, (long[]){T + 1}, energy);
   }
   if (rc == 0) {
     double maxdiv = 0, maxdiv_rel = 0;
@@ -428,6 +471,63 @@ static int mesh_info(const RunOptions *o) {
   return 0;
 }
 
+/* ---------------------------------------------------------------- tunnel */
+
+static int tunnel_cmd(int argc, char **argv) {
+  TunnelOptions o;
+  tunnel_options_default(&o);
+  for (int i = 2; i < argc; i++) {
+    const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+    static const char *known[] = {"--out", "--frames", "--cells", "--particles", "--png-every", "--vtk-every",
+                                  "--width", "--sizes", "--pulse", "--period", "--mu", "--cfl", "--keep-models",
+                                  "--mg"};
+    int bad = 1;
+    for (size_t k = 0; k < sizeof known / sizeof *known; k++)
+      if (!strcmp(a, known[k])) bad = 0;
+    if (bad) {
+      fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
+      usage(stderr);
+      return 2;
+    }
+    if (!v) {
+      fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
+      return 2;
+    }
+    if (!strcmp(a, "--out")) o.out = v;
+    else if (!strcmp(a, "--frames")) bad = parse_int(v, &o.frames) || o.frames < 2;
+    else if (!strcmp(a, "--cells")) bad = parse_int(v, &o.spec.cells);
+    else if (!strcmp(a, "--particles")) bad = parse_int(v, &o.particles) || o.particles < 0;
+    else if (!strcmp(a, "--png-every")) bad = parse_int(v, &o.png_every) || o.png_every < 1;
+    else if (!strcmp(a, "--vtk-every")) bad = parse_int(v, &o.vtk_every) || o.vtk_every < 1;
+    else if (!strcmp(a, "--width")) bad = parse_int(v, &o.width) || o.width < 16;
+    else if (!strcmp(a, "--mg")) bad = parse_int(v, &o.mg_cap) || o.mg_cap < 1;
+    else if (!strcmp(a, "--keep-models")) bad = parse_int(v, &o.keep_models);
+    else if (!strcmp(a, "--pulse")) bad = parse_real(v, &o.pulse);
+    else if (!strcmp(a, "--period")) bad = parse_real(v, &o.period) || o.period <= 0;
+    else if (!strcmp(a, "--mu")) bad = parse_real(v, &o.mu);
+    else if (!strcmp(a, "--cfl")) bad = parse_real(v, &o.cfl) || o.cfl <= 0;
+    else if (!strcmp(a, "--sizes")) {
+      o.nsizes = 0;
+      char buf[256];
+      snprintf(buf, sizeof buf, "%s", v);
+      for (char *tok = strtok(buf, ","); tok && !bad; tok = strtok(NULL, ",")) {
+        int n;
+        if (o.nsizes >= 16 || parse_int(tok, &n) || n < 2 || n > 256 || (o.nsizes && n <= o.mu_sizes[o.nsizes - 1]))
+          bad = 1;
+        else
+          o.mu_sizes[o.nsizes++] = n;
+      }
+      if (!o.nsizes) bad = 1;
+    }
+    if (bad) {
+      fprintf(stderr, "npg-fluids: option '%s': invalid value '%s'\n", a, v);
+      return 2;
+    }
+    i++;
+  }
+  return tunnel_run(&o);
+}
+
 int main(int argc, char **argv) {
   if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
     usage(argc < 2 ? stderr : stdout);
@@ -436,6 +536,7 @@ int main(int argc, char **argv) {
   /* UMFPACK's fronts are small: BLAS threads only contend (measured: the
    * projection took 29 ms a step with OpenBLAS's threads, 17 ms without) */
   openblas_set_num_threads(1);
+  if (!strcmp(argv[1], "tunnel")) return tunnel_cmd(argc, argv);
   RunOptions o;
   if (parse_options(argc, argv, &o) != 0) return 2;
   if (!strcmp(argv[1], "tunnel-full")) return tunnel_full(&o);

@@ -1,0 +1,50 @@
+/* npgbind.c — the mesh as the params of fluids2d.npg (see npgbind.h). */
+#include "npgbind.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+static double *ints(const int *v, size_t n) {
+  double *d = malloc((n ? n : 1) * sizeof *d);
+  for (size_t i = 0; i < n; i++) d[i] = v[i];
+  return d;
+}
+
+void fluid_params(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]) {
+  long C = m->nc, F = m->nf, B = m->nb, U = 2 * C;
+  int k = 0;
+  out[k++] = (FluidParam){"tri", 2, {C, 3}, ints(m->tri, 3 * C), 1};
+  out[k++] = (FluidParam){"edge", 2, {F, 2}, ints(m->edge, 2 * F), 1};
+  out[k++] = (FluidParam){"cface", 2, {C, 3}, ints(m->cface, 3 * C), 1};
+  double *cs = malloc(3 * C * sizeof *cs);
+  memcpy(cs, m->csign, 3 * C * sizeof *cs);
+  out[k++] = (FluidParam){"csign", 2, {C, 3}, cs, 0};
+  out[k++] = (FluidParam){"nbr", 2, {C, 3}, ints(m->nbr, 3 * C), 1};
+  out[k++] = (FluidParam){"bface", 1, {B}, ints(m->bface, B), 1};
+  double *uc = malloc(U * sizeof *uc), *ud = malloc(U * sizeof *ud), *un = malloc(3 * U * sizeof *un);
+  for (long i = 0; i < U; i++) {
+    long c = i / 2, d = i % 2;
+    uc[i] = (double)c, ud[i] = (double)d;
+    for (int j = 0; j < 3; j++) un[3 * i + j] = m->nbr[3 * c + j] >= 0 ? (double)(2 * m->nbr[3 * c + j] + d) : -1.0;
+  }
+  out[k++] = (FluidParam){"ucell", 1, {U}, uc, 1};
+  out[k++] = (FluidParam){"ucomp", 1, {U}, ud, 1};
+  out[k++] = (FluidParam){"unbr", 2, {U, 3}, un, 1};
+  double *mv = malloc(sizeof *mv);
+  *mv = mu;
+  out[k++] = (FluidParam){"mu", 0, {0, 0}, mv, 0};
+}
+
+void fluid_params_free(FluidParam p[FLUID_NPARAMS]) {
+  for (int i = 0; i < FLUID_NPARAMS; i++) free(p[i].v), p[i].v = NULL;
+}
+
+int fluid_bind(NpgFull *f, const Mesh *m, double mu) {
+  FluidParam p[FLUID_NPARAMS];
+  fluid_params(m, mu, p);
+  int rc = 0;
+  for (int i = 0; i < FLUID_NPARAMS && !rc; i++)
+    rc = npg_full_set_param(f, p[i].name, p[i].ndim, p[i].shape, p[i].v, p[i].name);
+  fluid_params_free(p);
+  return rc ? -1 : 0;
+}

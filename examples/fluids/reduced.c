@@ -1,0 +1,484 @@
+/* reduced.c — the reduced step of paper Fig. 2, right column (see reduced.h). */
+#include "reduced.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include <cblas.h>
+#include <lapacke.h>
+
+static double now(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return t.tv_sec + 1e-9 * t.tv_nsec;
+}
+
+static int fail(char *err, size_t errlen, const char *msg, const char *detail) {
+  snprintf(err, errlen, "%s%s%s", msg, detail ? ": " : "", detail ? detail : "");
+  return -1;
+}
+
+/* ---------------------------------------------------------------- expm */
+
+/* Padé coefficients b_0..b_m of degree m (Higham 2005, Table 2.3 / Eq. 10.33). */
+static const double pade3[] = {120, 60, 12, 1};
+static const double pade5[] = {30240, 15120, 3360, 420, 30, 1};
+static const double pade7[] = {17297280, 8648640, 1995840, 277200, 25200, 1512, 56, 1};
+static const double pade9[] = {17643225600., 8821612800., 2075673600., 302702400., 30270240.,
+                               2162160.,     110880.,     3960.,       90.,        1.};
+static const double pade13[] = {64764752532480000., 32382376266240000., 7771770303897600., 1187353796428800.,
+                                 129060195264000.,   10559470521600.,    670442572800.,     33522128640.,
+                                 1323241920.,        40840800.,          960960.,           16380.,
+                                 182.,               1.};
+/* theta_m: the largest 1-norm for which degree m without scaling meets unit roundoff. */
+static const double theta[] = {1.495585217958292e-2, 2.539398330063230e-1, 9.504178996162932e-1,
+                               2.097847961257068e0, 5.371920351148152e0};
+
+static void mm(int n, const double *a, const double *b, double *c) {
+  cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, n, n, n, 1.0, a, n, b, n, 0.0, c, n);
+}
+
+/* out = Σ_k coef[k] * mats[k] (+ c0 I). */
+static void lincomb(int n, double *out, int nm, const double *const *mats, const double *coef, double c0) {
+  size_t nn = (size_t)n * n;
+  for (size_t i = 0; i < nn; i++) {
+    double v = 0;
+    for (int k = 0; k < nm; k++) v += coef[k] * mats[k][i];
+    out[i] = v;
+  }
+  for (int i = 0; i < n; i++) out[(size_t)i * n + i] += c0;
+}
+
+static double norm1(int n, const double *A) {
+  double norm = 0;
+  for (int j = 0; j < n; j++) {
+    double s = 0;
+    for (int i = 0; i < n; i++) s += fabs(A[(size_t)i * n + j]);
+    if (s > norm) norm = s;
+  }
+  return norm;
+}
+
+int red_expm(int n, const double *X, double *out, double *work, int *pade, int *squarings) {
+  size_t nn = (size_t)n * n;
+  double *Xs = work, *A2 = work + nn, *A4 = work + 2 * nn, *A6 = work + 3 * nn, *A8 = work + 4 * nn;
+  double *T = work + 5 * nn, *U = work + 6 * nn, *Vm = work + 7 * nn;
+  double norm = 0;
+  for (int j = 0; j < n; j++) {
+    double s = 0;
+    for (int i = 0; i < n; i++) s += fabs(X[(size_t)i * n + j]);
+    if (s > norm) norm = s;
+  }
+  /* Degree and scaling (Al-Mohy and Higham 2009): from ‖X^k‖^(1/k) of the
+   * powers computed anyway, which for a nearly normal X (reduced advection
+   * is V̂-skew) is far below ‖X‖ and allows a lower degree. */
+  size_t bytes = nn * sizeof *Xs;
+  memcpy(Xs, X, bytes);
+  mm(n, Xs, Xs, A2);
+  mm(n, A2, A2, A4);
+  mm(n, A2, A4, A6);
+  double d4 = pow(norm1(n, A4), 0.25), d6 = pow(norm1(n, A6), 1.0 / 6);
+  double eta1 = fmax(d4, d6);
+  int deg = 13, s = 0;
+  if (norm <= theta[0] || eta1 <= theta[0]) deg = 3;
+  else if (eta1 <= theta[1]) deg = 5;
+  else {
+    /* ‖X^8‖ ≤ ‖X^4‖², ‖X^10‖ ≤ ‖X^4‖ ‖X^6‖ (cheap bounds instead of estimates) */
+    double d8 = pow(norm1(n, A4) * norm1(n, A4), 1.0 / 8), d10 = pow(norm1(n, A4) * norm1(n, A6), 1.0 / 10);
+    double eta3 = fmax(d6, d8);
+    if (eta3 <= theta[2]) deg = 7;
+    else if (eta3 <= theta[3]) deg = 9;
+    else {
+      double eta5 = fmin(eta3, fmax(d8, d10));
+      if (eta5 > theta[4]) s = (int)ceil(log2(eta5 / theta[4]));
+    }
+  }
+  if (s > 0) {
+    double sc = ldexp(1.0, -s);
+    for (size_t i = 0; i < nn; i++) Xs[i] *= sc;
+    mm(n, Xs, Xs, A2);
+    mm(n, A2, A2, A4);
+    mm(n, A2, A4, A6);
+  }
+  if (deg == 9) mm(n, A4, A4, A8);
+  if (deg == 13) {
+    const double *b = pade13;
+    lincomb(n, T, 3, (const double *[]){A6, A4, A2}, (double[]){b[13], b[11], b[9]}, 0);
+    mm(n, A6, T, U);
+    for (size_t i = 0; i < nn; i++) U[i] += b[7] * A6[i] + b[5] * A4[i] + b[3] * A2[i];
+    for (int i = 0; i < n; i++) U[(size_t)i * n + i] += b[1];
+    mm(n, Xs, U, T);
+    memcpy(U, T, nn * sizeof *U);
+    lincomb(n, T, 3, (const double *[]){A6, A4, A2}, (double[]){b[12], b[10], b[8]}, 0);
+    mm(n, A6, T, Vm);
+    for (size_t i = 0; i < nn; i++) Vm[i] += b[6] * A6[i] + b[4] * A4[i] + b[2] * A2[i];
+    for (int i = 0; i < n; i++) Vm[(size_t)i * n + i] += b[0];
+  } else {
+    const double *b = deg == 3 ? pade3 : deg == 5 ? pade5 : deg == 7 ? pade7 : pade9;
+    const double *pw[4] = {A2, A4, A6, A8};
+    int np = (deg - 1) / 2; /* even powers A^2 .. A^(deg-1) */
+    double cu[4], cv[4];
+    for (int k = 0; k < np; k++) cu[k] = b[2 * k + 3], cv[k] = b[2 * k + 2];
+    lincomb(n, T, np, pw, cu, b[1]);
+    mm(n, Xs, T, U);
+    lincomb(n, Vm, np, pw, cv, b[0]);
+  }
+  /* (V - U) R = (V + U) */
+  for (size_t i = 0; i < nn; i++) {
+    double v = Vm[i], u = U[i];
+    T[i] = v - u;
+    out[i] = v + u;
+  }
+  lapack_int *ipiv = malloc(sizeof *ipiv * (size_t)n);
+  if (!ipiv) return -1;
+  lapack_int info = LAPACKE_dgesv(LAPACK_ROW_MAJOR, n, n, T, n, ipiv, out, n);
+  free(ipiv);
+  if (info != 0) return -1;
+  for (int k = 0; k < s; k++) {
+    mm(n, out, out, T);
+    memcpy(out, T, nn * sizeof *out);
+  }
+  if (pade) *pade = deg;
+  if (squarings) *squarings = s;
+  return 0;
+}
+
+/* ---------------------------------------------------------------- set-up */
+
+static int class_info(const NpgModel *m, const char *q, int *c, long *n, long *mm_, const double **B, char *err,
+                      size_t errlen) {
+  *c = npg_model_class_of(m, q);
+  NpgClassInfo ci;
+  if (*c < 0 || npg_model_class(m, *c, &ci) != 0) return fail(err, errlen, "model has no class for", q);
+  *n = ci.n, *mm_ = ci.m;
+  *B = npg_model_basis(m, *c);
+  if (!*B) return fail(err, errlen, "model has no basis for", q);
+  return 0;
+}
+
+static int set_all(RedSolver *s, const double *gc, const double *gdc, const double *fc, const double *uc) {
+  NpgReduced *r = s->r;
+  if (npg_reduced_set_coords(r, "g", s->mg, gc) || npg_reduced_set_coords(r, "gdot", s->mgd, gdc) ||
+      npg_reduced_set_coords(r, "f", s->mf, fc) || npg_reduced_set_coords(r, "u", s->mu, uc) ||
+      npg_reduced_eval(r, s->evals++))
+    return -1;
+  return 0;
+}
+
+static int get_coords(RedSolver *s, const char *name, double *out, long m, char *err, size_t errlen) {
+  size_t k = 0;
+  const double *c = npg_reduced_coords(s->r, name, &k);
+  if (!c || (long)k != m) return fail(err, errlen, "no reduced coordinates of", name);
+  memcpy(out, c, (size_t)m * sizeof *out);
+  return 0;
+}
+
+/* Column j of the matrix a stage's reduced coordinates are, for û = e_j
+ * (the stage is linear in u): evaluate at (gc, gdc, fc, e_j) for every j
+ * and gather coords of `name` into M (mu x mu, row-major). */
+static int matrix_in_u(RedSolver *s, const char *name, const double *gc, const double *gdc, const double *fc,
+                       double *M, double *uc, double *col, char *err, size_t errlen) {
+  long mu = s->mu;
+  for (long j = 0; j < mu; j++) {
+    uc[j] = 1;
+    if (set_all(s, gc, gdc, fc, uc) != 0) return fail(err, errlen, npg_reduced_error(s->r), NULL);
+    uc[j] = 0;
+    if (get_coords(s, name, col, mu, err, errlen)) return -1;
+    for (long i = 0; i < mu; i++) M[i * mu + j] = col[i];
+  }
+  return 0;
+}
+
+int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *err, size_t errlen) {
+  memset(s, 0, sizeof *s);
+  s->model = model;
+  s->visc = visc, s->dt = dt;
+  s->integ = RED_EXPM;
+  long nb;
+  const double *Bb;
+  if (class_info(model, "g", &s->cg, &s->ng, &s->mg, &s->Bg, err, errlen) ||
+      class_info(model, "gdot", &s->cgd, &s->ngd, &s->mgd, &s->Bgd, err, errlen) ||
+      class_info(model, "f", &s->cf, &s->nf, &s->mf, &s->Bf, err, errlen) ||
+      class_info(model, "u", &s->cu, &s->nu, &s->mu, &s->Bu, err, errlen) ||
+      class_info(model, "bf", &s->cb, &nb, &s->mb, &Bb, err, errlen))
+    return -1;
+  s->r = npg_reduced_new(model);
+  if (!s->r) return fail(err, errlen, "out of memory", NULL);
+  double t0 = now();
+  long mg = s->mg, mgd = s->mgd, mu = s->mu, mf = s->mf, mb = s->mb;
+  size_t uu = (size_t)(mu * mu), uf = (size_t)(mu * mf);
+  s->Vs = calloc((size_t)(mg * mg) * uu, sizeof(double));
+  s->Ps = calloc((size_t)mg * uf, sizeof(double));
+  s->As = calloc((size_t)mf * uu, sizeof(double));
+  s->Ahs = calloc((size_t)(mg * mgd) * uu, sizeof(double));
+  s->Bhs = calloc((size_t)(mg * mgd * mb) + 1, sizeof(double));
+  s->L = calloc(uu, sizeof(double));
+  double *D = calloc((size_t)(mb * mf) + 1, sizeof(double));
+  s->Dpinv = calloc((size_t)(mf * mb) + 1, sizeof(double));
+  s->N = calloc((size_t)(mf * mf) + 1, sizeof(double));
+  s->g = calloc((size_t)mg, sizeof(double));
+  s->f = calloc((size_t)mf, sizeof(double));
+  s->u = calloc((size_t)mu, sizeof(double));
+  s->gmid = calloc((size_t)mg, sizeof(double));
+  s->gdot = calloc((size_t)mgd, sizeof(double));
+  s->wgt = calloc((size_t)(mg * mgd), sizeof(double));
+  s->b = calloc((size_t)mb + 1, sizeof(double));
+  s->A = malloc(uu * sizeof(double));
+  s->M = malloc(uu * sizeof(double));
+  s->E = malloc(uu * sizeof(double));
+  s->V0 = malloc(uu * sizeof(double));
+  s->V1 = malloc(uu * sizeof(double));
+  s->P1 = malloc(uf * sizeof(double));
+  s->W = malloc(uf * sizeof(double));
+  s->K = malloc((size_t)(mf * mf) * sizeof(double));
+  s->KN = malloc((size_t)(mf * mf) * sizeof(double));
+  s->Kn = malloc((size_t)(mf * mf) * sizeof(double));
+  s->work = malloc(8 * uu * sizeof(double) + 8 * (size_t)(mu + mf) * sizeof(double));
+  s->tmp = malloc((size_t)(4 * (mu + mf) + 8) * sizeof(double));
+  s->tmp2 = malloc((size_t)(4 * (mu + mf) + 8) * sizeof(double));
+  s->tmp3 = malloc((size_t)(4 * (mu + mf) + 8) * sizeof(double));
+  double *gc = calloc((size_t)mg, sizeof(double)), *fc = calloc((size_t)mf, sizeof(double));
+  double *uc = calloc((size_t)mu, sizeof(double)), *gdc = calloc((size_t)mgd, sizeof(double));
+  double *pc = malloc((size_t)mu * sizeof(double)), *bc = malloc((size_t)mb * sizeof(double) + 8);
+  int rc = 0;
+  if (!s->Vs || !s->Ps || !s->As || !s->Ahs || !s->L || !D || !s->Dpinv || !s->N || !s->work || !gc || !fc || !uc ||
+      !gdc || !pc || !bc) {
+    rc = fail(err, errlen, "out of memory", NULL);
+    goto done;
+  }
+  /* Δ̂: lap at û = e_j (constant) */
+  if ((rc = matrix_in_u(s, "lap", gc, gdc, fc, s->L, uc, pc, err, errlen))) goto done;
+  /* Â_k: pdot at f̂ = e_k, ĝdot = 0 (so ĥ = 0), û = e_j */
+  for (long k = 0; k < mf && !rc; k++) {
+    fc[k] = 1;
+    rc = matrix_in_u(s, "pdot", gc, gdc, fc, s->As + (size_t)k * uu, uc, pc, err, errlen);
+    fc[k] = 0;
+  }
+  /* V̂ slices: pv at ĝ = e_l, and e_l + e_q (quadratic in ĝ) */
+  for (long l = 0; l < mg && !rc; l++) {
+    gc[l] = 1;
+    rc = matrix_in_u(s, "pv", gc, gdc, fc, s->Vs + (size_t)(l * mg + l) * uu, uc, pc, err, errlen);
+    gc[l] = 0;
+  }
+  for (long l = 0; l < mg && !rc; l++)
+    for (long q = l + 1; q < mg && !rc; q++) {
+      gc[l] = gc[q] = 1;
+      double *Vlq = s->Vs + (size_t)(l * mg + q) * uu, *Vql = s->Vs + (size_t)(q * mg + l) * uu;
+      rc = matrix_in_u(s, "pv", gc, gdc, fc, Vlq, uc, pc, err, errlen);
+      gc[l] = gc[q] = 0;
+      if (rc) break;
+      const double *Vll = s->Vs + (size_t)(l * mg + l) * uu, *Vqq = s->Vs + (size_t)(q * mg + q) * uu;
+      for (size_t i = 0; i < uu; i++) Vlq[i] = 0.5 * (Vlq[i] - Vll[i] - Vqq[i]), Vql[i] = Vlq[i];
+    }
+  /* −Â_h ⊗ ĥ(ĝ, ĝdot) slices: pdot at f̂ = 0, ĝ = e_l, ĝdot = e_q (ĥ bilinear in
+   * them), û = e_j; and D̂_h ĥ: bh there */
+  for (long l = 0; l < mg && !rc; l++)
+    for (long q = 0; q < mgd && !rc; q++) {
+      gc[l] = 1, gdc[q] = 1;
+      rc = matrix_in_u(s, "pdot", gc, gdc, fc, s->Ahs + (size_t)(l * mgd + q) * uu, uc, pc, err, errlen);
+      if (!rc) rc = get_coords(s, "bh", s->Bhs + (size_t)(l * mgd + q) * mb, mb, err, errlen);
+      gc[l] = 0, gdc[q] = 0;
+    }
+  /* P̂ slices: p at ĝ = e_l, f̂ = e_k (bilinear); D̂: bf at f̂ = e_k */
+  for (long l = 0; l < mg && !rc; l++) {
+    gc[l] = 1;
+    for (long k = 0; k < mf; k++) {
+      fc[k] = 1;
+      if (set_all(s, gc, gdc, fc, uc) != 0) {
+        rc = fail(err, errlen, npg_reduced_error(s->r), NULL);
+        break;
+      }
+      fc[k] = 0;
+      if ((rc = get_coords(s, "p", pc, mu, err, errlen))) break;
+      for (long i = 0; i < mu; i++) s->Ps[(size_t)l * uf + (size_t)(i * mf + k)] = pc[i];
+      if (l == 0) {
+        if ((rc = get_coords(s, "bf", bc, mb, err, errlen))) break;
+        for (long i = 0; i < mb; i++) D[i * mf + k] = bc[i];
+      }
+    }
+    gc[l] = 0;
+  }
+  if (rc) goto done;
+  /* constraint reduction: D̂ = U Σ Vᵀ; rank r; N = V[:, r:]; D̂⁺ = V_r Σ_r⁻¹ U_rᵀ */
+  {
+    double *Uu = malloc((size_t)(mb * mb) * sizeof(double) + 8), *Vt = malloc((size_t)(mf * mf) * sizeof(double));
+    double *sv = malloc((size_t)(mb < mf ? mb : mf) * sizeof(double) + 8), *sup = malloc((size_t)(mb + mf) * sizeof(double));
+    long kmin = mb < mf ? mb : mf;
+    if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'A', 'A', mb, mf, D, mf, sv, Uu, mb, Vt, mf, sup) != 0) {
+      rc = fail(err, errlen, "SVD of the reduced boundary operator failed", NULL);
+    } else {
+      long r = 0;
+      for (long i = 0; i < kmin; i++)
+        if (sv[i] > 1e-10 * sv[0] && sv[i] > 1e-13) r++;
+      s->drank = r;
+      s->nn = mf - r;
+      for (long k = 0; k < mf; k++)
+        for (long j = 0; j < s->nn; j++) s->N[k * s->nn + j] = Vt[(r + j) * mf + k];
+      for (long k = 0; k < mf; k++)
+        for (long b = 0; b < mb; b++) {
+          double v = 0;
+          for (long i = 0; i < r; i++) v += Vt[i * mf + k] * Uu[b * mb + i] / sv[i];
+          s->Dpinv[k * mb + b] = v;
+        }
+    }
+    free(Uu), free(Vt), free(sv), free(sup);
+  }
+  s->seconds_setup = now() - t0;
+done:
+  free(D), free(gc), free(fc), free(uc), free(gdc), free(pc), free(bc);
+  if (rc) red_free(s);
+  return rc;
+}
+
+void red_free(RedSolver *s) {
+  if (s->r) npg_reduced_free(s->r);
+  free(s->Vs), free(s->Ps), free(s->As), free(s->Ahs), free(s->Bhs), free(s->wgt), free(s->L), free(s->Dpinv);
+  free(s->N), free(s->g), free(s->f), free(s->u);
+  free(s->gmid), free(s->gdot), free(s->b), free(s->A), free(s->M), free(s->E), free(s->V0), free(s->V1);
+  free(s->P1), free(s->W), free(s->K), free(s->KN), free(s->Kn), free(s->work), free(s->tmp), free(s->tmp2), free(s->tmp3);
+  memset(s, 0, sizeof *s);
+}
+
+/* ---------------------------------------------------------------- geometry-dependent operators */
+
+void red_volume(const RedSolver *s, const double *gc, double *V) {
+  size_t uu = (size_t)(s->mu * s->mu);
+  long mg = s->mg;
+  memset(V, 0, uu * sizeof *V);
+  for (long l = 0; l < mg; l++)
+    for (long q = 0; q < mg; q++) {
+      double w = gc[l] * gc[q];
+      if (w != 0) cblas_daxpy((int)uu, w, s->Vs + (size_t)(l * mg + q) * uu, 1, V, 1);
+    }
+}
+
+void red_pmat(const RedSolver *s, const double *gc, double *P) {
+  size_t uf = (size_t)(s->mu * s->mf);
+  memset(P, 0, uf * sizeof *P);
+  for (long l = 0; l < s->mg; l++)
+    if (gc[l] != 0) cblas_daxpy((int)uf, gc[l], s->Ps + (size_t)l * uf, 1, P, 1);
+}
+
+void red_project_g(const RedSolver *s, const double *g, double *gc) {
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)s->ng, (int)s->mg, 1.0, s->Bg, (int)s->mg, g, 1, 0.0, gc, 1);
+}
+
+void red_project_f(const RedSolver *s, const double *f, double *fc) {
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)s->nf, (int)s->mf, 1.0, s->Bf, (int)s->mf, f, 1, 0.0, fc, 1);
+}
+
+void red_project_u(RedSolver *s, const double *gc, const double *pv, double *uc) {
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)s->nu, (int)s->mu, 1.0, s->Bu, (int)s->mu, pv, 1, 0.0, uc, 1);
+  red_volume(s, gc, s->V1);
+  LAPACKE_dposv(LAPACK_ROW_MAJOR, 'L', (int)s->mu, 1, s->V1, (int)s->mu, uc, 1);
+}
+
+double red_energy(const RedSolver *s, const double *gc, const double *uc) {
+  double *V = malloc((size_t)(s->mu * s->mu) * sizeof *V), *t = malloc((size_t)s->mu * sizeof *t);
+  red_volume(s, gc, V);
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)s->mu, (int)s->mu, 1.0, V, (int)s->mu, uc, 1, 0.0, t, 1);
+  double e = 0.5 * cblas_ddot((int)s->mu, uc, 1, t, 1);
+  free(V), free(t);
+  return e;
+}
+
+/* The reduced projection (Eq. 12 with the reduced boundary constraints) at
+ * ĝ = gc of the velocity coordinates uin, with the boundary fluxes s->b:
+ * sets s->f and s->u. */
+int red_projection(RedSolver *s, const double *gc, const double *uin, char *err, size_t errlen) {
+  int mu = (int)s->mu, mf = (int)s->mf, mb = (int)s->mb, nn = (int)s->nn;
+  red_volume(s, gc, s->V1);
+  red_pmat(s, gc, s->P1);
+  if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'L', mu, s->V1, mu) != 0)
+    return fail(err, errlen, "reduced volume matrix V̂(ĝ_{t+1}) is not positive definite", NULL);
+  memcpy(s->W, s->P1, (size_t)mu * mf * sizeof *s->W);
+  LAPACKE_dpotrs(LAPACK_ROW_MAJOR, 'L', mu, mf, s->V1, mu, s->W, mf); /* W = V̂⁻¹ P̂ */
+  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, mf, mf, mu, 1.0, s->P1, mf, s->W, mf, 0.0, s->K, mf);
+  double *rhs = s->tmp3, *fp = s->work, *y = s->work + mf;
+  cblas_dgemv(CblasRowMajor, CblasTrans, mu, mf, 1.0, s->P1, mf, uin, 1, 0.0, rhs, 1); /* P̂ᵀ û' */
+  if (mb > 0)
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, mf, mb, 1.0, s->Dpinv, mb, s->b, 1, 0.0, fp, 1);
+  else
+    memset(fp, 0, (size_t)mf * sizeof *fp);
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, mf, mf, -1.0, s->K, mf, fp, 1, 1.0, rhs, 1); /* P̂ᵀû' − K fp */
+  if (nn > 0) {
+    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, mf, nn, mf, 1.0, s->K, mf, s->N, nn, 0.0, s->KN, nn);
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, nn, nn, mf, 1.0, s->N, nn, s->KN, nn, 0.0, s->Kn, nn);
+    cblas_dgemv(CblasRowMajor, CblasTrans, mf, nn, 1.0, s->N, nn, rhs, 1, 0.0, y, 1);
+    if (LAPACKE_dposv(LAPACK_ROW_MAJOR, 'L', nn, 1, s->Kn, nn, y, 1) != 0)
+      return fail(err, errlen, "reduced projection matrix is not positive definite", NULL);
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, mf, nn, 1.0, s->N, nn, y, 1, 1.0, fp, 1);
+  }
+  memcpy(s->f, fp, (size_t)mf * sizeof *s->f);
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, mu, mf, 1.0, s->W, mf, s->f, 1, 0.0, s->u, 1); /* û = V̂⁻¹P̂ f̂ */
+  return 0;
+}
+
+/* ---------------------------------------------------------------- the step */
+
+int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, size_t errlen) {
+  int mu = (int)s->mu, mf = (int)s->mf, mb = (int)s->mb;
+  long mg = s->mg, mgd = s->mgd;
+  double t0 = now();
+  for (long l = 0; l < mg; l++) s->gmid[l] = 0.5 * (s->g[l] + gnext[l]);
+  if (gdotc)
+    memcpy(s->gdot, gdotc, (size_t)mgd * sizeof *s->gdot);
+  else
+    memset(s->gdot, 0, (size_t)mgd * sizeof *s->gdot);
+  /* Â ⊗ (f̂ − ĥ): Σ_k f̂_k Â_k + Σ_lq ĝmid_l ĝdot_q (−Â_h ĥ)_lq (ĥ exact at the
+   * midpoint, as in the full step), and D̂_h ĥ likewise */
+  size_t uu = (size_t)mu * mu;
+  cblas_dgemv(CblasRowMajor, CblasTrans, mf, (int)uu, 1.0, s->As, (int)uu, s->f, 1, 0.0, s->A, 1);
+  int moving = 0;
+  for (long l = 0; l < mg; l++)
+    for (long q = 0; q < mgd; q++) {
+      double w = s->gmid[l] * s->gdot[q];
+      s->wgt[l * mgd + q] = w;
+      moving |= w != 0;
+    }
+  if (moving) {
+    cblas_dgemv(CblasRowMajor, CblasTrans, (int)(mg * mgd), (int)uu, 1.0, s->Ahs, (int)uu, s->wgt, 1, 1.0, s->A, 1);
+    if (mb > 0)
+      cblas_dgemv(CblasRowMajor, CblasTrans, (int)(mg * mgd), mb, 1.0, s->Bhs, mb, s->wgt, 1, 0.0, s->b, 1);
+  } else if (mb > 0)
+    memset(s->b, 0, (size_t)mb * sizeof *s->b);
+  double t1 = now();
+  /* advection and diffusion at ĝ_t: M = V̂⁻¹(Â + μ L̂) */
+  for (size_t i = 0; i < uu; i++) s->M[i] = s->A[i] + s->visc * s->L[i];
+  red_volume(s, s->g, s->V0);
+  if (LAPACKE_dposv(LAPACK_ROW_MAJOR, 'L', mu, mu, s->V0, mu, s->M, mu) != 0)
+    return fail(err, errlen, "reduced volume matrix V̂(ĝ_t) is not positive definite", NULL);
+  double *u1 = s->tmp;
+  if (s->integ == RED_EXPM) {
+    for (size_t i = 0; i < uu; i++) s->M[i] *= s->dt;
+    if (red_expm(mu, s->M, s->E, s->work, &s->last_pade, &s->last_squarings) != 0)
+      return fail(err, errlen, "matrix exponential: singular Padé denominator", NULL);
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, mu, mu, 1.0, s->E, mu, s->u, 1, 0.0, u1, 1);
+  } else {
+    /* RK4 with the same operator (for comparison with the full step's integrator) */
+    double *k = s->tmp2, *y = s->work, *acc = s->work + mu;
+    memcpy(u1, s->u, (size_t)mu * sizeof *u1);
+    memcpy(acc, s->u, (size_t)mu * sizeof *acc);
+    const double c[4] = {0.5, 0.5, 1.0, 0}, w[4] = {1.0 / 6, 1.0 / 3, 1.0 / 3, 1.0 / 6};
+    memcpy(y, s->u, (size_t)mu * sizeof *y);
+    for (int st = 0; st < 4; st++) {
+      cblas_dgemv(CblasRowMajor, CblasNoTrans, mu, mu, 1.0, s->M, mu, y, 1, 0.0, k, 1);
+      for (int i = 0; i < mu; i++) acc[i] += s->dt * w[st] * k[i];
+      if (st < 3)
+        for (int i = 0; i < mu; i++) y[i] = s->u[i] + c[st] * s->dt * k[i];
+    }
+    memcpy(u1, acc, (size_t)mu * sizeof *u1);
+  }
+  double t2 = now();
+  if (red_projection(s, gnext, u1, err, errlen) != 0) return -1;
+  memcpy(s->g, gnext, (size_t)s->mg * sizeof *s->g);
+  double t3 = now();
+  s->seconds_eval += t1 - t0;
+  s->seconds_advection += t2 - t1;
+  s->seconds_projection += t3 - t2;
+  s->steps++;
+  return 0;
+}
