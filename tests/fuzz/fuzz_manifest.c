@@ -30,7 +30,7 @@
 #include "compile.h"
 #include "model_store.h"
 #include "npg.h"
-#include "reduce.h"
+#include "model.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
