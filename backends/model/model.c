@@ -11,6 +11,7 @@
 #include <errno.h>
 #include <math.h>
 #include <stdarg.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -421,6 +422,51 @@ static int take(const ModelStore *s, const char *dir, const char *name, long row
   return 0;
 }
 
+/* The class, member and spd lines of a loaded manifest against the layout
+ * and the bases: 0, or -1 with `err` naming the line. */
+static int check_meta(const ModelStore *s, const Model *m, const char *dir, char *err, size_t errlen) {
+  for (int i = 0; i < s->nmeta; i++) {
+    const char *line = s->meta[i];
+    bool ok = true;
+    char name[512];
+    if (strncmp(line, "class ", 6) == 0) {
+      int c, used = 0;
+      long n, mm;
+      ok = sscanf(line, "class %d %511s n %ld m %ld%n", &c, name, &n, &mm, &used) == 4 && line[used] == 0 && c >= 0 &&
+           c < m->nclasses && strcmp(name, m->classes[c].label) == 0 && n == m->classes[c].n && mm == m->classes[c].m;
+    } else if (strncmp(line, "member ", 7) == 0) {
+      int c, cap, kept, center = 0, used = 0;
+      double energy, captured, lost = 0;
+      int got = sscanf(line, "member %d %511s cap %d energy %lf kept %d captured %lf%n center %d lost %lf%n", &c, name,
+                       &cap, &energy, &kept, &captured, &used, &center, &lost, &used);
+      ok = (got == 6 || got == 8) && line[used] == 0 && c >= 0 && c < m->nclasses && cap >= 1 && energy > 0 &&
+           energy <= 1 && kept >= 0 && captured >= 0 && captured <= 1 + 1e-9 && lost >= 0 && lost <= 1 + 1e-9 &&
+           (center == 0 || center == 1);
+      bool known = false;
+      for (int k = 0; ok && k < m->classes[c].nmembers; k++) known |= strcmp(m->classes[c].members[k].name, name) == 0;
+      ok = ok && known;
+    } else if (strncmp(line, "spd ", 4) == 0) {
+      int t, k, used = 0;
+      ok = sscanf(line, "spd %511s %d %d%n", name, &t, &k, &used) == 3 && line[used] == 0;
+      bool found = false;
+      for (int j = 0; ok && j < m->nstages; j++) {
+        const RStage *rs = &m->stages[j];
+        if (strcmp(rs->st->sym->name, name) != 0 || t < 0 || t >= rs->nterms || k < 0 || k >= rs->terms[t].nops) continue;
+        found = true;
+      }
+      ok = ok && found;
+    } else {
+      continue;
+    }
+    if (!ok) {
+      snprintf(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)", dir,
+               line);
+      return -1;
+    }
+  }
+  return 0;
+}
+
 Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
   ModelStore s;
   Model *m = NULL;
@@ -452,7 +498,12 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
   }
   if (!(m = model_layout(prog, dims, err, errlen))) goto fail;
   const char *ns = model_store_find(&s, "samples");
-  m->samples = ns ? strtol(ns, NULL, 10) : 0;
+  char *end = NULL;
+  m->samples = ns ? strtol(ns, &end, 10) : 0;
+  if (ns && (end == ns || *end || m->samples < 1)) {
+    snprintf(err, errlen, "%s/manifest: 'samples %s' is not a count of training samples", dir, ns);
+    goto fail;
+  }
   const char *ph = model_store_find(&s, "params");
   if (ph && !(m->param_hashes = strdup(ph))) goto oom;
   for (int c = 0; c < m->nclasses; c++) {
@@ -468,6 +519,9 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
     rc->m = a->shape[1];
     if (take(&s, dir, name, rc->n, rc->m, &rc->B, err, errlen)) goto fail;
   }
+  /* every metadata line the model reads must describe this model: a line
+   * it cannot use is refused, not skipped */
+  if (check_meta(&s, m, dir, err, errlen)) goto fail;
   /* member statistics, for reports */
   for (int i = 0; i < s.nmeta; i++) {
     int c, cap, kept, center = 0;

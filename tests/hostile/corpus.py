@@ -800,12 +800,6 @@ def cli_cases():
 
 # ------------------------------------------------------------------ known failures
 
-LENIENT = ("backends/model.c reads the manifest's metadata lines with strtol/sscanf and skips what it cannot "
-           "parse, so a re-sealed manifest (its checksum recomputed) with this line is accepted; the checks belong "
-           "in backends/model.c, which is being restructured")
-for _kind in ("sealed_samples_negative", "sealed_spd_added", "sealed_member_garbage", "sealed_class_garbage"):
-    for _cmd in ("verify", "eval", "emit"):
-        KNOWN_FAILURES["model_%s_%s" % (_kind, _cmd)] = LENIENT
 for _cmd in ("verify", "eval", "emit"):
     KNOWN_FAILURES["model_sealed_params_removed_" + _cmd] = (
         "a re-sealed manifest without its 'params' line is taken for a model that recorded no params (models saved "
