@@ -14,6 +14,8 @@ packages=(
   libcmocka-dev               # unit tests
   clang libclang-rt-14-dev    # libFuzzer for the front-end fuzz target
   python3-numpy               # benchmark peer only
+  libembree-dev               # examples/points: exact visibility by ray casting (reference)
+  libcairo2-dev               # examples/points: PNG pictures and plots
 )
 
 missing=()
