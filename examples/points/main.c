@@ -97,7 +97,7 @@ static int vis_agreement(const Model *m, const RayCaster *rc, const float *leaf_
   double w_all = 0, w_hier = 0, w_pt_all = 0, w_pt = 0, t_rays = 0;
   for (int k = 0; k < ntargets; k++) {
     long i = (long)(((double)k + 0.5) / ntargets * (double)n);
-    int with_point = k % (ntargets / (point_targets > 0 ? point_targets : 1) > 0 ? ntargets / point_targets : 1) == 0;
+    int stride = ntargets / (point_targets > 1 ? point_targets : 1), with_point = k % (stride > 1 ? stride : 1) == 0;
     double t0 = now_seconds(), wa = 0, wh = 0, wpa = 0, wp = 0;
 #pragma omp parallel for schedule(dynamic, 256) reduction(+ : wa, wh, wpa, wp)
     for (long j = 0; j < n; j++) {
@@ -128,13 +128,13 @@ typedef struct Options {
   int p, leaf, max_iter, vis_targets, point_targets, no_visibility;
   long check_points, dense_limit;
   double tol;
-  const char *points_list, *orders_list;
+  const char *points_list, *orders_list, *error_points_list;
 } Options;
 
 static int parse_options(int argc, char **argv, Options *o) {
-  *o = (Options){.points = 20000, .out = NULL, .p = 4, .leaf = 64, .max_iter = 60, .vis_targets = 48,
+  *o = (Options){.points = 20000, .out = NULL, .p = 4, .leaf = 128, .max_iter = 60, .vis_targets = 48,
                  .point_targets = 8, .check_points = 3000, .dense_limit = 60000, .tol = 1e-4,
-                 .points_list = "2000,5000,10000,20000,50000,110528,300000,1000000", .orders_list = "2,3,4,5,6"};
+                 .points_list = "2000,5000,10000,20000,50000,110528,300000,1000000", .orders_list = "2,3,4,5,6", .error_points_list = "5000,20000"};
   for (int k = 2; k < argc; k++) {
     const char *a = argv[k], *v = k + 1 < argc ? argv[k + 1] : NULL;
     if (!v) goto bad;
@@ -144,6 +144,7 @@ static int parse_options(int argc, char **argv, Options *o) {
     } else if (!strcmp(a, "--out")) o->out = v;
     else if (!strcmp(a, "--p")) o->p = atoi(v);
     else if (!strcmp(a, "--orders")) o->orders_list = v;
+    else if (!strcmp(a, "--error-points")) o->error_points_list = v;
     else if (!strcmp(a, "--leaf")) o->leaf = atoi(v);
     else if (!strcmp(a, "--visibility")) o->no_visibility = !strcmp(v, "off");
     else if (!strcmp(a, "--tol")) o->tol = atof(v);
@@ -316,11 +317,11 @@ static int demo(const Options *o) {
   rc_out |= render_radiosity(s, b, exposure, 640, path);
   if (dense) {
     out_path(path, sizeof path, o->out, "fmm_vs_dense.png");
-    rc_out |= render_comparison(s, b, b_dense, exposure, 480, path);
+    rc_out |= render_comparison(s, b, b_dense, exposure, 480, path, "FMM", "dense O(N^2), same visibility");
   }
   if (bp && br) {
     out_path(path, sizeof path, o->out, "point_vs_ray_visibility.png");
-    rc_out |= render_comparison(&mc.s, bp, br, exposure, 480, path);
+    rc_out |= render_comparison(&mc.s, bp, br, exposure, 480, path, "point-based visibility", "ray casting (Embree)");
   }
 
   out_path(path, sizeof path, o->out, "report.json");
@@ -357,8 +358,154 @@ static int demo(const Options *o) {
   return rc_out ? 1 : 0;
 }
 
+
+/* ------------------------------------------------------------ sweep */
+
+static int parse_list(const char *text, double *out, int cap) {
+  int n = 0;
+  const char *p = text;
+  while (*p && n < cap) {
+    char *end;
+    double v = strtod(p, &end);
+    if (end == p) break;
+    out[n++] = v;
+    p = *end == ',' ? end + 1 : end;
+  }
+  return n;
+}
+
+/* Seconds of one FMM gather and one brute-force gather (the best of a few
+ * when short), on the radiosity b = e + ρ g(e). */
+static double time_gather(GatherFn fn, void *ctx, const double *b, double *g, int max_reps) {
+  double best = INFINITY, total = 0;
+  for (int r = 0; r < max_reps && total < 2.0; r++) {
+    double t0 = now_seconds();
+    fn(ctx, b, g);
+    double dt = now_seconds() - t0;
+    best = fmin(best, dt), total += dt;
+  }
+  return best;
+}
+
+static int sweep(const Options *o) {
+  double ns[32], ps[16], ens[8];
+  int nn = parse_list(o->points_list, ns, 32), np = parse_list(o->orders_list, ps, 16);
+  int ne = parse_list(o->error_points_list, ens, 8);
+  char path[4096];
+  out_path(path, sizeof path, o->out, "sweep.json");
+  FILE *js = fopen(path, "w");
+  if (!js) return 1;
+  fprintf(js, "{\n  \"scene\": \"cornell_box\", \"s\": %d, \"tol\": %g,\n  \"error_vs_p\": [", o->leaf, o->tol);
+
+  /* error against p, with point-based visibility, the dense reference using
+   * the plan's leaf-pair visibility (the same for every p) */
+  double err_g[8][16], err_b[8][16];
+  for (int e = 0; e < ne; e++) {
+    long n = (long)ens[e];
+    Model m;
+    if (model_new(&m, n, o->leaf)) return 1;
+    double *b = malloc(sizeof(double) * 3 * (size_t)n), *g = malloc(sizeof(double) * 3 * (size_t)n);
+    double *gd = malloc(sizeof(double) * 3 * (size_t)n), *bd = malloc(sizeof(double) * 3 * (size_t)n);
+    double *b1 = malloc(sizeof(double) * 3 * (size_t)n);
+    float *table = NULL;
+    for (int k = 0; k < np; k++) {
+      Fmm f;
+      if (fmm_plan(&f, &m.s, &m.t, (int)ps[k], &m.vis)) return 1;
+      if (!table) { /* the reference: one gather of b1 = e + ρ g(e), and the converged b */
+        table = fmm_leaf_visibility(&f);
+        DenseCtx dc = {&m.s, &m.t, table, NULL};
+        radiosity_jacobi(&m.s, gather_dense, &dc, 0, 1, b1);
+        dense_gather(&m.s, &m.t, table, b1, gd);
+        radiosity_jacobi(&m.s, gather_dense, &dc, o->tol * 0.01, o->max_iter, bd);
+      }
+      fmm_gather(&f, b1, g);
+      err_g[e][k] = rel_error(g, gd, 3 * n);
+      int it = radiosity_jacobi(&m.s, gather_fmm, &f, o->tol * 0.01, o->max_iter, b);
+      err_b[e][k] = rel_error(b, bd, 3 * n);
+      printf("error: N = %ld, p = %d: gather %.3e, converged b %.3e (%d iterations), %ld M2L\n", n, (int)ps[k],
+             err_g[e][k], err_b[e][k], it, f.stats.m2l);
+      fprintf(js, "%s\n    {\"N\": %ld, \"p\": %d, \"gather\": %.6e, \"b\": %.6e, \"iterations\": %d}",
+              e + k ? "," : "", n, (int)ps[k], err_g[e][k], err_b[e][k], it);
+      fflush(js);
+      fmm_free(&f);
+    }
+    free(b), free(g), free(gd), free(bd), free(b1), free(table);
+    model_free(&m);
+  }
+  fprintf(js, "\n  ],\n  \"time_vs_n\": [");
+
+  /* time of one gather against N: FMM (p = --p) and the brute force */
+  double t_fmm[32], t_brute[32], vis_s[32];
+  for (int k = 0; k < nn; k++) {
+    long n = (long)ns[k];
+    Model m;
+    if (model_new(&m, n, o->leaf)) return 1;
+    int with_vis = n <= 120000;
+    Fmm f;
+    if (fmm_plan(&f, &m.s, &m.t, o->p, with_vis ? &m.vis : NULL)) return 1;
+    vis_s[k] = f.stats.plan_seconds;
+    double *b = malloc(sizeof(double) * 3 * (size_t)n), *g = malloc(sizeof(double) * 3 * (size_t)n);
+    radiosity_jacobi(&m.s, gather_fmm, &f, 0, 1, b);
+    t_fmm[k] = time_gather(gather_fmm, &f, b, g, 5);
+    t_brute[k] = -1;
+    float *table = NULL;
+    if (n <= o->dense_limit && (table = fmm_leaf_visibility(&f))) {
+      DenseCtx dc = {&m.s, &m.t, table, NULL};
+      t_brute[k] = time_gather(gather_dense, &dc, b, g, 3);
+    }
+    printf("time: N = %ld: FMM gather %.4f s, brute force %.4f s; plan%s %.2f s\n", n, t_fmm[k], t_brute[k],
+           with_vis ? " with visibility" : "", vis_s[k]);
+    fprintf(js, "%s\n    {\"N\": %ld, \"fmm_seconds\": %.6f, \"brute_force_seconds\": %.6f, \"visibility\": %s, "
+                "\"plan_seconds\": %.4f, \"m2l\": %ld, \"p2p_point_pairs\": %ld}",
+            k ? "," : "", n, t_fmm[k], t_brute[k], with_vis ? "true" : "false", vis_s[k], f.stats.m2l,
+            f.stats.p2p_points);
+    fflush(js);
+    free(b), free(g), free(table);
+    fmm_free(&f);
+    model_free(&m);
+  }
+  /* break-even: where the brute force's time crosses the FMM's (log–log) */
+  double breakeven = -1;
+  for (int k = 0; k < nn; k++) {
+    if (t_brute[k] <= 0) break;
+    if (t_brute[k] >= t_fmm[k]) {
+      if (k == 0) breakeven = 0; /* the FMM already wins at the smallest N */
+      else {
+        double a0 = log(t_brute[k - 1] / t_fmm[k - 1]), a1 = log(t_brute[k] / t_fmm[k]);
+        breakeven = exp(log(ns[k - 1]) + (log(ns[k]) - log(ns[k - 1])) * (-a0) / (a1 - a0));
+      }
+      break;
+    }
+  }
+  fprintf(js, "\n  ],\n  \"p_for_timing\": %d,\n  \"break_even_N\": %.0f\n}\n", o->p, breakeven);
+  fclose(js);
+  if (breakeven == 0) printf("break-even: the FMM is faster at every N measured (from N = %.0f)\n", ns[0]);
+  else printf("break-even N ≈ %.0f\n", breakeven);
+
+  /* plots */
+  double px[16];
+  for (int k = 0; k < np; k++) px[k] = ps[k];
+  PlotSeries se[16];
+  char labels[16][64];
+  int nse = 0;
+  for (int e = 0; e < ne; e++) {
+    snprintf(labels[nse], 64, "one gather, N = %.0f", ens[e]);
+    se[nse] = (PlotSeries){labels[nse], np, px, err_g[e]}, nse++;
+    snprintf(labels[nse], 64, "converged b, N = %.0f", ens[e]);
+    se[nse] = (PlotSeries){labels[nse], np, px, err_b[e]}, nse++;
+  }
+  out_path(path, sizeof path, o->out, "error_vs_p.png");
+  int rc = render_plot(path, "FMM against dense (same point-based visibility)", "order p", "relative error", 0, se, nse);
+  PlotSeries st[2] = {{"FMM gather", nn, ns, t_fmm}, {"brute force gather (2 threads, AVX2)", nn, ns, t_brute}};
+  out_path(path, sizeof path, o->out, "time_vs_n.png");
+  rc |= render_plot(path, "one gather (one Jacobi iteration), Cornell box", "N (surfels)", "seconds", 1, st, 2);
+  printf("wrote %s/sweep.json, error_vs_p.png, time_vs_n.png\n", o->out);
+  return rc ? 1 : 0;
+}
+
 int main(int argc, char **argv) {
   Options o;
+  setvbuf(stdout, NULL, _IOLBF, 0); /* progress lines reach a log as they happen */
   if (argc < 2 || (strcmp(argv[1], "demo") && strcmp(argv[1], "sweep"))) {
     fprintf(stderr, "usage: npg-points demo --points N --out DIR [--p P] [--leaf S] [--tol T]\n"
                     "       npg-points sweep --out DIR [--points N1,N2,...] [--orders P1,P2,...]\n");
@@ -366,5 +513,5 @@ int main(int argc, char **argv) {
   }
   if (parse_options(argc, argv, &o)) return 2;
   if (!strcmp(argv[1], "demo")) return demo(&o);
-  return 1; // sweep(&o);
+  return sweep(&o);
 }

@@ -9,10 +9,11 @@
  * depth test, tone mapped by b·exposure and gamma 2.2. 0 or -1. */
 int render_radiosity(const Surfels *s, const double *b, double exposure, int width, const char *path);
 
-/* Three panels side by side: b_fmm, b_dense, and |b_fmm − b_dense| /
- * max|b_dense| as a heat map (with its scale), titled. 0 or -1. */
+/* Three panels side by side: b_fmm titled `title_a`, b_dense (the
+ * reference) titled `title_b`, and |b_fmm − b_dense| / max|b_dense| as a
+ * heat map on a log scale with its colour bar. 0 or -1. */
 int render_comparison(const Surfels *s, const double *b_fmm, const double *b_dense, double exposure, int width,
-                      const char *path);
+                      const char *path, const char *title_a, const char *title_b);
 
 typedef struct PlotSeries {
   const char *label;
