@@ -136,6 +136,15 @@ typedef struct Planner {
   const Visibility *vis;
 } Planner;
 
+/* Cubes of one level at most three widths apart in every axis: the
+ * interaction lists of the plain FMM, whose 316 M2L matrices are shared by
+ * many pairs. Farther pairs come from splitting partly visible ones. */
+static int standard_offset(const OctNode *a, const OctNode *b) {
+  for (int k = 0; k < 3; k++)
+    if (fabs(b->c[k] - a->c[k]) > 3.5 * 2 * a->h) return 0;
+  return 1;
+}
+
 static int m2l_key(const OctNode *a, const OctNode *b) {
   int key = 0;
   for (int k = 0; k < 3; k++) key = key * 128 + (int)lround((b->c[k] - a->c[k]) / (2 * a->h)) + 64;
@@ -180,8 +189,12 @@ static void visit(const Planner *pl, Lists *ls, int ia, int ib, int defer) {
     float v = (float)frac;
     if (leaf_a && direct < 2 * p6)
       rc = list_push(&ls->p2p, ia, ib, 0, v);
-    else if (a->level == b->level)
+    else if (a->level == b->level && (standard_offset(a, b) || (!leaf_a && !leaf_b)))
       rc = list_push(&ls->m2l, ia, ib, m2l_key(a, b), v);
+    else if (a->level == b->level && leaf_a) /* far apart: one operator for a few pairs costs more than M2P */
+      rc = list_push(&ls->m2p, ia, ib, 0, v);
+    else if (a->level == b->level)
+      rc = list_push(&ls->p2l, ia, ib, 0, v);
     else if (a->level < b->level) /* a is the larger cube, a leaf */
       rc = list_push(&ls->m2p, ia, ib, 0, v);
     else /* b is the larger cube, a leaf */
@@ -392,24 +405,35 @@ static void l2p(const Fmm *f, int node, double *s3, double *g) {
   }
 }
 
-/* Target leaf a gets source b's multipole, evaluated exactly at its points. */
+/* Target leaf a gets source b's multipole, evaluated exactly at its points:
+ * Σ_m n_xᵀ H(x − ȳ_m) M_m (the source's nodes laid out once per pair, the
+ * loop over them vectorized). */
 static void m2p(const Fmm *f, int ia, int ib, double v, double *g) {
   const Surfels *s = f->s;
   const OctNode *a = &f->t->node[ia], *b = &f->t->node[ib];
-  long p3 = f->p3;
+  int p3 = f->p3;
   const double *M = f->M + (size_t)ib * 9 * (size_t)p3;
+  double yx[1728], yy[1728], yz[1728]; /* p ≤ 12 */
+  for (int m = 0; m < p3; m++) {
+    double ym[3];
+    cheb_node(f, b->c, b->h, m, ym);
+    yx[m] = ym[0], yy[m] = ym[1], yz[m] = ym[2];
+  }
   for (long i = a->start; i < a->start + a->count; i++) {
-    double nrm[3] = {s->nx[i], s->ny[i], s->nz[i]}, acc[3] = {0, 0, 0};
+    double xi = s->x[i], yi = s->y[i], zi = s->z[i], n0 = s->nx[i], n1 = s->ny[i], n2 = s->nz[i];
+    double acc0 = 0, acc1 = 0, acc2 = 0;
+#pragma omp simd reduction(+ : acc0, acc1, acc2)
     for (int m = 0; m < p3; m++) {
-      double ym[3], d[3], hv[6], u[3];
-      cheb_node(f, b->c, b->h, m, ym);
-      d[0] = s->x[i] - ym[0], d[1] = s->y[i] - ym[1], d[2] = s->z[i] - ym[2];
-      kernel_tensor(d, hv);
-      kernel_tensor_apply(hv, nrm, u); /* (n_xᵀ H)_b = (H n_x)_b, H symmetric */
-      for (int ch = 0; ch < 3; ch++)
-        acc[ch] += u[0] * M[m + p3 * (0 + 3 * ch)] + u[1] * M[m + p3 * (1 + 3 * ch)] + u[2] * M[m + p3 * (2 + 3 * ch)];
+      double d0 = xi - yx[m], d1 = yi - yy[m], d2 = zi - yz[m];
+      double r2 = d0 * d0 + d1 * d1 + d2 * d2;
+      /* n_xᵀ H = −(n_x·d) dᵀ / (π r⁴) */
+      double c = -(n0 * d0 + n1 * d1 + n2 * d2) * KERNEL_INV_PI / (r2 * r2);
+      double u0 = c * d0, u1 = c * d1, u2 = c * d2;
+      acc0 += u0 * M[m] + u1 * M[m + p3] + u2 * M[m + 2 * p3];
+      acc1 += u0 * M[m + 3 * p3] + u1 * M[m + 4 * p3] + u2 * M[m + 5 * p3];
+      acc2 += u0 * M[m + 6 * p3] + u1 * M[m + 7 * p3] + u2 * M[m + 8 * p3];
     }
-    for (int ch = 0; ch < 3; ch++) g[3 * i + ch] += v * acc[ch];
+    g[3 * i] += v * acc0, g[3 * i + 1] += v * acc1, g[3 * i + 2] += v * acc2;
   }
 }
 

@@ -241,7 +241,7 @@ int render_plot(const char *path, const char *title, const char *xlabel, const c
     cairo_set_source_rgb(cr, 0, 0, 0);
     draw_text(cr, 30, y + 4, 12, lab);
   }
-  for (double e = lx0; e <= lx1 + 1e-9; e++) {
+  for (double e = ceil(lx0); e <= floor(lx1) + 1e-9; e++) {
     double xv = logx ? pow(10, e) : e, x = PX(xv);
     cairo_set_source_rgb(cr, 0.88, 0.88, 0.88);
     cairo_move_to(cr, x, T), cairo_line_to(cr, x, H - B), cairo_stroke(cr);
@@ -284,10 +284,11 @@ int render_plot(const char *path, const char *title, const char *xlabel, const c
       cairo_arc(cr, PX(x), PY(y), 4, 0, 2 * M_PI);
       cairo_fill(cr);
     }
-    cairo_rectangle(cr, L + 14, T + 12 + 20 * k, 16, 4);
+    double lx = W - R - 300; /* legend in the upper right */
+    cairo_rectangle(cr, lx, T + 12 + 20 * k, 16, 4);
     cairo_fill(cr);
     cairo_set_source_rgb(cr, 0, 0, 0);
-    draw_text(cr, L + 36, T + 18 + 20 * k, 13, series[k].label);
+    draw_text(cr, lx + 22, T + 18 + 20 * k, 13, series[k].label);
   }
 #undef PX
 #undef PY
