@@ -244,7 +244,7 @@ static int list_append(FmmList *dst, const FmmList *src) {
 
 /* Sort by target and index it: first[t] .. first[t+1] are target t's pairs. */
 static int list_index(FmmList *l, int ntargets) {
-  qsort(l->pair, (size_t)l->n, sizeof(FmmPair), cmp_tgt);
+  if (l->n > 1) qsort(l->pair, (size_t)l->n, sizeof(FmmPair), cmp_tgt); /* pair is NULL when empty */
   l->first = calloc((size_t)ntargets + 1, sizeof(long));
   if (!l->first) return -1;
   for (long k = 0; k < l->n; k++) l->first[l->pair[k].tgt + 1]++;
@@ -321,7 +321,7 @@ int fmm_plan(Fmm *f, const Surfels *s, const Octree *t, int p, const Visibility 
 
   /* P2P and M2P by target leaf (node ids), P2L by target node, M2L by key */
   if (list_index(&f->p2p, t->nnode) || list_index(&f->m2p, t->nnode) || list_index(&f->p2l, t->nnode)) goto oom;
-  qsort(f->m2l.pair, (size_t)f->m2l.n, sizeof(FmmPair), cmp_key);
+  if (f->m2l.n > 1) qsort(f->m2l.pair, (size_t)f->m2l.n, sizeof(FmmPair), cmp_key);
   f->key = malloc(sizeof(int) * (size_t)(f->m2l.n + 1));
   f->key_first = malloc(sizeof(long) * (size_t)(f->m2l.n + 2));
   if (!f->key || !f->key_first) goto oom;
