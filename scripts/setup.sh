@@ -17,7 +17,7 @@ packages=(
   python3-numpy               # benchmark peer only
   libgmsh-dev                 # examples/fluids: the wind tunnel's mesher (C API)
   libsuitesparse-dev          # examples/fluids: UMFPACK for the pressure projection
-  libembree-dev               # examples/radiosity: ray-cast visibility and renders
+  libembree-dev               # examples/radiosity, examples/points: ray-cast visibility
   libpng-dev                  # examples/fluids, examples/radiosity: PNG frames and renders
 )
 

@@ -1,0 +1,85 @@
+/* fmm.h — the FMM gather of paper 002 §2.2.3 with point-based visibility
+ * in its interaction lists (§2.2.4.6):
+ *
+ *   g_i = Σ_j K(x_i, y_j) v_ij w_j b_j        (kernel.h for K)
+ *
+ * Expansions are kernel-independent (Fong & Darve's black-box FMM): the
+ * tensor H(x − y) of kernel.h is interpolated on p x p x p Chebyshev nodes
+ * of the source cube and of the target cube, so
+ *
+ *   multipole  M_m,b,c = Σ_j S_m(y_j) n_y,j,b w_j b_j,c    (node m, normal
+ *              component b, colour c: 3p³ x 3 numbers per node)
+ *   M2L        L_l,a,c += Σ_m,b H_ab(x̄_l − ȳ_m) M_m,b,c   (one 3p³ x 3p³
+ *              matrix per relative position of two cubes of one level,
+ *              scaled by 1/h² at half width h because H is homogeneous)
+ *   evaluation g_i,c  = Σ_l,a S_l(x_i) n_x,i,a L_l,a,c.
+ *
+ * The octree is traversed as a dual tree from (root, root): a pair of cubes
+ * separated by at least the larger one's width whose points all face each
+ * other (normal cones and boxes, kernel.h) and, with visibility, whose
+ * sampled point pairs are all visible is "valid" and becomes an M2L (same
+ * level), M2P or P2L (a leaf against a smaller cube); a pair that cannot
+ * see or face at all is dropped; anything else is split, and two leaves
+ * that are left interact directly (P2P), with the kernel clamped per pair
+ * and the pair's visible fraction as v (§2.2.4.4: leaves are the finest
+ * visibility). fmm_plan builds those lists once; fmm_gather runs them. */
+#ifndef POINTS_FMM_H
+#define POINTS_FMM_H
+
+#include "octree.h"
+#include "visibility.h"
+
+typedef struct FmmPair {
+  int tgt, src;
+  int key;  /* M2L: the relative position of the cubes, encoded */
+  float v;  /* visible fraction applied to the interaction */
+} FmmPair;
+
+typedef struct FmmList {
+  FmmPair *pair;
+  long n, cap;
+  long *first; /* after fmm_plan: CSR over targets (leaves for P2P/M2P, nodes for P2L) */
+} FmmList;
+
+typedef struct FmmStats {
+  long m2l, m2p, p2l, p2p, p2p_points; /* list lengths; point pairs P2P evaluates */
+  long dropped_facing, dropped_hidden;  /* pairs dropped: nothing faces / nothing visible */
+  long m2l_offsets;                     /* distinct M2L matrices */
+  long visibility_tests;                /* point–point visibility tests */
+  double plan_seconds;
+} FmmStats;
+
+typedef struct Fmm {
+  const Surfels *s;
+  const Octree *t;
+  int p, p3;       /* order, p³ */
+  double cheb[16]; /* the p Chebyshev nodes cos((2k+1)π/2p) */
+  double *m2m[8];  /* p³ x p³, column-major: child octant o's nodes in the parent's interpolant */
+  FmmList m2l, m2p, p2l, p2p;
+  int nkeys;
+  int *key;        /* distinct M2L keys, ascending; the m2l list is sorted by key */
+  long *key_first; /* nkeys + 1 */
+  double **op;     /* nkeys matrices of 3p³ x 3p³ */
+  double *M, *L;   /* nnode x 9p³ each: node q's expansion is a 3p³ x 3 column-major block */
+  double *q;       /* strengths w_j b_j: three arrays of n, one per colour */
+  FmmStats stats;
+} Fmm;
+
+/* Plan the gather over `s` ordered by `t` (octree_build) at order `p`
+ * (2..12). `vis` NULL: the kernel's facing clamp only (v = 1); otherwise
+ * point-based visibility decides what is kept, dropped and split. 0, or -1
+ * when `p` is out of range or memory runs out (then `f` is freed). */
+int fmm_plan(Fmm *f, const Surfels *s, const Octree *t, int p, const Visibility *vis);
+
+/* g (n x 3) = the gather of b (n x 3), both in the tree's point order. */
+void fmm_gather(Fmm *f, const double *b, double *g);
+
+/* The leaf-pair visibility the plan implies: vis[a * nleaf + b] is the v
+ * of the entry that covers target leaf a and source leaf b (0 when dropped),
+ * so a dense gather with it has exactly the FMM's visibility. NULL when out
+ * of memory. */
+float *fmm_leaf_visibility(const Fmm *f);
+
+void fmm_free(Fmm *f);
+
+#endif
