@@ -486,7 +486,14 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
     dims[i] = -1;
     while ((p = strstr(p, name)) != NULL) {
       if ((p == d || p[-1] == ' ') && p[nl] == '=') {
-        dims[i] = strtol(p + nl + 1, NULL, 10);
+        char *end;
+        errno = 0;
+        dims[i] = strtol(p + nl + 1, &end, 10);
+        /* every size product of the layout stays far from overflow */
+        if (errno || end == p + nl + 1 || (*end && *end != ' ') || dims[i] < 0 || dims[i] > 100000000) {
+          snprintf(err, errlen, "%s/manifest: dim %s has no valid size in '%.100s'", dir, name, d);
+          goto fail;
+        }
         break;
       }
       p += nl;

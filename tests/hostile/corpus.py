@@ -486,10 +486,10 @@ def model_cases():
                                 "{m}/manifest: no 'dims' line")
     c["sealed_dims_other"] = (replace(b"dims", b"dims N=6", True), "{m}/basis_0.npy: wrong shape, class {x} needs 6 rows")
     c["sealed_dims_huge"] = (replace(b"dims", b"dims N=99999999999999999999", True),
-                             "{m}/basis_0.npy: wrong shape, class {x} needs 9223372036854775807 rows")
-    c["sealed_dims_negative"] = (replace(b"dims", b"dims N=-5", True), "{m}/manifest: no size for dim N")
+                             "{m}/manifest: dim N has no valid size")
+    c["sealed_dims_negative"] = (replace(b"dims", b"dims N=-5", True), "{m}/manifest: dim N has no valid size")
     c["sealed_dims_zero"] = (replace(b"dims", b"dims N=0", True), "{m}/basis_0.npy: wrong shape, class {x} needs 0 rows")
-    c["sealed_dims_garbage"] = (replace(b"dims", b"dims N=five", True), "{m}/basis_0.npy: wrong shape")
+    c["sealed_dims_garbage"] = (replace(b"dims", b"dims N=five", True), "{m}/manifest: dim N has no valid size")
     c["sealed_dims_no_value"] = (replace(b"dims", b"dims M=5", True), "{m}/manifest: no size for dim N")
     c["sealed_params_removed"] = (edit(lambda ls: [l for l in ls if not l.startswith(b"params")], True), "rho")
     c["sealed_params_incomplete"] = (replace(b"params", b"params sigma=0000000000000000", True),
