@@ -612,6 +612,21 @@ static Node *check_pow(Checker *ck, Node *n) {
   return n;
 }
 
+/* The value of `n` when it is numbers joined by + − × ÷ and negation only
+ * (1 - 1): a literal division by zero is an error, however it is written. */
+static bool literal_value(const Node *n, double *v) {
+  double a, b;
+  switch (n->kind) {
+  case N_NUM: *v = n->num; return true;
+  case N_NEG: return literal_value(n->a, &a) && (*v = -a, true);
+  case N_ADD: return literal_value(n->a, &a) && literal_value(n->b, &b) && (*v = a + b, true);
+  case N_SUB: return literal_value(n->a, &a) && literal_value(n->b, &b) && (*v = a - b, true);
+  case N_MUL: return literal_value(n->a, &a) && literal_value(n->b, &b) && (*v = a * b, true);
+  case N_DIV: return literal_value(n->a, &a) && literal_value(n->b, &b) && b != 0 && (*v = a / b, true);
+  default: return false;
+  }
+}
+
 static Node *check_binary(Checker *ck, Node *n) {
   Ctx *ctx = ck->ctx;
   Node *a = n->a = sema_expr_check(ck, n->a);
@@ -672,7 +687,8 @@ static Node *check_binary(Checker *ck, Node *n) {
   n->ty = broadcast(ck, n, sym, a, b);
   if (n->kind == N_DIV) {
     n->ty.is_int = false;
-    if (b->kind == N_NUM && b->num == 0) error_node(ctx, b, "division by zero");
+    double v;
+    if (literal_value(b, &v) && v == 0) error_node(ctx, b, "division by zero");
   }
   return n;
 }

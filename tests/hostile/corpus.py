@@ -807,9 +807,7 @@ for _cmd in ("verify", "eval", "emit"):
         "removal is caught by the manifest checksum")
 
 KNOWN_FAILURES.update({
-    "prog_division_by_literal_zero": "x[0] / (1 - 1) passes npgc check (issue 12 point 12: a literal division by zero "
-                                     "is an error); the constant folding is in sema.c, which is being split",
-})
+    })
 
 
 # ------------------------------------------------------------------ running
