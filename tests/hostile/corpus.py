@@ -806,8 +806,6 @@ for _cmd in ("verify", "eval", "emit"):
         "by backends/train.c directly, as the unit tests do, have none), so params are not checked; an unsealed "
         "removal is caught by the manifest checksum")
 
-KNOWN_FAILURES.update({
-    })
 
 
 # ------------------------------------------------------------------ running
