@@ -369,15 +369,7 @@ struct NpgReduced {
   char error[1024];
 };
 
-static int rfail(NpgReduced *r, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static int rfail(NpgReduced *r, const char *fmt, ...) {
-  if (r->error[0]) return -1;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(r->error, sizeof r->error, fmt, ap);
-  va_end(ap);
-  return -1;
-}
+#define rfail(r, ...) npg_fail_first((r)->error, sizeof (r)->error, __VA_ARGS__)
 
 NpgReduced *npg_reduced_new(const NpgModel *nm) {
   NpgReduced *r = calloc(1, sizeof *r);

@@ -30,15 +30,7 @@ struct NpgTrainer {
   char error[2048];
 };
 
-static int tfail(NpgTrainer *t, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static int tfail(NpgTrainer *t, const char *fmt, ...) {
-  if (t->error[0]) return -1;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(t->error, sizeof t->error, fmt, ap);
-  va_end(ap);
-  return -1;
-}
+#define tfail(t, ...) npg_fail_first((t)->error, sizeof (t)->error, __VA_ARGS__)
 
 static size_t half_the_ram(void) {
   long pages = sysconf(_SC_PHYS_PAGES), psize = sysconf(_SC_PAGE_SIZE);

@@ -17,15 +17,7 @@ typedef struct ErrSum {
   double l2, linf, floor2, floorinf;    /* sums over samples */
 } ErrSum;
 
-static int vfail(NpgVerifyReport *rep, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static int vfail(NpgVerifyReport *rep, const char *fmt, ...) {
-  if (rep->error[0]) return -1;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(rep->error, sizeof rep->error, fmt, ap);
-  va_end(ap);
-  return -1;
-}
+#define vfail(rep, ...) npg_fail_first((rep)->error, sizeof (rep)->error, __VA_ARGS__)
 
 /* The worst mean error among the quantities stage `rs` reads (tensor
  * inputs, named numerators, an extern's inputs). */

@@ -111,6 +111,16 @@ int npg_fail(char *err, size_t errlen, const char *fmt, ...) {
   return -1;
 }
 
+int npg_fail_first(char *err, size_t errlen, const char *fmt, ...) {
+  if (err && errlen && !err[0]) {
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(err, errlen, fmt, ap);
+    va_end(ap);
+  }
+  return -1;
+}
+
 char *arena_printf(Ctx *ctx, const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);

@@ -49,6 +49,9 @@ extern void *(*npg_alloc_hook)(size_t size);
 /* Library code's failures: the message formatted into `err` (when `err` and
  * `errlen` are given), and -1 to return. */
 int npg_fail(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+/* The same, unless `err` already holds a message: the first error of an
+ * object stays (the evaluators and the trainer refuse work after one). */
+int npg_fail_first(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 
 typedef struct Ctx Ctx;
 void *arena_alloc(Ctx *ctx, size_t size);            /* zeroed; never NULL */

@@ -68,15 +68,7 @@ struct Reduced {
 
 const char *reduced_error(const Reduced *r) { return r->error; }
 
-static int rfail(Reduced *r, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static int rfail(Reduced *r, const char *fmt, ...) {
-  if (r->error[0]) return -1;
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(r->error, sizeof r->error, fmt, ap);
-  va_end(ap);
-  return -1;
-}
+#define rfail(r, ...) npg_fail_first((r)->error, sizeof (r)->error, __VA_ARGS__)
 
 void reduced_free(Reduced *r) {
   if (!r) return;
