@@ -117,40 +117,17 @@ int npg_full_op(NpgFull *f, const char *name, NpgCsr *out) {
   return rc;
 }
 
-/* "[2, 5]": the index of flat entry e of `s` as bound in `f`. */
-static void entry_index(NpgFull *f, const Sym *s, size_t e, char *buf, size_t len) {
-  long shape[MAX_AXES + MAX_STATIC], idx[MAX_AXES + MAX_STATIC];
-  int nd = 0;
-  for (int i = 0; i < s->ndims; i++) shape[nd++] = npg_full_dim(f, s->dims[i]->name);
-  for (int i = 0; i < s->nstatic; i++) shape[nd++] = s->shape[i];
-  for (int i = nd - 1; i >= 0; i--) {
-    idx[i] = shape[i] > 0 ? (long)(e % (size_t)shape[i]) : 0;
-    e = shape[i] > 0 ? e / (size_t)shape[i] : e;
-  }
-  size_t at = (size_t)snprintf(buf, len, "[");
-  for (int i = 0; i < nd && at < len; i++) at += (size_t)snprintf(buf + at, len - at, "%s%ld", i ? ", " : "", idx[i]);
-  if (at < len) snprintf(buf + at, len - at, "]");
-}
-
 int npg_full_check_finite(NpgFull *f, long sample) {
   if (npg_full_error(f)[0]) return -1;
-  const Program *prog = full_program(f);
-  for (int q = 0; q < prog->quantities.n; q++) {
-    const Sym *s = prog->quantities.v[q];
-    size_t n = 0;
-    const double *v = npg_full_get(f, s->name, &n);
-    for (size_t e = 0; v && e < n; e++) {
-      if (isfinite(v[e])) continue;
-      char at[256], msg[1024];
-      entry_index(f, s, e, at, sizeof at);
-      snprintf(msg, sizeof msg, "sample %ld: %s '%s' is not finite: %s%s is %s%s", sample,
-               s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage", s->name, s->name, at,
-               isnan(v[e]) ? "NaN" : "an infinity",
-               s->kind == SYM_STAGE ? " (a division by zero or a root of a negative number at this sample?)" : "");
-      return full_fail(f, msg);
-    }
-  }
-  return 0;
+  const Sym *s;
+  char at[256], msg[1024];
+  double v;
+  if (!full_first_nonfinite(f, &s, at, sizeof at, &v)) return 0;
+  snprintf(msg, sizeof msg, "sample %ld: %s '%s' is not finite: %s%s is %s%s", sample,
+           s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage", s->name, s->name, at,
+           isnan(v) ? "NaN" : "an infinity",
+           s->kind == SYM_STAGE ? " (a division by zero or a root of a negative number at this sample?)" : "");
+  return full_fail(f, msg);
 }
 
 void npg_csr_free(NpgCsr *c) {

@@ -411,6 +411,21 @@ uint64_t full_param_hash(const NpgFull *f, int k, const char **from) {
 
 const Program *full_program(const NpgFull *f) { return f->prog; }
 
+bool full_first_nonfinite(NpgFull *f, const Sym **sym, char *index, size_t len, double *value) {
+  for (int q = 0; q < f->prog->quantities.n; q++) {
+    const Sym *s = f->prog->quantities.v[q];
+    int k = find(&f->prog->slots, s->name);
+    for (size_t e = 0; k >= 0 && f->q[k] && e < f->qcount[k]; e++)
+      if (!isfinite(f->q[k][e])) {
+        *sym = s;
+        *value = f->q[k][e];
+        index_text(f, s, e, index, len);
+        return true;
+      }
+  }
+  return false;
+}
+
 int full_fail(NpgFull *f, const char *msg) { return fail(f, "%s", msg); }
 
 const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {

@@ -32,6 +32,10 @@ uint64_t full_param_hash(const NpgFull *f, int k, const char **from);
 uint64_t full_hash_values(const double *v, size_t n);
 /* The stage program the evaluator runs. */
 const Program *full_program(const NpgFull *f);
+/* After an evaluation: the first quantity in evaluation order holding a
+ * NaN or an infinity (where it arises, not where it spreads to), its entry
+ * as "[2, 5]" and the value; false when every value is finite. */
+bool full_first_nonfinite(NpgFull *f, const Sym **sym, char *index, size_t len, double *value);
 /* Record `msg` as the evaluator's error (the first one stays); -1. */
 int full_fail(NpgFull *f, const char *msg);
 

@@ -255,10 +255,20 @@ static void blas_restore_threads(int threads) {
  * same matrix for Cholesky (M̂'s upper triangle is the view's lower one),
  * and for LU the factors of M̂ᵀ solve M̂ with trans 'T'. No copies but the
  * one that keeps M̂ for LU when Cholesky fails. */
+/* The likely cause of a singular reduced operator of class `c`: a basis too
+ * small to hold what the operator acts on — unless the basis is complete
+ * (m = n), when the full operator itself is singular at this sample. */
+static const char *singular_why(const RClass *c, char *buf, size_t n) {
+  if (c->m >= c->n) snprintf(buf, n, "the full operator itself is singular here (class %s has its full dimension)",
+                             c->label);
+  else snprintf(buf, n, "basis of class %s too small?", c->label);
+  return buf;
+}
+
 static int apply_inverse(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, int n, double *v,
                          long sample) {
   const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
-  char lab[256];
+  char lab[256], why[256];
   const char *sn = rs->st->sym->name;
   double anorm = one_norm(r->M, n, r->w), rcond = 0; /* ‖M̂‖₁ = ‖M̂ᵀ‖∞ */
   bool chol = false;
@@ -272,16 +282,15 @@ static int apply_inverse(Reduced *r, const RStage *rs, const ROp *ro, int term, 
   if (!chol) {
     lapack_int info = LAPACKE_dgetrf_work(LAPACK_COL_MAJOR, n, n, r->M, n, r->piv);
     if (info > 0)
-      return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (exact zero pivot %d): "
-                      "basis of class %s too small?",
-                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, (int)info, c->label);
+      return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (exact zero pivot %d): %s",
+                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, (int)info,
+                   singular_why(c, why, sizeof why));
     if (info < 0) return rfail(r, "stage %s: LAPACK dgetrf argument %d (a bug in npg)", sn, (int)-info);
     /* the ∞-norm condition of M̂ᵀ is the 1-norm condition of M̂ */
     LAPACKE_dgecon_work(LAPACK_COL_MAJOR, 'I', n, r->M, n, anorm, &rcond, r->work, r->iwork);
     if (!(rcond > 1e-15))
-      return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (rcond %.3g): basis of "
-                      "class %s too small?",
-                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, rcond, c->label);
+      return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (rcond %.3g): %s", sn,
+                   c->label, op_label(ro, term, k, lab, sizeof lab), sample, rcond, singular_why(c, why, sizeof why));
   }
   for (long i = 0; i < -ro->op->p; i++) {
     if (chol) LAPACKE_dpotrs_work(LAPACK_COL_MAJOR, 'L', n, 1, r->M2, n, v, n);
@@ -306,7 +315,7 @@ static lapack_int reflect(Reduced *r, int n, char trans, double *v) {
 static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, int n, double *v, long sample) {
   const OpPow *op = ro->op;
   const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
-  char lab[256];
+  char lab[256], why[256];
   const char *sn = rs->st->sym->name;
   double *lam = r->diag, *Z = r->M2, *u = r->w;
   if (r->krylov_roots) { /* the eigendecomposition below only where Lanczos does not converge soon */
@@ -342,9 +351,9 @@ static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int
                  sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, low, big);
   if (op->p < 0 && low <= tol)
     return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (eigenvalue %.3g, largest "
-                    "%.3g, condition estimate %.3g): basis of class %s too small?",
+                    "%.3g, condition estimate %.3g): %s",
                  sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, low, big, low > 0 ? big / low : INFINITY,
-                 c->label);
+                 singular_why(c, why, sizeof why));
   cblas_dgemv(CblasColMajor, CblasTrans, n, n, 1.0, Z, n, v, 1, 0.0, u, 1);
   for (int i = 0; i < n; i++) u[i] *= lam[i] > 0 ? pow(lam[i], (double)op->p / (double)op->q) : 0.0;
   cblas_dgemv(CblasColMajor, CblasNoTrans, n, n, 1.0, Z, n, u, 1, 0.0, v, 1);

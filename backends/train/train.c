@@ -191,11 +191,22 @@ static int member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n,
     if (field_value(f, rt->num, rt->nnum, out, n, err, errlen)) return -1;
   }
   for (long e = 0; e < n; e++)
-    if (!isfinite(out[e]))
+    if (!isfinite(out[e])) {
+      /* name where the NaN arises (the first quantity in evaluation order
+       * holding one), not the member that happened to be looked at */
+      const Sym *s;
+      char at[256];
+      double v;
+      if (full_first_nonfinite(f, &s, at, sizeof at, &v))
+        return npg_fail(err, errlen,
+                        "training sample %ld: %s is not finite (%s%s is %s): the sample makes it undefined (a "
+                        "division by zero or a root of a negative number in the program?)",
+                        k, s->name, s->name, at, isnan(v) ? "NaN" : v > 0 ? "inf" : "-inf");
       return npg_fail(err, errlen,
                       "training sample %ld: %s is not finite (entry %ld is %g): the sample makes it undefined (a "
                       "division by zero or a root of a negative number in the program?)",
                       k, mb->name, e, out[e]);
+    }
   return 0;
 }
 

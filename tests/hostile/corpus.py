@@ -340,14 +340,14 @@ def npy_other_cases():
     case("npy_root_of_negative_eval", ["eval", "root.npg", "--full", "npy/root", "npy/root", "-o", "out/root"], 1,
          "sample 4: stage 'y' is not finite: y[2] is NaN")
     case("npy_root_of_negative_train", ["train", "root.npg", "npy/root", "-o", "models/root"], 1,
-         "training sample 4: y is not finite (entry 2 is")
+         "training sample 4: y is not finite (y[2] is NaN)")
     xd = 1 + RNG.random((6, 5))
     xd[1, 0] = 0
     data_dir("npy/div", {"x.npy": xd})
     case("npy_division_by_zero_eval", ["eval", "div.npg", "--full", "npy/div", "npy/div", "-o", "out/div"], 1,
          "sample 1: stage 'y' is not finite: y[0]")
     case("npy_division_by_zero_train", ["train", "div.npg", "npy/div", "-o", "models/div"], 1,
-         "training sample 1: y is not finite (entry 0 is inf)")
+         "training sample 1: y is not finite (y[0] is inf)")
     # an extern without its values, and with NaN values
     data_dir("npy/ext_missing", {"x.npy": X})
     case("npy_extern_missing_train", ["train", "ext.npg", "npy/ext_missing", "-o", "models/ext_missing"], 1,
