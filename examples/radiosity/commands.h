@@ -17,7 +17,7 @@ typedef struct Options {
 /* train: the design's samples streamed into a trainer, the model to DIR/MODEL and the
  * precomputation figures to DIR/train.json. */
 int cmd_train(const Options *o);
-/* run: both animations through a trained model, timed per frame. */
+/* run: both animations through a trained model and in full, timed per frame. */
 int cmd_run(const Options *o);
 /* demo: scene, training, both animations full and reduced, the error split and bounds,
  * pictures, arrays and DIR/report.json. */

@@ -3,7 +3,7 @@
  *   train  the design's samples (design.h) streamed into an NpgTrainer with the visibility
  *          extern ray-cast by callback; DIR/MODEL and DIR/train.json
  *   run    both animations through a model: parameters -> g -> ĝ -> reduced chain -> b̂ -> b,
- *          timed per frame on one core, lifting included
+ *          timed per frame on one core, lifting included, beside the full frame
  *   demo   all of it in one run, the full frames beside the reduced ones (frames not in
  *          training), Arvo's error split and the a-posteriori bounds (arvo.h), pictures,
  *          plots, arrays and DIR/report.json
@@ -159,20 +159,27 @@ int cmd_run(const Options *o) {
   if (scene_new(o->faces, NULL, &s, err, sizeof err)) return fail(err);
   Reduced r;
   memset(&r, 0, sizeof r);
-  int rc = 1, K = o->frames;
-  double *b = malloc(sizeof(double) * (size_t)s.F), *sec = malloc(sizeof(double) * ANIM_COUNT * (size_t)K);
-  if (reduced_open(&r, &s, o->program, o->k, 1, err, sizeof err) || reduced_load(&r, o->model, err, sizeof err)) {
+  FullRadiosity fr;
+  memset(&fr, 0, sizeof fr);
+  int rc = 1, K = o->frames, n = ANIM_COUNT * K;
+  double *b = malloc(sizeof(double) * (size_t)s.F), *sec = malloc(sizeof(double) * 5 * (size_t)n);
+  double *full = sec + n, *vis = sec + 2 * n, *ff = sec + 3 * n, *sol = sec + 4 * n;
+  if (reduced_open(&r, &s, o->program, o->k, 1, err, sizeof err) || reduced_load(&r, o->model, err, sizeof err) ||
+      frame_new(&fr, &s, o->k, o->threads, VIS_STREAM, SOLVER_GMRES, err, sizeof err)) {
     fail(err);
     goto done;
   }
+  /* every frame full (what a user runs without npg) and reduced, in this one process */
   for (int a = 0; a < ANIM_COUNT; a++)
     for (int k = 0; k < K; k++) {
+      int i = a * K + k;
       SceneParams p;
       animation_params(a, (double)k / (K - 1), &p);
-      if (timed_frame(&r, &s, &p, k, o->reps, b, &sec[a * K + k], err, sizeof err)) {
+      if (timed_frame(&r, &s, &p, k, o->reps, b, &sec[i], err, sizeof err) || frame_compute(&fr, &p, err, sizeof err)) {
         fail(err);
         goto done;
       }
+      vis[i] = fr.t_vis, ff[i] = fr.t_ff, sol[i] = fr.t_solve, full[i] = fr.t_vis + fr.t_ff + fr.t_solve;
       if (o->out) {
         snprintf(path, sizeof path, "%s/%s/frame_%04d", o->out, animation_name(a), k);
         long sb[1] = {s.F};
@@ -181,13 +188,16 @@ int cmd_run(const Options *o) {
     }
   double split[3];
   frame_split(&r, &s, o->reps * 10, split);
-  double med = out_median(sec, ANIM_COUNT * K);
+  double med = out_median(sec, n), medf = out_median(full, n);
   printf("reduced frame (%ld faces, one core, lifting included): median %.1f us over %d frames = %.0f frames per "
          "second; nominal: projection %.1f us, chain %.1f us, lift %.1f us\n",
-         s.F, 1e6 * med, ANIM_COUNT * K, 1 / med, 1e6 * split[0], 1e6 * split[1], 1e6 * split[2]);
+         s.F, 1e6 * med, n, 1 / med, 1e6 * split[0], 1e6 * split[1], 1e6 * split[2]);
+  printf("full frame (%d threads): median %.4f s (visibility %.4f, form factors %.4f, solve %.4f); speedup %.0fx\n",
+         o->threads, medf, out_median(vis, n), out_median(ff, n), out_median(sol, n), medf / med);
   rc = 0;
 done:
   free(b), free(sec);
+  frame_free(&fr);
   reduced_close(&r);
   scene_free(&s);
   return rc;
