@@ -43,10 +43,10 @@ run build/npgc train examples/radiosity/formfactors.npg "$work/TRAIN" -o "$work/
 run build/npgc verify examples/radiosity/formfactors.npg "$work/MODEL" "$work/TEST" --tol 0.02
 run build/npgc bench examples/radiosity/formfactors.npg "$work/MODEL" "$work/TEST" --cc
 
-# The radiosity application (examples/radiosity/README.md): the two-room scene at 150
+# The radiosity application (examples/radiosity/README.md): the two-room scene at 266
 # faces, trained on 60 samples of the parameter box (visibility ray-cast by callback),
 # both animations full and reduced on frames not in training, the error split and the
 # bound per frame, pictures and arrays in build/demo/radiosity_app.
 work=build/demo/radiosity_app
 rm -rf "$work"
-run build/npg-radiosity demo --faces 150 --samples 60 --frames 8 --ss 2 --out "$work"
+run build/npg-radiosity demo --faces 250 --samples 60 --frames 8 --ss 2 --out "$work"
