@@ -153,7 +153,7 @@ static void frame_split(Reduced *r, const Scene *s, int reps, double split[3]) {
 }
 
 int cmd_run(const Options *o) {
-  if (!o->model) return fail("run: --model DIR (a folder npg-radiosity train wrote, DIR/MODEL) is required");
+  if (!o->model) return fail("run: --model MODEL (the folder train or demo wrote: OUT/MODEL) is required");
   char err[2048], path[4096];
   Scene s;
   if (scene_new(o->faces, NULL, &s, err, sizeof err)) return fail(err);

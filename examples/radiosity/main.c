@@ -34,7 +34,7 @@ static void usage(FILE *out) {
         "       npg-radiosity full --out DIR [--faces N] [--frames K] [--vis-samples 1|4|16] [--threads T]\n"
         "                          [--vis-mode auto|single|stream|packet] [--solver auto|lu|gs|gmres] [--ss S]\n"
         "       npg-radiosity train --out DIR [--faces N] [--samples S] [--cap C] [--energy E] [--mem MB]\n"
-        "       npg-radiosity run --model DIR [--faces N] [--frames K] [--reps R] [--out DIR]\n"
+        "       npg-radiosity run --model OUT/MODEL [--faces N] [--frames K] [--reps R] [--out DIR]\n"
         "       npg-radiosity demo --out DIR [--faces N] [--samples S] [--frames K] [--cap C] [--ss S] [--reps R]\n",
         out);
 }
