@@ -53,3 +53,11 @@ rm -rf "$work"
 run build/npg-fluids tunnel --out "$work" --cells 800 --frames 120 --sizes 8,16,32,64 --particles 1000 --png-every 40 --vtk-every 40
 echo
 echo "wrote $work/report.json, $work/plots/*.png, $work/frames/frame_NNNN.png (full | reduced), $work/vtk/*.pvd"
+
+# The radiosity application (examples/radiosity/README.md): the two-room scene at 266
+# faces, trained on 60 samples of the parameter box (visibility ray-cast by callback),
+# both animations full and reduced on frames not in training, the error split and the
+# bound per frame, pictures and arrays in build/demo/radiosity_app.
+work=build/demo/radiosity_app
+rm -rf "$work"
+run build/npg-radiosity demo --faces 250 --samples 60 --frames 8 --ss 2 --out "$work"

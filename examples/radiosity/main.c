@@ -9,8 +9,7 @@
  *       full-space radiosity of both animations: per frame g, v, b_full (.npy) and a PNG,
  *       the scene's tri, rho, e once, plots, and report.json with the timings; --ss S:
  *       S x S samples per pixel (3)
- *
- * The reduced parts (train, run, demo) go through npg.h. */
+ *   npg-radiosity train / run / demo: the reduced half (demo.c), through npg.h only. */
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -20,8 +19,10 @@
 #include <unistd.h>
 
 #include "animation.h"
+#include "commands.h"
 #include "frame.h"
-#include "npy.h"
+#include "npg.h"
+#include "output.h"
 #include "plot.h"
 #include "radiosity.h"
 #include "render.h"
@@ -31,19 +32,18 @@
 static void usage(FILE *out) {
   fputs("usage: npg-radiosity scene [--faces N] [--checks S] [--out DIR]\n"
         "       npg-radiosity full --out DIR [--faces N] [--frames K] [--vis-samples 1|4|16] [--threads T]\n"
-        "                          [--vis-mode auto|single|stream|packet] [--solver auto|lu|gs|gmres] [--ss S]\n",
+        "                          [--vis-mode auto|single|stream|packet] [--solver auto|lu|gs|gmres] [--ss S]\n"
+        "       npg-radiosity train --out DIR [--faces N] [--samples S] [--cap C] [--energy E] [--mem MB]\n"
+        "       npg-radiosity run --model OUT/MODEL [--faces N] [--frames K] [--reps R] [--out DIR]\n"
+        "       npg-radiosity demo --out DIR [--faces N] [--samples S] [--frames K] [--cap C] [--ss S] [--reps R]\n",
         out);
 }
 
-typedef struct Options {
-  long faces;
-  int frames, k, threads, checks, ss;
-  const char *out;
-  const char *vis_mode, *solver;
-} Options;
 
 static int parse(int argc, char **argv, Options *o) {
-  *o = (Options){.faces = 800, .frames = 24, .k = 4, .threads = 2, .checks = 1000, .ss = 3, .vis_mode = "auto", .solver = "auto"};
+  *o = (Options){.faces = 800, .frames = 24, .k = 4, .threads = 2, .checks = 1000, .ss = 3, .vis_mode = "auto",
+                 .solver = "auto", .samples = 120, .cap = 60, .energy = 0.999, .mem_mb = 4096, .reps = 9,
+                 .program = RADIOSITY_PROGRAM};
   for (int i = 2; i < argc; i++) {
     const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
     if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
@@ -73,6 +73,20 @@ static int parse(int argc, char **argv, Options *o) {
       o->vis_mode = val;
     else if (!strcmp(a, "--solver"))
       o->solver = val;
+    else if (!strcmp(a, "--samples"))
+      o->samples = (int)strtol(val, &end, 10);
+    else if (!strcmp(a, "--cap"))
+      o->cap = (int)strtol(val, &end, 10);
+    else if (!strcmp(a, "--energy"))
+      o->energy = strtod(val, &end);
+    else if (!strcmp(a, "--mem"))
+      o->mem_mb = strtol(val, &end, 10);
+    else if (!strcmp(a, "--reps"))
+      o->reps = (int)strtol(val, &end, 10);
+    else if (!strcmp(a, "--model"))
+      o->model = val;
+    else if (!strcmp(a, "--program"))
+      o->program = val;
     else {
       fprintf(stderr, "npg-radiosity: unknown option %s\n", a);
       return -1;
@@ -84,48 +98,15 @@ static int parse(int argc, char **argv, Options *o) {
     i++;
   }
   if (o->faces < 1 || o->faces > 20000 || o->frames < 2 || o->frames > 10000 || o->threads < 1 || o->threads > 64 ||
-      o->checks < 0 || o->ss < 1 || o->ss > 8) {
-    fprintf(stderr, "npg-radiosity: --faces 1..20000, --frames 2..10000, --threads 1..64, --ss 1..8\n");
+      o->checks < 0 || o->ss < 1 || o->ss > 8 || o->samples < 2 || o->samples > 100000 || o->cap < 1 ||
+      !(o->energy > 0 && o->energy <= 1) || o->mem_mb < 1 || o->reps < 1 || o->reps > 10000) {
+    fprintf(stderr, "npg-radiosity: --faces 1..20000, --frames 2..10000, --threads 1..64, --ss 1..8, --samples "
+                    "2..100000, --cap >= 1, --energy (0, 1], --mem MB >= 1, --reps 1..10000\n");
     return -1;
   }
   return 0;
 }
 
-static int mkdirs(const char *path) {
-  char buf[4096];
-  snprintf(buf, sizeof buf, "%s", path);
-  for (char *q = buf + 1; *q; q++)
-    if (*q == '/') {
-      *q = 0;
-      if (mkdir(buf, 0777) != 0 && errno != EEXIST) return -1;
-      *q = '/';
-    }
-  if (mkdir(buf, 0777) != 0 && errno != EEXIST) {
-    fprintf(stderr, "npg-radiosity: cannot create %s: %s\n", path, strerror(errno));
-    return -1;
-  }
-  return 0;
-}
-
-static int write_npy(const char *dir, const char *name, NpyType type, int nd, const long *shape, const void *data) {
-  char path[4096], err[1024];
-  snprintf(path, sizeof path, "%s/%s.npy", dir, name);
-  if (npy_write(path, type, nd, shape, data, err, sizeof err) != 0) {
-    fprintf(stderr, "npg-radiosity: %s\n", err);
-    return -1;
-  }
-  return 0;
-}
-
-static int write_scene_arrays(const char *dir, const Scene *s) {
-  long st[2] = {s->F, 3}, sf[1] = {s->F};
-  return write_npy(dir, "tri", NPY_I32, 2, st, s->tri) || write_npy(dir, "rho", NPY_F64, 1, sf, s->rho) ||
-                 write_npy(dir, "e", NPY_F64, 1, sf, s->e)
-             ? -1
-             : 0;
-}
-
-static int render_frame(const Scene *s, const double *b, double exposure, int ss, const char *path, View *keep);
 
 /* ---------------------------------------------------------------- scene */
 
@@ -184,39 +165,17 @@ static int cmd_scene(const Options *o) {
   if (rc) fprintf(stderr, "npg-radiosity: degenerate or inverted triangles in the parameter box\n");
   if (o->out && !rc) {
     long sg[2] = {s.V, 3};
-    if (mkdirs(o->out) || write_scene_arrays(o->out, &s) || write_npy(o->out, "g", NPY_F64, 2, sg, s.g)) rc = 1;
+    if (out_mkdirs(o->out) || out_scene_arrays(o->out, &s) || out_npy(o->out, "g", 2, sg, s.g)) rc = 1;
     /* the picture: albedo, openings bright (no light transport) */
     double *shade = malloc(sizeof(double) * s.F);
     for (long f = 0; f < s.F; f++) shade[f] = s.rho[f] + s.e[f];
     char path[4096];
     snprintf(path, sizeof path, "%s/scene.png", o->out);
-    if (!rc && render_frame(&s, shade, 1.5, o->ss, path, NULL)) rc = 1;
+    if (!rc && out_render_frame(&s, shade, 1.5, o->ss, path, NULL)) rc = 1;
     free(shade);
   }
   scene_free(&s);
   return rc;
-}
-
-/* ---------------------------------------------------------------- full */
-
-static double median(const double *x, int n) {
-  double *y = malloc(sizeof(double) * (n ? n : 1));
-  memcpy(y, x, sizeof(double) * n);
-  for (int i = 1; i < n; i++)
-    for (int j = i; j > 0 && y[j - 1] > y[j]; j--) {
-      double t = y[j];
-      y[j] = y[j - 1];
-      y[j - 1] = t;
-    }
-  double m = n ? (n % 2 ? y[n / 2] : 0.5 * (y[n / 2 - 1] + y[n / 2])) : NAN;
-  free(y);
-  return m;
-}
-
-static void json_array(FILE *f, const char *name, const double *x, int n, const char *tail) {
-  fprintf(f, "\"%s\": [", name);
-  for (int i = 0; i < n; i++) fprintf(f, "%s%.6g", i ? ", " : "", x[i]);
-  fprintf(f, "]%s", tail);
 }
 
 /* Area-weighted mean radiosity of the non-emitting faces of one room (bedroom: x > 6.15). */
@@ -237,29 +196,6 @@ static double room_mean(const Scene *s, const double *b, int bedroom) {
   return den > 0 ? num / den : 0;
 }
 
-static int render_frame(const Scene *s, const double *b, double exposure, int ss, const char *path, View *keep) {
-  Camera cam;
-  render_camera_default(&cam);
-  cam.ss = ss;
-  View view;
-  Image img = {0};
-  char err[512];
-  if (render_view(&cam, s->V, s->F, s->g, s->tri, &view, err, sizeof err) != 0 ||
-      render_shade(&view, s->V, s->F, s->tri, s->g, b, exposure, &img) != 0 ||
-      render_write_png(path, &img, err, sizeof err) != 0) {
-    fprintf(stderr, "npg-radiosity: %s\n", err);
-    render_view_free(&view);
-    image_free(&img);
-    return -1;
-  }
-  image_free(&img);
-  if (keep)
-    *keep = view;
-  else
-    render_view_free(&view);
-  return 0;
-}
-
 static int cmd_full(const Options *o) {
   if (!o->out) {
     fprintf(stderr, "npg-radiosity full: --out DIR is required\n");
@@ -275,7 +211,7 @@ static int cmd_full(const Options *o) {
   int rc = 1;
   FullRadiosity fr = {0};
   double *vk = NULL, *bk = NULL, *series = NULL;
-  if (mkdirs(o->out) || write_scene_arrays(o->out, &s)) goto done;
+  if (out_mkdirs(o->out) || out_scene_arrays(o->out, &s)) goto done;
   printf("scene: %ld faces, %ld vertices; visibility: %d points per face, %d threads\n", F, s.V, o->k, o->threads);
 
   /* 1. the visibility modes on the nominal scene: time each, check they agree, keep the fastest */
@@ -371,7 +307,7 @@ static int cmd_full(const Options *o) {
   printf("using visibility %s, solver %s\n", vis_mode_name(best), frame_solver_name(fr.solver));
   double exposure = render_exposure(F, fr.b, s.rho);
   snprintf(path, sizeof path, "%s/nominal.png", o->out);
-  if (render_frame(&s, fr.b, exposure, o->ss, path, NULL)) goto done;
+  if (out_render_frame(&s, fr.b, exposure, o->ss, path, NULL)) goto done;
 
   /* 3. the animations */
   int K = o->frames, tty = isatty(fileno(stdout));
@@ -391,11 +327,11 @@ static int cmd_full(const Options *o) {
       char dir[4096];
       snprintf(dir, sizeof dir, "%s/%s/frame_%04d", o->out, animation_name(a), k);
       long sg[2] = {s.V, 3}, sv[2] = {F, F}, sb[1] = {F};
-      if (mkdirs(dir) || write_npy(dir, "g", NPY_F64, 2, sg, s.g) || write_npy(dir, "v", NPY_F64, 2, sv, fr.v) ||
-          write_npy(dir, "b_full", NPY_F64, 1, sb, fr.b))
+      if (out_mkdirs(dir) || out_npy(dir, "g", 2, sg, s.g) || out_npy(dir, "v", 2, sv, fr.v) ||
+          out_npy(dir, "b_full", 1, sb, fr.b))
         goto done;
       snprintf(path, sizeof path, "%s/%s/frame_%04d.png", o->out, animation_name(a), k);
-      if (render_frame(&s, fr.b, exposure, o->ss, path, NULL)) goto done;
+      if (out_render_frame(&s, fr.b, exposure, o->ss, path, NULL)) goto done;
       if (tty) {
         printf("\r%s frame %d/%d: visibility %.3f s, form factors %.3f s, solve %.3f s", animation_name(a), k + 1, K,
                fr.t_vis, fr.t_ff, fr.t_solve);
@@ -482,7 +418,7 @@ static int cmd_full(const Options *o) {
           animation_name(1));
   fprintf(js, "  \"full_frame_seconds\": {\"visibility\": %.6g, \"form_factors\": %.6g, \"solve\": %.6g, \"total\": %.6g, "
               "\"statistic\": \"median over all frames\"},\n",
-          median(t_vis, n), median(t_ff, n), median(t_sol, n), median(t_tot, n));
+          out_median(t_vis, n), out_median(t_ff, n), out_median(t_sol, n), out_median(t_tot, n));
   fprintf(js, "  \"visibility_modes_seconds\": {\"single\": %.6g, \"stream\": %.6g, \"packet\": %.6g, \"rays\": %ld, "
               "\"used\": \"%s\", \"max_difference\": %.3g, \"entries_differing\": %ld},\n",
           t_mode[0], t_mode[1], t_mode[2], rays, vis_mode_name(best), mode_diff, mode_ndiff);
@@ -495,17 +431,17 @@ static int cmd_full(const Options *o) {
   fprintf(js, "  \"per_frame\": {\n");
   for (int a = 0; a < ANIM_COUNT; a++) {
     fprintf(js, "    \"%s\": {", animation_name(a));
-    json_array(js, "visibility_seconds", t_vis + a * K, K, ", ");
-    json_array(js, "form_factor_seconds", t_ff + a * K, K, ", ");
-    json_array(js, "solve_seconds", t_sol + a * K, K, ", ");
-    json_array(js, "mean_b_living", living + a * K, K, ", ");
-    json_array(js, "mean_b_bedroom", bedroom + a * K, K, "");
+    out_json_array(js, "visibility_seconds", t_vis + a * K, K, ", ");
+    out_json_array(js, "form_factor_seconds", t_ff + a * K, K, ", ");
+    out_json_array(js, "solve_seconds", t_sol + a * K, K, ", ");
+    out_json_array(js, "mean_b_living", living + a * K, K, ", ");
+    out_json_array(js, "mean_b_bedroom", bedroom + a * K, K, "");
     fprintf(js, "}%s\n", a + 1 < ANIM_COUNT ? "," : "");
   }
   fprintf(js, "  }\n}\n");
   if (fclose(js) != 0) goto done;
-  printf("full frame (median): visibility %.3f s, form factors %.3f s, solve %.3f s; wrote %s\n", median(t_vis, n),
-         median(t_ff, n), median(t_sol, n), o->out);
+  printf("full frame (median): visibility %.3f s, form factors %.3f s, solve %.3f s; wrote %s\n", out_median(t_vis, n),
+         out_median(t_ff, n), out_median(t_sol, n), o->out);
   rc = 0;
   goto done;
 solve_failed:
@@ -535,6 +471,12 @@ int main(int argc, char **argv) {
     rc = cmd_scene(&o);
   else if (!strcmp(argv[1], "full"))
     rc = cmd_full(&o);
+  else if (!strcmp(argv[1], "train"))
+    rc = cmd_train(&o);
+  else if (!strcmp(argv[1], "run"))
+    rc = cmd_run(&o);
+  else if (!strcmp(argv[1], "demo"))
+    rc = cmd_demo(&o);
   else {
     fprintf(stderr, "npg-radiosity: unknown command '%s'\n", argv[1]);
     usage(stderr);

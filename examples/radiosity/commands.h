@@ -1,0 +1,26 @@
+/* commands.h — the options of npg-radiosity and its reduced subcommands (demo.c). */
+#ifndef RADIOSITY_COMMANDS_H
+#define RADIOSITY_COMMANDS_H
+
+typedef struct Options {
+  long faces;
+  int frames, k, threads, checks, ss;
+  const char *out;
+  const char *vis_mode, *solver;
+  int samples, cap, reps; /* training samples, basis cap per member, timing repetitions per frame */
+  double energy;          /* PCA energy per member */
+  long mem_mb;            /* the trainer's memory for snapshots and cached samples */
+  const char *model;      /* run: the model folder */
+  const char *program;    /* formfactors.npg */
+} Options;
+
+/* train: the design's samples streamed into a trainer, the model to DIR/MODEL and the
+ * precomputation figures to DIR/train.json. */
+int cmd_train(const Options *o);
+/* run: both animations through a trained model and in full, timed per frame. */
+int cmd_run(const Options *o);
+/* demo: scene, training, both animations full and reduced, the error split and bounds,
+ * pictures, arrays and DIR/report.json. */
+int cmd_demo(const Options *o);
+
+#endif

@@ -1,0 +1,105 @@
+/* output.c — what every subcommand writes: folders, .npy arrays (through npg.h), the
+ * scene's arrays, renders, and the small statistics of report.json (output.h). */
+#include "output.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "npg.h"
+
+int out_mkdirs(const char *path) {
+  char buf[4096];
+  snprintf(buf, sizeof buf, "%s", path);
+  for (char *q = buf + 1; *q; q++)
+    if (*q == '/') {
+      *q = 0;
+      if (mkdir(buf, 0777) != 0 && errno != EEXIST) return -1;
+      *q = '/';
+    }
+  if (mkdir(buf, 0777) != 0 && errno != EEXIST) {
+    fprintf(stderr, "npg-radiosity: cannot create %s: %s\n", path, strerror(errno));
+    return -1;
+  }
+  return 0;
+}
+
+/* DIR/NAME.npy from float64 data, through npg.h. */
+int out_npy(const char *dir, const char *name, int nd, const long *shape, const double *data) {
+  char path[4096], err[1024];
+  snprintf(path, sizeof path, "%s/%s.npy", dir, name);
+  if (npg_npy_write(path, nd, shape, data, err, sizeof err) != 0) {
+    fprintf(stderr, "npg-radiosity: %s\n", err);
+    return -1;
+  }
+  return 0;
+}
+
+/* tri as int64 (npg_npy_write_i64; the scene holds int). */
+int out_scene_arrays(const char *dir, const Scene *s) {
+  long st[2] = {s->F, 3}, sf[1] = {s->F};
+  long *tri = malloc(sizeof(long) * 3 * (size_t)s->F);
+  char path[4096], err[1024];
+  if (!tri) return -1;
+  for (long i = 0; i < 3 * s->F; i++) tri[i] = s->tri[i];
+  snprintf(path, sizeof path, "%s/tri.npy", dir);
+  int rc = npg_npy_write_i64(path, 2, st, tri, err, sizeof err);
+  free(tri);
+  if (rc) {
+    fprintf(stderr, "npg-radiosity: %s\n", err);
+    return -1;
+  }
+  return out_npy(dir, "rho", 1, sf, s->rho) || out_npy(dir, "e", 1, sf, s->e) ? -1 : 0;
+}
+
+
+double out_median(const double *x, int n) {
+  double *y = malloc(sizeof(double) * (n ? n : 1));
+  memcpy(y, x, sizeof(double) * n);
+  for (int i = 1; i < n; i++)
+    for (int j = i; j > 0 && y[j - 1] > y[j]; j--) {
+      double t = y[j];
+      y[j] = y[j - 1];
+      y[j - 1] = t;
+    }
+  double m = n ? (n % 2 ? y[n / 2] : 0.5 * (y[n / 2 - 1] + y[n / 2])) : NAN;
+  free(y);
+  return m;
+}
+
+void out_json_array(FILE *f, const char *name, const double *x, int n, const char *tail) {
+  fprintf(f, "\"%s\": [", name);
+  for (int i = 0; i < n; i++) {
+    if (isfinite(x[i]))
+      fprintf(f, "%s%.6g", i ? ", " : "", x[i]);
+    else
+      fprintf(f, "%snull", i ? ", " : ""); /* JSON has no NaN */
+  }
+  fprintf(f, "]%s", tail);
+}
+
+int out_render_frame(const Scene *s, const double *b, double exposure, int ss, const char *path, View *keep) {
+  Camera cam;
+  render_camera_default(&cam);
+  cam.ss = ss;
+  View view;
+  Image img = {0};
+  char err[512];
+  if (render_view(&cam, s->V, s->F, s->g, s->tri, &view, err, sizeof err) != 0 ||
+      render_shade(&view, s->V, s->F, s->tri, s->g, b, exposure, &img) != 0 ||
+      render_write_png(path, &img, err, sizeof err) != 0) {
+    fprintf(stderr, "npg-radiosity: %s\n", err);
+    render_view_free(&view);
+    image_free(&img);
+    return -1;
+  }
+  image_free(&img);
+  if (keep)
+    *keep = view;
+  else
+    render_view_free(&view);
+  return 0;
+}
