@@ -13,7 +13,8 @@ packages=(
   libtcc-dev tcc              # in-memory JIT; tcc ships libtcc1.a and the headers
   libcmocka-dev               # unit tests
   libcairo2-dev               # npgc plot and the examples: charts as PNG (linked into npgc and the examples only)
-  clang libclang-rt-14-dev    # libFuzzer for the front-end fuzz target
+  clang libclang-rt-14-dev    # libFuzzer for the fuzz targets
+  libomp-dev                  # OpenMP for clang (the fuzz build compiles examples/points too)
   python3-numpy               # benchmark peer only
   libgmsh-dev                 # examples/fluids: the wind tunnel's mesher (C API)
   libsuitesparse-dev          # examples/fluids: UMFPACK for the pressure projection
