@@ -50,7 +50,7 @@ static Sym *named_numerator(const Sym *s, const Field *f) {
   return q;
 }
 
-void tensor_groups(Ctx *ctx, const Field *f, int base_order, Sym *const *ivars, int nivars, TensorList *out);
+void tensor_groups(Ctx *ctx, const Sym *owner, const Field *f, int base_order, TensorList *out);
 
 Stage *lower_stage(Lowerer *L, Sym *s, Value *v) {
   Ctx *ctx = L->ctx;
@@ -67,10 +67,10 @@ Stage *lower_stage(Lowerer *L, Sym *s, Value *v) {
     for (int k = 0; k < t->nops; k++)
       if (t->ops[k].kind == OPK_DIAG) field_combine_like(L->ctx, t->ops[k].diag);
     if (t->nops) t->named_num = named_numerator(s, t->num);
-    if (!t->named_num) tensor_groups(ctx, t->num, 1, s->ivars, s->nivars, &t->num_tensors);
+    if (!t->named_num) tensor_groups(ctx, s, t->num, 1, &t->num_tensors);
     t->op_tensors = arena_alloc(ctx, sizeof(TensorList) * (size_t)(t->nops + 1));
     for (int k = 0; k < t->nops; k++)
-      if (t->ops[k].kind == OPK_DIAG) tensor_groups(ctx, t->ops[k].diag, 2, s->ivars, s->nivars, &t->op_tensors[k]);
+      if (t->ops[k].kind == OPK_DIAG) tensor_groups(ctx, s, t->ops[k].diag, 2, &t->op_tensors[k]);
   }
   if (st->nterms == 0)
     vec_push(ctx, &L->prog->notes,
@@ -93,7 +93,7 @@ static void lower_op(Lowerer *L, Sym *op) {
   op->opdef = od;
   od->entries = v->terms.n ? ((Term *)v->terms.v[0])->num : field_new(ctx, 1);
   field_combine_like(L->ctx, od->entries);
-  tensor_groups(ctx, od->entries, 2, op->ivars, op->nivars, &od->tensors);
+  tensor_groups(ctx, op, od->entries, 2, &od->tensors);
   vec_push(ctx, &L->prog->opdefs, od);
 }
 

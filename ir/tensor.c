@@ -120,7 +120,9 @@ static int cmp_sym(const void *a, const void *b) {
   return strcmp(x->name, y->name);
 }
 
-void tensor_groups(Ctx *ctx, const Field *f, int base_order, Sym *const *ivars, int nivars, TensorList *out) {
+void tensor_groups(Ctx *ctx, const Sym *owner, const Field *f, int base_order, TensorList *out) {
+  Sym *const *ivars = owner->ivars;
+  int nivars = owner->nivars;
   TensorGroup g[64];
   Count counts[64][16];
   int ncount[64] = {0};
@@ -136,7 +138,9 @@ void tensor_groups(Ctx *ctx, const Field *f, int base_order, Sym *const *ivars, 
       for (k = 0; k < ng; k++)
         if (g[k].ninputs == nin && (nin == 0 || memcmp(g[k].inputs, in, sizeof(Sym *) * (size_t)nin) == 0)) break;
       if (k == ng) {
-        if (ng == 64) error_plain(ctx, "a stage has more than 64 distinct tensors");
+        if (ng == 64)
+          error_at(ctx, owner->loc, "'%s' needs more than 64 distinct tensors (monomials reading 64 different "
+                                    "combinations of quantities): split it into named definitions", owner->name);
         memset(&g[k], 0, sizeof g[k]);
         g[k].ninputs = nin;
         if (nin) memcpy(g[k].inputs, in, sizeof(Sym *) * (size_t)nin);
