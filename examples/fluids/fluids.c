@@ -22,6 +22,7 @@
 
 #include <cblas.h>
 
+#include "util.h"
 #include "npgbind.h"
 #include "output.h"
 #include "particles.h"
@@ -29,12 +30,6 @@
 #include "tunnel.h"
 
 #define ERRLEN 512
-
-static double now(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return t.tv_sec + 1e-9 * t.tv_nsec;
-}
 
 typedef struct RunOptions {
   const char *out;
@@ -264,13 +259,13 @@ static int tunnel_full(const RunOptions *o) {
   snprintf(dir_data, sizeof dir_data, "%s/data", o->out);
   if (make_dir(o->out) || make_dir(dir_frames) || make_dir(dir_vtk) || make_dir(dir_data)) return 1;
 
-  double t_mesh = now();
+  double t_mesh = util_now();
   Mesh m;
   if (mesh_tunnel(&m, &o->spec, err, sizeof err) != 0) {
     fprintf(stderr, "npg-fluids: %s\n", err);
     return 1;
   }
-  t_mesh = now() - t_mesh;
+  t_mesh = util_now() - t_mesh;
   double dt = o->cfl * mean_edge(&m) / o->u0;
   fprintf(stderr, "npg-fluids: mesh %d cells, %d faces (%d boundary), %d vertices; dt %.4g, mu %g\n", m.nc, m.nf, m.nb,
           m.nv, dt, o->mu);
@@ -306,14 +301,14 @@ static int tunnel_full(const RunOptions *o) {
   double maxf = 0;
   for (int j = 0; j < m.nf; j++) maxf = fmax(maxf, fabs(s.f[j]));
   flux_scale[0] = maxf;
-  double t_run = now();
+  double t_run = util_now();
   for (int t = 0; t < T && rc == 0; t++) {
     /* sample t: the state of frame t and the motion of the step that leaves it */
     memcpy(Sg + t * gv, s.g, gv * sizeof(double));
     memcpy(Su + t * uv, s.u, uv * sizeof(double));
     memcpy(Sf + t * fv, s.f, fv * sizeof(double));
     /* output of frame t */
-    double t0 = now();
+    double t0 = util_now();
     if (t % o->png_every == 0) {
       snprintf(path, sizeof path, "%s/frame_%04d.png", dir_frames, t);
       if (output_png(path, &m, s.g, s.u, &part, 1.6 * o->u0, o->png_width, err, sizeof err) != 0) rc = -1;
@@ -330,7 +325,7 @@ static int tunnel_full(const RunOptions *o) {
       if (rc == 0 && output_vtu_faces(path, &m, s.g, s.f, s.h, err, sizeof err) != 0) rc = -1;
       vtk_times[nvtk++] = t * dt;
     }
-    seconds_output += now() - t0;
+    seconds_output += util_now() - t0;
     if (rc) break;
     /* the step */
     if (solver_step(&s, sigma_at(o, t + 1), err, sizeof err) != 0) {
@@ -340,9 +335,9 @@ static int tunnel_full(const RunOptions *o) {
     memcpy(Sgdot + t * gv, s.gdot, gv * sizeof(double));
     memcpy(Sh + t * fv, s.h, fv * sizeof(double));
     memcpy(Sgmid + t * gv, s.gmid, gv * sizeof(double));
-    double t1 = now();
+    double t1 = util_now();
     particles_advect(&part, &m, s.g, s.f, dt, 10);
-    seconds_particles += now() - t1;
+    seconds_particles += util_now() - t1;
     energy[t + 1] = solver_energy(&s);
     divergence[t + 1] = projection_max_divergence(&s.ops, s.f);
     quality[t + 1] = s.min_quality;
@@ -356,7 +351,7 @@ static int tunnel_full(const RunOptions *o) {
       rc = -1;
     }
   }
-  t_run = now() - t_run;
+  t_run = util_now() - t_run;
   if (rc) fprintf(stderr, "npg-fluids: %s\n", err);
 
   if (rc == 0) {
@@ -454,12 +449,12 @@ static int tunnel_full(const RunOptions *o) {
 static int mesh_info(const RunOptions *o) {
   char err[ERRLEN];
   Mesh m;
-  double t0 = now();
+  double t0 = util_now();
   if (mesh_tunnel(&m, &o->spec, err, sizeof err) != 0) {
     fprintf(stderr, "npg-fluids: %s\n", err);
     return 1;
   }
-  double t1 = now();
+  double t1 = util_now();
   int walls = 0, obstacle = 0, periodic = 0;
   for (int j = 0; j < m.nf; j++) walls += m.fkind[j] == BF_WALL, obstacle += m.fkind[j] == BF_OBSTACLE;
   for (int i = 0; i < 3 * m.nc; i++) periodic += m.nshift[i] > 0;

@@ -1,5 +1,6 @@
 /* mesh.c — the periodic wind tunnel meshed by gmsh (C API), its topology and
  * its deformation (see mesh.h). */
+#include "util.h"
 #include "mesh.h"
 
 #include <gmshc.h>
@@ -8,16 +9,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-static int fail(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return -1;
-}
 
 TunnelSpec tunnel_spec_default(void) {
   return (TunnelSpec){.L = 4.0, .H = 1.0, .cx = 1.0, .cy = 0.48, .size = 0.3, .cells = 2000};
@@ -112,7 +103,7 @@ typedef struct RawMesh {
 static int gmsh_mesh(const TunnelSpec *s, RawMesh *raw, char *err, size_t errlen) {
   int ierr = 0;
   gmshInitialize(0, NULL, 0, &ierr);
-  if (ierr) return fail(err, errlen, "gmsh: initialization failed");
+  if (ierr) return util_fail(err, errlen, "gmsh: initialization failed");
   gmshOptionSetNumber("General.Terminal", 0, &ierr);
   gmshOptionSetNumber("General.Verbosity", 0, &ierr);
   gmshModelAdd("tunnel", &ierr);
@@ -124,18 +115,18 @@ static int gmsh_mesh(const TunnelSpec *s, RawMesh *raw, char *err, size_t errlen
   size_t *ntags = NULL, *etags = NULL, *enodes = NULL, nn = 0, ne = 0, nen = 0, ncoord = 0, npar = 0;
   double *coord = NULL, *par = NULL;
   if (gmsh_build(s, h, &ierr) != 0) {
-    rc = fail(err, errlen, "gmsh: building the tunnel geometry failed (code %d)", ierr);
+    rc = util_fail(err, errlen, "gmsh: building the tunnel geometry failed (code %d)", ierr);
     goto done;
   }
   gmshModelMeshGenerate(2, &ierr);
   if (ierr) {
-    rc = fail(err, errlen, "gmsh: meshing failed (code %d)", ierr);
+    rc = util_fail(err, errlen, "gmsh: meshing failed (code %d)", ierr);
     goto done;
   }
   gmshModelMeshGetNodes(&ntags, &nn, &coord, &ncoord, &par, &npar, -1, -1, 0, 0, &ierr);
   gmshModelMeshGetElementsByType(2, &etags, &ne, &enodes, &nen, -1, 0, 1, &ierr);
   if (ierr || nn == 0 || ne == 0 || nen != 3 * ne) {
-    rc = fail(err, errlen, "gmsh: no triangles (code %d)", ierr);
+    rc = util_fail(err, errlen, "gmsh: no triangles (code %d)", ierr);
     goto done;
   }
   /* Node tags -> dense indices of the nodes triangles use. */
@@ -153,7 +144,7 @@ static int gmsh_mesh(const TunnelSpec *s, RawMesh *raw, char *err, size_t errlen
   for (size_t i = 0; i < 3 * ne && rc == 0; i++) {
     size_t t = enodes[i];
     if (t > maxtag || where[t] < 0) {
-      rc = fail(err, errlen, "gmsh: triangle %zu uses unknown node %zu", i / 3, t);
+      rc = util_fail(err, errlen, "gmsh: triangle %zu uses unknown node %zu", i / 3, t);
       break;
     }
     if (index[t] < 0) {
@@ -223,7 +214,7 @@ static int match_periodic(const RawMesh *raw, const TunnelSpec *s, int *master, 
     int best = -1;
     for (int i = lo - 1; i <= lo; i++)
       if (i >= 0 && i < nl && fabs(left[i].y - y) < 1e-9 * s->H) best = left[i].v;
-    if (best < 0) rc = fail(err, errlen, "gmsh: node at (%g, %g) on the right edge has no periodic copy", s->L, y);
+    if (best < 0) rc = util_fail(err, errlen, "gmsh: node at (%g, %g) on the right edge has no periodic copy", s->L, y);
     else master[v] = best;
   }
   free(left);
@@ -268,7 +259,7 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
     int j = i + 1;
     while (j < nh && he[j].a == he[i].a && he[j].b == he[i].b) j++;
     if (j - i > 2) {
-      rc = fail(err, errlen, "mesh: edge (%d, %d) is shared by %d cells", he[i].a, he[i].b, j - i);
+      rc = util_fail(err, errlen, "mesh: edge (%d, %d) is shared by %d cells", he[i].a, he[i].b, j - i);
       break;
     }
     int f = m->nf++;
@@ -302,7 +293,7 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
       if ((fabs(ya) < tol && fabs(yb) < tol) || (fabs(ya - s->H) < tol && fabs(yb - s->H) < tol))
         m->fkind[f] = BF_WALL;
       else if ((fabs(xa) < tol && fabs(xb) < tol) || (fabs(xa - s->L) < tol && fabs(xb - s->L) < tol))
-        rc = fail(err, errlen, "mesh: periodic edge at x = %g, y in [%g, %g] has no partner", xa, ya, yb);
+        rc = util_fail(err, errlen, "mesh: periodic edge at x = %g, y in [%g, %g] has no partner", xa, ya, yb);
       else
         m->fkind[f] = BF_OBSTACLE;
       m->bface[m->nb++] = f;
@@ -317,14 +308,14 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
     m->obstacle[q] = -1;
     for (int v = 0; v < m->nv; v++)
       if (hypot(m->g0[2 * v] - corner[q][0], m->g0[2 * v + 1] - corner[q][1]) < 1e-9) m->obstacle[q] = v;
-    if (m->obstacle[q] < 0 && rc == 0) rc = fail(err, errlen, "mesh: obstacle corner %d not found among the nodes", q);
+    if (m->obstacle[q] < 0 && rc == 0) rc = util_fail(err, errlen, "mesh: obstacle corner %d not found among the nodes", q);
   }
   m->obstacle_area0 = sqrt(3.0) / 4 * s->size * s->size;
   double room = fmin(fmin(s->cy, s->H - s->cy), fmin(s->cx, s->L - s->cx));
   m->blend_r1 = 1.25 * R;
   m->blend_r2 = 0.9 * room;
   if (m->blend_r2 <= 1.1 * m->blend_r1 && rc == 0)
-    rc = fail(err, errlen, "mesh: obstacle of size %g leaves no room for the deformation blend", s->size);
+    rc = util_fail(err, errlen, "mesh: obstacle of size %g leaves no room for the deformation blend", s->size);
   return rc;
 }
 
@@ -332,11 +323,11 @@ int mesh_tunnel(Mesh *m, const TunnelSpec *spec, char *err, size_t errlen) {
   memset(m, 0, sizeof *m);
   m->spec = *spec;
   if (!(spec->L > 0 && spec->H > 0 && spec->size > 0 && spec->cells >= 8))
-    return fail(err, errlen, "tunnel: L, H and size must be positive and cells at least 8");
+    return util_fail(err, errlen, "tunnel: L, H and size must be positive and cells at least 8");
   double R = spec->size / sqrt(3.0);
   if (spec->cx - R <= 0 || spec->cx + R >= spec->L || spec->cy - spec->size / 2 <= 0 ||
       spec->cy + spec->size / 2 >= spec->H)
-    return fail(err, errlen, "tunnel: an obstacle of size %g at (%g, %g) does not fit in the %g x %g tunnel",
+    return util_fail(err, errlen, "tunnel: an obstacle of size %g at (%g, %g) does not fit in the %g x %g tunnel",
                 spec->size, spec->cx, spec->cy, spec->L, spec->H);
   RawMesh raw = {0};
   if (gmsh_mesh(spec, &raw, err, errlen) != 0) {
@@ -376,7 +367,7 @@ int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *
   for (int c = 0; c < m->nc; c++) {
     double a = mesh_area(m, g, c);
     if (!(a > 0))
-      return fail(err, errlen, "deformation to obstacle scale %g inverts element %d (area %.3g, rest area %.3g)",
+      return util_fail(err, errlen, "deformation to obstacle scale %g inverts element %d (area %.3g, rest area %.3g)",
                   sigma, c, a, mesh_area(m, m->g0, c));
   }
   return 0;

@@ -1,4 +1,5 @@
 /* output.c — PNG frames and VTK files (see output.h). */
+#include "util.h"
 #include "output.h"
 
 #include <errno.h>
@@ -8,16 +9,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-static int fail(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return -1;
-}
 
 /* ---------------------------------------------------------------- PNG */
 
@@ -36,7 +27,7 @@ static int write_png(const char *path, int w, int h, unsigned char *rgb, char *e
   char tmp[4096];
   snprintf(tmp, sizeof tmp, "%s.tmp", path);
   FILE *fp = fopen(tmp, "wb");
-  if (!fp) return fail(err, errlen, "%s: %s", tmp, strerror(errno));
+  if (!fp) return util_fail(err, errlen, "%s: %s", tmp, strerror(errno));
   png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
   png_infop info = png ? png_create_info_struct(png) : NULL;
   png_bytep *rows = malloc(h * sizeof *rows);
@@ -45,7 +36,7 @@ static int write_png(const char *path, int w, int h, unsigned char *rgb, char *e
     fclose(fp);
     free(rows);
     remove(tmp);
-    return fail(err, errlen, "%s: libpng could not write the image", path);
+    return util_fail(err, errlen, "%s: libpng could not write the image", path);
   }
   png_init_io(png, fp);
   png_set_IHDR(png, info, w, h, 8, PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
@@ -57,7 +48,7 @@ static int write_png(const char *path, int w, int h, unsigned char *rgb, char *e
   free(rows);
   if (fclose(fp) != 0 || rename(tmp, path) != 0) {
     remove(tmp);
-    return fail(err, errlen, "%s: %s", path, strerror(errno));
+    return util_fail(err, errlen, "%s: %s", path, strerror(errno));
   }
   return 0;
 }
@@ -112,14 +103,14 @@ int output_png(const char *path, const Mesh *m, const double *g, const double *u
 static FILE *open_tmp(const char *path, char *tmp, size_t n, char *err, size_t errlen) {
   snprintf(tmp, n, "%s.tmp", path);
   FILE *fp = fopen(tmp, "w");
-  if (!fp) fail(err, errlen, "%s: %s", tmp, strerror(errno));
+  if (!fp) util_fail(err, errlen, "%s: %s", tmp, strerror(errno));
   return fp;
 }
 
 static int close_rename(FILE *fp, const char *tmp, const char *path, char *err, size_t errlen) {
   if (ferror(fp) | (fclose(fp) != 0) || rename(tmp, path) != 0) {
     remove(tmp);
-    return fail(err, errlen, "%s: %s", path, strerror(errno));
+    return util_fail(err, errlen, "%s: %s", path, strerror(errno));
   }
   return 0;
 }

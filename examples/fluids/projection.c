@@ -1,5 +1,6 @@
 /* projection.c — the constrained pressure projection by UMFPACK on the KKT
  * system (see projection.h). */
+#include "util.h"
 #include "projection.h"
 
 #include "stream.h"
@@ -12,22 +13,6 @@
 #include <string.h>
 #include <suitesparse/umfpack.h>
 #include <time.h>
-
-static int fail(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return -1;
-}
-
-static double now(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return t.tv_sec + 1e-9 * t.tv_nsec;
-}
 
 /* Triplets in a fixed order: for every cell, its 3x3 block of K (interior
  * faces only), then (but the last cell) its divergence row and column. */
@@ -89,12 +74,12 @@ int projection_init(Projection *pr, const Ops *o, ProjectionMethod method, char 
   pr->work_f2 = malloc(m->nf * sizeof *pr->work_f2);
   pr->work_u = malloc(2 * m->nc * sizeof *pr->work_u);
   int st = umfpack_di_triplet_to_col(pr->n, pr->n, pr->nt, pr->ti, pr->tj, pr->tx, pr->Ap, pr->Ai, pr->Ax, pr->map);
-  if (st != UMFPACK_OK) return fail(err, errlen, "projection: UMFPACK triplet_to_col failed (status %d)", st);
+  if (st != UMFPACK_OK) return util_fail(err, errlen, "projection: UMFPACK triplet_to_col failed (status %d)", st);
   /* UMFPACK's default (automatic) strategy: measured faster here than the
    * symmetric one on this KKT matrix (README) */
   umfpack_di_defaults(pr->control);
   st = umfpack_di_symbolic(pr->n, pr->n, pr->Ap, pr->Ai, pr->Ax, &pr->symbolic, pr->control, NULL);
-  if (st != UMFPACK_OK) return fail(err, errlen, "projection: UMFPACK symbolic analysis failed (status %d)", st);
+  if (st != UMFPACK_OK) return util_fail(err, errlen, "projection: UMFPACK symbolic analysis failed (status %d)", st);
   return 0;
 }
 
@@ -124,16 +109,16 @@ int projection_solve(Projection *pr, const double *u_in, const double *h, double
     return stream_solve(pr->stream, u_in, h, f, u_out, &pr->seconds_numeric, &pr->seconds_solve, err, errlen);
   const Ops *o = pr->o;
   const Mesh *m = o->m;
-  double t0 = now();
+  double t0 = util_now();
   triplets(pr, true);
   memset(pr->Ax, 0, pr->nt * sizeof *pr->Ax);
   for (int t = 0; t < pr->nt; t++) pr->Ax[pr->map[t]] += pr->tx[t];
   if (pr->numeric) umfpack_di_free_numeric(&pr->numeric);
   int st = umfpack_di_numeric(pr->Ap, pr->Ai, pr->Ax, pr->symbolic, &pr->numeric, pr->control, NULL);
   if (st != UMFPACK_OK)
-    return fail(err, errlen, "projection: UMFPACK numeric factorization failed (status %d%s)", st,
+    return util_fail(err, errlen, "projection: UMFPACK numeric factorization failed (status %d%s)", st,
                 st == UMFPACK_WARNING_singular_matrix ? ": singular KKT matrix" : "");
-  double t1 = now();
+  double t1 = util_now();
   /* fb: the boundary fluxes (D f = D h), zero elsewhere */
   double *fb = pr->work_f, *r = pr->work_f2, *w = pr->work_u;
   for (int j = 0; j < m->nf; j++) fb[j] = (pr->fidx[j] < 0 && h) ? h[j] : 0;
@@ -152,10 +137,10 @@ int projection_solve(Projection *pr, const double *u_in, const double *h, double
     pr->rhs[pr->ni + c] = -s;
   }
   st = umfpack_di_solve(UMFPACK_A, pr->Ap, pr->Ai, pr->Ax, pr->x, pr->rhs, pr->numeric, pr->control, NULL);
-  if (st != UMFPACK_OK) return fail(err, errlen, "projection: UMFPACK solve failed (status %d)", st);
+  if (st != UMFPACK_OK) return util_fail(err, errlen, "projection: UMFPACK solve failed (status %d)", st);
   for (int j = 0; j < m->nf; j++) f[j] = pr->fidx[j] >= 0 ? pr->x[pr->fidx[j]] : fb[j];
   ops_velocity_from_flux(o, f, u_out);
-  double t2 = now();
+  double t2 = util_now();
   pr->seconds_numeric += t1 - t0;
   pr->seconds_solve += t2 - t1;
   return 0;

@@ -1,4 +1,5 @@
 /* reduced.c — the reduced step of paper Fig. 2, right column (see reduced.h). */
+#include "util.h"
 #include "reduced.h"
 
 #include <math.h>
@@ -9,12 +10,6 @@
 
 #include <cblas.h>
 #include <lapacke.h>
-
-static double now(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return t.tv_sec + 1e-9 * t.tv_nsec;
-}
 
 static int fail(char *err, size_t errlen, const char *msg, const char *detail) {
   snprintf(err, errlen, "%s%s%s", msg, detail ? ": " : "", detail ? detail : "");
@@ -207,7 +202,7 @@ int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *
     return -1;
   s->r = npg_reduced_new(model);
   if (!s->r) return fail(err, errlen, "out of memory", NULL);
-  double t0 = now();
+  double t0 = util_now();
   long mg = s->mg, mgd = s->mgd, mu = s->mu, mf = s->mf, mb = s->mb;
   size_t uu = (size_t)(mu * mu), uf = (size_t)(mu * mf);
   s->Vs = calloc((size_t)(mg * mg) * uu, sizeof(double));
@@ -326,7 +321,7 @@ int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *
     }
     free(Uu), free(Vt), free(sv), free(sup);
   }
-  s->seconds_setup = now() - t0;
+  s->seconds_setup = util_now() - t0;
 done:
   free(D), free(gc), free(fc), free(uc), free(gdc), free(pc), free(bc);
   if (rc) red_free(s);
@@ -422,7 +417,7 @@ int red_projection(RedSolver *s, const double *gc, const double *uin, char *err,
 int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, size_t errlen) {
   int mu = (int)s->mu, mf = (int)s->mf, mb = (int)s->mb;
   long mg = s->mg, mgd = s->mgd;
-  double t0 = now();
+  double t0 = util_now();
   for (long l = 0; l < mg; l++) s->gmid[l] = 0.5 * (s->g[l] + gnext[l]);
   if (gdotc)
     memcpy(s->gdot, gdotc, (size_t)mgd * sizeof *s->gdot);
@@ -445,7 +440,7 @@ int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, 
       cblas_dgemv(CblasRowMajor, CblasTrans, (int)(mg * mgd), mb, 1.0, s->Bhs, mb, s->wgt, 1, 0.0, s->b, 1);
   } else if (mb > 0)
     memset(s->b, 0, (size_t)mb * sizeof *s->b);
-  double t1 = now();
+  double t1 = util_now();
   /* advection and diffusion at ĝ_t: M = V̂⁻¹(Â + μ L̂) */
   for (size_t i = 0; i < uu; i++) s->M[i] = s->A[i] + s->visc * s->L[i];
   red_volume(s, s->g, s->V0);
@@ -472,10 +467,10 @@ int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, 
     }
     memcpy(u1, acc, (size_t)mu * sizeof *u1);
   }
-  double t2 = now();
+  double t2 = util_now();
   if (red_projection(s, gnext, u1, err, errlen) != 0) return -1;
   memcpy(s->g, gnext, (size_t)s->mg * sizeof *s->g);
-  double t3 = now();
+  double t3 = util_now();
   s->seconds_eval += t1 - t0;
   s->seconds_advection += t2 - t1;
   s->seconds_projection += t3 - t2;

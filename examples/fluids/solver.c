@@ -1,15 +1,10 @@
 /* solver.c — the full-space step of paper Fig. 2 (see solver.h). */
+#include "util.h"
 #include "solver.h"
 
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
-
-static double now(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return t.tv_sec + 1e-9 * t.tv_nsec;
-}
 
 int solver_init(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, double sigma0,
                 const double u0[2], char *err, size_t errlen) {
@@ -64,7 +59,7 @@ void solver_free(FullSolver *s) {
 
 int solver_step(FullSolver *s, double sigma_next, char *err, size_t errlen) {
   const Mesh *m = s->m;
-  double t0 = now();
+  double t0 = util_now();
   if (mesh_deform(m, sigma_next, s->sigma_ref, s->g_next, err, errlen) != 0) return -1;
   s->min_quality = mesh_min_quality(m, s->g_next, &s->worst_cell);
   for (int i = 0; i < 2 * m->nv; i++) {
@@ -72,16 +67,16 @@ int solver_step(FullSolver *s, double sigma_next, char *err, size_t errlen) {
     s->gdot[i] = (s->g_next[i] - s->g[i]) / s->dt;
   }
   ops_induced_flux(m, s->gmid, s->gdot, s->h);
-  double t1 = now();
+  double t1 = util_now();
   /* advection and diffusion at g_t (the geometry ops holds) */
   for (int j = 0; j < m->nf; j++) s->phi[j] = s->f[j] - s->h[j];
   ops_set_advection(&s->ops, s->phi);
   integrator_rk4(&s->it, s->mu, s->dt, s->u);
-  double t2 = now();
+  double t2 = util_now();
   /* projection at g_{t+1} */
   ops_set_geometry(&s->ops, s->g_next);
   int rc = projection_solve(&s->pr, s->u, s->h, s->f, s->u, err, errlen);
-  double t3 = now();
+  double t3 = util_now();
   double *t = s->g;
   s->g = s->g_next;
   s->g_next = t;

@@ -1,5 +1,6 @@
 /* stream.c — the projection on the divergence-free null space: a stream
  * function solved by CHOLMOD (see stream.h). */
+#include "util.h"
 #include "stream.h"
 
 #include <stdarg.h>
@@ -20,22 +21,6 @@ struct StreamProjection {
   cholmod_dense *bphi, *bpsi;
   double *fp;        /* [F] particular solution */
 };
-
-static int fail(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return -1;
-}
-
-static double now(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return t.tv_sec + 1e-9 * t.tv_nsec;
-}
 
 /* Unknowns: one per periodic vertex class off the boundary, one for the top
  * wall, one for the obstacle; the bottom wall is pinned to 0. */
@@ -133,7 +118,7 @@ int stream_init(StreamProjection **out, const Ops *o, char *err, size_t errlen) 
   cholmod_free_sparse(&A, &s->cc);
   if (!ok) {
     stream_free(s);
-    return fail(err, errlen, "projection: the cells' graph Laplacian is not positive definite (is the mesh connected?)");
+    return util_fail(err, errlen, "projection: the cells' graph Laplacian is not positive definite (is the mesh connected?)");
   }
   s->bphi = cholmod_zeros(nphi, 1, CHOLMOD_REAL, &s->cc);
   s->bpsi = cholmod_zeros(s->ndof, 1, CHOLMOD_REAL, &s->cc);
@@ -145,7 +130,7 @@ int stream_init(StreamProjection **out, const Ops *o, char *err, size_t errlen) 
   cholmod_free_sparse(&A, &s->cc);
   if (!s->Lpsi) {
     stream_free(s);
-    return fail(err, errlen, "projection: CHOLMOD could not analyse the stream function system");
+    return util_fail(err, errlen, "projection: CHOLMOD could not analyse the stream function system");
   }
   *out = s;
   return 0;
@@ -168,15 +153,15 @@ int stream_solve(StreamProjection *s, const double *u_in, const double *h, doubl
                  double *t_factor, double *t_solve, char *err, size_t errlen) {
   const Ops *o = s->o;
   const Mesh *m = o->m;
-  double t0 = now();
+  double t0 = util_now();
   assemble(s);
   cholmod_sparse *A = cholmod_triplet_to_sparse(s->T, s->T->nnz, &s->cc);
   int ok = A && cholmod_factorize(A, s->Lpsi, &s->cc) && s->cc.status == CHOLMOD_OK;
   cholmod_free_sparse(&A, &s->cc);
   if (!ok)
-    return fail(err, errlen, "projection: C^T K C is not positive definite (CHOLMOD status %d): a degenerate cell?",
+    return util_fail(err, errlen, "projection: C^T K C is not positive definite (CHOLMOD status %d): a degenerate cell?",
                 s->cc.status);
-  double t1 = now();
+  double t1 = util_now();
   /* particular solution: f_p = f_b + G_i^T phi, G_i G_i^T phi = -G f_b */
   double *fp = s->fp, *bphi = s->bphi->x;
   for (int j = 0; j < m->nf; j++) fp[j] = (m->fkind[j] != BF_INTERIOR && h) ? h[j] : 0;
@@ -186,7 +171,7 @@ int stream_solve(StreamProjection *s, const double *u_in, const double *h, doubl
     bphi[c] = -d;
   }
   cholmod_dense *phi = cholmod_solve(CHOLMOD_A, s->Lphi, s->bphi, &s->cc);
-  if (!phi) return fail(err, errlen, "projection: CHOLMOD solve failed (status %d)", s->cc.status);
+  if (!phi) return util_fail(err, errlen, "projection: CHOLMOD solve failed (status %d)", s->cc.status);
   const double *ph = phi->x;
   for (int j = 0; j < m->nf; j++) {
     if (m->fkind[j] != BF_INTERIOR) continue;
@@ -211,7 +196,7 @@ int stream_solve(StreamProjection *s, const double *u_in, const double *h, doubl
     }
   }
   cholmod_dense *psi = cholmod_solve(CHOLMOD_A, s->Lpsi, s->bpsi, &s->cc);
-  if (!psi) return fail(err, errlen, "projection: CHOLMOD solve failed (status %d)", s->cc.status);
+  if (!psi) return util_fail(err, errlen, "projection: CHOLMOD solve failed (status %d)", s->cc.status);
   const double *p = psi->x;
   for (int j = 0; j < m->nf; j++) {
     int da = s->dof[m->edge[2 * j]], db = s->dof[m->edge[2 * j + 1]];
@@ -219,7 +204,7 @@ int stream_solve(StreamProjection *s, const double *u_in, const double *h, doubl
   }
   cholmod_free_dense(&psi, &s->cc);
   ops_velocity_from_flux(o, f, u_out);
-  double t2 = now();
+  double t2 = util_now();
   *t_factor += t1 - t0;
   *t_solve += t2 - t1;
   return 0;

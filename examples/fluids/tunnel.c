@@ -1,6 +1,7 @@
 /* tunnel.c — npg-fluids tunnel: paper Fig. 5 (see tunnel.h). Everything npg
  * does here goes through npg.h: compiling fluids2d.npg, binding the mesh,
  * streaming training, the models' bases and reduced evaluation. */
+#include "util.h"
 #include "tunnel.h"
 
 #include <errno.h>
@@ -26,12 +27,6 @@
 #define FLUIDS_NPG "examples/fluids/fluids2d.npg"
 #endif
 #define ERRLEN 1024
-
-static double now(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  return t.tv_sec + 1e-9 * t.tv_nsec;
-}
 
 void tunnel_options_default(TunnelOptions *o) {
   memset(o, 0, sizeof *o);
@@ -152,7 +147,7 @@ static int training_run(const Mesh *m, const TunnelOptions *o, double scale, dou
     fprintf(stderr, "npg-fluids: %s\n", err);
     return -1;
   }
-  double t0 = now();
+  double t0 = util_now();
   for (int k = 0; k < o->frames; k++) {
     long i = S->n++;
     memcpy(S->g + i * S->ng, s.g, S->ng * sizeof(double));
@@ -170,7 +165,7 @@ static int training_run(const Mesh *m, const TunnelOptions *o, double scale, dou
       return -1;
     }
   }
-  *seconds += now() - t0;
+  *seconds += util_now() - t0;
   solver_free(&s);
   return 0;
 }
@@ -259,7 +254,7 @@ int tunnel_run(const TunnelOptions *o) {
   /* 2. one model per basis size (the largest from the streamed trainer, the
    * others replaying the same samples into their own trainers) */
   for (int i = K - 1; i >= 0; i--) {
-    double t0 = now();
+    double t0 = util_now();
     if (i != K - 1) {
       model_options(o, i, &to, &mo);
       tr = npg_trainer_new(fe, &to);
@@ -275,7 +270,7 @@ int tunnel_run(const TunnelOptions *o) {
       goto done;
     }
     npg_trainer_free(tr);
-    train_seconds[i] = now() - t0;
+    train_seconds[i] = util_now() - t0;
   }
   /* reduced solvers; B_f divergence-free (§6.3) */
   Ops ops;
@@ -350,7 +345,7 @@ int tunnel_run(const TunnelOptions *o) {
   int prc = 0;
   for (int t = 0; t <= T && !prc; t++) {
     /* frame t: outputs */
-    double t0 = now();
+    double t0 = util_now();
     lift(R->Bg, ng, R->mg, rstate_g, gl);
     lift(R->Bf, nf, R->mf, rstate_f, fb);
     lift(R->Bu, nu, R->mu, rstate_u, ut);
@@ -401,11 +396,11 @@ int tunnel_run(const TunnelOptions *o) {
         break;
       }
     }
-    seconds_output += now() - t0;
+    seconds_output += util_now() - t0;
     if (t == T) break;
     double sig1 = sigma_at(o->scale_test, o, t + 1);
     /* one-step errors from the projected full state of frame t */
-    double t1 = now();
+    double t1 = util_now();
     for (long c = 0; c < C; c++) pv[2 * c] = s.ops.area[c] * s.u[2 * c], pv[2 * c + 1] = s.ops.area[c] * s.u[2 * c + 1];
     if (mesh_deform(&m, sig1, s.sigma_ref, gn, err, sizeof err) != 0) {
       fprintf(stderr, "npg-fluids: %s\n", err);
@@ -431,19 +426,19 @@ int tunnel_run(const TunnelOptions *o) {
         prc = -1;
         break;
       }
-      double tq = now();
+      double tq = util_now();
       if (red_step(q, gc1, gdc, err, sizeof err) != 0) {
         fprintf(stderr, "npg-fluids: one-step error, frame %d: %s\n", t, err);
         prc = -1;
         break;
       }
-      step_model[i] += now() - tq;
+      step_model[i] += util_now() - tq;
       lift(q->Bu, nu, q->mu, q->u, ub);
       for (long j = 0; j < nu; j++) ub[j] = probe.u[j] - ub[j];
       double eg = energy_area(probe.ops.area, probe.u, C);
       err_onestep[(size_t)i * T + t] = energy_area(probe.ops.area, ub, C) / eg;
     }
-    seconds_onestep += now() - t1;
+    seconds_onestep += util_now() - t1;
     if (prc) break;
     /* the full test simulation */
     double a0 = s.seconds_advection, p0 = s.seconds_projection, d0 = s.seconds_deformation;
@@ -460,13 +455,13 @@ int tunnel_run(const TunnelOptions *o) {
     memcpy(R->f, rstate_f, R->mf * sizeof(double));
     memcpy(R->u, rstate_u, R->mu * sizeof(double));
     double e0 = R->seconds_eval, a1 = R->seconds_advection, p1 = R->seconds_projection;
-    double t2 = now();
+    double t2 = util_now();
     if (red_step(R, traj_g + (size_t)(t + 1) * R->mg, traj_gd + (size_t)t * R->mgd, err, sizeof err) != 0) {
       fprintf(stderr, "npg-fluids: reduced run, frame %d: %s\n", t, err);
       prc = -1;
       break;
     }
-    step_times[red_steps] = now() - t2;
+    step_times[red_steps] = util_now() - t2;
     seconds_red += step_times[red_steps];
     red_eval += R->seconds_eval - e0, red_adv += R->seconds_advection - a1, red_proj += R->seconds_projection - p1;
     red_steps++;
@@ -476,11 +471,11 @@ int tunnel_run(const TunnelOptions *o) {
     e_red[t + 1] = red_energy(R, R->g, R->u);
     /* particles: full through the full flux, reduced through the lifted
      * reduced flux (Eq. 13 evaluated per cell) */
-    double t3 = now();
+    double t3 = util_now();
     lift(R->Bg, ng, R->mg, rstate_g, gl);
     lift(R->Bf, nf, R->mf, rstate_f, fb);
     particles_advect(&pred, &m, gl, fb, dt, 10);
-    seconds_particles += now() - t3;
+    seconds_particles += util_now() - t3;
     particles_advect(&pfull, &m, s.g, s.f, dt, 10);
     if (t % 50 == 0) fprintf(stderr, "npg-fluids: test frame %d/%d\n", t, T);
   }
@@ -495,12 +490,12 @@ int tunnel_run(const TunnelOptions *o) {
       memcpy(R->g, rstate_g, R->mg * sizeof(double));
       memcpy(R->f, rstate_f, R->mf * sizeof(double));
       memcpy(R->u, rstate_u, R->mu * sizeof(double));
-      double t2 = now();
+      double t2 = util_now();
       if (red_step(R, traj_g + (size_t)(T - 1) * R->mg, traj_gd + (size_t)(T - 2) * R->mgd, err, sizeof err) != 0) prc = -1;
-      bench_step = fmin(bench_step, now() - t2);
-      t2 = now();
+      bench_step = fmin(bench_step, util_now() - t2);
+      t2 = util_now();
       red_expm((int)R->mu, Xs, Es, wk, NULL, NULL);
-      bench_expm = fmin(bench_expm, now() - t2);
+      bench_expm = fmin(bench_expm, util_now() - t2);
     }
     free(Xs), free(Es), free(wk);
   }

@@ -1,4 +1,5 @@
 /* plot.c — per-frame line plots with cairo (plot.h). */
+#include "util.h"
 #include "plot.h"
 
 #include <cairo.h>
@@ -8,16 +9,6 @@
 #include <stdio.h>
 #include <string.h>
 #include <unistd.h>
-
-static int fail(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return -1;
-}
 
 /* A "nice" tick step (1, 2 or 5 times a power of ten) giving about `want` ticks. */
 static double tick_step(double range, int want) {
@@ -161,11 +152,11 @@ int plot_series(const char *path, const char *title, const char *ylabel, const P
   cairo_surface_destroy(surf);
   if (st != CAIRO_STATUS_SUCCESS) {
     remove(tmp);
-    return fail(err, errlen, "%s: cairo: %s", path, cairo_status_to_string(st));
+    return util_fail(err, errlen, "%s: cairo: %s", path, cairo_status_to_string(st));
   }
   if (rename(tmp, path) != 0) {
     remove(tmp);
-    return fail(err, errlen, "%s: %s", path, strerror(errno));
+    return util_fail(err, errlen, "%s: %s", path, strerror(errno));
   }
   return 0;
 }

@@ -1,4 +1,5 @@
 /* radiosity.c — form factors and the radiosity solve (radiosity.h). */
+#include "util.h"
 #include "radiosity.h"
 
 #include <cblas.h>
@@ -9,16 +10,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-static int fail(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return -1;
-}
 
 typedef struct FormFactorJob {
   long F;
@@ -91,7 +82,7 @@ int radiosity_solve_lu(long F, const double *rho, const double *p, const double 
   lapack_int *piv = malloc(sizeof(lapack_int) * F);
   if (!M || !piv) {
     free(M), free(piv);
-    return fail(err, errlen, "LU solve: out of memory for a %ld x %ld matrix", F, F);
+    return util_fail(err, errlen, "LU solve: out of memory for a %ld x %ld matrix", F, F);
   }
   for (long i = 0; i < F; i++) {
     for (long j = 0; j < F; j++) M[(size_t)i * F + j] = -rho[i] * p[(size_t)i * F + j];
@@ -101,8 +92,8 @@ int radiosity_solve_lu(long F, const double *rho, const double *p, const double 
   lapack_int info = LAPACKE_dgesv(LAPACK_ROW_MAJOR, (lapack_int)F, 1, M, (lapack_int)F, piv, b, 1);
   free(M);
   free(piv);
-  if (info > 0) return fail(err, errlen, "LU solve: I - rho F is singular (zero pivot %d)", (int)info);
-  if (info < 0) return fail(err, errlen, "LU solve: dgesv argument %d is invalid", (int)-info);
+  if (info > 0) return util_fail(err, errlen, "LU solve: I - rho F is singular (zero pivot %d)", (int)info);
+  if (info < 0) return util_fail(err, errlen, "LU solve: dgesv argument %d is invalid", (int)-info);
   return 0;
 }
 
@@ -121,10 +112,10 @@ int radiosity_solve_gauss_seidel(long F, const double *rho, const double *p, con
       b[i] = bi;
       big = fmax(big, fabs(bi));
     }
-    if (!isfinite(change)) return fail(err, errlen, "Gauss-Seidel: not finite at sweep %d", sweep);
+    if (!isfinite(change)) return util_fail(err, errlen, "Gauss-Seidel: not finite at sweep %d", sweep);
     if (change <= tol * big) return sweep;
   }
-  return fail(err, errlen, "Gauss-Seidel: no convergence to %g in %d sweeps (is every albedo < 1?)", tol, max_sweeps);
+  return util_fail(err, errlen, "Gauss-Seidel: no convergence to %g in %d sweeps (is every albedo < 1?)", tol, max_sweeps);
 }
 
 /* y = (I − diag(rho) p) x: one pass over p through BLAS (threaded). */
@@ -143,7 +134,7 @@ int radiosity_solve_gmres(long F, const double *rho, const double *p, const doub
   double H[M + 1][M], cs[M], sn[M], g[M + 1], y[M];
   if (!V || !w) {
     free(V), free(w);
-    return fail(err, errlen, "GMRES: out of memory");
+    return util_fail(err, errlen, "GMRES: out of memory");
   }
   double enorm = cblas_dnrm2((int)F, e, 1);
   if (enorm == 0) enorm = 1;
@@ -156,12 +147,12 @@ int radiosity_solve_gmres(long F, const double *rho, const double *p, const doub
     double beta = cblas_dnrm2((int)F, V, 1);
     if (!isfinite(beta)) {
       free(V), free(w);
-      return fail(err, errlen, "GMRES: residual not finite after %d products", matvecs);
+      return util_fail(err, errlen, "GMRES: residual not finite after %d products", matvecs);
     }
     if (beta <= tol * enorm) break;
     if (matvecs >= max_matvecs) {
       free(V), free(w);
-      return fail(err, errlen, "GMRES: residual %.3g above %.3g after %d products", beta / enorm, tol, matvecs);
+      return util_fail(err, errlen, "GMRES: residual %.3g above %.3g after %d products", beta / enorm, tol, matvecs);
     }
     cblas_dscal((int)F, 1 / beta, V, 1);
     memset(g, 0, sizeof g);

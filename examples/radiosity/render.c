@@ -1,4 +1,5 @@
 /* render.c — cutaway renders, error maps and composites (render.h). */
+#include "util.h"
 #include "render.h"
 
 #include <cairo.h>
@@ -14,16 +15,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
-
-static int fail(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return -1;
-}
 
 void render_camera_default(Camera *c) {
   *c = (Camera){.eye = {2.6, -6.2, 7.6}, .at = {5.3, 2.2, 0.5}, .up = {0, 0, 1}, .fov_deg = 46,
@@ -97,7 +88,7 @@ int render_view(const Camera *cam, long V, long F, const double *g, const int *t
                 size_t errlen) {
   memset(view, 0, sizeof *view);
   RTCDevice dev = rtcNewDevice("threads=1");
-  if (!dev) return fail(err, errlen, "embree: cannot create a device");
+  if (!dev) return util_fail(err, errlen, "embree: cannot create a device");
   RTCScene scene = rtcNewScene(dev);
   RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
   /* only the faces whose front is towards the eye (a plane's side is the same for every
@@ -135,7 +126,7 @@ int render_view(const Camera *cam, long V, long F, const double *g, const int *t
     rtcReleaseDevice(dev);
     free(map);
     render_view_free(view);
-    return fail(err, errlen, "render: out of memory");
+    return util_fail(err, errlen, "render: out of memory");
   }
   CastJob job[2];
   pthread_t th;
@@ -288,7 +279,7 @@ int render_write_png(const char *path, const Image *img, char *err, size_t errle
   char tmp[4096];
   snprintf(tmp, sizeof tmp, "%s.tmp.%ld", path, (long)getpid());
   FILE *fp = fopen(tmp, "wb");
-  if (!fp) return fail(err, errlen, "%s: %s", path, strerror(errno));
+  if (!fp) return util_fail(err, errlen, "%s: %s", path, strerror(errno));
   png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
   png_infop info = png ? png_create_info_struct(png) : NULL;
   png_bytep *rows = malloc(sizeof(png_bytep) * (size_t)img->height);
@@ -297,14 +288,14 @@ int render_write_png(const char *path, const Image *img, char *err, size_t errle
     free(rows);
     fclose(fp);
     remove(tmp);
-    return fail(err, errlen, "%s: libpng: out of memory", path);
+    return util_fail(err, errlen, "%s: libpng: out of memory", path);
   }
   if (setjmp(png_jmpbuf(png))) {
     png_destroy_write_struct(&png, &info);
     free(rows);
     fclose(fp);
     remove(tmp);
-    return fail(err, errlen, "%s: libpng failed to write", path);
+    return util_fail(err, errlen, "%s: libpng failed to write", path);
   }
   png_init_io(png, fp);
   png_set_IHDR(png, info, (png_uint_32)img->width, (png_uint_32)img->height, 8, PNG_COLOR_TYPE_RGB,
@@ -318,11 +309,11 @@ int render_write_png(const char *path, const Image *img, char *err, size_t errle
   free(rows);
   if (fclose(fp) != 0) {
     remove(tmp);
-    return fail(err, errlen, "%s: %s", path, strerror(errno));
+    return util_fail(err, errlen, "%s: %s", path, strerror(errno));
   }
   if (rename(tmp, path) != 0) {
     remove(tmp);
-    return fail(err, errlen, "%s: %s", path, strerror(errno));
+    return util_fail(err, errlen, "%s: %s", path, strerror(errno));
   }
   return 0;
 }

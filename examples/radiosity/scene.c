@@ -6,6 +6,7 @@
  * face count); scene_place() runs it again at any parameters and fills each patch's grid
  * by bilinear interpolation of its corners. Every patch is planar at every parameter (walls
  * are vertical, the tilted ceiling is one plane), so the triangles are too. */
+#include "util.h"
 #include "scene.h"
 
 #include <math.h>
@@ -247,16 +248,6 @@ static long count_faces(int np, const double *lu, const double *lv, double h) {
   return f;
 }
 
-static int fail(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return -1;
-}
-
 int scene_new(long faces, const SceneParams *p, Scene *s, char *err, size_t errlen) {
   memset(s, 0, sizeof *s);
   SceneParams nominal;
@@ -268,7 +259,7 @@ int scene_new(long faces, const SceneParams *p, Scene *s, char *err, size_t errl
   Material *mat = malloc(sizeof(Material) * np);
   if (!lu || !lv || !mat) {
     free(lu), free(lv), free(mat);
-    return fail(err, errlen, "out of memory");
+    return util_fail(err, errlen, "out of memory");
   }
   w = (Walker){.quad = size_quad, .lu = lu, .lv = lv, .mat = mat};
   walk(&w, &nominal);
@@ -285,7 +276,7 @@ int scene_new(long faces, const SceneParams *p, Scene *s, char *err, size_t errl
   double h = fabs((double)count_faces(np, lu, lv, lo) - faces) < fabs((double)count_faces(np, lu, lv, hi) - faces) ? lo : hi;
   if (count_faces(np, lu, lv, h) > 200000) {
     free(lu), free(lv), free(mat);
-    return fail(err, errlen, "--faces %ld: more than 200000 faces", faces);
+    return util_fail(err, errlen, "--faces %ld: more than 200000 faces", faces);
   }
   s->npatch = np;
   s->patch = calloc(np, sizeof(Patch));
@@ -315,7 +306,7 @@ int scene_new(long faces, const SceneParams *p, Scene *s, char *err, size_t errl
   s->e = malloc(sizeof(double) * F);
   if (!s->patch || !s->g || !s->tri || !s->rho || !s->mat || !s->e) {
     scene_free(s);
-    return fail(err, errlen, "out of memory");
+    return util_fail(err, errlen, "out of memory");
   }
   /* two triangles per cell, (v00, v10, v11) and (v00, v11, v01): their area vectors point
    * along (p10 - p00) x (p01 - p00), the side walk() chose */

@@ -1,4 +1,5 @@
 /* visibility.c — pair visibility by ray casting with Embree 3 (visibility.h). */
+#include "util.h"
 #include "visibility.h"
 
 #include <embree3/rtcore.h>
@@ -36,16 +37,6 @@ const char *vis_mode_name(VisMode m) {
   return m == VIS_SINGLE ? "single (rtcOccluded1)" : m == VIS_STREAM ? "stream (rtcOccluded1M)" : "packet (rtcOccluded8)";
 }
 
-static int fail(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return -1;
-}
-
 static void on_error(void *user, enum RTCError code, const char *str) {
   Visibility *vis = user;
   if (!vis->error[0]) snprintf(vis->error, sizeof vis->error, "embree error %d: %s", (int)code, str ? str : "");
@@ -53,7 +44,7 @@ static void on_error(void *user, enum RTCError code, const char *str) {
 
 Visibility *vis_new(long V, long F, const int *tri, int k, int threads, VisMode mode, char *err, size_t errlen) {
   if (k != 1 && k != 4 && k != 16) {
-    fail(err, errlen, "visibility samples per face must be 1, 4 or 16 (got %d)", k);
+    util_fail(err, errlen, "visibility samples per face must be 1, 4 or 16 (got %d)", k);
     return NULL;
   }
   Visibility *vis = calloc(1, sizeof *vis);
@@ -70,7 +61,7 @@ Visibility *vis_new(long V, long F, const int *tri, int k, int threads, VisMode 
   vis->cen = malloc(sizeof(double) * 3 * F);
   if (!vis->tri || !vis->pts || !vis->nrm || !vis->nlen || !vis->cen) {
     vis_free(vis);
-    fail(err, errlen, "out of memory");
+    util_fail(err, errlen, "out of memory");
     return NULL;
   }
   memcpy(vis->tri, tri, sizeof(int) * 3 * F);
@@ -78,7 +69,7 @@ Visibility *vis_new(long V, long F, const int *tri, int k, int threads, VisMode 
   snprintf(config, sizeof config, "threads=%d", vis->threads);
   vis->device = rtcNewDevice(config);
   if (!vis->device) {
-    fail(err, errlen, "embree: cannot create a device (error %d)", (int)rtcGetDeviceError(NULL));
+    util_fail(err, errlen, "embree: cannot create a device (error %d)", (int)rtcGetDeviceError(NULL));
     vis_free(vis);
     return NULL;
   }
@@ -89,7 +80,7 @@ Visibility *vis_new(long V, long F, const int *tri, int k, int threads, VisMode 
   vis->vert = rtcSetNewGeometryBuffer(vis->geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), V);
   unsigned *ib = rtcSetNewGeometryBuffer(vis->geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), F);
   if (!vis->vert || !ib || vis->error[0]) {
-    fail(err, errlen, "%s", vis->error[0] ? vis->error : "embree: cannot allocate buffers");
+    util_fail(err, errlen, "%s", vis->error[0] ? vis->error : "embree: cannot allocate buffers");
     vis_free(vis);
     return NULL;
   }
@@ -291,7 +282,7 @@ int vis_compute(Visibility *vis, const double *g, double *v, char *err, size_t e
   for (long a = 0; a < vis->V; a++)
     for (int d = 0; d < 3; d++) {
       double x = g[3 * a + d];
-      if (!isfinite(x)) return fail(err, errlen, "visibility: vertex %ld is not finite", a);
+      if (!isfinite(x)) return util_fail(err, errlen, "visibility: vertex %ld is not finite", a);
       vis->vert[3 * a + d] = (float)x;
       lo[d] = fmin(lo[d], x);
       hi[d] = fmax(hi[d], x);
@@ -315,7 +306,7 @@ int vis_compute(Visibility *vis, const double *g, double *v, char *err, size_t e
   rtcUpdateGeometryBuffer(vis->geom, RTC_BUFFER_TYPE_VERTEX, 0);
   rtcCommitGeometry(vis->geom);
   rtcCommitScene(vis->scene);
-  if (vis->error[0]) return fail(err, errlen, "%s", vis->error);
+  if (vis->error[0]) return util_fail(err, errlen, "%s", vis->error);
   vis->v = v;
   atomic_store(&vis->next_row, 0);
   atomic_store(&vis->rays, 0);
@@ -326,6 +317,6 @@ int vis_compute(Visibility *vis, const double *g, double *v, char *err, size_t e
   worker(vis);
   for (int t = 0; t < started; t++) pthread_join(th[t], NULL);
   vis->v = NULL;
-  if (vis->error[0]) return fail(err, errlen, "%s", vis->error);
+  if (vis->error[0]) return util_fail(err, errlen, "%s", vis->error);
   return 0;
 }
