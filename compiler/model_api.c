@@ -81,8 +81,7 @@ static const char *param_hash_at(const char *recorded, const char *key) {
 
 /* A model trained through npg.h records the hash of every param it was
  * trained with, so that other params can be refused: a 'params' line that
- * lacks one is damaged. (A model without the line recorded none: one made
- * by the trainer of backends/ directly.) */
+ * lacks one is damaged (model_load refuses a manifest without the line). */
 static int missing_param_hash(NpgModel *nm, const char *dir) {
   const Program *prog = nm->m->prog;
   for (int i = 0; nm->m->param_hashes && i < prog->params.n; i++) {

@@ -343,7 +343,9 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
     len += (size_t)snprintf(line + len, sizeof line - len, " %s=%ld", ((Sym *)m->prog->dims.v[i])->name, m->dims[i]);
   bad |= model_store_meta(&s, "%s", line);
   bad |= model_store_meta(&s, "samples %ld", m->samples);
-  if (m->param_hashes) bad |= model_store_meta(&s, "params %s", m->param_hashes);
+  /* always written, empty when none were recorded: loading requires it */
+  bad |= model_store_meta(&s, "params%s%s", m->param_hashes && *m->param_hashes ? " " : "",
+                          m->param_hashes ? m->param_hashes : "");
   size_t tb = 0, total = model_bytes(m, &tb);
   bad |= model_store_meta(&s, "bytes %zu tensors %zu", total, tb);
   for (int c = 0; c < m->nclasses; c++) {
@@ -467,6 +469,33 @@ static int check_meta(const ModelStore *s, const Model *m, const char *dir, char
   return 0;
 }
 
+/* The lines model_save always writes: a manifest without one of them is
+ * damaged or forged (its checksum can be recomputed), and is refused here
+ * rather than read with a default. */
+static const char *const REQUIRED_LINES[] = {"dims", "samples", "params", "bytes"};
+
+/* 0 if the manifest holds every required line, a 'class' line per class and
+ * a 'member' line per member of the layout `m`; else -1 naming the first
+ * missing. */
+static int check_required(const ModelStore *s, const Model *m, const char *dir, char *err, size_t errlen) {
+  for (size_t i = 0; i < sizeof REQUIRED_LINES / sizeof *REQUIRED_LINES; i++)
+    if (!model_store_find(s, REQUIRED_LINES[i]))
+      return npg_fail(err, errlen, "%s/manifest: no '%s' line: the model is damaged; retrain", dir, REQUIRED_LINES[i]);
+  for (int c = 0; c < m->nclasses; c++) {
+    const RClass *rc = &m->classes[c];
+    for (int k = -1; k < rc->nmembers; k++) {
+      char want[600];
+      int n = k < 0 ? snprintf(want, sizeof want, "class %d %s ", c, rc->label)
+                    : snprintf(want, sizeof want, "member %d %s ", c, rc->members[k].name);
+      bool found = false;
+      for (int j = 0; j < s->nmeta && !found; j++) found = strncmp(s->meta[j], want, (size_t)n) == 0;
+      if (!found)
+        return npg_fail(err, errlen, "%s/manifest: no '%.*s' line: the model is damaged; retrain", dir, n - 1, want);
+    }
+  }
+  return 0;
+}
+
 Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
   ModelStore s;
   Model *m = NULL;
@@ -503,16 +532,16 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
       goto fail;
     }
   }
-  if (!(m = model_layout(prog, dims, err, errlen))) goto fail;
+  if (!(m = model_layout(prog, dims, err, errlen)) || check_required(&s, m, dir, err, errlen)) goto fail;
   const char *ns = model_store_find(&s, "samples");
   char *end = NULL;
-  m->samples = ns ? strtol(ns, &end, 10) : 0;
-  if (ns && (end == ns || *end || m->samples < 1)) {
+  m->samples = strtol(ns, &end, 10);
+  if (end == ns || *end || m->samples < 1) {
     snprintf(err, errlen, "%s/manifest: 'samples %s' is not a count of training samples", dir, ns);
     goto fail;
   }
   const char *ph = model_store_find(&s, "params");
-  if (ph && !(m->param_hashes = strdup(ph))) goto oom;
+  if (!(m->param_hashes = strdup(ph))) goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     char name[64];

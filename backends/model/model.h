@@ -130,7 +130,7 @@ typedef struct Model {
   int nexterns;
   RExtern *externs;
   long samples;             /* training samples */
-  char *param_hashes;       /* "tri=<hex> rho=<hex>": what DATA/ held at training */
+  char *param_hashes;       /* "tri=<hex> rho=<hex>": what DATA/ held at training; NULL: none recorded */
 } Model;
 
 /* ---------------------------------------------------------------- layout (model.c) */
@@ -162,7 +162,10 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen);
  * (k, singular value, energy lost keeping the first k), DIR created if
  * needed. The same files model_save lists in MODEL/. */
 int model_write_spectra(const Model *m, const char *dir, char *err, size_t errlen);
-/* Load MODEL/ for `prog` (hash checked), every array checked. */
+/* Load MODEL/ for `prog` (hash checked), every array checked. A manifest
+ * without one of the lines model_save writes (dims, samples, params, bytes,
+ * a class line per class, a member line per member) is refused, naming it:
+ * param_hashes is then never NULL ("" when none were recorded). */
 Model *model_load(Program *prog, const char *dir, char *err, size_t errlen);
 
 #endif

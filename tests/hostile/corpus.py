@@ -491,7 +491,16 @@ def model_cases():
     c["sealed_dims_zero"] = (replace(b"dims", b"dims N=0", True), "{m}/basis_0.npy: wrong shape, class {x} needs 0 rows")
     c["sealed_dims_garbage"] = (replace(b"dims", b"dims N=five", True), "{m}/manifest: dim N has no valid size")
     c["sealed_dims_no_value"] = (replace(b"dims", b"dims M=5", True), "{m}/manifest: no size for dim N")
-    c["sealed_params_removed"] = (edit(lambda ls: [l for l in ls if not l.startswith(b"params")], True), "rho")
+    c["sealed_params_removed"] = (edit(lambda ls: [l for l in ls if not l.startswith(b"params")], True),
+                                  "=error: {m}/manifest: no 'params' line: the model is damaged; retrain")
+    c["sealed_samples_removed"] = (edit(lambda ls: [l for l in ls if not l.startswith(b"samples")], True),
+                                   "{m}/manifest: no 'samples' line: the model is damaged")
+    c["sealed_bytes_removed"] = (edit(lambda ls: [l for l in ls if not l.startswith(b"bytes")], True),
+                                 "{m}/manifest: no 'bytes' line: the model is damaged")
+    c["sealed_class_removed"] = (edit(lambda ls: [l for l in ls if not l.startswith(b"class 1 ")], True),
+                                 "{m}/manifest: no 'class 1 {y}' line: the model is damaged")
+    c["sealed_member_removed"] = (edit(lambda ls: [l for l in ls if not l.startswith(b"member 0 ")], True),
+                                  "{m}/manifest: no 'member 0 x' line: the model is damaged")
     c["sealed_params_incomplete"] = (replace(b"params", b"params sigma=0000000000000000", True),
                                      "{m}/manifest: no hash of param 'rho' in its 'params' line: the model is damaged")
     c["sealed_params_other"] = (replace(b"params", b"params rho=0000000000000000", True),
@@ -796,16 +805,6 @@ def cli_cases():
     cli("bench_no_test", ["bench", "vec.npg", "M"], 2, "usage: npgc bench")
     cli("bench_exact", ["bench", "vec.npg", "M", "T", "--exact"], 2, "unknown option '--exact'")
     cli("bench_test_missing", ["bench", "vec.npg", "M", "nosuch"], 1, "=error: nosuch/x.npy: cannot open: No such file or directory")
-
-
-# ------------------------------------------------------------------ known failures
-
-for _cmd in ("verify", "eval", "emit"):
-    KNOWN_FAILURES["model_sealed_params_removed_" + _cmd] = (
-        "a re-sealed manifest without its 'params' line is taken for a model that recorded no params (models saved "
-        "by backends/train.c directly, as the unit tests do, have none), so params are not checked; an unsealed "
-        "removal is caught by the manifest checksum")
-
 
 
 # ------------------------------------------------------------------ running
