@@ -140,7 +140,17 @@ void vec_push(Ctx *ctx, PtrVec *vec, void *p) {
 
 /* ---------------------------------------------------------------- diagnostics */
 
-/* Append "file:line:col: kind: msg\n<source line>\n<caret>\n" to buf. */
+/* A source line longer than this many bytes is shown as a window around
+ * the column, its cut ends marked with "…" (a 125 KB one-line program must
+ * not print 125 KB per diagnostic). */
+enum { DIAG_WINDOW = 100 };
+
+static bool utf8_continuation(char c) { return ((unsigned char)c & 0xC0) == 0x80; }
+
+/* Append "file:line:col: kind: msg\n<source line>\n<caret>\n" to buf: the
+ * line, or its window of DIAG_WINDOW bytes around the column, and a caret
+ * under the character at the column (tabs kept, one column per UTF-8
+ * character). */
 static char *format_at(Ctx *ctx, const char *prefix, Loc loc, const char *kind, const char *msg) {
   if (!loc.file) return arena_printf(ctx, "%s%s: %s\n", prefix, kind, msg);
   const char *text = loc.file->text;
@@ -148,20 +158,33 @@ static char *format_at(Ctx *ctx, const char *prefix, Loc loc, const char *kind, 
   while (start > 0 && text[start - 1] != '\n') start--;
   size_t end = start;
   while (end < loc.file->len && text[end] != '\n' && text[end] != '\r') end++;
-  /* Caret line: keep tabs so the caret lines up with the source. */
-  int ncol = loc.col > 0 ? loc.col - 1 : 0;
-  char *caret = arena_alloc(ctx, (size_t)ncol + 2);
-  for (int i = 0; i < ncol; i++) {
-    size_t k = start + (size_t)i;
-    caret[i] = (k < end && text[k] == '\t') ? '\t' : ' ';
+  size_t at = start + (size_t)(loc.col > 0 ? loc.col - 1 : 0); /* may lie past the end of the line */
+  size_t from = start, to = end;
+  if (end - start > DIAG_WINDOW) {
+    size_t mid = at < end ? at : end;
+    from = mid - start > DIAG_WINDOW / 2 ? mid - DIAG_WINDOW / 2 : start;
+    if (end - from < DIAG_WINDOW) from = end - DIAG_WINDOW;
+    to = from + DIAG_WINDOW;
+    while (from > start && utf8_continuation(text[from])) from--;
+    while (to < end && utf8_continuation(text[to])) to++;
   }
-  caret[ncol] = '^';
+  bool cut_before = from > start, cut_after = to < end;
+  /* Caret line: one column for a leading "…", then one per character. */
+  char *caret = arena_alloc(ctx, (at - from) + 3);
+  size_t nc = 0;
+  if (cut_before) caret[nc++] = ' ';
+  for (size_t k = from; k < at; k++) {
+    if (k < end && utf8_continuation(text[k])) continue;
+    caret[nc++] = (k < end && text[k] == '\t') ? '\t' : ' ';
+  }
+  caret[nc++] = '^';
+  caret[nc] = 0;
   /* Replace non-printable bytes of the echoed line so output stays text. */
-  char *line = arena_strndup(ctx, text + start, end - start);
+  char *line = arena_strndup(ctx, text + from, to - from);
   for (char *c = line; *c; c++)
     if ((unsigned char)*c < 32 && *c != '\t') *c = '?';
-  return arena_printf(ctx, "%s%s:%d:%d: %s: %s\n%s\n%s\n", prefix, loc.file->name, loc.line, loc.col,
-                      kind, msg, line, caret);
+  return arena_printf(ctx, "%s%s:%d:%d: %s: %s\n%s%s%s\n%s\n", prefix, loc.file->name, loc.line, loc.col, kind,
+                      msg, cut_before ? "…" : "", line, cut_after ? "…" : "", caret);
 }
 
 static _Noreturn void fail(Ctx *ctx) {

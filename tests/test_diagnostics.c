@@ -120,31 +120,76 @@ static char *first_line(const char *s) {
   return strndup(s, strcspn(s, "\n"));
 }
 
-/* The column named by the first "...:LINE:COL:" in 'diag'; 0 if none. */
-static int diag_column(const char *diag) {
+/* The line and column named by the first "...:LINE:COL:" in 'diag'; 0 if none. */
+static int diag_position(const char *diag, int *line_out) {
   for (const char *p = strchr(diag, ':'); p && p < diag + strcspn(diag, "\n");
        p = strchr(p + 1, ':')) {
     int line, col, used = 0;
-    if (sscanf(p, ":%d:%d:%n", &line, &col, &used) == 2 && used > 0) return col;
+    if (sscanf(p, ":%d:%d:%n", &line, &col, &used) == 2 && used > 0) {
+      *line_out = line;
+      return col;
+    }
   }
   return 0;
 }
 
-/* The 1-based column of the '^' of the first caret line in 'diag'; 0 if none. */
-static int caret_column(const char *diag) {
+static bool utf8_continuation(char c) { return ((unsigned char)c & 0xC0) == 0x80; }
+
+/* The source line echoed in 'diag' (the line above its first caret line),
+ * and the 0-based character index of the '^' (tabs and the blanks before it
+ * count one each); -1 without a caret line. */
+static int caret_index(const char *diag, const char **echo, size_t *echo_len) {
+  const char *prev = NULL;
+  size_t prev_len = 0;
   for (const char *line = diag; *line;) {
     size_t len = strcspn(line, "\n");
     size_t i = 0;
     while (i < len && (line[i] == ' ' || line[i] == '\t')) i++;
-    if (i < len && line[i] == '^') {
+    if (i < len && line[i] == '^' && prev) {
       size_t j = i + 1;
       while (j < len && (line[j] == '^' || line[j] == '~')) j++;
-      if (j == len) return (int)i + 1;
+      if (j == len) {
+        *echo = prev, *echo_len = prev_len;
+        return (int)i;
+      }
     }
+    prev = line, prev_len = len;
     line += len;
     if (*line) line++;
   }
-  return 0;
+  return -1;
+}
+
+/* NULL when the caret of 'diag' stands under the character of the echoed
+ * line that is the one at the column the diagnostic names in 'source' (or
+ * just past the echo's end when the column is past the line's end); else
+ * what is wrong. The echo may be a window of the line, "…" marking a cut. */
+static const char *caret_problem(const char *diag, const char *source) {
+  int line = 0, col = diag_position(diag, &line);
+  const char *echo;
+  size_t echo_len;
+  int idx = caret_index(diag, &echo, &echo_len);
+  if (idx < 0) return "no caret line";
+  if (col < 1 || line < 1) return "no line:col";
+  const char *src = source;
+  for (int l = 1; l < line && src; l++) src = strchr(src, '\n'), src = src ? src + 1 : NULL;
+  if (!src) return "the line it names is not in the file";
+  size_t src_len = strcspn(src, "\r\n");
+  /* the echo's character at index idx */
+  size_t k = 0;
+  for (int c = 0; k < echo_len; c++) {
+    if (c == idx) break;
+    k++;
+    while (k < echo_len && utf8_continuation(echo[k])) k++;
+  }
+  if ((size_t)col - 1 >= src_len) return k == echo_len ? NULL : "caret not just past the end of the line";
+  if (k == echo_len) return "caret past the end of the echoed line";
+  size_t n = 1;
+  while (k + n < echo_len && utf8_continuation(echo[k + n])) n++;
+  const char *want = src + col - 1;
+  bool printable = (unsigned char)*want >= 32 || *want == '\t';
+  if (printable ? strncmp(echo + k, want, n) != 0 : echo[k] != '?') return "caret under another character";
+  return NULL;
 }
 
 static NpgProgram *compile(const char *path) {
@@ -190,15 +235,13 @@ static int check_bad_program(const char *path) {
       problems++;
     }
     free(got);
-    int caret = caret_column(err), col = diag_column(err);
-    if (!caret) {
-      print_error("%s: diagnostic has no caret line:\n%s\n", path, err);
-      problems++;
-    } else if (caret != col) {
-      print_error("%s: caret under column %d, diagnostic names column %d:\n%s\n", path, caret,
-                  col, err);
+    char *source = read_text(path);
+    const char *why = caret_problem(err, source ? source : "");
+    if (why) {
+      print_error("%s: %s:\n%s\n", path, why, err);
       problems++;
     }
+    free(source);
   }
   npg_free(p);
   free(want);
@@ -242,10 +285,87 @@ static void test_good_programs_compile(void **state) {
   if (failed) fail_msg("%d of %zu good programs do not compile (listed above)", failed, n);
 }
 
+/* Write 'text' to a fresh file; its path (static storage). */
+static const char *write_temp(const char *text) {
+  static char path[256];
+  const char *t = getenv("TMPDIR");
+  snprintf(path, sizeof path, "%s/npg-diag-XXXXXX.npg", t && *t ? t : "/tmp");
+  int fd = mkstemps(path, 4);
+  assert_true(fd >= 0);
+  FILE *f = fdopen(fd, "w");
+  assert_non_null(f);
+  fputs(text, f);
+  fclose(f);
+  return path;
+}
+
+/* Whether the n bytes at s are whole UTF-8 characters. */
+static bool whole_utf8(const char *s, size_t n) {
+  for (size_t i = 0; i < n;) {
+    unsigned char c = (unsigned char)s[i];
+    size_t len = c < 0x80 ? 1 : c >= 0xF0 ? 4 : c >= 0xE0 ? 3 : c >= 0xC0 ? 2 : 0;
+    if (!len || i + len > n) return false;
+    for (size_t k = 1; k < len; k++)
+      if (!utf8_continuation(s[i + k])) return false;
+    i += len;
+  }
+  return true;
+}
+
+/* A 125 KB one-line program: the diagnostic shows a window of the line
+ * around the column with its cuts marked "…", whole UTF-8 characters, the
+ * caret under the right character. */
+static void test_long_line_window(void **state) {
+  (void)state;
+  struct {
+    int before;          /* blanks before the fault */
+    const char *fault;   /* what the diagnostic is about */
+    int after;           /* blanks after it */
+    const char *comment; /* a comment of 30,000 of these after the line, or none */
+    const char *expect;
+    int cuts;            /* "…" marks expected */
+  } cases[] = {
+      {0, "nosuch", 0, NULL, "unknown name 'nosuch'", 0},           /* short: the whole line */
+      {0, "nosuch", 0, "ab", "unknown name 'nosuch'", 1},           /* at the start of a long line */
+      {60000, "nosuch", 60000, NULL, "unknown name 'nosuch'", 2},   /* in the middle */
+      {120000, "nosuch", 0, NULL, "unknown name 'nosuch'", 1},      /* at the end */
+      {0, "nosuch", 0, "é", "unknown name 'nosuch'", 1},            /* a cut among multibyte characters */
+      {60000, "é", 0, "é", "", 2},                                  /* the fault is a multibyte character */
+  };
+  for (size_t c = 0; c < sizeof cases / sizeof *cases; c++) {
+    size_t cap = 256 + (size_t)cases[c].before + (size_t)cases[c].after + 30000 * 4, len = 0;
+    char *text = malloc(cap);
+    assert_non_null(text);
+    len += (size_t)snprintf(text + len, cap - len, "input x : real[2]\noutput y = x[0] + %*s%s%*s + x[1]",
+                            cases[c].before, "", cases[c].fault, cases[c].after, "");
+    if (cases[c].comment) {
+      len += (size_t)snprintf(text + len, cap - len, " #");
+      for (int i = 0; i < 30000; i++) len += (size_t)snprintf(text + len, cap - len, "%s", cases[c].comment);
+    }
+    len += (size_t)snprintf(text + len, cap - len, "\n");
+    const char *path = write_temp(text);
+    NpgProgram *p = compile(path);
+    assert_false(npg_ok(p));
+    const char *err = npg_error(p);
+    const char *why = caret_problem(err, text);
+    if (why) fail_msg("case %zu: %s:\n%.2000s", c, why, err);
+    if (!strstr(err, cases[c].expect)) fail_msg("case %zu: no '%s' in\n%.2000s", c, cases[c].expect, err);
+    int cuts = 0;
+    for (const char *q = err; (q = strstr(q, "…")); q++) cuts++;
+    if (cuts != cases[c].cuts) fail_msg("case %zu: %d cut marks, expected %d:\n%.2000s", c, cuts, cases[c].cuts, err);
+    if (strlen(err) > 400) fail_msg("case %zu: a diagnostic of %zu bytes", c, strlen(err));
+    if (!whole_utf8(err, strlen(err))) fail_msg("case %zu: a character cut in two:\n%s", c, err);
+    npg_free(p);
+    unlink(path);
+    free(text);
+  }
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_bad_programs_fail_as_expected),
       cmocka_unit_test(test_good_programs_compile),
+      cmocka_unit_test(test_long_line_window),
   };
   return cmocka_run_group_tests(tests, enter_source_dir, NULL);
 }
