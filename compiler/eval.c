@@ -78,7 +78,7 @@ static int write_out(const Out *o, NpgFull *f, const char *outdir, long samples)
     snprintf(path, sizeof path, "%s/%s.npy", outdir, o->sym.name);
   }
   if (rc == 0) rc = npg_npy_write(path, nd, shape, o->v, err, sizeof err);
-  if (rc != 0) fprintf(stderr, "error: %s\n", err);
+  if (rc != 0) npgc_error(err);
   return rc;
 }
 
@@ -105,11 +105,11 @@ static int eval_full(NpgProgram *p, const char *data, const char *in, const char
       goto done;
     }
   if (npg_full_error(f)[0] || npg_full_bind_params(f, data) != 0) {
-    fprintf(stderr, "error: %s\n", npg_full_error(f));
+    npgc_error(npg_full_error(f));
     goto done;
   }
   if (!(s = npg_samples_open(p, in, data, true, err, sizeof err))) {
-    fprintf(stderr, "error: %s\n", err);
+    npgc_error(err);
     goto done;
   }
   long samples = npg_samples_count(s);
@@ -117,12 +117,12 @@ static int eval_full(NpgProgram *p, const char *data, const char *in, const char
   for (long k = 0; k < samples; k++) {
     if (npg_samples_set(s, f, k) != 0 || npg_full_eval(f, k) != 0 || npg_full_check_finite(f, k) != 0) {
       if (tty) fputc('\n', stderr);
-      fprintf(stderr, "error: %s\n", npg_full_error(f));
+      npgc_error(npg_full_error(f));
       goto done;
     }
     for (int o = 0; o < nout; o++)
       if (keep(&outs[o], f, k, samples) != 0) {
-        if (npg_full_error(f)[0]) fprintf(stderr, "error: %s\n", npg_full_error(f));
+        if (npg_full_error(f)[0]) npgc_error(npg_full_error(f));
         goto done;
       }
     npg_progress(tty, "full evaluation", k + 1, samples);

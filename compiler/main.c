@@ -39,7 +39,7 @@ static int cmd_emit(int argc, char **argv) {
   }
   NpgModel *m = NULL;
   if (model_dir && npg_model_error(m = npg_model_load(p, model_dir))[0]) {
-    fprintf(stderr, "error: %s\n", npg_model_error(m));
+    npgc_error(npg_model_error(m));
     npg_model_free(m);
     npg_free(p);
     return 1;
@@ -64,7 +64,7 @@ static int cmd_emit(int argc, char **argv) {
     fprintf(stderr, "npgc emit: cannot write %s: %s\n", tmp, strerror(errno));
     rc = -1;
   } else if (rc != 0 && m) {
-    fprintf(stderr, "error: %s\n", err);
+    npgc_error(err);
   } else if (rc != 0) {
     fputs(npg_error(p), stderr);
   }

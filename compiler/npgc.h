@@ -18,6 +18,10 @@ int npgc_tune(int argc, char **argv);
  * stderr and 2), and of every command. */
 int npgc_usage(const char *cmd, bool help);
 void npgc_usage_all(FILE *out);
+/* Print `msg` to stderr as an error: "error: msg", or as it is when it is
+ * already a diagnostic at a program location ("file:line:col: error: ..."
+ * and its source line, as a bind-time index error is). */
+void npgc_error(const char *msg);
 /* Strict numbers: the whole string, in range (false otherwise). */
 bool npgc_parse_long(const char *s, long lo, long hi, long *out);
 bool npgc_parse_double(const char *s, double lo, double hi, bool lo_open, double *out);

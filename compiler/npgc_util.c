@@ -126,6 +126,26 @@ void npgc_usage_all(FILE *out) {
   }
 }
 
+/* `msg` starts "FILE:LINE:COL: error: " (FILE may hold colons). */
+static bool is_program_diagnostic(const char *msg) {
+  const char *e = strstr(msg, ": error: ");
+  if (!e || memchr(msg, '\n', (size_t)(e - msg))) return false;
+  const char *p = e;
+  for (int field = 0; field < 2; field++) {
+    const char *digits = p;
+    while (p > msg && p[-1] >= '0' && p[-1] <= '9') p--;
+    if (p == digits || p == msg || p[-1] != ':') return false;
+    p--;
+  }
+  return p > msg;
+}
+
+void npgc_error(const char *msg) {
+  size_t n = strlen(msg);
+  fprintf(stderr, "%s%.*s\n", is_program_diagnostic(msg) ? "" : "error: ", (int)(n && msg[n - 1] == '\n' ? n - 1 : n),
+          msg);
+}
+
 bool npgc_parse_long(const char *s, long lo, long hi, long *out) {
   if (!s || !*s) return false;
   char *end;

@@ -28,7 +28,7 @@ int npgc_plot(int argc, char **argv) {
   int n = 0, rc = 1;
   char err[2048] = "";
   if (npg_spectra_read(dir, &sp, &n, err, sizeof err) != 0) {
-    fprintf(stderr, "error: %s\n", err);
+    npgc_error(err);
     return 1;
   }
   ChartSeries *series = calloc((size_t)n + 1, sizeof *series);
@@ -51,7 +51,7 @@ int npgc_plot(int argc, char **argv) {
   snprintf(title, sizeof title, "singular values of each member's snapshots: %s", dir);
   Chart chart = {title, "k", "singular value / largest", false, true, n, series};
   if (chart_png(&chart, out, 960, 540, err, sizeof err) != 0) {
-    fprintf(stderr, "error: %s\n", err);
+    npgc_error(err);
     goto done;
   }
   printf("%d spectra -> %s\n", n, out);

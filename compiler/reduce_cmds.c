@@ -199,11 +199,11 @@ static int cmd_train(Common *c) {
   NpgModel *m = NULL;
   NpgFull *f = npg_full_new(p, c->cc ? NPG_CC : NPG_TCC);
   if (npg_full_error(f)[0] || npg_full_bind_params(f, c->a) != 0) {
-    fprintf(stderr, "error: %s\n", npg_full_error(f));
+    npgc_error(npg_full_error(f));
     goto done;
   }
   if (!(s = npg_samples_open(p, c->a, NULL, true, err, sizeof err))) {
-    fprintf(stderr, "error: %s\n", err);
+    npgc_error(err);
     goto done;
   }
   if (npg_samples_count(s) < 1) {
@@ -214,10 +214,10 @@ static int cmd_train(Common *c) {
   t = npg_trainer_new(f, &c->train);
   for (long k = 0; k < npg_samples_count(s) && !npg_trainer_error(t)[0]; k++)
     if (npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0) break;
-  if (npg_full_error(f)[0]) fprintf(stderr, "error: %s\n", npg_full_error(f));
-  else if (!(m = npg_trainer_finish(t, c->out))) fprintf(stderr, "error: %s\n", npg_trainer_error(t));
+  if (npg_full_error(f)[0]) npgc_error(npg_full_error(f));
+  else if (!(m = npg_trainer_finish(t, c->out))) npgc_error(npg_trainer_error(t));
   else if (c->spectra && npg_model_write_spectra(m, c->spectra, err, sizeof err) != 0)
-    fprintf(stderr, "error: %s\n", err);
+    npgc_error(err);
   else {
     printf("trained %s on %ld samples in %.2f s -> %s\n", c->prog_path, npg_samples_count(s), now() - t0, c->out);
     npg_model_report(m, stdout);
@@ -267,32 +267,32 @@ static int open_session(Common *c, Session *x, bool full) {
   for (int i = 0; i < x->nsym; i++) npg_symbol(x->p, i, &x->sym[i]);
   x->m = npg_model_load(x->p, c->a);
   if (npg_model_error(x->m)[0]) {
-    fprintf(stderr, "error: %s\n", npg_model_error(x->m));
+    npgc_error(npg_model_error(x->m));
     return -1;
   }
   x->r = npg_reduced_new(x->m);
   npg_reduced_exact_roots(x->r, c->exact_roots);
   if (npg_reduced_error(x->r)[0]) {
-    fprintf(stderr, "error: %s\n", npg_reduced_error(x->r));
+    npgc_error(npg_reduced_error(x->r));
     return -1;
   }
   /* a full evaluation needs the extern values of the data; a reduced one learns them */
   if (!(x->s = npg_samples_open(x->p, c->b, NULL, full, err, sizeof err))) {
-    fprintf(stderr, "error: %s\n", err);
+    npgc_error(err);
     return -1;
   }
   if (!full && npg_model_check_params_dir(x->m, c->b, err, sizeof err) != 0) {
-    fprintf(stderr, "error: %s\n", err);
+    npgc_error(err);
     return -1;
   }
   if (full) {
     x->f = npg_full_new(x->p, c->cc ? NPG_CC : NPG_TCC);
     if (npg_full_error(x->f)[0] || npg_full_bind_params(x->f, c->b) != 0) {
-      fprintf(stderr, "error: %s\n", npg_full_error(x->f));
+      npgc_error(npg_full_error(x->f));
       return -1;
     }
     if (npg_model_check_params(x->m, x->f, err, sizeof err) != 0) {
-      fprintf(stderr, "error: %s\n", err);
+      npgc_error(err);
       return -1;
     }
   }
@@ -361,7 +361,7 @@ static int write_outputs(const Common *c, const Session *x, const Out *outs, int
     }
     continue;
   fail:
-    fprintf(stderr, "error: %s\n", err);
+    npgc_error(err);
     return -1;
   }
   return 0;
@@ -420,7 +420,7 @@ static int cmd_eval_reduced(Common *c) {
   rc = write_outputs(c, &x, outs, nout, S) == 0 ? 0 : 1;
   goto done;
 failed:
-  fprintf(stderr, "error: %s\n", npg_reduced_error(x.r));
+  npgc_error(npg_reduced_error(x.r));
   goto done;
 oom:
   fputs("error: out of memory\n", stderr);
@@ -481,7 +481,7 @@ static int cmd_verify(Common *c) {
   int rc = 1;
   if (open_session(c, &x, true) != 0) goto done;
   if (npg_verify(x.m, x.f, npg_samples_count(x.s), npg_samples_set, x.s, c->train.progress, &rep) != 0) {
-    fprintf(stderr, "error: %s\n", rep.error);
+    npgc_error(rep.error);
     goto done;
   }
   print_report(c, &rep);
@@ -542,22 +542,22 @@ static int cmd_bench(Common *c) {
   for (long rep = 0; rep < c->reps; rep++)
     for (long k = 0; k < S; k++) {
       if (npg_samples_set(x.s, x.f, k) != 0) {
-        fprintf(stderr, "error: %s\n", npg_full_error(x.f));
+        npgc_error(npg_full_error(x.f));
         goto done;
       }
       double t0 = now();
       if (npg_full_eval(x.f, k) != 0) {
-        fprintf(stderr, "error: %s\n", npg_full_error(x.f));
+        npgc_error(npg_full_error(x.f));
         goto done;
       }
       double t1 = now();
       if (reduced_sample(&x, k) != 0) {
-        fprintf(stderr, "error: %s\n", npg_reduced_error(x.r));
+        npgc_error(npg_reduced_error(x.r));
         goto done;
       }
       double t2 = now();
       if (lift_outputs(&x, y, maxn) != 0) {
-        fprintf(stderr, "error: %s\n", npg_reduced_error(x.r));
+        npgc_error(npg_reduced_error(x.r));
         goto done;
       }
       double t3 = now();

@@ -99,19 +99,19 @@ int npgc_tune(int argc, char **argv) {
   NpgModel *m = NULL;
   NpgFull *f = npg_full_new(p, cc ? NPG_CC : NPG_TCC);
   if (npg_full_error(f)[0] || npg_full_bind_params(f, data) != 0) {
-    fprintf(stderr, "error: %s\n", npg_full_error(f));
+    npgc_error(npg_full_error(f));
     goto done;
   }
   if (!(ds = npg_samples_open(p, data, NULL, true, err, sizeof err)) ||
       !(vs = npg_samples_open(p, valid, NULL, true, err, sizeof err)) ||
       npg_full_check_params_dir(f, valid, err, sizeof err) != 0) {
-    fprintf(stderr, "error: %s\n", err[0] ? err : "out of memory");
+    npgc_error(err[0] ? err : "out of memory");
     goto done;
   }
   m = npg_tune(f, npg_samples_count(ds), npg_samples_set, ds, npg_samples_count(vs), npg_samples_set, vs, tol,
                (int)max_cap, &topt, &r);
   if (!m && r.error[0]) {
-    fprintf(stderr, "error: %s\n", r.error);
+    npgc_error(r.error);
     goto done;
   }
   printf("tune %s: %d candidates (every class's cap; the basis sizes they give), worst output's mean relative L2 "
@@ -125,7 +125,7 @@ int npgc_tune(int argc, char **argv) {
     printf("%s%s\n", tr->err <= tol ? "  meets" : "", t == r.chosen ? "  <- chosen" : "");
   }
   if (draw(&r, tol, png, err, sizeof err) != 0) {
-    fprintf(stderr, "error: %s\n", err);
+    npgc_error(err);
     goto done;
   }
   if (!m) {
@@ -139,7 +139,7 @@ int npgc_tune(int argc, char **argv) {
     goto done;
   }
   if (npgc_make_parents(out, false) != 0 || npg_model_save(m, out) != 0) {
-    if (npg_model_error(m)[0]) fprintf(stderr, "error: %s\n", npg_model_error(m));
+    if (npg_model_error(m)[0]) npgc_error(npg_model_error(m));
     goto done;
   }
   const NpgTuneTrial *ch = &r.trials[r.chosen];

@@ -147,12 +147,8 @@ enum { DIAG_WINDOW = 100 };
 
 static bool utf8_continuation(char c) { return ((unsigned char)c & 0xC0) == 0x80; }
 
-/* Append "file:line:col: kind: msg\n<source line>\n<caret>\n" to buf: the
- * line, or its window of DIAG_WINDOW bytes around the column, and a caret
- * under the character at the column (tabs kept, one column per UTF-8
- * character). */
-static char *format_at(Ctx *ctx, const char *prefix, Loc loc, const char *kind, const char *msg) {
-  if (!loc.file) return arena_printf(ctx, "%s%s: %s\n", prefix, kind, msg);
+char *diag_excerpt(Ctx *ctx, Loc loc) {
+  if (!loc.file) return arena_strndup(ctx, "", 0);
   const char *text = loc.file->text;
   size_t start = loc.off <= loc.file->len ? loc.off : loc.file->len;
   while (start > 0 && text[start - 1] != '\n') start--;
@@ -183,8 +179,14 @@ static char *format_at(Ctx *ctx, const char *prefix, Loc loc, const char *kind, 
   char *line = arena_strndup(ctx, text + from, to - from);
   for (char *c = line; *c; c++)
     if ((unsigned char)*c < 32 && *c != '\t') *c = '?';
-  return arena_printf(ctx, "%s%s:%d:%d: %s: %s\n%s%s%s\n%s\n", prefix, loc.file->name, loc.line, loc.col, kind,
-                      msg, cut_before ? "…" : "", line, cut_after ? "…" : "", caret);
+  return arena_printf(ctx, "%s%s%s\n%s", cut_before ? "…" : "", line, cut_after ? "…" : "", caret);
+}
+
+/* Append "file:line:col: kind: msg\n<source line>\n<caret>\n" to buf. */
+static char *format_at(Ctx *ctx, const char *prefix, Loc loc, const char *kind, const char *msg) {
+  if (!loc.file) return arena_printf(ctx, "%s%s: %s\n", prefix, kind, msg);
+  return arena_printf(ctx, "%s%s:%d:%d: %s: %s\n%s\n", prefix, loc.file->name, loc.line, loc.col, kind, msg,
+                      diag_excerpt(ctx, loc));
 }
 
 static _Noreturn void fail(Ctx *ctx) {

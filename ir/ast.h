@@ -98,6 +98,11 @@ _Noreturn void error_note(Ctx *ctx, Loc loc, Loc note, const char *note_msg,
 /* An error at a node: adds "note: inlined from here" lines for fn calls. */
 _Noreturn void error_node(Ctx *ctx, const Node *n, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
+/* The source line of `loc` (a window of it around the column when long,
+ * its cuts marked "…") and below it a caret under the column: the lines
+ * that follow "file:line:col: error: message" in a diagnostic, for errors
+ * found later than compilation (bind time). "" without a file. */
+char *diag_excerpt(Ctx *ctx, Loc loc);
 /* Error without a source location (files, data). */
 _Noreturn void error_plain(Ctx *ctx, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 /* Internal error: a broken invariant of the compiler itself. */

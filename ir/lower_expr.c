@@ -60,8 +60,9 @@ static Node *whole_index(Lowerer *L, Env *env, int axis) {
 static Node *coef(Lowerer *L, Node *n, Env *env, int comp);
 
 /* Component `comp` of quantity `q` (a param or a constant definition)
- * indexed by `args` (dim axes, then some static axes). */
-static Node *coef_entry(Lowerer *L, Sym *q, Node **args, int nargs, Env *env, int comp) {
+ * indexed by `args` (dim axes, then some static axes), as read by the
+ * source node `use` (whose location and inlining it keeps). */
+static Node *coef_entry(Lowerer *L, const Node *use, Sym *q, Node **args, int nargs, Env *env, int comp) {
   Ctx *ctx = L->ctx;
   /* static axes not given explicitly (a whole quantity, nargs = 0, gives none) */
   int given = nargs > q->ndims ? nargs - q->ndims : 0;
@@ -85,7 +86,8 @@ static Node *coef_entry(Lowerer *L, Sym *q, Node **args, int nargs, Env *env, in
   }
   int nidx = q->ndims + q->nstatic;
   if (nidx == 0) return coef_name(L->ctx, q);
-  Node *n = new_node(ctx, N_INDEX, (Loc){0});
+  Node *n = new_node(ctx, N_INDEX, use->loc); /* bind-time index errors point at the use */
+  n->inl = use->inl;
   n->a = coef_name(L->ctx, q);
   n->sym = q;
   n->nargs = nidx;
@@ -132,11 +134,11 @@ static Node *coef(Lowerer *L, Node *n, Env *env, int comp) {
       return v ? v : coef_name(L->ctx, s);
     }
     if (s->kind == SYM_DIM) return coef_name(L->ctx, s);
-    return coef_entry(L, s, NULL, 0, env, comp);
+    return coef_entry(L, n, s, NULL, 0, env, comp);
   }
   case N_INDEX:
     if (n->a->kind == N_NAME && n->sym && (n->sym->kind == SYM_PARAM || n->sym->kind == SYM_STAGE))
-      return coef_entry(L, n->sym, n->args, n->nargs, env, comp);
+      return coef_entry(L, n, n->sym, n->args, n->nargs, env, comp);
     return coef(L, n->a, env, select_flat(L, n, env, comp));
   case N_VEC: {
     int per = type_ncomp(&n->args[0]->ty);

@@ -140,12 +140,50 @@ static void gather_out_of_range(void **state) {
   assert_int_equal(npg_full_set(f, "e", 1, se, e, "e"), 0);
   assert_int_equal(npg_full_set(f, "v", 2, sv, v, "v"), 0);
   assert_int_equal(npg_full_eval(f, 0), -1);
+  /* at the use in the program: tri[f,1] is the first gather of stage n */
   char want[1024];
-  snprintf(want, sizeof want, "%s/tri.npy: entry [2, 1] = 9 is out of range for dim V (size 4), used as an index in stage 'n'",
+  snprintf(want, sizeof want,
+           "examples/radiosity/formfactors.npg:12:29: error: %s/tri.npy: entry [2, 1] = 9 is out of range for dim V "
+           "(size 4), used as an index in stage 'n'\n"
+           "n[f:F]      = 0.5 * cross(g[tri[f,1]] - g[tri[f,0]], g[tri[f,2]] - g[tri[f,0]])   # area vector: |n|…\n"
+           "                            ^",
            dir);
   assert_string_equal(npg_full_error(f), want);
   npg_full_free(f);
   npg_free(p);
+}
+
+/* A compound index and a gather inlined from a fn: the error stands at
+ * the use in the program (the param in the index, the call). */
+static void gather_out_of_range_located(void **state) {
+  (void)state;
+  const struct {
+    const char *stage, *want;
+  } cases[] = {
+      {"output y[k:E] = x[e[k] + 1]\n",
+       "gather.npg:4:19: error: stage 'y' at [1]: index 4 is out of range for dim N (size 4)\n"
+       "output y[k:E] = x[e[k] + 1]\n"
+       "                  ^"},
+      {"fn at(v, k) = v[e[k]]\noutput y[k:E] = 2 * at(x, k)\n",
+       "gather.npg:5:21: error: IN/e.npy: entry [1] = 9 is out of range for dim N (size 4), used as an index in stage 'y'\n"
+       "output y[k:E] = 2 * at(x, k)\n"
+       "                    ^"},
+  };
+  for (size_t c = 0; c < sizeof cases / sizeof *cases; c++) {
+    char text[512];
+    snprintf(text, sizeof text, "dim N, E\nparam e : int[E]\ninput x : real[N]\n%s", cases[c].stage);
+    NpgProgram *p = compile_text("gather.npg", text);
+    ir_ok(p);
+    NpgFull *f = npg_full_new(p, NPG_TCC);
+    double e[2] = {0, c == 0 ? 3 : 9}, x[4] = {1, 2, 3, 4};
+    long se[1] = {2}, sx[1] = {4};
+    assert_int_equal(npg_full_set(f, "e", 1, se, e, "IN/e.npy"), 0);
+    assert_int_equal(npg_full_set(f, "x", 1, sx, x, "IN/x.npy"), 0);
+    assert_int_equal(npg_full_eval(f, 0), -1);
+    assert_string_equal(npg_full_error(f), cases[c].want);
+    npg_full_free(f);
+    npg_free(p);
+  }
 }
 
 static void nan_in_input(void **state) {
@@ -246,7 +284,8 @@ int main(void) {
       cmocka_unit_test(missing_file),         cmocka_unit_test(wrong_dtype),
       cmocka_unit_test(dim_mismatch_names_both_files), cmocka_unit_test(static_axis_mismatch),
       cmocka_unit_test(wrong_rank),           cmocka_unit_test(nan_in_param),
-      cmocka_unit_test(gather_out_of_range),  cmocka_unit_test(nan_in_input),
+      cmocka_unit_test(gather_out_of_range),  cmocka_unit_test(gather_out_of_range_located),
+      cmocka_unit_test(nan_in_input),
       cmocka_unit_test(singular_and_indefinite), cmocka_unit_test(operator_not_finite),
       cmocka_unit_test(unbound_dim),
   };

@@ -255,6 +255,40 @@ static void stage_body_cb(Emit *e, FILE *out, const void *st) { emit_stage_body(
 /* Check every dim-axis index inside n (a param gather) before it is used. */
 static void emit_node_checks(Emit *e, FILE *out, const Node *n, const Sym *where, int depth);
 
+/* `s` as a C string literal: printable ASCII as is, everything else (and
+ * '"', '\\', '?' against trigraphs) as octal escapes. */
+static void emit_c_string(FILE *out, const char *s) {
+  fputc('"', out);
+  for (const unsigned char *c = (const unsigned char *)s; *c; c++)
+    if (*c >= 32 && *c < 127 && *c != '"' && *c != '\\' && *c != '?') fputc(*c, out);
+    else fprintf(out, "\\%03o", *c);
+  fputc('"', out);
+}
+
+/* The first node of `n` (itself, then its operands) that has a source
+ * location: a compound index made by lowering has none, its param has. */
+static const Node *located(const Node *n) {
+  if (!n || n->loc.file) return n;
+  const Node *kids[3] = {n->a, n->b, n->c};
+  for (int i = 0; i < 3; i++)
+    if (located(kids[i])) return located(kids[i]);
+  for (int i = 0; i < n->nargs; i++)
+    if (located(n->args[i])) return located(n->args[i]);
+  return NULL;
+}
+
+/* The location of the use `idx` in the user's program (the outermost fn
+ * call it was inlined from, if any; else the stage's definition) as the
+ * arguments `at, excerpt` of gather_error. */
+static void emit_use_site(Emit *e, FILE *out, const Node *idx, const Sym *where) {
+  const Node *use = located(idx);
+  Loc loc = use ? use->loc : where->loc;
+  for (const Node *c = use ? use->inl : NULL; c; c = c->inl) loc = c->loc;
+  emit_c_string(out, loc.file ? arena_printf(e->ctx, "%s:%d:%d", loc.file->name, loc.line, loc.col) : where->name);
+  fputs(", ", out);
+  emit_c_string(out, diag_excerpt(e->ctx, loc));
+}
+
 /* idx indexes axis `axis` (a dim) of q: report if out of range. */
 static void emit_index_check(Emit *e, FILE *out, const Sym *q, int axis, const Node *idx, const Sym *where,
                              int depth) {
@@ -278,14 +312,16 @@ static void emit_index_check(Emit *e, FILE *out, const Sym *q, int axis, const N
       if (i) fputs(", ", out);
       emit_cexpr(e, out, idx->args[i]);
     }
-    fprintf(out, "}; c->rt->gather_error(c, \"%s\", %d, %d, w_, v%d_, %d); return -1; } }\n", where->name,
-            emit_index_of(&e->prog->params, p), idx->nargs, t, dim_id);
+    fprintf(out, "}; c->rt->gather_error(c, \"%s\", ", where->name);
+    emit_use_site(e, out, idx, where);
+    fprintf(out, ", %d, %d, w_, v%d_, %d); return -1; } }\n", emit_index_of(&e->prog->params, p), idx->nargs, t, dim_id);
   } else {
     fprintf(out, "npg_idx w_[%d] = {", where->nivars ? where->nivars : 1);
     for (int i = 0; i < where->nivars; i++) fprintf(out, "%s%s", i ? ", " : "", emit_name(e, where->ivars[i]));
     if (!where->nivars) fputc('0', out);
-    fprintf(out, "}; c->rt->gather_error(c, \"%s\", -1, %d, w_, v%d_, %d); return -1; } }\n", where->name,
-            where->nivars, t, dim_id);
+    fprintf(out, "}; c->rt->gather_error(c, \"%s\", ", where->name);
+    emit_use_site(e, out, idx, where);
+    fprintf(out, ", -1, %d, w_, v%d_, %d); return -1; } }\n", where->nivars, t, dim_id);
   }
 }
 

@@ -76,9 +76,11 @@ struct NpgRt {
   void (*release)(const NpgCtx *c, double *p);
   /* Bind-time check of a gather: `value` indexes dim `dim`; `param` is the
    * param read (or -1 when the index is a compound expression) at entry
-   * `entry[0..nentry)`; `stage` is where it is used. Records the message. */
-  void (*gather_error)(const NpgCtx *c, const char *stage, int param, int nentry, const npg_idx *entry,
-                       npg_idx value, int dim);
+   * `entry[0..nentry)`; `stage` is where it is used, `at` ("file:line:col")
+   * and `excerpt` (the source line and a caret under the column) the use
+   * in the program. Records the message. */
+  void (*gather_error)(const NpgCtx *c, const char *stage, const char *at, const char *excerpt, int param,
+                       int nentry, const npg_idx *entry, npg_idx value, int dim);
   /* Row kernels, for libtcc code (which neither vectorizes nor keeps
    * values in registers): out[k] = x[k] op y[k], x[k] op s, s op x[k],
    * op x[k], or s, for 0 <= k < n. Each does exactly the IEEE operation

@@ -168,20 +168,23 @@ static int op_power(const NpgCtx *c, const char *stage, const char *op, npg_idx 
   return 0;
 }
 
-static void gather_error(const NpgCtx *c, const char *stage, int param, int nentry, const npg_idx *entry, npg_idx value,
-                         int dim) {
+/* "AT: error: D/tri.npy: entry [2, 1] = 9 is out of range ...\n<excerpt>": a
+ * diagnostic at the use in the program, naming the data file and entry. */
+static void gather_error(const NpgCtx *c, const char *stage, const char *at, const char *excerpt, int param,
+                         int nentry, const npg_idx *entry, npg_idx value, int dim) {
   NpgHost *h = c->host;
-  char at[256] = "";
+  char where[256] = "";
   size_t len = 0;
-  for (int i = 0; i < nentry && len + 24 < sizeof at; i++)
-    len += (size_t)snprintf(at + len, sizeof at - len, "%s%ld", i ? ", " : "", (long)entry[i]);
+  for (int i = 0; i < nentry && len + 24 < sizeof where; i++)
+    len += (size_t)snprintf(where + len, sizeof where - len, "%s%ld", i ? ", " : "", (long)entry[i]);
   const char *dname = h && h->dim_names ? h->dim_names[dim] : "?";
   long dsize = (long)c->dims[dim];
   if (param >= 0 && h && h->param_files)
-    record(c, "%s: entry [%s] = %ld is out of range for dim %s (size %ld), used as an index in stage '%s'",
-           h->param_files[param], at, (long)value, dname, dsize, stage);
+    record(c, "%s: error: %s: entry [%s] = %ld is out of range for dim %s (size %ld), used as an index in stage '%s'\n%s",
+           at, h->param_files[param], where, (long)value, dname, dsize, stage, excerpt);
   else
-    record(c, "stage '%s' at [%s]: index %ld is out of range for dim %s (size %ld)", stage, at, (long)value, dname, dsize);
+    record(c, "%s: error: stage '%s' at [%s]: index %ld is out of range for dim %s (size %ld)\n%s", at, stage, where,
+           (long)value, dname, dsize, excerpt);
 }
 
 const NpgRt npg_runtime = {op_power, scratch, release, gather_error, rows_vv, rows_vs, rows_sv, rows_unary, rows_fill};
