@@ -33,8 +33,8 @@ struct NpgTrainer {
 #define tfail(t, ...) npg_fail_first((t)->error, sizeof (t)->error, __VA_ARGS__)
 
 static size_t half_the_ram(void) {
-  long pages = sysconf(_SC_PHYS_PAGES), psize = sysconf(_SC_PAGE_SIZE);
-  return pages > 0 && psize > 0 ? (size_t)pages * (size_t)psize / 2 : (size_t)8 << 30;
+  size_t ram = npg_physical_memory();
+  return ram ? ram / 2 : (size_t)8 << 30;
 }
 
 void npg_train_options_default(NpgTrainOptions *o) {
@@ -174,6 +174,30 @@ static int replay(void *user, NpgFull *f, long k) {
   return 0;
 }
 
+/* The full evaluator keeps the value of every quantity of the sample it
+ * evaluates, so training needs at least the largest of them in memory: a
+ * quantity that alone is larger than --mem is refused, naming it, its size
+ * and the budget, rather than silently exceeding --mem. */
+static int check_mem(NpgTrainer *t) {
+  for (int k = 0; k < t->prog->slots.n; k++) {
+    const Sym *s = t->prog->slots.v[k];
+    long shape[MAX_AXES + MAX_STATIC];
+    int nd = api_shape(t->f, s, shape);
+    double entries = 1;
+    for (int i = 0; i < nd; i++) entries *= (double)shape[i];
+    if (entries * sizeof(double) <= (double)t->opt.mem) continue;
+    char need[32], have[32];
+    return tfail(t, "%s '%s' alone needs %s per sample (%.4g entries), more than --mem %s%s: training holds it in "
+                    "memory (the full evaluator keeps every stage of a sample), so it cannot stay within --mem; raise "
+                    "--mem, or train on smaller data",
+                 s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage", s->name,
+                 npg_bytes_text(entries * sizeof(double), need, sizeof need), entries,
+                 npg_bytes_text((double)t->opt.mem, have, sizeof have),
+                 t->opt.mem == half_the_ram() ? " (the default: half of this machine's memory)" : "");
+  }
+  return 0;
+}
+
 NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   if (t->error[0]) return NULL;
   if (t->samples == 0) {
@@ -187,6 +211,7 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
       return NULL;
     }
   }
+  if (check_mem(t)) return NULL;
   TrainOptions o;
   memset(&o, 0, sizeof o);
   o.cap = t->opt.cap;

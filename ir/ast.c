@@ -4,6 +4,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 /* ---------------------------------------------------------------- tables */
 
@@ -119,6 +120,19 @@ int npg_fail_first(char *err, size_t errlen, const char *fmt, ...) {
     va_end(ap);
   }
   return -1;
+}
+
+const char *npg_bytes_text(double bytes, char *buf, size_t len) {
+  static const char *const units[] = {"B", "kB", "MB", "GB", "TB", "PB", "EB"};
+  int u = 0;
+  while (bytes >= 1000 && u < 6) bytes /= 1000, u++;
+  snprintf(buf, len, "%.3g %s", bytes, units[u]);
+  return buf;
+}
+
+size_t npg_physical_memory(void) {
+  long pages = sysconf(_SC_PHYS_PAGES), psize = sysconf(_SC_PAGE_SIZE);
+  return pages > 0 && psize > 0 ? (size_t)pages * (size_t)psize : 0;
 }
 
 char *arena_printf(Ctx *ctx, const char *fmt, ...) {

@@ -52,6 +52,11 @@ int npg_fail(char *err, size_t errlen, const char *fmt, ...) __attribute__((form
 /* The same, unless `err` already holds a message: the first error of an
  * object stays (the evaluators and the trainer refuse work after one). */
 int npg_fail_first(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+/* `bytes` for a message, in the units --mem takes (powers of 1000):
+ * "800 B", "1.12 GB", "8 TB"; into `buf`, which is returned. */
+const char *npg_bytes_text(double bytes, char *buf, size_t len);
+/* This machine's physical memory in bytes (0 if unknown). */
+size_t npg_physical_memory(void);
 
 typedef struct Ctx Ctx;
 void *arena_alloc(Ctx *ctx, size_t size);            /* zeroed; never NULL */

@@ -173,11 +173,55 @@ static const char *index_text(NpgFull *f, const Sym *s, size_t e, char *buf, siz
   return buf;
 }
 
+/* The entries of `s` as bound; SIZE_MAX when their count overflows. */
 static size_t count_of(NpgFull *f, const Sym *s) {
   size_t n = 1;
-  for (int i = 0; i < s->ndims; i++) n *= (size_t)f->dims[emit_index_of(&f->prog->dims, s->dims[i])];
-  for (int i = 0; i < s->nstatic; i++) n *= (size_t)s->shape[i];
+  for (int i = 0; i < s->ndims; i++)
+    if (__builtin_mul_overflow(n, (size_t)f->dims[emit_index_of(&f->prog->dims, s->dims[i])], &n)) return SIZE_MAX;
+  for (int i = 0; i < s->nstatic; i++)
+    if (__builtin_mul_overflow(n, (size_t)s->shape[i], &n)) return SIZE_MAX;
   return n;
+}
+
+/* A zeroed buffer for the `n` entries of quantity `s` (one at least): NULL
+ * after a message naming it, its shape and the memory it needs, when that
+ * is more than the machine has (a 1e12-entry stage is refused before it is
+ * touched, not left to the kernel's out-of-memory killer) or the
+ * allocation fails. */
+static double *alloc_entries(NpgFull *f, const Sym *s, size_t n) {
+  size_t ram = npg_physical_memory();
+  bool fits = n < SIZE_MAX / sizeof(double) && (!ram || n * sizeof(double) <= ram);
+  double *p = fits ? calloc(n ? n : 1, sizeof(double)) : NULL;
+  if (p) return p;
+  /* "real[N, N, 3] with N = 1000000" */
+  char shape[512], need[32], have[32];
+  size_t len = (size_t)snprintf(shape, sizeof shape, "real[");
+  for (int i = 0; i < s->ndims + s->nstatic && len + 40 < sizeof shape; i++)
+    len += i < s->ndims ? (size_t)snprintf(shape + len, sizeof shape - len, "%s%s", i ? ", " : "", s->dims[i]->name)
+                        : (size_t)snprintf(shape + len, sizeof shape - len, "%s%d", i ? ", " : "", s->shape[i - s->ndims]);
+  len += (size_t)snprintf(shape + len, sizeof shape - len, "]");
+  for (int i = 0; i < s->ndims && len + 40 < sizeof shape; i++) {
+    bool again = false;
+    for (int j = 0; j < i; j++) again |= s->dims[j] == s->dims[i];
+    if (!again)
+      len += (size_t)snprintf(shape + len, sizeof shape - len, "%s%s = %ld", len && shape[len - 1] == ']' ? " with " : ", ",
+                              s->dims[i]->name, (long)f->dims[emit_index_of(&f->prog->dims, s->dims[i])]);
+  }
+  double entries = 1; /* exact enough for a message, and never overflows */
+  for (int i = 0; i < s->ndims; i++) entries *= (double)f->dims[emit_index_of(&f->prog->dims, s->dims[i])];
+  for (int i = 0; i < s->nstatic; i++) entries *= s->shape[i];
+  const char *kind = s->kind == SYM_INPUT    ? "input"
+                     : s->kind == SYM_EXTERN ? "extern"
+                     : s->kind == SYM_PARAM  ? "param"
+                                             : "stage";
+  npg_bytes_text(entries * sizeof(double), need, sizeof need);
+  if (!fits && ram)
+    fail(f, "out of memory: %s '%s', %s, has %.4g entries and needs %s, more than this machine's memory (%s)", kind,
+         s->name, shape, entries, need, npg_bytes_text((double)ram, have, sizeof have));
+  else
+    fail(f, "out of memory: %s '%s', %s, has %.4g entries and needs %s, which could not be allocated", kind, s->name,
+         shape, entries, need);
+  return NULL;
 }
 
 /* A param from memory: doubles (int params must hold whole numbers). */
@@ -204,8 +248,7 @@ int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape
       f->iparams[k][i] = (npg_idx)values[i];
     }
   } else {
-    f->params[k] = malloc(sizeof(double) * (n ? n : 1));
-    if (!f->params[k]) return fail(f, "out of memory");
+    if (!(f->params[k] = alloc_entries(f, s, n))) return -1;
     for (size_t i = 0; i < n; i++) {
       char at[128];
       if (values[i] != values[i] || values[i] - values[i] != 0)
@@ -274,8 +317,8 @@ int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, cons
   size_t n = count_of(f, s);
   if (f->qcount[k] != n || !f->q[k]) { /* a zero-size quantity still gets a buffer */
     free(f->q[k]);
-    f->q[k] = malloc(sizeof(double) * (n ? n : 1));
-    if (!f->q[k]) return fail(f, "out of memory");
+    f->qcount[k] = 0;
+    if (!(f->q[k] = alloc_entries(f, s, n))) return -1;
     f->qcount[k] = n;
   }
   for (size_t i = 0; i < n; i++) {
@@ -311,8 +354,8 @@ static int call_externs(NpgFull *f, long sample) {
     size_t n = count_of(f, s);
     if (f->qcount[k] != n) {
       free(f->q[k]);
-      f->q[k] = calloc(n ? n : 1, sizeof(double));
-      if (!f->q[k]) return fail(f, "out of memory");
+      f->qcount[k] = 0;
+      if (!(f->q[k] = alloc_entries(f, s, n))) return -1;
       f->qcount[k] = n;
     }
     if (f->extern_fn[k](f->extern_user[k], f, sample, f->q[k], n) != 0)
@@ -354,8 +397,8 @@ int npg_full_eval(NpgFull *f, long sample) {
         return fail(f, "%s '%s' is not set for sample %ld", s->kind == SYM_INPUT ? "input" : "extern", s->name, sample);
     } else if (f->qcount[k] != n || !f->q[k]) {
       free(f->q[k]);
-      f->q[k] = calloc(n ? n : 1, sizeof(double));
-      if (!f->q[k]) return fail(f, "out of memory");
+      f->qcount[k] = 0;
+      if (!(f->q[k] = alloc_entries(f, s, n))) return -1;
       f->qcount[k] = n;
     }
   }

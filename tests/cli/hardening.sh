@@ -97,4 +97,26 @@ if grep -q DGESDD "$W/err.txt" "$W/out.txt"; then fail "LAPACK spoke"; fi
 /usr/bin/python3 -c "import numpy as np,sys; np.save(sys.argv[1], np.arange(24))" "$W/RT/rho.npy"
 if "$N" eval $R --full "$W/RT" "$W/RT" -o "$W/RO" 2>"$W/err.txt"; then fail "int64 rho accepted"; fi
 grep -q "param 'rho' is declared real but the array is int64" "$W/err.txt" || fail "int64 message: $(cat "$W/err.txt")"
+# 12. a stage of 1e12 entries: eval --full and train fail naming the stage and the memory it needs
+mkdir "$W/BIG"
+printf 'dim N\ninput x : real[N]\noutput y[i:N, j:N] = x[i] * x[j]\n' >"$W/big.npg"
+/usr/bin/python3 -c "import numpy as np,sys; np.save(sys.argv[1], np.ones((2, 1000000)))" "$W/BIG/x.npy"
+if "$N" eval "$W/big.npg" --full "$W/BIG" "$W/BIG" -o "$W/BO" 2>"$W/err.txt"; then fail "eval of a 1e12-entry stage"; fi
+grep -q "^error: out of memory: stage 'y', real\[N, N\] with N = 1000000, has 1e+12 entries and needs 8 TB, more than this machine's memory" "$W/err.txt" ||
+  fail "1e12 eval message: $(cat "$W/err.txt")"
+if "$N" train "$W/big.npg" "$W/BIG" -o "$W/BM" 2>"$W/err.txt"; then fail "train of a 1e12-entry stage"; fi
+grep -q "^error: stage 'y' alone needs 8 TB per sample (1e+12 entries), more than --mem" "$W/err.txt" ||
+  fail "1e12 train message: $(cat "$W/err.txt")"
+# 1e20 entries: a count that overflows 64 bits is refused too, not wrapped
+printf 'dim N\ninput x : real[N]\noutput y[i:N, j:N, k:N, l:N] = x[i] * x[j] * x[k] * x[l]\n' >"$W/big4.npg"
+/usr/bin/python3 -c "import numpy as np,sys; np.save(sys.argv[1], np.ones((2, 100000)))" "$W/BIG/x.npy"
+if "$N" eval "$W/big4.npg" --full "$W/BIG" "$W/BIG" -o "$W/BO" 2>"$W/err.txt"; then fail "eval of a 1e20-entry stage"; fi
+grep -q "^error: out of memory: stage 'y', real\[N, N, N, N\] with N = 100000, has 1e+20 entries and needs 800 EB" "$W/err.txt" ||
+  fail "1e20 eval message: $(cat "$W/err.txt")"
+# a stage larger than --mem is refused, naming it, its size and the budget; one within it trains
+/usr/bin/python3 -c "import numpy as np,sys; np.save(sys.argv[1], np.random.default_rng(3).random((4, 300)))" "$W/BIG/x.npy"
+if "$N" train "$W/big.npg" "$W/BIG" -o "$W/BM" --mem 500k 2>"$W/err.txt"; then fail "train exceeded --mem"; fi
+grep -q "^error: stage 'y' alone needs 720 kB per sample (9e+04 entries), more than --mem 500 kB: " "$W/err.txt" ||
+  fail "--mem message: $(cat "$W/err.txt")"
+"$N" train "$W/big.npg" "$W/BIG" -o "$W/BM" --mem 10M >/dev/null || fail "train within --mem"
 echo "ok"
