@@ -82,7 +82,7 @@ static int write_out(const Out *o, NpgFull *f, const char *outdir, long samples)
   return rc;
 }
 
-static int eval_full(NpgProgram *p, const char *data, const char *in, const char *outdir, bool cc) {
+static int eval_full(NpgProgram *p, const char *data, const char *in, const char *outdir, bool cc, bool progress) {
   int rc = 1, nout = 0;
   char err[2048] = "";
   NpgFull *f = npg_full_new(p, cc ? NPG_CC : NPG_TCC);
@@ -113,7 +113,7 @@ static int eval_full(NpgProgram *p, const char *data, const char *in, const char
     goto done;
   }
   long samples = npg_samples_count(s);
-  bool tty = isatty(2);
+  bool tty = progress || isatty(2);
   for (long k = 0; k < samples; k++) {
     if (npg_samples_set(s, f, k) != 0 || npg_full_eval(f, k) != 0 || npg_full_check_finite(f, k) != 0) {
       if (tty) fputc('\n', stderr);
@@ -144,12 +144,14 @@ done:
 
 int npgc_eval(int argc, char **argv) {
   const char *prog_path = NULL, *data = NULL, *in = NULL, *outdir = NULL;
-  bool full = false, cc = false;
+  bool full = false, cc = false, progress = false, exact_roots = false;
   NpgOptions opt = {0};
   for (int i = 2; i < argc; i++) {
     if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) return npgc_usage("eval", true);
     if (strcmp(argv[i], "--full") == 0) full = true;
     else if (strcmp(argv[i], "--cc") == 0) cc = true;
+    else if (strcmp(argv[i], "--progress") == 0) progress = true;
+    else if (strcmp(argv[i], "--exact-roots") == 0) exact_roots = true; /* the reduced evaluation's */
     else if (strcmp(argv[i], "-o") == 0 && i + 1 < argc) outdir = argv[++i];
     else if (strncmp(argv[i], "--std=", 6) == 0) opt.std_dir = argv[i] + 6;
     else if (argv[i][0] == '-') {
@@ -163,10 +165,14 @@ int npgc_eval(int argc, char **argv) {
   }
   if (!prog_path || !data || !in || !outdir) return usage();
   if (!full) return npgc_reduce(argc, argv);
+  if (exact_roots) {
+    fputs("npgc eval: --exact-roots is an option of the reduced evaluation (with MODEL/), not of --full\n", stderr);
+    return 2;
+  }
   NpgProgram *p = npg_compile(prog_path, &opt);
   int rc = 1;
   if (!npg_ok(p)) fputs(npg_error(p), stderr);
-  else rc = eval_full(p, data, in, outdir, cc);
+  else rc = eval_full(p, data, in, outdir, cc, progress);
   npg_free(p);
   return rc;
 }

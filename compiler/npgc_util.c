@@ -35,8 +35,8 @@ static const Usage usages[] = {
      "  -o FILE.c    written to a temporary name and renamed when complete; missing\n"
      "               parent directories are created; an input of the command is refused\n"},
     {"eval",
-     "usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc] [--std=DIR]\n"
-     "       npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--exact-roots] [--std=DIR]\n"
+     "usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc] [--progress] [--std=DIR]\n"
+     "       npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--exact-roots] [--progress] [--std=DIR]\n"
      "\n"
      "  --full: evaluate the full program on every sample of IN/<input>.npy (leading\n"
      "  sample axis; params from DATA/<param>.npy, inputs and externs from IN/, else\n"
@@ -47,11 +47,13 @@ static const Usage usages[] = {
      "  OUT/<name>.reduced.npy (reduced coordinates; an output op: samples x m x m).\n"
      "  Params in IN/ must be those the model was trained with.\n"
      "  --cc         compile the full evaluator with the system compiler at -O3\n"
+     "  --exact-roots  roots of reduced operators by eigendecomposition\n"
+     "  --progress   progress on stderr even when it is not a terminal\n"
      "  -o OUT/      created with its missing parents\n"},
     {"train",
      "usage: npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--center on|off]\n"
      "                  [--basis NAME:cap=N,energy=E,center=on|off] [--merge concat|joint]\n"
-     "                  [--mem BYTES] [--spectra DIR] [--cc] [--std=DIR]\n"
+     "                  [--mem BYTES] [--spectra DIR] [--cc] [--progress] [--std=DIR]\n"
      "\n"
      "  Run the full program on every sample of DATA/ (params, and inputs and externs\n"
      "  with a leading sample axis), build one basis per class, pre-multiply every\n"
@@ -67,10 +69,12 @@ static const Usage usages[] = {
      "  --spectra DIR  every member's singular values also to DIR (.npy and CSV;\n"
      "               MODEL/ always holds them)\n"
      "  --merge      concat (one PCA per member, concatenated) or joint (one PCA)\n"
-     "  --mem BYTES  memory for snapshots (half the RAM; suffixes k, M, G, T)\n"
-     "  --cc         compile the full evaluator with the system compiler at -O3\n"},
+     "  --mem BYTES  memory for snapshots (half the RAM; suffixes k, M, G, T); a stage\n"
+     "               that alone needs more is refused\n"
+     "  --cc         compile the full evaluator with the system compiler at -O3\n"
+     "  --progress   progress on stderr even when it is not a terminal\n"},
     {"verify",
-     "usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc] [--exact] [--exact-size N]\n"
+     "usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc] [--exact] [--exact-size N] [--progress]\n"
      "       npgc verify PROG.npg --exact [--exact-size N] [--cc]\n"
      "\n"
      "  Evaluate full and reduced on the held-out samples of TEST/ (same params as\n"
@@ -82,16 +86,19 @@ static const Usage usages[] = {
      "               given), on random data with every dim of a small size: every stage\n"
      "               rebuilt from its tensors equals the full evaluator to 1e-12, and a\n"
      "               model with full-rank bases reproduces it to 1e-10\n"
-     "  --exact-size N   that size (1..64; 6 and 4 by default)\n"},
+     "  --exact-size N   that size (1..64; 6 and 4 by default)\n"
+     "  --progress   progress on stderr even when it is not a terminal\n"},
     {"bench",
-     "usage: npgc bench PROG.npg MODEL/ TEST/ [--cc] [--reps N] [--exact-roots]\n"
+     "usage: npgc bench PROG.npg MODEL/ TEST/ [--cc] [--reps N] [--exact-roots] [--progress]\n"
      "\n"
      "  Time the full and the reduced evaluation of every sample of TEST/, N passes\n"
      "  (3): the full evaluator (libtcc, npg's default, or --cc: the system compiler\n"
      "  at -O3), the reduced one with its inputs projected and, reported apart and\n"
      "  included in the total, its outputs lifted; the speedup; the model's memory.\n"
      "  --exact-roots  roots of reduced operators by eigendecomposition (the exact\n"
-     "               reference) instead of the Lanczos process (to 1e-10 relative)\n"},
+     "               reference) instead of the Lanczos process (to 1e-10 relative)\n"
+     "  --progress   a progress bar on stderr even when it is not a terminal (on a\n"
+     "               terminal it is always shown)\n"},
     {"plot",
      "usage: npgc plot MODEL/ -o spectra.png\n"
      "\n"

@@ -26,6 +26,7 @@ typedef struct Common {
   double tol;
   bool tol_set;
   long reps;                /* bench: passes over the samples */
+  bool progress;            /* --progress: progress on stderr even when it is not a terminal */
   bool exact_roots;         /* eval, bench: roots by eigendecomposition, not Lanczos */
   NpgTrainOptions train;
   int nbasis;               /* --basis overrides */
@@ -104,6 +105,7 @@ static int parse(Common *c, int argc, char **argv) {
     if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) return npgc_usage(c->cmd, true) - 1; /* -1: done */
     if (strcmp(a, "-o") == 0 && has) c->out = argv[++i];
     else if (strcmp(a, "--cc") == 0) c->cc = true;
+    else if (strcmp(a, "--progress") == 0) c->progress = true;
     else if (strcmp(a, "--exact") == 0 && strcmp(c->cmd, "verify") == 0) c->exact = true;
     else if (strcmp(a, "--exact-size") == 0 && has && strcmp(c->cmd, "verify") == 0) {
       c->exact = true;
@@ -153,7 +155,7 @@ static int parse(Common *c, int argc, char **argv) {
       return 2;
     }
   }
-  c->train.progress = isatty(2);
+  c->train.progress = c->progress || isatty(2);
   c->train.nbasis = c->nbasis;
   c->train.basis_name = c->basis_name;
   c->train.basis_cap = c->basis_cap;
@@ -523,6 +525,12 @@ static void print_speedup(const char *what, double full, double reduced) {
   else printf("%-20s reduced is %.1fx slower\n", what, 1 / s);
 }
 
+/* An error during the timed passes: the progress line is ended first. */
+static void bench_error(const Common *c, const char *msg) {
+  if (c->train.progress) fputc('\n', stderr);
+  npgc_error(msg);
+}
+
 static int cmd_bench(Common *c) {
   if (!c->prog_path || !c->a || !c->b || c->out) return usage("bench");
   Session x;
@@ -538,26 +546,32 @@ static int cmd_bench(Common *c) {
   }
   if (!(y = malloc(sizeof(double) * maxn))) goto done;
   double tf = 0, tr = 0, tl = 0, tfbest = INFINITY, trbest = INFINITY;
-  long timed = 0;
+  long timed = 0, total = c->reps * S, shown = -1;
   for (long rep = 0; rep < c->reps; rep++)
     for (long k = 0; k < S; k++) {
+      /* progress between timed evaluations, redrawn once per percent */
+      long done = rep * S + k;
+      if (done * 100 / total != shown) {
+        shown = done * 100 / total;
+        npg_progress(c->train.progress, "bench (full and reduced)", done, total);
+      }
       if (npg_samples_set(x.s, x.f, k) != 0) {
-        npgc_error(npg_full_error(x.f));
+        bench_error(c, npg_full_error(x.f));
         goto done;
       }
       double t0 = now();
       if (npg_full_eval(x.f, k) != 0) {
-        npgc_error(npg_full_error(x.f));
+        bench_error(c, npg_full_error(x.f));
         goto done;
       }
       double t1 = now();
       if (reduced_sample(&x, k) != 0) {
-        npgc_error(npg_reduced_error(x.r));
+        bench_error(c, npg_reduced_error(x.r));
         goto done;
       }
       double t2 = now();
       if (lift_outputs(&x, y, maxn) != 0) {
-        npgc_error(npg_reduced_error(x.r));
+        bench_error(c, npg_reduced_error(x.r));
         goto done;
       }
       double t3 = now();
@@ -569,7 +583,8 @@ static int cmd_bench(Common *c) {
       trbest = fmin(trbest, t3 - t1);
       timed++;
     }
-  size_t tb, total = npg_model_bytes(x.m, &tb);
+  npg_progress(c->train.progress, "bench (full and reduced)", total, total);
+  size_t tb, bytes = npg_model_bytes(x.m, &tb);
   printf("bench %s: %ld samples x %ld passes, %ld evaluations timed\n", c->prog_path, S, c->reps, timed);
   printf("full evaluator: %s\n", c->cc ? "cc (the system compiler at -O3 -march=native)"
                                         : "libtcc (npg's default; --cc times the system compiler at -O3)");
@@ -580,7 +595,7 @@ static int cmd_bench(Common *c) {
   print_speedup("speedup (mean)", tf, tr + tl);
   print_speedup("speedup (best)", tfbest, trbest);
   printf("reduced model       %12.3f MB of reduced tensors, %.3f MB with bases and extern tables\n", (double)tb / 1e6,
-         (double)total / 1e6);
+         (double)bytes / 1e6);
   rc = 0;
 done:
   free(y);

@@ -84,6 +84,17 @@ test -e "$W/c/d/OUT/y.npy" || fail "eval output"
 grep -q "20 samples x 2 passes, 39 evaluations timed" "$W/bench.txt" || fail "bench reps: $(cat "$W/bench.txt")"
 grep -q "^full evaluator: libtcc" "$W/bench.txt" && grep -q "of which lifting" "$W/bench.txt" || fail "bench report"
 if grep -q " 0\.0x" "$W/bench.txt"; then fail "bench printed 0.0x"; fi
+# 14. bench shows progress on stderr with --progress (as on a terminal), nothing when not a terminal
+"$N" bench "$W/sqrt.npg" "$W/SM" "$W/TR" --reps 2 --progress >/dev/null 2>"$W/err.txt" || fail "bench --progress"
+grep -q "bench (full and reduced) *\[#*\] 40/40$" "$W/err.txt" || fail "bench progress: $(cat "$W/err.txt")"
+"$N" bench "$W/sqrt.npg" "$W/SM" "$W/TR" --reps 2 >/dev/null 2>"$W/err.txt" || fail "bench"
+test ! -s "$W/err.txt" || fail "bench not on a terminal wrote: $(cat "$W/err.txt")"
+"$N" verify "$W/sqrt.npg" "$W/SM" "$W/TR" --progress >/dev/null 2>"$W/err.txt" || fail "verify --progress"
+grep -q "verification" "$W/err.txt" || fail "verify progress: $(cat "$W/err.txt")"
+# the reduced eval takes the --exact-roots its usage shows; eval --full refuses it by name
+"$N" eval "$W/sqrt.npg" "$W/SM" "$W/TR" -o "$W/XR" --exact-roots --progress 2>"$W/err.txt" || fail "eval --exact-roots: $(cat "$W/err.txt")"
+if "$N" eval "$W/sqrt.npg" --full "$W/TR" "$W/TR" -o "$W/XF" --exact-roots 2>"$W/err.txt"; then fail "eval --full --exact-roots"; fi
+grep -q "exact-roots is an option of the reduced evaluation" "$W/err.txt" || fail "--full --exact-roots: $(cat "$W/err.txt")"
 # 8. a zero-size dim: evaluated, and refused by training with a message (no LAPACK error)
 mkdir "$W/Z"
 printf 'dim N\ninput x : real[N]\noutput y[i:N] = 2 * x[i]\n' >"$W/z.npg"
