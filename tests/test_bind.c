@@ -2,6 +2,7 @@
  * the file (or the stage and sample) and the problem, exactly. */
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 #include <unistd.h>
 
 #include "npy.h"
@@ -153,6 +154,35 @@ static void gather_out_of_range(void **state) {
   npg_free(p);
 }
 
+/* A zero-area triangle: the NaN arises in p = d·a^(-1/2) (a = 0, d = 0),
+ * which is named, not only the solve for b it then breaks. */
+static void zero_area_triangle(void **state) {
+  (void)state;
+  good_data();
+  long long t[4][3];
+  memcpy(t, tri, sizeof t);
+  t[0][1] = t[0][0];
+  long s2[2] = {F, 3};
+  put("tri", NPY_I64, 2, s2, t);
+  NpgProgram *p;
+  NpgFull *f = radiosity(&p);
+  assert_int_equal(npg_full_bind_params(f, dir), 0);
+  double g[12], e[4] = {1, 0, 0, 0}, v[16];
+  for (int i = 0; i < 12; i++) g[i] = (double)((i * 7) % 5) + 0.1 * i;
+  for (int i = 0; i < 16; i++) v[i] = 1;
+  long sg[2] = {V, 3}, se[1] = {F}, sv[2] = {F, F};
+  assert_int_equal(npg_full_set(f, "g", 2, sg, g, "g"), 0);
+  assert_int_equal(npg_full_set(f, "e", 1, se, e, "e"), 0);
+  assert_int_equal(npg_full_set(f, "v", 2, sv, v, "v"), 0);
+  assert_int_equal(npg_full_eval(f, 0), -1);
+  const char *want = "sample 0: stage 'p' is not finite: p[0, ";
+  if (strncmp(npg_full_error(f), want, strlen(want)) != 0) fail_msg("got: %s", npg_full_error(f));
+  assert_non_null(strstr(npg_full_error(f), "is NaN (a division by zero or a root of a negative number at this "
+                                            "sample?); then stage 'b': operator M is not finite"));
+  npg_full_free(f);
+  npg_free(p);
+}
+
 /* A compound index and a gather inlined from a fn: the error stands at
  * the use in the program (the param in the index, the call). */
 static void gather_out_of_range_located(void **state) {
@@ -247,9 +277,13 @@ static void operator_not_finite(void **state) {
   assert_int_equal(npg_full_set(f, "x", 1, s1, x, "x"), 0);
   assert_int_equal(npg_full_set(f, "e", 1, s1, e, "e"), 0);
   assert_int_equal(npg_full_eval(f, 5), -1);
+  /* where the infinity arises: the stage the compiler introduced for the
+   * operator's entries, then the solve it breaks */
   assert_string_equal(npg_full_error(f),
-                      "sample 5: stage 'y': operator M is not finite (row 0, column 0 is inf): the sample makes it "
-                      "undefined (a division by zero or a root of a negative number in its entries?)");
+                      "sample 5: stage 'M.t1' is not finite: M.t1[0, 0] is an infinity (a division by zero or a root "
+                      "of a negative number at this sample?); then stage 'y': operator M is not finite (row 0, column "
+                      "0 is inf): the sample makes it undefined (a division by zero or a root of a negative number in "
+                      "its entries?)");
   npg_full_free(f);
   npg_free(p);
 }
@@ -285,7 +319,7 @@ int main(void) {
       cmocka_unit_test(dim_mismatch_names_both_files), cmocka_unit_test(static_axis_mismatch),
       cmocka_unit_test(wrong_rank),           cmocka_unit_test(nan_in_param),
       cmocka_unit_test(gather_out_of_range),  cmocka_unit_test(gather_out_of_range_located),
-      cmocka_unit_test(nan_in_input),
+      cmocka_unit_test(nan_in_input),         cmocka_unit_test(zero_area_triangle),
       cmocka_unit_test(singular_and_indefinite), cmocka_unit_test(operator_not_finite),
       cmocka_unit_test(unbound_dim),
   };

@@ -410,7 +410,23 @@ int npg_full_eval(NpgFull *f, long sample) {
     if (f->check(&c) != 0) return fail(f, "%s", f->host.msg);
     f->checked = true;
   }
-  if (f->full(&c) != 0) return fail(f, "%s", f->host.msg);
+  if (f->full(&c) != 0) {
+    /* An operator that is not finite is where a NaN surfaced, not where it
+     * arose: name the first stage holding one when another stage failed (a
+     * zero-area triangle makes p = d·a^(-1/2) NaN, and b = solve(M, e) fails). */
+    const Sym *s;
+    char at[256], named[300], prefix[48];
+    double v;
+    const char *then = f->host.msg;
+    size_t np = (size_t)snprintf(prefix, sizeof prefix, "sample %ld: ", sample);
+    if (strncmp(then, prefix, np) == 0) then += np;
+    if (full_first_nonfinite(f, &s, at, sizeof at, &v) && s->kind == SYM_STAGE &&
+        (snprintf(named, sizeof named, "stage '%s'", s->name), !strstr(then, named)))
+      return fail(f, "sample %ld: stage '%s' is not finite: %s%s is %s (a division by zero or a root of a negative "
+                     "number at this sample?); then %s", sample, s->name, s->name, at, isnan(v) ? "NaN" : "an infinity",
+                  then);
+    return fail(f, "%s", f->host.msg);
+  }
   return 0;
 }
 
