@@ -120,18 +120,17 @@ static void nan_in_param(void **state) {
   expect_bind_error(msg("%s/rho.npy: param 'rho' holds NaN at [2]", dir));
 }
 
-/* An index out of range in tri.npy: found once at bind time (the first
- * evaluation), naming the file, the entry and the dim. */
-static void gather_out_of_range(void **state) {
-  (void)state;
+/* The radiosity program on the tetrahedron with entry [face][corner] of
+ * tri.npy set to `value`, evaluated once (it must fail): its evaluator,
+ * whose error the caller reads and frees with `*pp`. */
+static NpgFull *radiosity_failing(NpgProgram **pp, int face, int corner, long long value) {
   good_data();
   long long t[4][3];
   memcpy(t, tri, sizeof t);
-  t[2][1] = 9;
+  t[face][corner] = value;
   long s2[2] = {F, 3};
   put("tri", NPY_I64, 2, s2, t);
-  NpgProgram *p;
-  NpgFull *f = radiosity(&p);
+  NpgFull *f = radiosity(pp);
   assert_int_equal(npg_full_bind_params(f, dir), 0);
   double g[12], e[4] = {1, 0, 0, 0}, v[16];
   for (int i = 0; i < 12; i++) g[i] = (double)((i * 7) % 5) + 0.1 * i;
@@ -141,6 +140,15 @@ static void gather_out_of_range(void **state) {
   assert_int_equal(npg_full_set(f, "e", 1, se, e, "e"), 0);
   assert_int_equal(npg_full_set(f, "v", 2, sv, v, "v"), 0);
   assert_int_equal(npg_full_eval(f, 0), -1);
+  return f;
+}
+
+/* An index out of range in tri.npy: found once at bind time (the first
+ * evaluation), naming the file, the entry and the dim. */
+static void gather_out_of_range(void **state) {
+  (void)state;
+  NpgProgram *p;
+  NpgFull *f = radiosity_failing(&p, 2, 1, 9);
   /* at the use in the program: tri[f,1] is the first gather of stage n */
   char want[1024];
   snprintf(want, sizeof want,
@@ -158,23 +166,8 @@ static void gather_out_of_range(void **state) {
  * which is named, not only the solve for b it then breaks. */
 static void zero_area_triangle(void **state) {
   (void)state;
-  good_data();
-  long long t[4][3];
-  memcpy(t, tri, sizeof t);
-  t[0][1] = t[0][0];
-  long s2[2] = {F, 3};
-  put("tri", NPY_I64, 2, s2, t);
   NpgProgram *p;
-  NpgFull *f = radiosity(&p);
-  assert_int_equal(npg_full_bind_params(f, dir), 0);
-  double g[12], e[4] = {1, 0, 0, 0}, v[16];
-  for (int i = 0; i < 12; i++) g[i] = (double)((i * 7) % 5) + 0.1 * i;
-  for (int i = 0; i < 16; i++) v[i] = 1;
-  long sg[2] = {V, 3}, se[1] = {F}, sv[2] = {F, F};
-  assert_int_equal(npg_full_set(f, "g", 2, sg, g, "g"), 0);
-  assert_int_equal(npg_full_set(f, "e", 1, se, e, "e"), 0);
-  assert_int_equal(npg_full_set(f, "v", 2, sv, v, "v"), 0);
-  assert_int_equal(npg_full_eval(f, 0), -1);
+  NpgFull *f = radiosity_failing(&p, 0, 1, tri[0][0]);
   const char *want = "sample 0: stage 'p' is not finite: p[0, ";
   if (strncmp(npg_full_error(f), want, strlen(want)) != 0) fail_msg("got: %s", npg_full_error(f));
   assert_non_null(strstr(npg_full_error(f), "is NaN (a division by zero or a root of a negative number at this "
