@@ -15,14 +15,17 @@ static void indent(FILE *out, int depth) {
   for (int i = 0; i < depth; i++) fputs("  ", out);
 }
 
-/* The source line of a location, safe inside a C comment. */
+/* The source line of a location, safe inside a C comment; its first 160
+ * bytes and "..." when longer (a one-line program can be megabytes). */
 char *emit_source_line(Ctx *ctx, Loc loc) {
   if (!loc.file) return "";
   const char *t = loc.file->text;
   size_t s = loc.off, e;
   while (s > 0 && t[s - 1] != '\n') s--;
+  while (s < loc.off && t[s] == ' ') s++;
   for (e = s; e < loc.file->len && t[e] != '\n' && t[e] != '\r'; e++) {}
-  char *line = arena_strndup(ctx, t + s, e - s);
+  bool cut = e - s > 160;
+  char *line = arena_printf(ctx, "%.*s%s", (int)(cut ? 160 : e - s), t + s, cut ? "..." : "");
   for (char *c = line; *c; c++) {
     if (c[0] == '*' && c[1] == '/') c[1] = '|';
     if (c[0] == '/' && c[1] == '*') c[1] = '|';

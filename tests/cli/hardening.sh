@@ -130,4 +130,12 @@ if "$N" train "$W/big.npg" "$W/BIG" -o "$W/BM" --mem 500k 2>"$W/err.txt"; then f
 grep -q "^error: stage 'y' alone needs 720 kB per sample (9e+04 entries), more than --mem 500 kB: " "$W/err.txt" ||
   fail "--mem message: $(cat "$W/err.txt")"
 "$N" train "$W/big.npg" "$W/BIG" -o "$W/BM" --mem 10M >/dev/null || fail "train within --mem"
+# 7. a 125 KB one-line program: a diagnostic shows a window of the line, generated C cites its start
+/usr/bin/python3 -c "import sys; open(sys.argv[1], 'w').write('input x : real[2]\\noutput y = x[0] +' + ' ' * 125000 + 'x[1] * nosuch\\n')" "$W/long.npg"
+if "$N" check "$W/long.npg" 2>"$W/err.txt"; then fail "check of an unknown name"; fi
+test "$(wc -c <"$W/err.txt")" -lt 400 || fail "a diagnostic of $(wc -c <"$W/err.txt") bytes"
+grep -q "^…  *x\[1\] \* nosuch$" "$W/err.txt" || fail "long line window: $(cat "$W/err.txt")"
+sed -i 's/ \* nosuch//' "$W/long.npg"
+"$N" emit "$W/long.npg" -o "$W/long.c" || fail "emit of a long line"
+test -z "$(awk 'length > 400' "$W/long.c")" || fail "generated C holds the whole 125 KB line"
 echo "ok"
