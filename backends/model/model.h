@@ -130,6 +130,7 @@ typedef struct Model {
   int nexterns;
   RExtern *externs;
   long samples;             /* training samples */
+  double phase_seconds[4];  /* training's wall time: snapshots, bases, pre-multiplication, externs (not saved) */
   char *param_hashes;       /* "tri=<hex> rho=<hex>": what DATA/ held at training */
 } Model;
 

@@ -24,6 +24,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "dist.h"
 #include "emit.h"
 #include "reduced.h"
 #include "train.h"
@@ -543,6 +544,11 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
     maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
   }
   *gram = opt->mem && need > opt->mem;
+  if (*gram && opt->dist && dist_size() > 1)
+    return npg_fail(err, errlen,
+                    "the snapshots need %.3g GB, more than --mem %.3g GB: training over MPI ranks keeps them in "
+                    "memory (the method of snapshots runs on one process): raise --mem",
+                    (double)need / 1e9, (double)opt->mem / 1e9);
   if (*gram && opt->joint)
     return npg_fail(err, errlen,
                     "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
@@ -565,16 +571,25 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
   FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
   int rc = 0;
   if (*gram) rc = snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen);
-  for (long k = 0; !*gram && rc == 0 && k < S; k++) {
-    if (k > 0 && eval_sample(src, f, k, err, errlen)) rc = -1;
-    for (int c = 0; rc == 0 && c < m->nclasses; c++) {
+  /* over ranks (opt->dist): in round j rank r takes sample k = j·N + r,
+   * then the round's columns are gathered on every rank (a rank that
+   * fails returns here, before the gather: its caller ends the job) */
+  int rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1;
+  for (long j = 0; !*gram && rc == 0 && j * N < S; j++) {
+    long k = j * N + rank;
+    if (k < S && k > 0 && eval_sample(src, f, k, err, errlen)) rc = -1;
+    for (int c = 0; k < S && rc == 0 && c < m->nclasses; c++) {
       RClass *cl = &m->classes[c];
       for (int i = 0; rc == 0 && i < cl->nmembers; i++)
         rc = member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
     }
-    if (rc == 0) rc = check_spd(m, f, tmp, err, errlen);
-    progress_show(opt->progress, "snapshots", k + 1, S);
+    if (k < S && rc == 0) rc = check_spd(m, f, tmp, err, errlen);
+    if (rc == 0 && j == 0 && opt->dist && dist_fail_here())
+      rc = npg_fail(err, errlen, "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)", k, rank);
+    if (rc == 0 && N > 1) rc = dist_gather_round(m, sn->X, S, j, err, errlen);
+    progress_show(opt->progress, "snapshots", (j + 1) * N < S ? (j + 1) * N : S, S);
   }
+  if (rc == 0 && !*gram && N > 1) dist_and_spd(m);
   free(tmp);
   return rc;
 oom:
@@ -626,8 +641,9 @@ static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOpti
 }
 
 /* Step 3: the projections between classes and every tensor pre-multiplied. */
-static int premultiply_all(Model *m, NpgFull *f, bool progress, char *err, size_t errlen) {
+static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char *err, size_t errlen) {
   long ntensors = 0, done = 0;
+  int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1;
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) {
       RTerm *rt = &m->stages[i].terms[t];
@@ -648,7 +664,9 @@ static int premultiply_all(Model *m, NpgFull *f, bool progress, char *err, size_
                     (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
       }
       RTERM_FOR_TENSORS(rt, x) {
-        if (premultiply(m, f, x, cy->B, cy->n, cy->m, &flops, err, errlen)) return -1;
+        /* over ranks: every rank its share of the rows, summed on all */
+        if (premultiply_part(m, f, x, cy->B, cy->n, cy->m, rank, N, &flops, err, errlen)) return -1;
+        if (N > 1) dist_allreduce_sum(x->data, x->rows * x->cols);
         progress_show(progress, "pre-multiplication", ++done, ntensors);
       }
     }
@@ -693,16 +711,28 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
   return 0;
 }
 
-/* Training as five named steps (DESIGN §5). */
+static double seconds_since(struct timespec *t0) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  double s = (double)(t.tv_sec - t0->tv_sec) + 1e-9 * (double)(t.tv_nsec - t0->tv_nsec);
+  *t0 = t;
+  return s;
+}
+
+/* Training as five named steps (DESIGN §5), each step's wall time kept. */
 Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen) {
   Snapshots sn = {0};
   bool gram = false;
   err[0] = 0;
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
   Model *m = begin_training(prog, f, src, opt, err, errlen);
-  if (!m || take_snapshots(m, f, src, opt, &sn, &gram, err, errlen) || build_bases(m, &sn, gram, opt, err, errlen) ||
-      premultiply_all(m, f, opt->progress, err, errlen) ||
-      fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen)) {
+  double *sec = m ? m->phase_seconds : NULL;
+  if (!m || take_snapshots(m, f, src, opt, &sn, &gram, err, errlen) || (sec[0] = seconds_since(&t), 0) ||
+      build_bases(m, &sn, gram, opt, err, errlen) || (sec[1] = seconds_since(&t), 0) ||
+      premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || (sec[2] = seconds_since(&t), 0) ||
+      fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen) || (sec[3] = seconds_since(&t), 0)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);
     return NULL;
@@ -823,7 +853,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     }
   }
   model_size_tensors(m);
-  if (premultiply_all(m, ts->f, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, err, errlen)) {
+  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, err, errlen)) {
     model_free(m);
     return NULL;
   }
