@@ -228,11 +228,11 @@ static int cmd_train(Common *c) {
   else if (npg_mpi_rank() > 0) /* rank 0 reports */
     rc = 0;
   else {
-    double sec[4];
-    npg_model_train_seconds(m, sec);
+    double sec[4], cpu[4];
+    npg_model_train_seconds(m, sec, cpu);
     printf("trained %s on %ld samples in %.2f s -> %s\n", c->prog_path, npg_samples_count(s), now() - t0, c->out);
-    printf("phases: snapshots %.2f s, bases %.2f s, pre-multiplication %.2f s, externs %.2f s\n", sec[0], sec[1],
-           sec[2], sec[3]);
+    printf("phases: snapshots %.2f s, bases %.2f s, pre-multiplication %.2f s, externs %.2f s (cpu %.2f %.2f %.2f "
+           "%.2f s)\n", sec[0], sec[1], sec[2], sec[3], cpu[0], cpu[1], cpu[2], cpu[3]);
     npg_model_report(m, stdout);
     rc = 0;
   }

@@ -251,8 +251,11 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   return nm;
 }
 
-void npg_model_train_seconds(const NpgModel *m, double seconds[4]) {
-  for (int i = 0; i < 4; i++) seconds[i] = m && m->m ? m->m->phase_seconds[i] : 0;
+void npg_model_train_seconds(const NpgModel *m, double seconds[4], double cpu[4]) {
+  for (int i = 0; i < 4; i++) {
+    seconds[i] = m && m->m ? m->m->phase_seconds[i] : 0;
+    if (cpu) cpu[i] = m && m->m ? m->m->phase_cpu[i] : 0;
+  }
 }
 
 void npg_trainer_free(NpgTrainer *t) {

@@ -261,8 +261,9 @@ NPG_API NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir);
 NPG_API void npg_trainer_free(NpgTrainer *t);
 /* The wall time, in seconds, of the training that made `m` (0 for a
  * loaded model): seconds[0] snapshots, [1] bases, [2] pre-multiplication,
- * [3] externs. */
-NPG_API void npg_model_train_seconds(const NpgModel *m, double seconds[4]);
+ * [3] externs; `cpu` (may be NULL) the same phases' CPU time of this
+ * process (all its threads; over MPI ranks, this rank's). */
+NPG_API void npg_model_train_seconds(const NpgModel *m, double seconds[4], double cpu[4]);
 
 /* ---------------------------------------------------------------- models
  *

@@ -131,6 +131,7 @@ typedef struct Model {
   RExtern *externs;
   long samples;             /* training samples */
   double phase_seconds[4];  /* training's wall time: snapshots, bases, pre-multiplication, externs (not saved) */
+  double phase_cpu[4];      /* the same phases' CPU time, this process's threads (not saved) */
   char *param_hashes;       /* "tri=<hex> rho=<hex>": what DATA/ held at training */
 } Model;
 

@@ -94,6 +94,18 @@ int dist_allgather(double *all, const long *counts, char *err, size_t errlen) {
 #endif
 }
 
+void dist_broadcast(double *x, long n, int root) {
+#ifdef NPG_HAVE_MPI
+  if (!started || size_ == 1) return;
+  for (long i = 0; i < n; i += 1L << 28) {
+    long c = n - i < 1L << 28 ? n - i : 1L << 28;
+    MPI_Bcast(x + i, (int)c, MPI_DOUBLE, root, MPI_COMM_WORLD);
+  }
+#else
+  (void)x, (void)n, (void)root;
+#endif
+}
+
 void dist_barrier(void) {
 #ifdef NPG_HAVE_MPI
   if (started && size_ > 1) MPI_Barrier(MPI_COMM_WORLD);

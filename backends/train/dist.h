@@ -29,6 +29,8 @@ void dist_allreduce_sum(double *x, long n);
  * in place there on rank r), gathered on every rank. -1 with `err` when a
  * block exceeds what one MPI call takes (2^31 - 1 entries). */
 int dist_allgather(double *all, const long *counts, char *err, size_t errlen);
+/* x[0..n) of rank `root` on every rank (in chunks: n may exceed an int). */
+void dist_broadcast(double *x, long n, int root);
 void dist_barrier(void);
 /* "npg: rank K of N failed: <message>" on stderr, then the whole job is
  * ended (MPI_Abort: the other ranks get SIGTERM, so a model store cleans

@@ -424,14 +424,16 @@ static void take_pca(RMember *mb, PcaMember *p) {
 
 /* The class basis by the paper's way (§6.1, §9): one PCA per member, the
  * member bases concatenated and re-orthonormalized. X[i]: member i's
- * snapshots, n x S column-major. */
-static int member_bases(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
+ * snapshots, n x S column-major; `pre` (over ranks): the members' PCAs
+ * already made (dist_member_pcas), taken over. */
+static int member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, char *err, size_t errlen) {
   double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
   int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
   for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
     RMember *mb = &rc->members[i];
     PcaMember p;
-    rc_ok = pca_basis(rc->n, S, X[i], mb->cap, mb->energy, mb->center, &p, err, errlen);
+    if (pre) p = pre[i], memset(&pre[i], 0, sizeof pre[i]);
+    else rc_ok = pca_basis(rc->n, S, X[i], mb->cap, mb->energy, mb->center, &p, err, errlen);
     if (rc_ok) break;
     U[i] = p.U;
     kk[i] = p.k;
@@ -571,25 +573,25 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
   FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
   int rc = 0;
   if (*gram) rc = snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen);
-  /* over ranks (opt->dist): in round j rank r takes sample k = j·N + r,
-   * then the round's columns are gathered on every rank (a rank that
-   * fails returns here, before the gather: its caller ends the job) */
+  /* over ranks (opt->dist): rank r takes the samples k ≡ r (mod N), then
+   * the columns are gathered on every rank (a rank that fails returns
+   * here, before the gather: its caller ends the job) */
   int rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1;
-  for (long j = 0; !*gram && rc == 0 && j * N < S; j++) {
-    long k = j * N + rank;
-    if (k < S && k > 0 && eval_sample(src, f, k, err, errlen)) rc = -1;
-    for (int c = 0; k < S && rc == 0 && c < m->nclasses; c++) {
+  for (long k = rank; !*gram && rc == 0 && k < S; k += N) {
+    if (k > 0 && eval_sample(src, f, k, err, errlen)) rc = -1;
+    for (int c = 0; rc == 0 && c < m->nclasses; c++) {
       RClass *cl = &m->classes[c];
       for (int i = 0; rc == 0 && i < cl->nmembers; i++)
         rc = member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
     }
-    if (k < S && rc == 0) rc = check_spd(m, f, tmp, err, errlen);
-    if (rc == 0 && j == 0 && opt->dist && dist_fail_here())
-      rc = npg_fail(err, errlen, "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)", k, rank);
-    if (rc == 0 && N > 1) rc = dist_gather_round(m, sn->X, S, j, err, errlen);
-    progress_show(opt->progress, "snapshots", (j + 1) * N < S ? (j + 1) * N : S, S);
+    if (rc == 0) rc = check_spd(m, f, tmp, err, errlen);
+    if (rc == 0 && k == rank && opt->dist && dist_fail_here())
+      rc = npg_fail(err, errlen,
+                    "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)", k,
+                    rank);
+    progress_show(opt->progress, "snapshots", k + 1, S);
   }
-  if (rc == 0 && !*gram && N > 1) dist_and_spd(m);
+  if (rc == 0 && !*gram && N > 1 && (rc = dist_gather_snapshots(m, sn->X, S, err, errlen)) == 0) dist_and_spd(m);
   free(tmp);
   return rc;
 oom:
@@ -624,18 +626,24 @@ static int complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) 
 
 /* Step 2: one basis per class (DESIGN §5), sized into the tensors. */
 static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOptions *opt, char *err, size_t errlen) {
+  /* over ranks: the members' PCAs shared out, each made on one rank */
+  PcaMember **pre = NULL;
+  if (opt->dist && dist_size() > 1 && !gram && !opt->joint && dist_member_pcas(m, sn->S, sn->X, &pre, err, errlen))
+    return -1;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     int rc_ok = 0;
     if (opt->joint && rc->nmembers > 1) rc_ok = joint_basis(rc, sn->S, sn->X[c], err, errlen);
     else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn->U[c], sn->k[c], &rc->B, &rc->m, err, errlen);
-    else rc_ok = member_bases(rc, sn->S, sn->X[c], err, errlen);
+    else rc_ok = member_bases(rc, sn->S, sn->X[c], pre ? pre[c] : NULL, err, errlen);
     if (rc_ok != 0) {
+      dist_free_pcas(m, pre);
       if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
       return -1;
     }
-    if (complete_basis(rc, opt->full_rank, err, errlen)) return -1;
+    if (complete_basis(rc, opt->full_rank, err, errlen)) return dist_free_pcas(m, pre), -1;
   }
+  dist_free_pcas(m, pre);
   model_size_tensors(m);
   return 0;
 }
@@ -711,12 +719,15 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
   return 0;
 }
 
-static double seconds_since(struct timespec *t0) {
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
-  double s = (double)(t.tv_sec - t0->tv_sec) + 1e-9 * (double)(t.tv_nsec - t0->tv_nsec);
-  *t0 = t;
-  return s;
+/* The wall and CPU (this process's threads) seconds since t0[0], t0[1]
+ * into sec[0], cpu[0]; t0 moved to now. */
+static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
+  struct timespec t[2];
+  clock_gettime(CLOCK_MONOTONIC, &t[0]);
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t[1]);
+  *sec = (double)(t[0].tv_sec - t0[0].tv_sec) + 1e-9 * (double)(t[0].tv_nsec - t0[0].tv_nsec);
+  *cpu = (double)(t[1].tv_sec - t0[1].tv_sec) + 1e-9 * (double)(t[1].tv_nsec - t0[1].tv_nsec);
+  t0[0] = t[0], t0[1] = t[1];
 }
 
 /* Training as five named steps (DESIGN §5), each step's wall time kept. */
@@ -725,14 +736,15 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   Snapshots sn = {0};
   bool gram = false;
   err[0] = 0;
-  struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
+  struct timespec t[2];
+  clock_gettime(CLOCK_MONOTONIC, &t[0]);
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t[1]);
   Model *m = begin_training(prog, f, src, opt, err, errlen);
-  double *sec = m ? m->phase_seconds : NULL;
-  if (!m || take_snapshots(m, f, src, opt, &sn, &gram, err, errlen) || (sec[0] = seconds_since(&t), 0) ||
-      build_bases(m, &sn, gram, opt, err, errlen) || (sec[1] = seconds_since(&t), 0) ||
-      premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || (sec[2] = seconds_since(&t), 0) ||
-      fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen) || (sec[3] = seconds_since(&t), 0)) {
+  double *sec = m ? m->phase_seconds : NULL, *cpu = m ? m->phase_cpu : NULL;
+  if (!m || take_snapshots(m, f, src, opt, &sn, &gram, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0) ||
+      build_bases(m, &sn, gram, opt, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
+      premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[2], &cpu[2]), 0) ||
+      fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);
     return NULL;

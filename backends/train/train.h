@@ -64,16 +64,6 @@ int train_set_max_cap(const TrainSet *ts, int c);
 Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen);
 void train_set_free(TrainSet *ts);
 
-/* ---------------------------------------------------------------- over ranks (dist_train.c) */
-
-/* Round j of the snapshots over N = dist_size() ranks: the columns
- * jN … min(jN+N, S)−1 of every member's n x S column-major X[c][i], each
- * filled by its rank, gathered on every rank. 0, or -1 with `err` (every
- * rank alike). */
-int dist_gather_round(Model *m, double ***X, long S, long j, char *err, size_t errlen);
-/* Every diagonal operator's SPD mark: SPD on every rank's samples. */
-void dist_and_spd(Model *m);
-
 /* ---------------------------------------------------------------- basis sizes by error (tune.c) */
 
 typedef struct TuneTrial {
@@ -175,5 +165,21 @@ int premultiply_part(Model *m, NpgFull *f, RTensor *t, const double *By, long ny
                      double *flops, char *err, size_t errlen);
 /* Output keys (rows, or (row, col) pairs) pre-multiplied per block of t. */
 long premul_keys_per_block(const RTensor *t);
+
+/* ---------------------------------------------------------------- over ranks (dist_train.c) */
+
+/* After every rank r filled the columns k ≡ r (mod N = dist_size()) of
+ * every member's n x S column-major X[c][i]: all columns on every rank.
+ * 0, or -1 with `err` (every rank alike). */
+int dist_gather_snapshots(Model *m, double ***X, long S, char *err, size_t errlen);
+/* Every diagonal operator's SPD mark: SPD on every rank's samples. */
+void dist_and_spd(Model *m);
+/* Every member's PCA (pca_basis of X[c][i], n x S, with its options),
+ * each made on one rank (the largest first, to the least loaded rank) and
+ * broadcast: (*out)[c][i] on every rank, bit-identical to one process's.
+ * 0, or -1 with `err` (the rank that failed; the others then wait for it
+ * to end the job). dist_free_pcas frees what is left of it. */
+int dist_member_pcas(Model *m, long S, double ***X, PcaMember ***out, char *err, size_t errlen);
+void dist_free_pcas(Model *m, PcaMember **pcas);
 
 #endif

@@ -15,7 +15,7 @@ compare="/usr/bin/python3 tests/mpi/compare_models.py"
 # one machine, no network: shared memory between ranks, loopback for the launcher; root
 # (containers) needs --allow-run-as-root; 2 cores, so ranks may oversubscribe them
 export OMPI_MCA_btl=self,vader OMPI_MCA_btl_vader_single_copy_mechanism=none
-export OMPI_MCA_oob_tcp_if_include=lo OMPI_MCA_rmaps_base_oversubscribe=1
+export OMPI_MCA_oob_tcp_if_include=lo OMPI_MCA_rmaps_base_oversubscribe=1 OMPI_MCA_mpi_yield_when_idle=1
 export OPENBLAS_NUM_THREADS=1
 mpirun="timeout 300 mpirun --allow-run-as-root --oversubscribe"
 
