@@ -335,10 +335,12 @@ long premul_keys_per_block(const RTensor *t) {
   return kb > PREMUL_MAX_KEYS ? PREMUL_MAX_KEYS : kb < 1 ? 1 : kb;
 }
 
-/* One worker per core, at most as many as OpenBLAS may use
- * (OPENBLAS_NUM_THREADS=1: one thread, as for ranks sharing a machine). */
+/* One worker per core, at most OPENBLAS_NUM_THREADS when the environment
+ * sets it (1: one thread, as for MPI ranks sharing a machine). */
 static int workers_online(void) {
-  long n = sysconf(_SC_NPROCESSORS_ONLN), blas = openblas_get_num_threads();
+  long n = sysconf(_SC_NPROCESSORS_ONLN);
+  const char *env = getenv("OPENBLAS_NUM_THREADS");
+  long blas = env ? strtol(env, NULL, 10) : 0;
   if (blas >= 1 && blas < n) n = blas;
   return n < 1 ? 1 : n > PREMUL_MAX_WORKERS ? PREMUL_MAX_WORKERS : (int)n;
 }
