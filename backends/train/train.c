@@ -591,7 +591,10 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
                     rank);
     progress_show(opt->progress, "snapshots", k + 1, S);
   }
-  if (rc == 0 && !*gram && N > 1 && (rc = dist_gather_snapshots(m, sn->X, S, err, errlen)) == 0) dist_and_spd(m);
+  if (rc == 0 && !*gram && N > 1 && (rc = dist_gather_snapshots(m, sn->X, S, err, errlen)) == 0) {
+    dist_and_spd(m);
+    progress_show(opt->progress, "snapshots", S, S); /* every rank's are in */
+  }
   free(tmp);
   return rc;
 oom:
@@ -730,7 +733,7 @@ static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
   t0[0] = t[0], t0[1] = t[1];
 }
 
-/* Training as five named steps (DESIGN §5), each step's wall time kept. */
+/* Training as five named steps (DESIGN §5), each step's wall and CPU time kept. */
 Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen) {
   Snapshots sn = {0};

@@ -17,7 +17,11 @@ compare="/usr/bin/python3 tests/mpi/compare_models.py"
 export OMPI_MCA_btl=self,vader OMPI_MCA_btl_vader_single_copy_mechanism=none
 export OMPI_MCA_oob_tcp_if_include=lo OMPI_MCA_rmaps_base_oversubscribe=1 OMPI_MCA_mpi_yield_when_idle=1
 export OPENBLAS_NUM_THREADS=1
-mpirun="timeout 300 mpirun --allow-run-as-root --oversubscribe"
+# the sanitizer build: OpenMPI's own allocations outlive MPI_Finalize (tests/mpi/lsan.supp);
+# suppressing them by library needs full stacks and its components kept loaded
+export ASAN_OPTIONS="${ASAN_OPTIONS:+$ASAN_OPTIONS:}fast_unwind_on_malloc=0"
+export LSAN_OPTIONS="suppressions=$PWD/tests/mpi/lsan.supp" OMPI_MCA_mca_base_component_disable_dlclose=1
+mpirun="timeout 300 mpirun --allow-run-as-root --oversubscribe -x ASAN_OPTIONS -x LSAN_OPTIONS"
 
 fail() {
   echo "mpi.sh: $*" >&2
