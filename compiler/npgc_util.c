@@ -53,7 +53,7 @@ static const Usage usages[] = {
     {"train",
      "usage: npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--center on|off]\n"
      "                  [--basis NAME:cap=N,energy=E,center=on|off] [--merge concat|joint]\n"
-     "                  [--mem BYTES] [--spectra DIR] [--cc] [--progress] [--std=DIR]\n"
+     "                  [--mem BYTES] [--spectra DIR] [--mpi] [--cc] [--progress] [--std=DIR]\n"
      "\n"
      "  Run the full program on every sample of DATA/ (params, and inputs and externs\n"
      "  with a leading sample axis), build one basis per class, pre-multiply every\n"
@@ -71,6 +71,9 @@ static const Usage usages[] = {
      "  --merge      concat (one PCA per member, concatenated) or joint (one PCA)\n"
      "  --mem BYTES  memory for snapshots (half the RAM; suffixes k, M, G, T); a stage\n"
      "               that alone needs more is refused\n"
+     "  --mpi        over the ranks of an MPI job (mpirun -np N npgc train ... --mpi):\n"
+     "               samples and tensor rows partitioned, the same model as one\n"
+     "               process; rank 0 writes MODEL/; a failed rank ends the job\n"
      "  --cc         compile the full evaluator with the system compiler at -O3\n"
      "  --progress   progress on stderr even when it is not a terminal\n"},
     {"verify",

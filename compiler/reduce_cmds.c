@@ -137,6 +137,13 @@ static int parse(Common *c, int argc, char **argv) {
       ok = c->train.joint || strcmp(v, "concat") == 0;
     } else if (strcmp(a, "--mem") == 0 && has) {
       ok = npgc_parse_bytes(argv[++i], &c->train.mem);
+    } else if (strcmp(a, "--mpi") == 0 && strcmp(c->cmd, "train") == 0) {
+      if (!npg_mpi_available()) {
+        fprintf(stderr, "npgc train: --mpi: this build of npg has no MPI (install OpenMPI with scripts/setup.sh "
+                        "and configure the build again)\n");
+        return 2;
+      }
+      c->train.mpi = true;
     } else if (strcmp(a, "--reps") == 0 && has && strcmp(c->cmd, "bench") == 0) {
       ok = npgc_parse_long(argv[++i], 1, 1000000, &c->reps);
     } else if (a[0] == '-') {
@@ -218,10 +225,16 @@ static int cmd_train(Common *c) {
     if (npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0) break;
   if (npg_full_error(f)[0]) npgc_error(npg_full_error(f));
   else if (!(m = npg_trainer_finish(t, c->out))) npgc_error(npg_trainer_error(t));
-  else if (c->spectra && npg_model_write_spectra(m, c->spectra, err, sizeof err) != 0)
+  else if (c->spectra && npg_mpi_rank() == 0 && npg_model_write_spectra(m, c->spectra, err, sizeof err) != 0)
     npgc_error(err);
+  else if (npg_mpi_rank() > 0) /* rank 0 reports */
+    rc = 0;
   else {
+    double sec[4], cpu[4];
+    npg_model_train_seconds(m, sec, cpu);
     printf("trained %s on %ld samples in %.2f s -> %s\n", c->prog_path, npg_samples_count(s), now() - t0, c->out);
+    printf("phases: snapshots %.2f s, bases %.2f s, pre-multiplication %.2f s, externs %.2f s (cpu %.2f %.2f %.2f "
+           "%.2f s)\n", sec[0], sec[1], sec[2], sec[3], cpu[0], cpu[1], cpu[2], cpu[3]);
     npg_model_report(m, stdout);
     rc = 0;
   }

@@ -12,6 +12,7 @@
 
 #include "api.h"
 #include "compile.h"
+#include "dist.h"
 
 struct NpgTrainer {
   NpgFull *f;
@@ -37,6 +38,19 @@ static size_t half_the_ram(void) {
   return ram ? ram / 2 : (size_t)8 << 30;
 }
 
+bool npg_mpi_available(void) { return dist_available(); }
+int npg_mpi_rank(void) { return dist_rank(); }
+int npg_mpi_size(void) { return dist_size(); }
+
+/* Over MPI ranks (NpgTrainOptions.mpi) a rank keeps sample 0 (every rank
+ * binds the dims with it) and its own samples k ≡ rank (mod ranks), in
+ * order: sample k's place among those kept. */
+static bool own_sample(const NpgTrainer *t, long k) { return !t->opt.mpi || k == 0 || k % dist_size() == dist_rank(); }
+static long kept_index(const NpgTrainer *t, long k) {
+  int N = t->opt.mpi ? dist_size() : 1, r = t->opt.mpi ? dist_rank() : 0;
+  return k == 0 || N == 1 ? k : r == 0 ? k / N : 1 + (k - r) / N;
+}
+
 void npg_train_options_default(NpgTrainOptions *o) {
   memset(o, 0, sizeof *o);
   o->cap = 60;
@@ -53,6 +67,7 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
   if (!(t->opt.energy > 0 && t->opt.energy <= 1)) t->opt.energy = 0.999;
   if (!t->opt.mem) t->opt.mem = half_the_ram();
   t->f = f;
+  if (t->opt.mpi && dist_start(t->error, sizeof t->error)) return t;
   if (!f || npg_full_error(f)[0]) {
     tfail(t, "%s", f ? npg_full_error(f) : "no full evaluator");
     return t;
@@ -92,8 +107,13 @@ int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape
   return 0;
 }
 
-/* Append the values now in `g` as one sample. */
+/* Append the values now in `g` as one sample (another rank's: counted only). */
 static int record(NpgTrainer *t, const NpgFull *g) {
+  if (!own_sample(t, t->samples)) {
+    t->samples++;
+    memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
+    return 0;
+  }
   if (t->samples == 0) { /* the first sample fixes every size */
     for (int i = 0; i < t->nslots; i++) {
       if (!npg_full_get(g, t->slot[i]->name, &t->count[i]))
@@ -114,7 +134,7 @@ static int record(NpgTrainer *t, const NpgFull *g) {
     memcpy(t->buf + off, v, sizeof(double) * n);
     off += n;
   }
-  if (t->in_mem < t->mem_cap && t->in_mem == t->samples) {
+  if (t->in_mem < t->mem_cap && t->in_mem == kept_index(t, t->samples)) {
     if (t->in_mem % 64 == 0) {
       double *m = realloc(t->mem, sizeof(double) * t->record * (size_t)(t->in_mem + 64));
       if (!m) return tfail(t, "out of memory keeping training sample %ld", t->samples);
@@ -142,8 +162,8 @@ int npg_trainer_add(NpgTrainer *t) {
       return tfail(t, "training sample %ld: input '%s' is not set", t->samples, t->slot[i]->name);
     need_eval = true;
   }
-  /* externs not given: their callbacks fill them */
-  if (need_eval && npg_full_eval(t->f, t->samples) != 0) return tfail(t, "%s", npg_full_error(t->f));
+  /* externs not given: their callbacks fill them (for this rank's samples) */
+  if (need_eval && own_sample(t, t->samples) && npg_full_eval(t->f, t->samples) != 0) return tfail(t, "%s", npg_full_error(t->f));
   return record(t, t->f);
 }
 
@@ -156,6 +176,8 @@ int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {
 /* SampleSource: sample k back into the evaluator. */
 static int replay(void *user, NpgFull *f, long k) {
   NpgTrainer *t = user;
+  if (!own_sample(t, k)) return full_fail(f, "a training sample of another rank was asked for (a bug in npg)");
+  k = kept_index(t, k);
   const double *v = t->mem + (size_t)k * t->record;
   if (k >= t->in_mem) {
     if (fseeko(t->scratch, (off_t)(k - t->in_mem) * (off_t)(t->record * sizeof(double)), SEEK_SET) != 0 ||
@@ -218,7 +240,8 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.energy = t->opt.energy;
   o.joint = t->opt.joint;
   o.mem = t->opt.mem;
-  o.progress = t->opt.progress;
+  o.progress = t->opt.progress && dist_rank() == 0;
+  o.dist = t->opt.mpi;
   o.uncentered = t->opt.uncentered;
   o.noverride = t->opt.nbasis;
   o.override_center = (int *)t->opt.basis_center;
@@ -228,6 +251,8 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   SampleSource src = {t->samples, t, replay};
   char err[2048] = "";
   Model *m = train_model((Program *)t->prog, t->f, &src, &o, err, sizeof err);
+  /* over ranks, the others wait for this one in a collective: end the job */
+  if (!m && t->opt.mpi && dist_size() > 1) dist_abort("%s", err);
   if (!m) {
     tfail(t, "%s", err);
     return NULL;
@@ -242,12 +267,20 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
     tfail(t, "out of memory");
     return NULL;
   }
-  if (model_dir && npg_model_save(nm, model_dir) != 0) {
+  if (model_dir && dist_rank() == 0 && npg_model_save(nm, model_dir) != 0) {
+    if (t->opt.mpi && dist_size() > 1) dist_abort("%s", npg_model_error(nm));
     tfail(t, "%s", npg_model_error(nm));
     npg_model_free(nm);
     return NULL;
   }
   return nm;
+}
+
+void npg_model_train_seconds(const NpgModel *m, double seconds[4], double cpu[4]) {
+  for (int i = 0; i < 4; i++) {
+    seconds[i] = m && m->m ? m->m->phase_seconds[i] : 0;
+    if (cpu) cpu[i] = m && m->m ? m->m->phase_cpu[i] : 0;
+  }
 }
 
 void npg_trainer_free(NpgTrainer *t) {

@@ -217,8 +217,25 @@ typedef struct NpgTrainOptions {
   const int *basis_cap;
   const double *basis_energy;
   const int *basis_center;
+  bool mpi;                 /* train over the ranks of MPI_COMM_WORLD (a job started by mpirun; MPI
+                               initialized here when the program has not). Every rank runs the same
+                               code and adds the same samples; rank r keeps and evaluates the samples
+                               k ≡ r (mod ranks) only (an extern callback runs for those and sample 0,
+                               which binds the dims on every rank) and
+                               pre-multiplies every ranks-th row; every rank gets the same model (equal
+                               to one process's to rounding), rank 0 alone writes `model_dir`. The
+                               snapshots must fit in `mem`. When a rank fails it ends the whole job
+                               (MPI_Abort, "npg: rank K of N failed: …" on stderr), since the others
+                               wait for it; no model is written. A build without MPI refuses it
+                               (npg_mpi_available). */
 } NpgTrainOptions;
 NPG_API void npg_train_options_default(NpgTrainOptions *o);
+/* Whether this build of libnpg has MPI (NpgTrainOptions.mpi). */
+NPG_API bool npg_mpi_available(void);
+/* This process's MPI rank and the number of ranks once a trainer with
+ * `mpi` exists; 0 and 1 otherwise. */
+NPG_API int npg_mpi_rank(void);
+NPG_API int npg_mpi_size(void);
 
 typedef struct NpgTrainer NpgTrainer;
 typedef struct NpgModel NpgModel;
@@ -242,6 +259,11 @@ NPG_API long npg_trainer_samples(const NpgTrainer *t);
  * npg_trainer_error() on failure. The model belongs to the caller. */
 NPG_API NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir);
 NPG_API void npg_trainer_free(NpgTrainer *t);
+/* The wall time, in seconds, of the training that made `m` (0 for a
+ * loaded model): seconds[0] snapshots, [1] bases, [2] pre-multiplication,
+ * [3] externs; `cpu` (may be NULL) the same phases' CPU time of this
+ * process (all its threads; over MPI ranks, this rank's). */
+NPG_API void npg_model_train_seconds(const NpgModel *m, double seconds[4], double cpu[4]);
 
 /* ---------------------------------------------------------------- models
  *

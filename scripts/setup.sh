@@ -20,6 +20,7 @@ packages=(
   libsuitesparse-dev          # examples/fluids: UMFPACK for the pressure projection
   libembree-dev               # examples/radiosity, examples/points: ray-cast visibility
   libpng-dev                  # examples/fluids, examples/radiosity: PNG frames and renders
+  libopenmpi-dev openmpi-bin  # optional build feature: training over MPI ranks (npgc train --mpi) and its tests
 )
 
 missing=()

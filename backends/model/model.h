@@ -130,6 +130,8 @@ typedef struct Model {
   int nexterns;
   RExtern *externs;
   long samples;             /* training samples */
+  double phase_seconds[4];  /* training's wall time: snapshots, bases, pre-multiplication, externs (not saved) */
+  double phase_cpu[4];      /* the same phases' CPU time, this process's threads (not saved) */
   char *param_hashes;       /* "tri=<hex> rho=<hex>": what DATA/ held at training; NULL: none recorded */
 } Model;
 

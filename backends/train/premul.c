@@ -77,6 +77,7 @@ typedef struct Premul {
   long *ent_key;
   double *ent_coef;
   npg_idx *ent_in;
+  int part, nparts;           /* the output rows ≡ part (mod nparts) only (premultiply_part) */
   int nworkers;
   bool local;                 /* each worker finishes its own keys (see flush_block) */
   Worker wk[PREMUL_MAX_WORKERS];
@@ -298,6 +299,7 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
         snprintf(p->err, p->errlen, "tensor %s: input offset out of range (a bug in npg)", t->name);
         return -1;
       }
+  if (row % p->nparts != p->part) return 0; /* another rank's row */
   /* the key of this entry */
   long key = -1;
   bool same_row = p->nkeys > 0 && p->key_row[p->nkeys - 1] == row;
@@ -333,19 +335,39 @@ long premul_keys_per_block(const RTensor *t) {
   return kb > PREMUL_MAX_KEYS ? PREMUL_MAX_KEYS : kb < 1 ? 1 : kb;
 }
 
+/* One worker per core, at most OPENBLAS_NUM_THREADS when the environment
+ * sets it (1: one thread, as for MPI ranks sharing a machine). */
 static int workers_online(void) {
   long n = sysconf(_SC_NPROCESSORS_ONLN);
+  const char *env = getenv("OPENBLAS_NUM_THREADS");
+  long blas = env ? strtol(env, NULL, 10) : 0;
+  if (blas >= 1 && blas < n) n = blas;
   return n < 1 ? 1 : n > PREMUL_MAX_WORKERS ? PREMUL_MAX_WORKERS : (int)n;
 }
 
+static int premultiply_rows(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my,
+                            int unpack_min_monos, int part, int nparts, double *flops, char *err, size_t errlen);
+
 int premultiply(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
                 size_t errlen) {
-  return premultiply_unpacking(m, f, t, By, ny, my, PREMUL_UNPACK_MONOS, flops, err, errlen);
+  return premultiply_rows(m, f, t, By, ny, my, PREMUL_UNPACK_MONOS, 0, 1, flops, err, errlen);
 }
 
 int premultiply_unpacking(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
                           double *flops, char *err, size_t errlen) {
+  return premultiply_rows(m, f, t, By, ny, my, unpack_min_monos, 0, 1, flops, err, errlen);
+}
+
+int premultiply_part(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int part, int nparts,
+                     double *flops, char *err, size_t errlen) {
+  return premultiply_rows(m, f, t, By, ny, my, PREMUL_UNPACK_MONOS, part, nparts, flops, err, errlen);
+}
+
+static int premultiply_rows(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my,
+                            int unpack_min_monos, int part, int nparts, double *flops, char *err, size_t errlen) {
   Premul p = {0};
+  p.part = part;
+  p.nparts = nparts > 0 ? nparts : 1;
   p.m = m;
   p.t = t;
   p.By = By;

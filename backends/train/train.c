@@ -24,6 +24,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "dist.h"
 #include "emit.h"
 #include "reduced.h"
 #include "train.h"
@@ -423,14 +424,16 @@ static void take_pca(RMember *mb, PcaMember *p) {
 
 /* The class basis by the paper's way (§6.1, §9): one PCA per member, the
  * member bases concatenated and re-orthonormalized. X[i]: member i's
- * snapshots, n x S column-major. */
-static int member_bases(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
+ * snapshots, n x S column-major; `pre` (over ranks): the members' PCAs
+ * already made (dist_member_pcas), taken over. */
+static int member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, char *err, size_t errlen) {
   double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
   int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
   for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
     RMember *mb = &rc->members[i];
     PcaMember p;
-    rc_ok = pca_basis(rc->n, S, X[i], mb->cap, mb->energy, mb->center, &p, err, errlen);
+    if (pre) p = pre[i], memset(&pre[i], 0, sizeof pre[i]);
+    else rc_ok = pca_basis(rc->n, S, X[i], mb->cap, mb->energy, mb->center, &p, err, errlen);
     if (rc_ok) break;
     U[i] = p.U;
     kk[i] = p.k;
@@ -543,6 +546,11 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
     maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
   }
   *gram = opt->mem && need > opt->mem;
+  if (*gram && opt->dist && dist_size() > 1)
+    return npg_fail(err, errlen,
+                    "the snapshots need %.3g GB, more than --mem %.3g GB: training over MPI ranks keeps them in "
+                    "memory (the method of snapshots runs on one process): raise --mem",
+                    (double)need / 1e9, (double)opt->mem / 1e9);
   if (*gram && opt->joint)
     return npg_fail(err, errlen,
                     "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
@@ -565,7 +573,11 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
   FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
   int rc = 0;
   if (*gram) rc = snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen);
-  for (long k = 0; !*gram && rc == 0 && k < S; k++) {
+  /* over ranks (opt->dist): rank r takes the samples k ≡ r (mod N), then
+   * the columns are gathered on every rank (a rank that fails returns
+   * here, before the gather: its caller ends the job) */
+  int rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1;
+  for (long k = rank; !*gram && rc == 0 && k < S; k += N) {
     if (k > 0 && eval_sample(src, f, k, err, errlen)) rc = -1;
     for (int c = 0; rc == 0 && c < m->nclasses; c++) {
       RClass *cl = &m->classes[c];
@@ -573,7 +585,15 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
         rc = member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
     }
     if (rc == 0) rc = check_spd(m, f, tmp, err, errlen);
+    if (rc == 0 && k == rank && opt->dist && dist_fail_here())
+      rc = npg_fail(err, errlen,
+                    "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)", k,
+                    rank);
     progress_show(opt->progress, "snapshots", k + 1, S);
+  }
+  if (rc == 0 && !*gram && N > 1 && (rc = dist_gather_snapshots(m, sn->X, S, err, errlen)) == 0) {
+    dist_and_spd(m);
+    progress_show(opt->progress, "snapshots", S, S); /* every rank's are in */
   }
   free(tmp);
   return rc;
@@ -609,25 +629,32 @@ static int complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) 
 
 /* Step 2: one basis per class (DESIGN §5), sized into the tensors. */
 static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOptions *opt, char *err, size_t errlen) {
+  /* over ranks: the members' PCAs shared out, each made on one rank */
+  PcaMember **pre = NULL;
+  if (opt->dist && dist_size() > 1 && !gram && !opt->joint && dist_member_pcas(m, sn->S, sn->X, &pre, err, errlen))
+    return -1;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     int rc_ok = 0;
     if (opt->joint && rc->nmembers > 1) rc_ok = joint_basis(rc, sn->S, sn->X[c], err, errlen);
     else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn->U[c], sn->k[c], &rc->B, &rc->m, err, errlen);
-    else rc_ok = member_bases(rc, sn->S, sn->X[c], err, errlen);
+    else rc_ok = member_bases(rc, sn->S, sn->X[c], pre ? pre[c] : NULL, err, errlen);
     if (rc_ok != 0) {
+      dist_free_pcas(m, pre);
       if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
       return -1;
     }
-    if (complete_basis(rc, opt->full_rank, err, errlen)) return -1;
+    if (complete_basis(rc, opt->full_rank, err, errlen)) return dist_free_pcas(m, pre), -1;
   }
+  dist_free_pcas(m, pre);
   model_size_tensors(m);
   return 0;
 }
 
 /* Step 3: the projections between classes and every tensor pre-multiplied. */
-static int premultiply_all(Model *m, NpgFull *f, bool progress, char *err, size_t errlen) {
+static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char *err, size_t errlen) {
   long ntensors = 0, done = 0;
+  int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1;
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) {
       RTerm *rt = &m->stages[i].terms[t];
@@ -648,7 +675,9 @@ static int premultiply_all(Model *m, NpgFull *f, bool progress, char *err, size_
                     (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
       }
       RTERM_FOR_TENSORS(rt, x) {
-        if (premultiply(m, f, x, cy->B, cy->n, cy->m, &flops, err, errlen)) return -1;
+        /* over ranks: every rank its share of the rows, summed on all */
+        if (premultiply_part(m, f, x, cy->B, cy->n, cy->m, rank, N, &flops, err, errlen)) return -1;
+        if (N > 1) dist_allreduce_sum(x->data, x->rows * x->cols);
         progress_show(progress, "pre-multiplication", ++done, ntensors);
       }
     }
@@ -693,16 +722,32 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
   return 0;
 }
 
-/* Training as five named steps (DESIGN §5). */
+/* The wall and CPU (this process's threads) seconds since t0[0], t0[1]
+ * into sec[0], cpu[0]; t0 moved to now. */
+static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
+  struct timespec t[2];
+  clock_gettime(CLOCK_MONOTONIC, &t[0]);
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t[1]);
+  *sec = (double)(t[0].tv_sec - t0[0].tv_sec) + 1e-9 * (double)(t[0].tv_nsec - t0[0].tv_nsec);
+  *cpu = (double)(t[1].tv_sec - t0[1].tv_sec) + 1e-9 * (double)(t[1].tv_nsec - t0[1].tv_nsec);
+  t0[0] = t[0], t0[1] = t[1];
+}
+
+/* Training as five named steps (DESIGN §5), each step's wall and CPU time kept. */
 Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen) {
   Snapshots sn = {0};
   bool gram = false;
   err[0] = 0;
+  struct timespec t[2];
+  clock_gettime(CLOCK_MONOTONIC, &t[0]);
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t[1]);
   Model *m = begin_training(prog, f, src, opt, err, errlen);
-  if (!m || take_snapshots(m, f, src, opt, &sn, &gram, err, errlen) || build_bases(m, &sn, gram, opt, err, errlen) ||
-      premultiply_all(m, f, opt->progress, err, errlen) ||
-      fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen)) {
+  double *sec = m ? m->phase_seconds : NULL, *cpu = m ? m->phase_cpu : NULL;
+  if (!m || take_snapshots(m, f, src, opt, &sn, &gram, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0) ||
+      build_bases(m, &sn, gram, opt, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
+      premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[2], &cpu[2]), 0) ||
+      fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);
     return NULL;
@@ -823,7 +868,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     }
   }
   model_size_tensors(m);
-  if (premultiply_all(m, ts->f, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, err, errlen)) {
+  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, err, errlen)) {
     model_free(m);
     return NULL;
   }

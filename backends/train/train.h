@@ -20,6 +20,9 @@ typedef struct TrainOptions {
   bool full_rank;           /* complete every basis to its class's full dimension (convergence tests) */
   size_t mem;               /* memory budget for snapshots, bytes */
   bool progress;            /* progress bars on stderr */
+  bool dist;                /* over the ranks of dist.h (after dist_start): rank r takes the samples
+                               k ≡ r (mod ranks) and every ranks-th row of each tensor; every rank
+                               ends with the same model. Snapshots must fit in `mem`. */
   /* overrides from the command line (--basis NAME:cap=N,energy=E,center=on|off), NAME a
    * quantity, a class as `npgc check` names it (m_f), a numerator (f.num1) or '*';
    * the more specific wins ('*' < class < member); an unknown NAME fails training */
@@ -155,7 +158,28 @@ int premultiply(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, lon
  * uses 8; tests force each path. */
 int premultiply_unpacking(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
                           double *flops, char *err, size_t errlen);
+/* The share of premultiply of rank `part` of `nparts`: the rows r ≡ part
+ * (mod nparts) of the output only, the others left zero, so the sum of the
+ * parts over the ranks is the whole (to rounding). */
+int premultiply_part(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int part, int nparts,
+                     double *flops, char *err, size_t errlen);
 /* Output keys (rows, or (row, col) pairs) pre-multiplied per block of t. */
 long premul_keys_per_block(const RTensor *t);
+
+/* ---------------------------------------------------------------- over ranks (dist_train.c) */
+
+/* After every rank r filled the columns k ≡ r (mod N = dist_size()) of
+ * every member's n x S column-major X[c][i]: all columns on every rank.
+ * 0, or -1 with `err` (every rank alike). */
+int dist_gather_snapshots(Model *m, double ***X, long S, char *err, size_t errlen);
+/* Every diagonal operator's SPD mark: SPD on every rank's samples. */
+void dist_and_spd(Model *m);
+/* Every member's PCA (pca_basis of X[c][i], n x S, with its options),
+ * each made on one rank (the largest first, to the least loaded rank) and
+ * broadcast: (*out)[c][i] on every rank, bit-identical to one process's.
+ * 0, or -1 with `err` (the rank that failed; the others then wait for it
+ * to end the job). dist_free_pcas frees what is left of it. */
+int dist_member_pcas(Model *m, long S, double ***X, PcaMember ***out, char *err, size_t errlen);
+void dist_free_pcas(Model *m, PcaMember **pcas);
 
 #endif

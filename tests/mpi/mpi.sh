@@ -1,0 +1,87 @@
+#!/bin/sh
+# mpi.sh BUILD — training over MPI ranks (npgc train --mpi, NpgTrainOptions.mpi) on
+# loopback: 2 ranks (and 3, uneven) give the one-process model to 1e-10, for the radiosity
+# program (through npgc, and through npg.h with the visibility extern by callback) and for a
+# program with an extern on data; a rank that fails, or is killed, mid-training ends the job
+# with a message naming it and leaves no model. Registered only in a build with MPI.
+set -eu
+build=$1
+npgc=$build/npgc
+scratch=$build/tests/mpi_scratch
+rm -rf "$scratch"
+mkdir -p "$scratch"
+compare="/usr/bin/python3 tests/mpi/compare_models.py"
+
+# one machine, no network: shared memory between ranks, loopback for the launcher; root
+# (containers) needs --allow-run-as-root; 2 cores, so ranks may oversubscribe them
+export OMPI_MCA_btl=self,vader OMPI_MCA_btl_vader_single_copy_mechanism=none
+export OMPI_MCA_oob_tcp_if_include=lo OMPI_MCA_rmaps_base_oversubscribe=1 OMPI_MCA_mpi_yield_when_idle=1
+export OPENBLAS_NUM_THREADS=1
+# the sanitizer build: OpenMPI's own allocations outlive MPI_Finalize (tests/mpi/lsan.supp);
+# suppressing them by library needs full stacks and its components kept loaded
+export ASAN_OPTIONS="${ASAN_OPTIONS:+$ASAN_OPTIONS:}fast_unwind_on_malloc=0"
+export LSAN_OPTIONS="suppressions=$PWD/tests/mpi/lsan.supp" OMPI_MCA_mca_base_component_disable_dlclose=1
+mpirun="timeout 300 mpirun --allow-run-as-root --oversubscribe -x ASAN_OPTIONS -x LSAN_OPTIONS"
+
+fail() {
+  echo "mpi.sh: $*" >&2
+  exit 1
+}
+
+# (a) the radiosity program (its extern v, the visibility, given as data) at 60 faces
+"$build/radiosity_data" "$scratch/rdata" 60 13 0 1 7 >/dev/null
+prog=examples/radiosity/formfactors.npg
+"$npgc" train $prog "$scratch/rdata" -o "$scratch/r1" --cap 8 >/dev/null
+$mpirun -np 2 "$npgc" train $prog "$scratch/rdata" -o "$scratch/r2" --cap 8 --mpi >/dev/null
+$compare "$scratch/r1" "$scratch/r2"
+$mpirun -np 3 "$npgc" train $prog "$scratch/rdata" -o "$scratch/r3" --cap 8 --mpi >/dev/null
+$compare "$scratch/r1" "$scratch/r3"
+
+# the same through npg.h, the visibility from a callback that must run on each rank for its
+# own samples only
+"$build/tests/mpi_api" $prog "$scratch/rdata" "$scratch/a1" >/dev/null
+$mpirun -np 2 "$build/tests/mpi_api" $prog "$scratch/rdata" "$scratch/a2" --mpi
+$compare "$scratch/a1" "$scratch/a2"
+
+# (b) a program with an extern, on data numpy writes
+/usr/bin/python3 - "$scratch/xdata" <<'PY'
+import os, sys
+import numpy as np
+d = sys.argv[1]
+os.makedirs(d, exist_ok=True)
+rng = np.random.default_rng(5)
+F, V, S = 30, 20, 11
+tri = rng.integers(0, V, size=(F, 3)).astype(np.int64)
+np.save(f"{d}/tri.npy", tri)
+t = np.linspace(0, 1, S)[:, None, None]
+g = rng.standard_normal((V, 3))[None] * (1 + t) + rng.standard_normal((V, 3))[None] * t**2
+np.save(f"{d}/g.npy", np.ascontiguousarray(g))
+np.save(f"{d}/v.npy", np.ascontiguousarray(np.cos(g[:, tri[:, 1], 2])))  # the black box: any function of g
+PY
+xprog=tests/programs/extern_stage.npg
+"$npgc" train $xprog "$scratch/xdata" -o "$scratch/x1" >/dev/null
+$mpirun -np 2 "$npgc" train $xprog "$scratch/xdata" -o "$scratch/x2" --mpi >/dev/null
+$compare "$scratch/x1" "$scratch/x2"
+
+# (c) rank 1 fails after its first sample, then rank 1 is killed there: the job ends (no
+# rank waits forever: timeout 300 would say so), the message names the rank, no model and no
+# staging folder is left
+for how in 1 1:kill; do
+  rm -rf "$scratch/dead"*
+  if NPG_MPI_FAIL_RANK=$how $mpirun -np 2 -x NPG_MPI_FAIL_RANK "$npgc" train $prog "$scratch/rdata" \
+      -o "$scratch/dead" --mpi >"$scratch/dead.log" 2>&1; then
+    fail "NPG_MPI_FAIL_RANK=$how: the job succeeded"
+  fi
+  status=$?
+  [ $status -ne 124 ] || fail "NPG_MPI_FAIL_RANK=$how: the job hung (timeout)"
+  if [ "$how" = 1 ]; then
+    grep -q "rank 1 of 2 failed: training sample 1: NPG_MPI_FAIL_RANK" "$scratch/dead.log" ||
+      fail "NPG_MPI_FAIL_RANK=$how: no message naming rank 1: $(cat "$scratch/dead.log")"
+  else
+    grep -q "rank 1 .*exited on signal 9" "$scratch/dead.log" ||
+      fail "NPG_MPI_FAIL_RANK=$how: no message naming rank 1: $(cat "$scratch/dead.log")"
+  fi
+  leftover=$(ls -d "$scratch/dead" "$scratch"/dead.tmp.* "$scratch"/dead.old.* 2>/dev/null || true)
+  [ -z "$leftover" ] || fail "NPG_MPI_FAIL_RANK=$how left $leftover"
+done
+echo "mpi.sh: 2 and 3 ranks equal one process; a failed and a killed rank end the job, named, no model"
