@@ -14,8 +14,13 @@ typedef struct Krylov {
   long maxn;                /* the largest n the workspace holds */
   double *Q;                /* Lanczos vectors, one per row (maxn + 1 rows of maxn) */
   double *alpha, *beta;     /* T_k's diagonal and off-diagonal */
-  double *d, *e, *S, *work; /* dstev's copy of T_k, its eigenvectors, workspace */
-  double *c, *y, *prev, *w; /* f(T_k) e₁, the approximation, the previous one, a scratch vector */
+  double *d, *e, *S, *work; /* dstedc's copy of T_k, its eigenvectors, workspace */
+  int *iwork;               /* dstedc's integer workspace (3 + 5 maxn) */
+  long lwork;
+  double *c, *cprev;        /* f(T_k) e₁ and the one of the previous check */
+  double *w;                /* a scratch vector */
+  long start;               /* in: where a similar call converged (0: unknown), checks begin 4 steps before;
+                               out: the same for the next call */
 } Krylov;
 
 /* Workspace for n up to `maxn`. 0, or -1 when out of memory (then
