@@ -41,7 +41,10 @@ typedef struct RedSolver {
   double *Vs;      /* [mg*mg][mu*mu]: V̂(ĝ) = Σ_lm ĝ_l ĝ_m Vs[l][m] */
   double *Ps;      /* [mg][mu*mf]:    P̂(ĝ) = Σ_l ĝ_l Ps[l] */
   double *L;       /* [mu*mu] the reduced Laplacian */
-  double *As;      /* [mf][mu*mu]:  Â ⊗ f̂ = Σ_k f̂_k As[k] */
+  double *As;      /* [mf][mu*mu]:  Â ⊗ f̂ = Σ_k f̂_k As[k] (set-up only, then freed: the step reads the split below) */
+  double *Ask;     /* [mf][mu(mu-1)/2]: the skew parts of the As[k], strict upper triangles */
+  double *Asy, *Asc; /* [rs][mu(mu+1)/2], [mf][rs]: their symmetric parts Σ_k f̂_k sym(As[k]) = Σ_i (Ascᵀf̂)_i Asy[i] */
+  long rs;         /* the rank of the symmetric parts */
   double *Ahs;     /* [mg*mgd][mu*mu]: −Â_h ⊗ ĥ(ĝ, ĝdot) = Σ_lq ĝ_l ĝdot_q Ahs[l][q] */
   double *Bhs;     /* [mg*mgd][mb]:    D̂_h ĥ(ĝ, ĝdot) likewise */
   double *wgt;     /* [mg*mgd] */
@@ -77,6 +80,8 @@ void red_free(RedSolver *s);
 void red_project_g(const RedSolver *s, const double *g, double *gc);
 void red_project_f(const RedSolver *s, const double *f, double *fc);
 void red_project_u(RedSolver *s, const double *gc, const double *pv, double *uc);
+/* Â ⊗ f̂ (mu x mu) from the skew and symmetric parts. */
+void red_advection(const RedSolver *s, const double *fc, double *A);
 /* V̂(ĝ) and P̂(ĝ) from their slices. */
 void red_volume(const RedSolver *s, const double *gc, double *V);
 void red_pmat(const RedSolver *s, const double *gc, double *P);
