@@ -336,7 +336,7 @@ int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *
    * interior outflow of each cell, i.e. (B_f's columns being divergence-free)
    * half its boundary flux, which the few vectors of B_d span; the SVD of
    * the symmetric parts finds that rank (singular values above 1e-12 of the
-   * largest), so the step reads a little over half of the tensor. */
+   * tensor's norm), so the step reads a little over half of the tensor. */
   if (!rc) rc = split_advection(s, err, errlen);
   free(s->As);
   s->As = NULL;
@@ -377,8 +377,11 @@ static int split_advection(RedSolver *s, char *err, size_t errlen) {
   if (!rc && LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'S', 'S', (int)mf, (int)ny, Y, (int)ny, sv, U, (int)mf, Vt, (int)ny, sup) != 0)
     rc = fail(err, errlen, "SVD of the symmetric parts of the reduced advection failed", NULL);
   if (!rc) {
+    /* relative to the whole tensor: with fixed walls B_f carries no boundary
+     * flux and the symmetric parts are rounding noise (rank 0) */
+    double total = cblas_dnrm2((int)((size_t)mf * uu), s->As, 1);
     long r = 0;
-    while (r < mf && r < ny && sv[r] > 1e-12 * sv[0]) r++;
+    while (r < mf && r < ny && sv[r] > 1e-12 * total) r++;
     s->rs = r;
     s->Asy = malloc((size_t)(r * ny + 1) * sizeof(double));
     s->Asc = malloc((size_t)(mf * r + 1) * sizeof(double));
