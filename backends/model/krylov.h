@@ -1,7 +1,7 @@
 /* krylov.h — a rational power of a symmetric positive definite matrix
  * applied to one vector, M^(p/q) v, by the Lanczos process (with full
  * reorthogonalization) on the Krylov space of v: v ← β Q_k f(T_k) e₁, f(λ) =
- * λ^(p/q), T_k's eigendecomposition by LAPACK (dstev). The reduced
+ * λ^(p/q), T_k's eigendecomposition by LAPACK (dstedc). The reduced
  * evaluator's root stages use it instead of a dense eigendecomposition of M
  * when it converges in fewer steps than that would cost; the
  * eigendecomposition stays the exact reference (reduced_exact_roots). */
