@@ -1,7 +1,7 @@
 /* krylov.h — a rational power of a symmetric positive definite matrix
  * applied to one vector, M^(p/q) v, by the Lanczos process (with full
  * reorthogonalization) on the Krylov space of v: v ← β Q_k f(T_k) e₁, f(λ) =
- * λ^(p/q), T_k's eigendecomposition by LAPACK (dstev). The reduced
+ * λ^(p/q), T_k's eigendecomposition by LAPACK (dstedc). The reduced
  * evaluator's root stages use it instead of a dense eigendecomposition of M
  * when it converges in fewer steps than that would cost; the
  * eigendecomposition stays the exact reference (reduced_exact_roots). */
@@ -14,8 +14,13 @@ typedef struct Krylov {
   long maxn;                /* the largest n the workspace holds */
   double *Q;                /* Lanczos vectors, one per row (maxn + 1 rows of maxn) */
   double *alpha, *beta;     /* T_k's diagonal and off-diagonal */
-  double *d, *e, *S, *work; /* dstev's copy of T_k, its eigenvectors, workspace */
-  double *c, *y, *prev, *w; /* f(T_k) e₁, the approximation, the previous one, a scratch vector */
+  double *d, *e, *S, *work; /* dstedc's copy of T_k, its eigenvectors, workspace */
+  int *iwork;               /* dstedc's integer workspace (3 + 5 maxn) */
+  long lwork;
+  double *c, *cprev;        /* f(T_k) e₁ and the one of the previous check */
+  double *w;                /* a scratch vector */
+  long start;               /* in: where a similar call converged (0: unknown), checks begin 4 steps before;
+                               out: the same for the next call */
 } Krylov;
 
 /* Workspace for n up to `maxn`. 0, or -1 when out of memory (then

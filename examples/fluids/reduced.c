@@ -143,6 +143,8 @@ int red_expm(int n, const double *X, double *out, double *work, int *pade, int *
 
 /* ---------------------------------------------------------------- set-up */
 
+static int split_advection(RedSolver *s, char *err, size_t errlen);
+
 static int class_info(const NpgModel *m, const char *q, int *c, long *n, long *mm_, const double **B, char *err,
                       size_t errlen) {
   *c = npg_model_class_of(m, q);
@@ -191,7 +193,7 @@ int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *
   memset(s, 0, sizeof *s);
   s->model = model;
   s->visc = visc, s->dt = dt;
-  s->integ = RED_EXPM;
+  s->integ = RED_EXPMV;
   long nb;
   const double *Bb;
   if (class_info(model, "g", &s->cg, &s->ng, &s->mg, &s->Bg, err, errlen) ||
@@ -235,12 +237,20 @@ int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *
   s->tmp = malloc((size_t)(4 * (mu + mf) + 8) * sizeof(double));
   s->tmp2 = malloc((size_t)(4 * (mu + mf) + 8) * sizeof(double));
   s->tmp3 = malloc((size_t)(4 * (mu + mf) + 8) * sizeof(double));
+  s->kmax = mu < 64 ? (int)mu : 64;
+  size_t kk = (size_t)s->kmax;
+  s->Vf = malloc(uu * sizeof(double));
+  s->Vfg = malloc((size_t)mg * sizeof(double) + 8);
+  s->Q = malloc((kk + 1) * (size_t)mu * sizeof(double));
+  s->H = malloc((kk + 1) * kk * sizeof(double));
+  s->Hx = malloc(kk * kk * sizeof(double));
+  s->hwork = malloc(9 * kk * kk * sizeof(double) + 8 * kk * sizeof(double));
   double *gc = calloc((size_t)mg, sizeof(double)), *fc = calloc((size_t)mf, sizeof(double));
   double *uc = calloc((size_t)mu, sizeof(double)), *gdc = calloc((size_t)mgd, sizeof(double));
   double *pc = malloc((size_t)mu * sizeof(double)), *bc = malloc((size_t)mb * sizeof(double) + 8);
   int rc = 0;
   if (!s->Vs || !s->Ps || !s->As || !s->Ahs || !s->L || !D || !s->Dpinv || !s->N || !s->work || !gc || !fc || !uc ||
-      !gdc || !pc || !bc) {
+      !gdc || !pc || !bc || !s->Vf || !s->Vfg || !s->Q || !s->H || !s->Hx || !s->hwork) {
     rc = fail(err, errlen, "out of memory", NULL);
     goto done;
   }
@@ -321,11 +331,83 @@ int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *
     }
     free(Uu), free(Vt), free(sv), free(sup);
   }
+  /* Â ⊗ f̂ split into its skew part, stored as strict upper triangles, and its
+   * symmetric part, which comes from the diagonal of A ⊗ f: half the net
+   * interior outflow of each cell, i.e. (B_f's columns being divergence-free)
+   * half its boundary flux, which the few vectors of B_d span; the SVD of
+   * the symmetric parts finds that rank (singular values above 1e-12 of the
+   * tensor's norm), so the step reads a little over half of the tensor. */
+  if (!rc) rc = split_advection(s, err, errlen);
+  free(s->As);
+  s->As = NULL;
+  /* P̂(ĝ) N, linear in ĝ like P̂: the projection's matrix on the null space of D̂ */
+  if (!rc && s->nn > 0) {
+    s->PNs = malloc((size_t)mg * (size_t)mu * (size_t)s->nn * sizeof(double));
+    if (!s->PNs) rc = fail(err, errlen, "out of memory", NULL);
+    for (long l = 0; l < mg && !rc; l++)
+      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)mu, (int)s->nn, (int)mf, 1.0, s->Ps + (size_t)l * uf,
+                  (int)mf, s->N, (int)s->nn, 0.0, s->PNs + (size_t)l * (size_t)mu * (size_t)s->nn, (int)s->nn);
+  }
   s->seconds_setup = util_now() - t0;
 done:
   free(D), free(gc), free(fc), free(uc), free(gdc), free(pc), free(bc);
   if (rc) red_free(s);
   return rc;
+}
+
+static int split_advection(RedSolver *s, char *err, size_t errlen) {
+  long mu = s->mu, mf = s->mf, nk = mu * (mu - 1) / 2, ny = mu * (mu + 1) / 2;
+  size_t uu = (size_t)(mu * mu);
+  s->Ask = malloc((size_t)(mf * nk + 1) * sizeof(double));
+  double *Y = malloc((size_t)(mf * ny + 1) * sizeof(double)), *sv = malloc((size_t)(mf + 1) * sizeof(double));
+  double *U = malloc((size_t)(mf * mf + 1) * sizeof(double)), *Vt = malloc((size_t)(mf * ny + 1) * sizeof(double));
+  double *sup = malloc((size_t)(mf + 1) * sizeof(double));
+  int rc = 0;
+  if (!s->Ask || !Y || !sv || !U || !Vt || !sup) rc = fail(err, errlen, "out of memory", NULL);
+  for (long k = 0; k < mf && !rc; k++) {
+    const double *Ak = s->As + (size_t)k * uu;
+    double *kk = s->Ask + (size_t)(k * nk), *yk = Y + (size_t)(k * ny);
+    for (long i = 0; i < mu; i++)
+      for (long j = i; j < mu; j++) {
+        double a = Ak[i * mu + j], b = Ak[j * mu + i];
+        *yk++ = 0.5 * (a + b);
+        if (j > i) *kk++ = 0.5 * (a - b);
+      }
+  }
+  if (!rc && LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'S', 'S', (int)mf, (int)ny, Y, (int)ny, sv, U, (int)mf, Vt, (int)ny, sup) != 0)
+    rc = fail(err, errlen, "SVD of the symmetric parts of the reduced advection failed", NULL);
+  if (!rc) {
+    /* relative to the whole tensor: with fixed walls B_f carries no boundary
+     * flux and the symmetric parts are rounding noise (rank 0) */
+    double total = cblas_dnrm2((int)((size_t)mf * uu), s->As, 1);
+    long r = 0;
+    while (r < mf && r < ny && sv[r] > 1e-12 * total) r++;
+    s->rs = r;
+    s->Asy = malloc((size_t)(r * ny + 1) * sizeof(double));
+    s->Asc = malloc((size_t)(mf * r + 1) * sizeof(double));
+    if (!s->Asy || !s->Asc) rc = fail(err, errlen, "out of memory", NULL);
+    for (long i = 0; i < r && !rc; i++)
+      for (long p = 0; p < ny; p++) s->Asy[i * ny + p] = sv[i] * Vt[i * ny + p];
+    for (long k = 0; k < mf && !rc; k++)
+      for (long i = 0; i < r; i++) s->Asc[k * r + i] = U[k * mf + i];
+  }
+  free(Y), free(sv), free(U), free(Vt), free(sup);
+  return rc;
+}
+
+void red_advection(const RedSolver *s, const double *fc, double *A) {
+  int mu = (int)s->mu, mf = (int)s->mf, nk = mu * (mu - 1) / 2, ny = mu * (mu + 1) / 2, r = (int)s->rs;
+  double *sk = s->work, *sy = s->work + nk, *c = s->work + nk + ny;
+  cblas_dgemv(CblasRowMajor, CblasTrans, mf, nk, 1.0, s->Ask, nk, fc, 1, 0.0, sk, 1);
+  if (r > 0) {
+    cblas_dgemv(CblasRowMajor, CblasTrans, mf, r, 1.0, s->Asc, r, fc, 1, 0.0, c, 1);
+    cblas_dgemv(CblasRowMajor, CblasTrans, r, ny, 1.0, s->Asy, ny, c, 1, 0.0, sy, 1);
+  } else
+    memset(sy, 0, (size_t)ny * sizeof *sy);
+  for (int i = 0; i < mu; i++) {
+    A[(size_t)i * mu + i] = *sy++;
+    for (int j = i + 1; j < mu; j++, sy++, sk++) A[(size_t)i * mu + j] = *sy + *sk, A[(size_t)j * mu + i] = *sy - *sk;
+  }
 }
 
 void red_free(RedSolver *s) {
@@ -334,6 +416,7 @@ void red_free(RedSolver *s) {
   free(s->N), free(s->g), free(s->f), free(s->u);
   free(s->gmid), free(s->gdot), free(s->b), free(s->A), free(s->M), free(s->E), free(s->V0), free(s->V1);
   free(s->P1), free(s->W), free(s->K), free(s->KN), free(s->Kn), free(s->work), free(s->tmp), free(s->tmp2), free(s->tmp3);
+  free(s->Ask), free(s->Asy), free(s->Asc), free(s->PNs), free(s->Vf), free(s->Vfg), free(s->Q), free(s->H), free(s->Hx), free(s->hwork);
   memset(s, 0, sizeof *s);
 }
 
@@ -343,9 +426,9 @@ void red_volume(const RedSolver *s, const double *gc, double *V) {
   size_t uu = (size_t)(s->mu * s->mu);
   long mg = s->mg;
   memset(V, 0, uu * sizeof *V);
-  for (long l = 0; l < mg; l++)
-    for (long q = 0; q < mg; q++) {
-      double w = gc[l] * gc[q];
+  for (long l = 0; l < mg; l++) /* the slices are symmetric in (l, q): the upper ones only */
+    for (long q = l; q < mg; q++) {
+      double w = (q == l ? 1 : 2) * gc[l] * gc[q];
       if (w != 0) cblas_daxpy((int)uu, w, s->Vs + (size_t)(l * mg + q) * uu, 1, V, 1);
     }
 }
@@ -365,10 +448,32 @@ void red_project_f(const RedSolver *s, const double *f, double *fc) {
   cblas_dgemv(CblasRowMajor, CblasTrans, (int)s->nf, (int)s->mf, 1.0, s->Bf, (int)s->mf, f, 1, 0.0, fc, 1);
 }
 
+/* The Cholesky factor of V̂(ĝ) in s->Vf (lower, row-major), kept for the
+ * next call at the same ĝ: the projection of one step and the advection of
+ * the next are both at ĝ_{t+1}. 0, or -1 when V̂ is not positive definite. */
+static int volume_factor(RedSolver *s, const double *gc) {
+  if (s->vf_ok && !memcmp(s->Vfg, gc, (size_t)s->mg * sizeof *gc)) return 0;
+  s->vf_ok = 0;
+  red_volume(s, gc, s->Vf);
+  if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'L', (int)s->mu, s->Vf, (int)s->mu) != 0) return -1;
+  memcpy(s->Vfg, gc, (size_t)s->mg * sizeof *gc);
+  s->vf_ok = 1;
+  return 0;
+}
+
+/* x <- V̂⁻¹ x with the factor in s->Vf */
+static void volume_solve(const RedSolver *s, double *x) {
+  cblas_dtrsv(CblasRowMajor, CblasLower, CblasNoTrans, CblasNonUnit, (int)s->mu, s->Vf, (int)s->mu, x, 1);
+  cblas_dtrsv(CblasRowMajor, CblasLower, CblasTrans, CblasNonUnit, (int)s->mu, s->Vf, (int)s->mu, x, 1);
+}
+
 void red_project_u(RedSolver *s, const double *gc, const double *pv, double *uc) {
   cblas_dgemv(CblasRowMajor, CblasTrans, (int)s->nu, (int)s->mu, 1.0, s->Bu, (int)s->mu, pv, 1, 0.0, uc, 1);
-  red_volume(s, gc, s->V1);
-  LAPACKE_dposv(LAPACK_ROW_MAJOR, 'L', (int)s->mu, 1, s->V1, (int)s->mu, uc, 1);
+  if (volume_factor(s, gc) == 0) volume_solve(s, uc);
+  else {
+    red_volume(s, gc, s->V1);
+    LAPACKE_dposv(LAPACK_ROW_MAJOR, 'L', (int)s->mu, 1, s->V1, (int)s->mu, uc, 1);
+  }
 }
 
 double red_energy(const RedSolver *s, const double *gc, const double *uc) {
@@ -382,40 +487,98 @@ double red_energy(const RedSolver *s, const double *gc, const double *uc) {
 
 /* The reduced projection (Eq. 12 with the reduced boundary constraints) at
  * ĝ = gc of the velocity coordinates uin, with the boundary fluxes s->b:
- * sets s->f and s->u. */
+ * sets s->f and s->u. On f̂ = f_p + N y (f_p = D̂⁺ b̂) the minimizer of
+ * ½‖û' − V̂⁻¹P̂ f̂‖²_V̂ solves (NᵀP̂ᵀV̂⁻¹P̂N) y = (P̂N)ᵀ(û' − V̂⁻¹P̂ f_p); with V̂ = LLᵀ
+ * and X = L⁻¹P̂N its matrix is XᵀX. Then û = V̂⁻¹P̂ f̂ (Eq. 13). */
 int red_projection(RedSolver *s, const double *gc, const double *uin, char *err, size_t errlen) {
   int mu = (int)s->mu, mf = (int)s->mf, mb = (int)s->mb, nn = (int)s->nn;
-  red_volume(s, gc, s->V1);
-  red_pmat(s, gc, s->P1);
-  if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'L', mu, s->V1, mu) != 0)
+  if (volume_factor(s, gc) != 0)
     return fail(err, errlen, "reduced volume matrix V̂(ĝ_{t+1}) is not positive definite", NULL);
-  memcpy(s->W, s->P1, (size_t)mu * mf * sizeof *s->W);
-  LAPACKE_dpotrs(LAPACK_ROW_MAJOR, 'L', mu, mf, s->V1, mu, s->W, mf); /* W = V̂⁻¹ P̂ */
-  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, mf, mf, mu, 1.0, s->P1, mf, s->W, mf, 0.0, s->K, mf);
-  double *rhs = s->tmp3, *fp = s->work, *y = s->work + mf;
-  cblas_dgemv(CblasRowMajor, CblasTrans, mu, mf, 1.0, s->P1, mf, uin, 1, 0.0, rhs, 1); /* P̂ᵀ û' */
+  red_pmat(s, gc, s->P1);
+  double *fp = s->work, *y = s->work + mf, *z = s->tmp3;
   if (mb > 0)
     cblas_dgemv(CblasRowMajor, CblasNoTrans, mf, mb, 1.0, s->Dpinv, mb, s->b, 1, 0.0, fp, 1);
   else
     memset(fp, 0, (size_t)mf * sizeof *fp);
-  cblas_dgemv(CblasRowMajor, CblasNoTrans, mf, mf, -1.0, s->K, mf, fp, 1, 1.0, rhs, 1); /* P̂ᵀû' − K fp */
   if (nn > 0) {
-    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, mf, nn, mf, 1.0, s->K, mf, s->N, nn, 0.0, s->KN, nn);
-    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, nn, nn, mf, 1.0, s->N, nn, s->KN, nn, 0.0, s->Kn, nn);
-    cblas_dgemv(CblasRowMajor, CblasTrans, mf, nn, 1.0, s->N, nn, rhs, 1, 0.0, y, 1);
+    double *X = s->W; /* mu x nn */
+    size_t un = (size_t)mu * (size_t)nn;
+    memset(X, 0, un * sizeof *X);
+    for (long l = 0; l < s->mg; l++)
+      if (gc[l] != 0) cblas_daxpy((int)un, gc[l], s->PNs + (size_t)l * un, 1, X, 1);
+    /* z = û' − V̂⁻¹P̂ f_p; the right-hand side (P̂N)ᵀ z before X overwrites P̂N */
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, mu, mf, 1.0, s->P1, mf, fp, 1, 0.0, z, 1);
+    volume_solve(s, z);
+    for (int i = 0; i < mu; i++) z[i] = uin[i] - z[i];
+    cblas_dgemv(CblasRowMajor, CblasTrans, mu, nn, 1.0, X, nn, z, 1, 0.0, y, 1);
+    cblas_dtrsm(CblasRowMajor, CblasLeft, CblasLower, CblasNoTrans, CblasNonUnit, mu, nn, 1.0, s->Vf, mu, X, nn);
+    cblas_dsyrk(CblasRowMajor, CblasLower, CblasTrans, nn, mu, 1.0, X, nn, 0.0, s->Kn, nn);
     if (LAPACKE_dposv(LAPACK_ROW_MAJOR, 'L', nn, 1, s->Kn, nn, y, 1) != 0)
       return fail(err, errlen, "reduced projection matrix is not positive definite", NULL);
     cblas_dgemv(CblasRowMajor, CblasNoTrans, mf, nn, 1.0, s->N, nn, y, 1, 1.0, fp, 1);
   }
   memcpy(s->f, fp, (size_t)mf * sizeof *s->f);
-  cblas_dgemv(CblasRowMajor, CblasNoTrans, mu, mf, 1.0, s->W, mf, s->f, 1, 0.0, s->u, 1); /* û = V̂⁻¹P̂ f̂ */
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, mu, mf, 1.0, s->P1, mf, s->f, 1, 0.0, s->u, 1); /* û = V̂⁻¹P̂ f̂ */
+  volume_solve(s, s->u);
   return 0;
+}
+
+/* ---------------------------------------------------------------- exp(ΔtM) û by Arnoldi */
+
+int red_expmv(RedSolver *s, const double *S, const double *Vf, double dt, const double *u, double *y, double tol) {
+  int n = (int)s->mu, kmax = s->kmax;
+  double *Q = s->Q, *H = s->H, *c = s->hwork + 9 * (size_t)kmax * kmax, *Hm = s->hwork + 8 * (size_t)kmax * kmax;
+  /* w = Lᵀu: advection is V̂-skew, so L⁻¹ S L⁻ᵀ is skew and exp of the
+   * (then skew tridiagonal) Hessenberg matrix orthogonal: the energy
+   * ½‖w‖² is kept to rounding whatever the truncation */
+  memcpy(Q, u, (size_t)n * sizeof *Q);
+  cblas_dtrmv(CblasRowMajor, CblasLower, CblasTrans, CblasNonUnit, n, Vf, n, Q, 1);
+  double beta = cblas_dnrm2(n, Q, 1);
+  if (beta == 0) {
+    memset(y, 0, (size_t)n * sizeof *y);
+    return 0;
+  }
+  cblas_dscal(n, 1.0 / beta, Q, 1);
+  memset(H, 0, (size_t)(kmax + 1) * (size_t)kmax * sizeof *H);
+  for (int j = 0; j < kmax; j++) {
+    double *qj = Q + (size_t)j * n, *w = Q + (size_t)(j + 1) * n;
+    /* w = Δt L⁻¹ S L⁻ᵀ q_j */
+    memcpy(c, qj, (size_t)n * sizeof *c);
+    cblas_dtrsv(CblasRowMajor, CblasLower, CblasTrans, CblasNonUnit, n, Vf, n, c, 1);
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, dt, S, n, c, 1, 0.0, w, 1);
+    cblas_dtrsv(CblasRowMajor, CblasLower, CblasNoTrans, CblasNonUnit, n, Vf, n, w, 1);
+    /* orthogonalize against q_0 … q_j, twice */
+    for (int pass = 0; pass < 2; pass++) {
+      cblas_dgemv(CblasRowMajor, CblasNoTrans, j + 1, n, 1.0, Q, n, w, 1, 0.0, c, 1);
+      cblas_dgemv(CblasRowMajor, CblasTrans, j + 1, n, -1.0, Q, n, c, 1, 1.0, w, 1);
+      for (int i = 0; i <= j; i++) H[(size_t)i * kmax + j] += c[i];
+    }
+    double h = cblas_dnrm2(n, w, 1);
+    H[(size_t)(j + 1) * kmax + j] = h;
+    int m = j + 1;
+    double scale = 0;
+    for (int i = 0; i <= j; i++) scale = fmax(scale, fabs(H[(size_t)i * kmax + j]));
+    int invariant = h <= 1e-14 * (scale + 1e-300) || m == n;
+    if (invariant || (m >= 4 && m % 2 == 0)) {
+      for (int i = 0; i < m; i++) memcpy(Hm + (size_t)i * m, H + (size_t)i * kmax, (size_t)m * sizeof *Hm);
+      if (red_expm(m, Hm, s->Hx, s->hwork, NULL, NULL) != 0) return -1;
+      /* the error of β Q_m exp(H_m) e₁: about β h_{m+1,m} |e_mᵀ exp(H_m) e₁| (Saad 1992) */
+      if (invariant || h * fabs(s->Hx[(size_t)(m - 1) * m]) <= tol) {
+        for (int i = 0; i < m; i++) c[i] = beta * s->Hx[(size_t)i * m];
+        cblas_dgemv(CblasRowMajor, CblasTrans, m, n, 1.0, Q, n, c, 1, 0.0, y, 1);
+        cblas_dtrsv(CblasRowMajor, CblasLower, CblasTrans, CblasNonUnit, n, Vf, n, y, 1); /* u = L⁻ᵀ w */
+        return m;
+      }
+    }
+    cblas_dscal(n, 1.0 / h, w, 1);
+  }
+  return -1;
 }
 
 /* ---------------------------------------------------------------- the step */
 
 int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, size_t errlen) {
-  int mu = (int)s->mu, mf = (int)s->mf, mb = (int)s->mb;
+  int mu = (int)s->mu, mb = (int)s->mb;
   long mg = s->mg, mgd = s->mgd;
   double t0 = util_now();
   for (long l = 0; l < mg; l++) s->gmid[l] = 0.5 * (s->g[l] + gnext[l]);
@@ -426,7 +589,7 @@ int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, 
   /* Â ⊗ (f̂ − ĥ): Σ_k f̂_k Â_k + Σ_lq ĝmid_l ĝdot_q (−Â_h ĥ)_lq (ĥ exact at the
    * midpoint, as in the full step), and D̂_h ĥ likewise */
   size_t uu = (size_t)mu * mu;
-  cblas_dgemv(CblasRowMajor, CblasTrans, mf, (int)uu, 1.0, s->As, (int)uu, s->f, 1, 0.0, s->A, 1);
+  red_advection(s, s->f, s->A);
   int moving = 0;
   for (long l = 0; l < mg; l++)
     for (long q = 0; q < mgd; q++) {
@@ -441,13 +604,22 @@ int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, 
   } else if (mb > 0)
     memset(s->b, 0, (size_t)mb * sizeof *s->b);
   double t1 = util_now();
-  /* advection and diffusion at ĝ_t: M = V̂⁻¹(Â + μ L̂) */
-  for (size_t i = 0; i < uu; i++) s->M[i] = s->A[i] + s->visc * s->L[i];
-  red_volume(s, s->g, s->V0);
-  if (LAPACKE_dposv(LAPACK_ROW_MAJOR, 'L', mu, mu, s->V0, mu, s->M, mu) != 0)
+  /* advection and diffusion at ĝ_t: û' = exp(Δt V̂⁻¹(Â + μ L̂)) û */
+  for (size_t i = 0; i < uu; i++) s->A[i] += s->visc * s->L[i];
+  if (volume_factor(s, s->g) != 0)
     return fail(err, errlen, "reduced volume matrix V̂(ĝ_t) is not positive definite", NULL);
   double *u1 = s->tmp;
-  if (s->integ == RED_EXPM) {
+  int krylov = s->integ == RED_EXPMV ? red_expmv(s, s->A, s->Vf, s->dt, s->u, u1, 1e-12) : -1;
+  s->last_krylov = krylov > 0 ? krylov : 0;
+  if (krylov < 0) {
+    /* M = V̂⁻¹(Â + μ L̂) from the factor */
+    memcpy(s->M, s->A, uu * sizeof *s->M);
+    cblas_dtrsm(CblasRowMajor, CblasLeft, CblasLower, CblasNoTrans, CblasNonUnit, mu, mu, 1.0, s->Vf, mu, s->M, mu);
+    cblas_dtrsm(CblasRowMajor, CblasLeft, CblasLower, CblasTrans, CblasNonUnit, mu, mu, 1.0, s->Vf, mu, s->M, mu);
+  }
+  if (krylov >= 0) {
+    s->last_pade = 0, s->last_squarings = 0;
+  } else if (s->integ != RED_RK4) { /* the whole exponential (RED_EXPM, or Arnoldi did not converge) */
     for (size_t i = 0; i < uu; i++) s->M[i] *= s->dt;
     if (red_expm(mu, s->M, s->E, s->work, &s->last_pade, &s->last_squarings) != 0)
       return fail(err, errlen, "matrix exponential: singular Padé denominator", NULL);

@@ -1,7 +1,8 @@
 /* reduced.h — the reduced step of paper Fig. 2 (right column), from a model
  * of fluids2d.npg trained through npg.h:
  *
- *   advection   û' = exp(Δt V̂⁻¹(ĝ_t)(Â ⊗ (f̂, ĥ) + μ L̂)) û   (scaling and squaring, Padé)
+ *   advection   û' = exp(Δt V̂⁻¹(ĝ_t)(Â ⊗ (f̂, ĥ) + μ L̂)) û   (Krylov: Padé on the Arnoldi projection;
+ *                                                            or scaling and squaring, Padé, on the whole matrix)
  *   projection  f̂ = argmin ½‖û' − V̂⁻¹P̂ f̂‖²_V̂  s.t.  D̂ f̂ = D̂_h ĥ   at ĝ_{t+1} (Eq. 12)
  *               û = V̂⁻¹(ĝ_{t+1}) P̂(ĝ_{t+1}) f̂                       (Eq. 13)
  *
@@ -24,7 +25,11 @@
 
 #include "npg.h"
 
-typedef enum RedIntegrator { RED_EXPM, RED_RK4 } RedIntegrator;
+/* RED_EXPMV: exp(ΔtM)û by the Arnoldi process on the Krylov space of û
+ * (the default: the step needs the exponential applied to one vector);
+ * RED_EXPM: the whole matrix exponential, then the product (the reference);
+ * RED_RK4: the full step's integrator. */
+typedef enum RedIntegrator { RED_EXPMV, RED_EXPM, RED_RK4 } RedIntegrator;
 
 typedef struct RedSolver {
   const NpgModel *model;
@@ -36,7 +41,10 @@ typedef struct RedSolver {
   double *Vs;      /* [mg*mg][mu*mu]: V̂(ĝ) = Σ_lm ĝ_l ĝ_m Vs[l][m] */
   double *Ps;      /* [mg][mu*mf]:    P̂(ĝ) = Σ_l ĝ_l Ps[l] */
   double *L;       /* [mu*mu] the reduced Laplacian */
-  double *As;      /* [mf][mu*mu]:  Â ⊗ f̂ = Σ_k f̂_k As[k] */
+  double *As;      /* [mf][mu*mu]:  Â ⊗ f̂ = Σ_k f̂_k As[k] (set-up only, then freed: the step reads the split below) */
+  double *Ask;     /* [mf][mu(mu-1)/2]: the skew parts of the As[k], strict upper triangles */
+  double *Asy, *Asc; /* [rs][mu(mu+1)/2], [mf][rs]: their symmetric parts Σ_k f̂_k sym(As[k]) = Σ_i (Ascᵀf̂)_i Asy[i] */
+  long rs;         /* the rank of the symmetric parts */
   double *Ahs;     /* [mg*mgd][mu*mu]: −Â_h ⊗ ĥ(ĝ, ĝdot) = Σ_lq ĝ_l ĝdot_q Ahs[l][q] */
   double *Bhs;     /* [mg*mgd][mb]:    D̂_h ĥ(ĝ, ĝdot) likewise */
   double *wgt;     /* [mg*mgd] */
@@ -44,6 +52,11 @@ typedef struct RedSolver {
   double seconds_setup;
   double *Dpinv;   /* [mf*mb] */
   double *N;       /* [mf*nn] null space of D̂ */
+  double *PNs;     /* [mg][mu*nn]: P̂(ĝ) N = Σ_l ĝ_l PNs[l] */
+  double *Vf, *Vfg; /* the Cholesky factor of V̂ (lower, row-major) and the ĝ it belongs to */
+  int vf_ok;
+  double *Q, *H, *Hx, *hwork; /* Arnoldi: basis (kmax + 1 rows), Hessenberg, its exponential, workspace */
+  int kmax;
   long nn, drank;
   double visc, dt;
   RedIntegrator integ;
@@ -54,7 +67,7 @@ typedef struct RedSolver {
   double *gmid, *gdot, *b;
   double seconds_eval, seconds_advection, seconds_projection;
   long steps;
-  int last_pade, last_squarings;
+  int last_pade, last_squarings, last_krylov; /* the last exponential: Padé degree, squarings, Arnoldi steps */
 } RedSolver;
 
 /* Set up from a model (classes looked up by quantity name). 0, or -1 with
@@ -67,6 +80,8 @@ void red_free(RedSolver *s);
 void red_project_g(const RedSolver *s, const double *g, double *gc);
 void red_project_f(const RedSolver *s, const double *f, double *fc);
 void red_project_u(RedSolver *s, const double *gc, const double *pv, double *uc);
+/* Â ⊗ f̂ (mu x mu) from the skew and symmetric parts. */
+void red_advection(const RedSolver *s, const double *fc, double *A);
 /* V̂(ĝ) and P̂(ĝ) from their slices. */
 void red_volume(const RedSolver *s, const double *gc, double *V);
 void red_pmat(const RedSolver *s, const double *gc, double *P);
@@ -78,6 +93,13 @@ int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, 
 int red_projection(RedSolver *s, const double *gc, const double *uin, char *err, size_t errlen);
 /* Energy ½ ûᵀ V̂(ĝ) û. */
 double red_energy(const RedSolver *s, const double *gc, const double *uc);
+/* y = exp(ΔtM)u with M = V̂⁻¹(ĝ)S for the n x n S, in the coordinates
+ * w = Lᵀu of V̂ = LLᵀ (Vf, lower, row-major), where advection is skew:
+ * Arnoldi on ΔtL⁻¹SL⁻ᵀ from w, exp of the Hessenberg matrix by red_expm.
+ * Returns the Arnoldi steps, or -1 when it does not converge to `tol`
+ * (relative) within s->kmax steps (the caller then takes the whole
+ * exponential). */
+int red_expmv(RedSolver *s, const double *S, const double *Vf, double dt, const double *u, double *y, double tol);
 /* exp(X) for n x n X (row-major) by scaling and squaring with Padé
  * (Higham 2005): out = e^X. pade/squarings report the choice. 0 or -1. */
 int red_expm(int n, const double *X, double *out, double *work, int *pade, int *squarings);

@@ -155,7 +155,8 @@ static void test_reduced_energy(void **state) {
   /* a flux of the null space of D̂: divergence-free, no boundary flux */
   for (long j = 0; j < s.nn; j++) y[j] = rnd();
   cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)s.mf, (int)s.nn, 1.0, s.N, (int)s.nn, y, 1, 0.0, fc, 1);
-  cblas_dgemv(CblasRowMajor, CblasTrans, (int)s.mf, (int)uu, 1.0, s.As, (int)uu, fc, 1, 0.0, A, 1);
+  red_advection(&s, fc, A);
+  print_message("symmetric parts of the Â_k: rank %ld of m_f %ld\n", s.rs, s.mf);
   double asym = 0, norm = 0;
   for (int i = 0; i < n; i++)
     for (int j = 0; j < n; j++) asym = fmax(asym, fabs(A[i * n + j] + A[j * n + i])), norm = fmax(norm, fabs(A[i * n + j]));
@@ -178,6 +179,27 @@ static void test_reduced_energy(void **state) {
     for (size_t i = 0; i < uu; i++) M[i] *= scales[k] / mn;
     int pade, sq;
     assert_int_equal(red_expm(n, M, E, work, &pade, &sq), 0);
+    /* the same exponential applied to one vector by Arnoldi (red_expmv, what
+     * red_step uses): equal to E u, and energy-conserving to rounding */
+    {
+      double *Vf = malloc(uu * sizeof *Vf), *y1 = malloc(n * sizeof *y1), *y2 = malloc(n * sizeof *y2);
+      memcpy(Vf, V, uu * sizeof *Vf);
+      assert_int_equal(LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'L', n, Vf, n), 0);
+      for (int i = 0; i < n; i++) u[i] = rnd();
+      int steps = red_expmv(&s, A, Vf, scales[k] / mn, u, y1, 1e-12);
+      if (k < 2) assert_true(steps > 0); /* at |ΔtM| 20 it may leave it to the whole exponential */
+      if (steps > 0) {
+        cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, 1.0, E, n, u, 1, 0.0, y2, 1);
+        double d = 0, yn = 0;
+        for (int i = 0; i < n; i++) d += (y1[i] - y2[i]) * (y1[i] - y2[i]), yn += y2[i] * y2[i];
+        double e0 = energy_matrix(n, V, u), e1 = energy_matrix(n, V, y1);
+        print_message("Arnoldi, |dt V̂⁻¹Â|_1 = %g: %d steps, %.3g from the whole exponential, energy change %.3g\n",
+                      scales[k], steps, sqrt(d / yn), fabs(e1 - e0) / e0);
+        assert_true(sqrt(d / yn) <= 1e-10);
+        assert_true(fabs(e1 - e0) <= 1e-12 * e0);
+      }
+      free(Vf), free(y1), free(y2);
+    }
     for (int i = 0; i < n; i++) u[i] = rnd();
     double worst = 0;
     for (int step = 0; step < 5; step++) {
@@ -321,6 +343,27 @@ static void test_reduced_full_rank(void **state) {
                   df / sf);
     assert_true(d <= 1e-8 * sc);
     assert_true(df <= 1e-8 * sf);
+  }
+  /* one more step from this state with the exponential integrator: applied
+   * to û by Arnoldi (the default) and as the whole matrix exponential agree */
+  {
+    double *g0 = malloc(s.mg * sizeof *g0), *f0 = malloc(s.mf * sizeof *f0), *u0 = malloc(s.mu * sizeof *u0);
+    double *ua = malloc(s.mu * sizeof *ua);
+    memcpy(g0, s.g, s.mg * sizeof *g0), memcpy(f0, s.f, s.mf * sizeof *f0), memcpy(u0, s.u, s.mu * sizeof *u0);
+    s.integ = RED_EXPMV;
+    if (red_step(&s, gn, NULL, err, sizeof err) != 0) fail_msg("%s", err);
+    int arnoldi = s.last_krylov;
+    assert_true(arnoldi > 0);
+    memcpy(ua, s.u, s.mu * sizeof *ua);
+    memcpy(s.g, g0, s.mg * sizeof *g0), memcpy(s.f, f0, s.mf * sizeof *f0), memcpy(s.u, u0, s.mu * sizeof *u0);
+    s.integ = RED_EXPM;
+    if (red_step(&s, gn, NULL, err, sizeof err) != 0) fail_msg("%s", err);
+    double d = 0, sc = 0;
+    for (long i = 0; i < s.mu; i++) d = fmax(d, fabs(ua[i] - s.u[i])), sc = fmax(sc, fabs(s.u[i]));
+    print_message("exponential step: Arnoldi (%d steps) vs the whole exponential (Padé %d): %.3g relative\n",
+                  arnoldi, s.last_pade, d / sc);
+    assert_true(d <= 1e-10 * sc);
+    free(g0), free(f0), free(u0), free(ua);
   }
   free(u), free(uo), free(f), free(gdot), free(gn);
   red_free(&s);
