@@ -164,6 +164,10 @@ static void free_snapshots(Model *m, Snapshots *sn) {
           for (int k_ = 0; k_ < rt->nops; k_++)                                       \
             for (ROp *ro = &rt->ops[k_]; ro && ro->op->kind == OPK_DIAG; ro = NULL)
 
+void train_mark_spd(Model *m) {
+  FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
+}
+
 static RTerm *joiner_term(Model *m, const Joiner *j) {
   for (int i = 0; i < m->nstages; i++)
     if (m->stages[i].st == j->stage) return &m->stages[i].terms[j->term];
@@ -172,7 +176,7 @@ static RTerm *joiner_term(Model *m, const Joiner *j) {
 
 
 /* Set and evaluate training sample k. */
-static int eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, size_t errlen) {
+int train_eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, size_t errlen) {
   if (src->set(src->user, f, k) != 0 || npg_full_eval(f, k) != 0) return npg_fail(err, errlen, "%s", npg_full_error(f));
   return 0;
 }
@@ -181,7 +185,7 @@ static int eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, s
  * through its builders) at sample k into out[0..n); refused when not
  * finite, since a basis of it would be meaningless (and the SVD would fail
  * without saying why). */
-static int member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n, double *out, char *err,
+int train_member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n, double *out, char *err,
                         size_t errlen) {
   if (mb->q >= 0) {
     memcpy(out, npg_full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)n);
@@ -212,7 +216,7 @@ static int member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n,
 
 /* A diagonal operator stays marked SPD while every training diagonal seen is
  * positive (then BᵀDB is SPD for every basis: Cholesky). */
-static int check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen) {
+int train_check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen) {
   FOR_DIAG_OPS(m, rs, rt, ro) {
     if (!ro->spd) continue;
     long n = m->classes[m->qclass[rs->q]].n;
@@ -269,13 +273,13 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
   for (long i0 = 0; i0 < S; i0 += b) {
     long i1 = i0 + b < S ? i0 + b : S, nb = i1 - i0;
     for (long k = i0; k < S; k++) {
-      if (eval_sample(src, f, k, err, errlen)) goto done;
-      if (k < i1 && check_spd(m, f, tmp, err, errlen)) goto done;
+      if (train_eval_sample(src, f, k, err, errlen)) goto done;
+      if (k < i1 && train_check_spd(m, f, tmp, err, errlen)) goto done;
       for (int c = 0; c < m->nclasses; c++) {
         RClass *rc = &m->classes[c];
         for (int i = 0; i < rc->nmembers; i++) {
           double *x = k < i1 ? H[c][i] + (k - i0) * rc->n : tmp;
-          if (member_value(m, f, &rc->members[i], k, rc->n, x, err, errlen)) goto done;
+          if (train_member_value(m, f, &rc->members[i], k, rc->n, x, err, errlen)) goto done;
           if (X0[c][i]) {
             if (k == 0) memcpy(X0[c][i], x, sizeof(double) * (size_t)rc->n);
             cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, x, 1);
@@ -354,12 +358,12 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
   }
   /* pass 2: U += x_s ⊗ W[s, :] */
   for (long k = 0; k < S; k++) {
-    if (eval_sample(src, f, k, err, errlen)) goto done;
+    if (train_eval_sample(src, f, k, err, errlen)) goto done;
     for (int c = 0; c < m->nclasses; c++) {
       RClass *rc = &m->classes[c];
       for (int i = 0; i < rc->nmembers; i++) {
         if (!kk[c][i]) continue;
-        if (member_value(m, f, &rc->members[i], k, rc->n, tmp, err, errlen)) goto done;
+        if (train_member_value(m, f, &rc->members[i], k, rc->n, tmp, err, errlen)) goto done;
         if (X0[c][i]) cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, tmp, 1);
         cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, tmp, 1, G[c][i] + k * S, 1, U[c][i], kk[c][i]);
       }
@@ -424,7 +428,7 @@ static void take_pca(RMember *mb, PcaMember *p) {
 /* The class basis by the paper's way (§6.1, §9): one PCA per member, the
  * member bases concatenated and re-orthonormalized. X[i]: member i's
  * snapshots, n x S column-major. */
-static int member_bases(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
+int train_member_bases(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
   double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
   int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
   for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
@@ -562,17 +566,17 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
     for (int i = 0; !*gram && i < rc->nmembers; i++)
       if (!(sn->X[c][i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
   }
-  FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
+  train_mark_spd(m);
   int rc = 0;
   if (*gram) rc = snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen);
   for (long k = 0; !*gram && rc == 0 && k < S; k++) {
-    if (k > 0 && eval_sample(src, f, k, err, errlen)) rc = -1;
+    if (k > 0 && train_eval_sample(src, f, k, err, errlen)) rc = -1;
     for (int c = 0; rc == 0 && c < m->nclasses; c++) {
       RClass *cl = &m->classes[c];
       for (int i = 0; rc == 0 && i < cl->nmembers; i++)
-        rc = member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
+        rc = train_member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
     }
-    if (rc == 0) rc = check_spd(m, f, tmp, err, errlen);
+    if (rc == 0) rc = train_check_spd(m, f, tmp, err, errlen);
     progress_show(opt->progress, "snapshots", k + 1, S);
   }
   free(tmp);
@@ -585,7 +589,7 @@ oom:
 /* A class basis completed to full rank (convergence tests: the PCA
  * directions first, then the rest of the space), and one direction for a
  * class whose every snapshot is zero (lifting gives 0). */
-static int complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
+int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
   if (full_rank && rc->m < rc->n) {
     double *eye = calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
     double *parts[2] = {rc->B, eye};
@@ -604,6 +608,7 @@ static int complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) 
     rc->B[0] = 1;
     rc->m = 1;
   }
+  if (!rc->B_mapped && pca_fix_signs(rc->n, rc->m, rc->B)) return npg_fail(err, errlen, "out of memory");
   return 0;
 }
 
@@ -614,12 +619,12 @@ static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOpti
     int rc_ok = 0;
     if (opt->joint && rc->nmembers > 1) rc_ok = joint_basis(rc, sn->S, sn->X[c], err, errlen);
     else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn->U[c], sn->k[c], &rc->B, &rc->m, err, errlen);
-    else rc_ok = member_bases(rc, sn->S, sn->X[c], err, errlen);
+    else rc_ok = train_member_bases(rc, sn->S, sn->X[c], err, errlen);
     if (rc_ok != 0) {
       if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
       return -1;
     }
-    if (complete_basis(rc, opt->full_rank, err, errlen)) return -1;
+    if (train_complete_basis(rc, opt->full_rank, err, errlen)) return -1;
   }
   model_size_tensors(m);
   return 0;
@@ -670,7 +675,7 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
       return npg_fail(err, errlen, "out of memory while training");
   }
   for (long k = 0; k < S && m->nexterns > 0; k++) {
-    if (gram && eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
+    if (gram && train_eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
     for (int i = 0; i < m->nexterns; i++) {
       RExtern *x = &m->externs[i];
       long mz = m->classes[m->qclass[x->q]].m, off = 0;
@@ -693,20 +698,45 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
   return 0;
 }
 
-/* Training as five named steps (DESIGN §5). */
+static double seconds_now(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+/* Steps 1–2: the bases, from snapshots in memory, by the method of
+ * snapshots, or out of core when the bases exceed opt->mem (ooc.c; then,
+ * as after the method of snapshots, *gram: no snapshot is kept). */
+static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn, bool *gram,
+                 char *err, size_t errlen) {
+  if (ooc_needed(m, src->count, opt)) {
+    *gram = true;
+    return ooc_bases(m, f, src, opt, err, errlen);
+  }
+  return take_snapshots(m, f, src, opt, sn, gram, err, errlen) || build_bases(m, sn, *gram, opt, err, errlen);
+}
+
+/* Training as named steps (DESIGN §5), each timed on the progress output. */
 Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen) {
   Snapshots sn = {0};
   bool gram = false;
+  double t[4];
   err[0] = 0;
+  t[0] = seconds_now();
   Model *m = begin_training(prog, f, src, opt, err, errlen);
-  if (!m || take_snapshots(m, f, src, opt, &sn, &gram, err, errlen) || build_bases(m, &sn, gram, opt, err, errlen) ||
-      premultiply_all(m, f, opt->progress, err, errlen) ||
+  if (!m || bases(m, f, src, opt, &sn, &gram, err, errlen) || (t[1] = seconds_now(), 0) ||
+      premultiply_all(m, f, opt->progress, err, errlen) || (t[2] = seconds_now(), 0) ||
       fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);
     return NULL;
   }
+  t[3] = seconds_now();
+  if (opt->progress)
+    fprintf(stderr, "training phases: bases %.2f s (%s), pre-multiplication %.2f s, externs %.2f s\n", t[1] - t[0],
+            ooc_needed(m, src->count, opt) ? "out of core" : gram ? "method of snapshots" : "in memory", t[2] - t[1],
+            t[3] - t[2]);
   free_snapshots(m, &sn);
   return m;
 }
@@ -816,7 +846,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
     free(U);
     free(kk);
-    if (rc_ok || complete_basis(rc, false, err, errlen)) {
+    if (rc_ok || train_complete_basis(rc, false, err, errlen)) {
       if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
       model_free(m);
       return NULL;

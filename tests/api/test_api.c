@@ -286,7 +286,7 @@ static void radiosity_pipeline(void **state) {
   npg_trainer_free(t);
   assert_same_model(bycall, cli);
 
-  /* a budget of 64 kB: training makes several passes over the samples, the
+  /* a budget of 160 kB: training makes many passes over the samples, the
    * cache keeps most of them in its scratch file with v one bit per entry,
    * and the callback is still called once per sample; the model is the one
    * `npgc train` makes with the same budget, to the bit, and its reduced b
@@ -294,9 +294,9 @@ static void radiosity_pipeline(void **state) {
   char smallcli[512], smallcall[512];
   snprintf(smallcli, sizeof smallcli, "%s/RSMALLCLI", scratch);
   snprintf(smallcall, sizeof smallcall, "%s/RSMALLCALL", scratch);
-  run("%s train %s %s -o %s --cap 8 --mem 64k >/dev/null", npgc_path, prog, data, smallcli);
+  run("%s train %s %s -o %s --cap 8 --mem 160k >/dev/null", npgc_path, prog, data, smallcli);
   NpgTrainOptions small = o;
-  small.mem = 64 << 10;
+  small.mem = 160000;
   vd.calls = 0;
   t = npg_trainer_new(fc, &small);
   for (long k = 0; k < npg_samples_count(s); k++) {
