@@ -182,7 +182,7 @@ static int collect(Ooc *o, long p, const char *what) {
   }
   for (long k = 0; k < S; k++) {
     if (train_eval_sample(o->src, o->f, k, o->err, o->errlen)) return -1;
-    if (p == 0 && *what == 'G') {
+    if (p == 0 && strstr(what, "Gram")) {
       if (train_check_spd(m, o->f, o->tmp, o->err, o->errlen)) return -1;
       for (int c = 0; c < m->nclasses; c++) {
         RClass *rc = &m->classes[c];
@@ -227,7 +227,7 @@ static void center_block(long R, long S, double *H, double *mu) {
 static int gram_passes(Ooc *o) {
   long S = o->S;
   for (long p = 0; p < o->npass; p++) {
-    if (collect(o, p, "Gram (out of core)")) return -1;
+    if (collect(o, p, "snapshots (Gram, out of core)")) return -1;
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
       RClass *rc = &o->m->classes[sg->c];
@@ -321,7 +321,7 @@ static int read_at(FILE *fp, void *p, size_t bytes, size_t off) {
 static int basis_passes(Ooc *o) {
   long S = o->S;
   for (long p = 0; p < o->npass && o->nseg > 0; p++) {
-    if (collect(o, p, "basis (out of core)")) return -1;
+    if (collect(o, p, "snapshots (basis, out of core)")) return -1;
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
       Stream *st = &o->st[sg->c];
@@ -553,6 +553,13 @@ int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions 
     for (int i = 0; i < r; i++)
       if (!(st->G[i] = calloc((size_t)(o.S * o.S), sizeof(double))) || !(st->s[i] = malloc(sizeof(double) * (size_t)o.S)))
         goto oom;
+  }
+  if (opt->progress) {
+    int streamed = 0;
+    for (int c = 0; c < m->nclasses; c++) streamed += o.st[c].streamed;
+    fprintf(stderr, "out of core: %d of %d classes streamed by rows, %ld passes over the %ld samples for the Gram "
+            "matrices and as many for the bases (--mem %.3g GB, %.3g GB for the rows of a pass)\n",
+            streamed, m->nclasses, o.npass, o.S, (double)opt->mem / 1e9, (double)o.avail / 1e9);
   }
   train_mark_spd(m);
   if (gram_passes(&o) || eigen(&o) || basis_passes(&o)) goto done;
