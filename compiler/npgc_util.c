@@ -67,7 +67,8 @@ static const Usage usages[] = {
      "  --spectra DIR  every member's singular values also to DIR (.npy and CSV;\n"
      "               MODEL/ always holds them)\n"
      "  --merge      concat (one PCA per member, concatenated) or joint (one PCA)\n"
-     "  --mem BYTES  memory for snapshots (half the RAM; suffixes k, M, G, T)\n"
+     "  --mem BYTES  memory for training besides one full evaluation (half the RAM; k, M, G, T: powers of 1000):\n"
+     "               snapshots in memory, else the method of snapshots, else out of core by row blocks\n"
      "  --cc         compile the full evaluator with the system compiler at -O3\n"},
     {"verify",
      "usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc] [--exact] [--exact-size N]\n"

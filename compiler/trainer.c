@@ -267,7 +267,7 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.cap = t->opt.cap;
   o.energy = t->opt.energy;
   o.joint = t->opt.joint;
-  o.mem = t->opt.mem;
+  o.mem = t->opt.mem - t->mem_used; /* the cache holds at most a quarter of the budget */
   o.progress = t->opt.progress;
   o.uncentered = t->opt.uncentered;
   o.noverride = t->opt.nbasis;
