@@ -8,11 +8,13 @@
  * values are never kept: training recomputes them (method of snapshots,
  * out-of-core row blocks), replaying every sample once per pass.
  *
- * The cache is compact: an extern value whose every entry is exactly +0 or
- * 1 (ray-cast visibility, mostly) is kept as one bit per entry, anything
- * else as doubles, so a callback that is expensive is called once per
- * sample and the passes read its values back bit-exactly. */
+ * The cache is compact: an extern value whose entries are mostly exactly +0
+ * or 1 (ray-cast visibility: fractional only where a face is partly hidden)
+ * is kept as one bit per entry plus its other entries as (index, value),
+ * anything else as doubles, so a callback that is expensive is called once
+ * per sample and the passes read its values back bit-exactly. */
 #include <math.h>
+#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
@@ -102,15 +104,13 @@ int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape
   return 0;
 }
 
-/* An extern value kept as bits: every entry exactly +0 or 1. */
-static bool binary(const double *v, size_t n) {
-  for (size_t e = 0; e < n; e++)
-    if (!(v[e] == 1.0 || (v[e] == 0.0 && !signbit(v[e])))) return false;
-  return true;
-}
+/* An entry a bit cannot hold: neither +0 nor 1. */
+static bool exceptional(double v) { return !(v == 1.0 || (v == 0.0 && !signbit(v))); }
 
 /* The record of t->buf into t->enc: per slot, an input's doubles; an
- * extern's tag byte (1 bits, 0 doubles) and its entries. Its bytes. */
+ * extern's tag byte and its entries — tag 1: one bit per entry (set: 1),
+ * then the count of exceptional entries and (index, value) for each,
+ * whenever that is smaller than the doubles (tag 0). Its bytes. */
 static size_t encode(NpgTrainer *t) {
   size_t off = 0, pos = 0;
   for (int i = 0; i < t->nslots; i++) {
@@ -118,12 +118,18 @@ static size_t encode(NpgTrainer *t) {
     size_t n = t->count[i];
     off += n;
     if (t->slot[i]->kind == SYM_EXTERN) {
-      bool bits = binary(v, n);
+      uint64_t x = 0;
+      for (size_t e = 0; e < n; e++) x += exceptional(v[e]);
+      bool bits = (n + 7) / 8 + 8 + 16 * x < 8 * n;
       t->enc[pos++] = bits;
       if (bits) {
         memset(t->enc + pos, 0, (n + 7) / 8);
-        for (size_t e = 0; e < n; e++) t->enc[pos + e / 8] |= (unsigned char)((v[e] != 0) << (e % 8));
+        for (size_t e = 0; e < n; e++) t->enc[pos + e / 8] |= (unsigned char)((v[e] == 1.0) << (e % 8));
         pos += (n + 7) / 8;
+        memcpy(t->enc + pos, &x, 8);
+        pos += 8;
+        for (uint64_t e = 0; e < n && x > 0; e++)
+          if (exceptional(v[e])) memcpy(t->enc + pos, &e, 8), memcpy(t->enc + pos + 8, v + e, 8), pos += 16;
         continue;
       }
     }
@@ -133,7 +139,7 @@ static size_t encode(NpgTrainer *t) {
   return pos;
 }
 
-/* t->enc back into t->buf (the inverse of encode). */
+/* t->enc back into t->buf (the inverse of encode, bit for bit). */
 static void decode(NpgTrainer *t) {
   size_t off = 0, pos = 0;
   for (int i = 0; i < t->nslots; i++) {
@@ -143,6 +149,10 @@ static void decode(NpgTrainer *t) {
     if (t->slot[i]->kind == SYM_EXTERN && t->enc[pos++]) {
       for (size_t e = 0; e < n; e++) v[e] = (t->enc[pos + e / 8] >> (e % 8)) & 1 ? 1.0 : 0.0;
       pos += (n + 7) / 8;
+      uint64_t x, e;
+      memcpy(&x, t->enc + pos, 8);
+      pos += 8;
+      for (uint64_t j = 0; j < x; j++, pos += 16) memcpy(&e, t->enc + pos, 8), memcpy(v + e, t->enc + pos + 8, 8);
       continue;
     }
     memcpy(v, t->enc + pos, sizeof(double) * n);

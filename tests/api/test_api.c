@@ -227,6 +227,17 @@ static int visibility(void *user, const NpgFull *f, long sample, double *out, si
   return 0;
 }
 
+/* The same, partly hidden: some entries fractional, some -0 (neither a bit). */
+static double partly(long k, size_t e, double v) {
+  return (e + (size_t)k) % 7 == 0 ? 0.5 * v : (e + (size_t)k) % 11 == 0 ? -0.0 : v;
+}
+
+static int visibility_partly(void *user, const NpgFull *f, long sample, double *out, size_t count) {
+  if (visibility(user, f, sample, out, count)) return -1;
+  for (size_t e = 0; e < count; e++) out[e] = partly(sample, e, out[e]);
+  return 0;
+}
+
 static NpgModel *radiosity_model;
 static NpgProgram *radiosity_prog;
 
@@ -332,6 +343,47 @@ static void radiosity_pipeline(void **state) {
   }
   assert_true(worst <= 1e-10);
   free(Z);
+
+  /* visibility with partly hidden faces (fractional and -0 entries, kept
+   * beside the bits): with bases of every direction (cap 16 = S, energy 1)
+   * the cached values still lift back exactly */
+  NpgFull *fp = npg_full_new(p, NPG_TCC);
+  assert_int_equal(npg_full_bind_params(fp, data), 0);
+  vd.calls = 0;
+  assert_int_equal(npg_full_set_extern_fn(fp, "v", visibility_partly, &vd), 0);
+  NpgTrainOptions every = small;
+  every.cap = 16, every.energy = 1;
+  t = npg_trainer_new(fp, &every);
+  for (long k = 0; k < npg_samples_count(s); k++) {
+    assert_int_equal(npg_trainer_set(t, "g", 2, gs, npg_samples_get(s, "g", k, NULL)), 0);
+    assert_int_equal(npg_trainer_set(t, "e", 1, es, npg_samples_get(s, "e", k, NULL)), 0);
+    assert_int_equal(npg_trainer_add(t), 0);
+  }
+  char partpath[512];
+  snprintf(partpath, sizeof partpath, "%s/RPARTLY", scratch);
+  NpgModel *mp = npg_trainer_finish(t, partpath);
+  if (!mp) fail_msg("%s", npg_trainer_error(t));
+  assert_int_equal(vd.calls, npg_samples_count(s));
+  npg_trainer_free(t);
+  cv = npg_model_class_of(mp, "v");
+  assert_int_equal(npg_model_class(mp, cv, &vi), 0);
+  Bv = npg_model_basis(mp, cv);
+  snprintf(zpath, sizeof zpath, "%s/extern_v_values.npy", partpath);
+  Z = npy_payload(zpath, &zn);
+  assert_int_equal(zn, npg_samples_count(s) * vi.m);
+  worst = 0;
+  for (long k = 0; k < npg_samples_count(s); k++) {
+    const double *vk = npg_samples_get(s, "v", k, NULL);
+    for (long e = 0; e < vi.n; e++) {
+      double lifted = 0;
+      for (long j = 0; j < vi.m; j++) lifted += Bv[e * vi.m + j] * Z[k * vi.m + j];
+      worst = fmax(worst, fabs(lifted - partly(k, (size_t)e, vk[e])));
+    }
+  }
+  assert_true(worst <= 1e-10);
+  free(Z);
+  npg_model_free(mp);
+  npg_full_free(fp);
   npg_model_free(ms);
 
   /* a missing input is named */
