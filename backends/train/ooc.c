@@ -91,8 +91,7 @@ static size_t basis_bytes(const RClass *rc) {
   return sizeof(double) * (size_t)rc->n * cols;
 }
 
-bool ooc_needed(const Model *m, long S, const TrainOptions *opt) {
-  (void)S;
+bool ooc_needed(const Model *m, const TrainOptions *opt) {
   if (!opt->mem || opt->joint || opt->full_rank) return false;
   size_t need = 0;
   for (int c = 0; c < m->nclasses; c++) need += basis_bytes(&m->classes[c]);
@@ -427,7 +426,9 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
     return 0;
   }
   /* merged: the left singular vectors of [Q_1 … Q_r] through their Gram
-   * matrix Qᵀ C Q, dropping dependent directions, and one Cholesky-QR */
+   * matrix Qᵀ C Q, dropping dependent directions (below 1e-10 σ_max, the
+   * SVD's rule; in memory a direction below 1e-6 σ_max sends pca_merge to
+   * the SVD, which out of core is not at hand), and one Cholesky-QR */
   double *Y = malloc(sizeof(double) * (size_t)(K * nq)), *Cq = malloc(sizeof(double) * (size_t)(nq * nq));
   double *lam = malloc(sizeof(double) * (size_t)nq), *T = NULL;
   long m = 0;

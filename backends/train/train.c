@@ -709,7 +709,7 @@ static double seconds_now(void) {
  * as after the method of snapshots, *gram: no snapshot is kept). */
 static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn, bool *gram,
                  char *err, size_t errlen) {
-  if (ooc_needed(m, src->count, opt)) {
+  if (ooc_needed(m, opt)) {
     *gram = true;
     return ooc_bases(m, f, src, opt, err, errlen);
   }
@@ -735,7 +735,7 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   t[3] = seconds_now();
   if (opt->progress)
     fprintf(stderr, "training phases: bases %.2f s (%s), pre-multiplication %.2f s, externs %.2f s\n", t[1] - t[0],
-            ooc_needed(m, src->count, opt) ? "out of core" : gram ? "method of snapshots" : "in memory", t[2] - t[1],
+            ooc_needed(m, opt) ? "out of core" : gram ? "method of snapshots" : "in memory", t[2] - t[1],
             t[3] - t[2]);
   free_snapshots(m, &sn);
   return m;

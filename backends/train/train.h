@@ -83,7 +83,7 @@ int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen);
 
 /* Whether the member bases of `m` at their caps (Σ n × cap doubles) exceed
  * opt->mem, so that training must keep them out of core. */
-bool ooc_needed(const Model *m, long S, const TrainOptions *opt);
+bool ooc_needed(const Model *m, const TrainOptions *opt);
 /* Every class basis of `m` (rc->B, rc->m, member reports, SPD marks) with
  * at most opt->mem bytes of snapshots, Gram matrices and basis rows in
  * memory, by passes over the samples that keep a block of rows of the
