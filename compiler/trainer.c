@@ -5,7 +5,16 @@
  * an unnamed scratch file that disappears with the trainer) and, when
  * finished, replays them through the full evaluator into train_model — the
  * code `npgc train` runs, so the same samples give the same model. Stage
- * values are never kept: training recomputes them (method of snapshots). */
+ * values are never kept: training recomputes them (method of snapshots,
+ * out-of-core row blocks), replaying every sample once per pass.
+ *
+ * The cache is compact: an extern value whose entries are mostly exactly +0
+ * or 1 (ray-cast visibility: fractional only where a face is partly hidden)
+ * is kept as one bit per entry plus its other entries as (index, value),
+ * anything else as doubles, so a callback that is expensive is called once
+ * per sample and the passes read its values back bit-exactly. */
+#include <math.h>
+#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
@@ -23,11 +32,14 @@ struct NpgTrainer {
   size_t *count;            /* entries of each, fixed by the first sample */
   bool *staged;             /* npg_trainer_set since the last add */
   size_t record;            /* doubles per sample: Σ count */
-  double *mem;              /* the first samples, record doubles each */
-  long in_mem, mem_cap;     /* samples held in `mem`, and room for */
+  unsigned char *mem;       /* the first samples' encoded records, back to back */
+  size_t mem_used, mem_alloc, mem_cap; /* bytes held in `mem`, allocated, and allowed */
+  long in_mem;              /* samples held in `mem` */
   FILE *scratch;            /* the others, in order */
   long samples;
-  double *buf;              /* one record */
+  size_t *at, *len;         /* per sample: where its record starts (in `mem` or the scratch file) and its bytes */
+  double *buf;              /* one record, decoded */
+  unsigned char *enc;       /* one record, encoded */
   char error[2048];
 };
 
@@ -107,6 +119,62 @@ int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape
   return 0;
 }
 
+/* An entry a bit cannot hold: neither +0 nor 1. */
+static bool exceptional(double v) { return !(v == 1.0 || (v == 0.0 && !signbit(v))); }
+
+/* The record of t->buf into t->enc: per slot, an input's doubles; an
+ * extern's tag byte and its entries — tag 1: one bit per entry (set: 1),
+ * then the count of exceptional entries and (index, value) for each,
+ * whenever that is smaller than the doubles (tag 0). Its bytes. */
+static size_t encode(NpgTrainer *t) {
+  size_t off = 0, pos = 0;
+  for (int i = 0; i < t->nslots; i++) {
+    const double *v = t->buf + off;
+    size_t n = t->count[i];
+    off += n;
+    if (t->slot[i]->kind == SYM_EXTERN) {
+      uint64_t x = 0;
+      for (size_t e = 0; e < n; e++) x += exceptional(v[e]);
+      bool bits = (n + 7) / 8 + 8 + 16 * x < 8 * n;
+      t->enc[pos++] = bits;
+      if (bits) {
+        memset(t->enc + pos, 0, (n + 7) / 8);
+        for (size_t e = 0; e < n; e++) t->enc[pos + e / 8] |= (unsigned char)((v[e] == 1.0) << (e % 8));
+        pos += (n + 7) / 8;
+        memcpy(t->enc + pos, &x, 8);
+        pos += 8;
+        for (uint64_t e = 0; e < n && x > 0; e++)
+          if (exceptional(v[e])) memcpy(t->enc + pos, &e, 8), memcpy(t->enc + pos + 8, v + e, 8), pos += 16;
+        continue;
+      }
+    }
+    memcpy(t->enc + pos, v, sizeof(double) * n);
+    pos += sizeof(double) * n;
+  }
+  return pos;
+}
+
+/* t->enc back into t->buf (the inverse of encode, bit for bit). */
+static void decode(NpgTrainer *t) {
+  size_t off = 0, pos = 0;
+  for (int i = 0; i < t->nslots; i++) {
+    double *v = t->buf + off;
+    size_t n = t->count[i];
+    off += n;
+    if (t->slot[i]->kind == SYM_EXTERN && t->enc[pos++]) {
+      for (size_t e = 0; e < n; e++) v[e] = (t->enc[pos + e / 8] >> (e % 8)) & 1 ? 1.0 : 0.0;
+      pos += (n + 7) / 8;
+      uint64_t x, e;
+      memcpy(&x, t->enc + pos, 8);
+      pos += 8;
+      for (uint64_t j = 0; j < x; j++, pos += 16) memcpy(&e, t->enc + pos, 8), memcpy(v + e, t->enc + pos + 8, 8);
+      continue;
+    }
+    memcpy(v, t->enc + pos, sizeof(double) * n);
+    pos += sizeof(double) * n;
+  }
+}
+
 /* Append the values now in `g` as one sample (another rank's: counted only). */
 static int record(NpgTrainer *t, const NpgFull *g) {
   if (!own_sample(t, t->samples)) {
@@ -114,6 +182,7 @@ static int record(NpgTrainer *t, const NpgFull *g) {
     memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
     return 0;
   }
+  long kk = kept_index(t, t->samples); /* its place among the samples this process keeps */
   if (t->samples == 0) { /* the first sample fixes every size */
     for (int i = 0; i < t->nslots; i++) {
       if (!npg_full_get(g, t->slot[i]->name, &t->count[i]))
@@ -121,8 +190,10 @@ static int record(NpgTrainer *t, const NpgFull *g) {
                      t->slot[i]->name);
       t->record += t->count[i];
     }
-    t->mem_cap = (long)(t->opt.mem / 4 / (sizeof(double) * (t->record ? t->record : 1)));
-    if (!(t->buf = malloc(sizeof(double) * (t->record + 1)))) return tfail(t, "out of memory");
+    t->mem_cap = t->opt.mem / 4;
+    if (!(t->buf = malloc(sizeof(double) * (t->record + 1))) ||
+        !(t->enc = malloc(sizeof(double) * t->record + (size_t)t->nslots + 1)))
+      return tfail(t, "out of memory");
   }
   size_t off = 0;
   for (int i = 0; i < t->nslots; i++) {
@@ -134,18 +205,33 @@ static int record(NpgTrainer *t, const NpgFull *g) {
     memcpy(t->buf + off, v, sizeof(double) * n);
     off += n;
   }
-  if (t->in_mem < t->mem_cap && t->in_mem == kept_index(t, t->samples)) {
-    if (t->in_mem % 64 == 0) {
-      double *m = realloc(t->mem, sizeof(double) * t->record * (size_t)(t->in_mem + 64));
+  size_t bytes = encode(t);
+  if (kk % 64 == 0) {
+    size_t *at = realloc(t->at, sizeof(size_t) * (size_t)(kk + 64));
+    if (at) t->at = at;
+    size_t *len = at ? realloc(t->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
+    if (!len) return tfail(t, "out of memory keeping training sample %ld", t->samples);
+    t->len = len;
+  }
+  t->len[kk] = bytes;
+  if (t->in_mem == kk && t->mem_used + bytes <= t->mem_cap) {
+    if (t->mem_used + bytes > t->mem_alloc) {
+      size_t want = t->mem_alloc * 2 > t->mem_used + bytes ? t->mem_alloc * 2 : t->mem_used + bytes;
+      unsigned char *m = realloc(t->mem, want < t->mem_cap ? want : t->mem_cap);
       if (!m) return tfail(t, "out of memory keeping training sample %ld", t->samples);
       t->mem = m;
+      t->mem_alloc = want < t->mem_cap ? want : t->mem_cap;
     }
-    memcpy(t->mem + (size_t)t->in_mem * t->record, t->buf, sizeof(double) * t->record);
+    memcpy(t->mem + t->mem_used, t->enc, bytes);
+    t->at[kk] = t->mem_used;
+    t->mem_used += bytes;
     t->in_mem++;
   } else {
     if (!t->scratch && !(t->scratch = tmpfile()))
       return tfail(t, "cannot create a scratch file for the training samples beyond --mem");
-    if (fwrite(t->buf, sizeof(double), t->record, t->scratch) != t->record)
+    if (fseeko(t->scratch, 0, SEEK_END) != 0) return tfail(t, "cannot seek in the scratch file");
+    t->at[kk] = (size_t)ftello(t->scratch);
+    if (fwrite(t->enc, 1, bytes, t->scratch) != bytes)
       return tfail(t, "cannot write training sample %ld to the scratch file (disk full?)", t->samples);
   }
   t->samples++;
@@ -163,7 +249,8 @@ int npg_trainer_add(NpgTrainer *t) {
     need_eval = true;
   }
   /* externs not given: their callbacks fill them (for this rank's samples) */
-  if (need_eval && own_sample(t, t->samples) && npg_full_eval(t->f, t->samples) != 0) return tfail(t, "%s", npg_full_error(t->f));
+  if (need_eval && own_sample(t, t->samples) && npg_full_eval(t->f, t->samples) != 0)
+    return tfail(t, "%s", npg_full_error(t->f));
   return record(t, t->f);
 }
 
@@ -178,13 +265,13 @@ static int replay(void *user, NpgFull *f, long k) {
   NpgTrainer *t = user;
   if (!own_sample(t, k)) return full_fail(f, "a training sample of another rank was asked for (a bug in npg)");
   k = kept_index(t, k);
-  const double *v = t->mem + (size_t)k * t->record;
-  if (k >= t->in_mem) {
-    if (fseeko(t->scratch, (off_t)(k - t->in_mem) * (off_t)(t->record * sizeof(double)), SEEK_SET) != 0 ||
-        fread(t->buf, sizeof(double), t->record, t->scratch) != t->record)
-      return full_fail(f, "cannot read a training sample back from the scratch file");
-    v = t->buf;
+  if (k < t->in_mem) {
+    memcpy(t->enc, t->mem + t->at[k], t->len[k]);
+  } else if (fseeko(t->scratch, (off_t)t->at[k], SEEK_SET) != 0 || fread(t->enc, 1, t->len[k], t->scratch) != t->len[k]) {
+    return full_fail(f, "cannot read a training sample back from the scratch file");
   }
+  decode(t);
+  const double *v = t->buf;
   char from[64];
   snprintf(from, sizeof from, "training sample %ld", k);
   for (int i = 0; i < t->nslots; i++) {
@@ -239,7 +326,7 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.cap = t->opt.cap;
   o.energy = t->opt.energy;
   o.joint = t->opt.joint;
-  o.mem = t->opt.mem;
+  o.mem = t->opt.mem - t->mem_used; /* the cache holds at most a quarter of the budget */
   o.progress = t->opt.progress && dist_rank() == 0;
   o.dist = t->opt.mpi;
   o.uncentered = t->opt.uncentered;
@@ -290,6 +377,9 @@ void npg_trainer_free(NpgTrainer *t) {
   free(t->count);
   free(t->staged);
   free(t->mem);
+  free(t->at);
+  free(t->len);
   free(t->buf);
+  free(t->enc);
   free(t);
 }

@@ -201,7 +201,11 @@ typedef int (*NpgSampleFn)(void *user, NpgFull *f, long k);
  * file that disappears with the trainer. Finishing replays them through the
  * full evaluator exactly as `npgc train` does (the same code), so the same
  * samples give the same model. Extern values are taken once per sample (a
- * callback is not called again when the samples are replayed). */
+ * callback is not called again when the samples are replayed, however many
+ * passes training makes) and cached compactly: one bit per entry, plus
+ * (index, value) for each entry that is not exactly 0 or 1, when that is
+ * smaller than the doubles (visibility: fractional only where a face is
+ * partly hidden); bit for bit what the callback gave. */
 typedef struct NpgTrainOptions {
   int cap;                  /* basis cap per member (60) */
   double energy;            /* PCA energy fraction per member (0.999) */

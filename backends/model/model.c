@@ -15,6 +15,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 
 #include "emit.h"
@@ -211,7 +212,8 @@ void model_free(Model *m) {
   for (int c = 0; m->classes && c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     free(rc->label);
-    free(rc->B);
+    if (rc->B_mapped) munmap(rc->B, rc->B_mapped);
+    else free(rc->B);
     for (int i = 0; rc->members && i < rc->nmembers; i++) free(rc->members[i].name), free(rc->members[i].sv);
     free(rc->members);
   }
@@ -367,7 +369,7 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
     char name[64];
     snprintf(name, sizeof name, "basis_%d", c);
     long shape[2] = {rc->n, rc->m};
-    bad |= model_store_add(&s, name, 2, shape, rc->B);
+    bad |= rc->B_mapped ? model_store_add_borrowed(&s, name, 2, shape, rc->B) : model_store_add(&s, name, 2, shape, rc->B);
   }
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];

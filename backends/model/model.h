@@ -101,6 +101,8 @@ typedef struct RClass {
   long n;                   /* full size (entries of every member) */
   long m;                   /* basis size */
   double *B;                /* n x m, row-major, orthonormal columns (owned) */
+  size_t B_mapped;          /* when non-zero, B is a read-only mapping of that many bytes of an
+                               unnamed file (out-of-core training), unmapped instead of freed */
   int nmembers;
   RMember *members;
 } RClass;

@@ -188,7 +188,7 @@ void model_store_free(ModelStore *m) {
   free(m->meta);
   for (int i = 0; i < m->narrays; i++) {
     free(m->arrays[i].name);
-    npy_free(&m->arrays[i].a);
+    if (!m->arrays[i].borrowed) npy_free(&m->arrays[i].a);
   }
   free(m->arrays);
   for (int i = 0; i < m->ntexts; i++) free(m->texts[i].name), free(m->texts[i].text);
@@ -237,7 +237,7 @@ static int append_array(ModelStore *m, const char *name, NpyArray *a, uint64_t c
     return -1;
   }
   m->arrays = grown;
-  m->arrays[m->narrays++] = (ModelArray){copy, *a, checksum};
+  m->arrays[m->narrays++] = (ModelArray){copy, *a, checksum, false};
   memset(a, 0, sizeof *a);
   return 0;
 }
@@ -253,6 +253,18 @@ int model_store_add(ModelStore *m, const char *name, int ndim, const long *shape
   if (!a.data) return -1;
   if (count) memcpy(a.data, data, count * sizeof(double));
   return append_array(m, name, &a, 0);
+}
+
+int model_store_add_borrowed(ModelStore *m, const char *name, int ndim, const long *shape, const double *data) {
+  size_t count;
+  if (!model_store_valid_name(name) || find_array(m, name) >= 0 || ndim < 0 || ndim > NPY_MAX_DIMS ||
+      (ndim > 0 && !shape) || model_store_shape_count(ndim, shape, &count) != 0 || !count || !data)
+    return -1;
+  NpyArray a = {.type = NPY_F64, .ndim = ndim, .count = count, .data = (void *)data};
+  for (int i = 0; i < ndim; i++) a.shape[i] = shape[i];
+  if (append_array(m, name, &a, 0)) return -1;
+  m->arrays[m->narrays - 1].borrowed = true;
+  return 0;
 }
 
 /* A text file's name: an array name ending in ".csv". */

@@ -33,6 +33,7 @@
 #ifndef NPG_MODEL_STORE_H
 #define NPG_MODEL_STORE_H
 
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -42,6 +43,7 @@ typedef struct ModelArray {
   char *name;        /* file stem: "basis_0" is stored as basis_0.npy */
   NpyArray a;        /* always NPY_F64 */
   uint64_t checksum; /* FNV-1a 64 of the .npy file, as model_store_read verified it; 0 after model_store_add */
+  bool borrowed;     /* a.data belongs to the caller (model_store_add_borrowed) */
 } ModelArray;
 
 /* A text file beside the arrays (a CSV for people and spreadsheets). */
@@ -76,6 +78,12 @@ __attribute__((format(printf, 2, 3))) int model_store_meta(ModelStore *m, const 
  * not already in `m`. 0, or -1 (invalid argument or out of memory) with
  * `m` unchanged. */
 int model_store_add(ModelStore *m, const char *name, int ndim, const long *shape, const double *data);
+
+/* model_store_add without the copy: `data` (count > 0 elements) is read
+ * when `m` is written and must outlive `m` — a basis memory-mapped from
+ * its file (out-of-core training) is written from the mapping, never held
+ * twice in memory. */
+int model_store_add_borrowed(ModelStore *m, const char *name, int ndim, const long *shape, const double *data);
 
 /* Append the text file `name` (a valid array name ending in ".csv", not
  * already in `m`) holding `text`. 0, or -1 with `m` unchanged. */

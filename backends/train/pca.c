@@ -147,6 +147,11 @@ static long choose_member(const double *s, long K, const void *arg, bool *unreso
   return kept;
 }
 
+long pca_choose(const double *s, long K, int cap, double energy, bool *unresolved) {
+  MemberChoice mc = {cap, energy};
+  return choose_member(s, K, &mc, unresolved);
+}
+
 /* Keep every direction above the rank tolerance: the small ones cannot be
  * told from dependent ones through the Gram matrix. */
 static long choose_independent(const double *s, long K, const void *arg, bool *unresolved) {
@@ -281,9 +286,14 @@ int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int 
   return 0;
 }
 
+/* A plain loop, not daxpy: every entry's arithmetic is then the same
+ * whatever n is, so the mean of a block of rows (out-of-core training) is
+ * bit for bit the mean of those rows of the whole. */
 void pca_mean(long n, long S, const double *X, double *mu) {
+  double w = 1.0 / (double)S;
   memset(mu, 0, sizeof(double) * (size_t)n);
-  for (long s = 0; s < S; s++) cblas_daxpy((int)n, 1.0 / (double)S, X + s * n, 1, mu, 1);
+  for (long s = 0; s < S; s++)
+    for (long e = 0; e < n; e++) mu[e] += w * X[s * n + e];
 }
 
 int pca_basis(long n, long S, const double *X, int cap, double energy, bool center, PcaMember *out, char *err,
@@ -395,4 +405,31 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
 oom:
   snprintf(err, errlen, "out of memory merging bases of %ld entries", n);
   return -1;
+}
+
+/* The first entry (in row order) whose magnitude is at least half of the
+ * column's largest: its sign decides the column's. Unlike the sign of the
+ * largest entry it is not a tie between mirror-image entries of a
+ * symmetric mode, so two routes to one basis agreeing to rounding agree on
+ * it. */
+void pca_sign_scan(long n, long m, const double *B, double *big, int *sign, bool decide) {
+  for (long e = 0; e < n; e++)
+    for (long j = 0; j < m; j++) {
+      double v = B[e * m + j];
+      if (!decide) big[j] = fmax(big[j], fabs(v));
+      else if (!sign[j] && big[j] > 0 && fabs(v) >= 0.5 * big[j]) sign[j] = v > 0 ? 1 : -1;
+    }
+}
+
+int pca_fix_signs(long n, long m, double *B) {
+  double *big = calloc((size_t)m + 1, sizeof(double));
+  int *sign = calloc((size_t)m + 1, sizeof(int));
+  if (!big || !sign) return free(big), free(sign), -1;
+  pca_sign_scan(n, m, B, big, sign, false);
+  pca_sign_scan(n, m, B, big, sign, true);
+  for (long j = 0; j < m; j++)
+    if (sign[j] < 0)
+      for (long e = 0; e < n; e++) B[e * m + j] = -B[e * m + j];
+  free(big), free(sign);
+  return 0;
 }

@@ -165,6 +165,10 @@ static void free_snapshots(Model *m, Snapshots *sn) {
           for (int k_ = 0; k_ < rt->nops; k_++)                                       \
             for (ROp *ro = &rt->ops[k_]; ro && ro->op->kind == OPK_DIAG; ro = NULL)
 
+void train_mark_spd(Model *m) {
+  FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
+}
+
 static RTerm *joiner_term(Model *m, const Joiner *j) {
   for (int i = 0; i < m->nstages; i++)
     if (m->stages[i].st == j->stage) return &m->stages[i].terms[j->term];
@@ -173,7 +177,7 @@ static RTerm *joiner_term(Model *m, const Joiner *j) {
 
 
 /* Set and evaluate training sample k. */
-static int eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, size_t errlen) {
+int train_eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, size_t errlen) {
   if (src->set(src->user, f, k) != 0 || npg_full_eval(f, k) != 0) return npg_fail(err, errlen, "%s", npg_full_error(f));
   return 0;
 }
@@ -182,7 +186,7 @@ static int eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, s
  * through its builders) at sample k into out[0..n); refused when not
  * finite, since a basis of it would be meaningless (and the SVD would fail
  * without saying why). */
-static int member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n, double *out, char *err,
+int train_member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n, double *out, char *err,
                         size_t errlen) {
   if (mb->q >= 0) {
     memcpy(out, npg_full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)n);
@@ -213,7 +217,7 @@ static int member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n,
 
 /* A diagonal operator stays marked SPD while every training diagonal seen is
  * positive (then BᵀDB is SPD for every basis: Cholesky). */
-static int check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen) {
+int train_check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen) {
   FOR_DIAG_OPS(m, rs, rt, ro) {
     if (!ro->spd) continue;
     long n = m->classes[m->qclass[rs->q]].n;
@@ -270,13 +274,13 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
   for (long i0 = 0; i0 < S; i0 += b) {
     long i1 = i0 + b < S ? i0 + b : S, nb = i1 - i0;
     for (long k = i0; k < S; k++) {
-      if (eval_sample(src, f, k, err, errlen)) goto done;
-      if (k < i1 && check_spd(m, f, tmp, err, errlen)) goto done;
+      if (train_eval_sample(src, f, k, err, errlen)) goto done;
+      if (k < i1 && train_check_spd(m, f, tmp, err, errlen)) goto done;
       for (int c = 0; c < m->nclasses; c++) {
         RClass *rc = &m->classes[c];
         for (int i = 0; i < rc->nmembers; i++) {
           double *x = k < i1 ? H[c][i] + (k - i0) * rc->n : tmp;
-          if (member_value(m, f, &rc->members[i], k, rc->n, x, err, errlen)) goto done;
+          if (train_member_value(m, f, &rc->members[i], k, rc->n, x, err, errlen)) goto done;
           if (X0[c][i]) {
             if (k == 0) memcpy(X0[c][i], x, sizeof(double) * (size_t)rc->n);
             cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, x, 1);
@@ -355,12 +359,12 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
   }
   /* pass 2: U += x_s ⊗ W[s, :] */
   for (long k = 0; k < S; k++) {
-    if (eval_sample(src, f, k, err, errlen)) goto done;
+    if (train_eval_sample(src, f, k, err, errlen)) goto done;
     for (int c = 0; c < m->nclasses; c++) {
       RClass *rc = &m->classes[c];
       for (int i = 0; i < rc->nmembers; i++) {
         if (!kk[c][i]) continue;
-        if (member_value(m, f, &rc->members[i], k, rc->n, tmp, err, errlen)) goto done;
+        if (train_member_value(m, f, &rc->members[i], k, rc->n, tmp, err, errlen)) goto done;
         if (X0[c][i]) cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, tmp, 1);
         cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, tmp, 1, G[c][i] + k * S, 1, U[c][i], kk[c][i]);
       }
@@ -426,7 +430,7 @@ static void take_pca(RMember *mb, PcaMember *p) {
  * member bases concatenated and re-orthonormalized. X[i]: member i's
  * snapshots, n x S column-major; `pre` (over ranks): the members' PCAs
  * already made (dist_member_pcas), taken over. */
-static int member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, char *err, size_t errlen) {
+int train_member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, char *err, size_t errlen) {
   double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
   int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
   for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
@@ -570,7 +574,7 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
     for (int i = 0; !*gram && i < rc->nmembers; i++)
       if (!(sn->X[c][i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
   }
-  FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
+  train_mark_spd(m);
   int rc = 0;
   if (*gram) rc = snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen);
   /* over ranks (opt->dist): rank r takes the samples k ≡ r (mod N), then
@@ -578,13 +582,13 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
    * here, before the gather: its caller ends the job) */
   int rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1;
   for (long k = rank; !*gram && rc == 0 && k < S; k += N) {
-    if (k > 0 && eval_sample(src, f, k, err, errlen)) rc = -1;
+    if (k > 0 && train_eval_sample(src, f, k, err, errlen)) rc = -1;
     for (int c = 0; rc == 0 && c < m->nclasses; c++) {
       RClass *cl = &m->classes[c];
       for (int i = 0; rc == 0 && i < cl->nmembers; i++)
-        rc = member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
+        rc = train_member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
     }
-    if (rc == 0) rc = check_spd(m, f, tmp, err, errlen);
+    if (rc == 0) rc = train_check_spd(m, f, tmp, err, errlen);
     if (rc == 0 && k == rank && opt->dist && dist_fail_here())
       rc = npg_fail(err, errlen,
                     "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)", k,
@@ -605,7 +609,7 @@ oom:
 /* A class basis completed to full rank (convergence tests: the PCA
  * directions first, then the rest of the space), and one direction for a
  * class whose every snapshot is zero (lifting gives 0). */
-static int complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
+int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
   if (full_rank && rc->m < rc->n) {
     double *eye = calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
     double *parts[2] = {rc->B, eye};
@@ -624,6 +628,7 @@ static int complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) 
     rc->B[0] = 1;
     rc->m = 1;
   }
+  if (!rc->B_mapped && pca_fix_signs(rc->n, rc->m, rc->B)) return npg_fail(err, errlen, "out of memory");
   return 0;
 }
 
@@ -638,13 +643,13 @@ static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOpti
     int rc_ok = 0;
     if (opt->joint && rc->nmembers > 1) rc_ok = joint_basis(rc, sn->S, sn->X[c], err, errlen);
     else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn->U[c], sn->k[c], &rc->B, &rc->m, err, errlen);
-    else rc_ok = member_bases(rc, sn->S, sn->X[c], pre ? pre[c] : NULL, err, errlen);
+    else rc_ok = train_member_bases(rc, sn->S, sn->X[c], pre ? pre[c] : NULL, err, errlen);
     if (rc_ok != 0) {
       dist_free_pcas(m, pre);
       if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
       return -1;
     }
-    if (complete_basis(rc, opt->full_rank, err, errlen)) return dist_free_pcas(m, pre), -1;
+    if (train_complete_basis(rc, opt->full_rank, err, errlen)) return dist_free_pcas(m, pre), -1;
   }
   dist_free_pcas(m, pre);
   model_size_tensors(m);
@@ -699,7 +704,7 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
       return npg_fail(err, errlen, "out of memory while training");
   }
   for (long k = 0; k < S && m->nexterns > 0; k++) {
-    if (gram && eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
+    if (gram && train_eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
     for (int i = 0; i < m->nexterns; i++) {
       RExtern *x = &m->externs[i];
       long mz = m->classes[m->qclass[x->q]].m, off = 0;
@@ -733,7 +738,24 @@ static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
   t0[0] = t[0], t0[1] = t[1];
 }
 
-/* Training as five named steps (DESIGN §5), each step's wall and CPU time kept. */
+/* Steps 1–2: the bases, from snapshots in memory, by the method of
+ * snapshots, or out of core when the bases exceed opt->mem (ooc.c; then,
+ * as after the method of snapshots, *gram: no snapshot is kept). */
+static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn, bool *gram,
+                 struct timespec t[2], double *sec, double *cpu, char *err, size_t errlen) {
+  if (ooc_needed(m, opt)) {
+    *gram = true;
+    if (opt->dist && dist_size() > 1)
+      return npg_fail(err, errlen, "the bases exceed --mem and out-of-core training does not run over MPI ranks yet: "
+                                   "raise --mem or train on one process");
+    return ooc_bases(m, f, src, opt, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0);
+  }
+  return take_snapshots(m, f, src, opt, sn, gram, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0) ||
+         build_bases(m, sn, *gram, opt, err, errlen);
+}
+
+/* Training as named steps (DESIGN §5), each step's wall and CPU time kept (out of core: the
+ * snapshots and the bases are one step, timed as snapshots). */
 Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen) {
   Snapshots sn = {0};
@@ -744,14 +766,18 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t[1]);
   Model *m = begin_training(prog, f, src, opt, err, errlen);
   double *sec = m ? m->phase_seconds : NULL, *cpu = m ? m->phase_cpu : NULL;
-  if (!m || take_snapshots(m, f, src, opt, &sn, &gram, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0) ||
-      build_bases(m, &sn, gram, opt, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
+  if (!m || bases(m, f, src, opt, &sn, &gram, t, sec, cpu, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
       premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[2], &cpu[2]), 0) ||
       fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);
     return NULL;
   }
+  if (opt->progress)
+    fprintf(stderr, "training phases: snapshots %.2f s, bases %.2f s (%s), pre-multiplication %.2f s, externs %.2f s\n",
+            m->phase_seconds[0], m->phase_seconds[1],
+            ooc_needed(m, opt) ? "out of core, with the snapshots" : gram ? "method of snapshots" : "in memory",
+            m->phase_seconds[2], m->phase_seconds[3]);
   free_snapshots(m, &sn);
   return m;
 }
@@ -861,7 +887,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
     free(U);
     free(kk);
-    if (rc_ok || complete_basis(rc, false, err, errlen)) {
+    if (rc_ok || train_complete_basis(rc, false, err, errlen)) {
       if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
       model_free(m);
       return NULL;

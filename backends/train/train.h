@@ -10,6 +10,8 @@
 #include "full.h"
 #include "model.h"
 
+typedef struct PcaMember PcaMember;
+
 /* ---------------------------------------------------------------- training (train.c) */
 
 typedef struct TrainOptions {
@@ -64,6 +66,39 @@ int train_set_max_cap(const TrainSet *ts, int c);
 Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen);
 void train_set_free(TrainSet *ts);
 
+/* The steps of training that the out-of-core bases (ooc.c) share (train.c). */
+/* Set and evaluate training sample k. */
+int train_eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, size_t errlen);
+/* Member `mb`'s value (a quantity, or an unnamed numerator) after an
+ * evaluation of sample k into out[0..n); refused, naming where, when not finite. */
+int train_member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n, double *out, char *err, size_t errlen);
+/* Mark every diagonal operator SPD (until train_check_spd sees otherwise). */
+void train_mark_spd(Model *m);
+/* Unmark every diagonal operator whose diagonal is not positive in the
+ * current evaluation (`tmp`: room for the largest class). */
+int train_check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen);
+/* The class basis from its members' snapshots X[i] (n x S column-major):
+ * one PCA per member, concatenated and re-orthonormalized; `pre` (over MPI
+ * ranks): the members' PCAs already made, taken over, or NULL. */
+int train_member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, char *err, size_t errlen);
+/* One direction for a class whose every snapshot is zero; with `full_rank`
+ * the basis completed to the class's dimension. */
+int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen);
+
+/* ---------------------------------------------------------------- out-of-core bases (ooc.c) */
+
+/* Whether the member bases of `m` at their caps (Σ n × cap doubles) exceed
+ * opt->mem, so that training must keep them out of core. */
+bool ooc_needed(const Model *m, const TrainOptions *opt);
+/* Every class basis of `m` (rc->B, rc->m, member reports, SPD marks) with
+ * at most opt->mem bytes of snapshots, Gram matrices and basis rows in
+ * memory, by passes over the samples that keep a block of rows of the
+ * large classes (DESIGN §11); large bases are left in unnamed files and
+ * memory-mapped read-only (rc->B_mapped). The result is the in-memory
+ * training's (pca_basis, pca_merge through their Gram route) up to
+ * rounding. 0, or -1 with `err`. */
+int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen);
+
 /* ---------------------------------------------------------------- basis sizes by error (tune.c) */
 
 typedef struct TuneTrial {
@@ -117,13 +152,13 @@ void progress_show(bool on, const char *what, long done, long total);
 int pca_member(long n, long S, const double *X, int cap, double energy, double **U, int *k, double *captured,
                char *err, size_t errlen);
 /* One member's basis (DESIGN §5). */
-typedef struct PcaMember {
+struct PcaMember {
   double *U;                /* n x k row-major, orthonormal (malloc'd) */
   int k;
   double lost;              /* energy fraction lost: of the centered energy when centered */
   double *sv;               /* singular values (of X − μ1ᵀ when centered), descending, nsv (malloc'd) */
   long nsv;
-} PcaMember;
+};
 
 /* The basis of one member, X n x S column-major: uncentered, the leading
  * left singular vectors as pca_member; `center`ed, the orthonormalization
@@ -138,6 +173,22 @@ int pca_basis(long n, long S, const double *X, int cap, double energy, bool cent
  * of its norm: n x m row-major whose first j columns span the first
  * independent columns given. */
 int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int *m, char *err, size_t errlen);
+/* How many of the singular values s[0..K) (descending, through a Gram
+ * matrix) a member keeps at `cap` and `energy`, as pca_member's Gram route
+ * decides; *unresolved set when the decision needs directions below what
+ * a Gram matrix resolves (pca_member then asks the SVD). */
+long pca_choose(const double *s, long K, int cap, double energy, bool *unresolved);
+/* The basis sign convention: every column of B (n x m row-major) turned so
+ * that its first entry of at least half its largest magnitude is positive
+ * (every route to a basis — SVD, Gram matrix, out of core — ends with it,
+ * so they give the same vectors, not just the same span). 0, or -1 when
+ * out of memory. */
+int pca_fix_signs(long n, long m, double *B);
+/* The convention by blocks of rows (out of core): with `decide` false,
+ * big[j] = max(big[j], |B[e, j]|) over the block; then, over the blocks in
+ * order with `decide` true, sign[j] (0 until found) set from the first
+ * entry of at least half big[j]. */
+void pca_sign_scan(long n, long m, const double *B, double *big, int *sign, bool decide);
 /* mu[0..n) = the mean of the S columns of X (n x S column-major). */
 void pca_mean(long n, long S, const double *X, double *mu);
 

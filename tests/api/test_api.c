@@ -73,6 +73,23 @@ static void assert_same_model(const char *a, const char *b) {
   assert_true(files >= 2);
 }
 
+/* The float64 payload of a .npy file (version 1 header), *count entries. */
+static double *npy_payload(const char *path, long *count) {
+  FILE *fp = fopen(path, "rb");
+  if (!fp) fail_msg("cannot open %s", path);
+  unsigned char head[10];
+  assert_int_equal(fread(head, 1, 10, fp), 10);
+  long hlen = head[8] | head[9] << 8;
+  fseek(fp, 0, SEEK_END);
+  long bytes = ftell(fp) - 10 - hlen;
+  fseek(fp, 10 + hlen, SEEK_SET);
+  double *v = malloc((size_t)bytes + 8);
+  assert_int_equal(fread(v, 1, (size_t)bytes, fp), (size_t)bytes);
+  fclose(fp);
+  *count = bytes / 8;
+  return v;
+}
+
 /* ---------------------------------------------------------------- Eq. 3 */
 
 static double *random_x(long S, unsigned seed) {
@@ -210,6 +227,17 @@ static int visibility(void *user, const NpgFull *f, long sample, double *out, si
   return 0;
 }
 
+/* The same, partly hidden: some entries fractional, some -0 (neither a bit). */
+static double partly(long k, size_t e, double v) {
+  return (e + (size_t)k) % 7 == 0 ? 0.5 * v : (e + (size_t)k) % 11 == 0 ? -0.0 : v;
+}
+
+static int visibility_partly(void *user, const NpgFull *f, long sample, double *out, size_t count) {
+  if (visibility(user, f, sample, out, count)) return -1;
+  for (size_t e = 0; e < count; e++) out[e] = partly(sample, e, out[e]);
+  return 0;
+}
+
 static NpgModel *radiosity_model;
 static NpgProgram *radiosity_prog;
 
@@ -268,6 +296,95 @@ static void radiosity_pipeline(void **state) {
   assert_int_equal(vd.calls, npg_samples_count(s));
   npg_trainer_free(t);
   assert_same_model(bycall, cli);
+
+  /* a budget of 160 kB: training makes many passes over the samples, the
+   * cache keeps most of them in its scratch file with v one bit per entry,
+   * and the callback is still called once per sample; the model is the one
+   * `npgc train` makes with the same budget, to the bit, and its reduced b
+   * the in-memory model's (another route to the bases: to 1e-6) */
+  char smallcli[512], smallcall[512];
+  snprintf(smallcli, sizeof smallcli, "%s/RSMALLCLI", scratch);
+  snprintf(smallcall, sizeof smallcall, "%s/RSMALLCALL", scratch);
+  run("%s train %s %s -o %s --cap 8 --mem 160k >/dev/null", npgc_path, prog, data, smallcli);
+  NpgTrainOptions small = o;
+  small.mem = 160000;
+  vd.calls = 0;
+  t = npg_trainer_new(fc, &small);
+  for (long k = 0; k < npg_samples_count(s); k++) {
+    assert_int_equal(npg_trainer_set(t, "g", 2, gs, npg_samples_get(s, "g", k, NULL)), 0);
+    assert_int_equal(npg_trainer_set(t, "e", 1, es, npg_samples_get(s, "e", k, NULL)), 0);
+    assert_int_equal(npg_trainer_add(t), 0);
+  }
+  NpgModel *ms = npg_trainer_finish(t, smallcall);
+  if (!ms) fail_msg("%s", npg_trainer_error(t));
+  assert_int_equal(vd.calls, npg_samples_count(s));
+  npg_trainer_free(t);
+  assert_same_model(smallcall, smallcli);
+  /* the cache kept v exactly: every training sample's learned-map value
+   * z_k = B_vᵀ v_k (extern_v_values.npy) lifts back to the ray caster's v_k,
+   * which lies in the span of B_v here (v is 1 everywhere in a convex room) */
+  int cv = npg_model_class_of(ms, "v");
+  NpgClassInfo vi;
+  assert_int_equal(npg_model_class(ms, cv, &vi), 0);
+  const double *Bv = npg_model_basis(ms, cv);
+  char zpath[600];
+  snprintf(zpath, sizeof zpath, "%s/extern_v_values.npy", smallcall);
+  long zn = 0;
+  double *Z = npy_payload(zpath, &zn);
+  assert_int_equal(zn, npg_samples_count(s) * vi.m);
+  double worst = 0;
+  for (long k = 0; k < npg_samples_count(s); k++) {
+    const double *vk = npg_samples_get(s, "v", k, NULL);
+    for (long e = 0; e < vi.n; e++) {
+      double lifted = 0;
+      for (long j = 0; j < vi.m; j++) lifted += Bv[e * vi.m + j] * Z[k * vi.m + j];
+      worst = fmax(worst, fabs(lifted - vk[e]));
+    }
+  }
+  assert_true(worst <= 1e-10);
+  free(Z);
+
+  /* visibility with partly hidden faces (fractional and -0 entries, kept
+   * beside the bits): with bases of every direction (cap 16 = S, energy 1)
+   * the cached values still lift back exactly */
+  NpgFull *fp = npg_full_new(p, NPG_TCC);
+  assert_int_equal(npg_full_bind_params(fp, data), 0);
+  vd.calls = 0;
+  assert_int_equal(npg_full_set_extern_fn(fp, "v", visibility_partly, &vd), 0);
+  NpgTrainOptions every = small;
+  every.cap = 16, every.energy = 1;
+  t = npg_trainer_new(fp, &every);
+  for (long k = 0; k < npg_samples_count(s); k++) {
+    assert_int_equal(npg_trainer_set(t, "g", 2, gs, npg_samples_get(s, "g", k, NULL)), 0);
+    assert_int_equal(npg_trainer_set(t, "e", 1, es, npg_samples_get(s, "e", k, NULL)), 0);
+    assert_int_equal(npg_trainer_add(t), 0);
+  }
+  char partpath[512];
+  snprintf(partpath, sizeof partpath, "%s/RPARTLY", scratch);
+  NpgModel *mp = npg_trainer_finish(t, partpath);
+  if (!mp) fail_msg("%s", npg_trainer_error(t));
+  assert_int_equal(vd.calls, npg_samples_count(s));
+  npg_trainer_free(t);
+  cv = npg_model_class_of(mp, "v");
+  assert_int_equal(npg_model_class(mp, cv, &vi), 0);
+  Bv = npg_model_basis(mp, cv);
+  snprintf(zpath, sizeof zpath, "%s/extern_v_values.npy", partpath);
+  Z = npy_payload(zpath, &zn);
+  assert_int_equal(zn, npg_samples_count(s) * vi.m);
+  worst = 0;
+  for (long k = 0; k < npg_samples_count(s); k++) {
+    const double *vk = npg_samples_get(s, "v", k, NULL);
+    for (long e = 0; e < vi.n; e++) {
+      double lifted = 0;
+      for (long j = 0; j < vi.m; j++) lifted += Bv[e * vi.m + j] * Z[k * vi.m + j];
+      worst = fmax(worst, fabs(lifted - partly(k, (size_t)e, vk[e])));
+    }
+  }
+  assert_true(worst <= 1e-10);
+  free(Z);
+  npg_model_free(mp);
+  npg_full_free(fp);
+  npg_model_free(ms);
 
   /* a missing input is named */
   t = npg_trainer_new(fc, &o);

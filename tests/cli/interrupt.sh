@@ -48,4 +48,16 @@ cp "$W/TEST/x.npy" "$W/M/mine.npy"
 if "$B/npgc" train $P "$W/TRAIN" -o "$W/M" >/dev/null 2>"$W/err.txt"; then fail "retrain over a user's file"; fi
 grep -q "holds 'mine.npy', which its manifest does not list" "$W/err.txt" || fail "unlisted message: $(cat "$W/err.txt")"
 test -e "$W/M/mine.npy" || fail "the user's file was removed"
+# out of core (--mem far below one basis: the bases live in unnamed files,
+# memory-mapped, and are written from the mapping): killed while writing,
+# it leaves no model; run again, it gives a model that loads, and no litter
+R=examples/radiosity/formfactors.npg
+"$B/radiosity_data" "$W/RDATA" 48 16 0 1 3 >/dev/null || fail "radiosity data"
+NPG_TEST_INTERRUPT=arrays "$B/npgc" train $R "$W/RDATA" -o "$W/OOC" --cap 8 --mem 160k >/dev/null 2>&1
+status=$?
+[ $status -eq 137 ] || fail "out of core: the training was not killed (status $status)"
+test ! -e "$W/OOC" || fail "out of core: a killed training left a model"
+"$B/npgc" train $R "$W/RDATA" -o "$W/OOC" --cap 8 --mem 160k >/dev/null 2>"$W/err.txt" || fail "out of core: $(cat "$W/err.txt")"
+[ -z "$(ls "$W" | grep -E '^OOC\.' || true)" ] || fail "out of core: litter after the next run: $(ls "$W")"
+"$B/npgc" verify $R "$W/OOC" "$W/RDATA" --tol 0.05 >/dev/null 2>&1 || fail "out of core: the model does not verify"
 echo "ok"

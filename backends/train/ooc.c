@@ -1,0 +1,589 @@
+/* ooc.c — class bases out of core, by row blocks (DESIGN §11).
+ *
+ * When the bases themselves do not fit in --mem (radiosity's pair classes
+ * at the paper's size: 25 M rows x 60 columns, 12 GB each), no snapshot
+ * matrix and no basis is held whole. The large ("streamed") classes are cut
+ * into blocks of rows; a pass over the samples re-evaluates the full
+ * program on every sample (externs come from the trainer's cache) and
+ * keeps the rows of its blocks, all S samples of them, so every row-local
+ * step of the in-memory PCA (pca_basis) runs on a block exactly as it
+ * would on the whole:
+ *
+ *   Gram passes   μ_b = the block's sample mean, X_b − μ_b1ᵀ (centered
+ *                 members), G += X_bᵀX_b (dsyrk); G's eigenvectors give
+ *                 W = V Σ⁻¹ with the same choice of k (pca_choose);
+ *   basis passes  A_b = [μ_b, X_b W] per member (dgemm), written to an
+ *                 unnamed file at its rows' offset, and AᵀA += A_bᵀA_b;
+ *   coefficients  the member's Cholesky-QR, its [μ, U] orthonormalized in
+ *                 order, and the class's members merged (pca_merge's Gram
+ *                 route) all act on A's columns: B = A T with T small,
+ *                 computed from AᵀA alone;
+ *   the basis     B_b = A_b T block by block into another unnamed file
+ *                 (after two sweeps that decide the sign convention,
+ *                 pca_fix_signs), then mapped read-only: pre-multiplication
+ *                 and the extern fit read basis rows through rc->B as from
+ *                 memory.
+ *
+ * Small classes keep their snapshots in memory (collected on the first
+ * pass) and go through train_member_bases as in memory. A pass holds blocks
+ * of several classes: the number of passes is about the streamed classes'
+ * snapshot bytes over the budget, plus one Gram and one basis pass at least.
+ */
+#include <cblas.h>
+#include <lapacke.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <unistd.h>
+
+#include "train.h"
+
+/* A direction whose remainder after the previous ones is below this
+ * fraction of its norm is dependent on them. In memory (pca_in_order) the
+ * remainder is computed from the vectors, to 1e-8; here it comes from the
+ * Gram matrix AᵀA, which resolves it only down to about √ε — a mean whose
+ * centered directions are rounding noise along itself (a quantity constant
+ * over the samples) would otherwise keep that noise. */
+#define OOC_DEPENDENT_TOL 1e-6
+
+/* Rows [r0, r1) of streamed class c, collected in one pass. */
+typedef struct Segment {
+  int c;
+  long r0, r1;
+  double **H;               /* per member: (r1 − r0) x S column-major, the rows of every sample */
+} Segment;
+
+typedef struct Stream {
+  bool streamed;
+  double **X;               /* small class: per member n x S column-major */
+  double **G;               /* streamed: per member S x S column-major (upper), Gram of its centered snapshots */
+  double **s;               /* per member: singular values, descending (S) */
+  long *k;                  /* per member: directions kept from its Gram matrix */
+  long *col;                /* per member: its first column of A (μ when centered, then k directions) */
+  long K;                   /* columns of A */
+  double *C;                /* K x K column-major: AᵀA */
+  FILE *A;                  /* A: n x K row-major, in an unnamed file */
+} Stream;
+
+typedef struct Ooc {
+  Model *m;
+  NpgFull *f;
+  const SampleSource *src;
+  const TrainOptions *opt;
+  long S;
+  Stream *st;
+  Segment *seg;
+  long nseg;
+  long *first;              /* pass p collects segments [first[p], first[p + 1]) */
+  long npass;
+  size_t avail;             /* bytes for the blocks of one pass */
+  double *tmp;              /* one member value */
+  char *err;
+  size_t errlen;
+} Ooc;
+
+/* Bytes of member bases at their caps. */
+static size_t basis_bytes(const RClass *rc) {
+  size_t cols = 0;
+  for (int i = 0; i < rc->nmembers; i++) cols += (size_t)rc->members[i].cap;
+  return sizeof(double) * (size_t)rc->n * cols;
+}
+
+bool ooc_needed(const Model *m, const TrainOptions *opt) {
+  if (!opt->mem || opt->joint || opt->full_rank) return false;
+  size_t need = 0;
+  for (int c = 0; c < m->nclasses; c++) need += basis_bytes(&m->classes[c]);
+  return need > opt->mem;
+}
+
+/* Bytes a row of streamed class `rc` needs in a pass: every member's S
+ * values, and its row of A. */
+static size_t row_bytes(const RClass *rc, long S) {
+  size_t b = 0;
+  for (int i = 0; i < rc->nmembers; i++) b += sizeof(double) * ((size_t)S + (size_t)rc->members[i].cap + 1);
+  return b;
+}
+
+/* Which classes stream (the largest, until the others' snapshots take at
+ * most a quarter of the budget), and the passes' segments. */
+static int plan(Ooc *o) {
+  Model *m = o->m;
+  long S = o->S;
+  size_t small = 0, fixed = 0;
+  for (int c = 0; c < m->nclasses; c++) small += sizeof(double) * (size_t)(m->classes[c].n * m->classes[c].nmembers) * (size_t)S;
+  while (small > o->opt->mem / 4) {
+    int big = -1;
+    for (int c = 0; c < m->nclasses; c++)
+      if (!o->st[c].streamed && (big < 0 || m->classes[c].n * m->classes[c].nmembers > m->classes[big].n * m->classes[big].nmembers))
+        big = c;
+    if (big < 0) break;
+    o->st[big].streamed = true;
+    small -= sizeof(double) * (size_t)(m->classes[big].n * m->classes[big].nmembers) * (size_t)S;
+  }
+  for (int c = 0; c < m->nclasses; c++)
+    if (o->st[c].streamed) {
+      long K = 0;
+      for (int i = 0; i < m->classes[c].nmembers; i++) K += m->classes[c].members[i].cap + 1;
+      fixed += sizeof(double) * (size_t)(2 * S * S * m->classes[c].nmembers + 2 * K * K);
+    }
+  fixed += small + sizeof(double) * (size_t)o->S * 4;
+  o->avail = o->opt->mem > fixed ? o->opt->mem - fixed : 0;
+  /* segments, filled pass by pass */
+  long cap = 16;
+  o->seg = calloc((size_t)cap, sizeof(Segment));
+  o->first = calloc((size_t)cap + 1, sizeof(long));
+  if (!o->seg || !o->first) return -1;
+  size_t used = 0;
+  o->npass = 0;
+  for (int c = 0; c < m->nclasses; c++) {
+    if (!o->st[c].streamed) continue;
+    size_t w = row_bytes(&m->classes[c], S);
+    for (long r = 0; r < m->classes[c].n;) {
+      long rows = (long)((o->avail - (used < o->avail ? used : o->avail)) / w);
+      if (rows < 1 && used > 0) { /* this pass is full */
+        o->first[++o->npass] = o->nseg;
+        used = 0;
+        continue;
+      }
+      if (rows < 1) rows = 1; /* a budget below one row: a row at a time */
+      if (rows > m->classes[c].n - r) rows = m->classes[c].n - r;
+      if (o->nseg + 1 >= cap) {
+        Segment *g = realloc(o->seg, sizeof(Segment) * (size_t)(cap * 2));
+        long *f = g ? realloc(o->first, sizeof(long) * (size_t)(cap * 2 + 1)) : NULL;
+        if (g) o->seg = g;
+        if (!f) return -1;
+        o->first = f;
+        cap *= 2;
+      }
+      o->seg[o->nseg++] = (Segment){c, r, r + rows, NULL};
+      used += w * (size_t)rows;
+      r += rows;
+    }
+  }
+  o->first[++o->npass] = o->nseg;
+  if (o->nseg == 0) o->npass = 1; /* no streamed class: one pass for the small ones */
+  return 0;
+}
+
+/* One pass: every sample evaluated, the rows of pass p's segments kept (and
+ * on the first pass the small classes' snapshots and the SPD marks). */
+static int collect(Ooc *o, long p, const char *what) {
+  Model *m = o->m;
+  long S = o->S;
+  for (long g = o->first[p]; g < o->first[p + 1]; g++) {
+    Segment *sg = &o->seg[g];
+    RClass *rc = &m->classes[sg->c];
+    if (!(sg->H = calloc((size_t)rc->nmembers, sizeof(double *)))) return -1;
+    for (int i = 0; i < rc->nmembers; i++)
+      if (!(sg->H[i] = malloc(sizeof(double) * (size_t)(sg->r1 - sg->r0) * (size_t)S))) return -1;
+  }
+  for (long k = 0; k < S; k++) {
+    if (train_eval_sample(o->src, o->f, k, o->err, o->errlen)) return -1;
+    if (p == 0 && strstr(what, "Gram")) {
+      if (train_check_spd(m, o->f, o->tmp, o->err, o->errlen)) return -1;
+      for (int c = 0; c < m->nclasses; c++) {
+        RClass *rc = &m->classes[c];
+        for (int i = 0; !o->st[c].streamed && i < rc->nmembers; i++)
+          if (train_member_value(m, o->f, &rc->members[i], k, rc->n, o->st[c].X[i] + (size_t)k * (size_t)rc->n,
+                                 o->err, o->errlen))
+            return -1;
+      }
+    }
+    for (long g = o->first[p]; g < o->first[p + 1]; g++) {
+      Segment *sg = &o->seg[g];
+      RClass *rc = &m->classes[sg->c];
+      long R = sg->r1 - sg->r0;
+      for (int i = 0; i < rc->nmembers; i++) {
+        if (train_member_value(m, o->f, &rc->members[i], k, rc->n, o->tmp, o->err, o->errlen)) return -1;
+        memcpy(sg->H[i] + (size_t)k * (size_t)R, o->tmp + sg->r0, sizeof(double) * (size_t)R);
+      }
+    }
+    progress_show(o->opt->progress, what, p * S + k + 1, o->npass * S);
+  }
+  return 0;
+}
+
+static void release(Ooc *o, long p) {
+  for (long g = o->first[p]; g < o->first[p + 1]; g++) {
+    Segment *sg = &o->seg[g];
+    for (int i = 0; sg->H && i < o->m->classes[sg->c].nmembers; i++) free(sg->H[i]);
+    free(sg->H);
+    sg->H = NULL;
+  }
+}
+
+/* A centered member's block minus its mean (pca_basis's arithmetic, row by
+ * row); mu[0..R) the mean. */
+static void center_block(long R, long S, double *H, double *mu) {
+  pca_mean(R, S, H, mu);
+  for (long s = 0; s < S; s++)
+    for (long e = 0; e < R; e++) H[s * R + e] -= mu[e];
+}
+
+/* Gram passes: G += X_bᵀX_b for every streamed member. */
+static int gram_passes(Ooc *o) {
+  long S = o->S;
+  for (long p = 0; p < o->npass; p++) {
+    if (collect(o, p, "snapshots (Gram, out of core)")) return -1;
+    for (long g = o->first[p]; g < o->first[p + 1]; g++) {
+      Segment *sg = &o->seg[g];
+      RClass *rc = &o->m->classes[sg->c];
+      long R = sg->r1 - sg->r0;
+      double *mu = malloc(sizeof(double) * (size_t)R);
+      if (!mu) return -1;
+      for (int i = 0; i < rc->nmembers; i++) {
+        if (rc->members[i].center) center_block(R, S, sg->H[i], mu);
+        cblas_dsyrk(CblasColMajor, CblasUpper, CblasTrans, (int)S, (int)R, 1.0, sg->H[i], (int)R, 1.0,
+                    o->st[sg->c].G[i], (int)S);
+      }
+      free(mu);
+    }
+    release(o, p);
+  }
+  return 0;
+}
+
+/* Every streamed member's eigenvectors: W = V Σ⁻¹ in G's place (S x k
+ * column-major), the choice of k and the member's report as pca_core's
+ * Gram route makes them. */
+static int eigen(Ooc *o) {
+  long S = o->S;
+  for (int c = 0; c < o->m->nclasses; c++) {
+    Stream *st = &o->st[c];
+    RClass *rc = &o->m->classes[c];
+    if (!st->streamed) continue;
+    st->K = 0;
+    for (int i = 0; i < rc->nmembers; i++) {
+      RMember *mb = &rc->members[i];
+      double *G = st->G[i], *lam = malloc(sizeof(double) * (size_t)S), *W = malloc(sizeof(double) * (size_t)S * (size_t)S);
+      if (!lam || !W) return free(lam), free(W), -1;
+      lapack_int info = LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (lapack_int)S, G, (lapack_int)S, lam);
+      if (info != 0) {
+        free(lam), free(W);
+        return npg_fail(o->err, o->errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
+                        rc->label, mb->name, (int)info);
+      }
+      double *s = st->s[i];
+      for (long j = 0; j < S; j++) s[j] = sqrt(fmax(lam[S - 1 - j], 0.0));
+      bool unresolved = false;
+      int cap = mb->center ? (mb->cap > 1 ? mb->cap - 1 : 0) : mb->cap;
+      long k = pca_choose(s, S, cap, mb->energy, &unresolved);
+      /* unresolved: in memory the SVD would decide; out of core the Gram
+       * matrix is all there is (directions below 1e-6 σ_max lose digits) */
+      double total = 0, run = 0;
+      for (long j = 0; j < S; j++) total += s[j] * s[j];
+      for (long j = 0; j < k; j++) run += s[j] * s[j];
+      mb->captured = total > 0 ? run / total : 1;
+      mb->lost = fmax(0, 1 - mb->captured);
+      free(mb->sv);
+      if (!(mb->sv = malloc(sizeof(double) * (size_t)S))) return free(lam), free(W), -1;
+      memcpy(mb->sv, s, sizeof(double) * (size_t)S);
+      mb->nsv = S;
+      for (long j = 0; j < k; j++)
+        for (long e = 0; e < S; e++) W[j * S + e] = G[(S - 1 - j) * S + e] / s[j];
+      memcpy(G, W, sizeof(double) * (size_t)(S * k));
+      free(lam), free(W);
+      st->k[i] = k;
+      st->col[i] = st->K;
+      st->K += k + (mb->center ? 1 : 0);
+    }
+    if (!(st->C = calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || !(st->A = tmpfile()))
+      return npg_fail(o->err, o->errlen, "cannot create a scratch file for the basis of class %s", rc->label);
+  }
+  return 0;
+}
+
+static int write_at(FILE *fp, const void *p, size_t bytes, size_t off) {
+  const char *c = p;
+  while (bytes > 0) {
+    ssize_t w = pwrite(fileno(fp), c, bytes, (off_t)off);
+    if (w <= 0) return -1;
+    c += w, bytes -= (size_t)w, off += (size_t)w;
+  }
+  return 0;
+}
+
+static int read_at(FILE *fp, void *p, size_t bytes, size_t off) {
+  char *c = p;
+  while (bytes > 0) {
+    ssize_t r = pread(fileno(fp), c, bytes, (off_t)off);
+    if (r <= 0) return -1;
+    c += r, bytes -= (size_t)r, off += (size_t)r;
+  }
+  return 0;
+}
+
+/* Basis passes: A_b = [μ_b, X_b W] per member, written at its rows, and
+ * AᵀA accumulated. */
+static int basis_passes(Ooc *o) {
+  long S = o->S;
+  for (long p = 0; p < o->npass && o->nseg > 0; p++) {
+    if (collect(o, p, "snapshots (basis, out of core)")) return -1;
+    for (long g = o->first[p]; g < o->first[p + 1]; g++) {
+      Segment *sg = &o->seg[g];
+      Stream *st = &o->st[sg->c];
+      RClass *rc = &o->m->classes[sg->c];
+      long R = sg->r1 - sg->r0, K = st->K;
+      double *mu = malloc(sizeof(double) * (size_t)R), *A = calloc((size_t)(R * K) + 1, sizeof(double));
+      if (!mu || !A) return free(mu), free(A), -1;
+      for (int i = 0; i < rc->nmembers; i++) {
+        long col = st->col[i];
+        if (rc->members[i].center) {
+          center_block(R, S, sg->H[i], mu);
+          for (long e = 0; e < R; e++) A[e * K + col] = mu[e];
+          col++;
+        }
+        if (st->k[i] > 0)
+          cblas_dgemm(CblasRowMajor, CblasTrans, CblasTrans, (int)R, (int)st->k[i], (int)S, 1.0, sg->H[i], (int)R,
+                      st->G[i], (int)S, 0.0, A + col, (int)K);
+      }
+      if (K > 0)
+        cblas_dsyrk(CblasColMajor, CblasUpper, CblasNoTrans, (int)K, (int)R, 1.0, A, (int)K, 1.0, st->C, (int)K);
+      int bad = write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
+      free(mu), free(A);
+      if (bad) return npg_fail(o->err, o->errlen, "cannot write the scratch file of class %s (disk full?)", rc->label);
+    }
+    release(o, p);
+  }
+  return 0;
+}
+
+/* y = C x (C symmetric K x K, full). */
+static double quad(const double *C, long K, const double *x, const double *y, double *tmp) {
+  cblas_dgemv(CblasColMajor, CblasNoTrans, (int)K, (int)K, 1.0, C, (int)K, y, 1, 0.0, tmp, 1);
+  return cblas_ddot((int)K, x, 1, tmp, 1);
+}
+
+/* T (K x *m column-major, malloc'd): the class basis is B = A T, by the
+ * in-memory steps acting on A's columns through C = AᵀA: each member's
+ * Cholesky-QR (gram_basis), its [μ, U] in order (pca_in_order), the
+ * members merged (pca_merge's Gram route). */
+static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
+  Stream *st = &o->st[c];
+  RClass *rc = &o->m->classes[c];
+  long K = st->K;
+  double *C = st->C;
+  for (long j = 0; j < K; j++) /* the lower triangle from the upper */
+    for (long i = j + 1; i < K; i++) C[j * K + i] = C[i * K + j];
+  double *Q = calloc((size_t)(K * K) + 1, sizeof(double)), *tmp = malloc(sizeof(double) * (size_t)(K + 1));
+  double *R = malloc(sizeof(double) * (size_t)(K * K) + 8), *v = malloc(sizeof(double) * (size_t)(K + 1));
+  double *cc = malloc(sizeof(double) * (size_t)(K + 1));
+  long nq = 0;
+  int *kept = calloc((size_t)rc->nmembers + 1, sizeof(int));
+  if (!Q || !tmp || !R || !v || !cc || !kept) goto oom;
+  for (int i = 0; i < rc->nmembers; i++) {
+    RMember *mb = &rc->members[i];
+    long k = st->k[i], cu = st->col[i] + (mb->center ? 1 : 0), q0 = nq;
+    /* Cholesky-QR of U: U R⁻¹, R from C's block of U */
+    if (k > 0) {
+      for (long a = 0; a < k; a++)
+        for (long b = 0; b < k; b++) R[b * k + a] = C[(cu + b) * K + cu + a];
+      if (LAPACKE_dpotrf(LAPACK_COL_MAJOR, 'U', (lapack_int)k, R, (lapack_int)k) != 0 ||
+          LAPACKE_dtrtri(LAPACK_COL_MAJOR, 'U', 'N', (lapack_int)k, R, (lapack_int)k) != 0)
+        return free(Q), free(tmp), free(R), free(v), free(cc), free(kept),
+               npg_fail(o->err, o->errlen,
+                        "class %s, member %s: its directions are numerically dependent out of core (Cholesky failed): "
+                        "lower its cap or its energy fraction",
+                        rc->label, mb->name);
+    }
+    /* the member's columns in order: μ first when centered, then U R⁻¹;
+     * each kept when its remainder after the previous ones (twice) is above
+     * OOC_DEPENDENT_TOL of its norm */
+    long ncols = k + (mb->center ? 1 : 0);
+    for (long j = 0; j < ncols; j++) {
+      memset(v, 0, sizeof(double) * (size_t)K);
+      if (mb->center && j == 0) v[st->col[i]] = 1;
+      else {
+        long u = mb->center ? j - 1 : j;
+        for (long a = 0; a <= u; a++) v[cu + a] = R[u * k + a];
+      }
+      if (!mb->center) { /* uncentered: U R⁻¹ is the member's basis as it is */
+        memcpy(Q + nq * K, v, sizeof(double) * (size_t)K);
+        nq++;
+        continue;
+      }
+      double norm0 = sqrt(fmax(quad(C, K, v, v, tmp), 0));
+      if (!(norm0 > 0)) continue;
+      for (int pass = 0; pass < 2 && nq > q0; pass++) {
+        for (long a = q0; a < nq; a++) cc[a - q0] = quad(C, K, Q + a * K, v, tmp);
+        for (long a = q0; a < nq; a++) cblas_daxpy((int)K, -cc[a - q0], Q + a * K, 1, v, 1);
+      }
+      double norm = sqrt(fmax(quad(C, K, v, v, tmp), 0));
+      if (!(norm > OOC_DEPENDENT_TOL * norm0)) continue;
+      cblas_dscal((int)K, 1 / norm, v, 1);
+      memcpy(Q + nq * K, v, sizeof(double) * (size_t)K);
+      nq++;
+    }
+    kept[i] = (int)(nq - q0);
+    mb->kept = kept[i];
+  }
+  free(v), free(cc);
+  if (rc->nmembers == 1 || nq == 0) {
+    free(tmp), free(R), free(kept);
+    *Tout = Q, *mout = nq;
+    return 0;
+  }
+  /* merged: the left singular vectors of [Q_1 … Q_r] through their Gram
+   * matrix Qᵀ C Q, dropping dependent directions (below 1e-10 σ_max, the
+   * SVD's rule; in memory a direction below 1e-6 σ_max sends pca_merge to
+   * the SVD, which out of core is not at hand), and one Cholesky-QR */
+  double *Y = malloc(sizeof(double) * (size_t)(K * nq)), *Cq = malloc(sizeof(double) * (size_t)(nq * nq));
+  double *lam = malloc(sizeof(double) * (size_t)nq), *T = NULL;
+  long m = 0;
+  if (!Y || !Cq || !lam) goto merge_done;
+  cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)nq, (int)K, 1.0, C, (int)K, Q, (int)K, 0.0, Y, (int)K);
+  cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, (int)nq, (int)nq, (int)K, 1.0, Q, (int)K, Y, (int)K, 0.0, Cq, (int)nq);
+  if (LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (lapack_int)nq, Cq, (lapack_int)nq, lam) != 0) goto merge_done;
+  double s0 = sqrt(fmax(lam[nq - 1], 0));
+  while (m < nq && sqrt(fmax(lam[nq - 1 - m], 0)) > 1e-10 * s0) m++;
+  double *Wq = malloc(sizeof(double) * (size_t)(nq * (m ? m : 1)));
+  T = malloc(sizeof(double) * (size_t)(K * (m ? m : 1)));
+  if (!Wq || !T) {
+    free(Wq);
+    goto merge_done;
+  }
+  for (long j = 0; j < m; j++)
+    for (long a = 0; a < nq; a++) Wq[j * nq + a] = Cq[(nq - 1 - j) * nq + a] / sqrt(lam[nq - 1 - j]);
+  cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)m, (int)nq, 1.0, Q, (int)K, Wq, (int)nq, 0.0, T, (int)K);
+  free(Wq);
+  if (m > 0) { /* Cholesky-QR: Tᵀ C T = RᵀR, T <- T R⁻¹ */
+    double *Yt = malloc(sizeof(double) * (size_t)(K * m));
+    if (!Yt) goto merge_done;
+    cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)m, (int)K, 1.0, C, (int)K, T, (int)K, 0.0, Yt, (int)K);
+    cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, (int)m, (int)m, (int)K, 1.0, T, (int)K, Yt, (int)K, 0.0, Cq, (int)m);
+    free(Yt);
+    if (LAPACKE_dpotrf(LAPACK_COL_MAJOR, 'U', (lapack_int)m, Cq, (lapack_int)m) != 0) goto merge_done;
+    cblas_dtrsm(CblasColMajor, CblasRight, CblasUpper, CblasNoTrans, CblasNonUnit, (int)K, (int)m, 1.0, Cq, (int)m, T,
+                (int)K);
+  }
+  free(Y), free(Cq), free(lam), free(Q), free(tmp), free(R), free(kept);
+  *Tout = T, *mout = m;
+  return 0;
+merge_done:
+  free(Y), free(Cq), free(lam), free(T), free(Q), free(tmp), free(R), free(kept);
+  return npg_fail(o->err, o->errlen, "class %s: merging its member bases out of core failed", rc->label);
+oom:
+  free(Q), free(tmp), free(R), free(v), free(cc), free(kept);
+  return npg_fail(o->err, o->errlen, "out of memory orthonormalizing the basis of class %s", rc->label);
+}
+
+/* B = A T block by block into an unnamed file, mapped read-only. */
+static int write_basis(Ooc *o, int c, double *T, long m) {
+  Stream *st = &o->st[c];
+  RClass *rc = &o->m->classes[c];
+  long n = rc->n, K = st->K;
+  rc->m = m;
+  if (m == 0) return 0; /* train_complete_basis gives it one direction */
+  FILE *fp = tmpfile();
+  size_t bytes = sizeof(double) * (size_t)n * (size_t)m;
+  if (!fp || ftruncate(fileno(fp), (off_t)bytes) != 0) {
+    if (fp) fclose(fp);
+    return npg_fail(o->err, o->errlen, "cannot create the file of the basis of class %s (%.3g GB)", rc->label, (double)bytes / 1e9);
+  }
+  long rows = (long)(o->avail / (sizeof(double) * (size_t)(K + m)));
+  if (rows < 1) rows = 1;
+  if (rows > n) rows = n;
+  double *A = malloc(sizeof(double) * (size_t)(rows * K) + 8), *B = malloc(sizeof(double) * (size_t)(rows * m));
+  double *big = calloc((size_t)m, sizeof(double));
+  int *sign = calloc((size_t)m, sizeof(int)), bad = !A || !B || !big || !sign;
+  /* three sweeps over A's rows: the largest magnitude of every column of
+   * B = A T, the sign convention (pca_fix_signs), then B written */
+  for (int sweep = 0; sweep < 3 && !bad; sweep++) {
+    if (sweep == 2)
+      for (long j = 0; j < m; j++)
+        if (sign[j] < 0) cblas_dscal((int)K, -1.0, (double *)T + j * K, 1);
+    for (long r0 = 0; !bad && r0 < n; r0 += rows) {
+      long R = r0 + rows < n ? rows : n - r0;
+      bad = read_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(r0 * K));
+      if (bad) break;
+      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)R, (int)m, (int)K, 1.0, A, (int)K, T, (int)K, 0.0, B,
+                  (int)m);
+      if (sweep < 2) pca_sign_scan(R, m, B, big, sign, sweep == 1);
+      else bad = write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));
+    }
+  }
+  free(A), free(B), free(big), free(sign);
+  void *map = bad ? MAP_FAILED : mmap(NULL, bytes, PROT_READ, MAP_SHARED, fileno(fp), 0);
+  fclose(fp); /* the mapping keeps the file */
+  if (map == MAP_FAILED)
+    return npg_fail(o->err, o->errlen, "cannot write or map the basis of class %s (%.3g GB; disk full?)", rc->label,
+                    (double)bytes / 1e9);
+  free(rc->B);
+  rc->B = map;
+  rc->B_mapped = bytes;
+  return 0;
+}
+
+static void ooc_free(Ooc *o) {
+  for (int c = 0; o->st && c < o->m->nclasses; c++) {
+    Stream *st = &o->st[c];
+    for (int i = 0; i < o->m->classes[c].nmembers; i++) {
+      if (st->X) free(st->X[i]);
+      if (st->G) free(st->G[i]);
+      if (st->s) free(st->s[i]);
+    }
+    free(st->X), free(st->G), free(st->s), free(st->k), free(st->col), free(st->C);
+    if (st->A) fclose(st->A);
+  }
+  for (long p = 0; o->seg && p < o->npass; p++) release(o, p);
+  free(o->st), free(o->seg), free(o->first), free(o->tmp);
+}
+
+int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen) {
+  Ooc o = {m, f, src, opt, src->count, NULL, NULL, 0, NULL, 0, 0, NULL, err, errlen};
+  long maxn = 1;
+  int rc = -1;
+  for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
+  if (!(o.st = calloc((size_t)m->nclasses, sizeof(Stream))) || !(o.tmp = malloc(sizeof(double) * (size_t)maxn)) ||
+      plan(&o))
+    goto oom;
+  for (int c = 0; c < m->nclasses; c++) {
+    Stream *st = &o.st[c];
+    int r = m->classes[c].nmembers;
+    if (!st->streamed) {
+      if (!(st->X = calloc((size_t)r, sizeof(double *)))) goto oom;
+      for (int i = 0; i < r; i++)
+        if (!(st->X[i] = malloc(sizeof(double) * (size_t)m->classes[c].n * (size_t)o.S))) goto oom;
+      continue;
+    }
+    if (!(st->G = calloc((size_t)r, sizeof(double *))) || !(st->s = calloc((size_t)r, sizeof(double *))) ||
+        !(st->k = calloc((size_t)r, sizeof(long))) || !(st->col = calloc((size_t)r, sizeof(long))))
+      goto oom;
+    for (int i = 0; i < r; i++)
+      if (!(st->G[i] = calloc((size_t)(o.S * o.S), sizeof(double))) || !(st->s[i] = malloc(sizeof(double) * (size_t)o.S)))
+        goto oom;
+  }
+  if (opt->progress) {
+    int streamed = 0;
+    for (int c = 0; c < m->nclasses; c++) streamed += o.st[c].streamed;
+    fprintf(stderr, "out of core: %d of %d classes streamed by rows, %ld passes over the %ld samples for the Gram "
+            "matrices and as many for the bases (--mem %.3g GB, %.3g GB for the rows of a pass)\n",
+            streamed, m->nclasses, o.npass, o.S, (double)opt->mem / 1e9, (double)o.avail / 1e9);
+  }
+  train_mark_spd(m);
+  if (gram_passes(&o) || eigen(&o) || basis_passes(&o)) goto done;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rcl = &m->classes[c];
+    if (!o.st[c].streamed) {
+      if (train_member_bases(rcl, o.S, o.st[c].X, NULL, err, errlen)) goto done;
+    } else {
+      double *T = NULL;
+      long mm = 0;
+      int bad = coefficients(&o, c, &T, &mm) || write_basis(&o, c, T, mm);
+      free(T);
+      if (bad) goto done;
+    }
+    if (train_complete_basis(rcl, false, err, errlen)) goto done;
+  }
+  model_size_tensors(m);
+  rc = 0;
+  goto done;
+oom:
+  npg_fail(err, errlen, "out of memory planning out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
+done:
+  if (rc && !err[0]) npg_fail(err, errlen, "out of memory in out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
+  ooc_free(&o);
+  return rc;
+}
