@@ -13,8 +13,8 @@ static double *ints(const int *v, size_t n) {
 void fluid_params(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]) {
   long C = m->nc, F = m->nf, B = m->nb, U = 2 * C;
   int k = 0;
-  out[k++] = (FluidParam){"tri", 2, {C, 3}, ints(m->tri, 3 * C), 1};
-  out[k++] = (FluidParam){"edge", 2, {F, 2}, ints(m->edge, 2 * F), 1};
+  out[k++] = (FluidParam){"tri", 2, {C, 3}, ints(m->cell, 3 * C), 1};
+  out[k++] = (FluidParam){"edge", 2, {F, 2}, ints(m->face, 2 * F), 1};
   out[k++] = (FluidParam){"cface", 2, {C, 3}, ints(m->cface, 3 * C), 1};
   double *cs = malloc(3 * C * sizeof *cs);
   memcpy(cs, m->csign, 3 * C * sizeof *cs);

@@ -50,7 +50,7 @@ static Mesh mesh_of(int cells) {
 static double mean_edge(const Mesh *m) {
   double s = 0;
   for (int j = 0; j < m->nf; j++) {
-    const double *a = m->g0 + 2 * m->edge[2 * j], *b = m->g0 + 2 * m->edge[2 * j + 1];
+    const double *a = m->g0 + 2 * m->face[2 * j], *b = m->g0 + 2 * m->face[2 * j + 1];
     s += hypot(b[0] - a[0], b[1] - a[1]);
   }
   return s / m->nf;
