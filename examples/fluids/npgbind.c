@@ -10,7 +10,27 @@ static double *ints(const int *v, size_t n) {
   return d;
 }
 
-void fluid_params(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]) {
+/* fluids3d.npg's params: tet, tri, cface, csign, nbr, bface, mu. */
+static int params3d(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]) {
+  long C = m->nc, F = m->nf, B = m->nb;
+  int k = 0;
+  memset(out, 0, FLUID_NPARAMS * sizeof *out);
+  out[k++] = (FluidParam){"tet", 2, {C, 4}, ints(m->cell, 4 * C), 1};
+  out[k++] = (FluidParam){"tri", 2, {F, 3}, ints(m->face, 3 * F), 1};
+  out[k++] = (FluidParam){"cface", 2, {C, 4}, ints(m->cface, 4 * C), 1};
+  double *cs = malloc(4 * C * sizeof *cs);
+  memcpy(cs, m->csign, 4 * C * sizeof *cs);
+  out[k++] = (FluidParam){"csign", 2, {C, 4}, cs, 0};
+  out[k++] = (FluidParam){"nbr", 2, {C, 4}, ints(m->nbr, 4 * C), 1};
+  out[k++] = (FluidParam){"bface", 1, {B}, ints(m->bface, B), 1};
+  double *mv = malloc(sizeof *mv);
+  *mv = mu;
+  out[k++] = (FluidParam){"mu", 0, {0, 0}, mv, 0};
+  return k;
+}
+
+int fluid_params(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]) {
+  if (m->dim == 3) return params3d(m, mu, out);
   long C = m->nc, F = m->nf, B = m->nb, U = 2 * C;
   int k = 0;
   out[k++] = (FluidParam){"tri", 2, {C, 3}, ints(m->cell, 3 * C), 1};
@@ -33,6 +53,7 @@ void fluid_params(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]) {
   double *mv = malloc(sizeof *mv);
   *mv = mu;
   out[k++] = (FluidParam){"mu", 0, {0, 0}, mv, 0};
+  return k;
 }
 
 void fluid_params_free(FluidParam p[FLUID_NPARAMS]) {
@@ -41,9 +62,8 @@ void fluid_params_free(FluidParam p[FLUID_NPARAMS]) {
 
 int fluid_bind(NpgFull *f, const Mesh *m, double mu) {
   FluidParam p[FLUID_NPARAMS];
-  fluid_params(m, mu, p);
-  int rc = 0;
-  for (int i = 0; i < FLUID_NPARAMS && !rc; i++)
+  int n = fluid_params(m, mu, p), rc = 0;
+  for (int i = 0; i < n && !rc; i++)
     rc = npg_full_set_param(f, p[i].name, p[i].ndim, p[i].shape, p[i].v, p[i].name);
   fluid_params_free(p);
   return rc ? -1 : 0;

@@ -1,6 +1,7 @@
-/* npgbind.h — the mesh as the params of fluids2d.npg, for npg's full
- * evaluator (npg_full_set_param) and for the data directory `npgc train`
- * reads. Velocities are flat there: U = 2C entries, entry 2c + d. */
+/* npgbind.h — the mesh as the params of fluids2d.npg (triangles) or
+ * fluids3d.npg (tetrahedra), for npg's full evaluator (npg_full_set_param)
+ * and for the data directory `npgc train` reads. Velocities are flat in
+ * 2D: U = 2C entries, entry 2c + d; in 3D u is real[C, 3]. */
 #ifndef FLUIDS_NPGBIND_H
 #define FLUIDS_NPGBIND_H
 
@@ -9,7 +10,7 @@
 #include "mesh.h"
 #include "npg.h"
 
-/* One param of fluids2d.npg as whole doubles (ints included). */
+/* One param of the program as whole doubles (ints included). */
 typedef struct FluidParam {
   const char *name;
   int ndim;
@@ -19,8 +20,10 @@ typedef struct FluidParam {
 } FluidParam;
 
 #define FLUID_NPARAMS 10
-/* The params tri, edge, cface, csign, nbr, bface, ucell, ucomp, unbr, mu. */
-void fluid_params(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]);
+/* The params, their number returned: in 2D tri, edge, cface, csign, nbr,
+ * bface, ucell, ucomp, unbr, mu; in 3D tet, tri, cface, csign, nbr, bface,
+ * mu (the rest of `out` zeroed). */
+int fluid_params(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]);
 void fluid_params_free(FluidParam p[FLUID_NPARAMS]);
 /* Bind them in f. 0, or -1 with npg_full_error(f). */
 int fluid_bind(NpgFull *f, const Mesh *m, double mu);

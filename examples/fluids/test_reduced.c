@@ -140,7 +140,7 @@ static void test_reduced_energy(void **state) {
   NpgModel *model = tunnel_model(&c, &m, mu, dt);
   RedSolver s;
   char err[512];
-  if (red_init(&s, model, mu, dt, err, sizeof err) != 0) fail_msg("%s", err);
+  if (red_init(&s, model, 2, mu, dt, err, sizeof err) != 0) fail_msg("%s", err);
   int n = (int)s.mu;
   size_t uu = (size_t)n * n;
   print_message("m_u %ld, m_f %ld, m_g %ld, m_d %ld, rank of D̂ %ld\n", s.mu, s.mf, s.mg, s.mb, s.drank);
@@ -292,7 +292,7 @@ static void test_reduced_full_rank(void **state) {
   }
   NpgModel *model = ctx_finish(&c);
   RedSolver s;
-  if (red_init(&s, model, mu, dt, err, sizeof err) != 0) fail_msg("%s", err);
+  if (red_init(&s, model, 2, mu, dt, err, sizeof err) != 0) fail_msg("%s", err);
   s.integ = RED_RK4;
   print_message("%d cells: m_u %ld of %ld, m_f %ld of %d faces, m_g %ld, rank of D̂ %ld\n", m.nc, s.mu, U, s.mf, m.nf,
                 s.mg, s.drank);

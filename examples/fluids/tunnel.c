@@ -276,7 +276,7 @@ int tunnel_run(const TunnelOptions *o) {
   Ops ops;
   ops_init(&ops, &m);
   for (int i = 0; i < K; i++) {
-    if (red_init(&rs[i], models[i], o->mu, dt, err, sizeof err) != 0) {
+    if (red_init(&rs[i], models[i], 2, o->mu, dt, err, sizeof err) != 0) {
       fprintf(stderr, "npg-fluids: reduced model m_u %d: %s\n", o->mu_sizes[i], err);
       ops_free(&ops);
       goto done;
