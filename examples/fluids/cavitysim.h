@@ -18,6 +18,7 @@ typedef struct CavityOptions {
   int particles, png_every, vtk_every, width;
   double dt, nu;    /* time step; viscosity mu = nu * the smallest cell's volume */
   int mf, mu, mg;   /* basis caps: fluxes, velocities (the whole shared class), geometry */
+  double dtol;      /* rank tolerance of D̂ (red_constraints) */
 } CavityOptions;
 
 void cavity_options_default(CavityOptions *o);

@@ -50,7 +50,8 @@ static void usage(FILE *fp) {
         "                  [--png-every K] [--vtk-every K] [--width PX] [--keep-models 0|1]\n"
         "       npg-fluids mesh [--cells N] [--size S]\n"
         "       npg-fluids cavity --out DIR [--cells N] [--frames N] [--runs N] [--dt DT] [--nu NU]\n"
-        "                  [--mf N] [--mu N] [--mg N] [--particles N] [--png-every K] [--vtk-every K] [--width PX]\n"
+        "                  [--mf N] [--mu N] [--mg N] [--dtol X] [--particles N] [--png-every K] [--vtk-every K]\n"
+        "                  [--width PX]\n"
         "\n"
         "tunnel-full: full-space simulation of the periodic wind tunnel (paper §5, §7.1).\n"
         "  --frames N     steps, one per frame (200)\n"
@@ -81,7 +82,8 @@ static void usage(FILE *fp) {
         "  two side chambers, streamed into npg's trainer (caps --mf 64, --mu 128, --mg 5); the\n"
         "  test sequence (chamber 1 expanding while chamber 0 stays compressed) full and reduced,\n"
         "  --particles (10000) marker particles through the reduced flow; --dt (0.01), viscosity\n"
-        "  mu = --nu (5) times the smallest cell's volume; DIR/report.json (Table 1), DIR/frames/*.png,\n"
+        "  mu = --nu (5) times the smallest cell's volume; --dtol (1e-3) the rank tolerance of the\n"
+        "  reduced boundary constraints; DIR/report.json (Table 1), DIR/frames/*.png,\n"
         "  DIR/vtk/*.vtk (legacy VTK), DIR/plots/trajectory_error.png.\n",
         fp);
 }
@@ -486,7 +488,7 @@ static int cavity_cmd(int argc, char **argv) {
   for (int i = 2; i < argc; i++) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     static const char *known[] = {"--out", "--cells", "--frames", "--runs", "--dt", "--nu", "--mf", "--mu", "--mg",
-                                  "--particles", "--png-every", "--vtk-every", "--width"};
+                                  "--particles", "--png-every", "--vtk-every", "--width", "--dtol"};
     int bad = 1;
     for (size_t k = 0; k < sizeof known / sizeof *known; k++)
       if (!strcmp(a, known[k])) bad = 0;
@@ -500,6 +502,7 @@ static int cavity_cmd(int argc, char **argv) {
       return 2;
     }
     if (!strcmp(a, "--out")) o.out = v;
+    else if (!strcmp(a, "--dtol")) bad = parse_real(v, &o.dtol) || o.dtol < 0 || o.dtol >= 1;
     else if (!strcmp(a, "--cells")) bad = parse_int(v, &o.spec.cells) || o.spec.cells < 50;
     else if (!strcmp(a, "--frames")) bad = parse_int(v, &o.frames) || o.frames < 2;
     else if (!strcmp(a, "--runs")) bad = parse_int(v, &o.runs) || o.runs > 14;

@@ -312,6 +312,41 @@ static int eval_induced(RedSolver *s, void *vctx, const double *gc, double *out,
   return rc;
 }
 
+/* Constraint reduction (paper §6.4): D̂ = U Σ Vᵀ, rank r = the singular
+ * values above tol σ_0; N = V[:, r:] (the free directions), D̂⁺ = V_r Σ_r⁻¹
+ * U_rᵀ. */
+int red_constraints(RedSolver *s, double tol, char *err, size_t errlen) {
+  long mb = s->mb, mf = s->mf;
+  int rc = 0;
+  double *D = malloc((size_t)(mb * mf) * sizeof(double) + 8);
+  memcpy(D, s->D, (size_t)(mb * mf) * sizeof(double));
+  {
+    double *Uu = malloc((size_t)(mb * mb) * sizeof(double) + 8), *Vt = malloc((size_t)(mf * mf) * sizeof(double));
+    double *sv = malloc((size_t)(mb < mf ? mb : mf) * sizeof(double) + 8), *sup = malloc((size_t)(mb + mf) * sizeof(double));
+    long kmin = mb < mf ? mb : mf;
+    if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'A', 'A', mb, mf, D, mf, sv, Uu, mb, Vt, mf, sup) != 0) {
+      rc = fail(err, errlen, "SVD of the reduced boundary operator failed", NULL);
+    } else {
+      long r = 0;
+      for (long i = 0; i < kmin; i++)
+        if (sv[i] > tol * sv[0] && sv[i] > 1e-13) r++;
+      s->drank = r;
+      s->nn = mf - r;
+      for (long k = 0; k < mf; k++)
+        for (long j = 0; j < s->nn; j++) s->N[k * s->nn + j] = Vt[(r + j) * mf + k];
+      for (long k = 0; k < mf; k++)
+        for (long b = 0; b < mb; b++) {
+          double v = 0;
+          for (long i = 0; i < r; i++) v += Vt[i * mf + k] * Uu[b * mb + i] / sv[i];
+          s->Dpinv[k * mb + b] = v;
+        }
+    }
+    free(Uu), free(Vt), free(sv), free(sup);
+  }
+  free(D);
+  return rc;
+}
+
 int red_init(RedSolver *s, const NpgModel *model, int dim, double visc, double dt, char *err, size_t errlen) {
   memset(s, 0, sizeof *s);
   s->model = model;
@@ -428,30 +463,10 @@ int red_init(RedSolver *s, const NpgModel *model, int dim, double visc, double d
     gc[l] = 0;
   }
   if (rc) goto done;
-  /* constraint reduction: D̂ = U Σ Vᵀ; rank r; N = V[:, r:]; D̂⁺ = V_r Σ_r⁻¹ U_rᵀ */
-  {
-    double *Uu = malloc((size_t)(mb * mb) * sizeof(double) + 8), *Vt = malloc((size_t)(mf * mf) * sizeof(double));
-    double *sv = malloc((size_t)(mb < mf ? mb : mf) * sizeof(double) + 8), *sup = malloc((size_t)(mb + mf) * sizeof(double));
-    long kmin = mb < mf ? mb : mf;
-    if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'A', 'A', mb, mf, D, mf, sv, Uu, mb, Vt, mf, sup) != 0) {
-      rc = fail(err, errlen, "SVD of the reduced boundary operator failed", NULL);
-    } else {
-      long r = 0;
-      for (long i = 0; i < kmin; i++)
-        if (sv[i] > 1e-10 * sv[0] && sv[i] > 1e-13) r++;
-      s->drank = r;
-      s->nn = mf - r;
-      for (long k = 0; k < mf; k++)
-        for (long j = 0; j < s->nn; j++) s->N[k * s->nn + j] = Vt[(r + j) * mf + k];
-      for (long k = 0; k < mf; k++)
-        for (long b = 0; b < mb; b++) {
-          double v = 0;
-          for (long i = 0; i < r; i++) v += Vt[i * mf + k] * Uu[b * mb + i] / sv[i];
-          s->Dpinv[k * mb + b] = v;
-        }
-    }
-    free(Uu), free(Vt), free(sv), free(sup);
-  }
+  s->D = D;
+  D = NULL;
+  rc = red_constraints(s, 1e-10, err, errlen);
+  if (rc) goto done;
   s->seconds_setup = util_now() - t0;
 done:
   free(D), free(gc), free(fc), free(uc), free(gdc), free(pc), free(bc);
@@ -462,7 +477,7 @@ done:
 void red_free(RedSolver *s) {
   if (s->r) npg_reduced_free(s->r);
   free(s->Vs), free(s->Ps), free(s->As), free(s->Ahs), free(s->Bhs), free(s->wgt), free(s->L), free(s->Dpinv);
-  free(s->mono_v), free(s->mono_h), free(s->mvals);
+  free(s->mono_v), free(s->mono_h), free(s->mvals), free(s->D);
   free(s->N), free(s->g), free(s->f), free(s->u);
   free(s->gmid), free(s->gdot), free(s->b), free(s->A), free(s->M), free(s->E), free(s->V0), free(s->V1);
   free(s->P1), free(s->W), free(s->K), free(s->KN), free(s->Kn), free(s->work), free(s->tmp), free(s->tmp2), free(s->tmp3);

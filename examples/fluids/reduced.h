@@ -48,6 +48,7 @@ typedef struct RedSolver {
   double *wgt;     /* [nmh*mgd] */
   long evals;      /* reduced evaluations made by the set-up */
   double seconds_setup;
+  double *D;       /* [mb*mf] D̂ */
   double *Dpinv;   /* [mf*mb] */
   double *N;       /* [mf*nn] null space of D̂ */
   long nn, drank;
@@ -68,6 +69,12 @@ typedef struct RedSolver {
  * reason in err. */
 int red_init(RedSolver *s, const NpgModel *model, int dim, double visc, double dt, char *err, size_t errlen);
 void red_free(RedSolver *s);
+/* Constraint reduction with rank tolerance `tol` (relative to the largest
+ * singular value of D̂; red_init uses 1e-10): constraints along smaller
+ * singular values are dropped, since a boundary flux b̂ = D̂_h ĥ that is
+ * off D̂'s range by rounding or by the truncation of ĥ would be amplified by
+ * their inverse. 0, or -1. */
+int red_constraints(RedSolver *s, double tol, char *err, size_t errlen);
 /* Coordinates from full values: ĝ = B_gᵀ g, f̂ = B_fᵀ f, and the
  * energy-conserving projection û = V̂⁻¹(ĝ) B_uᵀ V(g) u (paper footnote 2),
  * where pv = V(g) u is given (full). */
