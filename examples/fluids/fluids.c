@@ -82,7 +82,7 @@ static void usage(FILE *fp) {
         "  two side chambers, streamed into npg's trainer (caps --mf 64, --mu 128, --mg 5); the\n"
         "  test sequence (chamber 1 expanding while chamber 0 stays compressed) full and reduced,\n"
         "  --particles (10000) marker particles through the reduced flow; --dt (0.01), viscosity\n"
-        "  mu = --nu (5) times the smallest cell's volume; --dtol (1e-3) the rank tolerance of the\n"
+        "  mu = --nu (5) times the smallest cell's volume; --dtol (1e-2) the rank tolerance of the\n"
         "  reduced boundary constraints; DIR/report.json (Table 1), DIR/frames/*.png,\n"
         "  DIR/vtk/*.vtk (legacy VTK), DIR/plots/trajectory_error.png.\n",
         fp);
@@ -480,6 +480,24 @@ static int mesh_info(const RunOptions *o) {
   return 0;
 }
 
+/* `a` is one of the `n` known options and has a value `v`; otherwise the
+ * message and -1. */
+static int option_known(const char *a, const char *v, const char *const *known, size_t n) {
+  int bad = 1;
+  for (size_t k = 0; k < n; k++)
+    if (!strcmp(a, known[k])) bad = 0;
+  if (bad) {
+    fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
+    usage(stderr);
+    return -1;
+  }
+  if (!v) {
+    fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
+    return -1;
+  }
+  return 0;
+}
+
 /* ---------------------------------------------------------------- cavity */
 
 static int cavity_cmd(int argc, char **argv) {
@@ -489,18 +507,8 @@ static int cavity_cmd(int argc, char **argv) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     static const char *known[] = {"--out", "--cells", "--frames", "--runs", "--dt", "--nu", "--mf", "--mu", "--mg",
                                   "--particles", "--png-every", "--vtk-every", "--width", "--dtol"};
-    int bad = 1;
-    for (size_t k = 0; k < sizeof known / sizeof *known; k++)
-      if (!strcmp(a, known[k])) bad = 0;
-    if (bad) {
-      fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
-      usage(stderr);
-      return 2;
-    }
-    if (!v) {
-      fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
-      return 2;
-    }
+    if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
+    int bad = 0;
     if (!strcmp(a, "--out")) o.out = v;
     else if (!strcmp(a, "--dtol")) bad = parse_real(v, &o.dtol) || o.dtol < 0 || o.dtol >= 1;
     else if (!strcmp(a, "--cells")) bad = parse_int(v, &o.spec.cells) || o.spec.cells < 50;
@@ -534,18 +542,8 @@ static int tunnel_cmd(int argc, char **argv) {
     static const char *known[] = {"--out", "--frames", "--cells", "--particles", "--png-every", "--vtk-every",
                                   "--width", "--sizes", "--pulse", "--period", "--mu", "--cfl", "--keep-models",
                                   "--mg"};
-    int bad = 1;
-    for (size_t k = 0; k < sizeof known / sizeof *known; k++)
-      if (!strcmp(a, known[k])) bad = 0;
-    if (bad) {
-      fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
-      usage(stderr);
-      return 2;
-    }
-    if (!v) {
-      fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
-      return 2;
-    }
+    if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
+    int bad = 0;
     if (!strcmp(a, "--out")) o.out = v;
     else if (!strcmp(a, "--frames")) bad = parse_int(v, &o.frames) || o.frames < 2;
     else if (!strcmp(a, "--cells")) bad = parse_int(v, &o.spec.cells);

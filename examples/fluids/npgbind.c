@@ -68,3 +68,19 @@ int fluid_bind(NpgFull *f, const Mesh *m, double mu) {
   fluid_params_free(p);
   return rc ? -1 : 0;
 }
+
+void fluid_train_options(NpgTrainOptions *to, FluidBasisOptions *b, int cap_u, int cap_f, int cap_g, int cap_h) {
+  npg_train_options_default(to);
+  const char *names[11] = {"u", "p", "pv", "pdot", "lap", "f", "g", "gdot", "h", "bf", "bh"};
+  int caps[11] = {cap_u, 1, 1, 1, 1, cap_f, cap_g, cap_g, cap_h, 60, 60};
+  double en[11] = {1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-9,
+                   1 - 1e-13, 1 - 1e-13, 1 - 1e-13, 1 - 1e-13, 1 - 1e-13};
+  memcpy(b->names, names, sizeof names);
+  memcpy(b->caps, caps, sizeof caps);
+  memcpy(b->energies, en, sizeof en);
+  to->nbasis = 11;
+  to->basis_name = b->names;
+  to->basis_cap = b->caps;
+  to->basis_energy = b->energies;
+  to->progress = false;
+}

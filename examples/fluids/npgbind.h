@@ -28,4 +28,18 @@ void fluid_params_free(FluidParam p[FLUID_NPARAMS]);
 /* Bind them in f. 0, or -1 with npg_full_error(f). */
 int fluid_bind(NpgFull *f, const Mesh *m, double mu);
 
+/* The trainer's options for the fluid programs: per-member caps of u (the
+ * shared class gets one more vector from each of p, pv, pdot, lap, whose
+ * caps are 1), f, g, gdot, h and the boundary class {bf, bh} (60: complete,
+ * constraint reduction needs D B_f and D_h B_h inside span B_d). Energies:
+ * the caps decide, except where the snapshots run out; directions below
+ * these fractions are rounding noise (a B_f column of noise is not
+ * divergence-free to 1e-10). `names` holds the arrays `to` points into. */
+typedef struct FluidBasisOptions {
+  const char *names[11];
+  int caps[11];
+  double energies[11];
+} FluidBasisOptions;
+void fluid_train_options(NpgTrainOptions *to, FluidBasisOptions *names, int cap_u, int cap_f, int cap_g, int cap_h);
+
 #endif

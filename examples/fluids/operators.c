@@ -225,3 +225,14 @@ double ops_energy(const Ops *o, const double *u) {
     for (int d = 0; d < dim; d++) e += o->area[c] * u[dim * c + d] * u[dim * c + d];
   return 0.5 * e;
 }
+
+double ops_max_column_divergence(const Ops *o, const double *B, long nf, long m) {
+  double worst = 0, *col = malloc(nf * sizeof *col), *d = malloc(o->div.nrow * sizeof *d);
+  for (long k = 0; k < m; k++) {
+    for (long j = 0; j < nf; j++) col[j] = B[j * m + k];
+    csr_mv(&o->div, col, d);
+    for (int c = 0; c < o->div.nrow; c++) worst = d[c] > worst ? d[c] : -d[c] > worst ? -d[c] : worst;
+  }
+  free(col), free(d);
+  return worst;
+}

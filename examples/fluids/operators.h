@@ -71,4 +71,8 @@ void ops_velocity_from_flux(const Ops *o, const double *f, double *u);
 /* Energy 1/2 u^T V u (paper §A.1), with the geometry last set. */
 double ops_energy(const Ops *o, const double *u);
 
+/* max over the columns of B (nf x m, row-major) of max_c |div column|: a
+ * flux basis built from projected snapshots is divergence-free (§6.3). */
+double ops_max_column_divergence(const Ops *o, const double *B, long nf, long m);
+
 #endif

@@ -6,6 +6,9 @@
 #include <string.h>
 
 void particles_free(Particles *p) {
+  free(p->stamp);
+  free(p->vel);
+  free(p->bary);
   free(p->x);
   free(p->cell);
   free(p->tag);
@@ -167,6 +170,88 @@ void particles_advect(Particles *p, const Mesh *m, const double *g, const double
       particles_cell_velocity(m, g, f, p->cell[i], u);
       for (int d = 0; d < dim; d++) x[d] += h * u[d];
       p->walk_steps += particles_locate(m, g, x, &p->cell[i]);
+    }
+  }
+}
+
+/* ---------------------------------------------------------------- 3D, cached per frame */
+
+/* Cell c's velocity (Eq. 13) and barycentric map (λ_1..3 = M (x - g_0),
+ * λ_0 = 1 - their sum), computed on the first visit of the frame. */
+static void visit(Particles *p, const Mesh *m, const double *g, const double *f, int c) {
+  if (p->stamp[c] == p->frame) return;
+  p->stamp[c] = p->frame;
+  particles_cell_velocity(m, g, f, c, p->vel + 3 * c);
+  const int *t = m->cell + 4 * c;
+  const double *a = g + 3 * t[0];
+  double e[3][3], *B = p->bary + 12 * c;
+  for (int k = 0; k < 3; k++)
+    for (int d = 0; d < 3; d++) e[d][k] = g[3 * t[k + 1] + d] - a[d]; /* columns: the edges from g_0 */
+  double det = e[0][0] * (e[1][1] * e[2][2] - e[1][2] * e[2][1]) - e[0][1] * (e[1][0] * e[2][2] - e[1][2] * e[2][0]) +
+               e[0][2] * (e[1][0] * e[2][1] - e[1][1] * e[2][0]);
+  B[0] = (e[1][1] * e[2][2] - e[1][2] * e[2][1]) / det;
+  B[1] = (e[0][2] * e[2][1] - e[0][1] * e[2][2]) / det;
+  B[2] = (e[0][1] * e[1][2] - e[0][2] * e[1][1]) / det;
+  B[3] = (e[1][2] * e[2][0] - e[1][0] * e[2][2]) / det;
+  B[4] = (e[0][0] * e[2][2] - e[0][2] * e[2][0]) / det;
+  B[5] = (e[0][2] * e[1][0] - e[0][0] * e[1][2]) / det;
+  B[6] = (e[1][0] * e[2][1] - e[1][1] * e[2][0]) / det;
+  B[7] = (e[0][1] * e[2][0] - e[0][0] * e[2][1]) / det;
+  B[8] = (e[0][0] * e[1][1] - e[0][1] * e[1][0]) / det;
+  B[9] = a[0], B[10] = a[1], B[11] = a[2];
+}
+
+static int locate3(Particles *p, const Mesh *m, const double *g, const double *f, double *x, int *cell) {
+  int c = *cell, steps = 0;
+  if (!isfinite(x[0]) || !isfinite(x[1]) || !isfinite(x[2])) return 0;
+  for (; steps < 4 * m->nc; steps++) {
+    visit(p, m, g, f, c);
+    const double *B = p->bary + 12 * c;
+    double y[3] = {x[0] - B[9], x[1] - B[10], x[2] - B[11]}, lam[4];
+    lam[1] = B[0] * y[0] + B[1] * y[1] + B[2] * y[2];
+    lam[2] = B[3] * y[0] + B[4] * y[1] + B[5] * y[2];
+    lam[3] = B[6] * y[0] + B[7] * y[1] + B[8] * y[2];
+    lam[0] = 1 - lam[1] - lam[2] - lam[3];
+    int k = 0;
+    for (int q = 1; q < 4; q++)
+      if (lam[q] < lam[k]) k = q;
+    if (lam[k] >= -1e-12) break;
+    int n = m->nbr[4 * c + k];
+    if (n >= 0) {
+      c = n;
+      continue;
+    }
+    /* a wall: back onto the cell */
+    double s = 0;
+    for (int q = 0; q < 4; q++) s += lam[q] = lam[q] > 0 ? lam[q] : 0;
+    const int *t = m->cell + 4 * c;
+    for (int d = 0; d < 3; d++)
+      x[d] = (lam[0] * g[3 * t[0] + d] + lam[1] * g[3 * t[1] + d] + lam[2] * g[3 * t[2] + d] + lam[3] * g[3 * t[3] + d]) / s;
+    break;
+  }
+  *cell = c;
+  return steps;
+}
+
+void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps) {
+  if (m->dim != 3) {
+    particles_advect(p, m, g, f, dt, substeps);
+    return;
+  }
+  if (!p->stamp) {
+    p->stamp = calloc(m->nc, sizeof *p->stamp);
+    p->vel = malloc(3 * (size_t)m->nc * sizeof *p->vel);
+    p->bary = malloc(12 * (size_t)m->nc * sizeof *p->bary);
+  }
+  p->frame++;
+  double h = dt / substeps;
+  for (int i = 0; i < p->n; i++) {
+    double *x = p->x + 3 * i;
+    p->walk_steps += locate3(p, m, g, f, x, &p->cell[i]);
+    for (int s = 0; s < substeps; s++) {
+      const double *u = p->vel + 3 * p->cell[i];
+      x[0] += h * u[0], x[1] += h * u[1], x[2] += h * u[2];
+      p->walk_steps += locate3(p, m, g, f, x, &p->cell[i]);
     }
   }
 }

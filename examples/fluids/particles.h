@@ -18,6 +18,10 @@ typedef struct Particles {
   int *cell;   /* [n] */
   int *tag;    /* [n] colour class: the parity of the streak it started in */
   long walk_steps; /* faces crossed, summed */
+  /* particles_advect_cached: per cell, the frame it was last visited in,
+   * its velocity and barycentric map then (allocated on first use) */
+  int frame, *stamp;
+  double *vel, *bary;
 } Particles;
 
 /* n particles uniformly distributed over 12 thin streaks of the fluid at
@@ -33,5 +37,11 @@ int particles_locate(const Mesh *m, const double *g, double *x, int *cell);
 /* Advance every particle by dt in `substeps` Euler substeps through the flux
  * field f on the mesh at g (paper: ten substeps per frame). */
 void particles_advect(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps);
+
+/* The same in 3D with each visited cell's velocity and barycentric map
+ * computed once per call (the flow and the mesh are fixed over the frame):
+ * the cost follows the cells the particles visit, never the mesh size
+ * (paper §6.5: Eq. 13 evaluated locally). In 2D it is particles_advect. */
+void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps);
 
 #endif

@@ -136,13 +136,8 @@ static void test_cavity_reduced_step(void **state) {
   NpgFull *fe = npg_full_new(prog, NPG_TCC);
   if (fluid_bind(fe, m, mu) != 0) fail_msg("%s", npg_full_error(fe));
   NpgTrainOptions to;
-  npg_train_options_default(&to);
-  to.progress = false;
-  const char *names[11] = {"u", "p", "pv", "pdot", "lap", "f", "g", "gdot", "h", "bf", "bh"};
-  int caps[11] = {60, 1, 1, 1, 1, 40, 5, 5, 60, 60, 60};
-  double en[11] = {1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-9,
-                   1 - 1e-13, 1 - 1e-13, 1 - 1e-13, 1 - 1e-13, 1 - 1e-13};
-  to.nbasis = 11, to.basis_name = names, to.basis_cap = caps, to.basis_energy = en;
+  FluidBasisOptions bo;
+  fluid_train_options(&to, &bo, 60, 40, 5, 60);
   NpgTrainer *tr = npg_trainer_new(fe, &to);
   /* one training run (chamber 0 compressed and re-inflated), its states kept */
   double *G = malloc((FRAMES + 1) * ng * sizeof *G), *Fx = malloc((FRAMES + 1) * nf * sizeof *Fx);
