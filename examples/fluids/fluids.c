@@ -52,6 +52,7 @@ static void usage(FILE *fp) {
         "       npg-fluids cavity --out DIR [--cells N] [--frames N] [--runs N] [--dt DT] [--nu NU]\n"
         "                  [--mf N] [--mu N] [--mg N] [--dtol X] [--particles N] [--png-every K] [--vtk-every K]\n"
         "                  [--width PX]\n"
+        "       npg-fluids cavity-mesh [--cells N]         the cavity's mesh statistics as JSON\n"
         "\n"
         "tunnel-full: full-space simulation of the periodic wind tunnel (paper §5, §7.1).\n"
         "  --frames N     steps, one per frame (200)\n"
@@ -532,6 +533,43 @@ static int cavity_cmd(int argc, char **argv) {
   return cavity_run(&o);
 }
 
+/* npg-fluids cavity-mesh --cells N: the cavity's mesh statistics as JSON,
+ * and one deformation (the deepest of the training and test scales). */
+static int cavity_mesh_cmd(int argc, char **argv) {
+  CavitySpec spec = cavity_spec_default();
+  if (argc == 4 && !strcmp(argv[2], "--cells")) {
+    if (parse_int(argv[3], &spec.cells) || spec.cells < 50) {
+      fprintf(stderr, "npg-fluids: option '--cells': invalid value '%s'\n", argv[3]);
+      return 2;
+    }
+  } else if (argc != 2) {
+    usage(stderr);
+    return 2;
+  }
+  char err[ERRLEN];
+  Cavity cv;
+  double t0 = util_now();
+  if (cavity_mesh(&cv, &spec, err, sizeof err) != 0) {
+    fprintf(stderr, "npg-fluids: %s\n", err);
+    return 1;
+  }
+  double t1 = util_now();
+  double *g = malloc(3 * (size_t)cv.m.nv * sizeof *g), sigma[CAVITY_SIDES] = {0.75, 0.8, 1.0}, kappa = 1;
+  int rc = cavity_deform(&cv, sigma, g, &kappa, err, sizeof err);
+  double t2 = util_now();
+  if (rc == 0)
+    printf("{\"cells\": %d, \"faces\": %d, \"boundary_faces\": %d, \"vertices\": %d, \"mesh_seconds\": %.3f, "
+           "\"min_quality\": %.4f, \"deformed_min_quality\": %.4f, \"deformation_seconds\": %.4f, \"kappa\": %.6f, "
+           "\"volume_change_relative\": %.3g}\n",
+           cv.m.nc, cv.m.nf, cv.m.nb, cv.m.nv, t1 - t0, mesh_min_quality(&cv.m, cv.m.g0, NULL),
+           mesh_min_quality(&cv.m, g, NULL), t2 - t1, kappa, mesh_fluid_volume(&cv.m, g) / cv.volume0 - 1);
+  else
+    fprintf(stderr, "npg-fluids: %s\n", err);
+  free(g);
+  cavity_free(&cv);
+  return rc ? 1 : 0;
+}
+
 /* ---------------------------------------------------------------- tunnel */
 
 static int tunnel_cmd(int argc, char **argv) {
@@ -589,6 +627,7 @@ int main(int argc, char **argv) {
   openblas_set_num_threads(1);
   if (!strcmp(argv[1], "tunnel")) return tunnel_cmd(argc, argv);
   if (!strcmp(argv[1], "cavity")) return cavity_cmd(argc, argv);
+  if (!strcmp(argv[1], "cavity-mesh")) return cavity_mesh_cmd(argc, argv);
   RunOptions o;
   if (parse_options(argc, argv, &o) != 0) return 2;
   if (!strcmp(argv[1], "tunnel-full")) return tunnel_full(&o);
