@@ -217,20 +217,9 @@ static int build_topology(Mesh *m, RawTets *raw, char *err, size_t errlen) {
     }
     int f = m->nf++, c0 = hf[i].c, k0 = hf[i].k;
     orient_face(m, f, c0, k0);
-    m->cface[4 * c0 + k0] = f;
-    m->csign[4 * c0 + k0] = 1;
-    m->fcell[2 * f] = c0;
-    if (j - i == 2) {
-      int c1 = hf[i + 1].c, k1 = hf[i + 1].k;
-      m->cface[4 * c1 + k1] = f;
-      m->csign[4 * c1 + k1] = -1;
-      m->nbr[4 * c0 + k0] = c1;
-      m->nbr[4 * c1 + k1] = c0;
-      m->fcell[2 * f + 1] = c1;
-      m->fkind[f] = BF_INTERIOR;
-    } else {
-      m->nbr[4 * c0 + k0] = -1;
-      m->fcell[2 * f + 1] = -1;
+    int c1 = j - i == 2 ? hf[i + 1].c : -1, k1 = j - i == 2 ? hf[i + 1].k : -1;
+    mesh_link_face(m, f, c0, k0, c1, k1);
+    if (c1 < 0) {
       m->fkind[f] = BF_WALL;
       m->bface[m->nb++] = f;
     }

@@ -103,6 +103,24 @@ static int parse_real(const char *s, double *v) {
   return (*end || end == s || !isfinite(*v)) ? -1 : 0;
 }
 
+/* `a` is one of the `n` known options and has a value `v`; otherwise the
+ * message and -1. */
+static int option_known(const char *a, const char *v, const char *const *known, size_t n) {
+  int bad = 1;
+  for (size_t k = 0; k < n; k++)
+    if (!strcmp(a, known[k])) bad = 0;
+  if (bad) {
+    fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
+    usage(stderr);
+    return -1;
+  }
+  if (!v) {
+    fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
+    return -1;
+  }
+  return 0;
+}
+
 static int parse_options(int argc, char **argv, RunOptions *o) {
   *o = (RunOptions){.frames = 200, .particles = 3000, .png_every = 1, .vtk_every = 10, .png_width = 800,
                     .scale = 1, .pulse = 0.2, .period = 100, .mu = 0.002, .cfl = 0.25, .u0 = 1, .projection = PROJ_STREAM_CHOLMOD,
@@ -112,18 +130,8 @@ static int parse_options(int argc, char **argv, RunOptions *o) {
     static const char *known[] = {"--out", "--frames", "--cells", "--particles", "--png-every", "--vtk-every",
                                   "--width", "--size", "--scale", "--pulse", "--period", "--mu", "--cfl", "--u0",
                                   "--projection"};
-    int bad = 1;
-    for (size_t k = 0; k < sizeof known / sizeof *known; k++)
-      if (!strcmp(a, known[k])) bad = 0;
-    if (bad) {
-      fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
-      usage(stderr);
-      return -1;
-    }
-    if (!v) {
-      fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
-      return -1;
-    }
+    if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return -1;
+    int bad = 0;
     if (!strcmp(a, "--out")) o->out = v;
     else if (!strcmp(a, "--frames")) bad = parse_int(v, &o->frames);
     else if (!strcmp(a, "--cells")) bad = parse_int(v, &o->spec.cells);
@@ -478,24 +486,6 @@ static int mesh_info(const RunOptions *o) {
          m.nc, m.nf, m.nv, walls, obstacle, periodic, mesh_min_quality(&m, m.g0, NULL), mesh_fluid_volume(&m, m.g0),
          t1 - t0);
   mesh_free(&m);
-  return 0;
-}
-
-/* `a` is one of the `n` known options and has a value `v`; otherwise the
- * message and -1. */
-static int option_known(const char *a, const char *v, const char *const *known, size_t n) {
-  int bad = 1;
-  for (size_t k = 0; k < n; k++)
-    if (!strcmp(a, known[k])) bad = 0;
-  if (bad) {
-    fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
-    usage(stderr);
-    return -1;
-  }
-  if (!v) {
-    fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
-    return -1;
-  }
   return 0;
 }
 

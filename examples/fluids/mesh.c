@@ -44,6 +44,20 @@ double mesh_volume(const Mesh *m, const double *g, int c) {
   return 0.5 * ((b[0] - a[0]) * (d[1] - a[1]) - (b[1] - a[1]) * (d[0] - a[0]));
 }
 
+void mesh_link_face(Mesh *m, int f, int c0, int k0, int c1, int k1) {
+  int nk = m->nk;
+  m->cface[nk * c0 + k0] = f;
+  m->csign[nk * c0 + k0] = 1;
+  m->fcell[2 * f] = c0;
+  m->nbr[nk * c0 + k0] = c1;
+  m->fcell[2 * f + 1] = c1;
+  if (c1 < 0) return;
+  m->cface[nk * c1 + k1] = f;
+  m->csign[nk * c1 + k1] = -1;
+  m->nbr[nk * c1 + k1] = c0;
+  m->fkind[f] = BF_INTERIOR;
+}
+
 double mesh_fluid_volume(const Mesh *m, const double *g) {
   double s = 0;
   for (int c = 0; c < m->nc; c++) s += mesh_volume(m, g, c);
@@ -288,17 +302,9 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
     int va = m->cell[3 * c0 + (k0 + 1) % 3], vb = m->cell[3 * c0 + (k0 + 2) % 3];
     m->face[2 * f] = va; /* counter-clockwise in c0: the normal points out of c0 */
     m->face[2 * f + 1] = vb;
-    m->cface[3 * c0 + k0] = f;
-    m->csign[3 * c0 + k0] = 1;
-    m->fcell[2 * f] = c0;
-    if (j - i == 2) {
-      int c1 = he[i + 1].c, k1 = he[i + 1].k;
-      m->cface[3 * c1 + k1] = f;
-      m->csign[3 * c1 + k1] = -1;
-      m->nbr[3 * c0 + k0] = c1;
-      m->nbr[3 * c1 + k1] = c0;
-      m->fcell[2 * f + 1] = c1;
-      m->fkind[f] = BF_INTERIOR;
+    int c1 = j - i == 2 ? he[i + 1].c : -1, k1 = j - i == 2 ? he[i + 1].k : -1;
+    mesh_link_face(m, f, c0, k0, c1, k1);
+    if (c1 >= 0) {
       /* periodic face: c1 sees the edge L away from where c0 sees it */
       int wa = m->cell[3 * c1 + (k1 + 2) % 3]; /* c1 runs the edge the other way: its copy of va */
       if (master[wa] != master[va]) wa = m->cell[3 * c1 + (k1 + 1) % 3];
@@ -307,8 +313,6 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
       m->nshift[3 * c0 + k0] = sh;
       m->nshift[3 * c1 + k1] = -sh;
     } else {
-      m->nbr[3 * c0 + k0] = -1;
-      m->fcell[2 * f + 1] = -1;
       double ya = m->g0[2 * va + 1], yb = m->g0[2 * vb + 1], xa = m->g0[2 * va], xb = m->g0[2 * vb];
       double tol = 1e-9 * s->H;
       if ((fabs(ya) < tol && fabs(yb) < tol) || (fabs(ya - s->H) < tol && fabs(yb - s->H) < tol))

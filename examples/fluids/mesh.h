@@ -89,6 +89,10 @@ void mesh_free(Mesh *m);
  * holds the inverted positions (for inspection only). */
 int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen);
 
+/* Face f is face k0 of cell c0 (its normal out of c0) and face k1 of cell
+ * c1 (c1 = -1 on the boundary): cface, csign, nbr, fcell, and fkind
+ * BF_INTERIOR for two cells (a boundary face's kind is the caller's). */
+void mesh_link_face(Mesh *m, int f, int c0, int k0, int c1, int k1);
 /* Signed area (2D) or volume (3D) of cell c at positions g. */
 double mesh_volume(const Mesh *m, const double *g, int c);
 /* Minimum over cells of the quality, 1 for a regular simplex, 0 degenerate,
