@@ -12,7 +12,9 @@
  *                        boundary fluxes sum to zero: |Σ h_b| dt ≤ 1e-13 of the
  *                        fluid volume (the swept volumes, exact; the deformation
  *                        keeps the volume to rounding)
- *   cavity_reduced_step  a model trained through npg.h on one training run: on
+ *   cavity_reduced_step  a model trained through npg.h on one training run: V̂(ĝ)
+ *                        from its cubic slices equals B_uᵀ V(B_g ĝ) B_u to 1e-12
+ *                        of its largest entry; on
  *                        that trajectory, the reduced step (RK4, as the full one)
  *                        from the projected full state agrees with the full step
  *                        from the lifted state, projected onto the bases, to
@@ -173,6 +175,26 @@ static void test_cavity_reduced_step(void **state) {
   R.integ = RED_RK4;
   print_message("%d cells; m_u %ld, m_f %ld, m_g %ld, m_gdot %ld, m_d %ld (rank of D̂ %ld)\n", m->nc, R.mu, R.mf, R.mg,
                 R.mgd, R.mb, R.drank);
+  /* V̂(ĝ) from its slices (read off npg's pv by polarization) against
+   * B_uᵀ V(B_g ĝ) B_u assembled here */
+  {
+    double *gl = malloc(ng * sizeof *gl), *V = malloc(R.mu * R.mu * sizeof *V), worst_v = 0, big = 0;
+    red_project_g(&R, G + 30 * ng, R.g);
+    lift(R.Bg, ng, R.mg, R.g, gl);
+    red_volume(&R, R.g, V);
+    for (long a = 0; a < R.mu; a++)
+      for (long b = 0; b < R.mu; b++) {
+        double x = 0;
+        for (long c = 0; c < C; c++) {
+          double vol = mesh_volume(m, gl, (int)c);
+          for (int d = 0; d < 3; d++) x += R.Bu[(3 * c + d) * R.mu + a] * vol * R.Bu[(3 * c + d) * R.mu + b];
+        }
+        worst_v = fmax(worst_v, fabs(x - V[a * R.mu + b])), big = fmax(big, fabs(x));
+      }
+    print_message("V̂ from slices against B_uᵀ V B_u: %.3g of its largest entry\n", worst_v / big);
+    assert_true(worst_v <= 1e-12 * big);
+    free(gl), free(V);
+  }
   double *pv = malloc(nu * sizeof *pv), *ub = malloc(nu * sizeof *ub), *uc = malloc(R.mu * sizeof *uc);
   double *gn = malloc(R.mg * sizeof *gn), *gdc = malloc(R.mgd * sizeof *gdc), worst = 0;
   for (int t = 1; t < FRAMES; t++) {
