@@ -28,6 +28,7 @@
 #include "particles.h"
 #include "solver.h"
 #include "tunnel.h"
+#include "cavitysim.h"
 
 #define ERRLEN 512
 
@@ -48,6 +49,10 @@ static void usage(FILE *fp) {
         "                  [--pulse A] [--period P] [--mu MU] [--cfl C] [--mg N] [--particles N]\n"
         "                  [--png-every K] [--vtk-every K] [--width PX] [--keep-models 0|1]\n"
         "       npg-fluids mesh [--cells N] [--size S]\n"
+        "       npg-fluids cavity --out DIR [--cells N] [--frames N] [--runs N] [--dt DT] [--nu NU]\n"
+        "                  [--mf N] [--mu N] [--mg N] [--dtol X] [--particles N] [--png-every K] [--vtk-every K]\n"
+        "                  [--width PX]\n"
+        "       npg-fluids cavity-mesh [--cells N]         the cavity's mesh statistics as JSON\n"
         "\n"
         "tunnel-full: full-space simulation of the periodic wind tunnel (paper §5, §7.1).\n"
         "  --frames N     steps, one per frame (200)\n"
@@ -70,7 +75,17 @@ static void usage(FILE *fp) {
         "  test run with a medium obstacle (1.0) and per frame the one-step error of every\n"
         "  model, the reduced test run of the largest model with particles; DIR/report.json,\n"
         "  DIR/plots/*.png, DIR/frames/frame_NNNN.png (full | reduced), DIR/vtk/*.vtu, *.pvd.\n"
-        "  --frames N per run (300), --png-every and --vtk-every (25), --width (640)\n",
+        "  --frames N per run (300), --png-every and --vtk-every (25), --width (640)\n"
+        "\n"
+        "cavity: paper §7.2, Fig. 6, Table 1. The 3D cavity (a central chamber and three side\n"
+        "  chambers joined by thin tunnels) tetrahedralized by gmsh (--cells, 20000); --runs full\n"
+        "  training runs (14) of --frames frames (100) each compressing and re-inflating one or\n"
+        "  two side chambers, streamed into npg's trainer (caps --mf 64, --mu 128, --mg 5); the\n"
+        "  test sequence (chamber 1 expanding while chamber 0 stays compressed) full and reduced,\n"
+        "  --particles (10000) marker particles through the reduced flow; --dt (0.01), viscosity\n"
+        "  mu = --nu (5) times the smallest cell's volume; --dtol (1e-2) the rank tolerance of the\n"
+        "  reduced boundary constraints; DIR/report.json (Table 1), DIR/frames/*.png,\n"
+        "  DIR/vtk/*.vtk (legacy VTK), DIR/plots/trajectory_error.png.\n",
         fp);
 }
 
@@ -88,6 +103,24 @@ static int parse_real(const char *s, double *v) {
   return (*end || end == s || !isfinite(*v)) ? -1 : 0;
 }
 
+/* `a` is one of the `n` known options and has a value `v`; otherwise the
+ * message and -1. */
+static int option_known(const char *a, const char *v, const char *const *known, size_t n) {
+  int bad = 1;
+  for (size_t k = 0; k < n; k++)
+    if (!strcmp(a, known[k])) bad = 0;
+  if (bad) {
+    fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
+    usage(stderr);
+    return -1;
+  }
+  if (!v) {
+    fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
+    return -1;
+  }
+  return 0;
+}
+
 static int parse_options(int argc, char **argv, RunOptions *o) {
   *o = (RunOptions){.frames = 200, .particles = 3000, .png_every = 1, .vtk_every = 10, .png_width = 800,
                     .scale = 1, .pulse = 0.2, .period = 100, .mu = 0.002, .cfl = 0.25, .u0 = 1, .projection = PROJ_STREAM_CHOLMOD,
@@ -97,18 +130,8 @@ static int parse_options(int argc, char **argv, RunOptions *o) {
     static const char *known[] = {"--out", "--frames", "--cells", "--particles", "--png-every", "--vtk-every",
                                   "--width", "--size", "--scale", "--pulse", "--period", "--mu", "--cfl", "--u0",
                                   "--projection"};
-    int bad = 1;
-    for (size_t k = 0; k < sizeof known / sizeof *known; k++)
-      if (!strcmp(a, known[k])) bad = 0;
-    if (bad) {
-      fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
-      usage(stderr);
-      return -1;
-    }
-    if (!v) {
-      fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
-      return -1;
-    }
+    if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return -1;
+    int bad = 0;
     if (!strcmp(a, "--out")) o->out = v;
     else if (!strcmp(a, "--frames")) bad = parse_int(v, &o->frames);
     else if (!strcmp(a, "--cells")) bad = parse_int(v, &o->spec.cells);
@@ -159,8 +182,8 @@ static double sigma_at(const RunOptions *o, int frame) {
 /* FNV-1a of the topology and rest positions: equal hashes, same mesh. */
 static unsigned long long mesh_hash(const Mesh *m) {
   unsigned long long h = 1469598103934665603ull;
-  const unsigned char *p[2] = {(const unsigned char *)m->tri, (const unsigned char *)m->g0};
-  size_t n[2] = {3 * (size_t)m->nc * sizeof *m->tri, 2 * (size_t)m->nv * sizeof *m->g0};
+  const unsigned char *p[2] = {(const unsigned char *)m->cell, (const unsigned char *)m->g0};
+  size_t n[2] = {3 * (size_t)m->nc * sizeof *m->cell, 2 * (size_t)m->nv * sizeof *m->g0};
   for (int k = 0; k < 2; k++)
     for (size_t i = 0; i < n[k]; i++) h = (h ^ p[k][i]) * 1099511628211ull;
   return h;
@@ -169,7 +192,7 @@ static unsigned long long mesh_hash(const Mesh *m) {
 static double mean_edge(const Mesh *m) {
   double s = 0;
   for (int j = 0; j < m->nf; j++) {
-    const double *a = m->g0 + 2 * m->edge[2 * j], *b = m->g0 + 2 * m->edge[2 * j + 1];
+    const double *a = m->g0 + 2 * m->face[2 * j], *b = m->g0 + 2 * m->face[2 * j + 1];
     s += hypot(b[0] - a[0], b[1] - a[1]);
   }
   return s / m->nf;
@@ -210,8 +233,8 @@ static int save(const char *dir, const char *name, SaveType type, int ndim, cons
 static int save_params(const char *dir, const Mesh *m, double mu) {
   long c3[2] = {m->nc, 3}, f2[2] = {m->nf, 2}, b1[1] = {m->nb};
   int rc = 0;
-  rc |= save(dir, "tri", SAVE_INT, 2, c3, m->tri);
-  rc |= save(dir, "edge", SAVE_INT, 2, f2, m->edge);
+  rc |= save(dir, "tri", SAVE_INT, 2, c3, m->cell);
+  rc |= save(dir, "edge", SAVE_INT, 2, f2, m->face);
   rc |= save(dir, "cface", SAVE_INT, 2, c3, m->cface);
   rc |= save(dir, "csign", SAVE_F64, 2, c3, m->csign);
   rc |= save(dir, "nbr", SAVE_INT, 2, c3, m->nbr);
@@ -460,10 +483,81 @@ static int mesh_info(const RunOptions *o) {
   for (int i = 0; i < 3 * m.nc; i++) periodic += m.nshift[i] > 0;
   printf("{\"cells\": %d, \"faces\": %d, \"vertices\": %d, \"wall_faces\": %d, \"obstacle_faces\": %d, "
          "\"periodic_faces\": %d, \"min_quality\": %.4f, \"fluid_area\": %.12g, \"mesh_seconds\": %.4f}\n",
-         m.nc, m.nf, m.nv, walls, obstacle, periodic, mesh_min_quality(&m, m.g0, NULL), mesh_fluid_area(&m, m.g0),
+         m.nc, m.nf, m.nv, walls, obstacle, periodic, mesh_min_quality(&m, m.g0, NULL), mesh_fluid_volume(&m, m.g0),
          t1 - t0);
   mesh_free(&m);
   return 0;
+}
+
+/* ---------------------------------------------------------------- cavity */
+
+static int cavity_cmd(int argc, char **argv) {
+  CavityOptions o;
+  cavity_options_default(&o);
+  for (int i = 2; i < argc; i++) {
+    const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+    static const char *known[] = {"--out", "--cells", "--frames", "--runs", "--dt", "--nu", "--mf", "--mu", "--mg",
+                                  "--particles", "--png-every", "--vtk-every", "--width", "--dtol"};
+    if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
+    int bad = 0;
+    if (!strcmp(a, "--out")) o.out = v;
+    else if (!strcmp(a, "--dtol")) bad = parse_real(v, &o.dtol) || o.dtol < 0 || o.dtol >= 1;
+    else if (!strcmp(a, "--cells")) bad = parse_int(v, &o.spec.cells) || o.spec.cells < 50;
+    else if (!strcmp(a, "--frames")) bad = parse_int(v, &o.frames) || o.frames < 2;
+    else if (!strcmp(a, "--runs")) bad = parse_int(v, &o.runs) || o.runs > 14;
+    else if (!strcmp(a, "--dt")) bad = parse_real(v, &o.dt) || o.dt <= 0;
+    else if (!strcmp(a, "--nu")) bad = parse_real(v, &o.nu) || o.nu < 0;
+    else if (!strcmp(a, "--mf")) bad = parse_int(v, &o.mf) || o.mf < 2 || o.mf > 512;
+    else if (!strcmp(a, "--mu")) bad = parse_int(v, &o.mu) || o.mu < 6 || o.mu > 512;
+    else if (!strcmp(a, "--mg")) bad = parse_int(v, &o.mg) || o.mg < 1 || o.mg > 16;
+    else if (!strcmp(a, "--particles")) bad = parse_int(v, &o.particles);
+    else if (!strcmp(a, "--png-every")) bad = parse_int(v, &o.png_every) || o.png_every < 1;
+    else if (!strcmp(a, "--vtk-every")) bad = parse_int(v, &o.vtk_every) || o.vtk_every < 1;
+    else if (!strcmp(a, "--width")) bad = parse_int(v, &o.width) || o.width < 16;
+    if (bad) {
+      fprintf(stderr, "npg-fluids: option '%s': invalid value '%s'\n", a, v);
+      return 2;
+    }
+    i++;
+  }
+  return cavity_run(&o);
+}
+
+/* npg-fluids cavity-mesh --cells N: the cavity's mesh statistics as JSON,
+ * and one deformation (the deepest of the training and test scales). */
+static int cavity_mesh_cmd(int argc, char **argv) {
+  CavitySpec spec = cavity_spec_default();
+  if (argc == 4 && !strcmp(argv[2], "--cells")) {
+    if (parse_int(argv[3], &spec.cells) || spec.cells < 50) {
+      fprintf(stderr, "npg-fluids: option '--cells': invalid value '%s'\n", argv[3]);
+      return 2;
+    }
+  } else if (argc != 2) {
+    usage(stderr);
+    return 2;
+  }
+  char err[ERRLEN];
+  Cavity cv;
+  double t0 = util_now();
+  if (cavity_mesh(&cv, &spec, err, sizeof err) != 0) {
+    fprintf(stderr, "npg-fluids: %s\n", err);
+    return 1;
+  }
+  double t1 = util_now();
+  double *g = malloc(3 * (size_t)cv.m.nv * sizeof *g), sigma[CAVITY_SIDES] = {0.75, 0.8, 1.0}, kappa = 1;
+  int rc = cavity_deform(&cv, sigma, g, &kappa, err, sizeof err);
+  double t2 = util_now();
+  if (rc == 0)
+    printf("{\"cells\": %d, \"faces\": %d, \"boundary_faces\": %d, \"vertices\": %d, \"mesh_seconds\": %.3f, "
+           "\"min_quality\": %.4f, \"deformed_min_quality\": %.4f, \"deformation_seconds\": %.4f, \"kappa\": %.6f, "
+           "\"volume_change_relative\": %.3g}\n",
+           cv.m.nc, cv.m.nf, cv.m.nb, cv.m.nv, t1 - t0, mesh_min_quality(&cv.m, cv.m.g0, NULL),
+           mesh_min_quality(&cv.m, g, NULL), t2 - t1, kappa, mesh_fluid_volume(&cv.m, g) / cv.volume0 - 1);
+  else
+    fprintf(stderr, "npg-fluids: %s\n", err);
+  free(g);
+  cavity_free(&cv);
+  return rc ? 1 : 0;
 }
 
 /* ---------------------------------------------------------------- tunnel */
@@ -476,18 +570,8 @@ static int tunnel_cmd(int argc, char **argv) {
     static const char *known[] = {"--out", "--frames", "--cells", "--particles", "--png-every", "--vtk-every",
                                   "--width", "--sizes", "--pulse", "--period", "--mu", "--cfl", "--keep-models",
                                   "--mg"};
-    int bad = 1;
-    for (size_t k = 0; k < sizeof known / sizeof *known; k++)
-      if (!strcmp(a, known[k])) bad = 0;
-    if (bad) {
-      fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
-      usage(stderr);
-      return 2;
-    }
-    if (!v) {
-      fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
-      return 2;
-    }
+    if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
+    int bad = 0;
     if (!strcmp(a, "--out")) o.out = v;
     else if (!strcmp(a, "--frames")) bad = parse_int(v, &o.frames) || o.frames < 2;
     else if (!strcmp(a, "--cells")) bad = parse_int(v, &o.spec.cells);
@@ -532,6 +616,8 @@ int main(int argc, char **argv) {
    * projection took 29 ms a step with OpenBLAS's threads, 17 ms without) */
   openblas_set_num_threads(1);
   if (!strcmp(argv[1], "tunnel")) return tunnel_cmd(argc, argv);
+  if (!strcmp(argv[1], "cavity")) return cavity_cmd(argc, argv);
+  if (!strcmp(argv[1], "cavity-mesh")) return cavity_mesh_cmd(argc, argv);
   RunOptions o;
   if (parse_options(argc, argv, &o) != 0) return 2;
   if (!strcmp(argv[1], "tunnel-full")) return tunnel_full(&o);

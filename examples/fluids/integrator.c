@@ -14,8 +14,9 @@ void integrator_init(Integrator *it, const Ops *o) {
   it->M.val = malloc(nnz * sizeof *it->M.val);
   memcpy(it->M.rowptr, o->A.rowptr, (nc + 1) * sizeof *it->M.rowptr);
   memcpy(it->M.col, o->A.col, nnz * sizeof *it->M.col);
-  for (int s = 0; s < 4; s++) it->k[s] = malloc(2 * nc * sizeof(double));
-  it->tmp = malloc(2 * nc * sizeof(double));
+  int n = o->m->dim * nc;
+  for (int s = 0; s < 4; s++) it->k[s] = malloc(n * sizeof(double));
+  it->tmp = malloc(n * sizeof(double));
 }
 
 void integrator_free(Integrator *it) {
@@ -34,11 +35,10 @@ static void combine(Integrator *it, double mu) {
 
 static void rate(Integrator *it, const double *u, double *du) {
   const Ops *o = it->o;
-  csr_mv2(&it->M, u, du);
-  for (int c = 0; c < o->m->nc; c++) {
-    du[2 * c] /= o->area[c];
-    du[2 * c + 1] /= o->area[c];
-  }
+  int dim = o->m->dim;
+  csr_mvd(&it->M, dim, u, du);
+  for (int c = 0; c < o->m->nc; c++)
+    for (int d = 0; d < dim; d++) du[dim * c + d] /= o->area[c];
 }
 
 void integrator_rate(Integrator *it, double mu, const double *u, double *du) {
@@ -48,7 +48,7 @@ void integrator_rate(Integrator *it, double mu, const double *u, double *du) {
 
 void integrator_rk4(Integrator *it, double mu, double dt, double *u) {
   combine(it, mu);
-  int n = 2 * it->o->m->nc;
+  int n = it->o->m->dim * it->o->m->nc;
   double *t = it->tmp;
   rate(it, u, it->k[0]);
   for (int i = 0; i < n; i++) t[i] = u[i] + 0.5 * dt * it->k[0][i];

@@ -18,13 +18,13 @@
 typedef struct Integrator {
   const Ops *o;
   Csr M;          /* A(f - h) + mu lap, on A's pattern */
-  double *k[4];   /* stage derivatives [C][2] */
-  double *tmp;    /* [C][2] */
+  double *k[4];   /* stage derivatives [C][dim] */
+  double *tmp;    /* [C][dim] */
 } Integrator;
 
 void integrator_init(Integrator *it, const Ops *o);
 void integrator_free(Integrator *it);
-/* u <- u + RK4 over dt of V^-1 (A + mu lap) u; u is [C][2]. */
+/* u <- u + RK4 over dt of V^-1 (A + mu lap) u; u is [C][dim]. */
 void integrator_rk4(Integrator *it, double mu, double dt, double *u);
 /* du = V^-1 (A + mu lap) u (the right-hand side; for tests). */
 void integrator_rate(Integrator *it, double mu, const double *u, double *du);

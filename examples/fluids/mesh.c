@@ -16,8 +16,8 @@ TunnelSpec tunnel_spec_default(void) {
 
 void mesh_free(Mesh *m) {
   free(m->g0);
-  free(m->tri);
-  free(m->edge);
+  free(m->cell);
+  free(m->face);
   free(m->cface);
   free(m->csign);
   free(m->nbr);
@@ -29,24 +29,59 @@ void mesh_free(Mesh *m) {
   memset(m, 0, sizeof *m);
 }
 
-double mesh_area(const Mesh *m, const double *g, int c) {
-  const double *a = g + 2 * m->tri[3 * c], *b = g + 2 * m->tri[3 * c + 1], *d = g + 2 * m->tri[3 * c + 2];
+double mesh_volume(const Mesh *m, const double *g, int c) {
+  if (m->dim == 3) {
+    const int *t = m->cell + 4 * c;
+    const double *a = g + 3 * t[0];
+    double e[3][3];
+    for (int k = 0; k < 3; k++)
+      for (int d = 0; d < 3; d++) e[k][d] = g[3 * t[k + 1] + d] - a[d];
+    return (e[0][0] * (e[1][1] * e[2][2] - e[1][2] * e[2][1]) - e[0][1] * (e[1][0] * e[2][2] - e[1][2] * e[2][0]) +
+            e[0][2] * (e[1][0] * e[2][1] - e[1][1] * e[2][0])) /
+           6;
+  }
+  const double *a = g + 2 * m->cell[3 * c], *b = g + 2 * m->cell[3 * c + 1], *d = g + 2 * m->cell[3 * c + 2];
   return 0.5 * ((b[0] - a[0]) * (d[1] - a[1]) - (b[1] - a[1]) * (d[0] - a[0]));
 }
 
-double mesh_fluid_area(const Mesh *m, const double *g) {
+void mesh_link_face(Mesh *m, int f, int c0, int k0, int c1, int k1) {
+  int nk = m->nk;
+  m->cface[nk * c0 + k0] = f;
+  m->csign[nk * c0 + k0] = 1;
+  m->fcell[2 * f] = c0;
+  m->nbr[nk * c0 + k0] = c1;
+  m->fcell[2 * f + 1] = c1;
+  if (c1 < 0) return;
+  m->cface[nk * c1 + k1] = f;
+  m->csign[nk * c1 + k1] = -1;
+  m->nbr[nk * c1 + k1] = c0;
+  m->fkind[f] = BF_INTERIOR;
+}
+
+double mesh_fluid_volume(const Mesh *m, const double *g) {
   double s = 0;
-  for (int c = 0; c < m->nc; c++) s += mesh_area(m, g, c);
+  for (int c = 0; c < m->nc; c++) s += mesh_volume(m, g, c);
   return s;
 }
 
-static double quality(const Mesh *m, const double *g, int c) {
+/* Sum of the squared edge lengths of cell c. */
+static double edge_squares(const Mesh *m, const double *g, int c) {
+  int dim = m->dim, nk = m->nk;
+  const int *t = m->cell + nk * c;
   double l2 = 0;
-  for (int k = 0; k < 3; k++) {
-    const double *a = g + 2 * m->tri[3 * c + k], *b = g + 2 * m->tri[3 * c + (k + 1) % 3];
-    l2 += (b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]);
-  }
-  return 4.0 * sqrt(3.0) * mesh_area(m, g, c) / l2;
+  for (int k = 0; k < nk; k++)
+    for (int l = k + 1; l < nk; l++)
+      for (int d = 0; d < dim; d++) {
+        double x = g[dim * t[l] + d] - g[dim * t[k] + d];
+        l2 += x * x;
+      }
+  return l2;
+}
+
+static double quality(const Mesh *m, const double *g, int c) {
+  double l2 = edge_squares(m, g, c);
+  if (m->dim == 3) return 6.0 * sqrt(2.0) * mesh_volume(m, g, c) / pow(l2 / 6, 1.5);
+  return 4.0 * sqrt(3.0) * mesh_volume(m, g, c) / l2;
 }
 
 double mesh_min_quality(const Mesh *m, const double *g, int *worst) {
@@ -226,13 +261,13 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
   m->nv = raw->nv;
   m->nc = raw->nc;
   m->g0 = raw->xy;
-  m->tri = raw->tri;
+  m->cell = raw->tri;
   /* counter-clockwise cells */
   for (int c = 0; c < m->nc; c++)
-    if (mesh_area(m, m->g0, c) < 0) {
-      int t = m->tri[3 * c + 1];
-      m->tri[3 * c + 1] = m->tri[3 * c + 2];
-      m->tri[3 * c + 2] = t;
+    if (mesh_volume(m, m->g0, c) < 0) {
+      int t = m->cell[3 * c + 1];
+      m->cell[3 * c + 1] = m->cell[3 * c + 2];
+      m->cell[3 * c + 2] = t;
     }
   int *master = malloc(m->nv * sizeof *master);
   m->vmaster = master;
@@ -241,7 +276,7 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
   HalfEdge *he = malloc(nh * sizeof *he);
   for (int c = 0; c < m->nc; c++)
     for (int k = 0; k < 3; k++) {
-      int a = master[m->tri[3 * c + (k + 1) % 3]], b = master[m->tri[3 * c + (k + 2) % 3]];
+      int a = master[m->cell[3 * c + (k + 1) % 3]], b = master[m->cell[3 * c + (k + 2) % 3]];
       he[3 * c + k] = (HalfEdge){a < b ? a : b, a < b ? b : a, c, k};
     }
   qsort(he, nh, sizeof *he, cmp_half);
@@ -249,7 +284,7 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
   m->csign = malloc(nh * sizeof *m->csign);
   m->nbr = malloc(nh * sizeof *m->nbr);
   m->nshift = calloc(nh, sizeof *m->nshift);
-  m->edge = malloc(2 * nh * sizeof *m->edge);
+  m->face = malloc(2 * nh * sizeof *m->face);
   m->fkind = malloc(nh * sizeof *m->fkind);
   m->fcell = malloc(2 * nh * sizeof *m->fcell);
   m->bface = malloc(nh * sizeof *m->bface);
@@ -264,30 +299,20 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
     }
     int f = m->nf++;
     int c0 = he[i].c, k0 = he[i].k;
-    int va = m->tri[3 * c0 + (k0 + 1) % 3], vb = m->tri[3 * c0 + (k0 + 2) % 3];
-    m->edge[2 * f] = va; /* counter-clockwise in c0: the normal points out of c0 */
-    m->edge[2 * f + 1] = vb;
-    m->cface[3 * c0 + k0] = f;
-    m->csign[3 * c0 + k0] = 1;
-    m->fcell[2 * f] = c0;
-    if (j - i == 2) {
-      int c1 = he[i + 1].c, k1 = he[i + 1].k;
-      m->cface[3 * c1 + k1] = f;
-      m->csign[3 * c1 + k1] = -1;
-      m->nbr[3 * c0 + k0] = c1;
-      m->nbr[3 * c1 + k1] = c0;
-      m->fcell[2 * f + 1] = c1;
-      m->fkind[f] = BF_INTERIOR;
+    int va = m->cell[3 * c0 + (k0 + 1) % 3], vb = m->cell[3 * c0 + (k0 + 2) % 3];
+    m->face[2 * f] = va; /* counter-clockwise in c0: the normal points out of c0 */
+    m->face[2 * f + 1] = vb;
+    int c1 = j - i == 2 ? he[i + 1].c : -1, k1 = j - i == 2 ? he[i + 1].k : -1;
+    mesh_link_face(m, f, c0, k0, c1, k1);
+    if (c1 >= 0) {
       /* periodic face: c1 sees the edge L away from where c0 sees it */
-      int wa = m->tri[3 * c1 + (k1 + 2) % 3]; /* c1 runs the edge the other way: its copy of va */
-      if (master[wa] != master[va]) wa = m->tri[3 * c1 + (k1 + 1) % 3];
+      int wa = m->cell[3 * c1 + (k1 + 2) % 3]; /* c1 runs the edge the other way: its copy of va */
+      if (master[wa] != master[va]) wa = m->cell[3 * c1 + (k1 + 1) % 3];
       double dx = m->g0[2 * wa] - m->g0[2 * va];
       int sh = (int)lround(dx / s->L);
       m->nshift[3 * c0 + k0] = sh;
       m->nshift[3 * c1 + k1] = -sh;
     } else {
-      m->nbr[3 * c0 + k0] = -1;
-      m->fcell[2 * f + 1] = -1;
       double ya = m->g0[2 * va + 1], yb = m->g0[2 * vb + 1], xa = m->g0[2 * va], xb = m->g0[2 * vb];
       double tol = 1e-9 * s->H;
       if ((fabs(ya) < tol && fabs(yb) < tol) || (fabs(ya - s->H) < tol && fabs(yb - s->H) < tol))
@@ -321,6 +346,8 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
 
 int mesh_tunnel(Mesh *m, const TunnelSpec *spec, char *err, size_t errlen) {
   memset(m, 0, sizeof *m);
+  m->dim = 2;
+  m->nk = 3;
   m->spec = *spec;
   if (!(spec->L > 0 && spec->H > 0 && spec->size > 0 && spec->cells >= 8))
     return util_fail(err, errlen, "tunnel: L, H and size must be positive and cells at least 8");
@@ -365,10 +392,10 @@ int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *
     g[2 * v + 1] = s->cy + kappa * w * y;
   }
   for (int c = 0; c < m->nc; c++) {
-    double a = mesh_area(m, g, c);
+    double a = mesh_volume(m, g, c);
     if (!(a > 0))
       return util_fail(err, errlen, "deformation to obstacle scale %g inverts element %d (area %.3g, rest area %.3g)",
-                  sigma, c, a, mesh_area(m, m->g0, c));
+                  sigma, c, a, mesh_volume(m, m->g0, c));
   }
   return 0;
 }

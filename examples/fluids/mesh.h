@@ -1,6 +1,8 @@
-/* mesh.h — the 2D periodic wind tunnel with a triangular obstacle (paper
- * §7.1, Fig. 5), meshed by gmsh, and its deformation: the obstacle changing
- * size with fixed topology.
+/* mesh.h — the simplicial mesh the solver runs on (triangles in 2D,
+ * tetrahedra in 3D: `dim`), and the 2D periodic wind tunnel with a
+ * triangular obstacle (paper §7.1, Fig. 5), meshed by gmsh, with its
+ * deformation: the obstacle changing size with fixed topology. The 3D
+ * deforming cavity (paper §7.2) is cavity.h; it fills the same Mesh.
  *
  * Domain: [0, L] x [0, H], periodic in x (flow direction), walls at y = 0
  * and y = H; an equilateral triangle (side `size`, apex pointing upstream)
@@ -11,9 +13,14 @@
  * P (paper §5.3) are right on either side, and the two copies of a periodic
  * edge are one face whose neighbours sit L apart (`nshift`).
  *
- * Conventions (those of fluids2d.npg): cells are counter-clockwise; face
- * cface[c][k] is the edge opposite vertex tri[c][k]; edge j runs from
- * edge[j][0] to edge[j][1] and its normal is (dy, -dx), to the right; the
+ * Conventions in 3D (those of fluids3d.npg): cells are positively oriented
+ * tetrahedra; face cface[c][k] is the triangle opposite vertex cell[c][k];
+ * the face's area vector is 0.5 (g1 - g0) x (g2 - g0) of face[j] and the
+ * flux f[j] is along it; csign, nbr as below.
+ *
+ * Conventions in 2D (those of fluids2d.npg): cells are counter-clockwise; face
+ * cface[c][k] is the edge opposite vertex cell[c][k]; edge j runs from
+ * face[j][0] to face[j][1] and its normal is (dy, -dx), to the right; the
  * flux f[j] is along that normal; csign[c][k] = +1 when that normal points
  * out of c; nbr[c][k] is the cell across the face, -1 on the boundary.
  * A boundary edge is oriented out of the fluid.
@@ -38,17 +45,19 @@ typedef enum FaceKind {
 } FaceKind;
 
 typedef struct Mesh {
-  TunnelSpec spec;
-  int nv, nc, nf, nb;  /* vertices, cells, faces (edges), boundary faces */
-  double *g0;          /* [nv][2] rest positions */
-  int *tri;            /* [nc][3] counter-clockwise */
-  int *edge;           /* [nf][2] */
-  int *cface;          /* [nc][3] the edge opposite tri[c][k] */
-  double *csign;       /* [nc][3] +1: the face normal points out of c */
-  int *nbr;            /* [nc][3] the cell across, -1 on the boundary */
-  int *nshift;         /* [nc][3] x of a point in c's frame + nshift*L = its x in nbr's frame */
+  int dim;             /* 2: triangles and edges; 3: tetrahedra and triangles */
+  int nk;              /* dim + 1: vertices (and faces) of a cell */
+  TunnelSpec spec;     /* 2D tunnel only */
+  int nv, nc, nf, nb;  /* vertices, cells, faces, boundary faces */
+  double *g0;          /* [nv][dim] rest positions */
+  int *cell;           /* [nc][nk] vertices: counter-clockwise (2D), positive volume (3D) */
+  int *face;           /* [nf][dim] vertices; their order orients the face */
+  int *cface;          /* [nc][nk] the face opposite cell[c][k] */
+  double *csign;       /* [nc][nk] +1: the face normal points out of c */
+  int *nbr;            /* [nc][nk] the cell across, -1 on the boundary */
+  int *nshift;         /* [nc][nk] (2D) x of a point in c's frame + nshift*L = its x in nbr's frame */
   int *bface;          /* [nb] boundary faces, the rows of D */
-  int *fkind;          /* [nf] FaceKind */
+  int *fkind;          /* [nf] FaceKind (3D: BF_INTERIOR or BF_WALL) */
   int *fcell;          /* [nf][2] the cell the normal points out of, the other (-1 on the boundary) */
   int *vmaster;        /* [nv] the vertex itself, or for a vertex on x = L its periodic copy on x = 0 */
   int obstacle[3];     /* the obstacle's corner vertices */
@@ -80,13 +89,18 @@ void mesh_free(Mesh *m);
  * holds the inverted positions (for inspection only). */
 int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen);
 
-/* Signed area of cell c at positions g. */
-double mesh_area(const Mesh *m, const double *g, int c);
-/* Minimum over cells of the quality 4 sqrt(3) A / (l1^2 + l2^2 + l3^2)
- * (1 for an equilateral triangle, 0 degenerate, negative inverted), and the
- * worst cell in *worst (when not NULL). */
+/* Face f is face k0 of cell c0 (its normal out of c0) and face k1 of cell
+ * c1 (c1 = -1 on the boundary): cface, csign, nbr, fcell, and fkind
+ * BF_INTERIOR for two cells (a boundary face's kind is the caller's). */
+void mesh_link_face(Mesh *m, int f, int c0, int k0, int c1, int k1);
+/* Signed area (2D) or volume (3D) of cell c at positions g. */
+double mesh_volume(const Mesh *m, const double *g, int c);
+/* Minimum over cells of the quality, 1 for a regular simplex, 0 degenerate,
+ * negative inverted: 4 sqrt(3) A / sum of l^2 in 2D, 6 sqrt(2) V / l_rms^3
+ * in 3D (l_rms the root mean square of the six edges), and the worst cell
+ * in *worst (when not NULL). */
 double mesh_min_quality(const Mesh *m, const double *g, int *worst);
-/* Fluid area (sum of cell areas) at g. */
-double mesh_fluid_area(const Mesh *m, const double *g);
+/* Fluid area or volume (sum of cell volumes) at g. */
+double mesh_fluid_volume(const Mesh *m, const double *g);
 
 #endif

@@ -63,7 +63,7 @@ int output_png(const char *path, const Mesh *m, const double *g, const double *u
   unsigned char *img = malloc(3 * (size_t)width * height);
   memset(img, 96, 3 * (size_t)width * height);
   for (int c = 0; c < m->nc; c++) {
-    const int *t = m->tri + 3 * c;
+    const int *t = m->cell + 3 * c;
     double px[3], py[3]; /* pixel coordinates, y down */
     for (int k = 0; k < 3; k++) px[k] = g[2 * t[k]] * scale, py[k] = (ymax - g[2 * t[k] + 1]) * scale;
     unsigned char rgb[3];
@@ -143,14 +143,14 @@ int output_vtu_cells(const char *path, const Mesh *m, const double *g, const dou
   if (!fp) return -1;
   fprintf(fp, "%s<Piece NumberOfPoints=\"%d\" NumberOfCells=\"%d\">\n", vtu_head, m->nv, m->nc);
   vtu_points(fp, m, g);
-  vtu_cells(fp, m->nc, 3, m->tri, 5);
+  vtu_cells(fp, m->nc, 3, m->cell, 5);
   fprintf(fp, "<CellData Vectors=\"velocity\" Scalars=\"speed\">\n");
   fprintf(fp, "<DataArray type=\"Float64\" Name=\"velocity\" NumberOfComponents=\"3\" format=\"ascii\">\n");
   for (int c = 0; c < m->nc; c++) fprintf(fp, "%.17g %.17g 0\n", u[2 * c], u[2 * c + 1]);
   fprintf(fp, "</DataArray>\n<DataArray type=\"Float64\" Name=\"speed\" format=\"ascii\">\n");
   for (int c = 0; c < m->nc; c++) fprintf(fp, "%.17g\n", hypot(u[2 * c], u[2 * c + 1]));
   fprintf(fp, "</DataArray>\n<DataArray type=\"Float64\" Name=\"area\" format=\"ascii\">\n");
-  for (int c = 0; c < m->nc; c++) fprintf(fp, "%.17g\n", mesh_area(m, g, c));
+  for (int c = 0; c < m->nc; c++) fprintf(fp, "%.17g\n", mesh_volume(m, g, c));
   fprintf(fp, "</DataArray>\n</CellData>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
   return close_rename(fp, tmp, path, err, errlen);
 }
@@ -162,7 +162,7 @@ int output_vtu_faces(const char *path, const Mesh *m, const double *g, const dou
   if (!fp) return -1;
   fprintf(fp, "%s<Piece NumberOfPoints=\"%d\" NumberOfCells=\"%d\">\n", vtu_head, m->nv, m->nf);
   vtu_points(fp, m, g);
-  vtu_cells(fp, m->nf, 2, m->edge, 3);
+  vtu_cells(fp, m->nf, 2, m->face, 3);
   fprintf(fp, "<CellData Scalars=\"flux\">\n<DataArray type=\"Float64\" Name=\"flux\" format=\"ascii\">\n");
   for (int j = 0; j < m->nf; j++) fprintf(fp, "%.17g\n", f[j]);
   fprintf(fp, "</DataArray>\n<DataArray type=\"Float64\" Name=\"induced_flux\" format=\"ascii\">\n");
@@ -182,4 +182,86 @@ int output_pvd(const char *path, int n, const char *const *files, const double *
     fprintf(fp, "<DataSet timestep=\"%.17g\" part=\"0\" file=\"%s\"/>\n", times[i], files[i]);
   fprintf(fp, "</Collection>\n</VTKFile>\n");
   return close_rename(fp, tmp, path, err, errlen);
+}
+
+/* ---------------------------------------------------------------- 3D */
+
+int output_vtk_tets(const char *path, const Mesh *m, const double *g, const double *u, char *err, size_t errlen) {
+  char tmp[4096];
+  FILE *fp = open_tmp(path, tmp, sizeof tmp, err, errlen);
+  if (!fp) return -1;
+  fprintf(fp, "# vtk DataFile Version 3.0\nnpg-fluids cavity\nASCII\nDATASET UNSTRUCTURED_GRID\n");
+  fprintf(fp, "POINTS %d double\n", m->nv);
+  for (int v = 0; v < m->nv; v++) fprintf(fp, "%.9g %.9g %.9g\n", g[3 * v], g[3 * v + 1], g[3 * v + 2]);
+  fprintf(fp, "CELLS %d %d\n", m->nc, 5 * m->nc);
+  for (int c = 0; c < m->nc; c++) {
+    const int *t = m->cell + 4 * c;
+    fprintf(fp, "4 %d %d %d %d\n", t[0], t[1], t[2], t[3]);
+  }
+  fprintf(fp, "CELL_TYPES %d\n", m->nc);
+  for (int c = 0; c < m->nc; c++) fputs("10\n", fp);
+  fprintf(fp, "CELL_DATA %d\nVECTORS velocity double\n", m->nc);
+  for (int c = 0; c < m->nc; c++) fprintf(fp, "%.9g %.9g %.9g\n", u[3 * c], u[3 * c + 1], u[3 * c + 2]);
+  fprintf(fp, "SCALARS speed double 1\nLOOKUP_TABLE default\n");
+  for (int c = 0; c < m->nc; c++)
+    fprintf(fp, "%.9g\n", sqrt(u[3 * c] * u[3 * c] + u[3 * c + 1] * u[3 * c + 1] + u[3 * c + 2] * u[3 * c + 2]));
+  return close_rename(fp, tmp, path, err, errlen);
+}
+
+/* The camera of output_png_points: looking at the origin from direction
+ * (0, -cos e, sin e) (elevation e = 55 degrees), perspective from distance
+ * `dist`, `fov` the half-width of the view at the origin. */
+static void camera(const double x[3], double dist, double *sx, double *sy, double *depth) {
+  const double ce = cos(55 * M_PI / 180), se = sin(55 * M_PI / 180);
+  /* right = (1, 0, 0); up = (0, se, ce); forward (into the scene) = (0, ce, -se) */
+  double xr = x[0], xu = se * x[1] + ce * x[2], xf = ce * x[1] - se * x[2];
+  double z = dist + xf;
+  *sx = xr * dist / z, *sy = xu * dist / z, *depth = z;
+}
+
+int output_png_points(const char *path, const Mesh *m, const double *g, const Particles *p, double extent, int width,
+                      char *err, size_t errlen) {
+  int w = width, h = width * 3 / 4;
+  unsigned char *rgb = malloc(3 * (size_t)w * h);
+  float *zbuf = malloc((size_t)w * h * sizeof *zbuf);
+  for (size_t i = 0; i < (size_t)w * h; i++) {
+    rgb[3 * i] = 12, rgb[3 * i + 1] = 14, rgb[3 * i + 2] = 24;
+    zbuf[i] = INFINITY;
+  }
+  double dist = 4 * extent, scale = 0.5 * w / (1.05 * extent);
+  /* the walls: the boundary faces' vertices as faint grey dots */
+  for (int b = 0; b < m->nb; b++) {
+    const int *t = m->face + 3 * m->bface[b];
+    for (int k = 0; k < 3; k++) {
+      double sx, sy, z;
+      camera(g + 3 * t[k], dist, &sx, &sy, &z);
+      int px = (int)lround(w / 2 + sx * scale), py = (int)lround(h / 2 - sy * scale);
+      if (px < 0 || py < 0 || px >= w || py >= h) continue;
+      unsigned char *c = rgb + 3 * ((size_t)py * w + px);
+      c[0] = c[1] = c[2] = 70;
+    }
+  }
+  /* particles: 2x2 splats, nearer ones in front, shaded by depth */
+  for (int i = 0; p && i < p->n; i++) {
+    double sx, sy, z;
+    camera(p->x + 3 * i, dist, &sx, &sy, &z);
+    double shade = 1.15 - 0.35 * (z - (dist - extent)) / (2 * extent);
+    shade = shade < 0.4 ? 0.4 : shade > 1 ? 1 : shade;
+    unsigned char col[3] = {255, 255, 255};
+    if (p->tag[i]) col[0] = 255, col[1] = 150, col[2] = 40;
+    int px = (int)lround(w / 2 + sx * scale), py = (int)lround(h / 2 - sy * scale);
+    for (int dy = 0; dy < 2; dy++)
+      for (int dx = 0; dx < 2; dx++) {
+        int qx = px + dx, qy = py + dy;
+        if (qx < 0 || qy < 0 || qx >= w || qy >= h) continue;
+        size_t k = (size_t)qy * w + qx;
+        if (z >= zbuf[k]) continue;
+        zbuf[k] = (float)z;
+        for (int d = 0; d < 3; d++) rgb[3 * k + d] = (unsigned char)lround(shade * col[d]);
+      }
+  }
+  int rc = write_png(path, w, h, rgb, err, errlen);
+  free(rgb);
+  free(zbuf);
+  return rc;
 }

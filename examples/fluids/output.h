@@ -23,6 +23,15 @@ int output_vtu_cells(const char *path, const Mesh *m, const double *g, const dou
  * (0 interior, 1 wall, 2 obstacle). */
 int output_vtu_faces(const char *path, const Mesh *m, const double *g, const double *f, const double *h, char *err,
                      size_t errlen);
+/* 3D: the tetrahedra with cell data velocity and speed as a legacy .vtk
+ * file (ASCII; ParaView opens a numbered series as one time series). */
+int output_vtk_tets(const char *path, const Mesh *m, const double *g, const double *u, char *err, size_t errlen);
+/* 3D: the particles as 2x2 point splats (white or orange by tag, darker
+ * farther away, nearest in front) and the boundary's vertices as grey dots,
+ * through a perspective camera looking down at the origin at 55 degrees;
+ * `extent` is the scene's radius, `width` the image width (height 3/4 of it). */
+int output_png_points(const char *path, const Mesh *m, const double *g, const Particles *p, double extent, int width,
+                      char *err, size_t errlen);
 /* A .pvd collection: `n` datasets files[i] at times[i]. */
 int output_pvd(const char *path, int n, const char *const *files, const double *times, char *err, size_t errlen);
 

@@ -6,6 +6,9 @@
 #include <string.h>
 
 void particles_free(Particles *p) {
+  free(p->stamp);
+  free(p->vel);
+  free(p->bary);
   free(p->x);
   free(p->cell);
   free(p->tag);
@@ -17,21 +20,34 @@ static double rnd(unsigned *s) {
   return ((*s >> 8) & 0xffffff) / 16777216.0;
 }
 
+/* Signed volume (3D) of the tetrahedron a, b, c, d, times 6. */
+static double det3(const double *a, const double *b, const double *c, const double *d) {
+  double e[3][3];
+  for (int k = 0; k < 3; k++) e[0][k] = b[k] - a[k], e[1][k] = c[k] - a[k], e[2][k] = d[k] - a[k];
+  return e[0][0] * (e[1][1] * e[2][2] - e[1][2] * e[2][1]) - e[0][1] * (e[1][0] * e[2][2] - e[1][2] * e[2][0]) +
+         e[0][2] * (e[1][0] * e[2][1] - e[1][1] * e[2][0]);
+}
+
 void particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigned seed) {
   memset(p, 0, sizeof *p);
+  int dim = m->dim, nk = m->nk;
   p->n = n;
-  p->x = malloc(2 * (size_t)n * sizeof *p->x);
+  p->dim = dim;
+  p->x = malloc(dim * (size_t)n * sizeof *p->x);
   p->cell = malloc(n * sizeof *p->cell);
   p->tag = malloc(n * sizeof *p->tag);
   double *cum = malloc(m->nc * sizeof *cum), total = 0;
-  for (int c = 0; c < m->nc; c++) cum[c] = total += mesh_area(m, g, c);
+  for (int c = 0; c < m->nc; c++) cum[c] = total += mesh_volume(m, g, c);
+  /* the streak axis: y in 2D, z in 3D */
+  int ax = dim - 1;
   double ymin = 1e300, ymax = -1e300;
   for (int v = 0; v < m->nv; v++) {
-    if (g[2 * v + 1] < ymin) ymin = g[2 * v + 1];
-    if (g[2 * v + 1] > ymax) ymax = g[2 * v + 1];
+    if (g[dim * v + ax] < ymin) ymin = g[dim * v + ax];
+    if (g[dim * v + ax] > ymax) ymax = g[dim * v + ax];
   }
-  /* streaks: 12 horizontal bands a fifth of their spacing wide, alternately
-   * tagged, so the picture shows how the flow shears and mixes them */
+  /* streaks: 12 bands (horizontal lines in 2D, slabs in 3D) a fifth of
+   * their spacing wide, alternately tagged, so the picture shows how the
+   * flow shears and mixes them */
   double spacing = (ymax - ymin) / 12;
   for (int i = 0; i < n; i++) {
   again:;
@@ -42,12 +58,30 @@ void particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigne
       if (cum[mid] < r) lo = mid + 1;
       else hi = mid;
     }
-    double a = rnd(&seed), b = rnd(&seed);
-    if (a + b > 1) a = 1 - a, b = 1 - b;
-    const int *t = m->tri + 3 * lo;
-    for (int d = 0; d < 2; d++)
-      p->x[2 * i + d] = g[2 * t[0] + d] + a * (g[2 * t[1] + d] - g[2 * t[0] + d]) + b * (g[2 * t[2] + d] - g[2 * t[0] + d]);
-    double band = (p->x[2 * i + 1] - ymin) / spacing;
+    const int *t = m->cell + nk * lo;
+    if (dim == 2) {
+      double a = rnd(&seed), b = rnd(&seed);
+      if (a + b > 1) a = 1 - a, b = 1 - b;
+      for (int d = 0; d < 2; d++)
+        p->x[2 * i + d] = g[2 * t[0] + d] + a * (g[2 * t[1] + d] - g[2 * t[0] + d]) + b * (g[2 * t[2] + d] - g[2 * t[0] + d]);
+    } else {
+      /* uniform in the tetrahedron: the gaps of three sorted uniforms */
+      double u[3] = {rnd(&seed), rnd(&seed), rnd(&seed)}, w[4];
+      for (int a = 0; a < 2; a++)
+        for (int b = 0; b < 2 - a; b++)
+          if (u[b] > u[b + 1]) {
+            double x = u[b];
+            u[b] = u[b + 1];
+            u[b + 1] = x;
+          }
+      w[0] = u[0], w[1] = u[1] - u[0], w[2] = u[2] - u[1], w[3] = 1 - u[2];
+      for (int d = 0; d < 3; d++) {
+        double x = 0;
+        for (int k = 0; k < 4; k++) x += w[k] * g[3 * t[k] + d];
+        p->x[3 * i + d] = x;
+      }
+    }
+    double band = (p->x[dim * i + ax] - ymin) / spacing;
     if (band - floor(band) > 0.2) goto again;
     p->cell[i] = lo;
     p->tag[i] = (int)band % 2;
@@ -55,50 +89,70 @@ void particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigne
   free(cum);
 }
 
-void particles_cell_velocity(const Mesh *m, const double *g, const double *f, int c, double u[2]) {
-  const int *t = m->tri + 3 * c;
-  double cen[2], area = mesh_area(m, g, c);
-  for (int d = 0; d < 2; d++) cen[d] = (g[2 * t[0] + d] + g[2 * t[1] + d] + g[2 * t[2] + d]) / 3;
-  u[0] = u[1] = 0;
-  for (int k = 0; k < 3; k++) {
-    double out = m->csign[3 * c + k] * f[m->cface[3 * c + k]];
-    for (int d = 0; d < 2; d++) u[d] += out * (cen[d] - g[2 * t[k] + d]) / 2;
+void particles_cell_velocity(const Mesh *m, const double *g, const double *f, int c, double *u) {
+  int dim = m->dim, nk = m->nk;
+  const int *t = m->cell + nk * c;
+  double cen[3] = {0, 0, 0}, vol = mesh_volume(m, g, c);
+  for (int d = 0; d < dim; d++) {
+    for (int k = 0; k < nk; k++) cen[d] += g[dim * t[k] + d];
+    cen[d] /= nk;
+    u[d] = 0;
   }
-  u[0] /= area;
-  u[1] /= area;
+  /* paper Eq. 13 in cell c: face k's centroid - the cell's = (cen - g_k) / dim */
+  for (int k = 0; k < nk; k++) {
+    double out = m->csign[nk * c + k] * f[m->cface[nk * c + k]];
+    for (int d = 0; d < dim; d++) u[d] += out * (cen[d] - g[dim * t[k] + d]) / dim;
+  }
+  for (int d = 0; d < dim; d++) u[d] /= vol;
 }
 
 /* Barycentric coordinates of x in cell c. */
-static void barycentric(const Mesh *m, const double *g, int c, const double x[2], double lam[3]) {
-  const int *t = m->tri + 3 * c;
-  double area2 = 2 * mesh_area(m, g, c);
+static void barycentric(const Mesh *m, const double *g, int c, const double *x, double *lam) {
+  if (m->dim == 3) {
+    const int *t = m->cell + 4 * c;
+    const double *v[4] = {g + 3 * t[0], g + 3 * t[1], g + 3 * t[2], g + 3 * t[3]};
+    double vol6 = det3(v[0], v[1], v[2], v[3]);
+    for (int k = 0; k < 4; k++) {
+      const double *w[4] = {v[0], v[1], v[2], v[3]};
+      w[k] = x;
+      lam[k] = det3(w[0], w[1], w[2], w[3]) / vol6;
+    }
+    return;
+  }
+  const int *t = m->cell + 3 * c;
+  double area2 = 2 * mesh_volume(m, g, c);
   for (int k = 0; k < 3; k++) {
     const double *a = g + 2 * t[(k + 1) % 3], *b = g + 2 * t[(k + 2) % 3];
     lam[k] = ((a[0] - x[0]) * (b[1] - x[1]) - (a[1] - x[1]) * (b[0] - x[0])) / area2;
   }
 }
 
-int particles_locate(const Mesh *m, const double *g, double x[2], int *cell) {
-  int c = *cell, steps = 0;
+int particles_locate(const Mesh *m, const double *g, double *x, int *cell) {
+  int dim = m->dim, nk = m->nk, c = *cell, steps = 0;
+  for (int d = 0; d < dim; d++)
+    if (!isfinite(x[d])) return 0; /* a diverged flow: nothing to find */
   for (; steps < 4 * m->nc; steps++) {
-    double lam[3];
+    double lam[4];
     barycentric(m, g, c, x, lam);
     int k = 0;
-    for (int q = 1; q < 3; q++)
+    for (int q = 1; q < nk; q++)
       if (lam[q] < lam[k]) k = q;
     if (lam[k] >= -1e-12) break;
-    int n = m->nbr[3 * c + k];
-    if (n >= 0) { /* cross face k, the edge opposite vertex k */
-      x[0] += m->nshift[3 * c + k] * m->spec.L;
+    int n = m->nbr[nk * c + k];
+    if (n >= 0) { /* cross face k, the one opposite vertex k */
+      if (m->nshift) x[0] += m->nshift[nk * c + k] * m->spec.L;
       c = n;
       continue;
     }
     /* a wall: back onto the cell (clamp the barycentric coordinates) */
     double s = 0;
-    for (int q = 0; q < 3; q++) s += lam[q] = lam[q] > 0 ? lam[q] : 0;
-    const int *t = m->tri + 3 * c;
-    for (int d = 0; d < 2; d++)
-      x[d] = (lam[0] * g[2 * t[0] + d] + lam[1] * g[2 * t[1] + d] + lam[2] * g[2 * t[2] + d]) / s;
+    for (int q = 0; q < nk; q++) s += lam[q] = lam[q] > 0 ? lam[q] : 0;
+    const int *t = m->cell + nk * c;
+    for (int d = 0; d < dim; d++) {
+      double y = 0;
+      for (int q = 0; q < nk; q++) y += lam[q] * g[dim * t[q] + d];
+      x[d] = y / s;
+    }
     break;
   }
   *cell = c;
@@ -106,16 +160,98 @@ int particles_locate(const Mesh *m, const double *g, double x[2], int *cell) {
 }
 
 void particles_advect(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps) {
+  int dim = m->dim;
   double h = dt / substeps;
   for (int i = 0; i < p->n; i++) {
-    double *x = p->x + 2 * i;
+    double *x = p->x + dim * i;
     p->walk_steps += particles_locate(m, g, x, &p->cell[i]); /* the mesh moved under it */
     for (int s = 0; s < substeps; s++) {
-      double u[2];
+      double u[3];
       particles_cell_velocity(m, g, f, p->cell[i], u);
-      x[0] += h * u[0];
-      x[1] += h * u[1];
+      for (int d = 0; d < dim; d++) x[d] += h * u[d];
       p->walk_steps += particles_locate(m, g, x, &p->cell[i]);
+    }
+  }
+}
+
+/* ---------------------------------------------------------------- 3D, cached per frame */
+
+/* Cell c's velocity (Eq. 13) and barycentric map (λ_1..3 = M (x - g_0),
+ * λ_0 = 1 - their sum), computed on the first visit of the frame. */
+static void visit(Particles *p, const Mesh *m, const double *g, const double *f, int c) {
+  if (p->stamp[c] == p->frame) return;
+  p->stamp[c] = p->frame;
+  particles_cell_velocity(m, g, f, c, p->vel + 3 * c);
+  const int *t = m->cell + 4 * c;
+  const double *a = g + 3 * t[0];
+  double e[3][3], *B = p->bary + 12 * c;
+  for (int k = 0; k < 3; k++)
+    for (int d = 0; d < 3; d++) e[d][k] = g[3 * t[k + 1] + d] - a[d]; /* columns: the edges from g_0 */
+  double det = e[0][0] * (e[1][1] * e[2][2] - e[1][2] * e[2][1]) - e[0][1] * (e[1][0] * e[2][2] - e[1][2] * e[2][0]) +
+               e[0][2] * (e[1][0] * e[2][1] - e[1][1] * e[2][0]);
+  B[0] = (e[1][1] * e[2][2] - e[1][2] * e[2][1]) / det;
+  B[1] = (e[0][2] * e[2][1] - e[0][1] * e[2][2]) / det;
+  B[2] = (e[0][1] * e[1][2] - e[0][2] * e[1][1]) / det;
+  B[3] = (e[1][2] * e[2][0] - e[1][0] * e[2][2]) / det;
+  B[4] = (e[0][0] * e[2][2] - e[0][2] * e[2][0]) / det;
+  B[5] = (e[0][2] * e[1][0] - e[0][0] * e[1][2]) / det;
+  B[6] = (e[1][0] * e[2][1] - e[1][1] * e[2][0]) / det;
+  B[7] = (e[0][1] * e[2][0] - e[0][0] * e[2][1]) / det;
+  B[8] = (e[0][0] * e[1][1] - e[0][1] * e[1][0]) / det;
+  B[9] = a[0], B[10] = a[1], B[11] = a[2];
+}
+
+static int locate3(Particles *p, const Mesh *m, const double *g, const double *f, double *x, int *cell) {
+  int c = *cell, steps = 0;
+  if (!isfinite(x[0]) || !isfinite(x[1]) || !isfinite(x[2])) return 0;
+  for (; steps < 4 * m->nc; steps++) {
+    visit(p, m, g, f, c);
+    const double *B = p->bary + 12 * c;
+    double y[3] = {x[0] - B[9], x[1] - B[10], x[2] - B[11]}, lam[4];
+    lam[1] = B[0] * y[0] + B[1] * y[1] + B[2] * y[2];
+    lam[2] = B[3] * y[0] + B[4] * y[1] + B[5] * y[2];
+    lam[3] = B[6] * y[0] + B[7] * y[1] + B[8] * y[2];
+    lam[0] = 1 - lam[1] - lam[2] - lam[3];
+    int k = 0;
+    for (int q = 1; q < 4; q++)
+      if (lam[q] < lam[k]) k = q;
+    if (lam[k] >= -1e-12) break;
+    int n = m->nbr[4 * c + k];
+    if (n >= 0) {
+      c = n;
+      continue;
+    }
+    /* a wall: back onto the cell */
+    double s = 0;
+    for (int q = 0; q < 4; q++) s += lam[q] = lam[q] > 0 ? lam[q] : 0;
+    const int *t = m->cell + 4 * c;
+    for (int d = 0; d < 3; d++)
+      x[d] = (lam[0] * g[3 * t[0] + d] + lam[1] * g[3 * t[1] + d] + lam[2] * g[3 * t[2] + d] + lam[3] * g[3 * t[3] + d]) / s;
+    break;
+  }
+  *cell = c;
+  return steps;
+}
+
+void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps) {
+  if (m->dim != 3) {
+    particles_advect(p, m, g, f, dt, substeps);
+    return;
+  }
+  if (!p->stamp) {
+    p->stamp = calloc(m->nc, sizeof *p->stamp);
+    p->vel = malloc(3 * (size_t)m->nc * sizeof *p->vel);
+    p->bary = malloc(12 * (size_t)m->nc * sizeof *p->bary);
+  }
+  p->frame++;
+  double h = dt / substeps;
+  for (int i = 0; i < p->n; i++) {
+    double *x = p->x + 3 * i;
+    p->walk_steps += locate3(p, m, g, f, x, &p->cell[i]);
+    for (int s = 0; s < substeps; s++) {
+      const double *u = p->vel + 3 * p->cell[i];
+      x[0] += h * u[0], x[1] += h * u[1], x[2] += h * u[2];
+      p->walk_steps += locate3(p, m, g, f, x, &p->cell[i]);
     }
   }
 }

@@ -14,30 +14,36 @@
 #include <suitesparse/umfpack.h>
 #include <time.h>
 
-/* Triplets in a fixed order: for every cell, its 3x3 block of K (interior
- * faces only), then (but the last cell) its divergence row and column. */
+/* Triplets in a fixed order: for every cell, its nk x nk block of K
+ * (interior faces only), then (but the last cell) its divergence row and
+ * column. */
 static void triplets(Projection *pr, bool values) {
   const Ops *o = pr->o;
   const Mesh *m = o->m;
-  int t = 0;
+  int dim = m->dim, nk = m->nk, t = 0;
   for (int c = 0; c < m->nc; c++) {
-    const double *P = o->P.val + 6 * c; /* rows 2c, 2c+1; columns the faces k */
-    for (int k = 0; k < 3; k++) {
-      int fk = pr->fidx[m->cface[3 * c + k]];
+    const double *P = o->P.val + dim * nk * c; /* rows dim c + d; columns the faces k */
+    for (int k = 0; k < nk; k++) {
+      int fk = pr->fidx[m->cface[nk * c + k]];
       if (fk < 0) continue;
-      for (int l = 0; l < 3; l++) {
-        int fl = pr->fidx[m->cface[3 * c + l]];
+      for (int l = 0; l < nk; l++) {
+        int fl = pr->fidx[m->cface[nk * c + l]];
         if (fl < 0) continue;
-        if (values) pr->tx[t] = (P[k] * P[l] + P[3 + k] * P[3 + l]) / o->area[c];
-        else pr->ti[t] = fk, pr->tj[t] = fl;
+        if (values) {
+          double s = 0;
+          for (int d = 0; d < dim; d++) s += P[nk * d + k] * P[nk * d + l];
+          pr->tx[t] = s / o->area[c];
+        } else {
+          pr->ti[t] = fk, pr->tj[t] = fl;
+        }
         t++;
       }
     }
     if (c == m->nc - 1) continue;
-    for (int k = 0; k < 3; k++) {
-      int fk = pr->fidx[m->cface[3 * c + k]];
+    for (int k = 0; k < nk; k++) {
+      int fk = pr->fidx[m->cface[nk * c + k]];
       if (fk < 0) continue;
-      if (values) pr->tx[t] = pr->tx[t + 1] = m->csign[3 * c + k];
+      if (values) pr->tx[t] = pr->tx[t + 1] = m->csign[nk * c + k];
       else pr->ti[t] = pr->ni + c, pr->tj[t] = fk, pr->ti[t + 1] = fk, pr->tj[t + 1] = pr->ni + c;
       t += 2;
     }
@@ -58,7 +64,7 @@ int projection_init(Projection *pr, const Ops *o, ProjectionMethod method, char 
   pr->fidx = malloc(m->nf * sizeof *pr->fidx);
   for (int j = 0; j < m->nf; j++) pr->fidx[j] = m->fkind[j] == BF_INTERIOR ? pr->ni++ : -1;
   pr->n = pr->ni + m->nc - 1;
-  int cap = 9 * m->nc + 6 * m->nc;
+  int cap = (m->nk * m->nk + 2 * m->nk) * m->nc;
   pr->ti = malloc(cap * sizeof *pr->ti);
   pr->tj = malloc(cap * sizeof *pr->tj);
   pr->tx = calloc(cap, sizeof *pr->tx);
@@ -72,7 +78,7 @@ int projection_init(Projection *pr, const Ops *o, ProjectionMethod method, char 
   pr->x = malloc(pr->n * sizeof *pr->x);
   pr->work_f = malloc(m->nf * sizeof *pr->work_f);
   pr->work_f2 = malloc(m->nf * sizeof *pr->work_f2);
-  pr->work_u = malloc(2 * m->nc * sizeof *pr->work_u);
+  pr->work_u = malloc(m->dim * m->nc * sizeof *pr->work_u);
   int st = umfpack_di_triplet_to_col(pr->n, pr->n, pr->nt, pr->ti, pr->tj, pr->tx, pr->Ap, pr->Ai, pr->Ax, pr->map);
   if (st != UMFPACK_OK) return util_fail(err, errlen, "projection: UMFPACK triplet_to_col failed (status %d)", st);
   /* UMFPACK's default (automatic) strategy: measured faster here than the
@@ -123,17 +129,16 @@ int projection_solve(Projection *pr, const double *u_in, const double *h, double
   double *fb = pr->work_f, *r = pr->work_f2, *w = pr->work_u;
   for (int j = 0; j < m->nf; j++) fb[j] = (pr->fidx[j] < 0 && h) ? h[j] : 0;
   /* r = P^T u - P^T V^-1 P fb */
+  int dim = m->dim, nk = m->nk;
   csr_mv(&o->P, fb, w);
-  for (int c = 0; c < m->nc; c++) {
-    w[2 * c] = u_in[2 * c] - w[2 * c] / o->area[c];
-    w[2 * c + 1] = u_in[2 * c + 1] - w[2 * c + 1] / o->area[c];
-  }
+  for (int c = 0; c < m->nc; c++)
+    for (int d = 0; d < dim; d++) w[dim * c + d] = u_in[dim * c + d] - w[dim * c + d] / o->area[c];
   csr_mtv(&o->P, w, r);
   for (int j = 0; j < m->nf; j++)
     if (pr->fidx[j] >= 0) pr->rhs[pr->fidx[j]] = r[j];
   for (int c = 0; c < m->nc - 1; c++) {
     double s = 0;
-    for (int k = 0; k < 3; k++) s += m->csign[3 * c + k] * fb[m->cface[3 * c + k]];
+    for (int k = 0; k < nk; k++) s += m->csign[nk * c + k] * fb[m->cface[nk * c + k]];
     pr->rhs[pr->ni + c] = -s;
   }
   st = umfpack_di_solve(UMFPACK_A, pr->Ap, pr->Ai, pr->Ax, pr->x, pr->rhs, pr->numeric, pr->control, NULL);
@@ -148,10 +153,11 @@ int projection_solve(Projection *pr, const double *u_in, const double *h, double
 
 double projection_max_divergence(const Ops *o, const double *f) {
   const Mesh *m = o->m;
+  int nk = m->nk;
   double worst = 0;
   for (int c = 0; c < m->nc; c++) {
     double s = 0;
-    for (int k = 0; k < 3; k++) s += m->csign[3 * c + k] * f[m->cface[3 * c + k]];
+    for (int k = 0; k < nk; k++) s += m->csign[nk * c + k] * f[m->cface[nk * c + k]];
     if (fabs(s) > worst) worst = fabs(s);
   }
   return worst;

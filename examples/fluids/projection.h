@@ -56,7 +56,7 @@ int projection_init(Projection *pr, const Ops *o, ProjectionMethod method, char 
 /* "kkt-umfpack" / "stream-cholmod". */
 const char *projection_method_name(ProjectionMethod method);
 void projection_free(Projection *pr);
-/* Project u_in [C][2] with the geometry in `o` (ops_set_geometry: g_{t+1})
+/* Project u_in [C][dim] with the geometry in `o` (ops_set_geometry: g_{t+1})
  * and boundary fluxes from h [F] (only the boundary entries are read; NULL
  * for zero). Writes f [F] (boundary entries = h) and u_out = V^-1 P f.
  * 0, or -1 with UMFPACK's status in `err`. */

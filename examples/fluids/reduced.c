@@ -189,7 +189,179 @@ static int matrix_in_u(RedSolver *s, const char *name, const double *gc, const d
   return 0;
 }
 
-int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *err, size_t errlen) {
+/* ---------------------------------------------------------------- monomials in ĝ */
+
+/* The monomials of degree s->deg_* in ĝ, listed as sorted index triples
+ * (unused entries -1), and their values at a point. */
+static long mono_list(int deg, long mg, int (*idx)[3]) {
+  long n = 0;
+  for (int i = 0; i < mg; i++) {
+    if (deg == 1) {
+      if (idx) idx[n][0] = i, idx[n][1] = idx[n][2] = -1;
+      n++;
+      continue;
+    }
+    for (int j = i; j < mg; j++) {
+      if (deg == 2) {
+        if (idx) idx[n][0] = i, idx[n][1] = j, idx[n][2] = -1;
+        n++;
+        continue;
+      }
+      for (int k = j; k < mg; k++) {
+        if (idx) idx[n][0] = i, idx[n][1] = j, idx[n][2] = k;
+        n++;
+      }
+    }
+  }
+  return n;
+}
+
+static void mono_values(long n, const int (*idx)[3], const double *x, double *out) {
+  for (long a = 0; a < n; a++) {
+    double v = x[idx[a][0]];
+    if (idx[a][1] >= 0) v *= x[idx[a][1]];
+    if (idx[a][2] >= 0) v *= x[idx[a][2]];
+    out[a] = v;
+  }
+}
+
+/* A matrix-valued homogeneous polynomial of ĝ evaluated into `out` (len). */
+typedef int (*PolyEval)(RedSolver *s, void *ctx, const double *gc, double *out, char *err, size_t errlen);
+
+/* The coefficient of every monomial of degree `deg` (≤ 3) of a homogeneous
+ * polynomial p of ĝ, by polarization: p(e_i) = c_iii; p(e_i ± e_j) give
+ * c_iij and c_ijj; p(e_i + e_j + e_k) gives c_ijk. coef: [n][len]. */
+static int poly_coefficients(RedSolver *s, int deg, long n, const int (*idx)[3], PolyEval fn, void *ctx, long len,
+                             double *coef, char *err, size_t errlen) {
+  long mg = s->mg;
+  int *at = malloc((size_t)(mg * mg * mg) * sizeof *at);
+  double *pt = calloc((size_t)mg, sizeof *pt), *buf = malloc((size_t)len * sizeof *buf), *b2 = malloc((size_t)len * sizeof *b2);
+  for (long a = 0; a < n; a++) {
+    int i = idx[a][0], j = idx[a][1] < 0 ? i : idx[a][1], k = idx[a][2] < 0 ? j : idx[a][2];
+    at[(i * mg + j) * mg + k] = (int)a;
+  }
+#define AT(i, j, k) (coef + (size_t)at[((i)*mg + (deg > 1 ? (j) : (i))) * mg + (deg > 2 ? (k) : (deg > 1 ? (j) : (i)))] * len)
+  int rc = 0;
+  /* pure powers */
+  for (long i = 0; i < mg && !rc; i++) {
+    pt[i] = 1;
+    rc = fn(s, ctx, pt, AT(i, i, i), err, errlen);
+    pt[i] = 0;
+  }
+  /* pairs */
+  for (long i = 0; i < mg && !rc && deg > 1; i++)
+    for (long j = i + 1; j < mg && !rc; j++) {
+      double *ci = AT(i, i, i), *cj = AT(j, j, j);
+      pt[i] = pt[j] = 1;
+      rc = fn(s, ctx, pt, buf, err, errlen);
+      if (!rc && deg == 3) {
+        pt[j] = -1;
+        rc = fn(s, ctx, pt, b2, err, errlen);
+      }
+      pt[i] = pt[j] = 0;
+      if (rc) break;
+      if (deg == 2) {
+        double *cij = AT(i, j, j);
+        for (long e = 0; e < len; e++) cij[e] = buf[e] - ci[e] - cj[e];
+      } else {
+        double *ciij = AT(i, i, j), *cijj = AT(i, j, j);
+        for (long e = 0; e < len; e++) {
+          double sp = buf[e] - ci[e] - cj[e], sm = b2[e] - ci[e] + cj[e];
+          ciij[e] = 0.5 * (sp - sm), cijj[e] = 0.5 * (sp + sm);
+        }
+      }
+    }
+  /* triples */
+  for (long i = 0; i < mg && !rc && deg > 2; i++)
+    for (long j = i + 1; j < mg && !rc; j++)
+      for (long k = j + 1; k < mg && !rc; k++) {
+        pt[i] = pt[j] = pt[k] = 1;
+        rc = fn(s, ctx, pt, buf, err, errlen);
+        pt[i] = pt[j] = pt[k] = 0;
+        if (rc) break;
+        const double *parts[9] = {AT(i, i, i), AT(j, j, j), AT(k, k, k), AT(i, i, j), AT(i, j, j),
+                                  AT(i, i, k), AT(i, k, k), AT(j, j, k), AT(j, k, k)};
+        double *cijk = AT(i, j, k);
+        for (long e = 0; e < len; e++) {
+          double v = buf[e];
+          for (int q = 0; q < 9; q++) v -= parts[q][e];
+          cijk[e] = v;
+        }
+      }
+#undef AT
+  free(at), free(pt), free(buf), free(b2);
+  return rc;
+}
+
+/* pv at ĝ: V̂(ĝ) (mu x mu). */
+static int eval_volume(RedSolver *s, void *ctx, const double *gc, double *out, char *err, size_t errlen) {
+  double **w = ctx; /* zero gdot, zero f, unit u, a column */
+  return matrix_in_u(s, "pv", gc, w[0], w[1], out, w[2], w[3], err, errlen);
+}
+
+/* pdot at ĝ, ĝdot = e_q, f̂ = 0 (−Â_h ⊗ ĥ, mu x mu) and then bh (D̂_h ĥ, mb). */
+typedef struct InducedCtx {
+  double *gdc, *fc, *uc, *col;
+  long q;
+} InducedCtx;
+
+static int eval_induced(RedSolver *s, void *vctx, const double *gc, double *out, char *err, size_t errlen) {
+  InducedCtx *c = vctx;
+  c->gdc[c->q] = 1;
+  int rc = matrix_in_u(s, "pdot", gc, c->gdc, c->fc, out, c->uc, c->col, err, errlen);
+  if (!rc) rc = get_coords(s, "bh", out + s->mu * s->mu, s->mb, err, errlen);
+  c->gdc[c->q] = 0;
+  return rc;
+}
+
+/* Constraint reduction (paper §6.4): D̂ = U Σ Vᵀ, rank r = the singular
+ * values above tol σ_0; N = V[:, r:] (the free directions), D̂⁺ = V_r Σ_r⁻¹
+ * U_rᵀ. */
+int red_constraints(RedSolver *s, double tol, char *err, size_t errlen) {
+  long mb = s->mb, mf = s->mf;
+  int rc = 0;
+  double *D = malloc((size_t)(mb * mf) * sizeof(double) + 8);
+  memcpy(D, s->D, (size_t)(mb * mf) * sizeof(double));
+  {
+    double *Uu = malloc((size_t)(mb * mb) * sizeof(double) + 8), *Vt = malloc((size_t)(mf * mf) * sizeof(double));
+    double *sv = malloc((size_t)(mb < mf ? mb : mf) * sizeof(double) + 8), *sup = malloc((size_t)(mb + mf) * sizeof(double));
+    long kmin = mb < mf ? mb : mf;
+    if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'A', 'A', mb, mf, D, mf, sv, Uu, mb, Vt, mf, sup) != 0) {
+      rc = fail(err, errlen, "SVD of the reduced boundary operator failed", NULL);
+    } else {
+      long r = 0;
+      for (long i = 0; i < kmin; i++)
+        if (sv[i] > tol * sv[0] && sv[i] > 1e-13) r++;
+      s->drank = r;
+      s->nn = mf - r;
+      for (long k = 0; k < mf; k++)
+        for (long j = 0; j < s->nn; j++) s->N[k * s->nn + j] = Vt[(r + j) * mf + k];
+      for (long k = 0; k < mf; k++)
+        for (long b = 0; b < mb; b++) {
+          double v = 0;
+          for (long i = 0; i < r; i++) v += Vt[i * mf + k] * Uu[b * mb + i] / sv[i];
+          s->Dpinv[k * mb + b] = v;
+        }
+    }
+    free(Uu), free(Vt), free(sv), free(sup);
+  }
+  free(D);
+  /* P̂(ĝ) N, linear in ĝ like P̂: the projection's matrix on the null space of D̂ */
+  free(s->PNs);
+  s->PNs = NULL;
+  if (!rc && s->nn > 0) {
+    long mg = s->mg, mu = s->mu;
+    size_t uf = (size_t)mu * (size_t)mf;
+    s->PNs = malloc((size_t)mg * (size_t)mu * (size_t)s->nn * sizeof(double));
+    if (!s->PNs) rc = fail(err, errlen, "out of memory", NULL);
+    for (long l = 0; l < mg && !rc; l++)
+      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)mu, (int)s->nn, (int)mf, 1.0, s->Ps + (size_t)l * uf,
+                  (int)mf, s->N, (int)s->nn, 0.0, s->PNs + (size_t)l * (size_t)mu * (size_t)s->nn, (int)s->nn);
+  }
+  return rc;
+}
+
+int red_init(RedSolver *s, const NpgModel *model, int dim, double visc, double dt, char *err, size_t errlen) {
   memset(s, 0, sizeof *s);
   s->model = model;
   s->visc = visc, s->dt = dt;
@@ -204,14 +376,24 @@ int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *
     return -1;
   s->r = npg_reduced_new(model);
   if (!s->r) return fail(err, errlen, "out of memory", NULL);
+  if (s->mg > 16 || (dim != 2 && dim != 3)) return fail(err, errlen, "the geometry basis is larger than 16 or dim is not 2 or 3", NULL);
   double t0 = util_now();
   long mg = s->mg, mgd = s->mgd, mu = s->mu, mf = s->mf, mb = s->mb;
+  /* paper §5.1, §5.4: V(g) has degree dim in g, h(g, gdot) degree dim - 1 */
+  s->dim = dim;
+  s->nmv = mono_list(dim, mg, NULL);
+  s->nmh = mono_list(dim - 1, mg, NULL);
+  s->mono_v = malloc((size_t)s->nmv * sizeof *s->mono_v);
+  s->mono_h = malloc((size_t)s->nmh * sizeof *s->mono_h);
+  mono_list(dim, mg, s->mono_v);
+  mono_list(dim - 1, mg, s->mono_h);
+  long nh = s->nmh * mgd;
   size_t uu = (size_t)(mu * mu), uf = (size_t)(mu * mf);
-  s->Vs = calloc((size_t)(mg * mg) * uu, sizeof(double));
+  s->Vs = calloc((size_t)s->nmv * uu, sizeof(double));
   s->Ps = calloc((size_t)mg * uf, sizeof(double));
   s->As = calloc((size_t)mf * uu, sizeof(double));
-  s->Ahs = calloc((size_t)(mg * mgd) * uu, sizeof(double));
-  s->Bhs = calloc((size_t)(mg * mgd * mb) + 1, sizeof(double));
+  s->Ahs = calloc((size_t)nh * uu, sizeof(double));
+  s->Bhs = calloc((size_t)(nh * mb) + 1, sizeof(double));
   s->L = calloc(uu, sizeof(double));
   double *D = calloc((size_t)(mb * mf) + 1, sizeof(double));
   s->Dpinv = calloc((size_t)(mf * mb) + 1, sizeof(double));
@@ -221,7 +403,8 @@ int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *
   s->u = calloc((size_t)mu, sizeof(double));
   s->gmid = calloc((size_t)mg, sizeof(double));
   s->gdot = calloc((size_t)mgd, sizeof(double));
-  s->wgt = calloc((size_t)(mg * mgd), sizeof(double));
+  s->wgt = calloc((size_t)nh, sizeof(double));
+  s->mvals = calloc((size_t)(s->nmv + 3 * s->nmh), sizeof(double));
   s->b = calloc((size_t)mb + 1, sizeof(double));
   s->A = malloc(uu * sizeof(double));
   s->M = malloc(uu * sizeof(double));
@@ -250,7 +433,7 @@ int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *
   double *pc = malloc((size_t)mu * sizeof(double)), *bc = malloc((size_t)mb * sizeof(double) + 8);
   int rc = 0;
   if (!s->Vs || !s->Ps || !s->As || !s->Ahs || !s->L || !D || !s->Dpinv || !s->N || !s->work || !gc || !fc || !uc ||
-      !gdc || !pc || !bc || !s->Vf || !s->Vfg || !s->Q || !s->H || !s->Hx || !s->hwork) {
+      !gdc || !pc || !bc || !s->Vf || !s->Vfg || !s->Q || !s->H || !s->Hx || !s->hwork || !s->mvals) {
     rc = fail(err, errlen, "out of memory", NULL);
     goto done;
   }
@@ -262,31 +445,26 @@ int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *
     rc = matrix_in_u(s, "pdot", gc, gdc, fc, s->As + (size_t)k * uu, uc, pc, err, errlen);
     fc[k] = 0;
   }
-  /* V̂ slices: pv at ĝ = e_l, and e_l + e_q (quadratic in ĝ) */
-  for (long l = 0; l < mg && !rc; l++) {
-    gc[l] = 1;
-    rc = matrix_in_u(s, "pv", gc, gdc, fc, s->Vs + (size_t)(l * mg + l) * uu, uc, pc, err, errlen);
-    gc[l] = 0;
+  /* V̂ slices: pv, homogeneous of degree dim in ĝ, one slice per monomial */
+  if (!rc) {
+    double *w[4] = {gdc, fc, uc, pc};
+    rc = poly_coefficients(s, dim, s->nmv, s->mono_v, eval_volume, w, (long)uu, s->Vs, err, errlen);
   }
-  for (long l = 0; l < mg && !rc; l++)
-    for (long q = l + 1; q < mg && !rc; q++) {
-      gc[l] = gc[q] = 1;
-      double *Vlq = s->Vs + (size_t)(l * mg + q) * uu, *Vql = s->Vs + (size_t)(q * mg + l) * uu;
-      rc = matrix_in_u(s, "pv", gc, gdc, fc, Vlq, uc, pc, err, errlen);
-      gc[l] = gc[q] = 0;
-      if (rc) break;
-      const double *Vll = s->Vs + (size_t)(l * mg + l) * uu, *Vqq = s->Vs + (size_t)(q * mg + q) * uu;
-      for (size_t i = 0; i < uu; i++) Vlq[i] = 0.5 * (Vlq[i] - Vll[i] - Vqq[i]), Vql[i] = Vlq[i];
-    }
-  /* −Â_h ⊗ ĥ(ĝ, ĝdot) slices: pdot at f̂ = 0, ĝ = e_l, ĝdot = e_q (ĥ bilinear in
-   * them), û = e_j; and D̂_h ĥ: bh there */
-  for (long l = 0; l < mg && !rc; l++)
+  /* −Â_h ⊗ ĥ(ĝ, ĝdot) slices: pdot at f̂ = 0, ĝdot = e_q (ĥ linear in ĝdot,
+   * of degree dim - 1 in ĝ), û = e_j; and D̂_h ĥ: bh there */
+  if (!rc) {
+    double *buf = malloc((uu + (size_t)mb) * (size_t)s->nmh * sizeof *buf);
+    InducedCtx ctx = {gdc, fc, uc, pc, 0};
     for (long q = 0; q < mgd && !rc; q++) {
-      gc[l] = 1, gdc[q] = 1;
-      rc = matrix_in_u(s, "pdot", gc, gdc, fc, s->Ahs + (size_t)(l * mgd + q) * uu, uc, pc, err, errlen);
-      if (!rc) rc = get_coords(s, "bh", s->Bhs + (size_t)(l * mgd + q) * mb, mb, err, errlen);
-      gc[l] = 0, gdc[q] = 0;
+      ctx.q = q;
+      rc = poly_coefficients(s, dim - 1, s->nmh, s->mono_h, eval_induced, &ctx, (long)(uu + mb), buf, err, errlen);
+      for (long a = 0; a < s->nmh && !rc; a++) {
+        memcpy(s->Ahs + (size_t)(a * mgd + q) * uu, buf + (size_t)a * (uu + mb), uu * sizeof *buf);
+        memcpy(s->Bhs + (size_t)(a * mgd + q) * mb, buf + (size_t)a * (uu + mb) + uu, (size_t)mb * sizeof *buf);
+      }
     }
+    free(buf);
+  }
   /* P̂ slices: p at ĝ = e_l, f̂ = e_k (bilinear); D̂: bf at f̂ = e_k */
   for (long l = 0; l < mg && !rc; l++) {
     gc[l] = 1;
@@ -307,47 +485,20 @@ int red_init(RedSolver *s, const NpgModel *model, double visc, double dt, char *
     gc[l] = 0;
   }
   if (rc) goto done;
-  /* constraint reduction: D̂ = U Σ Vᵀ; rank r; N = V[:, r:]; D̂⁺ = V_r Σ_r⁻¹ U_rᵀ */
-  {
-    double *Uu = malloc((size_t)(mb * mb) * sizeof(double) + 8), *Vt = malloc((size_t)(mf * mf) * sizeof(double));
-    double *sv = malloc((size_t)(mb < mf ? mb : mf) * sizeof(double) + 8), *sup = malloc((size_t)(mb + mf) * sizeof(double));
-    long kmin = mb < mf ? mb : mf;
-    if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'A', 'A', mb, mf, D, mf, sv, Uu, mb, Vt, mf, sup) != 0) {
-      rc = fail(err, errlen, "SVD of the reduced boundary operator failed", NULL);
-    } else {
-      long r = 0;
-      for (long i = 0; i < kmin; i++)
-        if (sv[i] > 1e-10 * sv[0] && sv[i] > 1e-13) r++;
-      s->drank = r;
-      s->nn = mf - r;
-      for (long k = 0; k < mf; k++)
-        for (long j = 0; j < s->nn; j++) s->N[k * s->nn + j] = Vt[(r + j) * mf + k];
-      for (long k = 0; k < mf; k++)
-        for (long b = 0; b < mb; b++) {
-          double v = 0;
-          for (long i = 0; i < r; i++) v += Vt[i * mf + k] * Uu[b * mb + i] / sv[i];
-          s->Dpinv[k * mb + b] = v;
-        }
-    }
-    free(Uu), free(Vt), free(sv), free(sup);
-  }
+  s->D = D;
+  D = NULL;
+  rc = red_constraints(s, 1e-10, err, errlen);
+  if (rc) goto done;
   /* Â ⊗ f̂ split into its skew part, stored as strict upper triangles, and its
    * symmetric part, which comes from the diagonal of A ⊗ f: half the net
    * interior outflow of each cell, i.e. (B_f's columns being divergence-free)
    * half its boundary flux, which the few vectors of B_d span; the SVD of
    * the symmetric parts finds that rank (singular values above 1e-12 of the
    * tensor's norm), so the step reads a little over half of the tensor. */
-  if (!rc) rc = split_advection(s, err, errlen);
+  rc = split_advection(s, err, errlen);
   free(s->As);
   s->As = NULL;
-  /* P̂(ĝ) N, linear in ĝ like P̂: the projection's matrix on the null space of D̂ */
-  if (!rc && s->nn > 0) {
-    s->PNs = malloc((size_t)mg * (size_t)mu * (size_t)s->nn * sizeof(double));
-    if (!s->PNs) rc = fail(err, errlen, "out of memory", NULL);
-    for (long l = 0; l < mg && !rc; l++)
-      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)mu, (int)s->nn, (int)mf, 1.0, s->Ps + (size_t)l * uf,
-                  (int)mf, s->N, (int)s->nn, 0.0, s->PNs + (size_t)l * (size_t)mu * (size_t)s->nn, (int)s->nn);
-  }
+  if (rc) goto done;
   s->seconds_setup = util_now() - t0;
 done:
   free(D), free(gc), free(fc), free(uc), free(gdc), free(pc), free(bc);
@@ -413,6 +564,7 @@ void red_advection(const RedSolver *s, const double *fc, double *A) {
 void red_free(RedSolver *s) {
   if (s->r) npg_reduced_free(s->r);
   free(s->Vs), free(s->Ps), free(s->As), free(s->Ahs), free(s->Bhs), free(s->wgt), free(s->L), free(s->Dpinv);
+  free(s->mono_v), free(s->mono_h), free(s->mvals), free(s->D);
   free(s->N), free(s->g), free(s->f), free(s->u);
   free(s->gmid), free(s->gdot), free(s->b), free(s->A), free(s->M), free(s->E), free(s->V0), free(s->V1);
   free(s->P1), free(s->W), free(s->K), free(s->KN), free(s->Kn), free(s->work), free(s->tmp), free(s->tmp2), free(s->tmp3);
@@ -424,13 +576,8 @@ void red_free(RedSolver *s) {
 
 void red_volume(const RedSolver *s, const double *gc, double *V) {
   size_t uu = (size_t)(s->mu * s->mu);
-  long mg = s->mg;
-  memset(V, 0, uu * sizeof *V);
-  for (long l = 0; l < mg; l++) /* the slices are symmetric in (l, q): the upper ones only */
-    for (long q = l; q < mg; q++) {
-      double w = (q == l ? 1 : 2) * gc[l] * gc[q];
-      if (w != 0) cblas_daxpy((int)uu, w, s->Vs + (size_t)(l * mg + q) * uu, 1, V, 1);
-    }
+  mono_values(s->nmv, s->mono_v, gc, s->mvals);
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)s->nmv, (int)uu, 1.0, s->Vs, (int)uu, s->mvals, 1, 0.0, V, 1);
 }
 
 void red_pmat(const RedSolver *s, const double *gc, double *P) {
@@ -586,21 +733,30 @@ int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, 
     memcpy(s->gdot, gdotc, (size_t)mgd * sizeof *s->gdot);
   else
     memset(s->gdot, 0, (size_t)mgd * sizeof *s->gdot);
-  /* Â ⊗ (f̂ − ĥ): Σ_k f̂_k Â_k + Σ_lq ĝmid_l ĝdot_q (−Â_h ĥ)_lq (ĥ exact at the
-   * midpoint, as in the full step), and D̂_h ĥ likewise */
+  /* Â ⊗ (f̂ − ĥ): Σ_k f̂_k Â_k + Σ_aq w_a ĝdot_q (−Â_h ĥ)_aq, and D̂_h ĥ
+   * likewise, with ĥ the flux of the step's linear motion: the monomials of
+   * ĝ by Simpson's rule over it, (m(ĝ_t) + 4 m(ĝ_mid) + m(ĝ_{t+1})) / 6 —
+   * exact for h's degree (paper §5.4; 2D: the midpoint) */
   size_t uu = (size_t)mu * mu;
   red_advection(s, s->f, s->A);
+  long nmh = s->nmh;
+  double *m0 = s->mvals + s->nmv, *m1 = m0 + nmh, *m2 = m1 + nmh;
+  mono_values(nmh, s->mono_h, s->g, m0);
+  mono_values(nmh, s->mono_h, s->gmid, m1);
+  mono_values(nmh, s->mono_h, gnext, m2);
   int moving = 0;
-  for (long l = 0; l < mg; l++)
+  for (long a = 0; a < nmh; a++) {
+    double ma = (m0[a] + 4 * m1[a] + m2[a]) / 6;
     for (long q = 0; q < mgd; q++) {
-      double w = s->gmid[l] * s->gdot[q];
-      s->wgt[l * mgd + q] = w;
+      double w = ma * s->gdot[q];
+      s->wgt[a * mgd + q] = w;
       moving |= w != 0;
     }
+  }
   if (moving) {
-    cblas_dgemv(CblasRowMajor, CblasTrans, (int)(mg * mgd), (int)uu, 1.0, s->Ahs, (int)uu, s->wgt, 1, 1.0, s->A, 1);
+    cblas_dgemv(CblasRowMajor, CblasTrans, (int)(nmh * mgd), (int)uu, 1.0, s->Ahs, (int)uu, s->wgt, 1, 1.0, s->A, 1);
     if (mb > 0)
-      cblas_dgemv(CblasRowMajor, CblasTrans, (int)(mg * mgd), mb, 1.0, s->Bhs, mb, s->wgt, 1, 0.0, s->b, 1);
+      cblas_dgemv(CblasRowMajor, CblasTrans, (int)(nmh * mgd), mb, 1.0, s->Bhs, mb, s->wgt, 1, 0.0, s->b, 1);
   } else if (mb > 0)
     memset(s->b, 0, (size_t)mb * sizeof *s->b);
   double t1 = util_now();

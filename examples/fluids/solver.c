@@ -6,40 +6,48 @@
 #include <string.h>
 #include <time.h>
 
-int solver_init(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, double sigma0,
-                const double u0[2], char *err, size_t errlen) {
+int solver_init_at(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, const double *g0,
+                   const double *u0, char *err, size_t errlen) {
   memset(s, 0, sizeof *s);
   s->m = m;
   s->mu = mu;
   s->dt = dt;
-  s->sigma = s->sigma_ref = sigma0;
-  size_t gv = 2 * (size_t)m->nv * sizeof(double);
+  int dim = m->dim;
+  size_t gv = dim * (size_t)m->nv * sizeof(double);
   s->g = malloc(gv);
   s->g_next = malloc(gv);
   s->gmid = malloc(gv);
-  s->gdot = calloc(2 * m->nv, sizeof(double));
+  s->gdot = calloc(dim * m->nv, sizeof(double));
   s->h = calloc(m->nf, sizeof(double));
   s->phi = calloc(m->nf, sizeof(double));
   s->f = calloc(m->nf, sizeof(double));
-  s->u = malloc(2 * (size_t)m->nc * sizeof(double));
+  s->u = malloc(dim * (size_t)m->nc * sizeof(double));
+  memcpy(s->g, g0, gv);
   ops_init(&s->ops, m);
   integrator_init(&s->it, &s->ops);
-  if (mesh_deform(m, sigma0, sigma0, s->g, err, errlen) != 0) {
-    solver_free(s);
-    return -1;
-  }
   ops_set_geometry(&s->ops, s->g);
   if (projection_init(&s->pr, &s->ops, method, err, errlen) != 0) {
     solver_free(s);
     return -1;
   }
   s->min_quality = mesh_min_quality(m, s->g, &s->worst_cell);
-  for (int c = 0; c < m->nc; c++) s->u[2 * c] = u0[0], s->u[2 * c + 1] = u0[1];
+  for (int c = 0; c < m->nc; c++)
+    for (int d = 0; d < dim; d++) s->u[dim * c + d] = u0[d];
   if (projection_solve(&s->pr, s->u, NULL, s->f, s->u, err, errlen) != 0) {
     solver_free(s);
     return -1;
   }
   return 0;
+}
+
+int solver_init(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, double sigma0,
+                const double u0[2], char *err, size_t errlen) {
+  double *g0 = malloc(2 * (size_t)m->nv * sizeof *g0);
+  int rc = mesh_deform(m, sigma0, sigma0, g0, err, errlen);
+  if (rc == 0) rc = solver_init_at(s, m, method, mu, dt, g0, u0, err, errlen);
+  free(g0);
+  if (rc == 0) s->sigma = s->sigma_ref = sigma0;
+  return rc;
 }
 
 void solver_free(FullSolver *s) {
@@ -58,15 +66,28 @@ void solver_free(FullSolver *s) {
 }
 
 int solver_step(FullSolver *s, double sigma_next, char *err, size_t errlen) {
-  const Mesh *m = s->m;
   double t0 = util_now();
-  if (mesh_deform(m, sigma_next, s->sigma_ref, s->g_next, err, errlen) != 0) return -1;
+  if (mesh_deform(s->m, sigma_next, s->sigma_ref, s->g_next, err, errlen) != 0) return -1;
+  s->seconds_deformation += util_now() - t0;
+  if (solver_step_to(s, s->g_next, err, errlen) != 0) return -1;
+  s->sigma = sigma_next;
+  return 0;
+}
+
+int solver_step_to(FullSolver *s, const double *g_next, char *err, size_t errlen) {
+  const Mesh *m = s->m;
+  int dim = m->dim, nv = dim * m->nv;
+  double t0 = util_now();
+  if (g_next != s->g_next) memcpy(s->g_next, g_next, nv * sizeof *g_next);
   s->min_quality = mesh_min_quality(m, s->g_next, &s->worst_cell);
-  for (int i = 0; i < 2 * m->nv; i++) {
+  if (!(s->min_quality > 0))
+    return util_fail(err, errlen, "the step's geometry inverts element %d (volume %.3g, rest volume %.3g)",
+                     s->worst_cell, mesh_volume(m, s->g_next, s->worst_cell), mesh_volume(m, m->g0, s->worst_cell));
+  for (int i = 0; i < nv; i++) {
     s->gmid[i] = 0.5 * (s->g[i] + s->g_next[i]);
     s->gdot[i] = (s->g_next[i] - s->g[i]) / s->dt;
   }
-  ops_induced_flux(m, s->gmid, s->gdot, s->h);
+  ops_swept_flux(m, s->g, s->g_next, s->gmid, s->gdot, s->h);
   double t1 = util_now();
   /* advection and diffusion at g_t (the geometry ops holds) */
   for (int j = 0; j < m->nf; j++) s->phi[j] = s->f[j] - s->h[j];
@@ -80,7 +101,6 @@ int solver_step(FullSolver *s, double sigma_next, char *err, size_t errlen) {
   double *t = s->g;
   s->g = s->g_next;
   s->g_next = t;
-  s->sigma = sigma_next;
   s->seconds_deformation += t1 - t0;
   s->seconds_advection += t2 - t1;
   s->seconds_projection += t3 - t2;

@@ -25,17 +25,27 @@ typedef struct FullSolver {
   Integrator it;
   Projection pr;
   double mu, dt;
-  double sigma;       /* current obstacle scale */
+  double sigma;       /* current obstacle scale (tunnel) */
   double sigma_ref;   /* the scale whose fluid area the deformation keeps (mesh_deform) */
-  double *g, *g_next, *gmid, *gdot; /* [V][2] */
+  double *g, *g_next, *gmid, *gdot; /* [V][dim] */
   double *h, *phi, *f; /* [F] */
-  double *u;          /* [C][2] */
+  double *u;          /* [C][dim] */
   double seconds_deformation, seconds_advection, seconds_projection;
   double min_quality; /* of the last deformation */
   int worst_cell;
 } FullSolver;
 
-/* Mesh at obstacle scale sigma0, velocity u0 everywhere, projected (h = 0);
+/* Any mesh (2D or 3D) at positions g0 [V][dim], velocity u0 [dim]
+ * everywhere, projected (h = 0). 0, or -1 with the reason in `err` (the
+ * solver is then freed). */
+int solver_init_at(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, const double *g0,
+                   const double *u0, char *err, size_t errlen);
+/* One step to the positions g_next [V][dim] (the caller's deformation,
+ * e.g. cavity_deform): refused when a cell of g_next is not positively
+ * oriented (the element named; the state is then unchanged), and then as
+ * solver_step. */
+int solver_step_to(FullSolver *s, const double *g_next, char *err, size_t errlen);
+/* The tunnel: mesh at obstacle scale sigma0, velocity u0 everywhere, projected (h = 0);
  * every later deformation keeps the fluid area of scale sigma0.
  * 0, or -1 with the reason in `err` (the solver is then freed). */
 int solver_init(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, double sigma0,

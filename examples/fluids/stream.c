@@ -31,7 +31,7 @@ static void number_dofs(StreamProjection *s) {
   for (int b = 0; b < m->nb; b++) {
     int j = m->bface[b];
     for (int e = 0; e < 2; e++) {
-      int v = m->vmaster[m->edge[2 * j + e]];
+      int v = m->vmaster[m->face[2 * j + e]];
       comp[v] = m->fkind[j] == BF_OBSTACLE ? 2 : m->g0[2 * v + 1] < m->spec.H / 2 ? 0 : 1;
     }
   }
@@ -53,7 +53,7 @@ static void number_dofs(StreamProjection *s) {
  * psi_{k+2} - psi_{k+1}, and p = sum_k (outward flux)(centroid - g_k)/2, so
  * column q of Q is a_{q+1} - a_{q+2} with a_k = (centroid - g_k)/2. */
 static void cell_curl(const Mesh *m, const double *g, int c, double Q[2][3], double a[3][2]) {
-  const int *t = m->tri + 3 * c;
+  const int *t = m->cell + 3 * c;
   double cen[2];
   for (int d = 0; d < 2; d++) cen[d] = (g[2 * t[0] + d] + g[2 * t[1] + d] + g[2 * t[2] + d]) / 3;
   for (int k = 0; k < 3; k++)
@@ -74,10 +74,10 @@ static void assemble(StreamProjection *s) {
     double Q[2][3], a[3][2];
     cell_curl(m, o->g, c, Q, a);
     for (int p = 0; p < 3; p++) {
-      int dp = s->dof[m->tri[3 * c + p]];
+      int dp = s->dof[m->cell[3 * c + p]];
       if (dp < 0) continue;
       for (int q = 0; q < 3; q++) {
-        int dq = s->dof[m->tri[3 * c + q]];
+        int dq = s->dof[m->cell[3 * c + q]];
         if (dq < 0 || dq < dp) continue;
         ti[n] = dp, tj[n] = dq;
         tx[n++] = (Q[0][p] * Q[0][q] + Q[1][p] * Q[1][q]) / o->area[c]; /* (p,q) and (q,p) both land here when dp == dq */
@@ -191,7 +191,7 @@ int stream_solve(StreamProjection *s, const double *u_in, const double *h, doubl
       r[1] -= out * a[k][1] / o->area[c];
     }
     for (int q = 0; q < 3; q++) {
-      int d = s->dof[m->tri[3 * c + q]];
+      int d = s->dof[m->cell[3 * c + q]];
       if (d >= 0) b[d] += Q[0][q] * r[0] + Q[1][q] * r[1];
     }
   }
@@ -199,7 +199,7 @@ int stream_solve(StreamProjection *s, const double *u_in, const double *h, doubl
   if (!psi) return util_fail(err, errlen, "projection: CHOLMOD solve failed (status %d)", s->cc.status);
   const double *p = psi->x;
   for (int j = 0; j < m->nf; j++) {
-    int da = s->dof[m->edge[2 * j]], db = s->dof[m->edge[2 * j + 1]];
+    int da = s->dof[m->face[2 * j]], db = s->dof[m->face[2 * j + 1]];
     f[j] = fp[j] + (m->fkind[j] == BF_INTERIOR ? (db >= 0 ? p[db] : 0) - (da >= 0 ? p[da] : 0) : 0);
   }
   cholmod_free_dense(&psi, &s->cc);

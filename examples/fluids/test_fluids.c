@@ -232,10 +232,10 @@ static void test_inversion_refused(void **state) {
   assert_int_equal(mesh_deform(m, 1.2, 1.0, g, err, sizeof err), 0);
   /* the walls give way: the fluid area of the reference scale is kept */
   double area = m->spec.L * m->spec.H - m->obstacle_area0;
-  print_message("fluid area at scale 1.2: %.15g (rest %.15g)\n", mesh_fluid_area(m, g), area);
-  assert_true(fabs(mesh_fluid_area(m, g) - area) <= 1e-12 * area);
+  print_message("fluid area at scale 1.2: %.15g (rest %.15g)\n", mesh_fluid_volume(m, g), area);
+  assert_true(fabs(mesh_fluid_volume(m, g) - area) <= 1e-12 * area);
   assert_int_equal(mesh_deform(m, 0.8, 1.0, g, err, sizeof err), 0);
-  assert_true(fabs(mesh_fluid_area(m, g) - area) <= 1e-12 * area);
+  assert_true(fabs(mesh_fluid_volume(m, g) - area) <= 1e-12 * area);
   /* fixed obstacles (sigma = sigma_ref) are linear in the scale: the medium
    * one is the mean of the large and the small one (paper Fig. 5) */
   double *g1 = malloc(2 * m->nv * sizeof *g1), *g2 = malloc(2 * m->nv * sizeof *g2), worst = 0;
@@ -253,7 +253,7 @@ static void test_inversion_refused(void **state) {
   assert_non_null(p);
   int c = atoi(p + strlen("inverts element "));
   assert_true(c >= 0 && c < m->nc);
-  assert_true(mesh_area(m, g, c) <= 0); /* the named element is the inverted one */
+  assert_true(mesh_volume(m, g, c) <= 0); /* the named element is the inverted one */
   /* the solver refuses the step and keeps its state */
   FullSolver s;
   double u0[2] = {1, 0};

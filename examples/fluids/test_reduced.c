@@ -50,7 +50,7 @@ static Mesh mesh_of(int cells) {
 static double mean_edge(const Mesh *m) {
   double s = 0;
   for (int j = 0; j < m->nf; j++) {
-    const double *a = m->g0 + 2 * m->edge[2 * j], *b = m->g0 + 2 * m->edge[2 * j + 1];
+    const double *a = m->g0 + 2 * m->face[2 * j], *b = m->g0 + 2 * m->face[2 * j + 1];
     s += hypot(b[0] - a[0], b[1] - a[1]);
   }
   return s / m->nf;
@@ -140,7 +140,7 @@ static void test_reduced_energy(void **state) {
   NpgModel *model = tunnel_model(&c, &m, mu, dt);
   RedSolver s;
   char err[512];
-  if (red_init(&s, model, mu, dt, err, sizeof err) != 0) fail_msg("%s", err);
+  if (red_init(&s, model, 2, mu, dt, err, sizeof err) != 0) fail_msg("%s", err);
   int n = (int)s.mu;
   size_t uu = (size_t)n * n;
   print_message("m_u %ld, m_f %ld, m_g %ld, m_d %ld, rank of D̂ %ld\n", s.mu, s.mf, s.mg, s.mb, s.drank);
@@ -314,7 +314,7 @@ static void test_reduced_full_rank(void **state) {
   }
   NpgModel *model = ctx_finish(&c);
   RedSolver s;
-  if (red_init(&s, model, mu, dt, err, sizeof err) != 0) fail_msg("%s", err);
+  if (red_init(&s, model, 2, mu, dt, err, sizeof err) != 0) fail_msg("%s", err);
   s.integ = RED_RK4;
   print_message("%d cells: m_u %ld of %ld, m_f %ld of %d faces, m_g %ld, rank of D̂ %ld\n", m.nc, s.mu, U, s.mf, m.nf,
                 s.mg, s.drank);

@@ -55,7 +55,7 @@ static int make_dir(const char *path) {
 static double mean_edge(const Mesh *m) {
   double s = 0;
   for (int j = 0; j < m->nf; j++) {
-    const double *a = m->g0 + 2 * m->edge[2 * j], *b = m->g0 + 2 * m->edge[2 * j + 1];
+    const double *a = m->g0 + 2 * m->face[2 * j], *b = m->g0 + 2 * m->face[2 * j + 1];
     s += hypot(b[0] - a[0], b[1] - a[1]);
   }
   return s / m->nf;
@@ -78,45 +78,11 @@ static int stage_sample(NpgTrainer *t, const Samples *S, long k) {
 }
 
 /* The options of model i: m_u = cap of u + one vector of each momentum
- * member (p, pv, pdot, lap; caps are at least 1), m_f = m_u / 2, m_g by its
- * energy (the deformation spans a few vectors), the boundary basis complete
- * (constraint reduction needs D B_f and D_h B_h inside span B_d). */
-typedef struct ModelOpts {
-  const char *names[11];
-  int caps[11];
-  double energies[11];
-} ModelOpts;
-
-static void model_options(const TunnelOptions *o, int i, NpgTrainOptions *to, ModelOpts *mo) {
-  npg_train_options_default(to);
+ * member (p, pv, pdot, lap), m_f = m_u / 2, m_g by its energy (the
+ * deformation spans a few vectors). */
+static void model_options(const TunnelOptions *o, int i, NpgTrainOptions *to, FluidBasisOptions *mo) {
   int mu = o->mu_sizes[i], mf = mu / 2 > 2 ? mu / 2 : 2;
-  const char *names[11] = {"u", "p", "pv", "pdot", "lap", "f", "g", "gdot", "h", "bf", "bh"};
-  int caps[11] = {mu > 5 ? mu - 4 : 1, 1, 1, 1, 1, mf, o->mg_cap, o->mg_cap, o->mg_cap, 60, 60};
-  /* energies: the caps decide, except where the snapshots run out (fewer
-   * samples than the cap): directions below these fractions are rounding
-   * noise (a B_f column of noise is not divergence-free to 1e-10) */
-  double en[11] = {1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-9,
-                   1 - 1e-13, 1 - 1e-13, 1 - 1e-13, 1 - 1e-13, 1 - 1e-13};
-  memcpy(mo->names, names, sizeof names);
-  memcpy(mo->caps, caps, sizeof caps);
-  memcpy(mo->energies, en, sizeof en);
-  to->nbasis = 11;
-  to->basis_name = mo->names;
-  to->basis_cap = mo->caps;
-  to->basis_energy = mo->energies;
-  to->progress = false;
-}
-
-/* max over the columns of B_f of max |div column| (paper §6.3). */
-static double basis_divergence(const Ops *ops, const double *Bf, long nf, long mf) {
-  double worst = 0, *col = malloc(nf * sizeof *col), *d = malloc(ops->div.nrow * sizeof *d);
-  for (long k = 0; k < mf; k++) {
-    for (long j = 0; j < nf; j++) col[j] = Bf[j * mf + k];
-    csr_mv(&ops->div, col, d);
-    for (int c = 0; c < ops->div.nrow; c++) worst = fmax(worst, fabs(d[c]));
-  }
-  free(col), free(d);
-  return worst;
+  fluid_train_options(to, mo, mu > 5 ? mu - 4 : 1, mf, o->mg_cap, o->mg_cap);
 }
 
 /* ½ uᵀ V u with cell areas. */
@@ -243,7 +209,7 @@ int tunnel_run(const TunnelOptions *o) {
 
   /* 1. training runs, streamed into the trainer of the largest basis */
   NpgTrainOptions to;
-  ModelOpts mo;
+  FluidBasisOptions mo;
   model_options(o, K - 1, &to, &mo);
   NpgTrainer *tr = npg_trainer_new(fe, &to);
   double sc[2] = {o->scale_large, o->scale_small};
@@ -279,14 +245,14 @@ int tunnel_run(const TunnelOptions *o) {
   Ops ops;
   ops_init(&ops, &m);
   for (int i = 0; i < K; i++) {
-    if (red_init(&rs[i], models[i], o->mu, dt, err, sizeof err) != 0) {
+    if (red_init(&rs[i], models[i], 2, o->mu, dt, err, sizeof err) != 0) {
       fprintf(stderr, "npg-fluids: reduced model m_u %d: %s\n", o->mu_sizes[i], err);
       ops_free(&ops);
       goto done;
     }
     rs_ok[i] = 1;
     msz[i][0] = rs[i].mu, msz[i][1] = rs[i].mf, msz[i][2] = rs[i].mg, msz[i][3] = rs[i].mb;
-    div_basis[i] = basis_divergence(&ops, rs[i].Bf, nf, rs[i].mf);
+    div_basis[i] = ops_max_column_divergence(&ops, rs[i].Bf, nf, rs[i].mf);
     fprintf(stderr,
             "npg-fluids: model %d: m_u %ld, m_f %ld, m_g %ld, m_gdot %ld, m_d %ld (rank of D̂ %ld), trained in %.1f s, set-up %.1f s (%ld reduced evaluations); "
             "max |div| over B_f's columns %.2e; rank of the symmetric part of Â ⊗ f̂ %ld\n",

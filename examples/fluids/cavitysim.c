@@ -1,0 +1,596 @@
+/* cavitysim.c — npg-fluids cavity: paper §7.2, Fig. 6 and Table 1 (see
+ * cavitysim.h). */
+#include "util.h"
+#include "cavitysim.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cblas.h>
+
+#include "npg.h"
+#include "npgbind.h"
+#include "output.h"
+#include "particles.h"
+#include "plot.h"
+#include "reduced.h"
+#include "solver.h"
+
+#ifndef FLUIDS_NPG3
+#define FLUIDS_NPG3 "examples/fluids/fluids3d.npg"
+#endif
+#define ERRLEN 1024
+
+void cavity_options_default(CavityOptions *o) {
+  memset(o, 0, sizeof *o);
+  o->spec = cavity_spec_default();
+  o->frames = 100, o->runs = 14, o->particles = 10000, o->png_every = 10, o->vtk_every = 25, o->width = 800;
+  o->dt = 0.01, o->nu = 5.0;
+  o->mf = 64, o->mu = 128, o->mg = 5;
+  o->dtol = 1e-2;
+}
+
+/* Compress and re-inflate: 1 - a sin^2(pi t / T), smooth at both ends. */
+static double pulse(double a, int t, int T) {
+  double s = sin(M_PI * t / T);
+  return 1 - a * s * s;
+}
+
+/* Smoothstep from 0 (t = 0) to 1 (t = T). */
+static double ramp(int t, int T) {
+  double x = (double)t / T;
+  return x * x * (3 - 2 * x);
+}
+
+void cavity_schedule(int r, int t, int T, double sigma[CAVITY_SIDES]) {
+  for (int i = 0; i < CAVITY_SIDES; i++) sigma[i] = 1;
+  if (r < 0) {
+    /* the test, in no training run: chamber 0 compressed throughout while
+     * chamber 1 expands from compressed back to its rest size */
+    sigma[0] = 0.8;
+    sigma[1] = 0.8 + 0.2 * ramp(t, T);
+    return;
+  }
+  static const int pairs[3][2] = {{0, 1}, {0, 2}, {1, 2}};
+  if (r < 3) sigma[r] = pulse(0.25, t, T);                            /* one chamber, deep */
+  else if (r < 6) sigma[r - 3] = pulse(0.12, t, T);                   /* one chamber, shallow */
+  else if (r < 9) {                                                   /* two together */
+    sigma[pairs[r - 6][0]] = pulse(0.2, t, T);
+    sigma[pairs[r - 6][1]] = pulse(0.2, t, T);
+  } else if (r < 12) {                                                /* two, deep and shallow */
+    sigma[pairs[r - 9][0]] = pulse(0.25, t, T);
+    sigma[pairs[r - 9][1]] = pulse(0.1, t, T);
+  } else {                                                            /* two, overlapping in turn */
+    int a = r == 12 ? 0 : 2, b = 1, L = 2 * T / 3;
+    sigma[a] = t <= L ? pulse(0.15, t, L) : 1;
+    sigma[b] = t >= T - L ? pulse(0.15, t - (T - L), L) : 1;
+  }
+}
+
+static int make_dir(const char *path) {
+  if (mkdir(path, 0777) != 0 && errno != EEXIST) {
+    fprintf(stderr, "npg-fluids: %s: %s\n", path, strerror(errno));
+    return -1;
+  }
+  return 0;
+}
+
+static double max_abs(const double *v, long n) {
+  double m = 0;
+  for (long i = 0; i < n; i++) m = fmax(m, fabs(v[i]));
+  return m;
+}
+
+static void json_array(FILE *fp, const char *name, const double *v, long n, const char *tail) {
+  fprintf(fp, "  \"%s\": [", name);
+  for (long i = 0; i < n; i++) fprintf(fp, "%s%.6g", i ? ", " : "", v[i]);
+  fprintf(fp, "]%s\n", tail);
+}
+
+/* The run's figures, filled as it goes. */
+typedef struct FullStats {
+  double t_d, t_a, t_p;         /* seconds per step: deformation, advection, projection */
+  double min_quality, max_div_rel, max_boundary_residual;
+  int min_quality_frame;
+} FullStats;
+
+/* Positions of run r at frame t; the time cavity_deform takes is added to *seconds. */
+static int deform_at(const Cavity *cv, int r, int t, int T, double *g, double *seconds, char *err, size_t errlen) {
+  double sigma[CAVITY_SIDES];
+  cavity_schedule(r, t, T, sigma);
+  double t0 = util_now();
+  int rc = cavity_deform(cv, sigma, g, NULL, err, errlen);
+  *seconds += util_now() - t0;
+  return rc;
+}
+
+static void lift(const double *B, long n, long m, const double *x, double *out) {
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)m, 1.0, B, (int)m, x, 1, 0.0, out, 1);
+}
+
+static void project(const double *B, long n, long m, const double *x, double *out) {
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)m, 1.0, B, (int)m, x, 1, 0.0, out, 1);
+}
+
+/* One full training run r, every frame streamed into the trainer: sample t
+ * is the state of frame t (g, f, u) with the mesh velocity of the step that
+ * leaves it (as the 2D tunnel's). */
+static int training_run(const Cavity *cv, const CavityOptions *o, int r, double mu, NpgTrainer *tr, FullStats *st,
+                        double *seconds) {
+  char err[ERRLEN];
+  const Mesh *m = &cv->m;
+  int T = o->frames, rc = -1;
+  long ng = 3L * m->nv, nf = m->nf, nu = 3L * m->nc;
+  double *g = malloc(ng * sizeof *g), *g0 = malloc(ng * sizeof *g0), *f0 = malloc(nf * sizeof *f0);
+  double *u0 = malloc(nu * sizeof *u0), t_def = 0;
+  const double zero[3] = {0, 0, 0};
+  FullSolver s;
+  if (deform_at(cv, r, 0, T, g, &t_def, err, sizeof err) != 0 ||
+      solver_init_at(&s, m, PROJ_KKT_UMFPACK, mu, o->dt, g, zero, err, sizeof err) != 0) {
+    fprintf(stderr, "npg-fluids: training run %d: %s\n", r, err);
+    free(g), free(g0), free(f0), free(u0);
+    return -1;
+  }
+  double t0 = util_now();
+  long sg[2] = {m->nv, 3}, sf[1] = {nf}, su[2] = {m->nc, 3};
+  for (int t = 0; t < T; t++) {
+    memcpy(g0, s.g, ng * sizeof *g0);
+    memcpy(f0, s.f, nf * sizeof *f0);
+    memcpy(u0, s.u, nu * sizeof *u0);
+    if (deform_at(cv, r, t + 1, T, g, &t_def, err, sizeof err) != 0 || solver_step_to(&s, g, err, sizeof err) != 0) {
+      fprintf(stderr, "npg-fluids: training run %d, frame %d: %s\n", r, t, err);
+      goto done;
+    }
+    if (s.min_quality < st->min_quality) st->min_quality = s.min_quality;
+    if (npg_trainer_set(tr, "g", 2, sg, g0) || npg_trainer_set(tr, "gdot", 2, sg, s.gdot) ||
+        npg_trainer_set(tr, "f", 1, sf, f0) || npg_trainer_set(tr, "u", 2, su, u0) || npg_trainer_add(tr)) {
+      fprintf(stderr, "npg-fluids: trainer: %s\n", npg_trainer_error(tr));
+      goto done;
+    }
+  }
+  if (!isfinite(solver_energy(&s))) {
+    fprintf(stderr, "npg-fluids: training run %d: the energy is not finite: unstable (lower --dt)\n", r);
+    goto done;
+  }
+  rc = 0;
+done:
+  *seconds += util_now() - t0;
+  solver_free(&s);
+  free(g), free(g0), free(f0), free(u0);
+  return rc;
+}
+
+/* ½ uᵀ V u for cell volumes `vol`, u [C][3]. */
+static double energy3(const double *vol, const double *u, long C) {
+  double e = 0;
+  for (long c = 0; c < C; c++) e += vol[c] * (u[3 * c] * u[3 * c] + u[3 * c + 1] * u[3 * c + 1] + u[3 * c + 2] * u[3 * c + 2]);
+  return 0.5 * e;
+}
+
+static int cmp_double(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return x < y ? -1 : x > y;
+}
+
+int cavity_run(const CavityOptions *o) {
+  char err[ERRLEN], path[4096], p2[4096], p3[4096];
+  if (!o->out) {
+    fprintf(stderr, "npg-fluids: cavity needs --out DIR\n");
+    return 2;
+  }
+  if (strlen(o->out) > 1000) {
+    fprintf(stderr, "npg-fluids: --out: path longer than 1000 bytes\n");
+    return 2;
+  }
+  char dframes[1100], dvtk[1100], dplots[1100], dparts[1100];
+  snprintf(dframes, sizeof dframes, "%s/frames", o->out);
+  snprintf(dvtk, sizeof dvtk, "%s/vtk", o->out);
+  snprintf(dplots, sizeof dplots, "%s/plots", o->out);
+  snprintf(dparts, sizeof dparts, "%s/frames/.parts", o->out);
+  if (make_dir(o->out) || make_dir(dframes) || make_dir(dvtk) || make_dir(dplots) || make_dir(dparts)) return 1;
+
+  double t_mesh = util_now();
+  Cavity cv;
+  if (cavity_mesh(&cv, &o->spec, err, sizeof err) != 0) {
+    fprintf(stderr, "npg-fluids: %s\n", err);
+    return 1;
+  }
+  t_mesh = util_now() - t_mesh;
+  const Mesh *m = &cv.m;
+  /* the graph Laplacian's rate in cell c is up to 8 mu / V_c: scaled by
+   * the smallest cell, diffusion stays stable at every --nu * dt < 0.3 */
+  double vmin = INFINITY;
+  for (int c = 0; c < m->nc; c++) vmin = fmin(vmin, mesh_volume(m, m->g0, c));
+  double mu = o->nu * vmin;
+  int T = o->frames, rc = 1, reduced = o->runs > 0;
+  long ng = 3L * m->nv, nf = m->nf, nu = 3L * m->nc, C = m->nc;
+  fprintf(stderr,
+          "npg-fluids: cavity %d cells, %d faces (%d boundary), %d vertices, meshed in %.1f s; min quality %.3f; "
+          "dt %g, mu %.3g\n",
+          m->nc, m->nf, m->nb, m->nv, t_mesh, mesh_min_quality(m, m->g0, NULL), o->dt, mu);
+
+  FullSolver s = {0}, probe = {0};
+  int s_ok = 0, probe_ok = 0, red_ok = 0;
+  RedSolver R = {0};
+  NpgProgram *prog = NULL;
+  NpgFull *fe = NULL;
+  NpgModel *model = NULL;
+  Particles part = {0}, pred = {0};
+  double *g = malloc(ng * sizeof(double)), *gn = malloc(ng * sizeof(double)), *gl = malloc(ng * sizeof(double));
+  double *fl = malloc(nf * sizeof(double)), *ul = malloc(nu * sizeof(double)), *pv = malloc(nu * sizeof(double));
+  double *energy = calloc(T + 1, sizeof(double)), *energy_red = calloc(T + 1, sizeof(double));
+  double *quality = calloc(T + 1, sizeof(double)), *divergence = calloc(T + 1, sizeof(double));
+  double *err_traj = calloc(T + 1, sizeof(double)), *err_step = calloc(T + 1, sizeof(double));
+  double *step_times = calloc(T + 1, sizeof(double)), *frame_axis = calloc(T + 1, sizeof(double));
+  double *traj_g = NULL, *traj_gd = NULL, *gc1 = NULL, *gdc = NULL;
+  double seconds_particles = 0, seconds_particles_red = 0, seconds_lift = 0, t_deform = 0, seconds_train_runs = 0;
+  double seconds_train = 0, div_basis = 0, max_div_red = 0;
+  FullStats st = {0};
+  st.min_quality = INFINITY;
+  const double zero[3] = {0, 0, 0};
+  size_t model_bytes = 0, tensor_bytes = 0;
+
+  /* 1. training: full runs streamed into npg's trainer (paper §6, §7.2) */
+  if (reduced) {
+    NpgOptions nopt = {0};
+    prog = npg_compile(FLUIDS_NPG3, &nopt);
+    if (!npg_ok(prog)) {
+      fprintf(stderr, "%s", npg_error(prog));
+      goto done;
+    }
+    fe = npg_full_new(prog, NPG_TCC);
+    if (npg_full_error(fe)[0] || fluid_bind(fe, m, mu) != 0) {
+      fprintf(stderr, "npg-fluids: %s\n", npg_full_error(fe));
+      goto done;
+    }
+    /* caps: m_u for the shared class (u's own plus p, pv, pdot, lap), m_f,
+     * m_g and m_gdot; h complete, so that D̂_h ĥ is accurate */
+    NpgTrainOptions to;
+    FluidBasisOptions mo;
+    fluid_train_options(&to, &mo, o->mu - 4, o->mf, o->mg, 60);
+    NpgTrainer *tr = npg_trainer_new(fe, &to);
+    FullStats tst = {0};
+    tst.min_quality = INFINITY;
+    for (int r = 0; r < o->runs; r++) {
+      double sg0[CAVITY_SIDES], sg1[CAVITY_SIDES];
+      cavity_schedule(r, 0, T, sg0);
+      cavity_schedule(r, T / 2, T, sg1);
+      fprintf(stderr, "npg-fluids: training run %d of %d: side scales (%.2f, %.2f, %.2f) at mid-run\n", r + 1,
+              o->runs, sg1[0], sg1[1], sg1[2]);
+      if (training_run(&cv, o, r, mu, tr, &tst, &seconds_train_runs) != 0) {
+        npg_trainer_free(tr);
+        goto done;
+      }
+    }
+    st.min_quality = tst.min_quality;
+    double t0 = util_now();
+    model = npg_trainer_finish(tr, NULL);
+    seconds_train = util_now() - t0;
+    if (!model) {
+      fprintf(stderr, "npg-fluids: training: %s\n", npg_trainer_error(tr));
+      npg_trainer_free(tr);
+      goto done;
+    }
+    npg_trainer_free(tr);
+    model_bytes = npg_model_bytes(model, &tensor_bytes);
+    if (red_init(&R, model, 3, mu, o->dt, err, sizeof err) != 0) {
+      fprintf(stderr, "npg-fluids: reduced model: %s\n", err);
+      goto done;
+    }
+    red_ok = 1;
+    if (red_constraints(&R, o->dtol, err, sizeof err) != 0) {
+      fprintf(stderr, "npg-fluids: reduced model: %s\n", err);
+      goto done;
+    }
+    Ops ops;
+    ops_init(&ops, m);
+    div_basis = ops_max_column_divergence(&ops, R.Bf, nf, R.mf);
+    ops_free(&ops);
+    fprintf(stderr,
+            "npg-fluids: %d training runs (%ld samples) in %.1f s; trained in %.1f s; m_u %ld, m_f %ld, m_g %ld, "
+            "m_gdot %ld, m_d %ld (rank of D̂ %ld); reduced set-up %.1f s (%ld reduced evaluations); model %.1f MB; "
+            "max |div| over B_f's columns %.2e\n",
+            o->runs, npg_model_samples(model), seconds_train_runs, seconds_train, R.mu, R.mf, R.mg, R.mgd, R.mb,
+            R.drank, R.seconds_setup, R.evals, model_bytes / 1e6, div_basis);
+    /* the replayed trajectory of the test: ĝ_t and ĝdot_t */
+    traj_g = malloc((size_t)(T + 1) * R.mg * sizeof(double));
+    traj_gd = calloc((size_t)T * R.mgd + 1, sizeof(double));
+    gc1 = malloc(R.mg * sizeof(double));
+    gdc = malloc(R.mgd * sizeof(double));
+    for (int t = 0; t <= T; t++) {
+      if (deform_at(&cv, -1, t, T, gl, &t_deform, err, sizeof err) != 0) {
+        fprintf(stderr, "npg-fluids: %s\n", err);
+        goto done;
+      }
+      project(R.Bg, ng, R.mg, gl, traj_g + (size_t)t * R.mg);
+      if (t > 0) {
+        for (long i = 0; i < ng; i++) gn[i] = (gl[i] - gn[i]) / o->dt;
+        project(R.Bgd, ng, R.mgd, gn, traj_gd + (size_t)(t - 1) * R.mgd);
+      }
+      memcpy(gn, gl, ng * sizeof(double));
+    }
+  }
+
+  /* 2. the test sequence: full, and reduced beside it from the projected
+   * start on the replayed trajectory; per frame the one-step error from the
+   * projected full state (a probe solver) and the trajectory error */
+  t_deform = 0;
+  if (deform_at(&cv, -1, 0, T, g, &t_deform, err, sizeof err) != 0 ||
+      solver_init_at(&s, m, PROJ_KKT_UMFPACK, mu, o->dt, g, zero, err, sizeof err) != 0 ||
+      (s_ok = 1, reduced && solver_init_at(&probe, m, PROJ_KKT_UMFPACK, mu, o->dt, g, zero, err, sizeof err) != 0)) {
+    fprintf(stderr, "npg-fluids: %s\n", err);
+    goto done;
+  }
+  probe_ok = reduced;
+  t_deform = 0;
+  particles_seed(&part, m, s.g, o->particles, 12345);
+  if (reduced) {
+    particles_seed(&pred, m, s.g, o->particles, 12345);
+    memcpy(R.g, traj_g, R.mg * sizeof(double));
+    for (long c = 0; c < C; c++)
+      for (int d = 0; d < 3; d++) pv[3 * c + d] = s.ops.area[c] * s.u[3 * c + d];
+    project(R.Bf, nf, R.mf, s.f, R.f);
+    red_project_u(&R, R.g, pv, R.u);
+    energy_red[0] = red_energy(&R, R.g, R.u);
+  }
+  energy[0] = solver_energy(&s);
+  quality[0] = s.min_quality;
+  int nframes_png = 0;
+  for (int t = 0; t <= T; t++) {
+    if (t > 0) {
+      if (deform_at(&cv, -1, t, T, g, &t_deform, err, sizeof err) != 0) {
+        fprintf(stderr, "npg-fluids: test frame %d: %s\n", t, err);
+        goto done;
+      }
+      if (reduced) {
+        /* one-step error from the projected full state of frame t - 1 */
+        double *gp = traj_g + (size_t)(t - 1) * R.mg, *gq = traj_g + (size_t)t * R.mg;
+        RedSolver *q = &R;
+        double keep_g[16], *keep_f = malloc(R.mf * sizeof(double)), *keep_u = malloc(R.mu * sizeof(double));
+        memcpy(keep_g, q->g, R.mg * sizeof(double));
+        memcpy(keep_f, q->f, R.mf * sizeof(double));
+        memcpy(keep_u, q->u, R.mu * sizeof(double));
+        for (long c = 0; c < C; c++)
+          for (int d = 0; d < 3; d++) pv[3 * c + d] = s.ops.area[c] * s.u[3 * c + d];
+        memcpy(q->g, gp, R.mg * sizeof(double));
+        project(R.Bf, nf, R.mf, s.f, q->f);
+        red_project_u(q, q->g, pv, q->u);
+        memcpy(probe.g, s.g, ng * sizeof(double));
+        lift(R.Bf, nf, R.mf, q->f, probe.f);
+        lift(R.Bu, nu, R.mu, q->u, probe.u);
+        ops_set_geometry(&probe.ops, probe.g);
+        int prc = solver_step_to(&probe, g, err, sizeof err);
+        if (!prc) prc = red_step(q, gq, traj_gd + (size_t)(t - 1) * R.mgd, err, sizeof err);
+        if (!prc) {
+          lift(R.Bu, nu, R.mu, q->u, ul);
+          for (long j = 0; j < nu; j++) ul[j] = probe.u[j] - ul[j];
+          double ef = energy3(probe.ops.area, probe.u, C);
+          err_step[t] = ef > 0 ? energy3(probe.ops.area, ul, C) / ef : 0;
+        }
+        memcpy(q->g, keep_g, R.mg * sizeof(double));
+        memcpy(q->f, keep_f, R.mf * sizeof(double));
+        memcpy(q->u, keep_u, R.mu * sizeof(double));
+        free(keep_f), free(keep_u);
+        if (prc) {
+          fprintf(stderr, "npg-fluids: one-step error, frame %d: %s\n", t, err);
+          goto done;
+        }
+      }
+      if (solver_step_to(&s, g, err, sizeof err) != 0) {
+        fprintf(stderr, "npg-fluids: test frame %d: %s\n", t, err);
+        goto done;
+      }
+      double t0 = util_now();
+      particles_advect_cached(&part, m, s.g, s.f, o->dt, 10);
+      seconds_particles += util_now() - t0;
+      energy[t] = solver_energy(&s);
+      quality[t] = s.min_quality;
+      double sb = 0;
+      for (int b = 0; b < m->nb; b++) sb += s.h[m->bface[b]];
+      st.max_boundary_residual = fmax(st.max_boundary_residual, fabs(sb) / fmax(max_abs(s.h, nf), 1e-300));
+      if (reduced) {
+        /* the reduced step, timed alone */
+        double a0 = util_now();
+        if (red_step(&R, traj_g + (size_t)t * R.mg, traj_gd + (size_t)(t - 1) * R.mgd, err, sizeof err) != 0) {
+          fprintf(stderr, "npg-fluids: reduced step, frame %d: %s\n", t, err);
+          goto done;
+        }
+        step_times[t - 1] = util_now() - a0;
+        energy_red[t] = red_energy(&R, R.g, R.u);
+        /* particles through the reduced flow: g and f lifted once per frame */
+        a0 = util_now();
+        lift(R.Bg, ng, R.mg, R.g, gl);
+        lift(R.Bf, nf, R.mf, R.f, fl);
+        double a1 = util_now();
+        particles_advect_cached(&pred, m, gl, fl, o->dt, 10);
+        seconds_particles_red += util_now() - a1;
+        seconds_lift += a1 - a0;
+        Ops *op = &s.ops; /* V(g_t) of the full run: the energy norm of the error */
+        lift(R.Bu, nu, R.mu, R.u, ul);
+        for (long j = 0; j < nu; j++) ul[j] = s.u[j] - ul[j];
+        double ef = energy3(op->area, s.u, C);
+        err_traj[t] = ef > 0 ? energy3(op->area, ul, C) / ef : 0;
+        double dmax = 0;
+        for (int c = 0; c < C; c++) {
+          double dv = 0;
+          for (int k = 0; k < 4; k++) dv += m->csign[4 * c + k] * fl[m->cface[4 * c + k]];
+          dmax = fmax(dmax, fabs(dv));
+        }
+        max_div_red = fmax(max_div_red, dmax / fmax(max_abs(fl, nf), 1e-300));
+      }
+    }
+    divergence[t] = projection_max_divergence(&s.ops, s.f) / fmax(max_abs(s.f, nf), 1e-300);
+    st.max_div_rel = fmax(st.max_div_rel, divergence[t]);
+    if (quality[t] < st.min_quality) st.min_quality = quality[t], st.min_quality_frame = t;
+    if (!isfinite(energy[t])) {
+      fprintf(stderr, "npg-fluids: the energy is not finite at frame %d: unstable (lower --dt)\n", t);
+      goto done;
+    }
+    if (t % o->png_every == 0) {
+      double extent = o->spec.D + o->spec.r;
+      snprintf(path, sizeof path, "%s/full_%04d.png", dparts, t);
+      if (output_png_points(path, m, s.g, &part, extent, o->width, err, sizeof err) != 0) {
+        fprintf(stderr, "npg-fluids: %s\n", err);
+        goto done;
+      }
+      snprintf(p3, sizeof p3, "%s/frame_%04d.png", dframes, t);
+      if (reduced) {
+        lift(R.Bg, ng, R.mg, R.g, gl);
+        snprintf(p2, sizeof p2, "%s/reduced_%04d.png", dparts, t);
+        char cl[64], cr[96];
+        snprintf(cl, sizeof cl, "full, frame %d", t);
+        snprintf(cr, sizeof cr, "reduced (m_u %ld, m_f %ld, m_g %ld), frame %d", R.mu, R.mf, R.mg, t);
+        if (output_png_points(p2, m, gl, &pred, extent, o->width, err, sizeof err) != 0 ||
+            plot_side_by_side(p3, path, p2, cl, cr, err, sizeof err) != 0) {
+          fprintf(stderr, "npg-fluids: %s\n", err);
+          goto done;
+        }
+        remove(p2);
+      } else if (rename(path, p3) != 0) {
+        fprintf(stderr, "npg-fluids: %s: %s\n", p3, strerror(errno));
+        goto done;
+      }
+      remove(path);
+      nframes_png++;
+    }
+    if (t % o->vtk_every == 0) {
+      snprintf(path, sizeof path, "%s/full_%04d.vtk", dvtk, t);
+      if (output_vtk_tets(path, m, s.g, s.u, err, sizeof err) != 0) {
+        fprintf(stderr, "npg-fluids: %s\n", err);
+        goto done;
+      }
+      if (reduced) {
+        lift(R.Bg, ng, R.mg, R.g, gl);
+        lift(R.Bu, nu, R.mu, R.u, ul);
+        snprintf(path, sizeof path, "%s/reduced_%04d.vtk", dvtk, t);
+        if (output_vtk_tets(path, m, gl, ul, err, sizeof err) != 0) {
+          fprintf(stderr, "npg-fluids: %s\n", err);
+          goto done;
+        }
+      }
+    }
+  }
+  rmdir(dparts);
+  double steps = T > 0 ? T : 1;
+  st.t_d = (s.seconds_deformation + t_deform) / steps;
+  st.t_a = s.seconds_advection / steps;
+  st.t_p = s.seconds_projection / steps;
+  double t_full = st.t_d + st.t_a + st.t_p;
+  double t_s = 0, t_s_median = 0, t_s_min = 0, t_s_rep = 0, err_traj_mean = 0, err_step_mean = 0;
+  if (reduced) {
+    for (int t = 0; t < T; t++) t_s += step_times[t] / T;
+    qsort(step_times, T, sizeof *step_times, cmp_double);
+    t_s_median = step_times[T / 2], t_s_min = step_times[0];
+    /* the same step repeated from one state: the least disturbed figure */
+    double best = INFINITY;
+    double *ku = malloc(R.mu * sizeof(double)), *kf = malloc(R.mf * sizeof(double)), kg[16];
+    memcpy(ku, R.u, R.mu * sizeof(double)), memcpy(kf, R.f, R.mf * sizeof(double)), memcpy(kg, R.g, R.mg * sizeof(double));
+    for (int k = 0; k < 50; k++) {
+      memcpy(R.u, ku, R.mu * sizeof(double)), memcpy(R.f, kf, R.mf * sizeof(double)), memcpy(R.g, kg, R.mg * sizeof(double));
+      double a0 = util_now();
+      if (red_step(&R, traj_g + (size_t)(T - 1) * R.mg, traj_gd + (size_t)(T - 2) * R.mgd, err, sizeof err) != 0) break;
+      best = fmin(best, util_now() - a0);
+    }
+    t_s_rep = best;
+    free(ku), free(kf);
+    for (int t = 1; t <= T; t++) err_traj_mean += err_traj[t] / T, err_step_mean += err_step[t] / T;
+    /* the error plots */
+    for (int t = 0; t <= T; t++) frame_axis[t] = t;
+    const double *xs[1] = {frame_axis + 1}, *ys[1] = {err_traj + 1}, *ys2[1] = {err_step + 1};
+    const char *lab[1] = {"reduced vs full"}, *lab2[1] = {"one step from the projected full state"};
+    int npt[1] = {T};
+    snprintf(path, sizeof path, "%s/trajectory_error.png", dplots);
+    snprintf(p2, sizeof p2, "%s/onestep_error.png", dplots);
+    if (plot_lines(path, "cavity test sequence: reduced trajectory error (energy, relative)", "frame",
+                   "E(u - B_u û) / E(u)", 1, npt, xs, ys, lab, 1, err, sizeof err) != 0 ||
+        plot_lines(p2, "cavity test sequence: one-step error (energy, relative)", "frame", "E(u - B_u û) / E(u)", 1,
+                   npt, xs, ys2, lab2, 1, err, sizeof err) != 0) {
+      fprintf(stderr, "npg-fluids: %s\n", err);
+      goto done;
+    }
+  }
+  fprintf(stderr,
+          "npg-fluids: test, %d frames: full t_d %.3g ms, t_a %.3g ms, t_p %.3g ms (step %.3g ms); particles %.3g "
+          "ms/frame; max |div| / max |f| %.2e; min quality %.3f (frame %d); energy %.4g -> %.4g\n",
+          T, 1e3 * st.t_d, 1e3 * st.t_a, 1e3 * st.t_p, 1e3 * t_full, 1e3 * seconds_particles / steps, st.max_div_rel,
+          st.min_quality, st.min_quality_frame, energy[0], energy[T]);
+  if (reduced)
+    fprintf(stderr,
+            "npg-fluids: reduced t_s %.3g ms (median %.3g, min %.3g, repeated %.3g), speedup %.1f (repeated %.1f); "
+            "t_pa %.3g ms (+ lift %.3g ms); trajectory error mean %.3g, final %.3g; one-step error mean %.3g; "
+            "reduced energy %.4g -> %.4g\n",
+            1e3 * t_s, 1e3 * t_s_median, 1e3 * t_s_min, 1e3 * t_s_rep, t_full / t_s, t_full / t_s_rep,
+            1e3 * seconds_particles_red / steps, 1e3 * seconds_lift / steps, err_traj_mean, err_traj[T],
+            err_step_mean, energy_red[0], energy_red[T]);
+
+  snprintf(path, sizeof path, "%s/report.json", o->out);
+  char tmp[4200];
+  snprintf(tmp, sizeof tmp, "%s.tmp", path);
+  FILE *fp = fopen(tmp, "w");
+  if (!fp) {
+    fprintf(stderr, "npg-fluids: %s: %s\n", tmp, strerror(errno));
+    goto done;
+  }
+  fprintf(fp, "{\n  \"command\": \"cavity\",\n  \"cells\": %d,\n  \"faces\": %d,\n  \"boundary_faces\": %d,\n"
+              "  \"vertices\": %d,\n  \"mesh_seconds\": %.4g,\n  \"frames\": %d,\n  \"dt\": %g,\n  \"mu\": %.6g,\n",
+          m->nc, m->nf, m->nb, m->nv, t_mesh, T, o->dt, mu);
+  fprintf(fp, "  \"t_d\": %.6g,\n  \"t_a\": %.6g,\n  \"t_p\": %.6g,\n  \"full_step_seconds\": %.6g,\n", st.t_d, st.t_a,
+          st.t_p, t_full);
+  fprintf(fp, "  \"projection_factorization_seconds\": %.6g,\n  \"projection_solve_seconds\": %.6g,\n",
+          s.pr.seconds_numeric / steps, s.pr.seconds_solve / steps);
+  fprintf(fp, "  \"particles\": %d,\n  \"t_pa_full_flow\": %.6g,\n", o->particles, seconds_particles / steps);
+  if (reduced) {
+    fprintf(fp, "  \"training_runs\": %d,\n  \"training_samples\": %ld,\n  \"training_runs_seconds\": %.4g,\n"
+                "  \"training_seconds\": %.4g,\n  \"reduced_setup_seconds\": %.4g,\n  \"reduced_setup_evaluations\": %ld,\n",
+            o->runs, npg_model_samples(model), seconds_train_runs, seconds_train, R.seconds_setup, R.evals);
+    fprintf(fp, "  \"precomputation_seconds\": %.4g,\n", seconds_train_runs + seconds_train + R.seconds_setup);
+    fprintf(fp, "  \"m_f\": %ld,\n  \"m_u\": %ld,\n  \"m_g\": %ld,\n  \"m_gdot\": %ld,\n  \"m_d\": %ld,\n  \"rank_D\": %ld,\n",
+            R.mf, R.mu, R.mg, R.mgd, R.mb, R.drank);
+    fprintf(fp, "  \"model_bytes\": %zu,\n  \"model_tensor_bytes\": %zu,\n", model_bytes, tensor_bytes);
+    fprintf(fp, "  \"t_s\": %.6g,\n  \"t_s_median\": %.6g,\n  \"t_s_min\": %.6g,\n  \"t_s_repeated_min\": %.6g,\n",
+            t_s, t_s_median, t_s_min, t_s_rep);
+    fprintf(fp, "  \"t_s_split\": {\"assembly\": %.6g, \"exponential\": %.6g, \"projection\": %.6g},\n",
+            R.seconds_eval / R.steps, R.seconds_advection / R.steps, R.seconds_projection / R.steps);
+    fprintf(fp, "  \"t_pa\": %.6g,\n  \"t_pa_lift\": %.6g,\n", seconds_particles_red / steps, seconds_lift / steps);
+    fprintf(fp, "  \"speedup\": %.4g,\n  \"speedup_repeated\": %.4g,\n", t_full / t_s, t_full / t_s_rep);
+    fprintf(fp, "  \"basis_f_max_divergence\": %.6g,\n  \"max_divergence_reduced_relative\": %.6g,\n", div_basis,
+            max_div_red);
+    fprintf(fp, "  \"trajectory_error_mean\": %.6g,\n  \"onestep_error_mean\": %.6g,\n", err_traj_mean, err_step_mean);
+    json_array(fp, "trajectory_error", err_traj, T + 1, ",");
+    json_array(fp, "onestep_error", err_step, T + 1, ",");
+    json_array(fp, "energy_reduced", energy_red, T + 1, ",");
+  }
+  fprintf(fp, "  \"min_element_quality\": %.6g,\n  \"min_element_quality_frame\": %d,\n", st.min_quality,
+          st.min_quality_frame);
+  fprintf(fp, "  \"max_divergence_relative\": %.6g,\n  \"max_boundary_flux_sum_relative\": %.6g,\n", st.max_div_rel,
+          st.max_boundary_residual);
+  json_array(fp, "min_quality", quality, T + 1, ",");
+  json_array(fp, "max_divergence_per_frame", divergence, T + 1, ",");
+  json_array(fp, "energy_full", energy, T + 1, "");
+  fprintf(fp, "}\n");
+  if (fclose(fp) != 0 || rename(tmp, path) != 0) {
+    fprintf(stderr, "npg-fluids: %s: %s\n", path, strerror(errno));
+    goto done;
+  }
+  rc = 0;
+done:
+  if (s_ok) solver_free(&s);
+  if (probe_ok) solver_free(&probe);
+  if (red_ok) red_free(&R);
+  if (model) npg_model_free(model);
+  if (fe) npg_full_free(fe);
+  if (prog) npg_free(prog);
+  particles_free(&part);
+  particles_free(&pred);
+  free(g), free(gn), free(gl), free(fl), free(ul), free(pv), free(energy), free(energy_red), free(quality);
+  free(divergence), free(err_traj), free(err_step), free(step_times), free(frame_axis);
+  free(traj_g), free(traj_gd), free(gc1), free(gdc);
+  cavity_free(&cv);
+  plot_cleanup();
+  return rc;
+}
