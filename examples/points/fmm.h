@@ -22,7 +22,8 @@
  * see or face at all is dropped; anything else is split, and two leaves
  * that are left interact directly (P2P), with the kernel clamped per pair
  * and the pair's visible fraction as v (§2.2.4.4: leaves are the finest
- * visibility). fmm_plan builds those lists once; fmm_gather runs them. */
+ * visibility), in single precision (the sum over one source node is
+ * short; its rounding, ~1e-6 relative, is far below the expansions'). fmm_plan builds those lists once; fmm_gather runs them. */
 #ifndef POINTS_FMM_H
 #define POINTS_FMM_H
 
@@ -62,6 +63,11 @@ typedef struct Fmm {
   double **op;     /* nkeys matrices of 3p³ x 3p³ */
   double *M, *L;   /* nnode x 9p³ each: node q's expansion is a 3p³ x 3 column-major block */
   double *q;       /* strengths w_j b_j: three arrays of n, one per colour */
+  /* The near field (P2P) in single precision: x, y, z (relative to the
+   * root cube's centre), nx, ny, nz, w as seven arrays of n, and the
+   * strengths as three; each target's sum over one source node is a float,
+   * added into the double g. */
+  float *pf, *qf;
   FmmStats stats;
 } Fmm;
 
