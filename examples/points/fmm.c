@@ -137,6 +137,7 @@ enum { FACE_NONE, FACE_ALL, FACE_MIXED };
 
 enum { P2P_LANES = 8 }; /* floats in an AVX2 register */
 enum { M2L_COMPRESSED_MAX_P = 5 };
+enum { M2L_CHUNK = 256 }; /* pairs per M2L GEMM */
 
 /* Do the points of target `a` and source `b` face each other? From the
  * tight boxes and the normal cones: n·d ≥ axis·d − spread·|d|. */
@@ -430,6 +431,14 @@ int fmm_plan(Fmm *f, const Surfels *s, const Octree *t, int p, const Visibility 
   f->pf = calloc(7 * np, sizeof(float));
   f->qf = calloc(3 * np, sizeof(float));
   if (!f->M || !f->L || !f->Mc || !f->Lc || !f->q || !f->pf || !f->qf) goto oom;
+  f->nthreads = nthreads;
+  f->work = calloc((size_t)nthreads, sizeof(double *));
+  if (!f->work) goto oom;
+  for (int id = 0; id < nthreads; id++) {
+    size_t sums = id ? (size_t)t->nnode * 3 * (size_t)f->rank : 0;
+    f->work[id] = malloc(sizeof(double) * (2 * 3 * (size_t)f->rank * M2L_CHUNK + sums));
+    if (!f->work[id]) goto oom;
+  }
   const double *origin = t->node[0].c;
   for (long j = 0; j < s->n; j++) {
     float *pj = f->pf + j;
@@ -452,6 +461,9 @@ void fmm_free(Fmm *f) {
   if (f->op)
     for (int k = 0; k < f->nkeys; k++) free(f->op[k]);
   if (f->U) free(f->Mc), free(f->Lc);
+  if (f->work)
+    for (int id = 0; id < f->nthreads; id++) free(f->work[id]);
+  free(f->work);
   free(f->op), free(f->key), free(f->key_first), free(f->U);
   list_free(&f->m2l), list_free(&f->m2p), list_free(&f->p2l), list_free(&f->p2p);
   free(f->M), free(f->L), free(f->q), free(f->pf), free(f->qf);
@@ -576,8 +588,8 @@ static void p2p(const Fmm *f, int ia, int ib, double v, double *g) {
 }
 
 /* M2L for the pairs [k0, k1) of one key: gather the scaled projected
- * multipoles side by side, one r x r GEMM, scatter-add into Lc. */
-static void m2l_batch(Fmm *f, const double *op, long k0, long k1, double *X, double *Y) {
+ * multipoles side by side, one r x r GEMM, scatter-add into `sums`. */
+static void m2l_batch(Fmm *f, const double *op, long k0, long k1, double *X, double *Y, double *sums) {
   long r = f->rank, nb = 3 * r;
   for (long k = k0; k < k1; k++) {
     const FmmPair *pr = &f->m2l.pair[k];
@@ -590,7 +602,7 @@ static void m2l_batch(Fmm *f, const double *op, long k0, long k1, double *X, dou
   cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)r, cols, (int)r, 1.0, op, (int)r, X, (int)r, 0.0, Y,
               (int)r);
   for (long k = k0; k < k1; k++) {
-    double *L = f->Lc + (size_t)f->m2l.pair[k].tgt * (size_t)nb;
+    double *L = sums + (size_t)f->m2l.pair[k].tgt * (size_t)nb;
     const double *y = Y + (size_t)(k - k0) * (size_t)nb;
     for (long i = 0; i < nb; i++) L[i] += y[i];
   }
@@ -634,25 +646,30 @@ void fmm_gather(Fmm *f, const double *b, double *g) {
     cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, r, cols, n3, 1.0, f->U, n3, f->M, n3, 0.0, f->Mc, r);
     memset(f->Lc, 0, sizeof(double) * (size_t)cols * (size_t)r);
   }
-  /* the pairs of one key have distinct targets (one source cube per
-   * relative position), so its chunks go to the OpenMP threads, each GEMM
-   * on one OpenBLAS thread; keys follow one another */
+  /* the OpenMP threads take whole positions, each GEMM on one OpenBLAS
+   * thread, each thread adding into its own sums (one barrier, then the
+   * sums are added up: positions share targets) */
   int blas_threads = openblas_get_num_threads();
   openblas_set_num_threads(1);
-  const long chunk = 256;
-#pragma omp parallel
+  size_t nsums = (size_t)cols * (size_t)r;
+#pragma omp parallel num_threads(f->nthreads)
   {
-    double *X = malloc(sizeof(double) * 3 * (size_t)r * (size_t)chunk), *Y = malloc(sizeof(double) * 3 * (size_t)r * (size_t)chunk);
-    int ok = X && Y;
-    for (int k = 0; k < f->nkeys; k++) {
-      long first = f->key_first[k], nchunk = (f->key_first[k + 1] - first + chunk - 1) / chunk;
-#pragma omp for schedule(static)
-      for (long c = 0; c < nchunk; c++) {
-        long k0 = first + c * chunk, k1 = k0 + chunk < f->key_first[k + 1] ? k0 + chunk : f->key_first[k + 1];
-        if (ok) m2l_batch(f, f->op[k], k0, k1, X, Y);
+    int id = 0;
+#ifdef _OPENMP
+    id = omp_get_thread_num();
+#endif
+    double *X = f->work[id], *Y = X + 3 * (size_t)r * M2L_CHUNK, *sums = id ? Y + 3 * (size_t)r * M2L_CHUNK : f->Lc;
+    if (id) memset(sums, 0, sizeof(double) * nsums);
+#pragma omp for schedule(dynamic, 1)
+    for (int k = 0; k < f->nkeys; k++)
+      for (long k0 = f->key_first[k]; k0 < f->key_first[k + 1]; k0 += M2L_CHUNK) {
+        long k1 = k0 + M2L_CHUNK < f->key_first[k + 1] ? k0 + M2L_CHUNK : f->key_first[k + 1];
+        m2l_batch(f, f->op[k], k0, k1, X, Y, sums);
       }
+    if (id) {
+#pragma omp critical
+      for (size_t i = 0; i < nsums; i++) f->Lc[i] += sums[i];
     }
-    free(X), free(Y);
   }
   openblas_set_num_threads(blas_threads);
   if (f->U) cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, n3, cols, r, 1.0, f->U, n3, f->Lc, r, 1.0, f->L, n3);

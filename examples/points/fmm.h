@@ -73,6 +73,8 @@ typedef struct Fmm {
   double **op;     /* nkeys matrices of r x r: Uᵀ K_o U (K_o itself when U is NULL) */
   double *M, *L;   /* nnode x 9p³ each: node q's expansion is a 3p³ x 3 column-major block */
   double *Mc, *Lc; /* nnode x 3r each: Uᵀ M, and the M2L sums that L gets U times (M, L when U is NULL) */
+  int nthreads;    /* the gather's OpenMP threads; each takes whole M2L positions */
+  double **work;   /* per thread: two 3r x chunk buffers and (but thread 0) its own M2L sums, nnode x 3r */
   double *q;       /* strengths w_j b_j: three arrays of n, one per colour */
   /* The near field (P2P) in single precision: x, y, z (relative to the
    * root cube's centre), nx, ny, nz, w as seven arrays of n + 8 (zero
