@@ -343,7 +343,7 @@ int fmm_plan(Fmm *f, const Surfels *s, const Octree *t, int p, const Visibility 
     }
   }
   /* T[l + p3·m'] = S_l(child node m'): M_parent += T · M_child, L_child += Tᵀ · L_parent */
-  /* σ > 10^(1−p) σ_max: about a tenth of what order p leaves (fmm.h); the
+  /* σ > 10^(1−p) σ_max (fmm.h; the gather error grows 1.2–1.9x at p = 2…5, README); the
    * basis costs 158 (3p³)³ multiply-adds, 8·10⁹ at p = 5 and 4·10¹⁰ at
    * p = 6, so higher orders keep the dense matrices (U NULL, r = 3p³) */
   if (p <= M2L_COMPRESSED_MAX_P) {
