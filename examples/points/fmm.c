@@ -136,6 +136,7 @@ static double *m2l_compressed(const Fmm *f, const int o[3]) {
 enum { FACE_NONE, FACE_ALL, FACE_MIXED };
 
 enum { P2P_LANES = 8 }; /* floats in an AVX2 register */
+enum { P2P_BLOCK = 128 }; /* targets whose sums P2P keeps at once (a multiple of P2P_LANES) */
 enum { M2L_COMPRESSED_MAX_P = 5 };
 enum { M2L_CHUNK = 256 }; /* pairs per M2L GEMM */
 
@@ -206,8 +207,10 @@ static int m2l_key(const OctNode *a, const OctNode *b) {
 }
 
 /* What the interactions cost in units of one float P2P point pair (AVX2):
- * an M2L multiply-add 0.11 (measured: GEMM samples against P2P samples at
- * N = 110 528; r x r per colour and pair), and, estimated from the flops
+ * an M2L multiply-add 0.11 (measured: GEMM samples against the samples of
+ * the P2P before its loops were swapped, at N = 110 528; r x r per colour
+ * and pair; scaling all three by 1.8 for the faster P2P changed nothing
+ * measurable at N = 50 000), and, estimated from the flops
  * and the vectorization of their loops, an M2P at one target point and one
  * node of the source 4, a P2L of one source point at one node of the
  * target 8. */
@@ -563,27 +566,35 @@ static void p2l(Fmm *f, int ia, int ib, double v) {
 }
 
 /* Direct interaction of target leaf a with the points of source node b,
- * in single precision (Fmm.pf): eight pairs per AVX2 instruction. The
- * source loop runs to a multiple of P2P_LANES, past the node's last point
- * into the next node's (or the zero padding), and masks those out, so
- * there is no scalar remainder. */
+ * in single precision (Fmm.pf): eight targets per AVX2 instruction. The
+ * loop over targets is the inner one (each source point broadcast), run to
+ * a multiple of P2P_LANES past the leaf's last point into the next one's
+ * (or the zero padding), whose sums are dropped; targets go in blocks of
+ * P2P_BLOCK, their sums kept in float and added into the double g. */
 static void p2p(const Fmm *f, int ia, int ib, double v, double *g) {
   const OctNode *a = &f->t->node[ia], *b = &f->t->node[ib];
   size_t np = (size_t)f->s->n + P2P_LANES;
   const float *X = f->pf, *Y = X + np, *Z = X + 2 * np, *NX = X + 3 * np, *NY = X + 4 * np, *NZ = X + 5 * np,
               *W = X + 6 * np;
   const float *q0 = f->qf, *q1 = q0 + np, *q2 = q0 + 2 * np;
-  long j0 = b->start, j1 = b->start + b->count, jend = j0 + (b->count + P2P_LANES - 1) / P2P_LANES * P2P_LANES;
-  for (long i = a->start; i < a->start + a->count; i++) {
-    float xi = X[i], yi = Y[i], zi = Z[i], nxi = NX[i], nyi = NY[i], nzi = NZ[i];
-    float g0 = 0, g1 = 0, g2 = 0;
-#pragma omp simd reduction(+ : g0, g1, g2)
-    for (long j = j0; j < jend; j++) {
-      float k = kernel_ff_float(xi, yi, zi, nxi, nyi, nzi, X[j], Y[j], Z[j], NX[j], NY[j], NZ[j], W[j]);
-      k = j < j1 ? k : 0.0f;
-      g0 += k * q0[j], g1 += k * q1[j], g2 += k * q2[j];
+  long j0 = b->start, j1 = b->start + b->count;
+  for (long ib0 = a->start; ib0 < a->start + a->count; ib0 += P2P_BLOCK) {
+    long nt = a->start + a->count - ib0 < P2P_BLOCK ? a->start + a->count - ib0 : P2P_BLOCK;
+    long nv = (nt + P2P_LANES - 1) / P2P_LANES * P2P_LANES;
+    float g0[P2P_BLOCK] = {0}, g1[P2P_BLOCK] = {0}, g2[P2P_BLOCK] = {0};
+    const float *x = X + ib0, *y = Y + ib0, *z = Z + ib0, *nx = NX + ib0, *ny = NY + ib0, *nz = NZ + ib0;
+    for (long j = j0; j < j1; j++) {
+      float yx = X[j], yy = Y[j], yz = Z[j], nyx = NX[j], nyy = NY[j], nyz = NZ[j], wy = W[j];
+      float c0 = q0[j], c1 = q1[j], c2 = q2[j];
+#pragma omp simd
+      for (long i = 0; i < nv; i++) {
+        float k = kernel_ff_float(x[i], y[i], z[i], nx[i], ny[i], nz[i], yx, yy, yz, nyx, nyy, nyz, wy);
+        g0[i] += k * c0, g1[i] += k * c1, g2[i] += k * c2;
+      }
     }
-    g[3 * i] += v * g0, g[3 * i + 1] += v * g1, g[3 * i + 2] += v * g2;
+    for (long i = 0; i < nt; i++) {
+      g[3 * (ib0 + i)] += v * g0[i], g[3 * (ib0 + i) + 1] += v * g1[i], g[3 * (ib0 + i) + 2] += v * g2[i];
+    }
   }
 }
 
