@@ -3,6 +3,7 @@
 #include "fmm.h"
 
 #include <cblas.h>
+#include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -81,9 +82,63 @@ static double *m2l_operator(const Fmm *f, const int o[3]) {
   return op;
 }
 
+/* The M2L basis U (fmm.h): the eigenvectors of G = Σ_o K_o K_oᵀ over the
+ * plain interaction list (2 ≤ max_k |o_k| ≤ 3: 316 positions) are the left
+ * singular vectors of [K_o ...], and its eigenvalues their squared singular
+ * values σ²; U keeps those with σ > eps σ_max. (One symmetric eigenproblem
+ * of 3p³ instead of the SVD of a 3p³ x 316·3p³ matrix; squaring costs
+ * digits below 1e-8 of σ_max only, far under any eps used.) */
+static int m2l_basis(Fmm *f, double eps) {
+  int n = 3 * f->p3, o[3];
+  double *G = calloc((size_t)n * (size_t)n, sizeof(double)), *sigma2 = malloc(sizeof(double) * (size_t)n);
+  if (!G || !sigma2) goto fail;
+  for (o[0] = -3; o[0] <= 3; o[0]++)
+    for (o[1] = -3; o[1] <= 3; o[1]++)
+      for (o[2] = -3; o[2] <= 3; o[2]++) {
+        if (abs(o[0]) < 2 && abs(o[1]) < 2 && abs(o[2]) < 2) continue;
+        double *K = m2l_operator(f, o);
+        if (!K) goto fail;
+        cblas_dsyrk(CblasColMajor, CblasUpper, CblasNoTrans, n, n, 1.0, K, n, 1.0, G, n);
+        free(K);
+      }
+  if (LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', n, G, n, sigma2)) goto fail; /* ascending */
+  int r = 0;
+  while (r < n && sigma2[n - 1 - r] > eps * eps * sigma2[n - 1]) r++;
+  f->rank = r;
+  f->U = malloc(sizeof(double) * (size_t)n * (size_t)r);
+  if (!f->U) goto fail;
+  for (int k = 0; k < r; k++) memcpy(f->U + (size_t)k * (size_t)n, G + (size_t)(n - 1 - k) * (size_t)n, sizeof(double) * (size_t)n);
+  free(G), free(sigma2);
+  return 0;
+fail:
+  free(G), free(sigma2);
+  return -1;
+}
+
+/* The compressed M2L matrix of position o: Uᵀ K_o U, r x r. */
+static double *m2l_compressed(const Fmm *f, const int o[3]) {
+  int n = 3 * f->p3, r = f->rank;
+  double *K = m2l_operator(f, o), *KU = malloc(sizeof(double) * (size_t)n * (size_t)r),
+         *C = malloc(sizeof(double) * (size_t)r * (size_t)r);
+  if (K && KU && C) {
+    cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, n, r, n, 1.0, K, n, f->U, n, 0.0, KU, n);
+    cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, r, r, n, 1.0, f->U, n, KU, n, 0.0, C, r);
+  } else {
+    free(C);
+    C = NULL;
+  }
+  free(K), free(KU);
+  return C;
+}
+
 /* ------------------------------------------------------------ the plan: dual traversal */
 
 enum { FACE_NONE, FACE_ALL, FACE_MIXED };
+
+enum { P2P_LANES = 8 }; /* floats in an AVX2 register */
+enum { P2P_BLOCK = 128 }; /* targets whose sums P2P keeps at once (a multiple of P2P_LANES) */
+enum { M2L_COMPRESSED_MAX_P = 5 };
+enum { M2L_CHUNK = 256 }; /* pairs per M2L GEMM */
 
 /* Do the points of target `a` and source `b` face each other? From the
  * tight boxes and the normal cones: n·d ≥ axis·d − spread·|d|. */
@@ -151,6 +206,18 @@ static int m2l_key(const OctNode *a, const OctNode *b) {
   return key;
 }
 
+/* What the interactions cost in units of one float P2P point pair (AVX2):
+ * an M2L multiply-add 0.11 (measured: GEMM samples against the samples of
+ * the P2P before its loops were swapped, at N = 110 528; r x r per colour
+ * and pair; scaling all three by 1.8 for the faster P2P changed nothing
+ * measurable at N = 50 000), and, estimated from the flops
+ * and the vectorization of their loops, an M2P at one target point and one
+ * node of the source 4, a P2L of one source point at one node of the
+ * target 8. */
+#define COST_M2L 0.11
+#define COST_M2P 4.0
+#define COST_P2L 8.0
+
 /* Visit the pair (target a, source b). With `defer`, pairs to split are put
  * on the pending list instead of being visited (the parallel frontier). */
 static void visit(const Planner *pl, Lists *ls, int ia, int ib, int defer) {
@@ -182,22 +249,25 @@ static void visit(const Planner *pl, Lists *ls, int ia, int ib, int defer) {
   /* valid; or two leaves seen in part, whose visible fraction then scales
    * the interaction as a whole (§2.2.4.4: leaves are the finest visibility) */
   if (sep && face == FACE_ALL && (frac == 1 || (leaf_a && leaf_b))) {
-    /* the cheapest form of the interaction: a direct sum when the points
-     * are fewer than an expansion's coefficients would cost */
-    double direct = (double)a->count * (double)b->count, p6 = (double)p3 * (double)p3;
-    int rc;
+    /* the expansion this pair can use, or a direct sum when that is cheaper
+     * (leaf targets only); costs in P2P's unit, one float point pair (cost_*) */
+    double ca = (double)a->count, cb = (double)b->count, cost;
+    int kind;
+    if (a->level == b->level && (standard_offset(a, b) || (!leaf_a && !leaf_b)))
+      kind = 0, cost = COST_M2L * 3.0 * pl->f->rank * pl->f->rank;
+    else if (leaf_a && a->level <= b->level) /* far apart (an operator for a few pairs), or a is the larger cube */
+      kind = 1, cost = COST_M2P * ca * (double)p3;
+    else /* b is a leaf */
+      kind = 2, cost = COST_P2L * cb * (double)p3;
     float v = (float)frac;
-    if (leaf_a && direct < 2 * p6)
+    int rc;
+    if (leaf_a && ca * cb <= cost)
       rc = list_push(&ls->p2p, ia, ib, 0, v);
-    else if (a->level == b->level && (standard_offset(a, b) || (!leaf_a && !leaf_b)))
+    else if (kind == 0)
       rc = list_push(&ls->m2l, ia, ib, m2l_key(a, b), v);
-    else if (a->level == b->level && leaf_a) /* far apart: one operator for a few pairs costs more than M2P */
+    else if (kind == 1)
       rc = list_push(&ls->m2p, ia, ib, 0, v);
-    else if (a->level == b->level)
-      rc = list_push(&ls->p2l, ia, ib, 0, v);
-    else if (a->level < b->level) /* a is the larger cube, a leaf */
-      rc = list_push(&ls->m2p, ia, ib, 0, v);
-    else /* b is the larger cube, a leaf */
+    else
       rc = list_push(&ls->p2l, ia, ib, 0, v);
     if (rc) ls->oom = 1;
     return;
@@ -276,6 +346,14 @@ int fmm_plan(Fmm *f, const Surfels *s, const Octree *t, int p, const Visibility 
     }
   }
   /* T[l + p3·m'] = S_l(child node m'): M_parent += T · M_child, L_child += Tᵀ · L_parent */
+  /* σ > 10^(1−p) σ_max (fmm.h; the gather error grows 1.2–1.9x at p = 2…5, README); the
+   * basis costs 158 (3p³)³ multiply-adds, 8·10⁹ at p = 5 and 4·10¹⁰ at
+   * p = 6, so higher orders keep the dense matrices (U NULL, r = 3p³) */
+  if (p <= M2L_COMPRESSED_MAX_P) {
+    if (m2l_basis(f, pow(10.0, 1.0 - p))) goto oom;
+  } else {
+    f->rank = 3 * p3;
+  }
 
   Planner pl = {f, t, vis};
   Lists top;
@@ -333,18 +411,43 @@ int fmm_plan(Fmm *f, const Surfels *s, const Octree *t, int p, const Visibility 
   f->key_first[f->nkeys] = f->m2l.n;
   f->op = calloc((size_t)f->nkeys + 1, sizeof(double *));
   if (!f->op) goto oom;
-  int op_failed = 0;
+  int op_failed = 0, blas_threads = openblas_get_num_threads();
+  openblas_set_num_threads(1); /* the OpenMP threads share the keys, each GEMM on its own thread */
 #pragma omp parallel for schedule(dynamic, 1)
   for (int k = 0; k < f->nkeys; k++) {
     int o[3] = {f->key[k] / (128 * 128) - 64, (f->key[k] / 128) % 128 - 64, f->key[k] % 128 - 64};
-    f->op[k] = m2l_operator(f, o);
+    f->op[k] = f->U ? m2l_compressed(f, o) : m2l_operator(f, o);
     if (!f->op[k]) op_failed = 1;
   }
+  openblas_set_num_threads(blas_threads);
   if (op_failed) goto oom;
   f->M = calloc((size_t)t->nnode * 9 * (size_t)p3, sizeof(double));
   f->L = calloc((size_t)t->nnode * 9 * (size_t)p3, sizeof(double));
+  if (f->U) {
+    f->Mc = calloc((size_t)t->nnode * 3 * (size_t)f->rank, sizeof(double));
+    f->Lc = calloc((size_t)t->nnode * 3 * (size_t)f->rank, sizeof(double));
+  } else { /* uncompressed: the M2L reads M and adds into L */
+    f->Mc = f->M, f->Lc = f->L;
+  }
   f->q = malloc(sizeof(double) * 3 * (size_t)(s->n > 0 ? s->n : 1));
-  if (!f->M || !f->L || !f->q) goto oom;
+  size_t np = (size_t)s->n + P2P_LANES; /* each array padded with zeros */
+  f->pf = calloc(7 * np, sizeof(float));
+  f->qf = calloc(3 * np, sizeof(float));
+  if (!f->M || !f->L || !f->Mc || !f->Lc || !f->q || !f->pf || !f->qf) goto oom;
+  f->nthreads = nthreads;
+  f->work = calloc((size_t)nthreads, sizeof(double *));
+  if (!f->work) goto oom;
+  for (int id = 0; id < nthreads; id++) {
+    size_t sums = id ? (size_t)t->nnode * 3 * (size_t)f->rank : 0;
+    f->work[id] = malloc(sizeof(double) * (2 * 3 * (size_t)f->rank * M2L_CHUNK + sums));
+    if (!f->work[id]) goto oom;
+  }
+  const double *origin = t->node[0].c;
+  for (long j = 0; j < s->n; j++) {
+    float *pj = f->pf + j;
+    pj[0] = (float)(s->x[j] - origin[0]), pj[np] = (float)(s->y[j] - origin[1]), pj[2 * np] = (float)(s->z[j] - origin[2]);
+    pj[3 * np] = (float)s->nx[j], pj[4 * np] = (float)s->ny[j], pj[5 * np] = (float)s->nz[j], pj[6 * np] = (float)s->w[j];
+  }
   f->stats.m2l = f->m2l.n, f->stats.m2p = f->m2p.n, f->stats.p2l = f->p2l.n, f->stats.p2p = f->p2p.n;
   f->stats.m2l_offsets = f->nkeys;
   for (long k = 0; k < f->p2p.n; k++)
@@ -360,9 +463,13 @@ void fmm_free(Fmm *f) {
   for (int o = 0; o < 8; o++) free(f->m2m[o]);
   if (f->op)
     for (int k = 0; k < f->nkeys; k++) free(f->op[k]);
-  free(f->op), free(f->key), free(f->key_first);
+  if (f->U) free(f->Mc), free(f->Lc);
+  if (f->work)
+    for (int id = 0; id < f->nthreads; id++) free(f->work[id]);
+  free(f->work);
+  free(f->op), free(f->key), free(f->key_first), free(f->U);
   list_free(&f->m2l), list_free(&f->m2p), list_free(&f->p2l), list_free(&f->p2p);
-  free(f->M), free(f->L), free(f->q);
+  free(f->M), free(f->L), free(f->q), free(f->pf), free(f->qf);
   memset(f, 0, sizeof *f);
 }
 
@@ -458,43 +565,57 @@ static void p2l(Fmm *f, int ia, int ib, double v) {
   }
 }
 
-/* Direct interaction of target leaf a with the points of source node b. */
+/* Direct interaction of target leaf a with the points of source node b,
+ * in single precision (Fmm.pf): eight targets per AVX2 instruction. The
+ * loop over targets is the inner one (each source point broadcast), run to
+ * a multiple of P2P_LANES past the leaf's last point into the next one's
+ * (or the zero padding), whose sums are dropped; targets go in blocks of
+ * P2P_BLOCK, their sums kept in float and added into the double g. */
 static void p2p(const Fmm *f, int ia, int ib, double v, double *g) {
-  const Surfels *s = f->s;
   const OctNode *a = &f->t->node[ia], *b = &f->t->node[ib];
-  const double *q0 = f->q, *q1 = f->q + s->n, *q2 = f->q + 2 * s->n;
-  const double *X = s->x, *Y = s->y, *Z = s->z, *NX = s->nx, *NY = s->ny, *NZ = s->nz, *W = s->w;
+  size_t np = (size_t)f->s->n + P2P_LANES;
+  const float *X = f->pf, *Y = X + np, *Z = X + 2 * np, *NX = X + 3 * np, *NY = X + 4 * np, *NZ = X + 5 * np,
+              *W = X + 6 * np;
+  const float *q0 = f->qf, *q1 = q0 + np, *q2 = q0 + 2 * np;
   long j0 = b->start, j1 = b->start + b->count;
-  for (long i = a->start; i < a->start + a->count; i++) {
-    double xi = s->x[i], yi = s->y[i], zi = s->z[i], nxi = s->nx[i], nyi = s->ny[i], nzi = s->nz[i];
-    double g0 = 0, g1 = 0, g2 = 0;
-#pragma omp simd reduction(+ : g0, g1, g2)
+  for (long ib0 = a->start; ib0 < a->start + a->count; ib0 += P2P_BLOCK) {
+    long nt = a->start + a->count - ib0 < P2P_BLOCK ? a->start + a->count - ib0 : P2P_BLOCK;
+    long nv = (nt + P2P_LANES - 1) / P2P_LANES * P2P_LANES;
+    float g0[P2P_BLOCK] = {0}, g1[P2P_BLOCK] = {0}, g2[P2P_BLOCK] = {0};
+    const float *x = X + ib0, *y = Y + ib0, *z = Z + ib0, *nx = NX + ib0, *ny = NY + ib0, *nz = NZ + ib0;
     for (long j = j0; j < j1; j++) {
-      double k = kernel_ff(xi, yi, zi, nxi, nyi, nzi, X[j], Y[j], Z[j], NX[j], NY[j], NZ[j], W[j]);
-      g0 += k * q0[j], g1 += k * q1[j], g2 += k * q2[j];
+      float yx = X[j], yy = Y[j], yz = Z[j], nyx = NX[j], nyy = NY[j], nyz = NZ[j], wy = W[j];
+      float c0 = q0[j], c1 = q1[j], c2 = q2[j];
+#pragma omp simd
+      for (long i = 0; i < nv; i++) {
+        float k = kernel_ff_float(x[i], y[i], z[i], nx[i], ny[i], nz[i], yx, yy, yz, nyx, nyy, nyz, wy);
+        g0[i] += k * c0, g1[i] += k * c1, g2[i] += k * c2;
+      }
     }
-    g[3 * i] += v * g0, g[3 * i + 1] += v * g1, g[3 * i + 2] += v * g2;
+    for (long i = 0; i < nt; i++) {
+      g[3 * (ib0 + i)] += v * g0[i], g[3 * (ib0 + i) + 1] += v * g1[i], g[3 * (ib0 + i) + 2] += v * g2[i];
+    }
   }
 }
 
-/* M2L for the pairs [k0, k1) of one key: gather the scaled source
- * multipoles side by side, one GEMM, scatter-add into the local expansions. */
-static void m2l_batch(Fmm *f, const double *op, long k0, long k1, double *X, double *Y) {
-  long n = 3 * (long)f->p3, nb = 3 * n;
+/* M2L for the pairs [k0, k1) of one key: gather the scaled projected
+ * multipoles side by side, one r x r GEMM, scatter-add into `sums`. */
+static void m2l_batch(Fmm *f, const double *op, long k0, long k1, double *X, double *Y, double *sums) {
+  long r = f->rank, nb = 3 * r;
   for (long k = k0; k < k1; k++) {
     const FmmPair *pr = &f->m2l.pair[k];
     double h = f->t->node[pr->tgt].h, scale = pr->v / (h * h);
-    const double *M = f->M + (size_t)pr->src * (size_t)nb;
+    const double *M = f->Mc + (size_t)pr->src * (size_t)nb;
     double *x = X + (size_t)(k - k0) * (size_t)nb;
-    for (long r = 0; r < nb; r++) x[r] = scale * M[r];
+    for (long i = 0; i < nb; i++) x[i] = scale * M[i];
   }
   int cols = (int)(3 * (k1 - k0));
-  cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)n, cols, (int)n, 1.0, op, (int)n, X, (int)n, 0.0, Y,
-              (int)n);
+  cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)r, cols, (int)r, 1.0, op, (int)r, X, (int)r, 0.0, Y,
+              (int)r);
   for (long k = k0; k < k1; k++) {
-    double *L = f->L + (size_t)f->m2l.pair[k].tgt * (size_t)nb;
+    double *L = sums + (size_t)f->m2l.pair[k].tgt * (size_t)nb;
     const double *y = Y + (size_t)(k - k0) * (size_t)nb;
-    for (long r = 0; r < nb; r++) L[r] += y[r];
+    for (long i = 0; i < nb; i++) L[i] += y[i];
   }
 }
 
@@ -503,7 +624,10 @@ void fmm_gather(Fmm *f, const double *b, double *g) {
   const Octree *t = f->t;
   long n = s->n, p3 = f->p3, nb = 9 * p3;
   for (long j = 0; j < n; j++)
-    for (int ch = 0; ch < 3; ch++) f->q[(size_t)ch * (size_t)n + (size_t)j] = s->w[j] * b[3 * j + ch];
+    for (int ch = 0; ch < 3; ch++) {
+      f->q[(size_t)ch * (size_t)n + (size_t)j] = s->w[j] * b[3 * j + ch];
+      f->qf[(size_t)ch * (size_t)(n + P2P_LANES) + (size_t)j] = (float)f->q[(size_t)ch * (size_t)n + (size_t)j];
+    }
   memset(f->M, 0, sizeof(double) * (size_t)t->nnode * (size_t)nb);
   memset(f->L, 0, sizeof(double) * (size_t)t->nnode * (size_t)nb);
   memset(g, 0, sizeof(double) * 3 * (size_t)n);
@@ -525,16 +649,41 @@ void fmm_gather(Fmm *f, const double *b, double *g) {
                 f->M + (size_t)q * (size_t)nb, (int)p3, 1.0, f->M + (size_t)nd->parent * (size_t)nb, (int)p3);
   }
 
-  /* M2L by key, in chunks; P2L by target */
-  long chunk = 2048;
-  double *X = malloc(sizeof(double) * (size_t)nb * (size_t)chunk), *Y = malloc(sizeof(double) * (size_t)nb * (size_t)chunk);
-  if (X && Y)
+  /* M2L by key, in chunks, on the projected expansions Mc = Uᵀ M (every
+   * node's three colours are columns of one 3p³ x 3·nnode matrix); then
+   * L += U Lc; P2L by target */
+  int r = f->rank, n3 = 3 * (int)p3, cols = 3 * t->nnode;
+  if (f->U) {
+    cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, r, cols, n3, 1.0, f->U, n3, f->M, n3, 0.0, f->Mc, r);
+    memset(f->Lc, 0, sizeof(double) * (size_t)cols * (size_t)r);
+  }
+  /* the OpenMP threads take whole positions, each GEMM on one OpenBLAS
+   * thread, each thread adding into its own sums (one barrier, then the
+   * sums are added up: positions share targets) */
+  int blas_threads = openblas_get_num_threads();
+  openblas_set_num_threads(1);
+  size_t nsums = (size_t)cols * (size_t)r;
+#pragma omp parallel num_threads(f->nthreads)
+  {
+    int id = 0;
+#ifdef _OPENMP
+    id = omp_get_thread_num();
+#endif
+    double *X = f->work[id], *Y = X + 3 * (size_t)r * M2L_CHUNK, *sums = id ? Y + 3 * (size_t)r * M2L_CHUNK : f->Lc;
+    if (id) memset(sums, 0, sizeof(double) * nsums);
+#pragma omp for schedule(dynamic, 1)
     for (int k = 0; k < f->nkeys; k++)
-      for (long k0 = f->key_first[k]; k0 < f->key_first[k + 1]; k0 += chunk) {
-        long k1 = k0 + chunk < f->key_first[k + 1] ? k0 + chunk : f->key_first[k + 1];
-        m2l_batch(f, f->op[k], k0, k1, X, Y);
+      for (long k0 = f->key_first[k]; k0 < f->key_first[k + 1]; k0 += M2L_CHUNK) {
+        long k1 = k0 + M2L_CHUNK < f->key_first[k + 1] ? k0 + M2L_CHUNK : f->key_first[k + 1];
+        m2l_batch(f, f->op[k], k0, k1, X, Y, sums);
       }
-  free(X), free(Y);
+    if (id) {
+#pragma omp critical
+      for (size_t i = 0; i < nsums; i++) f->Lc[i] += sums[i];
+    }
+  }
+  openblas_set_num_threads(blas_threads);
+  if (f->U) cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, n3, cols, r, 1.0, f->U, n3, f->Lc, r, 1.0, f->L, n3);
 #pragma omp parallel for schedule(dynamic, 4)
   for (int a = 0; a < t->nnode; a++)
     for (long k = f->p2l.first[a]; k < f->p2l.first[a + 1]; k++) p2l(f, a, f->p2l.pair[k].src, f->p2l.pair[k].v);

@@ -10,8 +10,16 @@
  *   multipole  M_m,b,c = Σ_j S_m(y_j) n_y,j,b w_j b_j,c    (node m, normal
  *              component b, colour c: 3p³ x 3 numbers per node)
  *   M2L        L_l,a,c += Σ_m,b H_ab(x̄_l − ȳ_m) M_m,b,c   (one 3p³ x 3p³
- *              matrix per relative position of two cubes of one level,
- *              scaled by 1/h² at half width h because H is homogeneous)
+ *              matrix K_o per relative position o of two cubes of one
+ *              level, scaled by 1/h² at half width h because H is
+ *              homogeneous), compressed as in Fong & Darve §3: K_o ≈
+ *              U (Uᵀ K_o U) Uᵀ with one basis U of r columns, the dominant
+ *              left singular vectors of [K_o] over the 316 positions of the
+ *              plain interaction list (the right ones are the same: K_oᵀ =
+ *              K_−o), so an M2L is an r x r product on the projected
+ *              expansions Uᵀ M, and the local expansion gets U times their
+ *              sum; r keeps singular values above 10^(1−p) of the largest
+ *              (p ≤ 5; higher orders keep the dense matrices)
  *   evaluation g_i,c  = Σ_l,a S_l(x_i) n_x,i,a L_l,a,c.
  *
  * The octree is traversed as a dual tree from (root, root): a pair of cubes
@@ -22,7 +30,8 @@
  * see or face at all is dropped; anything else is split, and two leaves
  * that are left interact directly (P2P), with the kernel clamped per pair
  * and the pair's visible fraction as v (§2.2.4.4: leaves are the finest
- * visibility). fmm_plan builds those lists once; fmm_gather runs them. */
+ * visibility), in single precision (the sum over one source node is
+ * short; its rounding, ~1e-6 relative, is far below the expansions'). fmm_plan builds those lists once; fmm_gather runs them. */
 #ifndef POINTS_FMM_H
 #define POINTS_FMM_H
 
@@ -59,9 +68,19 @@ typedef struct Fmm {
   int nkeys;
   int *key;        /* distinct M2L keys, ascending; the m2l list is sorted by key */
   long *key_first; /* nkeys + 1 */
-  double **op;     /* nkeys matrices of 3p³ x 3p³ */
+  int rank;        /* r: columns of U (3p³ when U is NULL) */
+  double *U;       /* 3p³ x r, orthonormal columns (column-major); NULL: no compression */
+  double **op;     /* nkeys matrices of r x r: Uᵀ K_o U (K_o itself when U is NULL) */
   double *M, *L;   /* nnode x 9p³ each: node q's expansion is a 3p³ x 3 column-major block */
+  double *Mc, *Lc; /* nnode x 3r each: Uᵀ M, and the M2L sums that L gets U times (M, L when U is NULL) */
+  int nthreads;    /* the gather's OpenMP threads; each takes whole M2L positions */
+  double **work;   /* per thread: two 3r x chunk buffers and (but thread 0) its own M2L sums, nnode x 3r */
   double *q;       /* strengths w_j b_j: three arrays of n, one per colour */
+  /* The near field (P2P) in single precision: x, y, z (relative to the
+   * root cube's centre), nx, ny, nz, w as seven arrays of n + 8 (zero
+   * padded), and the strengths as three; each target's sum over one source node is a float,
+   * added into the double g. */
+  float *pf, *qf;
   FmmStats stats;
 } Fmm;
 

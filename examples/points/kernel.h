@@ -37,6 +37,21 @@ static inline double kernel_ff(double xx, double xy, double xz, double nxx, doub
   return cos_x * cos_y * KERNEL_INV_PI / (r2 * (r2 > wy ? r2 : wy) + 1e-300);
 }
 
+/* kernel_ff in single precision, for the FMM's near field: positions
+ * relative to a common origin (the root cube's centre), so that a float's
+ * 2⁻²⁴ of the scene size is all the rounding a difference x − y carries.
+ * 1e-30f keeps x = y at 0. */
+static inline float kernel_ff_float(float xx, float xy, float xz, float nxx, float nxy, float nxz, float yx, float yy,
+                                    float yz, float nyx, float nyy, float nyz, float wy) {
+  float dx = xx - yx, dy = xy - yy, dz = xz - yz;
+  float r2 = dx * dx + dy * dy + dz * dz;
+  float cos_y = nyx * dx + nyy * dy + nyz * dz;
+  float cos_x = -(nxx * dx + nxy * dy + nxz * dz);
+  cos_y = cos_y > 0 ? cos_y : 0;
+  cos_x = cos_x > 0 ? cos_x : 0;
+  return cos_x * cos_y * (float)KERNEL_INV_PI / (r2 * (r2 > wy ? r2 : wy) + 1e-30f);
+}
+
 /* The six distinct entries of H(d): xx yy zz xy xz yz. */
 static inline void kernel_tensor(const double d[3], double hv[6]) {
   double r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
