@@ -1,7 +1,7 @@
 /* main.c — npg-points: radiosity of point models by the fast multipole
  * method with point-based visibility (examples/points/README.md).
  *
- *   npg-points demo  --points N --out DIR [--p P] [--leaf S] [--tol T]
+ *   npg-points demo  --points N --out DIR [--p P] [--leaf S] [--tol T] [--scene box|rooms] [--faces F]
  *   npg-points sweep --out DIR [--points N1,N2,...] [--orders P1,P2,...]
  *
  * demo writes DIR/report.json, DIR/b.npy (and the other arrays), and the
@@ -18,6 +18,7 @@
 #include "fmm.h"
 #include "kernel.h"
 #include "npg.h"
+#include "rooms.h"
 #include "octree.h"
 #include "render.h"
 #include "scene.h"
@@ -59,17 +60,25 @@ static void gather_dense(void *ctx, const double *b, double *g) {
     dense_gather(d->s, d->t, d->vis, b, g);
 }
 
-/* The point model of the Cornell box: sampled, ordered by its octree. */
+/* The point model of the Cornell box, or of examples/radiosity's two rooms
+ * (about `room_faces` triangles) when room_faces > 0: sampled, ordered by
+ * its octree. */
 typedef struct Model {
-  Scene scene;
+  TriScene scene;
   Surfels s;
   Octree t;
   Visibility vis;
 } Model;
 
-static int model_new(Model *m, long n, int leaf) {
+static int model_new(Model *m, long n, int leaf, long room_faces) {
   memset(m, 0, sizeof *m);
-  if (scene_cornell_box(&m->scene) || scene_sample(&m->scene, n, 1, &m->s) || octree_build(&m->s, leaf, &m->t)) {
+  char err[512];
+  if (room_faces > 0 && scene_rooms(&m->scene, room_faces, err, sizeof err) != 0) {
+    fprintf(stderr, "npg-points: the two-room scene: %s\n", err);
+    return -1;
+  }
+  if ((room_faces <= 0 && scene_cornell_box(&m->scene)) || scene_sample(&m->scene, n, 1, &m->s) ||
+      octree_build(&m->s, leaf, &m->t)) {
     fprintf(stderr, "npg-points: out of memory for %ld points\n", n);
     return -1;
   }
@@ -78,7 +87,7 @@ static int model_new(Model *m, long n, int leaf) {
 }
 
 static void model_free(Model *m) {
-  octree_free(&m->t), surfels_free(&m->s), scene_free(&m->scene);
+  octree_free(&m->t), surfels_free(&m->s), triscene_free(&m->scene);
 }
 
 /* ------------------------------------------------------------ visibility against ray casting */
@@ -137,12 +146,15 @@ typedef struct Options {
   long check_points, dense_limit;
   double tol;
   const char *points_list, *orders_list, *error_points_list;
+  long room_faces;        /* --scene rooms: examples/radiosity's two rooms at about this many faces; 0: the Cornell box */
 } Options;
 
 static int parse_options(int argc, char **argv, Options *o) {
   *o = (Options){.points = 20000, .out = NULL, .p = 4, .leaf = 128, .max_iter = 60, .vis_targets = 48,
                  .point_targets = 8, .check_points = 3000, .dense_limit = 60000, .tol = 1e-4,
                  .points_list = "2000,5000,10000,20000,50000,110528,300000,1000000", .orders_list = "2,3,4,5,6", .error_points_list = "5000,20000"};
+  int rooms = 0;
+  long faces = 2000;
   for (int k = 2; k < argc; k++) {
     const char *a = argv[k], *v = k + 1 < argc ? argv[k + 1] : NULL;
     if (!v) goto bad;
@@ -160,6 +172,8 @@ static int parse_options(int argc, char **argv, Options *o) {
     else if (!strcmp(a, "--vis-targets")) o->vis_targets = atoi(v);
     else if (!strcmp(a, "--check-points")) o->check_points = atol(v);
     else if (!strcmp(a, "--dense-limit")) o->dense_limit = atol(v);
+    else if (!strcmp(a, "--scene") && (!strcmp(v, "box") || !strcmp(v, "rooms"))) rooms = !strcmp(v, "rooms");
+    else if (!strcmp(a, "--faces")) faces = atol(v);
     else goto bad;
     k++;
     continue;
@@ -171,6 +185,11 @@ static int parse_options(int argc, char **argv, Options *o) {
     fprintf(stderr, "npg-points: --out DIR is required\n");
     return -1;
   }
+  if (faces < 1 || faces > 100000) {
+    fprintf(stderr, "npg-points: --faces must be in [1, 100000]\n");
+    return -1;
+  }
+  o->room_faces = rooms ? faces : 0;
   if (o->points < 100 || o->p < 2 || o->p > 8 || o->leaf < 4) {
     fprintf(stderr, "npg-points: need --points ≥ 100, 2 ≤ --p ≤ 8, --leaf ≥ 4\n");
     return -1;
@@ -204,7 +223,7 @@ typedef struct VisCost {
  * visibility for every pair. */
 static int vis_cost(long n, const Options *o, VisCost *out, double **b_point_out, double **b_ray_out, Model *mout) {
   Model *m = mout;
-  if (model_new(m, n, o->leaf)) return -1;
+  if (model_new(m, n, o->leaf, o->room_faces)) return -1;
   Fmm f;
   if (fmm_plan(&f, &m->s, &m->t, o->p, &m->vis)) return -1;
   float *table = fmm_leaf_visibility(&f);
@@ -241,7 +260,7 @@ static int vis_cost(long n, const Options *o, VisCost *out, double **b_point_out
 static int demo(const Options *o) {
   Model m;
   double t0 = now_seconds();
-  if (model_new(&m, o->points, o->leaf)) return 1;
+  if (model_new(&m, o->points, o->leaf, o->room_faces)) return 1;
   const Surfels *s = &m.s;
   long n = s->n;
   double t_model = now_seconds() - t0;
@@ -338,7 +357,8 @@ static int demo(const Options *o) {
     fprintf(stderr, "npg-points: cannot write %s\n", path);
     return 1;
   }
-  fprintf(js, "{\n  \"scene\": \"cornell_box\",\n  \"N\": %ld,\n  \"p\": %d,\n  \"s\": %d,\n", n, o->p, o->leaf);
+  fprintf(js, "{\n  \"scene\": \"%s\",\n  \"faces\": %d,\n  \"N\": %ld,\n  \"p\": %d,\n  \"s\": %d,\n",
+          o->room_faces ? "two_rooms" : "cornell_box", m.scene.nt, n, o->p, o->leaf);
   fprintf(js, "  \"octree\": {\"nodes\": %d, \"leaves\": %d, \"depth\": %d},\n", m.t.nnode, m.t.nleaf, m.t.depth);
   fprintf(js, "  \"tol\": %g,\n  \"iterations\": %d,\n  \"iterations_dense\": %d,\n", o->tol, iters, iters_dense);
   fprintf(js, "  \"error_vs_dense\": {\"gather\": %.6e, \"b\": %.6e},\n", err_gather, err_b);
@@ -403,7 +423,7 @@ static int sweep(const Options *o) {
   out_path(path, sizeof path, o->out, "sweep.json");
   FILE *js = fopen(path, "w");
   if (!js) return 1;
-  fprintf(js, "{\n  \"scene\": \"cornell_box\", \"s\": %d, \"tol\": %g,\n  \"error_vs_p\": [", o->leaf, o->tol);
+  fprintf(js, "{\n  \"scene\": \"%s\", \"s\": %d, \"tol\": %g,\n  \"error_vs_p\": [", o->room_faces ? "two_rooms" : "cornell_box", o->leaf, o->tol);
 
   /* error against p, with point-based visibility, the dense reference using
    * the plan's leaf-pair visibility (the same for every p) */
@@ -411,7 +431,7 @@ static int sweep(const Options *o) {
   for (int e = 0; e < ne; e++) {
     long n = (long)ens[e];
     Model m;
-    if (model_new(&m, n, o->leaf)) return 1;
+    if (model_new(&m, n, o->leaf, o->room_faces)) return 1;
     double *b = malloc(sizeof(double) * 3 * (size_t)n), *g = malloc(sizeof(double) * 3 * (size_t)n);
     double *gd = malloc(sizeof(double) * 3 * (size_t)n), *bd = malloc(sizeof(double) * 3 * (size_t)n);
     double *b1 = malloc(sizeof(double) * 3 * (size_t)n);
@@ -447,7 +467,7 @@ static int sweep(const Options *o) {
   for (int k = 0; k < nn; k++) {
     long n = (long)ns[k];
     Model m;
-    if (model_new(&m, n, o->leaf)) return 1;
+    if (model_new(&m, n, o->leaf, o->room_faces)) return 1;
     int with_vis = n <= 120000;
     Fmm f;
     if (fmm_plan(&f, &m.s, &m.t, o->p, with_vis ? &m.vis : NULL)) return 1;
@@ -524,7 +544,7 @@ int main(int argc, char **argv) {
   Options o;
   setvbuf(stdout, NULL, _IOLBF, 0); /* progress lines reach a log as they happen */
   if (argc < 2 || (strcmp(argv[1], "demo") && strcmp(argv[1], "sweep"))) {
-    fprintf(stderr, "usage: npg-points demo --points N --out DIR [--p P] [--leaf S] [--tol T]\n"
+    fprintf(stderr, "usage: npg-points demo --points N --out DIR [--p P] [--leaf S] [--tol T] [--scene box|rooms] [--faces F]\n"
                     "       npg-points sweep --out DIR [--points N1,N2,...] [--orders P1,P2,...]\n");
     return 2;
   }

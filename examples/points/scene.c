@@ -7,12 +7,12 @@
 #include <string.h>
 
 typedef struct Builder {
-  Scene *s;
+  TriScene *s;
   int cap_v, cap_t;
 } Builder;
 
 static int grow(Builder *b, int nv, int nt) {
-  Scene *s = b->s;
+  TriScene *s = b->s;
   if (s->nv + nv > b->cap_v) {
     b->cap_v = 2 * (s->nv + nv);
     double *v = realloc(s->v, sizeof(double) * 3 * (size_t)b->cap_v);
@@ -36,7 +36,7 @@ static int grow(Builder *b, int nv, int nt) {
  * triangles. */
 static int add_quad(Builder *b, const double q[4][3], const double albedo[3], const double emission[3]) {
   if (grow(b, 4, 2)) return -1;
-  Scene *s = b->s;
+  TriScene *s = b->s;
   int v0 = s->nv;
   for (int k = 0; k < 4; k++) memcpy(s->v + 3 * (s->nv++), q[k], sizeof(double) * 3);
   const int idx[2][3] = {{0, 1, 2}, {0, 2, 3}};
@@ -89,7 +89,7 @@ static int add_block(Builder *b, double cx, double cz, double hx, double hz, dou
   return 0;
 }
 
-int scene_cornell_box(Scene *s) {
+int scene_cornell_box(TriScene *s) {
   memset(s, 0, sizeof *s);
   Builder b = {s, 0, 0};
   static const double white[3] = {0.73, 0.73, 0.73}, red[3] = {0.65, 0.05, 0.05}, green[3] = {0.12, 0.45, 0.15};
@@ -110,13 +110,13 @@ int scene_cornell_box(Scene *s) {
            || add_block(&b, 0.66, 0.32, 0.15, 0.15, 0.30, -0.29, white)                   /* short block */
            || add_block(&b, 0.34, 0.62, 0.15, 0.15, 0.60, 0.30, white);                   /* tall block */
   if (rc) {
-    scene_free(s);
+    triscene_free(s);
     return -1;
   }
   return 0;
 }
 
-int scene_two_patches(Scene *s, int wall) {
+int scene_two_patches(TriScene *s, int wall) {
   memset(s, 0, sizeof *s);
   Builder b = {s, 0, 0};
   static const double grey[3] = {0.5, 0.5, 0.5}, black[3] = {0, 0, 0};
@@ -126,13 +126,13 @@ int scene_two_patches(Scene *s, int wall) {
     rc = add_rect(&b, 1, 0.5, +1, (double[2]){-0.5, -0.5}, (double[2]){1.5, 1.5}, grey, black) ||
          add_rect(&b, 1, 0.5, -1, (double[2]){-0.5, -0.5}, (double[2]){1.5, 1.5}, grey, black);
   if (rc) {
-    scene_free(s);
+    triscene_free(s);
     return -1;
   }
   return 0;
 }
 
-void scene_free(Scene *s) {
+void triscene_free(TriScene *s) {
   free(s->v), free(s->tri), free(s->albedo), free(s->emission);
   memset(s, 0, sizeof *s);
 }
@@ -159,7 +159,7 @@ void surfels_free(Surfels *p) {
   memset(p, 0, sizeof *p);
 }
 
-static double tri_area(const Scene *s, int t, double nrm[3]) {
+static double tri_area(const TriScene *s, int t, double nrm[3]) {
   const double *a = s->v + 3 * s->tri[3 * t], *b = s->v + 3 * s->tri[3 * t + 1], *c = s->v + 3 * s->tri[3 * t + 2];
   double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
   double cr[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]};
@@ -177,7 +177,7 @@ static double unit_random(unsigned long long *state) {
   return (double)(z >> 11) * 0x1.0p-53;
 }
 
-int scene_sample(const Scene *s, long n, unsigned seed, Surfels *out) {
+int scene_sample(const TriScene *s, long n, unsigned seed, Surfels *out) {
   if (n < 1 || s->nt < 1) return -1;
   double *area = malloc(sizeof(double) * (size_t)s->nt), *frac = malloc(sizeof(double) * (size_t)s->nt);
   long *count = malloc(sizeof(long) * (size_t)s->nt);

@@ -27,6 +27,7 @@
 #include "fmm.h"
 #include "kernel.h"
 #include "octree.h"
+#include "rooms.h"
 #include "scene.h"
 #include "visibility.h"
 
@@ -149,7 +150,7 @@ static void test_fmm_sphere(void **state) {
 /* The Cornell box, random b, without and with point-based visibility. */
 static void test_fmm_cornell(void **state) {
   (void)state;
-  Scene sc;
+  TriScene sc;
   assert_int_equal(scene_cornell_box(&sc), 0);
   Surfels s;
   assert_int_equal(scene_sample(&sc, 12000, 3, &s), 0);
@@ -182,7 +183,49 @@ static void test_fmm_cornell(void **state) {
   free(b), free(g), free(ref);
   octree_free(&t);
   surfels_free(&s);
-  scene_free(&sc);
+  triscene_free(&sc);
+}
+
+/* The two rooms of examples/radiosity, converted (rooms.c): the FMM with
+ * point visibility against the dense gather with the plan's visibility, as
+ * on the box; the partition, the furniture and the thick walls hide pairs. */
+static void test_fmm_rooms(void **state) {
+  (void)state;
+  TriScene sc;
+  char err[256];
+  assert_int_equal(scene_rooms(&sc, 400, err, sizeof err), 0);
+  assert_true(sc.nt >= 300);
+  double emitted = 0;
+  for (int f = 0; f < sc.nt; f++) emitted += sc.emission[3 * f];
+  assert_true(emitted > 0); /* the windows and the skylight */
+  Surfels s;
+  assert_int_equal(scene_sample(&sc, 8000, 3, &s), 0);
+  Octree t;
+  assert_int_equal(octree_build(&s, 128, &t), 0);
+  long n = s.n;
+  double *b = malloc(sizeof(double) * 3 * (size_t)n), *g = malloc(sizeof(double) * 3 * (size_t)n);
+  double *ref = malloc(sizeof(double) * 3 * (size_t)n);
+  unsigned long long st = 9;
+  for (long k = 0; k < 3 * n; k++) b[k] = uniform(&st);
+  Visibility vis;
+  visibility_init(&vis, &s, &t);
+  Fmm f;
+  assert_int_equal(fmm_plan(&f, &s, &t, 4, &vis), 0);
+  float *table = fmm_leaf_visibility(&f);
+  assert_non_null(table);
+  dense_gather(&s, &t, table, b, ref);
+  fmm_gather(&f, b, g);
+  double e = rel_error(g, ref, 3 * n);
+  printf("two rooms (%d faces, %ld points): p = 4, %ld M2L, %ld hidden pairs dropped, relative error %.3e\n", sc.nt, n,
+         f.stats.m2l, f.stats.dropped_hidden, e);
+  assert_true(e < tolerance(4));
+  assert_true(f.stats.dropped_hidden > 0);
+  free(table);
+  fmm_free(&f);
+  free(b), free(g), free(ref);
+  octree_free(&t);
+  surfels_free(&s);
+  triscene_free(&sc);
 }
 
 /* ------------------------------------------------------------ visibility */
@@ -191,7 +234,7 @@ static void test_fmm_cornell(void **state) {
  * which point-based visibility (point–point and the plan's hierarchical
  * leaf table) agrees with ray casting, and the visible share by rays. */
 static void patches_agreement(int wall, double *point, double *hier, double *ray_visible) {
-  Scene sc;
+  TriScene sc;
   assert_int_equal(scene_two_patches(&sc, wall), 0);
   Surfels s;
   assert_int_equal(scene_sample(&sc, wall ? 6000 : 3000, 1, &s), 0);
@@ -228,7 +271,7 @@ static void patches_agreement(int wall, double *point, double *hier, double *ray
   fmm_free(&f);
   octree_free(&t);
   surfels_free(&s);
-  scene_free(&sc);
+  triscene_free(&sc);
 }
 
 static void test_visibility_wall(void **state) {
@@ -255,7 +298,8 @@ static void test_visibility_open(void **state) {
 int main(int argc, char **argv) {
   const char *group = argc > 1 ? argv[1] : "all";
   const struct CMUnitTest expansions[] = {cmocka_unit_test(test_expansions_converge)};
-  const struct CMUnitTest fmm[] = {cmocka_unit_test(test_fmm_sphere), cmocka_unit_test(test_fmm_cornell)};
+  const struct CMUnitTest fmm[] = {cmocka_unit_test(test_fmm_sphere), cmocka_unit_test(test_fmm_cornell),
+                                    cmocka_unit_test(test_fmm_rooms)};
   const struct CMUnitTest visibility[] = {cmocka_unit_test(test_visibility_wall), cmocka_unit_test(test_visibility_open)};
   int failed = 0, all = !strcmp(group, "all");
   if (all || !strcmp(group, "expansions")) failed += cmocka_run_group_tests_name("expansions", expansions, NULL, NULL);

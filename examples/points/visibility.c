@@ -126,7 +126,7 @@ static void embree_error(void *user, enum RTCError code, const char *str) {
   fprintf(stderr, "npg-points: embree error %d: %s\n", (int)code, str ? str : "");
 }
 
-int raycast_open(RayCaster *rc, const Scene *scene) {
+int raycast_open(RayCaster *rc, const TriScene *scene) {
   memset(rc, 0, sizeof *rc);
   RTCDevice dev = rtcNewDevice(NULL);
   if (!dev) {

@@ -39,7 +39,7 @@ typedef struct RayCaster {
 } RayCaster;
 
 /* 0, or -1 when Embree cannot start (message on stderr). */
-int raycast_open(RayCaster *rc, const Scene *scene);
+int raycast_open(RayCaster *rc, const TriScene *scene);
 void raycast_close(RayCaster *rc);
 
 /* 1 when nothing of the scene lies strictly between surfels p and q of `s`
