@@ -148,6 +148,30 @@ static void test_fmm_sphere(void **state) {
 }
 
 /* The Cornell box, random b, without and with point-based visibility. */
+/* One FMM gather of random strengths against the dense gather that uses
+ * the plan's leaf-pair visibility (`vis` NULL: none): the relative error,
+ * and the plan's M2L count and hidden pairs dropped. */
+static double fmm_against_dense(const Surfels *s, const Octree *t, Visibility *vis, int p, unsigned long long seed,
+                                long *m2l, long *hidden) {
+  long n = s->n;
+  double *b = malloc(sizeof(double) * 3 * (size_t)n), *g = malloc(sizeof(double) * 3 * (size_t)n);
+  double *ref = malloc(sizeof(double) * 3 * (size_t)n);
+  assert_true(b && g && ref);
+  for (long k = 0; k < 3 * n; k++) b[k] = uniform(&seed);
+  Fmm f;
+  assert_int_equal(fmm_plan(&f, s, t, p, vis), 0);
+  float *table = fmm_leaf_visibility(&f);
+  assert_non_null(table);
+  dense_gather(s, t, table, b, ref);
+  fmm_gather(&f, b, g);
+  double e = rel_error(g, ref, 3 * n);
+  *m2l = f.stats.m2l, *hidden = f.stats.dropped_hidden;
+  free(table);
+  fmm_free(&f);
+  free(b), free(g), free(ref);
+  return e;
+}
+
 static void test_fmm_cornell(void **state) {
   (void)state;
   TriScene sc;
@@ -156,31 +180,18 @@ static void test_fmm_cornell(void **state) {
   assert_int_equal(scene_sample(&sc, 12000, 3, &s), 0);
   Octree t;
   assert_int_equal(octree_build(&s, 256, &t), 0);
-  long n = s.n;
-  double *b = malloc(sizeof(double) * 3 * (size_t)n), *g = malloc(sizeof(double) * 3 * (size_t)n);
-  double *ref = malloc(sizeof(double) * 3 * (size_t)n);
-  unsigned long long st = 5;
-  for (long k = 0; k < 3 * n; k++) b[k] = uniform(&st);
   Visibility vis;
   visibility_init(&vis, &s, &t);
   for (int with_vis = 0; with_vis < 2; with_vis++)
     for (int p = 3 + with_vis; p <= 4; p++) {
-      Fmm f;
-      assert_int_equal(fmm_plan(&f, &s, &t, p, with_vis ? &vis : NULL), 0);
-      assert_true(f.stats.m2l > 0);
-      float *table = fmm_leaf_visibility(&f);
-      assert_non_null(table);
-      dense_gather(&s, &t, table, b, ref);
-      fmm_gather(&f, b, g);
-      double e = rel_error(g, ref, 3 * n), tol = tolerance(p);
+      long m2l, hidden;
+      double e = fmm_against_dense(&s, &t, with_vis ? &vis : NULL, p, 5, &m2l, &hidden), tol = tolerance(p);
       printf("cornell box, visibility %s: p = %d, %ld M2L, %ld hidden pairs dropped, relative error %.3e\n",
-             with_vis ? "on" : "off", p, f.stats.m2l, f.stats.dropped_hidden, e);
+             with_vis ? "on" : "off", p, m2l, hidden, e);
+      assert_true(m2l > 0);
       assert_true(e < tol);
-      if (with_vis) assert_true(f.stats.dropped_hidden > 0);
-      free(table);
-      fmm_free(&f);
+      if (with_vis) assert_true(hidden > 0);
     }
-  free(b), free(g), free(ref);
   octree_free(&t);
   surfels_free(&s);
   triscene_free(&sc);
@@ -202,27 +213,14 @@ static void test_fmm_rooms(void **state) {
   assert_int_equal(scene_sample(&sc, 8000, 3, &s), 0);
   Octree t;
   assert_int_equal(octree_build(&s, 128, &t), 0);
-  long n = s.n;
-  double *b = malloc(sizeof(double) * 3 * (size_t)n), *g = malloc(sizeof(double) * 3 * (size_t)n);
-  double *ref = malloc(sizeof(double) * 3 * (size_t)n);
-  unsigned long long st = 9;
-  for (long k = 0; k < 3 * n; k++) b[k] = uniform(&st);
   Visibility vis;
   visibility_init(&vis, &s, &t);
-  Fmm f;
-  assert_int_equal(fmm_plan(&f, &s, &t, 4, &vis), 0);
-  float *table = fmm_leaf_visibility(&f);
-  assert_non_null(table);
-  dense_gather(&s, &t, table, b, ref);
-  fmm_gather(&f, b, g);
-  double e = rel_error(g, ref, 3 * n);
-  printf("two rooms (%d faces, %ld points): p = 4, %ld M2L, %ld hidden pairs dropped, relative error %.3e\n", sc.nt, n,
-         f.stats.m2l, f.stats.dropped_hidden, e);
+  long m2l, hidden;
+  double e = fmm_against_dense(&s, &t, &vis, 4, 9, &m2l, &hidden);
+  printf("two rooms (%d faces, %ld points): p = 4, %ld M2L, %ld hidden pairs dropped, relative error %.3e\n", sc.nt, s.n,
+         m2l, hidden, e);
   assert_true(e < tolerance(4));
-  assert_true(f.stats.dropped_hidden > 0);
-  free(table);
-  fmm_free(&f);
-  free(b), free(g), free(ref);
+  assert_true(hidden > 0);
   octree_free(&t);
   surfels_free(&s);
   triscene_free(&sc);
