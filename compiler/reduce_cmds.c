@@ -198,6 +198,14 @@ static int cmd_train(Common *c) {
     fprintf(stderr, "npgc train: -o %s is an input of the command; give the model its own folder\n", c->out);
     return 1;
   }
+  /* one of several ranks of an MPI job (OpenMPI's or a PMI launcher's variable) without --mpi: every rank
+   * would train alone and race to write MODEL/ */
+  const char *ranks = getenv("OMPI_COMM_WORLD_SIZE") ? getenv("OMPI_COMM_WORLD_SIZE") : getenv("PMI_SIZE");
+  if (!c->train.mpi && ranks && atol(ranks) > 1) {
+    fprintf(stderr, "npgc train: started as one of %ld ranks of an MPI job without --mpi: each would train alone and "
+                    "write %s; add --mpi to train over the ranks, or run one process\n", atol(ranks), c->out);
+    return 2;
+  }
   if (npgc_make_parents(c->out, false) != 0) return 1;
   NpgProgram *p = compile(c);
   if (!p) return 1;

@@ -222,7 +222,7 @@ static int record(NpgTrainer *t, const NpgFull *g) {
       t->mem = m;
       t->mem_alloc = want < t->mem_cap ? want : t->mem_cap;
     }
-    memcpy(t->mem + t->mem_used, t->enc, bytes);
+    if (bytes) memcpy(t->mem + t->mem_used, t->enc, bytes); /* a record of zero-size arrays has no bytes */
     t->at[kk] = t->mem_used;
     t->mem_used += bytes;
     t->in_mem++;
@@ -266,7 +266,7 @@ static int replay(void *user, NpgFull *f, long k) {
   if (!own_sample(t, k)) return full_fail(f, "a training sample of another rank was asked for (a bug in npg)");
   k = kept_index(t, k);
   if (k < t->in_mem) {
-    memcpy(t->enc, t->mem + t->at[k], t->len[k]);
+    if (t->len[k]) memcpy(t->enc, t->mem + t->at[k], t->len[k]);
   } else if (fseeko(t->scratch, (off_t)t->at[k], SEEK_SET) != 0 || fread(t->enc, 1, t->len[k], t->scratch) != t->len[k]) {
     return full_fail(f, "cannot read a training sample back from the scratch file");
   }

@@ -82,6 +82,7 @@ typedef struct Ooc {
   double *tmp;              /* one member value */
   char *err;
   size_t errlen;
+  size_t fixed;             /* bytes of the Gram matrices, the small classes and the sample scratch */
 } Ooc;
 
 /* Bytes of member bases at their caps. */
@@ -129,6 +130,7 @@ static int plan(Ooc *o) {
       fixed += sizeof(double) * (size_t)(2 * S * S * m->classes[c].nmembers + 2 * K * K);
     }
   fixed += small + sizeof(double) * (size_t)o->S * 4;
+  o->fixed = fixed;
   o->avail = o->opt->mem > fixed ? o->opt->mem - fixed : 0;
   /* segments, filled pass by pass */
   long cap = 16;
@@ -532,7 +534,7 @@ static void ooc_free(Ooc *o) {
 }
 
 int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen) {
-  Ooc o = {m, f, src, opt, src->count, NULL, NULL, 0, NULL, 0, 0, NULL, err, errlen};
+  Ooc o = {m, f, src, opt, src->count, NULL, NULL, 0, NULL, 0, 0, NULL, err, errlen, 0};
   long maxn = 1;
   int rc = -1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
@@ -561,6 +563,10 @@ int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions 
     fprintf(stderr, "out of core: %d of %d classes streamed by rows, %ld passes over the %ld samples for the Gram "
             "matrices and as many for the bases (--mem %.3g GB, %.3g GB for the rows of a pass)\n",
             streamed, m->nclasses, o.npass, o.S, (double)opt->mem / 1e9, (double)o.avail / 1e9);
+    if (o.avail == 0) /* the passes run a row at a time: say why, and what would help */
+      fprintf(stderr, "out of core: --mem leaves nothing for the rows of a pass (the Gram matrices of the %ld samples "
+              "and the small classes' snapshots need %.3g MB of it), so each pass keeps one row; raise --mem for fewer "
+              "passes\n", o.S, (double)o.fixed / 1e6);
   }
   train_mark_spd(m);
   if (gram_passes(&o) || eigen(&o) || basis_passes(&o)) goto done;

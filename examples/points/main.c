@@ -153,7 +153,7 @@ static int parse_options(int argc, char **argv, Options *o) {
   *o = (Options){.points = 20000, .out = NULL, .p = 4, .leaf = 128, .max_iter = 60, .vis_targets = 48,
                  .point_targets = 8, .check_points = 3000, .dense_limit = 60000, .tol = 1e-4,
                  .points_list = "2000,5000,10000,20000,50000,110528,300000,1000000", .orders_list = "2,3,4,5,6", .error_points_list = "5000,20000"};
-  int rooms = 0;
+  int rooms = 0, faces_given = 0;
   long faces = 2000;
   for (int k = 2; k < argc; k++) {
     const char *a = argv[k], *v = k + 1 < argc ? argv[k + 1] : NULL;
@@ -172,8 +172,13 @@ static int parse_options(int argc, char **argv, Options *o) {
     else if (!strcmp(a, "--vis-targets")) o->vis_targets = atoi(v);
     else if (!strcmp(a, "--check-points")) o->check_points = atol(v);
     else if (!strcmp(a, "--dense-limit")) o->dense_limit = atol(v);
-    else if (!strcmp(a, "--scene") && (!strcmp(v, "box") || !strcmp(v, "rooms"))) rooms = !strcmp(v, "rooms");
-    else if (!strcmp(a, "--faces")) faces = atol(v);
+    else if (!strcmp(a, "--scene")) {
+      if (strcmp(v, "box") && strcmp(v, "rooms")) {
+        fprintf(stderr, "npg-points: --scene '%s': the scenes are box (the Cornell box) and rooms (examples/radiosity)\n", v);
+        return -1;
+      }
+      rooms = !strcmp(v, "rooms");
+    } else if (!strcmp(a, "--faces")) faces = atol(v), faces_given = 1;
     else goto bad;
     k++;
     continue;
@@ -187,6 +192,10 @@ static int parse_options(int argc, char **argv, Options *o) {
   }
   if (faces < 1 || faces > 100000) {
     fprintf(stderr, "npg-points: --faces must be in [1, 100000]\n");
+    return -1;
+  }
+  if (faces_given && !rooms) {
+    fprintf(stderr, "npg-points: --faces sets the size of --scene rooms; the Cornell box has a fixed mesh\n");
     return -1;
   }
   o->room_faces = rooms ? faces : 0;

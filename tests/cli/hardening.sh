@@ -130,6 +130,10 @@ if "$N" train "$W/big.npg" "$W/BIG" -o "$W/BM" --mem 500k 2>"$W/err.txt"; then f
 grep -q "^error: stage 'y' alone needs 720 kB per sample (9e+04 entries), more than --mem 500 kB: " "$W/err.txt" ||
   fail "--mem message: $(cat "$W/err.txt")"
 "$N" train "$W/big.npg" "$W/BIG" -o "$W/BM" --mem 10M >/dev/null || fail "train within --mem"
+# one of several ranks of an MPI job without --mpi is refused (each would write the same MODEL/)
+if OMPI_COMM_WORLD_SIZE=2 "$N" train "$W/big.npg" "$W/BIG" -o "$W/RK" 2>"$W/err.txt"; then fail "a rank trained alone"; fi
+grep -q "started as one of 2 ranks of an MPI job without --mpi" "$W/err.txt" || fail "rank message: $(cat "$W/err.txt")"
+test ! -e "$W/RK" || fail "a refused rank left a model"
 # 7. a 125 KB one-line program: a diagnostic shows a window of the line, generated C cites its start
 /usr/bin/python3 -c "import sys; open(sys.argv[1], 'w').write('input x : real[2]\\noutput y = x[0] +' + ' ' * 125000 + 'x[1] * nosuch\\n')" "$W/long.npg"
 if "$N" check "$W/long.npg" 2>"$W/err.txt"; then fail "check of an unknown name"; fi
