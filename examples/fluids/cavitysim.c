@@ -132,7 +132,7 @@ static int training_run(const Cavity *cv, const CavityOptions *o, int r, double 
   FullSolver s;
   if (deform_at(cv, r, 0, T, g, &t_def, err, sizeof err) != 0 ||
       solver_init_at(&s, m, PROJ_KKT_UMFPACK, mu, o->dt, g, zero, err, sizeof err) != 0) {
-    fprintf(stderr, "npg-fluids: training run %d: %s\n", r, err);
+    fprintf(stderr, "npg-fluids: training run %d: %s\n", r + 1, err);
     free(g), free(g0), free(f0), free(u0);
     return -1;
   }
@@ -143,19 +143,21 @@ static int training_run(const Cavity *cv, const CavityOptions *o, int r, double 
     memcpy(f0, s.f, nf * sizeof *f0);
     memcpy(u0, s.u, nu * sizeof *u0);
     if (deform_at(cv, r, t + 1, T, g, &t_def, err, sizeof err) != 0 || solver_step_to(&s, g, err, sizeof err) != 0) {
-      fprintf(stderr, "npg-fluids: training run %d, frame %d: %s\n", r, t, err);
+      fprintf(stderr, "npg-fluids: training run %d, frame %d: %s\n", r + 1, t + 1, err);
       goto done;
     }
     if (s.min_quality < st->min_quality) st->min_quality = s.min_quality;
+    if (!isfinite(solver_energy(&s))) {
+      fprintf(stderr, "npg-fluids: training run %d diverged at frame %d of %d (the energy is not finite): the step "
+              "--dt %g is too large for a deformation over %d frames; raise --frames (about 100 per compression) "
+              "or lower --dt\n", r + 1, t + 1, T, o->dt, T);
+      goto done;
+    }
     if (npg_trainer_set(tr, "g", 2, sg, g0) || npg_trainer_set(tr, "gdot", 2, sg, s.gdot) ||
         npg_trainer_set(tr, "f", 1, sf, f0) || npg_trainer_set(tr, "u", 2, su, u0) || npg_trainer_add(tr)) {
       fprintf(stderr, "npg-fluids: trainer: %s\n", npg_trainer_error(tr));
       goto done;
     }
-  }
-  if (!isfinite(solver_energy(&s))) {
-    fprintf(stderr, "npg-fluids: training run %d: the energy is not finite: unstable (lower --dt)\n", r);
-    goto done;
   }
   rc = 0;
 done:
