@@ -1,7 +1,7 @@
 /* util.h — what the example's files share: a message into a caller's
  * buffer, and a monotonic clock. */
-#ifndef RADIOSITY_UTIL_H
-#define RADIOSITY_UTIL_H
+#ifndef EXAMPLES_UTIL_H
+#define EXAMPLES_UTIL_H
 
 #include <stddef.h>
 
