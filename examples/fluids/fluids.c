@@ -189,15 +189,6 @@ static unsigned long long mesh_hash(const Mesh *m) {
   return h;
 }
 
-static double mean_edge(const Mesh *m) {
-  double s = 0;
-  for (int j = 0; j < m->nf; j++) {
-    const double *a = m->g0 + 2 * m->face[2 * j], *b = m->g0 + 2 * m->face[2 * j + 1];
-    s += hypot(b[0] - a[0], b[1] - a[1]);
-  }
-  return s / m->nf;
-}
-
 /* ---------------------------------------------------------------- data/ */
 
 /* What an array holds: doubles, or ints (written as int64, as npg reads
@@ -289,7 +280,7 @@ static int tunnel_full(const RunOptions *o) {
     return 1;
   }
   t_mesh = util_now() - t_mesh;
-  double dt = o->cfl * mean_edge(&m) / o->u0;
+  double dt = o->cfl * mesh_mean_edge(&m) / o->u0;
   fprintf(stderr, "npg-fluids: mesh %d cells, %d faces (%d boundary), %d vertices; dt %.4g, mu %g\n", m.nc, m.nf, m.nb,
           m.nv, dt, o->mu);
 

@@ -399,3 +399,12 @@ int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *
   }
   return 0;
 }
+
+double mesh_mean_edge(const Mesh *m) {
+  double s = 0;
+  for (int j = 0; j < m->nf; j++) {
+    const double *a = m->g0 + 2 * m->face[2 * j], *b = m->g0 + 2 * m->face[2 * j + 1];
+    s += hypot(b[0] - a[0], b[1] - a[1]);
+  }
+  return s / m->nf;
+}

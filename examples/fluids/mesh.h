@@ -102,5 +102,8 @@ double mesh_volume(const Mesh *m, const double *g, int c);
 double mesh_min_quality(const Mesh *m, const double *g, int *worst);
 /* Fluid area or volume (sum of cell volumes) at g. */
 double mesh_fluid_volume(const Mesh *m, const double *g);
+/* The mean length of a 2D mesh's faces (its edges) at rest (g0): the length
+ * the time step is chosen by. */
+double mesh_mean_edge(const Mesh *m);
 
 #endif

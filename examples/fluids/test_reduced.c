@@ -47,15 +47,6 @@ static Mesh mesh_of(int cells) {
   return m;
 }
 
-static double mean_edge(const Mesh *m) {
-  double s = 0;
-  for (int j = 0; j < m->nf; j++) {
-    const double *a = m->g0 + 2 * m->face[2 * j], *b = m->g0 + 2 * m->face[2 * j + 1];
-    s += hypot(b[0] - a[0], b[1] - a[1]);
-  }
-  return s / m->nf;
-}
-
 typedef struct Ctx {
   NpgProgram *prog;
   NpgFull *fe;
@@ -135,7 +126,7 @@ static double energy_matrix(int n, const double *V, const double *u) {
 static void test_reduced_energy(void **state) {
   (void)state;
   Mesh m = mesh_of(300);
-  double mu = 0.002, dt = 0.25 * mean_edge(&m);
+  double mu = 0.002, dt = 0.25 * mesh_mean_edge(&m);
   Ctx c;
   NpgModel *model = tunnel_model(&c, &m, mu, dt);
   RedSolver s;
@@ -258,7 +249,7 @@ static void test_reduced_energy(void **state) {
 static void test_reduced_basis_divergence(void **state) {
   (void)state;
   Mesh m = mesh_of(300);
-  double mu = 0.002, dt = 0.25 * mean_edge(&m);
+  double mu = 0.002, dt = 0.25 * mesh_mean_edge(&m);
   Ctx c;
   NpgModel *model = tunnel_model(&c, &m, mu, dt);
   int cf = npg_model_class_of(model, "f");
@@ -291,7 +282,7 @@ static void test_reduced_basis_divergence(void **state) {
 static void test_reduced_full_rank(void **state) {
   (void)state;
   Mesh m = mesh_of(30);
-  double mu = 0.01, dt = 0.25 * mean_edge(&m);
+  double mu = 0.01, dt = 0.25 * mesh_mean_edge(&m);
   long U = 2L * m.nc;
   const char *names[] = {"u", "p", "pv", "pdot", "lap", "f", "g", "gdot", "h", "bf", "bh"};
   int caps[] = {(int)U, (int)U, (int)U, (int)U, (int)U, m.nf, 1, 4, 4, m.nb, m.nb};

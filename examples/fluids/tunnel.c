@@ -52,15 +52,6 @@ static int make_dir(const char *path) {
   return 0;
 }
 
-static double mean_edge(const Mesh *m) {
-  double s = 0;
-  for (int j = 0; j < m->nf; j++) {
-    const double *a = m->g0 + 2 * m->face[2 * j], *b = m->g0 + 2 * m->face[2 * j + 1];
-    s += hypot(b[0] - a[0], b[1] - a[1]);
-  }
-  return s / m->nf;
-}
-
 /* Training samples of both runs: sample t of a run is the state of frame t
  * (g, f, u) with the mesh velocity of the step that leaves it. */
 typedef struct Samples {
@@ -161,7 +152,7 @@ int tunnel_run(const TunnelOptions *o) {
     return 1;
   }
   int T = o->frames, K = o->nsizes, rc = 1;
-  double dt = o->cfl * mean_edge(&m) / o->u0;
+  double dt = o->cfl * mesh_mean_edge(&m) / o->u0;
   long ng = 2L * m.nv, nf = m.nf, nu = 2L * m.nc, C = m.nc;
   fprintf(stderr, "npg-fluids: mesh %d cells, %d faces (%d boundary), %d vertices; dt %.4g; %d frames per run\n", m.nc,
           m.nf, m.nb, m.nv, dt, T);
