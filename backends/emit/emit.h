@@ -30,6 +30,8 @@ typedef struct Emit {
   struct Cse *cse;       /* the values of the loop nest being built */
   PtrVec soa;            /* Sym*: quantities the innermost loop reads from a copy per component */
   bool *writes;          /* per slot: the function writes it */
+  bool box;              /* emitting the box twin of a loop nest: its loops run over
+                            the boxes box_[0..nbox_) (emit_full.c) */
 } Emit;
 
 /* The C name of a symbol: quantities Q_<name>, params P_<name>, dims
@@ -61,6 +63,32 @@ Emit *emit_new(Ctx *ctx, const Program *prog, FILE *out);
 void emit_header(Emit *e, const char *what);
 char *emit_source_line(Ctx *ctx, Loc loc);
 void emit_full(Ctx *ctx, const Program *prog, FILE *out);
+/* The steps of the full evaluator, in evaluation order: what its entry
+ * point calls, and what the generated step entry ("<stem>_npg_full_step",
+ * NpgStepFn) runs by number. A step computes a temp, one stage, or a fused
+ * group of stages over one domain; a `boxed` step can also compute its
+ * members only over boxes of that domain (per index variable a half-open
+ * range: lo[0..nivars), then hi[0..nivars)), recomputing where boxes
+ * overlap; every other step computes everything. Deterministic: the plan
+ * emit_full() emits by. */
+typedef enum StepKind {
+  STEP_TEMP,   /* an inlined stage computed once (Program.temps) */
+  STEP_STAGE,  /* one stage */
+  STEP_FUSED,  /* stages fused into one loop nest */
+} StepKind;
+typedef struct FullStep {
+  StepKind kind;
+  const char *fn;          /* its function in the generated C */
+  const Stage **members;   /* the stages it computes, in order (a temp: its stage) */
+  int n;
+  bool before;             /* a stage computed before a fused group it does not read */
+  bool boxed;
+} FullStep;
+typedef struct FullPlan {
+  int n;
+  FullStep *steps;
+} FullPlan;
+FullPlan *emit_full_plan(Ctx *ctx, const Program *prog);
 /* The external name of generated symbol `what` ("full", "check",
  * "build_y_t0_f0_g0", "reduced", ...): "<stem>_npg_<what>", <stem> the
  * program's file stem with every character outside [A-Za-z0-9_] made '_'

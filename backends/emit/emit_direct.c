@@ -455,22 +455,37 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
     fputs("#endif\n", out);
   }
   cse_emit_level(cs, out, 0, 1);
+  /* the box twin: the same nest over each box (emit_full.c), its loops
+   * from lo_ to hi_; libtcc's row kernels where a box holds whole rows */
+  int b = e->box ? 1 : 0;
+  if (e->box)
+    fprintf(out, "  for (int b_ = 0; b_ < nbox_; b_++) {\n    const npg_idx *const lo_ = box_ + (npg_idx)b_ * %d, "
+                 "*const hi_ = lo_ + %d;\n", 2 * nl, nl);
   for (int i = 0; i < nl; i++) {
     const char *v = names[i];
     if (i == nl - 1 && nrows >= 0) {
       fputs("#ifdef __TINYC__\n", out);
-      cse_emit_rows(cs, out, st, nst, len, i + 1);
-      fputs("#else\n", out);
+      if (e->box) {
+        indent(out, i + 1 + b);
+        fprintf(out, "if (lo_[%d] == 0 && hi_[%d] == %s) {\n", i, i, len);
+        cse_emit_rows(cs, out, st, nst, len, i + 2 + b);
+        indent(out, i + 1 + b);
+        fputs("} else\n#endif\n", out);
+      } else {
+        cse_emit_rows(cs, out, st, nst, len, i + 1);
+        fputs("#else\n", out);
+      }
     }
     if (i == nl - 1) {
-      indent(out, i + 1);
+      indent(out, i + 1 + b);
       fputs("NPG_INDEPENDENT\n", out);
     }
-    indent(out, i + 1);
-    fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, first->ivars[i]->range), v);
-    if (i + 1 < nl) cse_emit_level(cs, out, i + 1, i + 2);
+    indent(out, i + 1 + b);
+    if (e->box) fprintf(out, "for (npg_idx %s = lo_[%d]; %s < hi_[%d]; %s++) {\n", v, i, v, i, v);
+    else fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, first->ivars[i]->range), v);
+    if (i + 1 < nl) cse_emit_level(cs, out, i + 1, i + 2 + b);
   }
-  int depth = nl + 1;
+  int depth = nl + 1 + b;
   for (int m = 0; m < n; m++) {
     const Stage *st = members[m];
     if (n > 1) {
@@ -483,10 +498,11 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
     }
   }
   for (int i = nl; i >= 1; i--) {
-    indent(out, i);
+    indent(out, i + b);
     fputs("}\n", out);
-    if (i == nl && nrows >= 0) fputs("#endif\n", out);
+    if (i == nl && nrows >= 0 && !e->box) fputs("#endif\n", out);
   }
+  if (e->box) fputs("  }\n", out);
   if (nrows > 0) fputs("#ifdef __TINYC__\n  c->rt->release(c, rows_);\n#endif\n", out);
   if (scratch) fputs("  c->rt->release(c, soa_);\n", out);
   e->cse = NULL;

@@ -389,8 +389,8 @@ static void check_op_cb(Emit *e, FILE *out, const void *arg) {
 
 /* ---------------------------------------------------------------- the unit */
 
-static const char *fn_name(Emit *e, const char *prefix, const Sym *s) {
-  char *n = arena_printf(e->ctx, "%s%s", prefix, s->name);
+static const char *fn_name(Ctx *ctx, const char *prefix, const Sym *s) {
+  char *n = arena_printf(ctx, "%s%s", prefix, s->name);
   for (char *c = n; *c; c++)
     if (!((*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || (*c >= '0' && *c <= '9') || *c == '_')) *c = '_';
   return n;
@@ -489,21 +489,17 @@ static void emit_temps(Emit *e) {
     const Sym *s = prog->temps.v[i];
     fprintf(out, "/* %s: inlined (computed once here), %s:%d\n   %s */\n", s->name, s->loc.file ? s->loc.file->name : "?",
             s->loc.line, emit_source_line(ctx, s->loc));
-    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "temp_", s)), s,
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e->ctx, "temp_", s)), s,
                       stage_body_cb, s->stage);
   }
 }
 
-/* Stages; consecutive stages over one domain are fused into one loop nest
- * (each still written whole), reads of a fused stage at another entry
- * rematerialized from its expression. The functions to call in order go
- * to `calls` (char*), the last stage each computes to `call_ids`. */
-static void emit_stages(Emit *e, PtrVec *calls_out, PtrVec *call_ids_out) {
-  Ctx *ctx = e->ctx;
-  const Program *prog = e->prog;
-  FILE *out = e->out;
-  PtrVec calls = {0}; /* char*: function to call, in order */
-  PtrVec call_ids = {0};
+/* The calls of the entry point: consecutive stages over one domain fused
+ * into one loop nest (each still written whole), reads of a fused stage at
+ * another entry rematerialized from its expression; a stage that reads no
+ * member of a group may be computed before it. */
+static PtrVec plan_calls(Ctx *ctx, const Program *prog) {
+  PtrVec calls = {0}; /* FullStep* */
   const Stage **st_all = (const Stage **)prog->stages.v;
   for (int i = 0; i < prog->stages.n;) {
     const Stage *st = st_all[i];
@@ -511,113 +507,152 @@ static void emit_stages(Emit *e, PtrVec *calls_out, PtrVec *call_ids_out) {
       i++;
       continue;
     }
-    Group *g = arena_alloc(ctx, sizeof *g);
-    g->members = arena_alloc(ctx, sizeof(Stage *) * (size_t)(prog->stages.n + 1));
+    const Stage **members = arena_alloc(ctx, sizeof(Stage *) * (size_t)(prog->stages.n + 1));
     const Stage **before = arena_alloc(ctx, sizeof(Stage *) * (size_t)(prog->stages.n + 1));
-    int nbefore = 0, end = i + 1;
-    if (emit_fusable(g->members, 0, st)) {
-      g->members[g->n++] = st;
+    int n = 0, nbefore = 0, end = i + 1;
+    if (emit_fusable(members, 0, st)) {
+      members[n++] = st;
       for (int j = i + 1; j < prog->stages.n; j++) {
         const Stage *x = st_all[j];
         if (x->kind == ST_EXTERN) continue; /* given, not computed */
-        if (emit_fusable(g->members, g->n, x) && !temp_splits(prog, g->members, g->n, x)) {
-          g->members[g->n++] = x;
+        if (emit_fusable(members, n, x) && !temp_splits(prog, members, n, x)) {
+          members[n++] = x;
           end = j + 1;
           continue;
         }
         /* a stage that reads no member can be computed before the group */
-        bool independent = !temp_splits(prog, g->members, g->n, x);
-        for (int m = 0; m < g->n && independent; m++) independent = !node_reads_sym(x->sym->body, g->members[m]->sym);
+        bool independent = !temp_splits(prog, members, n, x);
+        for (int m = 0; m < n && independent; m++) independent = !node_reads_sym(x->sym->body, members[m]->sym);
         for (int t = 0; t < x->nterms && independent; t++)
           for (int k = 0; k < x->terms[t]->nops && independent; k++)
             if (x->terms[t]->ops[k].kind == OPK_DECL)
-              for (int m = 0; m < g->n && independent; m++)
-                independent = !node_reads_sym(x->terms[t]->ops[k].op->body, g->members[m]->sym);
+              for (int m = 0; m < n && independent; m++)
+                independent = !node_reads_sym(x->terms[t]->ops[k].op->body, members[m]->sym);
         if (!independent || x->sym->introduced) break;
         before[nbefore++] = x;
       }
-      if (g->n < 2) nbefore = 0;
+      if (n < 2) nbefore = 0;
       /* only stages up to the last member move */
-      while (nbefore > 0 && before[nbefore - 1]->sym->id > g->members[g->n - 1]->sym->id) nbefore--;
+      while (nbefore > 0 && before[nbefore - 1]->sym->id > members[n - 1]->sym->id) nbefore--;
     }
-    const Sym *s = st->sym;
     for (int b = 0; b < nbefore; b++) {
-      const Sym *bs = before[b]->sym;
-      fprintf(out, "/* %s: %s, %s:%d (computed before the fused stages it does not read)\n   %s */\n", bs->name,
-              stage_kind_name[before[b]->kind], bs->loc.file ? bs->loc.file->name : "?", bs->loc.line,
-              emit_source_line(ctx, bs->loc));
-      const char *bname = fn_name(e, "stage_", bs);
-      emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", bname), bs, stage_body_cb, before[b]);
-      vec_push(ctx, &calls, (void *)bname);
-      vec_push(ctx, &call_ids, (void *)before[b]);
+      FullStep *c = arena_alloc(ctx, sizeof *c);
+      *c = (FullStep){STEP_STAGE, fn_name(ctx, "stage_", before[b]->sym), before + b, 1, true, false};
+      vec_push(ctx, &calls, c);
     }
-    if (g->n >= 2) {
+    FullStep *c = arena_alloc(ctx, sizeof *c);
+    if (n >= 2) {
       char *name = "fused";
-      fprintf(out, "/* stages");
-      for (int m = 0; m < g->n; m++) {
-        const Sym *ms = g->members[m]->sym;
-        fprintf(out, "%s %s (%s:%d: %s)", m ? "," : "", ms->name, ms->loc.file ? ms->loc.file->name : "?", ms->loc.line,
-                emit_source_line(ctx, ms->loc));
-        name = arena_printf(ctx, "%s_%s", name, fn_name(e, "", ms));
-      }
-      fputs(", fused: one pass over their common domain */\n", out);
-      e->writes = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->slots.n + 1));
-      for (int m = 0; m < g->n; m++) e->writes[emit_index_of(&prog->slots, g->members[m]->sym)] = true;
-      emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", name), NULL, group_body_cb, g);
-      e->writes = NULL;
-      vec_push(ctx, &calls, name);
-      vec_push(ctx, &call_ids, (void *)g->members[g->n - 1]);
+      for (int m = 0; m < n; m++) name = arena_printf(ctx, "%s_%s", name, fn_name(ctx, "", members[m]->sym));
+      *c = (FullStep){STEP_FUSED, name, members, n, false, true};
       i = end;
-      continue;
+    } else {
+      members[0] = st;
+      *c = (FullStep){STEP_STAGE, fn_name(ctx, "stage_", st->sym), members, 1, false,
+                      emit_direct_ok(st) && !st->sym->body->ty.nwhole};
+      i++;
     }
-    if (s->introduced)
+    /* loop nests over pairs (and larger domains) are worth restricting */
+    c->boxed = c->boxed && st->sym->nivars >= 2;
+    vec_push(ctx, &calls, c);
+  }
+  return calls;
+}
+
+FullPlan *emit_full_plan(Ctx *ctx, const Program *prog) {
+  PtrVec calls = plan_calls(ctx, prog);
+  FullPlan *p = arena_alloc(ctx, sizeof *p);
+  p->steps = arena_alloc(ctx, sizeof(FullStep) * (size_t)(calls.n + prog->temps.n + 1));
+  /* each temp before the first call that needs it */
+  bool *done = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->temps.n + 1));
+  for (int k = 0; k < calls.n; k++) {
+    const FullStep *c = calls.v[k];
+    const Stage *last = c->members[c->n - 1];
+    for (int t = 0; t < prog->temps.n; t++) {
+      const Sym *tmp = prog->temps.v[t];
+      if (!done[t] && tmp->id < last->sym->id) {
+        const Stage **m = arena_alloc(ctx, sizeof *m);
+        m[0] = tmp->stage;
+        p->steps[p->n++] = (FullStep){STEP_TEMP, fn_name(ctx, "temp_", tmp), m, 1, false, false};
+        done[t] = true;
+      }
+    }
+    p->steps[p->n++] = *c;
+  }
+  return p;
+}
+
+static void box_body_cb(Emit *e, FILE *out, const void *arg) {
+  const FullStep *c = arg;
+  e->box = true;
+  emit_direct_group(e, out, c->members, c->n);
+  e->box = false;
+}
+
+/* A step's function, and for a boxed step its twin over boxes. */
+static void emit_step(Emit *e, const FullStep *c) {
+  Ctx *ctx = e->ctx;
+  FILE *out = e->out;
+  const Stage *st = c->members[0];
+  const Sym *s = st->sym;
+  if (c->kind == STEP_FUSED) {
+    fprintf(out, "/* stages");
+    for (int m = 0; m < c->n; m++) {
+      const Sym *ms = c->members[m]->sym;
+      fprintf(out, "%s %s (%s:%d: %s)", m ? "," : "", ms->name, ms->loc.file ? ms->loc.file->name : "?", ms->loc.line,
+              emit_source_line(ctx, ms->loc));
+    }
+    fputs(", fused: one pass over their common domain */\n", out);
+    e->writes = arena_alloc(ctx, sizeof(bool) * (size_t)(e->prog->slots.n + 1));
+    for (int m = 0; m < c->n; m++) e->writes[emit_index_of(&e->prog->slots, c->members[m]->sym)] = true;
+    Group g = {c->members, c->n};
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", c->fn), NULL, group_body_cb, &g);
+    e->writes = NULL;
+  } else {
+    if (c->before)
+      fprintf(out, "/* %s: %s, %s:%d (computed before the fused stages it does not read)\n   %s */\n", s->name,
+              stage_kind_name[st->kind], s->loc.file ? s->loc.file->name : "?", s->loc.line,
+              emit_source_line(ctx, s->loc));
+    else if (s->introduced)
       fprintf(out, "/* %s: introduced for %s, from %s:%d\n   %s */\n", s->name, s->introduced_for->name,
               s->loc.file ? s->loc.file->name : "?", s->loc.line, emit_source_line(ctx, s->loc));
     else
       fprintf(out, "/* %s: %s, %s:%d\n   %s */\n", s->name, stage_kind_name[st->kind],
               s->loc.file ? s->loc.file->name : "?", s->loc.line, emit_source_line(ctx, s->loc));
-    const char *fname = fn_name(e, "stage_", s);
-    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fname), s, stage_body_cb, st);
-    vec_push(ctx, &calls, (void *)fname);
-    vec_push(ctx, &call_ids, (void *)st);
-    i++;
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", c->fn), s, stage_body_cb, st);
   }
-  *calls_out = calls;
-  *call_ids_out = call_ids;
+  if (!c->boxed) return;
+  fprintf(out, "/* %s over boxes of its domain */\n", c->fn);
+  if (c->kind == STEP_FUSED) {
+    e->writes = arena_alloc(ctx, sizeof(bool) * (size_t)(e->prog->slots.n + 1));
+    for (int m = 0; m < c->n; m++) e->writes[emit_index_of(&e->prog->slots, c->members[m]->sym)] = true;
+  }
+  emit_function_sig(e, out,
+                    arena_printf(ctx, "static int box_%s(const NpgCtx *c, int nbox_, const npg_idx *box_)", c->fn),
+                    c->kind == STEP_FUSED ? NULL : s, box_body_cb, c);
+  e->writes = NULL;
 }
 
-/* The entry point: every stage in evaluation order, each temp before the
- * first call that needs it. */
-static void emit_entry(Emit *e, PtrVec calls, PtrVec call_ids) {
+/* The entry point: every step in evaluation order; and the step entry
+ * that runs one step, whole or over boxes. */
+static void emit_entry(Emit *e, const FullPlan *p) {
   Ctx *ctx = e->ctx;
-  const Program *prog = e->prog;
   FILE *out = e->out;
-  const Stage **st_all = (const Stage **)prog->stages.v;
   fputs("/* Every stage in evaluation order (externs are given with the inputs). */\n", out);
-  fprintf(out, "int %s(const NpgCtx *c) {\n", emit_symbol_name(ctx, prog, "full"));
-  bool *done = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->temps.n + 1));
-  for (int k = 0; k < calls.n; k++) {
-    const Stage *last = call_ids.v[k];
-    /* temps defined before the first member of this call */
-    const Stage *firstst = last;
-    for (int i = 0; i < prog->stages.n; i++)
-      if (st_all[i] == last) {
-        for (int j = i; j >= 0; j--)
-          if (j < prog->stages.n && st_all[j]->kind != ST_EXTERN) firstst = st_all[j];
-        break;
-      }
-    (void)firstst;
-    for (int t = 0; t < prog->temps.n; t++) {
-      const Sym *tmp = prog->temps.v[t];
-      if (!done[t] && tmp->id < last->sym->id) {
-        fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "temp_", tmp));
-        done[t] = true;
-      }
-    }
-    fprintf(out, "  if (%s(c)) return -1;\n", (char *)calls.v[k]);
-  }
+  fprintf(out, "int %s(const NpgCtx *c) {\n", emit_symbol_name(ctx, e->prog, "full"));
+  for (int k = 0; k < p->n; k++) fprintf(out, "  if (%s(c)) return -1;\n", p->steps[k].fn);
   fputs("  return 0;\n}\n\n", out);
-
+  fputs("/* Step `step_` of the entry point above: whole (nbox_ < 0), or a boxed step over\n"
+        " * nbox_ boxes (lo per index variable, then hi). */\n",
+        out);
+  fprintf(out, "int %s(const NpgCtx *c, int step_, int nbox_, const npg_idx *box_) {\n  (void)nbox_;\n  (void)box_;\n  switch (step_) {\n",
+          emit_symbol_name(ctx, e->prog, "full_step"));
+  for (int k = 0; k < p->n; k++) {
+    const FullStep *c = &p->steps[k];
+    if (c->boxed) fprintf(out, "  case %d: return nbox_ < 0 ? %s(c) : box_%s(c, nbox_, box_);\n", k, c->fn, c->fn);
+    else fprintf(out, "  case %d: return %s(c);\n", k, c->fn);
+  }
+  fputs("  }\n  return -1;\n}\n\n", out);
 }
 
 /* Bind-time gather checks: every index into a dim, where its guard holds;
@@ -630,19 +665,19 @@ static void emit_checks(Emit *e) {
     const Stage *st = prog->stages.v[i];
     if (st->kind == ST_EXTERN) continue;
     fprintf(out, "/* gathers of %s */\n", st->sym->name);
-    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "check_", st->sym)), NULL,
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e->ctx, "check_", st->sym)), NULL,
                   check_stage_cb, st);
   }
   for (int i = 0; i < prog->temps.n; i++) {
     const Sym *s = prog->temps.v[i];
     fprintf(out, "/* gathers of %s */\n", s->name);
-    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "check_temp_", s)), NULL,
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e->ctx, "check_temp_", s)), NULL,
                       check_stage_cb, s->stage);
   }
   for (int i = 0; i < prog->opdefs.n; i++) {
     const OpDef *od = prog->opdefs.v[i];
     fprintf(out, "/* gathers of operator %s */\n", od->sym->name);
-    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e, "check_op_", od->sym)), NULL,
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e->ctx, "check_op_", od->sym)), NULL,
                   check_op_cb, od);
   }
   fputs("/* Every gather in range of its dim where its guard holds: run once per binding. */\n", out);
@@ -650,12 +685,12 @@ static void emit_checks(Emit *e) {
   for (int i = 0; i < prog->stages.n; i++) {
     const Stage *st = prog->stages.v[i];
     if (st->kind == ST_EXTERN) continue;
-    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "check_", st->sym));
+    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e->ctx, "check_", st->sym));
   }
   for (int i = 0; i < prog->temps.n; i++)
-    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "check_temp_", prog->temps.v[i]));
+    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e->ctx, "check_temp_", prog->temps.v[i]));
   for (int i = 0; i < prog->opdefs.n; i++)
-    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e, "check_op_", ((OpDef *)prog->opdefs.v[i])->sym));
+    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e->ctx, "check_op_", ((OpDef *)prog->opdefs.v[i])->sym));
   fputs("  return 0;\n}\n", out);
 }
 
@@ -663,8 +698,9 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
   Emit *e = emit_new(ctx, prog, out);
   emit_header(e, "Full evaluator");
   emit_temps(e);
-  PtrVec calls, call_ids;
-  emit_stages(e, &calls, &call_ids);
-  emit_entry(e, calls, call_ids);
+  FullPlan *p = emit_full_plan(ctx, prog);
+  for (int k = 0; k < p->n; k++)
+    if (p->steps[k].kind != STEP_TEMP) emit_step(e, &p->steps[k]);
+  emit_entry(e, p);
   emit_checks(e);
 }

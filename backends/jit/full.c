@@ -8,6 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "demand.h"
 #include "emit.h"
 #include "full.h"
 #include "jit.h"
@@ -19,6 +20,9 @@ struct NpgFull {
   Program *prog;
   JitModule *jit;
   NpgStageFn full, check;
+  NpgStepFn step;           /* one step of the plan, whole or over boxes */
+  const FullPlan *plan;
+  Demand *demand;           /* full_demand(), made on first use */
   char error[1024];
   npg_idx *dims;            /* -1 while unbound */
   char **dim_from;          /* which file or call bound each dim */
@@ -92,12 +96,15 @@ NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
     fail(f, "%s", err);
     return f;
   }
-  char full[1024], check[1024];
+  char full[1024], check[1024], step[1024];
   bool named = emit_symbol(prog, "full", full, sizeof full) < (int)sizeof full &&
-               emit_symbol(prog, "check", check, sizeof check) < (int)sizeof check;
+               emit_symbol(prog, "check", check, sizeof check) < (int)sizeof check &&
+               emit_symbol(prog, "full_step", step, sizeof step) < (int)sizeof step;
   f->full = named ? (NpgStageFn)jit_symbol(f->jit, full) : NULL;
   f->check = named ? (NpgStageFn)jit_symbol(f->jit, check) : NULL;
-  if (!f->full || !f->check) {
+  f->step = named ? (NpgStepFn)jit_symbol(f->jit, step) : NULL;
+  f->plan = emit_full_plan(prog->ctx, prog);
+  if (!f->full || !f->check || !f->step) {
     fail(f, "generated code lacks its entry points (a bug in npg)");
     return f;
   }
@@ -380,7 +387,19 @@ static NpgCtx context(NpgFull *f, long sample) {
   return c;
 }
 
-int npg_full_eval(NpgFull *f, long sample) {
+/* The steps a demand asks for, each whole or over its boxes. */
+static int run_steps(NpgFull *f, const NpgCtx *c, Demand *d) {
+  if (demand_propagate(d)) return fail(f, "out of memory");
+  for (int k = 0; k < f->plan->n; k++) {
+    const npg_idx *box;
+    int n = demand_step(d, k, &box);
+    if (n >= 0 && f->step(c, k, n ? n : -1, box) != 0) return -1;
+  }
+  return 0;
+}
+
+/* Evaluate sample `sample`: everything, or (d non-NULL) what d demands. */
+static int evaluate(NpgFull *f, long sample, Demand *d) {
   if (f->error[0]) return -1;
   const Program *prog = f->prog;
   for (int i = 0; i < prog->dims.n; i++)
@@ -410,7 +429,8 @@ int npg_full_eval(NpgFull *f, long sample) {
     if (f->check(&c) != 0) return fail(f, "%s", f->host.msg);
     f->checked = true;
   }
-  if (f->full(&c) != 0) {
+  if ((d ? run_steps(f, &c, d) : f->full(&c)) != 0) {
+    if (f->error[0]) return -1;
     /* An operator that is not finite is where a NaN surfaced, not where it
      * arose: name the first stage holding one when another stage failed (a
      * zero-area triangle makes p = d·a^(-1/2) NaN, and b = solve(M, e) fails). */
@@ -429,6 +449,20 @@ int npg_full_eval(NpgFull *f, long sample) {
   }
   return 0;
 }
+
+int npg_full_eval(NpgFull *f, long sample) { return evaluate(f, sample, NULL); }
+
+Demand *full_demand(NpgFull *f) {
+  if (f->error[0] || !f->plan) return NULL;
+  if (!f->demand && !(f->demand = demand_new(f->prog, f->plan))) {
+    fail(f, "out of memory");
+    return NULL;
+  }
+  demand_reset(f->demand, f->dims);
+  return f->demand;
+}
+
+int full_eval_demand(NpgFull *f, long sample, Demand *d) { return evaluate(f, sample, d); }
 
 int full_build(NpgFull *f, const char *name, NpgSink *sink) {
   if (f->error[0]) return -1;
@@ -529,6 +563,7 @@ void npg_full_unbind(NpgFull *f) {
 void npg_full_free(NpgFull *f) {
   if (!f) return;
   jit_free(f->jit);
+  demand_free(f->demand);
   if (f->prog) {
     for (int i = 0; i < f->prog->dims.n; i++) free(f->dim_from[i]);
     for (int i = 0; i < f->prog->params.n; i++) {

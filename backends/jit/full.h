@@ -5,6 +5,7 @@
 
 #include <stdint.h>
 
+#include "demand.h"
 #include "ir.h"
 #include "npg.h"
 #include "npg_abi.h"
@@ -20,6 +21,17 @@ int full_emit(Program *prog, FILE *out);
  * memory; otherwise errors are in npg_full_error(). npg_full_new() is this
  * for an NpgProgram. */
 NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal);
+/* The evaluator's demand (demand.h), emptied, for its dims as bound (bind
+ * them first: an evaluation, or every input and param set). NULL after
+ * npg_full_error() (out of memory). */
+Demand *full_demand(NpgFull *f);
+/* Evaluate sample `sample` as npg_full_eval() does, but compute only the
+ * entries `d` (from full_demand) asks for and what they read: the demanded
+ * entries equal a whole evaluation's bit for bit; every other entry of a
+ * stage holds whatever it held (an earlier sample's value, or 0). Inputs
+ * and externs are given as for npg_full_eval(). 0, or -1 with
+ * npg_full_error(). */
+int full_eval_demand(NpgFull *f, long sample, Demand *d);
 /* Run the tensor builder `name` on the current binding (after an
  * evaluation bound everything). 0, or -1 with npg_full_error(). */
 int full_build(NpgFull *f, const char *name, NpgSink *sink);

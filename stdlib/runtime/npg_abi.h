@@ -97,6 +97,10 @@ struct NpgRt {
 /* Entry points of generated code (prefixed when several programs share a
  * process). Each returns 0, or -1 after the runtime recorded an error. */
 typedef int (*NpgStageFn)(const NpgCtx *c);
+/* Step `step` of the full evaluator's plan (backends/emit/emit.h FullPlan):
+ * with nbox < 0 the whole step, else its members only over the boxes
+ * box[b * 2 * nivars ...] (lo per index variable, then hi; half-open). */
+typedef int (*NpgStepFn)(const NpgCtx *c, int step, int nbox, const npg_idx *box);
 typedef int (*NpgBuildFn)(const NpgCtx *c, NpgSink *sink);
 
 /* ---------------------------------------------------------------- the reduced evaluator

@@ -1,0 +1,171 @@
+/* test_demand.c — restricted evaluation (backends/jit/demand.h): the
+ * entries a demand asks for equal a whole evaluation's, bit for bit, and
+ * what nothing demands is not computed. */
+#include "testutil.h"
+
+#include "demand.h"
+#include "full.h"
+#include "meshgen.h"
+#include "randdata.h"
+
+/* Gathers, transposed reads (of a stage computed alone, and of fused ones,
+ * rematerialized), diagonal reads, a summation, a division, a stage over
+ * another domain between them. */
+static const char *const transposes =
+    "dim N, M, V\n"
+    "param idx : int[N]\n"
+    "input x : real[V]\n"
+    "input y : real[N, N]\n"
+    "input m : real[M]\n"
+    "t[i:N, j:N] = x[idx[i]] * y[j, i] + y[i, j]^2\n"
+    "q[i:N, l:M] = t[i, i] * m[l] + 2\n"
+    "u[i:N, j:N] = t[j, i] * t[i, j] + x[idx[j]] * q[j, 1]\n"
+    "w[i:N, j:N] = u[i, j] * u[j, i] / (1 + t[i, i]^2)\n"
+    "z[i:N, j:N] = sum(k = 0..N-1, t[i, k]) * w[j, i]\n"
+    "output o = sum(k = 0..N-1, z[k, k])\n";
+
+/* Bind `f` to sample `k` of `prog` (the radiosity room, or the program above). */
+static void bind_sample(NpgFull *f, bool radiosity, long n, long k) {
+  unsigned seed = 7u + 31u * (unsigned)k;
+  if (radiosity) {
+    Mesh mesh;
+    char err[256];
+    if (mesh_room(n, 0.05 * (double)k, &mesh, err, sizeof err)) fail_msg("%s", err);
+    double *tri = malloc(sizeof(double) * (size_t)(3 * n)), *rho = malloc(sizeof(double) * (size_t)n);
+    double *e = malloc(sizeof(double) * (size_t)n), *v = malloc(sizeof(double) * (size_t)(n * n));
+    for (long i = 0; i < 3 * n; i++) tri[i] = mesh.tri[i];
+    for (long i = 0; i < n; i++) rho[i] = randdata_uniform(&seed, 0.1, 0.8), e[i] = randdata_uniform(&seed, 0, 1);
+    for (long i = 0; i < n * n; i++) v[i] = randdata_uniform(&seed, 0, 1);
+    long ts[2] = {n, 3}, fs[1] = {n}, gs[2] = {mesh.V, 3}, vs[2] = {n, n};
+    if (npg_full_set_param(f, "tri", 2, ts, tri, "tri") || npg_full_set_param(f, "rho", 1, fs, rho, "rho") ||
+        npg_full_set(f, "g", 2, gs, mesh.g, "g") || npg_full_set(f, "e", 1, fs, e, "e") ||
+        npg_full_set(f, "v", 2, vs, v, "v"))
+      fail_msg("%s", npg_full_error(f));
+    free(tri), free(rho), free(e), free(v);
+    mesh_free(&mesh);
+    return;
+  }
+  long V = n + 3;
+  double *idx = malloc(sizeof(double) * (size_t)n), *x = malloc(sizeof(double) * (size_t)V);
+  double *y = malloc(sizeof(double) * (size_t)(n * n));
+  for (long i = 0; i < n; i++) idx[i] = (double)((i * 5 + 2) % V);
+  for (long i = 0; i < V; i++) x[i] = randdata_uniform(&seed, -1, 1);
+  for (long i = 0; i < n * n; i++) y[i] = randdata_uniform(&seed, -1, 1);
+  double m[3] = {randdata_uniform(&seed, 1, 2), randdata_uniform(&seed, 1, 2), randdata_uniform(&seed, 1, 2)};
+  long is[1] = {n}, xs[1] = {V}, ys[2] = {n, n}, ms[1] = {3};
+  if (npg_full_set_param(f, "idx", 1, is, idx, "idx") || npg_full_set(f, "x", 1, xs, x, "x") ||
+      npg_full_set(f, "y", 2, ys, y, "y") || npg_full_set(f, "m", 1, ms, m, "m"))
+    fail_msg("%s", npg_full_error(f));
+  free(idx), free(x), free(y);
+}
+
+typedef struct Want {
+  const char *name;
+  size_t e0, e1;  /* flat entries */
+} Want;
+
+/* For samples 0 and 1: evaluate whole with one evaluator, restricted to
+ * `want` with another (fresh before sample 0, so what it did not compute
+ * is 0), and compare the wanted entries bit for bit; `skipped` must stay
+ * 0 on sample 0, and so must some entry of the first wanted quantity that
+ * a whole evaluation makes nonzero. */
+static void check_restricted(NpgProgram *p, bool radiosity, long n, NpgBackend backend, const Want *want, int nwant,
+                             const char *skipped) {
+  Program *prog = ir_ok(p);
+  NpgFull *whole = npg_full_new(p, backend), *part = npg_full_new(p, backend);
+  for (long k = 0; k < 2; k++) {
+    bind_sample(whole, radiosity, n, k);
+    bind_sample(part, radiosity, n, k);
+    if (npg_full_eval(whole, k)) fail_msg("%s", npg_full_error(whole));
+    Demand *d = full_demand(part);
+    assert_non_null(d);
+    for (int i = 0; i < nwant; i++) demand_entries(d, find_quantity(prog, want[i].name), want[i].e0, want[i].e1);
+    if (full_eval_demand(part, k, d)) fail_msg("%s", npg_full_error(part));
+    for (int i = 0; i < nwant; i++) {
+      size_t na, nb;
+      const double *a = npg_full_get(whole, want[i].name, &na), *b = npg_full_get(part, want[i].name, &nb);
+      assert_int_equal(na, nb);
+      for (size_t e = want[i].e0; e < want[i].e1; e++)
+        if (memcmp(&a[e], &b[e], sizeof(double)) != 0)
+          fail_msg("%s, sample %ld: %s entry %zu is %.17g restricted, %.17g whole", radiosity ? "radiosity" : "transposes",
+                   k, want[i].name, e, b[e], a[e]);
+    }
+    if (k == 0) {
+      size_t ns;
+      const double *s = npg_full_get(part, skipped, &ns), *w = npg_full_get(whole, skipped, NULL);
+      bool zero = true, nonzero = false;
+      for (size_t e = 0; e < ns; e++) zero &= s[e] == 0, nonzero |= w[e] != 0;
+      assert_true(nonzero && zero); /* computed whole, never restricted */
+      size_t no;
+      const double *o = npg_full_get(part, want[0].name, &no), *ow = npg_full_get(whole, want[0].name, NULL);
+      bool restricted = false; /* some entry of it not computed */
+      for (size_t e = 0; e < no; e++) restricted |= ow[e] != 0 && o[e] == 0;
+      assert_true(restricted);
+    }
+  }
+  npg_full_free(whole);
+  npg_full_free(part);
+}
+
+/* Radiosity's pair rows as out-of-core passes ask for them: partial first
+ * and last rows, overlapping ranges of different members (h is read
+ * transposed by c, rematerialized in the fused loop). */
+static void radiosity_rows_equal_whole(void **state) {
+  (void)state;
+  NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
+  const long F = 24;
+  Want want[] = {{"p", 30, 100}, {"c", 90, 150}, {"h", 201, 202}, {"r", 575, 576}, {"s", 48, 72}, {"d", 0, 5}};
+  check_restricted(p, true, F, NPG_TCC, want, 6, "b");
+  npg_free(p);
+}
+
+static void transposes_and_gathers_equal_whole(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("transposes.npg", transposes);
+  const long N = 13;
+  Want want[] = {{"z", 20, 61}, {"t", 100, 110}, {"u", 140, 169}};
+  for (int cc = 0; cc < 2; cc++) check_restricted(p, false, N, cc ? NPG_CC : NPG_TCC, want, 3, "o");
+  npg_free(p);
+}
+
+/* Flat entries become boxes: a partial first row, whole rows, a partial
+ * last row; the demand on a fused step joins overlapping rows. */
+static void entries_become_boxes(void **state) {
+  (void)state;
+  NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
+  Program *prog = ir_ok(p);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  bind_sample(f, true, 24, 0);
+  Demand *d = full_demand(f);
+  demand_entries(d, find_quantity(prog, "p"), 30, 100); /* row 1 from 6, rows 2-3, row 4 to 4 */
+  demand_entries(d, find_quantity(prog, "d"), 48, 96);  /* rows 2-3: inside the above */
+  assert_int_equal(demand_propagate(d), 0);
+  const FullPlan *plan = emit_full_plan(prog->ctx, prog);
+  int fused = -1, solve = -1;
+  for (int k = 0; k < plan->n; k++) {
+    if (plan->steps[k].kind == STEP_FUSED) fused = k;
+    if (strcmp(plan->steps[k].members[0]->sym->name, "b") == 0) solve = k;
+  }
+  assert_true(fused >= 0 && solve >= 0);
+  const npg_idx *box;
+  assert_int_equal(demand_step(d, solve, &box), -1);
+  int n = demand_step(d, fused, &box);
+  assert_int_equal(n, 3);
+  npg_idx want[3][4] = {{1, 6, 2, 24}, {2, 0, 4, 24}, {4, 0, 5, 4}};
+  for (int b = 0; b < 3; b++) {
+    bool found = false;
+    for (int i = 0; i < n; i++) found |= memcmp(box + 4 * i, want[b], sizeof want[b]) == 0;
+    assert_true(found);
+  }
+  npg_full_free(f);
+  npg_free(p);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(radiosity_rows_equal_whole),
+      cmocka_unit_test(transposes_and_gathers_equal_whole),
+      cmocka_unit_test(entries_become_boxes),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
