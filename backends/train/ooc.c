@@ -3,9 +3,10 @@
  * When the bases themselves do not fit in --mem (radiosity's pair classes
  * at the paper's size: 25 M rows x 60 columns, 12 GB each), no snapshot
  * matrix and no basis is held whole. The large ("streamed") classes are cut
- * into blocks of rows; a pass over the samples re-evaluates the full
- * program on every sample (externs come from the trainer's cache) and
- * keeps the rows of its blocks, all S samples of them, so every row-local
+ * into blocks of rows; a pass over the samples evaluates on every sample
+ * the rows of its blocks and what they read (the full program restricted
+ * to them, demand.h; externs come from the trainer's cache) and keeps
+ * those rows, all S samples of them, so every row-local
  * step of the in-memory PCA (pca_basis) runs on a block exactly as it
  * would on the whole:
  *
@@ -25,9 +26,10 @@
  *                 memory.
  *
  * Small classes keep their snapshots in memory (collected on the first
- * pass) and go through train_member_bases as in memory. A pass holds blocks
- * of several classes: the number of passes is about the streamed classes'
- * snapshot bytes over the budget, plus one Gram and one basis pass at least.
+ * pass) and go through train_member_bases as in memory. A pass holds the
+ * same fraction of every streamed class's rows: the number of passes is
+ * about the streamed classes' snapshot bytes over the budget, plus one Gram
+ * and one basis pass at least.
  */
 #include <cblas.h>
 #include <lapacke.h>
@@ -132,58 +134,84 @@ static int plan(Ooc *o) {
   fixed += small + sizeof(double) * (size_t)o->S * 4;
   o->fixed = fixed;
   o->avail = o->opt->mem > fixed ? o->opt->mem - fixed : 0;
-  /* segments, filled pass by pass */
-  long cap = 16;
-  o->seg = calloc((size_t)cap, sizeof(Segment));
-  o->first = calloc((size_t)cap + 1, sizeof(long));
-  if (!o->seg || !o->first) return -1;
-  size_t used = 0;
-  o->npass = 0;
-  for (int c = 0; c < m->nclasses; c++) {
-    if (!o->st[c].streamed) continue;
-    size_t w = row_bytes(&m->classes[c], S);
-    for (long r = 0; r < m->classes[c].n;) {
-      long rows = (long)((o->avail - (used < o->avail ? used : o->avail)) / w);
-      if (rows < 1 && used > 0) { /* this pass is full */
-        o->first[++o->npass] = o->nseg;
-        used = 0;
-        continue;
-      }
-      if (rows < 1) rows = 1; /* a budget below one row: a row at a time */
-      if (rows > m->classes[c].n - r) rows = m->classes[c].n - r;
-      if (o->nseg + 1 >= cap) {
-        Segment *g = realloc(o->seg, sizeof(Segment) * (size_t)(cap * 2));
-        long *f = g ? realloc(o->first, sizeof(long) * (size_t)(cap * 2 + 1)) : NULL;
-        if (g) o->seg = g;
-        if (!f) return -1;
-        o->first = f;
-        cap *= 2;
-      }
-      o->seg[o->nseg++] = (Segment){c, r, r + rows, NULL};
-      used += w * (size_t)rows;
-      r += rows;
+  /* Pass p keeps the same fraction [p/P, (p+1)/P) of every streamed
+   * class's rows: the pair classes number their rows alike, so a pass
+   * demands the same entries of all of them, and each entry is computed
+   * in one pass only. Rounding adds at most a row per class to a pass. */
+  size_t total = 0, w = 0;
+  long maxn = 0, nstreamed = 0;
+  for (int c = 0; c < m->nclasses; c++)
+    if (o->st[c].streamed && m->classes[c].n > 0) {
+      total += row_bytes(&m->classes[c], S) * (size_t)m->classes[c].n;
+      w += row_bytes(&m->classes[c], S);
+      maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
+      nstreamed++;
     }
+  long P = o->avail > w ? (long)((total + (o->avail - w) - 1) / (o->avail - w)) : maxn; /* else a row at a time */
+  if (P > maxn) P = maxn;
+  if (P < 1) P = 1;
+  o->seg = calloc((size_t)(P * nstreamed) + 1, sizeof(Segment));
+  o->first = calloc((size_t)P + 2, sizeof(long));
+  if (!o->seg || !o->first) return -1;
+  o->npass = 0;
+  for (long p = 0; p < P && nstreamed > 0; p++) {
+    for (int c = 0; c < m->nclasses; c++) {
+      long n = m->classes[c].n, r0 = n * p / P, r1 = n * (p + 1) / P;
+      if (o->st[c].streamed && r1 > r0) o->seg[o->nseg++] = (Segment){c, r0, r1, NULL};
+    }
+    o->first[++o->npass] = o->nseg;
   }
-  o->first[++o->npass] = o->nseg;
   if (o->nseg == 0) o->npass = 1; /* no streamed class: one pass for the small ones */
   return 0;
 }
 
-/* One pass: every sample evaluated, the rows of pass p's segments kept (and
- * on the first pass the small classes' snapshots and the SPD marks). */
-static int collect(Ooc *o, long p, const char *what) {
+/* The quantity whose rows member `mb` is: itself, or for an unnamed
+ * numerator the stage it is the numerator of (its expression reads what
+ * the numerator reads, at the same entries). */
+static const Sym *member_quantity(const Model *m, const RMember *mb) {
+  return mb->q >= 0 ? m->prog->quantities.v[mb->q] : mb->joiner->stage->sym;
+}
+
+/* Rows [r0, r1) of member `mb` after evaluating sample k, into out. */
+static int member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1, double *out) {
+  if (mb->q < 0) { /* an unnamed numerator: through its tensors, whole */
+    if (train_member_value(o->m, o->f, mb, k, n, o->tmp, o->err, o->errlen)) return -1;
+    memcpy(out, o->tmp + r0, sizeof(double) * (size_t)(r1 - r0));
+    return 0;
+  }
+  const double *v = npg_full_get(o->f, ((Sym *)o->m->prog->quantities.v[mb->q])->name, NULL);
+  for (long e = r0; e < r1; e++)
+    if (!isfinite(v[e])) /* the message naming where it arises */
+      return train_member_value(o->m, o->f, mb, k, n, o->tmp, o->err, o->errlen) ? -1
+             : npg_fail(o->err, o->errlen, "training sample %ld: %s is not finite", k, mb->name);
+  memcpy(out, v + r0, sizeof(double) * (size_t)(r1 - r0));
+  return 0;
+}
+
+/* One pass: every sample evaluated, the rows of pass p's segments kept.
+ * The first Gram pass evaluates everything (it also takes the small
+ * classes' snapshots and the SPD marks); every other pass evaluates only
+ * the rows of its segments and what they read (full_eval_demand), so the
+ * passes of a sweep together cost about one evaluation per sample. */
+static int collect(Ooc *o, long p, bool gram) {
   Model *m = o->m;
   long S = o->S;
+  bool whole = p == 0 && gram;
+  Demand *d = whole ? NULL : full_demand(o->f);
+  if (!whole && !d) return npg_fail(o->err, o->errlen, "%s", npg_full_error(o->f));
   for (long g = o->first[p]; g < o->first[p + 1]; g++) {
     Segment *sg = &o->seg[g];
     RClass *rc = &m->classes[sg->c];
     if (!(sg->H = calloc((size_t)rc->nmembers, sizeof(double *)))) return -1;
-    for (int i = 0; i < rc->nmembers; i++)
+    for (int i = 0; i < rc->nmembers; i++) {
       if (!(sg->H[i] = malloc(sizeof(double) * (size_t)(sg->r1 - sg->r0) * (size_t)S))) return -1;
+      if (d) demand_entries(d, member_quantity(m, &rc->members[i]), (size_t)sg->r0, (size_t)sg->r1);
+    }
   }
+  const char *what = gram ? "snapshots (Gram, out of core)" : "snapshots (basis, out of core)";
   for (long k = 0; k < S; k++) {
-    if (train_eval_sample(o->src, o->f, k, o->err, o->errlen)) return -1;
-    if (p == 0 && strstr(what, "Gram")) {
+    if (whole) {
+      if (train_eval_sample(o->src, o->f, k, o->err, o->errlen)) return -1;
       if (train_check_spd(m, o->f, o->tmp, o->err, o->errlen)) return -1;
       for (int c = 0; c < m->nclasses; c++) {
         RClass *rc = &m->classes[c];
@@ -192,15 +220,15 @@ static int collect(Ooc *o, long p, const char *what) {
                                  o->err, o->errlen))
             return -1;
       }
+    } else if (o->src->set(o->src->user, o->f, k) != 0 || full_eval_demand(o->f, k, d) != 0) {
+      return npg_fail(o->err, o->errlen, "%s", npg_full_error(o->f));
     }
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
       RClass *rc = &m->classes[sg->c];
       long R = sg->r1 - sg->r0;
-      for (int i = 0; i < rc->nmembers; i++) {
-        if (train_member_value(m, o->f, &rc->members[i], k, rc->n, o->tmp, o->err, o->errlen)) return -1;
-        memcpy(sg->H[i] + (size_t)k * (size_t)R, o->tmp + sg->r0, sizeof(double) * (size_t)R);
-      }
+      for (int i = 0; i < rc->nmembers; i++)
+        if (member_rows(o, &rc->members[i], k, rc->n, sg->r0, sg->r1, sg->H[i] + (size_t)k * (size_t)R)) return -1;
     }
     progress_show(o->opt->progress, what, p * S + k + 1, o->npass * S);
   }
@@ -228,7 +256,7 @@ static void center_block(long R, long S, double *H, double *mu) {
 static int gram_passes(Ooc *o) {
   long S = o->S;
   for (long p = 0; p < o->npass; p++) {
-    if (collect(o, p, "snapshots (Gram, out of core)")) return -1;
+    if (collect(o, p, true)) return -1;
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
       RClass *rc = &o->m->classes[sg->c];
@@ -322,7 +350,7 @@ static int read_at(FILE *fp, void *p, size_t bytes, size_t off) {
 static int basis_passes(Ooc *o) {
   long S = o->S;
   for (long p = 0; p < o->npass && o->nseg > 0; p++) {
-    if (collect(o, p, "snapshots (basis, out of core)")) return -1;
+    if (collect(o, p, false)) return -1;
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
       Stream *st = &o->st[sg->c];
@@ -565,8 +593,8 @@ int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions 
             streamed, m->nclasses, o.npass, o.S, (double)opt->mem / 1e9, (double)o.avail / 1e9);
     if (o.avail == 0) /* the passes run a row at a time: say why, and what would help */
       fprintf(stderr, "out of core: --mem leaves nothing for the rows of a pass (the Gram matrices of the %ld samples "
-              "and the small classes' snapshots need %.3g MB of it), so each pass keeps one row; raise --mem for fewer "
-              "passes\n", o.S, (double)o.fixed / 1e6);
+              "and the small classes' snapshots need %.3g MB of it), so each pass keeps one row of each streamed class; raise "
+              "--mem for fewer passes\n", o.S, (double)o.fixed / 1e6);
   }
   train_mark_spd(m);
   if (gram_passes(&o) || eigen(&o) || basis_passes(&o)) goto done;
