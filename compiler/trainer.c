@@ -154,24 +154,44 @@ static size_t encode(NpgTrainer *t) {
   return pos;
 }
 
+/* Slot i of the record at t->enc + pos into v[0..n): every entry (nr < 0),
+ * or the entries in the nr ranges r[2j] <= e < r[2j+1]. The position after
+ * the slot. */
+static size_t decode_slot(const NpgTrainer *t, int i, size_t pos, double *v, const size_t *r, long nr) {
+  size_t n = t->count[i], all[2] = {0, n};
+  if (nr < 0) r = all, nr = 1;
+  if (t->slot[i]->kind == SYM_EXTERN && t->enc[pos++]) {
+    const unsigned char *bits = t->enc + pos;
+    for (long j = 0; j < nr; j++)
+      for (size_t e = r[2 * j]; e < r[2 * j + 1]; e++) v[e] = (bits[e / 8] >> (e % 8)) & 1 ? 1.0 : 0.0;
+    pos += (n + 7) / 8;
+    uint64_t x, e;
+    memcpy(&x, t->enc + pos, 8);
+    pos += 8;
+    const unsigned char *ex = t->enc + pos; /* (index, value), indices ascending */
+    for (long j = 0; j < nr; j++) {
+      uint64_t lo = 0, hi = x; /* the first exceptional entry at r[2j] or after */
+      while (lo < hi) {
+        uint64_t mid = lo + (hi - lo) / 2;
+        memcpy(&e, ex + 16 * mid, 8);
+        if (e < r[2 * j]) lo = mid + 1;
+        else hi = mid;
+      }
+      for (; lo < x && (memcpy(&e, ex + 16 * lo, 8), e < r[2 * j + 1]); lo++) memcpy(v + e, ex + 16 * lo + 8, 8);
+    }
+    return pos + 16 * x;
+  }
+  for (long j = 0; j < nr; j++)
+    memcpy(v + r[2 * j], t->enc + pos + sizeof(double) * r[2 * j], sizeof(double) * (r[2 * j + 1] - r[2 * j]));
+  return pos + sizeof(double) * n;
+}
+
 /* t->enc back into t->buf (the inverse of encode, bit for bit). */
 static void decode(NpgTrainer *t) {
   size_t off = 0, pos = 0;
   for (int i = 0; i < t->nslots; i++) {
-    double *v = t->buf + off;
-    size_t n = t->count[i];
-    off += n;
-    if (t->slot[i]->kind == SYM_EXTERN && t->enc[pos++]) {
-      for (size_t e = 0; e < n; e++) v[e] = (t->enc[pos + e / 8] >> (e % 8)) & 1 ? 1.0 : 0.0;
-      pos += (n + 7) / 8;
-      uint64_t x, e;
-      memcpy(&x, t->enc + pos, 8);
-      pos += 8;
-      for (uint64_t j = 0; j < x; j++, pos += 16) memcpy(&e, t->enc + pos, 8), memcpy(v + e, t->enc + pos + 8, 8);
-      continue;
-    }
-    memcpy(v, t->enc + pos, sizeof(double) * n);
-    pos += sizeof(double) * n;
+    pos = decode_slot(t, i, pos, t->buf + off, NULL, -1);
+    off += t->count[i];
   }
 }
 
@@ -260,9 +280,8 @@ int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {
   return record(t, g);
 }
 
-/* SampleSource: sample k back into the evaluator. */
-static int replay(void *user, NpgFull *f, long k) {
-  NpgTrainer *t = user;
+/* Sample k's encoded record into t->enc. */
+static int load_record(NpgTrainer *t, NpgFull *f, long k) {
   if (!own_sample(t, k)) return full_fail(f, "a training sample of another rank was asked for (a bug in npg)");
   k = kept_index(t, k);
   if (k < t->in_mem) {
@@ -270,15 +289,49 @@ static int replay(void *user, NpgFull *f, long k) {
   } else if (fseeko(t->scratch, (off_t)t->at[k], SEEK_SET) != 0 || fread(t->enc, 1, t->len[k], t->scratch) != t->len[k]) {
     return full_fail(f, "cannot read a training sample back from the scratch file");
   }
+  return 0;
+}
+
+/* SampleSource: sample k back into the evaluator. */
+static int replay(void *user, NpgFull *f, long k) {
+  NpgTrainer *t = user;
+  if (load_record(t, f, k)) return -1;
   decode(t);
   const double *v = t->buf;
   char from[64];
-  snprintf(from, sizeof from, "training sample %ld", k);
+  snprintf(from, sizeof from, "training sample %ld", kept_index(t, k));
   for (int i = 0; i < t->nslots; i++) {
     long shape[MAX_AXES + MAX_STATIC];
     int nd = api_shape(f, t->slot[i], shape);
     if (npg_full_set(f, t->slot[i]->name, nd, shape, v, from) != 0) return -1;
     v += t->count[i];
+  }
+  return 0;
+}
+
+/* SampleSource: sample k back into the evaluator, of each extern only the
+ * entries the restricted evaluation `d` reads (at the paper's size the
+ * visibility is 25 M entries, a pass reads a few of its rows), decoded
+ * straight into the evaluator. */
+static int replay_part(void *user, NpgFull *f, long k, const Demand *d) {
+  NpgTrainer *t = user;
+  if (load_record(t, f, k)) return -1;
+  char from[64];
+  snprintf(from, sizeof from, "training sample %ld", kept_index(t, k));
+  size_t pos = 0, off = 0, r[2 * 64];
+  for (int i = 0; i < t->nslots; i++) {
+    long nr = t->slot[i]->kind == SYM_EXTERN ? demand_ranges(d, t->slot[i], r, 64) : -1;
+    if (nr < 0) { /* whole, through the checks of npg_full_set */
+      pos = decode_slot(t, i, pos, t->buf + off, NULL, -1);
+      long shape[MAX_AXES + MAX_STATIC];
+      int nd = api_shape(f, t->slot[i], shape);
+      if (npg_full_set(f, t->slot[i]->name, nd, shape, t->buf + off, from) != 0) return -1;
+    } else { /* recorded from values that passed those checks */
+      double *v = full_extern_values(f, t->slot[i]->name, t->count[i]);
+      if (!v) return -1;
+      pos = decode_slot(t, i, pos, v, r, nr);
+    }
+    off += t->count[i];
   }
   return 0;
 }
@@ -335,7 +388,7 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.override_name = (const char **)t->opt.basis_name;
   o.override_cap = (int *)t->opt.basis_cap;
   o.override_energy = (double *)t->opt.basis_energy;
-  SampleSource src = {t->samples, t, replay};
+  SampleSource src = {t->samples, t, replay, replay_part};
   char err[2048] = "";
   Model *m = train_model((Program *)t->prog, t->f, &src, &o, err, sizeof err);
   /* over ranks, the others wait for this one in a collective: end the job */

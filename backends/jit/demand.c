@@ -397,6 +397,41 @@ int demand_propagate(Demand *d) {
   return d->oom ? -1 : 0;
 }
 
+static int cmp_range(const void *a, const void *b) {
+  const size_t *x = a, *y = b;
+  return (x[0] > y[0]) - (x[0] < y[0]);
+}
+
+long demand_ranges(const Demand *d, const Sym *q, size_t *r, long cap) {
+  int s = slot_of(d, q);
+  if (s < 0 || d->slot[s].state == BOX_ALL || q->ndims == 0) return s >= 0 && d->slot[s].state == BOX_NONE ? 0 : -1;
+  const Boxes *b = &d->slot[s];
+  if (b->state == BOX_NONE) return 0;
+  int nax = q->ndims;
+  size_t nc = 1;
+  for (int k = 0; k < q->nstatic; k++) nc *= (size_t)q->shape[k];
+  long n = 0;
+  for (int i = 0; i < b->n; i++) {
+    const npg_idx *lo = b->v + i * 2 * nax, *hi = lo + nax;
+    npg_idx at[MAX_AXES];
+    memcpy(at, lo, sizeof(npg_idx) * (size_t)nax);
+    for (;;) { /* every index of the axes but the last in the box: one range along the last */
+      size_t row = 0;
+      for (int k = 0; k + 1 < nax; k++) row = row * (size_t)dim_size(d, q->dims[k]) + (size_t)at[k];
+      size_t last = (size_t)dim_size(d, q->dims[nax - 1]);
+      size_t e0 = (row * last + (size_t)lo[nax - 1]) * nc, e1 = (row * last + (size_t)hi[nax - 1]) * nc;
+      if (n > 0 && r[2 * n - 1] == e0) r[2 * n - 1] = e1; /* continues the previous range */
+      else if (n == cap) return -1;
+      else r[2 * n] = e0, r[2 * n + 1] = e1, n++;
+      int k = nax - 2;
+      while (k >= 0 && ++at[k] == hi[k]) at[k] = lo[k], k--;
+      if (k < 0) break;
+    }
+  }
+  qsort(r, (size_t)n, 2 * sizeof *r, cmp_range);
+  return n;
+}
+
 int demand_step(const Demand *d, int k, const npg_idx **box) {
   const Boxes *r = &d->step[k];
   *box = r->v;

@@ -47,6 +47,11 @@ void demand_box(Demand *d, const Sym *q, const npg_idx *lo, const npg_idx *hi);
 void demand_entries(Demand *d, const Sym *q, size_t e0, size_t e1);
 /* Propagate through the steps: 0, or -1 when out of memory. */
 int demand_propagate(Demand *d);
+/* After demand_propagate: the flat entries of quantity `q` (dims then
+ * static axes) demanded, as `n` half-open ranges r[2i] <= e < r[2i+1],
+ * ascending, possibly overlapping; returns n (0: none), or -1 when every
+ * entry is demanded or more than `cap` ranges would be needed. */
+long demand_ranges(const Demand *d, const Sym *q, size_t *r, long cap);
 /* After demand_propagate: step k is not needed (-1), runs whole (0), or
  * runs over n > 0 boxes at *box (as NpgStepFn takes them). */
 int demand_step(const Demand *d, int k, const npg_idx **box);

@@ -339,6 +339,22 @@ int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, cons
   return 0;
 }
 
+double *full_extern_values(NpgFull *f, const char *name, size_t n) {
+  if (f->error[0]) return NULL;
+  int k = find(&f->prog->slots, name);
+  const Sym *s = k >= 0 ? f->prog->slots.v[k] : NULL;
+  if (!s || s->kind != SYM_EXTERN) return fail(f, "the program has no extern '%s'", name), NULL;
+  if (n != count_of(f, s)) return fail(f, "extern '%s' has %zu entries as bound, not %zu", name, count_of(f, s), n), NULL;
+  if (f->qcount[k] != n || !f->q[k]) {
+    free(f->q[k]);
+    f->qcount[k] = 0;
+    if (!(f->q[k] = alloc_entries(f, s, n))) return NULL;
+    f->qcount[k] = n;
+  }
+  f->fresh[k] = true;
+  return f->q[k];
+}
+
 int npg_full_set_extern_fn(NpgFull *f, const char *name, NpgExternFn fn, void *user) {
   if (f->error[0]) return -1;
   int k = find(&f->prog->slots, name);

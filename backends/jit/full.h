@@ -32,6 +32,12 @@ Demand *full_demand(NpgFull *f);
  * and externs are given as for npg_full_eval(). 0, or -1 with
  * npg_full_error(). */
 int full_eval_demand(NpgFull *f, long sample, Demand *d);
+/* The values of extern `name` (n entries, its count as bound), to be
+ * written in place for the next evaluation — for a restricted evaluation
+ * that reads only some of them; entries not written keep what they held.
+ * The extern counts as given (no callback runs). NULL with
+ * npg_full_error(). */
+double *full_extern_values(NpgFull *f, const char *name, size_t n);
 /* Run the tensor builder `name` on the current binding (after an
  * evaluation bound everything). 0, or -1 with npg_full_error(). */
 int full_build(NpgFull *f, const char *name, NpgSink *sink);

@@ -208,6 +208,7 @@ static int collect(Ooc *o, long p, bool gram) {
       if (d) demand_entries(d, member_quantity(m, &rc->members[i]), (size_t)sg->r0, (size_t)sg->r1);
     }
   }
+  if (d && demand_propagate(d)) return npg_fail(o->err, o->errlen, "out of memory");
   const char *what = gram ? "snapshots (Gram, out of core)" : "snapshots (basis, out of core)";
   for (long k = 0; k < S; k++) {
     if (whole) {
@@ -220,7 +221,8 @@ static int collect(Ooc *o, long p, bool gram) {
                                  o->err, o->errlen))
             return -1;
       }
-    } else if (o->src->set(o->src->user, o->f, k) != 0 || full_eval_demand(o->f, k, d) != 0) {
+    } else if ((o->src->set_part ? o->src->set_part(o->src->user, o->f, k, d) : o->src->set(o->src->user, o->f, k)) ||
+               full_eval_demand(o->f, k, d)) {
       return npg_fail(o->err, o->errlen, "%s", npg_full_error(o->f));
     }
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {

@@ -40,6 +40,10 @@ typedef struct SampleSource {
   long count;
   void *user;
   int (*set)(void *user, NpgFull *f, long k);
+  /* Optional: as `set`, for a restricted evaluation (full_eval_demand) by
+   * `d` after demand_propagate: only the entries of externs `d` demands need
+   * be given (full_extern_values), the others may keep stale values. */
+  int (*set_part)(void *user, NpgFull *f, long k, const Demand *d);
 } SampleSource;
 
 /* Train: snapshots of every stage and joining numerator on every sample,
