@@ -8,9 +8,9 @@
 #include "meshgen.h"
 #include "randdata.h"
 
-/* Gathers, transposed reads (of a stage computed alone, and of fused ones,
- * rematerialized), diagonal reads, a summation, a division, a stage over
- * another domain between them. */
+/* Gathers, transposed reads (of t, computed alone, and of u, fused with w
+ * and z, rematerialized: z's u[j, i] reads e2 by columns), diagonal reads,
+ * a summation, a division, a stage over another domain between them. */
 static const char *const transposes =
     "dim N, M, V\n"
     "param idx : int[N]\n"
@@ -19,9 +19,10 @@ static const char *const transposes =
     "input m : real[M]\n"
     "t[i:N, j:N] = x[idx[i]] * y[j, i] + y[i, j]^2\n"
     "q[i:N, l:M] = t[i, i] * m[l] + 2\n"
-    "u[i:N, j:N] = t[j, i] * t[i, j] + x[idx[j]] * q[j, 1]\n"
-    "w[i:N, j:N] = u[i, j] * u[j, i] / (1 + t[i, i]^2)\n"
-    "z[i:N, j:N] = sum(k = 0..N-1, t[i, k]) * w[j, i]\n"
+    "extern e2[i:N, j:N] of x\n"
+    "u[i:N, j:N] = t[j, i] * t[i, j] + x[idx[j]] * e2[i, j]\n"
+    "w[i:N, j:N] = u[i, j] * q[i, 1] / (1 + t[i, i]^2)\n"
+    "z[i:N, j:N] = sum(k = 0..N-1, t[i, k]) * w[i, j] + u[j, i]\n"
     "output o = sum(k = 0..N-1, z[k, k])\n";
 
 /* Bind `f` to sample `k` of `prog` (the radiosity room, or the program above). */
@@ -47,16 +48,17 @@ static void bind_sample(NpgFull *f, bool radiosity, long n, long k) {
   }
   long V = n + 3;
   double *idx = malloc(sizeof(double) * (size_t)n), *x = malloc(sizeof(double) * (size_t)V);
-  double *y = malloc(sizeof(double) * (size_t)(n * n));
+  double *y = malloc(sizeof(double) * (size_t)(n * n)), *e2 = malloc(sizeof(double) * (size_t)(n * n));
   for (long i = 0; i < n; i++) idx[i] = (double)((i * 5 + 2) % V);
   for (long i = 0; i < V; i++) x[i] = randdata_uniform(&seed, -1, 1);
-  for (long i = 0; i < n * n; i++) y[i] = randdata_uniform(&seed, -1, 1);
+  for (long i = 0; i < n * n; i++) y[i] = randdata_uniform(&seed, -1, 1), e2[i] = randdata_uniform(&seed, 0, 1);
   double m[3] = {randdata_uniform(&seed, 1, 2), randdata_uniform(&seed, 1, 2), randdata_uniform(&seed, 1, 2)};
   long is[1] = {n}, xs[1] = {V}, ys[2] = {n, n}, ms[1] = {3};
   if (npg_full_set_param(f, "idx", 1, is, idx, "idx") || npg_full_set(f, "x", 1, xs, x, "x") ||
-      npg_full_set(f, "y", 2, ys, y, "y") || npg_full_set(f, "m", 1, ms, m, "m"))
+      npg_full_set(f, "y", 2, ys, y, "y") || npg_full_set(f, "m", 1, ms, m, "m") ||
+      npg_full_set(f, "e2", 2, ys, e2, "e2"))
     fail_msg("%s", npg_full_error(f));
-  free(idx), free(x), free(y);
+  free(idx), free(x), free(y), free(e2);
 }
 
 typedef struct Want {
@@ -161,11 +163,51 @@ static void entries_become_boxes(void **state) {
   npg_free(p);
 }
 
+/* t is read by rows (t[i, j], t[i, k]) and by columns (t[j, i]): rows 2-3
+ * of z demand of t rows 2-3 and columns 2-3, as three disjoint boxes, not
+ * their bounding box (the whole); of the extern e2 the same entries, the
+ * columns through z's read of u[j, i] (rematerialized), as flat ranges. */
+static void transposed_read_demands_rows_and_columns(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("transposes.npg", transposes);
+  Program *prog = ir_ok(p);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  const long N = 13;
+  bind_sample(f, false, N, 0);
+  Demand *d = full_demand(f);
+  demand_entries(d, find_quantity(prog, "z"), 2 * N, 4 * N);
+  assert_int_equal(demand_propagate(d), 0);
+  const FullPlan *plan = emit_full_plan(prog->ctx, prog);
+  int t = -1;
+  for (int k = 0; k < plan->n; k++)
+    if (plan->steps[k].n == 1 && strcmp(plan->steps[k].members[0]->sym->name, "t") == 0) t = k;
+  assert_true(t >= 0 && plan->steps[t].boxed);
+  const npg_idx *box;
+  int n = demand_step(d, t, &box);
+  assert_int_equal(n, 3);
+  npg_idx want[3][4] = {{0, 2, 2, 4}, {2, 0, 4, N}, {4, 2, N, 4}};
+  for (int b = 0; b < 3; b++) {
+    bool found = false;
+    for (int i = 0; i < n; i++) found |= memcmp(box + 4 * i, want[b], sizeof want[b]) == 0;
+    assert_true(found);
+  }
+  size_t r[2 * 32];
+  long nr = demand_ranges(d, find_quantity(prog, "e2"), r, 32);
+  assert_int_equal(nr, 12); /* rows 2-3 as one range, columns 2-3 of the 11 other rows */
+  bool col = false, other = false;
+  const size_t in = 7 * N + 2, out = 7 * N + 5; /* row 7: column 2 is read, column 5 not */
+  for (long i = 0; i < nr; i++) col |= r[2 * i] <= in && in < r[2 * i + 1], other |= r[2 * i] <= out && out < r[2 * i + 1];
+  assert_true(col && !other);
+  npg_full_free(f);
+  npg_free(p);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(radiosity_rows_equal_whole),
       cmocka_unit_test(transposes_and_gathers_equal_whole),
       cmocka_unit_test(entries_become_boxes),
+      cmocka_unit_test(transposed_read_demands_rows_and_columns),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

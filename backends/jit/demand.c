@@ -394,6 +394,8 @@ int demand_propagate(Demand *d) {
     else
       for (int i = 0; i < r->n; i++) step_reads(d, st, r->v + i * 2 * nax, nax);
   }
+  /* what inputs and externs are read, without overlaps (demand_ranges) */
+  for (int s = 0; s < d->prog->slots.n; s++) normalize(d, &d->slot[s]);
   return d->oom ? -1 : 0;
 }
 
