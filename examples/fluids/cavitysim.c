@@ -219,6 +219,7 @@ int cavity_run(const CavityOptions *o) {
   FullSolver s = {0}, probe = {0};
   int s_ok = 0, probe_ok = 0, red_ok = 0;
   RedSolver R = {0};
+  RedState keep = {0}; /* the run's reduced state while a probe or a repetition steps from it */
   NpgProgram *prog = NULL;
   NpgFull *fe = NULL;
   NpgModel *model = NULL;
@@ -353,10 +354,10 @@ int cavity_run(const CavityOptions *o) {
         /* one-step error from the projected full state of frame t - 1 */
         double *gp = traj_g + (size_t)(t - 1) * R.mg, *gq = traj_g + (size_t)t * R.mg;
         RedSolver *q = &R;
-        double keep_g[16], *keep_f = malloc(R.mf * sizeof(double)), *keep_u = malloc(R.mu * sizeof(double));
-        memcpy(keep_g, q->g, R.mg * sizeof(double));
-        memcpy(keep_f, q->f, R.mf * sizeof(double));
-        memcpy(keep_u, q->u, R.mu * sizeof(double));
+        if (red_state_save(q, &keep) != 0) {
+          fprintf(stderr, "npg-fluids: out of memory\n");
+          goto done;
+        }
         for (long c = 0; c < C; c++)
           for (int d = 0; d < 3; d++) pv[3 * c + d] = s.ops.area[c] * s.u[3 * c + d];
         memcpy(q->g, gp, R.mg * sizeof(double));
@@ -374,10 +375,7 @@ int cavity_run(const CavityOptions *o) {
           double ef = energy3(probe.ops.area, probe.u, C);
           err_step[t] = ef > 0 ? energy3(probe.ops.area, ul, C) / ef : 0;
         }
-        memcpy(q->g, keep_g, R.mg * sizeof(double));
-        memcpy(q->f, keep_f, R.mf * sizeof(double));
-        memcpy(q->u, keep_u, R.mu * sizeof(double));
-        free(keep_f), free(keep_u);
+        red_state_restore(q, &keep);
         if (prc) {
           fprintf(stderr, "npg-fluids: one-step error, frame %d: %s\n", t, err);
           goto done;
@@ -490,16 +488,17 @@ int cavity_run(const CavityOptions *o) {
     t_s_median = step_times[T / 2], t_s_min = step_times[0];
     /* the same step repeated from one state: the least disturbed figure */
     double best = INFINITY;
-    double *ku = malloc(R.mu * sizeof(double)), *kf = malloc(R.mf * sizeof(double)), kg[16];
-    memcpy(ku, R.u, R.mu * sizeof(double)), memcpy(kf, R.f, R.mf * sizeof(double)), memcpy(kg, R.g, R.mg * sizeof(double));
+    if (red_state_save(&R, &keep) != 0) {
+      fprintf(stderr, "npg-fluids: out of memory\n");
+      goto done;
+    }
     for (int k = 0; k < 50; k++) {
-      memcpy(R.u, ku, R.mu * sizeof(double)), memcpy(R.f, kf, R.mf * sizeof(double)), memcpy(R.g, kg, R.mg * sizeof(double));
+      red_state_restore(&R, &keep);
       double a0 = util_now();
       if (red_step(&R, traj_g + (size_t)(T - 1) * R.mg, traj_gd + (size_t)(T - 2) * R.mgd, err, sizeof err) != 0) break;
       best = fmin(best, util_now() - a0);
     }
     t_s_rep = best;
-    free(ku), free(kf);
     for (int t = 1; t <= T; t++) err_traj_mean += err_traj[t] / T, err_step_mean += err_step[t] / T;
     /* the error plots */
     for (int t = 0; t <= T; t++) frame_axis[t] = t;
@@ -583,6 +582,7 @@ int cavity_run(const CavityOptions *o) {
 done:
   if (s_ok) solver_free(&s);
   if (probe_ok) solver_free(&probe);
+  red_state_free(&keep);
   if (red_ok) red_free(&R);
   if (model) npg_model_free(model);
   if (fe) npg_full_free(fe);

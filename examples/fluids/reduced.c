@@ -673,6 +673,32 @@ void red_project_u(RedSolver *s, const double *gc, const double *pv, double *uc)
   }
 }
 
+int red_state_save(const RedSolver *s, RedState *st) {
+  size_t g = (size_t)s->mg * sizeof *st->g, uu = (size_t)(s->mu * s->mu) * sizeof *st->Vf;
+  if (!st->g) {
+    st->g = malloc(g), st->Vfg = malloc(g);
+    st->f = malloc((size_t)s->mf * sizeof *st->f), st->u = malloc((size_t)s->mu * sizeof *st->u);
+    st->Vf = malloc(uu);
+  }
+  if (!st->g || !st->Vfg || !st->f || !st->u || !st->Vf) return -1;
+  memcpy(st->g, s->g, g), memcpy(st->Vfg, s->Vfg, g), memcpy(st->Vf, s->Vf, uu);
+  memcpy(st->f, s->f, (size_t)s->mf * sizeof *st->f), memcpy(st->u, s->u, (size_t)s->mu * sizeof *st->u);
+  st->vf_ok = s->vf_ok;
+  return 0;
+}
+
+void red_state_restore(RedSolver *s, const RedState *st) {
+  size_t g = (size_t)s->mg * sizeof *st->g, uu = (size_t)(s->mu * s->mu) * sizeof *st->Vf;
+  memcpy(s->g, st->g, g), memcpy(s->Vfg, st->Vfg, g), memcpy(s->Vf, st->Vf, uu);
+  memcpy(s->f, st->f, (size_t)s->mf * sizeof *st->f), memcpy(s->u, st->u, (size_t)s->mu * sizeof *st->u);
+  s->vf_ok = st->vf_ok;
+}
+
+void red_state_free(RedState *st) {
+  free(st->g), free(st->f), free(st->u), free(st->Vf), free(st->Vfg);
+  memset(st, 0, sizeof *st);
+}
+
 double red_energy(const RedSolver *s, const double *gc, const double *uc) {
   double *V = malloc((size_t)(s->mu * s->mu) * sizeof *V), *t = malloc((size_t)s->mu * sizeof *t);
   red_volume(s, gc, V);

@@ -92,6 +92,15 @@ typedef struct RedSolver {
   int last_pade, last_squarings, last_krylov; /* the last exponential: Padé degree, squarings, Arnoldi steps */
 } RedSolver;
 
+/* What a step reads and changes: ĝ, f̂, û and the Cholesky factor of V̂ it
+ * keeps for the last ĝ. Saved before a step that must leave the run as it
+ * was (a one-step error's probe, a repeated timing) and put back after, so
+ * that the run's next step finds the factor it would have found. */
+typedef struct RedState {
+  double *g, *f, *u, *Vf, *Vfg;
+  int vf_ok;
+} RedState;
+
 /* Set up from a model of fluids2d.npg (dim 2) or fluids3d.npg (dim 3)
  * (classes looked up by quantity name; m_g at most 16). 0, or -1 with the
  * reason in err. */
@@ -120,6 +129,11 @@ int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, 
 /* The reduced projection (Eq. 12, constraints D̂ f̂ = s->b) at ĝ = gc of
  * velocity coordinates uin: sets s->f and s->u = V̂⁻¹P̂ f̂. 0, or -1. */
 int red_projection(RedSolver *s, const double *gc, const double *uin, char *err, size_t errlen);
+/* Copy the state of `s` into `st` (allocated on first use: zero it before).
+ * 0, or -1 when out of memory. */
+int red_state_save(const RedSolver *s, RedState *st);
+void red_state_restore(RedSolver *s, const RedState *st);
+void red_state_free(RedState *st);
 /* Energy ½ ûᵀ V̂(ĝ) û. */
 double red_energy(const RedSolver *s, const double *gc, const double *uc);
 /* y = exp(ΔtM)u with M = V̂⁻¹(ĝ)S for the n x n S, in the coordinates
