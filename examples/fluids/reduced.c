@@ -121,7 +121,10 @@ int red_expm(int n, const double *X, double *out, double *work, int *pade, int *
     mm(n, Xs, T, U);
     lincomb(n, Vm, np, pw, cv, b[0]);
   }
-  /* (V - U) R = (V + U) */
+  /* (V - U) R = (V + U). V and U are polynomials in X, so they commute and
+   * R = (V + U)(V - U)⁻¹ too: read column-major, the arrays hold the
+   * transposes, and Rᵀ = (V - U)⁻ᵀ(V + U)ᵀ is LAPACK's column-major solve
+   * (without LAPACKE's row-major transposes) */
   for (size_t i = 0; i < nn; i++) {
     double v = Vm[i], u = U[i];
     T[i] = v - u;
@@ -129,7 +132,7 @@ int red_expm(int n, const double *X, double *out, double *work, int *pade, int *
   }
   lapack_int *ipiv = malloc(sizeof *ipiv * (size_t)n);
   if (!ipiv) return -1;
-  lapack_int info = LAPACKE_dgesv(LAPACK_ROW_MAJOR, n, n, T, n, ipiv, out, n);
+  lapack_int info = LAPACKE_dgesv_work(LAPACK_COL_MAJOR, n, n, T, n, ipiv, out, n);
   free(ipiv);
   if (info != 0) return -1;
   for (int k = 0; k < s; k++) {
@@ -652,7 +655,9 @@ static int volume_factor(RedSolver *s, const double *gc) {
   s->vf_ok = 0;
   const double *lo = volume_lower(s, gc);
   for (long i = 0; i < s->mu; i++) memcpy(s->Vf + i * s->mu, lo + i * (i + 1) / 2, (size_t)(i + 1) * sizeof *lo);
-  if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'L', (int)s->mu, s->Vf, (int)s->mu) != 0) return -1;
+  /* the row-major lower triangle is the column-major upper one: LAPACK's
+   * own layout, without LAPACKE's row-major transposes (and NaN checks) */
+  if (LAPACKE_dpotrf_work(LAPACK_COL_MAJOR, 'U', (int)s->mu, s->Vf, (int)s->mu) != 0) return -1;
   memcpy(s->Vfg, gc, (size_t)s->mg * sizeof *gc);
   s->vf_ok = 1;
   return 0;
@@ -736,7 +741,7 @@ int red_projection(RedSolver *s, const double *gc, const double *uin, char *err,
     cblas_dgemv(CblasRowMajor, CblasTrans, mu, nn, 1.0, X, nn, z, 1, 0.0, y, 1);
     cblas_dtrsm(CblasRowMajor, CblasLeft, CblasLower, CblasNoTrans, CblasNonUnit, mu, nn, 1.0, s->Vf, mu, X, nn);
     cblas_dsyrk(CblasRowMajor, CblasLower, CblasTrans, nn, mu, 1.0, X, nn, 0.0, s->Kn, nn);
-    if (LAPACKE_dposv(LAPACK_ROW_MAJOR, 'L', nn, 1, s->Kn, nn, y, 1) != 0)
+    if (LAPACKE_dposv_work(LAPACK_COL_MAJOR, 'U', nn, 1, s->Kn, nn, y, nn) != 0) /* as in volume_factor */
       return fail(err, errlen, "reduced projection matrix is not positive definite", NULL);
     cblas_dgemv(CblasRowMajor, CblasNoTrans, mf, nn, 1.0, s->N, nn, y, 1, 1.0, fp, 1);
   }
