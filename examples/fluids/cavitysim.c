@@ -174,6 +174,17 @@ static double energy3(const double *vol, const double *u, long C) {
   return 0.5 * e;
 }
 
+/* E(u − ub)/E(u) at the full run's geometry, for ub = B_u û the lift of
+ * the projection of its velocity u: how much of the full flow the basis
+ * can hold at all (a floor under the reduced run's trajectory error).
+ * `work` [3C]. */
+static double basis_error(const FullSolver *s, const double *ub, double *work) {
+  long C = s->m->nc;
+  for (long j = 0; j < 3 * C; j++) work[j] = s->u[j] - ub[j];
+  double e = energy3(s->ops.area, s->u, C);
+  return e > 0 ? energy3(s->ops.area, work, C) / e : 0;
+}
+
 static int cmp_double(const void *a, const void *b) {
   double x = *(const double *)a, y = *(const double *)b;
   return x < y ? -1 : x > y;
@@ -219,6 +230,7 @@ int cavity_run(const CavityOptions *o) {
   FullSolver s = {0}, probe = {0};
   int s_ok = 0, probe_ok = 0, red_ok = 0;
   RedSolver R = {0};
+  RedState keep = {0}; /* the run's reduced state while a probe or a repetition steps from it */
   NpgProgram *prog = NULL;
   NpgFull *fe = NULL;
   NpgModel *model = NULL;
@@ -228,10 +240,11 @@ int cavity_run(const CavityOptions *o) {
   double *energy = calloc(T + 1, sizeof(double)), *energy_red = calloc(T + 1, sizeof(double));
   double *quality = calloc(T + 1, sizeof(double)), *divergence = calloc(T + 1, sizeof(double));
   double *err_traj = calloc(T + 1, sizeof(double)), *err_step = calloc(T + 1, sizeof(double));
+  double *err_basis = calloc(T + 1, sizeof(double)); /* E(u − B_u û)/E(u) of the full state's own projection */
   double *step_times = calloc(T + 1, sizeof(double)), *frame_axis = calloc(T + 1, sizeof(double));
   double *traj_g = NULL, *traj_gd = NULL, *gc1 = NULL, *gdc = NULL;
   double seconds_particles = 0, seconds_particles_red = 0, seconds_lift = 0, t_deform = 0, seconds_train_runs = 0;
-  double seconds_train = 0, div_basis = 0, max_div_red = 0;
+  double seconds_train = 0, div_basis = 0, max_div_red = 0, split[3] = {0}; /* the reduced step's assembly, exponential, projection */
   FullStats st = {0};
   st.min_quality = INFINITY;
   const double zero[3] = {0, 0, 0};
@@ -353,10 +366,10 @@ int cavity_run(const CavityOptions *o) {
         /* one-step error from the projected full state of frame t - 1 */
         double *gp = traj_g + (size_t)(t - 1) * R.mg, *gq = traj_g + (size_t)t * R.mg;
         RedSolver *q = &R;
-        double keep_g[16], *keep_f = malloc(R.mf * sizeof(double)), *keep_u = malloc(R.mu * sizeof(double));
-        memcpy(keep_g, q->g, R.mg * sizeof(double));
-        memcpy(keep_f, q->f, R.mf * sizeof(double));
-        memcpy(keep_u, q->u, R.mu * sizeof(double));
+        if (red_state_save(q, &keep) != 0) {
+          fprintf(stderr, "npg-fluids: out of memory\n");
+          goto done;
+        }
         for (long c = 0; c < C; c++)
           for (int d = 0; d < 3; d++) pv[3 * c + d] = s.ops.area[c] * s.u[3 * c + d];
         memcpy(q->g, gp, R.mg * sizeof(double));
@@ -365,6 +378,7 @@ int cavity_run(const CavityOptions *o) {
         memcpy(probe.g, s.g, ng * sizeof(double));
         lift(R.Bf, nf, R.mf, q->f, probe.f);
         lift(R.Bu, nu, R.mu, q->u, probe.u);
+        err_basis[t - 1] = basis_error(&s, probe.u, ul);
         ops_set_geometry(&probe.ops, probe.g);
         int prc = solver_step_to(&probe, g, err, sizeof err);
         if (!prc) prc = red_step(q, gq, traj_gd + (size_t)(t - 1) * R.mgd, err, sizeof err);
@@ -374,10 +388,7 @@ int cavity_run(const CavityOptions *o) {
           double ef = energy3(probe.ops.area, probe.u, C);
           err_step[t] = ef > 0 ? energy3(probe.ops.area, ul, C) / ef : 0;
         }
-        memcpy(q->g, keep_g, R.mg * sizeof(double));
-        memcpy(q->f, keep_f, R.mf * sizeof(double));
-        memcpy(q->u, keep_u, R.mu * sizeof(double));
-        free(keep_f), free(keep_u);
+        red_state_restore(q, &keep);
         if (prc) {
           fprintf(stderr, "npg-fluids: one-step error, frame %d: %s\n", t, err);
           goto done;
@@ -396,13 +407,16 @@ int cavity_run(const CavityOptions *o) {
       for (int b = 0; b < m->nb; b++) sb += s.h[m->bface[b]];
       st.max_boundary_residual = fmax(st.max_boundary_residual, fabs(sb) / fmax(max_abs(s.h, nf), 1e-300));
       if (reduced) {
-        /* the reduced step, timed alone */
+        /* the reduced step, timed alone (its split too: the probe's and the
+         * repetitions' steps are not the run's) */
+        double e0 = R.seconds_eval, x0 = R.seconds_advection, p0 = R.seconds_projection;
         double a0 = util_now();
         if (red_step(&R, traj_g + (size_t)t * R.mg, traj_gd + (size_t)(t - 1) * R.mgd, err, sizeof err) != 0) {
           fprintf(stderr, "npg-fluids: reduced step, frame %d: %s\n", t, err);
           goto done;
         }
         step_times[t - 1] = util_now() - a0;
+        split[0] += R.seconds_eval - e0, split[1] += R.seconds_advection - x0, split[2] += R.seconds_projection - p0;
         energy_red[t] = red_energy(&R, R.g, R.u);
         /* particles through the reduced flow: g and f lifted once per frame */
         a0 = util_now();
@@ -478,6 +492,21 @@ int cavity_run(const CavityOptions *o) {
     }
   }
   rmdir(dparts);
+  if (reduced) { /* the last frame's basis error (the probe gave the others) */
+    for (long c = 0; c < C; c++)
+      for (int d = 0; d < 3; d++) pv[3 * c + d] = s.ops.area[c] * s.u[3 * c + d];
+    double *uc = malloc(R.mu * sizeof(double));
+    if (!uc || red_state_save(&R, &keep) != 0) {
+      free(uc);
+      fprintf(stderr, "npg-fluids: out of memory\n");
+      goto done;
+    }
+    red_project_u(&R, traj_g + (size_t)T * R.mg, pv, uc);
+    red_state_restore(&R, &keep);
+    lift(R.Bu, nu, R.mu, uc, pv);
+    err_basis[T] = basis_error(&s, pv, ul);
+    free(uc);
+  }
   double steps = T > 0 ? T : 1;
   st.t_d = (s.seconds_deformation + t_deform) / steps;
   st.t_a = s.seconds_advection / steps;
@@ -490,26 +519,28 @@ int cavity_run(const CavityOptions *o) {
     t_s_median = step_times[T / 2], t_s_min = step_times[0];
     /* the same step repeated from one state: the least disturbed figure */
     double best = INFINITY;
-    double *ku = malloc(R.mu * sizeof(double)), *kf = malloc(R.mf * sizeof(double)), kg[16];
-    memcpy(ku, R.u, R.mu * sizeof(double)), memcpy(kf, R.f, R.mf * sizeof(double)), memcpy(kg, R.g, R.mg * sizeof(double));
+    if (red_state_save(&R, &keep) != 0) {
+      fprintf(stderr, "npg-fluids: out of memory\n");
+      goto done;
+    }
     for (int k = 0; k < 50; k++) {
-      memcpy(R.u, ku, R.mu * sizeof(double)), memcpy(R.f, kf, R.mf * sizeof(double)), memcpy(R.g, kg, R.mg * sizeof(double));
+      red_state_restore(&R, &keep);
       double a0 = util_now();
       if (red_step(&R, traj_g + (size_t)(T - 1) * R.mg, traj_gd + (size_t)(T - 2) * R.mgd, err, sizeof err) != 0) break;
       best = fmin(best, util_now() - a0);
     }
     t_s_rep = best;
-    free(ku), free(kf);
     for (int t = 1; t <= T; t++) err_traj_mean += err_traj[t] / T, err_step_mean += err_step[t] / T;
     /* the error plots */
     for (int t = 0; t <= T; t++) frame_axis[t] = t;
-    const double *xs[1] = {frame_axis + 1}, *ys[1] = {err_traj + 1}, *ys2[1] = {err_step + 1};
-    const char *lab[1] = {"reduced vs full"}, *lab2[1] = {"one step from the projected full state"};
-    int npt[1] = {T};
+    const double *xs[2] = {frame_axis + 1, frame_axis + 1}, *ys[2] = {err_traj + 1, err_basis + 1}, *ys2[1] = {err_step + 1};
+    const char *lab[2] = {"reduced vs full", "the full state projected onto B_u"};
+    const char *lab2[1] = {"one step from the projected full state"};
+    int npt[2] = {T, T};
     snprintf(path, sizeof path, "%s/trajectory_error.png", dplots);
     snprintf(p2, sizeof p2, "%s/onestep_error.png", dplots);
     if (plot_lines(path, "cavity test sequence: reduced trajectory error (energy, relative)", "frame",
-                   "E(u - B_u û) / E(u)", 1, npt, xs, ys, lab, 1, err, sizeof err) != 0 ||
+                   "E(u - B_u û) / E(u)", 2, npt, xs, ys, lab, 1, err, sizeof err) != 0 ||
         plot_lines(p2, "cavity test sequence: one-step error (energy, relative)", "frame", "E(u - B_u û) / E(u)", 1,
                    npt, xs, ys2, lab2, 1, err, sizeof err) != 0) {
       fprintf(stderr, "npg-fluids: %s\n", err);
@@ -523,12 +554,14 @@ int cavity_run(const CavityOptions *o) {
           st.min_quality, st.min_quality_frame, energy[0], energy[T]);
   if (reduced)
     fprintf(stderr,
-            "npg-fluids: reduced t_s %.3g ms (median %.3g, min %.3g, repeated %.3g), speedup %.1f (repeated %.1f); "
-            "t_pa %.3g ms (+ lift %.3g ms); trajectory error mean %.3g, final %.3g; one-step error mean %.3g; "
-            "reduced energy %.4g -> %.4g\n",
-            1e3 * t_s, 1e3 * t_s_median, 1e3 * t_s_min, 1e3 * t_s_rep, t_full / t_s, t_full / t_s_rep,
+            "npg-fluids: reduced t_s %.3g ms (median %.3g, min %.3g, repeated %.3g; assembly %.3g, exponential "
+            "%.3g, projection %.3g), speedup %.1f (repeated %.1f); "
+            "t_pa %.3g ms (+ lift %.3g ms); trajectory error mean %.3g, final %.3g (the full state's own projection "
+            "onto B_u: %.3g at frame %d, %.3g at the end); one-step error mean %.3g; reduced energy %.4g -> %.4g\n",
+            1e3 * t_s, 1e3 * t_s_median, 1e3 * t_s_min, 1e3 * t_s_rep, 1e3 * split[0] / steps, 1e3 * split[1] / steps,
+            1e3 * split[2] / steps, t_full / t_s, t_full / t_s_rep,
             1e3 * seconds_particles_red / steps, 1e3 * seconds_lift / steps, err_traj_mean, err_traj[T],
-            err_step_mean, energy_red[0], energy_red[T]);
+            err_basis[T / 10], T / 10, err_basis[T], err_step_mean, energy_red[0], energy_red[T]);
 
   snprintf(path, sizeof path, "%s/report.json", o->out);
   char tmp[4200];
@@ -557,7 +590,7 @@ int cavity_run(const CavityOptions *o) {
     fprintf(fp, "  \"t_s\": %.6g,\n  \"t_s_median\": %.6g,\n  \"t_s_min\": %.6g,\n  \"t_s_repeated_min\": %.6g,\n",
             t_s, t_s_median, t_s_min, t_s_rep);
     fprintf(fp, "  \"t_s_split\": {\"assembly\": %.6g, \"exponential\": %.6g, \"projection\": %.6g},\n",
-            R.seconds_eval / R.steps, R.seconds_advection / R.steps, R.seconds_projection / R.steps);
+            split[0] / steps, split[1] / steps, split[2] / steps);
     fprintf(fp, "  \"t_pa\": %.6g,\n  \"t_pa_lift\": %.6g,\n", seconds_particles_red / steps, seconds_lift / steps);
     fprintf(fp, "  \"speedup\": %.4g,\n  \"speedup_repeated\": %.4g,\n", t_full / t_s, t_full / t_s_rep);
     fprintf(fp, "  \"basis_f_max_divergence\": %.6g,\n  \"max_divergence_reduced_relative\": %.6g,\n", div_basis,
@@ -565,6 +598,7 @@ int cavity_run(const CavityOptions *o) {
     fprintf(fp, "  \"trajectory_error_mean\": %.6g,\n  \"onestep_error_mean\": %.6g,\n", err_traj_mean, err_step_mean);
     json_array(fp, "trajectory_error", err_traj, T + 1, ",");
     json_array(fp, "onestep_error", err_step, T + 1, ",");
+    json_array(fp, "basis_error", err_basis, T + 1, ",");
     json_array(fp, "energy_reduced", energy_red, T + 1, ",");
   }
   fprintf(fp, "  \"min_element_quality\": %.6g,\n  \"min_element_quality_frame\": %d,\n", st.min_quality,
@@ -583,6 +617,7 @@ int cavity_run(const CavityOptions *o) {
 done:
   if (s_ok) solver_free(&s);
   if (probe_ok) solver_free(&probe);
+  red_state_free(&keep);
   if (red_ok) red_free(&R);
   if (model) npg_model_free(model);
   if (fe) npg_full_free(fe);
@@ -590,7 +625,7 @@ done:
   particles_free(&part);
   particles_free(&pred);
   free(g), free(gn), free(gl), free(fl), free(ul), free(pv), free(energy), free(energy_red), free(quality);
-  free(divergence), free(err_traj), free(err_step), free(step_times), free(frame_axis);
+  free(divergence), free(err_traj), free(err_step), free(err_basis), free(step_times), free(frame_axis);
   free(traj_g), free(traj_gd), free(gc1), free(gdc);
   cavity_free(&cv);
   plot_cleanup();

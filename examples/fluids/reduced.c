@@ -121,7 +121,10 @@ int red_expm(int n, const double *X, double *out, double *work, int *pade, int *
     mm(n, Xs, T, U);
     lincomb(n, Vm, np, pw, cv, b[0]);
   }
-  /* (V - U) R = (V + U) */
+  /* (V - U) R = (V + U). V and U are polynomials in X, so they commute and
+   * R = (V + U)(V - U)⁻¹ too: read column-major, the arrays hold the
+   * transposes, and Rᵀ = (V - U)⁻ᵀ(V + U)ᵀ is LAPACK's column-major solve
+   * (without LAPACKE's row-major transposes) */
   for (size_t i = 0; i < nn; i++) {
     double v = Vm[i], u = U[i];
     T[i] = v - u;
@@ -129,7 +132,7 @@ int red_expm(int n, const double *X, double *out, double *work, int *pade, int *
   }
   lapack_int *ipiv = malloc(sizeof *ipiv * (size_t)n);
   if (!ipiv) return -1;
-  lapack_int info = LAPACKE_dgesv(LAPACK_ROW_MAJOR, n, n, T, n, ipiv, out, n);
+  lapack_int info = LAPACKE_dgesv_work(LAPACK_COL_MAJOR, n, n, T, n, ipiv, out, n);
   free(ipiv);
   if (info != 0) return -1;
   for (int k = 0; k < s; k++) {
@@ -223,6 +226,52 @@ static void mono_values(long n, const int (*idx)[3], const double *x, double *ou
     if (idx[a][2] >= 0) v *= x[idx[a][2]];
     out[a] = v;
   }
+}
+
+/* ---------------------------------------------------------------- slices */
+
+/* sl from the slices S [n][len] (overwritten): S = U Σ Vᵀ, rank r = the
+ * singular values above tol * ref; coef = U_r, basis = Σ_r V_rᵀ. */
+static int slices_make(RedSlices *sl, double *S, long n, long len, double tol, double ref, char *err, size_t errlen) {
+  long k = n < len ? n : len;
+  double *sv = malloc((size_t)(k + 1) * sizeof *sv), *U = malloc((size_t)(n * k + 1) * sizeof *U);
+  double *Vt = malloc((size_t)(k * len + 1) * sizeof *Vt), *sup = malloc((size_t)(k + 1) * sizeof *sup);
+  int rc = 0;
+  memset(sl, 0, sizeof *sl);
+  sl->n = n, sl->len = len;
+  if (!sv || !U || !Vt || !sup) rc = fail(err, errlen, "out of memory", NULL);
+  else if (k > 0 && LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'S', 'S', (int)n, (int)len, S, (int)len, sv, U, (int)k, Vt,
+                                   (int)len, sup) != 0)
+    rc = fail(err, errlen, "SVD of the slices of a reduced operator failed", NULL);
+  long r = 0;
+  while (!rc && r < k && sv[r] > tol * ref) r++;
+  sl->rank = r;
+  sl->coef = malloc((size_t)(n * r + 1) * sizeof *sl->coef);
+  sl->basis = malloc((size_t)(r * len + 1) * sizeof *sl->basis);
+  sl->c = malloc((size_t)(r + 1) * sizeof *sl->c);
+  if (!rc && (!sl->coef || !sl->basis || !sl->c)) rc = fail(err, errlen, "out of memory", NULL);
+  for (long a = 0; a < n && !rc; a++)
+    for (long i = 0; i < r; i++) sl->coef[a * r + i] = U[a * k + i];
+  for (long i = 0; i < r && !rc; i++)
+    for (long e = 0; e < len; e++) sl->basis[i * len + e] = sv[i] * Vt[i * len + e];
+  free(sv), free(U), free(Vt), free(sup);
+  return rc;
+}
+
+static void slices_free(RedSlices *sl) {
+  free(sl->coef), free(sl->basis), free(sl->c);
+  memset(sl, 0, sizeof *sl);
+}
+
+/* out = Σ_a w[a] S[a] + beta out. */
+static void slices_apply(const RedSlices *sl, const double *w, double beta, double *out) {
+  int r = (int)sl->rank, len = (int)sl->len;
+  if (r == 0) {
+    if (beta == 0) memset(out, 0, (size_t)len * sizeof *out);
+    return;
+  }
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)sl->n, r, 1.0, sl->coef, r, w, 1, 0.0, sl->c, 1);
+  cblas_dgemv(CblasRowMajor, CblasTrans, r, len, 1.0, sl->basis, len, sl->c, 1, beta, out, 1);
 }
 
 /* A matrix-valued homogeneous polynomial of ĝ evaluated into `out` (len). */
@@ -387,12 +436,12 @@ int red_init(RedSolver *s, const NpgModel *model, int dim, double visc, double d
   s->mono_h = malloc((size_t)s->nmh * sizeof *s->mono_h);
   mono_list(dim, mg, s->mono_v);
   mono_list(dim - 1, mg, s->mono_h);
-  long nh = s->nmh * mgd;
+  long nh = s->nmh * mgd, ny = mu * (mu + 1) / 2;
   size_t uu = (size_t)(mu * mu), uf = (size_t)(mu * mf);
-  s->Vs = calloc((size_t)s->nmv * uu, sizeof(double));
+  double *Vs = calloc((size_t)s->nmv * uu, sizeof(double)), *Ahs = calloc((size_t)nh * uu, sizeof(double));
   s->Ps = calloc((size_t)mg * uf, sizeof(double));
   s->As = calloc((size_t)mf * uu, sizeof(double));
-  s->Ahs = calloc((size_t)nh * uu, sizeof(double));
+  s->Vp = malloc((size_t)ny * sizeof(double));
   s->Bhs = calloc((size_t)(nh * mb) + 1, sizeof(double));
   s->L = calloc(uu, sizeof(double));
   double *D = calloc((size_t)(mb * mf) + 1, sizeof(double));
@@ -432,7 +481,7 @@ int red_init(RedSolver *s, const NpgModel *model, int dim, double visc, double d
   double *uc = calloc((size_t)mu, sizeof(double)), *gdc = calloc((size_t)mgd, sizeof(double));
   double *pc = malloc((size_t)mu * sizeof(double)), *bc = malloc((size_t)mb * sizeof(double) + 8);
   int rc = 0;
-  if (!s->Vs || !s->Ps || !s->As || !s->Ahs || !s->L || !D || !s->Dpinv || !s->N || !s->work || !gc || !fc || !uc ||
+  if (!Vs || !Ahs || !s->Vp || !s->Ps || !s->As || !s->L || !D || !s->Dpinv || !s->N || !s->work || !gc || !fc || !uc ||
       !gdc || !pc || !bc || !s->Vf || !s->Vfg || !s->Q || !s->H || !s->Hx || !s->hwork || !s->mvals) {
     rc = fail(err, errlen, "out of memory", NULL);
     goto done;
@@ -448,7 +497,16 @@ int red_init(RedSolver *s, const NpgModel *model, int dim, double visc, double d
   /* V̂ slices: pv, homogeneous of degree dim in ĝ, one slice per monomial */
   if (!rc) {
     double *w[4] = {gdc, fc, uc, pc};
-    rc = poly_coefficients(s, dim, s->nmv, s->mono_v, eval_volume, w, (long)uu, s->Vs, err, errlen);
+    rc = poly_coefficients(s, dim, s->nmv, s->mono_v, eval_volume, w, (long)uu, Vs, err, errlen);
+  }
+  /* kept as their lower triangles (what the Cholesky factorization reads),
+   * row by row, and compressed (RedSlices) */
+  if (!rc) {
+    double *lo = Vs; /* in place: row i of slice a's triangle ends before its full row i */
+    for (long a = 0; a < s->nmv; a++)
+      for (long i = 0; i < mu; i++)
+        memmove(lo + a * ny + i * (i + 1) / 2, Vs + (size_t)a * uu + (size_t)(i * mu), (size_t)(i + 1) * sizeof *lo);
+    rc = slices_make(&s->Vs, lo, s->nmv, ny, 1e-12, cblas_dnrm2((int)(s->nmv * ny), lo, 1), err, errlen);
   }
   /* −Â_h ⊗ ĥ(ĝ, ĝdot) slices: pdot at f̂ = 0, ĝdot = e_q (ĥ linear in ĝdot,
    * of degree dim - 1 in ĝ), û = e_j; and D̂_h ĥ: bh there */
@@ -459,12 +517,13 @@ int red_init(RedSolver *s, const NpgModel *model, int dim, double visc, double d
       ctx.q = q;
       rc = poly_coefficients(s, dim - 1, s->nmh, s->mono_h, eval_induced, &ctx, (long)(uu + mb), buf, err, errlen);
       for (long a = 0; a < s->nmh && !rc; a++) {
-        memcpy(s->Ahs + (size_t)(a * mgd + q) * uu, buf + (size_t)a * (uu + mb), uu * sizeof *buf);
+        memcpy(Ahs + (size_t)(a * mgd + q) * uu, buf + (size_t)a * (uu + mb), uu * sizeof *buf);
         memcpy(s->Bhs + (size_t)(a * mgd + q) * mb, buf + (size_t)a * (uu + mb) + uu, (size_t)mb * sizeof *buf);
       }
     }
     free(buf);
   }
+  if (!rc) rc = slices_make(&s->Ahs, Ahs, nh, (long)uu, 1e-12, cblas_dnrm2((int)(nh * (long)uu), Ahs, 1), err, errlen);
   /* P̂ slices: p at ĝ = e_l, f̂ = e_k (bilinear); D̂: bf at f̂ = e_k */
   for (long l = 0; l < mg && !rc; l++) {
     gc[l] = 1;
@@ -501,7 +560,7 @@ int red_init(RedSolver *s, const NpgModel *model, int dim, double visc, double d
   if (rc) goto done;
   s->seconds_setup = util_now() - t0;
 done:
-  free(D), free(gc), free(fc), free(uc), free(gdc), free(pc), free(bc);
+  free(D), free(gc), free(fc), free(uc), free(gdc), free(pc), free(bc), free(Vs), free(Ahs);
   if (rc) red_free(s);
   return rc;
 }
@@ -510,12 +569,12 @@ static int split_advection(RedSolver *s, char *err, size_t errlen) {
   long mu = s->mu, mf = s->mf, nk = mu * (mu - 1) / 2, ny = mu * (mu + 1) / 2;
   size_t uu = (size_t)(mu * mu);
   s->Ask = malloc((size_t)(mf * nk + 1) * sizeof(double));
-  double *Y = malloc((size_t)(mf * ny + 1) * sizeof(double)), *sv = malloc((size_t)(mf + 1) * sizeof(double));
-  double *U = malloc((size_t)(mf * mf + 1) * sizeof(double)), *Vt = malloc((size_t)(mf * ny + 1) * sizeof(double));
-  double *sup = malloc((size_t)(mf + 1) * sizeof(double));
-  int rc = 0;
-  if (!s->Ask || !Y || !sv || !U || !Vt || !sup) rc = fail(err, errlen, "out of memory", NULL);
-  for (long k = 0; k < mf && !rc; k++) {
+  double *Y = malloc((size_t)(mf * ny + 1) * sizeof(double));
+  if (!s->Ask || !Y) {
+    free(Y);
+    return fail(err, errlen, "out of memory", NULL);
+  }
+  for (long k = 0; k < mf; k++) {
     const double *Ak = s->As + (size_t)k * uu;
     double *kk = s->Ask + (size_t)(k * nk), *yk = Y + (size_t)(k * ny);
     for (long i = 0; i < mu; i++)
@@ -525,36 +584,20 @@ static int split_advection(RedSolver *s, char *err, size_t errlen) {
         if (j > i) *kk++ = 0.5 * (a - b);
       }
   }
-  if (!rc && LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'S', 'S', (int)mf, (int)ny, Y, (int)ny, sv, U, (int)mf, Vt, (int)ny, sup) != 0)
-    rc = fail(err, errlen, "SVD of the symmetric parts of the reduced advection failed", NULL);
-  if (!rc) {
-    /* relative to the whole tensor: with fixed walls B_f carries no boundary
-     * flux and the symmetric parts are rounding noise (rank 0) */
-    double total = cblas_dnrm2((int)((size_t)mf * uu), s->As, 1);
-    long r = 0;
-    while (r < mf && r < ny && sv[r] > 1e-12 * total) r++;
-    s->rs = r;
-    s->Asy = malloc((size_t)(r * ny + 1) * sizeof(double));
-    s->Asc = malloc((size_t)(mf * r + 1) * sizeof(double));
-    if (!s->Asy || !s->Asc) rc = fail(err, errlen, "out of memory", NULL);
-    for (long i = 0; i < r && !rc; i++)
-      for (long p = 0; p < ny; p++) s->Asy[i * ny + p] = sv[i] * Vt[i * ny + p];
-    for (long k = 0; k < mf && !rc; k++)
-      for (long i = 0; i < r; i++) s->Asc[k * r + i] = U[k * mf + i];
-  }
-  free(Y), free(sv), free(U), free(Vt), free(sup);
+  /* relative to the whole tensor: with fixed walls B_f carries no boundary
+   * flux and the symmetric parts are rounding noise (rank 0) */
+  double total = cblas_dnrm2((int)((size_t)mf * uu), s->As, 1);
+  int rc = slices_make(&s->Asy, Y, mf, ny, 1e-12, total, err, errlen);
+  s->rs = s->Asy.rank;
+  free(Y);
   return rc;
 }
 
 void red_advection(const RedSolver *s, const double *fc, double *A) {
-  int mu = (int)s->mu, mf = (int)s->mf, nk = mu * (mu - 1) / 2, ny = mu * (mu + 1) / 2, r = (int)s->rs;
-  double *sk = s->work, *sy = s->work + nk, *c = s->work + nk + ny;
+  int mu = (int)s->mu, mf = (int)s->mf, nk = mu * (mu - 1) / 2;
+  double *sk = s->work, *sy = s->work + nk;
   cblas_dgemv(CblasRowMajor, CblasTrans, mf, nk, 1.0, s->Ask, nk, fc, 1, 0.0, sk, 1);
-  if (r > 0) {
-    cblas_dgemv(CblasRowMajor, CblasTrans, mf, r, 1.0, s->Asc, r, fc, 1, 0.0, c, 1);
-    cblas_dgemv(CblasRowMajor, CblasTrans, r, ny, 1.0, s->Asy, ny, c, 1, 0.0, sy, 1);
-  } else
-    memset(sy, 0, (size_t)ny * sizeof *sy);
+  slices_apply(&s->Asy, fc, 0.0, sy);
   for (int i = 0; i < mu; i++) {
     A[(size_t)i * mu + i] = *sy++;
     for (int j = i + 1; j < mu; j++, sy++, sk++) A[(size_t)i * mu + j] = *sy + *sk, A[(size_t)j * mu + i] = *sy - *sk;
@@ -563,21 +606,30 @@ void red_advection(const RedSolver *s, const double *fc, double *A) {
 
 void red_free(RedSolver *s) {
   if (s->r) npg_reduced_free(s->r);
-  free(s->Vs), free(s->Ps), free(s->As), free(s->Ahs), free(s->Bhs), free(s->wgt), free(s->L), free(s->Dpinv);
+  slices_free(&s->Vs), slices_free(&s->Asy), slices_free(&s->Ahs);
+  free(s->Vp), free(s->Ps), free(s->As), free(s->Bhs), free(s->wgt), free(s->L), free(s->Dpinv);
   free(s->mono_v), free(s->mono_h), free(s->mvals), free(s->D);
   free(s->N), free(s->g), free(s->f), free(s->u);
   free(s->gmid), free(s->gdot), free(s->b), free(s->A), free(s->M), free(s->E), free(s->V0), free(s->V1);
   free(s->P1), free(s->W), free(s->K), free(s->KN), free(s->Kn), free(s->work), free(s->tmp), free(s->tmp2), free(s->tmp3);
-  free(s->Ask), free(s->Asy), free(s->Asc), free(s->PNs), free(s->Vf), free(s->Vfg), free(s->Q), free(s->H), free(s->Hx), free(s->hwork);
+  free(s->Ask), free(s->PNs), free(s->Vf), free(s->Vfg), free(s->Q), free(s->H), free(s->Hx), free(s->hwork);
   memset(s, 0, sizeof *s);
 }
 
 /* ---------------------------------------------------------------- geometry-dependent operators */
 
-void red_volume(const RedSolver *s, const double *gc, double *V) {
-  size_t uu = (size_t)(s->mu * s->mu);
+/* V̂(ĝ)'s lower triangle, row by row, into s->Vp */
+static const double *volume_lower(const RedSolver *s, const double *gc) {
   mono_values(s->nmv, s->mono_v, gc, s->mvals);
-  cblas_dgemv(CblasRowMajor, CblasTrans, (int)s->nmv, (int)uu, 1.0, s->Vs, (int)uu, s->mvals, 1, 0.0, V, 1);
+  slices_apply(&s->Vs, s->mvals, 0.0, s->Vp);
+  return s->Vp;
+}
+
+void red_volume(const RedSolver *s, const double *gc, double *V) {
+  long mu = s->mu;
+  const double *lo = volume_lower(s, gc);
+  for (long i = 0; i < mu; i++)
+    for (long j = 0; j <= i; j++) V[i * mu + j] = V[j * mu + i] = lo[i * (i + 1) / 2 + j];
 }
 
 void red_pmat(const RedSolver *s, const double *gc, double *P) {
@@ -601,8 +653,11 @@ void red_project_f(const RedSolver *s, const double *f, double *fc) {
 static int volume_factor(RedSolver *s, const double *gc) {
   if (s->vf_ok && !memcmp(s->Vfg, gc, (size_t)s->mg * sizeof *gc)) return 0;
   s->vf_ok = 0;
-  red_volume(s, gc, s->Vf);
-  if (LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'L', (int)s->mu, s->Vf, (int)s->mu) != 0) return -1;
+  const double *lo = volume_lower(s, gc);
+  for (long i = 0; i < s->mu; i++) memcpy(s->Vf + i * s->mu, lo + i * (i + 1) / 2, (size_t)(i + 1) * sizeof *lo);
+  /* the row-major lower triangle is the column-major upper one: LAPACK's
+   * own layout, without LAPACKE's row-major transposes (and NaN checks) */
+  if (LAPACKE_dpotrf_work(LAPACK_COL_MAJOR, 'U', (int)s->mu, s->Vf, (int)s->mu) != 0) return -1;
   memcpy(s->Vfg, gc, (size_t)s->mg * sizeof *gc);
   s->vf_ok = 1;
   return 0;
@@ -621,6 +676,32 @@ void red_project_u(RedSolver *s, const double *gc, const double *pv, double *uc)
     red_volume(s, gc, s->V1);
     LAPACKE_dposv(LAPACK_ROW_MAJOR, 'L', (int)s->mu, 1, s->V1, (int)s->mu, uc, 1);
   }
+}
+
+int red_state_save(const RedSolver *s, RedState *st) {
+  size_t g = (size_t)s->mg * sizeof *st->g, uu = (size_t)(s->mu * s->mu) * sizeof *st->Vf;
+  if (!st->g) {
+    st->g = malloc(g), st->Vfg = malloc(g);
+    st->f = malloc((size_t)s->mf * sizeof *st->f), st->u = malloc((size_t)s->mu * sizeof *st->u);
+    st->Vf = malloc(uu);
+  }
+  if (!st->g || !st->Vfg || !st->f || !st->u || !st->Vf) return -1;
+  memcpy(st->g, s->g, g), memcpy(st->Vfg, s->Vfg, g), memcpy(st->Vf, s->Vf, uu);
+  memcpy(st->f, s->f, (size_t)s->mf * sizeof *st->f), memcpy(st->u, s->u, (size_t)s->mu * sizeof *st->u);
+  st->vf_ok = s->vf_ok;
+  return 0;
+}
+
+void red_state_restore(RedSolver *s, const RedState *st) {
+  size_t g = (size_t)s->mg * sizeof *st->g, uu = (size_t)(s->mu * s->mu) * sizeof *st->Vf;
+  memcpy(s->g, st->g, g), memcpy(s->Vfg, st->Vfg, g), memcpy(s->Vf, st->Vf, uu);
+  memcpy(s->f, st->f, (size_t)s->mf * sizeof *st->f), memcpy(s->u, st->u, (size_t)s->mu * sizeof *st->u);
+  s->vf_ok = st->vf_ok;
+}
+
+void red_state_free(RedState *st) {
+  free(st->g), free(st->f), free(st->u), free(st->Vf), free(st->Vfg);
+  memset(st, 0, sizeof *st);
 }
 
 double red_energy(const RedSolver *s, const double *gc, const double *uc) {
@@ -660,7 +741,7 @@ int red_projection(RedSolver *s, const double *gc, const double *uin, char *err,
     cblas_dgemv(CblasRowMajor, CblasTrans, mu, nn, 1.0, X, nn, z, 1, 0.0, y, 1);
     cblas_dtrsm(CblasRowMajor, CblasLeft, CblasLower, CblasNoTrans, CblasNonUnit, mu, nn, 1.0, s->Vf, mu, X, nn);
     cblas_dsyrk(CblasRowMajor, CblasLower, CblasTrans, nn, mu, 1.0, X, nn, 0.0, s->Kn, nn);
-    if (LAPACKE_dposv(LAPACK_ROW_MAJOR, 'L', nn, 1, s->Kn, nn, y, 1) != 0)
+    if (LAPACKE_dposv_work(LAPACK_COL_MAJOR, 'U', nn, 1, s->Kn, nn, y, nn) != 0) /* as in volume_factor */
       return fail(err, errlen, "reduced projection matrix is not positive definite", NULL);
     cblas_dgemv(CblasRowMajor, CblasNoTrans, mf, nn, 1.0, s->N, nn, y, 1, 1.0, fp, 1);
   }
@@ -754,7 +835,7 @@ int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, 
     }
   }
   if (moving) {
-    cblas_dgemv(CblasRowMajor, CblasTrans, (int)(nmh * mgd), (int)uu, 1.0, s->Ahs, (int)uu, s->wgt, 1, 1.0, s->A, 1);
+    slices_apply(&s->Ahs, s->wgt, 1.0, s->A);
     if (mb > 0)
       cblas_dgemv(CblasRowMajor, CblasTrans, (int)(nmh * mgd), mb, 1.0, s->Bhs, mb, s->wgt, 1, 0.0, s->b, 1);
   } else if (mb > 0)

@@ -14,7 +14,8 @@
  * degree dim - 1 times ĝdot_q (ĥ is npg's reduced h, along the replayed
  * trajectory, §6.2), Δ̂ from lap, V̂(ĝ) from pv (one slice per monomial of
  * ĝ of degree dim: paper Eq. 7's cubic volume tensor in 3D), P̂(ĝ) from p
- * (bilinear in ĝ and f̂). Per step the driver sums the slices (BLAS). D̂ (the stage bf, linear in f̂) is
+ * (bilinear in ĝ and f̂). Per step the driver sums the slices (BLAS), the
+ * slices of V̂ and of Â_h ⊗ ĥ through their truncated SVD (RedSlices). D̂ (the stage bf, linear in f̂) is
  * constant; its null space and pseudo-inverse (SVD) are taken once: the
  * projection solves on f̂ = D̂⁺ b̂ + N y (constraint reduction, §6.4). B_f's
  * columns are divergence-free (checked by the caller), so divergence needs
@@ -33,6 +34,19 @@
  * RED_RK4: the full step's integrator. */
 typedef enum RedIntegrator { RED_EXPMV, RED_EXPM, RED_RK4 } RedIntegrator;
 
+/* Matrices that are linear combinations of fixed slices, Σ_a w_a S[a] with
+ * S [n][len], kept as their SVD truncated where the singular values are
+ * rounding: S = C Y with C [n][rank], Y [rank][len], so a combination
+ * reads rank slices instead of n (the slices of ĝ's monomials are far from
+ * independent: in 3D V̂'s 35 cubic slices have rank 18, the 75 induced
+ * advection slices rank 13, measured on the cavity). */
+typedef struct RedSlices {
+  long n, len, rank;
+  double *coef;   /* [n][rank] */
+  double *basis;  /* [rank][len] */
+  double *c;      /* [rank] scratch: the combination's coordinates */
+} RedSlices;
+
 typedef struct RedSolver {
   const NpgModel *model;
   NpgReduced *r;
@@ -44,14 +58,15 @@ typedef struct RedSolver {
   long nmv, nmh;  /* monomials of ĝ of degree dim (V̂) and dim - 1 (ĥ) */
   int (*mono_v)[3], (*mono_h)[3]; /* their indices (sorted, -1 unused) */
   double *mvals;  /* [nmv + 3 nmh] monomial values (scratch) */
-  double *Vs;      /* [nmv][mu*mu]: V̂(ĝ) = Σ_a m_a(ĝ) Vs[a] */
+  double *Vp;     /* [mu(mu+1)/2] V̂'s lower triangle (scratch) */
+  RedSlices Vs;    /* [nmv] slices of V̂'s lower triangle, row by row (mu(mu+1)/2): V̂(ĝ) = Σ_a m_a(ĝ) Vs[a] */
   double *Ps;      /* [mg][mu*mf]:    P̂(ĝ) = Σ_l ĝ_l Ps[l] */
   double *L;       /* [mu*mu] the reduced Laplacian */
   double *As;      /* [mf][mu*mu]:  Â ⊗ f̂ = Σ_k f̂_k As[k] (set-up only, then freed: the step reads the split below) */
   double *Ask;     /* [mf][mu(mu-1)/2]: the skew parts of the As[k], strict upper triangles */
-  double *Asy, *Asc; /* [rs][mu(mu+1)/2], [mf][rs]: their symmetric parts Σ_k f̂_k sym(As[k]) = Σ_i (Ascᵀf̂)_i Asy[i] */
-  long rs;         /* the rank of the symmetric parts */
-  double *Ahs;     /* [nmh*mgd][mu*mu]: −Â_h ⊗ ĥ(ĝ, ĝdot) = Σ_aq m_a(ĝ) ĝdot_q Ahs[a][q] */
+  RedSlices Asy;   /* [mf] slices mu(mu+1)/2: their symmetric parts Σ_k f̂_k sym(As[k]), upper triangles row by row */
+  long rs;         /* the rank of the symmetric parts (Asy.rank) */
+  RedSlices Ahs;   /* [nmh*mgd] slices mu*mu: −Â_h ⊗ ĥ(ĝ, ĝdot) = Σ_aq m_a(ĝ) ĝdot_q Ahs[a][q] */
   double *Bhs;     /* [nmh*mgd][mb]:    D̂_h ĥ(ĝ, ĝdot) likewise */
   double *wgt;     /* [nmh*mgd] */
   long evals;      /* reduced evaluations made by the set-up */
@@ -76,6 +91,15 @@ typedef struct RedSolver {
   long steps;
   int last_pade, last_squarings, last_krylov; /* the last exponential: Padé degree, squarings, Arnoldi steps */
 } RedSolver;
+
+/* What a step reads and changes: ĝ, f̂, û and the Cholesky factor of V̂ it
+ * keeps for the last ĝ. Saved before a step that must leave the run as it
+ * was (a one-step error's probe, a repeated timing) and put back after, so
+ * that the run's next step finds the factor it would have found. */
+typedef struct RedState {
+  double *g, *f, *u, *Vf, *Vfg;
+  int vf_ok;
+} RedState;
 
 /* Set up from a model of fluids2d.npg (dim 2) or fluids3d.npg (dim 3)
  * (classes looked up by quantity name; m_g at most 16). 0, or -1 with the
@@ -105,6 +129,11 @@ int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, 
 /* The reduced projection (Eq. 12, constraints D̂ f̂ = s->b) at ĝ = gc of
  * velocity coordinates uin: sets s->f and s->u = V̂⁻¹P̂ f̂. 0, or -1. */
 int red_projection(RedSolver *s, const double *gc, const double *uin, char *err, size_t errlen);
+/* Copy the state of `s` into `st` (allocated on first use: zero it before).
+ * 0, or -1 when out of memory. */
+int red_state_save(const RedSolver *s, RedState *st);
+void red_state_restore(RedSolver *s, const RedState *st);
+void red_state_free(RedState *st);
 /* Energy ½ ûᵀ V̂(ĝ) û. */
 double red_energy(const RedSolver *s, const double *gc, const double *uc);
 /* y = exp(ΔtM)u with M = V̂⁻¹(ĝ)S for the n x n S, in the coordinates

@@ -290,10 +290,10 @@ int tunnel_run(const TunnelOptions *o) {
   memcpy(R->g, traj_g, R->mg * sizeof(double));
   red_project_f(R, s.f, R->f);
   red_project_u(R, R->g, pv, R->u);
-  double *rstate_f = malloc(R->mf * sizeof(double)), *rstate_u = malloc(R->mu * sizeof(double));
-  double *rstate_g = malloc(R->mg * sizeof(double));
-  memcpy(rstate_f, R->f, R->mf * sizeof(double)), memcpy(rstate_u, R->u, R->mu * sizeof(double));
-  memcpy(rstate_g, R->g, R->mg * sizeof(double));
+  /* the reduced run's state, while the one-step probes step R from elsewhere */
+  RedState rstate = {0};
+  int prc = red_state_save(R, &rstate);
+  if (prc) fprintf(stderr, "npg-fluids: out of memory\n");
   particles_seed(&pfull, &m, s.g, o->particles, 12345);
   particles_seed(&pred, &m, s.g, o->particles, 12345);
   e_full[0] = solver_energy(&s);
@@ -302,13 +302,12 @@ int tunnel_run(const TunnelOptions *o) {
   double full_adv = 0, full_proj = 0, full_def = 0, max_div_full = 0;
   long red_steps = 0;
   step_times = calloc(T + 1, sizeof(double));
-  int prc = 0;
   for (int t = 0; t <= T && !prc; t++) {
     /* frame t: outputs */
     double t0 = util_now();
-    lift(R->Bg, ng, R->mg, rstate_g, gl);
-    lift(R->Bf, nf, R->mf, rstate_f, fb);
-    lift(R->Bu, nu, R->mu, rstate_u, ut);
+    lift(R->Bg, ng, R->mg, rstate.g, gl);
+    lift(R->Bf, nf, R->mf, rstate.f, fb);
+    lift(R->Bu, nu, R->mu, rstate.u, ut);
     {
       /* divergence of the lifted reduced flux */
       double worst = 0, *d = malloc(C * sizeof *d);
@@ -413,9 +412,7 @@ int tunnel_run(const TunnelOptions *o) {
     max_div_full = fmax(max_div_full, projection_max_divergence(&s.ops, s.f));
     e_full[t + 1] = solver_energy(&s);
     /* the reduced test simulation (timed: the step alone) */
-    memcpy(R->g, rstate_g, R->mg * sizeof(double));
-    memcpy(R->f, rstate_f, R->mf * sizeof(double));
-    memcpy(R->u, rstate_u, R->mu * sizeof(double));
+    red_state_restore(R, &rstate);
     double e0 = R->seconds_eval, a1 = R->seconds_advection, p1 = R->seconds_projection;
     double t2 = util_now();
     if (red_step(R, traj_g + (size_t)(t + 1) * R->mg, traj_gd + (size_t)t * R->mgd, err, sizeof err) != 0) {
@@ -427,15 +424,13 @@ int tunnel_run(const TunnelOptions *o) {
     seconds_red += step_times[red_steps];
     red_eval += R->seconds_eval - e0, red_adv += R->seconds_advection - a1, red_proj += R->seconds_projection - p1;
     red_steps++;
-    memcpy(rstate_g, R->g, R->mg * sizeof(double));
-    memcpy(rstate_f, R->f, R->mf * sizeof(double));
-    memcpy(rstate_u, R->u, R->mu * sizeof(double));
+    red_state_save(R, &rstate);
     e_red[t + 1] = red_energy(R, R->g, R->u);
     /* particles: full through the full flux, reduced through the lifted
      * reduced flux (Eq. 13 evaluated per cell) */
     double t3 = util_now();
-    lift(R->Bg, ng, R->mg, rstate_g, gl);
-    lift(R->Bf, nf, R->mf, rstate_f, fb);
+    lift(R->Bg, ng, R->mg, rstate.g, gl);
+    lift(R->Bf, nf, R->mf, rstate.f, fb);
     particles_advect(&pred, &m, gl, fb, dt, 10);
     seconds_particles += util_now() - t3;
     particles_advect(&pfull, &m, s.g, s.f, dt, 10);
@@ -450,9 +445,7 @@ int tunnel_run(const TunnelOptions *o) {
   int bench_krylov = 0, bench_pade = 0;
   if (!prc) {
     for (int rep = 0; rep < 200 && !prc; rep++) {
-      memcpy(R->g, rstate_g, R->mg * sizeof(double));
-      memcpy(R->f, rstate_f, R->mf * sizeof(double));
-      memcpy(R->u, rstate_u, R->mu * sizeof(double));
+      red_state_restore(R, &rstate);
       R->integ = rep % 2 ? RED_EXPM : RED_EXPMV;
       double t2 = util_now();
       if (red_step(R, traj_g + (size_t)(T - 1) * R->mg, traj_gd + (size_t)(T - 2) * R->mgd, err, sizeof err) != 0) prc = -1;
@@ -463,7 +456,7 @@ int tunnel_run(const TunnelOptions *o) {
     R->integ = RED_EXPMV;
   }
   free(traj_g), free(traj_gd);
-  free(rstate_f), free(rstate_u), free(rstate_g);
+  red_state_free(&rstate);
   if (prc) goto done;
   for (int i = 0; i < K; i++) {
     double a = 0;
