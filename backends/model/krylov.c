@@ -24,7 +24,7 @@ int krylov_init(Krylov *k, long maxn) {
   k->cprev = malloc(sizeof(double) * (n + 1));
   k->c = malloc(sizeof(double) * (n + 1));
   k->w = malloc(sizeof(double) * n);
-  k->cheb = malloc(sizeof(double) * (3 * (KRYLOV_MAX_DEGREE + 1) + 3 * n));
+  k->cheb = malloc(sizeof(double) * (5 * (KRYLOV_MAX_DEGREE + 1) + 5 * n + 8));
   return k->Q && k->alpha && k->beta && k->d && k->e && k->S && k->work && k->iwork && k->cprev && k->c && k->w &&
                  k->cheb
              ? 0
@@ -70,34 +70,41 @@ static int chebyshev(Krylov *k, int K, double r) {
   int n = (int)ceil(38.0 / log(rho)) + 4;
   if (n > KRYLOV_MAX_DEGREE || (double)n * (n + 4.0 * K) > 2.0 * K * K * K) return 1;
   int N = n + 1;
-  double *fx = k->cheb, *y = fx + N, *co = y + N, *v0 = co + N, *v1 = v0 + K, *v2 = v1 + K, *c = k->c;
+  /* k->cheb: the points y, f at them, the coefficients, T_i at the points
+   * (two rows); 2X's diagonal and off-diagonal (padded with a 0 at each
+   * end); three vectors, each with a 0 before and after it */
+  double *y = k->cheb, *fx = y + N, *co = fx + N, *t0 = co + N, *t1 = t0 + N, *dg = t1 + N, *od = dg + K;
+  double *v0 = od + K + 2, *v1 = v0 + K + 2, *v2 = v1 + K + 2, *c = k->c;
   double mid = 0.5 * (a + b), half = 0.5 * (b - a);
   for (int j = 0; j < N; j++) {
     y[j] = cos(M_PI * (j + 0.5) / N);
     fx[j] = pow(mid + half * y[j], r);
-    co[j] = 0;
+    t0[j] = 1, t1[j] = y[j];
   }
-  for (int j = 0; j < N; j++) { /* co_i += f(x_j) T_i(y_j) */
-    double t0 = 1, t1 = y[j], f = fx[j];
-    co[0] += f, co[1] += f * t1;
-    for (int i = 2; i < N; i++) {
-      double t2 = 2 * y[j] * t1 - t0;
-      co[i] += f * t2;
-      t0 = t1, t1 = t2;
-    }
+  /* co_i = (2 − δ_i0)/N Σ_j f(x_j) T_i(y_j), row i of T_i(y_j) from the two before */
+  co[0] = cblas_ddot(N, fx, 1, t0, 1) / N;
+  co[1] = 2 * cblas_ddot(N, fx, 1, t1, 1) / N;
+  for (int i = 2; i < N; i++) {
+    for (int j = 0; j < N; j++) t0[j] = 2 * y[j] * t1[j] - t0[j];
+    double *t = t0;
+    t0 = t1, t1 = t;
+    co[i] = 2 * cblas_ddot(N, fx, 1, t1, 1) / N;
   }
-  for (int i = 0; i < N; i++) co[i] *= (i == 0 ? 1.0 : 2.0) / N;
-  memset(v0, 0, sizeof(double) * 3 * (size_t)K);
+  /* c = Σ co_j T_j(X) e₁: T_j(X) e₁ = 2X T_{j−1}(X) e₁ − T_{j−2}(X) e₁ has j + 1 nonzeros */
+  double scale = 2 / half;
+  for (int i = 0; i < K; i++) dg[i] = (al[i] - mid) * scale;
+  od[0] = od[K] = 0;
+  for (int i = 1; i < K; i++) od[i] = be[i - 1] * scale;
+  memset(v0 - 1, 0, sizeof(double) * 3 * (size_t)(K + 2));
+  v0[0] = 1, v1[0] = 0.5 * dg[0];
+  if (K > 1) v1[1] = 0.5 * od[1];
   memset(c, 0, sizeof(double) * (size_t)K);
-  v0[0] = 1, c[0] = co[0];
-  v1[0] = (al[0] - mid) / half;
-  if (K > 1) v1[1] = be[0] / half;
-  for (int i = 0; i < K && i < 2; i++) c[i] += co[1] * v1[i];
-  for (int j = 2; j < N; j++) { /* v2 = 2 X v1 − v0 */
+  c[0] = co[0] + co[1] * v1[0];
+  if (K > 1) c[1] = co[1] * v1[1];
+  for (int j = 2; j < N; j++) {
     int nz = j + 1 < K ? j + 1 : K;
     for (int i = 0; i < nz; i++) {
-      double xv = (al[i] - mid) * v1[i] + (i > 0 ? be[i - 1] * v1[i - 1] : 0) + (i + 1 < K ? be[i] * v1[i + 1] : 0);
-      v2[i] = 2 * xv / half - v0[i];
+      v2[i] = dg[i] * v1[i] + od[i] * v1[i - 1] + od[i + 1] * v1[i + 1] - v0[i];
       c[i] += co[j] * v2[i];
     }
     double *t = v0;
@@ -129,6 +136,13 @@ static int approximate(Krylov *k, int K, long p, long q) {
   for (int i = 0; i < K; i++) k->w[i] = k->S[(size_t)i * (size_t)K] * pow(k->d[i], r); /* S[0, i] f(λ_i) */
   cblas_dgemv(CblasColMajor, CblasNoTrans, K, K, 1.0, k->S, K, k->w, 1, 0.0, k->c, 1);
   return 0;
+}
+
+/* ‖x‖₂ as √(x·x), which is faster than dnrm2's scaled sum, unless x·x is
+ * near under- or overflow. */
+static double norm2(int n, const double *x) {
+  double s = cblas_ddot(n, x, 1, x, 1);
+  return s > 1e-280 && s < 1e280 ? sqrt(s) : cblas_dnrm2(n, x, 1);
 }
 
 /* Where the next, similar call should converge, after this one converged at
@@ -176,12 +190,12 @@ int krylov_power(Krylov *k, int n, const double *M, long p, long q, double tol, 
      * Daniel–Gragg–Kaufman–Stewart: "twice is enough") */
     cblas_daxpy(n, -k->alpha[j], qj, 1, w, 1);
     if (j > 0) cblas_daxpy(n, -k->beta[j - 1], qj - n, 1, w, 1);
-    double b = cblas_dnrm2(n, w, 1);
+    double b = norm2(n, w);
     for (int pass = 0; pass < 2; pass++) {
       cblas_dgemv(CblasRowMajor, CblasNoTrans, j + 1, n, 1.0, k->Q, n, w, 1, 0.0, k->c, 1);
       cblas_dgemv(CblasRowMajor, CblasTrans, j + 1, n, -1.0, k->Q, n, k->c, 1, 1.0, w, 1);
       double before = b;
-      b = cblas_dnrm2(n, w, 1);
+      b = norm2(n, w);
       if (b >= M_SQRT1_2 * before) break;
     }
     k->beta[j] = b;
