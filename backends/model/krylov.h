@@ -27,7 +27,8 @@ typedef struct Krylov {
   double *cheb;             /* the Chebyshev expansion's points, values, coefficients and three vectors */
   long start;               /* in: where a similar call converged (0: unknown), checks begin 4 steps before;
                                out: the same for the next call */
-  double shrink;            /* the factor by which the estimate fell over 4 steps when last seen (0: not yet) */
+  double shrink;            /* in/out like start: the factor by which the estimate fell over 4 steps when last
+                               seen (0: not yet) */
   long expansions, decompositions; /* f(T_k) e₁ by the Chebyshev expansion, by T_k's eigendecomposition */
 } Krylov;
 

@@ -66,6 +66,7 @@ struct Reduced {
   Krylov kr;
   long root_steps, roots, root_fallbacks; /* statistics of the Krylov roots */
   long *root_start;       /* per stage: Krylov.start after its last root */
+  double *root_shrink;    /* per stage: Krylov.shrink after its last root */
   bool one_thread;        /* tensors small enough that reduced_eval runs BLAS on one thread */
   char error[1024];
 };
@@ -94,6 +95,7 @@ void reduced_free(Reduced *r) {
   free(r->iwork);
   krylov_free(&r->kr);
   free(r->root_start);
+  free(r->root_shrink);
   free(r);
 }
 
@@ -151,7 +153,8 @@ Reduced *reduced_new(Model *m, char *err, size_t errlen) {
   r->w = calloc((size_t)maxm, sizeof(double));
   r->piv = calloc((size_t)maxm, sizeof(lapack_int));
   r->root_start = calloc((size_t)m->nstages + 1, sizeof(long));
-  if (!r->root_start || !r->v || !r->acc || !r->buf[0] || !r->buf[1] || !r->z || !r->M || !r->M2 || !r->w || !r->piv) goto oom;
+  r->root_shrink = calloc((size_t)m->nstages + 1, sizeof(double));
+  if (!r->root_start || !r->root_shrink || !r->v || !r->acc || !r->buf[0] || !r->buf[1] || !r->z || !r->M || !r->M2 || !r->w || !r->piv) goto oom;
   if (power_workspace(r) || krylov_init(&r->kr, maxm)) goto oom;
   return r;
 oom:
@@ -327,10 +330,10 @@ static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int
   if (r->krylov_roots) { /* the eigendecomposition below only where Lanczos does not converge soon */
     int steps;
     double estimate;
-    long *start = &r->root_start[rs - r->m->stages]; /* the next sample's operator is a similar one */
-    r->kr.start = *start;
+    long si = rs - r->m->stages; /* the next sample's operator is a similar one */
+    r->kr.start = r->root_start[si], r->kr.shrink = r->root_shrink[si];
     int rc = krylov_power(&r->kr, n, r->M, op->p, op->q, REDUCED_KRYLOV_TOL, n / 2 + 8, v, &steps, &estimate);
-    *start = r->kr.start;
+    r->root_start[si] = r->kr.start, r->root_shrink[si] = r->kr.shrink;
     r->roots++;
     if (rc == 0) {
       r->root_steps += steps;
