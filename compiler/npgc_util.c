@@ -100,7 +100,7 @@ static const Usage usages[] = {
      "  at -O3), the reduced one with its inputs projected and, reported apart and\n"
      "  included in the total, its outputs lifted; the speedup; the model's memory.\n"
      "  --exact-roots  roots of reduced operators by eigendecomposition (the exact\n"
-     "               reference) instead of the Lanczos process (to 1e-10 relative)\n"
+     "               reference) instead of the Lanczos process (to 1e-8 relative)\n"
      "  --progress   a progress bar on stderr even when it is not a terminal (on a\n"
      "               terminal it is always shown)\n"},
     {"plot",

@@ -359,7 +359,7 @@ NPG_API int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, co
 NPG_API void npg_reduced_given_externs(NpgReduced *r, bool on);
 NPG_API int npg_reduced_eval(NpgReduced *r, long sample);
 /* Roots (fractional powers) of reduced operators are applied by the
- * Lanczos process to an a-posteriori estimate of 1e-10 relative (falling
+ * Lanczos process to an a-posteriori estimate below 1e-8 relative (falling
  * back to the eigendecomposition where that is not faster); with `on`,
  * always by the eigendecomposition (the exact reference). */
 NPG_API void npg_reduced_exact_roots(NpgReduced *r, bool on);

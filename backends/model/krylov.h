@@ -1,7 +1,9 @@
 /* krylov.h — a rational power of a symmetric positive definite matrix
  * applied to one vector, M^(p/q) v, by the Lanczos process (with full
  * reorthogonalization) on the Krylov space of v: v ← β Q_k f(T_k) e₁, f(λ) =
- * λ^(p/q), T_k's eigendecomposition by LAPACK (dstedc). The reduced
+ * λ^(p/q), f(T_k) e₁ by its Chebyshev expansion on T_k's spectrum where that
+ * is cheaper than T_k's eigendecomposition by LAPACK (dstedc), else by
+ * that. The reduced
  * evaluator's root stages use it instead of a dense eigendecomposition of M
  * when it converges in fewer steps than that would cost; the
  * eigendecomposition stays the exact reference (reduced_exact_roots). */
@@ -9,6 +11,9 @@
 #define NPG_KRYLOV_H
 
 #include <stdbool.h>
+
+/* The highest degree of the Chebyshev expansion of f(T_k) e₁ (krylov.c). */
+#define KRYLOV_MAX_DEGREE 400
 
 typedef struct Krylov {
   long maxn;                /* the largest n the workspace holds */
@@ -19,8 +24,12 @@ typedef struct Krylov {
   long lwork;
   double *c, *cprev;        /* f(T_k) e₁ and the one of the previous check */
   double *w;                /* a scratch vector */
+  double *cheb;             /* the Chebyshev expansion's points, values, coefficients and three vectors */
   long start;               /* in: where a similar call converged (0: unknown), checks begin 4 steps before;
                                out: the same for the next call */
+  double shrink;            /* in/out like start: the factor by which the estimate fell over 4 steps when last
+                               seen (0: not yet) */
+  long expansions, decompositions; /* f(T_k) e₁ by the Chebyshev expansion, by T_k's eigendecomposition */
 } Krylov;
 
 /* Workspace for n up to `maxn`. 0, or -1 when out of memory (then
