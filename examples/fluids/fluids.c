@@ -592,14 +592,14 @@ static int cavity_projection_cmd(int argc, char **argv) {
   const double zero[3] = {0, 0, 0}, dt = 0.01;
   const ProjectionMethod methods[2] = {PROJ_KKT_UMFPACK, PROJ_AL_CHOLMOD};
   FullSolver s[2];
-  int on[2] = {which & 1, (which & 2) >> 1}, rc = 0, iterations = 0;
+  int want[2] = {which & 1, (which & 2) >> 1}, on[2] = {0, 0}, rc = 0, iterations = 0; /* on: initialized */
   double *g = malloc(3 * (size_t)m->nv * sizeof *g), diff = 0, div[2] = {0}, init[2] = {0}, fmx = 0;
   for (int k = 0; k < 2 && !rc; k++) {
-    if (!on[k]) continue;
+    if (!want[k]) continue;
     double t0 = util_now();
     rc = solver_init_at(&s[k], m, methods[k], 5 * vmin, dt, m->g0, zero, err, sizeof err);
     init[k] = util_now() - t0;
-    if (rc) on[k] = 0;
+    on[k] = !rc;
   }
   for (int t = 1; t <= steps && !rc; t++) {
     cavity_schedule(6, t, 100, sigma);
