@@ -268,10 +268,11 @@ static int al_solve(Projection *pr, double w, char *err, size_t errlen) {
     }
     /* to rounding, or until the corrections stop falling */
     double size = fmax(dmax, rmax);
-    if (size <= 1e-15 * fmx || size >= 0.5 * prev) break;
-    if (pr->iterations == AL_MAXIT)
+    if (size <= 1e-15 * fmx) break;
+    if (size >= 0.5 * prev && size <= 1e-10 * fmx) break; /* at rounding, stagnating */
+    if (pr->iterations == AL_MAXIT || size >= 0.5 * prev)
       return util_fail(err, errlen, "projection: augmented Lagrangian iterations did not converge "
-                                    "(correction %.3g of the largest flux after %d)", size / fmx, AL_MAXIT);
+                                    "(correction %.3g of the largest flux after %d)", size / fmx, pr->iterations);
     prev = size;
   }
   return 0;
