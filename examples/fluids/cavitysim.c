@@ -33,6 +33,7 @@ void cavity_options_default(CavityOptions *o) {
   o->dt = 0.01, o->nu = 5.0;
   o->mf = 64, o->mu = 128, o->mg = 5;
   o->dtol = 1e-2;
+  o->projection = PROJ_AL_CHOLMOD;
 }
 
 /* Compress and re-inflate: 1 - a sin^2(pi t / T), smooth at both ends. */
@@ -131,7 +132,7 @@ static int training_run(const Cavity *cv, const CavityOptions *o, int r, double 
   const double zero[3] = {0, 0, 0};
   FullSolver s;
   if (deform_at(cv, r, 0, T, g, &t_def, err, sizeof err) != 0 ||
-      solver_init_at(&s, m, PROJ_KKT_UMFPACK, mu, o->dt, g, zero, err, sizeof err) != 0) {
+      solver_init_at(&s, m, o->projection, mu, o->dt, g, zero, err, sizeof err) != 0) {
     fprintf(stderr, "npg-fluids: training run %d: %s\n", r + 1, err);
     free(g), free(g0), free(f0), free(u0);
     return -1;
@@ -336,8 +337,8 @@ int cavity_run(const CavityOptions *o) {
    * projected full state (a probe solver) and the trajectory error */
   t_deform = 0;
   if (deform_at(&cv, -1, 0, T, g, &t_deform, err, sizeof err) != 0 ||
-      solver_init_at(&s, m, PROJ_KKT_UMFPACK, mu, o->dt, g, zero, err, sizeof err) != 0 ||
-      (s_ok = 1, reduced && solver_init_at(&probe, m, PROJ_KKT_UMFPACK, mu, o->dt, g, zero, err, sizeof err) != 0)) {
+      solver_init_at(&s, m, o->projection, mu, o->dt, g, zero, err, sizeof err) != 0 ||
+      (s_ok = 1, reduced && solver_init_at(&probe, m, o->projection, mu, o->dt, g, zero, err, sizeof err) != 0)) {
     fprintf(stderr, "npg-fluids: %s\n", err);
     goto done;
   }
@@ -576,8 +577,9 @@ int cavity_run(const CavityOptions *o) {
           m->nc, m->nf, m->nb, m->nv, t_mesh, T, o->dt, mu);
   fprintf(fp, "  \"t_d\": %.6g,\n  \"t_a\": %.6g,\n  \"t_p\": %.6g,\n  \"full_step_seconds\": %.6g,\n", st.t_d, st.t_a,
           st.t_p, t_full);
-  fprintf(fp, "  \"projection_factorization_seconds\": %.6g,\n  \"projection_solve_seconds\": %.6g,\n",
-          s.pr.seconds_numeric / steps, s.pr.seconds_solve / steps);
+  fprintf(fp, "  \"projection_method\": \"%s\",\n  \"projection_factorization_seconds\": %.6g,\n"
+              "  \"projection_solve_seconds\": %.6g,\n",
+          projection_method_name(o->projection), s.pr.seconds_numeric / steps, s.pr.seconds_solve / steps);
   fprintf(fp, "  \"particles\": %d,\n  \"t_pa_full_flow\": %.6g,\n", o->particles, seconds_particles / steps);
   if (reduced) {
     fprintf(fp, "  \"training_runs\": %d,\n  \"training_samples\": %ld,\n  \"training_runs_seconds\": %.4g,\n"

@@ -9,6 +9,7 @@
 #define FLUIDS_CAVITYSIM_H
 
 #include "cavity.h"
+#include "projection.h"
 
 typedef struct CavityOptions {
   const char *out;
@@ -19,6 +20,7 @@ typedef struct CavityOptions {
   double dt, nu;    /* time step; viscosity mu = nu * the smallest cell's volume */
   int mf, mu, mg;   /* basis caps: fluxes, velocities (the whole shared class), geometry */
   double dtol;      /* rank tolerance of D̂ (red_constraints) */
+  ProjectionMethod projection; /* of the full step (PROJ_AL_CHOLMOD) */
 } CavityOptions;
 
 void cavity_options_default(CavityOptions *o);

@@ -51,8 +51,10 @@ static void usage(FILE *fp) {
         "       npg-fluids mesh [--cells N] [--size S]\n"
         "       npg-fluids cavity --out DIR [--cells N] [--frames N] [--runs N] [--dt DT] [--nu NU]\n"
         "                  [--mf N] [--mu N] [--mg N] [--dtol X] [--particles N] [--png-every K] [--vtk-every K]\n"
-        "                  [--width PX]\n"
+        "                  [--width PX] [--projection al|kkt]\n"
         "       npg-fluids cavity-mesh [--cells N]         the cavity's mesh statistics as JSON\n"
+        "       npg-fluids cavity-projection [--cells N] [--steps N] [--method kkt|al|both]\n"
+        "                  the full projection timed on the cavity (JSON)\n"
         "\n"
         "tunnel-full: full-space simulation of the periodic wind tunnel (paper §5, §7.1).\n"
         "  --frames N     steps, one per frame (200)\n"
@@ -85,7 +87,9 @@ static void usage(FILE *fp) {
         "  --particles (10000) marker particles through the reduced flow; --dt (0.01), viscosity\n"
         "  mu = --nu (5) times the smallest cell's volume; --dtol (1e-2) the rank tolerance of the\n"
         "  reduced boundary constraints; DIR/report.json (Table 1), DIR/frames/*.png,\n"
-        "  DIR/vtk/*.vtk (legacy VTK), DIR/plots/trajectory_error.png.\n",
+        "  DIR/vtk/*.vtk (legacy VTK), DIR/plots/trajectory_error.png. --projection: al (default),\n"
+        "  CHOLMOD on K + w D^T D with augmented Lagrangian iterations; kkt: UMFPACK on the KKT\n"
+        "  system (the same minimizer)\n",
         fp);
 }
 
@@ -488,7 +492,7 @@ static int cavity_cmd(int argc, char **argv) {
   for (int i = 2; i < argc; i++) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     static const char *known[] = {"--out", "--cells", "--frames", "--runs", "--dt", "--nu", "--mf", "--mu", "--mg",
-                                  "--particles", "--png-every", "--vtk-every", "--width", "--dtol"};
+                                  "--particles", "--png-every", "--vtk-every", "--width", "--dtol", "--projection"};
     if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
     int bad = 0;
     if (!strcmp(a, "--out")) o.out = v;
@@ -505,6 +509,11 @@ static int cavity_cmd(int argc, char **argv) {
     else if (!strcmp(a, "--png-every")) bad = parse_int(v, &o.png_every) || o.png_every < 1;
     else if (!strcmp(a, "--vtk-every")) bad = parse_int(v, &o.vtk_every) || o.vtk_every < 1;
     else if (!strcmp(a, "--width")) bad = parse_int(v, &o.width) || o.width < 16;
+    else if (!strcmp(a, "--projection")) {
+      if (!strcmp(v, "al")) o.projection = PROJ_AL_CHOLMOD;
+      else if (!strcmp(v, "kkt")) o.projection = PROJ_KKT_UMFPACK;
+      else bad = 1;
+    }
     if (bad) {
       fprintf(stderr, "npg-fluids: option '%s': invalid value '%s'\n", a, v);
       return 2;
@@ -546,6 +555,82 @@ static int cavity_mesh_cmd(int argc, char **argv) {
            mesh_min_quality(&cv.m, g, NULL), t2 - t1, kappa, mesh_fluid_volume(&cv.m, g) / cv.volume0 - 1);
   else
     fprintf(stderr, "npg-fluids: %s\n", err);
+  free(g);
+  cavity_free(&cv);
+  return rc ? 1 : 0;
+}
+
+/* npg-fluids cavity-projection: the full step's projection timed per
+ * method on the cavity at --cells N, over --steps steps of training run 6
+ * (two chambers compressed together) from u = 0; with both methods, the
+ * largest difference of their fluxes relative to the largest flux. */
+static int cavity_projection_cmd(int argc, char **argv) {
+  CavitySpec spec = cavity_spec_default();
+  int steps = 3, which = 3; /* 1 kkt, 2 al */
+  for (int i = 2; i < argc; i += 2) {
+    const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+    static const char *known[] = {"--cells", "--steps", "--method"};
+    if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
+    int bad = 0;
+    if (!strcmp(a, "--cells")) bad = parse_int(v, &spec.cells) || spec.cells < 50;
+    else if (!strcmp(a, "--steps")) bad = parse_int(v, &steps) || steps < 1;
+    else which = !strcmp(v, "kkt") ? 1 : !strcmp(v, "al") ? 2 : !strcmp(v, "both") ? 3 : (bad = 1, 0);
+    if (bad) {
+      fprintf(stderr, "npg-fluids: option '%s': invalid value '%s'\n", a, v);
+      return 2;
+    }
+  }
+  char err[ERRLEN];
+  Cavity cv;
+  if (cavity_mesh(&cv, &spec, err, sizeof err) != 0) {
+    fprintf(stderr, "npg-fluids: %s\n", err);
+    return 1;
+  }
+  const Mesh *m = &cv.m;
+  double vmin = INFINITY, sigma[CAVITY_SIDES];
+  for (int c = 0; c < m->nc; c++) vmin = fmin(vmin, mesh_volume(m, m->g0, c));
+  const double zero[3] = {0, 0, 0}, dt = 0.01;
+  const ProjectionMethod methods[2] = {PROJ_KKT_UMFPACK, PROJ_AL_CHOLMOD};
+  FullSolver s[2];
+  int want[2] = {which & 1, (which & 2) >> 1}, on[2] = {0, 0}, rc = 0, iterations = 0; /* on: initialized */
+  double *g = malloc(3 * (size_t)m->nv * sizeof *g), diff = 0, div[2] = {0}, init[2] = {0}, fmx = 0;
+  for (int k = 0; k < 2 && !rc; k++) {
+    if (!want[k]) continue;
+    double t0 = util_now();
+    rc = solver_init_at(&s[k], m, methods[k], 5 * vmin, dt, m->g0, zero, err, sizeof err);
+    init[k] = util_now() - t0;
+    on[k] = !rc;
+  }
+  for (int t = 1; t <= steps && !rc; t++) {
+    cavity_schedule(6, t, 100, sigma);
+    rc = cavity_deform(&cv, sigma, g, NULL, err, sizeof err);
+    for (int k = 0; k < 2 && !rc; k++) {
+      if (!on[k]) continue;
+      rc = solver_step_to(&s[k], g, err, sizeof err);
+      if (rc) break;
+      for (int j = 0; j < m->nf; j++) fmx = fmax(fmx, fabs(s[k].f[j]));
+      div[k] = fmax(div[k], projection_max_divergence(&s[k].ops, s[k].f) / fmx);
+      iterations = k == 1 ? s[k].pr.iterations : iterations;
+    }
+    if (!rc && on[0] && on[1])
+      for (int j = 0; j < m->nf; j++) diff = fmax(diff, fabs(s[0].f[j] - s[1].f[j]) / fmx);
+  }
+  if (rc) fprintf(stderr, "npg-fluids: %s\n", err);
+  else {
+    printf("{\"cells\": %d, \"faces\": %d, \"interior_faces\": %d, \"projections\": %d", m->nc, m->nf,
+           m->nf - m->nb, steps + 1);
+    for (int k = 0; k < 2; k++)
+      if (on[k])
+        printf(", \"%s\": {\"init_seconds\": %.4g, \"factorization_seconds\": %.4g, \"solve_seconds\": %.4g, "
+               "\"max_divergence_relative\": %.3g}",
+               projection_method_name(methods[k]), init[k], s[k].pr.seconds_numeric / (steps + 1),
+               s[k].pr.seconds_solve / (steps + 1), div[k]);
+    if (on[1]) printf(", \"al_iterations_last\": %d", iterations);
+    if (on[0] && on[1]) printf(", \"max_flux_difference_relative\": %.3g", diff);
+    printf("}\n");
+  }
+  for (int k = 0; k < 2; k++)
+    if (on[k]) solver_free(&s[k]);
   free(g);
   cavity_free(&cv);
   return rc ? 1 : 0;
@@ -609,6 +694,7 @@ int main(int argc, char **argv) {
   if (!strcmp(argv[1], "tunnel")) return tunnel_cmd(argc, argv);
   if (!strcmp(argv[1], "cavity")) return cavity_cmd(argc, argv);
   if (!strcmp(argv[1], "cavity-mesh")) return cavity_mesh_cmd(argc, argv);
+  if (!strcmp(argv[1], "cavity-projection")) return cavity_projection_cmd(argc, argv);
   RunOptions o;
   if (parse_options(argc, argv, &o) != 0) return 2;
   if (!strcmp(argv[1], "tunnel-full")) return tunnel_full(&o);

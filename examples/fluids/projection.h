@@ -17,6 +17,17 @@
  * per geometry. The divergence rows of all cells sum to the boundary flux, so
  * one row (the last cell's) is dropped; it holds when sum_b h_b = 0, which
  * mesh_deform's area-preserving deformation guarantees.
+ *
+ * PROJ_AL_CHOLMOD reaches the same minimizer through an SPD system on the
+ * interior faces alone (the augmented Lagrangian method): with w large,
+ *
+ *     (K + w D^T D) f_k = r - D^T l_k + w D^T b,   l_{k+1} = l_k + w (D f_k - b),
+ *
+ * where D f = b are the KKT system's constraint rows. Every iterate solves
+ * K f_k + D^T l_{k+1} = r exactly; the constraint residual shrinks by about
+ * 1/(1 + w s_min(D K^-1 D^T)) per iteration, so a few solves with one
+ * Cholesky factor (CHOLMOD, supernodal, analysed once) reach D f = b to
+ * rounding. D^T D couples the faces of a cell as K does: the pattern is K's.
  */
 #ifndef FLUIDS_PROJECTION_H
 #define FLUIDS_PROJECTION_H
@@ -29,14 +40,18 @@
 typedef enum ProjectionMethod {
   PROJ_KKT_UMFPACK,    /* LU of the KKT system (any dimension) */
   PROJ_STREAM_CHOLMOD, /* Cholesky on the stream function's null space (2D; stream.h) */
+  PROJ_AL_CHOLMOD,     /* Cholesky of K + w D^T D, augmented Lagrangian iterations (any dimension) */
 } ProjectionMethod;
 
 typedef struct StreamProjection StreamProjection;
+typedef struct AugLagrangian AugLagrangian;
 
 typedef struct Projection {
   const Ops *o;
   ProjectionMethod method;
   StreamProjection *stream; /* PROJ_STREAM_CHOLMOD */
+  AugLagrangian *al;        /* PROJ_AL_CHOLMOD */
+  int iterations;           /* PROJ_AL_CHOLMOD: of the last solve */
   int ni, n;        /* interior faces; KKT size ni + C - 1 */
   int *fidx;        /* [F] interior index of a face, -1 on the boundary */
   int nt;           /* triplets */
@@ -53,7 +68,7 @@ typedef struct Projection {
 
 /* Pattern and symbolic analysis. 0, or -1 with the reason in `err`. */
 int projection_init(Projection *pr, const Ops *o, ProjectionMethod method, char *err, size_t errlen);
-/* "kkt-umfpack" / "stream-cholmod". */
+/* "kkt-umfpack" / "stream-cholmod" / "al-cholmod". */
 const char *projection_method_name(ProjectionMethod method);
 void projection_free(Projection *pr);
 /* Project u_in [C][dim] with the geometry in `o` (ops_set_geometry: g_{t+1})
