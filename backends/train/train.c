@@ -546,6 +546,12 @@ static Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src,
   return m;
 }
 
+int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {
+  if (!opt->dist || k != dist_rank() || !dist_fail_here()) return 0;
+  return npg_fail(err, errlen, "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)",
+                  k, dist_rank());
+}
+
 /* Step 1: every member's snapshots in memory (sn->X), or, when they need
  * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
  * *gram set). Marks which diagonal operators stay SPD. */
@@ -597,10 +603,7 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
         rc = train_member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
     }
     if (rc == 0) rc = train_check_spd(m, f, tmp, err, errlen);
-    if (rc == 0 && k == rank && opt->dist && dist_fail_here())
-      rc = npg_fail(err, errlen,
-                    "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)", k,
-                    rank);
+    if (rc == 0) rc = train_fail_hook(opt, k, err, errlen);
     progress_show(opt->progress, "snapshots", k + 1, S);
   }
   if (rc == 0 && !*gram && N > 1 && (rc = dist_gather_snapshots(m, sn->X, S, err, errlen)) == 0) {
@@ -753,9 +756,6 @@ static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptio
                  struct timespec t[2], double *sec, double *cpu, char *err, size_t errlen) {
   if (ooc_needed(m, opt)) {
     *gram = true;
-    if (opt->dist && dist_size() > 1)
-      return npg_fail(err, errlen, "the bases exceed --mem and out-of-core training does not run over MPI ranks yet: "
-                                   "raise --mem or train on one process");
     return ooc_bases(m, f, src, opt, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0);
   }
   return take_snapshots(m, f, src, opt, sn, gram, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0) ||
