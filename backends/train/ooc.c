@@ -53,6 +53,7 @@
 #include <string.h>
 #include <fcntl.h>
 #include <sys/mman.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "dist.h"
@@ -103,6 +104,12 @@ typedef struct Ooc {
   size_t fixed;             /* bytes of the Gram matrices, the small classes and the sample scratch */
   int rank, N;              /* over ranks (opt->dist): this rank takes the passes p ≡ rank (mod N) */
 } Ooc;
+
+static double now(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
 
 /* Whether pass p is this rank's. */
 static bool mine(const Ooc *o, long p) { return p % o->N == o->rank; }
@@ -720,9 +727,14 @@ int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions 
               "--mem for fewer passes\n", o.S, (double)o.fixed / 1e6);
   }
   train_mark_spd(m);
+  double t[5] = {now()};
   /* over ranks every rank's passes evaluate every sample */
   if (o.N > 1 && ((src->share && src->share(src->user, err, errlen)) || whole_sweep(&o))) goto done;
-  if (gram_passes(&o) || eigen(&o) || basis_passes(&o)) goto done;
+  t[1] = now();
+  if (gram_passes(&o)) goto done;
+  t[2] = now();
+  if (eigen(&o) || basis_passes(&o)) goto done;
+  t[3] = now();
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rcl = &m->classes[c];
     if (!o.st[c].streamed) {
@@ -737,6 +749,10 @@ int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions 
     if (train_complete_basis(rcl, false, err, errlen)) goto done;
   }
   model_size_tensors(m);
+  t[4] = now();
+  if (opt->progress)
+    fprintf(stderr, "out of core: %.2f s samples shared and whole evaluations (over ranks), %.2f s Gram passes, %.2f s "
+            "basis passes, %.2f s bases\n", t[1] - t[0], t[2] - t[1], t[3] - t[2], t[4] - t[3]);
   rc = 0;
   goto done;
 oom:

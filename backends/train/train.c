@@ -705,16 +705,19 @@ static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char 
  * reduced inputs and values, from the snapshots or, after the method of
  * snapshots, recomputed. */
 static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool progress,
-                       char *err, size_t errlen) {
+                       bool dist, char *err, size_t errlen) {
   long S = src->count;
+  /* recomputed over ranks (out of core): rank r its samples k ≡ r (mod N),
+   * the others' rows zero, then summed */
+  int N = gram && dist ? dist_size() : 1, rank = N > 1 ? dist_rank() : 0;
   for (int i = 0; i < m->nexterns; i++) {
     RExtern *x = &m->externs[i];
     long mz = m->classes[m->qclass[x->q]].m;
     x->S = S;
-    if (!(x->X = malloc(sizeof(double) * (size_t)(S * x->d + 1))) || !(x->Z = malloc(sizeof(double) * (size_t)(S * mz))))
+    if (!(x->X = calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = calloc((size_t)(S * mz) + 1, sizeof(double))))
       return npg_fail(err, errlen, "out of memory while training");
   }
-  for (long k = 0; k < S && m->nexterns > 0; k++) {
+  for (long k = rank; k < S && m->nexterns > 0; k += N) {
     if (gram && train_eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
     for (int i = 0; i < m->nexterns; i++) {
       RExtern *x = &m->externs[i];
@@ -734,6 +737,11 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
       }
     }
     if (gram) progress_show(progress, "extern samples", k + 1, S);
+  }
+  for (int i = 0; N > 1 && i < m->nexterns; i++) {
+    RExtern *x = &m->externs[i];
+    dist_allreduce_sum(x->X, S * x->d);
+    dist_allreduce_sum(x->Z, S * m->classes[m->qclass[x->q]].m);
   }
   return 0;
 }
@@ -776,7 +784,7 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   double *sec = m ? m->phase_seconds : NULL, *cpu = m ? m->phase_cpu : NULL;
   if (!m || bases(m, f, src, opt, &sn, &gram, t, sec, cpu, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
       premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[2], &cpu[2]), 0) ||
-      fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
+      fit_externs(m, f, src, &sn, gram, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);
     return NULL;
@@ -902,7 +910,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     }
   }
   model_size_tensors(m);
-  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, err, errlen)) {
+  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, false, err, errlen)) {
     model_free(m);
     return NULL;
   }
