@@ -215,6 +215,22 @@ static int member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long 
   return 0;
 }
 
+/* Sample k evaluated whole: its SPD marks checked and the small classes'
+ * snapshots taken. */
+static int whole_sample(Ooc *o, long k) {
+  Model *m = o->m;
+  if (train_eval_sample(o->src, o->f, k, o->err, o->errlen) || train_check_spd(m, o->f, o->tmp, o->err, o->errlen))
+    return -1;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    for (int i = 0; !o->st[c].streamed && i < rc->nmembers; i++)
+      if (train_member_value(m, o->f, &rc->members[i], k, rc->n, o->st[c].X[i] + (size_t)k * (size_t)rc->n, o->err,
+                             o->errlen))
+        return -1;
+  }
+  return 0;
+}
+
 /* One pass: every sample evaluated, the rows of pass p's segments kept.
  * The first Gram pass evaluates everything (it also takes the small
  * classes' snapshots and the SPD marks); every other pass evaluates only
@@ -239,15 +255,7 @@ static int collect(Ooc *o, long p, bool gram) {
   const char *what = gram ? "snapshots (Gram, out of core)" : "snapshots (basis, out of core)";
   for (long k = 0; k < S; k++) {
     if (whole) {
-      if (train_eval_sample(o->src, o->f, k, o->err, o->errlen)) return -1;
-      if (train_check_spd(m, o->f, o->tmp, o->err, o->errlen)) return -1;
-      for (int c = 0; c < m->nclasses; c++) {
-        RClass *rc = &m->classes[c];
-        for (int i = 0; !o->st[c].streamed && i < rc->nmembers; i++)
-          if (train_member_value(m, o->f, &rc->members[i], k, rc->n, o->st[c].X[i] + (size_t)k * (size_t)rc->n,
-                                 o->err, o->errlen))
-            return -1;
-      }
+      if (whole_sample(o, k)) return -1;
     } else if ((o->src->set_part ? o->src->set_part(o->src->user, o->f, k, d) : o->src->set(o->src->user, o->f, k)) ||
                full_eval_demand(o->f, k, d)) {
       return npg_fail(o->err, o->errlen, "%s", npg_full_error(o->f));
@@ -272,15 +280,7 @@ static int whole_sweep(Ooc *o) {
   Model *m = o->m;
   long S = o->S;
   for (long k = o->rank; k < S; k += o->N) {
-    if (train_eval_sample(o->src, o->f, k, o->err, o->errlen) || train_check_spd(m, o->f, o->tmp, o->err, o->errlen))
-      return -1;
-    for (int c = 0; c < m->nclasses; c++) {
-      RClass *rc = &m->classes[c];
-      for (int i = 0; !o->st[c].streamed && i < rc->nmembers; i++)
-        if (train_member_value(m, o->f, &rc->members[i], k, rc->n, o->st[c].X[i] + (size_t)k * (size_t)rc->n,
-                               o->err, o->errlen))
-          return -1;
-    }
+    if (whole_sample(o, k)) return -1;
     if (train_fail_hook(o->opt, k, o->err, o->errlen)) return -1;
     progress_show(o->opt->progress, "snapshots (whole, out of core)", k + 1, S);
   }
