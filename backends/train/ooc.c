@@ -267,7 +267,8 @@ static int collect(Ooc *o, long p, bool gram) {
       for (int i = 0; i < rc->nmembers; i++)
         if (member_rows(o, &rc->members[i], k, rc->n, sg->r0, sg->r1, sg->H[i] + (size_t)k * (size_t)R)) return -1;
     }
-    progress_show(o->opt->progress, what, p * S + k + 1, o->npass * S);
+    /* this rank's passes: p / N of (npass − rank) / N, rounded up */
+    progress_show(o->opt->progress, what, p / o->N * S + k + 1, (o->npass - o->rank + o->N - 1) / o->N * S);
   }
   return 0;
 }
