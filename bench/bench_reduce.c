@@ -307,7 +307,7 @@ static Trained *train(NpgProgram *p, long F, long S, int cap, bool rerun_all) {
   tr->f = npg_full_new(p, NPG_CC);
   if (npg_full_error(tr->f)[0]) die("npg_full_new", npg_full_error(tr->f));
   room_bind(&tr->room, tr->f);
-  SampleSource src = {S, &tr->room, room_set, NULL};
+  SampleSource src = {S, &tr->room, room_set, NULL, NULL};
   TrainOptions opt = {0};
   opt.cap = cap;
   opt.energy = 1.0; /* keep every direction up to the cap (and above 1e-10 σ_max) */

@@ -7,6 +7,8 @@
 #   1 rank  x 2 threads  (OPENBLAS_NUM_THREADS=2)
 # each the best of REPS runs, and the ratios against the first, measured in this run. The
 # models are compared (tests/mpi/compare_models.py). Figures, not a test: bench/mpi.md.
+# MEM=BYTES trains with --mem BYTES (out of core when the bases exceed it: the ranks share the
+# row passes); the passes' split is printed from rank 0's progress line.
 set -eu
 cd "$(dirname "$0")/.."
 faces=${1:-600}
@@ -30,19 +32,21 @@ run() {
   for r in $(seq "$reps"); do
     rm -rf "$work/$name"
     OPENBLAS_NUM_THREADS=$threads "$@" "$build/npgc" train $prog "$work/data" -o "$work/$name" ${MPI_FLAG:-} \
-      >"$work/$name.out"
+      ${MEM:+--mem $MEM --progress} >"$work/$name.out" 2>"$work/$name.err"
     line=$(grep '^phases:' "$work/$name.out")
     total=$(grep '^trained' "$work/$name.out" | sed 's/.* in \([0-9.]*\) s.*/\1/')
     if [ -z "$best" ] || [ "$(echo "$total < $best" | bc)" = 1 ]; then
       best=$total
       echo "$total $line" >"$work/$name.best"
+      grep -a -o 'out of core: [0-9.]* s.*' "$work/$name.err" >"$work/$name.ooc" || true
     fi
   done
 }
 run one 1
 MPI_FLAG=--mpi run ranks 1 mpirun --allow-run-as-root --oversubscribe -np 2
 run threads 2
-/usr/bin/python3 tests/mpi/compare_models.py "$work/one" "$work/ranks" >/dev/null
+/usr/bin/python3 tests/mpi/compare_models.py "$work/one" "$work/ranks" 1e-10 ${MEM:+1e-7} >/dev/null
+[ -z "${MEM:-}" ] || grep -a -m1 '^out of core' "$work/one.err" || echo "--mem $MEM: in memory"
 
 echo "radiosity training, $faces faces, $samples samples (best of $reps; $(nproc) cores, load $(cut -d' ' -f1-3 /proc/loadavg))"
 /usr/bin/python3 - "$work" <<'PY'
@@ -62,3 +66,6 @@ print("CPU seconds of rank 0's process (all its threads; sum of the four phases 
 for k, (wall, cpu) in rows.items():
     print(f"{k:20s} " + " ".join(f"{x:14.2f}" for x in cpu))
 PY
+for name in one ranks threads; do
+  [ ! -s "$work/$name.ooc" ] || echo "$name: $(cat "$work/$name.ooc")"
+done

@@ -23,6 +23,16 @@
 #include "compile.h"
 #include "dist.h"
 
+/* Encoded sample records: the first in memory, the others in a scratch
+ * file, indexed by their place among those kept. */
+typedef struct Records {
+  unsigned char *mem;       /* the first records, back to back */
+  size_t used, alloc;       /* bytes held in `mem`, allocated */
+  long in_mem;              /* records held in `mem` */
+  FILE *scratch;            /* the others, in order */
+  size_t *at, *len;         /* per record: where it starts (in `mem` or the scratch file) and its bytes */
+} Records;
+
 struct NpgTrainer {
   NpgFull *f;
   const Program *prog;
@@ -32,12 +42,10 @@ struct NpgTrainer {
   size_t *count;            /* entries of each, fixed by the first sample */
   bool *staged;             /* npg_trainer_set since the last add */
   size_t record;            /* doubles per sample: Σ count */
-  unsigned char *mem;       /* the first samples' encoded records, back to back */
-  size_t mem_used, mem_alloc, mem_cap; /* bytes held in `mem`, allocated, and allowed */
-  long in_mem;              /* samples held in `mem` */
-  FILE *scratch;            /* the others, in order */
+  Records rec;              /* the samples this process keeps */
+  size_t mem_cap;           /* bytes allowed in rec.mem */
+  bool all;                 /* over ranks: every rank keeps every sample (share_samples) */
   long samples;
-  size_t *at, *len;         /* per sample: where its record starts (in `mem` or the scratch file) and its bytes */
   double *buf;              /* one record, decoded */
   unsigned char *enc;       /* one record, encoded */
   char error[2048];
@@ -57,9 +65,11 @@ int npg_mpi_size(void) { return dist_size(); }
 /* Over MPI ranks (NpgTrainOptions.mpi) a rank keeps sample 0 (every rank
  * binds the dims with it) and its own samples k ≡ rank (mod ranks), in
  * order: sample k's place among those kept. */
-static bool own_sample(const NpgTrainer *t, long k) { return !t->opt.mpi || k == 0 || k % dist_size() == dist_rank(); }
+static bool own_sample(const NpgTrainer *t, long k) {
+  return !t->opt.mpi || t->all || k == 0 || k % dist_size() == dist_rank();
+}
 static long kept_index(const NpgTrainer *t, long k) {
-  int N = t->opt.mpi ? dist_size() : 1, r = t->opt.mpi ? dist_rank() : 0;
+  int N = t->opt.mpi && !t->all ? dist_size() : 1, r = t->opt.mpi ? dist_rank() : 0;
   return k == 0 || N == 1 ? k : r == 0 ? k / N : 1 + (k - r) / N;
 }
 
@@ -195,6 +205,58 @@ static void decode(NpgTrainer *t) {
   }
 }
 
+/* The encoded record in t->enc (`bytes`) as record kk of `r`: in memory
+ * while the records there stay within mem_cap, then in the scratch file. */
+static int store(NpgTrainer *t, Records *r, long kk, size_t bytes) {
+  if (kk % 64 == 0) {
+    size_t *at = realloc(r->at, sizeof(size_t) * (size_t)(kk + 64));
+    if (at) r->at = at;
+    size_t *len = at ? realloc(r->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
+    if (!len) return tfail(t, "out of memory keeping training sample %ld", t->samples);
+    r->len = len;
+  }
+  r->len[kk] = bytes;
+  if (r->in_mem == kk && r->used + bytes <= t->mem_cap) {
+    if (r->used + bytes > r->alloc) {
+      size_t want = r->alloc * 2 > r->used + bytes ? r->alloc * 2 : r->used + bytes;
+      unsigned char *m = realloc(r->mem, want < t->mem_cap ? want : t->mem_cap);
+      if (!m) return tfail(t, "out of memory keeping training sample %ld", t->samples);
+      r->mem = m;
+      r->alloc = want < t->mem_cap ? want : t->mem_cap;
+    }
+    if (bytes) memcpy(r->mem + r->used, t->enc, bytes); /* a record of zero-size arrays has no bytes */
+    r->at[kk] = r->used;
+    r->used += bytes;
+    r->in_mem++;
+  } else {
+    if (!r->scratch && !(r->scratch = tmpfile()))
+      return tfail(t, "cannot create a scratch file for the training samples beyond --mem");
+    if (fseeko(r->scratch, 0, SEEK_END) != 0) return tfail(t, "cannot seek in the scratch file");
+    r->at[kk] = (size_t)ftello(r->scratch);
+    if (fwrite(t->enc, 1, bytes, r->scratch) != bytes)
+      return tfail(t, "cannot write training sample %ld to the scratch file (disk full?)", t->samples);
+  }
+  return 0;
+}
+
+/* Record kk of `r` into t->enc. */
+static int fetch(NpgTrainer *t, const Records *r, long kk) {
+  if (kk < r->in_mem) {
+    if (r->len[kk]) memcpy(t->enc, r->mem + r->at[kk], r->len[kk]);
+    return 0;
+  }
+  return fseeko(r->scratch, (off_t)r->at[kk], SEEK_SET) != 0 || fread(t->enc, 1, r->len[kk], r->scratch) != r->len[kk]
+             ? -1 : 0;
+}
+
+static void records_free(Records *r) {
+  if (r->scratch) fclose(r->scratch);
+  free(r->mem);
+  free(r->at);
+  free(r->len);
+  memset(r, 0, sizeof *r);
+}
+
 /* Append the values now in `g` as one sample (another rank's: counted only). */
 static int record(NpgTrainer *t, const NpgFull *g) {
   if (!own_sample(t, t->samples)) {
@@ -225,35 +287,7 @@ static int record(NpgTrainer *t, const NpgFull *g) {
     memcpy(t->buf + off, v, sizeof(double) * n);
     off += n;
   }
-  size_t bytes = encode(t);
-  if (kk % 64 == 0) {
-    size_t *at = realloc(t->at, sizeof(size_t) * (size_t)(kk + 64));
-    if (at) t->at = at;
-    size_t *len = at ? realloc(t->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
-    if (!len) return tfail(t, "out of memory keeping training sample %ld", t->samples);
-    t->len = len;
-  }
-  t->len[kk] = bytes;
-  if (t->in_mem == kk && t->mem_used + bytes <= t->mem_cap) {
-    if (t->mem_used + bytes > t->mem_alloc) {
-      size_t want = t->mem_alloc * 2 > t->mem_used + bytes ? t->mem_alloc * 2 : t->mem_used + bytes;
-      unsigned char *m = realloc(t->mem, want < t->mem_cap ? want : t->mem_cap);
-      if (!m) return tfail(t, "out of memory keeping training sample %ld", t->samples);
-      t->mem = m;
-      t->mem_alloc = want < t->mem_cap ? want : t->mem_cap;
-    }
-    if (bytes) memcpy(t->mem + t->mem_used, t->enc, bytes); /* a record of zero-size arrays has no bytes */
-    t->at[kk] = t->mem_used;
-    t->mem_used += bytes;
-    t->in_mem++;
-  } else {
-    if (!t->scratch && !(t->scratch = tmpfile()))
-      return tfail(t, "cannot create a scratch file for the training samples beyond --mem");
-    if (fseeko(t->scratch, 0, SEEK_END) != 0) return tfail(t, "cannot seek in the scratch file");
-    t->at[kk] = (size_t)ftello(t->scratch);
-    if (fwrite(t->enc, 1, bytes, t->scratch) != bytes)
-      return tfail(t, "cannot write training sample %ld to the scratch file (disk full?)", t->samples);
-  }
+  if (store(t, &t->rec, kk, encode(t))) return -1;
   t->samples++;
   memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
   return 0;
@@ -283,13 +317,59 @@ int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {
 /* Sample k's encoded record into t->enc. */
 static int load_record(NpgTrainer *t, NpgFull *f, long k) {
   if (!own_sample(t, k)) return full_fail(f, "a training sample of another rank was asked for (a bug in npg)");
-  k = kept_index(t, k);
-  if (k < t->in_mem) {
-    if (t->len[k]) memcpy(t->enc, t->mem + t->at[k], t->len[k]);
-  } else if (fseeko(t->scratch, (off_t)t->at[k], SEEK_SET) != 0 || fread(t->enc, 1, t->len[k], t->scratch) != t->len[k]) {
-    return full_fail(f, "cannot read a training sample back from the scratch file");
-  }
+  if (fetch(t, &t->rec, kept_index(t, k))) return full_fail(f, "cannot read a training sample back from the scratch file");
   return 0;
+}
+
+/* Over ranks: the bytes the records of all the samples take in memory on
+ * one process (and on every rank after share_samples), the same on every
+ * rank. */
+static size_t shared_use(NpgTrainer *t) {
+  int N = dist_size(), rank = dist_rank();
+  double *len = calloc((size_t)t->samples + 1, sizeof(double));
+  if (!len) return tfail(t, "out of memory"), 0;
+  for (long k = 0; k < t->samples; k++)
+    if ((k == 0 ? 0 : (int)(k % N)) == rank) len[k] = (double)t->rec.len[kept_index(t, k)];
+  dist_allreduce_sum(len, t->samples);
+  size_t used = 0;
+  for (long k = 0; k < t->samples && used + (size_t)len[k] <= t->mem_cap; k++) used += (size_t)len[k];
+  free(len);
+  return used;
+}
+
+/* SampleSource.share: out of core over ranks every rank's passes evaluate
+ * every sample, so each sample's record (inputs and extern values, encoded)
+ * is sent from the rank that keeps it to all: every extern callback still
+ * ran once, on one rank, and afterwards every rank keeps every sample (in
+ * memory up to mem_cap, the rest in its scratch file). */
+static int share_samples(void *user, char *err, size_t errlen) {
+  NpgTrainer *t = user;
+  int N = dist_size(), rank = dist_rank();
+  if (!t->opt.mpi || N == 1 || t->all) return 0;
+  Records old = t->rec;
+  memset(&t->rec, 0, sizeof t->rec);
+  int rc = 0;
+  for (long k = 0; k < t->samples; k++) {
+    int from = k == 0 ? 0 : (int)(k % N); /* sample 0: every rank has it */
+    double bytes = 0;
+    if (rank == from) {
+      if (fetch(t, &old, kept_index(t, k))) rc = npg_fail(err, errlen, "cannot read training sample %ld back from the scratch file", k);
+      bytes = rc ? -1 : (double)old.len[kept_index(t, k)];
+    }
+    dist_broadcast(&bytes, 1, from);
+    if (bytes < 0) {
+      if (!rc) rc = npg_fail(err, errlen, "rank %d could not read training sample %ld back from its scratch file", from, k);
+      break;
+    }
+    dist_broadcast_bytes(t->enc, (long)bytes, from);
+    if (store(t, &t->rec, k, (size_t)bytes)) {
+      rc = npg_fail(err, errlen, "%s", t->error);
+      break;
+    }
+  }
+  records_free(&old);
+  t->all = true;
+  return rc;
 }
 
 /* SampleSource: sample k back into the evaluator. */
@@ -379,16 +459,21 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.cap = t->opt.cap;
   o.energy = t->opt.energy;
   o.joint = t->opt.joint;
-  o.mem = t->opt.mem - t->mem_used; /* the cache holds at most a quarter of the budget */
+  /* the cache holds at most a quarter of the budget; over ranks, what it
+   * holds on one process (share_samples) on every rank: the same plan */
+  size_t used = t->opt.mpi && dist_size() > 1 ? shared_use(t) : t->rec.used;
+  if (t->error[0]) return NULL;
+  o.mem = t->opt.mem - used;
   o.progress = t->opt.progress && dist_rank() == 0;
   o.dist = t->opt.mpi;
+  o.shared_prefix = model_dir; /* out of core over ranks: the basis files next to the model */
   o.uncentered = t->opt.uncentered;
   o.noverride = t->opt.nbasis;
   o.override_center = (int *)t->opt.basis_center;
   o.override_name = (const char **)t->opt.basis_name;
   o.override_cap = (int *)t->opt.basis_cap;
   o.override_energy = (double *)t->opt.basis_energy;
-  SampleSource src = {t->samples, t, replay, replay_part};
+  SampleSource src = {t->samples, t, replay, replay_part, share_samples};
   char err[2048] = "";
   Model *m = train_model((Program *)t->prog, t->f, &src, &o, err, sizeof err);
   /* over ranks, the others wait for this one in a collective: end the job */
@@ -425,13 +510,10 @@ void npg_model_train_seconds(const NpgModel *m, double seconds[4], double cpu[4]
 
 void npg_trainer_free(NpgTrainer *t) {
   if (!t) return;
-  if (t->scratch) fclose(t->scratch);
+  records_free(&t->rec);
   free(t->slot);
   free(t->count);
   free(t->staged);
-  free(t->mem);
-  free(t->at);
-  free(t->len);
   free(t->buf);
   free(t->enc);
   free(t);

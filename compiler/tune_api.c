@@ -15,7 +15,7 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
     return NULL;
   }
   Program *prog = (Program *)full_program(f);
-  SampleSource tsrc = {ntrain, tuser, train, NULL}, vsrc = {nvalid, vuser, valid, NULL};
+  SampleSource tsrc = {ntrain, tuser, train, NULL, NULL}, vsrc = {nvalid, vuser, valid, NULL, NULL};
   TrainOptions topt = {.cap = max_cap, .energy = 1.0, .uncentered = o && o->uncentered, .progress = o && o->progress};
   if (o && o->mem) topt.mem = o->mem;
   TuneResult *r = calloc(1, sizeof *r);

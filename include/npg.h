@@ -227,8 +227,11 @@ typedef struct NpgTrainOptions {
                                k ≡ r (mod ranks) only (an extern callback runs for those and sample 0,
                                which binds the dims on every rank) and
                                pre-multiplies every ranks-th row; every rank gets the same model (equal
-                               to one process's to rounding), rank 0 alone writes `model_dir`. The
-                               snapshots must fit in `mem`. When a rank fails it ends the whole job
+                               to one process's to rounding), rank 0 alone writes `model_dir`. In
+                               memory the snapshots must fit in `mem`; when the bases exceed it,
+                               the ranks share the out-of-core row passes, every sample's record is
+                               then sent to every rank (callbacks are not called again) and the
+                               basis files are created next to `model_dir` (README). When a rank fails it ends the whole job
                                (MPI_Abort, "npg: rank K of N failed: …" on stderr), since the others
                                wait for it; no model is written. A build without MPI refuses it
                                (npg_mpi_available). */

@@ -61,7 +61,7 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   NpgFull *f = npg_full_new(p, NPG_TCC);
   MemSamples train;
   if (memsamples_fill(&train, prog, f, n, S, 11u)) fail_msg("binding random params failed");
-  SampleSource src = {S, &train, memsamples_set, NULL};
+  SampleSource src = {S, &train, memsamples_set, NULL, NULL};
   TrainOptions opt = {0};
   opt.cap = 1 << 20;
   opt.energy = 1.0;
@@ -580,7 +580,7 @@ static void error_falls_with_caps(void **state) {
   room_samples(&train, f, 48, 48, 0.0, 1.0 / 47);
   room_samples(&test, NULL, 48, 12, 0.5 / 47, 4.0 / 47);
   for (int c = 0; c < 5; c++) {
-    SampleSource src = {train.S, &train, room_set, NULL};
+    SampleSource src = {train.S, &train, room_set, NULL, NULL};
     TrainOptions opt = {0};
     opt.cap = caps[c];
     opt.energy = 1.0;
@@ -602,7 +602,7 @@ static void error_falls_with_caps(void **state) {
   if (memsamples_fill(&rtrain, prog, f, 2, 40, 3u)) fail_msg("binding random params failed");
   if (memsamples_fill(&rtest, prog, f, 2, 20, 4u)) fail_msg("binding random params failed");
   for (int c = 0; c < 2; c++) {
-    SampleSource src = {rtrain.S, &rtrain, memsamples_set, NULL};
+    SampleSource src = {rtrain.S, &rtrain, memsamples_set, NULL, NULL};
     TrainOptions opt = {0};
     opt.cap = rat_caps[c];
     opt.energy = 1.0;
@@ -716,7 +716,7 @@ static void centered_beats_uncentered_on_deforming_mesh(void **state) {
   double err[2];
   long mx[2], mf[2];
   for (int uncentered = 0; uncentered < 2; uncentered++) {
-    SampleSource src = {train.S, &train, mesh_set, NULL};
+    SampleSource src = {train.S, &train, mesh_set, NULL, NULL};
     Model *m = train_with(prog, f, &src, 60, 0.999, uncentered, 0);
     err[uncentered] = mean_error(prog, f, m, &test, mesh_set, test.S, "f");
     mx[uncentered] = m->classes[m->qclass[emit_index_of(&prog->quantities, find_quantity(prog, "x"))]].m;
@@ -746,7 +746,7 @@ static void check_tune(const char *name, Program *prog, NpgFull *f, SampleSource
   char err[2048] = "";
   TrainSet *ts = train_set_new(prog, f, src, &opt, err, sizeof err);
   if (!ts) fail_msg("%s: %s", name, err);
-  SampleSource vsrc = {Sv, valid, set, NULL};
+  SampleSource vsrc = {Sv, valid, set, NULL, NULL};
   TuneResult r;
   if (tune_search(ts, prog, f, &vsrc, tol, 60, false, &r, err, sizeof err)) fail_msg("%s: %s", name, err);
   assert_true(r.chosen >= 0);
@@ -779,7 +779,7 @@ static void tune_meets_tolerance_at_least_cost(void **state) {
   NpgFull *f = npg_full_new(p, NPG_TCC);
   MemSamples rtrain, rtest;
   if (memsamples_fill(&rtrain, prog, f, 2, 40, 3u) || memsamples_fill(&rtest, prog, NULL, 2, 20, 4u)) fail_msg("random samples");
-  SampleSource src = {rtrain.S, &rtrain, memsamples_set, NULL};
+  SampleSource src = {rtrain.S, &rtrain, memsamples_set, NULL, NULL};
   check_tune("rational", prog, f, &src, &rtest, memsamples_set, rtest.S, "y", 1e-8, 3);
   memsamples_free(&rtrain);
   memsamples_free(&rtest);
@@ -791,7 +791,7 @@ static void tune_meets_tolerance_at_least_cost(void **state) {
   RoomSamples train, test;
   room_samples(&train, f, 48, 48, 0.0, 1.0 / 47);
   room_samples(&test, NULL, 48, 12, 0.5 / 47, 4.0 / 47);
-  SampleSource rsrc = {train.S, &train, room_set, NULL};
+  SampleSource rsrc = {train.S, &train, room_set, NULL, NULL};
   /* uniform caps 10-12 meet 0.13 on these samples: the comparison is not vacuous */
   check_tune("radiosity", prog, f, &rsrc, &test, room_set, test.S, "b", 0.13, 12);
   room_free(&train);
@@ -813,7 +813,7 @@ static void method_of_snapshots_matches_memory(void **state) {
   NpgFull *f = npg_full_new(p, NPG_TCC);
   RoomSamples train;
   room_samples(&train, f, 24, 20, 0.0, 1.0 / 19);
-  SampleSource src = {train.S, &train, room_set, NULL};
+  SampleSource src = {train.S, &train, room_set, NULL, NULL};
   for (int uncentered = 0; uncentered < 2; uncentered++) {
     Model *a = train_with(prog, f, &src, 8, 0.9999, uncentered, 0);
     /* per sample: Σ n over members; a budget of ~6 samples forces 4 blocks */
@@ -929,7 +929,7 @@ static void out_of_core_matches_memory(void **state) {
   RoomSamples train, test;
   room_samples(&train, f, 24, 20, 0.0, 1.0 / 19);
   room_samples(&test, NULL, 24, 6, 0.5 / 19, 3.0 / 19);
-  SampleSource src = {train.S, &train, room_set, NULL};
+  SampleSource src = {train.S, &train, room_set, NULL, NULL};
   /* a tenth of the largest basis: a row of each class per pass; the whole
    * of it: passes of many rows of several classes (restricted evaluation) */
   for (int run = 0; run < 3; run++) {
@@ -966,7 +966,7 @@ static void out_of_core_matches_memory_extern(void **state) {
   MemSamples train, test;
   if (memsamples_fill(&train, prog, f, 200, 20, 11u) || memsamples_fill(&test, prog, f, 200, 5, 12u))
     fail_msg("binding random params failed");
-  SampleSource src = {train.S, &train, memsamples_set, NULL};
+  SampleSource src = {train.S, &train, memsamples_set, NULL, NULL};
   Model *a = train_with(prog, f, &src, 8, 0.9999, false, 0);
   size_t mem = largest_basis(a) / 10;
   Model *b = train_with(prog, f, &src, 8, 0.9999, false, mem);

@@ -23,7 +23,7 @@ static inline void train(Trained *tr, const char *path, const char *text, long n
   tr->prog = ir_ok(tr->p);
   tr->f = npg_full_new(tr->p, NPG_TCC);
   if (memsamples_fill(&tr->train, tr->prog, tr->f, n, S, 5u)) fail_msg("binding random params failed");
-  SampleSource src = {S, &tr->train, memsamples_set, NULL};
+  SampleSource src = {S, &tr->train, memsamples_set, NULL, NULL};
   TrainOptions opt = {0};
   opt.cap = cap;
   opt.energy = 1.0;

@@ -57,17 +57,20 @@ int dist_start(char *err, size_t errlen) {
 int dist_rank(void) { return rank_; }
 int dist_size(void) { return size_; }
 
-void dist_allreduce_sum(double *x, long n) {
 #ifdef NPG_HAVE_MPI
+static void allreduce(double *x, long n, MPI_Op op) {
   if (!started || size_ == 1) return;
   for (long i = 0; i < n; i += 1L << 28) {
     long c = n - i < 1L << 28 ? n - i : 1L << 28;
-    MPI_Allreduce(MPI_IN_PLACE, x + i, (int)c, MPI_DOUBLE, MPI_SUM, MPI_COMM_WORLD);
+    MPI_Allreduce(MPI_IN_PLACE, x + i, (int)c, MPI_DOUBLE, op, MPI_COMM_WORLD);
   }
-#else
-  (void)x, (void)n;
-#endif
 }
+void dist_allreduce_sum(double *x, long n) { allreduce(x, n, MPI_SUM); }
+void dist_allreduce_max(double *x, long n) { allreduce(x, n, MPI_MAX); }
+#else
+void dist_allreduce_sum(double *x, long n) { (void)x, (void)n; }
+void dist_allreduce_max(double *x, long n) { (void)x, (void)n; }
+#endif
 
 int dist_allgather(double *all, const long *counts, char *err, size_t errlen) {
 #ifdef NPG_HAVE_MPI
@@ -103,6 +106,18 @@ void dist_broadcast(double *x, long n, int root) {
   }
 #else
   (void)x, (void)n, (void)root;
+#endif
+}
+
+void dist_broadcast_bytes(void *p, long n, int root) {
+#ifdef NPG_HAVE_MPI
+  if (!started || size_ == 1) return;
+  for (long i = 0; i < n; i += 1L << 30) {
+    long c = n - i < 1L << 30 ? n - i : 1L << 30;
+    MPI_Bcast((char *)p + i, (int)c, MPI_BYTE, root, MPI_COMM_WORLD);
+  }
+#else
+  (void)p, (void)n, (void)root;
 #endif
 }
 

@@ -25,12 +25,16 @@ int dist_size(void);
 /* x[0..n) = its sum over the ranks, on every rank (in chunks: n may exceed
  * an int). */
 void dist_allreduce_sum(double *x, long n);
+/* x[0..n) = its largest value over the ranks, on every rank. */
+void dist_allreduce_max(double *x, long n);
 /* Blocks of counts[r] doubles, rank r's at all + Σ_{q<r} counts[q] (already
  * in place there on rank r), gathered on every rank. -1 with `err` when a
  * block exceeds what one MPI call takes (2^31 - 1 entries). */
 int dist_allgather(double *all, const long *counts, char *err, size_t errlen);
 /* x[0..n) of rank `root` on every rank (in chunks: n may exceed an int). */
 void dist_broadcast(double *x, long n, int root);
+/* bytes p[0..n) of rank `root` on every rank (in chunks). */
+void dist_broadcast_bytes(void *p, long n, int root);
 void dist_barrier(void);
 /* "npg: rank K of N failed: <message>" on stderr, then the whole job is
  * ended (MPI_Abort: the other ranks get SIGTERM, so a model store cleans

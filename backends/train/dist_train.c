@@ -23,7 +23,7 @@ static long rounds_per_call(long n) { return n > 0 && (1L << 27) / n > 1 ? (1L <
 int dist_gather_snapshots(Model *m, double ***X, long S, char *err, size_t errlen) {
   int N = dist_size(), rank = dist_rank();
   long maxn = 1;
-  for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
+  for (int c = 0; c < m->nclasses; c++) maxn = X[c] && m->classes[c].n > maxn ? m->classes[c].n : maxn;
   long R = rounds_per_call(maxn), rounds = (S + N - 1) / N;
   if (R > rounds) R = rounds;
   long *counts = malloc(sizeof(long) * (size_t)N);
@@ -41,6 +41,7 @@ int dist_gather_snapshots(Model *m, double ***X, long S, char *err, size_t errle
     for (int c = 0; rc == 0 && c < m->nclasses; c++) {
       const RClass *cl = &m->classes[c];
       size_t n = (size_t)cl->n;
+      if (!X[c]) continue; /* not gathered (out of core: a streamed class) */
       at = 0;
       for (int r = 0; r < N; r++) {
         long cols = 0;

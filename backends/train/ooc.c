@@ -30,6 +30,20 @@
  * same fraction of every streamed class's rows: the number of passes is
  * about the streamed classes' snapshot bytes over the budget, plus one Gram
  * and one basis pass at least.
+ *
+ * Over MPI ranks (opt->dist, N ranks) the rows are shared, not the
+ * samples: every rank plans the same passes and takes those p ≡ rank
+ * (mod N), evaluating every sample restricted to their rows (so every rank
+ * needs every sample: src->share gives it them, the trainer's records sent
+ * from the rank that keeps each; npgc train's data is read on every rank).
+ * The whole evaluations (the small classes' snapshots, the SPD marks) are
+ * divided by samples and the small snapshots gathered (whole_sweep); the
+ * Gram matrices G and AᵀA are summed over the ranks, so the eigenproblems
+ * and T are the same on every rank; each rank's A file holds only its rows;
+ * each rank writes its rows of B into one file all ranks open (basis_file),
+ * the sign convention taken over all rows by two reductions; then every
+ * rank maps the whole basis, and pre-multiplication and the extern fit run
+ * as in memory over ranks.
  */
 #include <cblas.h>
 #include <lapacke.h>
@@ -37,9 +51,12 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <fcntl.h>
 #include <sys/mman.h>
+#include <time.h>
 #include <unistd.h>
 
+#include "dist.h"
 #include "train.h"
 
 /* A direction whose remainder after the previous ones is below this
@@ -85,7 +102,17 @@ typedef struct Ooc {
   char *err;
   size_t errlen;
   size_t fixed;             /* bytes of the Gram matrices, the small classes and the sample scratch */
+  int rank, N;              /* over ranks (opt->dist): this rank takes the passes p ≡ rank (mod N) */
 } Ooc;
+
+static double now(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* Whether pass p is this rank's. */
+static bool mine(const Ooc *o, long p) { return p % o->N == o->rank; }
 
 /* Bytes of member bases at their caps. */
 static size_t basis_bytes(const RClass *rc) {
@@ -188,6 +215,22 @@ static int member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long 
   return 0;
 }
 
+/* Sample k evaluated whole: its SPD marks checked and the small classes'
+ * snapshots taken. */
+static int whole_sample(Ooc *o, long k) {
+  Model *m = o->m;
+  if (train_eval_sample(o->src, o->f, k, o->err, o->errlen) || train_check_spd(m, o->f, o->tmp, o->err, o->errlen))
+    return -1;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    for (int i = 0; !o->st[c].streamed && i < rc->nmembers; i++)
+      if (train_member_value(m, o->f, &rc->members[i], k, rc->n, o->st[c].X[i] + (size_t)k * (size_t)rc->n, o->err,
+                             o->errlen))
+        return -1;
+  }
+  return 0;
+}
+
 /* One pass: every sample evaluated, the rows of pass p's segments kept.
  * The first Gram pass evaluates everything (it also takes the small
  * classes' snapshots and the SPD marks); every other pass evaluates only
@@ -196,7 +239,7 @@ static int member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long 
 static int collect(Ooc *o, long p, bool gram) {
   Model *m = o->m;
   long S = o->S;
-  bool whole = p == 0 && gram;
+  bool whole = p == 0 && gram && o->N == 1; /* over ranks: whole_sweep */
   Demand *d = whole ? NULL : full_demand(o->f);
   if (!whole && !d) return npg_fail(o->err, o->errlen, "%s", npg_full_error(o->f));
   for (long g = o->first[p]; g < o->first[p + 1]; g++) {
@@ -212,15 +255,7 @@ static int collect(Ooc *o, long p, bool gram) {
   const char *what = gram ? "snapshots (Gram, out of core)" : "snapshots (basis, out of core)";
   for (long k = 0; k < S; k++) {
     if (whole) {
-      if (train_eval_sample(o->src, o->f, k, o->err, o->errlen)) return -1;
-      if (train_check_spd(m, o->f, o->tmp, o->err, o->errlen)) return -1;
-      for (int c = 0; c < m->nclasses; c++) {
-        RClass *rc = &m->classes[c];
-        for (int i = 0; !o->st[c].streamed && i < rc->nmembers; i++)
-          if (train_member_value(m, o->f, &rc->members[i], k, rc->n, o->st[c].X[i] + (size_t)k * (size_t)rc->n,
-                                 o->err, o->errlen))
-            return -1;
-      }
+      if (whole_sample(o, k)) return -1;
     } else if ((o->src->set_part ? o->src->set_part(o->src->user, o->f, k, d) : o->src->set(o->src->user, o->f, k)) ||
                full_eval_demand(o->f, k, d)) {
       return npg_fail(o->err, o->errlen, "%s", npg_full_error(o->f));
@@ -232,9 +267,31 @@ static int collect(Ooc *o, long p, bool gram) {
       for (int i = 0; i < rc->nmembers; i++)
         if (member_rows(o, &rc->members[i], k, rc->n, sg->r0, sg->r1, sg->H[i] + (size_t)k * (size_t)R)) return -1;
     }
-    progress_show(o->opt->progress, what, p * S + k + 1, o->npass * S);
+    /* this rank's passes: p / N of (npass − rank) / N, rounded up */
+    progress_show(o->opt->progress, what, p / o->N * S + k + 1, (o->npass - o->rank + o->N - 1) / o->N * S);
   }
   return 0;
+}
+
+/* Over ranks, what the first Gram pass does on one process, divided by
+ * samples: rank r evaluates the samples k ≡ r (mod N) whole (the small
+ * classes' snapshots, the SPD marks), then the small classes' columns are
+ * gathered on every rank and the SPD marks combined. */
+static int whole_sweep(Ooc *o) {
+  Model *m = o->m;
+  long S = o->S;
+  for (long k = o->rank; k < S; k += o->N) {
+    if (whole_sample(o, k)) return -1;
+    if (train_fail_hook(o->opt, k, o->err, o->errlen)) return -1;
+    progress_show(o->opt->progress, "snapshots (whole, out of core)", k + 1, S);
+  }
+  double ***X = calloc((size_t)m->nclasses + 1, sizeof(double **));
+  if (!X) return npg_fail(o->err, o->errlen, "out of memory gathering the snapshots");
+  for (int c = 0; c < m->nclasses; c++) X[c] = o->st[c].X;
+  int rc = dist_gather_snapshots(m, X, S, o->err, o->errlen);
+  free(X);
+  if (rc == 0) dist_and_spd(m);
+  return rc;
 }
 
 static void release(Ooc *o, long p) {
@@ -258,6 +315,7 @@ static void center_block(long R, long S, double *H, double *mu) {
 static int gram_passes(Ooc *o) {
   long S = o->S;
   for (long p = 0; p < o->npass; p++) {
+    if (!mine(o, p)) continue;
     if (collect(o, p, true)) return -1;
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
@@ -274,6 +332,8 @@ static int gram_passes(Ooc *o) {
     }
     release(o, p);
   }
+  for (int c = 0; o->N > 1 && c < o->m->nclasses; c++) /* every rank's passes summed */
+    for (int i = 0; o->st[c].streamed && i < o->m->classes[c].nmembers; i++) dist_allreduce_sum(o->st[c].G[i], S * S);
   return 0;
 }
 
@@ -352,6 +412,7 @@ static int read_at(FILE *fp, void *p, size_t bytes, size_t off) {
 static int basis_passes(Ooc *o) {
   long S = o->S;
   for (long p = 0; p < o->npass && o->nseg > 0; p++) {
+    if (!mine(o, p)) continue;
     if (collect(o, p, false)) return -1;
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
@@ -379,6 +440,8 @@ static int basis_passes(Ooc *o) {
     }
     release(o, p);
   }
+  for (int c = 0; o->N > 1 && c < o->m->nclasses; c++) /* every rank's rows summed */
+    if (o->st[c].streamed) dist_allreduce_sum(o->st[c].C, o->st[c].K * o->st[c].K);
   return 0;
 }
 
@@ -501,43 +564,108 @@ oom:
   return npg_fail(o->err, o->errlen, "out of memory orthonormalizing the basis of class %s", rc->label);
 }
 
-/* B = A T block by block into an unnamed file, mapped read-only. */
+/* The file of a class basis, `bytes` long: one process, an unnamed file;
+ * over ranks a file every rank opens (rank 0 creates it as
+ * PREFIX.ooc.XXXXXX, opt->shared_prefix, sizes it and unlinks it once every
+ * rank has it open, so no name outlives the step). NULL with o->err. */
+static FILE *basis_file(Ooc *o, const RClass *rc, size_t bytes) {
+  if (o->N == 1) {
+    FILE *fp = tmpfile();
+    if (fp && ftruncate(fileno(fp), (off_t)bytes) == 0) return fp;
+    if (fp) fclose(fp);
+    npg_fail(o->err, o->errlen, "cannot create the file of the basis of class %s (%.3g GB)", rc->label, (double)bytes / 1e9);
+    return NULL;
+  }
+  char path[4096] = "";
+  int fd = -1;
+  if (o->rank == 0) {
+    const char *tmp = getenv("TMPDIR");
+    if (o->opt->shared_prefix) snprintf(path, sizeof path, "%s.ooc.XXXXXX", o->opt->shared_prefix);
+    else snprintf(path, sizeof path, "%s/npg.ooc.XXXXXX", tmp && *tmp ? tmp : "/tmp");
+    if ((fd = mkstemp(path)) < 0 || ftruncate(fd, (off_t)bytes) != 0) path[0] = 0;
+  }
+  dist_broadcast_bytes(path, sizeof path, 0); /* "" when rank 0 could not: every rank fails alike */
+  if (o->rank != 0 && path[0]) fd = open(path, O_RDWR);
+  double opened = fd >= 0;
+  dist_allreduce_sum(&opened, 1);
+  if (o->rank == 0 && path[0]) unlink(path); /* every rank that could has it open */
+  FILE *fp = fd >= 0 ? fdopen(fd, "r+") : NULL;
+  if (opened == o->N && fp) return fp;
+  if (fp) fclose(fp);
+  else if (fd >= 0) close(fd);
+  npg_fail(o->err, o->errlen, "cannot create or open the shared file of the basis of class %s (%.3g GB) next to %s",
+           rc->label, (double)bytes / 1e9, o->opt->shared_prefix ? o->opt->shared_prefix : "$TMPDIR/npg");
+  return NULL;
+}
+
+/* The rows of class `c` this rank forms: its passes' segments (one
+ * process: all rows, in one range). Ranges into r[2·j], r[2·j + 1]; their
+ * number. */
+static long own_rows(const Ooc *o, int c, long *r) {
+  long nr = 0;
+  if (o->N == 1) {
+    r[0] = 0, r[1] = o->m->classes[c].n;
+    return 1;
+  }
+  for (long p = 0; p < o->npass; p++)
+    for (long g = o->first[p]; mine(o, p) && g < o->first[p + 1]; g++)
+      if (o->seg[g].c == c) r[2 * nr] = o->seg[g].r0, r[2 * nr + 1] = o->seg[g].r1, nr++;
+  return nr;
+}
+
+/* B = A T, this rank's rows block by block, into the class's basis file,
+ * then the whole file mapped read-only on every rank. */
 static int write_basis(Ooc *o, int c, double *T, long m) {
   Stream *st = &o->st[c];
   RClass *rc = &o->m->classes[c];
   long n = rc->n, K = st->K;
   rc->m = m;
   if (m == 0) return 0; /* train_complete_basis gives it one direction */
-  FILE *fp = tmpfile();
   size_t bytes = sizeof(double) * (size_t)n * (size_t)m;
-  if (!fp || ftruncate(fileno(fp), (off_t)bytes) != 0) {
-    if (fp) fclose(fp);
-    return npg_fail(o->err, o->errlen, "cannot create the file of the basis of class %s (%.3g GB)", rc->label, (double)bytes / 1e9);
-  }
+  FILE *fp = basis_file(o, rc, bytes);
+  if (!fp) return -1;
   long rows = (long)(o->avail / (sizeof(double) * (size_t)(K + m)));
   if (rows < 1) rows = 1;
   if (rows > n) rows = n;
   double *A = malloc(sizeof(double) * (size_t)(rows * K) + 8), *B = malloc(sizeof(double) * (size_t)(rows * m));
-  double *big = calloc((size_t)m, sizeof(double));
-  int *sign = calloc((size_t)m, sizeof(int)), bad = !A || !B || !big || !sign;
-  /* three sweeps over A's rows: the largest magnitude of every column of
-   * B = A T, the sign convention (pca_fix_signs), then B written */
+  double *big = calloc((size_t)m, sizeof(double)), *first = malloc(sizeof(double) * (size_t)m);
+  long *range = malloc(sizeof(long) * (size_t)(2 * o->npass + 2)), nr = range ? own_rows(o, c, range) : 0;
+  int bad = !A || !B || !big || !first || !range;
+  for (long j = 0; !bad && j < m; j++) first[j] = -HUGE_VAL;
+  /* three sweeps over this rank's rows of A: the largest magnitude of every
+   * column of B = A T (the largest over the ranks), the sign convention
+   * (pca_fix_signs: the sign of the first row, over all ranks, whose entry
+   * is at least half that; as −(2·row + negative), the largest over the
+   * ranks is the first row), then B written */
   for (int sweep = 0; sweep < 3 && !bad; sweep++) {
-    if (sweep == 2)
+    if (sweep == 1) dist_allreduce_max(big, m);
+    if (sweep == 2) {
+      dist_allreduce_max(first, m);
       for (long j = 0; j < m; j++)
-        if (sign[j] < 0) cblas_dscal((int)K, -1.0, (double *)T + j * K, 1);
-    for (long r0 = 0; !bad && r0 < n; r0 += rows) {
-      long R = r0 + rows < n ? rows : n - r0;
-      bad = read_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(r0 * K));
-      if (bad) break;
-      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)R, (int)m, (int)K, 1.0, A, (int)K, T, (int)K, 0.0, B,
-                  (int)m);
-      if (sweep < 2) pca_sign_scan(R, m, B, big, sign, sweep == 1);
-      else bad = write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));
+        if (first[j] > -HUGE_VAL && fmod(-first[j], 2) == 1) cblas_dscal((int)K, -1.0, (double *)T + j * K, 1);
     }
+    for (long q = 0; !bad && q < nr; q++)
+      for (long r0 = range[2 * q]; !bad && r0 < range[2 * q + 1]; r0 += rows) {
+        long R = r0 + rows < range[2 * q + 1] ? rows : range[2 * q + 1] - r0;
+        bad = read_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(r0 * K));
+        if (bad) break;
+        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)R, (int)m, (int)K, 1.0, A, (int)K, T, (int)K, 0.0, B,
+                    (int)m);
+        for (long e = 0; sweep < 2 && e < R; e++)
+          for (long j = 0; j < m; j++) {
+            double v = B[e * m + j];
+            if (sweep == 0) big[j] = fmax(big[j], fabs(v));
+            else if (first[j] == -HUGE_VAL && big[j] > 0 && fabs(v) >= 0.5 * big[j])
+              first[j] = -(2.0 * (double)(r0 + e) + (v > 0 ? 0 : 1));
+          }
+        if (sweep == 2) bad = write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));
+      }
   }
-  free(A), free(B), free(big), free(sign);
-  void *map = bad ? MAP_FAILED : mmap(NULL, bytes, PROT_READ, MAP_SHARED, fileno(fp), 0);
+  free(A), free(B), free(big), free(first), free(range);
+  /* every rank's rows written (a rank that failed ends the job before it) */
+  double ok = !bad;
+  dist_allreduce_sum(&ok, 1);
+  void *map = ok == o->N ? mmap(NULL, bytes, PROT_READ, MAP_SHARED, fileno(fp), 0) : MAP_FAILED;
   fclose(fp); /* the mapping keeps the file */
   if (map == MAP_FAILED)
     return npg_fail(o->err, o->errlen, "cannot write or map the basis of class %s (%.3g GB; disk full?)", rc->label,
@@ -564,7 +692,8 @@ static void ooc_free(Ooc *o) {
 }
 
 int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen) {
-  Ooc o = {m, f, src, opt, src->count, NULL, NULL, 0, NULL, 0, 0, NULL, err, errlen, 0};
+  Ooc o = {m, f, src, opt, src->count, NULL, NULL, 0, NULL, 0, 0, NULL, err, errlen, 0, 0, 1};
+  if (opt->dist) o.rank = dist_rank(), o.N = dist_size();
   long maxn = 1;
   int rc = -1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
@@ -599,7 +728,14 @@ int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions 
               "--mem for fewer passes\n", o.S, (double)o.fixed / 1e6);
   }
   train_mark_spd(m);
-  if (gram_passes(&o) || eigen(&o) || basis_passes(&o)) goto done;
+  double t[5] = {now()};
+  /* over ranks every rank's passes evaluate every sample */
+  if (o.N > 1 && ((src->share && src->share(src->user, err, errlen)) || whole_sweep(&o))) goto done;
+  t[1] = now();
+  if (gram_passes(&o)) goto done;
+  t[2] = now();
+  if (eigen(&o) || basis_passes(&o)) goto done;
+  t[3] = now();
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rcl = &m->classes[c];
     if (!o.st[c].streamed) {
@@ -614,6 +750,10 @@ int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions 
     if (train_complete_basis(rcl, false, err, errlen)) goto done;
   }
   model_size_tensors(m);
+  t[4] = now();
+  if (opt->progress)
+    fprintf(stderr, "out of core: %.2f s samples shared and whole evaluations (over ranks), %.2f s Gram passes, %.2f s "
+            "basis passes, %.2f s bases\n", t[1] - t[0], t[2] - t[1], t[3] - t[2], t[4] - t[3]);
   rc = 0;
   goto done;
 oom:

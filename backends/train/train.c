@@ -546,6 +546,12 @@ static Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src,
   return m;
 }
 
+int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {
+  if (!opt->dist || k != dist_rank() || !dist_fail_here()) return 0;
+  return npg_fail(err, errlen, "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)",
+                  k, dist_rank());
+}
+
 /* Step 1: every member's snapshots in memory (sn->X), or, when they need
  * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
  * *gram set). Marks which diagonal operators stay SPD. */
@@ -597,10 +603,7 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
         rc = train_member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
     }
     if (rc == 0) rc = train_check_spd(m, f, tmp, err, errlen);
-    if (rc == 0 && k == rank && opt->dist && dist_fail_here())
-      rc = npg_fail(err, errlen,
-                    "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)", k,
-                    rank);
+    if (rc == 0) rc = train_fail_hook(opt, k, err, errlen);
     progress_show(opt->progress, "snapshots", k + 1, S);
   }
   if (rc == 0 && !*gram && N > 1 && (rc = dist_gather_snapshots(m, sn->X, S, err, errlen)) == 0) {
@@ -702,16 +705,19 @@ static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char 
  * reduced inputs and values, from the snapshots or, after the method of
  * snapshots, recomputed. */
 static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool progress,
-                       char *err, size_t errlen) {
+                       bool dist, char *err, size_t errlen) {
   long S = src->count;
+  /* recomputed over ranks (out of core): rank r its samples k ≡ r (mod N),
+   * the others' rows zero, then summed */
+  int N = gram && dist ? dist_size() : 1, rank = N > 1 ? dist_rank() : 0;
   for (int i = 0; i < m->nexterns; i++) {
     RExtern *x = &m->externs[i];
     long mz = m->classes[m->qclass[x->q]].m;
     x->S = S;
-    if (!(x->X = malloc(sizeof(double) * (size_t)(S * x->d + 1))) || !(x->Z = malloc(sizeof(double) * (size_t)(S * mz))))
+    if (!(x->X = calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = calloc((size_t)(S * mz) + 1, sizeof(double))))
       return npg_fail(err, errlen, "out of memory while training");
   }
-  for (long k = 0; k < S && m->nexterns > 0; k++) {
+  for (long k = rank; k < S && m->nexterns > 0; k += N) {
     if (gram && train_eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
     for (int i = 0; i < m->nexterns; i++) {
       RExtern *x = &m->externs[i];
@@ -731,6 +737,11 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
       }
     }
     if (gram) progress_show(progress, "extern samples", k + 1, S);
+  }
+  for (int i = 0; N > 1 && i < m->nexterns; i++) {
+    RExtern *x = &m->externs[i];
+    dist_allreduce_sum(x->X, S * x->d);
+    dist_allreduce_sum(x->Z, S * m->classes[m->qclass[x->q]].m);
   }
   return 0;
 }
@@ -753,9 +764,6 @@ static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptio
                  struct timespec t[2], double *sec, double *cpu, char *err, size_t errlen) {
   if (ooc_needed(m, opt)) {
     *gram = true;
-    if (opt->dist && dist_size() > 1)
-      return npg_fail(err, errlen, "the bases exceed --mem and out-of-core training does not run over MPI ranks yet: "
-                                   "raise --mem or train on one process");
     return ooc_bases(m, f, src, opt, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0);
   }
   return take_snapshots(m, f, src, opt, sn, gram, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0) ||
@@ -776,7 +784,7 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   double *sec = m ? m->phase_seconds : NULL, *cpu = m ? m->phase_cpu : NULL;
   if (!m || bases(m, f, src, opt, &sn, &gram, t, sec, cpu, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
       premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[2], &cpu[2]), 0) ||
-      fit_externs(m, f, src, &sn, gram, opt->progress, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
+      fit_externs(m, f, src, &sn, gram, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);
     return NULL;
@@ -902,7 +910,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     }
   }
   model_size_tensors(m);
-  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, err, errlen)) {
+  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, false, err, errlen)) {
     model_free(m);
     return NULL;
   }

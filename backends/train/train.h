@@ -24,7 +24,12 @@ typedef struct TrainOptions {
   bool progress;            /* progress bars on stderr */
   bool dist;                /* over the ranks of dist.h (after dist_start): rank r takes the samples
                                k ≡ r (mod ranks) and every ranks-th row of each tensor; every rank
-                               ends with the same model. Snapshots must fit in `mem`. */
+                               ends with the same model. Out of core (ooc.c), rank r takes its
+                               share of the row passes instead. */
+  const char *shared_prefix; /* out of core over ranks: the basis files all ranks map are named
+                               PREFIX.ooc.XXXXXX (unlinked once every rank has opened them), so
+                               PREFIX must be on a filesystem every rank sees (the model's path;
+                               NULL: $TMPDIR/npg, or /tmp/npg) */
   /* overrides from the command line (--basis NAME:cap=N,energy=E,center=on|off), NAME a
    * quantity, a class as `npgc check` names it (m_f), a numerator (f.num1) or '*';
    * the more specific wins ('*' < class < member); an unknown NAME fails training */
@@ -44,6 +49,11 @@ typedef struct SampleSource {
    * `d` after demand_propagate: only the entries of externs `d` demands need
    * be given (full_extern_values), the others may keep stale values. */
   int (*set_part)(void *user, NpgFull *f, long k, const Demand *d);
+  /* Optional, for a source that holds only this rank's samples (over MPI
+   * ranks): make every sample available to `set` and `set_part` on every
+   * rank (a collective call). Out of core over ranks a rank's passes
+   * evaluate every sample; without it the source must hold them all. */
+  int (*share)(void *user, char *err, size_t errlen);
 } SampleSource;
 
 /* Train: snapshots of every stage and joining numerator on every sample,
@@ -76,6 +86,9 @@ int train_eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, si
 /* Member `mb`'s value (a quantity, or an unnamed numerator) after an
  * evaluation of sample k into out[0..n); refused, naming where, when not finite. */
 int train_member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n, double *out, char *err, size_t errlen);
+/* Over ranks (opt->dist), the test hook of dist_fail_here at rank r's
+ * first sample k == r: -1 with `err` saying so; 0 otherwise. */
+int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen);
 /* Mark every diagonal operator SPD (until train_check_spd sees otherwise). */
 void train_mark_spd(Model *m);
 /* Unmark every diagonal operator whose diagonal is not positive in the
@@ -224,8 +237,8 @@ long premul_keys_per_block(const RTensor *t);
 /* ---------------------------------------------------------------- over ranks (dist_train.c) */
 
 /* After every rank r filled the columns k ≡ r (mod N = dist_size()) of
- * every member's n x S column-major X[c][i]: all columns on every rank.
- * 0, or -1 with `err` (every rank alike). */
+ * every member's n x S column-major X[c][i]: all columns on every rank
+ * (a class whose X[c] is NULL is skipped). 0, or -1 with `err` (every rank alike). */
 int dist_gather_snapshots(Model *m, double ***X, long S, char *err, size_t errlen);
 /* Every diagonal operator's SPD mark: SPD on every rank's samples. */
 void dist_and_spd(Model *m);

@@ -256,7 +256,7 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
            (rc = memsamples_fill(&held, prog, NULL, n, held_out, o->seed + 977)) != 0)
     rc = npg_fail(err, errlen, "%s", rc == -1 ? npg_full_error(f) : "out of memory for the random samples");
   if (rc == 0) {
-    SampleSource src = {S, &train, memsamples_set, NULL};
+    SampleSource src = {S, &train, memsamples_set, NULL, NULL};
     TrainOptions opt;
     memset(&opt, 0, sizeof opt);
     opt.cap = 1 << 20;

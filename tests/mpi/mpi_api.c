@@ -35,10 +35,14 @@ static int visibility(void *user, const NpgFull *f, long sample, double *out, si
 
 int main(int argc, char **argv) {
   if (argc < 4) {
-    fprintf(stderr, "usage: mpi_api PROG.npg DATA/ MODEL/ [--mpi]\n");
+    fprintf(stderr, "usage: mpi_api PROG.npg DATA/ MODEL/ [--mpi] [--mem BYTES]\n");
     return 2;
   }
-  bool mpi = argc > 4 && strcmp(argv[4], "--mpi") == 0;
+  bool mpi = false;
+  size_t mem = 0; /* --mem: out of core when the bases exceed it */
+  for (int i = 4; i < argc; i++)
+    if (strcmp(argv[i], "--mpi") == 0) mpi = true;
+    else if (strcmp(argv[i], "--mem") == 0 && i + 1 < argc) mem = (size_t)atol(argv[++i]);
   char err[2048];
   NpgProgram *p = npg_compile(argv[1], NULL);
   if (!npg_ok(p)) {
@@ -55,6 +59,7 @@ int main(int argc, char **argv) {
   NpgTrainOptions o;
   npg_train_options_default(&o);
   o.mpi = mpi;
+  if (mem) o.mem = mem;
   NpgTrainer *t = npg_trainer_new(f, &o);
   if (npg_trainer_error(t)[0]) {
     fprintf(stderr, "mpi_api: %s\n", npg_trainer_error(t));
