@@ -29,11 +29,16 @@
 void cavity_options_default(CavityOptions *o) {
   memset(o, 0, sizeof *o);
   o->spec = cavity_spec_default();
-  o->frames = 100, o->runs = 14, o->particles = 10000, o->png_every = 10, o->vtk_every = 25, o->width = 800;
+  o->frames = 0, o->runs = 14, o->particles = 10000, o->png_every = 10, o->vtk_every = 25, o->width = 800;
   o->dt = 0.01, o->nu = 5.0;
   o->mf = 64, o->mu = 128, o->mg = 5;
   o->dtol = 1e-2;
   o->projection = PROJ_AL_CHOLMOD;
+}
+
+int cavity_frames_for(int cells) {
+  int frames = 10 * (int)ceil(10 * cbrt(cells / 1000.0));
+  return frames < 100 ? 100 : frames;
 }
 
 /* Compress and re-inflate: 1 - a sin^2(pi t / T), smooth at both ends. */
@@ -150,7 +155,7 @@ static int training_run(const Cavity *cv, const CavityOptions *o, int r, double 
     if (s.min_quality < st->min_quality) st->min_quality = s.min_quality;
     if (!isfinite(solver_energy(&s))) {
       fprintf(stderr, "npg-fluids: training run %d diverged at frame %d of %d (the energy is not finite): the step "
-              "--dt %g is too large for a deformation over %d frames; raise --frames (about 100 per compression) "
+              "--dt %g is too large for a deformation over %d frames; raise --frames (the default grows as the cells shrink) "
               "or lower --dt\n", r + 1, t + 1, T, o->dt, T);
       goto done;
     }
@@ -221,12 +226,15 @@ int cavity_run(const CavityOptions *o) {
   double vmin = INFINITY;
   for (int c = 0; c < m->nc; c++) vmin = fmin(vmin, mesh_volume(m, m->g0, c));
   double mu = o->nu * vmin;
+  CavityOptions chosen = *o; /* --frames 0: from the mesh */
+  if (chosen.frames <= 0) chosen.frames = cavity_frames_for(m->nc);
+  o = &chosen;
   int T = o->frames, rc = 1, reduced = o->runs > 0;
   long ng = 3L * m->nv, nf = m->nf, nu = 3L * m->nc, C = m->nc;
   fprintf(stderr,
           "npg-fluids: cavity %d cells, %d faces (%d boundary), %d vertices, meshed in %.1f s; min quality %.3f; "
-          "dt %g, mu %.3g\n",
-          m->nc, m->nf, m->nb, m->nv, t_mesh, mesh_min_quality(m, m->g0, NULL), o->dt, mu);
+          "dt %g, mu %.3g, %d frames per run\n",
+          m->nc, m->nf, m->nb, m->nv, t_mesh, mesh_min_quality(m, m->g0, NULL), o->dt, mu, o->frames);
 
   FullSolver s = {0}, probe = {0};
   int s_ok = 0, probe_ok = 0, red_ok = 0;

@@ -14,7 +14,7 @@
 typedef struct CavityOptions {
   const char *out;
   CavitySpec spec;
-  int frames;       /* per run */
+  int frames;       /* per run; 0: cavity_frames_for(cells) */
   int runs;         /* training runs (14; 0: the full test run only) */
   int particles, png_every, vtk_every, width;
   double dt, nu;    /* time step; viscosity mu = nu * the smallest cell's volume */
@@ -27,6 +27,11 @@ void cavity_options_default(CavityOptions *o);
 /* The deformation of training run r (0 .. 13) or of the test (r = -1) at
  * frame t of T: side scales sigma[3]. */
 void cavity_schedule(int r, int t, int T, double sigma[CAVITY_SIDES]);
+/* Frames per run for a mesh of `cells` cells: 100 at 1,000 cells, growing
+ * as the cells' edge (cells^(-1/3)) shrinks, so a frame's deformation moves
+ * a vertex a similar fraction of its cells' size: at 17,300 cells 100 frames
+ * diverge and 260 do not (README). */
+int cavity_frames_for(int cells);
 int cavity_run(const CavityOptions *o);
 
 #endif
