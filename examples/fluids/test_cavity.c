@@ -40,6 +40,8 @@
 #include <cblas.h>
 #include <cmocka.h>
 
+#include "test_named.h"
+
 #include "cavitysim.h"
 #include "npg.h"
 #include "npgbind.h"
@@ -308,16 +310,5 @@ int main(int argc, char **argv) {
       cmocka_unit_test(test_cavity_projection_methods),
       cmocka_unit_test(test_cavity_reduced_step),
   };
-  const char *names[] = {"cavity_deform", "cavity_divergence", "cavity_projection_methods", "cavity_reduced_step"};
-  int rc = 0, ran = 0;
-  for (int i = 0; i < 4; i++) {
-    if (argc > 1 && strcmp(argv[1], names[i]) != 0) continue;
-    rc |= _cmocka_run_group_tests(names[i], all + i, 1, NULL, NULL);
-    ran++;
-  }
-  if (!ran) {
-    fprintf(stderr, "test_cavity: no test named '%s'\n", argv[1]);
-    return 2;
-  }
-  return rc;
+  return run_named_tests("test_cavity", argc, argv, all, (int)(sizeof all / sizeof all[0]));
 }

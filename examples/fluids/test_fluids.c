@@ -26,6 +26,8 @@
 
 #include <cmocka.h>
 
+#include "test_named.h"
+
 #include "npg.h"
 #include "npgbind.h"
 #include "solver.h"
@@ -360,19 +362,8 @@ int main(int argc, char **argv) {
       cmocka_unit_test(test_divergence_free),   cmocka_unit_test(test_inversion_refused),
       cmocka_unit_test(test_operators_match_npg),
   };
-  const char *names[] = {"advection_energy", "diffusion_projection_energy", "divergence_free", "inversion_refused",
-                         "operators_match_npg"};
   small_mesh();
-  int rc = 0, ran = 0;
-  for (int i = 0; i < 5; i++) {
-    if (argc > 1 && strcmp(argv[1], names[i]) != 0) continue;
-    rc |= _cmocka_run_group_tests(names[i], all + i, 1, NULL, NULL);
-    ran++;
-  }
+  int rc = run_named_tests("test_fluids", argc, argv, all, (int)(sizeof all / sizeof all[0]));
   mesh_free(&mesh);
-  if (!ran) {
-    fprintf(stderr, "test_fluids: no test named '%s'\n", argv[1]);
-    return 2;
-  }
   return rc;
 }

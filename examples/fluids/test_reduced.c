@@ -25,6 +25,8 @@
 
 #include <cblas.h>
 #include <cmocka.h>
+
+#include "test_named.h"
 #include <lapacke.h>
 
 #include "npg.h"
@@ -411,16 +413,5 @@ int main(int argc, char **argv) {
       cmocka_unit_test(test_reduced_full_rank),
       cmocka_unit_test(test_reduced_expm),
   };
-  const char *names[] = {"reduced_energy", "reduced_basis_divergence", "reduced_full_rank", "reduced_expm"};
-  int rc = 0, ran = 0;
-  for (int i = 0; i < 4; i++) {
-    if (argc > 1 && strcmp(argv[1], names[i]) != 0) continue;
-    rc |= _cmocka_run_group_tests(names[i], all + i, 1, NULL, NULL);
-    ran++;
-  }
-  if (!ran) {
-    fprintf(stderr, "test_reduced: no test named '%s'\n", argv[1]);
-    return 2;
-  }
-  return rc;
+  return run_named_tests("test_reduced", argc, argv, all, (int)(sizeof all / sizeof all[0]));
 }
