@@ -577,6 +577,8 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
           char sname[600];
           snprintf(sname, sizeof sname, "spectrum_%s", name);
           const NpyArray *a = model_store_array(&s, sname);
+          free(mb->sv); /* a member named twice: the last line's spectrum */
+          mb->sv = NULL, mb->nsv = 0;
           if (a && a->ndim == 1 && (mb->sv = malloc(sizeof(double) * (a->count + 1)))) {
             memcpy(mb->sv, a->data, sizeof(double) * a->count);
             mb->nsv = (long)a->count;
