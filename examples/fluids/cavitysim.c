@@ -4,6 +4,7 @@
 #include "cavitysim.h"
 
 #include <errno.h>
+#include <pthread.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -34,6 +35,9 @@ void cavity_options_default(CavityOptions *o) {
   o->mf = 64, o->mu = 128, o->mg = 5;
   o->dtol = 1e-2;
   o->projection = PROJ_AL_CHOLMOD;
+  long cpus = sysconf(_SC_NPROCESSORS_ONLN);
+  o->workers = cpus < 1 ? 1 : cpus > CAVITY_MAX_WORKERS ? CAVITY_MAX_WORKERS : (int)cpus;
+  o->buffer_bytes = (size_t)2 << 30;
 }
 
 int cavity_frames_for(int cells) {
@@ -123,12 +127,110 @@ static void project(const double *B, long n, long m, const double *x, double *ou
   cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)m, 1.0, B, (int)m, x, 1, 0.0, out, 1);
 }
 
-/* One full training run r, every frame streamed into the trainer: sample t
- * is the state of frame t (g, f, u) with the mesh velocity of the step that
- * leaves it (as the 2D tunnel's). */
-static int training_run(const Cavity *cv, const CavityOptions *o, int r, double mu, NpgTrainer *tr, FullStats *st,
-                        double *seconds) {
+/* ---------------------------------------------------------------- training runs
+ *
+ * The runs are independent full simulations; the trainer must see their
+ * samples in run order (run 1's frames, then run 2's, ...) whatever the
+ * number of workers, so that the model does not depend on it. One worker:
+ * each run streams into the trainer as it goes (no buffer). W workers: each
+ * takes the next run not started, with its own FullSolver (its own CHOLMOD
+ * common); this thread adds the samples to the trainer in run order,
+ * streaming the oldest unfinished run (the head) while later runs queue
+ * their samples. A worker whose run is not the head waits once the queued
+ * samples reach `buffer_bytes`, so the queue stays under that bound plus
+ * one sample per worker; the head's worker never waits, so the runs always
+ * progress. */
+
+/* One frame's sample, queued: g, gdot, f, u in one block. */
+typedef struct Sample {
+  struct Sample *next;
+  double x[];
+} Sample;
+
+/* The samples of one run waiting for the trainer. */
+typedef struct RunQueue {
+  Sample *first, *last;
+  int state; /* 0 running or not started, 1 finished, -1 failed or stopped */
+} RunQueue;
+
+/* The runs shared by the workers and the thread feeding the trainer. */
+typedef struct Training {
+  const Cavity *cv;
+  const CavityOptions *o;
+  double mu;
+  NpgTrainer *tr;
+  int threaded;            /* 0: one worker, on the caller's thread, adding to `tr` itself */
+  long ng, nf, nu;         /* a sample's parts: g and gdot (ng each), f, u */
+  pthread_mutex_t lock;    /* guards everything below */
+  pthread_cond_t changed;  /* a sample queued or taken, a run finished, the head moved, a stop */
+  RunQueue *queue;         /* per run */
+  int next;                /* the next run a worker starts */
+  int head;                /* the run the trainer takes samples from */
+  size_t queued;           /* bytes of samples in `queue` */
+  int stop;                /* a run failed or the trainer refused a sample: every worker stops */
+  double min_quality;      /* over the runs' frames */
+  double seconds_runs;     /* the runs' own seconds (their steps), summed over the runs */
+} Training;
+
+static int stopped(Training *tg) {
+  pthread_mutex_lock(&tg->lock);
+  int stop = tg->stop;
+  pthread_mutex_unlock(&tg->lock);
+  return stop;
+}
+
+/* Stage one sample (x: g, gdot, f, u) in the trainer and add it. */
+static int trainer_add_sample(Training *tg, const double *g, const double *gdot, const double *f, const double *u) {
+  const Mesh *m = &tg->cv->m;
+  long sg[2] = {m->nv, 3}, sf[1] = {m->nf}, su[2] = {m->nc, 3};
+  NpgTrainer *tr = tg->tr;
+  if (npg_trainer_set(tr, "g", 2, sg, g) || npg_trainer_set(tr, "gdot", 2, sg, gdot) ||
+      npg_trainer_set(tr, "f", 1, sf, f) || npg_trainer_set(tr, "u", 2, su, u) || npg_trainer_add(tr)) {
+    fprintf(stderr, "npg-fluids: trainer: %s\n", npg_trainer_error(tr));
+    return -1;
+  }
+  return 0;
+}
+
+/* Hand run r's sample to the trainer (one worker) or to its queue (several):
+ * 0, -1 on an error (said), 1 when the training has stopped. */
+static int deliver(Training *tg, int r, const double *g, const double *gdot, const double *f, const double *u) {
+  if (!tg->threaded) return trainer_add_sample(tg, g, gdot, f, u) ? -1 : 0;
+  size_t bytes = sizeof(Sample) + (size_t)(2 * tg->ng + tg->nf + tg->nu) * sizeof(double);
+  Sample *s = malloc(bytes);
+  if (!s) {
+    fprintf(stderr, "npg-fluids: training run %d: out of memory queueing a sample\n", r + 1);
+    return -1;
+  }
+  s->next = NULL;
+  memcpy(s->x, g, tg->ng * sizeof(double));
+  memcpy(s->x + tg->ng, gdot, tg->ng * sizeof(double));
+  memcpy(s->x + 2 * tg->ng, f, tg->nf * sizeof(double));
+  memcpy(s->x + 2 * tg->ng + tg->nf, u, tg->nu * sizeof(double));
+  pthread_mutex_lock(&tg->lock);
+  while (!tg->stop && r != tg->head && tg->queued >= tg->o->buffer_bytes) pthread_cond_wait(&tg->changed, &tg->lock);
+  int stop = tg->stop;
+  if (!stop) {
+    RunQueue *q = &tg->queue[r];
+    if (q->last) q->last->next = s;
+    else q->first = s;
+    q->last = s;
+    tg->queued += bytes;
+    pthread_cond_broadcast(&tg->changed);
+  }
+  pthread_mutex_unlock(&tg->lock);
+  if (stop) free(s);
+  return stop;
+}
+
+/* One full training run r, every frame delivered: sample t is the state of
+ * frame t (g, f, u) with the mesh velocity of the step that leaves it (as
+ * the 2D tunnel's). 0, -1 on an error (said, with the run's number), 1 when
+ * stopped by another run's failure. */
+static int training_run(Training *tg, int r, double *min_quality, double *seconds) {
   char err[ERRLEN];
+  const Cavity *cv = tg->cv;
+  const CavityOptions *o = tg->o;
   const Mesh *m = &cv->m;
   int T = o->frames, rc = -1;
   long ng = 3L * m->nv, nf = m->nf, nu = 3L * m->nc;
@@ -136,32 +238,40 @@ static int training_run(const Cavity *cv, const CavityOptions *o, int r, double 
   double *u0 = malloc(nu * sizeof *u0), t_def = 0;
   const double zero[3] = {0, 0, 0};
   FullSolver s;
+  if (!g || !g0 || !f0 || !u0) {
+    fprintf(stderr, "npg-fluids: training run %d: out of memory\n", r + 1);
+    free(g), free(g0), free(f0), free(u0);
+    return -1;
+  }
   if (deform_at(cv, r, 0, T, g, &t_def, err, sizeof err) != 0 ||
-      solver_init_at(&s, m, o->projection, mu, o->dt, g, zero, err, sizeof err) != 0) {
+      solver_init_at(&s, m, o->projection, tg->mu, o->dt, g, zero, err, sizeof err) != 0) {
     fprintf(stderr, "npg-fluids: training run %d: %s\n", r + 1, err);
     free(g), free(g0), free(f0), free(u0);
     return -1;
   }
   double t0 = util_now();
-  long sg[2] = {m->nv, 3}, sf[1] = {nf}, su[2] = {m->nc, 3};
   for (int t = 0; t < T; t++) {
     memcpy(g0, s.g, ng * sizeof *g0);
     memcpy(f0, s.f, nf * sizeof *f0);
     memcpy(u0, s.u, nu * sizeof *u0);
+    if (tg->threaded && stopped(tg)) {
+      rc = 1;
+      goto done;
+    }
     if (deform_at(cv, r, t + 1, T, g, &t_def, err, sizeof err) != 0 || solver_step_to(&s, g, err, sizeof err) != 0) {
       fprintf(stderr, "npg-fluids: training run %d, frame %d: %s\n", r + 1, t + 1, err);
       goto done;
     }
-    if (s.min_quality < st->min_quality) st->min_quality = s.min_quality;
+    if (s.min_quality < *min_quality) *min_quality = s.min_quality;
     if (!isfinite(solver_energy(&s))) {
       fprintf(stderr, "npg-fluids: training run %d diverged at frame %d of %d (the energy is not finite): the step "
               "--dt %g is too large for a deformation over %d frames; raise --frames (the default grows as the cells shrink) "
               "or lower --dt\n", r + 1, t + 1, T, o->dt, T);
       goto done;
     }
-    if (npg_trainer_set(tr, "g", 2, sg, g0) || npg_trainer_set(tr, "gdot", 2, sg, s.gdot) ||
-        npg_trainer_set(tr, "f", 1, sf, f0) || npg_trainer_set(tr, "u", 2, su, u0) || npg_trainer_add(tr)) {
-      fprintf(stderr, "npg-fluids: trainer: %s\n", npg_trainer_error(tr));
+    int d = deliver(tg, r, g0, s.gdot, f0, u0);
+    if (d != 0) {
+      rc = d;
       goto done;
     }
   }
@@ -170,6 +280,113 @@ done:
   *seconds += util_now() - t0;
   solver_free(&s);
   free(g), free(g0), free(f0), free(u0);
+  return rc;
+}
+
+/* A worker: runs in turn until none is left or the training stops. */
+static void *training_worker(void *arg) {
+  Training *tg = arg;
+  int runs = tg->o->runs, T = tg->o->frames;
+  pthread_mutex_lock(&tg->lock);
+  while (!tg->stop && tg->next < runs) {
+    int r = tg->next++;
+    pthread_mutex_unlock(&tg->lock);
+    double sg[CAVITY_SIDES], q = INFINITY, seconds = 0;
+    cavity_schedule(r, T / 2, T, sg);
+    fprintf(stderr, "npg-fluids: training run %d of %d: side scales (%.2f, %.2f, %.2f) at mid-run\n", r + 1, runs,
+            sg[0], sg[1], sg[2]);
+    int rc = training_run(tg, r, &q, &seconds);
+    pthread_mutex_lock(&tg->lock);
+    tg->queue[r].state = rc == 0 ? 1 : -1;
+    if (rc != 0) tg->stop = 1;
+    if (q < tg->min_quality) tg->min_quality = q;
+    tg->seconds_runs += seconds;
+    pthread_cond_broadcast(&tg->changed);
+  }
+  pthread_mutex_unlock(&tg->lock);
+  return NULL;
+}
+
+/* The workers' samples into the trainer in run order; -1 when the training
+ * stopped (a failed run said why; a refused sample is said here). */
+static int feed_trainer(Training *tg) {
+  size_t bytes = sizeof(Sample) + (size_t)(2 * tg->ng + tg->nf + tg->nu) * sizeof(double);
+  pthread_mutex_lock(&tg->lock);
+  while (!tg->stop && tg->head < tg->o->runs) {
+    RunQueue *q = &tg->queue[tg->head];
+    Sample *s = q->first;
+    if (s) {
+      q->first = s->next;
+      if (!q->first) q->last = NULL;
+      tg->queued -= bytes;
+      pthread_cond_broadcast(&tg->changed);
+      pthread_mutex_unlock(&tg->lock);
+      const double *x = s->x;
+      int rc = trainer_add_sample(tg, x, x + tg->ng, x + 2 * tg->ng, x + 2 * tg->ng + tg->nf);
+      free(s);
+      pthread_mutex_lock(&tg->lock);
+      if (rc != 0) tg->stop = 1, pthread_cond_broadcast(&tg->changed);
+    } else if (q->state != 0) {
+      tg->head++;
+      pthread_cond_broadcast(&tg->changed);
+    } else {
+      pthread_cond_wait(&tg->changed, &tg->lock);
+    }
+  }
+  int stop = tg->stop;
+  pthread_mutex_unlock(&tg->lock);
+  return stop ? -1 : 0;
+}
+
+int cavity_train(const Cavity *cv, const CavityOptions *o, double mu, NpgTrainer *tr, CavityTraining *out) {
+  const Mesh *m = &cv->m;
+  int workers = o->workers < 1 ? 1 : o->workers < o->runs ? o->workers : o->runs > 0 ? o->runs : 1;
+  Training tg = {.cv = cv, .o = o, .mu = mu, .tr = tr, .threaded = workers > 1, .ng = 3L * m->nv, .nf = m->nf,
+                 .nu = 3L * m->nc, .min_quality = INFINITY};
+  memset(out, 0, sizeof *out);
+  out->workers = workers;
+  tg.queue = calloc(o->runs > 0 ? o->runs : 1, sizeof *tg.queue);
+  if (!tg.queue) {
+    fprintf(stderr, "npg-fluids: out of memory\n");
+    return -1;
+  }
+  pthread_mutex_init(&tg.lock, NULL);
+  pthread_cond_init(&tg.changed, NULL);
+  double t0 = util_now();
+  int rc = 0;
+  if (!tg.threaded) {
+    training_worker(&tg);
+    rc = tg.stop ? -1 : 0;
+  } else {
+    /* the workers fill the cores: OpenBLAS's own threads would only contend */
+    int blas_threads = openblas_get_num_threads();
+    openblas_set_num_threads(1);
+    pthread_t tid[CAVITY_MAX_WORKERS];
+    int started = 0;
+    for (; started < workers; started++) {
+      int e = pthread_create(&tid[started], NULL, training_worker, &tg);
+      if (e != 0) {
+        fprintf(stderr, "npg-fluids: cannot start training worker %d: %s\n", started + 1, strerror(e));
+        pthread_mutex_lock(&tg.lock);
+        tg.stop = 1;
+        pthread_cond_broadcast(&tg.changed);
+        pthread_mutex_unlock(&tg.lock);
+        break;
+      }
+    }
+    rc = feed_trainer(&tg);
+    for (int i = 0; i < started; i++) pthread_join(tid[i], NULL);
+    if (started < workers) rc = -1;
+    openblas_set_num_threads(blas_threads);
+  }
+  out->seconds = util_now() - t0;
+  out->seconds_runs = tg.seconds_runs;
+  out->min_quality = tg.min_quality;
+  for (int r = 0; r < o->runs; r++)
+    for (Sample *s = tg.queue[r].first, *n; s; s = n) n = s->next, free(s);
+  free(tg.queue);
+  pthread_mutex_destroy(&tg.lock);
+  pthread_cond_destroy(&tg.changed);
   return rc;
 }
 
@@ -252,7 +469,9 @@ int cavity_run(const CavityOptions *o) {
   double *err_basis = calloc(T + 1, sizeof(double)); /* E(u − B_u û)/E(u) of the full state's own projection */
   double *step_times = calloc(T + 1, sizeof(double)), *frame_axis = calloc(T + 1, sizeof(double));
   double *traj_g = NULL, *traj_gd = NULL, *gc1 = NULL, *gdc = NULL;
-  double seconds_particles = 0, seconds_particles_red = 0, seconds_lift = 0, t_deform = 0, seconds_train_runs = 0;
+  double seconds_particles = 0, seconds_particles_red = 0, seconds_lift = 0, t_deform = 0;
+  double train_split[4] = {0}; /* npg_trainer_finish's snapshots, bases, pre-multiplication, externs */
+  CavityTraining ct = {0};
   double seconds_train = 0, div_basis = 0, max_div_red = 0, split[3] = {0}; /* the reduced step's assembly, exponential, projection */
   FullStats st = {0};
   st.min_quality = INFINITY;
@@ -278,28 +497,26 @@ int cavity_run(const CavityOptions *o) {
     FluidBasisOptions mo;
     fluid_train_options(&to, &mo, o->mu - 4, o->mf, o->mg, 60);
     NpgTrainer *tr = npg_trainer_new(fe, &to);
-    FullStats tst = {0};
-    tst.min_quality = INFINITY;
-    for (int r = 0; r < o->runs; r++) {
-      double sg0[CAVITY_SIDES], sg1[CAVITY_SIDES];
-      cavity_schedule(r, 0, T, sg0);
-      cavity_schedule(r, T / 2, T, sg1);
-      fprintf(stderr, "npg-fluids: training run %d of %d: side scales (%.2f, %.2f, %.2f) at mid-run\n", r + 1,
-              o->runs, sg1[0], sg1[1], sg1[2]);
-      if (training_run(&cv, o, r, mu, tr, &tst, &seconds_train_runs) != 0) {
-        npg_trainer_free(tr);
-        goto done;
-      }
+    if (cavity_train(&cv, o, mu, tr, &ct) != 0) {
+      npg_trainer_free(tr);
+      goto done;
     }
-    st.min_quality = tst.min_quality;
+    st.min_quality = ct.min_quality;
+    /* training on every core: OpenBLAS's threads for the Gram matrices and
+     * their eigendecompositions, then back to what the reduced step is
+     * timed with */
+    int blas_threads = openblas_get_num_threads();
+    openblas_set_num_threads(ct.workers);
     double t0 = util_now();
     model = npg_trainer_finish(tr, NULL);
     seconds_train = util_now() - t0;
+    openblas_set_num_threads(blas_threads);
     if (!model) {
       fprintf(stderr, "npg-fluids: training: %s\n", npg_trainer_error(tr));
       npg_trainer_free(tr);
       goto done;
     }
+    npg_model_train_seconds(model, train_split, NULL);
     npg_trainer_free(tr);
     model_bytes = npg_model_bytes(model, &tensor_bytes);
     if (red_init(&R, model, 3, mu, o->dt, err, sizeof err) != 0) {
@@ -316,11 +533,14 @@ int cavity_run(const CavityOptions *o) {
     div_basis = ops_max_column_divergence(&ops, R.Bf, nf, R.mf);
     ops_free(&ops);
     fprintf(stderr,
-            "npg-fluids: %d training runs (%ld samples) in %.1f s; trained in %.1f s; m_u %ld, m_f %ld, m_g %ld, "
-            "m_gdot %ld, m_d %ld (rank of D̂ %ld); reduced set-up %.1f s (%ld reduced evaluations); model %.1f MB; "
-            "max |div| over B_f's columns %.2e\n",
-            o->runs, npg_model_samples(model), seconds_train_runs, seconds_train, R.mu, R.mf, R.mg, R.mgd, R.mb,
-            R.drank, R.seconds_setup, R.evals, model_bytes / 1e6, div_basis);
+            "npg-fluids: %d training runs on %d worker%s (%ld samples) in %.1f s (their steps %.1f s "
+            "summed); trained on %d BLAS thread%s in %.1f s (snapshots %.1f, bases %.1f, pre-multiplication %.1f); "
+            "m_u %ld, m_f %ld, m_g %ld, m_gdot %ld, m_d %ld (rank of D̂ %ld); reduced set-up %.1f s (%ld reduced "
+            "evaluations); model %.1f MB; max |div| over B_f's columns %.2e\n",
+            o->runs, ct.workers, ct.workers == 1 ? "" : "s", npg_model_samples(model), ct.seconds,
+            ct.seconds_runs, ct.workers, ct.workers == 1 ? "" : "s", seconds_train, train_split[0], train_split[1],
+            train_split[2], R.mu, R.mf, R.mg, R.mgd, R.mb, R.drank, R.seconds_setup, R.evals, model_bytes / 1e6,
+            div_basis);
     /* the replayed trajectory of the test: ĝ_t and ĝdot_t */
     traj_g = malloc((size_t)(T + 1) * R.mg * sizeof(double));
     traj_gd = calloc((size_t)T * R.mgd + 1, sizeof(double));
@@ -590,10 +810,16 @@ int cavity_run(const CavityOptions *o) {
           projection_method_name(o->projection), s.pr.seconds_numeric / steps, s.pr.seconds_solve / steps);
   fprintf(fp, "  \"particles\": %d,\n  \"t_pa_full_flow\": %.6g,\n", o->particles, seconds_particles / steps);
   if (reduced) {
-    fprintf(fp, "  \"training_runs\": %d,\n  \"training_samples\": %ld,\n  \"training_runs_seconds\": %.4g,\n"
-                "  \"training_seconds\": %.4g,\n  \"reduced_setup_seconds\": %.4g,\n  \"reduced_setup_evaluations\": %ld,\n",
-            o->runs, npg_model_samples(model), seconds_train_runs, seconds_train, R.seconds_setup, R.evals);
-    fprintf(fp, "  \"precomputation_seconds\": %.4g,\n", seconds_train_runs + seconds_train + R.seconds_setup);
+    fprintf(fp, "  \"training_runs\": %d,\n  \"workers\": %d,\n  \"training_samples\": %ld,\n"
+                "  \"training_runs_seconds\": %.4g,\n  \"training_runs_steps_seconds\": %.4g,\n"
+                "  \"training_seconds\": %.4g,\n",
+            o->runs, ct.workers, npg_model_samples(model), ct.seconds, ct.seconds_runs, seconds_train);
+    fprintf(fp, "  \"training_split\": {\"snapshots\": %.4g, \"bases\": %.4g, \"premultiplication\": %.4g, "
+                "\"externs\": %.4g},\n",
+            train_split[0], train_split[1], train_split[2], train_split[3]);
+    fprintf(fp, "  \"reduced_setup_seconds\": %.4g,\n  \"reduced_setup_evaluations\": %ld,\n", R.seconds_setup,
+            R.evals);
+    fprintf(fp, "  \"precomputation_seconds\": %.4g,\n", ct.seconds + seconds_train + R.seconds_setup);
     fprintf(fp, "  \"m_f\": %ld,\n  \"m_u\": %ld,\n  \"m_g\": %ld,\n  \"m_gdot\": %ld,\n  \"m_d\": %ld,\n  \"rank_D\": %ld,\n",
             R.mf, R.mu, R.mg, R.mgd, R.mb, R.drank);
     fprintf(fp, "  \"model_bytes\": %zu,\n  \"model_tensor_bytes\": %zu,\n", model_bytes, tensor_bytes);

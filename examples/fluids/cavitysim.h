@@ -8,8 +8,13 @@
 #ifndef FLUIDS_CAVITYSIM_H
 #define FLUIDS_CAVITYSIM_H
 
+#include <stddef.h>
+
 #include "cavity.h"
+#include "npg.h"
 #include "projection.h"
+
+#define CAVITY_MAX_WORKERS 64
 
 typedef struct CavityOptions {
   const char *out;
@@ -21,7 +26,17 @@ typedef struct CavityOptions {
   int mf, mu, mg;   /* basis caps: fluxes, velocities (the whole shared class), geometry */
   double dtol;      /* rank tolerance of D̂ (red_constraints) */
   ProjectionMethod projection; /* of the full step (PROJ_AL_CHOLMOD) */
+  int workers;      /* threads running the training runs, and OpenBLAS's while training (online CPUs) */
+  size_t buffer_bytes; /* bound on the samples queued by runs the trainer is not taking yet (2 GB) */
 } CavityOptions;
+
+/* What the training runs did. */
+typedef struct CavityTraining {
+  int workers;          /* threads that ran them (o->workers, at most o->runs) */
+  double seconds;       /* wall time of all the runs, solvers' set-up included */
+  double seconds_runs;  /* the runs' own steps, summed over the runs */
+  double min_quality;   /* over every frame of every run */
+} CavityTraining;
 
 void cavity_options_default(CavityOptions *o);
 /* The deformation of training run r (0 .. 13) or of the test (r = -1) at
@@ -32,6 +47,17 @@ void cavity_schedule(int r, int t, int T, double sigma[CAVITY_SIDES]);
  * a vertex a similar fraction of its cells' size: at 17,300 cells 100 frames
  * diverge and 260 do not (README). */
 int cavity_frames_for(int cells);
+/* The o->runs training runs of o->frames frames each (o->frames > 0) on
+ * the mesh of `cv`, every frame added to `tr`: run 1's
+ * samples, then run 2's, ..., whatever o->workers is, so the trainer gets
+ * the same samples in the same order as with one worker (each run's
+ * simulation does not depend on the thread that runs it). With more than
+ * one worker OpenBLAS runs one thread meanwhile (put back after), and the
+ * samples of the runs after the oldest unfinished one wait in memory, up to
+ * o->buffer_bytes (plus one sample per worker). 0, or -1 when a run failed
+ * or the trainer refused a sample (said on stderr with the run's number;
+ * the other runs stop at their next frame). */
+int cavity_train(const Cavity *cv, const CavityOptions *o, double mu, NpgTrainer *tr, CavityTraining *out);
 int cavity_run(const CavityOptions *o);
 
 #endif

@@ -27,6 +27,11 @@
  *                        1e-3: the bases are not complete, and a model with
  *                        wrongly extracted slices is off by 1e2); the same
  *                        step twice from a saved RedState gives the same û
+ *   cavity_train_workers three short training runs on 2 and 3 workers (the
+ *                        second worker made to wait for the first run by a
+ *                        queue bound of one byte) give the model one worker
+ *                        gives, bit for bit: every basis, and the reduced
+ *                        stages evaluated at the same coordinates
  */
 #include <math.h>
 #include <setjmp.h>
@@ -302,6 +307,100 @@ static void test_cavity_reduced_step(void **state) {
   cavity_free(&cv);
 }
 
+/* Three training runs of TRAIN_FRAMES frames on `workers` threads into a
+ * fresh trainer: its samples counted (*samples) and, with `finish`, its
+ * model (else NULL). */
+#define TRAIN_FRAMES 61
+static NpgModel *train_on(const Cavity *cv, NpgFull *fe, int workers, size_t buffer, int finish,
+                          long *samples) {
+  CavityOptions o;
+  cavity_options_default(&o);
+  o.frames = TRAIN_FRAMES, o.runs = 3, o.workers = workers, o.buffer_bytes = buffer;
+  NpgTrainOptions to;
+  FluidBasisOptions bo;
+  fluid_train_options(&to, &bo, 12, 6, 5, 60);
+  NpgTrainer *tr = npg_trainer_new(fe, &to);
+  CavityTraining ct;
+  if (cavity_train(cv, &o, 1e-4, tr, &ct) != 0) fail_msg("training runs on %d workers failed", workers);
+  assert_int_equal(ct.workers, workers);
+  assert_true(ct.min_quality > 0 && ct.seconds_runs > 0);
+  *samples = npg_trainer_samples(tr);
+  NpgModel *model = finish ? npg_trainer_finish(tr, NULL) : NULL;
+  if (finish && !model) fail_msg("%s", npg_trainer_error(tr));
+  npg_trainer_free(tr);
+  return model;
+}
+
+/* Reduced coordinates of pdot, pv, h and bf at fixed coordinates of the inputs. */
+static double *reduced_probe(const NpgModel *model, size_t *count) {
+  NpgReduced *r = npg_reduced_new(model);
+  const char *in[4] = {"g", "gdot", "f", "u"}, *out[4] = {"pdot", "pv", "h", "bf"};
+  for (int i = 0; i < 4; i++) {
+    NpgClassInfo ci;
+    assert_int_equal(npg_model_class(model, npg_model_class_of(model, in[i]), &ci), 0);
+    double x[512];
+    assert_true(ci.m <= 512);
+    for (long k = 0; k < ci.m; k++) x[k] = (k == 0 ? 1.0 : 0.1) / (k + 1 + i);
+    if (npg_reduced_set_coords(r, in[i], (size_t)ci.m, x) != 0) fail_msg("%s", npg_reduced_error(r));
+  }
+  if (npg_reduced_eval(r, 0) != 0) fail_msg("%s", npg_reduced_error(r));
+  double *all = NULL;
+  *count = 0;
+  for (int i = 0; i < 4; i++) {
+    size_t m = 0;
+    const double *y = npg_reduced_coords(r, out[i], &m);
+    assert_non_null(y);
+    all = realloc(all, (*count + m) * sizeof *all);
+    memcpy(all + *count, y, m * sizeof *y);
+    *count += m;
+  }
+  npg_reduced_free(r);
+  return all;
+}
+
+static void test_cavity_train_workers(void **state) {
+  (void)state;
+  Cavity cv = cavity_of(150);
+  NpgOptions no = {0};
+  NpgProgram *prog = npg_compile(FLUIDS_NPG3, &no);
+  if (!npg_ok(prog)) fail_msg("%s", npg_error(prog));
+  NpgFull *fe = npg_full_new(prog, NPG_TCC);
+  if (fluid_bind(fe, &cv.m, 1e-4) != 0) fail_msg("%s", npg_full_error(fe));
+  long s1, s2, s3;
+  NpgModel *one = train_on(&cv, fe, 1, (size_t)1 << 30, 1, &s1);
+  size_t n1;
+  double *probe1 = reduced_probe(one, &n1);
+  /* 2 workers, run 2 waiting for run 1 at every sample; 3 workers, no wait */
+  NpgModel *more[2] = {train_on(&cv, fe, 2, 1, 1, &s2), train_on(&cv, fe, 3, (size_t)1 << 30, 1, &s3)};
+  assert_int_equal(s1, 3 * TRAIN_FRAMES);
+  assert_int_equal(s2, s1);
+  assert_int_equal(s3, s1);
+  for (int k = 0; k < 2; k++) {
+    assert_int_equal(npg_model_nclasses(more[k]), npg_model_nclasses(one));
+    for (int c = 0; c < npg_model_nclasses(one); c++) {
+      NpgClassInfo a, b;
+      assert_int_equal(npg_model_class(one, c, &a), 0);
+      assert_int_equal(npg_model_class(more[k], c, &b), 0);
+      assert_int_equal(a.n, b.n);
+      assert_int_equal(a.m, b.m);
+      assert_memory_equal(npg_model_basis(one, c), npg_model_basis(more[k], c), (size_t)(a.n * a.m) * sizeof(double));
+    }
+    size_t n;
+    double *probe = reduced_probe(more[k], &n);
+    assert_int_equal(n, n1);
+    assert_memory_equal(probe, probe1, n * sizeof *probe);
+    free(probe);
+    npg_model_free(more[k]);
+  }
+  print_message("%d cells: %ld samples; 2 and 3 workers give one worker's bases and reduced stages bit for bit "
+                "(%zu reduced coordinates compared)\n", cv.m.nc, s1, n1);
+  free(probe1);
+  npg_model_free(one);
+  npg_full_free(fe);
+  npg_free(prog);
+  cavity_free(&cv);
+}
+
 int main(int argc, char **argv) {
   openblas_set_num_threads(1);
   const struct CMUnitTest all[] = {
@@ -309,6 +408,7 @@ int main(int argc, char **argv) {
       cmocka_unit_test(test_cavity_divergence),
       cmocka_unit_test(test_cavity_projection_methods),
       cmocka_unit_test(test_cavity_reduced_step),
+      cmocka_unit_test(test_cavity_train_workers),
   };
   return run_named_tests("test_cavity", argc, argv, all, (int)(sizeof all / sizeof all[0]));
 }
