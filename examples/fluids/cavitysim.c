@@ -37,6 +37,7 @@ void cavity_options_default(CavityOptions *o) {
   o->projection = PROJ_AL_CHOLMOD;
   long cpus = sysconf(_SC_NPROCESSORS_ONLN);
   o->workers = cpus < 1 ? 1 : cpus > CAVITY_MAX_WORKERS ? CAVITY_MAX_WORKERS : (int)cpus;
+  o->sample_every = 1;
   o->buffer_bytes = (size_t)2 << 30;
 }
 
@@ -223,10 +224,10 @@ static int deliver(Training *tg, int r, const double *g, const double *gdot, con
   return stop;
 }
 
-/* One full training run r, every frame delivered: sample t is the state of
- * frame t (g, f, u) with the mesh velocity of the step that leaves it (as
- * the 2D tunnel's). 0, -1 on an error (said, with the run's number), 1 when
- * stopped by another run's failure. */
+/* One full training run r, every o->sample_every-th frame delivered: sample
+ * t is the state of frame t (g, f, u) with the mesh velocity of the step
+ * that leaves it (as the 2D tunnel's). 0, -1 on an error (said, with the
+ * run's number), 1 when stopped by another run's failure. */
 static int training_run(Training *tg, int r, double *min_quality, double *seconds) {
   char err[ERRLEN];
   const Cavity *cv = tg->cv;
@@ -269,10 +270,12 @@ static int training_run(Training *tg, int r, double *min_quality, double *second
               "or lower --dt\n", r + 1, t + 1, T, o->dt, T);
       goto done;
     }
-    int d = deliver(tg, r, g0, s.gdot, f0, u0);
-    if (d != 0) {
-      rc = d;
-      goto done;
+    if (t % o->sample_every == 0) {
+      int d = deliver(tg, r, g0, s.gdot, f0, u0);
+      if (d != 0) {
+        rc = d;
+        goto done;
+      }
     }
   }
   rc = 0;
@@ -502,6 +505,8 @@ int cavity_run(const CavityOptions *o) {
       goto done;
     }
     st.min_quality = ct.min_quality;
+    fprintf(stderr, "npg-fluids: training runs done in %.1f s on %d worker%s; training on %ld samples\n", ct.seconds,
+            ct.workers, ct.workers == 1 ? "" : "s", npg_trainer_samples(tr));
     /* training on every core: OpenBLAS's threads for the Gram matrices and
      * their eigendecompositions, then back to what the reduced step is
      * timed with */
@@ -532,12 +537,14 @@ int cavity_run(const CavityOptions *o) {
     ops_init(&ops, m);
     div_basis = ops_max_column_divergence(&ops, R.Bf, nf, R.mf);
     ops_free(&ops);
+    char every[48] = "every frame";
+    if (o->sample_every > 1) snprintf(every, sizeof every, "one frame in %d", o->sample_every);
     fprintf(stderr,
-            "npg-fluids: %d training runs on %d worker%s (%ld samples) in %.1f s (their steps %.1f s "
+            "npg-fluids: %d training runs on %d worker%s (%ld samples, %s) in %.1f s (their steps %.1f s "
             "summed); trained on %d BLAS thread%s in %.1f s (snapshots %.1f, bases %.1f, pre-multiplication %.1f); "
             "m_u %ld, m_f %ld, m_g %ld, m_gdot %ld, m_d %ld (rank of D̂ %ld); reduced set-up %.1f s (%ld reduced "
             "evaluations); model %.1f MB; max |div| over B_f's columns %.2e\n",
-            o->runs, ct.workers, ct.workers == 1 ? "" : "s", npg_model_samples(model), ct.seconds,
+            o->runs, ct.workers, ct.workers == 1 ? "" : "s", npg_model_samples(model), every, ct.seconds,
             ct.seconds_runs, ct.workers, ct.workers == 1 ? "" : "s", seconds_train, train_split[0], train_split[1],
             train_split[2], R.mu, R.mf, R.mg, R.mgd, R.mb, R.drank, R.seconds_setup, R.evals, model_bytes / 1e6,
             div_basis);
@@ -810,10 +817,10 @@ int cavity_run(const CavityOptions *o) {
           projection_method_name(o->projection), s.pr.seconds_numeric / steps, s.pr.seconds_solve / steps);
   fprintf(fp, "  \"particles\": %d,\n  \"t_pa_full_flow\": %.6g,\n", o->particles, seconds_particles / steps);
   if (reduced) {
-    fprintf(fp, "  \"training_runs\": %d,\n  \"workers\": %d,\n  \"training_samples\": %ld,\n"
+    fprintf(fp, "  \"training_runs\": %d,\n  \"workers\": %d,\n  \"sample_every\": %d,\n  \"training_samples\": %ld,\n"
                 "  \"training_runs_seconds\": %.4g,\n  \"training_runs_steps_seconds\": %.4g,\n"
                 "  \"training_seconds\": %.4g,\n",
-            o->runs, ct.workers, npg_model_samples(model), ct.seconds, ct.seconds_runs, seconds_train);
+            o->runs, ct.workers, o->sample_every, npg_model_samples(model), ct.seconds, ct.seconds_runs, seconds_train);
     fprintf(fp, "  \"training_split\": {\"snapshots\": %.4g, \"bases\": %.4g, \"premultiplication\": %.4g, "
                 "\"externs\": %.4g},\n",
             train_split[0], train_split[1], train_split[2], train_split[3]);

@@ -27,6 +27,7 @@ typedef struct CavityOptions {
   double dtol;      /* rank tolerance of D̂ (red_constraints) */
   ProjectionMethod projection; /* of the full step (PROJ_AL_CHOLMOD) */
   int workers;      /* threads running the training runs, and OpenBLAS's while training (online CPUs) */
+  int sample_every; /* every K-th frame of a training run is a sample (1) */
   size_t buffer_bytes; /* bound on the samples queued by runs the trainer is not taking yet (2 GB) */
 } CavityOptions;
 
@@ -48,7 +49,7 @@ void cavity_schedule(int r, int t, int T, double sigma[CAVITY_SIDES]);
  * diverge and 260 do not (README). */
 int cavity_frames_for(int cells);
 /* The o->runs training runs of o->frames frames each (o->frames > 0) on
- * the mesh of `cv`, every frame added to `tr`: run 1's
+ * the mesh of `cv`, every o->sample_every-th frame added to `tr`: run 1's
  * samples, then run 2's, ..., whatever o->workers is, so the trainer gets
  * the same samples in the same order as with one worker (each run's
  * simulation does not depend on the thread that runs it). With more than

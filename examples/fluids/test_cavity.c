@@ -31,7 +31,9 @@
  *                        second worker made to wait for the first run by a
  *                        queue bound of one byte) give the model one worker
  *                        gives, bit for bit: every basis, and the reduced
- *                        stages evaluated at the same coordinates
+ *                        stages evaluated at the same coordinates; with
+ *                        --sample-every 2 the trainer gets ceil(T/2) samples
+ *                        per run
  */
 #include <math.h>
 #include <setjmp.h>
@@ -311,11 +313,11 @@ static void test_cavity_reduced_step(void **state) {
  * fresh trainer: its samples counted (*samples) and, with `finish`, its
  * model (else NULL). */
 #define TRAIN_FRAMES 61
-static NpgModel *train_on(const Cavity *cv, NpgFull *fe, int workers, size_t buffer, int finish,
+static NpgModel *train_on(const Cavity *cv, NpgFull *fe, int workers, size_t buffer, int every, int finish,
                           long *samples) {
   CavityOptions o;
   cavity_options_default(&o);
-  o.frames = TRAIN_FRAMES, o.runs = 3, o.workers = workers, o.buffer_bytes = buffer;
+  o.frames = TRAIN_FRAMES, o.runs = 3, o.workers = workers, o.buffer_bytes = buffer, o.sample_every = every;
   NpgTrainOptions to;
   FluidBasisOptions bo;
   fluid_train_options(&to, &bo, 12, 6, 5, 60);
@@ -366,12 +368,12 @@ static void test_cavity_train_workers(void **state) {
   if (!npg_ok(prog)) fail_msg("%s", npg_error(prog));
   NpgFull *fe = npg_full_new(prog, NPG_TCC);
   if (fluid_bind(fe, &cv.m, 1e-4) != 0) fail_msg("%s", npg_full_error(fe));
-  long s1, s2, s3;
-  NpgModel *one = train_on(&cv, fe, 1, (size_t)1 << 30, 1, &s1);
+  long s1, s2, s3, s_every;
+  NpgModel *one = train_on(&cv, fe, 1, (size_t)1 << 30, 1, 1, &s1);
   size_t n1;
   double *probe1 = reduced_probe(one, &n1);
   /* 2 workers, run 2 waiting for run 1 at every sample; 3 workers, no wait */
-  NpgModel *more[2] = {train_on(&cv, fe, 2, 1, 1, &s2), train_on(&cv, fe, 3, (size_t)1 << 30, 1, &s3)};
+  NpgModel *more[2] = {train_on(&cv, fe, 2, 1, 1, 1, &s2), train_on(&cv, fe, 3, (size_t)1 << 30, 1, 1, &s3)};
   assert_int_equal(s1, 3 * TRAIN_FRAMES);
   assert_int_equal(s2, s1);
   assert_int_equal(s3, s1);
@@ -394,6 +396,9 @@ static void test_cavity_train_workers(void **state) {
   }
   print_message("%d cells: %ld samples; 2 and 3 workers give one worker's bases and reduced stages bit for bit "
                 "(%zu reduced coordinates compared)\n", cv.m.nc, s1, n1);
+  /* every second frame: frames 0, 2, ..., TRAIN_FRAMES - 2 of each run */
+  train_on(&cv, fe, 2, (size_t)1 << 30, 2, 0, &s_every);
+  assert_int_equal(s_every, 3 * ((TRAIN_FRAMES + 1) / 2));
   free(probe1);
   npg_model_free(one);
   npg_full_free(fe);
