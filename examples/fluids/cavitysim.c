@@ -475,6 +475,7 @@ int cavity_run(const CavityOptions *o) {
   double seconds_particles = 0, seconds_particles_red = 0, seconds_lift = 0, t_deform = 0;
   double train_split[4] = {0}; /* npg_trainer_finish's snapshots, bases, pre-multiplication, externs */
   CavityTraining ct = {0};
+  int train_threads = 0; /* OpenBLAS's in npg_trainer_finish */
   double seconds_train = 0, div_basis = 0, max_div_red = 0, split[3] = {0}; /* the reduced step's assembly, exponential, projection */
   FullStats st = {0};
   st.min_quality = INFINITY;
@@ -509,9 +510,11 @@ int cavity_run(const CavityOptions *o) {
             ct.workers, ct.workers == 1 ? "" : "s", npg_trainer_samples(tr));
     /* training on every core: OpenBLAS's threads for the Gram matrices and
      * their eigendecompositions, then back to what the reduced step is
-     * timed with */
+     * timed with (on a machine loaded by other jobs one thread was faster:
+     * README) */
     int blas_threads = openblas_get_num_threads();
-    openblas_set_num_threads(ct.workers);
+    train_threads = o->train_threads > 0 ? o->train_threads : o->workers;
+    openblas_set_num_threads(train_threads);
     double t0 = util_now();
     model = npg_trainer_finish(tr, NULL);
     seconds_train = util_now() - t0;
@@ -545,9 +548,9 @@ int cavity_run(const CavityOptions *o) {
             "m_u %ld, m_f %ld, m_g %ld, m_gdot %ld, m_d %ld (rank of D̂ %ld); reduced set-up %.1f s (%ld reduced "
             "evaluations); model %.1f MB; max |div| over B_f's columns %.2e\n",
             o->runs, ct.workers, ct.workers == 1 ? "" : "s", npg_model_samples(model), every, ct.seconds,
-            ct.seconds_runs, ct.workers, ct.workers == 1 ? "" : "s", seconds_train, train_split[0], train_split[1],
-            train_split[2], R.mu, R.mf, R.mg, R.mgd, R.mb, R.drank, R.seconds_setup, R.evals, model_bytes / 1e6,
-            div_basis);
+            ct.seconds_runs, train_threads, train_threads == 1 ? "" : "s", seconds_train, train_split[0],
+            train_split[1], train_split[2], R.mu, R.mf, R.mg, R.mgd, R.mb, R.drank, R.seconds_setup, R.evals,
+            model_bytes / 1e6, div_basis);
     /* the replayed trajectory of the test: ĝ_t and ĝdot_t */
     traj_g = malloc((size_t)(T + 1) * R.mg * sizeof(double));
     traj_gd = calloc((size_t)T * R.mgd + 1, sizeof(double));
@@ -817,10 +820,11 @@ int cavity_run(const CavityOptions *o) {
           projection_method_name(o->projection), s.pr.seconds_numeric / steps, s.pr.seconds_solve / steps);
   fprintf(fp, "  \"particles\": %d,\n  \"t_pa_full_flow\": %.6g,\n", o->particles, seconds_particles / steps);
   if (reduced) {
-    fprintf(fp, "  \"training_runs\": %d,\n  \"workers\": %d,\n  \"sample_every\": %d,\n  \"training_samples\": %ld,\n"
-                "  \"training_runs_seconds\": %.4g,\n  \"training_runs_steps_seconds\": %.4g,\n"
-                "  \"training_seconds\": %.4g,\n",
-            o->runs, ct.workers, o->sample_every, npg_model_samples(model), ct.seconds, ct.seconds_runs, seconds_train);
+    fprintf(fp, "  \"training_runs\": %d,\n  \"workers\": %d,\n  \"train_threads\": %d,\n  \"sample_every\": %d,\n"
+                "  \"training_samples\": %ld,\n  \"training_runs_seconds\": %.4g,\n"
+                "  \"training_runs_steps_seconds\": %.4g,\n  \"training_seconds\": %.4g,\n",
+            o->runs, ct.workers, train_threads, o->sample_every, npg_model_samples(model), ct.seconds, ct.seconds_runs,
+            seconds_train);
     fprintf(fp, "  \"training_split\": {\"snapshots\": %.4g, \"bases\": %.4g, \"premultiplication\": %.4g, "
                 "\"externs\": %.4g},\n",
             train_split[0], train_split[1], train_split[2], train_split[3]);

@@ -26,7 +26,8 @@ typedef struct CavityOptions {
   int mf, mu, mg;   /* basis caps: fluxes, velocities (the whole shared class), geometry */
   double dtol;      /* rank tolerance of D̂ (red_constraints) */
   ProjectionMethod projection; /* of the full step (PROJ_AL_CHOLMOD) */
-  int workers;      /* threads running the training runs, and OpenBLAS's while training (online CPUs) */
+  int workers;      /* threads running the training runs (the online CPUs) */
+  int train_threads; /* OpenBLAS's threads in npg_trainer_finish (0: `workers`) */
   int sample_every; /* every K-th frame of a training run is a sample (1) */
   size_t buffer_bytes; /* bound on the samples queued by runs the trainer is not taking yet (2 GB) */
 } CavityOptions;

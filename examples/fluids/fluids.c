@@ -51,7 +51,8 @@ static void usage(FILE *fp) {
         "       npg-fluids mesh [--cells N] [--size S]\n"
         "       npg-fluids cavity --out DIR [--cells N] [--frames N] [--runs N] [--dt DT] [--nu NU]\n"
         "                  [--mf N] [--mu N] [--mg N] [--dtol X] [--particles N] [--png-every K] [--vtk-every K]\n"
-        "                  [--width PX] [--projection al|kkt] [--workers W] [--sample-every K] [--buffer-mb N]\n"
+        "                  [--width PX] [--projection al|kkt] [--workers W] [--train-threads N]\n"
+        "                  [--sample-every K] [--buffer-mb N]\n"
         "       npg-fluids cavity-mesh [--cells N]         the cavity's mesh statistics as JSON\n"
         "       npg-fluids cavity-projection [--cells N] [--steps N] [--method kkt|al|both]\n"
         "                  the full projection timed on the cavity (JSON)\n"
@@ -90,12 +91,12 @@ static void usage(FILE *fp) {
         "  reduced boundary constraints; DIR/report.json (Table 1), DIR/frames/*.png,\n"
         "  DIR/vtk/*.vtk (legacy VTK), DIR/plots/trajectory_error.png. --projection: al (default),\n"
         "  CHOLMOD on K + w D^T D with augmented Lagrangian iterations; kkt: UMFPACK on the KKT\n"
-        "  system (the same minimizer). --workers W: threads running the training runs, and\n"
-        "  OpenBLAS's threads while training (the online CPUs; 1: one run after the other); the\n"
-        "  trainer gets the same samples in the same order for every W. --sample-every K: every\n"
-        "  K-th frame of a training run is a sample (1; the runs still take every step).\n"
-        "  --buffer-mb N: bound on the samples of later runs waiting while the trainer takes an\n"
-        "  earlier run's (2048)\n",
+        "  system (the same minimizer). --workers W: threads running the training runs (the\n"
+        "  online CPUs; 1: one run after the other); the trainer gets the same samples in the\n"
+        "  same order for every W. --train-threads N: OpenBLAS's threads while training (W).\n"
+        "  --sample-every K: every K-th frame of a training run is a sample (1; the runs still\n"
+        "  take every step). --buffer-mb N: bound on the samples of later runs waiting while the\n"
+        "  trainer takes an earlier run's (2048)\n",
         fp);
 }
 
@@ -499,7 +500,7 @@ static int cavity_cmd(int argc, char **argv) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     static const char *known[] = {"--out", "--cells", "--frames", "--runs", "--dt", "--nu", "--mf", "--mu", "--mg",
                                   "--particles", "--png-every", "--vtk-every", "--width", "--dtol", "--projection",
-                                  "--workers", "--sample-every", "--buffer-mb"};
+                                  "--workers", "--train-threads", "--sample-every", "--buffer-mb"};
     if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
     int bad = 0;
     if (!strcmp(a, "--out")) o.out = v;
@@ -517,6 +518,8 @@ static int cavity_cmd(int argc, char **argv) {
     else if (!strcmp(a, "--vtk-every")) bad = parse_int(v, &o.vtk_every) || o.vtk_every < 1;
     else if (!strcmp(a, "--width")) bad = parse_int(v, &o.width) || o.width < 16;
     else if (!strcmp(a, "--workers")) bad = parse_int(v, &o.workers) || o.workers < 1 || o.workers > CAVITY_MAX_WORKERS;
+    else if (!strcmp(a, "--train-threads"))
+      bad = parse_int(v, &o.train_threads) || o.train_threads < 1 || o.train_threads > CAVITY_MAX_WORKERS;
     else if (!strcmp(a, "--sample-every")) bad = parse_int(v, &o.sample_every) || o.sample_every < 1;
     else if (!strcmp(a, "--buffer-mb")) {
       int mb = 0;
