@@ -31,9 +31,10 @@
  *                        second worker made to wait for the first run by a
  *                        queue bound of one byte) give the model one worker
  *                        gives, bit for bit: every basis, and the reduced
- *                        stages evaluated at the same coordinates; with
- *                        --sample-every 2 the trainer gets ceil(T/2) samples
- *                        per run
+ *                        stages evaluated at the same coordinates; a run
+ *                        that diverges fails the training on 1, 2 and 3
+ *                        workers (the others stop); with --sample-every 2
+ *                        the trainer gets ceil(T/2) samples per run
  */
 #include <math.h>
 #include <setjmp.h>
@@ -396,6 +397,20 @@ static void test_cavity_train_workers(void **state) {
   }
   print_message("%d cells: %ld samples; 2 and 3 workers give one worker's bases and reduced stages bit for bit "
                 "(%zu reduced coordinates compared)\n", cv.m.nc, s1, n1);
+  /* a run that diverges (run 2 over 40 frames on this mesh) stops the
+   * others, waiting on the queue's bound or not, and the training fails */
+  for (int w = 1; w <= 3; w++) {
+    CavityOptions o;
+    cavity_options_default(&o);
+    o.frames = 40, o.runs = 3, o.workers = w, o.buffer_bytes = 1;
+    NpgTrainOptions to;
+    FluidBasisOptions bo;
+    fluid_train_options(&to, &bo, 12, 6, 5, 60);
+    NpgTrainer *tr = npg_trainer_new(fe, &to);
+    CavityTraining ct;
+    assert_int_equal(cavity_train(&cv, &o, 1e-4, tr, &ct), -1);
+    npg_trainer_free(tr);
+  }
   /* every second frame: frames 0, 2, ..., TRAIN_FRAMES - 2 of each run */
   train_on(&cv, fe, 2, (size_t)1 << 30, 2, 0, &s_every);
   assert_int_equal(s_every, 3 * ((TRAIN_FRAMES + 1) / 2));
