@@ -73,7 +73,7 @@ static int field_value(NpgFull *f, const RTensor *ts, int nt, double *out, long 
   for (int g = 0; g < nt; g++) {
     FieldSum s = {{0}, out, n};
     for (int i = 0; i < ts[g].group->ninputs; i++) s.in[i] = npg_full_get(f, ts[g].group->inputs[i]->name, NULL);
-    NpgSink sink = {&s, sum_entry};
+    NpgSink sink = {&s, sum_entry, 0, 1}; /* every row */
     if (full_build(f, ts[g].builder, &sink) != 0) return npg_fail(err, errlen, "%s", npg_full_error(f));
   }
   return 0;
