@@ -8,7 +8,9 @@
 # each the best of REPS runs, and the ratios against the first, measured in this run. The
 # models are compared (tests/mpi/compare_models.py). Figures, not a test: bench/mpi.md.
 # MEM=BYTES trains with --mem BYTES (out of core when the bases exceed it: the ranks share the
-# row passes); the passes' split is printed from rank 0's progress line.
+# row passes); the passes' split is printed from rank 0's progress line, and over ranks the
+# pre-multiplication's: rank 0's own rows against the sums over ranks (the wait for the
+# slower rank included).
 set -eu
 cd "$(dirname "$0")/.."
 faces=${1:-600}
@@ -32,13 +34,14 @@ run() {
   for r in $(seq "$reps"); do
     rm -rf "$work/$name"
     OPENBLAS_NUM_THREADS=$threads "$@" "$build/npgc" train $prog "$work/data" -o "$work/$name" ${MPI_FLAG:-} \
-      ${MEM:+--mem $MEM --progress} >"$work/$name.out" 2>"$work/$name.err"
+      --progress ${MEM:+--mem $MEM} >"$work/$name.out" 2>"$work/$name.err"
     line=$(grep '^phases:' "$work/$name.out")
     total=$(grep '^trained' "$work/$name.out" | sed 's/.* in \([0-9.]*\) s.*/\1/')
     if [ -z "$best" ] || [ "$(echo "$total < $best" | bc)" = 1 ]; then
       best=$total
       echo "$total $line" >"$work/$name.best"
       grep -a -o 'out of core: [0-9.]* s.*' "$work/$name.err" >"$work/$name.ooc" || true
+      grep -a -o 'pre-multiplication over ranks: .*' "$work/$name.err" >"$work/$name.pre" || true
     fi
   done
 }
@@ -69,3 +72,4 @@ PY
 for name in one ranks threads; do
   [ ! -s "$work/$name.ooc" ] || echo "$name: $(cat "$work/$name.ooc")"
 done
+[ ! -s "$work/ranks.pre" ] || echo "ranks: $(cat "$work/ranks.pre")"

@@ -70,7 +70,7 @@ static int run_group(Collect *k, const char *name, const TensorGroup *g, long n,
   k->last_row = -1;
   k->count = 0;
   k->ordered = k->diag_ok = true;
-  NpgSink sink = {k, on_entry};
+  NpgSink sink = {k, on_entry, 0, 1}; /* every row */
   if (full_build(k->f, name, &sink) != 0) {
     print_message("%s: %s: %s\n", path, what, npg_full_error(k->f));
     return 1;

@@ -10,7 +10,8 @@
  *     tensor from the builder, explicit random orthonormal bases) to 1e-12,
  *     for every tensor kind of those programs (orders 2–5, repeated inputs
  *     stored packed — a last x ⊗ x axis by both of its paths — diagonal and
- *     declared operators);
+ *     declared operators), and so do its parts over 2, 3 and more ranks than
+ *     rows, each rank's builder enumerating only its rows;
  *   - every reduced stage equals the formulas of paper §4 computed densely
  *     ((BᵀM(x̃)B)^r Bᵀq(x̃) with LAPACK) to 1e-12, with truncated bases;
  *   - a root of a given operator U diag(λ) Uᵀ equals U diag(λ^(p/q)) Uᵀ to
@@ -201,7 +202,7 @@ static double brute_premul(const Model *m, NpgFull *f, const RTensor *t, const R
   for (int l = 0; l < d.nin; l++) red *= mm[l];
   if (d.size > 4000000 || (double)d.size * (double)red > 4e8) return -1;
   d.q = calloc((size_t)d.size, sizeof(double));
-  NpgSink sink = {&d, dense_entry};
+  NpgSink sink = {&d, dense_entry, 0, 1}; /* every row */
   if (full_build(f, t->builder, &sink)) fail_msg("%s", npg_full_error(f));
   double *packed = calloc((size_t)(t->rows * t->cols), sizeof(double));
   long fidx[RT_MAX_IN + 2];
@@ -248,9 +249,41 @@ static void train_small(Trained *tr, const char *path, int cap, long n) { train(
 
 typedef struct PremulStats {
   double worst;
-  int tensors, skipped, other_path;
+  int tensors, skipped, other_path, splits;
   int kinds[3], orders[8], packed;
 } PremulStats;
+
+/* Over ranks: the parts of premultiply_part (each rank's builder enumerating
+ * only its rows; premul refuses an entry of another's) sum to the whole, for
+ * 2 and 3 parts and for more parts than the tensor has rows (ranks with
+ * nothing to do). Non-zero after printing a failure. */
+static int premul_split_check(Model *m, NpgFull *f, RTensor *x, const RClass *cy, const char *path, PremulStats *ps) {
+  long nparts[] = {2, 3, cy->n + 1}, len = x->rows * x->cols;
+  double *kept = x->data, *sum = calloc((size_t)len + 1, sizeof(double));
+  int failures = 0;
+  for (size_t k = 0; k < sizeof nparts / sizeof *nparts; k++) {
+    memset(sum, 0, sizeof(double) * (size_t)len);
+    for (long part = 0; part < nparts[k]; part++) {
+      char err[512];
+      x->data = NULL;
+      if (premultiply_part(m, f, x, cy->B, cy->n, cy->m, (int)part, (int)nparts[k], NULL, err, sizeof err))
+        fail_msg("%s", err);
+      cblas_daxpy((int)len, 1.0, x->data, 1, sum, 1);
+      free(x->data);
+    }
+    x->data = sum;
+    double d = brute_premul(m, f, x, cy);
+    ps->splits++;
+    ps->worst = fmax(ps->worst, d);
+    if (!(d <= 1e-12)) {
+      print_message("%s: tensor %s over %ld ranks: differs from brute force by %.3g\n", path, x->name, nparts[k], d);
+      failures++;
+    }
+  }
+  x->data = kept;
+  free(sum);
+  return failures;
+}
 
 static int premul_program(const char *path, void *arg) {
   PremulStats *ps = arg;
@@ -278,6 +311,7 @@ static int premul_program(const char *path, void *arg) {
           print_message("%s: tensor %s: pre-multiplied differs from brute force by %.3g\n", path, x->name, d);
           failures++;
         }
+        if (premul_split_check(m, tr.f, x, cy, path, ps)) failures++;
         if (x->nin > 0 && x->in_mult[x->nin - 1] == 2) {
           /* the other path for a last x ⊗ x axis (unpacked GEMM or packed rows) */
           char err[512];
@@ -310,12 +344,12 @@ static void premultiply_equals_brute_force(void **state) {
   PremulStats ps = {0};
   for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += for_each_program(dirs[i], premul_program, &ps, &n);
   print_message("%d programs, %d tensors (%d numerator, %d diagonal, %d declared; orders 2..5: %d %d %d %d; %d packed "
-                "symmetric axes; %d last x ⊗ x axes also by the other path; %d too large, skipped): worst relative "
-                "difference %.2g\n",
+                "symmetric axes; %d last x ⊗ x axes also by the other path; %d splits over ranks; %d too large, "
+                "skipped): worst relative difference %.2g\n",
                 n, ps.tensors, ps.kinds[0], ps.kinds[1], ps.kinds[2], ps.orders[2], ps.orders[3], ps.orders[4],
-                ps.orders[5], ps.packed, ps.other_path, ps.skipped, ps.worst);
+                ps.orders[5], ps.packed, ps.other_path, ps.splits, ps.skipped, ps.worst);
   assert_int_equal(failures, 0);
-  assert_true(ps.other_path > 0);
+  assert_true(ps.other_path > 0 && ps.splits == 3 * ps.tensors);
   for (int o = 2; o <= 5; o++) assert_true(ps.orders[o] > 0);
   assert_true(ps.kinds[RT_DIAG] > 0 && ps.kinds[RT_DECL] > 0 && ps.packed > 0);
 }
@@ -343,7 +377,7 @@ static void field_at(const Model *m, NpgFull *f, const RTensor *ts, int nt, doub
     int pos = 0;
     for (int j = 0; j < ts[g].nin; j++)
       for (int l = 0; l < ts[g].in_mult[j]; l++) fa.x[pos++] = xt[ts[g].in_q[j]];
-    NpgSink sink = {&fa, field_at_entry};
+    NpgSink sink = {&fa, field_at_entry, 0, 1}; /* every row */
     if (full_build(f, ts[g].builder, &sink)) fail_msg("%s", npg_full_error(f));
   }
   (void)m;

@@ -3,7 +3,8 @@
  *
  *     (row, col, offsets of the contracted entries, coefficient)
  *
- * to an NpgSink in output-major order, ready for pre-multiplication. A
+ * to an NpgSink in output-major order, ready for pre-multiplication — the
+ * rows of one MPI rank's share only when the sink asks (NpgSink.nparts). A
  * numerator tensor's row is the flat entry of the stage (col -1); a
  * diagonal operator's entries lie on its diagonal (row == col); a declared
  * operator's row and column are flat over its row and column index
@@ -80,14 +81,36 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
   const BuildArgs *b = arg;
   const Sym *s = b->domain;
   const TensorGroup *g = b->group;
+  int nrow = b->kind == 2 ? s->nrow : s->nivars;
+  /* one rank's share (NpgSink.part, .nparts): the rows ≡ part_ (mod np_)
+   * only. A stage of one component (row e_) steps its last loop by np_
+   * from the first such row; one of several tests each component's row
+   * e_ * ncomp + c; a declared operator tests its row once its row
+   * variables are set, its column loops never entered for another's. */
+  bool stride = b->kind != 2 && b->ncomp == 1 && s->nivars > 0;
+  int guard = b->kind != 2 && !stride; /* the per-component test opens a block */
+  fputs("  const npg_idx np_ = sink->nparts > 1 ? sink->nparts : 1, part_ = np_ > 1 ? sink->part : 0;\n", out);
+  fputs("  (void)np_, (void)part_;\n", out);
+  if (b->kind == 2 && nrow == 0) fputs("  if (part_ != 0) return 0;\n", out);
   for (int i = 0; i < s->nivars; i++) {
-    const char *v = emit_name(e, s->ivars[i]);
+    const char *v = emit_name(e, s->ivars[i]), *range = emit_name(e, s->ivars[i]->range);
     emit_use(e, s->ivars[i]->range);
     indent(out, 1 + i);
-    fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, s->ivars[i]->range), v);
+    if (stride && i == s->nivars - 1) {
+      fprintf(out, "for (npg_idx %s = np_ == 1 ? 0 : ((part_ - ", v);
+      emit_flat(e, out, s, 0, i);
+      fprintf(out, " * %s) %% np_ + np_) %% np_; %s < %s; %s += np_) {\n", range, v, range, v);
+    } else {
+      fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, range, v);
+    }
+    if (b->kind == 2 && i == nrow - 1) {
+      indent(out, 2 + i);
+      fputs("if (np_ > 1 && ", out);
+      emit_flat(e, out, s, 0, nrow);
+      fputs(" % np_ != part_) continue;\n", out);
+    }
   }
   int depth = 1 + s->nivars;
-  int nrow = b->kind == 2 ? s->nrow : s->nivars;
   indent(out, depth);
   fputs("const npg_idx e_ = ", out);
   emit_flat(e, out, s, 0, nrow);
@@ -104,11 +127,18 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
   fputs("(void)in_;\n", out);
   for (int c = 0; c < b->ncomp; c++) {
     const Poly *p = &b->field->comp[c];
+    int order[64];
+    bool any = false;
+    for (int i = 0; i < p->n && !any; i++) any = mono_in_group(p->m[i], g, order);
+    if (!any) continue;
+    if (guard) {
+      indent(out, depth);
+      fprintf(out, "if (np_ == 1 || (e_ * %d + %d) %% np_ == part_) {\n", b->ncomp, c);
+    }
     for (int i = 0; i < p->n; i++) {
       const Mono *m = p->m[i];
-      int order[64];
       if (!mono_in_group(m, g, order)) continue;
-      int d = depth;
+      int d = depth + guard;
       indent(out, d++);
       fputs("{\n", out);
       for (int k = 0; k < m->nsums; k++) emit_sum_loop(e, out, &m->sums[k], d++, true);
@@ -138,10 +168,14 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
         fprintf(out, "; if (k_ != 0.0 && sink->entry(sink->user, %s, %s, %d, in_, k_)) return -1; }\n", row, col,
                 g->ninputs);
       }
-      for (int k = d - 1; k >= depth; k--) {
+      for (int k = d - 1; k >= depth + guard; k--) {
         indent(out, k);
         fputs("}\n", out);
       }
+    }
+    if (guard) {
+      indent(out, depth);
+      fputs("}\n", out);
     }
   }
   for (int i = s->nivars; i >= 1; i--) {

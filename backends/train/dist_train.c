@@ -8,7 +8,8 @@
  *   bases       every member's PCA made on one rank (the largest first,
  *               each to the least loaded rank) and broadcast;
  *   SPD marks   a diagonal operator stays SPD when it was on every rank;
- *   pre-multiplication  each rank its rows (premultiply_part), the
+ *   pre-multiplication  each rank its rows (premultiply_part: its
+ *               builders enumerate no other rank's entries), the
  *               reduced tensors summed (train.c). */
 #include <stdlib.h>
 #include <string.h>

@@ -77,7 +77,8 @@ typedef struct Premul {
   long *ent_key;
   double *ent_coef;
   npg_idx *ent_in;
-  int part, nparts;           /* the output rows ≡ part (mod nparts) only (premultiply_part) */
+  int part, nparts;           /* the output rows ≡ part (mod nparts) only (premultiply_part):
+                                 the builder enumerates no other row (NpgSink) */
   int nworkers;
   bool local;                 /* each worker finishes its own keys (see flush_block) */
   Worker wk[PREMUL_MAX_WORKERS];
@@ -299,7 +300,11 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
         snprintf(p->err, p->errlen, "tensor %s: input offset out of range (a bug in npg)", t->name);
         return -1;
       }
-  if (row % p->nparts != p->part) return 0; /* another rank's row */
+  if (row % p->nparts != p->part) {
+    snprintf(p->err, p->errlen, "tensor %s: row %ld is not this rank's (%d of %d; a bug in npg)", t->name, (long)row,
+             p->part, p->nparts);
+    return -1;
+  }
   /* the key of this entry */
   long key = -1;
   bool same_row = p->nkeys > 0 && p->key_row[p->nkeys - 1] == row;
@@ -421,7 +426,7 @@ static int premultiply_rows(Model *m, NpgFull *f, RTensor *t, const double *By, 
     goto done;
   }
   err[0] = 0;
-  NpgSink sink = {&p, on_entry};
+  NpgSink sink = {&p, on_entry, p.part, p.nparts}; /* the builder enumerates this rank's rows only */
   blas_threads = openblas_get_num_threads();
   if (p.local) openblas_set_num_threads(1);
   int built = full_build(f, t->builder, &sink);

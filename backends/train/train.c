@@ -73,7 +73,7 @@ static int field_value(NpgFull *f, const RTensor *ts, int nt, double *out, long 
   for (int g = 0; g < nt; g++) {
     FieldSum s = {{0}, out, n};
     for (int i = 0; i < ts[g].group->ninputs; i++) s.in[i] = npg_full_get(f, ts[g].group->inputs[i]->name, NULL);
-    NpgSink sink = {&s, sum_entry};
+    NpgSink sink = {&s, sum_entry, 0, 1}; /* every row */
     if (full_build(f, ts[g].builder, &sink) != 0) return npg_fail(err, errlen, "%s", npg_full_error(f));
   }
   return 0;
@@ -667,7 +667,20 @@ static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOpti
   return 0;
 }
 
-/* Step 3: the projections between classes and every tensor pre-multiplied. */
+/* The wall and CPU (this process's threads) seconds since t0[0], t0[1]
+ * into sec[0], cpu[0]; t0 moved to now. */
+static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
+  struct timespec t[2];
+  clock_gettime(CLOCK_MONOTONIC, &t[0]);
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t[1]);
+  *sec = (double)(t[0].tv_sec - t0[0].tv_sec) + 1e-9 * (double)(t[0].tv_nsec - t0[0].tv_nsec);
+  *cpu = (double)(t[1].tv_sec - t0[1].tv_sec) + 1e-9 * (double)(t[1].tv_nsec - t0[1].tv_nsec);
+  t0[0] = t[0], t0[1] = t[1];
+}
+
+/* Step 3: the projections between classes and every tensor pre-multiplied.
+ * Over ranks, with progress on, rank 0 says how long its own rows took and
+ * how long the sums over ranks (the wait for the slowest rank included). */
 static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char *err, size_t errlen) {
   long ntensors = 0, done = 0;
   int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1;
@@ -677,7 +690,9 @@ static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char 
       ntensors += rt->nnum;
       for (int k = 0; k < rt->nops; k++) ntensors += rt->ops[k].ntensors;
     }
-  double flops = 0;
+  double flops = 0, own[2] = {0, 0}, sum[2] = {0, 0}, d[2];
+  struct timespec t0[2] = {{0}};
+  phase_time(t0, &d[0], &d[1]);
   for (int i = 0; i < m->nstages; i++) {
     RStage *rs = &m->stages[i];
     RClass *cy = &m->classes[m->qclass[rs->q]];
@@ -693,11 +708,18 @@ static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char 
       RTERM_FOR_TENSORS(rt, x) {
         /* over ranks: every rank its share of the rows, summed on all */
         if (premultiply_part(m, f, x, cy->B, cy->n, cy->m, rank, N, &flops, err, errlen)) return -1;
+        phase_time(t0, &d[0], &d[1]);
+        own[0] += d[0], own[1] += d[1];
         if (N > 1) dist_allreduce_sum(x->data, x->rows * x->cols);
+        phase_time(t0, &d[0], &d[1]);
+        sum[0] += d[0], sum[1] += d[1];
         progress_show(progress, "pre-multiplication", ++done, ntensors);
       }
     }
   }
+  if (progress && N > 1)
+    fprintf(stderr, "pre-multiplication over ranks: %.2f s (%.2f s CPU) this rank's rows, %.2f s (%.2f s CPU) summing "
+            "the tensors\n", own[0], own[1], sum[0], sum[1]);
   return 0;
 }
 
@@ -744,17 +766,6 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
     dist_allreduce_sum(x->Z, S * m->classes[m->qclass[x->q]].m);
   }
   return 0;
-}
-
-/* The wall and CPU (this process's threads) seconds since t0[0], t0[1]
- * into sec[0], cpu[0]; t0 moved to now. */
-static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
-  struct timespec t[2];
-  clock_gettime(CLOCK_MONOTONIC, &t[0]);
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t[1]);
-  *sec = (double)(t[0].tv_sec - t0[0].tv_sec) + 1e-9 * (double)(t[0].tv_nsec - t0[0].tv_nsec);
-  *cpu = (double)(t[1].tv_sec - t0[1].tv_sec) + 1e-9 * (double)(t[1].tv_nsec - t0[1].tv_nsec);
-  t0[0] = t[0], t0[1] = t[1];
 }
 
 /* Steps 1–2: the bases, from snapshots in memory, by the method of

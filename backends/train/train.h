@@ -228,7 +228,8 @@ int premultiply_unpacking(Model *m, NpgFull *f, RTensor *t, const double *By, lo
                           double *flops, char *err, size_t errlen);
 /* The share of premultiply of rank `part` of `nparts`: the rows r ≡ part
  * (mod nparts) of the output only, the others left zero, so the sum of the
- * parts over the ranks is the whole (to rounding). */
+ * parts over the ranks is the whole (to rounding). The tensor's builder
+ * enumerates only those rows' entries: the work divides over the ranks. */
 int premultiply_part(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int part, int nparts,
                      double *flops, char *err, size_t errlen);
 /* Output keys (rows, or (row, col) pairs) pre-multiplied per block of t. */

@@ -12,7 +12,7 @@
 #ifndef NPG_ABI_H
 #define NPG_ABI_H
 
-#define NPG_ABI_VERSION 2
+#define NPG_ABI_VERSION 3
 
 typedef long npg_idx;
 
@@ -59,10 +59,14 @@ typedef struct NpgCtx {
 /* A tensor entry sink for the tensor builder: entries of one tensor arrive
  * in output-major order (non-decreasing `row`). `col` is the column of an
  * operator tensor, -1 for a contraction. `in` holds `nin` flat offsets into
- * the contracted quantities, in the tensor's input order. */
+ * the contracted quantities, in the tensor's input order. With nparts > 1
+ * the builder enumerates only the rows ≡ part (mod nparts) — one MPI rank's
+ * share, the others' never visited; nparts 0 or 1 (a sink initialized
+ * with its first two members only): every row. */
 typedef struct NpgSink {
   void *user;
   int (*entry)(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef);
+  long part, nparts;
 } NpgSink;
 
 struct NpgRt {
