@@ -50,6 +50,7 @@
 #include <cblas.h>
 #include <cmocka.h>
 
+#include "test_mesh.h"
 #include "test_named.h"
 
 #include "cavitysim.h"
@@ -245,79 +246,17 @@ static void check_topology(const Mesh *m) {
   free(uses), free(listed);
 }
 
-typedef struct Point {
-  double x[3];
-  int v;
-} Point;
-
-static int cmp_point(const void *pa, const void *pb) {
-  const Point *a = pa, *b = pb;
-  for (int d = 0; d < 3; d++)
-    if (a->x[d] != b->x[d]) return a->x[d] < b->x[d] ? -1 : 1;
-  return 0;
-}
-
-static int cmp_int4(const void *pa, const void *pb) { return memcmp(pa, pb, 4 * sizeof(int)); }
-
-/* m's cells (width 4) or faces (width 3) as sorted vertex sets in the
- * numbering `to` maps m's vertices into, padded to four ints, sorted
- * (memcmp order: a total order, all that is needed to compare two lists). */
-static int *vertex_sets(const int *items, int n, int width, const int *to) {
-  int *s = calloc(4 * (size_t)n, sizeof *s);
-  for (int i = 0; i < n; i++) {
-    int *x = s + 4 * i;
-    for (int q = 0; q < width; q++) x[q] = to[items[width * i + q]];
-    for (int a = 0; a < width; a++)
-      for (int b = a + 1; b < width; b++)
-        if (x[b] < x[a]) {
-          int t = x[a];
-          x[a] = x[b], x[b] = t;
-        }
-  }
-  qsort(s, n, 4 * sizeof *s, cmp_int4);
-  return s;
-}
-
-/* to_a[v]: the vertex of a at b's vertex v's rest position (a and b hold
- * the same distinct points, asserted). */
-static int *vertex_map(const Mesh *a, const Mesh *b) {
-  assert_int_equal(a->nv, b->nv);
-  int nv = a->nv, *to_a = malloc(nv * sizeof *to_a);
-  Point *pa = malloc(nv * sizeof *pa), *pb = malloc(nv * sizeof *pb);
-  for (int v = 0; v < nv; v++) {
-    pa[v].v = pb[v].v = v;
-    memcpy(pa[v].x, a->g0 + 3 * v, sizeof pa[v].x), memcpy(pb[v].x, b->g0 + 3 * v, sizeof pb[v].x);
-  }
-  qsort(pa, nv, sizeof *pa, cmp_point), qsort(pb, nv, sizeof *pb, cmp_point);
-  for (int i = 0; i < nv; i++) {
-    assert_memory_equal(pa[i].x, pb[i].x, sizeof pa[i].x);
-    assert_true(i == 0 || cmp_point(pa + i - 1, pa + i) < 0); /* distinct points: the map is one to one */
-    to_a[pb[i].v] = pa[i].v;
-  }
-  free(pa), free(pb);
-  return to_a;
-}
-
 /* b is a renumbering of a: the same rest positions, and under the vertex
  * map they define, the same cells, faces and boundary faces as vertex sets. */
 static void check_same_mesh(const Mesh *a, const Mesh *b) {
   assert_int_equal(a->nc, b->nc), assert_int_equal(a->nf, b->nf), assert_int_equal(a->nb, b->nb);
-  int nv = a->nv, *to_a = vertex_map(a, b), *id = malloc(nv * sizeof *id);
-  for (int v = 0; v < nv; v++) id[v] = v;
-  int *bf_a = malloc(a->nb * 3 * sizeof *bf_a), *bf_b = malloc(b->nb * 3 * sizeof *bf_b);
+  int *to_a = vertex_map(a, b), *bf_a = malloc(a->nb * 3 * sizeof *bf_a), *bf_b = malloc(b->nb * 3 * sizeof *bf_b);
   for (int i = 0; i < a->nb; i++) memcpy(bf_a + 3 * i, a->face + 3 * a->bface[i], 3 * sizeof *bf_a);
   for (int i = 0; i < b->nb; i++) memcpy(bf_b + 3 * i, b->face + 3 * b->bface[i], 3 * sizeof *bf_b);
-  struct {
-    const int *ia, *ib;
-    int n, width;
-  } lists[3] = {{a->cell, b->cell, a->nc, 4}, {a->face, b->face, a->nf, 3}, {bf_a, bf_b, a->nb, 3}};
-  for (int l = 0; l < 3; l++) {
-    int *sa = vertex_sets(lists[l].ia, lists[l].n, lists[l].width, id);
-    int *sb = vertex_sets(lists[l].ib, lists[l].n, lists[l].width, to_a);
-    assert_memory_equal(sa, sb, 4 * (size_t)lists[l].n * sizeof *sa);
-    free(sa), free(sb);
-  }
-  free(to_a), free(id), free(bf_a), free(bf_b);
+  assert_same_sets(a->cell, b->cell, a->nc, 4, to_a, NULL, NULL);
+  assert_same_sets(a->face, b->face, a->nf, 3, to_a, a->fkind, b->fkind);
+  assert_same_sets(bf_a, bf_b, a->nb, 3, to_a, NULL, NULL);
+  free(to_a), free(bf_a), free(bf_b);
 }
 
 /* Each numbering's mesh keeps every relation of mesh.h and is gmsh's mesh

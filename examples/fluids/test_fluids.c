@@ -29,6 +29,7 @@
 
 #include <cmocka.h>
 
+#include "test_mesh.h"
 #include "test_named.h"
 
 #include "npg.h"
@@ -359,38 +360,6 @@ static void test_operators_match_npg(void **state) {
   npg_free(prog);
 }
 
-typedef struct Point2 {
-  double x, y;
-  int v;
-} Point2;
-
-static int cmp_point2(const void *pa, const void *pb) {
-  const Point2 *a = pa, *b = pb;
-  if (a->x != b->x) return a->x < b->x ? -1 : 1;
-  return a->y < b->y ? -1 : a->y > b->y;
-}
-
-static int cmp_int3(const void *pa, const void *pb) { return memcmp(pa, pb, 3 * sizeof(int)); }
-
-/* m's cells (width 3) or faces (width 2; the third int its kind) as sorted
- * vertex sets in the numbering `to` maps m's vertices into, sorted. */
-static int *vertex_sets2(const Mesh *m, const int *items, int n, int width, const int *to) {
-  int *s = calloc(3 * (size_t)n, sizeof *s);
-  for (int i = 0; i < n; i++) {
-    int *x = s + 3 * i;
-    for (int q = 0; q < width; q++) x[q] = to[items[width * i + q]];
-    if (width == 2) x[2] = m->fkind[i];
-    for (int a = 0; a < width; a++)
-      for (int b = a + 1; b < width; b++)
-        if (x[b] < x[a]) {
-          int t = x[a];
-          x[a] = x[b], x[b] = t;
-        }
-  }
-  qsort(s, n, 3 * sizeof *s, cmp_int3);
-  return s;
-}
-
 /* The tunnel renumbered along a Hilbert curve (mesh_renumber; the tunnel
  * itself keeps gmsh's numbering) is gmsh's mesh: the same points, cells
  * and faces with their kinds, obstacle corners and periodic copies; it
@@ -409,26 +378,11 @@ static void test_tunnel_numbering(void **state) {
   mesh_renumber(&r, MO_HILBERT);
   assert_int_equal(a->nv, r.nv), assert_int_equal(a->nc, r.nc), assert_int_equal(a->nf, r.nf);
   assert_int_equal(a->nb, r.nb);
-  int nv = a->nv, *to_a = malloc(nv * sizeof *to_a), *id = malloc(nv * sizeof *id);
-  Point2 *pa = malloc(nv * sizeof *pa), *pr = malloc(nv * sizeof *pr);
-  for (int v = 0; v < nv; v++) {
-    id[v] = v;
-    pa[v] = (Point2){a->g0[2 * v], a->g0[2 * v + 1], v}, pr[v] = (Point2){r.g0[2 * v], r.g0[2 * v + 1], v};
-  }
-  qsort(pa, nv, sizeof *pa, cmp_point2), qsort(pr, nv, sizeof *pr, cmp_point2);
-  for (int i = 0; i < nv; i++) {
-    assert_true(pa[i].x == pr[i].x && pa[i].y == pr[i].y);
-    assert_true(i == 0 || cmp_point2(pa + i - 1, pa + i) < 0);
-    to_a[pr[i].v] = pa[i].v;
-  }
+  int nv = a->nv, *to_a = vertex_map(a, &r);
   for (int v = 0; v < nv; v++) assert_int_equal(to_a[r.vmaster[v]], a->vmaster[to_a[v]]);
   for (int q = 0; q < 3; q++) assert_int_equal(to_a[r.obstacle[q]], a->obstacle[q]);
-  int *sa = vertex_sets2(a, a->cell, a->nc, 3, id), *sr = vertex_sets2(&r, r.cell, r.nc, 3, to_a);
-  assert_memory_equal(sa, sr, 3 * (size_t)a->nc * sizeof *sa);
-  free(sa), free(sr);
-  sa = vertex_sets2(a, a->face, a->nf, 2, id), sr = vertex_sets2(&r, r.face, r.nf, 2, to_a);
-  assert_memory_equal(sa, sr, 3 * (size_t)a->nf * sizeof *sa);
-  free(sa), free(sr);
+  assert_same_sets(a->cell, r.cell, a->nc, 3, to_a, NULL, NULL);
+  assert_same_sets(a->face, r.face, a->nf, 2, to_a, a->fkind, r.fkind);
   int periodic = 0;
   for (int c = 0; c < r.nc; c++) {
     assert_true(mesh_volume(&r, r.g0, c) > 0);
@@ -465,7 +419,7 @@ static void test_tunnel_numbering(void **state) {
                 worst);
   assert_true(worst <= 1e-12);
   for (int o = 0; o < 2; o++) solver_free(&s[o]);
-  free(to_a), free(id), free(pa), free(pr);
+  free(to_a);
   mesh_free(&r);
 }
 
