@@ -8,14 +8,17 @@
  *     build/bench-cavity-eval [--cells N] [--reps R]     (defaults 110000, 20)
  *
  * Prints the median and the minimum per sample and their ratios to gmsh's
- * numbering; and, as a check that the three meshes and evaluations are the
+ * numbering; as a check that the three meshes and evaluations are the
  * same, the sums of squares of p, pdot and lap (the same in every numbering,
- * to rounding).
+ * to rounding); CHOLMOD's fill and flops for the projection's matrix in
+ * each numbering; and the time mesh_renumber takes.
  * Figures, not pass/fail. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include <suitesparse/cholmod.h>
 
 #include "cavity.h"
 #include "npg.h"
@@ -91,6 +94,39 @@ static double stage_squares(const NpgFull *fe, const char *name) {
   return s;
 }
 
+/* CHOLMOD's analysis, with its defaults as projection.c's augmented
+ * Lagrangian uses them, of the pattern of K + w DᵀD on the interior faces
+ * (every pair of a cell's interior faces): the factor's entries and flops,
+ * which the numbering could change only through the orderings' tie-breaks
+ * (CHOLMOD orders the matrix itself); -1 on failure. */
+static int cholmod_fill(const Mesh *m, double *lnz, double *flops) {
+  int *fidx = malloc((size_t)m->nf * sizeof *fidx), ni = 0, rc = -1;
+  for (int j = 0; j < m->nf; j++) fidx[j] = m->fkind[j] == BF_INTERIOR ? ni++ : -1;
+  cholmod_common cc;
+  cholmod_start(&cc);
+  cc.print = 0;
+  cholmod_triplet *T = cholmod_allocate_triplet(ni, ni, 10 * (size_t)m->nc, 1, CHOLMOD_PATTERN, &cc);
+  if (T) {
+    int *ti = T->i, *tj = T->j;
+    for (int c = 0; c < m->nc; c++)
+      for (int k = 0; k < 4; k++)
+        for (int l = k; l < 4; l++) {
+          int a = fidx[m->cface[4 * c + k]], b = fidx[m->cface[4 * c + l]];
+          if (a < 0 || b < 0) continue;
+          ti[T->nnz] = a < b ? a : b, tj[T->nnz] = a < b ? b : a, T->nnz++;
+        }
+    cholmod_sparse *A = cholmod_triplet_to_sparse(T, T->nnz, &cc);
+    cholmod_factor *L = A ? cholmod_analyze(A, &cc) : NULL;
+    if (L) *lnz = cc.lnz, *flops = cc.fl, rc = 0;
+    cholmod_free_factor(&L, &cc);
+    cholmod_free_sparse(&A, &cc);
+  }
+  cholmod_free_triplet(&T, &cc);
+  cholmod_finish(&cc);
+  free(fidx);
+  return rc;
+}
+
 static int cmp_double(const void *x, const void *y) {
   double a = *(const double *)x, b = *(const double *)y;
   return a < b ? -1 : a > b;
@@ -159,6 +195,18 @@ int main(int argc, char **argv) {
              BACKEND_NAMES[b], ORDER_NAMES[o], 1e3 * med, 1e3 * mn, med0 / med, min0 / mn,
              stage_squares(fe[o][b], "p"), stage_squares(fe[o][b], "pdot"), stage_squares(fe[o][b], "lap"));
     }
+  }
+  for (int o = 0; o < NORDERS; o++) {
+    double lnz = 0, fl = 0;
+    if (cholmod_fill(&cv[o].m, &lnz, &fl) == 0)
+      printf("CHOLMOD's analysis of K + w DᵀD, %-7s numbering: %.0f entries in L, %.4g flops to factor\n",
+             ORDER_NAMES[o], lnz, fl);
+  }
+  /* the renumbering alone, of gmsh's mesh (then of reverse Cuthill-McKee's) */
+  for (int o = 1; o < NORDERS; o++) {
+    double t0 = util_now();
+    mesh_renumber(&cv[0].m, ORDERS[o]);
+    printf("mesh_renumber %s: %.3f s\n", ORDER_NAMES[o], util_now() - t0);
   }
   for (int o = 0; o < NORDERS; o++) {
     for (int b = 0; b < NBACKENDS; b++) npg_full_free(fe[o][b]), free(t[o][b]);
