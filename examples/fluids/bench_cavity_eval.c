@@ -5,13 +5,16 @@
  * system compiler, the numberings' evaluations interleaved so that they
  * share the machine's load alike.
  *
- *     build/bench-cavity-eval [--cells N] [--reps R]     (defaults 110000, 20)
+ *     build/bench-cavity-eval [--cells N] [--reps R] [--steps S]   (defaults 110000, 20, 0)
  *
  * Prints the median and the minimum per sample and their ratios to gmsh's
  * numbering; as a check that the three meshes and evaluations are the
  * same, the sums of squares of p, pdot and lap (the same in every numbering,
  * to rounding); CHOLMOD's fill and flops for the projection's matrix in
- * each numbering; and the time mesh_renumber takes.
+ * each numbering; with --steps, S full steps of training run 6 on each
+ * numbering (the cavity's projection, the numberings taking turns step by
+ * step) split as Table 1's t_d, t_a, t_p; and the time mesh_renumber
+ * takes.
  * Figures, not pass/fail. */
 #include <math.h>
 #include <stdio.h>
@@ -21,8 +24,10 @@
 #include <suitesparse/cholmod.h>
 
 #include "cavity.h"
+#include "cavitysim.h"
 #include "npg.h"
 #include "npgbind.h"
+#include "solver.h"
 #include "util.h"
 
 #ifndef FLUIDS_NPG3
@@ -127,6 +132,43 @@ static int cholmod_fill(const Mesh *m, double *lnz, double *flops) {
   return rc;
 }
 
+/* The full step's parts, summed over steps: the deformation (cavity_deform
+ * and the solver's h), advection, the projection's factorization and
+ * solve. */
+typedef struct StepTimes {
+  double deform, advect, factor, solve;
+} StepTimes;
+
+/* `steps` full steps of training run 6 on each numbering's mesh, the
+ * numberings taking turns step by step; 0, or -1 with the reason in err. */
+static int time_steps(const Cavity *cv, int n, int steps, StepTimes *out, char *err, size_t errlen) {
+  FullSolver s[NORDERS];
+  double *g[NORDERS], sigma[CAVITY_SIDES];
+  const double zero[3] = {0, 0, 0};
+  int on = 0, rc = 0;
+  for (; on < n && !rc; on++) {
+    g[on] = malloc(3 * (size_t)cv[on].m.nv * sizeof *g[on]);
+    rc = solver_init_at(&s[on], &cv[on].m, PROJ_AL_CHOLMOD, 1e-4, 0.01, cv[on].m.g0, zero, err, errlen);
+    if (rc) free(g[on]);
+  }
+  if (rc) on--;
+  for (int o = 0; o < on; o++) s[o].pr.seconds_numeric = s[o].pr.seconds_solve = 0; /* not the initial projection */
+  for (int t = 1; t <= steps && !rc; t++)
+    for (int o = 0; o < n && !rc; o++) {
+      cavity_schedule(6, t, 100, sigma);
+      double t0 = util_now();
+      rc = cavity_deform(&cv[o], sigma, g[o], NULL, err, errlen);
+      out[o].deform += util_now() - t0;
+      if (!rc) rc = solver_step_to(&s[o], g[o], err, errlen);
+    }
+  for (int o = 0; o < on; o++) {
+    out[o].deform += s[o].seconds_deformation, out[o].advect = s[o].seconds_advection;
+    out[o].factor = s[o].pr.seconds_numeric, out[o].solve = s[o].pr.seconds_solve;
+    solver_free(&s[o]), free(g[o]);
+  }
+  return rc;
+}
+
 static int cmp_double(const void *x, const void *y) {
   double a = *(const double *)x, b = *(const double *)y;
   return a < b ? -1 : a > b;
@@ -134,18 +176,19 @@ static int cmp_double(const void *x, const void *y) {
 
 int main(int argc, char **argv) {
   CavitySpec spec = cavity_spec_default();
-  int reps = 20;
+  int reps = 20, steps = 0;
   spec.cells = 110000;
   for (int i = 1; i < argc; i += 2) {
     if (i + 1 < argc && !strcmp(argv[i], "--cells")) spec.cells = atoi(argv[i + 1]);
     else if (i + 1 < argc && !strcmp(argv[i], "--reps")) reps = atoi(argv[i + 1]);
+    else if (i + 1 < argc && !strcmp(argv[i], "--steps")) steps = atoi(argv[i + 1]);
     else {
-      fprintf(stderr, "usage: bench-cavity-eval [--cells N] [--reps R]\n");
+      fprintf(stderr, "usage: bench-cavity-eval [--cells N] [--reps R] [--steps S]\n");
       return 2;
     }
   }
-  if (spec.cells < 50 || reps < 1) {
-    fprintf(stderr, "bench-cavity-eval: --cells must be at least 50 and --reps at least 1\n");
+  if (spec.cells < 50 || reps < 1 || steps < 0) {
+    fprintf(stderr, "bench-cavity-eval: --cells must be at least 50, --reps at least 1, --steps at least 0\n");
     return 2;
   }
   NpgOptions no = {0};
@@ -201,6 +244,20 @@ int main(int argc, char **argv) {
     if (cholmod_fill(&cv[o].m, &lnz, &fl) == 0)
       printf("CHOLMOD's analysis of K + w DᵀD, %-7s numbering: %.0f entries in L, %.4g flops to factor\n",
              ORDER_NAMES[o], lnz, fl);
+  }
+  if (steps > 0) {
+    StepTimes st[NORDERS] = {{0}};
+    if (time_steps(cv, NORDERS, steps, st, err, sizeof err) != 0) {
+      fprintf(stderr, "bench-cavity-eval: %s\n", err);
+      return 1;
+    }
+    for (int o = 0; o < NORDERS; o++)
+      printf("full step, %-7s numbering, mean of %d: t_d %.2f ms, t_a %.2f ms, t_p %.1f ms (factorization %.1f + "
+             "solve %.1f); gmsh / this: t_d %.2f, t_a %.2f, t_p %.2f\n",
+             ORDER_NAMES[o], steps, 1e3 * st[o].deform / steps, 1e3 * st[o].advect / steps,
+             1e3 * (st[o].factor + st[o].solve) / steps, 1e3 * st[o].factor / steps, 1e3 * st[o].solve / steps,
+             st[0].deform / st[o].deform, st[0].advect / st[o].advect,
+             (st[0].factor + st[0].solve) / (st[o].factor + st[o].solve));
   }
   /* the renumbering alone, of gmsh's mesh (then of reverse Cuthill-McKee's) */
   for (int o = 1; o < NORDERS; o++) {
