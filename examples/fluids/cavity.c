@@ -10,7 +10,7 @@
 #include <string.h>
 
 CavitySpec cavity_spec_default(void) {
-  return (CavitySpec){.R = 1.0, .r = 0.5, .D = 2.4, .rt = 0.25, .cells = 20000};
+  return (CavitySpec){.R = 1.0, .r = 0.5, .D = 2.4, .rt = 0.25, .cells = 20000, .order = MO_HILBERT};
 }
 
 void cavity_free(Cavity *cv) {
@@ -263,6 +263,9 @@ int cavity_mesh(Cavity *cv, const CavitySpec *spec, char *err, size_t errlen) {
     cavity_free(cv);
     return -1;
   }
+  /* gmsh's numbering scatters every gather of the solver and of npg's
+   * generated loops over the whole mesh */
+  mesh_renumber(&cv->m, s->order);
   cv->volume0 = mesh_fluid_volume(&cv->m, cv->m.g0);
   for (int i = 0; i < CAVITY_SIDES; i++) {
     double d[3];

@@ -38,6 +38,7 @@ typedef struct CavitySpec {
   double D;      /* distance of the side chambers' centres from the origin */
   double rt;     /* tunnel radius */
   int cells;     /* target number of tetrahedra (sets gmsh's element size) */
+  MeshOrder order; /* the numbering of cells, faces and vertices (mesh_renumber) */
 } CavitySpec;
 
 typedef struct Cavity {
@@ -50,13 +51,13 @@ typedef struct Cavity {
   double mid_r1, mid_r2;        /* central blend about the origin */
 } Cavity;
 
-/* R 1, r 0.5, D 2.4, rt 0.25, 20,000 cells. */
+/* R 1, r 0.5, D 2.4, rt 0.25, 20,000 cells, numbered along a Hilbert curve. */
 CavitySpec cavity_spec_default(void);
 
-/* Mesh `spec` with gmsh (initialized and finalized inside) and build the
+/* Mesh `spec` with gmsh (initialized and finalized inside), build the
  * tetrahedral topology (faces oriented out of their first cell, boundary
- * faces out of the fluid). 0, or -1 with the reason in `err` and `cv`
- * zeroed. */
+ * faces out of the fluid) and renumber it by spec->order. 0, or -1 with the
+ * reason in `err` and `cv` zeroed. */
 int cavity_mesh(Cavity *cv, const CavitySpec *spec, char *err, size_t errlen);
 void cavity_free(Cavity *cv);
 

@@ -6,6 +6,7 @@
 #include <gmshc.h>
 #include <math.h>
 #include <stdarg.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -407,4 +408,190 @@ double mesh_mean_edge(const Mesh *m) {
     s += hypot(b[0] - a[0], b[1] - a[1]);
   }
   return s / m->nf;
+}
+
+/* ---------------------------------------------------------------- numbering */
+
+/* The position of the point (x[0], .., x[n-1]) (b bits each, n b <= 64) along
+ * the n-dimensional Hilbert curve (J. Skilling, "Programming the Hilbert
+ * curve", AIP Conf. Proc. 707, 2004: the axes to the curve's transposed
+ * index, then its bits interleaved). */
+static uint64_t hilbert_index(uint32_t *x, int n, int b) {
+  uint32_t M = 1u << (b - 1), t;
+  for (uint32_t Q = M; Q > 1; Q >>= 1) {
+    uint32_t P = Q - 1;
+    for (int i = 0; i < n; i++)
+      if (x[i] & Q) x[0] ^= P;
+      else {
+        t = (x[0] ^ x[i]) & P;
+        x[0] ^= t;
+        x[i] ^= t;
+      }
+  }
+  for (int i = 1; i < n; i++) x[i] ^= x[i - 1];
+  t = 0;
+  for (uint32_t Q = M; Q > 1; Q >>= 1)
+    if (x[n - 1] & Q) t ^= Q - 1;
+  for (int i = 0; i < n; i++) x[i] ^= t;
+  uint64_t h = 0;
+  for (int bit = b - 1; bit >= 0; bit--)
+    for (int i = 0; i < n; i++) h = h << 1 | ((x[i] >> bit) & 1);
+  return h;
+}
+
+typedef struct CellKey {
+  uint64_t key;
+  int c;
+} CellKey;
+
+static int cmp_key(const void *x, const void *y) {
+  const CellKey *p = x, *q = y;
+  if (p->key != q->key) return p->key < q->key ? -1 : 1;
+  return p->c - q->c;
+}
+
+/* old[i]: the cell numbered i, along the Hilbert curve through the rest
+ * centroids (the bounding box's longest side scaled to the curve's grid, so
+ * the curve is not stretched along the shorter ones). */
+static void order_hilbert(const Mesh *m, int *old) {
+  int dim = m->dim, nk = m->nk, bits = dim == 3 ? 21 : 31;
+  double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  double *mid = malloc((size_t)m->nc * dim * sizeof *mid);
+  for (int c = 0; c < m->nc; c++)
+    for (int d = 0; d < dim; d++) {
+      double s = 0;
+      for (int k = 0; k < nk; k++) s += m->g0[dim * m->cell[nk * c + k] + d];
+      mid[dim * c + d] = s / nk;
+      lo[d] = fmin(lo[d], s / nk), hi[d] = fmax(hi[d], s / nk);
+    }
+  double side = 0;
+  for (int d = 0; d < dim; d++) side = fmax(side, hi[d] - lo[d]);
+  double scale = side > 0 ? (double)((1u << bits) - 1) / side : 0;
+  CellKey *key = malloc((size_t)m->nc * sizeof *key);
+  for (int c = 0; c < m->nc; c++) {
+    uint32_t x[3];
+    for (int d = 0; d < dim; d++) x[d] = (uint32_t)((mid[dim * c + d] - lo[d]) * scale);
+    key[c] = (CellKey){hilbert_index(x, dim, bits), c};
+  }
+  qsort(key, m->nc, sizeof *key, cmp_key);
+  for (int i = 0; i < m->nc; i++) old[i] = key[i].c;
+  free(key);
+  free(mid);
+}
+
+static int degree(const Mesh *m, int c) {
+  int n = 0;
+  for (int k = 0; k < m->nk; k++) n += m->nbr[m->nk * c + k] >= 0;
+  return n;
+}
+
+/* Breadth-first from `start` over the cells not yet in old[0..n), each
+ * cell's neighbours taken by increasing degree (Cuthill-McKee); appends
+ * them to old and returns the new count. */
+static int cuthill_mckee(const Mesh *m, int start, int *old, int n, char *seen) {
+  int head = n;
+  old[n++] = start, seen[start] = 1;
+  while (head < n) {
+    int c = old[head++], next[4], nn = 0;
+    for (int k = 0; k < m->nk; k++) {
+      int b = m->nbr[m->nk * c + k];
+      if (b < 0 || seen[b]) continue;
+      int i = nn++;
+      while (i > 0 && degree(m, next[i - 1]) > degree(m, b)) next[i] = next[i - 1], i--;
+      next[i] = b;
+    }
+    for (int i = 0; i < nn; i++) old[n++] = next[i], seen[next[i]] = 1;
+  }
+  return n;
+}
+
+/* old[i]: the cell numbered i by reverse Cuthill-McKee, each connected part
+ * started from a pseudo-peripheral cell (the last cell of a breadth-first
+ * sweep, twice). */
+static void order_rcm(const Mesh *m, int *old) {
+  char *seen = calloc(m->nc, 1);
+  int n = 0;
+  for (int s = 0; s < m->nc; s++) {
+    if (seen[s]) continue;
+    int start = s;
+    for (int sweep = 0; sweep < 2; sweep++) {
+      int end = cuthill_mckee(m, start, old, n, seen);
+      start = old[end - 1];
+      for (int i = n; i < end; i++) seen[old[i]] = 0;
+    }
+    n = cuthill_mckee(m, start, old, n, seen);
+  }
+  for (int i = 0; i < m->nc / 2; i++) {
+    int t = old[i];
+    old[i] = old[m->nc - 1 - i], old[m->nc - 1 - i] = t;
+  }
+  free(seen);
+}
+
+static int *permuted_ints(const int *a, const int *old, int n, int width) {
+  int *b = malloc((size_t)n * width * sizeof *b);
+  for (int i = 0; i < n; i++) memcpy(b + (size_t)width * i, a + (size_t)width * old[i], width * sizeof *b);
+  return b;
+}
+
+void mesh_renumber(Mesh *m, MeshOrder order) {
+  if (order == MO_MESHER) return;
+  int nc = m->nc, nf = m->nf, nv = m->nv, nk = m->nk, dim = m->dim;
+  int *oldc = malloc((size_t)nc * sizeof *oldc), *newc = malloc((size_t)nc * sizeof *newc);
+  int *oldf = malloc((size_t)nf * sizeof *oldf), *newf = malloc((size_t)nf * sizeof *newf);
+  int *oldv = malloc((size_t)nv * sizeof *oldv), *newv = malloc((size_t)nv * sizeof *newv);
+  if (order == MO_RCM) order_rcm(m, oldc);
+  else order_hilbert(m, oldc);
+  /* faces and vertices by first use */
+  for (int j = 0; j < nf; j++) newf[j] = -1;
+  for (int v = 0; v < nv; v++) newv[v] = -1;
+  int fn = 0, vn = 0;
+  for (int i = 0; i < nc; i++) {
+    int c = oldc[i];
+    newc[c] = i;
+    for (int k = 0; k < nk; k++) {
+      int j = m->cface[nk * c + k], v = m->cell[nk * c + k];
+      if (newf[j] < 0) oldf[fn] = j, newf[j] = fn++;
+      if (newv[v] < 0) oldv[vn] = v, newv[v] = vn++;
+    }
+  }
+  /* the mesh's vertices are its cells' (gmsh's unused nodes are dropped) */
+  for (int v = 0; v < nv; v++)
+    if (newv[v] < 0) oldv[vn] = v, newv[v] = vn++;
+  double *g0 = malloc((size_t)nv * dim * sizeof *g0), *csign = malloc((size_t)nc * nk * sizeof *csign);
+  for (int v = 0; v < nv; v++) memcpy(g0 + (size_t)dim * v, m->g0 + (size_t)dim * oldv[v], dim * sizeof *g0);
+  for (int c = 0; c < nc; c++) memcpy(csign + (size_t)nk * c, m->csign + (size_t)nk * oldc[c], nk * sizeof *csign);
+  int *cell = permuted_ints(m->cell, oldc, nc, nk), *cface = permuted_ints(m->cface, oldc, nc, nk);
+  int *nbr = permuted_ints(m->nbr, oldc, nc, nk), *face = permuted_ints(m->face, oldf, nf, dim);
+  int *fkind = permuted_ints(m->fkind, oldf, nf, 1), *fcell = permuted_ints(m->fcell, oldf, nf, 2);
+  for (int i = 0; i < nc * nk; i++) {
+    cell[i] = newv[cell[i]], cface[i] = newf[cface[i]];
+    if (nbr[i] >= 0) nbr[i] = newc[nbr[i]];
+  }
+  for (int i = 0; i < nf * dim; i++) face[i] = newv[face[i]];
+  for (int i = 0; i < 2 * nf; i++)
+    if (fcell[i] >= 0) fcell[i] = newc[fcell[i]];
+  int nb = 0;
+  for (int j = 0; j < nf; j++)
+    if (fkind[j] != BF_INTERIOR) m->bface[nb++] = j;
+  if (m->nshift) {
+    int *nshift = permuted_ints(m->nshift, oldc, nc, nk);
+    free(m->nshift), m->nshift = nshift;
+  }
+  if (m->vmaster) {
+    int *vmaster = permuted_ints(m->vmaster, oldv, nv, 1);
+    for (int v = 0; v < nv; v++) vmaster[v] = newv[vmaster[v]];
+    free(m->vmaster), m->vmaster = vmaster;
+  }
+  if (dim == 2)
+    for (int q = 0; q < 3; q++) m->obstacle[q] = newv[m->obstacle[q]];
+  free(m->g0), m->g0 = g0;
+  free(m->csign), m->csign = csign;
+  free(m->cell), m->cell = cell;
+  free(m->cface), m->cface = cface;
+  free(m->nbr), m->nbr = nbr;
+  free(m->face), m->face = face;
+  free(m->fkind), m->fkind = fkind;
+  free(m->fcell), m->fcell = fcell;
+  free(oldc), free(newc), free(oldf), free(newf), free(oldv), free(newv);
 }

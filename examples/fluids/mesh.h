@@ -89,6 +89,27 @@ void mesh_free(Mesh *m);
  * holds the inverted positions (for inspection only). */
 int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen);
 
+/* How a mesh's cells, faces and vertices are numbered once meshed. The
+ * solver's loops and npg's generated ones gather f, h, u and g through nbr,
+ * cface, face and cell: a numbering in which neighbours get close numbers
+ * keeps those gathers in cache, where the mesher's scatters them. */
+typedef enum MeshOrder {
+  MO_HILBERT, /* cells along a Hilbert curve through their rest centroids (the cavity's default) */
+  MO_RCM,     /* cells by reverse Cuthill-McKee on the cell graph (gathers a little faster still, but
+                 CHOLMOD's own ordering of the projection then fills more: README, cavity) */
+  MO_MESHER,  /* as the mesher numbered them (mesh_renumber leaves m unchanged) */
+} MeshOrder;
+
+/* Renumber m's cells by `order`, then its faces in order of first use by
+ * the cells in their new order (cell by cell, k = 0..nk-1) and its vertices
+ * likewise. Nothing but the numbers changes: each cell keeps its vertices
+ * in their order (its orientation), each face its vertices in their order
+ * and its fcell pair (so its normal still points out of fcell[0]); cface,
+ * csign, nbr, nshift and fkind follow their cell or face; bface lists the
+ * same boundary faces in increasing new number; vmaster and obstacle
+ * follow the vertices. */
+void mesh_renumber(Mesh *m, MeshOrder order);
+
 /* Face f is face k0 of cell c0 (its normal out of c0) and face k1 of cell
  * c1 (c1 = -1 on the boundary): cface, csign, nbr, fcell, and fkind
  * BF_INTERIOR for two cells (a boundary face's kind is the caller's). */

@@ -14,6 +14,9 @@
  *                                fixed obstacles are linear in their scale
  *   operators_match_npg          every operator assembled here equals npg's full
  *                                evaluator of examples/fluids/fluids2d.npg (1e-12)
+ *   tunnel_numbering             the tunnel renumbered along a Hilbert curve is the
+ *                                same mesh, keeps its relations (periodic faces
+ *                                included) and gives the same energies (1e-12)
  */
 #include <math.h>
 #include <setjmp.h>
@@ -26,6 +29,7 @@
 
 #include <cmocka.h>
 
+#include "test_mesh.h"
 #include "test_named.h"
 
 #include "npg.h"
@@ -356,11 +360,74 @@ static void test_operators_match_npg(void **state) {
   npg_free(prog);
 }
 
+/* The tunnel renumbered along a Hilbert curve (mesh_renumber; the tunnel
+ * itself keeps gmsh's numbering) is gmsh's mesh: the same points, cells
+ * and faces with their kinds, obstacle corners and periodic copies; it
+ * keeps mesh.h's relations (counter-clockwise cells, the face opposite its
+ * vertex and running counter-clockwise in its first cell, nbr symmetric,
+ * a periodic face's shift opposite from its two sides); and three full
+ * steps of a growing obstacle give the same energies to 1e-12. */
+static void test_tunnel_numbering(void **state) {
+  (void)state;
+  const Mesh *a = &mesh;
+  Mesh r;
+  TunnelSpec spec = tunnel_spec_default();
+  spec.cells = 300;
+  char err[512];
+  if (mesh_tunnel(&r, &spec, err, sizeof err) != 0) fail_msg("%s", err);
+  mesh_renumber(&r, MO_HILBERT);
+  assert_int_equal(a->nv, r.nv), assert_int_equal(a->nc, r.nc), assert_int_equal(a->nf, r.nf);
+  assert_int_equal(a->nb, r.nb);
+  int nv = a->nv, *to_a = vertex_map(a, &r);
+  for (int v = 0; v < nv; v++) assert_int_equal(to_a[r.vmaster[v]], a->vmaster[to_a[v]]);
+  for (int q = 0; q < 3; q++) assert_int_equal(to_a[r.obstacle[q]], a->obstacle[q]);
+  assert_same_sets(a->cell, r.cell, a->nc, 3, to_a, NULL, NULL);
+  assert_same_sets(a->face, r.face, a->nf, 2, to_a, a->fkind, r.fkind);
+  int periodic = 0;
+  for (int c = 0; c < r.nc; c++) {
+    assert_true(mesh_volume(&r, r.g0, c) > 0);
+    for (int k = 0; k < 3; k++) {
+      int j = r.cface[3 * c + k], b = r.nbr[3 * c + k];
+      int v0 = r.cell[3 * c + (k + 1) % 3], v1 = r.cell[3 * c + (k + 2) % 3];
+      double cs = r.csign[3 * c + k];
+      if (cs > 0) assert_true(r.face[2 * j] == v0 && r.face[2 * j + 1] == v1 && r.fcell[2 * j] == c);
+      else assert_true(r.vmaster[r.face[2 * j]] == r.vmaster[v1] && r.vmaster[r.face[2 * j + 1]] == r.vmaster[v0]);
+      if (b < 0) {
+        assert_true(cs == 1 && r.fkind[j] != BF_INTERIOR && r.nshift[3 * c + k] == 0);
+        continue;
+      }
+      int back = 0;
+      for (int l = 0; l < 3; l++)
+        back += r.nbr[3 * b + l] == c && r.cface[3 * b + l] == j && r.csign[3 * b + l] == -cs &&
+                r.nshift[3 * b + l] == -r.nshift[3 * c + k];
+      assert_int_equal(back, 1);
+      periodic += r.nshift[3 * c + k] != 0;
+    }
+  }
+  assert_true(periodic > 0); /* the periodic faces are there, seen from both sides */
+  FullSolver s[2];
+  double u0[2] = {1, 0}, worst = 0;
+  const Mesh *ms[2] = {a, &r};
+  for (int o = 0; o < 2; o++)
+    if (solver_init(&s[o], ms[o], PROJ_STREAM_CHOLMOD, 1e-3, 0.02, 1.0, u0, err, sizeof err) != 0) fail_msg("%s", err);
+  for (int step = 1; step <= 3; step++) {
+    for (int o = 0; o < 2; o++)
+      if (solver_step(&s[o], 1 + 0.05 * step, err, sizeof err) != 0) fail_msg("%s", err);
+    worst = fmax(worst, fabs(solver_energy(&s[1]) / solver_energy(&s[0]) - 1));
+  }
+  print_message("%d cells, %d periodic face sides; energies after 3 steps %.3g apart (relative)\n", r.nc, periodic,
+                worst);
+  assert_true(worst <= 1e-12);
+  for (int o = 0; o < 2; o++) solver_free(&s[o]);
+  free(to_a);
+  mesh_free(&r);
+}
+
 int main(int argc, char **argv) {
   const struct CMUnitTest all[] = {
       cmocka_unit_test(test_advection_energy),  cmocka_unit_test(test_diffusion_projection_energy),
       cmocka_unit_test(test_divergence_free),   cmocka_unit_test(test_inversion_refused),
-      cmocka_unit_test(test_operators_match_npg),
+      cmocka_unit_test(test_operators_match_npg), cmocka_unit_test(test_tunnel_numbering),
   };
   small_mesh();
   int rc = run_named_tests("test_fluids", argc, argv, all, (int)(sizeof all / sizeof all[0]));
