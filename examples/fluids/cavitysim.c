@@ -39,6 +39,7 @@ void cavity_options_default(CavityOptions *o) {
   o->workers = cpus < 1 ? 1 : cpus > CAVITY_MAX_WORKERS ? CAVITY_MAX_WORKERS : (int)cpus;
   o->sample_every = 1;
   o->buffer_bytes = (size_t)2 << 30;
+  o->backend = NPG_CC;
 }
 
 int cavity_frames_for(int cells) {
@@ -490,7 +491,7 @@ int cavity_run(const CavityOptions *o) {
       fprintf(stderr, "%s", npg_error(prog));
       goto done;
     }
-    fe = npg_full_new(prog, NPG_TCC);
+    fe = npg_full_new(prog, o->backend);
     if (npg_full_error(fe)[0] || fluid_bind(fe, m, mu) != 0) {
       fprintf(stderr, "npg-fluids: %s\n", npg_full_error(fe));
       goto done;
@@ -500,6 +501,7 @@ int cavity_run(const CavityOptions *o) {
     NpgTrainOptions to;
     FluidBasisOptions mo;
     fluid_train_options(&to, &mo, o->mu - 4, o->mf, o->mg, 60);
+    to.progress = isatty(STDERR_FILENO); /* the trainer's passes take minutes at the paper's size */
     NpgTrainer *tr = npg_trainer_new(fe, &to);
     if (cavity_train(&cv, o, mu, tr, &ct) != 0) {
       npg_trainer_free(tr);
@@ -821,9 +823,10 @@ int cavity_run(const CavityOptions *o) {
   fprintf(fp, "  \"particles\": %d,\n  \"t_pa_full_flow\": %.6g,\n", o->particles, seconds_particles / steps);
   if (reduced) {
     fprintf(fp, "  \"training_runs\": %d,\n  \"workers\": %d,\n  \"train_threads\": %d,\n  \"sample_every\": %d,\n"
-                "  \"training_samples\": %ld,\n  \"training_runs_seconds\": %.4g,\n"
+                "  \"train_backend\": \"%s\",\n  \"training_samples\": %ld,\n  \"training_runs_seconds\": %.4g,\n"
                 "  \"training_runs_steps_seconds\": %.4g,\n  \"training_seconds\": %.4g,\n",
-            o->runs, ct.workers, train_threads, o->sample_every, npg_model_samples(model), ct.seconds, ct.seconds_runs,
+            o->runs, ct.workers, train_threads, o->sample_every, o->backend == NPG_CC ? "cc" : "tcc",
+            npg_model_samples(model), ct.seconds, ct.seconds_runs,
             seconds_train);
     fprintf(fp, "  \"training_split\": {\"snapshots\": %.4g, \"bases\": %.4g, \"premultiplication\": %.4g, "
                 "\"externs\": %.4g},\n",

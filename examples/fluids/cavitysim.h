@@ -30,6 +30,7 @@ typedef struct CavityOptions {
   int train_threads; /* OpenBLAS's threads in npg_trainer_finish (0: `workers`) */
   int sample_every; /* every K-th frame of a training run is a sample (1) */
   size_t buffer_bytes; /* bound on the samples queued by runs the trainer is not taking yet (2 GB) */
+  NpgBackend backend; /* the trainer's full evaluator (NPG_CC: replays 2-3x faster than libtcc's code) */
 } CavityOptions;
 
 /* What the training runs did. */

@@ -52,7 +52,7 @@ static void usage(FILE *fp) {
         "       npg-fluids cavity --out DIR [--cells N] [--frames N] [--runs N] [--dt DT] [--nu NU]\n"
         "                  [--mf N] [--mu N] [--mg N] [--dtol X] [--particles N] [--png-every K] [--vtk-every K]\n"
         "                  [--width PX] [--projection al|kkt] [--workers W] [--train-threads N]\n"
-        "                  [--sample-every K] [--buffer-mb N]\n"
+        "                  [--sample-every K] [--buffer-mb N] [--backend cc|tcc]\n"
         "       npg-fluids cavity-mesh [--cells N]         the cavity's mesh statistics as JSON\n"
         "       npg-fluids cavity-projection [--cells N] [--steps N] [--method kkt|al|both]\n"
         "                  the full projection timed on the cavity (JSON)\n"
@@ -96,7 +96,8 @@ static void usage(FILE *fp) {
         "  same order for every W. --train-threads N: OpenBLAS's threads while training (W).\n"
         "  --sample-every K: every K-th frame of a training run is a sample (1; the runs still\n"
         "  take every step). --buffer-mb N: bound on the samples of later runs waiting while the\n"
-        "  trainer takes an earlier run's (2048)\n",
+        "  trainer takes an earlier run's (2048). --backend: the trainer's full evaluator, compiled\n"
+        "  by the system compiler (cc, default: its replays ran 2-3x faster here) or by libtcc (tcc)\n",
         fp);
 }
 
@@ -500,7 +501,7 @@ static int cavity_cmd(int argc, char **argv) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     static const char *known[] = {"--out", "--cells", "--frames", "--runs", "--dt", "--nu", "--mf", "--mu", "--mg",
                                   "--particles", "--png-every", "--vtk-every", "--width", "--dtol", "--projection",
-                                  "--workers", "--train-threads", "--sample-every", "--buffer-mb"};
+                                  "--workers", "--train-threads", "--sample-every", "--buffer-mb", "--backend"};
     if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
     int bad = 0;
     if (!strcmp(a, "--out")) o.out = v;
@@ -525,6 +526,10 @@ static int cavity_cmd(int argc, char **argv) {
       int mb = 0;
       bad = parse_int(v, &mb);
       o.buffer_bytes = (size_t)mb << 20;
+    } else if (!strcmp(a, "--backend")) {
+      if (!strcmp(v, "cc")) o.backend = NPG_CC;
+      else if (!strcmp(v, "tcc")) o.backend = NPG_TCC;
+      else bad = 1;
     } else if (!strcmp(a, "--projection")) {
       if (!strcmp(v, "al")) o.projection = PROJ_AL_CHOLMOD;
       else if (!strcmp(v, "kkt")) o.projection = PROJ_KKT_UMFPACK;
