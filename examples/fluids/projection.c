@@ -254,6 +254,25 @@ static bool al_refactor_next(const Projection *pr, int solves) {
   return (double)solves * al->cycle_steps > al_factor_cost(pr) + al->cycle_solves;
 }
 
+/* res = bc - D x on the constraint rows (bc the KKT right-hand side's);
+ * returns max |res|. */
+static double al_constraint_residual(const Projection *pr, const double *x, double *res) {
+  const Mesh *m = pr->o->m;
+  const double *bc = pr->rhs + pr->ni;
+  int nk = m->nk;
+  double rmax = 0;
+  for (int c = 0; c < m->nc - 1; c++) {
+    double s = bc[c];
+    for (int k = 0; k < nk; k++) {
+      int fk = pr->fidx[m->cface[nk * c + k]];
+      if (fk >= 0) s -= m->csign[nk * c + k] * x[fk];
+    }
+    res[c] = s;
+    rmax = fmax(rmax, fabs(s));
+  }
+  return rmax;
+}
+
 /* The augmented Lagrangian iterations (projection.h) in residual form: the
  * right-hand side of every solve is the exact KKT system's residual at the
  * current geometry, r - K x - D^T lam + w D^T (bc - D x), so the factor L
@@ -273,7 +292,7 @@ static int al_iterate(Projection *pr, int *solves, char *err, size_t errlen) {
   const Mesh *m = o->m;
   AugLagrangian *al = pr->al;
   int dim = m->dim, nk = m->nk, ni = pr->ni, nc1 = m->nc - 1;
-  const double *r = pr->rhs, *bc = pr->rhs + ni;
+  const double *r = pr->rhs;
   double *x = pr->x, *lam = al->lambda, *b = al->b->x, *ff = pr->work_f2, *uu = pr->work_u, *res = al->res;
   double w = al->w, hmax = 0, prev = INFINITY;
   if (!al->warm) {
@@ -281,14 +300,7 @@ static int al_iterate(Projection *pr, int *solves, char *err, size_t errlen) {
     memset(x, 0, ni * sizeof *x);
     al->warm = true;
   }
-  for (int c = 0; c < nc1; c++) {
-    double s = bc[c];
-    for (int k = 0; k < nk; k++) {
-      int fk = pr->fidx[m->cface[nk * c + k]];
-      if (fk >= 0) s -= m->csign[nk * c + k] * x[fk];
-    }
-    res[c] = s;
-  }
+  al_constraint_residual(pr, x, res);
   for (int j = 0; j < m->nf; j++) hmax = fmax(hmax, fabs(pr->work_f[j]));
   for (int it = 1;; it++) {
     /* b = r - K x - D^T lam + w D^T (bc - D x), with res = bc - D x */
@@ -312,17 +324,8 @@ static int al_iterate(Projection *pr, int *solves, char *err, size_t errlen) {
     for (int i = 0; i < ni; i++) x[i] += dx[i], dmax = fmax(dmax, fabs(dx[i])), fmx = fmax(fmx, fabs(x[i]));
     cholmod_free_dense(&sol, &al->cc);
     /* res = bc - D x; lam -= w res */
-    double rmax = 0;
-    for (int c = 0; c < nc1; c++) {
-      double s = bc[c];
-      for (int k = 0; k < nk; k++) {
-        int fk = pr->fidx[m->cface[nk * c + k]];
-        if (fk >= 0) s -= m->csign[nk * c + k] * x[fk];
-      }
-      res[c] = s;
-      lam[c] -= w * s;
-      rmax = fmax(rmax, fabs(s));
-    }
+    double rmax = al_constraint_residual(pr, x, res);
+    for (int c = 0; c < nc1; c++) lam[c] -= w * res[c];
     /* to rounding, or (a fresh factor) until the corrections stop falling */
     double size = fmax(dmax, rmax);
     if (!isfinite(size)) {
