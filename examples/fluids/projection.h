@@ -65,7 +65,10 @@ typedef struct Projection {
   AugLagrangian *al;        /* PROJ_AL_CHOLMOD */
   /* PROJ_AL_CHOLMOD: the factor's reuse (set after projection_init) */
   bool al_refactor_every_step; /* factor K + w D^T D at every projection (the reference) */
-  double al_factor_cost;       /* a factorization's cost in solves for the reuse policy; 0: measured */
+  /* a factorization's cost in solves for the reuse policy; 0: measured, so
+   * the schedule of factorizations follows the machine's timing and runs
+   * agree to rounding (1e-15 of the largest flux), not bit for bit */
+  double al_factor_cost;
   /* PROJ_AL_CHOLMOD: counts */
   int iterations;              /* solves of the last projection */
   long projections, solves;    /* accumulated */
