@@ -280,8 +280,9 @@ static double al_constraint_residual(const Projection *pr, const double *x, doub
  * iterate converges, not what it converges to: with a stale factor the
  * iterations are a stationary iteration preconditioned by it. Starts from
  * the last projection's solution when al->warm. Stops when the correction
- * and the constraint residual fall below 1e-15 of the largest flux, or,
- * with a fresh factor only, when they stagnate at rounding (below 1e-10).
+ * and the constraint residual fall below 1e-15 of the largest flux, or
+ * when they stagnate at rounding (below 1e-10 of it with a fresh factor,
+ * as before the factor was kept; below 1e-13 with a stale one).
  * 0 when converged (the interior fluxes in pr->x); 1 when a stale factor
  * stops paying: its corrections fall by less than AL_STALE_RATE, or the
  * solves their rate predicts exceed al_refactor_budget (the caller
@@ -326,7 +327,7 @@ static int al_iterate(Projection *pr, int *solves, char *err, size_t errlen) {
     /* res = bc - D x; lam -= w res */
     double rmax = al_constraint_residual(pr, x, res);
     for (int c = 0; c < nc1; c++) lam[c] -= w * res[c];
-    /* to rounding, or (a fresh factor) until the corrections stop falling */
+    /* to rounding, or until the corrections stop falling */
     double size = fmax(dmax, rmax);
     if (!isfinite(size)) {
       al->warm = false;
