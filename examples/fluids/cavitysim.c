@@ -820,6 +820,7 @@ int cavity_run(const CavityOptions *o) {
   fprintf(fp, "  \"projection_method\": \"%s\",\n  \"projection_factorization_seconds\": %.6g,\n"
               "  \"projection_solve_seconds\": %.6g,\n",
           projection_method_name(o->projection), s.pr.seconds_numeric / steps, s.pr.seconds_solve / steps);
+  projection_report_counts(fp, &s.pr);
   fprintf(fp, "  \"particles\": %d,\n  \"t_pa_full_flow\": %.6g,\n", o->particles, seconds_particles / steps);
   if (reduced) {
     fprintf(fp, "  \"training_runs\": %d,\n  \"workers\": %d,\n  \"train_threads\": %d,\n  \"sample_every\": %d,\n"

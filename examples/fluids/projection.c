@@ -20,13 +20,31 @@
  * iterations converge, small enough that K + w D^T D keeps K's digits */
 #define AL_WEIGHT 1e8
 #define AL_MAXIT 50
+/* How many times faster CHOLMOD's supernodal factorization runs per flop
+ * than its solves, measured here on one core (cavity, Hilbert numbering):
+ * 8.1 at 17,300 cells (8.8e8 flops to factor in 110 ms, 2.3M entries in L,
+ * a solve 9.5 ms), 10.8 at 88,599 (1.0e10 flops in 1.12 s, 15.1M entries,
+ * a solve 73 ms). The policy's counts depend on it only mildly. */
+#define AL_FACTOR_EFFICIENCY 10.0
+/* a stale factor is dropped when a correction is not below this fraction
+ * of the previous one */
+#define AL_STALE_RATE 0.5
 
 struct AugLagrangian {
   cholmod_common cc;
   cholmod_triplet *T;  /* upper triangle of K + w D^T D, fixed order */
-  cholmod_factor *L;   /* analysed once, factored per geometry */
+  cholmod_factor *L;   /* analysed once, factored for some earlier geometry (or this one) */
   cholmod_dense *b;
   double *lambda, *res; /* [C - 1] multipliers, constraint residual */
+  double w;            /* the weight L was factored with: the iterations use it */
+  bool factored;       /* L holds a factor */
+  bool fresh;          /* L is the factor of the current geometry */
+  bool warm;           /* pr->x and lambda hold the last projection's solution */
+  /* the reuse policy's cycle since the last factorization: its steps, the
+   * solves they took, the factorization's and the solves' seconds */
+  int cycle_steps, cycle_solves, cycle_first_solves;
+  double seconds_factor, seconds_per_solve;
+  double factor_cost; /* a factorization's cost in solves, from the analysis's flop counts */
 };
 
 /* Triplets in a fixed order: for every cell, its nk x nk block of K
@@ -125,6 +143,9 @@ static int al_init(Projection *pr, char *err, size_t errlen) {
   al->L = A ? cholmod_analyze(A, &al->cc) : NULL;
   cholmod_free_sparse(&A, &al->cc);
   if (!al->L) return util_fail(err, errlen, "projection: CHOLMOD analysis failed (status %d)", al->cc.status);
+  /* a solve is 4 flops per entry of L (forward and back); the factorization's
+   * flops run AL_FACTOR_EFFICIENCY times faster (BLAS 3 against BLAS 2) */
+  al->factor_cost = al->cc.fl / (4 * fmax(al->cc.lnz, 1)) / AL_FACTOR_EFFICIENCY;
   return 0;
 }
 
@@ -218,23 +239,81 @@ static void kkt_rhs(Projection *pr, const double *u_in, const double *h) {
   }
 }
 
-/* The augmented Lagrangian iterations (projection.h) with the factor of
- * K + w D^T D, in residual form (the right-hand side of each solve is the
- * exact KKT system's residual, so rounding in the factor is refined away);
- * the interior fluxes into pr->x. */
-static int al_solve(Projection *pr, double w, char *err, size_t errlen) {
+/* A factorization's cost in solves: pr->al_factor_cost when set (tests),
+ * else the estimate from CHOLMOD's analysis — not a timing, so that the
+ * schedule of factorizations, and the fluxes to the last bit, are the same
+ * on every run and every machine. */
+static double al_factor_cost(const Projection *pr) {
+  return pr->al_factor_cost > 0 ? pr->al_factor_cost : pr->al->factor_cost;
+}
+
+/* The solves a projection may spend on a stale factor: past them,
+ * refactoring and the solves of a fresh factor would have been cheaper. */
+static double al_refactor_budget(const Projection *pr) {
+  return al_factor_cost(pr) + pr->al->cycle_first_solves;
+}
+
+/* Whether the next projection should refactor: the cycle since the last
+ * factorization has cost F + S (F the factorization's, in solves, S the
+ * sum of its solves) over n steps; a step's solves only grow as the factor
+ * ages, so refactoring pays once one costs more than the cycle's mean,
+ * (F + S)/n. */
+static bool al_refactor_next(const Projection *pr, int solves) {
+  const AugLagrangian *al = pr->al;
+  if (pr->al_refactor_every_step) return true;
+  return (double)solves * al->cycle_steps > al_factor_cost(pr) + al->cycle_solves;
+}
+
+/* res = bc - D x on the constraint rows (bc the KKT right-hand side's);
+ * returns max |res|. */
+static double al_constraint_residual(const Projection *pr, const double *x, double *res) {
+  const Mesh *m = pr->o->m;
+  const double *bc = pr->rhs + pr->ni;
+  int nk = m->nk;
+  double rmax = 0;
+  for (int c = 0; c < m->nc - 1; c++) {
+    double s = bc[c];
+    for (int k = 0; k < nk; k++) {
+      int fk = pr->fidx[m->cface[nk * c + k]];
+      if (fk >= 0) s -= m->csign[nk * c + k] * x[fk];
+    }
+    res[c] = s;
+    rmax = fmax(rmax, fabs(s));
+  }
+  return rmax;
+}
+
+/* The augmented Lagrangian iterations (projection.h) in residual form: the
+ * right-hand side of every solve is the exact KKT system's residual at the
+ * current geometry, r - K x - D^T lam + w D^T (bc - D x), so the factor L
+ * (of this geometry, or of an earlier one) decides only how fast the
+ * iterate converges, not what it converges to: with a stale factor the
+ * iterations are a stationary iteration preconditioned by it. Starts from
+ * the last projection's solution when al->warm. Stops when the correction
+ * and the constraint residual fall below 1e-15 of the largest flux, or
+ * when they stagnate at rounding (below 1e-10 of it with a fresh factor,
+ * as before the factor was kept; below 1e-13 with a stale one).
+ * 0 when converged (the interior fluxes in pr->x); 1 when a stale factor
+ * stops paying: its corrections fall by less than AL_STALE_RATE, or the
+ * solves their rate predicts exceed al_refactor_budget (the caller
+ * refactors and goes on from the iterate); -1 on failure; the reason in
+ * `err`. Counts the solves into *solves. */
+static int al_iterate(Projection *pr, int *solves, char *err, size_t errlen) {
   const Ops *o = pr->o;
   const Mesh *m = o->m;
   AugLagrangian *al = pr->al;
   int dim = m->dim, nk = m->nk, ni = pr->ni, nc1 = m->nc - 1;
-  const double *r = pr->rhs, *bc = pr->rhs + ni;
+  const double *r = pr->rhs;
   double *x = pr->x, *lam = al->lambda, *b = al->b->x, *ff = pr->work_f2, *uu = pr->work_u, *res = al->res;
-  memset(lam, 0, nc1 * sizeof *lam);
-  memset(x, 0, ni * sizeof *x);
-  memcpy(res, bc, nc1 * sizeof *res);
-  double hmax = 0, prev = INFINITY;
+  double w = al->w, hmax = 0, prev = INFINITY;
+  if (!al->warm) {
+    memset(lam, 0, nc1 * sizeof *lam);
+    memset(x, 0, ni * sizeof *x);
+    al->warm = true;
+  }
+  al_constraint_residual(pr, x, res);
   for (int j = 0; j < m->nf; j++) hmax = fmax(hmax, fabs(pr->work_f[j]));
-  for (pr->iterations = 1;; pr->iterations++) {
+  for (int it = 1;; it++) {
     /* b = r - K x - D^T lam + w D^T (bc - D x), with res = bc - D x */
     for (int j = 0; j < m->nf; j++) ff[j] = pr->fidx[j] >= 0 ? x[pr->fidx[j]] : 0;
     csr_mv(&o->P, ff, uu);
@@ -250,31 +329,85 @@ static int al_solve(Projection *pr, double w, char *err, size_t errlen) {
       }
     cholmod_dense *sol = cholmod_solve(CHOLMOD_A, al->L, al->b, &al->cc);
     if (!sol) return util_fail(err, errlen, "projection: CHOLMOD solve failed (status %d)", al->cc.status);
+    ++*solves;
     const double *dx = sol->x;
     double dmax = 0, fmx = hmax;
     for (int i = 0; i < ni; i++) x[i] += dx[i], dmax = fmax(dmax, fabs(dx[i])), fmx = fmax(fmx, fabs(x[i]));
     cholmod_free_dense(&sol, &al->cc);
     /* res = bc - D x; lam -= w res */
-    double rmax = 0;
-    for (int c = 0; c < nc1; c++) {
-      double s = bc[c];
-      for (int k = 0; k < nk; k++) {
-        int fk = pr->fidx[m->cface[nk * c + k]];
-        if (fk >= 0) s -= m->csign[nk * c + k] * x[fk];
-      }
-      res[c] = s;
-      lam[c] -= w * s;
-      rmax = fmax(rmax, fabs(s));
-    }
+    double rmax = al_constraint_residual(pr, x, res);
+    for (int c = 0; c < nc1; c++) lam[c] -= w * res[c];
     /* to rounding, or until the corrections stop falling */
     double size = fmax(dmax, rmax);
+    if (!isfinite(size)) {
+      al->warm = false;
+      if (!al->fresh) return 1;
+    }
     if (size <= 1e-15 * fmx) break;
-    if (size >= 0.5 * prev && size <= 1e-10 * fmx) break; /* at rounding, stagnating */
-    if (pr->iterations == AL_MAXIT || size >= 0.5 * prev)
+    /* at rounding, stagnating: any factor's corrections stall there, a
+     * stale one's are held to a hundredth of the target */
+    if (size >= 0.5 * prev && size <= (al->fresh ? 1e-10 : 1e-13) * fmx) break;
+    if (!al->fresh && (size >= AL_STALE_RATE * prev || it == AL_MAXIT ||
+                       it + log(1e-15 * fmx / size) / log(size / prev) > al_refactor_budget(pr)))
+      return 1;
+    if (it == AL_MAXIT || size >= 0.5 * prev || !isfinite(size))
       return util_fail(err, errlen, "projection: augmented Lagrangian iterations did not converge "
-                                    "(correction %.3g of the largest flux after %d)", size / fmx, pr->iterations);
+                                    "(correction %.3g of the largest flux after %d)", size / fmx, it);
     prev = size;
   }
+  return 0;
+}
+
+/* K + w D^T D assembled at the current geometry and factored into L; its
+ * seconds into al->seconds_factor. 0, or -1 with the reason in `err`. */
+static int al_factor(Projection *pr, char *err, size_t errlen) {
+  AugLagrangian *al = pr->al;
+  double t0 = util_now();
+  al->w = al_assemble(pr, true);
+  cholmod_sparse *A = cholmod_triplet_to_sparse(al->T, al->T->nnz, &al->cc);
+  int ok = A && cholmod_factorize(A, al->L, &al->cc) && al->cc.status == CHOLMOD_OK;
+  cholmod_free_sparse(&A, &al->cc);
+  al->factored = al->fresh = ok;
+  al->cycle_steps = al->cycle_solves = 0;
+  al->seconds_factor = util_now() - t0;
+  pr->seconds_numeric += al->seconds_factor;
+  pr->factorizations++;
+  if (!ok)
+    return util_fail(err, errlen, "projection: K + w D^T D is not positive definite (CHOLMOD status %d)",
+                     al->cc.status);
+  return 0;
+}
+
+/* The projection by augmented Lagrangian iterations: with the factor kept
+ * from an earlier geometry while it pays (al_refactor_next), refactored
+ * when its iterations stop contracting; the interior fluxes into pr->x. */
+static int al_solve(Projection *pr, char *err, size_t errlen) {
+  AugLagrangian *al = pr->al;
+  double t0 = util_now(), factor0 = pr->seconds_numeric;
+  int solves = 0, rc = 1;
+  if (pr->al_refactor_every_step) al->factored = false;
+  if (al->factored) pr->reuses++;
+  while (rc == 1) {
+    if (!al->factored && al_factor(pr, err, errlen) != 0) return -1;
+    rc = al_iterate(pr, &solves, err, errlen);
+    if (rc == 1) {
+      al->factored = false;
+      pr->stale_refactorizations++;
+    }
+  }
+  if (rc != 0) {
+    al->warm = false;
+    return -1;
+  }
+  double seconds = util_now() - t0 - (pr->seconds_numeric - factor0);
+  al->seconds_per_solve = seconds / solves;
+  pr->iterations = solves;
+  pr->solves += solves;
+  pr->projections++;
+  if (al->cycle_steps++ == 0) al->cycle_first_solves = solves;
+  al->cycle_solves += solves;
+  al->fresh = false;
+  if (al_refactor_next(pr, solves)) al->factored = false;
   return 0;
 }
 
@@ -284,17 +417,8 @@ int projection_solve(Projection *pr, const double *u_in, const double *h, double
     return stream_solve(pr->stream, u_in, h, f, u_out, &pr->seconds_numeric, &pr->seconds_solve, err, errlen);
   const Ops *o = pr->o;
   const Mesh *m = o->m;
-  double t0 = util_now(), w = 0;
-  if (pr->al) {
-    AugLagrangian *al = pr->al;
-    w = al_assemble(pr, true);
-    cholmod_sparse *A = cholmod_triplet_to_sparse(al->T, al->T->nnz, &al->cc);
-    int ok = A && cholmod_factorize(A, al->L, &al->cc) && al->cc.status == CHOLMOD_OK;
-    cholmod_free_sparse(&A, &al->cc);
-    if (!ok)
-      return util_fail(err, errlen, "projection: K + w D^T D is not positive definite (CHOLMOD status %d)",
-                       al->cc.status);
-  } else {
+  double t0 = util_now();
+  if (!pr->al) {
     triplets(pr, true);
     memset(pr->Ax, 0, pr->nt * sizeof *pr->Ax);
     for (int t = 0; t < pr->nt; t++) pr->Ax[pr->map[t]] += pr->tx[t];
@@ -307,7 +431,9 @@ int projection_solve(Projection *pr, const double *u_in, const double *h, double
   double t1 = util_now();
   kkt_rhs(pr, u_in, h);
   if (pr->al) {
-    if (al_solve(pr, w, err, errlen) != 0) return -1;
+    double factor0 = pr->seconds_numeric;
+    if (al_solve(pr, err, errlen) != 0) return -1;
+    t1 += pr->seconds_numeric - factor0; /* al_solve's factorizations: counted as numeric */
   } else {
     int st = umfpack_di_solve(UMFPACK_A, pr->Ap, pr->Ai, pr->Ax, pr->x, pr->rhs, pr->numeric, pr->control, NULL);
     if (st != UMFPACK_OK) return util_fail(err, errlen, "projection: UMFPACK solve failed (status %d)", st);
@@ -316,9 +442,18 @@ int projection_solve(Projection *pr, const double *u_in, const double *h, double
   for (int j = 0; j < m->nf; j++) f[j] = pr->fidx[j] >= 0 ? pr->x[pr->fidx[j]] : fb[j];
   ops_velocity_from_flux(o, f, u_out);
   double t2 = util_now();
-  pr->seconds_numeric += t1 - t0;
+  if (!pr->al) pr->seconds_numeric += t1 - t0;
   pr->seconds_solve += t2 - t1;
   return 0;
+}
+
+void projection_report_counts(FILE *fp, const Projection *pr) {
+  if (!pr->al) return;
+  fprintf(fp, "  \"projection_projections\": %ld,\n  \"projection_solves_per_projection\": %.4g,\n"
+              "  \"projection_factorizations\": %ld,\n  \"projection_stale_refactorizations\": %ld,\n"
+              "  \"projection_factor_reuses\": %ld,\n",
+          pr->projections, (double)pr->solves / (pr->projections ? pr->projections : 1), pr->factorizations,
+          pr->stale_refactorizations, pr->reuses);
 }
 
 double projection_max_divergence(const Ops *o, const double *f) {

@@ -28,11 +28,23 @@
  * 1/(1 + w s_min(D K^-1 D^T)) per iteration, so a few solves with one
  * Cholesky factor (CHOLMOD, supernodal, analysed once) reach D f = b to
  * rounding. D^T D couples the faces of a cell as K does: the pattern is K's.
+ *
+ * The iterations run in residual form on the current geometry's KKT system,
+ * so a factor of an earlier geometry's K + w D^T D (D is topological: only K
+ * moves) still converges to the same fluxes, only more slowly (a stationary
+ * iteration preconditioned by it), to the same stopping test. The factor is
+ * kept across steps while that pays: refactored before a step once the last
+ * step's solves exceeded the mean cost per step since the factorization
+ * (the factorization counted in solves, estimated from CHOLMOD's flop counts),
+ * and within a step as soon as a stale factor's corrections stop
+ * contracting fast enough to beat refactoring.
  */
 #ifndef FLUIDS_PROJECTION_H
 #define FLUIDS_PROJECTION_H
 
+#include <stdbool.h>
 #include <stddef.h>
+#include <stdio.h>
 
 #include "operators.h"
 
@@ -51,7 +63,17 @@ typedef struct Projection {
   ProjectionMethod method;
   StreamProjection *stream; /* PROJ_STREAM_CHOLMOD */
   AugLagrangian *al;        /* PROJ_AL_CHOLMOD */
-  int iterations;           /* PROJ_AL_CHOLMOD: of the last solve */
+  /* PROJ_AL_CHOLMOD: the factor's reuse (set after projection_init) */
+  bool al_refactor_every_step; /* factor K + w D^T D at every projection (the reference) */
+  /* a factorization's cost in solves for the reuse policy; 0: estimated from
+   * CHOLMOD's flop counts (the same on every run: fluxes bit for bit) */
+  double al_factor_cost;
+  /* PROJ_AL_CHOLMOD: counts */
+  int iterations;              /* solves of the last projection */
+  long projections, solves;    /* accumulated */
+  long factorizations;         /* accumulated, with the stale ones below */
+  long stale_refactorizations; /* of them: mid-projection, a stale factor's iterations stopped contracting */
+  long reuses;                 /* projections that started from an earlier geometry's factor */
   int ni, n;        /* interior faces; KKT size ni + C - 1 */
   int *fidx;        /* [F] interior index of a face, -1 on the boundary */
   int nt;           /* triplets */
@@ -77,6 +99,10 @@ void projection_free(Projection *pr);
  * 0, or -1 with UMFPACK's status in `err`. */
 int projection_solve(Projection *pr, const double *u_in, const double *h, double *f, double *u_out, char *err,
                      size_t errlen);
+/* The factor's reuse as JSON members, each followed by ",\n" (PROJ_AL_CHOLMOD;
+ * nothing otherwise): projections, solves per projection, factorizations,
+ * of them stale ones, projections that reused a factor. */
+void projection_report_counts(FILE *fp, const Projection *pr);
 /* max_c |sum of cell c's outward fluxes|. */
 double projection_max_divergence(const Ops *o, const double *f);
 

@@ -17,6 +17,13 @@
  *                        (CHOLMOD, the cavity's default) gives UMFPACK's KKT
  *                        fluxes to 1e-10 of the largest flux, and is
  *                        divergence-free to 1e-10 of it
+ *   cavity_projection_reuse  the augmented Lagrangian projection keeping its
+ *                        factor across steps gives, on 12 steps of a training
+ *                        run and a jump to another run's geometry, the fluxes
+ *                        of refactoring at every step to 1e-12 of the largest
+ *                        flux and their divergence; it reuses a factor, and
+ *                        refactors both by its cost rule and when a stale
+ *                        factor stops paying within a step
  *   cavity_reduced_step  a model trained through npg.h on one training run: V̂(ĝ)
  *                        from its cubic slices equals B_uᵀ V(B_g ĝ) B_u to 1e-12
  *                        of its largest entry; on
@@ -168,6 +175,15 @@ static void test_cavity_divergence(void **state) {
   cavity_free(&cv);
 }
 
+/* max_j |f_j - ref_j| / max_j |ref_j| (asserted positive, into *fmx). */
+static double flux_difference(const Mesh *m, const double *ref, const double *f, double *fmx) {
+  double diff = 0;
+  *fmx = 0;
+  for (int j = 0; j < m->nf; j++) *fmx = fmax(*fmx, fabs(ref[j])), diff = fmax(diff, fabs(f[j] - ref[j]));
+  assert_true(*fmx > 0);
+  return diff / *fmx;
+}
+
 static void test_cavity_projection_methods(void **state) {
   (void)state;
   Cavity cv = cavity_of(300);
@@ -178,10 +194,8 @@ static void test_cavity_projection_methods(void **state) {
   double worst_diff = 0, worst_div = 0;
   for (int t = 1; t <= 6; t++) {
     run6_step(&cv, t, g, s, 2);
-    double fmx = 0, diff = 0;
-    for (int j = 0; j < m->nf; j++) fmx = fmax(fmx, fabs(s[0].f[j])), diff = fmax(diff, fabs(s[1].f[j] - s[0].f[j]));
-    assert_true(fmx > 0);
-    worst_diff = fmax(worst_diff, diff / fmx);
+    double fmx;
+    worst_diff = fmax(worst_diff, flux_difference(m, s[0].f, s[1].f, &fmx));
     worst_div = fmax(worst_div, projection_max_divergence(&s[1].ops, s[1].f) / fmx);
   }
   print_message("%s against %s: max |f difference| / max |f| %.3g; max |div f| / max |f| %.3g (%d iterations)\n",
@@ -332,6 +346,55 @@ static void test_cavity_numbering_energy(void **state) {
                 solver_energy(&s[0]), worst);
   assert_true(worst <= 1e-11);
   for (int o = 0; o < 3; o++) solver_free(&s[o]), free(g[o]), free(to0[o]), cavity_free(&cv[o]);
+}
+
+static void test_cavity_projection_reuse(void **state) {
+  (void)state;
+  Cavity cv = cavity_of(300);
+  const Mesh *m = &cv.m;
+  const ProjectionMethod methods[2] = {PROJ_AL_CHOLMOD, PROJ_AL_CHOLMOD};
+  FullSolver s[2];
+  double *g = run6_start(&cv, s, methods, 2);
+  s[0].pr.al_refactor_every_step = true;
+  s[1].pr.al_factor_cost = 3; /* in solves: counts independent of timing */
+  double worst_diff = 0, worst_div = 0, ref_div = 0;
+  for (int t = 1; t <= 13; t++) {
+    if (t < 13) {
+      if (t == 12) s[1].pr.al_factor_cost = 1e9; /* keeps the factor for the jump */
+      run6_step(&cv, t, g, s, 2);
+    } else { /* a jump to training run 0's most compressed frame: the stale factor must be replaced mid-projection */
+      char err[512];
+      double sigma[CAVITY_SIDES];
+      long stale = s[1].pr.stale_refactorizations;
+      s[1].pr.al_factor_cost = 3;
+      cavity_schedule(0, FRAMES / 2, FRAMES, sigma);
+      if (cavity_deform(&cv, sigma, g, NULL, err, sizeof err) != 0) fail_msg("%s", err);
+      for (int k = 0; k < 2; k++)
+        if (solver_step_to(&s[k], g, err, sizeof err) != 0) fail_msg("%s", err);
+      assert_int_equal(s[1].pr.stale_refactorizations, stale + 1);
+    }
+    double fmx;
+    worst_diff = fmax(worst_diff, flux_difference(m, s[0].f, s[1].f, &fmx));
+    worst_div = fmax(worst_div, projection_max_divergence(&s[1].ops, s[1].f) / fmx);
+    ref_div = fmax(ref_div, projection_max_divergence(&s[0].ops, s[0].f) / fmx);
+  }
+  const Projection *pr = &s[1].pr, *ref = &s[0].pr;
+  print_message("factor reused in %ld of %ld projections, %ld factorizations (%ld of a stale factor), %.3g solves per "
+                "projection (refactoring every step: %ld factorizations, %.3g solves); max |f difference| / max |f| "
+                "%.3g; max |div f| / max |f| %.3g (refactoring every step: %.3g)\n",
+                pr->reuses, pr->projections, pr->factorizations, pr->stale_refactorizations,
+                (double)pr->solves / pr->projections, ref->factorizations, (double)ref->solves / ref->projections,
+                worst_diff, worst_div, ref_div);
+  assert_int_equal(ref->factorizations, ref->projections);
+  assert_int_equal(ref->reuses, 0);
+  assert_true(pr->reuses >= 1);
+  assert_true(pr->factorizations >= 2);
+  assert_true(pr->factorizations < pr->projections);
+  assert_true(worst_diff <= 1e-12);
+  assert_true(worst_div <= 1e-10 && worst_div <= 2 * ref_div);
+  for (int k = 0; k < 2; k++) solver_free(&s[k]);
+  free(g);
+  cavity_free(&cv);
 }
 
 static void lift(const double *B, long n, long k, const double *x, double *out) {
@@ -581,6 +644,7 @@ int main(int argc, char **argv) {
       cmocka_unit_test(test_cavity_deform),
       cmocka_unit_test(test_cavity_divergence),
       cmocka_unit_test(test_cavity_projection_methods),
+      cmocka_unit_test(test_cavity_projection_reuse),
       cmocka_unit_test(test_cavity_reduced_step),
       cmocka_unit_test(test_cavity_train_workers),
       cmocka_unit_test(test_cavity_numbering),
