@@ -37,10 +37,12 @@ void cavity_options_default(CavityOptions *o) {
   o->projection = PROJ_AL_CHOLMOD;
   long cpus = sysconf(_SC_NPROCESSORS_ONLN);
   o->workers = cpus < 1 ? 1 : cpus > CAVITY_MAX_WORKERS ? CAVITY_MAX_WORKERS : (int)cpus;
-  o->sample_every = 1;
+  o->sample_every = 0;
   o->buffer_bytes = (size_t)2 << 30;
   o->backend = NPG_CC;
 }
+
+int cavity_sample_every_for(int frames) { return frames <= 0 ? 1 : (frames + CAVITY_SAMPLES_PER_RUN - 1) / CAVITY_SAMPLES_PER_RUN; }
 
 int cavity_frames_for(int cells) {
   int frames = 10 * (int)ceil(10 * cbrt(cells / 1000.0));
@@ -342,7 +344,10 @@ static int feed_trainer(Training *tg) {
   return stop ? -1 : 0;
 }
 
-int cavity_train(const Cavity *cv, const CavityOptions *o, double mu, NpgTrainer *tr, CavityTraining *out) {
+int cavity_train(const Cavity *cv, const CavityOptions *given, double mu, NpgTrainer *tr, CavityTraining *out) {
+  CavityOptions chosen = *given; /* --sample-every 0: from the frames */
+  if (chosen.sample_every <= 0) chosen.sample_every = cavity_sample_every_for(chosen.frames);
+  const CavityOptions *o = &chosen;
   const Mesh *m = &cv->m;
   int workers = o->workers < 1 ? 1 : o->workers < o->runs ? o->workers : o->runs > 0 ? o->runs : 1;
   Training tg = {.cv = cv, .o = o, .mu = mu, .tr = tr, .threaded = workers > 1, .ng = 3L * m->nv, .nf = m->nf,
@@ -449,6 +454,7 @@ int cavity_run(const CavityOptions *o) {
   double mu = o->nu * vmin;
   CavityOptions chosen = *o; /* --frames 0: from the mesh */
   if (chosen.frames <= 0) chosen.frames = cavity_frames_for(m->nc);
+  if (chosen.sample_every <= 0) chosen.sample_every = cavity_sample_every_for(chosen.frames);
   o = &chosen;
   int T = o->frames, rc = 1, reduced = o->runs > 0;
   long ng = 3L * m->nv, nf = m->nf, nu = 3L * m->nc, C = m->nc;

@@ -28,7 +28,7 @@ typedef struct CavityOptions {
   ProjectionMethod projection; /* of the full step (PROJ_AL_CHOLMOD) */
   int workers;      /* threads running the training runs (the online CPUs) */
   int train_threads; /* OpenBLAS's threads in npg_trainer_finish (0: `workers`) */
-  int sample_every; /* every K-th frame of a training run is a sample (1) */
+  int sample_every; /* every K-th frame of a training run is a sample (0: cavity_sample_every_for) */
   size_t buffer_bytes; /* bound on the samples queued by runs the trainer is not taking yet (2 GB) */
   NpgBackend backend; /* the trainer's full evaluator (NPG_CC: replays 2-3x faster than libtcc's code) */
 } CavityOptions;
@@ -50,6 +50,14 @@ void cavity_schedule(int r, int t, int T, double sigma[CAVITY_SIDES]);
  * a vertex a similar fraction of its cells' size: at 17,300 cells 100 frames
  * diverge and 260 do not (README). */
 int cavity_frames_for(int cells);
+/* The default sample stride for runs of `frames` frames: at most
+ * CAVITY_SAMPLES_PER_RUN samples per run. The frames per run grow with the
+ * mesh for the step's stability, not for what the bases need: at 5,356
+ * cells every 2nd and every 4th frame gave the same errors as every frame
+ * to 3 % (README), while the trainer's Gram and eigen costs grow as S^2
+ * and S^3. 1 up to 120 frames, 3 at 260, 4 at 450. */
+#define CAVITY_SAMPLES_PER_RUN 120
+int cavity_sample_every_for(int frames);
 /* The o->runs training runs of o->frames frames each (o->frames > 0) on
  * the mesh of `cv`, every o->sample_every-th frame added to `tr`: run 1's
  * samples, then run 2's, ..., whatever o->workers is, so the trainer gets

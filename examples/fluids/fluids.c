@@ -94,8 +94,9 @@ static void usage(FILE *fp) {
         "  system (the same minimizer). --workers W: threads running the training runs (the\n"
         "  online CPUs; 1: one run after the other); the trainer gets the same samples in the\n"
         "  same order for every W. --train-threads N: OpenBLAS's threads while training (W).\n"
-        "  --sample-every K: every K-th frame of a training run is a sample (1; the runs still\n"
-        "  take every step). --buffer-mb N: bound on the samples of later runs waiting while the\n"
+        "  --sample-every K: every K-th frame of a training run is a sample (by default at most\n"
+        "  120 samples per run: 1 up to 120 frames, 3 at 260, 4 at 450; the runs still take\n"
+        "  every step). --buffer-mb N: bound on the samples of later runs waiting while the\n"
         "  trainer takes an earlier run's (2048). --backend: the trainer's full evaluator, compiled\n"
         "  by the system compiler (cc, default: its replays ran 2-3x faster here) or by libtcc (tcc)\n",
         fp);
@@ -521,7 +522,7 @@ static int cavity_cmd(int argc, char **argv) {
     else if (!strcmp(a, "--workers")) bad = parse_int(v, &o.workers) || o.workers < 1 || o.workers > CAVITY_MAX_WORKERS;
     else if (!strcmp(a, "--train-threads"))
       bad = parse_int(v, &o.train_threads) || o.train_threads < 1 || o.train_threads > CAVITY_MAX_WORKERS;
-    else if (!strcmp(a, "--sample-every")) bad = parse_int(v, &o.sample_every) || o.sample_every < 1;
+    else if (!strcmp(a, "--sample-every")) bad = parse_int(v, &o.sample_every) || o.sample_every < 0;
     else if (!strcmp(a, "--buffer-mb")) {
       int mb = 0;
       bad = parse_int(v, &mb);
