@@ -259,7 +259,7 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
   if (b > S) b = S;
   int rc = -1;
   double ***G = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***H = calloc((size_t)m->nclasses + 1, sizeof(double **));
-  double *lam = malloc(sizeof(double) * (size_t)S);
+  double *lam = malloc(sizeof(double) * (size_t)S), *V = NULL;
   /* centered members: the shift x₀ and the sum of the shifted snapshots, then their mean */
   double ***X0 = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***D = calloc((size_t)m->nclasses + 1, sizeof(double **));
   if (!G || !H || !lam || !X0 || !D) goto oom;
@@ -330,15 +330,18 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
           for (long e = 0; e < S; e++) g[a * S + e] += all - lam[a] - lam[e];
         cblas_dscal((int)rc->n, 1.0 / (double)S, D[c][i], 1);
       }
-      lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)S, G[c][i], (lapack_int)S, lam);
+      int k = 0, cap = mb->center ? mb->cap - 1 : mb->cap;
+      long kmax = cap < S ? cap : S;
+      free(V);
+      if (!(V = malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1))))) goto oom;
+      int info = pca_top_eigen(S, G[c][i], kmax, lam, V); /* G whole: either layout */
       if (info != 0) {
         npg_fail(err, errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
-              rc->label, mb->name, (int)info);
+              rc->label, mb->name, info);
         goto done;
       }
       double total = 0, run = 0;
       for (long a = 0; a < S; a++) total += fmax(lam[a], 0);
-      int k = 0, cap = mb->center ? mb->cap - 1 : mb->cap;
       mb->captured = 1;
       if (total > 0) {
         while (k < S && k < cap && lam[S - 1 - k] > 1e-20 * lam[S - 1]) {
@@ -356,12 +359,9 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
       mb->nsv = S;
       for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
       mb->kept = kk[c][i] = k;
-      /* column a of W = V[:, S-1-a] / sqrt(λ), kept in G's place (S x k) */
-      for (long s2 = 0; s2 < S; s2++) {
-        double *row = G[c][i] + s2 * S;
-        for (int a = 0; a < k; a++) tmp[a] = row[S - 1 - a] / sqrt(lam[S - 1 - a]);
-        memcpy(row, tmp, sizeof(double) * (size_t)k);
-      }
+      /* column a of W = V[:, a] / sqrt(λ), kept in G's place (S x k, row-major with leading dimension S) */
+      for (long s2 = 0; s2 < S; s2++)
+        for (int a = 0; a < k; a++) G[c][i][s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
       if (!(U[c][i] = calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double)))) goto oom;
     }
   }
@@ -420,6 +420,7 @@ done:
   free(X0);
   free(D);
   free(lam);
+  free(V);
   return rc;
 }
 

@@ -195,6 +195,16 @@ int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int 
  * decides; *unresolved set when the decision needs directions below what
  * a Gram matrix resolves (pca_member then asks the SVD). */
 long pca_choose(const double *s, long K, int cap, double energy, bool *unresolved);
+/* The eigenproblem of a Gram matrix when few eigenvectors are kept: every
+ * eigenvalue of the symmetric S x S matrix G (its upper triangle read,
+ * column-major with leading dimension S — a matrix stored whole may be in
+ * either layout), ascending in lam[0..S) (the spectrum a model reports),
+ * and the eigenvectors of the k largest in V (S x k column-major, largest
+ * first: column j belongs to lam[S-1-j]). Through the tridiagonal form,
+ * eigenvectors only for those k (dsytrd, dsterf, dstemr, dormtr), or by
+ * divide and conquer (dsyevd) when k is a large part of S. G is
+ * overwritten. 0, or LAPACK's info (-1 when out of memory). */
+int pca_top_eigen(long S, double *G, long k, double *lam, double *V);
 /* The basis sign convention: every column of B (n x m row-major) turned so
  * that its first entry of at least half its largest magnitude is positive
  * (every route to a basis — SVD, Gram matrix, out of core — ends with it,
