@@ -160,6 +160,10 @@ void report_training(const Model *m, FILE *out);
  * input whose floor exceeds `tol`. Returns how many were printed. */
 int report_verify_warnings(const Model *m, const double *err, const double *floor, double tol, FILE *out);
 
+/* The method of snapshots' split of a budget of `fit` samples: a held
+ * block of *b samples and a batch of *q later ones (*q 0: all S held). */
+void train_gram_blocks(long S, long fit, long *b, long *q);
+
 /* A progress bar on stderr ("what [####    ] done/total"), when `on`. */
 void progress_show(bool on, const char *what, long done, long total);
 
