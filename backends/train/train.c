@@ -239,21 +239,31 @@ int train_check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen)
 /* How the method of snapshots shares a budget of `fit` samples (half of
  * --mem over the bytes of one sample's members): a held block of *b and a
  * batch of *q later samples. All S held when they fit (one pass, no
- * batch). Otherwise the batch takes an eighth of the budget, at most
- * TRAIN_GRAM_BATCH samples, at least one: the cross block G[I, K] = H_Iᵀ X_K
- * is then one dgemm reading the held block once per batch (q/4 flops per
- * byte of it: compute-bound from q ≈ 32 on), where a dgemv per sample read
- * it once per sample; and the passes, ⌈S/b⌉, are at most 8/7 of what the
- * whole budget held would need. */
+ * batch). Otherwise the passes, which recompute the later samples, come
+ * first: as few as the whole budget held would need, P = ⌈S/fit⌉, with
+ * blocks balanced to ⌈S/P⌉ when that leaves a batch of at least an eighth
+ * of the budget (at most TRAIN_GRAM_BATCH, at least one sample), else one
+ * pass more; the batch then takes what the block leaves, up to
+ * TRAIN_GRAM_BATCH. The cross block G[I, K] = H_Iᵀ X_K is one dgemm that
+ * reads the held block once per batch (q/4 flops per byte of it: compute-
+ * bound from q ≈ 32 on), where a dgemv per sample read it once per sample. */
 #define TRAIN_GRAM_BATCH 64
 void train_gram_blocks(long S, long fit, long *b, long *q) {
   if (fit >= S) {
     *b = S > 0 ? S : 1, *q = 0;
     return;
   }
-  *q = fit / 8 < TRAIN_GRAM_BATCH ? fit / 8 : TRAIN_GRAM_BATCH;
+  long qmin = fit / 8 < TRAIN_GRAM_BATCH ? fit / 8 : TRAIN_GRAM_BATCH;
+  if (qmin < 1) qmin = 1;
+  long P = (S + fit - 1) / fit;
+  *b = (S + P - 1) / P;
+  if (fit - *b < qmin) {
+    long room = fit - qmin > 1 ? fit - qmin : 1;
+    P = (S + room - 1) / room;
+    *b = (S + P - 1) / P;
+  }
+  *q = fit - *b < TRAIN_GRAM_BATCH ? fit - *b : TRAIN_GRAM_BATCH;
   if (*q < 1) *q = 1;
-  *b = fit - *q > 1 ? fit - *q : 1;
 }
 
 /* The method of snapshots (DESIGN §5), for snapshots that do not fit in
