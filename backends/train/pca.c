@@ -50,12 +50,14 @@ static CBLAS_TRANSPOSE as_rows(const Cols *c) { return c->colmajor ? CblasTrans 
 static long ld(const Cols *c, long n) { return c->colmajor ? n : c->k; }
 
 /* pca_top_eigen goes the whole way (dsyevd) when it is asked for more than
- * this fraction of the eigenvectors: then the back-transformation of the
- * partial route costs about what divide and conquer saves (bench/eigen.md).
+ * this fraction of the eigenvectors: from about three quarters on, the
+ * back-transformation of the partial route costs what divide and conquer
+ * saves (bench/gram.md: at S 1,000 and 3,000, k = S/2 is still 1.1 and 1.5
+ * times faster, k = S 0.85 and 0.94 times as fast).
  * A build may set it to compare the routes: 2 always partial, 0 never
  * (dsyevd for every k > 0). */
 #ifndef PCA_EIGEN_PARTIAL_MAX
-#define PCA_EIGEN_PARTIAL_MAX 0.25
+#define PCA_EIGEN_PARTIAL_MAX 0.5
 #endif
 
 int pca_top_eigen(long S, double *G, long k, double *lam, double *V) {
