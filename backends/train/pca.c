@@ -60,6 +60,44 @@ static long ld(const Cols *c, long n) { return c->colmajor ? n : c->k; }
 #define PCA_EIGEN_PARTIAL_MAX 0.5
 #endif
 
+/* The eigenvectors of the k largest eigenvalues of the tridiagonal matrix
+ * with diagonal d[0..S) and off-diagonal e[0..S-1), ascending, into V
+ * (S x k column-major): by MRRR (dstemr), or where that fails, by
+ * bisection and inverse iteration (dstebz, dstein), as dsyevr does. d and
+ * e are left as they were. 0, or LAPACK's info (-1 when out of memory). */
+static lapack_int tridiagonal_top_vectors(long S, const double *d, const double *e, long k, double *V) {
+  double *d2 = malloc(sizeof(double) * (size_t)S), *e2 = malloc(sizeof(double) * (size_t)S);
+  double *w = malloc(sizeof(double) * (size_t)S);
+  lapack_int *iw = malloc(sizeof(lapack_int) * (size_t)(2 * S + 2)), m = 0, nsplit = 0, info = -1;
+  if (!d2 || !e2 || !w || !iw) goto done;
+  memcpy(d2, d, sizeof(double) * (size_t)S);
+  memcpy(e2, e, sizeof(double) * (size_t)S);
+  lapack_logical tryrac = 1;
+  info = LAPACKE_dstemr(LAPACK_COL_MAJOR, 'V', 'I', (lapack_int)S, d2, e2, 0, 0, (lapack_int)(S - k + 1), (lapack_int)S,
+                        &m, w, V, (lapack_int)S, (lapack_int)k, iw, &tryrac);
+  if (info == 0 && m == k) goto done;
+  /* iw: the blocks of the eigenvalues, then where T splits */
+  info = LAPACKE_dstebz('I', 'B', (lapack_int)S, 0, 0, (lapack_int)(S - k + 1), (lapack_int)S, 0, d, e, &m, &nsplit, w,
+                        iw, iw + S);
+  if (info == 0 && m != k) info = -1;
+  if (info == 0) {
+    lapack_int *ifail = malloc(sizeof(lapack_int) * (size_t)k);
+    info = ifail ? LAPACKE_dstein(LAPACK_COL_MAJOR, (lapack_int)S, d, e, m, w, iw, iw + S, V, (lapack_int)S, ifail) : -1;
+    free(ifail);
+  }
+  for (long j = 0; info == 0 && j < k; j++) { /* by block to ascending */
+    long lo = j;
+    for (long i = j + 1; i < k; i++) lo = w[i] < w[lo] ? i : lo;
+    if (lo == j) continue;
+    double t = w[j];
+    w[j] = w[lo], w[lo] = t;
+    cblas_dswap((int)S, V + j * S, 1, V + lo * S, 1);
+  }
+done:
+  free(d2), free(e2), free(w), free(iw);
+  return info;
+}
+
 int pca_top_eigen(long S, double *G, long k, double *lam, double *V) {
   if (S <= 0) return 0;
   if (k > S) k = S;
@@ -70,27 +108,23 @@ int pca_top_eigen(long S, double *G, long k, double *lam, double *V) {
     return 0;
   }
   /* G = Q T Qᵀ (dsytrd), T's every eigenvalue (dsterf on a copy), the top
-   * k eigenvectors of T (dstemr, MRRR), then Q applied to them (dormtr) */
+   * k eigenvectors of T, then Q applied to them (dormtr) */
   double *d = malloc(sizeof(double) * (size_t)S), *e = calloc((size_t)S, sizeof(double));
   double *tau = malloc(sizeof(double) * (size_t)S), *w = malloc(sizeof(double) * (size_t)S);
-  lapack_int *isuppz = malloc(sizeof(lapack_int) * (size_t)(2 * k + 2)), m = 0, info = -1;
-  if (!d || !e || !tau || !w || !isuppz) goto done;
+  lapack_int info = -1;
+  if (!d || !e || !tau || !w) goto done;
   if ((info = LAPACKE_dsytrd(LAPACK_COL_MAJOR, 'U', (lapack_int)S, G, (lapack_int)S, d, e, tau)) != 0) goto done;
   memcpy(lam, d, sizeof(double) * (size_t)S);
   memcpy(w, e, sizeof(double) * (size_t)S);
   if ((info = LAPACKE_dsterf((lapack_int)S, lam, w)) != 0 || k == 0) goto done;
-  lapack_logical tryrac = 1;
-  info = LAPACKE_dstemr(LAPACK_COL_MAJOR, 'V', 'I', (lapack_int)S, d, e, 0, 0, (lapack_int)(S - k + 1), (lapack_int)S,
-                        &m, w, V, (lapack_int)S, (lapack_int)k, isuppz, &tryrac);
-  if (info == 0 && m != k) info = -1;
-  if (info != 0) goto done;
+  if ((info = tridiagonal_top_vectors(S, d, e, k, V)) != 0) goto done;
   if ((info = LAPACKE_dormtr(LAPACK_COL_MAJOR, 'L', 'U', 'N', (lapack_int)S, (lapack_int)k, G, (lapack_int)S, tau, V,
                              (lapack_int)S)) != 0)
     goto done;
   for (long j = 0; j < k / 2; j++) /* ascending to descending */
     cblas_dswap((int)S, V + j * S, 1, V + (k - 1 - j) * S, 1);
 done:
-  free(d), free(e), free(tau), free(w), free(isuppz);
+  free(d), free(e), free(tau), free(w);
   return (int)info;
 }
 
