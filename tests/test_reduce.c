@@ -848,18 +848,18 @@ static void snapshots_match_memory(long S, long fit, long b, long q) {
   npg_free(p);
 }
 
-/* 20 samples in blocks of 5 (4 passes), the later samples one at a time. */
+/* 20 samples in blocks of 6 (4 passes), the later samples one at a time. */
 static void method_of_snapshots_matches_memory(void **state) {
   (void)state;
-  snapshots_match_memory(20, 6, 5, 1);
+  snapshots_match_memory(20, 6, 6, 1);
 }
 
-/* 53 samples (prime) in blocks of 18, 18 and 17, the later ones in
- * batches of 7: the second pass's 17 end three into a batch; 53 a multiple
- * of neither. */
+/* 131 samples (prime) in blocks of 56, 56 and 19, the later ones in
+ * batches of 8: the first pass's 75 and the second's 19 end three into a
+ * batch; 131 a multiple of neither. */
 static void method_of_snapshots_batches_match_memory(void **state) {
   (void)state;
-  snapshots_match_memory(53, 25, 18, 7);
+  snapshots_match_memory(131, 64, 56, 8);
 }
 
 

@@ -239,31 +239,24 @@ int train_check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen)
 /* How the method of snapshots shares a budget of `fit` samples (half of
  * --mem over the bytes of one sample's members): a held block of *b and a
  * batch of *q later samples. All S held when they fit (one pass, no
- * batch). Otherwise the passes, which recompute the later samples, come
- * first: as few as the whole budget held would need, P = ⌈S/fit⌉, with
- * blocks balanced to ⌈S/P⌉ when that leaves a batch of at least an eighth
- * of the budget (at most TRAIN_GRAM_BATCH, at least one sample), else one
- * pass more; the batch then takes what the block leaves, up to
- * TRAIN_GRAM_BATCH. The cross block G[I, K] = H_Iᵀ X_K is one dgemm that
- * reads the held block once per batch (q/4 flops per byte of it: compute-
- * bound from q ≈ 32 on), where a dgemv per sample read it once per sample. */
-#define TRAIN_GRAM_BATCH 64
+ * batch). Otherwise the held block is as large as the budget allows: every
+ * pass recomputes the samples after its block, about S²/2b evaluations in
+ * all. The cross block G[I, K] = H_Iᵀ X_K is one dgemm per batch, reading
+ * the held block once per batch where a dgemv per sample read it once per
+ * sample; but OpenBLAS's dgemm with 1, 2 or 4 columns is 4, 2 and 1.2 times
+ * slower than as many dgemv (bench/gram.md), so the batch takes an eighth of
+ * the budget, at most TRAIN_GRAM_BATCH samples, when that is 8 or more
+ * (evaluations grow by at most 1/7), and otherwise is one sample outside
+ * the budget (a small block stays in cache: the dgemv route as before). */
+#define TRAIN_GRAM_BATCH 32
 void train_gram_blocks(long S, long fit, long *b, long *q) {
   if (fit >= S) {
     *b = S > 0 ? S : 1, *q = 0;
     return;
   }
-  long qmin = fit / 8 < TRAIN_GRAM_BATCH ? fit / 8 : TRAIN_GRAM_BATCH;
-  if (qmin < 1) qmin = 1;
-  long P = (S + fit - 1) / fit;
-  *b = (S + P - 1) / P;
-  if (fit - *b < qmin) {
-    long room = fit - qmin > 1 ? fit - qmin : 1;
-    P = (S + room - 1) / room;
-    *b = (S + P - 1) / P;
-  }
-  *q = fit - *b < TRAIN_GRAM_BATCH ? fit - *b : TRAIN_GRAM_BATCH;
-  if (*q < 1) *q = 1;
+  *q = fit / 8 < TRAIN_GRAM_BATCH ? fit / 8 : TRAIN_GRAM_BATCH;
+  if (*q < 8) *q = 1, *b = fit > 1 ? fit : 1;
+  else *b = fit - *q;
 }
 
 /* The method of snapshots (DESIGN §5), for snapshots that do not fit in
@@ -329,11 +322,16 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
             if (k < i1) cblas_daxpy((int)rc->n, 1.0, x, 1, D[c][i], 1);
           }
           if (!full) continue;
-          /* G[I, K] = X_Iᵀ X_K for the batch K = [k0, k], and its mirror */
+          /* G[I, K] = X_Iᵀ X_K for the batch K = [k0, k] (one sample: a
+           * dgemv, faster than a dgemm of one column), and its mirror */
           long nk = k + 1 - k0;
           double *g = G[c][i];
-          cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nk, (int)rc->n, 1.0, H[c][i], (int)rc->n,
-                      Y[c][i], (int)rc->n, 0.0, g + i0 * S + k0, (int)S);
+          if (nk == 1)
+            cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)nb, (int)rc->n, 1.0, H[c][i], (int)rc->n, Y[c][i], 1, 0.0,
+                        g + i0 * S + k0, (int)S);
+          else
+            cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nk, (int)rc->n, 1.0, H[c][i], (int)rc->n,
+                        Y[c][i], (int)rc->n, 0.0, g + i0 * S + k0, (int)S);
           for (long a = i0; a < i1; a++)
             for (long e = k0; e <= k; e++) g[e * S + a] = g[a * S + e];
         }
