@@ -23,7 +23,10 @@
  *              Check: the largest |G_old − G_new| / max |G|.
  *
  *     build/bench_gram [eigen] [S=1000,3000,6300] [k=1,5,64,128]
- *                      [snapshots] [n=100000] [samples=600] [fit=120]
+ *                      [snapshots] [n=100000] [samples=600] [fit=120] [batch=Q]
+ *
+ * batch=Q: the snapshots part's batch Q (the held block fit − Q) instead
+ * of train_gram_blocks' split.
  *
  * No part named: both, with those defaults. Prints figures, not pass/fail
  * (exit 1 only when a check exceeds 1e-8, a wrong result rather than a
@@ -151,7 +154,7 @@ static void gram_by_dgemv(const Modes *md, long S, long b, double *G, double *H,
 }
 
 /* train.c's route: blocks of b held, later samples in batches of q, one
- * dgemm per batch. */
+ * dgemm per batch (a dgemv for a batch of one). */
 static void gram_by_dgemm(const Modes *md, long S, long b, long q, double *G, double *H, double *Y) {
   long n = md->n;
   for (long i0 = 0; i0 < S; i0 += b) {
@@ -160,8 +163,11 @@ static void gram_by_dgemm(const Modes *md, long S, long b, long q, double *G, do
       snapshot(md, k, k < i1 ? H + (k - i0) * n : Y + (k - k0) * n);
       if (!(k >= i1 && (k + 1 - k0 == q || k + 1 == S))) continue;
       long nk = k + 1 - k0;
-      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nk, (int)n, 1.0, H, (int)n, Y, (int)n, 0.0,
-                  G + i0 * S + k0, (int)S);
+      if (nk == 1)
+        cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)nb, (int)n, 1.0, H, (int)n, Y, 1, 0.0, G + i0 * S + k0, (int)S);
+      else
+        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nk, (int)n, 1.0, H, (int)n, Y, (int)n, 0.0,
+                    G + i0 * S + k0, (int)S);
       for (long a = i0; a < i1; a++)
         for (long e = k0; e <= k; e++) G[e * S + a] = G[a * S + e];
       k0 = k + 1;
@@ -171,10 +177,11 @@ static void gram_by_dgemm(const Modes *md, long S, long b, long q, double *G, do
   }
 }
 
-static int bench_snapshots(long n, long S, long fit) {
+static int bench_snapshots(long n, long S, long fit, long batch) {
   Modes md = {n, malloc(sizeof(double) * (size_t)(NMODES * n))};
   long b, q;
   train_gram_blocks(S, fit, &b, &q);
+  if (batch > 0 && batch < fit) q = batch, b = fit - batch; /* another split, to compare */
   double *Ga = calloc((size_t)(S * S), sizeof(double)), *Gb = calloc((size_t)(S * S), sizeof(double));
   double *H = malloc(sizeof(double) * (size_t)(fit * n)), *x = malloc(sizeof(double) * (size_t)(n + fit));
   double *Y = malloc(sizeof(double) * (size_t)((q ? q : 1) * n));
@@ -193,7 +200,7 @@ static int bench_snapshots(long n, long S, long fit) {
   long pold = (S + fit - 1) / fit, pnew = (S + b - 1) / b;
   printf("  before: blocks of %ld, a dgemv per later sample:  %ld passes, wall %8.3f s, cpu %8.3f s\n", fit, pold, told,
          cold);
-  printf("  now:    blocks of %ld, batches of %ld, a dgemm each: %ld passes, wall %8.3f s, cpu %8.3f s\n", b, q, pnew,
+  printf("  now:    blocks of %ld, batches of %ld (a dgemm each): %ld passes, wall %8.3f s, cpu %8.3f s\n", b, q, pnew,
          tnew, cnew);
   printf("  ratio (before / now) wall %.2f, cpu %.2f; G differs by %.2g of its largest entry\n", told / tnew, cold / cnew,
          d / big);
@@ -202,7 +209,7 @@ static int bench_snapshots(long n, long S, long fit) {
 }
 
 int main(int argc, char **argv) {
-  long Ss[16] = {1000, 3000, 6300}, ks[16] = {1, 5, 64, 128}, n = 100000, S = 600, fit = 120;
+  long Ss[16] = {1000, 3000, 6300}, ks[16] = {1, 5, 64, 128}, n = 100000, S = 600, fit = 120, batch = 0;
   int nS = 3, nk = 4, eigen = 0, snaps = 0;
   for (int i = 1; i < argc; i++) {
     if (!strcmp(argv[i], "eigen")) eigen = 1;
@@ -212,14 +219,15 @@ int main(int argc, char **argv) {
     else if (!strncmp(argv[i], "k=", 2)) parse_list(argv[i] + 2, ks, &nk, 16);
     else if (!strncmp(argv[i], "n=", 2)) n = strtol(argv[i] + 2, NULL, 10);
     else if (!strncmp(argv[i], "fit=", 4)) fit = strtol(argv[i] + 4, NULL, 10);
+    else if (!strncmp(argv[i], "batch=", 6)) batch = strtol(argv[i] + 6, NULL, 10);
     else {
-      fprintf(stderr, "usage: %s [eigen] [snapshots] [S=..] [k=..] [n=N] [samples=S] [fit=F]\n", argv[0]);
+      fprintf(stderr, "usage: %s [eigen] [snapshots] [S=..] [k=..] [n=N] [samples=S] [fit=F] [batch=Q]\n", argv[0]);
       return 2;
     }
   }
   if (!eigen && !snaps) eigen = snaps = 1;
   int bad = 0;
   if (eigen) bad |= bench_eigen(Ss, nS, ks, nk);
-  if (snaps) bad |= bench_snapshots(n, S, fit);
+  if (snaps) bad |= bench_snapshots(n, S, fit, batch);
   return bad;
 }
