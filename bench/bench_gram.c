@@ -42,19 +42,15 @@
 #include "randdata.h"
 #include "train.h"
 
-static double now(void) {
+/* Seconds on `clock`: CLOCK_MONOTONIC (wall), or CLOCK_PROCESS_CPUTIME_ID
+ * (every thread of the process: on a loaded machine the steadier figure,
+ * wall time also counting waits for a core). */
+static double seconds(clockid_t clock) {
   struct timespec t;
-  clock_gettime(CLOCK_MONOTONIC, &t);
+  clock_gettime(clock, &t);
   return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
-
-/* CPU seconds of every thread of the process: on a loaded machine the
- * steadier figure (wall time also counts waiting for a core). */
-static double cpu(void) {
-  struct timespec t;
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
-}
+enum { WALL = CLOCK_MONOTONIC, CPU = CLOCK_PROCESS_CPUTIME_ID };
 
 /* "1,5,64" into v[0..*n) (at most max). */
 static void parse_list(const char *s, long *v, int *n, int max) {
@@ -92,18 +88,18 @@ static int bench_eigen(const long *Ss, int nS, const long *ks, int nk) {
     double *V = malloc(sizeof(double) * (size_t)(S * (kmax < S ? kmax : S)));
     if (!G0 || !G || !ref || !lam || !V) return fprintf(stderr, "bench_gram: out of memory at S %ld\n", S), 1;
     memcpy(G, G0, sizeof(double) * (size_t)(S * S));
-    double t0 = now(), c0 = cpu();
+    double t0 = seconds(WALL), c0 = seconds(CPU);
     if (LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (lapack_int)S, G, (lapack_int)S, ref) != 0)
       return fprintf(stderr, "bench_gram: dsyevd failed at S %ld\n", S), 1;
-    double tfull = now() - t0, cfull = cpu() - c0; /* G now holds every eigenvector, ascending */
+    double tfull = seconds(WALL) - t0, cfull = seconds(CPU) - c0; /* G now holds every eigenvector, ascending */
     double *G2 = malloc(sizeof(double) * (size_t)(S * S));
     if (!G2) return fprintf(stderr, "bench_gram: out of memory at S %ld\n", S), 1;
     for (int b = 0; b < nk; b++) {
       long k = ks[b] < S ? ks[b] : S;
       memcpy(G2, G0, sizeof(double) * (size_t)(S * S));
-      t0 = now(), c0 = cpu();
+      t0 = seconds(WALL), c0 = seconds(CPU);
       if (pca_top_eigen(S, G2, k, lam, V) != 0) return fprintf(stderr, "bench_gram: pca_top_eigen failed\n"), 1;
-      double tpart = now() - t0, cpart = cpu() - c0, dl = 0, dv = 0;
+      double tpart = seconds(WALL) - t0, cpart = seconds(CPU) - c0, dl = 0, dv = 0;
       for (long i = 0; i < S; i++) dl = fmax(dl, fabs(lam[i] - ref[i]) / ref[S - 1]);
       for (long j = 0; j < k; j++) {
         long i = S - 1 - j; /* ascending index */
@@ -190,12 +186,12 @@ static int bench_snapshots(long n, long S, long fit, long batch) {
   for (long i = 0; i < NMODES * n; i++) md.phi[i] = randdata_uniform(&seed, -1, 1);
   printf("method of snapshots, Gram matrix of %ld synthetic snapshots of %ld entries (%.2f MB each), a budget of %ld "
          "(%.0f MB)\n", S, n, 8e-6 * (double)n, fit, 8e-6 * (double)(n * fit));
-  double t0 = now(), c0 = cpu();
+  double t0 = seconds(WALL), c0 = seconds(CPU);
   gram_by_dgemv(&md, S, fit, Ga, H, x);
-  double told = now() - t0, cold = cpu() - c0;
-  t0 = now(), c0 = cpu();
+  double told = seconds(WALL) - t0, cold = seconds(CPU) - c0;
+  t0 = seconds(WALL), c0 = seconds(CPU);
   gram_by_dgemm(&md, S, b, q, Gb, H, Y);
-  double tnew = now() - t0, cnew = cpu() - c0, big = 0, d = 0;
+  double tnew = seconds(WALL) - t0, cnew = seconds(CPU) - c0, big = 0, d = 0;
   for (long i = 0; i < S * S; i++) big = fmax(big, fabs(Ga[i])), d = fmax(d, fabs(Ga[i] - Gb[i]));
   long pold = (S + fit - 1) / fit, pnew = (S + b - 1) / b;
   printf("  before: blocks of %ld, a dgemv per later sample:  %ld passes, wall %8.3f s, cpu %8.3f s\n", fit, pold, told,
