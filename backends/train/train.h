@@ -205,9 +205,10 @@ long pca_choose(const double *s, long K, int cap, double energy, bool *unresolve
  * either layout), ascending in lam[0..S) (the spectrum a model reports),
  * and the eigenvectors of the k largest in V (S x k column-major, largest
  * first: column j belongs to lam[S-1-j]). Through the tridiagonal form,
- * eigenvectors only for those k (dsytrd, dsterf, dstemr, dormtr), or by
- * divide and conquer (dsyevd) when k is a large part of S. G is
- * overwritten. 0, or LAPACK's info (-1 when out of memory). */
+ * eigenvectors only for those k (dsytrd, dsterf, dstemr — dstebz and
+ * dstein where it fails — dormtr), or by divide and conquer (dsyevd) when
+ * k is over half of S. G is overwritten. 0, or LAPACK's info (-1 when out
+ * of memory). */
 int pca_top_eigen(long S, double *G, long k, double *lam, double *V);
 /* The basis sign convention: every column of B (n x m row-major) turned so
  * that its first entry of at least half its largest magnitude is positive
