@@ -349,9 +349,12 @@ static int eigen(Ooc *o) {
     st->K = 0;
     for (int i = 0; i < rc->nmembers; i++) {
       RMember *mb = &rc->members[i];
-      double *G = st->G[i], *lam = malloc(sizeof(double) * (size_t)S), *W = malloc(sizeof(double) * (size_t)S * (size_t)S);
+      int cap = mb->center ? (mb->cap > 1 ? mb->cap - 1 : 0) : mb->cap;
+      long kmax = cap < S ? cap : S;
+      double *G = st->G[i], *lam = malloc(sizeof(double) * (size_t)S);
+      double *W = malloc(sizeof(double) * (size_t)S * (size_t)(kmax ? kmax : 1));
       if (!lam || !W) return free(lam), free(W), -1;
-      lapack_int info = LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (lapack_int)S, G, (lapack_int)S, lam);
+      int info = pca_top_eigen(S, G, kmax, lam, W);
       if (info != 0) {
         free(lam), free(W);
         return npg_fail(o->err, o->errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
@@ -360,7 +363,6 @@ static int eigen(Ooc *o) {
       double *s = st->s[i];
       for (long j = 0; j < S; j++) s[j] = sqrt(fmax(lam[S - 1 - j], 0.0));
       bool unresolved = false;
-      int cap = mb->center ? (mb->cap > 1 ? mb->cap - 1 : 0) : mb->cap;
       long k = pca_choose(s, S, cap, mb->energy, &unresolved);
       /* unresolved: in memory the SVD would decide; out of core the Gram
        * matrix is all there is (directions below 1e-6 σ_max lose digits) */
@@ -374,8 +376,7 @@ static int eigen(Ooc *o) {
       memcpy(mb->sv, s, sizeof(double) * (size_t)S);
       mb->nsv = S;
       for (long j = 0; j < k; j++)
-        for (long e = 0; e < S; e++) W[j * S + e] = G[(S - 1 - j) * S + e] / s[j];
-      memcpy(G, W, sizeof(double) * (size_t)(S * k));
+        for (long e = 0; e < S; e++) G[j * S + e] = W[j * S + e] / s[j];
       free(lam), free(W);
       st->k[i] = k;
       st->col[i] = st->K;

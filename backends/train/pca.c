@@ -13,7 +13,8 @@
  *
  * Tall snapshot matrices (n ≥ 4 columns) go through their Gram matrix, the
  * method of snapshots of DESIGN §5: G = XᵀX (one dsyrk or dgemm per block
- * pair), its eigenvectors V (dsyevd), U = X V Σ⁻¹ (dgemm), one Cholesky-QR
+ * pair), its eigenvalues and the kept eigenvectors V (pca_top_eigen),
+ * U = X V Σ⁻¹ (dgemm), one Cholesky-QR
  * pass to restore orthonormality — an order of magnitude faster than a
  * tall SVD, whose QR is bandwidth-bound. The Gram matrix resolves singular
  * values only down to about √ε σ_max, so when a direction the result needs
@@ -48,23 +49,104 @@ typedef struct Cols {
 static CBLAS_TRANSPOSE as_rows(const Cols *c) { return c->colmajor ? CblasTrans : CblasNoTrans; }
 static long ld(const Cols *c, long n) { return c->colmajor ? n : c->k; }
 
+/* pca_top_eigen goes the whole way (dsyevd) when it is asked for more than
+ * this fraction of the eigenvectors: from about three quarters on, the
+ * back-transformation of the partial route costs what divide and conquer
+ * saves (bench/gram.md: at S 1,000 and 3,000, k = S/2 is still 1.1 and 1.5
+ * times faster, k = S 0.85 and 0.94 times as fast).
+ * A build may set it to compare the routes: 2 always partial, 0 never
+ * (dsyevd for every k > 0). */
+#ifndef PCA_EIGEN_PARTIAL_MAX
+#define PCA_EIGEN_PARTIAL_MAX 0.5
+#endif
+
+/* The eigenvectors of the k largest eigenvalues of the tridiagonal matrix
+ * with diagonal d[0..S) and off-diagonal e[0..S-1), ascending, into V
+ * (S x k column-major): by MRRR (dstemr), or where that fails, by
+ * bisection and inverse iteration (dstebz, dstein), as dsyevr does. d and
+ * e are left as they were. 0, or LAPACK's info (-1 when out of memory). */
+static lapack_int tridiagonal_top_vectors(long S, const double *d, const double *e, long k, double *V) {
+  double *d2 = malloc(sizeof(double) * (size_t)S), *e2 = malloc(sizeof(double) * (size_t)S);
+  double *w = malloc(sizeof(double) * (size_t)S);
+  lapack_int *iw = malloc(sizeof(lapack_int) * (size_t)(2 * S + 2)), m = 0, nsplit = 0, info = -1;
+  if (!d2 || !e2 || !w || !iw) goto done;
+  memcpy(d2, d, sizeof(double) * (size_t)S);
+  memcpy(e2, e, sizeof(double) * (size_t)S);
+  lapack_logical tryrac = 1;
+  info = LAPACKE_dstemr(LAPACK_COL_MAJOR, 'V', 'I', (lapack_int)S, d2, e2, 0, 0, (lapack_int)(S - k + 1), (lapack_int)S,
+                        &m, w, V, (lapack_int)S, (lapack_int)k, iw, &tryrac);
+  if (info == 0 && m == k) goto done;
+  /* iw: the blocks of the eigenvalues, then where T splits */
+  info = LAPACKE_dstebz('I', 'B', (lapack_int)S, 0, 0, (lapack_int)(S - k + 1), (lapack_int)S, 0, d, e, &m, &nsplit, w,
+                        iw, iw + S);
+  if (info == 0 && m != k) info = -1;
+  if (info == 0) {
+    lapack_int *ifail = malloc(sizeof(lapack_int) * (size_t)k);
+    info = ifail ? LAPACKE_dstein(LAPACK_COL_MAJOR, (lapack_int)S, d, e, m, w, iw, iw + S, V, (lapack_int)S, ifail) : -1;
+    free(ifail);
+  }
+  for (long j = 0; info == 0 && j < k; j++) { /* by block to ascending */
+    long lo = j;
+    for (long i = j + 1; i < k; i++) lo = w[i] < w[lo] ? i : lo;
+    if (lo == j) continue;
+    double t = w[j];
+    w[j] = w[lo], w[lo] = t;
+    cblas_dswap((int)S, V + j * S, 1, V + lo * S, 1);
+  }
+done:
+  free(d2), free(e2), free(w), free(iw);
+  return info;
+}
+
+int pca_top_eigen(long S, double *G, long k, double *lam, double *V) {
+  if (S <= 0) return 0;
+  if (k > S) k = S;
+  if (k > PCA_EIGEN_PARTIAL_MAX * (double)S) {
+    lapack_int info = LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (lapack_int)S, G, (lapack_int)S, lam);
+    if (info != 0) return (int)info;
+    for (long j = 0; j < k; j++) memcpy(V + j * S, G + (S - 1 - j) * S, sizeof(double) * (size_t)S);
+    return 0;
+  }
+  /* G = Q T Qᵀ (dsytrd), T's every eigenvalue (dsterf on a copy), the top
+   * k eigenvectors of T, then Q applied to them (dormtr) */
+  double *d = malloc(sizeof(double) * (size_t)S), *e = calloc((size_t)S, sizeof(double));
+  double *tau = malloc(sizeof(double) * (size_t)S), *w = malloc(sizeof(double) * (size_t)S);
+  lapack_int info = -1;
+  if (!d || !e || !tau || !w) goto done;
+  if ((info = LAPACKE_dsytrd(LAPACK_COL_MAJOR, 'U', (lapack_int)S, G, (lapack_int)S, d, e, tau)) != 0) goto done;
+  memcpy(lam, d, sizeof(double) * (size_t)S);
+  memcpy(w, e, sizeof(double) * (size_t)S);
+  if ((info = LAPACKE_dsterf((lapack_int)S, lam, w)) != 0 || k == 0) goto done;
+  if ((info = tridiagonal_top_vectors(S, d, e, k, V)) != 0) goto done;
+  if ((info = LAPACKE_dormtr(LAPACK_COL_MAJOR, 'L', 'U', 'N', (lapack_int)S, (lapack_int)k, G, (lapack_int)S, tau, V,
+                             (lapack_int)S)) != 0)
+    goto done;
+  for (long j = 0; j < k / 2; j++) /* ascending to descending */
+    cblas_dswap((int)S, V + j * S, 1, V + (k - 1 - j) * S, 1);
+done:
+  free(d), free(e), free(tau), free(w);
+  return (int)info;
+}
+
 typedef enum { GRAM_DONE, GRAM_UNRESOLVED, GRAM_FAILED } GramResult;
 
 /* Left singular vectors of X = [X_0 … X_{r-1}] (n rows, K columns) through
  * the Gram matrix: on GRAM_DONE, *U (n x kept, row-major) and the singular
- * values s[0..K) descending. `choose` picks how many to keep from s; it is
- * told unresolved ones are below resolved (s below PCA_GRAM_TOL s[0]
+ * values s[0..K) descending. `choose` picks how many to keep from s, at
+ * most `kmax` (only that many eigenvectors are formed: pca_top_eigen); it
+ * is told unresolved ones are below resolved (s below PCA_GRAM_TOL s[0]
  * unreliable): GRAM_UNRESOLVED when it needs one. */
 typedef long (*ChooseFn)(const double *s, long K, const void *arg, bool *unresolved);
 
-static GramResult gram_basis(long n, int r, const Cols *X, ChooseFn choose, const void *arg, double *s, double **U,
-                             long *kept_out) {
+static GramResult gram_basis(long n, int r, const Cols *X, ChooseFn choose, const void *arg, long kmax, double *s,
+                             double **U, long *kept_out) {
   long K = 0;
   for (int i = 0; i < r; i++) K += X[i].k;
+  if (kmax > K) kmax = K;
   double *G = calloc((size_t)(K * K), sizeof(double)), *lam = malloc(sizeof(double) * (size_t)K);
-  double *W = NULL, *Ut = NULL;
+  double *V = malloc(sizeof(double) * (size_t)(K * (kmax ? kmax : 1))), *W = NULL, *Ut = NULL;
   GramResult res = GRAM_FAILED;
-  if (!G || !lam) goto done;
+  if (!G || !lam || !V) goto done;
   /* G = XᵀX, column-major K x K, upper triangle */
   for (int i = 0, oi = 0; i < r; oi += (int)X[i].k, i++)
     for (int j = i, oj = oi; j < r; oj += (int)X[j].k, j++) {
@@ -76,10 +158,11 @@ static GramResult gram_basis(long n, int r, const Cols *X, ChooseFn choose, cons
         cblas_dgemm(CblasColMajor, as_rows(&X[i]), X[j].colmajor ? CblasNoTrans : CblasTrans, (int)X[i].k,
                     (int)X[j].k, (int)n, 1.0, X[i].p, (int)ld(&X[i], n), X[j].p, (int)ld(&X[j], n), 0.0, Gij, (int)K);
     }
-  if (LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (lapack_int)K, G, (lapack_int)K, lam) != 0) goto done;
+  if (pca_top_eigen(K, G, kmax, lam, V) != 0) goto done;
   for (long i = 0; i < K; i++) s[i] = sqrt(fmax(lam[K - 1 - i], 0.0)); /* descending */
   bool unresolved = false;
   long kept = choose(s, K, arg, &unresolved);
+  if (kept > kmax) goto done; /* `choose` keeps at most kmax: a bug if not */
   if (unresolved || (kept > 0 && !(s[kept - 1] > PCA_GRAM_TOL * s[0]))) {
     res = GRAM_UNRESOLVED;
     goto done;
@@ -91,7 +174,7 @@ static GramResult gram_basis(long n, int r, const Cols *X, ChooseFn choose, cons
   Ut = calloc((size_t)(n * kk), sizeof(double));
   if (!W || !Ut) goto done;
   for (long j = 0; j < kept; j++)
-    for (long i = 0; i < K; i++) W[j * K + i] = G[(K - 1 - j) * K + i] / s[j];
+    for (long i = 0; i < K; i++) W[j * K + i] = V[j * K + i] / s[j];
   for (int i = 0, oi = 0; i < r && kept > 0; oi += (int)X[i].k, i++)
     cblas_dgemm(CblasColMajor, CblasTrans, as_rows(&X[i]), (int)kept, (int)n, (int)X[i].k, 1.0, W + oi, (int)K,
                 X[i].p, (int)ld(&X[i], n), 1.0, Ut, (int)kk);
@@ -112,6 +195,7 @@ static GramResult gram_basis(long n, int r, const Cols *X, ChooseFn choose, cons
 done:
   free(G);
   free(lam);
+  free(V);
   free(W);
   free(Ut);
   return res;
@@ -175,7 +259,7 @@ static int pca_core(long n, long S, const double *X, int cap, double energy, dou
     long kept = 0;
     MemberChoice mc = {cap, energy};
     Cols X1 = {X, S, true};
-    GramResult g = sg ? gram_basis(n, 1, &X1, choose_member, &mc, sg, &Ug, &kept) : GRAM_FAILED;
+    GramResult g = sg ? gram_basis(n, 1, &X1, choose_member, &mc, cap, sg, &Ug, &kept) : GRAM_FAILED;
     if (g == GRAM_DONE) {
       double total = 0, run = 0;
       for (long i = 0; i < S; i++) total += sg[i] * sg[i];
@@ -356,7 +440,7 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
     GramResult g = GRAM_FAILED;
     if (r <= (int)(sizeof X / sizeof *X) && sg) {
       for (int i = 0; i < r; i++) X[i] = (Cols){U[i], k[i], false};
-      g = gram_basis(n, r, X, choose_independent, NULL, sg, &Ug, &kept);
+      g = gram_basis(n, r, X, choose_independent, NULL, K, sg, &Ug, &kept);
     }
     free(sg);
     if (g == GRAM_DONE) {

@@ -236,13 +236,37 @@ int train_check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen)
   return 0;
 }
 
+/* How the method of snapshots shares a budget of `fit` samples (half of
+ * --mem over the bytes of one sample's members): a held block of *b and a
+ * batch of *q later samples. All S held when they fit (one pass, no
+ * batch). Otherwise the held block is as large as the budget allows: every
+ * pass recomputes the samples after its block, about S²/2b evaluations in
+ * all. The cross block G[I, K] = H_Iᵀ X_K is one dgemm per batch, reading
+ * the held block once per batch where a dgemv per sample read it once per
+ * sample; but OpenBLAS's dgemm with 1, 2 or 4 columns is 4, 2 and 1.2 times
+ * slower than as many dgemv (bench/gram.md), so the batch takes an eighth of
+ * the budget, at most TRAIN_GRAM_BATCH samples, when that is 8 or more
+ * (evaluations grow by at most 1/7), and otherwise is one sample outside
+ * the budget (a small block stays in cache: the dgemv route as before). */
+#define TRAIN_GRAM_BATCH 32
+void train_gram_blocks(long S, long fit, long *b, long *q) {
+  if (fit >= S) {
+    *b = S > 0 ? S : 1, *q = 0;
+    return;
+  }
+  *q = fit / 8 < TRAIN_GRAM_BATCH ? fit / 8 : TRAIN_GRAM_BATCH;
+  if (*q < 8) *q = 1, *b = fit > 1 ? fit : 1;
+  else *b = fit - *q;
+}
+
 /* The method of snapshots (DESIGN §5), for snapshots that do not fit in
  * `mem`: no snapshot matrix is held whole. Pass 1 builds every member's
  * S x S Gram matrix G = XᵀX holding a block of b samples at a time and
- * recomputing the later samples against it (one pass when the budget holds
- * half the samples, S/b passes in general); the eigenvectors of G give the
- * basis U = X V Λ^(-1/2), formed in pass 2 by recomputing every sample once
- * and adding its rank-one contribution. U[c][i], kk[c][i] per member.
+ * recomputing the later samples against it in batches of q (one dgemm per
+ * member and batch: train_gram_blocks; one pass when the budget holds every
+ * sample, ⌈S/b⌉ in general); the eigenvectors of G give the basis
+ * U = X V Λ^(-1/2), formed in pass 2 by recomputing every sample once and
+ * adding its rank-one contribution. U[c][i], kk[c][i] per member.
  *
  * A centered member's snapshots are shifted by its first sample x₀ (on a
  * deforming mesh that removes the dominant rest shape before any product,
@@ -254,23 +278,25 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
                           int **kk, double *tmp, char *err, size_t errlen) {
   long S = src->count, per = 0;
   for (int c = 0; c < m->nclasses; c++) per += m->classes[c].n * m->classes[c].nmembers;
-  long b = (long)(opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1));
-  if (b < 1) b = 1;
-  if (b > S) b = S;
+  long b, q;
+  train_gram_blocks(S, (long)(opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &b, &q);
   int rc = -1;
   double ***G = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***H = calloc((size_t)m->nclasses + 1, sizeof(double **));
-  double *lam = malloc(sizeof(double) * (size_t)S);
+  double ***Y = calloc((size_t)m->nclasses + 1, sizeof(double **)); /* the batch of later samples */
+  double *lam = malloc(sizeof(double) * (size_t)S), *V = NULL;
   /* centered members: the shift x₀ and the sum of the shifted snapshots, then their mean */
   double ***X0 = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***D = calloc((size_t)m->nclasses + 1, sizeof(double **));
-  if (!G || !H || !lam || !X0 || !D) goto oom;
+  if (!G || !H || !Y || !lam || !X0 || !D) goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     if (!(G[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(H[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(X0[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(D[c] = calloc((size_t)rc->nmembers, sizeof(double *))))
+        !(X0[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(D[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(Y[c] = calloc((size_t)rc->nmembers, sizeof(double *))))
       goto oom;
     for (int i = 0; i < rc->nmembers; i++) {
       if (!(G[c][i] = calloc((size_t)(S * S), sizeof(double))) ||
-          !(H[c][i] = malloc(sizeof(double) * (size_t)(rc->n * b))))
+          !(H[c][i] = malloc(sizeof(double) * (size_t)(rc->n * b))) ||
+          (q > 0 && !(Y[c][i] = malloc(sizeof(double) * (size_t)(rc->n * q)))))
         goto oom;
       if (rc->members[i].center &&
           (!(X0[c][i] = malloc(sizeof(double) * (size_t)rc->n)) || !(D[c][i] = calloc((size_t)rc->n, sizeof(double)))))
@@ -281,26 +307,36 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
   for (long i0 = 0; i0 < S; i0 += b) work += S - i0;
   for (long i0 = 0; i0 < S; i0 += b) {
     long i1 = i0 + b < S ? i0 + b : S, nb = i1 - i0;
-    for (long k = i0; k < S; k++) {
+    for (long k = i0, k0 = i1; k < S; k++) { /* k0: the first sample of the batch */
       if (train_eval_sample(src, f, k, err, errlen)) goto done;
       if (k < i1 && train_check_spd(m, f, tmp, err, errlen)) goto done;
+      bool full = k >= i1 && (k + 1 - k0 == q || k + 1 == S);
       for (int c = 0; c < m->nclasses; c++) {
         RClass *rc = &m->classes[c];
         for (int i = 0; i < rc->nmembers; i++) {
-          double *x = k < i1 ? H[c][i] + (k - i0) * rc->n : tmp;
+          double *x = k < i1 ? H[c][i] + (k - i0) * rc->n : Y[c][i] + (k - k0) * rc->n;
           if (train_member_value(m, f, &rc->members[i], k, rc->n, x, err, errlen)) goto done;
           if (X0[c][i]) {
             if (k == 0) memcpy(X0[c][i], x, sizeof(double) * (size_t)rc->n);
             cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, x, 1);
             if (k < i1) cblas_daxpy((int)rc->n, 1.0, x, 1, D[c][i], 1);
           }
-          if (k < i1) continue;
-          /* G[I, k] = X_Iᵀ x_k */
-          double *g = lam;
-          cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)nb, (int)rc->n, 1.0, H[c][i], (int)rc->n, x, 1, 0.0, g, 1);
-          for (long a = 0; a < nb; a++) G[c][i][(i0 + a) * S + k] = G[c][i][k * S + i0 + a] = g[a];
+          if (!full) continue;
+          /* G[I, K] = X_Iᵀ X_K for the batch K = [k0, k] (one sample: a
+           * dgemv, faster than a dgemm of one column), and its mirror */
+          long nk = k + 1 - k0;
+          double *g = G[c][i];
+          if (nk == 1)
+            cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)nb, (int)rc->n, 1.0, H[c][i], (int)rc->n, Y[c][i], 1, 0.0,
+                        g + i0 * S + k0, (int)S);
+          else
+            cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nk, (int)rc->n, 1.0, H[c][i], (int)rc->n,
+                        Y[c][i], (int)rc->n, 0.0, g + i0 * S + k0, (int)S);
+          for (long a = i0; a < i1; a++)
+            for (long e = k0; e <= k; e++) g[e * S + a] = g[a * S + e];
         }
       }
+      if (full) k0 = k + 1;
       progress_show(opt->progress, passes > 1 ? "snapshots (Gram, recomputing)" : "snapshots (Gram)", ++done, work);
     }
     for (int c = 0; c < m->nclasses; c++) {
@@ -330,15 +366,18 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
           for (long e = 0; e < S; e++) g[a * S + e] += all - lam[a] - lam[e];
         cblas_dscal((int)rc->n, 1.0 / (double)S, D[c][i], 1);
       }
-      lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)S, G[c][i], (lapack_int)S, lam);
+      int k = 0, cap = mb->center ? mb->cap - 1 : mb->cap;
+      long kmax = cap < S ? cap : S;
+      free(V);
+      if (!(V = malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1))))) goto oom;
+      int info = pca_top_eigen(S, G[c][i], kmax, lam, V); /* G whole: either layout */
       if (info != 0) {
         npg_fail(err, errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
-              rc->label, mb->name, (int)info);
+              rc->label, mb->name, info);
         goto done;
       }
       double total = 0, run = 0;
       for (long a = 0; a < S; a++) total += fmax(lam[a], 0);
-      int k = 0, cap = mb->center ? mb->cap - 1 : mb->cap;
       mb->captured = 1;
       if (total > 0) {
         while (k < S && k < cap && lam[S - 1 - k] > 1e-20 * lam[S - 1]) {
@@ -356,12 +395,9 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
       mb->nsv = S;
       for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
       mb->kept = kk[c][i] = k;
-      /* column a of W = V[:, S-1-a] / sqrt(λ), kept in G's place (S x k) */
-      for (long s2 = 0; s2 < S; s2++) {
-        double *row = G[c][i] + s2 * S;
-        for (int a = 0; a < k; a++) tmp[a] = row[S - 1 - a] / sqrt(lam[S - 1 - a]);
-        memcpy(row, tmp, sizeof(double) * (size_t)k);
-      }
+      /* column a of W = V[:, a] / sqrt(λ), kept in G's place (S x k, row-major with leading dimension S) */
+      for (long s2 = 0; s2 < S; s2++)
+        for (int a = 0; a < k; a++) G[c][i][s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
       if (!(U[c][i] = calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double)))) goto oom;
     }
   }
@@ -408,18 +444,22 @@ done:
   for (int c = 0; c < m->nclasses; c++) {
     for (int i = 0; G && G[c] && i < m->classes[c].nmembers; i++) free(G[c][i]);
     for (int i = 0; H && H[c] && i < m->classes[c].nmembers; i++) free(H[c][i]);
+    for (int i = 0; Y && Y[c] && i < m->classes[c].nmembers; i++) free(Y[c][i]);
     for (int i = 0; X0 && X0[c] && i < m->classes[c].nmembers; i++) free(X0[c][i]);
     for (int i = 0; D && D[c] && i < m->classes[c].nmembers; i++) free(D[c][i]);
     if (G) free(G[c]);
     if (H) free(H[c]);
+    if (Y) free(Y[c]);
     if (X0) free(X0[c]);
     if (D) free(D[c]);
   }
   free(G);
   free(H);
+  free(Y);
   free(X0);
   free(D);
   free(lam);
+  free(V);
   return rc;
 }
 

@@ -160,6 +160,10 @@ void report_training(const Model *m, FILE *out);
  * input whose floor exceeds `tol`. Returns how many were printed. */
 int report_verify_warnings(const Model *m, const double *err, const double *floor, double tol, FILE *out);
 
+/* The method of snapshots' split of a budget of `fit` samples: a held
+ * block of *b samples and a batch of *q later ones (*q 0: all S held). */
+void train_gram_blocks(long S, long fit, long *b, long *q);
+
 /* A progress bar on stderr ("what [####    ] done/total"), when `on`. */
 void progress_show(bool on, const char *what, long done, long total);
 
@@ -195,6 +199,17 @@ int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int 
  * decides; *unresolved set when the decision needs directions below what
  * a Gram matrix resolves (pca_member then asks the SVD). */
 long pca_choose(const double *s, long K, int cap, double energy, bool *unresolved);
+/* The eigenproblem of a Gram matrix when few eigenvectors are kept: every
+ * eigenvalue of the symmetric S x S matrix G (its upper triangle read,
+ * column-major with leading dimension S — a matrix stored whole may be in
+ * either layout), ascending in lam[0..S) (the spectrum a model reports),
+ * and the eigenvectors of the k largest in V (S x k column-major, largest
+ * first: column j belongs to lam[S-1-j]). Through the tridiagonal form,
+ * eigenvectors only for those k (dsytrd, dsterf, dstemr — dstebz and
+ * dstein where it fails — dormtr), or by divide and conquer (dsyevd) when
+ * k is over half of S. G is overwritten. 0, or LAPACK's info (-1 when out
+ * of memory). */
+int pca_top_eigen(long S, double *G, long k, double *lam, double *V);
 /* The basis sign convention: every column of B (n x m row-major) turned so
  * that its first entry of at least half its largest magnitude is positive
  * (every route to a basis — SVD, Gram matrix, out of core — ends with it,

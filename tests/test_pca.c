@@ -1,0 +1,130 @@
+/* test_pca.c — backends/train/pca.c: the Gram matrix's eigenproblem with
+ * few eigenvectors (pca_top_eigen) against LAPACK's divide and conquer
+ * (dsyevd, every eigenvector), on random symmetric positive semidefinite
+ * Gram matrices G = Q diag(λ) Qᵀ (Q from the QR of a random matrix):
+ *
+ *   - every eigenvalue equal to dsyevd's to 1e-12 λ_max;
+ *   - the kept eigenvectors orthonormal, and spanning what dsyevd's span:
+ *     for every group of equal eigenvalues (to 1e-9 relative) wholly among
+ *     the kept, the projectors onto the group equal to 1e-10 (a simple
+ *     eigenvalue's vector up to its sign, a repeated one's space), where
+ *     the group is at least 1e-5 λ_max from every other eigenvalue (an
+ *     eigenspace is only determined to about ε λ_max / that gap, by either
+ *     route);
+ *   - spectra: a Gram matrix's decay (1 to 1e-12), low rank (10 of 160,
+ *     the rest a null space of 150), repeated leading eigenvalues;
+ *     k from 1 to the whole (the dsyevd branch included), and k = 0. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+#include <lapacke.h>
+
+#include "randdata.h"
+#include "train.h"
+
+typedef enum Spectrum {
+  SP_DECAY,    /* 1 down to 1e-12, geometrically */
+  SP_LOW_RANK, /* 10 eigenvalues 1 … 10, the rest 0 */
+  SP_REPEATED, /* 5, 5, 5, 3, 3, then decaying from 1 */
+} Spectrum;
+
+static double eigenvalue(Spectrum sp, long i, long S) {
+  switch (sp) {
+  case SP_DECAY: return pow(1e-12, (double)i / (double)(S - 1));
+  case SP_LOW_RANK: return i < 10 ? 10.0 - (double)i : 0;
+  case SP_REPEATED: return i < 3 ? 5 : i < 5 ? 3 : pow(0.8, (double)(i - 5));
+  }
+  return 0;
+}
+
+/* Column-major S x S G = Q diag(λ) Qᵀ, λ of `sp` (λ_i at a random place). */
+static double *gram_matrix(Spectrum sp, long S, unsigned seed) {
+  double *Q = malloc(sizeof(double) * (size_t)(S * S)), *G = calloc((size_t)(S * S), sizeof(double));
+  double *tau = malloc(sizeof(double) * (size_t)S);
+  for (long i = 0; i < S * S; i++) Q[i] = randdata_uniform(&seed, -1, 1);
+  assert_int_equal(LAPACKE_dgeqrf(LAPACK_COL_MAJOR, (int)S, (int)S, Q, (int)S, tau), 0);
+  assert_int_equal(LAPACKE_dorgqr(LAPACK_COL_MAJOR, (int)S, (int)S, (int)S, Q, (int)S, tau), 0);
+  for (long i = 0; i < S; i++) {
+    double l = eigenvalue(sp, i, S);
+    for (long b = 0; b < S; b++)
+      for (long a = 0; a < S; a++) G[b * S + a] += l * Q[i * S + a] * Q[i * S + b];
+  }
+  free(Q), free(tau);
+  return G;
+}
+
+/* The largest difference of the projectors onto columns [j0, j1) of the
+ * S x k column-major A and B. */
+static double projector_distance(long S, const double *A, const double *B, long j0, long j1) {
+  double worst = 0;
+  for (long a = 0; a < S; a++)
+    for (long b = 0; b < S; b++) {
+      double pa = 0, pb = 0;
+      for (long j = j0; j < j1; j++) pa += A[j * S + a] * A[j * S + b], pb += B[j * S + a] * B[j * S + b];
+      worst = fmax(worst, fabs(pa - pb));
+    }
+  return worst;
+}
+
+/* pca_top_eigen(k) on G against dsyevd: the worst eigenvalue difference
+ * (relative to λ_max), orthonormality and projector difference. */
+static void check_one(Spectrum sp, long S, long k, double *dlam, double *dorth, double *dproj) {
+  double *G = gram_matrix(sp, S, 17u + (unsigned)sp), *G2 = malloc(sizeof(double) * (size_t)(S * S));
+  double *lam = malloc(sizeof(double) * (size_t)S), *ref = malloc(sizeof(double) * (size_t)S);
+  double *V = malloc(sizeof(double) * (size_t)(S * (k ? k : 1))), *R = malloc(sizeof(double) * (size_t)(S * S));
+  memcpy(G2, G, sizeof(double) * (size_t)(S * S));
+  assert_int_equal(LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (int)S, G2, (int)S, ref), 0);
+  for (long j = 0; j < S; j++) memcpy(R + j * S, G2 + (S - 1 - j) * S, sizeof(double) * (size_t)S); /* descending */
+  for (long e = 0; e < S * S; e++) G2[e] = NAN;
+  for (long b = 0; b < S; b++) memcpy(G2 + b * S, G + b * S, sizeof(double) * (size_t)(b + 1)); /* the upper triangle only */
+  assert_int_equal(pca_top_eigen(S, G2, k, lam, V), 0);
+  double big = ref[S - 1];
+  *dlam = *dorth = *dproj = 0;
+  for (long i = 0; i < S; i++) *dlam = fmax(*dlam, fabs(lam[i] - ref[i]) / big);
+  for (long a = 0; a < k; a++)
+    for (long b = 0; b < k; b++) {
+      double d = 0;
+      for (long e = 0; e < S; e++) d += V[a * S + e] * V[b * S + e];
+      *dorth = fmax(*dorth, fabs(d - (a == b)));
+    }
+  /* groups of equal eigenvalues (descending), those wholly kept and apart from the rest */
+  for (long j0 = 0, j1; j0 < k; j0 = j1) {
+    for (j1 = j0 + 1; j1 < S && fabs(ref[S - 1 - j1] - ref[S - 1 - j0]) <= 1e-9 * big; j1++) {}
+    double gap = INFINITY;
+    if (j0 > 0) gap = fmin(gap, ref[S - j0] - ref[S - 1 - j0]);
+    if (j1 < S) gap = fmin(gap, ref[S - j1] - ref[S - 1 - j1]);
+    if (j1 <= k && gap >= 1e-5 * big) *dproj = fmax(*dproj, projector_distance(S, V, R, j0, j1));
+  }
+  free(G), free(G2), free(lam), free(ref), free(V), free(R);
+}
+
+static void top_eigen_matches_dsyevd(void **state) {
+  (void)state;
+  const long S = 160, ks[] = {0, 1, 3, 5, 10, 12, 40, 100, 160};
+  const char *names[] = {"decay 1..1e-12", "rank 10 of 160", "repeated 5,5,5,3,3"};
+  for (int sp = SP_DECAY; sp <= SP_REPEATED; sp++) {
+    double wl = 0, wo = 0, wp = 0;
+    for (size_t i = 0; i < sizeof ks / sizeof *ks; i++) {
+      double dl, dor, dp;
+      check_one((Spectrum)sp, S, ks[i], &dl, &dor, &dp);
+      wl = fmax(wl, dl), wo = fmax(wo, dor), wp = fmax(wp, dp);
+    }
+    print_message("pca_top_eigen vs dsyevd, S %ld, %s, k 0..160: eigenvalues %.2g, orthonormal %.2g, projectors %.2g\n", S,
+                  names[sp], wl, wo, wp);
+    assert_true(wl < 1e-12);
+    assert_true(wo < 1e-12);
+    assert_true(wp < 1e-10);
+  }
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(top_eigen_matches_dsyevd),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
