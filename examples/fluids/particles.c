@@ -9,8 +9,6 @@ void particles_free(Particles *p) {
   free(p->stamp);
   free(p->vel);
   free(p->bary);
-  free(p->vstamp);
-  free(p->fstamp);
   free(p->x);
   free(p->cell);
   free(p->tag);
@@ -180,31 +178,9 @@ void particles_advect(Particles *p, const Mesh *m, const double *g, const double
 
 /* Cell c's velocity (Eq. 13) and barycentric map (λ_1..3 = M (x - g_0),
  * λ_0 = 1 - their sum), computed on the first visit of the frame. */
-static double row_dot(const double *B, long row, int k, const double *x) {
-  const double *b = B + row * k;
-  double s = 0;
-  for (int j = 0; j < k; j++) s += b[j] * x[j];
-  return s;
-}
-
-/* Cell c's vertices and faces lifted from p->lazy into p->lazy_g, lazy_f,
- * those not lifted yet this frame. */
-static void lift_cell(Particles *p, const Mesh *m, int c) {
-  const ReducedFlow *r = p->lazy;
-  for (int k = 0; k < 4; k++) {
-    int v = m->cell[4 * c + k], j = m->cface[4 * c + k];
-    if (p->vstamp[v] != p->frame) {
-      p->vstamp[v] = p->frame;
-      for (int d = 0; d < 3; d++) p->lazy_g[3 * v + d] = row_dot(r->Bg, 3L * v + d, r->mg, r->gh);
-    }
-    if (p->fstamp[j] != p->frame) p->fstamp[j] = p->frame, p->lazy_f[j] = row_dot(r->Bf, j, r->mf, r->fh);
-  }
-}
-
 static void visit(Particles *p, const Mesh *m, const double *g, const double *f, int c) {
   if (p->stamp[c] == p->frame) return;
   p->stamp[c] = p->frame;
-  if (p->lazy) lift_cell(p, m, c);
   particles_cell_velocity(m, g, f, c, p->vel + 3 * c);
   const int *t = m->cell + 4 * c;
   const double *a = g + 3 * t[0];
@@ -278,15 +254,4 @@ void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const
       p->walk_steps += locate3(p, m, g, f, x, &p->cell[i]);
     }
   }
-}
-
-void particles_advect_reduced(Particles *p, const Mesh *m, const ReducedFlow *r, double *g, double *f, double dt,
-                              int substeps) {
-  if (!p->vstamp) {
-    p->vstamp = calloc(m->nv, sizeof *p->vstamp);
-    p->fstamp = calloc(m->nf, sizeof *p->fstamp);
-  }
-  p->lazy = r, p->lazy_g = g, p->lazy_f = f; /* visit lifts every cell before reading it */
-  particles_advect_cached(p, m, g, f, dt, substeps);
-  p->lazy = NULL, p->lazy_g = p->lazy_f = NULL;
 }

@@ -22,19 +22,7 @@ typedef struct Particles {
    * its velocity and barycentric map then (allocated on first use) */
   int frame, *stamp;
   double *vel, *bary;
-  /* particles_advect_reduced: the flow being lifted, and per vertex and
-   * face the frame it was last lifted in */
-  const struct ReducedFlow *lazy;
-  double *lazy_g, *lazy_f;
-  int *vstamp, *fstamp;
 } Particles;
-
-/* A flow in reduced coordinates: positions g = B_g ĝ (B_g row-major, 3V x
- * mg, row 3v + d), fluxes f = B_f f̂ (row-major, F x mf). */
-typedef struct ReducedFlow {
-  const double *Bg, *gh, *Bf, *fh;
-  int mg, mf;
-} ReducedFlow;
 
 /* n particles uniformly distributed over 12 thin streaks of the fluid at
  * positions g (bands across y in 2D, slabs across z in 3D), tagged
@@ -55,11 +43,5 @@ void particles_advect(Particles *p, const Mesh *m, const double *g, const double
  * the cost follows the cells the particles visit, never the mesh size
  * (paper §6.5: Eq. 13 evaluated locally). In 2D it is particles_advect. */
 void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps);
-/* particles_advect_cached (3D) through a reduced flow, lifting only the
- * vertices and faces of the cells the particles visit, into g [3V] and
- * f [F] (their other entries are left as they were): the whole frame's cost
- * follows the visited cells, the lift included, not the mesh. */
-void particles_advect_reduced(Particles *p, const Mesh *m, const ReducedFlow *r, double *g, double *f, double dt,
-                              int substeps);
 
 #endif

@@ -49,10 +49,6 @@
  *                        symmetric, positive cells, a closed boundary
  *                        oriented out of the fluid), and the renumbered
  *                        meshes have gmsh's cells and faces as vertex sets
- *   cavity_particles_reduced  particles through a reduced flow lifted cell by
- *                        cell (particles_advect_reduced) move bit for bit as
- *                        through the whole lift, which it leaves untouched
- *                        outside the visited cells
  *   cavity_numbering_energy  six full steps on each numbering through the
  *                        same positions: the same energies to 1e-11
  *                        relative
@@ -75,7 +71,6 @@
 #include "cavitysim.h"
 #include "npg.h"
 #include "npgbind.h"
-#include "particles.h"
 #include "reduced.h"
 #include "solver.h"
 
@@ -643,48 +638,6 @@ static void test_cavity_train_workers(void **state) {
   cavity_free(&cv);
 }
 
-/* Particles through a reduced flow lifted cell by cell as they reach it
- * move exactly as through the whole lift, and the lazy lift leaves the
- * vertices and faces of cells no particle reached untouched. */
-static void test_cavity_particles_reduced(void **state) {
-  (void)state;
-  Cavity cv = cavity_of(300);
-  const Mesh *m = &cv.m;
-  long ng = 3L * m->nv, nf = m->nf;
-  const double gh[1] = {1}, fh[2] = {0.3, -0.7};
-  double *Bf = malloc(2 * nf * sizeof *Bf), *gw = malloc(ng * sizeof *gw), *fw = malloc(nf * sizeof *fw);
-  double *gl = malloc(ng * sizeof *gl), *fl = malloc(nf * sizeof *fl);
-  unsigned seed = 7;
-  for (long j = 0; j < 2 * nf; j++) seed = seed * 1103515245u + 12345u, Bf[j] = 0.05 * ((seed >> 8) / 16777216.0 - 0.5);
-  for (long j = 0; j < ng; j++) gw[j] = m->g0[j] * gh[0], gl[j] = NAN; /* B_g = g0 (one column) */
-  for (long j = 0; j < nf; j++) fw[j] = Bf[2 * j] * fh[0] + Bf[2 * j + 1] * fh[1], fl[j] = NAN;
-  ReducedFlow r = {m->g0, gh, Bf, fh, 1, 2};
-  Particles a = {0}, b = {0};
-  particles_seed(&a, m, m->g0, 12, 99);
-  particles_seed(&b, m, m->g0, 12, 99);
-  for (int frame = 0; frame < 4; frame++) {
-    particles_advect_cached(&a, m, gw, fw, 0.05, 10);
-    particles_advect_reduced(&b, m, &r, gl, fl, 0.05, 10);
-    for (int i = 0; i < a.n; i++) {
-      assert_int_equal(a.cell[i], b.cell[i]);
-      for (int d = 0; d < 3; d++) assert_true(a.x[3 * i + d] == b.x[3 * i + d]);
-    }
-  }
-  long lifted = 0;
-  for (long j = 0; j < nf; j++)
-    if (!isnan(fl[j])) {
-      lifted++;
-      assert_true(fl[j] == fw[j]);
-    }
-  for (long j = 0; j < ng; j++)
-    if (!isnan(gl[j])) assert_true(gl[j] == gw[j]);
-  print_message("%ld of %ld faces lifted for %d particles over 4 frames\n", lifted, nf, a.n);
-  assert_true(lifted > 0 && lifted < nf);
-  particles_free(&a), particles_free(&b);
-  free(Bf), free(gw), free(fw), free(gl), free(fl);
-  cavity_free(&cv);
-}
-
 int main(int argc, char **argv) {
   openblas_set_num_threads(1);
   const struct CMUnitTest all[] = {
@@ -696,7 +649,6 @@ int main(int argc, char **argv) {
       cmocka_unit_test(test_cavity_train_workers),
       cmocka_unit_test(test_cavity_numbering),
       cmocka_unit_test(test_cavity_numbering_energy),
-      cmocka_unit_test(test_cavity_particles_reduced),
   };
   return run_named_tests("test_cavity", argc, argv, all, (int)(sizeof all / sizeof all[0]));
 }
