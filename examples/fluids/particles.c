@@ -9,6 +9,9 @@ void particles_free(Particles *p) {
   free(p->stamp);
   free(p->vel);
   free(p->bary);
+  free(p->order_count);
+  free(p->order_int);
+  free(p->order_x);
   free(p->x);
   free(p->cell);
   free(p->tag);
@@ -233,6 +236,27 @@ static int locate3(Particles *p, const Mesh *m, const double *g, const double *f
   return steps;
 }
 
+void particles_sort_by_cell(Particles *p, const Mesh *m) {
+  int n = p->n, dim = p->dim ? p->dim : m->dim;
+  if (!p->order_count) {
+    p->order_count = malloc(((size_t)m->nc + 1) * sizeof *p->order_count);
+    p->order_int = malloc(2 * (size_t)n * sizeof *p->order_int);
+    p->order_x = malloc((size_t)dim * n * sizeof *p->order_x);
+  }
+  int *cnt = p->order_count, *cell = p->order_int, *tag = p->order_int + n;
+  memset(cnt, 0, ((size_t)m->nc + 1) * sizeof *cnt);
+  for (int i = 0; i < n; i++) cnt[p->cell[i] + 1]++;
+  for (int c = 0; c < m->nc; c++) cnt[c + 1] += cnt[c];
+  for (int i = 0; i < n; i++) {
+    int k = cnt[p->cell[i]]++;
+    cell[k] = p->cell[i], tag[k] = p->tag[i];
+    memcpy(p->order_x + (size_t)dim * k, p->x + (size_t)dim * i, (size_t)dim * sizeof *p->x);
+  }
+  memcpy(p->cell, cell, (size_t)n * sizeof *cell);
+  memcpy(p->tag, tag, (size_t)n * sizeof *tag);
+  memcpy(p->x, p->order_x, (size_t)dim * n * sizeof *p->x);
+}
+
 void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps) {
   if (m->dim != 3) {
     particles_advect(p, m, g, f, dt, substeps);
@@ -244,6 +268,7 @@ void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const
     p->bary = malloc(12 * (size_t)m->nc * sizeof *p->bary);
   }
   p->frame++;
+  particles_sort_by_cell(p, m);
   double h = dt / substeps;
   for (int i = 0; i < p->n; i++) {
     double *x = p->x + 3 * i;

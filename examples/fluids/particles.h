@@ -22,6 +22,9 @@ typedef struct Particles {
    * its velocity and barycentric map then (allocated on first use) */
   int frame, *stamp;
   double *vel, *bary;
+  /* the particles put in cell order each frame: counts per cell, scratch */
+  int *order_count, *order_int;
+  double *order_x;
 } Particles;
 
 /* n particles uniformly distributed over 12 thin streaks of the fluid at
@@ -43,5 +46,9 @@ void particles_advect(Particles *p, const Mesh *m, const double *g, const double
  * the cost follows the cells the particles visit, never the mesh size
  * (paper §6.5: Eq. 13 evaluated locally). In 2D it is particles_advect. */
 void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps);
+/* Reorder the particles by their cells' numbers (a counting sort, stable):
+ * on a mesh numbered for locality (mesh_renumber) consecutive particles
+ * then visit nearby cells. particles_advect_cached does it every frame. */
+void particles_sort_by_cell(Particles *p, const Mesh *m);
 
 #endif

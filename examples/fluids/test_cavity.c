@@ -49,6 +49,9 @@
  *                        symmetric, positive cells, a closed boundary
  *                        oriented out of the fluid), and the renumbered
  *                        meshes have gmsh's cells and faces as vertex sets
+ *   cavity_particles_sorted  particles_sort_by_cell orders by cell and keeps
+ *                        each particle whole; a reversed copy advected by a
+ *                        frame ends as the same set of particles
  *   cavity_numbering_energy  six full steps on each numbering through the
  *                        same positions: the same energies to 1e-11
  *                        relative
@@ -71,6 +74,7 @@
 #include "cavitysim.h"
 #include "npg.h"
 #include "npgbind.h"
+#include "particles.h"
 #include "reduced.h"
 #include "solver.h"
 
@@ -638,6 +642,63 @@ static void test_cavity_train_workers(void **state) {
   cavity_free(&cv);
 }
 
+typedef struct Marker {
+  double x[3];
+  int cell, tag;
+} Marker;
+
+static int marker_cmp(const void *a, const void *b) {
+  const Marker *u = a, *v = b;
+  for (int d = 0; d < 3; d++)
+    if (u->x[d] != v->x[d]) return u->x[d] < v->x[d] ? -1 : 1;
+  return u->cell != v->cell ? (u->cell < v->cell ? -1 : 1) : (u->tag > v->tag) - (u->tag < v->tag);
+}
+
+static Marker *markers(const Particles *p) {
+  Marker *mk = malloc((size_t)p->n * sizeof *mk);
+  for (int i = 0; i < p->n; i++) {
+    memcpy(mk[i].x, p->x + 3 * i, sizeof mk[i].x);
+    mk[i].cell = p->cell[i], mk[i].tag = p->tag[i];
+  }
+  qsort(mk, (size_t)p->n, sizeof *mk, marker_cmp);
+  return mk;
+}
+
+/* particles_sort_by_cell puts the particles in cell order and keeps each
+ * particle whole (position, cell and tag together); advected by a frame,
+ * a reversed copy ends as the same set of particles. */
+static void test_cavity_particles_sorted(void **state) {
+  (void)state;
+  Cavity cv = cavity_of(300);
+  const Mesh *m = &cv.m;
+  Particles a = {0}, b = {0};
+  particles_seed(&a, m, m->g0, 200, 5);
+  particles_seed(&b, m, m->g0, 200, 5);
+  for (int i = 0, j = b.n - 1; i < j; i++, j--) { /* b reversed */
+    for (int d = 0; d < 3; d++) {
+      double t = b.x[3 * i + d];
+      b.x[3 * i + d] = b.x[3 * j + d], b.x[3 * j + d] = t;
+    }
+    int c = b.cell[i], t = b.tag[i];
+    b.cell[i] = b.cell[j], b.tag[i] = b.tag[j], b.cell[j] = c, b.tag[j] = t;
+  }
+  Marker *before = markers(&a);
+  particles_sort_by_cell(&a, m);
+  for (int i = 1; i < a.n; i++) assert_true(a.cell[i - 1] <= a.cell[i]);
+  Marker *after = markers(&a);
+  assert_memory_equal(before, after, (size_t)a.n * sizeof *before);
+  double *f = calloc(m->nf, sizeof *f);
+  for (int j = 0; j < m->nf; j++) f[j] = 0.01 * sin(0.37 * j);
+  particles_advect_cached(&a, m, m->g0, f, 0.05, 10);
+  particles_advect_cached(&b, m, m->g0, f, 0.05, 10);
+  Marker *ma = markers(&a), *mb = markers(&b);
+  assert_memory_equal(ma, mb, (size_t)a.n * sizeof *ma);
+  assert_true(memcmp(ma, before, (size_t)a.n * sizeof *ma) != 0); /* they moved */
+  free(before), free(after), free(ma), free(mb), free(f);
+  particles_free(&a), particles_free(&b);
+  cavity_free(&cv);
+}
+
 int main(int argc, char **argv) {
   openblas_set_num_threads(1);
   const struct CMUnitTest all[] = {
@@ -649,6 +710,7 @@ int main(int argc, char **argv) {
       cmocka_unit_test(test_cavity_train_workers),
       cmocka_unit_test(test_cavity_numbering),
       cmocka_unit_test(test_cavity_numbering_energy),
+      cmocka_unit_test(test_cavity_particles_sorted),
   };
   return run_named_tests("test_cavity", argc, argv, all, (int)(sizeof all / sizeof all[0]));
 }
