@@ -40,10 +40,9 @@ struct AugLagrangian {
   bool factored;       /* L holds a factor */
   bool fresh;          /* L is the factor of the current geometry */
   bool warm;           /* pr->x and lambda hold the last projection's solution */
-  /* the reuse policy's cycle since the last factorization: its steps, the
-   * solves they took, the factorization's and the solves' seconds */
+  /* the reuse policy's cycle since the last factorization: its steps and
+   * the solves they took (the first step's apart) */
   int cycle_steps, cycle_solves, cycle_first_solves;
-  double seconds_factor, seconds_per_solve;
   double factor_cost; /* a factorization's cost in solves, from the analysis's flop counts */
 };
 
@@ -359,7 +358,7 @@ static int al_iterate(Projection *pr, int *solves, char *err, size_t errlen) {
 }
 
 /* K + w D^T D assembled at the current geometry and factored into L; its
- * seconds into al->seconds_factor. 0, or -1 with the reason in `err`. */
+ * seconds added to pr->seconds_numeric. 0, or -1 with the reason in `err`. */
 static int al_factor(Projection *pr, char *err, size_t errlen) {
   AugLagrangian *al = pr->al;
   double t0 = util_now();
@@ -369,8 +368,7 @@ static int al_factor(Projection *pr, char *err, size_t errlen) {
   cholmod_free_sparse(&A, &al->cc);
   al->factored = al->fresh = ok;
   al->cycle_steps = al->cycle_solves = 0;
-  al->seconds_factor = util_now() - t0;
-  pr->seconds_numeric += al->seconds_factor;
+  pr->seconds_numeric += util_now() - t0;
   pr->factorizations++;
   if (!ok)
     return util_fail(err, errlen, "projection: K + w D^T D is not positive definite (CHOLMOD status %d)",
@@ -383,7 +381,6 @@ static int al_factor(Projection *pr, char *err, size_t errlen) {
  * when its iterations stop contracting; the interior fluxes into pr->x. */
 static int al_solve(Projection *pr, char *err, size_t errlen) {
   AugLagrangian *al = pr->al;
-  double t0 = util_now(), factor0 = pr->seconds_numeric;
   int solves = 0, rc = 1;
   if (pr->al_refactor_every_step) al->factored = false;
   if (al->factored) pr->reuses++;
@@ -399,8 +396,6 @@ static int al_solve(Projection *pr, char *err, size_t errlen) {
     al->warm = false;
     return -1;
   }
-  double seconds = util_now() - t0 - (pr->seconds_numeric - factor0);
-  al->seconds_per_solve = seconds / solves;
   pr->iterations = solves;
   pr->solves += solves;
   pr->projections++;
