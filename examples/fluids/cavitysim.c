@@ -37,6 +37,7 @@ void cavity_options_default(CavityOptions *o) {
   o->projection = PROJ_AL_CHOLMOD;
   long cpus = sysconf(_SC_NPROCESSORS_ONLN);
   o->workers = cpus < 1 ? 1 : cpus > CAVITY_MAX_WORKERS ? CAVITY_MAX_WORKERS : (int)cpus;
+  o->particle_threads = cpus < 1 ? 1 : cpus > PARTICLES_MAX_THREADS ? PARTICLES_MAX_THREADS : (int)cpus;
   o->sample_every = 0;
   o->buffer_bytes = (size_t)2 << 30;
   o->backend = NPG_CC;
@@ -470,7 +471,7 @@ int cavity_run(const CavityOptions *o) {
   NpgProgram *prog = NULL;
   NpgFull *fe = NULL;
   NpgModel *model = NULL;
-  Particles part = {0}, pred = {0};
+  Particles part = {0}, pred = {0}, pred1 = {0}; /* full flow, reduced flow, reduced on one thread */
   double *g = malloc(ng * sizeof(double)), *gn = malloc(ng * sizeof(double)), *gl = malloc(ng * sizeof(double));
   double *fl = malloc(nf * sizeof(double)), *ul = malloc(nu * sizeof(double)), *pv = malloc(nu * sizeof(double));
   double *energy = calloc(T + 1, sizeof(double)), *energy_red = calloc(T + 1, sizeof(double));
@@ -479,7 +480,9 @@ int cavity_run(const CavityOptions *o) {
   double *err_basis = calloc(T + 1, sizeof(double)); /* E(u − B_u û)/E(u) of the full state's own projection */
   double *step_times = calloc(T + 1, sizeof(double)), *frame_axis = calloc(T + 1, sizeof(double));
   double *traj_g = NULL, *traj_gd = NULL, *gc1 = NULL, *gdc = NULL;
-  double seconds_particles = 0, seconds_particles_red = 0, seconds_lift = 0, t_deform = 0;
+  double seconds_particles = 0, seconds_particles_red = 0, seconds_particles_red1 = 0, seconds_lift = 0, t_deform = 0;
+  int particles_same = 1; /* pred1 moved as pred, bit for bit */
+  float *Bf32 = NULL, *fh32 = NULL; /* B_f and f̂ in single precision for the particles' lift */
   double train_split[4] = {0}; /* npg_trainer_finish's snapshots, bases, pre-multiplication, externs */
   CavityTraining ct = {0};
   int train_threads = 0; /* OpenBLAS's in npg_trainer_finish */
@@ -544,6 +547,14 @@ int cavity_run(const CavityOptions *o) {
       fprintf(stderr, "npg-fluids: reduced model: %s\n", err);
       goto done;
     }
+    /* the particles' copy of B_f (their lift reads half the bytes) */
+    Bf32 = malloc((size_t)nf * R.mf * sizeof *Bf32);
+    fh32 = malloc(R.mf * sizeof *fh32);
+    if (!Bf32 || !fh32) {
+      fprintf(stderr, "npg-fluids: out of memory\n");
+      goto done;
+    }
+    for (size_t i = 0; i < (size_t)nf * R.mf; i++) Bf32[i] = (float)R.Bf[i];
     Ops ops;
     ops_init(&ops, m);
     div_basis = ops_max_column_divergence(&ops, R.Bf, nf, R.mf);
@@ -591,8 +602,11 @@ int cavity_run(const CavityOptions *o) {
   probe_ok = reduced;
   t_deform = 0;
   particles_seed(&part, m, s.g, o->particles, 12345);
+  part.threads = o->particle_threads;
   if (reduced) {
     particles_seed(&pred, m, s.g, o->particles, 12345);
+    pred.threads = o->particle_threads;
+    if (o->particle_threads > 1) particles_seed(&pred1, m, s.g, o->particles, 12345);
     memcpy(R.g, traj_g, R.mg * sizeof(double));
     for (long c = 0; c < C; c++)
       for (int d = 0; d < 3; d++) pv[3 * c + d] = s.ops.area[c] * s.u[3 * c + d];
@@ -646,7 +660,11 @@ int cavity_run(const CavityOptions *o) {
         goto done;
       }
       double t0 = util_now();
-      particles_advect_cached(&part, m, s.g, s.f, o->dt, 10);
+      ParticleFlow pf = {.g = s.g, .f = s.f};
+      if (particles_advect_flow(&part, m, &pf, o->dt, 10) != 0) {
+        fprintf(stderr, "npg-fluids: particles: out of memory\n");
+        goto done;
+      }
       seconds_particles += util_now() - t0;
       energy[t] = solver_energy(&s);
       quality[t] = s.min_quality;
@@ -665,14 +683,33 @@ int cavity_run(const CavityOptions *o) {
         step_times[t - 1] = util_now() - a0;
         split[0] += R.seconds_eval - e0, split[1] += R.seconds_advection - x0, split[2] += R.seconds_projection - p0;
         energy_red[t] = red_energy(&R, R.g, R.u);
-        /* particles through the reduced flow: g and f lifted once per frame */
+        /* particles through the reduced flow (paper §6.5): the geometry
+         * lifted (n_v x m_g), each face's flux lifted when a particle first
+         * reaches one of its cells this frame */
         a0 = util_now();
         lift(R.Bg, ng, R.mg, R.g, gl);
+        for (long k = 0; k < R.mf; k++) fh32[k] = (float)R.f[k];
+        ParticleFlow pf = {.g = gl, .Bf = Bf32, .fh = fh32, .mf = (int)R.mf};
+        if (particles_advect_flow(&pred, m, &pf, o->dt, 10) != 0) {
+          fprintf(stderr, "npg-fluids: particles: out of memory\n");
+          goto done;
+        }
+        seconds_particles_red += util_now() - a0;
+        if (pred1.n) { /* the same on one thread, timed apart */
+          a0 = util_now();
+          lift(R.Bg, ng, R.mg, R.g, gl);
+          if (particles_advect_flow(&pred1, m, &pf, o->dt, 10) != 0) {
+            fprintf(stderr, "npg-fluids: particles: out of memory\n");
+            goto done;
+          }
+          seconds_particles_red1 += util_now() - a0;
+          particles_same &= !memcmp(pred.x, pred1.x, 3 * (size_t)pred.n * sizeof *pred.x) &&
+                            !memcmp(pred.cell, pred1.cell, (size_t)pred.n * sizeof *pred.cell);
+        }
+        /* the whole flux, for the divergence check (timed for comparison) */
+        a0 = util_now();
         lift(R.Bf, nf, R.mf, R.f, fl);
-        double a1 = util_now();
-        particles_advect_cached(&pred, m, gl, fl, o->dt, 10);
-        seconds_particles_red += util_now() - a1;
-        seconds_lift += a1 - a0;
+        seconds_lift += util_now() - a0;
         Ops *op = &s.ops; /* V(g_t) of the full run: the energy norm of the error */
         lift(R.Bu, nu, R.mu, R.u, ul);
         for (long j = 0; j < nu; j++) ul[j] = s.u[j] - ul[j];
@@ -803,11 +840,15 @@ int cavity_run(const CavityOptions *o) {
     fprintf(stderr,
             "npg-fluids: reduced t_s %.3g ms (median %.3g, min %.3g, repeated %.3g; assembly %.3g, exponential "
             "%.3g, projection %.3g), speedup %.1f (repeated %.1f); "
-            "t_pa %.3g ms (+ lift %.3g ms); trajectory error mean %.3g, final %.3g (the full state's own projection "
+            "t_pa %.3g ms on %d thread%s (%.3g ms on one; %.0f cells visited, %.0f faces lifted a frame; the whole B_f f̂ "
+            "would take %.3g ms); trajectory error mean %.3g, final %.3g (the full state's own projection "
             "onto B_u: %.3g at frame %d, %.3g at the end); one-step error mean %.3g; reduced energy %.4g -> %.4g\n",
             1e3 * t_s, 1e3 * t_s_median, 1e3 * t_s_min, 1e3 * t_s_rep, 1e3 * split[0] / steps, 1e3 * split[1] / steps,
             1e3 * split[2] / steps, t_full / t_s, t_full / t_s_rep,
-            1e3 * seconds_particles_red / steps, 1e3 * seconds_lift / steps, err_traj_mean, err_traj[T],
+            1e3 * seconds_particles_red / steps, o->particle_threads, o->particle_threads == 1 ? "" : "s",
+            1e3 * (pred1.n ? seconds_particles_red1 : seconds_particles_red) / steps,
+            (double)pred.cells_visited / steps, (double)pred.faces_lifted / steps, 1e3 * seconds_lift / steps,
+            err_traj_mean, err_traj[T],
             err_basis[T / 10], T / 10, err_basis[T], err_step_mean, energy_red[0], energy_red[T]);
 
   snprintf(path, sizeof path, "%s/report.json", o->out);
@@ -827,7 +868,8 @@ int cavity_run(const CavityOptions *o) {
               "  \"projection_solve_seconds\": %.6g,\n",
           projection_method_name(o->projection), s.pr.seconds_numeric / steps, s.pr.seconds_solve / steps);
   projection_report_counts(fp, &s.pr);
-  fprintf(fp, "  \"particles\": %d,\n  \"t_pa_full_flow\": %.6g,\n", o->particles, seconds_particles / steps);
+  fprintf(fp, "  \"particles\": %d,\n  \"particle_threads\": %d,\n  \"t_pa_full_flow\": %.6g,\n", o->particles,
+          o->particle_threads, seconds_particles / steps);
   if (reduced) {
     fprintf(fp, "  \"training_runs\": %d,\n  \"workers\": %d,\n  \"train_threads\": %d,\n  \"sample_every\": %d,\n"
                 "  \"train_backend\": \"%s\",\n  \"training_samples\": %ld,\n  \"training_runs_seconds\": %.4g,\n"
@@ -848,7 +890,12 @@ int cavity_run(const CavityOptions *o) {
             t_s, t_s_median, t_s_min, t_s_rep);
     fprintf(fp, "  \"t_s_split\": {\"assembly\": %.6g, \"exponential\": %.6g, \"projection\": %.6g},\n",
             split[0] / steps, split[1] / steps, split[2] / steps);
-    fprintf(fp, "  \"t_pa\": %.6g,\n  \"t_pa_lift\": %.6g,\n", seconds_particles_red / steps, seconds_lift / steps);
+    fprintf(fp, "  \"t_pa\": %.6g,\n  \"t_pa_one_thread\": %.6g,\n  \"particle_threads_same_motion\": %s,\n"
+                "  \"t_lift_whole_flux\": %.6g,\n  \"particle_cells_visited_per_frame\": %.6g,\n"
+                "  \"particle_faces_lifted_per_frame\": %.6g,\n  \"particle_basis_bytes\": %zu,\n",
+            seconds_particles_red / steps, (pred1.n ? seconds_particles_red1 : seconds_particles_red) / steps,
+            particles_same ? "true" : "false", seconds_lift / steps, (double)pred.cells_visited / steps,
+            (double)pred.faces_lifted / steps, (size_t)nf * R.mf * sizeof *Bf32);
     fprintf(fp, "  \"speedup\": %.4g,\n  \"speedup_repeated\": %.4g,\n", t_full / t_s, t_full / t_s_rep);
     fprintf(fp, "  \"basis_f_max_divergence\": %.6g,\n  \"max_divergence_reduced_relative\": %.6g,\n", div_basis,
             max_div_red);
@@ -881,6 +928,8 @@ done:
   if (prog) npg_free(prog);
   particles_free(&part);
   particles_free(&pred);
+  particles_free(&pred1);
+  free(Bf32), free(fh32);
   free(g), free(gn), free(gl), free(fl), free(ul), free(pv), free(energy), free(energy_red), free(quality);
   free(divergence), free(err_traj), free(err_step), free(err_basis), free(step_times), free(frame_axis);
   free(traj_g), free(traj_gd), free(gc1), free(gdc);

@@ -28,6 +28,7 @@ typedef struct CavityOptions {
   ProjectionMethod projection; /* of the full step (PROJ_AL_CHOLMOD) */
   int workers;      /* threads running the training runs (the online CPUs) */
   int train_threads; /* OpenBLAS's threads in npg_trainer_finish (0: `workers`) */
+  int particle_threads; /* threads advecting the marker particles (the online CPUs) */
   int sample_every; /* every K-th frame of a training run is a sample (0: cavity_sample_every_for) */
   size_t buffer_bytes; /* bound on the samples queued by runs the trainer is not taking yet (2 GB) */
   NpgBackend backend; /* the trainer's full evaluator (NPG_CC: replays 2-3x faster than libtcc's code) */

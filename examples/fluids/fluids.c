@@ -52,7 +52,7 @@ static void usage(FILE *fp) {
         "       npg-fluids cavity --out DIR [--cells N] [--frames N] [--runs N] [--dt DT] [--nu NU]\n"
         "                  [--mf N] [--mu N] [--mg N] [--dtol X] [--particles N] [--png-every K] [--vtk-every K]\n"
         "                  [--width PX] [--projection al|kkt] [--workers W] [--train-threads N]\n"
-        "                  [--sample-every K] [--buffer-mb N] [--backend cc|tcc]\n"
+        "                  [--sample-every K] [--buffer-mb N] [--backend cc|tcc] [--particle-threads N]\n"
         "       npg-fluids cavity-mesh [--cells N]         the cavity's mesh statistics as JSON\n"
         "       npg-fluids cavity-projection [--cells N] [--steps N] [--method kkt|al|both]\n"
         "                  the full projection timed on the cavity (JSON)\n"
@@ -98,7 +98,10 @@ static void usage(FILE *fp) {
         "  120 samples per run: 1 up to 120 frames, 3 at 260, 4 at 450; the runs still take\n"
         "  every step). --buffer-mb N: bound on the samples of later runs waiting while the\n"
         "  trainer takes an earlier run's (2048). --backend: the trainer's full evaluator, compiled\n"
-        "  by the system compiler (cc, default: its replays ran 2-3x faster here) or by libtcc (tcc)\n",
+        "  by the system compiler (cc, default: its replays ran 2-3x faster here) or by libtcc (tcc).\n"
+        "  --particle-threads N: threads advecting the particles (the online CPUs); the reduced\n"
+        "  flow's particles also run on one thread, timed apart (t_pa_one_thread), and must move\n"
+        "  the same bit for bit; they lift only the faces of the cells they reach (paper 6.5).\n",
         fp);
 }
 
@@ -502,7 +505,8 @@ static int cavity_cmd(int argc, char **argv) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     static const char *known[] = {"--out", "--cells", "--frames", "--runs", "--dt", "--nu", "--mf", "--mu", "--mg",
                                   "--particles", "--png-every", "--vtk-every", "--width", "--dtol", "--projection",
-                                  "--workers", "--train-threads", "--sample-every", "--buffer-mb", "--backend"};
+                                  "--workers", "--train-threads", "--sample-every", "--buffer-mb", "--backend",
+                                  "--particle-threads"};
     if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
     int bad = 0;
     if (!strcmp(a, "--out")) o.out = v;
@@ -520,6 +524,8 @@ static int cavity_cmd(int argc, char **argv) {
     else if (!strcmp(a, "--vtk-every")) bad = parse_int(v, &o.vtk_every) || o.vtk_every < 1;
     else if (!strcmp(a, "--width")) bad = parse_int(v, &o.width) || o.width < 16;
     else if (!strcmp(a, "--workers")) bad = parse_int(v, &o.workers) || o.workers < 1 || o.workers > CAVITY_MAX_WORKERS;
+    else if (!strcmp(a, "--particle-threads"))
+      bad = parse_int(v, &o.particle_threads) || o.particle_threads < 1 || o.particle_threads > PARTICLES_MAX_THREADS;
     else if (!strcmp(a, "--train-threads"))
       bad = parse_int(v, &o.train_threads) || o.train_threads < 1 || o.train_threads > CAVITY_MAX_WORKERS;
     else if (!strcmp(a, "--sample-every")) bad = parse_int(v, &o.sample_every) || o.sample_every < 0;

@@ -1,14 +1,17 @@
 /* particles.c — marker particles (see particles.h). */
 #include "particles.h"
 
+#include <cblas.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
 
 void particles_free(Particles *p) {
-  free(p->stamp);
-  free(p->vel);
-  free(p->bary);
+  for (int t = 0; t < PARTICLES_MAX_THREADS; t++) {
+    ParticleCache *pc = &p->cache[t];
+    free(pc->stamp), free(pc->fstamp), free(pc->vel), free(pc->bary), free(pc->fval);
+  }
   free(p->order_count);
   free(p->order_int);
   free(p->order_x);
@@ -92,7 +95,9 @@ void particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigne
   free(cum);
 }
 
-void particles_cell_velocity(const Mesh *m, const double *g, const double *f, int c, double *u) {
+/* Eq. 13 in cell c from its faces' outward fluxes out[k] (face k opposite
+ * vertex k). */
+static void cell_velocity(const Mesh *m, const double *g, int c, const double *out, double *u) {
   int dim = m->dim, nk = m->nk;
   const int *t = m->cell + nk * c;
   double cen[3] = {0, 0, 0}, vol = mesh_volume(m, g, c);
@@ -102,11 +107,15 @@ void particles_cell_velocity(const Mesh *m, const double *g, const double *f, in
     u[d] = 0;
   }
   /* paper Eq. 13 in cell c: face k's centroid - the cell's = (cen - g_k) / dim */
-  for (int k = 0; k < nk; k++) {
-    double out = m->csign[nk * c + k] * f[m->cface[nk * c + k]];
-    for (int d = 0; d < dim; d++) u[d] += out * (cen[d] - g[dim * t[k] + d]) / dim;
-  }
+  for (int k = 0; k < nk; k++)
+    for (int d = 0; d < dim; d++) u[d] += out[k] * (cen[d] - g[dim * t[k] + d]) / dim;
   for (int d = 0; d < dim; d++) u[d] /= vol;
+}
+
+void particles_cell_velocity(const Mesh *m, const double *g, const double *f, int c, double *u) {
+  double out[4];
+  for (int k = 0; k < m->nk; k++) out[k] = m->csign[m->nk * c + k] * f[m->cface[m->nk * c + k]];
+  cell_velocity(m, g, c, out, u);
 }
 
 /* Barycentric coordinates of x in cell c. */
@@ -179,15 +188,30 @@ void particles_advect(Particles *p, const Mesh *m, const double *g, const double
 
 /* ---------------------------------------------------------------- 3D, cached per frame */
 
+/* Face j's flux: f_j, or row j of B_f times f̂ on its first use of the frame. */
+static double face_flux(ParticleCache *pc, const ParticleFlow *fl, int frame, int j) {
+  if (!fl->Bf) return fl->f[j];
+  if (pc->fstamp[j] != frame) {
+    pc->fstamp[j] = frame;
+    pc->fval[j] = cblas_sdot(fl->mf, fl->Bf + (size_t)j * fl->mf, 1, fl->fh, 1);
+    pc->faces++;
+  }
+  return pc->fval[j];
+}
+
 /* Cell c's velocity (Eq. 13) and barycentric map (λ_1..3 = M (x - g_0),
  * λ_0 = 1 - their sum), computed on the first visit of the frame. */
-static void visit(Particles *p, const Mesh *m, const double *g, const double *f, int c) {
-  if (p->stamp[c] == p->frame) return;
-  p->stamp[c] = p->frame;
-  particles_cell_velocity(m, g, f, c, p->vel + 3 * c);
+static void visit(ParticleCache *pc, const Mesh *m, const ParticleFlow *fl, int frame, int c) {
+  if (pc->stamp[c] == frame) return;
+  pc->stamp[c] = frame;
+  pc->cells++;
+  const double *g = fl->g;
+  double out[4];
+  for (int k = 0; k < 4; k++) out[k] = m->csign[4 * c + k] * face_flux(pc, fl, frame, m->cface[4 * c + k]);
+  cell_velocity(m, g, c, out, pc->vel + 3 * c);
   const int *t = m->cell + 4 * c;
   const double *a = g + 3 * t[0];
-  double e[3][3], *B = p->bary + 12 * c;
+  double e[3][3], *B = pc->bary + 12 * c;
   for (int k = 0; k < 3; k++)
     for (int d = 0; d < 3; d++) e[d][k] = g[3 * t[k + 1] + d] - a[d]; /* columns: the edges from g_0 */
   double det = e[0][0] * (e[1][1] * e[2][2] - e[1][2] * e[2][1]) - e[0][1] * (e[1][0] * e[2][2] - e[1][2] * e[2][0]) +
@@ -204,12 +228,13 @@ static void visit(Particles *p, const Mesh *m, const double *g, const double *f,
   B[9] = a[0], B[10] = a[1], B[11] = a[2];
 }
 
-static int locate3(Particles *p, const Mesh *m, const double *g, const double *f, double *x, int *cell) {
+static int locate3(ParticleCache *pc, const Mesh *m, const ParticleFlow *fl, int frame, double *x, int *cell) {
+  const double *g = fl->g;
   int c = *cell, steps = 0;
   if (!isfinite(x[0]) || !isfinite(x[1]) || !isfinite(x[2])) return 0;
   for (; steps < 4 * m->nc; steps++) {
-    visit(p, m, g, f, c);
-    const double *B = p->bary + 12 * c;
+    visit(pc, m, fl, frame, c);
+    const double *B = pc->bary + 12 * c;
     double y[3] = {x[0] - B[9], x[1] - B[10], x[2] - B[11]}, lam[4];
     lam[1] = B[0] * y[0] + B[1] * y[1] + B[2] * y[2];
     lam[2] = B[3] * y[0] + B[4] * y[1] + B[5] * y[2];
@@ -257,26 +282,84 @@ void particles_sort_by_cell(Particles *p, const Mesh *m) {
   memcpy(p->x, p->order_x, (size_t)dim * n * sizeof *p->x);
 }
 
-void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps) {
-  if (m->dim != 3) {
-    particles_advect(p, m, g, f, dt, substeps);
-    return;
-  }
-  if (!p->stamp) {
-    p->stamp = calloc(m->nc, sizeof *p->stamp);
-    p->vel = malloc(3 * (size_t)m->nc * sizeof *p->vel);
-    p->bary = malloc(12 * (size_t)m->nc * sizeof *p->bary);
-  }
-  p->frame++;
-  particles_sort_by_cell(p, m);
-  double h = dt / substeps;
-  for (int i = 0; i < p->n; i++) {
-    double *x = p->x + 3 * i;
-    p->walk_steps += locate3(p, m, g, f, x, &p->cell[i]);
-    for (int s = 0; s < substeps; s++) {
-      const double *u = p->vel + 3 * p->cell[i];
-      x[0] += h * u[0], x[1] += h * u[1], x[2] += h * u[2];
-      p->walk_steps += locate3(p, m, g, f, x, &p->cell[i]);
+/* One thread's share of the particles, [lo, hi), through its own cache. */
+typedef struct AdvectJob {
+  Particles *p;
+  const Mesh *m;
+  const ParticleFlow *fl;
+  ParticleCache *pc;
+  int lo, hi, substeps;
+  double h;
+} AdvectJob;
+
+static void *advect_range(void *arg) {
+  AdvectJob *j = arg;
+  ParticleCache *pc = j->pc;
+  int frame = j->p->frame;
+  for (int i = j->lo; i < j->hi; i++) {
+    double *x = j->p->x + 3 * i;
+    int *cell = j->p->cell + i;
+    pc->walk_steps += locate3(pc, j->m, j->fl, frame, x, cell);
+    for (int s = 0; s < j->substeps; s++) {
+      const double *u = pc->vel + 3 * *cell;
+      x[0] += j->h * u[0], x[1] += j->h * u[1], x[2] += j->h * u[2];
+      pc->walk_steps += locate3(pc, j->m, j->fl, frame, x, cell);
     }
   }
+  return NULL;
+}
+
+static int cache_alloc(ParticleCache *pc, const Mesh *m, int faces) {
+  if (!pc->stamp) {
+    pc->stamp = calloc(m->nc, sizeof *pc->stamp);
+    pc->vel = malloc(3 * (size_t)m->nc * sizeof *pc->vel);
+    pc->bary = malloc(12 * (size_t)m->nc * sizeof *pc->bary);
+  }
+  if (faces && !pc->fstamp) {
+    pc->fstamp = calloc(m->nf, sizeof *pc->fstamp);
+    pc->fval = malloc((size_t)m->nf * sizeof *pc->fval);
+  }
+  return pc->stamp && pc->vel && pc->bary && (!faces || (pc->fstamp && pc->fval)) ? 0 : -1;
+}
+
+int particles_advect_flow(Particles *p, const Mesh *m, const ParticleFlow *fl, double dt, int substeps) {
+  if (m->dim != 3) {
+    if (!fl->f) return -1;
+    particles_advect(p, m, fl->g, fl->f, dt, substeps);
+    return 0;
+  }
+  int nt = p->threads < 1 ? 1 : p->threads > PARTICLES_MAX_THREADS ? PARTICLES_MAX_THREADS : p->threads;
+  if (nt > 1 && p->n < 256 * nt) nt = p->n / 256 > 1 ? p->n / 256 : 1; /* a thread's start costs more than a few particles */
+  for (int t = 0; t < nt; t++)
+    if (cache_alloc(&p->cache[t], m, fl->Bf != NULL) != 0) return -1;
+  p->frame++;
+  particles_sort_by_cell(p, m);
+  AdvectJob job[PARTICLES_MAX_THREADS];
+  pthread_t tid[PARTICLES_MAX_THREADS];
+  int running[PARTICLES_MAX_THREADS] = {0};
+  /* consecutive particles share cells: each thread a contiguous range */
+  for (int t = 0; t < nt; t++) {
+    p->cache[t].walk_steps = p->cache[t].cells = p->cache[t].faces = 0;
+    job[t] = (AdvectJob){p, m, fl, &p->cache[t], (int)((long)p->n * t / nt), (int)((long)p->n * (t + 1) / nt),
+                         substeps, dt / substeps};
+  }
+  for (int t = 1; t < nt; t++) running[t] = pthread_create(&tid[t], NULL, advect_range, &job[t]) == 0;
+  advect_range(&job[0]);
+  for (int t = 1; t < nt; t++) {
+    if (running[t])
+      pthread_join(tid[t], NULL);
+    else
+      advect_range(&job[t]); /* no thread could start: this one does its share */
+  }
+  for (int t = 0; t < nt; t++) {
+    p->walk_steps += p->cache[t].walk_steps;
+    p->cells_visited += p->cache[t].cells;
+    p->faces_lifted += p->cache[t].faces;
+  }
+  return 0;
+}
+
+void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps) {
+  ParticleFlow fl = {.g = g, .f = f};
+  particles_advect_flow(p, m, &fl, dt, substeps);
 }

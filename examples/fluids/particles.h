@@ -12,16 +12,41 @@
 
 #include "mesh.h"
 
+#define PARTICLES_MAX_THREADS 16
+
+/* One thread's cells and faces of the current frame (3D): per cell the
+ * frame it was last visited in, its velocity and barycentric map then; per
+ * face (reduced flows) the frame its flux was lifted in and the flux. */
+typedef struct ParticleCache {
+  int *stamp, *fstamp;
+  double *vel, *bary, *fval;
+  long walk_steps, cells, faces; /* this frame's: faces crossed, cells visited, faces lifted */
+} ParticleCache;
+
+/* The flow particles move through: vertex positions g [nv][dim] and either
+ * the face fluxes f [nf], or (f NULL, 3D) a reduced flux f = B_f f̂, B_f
+ * [nf][mf] row-major, whose rows are lifted one face at a time as the
+ * particles reach them (paper §6.5: the full flux is never expanded). B_f
+ * and f̂ in single precision: the lift reads half the bytes (the particles'
+ * velocities then carry a relative error of about 1e-7, far below the
+ * reduced flow's own). */
+typedef struct ParticleFlow {
+  const double *g, *f;
+  const float *Bf, *fh;
+  int mf;
+} ParticleFlow;
+
 typedef struct Particles {
   int n, dim;
   double *x;   /* [n][dim] */
   int *cell;   /* [n] */
   int *tag;    /* [n] colour class: the parity of the streak it started in */
   long walk_steps; /* faces crossed, summed */
-  /* particles_advect_cached: per cell, the frame it was last visited in,
-   * its velocity and barycentric map then (allocated on first use) */
-  int frame, *stamp;
-  double *vel, *bary;
+  long cells_visited, faces_lifted; /* particles_advect_flow in 3D: cells visited and faces lifted, summed over frames */
+  /* particles_advect_flow: threads (0 or 1: the calling one), the frame
+   * counter and each thread's cache (allocated on first use) */
+  int threads, frame;
+  ParticleCache cache[PARTICLES_MAX_THREADS];
   /* the particles put in cell order each frame: counts per cell, scratch */
   int *order_count, *order_int;
   double *order_x;
@@ -44,7 +69,13 @@ void particles_advect(Particles *p, const Mesh *m, const double *g, const double
 /* The same in 3D with each visited cell's velocity and barycentric map
  * computed once per call (the flow and the mesh are fixed over the frame):
  * the cost follows the cells the particles visit, never the mesh size
- * (paper §6.5: Eq. 13 evaluated locally). In 2D it is particles_advect. */
+ * (paper §6.5: Eq. 13 evaluated locally). The particles are put in cell
+ * order and divided into p->threads contiguous ranges, one per thread with
+ * its own cache: the motion is the same bit for bit for any number of
+ * threads. In 2D it is particles_advect (f required). 0, or -1 when out of
+ * memory or a 2D flow has no f (nothing moved). */
+int particles_advect_flow(Particles *p, const Mesh *m, const ParticleFlow *fl, double dt, int substeps);
+/* particles_advect_flow through the fluxes f. */
 void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps);
 /* Reorder the particles by their cells' numbers (a counting sort, stable):
  * on a mesh numbered for locality (mesh_renumber) consecutive particles

@@ -55,6 +55,12 @@
  *   cavity_numbering_energy  six full steps on each numbering through the
  *                        same positions: the same energies to 1e-11
  *                        relative
+ *   cavity_particles_threads  particles through a reduced flux B_f f̂
+ *                        (single precision) lifted face by face move, bit
+ *                        for bit, as through the whole lift (the same row
+ *                        products), on 1 and 3 threads, over frames whose
+ *                        f̂ changes; faces shared by visited cells are
+ *                        lifted once
  */
 #include <math.h>
 #include <setjmp.h>
@@ -699,6 +705,43 @@ static void test_cavity_particles_sorted(void **state) {
   cavity_free(&cv);
 }
 
+/* Particles through f = B_f f̂: the lazy lift (ParticleFlow's B_f) on 1 and
+ * 3 threads against the whole flux lifted by the same row products. */
+static void test_cavity_particles_threads(void **state) {
+  (void)state;
+  Cavity cv = cavity_of(300);
+  const Mesh *m = &cv.m;
+  const int mf = 6, n = 1200;
+  float *Bf = malloc((size_t)m->nf * mf * sizeof *Bf), fh[6];
+  double *f = malloc(m->nf * sizeof *f);
+  for (int j = 0; j < m->nf; j++)
+    for (int k = 0; k < mf; k++) Bf[(size_t)j * mf + k] = (float)0.5 * sin(0.37 * j + 1.3 * k) * cos(0.11 * j * (k + 1));
+  Particles a = {0}, b = {0}, c = {0};
+  particles_seed(&a, m, m->g0, n, 9);
+  particles_seed(&b, m, m->g0, n, 9);
+  particles_seed(&c, m, m->g0, n, 9);
+  c.threads = 3;
+  for (int frame = 0; frame < 4; frame++) {
+    for (int k = 0; k < mf; k++) fh[k] = (float)cos(0.7 * frame + k);
+    for (int j = 0; j < m->nf; j++) f[j] = cblas_sdot(mf, Bf + (size_t)j * mf, 1, fh, 1);
+    ParticleFlow whole = {.g = m->g0, .f = f}, lazy = {.g = m->g0, .Bf = Bf, .fh = fh, .mf = mf};
+    assert_int_equal(particles_advect_flow(&a, m, &whole, 0.05, 10), 0);
+    assert_int_equal(particles_advect_flow(&b, m, &lazy, 0.05, 10), 0);
+    assert_int_equal(particles_advect_flow(&c, m, &lazy, 0.05, 10), 0);
+    assert_memory_equal(a.x, b.x, 3 * (size_t)n * sizeof *a.x);
+    assert_memory_equal(a.x, c.x, 3 * (size_t)n * sizeof *a.x);
+    assert_memory_equal(a.cell, b.cell, (size_t)n * sizeof *a.cell);
+    assert_memory_equal(a.cell, c.cell, (size_t)n * sizeof *a.cell);
+  }
+  assert_true(a.walk_steps > 4L * n); /* they crossed several faces a frame */
+  assert_int_equal(a.walk_steps, b.walk_steps);
+  assert_int_equal(a.walk_steps, c.walk_steps);
+  assert_true(b.faces_lifted > 0 && b.faces_lifted < 4 * b.cells_visited && b.cells_visited == a.cells_visited);
+  free(Bf), free(f);
+  particles_free(&a), particles_free(&b), particles_free(&c);
+  cavity_free(&cv);
+}
+
 int main(int argc, char **argv) {
   openblas_set_num_threads(1);
   const struct CMUnitTest all[] = {
@@ -711,6 +754,7 @@ int main(int argc, char **argv) {
       cmocka_unit_test(test_cavity_numbering),
       cmocka_unit_test(test_cavity_numbering_energy),
       cmocka_unit_test(test_cavity_particles_sorted),
+      cmocka_unit_test(test_cavity_particles_threads),
   };
   return run_named_tests("test_cavity", argc, argv, all, (int)(sizeof all / sizeof all[0]));
 }
