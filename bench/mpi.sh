@@ -10,7 +10,8 @@
 # MEM=BYTES trains with --mem BYTES (out of core when the bases exceed it: the ranks share the
 # row passes); the passes' split is printed from rank 0's progress line, and over ranks the
 # pre-multiplication's: rank 0's own rows against the sums over ranks (the wait for the
-# slower rank included).
+# slower rank included). The peak resident memory of the largest process of each best run is
+# printed last (GNU time's maximum RSS: over ranks, the larger rank's, not their sum).
 set -eu
 cd "$(dirname "$0")/.."
 faces=${1:-600}
@@ -33,13 +34,14 @@ run() {
   best=
   for r in $(seq "$reps"); do
     rm -rf "$work/$name"
-    OPENBLAS_NUM_THREADS=$threads "$@" "$build/npgc" train $prog "$work/data" -o "$work/$name" ${MPI_FLAG:-} \
+    OPENBLAS_NUM_THREADS=$threads /usr/bin/time -f %M -o "$work/$name.rss" "$@" "$build/npgc" train $prog "$work/data" -o "$work/$name" ${MPI_FLAG:-} \
       --progress ${MEM:+--mem $MEM} >"$work/$name.out" 2>"$work/$name.err"
     line=$(grep '^phases:' "$work/$name.out")
     total=$(grep '^trained' "$work/$name.out" | sed 's/.* in \([0-9.]*\) s.*/\1/')
     if [ -z "$best" ] || [ "$(echo "$total < $best" | bc)" = 1 ]; then
       best=$total
       echo "$total $line" >"$work/$name.best"
+      cp "$work/$name.rss" "$work/$name.peak"
       grep -a -o 'out of core: [0-9.]* s.*' "$work/$name.err" >"$work/$name.ooc" || true
       grep -a -o 'pre-multiplication over ranks: .*' "$work/$name.err" >"$work/$name.pre" || true
     fi
@@ -73,3 +75,6 @@ for name in one ranks threads; do
   [ ! -s "$work/$name.ooc" ] || echo "$name: $(cat "$work/$name.ooc")"
 done
 [ ! -s "$work/ranks.pre" ] || echo "ranks: $(cat "$work/ranks.pre")"
+for name in one ranks threads; do
+  echo "$name: peak RSS $(($(tail -1 "$work/$name.peak") / 1024)) MB (the largest process: rank 0 or 1 over ranks)"
+done
