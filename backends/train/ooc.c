@@ -103,6 +103,11 @@ typedef struct Ooc {
   size_t errlen;
   size_t fixed;             /* bytes of the Gram matrices, the small classes and the sample scratch */
   int rank, N;              /* over ranks (opt->dist): this rank takes the passes p ≡ rank (mod N) */
+  /* the blocks of the pass being collected, and a basis pass's A and
+   * mean, kept from pass to pass: allocated afresh, every pass paid page
+   * faults on them (measured over MPI ranks, bench/mpi.md) */
+  double *block, *abuf;
+  size_t block_cap, abuf_cap;
 } Ooc;
 
 static double now(void) {
@@ -242,12 +247,22 @@ static int collect(Ooc *o, long p, bool gram) {
   bool whole = p == 0 && gram && o->N == 1; /* over ranks: whole_sweep */
   Demand *d = whole ? NULL : full_demand(o->f);
   if (!whole && !d) return npg_fail(o->err, o->errlen, "%s", npg_full_error(o->f));
+  size_t need = 0;
+  for (long g = o->first[p]; g < o->first[p + 1]; g++)
+    need += (size_t)(o->seg[g].r1 - o->seg[g].r0) * (size_t)S * (size_t)m->classes[o->seg[g].c].nmembers;
+  if (need > o->block_cap) {
+    free(o->block);
+    if (!(o->block = malloc(sizeof(double) * need))) return o->block_cap = 0, -1;
+    o->block_cap = need;
+  }
+  double *next = o->block;
   for (long g = o->first[p]; g < o->first[p + 1]; g++) {
     Segment *sg = &o->seg[g];
     RClass *rc = &m->classes[sg->c];
     if (!(sg->H = calloc((size_t)rc->nmembers, sizeof(double *)))) return -1;
     for (int i = 0; i < rc->nmembers; i++) {
-      if (!(sg->H[i] = malloc(sizeof(double) * (size_t)(sg->r1 - sg->r0) * (size_t)S))) return -1;
+      sg->H[i] = next;
+      next += (size_t)(sg->r1 - sg->r0) * (size_t)S;
       if (d) demand_entries(d, member_quantity(m, &rc->members[i]), (size_t)sg->r0, (size_t)sg->r1);
     }
   }
@@ -295,11 +310,9 @@ static int whole_sweep(Ooc *o) {
 }
 
 static void release(Ooc *o, long p) {
-  for (long g = o->first[p]; g < o->first[p + 1]; g++) {
-    Segment *sg = &o->seg[g];
-    for (int i = 0; sg->H && i < o->m->classes[sg->c].nmembers; i++) free(sg->H[i]);
-    free(sg->H);
-    sg->H = NULL;
+  for (long g = o->first[p]; g < o->first[p + 1]; g++) { /* the blocks stay in o->block for the next pass */
+    free(o->seg[g].H);
+    o->seg[g].H = NULL;
   }
 }
 
@@ -420,8 +433,14 @@ static int basis_passes(Ooc *o) {
       Stream *st = &o->st[sg->c];
       RClass *rc = &o->m->classes[sg->c];
       long R = sg->r1 - sg->r0, K = st->K;
-      double *mu = malloc(sizeof(double) * (size_t)R), *A = calloc((size_t)(R * K) + 1, sizeof(double));
-      if (!mu || !A) return free(mu), free(A), -1;
+      size_t need = (size_t)(R * K) + (size_t)R + 1; /* A, then mu: kept from pass to pass as the blocks are */
+      if (need > o->abuf_cap) {
+        free(o->abuf);
+        if (!(o->abuf = malloc(sizeof(double) * need))) return o->abuf_cap = 0, -1;
+        o->abuf_cap = need;
+      }
+      double *A = o->abuf, *mu = o->abuf + R * K;
+      memset(A, 0, sizeof(double) * (size_t)(R * K));
       for (int i = 0; i < rc->nmembers; i++) {
         long col = st->col[i];
         if (rc->members[i].center) {
@@ -436,7 +455,6 @@ static int basis_passes(Ooc *o) {
       if (K > 0)
         cblas_dsyrk(CblasColMajor, CblasUpper, CblasNoTrans, (int)K, (int)R, 1.0, A, (int)K, 1.0, st->C, (int)K);
       int bad = write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
-      free(mu), free(A);
       if (bad) return npg_fail(o->err, o->errlen, "cannot write the scratch file of class %s (disk full?)", rc->label);
     }
     release(o, p);
@@ -689,11 +707,11 @@ static void ooc_free(Ooc *o) {
     if (st->A) fclose(st->A);
   }
   for (long p = 0; o->seg && p < o->npass; p++) release(o, p);
-  free(o->st), free(o->seg), free(o->first), free(o->tmp);
+  free(o->st), free(o->seg), free(o->first), free(o->tmp), free(o->block), free(o->abuf);
 }
 
 int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen) {
-  Ooc o = {m, f, src, opt, src->count, NULL, NULL, 0, NULL, 0, 0, NULL, err, errlen, 0, 0, 1};
+  Ooc o = {m, f, src, opt, src->count, NULL, NULL, 0, NULL, 0, 0, NULL, err, errlen, 0, 0, 1, NULL, NULL, 0, 0};
   if (opt->dist) o.rank = dist_rank(), o.N = dist_size();
   long maxn = 1;
   int rc = -1;
