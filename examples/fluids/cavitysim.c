@@ -132,6 +132,20 @@ static void project(const double *B, long n, long m, const double *x, double *ou
   cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)m, 1.0, B, (int)m, x, 1, 0.0, out, 1);
 }
 
+/* One frame of particles through the reduced flow, timed into *seconds:
+ * the geometry lifted into gl (n_v x m_g), then each face's flux lifted
+ * from pf (whose g is gl) when a particle first reaches one of its cells
+ * (paper §6.5). 0, or -1 with a message. */
+static int particles_reduced_frame(Particles *p, const Mesh *m, const RedSolver *R, long ng, double *gl,
+                                   const ParticleFlow *pf, double dt, double *seconds) {
+  double t0 = util_now();
+  lift(R->Bg, ng, R->mg, R->g, gl);
+  int rc = particles_advect_flow(p, m, pf, dt, 10);
+  *seconds += util_now() - t0;
+  if (rc) fprintf(stderr, "npg-fluids: particles: out of memory\n");
+  return rc;
+}
+
 /* ---------------------------------------------------------------- training runs
  *
  * The runs are independent full simulations; the trainer must see their
@@ -683,26 +697,12 @@ int cavity_run(const CavityOptions *o) {
         step_times[t - 1] = util_now() - a0;
         split[0] += R.seconds_eval - e0, split[1] += R.seconds_advection - x0, split[2] += R.seconds_projection - p0;
         energy_red[t] = red_energy(&R, R.g, R.u);
-        /* particles through the reduced flow (paper §6.5): the geometry
-         * lifted (n_v x m_g), each face's flux lifted when a particle first
-         * reaches one of its cells this frame */
-        a0 = util_now();
-        lift(R.Bg, ng, R.mg, R.g, gl);
+        /* particles through the reduced flow, never lifted whole */
         for (long k = 0; k < R.mf; k++) fh32[k] = (float)R.f[k];
         ParticleFlow pf = {.g = gl, .Bf = Bf32, .fh = fh32, .mf = (int)R.mf};
-        if (particles_advect_flow(&pred, m, &pf, o->dt, 10) != 0) {
-          fprintf(stderr, "npg-fluids: particles: out of memory\n");
-          goto done;
-        }
-        seconds_particles_red += util_now() - a0;
+        if (particles_reduced_frame(&pred, m, &R, ng, gl, &pf, o->dt, &seconds_particles_red) != 0) goto done;
         if (pred1.n) { /* the same on one thread, timed apart */
-          a0 = util_now();
-          lift(R.Bg, ng, R.mg, R.g, gl);
-          if (particles_advect_flow(&pred1, m, &pf, o->dt, 10) != 0) {
-            fprintf(stderr, "npg-fluids: particles: out of memory\n");
-            goto done;
-          }
-          seconds_particles_red1 += util_now() - a0;
+          if (particles_reduced_frame(&pred1, m, &R, ng, gl, &pf, o->dt, &seconds_particles_red1) != 0) goto done;
           particles_same &= !memcmp(pred.x, pred1.x, 3 * (size_t)pred.n * sizeof *pred.x) &&
                             !memcmp(pred.cell, pred1.cell, (size_t)pred.n * sizeof *pred.cell);
         }
