@@ -232,8 +232,11 @@ static long row_packet(Visibility *vis, long i) {
   int s = 0;
   for (long f = i + 1; f < vis->F; f++) put(vis, i, f, 0);
   while (j < vis->F) {
-    struct RTCRay8 pk;
-    int valid[8], n = 0;
+    struct RTCRay8 pk; /* RTC_ALIGN(32) by its type */
+    /* rtcOccluded8's valid mask must be 32-byte aligned like the packet
+       (Embree's contract); the stack gives no such guarantee for int[8]. */
+    _Alignas(32) int valid[8];
+    int n = 0;
     while (n < 8 && j < vis->F) {
       if (s == 0 && !facing(vis, i, j)) {
         j++;
