@@ -267,6 +267,15 @@ Node *new_node(Ctx *ctx, NodeKind kind, Loc loc) {
   return n;
 }
 
+bool node_uses(const Node *n, const Sym *s) {
+  if (!n) return false;
+  if (n->kind == N_NAME && n->sym == s) return true;
+  if (node_uses(n->a, s) || node_uses(n->b, s) || node_uses(n->c, s)) return true;
+  for (int i = 0; i < n->nargs; i++)
+    if (node_uses(n->args[i], s)) return true;
+  return false;
+}
+
 int node_height(const Node *n, int limit) {
   if (!n) return 0;
   typedef struct Frame {

@@ -196,6 +196,9 @@ Node *clone_node(Ctx *ctx, const Node *n);      /* deep copy */
  * expressions, so a taller tree is refused before they run. -1 when out of
  * memory. */
 int node_height(const Node *n, int limit);
+/* Whether the tree at `n` names the symbol `s` (an index variable, a
+ * quantity, a param) anywhere. */
+bool node_uses(const Node *n, const Sym *s);
 void print_node(FILE *out, const Node *n);      /* source-like text */
 char *node_str(Ctx *ctx, const Node *n);        /* the same, in the arena */
 /* Text printed by `print(out, x)`, in the arena. */

@@ -398,15 +398,6 @@ static Value *val_mul(Lowerer *L, Value *a, Value *b, const Node *at) {
 
 /* ---------------------------------------------------------------- introduced stages */
 
-static bool node_uses(const Node *n, const Sym *s) {
-  if (!n) return false;
-  if (n->kind == N_NAME && n->sym == s) return true;
-  if (node_uses(n->a, s) || node_uses(n->b, s) || node_uses(n->c, s)) return true;
-  for (int i = 0; i < n->nargs; i++)
-    if (node_uses(n->args[i], s)) return true;
-  return false;
-}
-
 static bool mono_uses(const Mono *m, const Sym *s) {
   if (node_uses(m->guard, s) || node_uses(m->coef, s)) return true;
   for (int i = 0; i < m->nsums; i++)

@@ -6,21 +6,28 @@
 
 #include "ir.h"
 
-#define MAXV (MAX_AXES + 16)
+#define MAXV (MAX_AXES + 16)   /* at most 64: fix_vars keeps a bit per variable */
 
 typedef struct Count {      /* coefficient × Π dims, one term of a nonzero count */
   long k;
   char *dims;               /* "F^2·V", "" for a pure number */
+  int degree;               /* how many dims multiply: 3 for "F^2·V" */
 } Count;
 
 static bool is_var(const Node *n) {
   return n && n->kind == N_NAME && n->sym && (n->sym->kind == SYM_IVAR || n->sym->kind == SYM_SUMVAR);
 }
 
+/* The equalities of a monomial: `j == i`, `j == nbr[i, k]` in a guard
+ * (`if(nbr[i, k] == j, …)`), `delta(j, tab[i, k])` in the coefficient. One
+ * whose side is an index variable determines it as a function of the
+ * variables the other side reads, so that variable is not a free axis of
+ * the count: an index-table gather is how an operator reads its K
+ * neighbours per row, and it makes K·N entries, not N^2 (DESIGN §13). */
 typedef struct Eqs {
-  const Sym *a[32], *b[32];
+  const Node *a[32], *b[32];
   int n;
-  bool other;               /* the guard has conditions that are not equalities */
+  bool other;               /* the guard has conditions that fix no variable */
 } Eqs;
 
 static void guard_eqs(const Node *g, Eqs *e) {
@@ -28,9 +35,9 @@ static void guard_eqs(const Node *g, Eqs *e) {
   if (g->kind == N_AND) {
     guard_eqs(g->a, e);
     guard_eqs(g->b, e);
-  } else if (g->kind == N_EQ && is_var(g->a) && is_var(g->b) && e->n < 32) {
-    e->a[e->n] = g->a->sym;
-    e->b[e->n++] = g->b->sym;
+  } else if (g->kind == N_EQ && (is_var(g->a) || is_var(g->b)) && e->n < 32) {
+    e->a[e->n] = g->a;
+    e->b[e->n++] = g->b;
   } else {
     e->other = true;
   }
@@ -41,16 +48,63 @@ static void coef_deltas(const Node *c, Eqs *e) {
   if (c->kind == N_MUL) {
     coef_deltas(c->a, e);
     coef_deltas(c->b, e);
-  } else if (c->kind == N_CALL && c->builtin == B_DELTA && is_var(c->args[0]) && is_var(c->args[1]) && e->n < 32) {
-    e->a[e->n] = c->args[0]->sym;
-    e->b[e->n++] = c->args[1]->sym;
+  } else if (c->kind == N_CALL && c->builtin == B_DELTA && (is_var(c->args[0]) || is_var(c->args[1])) && e->n < 32) {
+    e->a[e->n] = c->args[0];
+    e->b[e->n++] = c->args[1];
+  }
+}
+
+/* Fixes variable `iv` as a function of `expr` unless that makes a cycle
+ * (`i == f(j)` and `j == g(i)` fix only one of the two): `dep` holds, per
+ * fixed variable, every variable it depends on, transitively. */
+static bool fix_var(const Node *expr, int iv, const Sym *const *vars, int nv, bool *fixed, unsigned long long *dep) {
+  if (fixed[iv] || node_uses(expr, vars[iv])) return false;
+  unsigned long long d = 0;
+  for (int i = 0; i < nv; i++)
+    if (i != iv && node_uses(expr, vars[i])) d |= 1ull << i | dep[i];
+  if (d >> iv & 1) return false;
+  fixed[iv] = true;
+  dep[iv] = d;
+  for (int i = 0; i < nv; i++)
+    if (dep[i] >> iv & 1) dep[i] |= d;
+  return true;
+}
+
+static int var_index(const Node *n, const Sym *const *vars, int nv) {
+  if (!is_var(n)) return -1;
+  for (int i = 0; i < nv; i++)
+    if (vars[i] == n->sym) return i;
+  return -1;
+}
+
+/* Marks the variables the equalities determine; `i == j` fixes j, the later
+ * of the two. An equality that can fix no variable makes the count an
+ * upper bound. */
+static void fix_vars(const Eqs *e, const Sym *const *vars, int nv, bool *fixed, bool *bound) {
+  unsigned long long dep[MAXV] = {0};
+  for (int k = 0; k < e->n; k++) {
+    int ib = var_index(e->b[k], vars, nv), ia = var_index(e->a[k], vars, nv);
+    /* a gather (`nbr[i, k] == j`) may hold no index in range (-1 padding):
+       its count bounds the entries */
+    if (ib >= 0 && fix_var(e->a[k], ib, vars, nv, fixed, dep)) {
+      if (ia < 0) *bound = true;
+      continue;
+    }
+    if (ia >= 0 && fix_var(e->b[k], ia, vars, nv, fixed, dep)) {
+      if (ib < 0) *bound = true;
+      continue;
+    }
+    /* already implied (`i == j` twice) or circular */
+    if (!(ia >= 0 && ib >= 0 && (fixed[ia] || fixed[ib]))) *bound = true;
   }
 }
 
 static int cmp_str(const void *a, const void *b) { return strcmp(*(char *const *)a, *(char *const *)b); }
 
-/* Count of the entries one monomial touches. */
-static Count mono_count(Ctx *ctx, const Mono *m, Sym *const *ivars, int nivars, bool *bound) {
+/* Count of the entries one monomial touches when its coefficient is the
+ * product of `factors` (deltas among them fix variables). */
+static Count mono_count(Ctx *ctx, const Mono *m, const Node *const *factors, int nfactors, Sym *const *ivars,
+                        int nivars, bool *bound) {
   const Sym *vars[MAXV];
   const char *dim[MAXV];
   long lit[MAXV];
@@ -71,17 +125,10 @@ static Count mono_count(Ctx *ctx, const Mono *m, Sym *const *ivars, int nivars, 
   }
   Eqs e = {0};
   guard_eqs(m->guard, &e);
-  coef_deltas(m->coef, &e);
+  for (int f = 0; f < nfactors; f++) coef_deltas(factors[f], &e);
   if (e.other) *bound = true;
-  for (int k = 0; k < e.n; k++) {
-    int ia = -1, ib = -1;
-    for (int i = 0; i < nv; i++) {
-      if (vars[i] == e.a[k]) ia = i;
-      if (vars[i] == e.b[k]) ib = i;
-    }
-    if (ia >= 0 && ib >= 0 && ia != ib && !fixed[ia] && !fixed[ib]) fixed[ib] = true;
-  }
-  Count c = {1, ""};
+  fix_vars(&e, vars, nv, fixed, bound);
+  Count c = {1, "", 0};
   const char *names[MAXV];
   int nn = 0;
   for (int i = 0; i < nv; i++) {
@@ -99,7 +146,75 @@ static Count mono_count(Ctx *ctx, const Mono *m, Sym *const *ivars, int nivars, 
     i = j;
   }
   c.dims = s;
+  c.degree = nn;
   return c;
+}
+
+/* The additive parts of a coefficient, products distributed over sums:
+ * (δ(i,a) − δ(i,b))·(δ(j,a) − δ(j,b)) is four products of two deltas. At
+ * most MAXPARTS parts of MAXFACTORS factors each; -1 beyond. */
+enum { MAXPARTS = 16, MAXFACTORS = 8 };
+typedef struct Part {
+  const Node *f[MAXFACTORS];
+  int n;
+} Part;
+
+static int coef_parts(const Node *c, Part *out) {
+  if (c->kind == N_ADD || c->kind == N_SUB) {
+    int na = coef_parts(c->a, out);
+    if (na < 0) return -1;
+    Part rest[MAXPARTS];
+    int nb = coef_parts(c->b, rest);
+    if (nb < 0 || na + nb > MAXPARTS) return -1;
+    memcpy(out + na, rest, sizeof(Part) * (size_t)nb);
+    return na + nb;
+  }
+  if (c->kind == N_NEG) return coef_parts(c->a, out);
+  if (c->kind == N_MUL) {
+    Part pa[MAXPARTS], pb[MAXPARTS];
+    int na = coef_parts(c->a, pa), nb = na < 0 ? -1 : coef_parts(c->b, pb);
+    if (nb < 0 || na * nb > MAXPARTS) return -1;
+    int n = 0;
+    for (int i = 0; i < na; i++)
+      for (int j = 0; j < nb; j++, n++) {
+        if (pa[i].n + pb[j].n > MAXFACTORS) return -1;
+        out[n] = pa[i];
+        memcpy(out[n].f + pa[i].n, pb[j].f, sizeof(Node *) * (size_t)pb[j].n);
+        out[n].n += pb[j].n;
+      }
+    return n;
+  }
+  out[0] = (Part){{c}, 1};
+  return 1;
+}
+
+/* The counts of one monomial: its coefficient taken whole (the deltas of
+ * its top-level product fix variables), or, where a sum inside the
+ * coefficient hides deltas that would leave fewer free dims, one count per
+ * additive part (their sum bounds the union of their entries). At most
+ * MAXPARTS counts into `out`; returns how many. */
+static int mono_counts(Ctx *ctx, const Mono *m, Sym *const *ivars, int nivars, bool *bound, Count *out) {
+  const Node *whole = m->coef;
+  bool whole_bound = false;
+  out[0] = mono_count(ctx, m, &whole, whole ? 1 : 0, ivars, nivars, &whole_bound);
+  Part parts[MAXPARTS];
+  int np = whole ? coef_parts(whole, parts) : -1;
+  if (np > 1) {
+    Count split[MAXPARTS];
+    bool split_bound = true;
+    int worst = 0;
+    for (int i = 0; i < np; i++) {
+      split[i] = mono_count(ctx, m, parts[i].f, parts[i].n, ivars, nivars, &split_bound);
+      if (split[i].degree > worst) worst = split[i].degree;
+    }
+    if (worst < out[0].degree) {
+      memcpy(out, split, sizeof(Count) * (size_t)np);
+      *bound = true;
+      return np;
+    }
+  }
+  *bound |= whole_bound;
+  return 1;
 }
 
 static char *count_str(Ctx *ctx, Count *cs, int n) {
@@ -151,20 +266,23 @@ void tensor_groups(Ctx *ctx, const Sym *owner, const Field *f, int base_order, T
       }
       g[k].nmono++;
       bool bound = false;
-      Count cnt = mono_count(ctx, m, ivars, nivars, &bound);
+      Count cnt[MAXPARTS];
+      int nc = mono_counts(ctx, m, ivars, nivars, &bound, cnt);
       g[k].nnz_bound |= bound;
-      int j;
-      for (j = 0; j < ncount[k]; j++)
-        if (strcmp(counts[k][j].dims, cnt.dims) == 0) break;
-      if (j == ncount[k]) {
-        if (j == 16) {
-          g[k].nnz_bound = true;
-          continue;
+      for (int c2 = 0; c2 < nc; c2++) {
+        int j;
+        for (j = 0; j < ncount[k]; j++)
+          if (strcmp(counts[k][j].dims, cnt[c2].dims) == 0) break;
+        if (j == ncount[k]) {
+          if (j == 16) {
+            g[k].nnz_bound = true;
+            continue;
+          }
+          counts[k][j] = (Count){0, cnt[c2].dims, cnt[c2].degree};
+          ncount[k]++;
         }
-        counts[k][j] = (Count){0, cnt.dims};
-        ncount[k]++;
+        counts[k][j].k += cnt[c2].k;
       }
-      counts[k][j].k += cnt.k;
     }
   out->n = ng;
   out->g = arena_alloc(ctx, sizeof(TensorGroup) * (size_t)(ng + 1));

@@ -242,7 +242,8 @@ static void allocation_failure(void **state) {
 
 /* Programs as test data: every .npg file in tests/programs states its expected
  * classes ("# expect-class: {a, b}") and stage kinds ("# expect-kind: y
- * inverse"); both are checked here, and every class must be listed. */
+ * inverse") and the nonzero counts of declared operators ("# expect-nnz: K N;
+ * ≤ 8·N"); all are checked here, and every class must be listed. */
 #include <dirent.h>
 #include <stdio.h>
 
@@ -283,6 +284,27 @@ static int check_expectations(const char *path) {
         failures++;
       }
       nclass++;
+    } else if (strncmp(line, "# expect-nnz: ", 14) == 0) {
+      /* "# expect-nnz: K N; ≤ 8·N": the nonzero counts of declared op K's
+         tensors, in order, "≤ " where the count is an upper bound */
+      char name[128];
+      if (sscanf(line + 14, "%127s", name) != 1) continue;
+      const char *want = line + 14 + strlen(name);
+      while (*want == ' ') want++;
+      char got[512] = "";
+      bool found = false;
+      for (int i = 0; i < prog->opdefs.n; i++) {
+        const OpDef *od = prog->opdefs.v[i];
+        if (strcmp(od->sym->name, name) != 0) continue;
+        found = true;
+        for (int g = 0; g < od->tensors.n; g++)
+          snprintf(got + strlen(got), sizeof got - strlen(got), "%s%s%s", g ? "; " : "",
+                   od->tensors.g[g].nnz_bound ? "≤ " : "", od->tensors.g[g].nnz);
+      }
+      if (!found || strcmp(got, want) != 0) {
+        print_message("%s: nnz of op %s is '%s', expected '%s'\n", path, name, found ? got : "(no such op)", want);
+        failures++;
+      }
     } else if (strncmp(line, "# expect-kind: ", 15) == 0) {
       char name[128];
       const char *kind = NULL;
