@@ -215,8 +215,10 @@ void dump_program(FILE *out, const Program *prog) {
     fprintf(out, "  %s[", od->sym->name);
     for (int k = 0; k < od->sym->nivars; k++)
       fprintf(out, "%s%s:%s", k ? ", " : "", od->sym->ivars[k]->name, od->sym->ivars[k]->range->name);
-    fprintf(out, "]%s  (%d row axis%s)\n", od->sym->is_output ? "  output" : "", od->sym->nrow,
-            od->sym->nrow == 1 ? "" : "es");
+    fprintf(out, "]%s  (%d row axis%s; %s)\n", od->sym->is_output ? "  output" : "", od->sym->nrow,
+            od->sym->nrow == 1 ? "" : "es",
+            od->sparse ? "sparse: assembled in compressed form, solved by CHOLMOD or UMFPACK"
+                       : "dense: assembled whole, solved by LAPACK");
     for (int g = 0; g < od->tensors.n; g++) {
       fputs("    tensor ", out);
       print_group(out, &od->tensors.g[g], "row", true);

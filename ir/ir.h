@@ -77,6 +77,7 @@ typedef struct TensorGroup {
   int nmono;        /* monomials over all components */
   char *nnz;        /* symbolic nonzero count, e.g. "6·F" */
   bool nnz_bound;   /* guards make nnz an upper bound */
+  int nnz_degree;   /* dims multiplied in nnz's largest term: 1 for "4·N" */
   bool symmetric;   /* repeated inputs (x ⊗ x): stored packed */
 } TensorGroup;
 
@@ -119,7 +120,35 @@ typedef struct OpDef {
   Sym *sym;
   Field *entries;        /* one component; over the op's ivars (rows, cols) */
   TensorList tensors;
+  bool sparse;           /* its entries grow slower than rows × cols (an index-table
+                            gather: K·N, not N^2): the full evaluator assembles
+                            it in compressed form (DESIGN §13) */
 } OpDef;
+
+/* How the entries of one additive part of a monomial are enumerated
+ * without visiting every index: its variables are the index variables of
+ * its quantity, then its sum variables; fixed_by[v] is the expression an
+ * equality of its guard or coefficient determines variable v by (`j` in
+ * `if(nbr[i, k] == j, …)` is nbr[i, k]), NULL for one looped over; `order`
+ * lists every free variable, then the fixed ones, each after the
+ * variables its expression reads. The part's coefficient is
+ * sign × Π factors (a coefficient that sums deltas, (δ(i,a) − δ(i,b))·…, is
+ * enumerated part by part, each part fixing its own variables). */
+#define TENSOR_MAXV (MAX_AXES + 16)   /* at most 64: the analysis keeps a bit per variable */
+#define TENSOR_MAXPARTS 16
+#define TENSOR_MAXFACTORS 8
+typedef struct MonoPart {
+  int nvars;
+  const Sym *vars[TENSOR_MAXV];
+  const Node *fixed_by[TENSOR_MAXV];
+  int order[TENSOR_MAXV];
+  int sign;
+  int nfactors;
+  const Node *factors[TENSOR_MAXFACTORS];
+} MonoPart;
+/* The parts of monomial `m` of a quantity with index variables `ivars`,
+ * into out[0 .. TENSOR_MAXPARTS); returns how many. */
+int tensor_mono_parts(Ctx *ctx, const Mono *m, Sym *const *ivars, int nivars, MonoPart *out);
 
 /* A reason two quantities share a basis. */
 typedef struct Merge {

@@ -94,6 +94,10 @@ static void lower_op(Lowerer *L, Sym *op) {
   od->entries = v->terms.n ? ((Term *)v->terms.v[0])->num : field_new(ctx, 1);
   field_combine_like(L->ctx, od->entries);
   tensor_groups(ctx, op, od->entries, 2, &od->tensors);
+  /* DESIGN §13: fewer entries than rows × cols grow as — every tensor's
+     count of lower degree in the dims than the op's index variables */
+  od->sparse = op->nivars >= 2;
+  for (int g = 0; g < od->tensors.n; g++) od->sparse &= od->tensors.g[g].nnz_degree < op->nivars;
   vec_push(ctx, &L->prog->opdefs, od);
 }
 

@@ -6,7 +6,7 @@
 
 #include "ir.h"
 
-#define MAXV (MAX_AXES + 16)   /* at most 64: fix_vars keeps a bit per variable */
+#define MAXV TENSOR_MAXV
 
 typedef struct Count {      /* coefficient × Π dims, one term of a nonzero count */
   long k;
@@ -57,13 +57,14 @@ static void coef_deltas(const Node *c, Eqs *e) {
 /* Fixes variable `iv` as a function of `expr` unless that makes a cycle
  * (`i == f(j)` and `j == g(i)` fix only one of the two): `dep` holds, per
  * fixed variable, every variable it depends on, transitively. */
-static bool fix_var(const Node *expr, int iv, const Sym *const *vars, int nv, bool *fixed, unsigned long long *dep) {
+static bool fix_var(const Node *expr, int iv, const Sym *const *vars, int nv, const Node **fixed,
+                    unsigned long long *dep) {
   if (fixed[iv] || node_uses(expr, vars[iv])) return false;
   unsigned long long d = 0;
   for (int i = 0; i < nv; i++)
     if (i != iv && node_uses(expr, vars[i])) d |= 1ull << i | dep[i];
   if (d >> iv & 1) return false;
-  fixed[iv] = true;
+  fixed[iv] = expr;
   dep[iv] = d;
   for (int i = 0; i < nv; i++)
     if (dep[i] >> iv & 1) dep[i] |= d;
@@ -80,8 +81,8 @@ static int var_index(const Node *n, const Sym *const *vars, int nv) {
 /* Marks the variables the equalities determine; `i == j` fixes j, the later
  * of the two. An equality that can fix no variable makes the count an
  * upper bound. */
-static void fix_vars(const Eqs *e, const Sym *const *vars, int nv, bool *fixed, bool *bound) {
-  unsigned long long dep[MAXV] = {0};
+static void fix_vars(const Eqs *e, const Sym *const *vars, int nv, const Node **fixed, bool *bound,
+                     unsigned long long *dep) {
   for (int k = 0; k < e->n; k++) {
     int ib = var_index(e->b[k], vars, nv), ia = var_index(e->a[k], vars, nv);
     /* a gather (`nbr[i, k] == j`) may hold no index in range (-1 padding):
@@ -108,7 +109,8 @@ static Count mono_count(Ctx *ctx, const Mono *m, const Node *const *factors, int
   const Sym *vars[MAXV];
   const char *dim[MAXV];
   long lit[MAXV];
-  bool fixed[MAXV] = {0};
+  const Node *fixed[MAXV] = {0};
+  unsigned long long dep[MAXV] = {0};
   int nv = 0;
   for (int i = 0; i < nivars && nv < MAXV; i++, nv++) {
     vars[nv] = ivars[i];
@@ -127,7 +129,7 @@ static Count mono_count(Ctx *ctx, const Mono *m, const Node *const *factors, int
   guard_eqs(m->guard, &e);
   for (int f = 0; f < nfactors; f++) coef_deltas(factors[f], &e);
   if (e.other) *bound = true;
-  fix_vars(&e, vars, nv, fixed, bound);
+  fix_vars(&e, vars, nv, fixed, bound, dep);
   Count c = {1, "", 0};
   const char *names[MAXV];
   int nn = 0;
@@ -153,10 +155,11 @@ static Count mono_count(Ctx *ctx, const Mono *m, const Node *const *factors, int
 /* The additive parts of a coefficient, products distributed over sums:
  * (δ(i,a) − δ(i,b))·(δ(j,a) − δ(j,b)) is four products of two deltas. At
  * most MAXPARTS parts of MAXFACTORS factors each; -1 beyond. */
-enum { MAXPARTS = 16, MAXFACTORS = 8 };
+enum { MAXPARTS = TENSOR_MAXPARTS, MAXFACTORS = TENSOR_MAXFACTORS };
 typedef struct Part {
   const Node *f[MAXFACTORS];
   int n;
+  int sign;                 /* the part is sign × Π f */
 } Part;
 
 static int coef_parts(const Node *c, Part *out) {
@@ -166,10 +169,15 @@ static int coef_parts(const Node *c, Part *out) {
     Part rest[MAXPARTS];
     int nb = coef_parts(c->b, rest);
     if (nb < 0 || na + nb > MAXPARTS) return -1;
+    for (int i = 0; i < nb; i++) rest[i].sign *= c->kind == N_SUB ? -1 : 1;
     memcpy(out + na, rest, sizeof(Part) * (size_t)nb);
     return na + nb;
   }
-  if (c->kind == N_NEG) return coef_parts(c->a, out);
+  if (c->kind == N_NEG) {
+    int n = coef_parts(c->a, out);
+    for (int i = 0; i < n; i++) out[i].sign = -out[i].sign;
+    return n;
+  }
   if (c->kind == N_MUL) {
     Part pa[MAXPARTS], pb[MAXPARTS];
     int na = coef_parts(c->a, pa), nb = na < 0 ? -1 : coef_parts(c->b, pb);
@@ -181,10 +189,11 @@ static int coef_parts(const Node *c, Part *out) {
         out[n] = pa[i];
         memcpy(out[n].f + pa[i].n, pb[j].f, sizeof(Node *) * (size_t)pb[j].n);
         out[n].n += pb[j].n;
+        out[n].sign = pa[i].sign * pb[j].sign;
       }
     return n;
   }
-  out[0] = (Part){{c}, 1};
+  out[0] = (Part){{c}, 1, 1};
   return 1;
 }
 
@@ -215,6 +224,56 @@ static int mono_counts(Ctx *ctx, const Mono *m, Sym *const *ivars, int nivars, b
   }
   *bound |= whole_bound;
   return 1;
+}
+
+/* The variables of monomial `m` (`ivars`, then its sum variables) and which
+ * of them the equalities of its guard and of `factors` determine. */
+static void part_plan(const Mono *m, const Node *const *factors, int nfactors, Sym *const *ivars, int nivars,
+                      MonoPart *out) {
+  int nv = 0;
+  for (int i = 0; i < nivars && nv < MAXV; i++) out->vars[nv++] = ivars[i];
+  for (int i = 0; i < m->nsums && nv < MAXV; i++) out->vars[nv++] = m->sums[i].var;
+  out->nvars = nv;
+  Eqs e = {0};
+  guard_eqs(m->guard, &e);
+  for (int f = 0; f < nfactors; f++) coef_deltas(factors[f], &e);
+  unsigned long long dep[MAXV] = {0};
+  bool bound = false;
+  memset(out->fixed_by, 0, sizeof out->fixed_by);
+  fix_vars(&e, out->vars, nv, out->fixed_by, &bound, dep);
+  /* free variables first, in order; then each fixed one after what it reads */
+  int n = 0;
+  bool placed[MAXV] = {0};
+  for (int i = 0; i < nv; i++)
+    if (!out->fixed_by[i]) out->order[n++] = i, placed[i] = true;
+  while (n < nv)
+    for (int i = 0; i < nv; i++) {
+      if (placed[i]) continue;
+      bool ready = true;
+      for (int j = 0; j < nv; j++)
+        if ((dep[i] >> j & 1) && !placed[j]) ready = false;
+      if (ready) out->order[n++] = i, placed[i] = true;
+    }
+  out->nfactors = nfactors;
+  memcpy(out->factors, factors, sizeof(Node *) * (size_t)nfactors);
+}
+
+int tensor_mono_parts(Ctx *ctx, const Mono *m, Sym *const *ivars, int nivars, MonoPart *out) {
+  bool bound = false;
+  Count whole[MAXPARTS];
+  int np = mono_counts(ctx, m, ivars, nivars, &bound, whole);
+  if (np == 1) {
+    part_plan(m, (const Node *const *)&m->coef, 1, ivars, nivars, &out[0]);
+    out[0].sign = 1;
+    return 1;
+  }
+  Part parts[MAXPARTS];
+  np = coef_parts(m->coef, parts);
+  for (int i = 0; i < np; i++) {
+    part_plan(m, parts[i].f, parts[i].n, ivars, nivars, &out[i]);
+    out[i].sign = parts[i].sign;
+  }
+  return np;
 }
 
 static char *count_str(Ctx *ctx, Count *cs, int n) {
@@ -288,6 +347,8 @@ void tensor_groups(Ctx *ctx, const Sym *owner, const Field *f, int base_order, T
   out->g = arena_alloc(ctx, sizeof(TensorGroup) * (size_t)(ng + 1));
   for (int k = 0; k < ng; k++) {
     g[k].nnz = count_str(ctx, counts[k], ncount[k]);
+    for (int j = 0; j < ncount[k]; j++)
+      if (counts[k][j].k && counts[k][j].degree > g[k].nnz_degree) g[k].nnz_degree = counts[k][j].degree;
     out->g[k] = g[k];
   }
 }

@@ -184,6 +184,8 @@ int cse_rows_plan(Cse *c, const CseStore *st, int nst);
  * loop; scratch rows are `row<k>_` (declared by the caller). */
 void cse_emit_rows(Cse *c, FILE *out, const CseStore *st, int nst, const char *len, int depth);
 /* backends/emit_builder.c */
+/* Flat index over index variables [from, to) of `s`, as C (backends/emit/emit_builder.c). */
+void emit_flat(Emit *e, FILE *out, const Sym *s, int from, int to);
 void emit_builders(Ctx *ctx, const Program *prog, FILE *out);
 /* The name of the builder function of tensor `group` of `field` (0 = the
  * numerator, k+1 = operator k) of term `term` of stage `st`; for a declared

@@ -60,8 +60,7 @@ typedef struct BuildArgs {
   int ncomp;
 } BuildArgs;
 
-/* Flat index over ivars [from, to) of `s`, as C. */
-static void emit_flat(Emit *e, FILE *out, const Sym *s, int from, int to) {
+void emit_flat(Emit *e, FILE *out, const Sym *s, int from, int to) {
   if (from >= to) {
     fputc('0', out);
     return;

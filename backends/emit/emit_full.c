@@ -3,7 +3,10 @@
  * in a comment; loops over the stage's index domain with gathers; tensors
  * are never materialized. Diagonal operators are applied entry by entry;
  * declared operators are assembled densely and applied through the runtime
- * (LAPACKE, info checked). */
+ * (LAPACKE, info checked), or, when their entries grow like K·N (an
+ * index-table gather), enumerated entry by entry for the runtime's
+ * compressed assembly and SuiteSparse solves (DESIGN §13,
+ * stdlib/runtime/sparse.c). */
 #include <stdlib.h>
 #include <string.h>
 
@@ -118,6 +121,151 @@ static bool term_has_decl(const Term *t) {
   return false;
 }
 
+static const char *fn_name(Ctx *ctx, const char *prefix, const Sym *s);
+static void emit_node_checks(Emit *e, FILE *out, const Node *n, const Sym *where, int depth);
+static void emit_index_check(Emit *e, FILE *out, const Sym *q, int axis, const Node *idx, const Sym *where, int depth);
+
+/* ---------------------------------------------------------------- sparse operators */
+
+/* One additive part of one monomial of a sparse operator: its free
+ * variables looped over, the fixed ones computed (and skipped out of
+ * range: -1 padding), the guard, then the contribution — or, with `checks`,
+ * the bind-time gather checks at the same points (the dense check visits
+ * every row and column: N^2). */
+static void emit_op_part(Emit *e, FILE *out, const Sym *op, const Mono *m, const MonoPart *pt, bool checks) {
+  int d = 1;
+  indent(out, d++);
+  fputs("{\n", out);
+  for (int o = 0; o < pt->nvars; o++) {
+    int v = pt->order[o];
+    if (pt->fixed_by[v]) continue;
+    const Sym *var = pt->vars[v];
+    if (var->kind == SYM_SUMVAR) {
+      for (int k = 0; k < m->nsums; k++)
+        if (m->sums[k].var == var) emit_sum_loop(e, out, &m->sums[k], d++, true);
+    } else {
+      const char *name = emit_name(e, var);
+      emit_use(e, var->range);
+      indent(out, d++);
+      fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", name, name, emit_name(e, var->range), name);
+    }
+  }
+  int loops = d;
+  indent(out, d++);
+  fputs("do {\n", out);
+  for (int o = 0; o < pt->nvars; o++) {
+    int v = pt->order[o];
+    if (!pt->fixed_by[v]) continue;
+    const Sym *var = pt->vars[v];
+    const char *name = emit_name(e, var);
+    if (checks) emit_node_checks(e, out, pt->fixed_by[v], op, d);
+    indent(out, d);
+    fprintf(out, "const npg_idx %s = (npg_idx)(", name);
+    emit_cexpr(e, out, pt->fixed_by[v]);
+    fputs(");\n", out);
+    indent(out, d);
+    if (var->kind == SYM_SUMVAR) {
+      for (int k = 0; k < m->nsums; k++)
+        if (m->sums[k].var == var) {
+          fprintf(out, "if (%s < ", name);
+          emit_cexpr(e, out, m->sums[k].lo);
+          fprintf(out, " || %s > ", name);
+          emit_cexpr(e, out, m->sums[k].hi);
+          fputs(") continue;\n", out);
+        }
+    } else {
+      emit_use(e, var->range);
+      fprintf(out, "if (%s < 0 || %s >= %s) continue;\n", name, name, emit_name(e, var->range));
+    }
+  }
+  if (checks) emit_node_checks(e, out, m->guard, op, d);
+  if (m->guard) {
+    indent(out, d);
+    fputs("if (!(", out);
+    emit_cexpr(e, out, m->guard);
+    fputs(")) continue;\n", out);
+  }
+  if (checks) {
+    for (int f = 0; f < pt->nfactors; f++) emit_node_checks(e, out, pt->factors[f], op, d);
+    for (int a = 0; a < m->natoms; a++)
+      for (int k = 0; k < m->atoms[a].q->ndims; k++) emit_index_check(e, out, m->atoms[a].q, k, m->atoms[a].idx[k], op, d);
+    indent(out, loops);
+    fputs("} while (0);\n", out);
+    close_loops(out, loops, 1);
+    return;
+  }
+  indent(out, d);
+  fprintf(out, "const double w_ = %d.0", pt->sign);
+  for (int f = 0; f < pt->nfactors; f++) {
+    fputs(" * ", out);
+    emit_cexpr(e, out, pt->factors[f]);
+  }
+  fputs(";\n", out);
+  indent(out, d);
+  fputs("if (w_ == 0.0) continue;\n", out);
+  indent(out, d);
+  fputs("if (rows_) {\n", out);
+  indent(out, d + 1);
+  fputs("rows_[cnt_] = ", out);
+  emit_flat(e, out, op, 0, op->nrow);
+  fputs(";\n", out);
+  indent(out, d + 1);
+  fputs("cols_[cnt_] = ", out);
+  emit_flat(e, out, op, op->nrow, op->nivars);
+  fputs(";\n", out);
+  indent(out, d);
+  fputs("}\n", out);
+  indent(out, d);
+  fputs("if (vals_) vals_[cnt_] = w_", out);
+  for (int a = 0; a < m->natoms; a++) {
+    fputs(" * ", out);
+    emit_atom(e, out, &m->atoms[a]);
+  }
+  fputs(";\n", out);
+  indent(out, d);
+  fputs("cnt_++;\n", out);
+  indent(out, loops);
+  fputs("} while (0);\n", out);
+  close_loops(out, loops, 1);
+}
+
+/* The entries of sparse operator `od`, in a fixed order: with rows_ and
+ * cols_ their flat row and column, with vals_ their values at this
+ * evaluation; the count returned either way (NpgOpEntriesFn). */
+static void op_entries_cb(Emit *e, FILE *out, const void *arg) {
+  const OpDef *od = arg;
+  const Poly *p = &od->entries->comp[0];
+  fputs("  npg_idx cnt_ = 0;\n", out);
+  for (int i = 0; i < p->n; i++) {
+    MonoPart parts[TENSOR_MAXPARTS];
+    int np = tensor_mono_parts(e->ctx, p->m[i], od->sym->ivars, od->sym->nivars, parts);
+    for (int k = 0; k < np; k++) emit_op_part(e, out, od->sym, p->m[i], &parts[k], false);
+  }
+  fputs("  return cnt_;\n", out);
+}
+
+/* Bind-time gather checks of a sparse operator, at its entries' points. */
+static void sparse_op_checks(Emit *e, FILE *out, const OpDef *od) {
+  const Poly *p = &od->entries->comp[0];
+  for (int i = 0; i < p->n; i++) {
+    MonoPart parts[TENSOR_MAXPARTS];
+    int np = tensor_mono_parts(e->ctx, p->m[i], od->sym->ivars, od->sym->nivars, parts);
+    for (int k = 0; k < np; k++) emit_op_part(e, out, od->sym, p->m[i], &parts[k], true);
+  }
+}
+
+static void emit_sparse_ops(Emit *e) {
+  for (int i = 0; i < e->prog->opdefs.n; i++) {
+    const OpDef *od = e->prog->opdefs.v[i];
+    if (!od->sparse) continue;
+    fprintf(e->out, "/* entries of sparse operator %s (DESIGN §13) */\n", od->sym->name);
+    emit_function_sig(e, e->out,
+                      arena_printf(e->ctx, "static npg_idx %s(const NpgCtx *c, npg_idx *rows_, npg_idx *cols_, double *vals_)",
+                                   fn_name(e->ctx, "entries_", od->sym)),
+                      NULL, op_entries_cb, od);
+  }
+}
+
 /* ---------------------------------------------------------------- stages */
 
 static void emit_stage_body(Emit *e, FILE *out, const Stage *st) {
@@ -210,6 +358,14 @@ static void emit_stage_body(Emit *e, FILE *out, const Stage *st) {
     for (int k = 0; k < tm->nops; k++) {
       if (tm->ops[k].kind != OPK_DECL) continue;
       const Sym *op = tm->ops[k].op;
+      if (op->opdef->sparse) {
+        fprintf(out, "    { /* %s^(%ld/%ld), sparse */\n", op->name, tm->ops[k].p, tm->ops[k].q);
+        fprintf(out, "      if (c->rt->sparse_power(c, \"%s\", \"%s\", %d, n_, %s, %ld, %ld, v_)) { c->rt->release(c, v_); return -1; }\n",
+                s->name, op->name, emit_index_of(&e->prog->opdefs, op->opdef), fn_name(e->ctx, "entries_", op),
+                tm->ops[k].p, tm->ops[k].q);
+        fputs("    }\n", out);
+        continue;
+      }
       fprintf(out, "    { /* %s^(%ld/%ld) */\n", op->name, tm->ops[k].p, tm->ops[k].q);
       fputs("      double *m_ = c->rt->scratch(c, n_ * n_);\n", out);
       fputs("      if (!m_) { c->rt->release(c, v_); return -1; }\n", out);
@@ -382,6 +538,10 @@ static void check_stage_cb(Emit *e, FILE *out, const void *arg) {
 
 static void check_op_cb(Emit *e, FILE *out, const void *arg) {
   const OpDef *od = arg;
+  if (od->sparse) {
+    sparse_op_checks(e, out, od);
+    return;
+  }
   int d = open_entry_loops(e, out, od->sym, 1);
   emit_field_checks(e, out, od->entries, od->sym, d);
   close_loops(out, d, 1);
@@ -698,6 +858,7 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out) {
   Emit *e = emit_new(ctx, prog, out);
   emit_header(e, "Full evaluator");
   emit_temps(e);
+  emit_sparse_ops(e);
   FullPlan *p = emit_full_plan(ctx, prog);
   for (int k = 0; k < p->n; k++)
     if (p->steps[k].kind != STEP_TEMP) emit_step(e, &p->steps[k]);

@@ -134,7 +134,16 @@ NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
   f->host.dim_names = f->dim_names;
   f->host.param_names = f->param_names;
   f->host.param_files = (const char *const *)f->param_files;
+  f->host.sparse_min_rows = FULL_SPARSE_MIN_ROWS;
   return f;
+}
+
+void full_set_sparse_min_rows(NpgFull *f, long rows) { f->host.sparse_min_rows = rows; }
+
+void full_sparse_counts(const NpgFull *f, long *patterns, long *cholesky, long *lu) {
+  *patterns = f->host.sparse_patterns;
+  *cholesky = f->host.sparse_cholesky;
+  *lu = f->host.sparse_lu;
 }
 
 /* Bind the dims of `s` from a shape (dims then static axes); `from` names
@@ -442,6 +451,7 @@ static int evaluate(NpgFull *f, long sample, Demand *d) {
   NpgCtx c = context(f, sample);
   f->host.msg[0] = 0;
   if (!f->checked) {
+    runtime_sparse_reset(&f->host); /* sparse patterns belong to the old binding */
     if (f->check(&c) != 0) return fail(f, "%s", f->host.msg);
     f->checked = true;
   }
@@ -578,6 +588,7 @@ void npg_full_unbind(NpgFull *f) {
 
 void npg_full_free(NpgFull *f) {
   if (!f) return;
+  runtime_sparse_free(&f->host);
   jit_free(f->jit);
   demand_free(f->demand);
   if (f->prog) {

@@ -10,7 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-static void record(const NpgCtx *c, const char *fmt, ...) {
+void runtime_record(const NpgCtx *c, const char *fmt, ...) {
   NpgHost *h = c->host;
   if (!h || h->msg[0]) return;  /* keep the first error */
   va_list ap;
@@ -21,11 +21,11 @@ static void record(const NpgCtx *c, const char *fmt, ...) {
 
 static double *scratch(const NpgCtx *c, npg_idx count) {
   if (count < 0 || (size_t)count > ((size_t)-1) / sizeof(double) / 2) {
-    record(c, "sample %ld: scratch of %ld doubles is too large", c->sample, (long)count);
+    runtime_record(c, "sample %ld: scratch of %ld doubles is too large", c->sample, (long)count);
     return NULL;
   }
   double *p = calloc(count ? (size_t)count : 1, sizeof(double));
-  if (!p) record(c, "sample %ld: out of memory (%ld doubles of scratch)", c->sample, (long)count);
+  if (!p) runtime_record(c, "sample %ld: out of memory (%ld doubles of scratch)", c->sample, (long)count);
   return p;
 }
 
@@ -49,27 +49,27 @@ static double norm1(const double *M, npg_idx n) {
 static int inverse_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long k, double *y) {
   lapack_int *piv = malloc(sizeof(lapack_int) * (size_t)(n ? n : 1));
   if (!piv) {
-    record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+    runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
     return -1;
   }
   double anorm = norm1(M, n);
   lapack_int info = LAPACKE_dgetrf(LAPACK_ROW_MAJOR, (lapack_int)n, (lapack_int)n, M, (lapack_int)n, piv);
   if (info < 0) {
-    record(c, "sample %ld: stage '%s': LAPACK dgetrf rejected argument %d (a bug in npg)", c->sample, stage, (int)-info);
+    runtime_record(c, "sample %ld: stage '%s': LAPACK dgetrf rejected argument %d (a bug in npg)", c->sample, stage, (int)-info);
     free(piv);
     return -1;
   }
   double rcond = 0;
   if (info == 0) LAPACKE_dgecon(LAPACK_ROW_MAJOR, '1', (lapack_int)n, M, (lapack_int)n, anorm, &rcond);
   if (info > 0 || !(rcond > 1e-15)) {
-    record(c, "sample %ld: stage '%s': operator %s is singular (rcond %.1e)", c->sample, stage, op, rcond);
+    runtime_record(c, "sample %ld: stage '%s': operator %s is singular (rcond %.1e)", c->sample, stage, op, rcond);
     free(piv);
     return -1;
   }
   for (long r = 0; r < k; r++) {
     info = LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', (lapack_int)n, 1, M, (lapack_int)n, piv, y, 1);
     if (info != 0) {
-      record(c, "sample %ld: stage '%s': LAPACK dgetrs failed (info %d)", c->sample, stage, (int)info);
+      runtime_record(c, "sample %ld: stage '%s': LAPACK dgetrs failed (info %d)", c->sample, stage, (int)info);
       free(piv);
       return -1;
     }
@@ -87,7 +87,7 @@ static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx
       scale = fmax(scale, fabs(M[i * n + j]));
     }
   if (asym > 1e-12 * (scale > 0 ? scale : 1)) {
-    record(c, "sample %ld: stage '%s': operator %s is not symmetric (max |M - M^T| = %.1e), so its power %ld/%ld is undefined",
+    runtime_record(c, "sample %ld: stage '%s': operator %s is not symmetric (max |M - M^T| = %.1e), so its power %ld/%ld is undefined",
            c->sample, stage, op, asym, p, q);
     return -1;
   }
@@ -96,13 +96,13 @@ static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx
   if (!w || !t) {
     free(w);
     free(t);
-    record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+    runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
     return -1;
   }
   lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, M, (lapack_int)n, w);
   int rc = 0;
   if (info != 0) {
-    record(c, "sample %ld: stage '%s': eigendecomposition of operator %s failed to converge (info %d)", c->sample, stage,
+    runtime_record(c, "sample %ld: stage '%s': eigendecomposition of operator %s failed to converge (info %d)", c->sample, stage,
            op, (int)info);
     rc = -1;
   }
@@ -110,7 +110,7 @@ static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx
   for (npg_idx i = 0; i < n && rc == 0; i++) wmax = fmax(wmax, fabs(w[i]));
   for (npg_idx i = 0; i < n && rc == 0; i++)
     if (w[i] < -1e-12 * (wmax > 0 ? wmax : 1) || (p < 0 && w[i] <= 0)) {
-      record(c, "sample %ld: stage '%s': operator %s is not positive %sdefinite (eigenvalue %.3g), so its power %ld/%ld is undefined",
+      runtime_record(c, "sample %ld: stage '%s': operator %s is not positive %sdefinite (eigenvalue %.3g), so its power %ld/%ld is undefined",
              c->sample, stage, op, p < 0 ? "" : "semi", w[i], p, q);
       rc = -1;
     }
@@ -137,14 +137,14 @@ static int op_power(const NpgCtx *c, const char *stage, const char *op, npg_idx 
   /* LAPACKE refuses NaN as a bad argument: say what the data did instead */
   for (npg_idx i = 0; i < n * n; i++)
     if (!isfinite(M[i])) {
-      record(c, "sample %ld: stage '%s': operator %s is not finite (row %ld, column %ld is %g): the sample makes it "
+      runtime_record(c, "sample %ld: stage '%s': operator %s is not finite (row %ld, column %ld is %g): the sample makes it "
                 "undefined (a division by zero or a root of a negative number in its entries?)",
              c->sample, stage, op, (long)(i / n), (long)(i % n), M[i]);
       return -1;
     }
   for (npg_idx i = 0; i < n; i++)
     if (!isfinite(y[i])) {
-      record(c, "sample %ld: stage '%s': the vector operator %s acts on is not finite (entry %ld is %g)", c->sample,
+      runtime_record(c, "sample %ld: stage '%s': the vector operator %s acts on is not finite (entry %ld is %g)", c->sample,
              stage, op, (long)i, y[i]);
       return -1;
     }
@@ -153,7 +153,7 @@ static int op_power(const NpgCtx *c, const char *stage, const char *op, npg_idx 
   /* positive integer power: repeated products */
   double *t = malloc(sizeof(double) * (size_t)(n ? n : 1));
   if (!t) {
-    record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+    runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
     return -1;
   }
   for (long r = 0; r < p; r++) {
@@ -180,11 +180,12 @@ static void gather_error(const NpgCtx *c, const char *stage, const char *at, con
   const char *dname = h && h->dim_names ? h->dim_names[dim] : "?";
   long dsize = (long)c->dims[dim];
   if (param >= 0 && h && h->param_files)
-    record(c, "%s: error: %s: entry [%s] = %ld is out of range for dim %s (size %ld), used as an index in stage '%s'\n%s",
+    runtime_record(c, "%s: error: %s: entry [%s] = %ld is out of range for dim %s (size %ld), used as an index in stage '%s'\n%s",
            at, h->param_files[param], where, (long)value, dname, dsize, stage, excerpt);
   else
-    record(c, "%s: error: stage '%s' at [%s]: index %ld is out of range for dim %s (size %ld)\n%s", at, stage, where,
+    runtime_record(c, "%s: error: stage '%s' at [%s]: index %ld is out of range for dim %s (size %ld)\n%s", at, stage, where,
            (long)value, dname, dsize, excerpt);
 }
 
-const NpgRt npg_runtime = {op_power, scratch, release, gather_error, rows_vv, rows_vs, rows_sv, rows_unary, rows_fill};
+const NpgRt npg_runtime = {op_power,   scratch,    release,   gather_error, rows_vv,
+                           rows_vs,    rows_sv,    rows_unary, rows_fill,    runtime_sparse_power};

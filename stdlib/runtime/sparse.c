@@ -1,0 +1,399 @@
+/* sparse.c — declared operators whose entries grow like K·N (an index-table
+ * gather, a stencil, a mesh's incidence): assembled in compressed sparse
+ * columns and solved through SuiteSparse (DESIGN §13).
+ *
+ *   pattern  once per param binding: the generated enumerator lists every
+ *            contribution's (row, col) — guards and index tables depend on
+ *            params and index variables only — and they are sorted into CSC
+ *            with duplicates merged; map[k] is contribution k's slot.
+ *   values   per evaluation: the same enumerator in the same order gives
+ *            each contribution's value, and Ax[map[k]] += value.
+ *   solve    M^-k y: CHOLMOD (supernodal Cholesky) when M is symmetric, its
+ *            symbolic analysis kept across evaluations; when the
+ *            factorization finds M not positive definite, UMFPACK from then
+ *            on (its symbolic analysis kept too). M^k y: k products.
+ *   roots    fractional powers of a symmetric positive semidefinite M: the
+ *            dense eigendecomposition of the assembled matrix (the Krylov
+ *            root for sparse roots is not yet wired in), refused above
+ *            NPG_SPARSE_DENSE_ROOT_MAX rows.
+ *
+ * Small operators go to the dense path (op_power) below a size chosen by
+ * measurement (NpgHost.sparse_min_rows). Every SuiteSparse status is
+ * checked and worded for the user.
+ */
+#include "runtime.h"
+
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <suitesparse/cholmod.h>
+#include <suitesparse/umfpack.h>
+
+/* Above this many rows a fractional power of a sparse operator is refused
+ * rather than densified (an n × n eigendecomposition: 8·n² bytes). */
+#define NPG_SPARSE_DENSE_ROOT_MAX 8000
+
+struct SparseOp {
+  bool ready;               /* pattern built for the current binding */
+  npg_idx n;                /* rows = cols */
+  npg_idx ncontrib;         /* contributions per evaluation */
+  npg_idx *map;             /* contribution -> slot */
+  double *val;              /* contributions' values */
+  SuiteSparse_long *Ap, *Ai;/* CSC pattern, nnz = Ap[n] */
+  double *Ax;
+  npg_idx *transpose;       /* slot of (j, i) for slot (i, j), -1 if absent */
+  bool symmetric_pattern;
+  bool not_spd;             /* CHOLMOD found it indefinite once: UMFPACK */
+  /* CHOLMOD */
+  cholmod_common cc;
+  bool cc_started;
+  cholmod_factor *L;
+  /* UMFPACK */
+  void *symbolic;
+  double umf_control[UMFPACK_CONTROL];
+};
+
+
+static void op_clear(SparseOp *s) {
+  if (s->L) cholmod_l_free_factor(&s->L, &s->cc);
+  if (s->cc_started) cholmod_l_finish(&s->cc);
+  if (s->symbolic) umfpack_dl_free_symbolic(&s->symbolic);
+  free(s->map);
+  free(s->val);
+  free(s->Ap);
+  free(s->Ai);
+  free(s->Ax);
+  free(s->transpose);
+  memset(s, 0, sizeof *s);
+}
+
+void runtime_sparse_reset(NpgHost *h) {
+  for (int i = 0; i < h->nsparse; i++) op_clear(&h->sparse[i]);
+}
+
+void runtime_sparse_free(NpgHost *h) {
+  runtime_sparse_reset(h);
+  free(h->sparse);
+  h->sparse = NULL;
+  h->nsparse = 0;
+}
+
+static SparseOp *op_slot(const NpgCtx *c, int opid) {
+  NpgHost *h = c->host;
+  if (opid >= h->nsparse) {
+    SparseOp *grown = realloc(h->sparse, sizeof(SparseOp) * (size_t)(opid + 1));
+    if (!grown) return NULL;
+    memset(grown + h->nsparse, 0, sizeof(SparseOp) * (size_t)(opid + 1 - h->nsparse));
+    h->sparse = grown;
+    h->nsparse = opid + 1;
+  }
+  return &h->sparse[opid];
+}
+
+typedef struct Contrib {
+  npg_idx row, col, k;
+} Contrib;
+
+static int by_col_row(const void *a, const void *b) {
+  const Contrib *x = a, *y = b;
+  if (x->col != y->col) return x->col < y->col ? -1 : 1;
+  if (x->row != y->row) return x->row < y->row ? -1 : 1;
+  return x->k < y->k ? -1 : x->k > y->k;
+}
+
+/* The pattern: contributions sorted by (col, row), duplicates merged. */
+static int build_pattern(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, npg_idx n,
+                         NpgOpEntriesFn entries) {
+  npg_idx count = entries(c, NULL, NULL, NULL);
+  npg_idx *rows = malloc(sizeof(npg_idx) * (size_t)(count ? count : 1));
+  npg_idx *cols = malloc(sizeof(npg_idx) * (size_t)(count ? count : 1));
+  Contrib *all = malloc(sizeof(Contrib) * (size_t)(count ? count : 1));
+  s->map = malloc(sizeof(npg_idx) * (size_t)(count ? count : 1));
+  s->val = malloc(sizeof(double) * (size_t)(count ? count : 1));
+  s->Ap = malloc(sizeof(SuiteSparse_long) * (size_t)(n + 1));
+  if (!rows || !cols || !all || !s->map || !s->val || !s->Ap) {
+    free(rows), free(cols), free(all);
+    runtime_record(c, "sample %ld: out of memory assembling operator %s of stage '%s' (%ld entries)", c->sample, op, stage,
+           (long)count);
+    return -1;
+  }
+  npg_idx again = entries(c, rows, cols, NULL);
+  if (again != count) {
+    free(rows), free(cols), free(all);
+    runtime_record(c, "sample %ld: operator %s: its entries changed between two enumerations (a bug in npg)", c->sample, op);
+    return -1;
+  }
+  for (npg_idx k = 0; k < count; k++) all[k] = (Contrib){rows[k], cols[k], k};
+  free(rows), free(cols);
+  qsort(all, (size_t)count, sizeof *all, by_col_row);
+  npg_idx nnz = 0;
+  for (npg_idx k = 0; k < count; k++)
+    if (k == 0 || all[k].row != all[k - 1].row || all[k].col != all[k - 1].col) nnz++;
+  s->Ai = malloc(sizeof(SuiteSparse_long) * (size_t)(nnz ? nnz : 1));
+  s->Ax = malloc(sizeof(double) * (size_t)(nnz ? nnz : 1));
+  s->transpose = malloc(sizeof(npg_idx) * (size_t)(nnz ? nnz : 1));
+  if (!s->Ai || !s->Ax || !s->transpose) {
+    free(all);
+    runtime_record(c, "sample %ld: out of memory assembling operator %s of stage '%s' (%ld nonzeros)", c->sample, op, stage,
+           (long)nnz);
+    return -1;
+  }
+  npg_idx slot = -1, col = 0;
+  s->Ap[0] = 0;
+  for (npg_idx k = 0; k < count; k++) {
+    if (k == 0 || all[k].row != all[k - 1].row || all[k].col != all[k - 1].col) {
+      slot++;
+      while (col < all[k].col) s->Ap[++col] = slot;
+      s->Ai[slot] = all[k].row;
+    }
+    s->map[all[k].k] = slot;
+  }
+  while (col < n) s->Ap[++col] = nnz;
+  free(all);
+  /* the transposed slot of every slot, by binary search in its column */
+  s->symmetric_pattern = true;
+  for (npg_idx j = 0; j < n; j++)
+    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) {
+      npg_idx i = s->Ai[p], lo = s->Ap[i], hi = s->Ap[i + 1] - 1, at = -1;
+      while (lo <= hi) {
+        npg_idx mid = lo + (hi - lo) / 2;
+        if (s->Ai[mid] == j) {
+          at = mid;
+          break;
+        }
+        if (s->Ai[mid] < j) lo = mid + 1;
+        else hi = mid - 1;
+      }
+      s->transpose[p] = at;
+      if (at < 0) s->symmetric_pattern = false;
+    }
+  s->n = n;
+  s->ncontrib = count;
+  s->ready = true;
+  ((NpgHost *)c->host)->sparse_patterns++;
+  return 0;
+}
+
+/* Ax from this evaluation's contributions; non-finite entries refused. */
+static int fill_values(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, NpgOpEntriesFn entries) {
+  npg_idx count = entries(c, NULL, NULL, s->val);
+  if (count != s->ncontrib) {
+    runtime_record(c, "sample %ld: operator %s: its entries changed between two enumerations (a bug in npg)", c->sample, op);
+    return -1;
+  }
+  npg_idx nnz = s->Ap[s->n];
+  memset(s->Ax, 0, sizeof(double) * (size_t)nnz);
+  for (npg_idx k = 0; k < count; k++) s->Ax[s->map[k]] += s->val[k];
+  for (npg_idx j = 0; j < s->n; j++)
+    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++)
+      if (!isfinite(s->Ax[p])) {
+        runtime_record(c, "sample %ld: stage '%s': operator %s is not finite (row %ld, column %ld is %g): the sample makes it "
+                  "undefined (a division by zero or a root of a negative number in its entries?)",
+               c->sample, stage, op, (long)s->Ai[p], (long)j, s->Ax[p]);
+        return -1;
+      }
+  return 0;
+}
+
+static bool values_symmetric(const SparseOp *s) {
+  if (!s->symmetric_pattern) return false;
+  double scale = 0, asym = 0;
+  npg_idx nnz = s->Ap[s->n];
+  for (npg_idx p = 0; p < nnz; p++) {
+    scale = fmax(scale, fabs(s->Ax[p]));
+    asym = fmax(asym, fabs(s->Ax[p] - s->Ax[s->transpose[p]]));
+  }
+  return asym <= 1e-14 * scale;
+}
+
+static cholmod_sparse csc_view(SparseOp *s, int stype) {
+  cholmod_sparse A;
+  memset(&A, 0, sizeof A);
+  A.nrow = A.ncol = (size_t)s->n;
+  A.nzmax = (size_t)s->Ap[s->n];
+  A.p = s->Ap;
+  A.i = s->Ai;
+  A.x = s->Ax;
+  A.stype = stype;       /* 1: CHOLMOD reads the upper triangle of a symmetric matrix */
+  A.itype = CHOLMOD_LONG;
+  A.xtype = CHOLMOD_REAL;
+  A.dtype = CHOLMOD_DOUBLE;
+  A.sorted = 1;
+  A.packed = 1;
+  return A;
+}
+
+/* y <- M^-k y by Cholesky; 1 when M is not positive definite (the caller
+ * moves to UMFPACK), -1 on another failure. */
+static int cholesky_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, long k, double *y) {
+  if (!s->cc_started) {
+    cholmod_l_start(&s->cc);
+    s->cc.print = 0;
+    /* supernodal LL': an indefinite matrix fails (CHOLMOD_NOT_POSDEF) —
+       the simplicial LDL' CHOLMOD picks for small matrices would factor
+       some of them without pivoting, unstably */
+    s->cc.supernodal = CHOLMOD_SUPERNODAL;
+    s->cc_started = true;
+  }
+  cholmod_sparse A = csc_view(s, 1);
+  if (!s->L) {
+    s->L = cholmod_l_analyze(&A, &s->cc);
+    if (!s->L) {
+      runtime_record(c, "sample %ld: stage '%s': CHOLMOD could not analyze operator %s (status %d)", c->sample, stage, op,
+             s->cc.status);
+      return -1;
+    }
+  }
+  if (!cholmod_l_factorize(&A, s->L, &s->cc) && s->cc.status != CHOLMOD_NOT_POSDEF) {
+    runtime_record(c, "sample %ld: stage '%s': CHOLMOD could not factorize operator %s (status %d)", c->sample, stage, op,
+           s->cc.status);
+    return -1;
+  }
+  if (s->cc.status == CHOLMOD_NOT_POSDEF || s->L->minor < (size_t)s->n) return 1;
+  ((NpgHost *)c->host)->sparse_cholesky++;
+  double rcond = cholmod_l_rcond(s->L, &s->cc);
+  if (!(rcond > 1e-15)) {
+    runtime_record(c, "sample %ld: stage '%s': operator %s is singular (CHOLMOD's rcond %.1e)", c->sample, stage, op, rcond);
+    return -1;
+  }
+  cholmod_dense b;
+  memset(&b, 0, sizeof b);
+  b.nrow = b.d = b.nzmax = (size_t)s->n;
+  b.ncol = 1;
+  b.xtype = CHOLMOD_REAL;
+  b.dtype = CHOLMOD_DOUBLE;
+  for (long r = 0; r < k; r++) {
+    b.x = y;
+    cholmod_dense *x = cholmod_l_solve(CHOLMOD_A, s->L, &b, &s->cc);
+    if (!x) {
+      runtime_record(c, "sample %ld: stage '%s': CHOLMOD's solve with operator %s failed (status %d)", c->sample, stage, op,
+             s->cc.status);
+      return -1;
+    }
+    memcpy(y, x->x, sizeof(double) * (size_t)s->n);
+    cholmod_l_free_dense(&x, &s->cc);
+  }
+  return 0;
+}
+
+/* y <- M^-k y by UMFPACK's LU. */
+static int lu_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, long k, double *y) {
+  if (!s->symbolic) {
+    umfpack_dl_defaults(s->umf_control);
+    int st = (int)umfpack_dl_symbolic((SuiteSparse_long)s->n, (SuiteSparse_long)s->n, s->Ap, s->Ai, s->Ax,
+                                      &s->symbolic, s->umf_control, NULL);
+    if (st != UMFPACK_OK) {
+      runtime_record(c, "sample %ld: stage '%s': UMFPACK could not analyze operator %s (status %d)", c->sample, stage, op, st);
+      return -1;
+    }
+  }
+  void *numeric = NULL;
+  double info[UMFPACK_INFO];
+  ((NpgHost *)c->host)->sparse_lu++;
+  int st = (int)umfpack_dl_numeric(s->Ap, s->Ai, s->Ax, s->symbolic, &numeric, s->umf_control, info);
+  if (st == UMFPACK_WARNING_singular_matrix || (st == UMFPACK_OK && !(info[UMFPACK_RCOND] > 1e-15))) {
+    runtime_record(c, "sample %ld: stage '%s': operator %s is singular (UMFPACK's rcond %.1e)", c->sample, stage, op,
+           st == UMFPACK_OK ? info[UMFPACK_RCOND] : 0.0);
+    umfpack_dl_free_numeric(&numeric);
+    return -1;
+  }
+  if (st != UMFPACK_OK) {
+    runtime_record(c, "sample %ld: stage '%s': UMFPACK could not factorize operator %s (status %d)", c->sample, stage, op, st);
+    umfpack_dl_free_numeric(&numeric);
+    return -1;
+  }
+  double *x = malloc(sizeof(double) * (size_t)(s->n ? s->n : 1));
+  if (!x) {
+    umfpack_dl_free_numeric(&numeric);
+    runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+    return -1;
+  }
+  int rc = 0;
+  for (long r = 0; r < k && rc == 0; r++) {
+    st = (int)umfpack_dl_solve(UMFPACK_A, s->Ap, s->Ai, s->Ax, x, y, numeric, s->umf_control, NULL);
+    if (st != UMFPACK_OK) {
+      runtime_record(c, "sample %ld: stage '%s': UMFPACK's solve with operator %s failed (status %d)", c->sample, stage, op, st);
+      rc = -1;
+    } else {
+      memcpy(y, x, sizeof(double) * (size_t)s->n);
+    }
+  }
+  free(x);
+  umfpack_dl_free_numeric(&numeric);
+  return rc;
+}
+
+/* y <- M^k y, k products with the CSC matrix. */
+static int sparse_products(const NpgCtx *c, const char *stage, SparseOp *s, long k, double *y) {
+  double *t = malloc(sizeof(double) * (size_t)(s->n ? s->n : 1));
+  if (!t) {
+    runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+    return -1;
+  }
+  for (long r = 0; r < k; r++) {
+    memset(t, 0, sizeof(double) * (size_t)s->n);
+    for (npg_idx j = 0; j < s->n; j++)
+      for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) t[s->Ai[p]] += s->Ax[p] * y[j];
+    memcpy(y, t, sizeof(double) * (size_t)s->n);
+  }
+  free(t);
+  return 0;
+}
+
+/* The assembled matrix as a dense row-major n x n array (for small
+ * operators and roots). */
+static double *densify(const NpgCtx *c, const char *stage, const SparseOp *s) {
+  double *M = calloc((size_t)s->n * (size_t)s->n, sizeof(double));
+  if (!M) {
+    runtime_record(c, "sample %ld: out of memory in stage '%s' (%ld x %ld operator)", c->sample, stage, (long)s->n, (long)s->n);
+    return NULL;
+  }
+  for (npg_idx j = 0; j < s->n; j++)
+    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) M[s->Ai[p] * s->n + j] = s->Ax[p];
+  return M;
+}
+
+int runtime_sparse_power(const NpgCtx *c, const char *stage, const char *op, int opid, npg_idx n,
+                         NpgOpEntriesFn entries, long p, long q, double *y) {
+  for (npg_idx i = 0; i < n; i++)
+    if (!isfinite(y[i])) {
+      runtime_record(c, "sample %ld: stage '%s': the vector operator %s acts on is not finite (entry %ld is %g)", c->sample,
+             stage, op, (long)i, y[i]);
+      return -1;
+    }
+  SparseOp *s = op_slot(c, opid);
+  if (!s) {
+    runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+    return -1;
+  }
+  if (!s->ready && build_pattern(c, stage, op, s, n, entries) != 0) {
+    op_clear(s);
+    return -1;
+  }
+  if (fill_values(c, stage, op, s, entries) != 0) return -1;
+  NpgHost *h = c->host;
+  bool dense = n < h->sparse_min_rows || (q != 1 && n <= NPG_SPARSE_DENSE_ROOT_MAX);
+  if (q != 1 && !dense) {
+    runtime_record(c, "sample %ld: stage '%s': the power %ld/%ld of sparse operator %s (%ld rows) would need its dense "
+              "eigendecomposition, refused above %d rows (sparse roots are not implemented yet)",
+           c->sample, stage, p, q, op, (long)n, NPG_SPARSE_DENSE_ROOT_MAX);
+    return -1;
+  }
+  if (dense) {
+    double *M = densify(c, stage, s);
+    if (!M) return -1;
+    int rc = npg_runtime.op_power(c, stage, op, n, M, p, q, y);
+    free(M);
+    return rc;
+  }
+  if (p > 0) return sparse_products(c, stage, s, p, y);
+  if (!s->not_spd && values_symmetric(s)) {
+    int rc = cholesky_solve(c, stage, op, s, -p, y);
+    if (rc <= 0) return rc;
+    s->not_spd = true;   /* indefinite: LU from now on */
+  }
+  return lu_solve(c, stage, op, s, -p, y);
+}

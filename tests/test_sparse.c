@@ -1,0 +1,221 @@
+/* test_sparse.c — sparse declared operators in the full evaluator (DESIGN
+ * §13): an operator that gathers its K neighbours through an index table is
+ * assembled in compressed form, its pattern once per param binding, and
+ * solved by CHOLMOD when symmetric positive definite, by UMFPACK otherwise;
+ * every result equals the dense path (assembled whole, LAPACK) to 1e-12. */
+#include <limits.h>
+
+#include "full.h"
+#include "testutil.h"
+
+/* Finite-volume heat conduction on an nx × ny grid: a conductivity per cell
+ * scales its row, so the operator is not symmetric (UMFPACK). */
+static const char *heat =
+    "dim N\n"
+    "param nbr : int[N, 4]\n"
+    "param src : real[N]\n"
+    "input kappa : real[N]\n"
+    "op K[i:N, j:N] = delta(i, j) * (1 + sum(k = 0..3, if(nbr[i, k] >= 0, kappa[i], 0)))"
+    " - sum(k = 0..3, if(nbr[i, k] == j, kappa[i], 0))\n"
+    "output u = solve(K, src)\n"
+    "output y = K * src\n";
+
+/* A weighted graph Laplacian from an edge list, plus `shift` times the
+ * identity: symmetric, positive definite for positive weights and shift
+ * (CHOLMOD), indefinite for a negative shift (UMFPACK after CHOLMOD
+ * refuses), and singular with no shift. */
+static const char *laplacian =
+    "dim N, E\n"
+    "param tab : int[E, 2]\n"
+    "param f : real[N]\n"
+    "param shift : real\n"
+    "input w : real[E]\n"
+    "op L[i:N, j:N] = shift * delta(i, j) + sum(e = 0..E-1, w[e] * (delta(i, tab[e, 0]) - delta(i, tab[e, 1]))"
+    " * (delta(j, tab[e, 0]) - delta(j, tab[e, 1])))\n"
+    "output y = solve(L, f)\n";
+
+enum { NX = 12, NY = 10, N = NX * NY };
+
+static unsigned rng = 12345u;
+static double uniform(void) {
+  rng = rng * 1103515245u + 12345u;
+  return ((rng >> 8) & 0xFFFFFF) / (double)0x1000000;
+}
+
+/* The same data every call (the sparse and the dense evaluator compare). */
+static NpgFull *heat_full(NpgProgram *p) {
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  assert_non_null(f);
+  double nbr[N * 4], src[N];
+  unsigned seed = 7u;
+  for (int y = 0; y < NY; y++)
+    for (int x = 0; x < NX; x++) {
+      int i = y * NX + x;
+      nbr[i * 4 + 0] = x > 0 ? i - 1 : -1;
+      nbr[i * 4 + 1] = x < NX - 1 ? i + 1 : -1;
+      nbr[i * 4 + 2] = y > 0 ? i - NX : -1;
+      nbr[i * 4 + 3] = y < NY - 1 ? i + NX : -1;
+      seed = seed * 1103515245u + 12345u;
+      src[i] = ((seed >> 8) & 0xFFFF) / 65536.0;
+    }
+  long s2[2] = {N, 4}, s1[1] = {N};
+  assert_int_equal(npg_full_set_param(f, "nbr", 2, s2, nbr, "nbr"), 0);
+  assert_int_equal(npg_full_set_param(f, "src", 1, s1, src, "src"), 0);
+  return f;
+}
+
+/* Evaluate `sparse` (sparse path forced) and `dense` (dense path forced)
+ * on the same input; every output equal to 1e-12. */
+static void same_outputs(NpgFull *sparse, NpgFull *dense, const char *input, long n, const double *values,
+                         const char *const *outputs, int nout, long sample) {
+  long shape[1] = {n};
+  assert_int_equal(npg_full_set(sparse, input, 1, shape, values, input), 0);
+  assert_int_equal(npg_full_set(dense, input, 1, shape, values, input), 0);
+  if (npg_full_eval(sparse, sample)) fail_msg("%s", npg_full_error(sparse));
+  if (npg_full_eval(dense, sample)) fail_msg("%s", npg_full_error(dense));
+  for (int k = 0; k < nout; k++) {
+    size_t cs, cd;
+    const double *a = npg_full_get(sparse, outputs[k], &cs), *b = npg_full_get(dense, outputs[k], &cd);
+    assert_int_equal(cs, cd);
+    double d = rel_diff(a, b, cs);
+    if (!(d <= 1e-12)) fail_msg("output %s: sparse and dense differ by %.3g", outputs[k], d);
+  }
+}
+
+/* Non-symmetric heat operator: UMFPACK, the pattern built once over three
+ * samples and again after the params are bound anew. */
+static void heat_umfpack_equals_dense(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("heat.npg", heat);
+  ir_ok(p);
+  NpgFull *sparse = heat_full(p), *dense = heat_full(p);
+  full_set_sparse_min_rows(sparse, 0);
+  full_set_sparse_min_rows(dense, LONG_MAX);
+  const char *outs[] = {"u", "y"};
+  double kappa[N];
+  for (int s = 0; s < 3; s++) {
+    for (int i = 0; i < N; i++) kappa[i] = 0.2 + uniform();
+    same_outputs(sparse, dense, "kappa", N, kappa, outs, 2, s);
+  }
+  long patterns, chol, lu;
+  full_sparse_counts(sparse, &patterns, &chol, &lu);
+  assert_int_equal(patterns, 1);
+  assert_int_equal(chol, 0);
+  assert_int_equal(lu, 3);
+  full_sparse_counts(dense, &patterns, &chol, &lu);
+  assert_int_equal(chol + lu, 0); /* assembled in compressed form, then solved dense */
+  /* a new binding: a new pattern */
+  double src[N];
+  for (int i = 0; i < N; i++) src[i] = uniform();
+  long s1[1] = {N};
+  assert_int_equal(npg_full_set_param(sparse, "src", 1, s1, src, "src"), 0);
+  assert_int_equal(npg_full_set_param(dense, "src", 1, s1, src, "src"), 0);
+  same_outputs(sparse, dense, "kappa", N, kappa, outs, 2, 3);
+  full_sparse_counts(sparse, &patterns, &chol, &lu);
+  assert_int_equal(patterns, 2);
+  npg_full_free(sparse);
+  npg_full_free(dense);
+  npg_free(p);
+}
+
+/* A ring with chords: E edges over N nodes. */
+enum { LN = 150, LE = 300 };
+static NpgFull *laplacian_full(NpgProgram *p, double shift) {
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  assert_non_null(f);
+  static double tab[LE * 2], rhs[LN];
+  for (int e = 0; e < LE; e++) {
+    tab[e * 2] = e % LN;
+    tab[e * 2 + 1] = e < LN ? (e + 1) % LN : (e * 7 + 3) % LN;
+    if (tab[e * 2 + 1] == tab[e * 2]) tab[e * 2 + 1] = (e + 2) % LN;
+  }
+  unsigned seed = 11u;
+  for (int i = 0; i < LN; i++) {
+    seed = seed * 1103515245u + 12345u;
+    rhs[i] = ((seed >> 8) & 0xFFFF) / 65536.0 - 0.5;
+  }
+  long st[2] = {LE, 2}, sf[1] = {LN};
+  assert_int_equal(npg_full_set_param(f, "tab", 2, st, tab, "tab"), 0);
+  assert_int_equal(npg_full_set_param(f, "f", 1, sf, rhs, "f"), 0);
+  assert_int_equal(npg_full_set_param(f, "shift", 0, NULL, &shift, "shift"), 0);
+  return f;
+}
+
+/* Positive weights: symmetric positive definite, CHOLMOD. A negative
+ * shift: symmetric indefinite, CHOLMOD refuses and UMFPACK solves. */
+static void laplacian_cholmod_and_indefinite(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("laplacian.npg", laplacian);
+  Program *prog = ir_ok(p);
+  assert_true(((OpDef *)prog->opdefs.v[0])->sparse);
+  NpgFull *sparse = laplacian_full(p, 0.5), *dense = laplacian_full(p, 0.5);
+  full_set_sparse_min_rows(sparse, 0);
+  full_set_sparse_min_rows(dense, LONG_MAX);
+  const char *outs[] = {"y"};
+  double w[LE];
+  for (int s = 0; s < 2; s++) {
+    for (int e = 0; e < LE; e++) w[e] = 0.1 + uniform();
+    same_outputs(sparse, dense, "w", LE, w, outs, 1, s);
+  }
+  long patterns, chol, lu;
+  full_sparse_counts(sparse, &patterns, &chol, &lu);
+  assert_int_equal(patterns, 1);
+  assert_int_equal(chol, 2);
+  assert_int_equal(lu, 0);
+  /* the Laplacian's eigenvalue 0 shifted below zero: symmetric indefinite */
+  double shift = -0.37;
+  assert_int_equal(npg_full_set_param(sparse, "shift", 0, NULL, &shift, "shift"), 0);
+  assert_int_equal(npg_full_set_param(dense, "shift", 0, NULL, &shift, "shift"), 0);
+  same_outputs(sparse, dense, "w", LE, w, outs, 1, 2);
+  full_sparse_counts(sparse, &patterns, &chol, &lu);
+  assert_int_equal(patterns, 2);
+  assert_int_equal(chol, 2);
+  assert_int_equal(lu, 1);
+  npg_full_free(sparse);
+  npg_full_free(dense);
+  npg_free(p);
+}
+
+/* No shift: the Laplacian of a connected graph is singular; refused with
+ * the operator, the stage and the sample named. */
+static void singular_refused(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("laplacian.npg", laplacian);
+  ir_ok(p);
+  NpgFull *f = laplacian_full(p, 0.0);
+  full_set_sparse_min_rows(f, 0);
+  double w[LE];
+  for (int e = 0; e < LE; e++) w[e] = 0.1 + uniform();
+  long shape[1] = {LE};
+  assert_int_equal(npg_full_set(f, "w", 1, shape, w, "w"), 0);
+  assert_int_not_equal(npg_full_eval(f, 7), 0);
+  const char *msg = npg_full_error(f);
+  if (!strstr(msg, "sample 7") || !strstr(msg, "operator L is singular") || !strstr(msg, "stage 'y'"))
+    fail_msg("unexpected message: %s", msg);
+  npg_full_free(f);
+  npg_free(p);
+}
+
+/* `npgc check` treats a neighbour gather as sparse and radiosity's form
+ * factors as dense. */
+static void density_decided_by_pattern(void **state) {
+  (void)state;
+  NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
+  Program *prog = ir_ok(p);
+  for (int i = 0; i < prog->opdefs.n; i++) assert_false(((OpDef *)prog->opdefs.v[i])->sparse);
+  npg_free(p);
+  p = compile_text("heat.npg", heat);
+  prog = ir_ok(p);
+  assert_true(((OpDef *)prog->opdefs.v[0])->sparse);
+  npg_free(p);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(heat_umfpack_equals_dense),
+      cmocka_unit_test(laplacian_cholmod_and_indefinite),
+      cmocka_unit_test(singular_refused),
+      cmocka_unit_test(density_decided_by_pattern),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
