@@ -41,15 +41,18 @@ double *full_extern_values(NpgFull *f, const char *name, size_t n);
 /* Run the tensor builder `name` on the current binding (after an
  * evaluation bound everything). 0, or -1 with npg_full_error(). */
 int full_build(NpgFull *f, const char *name, NpgSink *sink);
-/* The bound size of dim number k (program order). */
-/* Sparse declared operators with fewer rows than this take the dense path
- * (assembled whole, LAPACK): FULL_SPARSE_MIN_ROWS by default, 0 for the
- * sparse path always (tests compare the two). */
-#define FULL_SPARSE_MIN_ROWS 200
+/* Sparse declared operators with fewer rows than this are solved by the
+ * dense path (their compressed matrix expanded, LAPACK): FULL_SPARSE_MIN_ROWS
+ * by default, 0 for the sparse path always, LONG_MAX for dense always
+ * (tests compare the two). The sparse path measured as fast or faster than
+ * the dense one from 16 cells up (heat conduction, `bench_sparse
+ * --crossover`: 1.3x at 16, 3.4x at 256, 46x at 1,024). */
+#define FULL_SPARSE_MIN_ROWS 16
 void full_set_sparse_min_rows(NpgFull *f, long rows);
 /* How many sparse patterns were built, and factorizations made by CHOLMOD
  * and by UMFPACK, since the evaluator was made. */
 void full_sparse_counts(const NpgFull *f, long *patterns, long *cholesky, long *lu);
+/* The bound size of dim number k (program order). */
 long full_dim_size(const NpgFull *f, int k);
 /* A hash of the values of param number k as bound (0 when unbound), and in
  * *from (optional) the file or call that bound it. */

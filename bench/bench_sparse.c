@@ -1,0 +1,204 @@
+/* bench_sparse.c — the full evaluator of a sparse operator (bench/heat_spd.npg:
+ * steady heat conduction on an n × n grid of cells, five entries a row,
+ * symmetric positive definite) against a hand-written CHOLMOD program that
+ * assembles the same matrix straight into compressed columns and solves it,
+ * in the same run (DESIGN §13; the peer a user would write).
+ *
+ *     build/bench_sparse [n ...]        (default: 100 316 1000, i.e. 1e4, 1e5, 1e6 cells)
+ *     build/bench_sparse --crossover     sparse against dense below 1,000 cells
+ *
+ * For each size: the first evaluation (pattern, symbolic analysis,
+ * factorization, solve) and a repeated one with a new conductivity (values
+ * refilled, refactorization, solve: the analysis reused), both for npg and
+ * the peer; their ratio; the two solutions' difference; the process's peak
+ * memory after npg's evaluations (npg runs first; run one size a process
+ * for the size's own peak). Prints figures, not pass/fail. */
+#define _POSIX_C_SOURCE 200809L
+#include <limits.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/resource.h>
+#include <time.h>
+
+#include <suitesparse/cholmod.h>
+
+#include "full.h"
+#include "npg.h"
+
+static double now(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+static double peak_gb(void) {
+  struct rusage u;
+  getrusage(RUSAGE_SELF, &u);
+  return u.ru_maxrss / 1e6; /* kB -> GB */
+}
+
+typedef struct Grid {
+  long n, N;
+  double *nbr;     /* N x 4, -1 padding (as doubles, for npg_full_set_param) */
+  long *inbr;
+  double *src;
+  double *kappa[2]; /* two samples */
+} Grid;
+
+static Grid grid(long n) {
+  Grid g = {n, n * n, 0, 0, 0, {0, 0}};
+  long N = g.N;
+  g.nbr = malloc(sizeof(double) * (size_t)N * 4);
+  g.inbr = malloc(sizeof(long) * (size_t)N * 4);
+  g.src = malloc(sizeof(double) * (size_t)N);
+  for (int s = 0; s < 2; s++) g.kappa[s] = malloc(sizeof(double) * (size_t)N);
+  unsigned seed = 1u;
+  for (long y = 0; y < n; y++)
+    for (long x = 0; x < n; x++) {
+      long i = y * n + x, nb[4] = {x > 0 ? i - 1 : -1, x < n - 1 ? i + 1 : -1, y > 0 ? i - n : -1, y < n - 1 ? i + n : -1};
+      for (int k = 0; k < 4; k++) g.nbr[i * 4 + k] = (double)nb[k], g.inbr[i * 4 + k] = nb[k];
+      g.src[i] = sin(0.01 * (double)i);
+      for (int s = 0; s < 2; s++) {
+        seed = seed * 1103515245u + 12345u;
+        g.kappa[s][i] = 0.5 + ((seed >> 8) & 0xFFFF) / 65536.0;
+      }
+    }
+  return g;
+}
+
+/* The peer: the matrix straight into CSC (upper triangle, which CHOLMOD's
+ * stype 1 reads), cholmod_l_analyze once, factorize and solve. */
+typedef struct Peer {
+  cholmod_common cc;
+  cholmod_sparse *A;
+  cholmod_factor *L;
+  double *u;
+} Peer;
+
+static void peer_fill(Peer *p, const Grid *g, const double *kappa) {
+  SuiteSparse_long *Ap = p->A->p, *Ai = p->A->i;
+  double *Ax = p->A->x;
+  long at = 0;
+  for (long j = 0; j < g->N; j++) {
+    Ap[j] = at;
+    /* column j, rows i <= j in increasing order: the lower neighbours, then j */
+    long lower[2] = {g->inbr[j * 4 + 2], g->inbr[j * 4 + 0]}; /* j - n, j - 1 */
+    double diag = 1;
+    for (int k = 0; k < 4; k++)
+      if (g->inbr[j * 4 + k] >= 0) diag += 0.5 * (kappa[j] + kappa[g->inbr[j * 4 + k]]);
+    for (int k = 0; k < 2; k++)
+      if (lower[k] >= 0) Ai[at] = lower[k], Ax[at++] = -0.5 * (kappa[j] + kappa[lower[k]]);
+    Ai[at] = j, Ax[at++] = diag;
+  }
+  Ap[g->N] = at;
+}
+
+static double peer_solve(Peer *p, const Grid *g, const double *kappa, bool analyze) {
+  double t0 = now();
+  peer_fill(p, g, kappa);
+  if (analyze) p->L = cholmod_l_analyze(p->A, &p->cc);
+  cholmod_l_factorize(p->A, p->L, &p->cc);
+  cholmod_dense *b = cholmod_l_zeros((size_t)g->N, 1, CHOLMOD_REAL, &p->cc);
+  memcpy(b->x, g->src, sizeof(double) * (size_t)g->N);
+  cholmod_dense *x = cholmod_l_solve(CHOLMOD_A, p->L, b, &p->cc);
+  memcpy(p->u, x->x, sizeof(double) * (size_t)g->N);
+  cholmod_l_free_dense(&b, &p->cc);
+  cholmod_l_free_dense(&x, &p->cc);
+  return now() - t0;
+}
+
+static NpgFull *evaluator(NpgProgram *prog, const Grid *g, NpgBackend backend, long min_rows) {
+  NpgFull *f = npg_full_new(prog, backend);
+  long s2[2] = {g->N, 4}, s1[1] = {g->N};
+  if (!f || npg_full_set_param(f, "nbr", 2, s2, g->nbr, "nbr") || npg_full_set_param(f, "src", 1, s1, g->src, "src")) {
+    fprintf(stderr, "bench_sparse: %s\n", f ? npg_full_error(f) : "out of memory");
+    exit(1);
+  }
+  full_set_sparse_min_rows(f, min_rows);
+  return f;
+}
+
+static double npg_solve(NpgFull *f, const Grid *g, const double *kappa, long sample) {
+  long s1[1] = {g->N};
+  double t0 = now();
+  if (npg_full_set(f, "kappa", 1, s1, kappa, "kappa") || npg_full_eval(f, sample)) {
+    fprintf(stderr, "bench_sparse: %s\n", npg_full_error(f));
+    exit(1);
+  }
+  return now() - t0;
+}
+
+static void one_size(NpgProgram *prog, long n) {
+  Grid g = grid(n);
+  /* npg first, so the process's peak memory up to here is npg's (with the
+     grid's data) */
+  NpgFull *f = evaluator(prog, &g, NPG_CC, FULL_SPARSE_MIN_ROWS);
+  double npg_first = npg_solve(f, &g, g.kappa[0], 0);
+  double npg_again = npg_solve(f, &g, g.kappa[1], 1);
+  double npg_peak = peak_gb();
+  Peer p;
+  cholmod_l_start(&p.cc);
+  p.cc.supernodal = CHOLMOD_SUPERNODAL;
+  p.A = cholmod_l_allocate_sparse((size_t)g.N, (size_t)g.N, (size_t)g.N * 3, 1, 1, 1, CHOLMOD_REAL, &p.cc);
+  p.u = malloc(sizeof(double) * (size_t)g.N);
+  double peer_first = peer_solve(&p, &g, g.kappa[0], true);
+  double peer_again = peer_solve(&p, &g, g.kappa[1], false);
+  size_t cnt;
+  const double *u = npg_full_get(f, "u", &cnt);
+  double d = 0, s = 0;
+  for (long i = 0; i < g.N; i++) d = fmax(d, fabs(u[i] - p.u[i])), s = fmax(s, fabs(p.u[i]));
+  long patterns, chol, lu;
+  full_sparse_counts(f, &patterns, &chol, &lu);
+  printf("%9ld cells: npg first %8.3f s, again %8.3f s | CHOLMOD by hand first %8.3f s, again %8.3f s | "
+         "ratio first %.2f, again %.2f | max |du|/|u| %.1e | patterns %ld, CHOLMOD %ld, UMFPACK %ld | "
+         "peak RSS after npg %.2f GB\n",
+         g.N, npg_first, npg_again, peer_first, peer_again, npg_first / peer_first, npg_again / peer_again, d / s, patterns,
+         chol, lu, npg_peak);
+  fflush(stdout);
+  npg_full_free(f);
+  cholmod_l_free_factor(&p.L, &p.cc);
+  cholmod_l_free_sparse(&p.A, &p.cc);
+  cholmod_l_finish(&p.cc);
+  free(p.u);
+  free(g.nbr), free(g.inbr), free(g.src), free(g.kappa[0]), free(g.kappa[1]);
+}
+
+/* Below which size the dense path (assembled whole, LAPACK) is faster:
+ * the best of `reps` repeated evaluations each way, libtcc code. */
+static void crossover(NpgProgram *prog) {
+  printf("%9s %12s %12s %8s\n", "cells", "sparse (s)", "dense (s)", "dense/sparse");
+  for (long n = 4; n <= 32; n += 2) {
+    Grid g = grid(n);
+    NpgFull *sp = evaluator(prog, &g, NPG_TCC, 0), *de = evaluator(prog, &g, NPG_TCC, LONG_MAX);
+    double bs = 1e30, bd = 1e30;
+    for (int r = 0; r < 7; r++) {
+      bs = fmin(bs, npg_solve(sp, &g, g.kappa[r & 1], r));
+      bd = fmin(bd, npg_solve(de, &g, g.kappa[r & 1], r));
+    }
+    printf("%9ld %12.2e %12.2e %8.2f\n", g.N, bs, bd, bd / bs);
+    npg_full_free(sp), npg_full_free(de);
+    free(g.nbr), free(g.inbr), free(g.src), free(g.kappa[0]), free(g.kappa[1]);
+  }
+}
+
+int main(int argc, char **argv) {
+  NpgOptions opt = {0};
+  opt.std_dir = "stdlib";
+  NpgProgram *prog = npg_compile("bench/heat_spd.npg", &opt);
+  if (!npg_ok(prog)) {
+    fprintf(stderr, "%s", npg_error(prog));
+    return 1;
+  }
+  if (argc > 1 && strcmp(argv[1], "--crossover") == 0) {
+    crossover(prog);
+  } else if (argc > 1) {
+    for (int i = 1; i < argc; i++) one_size(prog, strtol(argv[i], NULL, 10));
+  } else {
+    long sizes[] = {100, 316, 1000};
+    for (int i = 0; i < 3; i++) one_size(prog, sizes[i]);
+  }
+  npg_free(prog);
+  return 0;
+}
