@@ -34,6 +34,20 @@ static const char *laplacian =
     " * (delta(j, tab[e, 0]) - delta(j, tab[e, 1])))\n"
     "output y = solve(L, f)\n";
 
+/* The same operator's roots: by Lanczos on sparse products, against the
+ * dense eigendecomposition. */
+static const char *laplacian_roots =
+    "dim N, E\n"
+    "param tab : int[E, 2]\n"
+    "param f : real[N]\n"
+    "param shift : real\n"
+    "input w : real[E]\n"
+    "op L[i:N, j:N] = shift * delta(i, j) + sum(e = 0..E-1, w[e] * (delta(i, tab[e, 0]) - delta(i, tab[e, 1]))"
+    " * (delta(j, tab[e, 0]) - delta(j, tab[e, 1])))\n"
+    "output r = root(L, 2) * f\n"
+    "output s = L^(-1/2) * f\n"
+    "output t = L^(3/2) * f\n";
+
 enum { NX = 12, NY = 10, N = NX * NY };
 
 static unsigned rng = 12345u;
@@ -176,6 +190,40 @@ static void laplacian_cholmod_and_indefinite(void **state) {
   npg_free(p);
 }
 
+/* Square root, inverse square root and 3/2 power of a sparse SPD
+ * operator by Lanczos equal the dense eigendecomposition to 1e-10; an
+ * indefinite one is refused, naming the operator. */
+static void roots_by_lanczos(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("roots.npg", laplacian_roots);
+  ir_ok(p);
+  NpgFull *sparse = laplacian_full(p, 0.5), *dense = laplacian_full(p, 0.5);
+  full_set_sparse_min_rows(sparse, 0);
+  full_set_sparse_min_rows(dense, LONG_MAX);
+  const char *outs[] = {"r", "s", "t"};
+  double w[LE];
+  for (int e = 0; e < LE; e++) w[e] = 0.1 + uniform();
+  long shape[1] = {LE};
+  assert_int_equal(npg_full_set(sparse, "w", 1, shape, w, "w"), 0);
+  assert_int_equal(npg_full_set(dense, "w", 1, shape, w, "w"), 0);
+  if (npg_full_eval(sparse, 0)) fail_msg("%s", npg_full_error(sparse));
+  if (npg_full_eval(dense, 0)) fail_msg("%s", npg_full_error(dense));
+  for (int k = 0; k < 3; k++) {
+    size_t cs, cd;
+    const double *a = npg_full_get(sparse, outs[k], &cs), *b = npg_full_get(dense, outs[k], &cd);
+    double d = rel_diff(a, b, cs);
+    if (!(d <= 1e-10)) fail_msg("output %s: Lanczos and the eigendecomposition differ by %.3g", outs[k], d);
+  }
+  double shift = -0.37;
+  assert_int_equal(npg_full_set_param(sparse, "shift", 0, NULL, &shift, "shift"), 0);
+  assert_int_not_equal(npg_full_eval(sparse, 4), 0);
+  if (!strstr(npg_full_error(sparse), "operator L") || !strstr(npg_full_error(sparse), "sample 4"))
+    fail_msg("unexpected message: %s", npg_full_error(sparse));
+  npg_full_free(sparse);
+  npg_full_free(dense);
+  npg_free(p);
+}
+
 /* No shift: the Laplacian of a connected graph is singular; refused with
  * the operator, the stage and the sample named. */
 static void singular_refused(void **state) {
@@ -214,6 +262,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(heat_umfpack_equals_dense),
       cmocka_unit_test(laplacian_cholmod_and_indefinite),
+      cmocka_unit_test(roots_by_lanczos),
       cmocka_unit_test(singular_refused),
       cmocka_unit_test(density_decided_by_pattern),
   };

@@ -184,6 +184,26 @@ int cse_rows_plan(Cse *c, const CseStore *st, int nst);
  * loop; scratch rows are `row<k>_` (declared by the caller). */
 void cse_emit_rows(Cse *c, FILE *out, const CseStore *st, int nst, const char *len, int depth);
 /* backends/emit_builder.c */
+/* backends/emit/emit_sparse.c: the loops over one additive part of one
+ * monomial of a sparse operator (ir.h MonoPart, DESIGN §13). The part's
+ * free variables are looped over — except the first `nouter` index
+ * variables, which the caller's loops already set (a builder's rows) — and
+ * the fixed ones computed inside a `do { … } while (0)` (an out-of-range
+ * one, -1 padding, `continue`s out of it), `fixed` called before each is
+ * computed; then `body` writes the innermost statements (it may
+ * `continue` to skip the point). */
+typedef struct PartEmit {
+  void (*fixed)(Emit *e, FILE *out, const Node *expr, const Sym *op, int depth);
+  void (*body)(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, const Sym *op, int depth, const void *arg);
+  const void *arg;
+} PartEmit;
+void emit_part(Emit *e, FILE *out, const Sym *op, const Mono *m, const MonoPart *pt, int depth, int nouter,
+               const PartEmit *how);
+/* `const double w_ = sign × Π factors;` and a `continue` where it is 0. */
+void emit_part_coef(Emit *e, FILE *out, const MonoPart *pt, int depth);
+/* Whether every part of every monomial of `od` leaves its row variables
+ * free, so its entries can be listed row by row (a builder's order). */
+bool emit_sparse_rows_free(Ctx *ctx, const OpDef *od);
 /* Flat index over index variables [from, to) of `s`, as C (backends/emit/emit_builder.c). */
 void emit_flat(Emit *e, FILE *out, const Sym *s, int from, int to);
 void emit_builders(Ctx *ctx, const Program *prog, FILE *out);

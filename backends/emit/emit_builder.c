@@ -76,8 +76,80 @@ void emit_flat(Emit *e, FILE *out, const Sym *s, int from, int to) {
   }
 }
 
+/* The innermost statements of one part of a sparse operator's entry in a
+ * builder: the guard, the coefficient, the contracted entries' offsets,
+ * then the entry. */
+static void sparse_entry_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, const Sym *op, int d,
+                              const void *arg) {
+  const int *order = arg;
+  if (m->guard) {
+    indent(out, d);
+    fputs("if (!(", out);
+    emit_cexpr(e, out, m->guard);
+    fputs(")) continue;\n", out);
+  }
+  emit_part_coef(e, out, pt, d);
+  for (int k = 0; k < m->natoms; k++) {
+    const Atom *a = &m->atoms[order[k]];
+    indent(out, d);
+    fprintf(out, "in_[%d] = ", k);
+    emit_offset(e, out, a->q, a->idx, a->nidx);
+    fputs(";\n", out);
+  }
+  indent(out, d);
+  fputs("if (sink->entry(sink->user, e_, ", out);
+  emit_flat(e, out, op, op->nrow, op->nivars);
+  fprintf(out, ", %d, in_, w_)) return -1;\n", m->natoms);
+}
+
+/* A sparse operator's tensor (DESIGN §13): its rows in order as in the
+ * dense builder, then each part of each monomial over the points its
+ * equalities leave (K per row, not N): nnz work, not rows × cols. */
+static void build_body_sparse(Emit *e, FILE *out, const BuildArgs *b) {
+  const Sym *s = b->domain;
+  const TensorGroup *g = b->group;
+  int nrow = s->nrow;
+  fputs("  const npg_idx np_ = sink->nparts > 1 ? sink->nparts : 1, part_ = np_ > 1 ? sink->part : 0;\n", out);
+  fputs("  (void)np_, (void)part_;\n", out);
+  if (nrow == 0) fputs("  if (part_ != 0) return 0;\n", out);
+  for (int i = 0; i < nrow; i++) {
+    const char *v = emit_name(e, s->ivars[i]);
+    emit_use(e, s->ivars[i]->range);
+    indent(out, 1 + i);
+    fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, s->ivars[i]->range), v);
+  }
+  int depth = 1 + nrow;
+  indent(out, depth);
+  fputs("const npg_idx e_ = ", out);
+  emit_flat(e, out, s, 0, nrow);
+  fputs(";\n", out);
+  indent(out, depth);
+  fputs("if (np_ > 1 && e_ % np_ != part_) continue;\n", out);
+  indent(out, depth);
+  fprintf(out, "npg_idx in_[%d] = {0};\n", g->ninputs ? g->ninputs : 1);
+  indent(out, depth);
+  fputs("(void)in_;\n", out);
+  const Poly *p = &b->field->comp[0];
+  for (int i = 0; i < p->n; i++) {
+    int order[64];
+    if (!mono_in_group(p->m[i], g, order)) continue;
+    MonoPart parts[TENSOR_MAXPARTS];
+    int np = tensor_mono_parts(e->ctx, p->m[i], s->ivars, s->nivars, parts);
+    for (int k = 0; k < np; k++) emit_part(e, out, s, p->m[i], &parts[k], depth, nrow, &(PartEmit){NULL, sparse_entry_body, order});
+  }
+  for (int i = nrow; i >= 1; i--) {
+    indent(out, i);
+    fputs("}\n", out);
+  }
+  memset(e->used_q, 0, sizeof(bool) * (size_t)e->prog->slots.n);
+}
+
 static void build_body(Emit *e, FILE *out, const void *arg) {
   const BuildArgs *b = arg;
+  if (b->kind == 2 && b->domain->opdef && b->domain->opdef->sparse && emit_sparse_rows_free(e->ctx, b->domain->opdef)) {
+    build_body_sparse(e, out, b);
+    return;
+  }
   const Sym *s = b->domain;
   const TensorGroup *g = b->group;
   int nrow = b->kind == 2 ? s->nrow : s->nivars;

@@ -127,82 +127,18 @@ static void emit_index_check(Emit *e, FILE *out, const Sym *q, int axis, const N
 
 /* ---------------------------------------------------------------- sparse operators */
 
-/* One additive part of one monomial of a sparse operator: its free
- * variables looped over, the fixed ones computed (and skipped out of
- * range: -1 padding), the guard, then the contribution — or, with `checks`,
- * the bind-time gather checks at the same points (the dense check visits
- * every row and column: N^2). */
-static void emit_op_part(Emit *e, FILE *out, const Sym *op, const Mono *m, const MonoPart *pt, bool checks) {
-  int d = 1;
-  indent(out, d++);
-  fputs("{\n", out);
-  for (int o = 0; o < pt->nvars; o++) {
-    int v = pt->order[o];
-    if (pt->fixed_by[v]) continue;
-    const Sym *var = pt->vars[v];
-    if (var->kind == SYM_SUMVAR) {
-      for (int k = 0; k < m->nsums; k++)
-        if (m->sums[k].var == var) emit_sum_loop(e, out, &m->sums[k], d++, true);
-    } else {
-      const char *name = emit_name(e, var);
-      emit_use(e, var->range);
-      indent(out, d++);
-      fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", name, name, emit_name(e, var->range), name);
-    }
-  }
-  int loops = d;
-  indent(out, d++);
-  fputs("do {\n", out);
-  for (int o = 0; o < pt->nvars; o++) {
-    int v = pt->order[o];
-    if (!pt->fixed_by[v]) continue;
-    const Sym *var = pt->vars[v];
-    const char *name = emit_name(e, var);
-    if (checks) emit_node_checks(e, out, pt->fixed_by[v], op, d);
-    indent(out, d);
-    fprintf(out, "const npg_idx %s = (npg_idx)(", name);
-    emit_cexpr(e, out, pt->fixed_by[v]);
-    fputs(");\n", out);
-    indent(out, d);
-    if (var->kind == SYM_SUMVAR) {
-      for (int k = 0; k < m->nsums; k++)
-        if (m->sums[k].var == var) {
-          fprintf(out, "if (%s < ", name);
-          emit_cexpr(e, out, m->sums[k].lo);
-          fprintf(out, " || %s > ", name);
-          emit_cexpr(e, out, m->sums[k].hi);
-          fputs(") continue;\n", out);
-        }
-    } else {
-      emit_use(e, var->range);
-      fprintf(out, "if (%s < 0 || %s >= %s) continue;\n", name, name, emit_name(e, var->range));
-    }
-  }
-  if (checks) emit_node_checks(e, out, m->guard, op, d);
+/* The innermost statements of one part of a sparse operator's entry: the
+ * guard, the coefficient, then the contribution (rows_, cols_, vals_,
+ * cnt_ of the entries function). */
+static void entry_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, const Sym *op, int d, const void *arg) {
+  (void)arg;
   if (m->guard) {
     indent(out, d);
     fputs("if (!(", out);
     emit_cexpr(e, out, m->guard);
     fputs(")) continue;\n", out);
   }
-  if (checks) {
-    for (int f = 0; f < pt->nfactors; f++) emit_node_checks(e, out, pt->factors[f], op, d);
-    for (int a = 0; a < m->natoms; a++)
-      for (int k = 0; k < m->atoms[a].q->ndims; k++) emit_index_check(e, out, m->atoms[a].q, k, m->atoms[a].idx[k], op, d);
-    indent(out, loops);
-    fputs("} while (0);\n", out);
-    close_loops(out, loops, 1);
-    return;
-  }
-  indent(out, d);
-  fprintf(out, "const double w_ = %d.0", pt->sign);
-  for (int f = 0; f < pt->nfactors; f++) {
-    fputs(" * ", out);
-    emit_cexpr(e, out, pt->factors[f]);
-  }
-  fputs(";\n", out);
-  indent(out, d);
-  fputs("if (w_ == 0.0) continue;\n", out);
+  emit_part_coef(e, out, pt, d);
   indent(out, d);
   fputs("if (rows_) {\n", out);
   indent(out, d + 1);
@@ -224,10 +160,25 @@ static void emit_op_part(Emit *e, FILE *out, const Sym *op, const Mono *m, const
   fputs(";\n", out);
   indent(out, d);
   fputs("cnt_++;\n", out);
-  indent(out, loops);
-  fputs("} while (0);\n", out);
-  close_loops(out, loops, 1);
 }
+
+/* The bind-time gather checks at the same points: the guard's gathers, then
+ * (where it holds) the coefficient's and the atoms' indices. */
+static void check_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, const Sym *op, int d, const void *arg) {
+  (void)arg;
+  emit_node_checks(e, out, m->guard, op, d);
+  if (m->guard) {
+    indent(out, d);
+    fputs("if (!(", out);
+    emit_cexpr(e, out, m->guard);
+    fputs(")) continue;\n", out);
+  }
+  for (int f = 0; f < pt->nfactors; f++) emit_node_checks(e, out, pt->factors[f], op, d);
+  for (int a = 0; a < m->natoms; a++)
+    for (int k = 0; k < m->atoms[a].q->ndims; k++) emit_index_check(e, out, m->atoms[a].q, k, m->atoms[a].idx[k], op, d);
+}
+
+static void check_fixed(Emit *e, FILE *out, const Node *expr, const Sym *op, int d) { emit_node_checks(e, out, expr, op, d); }
 
 /* The entries of sparse operator `od`, in a fixed order: with rows_ and
  * cols_ their flat row and column, with vals_ their values at this
@@ -239,7 +190,7 @@ static void op_entries_cb(Emit *e, FILE *out, const void *arg) {
   for (int i = 0; i < p->n; i++) {
     MonoPart parts[TENSOR_MAXPARTS];
     int np = tensor_mono_parts(e->ctx, p->m[i], od->sym->ivars, od->sym->nivars, parts);
-    for (int k = 0; k < np; k++) emit_op_part(e, out, od->sym, p->m[i], &parts[k], false);
+    for (int k = 0; k < np; k++) emit_part(e, out, od->sym, p->m[i], &parts[k], 1, 0, &(PartEmit){NULL, entry_body, NULL});
   }
   fputs("  return cnt_;\n", out);
 }
@@ -250,7 +201,7 @@ static void sparse_op_checks(Emit *e, FILE *out, const OpDef *od) {
   for (int i = 0; i < p->n; i++) {
     MonoPart parts[TENSOR_MAXPARTS];
     int np = tensor_mono_parts(e->ctx, p->m[i], od->sym->ivars, od->sym->nivars, parts);
-    for (int k = 0; k < np; k++) emit_op_part(e, out, od->sym, p->m[i], &parts[k], true);
+    for (int k = 0; k < np; k++) emit_part(e, out, od->sym, p->m[i], &parts[k], 1, 0, &(PartEmit){check_fixed, check_body, NULL});
   }
 }
 

@@ -12,16 +12,19 @@
  *            symbolic analysis kept across evaluations; when the
  *            factorization finds M not positive definite, UMFPACK from then
  *            on (its symbolic analysis kept too). M^k y: k products.
- *   roots    fractional powers of a symmetric positive semidefinite M: the
- *            dense eigendecomposition of the assembled matrix (the Krylov
- *            root for sparse roots is not yet wired in), refused above
- *            NPG_SPARSE_DENSE_ROOT_MAX rows.
+ *   roots    M^(p/q) y for symmetric positive definite M by the Lanczos
+ *            process on sparse products (krylov.h, full reorthogonalization,
+ *            an a-posteriori estimate below NPG_SPARSE_ROOT_TOL); one that
+ *            does not converge within its steps is refused, naming the
+ *            estimate reached.
  *
  * Small operators go to the dense path (op_power) below a size chosen by
  * measurement (NpgHost.sparse_min_rows). Every SuiteSparse status is
  * checked and worded for the user.
  */
 #include "runtime.h"
+
+#include "krylov.h"
 
 #include <math.h>
 #include <stdarg.h>
@@ -32,9 +35,14 @@
 #include <suitesparse/cholmod.h>
 #include <suitesparse/umfpack.h>
 
-/* Above this many rows a fractional power of a sparse operator is refused
- * rather than densified (an n × n eigendecomposition: 8·n² bytes). */
-#define NPG_SPARSE_DENSE_ROOT_MAX 8000
+/* A root by Lanczos stops when two approximations 4 steps apart differ by
+ * less than this (relative): the dense eigendecomposition it replaces is
+ * exact to about 1e-13 relative at the sizes tests compare. */
+#define NPG_SPARSE_ROOT_TOL 1e-13
+/* The Lanczos vectors of a root: at most this many steps, and at most
+ * NPG_SPARSE_ROOT_BYTES of them (a million rows: 16 steps a 128 MB). */
+#define NPG_SPARSE_ROOT_STEPS 400
+#define NPG_SPARSE_ROOT_BYTES (2000L * 1000 * 1000)
 
 struct SparseOp {
   bool ready;               /* pattern built for the current binding */
@@ -279,6 +287,39 @@ static int cholesky_solve(const NpgCtx *c, const char *stage, const char *op, Sp
   return 0;
 }
 
+/* LAPACK's 1-norm estimator (Hager, Higham), by reverse communication: the
+ * one dgecon uses for the dense path. */
+extern void dlacn2_(const int *n, double *v, double *x, int *isgn, double *est, int *kase, int *isave);
+
+/* rcond = 1 / (‖M‖₁ ‖M⁻¹‖₁), ‖M⁻¹‖₁ estimated with a few solves by the LU
+ * in `numeric`: the estimate the dense path's dgecon makes. -1 on failure. */
+static double lu_rcond(SparseOp *s, void *numeric) {
+  int n = (int)s->n, kase = 0, isave[3] = {0, 0, 0};
+  double est = 0, anorm = 0;
+  for (npg_idx j = 0; j < s->n; j++) {
+    double col = 0;
+    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) col += fabs(s->Ax[p]);
+    anorm = fmax(anorm, col);
+  }
+  double *x = malloc(sizeof(double) * (size_t)(n ? n : 1)), *v = malloc(sizeof(double) * (size_t)(n ? n : 1)),
+         *b = malloc(sizeof(double) * (size_t)(n ? n : 1));
+  int *isgn = malloc(sizeof(int) * (size_t)(n ? n : 1));
+  double rcond = -1;
+  if (x && v && b && isgn) {
+    for (;;) {
+      dlacn2_(&n, v, x, isgn, &est, &kase, isave);
+      if (kase == 0) break;
+      memcpy(b, x, sizeof(double) * (size_t)n);
+      if (umfpack_dl_solve(kase == 1 ? UMFPACK_A : UMFPACK_At, s->Ap, s->Ai, s->Ax, x, b, numeric, s->umf_control,
+                           NULL) != UMFPACK_OK)
+        break;
+    }
+    if (kase == 0) rcond = est > 0 && anorm > 0 ? 1 / (anorm * est) : 0;
+  }
+  free(x), free(v), free(b), free(isgn);
+  return rcond;
+}
+
 /* y <- M^-k y by UMFPACK's LU. */
 static int lu_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, long k, double *y) {
   if (!s->symbolic) {
@@ -294,9 +335,13 @@ static int lu_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp
   double info[UMFPACK_INFO];
   ((NpgHost *)c->host)->sparse_lu++;
   int st = (int)umfpack_dl_numeric(s->Ap, s->Ai, s->Ax, s->symbolic, &numeric, s->umf_control, info);
-  if (st == UMFPACK_WARNING_singular_matrix || (st == UMFPACK_OK && !(info[UMFPACK_RCOND] > 1e-15))) {
-    runtime_record(c, "sample %ld: stage '%s': operator %s is singular (UMFPACK's rcond %.1e)", c->sample, stage, op,
-           st == UMFPACK_OK ? info[UMFPACK_RCOND] : 0.0);
+  /* UMFPACK's own rcond is the ratio of U's smallest to largest pivot: a
+     singular matrix leaves ~n·eps there after rounding, so below 1e-10 the
+     dense path's estimate decides (a few more solves, only then) */
+  double rcond = st == UMFPACK_OK ? info[UMFPACK_RCOND] : 0.0;
+  if (st == UMFPACK_OK && !(rcond > 1e-10)) rcond = lu_rcond(s, numeric);
+  if (st == UMFPACK_WARNING_singular_matrix || (st == UMFPACK_OK && !(rcond > 1e-15))) {
+    runtime_record(c, "sample %ld: stage '%s': operator %s is singular (rcond %.1e)", c->sample, stage, op, rcond);
     umfpack_dl_free_numeric(&numeric);
     return -1;
   }
@@ -343,6 +388,50 @@ static int sparse_products(const NpgCtx *c, const char *stage, SparseOp *s, long
   return 0;
 }
 
+static void csc_matvec(void *user, int n, const double *x, double *y) {
+  const SparseOp *s = user;
+  memset(y, 0, sizeof(double) * (size_t)n);
+  for (npg_idx j = 0; j < n; j++)
+    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) y[s->Ai[p]] += s->Ax[p] * x[j];
+}
+
+/* y <- M^(p/q) y for symmetric positive definite M by Lanczos on sparse
+ * products. */
+static int krylov_root(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, long p, long q, double *y) {
+  if (!values_symmetric(s)) {
+    runtime_record(c, "sample %ld: stage '%s': operator %s is not symmetric, so its power %ld/%ld is undefined",
+                   c->sample, stage, op, p, q);
+    return -1;
+  }
+  long steps = NPG_SPARSE_ROOT_STEPS;
+  if (steps > NPG_SPARSE_ROOT_BYTES / 8 / (s->n + 1) - 1) steps = NPG_SPARSE_ROOT_BYTES / 8 / (s->n + 1) - 1;
+  if (steps < 8) steps = 8;
+  Krylov k;
+  if (krylov_init_steps(&k, s->n, steps) != 0) {
+    krylov_free(&k);
+    runtime_record(c, "sample %ld: out of memory in stage '%s' (the Lanczos vectors of operator %s)", c->sample, stage,
+                   op);
+    return -1;
+  }
+  int done = 0;
+  double estimate = 0;
+  int rc = krylov_power_op(&k, (int)s->n, csc_matvec, s, p, q, NPG_SPARSE_ROOT_TOL, (int)k.maxsteps, y, &done,
+                           &estimate);
+  krylov_free(&k);
+  if (rc < 0) {
+    runtime_record(c, "sample %ld: stage '%s': LAPACK failed in the Lanczos root of operator %s", c->sample, stage, op);
+    return -1;
+  }
+  if (rc > 0) {
+    runtime_record(c, "sample %ld: stage '%s': the Lanczos process for the power %ld/%ld of operator %s stopped after %d "
+                      "steps (estimate %.1e, wanted %.0e): the operator is not positive definite, or too ill "
+                      "conditioned for that many steps",
+                   c->sample, stage, p, q, op, done ? done : (int)k.maxsteps, estimate, NPG_SPARSE_ROOT_TOL);
+    return -1;
+  }
+  return 0;
+}
+
 /* The assembled matrix as a dense row-major n x n array (for small
  * operators and roots). */
 static double *densify(const NpgCtx *c, const char *stage, const SparseOp *s) {
@@ -375,20 +464,14 @@ int runtime_sparse_power(const NpgCtx *c, const char *stage, const char *op, int
   }
   if (fill_values(c, stage, op, s, entries) != 0) return -1;
   NpgHost *h = c->host;
-  bool dense = n < h->sparse_min_rows || (q != 1 && n <= NPG_SPARSE_DENSE_ROOT_MAX);
-  if (q != 1 && !dense) {
-    runtime_record(c, "sample %ld: stage '%s': the power %ld/%ld of sparse operator %s (%ld rows) would need its dense "
-              "eigendecomposition, refused above %d rows (sparse roots are not implemented yet)",
-           c->sample, stage, p, q, op, (long)n, NPG_SPARSE_DENSE_ROOT_MAX);
-    return -1;
-  }
-  if (dense) {
+  if (n < h->sparse_min_rows) {
     double *M = densify(c, stage, s);
     if (!M) return -1;
     int rc = npg_runtime.op_power(c, stage, op, n, M, p, q, y);
     free(M);
     return rc;
   }
+  if (q != 1) return krylov_root(c, stage, op, s, p, q, y);
   if (p > 0) return sparse_products(c, stage, s, p, y);
   if (!s->not_spd && values_symmetric(s)) {
     int rc = cholesky_solve(c, stage, op, s, -p, y);

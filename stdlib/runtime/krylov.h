@@ -6,7 +6,9 @@
  * that. The reduced
  * evaluator's root stages use it instead of a dense eigendecomposition of M
  * when it converges in fewer steps than that would cost; the
- * eigendecomposition stays the exact reference (reduced_exact_roots). */
+ * eigendecomposition stays the exact reference (reduced_exact_roots). The
+ * full evaluator's roots of sparse operators use it with M given by its
+ * product (stdlib/runtime/sparse.c). */
 #ifndef NPG_KRYLOV_H
 #define NPG_KRYLOV_H
 
@@ -17,13 +19,14 @@
 
 typedef struct Krylov {
   long maxn;                /* the largest n the workspace holds */
-  double *Q;                /* Lanczos vectors, one per row (maxn + 1 rows of maxn) */
+  long maxsteps;            /* the most Lanczos steps it holds */
+  double *Q;                /* Lanczos vectors, one per row (maxsteps + 1 rows of maxn) */
   double *alpha, *beta;     /* T_k's diagonal and off-diagonal */
   double *d, *e, *S, *work; /* dstedc's copy of T_k, its eigenvectors, workspace */
-  int *iwork;               /* dstedc's integer workspace (3 + 5 maxn) */
+  int *iwork;               /* dstedc's integer workspace (3 + 5 maxsteps) */
   long lwork;
   double *c, *cprev;        /* f(T_k) e₁ and the one of the previous check */
-  double *w;                /* a scratch vector */
+  double *w;                /* a scratch vector (maxsteps) */
   double *cheb;             /* the Chebyshev expansion's points, values, coefficients and three vectors */
   long start;               /* in: where a similar call converged (0: unknown), checks begin 4 steps before;
                                out: the same for the next call */
@@ -32,20 +35,29 @@ typedef struct Krylov {
   long expansions, decompositions; /* f(T_k) e₁ by the Chebyshev expansion, by T_k's eigendecomposition */
 } Krylov;
 
-/* Workspace for n up to `maxn`. 0, or -1 when out of memory (then
- * krylov_free is still safe). */
+/* Workspace for n up to `maxn` and as many steps. 0, or -1 when out of
+ * memory (then krylov_free is still safe). */
 int krylov_init(Krylov *k, long maxn);
+/* The same for at most `maxsteps` steps (a large sparse operator: the
+ * Lanczos vectors take (maxsteps + 1) · maxn doubles). */
+int krylov_init_steps(Krylov *k, long maxn, long maxsteps);
 void krylov_free(Krylov *k);
+
+/* y ← M x for the caller's symmetric n x n operator `user`. */
+typedef void (*KrylovMatvec)(void *user, int n, const double *x, double *y);
 
 /* v ← M^(p/q) v for the row-major symmetric n x n M (not changed), `q` > 1
  * or p < 0. Stops when two approximations 4 steps apart differ by less
  * than `tol` relative (an a-posteriori estimate, in *estimate), or when the
  * Krylov space is invariant (exact). Returns 0 when it converged (v
  * overwritten, *steps the Lanczos steps taken); 1, with v unchanged, when
- * it would take more than `max_steps` steps or T_k looks singular or
- * indefinite (the caller then decomposes M, which also says why); -1 when
- * LAPACK failed. */
+ * it would take more than `max_steps` steps (or the workspace's) or T_k
+ * looks singular or indefinite (the caller then decomposes M, which also
+ * says why); -1 when LAPACK failed. */
 int krylov_power(Krylov *k, int n, const double *M, long p, long q, double tol, int max_steps, double *v, int *steps,
                  double *estimate);
+/* The same with M given by its product (a sparse operator). */
+int krylov_power_op(Krylov *k, int n, KrylovMatvec matvec, void *user, long p, long q, double tol, int max_steps,
+                    double *v, int *steps, double *estimate);
 
 #endif

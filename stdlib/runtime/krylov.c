@@ -7,29 +7,33 @@
 #include <stdlib.h>
 #include <string.h>
 
-int krylov_init(Krylov *k, long maxn) {
+int krylov_init_steps(Krylov *k, long maxn, long maxsteps) {
   memset(k, 0, sizeof *k);
+  if (maxsteps > maxn) maxsteps = maxn;
   k->maxn = maxn;
-  size_t n = (size_t)(maxn > 0 ? maxn : 1);
-  k->Q = malloc(sizeof(double) * (n + 1) * n);
-  k->alpha = malloc(sizeof(double) * (n + 1));
-  k->beta = malloc(sizeof(double) * (n + 1));
-  k->d = malloc(sizeof(double) * (n + 1));
-  k->e = malloc(sizeof(double) * (n + 1));
-  k->S = malloc(sizeof(double) * n * n);
-  k->lwork = (long)(1 + 4 * n + n * n);
+  k->maxsteps = maxsteps;
+  size_t n = (size_t)(maxn > 0 ? maxn : 1), s = (size_t)(maxsteps > 0 ? maxsteps : 1);
+  k->Q = malloc(sizeof(double) * (s + 1) * n);
+  k->alpha = malloc(sizeof(double) * (s + 1));
+  k->beta = malloc(sizeof(double) * (s + 1));
+  k->d = malloc(sizeof(double) * (s + 1));
+  k->e = malloc(sizeof(double) * (s + 1));
+  k->S = malloc(sizeof(double) * s * s);
+  k->lwork = (long)(1 + 4 * s + s * s);
   k->work = malloc(sizeof(double) * (size_t)k->lwork);
-  k->iwork = malloc(sizeof(lapack_int) * (3 + 5 * n));
+  k->iwork = malloc(sizeof(lapack_int) * (3 + 5 * s));
   _Static_assert(sizeof(lapack_int) == sizeof(int), "dstedc's iwork is held as int");
-  k->cprev = malloc(sizeof(double) * (n + 1));
-  k->c = malloc(sizeof(double) * (n + 1));
-  k->w = malloc(sizeof(double) * n);
-  k->cheb = malloc(sizeof(double) * (5 * (KRYLOV_MAX_DEGREE + 1) + 5 * n + 8));
+  k->cprev = malloc(sizeof(double) * (s + 1));
+  k->c = malloc(sizeof(double) * (s + 1));
+  k->w = malloc(sizeof(double) * s);
+  k->cheb = malloc(sizeof(double) * (5 * (KRYLOV_MAX_DEGREE + 1) + 5 * s + 8));
   return k->Q && k->alpha && k->beta && k->d && k->e && k->S && k->work && k->iwork && k->cprev && k->c && k->w &&
                  k->cheb
              ? 0
              : -1;
 }
+
+int krylov_init(Krylov *k, long maxn) { return krylov_init_steps(k, maxn, maxn); }
 
 void krylov_free(Krylov *k) {
   free(k->Q), free(k->alpha), free(k->beta), free(k->d), free(k->e), free(k->S), free(k->work), free(k->iwork);
@@ -129,7 +133,7 @@ static int approximate(Krylov *k, int K, long p, long q) {
   memcpy(k->d, k->alpha, sizeof(double) * (size_t)K);
   memcpy(k->e, k->beta, sizeof(double) * (size_t)(K > 1 ? K - 1 : 1));
   lapack_int info = LAPACKE_dstedc_work(LAPACK_COL_MAJOR, 'I', K, k->d, k->e, k->S, K, k->work,
-                                        (lapack_int)k->lwork, k->iwork, (lapack_int)(3 + 5 * k->maxn));
+                                        (lapack_int)k->lwork, k->iwork, (lapack_int)(3 + 5 * k->maxsteps));
   if (info != 0) return -1;
   /* eigenvalues ascending: the smallest Ritz value bounds M's from above */
   if (!(k->d[0] > 1e-12 * fabs(k->d[K - 1]))) return 1;
@@ -159,8 +163,22 @@ static long next_start(const Krylov *k, int K, bool at_first, double estimate, d
   return K - fewer;
 }
 
+typedef struct Dense {
+  const double *M;
+} Dense;
+
+static void dense_matvec(void *user, int n, const double *x, double *y) {
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, 1.0, ((Dense *)user)->M, n, x, 1, 0.0, y, 1);
+}
+
 int krylov_power(Krylov *k, int n, const double *M, long p, long q, double tol, int max_steps, double *v, int *steps,
                  double *estimate) {
+  Dense d = {M};
+  return krylov_power_op(k, n, dense_matvec, &d, p, q, tol, max_steps, v, steps, estimate);
+}
+
+int krylov_power_op(Krylov *k, int n, KrylovMatvec matvec, void *user, long p, long q, double tol, int max_steps,
+                    double *v, int *steps, double *estimate) {
   *steps = 0;
   *estimate = INFINITY;
   if (n <= 0 || n > k->maxn) return 1;
@@ -170,6 +188,7 @@ int krylov_power(Krylov *k, int n, const double *M, long p, long q, double tol, 
     return 0;
   }
   if (max_steps > n) max_steps = n;
+  if (max_steps > k->maxsteps) max_steps = (int)k->maxsteps;
   for (int i = 0; i < n; i++) k->Q[i] = v[i] / beta0;
   /* The estimate compares approximations 4 steps apart; with full
    * reorthogonalization Q_K is orthonormal to rounding, so it is taken on
@@ -182,7 +201,7 @@ int krylov_power(Krylov *k, int n, const double *M, long p, long q, double tol, 
   double lastest = 0; /* the estimate of the previous check (0: none) */
   for (int j = 0; j < max_steps; j++) {
     double *qj = k->Q + (size_t)j * (size_t)n, *w = k->Q + (size_t)(j + 1) * (size_t)n;
-    cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, 1.0, M, n, qj, 1, 0.0, w, 1);
+    matvec(user, n, qj, w);
     k->alpha[j] = cblas_ddot(n, qj, 1, w, 1);
     /* the three-term recurrence, then full reorthogonalization against
      * q_0 … q_j: one pass, and a second only when the first removed more
