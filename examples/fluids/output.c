@@ -265,3 +265,5 @@ int output_png_points(const char *path, const Mesh *m, const double *g, const Pa
   free(zbuf);
   return rc;
 }
+
+int output_frame_due(int t, int last, int every) { return t % every == 0 || t == last; }

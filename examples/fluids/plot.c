@@ -1,7 +1,9 @@
 /* plot.c — line plots and side-by-side frames with cairo (see plot.h). */
 #include "plot.h"
+#include "util.h"
 
 #include <math.h>
+#include <stdbool.h>
 #include <stdio.h>
 
 #include <cairo.h>
@@ -58,13 +60,21 @@ int plot_lines(const char *path, const char *title, const char *xlabel, const ch
     cairo_text_extents(cr, buf, &ext);
     cairo_move_to(cr, L - 8 - ext.x_advance, PY(v) + 4), cairo_show_text(cr, buf);
   }
-  for (int i = 0; i <= 5; i++) {
-    double v = x0 + (x1 - x0) * i / 5;
+  /* x ticks at a round step; where every x is a whole number (frames, basis sizes: a
+   * count) the step is too, so no tick falls between two counts */
+  bool counts = true;
+  for (int s = 0; s < nseries; s++)
+    for (int k = 0; k < n[s]; k++) counts = counts && x[s][k] == floor(x[s][k]);
+  double xs = util_tick_step(x1 - x0, 6);
+  if (counts && xs < 1) xs = 1;
+  for (double v = ceil(x0 / xs - 1e-9) * xs; v <= x1 + 1e-9 * xs; v += xs) {
     cairo_set_source_rgb(cr, 0.88, 0.88, 0.88);
     cairo_move_to(cr, PX(v), T), cairo_line_to(cr, PX(v), T + ph), cairo_stroke(cr);
     cairo_set_source_rgb(cr, 0, 0, 0);
-    snprintf(buf, sizeof buf, "%.4g", v);
-    cairo_move_to(cr, PX(v) - 12, T + ph + 18), cairo_show_text(cr, buf);
+    snprintf(buf, sizeof buf, "%.4g", fabs(v) < 1e-9 * xs ? 0.0 : v);
+    cairo_text_extents_t ext;
+    cairo_text_extents(cr, buf, &ext);
+    cairo_move_to(cr, PX(v) - ext.x_advance / 2, T + ph + 18), cairo_show_text(cr, buf);
   }
   cairo_set_source_rgb(cr, 0, 0, 0);
   cairo_rectangle(cr, L, T, pw, ph), cairo_stroke(cr);
