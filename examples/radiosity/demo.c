@@ -237,6 +237,8 @@ static int compare_png(const Scene *s, const double *b, const double *bt, double
   render_shade(&view, s->V, s->F, s->tri, s->g, bt, exposure, &im[1]);
   render_error(&view, s->F, b, bt, scale, &im[2]);
   render_view_free(&view);
+  for (int q = 0; q < 2; q++) render_add_colorbar(&im[q], SCALE_SHADE, exposure, "radiosity b");
+  render_add_colorbar(&im[2], SCALE_ERROR, scale, "|b full - b reduced|");
   char l2[128];
   snprintf(l2, sizeof l2, "|full - reduced| (white: 10%% of bright walls), rel. L2 %.2f%%", 100 * err_l2);
   const Image *ims[3] = {&im[0], &im[1], &im[2]};
@@ -342,7 +344,7 @@ int cmd_demo(const Options *o) {
           out_npy(dir, "b_reduced_given_v", 1, sb, bv) || out_npy(dir, "e", 1, sb, s.e))
         goto done;
       snprintf(path, sizeof path, "%s/%s/frame_%04d.png", o->out, animation_name(a), k);
-      if (out_render_frame(&s, bt, exposure, o->ss, path, NULL)) goto done;
+      if (out_render_frame(&s, bt, exposure, o->ss, "radiosity b (reduced)", path, NULL)) goto done;
       if (chosen(k, K)) {
         snprintf(path, sizeof path, "%s/%s_compare_%04d.png", o->out, animation_name(a), k);
         if (compare_png(&s, fr.b, bt, exposure, o->ss, as.total, path)) goto done;
