@@ -15,6 +15,11 @@ Each fenced ```npg block of docs/*.md is written to a file and must pass
 A ```npg-error block must fail `npgc check`, and its `# expect-error: TEXT`
 line must be part of the first line npgc writes to stderr.
 
+A ```console block is a session: each `$ COMMAND` line is run (`build/` is the
+build directory, `/tmp/NAME` a fresh temporary folder), and every other line
+is output it must print, in order (numbers compared to 1 %, and equal below
+1e-12 as rounding); `[exit N]` is its exit status, 0 unless stated.
+
 Every relative link of docs/*.md and README.md must name a file that exists
 (and a heading of it, for a #fragment), and no file of the repository may
 point at the design document outside it (after `git clone` there is none).
@@ -26,9 +31,9 @@ import numpy as np
 build = sys.argv[1]
 npgc = os.path.join(build, "npgc")
 docs = sorted(glob.glob("docs/*.md"))
-fence = re.compile(r"^```(npg|npg-error)\s*$")
+fence = re.compile(r"^```(npg|npg-error|console)\s*$")
 failures = []
-counts = {"npg": 0, "npg-error": 0, "expectations": 0, "links": 0}
+counts = {"npg": 0, "npg-error": 0, "console": 0, "expectations": 0, "links": 0}
 
 
 def blocks(path):
@@ -143,11 +148,56 @@ def check_error_block(path, first, text, work):
         failures.append("%s: npgc says '%s', the text says '%s'" % (where, first_line, m.group(1).strip()))
 
 
-for path in docs:
-    for kind, first, text in blocks(path):
-        counts[kind] += 1
-        with tempfile.TemporaryDirectory(prefix="npg_docs_") as work:
-            (check_block if kind == "npg" else check_error_block)(path, first, text, work)
+NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*(?:[eE][-+]?\d+)?)")
+
+
+def same_line(want, got):
+    """Lines equal but for white space, numbers to 1 % (rounding below 1e-12 is 0)."""
+    w, g = " ".join(want.split()), " ".join(got.split())
+    if NUMBER.sub("#", w) != NUMBER.sub("#", g):  # the same text around the numbers
+        return False
+    for a, b in zip(NUMBER.findall(w), NUMBER.findall(g)):
+        x, y = float(a), float(b)
+        if abs(x) < 1e-12 and abs(y) < 1e-12:
+            continue
+        if abs(x - y) > 1e-2 * max(abs(x), abs(y)):
+            return False
+    return True
+
+
+def check_console(path, first, text, work):
+    where = "%s:%d" % (path, first)
+    session = []  # [command, expected lines, exit status]
+    for line in text.splitlines():
+        if line.startswith("$ "):
+            session.append([line[2:], [], 0])
+        elif not session:
+            failures.append("%s: output before the first '$ ' command" % where)
+            return
+        elif re.fullmatch(r"\[exit (\d+)\]", line.strip()):
+            session[-1][2] = int(line.strip()[6:-1])
+        elif line.strip():
+            session[-1][1].append(line)
+    for cmd, expected, status in session:
+        run = re.sub(r"(?<![\w/])build/", build.rstrip("/") + "/", cmd)
+        run = re.sub(r"/tmp/(\w+)", lambda m: os.path.join(work, m.group(1)), run)
+        r = subprocess.run(run, shell=True, capture_output=True, text=True)
+        out = (r.stdout + r.stderr).splitlines()
+        counts["expectations"] += 1 + len(expected)
+        if r.returncode != status:
+            failures.append("%s: '%s' exited %d, the text says %d:\n%s" % (where, cmd, r.returncode, status,
+                                                                       r.stdout + r.stderr))
+            continue
+        at = 0
+        for want in expected:
+            while at < len(out) and not same_line(want, out[at].replace(work + "/", "/tmp/")):
+                at += 1
+            if at == len(out):
+                failures.append("%s: '%s' did not print '%s'; it printed:\n%s" % (where, cmd, want.strip(),
+                                                                              r.stdout + r.stderr))
+                break
+            at += 1
+
 
 def slug(heading):
     """GitHub's anchor of a heading."""
@@ -194,12 +244,20 @@ def check_no_outside_design():
                                     (path, needle))
 
 
+for path in docs:
+    for kind, first, text in blocks(path):
+        counts[kind] += 1
+        with tempfile.TemporaryDirectory(prefix="npg_docs_") as work:
+            {"npg": check_block, "npg-error": check_error_block, "console": check_console}[kind](path, first, text,
+                                                                                                work)
+
 for path in docs + ["README.md"]:
     check_links(path)
 check_no_outside_design()
 
-print("docs: %d programs, %d refused programs, %d stated results and %d links checked in %s" %
-      (counts["npg"], counts["npg-error"], counts["expectations"], counts["links"], ", ".join(docs)))
+print("docs: %d programs, %d refused programs, %d sessions, %d stated results and %d links checked in %s" %
+      (counts["npg"], counts["npg-error"], counts["console"], counts["expectations"], counts["links"],
+       ", ".join(docs)))
 if counts["npg"] == 0:
     failures.append("no ```npg block found in docs/*.md")
 for f in failures:
