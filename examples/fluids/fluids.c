@@ -25,6 +25,7 @@
 #include "util.h"
 #include "npgbind.h"
 #include "output.h"
+#include "plot.h"
 #include "particles.h"
 #include "solver.h"
 #include "tunnel.h"
@@ -473,6 +474,7 @@ static int tunnel_full(const RunOptions *o) {
   particles_free(&part);
   solver_free(&s);
   mesh_free(&m);
+  plot_cleanup(); /* the frames' colour bars (cairo, fontconfig) */
   return rc ? 1 : 0;
 }
 
