@@ -1,6 +1,6 @@
 /* ff_hand.h — hand-written C peer for the full evaluator of examples/radiosity/formfactors.npg.
  *
- * Computes every stage of the program with the formulas of DESIGN.md §3 / paper Table 2:
+ * Computes every stage of the program with the formulas of DESIGN §3 (docs/design.md) / paper Table 2:
  *
  *   n[f]   = 0.5 * cross(g[t1] - g[t0], g[t2] - g[t0])        area vector, |n| = A     [F,3]
  *   s[i,j] = dot(n[i], c_j - c_i)    (c = triangle centroid)   scaled cosines           [F,F]

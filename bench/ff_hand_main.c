@@ -41,7 +41,7 @@ static double *alloc_d(size_t count) {
     return x;
 }
 
-/* ---- naive reference: one loop per stage, literally the formulas of DESIGN.md §3 ---- */
+/* ---- naive reference: one loop per stage, literally the formulas of DESIGN §3 (docs/design.md) ---- */
 
 static void centroid(const double *g, const int *tri, long f, double out[3]) {
     for (int k = 0; k < 3; k++)

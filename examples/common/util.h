@@ -1,5 +1,5 @@
 /* util.h — what the example's files share: a message into a caller's
- * buffer, and a monotonic clock. */
+ * buffer, a monotonic clock, and the step of a chart's ticks. */
 #ifndef EXAMPLES_UTIL_H
 #define EXAMPLES_UTIL_H
 
@@ -9,5 +9,8 @@
 int util_fail(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 /* Seconds on a monotonic clock. */
 double util_now(void);
+/* A round tick step (1, 2 or 5 times a power of ten) giving about `want` ticks over
+ * `range` (> 0); a chart whose axis is a count rounds it up to 1. */
+double util_tick_step(double range, int want);
 
 #endif

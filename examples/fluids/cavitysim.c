@@ -731,7 +731,7 @@ int cavity_run(const CavityOptions *o) {
       fprintf(stderr, "npg-fluids: the energy is not finite at frame %d: unstable (lower --dt)\n", t);
       goto done;
     }
-    if (t % o->png_every == 0) {
+    if (output_frame_due(t, T, o->png_every)) {
       double extent = o->spec.D + o->spec.r;
       snprintf(path, sizeof path, "%s/full_%04d.png", dparts, t);
       if (output_png_points(path, m, s.g, &part, extent, o->width, err, sizeof err) != 0) {
@@ -758,7 +758,7 @@ int cavity_run(const CavityOptions *o) {
       remove(path);
       nframes_png++;
     }
-    if (t % o->vtk_every == 0) {
+    if (output_frame_due(t, T, o->vtk_every)) {
       snprintf(path, sizeof path, "%s/full_%04d.vtk", dvtk, t);
       if (output_vtk_tets(path, m, s.g, s.u, err, sizeof err) != 0) {
         fprintf(stderr, "npg-fluids: %s\n", err);

@@ -25,6 +25,7 @@
 #include "util.h"
 #include "npgbind.h"
 #include "output.h"
+#include "plot.h"
 #include "particles.h"
 #include "solver.h"
 #include "tunnel.h"
@@ -332,18 +333,14 @@ static int tunnel_full(const RunOptions *o) {
   for (int j = 0; j < m.nf; j++) maxf = fmax(maxf, fabs(s.f[j]));
   flux_scale[0] = maxf;
   double t_run = util_now();
-  for (int t = 0; t < T && rc == 0; t++) {
-    /* sample t: the state of frame t and the motion of the step that leaves it */
-    memcpy(Sg + t * gv, s.g, gv * sizeof(double));
-    memcpy(Su + t * uv, s.u, uv * sizeof(double));
-    memcpy(Sf + t * fv, s.f, fv * sizeof(double));
-    /* output of frame t */
+  for (int t = 0; t <= T && rc == 0; t++) {
+    /* output of frame t (frames 0 .. T: the last one too, output_frame_due) */
     double t0 = util_now();
-    if (t % o->png_every == 0) {
+    if (output_frame_due(t, T, o->png_every)) {
       snprintf(path, sizeof path, "%s/frame_%04d.png", dir_frames, t);
       if (output_png(path, &m, s.g, s.u, &part, 1.6 * o->u0, o->png_width, err, sizeof err) != 0) rc = -1;
     }
-    if (rc == 0 && t % o->vtk_every == 0) {
+    if (rc == 0 && output_frame_due(t, T, o->vtk_every)) {
       char name[64];
       snprintf(name, sizeof name, "cells_%04d.vtu", t);
       vtk_cells[nvtk] = strdup(name);
@@ -356,7 +353,11 @@ static int tunnel_full(const RunOptions *o) {
       vtk_times[nvtk++] = t * dt;
     }
     seconds_output += util_now() - t0;
-    if (rc) break;
+    if (rc || t == T) break;
+    /* sample t: the state of frame t and the motion of the step that leaves it */
+    memcpy(Sg + t * gv, s.g, gv * sizeof(double));
+    memcpy(Su + t * uv, s.u, uv * sizeof(double));
+    memcpy(Sf + t * fv, s.f, fv * sizeof(double));
     /* the step */
     if (solver_step(&s, sigma_at(o, t + 1), err, sizeof err) != 0) {
       rc = -1;
@@ -473,6 +474,7 @@ static int tunnel_full(const RunOptions *o) {
   particles_free(&part);
   solver_free(&s);
   mesh_free(&m);
+  plot_cleanup(); /* the frames' colour bars (cairo, fontconfig) */
   return rc ? 1 : 0;
 }
 

@@ -1,6 +1,7 @@
 /* output.c — PNG frames and VTK files (see output.h). */
 #include "util.h"
 #include "output.h"
+#include "plot.h"
 
 #include <errno.h>
 #include <math.h>
@@ -60,7 +61,9 @@ int output_png(const char *path, const Mesh *m, const double *g, const double *u
   double scale = width / m->spec.L;
   int height = (int)ceil((ymax - ymin) * scale);
   if (height < 1) height = 1;
-  unsigned char *img = malloc(3 * (size_t)width * height);
+  /* the flow, then a colour bar of |u| under it */
+  unsigned char *img = malloc(3 * (size_t)width * (height + PLOT_COLORBAR_HEIGHT));
+  if (!img) return util_fail(err, errlen, "%s: out of memory", path);
   memset(img, 96, 3 * (size_t)width * height);
   for (int c = 0; c < m->nc; c++) {
     const int *t = m->cell + 3 * c;
@@ -93,7 +96,11 @@ int output_png(const char *path, const Mesh *m, const double *g, const double *u
             memcpy(img + 3 * ((size_t)yy * width + xx), col[p->tag[i] & 1], 3);
         }
     }
-  int rc = write_png(path, width, height, img, err, errlen);
+  if (plot_colorbar(img, width, height, colormap, vmax, "|u|, cell velocity (obstacle grey)") != 0) {
+    free(img);
+    return util_fail(err, errlen, "%s: out of memory", path);
+  }
+  int rc = write_png(path, width, height + PLOT_COLORBAR_HEIGHT, img, err, errlen);
   free(img);
   return rc;
 }
@@ -265,3 +272,5 @@ int output_png_points(const char *path, const Mesh *m, const double *g, const Pa
   free(zbuf);
   return rc;
 }
+
+int output_frame_due(int t, int last, int every) { return t % every == 0 || t == last; }

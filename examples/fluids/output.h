@@ -32,6 +32,10 @@ int output_vtk_tets(const char *path, const Mesh *m, const double *g, const doub
  * `extent` is the scene's radius, `width` the image width (height 3/4 of it). */
 int output_png_points(const char *path, const Mesh *m, const double *g, const Particles *p, double extent, int width,
                       char *err, size_t errlen);
+/* Whether frame t of frames 0 .. last is written when output is asked every
+ * `every` frames: the multiples of `every`, and always the last frame, so a
+ * run ends on a picture whatever its length (one rule for every command). */
+int output_frame_due(int t, int last, int every);
 /* A .pvd collection: `n` datasets files[i] at times[i]. */
 int output_pvd(const char *path, int n, const char *const *files, const double *times, char *err, size_t errlen);
 

@@ -1,7 +1,10 @@
 /* plot.c — line plots and side-by-side frames with cairo (see plot.h). */
 #include "plot.h"
+#include "util.h"
 
 #include <math.h>
+#include <stdbool.h>
+#include <stdint.h>
 #include <stdio.h>
 
 #include <cairo.h>
@@ -58,13 +61,21 @@ int plot_lines(const char *path, const char *title, const char *xlabel, const ch
     cairo_text_extents(cr, buf, &ext);
     cairo_move_to(cr, L - 8 - ext.x_advance, PY(v) + 4), cairo_show_text(cr, buf);
   }
-  for (int i = 0; i <= 5; i++) {
-    double v = x0 + (x1 - x0) * i / 5;
+  /* x ticks at a round step; where every x is a whole number (frames, basis sizes: a
+   * count) the step is too, so no tick falls between two counts */
+  bool counts = true;
+  for (int s = 0; s < nseries; s++)
+    for (int k = 0; k < n[s]; k++) counts = counts && x[s][k] == floor(x[s][k]);
+  double xs = util_tick_step(x1 - x0, 6);
+  if (counts && xs < 1) xs = 1;
+  for (double v = ceil(x0 / xs - 1e-9) * xs; v <= x1 + 1e-9 * xs; v += xs) {
     cairo_set_source_rgb(cr, 0.88, 0.88, 0.88);
     cairo_move_to(cr, PX(v), T), cairo_line_to(cr, PX(v), T + ph), cairo_stroke(cr);
     cairo_set_source_rgb(cr, 0, 0, 0);
-    snprintf(buf, sizeof buf, "%.4g", v);
-    cairo_move_to(cr, PX(v) - 12, T + ph + 18), cairo_show_text(cr, buf);
+    snprintf(buf, sizeof buf, "%.4g", fabs(v) < 1e-9 * xs ? 0.0 : v);
+    cairo_text_extents_t ext;
+    cairo_text_extents(cr, buf, &ext);
+    cairo_move_to(cr, PX(v) - ext.x_advance / 2, T + ph + 18), cairo_show_text(cr, buf);
   }
   cairo_set_source_rgb(cr, 0, 0, 0);
   cairo_rectangle(cr, L, T, pw, ph), cairo_stroke(cr);
@@ -152,6 +163,54 @@ int plot_side_by_side(const char *path, const char *left, const char *right, con
   cairo_surface_destroy(a);
   cairo_surface_destroy(b);
   return rc;
+}
+
+int plot_colorbar(unsigned char *rgb, int width, int y0, void (*map)(double t, unsigned char rgb[3]), double vmax,
+                  const char *label) {
+  const int H = PLOT_COLORBAR_HEIGHT, bh = 12, margin = 12;
+  cairo_text_extents_t ext;
+  cairo_surface_t *sf = cairo_image_surface_create(CAIRO_FORMAT_RGB24, width, H);
+  if (cairo_surface_status(sf)) return -1;
+  cairo_t *cr = cairo_create(sf);
+  cairo_set_source_rgb(cr, 1, 1, 1), cairo_paint(cr);
+  cairo_select_font_face(cr, "sans-serif", CAIRO_FONT_SLANT_NORMAL, CAIRO_FONT_WEIGHT_NORMAL);
+  cairo_set_font_size(cr, 11);
+  cairo_text_extents(cr, label, &ext);
+  int bw = width - 3 * margin - (int)ext.x_advance; /* the label right of the bar */
+  if (bw < 16) bw = width - 2 * margin;
+  cairo_surface_flush(sf);
+  unsigned char *data = cairo_image_surface_get_data(sf);
+  int stride = cairo_image_surface_get_stride(sf);
+  for (int x = 0; x < bw; x++) {
+    unsigned char c[3];
+    map((double)x / (bw - 1), c);
+    for (int y = 6; y < 6 + bh; y++)
+      ((uint32_t *)(data + (size_t)y * stride))[margin + x] = (uint32_t)c[0] << 16 | (uint32_t)c[1] << 8 | c[2];
+  }
+  cairo_surface_mark_dirty(sf);
+  cairo_set_source_rgb(cr, 0, 0, 0);
+  cairo_set_line_width(cr, 1);
+  cairo_rectangle(cr, margin - 0.5, 5.5, bw + 1, bh + 1), cairo_stroke(cr);
+  cairo_move_to(cr, 2 * margin + bw, 6 + bh), cairo_show_text(cr, label);
+  double step = util_tick_step(vmax, 5);
+  char buf[32];
+  for (double v = 0; v <= vmax * (1 + 1e-9); v += step) {
+    double x = margin + (bw - 1) * v / vmax;
+    cairo_move_to(cr, round(x) + 0.5, 6 + bh), cairo_line_to(cr, round(x) + 0.5, 10 + bh), cairo_stroke(cr);
+    snprintf(buf, sizeof buf, "%g", fabs(v) < 1e-9 * step ? 0.0 : v);
+    cairo_text_extents(cr, buf, &ext);
+    cairo_move_to(cr, fmin(fmax(x - ext.x_advance / 2, 0), width - ext.x_advance), 22 + bh), cairo_show_text(cr, buf);
+  }
+  cairo_destroy(cr);
+  cairo_surface_flush(sf);
+  for (int y = 0; y < H; y++)
+    for (int x = 0; x < width; x++) {
+      uint32_t px = ((const uint32_t *)(data + (size_t)y * stride))[x];
+      unsigned char *q = rgb + 3 * ((size_t)(y0 + y) * width + x);
+      q[0] = (unsigned char)(px >> 16), q[1] = (unsigned char)(px >> 8), q[2] = (unsigned char)px;
+    }
+  cairo_surface_destroy(sf);
+  return 0;
 }
 
 void plot_cleanup(void) {

@@ -13,6 +13,13 @@ int plot_lines(const char *path, const char *title, const char *xlabel, const ch
 int plot_side_by_side(const char *path, const char *left, const char *right, const char *cap_left,
                       const char *cap_right, char *err, size_t errlen);
 
+/* A colour bar drawn into rows y0 .. y0 + 39 of an RGB image `width` pixels
+ * wide: `map` from 0 to vmax (t = value / vmax in [0, 1]), its ticks labelled
+ * in the values' units, and `label` beside it. 0, or -1 when out of memory. */
+#define PLOT_COLORBAR_HEIGHT 40
+int plot_colorbar(unsigned char *rgb, int width, int y0, void (*map)(double t, unsigned char rgb[3]), double vmax,
+                  const char *label);
+
 /* Release cairo's and fontconfig's caches (at exit: a leak checker then
  * sees nothing left). */
 void plot_cleanup(void);

@@ -5,6 +5,7 @@
 #include <cblas.h>
 #include <lapacke.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -457,6 +458,20 @@ int fmm_plan(Fmm *f, const Surfels *s, const Octree *t, int p, const Visibility 
 oom:
   fmm_free(f);
   return -1;
+}
+
+int fmm_leaf_for(long n) { return n < 30000 ? 256 : 128; }
+
+int fmm_falls_back(const Fmm *f, char *msg, size_t len) {
+  if (f->stats.m2l + f->stats.m2p + f->stats.p2l > 0) return 0;
+  if (msg && len)
+    snprintf(msg, len,
+             "the FMM falls back to direct sums: %ld points in leaves of up to %d, an octree of depth %d, and no "
+             "two cubes far enough apart for an expansion (M2L, M2P, P2L 0; P2P %ld): a gather costs the dense "
+             "gather's work over the kept pairs, plus the plan (expansions start near 10,000 points; a smaller --leaf "
+             "gives them sooner at a higher plan cost)",
+             f->s->n, f->t->leaf_size, f->t->depth, f->stats.p2p);
+  return 1;
 }
 
 void fmm_free(Fmm *f) {

@@ -35,6 +35,8 @@
 #ifndef POINTS_FMM_H
 #define POINTS_FMM_H
 
+#include <stddef.h>
+
 #include "octree.h"
 #include "visibility.h"
 
@@ -98,6 +100,25 @@ void fmm_gather(Fmm *f, const double *b, double *g);
  * so a dense gather with it has exactly the FMM's visibility. NULL when out
  * of memory. */
 float *fmm_leaf_visibility(const Fmm *f);
+
+/* The default leaf size for n points. Measured (sweep, the Cornell box, p = 4, visibility
+ * on, CPU seconds of one gather / of the plan, a machine shared with other work, load
+ * about 6): at N = 5,000 leaves of 16, 32, 64, 128, 256 gave 0.022 / 1.8, 0.023-0.040 /
+ * 1.1-1.3, 0.042-0.044 / 0.3-1.0, 0.0056 / 0.52, 0.0099 / 0.18 s; at N = 20,000 0.14 / 12.7,
+ * 0.13-0.14 / 8.5-10, 0.065 / 1.6-4.6, 0.050 / 2.4, 0.039 / 0.58 s. Leaves of 256 gather in
+ * about the time of 128 (wall 7.7 against 9.3 ms at 5,000, 32 against 36 ms at 20,000; the
+ * CPU figures disagree at 5,000 within this noise) and plan 3-4x faster, which is most of
+ * a small run (a solve is about 11 gathers); below about 10,000 points either has no
+ * expansions (fmm_falls_back). At 110,528 points 96, 128 and 192 were within the noise of
+ * each other (examples/points/README.md), so 128 from 30,000 points on. */
+int fmm_leaf_for(long n);
+
+/* Whether the plan falls back to direct sums: 1 when it uses no expansion
+ * (no M2L, M2P or P2L: with few points against the leaf size the octree is
+ * too shallow for any two cubes to be well separated, so every kept pair is
+ * P2P and a gather costs what the dense gather over the kept pairs costs,
+ * plus the plan). Then `msg` (may be NULL) says so and what to change. */
+int fmm_falls_back(const Fmm *f, char *msg, size_t len);
 
 void fmm_free(Fmm *f);
 

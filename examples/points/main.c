@@ -78,7 +78,7 @@ static int model_new(Model *m, long n, int leaf, long room_faces) {
     return -1;
   }
   if ((room_faces <= 0 && scene_cornell_box(&m->scene)) || scene_sample(&m->scene, n, 1, &m->s) ||
-      octree_build(&m->s, leaf, &m->t)) {
+      octree_build(&m->s, leaf > 0 ? leaf : fmm_leaf_for(n), &m->t)) {
     fprintf(stderr, "npg-points: out of memory for %ld points\n", n);
     return -1;
   }
@@ -150,7 +150,7 @@ typedef struct Options {
 } Options;
 
 static int parse_options(int argc, char **argv, Options *o) {
-  *o = (Options){.points = 20000, .out = NULL, .p = 4, .leaf = 128, .max_iter = 60, .vis_targets = 48,
+  *o = (Options){.points = 20000, .out = NULL, .p = 4, .leaf = 0 /* by N: fmm_leaf_for */, .max_iter = 60, .vis_targets = 48,
                  .point_targets = 8, .check_points = 3000, .dense_limit = 60000, .tol = 1e-4,
                  .points_list = "2000,5000,10000,20000,50000,110528,300000,1000000", .orders_list = "2,3,4,5,6", .error_points_list = "5000,20000"};
   int rooms = 0, faces_given = 0;
@@ -199,7 +199,7 @@ static int parse_options(int argc, char **argv, Options *o) {
     return -1;
   }
   o->room_faces = rooms ? faces : 0;
-  if (o->points < 100 || o->p < 2 || o->p > 8 || o->leaf < 4) {
+  if (o->points < 100 || o->p < 2 || o->p > 8 || (o->leaf != 0 && o->leaf < 4)) {
     fprintf(stderr, "npg-points: need --points ≥ 100, 2 ≤ --p ≤ 8, --leaf ≥ 4\n");
     return -1;
   }
@@ -273,8 +273,8 @@ static int demo(const Options *o) {
   const Surfels *s = &m.s;
   long n = s->n;
   double t_model = now_seconds() - t0;
-  printf("npg-points: %ld surfels, octree of %d nodes, %d leaves, depth %d (%.2f s)\n", n, m.t.nnode, m.t.nleaf,
-         m.t.depth, t_model);
+  printf("npg-points: %ld surfels, octree of %d nodes, %d leaves of up to %d points%s, depth %d (%.2f s)\n", n,
+         m.t.nnode, m.t.nleaf, m.t.leaf_size, o->leaf ? "" : " (chosen by N)", m.t.depth, t_model);
 
   Fmm f;
   if (fmm_plan(&f, s, &m.t, o->p, o->no_visibility ? NULL : &m.vis)) {
@@ -285,6 +285,9 @@ static int demo(const Options *o) {
          "(%ld point pairs), dropped %ld facing %ld hidden\n",
          f.stats.plan_seconds, f.stats.visibility_tests, f.stats.m2l, f.stats.m2l_offsets, f.stats.m2p, f.stats.p2l,
          f.stats.p2p, f.stats.p2p_points, f.stats.dropped_facing, f.stats.dropped_hidden);
+  char fallback[512];
+  int direct = fmm_falls_back(&f, fallback, sizeof fallback);
+  if (direct) printf("npg-points: %s\n", fallback);
 
   double *b = malloc(sizeof(double) * 3 * (size_t)n), *g = malloc(sizeof(double) * 3 * (size_t)n);
   double *g_dense = malloc(sizeof(double) * 3 * (size_t)n), *b_dense = malloc(sizeof(double) * 3 * (size_t)n);
@@ -367,7 +370,7 @@ static int demo(const Options *o) {
     return 1;
   }
   fprintf(js, "{\n  \"scene\": \"%s\",\n  \"faces\": %d,\n  \"N\": %ld,\n  \"p\": %d,\n  \"s\": %d,\n",
-          o->room_faces ? "two_rooms" : "cornell_box", m.scene.nt, n, o->p, o->leaf);
+          o->room_faces ? "two_rooms" : "cornell_box", m.scene.nt, n, o->p, m.t.leaf_size);
   fprintf(js, "  \"octree\": {\"nodes\": %d, \"leaves\": %d, \"depth\": %d},\n", m.t.nnode, m.t.nleaf, m.t.depth);
   fprintf(js, "  \"tol\": %g,\n  \"iterations\": %d,\n  \"iterations_dense\": %d,\n", o->tol, iters, iters_dense);
   fprintf(js, "  \"error_vs_dense\": {\"gather\": %.6e, \"b\": %.6e},\n", err_gather, err_b);
@@ -382,9 +385,10 @@ static int demo(const Options *o) {
   fprintf(js, "  \"visibility_cost_in_b\": {\"N\": %ld, \"relative_difference\": %.6e},\n", cost.n, cost.b_difference);
   fprintf(js,
           "  \"lists\": {\"m2l\": %ld, \"m2l_matrices\": %ld, \"m2p\": %ld, \"p2l\": %ld, \"p2p\": %ld, "
-          "\"p2p_point_pairs\": %ld, \"dropped_facing\": %ld, \"dropped_hidden\": %ld}\n}\n",
+          "\"p2p_point_pairs\": %ld, \"dropped_facing\": %ld, \"dropped_hidden\": %ld},\n"
+          "  \"falls_back_to_direct_sums\": %s\n}\n",
           f.stats.m2l, f.stats.m2l_offsets, f.stats.m2p, f.stats.p2l, f.stats.p2p, f.stats.p2p_points,
-          f.stats.dropped_facing, f.stats.dropped_hidden);
+          f.stats.dropped_facing, f.stats.dropped_hidden, direct ? "true" : "false");
   fclose(js);
   printf("wrote %s/report.json, b.npy, PNGs\n", o->out);
 
@@ -432,7 +436,8 @@ static int sweep(const Options *o) {
   out_path(path, sizeof path, o->out, "sweep.json");
   FILE *js = fopen(path, "w");
   if (!js) return 1;
-  fprintf(js, "{\n  \"scene\": \"%s\", \"s\": %d, \"tol\": %g,\n  \"error_vs_p\": [", o->room_faces ? "two_rooms" : "cornell_box", o->leaf, o->tol);
+  fprintf(js, "{\n  \"scene\": \"%s\", \"s\": %d, \"tol\": %g,\n  \"error_vs_p\": [", o->room_faces ? "two_rooms" : "cornell_box",
+          o->leaf /* 0: by N (fmm_leaf_for; each entry gives its leaf size) */, o->tol);
 
   /* error against p, with point-based visibility, the dense reference using
    * the plan's leaf-pair visibility (the same for every p) */
@@ -490,14 +495,15 @@ static int sweep(const Options *o) {
       DenseCtx dc = {&m.s, &m.t, table, NULL};
       t_brute[k] = time_gather(gather_dense, &dc, b, g, 3, &c_brute[k]);
     }
-    printf("time: N = %ld: FMM gather %.4f s (CPU %.4f s), brute force %.4f s (CPU %.4f s); plan%s %.2f s\n", n,
-           t_fmm[k], c_fmm[k], t_brute[k], c_brute[k], with_vis ? " with visibility" : "", vis_s[k]);
+    printf("time: N = %ld: FMM gather %.4f s (CPU %.4f s), brute force %.4f s (CPU %.4f s); plan%s %.2f s%s\n", n,
+           t_fmm[k], c_fmm[k], t_brute[k], c_brute[k], with_vis ? " with visibility" : "", vis_s[k],
+           fmm_falls_back(&f, NULL, 0) ? " (no expansions: direct sums)" : "");
     fprintf(js,
             "%s\n    {\"N\": %ld, \"fmm_seconds\": %.6f, \"fmm_cpu_seconds\": %.6f, \"brute_force_seconds\": %.6f, "
             "\"brute_force_cpu_seconds\": %.6f, \"visibility\": %s, \"plan_seconds\": %.4f, \"m2l\": %ld, "
-            "\"p2p_point_pairs\": %ld}",
+            "\"p2p_point_pairs\": %ld, \"leaf\": %d}",
             k ? "," : "", n, t_fmm[k], c_fmm[k], t_brute[k], c_brute[k], with_vis ? "true" : "false", vis_s[k],
-            f.stats.m2l, f.stats.p2p_points);
+            f.stats.m2l, f.stats.p2p_points, m.t.leaf_size);
     fflush(js);
     free(b), free(g), free(table);
     fmm_free(&f);

@@ -226,6 +226,34 @@ static void test_fmm_rooms(void **state) {
   triscene_free(&sc);
 }
 
+/* A plan without expansions says that it falls back to direct sums (2,000
+ * points in leaves of 256: one level, no cube well separated), and one with
+ * expansions does not (12,000 points in leaves of 32). */
+static void test_fmm_fallback(void **state) {
+  (void)state;
+  TriScene sc;
+  assert_int_equal(scene_cornell_box(&sc), 0);
+  for (int big = 0; big < 2; big++) {
+    Surfels s;
+    assert_int_equal(scene_sample(&sc, big ? 12000 : 2000, 3, &s), 0);
+    Octree t;
+    assert_int_equal(octree_build(&s, big ? 32 : 256, &t), 0);
+    Fmm f;
+    assert_int_equal(fmm_plan(&f, &s, &t, 3, NULL), 0);
+    char msg[512] = "";
+    int direct = fmm_falls_back(&f, msg, sizeof msg);
+    printf("N = %ld, leaf %d: M2L %ld, M2P %ld, P2L %ld; %s\n", s.n, t.leaf_size, f.stats.m2l, f.stats.m2p,
+           f.stats.p2l, direct ? msg : "expansions used");
+    assert_int_equal(direct, !big);
+    assert_int_equal(direct, f.stats.m2l + f.stats.m2p + f.stats.p2l == 0);
+    if (direct) assert_non_null(strstr(msg, "falls back to direct sums"));
+    fmm_free(&f);
+    octree_free(&t);
+    surfels_free(&s);
+  }
+  triscene_free(&sc);
+}
+
 /* ------------------------------------------------------------ visibility */
 
 /* Pairs between the two patches, weighed by the form factor: the share on
@@ -297,7 +325,7 @@ int main(int argc, char **argv) {
   const char *group = argc > 1 ? argv[1] : "all";
   const struct CMUnitTest expansions[] = {cmocka_unit_test(test_expansions_converge)};
   const struct CMUnitTest fmm[] = {cmocka_unit_test(test_fmm_sphere), cmocka_unit_test(test_fmm_cornell),
-                                    cmocka_unit_test(test_fmm_rooms)};
+                                    cmocka_unit_test(test_fmm_rooms), cmocka_unit_test(test_fmm_fallback)};
   const struct CMUnitTest visibility[] = {cmocka_unit_test(test_visibility_wall), cmocka_unit_test(test_visibility_open)};
   int failed = 0, all = !strcmp(group, "all");
   if (all || !strcmp(group, "expansions")) failed += cmocka_run_group_tests_name("expansions", expansions, NULL, NULL);

@@ -34,6 +34,11 @@ static int fail(const char *err) {
 
 /* ---------------------------------------------------------------- the model's figures */
 
+/* What npg_trainer_finish spent besides its four timed phases: writing MODEL/. */
+static double model_files(const TrainTimes *t) {
+  return fmax(0, t->finish - t->snapshots - t->pca - t->premultiply - t->externs);
+}
+
 static void json_model(FILE *js, const Reduced *r, int samples, const TrainTimes *t) {
   size_t tensor_bytes = 0, bytes = npg_model_bytes(r->model, &tensor_bytes);
   fprintf(js, "  \"training_samples\": %d,\n  \"model_bytes\": %zu,\n  \"model_tensor_bytes\": %zu,\n", samples, bytes,
@@ -49,15 +54,17 @@ static void json_model(FILE *js, const Reduced *r, int samples, const TrainTimes
     fprintf(js,
             "  \"precomputation_seconds\": {\"samples_incl_ray_casting\": %.4g, \"ray_casting\": %.4g, "
             "\"snapshots\": %.4g, \"pca\": %.4g, \"premultiplication\": %.4g, \"learned_visibility\": %.4g, "
-            "\"finish\": %.4g, \"total\": %.4g, \"note\": \"snapshots = the trainer's passes over the cached samples "
-            "in npg_trainer_finish; the finish phases are timed from its progress output\"},\n",
-            t->samples, t->rays, t->snapshots, t->pca, t->premultiply, t->externs, t->finish, t->total);
+            "\"finish\": %.4g, \"model_files\": %.4g, \"total\": %.4g, \"note\": \"total = samples_incl_ray_casting + "
+            "finish; finish = npg_trainer_finish = snapshots + pca + premultiplication + learned_visibility (the "
+            "library's phase times, npg_model_train_seconds) + model_files\"},\n",
+            t->samples, t->rays, t->snapshots, t->pca, t->premultiply, t->externs, t->finish, model_files(t), t->total);
 }
 
 static void print_train(const TrainTimes *t, int samples) {
-  printf("precomputation: %d samples %.1f s (ray casting %.1f s), snapshots %.1f s, PCA %.1f s, pre-multiplication "
-         "%.1f s, learned visibility %.1f s; total %.1f s\n",
-         samples, t->samples, t->rays, t->snapshots, t->pca, t->premultiply, t->externs, t->total);
+  printf("precomputation %.2f s: %d samples %.2f s (ray casting %.2f s); training %.2f s: snapshots %.2f s, PCA %.2f s, "
+         "pre-multiplication %.2f s, learned visibility %.2f s, model files %.2f s\n",
+         t->total, samples, t->samples, t->rays, t->finish, t->snapshots, t->pca, t->premultiply, t->externs,
+         model_files(t));
 }
 
 static int train(const Options *o, Scene *s, Reduced *r, TrainTimes *t, char *model_dir) {
@@ -230,6 +237,8 @@ static int compare_png(const Scene *s, const double *b, const double *bt, double
   render_shade(&view, s->V, s->F, s->tri, s->g, bt, exposure, &im[1]);
   render_error(&view, s->F, b, bt, scale, &im[2]);
   render_view_free(&view);
+  for (int q = 0; q < 2; q++) render_add_colorbar(&im[q], SCALE_SHADE, exposure, "radiosity b");
+  render_add_colorbar(&im[2], SCALE_ERROR, scale, "|b full - b reduced|");
   char l2[128];
   snprintf(l2, sizeof l2, "|full - reduced| (white: 10%% of bright walls), rel. L2 %.2f%%", 100 * err_l2);
   const Image *ims[3] = {&im[0], &im[1], &im[2]};
@@ -335,16 +344,22 @@ int cmd_demo(const Options *o) {
           out_npy(dir, "b_reduced_given_v", 1, sb, bv) || out_npy(dir, "e", 1, sb, s.e))
         goto done;
       snprintf(path, sizeof path, "%s/%s/frame_%04d.png", o->out, animation_name(a), k);
-      if (out_render_frame(&s, bt, exposure, o->ss, path, NULL)) goto done;
+      if (out_render_frame(&s, bt, exposure, o->ss, "radiosity b (reduced)", path, NULL)) goto done;
       if (chosen(k, K)) {
         snprintf(path, sizeof path, "%s/%s_compare_%04d.png", o->out, animation_name(a), k);
         if (compare_png(&s, fr.b, bt, exposure, o->ss, as.total, path)) goto done;
       }
+      /* Arvo's bound ||r|| / (1 - ||rhoF||) exists only where ||rhoF|| < 1 */
+      char arvo[64];
+      if (isnan(as.bound_arvo))
+        snprintf(arvo, sizeof arvo, "no Arvo bound: ||rhoF|| %.3f >= 1", as.rho_f_inf);
+      else
+        snprintf(arvo, sizeof arvo, "Arvo %.3g, ||rhoF|| %.3f", as.bound_arvo, as.rho_f_inf);
       printf("%s frame %2d: error %.2f%% (indirect %.2f%%; boundary %.2f%%, discretization %.2f%%, computation "
-             "%.2f%%), Linf %.3g <= bound %.3g (Arvo %.3g, ||rhoF|| %.3f); full %.3f s, reduced %.1f us\n",
+             "%.2f%%), Linf %.3g <= bound %.3g (%s); full %.3f s, reduced %.1f us\n",
              animation_name(a), k, 100 * as.total, 100 * as.total_indirect, 100 * as.boundary,
-             100 * as.discretization, 100 * as.computation, as.err_inf, as.bound_neumann, as.bound_arvo,
-             as.rho_f_inf, SER(S_FULL_TOTAL, i), 1e6 * SER(S_REDUCED, i));
+             100 * as.discretization, 100 * as.computation, as.err_inf, as.bound_neumann, arvo,
+             SER(S_FULL_TOTAL, i), 1e6 * SER(S_REDUCED, i));
       fflush(stdout);
     }
   }
@@ -367,7 +382,7 @@ int cmd_demo(const Options *o) {
     if (plot(o->out, path, title, "relative L2 of b", sp, 4)) goto done;
     PlotSeries bp[3] = {{"true max error", &SER(S_ERR_INF, a * K), K},
                         {"bound ||r|| ||(I-rhoF)^-1 1||", &SER(S_BOUND_NEUMANN, a * K), K},
-                        {"bound ||r|| / (1 - ||rhoF||)", &SER(S_BOUND_ARVO, a * K), K}};
+                        {"Arvo's bound ||r|| / (1 - ||rhoF||): none where ||rhoF|| >= 1", &SER(S_BOUND_ARVO, a * K), K}};
     snprintf(title, sizeof title, "a-posteriori bounds, %s animation", an);
     snprintf(path, sizeof path, "%s_bound.png", an);
     if (plot(o->out, path, title, "max-norm error of b", bp, 3)) goto done;

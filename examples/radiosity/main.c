@@ -171,7 +171,7 @@ static int cmd_scene(const Options *o) {
     for (long f = 0; f < s.F; f++) shade[f] = s.rho[f] + s.e[f];
     char path[4096];
     snprintf(path, sizeof path, "%s/scene.png", o->out);
-    if (!rc && out_render_frame(&s, shade, 1.5, o->ss, path, NULL)) rc = 1;
+    if (!rc && out_render_frame(&s, shade, 1.5, o->ss, "albedo (openings: emission)", path, NULL)) rc = 1;
     free(shade);
   }
   scene_free(&s);
@@ -307,7 +307,7 @@ static int cmd_full(const Options *o) {
   printf("using visibility %s, solver %s\n", vis_mode_name(best), frame_solver_name(fr.solver));
   double exposure = render_exposure(F, fr.b, s.rho);
   snprintf(path, sizeof path, "%s/nominal.png", o->out);
-  if (out_render_frame(&s, fr.b, exposure, o->ss, path, NULL)) goto done;
+  if (out_render_frame(&s, fr.b, exposure, o->ss, "radiosity b", path, NULL)) goto done;
 
   /* 3. the animations */
   int K = o->frames, tty = isatty(fileno(stdout));
@@ -331,7 +331,7 @@ static int cmd_full(const Options *o) {
           out_npy(dir, "b_full", 1, sb, fr.b))
         goto done;
       snprintf(path, sizeof path, "%s/%s/frame_%04d.png", o->out, animation_name(a), k);
-      if (out_render_frame(&s, fr.b, exposure, o->ss, path, NULL)) goto done;
+      if (out_render_frame(&s, fr.b, exposure, o->ss, "radiosity b", path, NULL)) goto done;
       if (tty) {
         printf("\r%s frame %d/%d: visibility %.3f s, form factors %.3f s, solve %.3f s", animation_name(a), k + 1, K,
                fr.t_vis, fr.t_ff, fr.t_solve);
@@ -390,6 +390,8 @@ static int cmd_full(const Options *o) {
     render_shade(&view, s.V, F, s.tri, s.g, fr.b, exposure, &im[1]);
     render_error(&view, F, bk, fr.b, 0.1 * -log(0.4) / exposure, &im[2]); /* 10% of the bright walls */
     render_view_free(&view);
+    for (int q = 0; q < 2; q++) render_add_colorbar(&im[q], SCALE_SHADE, exposure, "radiosity b");
+    render_add_colorbar(&im[2], SCALE_ERROR, 0.1 * -log(0.4) / exposure, "|difference| of b");
     char l0[64], l2[128];
     snprintf(l0, sizeof l0, "visibility from %d points per face", o->k);
     snprintf(l2, sizeof l2, "|difference| (white: 10%% of bright walls), rel. L2 %.1f%%", 100 * vis1_diff);

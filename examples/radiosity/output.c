@@ -81,16 +81,19 @@ void out_json_array(FILE *f, const char *name, const double *x, int n, const cha
   fprintf(f, "]%s", tail);
 }
 
-int out_render_frame(const Scene *s, const double *b, double exposure, int ss, const char *path, View *keep) {
+int out_render_frame(const Scene *s, const double *b, double exposure, int ss, const char *bar, const char *path,
+                     View *keep) {
   Camera cam;
   render_camera_default(&cam);
   cam.ss = ss;
   View view;
   Image img = {0};
-  char err[512];
+  char err[512] = "";
   if (render_view(&cam, s->V, s->F, s->g, s->tri, &view, err, sizeof err) != 0 ||
       render_shade(&view, s->V, s->F, s->tri, s->g, b, exposure, &img) != 0 ||
+      render_add_colorbar(&img, SCALE_SHADE, exposure, bar) != 0 ||
       render_write_png(path, &img, err, sizeof err) != 0) {
+    if (!err[0]) snprintf(err, sizeof err, "%s: out of memory", path);
     fprintf(stderr, "npg-radiosity: %s\n", err);
     render_view_free(&view);
     image_free(&img);

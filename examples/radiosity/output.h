@@ -15,9 +15,11 @@ int out_mkdirs(const char *path);
 int out_npy(const char *dir, const char *name, int nd, const long *shape, const double *data);
 /* DIR/tri.npy (int64 F x 3), rho.npy, e.npy (F). */
 int out_scene_arrays(const char *dir, const Scene *s);
-/* The render of b on the scene's current g from the fixed camera, to `path`; the view is
- * kept in *keep when non-NULL (free with render_view_free). */
-int out_render_frame(const Scene *s, const double *b, double exposure, int ss, const char *path, View *keep);
+/* The render of b on the scene's current g from the fixed camera, with a colour bar of b
+ * labelled `bar` under it, to `path`; the view is kept in *keep when non-NULL (free with
+ * render_view_free). */
+int out_render_frame(const Scene *s, const double *b, double exposure, int ss, const char *bar, const char *path,
+                     View *keep);
 double out_median(const double *x, int n);
 /* "name": [x0, x1, ...] followed by `tail`; NaN and infinities as null. */
 void out_json_array(FILE *f, const char *name, const double *x, int n, const char *tail);

@@ -10,12 +10,6 @@
 #include <string.h>
 #include <unistd.h>
 
-/* A "nice" tick step (1, 2 or 5 times a power of ten) giving about `want` ticks. */
-static double tick_step(double range, int want) {
-  double raw = range / want, mag = pow(10, floor(log10(raw))), r = raw / mag;
-  return mag * (r < 1.5 ? 1 : r < 3.5 ? 2 : r < 7.5 ? 5 : 10);
-}
-
 static const double palette[][3] = {
     {0.12, 0.47, 0.71}, {0.84, 0.15, 0.16}, {0.17, 0.63, 0.17}, {1.00, 0.50, 0.05},
     {0.58, 0.40, 0.74}, {0.55, 0.34, 0.29}, {0.89, 0.47, 0.76}, {0.50, 0.50, 0.50},
@@ -50,7 +44,7 @@ int plot_series(const char *path, const char *title, const char *ylabel, const P
   char label[64];
   cairo_text_extents_t ext;
   /* y grid and ticks */
-  double ys = tick_step(ymax - ymin, 6);
+  double ys = util_tick_step(ymax - ymin, 6);
   for (double y = ceil(ymin / ys) * ys; y <= ymax + 1e-9 * ys; y += ys) {
     cairo_set_source_rgb(cr, 0.9, 0.9, 0.9);
     cairo_move_to(cr, left, round(PY(y)) + 0.5);
@@ -63,7 +57,7 @@ int plot_series(const char *path, const char *title, const char *ylabel, const P
     cairo_show_text(cr, label);
   }
   /* x ticks (frames) */
-  double xs = tick_step(xmax, 8);
+  double xs = util_tick_step(xmax, 8);
   if (xs < 1) xs = 1;
   for (double x = 0; x <= xmax + 1e-9; x += xs) {
     snprintf(label, sizeof label, "%g", x);

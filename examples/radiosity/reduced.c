@@ -1,7 +1,6 @@
 /* reduced.c — the reduced radiosity through npg.h (reduced.h). */
 #include "reduced.h"
 
-#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -58,92 +57,12 @@ int reduced_open(Reduced *r, const Scene *s, const char *program, int k, int thr
   return 0;
 }
 
-/* ---------------------------------------------------------------- the phases of finishing
- *
- * npg_trainer_finish reports progress on stderr ("\r<what> [###   ] done/total") but no
- * timings: while it runs, stderr goes through a pipe whose reader passes everything on and
- * notes when each phase's bar first appears. */
-typedef struct PhaseWatch {
-  int saved, pipe[2];
-  pthread_t thread;
-  double start, first[4], last[4]; /* bars of: snapshots, member bases, pre-multiplication, extern samples */
-} PhaseWatch;
-
-/* A bar segment: "<what> [###   ] done/total". */
-static int is_bar(const char *seg) {
-  const char *open = strstr(seg, " ["), *close = open ? strstr(open, "] ") : NULL;
-  return close && strchr(close, '/');
-}
-
-static void *phase_reader(void *arg) {
-  PhaseWatch *w = arg;
-  char seg[512];
-  size_t n = 0;
-  char c;
-  int tty = isatty(w->saved);
-  for (;;) {
-    int got = read(w->pipe[0], &c, 1) == 1;
-    if (got && c != '\r' && c != '\n' && n + 1 < sizeof seg) {
-      seg[n++] = c, seg[n] = 0;
-      if (n == 20) {
-        const char *names[4] = {"snapshots", "member bases", "pre-multiplication", "extern samples"};
-        for (int i = 0; i < 4; i++)
-          if (!strncmp(seg, names[i], strlen(names[i]))) {
-            w->last[i] = frame_now();
-            if (w->first[i] == 0) w->first[i] = w->last[i];
-          }
-      }
-      continue;
-    }
-    /* a segment ends: pass it on, bars only to a terminal (a log keeps the last one) */
-    seg[n] = 0;
-    int bar = is_bar(seg);
-    if (tty || !bar || (got && c == '\n')) {
-      if (write(w->saved, seg, n) < 0 || (got && write(w->saved, &c, 1) < 0)) { /* stderr gone: keep draining */
-      }
-    }
-    n = 0;
-    if (!got) break;
-  }
-  return NULL;
-}
-
-static int phase_watch_start(PhaseWatch *w) {
-  memset(w, 0, sizeof *w);
-  fflush(stderr);
-  w->start = frame_now();
-  if (pipe(w->pipe) != 0) return -1;
-  w->saved = dup(2);
-  if (w->saved < 0 || dup2(w->pipe[1], 2) < 0) return -1;
-  close(w->pipe[1]);
-  return pthread_create(&w->thread, NULL, phase_reader, w) ? -1 : 0;
-}
-
-static void phase_watch_stop(PhaseWatch *w, TrainTimes *t) {
-  fflush(stderr);
-  double end = frame_now();
-  dup2(w->saved, 2); /* closes the pipe's last write end: the reader sees EOF */
-  pthread_join(w->thread, NULL);
-  close(w->saved);
-  close(w->pipe[0]);
-  /* snapshots: until their last bar; PCA (member bases): from there to the first bar of
-   * pre-multiplication; pre-multiplication: to the first bar of the learned visibility's
-   * samples; those: to the end */
-  double snap_end = w->last[0] ? w->last[0] : w->start;
-  double pre = w->first[2] ? w->first[2] : end, ext = w->first[3] ? w->first[3] : end;
-  t->snapshots = snap_end - w->start;
-  t->pca = pre - snap_end;
-  t->premultiply = ext - pre;
-  t->externs = end - ext;
-  t->finish = end - w->start;
-}
-
 int reduced_train(Reduced *r, Scene *s, int samples, int cap, double energy, size_t mem, const char *model_dir,
                   TrainTimes *t, char *err, size_t errlen) {
   memset(t, 0, sizeof *t);
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  o.cap = cap, o.energy = energy, o.progress = true;
+  o.cap = cap, o.energy = energy, o.progress = isatty(2); /* bars on a terminal, not in a log */
   /* g moves linearly with eight of the nine parameters (patch corners slide) and with the
    * sine and cosine of the tilt: dropping one of its few directions at 0.999 loses a
    * parameter outright, and the thin faces its areas then miss (a strip over a large
@@ -172,10 +91,9 @@ int reduced_train(Reduced *r, Scene *s, int samples, int cap, double energy, siz
   }
   t->samples = frame_now() - t0;
   t->rays = r->ray_seconds;
-  PhaseWatch w;
-  int watching = phase_watch_start(&w) == 0;
+  double f0 = frame_now();
   r->model = npg_trainer_finish(tr, model_dir);
-  if (watching) phase_watch_stop(&w, t);
+  t->finish = frame_now() - f0;
   t->total = frame_now() - t0;
   if (!r->model) {
     snprintf(err, errlen, "training: %s", npg_trainer_error(tr));
@@ -183,6 +101,12 @@ int reduced_train(Reduced *r, Scene *s, int samples, int cap, double energy, siz
     return -1;
   }
   npg_trainer_free(tr);
+  /* the split of npg_trainer_finish is the library's own (the trainer's "training
+   * phases" line gives the same figures): snapshots, bases, pre-multiplication, and the
+   * learned visibility's fit (its samples' extern values are cached: no ray is cast) */
+  double phase[4];
+  npg_model_train_seconds(r->model, phase, NULL);
+  t->snapshots = phase[0], t->pca = phase[1], t->premultiply = phase[2], t->externs = phase[3];
   r->learned = npg_reduced_new(r->model);
   r->given = npg_reduced_new(r->model);
   if (!r->learned || !r->given) return failed(err, errlen, "reduced evaluator", "out of memory");

@@ -36,11 +36,12 @@ typedef struct TrainTimes {
   double samples;       /* npg_trainer_add over the design: scene placement, the full
                            program's first evaluation and the ray casting */
   double rays;          /* of which in the visibility callback */
-  double snapshots;     /* npg_trainer_finish: the passes over the samples */
-  double pca;           /* npg_trainer_finish: the member bases */
-  double premultiply;   /* npg_trainer_finish: every tensor pre-multiplied */
-  double externs;       /* npg_trainer_finish: the learned visibility's samples */
-  double finish;        /* npg_trainer_finish in all */
+  /* npg_trainer_finish's phases, as the library times them (npg_model_train_seconds) */
+  double snapshots;     /* the passes over the cached samples */
+  double pca;           /* the member bases */
+  double premultiply;   /* every tensor pre-multiplied */
+  double externs;       /* the learned visibility's fit */
+  double finish;        /* npg_trainer_finish in all: the four phases and writing the model */
   double total;
 } TrainTimes;
 

@@ -163,6 +163,13 @@ static unsigned char srgb(double x) {
 
 static const double background[3] = {0.018, 0.022, 0.03};
 
+/* render_shade's tone l in [0, 1] as linear light: a warm white, for daylight on plaster */
+static void shade_color(double l, float *rgb) {
+  static const double tint[3] = {1.0, 0.97, 0.92};
+  for (int d = 0; d < 3; d++) rgb[d] = (float)(l * tint[d]);
+}
+
+
 /* Average the subpixels of pixel (x, y) of per-subpixel linear colours. */
 static void resolve(const View *view, const float *lin, Image *img) {
   int ss = view->ss, W = view->width * ss;
@@ -204,7 +211,6 @@ int render_shade(const View *view, long V, long F, const int *tri, const double 
     image_free(img);
     return -1;
   }
-  const double tint[3] = {1.0, 0.97, 0.92}; /* a warm white, for daylight on plaster */
   for (size_t at = 0; at < (size_t)W * H; at++) {
     int f = view->face[at];
     if (f < 0) {
@@ -213,8 +219,7 @@ int render_shade(const View *view, long V, long F, const int *tri, const double 
     }
     double u = view->u[at], v = view->v[at];
     double x = (1 - u - v) * vb[tri[3 * f]] + u * vb[tri[3 * f + 1]] + v * vb[tri[3 * f + 2]];
-    double l = 1 - exp(-exposure * fmax(x, 0));
-    for (int d = 0; d < 3; d++) lin[3 * at + d] = (float)(l * tint[d]);
+    shade_color(1 - exp(-exposure * fmax(x, 0)), lin + 3 * at);
   }
   resolve(view, lin, img);
   free(lin);
@@ -251,6 +256,68 @@ int render_error(const View *view, long F, const double *b_ref, const double *b,
   }
   resolve(view, lin, img);
   free(lin);
+  return 0;
+}
+
+/* ---------------------------------------------------------------- colour bars */
+
+
+int render_add_colorbar(Image *img, ColorScale scale, double param, const char *label) {
+  const int strip = 50, bh = 12, margin = 14;
+  int W = img->width, H = img->height + strip, bw = W - 2 * margin;
+  if (bw < 16) return 0; /* too narrow for a bar */
+  /* the value at the bar's right end: white for the error; 95 % of white for the tone */
+  double vmax = scale == SCALE_ERROR ? param : -log(0.05) / param;
+  cairo_surface_t *surf = cairo_image_surface_create(CAIRO_FORMAT_RGB24, W, strip);
+  cairo_t *cr = cairo_create(surf);
+  cairo_set_source_rgb(cr, 1, 1, 1);
+  cairo_paint(cr);
+  cairo_surface_flush(surf);
+  unsigned char *data = cairo_image_surface_get_data(surf);
+  int stride = cairo_image_surface_get_stride(surf);
+  for (int x = 0; x < bw; x++) {
+    double v = vmax * x / (bw - 1);
+    float lin[3];
+    if (scale == SCALE_ERROR) heat(v / param, lin);
+    else shade_color(1 - exp(-param * v), lin);
+    uint32_t px = (uint32_t)srgb(lin[0]) << 16 | (uint32_t)srgb(lin[1]) << 8 | srgb(lin[2]);
+    for (int y = 4; y < 4 + bh; y++) ((uint32_t *)(data + (size_t)y * stride))[margin + x] = px;
+  }
+  cairo_surface_mark_dirty(surf);
+  cairo_set_source_rgb(cr, 0.1, 0.1, 0.1);
+  cairo_set_line_width(cr, 1);
+  cairo_rectangle(cr, margin - 0.5, 3.5, bw + 1, bh + 1);
+  cairo_stroke(cr);
+  cairo_select_font_face(cr, "sans-serif", CAIRO_FONT_SLANT_NORMAL, CAIRO_FONT_WEIGHT_NORMAL);
+  cairo_set_font_size(cr, 11);
+  double step = util_tick_step(vmax, 4);
+  cairo_text_extents_t ext;
+  char text[64];
+  for (double v = 0; v <= vmax * (1 + 1e-9); v += step) {
+    double x = margin + (bw - 1) * v / vmax;
+    cairo_move_to(cr, round(x) + 0.5, 4 + bh), cairo_line_to(cr, round(x) + 0.5, 8 + bh), cairo_stroke(cr);
+    snprintf(text, sizeof text, "%g", v);
+    cairo_text_extents(cr, text, &ext);
+    double tx = fmin(fmax(x - ext.x_advance / 2, 0), W - ext.x_advance);
+    cairo_move_to(cr, tx, 19 + bh), cairo_show_text(cr, text);
+  }
+  cairo_text_extents(cr, label ? label : "", &ext);
+  cairo_move_to(cr, W / 2.0 - ext.x_advance / 2, strip - 4), cairo_show_text(cr, label ? label : "");
+  cairo_destroy(cr);
+  cairo_surface_flush(surf);
+  unsigned char *rgb = realloc(img->rgb, 3 * (size_t)W * H);
+  if (!rgb) {
+    cairo_surface_destroy(surf);
+    return -1;
+  }
+  for (int y = 0; y < strip; y++)
+    for (int x = 0; x < W; x++) {
+      uint32_t px = ((const uint32_t *)(data + (size_t)y * stride))[x];
+      unsigned char *q = rgb + 3 * ((size_t)(img->height + y) * W + x);
+      q[0] = (unsigned char)(px >> 16), q[1] = (unsigned char)(px >> 8), q[2] = (unsigned char)px;
+    }
+  cairo_surface_destroy(surf);
+  img->rgb = rgb, img->height = H;
   return 0;
 }
 

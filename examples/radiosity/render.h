@@ -47,6 +47,16 @@ int render_error(const View *view, long F, const double *b_ref, const double *b,
 /* An exposure that maps the 90th percentile of the radiosity of the faces with rho > 0
  * to 0.6 (before sRGB encoding): bright walls keep their gradients. */
 double render_exposure(long F, const double *b, const double *rho);
+/* The colour scales of the two renders, for their colour bars. */
+typedef enum ColorScale {
+  SCALE_SHADE, /* render_shade: b -> 1 - exp(-exposure b), a warm white */
+  SCALE_ERROR  /* render_error: |b - b_ref| / scale, black -> red -> yellow -> white */
+} ColorScale;
+/* Append below img a colour bar of `scale` with its values: b from 0 to where the tone is
+ * 95 % white (SCALE_SHADE, `param` the exposure) or 0 to `param` (SCALE_ERROR, the scale
+ * that is white), ticks labelled in units of b, and `label` under it. 0, or -1 when
+ * out of memory (img unchanged). */
+int render_add_colorbar(Image *img, ColorScale scale, double param, const char *label);
 void image_free(Image *img);
 int render_write_png(const char *path, const Image *img, char *err, size_t errlen);
 /* n images (same height) side by side, each with its label above it, one PNG. */
