@@ -70,8 +70,14 @@ static bool ready(TrainerObject *self) {
   return false;
 }
 
-/* The library failed: its message (the extern callable's exception as the cause). */
-static PyObject *fail(TrainerObject *self) { return npgpy_full_raise(self->full, npg_trainer_error(self->t)); }
+/* The library failed: its message (the extern callable's exception as the
+ * cause). The trainer refuses further work (the C API's contract); its
+ * evaluator is made usable again for evaluations and other trainers. */
+static PyObject *fail(TrainerObject *self) {
+  npgpy_full_raise(self->full, npg_trainer_error(self->t));
+  npg_full_clear_error(self->full->f);
+  return NULL;
+}
 
 /* tr.add(**inputs): stream one sample (every input; externs given or computed by their callables). */
 static PyObject *trainer_add(TrainerObject *self, PyObject *args, PyObject *kw) {
