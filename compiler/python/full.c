@@ -115,7 +115,7 @@ static int bind(FullObject *self, PyObject *params) {
       a = npgpy_values(value, what);
     if (!a) return -1;
     long shape[NPY_MAXDIMS];
-    for (int i = 0; i < PyArray_NDIM(a); i++) shape[i] = (long)PyArray_DIM(a, i);
+    npgpy_long_shape(a, shape);
     int rc = npg_full_set_param(self->f, name, PyArray_NDIM(a), shape, PyArray_DATA(a), what);
     Py_DECREF(a);
     if (rc) return fail(self), -1;
@@ -232,7 +232,7 @@ static int set_inputs(FullObject *self, PyObject *kw) {
     PyArrayObject *a = npgpy_values(value, what);
     if (!a) return -1;
     long shape[NPY_MAXDIMS];
-    for (int i = 0; i < PyArray_NDIM(a); i++) shape[i] = (long)PyArray_DIM(a, i);
+    npgpy_long_shape(a, shape);
     int rc = npg_full_set(self->f, name, PyArray_NDIM(a), shape, PyArray_DATA(a), what);
     Py_DECREF(a);
     if (rc) return fail(self), -1;

@@ -70,6 +70,10 @@ PyArrayObject *npgpy_values(PyObject *obj, const char *what) {
   return (PyArrayObject *)arr;
 }
 
+void npgpy_long_shape(PyArrayObject *a, long *shape) {
+  for (int i = 0; i < PyArray_NDIM(a); i++) shape[i] = (long)PyArray_DIM(a, i);
+}
+
 PyObject *npgpy_raise(PyObject *type, const char *msg) {
   size_t n = strlen(msg);
   while (n > 0 && msg[n - 1] == '\n') n--; /* the library's messages may end a line */

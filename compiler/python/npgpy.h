@@ -53,6 +53,8 @@ bool npgpy_busy_mine(const Busy *b);
  * copied; an array of another dtype raises TypeError naming `what`
  * (Python lists and numbers are converted). NULL with an exception set. */
 PyArrayObject *npgpy_values(PyObject *obj, const char *what);
+/* The shape of `a` as the C API takes it (long[], at most NPY_MAXDIMS). */
+void npgpy_long_shape(PyArrayObject *a, long *shape);
 /* A library message as npg.Error (or `type`). Returns NULL. */
 PyObject *npgpy_raise(PyObject *type, const char *msg);
 /* The shape of symbol `s` with its dims sized by `dim(ctx, name)` (-1 if

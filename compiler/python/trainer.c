@@ -97,7 +97,7 @@ static PyObject *trainer_add(TrainerObject *self, PyObject *args, PyObject *kw) 
     PyArrayObject *a = npgpy_values(value, what);
     if (!a) goto done;
     long shape[NPY_MAXDIMS];
-    for (int i = 0; i < PyArray_NDIM(a); i++) shape[i] = (long)PyArray_DIM(a, i);
+    npgpy_long_shape(a, shape);
     int rc = npg_trainer_set(self->t, name, PyArray_NDIM(a), shape, PyArray_DATA(a));
     Py_DECREF(a);
     if (rc) {

@@ -20,9 +20,8 @@ def rational_samples(S, seed):
     return 0.5 + np.random.default_rng(seed).random((S, 2))
 
 
-def springs_data(S, seed):
-    """A 4 x 4 grid of springs, deformed by random smooth displacements."""
-    n = 4
+def springs_data(S, seed, n=4):
+    """An n x n grid of springs, deformed by random smooth displacements."""
     V = n * n
     edge = [(r * n + q, r * n + q + 1) for r in range(n) for q in range(n - 1)]
     edge += [(r * n + q, (r + 1) * n + q) for r in range(n - 1) for q in range(n)]
@@ -410,3 +409,31 @@ def test_threads_share_a_model(eq3):
     for t in threads:
         t.join()
     assert np.array_equal(out[0], serial[0]) and np.array_equal(out[1], serial[1])
+
+
+def test_evaluation_path_copies_no_array(tmp_path):
+    """red(...) projects a float64 C-contiguous input in place and returns
+    coordinates: what it allocates through Python (NumPy's buffers are
+    traced) is far below one input; a non-contiguous input is copied."""
+    import tracemalloc
+
+    edge, L0, x = springs_data(30, 4, n=16)
+    full = npg.compile(SPRINGS).full(params={"edge": edge, "L0": L0})
+    tr = npg.Trainer(full)
+    for xk in x:
+        tr.add(x=xk)
+    red = tr.finish().reduced()
+    xin = x[0]
+    assert xin.flags.c_contiguous and xin.nbytes == 16 * 16 * 3 * 8
+    strided = np.asfortranarray(x[1])
+    red(x=xin)
+
+    def peak(arr):
+        tracemalloc.start()
+        red(x=arr)
+        p = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return p
+
+    assert peak(xin) < xin.nbytes / 2
+    assert peak(strided) >= strided.nbytes  # the copy this test exists to catch
