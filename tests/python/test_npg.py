@@ -465,3 +465,43 @@ def test_no_reference_leaks_per_call(eq3):
     grown = tracemalloc.get_traced_memory()[0] - before
     tracemalloc.stop()
     assert grown < 16384, grown
+
+
+def test_output_op_equals_npgc_eval(tmp_path, npgc):
+    """An `output op`: full.op() (CSR arrays owning the library's buffers)
+    equals npgc eval --full's CSR files; red.op() equals npgc eval's reduced
+    matrices."""
+    prog_path = "tests/programs/output_op.npg"
+    N, S = 6, 12
+    rng = np.random.default_rng(5)
+    a = rng.random((N, N)) * (rng.random((N, N)) < 0.5) + np.eye(N)
+    w, x = 1 + rng.random((S, N)), rng.random((S, N))
+    data = tmp_path / "DATA"
+    data.mkdir()
+    for name, v in (("a", a), ("w", w), ("x", x)):
+        np.save(data / f"{name}.npy", v)
+    npgc("eval", prog_path, "--full", data, data, "-o", tmp_path / "FULL")
+    npgc("train", prog_path, data, "-o", tmp_path / "MODEL", "--cap", "3")
+    npgc("eval", prog_path, tmp_path / "MODEL", data, "-o", tmp_path / "RED")
+    prog = npg.compile(prog_path)
+    full = prog.full(params={"a": a})
+    red = npg.load(prog, str(tmp_path / "MODEL")).reduced()
+    want_data = np.load(tmp_path / "FULL" / "K.data.npy")
+    want_red = np.load(tmp_path / "RED" / "K.reduced.npy")
+    for k in range(S):
+        full(w=w[k], x=x[k])
+        K = full.op("K")
+        assert K["shape"] == (N, N)
+        assert np.array_equal(K["indptr"], np.load(tmp_path / "FULL" / "K.indptr.npy"))
+        assert np.array_equal(K["indices"], np.load(tmp_path / "FULL" / "K.indices.npy"))
+        assert np.max(np.abs(K["data"] - want_data[k])) <= 1e-15 * np.max(np.abs(want_data[k]))
+        dense = np.zeros((N, N))
+        for r in range(N):
+            dense[r, K["indices"][K["indptr"][r]:K["indptr"][r + 1]]] = K["data"][K["indptr"][r]:K["indptr"][r + 1]]
+        assert np.allclose(dense, a * w[k][None, :], rtol=1e-15, atol=0)
+        red(w=w[k], x=x[k])
+        assert np.array_equal(red.op("K"), want_red[k])
+    with pytest.raises(npg.Error):
+        full.op("y")
+    with pytest.raises(npg.Error):
+        red.op("y")
