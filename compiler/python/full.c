@@ -136,6 +136,7 @@ PyObject *npgpy_full_new(ProgramObject *prog, PyObject *params, const char *back
   self->externs = NULL;
   self->cb_error = NULL;
   self->evaluated = false;
+  self->calls = 0;
   self->busy.lock = NULL;
   PyObject_GC_Track(self);
   if (npgpy_busy_init(&self->busy) != 0) goto fail;
@@ -250,9 +251,10 @@ static PyObject *full_call(FullObject *self, PyObject *args, PyObject *kw) {
   PyObject *out = NULL;
   if (set_inputs(self, kw) != 0) goto done;
   int rc;
+  long sample = self->calls++;
   Py_BEGIN_ALLOW_THREADS
-  rc = npg_full_eval(self->f, 0);
-  if (rc == 0) rc = npg_full_check_finite(self->f, 0);
+  rc = npg_full_eval(self->f, sample);
+  if (rc == 0) rc = npg_full_check_finite(self->f, sample);
   Py_END_ALLOW_THREADS
   if (rc) {
     fail(self);
@@ -408,7 +410,8 @@ PyTypeObject npgpy_FullType = {
   .tp_repr = (reprfunc)full_repr,
   .tp_call = (ternaryfunc)full_call,
   .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
-  .tp_doc = "A full evaluator (Program.full). full(x=array, ...) -> {output: array} (fresh arrays).",
+  .tp_doc = "A full evaluator (Program.full). full(x=array, ...) -> {output: array} (fresh arrays).\n\n"
+            "The k-th call (from 0) is sample k in messages and for extern callables.",
   .tp_traverse = (traverseproc)full_traverse,
   .tp_clear = (inquiry)full_clear,
   .tp_methods = full_methods,

@@ -85,6 +85,7 @@ typedef struct FullObject {
   ExternSlot *externs;      /* linked list of callables registered as externs */
   PyObject *cb_error;       /* the exception an extern callable raised (an exception instance), or NULL */
   bool evaluated;           /* one evaluation happened since the last binding */
+  long calls;               /* evaluations so far: the sample number of the next (messages, extern callables) */
 } FullObject;
 extern PyTypeObject npgpy_FullType;
 PyObject *npgpy_full_new(ProgramObject *prog, PyObject *params, const char *backend);

@@ -83,6 +83,7 @@ def test_compile_error_equals_npgc(npgc):
 def test_compile_missing_file():
     with pytest.raises(npg.CompileError, match="cannot read 'no/such.npg'"):
         npg.compile("no/such.npg")
+    assert npg.compile(pathlib.Path(RATIONAL)).path == RATIONAL
 
 
 def test_report_is_npgc_check_json(npgc):
@@ -297,9 +298,11 @@ def test_extern_callable_equals_extern_data(tmp_path):
     for k in range(S):
         by_call.add(g=g[k])
     model = by_call.finish(tmp_path / "CALL_MODEL")
-    assert len(calls) == S  # once per sample, not again when training replays them
+    assert calls == list(range(S))  # once per sample, not again when training replays them
     same_model(tmp_path / "DATA_MODEL", tmp_path / "CALL_MODEL")
     assert np.allclose(full(g=g[0])["d"], v[0] * g[0][tri[:, 0], 0], rtol=1e-14)
+    full(g=g[1])
+    assert calls[-2:] == [0, 1]  # a full evaluator's k-th call is sample k
     assert model.verify(test={"g": g[:4]})["d"]["l2"] < 1e-6
 
 
