@@ -8,16 +8,101 @@ typedef struct TrainerObject {
   PyObject_HEAD
   FullObject *full;         /* the trainer replays its samples through full->f */
   NpgTrainer *t;
+  int nbasis;               /* per-name overrides (basis=), owned here: the trainer keeps the pointers */
+  char **basis_name;
+  int *basis_cap;
+  double *basis_energy;
+  int *basis_center;
 } TrainerObject;
 
+static void free_basis(TrainerObject *self) {
+  for (int i = 0; i < self->nbasis; i++) PyMem_Free(self->basis_name[i]);
+  PyMem_Free(self->basis_name);
+  PyMem_Free(self->basis_cap);
+  PyMem_Free(self->basis_energy);
+  PyMem_Free(self->basis_center);
+  self->nbasis = 0;
+  self->basis_name = NULL, self->basis_cap = NULL, self->basis_energy = NULL, self->basis_center = NULL;
+}
+
+/* basis={NAME: {"cap": N, "energy": E, "center": bool}} as the C options
+ * (`npgc train --basis NAME:cap=N,energy=E,center=on|off`; NAME a quantity,
+ * a class m_x, a numerator y.num1 or '*'; the library checks the names). */
+static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o) {
+  free_basis(self); /* a second __init__ after a failed one */
+  if (basis == Py_None) return 0;
+  if (!PyDict_Check(basis)) {
+    PyErr_SetString(PyExc_TypeError, "Trainer: basis={name: {'cap': N, 'energy': E, 'center': bool}}");
+    return -1;
+  }
+  Py_ssize_t n = PyDict_GET_SIZE(basis);
+  self->basis_name = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_name);
+  self->basis_cap = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_cap);
+  self->basis_energy = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_energy);
+  self->basis_center = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_center);
+  if (!self->basis_name || !self->basis_cap || !self->basis_energy || !self->basis_center) {
+    PyErr_NoMemory();
+    return -1;
+  }
+  PyObject *key, *value;
+  for (Py_ssize_t pos = 0; PyDict_Next(basis, &pos, &key, &value);) {
+    const char *name = PyUnicode_Check(key) ? PyUnicode_AsUTF8(key) : NULL;
+    if (!name || !PyDict_Check(value)) {
+      if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "Trainer: basis={name: {'cap': N, ...}}");
+      return -1;
+    }
+    int k = self->nbasis;
+    if (!(self->basis_name[k] = PyMem_Malloc(strlen(name) + 1))) {
+      PyErr_NoMemory();
+      return -1;
+    }
+    strcpy(self->basis_name[k], name);
+    self->nbasis++;
+    self->basis_cap[k] = -1, self->basis_energy[k] = -1, self->basis_center[k] = -1;
+    PyObject *ok, *ov;
+    for (Py_ssize_t p2 = 0; PyDict_Next(value, &p2, &ok, &ov);) {
+      const char *opt = PyUnicode_Check(ok) ? PyUnicode_AsUTF8(ok) : "";
+      if (strcmp(opt, "cap") == 0) {
+        long c = PyLong_AsLong(ov);
+        if (c == -1 && PyErr_Occurred()) return -1;
+        if (c < 1) return PyErr_Format(PyExc_ValueError, "Trainer: basis['%s']['cap'] %ld: at least 1", name, c), -1;
+        self->basis_cap[k] = (int)c;
+      } else if (strcmp(opt, "energy") == 0) {
+        double e = PyFloat_AsDouble(ov);
+        if (e == -1 && PyErr_Occurred()) return -1;
+        if (!(e > 0 && e <= 1))
+          return PyErr_Format(PyExc_ValueError, "Trainer: basis['%s']['energy'] %g: a fraction in (0, 1]", name, e), -1;
+        self->basis_energy[k] = e;
+      } else if (strcmp(opt, "center") == 0) {
+        int c = PyObject_IsTrue(ov);
+        if (c < 0) return -1;
+        self->basis_center[k] = c;
+      } else {
+        PyErr_Format(PyExc_ValueError, "Trainer: basis['%s']: unknown option %R (cap, energy, center)", name, ok);
+        return -1;
+      }
+    }
+  }
+  o->nbasis = self->nbasis;
+  o->basis_name = (const char *const *)self->basis_name;
+  o->basis_cap = self->basis_cap;
+  o->basis_energy = self->basis_energy;
+  o->basis_center = self->basis_center;
+  return 0;
+}
+
 static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
-  static char *kwlist[] = {"full", "energy", "cap", "center", "mem", "joint", "progress", NULL};
-  PyObject *full, *center = Py_True, *joint = Py_False, *progress = Py_False, *mem = Py_None;
+  static char *kwlist[] = {"full", "energy", "cap", "center", "mem", "joint", "progress", "basis", NULL};
+  PyObject *full, *center = Py_True, *joint = Py_False, *progress = Py_False, *mem = Py_None, *basis = Py_None;
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|diOOOO:Trainer", kwlist, &npgpy_FullType, &full, &o.energy, &o.cap,
-                                   &center, &mem, &joint, &progress))
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|diOOOOO:Trainer", kwlist, &npgpy_FullType, &full, &o.energy, &o.cap,
+                                   &center, &mem, &joint, &progress, &basis))
     return -1;
+  if (self->t) {
+    PyErr_SetString(PyExc_RuntimeError, "Trainer: already initialized");
+    return -1;
+  }
   if (!(o.energy > 0 && o.energy <= 1)) {
     PyErr_Format(PyExc_ValueError, "Trainer: energy %g: a fraction in (0, 1]", o.energy);
     return -1;
@@ -36,10 +121,7 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   o.uncentered = !c;
   o.joint = j;
   o.progress = p;
-  if (self->t) {
-    PyErr_SetString(PyExc_RuntimeError, "Trainer: already initialized");
-    return -1;
-  }
+  if (parse_basis(self, basis, &o) != 0) return -1;
   Py_XSETREF(self->full, (FullObject *)Py_NewRef(full));
   self->t = npg_trainer_new(self->full->f, &o);
   if (!self->t) {
@@ -57,7 +139,8 @@ static int trainer_traverse(TrainerObject *self, visitproc visit, void *arg) {
 
 static void trainer_dealloc(TrainerObject *self) {
   PyObject_GC_UnTrack(self);
-  npg_trainer_free(self->t); /* before the evaluator it points into */
+  npg_trainer_free(self->t); /* before the evaluator it points into, and the overrides */
+  free_basis(self);
   Py_XDECREF(self->full);
   Py_TYPE(self)->tp_free((PyObject *)self);
 }
@@ -178,10 +261,11 @@ PyTypeObject npgpy_TrainerType = {
   .tp_basicsize = sizeof(TrainerObject),
   .tp_dealloc = (destructor)trainer_dealloc,
   .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
-  .tp_doc = "Trainer(full, energy=0.999, cap=60, center=True, mem=None, joint=False, progress=False)\n\n"
+  .tp_doc = "Trainer(full, energy=0.999, cap=60, center=True, mem=None, joint=False, progress=False, basis=None)\n\n"
             "Streams samples into the library's trainer; finish() trains as npgc train does. mem: bytes for\n"
             "the samples in memory (beyond: a scratch file; None: half the RAM). center=False: the paper's\n"
-            "uncentered truncation.",
+            "uncentered truncation. basis={name: {'cap': N, 'energy': E, 'center': bool}}: per quantity,\n"
+            "class (m_x), numerator (y.num1) or '*', as npgc train --basis.",
   .tp_traverse = (traverseproc)trainer_traverse,
   .tp_init = (initproc)trainer_init,
   .tp_new = PyType_GenericNew,

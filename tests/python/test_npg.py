@@ -163,6 +163,20 @@ def test_trained_springs_equal_npgc_train(tmp_path, npgc):
         tr.add(x=xk)
     tr.finish(tmp_path / "PY")
     same_model(tmp_path / "CLI", tmp_path / "PY")
+    # per-name options, as npgc train --basis
+    npgc("train", SPRINGS, data, "-o", tmp_path / "CLI2", "--basis", "l2:cap=3,center=off", "--basis", "f:energy=0.99")
+    tr = npg.Trainer(full, basis={"l2": {"cap": 3, "center": False}, "f": {"energy": 0.99}})
+    for xk in x:
+        tr.add(x=xk)
+    model = tr.finish(tmp_path / "PY2")
+    same_model(tmp_path / "CLI2", tmp_path / "PY2")
+    assert model.basis_sizes["{l2}"] == 3
+    with pytest.raises(ValueError, match="unknown option 'size'"):
+        npg.Trainer(full, basis={"l2": {"size": 3}})
+    tr = npg.Trainer(full, basis={"nosuch": {"cap": 3}})
+    tr.add(x=x[0])
+    with pytest.raises(npg.Error, match="nosuch"):
+        tr.finish()
 
 
 def test_trainer_options_checked(eq3):
