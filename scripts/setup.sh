@@ -15,7 +15,10 @@ packages=(
   libcairo2-dev               # npgc plot and the examples: charts as PNG (linked into npgc and the examples only)
   clang libclang-rt-14-dev    # libFuzzer for the fuzz targets
   libomp-dev                  # OpenMP for clang (the fuzz build compiles examples/points too)
-  python3-numpy               # benchmark peer only
+  python3-numpy               # the Python module npg (compiler/python/) and the benchmark peer
+  python3-dev                 # the Python module npg: CPython's headers
+  python3-pytest              # the Python module's tests (tests/python/)
+  python3-setuptools          # pip install --no-build-isolation . (setup.py)
   libgmsh-dev                 # examples/fluids: the wind tunnel's mesher (C API)
   libsuitesparse-dev          # examples/fluids: UMFPACK for the pressure projection
   libembree-dev               # examples/radiosity, examples/points: ray-cast visibility

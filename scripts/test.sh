@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
 # test.sh — the one test command (README, .ci/run). Exits non-zero on any failure.
 #
-#   1. plain build (build/):          no layer includes a higher one; every ctest test
-#   2. sanitizer build (build-asan/): every ctest test under ASan + UBSan, leaks fatal
+#   1. plain build (build/):          no layer includes a higher one; every ctest test (the Python
+#                                     module's pytest suite among them: python_npg)
+#   2. sanitizer build (build-asan/): every ctest test under ASan + UBSan, leaks fatal (python_npg:
+#                                     ASan preloaded into the interpreter, leaks not checked there,
+#                                     tests/CMakeLists.txt says why)
 #   3. ThreadSanitizer (build-tsan/): the tests labelled `threads` (one model, many evaluators)
 #   4. fuzz build (build-fuzz/):      libFuzzer on the front end for NPG_FUZZ_SECONDS (60), then on
 #                                     the .npy reader and the model manifest for a third of that each

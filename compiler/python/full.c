@@ -1,0 +1,419 @@
+/* full.c — npg.Full, the full evaluator: params bound from a dict or a
+ * folder, inputs as keyword arrays, every output back as an array, extern
+ * stages given by Python callables.
+ *
+ * Inputs that are float64 C-contiguous arrays are read in place; the
+ * evaluator copies them into its own buffers (npg_full_set keeps the values
+ * for the evaluation and for training). Outputs are fresh arrays, one copy
+ * of each output: the evaluator's buffers are overwritten by the next
+ * evaluation, and a view would change under the caller's feet. */
+#include "npgpy.h"
+
+#include <stdlib.h>
+
+struct ExternSlot {
+  ExternSlot *next;
+  FullObject *owner;        /* borrowed: a slot is only called during an operation on its owner */
+  PyObject *fn;             /* fn(full, sample) -> the extern's values; NULL once cleared by the GC */
+  char *name;
+};
+
+static long full_dim(const void *f, const char *name) { return npg_full_dim(f, name); }
+
+PyObject *npgpy_full_raise(FullObject *self, const char *msg) {
+  npgpy_raise(npgpy_Error, msg);
+  if (self->cb_error) { /* the callable's own exception is why the library failed */
+    PyObject *type, *value, *tb;
+    PyErr_Fetch(&type, &value, &tb);
+    PyErr_NormalizeException(&type, &value, &tb);
+    PyException_SetCause(value, self->cb_error); /* steals */
+    self->cb_error = NULL;
+    PyErr_Restore(type, value, tb);
+  }
+  return NULL;
+}
+
+/* The library's failure on `self`: its message, then the evaluator is made
+ * usable again (the C API refuses work after an error until cleared). */
+static PyObject *fail(FullObject *self) {
+  npgpy_full_raise(self, npg_full_error(self->f));
+  npg_full_clear_error(self->f);
+  return NULL;
+}
+
+/* An NpgExternFn calling the Python callable of slot `user`. Runs in the
+ * thread that evaluates, with the GIL released: it takes the GIL. An
+ * exception of the callable is kept in owner->cb_error and becomes the
+ * __cause__ of the npg.Error the failed evaluation raises. */
+static int call_extern(void *user, const NpgFull *f, long sample, double *out, size_t count) {
+  ExternSlot *x = user;
+  PyGILState_STATE g = PyGILState_Ensure();
+  int rc = -1;
+  if (!x->fn) {
+    PyErr_Format(npgpy_Error, "extern '%s': its callable was cleared (the evaluator is being collected)", x->name);
+  } else {
+    PyObject *r = PyObject_CallFunction(x->fn, "Ol", (PyObject *)x->owner, sample);
+    char what[256];
+    snprintf(what, sizeof what, "extern '%s': the value its callable returned", x->name);
+    PyArrayObject *a = r ? npgpy_values(r, what) : NULL;
+    Py_XDECREF(r);
+    if (a && (size_t)PyArray_SIZE(a) != count)
+      PyErr_Format(PyExc_ValueError, "extern '%s': its callable returned %zd values, the extern has %zu at sample %ld",
+                   x->name, (Py_ssize_t)PyArray_SIZE(a), count, sample);
+    else if (a) {
+      memcpy(out, PyArray_DATA(a), sizeof(double) * count);
+      rc = 0;
+    }
+    Py_XDECREF(a);
+  }
+  if (rc != 0) {
+    PyObject *type, *value, *tb;
+    PyErr_Fetch(&type, &value, &tb);
+    PyErr_NormalizeException(&type, &value, &tb);
+    if (value && tb) PyException_SetTraceback(value, tb);
+    Py_XDECREF(type);
+    Py_XDECREF(tb);
+    Py_XSETREF(x->owner->cb_error, value);
+  }
+  PyGILState_Release(g);
+  return rc;
+}
+
+/* Bind `params`: a dict name -> array (integer arrays for int params, as
+ * whole doubles), or a directory of <param>.npy. 0, or -1 with an exception. */
+static int bind(FullObject *self, PyObject *params) {
+  if (params == Py_None) return 0;
+  if (PyUnicode_Check(params) || PyObject_HasAttrString(params, "__fspath__")) {
+    PyObject *b;
+    if (!PyUnicode_FSConverter(params, &b)) return -1;
+    int rc;
+    Py_BEGIN_ALLOW_THREADS
+    rc = npg_full_bind_params(self->f, PyBytes_AS_STRING(b));
+    Py_END_ALLOW_THREADS
+    Py_DECREF(b);
+    if (rc) return fail(self), -1;
+    return 0;
+  }
+  if (!PyDict_Check(params)) {
+    PyErr_SetString(PyExc_TypeError, "params: a dict name -> array, or a directory holding <param>.npy");
+    return -1;
+  }
+  PyObject *key, *value;
+  Py_ssize_t pos = 0;
+  while (PyDict_Next(params, &pos, &key, &value)) {
+    const char *name = PyUnicode_Check(key) ? PyUnicode_AsUTF8(key) : NULL;
+    if (!name) {
+      PyErr_SetString(PyExc_TypeError, "params: keys are param names (str)");
+      return -1;
+    }
+    char what[256];
+    snprintf(what, sizeof what, "param '%s'", name);
+    PyArrayObject *a;
+    if (PyArray_Check(value) && PyArray_ISINTEGER((PyArrayObject *)value)) /* int params: whole doubles */
+      a = (PyArrayObject *)PyArray_FROMANY(value, NPY_DOUBLE, 0, 0, NPY_ARRAY_IN_ARRAY | NPY_ARRAY_FORCECAST);
+    else
+      a = npgpy_values(value, what);
+    if (!a) return -1;
+    long shape[NPY_MAXDIMS];
+    npgpy_long_shape(a, shape);
+    int rc = npg_full_set_param(self->f, name, PyArray_NDIM(a), shape, PyArray_DATA(a), what);
+    Py_DECREF(a);
+    if (rc) return fail(self), -1;
+  }
+  return 0;
+}
+
+PyObject *npgpy_full_new(ProgramObject *prog, PyObject *params, const char *backend) {
+  NpgBackend b;
+  if (strcmp(backend, "tcc") == 0) b = NPG_TCC;
+  else if (strcmp(backend, "cc") == 0) b = NPG_CC;
+  else return PyErr_Format(PyExc_ValueError, "backend '%s': 'tcc' (libtcc, in memory) or 'cc' (the system compiler)",
+                           backend);
+  FullObject *self = PyObject_GC_New(FullObject, &npgpy_FullType);
+  if (!self) return NULL;
+  self->prog = (ProgramObject *)Py_NewRef(prog);
+  self->f = NULL;
+  self->externs = NULL;
+  self->cb_error = NULL;
+  self->evaluated = false;
+  self->calls = 0;
+  self->busy.lock = NULL;
+  PyObject_GC_Track(self);
+  if (npgpy_busy_init(&self->busy) != 0) goto fail;
+  Py_BEGIN_ALLOW_THREADS
+  self->f = npg_full_new(prog->p, b);
+  Py_END_ALLOW_THREADS
+  if (!self->f) {
+    PyErr_NoMemory();
+    goto fail;
+  }
+  if (npg_full_error(self->f)[0]) {
+    npgpy_raise(npgpy_Error, npg_full_error(self->f));
+    goto fail;
+  }
+  if (bind(self, params) != 0) goto fail;
+  return (PyObject *)self;
+fail:
+  Py_DECREF(self);
+  return NULL;
+}
+
+static int full_traverse(FullObject *self, visitproc visit, void *arg) {
+  Py_VISIT(self->prog);
+  Py_VISIT(self->cb_error);
+  for (ExternSlot *x = self->externs; x; x = x->next) Py_VISIT(x->fn);
+  return 0;
+}
+
+/* Breaks cycles through the callables (a closure that holds the evaluator);
+ * the slots themselves stay until the evaluator is freed. */
+static int full_clear(FullObject *self) {
+  for (ExternSlot *x = self->externs; x; x = x->next) Py_CLEAR(x->fn);
+  Py_CLEAR(self->cb_error);
+  return 0;
+}
+
+static void full_dealloc(FullObject *self) {
+  PyObject_GC_UnTrack(self);
+  npg_full_free(self->f); /* first: it may hold the slots as callback data */
+  while (self->externs) {
+    ExternSlot *x = self->externs;
+    self->externs = x->next;
+    Py_XDECREF(x->fn);
+    PyMem_Free(x->name);
+    PyMem_Free(x);
+  }
+  Py_XDECREF(self->cb_error);
+  npgpy_busy_free(&self->busy);
+  Py_XDECREF(self->prog);
+  PyObject_GC_Del(self);
+}
+
+/* Refuses re-entry from an extern callable of this evaluator. */
+static bool enter(FullObject *self, const char *what) {
+  if (npgpy_busy_mine(&self->busy)) {
+    PyErr_Format(npgpy_Error, "%s: called from an extern callable of the same evaluator, which is evaluating", what);
+    return false;
+  }
+  npgpy_busy_enter(&self->busy);
+  return true;
+}
+
+/* A copy of quantity `name` (input, extern or stage) shaped by its dims. */
+static PyObject *value_of(FullObject *self, const char *name) {
+  size_t n = 0;
+  const double *v = npg_full_get(self->f, name, &n);
+  const NpgSymbol *s = NULL;
+  for (int i = 0; i < self->prog->nsym && !s; i++)
+    if (strcmp(self->prog->sym[i].name, name) == 0 && self->prog->sym[i].kind != NPG_PARAM) s = &self->prog->sym[i];
+  if (!s) return PyErr_Format(npgpy_Error, "the program has no quantity '%s'", name);
+  if (!v && n > 0) return PyErr_Format(npgpy_Error, "'%s' has no value yet: evaluate first", name);
+  npy_intp shape[16];
+  int nd = npgpy_shape(s, full_dim, self->f, shape);
+  npy_intp total = 1;
+  for (int i = 0; i < nd; i++) total *= shape[i];
+  if (total != (npy_intp)n) { /* not bound yet */
+    nd = 1;
+    shape[0] = (npy_intp)n;
+  }
+  PyObject *a = PyArray_SimpleNew(nd, shape, NPY_DOUBLE);
+  if (a && n) memcpy(PyArray_DATA((PyArrayObject *)a), v, sizeof(double) * n);
+  return a;
+}
+
+/* Set every keyword array as an input or extern of the next evaluation. */
+static int set_inputs(FullObject *self, PyObject *kw) {
+  PyObject *key, *value;
+  Py_ssize_t pos = 0;
+  while (kw && PyDict_Next(kw, &pos, &key, &value)) {
+    const char *name = PyUnicode_AsUTF8(key);
+    if (!name) return -1;
+    char what[256];
+    snprintf(what, sizeof what, "argument '%s'", name);
+    PyArrayObject *a = npgpy_values(value, what);
+    if (!a) return -1;
+    long shape[NPY_MAXDIMS];
+    npgpy_long_shape(a, shape);
+    int rc = npg_full_set(self->f, name, PyArray_NDIM(a), shape, PyArray_DATA(a), what);
+    Py_DECREF(a);
+    if (rc) return fail(self), -1;
+  }
+  return 0;
+}
+
+/* full(**inputs) -> {output: array} */
+static PyObject *full_call(FullObject *self, PyObject *args, PyObject *kw) {
+  if (PyTuple_GET_SIZE(args) > 0) {
+    PyErr_SetString(PyExc_TypeError, "Full(...) takes its inputs by name: full(x=array, ...)");
+    return NULL;
+  }
+  if (!enter(self, "Full.__call__")) return NULL;
+  PyObject *out = NULL;
+  if (set_inputs(self, kw) != 0) goto done;
+  int rc;
+  long sample = self->calls++;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_full_eval(self->f, sample);
+  if (rc == 0) rc = npg_full_check_finite(self->f, sample);
+  Py_END_ALLOW_THREADS
+  if (rc) {
+    fail(self);
+    goto done;
+  }
+  self->evaluated = true;
+  out = PyDict_New();
+  for (int i = 0; out && i < self->prog->nsym; i++) {
+    const NpgSymbol *s = &self->prog->sym[i];
+    if (!s->output || s->kind == NPG_OP) continue;
+    PyObject *v = value_of(self, s->name);
+    if (!v || PyDict_SetItemString(out, s->name, v) < 0) Py_CLEAR(out);
+    Py_XDECREF(v);
+  }
+done:
+  npgpy_busy_leave(&self->busy);
+  return out;
+}
+
+static PyObject *full_get(FullObject *self, PyObject *arg) {
+  const char *name = PyUnicode_AsUTF8(arg);
+  if (!name) return NULL;
+  bool inside = npgpy_busy_mine(&self->busy); /* from an extern callable: the evaluation holds the lock */
+  if (!inside) npgpy_busy_enter(&self->busy);
+  PyObject *v = value_of(self, name);
+  if (!inside) npgpy_busy_leave(&self->busy);
+  return v;
+}
+
+static PyObject *full_dim_method(FullObject *self, PyObject *arg) {
+  const char *name = PyUnicode_AsUTF8(arg);
+  if (!name) return NULL;
+  return PyLong_FromLong(npg_full_dim(self->f, name));
+}
+
+static PyObject *full_bind(FullObject *self, PyObject *params) {
+  if (!enter(self, "Full.bind")) return NULL;
+  npg_full_unbind(self->f);
+  self->evaluated = false;
+  int rc = bind(self, params);
+  npgpy_busy_leave(&self->busy);
+  if (rc) return NULL;
+  Py_RETURN_NONE;
+}
+
+/* full.extern(name, fn): fn(full, sample) gives the extern's values at
+ * every evaluation (None removes it). */
+static PyObject *full_extern(FullObject *self, PyObject *args) {
+  const char *name;
+  PyObject *fn;
+  if (!PyArg_ParseTuple(args, "sO:extern", &name, &fn)) return NULL;
+  if (fn != Py_None && !PyCallable_Check(fn)) {
+    PyErr_Format(PyExc_TypeError, "extern '%s': fn(full, sample) must be callable", name);
+    return NULL;
+  }
+  if (!enter(self, "Full.extern")) return NULL;
+  ExternSlot *x = self->externs;
+  while (x && strcmp(x->name, name) != 0) x = x->next;
+  PyObject *res = NULL;
+  if (!x && fn != Py_None) {
+    x = PyMem_Calloc(1, sizeof *x);
+    if (x) x->name = PyMem_Malloc(strlen(name) + 1);
+    if (!x || !x->name) {
+      PyMem_Free(x);
+      PyErr_NoMemory();
+      goto done;
+    }
+    strcpy(x->name, name);
+    x->owner = self;
+    x->next = self->externs;
+    self->externs = x;
+  }
+  if (npg_full_set_extern_fn(self->f, name, fn == Py_None ? NULL : call_extern, fn == Py_None ? NULL : x) != 0) {
+    fail(self);
+    goto done;
+  }
+  if (x) Py_XSETREF(x->fn, fn == Py_None ? NULL : Py_NewRef(fn));
+  res = Py_NewRef(Py_None);
+done:
+  npgpy_busy_leave(&self->busy);
+  return res;
+}
+
+/* The PyCapsule destructor of an array that owns a malloc'd buffer. */
+static void free_buffer(PyObject *cap) { free(PyCapsule_GetPointer(cap, "npg.buffer")); }
+
+/* A 1-D array owning `data` (malloc'd): freed with the array. */
+static PyObject *owning(void *data, npy_intp n, int type) {
+  PyObject *a = PyArray_SimpleNewFromData(1, &n, type, data);
+  PyObject *cap = a ? PyCapsule_New(data ? data : (void *)"", "npg.buffer", data ? free_buffer : NULL) : NULL;
+  if (!cap || PyArray_SetBaseObject((PyArrayObject *)a, cap) < 0) {
+    if (!cap) free(data);
+    Py_XDECREF(a);
+    return NULL;
+  }
+  return a;
+}
+
+/* full.op(name) -> {'data', 'indices', 'indptr', 'shape'}: an `output op` as
+ * CSR (scipy.sparse.csr_matrix((data, indices, indptr), shape)); the arrays
+ * own the library's buffers (no copy). */
+static PyObject *full_op(FullObject *self, PyObject *arg) {
+  const char *name = PyUnicode_AsUTF8(arg);
+  if (!name) return NULL;
+  if (!enter(self, "Full.op")) return NULL;
+  NpgCsr c = {0};
+  int rc = npg_full_op(self->f, name, &c);
+  PyObject *res = NULL;
+  if (rc) fail(self);
+  else {
+    static_assert(sizeof(long) == sizeof(npy_int64), "long is int64");
+    PyObject *data = owning(c.data, (npy_intp)c.nnz, NPY_DOUBLE);
+    PyObject *indices = owning(c.indices, (npy_intp)c.nnz, NPY_INT64);
+    PyObject *indptr = owning(c.indptr, (npy_intp)c.rows + 1, NPY_INT64);
+    if (data && indices && indptr)
+      res = Py_BuildValue("{s:O,s:O,s:O,s:(ll)}", "data", data, "indices", indices, "indptr", indptr, "shape",
+                          c.rows, c.cols);
+    Py_XDECREF(data);
+    Py_XDECREF(indices);
+    Py_XDECREF(indptr);
+  }
+  npgpy_busy_leave(&self->busy);
+  return res;
+}
+
+static PyObject *full_repr(FullObject *self) { return PyUnicode_FromFormat("<npg.Full of %R>", self->prog->path); }
+
+static PyObject *get_program(FullObject *self, void *unused) { return Py_NewRef(self->prog); }
+
+static PyGetSetDef full_getset[] = {
+  {"program", (getter)get_program, NULL, "the Program", NULL},
+  {NULL},
+};
+
+static PyMethodDef full_methods[] = {
+  {"get", (PyCFunction)full_get, METH_O,
+   "get(name) -> array: a copy of any quantity (input, extern, stage) of the last evaluation"},
+  {"dim", (PyCFunction)full_dim_method, METH_O, "dim(name) -> int: the bound size of a dim (-1: unbound)"},
+  {"bind", (PyCFunction)full_bind, METH_O, "bind(params): forget every binding and bind these params"},
+  {"extern", (PyCFunction)full_extern, METH_VARARGS,
+   "extern(name, fn): the extern's values from fn(full, sample) at every evaluation (None: from data again).\n"
+   "fn reads what it needs with full.get(); it may not evaluate the same evaluator."},
+  {"op", (PyCFunction)full_op, METH_O,
+   "op(name) -> dict(data, indices, indptr, shape): an output op as CSR; the arrays own the library's buffers"},
+  {NULL},
+};
+
+PyTypeObject npgpy_FullType = {
+  PyVarObject_HEAD_INIT(NULL, 0)
+  .tp_name = "npg.Full",
+  .tp_basicsize = sizeof(FullObject),
+  .tp_dealloc = (destructor)full_dealloc,
+  .tp_repr = (reprfunc)full_repr,
+  .tp_call = (ternaryfunc)full_call,
+  .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
+  .tp_doc = "A full evaluator (Program.full). full(x=array, ...) -> {output: array} (fresh arrays).\n\n"
+            "The k-th call (from 0) is sample k in messages and for extern callables.",
+  .tp_traverse = (traverseproc)full_traverse,
+  .tp_clear = (inquiry)full_clear,
+  .tp_methods = full_methods,
+  .tp_getset = full_getset,
+};

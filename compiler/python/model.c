@@ -1,0 +1,664 @@
+/* model.c — npg.Model (a trained model: sizes, report, bases, verification)
+ * and npg.Reduced (its reduced evaluator).
+ *
+ * The evaluation path copies nothing larger than a basis coordinate vector:
+ * an input given as a float64 C-contiguous array is projected in place
+ * (ĝ = Bᵀg reads the caller's buffer), red(...) returns each output's
+ * reduced coordinates (m values, copied out of the evaluator, which reuses
+ * its storage), and lift() writes B ŷ straight into the array it returns
+ * (or into `out`). A basis (Model.basis) is a read-only view of the model's
+ * memory that keeps the model alive. */
+#include "npgpy.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+
+static long model_dim(const void *m, const char *name) { return npg_model_dim(m, name); }
+
+/* ---------------------------------------------------------------- Model */
+
+PyObject *npgpy_model_wrap(ProgramObject *prog, NpgModel *m, FullObject *full) {
+  ModelObject *self = PyObject_GC_New(ModelObject, &npgpy_ModelType);
+  if (!self) {
+    npg_model_free(m);
+    return NULL;
+  }
+  self->prog = (ProgramObject *)Py_NewRef(prog);
+  self->m = m;
+  self->full = full ? (FullObject *)Py_NewRef(full) : NULL;
+  PyObject_GC_Track(self);
+  return (PyObject *)self;
+}
+
+PyObject *npgpy_load(PyObject *mod, PyObject *args, PyObject *kw) {
+  static char *kwlist[] = {"prog", "model_dir", "full", NULL};
+  PyObject *prog, *dir, *full = Py_None, *b;
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!O|O:load", kwlist, &npgpy_ProgramType, &prog, &dir, &full))
+    return NULL;
+  if (full != Py_None && !PyObject_TypeCheck(full, &npgpy_FullType))
+    return PyErr_Format(PyExc_TypeError, "load: full must be an npg.Full, not %s", Py_TYPE(full)->tp_name);
+  if (full != Py_None && ((FullObject *)full)->prog != (ProgramObject *)prog)
+    return PyErr_Format(npgpy_Error, "load: full evaluates another program than prog");
+  if (!PyUnicode_FSConverter(dir, &b)) return NULL;
+  NpgModel *m;
+  Py_BEGIN_ALLOW_THREADS
+  m = npg_model_load(((ProgramObject *)prog)->p, PyBytes_AS_STRING(b));
+  Py_END_ALLOW_THREADS
+  Py_DECREF(b);
+  if (!m) return PyErr_NoMemory();
+  if (npg_model_error(m)[0]) {
+    npgpy_raise(npgpy_Error, npg_model_error(m));
+    npg_model_free(m);
+    return NULL;
+  }
+  return npgpy_model_wrap((ProgramObject *)prog, m, full == Py_None ? NULL : (FullObject *)full);
+}
+
+static int model_traverse(ModelObject *self, visitproc visit, void *arg) {
+  Py_VISIT(self->prog);
+  Py_VISIT(self->full);
+  return 0;
+}
+
+static void model_dealloc(ModelObject *self) {
+  PyObject_GC_UnTrack(self);
+  npg_model_free(self->m); /* before the program it points into */
+  Py_XDECREF(self->full);
+  Py_XDECREF(self->prog);
+  PyObject_GC_Del(self);
+}
+
+/* {class label: basis size} */
+static PyObject *get_basis_sizes(ModelObject *self, void *unused) {
+  PyObject *d = PyDict_New();
+  for (int c = 0; d && c < npg_model_nclasses(self->m); c++) {
+    NpgClassInfo ci;
+    npg_model_class(self->m, c, &ci);
+    PyObject *v = PyLong_FromLong(ci.m);
+    if (!v || PyDict_SetItemString(d, ci.label, v) < 0) Py_CLEAR(d);
+    Py_XDECREF(v);
+  }
+  return d;
+}
+
+/* [{label, n, m, members: [{name, kept, cap, captured}]}] */
+static PyObject *get_classes(ModelObject *self, void *unused) {
+  int nc = npg_model_nclasses(self->m);
+  PyObject *list = PyList_New(nc);
+  for (int c = 0; list && c < nc; c++) {
+    NpgClassInfo ci;
+    npg_model_class(self->m, c, &ci);
+    PyObject *members = PyList_New(ci.nmembers);
+    for (int i = 0; members && i < ci.nmembers; i++) {
+      NpgMemberInfo mi;
+      npg_model_member(self->m, c, i, &mi);
+      PyObject *d = Py_BuildValue("{s:s,s:i,s:i,s:d}", "name", mi.name, "kept", mi.kept, "cap", mi.cap, "captured",
+                                  mi.captured);
+      if (!d) Py_CLEAR(members);
+      else PyList_SET_ITEM(members, i, d);
+    }
+    PyObject *d = members ? Py_BuildValue("{s:s,s:l,s:l,s:O}", "label", ci.label, "n", ci.n, "m", ci.m, "members",
+                                          members)
+                          : NULL;
+    Py_XDECREF(members);
+    if (!d) Py_CLEAR(list);
+    else PyList_SET_ITEM(list, c, d);
+  }
+  return list;
+}
+
+static PyObject *get_samples(ModelObject *self, void *unused) { return PyLong_FromLong(npg_model_samples(self->m)); }
+static PyObject *get_program(ModelObject *self, void *unused) { return Py_NewRef(self->prog); }
+
+static PyObject *model_report(ModelObject *self, PyObject *unused) {
+  char *buf = NULL;
+  size_t len = 0;
+  FILE *out = open_memstream(&buf, &len);
+  if (!out) return PyErr_NoMemory();
+  npg_model_report(self->m, out);
+  fclose(out);
+  PyObject *s = PyUnicode_DecodeUTF8(buf, (Py_ssize_t)len, "replace");
+  free(buf);
+  return s;
+}
+
+static PyObject *model_save(ModelObject *self, PyObject *dir) {
+  PyObject *b;
+  if (!PyUnicode_FSConverter(dir, &b)) return NULL;
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_model_save(self->m, PyBytes_AS_STRING(b));
+  Py_END_ALLOW_THREADS
+  Py_DECREF(b);
+  if (rc) return npgpy_raise(npgpy_Error, npg_model_error(self->m));
+  Py_RETURN_NONE;
+}
+
+/* model.basis(name) -> n x m read-only view of the basis of name's class */
+static PyObject *model_basis(ModelObject *self, PyObject *arg) {
+  const char *name = PyUnicode_AsUTF8(arg);
+  if (!name) return NULL;
+  int c = npg_model_class_of(self->m, name);
+  if (c < 0) return PyErr_Format(npgpy_Error, "the model has no basis for '%s'", name);
+  NpgClassInfo ci;
+  npg_model_class(self->m, c, &ci);
+  npy_intp shape[2] = {ci.n, ci.m};
+  PyObject *a = PyArray_New(&PyArray_Type, 2, shape, NPY_DOUBLE, NULL, (void *)npg_model_basis(self->m, c), 0,
+                            NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_ALIGNED, NULL);
+  if (!a) return NULL;
+  if (PyArray_SetBaseObject((PyArrayObject *)a, Py_NewRef(self)) < 0) {
+    Py_DECREF(a);
+    return NULL;
+  }
+  return a;
+}
+
+static PyObject *model_dim_method(ModelObject *self, PyObject *arg) {
+  const char *name = PyUnicode_AsUTF8(arg);
+  return name ? PyLong_FromLong(npg_model_dim(self->m, name)) : NULL;
+}
+
+/* -------------------------------------------------------- verify */
+
+/* The test samples: arrays with a leading sample axis, set one sample at a
+ * time into the evaluator (runs with the GIL released: plain C). */
+typedef struct TestSet {
+  int n;
+  const char **name;
+  PyArrayObject **a;
+  char (*from)[128];
+} TestSet;
+
+static int set_test_sample(void *user, NpgFull *f, long k) {
+  TestSet *t = user;
+  for (int i = 0; i < t->n; i++) {
+    PyArrayObject *a = t->a[i];
+    long shape[NPY_MAXDIMS];
+    size_t per = 1;
+    for (int d = 1; d < PyArray_NDIM(a); d++) per *= (size_t)(shape[d - 1] = (long)PyArray_DIM(a, d));
+    snprintf(t->from[i], sizeof t->from[i], "test['%s'] sample %ld", t->name[i], k);
+    if (npg_full_set(f, t->name[i], PyArray_NDIM(a) - 1, shape, (const double *)PyArray_DATA(a) + per * (size_t)k,
+                     t->from[i]) != 0)
+      return -1;
+  }
+  return 0;
+}
+
+static PyObject *row_dict(const NpgVerifyRow *r, double tol) {
+  PyObject *d = Py_BuildValue("{s:s,s:l,s:O,s:d,s:d,s:d,s:d,s:l,s:d,s:d}", "kind", r->kind, "m", r->m, "output",
+                              r->output ? Py_True : Py_False, "l2", r->l2, "floor", r->floor, "own", r->own, "l2_max",
+                              r->l2_max, "l2_max_sample", r->l2_max_sample, "linf", r->linf, "linf_floor",
+                              r->linf_floor);
+  if (d && tol >= 0 && r->output && PyDict_SetItemString(d, "pass", r->l2 <= tol ? Py_True : Py_False) < 0)
+    Py_CLEAR(d);
+  return d;
+}
+
+/* model.verify(test, tol=None, full=None, progress=False) -> {quantity: {...}} */
+static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
+  static char *kwlist[] = {"test", "tol", "full", "progress", NULL};
+  PyObject *test, *tolo = Py_None, *fullo = Py_None;
+  int progress = 0;
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|OOp:verify", kwlist, &PyDict_Type, &test, &tolo, &fullo, &progress))
+    return NULL;
+  double tol = -1;
+  if (tolo != Py_None && ((tol = PyFloat_AsDouble(tolo)) == -1 && PyErr_Occurred())) return NULL;
+  FullObject *full = self->full;
+  if (fullo != Py_None) {
+    if (!PyObject_TypeCheck(fullo, &npgpy_FullType))
+      return PyErr_Format(PyExc_TypeError, "verify: full must be an npg.Full, not %s", Py_TYPE(fullo)->tp_name);
+    full = (FullObject *)fullo;
+  }
+  if (!full)
+    return PyErr_Format(npgpy_Error, "verify: this model has no full evaluator (a loaded model): give full=, an "
+                                     "evaluator with the model's params bound");
+  if (full->prog != self->prog) return PyErr_Format(npgpy_Error, "verify: full evaluates another program");
+  Py_ssize_t n = PyDict_GET_SIZE(test);
+  TestSet t = {0};
+  t.name = PyMem_Calloc((size_t)n + 1, sizeof *t.name);
+  t.a = PyMem_Calloc((size_t)n + 1, sizeof *t.a);
+  t.from = PyMem_Calloc((size_t)n + 1, sizeof *t.from);
+  PyObject *res = NULL, *key, *value;
+  long samples = -1;
+  if (!t.name || !t.a || !t.from) {
+    PyErr_NoMemory();
+    goto done;
+  }
+  for (Py_ssize_t pos = 0; PyDict_Next(test, &pos, &key, &value);) {
+    const char *name = PyUnicode_AsUTF8(key);
+    if (!name) goto done;
+    char what[256];
+    snprintf(what, sizeof what, "verify: test['%s']", name);
+    PyArrayObject *a = npgpy_values(value, what);
+    if (!a) goto done;
+    t.name[t.n] = name;
+    t.a[t.n++] = a;
+    if (PyArray_NDIM(a) < 1) {
+      PyErr_Format(npgpy_Error, "verify: test['%s'] has no sample axis (the first axis is the sample)", name);
+      goto done;
+    }
+    long S = (long)PyArray_DIM(a, 0);
+    if (samples >= 0 && S != samples) {
+      PyErr_Format(npgpy_Error, "verify: test['%s'] has %ld samples, the arrays before it %ld", name, S, samples);
+      goto done;
+    }
+    samples = S;
+  }
+  if (samples < 1) {
+    PyErr_SetString(npgpy_Error, "verify: no test samples (give test={'x': array of samples x ...})");
+    goto done;
+  }
+  if (npgpy_busy_mine(&full->busy)) {
+    PyErr_SetString(npgpy_Error, "verify: called from an extern callable of the evaluator");
+    goto done;
+  }
+  npgpy_busy_enter(&full->busy);
+  NpgVerifyReport rep;
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_verify(self->m, full->f, samples, set_test_sample, &t, progress, &rep);
+  Py_END_ALLOW_THREADS
+  npg_full_clear_error(full->f);
+  npgpy_busy_leave(&full->busy);
+  if (rc) {
+    npgpy_full_raise(full, rep.error);
+    npg_verify_free(&rep);
+    goto done;
+  }
+  res = PyDict_New();
+  for (int i = 0; res && i < rep.nrows; i++) {
+    PyObject *d = row_dict(&rep.rows[i], tol);
+    if (!d || PyDict_SetItemString(res, rep.rows[i].name, d) < 0) Py_CLEAR(res);
+    Py_XDECREF(d);
+  }
+  npg_verify_free(&rep);
+done:
+  for (int i = 0; i < t.n; i++) Py_XDECREF(t.a[i]);
+  PyMem_Free(t.name);
+  PyMem_Free(t.a);
+  PyMem_Free(t.from);
+  return res;
+}
+
+/* ---------------------------------------------------------------- Reduced */
+
+typedef struct ReducedObject {
+  PyObject_HEAD
+  ModelObject *model;
+  NpgReduced *r;
+  Busy busy;
+  int ninputs, noutputs;
+  const NpgSymbol **input;  /* the program's inputs, and for each: */
+  PyObject **input_name;    /*   its name as str (keyword lookup by identity first) */
+  npy_intp (*input_shape)[16];
+  int *input_nd;
+  size_t *input_count;
+  bool *input_set;          /*   set at least once (an input never set is an error, not a zero) */
+  const NpgSymbol **output; /* the outputs that are quantities (not ops) */
+  PyObject **output_name;
+  long sample;              /* evaluations so far: the sample number in messages */
+} ReducedObject;
+
+static int reduced_traverse(ReducedObject *self, visitproc visit, void *arg) {
+  Py_VISIT(self->model);
+  return 0;
+}
+
+static void reduced_dealloc(ReducedObject *self) {
+  PyObject_GC_UnTrack(self);
+  npg_reduced_free(self->r); /* before the model it reads */
+  for (int i = 0; self->input_name && i < self->ninputs; i++) Py_XDECREF(self->input_name[i]);
+  for (int i = 0; self->output_name && i < self->noutputs; i++) Py_XDECREF(self->output_name[i]);
+  PyMem_Free(self->input);
+  PyMem_Free(self->input_name);
+  PyMem_Free(self->input_shape);
+  PyMem_Free(self->input_nd);
+  PyMem_Free(self->input_count);
+  PyMem_Free(self->input_set);
+  PyMem_Free(self->output);
+  PyMem_Free(self->output_name);
+  npgpy_busy_free(&self->busy);
+  Py_XDECREF(self->model);
+  PyObject_GC_Del(self);
+}
+
+/* The library failed: its message; the evaluator is usable again. */
+static PyObject *rfail(ReducedObject *self) {
+  npgpy_raise(npgpy_Error, npg_reduced_error(self->r));
+  npg_reduced_clear_error(self->r);
+  return NULL;
+}
+
+static PyObject *model_reduced(ModelObject *model, PyObject *args, PyObject *kw) {
+  static char *kwlist[] = {"exact_roots", NULL};
+  int exact = 0;
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "|p:reduced", kwlist, &exact)) return NULL;
+  ReducedObject *self = PyObject_GC_New(ReducedObject, &npgpy_ReducedType);
+  if (!self) return NULL;
+  memset((char *)self + sizeof(PyObject), 0, sizeof *self - sizeof(PyObject));
+  self->model = (ModelObject *)Py_NewRef(model);
+  PyObject_GC_Track(self);
+  const ProgramObject *p = model->prog;
+  int n = p->nsym;
+  if (npgpy_busy_init(&self->busy) != 0) goto fail;
+  self->input = PyMem_Calloc((size_t)n + 1, sizeof *self->input);
+  self->input_name = PyMem_Calloc((size_t)n + 1, sizeof *self->input_name);
+  self->input_shape = PyMem_Calloc((size_t)n + 1, sizeof *self->input_shape);
+  self->input_nd = PyMem_Calloc((size_t)n + 1, sizeof *self->input_nd);
+  self->input_count = PyMem_Calloc((size_t)n + 1, sizeof *self->input_count);
+  self->input_set = PyMem_Calloc((size_t)n + 1, sizeof *self->input_set);
+  self->output = PyMem_Calloc((size_t)n + 1, sizeof *self->output);
+  self->output_name = PyMem_Calloc((size_t)n + 1, sizeof *self->output_name);
+  if (!self->input || !self->input_name || !self->input_shape || !self->input_nd || !self->input_count ||
+      !self->input_set || !self->output || !self->output_name) {
+    PyErr_NoMemory();
+    goto fail;
+  }
+  for (int i = 0; i < n; i++) {
+    const NpgSymbol *s = &p->sym[i];
+    if (s->kind == NPG_INPUT) {
+      int k = self->ninputs++;
+      self->input[k] = s;
+      if (!(self->input_name[k] = PyUnicode_InternFromString(s->name))) goto fail;
+      self->input_nd[k] = npgpy_shape(s, model_dim, model->m, self->input_shape[k]);
+      size_t c = 1;
+      for (int d = 0; d < self->input_nd[k]; d++) c *= (size_t)self->input_shape[k][d];
+      self->input_count[k] = c;
+    } else if (s->output && s->kind != NPG_OP) {
+      int k = self->noutputs++;
+      self->output[k] = s;
+      if (!(self->output_name[k] = PyUnicode_InternFromString(s->name))) goto fail;
+    }
+  }
+  self->r = npg_reduced_new(model->m);
+  if (!self->r) {
+    PyErr_NoMemory();
+    goto fail;
+  }
+  if (npg_reduced_error(self->r)[0]) {
+    npgpy_raise(npgpy_Error, npg_reduced_error(self->r));
+    goto fail;
+  }
+  npg_reduced_exact_roots(self->r, exact);
+  return (PyObject *)self;
+fail:
+  Py_DECREF(self);
+  return NULL;
+}
+
+static int input_index(ReducedObject *self, PyObject *key) {
+  for (int i = 0; i < self->ninputs; i++)
+    if (self->input_name[i] == key) return i;
+  for (int i = 0; i < self->ninputs; i++) {
+    int eq = PyUnicode_Compare(self->input_name[i], key);
+    if (eq == 0) return i;
+  }
+  return -1;
+}
+
+static PyObject *shape_text(const npy_intp *shape, int nd) {
+  PyObject *t = PyTuple_New(nd);
+  for (int d = 0; t && d < nd; d++) PyTuple_SET_ITEM(t, d, PyLong_FromSsize_t(shape[d]));
+  return t;
+}
+
+/* red(**inputs) -> {output: reduced coordinates} */
+static PyObject *reduced_call(ReducedObject *self, PyObject *args, PyObject *kw) {
+  enum { MAXIN = 64 };
+  if (PyTuple_GET_SIZE(args) > 0) {
+    PyErr_SetString(PyExc_TypeError, "Reduced(...) takes its inputs by name: red(x=array, ...)");
+    return NULL;
+  }
+  Py_ssize_t nkw = kw ? PyDict_GET_SIZE(kw) : 0;
+  if (nkw > MAXIN) return PyErr_Format(PyExc_TypeError, "red(...): at most %d inputs", MAXIN);
+  PyArrayObject *arr[MAXIN];
+  int idx[MAXIN], na = 0;
+  PyObject *key, *value, *res = NULL;
+  Py_ssize_t pos = 0;
+  while (kw && PyDict_Next(kw, &pos, &key, &value)) {
+    int k = input_index(self, key);
+    if (k < 0) {
+      PyErr_Format(npgpy_Error, "red(...): the program has no input '%U' (outputs, stages and externs are computed)",
+                   key);
+      goto done;
+    }
+    PyArrayObject *a;
+    if (PyArray_CheckExact(value) && PyArray_TYPE((PyArrayObject *)value) == NPY_DOUBLE &&
+        PyArray_ISCARRAY_RO((PyArrayObject *)value) && PyArray_ISNOTSWAPPED((PyArrayObject *)value)) {
+      a = (PyArrayObject *)Py_NewRef(value); /* the common case: in place */
+    } else {
+      char what[256];
+      snprintf(what, sizeof what, "input '%s'", self->input[k]->name);
+      if (!(a = npgpy_values(value, what))) goto done;
+    }
+    arr[na] = a;
+    idx[na++] = k;
+    int nd = PyArray_NDIM(a);
+    bool same = nd == self->input_nd[k];
+    for (int d = 0; same && d < nd; d++) same = PyArray_DIM(a, d) == self->input_shape[k][d];
+    /* a flat array of the right size is accepted: C order is the library's */
+    if (!same && !(nd == 1 && (size_t)PyArray_DIM(a, 0) == self->input_count[k])) {
+      PyObject *want = shape_text(self->input_shape[k], self->input_nd[k]);
+      PyObject *got = shape_text(PyArray_DIMS(a), nd);
+      if (want && got)
+        PyErr_Format(npgpy_Error, "input '%s' has shape %R; the model was trained with %R", self->input[k]->name,
+                     got, want);
+      Py_XDECREF(want);
+      Py_XDECREF(got);
+      goto done;
+    }
+  }
+  npgpy_busy_enter(&self->busy);
+  for (int i = 0; i < na; i++) self->input_set[idx[i]] = true;
+  for (int k = 0; k < self->ninputs; k++)
+    if (!self->input_set[k]) {
+      npgpy_busy_leave(&self->busy);
+      PyErr_Format(npgpy_Error, "input '%s' is not set: give it (red(%s=array)) at least once, or its coordinates "
+                   "(red.set_coords('%s', coords))", self->input[k]->name, self->input[k]->name,
+                   self->input[k]->name);
+      goto done;
+    }
+  int rc = 0;
+  long sample = self->sample++;
+  Py_BEGIN_ALLOW_THREADS
+  for (int i = 0; i < na && rc == 0; i++)
+    rc = npg_reduced_set(self->r, self->input[idx[i]]->name, self->input_count[idx[i]], PyArray_DATA(arr[i]));
+  if (rc == 0) rc = npg_reduced_eval(self->r, sample);
+  Py_END_ALLOW_THREADS
+  if (rc) {
+    /* an input that failed to project keeps its old coordinates: it is set no more */
+    for (int i = 0; i < na; i++) self->input_set[idx[i]] = false;
+    rfail(self);
+  } else {
+    res = PyDict_New();
+    for (int o = 0; res && o < self->noutputs; o++) {
+      size_t m = 0;
+      const double *c = npg_reduced_coords(self->r, self->output[o]->name, &m);
+      npy_intp dm = (npy_intp)m;
+      PyObject *a = PyArray_SimpleNew(1, &dm, NPY_DOUBLE);
+      if (a && m) memcpy(PyArray_DATA((PyArrayObject *)a), c, sizeof(double) * m);
+      if (!a || PyDict_SetItem(res, self->output_name[o], a) < 0) Py_CLEAR(res);
+      Py_XDECREF(a);
+    }
+  }
+  npgpy_busy_leave(&self->busy);
+done:
+  for (int i = 0; i < na; i++) Py_DECREF(arr[i]);
+  return res;
+}
+
+/* The symbol of quantity `name` (not a param or op), NULL with npg.Error. */
+static const NpgSymbol *quantity(ReducedObject *self, const char *name) {
+  const ProgramObject *p = self->model->prog;
+  for (int i = 0; i < p->nsym; i++)
+    if (strcmp(p->sym[i].name, name) == 0 && p->sym[i].kind != NPG_PARAM && p->sym[i].kind != NPG_OP)
+      return &p->sym[i];
+  PyErr_Format(npgpy_Error, "the program has no quantity '%s'", name);
+  return NULL;
+}
+
+/* red.lift(name, out=None) -> B ŷ, shaped like the quantity, written into
+ * a new array (or `out`, float64 C-contiguous of the right size). */
+static PyObject *reduced_lift(ReducedObject *self, PyObject *args, PyObject *kw) {
+  static char *kwlist[] = {"name", "out", NULL};
+  const char *name;
+  PyObject *out = Py_None;
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "s|O:lift", kwlist, &name, &out)) return NULL;
+  const NpgSymbol *s = quantity(self, name);
+  if (!s) return NULL;
+  npy_intp shape[16];
+  int nd = npgpy_shape(s, model_dim, self->model->m, shape);
+  PyArrayObject *a;
+  if (out == Py_None) {
+    if (!(a = (PyArrayObject *)PyArray_SimpleNew(nd, shape, NPY_DOUBLE))) return NULL;
+  } else {
+    if (!PyArray_Check(out) || PyArray_TYPE((PyArrayObject *)out) != NPY_DOUBLE ||
+        !PyArray_ISCARRAY((PyArrayObject *)out) || !PyArray_ISNOTSWAPPED((PyArrayObject *)out))
+      return PyErr_Format(PyExc_TypeError, "lift('%s', out=...): out must be a writeable float64 C-contiguous array",
+                          name);
+    a = (PyArrayObject *)Py_NewRef(out);
+  }
+  npgpy_busy_enter(&self->busy);
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_reduced_lift(self->r, name, PyArray_DATA(a), (size_t)PyArray_SIZE(a));
+  Py_END_ALLOW_THREADS
+  if (rc) {
+    rfail(self);
+    Py_CLEAR(a);
+  }
+  npgpy_busy_leave(&self->busy);
+  return (PyObject *)a;
+}
+
+/* red.coords(name) -> a copy of any quantity's reduced coordinates */
+static PyObject *reduced_coords(ReducedObject *self, PyObject *arg) {
+  const char *name = PyUnicode_AsUTF8(arg);
+  if (!name || !quantity(self, name)) return NULL;
+  npgpy_busy_enter(&self->busy);
+  size_t m = 0;
+  const double *c = npg_reduced_coords(self->r, name, &m);
+  npy_intp dm = (npy_intp)m;
+  PyObject *a = PyArray_SimpleNew(1, &dm, NPY_DOUBLE);
+  if (a && m) memcpy(PyArray_DATA((PyArrayObject *)a), c, sizeof(double) * m);
+  npgpy_busy_leave(&self->busy);
+  return a;
+}
+
+/* red.set_coords(name, coords): an input from its reduced coordinates */
+static PyObject *reduced_set_coords(ReducedObject *self, PyObject *args) {
+  const char *name;
+  PyObject *v;
+  if (!PyArg_ParseTuple(args, "sO:set_coords", &name, &v)) return NULL;
+  char what[256];
+  snprintf(what, sizeof what, "set_coords('%s')", name);
+  PyArrayObject *a = npgpy_values(v, what);
+  if (!a) return NULL;
+  npgpy_busy_enter(&self->busy);
+  int rc = npg_reduced_set_coords(self->r, name, (size_t)PyArray_SIZE(a), PyArray_DATA(a));
+  PyObject *res = NULL;
+  if (rc) rfail(self);
+  else {
+    PyObject *key = PyUnicode_FromString(name);
+    int k = key ? input_index(self, key) : -1;
+    Py_XDECREF(key);
+    if (k >= 0) self->input_set[k] = true;
+    res = Py_NewRef(Py_None);
+  }
+  npgpy_busy_leave(&self->busy);
+  Py_DECREF(a);
+  return res;
+}
+
+/* red.op(name) -> the reduced `output op` matrix B_rowᵀ M B_col (rows x cols) */
+static PyObject *reduced_op(ReducedObject *self, PyObject *arg) {
+  const char *name = PyUnicode_AsUTF8(arg);
+  if (!name) return NULL;
+  size_t cap = 0;
+  for (int c = 0; c < npg_model_nclasses(self->model->m); c++) {
+    NpgClassInfo ci;
+    npg_model_class(self->model->m, c, &ci);
+    if ((size_t)(ci.m * ci.m) > cap) cap = (size_t)(ci.m * ci.m);
+  }
+  double *buf = malloc(sizeof(double) * (cap + 1));
+  if (!buf) return PyErr_NoMemory();
+  long rows = 0, cols = 0;
+  npgpy_busy_enter(&self->busy);
+  int rc = npg_reduced_op(self->r, name, buf, cap, &rows, &cols, NULL, NULL);
+  PyObject *a = NULL;
+  if (rc) rfail(self);
+  else {
+    npy_intp shape[2] = {rows, cols};
+    if ((a = PyArray_SimpleNew(2, shape, NPY_DOUBLE)))
+      memcpy(PyArray_DATA((PyArrayObject *)a), buf, sizeof(double) * (size_t)(rows * cols));
+  }
+  npgpy_busy_leave(&self->busy);
+  free(buf);
+  return a;
+}
+
+static PyObject *get_model(ReducedObject *self, void *unused) { return Py_NewRef(self->model); }
+
+static PyGetSetDef reduced_getset[] = {
+  {"model", (getter)get_model, NULL, "the Model", NULL},
+  {NULL},
+};
+
+static PyMethodDef reduced_methods[] = {
+  {"lift", (PyCFunction)(void (*)(void))reduced_lift, METH_VARARGS | METH_KEYWORDS,
+   "lift(name, out=None) -> array: B ŷ of any quantity, shaped like it; written into `out` when given"},
+  {"coords", (PyCFunction)reduced_coords, METH_O, "coords(name) -> array: a copy of the reduced coordinates"},
+  {"set_coords", (PyCFunction)reduced_set_coords, METH_VARARGS,
+   "set_coords(name, coords): set an input from its reduced coordinates"},
+  {"op", (PyCFunction)reduced_op, METH_O, "op(name) -> array: the reduced output op B_rowᵀ M B_col"},
+  {NULL},
+};
+
+PyTypeObject npgpy_ReducedType = {
+  PyVarObject_HEAD_INIT(NULL, 0)
+  .tp_name = "npg.Reduced",
+  .tp_basicsize = sizeof(ReducedObject),
+  .tp_dealloc = (destructor)reduced_dealloc,
+  .tp_call = (ternaryfunc)reduced_call,
+  .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
+  .tp_doc = "A reduced evaluator (Model.reduced()). red(x=array, ...) -> {output: reduced coordinates}.\n\n"
+            "Inputs are projected in place when float64 C-contiguous; an input not given keeps the value\n"
+            "of the previous call; one never given raises. Outputs: copies of the coordinates (m values).",
+  .tp_traverse = (traverseproc)reduced_traverse,
+  .tp_methods = reduced_methods,
+  .tp_getset = reduced_getset,
+};
+
+static PyGetSetDef model_getset[] = {
+  {"basis_sizes", (getter)get_basis_sizes, NULL, "{class label: basis size}", NULL},
+  {"classes", (getter)get_classes, NULL, "per class: label, n, m, members (name, kept, cap, captured)", NULL},
+  {"samples", (getter)get_samples, NULL, "training samples", NULL},
+  {"program", (getter)get_program, NULL, "the Program", NULL},
+  {NULL},
+};
+
+static PyMethodDef model_methods[] = {
+  {"report", (PyCFunction)model_report, METH_NOARGS, "report() -> str: the training table npgc train prints"},
+  {"save", (PyCFunction)model_save, METH_O, "save(model_dir): write MODEL/"},
+  {"basis", (PyCFunction)model_basis, METH_O, "basis(name) -> n x m read-only view of the basis of name's class"},
+  {"dim", (PyCFunction)model_dim_method, METH_O, "dim(name) -> int: the size a dim had in training"},
+  {"reduced", (PyCFunction)(void (*)(void))model_reduced, METH_VARARGS | METH_KEYWORDS,
+   "reduced(exact_roots=False) -> Reduced: a reduced evaluator (one per thread)"},
+  {"verify", (PyCFunction)(void (*)(void))model_verify, METH_VARARGS | METH_KEYWORDS,
+   "verify(test, tol=None, full=None, progress=False) -> {quantity: {kind, m, output, l2, floor, own, l2_max,\n"
+   "l2_max_sample, linf, linf_floor[, pass]}}: npgc verify on test samples (a dict name -> array whose\n"
+   "first axis is the sample). full: an evaluator with the model's params (default: the trainer's)."},
+  {NULL},
+};
+
+PyTypeObject npgpy_ModelType = {
+  PyVarObject_HEAD_INIT(NULL, 0)
+  .tp_name = "npg.Model",
+  .tp_basicsize = sizeof(ModelObject),
+  .tp_dealloc = (destructor)model_dealloc,
+  .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
+  .tp_doc = "A trained model (Trainer.finish, npg.load); read-only, shared by any number of Reduced.",
+  .tp_traverse = (traverseproc)model_traverse,
+  .tp_methods = model_methods,
+  .tp_getset = model_getset,
+};

@@ -1,0 +1,112 @@
+/* npgpy.h — the CPython extension module `npg` (issue 27): shared types and
+ * helpers of its files, one per concern — module.c (the module, errors,
+ * arrays), program.c (npg.compile), full.c (full evaluation and externs),
+ * trainer.c (npg.Trainer), model.c (models, reduced evaluation, verify).
+ *
+ * The module is a client of npg.h alone, like npgc. Ownership follows the
+ * C API's: a full evaluator keeps pointers into its program, a trainer into
+ * its full evaluator, a model into its program, a reduced evaluator into its
+ * model; each Python object holds a reference to the object whose memory
+ * its C object points into, and frees its C object before dropping that
+ * reference, so any order of `del` is safe.
+ *
+ * Threads: the GIL is released around evaluation, training, projection,
+ * lifting and verification. Each object that owns a C evaluator has a lock,
+ * so two threads calling the same object take turns instead of racing
+ * (the C API wants one evaluator per thread; a model is shared freely). */
+#ifndef NPGPY_H
+#define NPGPY_H
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <stdbool.h>
+
+#define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
+#define PY_ARRAY_UNIQUE_SYMBOL npgpy_ARRAY_API
+#ifndef NPGPY_MODULE_C
+#define NO_IMPORT_ARRAY
+#endif
+#include <numpy/arrayobject.h>
+
+#include "npg.h"
+
+/* ---------------------------------------------------------------- module.c */
+extern PyObject *npgpy_Error;         /* npg.Error: every library error */
+extern PyObject *npgpy_CompileError;  /* npg.CompileError(npg.Error): a diagnostic with its caret */
+extern const char *npgpy_std_dir;     /* the stdlib installed with the package, or NULL */
+
+/* A lock that is taken with the GIL released when another thread holds it.
+ * `holder` is the thread that holds it (an extern callback runs in that
+ * thread and may read values, but not evaluate again). */
+typedef struct Busy {
+  PyThread_type_lock lock;
+  unsigned long holder;
+} Busy;
+int npgpy_busy_init(Busy *b);
+void npgpy_busy_free(Busy *b);
+void npgpy_busy_enter(Busy *b);
+void npgpy_busy_leave(Busy *b);
+bool npgpy_busy_mine(const Busy *b);
+
+/* `obj` as a float64 C-contiguous aligned array: `obj` itself (a new
+ * reference, no copy) when it already is one; another layout of float64 is
+ * copied; an array of another dtype raises TypeError naming `what`
+ * (Python lists and numbers are converted). NULL with an exception set. */
+PyArrayObject *npgpy_values(PyObject *obj, const char *what);
+/* The shape of `a` as the C API takes it (long[], at most NPY_MAXDIMS). */
+void npgpy_long_shape(PyArrayObject *a, long *shape);
+/* A library message as npg.Error (or `type`). Returns NULL. */
+PyObject *npgpy_raise(PyObject *type, const char *msg);
+/* The shape of symbol `s` with its dims sized by `dim(ctx, name)` (-1 if
+ * unknown); returns its ndim, or -1. */
+int npgpy_shape(const NpgSymbol *s, long (*dim)(const void *ctx, const char *name), const void *ctx, npy_intp *shape);
+/* The program's symbols (malloc'd, *n of them), NULL with MemoryError. */
+NpgSymbol *npgpy_symbols(NpgProgram *p, int *n);
+
+/* ---------------------------------------------------------------- program.c */
+typedef struct ProgramObject {
+  PyObject_HEAD
+  NpgProgram *p;
+  PyObject *path;           /* str: the file, or the name given to source text */
+  PyObject *report;         /* dict: `npgc check --json`, made on first use */
+  int nsym;
+  NpgSymbol *sym;
+} ProgramObject;
+extern PyTypeObject npgpy_ProgramType;
+PyObject *npgpy_compile(PyObject *self, PyObject *args, PyObject *kw);
+
+/* ---------------------------------------------------------------- full.c */
+typedef struct ExternSlot ExternSlot;
+typedef struct FullObject {
+  PyObject_HEAD
+  ProgramObject *prog;
+  NpgFull *f;
+  Busy busy;
+  ExternSlot *externs;      /* linked list of callables registered as externs */
+  PyObject *cb_error;       /* the exception an extern callable raised (an exception instance), or NULL */
+  bool evaluated;           /* one evaluation happened since the last binding */
+  long calls;               /* evaluations so far: the sample number of the next (messages, extern callables) */
+} FullObject;
+extern PyTypeObject npgpy_FullType;
+PyObject *npgpy_full_new(ProgramObject *prog, PyObject *params, const char *backend);
+/* After a failed call of the library on `self`: npg.Error with `msg`, its
+ * __cause__ the exception an extern callable raised, if any. */
+PyObject *npgpy_full_raise(FullObject *self, const char *msg);
+
+/* ---------------------------------------------------------------- trainer.c */
+extern PyTypeObject npgpy_TrainerType;
+
+/* ---------------------------------------------------------------- model.c */
+typedef struct ModelObject {
+  PyObject_HEAD
+  ProgramObject *prog;
+  NpgModel *m;
+  FullObject *full;         /* the evaluator it was trained with (verify's default), or NULL */
+} ModelObject;
+extern PyTypeObject npgpy_ModelType;
+extern PyTypeObject npgpy_ReducedType;
+/* A model object owning `m` (stolen), NULL with an exception. */
+PyObject *npgpy_model_wrap(ProgramObject *prog, NpgModel *m, FullObject *full);
+PyObject *npgpy_load(PyObject *self, PyObject *args, PyObject *kw);
+
+#endif

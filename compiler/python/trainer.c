@@ -1,0 +1,274 @@
+/* trainer.c — npg.Trainer: samples streamed from Python into the library's
+ * trainer (npg_trainer_set / npg_trainer_add), then one call trains and
+ * writes MODEL/ exactly as `npgc train` does (the same code: the same
+ * samples give the same model, byte for byte). */
+#include "npgpy.h"
+
+typedef struct TrainerObject {
+  PyObject_HEAD
+  FullObject *full;         /* the trainer replays its samples through full->f */
+  NpgTrainer *t;
+  int nbasis;               /* per-name overrides (basis=), owned here: the trainer keeps the pointers */
+  char **basis_name;
+  int *basis_cap;
+  double *basis_energy;
+  int *basis_center;
+} TrainerObject;
+
+static void free_basis(TrainerObject *self) {
+  for (int i = 0; i < self->nbasis; i++) PyMem_Free(self->basis_name[i]);
+  PyMem_Free(self->basis_name);
+  PyMem_Free(self->basis_cap);
+  PyMem_Free(self->basis_energy);
+  PyMem_Free(self->basis_center);
+  self->nbasis = 0;
+  self->basis_name = NULL, self->basis_cap = NULL, self->basis_energy = NULL, self->basis_center = NULL;
+}
+
+/* basis={NAME: {"cap": N, "energy": E, "center": bool}} as the C options
+ * (`npgc train --basis NAME:cap=N,energy=E,center=on|off`; NAME a quantity,
+ * a class m_x, a numerator y.num1 or '*'; the library checks the names). */
+static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o) {
+  free_basis(self); /* a second __init__ after a failed one */
+  if (basis == Py_None) return 0;
+  if (!PyDict_Check(basis)) {
+    PyErr_SetString(PyExc_TypeError, "Trainer: basis={name: {'cap': N, 'energy': E, 'center': bool}}");
+    return -1;
+  }
+  Py_ssize_t n = PyDict_GET_SIZE(basis);
+  self->basis_name = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_name);
+  self->basis_cap = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_cap);
+  self->basis_energy = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_energy);
+  self->basis_center = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_center);
+  if (!self->basis_name || !self->basis_cap || !self->basis_energy || !self->basis_center) {
+    PyErr_NoMemory();
+    return -1;
+  }
+  PyObject *key, *value;
+  for (Py_ssize_t pos = 0; PyDict_Next(basis, &pos, &key, &value);) {
+    const char *name = PyUnicode_Check(key) ? PyUnicode_AsUTF8(key) : NULL;
+    if (!name || !PyDict_Check(value)) {
+      if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "Trainer: basis={name: {'cap': N, ...}}");
+      return -1;
+    }
+    int k = self->nbasis;
+    if (!(self->basis_name[k] = PyMem_Malloc(strlen(name) + 1))) {
+      PyErr_NoMemory();
+      return -1;
+    }
+    strcpy(self->basis_name[k], name);
+    self->nbasis++;
+    self->basis_cap[k] = -1, self->basis_energy[k] = -1, self->basis_center[k] = -1;
+    PyObject *ok, *ov;
+    for (Py_ssize_t p2 = 0; PyDict_Next(value, &p2, &ok, &ov);) {
+      const char *opt = PyUnicode_Check(ok) ? PyUnicode_AsUTF8(ok) : "";
+      if (strcmp(opt, "cap") == 0) {
+        long c = PyLong_AsLong(ov);
+        if (c == -1 && PyErr_Occurred()) return -1;
+        if (c < 1) return PyErr_Format(PyExc_ValueError, "Trainer: basis['%s']['cap'] %ld: at least 1", name, c), -1;
+        self->basis_cap[k] = (int)c;
+      } else if (strcmp(opt, "energy") == 0) {
+        double e = PyFloat_AsDouble(ov);
+        if (e == -1 && PyErr_Occurred()) return -1;
+        if (!(e > 0 && e <= 1))
+          return PyErr_Format(PyExc_ValueError, "Trainer: basis['%s']['energy'] %g: a fraction in (0, 1]", name, e), -1;
+        self->basis_energy[k] = e;
+      } else if (strcmp(opt, "center") == 0) {
+        int c = PyObject_IsTrue(ov);
+        if (c < 0) return -1;
+        self->basis_center[k] = c;
+      } else {
+        PyErr_Format(PyExc_ValueError, "Trainer: basis['%s']: unknown option %R (cap, energy, center)", name, ok);
+        return -1;
+      }
+    }
+  }
+  o->nbasis = self->nbasis;
+  o->basis_name = (const char *const *)self->basis_name;
+  o->basis_cap = self->basis_cap;
+  o->basis_energy = self->basis_energy;
+  o->basis_center = self->basis_center;
+  return 0;
+}
+
+static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
+  static char *kwlist[] = {"full", "energy", "cap", "center", "mem", "joint", "progress", "basis", NULL};
+  PyObject *full, *center = Py_True, *joint = Py_False, *progress = Py_False, *mem = Py_None, *basis = Py_None;
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|diOOOOO:Trainer", kwlist, &npgpy_FullType, &full, &o.energy, &o.cap,
+                                   &center, &mem, &joint, &progress, &basis))
+    return -1;
+  if (self->t) {
+    PyErr_SetString(PyExc_RuntimeError, "Trainer: already initialized");
+    return -1;
+  }
+  if (!(o.energy > 0 && o.energy <= 1)) {
+    PyErr_Format(PyExc_ValueError, "Trainer: energy %g: a fraction in (0, 1]", o.energy);
+    return -1;
+  }
+  if (o.cap < 1) {
+    PyErr_Format(PyExc_ValueError, "Trainer: cap %d: at least 1", o.cap);
+    return -1;
+  }
+  if (mem != Py_None) {
+    unsigned long long b = PyLong_AsUnsignedLongLong(mem);
+    if (PyErr_Occurred()) return -1;
+    o.mem = (size_t)b;
+  }
+  int c = PyObject_IsTrue(center), j = PyObject_IsTrue(joint), p = PyObject_IsTrue(progress);
+  if (c < 0 || j < 0 || p < 0) return -1;
+  o.uncentered = !c;
+  o.joint = j;
+  o.progress = p;
+  if (parse_basis(self, basis, &o) != 0) return -1;
+  Py_XSETREF(self->full, (FullObject *)Py_NewRef(full));
+  self->t = npg_trainer_new(self->full->f, &o);
+  if (!self->t) {
+    PyErr_NoMemory();
+    return -1;
+  }
+  if (npg_trainer_error(self->t)[0]) return npgpy_raise(npgpy_Error, npg_trainer_error(self->t)), -1;
+  return 0;
+}
+
+static int trainer_traverse(TrainerObject *self, visitproc visit, void *arg) {
+  Py_VISIT(self->full);
+  return 0;
+}
+
+static void trainer_dealloc(TrainerObject *self) {
+  PyObject_GC_UnTrack(self);
+  npg_trainer_free(self->t); /* before the evaluator it points into, and the overrides */
+  free_basis(self);
+  Py_XDECREF(self->full);
+  Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+static bool ready(TrainerObject *self) {
+  if (!self->t) PyErr_SetString(PyExc_RuntimeError, "Trainer: not initialized");
+  else if (npgpy_busy_mine(&self->full->busy))
+    PyErr_SetString(npgpy_Error, "Trainer: called from an extern callable of its evaluator");
+  else return true;
+  return false;
+}
+
+/* The library failed: its message (the extern callable's exception as the
+ * cause). The trainer refuses further work (the C API's contract); its
+ * evaluator is made usable again for evaluations and other trainers. */
+static PyObject *fail(TrainerObject *self) {
+  npgpy_full_raise(self->full, npg_trainer_error(self->t));
+  npg_full_clear_error(self->full->f);
+  return NULL;
+}
+
+/* tr.add(**inputs): stream one sample (every input; externs given or computed by their callables). */
+static PyObject *trainer_add(TrainerObject *self, PyObject *args, PyObject *kw) {
+  if (PyTuple_GET_SIZE(args) > 0) {
+    PyErr_SetString(PyExc_TypeError, "Trainer.add takes the sample's arrays by name: tr.add(x=array, ...)");
+    return NULL;
+  }
+  if (!ready(self)) return NULL;
+  npgpy_busy_enter(&self->full->busy);
+  PyObject *key, *value, *res = NULL;
+  Py_ssize_t pos = 0;
+  while (kw && PyDict_Next(kw, &pos, &key, &value)) {
+    const char *name = PyUnicode_AsUTF8(key);
+    if (!name) goto done;
+    char what[256];
+    snprintf(what, sizeof what, "Trainer.add: argument '%s'", name);
+    PyArrayObject *a = npgpy_values(value, what);
+    if (!a) goto done;
+    long shape[NPY_MAXDIMS];
+    npgpy_long_shape(a, shape);
+    int rc = npg_trainer_set(self->t, name, PyArray_NDIM(a), shape, PyArray_DATA(a));
+    Py_DECREF(a);
+    if (rc) {
+      fail(self);
+      goto done;
+    }
+  }
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_trainer_add(self->t);
+  Py_END_ALLOW_THREADS
+  if (rc) fail(self);
+  else res = Py_NewRef(Py_None);
+done:
+  npgpy_busy_leave(&self->full->busy);
+  return res;
+}
+
+/* tr.add_full(): the inputs and externs the evaluator holds after full(...). */
+static PyObject *trainer_add_full(TrainerObject *self, PyObject *unused) {
+  if (!ready(self)) return NULL;
+  npgpy_busy_enter(&self->full->busy);
+  int rc;
+  if (!self->full->evaluated) {
+    npgpy_busy_leave(&self->full->busy);
+    PyErr_SetString(npgpy_Error, "Trainer.add_full: the evaluator has not evaluated a sample yet");
+    return NULL;
+  }
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_trainer_add_full(self->t, self->full->f);
+  Py_END_ALLOW_THREADS
+  npgpy_busy_leave(&self->full->busy);
+  if (rc) return fail(self);
+  Py_RETURN_NONE;
+}
+
+/* tr.finish(model_dir=None) -> Model */
+static PyObject *trainer_finish(TrainerObject *self, PyObject *args, PyObject *kw) {
+  static char *kwlist[] = {"model_dir", NULL};
+  PyObject *dir = Py_None, *b = NULL;
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "|O:finish", kwlist, &dir)) return NULL;
+  if (!ready(self)) return NULL;
+  if (dir != Py_None && !PyUnicode_FSConverter(dir, &b)) return NULL;
+  npgpy_busy_enter(&self->full->busy);
+  NpgModel *m;
+  const char *path = b ? PyBytes_AS_STRING(b) : NULL;
+  Py_BEGIN_ALLOW_THREADS
+  m = npg_trainer_finish(self->t, path);
+  Py_END_ALLOW_THREADS
+  npgpy_busy_leave(&self->full->busy);
+  Py_XDECREF(b);
+  if (!m) return fail(self);
+  return npgpy_model_wrap(self->full->prog, m, self->full);
+}
+
+static PyObject *get_samples(TrainerObject *self, void *unused) {
+  return PyLong_FromLong(self->t ? npg_trainer_samples(self->t) : 0);
+}
+
+static PyGetSetDef trainer_getset[] = {
+  {"samples", (getter)get_samples, NULL, "samples added so far", NULL},
+  {NULL},
+};
+
+static PyMethodDef trainer_methods[] = {
+  {"add", (PyCFunction)(void (*)(void))trainer_add, METH_VARARGS | METH_KEYWORDS,
+   "add(**arrays): stream one sample: every input, and externs (else computed by their callables)"},
+  {"add_full", (PyCFunction)trainer_add_full, METH_NOARGS,
+   "add_full(): the sample the evaluator evaluated last (full(x=...) then tr.add_full())"},
+  {"finish", (PyCFunction)(void (*)(void))trainer_finish, METH_VARARGS | METH_KEYWORDS,
+   "finish(model_dir=None) -> Model: train on the samples added; with model_dir, write MODEL/ as npgc train"},
+  {NULL},
+};
+
+PyTypeObject npgpy_TrainerType = {
+  PyVarObject_HEAD_INIT(NULL, 0)
+  .tp_name = "npg.Trainer",
+  .tp_basicsize = sizeof(TrainerObject),
+  .tp_dealloc = (destructor)trainer_dealloc,
+  .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
+  .tp_doc = "Trainer(full, energy=0.999, cap=60, center=True, mem=None, joint=False, progress=False, basis=None)\n\n"
+            "Streams samples into the library's trainer; finish() trains as npgc train does. mem: bytes for\n"
+            "the samples in memory (beyond: a scratch file; None: half the RAM). center=False: the paper's\n"
+            "uncentered truncation. basis={name: {'cap': N, 'energy': E, 'center': bool}}: per quantity,\n"
+            "class (m_x), numerator (y.num1) or '*', as npgc train --basis.",
+  .tp_traverse = (traverseproc)trainer_traverse,
+  .tp_init = (initproc)trainer_init,
+  .tp_new = PyType_GenericNew,
+  .tp_methods = trainer_methods,
+  .tp_getset = trainer_getset,
+};
