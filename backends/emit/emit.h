@@ -199,6 +199,8 @@ typedef struct PartEmit {
 } PartEmit;
 void emit_part(Emit *e, FILE *out, const Sym *op, const Mono *m, const MonoPart *pt, int depth, int nouter,
                const PartEmit *how);
+/* `if (!(guard)) continue;` where the monomial has a guard. */
+void emit_part_guard(Emit *e, FILE *out, const Mono *m, int depth);
 /* `const double w_ = sign × Π factors;` and a `continue` where it is 0. */
 void emit_part_coef(Emit *e, FILE *out, const MonoPart *pt, int depth);
 /* Whether every part of every monomial of `od` leaves its row variables

@@ -76,26 +76,26 @@ void emit_flat(Emit *e, FILE *out, const Sym *s, int from, int to) {
   }
 }
 
+/* in_[k] = the offset of the contracted entry of atom order[k], k < n. */
+static void emit_inputs(Emit *e, FILE *out, const Mono *m, const int *order, int n, int depth) {
+  for (int k = 0; k < n; k++) {
+    const Atom *a = &m->atoms[order[k]];
+    indent(out, depth);
+    fprintf(out, "in_[%d] = ", k);
+    emit_offset(e, out, a->q, a->idx, a->nidx);
+    fputs(";\n", out);
+  }
+}
+
 /* The innermost statements of one part of a sparse operator's entry in a
  * builder: the guard, the coefficient, the contracted entries' offsets,
  * then the entry. */
 static void sparse_entry_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, const Sym *op, int d,
                               const void *arg) {
   const int *order = arg;
-  if (m->guard) {
-    indent(out, d);
-    fputs("if (!(", out);
-    emit_cexpr(e, out, m->guard);
-    fputs(")) continue;\n", out);
-  }
+  emit_part_guard(e, out, m, d);
   emit_part_coef(e, out, pt, d);
-  for (int k = 0; k < m->natoms; k++) {
-    const Atom *a = &m->atoms[order[k]];
-    indent(out, d);
-    fprintf(out, "in_[%d] = ", k);
-    emit_offset(e, out, a->q, a->idx, a->nidx);
-    fputs(";\n", out);
-  }
+  emit_inputs(e, out, m, order, m->natoms, d);
   indent(out, d);
   fputs("if (sink->entry(sink->user, e_, ", out);
   emit_flat(e, out, op, op->nrow, op->nivars);
@@ -219,13 +219,7 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
         emit_cexpr(e, out, m->guard);
         fputs(") {\n", out);
       }
-      for (int k = 0; k < g->ninputs; k++) {
-        const Atom *a = &m->atoms[order[k]];
-        indent(out, d);
-        fprintf(out, "in_[%d] = ", k);
-        emit_offset(e, out, a->q, a->idx, a->nidx);
-        fputs(";\n", out);
-      }
+      emit_inputs(e, out, m, order, g->ninputs, d);
       indent(out, d);
       const char *row = arena_printf(e->ctx, "e_ * %d + %d", b->ncomp, c);
       const char *col = b->kind == 0 ? "-1" : b->kind == 1 ? row : "col_";

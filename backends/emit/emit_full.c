@@ -132,12 +132,7 @@ static void emit_index_check(Emit *e, FILE *out, const Sym *q, int axis, const N
  * cnt_ of the entries function). */
 static void entry_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, const Sym *op, int d, const void *arg) {
   (void)arg;
-  if (m->guard) {
-    indent(out, d);
-    fputs("if (!(", out);
-    emit_cexpr(e, out, m->guard);
-    fputs(")) continue;\n", out);
-  }
+  emit_part_guard(e, out, m, d);
   emit_part_coef(e, out, pt, d);
   indent(out, d);
   fputs("if (rows_) {\n", out);
@@ -167,12 +162,7 @@ static void entry_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, co
 static void check_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, const Sym *op, int d, const void *arg) {
   (void)arg;
   emit_node_checks(e, out, m->guard, op, d);
-  if (m->guard) {
-    indent(out, d);
-    fputs("if (!(", out);
-    emit_cexpr(e, out, m->guard);
-    fputs(")) continue;\n", out);
-  }
+  emit_part_guard(e, out, m, d);
   for (int f = 0; f < pt->nfactors; f++) emit_node_checks(e, out, pt->factors[f], op, d);
   for (int a = 0; a < m->natoms; a++)
     for (int k = 0; k < m->atoms[a].q->ndims; k++) emit_index_check(e, out, m->atoms[a].q, k, m->atoms[a].idx[k], op, d);

@@ -69,6 +69,14 @@ void emit_part(Emit *e, FILE *out, const Sym *op, const Mono *m, const MonoPart 
   }
 }
 
+void emit_part_guard(Emit *e, FILE *out, const Mono *m, int depth) {
+  if (!m->guard) return;
+  indent(out, depth);
+  fputs("if (!(", out);
+  emit_cexpr(e, out, m->guard);
+  fputs(")) continue;\n", out);
+}
+
 void emit_part_coef(Emit *e, FILE *out, const MonoPart *pt, int depth) {
   indent(out, depth);
   fprintf(out, "const double w_ = %d.0", pt->sign);
