@@ -6,8 +6,10 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <dirent.h>
 #include <sys/stat.h>
 
+#include "npg.h"
 #include "npgc.h"
 
 typedef struct Usage {
@@ -157,26 +159,6 @@ void npgc_error(const char *msg) {
           msg);
 }
 
-bool npgc_parse_long(const char *s, long lo, long hi, long *out) {
-  if (!s || !*s) return false;
-  char *end;
-  errno = 0;
-  long v = strtol(s, &end, 10);
-  if (errno || *end || v < lo || v > hi) return false;
-  *out = v;
-  return true;
-}
-
-bool npgc_parse_double(const char *s, double lo, double hi, bool lo_open, double *out) {
-  if (!s || !*s) return false;
-  char *end;
-  errno = 0;
-  double v = strtod(s, &end);
-  if (errno || *end || !isfinite(v) || v > hi || v < lo || (lo_open && v == lo)) return false;
-  *out = v;
-  return true;
-}
-
 bool npgc_parse_bytes(const char *s, size_t *out) {
   if (!s || !*s) return false;
   char *end;
@@ -237,4 +219,60 @@ bool npgc_inside(const char *path, const char *dir) {
   else if (slash == parent) parent[1] = 0;
   else *slash = 0;
   return npgc_same_file(parent, dir);
+}
+
+int npgc_args_error(const NpgArgs *a, const char *cmd) {
+  fprintf(stderr, "%s (npgc %s --help for its usage)\n", a->error, cmd);
+  return 2;
+}
+
+void npgc_args_extra(NpgArgs *a, const char *what, const char *first) {
+  if (!a->error[0])
+    snprintf(a->error, sizeof a->error, "%s: more than one %s given ('%s' and '%s')", a->prog, what, first,
+             a->argv[a->i]);
+}
+
+int npgc_missing(const char *cmd, const char *what) {
+  fprintf(stderr, "npgc %s: missing %s (npgc %s --help for its usage)\n", cmd, what, cmd);
+  return 2;
+}
+
+/* `dir` holds an entry `name` (a file, or anything in its place). */
+static bool holds(const char *dir, const char *name) {
+  char path[4096];
+  struct stat st;
+  snprintf(path, sizeof path, "%s/%s", dir, name);
+  return lstat(path, &st) == 0;
+}
+
+/* What every model folder holds (a damaged model still holds one of them,
+ * and is left to the model loader to describe). */
+static bool looks_like_model(const char *dir) { return holds(dir, "manifest") || holds(dir, "basis_0.npy"); }
+
+/* `dir` holds at least one .npy file. */
+static bool holds_npy(const char *dir) {
+  DIR *d = opendir(dir);
+  if (!d) return false;
+  bool found = false;
+  for (struct dirent *e; !found && (e = readdir(d));) {
+    size_t n = strlen(e->d_name);
+    found = n > 4 && strcmp(e->d_name + n - 4, ".npy") == 0;
+  }
+  closedir(d);
+  return found;
+}
+
+int npgc_check_model_and_data(const char *cmd, const char *model, const char *data, const char *data_role) {
+  bool model_is_model = looks_like_model(model), data_is_model = data && looks_like_model(data);
+  if (!model_is_model && data_is_model) {
+    fprintf(stderr, "npgc %s: %s is a model and %s is not (it has no manifest): the order is npgc %s PROG.npg MODEL/ "
+                    "%s\n", cmd, data, model, cmd, data_role);
+    return -1;
+  }
+  if (!model_is_model && holds_npy(model)) {
+    fprintf(stderr, "npgc %s: %s is a data folder (it holds .npy files and no manifest), not a model: give the "
+                    "folder npgc train -o wrote (npgc %s PROG.npg MODEL/ %s)\n", cmd, model, cmd, data_role);
+    return -1;
+  }
+  return 0;
 }

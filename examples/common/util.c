@@ -2,8 +2,13 @@
 #define _POSIX_C_SOURCE 200809L
 #include "util.h"
 
+#include <stdbool.h>
+
+#include <errno.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <string.h>
+#include <sys/stat.h>
 #include <time.h>
 
 int util_fail(char *err, size_t errlen, const char *fmt, ...) {
@@ -20,4 +25,21 @@ double util_now(void) {
   struct timespec t;
   clock_gettime(CLOCK_MONOTONIC, &t);
   return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+int util_make_dirs(const char *path, char *err, size_t errlen) {
+  char buf[4096];
+  if (!path || !*path) return util_fail(err, errlen, "no folder given");
+  if (snprintf(buf, sizeof buf, "%s", path) >= (int)sizeof buf) return util_fail(err, errlen, "%.64s...: path too long", path);
+  for (char *q = buf + 1;; q++) {
+    bool last = *q == 0;
+    if (*q != '/' && !last) continue;
+    *q = 0;
+    struct stat st;
+    if (mkdir(buf, 0777) != 0 && errno != EEXIST) return util_fail(err, errlen, "cannot create %s: %s", buf, strerror(errno));
+    if (stat(buf, &st) != 0 || !S_ISDIR(st.st_mode)) return util_fail(err, errlen, "%s exists and is not a folder", buf);
+    if (last) break;
+    *q = '/';
+  }
+  return 0;
 }

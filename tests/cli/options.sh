@@ -1,0 +1,98 @@
+#!/bin/sh
+# options.sh BUILD_DIR — npgc's command lines as a new user types them
+# (issue 28, issue 24): `--opt=value` beside `--opt value`, strict numbers
+# with their range, what is missing said by name, swapped folders recognised,
+# params for verify from --params, and the data generators' strict numbers
+# and missing parents.
+set -eu
+B=$1
+W=$(mktemp -d /tmp/npg_options_XXXXXX)
+trap 'rm -rf "$W"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+N=$B/npgc
+P=examples/rational/rational.npg
+
+# expect STATUS MESSAGE CMD...: CMD exits with STATUS and its stderr holds MESSAGE
+expect() {
+  want=$1 msg=$2
+  shift 2
+  set +e
+  "$@" >"$W/out.txt" 2>"$W/err.txt"
+  got=$?
+  set -e
+  [ "$got" = "$want" ] || fail "$* exited $got, expected $want: $(cat "$W/err.txt")"
+  grep -qF -- "$msg" "$W/err.txt" || fail "$*: stderr lacks '$msg': $(cat "$W/err.txt")"
+}
+
+# 1. the data generators: parents created, numbers strict
+"$B/rational_data" "$W/deep/er/TRAIN" 60 1 >/dev/null || fail "rational_data into a missing parent"
+test -s "$W/deep/er/TRAIN/x.npy" || fail "rational_data wrote no x.npy"
+"$B/rational_data" "$W/TEST" 20 2 >/dev/null
+expect 2 "SAMPLES: '60abc' is not a whole number (expected 1..100000000)" "$B/rational_data" "$W/X" 60abc 1
+expect 2 "SEED: '1.5' is not a whole number" "$B/rational_data" "$W/X" 60 1.5
+"$B/radiosity_data" "$W/r/s/RT" 24 2 0 1 1 >/dev/null || fail "radiosity_data into a missing parent"
+test -s "$W/r/s/RT/v.npy" || fail "radiosity_data wrote no v.npy"
+expect 2 "F: 4294967320 is out of range (expected 12..100000)" "$B/radiosity_data" "$W/X" 4294967320 2 0 1 1
+expect 2 "F: 25 is odd" "$B/radiosity_data" "$W/X" 25 2 0 1 1
+expect 2 "T1: 'one' is not a number (expected [0, 1])" "$B/radiosity_data" "$W/X" 24 2 0 one 1
+
+# 2. --opt=value is --opt value: the two models are the same bytes
+"$N" train "$P" "$W/deep/er/TRAIN" -o "$W/M1" --cap 2 --energy 0.9 --center off >/dev/null || fail "train --opt value"
+"$N" train "$P" "$W/deep/er/TRAIN" -o="$W/M2" --cap=2 --energy=0.9 --center=off >/dev/null || fail "train --opt=value"
+cmp "$W/M1/basis_0.npy" "$W/M2/basis_0.npy" || fail "--cap=2 trained another basis than --cap 2"
+"$N" verify "$P" "$W/M1" "$W/TEST" --tol=0.5 >/dev/null || fail "verify --tol=0.5"
+"$N" eval "$P" "$W/M1" "$W/TEST" -o="$W/OUT" || fail "eval -o=OUT"
+test -s "$W/OUT/y.npy" || fail "eval -o=OUT wrote no y.npy"
+"$N" check "$P" --std=stdlib >/dev/null || fail "check --std=DIR"
+"$N" bench "$P" "$W/M1" "$W/TEST" --reps=1 >/dev/null || fail "bench --reps=1"
+expect 2 "npgc check: --json takes no value ('--json=yes')" "$N" check "$P" --json=yes
+
+# 3. numbers: the whole value, its range in the message
+expect 2 "npgc train: --energy: 99 is out of range (expected (0, 1])" "$N" train "$P" "$W/TEST" -o "$W/X" --energy 99
+expect 2 "npgc train: --cap: '300abc' is not a whole number (expected 1..1000000)" \
+  "$N" train "$P" "$W/TEST" -o "$W/X" --cap=300abc
+expect 2 "npgc bench: --reps: '2.9' is not a whole number (expected 1..1000000)" "$N" bench "$P" "$W/M1" "$W/TEST" --reps 2.9
+
+# 4. --basis names the bad key and the allowed ones; `cap 12` is cap=12 (the program's syntax)
+expect 2 "unknown key 'size' (the keys are cap, energy and center" "$N" train "$P" "$W/TEST" -o "$W/X" --basis u:size=5
+"$N" train "$P" "$W/deep/er/TRAIN" -o "$W/M3" --basis "y:cap 2" >/dev/null || fail "--basis 'y:cap 2'"
+"$N" train "$P" "$W/deep/er/TRAIN" -o "$W/M4" --basis "y:cap=2" >/dev/null || fail "--basis y:cap=2"
+cmp "$W/M3/manifest" "$W/M4/manifest" || fail "--basis 'y:cap 2' and y:cap=2 trained different models"
+
+# 5. unknown options are unknown; another command's option is named as such
+expect 2 "npgc verify: unknown option '--progres'" "$N" verify "$P" "$W/M1" "$W/TEST" --progres
+expect 2 "npgc verify: --cap is an option of npgc train, not of npgc verify" "$N" verify "$P" "$W/M1" "$W/TEST" --cap 3
+expect 2 "npgc train: --progress takes no value" "$N" train "$P" "$W/TEST" -o "$W/X" --progress=yes
+
+# 6. what is missing, by name
+expect 2 "npgc train: missing -o MODEL/" "$N" train "$P" "$W/TEST"
+expect 2 "npgc emit: missing -o FILE.c" "$N" emit "$P"
+expect 2 "npgc eval: missing a folder: after the program come MODEL/ IN/ (the reduced evaluation) or --full DATA/ IN/" \
+  "$N" eval "$P" "$W/TEST" -o "$W/X"
+expect 2 "npgc eval: missing DATA/ (the params of the full evaluation, after --full)" "$N" eval "$P" --full -o "$W/X"
+expect 2 "npgc tune: missing --tol T" "$N" tune "$P" "$W/deep/er/TRAIN" "$W/TEST" -o "$W/X"
+
+# 7. swapped folders: a data folder given as the model, the model given as the data
+expect 1 "npgc verify: $W/M1 is a model and $W/TEST is not (it has no manifest): the order is npgc verify PROG.npg MODEL/ TEST/" \
+  "$N" verify "$P" "$W/TEST" "$W/M1"
+expect 1 "npgc eval: $W/TEST is a data folder (it holds .npy files and no manifest), not a model" \
+  "$N" eval "$P" "$W/TEST" "$W/TEST" -o "$W/X"
+
+# 8. verify's params: from TEST/ by default (the folder lacking one is named), or --params DIR
+R=examples/radiosity/formfactors.npg
+"$B/radiosity_data" "$W/RT" 24 12 0 1 1 >/dev/null
+"$B/radiosity_data" "$W/RV" 24 3 0.1 0.9 2 >/dev/null
+"$N" train "$R" "$W/RT" -o "$W/RM" --cap 4 >/dev/null || fail "train radiosity"
+mkdir "$W/RS"
+for f in g e v; do cp "$W/RV/$f.npy" "$W/RS/"; done
+expect 1 "npgc verify reads the params from $W/RS, the TEST/ folder, beside its samples; --params DIR" \
+  "$N" verify "$R" "$W/RM" "$W/RS"
+grep -q "RS/tri.npy" "$W/err.txt" || fail "verify without params does not name the missing file: $(cat "$W/err.txt")"
+"$N" verify "$R" "$W/RM" "$W/RS" --params "$W/RT" --tol 1 >"$W/out.txt" || fail "verify --params DIR: $(cat "$W/err.txt")"
+grep -q "^ok: every output within --tol 1" "$W/out.txt" || fail "verify --params: $(cat "$W/out.txt")"
+expect 1 "tri.npy" "$N" verify "$R" "$W/RM" "$W/RS" --params "$W/TEST"
+
+# 9. the embedding example's positional numbers, read by the same parser
+expect 2 "embed: N: '16x' is not a whole number (expected 3..200)" "$B/embed" 16x
+expect 2 "embed: ENERGY: 2 is out of range (expected (0, 1])" "$B/embed" 16 40 2
+echo "options: ok"
