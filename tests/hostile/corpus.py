@@ -202,9 +202,11 @@ def npy_cases():
     x["trailing_byte"] = (npy_array(X) + b"\0", "{f}: trailing garbage: expected 480 bytes of data, found 481")
     x["data_cut"] = (npy_array(X)[:-1], "{f}: truncated: expected 480 bytes of data, found 479")
     x["data_missing"] = (npy_array(X)[:128], "{f}: truncated: expected 480 bytes of data, found 0")
-    x["one_axis"] = (X.reshape(60), "{f}: expected a leading sample axis and 1 axis for 'x', the array has 1 axes")
-    x["three_axes"] = (X.reshape(12, 5, 1), "{f}: expected a leading sample axis and 1 axis for 'x', the array has 3")
-    x["zero_d"] = (np.float64(3), "{f}: expected a leading sample axis and 1 axis for 'x', the array has 0 axes")
+    # the shape expected and the one found, both written out (issue 28)
+    axes = "{f}: input 'x' needs the shape (samples, N) (a leading sample axis, then its 1 axis), the array's shape is "
+    x["one_axis"] = (X.reshape(60), axes + "(60,)")
+    x["three_axes"] = (X.reshape(12, 5, 1), axes + "(12, 5, 1)")
+    x["zero_d"] = (np.float64(3), axes + "()")
     x["nan"] = (np.where(np.arange(60).reshape(12, 5) == 37, np.nan, X), "{f}: input 'x' holds NaN at sample 7, [2]")
     x["inf"] = (np.where(np.arange(60).reshape(12, 5) == 59, np.inf, X),
                 "{f}: input 'x' holds an infinity at sample 11, [4]")
