@@ -613,10 +613,19 @@ static int lift_outputs(Session *x, double *y, size_t n) {
   return 0;
 }
 
-static void print_speedup(const char *what, double full, double reduced) {
-  double s = full / reduced;
-  if (s >= 1) printf("%-20s %11.1fx faster reduced\n", what, s);
-  else printf("%-20s reduced is %.1fx slower\n", what, 1 / s);
+static int by_value(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}
+
+/* The median and the quartiles of v[0..n) (sorted in place). */
+static void quartiles(double *v, long n, double q[3]) {
+  qsort(v, (size_t)n, sizeof *v, by_value);
+  for (int k = 0; k < 3; k++) {
+    double at = (double)(n - 1) * (k + 1) / 4; /* linear interpolation between order statistics */
+    long i = (long)at;
+    q[k] = i + 1 < n ? v[i] + (at - (double)i) * (v[i + 1] - v[i]) : v[n - 1];
+  }
 }
 
 /* An error during the timed passes: the progress line is ended first. */
@@ -631,7 +640,7 @@ static int cmd_bench(Common *c) {
   if (!c->b) return npgc_missing("bench", "TEST/ (the samples to time)");
   Session x;
   int rc = 1;
-  double *y = NULL;
+  double *y = NULL, *tf = NULL;
   if (open_session(c, &x, true) != 0) goto done;
   long S = npg_samples_count(x.s);
   size_t maxn = 1;
@@ -640,9 +649,14 @@ static int cmd_bench(Common *c) {
     npg_model_class(x.m, k, &ci);
     maxn = (size_t)ci.n > maxn ? (size_t)ci.n : maxn;
   }
-  if (!(y = malloc(sizeof(double) * maxn))) goto done;
-  double tf = 0, tr = 0, tl = 0, tfbest = INFINITY, trbest = INFINITY;
-  long timed = 0, total = c->reps * S, shown = -1;
+  long total = c->reps * S, shown = -1;
+  /* per timed evaluation: full, reduced (projected and lifted), lifting alone, and their ratio */
+  if (!(y = malloc(sizeof(double) * maxn)) || !(tf = malloc(sizeof(double) * (size_t)(4 * total + 4)))) {
+    fputs("error: out of memory\n", stderr);
+    goto done;
+  }
+  double *tr = tf + total + 1, *tl = tr + total + 1, *ratio = tl + total + 1;
+  long timed = 0;
   for (long rep = 0; rep < c->reps; rep++)
     for (long k = 0; k < S; k++) {
       /* progress between timed evaluations, redrawn once per percent */
@@ -672,28 +686,37 @@ static int cmd_bench(Common *c) {
       }
       double t3 = now();
       if (rep == 0 && k == 0 && !(S == 1 && c->reps == 1)) continue; /* the first full evaluation also checks gathers */
-      tf += t1 - t0;
-      tr += t2 - t1;
-      tl += t3 - t2;
-      tfbest = fmin(tfbest, t1 - t0);
-      trbest = fmin(trbest, t3 - t1);
+      tf[timed] = t1 - t0;
+      tr[timed] = t3 - t1;
+      tl[timed] = t3 - t2;
+      ratio[timed] = (t1 - t0) / fmax(t3 - t1, 1e-12);
       timed++;
     }
   npg_progress(c->train.progress, "bench (full and reduced)", total, total);
   size_t tb, bytes = npg_model_bytes(x.m, &tb);
-  printf("bench %s: %ld samples x %ld passes, %ld evaluations timed\n", c->prog_path, S, c->reps, timed);
+  /* one statistic, the median (robust to the machine's other load, which the mean is not), with the quartiles
+   * as its spread; the speedup is the median of the per-evaluation ratios, each full evaluation against the
+   * reduced one that follows it */
+  double qf[3], qr[3], ql[3], qs[3];
+  quartiles(tf, timed, qf);
+  quartiles(tr, timed, qr);
+  quartiles(tl, timed, ql);
+  quartiles(ratio, timed, qs);
+  printf("bench %s: %ld samples x %ld passes, %ld evaluations timed; medians, quartiles in brackets\n", c->prog_path, S,
+         c->reps, timed);
   printf("full evaluator: %s\n", c->cc ? "cc (the system compiler at -O3 -march=native)"
                                         : "libtcc (npg's default; --cc times the system compiler at -O3)");
-  printf("full evaluation     %12.3e s per sample (best %.3e)\n", tf / (double)timed, tfbest);
-  printf("reduced evaluation  %12.3e s per sample (best %.3e), inputs projected and outputs lifted\n",
-         (tr + tl) / (double)timed, trbest);
-  printf("  of which lifting  %12.3e s per sample\n", tl / (double)timed);
-  print_speedup("speedup (mean)", tf, tr + tl);
-  print_speedup("speedup (best)", tfbest, trbest);
+  printf("full evaluation     %12.3e s per sample [%.3e, %.3e]\n", qf[1], qf[0], qf[2]);
+  printf("reduced evaluation  %12.3e s per sample [%.3e, %.3e], inputs projected and outputs lifted\n", qr[1], qr[0],
+         qr[2]);
+  printf("  of which lifting  %12.3e s per sample [%.3e, %.3e]\n", ql[1], ql[0], ql[2]);
+  printf("speedup             %12.3gx [%.3gx, %.3gx] (full time / reduced time per evaluation%s)\n", qs[1], qs[0],
+         qs[2], qs[1] < 1 ? ": below 1, the reduced evaluation is slower" : "");
   printf("reduced model       %12.3f MB of reduced tensors, %.3f MB with bases and extern tables\n", (double)tb / 1e6,
          (double)bytes / 1e6);
   rc = 0;
 done:
+  free(tf);
   free(y);
   close_session(&x);
   return rc;

@@ -44,7 +44,14 @@ cmp "$W/M1/basis_0.npy" "$W/M2/basis_0.npy" || fail "--cap=2 trained another bas
 "$N" eval "$P" "$W/M1" "$W/TEST" -o="$W/OUT" || fail "eval -o=OUT"
 test -s "$W/OUT/y.npy" || fail "eval -o=OUT wrote no y.npy"
 "$N" check "$P" --std=stdlib >/dev/null || fail "check --std=DIR"
-"$N" bench "$P" "$W/M1" "$W/TEST" --reps=1 >/dev/null || fail "bench --reps=1"
+"$N" bench "$P" "$W/M1" "$W/TEST" --reps=3 >"$W/bench.txt" || fail "bench --reps=3"
+# bench: one statistic, stated (medians), with its spread (quartiles), one speedup (not a mean beside a best)
+grep -q "59 evaluations timed; medians, quartiles in brackets" "$W/bench.txt" || fail "bench statistic: $(cat "$W/bench.txt")"
+[ "$(grep -c "speedup" "$W/bench.txt")" = 1 ] || fail "bench prints more than one speedup: $(cat "$W/bench.txt")"
+grep -q "^speedup  *[0-9.e+-]*x \[[0-9.e+-]*x, [0-9.e+-]*x\] (full time / reduced time per evaluation" "$W/bench.txt" ||
+  fail "bench speedup line: $(cat "$W/bench.txt")"
+grep -q "^full evaluation  *[0-9.e+-]* s per sample \[[0-9.e+-]*, [0-9.e+-]*\]$" "$W/bench.txt" ||
+  fail "bench full line: $(cat "$W/bench.txt")"
 expect 2 "npgc check: --json takes no value ('--json=yes')" "$N" check "$P" --json=yes
 
 # 3. numbers: the whole value, its range in the message
@@ -91,6 +98,14 @@ grep -q "RS/tri.npy" "$W/err.txt" || fail "verify without params does not name t
 "$N" verify "$R" "$W/RM" "$W/RS" --params "$W/RT" --tol 1 >"$W/out.txt" || fail "verify --params DIR: $(cat "$W/err.txt")"
 grep -q "^ok: every output within --tol 1" "$W/out.txt" || fail "verify --params: $(cat "$W/out.txt")"
 expect 1 "tri.npy" "$N" verify "$R" "$W/RM" "$W/RS" --params "$W/TEST"
+
+# verify's "own" error (L2 error minus the floor) is at least 0 in exact arithmetic: a full-rank model's
+# rounding (-1.7e-17, -1.0e-16 before) is printed as 0
+"$N" train "$R" "$W/RT" -o "$W/RF" --energy 1 --cap 200 >/dev/null || fail "train full rank"
+"$N" verify "$R" "$W/RF" "$W/RS" --params "$W/RT" --tol 1 >"$W/out.txt" || fail "verify full rank"
+awk 'NR > 2 && $3 ~ /^[0-9]+$/ && $6 ~ /^-/ { bad = 1; print } END { exit bad }' "$W/out.txt" >"$W/neg.txt" ||
+  fail "negative own errors: $(cat "$W/neg.txt")"
+grep -q "^v .* 0.000e+00 " "$W/out.txt" || fail "no own error of 0 in: $(cat "$W/out.txt")"
 
 # 9. the embedding example's positional numbers, read by the same parser
 expect 2 "embed: N: '16x' is not a whole number (expected 3..200)" "$B/embed" 16x
