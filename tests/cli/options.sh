@@ -66,6 +66,17 @@ expect 2 "unknown key 'size' (the keys are cap, energy and center" "$N" train "$
 "$N" train "$P" "$W/deep/er/TRAIN" -o "$W/M4" --basis "y:cap=2" >/dev/null || fail "--basis y:cap=2"
 cmp "$W/M3/manifest" "$W/M4/manifest" || fail "--basis 'y:cap 2' and y:cap=2 trained different models"
 
+# the program's `basis m_b: cap=2, energy 0.99` and the CLI's --basis m_b:cap=2,energy=0.99 configure the same
+# class {a, b} (m_<a member>, in both places)
+C=tests/programs/basis_class_name.npg
+/usr/bin/python3 -c "import numpy as np, os, sys; os.makedirs(sys.argv[1]); np.save(sys.argv[1] + '/x.npy', np.random.default_rng(1).random((30, 6)))" "$W/CD"
+grep -v '^basis m_b' "$C" >"$W/noclass.npg"
+"$N" train "$C" "$W/CD" -o "$W/CM1" >"$W/t1.txt" || fail "train basis m_b: $(cat "$W/t1.txt")"
+"$N" train "$W/noclass.npg" "$W/CD" -o "$W/CM2" --basis m_b:cap=2,energy=0.99 >"$W/t2.txt" || fail "train --basis m_b"
+grep -q "^{a,b} .* a 2/2 .* b 2/2 " "$W/t1.txt" || fail "basis m_b: cap=2 in the program: $(cat "$W/t1.txt")"
+[ "$(grep '^{a,b}' "$W/t1.txt")" = "$(grep '^{a,b}' "$W/t2.txt")" ] ||
+  fail "the program's basis m_b and --basis m_b differ: $(grep '^{a,b}' "$W/t1.txt" "$W/t2.txt")"
+
 # 5. unknown options are unknown; another command's option is named as such
 expect 2 "npgc verify: unknown option '--progres'" "$N" verify "$P" "$W/M1" "$W/TEST" --progres
 expect 2 "npgc verify: --cap is an option of npgc train, not of npgc verify" "$N" verify "$P" "$W/M1" "$W/TEST" --cap 3
