@@ -52,6 +52,7 @@ int npgc_plot(int argc, char **argv) {
   char title[4200];
   snprintf(title, sizeof title, "singular values of each member's snapshots: %s", dir);
   Chart chart = {title, "k", "singular value / largest", false, true, n, series};
+  if (npgc_make_parents(out, false) != 0) goto done; /* every writer of npgc creates the parents, as -o does */
   if (chart_png(&chart, out, 960, 540, err, sizeof err) != 0) {
     npgc_error(err);
     goto done;

@@ -297,6 +297,8 @@ static int cmd_train(Common *c) {
     if (npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0) break;
   if (npg_full_error(f)[0]) npgc_error(npg_full_error(f));
   else if (!(m = npg_trainer_finish(t, c->out))) npgc_error(npg_trainer_error(t));
+  else if (c->spectra && npg_mpi_rank() == 0 && npgc_make_parents(c->spectra, false) != 0)
+    ; /* said which folder could not be made */
   else if (c->spectra && npg_mpi_rank() == 0 && npg_model_write_spectra(m, c->spectra, err, sizeof err) != 0)
     npgc_error(err);
   else if (npg_mpi_rank() > 0) /* rank 0 reports */

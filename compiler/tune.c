@@ -38,7 +38,11 @@ static int draw(const NpgTuneReport *r, double tol, const char *path, char *err,
                       {"tolerance", 2, tx, ty, -1, false}};
   Chart c = {"npgc tune: worst output's mean relative error against reduced cost", "reduced multiply-adds",
              "mean relative L2 error", true, true, 3, s};
-  int rc = chart_png(&c, path, 960, 540, err, errlen);
+  int rc = -1;
+  if (npgc_make_parents(path, false) != 0) /* every writer of npgc creates the parents, as -o does */
+    snprintf(err, errlen, "%.1000s: no folder to write it in", path);
+  else
+    rc = chart_png(&c, path, 960, 540, err, errlen);
   free(x);
   return rc;
 }

@@ -53,6 +53,14 @@ grep -q "^speedup  *[0-9.e+-]*x \[[0-9.e+-]*x, [0-9.e+-]*x\] (full time / reduce
 grep -q "^full evaluation  *[0-9.e+-]* s per sample \[[0-9.e+-]*, [0-9.e+-]*\]$" "$W/bench.txt" ||
   fail "bench full line: $(cat "$W/bench.txt")"
 expect 2 "npgc check: --json takes no value ('--json=yes')" "$N" check "$P" --json=yes
+# every writer creates the parents of what it writes (as -o does)
+"$N" plot "$W/M1" -o "$W/pl/ot/s.png" >/dev/null || fail "plot -o into missing parents"
+test -s "$W/pl/ot/s.png" || fail "plot wrote no PNG"
+"$N" train "$P" "$W/deep/er/TRAIN" -o "$W/M6" --spectra "$W/sp/ec/tra" >/dev/null || fail "train --spectra into missing parents"
+ls "$W/sp/ec/tra/"spectrum_*.npy >/dev/null || fail "--spectra wrote no spectrum"
+"$N" tune "$P" "$W/deep/er/TRAIN" "$W/TEST" --tol 1e-3 -o "$W/tu/ne/M" --png "$W/tu/pn/g.png" >/dev/null ||
+  fail "tune into missing parents"
+test -s "$W/tu/pn/g.png" && test -s "$W/tu/ne/M/manifest" || fail "tune wrote no PNG or model"
 
 # 3. numbers: the whole value, its range in the message
 expect 2 "npgc train: --energy: 99 is out of range (expected (0, 1])" "$N" train "$P" "$W/TEST" -o "$W/X" --energy 99
