@@ -579,6 +579,7 @@ int main(int argc, char **argv) {
     return 2;
   }
   if (parse_options(argc, argv, &o)) return 2;
-  if (!strcmp(argv[1], "demo")) return demo(&o);
-  return sweep(&o);
+  int rc = !strcmp(argv[1], "demo") ? demo(&o) : sweep(&o);
+  render_shutdown();
+  return rc;
 }
