@@ -66,8 +66,9 @@ static const Usage usages[] = {
      "  --center     on (default): each member's basis keeps its snapshots' mean and\n"
      "               truncates the centered energy; off: the paper's uncentered rule\n"
      "  --basis NAME:cap=N,energy=E,center=on|off   NAME a quantity, a class (m_x, as\n"
-     "               npgc check prints it), a numerator (y.num1) or '*'; unknown names\n"
-     "               are refused; max=N is accepted for cap=N\n"
+     "               npgc check prints it, or m_ and any member), a numerator (y.num1)\n"
+     "               or '*'; unknown names are refused; max=N is accepted for cap=N,\n"
+     "               and 'cap N' as in the program's basis statement\n"
      "  --spectra DIR  every member's singular values also to DIR (.npy and CSV;\n"
      "               MODEL/ always holds them)\n"
      "  --merge      concat (one PCA per member, concatenated) or joint (one PCA)\n"
@@ -80,7 +81,8 @@ static const Usage usages[] = {
      "  --cc         compile the full evaluator with the system compiler at -O3\n"
      "  --progress   progress on stderr even when it is not a terminal\n"},
     {"verify",
-     "usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc] [--exact] [--exact-size N] [--progress]\n"
+     "usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--params DIR] [--cc] [--exact] [--exact-size N]\n"
+     "                   [--progress]\n"
      "       npgc verify PROG.npg --exact [--exact-size N] [--cc]\n"
      "\n"
      "  Evaluate full and reduced on the held-out samples of TEST/ (same params as\n"
@@ -88,6 +90,7 @@ static const Usage usages[] = {
      "  value, the projection floor and their difference (L2 and Linf), and the stage\n"
      "  where error grows most. Exit 1 when an output's mean L2 error exceeds --tol\n"
      "  (default 1e-2) or a value is not finite.\n"
+     "  --params DIR the params from DIR (the training data's, say) instead of TEST/\n"
      "  --exact      the two exactness checks (alone when MODEL/ and TEST/ are not\n"
      "               given), on random data with every dim of a small size: every stage\n"
      "               rebuilt from its tensors equals the full evaluator to 1e-12, and a\n"
@@ -95,12 +98,14 @@ static const Usage usages[] = {
      "  --exact-size N   that size (1..64; 6 and 4 by default)\n"
      "  --progress   progress on stderr even when it is not a terminal\n"},
     {"bench",
-     "usage: npgc bench PROG.npg MODEL/ TEST/ [--cc] [--reps N] [--exact-roots] [--progress]\n"
+     "usage: npgc bench PROG.npg MODEL/ TEST/ [--cc] [--reps N] [--params DIR] [--exact-roots] [--progress]\n"
      "\n"
      "  Time the full and the reduced evaluation of every sample of TEST/, N passes\n"
      "  (3): the full evaluator (libtcc, npg's default, or --cc: the system compiler\n"
      "  at -O3), the reduced one with its inputs projected and, reported apart and\n"
-     "  included in the total, its outputs lifted; the speedup; the model's memory.\n"
+     "  included in the total, its outputs lifted: medians and quartiles; the speedup\n"
+     "  (the median of the per-evaluation ratios); the model's memory.\n"
+     "  --params DIR the params from DIR instead of TEST/\n"
      "  --exact-roots  roots of reduced operators by eigendecomposition (the exact\n"
      "               reference) instead of the Lanczos process (to 1e-8 relative)\n"
      "  --progress   a progress bar on stderr even when it is not a terminal (on a\n"
@@ -132,7 +137,8 @@ int npgc_usage(const char *cmd, bool help) {
 }
 
 void npgc_usage_all(FILE *out) {
-  fputs("usage: npgc COMMAND ... (npgc COMMAND --help for its whole usage)\n\n", out);
+  fputs("usage: npgc COMMAND ... (npgc COMMAND --help for its whole usage)\n"
+        "Every option takes its value as --opt VALUE or --opt=VALUE; numbers are read whole.\n\n", out);
   for (size_t i = 0; i < sizeof usages / sizeof usages[0]; i++) {
     fputs(usages[i].text, out);
     fputc('\n', out);

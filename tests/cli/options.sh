@@ -117,6 +117,9 @@ grep -q "RS/tri.npy" "$W/err.txt" || fail "verify without params does not name t
 "$N" verify "$R" "$W/RM" "$W/RS" --params "$W/RT" --tol 1 >"$W/out.txt" || fail "verify --params DIR: $(cat "$W/err.txt")"
 grep -q "^ok: every output within --tol 1" "$W/out.txt" || fail "verify --params: $(cat "$W/out.txt")"
 expect 1 "tri.npy" "$N" verify "$R" "$W/RM" "$W/RS" --params "$W/TEST"
+"$N" bench "$R" "$W/RM" "$W/RS" --params="$W/RT" --reps 1 >/dev/null || fail "bench --params=DIR"
+expect 2 "npgc train: --params is an option of npgc verify and bench, not of npgc train" \
+  "$N" train "$R" "$W/RT" -o "$W/X" --params "$W/RT"
 
 # verify's "own" error (L2 error minus the floor) is at least 0 in exact arithmetic: a full-rank model's
 # rounding (-1.7e-17, -1.0e-16 before) is printed as 0
