@@ -29,6 +29,7 @@ static void double_range(char *buf, size_t n, double lo, double hi, bool lo_open
 }
 
 int npg_parse_long(const char *s, long lo, long hi, long *out, char *err, size_t errlen) {
+  if (!out) return npg_fail(err, errlen, "npg_parse_long: out is NULL");
   char range[96];
   long_range(range, sizeof range, lo, hi);
   if (!s) return npg_fail(err, errlen, "no value (expected %s)", range);
@@ -44,6 +45,7 @@ int npg_parse_long(const char *s, long lo, long hi, long *out, char *err, size_t
 }
 
 int npg_parse_double(const char *s, double lo, double hi, bool lo_open, double *out, char *err, size_t errlen) {
+  if (!out) return npg_fail(err, errlen, "npg_parse_double: out is NULL");
   char range[96];
   double_range(range, sizeof range, lo, hi, lo_open);
   if (!s) return npg_fail(err, errlen, "no value (expected %s)", range);
@@ -60,7 +62,9 @@ int npg_parse_double(const char *s, double lo, double hi, bool lo_open, double *
 }
 
 void npg_args_init(NpgArgs *a, int argc, char **argv, int first, const char *prog) {
+  if (!a) return;
   memset(a, 0, sizeof *a);
+  if (!argv || argc < 0) argc = 0; /* nothing to read */
   a->argc = argc;
   a->argv = argv;
   a->i = first - 1;
@@ -73,6 +77,7 @@ bool npg_args_next(NpgArgs *a) {
   return a->i < a->argc;
 }
 
+/* The argument being read, NULL after an error or past the end (or for a NULL `a`). */
 static const char *current(const NpgArgs *a) {
   return a && !a->error[0] && a->i >= 0 && a->i < a->argc ? a->argv[a->i] : NULL;
 }
@@ -89,7 +94,7 @@ static void args_fail(NpgArgs *a, const char *fmt, ...) {
 }
 
 bool npg_args_flag(NpgArgs *a, const char *name) {
-  const char *s = current(a);
+  const char *s = name ? current(a) : NULL;
   size_t n = strlen(name);
   if (!s || strncmp(s, name, n) != 0) return false;
   if (s[n] == '=') {
@@ -100,7 +105,7 @@ bool npg_args_flag(NpgArgs *a, const char *name) {
 }
 
 const char *npg_args_string(NpgArgs *a, const char *name) {
-  const char *s = current(a);
+  const char *s = name ? current(a) : NULL;
   size_t n = strlen(name);
   if (!s || strncmp(s, name, n) != 0) return NULL;
   if (s[n] == '=') return s + n + 1;
@@ -114,7 +119,7 @@ const char *npg_args_string(NpgArgs *a, const char *name) {
 
 /* The option `name` was given (its value read, or the error set). */
 static bool matched(NpgArgs *a, const char *name, const char **value) {
-  const char *s = current(a);
+  const char *s = name ? current(a) : NULL;
   size_t n = strlen(name);
   if (!s || strncmp(s, name, n) != 0 || (s[n] != 0 && s[n] != '=')) return false;
   *value = npg_args_string(a, name);
@@ -132,7 +137,8 @@ bool npg_args_long(NpgArgs *a, const char *name, long lo, long hi, long *out) {
 bool npg_args_int(NpgArgs *a, const char *name, int lo, int hi, int *out) {
   long v = 0;
   bool took = npg_args_long(a, name, lo, hi, &v);
-  if (took && !a->error[0]) *out = (int)v;
+  if (took && !a->error[0] && !out) args_fail(a, "npg_args_int: out is NULL");
+  else if (took && !a->error[0]) *out = (int)v;
   return took;
 }
 

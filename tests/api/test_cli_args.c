@@ -219,10 +219,38 @@ static void npy_read_roundtrip(void **state) {
   rmdir(dir);
 }
 
+/* NULL arguments are refused with their name, never dereferenced */
+static void null_arguments(void **state) {
+  (void)state;
+  char err[128];
+  assert_int_equal(npg_parse_long("3", 1, 5, NULL, err, sizeof err), -1);
+  assert_string_equal(err, "npg_parse_long: out is NULL");
+  assert_int_equal(npg_parse_double("3", 1, 5, false, NULL, err, sizeof err), -1);
+  assert_string_equal(err, "npg_parse_double: out is NULL");
+  long v;
+  assert_int_equal(npg_parse_long(NULL, 1, 5, &v, err, sizeof err), -1);
+  assert_string_equal(err, "no value (expected 1..5)");
+  npg_args_init(NULL, 1, NULL, 1, "prog");
+  assert_false(npg_args_next(NULL));
+  assert_false(npg_args_flag(NULL, "--x"));
+  assert_null(npg_args_string(NULL, "--x"));
+  assert_null(npg_args_positional(NULL));
+  npg_args_unknown(NULL);
+  char *argv[] = {"prog", "--n", "3"};
+  NpgArgs a;
+  npg_args_init(&a, 3, argv, 1, "prog");
+  assert_true(npg_args_next(&a));
+  assert_false(npg_args_flag(&a, NULL));
+  assert_true(npg_args_int(&a, "--n", 1, 5, NULL));
+  assert_string_equal(a.error, "prog: npg_args_int: out is NULL");
+  npg_args_init(&a, 3, NULL, 1, "prog"); /* no argv: nothing to read */
+  assert_false(npg_args_next(&a));
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(parse_long_table), cmocka_unit_test(parse_double_table), cmocka_unit_test(args_both_forms),
-      cmocka_unit_test(args_errors),      cmocka_unit_test(npy_read_roundtrip),
+      cmocka_unit_test(args_errors),      cmocka_unit_test(npy_read_roundtrip), cmocka_unit_test(null_arguments),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
