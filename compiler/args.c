@@ -95,7 +95,7 @@ static void args_fail(NpgArgs *a, const char *fmt, ...) {
 
 bool npg_args_flag(NpgArgs *a, const char *name) {
   const char *s = name ? current(a) : NULL;
-  size_t n = strlen(name);
+  size_t n = s ? strlen(name) : 0;
   if (!s || strncmp(s, name, n) != 0) return false;
   if (s[n] == '=') {
     args_fail(a, "%s takes no value ('%s')", name, s);
@@ -106,7 +106,7 @@ bool npg_args_flag(NpgArgs *a, const char *name) {
 
 const char *npg_args_string(NpgArgs *a, const char *name) {
   const char *s = name ? current(a) : NULL;
-  size_t n = strlen(name);
+  size_t n = s ? strlen(name) : 0;
   if (!s || strncmp(s, name, n) != 0) return NULL;
   if (s[n] == '=') return s + n + 1;
   if (s[n] != 0) return NULL;
@@ -120,7 +120,7 @@ const char *npg_args_string(NpgArgs *a, const char *name) {
 /* The option `name` was given (its value read, or the error set). */
 static bool matched(NpgArgs *a, const char *name, const char **value) {
   const char *s = name ? current(a) : NULL;
-  size_t n = strlen(name);
+  size_t n = s ? strlen(name) : 0;
   if (!s || strncmp(s, name, n) != 0 || (s[n] != 0 && s[n] != '=')) return false;
   *value = npg_args_string(a, name);
   return true;
