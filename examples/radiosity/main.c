@@ -63,8 +63,15 @@ static int parse(int argc, char **argv, Options *o) {
     else if (npg_args_int(&a, "--ss", 1, 8, &o->ss)) ;
     else if (npg_args_int(&a, "--checks", 0, 100000000, &o->checks)) ;
     else if ((v = npg_args_string(&a, "--out"))) o->out = v;
-    else if ((v = npg_args_string(&a, "--vis-mode"))) o->vis_mode = v;
-    else if ((v = npg_args_string(&a, "--solver"))) o->solver = v;
+    else if ((v = npg_args_string(&a, "--vis-mode"))) {
+      o->vis_mode = v;
+      if (strcmp(v, "auto") && strcmp(v, "single") && strcmp(v, "stream") && strcmp(v, "packet"))
+        snprintf(a.error, sizeof a.error, "%s: --vis-mode is auto, single, stream or packet, not '%s'", prog, v);
+    } else if ((v = npg_args_string(&a, "--solver"))) {
+      o->solver = v;
+      if (strcmp(v, "auto") && strcmp(v, "lu") && strcmp(v, "gs") && strcmp(v, "gmres"))
+        snprintf(a.error, sizeof a.error, "%s: --solver is auto, lu, gs or gmres, not '%s'", prog, v);
+    }
     else if (npg_args_int(&a, "--samples", 2, 100000, &o->samples)) ;
     else if (npg_args_int(&a, "--cap", 1, 1000000, &o->cap)) ;
     else if (npg_args_double(&a, "--energy", 0, 1, true, &o->energy)) ;

@@ -80,6 +80,8 @@ radiosity)
   expect 2 "npg-radiosity full: --faces: '300abc' is not a whole number" full --out "$W/o" --faces=300abc
   expect 2 "npg-radiosity full: --vis-samples is 1, 4 or 16 (points per face), not 3" full --out "$W/o" --vis-samples 3
   expect 2 "npg-radiosity scene: unknown option '--face'" scene --face 100
+  expect 2 "npg-radiosity full: --vis-mode is auto, single, stream or packet, not 'fast'" full --out "$W/o" --vis-mode fast
+  expect 2 "npg-radiosity full: --solver is auto, lu, gs or gmres, not 'cg'" full --out "$W/o" --solver=cg
   "$X" scene --faces=200 --checks=5 >"$W/a.txt" || fail "scene --faces=200"
   "$X" scene --faces 200 --checks 5 >"$W/b.txt" || fail "scene --faces 200"
   head -1 "$W/a.txt" >"$W/a1.txt"
