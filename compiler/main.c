@@ -84,7 +84,8 @@ static int cmd_emit(int argc, char **argv) {
   return rc == 0 ? 0 : 1;
 }
 
-int main(int argc, char **argv) {
+/* The command argv[1] names. */
+static int run_command(int argc, char **argv) {
   if (argc < 2 || strcmp(argv[1], "-h") == 0 || strcmp(argv[1], "--help") == 0) {
     npgc_usage_all(argc < 2 ? stderr : stdout);
     return argc < 2 ? 2 : 0;
@@ -125,5 +126,15 @@ int main(int argc, char **argv) {
     npg_report(p, stdout, json);
   }
   npg_free(p);
+  return rc;
+}
+
+/* A report that could not be written is a failure: `npgc check --json >/dev/full` exited 0 (issue 24). */
+int main(int argc, char **argv) {
+  int rc = run_command(argc, argv);
+  if (fflush(stdout) != 0 || ferror(stdout)) {
+    fprintf(stderr, "npgc: cannot write to standard output: %s\n", strerror(errno));
+    if (rc == 0) rc = 1;
+  }
   return rc;
 }
