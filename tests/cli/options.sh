@@ -129,7 +129,7 @@ awk 'NR > 2 && $3 ~ /^[0-9]+$/ && $6 ~ /^-/ { bad = 1; print } END { exit bad }'
   fail "negative own errors: $(cat "$W/neg.txt")"
 grep -q "^v .* 0.000e+00 " "$W/out.txt" || fail "no own error of 0 in: $(cat "$W/out.txt")"
 
-# 10. a report that cannot be written is a failure, not exit 0 (issue 24: check --json >/dev/full)
+# 9. a report that cannot be written is a failure, not exit 0 (issue 24: check --json >/dev/full)
 if [ -w /dev/full ]; then
   if "$N" check "$P" --json >/dev/full 2>"$W/err.txt"; then fail "check --json >/dev/full exited 0"; fi
   grep -q "^npgc: cannot write to standard output: No space left on device" "$W/err.txt" ||
@@ -137,7 +137,7 @@ if [ -w /dev/full ]; then
   if "$N" verify "$P" "$W/M1" "$W/TEST" --tol 1 >/dev/full 2>/dev/null; then fail "verify >/dev/full exited 0"; fi
 fi
 
-# 9. the embedding example's positional numbers, read by the same parser
+# 10. the embedding example's positional numbers, read by the same parser
 expect 2 "embed: N: '16x' is not a whole number (expected 3..200)" "$B/embed" 16x
 expect 2 "embed: ENERGY: 2 is out of range (expected (0, 1])" "$B/embed" 16 40 2
 echo "options: ok"
