@@ -145,3 +145,43 @@ int npg_npy_write(const char *path, int ndim, const long *shape, const double *d
 int npg_npy_write_i64(const char *path, int ndim, const long *shape, const long *data, char *err, size_t errlen) {
   return npy_write(path, NPY_I64, ndim, shape, data, err, errlen);
 }
+
+_Static_assert(NPG_NPY_MAX_DIMS == NPY_MAX_DIMS, "npg.h's bound on .npy axes is the reader's");
+
+double *npg_npy_read(const char *path, int *ndim, long shape[NPG_NPY_MAX_DIMS], size_t *count, char *err,
+                     size_t errlen) {
+  if (err && errlen) err[0] = 0;
+  if (!path || !ndim || !shape || !count) {
+    if (err && errlen)
+      snprintf(err, errlen, "npg_npy_read: %s is NULL", !path ? "path" : !ndim ? "ndim" : !shape ? "shape" : "count");
+    return NULL;
+  }
+  NpyArray a;
+  if (npy_read(path, &a, err, errlen) != 0) return NULL;
+  double *v = malloc(sizeof(double) * (a.count ? a.count : 1));
+  if (!v) {
+    if (err && errlen) snprintf(err, errlen, "%s: out of memory for %zu values", path, a.count);
+    npy_free(&a);
+    return NULL;
+  }
+  const long long exact = 1LL << 53; /* every integer up to 2^53 in magnitude is a double */
+  for (size_t k = 0; k < a.count; k++) {
+    if (a.type == NPY_F64) v[k] = ((const double *)a.data)[k];
+    else {
+      long long x = a.type == NPY_I32 ? ((const int *)a.data)[k] : ((const long long *)a.data)[k];
+      if (x > exact || x < -exact) {
+        if (err && errlen)
+          snprintf(err, errlen, "%s: entry %zu (%lld) is beyond 2^53 and has no exact float64", path, k, x);
+        free(v);
+        npy_free(&a);
+        return NULL;
+      }
+      v[k] = (double)x;
+    }
+  }
+  *ndim = a.ndim;
+  for (int d = 0; d < a.ndim; d++) shape[d] = a.shape[d];
+  *count = a.count;
+  npy_free(&a);
+  return v;
+}

@@ -16,8 +16,6 @@
 #include "npg.h"
 #include "npgc.h"
 
-static int usage(void) { return npgc_usage("eval", false); }
-
 /* One output's values over every sample. */
 typedef struct Out {
   NpgSymbol sym;
@@ -146,24 +144,33 @@ int npgc_eval(int argc, char **argv) {
   const char *prog_path = NULL, *data = NULL, *in = NULL, *outdir = NULL;
   bool full = false, cc = false, progress = false, exact_roots = false;
   NpgOptions opt = {0};
-  for (int i = 2; i < argc; i++) {
-    if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) return npgc_usage("eval", true);
-    if (strcmp(argv[i], "--full") == 0) full = true;
-    else if (strcmp(argv[i], "--cc") == 0) cc = true;
-    else if (strcmp(argv[i], "--progress") == 0) progress = true;
-    else if (strcmp(argv[i], "--exact-roots") == 0) exact_roots = true; /* the reduced evaluation's */
-    else if (strcmp(argv[i], "-o") == 0 && i + 1 < argc) outdir = argv[++i];
-    else if (strncmp(argv[i], "--std=", 6) == 0) opt.std_dir = argv[i] + 6;
-    else if (argv[i][0] == '-') {
-      fprintf(stderr, "npgc eval: %s '%s'\n", strcmp(argv[i], "-o") == 0 ? "missing the value of" : "unknown option",
-              argv[i]);
-      return usage();
-    } else if (!prog_path) prog_path = argv[i];
-    else if (!data) data = argv[i];
-    else if (!in) in = argv[i];
-    else return usage();
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, "npgc eval");
+  while (npg_args_next(&a)) {
+    const char *v;
+    if (npg_args_flag(&a, "--help") || npg_args_flag(&a, "-h")) return npgc_usage("eval", true);
+    if (npg_args_flag(&a, "--full")) full = true;
+    else if (npg_args_flag(&a, "--cc")) cc = true;
+    else if (npg_args_flag(&a, "--progress")) progress = true;
+    else if (npg_args_flag(&a, "--exact-roots")) exact_roots = true; /* the reduced evaluation's */
+    else if ((v = npg_args_string(&a, "-o"))) outdir = v;
+    else if ((v = npg_args_string(&a, "--std"))) opt.std_dir = v;
+    else if ((v = npg_args_positional(&a))) {
+      if (!prog_path) prog_path = v;
+      else if (!data) data = v;
+      else if (!in) in = v;
+      else npgc_args_extra(&a, "input folder", in);
+    } else npg_args_unknown(&a);
   }
-  if (!prog_path || !data || !in || !outdir) return usage();
+  if (a.error[0]) return npgc_args_error(&a, "eval");
+  if (!prog_path) return npgc_missing("eval", "the program (PROG.npg)");
+  if (!data && full) return npgc_missing("eval", "DATA/ (the params of the full evaluation, after --full)");
+  if (!data) return npgc_missing("eval", "MODEL/ (a model trained by npgc train), or --full DATA/ for the full evaluation");
+  if (!in && !full)
+    return npgc_missing("eval", "a folder: after the program come MODEL/ IN/ (the reduced evaluation) or --full DATA/ "
+                                "IN/ (the full one); one folder was given");
+  if (!in) return npgc_missing("eval", "IN/ (the inputs to evaluate, a leading sample axis)");
+  if (!outdir) return npgc_missing("eval", "-o OUT/ (where to write the outputs)");
   if (!full) return npgc_reduce(argc, argv);
   if (exact_roots) {
     fputs("npgc eval: --exact-roots is an option of the reduced evaluation (with MODEL/), not of --full\n", stderr);

@@ -12,18 +12,20 @@
 static int cmd_emit(int argc, char **argv) {
   const char *path = NULL, *outpath = NULL, *model_dir = NULL;
   NpgOptions opt = {0};
-  for (int i = 2; i < argc; i++) {
-    if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) return npgc_usage("emit", true);
-    if (strcmp(argv[i], "-o") == 0 && i + 1 < argc) outpath = argv[++i];
-    else if (strcmp(argv[i], "--reduced") == 0 && i + 1 < argc) model_dir = argv[++i];
-    else if (strncmp(argv[i], "--std=", 6) == 0) opt.std_dir = argv[i] + 6;
-    else if (argv[i][0] == '-') {
-      fprintf(stderr, "npgc emit: %s '%s'\n", strcmp(argv[i], "-o") == 0 || strcmp(argv[i], "--reduced") == 0
-                                                   ? "missing the value of" : "unknown option", argv[i]);
-      return npgc_usage("emit", false);
-    } else path = argv[i];
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, "npgc emit");
+  while (npg_args_next(&a)) {
+    const char *v;
+    if (npg_args_flag(&a, "--help") || npg_args_flag(&a, "-h")) return npgc_usage("emit", true);
+    if ((v = npg_args_string(&a, "-o"))) outpath = v;
+    else if ((v = npg_args_string(&a, "--reduced"))) model_dir = v;
+    else if ((v = npg_args_string(&a, "--std"))) opt.std_dir = v;
+    else if ((v = npg_args_positional(&a)) && !path) path = v;
+    else if (v) npgc_args_extra(&a, "program", path);
+    else npg_args_unknown(&a);
   }
-  if (!path || !outpath) return npgc_usage("emit", false);
+  if (a.error[0]) return npgc_args_error(&a, "emit");
+  if (!path || !outpath) return npgc_missing("emit", !path ? "the program (PROG.npg)" : "-o FILE.c (where to write the C)");
   /* the output must not replace what the command reads */
   if (npgc_same_file(outpath, path) || (model_dir && (npgc_same_file(outpath, model_dir) ||
                                                       npgc_inside(outpath, model_dir)))) {
@@ -38,6 +40,10 @@ static int cmd_emit(int argc, char **argv) {
     return 1;
   }
   NpgModel *m = NULL;
+  if (model_dir && npgc_check_model_and_data("emit --reduced", model_dir, NULL, "-o FILE.c") != 0) {
+    npg_free(p);
+    return 1;
+  }
   if (model_dir && npg_model_error(m = npg_model_load(p, model_dir))[0]) {
     npgc_error(npg_model_error(m));
     npg_model_free(m);
@@ -78,7 +84,8 @@ static int cmd_emit(int argc, char **argv) {
   return rc == 0 ? 0 : 1;
 }
 
-int main(int argc, char **argv) {
+/* The command argv[1] names. */
+static int run_command(int argc, char **argv) {
   if (argc < 2 || strcmp(argv[1], "-h") == 0 || strcmp(argv[1], "--help") == 0) {
     npgc_usage_all(argc < 2 ? stderr : stdout);
     return argc < 2 ? 2 : 0;
@@ -96,23 +103,20 @@ int main(int argc, char **argv) {
   const char *path = NULL;
   bool json = false;
   NpgOptions opt = {0};
-  for (int i = 2; i < argc; i++) {
-    if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) return npgc_usage("check", true);
-    if (strcmp(argv[i], "--json") == 0) json = true;
-    else if (strncmp(argv[i], "-d", 2) == 0 && argv[i][2]) opt.dump = argv[i] + 2, opt.dump_out = stdout;
-    else if (strncmp(argv[i], "--std=", 6) == 0) opt.std_dir = argv[i] + 6;
-    else if (argv[i][0] == '-' && argv[i][1]) {
-      fprintf(stderr, "npgc: unknown option '%s'\n", argv[i]);
-      return 2;
-    } else if (path) {
-      fprintf(stderr, "npgc: more than one program given ('%s' and '%s')\n", path, argv[i]);
-      return 2;
-    } else path = argv[i];
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, "npgc check");
+  while (npg_args_next(&a)) {
+    const char *v, *s = argv[a.i];
+    if (npg_args_flag(&a, "--help") || npg_args_flag(&a, "-h")) return npgc_usage("check", true);
+    if (npg_args_flag(&a, "--json")) json = true;
+    else if (strncmp(s, "-d", 2) == 0 && s[2]) opt.dump = s + 2, opt.dump_out = stdout;
+    else if ((v = npg_args_string(&a, "--std"))) opt.std_dir = v;
+    else if ((v = npg_args_positional(&a)) && !path) path = v;
+    else if (v) npgc_args_extra(&a, "program", path);
+    else npg_args_unknown(&a);
   }
-  if (!path) {
-    fprintf(stderr, "npgc: check needs a program\n");
-    return 2;
-  }
+  if (a.error[0]) return npgc_args_error(&a, "check");
+  if (!path) return npgc_missing("check", "the program (PROG.npg)");
   NpgProgram *p = npg_compile(path, &opt);
   int rc = 0;
   if (!npg_ok(p)) {
@@ -122,5 +126,15 @@ int main(int argc, char **argv) {
     npg_report(p, stdout, json);
   }
   npg_free(p);
+  return rc;
+}
+
+/* A report that could not be written is a failure: `npgc check --json >/dev/full` exited 0 (issue 24). */
+int main(int argc, char **argv) {
+  int rc = run_command(argc, argv);
+  if (fflush(stdout) != 0 || ferror(stdout)) {
+    fprintf(stderr, "npgc: cannot write to standard output: %s\n", strerror(errno));
+    if (rc == 0) rc = 1;
+  }
   return rc;
 }

@@ -6,8 +6,10 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <dirent.h>
 #include <sys/stat.h>
 
+#include "npg.h"
 #include "npgc.h"
 
 typedef struct Usage {
@@ -64,8 +66,9 @@ static const Usage usages[] = {
      "  --center     on (default): each member's basis keeps its snapshots' mean and\n"
      "               truncates the centered energy; off: the paper's uncentered rule\n"
      "  --basis NAME:cap=N,energy=E,center=on|off   NAME a quantity, a class (m_x, as\n"
-     "               npgc check prints it), a numerator (y.num1) or '*'; unknown names\n"
-     "               are refused; max=N is accepted for cap=N\n"
+     "               npgc check prints it, or m_ and any member), a numerator (y.num1)\n"
+     "               or '*'; unknown names are refused; max=N is accepted for cap=N,\n"
+     "               and 'cap N' as in the program's basis statement\n"
      "  --spectra DIR  every member's singular values also to DIR (.npy and CSV;\n"
      "               MODEL/ always holds them)\n"
      "  --merge      concat (one PCA per member, concatenated) or joint (one PCA)\n"
@@ -78,7 +81,8 @@ static const Usage usages[] = {
      "  --cc         compile the full evaluator with the system compiler at -O3\n"
      "  --progress   progress on stderr even when it is not a terminal\n"},
     {"verify",
-     "usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--cc] [--exact] [--exact-size N] [--progress]\n"
+     "usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--params DIR] [--cc] [--exact] [--exact-size N]\n"
+     "                   [--progress]\n"
      "       npgc verify PROG.npg --exact [--exact-size N] [--cc]\n"
      "\n"
      "  Evaluate full and reduced on the held-out samples of TEST/ (same params as\n"
@@ -86,6 +90,7 @@ static const Usage usages[] = {
      "  value, the projection floor and their difference (L2 and Linf), and the stage\n"
      "  where error grows most. Exit 1 when an output's mean L2 error exceeds --tol\n"
      "  (default 1e-2) or a value is not finite.\n"
+     "  --params DIR the params from DIR (the training data's, say) instead of TEST/\n"
      "  --exact      the two exactness checks (alone when MODEL/ and TEST/ are not\n"
      "               given), on random data with every dim of a small size: every stage\n"
      "               rebuilt from its tensors equals the full evaluator to 1e-12, and a\n"
@@ -93,12 +98,14 @@ static const Usage usages[] = {
      "  --exact-size N   that size (1..64; 6 and 4 by default)\n"
      "  --progress   progress on stderr even when it is not a terminal\n"},
     {"bench",
-     "usage: npgc bench PROG.npg MODEL/ TEST/ [--cc] [--reps N] [--exact-roots] [--progress]\n"
+     "usage: npgc bench PROG.npg MODEL/ TEST/ [--cc] [--reps N] [--params DIR] [--exact-roots] [--progress]\n"
      "\n"
      "  Time the full and the reduced evaluation of every sample of TEST/, N passes\n"
      "  (3): the full evaluator (libtcc, npg's default, or --cc: the system compiler\n"
      "  at -O3), the reduced one with its inputs projected and, reported apart and\n"
-     "  included in the total, its outputs lifted; the speedup; the model's memory.\n"
+     "  included in the total, its outputs lifted: medians and quartiles; the speedup\n"
+     "  (the median of the per-evaluation ratios); the model's memory.\n"
+     "  --params DIR the params from DIR instead of TEST/\n"
      "  --exact-roots  roots of reduced operators by eigendecomposition (the exact\n"
      "               reference) instead of the Lanczos process (to 1e-8 relative)\n"
      "  --progress   a progress bar on stderr even when it is not a terminal (on a\n"
@@ -130,7 +137,8 @@ int npgc_usage(const char *cmd, bool help) {
 }
 
 void npgc_usage_all(FILE *out) {
-  fputs("usage: npgc COMMAND ... (npgc COMMAND --help for its whole usage)\n\n", out);
+  fputs("usage: npgc COMMAND ... (npgc COMMAND --help for its whole usage)\n"
+        "Every option takes its value as --opt VALUE or --opt=VALUE; numbers are read whole.\n\n", out);
   for (size_t i = 0; i < sizeof usages / sizeof usages[0]; i++) {
     fputs(usages[i].text, out);
     fputc('\n', out);
@@ -155,26 +163,6 @@ void npgc_error(const char *msg) {
   size_t n = strlen(msg);
   fprintf(stderr, "%s%.*s\n", is_program_diagnostic(msg) ? "" : "error: ", (int)(n && msg[n - 1] == '\n' ? n - 1 : n),
           msg);
-}
-
-bool npgc_parse_long(const char *s, long lo, long hi, long *out) {
-  if (!s || !*s) return false;
-  char *end;
-  errno = 0;
-  long v = strtol(s, &end, 10);
-  if (errno || *end || v < lo || v > hi) return false;
-  *out = v;
-  return true;
-}
-
-bool npgc_parse_double(const char *s, double lo, double hi, bool lo_open, double *out) {
-  if (!s || !*s) return false;
-  char *end;
-  errno = 0;
-  double v = strtod(s, &end);
-  if (errno || *end || !isfinite(v) || v > hi || v < lo || (lo_open && v == lo)) return false;
-  *out = v;
-  return true;
 }
 
 bool npgc_parse_bytes(const char *s, size_t *out) {
@@ -237,4 +225,60 @@ bool npgc_inside(const char *path, const char *dir) {
   else if (slash == parent) parent[1] = 0;
   else *slash = 0;
   return npgc_same_file(parent, dir);
+}
+
+int npgc_args_error(const NpgArgs *a, const char *cmd) {
+  fprintf(stderr, "%s (npgc %s --help for its usage)\n", a->error, cmd);
+  return 2;
+}
+
+void npgc_args_extra(NpgArgs *a, const char *what, const char *first) {
+  if (!a->error[0])
+    snprintf(a->error, sizeof a->error, "%s: more than one %s given ('%s' and '%s')", a->prog, what, first,
+             a->argv[a->i]);
+}
+
+int npgc_missing(const char *cmd, const char *what) {
+  fprintf(stderr, "npgc %s: missing %s (npgc %s --help for its usage)\n", cmd, what, cmd);
+  return 2;
+}
+
+/* `dir` holds an entry `name` (a file, or anything in its place). */
+static bool holds(const char *dir, const char *name) {
+  char path[4096];
+  struct stat st;
+  snprintf(path, sizeof path, "%s/%s", dir, name);
+  return lstat(path, &st) == 0;
+}
+
+/* What every model folder holds (a damaged model still holds one of them,
+ * and is left to the model loader to describe). */
+static bool looks_like_model(const char *dir) { return holds(dir, "manifest") || holds(dir, "basis_0.npy"); }
+
+/* `dir` holds at least one .npy file. */
+static bool holds_npy(const char *dir) {
+  DIR *d = opendir(dir);
+  if (!d) return false;
+  bool found = false;
+  for (struct dirent *e; !found && (e = readdir(d));) {
+    size_t n = strlen(e->d_name);
+    found = n > 4 && strcmp(e->d_name + n - 4, ".npy") == 0;
+  }
+  closedir(d);
+  return found;
+}
+
+int npgc_check_model_and_data(const char *cmd, const char *model, const char *data, const char *data_role) {
+  bool model_is_model = looks_like_model(model), data_is_model = data && looks_like_model(data);
+  if (!model_is_model && data_is_model) {
+    fprintf(stderr, "npgc %s: %s is a model and %s is not (it has no manifest): the order is npgc %s PROG.npg MODEL/ "
+                    "%s\n", cmd, data, model, cmd, data_role);
+    return -1;
+  }
+  if (!model_is_model && holds_npy(model)) {
+    fprintf(stderr, "npgc %s: %s is a data folder (it holds .npy files and no manifest), not a model: give the "
+                    "folder npgc train -o wrote (npgc %s PROG.npg MODEL/ %s)\n", cmd, model, cmd, data_role);
+    return -1;
+  }
+  return 0;
 }

@@ -255,6 +255,9 @@ static Node *parse_mul(Parser *p) {
     NodeKind k = is_punct(t, "*") ? N_MUL : is_punct(t, "/") ? N_DIV : N_NUM;
     if (k == N_NUM) return e;
     next(p);
+    /* `x**2` (Python, Fortran): the power is `^` here */
+    if (k == N_MUL && is_punct(peek(p), "*") && peek(p)->loc.off == t->loc.off + 1)
+      error_at(p->ctx, t->loc, "'**' is not an operator: write a power as x^2 (or x^(1/2))");
     operand_follows(p, t);
     e = binary(p, k, t, e, parse_unary(p));
   }
@@ -523,10 +526,11 @@ static void parse_stmt(Parser *p, Decl ***tail) {
   } else if (strcmp(kw, "basis") == 0) {
     d = new_decl(p, D_BASIS, t->loc);
     parse_names(p, d, "a quantity after 'basis'");
-    expect(p, ":", "after the quantities of 'basis' (basis x: cap 60, energy 0.999, center on)");
+    expect(p, ":", "after the quantities of 'basis' (basis x: cap 60, energy 0.999, center on; or cap=60)");
     do {
       /* `cap` as on the command line (--cap, --basis x:cap=N); `max` is its older name */
       Token *o = expect_ident(p, "'cap', 'energy' or 'center'");
+      accept(p, "="); /* `cap=12` as --basis writes it, or `cap 12` */
       Token *v = peek(p);
       if (strcmp(o->text, "center") == 0) {
         if (!is_ident(v, "on") && !is_ident(v, "off"))

@@ -13,17 +13,19 @@
 
 int npgc_plot(int argc, char **argv) {
   const char *dir = NULL, *out = NULL;
-  for (int i = 2; i < argc; i++) {
-    if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) return npgc_usage("plot", true);
-    if (strcmp(argv[i], "-o") == 0 && i + 1 < argc) out = argv[++i];
-    else if (argv[i][0] == '-') {
-      fprintf(stderr, "npgc plot: %s '%s'\n", strcmp(argv[i], "-o") == 0 ? "missing the value of" : "unknown option",
-              argv[i]);
-      return npgc_usage("plot", false);
-    } else if (!dir) dir = argv[i];
-    else return npgc_usage("plot", false);
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, "npgc plot");
+  while (npg_args_next(&a)) {
+    const char *v;
+    if (npg_args_flag(&a, "--help") || npg_args_flag(&a, "-h")) return npgc_usage("plot", true);
+    if ((v = npg_args_string(&a, "-o"))) out = v;
+    else if ((v = npg_args_positional(&a)) && !dir) dir = v;
+    else if (v) npgc_args_extra(&a, "model", dir);
+    else npg_args_unknown(&a);
   }
-  if (!dir || !out) return npgc_usage("plot", false);
+  if (a.error[0]) return npgc_args_error(&a, "plot");
+  if (!dir) return npgc_missing("plot", "MODEL/ (a trained model)");
+  if (!out) return npgc_missing("plot", "-o FILE.png (where to draw the spectra)");
   NpgSpectrum *sp = NULL;
   int n = 0, rc = 1;
   char err[2048] = "";
@@ -50,6 +52,7 @@ int npgc_plot(int argc, char **argv) {
   char title[4200];
   snprintf(title, sizeof title, "singular values of each member's snapshots: %s", dir);
   Chart chart = {title, "k", "singular value / largest", false, true, n, series};
+  if (npgc_make_parents(out, false) != 0) goto done; /* every writer of npgc creates the parents, as -o does */
   if (chart_png(&chart, out, 960, 540, err, sizeof err) != 0) {
     npgc_error(err);
     goto done;

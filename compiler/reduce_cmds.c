@@ -35,6 +35,7 @@ typedef struct Common {
   double *basis_energy;
   int *basis_center;
   const char *spectra;      /* train --spectra DIR */
+  const char *params;       /* verify --params DIR: the params, when TEST/ holds only the samples */
   const char *cmd;
 } Common;
 
@@ -46,10 +47,14 @@ static double now(void) {
 
 /* --basis NAME:cap=N,energy=E,center=on|off (NAME: a quantity, a class, a
  * numerator or '*', checked by training; `max=N` is accepted for `cap=N`,
- * as in the language) */
-static bool parse_basis(Common *c, const char *s) {
+ * and `cap N` for `cap=N`, as in the language's basis statement). 0, or -1
+ * with the problem in `err`. */
+static int parse_basis(Common *c, const char *s, char *err, size_t errlen) {
   const char *colon = strchr(s, ':');
-  if (!colon || colon == s) return false;
+  if (!colon || colon == s) {
+    snprintf(err, errlen, "'%s': expected NAME:cap=N,energy=E,center=on|off (NAME a quantity, a class or '*')", s);
+    return -1;
+  }
   int k = c->nbasis;
   const char **names = realloc(c->basis_name, sizeof(char *) * (size_t)(k + 1));
   if (names) c->basis_name = names;
@@ -59,39 +64,101 @@ static bool parse_basis(Common *c, const char *s) {
   if (energies) c->basis_energy = energies;
   int *centers = realloc(c->basis_center, sizeof(int) * (size_t)(k + 1));
   if (centers) c->basis_center = centers;
-  if (!names || !caps || !energies || !centers) return false;
+  if (!names || !caps || !energies || !centers) {
+    snprintf(err, errlen, "out of memory");
+    return -1;
+  }
   c->nbasis++;
   c->basis_center[k] = -1;
   c->basis_name[k] = strndup(s, (size_t)(colon - s));
   c->basis_cap[k] = -1;
   c->basis_energy[k] = -1;
   const char *p = colon + 1;
+  while (*p == ' ') p++;
   while (*p) {
-    char *end;
-    if (strncmp(p, "cap=", 4) == 0 || strncmp(p, "max=", 4) == 0) {
-      long v = strtol(p + 4, &end, 10);
-      if (end == p + 4 || v < 1 || v > 1000000) return false;
-      c->basis_cap[k] = (int)v;
-    } else if (strncmp(p, "energy=", 7) == 0) {
-      double v = strtod(p + 7, &end);
-      if (end == p + 7 || !(v > 0 && v <= 1)) return false;
-      c->basis_energy[k] = v;
-    } else if (strncmp(p, "center=", 7) == 0) {
-      bool on = strncmp(p + 7, "on", 2) == 0, off = strncmp(p + 7, "off", 3) == 0;
-      if (!on && !off) return false;
-      c->basis_center[k] = on;
-      end = (char *)p + 7 + (on ? 2 : 3);
+    size_t klen = strcspn(p, "= ,");
+    const char *v = p + klen;
+    while (*v == ' ') v++;
+    if (*v == '=') v++;
+    while (*v == ' ') v++;
+    size_t vlen = strcspn(v, ", ");
+    char key[64], val[64], why[256];
+    snprintf(key, sizeof key, "%.*s", (int)(klen < 63 ? klen : 63), p);
+    snprintf(val, sizeof val, "%.*s", (int)(vlen < 63 ? vlen : 63), v);
+    if (!strcmp(key, "cap") || !strcmp(key, "max")) {
+      long cap;
+      if (npg_parse_long(val, 1, 1000000, &cap, why, sizeof why) != 0) {
+        snprintf(err, errlen, "'%s': %s: %s", s, key, why);
+        return -1;
+      }
+      c->basis_cap[k] = (int)cap;
+    } else if (!strcmp(key, "energy")) {
+      if (npg_parse_double(val, 0, 1, true, &c->basis_energy[k], why, sizeof why) != 0) {
+        snprintf(err, errlen, "'%s': energy: %s", s, why);
+        return -1;
+      }
+    } else if (!strcmp(key, "center")) {
+      if (strcmp(val, "on") && strcmp(val, "off")) {
+        snprintf(err, errlen, "'%s': center is on or off, not '%s'", s, val);
+        return -1;
+      }
+      c->basis_center[k] = !strcmp(val, "on");
     } else {
-      return false;
+      snprintf(err, errlen, "'%s': unknown key '%s' (the keys are cap, energy and center: NAME:cap=N,energy=E,center=on|off)",
+               s, key);
+      return -1;
     }
-    p = end;
+    p = v + vlen;
+    while (*p == ' ') p++;
     if (*p == ',') p++;
-    else if (*p) return false;
+    while (*p == ' ') p++;
   }
-  return true;
+  return 0;
 }
 
-static int usage(const char *cmd) { return npgc_usage(cmd, false); }
+/* Each command's options: an option of another command is named as such. */
+static const char *const options_of[][2] = {
+    {"train", "-o --cc --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi"},
+    {"eval", "-o --progress --std --exact-roots --full --cc"},
+    {"verify", "--tol --cc --exact --exact-size --progress --std --params"},
+    {"bench", "--cc --reps --exact-roots --progress --std --params"},
+};
+
+/* Whether `opt` (up to '=') is in the space-separated `list`. */
+static bool listed(const char *list, const char *opt) {
+  size_t n = strcspn(opt, "=");
+  for (const char *p = list; *p;) {
+    size_t w = strcspn(p, " ");
+    if (w == n && strncmp(p, opt, n) == 0) return true;
+    p += w;
+    while (*p == ' ') p++;
+  }
+  return false;
+}
+
+static void unknown_option(NpgArgs *a, const char *cmd) {
+  const char *s = a->argv[a->i];
+  char others[64] = "";
+  for (size_t k = 0; k < sizeof options_of / sizeof options_of[0]; k++)
+    if (strcmp(options_of[k][0], cmd) && listed(options_of[k][1], s))
+      snprintf(others + strlen(others), sizeof others - strlen(others), "%s%s", others[0] ? " and " : "",
+               options_of[k][0]);
+  if (others[0])
+    snprintf(a->error, sizeof a->error, "%s: %.*s is an option of npgc %s, not of npgc %s", a->prog,
+             (int)strcspn(s, "="), s, others, cmd);
+  else
+    npg_args_unknown(a);
+}
+
+/* Whether argv[a->i] is `name` and an option of c->cmd. */
+static bool mine(const Common *c, const NpgArgs *a, const char *name) {
+  const char *s = a->argv[a->i];
+  size_t n = strlen(name);
+  if (strncmp(s, name, n) != 0 || (s[n] && s[n] != '=')) return false;
+  for (size_t k = 0; k < sizeof options_of / sizeof options_of[0]; k++)
+    if (!strcmp(options_of[k][0], c->cmd)) return listed(options_of[k][1], name);
+  return false;
+}
 
 static int parse(Common *c, int argc, char **argv) {
   memset(c, 0, sizeof *c);
@@ -99,69 +166,59 @@ static int parse(Common *c, int argc, char **argv) {
   c->tol = 1e-2;
   c->reps = 3;
   npg_train_options_default(&c->train);
-  for (int i = 2; i < argc; i++) {
-    const char *a = argv[i];
-    bool has = i + 1 < argc, ok = true;
-    if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) return npgc_usage(c->cmd, true) - 1; /* -1: done */
-    if (strcmp(a, "-o") == 0 && has) c->out = argv[++i];
-    else if (strcmp(a, "--cc") == 0) c->cc = true;
-    else if (strcmp(a, "--progress") == 0) c->progress = true;
-    else if (strcmp(a, "--exact") == 0 && strcmp(c->cmd, "verify") == 0) c->exact = true;
-    else if (strcmp(a, "--exact-size") == 0 && has && strcmp(c->cmd, "verify") == 0) {
-      c->exact = true;
-      ok = npgc_parse_long(argv[++i], 1, 64, &c->exact_size);
-    }
-    else if (strncmp(a, "--std=", 6) == 0) c->opt.std_dir = a + 6;
-    else if (strcmp(a, "--tol") == 0 && has) {
-      c->tol_set = true;
-      ok = npgc_parse_double(argv[++i], 0, INFINITY, false, &c->tol);
-    } else if (strcmp(a, "--cap") == 0 && has) {
-      long cap = 0;
-      ok = npgc_parse_long(argv[++i], 1, 1000000, &cap);
-      c->train.cap = (int)cap;
-    } else if (strcmp(a, "--energy") == 0 && has) {
-      ok = npgc_parse_double(argv[++i], 0, 1, true, &c->train.energy);
-    } else if (strcmp(a, "--exact-roots") == 0 && (!strcmp(c->cmd, "bench") || !strcmp(c->cmd, "eval"))) {
-      c->exact_roots = true;
-    } else if (strcmp(a, "--center") == 0 && has) {
-      const char *v = argv[++i];
+  char prog[64], err[400];
+  snprintf(prog, sizeof prog, "npgc %s", c->cmd);
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, prog);
+  while (npg_args_next(&a)) {
+    const char *v;
+    long cap;
+    if (npg_args_flag(&a, "--help") || npg_args_flag(&a, "-h")) return npgc_usage(c->cmd, true) - 1; /* -1: done */
+    if ((v = npg_args_positional(&a))) {
+      if (!c->prog_path) c->prog_path = v;
+      else if (!c->a) c->a = v;
+      else if (!c->b) c->b = v;
+      else npgc_args_extra(&a, "folder", c->b);
+    } else if (!mine(c, &a, argv[a.i])) {
+      unknown_option(&a, c->cmd);
+    } else if ((v = npg_args_string(&a, "-o"))) c->out = v;
+    else if (npg_args_flag(&a, "--cc")) c->cc = true;
+    else if (npg_args_flag(&a, "--full")) ; /* eval.c took it */
+    else if (npg_args_flag(&a, "--progress")) c->progress = true;
+    else if (npg_args_flag(&a, "--exact")) c->exact = true;
+    else if (npg_args_long(&a, "--exact-size", 1, 64, &c->exact_size)) c->exact = true;
+    else if ((v = npg_args_string(&a, "--std"))) c->opt.std_dir = v;
+    else if (npg_args_double(&a, "--tol", 0, INFINITY, false, &c->tol)) c->tol_set = true;
+    else if (npg_args_long(&a, "--cap", 1, 1000000, &cap)) c->train.cap = (int)cap;
+    else if (npg_args_double(&a, "--energy", 0, 1, true, &c->train.energy)) ;
+    else if (npg_args_flag(&a, "--exact-roots")) c->exact_roots = true;
+    else if ((v = npg_args_string(&a, "--center"))) {
       c->train.uncentered = strcmp(v, "off") == 0;
-      ok = c->train.uncentered || strcmp(v, "on") == 0;
-    } else if (strcmp(a, "--spectra") == 0 && has) {
-      c->spectra = argv[++i];
-    } else if (strcmp(a, "--basis") == 0 && has) {
-      ok = parse_basis(c, argv[++i]);
-    } else if (strcmp(a, "--merge") == 0 && has) {
-      const char *v = argv[++i];
+      if (!c->train.uncentered && strcmp(v, "on") != 0)
+        snprintf(a.error, sizeof a.error, "%s: --center is on or off, not '%s'", prog, v);
+    } else if ((v = npg_args_string(&a, "--spectra"))) c->spectra = v;
+    else if ((v = npg_args_string(&a, "--params"))) c->params = v;
+    else if ((v = npg_args_string(&a, "--basis"))) {
+      if (parse_basis(c, v, err, sizeof err) != 0) snprintf(a.error, sizeof a.error, "%s: --basis %s", prog, err);
+    } else if ((v = npg_args_string(&a, "--merge"))) {
       c->train.joint = strcmp(v, "joint") == 0;
-      ok = c->train.joint || strcmp(v, "concat") == 0;
-    } else if (strcmp(a, "--mem") == 0 && has) {
-      ok = npgc_parse_bytes(argv[++i], &c->train.mem);
-    } else if (strcmp(a, "--mpi") == 0 && strcmp(c->cmd, "train") == 0) {
+      if (!c->train.joint && strcmp(v, "concat") != 0)
+        snprintf(a.error, sizeof a.error, "%s: --merge is concat or joint, not '%s'", prog, v);
+    } else if ((v = npg_args_string(&a, "--mem"))) {
+      if (!npgc_parse_bytes(v, &c->train.mem))
+        snprintf(a.error, sizeof a.error, "%s: --mem: '%s' is not a size in bytes (a positive number, optionally "
+                 "followed by k, M, G or T)", prog, v);
+    } else if (npg_args_flag(&a, "--mpi")) {
       if (!npg_mpi_available()) {
         fprintf(stderr, "npgc train: --mpi: this build of npg has no MPI (install OpenMPI with scripts/setup.sh "
                         "and configure the build again)\n");
         return 2;
       }
       c->train.mpi = true;
-    } else if (strcmp(a, "--reps") == 0 && has && strcmp(c->cmd, "bench") == 0) {
-      ok = npgc_parse_long(argv[++i], 1, 1000000, &c->reps);
-    } else if (a[0] == '-') {
-      bool valued = !strcmp(a, "-o") || !strcmp(a, "--tol") || !strcmp(a, "--cap") || !strcmp(a, "--energy") ||
-                    !strcmp(a, "--basis") || !strcmp(a, "--merge") || !strcmp(a, "--mem") ||
-                    !strcmp(a, "--exact-size") || !strcmp(a, "--reps") || !strcmp(a, "--center") ||
-                    !strcmp(a, "--spectra");
-      fprintf(stderr, "npgc %s: %s '%s'\n", c->cmd, valued && !has ? "missing the value of" : "unknown option", a);
-      return usage(c->cmd);
-    } else if (!c->prog_path) c->prog_path = a;
-    else if (!c->a) c->a = a;
-    else if (!c->b) c->b = a;
-    else return usage(c->cmd);
-    if (!ok) {
-      fprintf(stderr, "npgc %s: bad value for %s: '%s'\n", c->cmd, a, argv[i]);
-      return 2;
-    }
+    } else if (npg_args_long(&a, "--reps", 1, 1000000, &c->reps)) ;
+    else npg_args_unknown(&a);
   }
+  if (a.error[0]) return npgc_args_error(&a, c->cmd);
   c->train.progress = c->progress || isatty(2);
   c->train.nbasis = c->nbasis;
   c->train.basis_name = c->basis_name;
@@ -193,7 +250,14 @@ static NpgProgram *compile(Common *c) {
 
 /* The samples of DATA/ streamed into a trainer, as any C program would. */
 static int cmd_train(Common *c) {
-  if (!c->prog_path || !c->a || !c->out || c->b) return usage("train");
+  if (!c->prog_path) return npgc_missing("train", "the program (PROG.npg)");
+  if (!c->a) return npgc_missing("train", "DATA/ (the params and the training samples)");
+  if (c->b) {
+    fprintf(stderr, "npgc train: more than one DATA/ folder given ('%s' and '%s'): training reads one (the model's "
+                    "folder follows -o)\n", c->a, c->b);
+    return 2;
+  }
+  if (!c->out) return npgc_missing("train", "-o MODEL/ (where to write the model)");
   if (npgc_same_file(c->out, c->a) || npgc_same_file(c->out, c->prog_path)) {
     fprintf(stderr, "npgc train: -o %s is an input of the command; give the model its own folder\n", c->out);
     return 1;
@@ -233,6 +297,8 @@ static int cmd_train(Common *c) {
     if (npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0) break;
   if (npg_full_error(f)[0]) npgc_error(npg_full_error(f));
   else if (!(m = npg_trainer_finish(t, c->out))) npgc_error(npg_trainer_error(t));
+  else if (c->spectra && npg_mpi_rank() == 0 && npgc_make_parents(c->spectra, false) != 0)
+    ; /* said which folder could not be made */
   else if (c->spectra && npg_mpi_rank() == 0 && npg_model_write_spectra(m, c->spectra, err, sizeof err) != 0)
     npgc_error(err);
   else if (npg_mpi_rank() > 0) /* rank 0 reports */
@@ -288,6 +354,7 @@ static int open_session(Common *c, Session *x, bool full) {
     return -1;
   }
   for (int i = 0; i < x->nsym; i++) npg_symbol(x->p, i, &x->sym[i]);
+  if (npgc_check_model_and_data(c->cmd, c->a, c->b, strcmp(c->cmd, "eval") ? "TEST/" : "IN/") != 0) return -1;
   x->m = npg_model_load(x->p, c->a);
   if (npg_model_error(x->m)[0]) {
     npgc_error(npg_model_error(x->m));
@@ -310,8 +377,12 @@ static int open_session(Common *c, Session *x, bool full) {
   }
   if (full) {
     x->f = npg_full_new(x->p, c->cc ? NPG_CC : NPG_TCC);
-    if (npg_full_error(x->f)[0] || npg_full_bind_params(x->f, c->b) != 0) {
+    const char *params = c->params ? c->params : c->b;
+    if (npg_full_error(x->f)[0] || npg_full_bind_params(x->f, params) != 0) {
       npgc_error(npg_full_error(x->f));
+      if (!c->params)
+        fprintf(stderr, "(npgc %s reads the params from %s, the TEST/ folder, beside its samples; --params DIR reads "
+                        "them from another folder, such as the training data's)\n", c->cmd, c->b);
       return -1;
     }
     if (npg_model_check_params(x->m, x->f, err, sizeof err) != 0) {
@@ -403,7 +474,9 @@ static int keep_output(Session *x, Out *u, long k) {
 }
 
 static int cmd_eval_reduced(Common *c) {
-  if (!c->prog_path || !c->a || !c->b || !c->out) return usage("eval");
+  if (!c->prog_path || !c->a) return npgc_missing("eval", "MODEL/ (or --full DATA/)");
+  if (!c->b) return npgc_missing("eval", "IN/ (the inputs to evaluate)");
+  if (!c->out) return npgc_missing("eval", "-o OUT/ (where to write the outputs)");
   Session x;
   int rc = 1, nout = 0;
   Out *outs = NULL;
@@ -497,7 +570,9 @@ static void print_report(const Common *c, const NpgVerifyReport *rep) {
 
 static int cmd_verify(Common *c) {
   if (c->exact && c->prog_path && !c->a && !c->b && !c->out) return verify_exact(c);
-  if (!c->prog_path || !c->a || !c->b || c->out) return usage("verify");
+  if (!c->prog_path) return npgc_missing("verify", "the program (PROG.npg)");
+  if (!c->a) return npgc_missing("verify", "MODEL/ (a model trained by npgc train), or --exact");
+  if (!c->b) return npgc_missing("verify", "TEST/ (held-out samples)");
   Session x;
   NpgVerifyReport rep;
   memset(&rep, 0, sizeof rep);
@@ -540,10 +615,19 @@ static int lift_outputs(Session *x, double *y, size_t n) {
   return 0;
 }
 
-static void print_speedup(const char *what, double full, double reduced) {
-  double s = full / reduced;
-  if (s >= 1) printf("%-20s %11.1fx faster reduced\n", what, s);
-  else printf("%-20s reduced is %.1fx slower\n", what, 1 / s);
+static int by_value(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}
+
+/* The median and the quartiles of v[0..n) (sorted in place). */
+static void quartiles(double *v, long n, double q[3]) {
+  qsort(v, (size_t)n, sizeof *v, by_value);
+  for (int k = 0; k < 3; k++) {
+    double at = (double)(n - 1) * (k + 1) / 4; /* linear interpolation between order statistics */
+    long i = (long)at;
+    q[k] = i + 1 < n ? v[i] + (at - (double)i) * (v[i + 1] - v[i]) : v[n - 1];
+  }
 }
 
 /* An error during the timed passes: the progress line is ended first. */
@@ -553,10 +637,12 @@ static void bench_error(const Common *c, const char *msg) {
 }
 
 static int cmd_bench(Common *c) {
-  if (!c->prog_path || !c->a || !c->b || c->out) return usage("bench");
+  if (!c->prog_path) return npgc_missing("bench", "the program (PROG.npg)");
+  if (!c->a) return npgc_missing("bench", "MODEL/ (a model trained by npgc train)");
+  if (!c->b) return npgc_missing("bench", "TEST/ (the samples to time)");
   Session x;
   int rc = 1;
-  double *y = NULL;
+  double *y = NULL, *tf = NULL;
   if (open_session(c, &x, true) != 0) goto done;
   long S = npg_samples_count(x.s);
   size_t maxn = 1;
@@ -565,9 +651,14 @@ static int cmd_bench(Common *c) {
     npg_model_class(x.m, k, &ci);
     maxn = (size_t)ci.n > maxn ? (size_t)ci.n : maxn;
   }
-  if (!(y = malloc(sizeof(double) * maxn))) goto done;
-  double tf = 0, tr = 0, tl = 0, tfbest = INFINITY, trbest = INFINITY;
-  long timed = 0, total = c->reps * S, shown = -1;
+  long total = c->reps * S, shown = -1;
+  /* per timed evaluation: full, reduced (projected and lifted), lifting alone, and their ratio */
+  if (!(y = malloc(sizeof(double) * maxn)) || !(tf = malloc(sizeof(double) * (size_t)(4 * total + 4)))) {
+    fputs("error: out of memory\n", stderr);
+    goto done;
+  }
+  double *tr = tf + total + 1, *tl = tr + total + 1, *ratio = tl + total + 1;
+  long timed = 0;
   for (long rep = 0; rep < c->reps; rep++)
     for (long k = 0; k < S; k++) {
       /* progress between timed evaluations, redrawn once per percent */
@@ -597,28 +688,37 @@ static int cmd_bench(Common *c) {
       }
       double t3 = now();
       if (rep == 0 && k == 0 && !(S == 1 && c->reps == 1)) continue; /* the first full evaluation also checks gathers */
-      tf += t1 - t0;
-      tr += t2 - t1;
-      tl += t3 - t2;
-      tfbest = fmin(tfbest, t1 - t0);
-      trbest = fmin(trbest, t3 - t1);
+      tf[timed] = t1 - t0;
+      tr[timed] = t3 - t1;
+      tl[timed] = t3 - t2;
+      ratio[timed] = (t1 - t0) / fmax(t3 - t1, 1e-12);
       timed++;
     }
   npg_progress(c->train.progress, "bench (full and reduced)", total, total);
   size_t tb, bytes = npg_model_bytes(x.m, &tb);
-  printf("bench %s: %ld samples x %ld passes, %ld evaluations timed\n", c->prog_path, S, c->reps, timed);
+  /* one statistic, the median (robust to the machine's other load, which the mean is not), with the quartiles
+   * as its spread; the speedup is the median of the per-evaluation ratios, each full evaluation against the
+   * reduced one that follows it */
+  double qf[3], qr[3], ql[3], qs[3];
+  quartiles(tf, timed, qf);
+  quartiles(tr, timed, qr);
+  quartiles(tl, timed, ql);
+  quartiles(ratio, timed, qs);
+  printf("bench %s: %ld samples x %ld passes, %ld evaluations timed; medians, quartiles in brackets\n", c->prog_path, S,
+         c->reps, timed);
   printf("full evaluator: %s\n", c->cc ? "cc (the system compiler at -O3 -march=native)"
                                         : "libtcc (npg's default; --cc times the system compiler at -O3)");
-  printf("full evaluation     %12.3e s per sample (best %.3e)\n", tf / (double)timed, tfbest);
-  printf("reduced evaluation  %12.3e s per sample (best %.3e), inputs projected and outputs lifted\n",
-         (tr + tl) / (double)timed, trbest);
-  printf("  of which lifting  %12.3e s per sample\n", tl / (double)timed);
-  print_speedup("speedup (mean)", tf, tr + tl);
-  print_speedup("speedup (best)", tfbest, trbest);
+  printf("full evaluation     %12.3e s per sample [%.3e, %.3e]\n", qf[1], qf[0], qf[2]);
+  printf("reduced evaluation  %12.3e s per sample [%.3e, %.3e], inputs projected and outputs lifted\n", qr[1], qr[0],
+         qr[2]);
+  printf("  of which lifting  %12.3e s per sample [%.3e, %.3e]\n", ql[1], ql[0], ql[2]);
+  printf("speedup             %12.3gx [%.3gx, %.3gx] (full time / reduced time per evaluation%s)\n", qs[1], qs[0],
+         qs[2], qs[1] < 1 ? ": below 1, the reduced evaluation is slower" : "");
   printf("reduced model       %12.3f MB of reduced tensors, %.3f MB with bases and extern tables\n", (double)tb / 1e6,
          (double)bytes / 1e6);
   rc = 0;
 done:
+  free(tf);
   free(y);
   close_session(&x);
   return rc;

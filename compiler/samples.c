@@ -61,8 +61,20 @@ static int samples_open(SampleSet *s, const Program *prog, const char *dir, cons
       goto fail;
     }
     if (g->a.ndim != sym->ndims + sym->nstatic + 1) {
-      snprintf(err, errlen, "%s: expected a leading sample axis and %d ax%s for '%s', the array has %d axes", g->path,
-               sym->ndims + sym->nstatic, sym->ndims + sym->nstatic == 1 ? "is" : "es", sym->name, g->a.ndim);
+      /* both shapes written out: "expected (samples, N, 3) ..., found (20, 15)" */
+      char want[512], found[512];
+      size_t w = (size_t)snprintf(want, sizeof want, "(samples"), f = (size_t)snprintf(found, sizeof found, "(");
+      for (int d = 0; d < sym->ndims && w < sizeof want; d++)
+        w += (size_t)snprintf(want + w, sizeof want - w, ", %s", sym->dims[d]->name);
+      for (int d = 0; d < sym->nstatic && w < sizeof want; d++)
+        w += (size_t)snprintf(want + w, sizeof want - w, ", %d", sym->shape[d]);
+      for (int d = 0; d < g->a.ndim && f < sizeof found; d++)
+        f += (size_t)snprintf(found + f, sizeof found - f, "%s%ld", d ? ", " : "", g->a.shape[d]);
+      if (w < sizeof want) snprintf(want + w, sizeof want - w, ")");
+      if (f < sizeof found) snprintf(found + f, sizeof found - f, "%s)", g->a.ndim == 1 ? "," : "");
+      snprintf(err, errlen, "%s: %s '%s' needs the shape %s (a leading sample axis, then its %d ax%s), the array's "
+               "shape is %s", g->path, sym->kind == SYM_INPUT ? "input" : "extern", sym->name, want,
+               sym->ndims + sym->nstatic, sym->ndims + sym->nstatic == 1 ? "is" : "es", found);
       goto fail;
     }
     /* a NaN or an infinity is named by sample and index, once, here */

@@ -22,6 +22,9 @@ Sym *sema_new_sym(Checker *ck, SymKind kind, const char *name, Loc loc) {
   s->basis_max = -1;
   s->basis_energy = -1;
   s->basis_center = -1;
+  s->class_basis_max = -1;
+  s->class_basis_energy = -1;
+  s->class_basis_center = -1;
   s->klass = -1;
   return s;
 }
@@ -300,7 +303,21 @@ static void apply_directives(Checker *ck) {
       break;
     case D_BASIS:
       for (int i = 0; i < d->nnames; i++) {
-        Sym *q = need_quantity(ck, d->names[i], d->name_locs[i], "basis");
+        /* a class by the name `npgc check` and --basis give it, m_<a member>: the options hold for the
+         * whole class (basis_classes applies them); a quantity of that very name is the quantity */
+        const char *name = d->names[i];
+        Sym *member = !sema_find_global(ck, name) && strncmp(name, "m_", 2) == 0 ? sema_find_global(ck, name + 2) : NULL;
+        if (member) {
+          Sym *q = need_quantity(ck, name + 2, d->name_locs[i], "basis (the class m_<quantity>)");
+          if (d->basis_max > 0) q->class_basis_max = d->basis_max;
+          if (d->basis_energy > 0) q->class_basis_energy = d->basis_energy;
+          if (d->basis_center >= 0) q->class_basis_center = d->basis_center;
+          continue;
+        }
+        if (!sema_find_global(ck, name))
+          error_at(ctx, d->name_locs[i], "unknown name '%s': 'basis' takes quantities and classes (m_x, the class of "
+                   "quantity x, as npgc check names it)", name);
+        Sym *q = need_quantity(ck, name, d->name_locs[i], "basis");
         if (d->basis_max > 0) q->basis_max = d->basis_max;
         if (d->basis_energy > 0) q->basis_energy = d->basis_energy;
         if (d->basis_center >= 0) q->basis_center = d->basis_center;
@@ -341,6 +358,7 @@ static void list_quantities(Checker *ck) {
     if (d->kind != D_SHARE && d->kind != D_BASIS) continue;
     for (int i = 0; i < d->nnames; i++) {
       Sym *q = sema_find_global(ck, d->names[i]);
+      if (!q) q = sema_find_global(ck, d->names[i] + 2); /* `basis m_x:` (apply_directives checked x) */
       if (q->inlined)
         error_at(ctx, d->name_locs[i], "'%s' is inlined (or constant) and has no basis to %s", q->name,
                  d->kind == D_SHARE ? "share" : "configure");

@@ -13,8 +13,6 @@
 #include "npg.h"
 #include "npgc.h"
 
-static int usage(void) { return npgc_usage("tune", false); }
-
 /* "m_x=3 m_y=8" */
 static void print_sizes(const NpgTuneReport *r, const NpgTuneTrial *t) {
   for (int c = 0; c < r->nclasses; c++) printf("%s%s=%ld", c ? " " : "", r->class_name[c], t->m[c]);
@@ -40,7 +38,11 @@ static int draw(const NpgTuneReport *r, double tol, const char *path, char *err,
                       {"tolerance", 2, tx, ty, -1, false}};
   Chart c = {"npgc tune: worst output's mean relative error against reduced cost", "reduced multiply-adds",
              "mean relative L2 error", true, true, 3, s};
-  int rc = chart_png(&c, path, 960, 540, err, errlen);
+  int rc = -1;
+  if (npgc_make_parents(path, false) != 0) /* every writer of npgc creates the parents, as -o does */
+    snprintf(err, errlen, "%.1000s: no folder to write it in", path);
+  else
+    rc = chart_png(&c, path, 960, 540, err, errlen);
   free(x);
   return rc;
 }
@@ -53,32 +55,34 @@ int npgc_tune(int argc, char **argv) {
   NpgOptions opt = {0};
   NpgTrainOptions topt;
   npg_train_options_default(&topt);
-  for (int i = 2; i < argc; i++) {
-    const char *a = argv[i];
-    bool has = i + 1 < argc, ok = true;
-    if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) return npgc_usage("tune", true);
-    if (strcmp(a, "-o") == 0 && has) out = argv[++i];
-    else if (strcmp(a, "--png") == 0 && has) png = argv[++i];
-    else if (strcmp(a, "--tol") == 0 && has) ok = npgc_parse_double(argv[++i], 0, INFINITY, true, &tol);
-    else if (strcmp(a, "--max-cap") == 0 && has) ok = npgc_parse_long(argv[++i], 1, 100000, &max_cap);
-    else if (strcmp(a, "--center") == 0 && has) {
-      topt.uncentered = strcmp(argv[++i], "off") == 0;
-      ok = topt.uncentered || strcmp(argv[i], "on") == 0;
-    } else if (strcmp(a, "--cc") == 0) cc = true;
-    else if (strncmp(a, "--std=", 6) == 0) opt.std_dir = a + 6;
-    else if (a[0] == '-') {
-      fprintf(stderr, "npgc tune: %s '%s'\n", has ? "unknown option" : "missing the value of", a);
-      return usage();
-    } else if (!prog_path) prog_path = a;
-    else if (!data) data = a;
-    else if (!valid) valid = a;
-    else return usage();
-    if (!ok) {
-      fprintf(stderr, "npgc tune: bad value for %s: '%s'\n", a, argv[i]);
-      return 2;
-    }
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, "npgc tune");
+  while (npg_args_next(&a)) {
+    const char *v;
+    if (npg_args_flag(&a, "--help") || npg_args_flag(&a, "-h")) return npgc_usage("tune", true);
+    if ((v = npg_args_string(&a, "-o"))) out = v;
+    else if ((v = npg_args_string(&a, "--png"))) png = v;
+    else if (npg_args_double(&a, "--tol", 0, INFINITY, true, &tol)) ;
+    else if (npg_args_long(&a, "--max-cap", 1, 100000, &max_cap)) ;
+    else if ((v = npg_args_string(&a, "--center"))) {
+      topt.uncentered = strcmp(v, "off") == 0;
+      if (!topt.uncentered && strcmp(v, "on") != 0)
+        snprintf(a.error, sizeof a.error, "npgc tune: --center is on or off, not '%s'", v);
+    } else if (npg_args_flag(&a, "--cc")) cc = true;
+    else if ((v = npg_args_string(&a, "--std"))) opt.std_dir = v;
+    else if ((v = npg_args_positional(&a))) {
+      if (!prog_path) prog_path = v;
+      else if (!data) data = v;
+      else if (!valid) valid = v;
+      else npgc_args_extra(&a, "folder", valid);
+    } else npg_args_unknown(&a);
   }
-  if (!prog_path || !data || !valid || !out || tol < 0) return usage();
+  if (a.error[0]) return npgc_args_error(&a, "tune");
+  if (!prog_path) return npgc_missing("tune", "the program (PROG.npg)");
+  if (!data) return npgc_missing("tune", "DATA/ (the training samples)");
+  if (!valid) return npgc_missing("tune", "VALID/ (held-out samples the error is measured on)");
+  if (tol < 0) return npgc_missing("tune", "--tol T (the error to meet)");
+  if (!out) return npgc_missing("tune", "-o MODEL/ (where to write the chosen model)");
   topt.progress = isatty(2);
   char pngbuf[4096], err[2048] = "";
   if (!png) { /* beside MODEL/, which holds only what a model store writes */

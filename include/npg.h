@@ -181,6 +181,18 @@ NPG_API int npg_npy_write(const char *path, int ndim, const long *shape, const d
 NPG_API int npg_npy_write_i64(const char *path, int ndim, const long *shape, const long *data, char *err,
                               size_t errlen);
 
+/* Read a .npy file (the files npg_npy_write and numpy.save write: '<f8',
+ * '<i4' or '<i8', C order, at most NPG_NPY_MAX_DIMS axes) as float64.
+ * Returns the values, `*count` entries in C order (malloc'd, the caller
+ * free()s them; non-NULL even for an empty array), the axes in `*ndim` and
+ * `shape[0..*ndim)` (a 0-d array: ndim 0, one value). Integers are converted
+ * exactly: one beyond ±2^53 is refused rather than rounded. NULL on any
+ * failure (missing file, another dtype, Fortran order, a truncated or longer
+ * file), with "<path>: <problem>" in `err`; the outputs are then untouched. */
+#define NPG_NPY_MAX_DIMS 8
+NPG_API double *npg_npy_read(const char *path, int *ndim, long shape[NPG_NPY_MAX_DIMS], size_t *count, char *err,
+                             size_t errlen);
+
 /* Sets sample k's inputs and externs in `f` (npg_samples_set is one). */
 typedef int (*NpgSampleFn)(void *user, NpgFull *f, long k);
 
@@ -446,6 +458,60 @@ NPG_API int npg_verify_warnings(const NpgModel *m, const NpgVerifyReport *report
  * every dim of size `size` (0: defaults), report to `out`. 0 pass, 1 a
  * check failed, -1 a check could not run (message in `err`). */
 NPG_API int npg_verify_exact(NpgProgram *p, long size, NpgBackend backend, bool progress, FILE *out, char *err,
+                             size_t errlen);
+
+/* ---------------------------------------------------------------- command lines
+ *
+ * One strict parser for the options of npgc and of the applications, so
+ * every program takes `--opt value` and `--opt=value`, refuses a number
+ * with trailing text or out of its range, and says which option is wrong:
+ *
+ *     NpgArgs a;
+ *     npg_args_init(&a, argc, argv, 2, "npg-fluids tunnel");   // argv[2..] are options
+ *     while (npg_args_next(&a)) {
+ *       if (npg_args_int(&a, "--frames", 2, 100000, &frames)) continue;
+ *       if (npg_args_double(&a, "--mu", 0, 10, true, &mu)) continue;
+ *       if ((v = npg_args_string(&a, "--out"))) { out = v; continue; }
+ *       if (npg_args_flag(&a, "--cc")) { cc = true; continue; }
+ *       npg_args_unknown(&a);
+ *     }
+ *     if (a.error[0]) { fprintf(stderr, "%s\n", a.error); return 2; }
+ *
+ * A matcher that recognises the current argument consumes it (and its
+ * value) and returns true even when the value is refused: the first problem
+ * is kept in `error` and npg_args_next then stops. Nothing is printed. */
+typedef struct NpgArgs {
+  int argc;
+  char **argv;
+  int i;                    /* the argument being read */
+  const char *prog;         /* the messages' prefix ("npgc train", "npg-points") */
+  char error[512];          /* the first problem, "PROG: --opt: ...", or "" */
+} NpgArgs;
+NPG_API void npg_args_init(NpgArgs *a, int argc, char **argv, int first, const char *prog);
+/* Advance to the next argument: false when none is left or after an error. */
+NPG_API bool npg_args_next(NpgArgs *a);
+/* The argument is the flag `name` ("--name=..." is refused: it takes no value). */
+NPG_API bool npg_args_flag(NpgArgs *a, const char *name);
+/* The argument is option `name`, as "NAME VALUE" or "NAME=VALUE": its value
+ * (any text, "-1" included); NULL when it is another argument, or when NAME
+ * ends the command line (then `error` says the value is missing). */
+NPG_API const char *npg_args_string(NpgArgs *a, const char *name);
+/* The option `name` with a whole number in [lo, hi] (a double in [lo, hi],
+ * or (lo, hi] with `lo_open`), the whole value read: "300abc", "2.9", "",
+ * "nan" and values outside the range are refused, the message giving it. */
+NPG_API bool npg_args_long(NpgArgs *a, const char *name, long lo, long hi, long *out);
+NPG_API bool npg_args_int(NpgArgs *a, const char *name, int lo, int hi, int *out);
+NPG_API bool npg_args_double(NpgArgs *a, const char *name, double lo, double hi, bool lo_open, double *out);
+/* The argument when it is not an option (does not start with '-', or is "-"), else NULL. */
+NPG_API const char *npg_args_positional(NpgArgs *a);
+/* No matcher took the argument: "unknown option '--x'" (an option) or
+ * "unexpected argument 'x'" into `error`. */
+NPG_API void npg_args_unknown(NpgArgs *a);
+/* The same rules for one number outside an option (a positional argument, a
+ * list entry, the value of --basis cap=N): 0, or -1 with "'300abc' is not a
+ * whole number (expected 1..10000)" or "99 is out of range (expected (0, 1])" in `err`. */
+NPG_API int npg_parse_long(const char *s, long lo, long hi, long *out, char *err, size_t errlen);
+NPG_API int npg_parse_double(const char *s, double lo, double hi, bool lo_open, double *out, char *err,
                              size_t errlen);
 
 #ifdef __cplusplus

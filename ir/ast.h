@@ -316,6 +316,11 @@ struct Sym {
   int basis_max;
   double basis_energy;
   int basis_center;             /* 1 on, 0 off (centered truncation, DESIGN §5) */
+  /* the same for this quantity's whole class, from `basis m_<name>: ...` (the class's name as
+   * `npgc check` and --basis write it) */
+  int class_basis_max;
+  double class_basis_energy;
+  int class_basis_center;
   struct Stage *stage;          /* canonical form, after lowering */
   struct OpDef *opdef;          /* SYM_OP: its lowered entries */
   int klass;                    /* basis class, after basis_classes() */

@@ -121,6 +121,7 @@ void basis_classes(Ctx *ctx, Program *prog) {
       c->id = prog->classes.n;
       c->basis_max = -1;
       c->basis_energy = -1;
+      c->basis_center = -1;
       id[r] = c->id;
       vec_push(ctx, &prog->classes, c);
     }
@@ -130,6 +131,22 @@ void basis_classes(Ctx *ctx, Program *prog) {
     if (s->stage) s->stage->klass = c->id;
     vec_push(ctx, &c->members, s);
     if (!c->size_name) c->size_name = arena_printf(ctx, "m_%s", s->name);
+  }
+  /* `basis m_x: ...`: options of x's whole class (a quantity's own `basis x:` still wins for x) */
+  for (int i = 0; i < prog->quantities.n; i++) {
+    const Sym *s = prog->quantities.v[i];
+    BasisClass *c = prog->classes.v[s->klass];
+    if (s->class_basis_max > 0) c->basis_max = s->class_basis_max;
+    if (s->class_basis_energy > 0) c->basis_energy = s->class_basis_energy;
+    if (s->class_basis_center >= 0) c->basis_center = s->class_basis_center;
+  }
+  /* `basis m_x: ...`: options of x's whole class (a quantity's own `basis x:` still wins for x) */
+  for (int i = 0; i < prog->quantities.n; i++) {
+    const Sym *s = prog->quantities.v[i];
+    BasisClass *c = prog->classes.v[s->klass];
+    if (s->class_basis_max > 0) c->basis_max = s->class_basis_max;
+    if (s->class_basis_energy > 0) c->basis_energy = s->class_basis_energy;
+    if (s->class_basis_center >= 0) c->basis_center = s->class_basis_center;
   }
   for (int i = 0; i < prog->stages.n; i++) {
     Stage *st = prog->stages.v[i];

@@ -170,6 +170,7 @@ typedef struct BasisClass {
   PtrVec joiners;        /* Joiner* */
   int basis_max;         /* -1: default */
   double basis_energy;   /* <0: default */
+  int basis_center;      /* -1: default, 1 on, 0 off */
   char *size_name;       /* m_<first member> */
 } BasisClass;
 

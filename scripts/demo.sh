@@ -9,7 +9,10 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 bash scripts/setup.sh
 
-cmake -S . -B build -DCMAKE_BUILD_TYPE=RelWithDebInfo
+# No build type given: a fresh build/ gets CMakeLists.txt's default (RelWithDebInfo), an existing
+# one keeps the type it was configured with (passing one would reconfigure a Release build/ and
+# rebuild all of it)
+cmake -S . -B build
 cmake --build build -j2
 
 run() {

@@ -88,6 +88,9 @@ static int field_value(NpgFull *f, const RTensor *ts, int nt, double *out, long 
 static int override_level(const RClass *c, const RMember *mb, const char *name) {
   if (strcmp(name, mb->name) == 0) return 3;
   if (strcmp(name, c->label) == 0 || (c->bc->size_name && strcmp(name, c->bc->size_name) == 0)) return 2;
+  /* m_<any member>, as the language's `basis m_q:` takes it (the class of q) */
+  for (int k = 0; strncmp(name, "m_", 2) == 0 && k < c->nmembers; k++)
+    if (strcmp(name + 2, c->members[k].name) == 0) return 2;
   return strcmp(name, "*") == 0 ? 1 : 0;
 }
 
@@ -125,6 +128,7 @@ static void member_options(const Model *m, const RClass *c, RMember *mb, const T
   const BasisClass *bc = c->bc;
   if (bc->basis_max > 0) mb->cap = bc->basis_max;
   if (bc->basis_energy > 0) mb->energy = bc->basis_energy;
+  if (bc->basis_center >= 0) mb->center = bc->basis_center;
   if (mb->q >= 0) {
     const Sym *s = m->prog->quantities.v[mb->q];
     if (s->basis_max > 0) mb->cap = s->basis_max;

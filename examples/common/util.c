@@ -2,9 +2,13 @@
 #define _POSIX_C_SOURCE 200809L
 #include "util.h"
 
+#include <errno.h>
 #include <math.h>
+#include <stdbool.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <string.h>
+#include <sys/stat.h>
 #include <time.h>
 
 int util_fail(char *err, size_t errlen, const char *fmt, ...) {
@@ -26,4 +30,21 @@ double util_now(void) {
 double util_tick_step(double range, int want) {
   double raw = range / want, mag = pow(10, floor(log10(raw))), r = raw / mag;
   return mag * (r < 1.5 ? 1 : r < 3.5 ? 2 : r < 7.5 ? 5 : 10);
+}
+
+int util_make_dirs(const char *path, char *err, size_t errlen) {
+  char buf[4096];
+  if (!path || !*path) return util_fail(err, errlen, "no folder given");
+  if (snprintf(buf, sizeof buf, "%s", path) >= (int)sizeof buf) return util_fail(err, errlen, "%.64s...: path too long", path);
+  for (char *q = buf + 1;; q++) {
+    bool last = *q == 0;
+    if (*q != '/' && !last) continue;
+    *q = 0;
+    struct stat st;
+    if (mkdir(buf, 0777) != 0 && errno != EEXIST) return util_fail(err, errlen, "cannot create %s: %s", buf, strerror(errno));
+    if (stat(buf, &st) != 0 || !S_ISDIR(st.st_mode)) return util_fail(err, errlen, "%s exists and is not a folder", buf);
+    if (last) break;
+    *q = '/';
+  }
+  return 0;
 }

@@ -1,5 +1,6 @@
 /* util.h — what the example's files share: a message into a caller's
- * buffer, a monotonic clock, and the step of a chart's ticks. */
+ * buffer, folders made with their parents, a monotonic clock, and the step
+ * of a chart's ticks. */
 #ifndef EXAMPLES_UTIL_H
 #define EXAMPLES_UTIL_H
 
@@ -7,6 +8,9 @@
 
 /* printf(`fmt`, ...) into `err` (when `err` and `errlen` are given); -1. */
 int util_fail(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+/* mkdir -p `path`: every missing parent too (a writer creates the folders
+ * it writes into, as npgc -o does). 0, or -1 with "PATH: problem" in `err`. */
+int util_make_dirs(const char *path, char *err, size_t errlen);
 /* Seconds on a monotonic clock. */
 double util_now(void);
 /* A round tick step (1, 2 or 5 times a power of ten) giving about `want` ticks over

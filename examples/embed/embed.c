@@ -100,10 +100,16 @@ static int fail(const char *what, const char *msg) {
 }
 
 int main(int argc, char **argv) {
-  long n = argc > 1 ? strtol(argv[1], NULL, 10) : 16, steps = argc > 2 ? strtol(argv[2], NULL, 10) : 400;
-  double energy = argc > 3 ? strtod(argv[3], NULL) : 0.999;
-  if (n < 3 || n > 200 || steps < 10 || steps > 100000 || !(energy > 0 && energy <= 1)) {
-    fprintf(stderr, "usage: embed [N 3..200] [STEPS 10..100000] [ENERGY (0, 1]]\n");
+  long n = 16, steps = 400;
+  double energy = 0.999;
+  char err[256] = "more than three given";
+  /* npg.h's strict numbers: "16x" or "1e3" are refused, not read as 16 or 1 */
+  const char *bad = argc > 4 ? "arguments" : NULL;
+  if (!bad && argc > 1 && npg_parse_long(argv[1], 3, 200, &n, err, sizeof err) != 0) bad = "N";
+  if (!bad && argc > 2 && npg_parse_long(argv[2], 10, 100000, &steps, err, sizeof err) != 0) bad = "STEPS";
+  if (!bad && argc > 3 && npg_parse_double(argv[3], 0, 1, true, &energy, err, sizeof err) != 0) bad = "ENERGY";
+  if (bad) {
+    fprintf(stderr, "embed: %s: %s\nusage: embed [N 3..200] [STEPS 10..100000] [ENERGY (0, 1]]\n", bad, err);
     return 2;
   }
   const double k = 200.0;

@@ -615,12 +615,15 @@ int cavity_run(const CavityOptions *o) {
   }
   probe_ok = reduced;
   t_deform = 0;
-  particles_seed(&part, m, s.g, o->particles, 12345);
+  if (particles_seed(&part, m, s.g, o->particles, 12345) != 0 ||
+      (reduced && particles_seed(&pred, m, s.g, o->particles, 12345) != 0) ||
+      (reduced && o->particle_threads > 1 && particles_seed(&pred1, m, s.g, o->particles, 12345) != 0)) {
+    fprintf(stderr, "npg-fluids: out of memory for %d particles: fewer --particles\n", o->particles);
+    goto done;
+  }
   part.threads = o->particle_threads;
   if (reduced) {
-    particles_seed(&pred, m, s.g, o->particles, 12345);
     pred.threads = o->particle_threads;
-    if (o->particle_threads > 1) particles_seed(&pred1, m, s.g, o->particles, 12345);
     memcpy(R.g, traj_g, R.mg * sizeof(double));
     for (long c = 0; c < C; c++)
       for (int d = 0; d < 3; d++) pv[3 * c + d] = s.ops.area[c] * s.u[3 * c + d];

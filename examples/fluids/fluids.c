@@ -33,6 +33,15 @@
 
 #define ERRLEN 512
 
+/* Bounds of the sizes a command line can ask for, so that a typo (--frames
+ * 1e8) is refused before it asks for terabytes: 100,000 frames of the
+ * default tunnel keep 5.3 GB of samples; a million cells is 500x the
+ * default mesh; a PNG 8192 pixels wide holds 200 MB. */
+#define FLUIDS_MAX_FRAMES 100000
+#define FLUIDS_MAX_CELLS 1000000
+#define FLUIDS_MAX_PARTICLES 10000000
+#define FLUIDS_MAX_WIDTH 8192
+
 typedef struct RunOptions {
   const char *out;
   int frames, particles, png_every, vtk_every, png_width;
@@ -106,84 +115,77 @@ static void usage(FILE *fp) {
         fp);
 }
 
-static int parse_int(const char *s, int *v) {
-  char *end;
-  long x = strtol(s, &end, 10);
-  if (*end || end == s || x < 0 || x > 100000000) return -1;
-  *v = (int)x;
-  return 0;
+/* The physical parameters every command shares, refused with the reason when
+ * a run with them could only blow up or mean nothing: a negative viscosity
+ * amplifies every mode (anti-diffusion); a CFL number above 1 moves the flow
+ * more than an edge per step, beyond what the explicit RK4 advection step
+ * can follow (measured on the default tunnel: 0.45 ran 200 frames, 0.5 was
+ * not finite by frame 7). Smaller values can still be unstable (explicit
+ * diffusion limits the step too): the runs stop when the energy blows up
+ * (solver_check_energy). */
+static bool physical(NpgArgs *a, double *mu, double *cfl) {
+  if (npg_args_double(a, "--mu", -INFINITY, INFINITY, false, mu)) {
+    if (!a->error[0] && !(*mu >= 0 && *mu <= 10))
+      snprintf(a->error, sizeof a->error, "%s: --mu %g: the viscosity is in [0, 10]%s", a->prog, *mu,
+               *mu < 0 ? " (a negative one amplifies every mode of the flow: anti-diffusion, the run blows up)" : "");
+    return true;
+  }
+  if (npg_args_double(a, "--cfl", -INFINITY, INFINITY, false, cfl)) {
+    if (!a->error[0] && !(*cfl > 0 && *cfl <= 1))
+      snprintf(a->error, sizeof a->error, "%s: --cfl %g: the CFL number is in (0, 1]%s", a->prog, *cfl,
+               *cfl > 1 ? " (above 1 the flow crosses more than an edge per step, which the explicit RK4 advection "
+                          "cannot follow: the run blows up)" : "");
+    return true;
+  }
+  return false;
 }
 
-static int parse_real(const char *s, double *v) {
-  char *end;
-  *v = strtod(s, &end);
-  return (*end || end == s || !isfinite(*v)) ? -1 : 0;
-}
-
-/* `a` is one of the `n` known options and has a value `v`; otherwise the
- * message and -1. */
-static int option_known(const char *a, const char *v, const char *const *known, size_t n) {
-  int bad = 1;
-  for (size_t k = 0; k < n; k++)
-    if (!strcmp(a, known[k])) bad = 0;
-  if (bad) {
-    fprintf(stderr, "npg-fluids: unknown option '%s'\n", a);
-    usage(stderr);
-    return -1;
-  }
-  if (!v) {
-    fprintf(stderr, "npg-fluids: option '%s' needs a value\n", a);
-    return -1;
-  }
-  return 0;
+/* The message of a parser's first problem, and 2; 0 when there was none. */
+static int args_status(const NpgArgs *a) {
+  if (!a->error[0]) return 0;
+  fprintf(stderr, "%s\n", a->error);
+  return 2;
 }
 
 static int parse_options(int argc, char **argv, RunOptions *o) {
   *o = (RunOptions){.frames = 200, .particles = 3000, .png_every = 1, .vtk_every = 10, .png_width = 800,
                     .scale = 1, .pulse = 0.2, .period = 100, .mu = 0.002, .cfl = 0.25, .u0 = 1, .projection = PROJ_STREAM_CHOLMOD,
                     .spec = tunnel_spec_default()};
-  for (int i = 2; i < argc; i++) {
-    const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-    static const char *known[] = {"--out", "--frames", "--cells", "--particles", "--png-every", "--vtk-every",
-                                  "--width", "--size", "--scale", "--pulse", "--period", "--mu", "--cfl", "--u0",
-                                  "--projection"};
-    if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return -1;
-    int bad = 0;
-    if (!strcmp(a, "--out")) o->out = v;
-    else if (!strcmp(a, "--frames")) bad = parse_int(v, &o->frames);
-    else if (!strcmp(a, "--cells")) bad = parse_int(v, &o->spec.cells);
-    else if (!strcmp(a, "--particles")) bad = parse_int(v, &o->particles);
-    else if (!strcmp(a, "--png-every")) bad = parse_int(v, &o->png_every);
-    else if (!strcmp(a, "--vtk-every")) bad = parse_int(v, &o->vtk_every);
-    else if (!strcmp(a, "--width")) bad = parse_int(v, &o->png_width);
-    else if (!strcmp(a, "--size")) bad = parse_real(v, &o->spec.size);
-    else if (!strcmp(a, "--scale")) bad = parse_real(v, &o->scale);
-    else if (!strcmp(a, "--pulse")) bad = parse_real(v, &o->pulse);
-    else if (!strcmp(a, "--period")) bad = parse_real(v, &o->period);
-    else if (!strcmp(a, "--mu")) bad = parse_real(v, &o->mu);
-    else if (!strcmp(a, "--cfl")) bad = parse_real(v, &o->cfl);
-    else if (!strcmp(a, "--u0")) bad = parse_real(v, &o->u0);
-    else if (!strcmp(a, "--projection")) {
+  char prog[48];
+  snprintf(prog, sizeof prog, "npg-fluids %s", argv[1]);
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, prog);
+  while (npg_args_next(&a)) {
+    const char *v;
+    if ((v = npg_args_string(&a, "--out"))) o->out = v;
+    else if (npg_args_int(&a, "--frames", 1, FLUIDS_MAX_FRAMES, &o->frames)) ;
+    else if (npg_args_int(&a, "--cells", 50, FLUIDS_MAX_CELLS, &o->spec.cells)) ;
+    else if (npg_args_int(&a, "--particles", 0, FLUIDS_MAX_PARTICLES, &o->particles)) ;
+    else if (npg_args_int(&a, "--png-every", 1, 1000000, &o->png_every)) ;
+    else if (npg_args_int(&a, "--vtk-every", 1, 1000000, &o->vtk_every)) ;
+    else if (npg_args_int(&a, "--width", 16, FLUIDS_MAX_WIDTH, &o->png_width)) ;
+    else if (npg_args_double(&a, "--size", 0, 0.9, true, &o->spec.size)) ;
+    else if (npg_args_double(&a, "--scale", 0, 10, true, &o->scale)) ;
+    else if (npg_args_double(&a, "--pulse", 0, 10, false, &o->pulse)) ;
+    else if (npg_args_double(&a, "--period", 0, 1e9, true, &o->period)) ;
+    else if (physical(&a, &o->mu, &o->cfl)) ;
+    else if (npg_args_double(&a, "--u0", 0, 100, true, &o->u0)) ;
+    else if ((v = npg_args_string(&a, "--projection"))) {
       if (!strcmp(v, "stream")) o->projection = PROJ_STREAM_CHOLMOD;
       else if (!strcmp(v, "kkt")) o->projection = PROJ_KKT_UMFPACK;
-      else bad = 1;
-    }
-    if (bad) {
-      fprintf(stderr, "npg-fluids: option '%s': invalid value '%s'\n", a, v);
-      return -1;
-    }
-    i++;
+      else snprintf(a.error, sizeof a.error, "%s: --projection is stream or kkt, not '%s'", prog, v);
+    } else npg_args_unknown(&a);
   }
-  if (o->png_every < 1 || o->vtk_every < 1 || o->png_width < 16 || o->period <= 0 || o->cfl <= 0 || o->u0 <= 0) {
-    fprintf(stderr, "npg-fluids: --png-every, --vtk-every, --width, --period, --cfl and --u0 must be positive\n");
-    return -1;
-  }
-  return 0;
+  if (!a.error[0] && o->pulse >= o->scale)
+    snprintf(a.error, sizeof a.error, "%s: --pulse %g must stay below --scale %g (the obstacle's scale X + A sin(...) "
+             "would reach 0)", prog, o->pulse, o->scale);
+  return args_status(&a) ? -1 : 0;
 }
 
 static int make_dir(const char *path) {
-  if (mkdir(path, 0777) != 0 && errno != EEXIST) {
-    fprintf(stderr, "npg-fluids: %s: %s\n", path, strerror(errno));
+  char err[ERRLEN];
+  if (util_make_dirs(path, err, sizeof err) != 0) {
+    fprintf(stderr, "npg-fluids: %s\n", err);
     return -1;
   }
   return 0;
@@ -309,7 +311,12 @@ static int tunnel_full(const RunOptions *o) {
     return 1;
   }
   Particles part;
-  particles_seed(&part, &m, s.g, o->particles, 12345);
+  if (particles_seed(&part, &m, s.g, o->particles, 12345) != 0) {
+    fprintf(stderr, "npg-fluids: out of memory for %d particles: fewer --particles\n", o->particles);
+    solver_free(&s);
+    mesh_free(&m);
+    return 1;
+  }
 
   int T = o->frames;
   size_t gv = 2 * (size_t)m.nv, uv = 2 * (size_t)m.nc, fv = m.nf;
@@ -322,16 +329,24 @@ static int tunnel_full(const RunOptions *o) {
   char **vtk_cells = calloc(T + 1, sizeof(char *)), **vtk_faces = calloc(T + 1, sizeof(char *));
   double *vtk_times = malloc((T + 1) * sizeof(double));
   int nvtk = 0, rc = 0;
+  if (!Sg || !Sgdot || !Su || !Sf || !Sh || !Sgmid || !energy || !divergence || !quality || !sigmas || !flux_scale ||
+      !vtk_cells || !vtk_faces || !vtk_times) {
+    snprintf(err, sizeof err, "out of memory for %d frames of %d cells (%.3g GB of samples): fewer --frames or --cells",
+             T, m.nc, (double)T * (3 * gv + uv + 2 * fv) * sizeof(double) / 1e9);
+    rc = -1;
+  }
   double seconds_particles = 0, seconds_output = 0, worst_quality = s.min_quality;
   int worst_quality_frame = 0;
 
-  energy[0] = solver_energy(&s);
-  divergence[0] = projection_max_divergence(&s.ops, s.f);
-  quality[0] = s.min_quality;
-  sigmas[0] = s.sigma;
   double maxf = 0;
-  for (int j = 0; j < m.nf; j++) maxf = fmax(maxf, fabs(s.f[j]));
-  flux_scale[0] = maxf;
+  if (rc == 0) {
+    energy[0] = solver_energy(&s);
+    divergence[0] = projection_max_divergence(&s.ops, s.f);
+    quality[0] = s.min_quality;
+    sigmas[0] = s.sigma;
+    for (int j = 0; j < m.nf; j++) maxf = fmax(maxf, fabs(s.f[j]));
+    flux_scale[0] = maxf;
+  }
   double t_run = util_now();
   for (int t = 0; t <= T && rc == 0; t++) {
     /* output of frame t (frames 0 .. T: the last one too, output_frame_due) */
@@ -377,10 +392,7 @@ static int tunnel_full(const RunOptions *o) {
     for (int j = 0; j < m.nf; j++) maxf = fmax(maxf, fabs(s.f[j]));
     flux_scale[t + 1] = maxf;
     if (s.min_quality < worst_quality) worst_quality = s.min_quality, worst_quality_frame = t + 1;
-    if (!isfinite(energy[t + 1])) {
-      snprintf(err, sizeof err, "the energy is not finite at frame %d: unstable (lower --cfl or raise --mu)", t + 1);
-      rc = -1;
-    }
+    if (solver_check_energy(energy[0], energy[t + 1], t + 1, err, sizeof err) != 0) rc = -1;
   }
   t_run = util_now() - t_run;
   if (rc) fprintf(stderr, "npg-fluids: %s\n", err);
@@ -503,53 +515,42 @@ static int mesh_info(const RunOptions *o) {
 static int cavity_cmd(int argc, char **argv) {
   CavityOptions o;
   cavity_options_default(&o);
-  for (int i = 2; i < argc; i++) {
-    const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-    static const char *known[] = {"--out", "--cells", "--frames", "--runs", "--dt", "--nu", "--mf", "--mu", "--mg",
-                                  "--particles", "--png-every", "--vtk-every", "--width", "--dtol", "--projection",
-                                  "--workers", "--train-threads", "--sample-every", "--buffer-mb", "--backend",
-                                  "--particle-threads"};
-    if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
-    int bad = 0;
-    if (!strcmp(a, "--out")) o.out = v;
-    else if (!strcmp(a, "--dtol")) bad = parse_real(v, &o.dtol) || o.dtol < 0 || o.dtol >= 1;
-    else if (!strcmp(a, "--cells")) bad = parse_int(v, &o.spec.cells) || o.spec.cells < 50;
-    else if (!strcmp(a, "--frames")) bad = parse_int(v, &o.frames) || o.frames < 2;
-    else if (!strcmp(a, "--runs")) bad = parse_int(v, &o.runs) || o.runs > 14;
-    else if (!strcmp(a, "--dt")) bad = parse_real(v, &o.dt) || o.dt <= 0;
-    else if (!strcmp(a, "--nu")) bad = parse_real(v, &o.nu) || o.nu < 0;
-    else if (!strcmp(a, "--mf")) bad = parse_int(v, &o.mf) || o.mf < 2 || o.mf > 512;
-    else if (!strcmp(a, "--mu")) bad = parse_int(v, &o.mu) || o.mu < 6 || o.mu > 512;
-    else if (!strcmp(a, "--mg")) bad = parse_int(v, &o.mg) || o.mg < 1 || o.mg > 16;
-    else if (!strcmp(a, "--particles")) bad = parse_int(v, &o.particles);
-    else if (!strcmp(a, "--png-every")) bad = parse_int(v, &o.png_every) || o.png_every < 1;
-    else if (!strcmp(a, "--vtk-every")) bad = parse_int(v, &o.vtk_every) || o.vtk_every < 1;
-    else if (!strcmp(a, "--width")) bad = parse_int(v, &o.width) || o.width < 16;
-    else if (!strcmp(a, "--workers")) bad = parse_int(v, &o.workers) || o.workers < 1 || o.workers > CAVITY_MAX_WORKERS;
-    else if (!strcmp(a, "--particle-threads"))
-      bad = parse_int(v, &o.particle_threads) || o.particle_threads < 1 || o.particle_threads > PARTICLES_MAX_THREADS;
-    else if (!strcmp(a, "--train-threads"))
-      bad = parse_int(v, &o.train_threads) || o.train_threads < 1 || o.train_threads > CAVITY_MAX_WORKERS;
-    else if (!strcmp(a, "--sample-every")) bad = parse_int(v, &o.sample_every) || o.sample_every < 0;
-    else if (!strcmp(a, "--buffer-mb")) {
-      int mb = 0;
-      bad = parse_int(v, &mb);
-      o.buffer_bytes = (size_t)mb << 20;
-    } else if (!strcmp(a, "--backend")) {
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, "npg-fluids cavity");
+  while (npg_args_next(&a)) {
+    const char *v;
+    int mb;
+    if ((v = npg_args_string(&a, "--out"))) o.out = v;
+    else if (npg_args_double(&a, "--dtol", 0, 1, false, &o.dtol)) {
+      if (!a.error[0] && o.dtol >= 1) snprintf(a.error, sizeof a.error, "npg-fluids cavity: --dtol is in [0, 1)");
+    } else if (npg_args_int(&a, "--cells", 50, FLUIDS_MAX_CELLS, &o.spec.cells)) ;
+    else if (npg_args_int(&a, "--frames", 2, FLUIDS_MAX_FRAMES, &o.frames)) ;
+    else if (npg_args_int(&a, "--runs", 0, 14, &o.runs)) ;
+    else if (npg_args_double(&a, "--dt", 0, 10, true, &o.dt)) ;
+    else if (npg_args_double(&a, "--nu", 0, 1e6, false, &o.nu)) ;
+    else if (npg_args_int(&a, "--mf", 2, 512, &o.mf)) ;
+    else if (npg_args_int(&a, "--mu", 6, 512, &o.mu)) ;
+    else if (npg_args_int(&a, "--mg", 1, 16, &o.mg)) ;
+    else if (npg_args_int(&a, "--particles", 0, FLUIDS_MAX_PARTICLES, &o.particles)) ;
+    else if (npg_args_int(&a, "--png-every", 1, 1000000, &o.png_every)) ;
+    else if (npg_args_int(&a, "--vtk-every", 1, 1000000, &o.vtk_every)) ;
+    else if (npg_args_int(&a, "--width", 16, FLUIDS_MAX_WIDTH, &o.width)) ;
+    else if (npg_args_int(&a, "--workers", 1, CAVITY_MAX_WORKERS, &o.workers)) ;
+    else if (npg_args_int(&a, "--particle-threads", 1, PARTICLES_MAX_THREADS, &o.particle_threads)) ;
+    else if (npg_args_int(&a, "--train-threads", 1, CAVITY_MAX_WORKERS, &o.train_threads)) ;
+    else if (npg_args_int(&a, "--sample-every", 0, FLUIDS_MAX_FRAMES, &o.sample_every)) ;
+    else if (npg_args_int(&a, "--buffer-mb", 0, 1 << 20, &mb)) o.buffer_bytes = (size_t)mb << 20;
+    else if ((v = npg_args_string(&a, "--backend"))) {
       if (!strcmp(v, "cc")) o.backend = NPG_CC;
       else if (!strcmp(v, "tcc")) o.backend = NPG_TCC;
-      else bad = 1;
-    } else if (!strcmp(a, "--projection")) {
+      else snprintf(a.error, sizeof a.error, "npg-fluids cavity: --backend is cc or tcc, not '%s'", v);
+    } else if ((v = npg_args_string(&a, "--projection"))) {
       if (!strcmp(v, "al")) o.projection = PROJ_AL_CHOLMOD;
       else if (!strcmp(v, "kkt")) o.projection = PROJ_KKT_UMFPACK;
-      else bad = 1;
-    }
-    if (bad) {
-      fprintf(stderr, "npg-fluids: option '%s': invalid value '%s'\n", a, v);
-      return 2;
-    }
-    i++;
+      else snprintf(a.error, sizeof a.error, "npg-fluids cavity: --projection is al or kkt, not '%s'", v);
+    } else npg_args_unknown(&a);
   }
+  if (args_status(&a)) return 2;
   return cavity_run(&o);
 }
 
@@ -557,15 +558,11 @@ static int cavity_cmd(int argc, char **argv) {
  * and one deformation (the deepest of the training and test scales). */
 static int cavity_mesh_cmd(int argc, char **argv) {
   CavitySpec spec = cavity_spec_default();
-  if (argc == 4 && !strcmp(argv[2], "--cells")) {
-    if (parse_int(argv[3], &spec.cells) || spec.cells < 50) {
-      fprintf(stderr, "npg-fluids: option '--cells': invalid value '%s'\n", argv[3]);
-      return 2;
-    }
-  } else if (argc != 2) {
-    usage(stderr);
-    return 2;
-  }
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, "npg-fluids cavity-mesh");
+  while (npg_args_next(&a))
+    if (!npg_args_int(&a, "--cells", 50, FLUIDS_MAX_CELLS, &spec.cells)) npg_args_unknown(&a);
+  if (args_status(&a)) return 2;
   char err[ERRLEN];
   Cavity cv;
   double t0 = util_now();
@@ -597,19 +594,18 @@ static int cavity_mesh_cmd(int argc, char **argv) {
 static int cavity_projection_cmd(int argc, char **argv) {
   CavitySpec spec = cavity_spec_default();
   int steps = 3, which = 3; /* 1 kkt, 2 al */
-  for (int i = 2; i < argc; i += 2) {
-    const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-    static const char *known[] = {"--cells", "--steps", "--method"};
-    if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
-    int bad = 0;
-    if (!strcmp(a, "--cells")) bad = parse_int(v, &spec.cells) || spec.cells < 50;
-    else if (!strcmp(a, "--steps")) bad = parse_int(v, &steps) || steps < 1;
-    else which = !strcmp(v, "kkt") ? 1 : !strcmp(v, "al") ? 2 : !strcmp(v, "both") ? 3 : (bad = 1, 0);
-    if (bad) {
-      fprintf(stderr, "npg-fluids: option '%s': invalid value '%s'\n", a, v);
-      return 2;
-    }
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, "npg-fluids cavity-projection");
+  while (npg_args_next(&a)) {
+    const char *v;
+    if (npg_args_int(&a, "--cells", 50, FLUIDS_MAX_CELLS, &spec.cells)) ;
+    else if (npg_args_int(&a, "--steps", 1, 100000, &steps)) ;
+    else if ((v = npg_args_string(&a, "--method"))) {
+      which = !strcmp(v, "kkt") ? 1 : !strcmp(v, "al") ? 2 : !strcmp(v, "both") ? 3 : 0;
+      if (!which) snprintf(a.error, sizeof a.error, "npg-fluids cavity-projection: --method is kkt, al or both, not '%s'", v);
+    } else npg_args_unknown(&a);
   }
+  if (args_status(&a)) return 2;
   char err[ERRLEN];
   Cavity cv;
   if (cavity_mesh(&cv, &spec, err, sizeof err) != 0) {
@@ -671,45 +667,42 @@ static int cavity_projection_cmd(int argc, char **argv) {
 static int tunnel_cmd(int argc, char **argv) {
   TunnelOptions o;
   tunnel_options_default(&o);
-  for (int i = 2; i < argc; i++) {
-    const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-    static const char *known[] = {"--out", "--frames", "--cells", "--particles", "--png-every", "--vtk-every",
-                                  "--width", "--sizes", "--pulse", "--period", "--mu", "--cfl", "--keep-models",
-                                  "--mg"};
-    if (option_known(a, v, known, sizeof known / sizeof *known) != 0) return 2;
-    int bad = 0;
-    if (!strcmp(a, "--out")) o.out = v;
-    else if (!strcmp(a, "--frames")) bad = parse_int(v, &o.frames) || o.frames < 2;
-    else if (!strcmp(a, "--cells")) bad = parse_int(v, &o.spec.cells);
-    else if (!strcmp(a, "--particles")) bad = parse_int(v, &o.particles) || o.particles < 0;
-    else if (!strcmp(a, "--png-every")) bad = parse_int(v, &o.png_every) || o.png_every < 1;
-    else if (!strcmp(a, "--vtk-every")) bad = parse_int(v, &o.vtk_every) || o.vtk_every < 1;
-    else if (!strcmp(a, "--width")) bad = parse_int(v, &o.width) || o.width < 16;
-    else if (!strcmp(a, "--mg")) bad = parse_int(v, &o.mg_cap) || o.mg_cap < 1;
-    else if (!strcmp(a, "--keep-models")) bad = parse_int(v, &o.keep_models);
-    else if (!strcmp(a, "--pulse")) bad = parse_real(v, &o.pulse);
-    else if (!strcmp(a, "--period")) bad = parse_real(v, &o.period) || o.period <= 0;
-    else if (!strcmp(a, "--mu")) bad = parse_real(v, &o.mu);
-    else if (!strcmp(a, "--cfl")) bad = parse_real(v, &o.cfl) || o.cfl <= 0;
-    else if (!strcmp(a, "--sizes")) {
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, "npg-fluids tunnel");
+  while (npg_args_next(&a)) {
+    const char *v;
+    if ((v = npg_args_string(&a, "--out"))) o.out = v;
+    else if (npg_args_int(&a, "--frames", 2, FLUIDS_MAX_FRAMES, &o.frames)) ;
+    else if (npg_args_int(&a, "--cells", 50, FLUIDS_MAX_CELLS, &o.spec.cells)) ;
+    else if (npg_args_int(&a, "--particles", 0, FLUIDS_MAX_PARTICLES, &o.particles)) ;
+    else if (npg_args_int(&a, "--png-every", 1, 1000000, &o.png_every)) ;
+    else if (npg_args_int(&a, "--vtk-every", 1, 1000000, &o.vtk_every)) ;
+    else if (npg_args_int(&a, "--width", 16, FLUIDS_MAX_WIDTH, &o.width)) ;
+    else if (npg_args_int(&a, "--mg", 1, 512, &o.mg_cap)) ;
+    else if (npg_args_int(&a, "--keep-models", 0, 1, &o.keep_models)) ;
+    else if (npg_args_double(&a, "--pulse", 0, 0.7, false, &o.pulse)) ;
+    else if (npg_args_double(&a, "--period", 0, 1e9, true, &o.period)) ;
+    else if (physical(&a, &o.mu, &o.cfl)) ;
+    else if ((v = npg_args_string(&a, "--sizes"))) {
       o.nsizes = 0;
-      char buf[256];
+      char buf[256], err[256];
       snprintf(buf, sizeof buf, "%s", v);
-      for (char *tok = strtok(buf, ","); tok && !bad; tok = strtok(NULL, ",")) {
-        int n;
-        if (o.nsizes >= 16 || parse_int(tok, &n) || n < 2 || n > 256 || (o.nsizes && n <= o.mu_sizes[o.nsizes - 1]))
-          bad = 1;
+      for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok && !a.error[0]; tok = strtok_r(NULL, ",", &save)) {
+        long n;
+        if (o.nsizes >= 16)
+          snprintf(a.error, sizeof a.error, "npg-fluids tunnel: --sizes: at most 16 sizes");
+        else if (npg_parse_long(tok, 2, 256, &n, err, sizeof err) != 0)
+          snprintf(a.error, sizeof a.error, "npg-fluids tunnel: --sizes: entry %d: %s", o.nsizes + 1, err);
+        else if (o.nsizes && n <= o.mu_sizes[o.nsizes - 1])
+          snprintf(a.error, sizeof a.error, "npg-fluids tunnel: --sizes: %ld after %d: the sizes increase", n,
+                   o.mu_sizes[o.nsizes - 1]);
         else
-          o.mu_sizes[o.nsizes++] = n;
+          o.mu_sizes[o.nsizes++] = (int)n;
       }
-      if (!o.nsizes) bad = 1;
-    }
-    if (bad) {
-      fprintf(stderr, "npg-fluids: option '%s': invalid value '%s'\n", a, v);
-      return 2;
-    }
-    i++;
+      if (!o.nsizes && !a.error[0]) snprintf(a.error, sizeof a.error, "npg-fluids tunnel: --sizes: an empty list");
+    } else npg_args_unknown(&a);
   }
+  if (args_status(&a)) return 2;
   return tunnel_run(&o);
 }
 

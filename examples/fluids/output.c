@@ -32,7 +32,7 @@ static int write_png(const char *path, int w, int h, unsigned char *rgb, char *e
   png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
   png_infop info = png ? png_create_info_struct(png) : NULL;
   png_bytep *rows = malloc(h * sizeof *rows);
-  if (!png || !info || setjmp(png_jmpbuf(png))) {
+  if (!png || !info || !rows || setjmp(png_jmpbuf(png))) {
     png_destroy_write_struct(&png, &info);
     fclose(fp);
     free(rows);
@@ -63,7 +63,7 @@ int output_png(const char *path, const Mesh *m, const double *g, const double *u
   if (height < 1) height = 1;
   /* the flow, then a colour bar of |u| under it */
   unsigned char *img = malloc(3 * (size_t)width * (height + PLOT_COLORBAR_HEIGHT));
-  if (!img) return util_fail(err, errlen, "%s: out of memory", path);
+  if (!img) return util_fail(err, errlen, "%s: out of memory for a %d x %d picture", path, width, height);
   memset(img, 96, 3 * (size_t)width * height);
   for (int c = 0; c < m->nc; c++) {
     const int *t = m->cell + 3 * c;

@@ -34,15 +34,20 @@ static double det3(const double *a, const double *b, const double *c, const doub
          e[0][2] * (e[1][0] * e[2][1] - e[1][1] * e[2][0]);
 }
 
-void particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigned seed) {
+int particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigned seed) {
   memset(p, 0, sizeof *p);
   int dim = m->dim, nk = m->nk;
   p->n = n;
   p->dim = dim;
-  p->x = malloc(dim * (size_t)n * sizeof *p->x);
-  p->cell = malloc(n * sizeof *p->cell);
-  p->tag = malloc(n * sizeof *p->tag);
-  double *cum = malloc(m->nc * sizeof *cum), total = 0;
+  p->x = malloc(dim * (size_t)n * sizeof *p->x + 1);
+  p->cell = malloc(n * sizeof *p->cell + 1);
+  p->tag = malloc(n * sizeof *p->tag + 1);
+  double *cum = malloc(m->nc * sizeof *cum + 1), total = 0;
+  if (!p->x || !p->cell || !p->tag || !cum) {
+    free(p->x), free(p->cell), free(p->tag), free(cum);
+    memset(p, 0, sizeof *p);
+    return -1;
+  }
   for (int c = 0; c < m->nc; c++) cum[c] = total += mesh_volume(m, g, c);
   /* the streak axis: y in 2D, z in 3D */
   int ax = dim - 1;
@@ -93,6 +98,7 @@ void particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigne
     p->tag[i] = (int)band % 2;
   }
   free(cum);
+  return 0;
 }
 
 /* Eq. 13 in cell c from its faces' outward fluxes out[k] (face k opposite

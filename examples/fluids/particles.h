@@ -54,8 +54,8 @@ typedef struct Particles {
 
 /* n particles uniformly distributed over 12 thin streaks of the fluid at
  * positions g (bands across y in 2D, slabs across z in 3D), tagged
- * alternately. */
-void particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigned seed);
+ * alternately. 0, or -1 (out of memory: `p` then holds no particles). */
+int particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigned seed);
 void particles_free(Particles *p);
 /* Eq. 13 evaluated locally in cell c: u [dim]. */
 void particles_cell_velocity(const Mesh *m, const double *g, const double *f, int c, double *u);

@@ -2,6 +2,7 @@
 #include "util.h"
 #include "solver.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -108,3 +109,13 @@ int solver_step_to(FullSolver *s, const double *g_next, char *err, size_t errlen
 }
 
 double solver_energy(const FullSolver *s) { return ops_energy(&s->ops, s->u); }
+
+int solver_check_energy(double e0, double e, int frame, char *err, size_t errlen) {
+  if (isfinite(e) && !(e0 > 0 && e > SOLVER_BLOWUP * e0)) return 0;
+  char grew[96];
+  if (isfinite(e)) snprintf(grew, sizeof grew, "grew from %.3g to %.3g", e0, e);
+  else snprintf(grew, sizeof grew, "is not finite");
+  return util_fail(err, errlen, "the flow's energy %s at frame %d: the run is unstable and was stopped (the explicit "
+                   "RK4 step is stable only for a small enough time step: lower --cfl, or --mu, whose diffusion is "
+                   "explicit too)", grew, frame);
+}

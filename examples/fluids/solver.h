@@ -55,5 +55,12 @@ void solver_free(FullSolver *s);
  * inverting deformation names the element; the state is then unchanged). */
 int solver_step(FullSolver *s, double sigma_next, char *err, size_t errlen);
 double solver_energy(const FullSolver *s);
+/* A run that blew up: the energy `e` after frame `frame` not finite, or
+ * above SOLVER_BLOWUP times the first frame's `e0` (the flow has no source
+ * of energy but the obstacle's motion: the default tunnel's energy never
+ * rose above its first frame's, 1.0x, over 200 frames, while --cfl 16 reached
+ * 1e10x by frame 1). 0, or -1 with the message naming the remedies in `err`. */
+#define SOLVER_BLOWUP 10.0
+int solver_check_energy(double e0, double e, int frame, char *err, size_t errlen);
 
 #endif

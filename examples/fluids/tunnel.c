@@ -104,13 +104,14 @@ static int training_run(const Mesh *m, const TunnelOptions *o, double scale, dou
     fprintf(stderr, "npg-fluids: %s\n", err);
     return -1;
   }
-  double t0 = util_now();
+  double t0 = util_now(), e0 = solver_energy(&s);
   for (int k = 0; k < o->frames; k++) {
     long i = S->n++;
     memcpy(S->g + i * S->ng, s.g, S->ng * sizeof(double));
     memcpy(S->f + i * S->nf, s.f, S->nf * sizeof(double));
     memcpy(S->u + i * S->nu, s.u, S->nu * sizeof(double));
-    if (solver_step(&s, sigma_at(scale, o, k + 1), err, sizeof err) != 0) {
+    if (solver_step(&s, sigma_at(scale, o, k + 1), err, sizeof err) != 0 ||
+        solver_check_energy(e0, solver_energy(&s), k + 1, err, sizeof err) != 0) {
       fprintf(stderr, "npg-fluids: training run at scale %g, frame %d: %s\n", scale, k, err);
       solver_free(&s);
       return -1;
@@ -411,6 +412,11 @@ int tunnel_run(const TunnelOptions *o) {
     full_adv += s.seconds_advection - a0, full_proj += s.seconds_projection - p0, full_def += s.seconds_deformation - d0;
     max_div_full = fmax(max_div_full, projection_max_divergence(&s.ops, s.f));
     e_full[t + 1] = solver_energy(&s);
+    if (solver_check_energy(e_full[0], e_full[t + 1], t + 1, err, sizeof err) != 0) {
+      fprintf(stderr, "npg-fluids: test run: %s\n", err);
+      prc = -1;
+      break;
+    }
     /* the reduced test simulation (timed: the step alone) */
     red_state_restore(R, &rstate);
     double e0 = R->seconds_eval, a1 = R->seconds_advection, p1 = R->seconds_projection;

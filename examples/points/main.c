@@ -22,6 +22,7 @@
 #include "octree.h"
 #include "render.h"
 #include "scene.h"
+#include "util.h"
 #include "visibility.h"
 
 static double now_seconds(void) {
@@ -149,49 +150,80 @@ typedef struct Options {
   long room_faces;        /* --scene rooms: examples/radiosity's two rooms at about this many faces; 0: the Cornell box */
 } Options;
 
+/* The numbers of a comma-separated list (--points, --orders, --error-points),
+ * each a whole number in [lo, hi], at most `cap`: their count, or -1 with the
+ * message (naming the option and the entry). */
+static int parse_list(const char *opt, const char *text, long lo, long hi, double *out, int cap) {
+  int n = 0;
+  char buf[1024], err[256];
+  snprintf(buf, sizeof buf, "%s", text);
+  for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+    long v;
+    if (n == cap) {
+      fprintf(stderr, "npg-points: %s: at most %d entries\n", opt, cap);
+      return -1;
+    }
+    if (npg_parse_long(tok, lo, hi, &v, err, sizeof err) != 0) {
+      fprintf(stderr, "npg-points: %s: entry %d: %s\n", opt, n + 1, err);
+      return -1;
+    }
+    out[n++] = (double)v;
+  }
+  if (n == 0) fprintf(stderr, "npg-points: %s: an empty list\n", opt);
+  return n ? n : -1;
+}
+
 static int parse_options(int argc, char **argv, Options *o) {
   *o = (Options){.points = 20000, .out = NULL, .p = 4, .leaf = 0 /* by N: fmm_leaf_for */, .max_iter = 60, .vis_targets = 48,
                  .point_targets = 8, .check_points = 3000, .dense_limit = 60000, .tol = 1e-4,
                  .points_list = "2000,5000,10000,20000,50000,110528,300000,1000000", .orders_list = "2,3,4,5,6", .error_points_list = "5000,20000"};
   int rooms = 0, faces_given = 0;
   long faces = 2000;
-  for (int k = 2; k < argc; k++) {
-    const char *a = argv[k], *v = k + 1 < argc ? argv[k + 1] : NULL;
-    if (!v) goto bad;
-    if (!strcmp(a, "--points")) {
-      if (strchr(v, ',') || !strcmp(argv[1], "sweep")) o->points_list = v;
-      else o->points = atol(v);
-    } else if (!strcmp(a, "--out")) o->out = v;
-    else if (!strcmp(a, "--p")) o->p = atoi(v);
-    else if (!strcmp(a, "--orders")) o->orders_list = v;
-    else if (!strcmp(a, "--error-points")) o->error_points_list = v;
-    else if (!strcmp(a, "--leaf")) o->leaf = atoi(v);
-    else if (!strcmp(a, "--visibility")) o->no_visibility = !strcmp(v, "off");
-    else if (!strcmp(a, "--tol")) o->tol = atof(v);
-    else if (!strcmp(a, "--max-iter")) o->max_iter = atoi(v);
-    else if (!strcmp(a, "--vis-targets")) o->vis_targets = atoi(v);
-    else if (!strcmp(a, "--check-points")) o->check_points = atol(v);
-    else if (!strcmp(a, "--dense-limit")) o->dense_limit = atol(v);
-    else if (!strcmp(a, "--scene")) {
-      if (strcmp(v, "box") && strcmp(v, "rooms")) {
-        fprintf(stderr, "npg-points: --scene '%s': the scenes are box (the Cornell box) and rooms (examples/radiosity)\n", v);
-        return -1;
-      }
+  bool sweep = !strcmp(argv[1], "sweep");
+  char prog[32];
+  snprintf(prog, sizeof prog, "npg-points %s", argv[1]);
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, prog);
+  while (npg_args_next(&a)) {
+    const char *v;
+    if ((v = npg_args_string(&a, "--points"))) {
+      char err[256];
+      if (strchr(v, ',') || sweep) o->points_list = v;
+      else if (npg_parse_long(v, 100, 10000000, &o->points, err, sizeof err) != 0)
+        snprintf(a.error, sizeof a.error, "%s: --points: %s", prog, err);
+    } else if ((v = npg_args_string(&a, "--out"))) o->out = v;
+    else if (npg_args_int(&a, "--p", 2, 8, &o->p)) ;
+    else if ((v = npg_args_string(&a, "--orders"))) o->orders_list = v;
+    else if ((v = npg_args_string(&a, "--error-points"))) o->error_points_list = v;
+    else if (npg_args_int(&a, "--leaf", 4, 1000000, &o->leaf)) ;
+    else if ((v = npg_args_string(&a, "--visibility"))) {
+      if (strcmp(v, "on") && strcmp(v, "off"))
+        snprintf(a.error, sizeof a.error, "%s: --visibility is on or off, not '%s'", prog, v);
+      o->no_visibility = !strcmp(v, "off");
+    } else if (npg_args_double(&a, "--tol", 0, 1, true, &o->tol)) ;
+    else if (npg_args_int(&a, "--max-iter", 1, 1000000, &o->max_iter)) ;
+    else if (npg_args_int(&a, "--vis-targets", 1, 1000000, &o->vis_targets)) ;
+    else if (npg_args_long(&a, "--check-points", 0, 10000000, &o->check_points)) ;
+    else if (npg_args_long(&a, "--dense-limit", 0, 100000000, &o->dense_limit)) ;
+    else if ((v = npg_args_string(&a, "--scene"))) {
+      if (strcmp(v, "box") && strcmp(v, "rooms"))
+        snprintf(a.error, sizeof a.error, "%s: --scene '%s': the scenes are box (the Cornell box) and rooms "
+                 "(examples/radiosity)", prog, v);
       rooms = !strcmp(v, "rooms");
-    } else if (!strcmp(a, "--faces")) faces = atol(v), faces_given = 1;
-    else goto bad;
-    k++;
-    continue;
-  bad:
-    fprintf(stderr, "npg-points: unknown or incomplete option '%s'\n", a);
+    } else if (npg_args_long(&a, "--faces", 1, 100000, &faces)) faces_given = 1;
+    else npg_args_unknown(&a);
+  }
+  if (a.error[0]) {
+    fprintf(stderr, "%s\n", a.error);
     return -1;
   }
+  double list[32];
+  if (parse_list("--points", o->points_list, 100, 10000000, list, 32) < 0 ||
+      parse_list("--orders", o->orders_list, 2, 8, list, 16) < 0 ||
+      parse_list("--error-points", o->error_points_list, 100, 10000000, list, 8) < 0)
+    return -1;
   if (!o->out) {
     fprintf(stderr, "npg-points: --out DIR is required\n");
-    return -1;
-  }
-  if (faces < 1 || faces > 100000) {
-    fprintf(stderr, "npg-points: --faces must be in [1, 100000]\n");
     return -1;
   }
   if (faces_given && !rooms) {
@@ -199,11 +231,11 @@ static int parse_options(int argc, char **argv, Options *o) {
     return -1;
   }
   o->room_faces = rooms ? faces : 0;
-  if (o->points < 100 || o->p < 2 || o->p > 8 || (o->leaf != 0 && o->leaf < 4)) {
-    fprintf(stderr, "npg-points: need --points ≥ 100, 2 ≤ --p ≤ 8, --leaf ≥ 4\n");
+  char err[512];
+  if (util_make_dirs(o->out, err, sizeof err) != 0) {
+    fprintf(stderr, "npg-points: --out: %s\n", err);
     return -1;
   }
-  mkdir(o->out, 0777);
   return 0;
 }
 
@@ -402,19 +434,6 @@ static int demo(const Options *o) {
 
 /* ------------------------------------------------------------ sweep */
 
-static int parse_list(const char *text, double *out, int cap) {
-  int n = 0;
-  const char *p = text;
-  while (*p && n < cap) {
-    char *end;
-    double v = strtod(p, &end);
-    if (end == p) break;
-    out[n++] = v;
-    p = *end == ',' ? end + 1 : end;
-  }
-  return n;
-}
-
 /* Seconds of one gather (the best of a few when short), wall and CPU. */
 static double time_gather(GatherFn fn, void *ctx, const double *b, double *g, int max_reps, double *cpu) {
   double best = INFINITY, best_cpu = INFINITY, total = 0;
@@ -430,8 +449,10 @@ static double time_gather(GatherFn fn, void *ctx, const double *b, double *g, in
 
 static int sweep(const Options *o) {
   double ns[32], ps[16], ens[8];
-  int nn = parse_list(o->points_list, ns, 32), np = parse_list(o->orders_list, ps, 16);
-  int ne = parse_list(o->error_points_list, ens, 8);
+  /* checked by parse_options */
+  int nn = parse_list("--points", o->points_list, 100, 10000000, ns, 32);
+  int np = parse_list("--orders", o->orders_list, 2, 8, ps, 16);
+  int ne = parse_list("--error-points", o->error_points_list, 100, 10000000, ens, 8);
   char path[4096];
   out_path(path, sizeof path, o->out, "sweep.json");
   FILE *js = fopen(path, "w");
@@ -564,6 +585,7 @@ int main(int argc, char **argv) {
     return 2;
   }
   if (parse_options(argc, argv, &o)) return 2;
-  if (!strcmp(argv[1], "demo")) return demo(&o);
-  return sweep(&o);
+  int rc = !strcmp(argv[1], "demo") ? demo(&o) : sweep(&o);
+  render_shutdown();
+  return rc;
 }

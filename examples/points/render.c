@@ -2,6 +2,7 @@
 #include "render.h"
 
 #include <cairo.h>
+#include <fontconfig/fontconfig.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -296,4 +297,9 @@ int render_plot(const char *path, const char *title, const char *xlabel, const c
   int rc = write_png(sf, path);
   cairo_surface_destroy(sf);
   return rc;
+}
+
+void render_shutdown(void) {
+  cairo_debug_reset_static_data();
+  FcFini();
 }

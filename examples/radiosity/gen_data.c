@@ -10,14 +10,14 @@
  * light plus a dim light of random strength on each of the six walls, from
  * SEED) and v.npy
  * ([S,F,F] visibility: 1, the room is convex). */
-#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 
 #include "meshgen.h"
+#include "npg.h"
 #include "npy.h"
+#include "util.h"
 
 static int write(const char *dir, const char *name, NpyType type, int nd, const long *shape, const void *data) {
   char path[4096], err[1024];
@@ -34,23 +34,32 @@ int main(int argc, char **argv) {
     fprintf(stderr, "usage: %s OUTDIR F SAMPLES T0 T1 SEED\n", argv[0]);
     return 2;
   }
-  long F = strtol(argv[2], NULL, 10), S = strtol(argv[3], NULL, 10);
-  double t0 = strtod(argv[4], NULL), t1 = strtod(argv[5], NULL);
-  unsigned seed = (unsigned)strtoul(argv[6], NULL, 10);
-  if (F < 12 || F % 2 || F > 100000 || S < 1 || S > 100000) {
-    fprintf(stderr, "%s: F must be even, 12..100000; SAMPLES 1..100000\n", argv[0]);
+  long F, S, seed_l;
+  double t0, t1;
+  char err[1024];
+  const char *what = "F";
+  if (npg_parse_long(argv[2], 12, 100000, &F, err, sizeof err) != 0 || (what = "SAMPLES",
+      npg_parse_long(argv[3], 1, 100000, &S, err, sizeof err) != 0) || (what = "T0",
+      npg_parse_double(argv[4], 0, 1, false, &t0, err, sizeof err) != 0) || (what = "T1",
+      npg_parse_double(argv[5], 0, 1, false, &t1, err, sizeof err) != 0) || (what = "SEED",
+      npg_parse_long(argv[6], 0, 4294967295L, &seed_l, err, sizeof err) != 0)) {
+    fprintf(stderr, "%s: %s: %s\n", argv[0], what, err);
+    return 2;
+  }
+  unsigned seed = (unsigned)seed_l;
+  if (F % 2) {
+    fprintf(stderr, "%s: F: %ld is odd (the room's faces come in pairs: an even count, 12..100000)\n", argv[0], F);
     return 2;
   }
   if ((double)S * (double)F * (double)F > 4e8) {
     fprintf(stderr, "%s: SAMPLES * F^2 visibility entries exceed 4e8 (3.2 GB)\n", argv[0]);
     return 2;
   }
-  if (mkdir(argv[1], 0777) != 0 && errno != EEXIST) {
-    fprintf(stderr, "%s: cannot create %s: %s\n", argv[0], argv[1], strerror(errno));
+  if (util_make_dirs(argv[1], err, sizeof err) != 0) {
+    fprintf(stderr, "%s: %s\n", argv[0], err);
     return 1;
   }
   Mesh mesh;
-  char err[512];
   if (mesh_room(F, t0, &mesh, err, sizeof err) != 0) {
     fprintf(stderr, "%s: %s\n", argv[0], err);
     return 1;

@@ -44,64 +44,45 @@ static int parse(int argc, char **argv, Options *o) {
   *o = (Options){.faces = 800, .frames = 24, .k = 4, .threads = 2, .checks = 1000, .ss = 3, .vis_mode = "auto",
                  .solver = "auto", .samples = 120, .cap = 60, .energy = 0.999, .mem_mb = 4096, .reps = 9,
                  .program = RADIOSITY_PROGRAM};
-  for (int i = 2; i < argc; i++) {
-    const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
-    if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+  char prog[48];
+  snprintf(prog, sizeof prog, "npg-radiosity %s", argv[1]);
+  NpgArgs a;
+  npg_args_init(&a, argc, argv, 2, prog);
+  while (npg_args_next(&a)) {
+    const char *v;
+    if (npg_args_flag(&a, "-h") || npg_args_flag(&a, "--help")) {
       usage(stdout);
       exit(0);
     }
-    if (!val) {
-      fprintf(stderr, "npg-radiosity: %s needs a value\n", a);
-      return -1;
+    if (npg_args_long(&a, "--faces", 1, 20000, &o->faces)) ;
+    else if (npg_args_int(&a, "--frames", 2, 10000, &o->frames)) ;
+    else if (npg_args_int(&a, "--vis-samples", 1, 16, &o->k)) {
+      if (!a.error[0] && o->k != 1 && o->k != 4 && o->k != 16)
+        snprintf(a.error, sizeof a.error, "%s: --vis-samples is 1, 4 or 16 (points per face), not %d", prog, o->k);
+    } else if (npg_args_int(&a, "--threads", 1, 64, &o->threads)) ;
+    else if (npg_args_int(&a, "--ss", 1, 8, &o->ss)) ;
+    else if (npg_args_int(&a, "--checks", 0, 100000000, &o->checks)) ;
+    else if ((v = npg_args_string(&a, "--out"))) o->out = v;
+    else if ((v = npg_args_string(&a, "--vis-mode"))) {
+      o->vis_mode = v;
+      if (strcmp(v, "auto") && strcmp(v, "single") && strcmp(v, "stream") && strcmp(v, "packet"))
+        snprintf(a.error, sizeof a.error, "%s: --vis-mode is auto, single, stream or packet, not '%s'", prog, v);
+    } else if ((v = npg_args_string(&a, "--solver"))) {
+      o->solver = v;
+      if (strcmp(v, "auto") && strcmp(v, "lu") && strcmp(v, "gs") && strcmp(v, "gmres"))
+        snprintf(a.error, sizeof a.error, "%s: --solver is auto, lu, gs or gmres, not '%s'", prog, v);
     }
-    char *end = NULL;
-    if (!strcmp(a, "--faces"))
-      o->faces = strtol(val, &end, 10);
-    else if (!strcmp(a, "--frames"))
-      o->frames = (int)strtol(val, &end, 10);
-    else if (!strcmp(a, "--vis-samples"))
-      o->k = (int)strtol(val, &end, 10);
-    else if (!strcmp(a, "--threads"))
-      o->threads = (int)strtol(val, &end, 10);
-    else if (!strcmp(a, "--ss"))
-      o->ss = (int)strtol(val, &end, 10);
-    else if (!strcmp(a, "--checks"))
-      o->checks = (int)strtol(val, &end, 10);
-    else if (!strcmp(a, "--out"))
-      o->out = val;
-    else if (!strcmp(a, "--vis-mode"))
-      o->vis_mode = val;
-    else if (!strcmp(a, "--solver"))
-      o->solver = val;
-    else if (!strcmp(a, "--samples"))
-      o->samples = (int)strtol(val, &end, 10);
-    else if (!strcmp(a, "--cap"))
-      o->cap = (int)strtol(val, &end, 10);
-    else if (!strcmp(a, "--energy"))
-      o->energy = strtod(val, &end);
-    else if (!strcmp(a, "--mem"))
-      o->mem_mb = strtol(val, &end, 10);
-    else if (!strcmp(a, "--reps"))
-      o->reps = (int)strtol(val, &end, 10);
-    else if (!strcmp(a, "--model"))
-      o->model = val;
-    else if (!strcmp(a, "--program"))
-      o->program = val;
-    else {
-      fprintf(stderr, "npg-radiosity: unknown option %s\n", a);
-      return -1;
-    }
-    if (end && *end) {
-      fprintf(stderr, "npg-radiosity: %s: '%s' is not a number\n", a, val);
-      return -1;
-    }
-    i++;
+    else if (npg_args_int(&a, "--samples", 2, 100000, &o->samples)) ;
+    else if (npg_args_int(&a, "--cap", 1, 1000000, &o->cap)) ;
+    else if (npg_args_double(&a, "--energy", 0, 1, true, &o->energy)) ;
+    else if (npg_args_long(&a, "--mem", 1, 1L << 30, &o->mem_mb)) ;
+    else if (npg_args_int(&a, "--reps", 1, 10000, &o->reps)) ;
+    else if ((v = npg_args_string(&a, "--model"))) o->model = v;
+    else if ((v = npg_args_string(&a, "--program"))) o->program = v;
+    else npg_args_unknown(&a);
   }
-  if (o->faces < 1 || o->faces > 20000 || o->frames < 2 || o->frames > 10000 || o->threads < 1 || o->threads > 64 ||
-      o->checks < 0 || o->ss < 1 || o->ss > 8 || o->samples < 2 || o->samples > 100000 || o->cap < 1 ||
-      !(o->energy > 0 && o->energy <= 1) || o->mem_mb < 1 || o->reps < 1 || o->reps > 10000) {
-    fprintf(stderr, "npg-radiosity: --faces 1..20000, --frames 2..10000, --threads 1..64, --ss 1..8, --samples "
-                    "2..100000, --cap >= 1, --energy (0, 1], --mem MB >= 1, --reps 1..10000\n");
+  if (a.error[0]) {
+    fprintf(stderr, "%s\n", a.error);
     return -1;
   }
   return 0;

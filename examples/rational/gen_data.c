@@ -6,34 +6,41 @@
  * [0.5, 2]^2 (away from the poles x0 = 0 and x1 = 0 of y). */
 #include <stdio.h>
 #include <stdlib.h>
-#include <sys/stat.h>
-#include <errno.h>
-#include <string.h>
 
+#include "npg.h"
 #include "npy.h"
+#include "util.h"
 
 int main(int argc, char **argv) {
   if (argc != 4) {
     fprintf(stderr, "usage: %s OUTDIR SAMPLES SEED\n", argv[0]);
     return 2;
   }
-  long n = strtol(argv[2], NULL, 10);
-  unsigned seed = (unsigned)strtoul(argv[3], NULL, 10);
-  if (n < 1 || n > 100000000) {
-    fprintf(stderr, "%s: SAMPLES must be from 1 to 1e8\n", argv[0]);
+  long n, seed_l;
+  char err[1024];
+  if (npg_parse_long(argv[2], 1, 100000000, &n, err, sizeof err) != 0) {
+    fprintf(stderr, "%s: SAMPLES: %s\n", argv[0], err);
     return 2;
   }
-  if (mkdir(argv[1], 0777) != 0 && errno != EEXIST) {
-    fprintf(stderr, "%s: cannot create %s: %s\n", argv[0], argv[1], strerror(errno));
+  if (npg_parse_long(argv[3], 0, 4294967295L, &seed_l, err, sizeof err) != 0) {
+    fprintf(stderr, "%s: SEED: %s\n", argv[0], err);
+    return 2;
+  }
+  unsigned seed = (unsigned)seed_l;
+  if (util_make_dirs(argv[1], err, sizeof err) != 0) {
+    fprintf(stderr, "%s: %s\n", argv[0], err);
     return 1;
   }
   double *x = malloc(sizeof(double) * (size_t)n * 2);
-  if (!x) return 1;
+  if (!x) {
+    fprintf(stderr, "%s: out of memory for %ld samples\n", argv[0], n);
+    return 1;
+  }
   for (long i = 0; i < 2 * n; i++) {
     seed = seed * 1103515245u + 12345u;
     x[i] = 0.5 + 1.5 * ((seed >> 8) & 0xffffff) / (double)0x1000000;
   }
-  char path[4096], err[1024];
+  char path[4096];
   snprintf(path, sizeof path, "%s/x.npy", argv[1]);
   long shape[2] = {n, 2};
   int rc = npy_write(path, NPY_F64, 2, shape, x, err, sizeof err);

@@ -58,13 +58,15 @@ test -e "$W/TR/x.npy" || fail "train -o DATA removed the data"
 # 5. numbers are parsed strictly
 for bad in "--cap 4294967297" "--cap 0" "--cap 3x" "--energy 0" "--energy 1.5" "--mem 1Q" "--mem -1"; do
   if "$N" train "$W/sqrt.npg" "$W/TR" -o "$W/X" $bad 2>"$W/err.txt"; then fail "train accepted $bad"; fi
-  grep -q "bad value for" "$W/err.txt" || fail "train $bad: $(cat "$W/err.txt")"
+  opt=${bad%% *}
+  grep -q "^npgc train: $opt[: ].*\(out of range (expected\|not a whole number (expected\|is not a size in bytes\)" "$W/err.txt" ||
+    fail "train $bad: $(cat "$W/err.txt")"
 done
 if "$N" verify "$W/sqrt.npg" "$W/SM" "$W/TR" --tol '' 2>"$W/err.txt"; then fail "--tol '' accepted"; fi
 if "$N" verify "$W/sqrt.npg" "$W/SM" "$W/TR" --tol nan 2>"$W/err.txt"; then fail "--tol nan accepted"; fi
 if "$N" verify "$W/sqrt.npg" --exact-size 99999999999999999999 2>"$W/err.txt"; then fail "huge --exact-size accepted"; fi
 if "$N" train "$W/sqrt.npg" "$W/TR" -o 2>"$W/err.txt"; then fail "-o without a value"; fi
-grep -q "missing the value of '-o'" "$W/err.txt" || fail "-o message: $(cat "$W/err.txt")"
+grep -q "^npgc train: -o needs a value" "$W/err.txt" || fail "-o message: $(cat "$W/err.txt")"
 
 # 13. every command has a whole --help, on stdout, exit 0
 for cmd in check emit eval train verify bench; do

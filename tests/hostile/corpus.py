@@ -202,9 +202,11 @@ def npy_cases():
     x["trailing_byte"] = (npy_array(X) + b"\0", "{f}: trailing garbage: expected 480 bytes of data, found 481")
     x["data_cut"] = (npy_array(X)[:-1], "{f}: truncated: expected 480 bytes of data, found 479")
     x["data_missing"] = (npy_array(X)[:128], "{f}: truncated: expected 480 bytes of data, found 0")
-    x["one_axis"] = (X.reshape(60), "{f}: expected a leading sample axis and 1 axis for 'x', the array has 1 axes")
-    x["three_axes"] = (X.reshape(12, 5, 1), "{f}: expected a leading sample axis and 1 axis for 'x', the array has 3")
-    x["zero_d"] = (np.float64(3), "{f}: expected a leading sample axis and 1 axis for 'x', the array has 0 axes")
+    # the shape expected and the one found, both written out (issue 28)
+    axes = "{f}: input 'x' needs the shape (samples, N) (a leading sample axis, then its 1 axis), the array's shape is "
+    x["one_axis"] = (X.reshape(60), axes + "(60,)")
+    x["three_axes"] = (X.reshape(12, 5, 1), axes + "(12, 5, 1)")
+    x["zero_d"] = (np.float64(3), axes + "()")
     x["nan"] = (np.where(np.arange(60).reshape(12, 5) == 37, np.nan, X), "{f}: input 'x' holds NaN at sample 7, [2]")
     x["inf"] = (np.where(np.arange(60).reshape(12, 5) == 59, np.inf, X),
                 "{f}: input 'x' holds an infinity at sample 11, [4]")
@@ -722,22 +724,23 @@ def cli_cases():
     cli("no_arguments", [], 2, "=usage: npgc COMMAND ... (npgc COMMAND --help for its whole usage)")
     cli("unknown_command", ["frobnicate"], 2, "=npgc: unknown command 'frobnicate' (npgc --help lists them)")
     cli("empty_command", [""], 2, "npgc: unknown command ''")
-    cli("check_no_program", ["check"], 2, "=npgc: check needs a program")
+    cli("check_no_program", ["check"], 2, "npgc check: missing the program (PROG.npg)")
     cli("check_two_programs", ["check", "vec.npg", "two.npg"], 2, "more than one program given")
-    cli("check_unknown_option", ["check", "vec.npg", "--frob"], 2, "=npgc: unknown option '--frob'")
+    cli("check_unknown_option", ["check", "vec.npg", "--frob"], 2, "npgc check: unknown option '--frob'")
     cli("check_d_empty", ["check", "vec.npg", "-d"], 2, "unknown option '-d'")
-    cli("emit_no_output", ["emit", "vec.npg"], 2, "usage: npgc emit")
-    cli("emit_o_no_value", ["emit", "vec.npg", "-o"], 2, "=npgc emit: missing the value of '-o'")
-    cli("emit_reduced_no_value", ["emit", "vec.npg", "-o", "out/e.c", "--reduced"], 2, "missing the value of '--reduced'")
+    cli("emit_no_output", ["emit", "vec.npg"], 2, "npgc emit: missing -o FILE.c")
+    cli("emit_o_no_value", ["emit", "vec.npg", "-o"], 2, "npgc emit: -o needs a value")
+    cli("emit_reduced_no_value", ["emit", "vec.npg", "-o", "out/e.c", "--reduced"], 2, "npgc emit: --reduced needs a value")
     cli("emit_over_program", ["emit", "vec.npg", "-o", "vec.npg"], 1, "would overwrite an input of the command")
     cli("emit_into_model", ["emit", "vec.npg", "--reduced", "M", "-o", "M/manifest"], 1, "would overwrite an input")
     cli("emit_to_directory", ["emit", "vec.npg", "-o", "D"], 1, "cannot rename D.tmp to D: Is a directory")
     cli("emit_under_file", ["emit", "vec.npg", "-o", "vec.npg/x.c"], 1, "vec.npg exists and is not a directory")
     cli("emit_reduced_missing_model", ["emit", "vec.npg", "--reduced", "nosuch", "-o", "out/x.c"], 1,
         "nosuch/manifest: cannot open")
-    cli("eval_no_output", ["eval", "vec.npg", "--full", "D", "D"], 2, "usage: npgc eval")
-    cli("eval_o_no_value", ["eval", "vec.npg", "--full", "D", "D", "-o"], 2, "missing the value of '-o'")
-    cli("eval_too_many", ["eval", "vec.npg", "--full", "D", "D", "D", "-o", "out/x"], 2, "usage: npgc eval")
+    cli("eval_no_output", ["eval", "vec.npg", "--full", "D", "D"], 2, "npgc eval: missing -o OUT/")
+    cli("eval_o_no_value", ["eval", "vec.npg", "--full", "D", "D", "-o"], 2, "npgc eval: -o needs a value")
+    cli("eval_too_many", ["eval", "vec.npg", "--full", "D", "D", "D", "-o", "out/x"], 2,
+        "npgc eval: more than one input folder given ('D' and 'D')")
     cli("eval_unknown_option", ["eval", "vec.npg", "--fast", "D", "D", "-o", "out/x"], 2, "unknown option '--fast'")
     cli("eval_missing_data", ["eval", "vec.npg", "--full", "nosuch", "D", "-o", "out/x"], 1,
         "=error: nosuch (DATA/): No such file or directory")
@@ -755,22 +758,37 @@ def cli_cases():
     cli("eval_out_in_proc", ["eval", "vec.npg", "--full", "D", "D", "-o", "/proc/npg_out"], 1,
         "=error: cannot create /proc/npg_out: No such file or directory")
     cli("eval_reduced_model_missing", ["eval", "vec.npg", "nosuch", "T", "-o", "out/x"], 1, "nosuch/manifest: cannot open")
-    cli("eval_reduced_model_is_data", ["eval", "vec.npg", "D", "T", "-o", "out/x"], 1, "D/manifest: cannot open")
-    cli("train_no_output", ["train", "vec.npg", "D"], 2, "usage: npgc train")
-    cli("train_o_no_value", ["train", "vec.npg", "D", "-o"], 2, "=npgc train: missing the value of '-o'")
-    cli("train_extra_argument", ["train", "vec.npg", "D", "T", "-o", "models/x"], 2, "usage: npgc train")
+    cli("eval_reduced_model_is_data", ["eval", "vec.npg", "D", "T", "-o", "out/x"], 1,
+        "npgc eval: D is a data folder (it holds .npy files and no manifest), not a model")
+    cli("train_no_output", ["train", "vec.npg", "D"], 2, "npgc train: missing -o MODEL/")
+    cli("train_o_no_value", ["train", "vec.npg", "D", "-o"], 2, "npgc train: -o needs a value")
+    cli("train_extra_argument", ["train", "vec.npg", "D", "T", "-o", "models/x"], 2,
+        "npgc train: more than one DATA/ folder given ('D' and 'T')")
     cli("train_unknown_option", ["train", "vec.npg", "D", "-o", "models/x", "--fast"], 2, "unknown option '--fast'")
-    for name, opt, val in [("cap_zero", "--cap", "0"), ("cap_huge", "--cap", "4294967297"), ("cap_text", "--cap", "ten"),
-                           ("cap_trailing", "--cap", "3x"), ("cap_empty", "--cap", ""), ("cap_negative", "--cap", "-4"),
-                           ("energy_zero", "--energy", "0"), ("energy_above_one", "--energy", "1.5"),
-                           ("energy_nan", "--energy", "nan"), ("energy_inf", "--energy", "inf"),
-                           ("mem_unit", "--mem", "1Q"), ("mem_negative", "--mem", "-1"), ("mem_zero", "--mem", "0"),
-                           ("mem_huge", "--mem", "1e30T"), ("merge_unknown", "--merge", "both"),
-                           ("basis_no_colon", "--basis", "x"), ("basis_bad_option", "--basis", "x:size=3"),
-                           ("basis_cap_zero", "--basis", "x:cap=0"), ("basis_energy_two", "--basis", "x:energy=2"),
-                           ("basis_trailing", "--basis", "x:cap=3;")]:
-        cli("train_" + name, ["train", "vec.npg", "D", "-o", "models/x", opt, val], 2,
-            "=npgc train: bad value for %s: '%s'" % (opt, val))
+    # each bad value named with its option and what was expected (issue 28: the range, the allowed keys)
+    capr, enr = "(expected 1..1000000)", "(expected (0, 1])"
+    mem = "is not a size in bytes (a positive number, optionally followed by k, M, G or T)"
+    for name, opt, val, why in [
+            ("cap_zero", "--cap", "0", "--cap: 0 is out of range " + capr),
+            ("cap_huge", "--cap", "4294967297", "--cap: 4294967297 is out of range " + capr),
+            ("cap_text", "--cap", "ten", "--cap: 'ten' is not a whole number " + capr),
+            ("cap_trailing", "--cap", "3x", "--cap: '3x' is not a whole number " + capr),
+            ("cap_empty", "--cap", "", "--cap: '' is not a whole number " + capr),
+            ("cap_negative", "--cap", "-4", "--cap: -4 is out of range " + capr),
+            ("energy_zero", "--energy", "0", "--energy: 0 is out of range " + enr),
+            ("energy_above_one", "--energy", "1.5", "--energy: 1.5 is out of range " + enr),
+            ("energy_nan", "--energy", "nan", "--energy: 'nan' is not a number " + enr),
+            ("energy_inf", "--energy", "inf", "--energy: inf is out of range " + enr),
+            ("mem_unit", "--mem", "1Q", "--mem: '1Q' " + mem), ("mem_negative", "--mem", "-1", "--mem: '-1' " + mem),
+            ("mem_zero", "--mem", "0", "--mem: '0' " + mem), ("mem_huge", "--mem", "1e30T", "--mem: '1e30T' " + mem),
+            ("merge_unknown", "--merge", "both", "--merge is concat or joint, not 'both'"),
+            ("basis_no_colon", "--basis", "x", "--basis 'x': expected NAME:cap=N,energy=E,center=on|off"),
+            ("basis_bad_option", "--basis", "x:size=3",
+             "--basis 'x:size=3': unknown key 'size' (the keys are cap, energy and center"),
+            ("basis_cap_zero", "--basis", "x:cap=0", "--basis 'x:cap=0': cap: 0 is out of range " + capr),
+            ("basis_energy_two", "--basis", "x:energy=2", "--basis 'x:energy=2': energy: 2 is out of range " + enr),
+            ("basis_trailing", "--basis", "x:cap=3;", "--basis 'x:cap=3;': cap: '3;' is not a whole number " + capr)]:
+        cli("train_" + name, ["train", "vec.npg", "D", "-o", "models/x", opt, val], 2, "npgc train: " + why)
     cli("train_basis_unknown_name", ["train", "vec.npg", "D", "-o", "models/x", "--basis", "nosuch:cap=2"], 1,
         "=error: --basis nosuch: no quantity, class or numerator of that name; classes (members): m_x (x); m_y (y), "
         "or '*' for all")
@@ -780,7 +798,7 @@ def cli_cases():
     cli("train_basis_of_dim", ["train", "vec.npg", "D", "-o", "models/x", "--basis", "N:cap=2"], 1,
         "=error: --basis N: no quantity, class or numerator of that name; classes (members): m_x (x); m_y (y), "
         "or '*' for all")
-    cli("train_cap_no_value", ["train", "vec.npg", "D", "-o", "models/x", "--cap"], 2, "missing the value of '--cap'")
+    cli("train_cap_no_value", ["train", "vec.npg", "D", "-o", "models/x", "--cap"], 2, "npgc train: --cap needs a value")
     cli("train_out_is_data", ["train", "vec.npg", "D", "-o", "D"], 1, "-o D is an input of the command")
     cli("train_out_is_program", ["train", "vec.npg", "D", "-o", "vec.npg"], 1, "is an input of the command")
     cli("train_data_missing", ["train", "vec.npg", "nosuch", "-o", "models/x"], 1, "nosuch/rho.npy: cannot open")
@@ -788,22 +806,25 @@ def cli_cases():
     cli("train_dev_null_program", ["train", "/dev/null", "D", "-o", "models/x"], 1, "the program has no output")
     cli("train_out_in_proc", ["train", "vec.npg", "D", "-o", "/proc/npg_model"], 1,
         "error: /proc/npg_model: cannot create the model's temporary directory /proc/npg_model.tmp.")
-    cli("verify_no_test", ["verify", "vec.npg", "M"], 2, "usage: npgc verify")
-    cli("verify_with_o", ["verify", "vec.npg", "M", "T", "-o", "out/x"], 2, "usage: npgc verify")
-    cli("verify_tol_empty", ["verify", "vec.npg", "M", "T", "--tol", ""], 2, "bad value for --tol: ''")
-    cli("verify_tol_nan", ["verify", "vec.npg", "M", "T", "--tol", "nan"], 2, "bad value for --tol: 'nan'")
-    cli("verify_tol_negative", ["verify", "vec.npg", "M", "T", "--tol", "-1"], 2, "bad value for --tol: '-1'")
-    cli("verify_exact_size_zero", ["verify", "vec.npg", "--exact-size", "0"], 2, "bad value for --exact-size: '0'")
+    cli("verify_no_test", ["verify", "vec.npg", "M"], 2, "npgc verify: missing TEST/")
+    cli("verify_with_o", ["verify", "vec.npg", "M", "T", "-o", "out/x"], 2,
+        "npgc verify: -o is an option of npgc train and eval, not of npgc verify")
+    cli("verify_tol_empty", ["verify", "vec.npg", "M", "T", "--tol", ""], 2, "npgc verify: --tol: '' is not a number (expected at least 0)")
+    cli("verify_tol_nan", ["verify", "vec.npg", "M", "T", "--tol", "nan"], 2, "npgc verify: --tol: 'nan' is not a number (expected at least 0)")
+    cli("verify_tol_negative", ["verify", "vec.npg", "M", "T", "--tol", "-1"], 2, "npgc verify: --tol: -1 is out of range (expected at least 0)")
+    cli("verify_exact_size_zero", ["verify", "vec.npg", "--exact-size", "0"], 2, "npgc verify: --exact-size: 0 is out of range (expected 1..64)")
     cli("verify_exact_size_huge", ["verify", "vec.npg", "--exact-size", "99999999999999999999"], 2,
-        "bad value for --exact-size")
-    cli("verify_reps", ["verify", "vec.npg", "M", "T", "--reps", "3"], 2, "unknown option '--reps'")
+        "npgc verify: --exact-size: 99999999999999999999 is out of range (expected 1..64)")
+    cli("verify_reps", ["verify", "vec.npg", "M", "T", "--reps", "3"], 2,
+        "npgc verify: --reps is an option of npgc bench, not of npgc verify")
     cli("verify_model_missing", ["verify", "vec.npg", "nosuch", "T"], 1, "nosuch/manifest: cannot open")
     cli("verify_test_missing", ["verify", "vec.npg", "M", "nosuch"], 1, "=error: nosuch/x.npy: cannot open: No such file or directory")
     cli("verify_dev_null_program", ["verify", "/dev/null", "M", "T"], 1, "the program has no output")
-    cli("bench_reps_zero", ["bench", "vec.npg", "M", "T", "--reps", "0"], 2, "bad value for --reps: '0'")
-    cli("bench_reps_text", ["bench", "vec.npg", "M", "T", "--reps", "many"], 2, "bad value for --reps: 'many'")
-    cli("bench_no_test", ["bench", "vec.npg", "M"], 2, "usage: npgc bench")
-    cli("bench_exact", ["bench", "vec.npg", "M", "T", "--exact"], 2, "unknown option '--exact'")
+    cli("bench_reps_zero", ["bench", "vec.npg", "M", "T", "--reps", "0"], 2, "npgc bench: --reps: 0 is out of range (expected 1..1000000)")
+    cli("bench_reps_text", ["bench", "vec.npg", "M", "T", "--reps", "many"], 2, "npgc bench: --reps: 'many' is not a whole number (expected 1..1000000)")
+    cli("bench_no_test", ["bench", "vec.npg", "M"], 2, "npgc bench: missing TEST/")
+    cli("bench_exact", ["bench", "vec.npg", "M", "T", "--exact"], 2,
+        "npgc bench: --exact is an option of npgc verify, not of npgc bench")
     cli("bench_test_missing", ["bench", "vec.npg", "M", "nosuch"], 1, "=error: nosuch/x.npy: cannot open: No such file or directory")
 
 

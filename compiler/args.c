@@ -1,0 +1,167 @@
+/* args.c — the command-line parser npgc and the applications share
+ * (npg.h, "command lines"): `--opt value` and `--opt=value`, strict numbers
+ * with their range in the message, unknown options named as such.
+ *
+ * Why a public function and not a helper of examples/common: the
+ * applications may use npg.h only, and npgc is a client of npg.h too; one
+ * parser behind the public API is the one place both can reach without a
+ * dependency pointing from the compiler up into the examples. */
+#include <errno.h>
+#include <limits.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "ast.h" /* npg_fail */
+#include "npg.h"
+
+/* The range as the messages print it: "1..10000", "at least 1", "(0, 1]". */
+static void long_range(char *buf, size_t n, long lo, long hi) {
+  if (hi == LONG_MAX) snprintf(buf, n, "at least %ld", lo);
+  else snprintf(buf, n, "%ld..%ld", lo, hi);
+}
+
+static void double_range(char *buf, size_t n, double lo, double hi, bool lo_open) {
+  if (isinf(hi) && isinf(lo)) snprintf(buf, n, "a finite number");
+  else if (isinf(hi)) snprintf(buf, n, "%s %g", lo_open ? "above" : "at least", lo);
+  else snprintf(buf, n, "%s%g, %g]", lo_open ? "(" : "[", lo, hi);
+}
+
+int npg_parse_long(const char *s, long lo, long hi, long *out, char *err, size_t errlen) {
+  if (!out) return npg_fail(err, errlen, "npg_parse_long: out is NULL");
+  char range[96];
+  long_range(range, sizeof range, lo, hi);
+  if (!s) return npg_fail(err, errlen, "no value (expected %s)", range);
+  char *end;
+  errno = 0;
+  long v = strtol(s, &end, 10);
+  /* strtol skips leading blanks: " 5" is not what a user typed as a number either */
+  if (!*s || end == s || *end || s[0] == ' ' || s[0] == '\t')
+    return npg_fail(err, errlen, "'%s' is not a whole number (expected %s)", s, range);
+  if (errno == ERANGE || v < lo || v > hi) return npg_fail(err, errlen, "%s is out of range (expected %s)", s, range);
+  *out = v;
+  return 0;
+}
+
+int npg_parse_double(const char *s, double lo, double hi, bool lo_open, double *out, char *err, size_t errlen) {
+  if (!out) return npg_fail(err, errlen, "npg_parse_double: out is NULL");
+  char range[96];
+  double_range(range, sizeof range, lo, hi, lo_open);
+  if (!s) return npg_fail(err, errlen, "no value (expected %s)", range);
+  char *end;
+  errno = 0;
+  double v = strtod(s, &end);
+  if (!*s || end == s || *end || s[0] == ' ' || s[0] == '\t' || isnan(v))
+    return npg_fail(err, errlen, "'%s' is not a number (expected %s)", s, range);
+  /* ERANGE on underflow still gives a usable tiny value; overflow gives inf, refused below */
+  if (!isfinite(v) || v < lo || v > hi || (lo_open && v == lo))
+    return npg_fail(err, errlen, "%s is out of range (expected %s)", s, range);
+  *out = v;
+  return 0;
+}
+
+void npg_args_init(NpgArgs *a, int argc, char **argv, int first, const char *prog) {
+  if (!a) return;
+  memset(a, 0, sizeof *a);
+  if (!argv || argc < 0) argc = 0; /* nothing to read */
+  a->argc = argc;
+  a->argv = argv;
+  a->i = first - 1;
+  a->prog = prog ? prog : "";
+}
+
+bool npg_args_next(NpgArgs *a) {
+  if (!a || a->error[0]) return false;
+  a->i++;
+  return a->i < a->argc;
+}
+
+/* The argument being read, NULL after an error or past the end (or for a NULL `a`). */
+static const char *current(const NpgArgs *a) {
+  return a && !a->error[0] && a->i >= 0 && a->i < a->argc ? a->argv[a->i] : NULL;
+}
+
+static void args_fail(NpgArgs *a, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void args_fail(NpgArgs *a, const char *fmt, ...) {
+  if (a->error[0]) return; /* the first problem is the one to fix */
+  int n = snprintf(a->error, sizeof a->error, "%s%s", a->prog, a->prog[0] ? ": " : "");
+  if (n < 0 || (size_t)n >= sizeof a->error) return;
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(a->error + n, sizeof a->error - (size_t)n, fmt, ap);
+  va_end(ap);
+}
+
+bool npg_args_flag(NpgArgs *a, const char *name) {
+  const char *s = name ? current(a) : NULL;
+  size_t n = s ? strlen(name) : 0;
+  if (!s || strncmp(s, name, n) != 0) return false;
+  if (s[n] == '=') {
+    args_fail(a, "%s takes no value ('%s')", name, s);
+    return true;
+  }
+  return s[n] == 0;
+}
+
+const char *npg_args_string(NpgArgs *a, const char *name) {
+  const char *s = name ? current(a) : NULL;
+  size_t n = s ? strlen(name) : 0;
+  if (!s || strncmp(s, name, n) != 0) return NULL;
+  if (s[n] == '=') return s + n + 1;
+  if (s[n] != 0) return NULL;
+  if (a->i + 1 >= a->argc) {
+    args_fail(a, "%s needs a value", name);
+    return NULL;
+  }
+  return a->argv[++a->i];
+}
+
+/* The option `name` was given (its value read, or the error set). */
+static bool matched(NpgArgs *a, const char *name, const char **value) {
+  const char *s = name ? current(a) : NULL;
+  size_t n = s ? strlen(name) : 0;
+  if (!s || strncmp(s, name, n) != 0 || (s[n] != 0 && s[n] != '=')) return false;
+  *value = npg_args_string(a, name);
+  return true;
+}
+
+bool npg_args_long(NpgArgs *a, const char *name, long lo, long hi, long *out) {
+  const char *v;
+  if (!matched(a, name, &v)) return false;
+  char err[256];
+  if (v && npg_parse_long(v, lo, hi, out, err, sizeof err) != 0) args_fail(a, "%s: %s", name, err);
+  return true;
+}
+
+bool npg_args_int(NpgArgs *a, const char *name, int lo, int hi, int *out) {
+  long v = 0;
+  bool took = npg_args_long(a, name, lo, hi, &v);
+  if (took && !a->error[0] && !out) args_fail(a, "npg_args_int: out is NULL");
+  else if (took && !a->error[0]) *out = (int)v;
+  return took;
+}
+
+bool npg_args_double(NpgArgs *a, const char *name, double lo, double hi, bool lo_open, double *out) {
+  const char *v;
+  if (!matched(a, name, &v)) return false;
+  char err[256];
+  if (v && npg_parse_double(v, lo, hi, lo_open, out, err, sizeof err) != 0) args_fail(a, "%s: %s", name, err);
+  return true;
+}
+
+const char *npg_args_positional(NpgArgs *a) {
+  const char *s = current(a);
+  return s && (s[0] != '-' || s[1] == 0) ? s : NULL;
+}
+
+void npg_args_unknown(NpgArgs *a) {
+  const char *s = current(a);
+  if (!s) return;
+  if (s[0] == '-' && s[1]) {
+    const char *eq = strchr(s, '=');
+    args_fail(a, "unknown option '%.*s'", eq ? (int)(eq - s) : (int)strlen(s), s);
+  } else {
+    args_fail(a, "unexpected argument '%s'", s);
+  }
+}

@@ -1,0 +1,93 @@
+#!/bin/sh
+# app_options.sh APP BINARY — an application's command line (issues 24, 28):
+# every number read whole and in range (the parser npgc uses, npg.h's
+# npg_args_*), `--opt=value` as `--opt value`, unknown options named, and for
+# npg-fluids unphysical parameters refused, a blown-up run stopped with a
+# non-zero exit, sizes bounded before any allocation. APP is fluids, points
+# or radiosity.
+set -eu
+APP=$1
+X=$2
+W=$(mktemp -d /tmp/npg_app_options_XXXXXX)
+trap 'rm -rf "$W"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+
+# expect STATUS MESSAGE ARGS...: the application exits with STATUS and its stderr holds MESSAGE
+expect() {
+  want=$1 msg=$2
+  shift 2
+  set +e
+  "$X" "$@" >"$W/out.txt" 2>"$W/err.txt"
+  got=$?
+  set -e
+  [ "$got" = "$want" ] || fail "$APP $* exited $got, expected $want: $(cat "$W/err.txt")"
+  grep -qF -- "$msg" "$W/err.txt" || fail "$APP $*: stderr lacks '$msg': $(cat "$W/err.txt")"
+}
+
+case $APP in
+fluids)
+  # numbers: wrapped, trailing text, exponent for a count, out of range
+  expect 2 "npg-fluids tunnel-full: --frames: 4294967298 is out of range (expected 1..100000)" \
+    tunnel-full --out "$W/o" --frames 4294967298
+  expect 2 "npg-fluids tunnel-full: --frames: '1e8' is not a whole number (expected 1..100000)" \
+    tunnel-full --out "$W/o" --frames 1e8
+  expect 2 "npg-fluids tunnel-full: --width: '1e8' is not a whole number (expected 16..8192)" \
+    tunnel-full --out "$W/o" --width 1e8
+  expect 2 "npg-fluids tunnel-full: --width: 100000000 is out of range (expected 16..8192)" \
+    tunnel-full --out "$W/o" --width=100000000
+  expect 2 "npg-fluids tunnel-full: --cells: '300abc' is not a whole number" tunnel-full --out "$W/o" --cells 300abc
+  expect 2 "npg-fluids tunnel: --sizes: entry 2: '16x' is not a whole number (expected 2..256)" \
+    tunnel --out "$W/o" --sizes 8,16x
+  expect 2 "npg-fluids cavity: --runs: 15 is out of range (expected 0..14)" cavity --out "$W/o" --runs 15
+  expect 2 "npg-fluids cavity-projection: --steps: 'abc' is not a whole number" cavity-projection --steps abc
+  expect 2 "npg-fluids tunnel-full: unknown option '--frame'" tunnel-full --out "$W/o" --frame 3
+  expect 2 "npg-fluids tunnel-full: --out needs a value" tunnel-full --out
+  # unphysical parameters: the range and why
+  expect 2 "npg-fluids tunnel-full: --mu -1: the viscosity is in [0, 10] (a negative one amplifies every mode" \
+    tunnel-full --out "$W/o" --mu -1
+  expect 2 "npg-fluids tunnel-full: --cfl 16: the CFL number is in (0, 1] (above 1 the flow crosses more than an edge" \
+    tunnel-full --out "$W/o" --cfl 16
+  expect 2 "npg-fluids tunnel: --mu -0.5: the viscosity is in [0, 10]" tunnel --out "$W/o" --mu=-0.5
+  # a run that blows up inside the allowed range stops with a message and exit 1, not 0
+  expect 1 "the run is unstable and was stopped" tunnel-full --out "$W/blown" --cfl 1 --frames 20 --cells 300 \
+    --particles 10 --png-every 100 --vtk-every 100
+  test ! -e "$W/blown/report.json" || fail "a blown-up run wrote its report as if it had succeeded"
+  # --opt=value: the same mesh as --opt value; outputs under missing parents
+  "$X" mesh --cells=400 | sed 's/, "mesh_seconds".*//' >"$W/a.json"
+  "$X" mesh --cells 400 | sed 's/, "mesh_seconds".*//' >"$W/b.json"
+  cmp "$W/a.json" "$W/b.json" || fail "mesh --cells=400 differs from --cells 400"
+  "$X" tunnel-full --out="$W/p/q/r" --frames=2 --cells=300 --particles=10 >/dev/null 2>&1 ||
+    fail "tunnel-full with --opt=value into missing parents"
+  test -s "$W/p/q/r/report.json" || fail "tunnel-full wrote no report under missing parents"
+  ;;
+points)
+  expect 2 "npg-points demo: --points: '300abc' is not a whole number (expected 100..10000000)" \
+    demo --out "$W/o" --points 300abc
+  expect 2 "npg-points demo: --tol: 'abc' is not a number (expected (0, 1])" demo --out "$W/o" --tol abc
+  expect 2 "npg-points demo: --p: '2.9' is not a whole number (expected 2..8)" demo --out "$W/o" --p 2.9
+  expect 2 "npg-points demo: --leaf: 4294967300 is out of range" demo --out "$W/o" --leaf=4294967300
+  expect 2 "npg-points: --orders: entry 2: '3.5' is not a whole number (expected 2..8)" \
+    sweep --out "$W/o" --orders 2,3.5
+  expect 2 "npg-points demo: unknown option '--point'" demo --out "$W/o" --point 300
+  expect 2 "npg-points demo: --visibility is on or off, not 'no'" demo --out "$W/o" --visibility no
+  "$X" demo --points=200 --out="$W/d/e" --check-points=0 >/dev/null 2>&1 || fail "demo with --opt=value"
+  grep -q '^  "N": 200,$' "$W/d/e/report.json" || fail "demo --points=200: $(head -c 300 "$W/d/e/report.json")"
+  ;;
+radiosity)
+  expect 2 "npg-radiosity full: --frames: 4294967298 is out of range (expected 2..10000)" \
+    full --out "$W/o" --frames 4294967298
+  expect 2 "npg-radiosity train: --energy: 99 is out of range (expected (0, 1])" train --out "$W/o" --energy 99
+  expect 2 "npg-radiosity full: --faces: '300abc' is not a whole number" full --out "$W/o" --faces=300abc
+  expect 2 "npg-radiosity full: --vis-samples is 1, 4 or 16 (points per face), not 3" full --out "$W/o" --vis-samples 3
+  expect 2 "npg-radiosity scene: unknown option '--face'" scene --face 100
+  expect 2 "npg-radiosity full: --vis-mode is auto, single, stream or packet, not 'fast'" full --out "$W/o" --vis-mode fast
+  expect 2 "npg-radiosity full: --solver is auto, lu, gs or gmres, not 'cg'" full --out "$W/o" --solver=cg
+  "$X" scene --faces=200 --checks=5 >"$W/a.txt" || fail "scene --faces=200"
+  "$X" scene --faces 200 --checks 5 >"$W/b.txt" || fail "scene --faces 200"
+  head -1 "$W/a.txt" >"$W/a1.txt"
+  head -1 "$W/b.txt" >"$W/b1.txt"
+  cmp "$W/a1.txt" "$W/b1.txt" || fail "scene --faces=200 differs from --faces 200"
+  ;;
+*) fail "unknown application '$APP'" ;;
+esac
+echo "$APP options: ok"
