@@ -7,7 +7,7 @@
 #include "npg.h"
 #include "npgc.h"
 
-/* npgc emit PROG.npg [--reduced MODEL/] -o FILE.c: written to FILE.c.tmp,
+/* npgc emit PROG.npg [--reduced MODEL/] -o FILE.c: written to FILE.c.tmp.<pid>,
  * renamed when complete. */
 static int cmd_emit(int argc, char **argv) {
   const char *path = NULL, *outpath = NULL, *model_dir = NULL;
@@ -24,13 +24,8 @@ static int cmd_emit(int argc, char **argv) {
     } else path = argv[i];
   }
   if (!path || !outpath) return npgc_usage("emit", false);
-  /* the output must not replace what the command reads */
-  if (npgc_same_file(outpath, path) || (model_dir && (npgc_same_file(outpath, model_dir) ||
-                                                      npgc_inside(outpath, model_dir)))) {
-    fprintf(stderr, "npgc emit: -o %s would overwrite an input of the command (%s)\n", outpath,
-            npgc_same_file(outpath, path) ? path : model_dir);
-    return 1;
-  }
+  const char *inputs[] = {path, model_dir, NULL};
+  if (npgc_check_output("emit", "-o", outpath, NPGC_OUT_FILE, inputs) != 0) return 1;
   NpgProgram *p = npg_compile(path, &opt);
   if (!npg_ok(p)) {
     fputs(npg_error(p), stderr);
@@ -45,7 +40,7 @@ static int cmd_emit(int argc, char **argv) {
     return 1;
   }
   char tmp[4096];
-  snprintf(tmp, sizeof tmp, "%s.tmp", outpath);
+  npgc_tmp_path(tmp, sizeof tmp, outpath);
   if (npgc_make_parents(outpath, false) != 0) {
     npg_model_free(m);
     npg_free(p);
@@ -68,11 +63,7 @@ static int cmd_emit(int argc, char **argv) {
   } else if (rc != 0) {
     fputs(npg_error(p), stderr);
   }
-  if (rc == 0 && rename(tmp, outpath) != 0) {
-    fprintf(stderr, "npgc emit: cannot rename %s to %s: %s\n", tmp, outpath, strerror(errno));
-    rc = -1;
-  }
-  if (rc != 0) remove(tmp);
+  rc = npgc_commit("emit", tmp, outpath, rc);
   npg_model_free(m);
   npg_free(p);
   return rc == 0 ? 0 : 1;

@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include "npgc.h"
 
@@ -237,4 +238,56 @@ bool npgc_inside(const char *path, const char *dir) {
   else if (slash == parent) parent[1] = 0;
   else *slash = 0;
   return npgc_same_file(parent, dir);
+}
+
+/* Whether directory `dir` holds a model (a file named "manifest"). */
+static bool holds_model(const char *dir) {
+  char path[4096];
+  struct stat st;
+  snprintf(path, sizeof path, "%s/manifest", dir);
+  return stat(path, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+int npgc_check_output(const char *cmd, const char *opt, const char *out, NpgcOutput kind, const char *const *inputs) {
+  bool dir = kind != NPGC_OUT_FILE;
+  for (int i = 0; inputs && inputs[i]; i++) {
+    const char *in = inputs[i], *why = NULL;
+    if (npgc_same_file(out, in)) why = "would overwrite an input of the command";
+    /* a file next to the inputs could be one of them (DATA/x.npy, MODEL/manifest); a folder inside a model
+     * becomes part of the model */
+    else if ((!dir || holds_model(in)) && npgc_inside(out, in))
+      why = "would overwrite an input of the command: it lies in a folder the command reads";
+    if (why) {
+      fprintf(stderr, "npgc %s: %s %s %s (%s): refusing to write there\n", cmd, opt, out, why, in);
+      return -1;
+    }
+  }
+  struct stat st;
+  const char *why = NULL;
+  if (lstat(out, &st) == 0) {
+    if (S_ISLNK(st.st_mode)) why = "is a symbolic link (give the path it points to)";
+    else if (dir && !S_ISDIR(st.st_mode)) why = "exists and is not a directory";
+    else if (!dir && S_ISDIR(st.st_mode)) why = "is a directory";
+    else if (!dir && !S_ISREG(st.st_mode)) why = "is not a regular file (a FIFO, socket or device node)";
+    else if (kind == NPGC_OUT_DIR && holds_model(out))
+      why = "holds a model: writing into it would replace or add to the model's files; give a folder of its own";
+  }
+  if (why) {
+    fprintf(stderr, "npgc %s: %s %s %s: refusing to write there\n", cmd, opt, out, why);
+    return -1;
+  }
+  return 0;
+}
+
+void npgc_tmp_path(char *buf, size_t n, const char *out) {
+  snprintf(buf, n, "%s.tmp.%ld", out, (long)getpid());
+}
+
+int npgc_commit(const char *cmd, const char *tmp, const char *out, int rc) {
+  if (rc == 0 && rename(tmp, out) != 0) {
+    fprintf(stderr, "npgc %s: cannot rename %s to %s: %s\n", cmd, tmp, out, strerror(errno));
+    rc = -1;
+  }
+  if (rc != 0) remove(tmp);
+  return rc;
 }

@@ -194,10 +194,10 @@ static NpgProgram *compile(Common *c) {
 /* The samples of DATA/ streamed into a trainer, as any C program would. */
 static int cmd_train(Common *c) {
   if (!c->prog_path || !c->a || !c->out || c->b) return usage("train");
-  if (npgc_same_file(c->out, c->a) || npgc_same_file(c->out, c->prog_path)) {
-    fprintf(stderr, "npgc train: -o %s is an input of the command; give the model its own folder\n", c->out);
+  const char *inputs[] = {c->prog_path, c->a, NULL}, *spectra_inputs[] = {c->prog_path, c->a, c->out, NULL};
+  if (npgc_check_output("train", "-o", c->out, NPGC_OUT_MODEL, inputs) != 0 ||
+      (c->spectra && npgc_check_output("train", "--spectra", c->spectra, NPGC_OUT_DIR, spectra_inputs) != 0))
     return 1;
-  }
   /* one of several ranks of an MPI job (OpenMPI's or a PMI launcher's variable) without --mpi: every rank
    * would train alone and race to write MODEL/ */
   const char *ranks = getenv("OMPI_COMM_WORLD_SIZE") ? getenv("OMPI_COMM_WORLD_SIZE") : getenv("PMI_SIZE");
@@ -404,6 +404,8 @@ static int keep_output(Session *x, Out *u, long k) {
 
 static int cmd_eval_reduced(Common *c) {
   if (!c->prog_path || !c->a || !c->b || !c->out) return usage("eval");
+  const char *inputs[] = {c->prog_path, c->a, c->b, NULL};
+  if (npgc_check_output("eval", "-o", c->out, NPGC_OUT_DIR, inputs) != 0) return 1;
   Session x;
   int rc = 1, nout = 0;
   Out *outs = NULL;

@@ -1,0 +1,101 @@
+#!/bin/sh
+# data_safety.sh BUILD_DIR — no lost or corrupted data (issue 24): every
+# path npgc writes (-o, --png, --spectra) is refused when it is an input,
+# lies in a folder the command reads, or is a symbolic link, FIFO or device
+# node; a model with a long dim name saves and loads.
+set -eu
+B=$1
+W=$(mktemp -d /tmp/npg_safe_XXXXXX)
+trap 'rm -rf "$W"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+N=$B/npgc
+
+cat >"$W/p.npg" <<'NPG'
+dim N
+input x : real[N]
+output y[i:N] = x[i] * x[i] + x[i]
+NPG
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]; rng = np.random.default_rng(4)
+os.makedirs(w + "/TR"); os.makedirs(w + "/TE")
+np.save(w + "/TR/x.npy", 1 + rng.random((30, 6)))
+np.save(w + "/TE/x.npy", 1 + rng.random((5, 6)))
+PY
+"$N" train "$W/p.npg" "$W/TR" -o "$W/M" --cap 6 >/dev/null || fail "train"
+"$N" train "$W/p.npg" "$W/TR" -o "$W/M1" --cap 6 >/dev/null || fail "train M1"
+snapshot() { (cd "$1" && sha256sum -- * | sort) ; }
+snapshot "$W/M" >"$W/M.sum"
+snapshot "$W/M1" >"$W/M1.sum"
+cp "$W/p.npg" "$W/p.keep"
+intact() {
+  snapshot "$W/M" | cmp -s - "$W/M.sum" || fail "$1: the model M changed"
+  snapshot "$W/M1" | cmp -s - "$W/M1.sum" || fail "$1: the model M1 changed"
+  cmp -s "$W/p.npg" "$W/p.keep" || fail "$1: the program changed"
+  "$N" verify "$W/p.npg" "$W/M" "$W/TE" >/dev/null || fail "$1: M no longer verifies"
+}
+# refused: $1 what, $2 message, then the command
+refused() {
+  what=$1 msg=$2
+  shift 2
+  if "$N" "$@" >/dev/null 2>"$W/err.txt"; then fail "$what accepted"; fi
+  grep -q -- "$msg" "$W/err.txt" || fail "$what: $(cat "$W/err.txt")"
+  intact "$what"
+}
+
+# 1. outputs that are inputs, or lie in a folder the command reads
+refused "eval -o MODEL/" "would overwrite an input of the command" eval "$W/p.npg" "$W/M" "$W/TE" -o "$W/M"
+refused "eval -o MODEL/sub" "lies in a folder the command reads" eval "$W/p.npg" "$W/M" "$W/TE" -o "$W/M/out"
+refused "eval -o another model" "holds a model" eval "$W/p.npg" "$W/M" "$W/TE" -o "$W/M1"
+refused "eval --full -o IN/" "would overwrite an input" eval "$W/p.npg" --full "$W/TR" "$W/TE" -o "$W/TE"
+refused "plot -o M/manifest" "would overwrite an input" plot "$W/M" -o "$W/M/manifest"
+refused "plot -o M/new.png" "lies in a folder the command reads" plot "$W/M" -o "$W/M/new.png"
+refused "tune --png DATA/x.npy" "would overwrite an input" tune "$W/p.npg" "$W/TR" "$W/TE" --tol 1e-2 -o "$W/T" --png "$W/TR/x.npy"
+test -s "$W/TR/x.npy" && /usr/bin/python3 -c "import numpy,sys; numpy.load(sys.argv[1])" "$W/TR/x.npy" || fail "x.npy damaged"
+refused "tune --png prog.npg" "would overwrite an input" tune "$W/p.npg" "$W/TR" "$W/TE" --tol 1e-2 -o "$W/T" --png "$W/p.npg"
+test ! -e "$W/T" || fail "a refused tune wrote its model"
+refused "train --spectra M1" "holds a model" train "$W/p.npg" "$W/TR" -o "$W/M2" --spectra "$W/M1"
+test ! -e "$W/M2" || fail "a refused train wrote its model"
+refused "train --spectra = -o" "would overwrite an input" train "$W/p.npg" "$W/TR" -o "$W/M" --spectra "$W/M"
+refused "emit into a model" "would overwrite an input" emit "$W/p.npg" --reduced "$W/M" -o "$W/M/p.c"
+
+# 1. symbolic links, FIFOs and device nodes are never replaced
+echo keep >"$W/target"
+ln -s "$W/target" "$W/link.png"
+refused "plot -o a symlink" "is a symbolic link" plot "$W/M" -o "$W/link.png"
+test -L "$W/link.png" && test "$(cat "$W/target")" = keep || fail "the link or its target changed"
+mkfifo "$W/fifo.c"
+refused "emit -o a FIFO" "not a regular file" emit "$W/p.npg" -o "$W/fifo.c"
+test -p "$W/fifo.c" || fail "the FIFO was replaced"
+# a device node of our own (a broken npgc must not replace the machine's /dev/null)
+if mknod "$W/null" c 1 3 2>/dev/null; then
+  refused "emit -o a device node" "not a regular file" emit "$W/p.npg" -o "$W/null"
+  test -c "$W/null" || fail "the device node was replaced"
+fi
+refused "tune --png a symlink" "is a symbolic link" tune "$W/p.npg" "$W/TR" "$W/TE" --tol 1e-2 -o "$W/T" --png "$W/link.png"
+ln -s "$W/OUTREAL" "$W/OUTLINK"
+refused "eval -o a symlinked folder" "is a symbolic link" eval "$W/p.npg" "$W/M" "$W/TE" -o "$W/OUTLINK"
+# a file in OUT/ that is a link is not replaced either (the library's npy writer)
+mkdir "$W/O"
+ln -s "$W/target" "$W/O/y.npy"
+refused "eval over a link in OUT/" "is not a regular file (a symbolic link)" eval "$W/p.npg" "$W/M" "$W/TE" -o "$W/O"
+test "$(cat "$W/target")" = keep || fail "the link's target changed"
+
+# 1. plot and tune write to a temporary name and rename: a full disk leaves no file
+"$N" plot "$W/M" -o "$W/ok.png" >/dev/null || fail "plot"
+test -s "$W/ok.png" || fail "plot wrote nothing"
+ls "$W" | grep -q '\.tmp\.' && fail "a temporary file was left: $(ls "$W")"
+if [ "$(id -u)" = 0 ] && command -v mount >/dev/null && mkdir "$W/tiny" && mount -t tmpfs -o size=12k tmpfs "$W/tiny" 2>/dev/null; then
+  dd if=/dev/zero of="$W/tiny/fill" bs=1k count=64 2>/dev/null || true
+  if "$N" plot "$W/M" -o "$W/tiny/full.png" >/dev/null 2>"$W/err.txt"; then umount "$W/tiny"; fail "plot onto a full disk"; fi
+  left=$(ls "$W/tiny" | grep -v '^fill$' || true)
+  umount "$W/tiny"
+  test -z "$left" || fail "plot onto a full disk left: $left"
+fi
+
+# 3. a dim name of 5,000 characters (a 4 KB buffer cut the manifest's dims line): the model saves and loads
+LONG=$(/usr/bin/python3 -c "print('D' * 5000)")
+printf 'dim %s\ninput x : real[%s]\noutput y[i:%s] = x[i] * x[i]\n' "$LONG" "$LONG" "$LONG" >"$W/long.npg"
+"$N" train "$W/long.npg" "$W/TR" -o "$W/LM" --cap 6 >/dev/null 2>"$W/err.txt" || fail "train with a long dim name: $(cut -c1-300 "$W/err.txt")"
+"$N" verify "$W/long.npg" "$W/LM" "$W/TE" >/dev/null 2>"$W/err.txt" || fail "the long-named model does not load: $(cut -c1-300 "$W/err.txt")"
+echo "ok"
