@@ -69,7 +69,7 @@ static int cmd_emit(int argc, char **argv) {
   return rc == 0 ? 0 : 1;
 }
 
-int main(int argc, char **argv) {
+static int run(int argc, char **argv) {
   if (argc < 2 || strcmp(argv[1], "-h") == 0 || strcmp(argv[1], "--help") == 0) {
     npgc_usage_all(argc < 2 ? stderr : stdout);
     return argc < 2 ? 2 : 0;
@@ -113,5 +113,19 @@ int main(int argc, char **argv) {
     npg_report(p, stdout, json);
   }
   npg_free(p);
+  return rc;
+}
+
+/* A report that did not reach stdout (a full disk, a closed pipe, /dev/full)
+ * is a failure of the command, whatever it computed (issue 24). */
+int main(int argc, char **argv) {
+  int rc = run(argc, argv);
+  errno = 0;
+  bool flushed = fflush(stdout) == 0;
+  int saved = errno;
+  if (!flushed || ferror(stdout)) {
+    fprintf(stderr, "npgc: cannot write to standard output%s%s\n", saved ? ": " : "", saved ? strerror(saved) : "");
+    return rc ? rc : 1;
+  }
   return rc;
 }

@@ -98,4 +98,13 @@ LONG=$(/usr/bin/python3 -c "print('D' * 5000)")
 printf 'dim %s\ninput x : real[%s]\noutput y[i:%s] = x[i] * x[i]\n' "$LONG" "$LONG" "$LONG" >"$W/long.npg"
 "$N" train "$W/long.npg" "$W/TR" -o "$W/LM" --cap 6 >/dev/null 2>"$W/err.txt" || fail "train with a long dim name: $(cut -c1-300 "$W/err.txt")"
 "$N" verify "$W/long.npg" "$W/LM" "$W/TE" >/dev/null 2>"$W/err.txt" || fail "the long-named model does not load: $(cut -c1-300 "$W/err.txt")"
+
+# 4. a report that cannot be written to stdout fails the command, saying so
+if [ -w /dev/full ]; then
+  for cmd in "check $W/p.npg --json" "check $W/p.npg" "verify $W/p.npg $W/M $W/TE" "bench $W/p.npg $W/M $W/TE --reps 1" \
+             "train $W/p.npg $W/TR -o $W/MF" "plot $W/M -o $W/full.png" "--help" "train --help"; do
+    if "$N" $cmd >/dev/full 2>"$W/err.txt"; then fail "npgc $cmd >/dev/full exited 0"; fi
+    grep -q "cannot write to standard output: No space left on device" "$W/err.txt" || fail "npgc $cmd >/dev/full: $(cat "$W/err.txt")"
+  done
+fi
 echo "ok"
