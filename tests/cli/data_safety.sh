@@ -99,6 +99,22 @@ printf 'dim %s\ninput x : real[%s]\noutput y[i:%s] = x[i] * x[i]\n' "$LONG" "$LO
 "$N" train "$W/long.npg" "$W/TR" -o "$W/LM" --cap 6 >/dev/null 2>"$W/err.txt" || fail "train with a long dim name: $(cut -c1-300 "$W/err.txt")"
 "$N" verify "$W/long.npg" "$W/LM" "$W/TE" >/dev/null 2>"$W/err.txt" || fail "the long-named model does not load: $(cut -c1-300 "$W/err.txt")"
 
+# 2. training and eval move or remove only folders a model store marked as its own leftovers: folders
+# that merely look like them (a user's copies of a model, named like a dead training's) are left alone
+DEAD=$(sh -c 'echo $$')
+cp -r "$W/M1" "$W/M.old.$DEAD"
+cp -r "$W/M1" "$W/M.tmp.$DEAD"
+cp -r "$W/M1" "$W/M.old.2024"
+"$N" train "$W/p.npg" "$W/TR" -o "$W/M" --cap 6 >/dev/null 2>"$W/err.txt" || fail "retrain M: $(cat "$W/err.txt")"
+for d in "M.old.$DEAD" "M.tmp.$DEAD" "M.old.2024"; do
+  test -d "$W/$d" && snapshot "$W/$d" | cmp -s - "$W/M1.sum" || fail "training removed or changed the user's $d"
+done
+cp -r "$W/M1" "$W/G.old.$DEAD"
+if "$N" eval "$W/p.npg" "$W/G" "$W/TE" -o "$W/GO" >/dev/null 2>"$W/err.txt"; then fail "eval of a missing model"; fi
+test ! -e "$W/G" && test -d "$W/G.old.$DEAD" || fail "eval of a missing G moved the user's G.old.$DEAD into it"
+grep -q "G/manifest: cannot open" "$W/err.txt" || fail "missing model message: $(cat "$W/err.txt")"
+# a real leftover (marked) of a killed training is still recovered and removed (tests/cli/interrupt.sh kills one)
+
 # 4. a report that cannot be written to stdout fails the command, saying so
 if [ -w /dev/full ]; then
   for cmd in "check $W/p.npg --json" "check $W/p.npg" "verify $W/p.npg $W/M $W/TE" "bench $W/p.npg $W/M $W/TE --reps 1" \
