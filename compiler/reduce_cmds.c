@@ -323,7 +323,11 @@ static int open_session(Common *c, Session *x, bool full) {
     fprintf(stderr, "error: %s: no samples (the first axis of its inputs is 0)\n", c->b);
     return -1;
   }
-  /* the inputs' sizes must be the model's */
+  /* the inputs' shapes, and so their sizes, must be the model's */
+  if (npg_samples_check_model(x->s, x->m, err, sizeof err) != 0) {
+    npgc_error(err);
+    return -1;
+  }
   for (int i = 0; i < x->nsym; i++) {
     if (x->sym[i].kind != NPG_INPUT) continue;
     size_t n = 0;

@@ -115,6 +115,26 @@ test ! -e "$W/G" && test -d "$W/G.old.$DEAD" || fail "eval of a missing G moved 
 grep -q "G/manifest: cannot open" "$W/err.txt" || fail "missing model message: $(cat "$W/err.txt")"
 # a real leftover (marked) of a killed training is still recovered and removed (tests/cli/interrupt.sh kills one)
 
+# 5. reduced eval and bench refuse an input of another shape with the same entry count
+printf 'dim A, B\ninput x : real[A, B]\noutput y[a:A, b:B] = x[a, b] * x[a, b]\n' >"$W/ab.npg"
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]; rng = np.random.default_rng(5)
+for d, shape in (("ABTR", (20, 5, 3)), ("AB35", (4, 3, 5)), ("AB151", (4, 15, 1))):
+    os.makedirs(w + "/" + d); np.save(w + "/" + d + "/x.npy", 1 + rng.random(shape))
+PY
+"$N" train "$W/ab.npg" "$W/ABTR" -o "$W/ABM" >/dev/null || fail "train ab"
+for d in AB35:3,\ 5 AB151:15,\ 1; do
+  dir=${d%%:*} found=${d#*:}
+  if "$N" eval "$W/ab.npg" "$W/ABM" "$W/$dir" -o "$W/ABO" >/dev/null 2>"$W/err.txt"; then fail "eval of x as (S, $found)"; fi
+  grep -q "$dir/x.npy: input 'x' has shape (S, $found), the model was trained on (S, 5, 3)" "$W/err.txt" ||
+    fail "eval shape message: $(cat "$W/err.txt")"
+  if "$N" bench "$W/ab.npg" "$W/ABM" "$W/$dir" --reps 1 >/dev/null 2>"$W/err.txt"; then fail "bench of x as (S, $found)"; fi
+  grep -q "input 'x' has shape (S, $found), the model was trained on (S, 5, 3)" "$W/err.txt" ||
+    fail "bench shape message: $(cat "$W/err.txt")"
+done
+test ! -e "$W/ABO" || fail "a refused eval wrote outputs"
+
 # 4. a report that cannot be written to stdout fails the command, saying so
 if [ -w /dev/full ]; then
   for cmd in "check $W/p.npg --json" "check $W/p.npg" "verify $W/p.npg $W/M $W/TE" "bench $W/p.npg $W/M $W/TE --reps 1" \
