@@ -135,6 +135,40 @@ for d in AB35:3,\ 5 AB151:15,\ 1; do
 done
 test ! -e "$W/ABO" || fail "a refused eval wrote outputs"
 
+# 5. data at extreme scale: the PCA keeps what it keeps at scale 1 and verify reports the same relative
+# errors (squares of 1e-200 underflow to 0, of 1e200 overflow: the truncation saw no energy, verify
+# printed 0 or -nan); the Gram routes, which cannot scale, refuse such data with a message
+printf 'dim N\ninput x : real[N]\noutput y[i:N] = 2 * x[i] + x[0]\n' >"$W/lin.npg"
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]; rng = np.random.default_rng(6)
+P = rng.random((5, 100)); tr = rng.random((60, 5)) @ P + 1; te = rng.random((6, 5)) @ P + 1
+te[:, :50] += 0.3 * rng.random((6, 50))  # off the training span: a cap-2 model is far off
+for sc in ("1", "1e-200", "1e200"):
+    for d, x in (("STR", tr), ("STE", te)):
+        os.makedirs(f"{w}/{d}{sc}"); np.save(f"{w}/{d}{sc}/x.npy", float(sc) * x)
+PY
+for sc in 1 1e-200 1e200; do
+  "$N" train "$W/lin.npg" "$W/STR$sc" -o "$W/SM$sc" >"$W/train$sc.txt" 2>&1 || fail "train at scale $sc: $(cat "$W/train$sc.txt")"
+  grep "^{x}" "$W/train$sc.txt" | sed 's/lost .*//' >"$W/kept$sc.txt"
+  "$N" train "$W/lin.npg" "$W/STR$sc" -o "$W/SC$sc" --cap 2 >/dev/null 2>&1 || fail "train --cap 2 at scale $sc"
+  if "$N" verify "$W/lin.npg" "$W/SC$sc" "$W/STE$sc" >"$W/verify$sc.txt" 2>&1; then fail "verify passed a cap-2 model at scale $sc"; fi
+  grep "^FAIL: output y" "$W/verify$sc.txt" >/dev/null || fail "verify at scale $sc: $(cat "$W/verify$sc.txt")"
+  awk '$1 == "y" {print $4, $5, $8}' "$W/verify$sc.txt" >"$W/err$sc.txt"
+done
+for sc in 1e-200 1e200; do
+  cmp -s "$W/kept1.txt" "$W/kept$sc.txt" || fail "scale $sc keeps $(cat "$W/kept$sc.txt"), scale 1 $(cat "$W/kept1.txt")"
+  /usr/bin/python3 - "$W/err1.txt" "$W/err$sc.txt" <<'PY' || fail "verify's errors at scale $sc differ from scale 1: $(cat "$W/err$sc.txt") vs $(cat "$W/err1.txt")"
+import sys, math
+a, b = (list(map(float, open(f).read().split())) for f in sys.argv[1:])
+sys.exit(0 if len(a) == len(b) == 3 and a[0] > 0.01 and all(math.isclose(x, y, rel_tol=1e-6) for x, y in zip(a, b)) else 1)
+PY
+done
+for sc in 1e-200 1e200; do
+  if "$N" train "$W/lin.npg" "$W/STR$sc" -o "$W/SG$sc" --mem 100k >/dev/null 2>"$W/err.txt"; then fail "the Gram route trained scale $sc"; fi
+  grep -q "member x: snapshot values .* whose squares .*flow" "$W/err.txt" || fail "Gram route at scale $sc: $(cat "$W/err.txt")"
+done
+
 # 4. a report that cannot be written to stdout fails the command, saying so
 if [ -w /dev/full ]; then
   for cmd in "check $W/p.npg --json" "check $W/p.npg" "verify $W/p.npg $W/M $W/TE" "bench $W/p.npg $W/M $W/TE --reps 1" \
