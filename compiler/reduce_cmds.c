@@ -630,11 +630,28 @@ done:
   return rc;
 }
 
+/* The first option of training given to a command that uses a trained
+ * model (verify, eval, bench), else NULL: it would change nothing, and a
+ * user who gave it expects it to (issue 24: verify --cap 2 ran silently). */
+static const char *training_option(int argc, char **argv) {
+  static const char *const only[] = {"--cap", "--energy", "--center", "--basis", "--merge", "--mem", "--spectra"};
+  if (strcmp(argv[1], "train") == 0) return NULL;
+  for (int i = 2; i < argc; i++)
+    for (size_t k = 0; k < sizeof only / sizeof only[0]; k++)
+      if (strcmp(argv[i], only[k]) == 0) return argv[i];
+  return NULL;
+}
+
 int npgc_reduce(int argc, char **argv) {
   Common c;
   int rc = parse(&c, argc, argv);
+  const char *train_only = rc == 0 ? training_option(argc, argv) : NULL;
   if (rc == -1) rc = 0; /* --help */
-  else if (rc == 0) {
+  else if (train_only) {
+    fprintf(stderr, "npgc %s: %s is an option of training (npgc train): %s uses the model as it was trained\n", c.cmd,
+            train_only, c.cmd);
+    rc = 2;
+  } else if (rc == 0) {
     if (strcmp(c.cmd, "train") == 0) rc = cmd_train(&c);
     else if (strcmp(c.cmd, "eval") == 0) rc = cmd_eval_reduced(&c);
     else if (strcmp(c.cmd, "verify") == 0) rc = cmd_verify(&c);

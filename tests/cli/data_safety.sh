@@ -169,6 +169,15 @@ for sc in 1e-200 1e200; do
   grep -q "member x: snapshot values .* whose squares .*flow" "$W/err.txt" || fail "Gram route at scale $sc: $(cat "$W/err.txt")"
 done
 
+# 6. verify, eval and bench refuse the options of training, naming them, rather than ignoring them
+for opt in "--cap 2" "--energy 0.5" "--center off" "--basis x:cap=1" "--merge joint" "--mem 1G" "--spectra $W/SP"; do
+  if "$N" verify "$W/p.npg" "$W/M" "$W/TE" $opt >/dev/null 2>"$W/err.txt"; then fail "verify accepted $opt"; fi
+  grep -q "npgc verify: ${opt%% *} is an option of training" "$W/err.txt" || fail "verify $opt: $(cat "$W/err.txt")"
+done
+if "$N" eval "$W/p.npg" "$W/M" "$W/TE" -o "$W/EO" --cap 2 2>"$W/err.txt"; then fail "eval accepted --cap"; fi
+if "$N" bench "$W/p.npg" "$W/M" "$W/TE" --energy 0.5 >/dev/null 2>"$W/err.txt"; then fail "bench accepted --energy"; fi
+test ! -e "$W/SP" && test ! -e "$W/EO" || fail "a refused command wrote"
+
 # 4. a report that cannot be written to stdout fails the command, saying so
 if [ -w /dev/full ]; then
   for cmd in "check $W/p.npg --json" "check $W/p.npg" "verify $W/p.npg $W/M $W/TE" "bench $W/p.npg $W/M $W/TE --reps 1" \
