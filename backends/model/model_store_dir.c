@@ -520,7 +520,26 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
    * model is then in `tmp`); otherwise two renames, between which `dir` is
    * briefly absent, never half written — a crash there leaves both models
    * whole, and the next read or write moves the new one in. */
-  if (exists && !getenv("NPG_TEST_NO_EXCHANGE") && renameat2(AT_FDCWD, tmp, AT_FDCWD, dir, RENAME_EXCHANGE) == 0) {
+  bool moved = false;
+  if (!exists) {
+    if (rename(tmp, dir) == 0) moved = true;
+    else if (errno != ENOTEMPTY && errno != EEXIST) {
+      rc = model_store_fail(&r, dir, 0, "cannot move the new model in from %s: %s", tmp, strerror(errno));
+      goto discard;
+    } else if (check_replaceable(&r, dir, &exists) != 0 || !exists || mark(&r, dir, 1) != 0) {
+      /* issue 24: this said "Directory not empty" */
+      size_t n = err ? strlen(err) : 0;
+      if (err && n < errlen)
+        snprintf(err + n, errlen - n, " (it appeared while this model was being written: another training of the same "
+                 "model at once?)");
+      rc = -1;
+      goto discard;
+    }
+    /* else another process wrote a model to `dir` while this one wrote its
+     * own (two trainings of one model at once): it is replaced like any
+     * model, the last one written wins */
+  }
+  if (!moved && !getenv("NPG_TEST_NO_EXCHANGE") && renameat2(AT_FDCWD, tmp, AT_FDCWD, dir, RENAME_EXCHANGE) == 0) {
     if (sync_dir(&r, parent) != 0) { /* as below: keep both */
       rc = -1;
       goto done;
@@ -533,12 +552,12 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
                 dir);
     goto done;
   }
-  if (exists && rename(dir, old) != 0) {
+  if (!moved && exists && rename(dir, old) != 0) {
     rc = model_store_fail(&r, dir, 0, "cannot move the previous model aside to %s: %s", old, strerror(errno));
     goto discard;
   }
   if (exists) test_point("swap");
-  if (rename(tmp, dir) != 0) {
+  if (!moved && rename(tmp, dir) != 0) {
     rc = model_store_fail(&r, dir, 0, "cannot move the new model in from %s: %s", tmp, strerror(errno));
     if (exists && rename(old, dir) != 0) {
       model_store_fail(&r, dir, 0, "cannot move the new model in from %s, nor the previous one back from %s: %s", tmp, old,

@@ -178,6 +178,23 @@ if "$N" eval "$W/p.npg" "$W/M" "$W/TE" -o "$W/EO" --cap 2 2>"$W/err.txt"; then f
 if "$N" bench "$W/p.npg" "$W/M" "$W/TE" --energy 0.5 >/dev/null 2>"$W/err.txt"; then fail "bench accepted --energy"; fi
 test ! -e "$W/SP" && test ! -e "$W/EO" || fail "a refused command wrote"
 
+# 6. races: two trainings of one new model at once both succeed (the second said "Directory not
+# empty"), and a model replaced while it is being loaded is read again (it said "checksum mismatch")
+for round in 1 2 3; do
+  rm -rf "$W/CM"
+  "$N" train "$W/p.npg" "$W/TR" -o "$W/CM" >/dev/null 2>"$W/err1.txt" &
+  pid=$!
+  "$N" train "$W/p.npg" "$W/TR" -o "$W/CM" >/dev/null 2>"$W/err2.txt" || fail "concurrent training: $(cat "$W/err2.txt")"
+  wait $pid || fail "concurrent training: $(cat "$W/err1.txt")"
+  "$N" verify "$W/p.npg" "$W/CM" "$W/TE" >/dev/null || fail "the model of concurrent trainings does not verify"
+  test -z "$(ls -d "$W"/CM.* 2>/dev/null)" || fail "concurrent trainings left $(ls -d "$W"/CM.*)"
+done
+"$N" train "$W/p.npg" "$W/TR" -o "$W/RA" --cap 3 >/dev/null || fail "train RA"
+"$N" train "$W/p.npg" "$W/TR" -o "$W/RB" --cap 5 >/dev/null || fail "train RB"
+NPG_TEST_REPLACE_DURING_LOAD="$W/RB" "$N" verify "$W/p.npg" "$W/RA" "$W/TE" --tol 1 >"$W/out.txt" 2>"$W/err.txt" ||
+  fail "a model replaced while loading: $(cat "$W/err.txt")"
+grep -q "^x  *input  *5 " "$W/out.txt" || fail "the replaced model was not the one read: $(cat "$W/out.txt")"
+
 # 4. a report that cannot be written to stdout fails the command, saying so
 if [ -w /dev/full ]; then
   for cmd in "check $W/p.npg --json" "check $W/p.npg" "verify $W/p.npg $W/M $W/TE" "bench $W/p.npg $W/M $W/TE --reps 1" \
