@@ -1,8 +1,14 @@
 #!/bin/sh
-# data_safety.sh BUILD_DIR — no lost or corrupted data (issue 24): every
-# path npgc writes (-o, --png, --spectra) is refused when it is an input,
-# lies in a folder the command reads, or is a symbolic link, FIFO or device
-# node; a model with a long dim name saves and loads.
+# data_safety.sh BUILD_DIR — no lost or corrupted data and no silent wrong
+# answer (issue 24), by root cause: (1) every path npgc writes (-o, --png,
+# --spectra) is refused when it is an input, lies in a folder the command
+# reads, or is a symbolic link, FIFO or device node, and a PNG is written
+# whole or not at all; (2) only a model store's marked leftovers are removed
+# or moved in; (3) a long dim name round-trips; (5) reduced eval and bench
+# check input shapes, data at 1e-200 and 1e200 train and verify as at 1;
+# (6) verify refuses training options, concurrent trainings and a model
+# replaced while loading are handled; (4) a report lost on stdout fails.
+# The MPI part of (5) is in tests/mpi/mpi.sh (e).
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_safe_XXXXXX)
