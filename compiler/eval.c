@@ -176,6 +176,8 @@ int npgc_eval(int argc, char **argv) {
     fputs("npgc eval: --exact-roots is an option of the reduced evaluation (with MODEL/), not of --full\n", stderr);
     return 2;
   }
+  const char *inputs[] = {prog_path, data, in, NULL};
+  if (npgc_check_output("eval", "-o", outdir, NPGC_OUT_DIR, inputs) != 0) return 1;
   NpgProgram *p = npg_compile(prog_path, &opt);
   int rc = 1;
   if (!npg_ok(p)) fputs(npg_error(p), stderr);

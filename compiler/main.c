@@ -7,7 +7,7 @@
 #include "npg.h"
 #include "npgc.h"
 
-/* npgc emit PROG.npg [--reduced MODEL/] -o FILE.c: written to FILE.c.tmp,
+/* npgc emit PROG.npg [--reduced MODEL/] -o FILE.c: written to FILE.c.tmp.<pid>,
  * renamed when complete. */
 static int cmd_emit(int argc, char **argv) {
   const char *path = NULL, *outpath = NULL, *model_dir = NULL;
@@ -26,13 +26,8 @@ static int cmd_emit(int argc, char **argv) {
   }
   if (a.error[0]) return npgc_args_error(&a, "emit");
   if (!path || !outpath) return npgc_missing("emit", !path ? "the program (PROG.npg)" : "-o FILE.c (where to write the C)");
-  /* the output must not replace what the command reads */
-  if (npgc_same_file(outpath, path) || (model_dir && (npgc_same_file(outpath, model_dir) ||
-                                                      npgc_inside(outpath, model_dir)))) {
-    fprintf(stderr, "npgc emit: -o %s would overwrite an input of the command (%s)\n", outpath,
-            npgc_same_file(outpath, path) ? path : model_dir);
-    return 1;
-  }
+  const char *inputs[] = {path, model_dir, NULL};
+  if (npgc_check_output("emit", "-o", outpath, NPGC_OUT_FILE, inputs) != 0) return 1;
   NpgProgram *p = npg_compile(path, &opt);
   if (!npg_ok(p)) {
     fputs(npg_error(p), stderr);
@@ -51,7 +46,7 @@ static int cmd_emit(int argc, char **argv) {
     return 1;
   }
   char tmp[4096];
-  snprintf(tmp, sizeof tmp, "%s.tmp", outpath);
+  npgc_tmp_path(tmp, sizeof tmp, outpath);
   if (npgc_make_parents(outpath, false) != 0) {
     npg_model_free(m);
     npg_free(p);
@@ -74,18 +69,13 @@ static int cmd_emit(int argc, char **argv) {
   } else if (rc != 0) {
     fputs(npg_error(p), stderr);
   }
-  if (rc == 0 && rename(tmp, outpath) != 0) {
-    fprintf(stderr, "npgc emit: cannot rename %s to %s: %s\n", tmp, outpath, strerror(errno));
-    rc = -1;
-  }
-  if (rc != 0) remove(tmp);
+  rc = npgc_commit("emit", tmp, outpath, rc);
   npg_model_free(m);
   npg_free(p);
   return rc == 0 ? 0 : 1;
 }
 
-/* The command argv[1] names. */
-static int run_command(int argc, char **argv) {
+static int run(int argc, char **argv) {
   if (argc < 2 || strcmp(argv[1], "-h") == 0 || strcmp(argv[1], "--help") == 0) {
     npgc_usage_all(argc < 2 ? stderr : stdout);
     return argc < 2 ? 2 : 0;
@@ -129,12 +119,16 @@ static int run_command(int argc, char **argv) {
   return rc;
 }
 
-/* A report that could not be written is a failure: `npgc check --json >/dev/full` exited 0 (issue 24). */
+/* A report that did not reach stdout (a full disk, a closed pipe, /dev/full)
+ * is a failure of the command, whatever it computed (issue 24). */
 int main(int argc, char **argv) {
-  int rc = run_command(argc, argv);
-  if (fflush(stdout) != 0 || ferror(stdout)) {
-    fprintf(stderr, "npgc: cannot write to standard output: %s\n", strerror(errno));
-    if (rc == 0) rc = 1;
+  int rc = run(argc, argv);
+  errno = 0;
+  bool flushed = fflush(stdout) == 0;
+  int saved = errno;
+  if (!flushed || ferror(stdout)) {
+    fprintf(stderr, "npgc: cannot write to standard output%s%s\n", saved ? ": " : "", saved ? strerror(saved) : "");
+    return rc ? rc : 1;
   }
   return rc;
 }

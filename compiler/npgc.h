@@ -47,5 +47,23 @@ bool npgc_inside(const char *path, const char *dir);
  * NULL; `data_role` names it in the usage ("TEST/", "IN/"). -1 after the
  * message. */
 int npgc_check_model_and_data(const char *cmd, const char *model, const char *data, const char *data_role);
+/* The one rule for every path npgc writes (issue 24): `out`, given with
+ * option `opt` ("-o", "--png", "--spectra") of command `cmd`, is absent or
+ * a regular file (a directory when `dir`), never a symbolic link, FIFO or
+ * device node; it is none of the NULL-ended `inputs` (files and folders the
+ * command reads); a file does not lie in a folder of `inputs`, a folder
+ * not in a model of `inputs`; an NPGC_OUT_DIR holds no model (a model
+ * folder is the model store's to check and replace). -1 after printing
+ * which rule it breaks. */
+typedef enum NpgcOutput {
+  NPGC_OUT_FILE,            /* one file (-o FILE.c, --png, plot -o) */
+  NPGC_OUT_DIR,             /* a folder of outputs (eval -o OUT/, --spectra DIR) */
+  NPGC_OUT_MODEL,           /* a model folder (train and tune -o MODEL/) */
+} NpgcOutput;
+int npgc_check_output(const char *cmd, const char *opt, const char *out, NpgcOutput kind, const char *const *inputs);
+/* The temporary name a file output is written to ("<out>.tmp.<pid>"), and
+ * its rename over `out` when `rc` is 0 (else its removal); the rc. */
+void npgc_tmp_path(char *buf, size_t n, const char *out);
+int npgc_commit(const char *cmd, const char *tmp, const char *out, int rc);
 
 #endif

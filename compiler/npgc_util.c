@@ -8,6 +8,7 @@
 #include <string.h>
 #include <dirent.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include "npg.h"
 #include "npgc.h"
@@ -281,4 +282,59 @@ int npgc_check_model_and_data(const char *cmd, const char *model, const char *da
     return -1;
   }
   return 0;
+}
+
+/* Whether directory `dir` holds a model (a file named "manifest"). */
+static bool holds_model(const char *dir) {
+  char path[4096];
+  struct stat st;
+  snprintf(path, sizeof path, "%s/manifest", dir);
+  return stat(path, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+int npgc_check_output(const char *cmd, const char *opt, const char *out, NpgcOutput kind, const char *const *inputs) {
+  bool dir = kind != NPGC_OUT_FILE;
+  struct stat st;
+  for (int i = 0; inputs && inputs[i]; i++) {
+    const char *in = inputs[i], *why = NULL;
+    bool in_dir = stat(in, &st) == 0 && S_ISDIR(st.st_mode);
+    if (npgc_same_file(out, in)) why = "would overwrite an input of the command";
+    /* a file next to the inputs could be one of them (DATA/x.npy, MODEL/manifest); a folder inside a model
+     * becomes part of the model */
+    else if (in_dir && (!dir || holds_model(in)) && npgc_inside(out, in))
+      why = "would overwrite an input of the command: it lies in a folder the command reads";
+    if (why) {
+      fprintf(stderr, "npgc %s: %s %s %s (%s): refusing to write there\n", cmd, opt, out, why, in);
+      return -1;
+    }
+  }
+  const char *why = NULL;
+  if (lstat(out, &st) == 0) {
+    if (S_ISLNK(st.st_mode)) why = "is a symbolic link: refusing to replace it (give the path it points to)";
+    else if (dir && !S_ISDIR(st.st_mode)) why = "exists and is not a directory: refusing to replace it";
+    else if (!dir && S_ISDIR(st.st_mode)) why = "is a directory: refusing to replace it";
+    else if (!dir && !S_ISREG(st.st_mode))
+      why = "is not a regular file (a FIFO, socket or device node): refusing to replace it";
+    else if (kind == NPGC_OUT_DIR && holds_model(out))
+      why = "holds a model: refusing to write into it (it would replace or add to the model's files); give the "
+            "outputs a folder of their own";
+  }
+  if (why) {
+    fprintf(stderr, "npgc %s: %s %s: %s\n", cmd, opt, out, why);
+    return -1;
+  }
+  return 0;
+}
+
+void npgc_tmp_path(char *buf, size_t n, const char *out) {
+  snprintf(buf, n, "%s.tmp.%ld", out, (long)getpid());
+}
+
+int npgc_commit(const char *cmd, const char *tmp, const char *out, int rc) {
+  if (rc == 0 && rename(tmp, out) != 0) {
+    fprintf(stderr, "npgc %s: cannot rename %s to %s: %s\n", cmd, tmp, out, strerror(errno));
+    rc = -1;
+  }
+  if (rc != 0) remove(tmp);
+  return rc;
 }

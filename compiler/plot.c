@@ -26,6 +26,8 @@ int npgc_plot(int argc, char **argv) {
   if (a.error[0]) return npgc_args_error(&a, "plot");
   if (!dir) return npgc_missing("plot", "MODEL/ (a trained model)");
   if (!out) return npgc_missing("plot", "-o FILE.png (where to draw the spectra)");
+  const char *inputs[] = {dir, NULL};
+  if (npgc_check_output("plot", "-o", out, NPGC_OUT_FILE, inputs) != 0) return 1;
   NpgSpectrum *sp = NULL;
   int n = 0, rc = 1;
   char err[2048] = "";
@@ -53,8 +55,10 @@ int npgc_plot(int argc, char **argv) {
   snprintf(title, sizeof title, "singular values of each member's snapshots: %s", dir);
   Chart chart = {title, "k", "singular value / largest", false, true, n, series};
   if (npgc_make_parents(out, false) != 0) goto done; /* every writer of npgc creates the parents, as -o does */
-  if (chart_png(&chart, out, 960, 540, err, sizeof err) != 0) {
-    npgc_error(err);
+  char tmp[4096];
+  npgc_tmp_path(tmp, sizeof tmp, out);
+  if (npgc_commit("plot", tmp, out, chart_png(&chart, tmp, 960, 540, err, sizeof err)) != 0) {
+    if (err[0]) npgc_error(err);
     goto done;
   }
   printf("%d spectra -> %s\n", n, out);

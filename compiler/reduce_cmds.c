@@ -258,10 +258,10 @@ static int cmd_train(Common *c) {
     return 2;
   }
   if (!c->out) return npgc_missing("train", "-o MODEL/ (where to write the model)");
-  if (npgc_same_file(c->out, c->a) || npgc_same_file(c->out, c->prog_path)) {
-    fprintf(stderr, "npgc train: -o %s is an input of the command; give the model its own folder\n", c->out);
+  const char *inputs[] = {c->prog_path, c->a, NULL}, *spectra_inputs[] = {c->prog_path, c->a, c->out, NULL};
+  if (npgc_check_output("train", "-o", c->out, NPGC_OUT_MODEL, inputs) != 0 ||
+      (c->spectra && npgc_check_output("train", "--spectra", c->spectra, NPGC_OUT_DIR, spectra_inputs) != 0))
     return 1;
-  }
   /* one of several ranks of an MPI job (OpenMPI's or a PMI launcher's variable) without --mpi: every rank
    * would train alone and race to write MODEL/ */
   const char *ranks = getenv("OMPI_COMM_WORLD_SIZE") ? getenv("OMPI_COMM_WORLD_SIZE") : getenv("PMI_SIZE");
@@ -394,7 +394,11 @@ static int open_session(Common *c, Session *x, bool full) {
     fprintf(stderr, "error: %s: no samples (the first axis of its inputs is 0)\n", c->b);
     return -1;
   }
-  /* the inputs' sizes must be the model's */
+  /* the inputs' shapes, and so their sizes, must be the model's */
+  if (npg_samples_check_model(x->s, x->m, err, sizeof err) != 0) {
+    npgc_error(err);
+    return -1;
+  }
   for (int i = 0; i < x->nsym; i++) {
     if (x->sym[i].kind != NPG_INPUT) continue;
     size_t n = 0;
@@ -477,6 +481,8 @@ static int cmd_eval_reduced(Common *c) {
   if (!c->prog_path || !c->a) return npgc_missing("eval", "MODEL/ (or --full DATA/)");
   if (!c->b) return npgc_missing("eval", "IN/ (the inputs to evaluate)");
   if (!c->out) return npgc_missing("eval", "-o OUT/ (where to write the outputs)");
+  const char *inputs[] = {c->prog_path, c->a, c->b, NULL};
+  if (npgc_check_output("eval", "-o", c->out, NPGC_OUT_DIR, inputs) != 0) return 1;
   Session x;
   int rc = 1, nout = 0;
   Out *outs = NULL;
@@ -586,7 +592,7 @@ static int cmd_verify(Common *c) {
   npg_verify_warnings(x.m, &rep, c->tol, stdout);
   rc = 0;
   for (int q = 0; q < rep.nrows; q++)
-    if (rep.rows[q].output && !(rep.rows[q].l2 <= c->tol)) {
+    if (rep.rows[q].output && !(rep.rows[q].l2 <= c->tol && isfinite(rep.rows[q].linf))) { /* NaN never passes */
       printf("FAIL: output %s: mean relative L2 error %.3e above --tol %.3g\n", rep.rows[q].name, rep.rows[q].l2,
              c->tol);
       rc = 1;
@@ -726,8 +732,8 @@ done:
 
 int npgc_reduce(int argc, char **argv) {
   Common c;
-  int rc = parse(&c, argc, argv);
-  if (rc == -1) rc = 0; /* --help */
+  int rc = parse(&c, argc, argv); /* refuses training's options to verify and bench, naming them (issue 24) */
+  if (rc == -1) rc = 0;            /* --help */
   else if (rc == 0) {
     if (strcmp(c.cmd, "train") == 0) rc = cmd_train(&c);
     else if (strcmp(c.cmd, "eval") == 0) rc = cmd_eval_reduced(&c);

@@ -125,6 +125,42 @@ static int samples_set(void *user, NpgFull *f, long k) {
   return 0;
 }
 
+/* "(S, 5, 3)": a sample axis and `n` entries of `shape`. */
+static void shape_text(char *buf, size_t len, const long *shape, int n) {
+  size_t o = (size_t)snprintf(buf, len, "(S");
+  for (int d = 0; d < n && o < len; d++) o += (size_t)snprintf(buf + o, len - o, ", %ld", shape[d]);
+  if (o < len) snprintf(buf + o, len - o, ")");
+}
+
+/* The reduced evaluation takes a sample as a flat vector: an array of the
+ * right entry count but another shape (x trained as (S, 5, 3) given as
+ * (S, 3, 5) or (S, 15, 1)) would be evaluated silently wrong (issue 24). */
+int npg_samples_check_model(const NpgSamples *ns, const NpgModel *m, char *err, size_t errlen) {
+  if (!ns || !m) {
+    if (err && errlen) snprintf(err, errlen, "npg_samples_check_model: argument '%s' is NULL", ns ? "m" : "s");
+    return -1;
+  }
+  const SampleSet *s = &ns->s;
+  for (int i = 0; i < s->n; i++) {
+    const SampleFile *g = &s->files[i];
+    const Sym *sym = g->sym;
+    long want[NPY_MAX_DIMS];
+    int n = 0;
+    for (int d = 0; d < sym->ndims && n < NPY_MAX_DIMS; d++) want[n++] = npg_model_dim(m, sym->dims[d]->name);
+    for (int d = 0; d < sym->nstatic && n < NPY_MAX_DIMS; d++) want[n++] = sym->shape[d];
+    bool same = n == g->a.ndim - 1;
+    for (int d = 0; same && d < n; d++) same = want[d] == g->a.shape[d + 1];
+    if (same) continue;
+    char found[256], expected[256];
+    shape_text(found, sizeof found, g->a.shape + 1, g->a.ndim - 1);
+    shape_text(expected, sizeof expected, want, n);
+    snprintf(err, errlen, "%s: %s '%s' has shape %s, the model was trained on %s", g->path,
+             sym->kind == SYM_INPUT ? "input" : "extern", sym->name, found, expected);
+    return -1;
+  }
+  return 0;
+}
+
 static void samples_close(SampleSet *s) {
   for (int i = 0; s->files && i < s->n; i++) npy_free(&s->files[i].a);
   free(s->files);

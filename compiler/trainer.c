@@ -440,8 +440,78 @@ static int check_mem(NpgTrainer *t) {
   return 0;
 }
 
+/* Over ranks, every rank must be training the same problem: one program,
+ * the same params, sample count, dims and options. A rank given other data
+ * trained a wrong model with exit 0, or died in a collective of another
+ * size with no word from npg (issue 24). Compared as the maximum and the
+ * minimum over ranks of each figure (64-bit hashes as two exact 32-bit
+ * halves); every rank reaches the same verdict, so all fail alike. */
+static int ranks_agree(NpgTrainer *t) {
+  if (!t->opt.mpi || dist_size() < 2) return 0;
+  const Program *prog = t->prog;
+  int n = 0, cap = 8 + 2 * prog->dims.n + 2 * prog->params.n;
+  double *v = malloc(sizeof(double) * (size_t)cap * 3);
+  const char **what = calloc((size_t)cap, sizeof *what), **name = calloc((size_t)cap, sizeof *name);
+  int rc = 0;
+  if (!v || !what || !name) dist_abort("out of memory comparing the ranks' training problems");
+  /* figure n: its value, what it is (a format of one %s, its name) */
+#define FIGURE(x, w, nm) (v[n] = (double)(x), what[n] = (w), name[n] = (nm), n++)
+  uint64_t h = model_program_hash(prog);
+  FIGURE(h >> 32, "the program%s (its hash)", "");
+  FIGURE(h & 0xffffffffu, "the program%s (its hash)", "");
+  FIGURE(prog->dims.n, "the program's number of dims%s", "");
+  FIGURE(prog->params.n, "the program's number of params%s", "");
+  /* the lengths above agree before the rest, whose length they give, is compared */
+  for (int round = 0; round < 2; round++) {
+    int from = round ? 4 : 0;
+    if (round) {
+      FIGURE(t->samples, "the number of training samples%s", "");
+      for (int i = 0; i < prog->dims.n; i++) {
+        const char *d = ((Sym *)prog->dims.v[i])->name;
+        FIGURE(npg_full_dim(t->f, d), "dim %s", d);
+      }
+      for (int i = 0; i < prog->params.n; i++) {
+        uint64_t ph = full_param_hash(t->f, i, NULL);
+        const char *p = ((Sym *)prog->params.v[i])->name;
+        FIGURE(ph >> 32, "param '%s' (the hash of its values)", p);
+        FIGURE(ph & 0xffffffffu, "param '%s' (the hash of its values)", p);
+      }
+      FIGURE(t->opt.cap, "--cap%s", "");
+      FIGURE(t->opt.energy, "--energy%s", "");
+      FIGURE(t->opt.uncentered, "--center%s", "");
+      FIGURE(t->opt.joint, "--merge%s", "");
+      FIGURE(t->opt.nbasis, "the number of --basis options%s", "");
+    }
+    int len = n - from;
+    double *hi = v + cap, *lo = v + 2 * cap;
+    for (int i = 0; i < len; i++) hi[i] = v[from + i], lo[i] = -v[from + i];
+    dist_allreduce_max(hi, len);
+    dist_allreduce_max(lo, len);
+    for (int i = 0; rc == 0 && i < len; i++)
+      if (hi[i] != -lo[i]) {
+        char w[600];
+        snprintf(w, sizeof w, what[from + i], name[from + i]);
+        if (strstr(w, "hash"))
+          rc = tfail(t, "the %d MPI ranks were not given the same training: %s differs between ranks (give every rank "
+                        "the same program, DATA/ and options)", dist_size(), w);
+        else
+          rc = tfail(t, "the %d MPI ranks were not given the same training: %s is %.17g on some ranks and %.17g on "
+                        "others (give every rank the same program, DATA/ and options)", dist_size(), w, -lo[i], hi[i]);
+      }
+    if (rc) break;
+  }
+#undef FIGURE
+  free(what);
+  free(name);
+  free(v);
+  return rc;
+}
+
 NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
+  /* over ranks the others would wait for this one in a collective: end the job */
+  if (t->error[0] && t->opt.mpi && dist_size() > 1) dist_abort("%s", t->error);
   if (t->error[0]) return NULL;
+  if (ranks_agree(t)) return NULL;
   if (t->samples == 0) {
     tfail(t, "no training samples were added");
     return NULL;

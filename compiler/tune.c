@@ -91,6 +91,10 @@ int npgc_tune(int argc, char **argv) {
     snprintf(pngbuf, sizeof pngbuf, "%.*s-tune.png", (int)n, out);
     png = pngbuf;
   }
+  const char *inputs[] = {prog_path, data, valid, NULL}, *png_inputs[] = {prog_path, data, valid, out, NULL};
+  if (npgc_check_output("tune", "-o", out, NPGC_OUT_MODEL, inputs) != 0 ||
+      npgc_check_output("tune", "--png", png, NPGC_OUT_FILE, png_inputs) != 0)
+    return 1;
   NpgProgram *p = npg_compile(prog_path, &opt);
   if (!npg_ok(p)) {
     fputs(npg_error(p), stderr);
@@ -128,8 +132,10 @@ int npgc_tune(int argc, char **argv) {
     print_sizes(&r, tr);
     printf("%s%s\n", tr->err <= tol ? "  meets" : "", t == r.chosen ? "  <- chosen" : "");
   }
-  if (draw(&r, tol, png, err, sizeof err) != 0) {
-    npgc_error(err);
+  char tmp[4096];
+  npgc_tmp_path(tmp, sizeof tmp, png);
+  if (npgc_commit("tune", tmp, png, draw(&r, tol, tmp, err, sizeof err)) != 0) {
+    if (err[0]) npgc_error(err);
     goto done;
   }
   if (!m) {

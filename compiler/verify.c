@@ -37,26 +37,35 @@ static double worst_input(const Model *m, const RStage *rs, const NpgVerifyRow *
 }
 
 /* Errors of quantity q at one sample: full value `full`, reduced `r`. */
+/* Relative errors of sample k's quantity q: the lifted reduced value's and
+ * the projection floor's, L2 and Linf. The sums of squares are taken of
+ * values divided by the largest |full| entry, so that data of any scale
+ * (1e-200 or 1e200, where squares underflow to 0 or overflow to inf) gives
+ * the same relative errors (issue 24: 1e-200 data verified as error 0). */
 static void sample_errors(const RClass *rc, const double *full, Reduced *r, int q, double *y, double *proj,
                           double out[4]) {
   double ny = 0, nyinf = 0, e2 = 0, einf = 0, f2 = 0, finf = 0;
+  bool nan = false;
   reduced_lift(r, q, y);
+  for (long e = 0; e < rc->n; e++) nyinf = fmax(nyinf, fabs(full[e]));
+  double unit = nyinf > 0 && isfinite(nyinf) ? 1 / nyinf : 1;
+  if (!isfinite(unit)) unit = 1; /* subnormal data: 1/nyinf overflows; their squares are lost anyway */
   for (long e = 0; e < rc->n; e++) {
-    double d = full[e] - y[e];
-    ny += full[e] * full[e];
-    nyinf = fmax(nyinf, fabs(full[e]));
+    double d = (full[e] - y[e]) * unit, v = full[e] * unit;
+    ny += v * v;
     e2 += d * d;
-    einf = fmax(einf, fabs(d));
+    einf = fmax(einf, fabs(full[e] - y[e]));
+    nan |= d != d; /* fmax drops a NaN: the error is then not finite */
   }
   cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, full, 1, 0.0, proj, 1);
   cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, proj, 1, 0.0, y, 1);
   for (long e = 0; e < rc->n; e++) {
-    double d = full[e] - y[e];
+    double d = (full[e] - y[e]) * unit;
     f2 += d * d;
-    finf = fmax(finf, fabs(d));
+    finf = fmax(finf, fabs(full[e] - y[e]));
   }
   out[0] = ny > 0 ? sqrt(e2 / ny) : sqrt(e2);
-  out[1] = nyinf > 0 ? einf / nyinf : einf;
+  out[1] = nan ? NAN : nyinf > 0 ? einf / nyinf : einf;
   out[2] = ny > 0 ? sqrt(f2 / ny) : sqrt(f2);
   out[3] = nyinf > 0 ? finf / nyinf : finf;
 }

@@ -337,6 +337,10 @@ NPG_API size_t npg_model_bytes(const NpgModel *m, size_t *tensor_bytes);
 NPG_API long npg_model_samples(const NpgModel *m);
 /* The size dim `name` had in training, -1 if unknown. */
 NPG_API long npg_model_dim(const NpgModel *m, const char *name);
+/* Check that every input (and extern) of `s` has, per sample, the shape the
+ * model `m` was trained on (its dims' sizes and the static axes): 0, or -1
+ * with a message naming the file, the shape found and the one expected. */
+NPG_API int npg_samples_check_model(const NpgSamples *s, const NpgModel *m, char *err, size_t errlen);
 /* 0 when the params bound in `f` equal those the model was trained with
  * (hashes of their values), else -1 with a message in `err` naming the param. */
 NPG_API int npg_model_check_params(const NpgModel *m, const NpgFull *f, char *err, size_t errlen);

@@ -381,12 +381,22 @@ static void failed_write_keeps_model(void **state) {
   assert_int_equal(mkdir(stale, 0777), 0);
   snprintf(path, sizeof path, "%s/notes.txt", stale);
   write_file(path, "mine\n", 5);
+  snprintf(want, sizeof want,
+           "%s: is in the way and was not made by npg (it has no npg-model-store-leftover marker): refusing to remove "
+           "it; move it elsewhere", stale);
+  expect_write_error(dir, &m, want);
+  expect_model(dir, &m);
+  assert_true(exists(path));
+  /* nor with the marker of a model store's leftover beside the user's file */
+  char marker[700];
+  snprintf(marker, sizeof marker, "%s/npg-model-store-leftover", stale);
+  write_file(marker, "made by npg\n", 12);
   snprintf(want, sizeof want, "%s: holds 'notes.txt', which a model store never writes: refusing to remove it", stale);
   expect_write_error(dir, &m, want);
   expect_model(dir, &m);
   assert_true(exists(path));
   unlink(path);
-  /* one holding only model files is removed */
+  /* one holding only model files and the marker is removed */
   snprintf(path, sizeof path, "%s/a.npy.tmp.12345", stale);
   write_file(path, "partial", 7);
   write_ok(dir, &m);

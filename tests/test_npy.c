@@ -304,17 +304,37 @@ static void write_errors(void **state) {
   snprintf(want, sizeof want, "%s: cannot create %s.tmp.%ld: %s", path, path, (long)getpid(), strerror(ENOENT));
   assert_string_equal(err, want);
 
-  /* a directory is in the way: written, not renamed, temporary removed */
+  /* a directory is in the way: refused before anything is written */
   scratch_path(path, "a_directory");
   assert_int_equal(mkdir(path, 0700), 0);
   assert_int_not_equal(npy_write(path, NPY_F64, 1, two, x, err, sizeof err), 0);
-  snprintf(want, sizeof want, "%s: cannot replace it with %s.tmp.%ld: %s", path, path, (long)getpid(),
-           strerror(EISDIR));
+  snprintf(want, sizeof want, "%s: is not a regular file (a directory): refusing to replace it", path);
   assert_string_equal(err, want);
   assert_int_equal(leftover_temporaries(), 0);
   struct stat st;
   assert_int_equal(stat(path, &st), 0);
   assert_true(S_ISDIR(st.st_mode));
+
+  /* lost data (issue 24): a symbolic link or a FIFO at the path is not
+   * replaced (the rename would put a file in its place) */
+  char target[600];
+  scratch_path(target, "target.npy");
+  assert_int_equal(npy_write(target, NPY_F64, 1, two, x, err, sizeof err), 0);
+  scratch_path(path, "a_link.npy");
+  assert_int_equal(symlink(target, path), 0);
+  assert_int_not_equal(npy_write(path, NPY_F64, 1, two, x, err, sizeof err), 0);
+  snprintf(want, sizeof want, "%s: is not a regular file (a symbolic link): refusing to replace it", path);
+  assert_string_equal(err, want);
+  assert_int_equal(lstat(path, &st), 0);
+  assert_true(S_ISLNK(st.st_mode));
+  scratch_path(path, "a_fifo.npy");
+  assert_int_equal(mkfifo(path, 0600), 0);
+  assert_int_not_equal(npy_write(path, NPY_F64, 1, two, x, err, sizeof err), 0);
+  snprintf(want, sizeof want, "%s: is not a regular file (a FIFO, socket or device node): refusing to replace it", path);
+  assert_string_equal(err, want);
+  assert_int_equal(lstat(path, &st), 0);
+  assert_true(S_ISFIFO(st.st_mode));
+  assert_int_equal(leftover_temporaries(), 0);
 
   /* arguments that describe no array; nothing is created */
   scratch_path(path, "never.npy");

@@ -17,6 +17,7 @@
 #include <string.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include "emit.h"
 #include "model.h"
@@ -338,12 +339,18 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
   model_store_init(&s);
   s.program_hash = m->program_hash;
   int bad = 0;
-  char line[4096];
+  /* the dims line grows with the names: a fixed buffer cut a long name and
+   * the model could not be loaded (issue 24) */
+  char *line = NULL;
   size_t len = 0;
-  len += (size_t)snprintf(line, sizeof line, "dims");
-  for (int i = 0; i < m->ndims && len < sizeof line; i++)
-    len += (size_t)snprintf(line + len, sizeof line - len, " %s=%ld", ((Sym *)m->prog->dims.v[i])->name, m->dims[i]);
-  bad |= model_store_meta(&s, "%s", line);
+  FILE *mem = open_memstream(&line, &len);
+  if (mem) {
+    fputs("dims", mem);
+    for (int i = 0; i < m->ndims; i++) fprintf(mem, " %s=%ld", ((Sym *)m->prog->dims.v[i])->name, m->dims[i]);
+  }
+  if (!mem || fclose(mem) != 0 || !line) bad = -1;
+  else bad |= model_store_meta(&s, "%s", line);
+  free(line);
   bad |= model_store_meta(&s, "samples %ld", m->samples);
   /* always written, empty when none were recorded: loading requires it */
   bad |= model_store_meta(&s, "params%s%s", m->param_hashes && *m->param_hashes ? " " : "",
@@ -630,6 +637,14 @@ fail:
 
 int model_write_spectra(const Model *m, const char *dir, char *err, size_t errlen) {
   if (mkdir(dir, 0777) != 0 && errno != EEXIST) return npg_fail(err, errlen, "%s: cannot create: %s", dir, strerror(errno));
+  /* a model's spectra are files its manifest vouches for: writing another
+   * model's over them would leave it unloadable (issue 24) */
+  char manifest[4096];
+  struct stat st;
+  snprintf(manifest, sizeof manifest, "%s/manifest", dir);
+  if (lstat(manifest, &st) == 0)
+    return npg_fail(err, errlen, "%s: holds a model (its manifest): refusing to write spectra into it; give a folder of "
+                    "its own", dir);
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++) {
       const RMember *mb = &m->classes[c].members[i];
@@ -638,12 +653,22 @@ int model_write_spectra(const Model *m, const char *dir, char *err, size_t errle
       snprintf(path, sizeof path, "%s/spectrum_%s.npy", dir, mb->name);
       if (npy_write(path, NPY_F64, 1, shape, mb->sv, err, errlen) != 0) return -1;
       snprintf(path, sizeof path, "%s/spectrum_%s.csv", dir, mb->name);
+      /* to a temporary name, renamed when whole, over a regular file only (as npy_write) */
+      char tmp[4200];
+      snprintf(tmp, sizeof tmp, "%s.tmp.%ld", path, (long)getpid());
+      if (lstat(path, &st) == 0 && !S_ISREG(st.st_mode))
+        return npg_fail(err, errlen, "%s: is not a regular file: refusing to replace it", path);
       char *csv = spectrum_csv(mb);
-      FILE *f = csv ? fopen(path, "w") : NULL;
+      FILE *f = csv ? fopen(tmp, "w") : NULL;
       int ok = f && fputs(csv, f) >= 0;
       if (f && fclose(f) != 0) ok = 0;
       free(csv);
-      if (!ok) return npg_fail(err, errlen, "%s: cannot write: %s", path, strerror(errno));
+      if (ok && rename(tmp, path) != 0) ok = 0;
+      if (!ok) {
+        int saved = errno;
+        remove(tmp);
+        return npg_fail(err, errlen, "%s: cannot write: %s", path, strerror(saved));
+      }
     }
   return 0;
 }

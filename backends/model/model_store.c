@@ -538,8 +538,44 @@ int model_store_read_any(const char *dir, ModelStore *m, char *err, size_t errle
   return read_store(dir, false, 0, m, err, errlen);
 }
 
+/* Test hook: NPG_TEST_REPLACE_DURING_LOAD=OTHER swaps the model being read
+ * with the folder OTHER, once, after its manifest was read: what a training
+ * of the same model in another process does to a model being loaded. */
+static void test_replace(const char *dir) {
+  static bool done;
+  const char *other = getenv("NPG_TEST_REPLACE_DURING_LOAD");
+  if (done || !other || !*other) return;
+  done = true;
+  char *aside = model_store_printf("%s.swap", dir);
+  if (aside && rename(dir, aside) == 0 && rename(other, dir) == 0) rename(aside, other);
+  free(aside);
+}
+
+static int read_once(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, char *err,
+                     size_t errlen);
+
+/* A model replaced while it is read (a training writing it: the store swaps
+ * whole folders) fails its checksums half way; issue 24: that was reported
+ * as a corrupted file. The folder's identity tells: read once more, and say
+ * what happened if it changes again. */
 static int read_store(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, char *err,
                       size_t errlen) {
+  for (int attempt = 0;; attempt++) {
+    struct stat before, after;
+    bool known = dir_arg && *dir_arg && stat(dir_arg, &before) == 0;
+    int rc = read_once(dir_arg, check_program, expect_program_hash, m, err, errlen);
+    if (rc == 0 || !known || stat(dir_arg, &after) != 0 || (after.st_ino == before.st_ino && after.st_dev == before.st_dev))
+      return rc;
+    if (attempt > 0) {
+      StoreReport r = {err, errlen};
+      return model_store_fail(&r, dir_arg, 0, "the model was replaced while it was being read, twice (a training is "
+                              "writing it): load it when that training is done");
+    }
+  }
+}
+
+static int read_once(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, char *err,
+                     size_t errlen) {
   StoreReport r = {err, errlen};
   if (err && errlen) err[0] = '\0';
   model_store_init(m);
@@ -559,6 +595,7 @@ static int read_store(const char *dir_arg, bool check_program, uint64_t expect_p
               "model was trained for another program (program hash %016" PRIx64 ", this program %016" PRIx64
               "): retrain",
               m->program_hash, expect_program_hash);
+  if (rc == 0) test_replace(dir);
   for (int i = 0; i < nlisted && rc == 0; i++) rc = load_array(&r, dir, &listed[i], m);
   if (rc == 0 && changed_line)
     rc = model_store_fail(&r, mpath, changed_line, "checksum mismatch: the manifest was changed after training");

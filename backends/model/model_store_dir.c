@@ -7,7 +7,13 @@
  * file system has it, else two renames). Removing the replaced model
  * deletes only files a model store writes, each checked by name before
  * anything is touched, so a mistyped -o never costs the user a directory of
- * their own. */
+ * their own.
+ *
+ * Only folders this code made are ever removed or moved in: the temporary
+ * folder and the previous model set aside each hold a marker file (MARKER)
+ * written before they can be left behind. A folder that merely looks like a
+ * leftover ("M.old.2024", "M.tmp.<a dead pid>" holding a user's files) has
+ * none and is left alone (issue 24). */
 #define _GNU_SOURCE /* renameat2 (RENAME_EXCHANGE), fsync, O_DIRECTORY, lstat, getpid */
 
 #include <dirent.h>
@@ -25,11 +31,18 @@
 
 /* ---------------------------------------------------------------- directories */
 
+/* The marker of a folder a model store made to be thrown away: the new
+ * model being written ("<dir>.tmp.<pid>") or the previous one set aside
+ * ("<dir>.old.<pid>", or the exchanged folder). */
+#define MARKER "npg-model-store-leftover"
+
 /* Names a model store writes into a model directory: the manifest, the
- * arrays, and what an interrupted npy_write leaves ("x.npy.tmp.<pid>"). */
+ * arrays, the marker, and what an interrupted npy_write leaves
+ * ("x.npy.tmp.<pid>"). */
 static int is_store_file(const char *name) {
   size_t n = strlen(name);
-  if (strcmp(name, "manifest") == 0 || (n > 4 && strcmp(name + n - 4, ".npy") == 0)) return 1;
+  if (strcmp(name, "manifest") == 0 || strcmp(name, MARKER) == 0 || (n > 4 && strcmp(name + n - 4, ".npy") == 0))
+    return 1;
   if (n > 4 && strcmp(name + n - 4, ".csv") == 0) return 1;
   const char *tmp = strstr(name, ".npy.tmp.");
   if (!tmp || tmp == name) return 0;
@@ -73,10 +86,41 @@ static int scan_store_dir(const StoreReport *r, const char *path, const char *wh
   return rc;
 }
 
+/* Whether the folder `path` holds the marker of a model store's leftover. */
+static int has_marker(const char *path) {
+  char *file = model_store_printf("%s/" MARKER, path);
+  struct stat st;
+  int yes = file && lstat(file, &st) == 0 && S_ISREG(st.st_mode);
+  free(file);
+  return yes;
+}
+
+/* Put the marker into the folder `path` (saying what it is, for a person
+ * who finds it), or take it out (`put` 0; a missing marker is no error). */
+static int mark(const StoreReport *r, const char *path, int put) {
+  char *file = model_store_printf("%s/" MARKER, path);
+  if (!file) return model_store_fail(r, path, 0, "out of memory");
+  int rc = 0;
+  if (!put) {
+    if (unlink(file) != 0 && errno != ENOENT) rc = model_store_fail(r, file, 0, "cannot remove: %s", strerror(errno));
+  } else {
+    FILE *f = fopen(file, "w");
+    int ok = f && fprintf(f, "made by npg (process %ld) to be removed when its model write ends\n", (long)getpid()) > 0;
+    if (f && fclose(f) != 0) ok = 0;
+    if (!ok) rc = model_store_fail(r, file, 0, "cannot create: %s", strerror(errno));
+  }
+  free(file);
+  return rc;
+}
+
 /* Remove the directory `path` and the model files in it, after checking
- * that it holds nothing else (it is left untouched if it does). */
+ * that a model store made it to be thrown away (its marker) and that it
+ * holds nothing else (it is left untouched otherwise). */
 static int remove_store_dir(const StoreReport *r, const char *path) {
   int entries, model;
+  if (!has_marker(path))
+    return model_store_fail(r, path, 0, "was not made by npg's model store (it has no %s marker): refusing to remove it",
+                            MARKER);
   if (scan_store_dir(r, path, "refusing to remove it", &entries, &model)) return -1;
   DIR *d = opendir(path);
   if (!d) return model_store_fail(r, path, 0, "cannot open the directory: %s", strerror(errno));
@@ -99,6 +143,9 @@ static int remove_stale(const StoreReport *r, const char *path) {
   struct stat st;
   if (lstat(path, &st) != 0) return errno == ENOENT ? 0 : model_store_fail(r, path, 0, "cannot examine: %s", strerror(errno));
   if (!S_ISDIR(st.st_mode)) return model_store_fail(r, path, 0, "is in the way and is not a directory: refusing to remove it");
+  if (!has_marker(path))
+    return model_store_fail(r, path, 0, "is in the way and was not made by npg (it has no %s marker): refusing to remove "
+                            "it; move it elsewhere", MARKER);
   return remove_store_dir(r, path);
 }
 
@@ -228,7 +275,7 @@ static void disarm(void) {
  * model write at a time per process: a second one is not armed). */
 static void arm(const char *tmp, const ModelStore *m) {
   if (cleanup.paths) return;
-  char **paths = calloc((size_t)(2 * m->narrays + m->ntexts + 1), sizeof *paths);
+  char **paths = calloc((size_t)(2 * m->narrays + m->ntexts + 2), sizeof *paths);
   if (!paths) return;
   cleanup.paths = paths;
   long pid = (long)getpid();
@@ -239,6 +286,7 @@ static void arm(const char *tmp, const ModelStore *m) {
   for (int i = 0; i < m->ntexts; i++)
     if ((paths[cleanup.n] = model_store_printf("%s/%s", tmp, m->texts[i].name))) cleanup.n++;
   if ((paths[cleanup.n] = model_store_printf("%s/manifest", tmp))) cleanup.n++;
+  if ((paths[cleanup.n] = model_store_printf("%s/" MARKER, tmp))) cleanup.n++;
   cleanup.dir = (char *)tmp;
   struct sigaction sa;
   memset(&sa, 0, sizeof sa);
@@ -271,9 +319,9 @@ static int is_complete(const char *path) {
   return ok;
 }
 
-/* "<base>.tmp.<pid>" or "<base>.old.<pid>" of a process that is gone: its
- * kind ('t' or 'o'), else 0. */
-static int dead_leftover(const char *name, const char *base) {
+/* "<base>.tmp.<pid>" or "<base>.old.<pid>" of a process that is gone, in
+ * `parent`, holding the marker: its kind ('t' or 'o'), else 0. */
+static int dead_leftover(const char *parent, const char *name, const char *base) {
   size_t n = strlen(base);
   if (strncmp(name, base, n) != 0 || (strncmp(name + n, ".tmp.", 5) != 0 && strncmp(name + n, ".old.", 5) != 0))
     return 0;
@@ -281,7 +329,10 @@ static int dead_leftover(const char *name, const char *base) {
   if (!*digits || strspn(digits, "0123456789") != strlen(digits) || strlen(digits) > 9) return 0;
   long pid = strtol(digits, NULL, 10);
   if (pid == (long)getpid() || kill((pid_t)pid, 0) == 0 || errno != ESRCH) return 0;
-  return name[n + 1];
+  char *path = model_store_printf("%s/%s", parent, name);
+  int ours = path && has_marker(path);
+  free(path);
+  return ours ? name[n + 1] : 0;
 }
 
 /* What dead trainings left beside `dir`: a complete new model (else the
@@ -299,12 +350,13 @@ void model_store_recover(const char *dir, int clean) {
     rewinddir(d);
     struct dirent *e;
     while ((e = readdir(d))) {
-      int kind = dead_leftover(e->d_name, base);
+      int kind = dead_leftover(parent, e->d_name, base);
       if (!kind) continue;
       char *path = model_store_printf("%s/%s", parent, e->d_name);
       if (!path) continue;
       if (pass < 2 && missing && (pass == 0 ? kind == 't' && is_complete(path) : kind == 'o') &&
           rename(path, dir) == 0) {
+        mark(&quiet, dir, 0);
         fprintf(stderr, "npg: %s was missing after an interrupted training: moved in the %s model from %s\n", dir,
                 pass == 0 ? "new (complete)" : "previous", path);
         missing = 0;
@@ -428,7 +480,7 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
   char *tmp = dir ? model_store_printf("%s.tmp.%ld", dir, pid) : NULL;
   char *old = dir ? model_store_printf("%s.old.%ld", dir, pid) : NULL;
   char *parent = dir ? parent_of(dir) : NULL;
-  int exists = 0, rc = 0;
+  int exists = 0, rc = 0, swapping = 0;
   if (!dir || !tmp || !old || !parent) {
     rc = model_store_fail(&r, dir_arg, 0, "out of memory");
     goto done;
@@ -444,6 +496,11 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
     rc = model_store_fail(&r, dir, 0, "cannot create the model's temporary directory %s: %s", tmp, strerror(errno));
     goto done;
   }
+  if (mark(&r, tmp, 1) != 0) {
+    rmdir(tmp);
+    rc = -1;
+    goto done;
+  }
   arm(tmp, m);
   if (write_contents(&r, tmp, m) != 0) {
     disarm();
@@ -452,11 +509,37 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
   }
   test_point("manifest");
   disarm();
+  /* the previous model will be set aside (renamed or exchanged into `tmp`):
+   * marked first, so that a crash leaves it removable */
+  swapping = 1;
+  if (exists && mark(&r, dir, 1) != 0) {
+    rc = -1;
+    goto discard;
+  }
   /* The swap: one atomic exchange where the file system has it (the old
    * model is then in `tmp`); otherwise two renames, between which `dir` is
    * briefly absent, never half written — a crash there leaves both models
    * whole, and the next read or write moves the new one in. */
-  if (exists && !getenv("NPG_TEST_NO_EXCHANGE") && renameat2(AT_FDCWD, tmp, AT_FDCWD, dir, RENAME_EXCHANGE) == 0) {
+  bool moved = false;
+  if (!exists) {
+    if (rename(tmp, dir) == 0) moved = true;
+    else if (errno != ENOTEMPTY && errno != EEXIST) {
+      rc = model_store_fail(&r, dir, 0, "cannot move the new model in from %s: %s", tmp, strerror(errno));
+      goto discard;
+    } else if (check_replaceable(&r, dir, &exists) != 0 || !exists || mark(&r, dir, 1) != 0) {
+      /* issue 24: this said "Directory not empty" */
+      size_t n = err ? strlen(err) : 0;
+      if (err && n < errlen)
+        snprintf(err + n, errlen - n, " (it appeared while this model was being written: another training of the same "
+                 "model at once?)");
+      rc = -1;
+      goto discard;
+    }
+    /* else another process wrote a model to `dir` while this one wrote its
+     * own (two trainings of one model at once): it is replaced like any
+     * model, the last one written wins */
+  }
+  if (!moved && !getenv("NPG_TEST_NO_EXCHANGE") && renameat2(AT_FDCWD, tmp, AT_FDCWD, dir, RENAME_EXCHANGE) == 0) {
     if (sync_dir(&r, parent) != 0) { /* as below: keep both */
       rc = -1;
       goto done;
@@ -469,12 +552,12 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
                 dir);
     goto done;
   }
-  if (exists && rename(dir, old) != 0) {
+  if (!moved && exists && rename(dir, old) != 0) {
     rc = model_store_fail(&r, dir, 0, "cannot move the previous model aside to %s: %s", old, strerror(errno));
     goto discard;
   }
   if (exists) test_point("swap");
-  if (rename(tmp, dir) != 0) {
+  if (!moved && rename(tmp, dir) != 0) {
     rc = model_store_fail(&r, dir, 0, "cannot move the new model in from %s: %s", tmp, strerror(errno));
     if (exists && rename(old, dir) != 0) {
       model_store_fail(&r, dir, 0, "cannot move the new model in from %s, nor the previous one back from %s: %s", tmp, old,
@@ -510,6 +593,12 @@ discard:
     remove_store_dir(&quiet, tmp);
   }
 done:
+  /* whichever model `dir` holds now is kept: not a leftover */
+  if (swapping) {
+    char ignored[16];
+    StoreReport quiet = {ignored, sizeof ignored};
+    mark(&quiet, dir, 0);
+  }
   free(dir);
   free(tmp);
   free(old);

@@ -80,6 +80,7 @@ typedef struct Stream {
   double **G;               /* streamed: per member S x S column-major (upper), Gram of its centered snapshots */
   double **s;               /* per member: singular values, descending (S) */
   long *k;                  /* per member: directions kept from its Gram matrix */
+  double *big;              /* per member: its largest |snapshot entry| (squares underflowing to 0 leave G 0) */
   long *col;                /* per member: its first column of A (μ when centered, then k directions) */
   long K;                   /* columns of A */
   double *C;                /* K x K column-major: AᵀA */
@@ -337,7 +338,9 @@ static int gram_passes(Ooc *o) {
       double *mu = malloc(sizeof(double) * (size_t)R);
       if (!mu) return -1;
       for (int i = 0; i < rc->nmembers; i++) {
+        double *big = &o->st[sg->c].big[i];
         if (rc->members[i].center) center_block(R, S, sg->H[i], mu);
+        for (size_t e = 0; e < (size_t)R * (size_t)S; e++) *big = fmax(*big, fabs(sg->H[i][e])); /* what enters G */
         cblas_dsyrk(CblasColMajor, CblasUpper, CblasTrans, (int)S, (int)R, 1.0, sg->H[i], (int)R, 1.0,
                     o->st[sg->c].G[i], (int)S);
       }
@@ -346,7 +349,10 @@ static int gram_passes(Ooc *o) {
     release(o, p);
   }
   for (int c = 0; o->N > 1 && c < o->m->nclasses; c++) /* every rank's passes summed */
-    for (int i = 0; o->st[c].streamed && i < o->m->classes[c].nmembers; i++) dist_allreduce_sum(o->st[c].G[i], S * S);
+    for (int i = 0; o->st[c].streamed && i < o->m->classes[c].nmembers; i++) {
+      dist_allreduce_sum(o->st[c].G[i], S * S);
+      dist_allreduce_max(&o->st[c].big[i], 1);
+    }
   return 0;
 }
 
@@ -367,6 +373,11 @@ static int eigen(Ooc *o) {
       double *G = st->G[i], *lam = malloc(sizeof(double) * (size_t)S);
       double *W = malloc(sizeof(double) * (size_t)S * (size_t)(kmax ? kmax : 1));
       if (!lam || !W) return free(lam), free(W), -1;
+      const char *range = pca_gram_out_of_range(S, G, st->big[i]);
+      if (range) {
+        free(lam), free(W);
+        return npg_fail(o->err, o->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
+      }
       int info = pca_top_eigen(S, G, kmax, lam, W);
       if (info != 0) {
         free(lam), free(W);
@@ -703,7 +714,7 @@ static void ooc_free(Ooc *o) {
       if (st->G) free(st->G[i]);
       if (st->s) free(st->s[i]);
     }
-    free(st->X), free(st->G), free(st->s), free(st->k), free(st->col), free(st->C);
+    free(st->X), free(st->G), free(st->s), free(st->k), free(st->big), free(st->col), free(st->C);
     if (st->A) fclose(st->A);
   }
   for (long p = 0; o->seg && p < o->npass; p++) release(o, p);
@@ -729,7 +740,8 @@ int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions 
       continue;
     }
     if (!(st->G = calloc((size_t)r, sizeof(double *))) || !(st->s = calloc((size_t)r, sizeof(double *))) ||
-        !(st->k = calloc((size_t)r, sizeof(long))) || !(st->col = calloc((size_t)r, sizeof(long))))
+        !(st->k = calloc((size_t)r, sizeof(long))) || !(st->big = calloc((size_t)r, sizeof(double))) ||
+        !(st->col = calloc((size_t)r, sizeof(long))))
       goto oom;
     for (int i = 0; i < r; i++)
       if (!(st->G[i] = calloc((size_t)(o.S * o.S), sizeof(double))) || !(st->s[i] = malloc(sizeof(double) * (size_t)o.S)))

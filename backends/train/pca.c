@@ -38,6 +38,15 @@
  * this fraction of its norm is dependent on them (pca_in_order). */
 #define PCA_DEPENDENT_TOL 1e-8
 
+/* Snapshots whose largest entry lies outside [PCA_SCALE_MIN, 1/PCA_SCALE_MIN]
+ * are scaled to O(1) before a PCA: beyond it, sums of squares over up to
+ * 1e30 entries would leave the range of doubles (1e-308..1e308). */
+#define PCA_SCALE_MIN 1e-100
+
+/* A Gram matrix whose largest diagonal entry (a snapshot's squared norm) is
+ * below this lost its small entries to underflow. */
+#define PCA_GRAM_MIN 1e-290
+
 /* A block of columns of a snapshot matrix with n rows: column-major (ld n)
  * or row-major (ld k). */
 typedef struct Cols {
@@ -201,6 +210,17 @@ done:
   return res;
 }
 
+/* Σ (s_i / s_0)²: the energy of singular values `s` (descending) relative
+ * to the largest's, so that it neither underflows (data at 1e-200, whose
+ * squares are 0) nor overflows (1e200) — the truncation is scale-invariant
+ * (issue 24). Energies in the choices below are in these units. */
+static double energy_total(const double *s, long K) {
+  double total = 0;
+  if (K > 0 && s[0] > 0 && isfinite(s[0]))
+    for (long i = 0; i < K; i++) total += (s[i] / s[0]) * (s[i] / s[0]);
+  return total;
+}
+
 typedef struct MemberChoice {
   int cap;
   double energy;
@@ -211,8 +231,7 @@ typedef struct MemberChoice {
  * below what the Gram matrix resolves. */
 static long choose_member(const double *s, long K, const void *arg, bool *unresolved) {
   const MemberChoice *mc = arg;
-  double total = 0, run = 0;
-  for (long i = 0; i < K; i++) total += s[i] * s[i];
+  double total = energy_total(s, K), run = 0;
   long kept = 0;
   if (!(total > 0)) return 0;
   for (;;) {
@@ -224,7 +243,7 @@ static long choose_member(const double *s, long K, const void *arg, bool *unreso
       *unresolved = true; /* kept or dropped: only the SVD can tell */
       break;
     }
-    run += s[kept] * s[kept];
+    run += (s[kept] / s[0]) * (s[kept] / s[0]);
     kept++;
     if (run >= mc->energy * total) break;
   }
@@ -253,6 +272,26 @@ static int pca_core(long n, long S, const double *X, int cap, double energy, dou
   *k = 0;
   *captured = 1;
   if (sv) *sv = NULL, *nsv = 0;
+  /* Snapshots far from 1 (issue 24: 1e-200 or 1e200 times O(1) data): the
+   * Gram matrix's products underflow to 0 or overflow to inf, so they are
+   * scaled by a power of two (exact) into [1, 2) first; the basis does not
+   * change with the scale, and the singular values are scaled back. */
+  double big = 0;
+  for (size_t i = 0; i < (size_t)n * (size_t)S; i++) big = fmax(big, fabs(X[i]));
+  if (big > 0 && isfinite(big) && (big < PCA_SCALE_MIN || big > 1 / PCA_SCALE_MIN)) {
+    int e = ilogb(big);
+    double *Xs = malloc(sizeof(double) * ((size_t)n * (size_t)S + 1));
+    if (!Xs) {
+      snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+      return -1;
+    }
+    for (size_t i = 0; i < (size_t)n * (size_t)S; i++) Xs[i] = ldexp(X[i], -e);
+    int rc = pca_core(n, S, Xs, cap, energy, U, k, captured, sv, nsv, err, errlen);
+    free(Xs);
+    if (rc == 0 && sv && *sv)
+      for (long i = 0; i < *nsv; i++) (*sv)[i] = ldexp((*sv)[i], e);
+    return rc;
+  }
   long r = n < S ? n : S;
   if (n >= 4 * S && S > 0) {
     double *sg = malloc(sizeof(double) * (size_t)S), *Ug = NULL;
@@ -261,9 +300,7 @@ static int pca_core(long n, long S, const double *X, int cap, double energy, dou
     Cols X1 = {X, S, true};
     GramResult g = sg ? gram_basis(n, 1, &X1, choose_member, &mc, cap, sg, &Ug, &kept) : GRAM_FAILED;
     if (g == GRAM_DONE) {
-      double total = 0, run = 0;
-      for (long i = 0; i < S; i++) total += sg[i] * sg[i];
-      for (long i = 0; i < kept; i++) run += sg[i] * sg[i];
+      double total = energy_total(sg, S), run = energy_total(sg, kept);
       *captured = total > 0 ? run / total : 1;
       *U = Ug;
       *k = (int)kept;
@@ -295,13 +332,12 @@ static int pca_core(long n, long S, const double *X, int cap, double energy, dou
     snprintf(err, errlen, "the SVD of %ld x %ld snapshots did not converge (LAPACK info %d)", n, S, (int)info);
     return -1;
   }
-  double total = 0;
-  for (long i = 0; i < r; i++) total += s[i] * s[i];
+  double total = energy_total(s, r);
   int kept = 0;
   double run = 0;
   if (total > 0) {
     while (kept < r && kept < cap && s[kept] > PCA_RANK_TOL * s[0]) {
-      run += s[kept] * s[kept];
+      run += (s[kept] / s[0]) * (s[kept] / s[0]);
       kept++;
       if (run >= energy * total) break;
     }
@@ -516,4 +552,16 @@ int pca_fix_signs(long n, long m, double *B) {
       for (long e = 0; e < n; e++) B[e * m + j] = -B[e * m + j];
   free(big), free(sign);
   return 0;
+}
+
+const char *pca_gram_out_of_range(long S, const double *G, double big) {
+  double diag = 0;
+  for (long a = 0; a < S; a++) {
+    double g = G[a * S + a];
+    if (!isfinite(g)) return "values beyond about 1e154, whose squares overflow the Gram matrix";
+    diag = fmax(diag, g);
+  }
+  if (diag < PCA_GRAM_MIN && (diag > 0 || big > 0))
+    return "values below about 1e-145, whose squares underflow in the Gram matrix (the truncation would see no energy)";
+  return NULL;
 }

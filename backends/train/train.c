@@ -290,12 +290,13 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
   double *lam = malloc(sizeof(double) * (size_t)S), *V = NULL;
   /* centered members: the shift x₀ and the sum of the shifted snapshots, then their mean */
   double ***X0 = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***D = calloc((size_t)m->nclasses + 1, sizeof(double **));
-  if (!G || !H || !Y || !lam || !X0 || !D) goto oom;
+  double **big = calloc((size_t)m->nclasses + 1, sizeof(double *)); /* every member's largest |entry| */
+  if (!G || !H || !Y || !lam || !X0 || !D || !big) goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     if (!(G[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(H[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
         !(X0[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(D[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(Y[c] = calloc((size_t)rc->nmembers, sizeof(double *))))
+        !(Y[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(big[c] = calloc((size_t)rc->nmembers, sizeof(double))))
       goto oom;
     for (int i = 0; i < rc->nmembers; i++) {
       if (!(G[c][i] = calloc((size_t)(S * S), sizeof(double))) ||
@@ -325,6 +326,7 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
             cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, x, 1);
             if (k < i1) cblas_daxpy((int)rc->n, 1.0, x, 1, D[c][i], 1);
           }
+          for (long e = 0; k < i1 && e < rc->n; e++) big[c][i] = fmax(big[c][i], fabs(x[e])); /* what enters G */
           if (!full) continue;
           /* G[I, K] = X_Iᵀ X_K for the batch K = [k0, k] (one sample: a
            * dgemv, faster than a dgemm of one column), and its mirror */
@@ -357,6 +359,11 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
     RClass *rc = &m->classes[c];
     for (int i = 0; i < rc->nmembers; i++) {
       RMember *mb = &rc->members[i];
+      const char *range = pca_gram_out_of_range(S, G[c][i], big[c][i]);
+      if (range) {
+        npg_fail(err, errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
+        goto done;
+      }
       if (mb->center) { /* J G J, and d the mean of the shifted snapshots */
         double *g = G[c][i], all = 0;
         for (long a = 0; a < S; a++) {
@@ -456,7 +463,9 @@ done:
     if (Y) free(Y[c]);
     if (X0) free(X0[c]);
     if (D) free(D[c]);
+    if (big) free(big[c]);
   }
+  free(big);
   free(G);
   free(H);
   free(Y);

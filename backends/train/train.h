@@ -210,6 +210,12 @@ long pca_choose(const double *s, long K, int cap, double energy, bool *unresolve
  * k is over half of S. G is overwritten. 0, or LAPACK's info (-1 when out
  * of memory). */
 int pca_top_eigen(long S, double *G, long k, double *lam, double *V);
+/* The Gram matrix G (S x S, either layout) of snapshots too large or too
+ * small for their squares (issue 24: 1e200 or 1e-200 data), `big` their
+ * largest |entry| (0: not known): what is wrong, else NULL. The Gram routes
+ * (method of snapshots, out of core) refuse them; the in-memory PCA scales
+ * them instead. */
+const char *pca_gram_out_of_range(long S, const double *G, double big);
 /* The basis sign convention: every column of B (n x m row-major) turned so
  * that its first entry of at least half its largest magnitude is positive
  * (every route to a basis — SVD, Gram matrix, out of core — ends with it,

@@ -556,6 +556,12 @@ int npy_write(const char *path, NpyType type, int ndim, const long *shape, const
   }
   if (count && !data) return fail(&r, "cannot write: no data for %zu elements", count);
 
+  /* the rename below would replace a link, FIFO or device node with a file
+   * (as root, /dev/full itself): only a regular file is ever replaced */
+  struct stat st;
+  if (lstat(path, &st) == 0 && !S_ISREG(st.st_mode))
+    return fail(&r, "is not a regular file (a %s): refusing to replace it",
+                S_ISLNK(st.st_mode) ? "symbolic link" : S_ISDIR(st.st_mode) ? "directory" : "FIFO, socket or device node");
   char header[1024];
   size_t hlen = format_header(header, sizeof header, type, ndim, shape);
   size_t tmplen = strlen(path) + 32;

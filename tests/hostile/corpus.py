@@ -733,7 +733,7 @@ def cli_cases():
     cli("emit_reduced_no_value", ["emit", "vec.npg", "-o", "out/e.c", "--reduced"], 2, "npgc emit: --reduced needs a value")
     cli("emit_over_program", ["emit", "vec.npg", "-o", "vec.npg"], 1, "would overwrite an input of the command")
     cli("emit_into_model", ["emit", "vec.npg", "--reduced", "M", "-o", "M/manifest"], 1, "would overwrite an input")
-    cli("emit_to_directory", ["emit", "vec.npg", "-o", "D"], 1, "cannot rename D.tmp to D: Is a directory")
+    cli("emit_to_directory", ["emit", "vec.npg", "-o", "D"], 1, "-o D: is a directory: refusing to replace it")
     cli("emit_under_file", ["emit", "vec.npg", "-o", "vec.npg/x.c"], 1, "vec.npg exists and is not a directory")
     cli("emit_reduced_missing_model", ["emit", "vec.npg", "--reduced", "nosuch", "-o", "out/x.c"], 1,
         "nosuch/manifest: cannot open")
@@ -799,8 +799,8 @@ def cli_cases():
         "=error: --basis N: no quantity, class or numerator of that name; classes (members): m_x (x); m_y (y), "
         "or '*' for all")
     cli("train_cap_no_value", ["train", "vec.npg", "D", "-o", "models/x", "--cap"], 2, "npgc train: --cap needs a value")
-    cli("train_out_is_data", ["train", "vec.npg", "D", "-o", "D"], 1, "-o D is an input of the command")
-    cli("train_out_is_program", ["train", "vec.npg", "D", "-o", "vec.npg"], 1, "is an input of the command")
+    cli("train_out_is_data", ["train", "vec.npg", "D", "-o", "D"], 1, "-o D would overwrite an input of the command")
+    cli("train_out_is_program", ["train", "vec.npg", "D", "-o", "vec.npg"], 1, "would overwrite an input of the command")
     cli("train_data_missing", ["train", "vec.npg", "nosuch", "-o", "models/x"], 1, "nosuch/rho.npy: cannot open")
     cli("train_data_is_file", ["train", "vec.npg", "vec.npg", "-o", "models/x"], 1, "vec.npg/rho.npy: cannot open")
     cli("train_dev_null_program", ["train", "/dev/null", "D", "-o", "models/x"], 1, "the program has no output")

@@ -106,4 +106,32 @@ for how in 1 1:kill 1:ooc; do
   leftover=$(ls -d "$scratch/dead" "$scratch"/dead.tmp.* "$scratch"/dead.old.* "$scratch"/dead.ooc.* 2>/dev/null || true)
   [ -z "$leftover" ] || fail "NPG_MPI_FAIL_RANK=$how left $leftover"
 done
+# (e) ranks given different problems (issue 24: a model 80 % wrong with exit 0, or an MPI abort
+# with no message): every rank refuses before training, naming what differs; no model is left
+"$build/radiosity_data" "$scratch/rsame" 60 13 0 1 7 >/dev/null
+"$build/radiosity_data" "$scratch/rfew" 60 9 0 1 7 >/dev/null
+"$build/radiosity_data" "$scratch/rdims" 48 13 0 1 7 >/dev/null
+/usr/bin/python3 -c "import numpy as np,sys; r=np.load(sys.argv[1]); np.save(sys.argv[1], r*0.5)" "$scratch/rsame/rho.npy"
+for case in "rsame|param 'rho' (the hash of its values) differs between ranks" \
+            "rfew|the number of training samples is 9 on some ranks and 13 on others" \
+            "rdims|dim F is 48 on some ranks and 60 on others" \
+            "rdata --cap 4|--cap is 4 on some ranks and 8 on others"; do
+  other=${case%%|*} want=${case#*|}
+  rm -rf "$scratch/differ"*
+  # shellcheck disable=SC2086
+  if $mpirun -np 1 "$npgc" train $prog "$scratch/rdata" -o "$scratch/differ" --cap 8 --mpi : \
+      -np 1 "$npgc" train $prog --cap 8 "$scratch"/$other -o "$scratch/differ" --mpi >"$scratch/differ.log" 2>&1; then
+    fail "ranks given $other trained"
+  fi
+  grep -qF "the 2 MPI ranks were not given the same training: $want" "$scratch/differ.log" ||
+    fail "ranks given $other: $(cat "$scratch/differ.log")"
+  [ -z "$(ls -d "$scratch"/differ* 2>/dev/null | grep -v differ.log || true)" ] || fail "ranks given $other left a model"
+done
+sed 's|/ pi |/ (2 * pi) |' $prog >"$scratch/other.npg"
+if $mpirun -np 1 "$npgc" train $prog "$scratch/rdata" -o "$scratch/differ" --mpi : \
+    -np 1 "$npgc" train "$scratch/other.npg" "$scratch/rdata" -o "$scratch/differ" --mpi >"$scratch/differ.log" 2>&1; then
+  fail "ranks given two programs trained"
+fi
+grep -qF "not given the same training: the program (its hash) differs between ranks" "$scratch/differ.log" ||
+  fail "ranks given two programs: $(cat "$scratch/differ.log")"
 echo "mpi.sh: 2 and 3 ranks equal one process, in memory and out of core; a failed and a killed rank end the job, named, no model"
