@@ -179,8 +179,9 @@ def check_console(path, first, text, work):
         elif line.strip():
             session[-1][1].append(line)
     for cmd, expected, status in session:
-        run = re.sub(r"(?<![\w/])build/", build.rstrip("/") + "/", cmd)
-        run = re.sub(r"/tmp/(\w+)", lambda m: os.path.join(work, m.group(1)), run)
+        # the text's /tmp/NAME first: the build folder may itself lie under /tmp (a clone there)
+        run = re.sub(r"/tmp/(\w+)", lambda m: os.path.join(work, m.group(1)), cmd)
+        run = re.sub(r"(?<![\w/])build/", build.rstrip("/") + "/", run)
         r = subprocess.run(run, shell=True, capture_output=True, text=True)
         out = (r.stdout + r.stderr).splitlines()
         counts["expectations"] += 1 + len(expected)
