@@ -24,6 +24,14 @@ static StageKind kind_of_terms(Term **terms, int n) {
   return k;
 }
 
+bool lower_interp_eligible(const Stage *st) {
+  if (st->kind != ST_INVERSE && st->kind != ST_ROOT) return false;
+  for (int t = 0; t < st->nterms; t++)
+    for (int k = 0; k < st->terms[t]->nops; k++)
+      if (st->terms[t]->ops[k].kind != OPK_DIAG) return false;
+  return true;
+}
+
 /* Is the term's polynomial exactly a named quantity of the stage's shape,
  * entry for entry (the identity map)? Then it shares the stage's basis. */
 static Sym *named_numerator(const Sym *s, const Field *f) {
