@@ -35,6 +35,8 @@ typedef struct Common {
   double *basis_energy;
   int *basis_center;
   const char *spectra;      /* train --spectra DIR */
+  int ninterp;              /* train --reduce STAGE:interp */
+  const char **interp_stage;
   const char *cmd;
 } Common;
 
@@ -91,6 +93,21 @@ static bool parse_basis(Common *c, const char *s) {
   return true;
 }
 
+/* --reduce STAGE:interp|galerkin (DESIGN §12): galerkin is what training
+ * does without it */
+static bool parse_reduce(Common *c, const char *s) {
+  const char *colon = strrchr(s, ':');
+  if (!colon || colon == s) return false;
+  if (strcmp(colon + 1, "galerkin") == 0) return true;
+  if (strcmp(colon + 1, "interp") != 0) return false;
+  const char **names = realloc(c->interp_stage, sizeof(char *) * (size_t)(c->ninterp + 1));
+  if (!names) return false;
+  c->interp_stage = names;
+  if (!(names[c->ninterp] = strndup(s, (size_t)(colon - s)))) return false;
+  c->ninterp++;
+  return true;
+}
+
 static int usage(const char *cmd) { return npgc_usage(cmd, false); }
 
 static int parse(Common *c, int argc, char **argv) {
@@ -131,6 +148,10 @@ static int parse(Common *c, int argc, char **argv) {
       c->spectra = argv[++i];
     } else if (strcmp(a, "--basis") == 0 && has) {
       ok = parse_basis(c, argv[++i]);
+    } else if (strcmp(a, "--reduce") == 0 && has && strcmp(c->cmd, "train") == 0) {
+      ok = parse_reduce(c, argv[++i]);
+    } else if (strcmp(a, "--interp-oversample") == 0 && has && strcmp(c->cmd, "train") == 0) {
+      ok = npgc_parse_double(argv[++i], 1, 1000, false, &c->train.interp_oversample);
     } else if (strcmp(a, "--merge") == 0 && has) {
       const char *v = argv[++i];
       c->train.joint = strcmp(v, "joint") == 0;
@@ -150,7 +171,7 @@ static int parse(Common *c, int argc, char **argv) {
       bool valued = !strcmp(a, "-o") || !strcmp(a, "--tol") || !strcmp(a, "--cap") || !strcmp(a, "--energy") ||
                     !strcmp(a, "--basis") || !strcmp(a, "--merge") || !strcmp(a, "--mem") ||
                     !strcmp(a, "--exact-size") || !strcmp(a, "--reps") || !strcmp(a, "--center") ||
-                    !strcmp(a, "--spectra");
+                    !strcmp(a, "--spectra") || !strcmp(a, "--reduce") || !strcmp(a, "--interp-oversample");
       fprintf(stderr, "npgc %s: %s '%s'\n", c->cmd, valued && !has ? "missing the value of" : "unknown option", a);
       return usage(c->cmd);
     } else if (!c->prog_path) c->prog_path = a;
@@ -168,6 +189,8 @@ static int parse(Common *c, int argc, char **argv) {
   c->train.basis_cap = c->basis_cap;
   c->train.basis_energy = c->basis_energy;
   c->train.basis_center = c->basis_center;
+  c->train.ninterp = c->ninterp;
+  c->train.interp_stage = c->interp_stage;
   return 0;
 }
 
@@ -177,6 +200,8 @@ static void free_common(Common *c) {
   free(c->basis_cap);
   free(c->basis_energy);
   free(c->basis_center);
+  for (int i = 0; i < c->ninterp; i++) free((char *)c->interp_stage[i]);
+  free(c->interp_stage);
 }
 
 static NpgProgram *compile(Common *c) {

@@ -473,6 +473,9 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.override_name = (const char **)t->opt.basis_name;
   o.override_cap = (int *)t->opt.basis_cap;
   o.override_energy = (double *)t->opt.basis_energy;
+  o.ninterp = t->opt.ninterp;
+  o.interp_stage = t->opt.interp_stage;
+  o.interp_oversample = t->opt.interp_oversample;
   SampleSource src = {t->samples, t, replay, replay_part, share_samples};
   char err[2048] = "";
   Model *m = train_model((Program *)t->prog, t->f, &src, &o, err, sizeof err);

@@ -235,6 +235,12 @@ typedef struct NpgTrainOptions {
                                (MPI_Abort, "npg: rank K of N failed: …" on stderr), since the others
                                wait for it; no model is written. A build without MPI refuses it
                                (npg_mpi_available). */
+  /* -- interpolated stages (DESIGN §12; issue 26) -- */
+  int ninterp;              /* the stages interp_stage[0..ninterp) are reduced by interpolation, not
+                               Galerkin: each must be eligible (every operator diagonal: npgc check
+                               says which); the array must outlive the trainer */
+  const char *const *interp_stage;
+  double interp_oversample; /* entries selected per basis vector, >= 1 (0: the default, 2) */
 } NpgTrainOptions;
 NPG_API void npg_train_options_default(NpgTrainOptions *o);
 /* Whether this build of libnpg has MPI (NpgTrainOptions.mpi). */
@@ -313,6 +319,11 @@ typedef struct NpgSpectrum {
 } NpgSpectrum;
 NPG_API int npg_spectra_read(const char *model_dir, NpgSpectrum **out, int *count, char *err, size_t errlen);
 NPG_API void npg_spectra_free(NpgSpectrum *s, int count);
+/* -- interpolated stages (DESIGN §12; issue 26) --
+ * How the model reduces stage `stage`: 1 by interpolation (then *entries,
+ * when not NULL, is the number of entries it evaluates the stage at), 0 by
+ * Galerkin projection, -1 when the model or the name is not valid. */
+NPG_API int npg_model_stage_interpolated(const NpgModel *m, const char *stage, long *entries);
 NPG_API int npg_model_nclasses(const NpgModel *m);
 NPG_API int npg_model_class(const NpgModel *m, int c, NpgClassInfo *out);
 NPG_API int npg_model_member(const NpgModel *m, int c, int i, NpgMemberInfo *out);

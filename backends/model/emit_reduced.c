@@ -479,6 +479,12 @@ static int guarded_unit(RedEmit *e, char *err, size_t errlen) {
 }
 
 int emit_reduced(const Model *m, FILE *out, char *err, size_t errlen) {
+  for (int i = 0; i < m->nstages; i++)
+    if (m->stages[i].interp)
+      return npg_fail(err, errlen,
+                      "stage %s is interpolated (DESIGN §12): generated reduced code does not evaluate interpolated "
+                      "stages yet; evaluate the model with the library (npgc eval, npg_reduced_eval)",
+                      m->stages[i].st->sym->name);
   RedEmit e = {0};
   e.m = m;
   e.ctx = m->prog->ctx;

@@ -77,6 +77,7 @@ typedef struct RStage {
   int q;                    /* index in Program.quantities */
   int nterms;
   RTerm *terms;
+  struct RInterp *interp;   /* reduced by interpolation (interp.h, DESIGN §12), or NULL: Galerkin (owned) */
 } RStage;
 
 /* One member's contribution to a class basis: a quantity or an unnamed

@@ -38,7 +38,18 @@ typedef struct TrainOptions {
   int *override_cap;
   double *override_energy;
   int *override_center;     /* 1 on, 0 off, -1 not given (may be NULL: not given) */
+  /* interpolated stages (DESIGN §12, interp.h): the stages named are reduced by interpolation
+   * (each must be eligible: lower_interp_eligible), at k = ceil(oversample · m) entries */
+  int ninterp;
+  const char *const *interp_stage;
+  double interp_oversample; /* 0: the default (TRAIN_INTERP_OVERSAMPLE) */
 } TrainOptions;
+
+/* Selected entries per basis vector of an interpolated stage when not given.
+ * Not yet chosen by measurement over the corpus (issue 26): twice m is the
+ * common choice of oversampled DEIM ("gappy POD"), and on softened gravity
+ * it keeps ‖(PB)⁺‖ small where k = m alone does not. */
+#define TRAIN_INTERP_OVERSAMPLE 2.0
 
 /* The source of samples: sets every input and extern of sample k. */
 typedef struct SampleSource {
@@ -101,6 +112,16 @@ int train_member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, cha
 /* One direction for a class whose every snapshot is zero; with `full_rank`
  * the basis completed to the class's dimension. */
 int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen);
+
+/* ---------------------------------------------------------------- interpolated stages (interp_train.c) */
+
+/* Make stage number `stage` of `m` (bases built, `f` bound as for
+ * pre-multiplication) interpolated: its entries selected from its class
+ * basis, (PB)⁺ formed, its formula at those entries read from the tensor
+ * builders into m->stages[stage].interp (replacing any). 0, or -1 with
+ * `err` (the stage not eligible, the selected rows rank deficient, out of
+ * memory). */
+int interp_train_stage(Model *m, NpgFull *f, int stage, double oversample, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- out-of-core bases (ooc.c) */
 
