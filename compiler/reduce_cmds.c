@@ -35,8 +35,9 @@ typedef struct Common {
   double *basis_energy;
   int *basis_center;
   const char *spectra;      /* train --spectra DIR */
-  int ninterp;              /* train --reduce STAGE:interp */
-  const char **interp_stage;
+  int ninterp, ngalerkin;   /* train --reduce STAGE:interp, STAGE:galerkin */
+  const char **interp_stage, **galerkin_stage;
+  const char *valid;        /* train --valid DIR */
   const char *cmd;
 } Common;
 
@@ -98,13 +99,15 @@ static bool parse_basis(Common *c, const char *s) {
 static bool parse_reduce(Common *c, const char *s) {
   const char *colon = strrchr(s, ':');
   if (!colon || colon == s) return false;
-  if (strcmp(colon + 1, "galerkin") == 0) return true;
-  if (strcmp(colon + 1, "interp") != 0) return false;
-  const char **names = realloc(c->interp_stage, sizeof(char *) * (size_t)(c->ninterp + 1));
+  bool interp = strcmp(colon + 1, "interp") == 0;
+  if (!interp && strcmp(colon + 1, "galerkin") != 0) return false;
+  int *n = interp ? &c->ninterp : &c->ngalerkin;
+  const char ***list = interp ? &c->interp_stage : &c->galerkin_stage;
+  const char **names = realloc(*list, sizeof(char *) * (size_t)(*n + 1));
   if (!names) return false;
-  c->interp_stage = names;
-  if (!(names[c->ninterp] = strndup(s, (size_t)(colon - s)))) return false;
-  c->ninterp++;
+  *list = names;
+  if (!(names[*n] = strndup(s, (size_t)(colon - s)))) return false;
+  (*n)++;
   return true;
 }
 
@@ -150,6 +153,8 @@ static int parse(Common *c, int argc, char **argv) {
       ok = parse_basis(c, argv[++i]);
     } else if (strcmp(a, "--reduce") == 0 && has && strcmp(c->cmd, "train") == 0) {
       ok = parse_reduce(c, argv[++i]);
+    } else if (strcmp(a, "--valid") == 0 && has && strcmp(c->cmd, "train") == 0) {
+      c->valid = argv[++i];
     } else if (strcmp(a, "--interp-oversample") == 0 && has && strcmp(c->cmd, "train") == 0) {
       ok = npgc_parse_double(argv[++i], 1, 1000, false, &c->train.interp_oversample);
     } else if (strcmp(a, "--merge") == 0 && has) {
@@ -171,7 +176,8 @@ static int parse(Common *c, int argc, char **argv) {
       bool valued = !strcmp(a, "-o") || !strcmp(a, "--tol") || !strcmp(a, "--cap") || !strcmp(a, "--energy") ||
                     !strcmp(a, "--basis") || !strcmp(a, "--merge") || !strcmp(a, "--mem") ||
                     !strcmp(a, "--exact-size") || !strcmp(a, "--reps") || !strcmp(a, "--center") ||
-                    !strcmp(a, "--spectra") || !strcmp(a, "--reduce") || !strcmp(a, "--interp-oversample");
+                    !strcmp(a, "--spectra") || !strcmp(a, "--reduce") || !strcmp(a, "--interp-oversample") ||
+                    !strcmp(a, "--valid");
       fprintf(stderr, "npgc %s: %s '%s'\n", c->cmd, valued && !has ? "missing the value of" : "unknown option", a);
       return usage(c->cmd);
     } else if (!c->prog_path) c->prog_path = a;
@@ -191,6 +197,8 @@ static int parse(Common *c, int argc, char **argv) {
   c->train.basis_center = c->basis_center;
   c->train.ninterp = c->ninterp;
   c->train.interp_stage = c->interp_stage;
+  c->train.ngalerkin = c->ngalerkin;
+  c->train.galerkin_stage = c->galerkin_stage;
   return 0;
 }
 
@@ -202,6 +210,8 @@ static void free_common(Common *c) {
   free(c->basis_center);
   for (int i = 0; i < c->ninterp; i++) free((char *)c->interp_stage[i]);
   free(c->interp_stage);
+  for (int i = 0; i < c->ngalerkin; i++) free((char *)c->galerkin_stage[i]);
+  free(c->galerkin_stage);
 }
 
 static NpgProgram *compile(Common *c) {
@@ -236,7 +246,7 @@ static int cmd_train(Common *c) {
   if (!p) return 1;
   char err[2048] = "";
   int rc = 1;
-  NpgSamples *s = NULL;
+  NpgSamples *s = NULL, *v = NULL;
   NpgTrainer *t = NULL;
   NpgModel *m = NULL;
   NpgFull *f = npg_full_new(p, c->cc ? NPG_CC : NPG_TCC);
@@ -251,6 +261,20 @@ static int cmd_train(Common *c) {
   if (npg_samples_count(s) < 1) {
     fprintf(stderr, "error: %s: no samples (the first axis of its inputs is 0)\n", c->a);
     goto done;
+  }
+  if (c->valid) { /* DESIGN §12: Galerkin or interpolation per eligible stage, by the error on these */
+    if (!(v = npg_samples_open(p, c->valid, NULL, true, err, sizeof err)) ||
+        npg_full_check_params_dir(f, c->valid, err, sizeof err) != 0) {
+      npgc_error(err);
+      goto done;
+    }
+    c->train.valid_count = npg_samples_count(v);
+    c->train.valid_set = npg_samples_set;
+    c->train.valid_user = v;
+    if (c->train.valid_count < 1) {
+      fprintf(stderr, "error: --valid %s: no samples (the first axis of its inputs is 0)\n", c->valid);
+      goto done;
+    }
   }
   double t0 = now();
   t = npg_trainer_new(f, &c->train);
@@ -275,6 +299,7 @@ done:
   npg_model_free(m);
   npg_trainer_free(t);
   npg_samples_free(s);
+  npg_samples_free(v);
   npg_full_free(f);
   npg_free(p);
   return rc;

@@ -476,6 +476,14 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.ninterp = t->opt.ninterp;
   o.interp_stage = t->opt.interp_stage;
   o.interp_oversample = t->opt.interp_oversample;
+  o.ngalerkin = t->opt.ngalerkin;
+  o.galerkin_stage = t->opt.galerkin_stage;
+  SampleSource valid = {t->opt.valid_count, t->opt.valid_user, t->opt.valid_set, NULL, NULL};
+  if (t->opt.valid_count > 0 && !t->opt.valid_set) {
+    tfail(t, "NpgTrainOptions: valid_count %ld validation samples but no valid_set", t->opt.valid_count);
+    return NULL;
+  }
+  o.valid = t->opt.valid_count > 0 ? &valid : NULL;
   SampleSource src = {t->samples, t, replay, replay_part, share_samples};
   char err[2048] = "";
   Model *m = train_model((Program *)t->prog, t->f, &src, &o, err, sizeof err);

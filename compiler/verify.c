@@ -69,7 +69,9 @@ static void fill_rows(const Model *m, const ErrSum *sum, long S, NpgVerifyReport
     row->name = s->name;
     row->kind = s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage";
     for (int i = 0; i < m->nstages; i++)
-      if (m->stages[i].q == q && m->stages[i].st->kind != ST_EXTERN) row->kind = stage_kind_name[m->stages[i].st->kind];
+      if (m->stages[i].q == q && m->stages[i].st->kind != ST_EXTERN)
+        row->kind = !m->stages[i].interp ? stage_kind_name[m->stages[i].st->kind]
+                    : m->stages[i].st->kind == ST_ROOT ? "root, interp" : "inverse, interp"; /* DESIGN §12 */
     row->m = m->classes[m->qclass[q]].m;
     row->output = s->is_output;
     row->l2 = sum[q].l2 / (double)S;

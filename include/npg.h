@@ -241,6 +241,14 @@ typedef struct NpgTrainOptions {
                                says which); the array must outlive the trainer */
   const char *const *interp_stage;
   double interp_oversample; /* entries selected per basis vector, >= 1 (0: the default, 2) */
+  int ngalerkin;            /* the stages galerkin_stage[0..ngalerkin) are reduced by Galerkin */
+  const char *const *galerkin_stage;
+  long valid_count;         /* validation samples (the training params), set by valid_set(valid_user, f, k):
+                               every eligible stage neither list names is reduced both ways and the lower
+                               output error on them kept (ties: the cheaper); 0: Galerkin. The choice is
+                               in npg_model_report() */
+  NpgSampleFn valid_set;
+  void *valid_user;
 } NpgTrainOptions;
 NPG_API void npg_train_options_default(NpgTrainOptions *o);
 /* Whether this build of libnpg has MPI (NpgTrainOptions.mpi). */

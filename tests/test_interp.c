@@ -11,6 +11,11 @@
  *   - a model with an interpolated stage saves, loads and evaluates through
  *     npg.h bit for bit, says which stages are interpolated, and is written
  *     in format 2 (which builds before it refuse); one without is format 1;
+ *   - with validation samples, training keeps the reduction with the lower
+ *     output error (a tie at full rank goes to the cheaper, interpolation),
+ *     and a stage forced to Galerkin is not measured;
+ *   - verify's advice names --reduce STAGE:interp when a stage's own error
+ *     dominates while its inputs sit at their floors;
  *   - a stage that is not eligible, or not a stage, is refused by name.
  */
 #include <cblas.h>
@@ -321,6 +326,124 @@ static void save_load_evaluate(void **state) {
   free(x);
 }
 
+/* ---------------------------------------------------------------- the choice by validation error */
+
+/* Train `path` (every dim n, S samples, caps `cap`) with validation samples:
+ * the model whose choices were made. */
+static Model *train_choosing(const char *path, NpgProgram **pp, NpgFull **ff, MemSamples *train, MemSamples *valid,
+                             long n, long S, int cap, const char *const *galerkin, int ngalerkin) {
+  NpgProgram *p = compile_file(path);
+  Program *prog = ir_ok(p);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  if (memsamples_fill(train, prog, f, n, S, 21u)) fail_msg("binding random params failed");
+  held_out(prog, valid, train, n, 6);
+  SampleSource src = {S, train, memsamples_set, NULL, NULL}, vs = {6, valid, memsamples_set, NULL, NULL};
+  TrainOptions opt = {0};
+  opt.cap = cap;
+  opt.energy = 1.0;
+  opt.full_rank = cap > 1000;
+  opt.valid = &vs;
+  opt.ngalerkin = ngalerkin, opt.galerkin_stage = galerkin;
+  char err[2048] = "";
+  Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
+  if (!m) fail_msg("%s: training: %s", path, err);
+  *pp = p, *ff = f;
+  return m;
+}
+
+static void choice_by_validation(void **state) {
+  (void)state;
+  NpgProgram *p;
+  NpgFull *f;
+  MemSamples train, valid;
+  /* full rank: both ways exact, a tie, and interpolation (a lift and a power
+   * per entry) is cheaper than an eigendecomposition */
+  Model *m = train_choosing("tests/programs/rational_power.npg", &p, &f, &train, &valid, 5, 12, 1 << 20, NULL, 0);
+  const RStage *rs = &m->stages[0];
+  assert_string_equal(rs->st->sym->name, "y");
+  assert_non_null(rs->choice_reason);
+  print_message("rational_power, full rank: Galerkin %.3g, interpolation %.3g: %s\n", rs->choice_err[0],
+                rs->choice_err[1], rs->choice_reason);
+  assert_true(rs->choice_err[0] < 1e-10 && rs->choice_err[1] < 1e-10);
+  assert_string_equal(rs->choice_reason, "errors tie, interpolation cheaper");
+  assert_non_null(rs->interp);
+  model_free(m);
+  memsamples_free(&valid);
+  memsamples_free(&train);
+  npg_full_free(f);
+  npg_free(p);
+  /* truncated: whichever is kept measured lower (or tied and cheaper), and
+   * the kept model's own error on the validation samples is that one */
+  m = train_choosing(NBODY, &p, &f, &train, &valid, 5, 30, 4, NULL, 0);
+  int wi = 0;
+  while (strcmp(m->stages[wi].st->sym->name, "w") != 0) wi++;
+  rs = &m->stages[wi];
+  assert_non_null(rs->choice_reason);
+  double g = rs->choice_err[0], e = rs->choice_err[1];
+  print_message("n-body, caps 4: Galerkin %.3g, interpolation %.3g: %s\n", g, e, rs->choice_reason);
+  bool tie = fabs(g - e) <= 0.02 * fmin(g, e) + 1e-12;
+  if (!tie) assert_true((rs->interp != NULL) == (e < g));
+  model_free(m);
+  /* forced Galerkin: not measured, not interpolated */
+  const char *gal[1] = {"w"};
+  m = train_choosing(NBODY, &p, &f, &train, &valid, 5, 30, 4, gal, 1);
+  rs = &m->stages[wi];
+  assert_null(rs->choice_reason);
+  assert_null(rs->interp);
+  model_free(m);
+  memsamples_free(&valid);
+  memsamples_free(&train);
+  npg_full_free(f);
+  npg_free(p);
+}
+
+/* ---------------------------------------------------------------- advice */
+
+/* verify's warning for a stage far above its floor: interpolation when its
+ * inputs sit at their floors and it is eligible, more entries when it is
+ * interpolated already, a larger input basis when an input's error is
+ * comparable to its own. */
+static void advice_names_the_cause(void **state) {
+  (void)state;
+  NpgProgram *p = compile_file(NBODY);
+  Program *prog = ir_ok(p);
+  long dims[1] = {4};
+  char err[512], *text = NULL;
+  size_t len = 0;
+  Model *m = model_layout(prog, dims, err, sizeof err);
+  assert_non_null(m);
+  /* quantities: x, r2, w, a */
+  assert_string_equal(((Sym *)prog->quantities.v[2])->name, "w");
+  double e[4] = {1e-16, 1e-16, 0.1, 0.01}, f[4] = {1e-16, 1e-16, 0.01, 0.01};
+  FILE *out = open_memstream(&text, &len);
+  report_verify_warnings(m, e, f, 1, out);
+  fclose(out);
+  assert_non_null(strstr(text, "warning: stage w: error 1.00e-01 is 10.0x its projection floor"));
+  assert_non_null(strstr(text, "npgc train --reduce w:interp"));
+  free(text);
+  /* r2's error comparable to w's: its basis is the cure */
+  e[1] = f[1] = 0.05;
+  out = open_memstream(&text, &len);
+  report_verify_warnings(m, e, f, 1, out);
+  fclose(out);
+  assert_null(strstr(text, "--reduce w:interp"));
+  assert_non_null(strstr(text, "it reads r2 with error 5.00e-02: a larger basis for it, --basis r2:cap=N"));
+  free(text);
+  /* interpolated already: more entries */
+  e[1] = f[1] = 1e-16;
+  m->stages[1].interp = calloc(1, sizeof(RInterp));
+  assert_string_equal(m->stages[1].st->sym->name, "w");
+  m->stages[1].interp->k = 12, m->stages[1].interp->pinv_norm = 3;
+  out = open_memstream(&text, &len);
+  report_verify_warnings(m, e, f, 1, out);
+  fclose(out);
+  assert_non_null(strstr(text, "interpolated at 12 entries"));
+  assert_non_null(strstr(text, "--interp-oversample"));
+  free(text);
+  model_free(m);
+  npg_free(p);
+}
+
 /* ---------------------------------------------------------------- refusals */
 
 static void ineligible_refused(void **state) {
@@ -354,6 +477,8 @@ int main(void) {
       cmocka_unit_test(truncated_obeys_bound),
       cmocka_unit_test(save_load_evaluate),
       cmocka_unit_test(ineligible_refused),
+      cmocka_unit_test(choice_by_validation),
+      cmocka_unit_test(advice_names_the_cause),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -809,7 +809,9 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
   return 0;
 }
 
-/* Step 3b: the stages opt->interp_stage names made interpolated (DESIGN §12). */
+/* Step 3b: the stages opt->interp_stage names made interpolated, and with
+ * validation samples every other eligible stage reduced the way that
+ * measures better there (DESIGN §12). */
 static int interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, char *err, size_t errlen) {
   double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
   for (int j = 0; j < opt->ninterp; j++) {
@@ -819,12 +821,22 @@ static int interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, cha
       return npg_fail(err, errlen, "--reduce %s:interp: the program has no stage '%s'", opt->interp_stage[j],
                       opt->interp_stage[j]);
     if (interp_train_stage(m, f, i, over, err, errlen)) return -1;
+    m->stages[i].choice_reason = "forced (--reduce STAGE:interp)";
     if (opt->progress)
       fprintf(stderr, "stage %s interpolated: %ld of %ld entries (m %ld), ‖(PB)⁺‖ %.3g\n", opt->interp_stage[j],
               m->stages[i].interp->k, m->classes[m->qclass[m->stages[i].q]].n, m->stages[i].interp->m,
               m->stages[i].interp->pinv_norm);
   }
-  return 0;
+  for (int j = 0; j < opt->ngalerkin; j++) {
+    int i = 0;
+    while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->galerkin_stage[j]) != 0) i++;
+    if (i == m->nstages)
+      return npg_fail(err, errlen, "--reduce %s:galerkin: the program has no stage '%s'", opt->galerkin_stage[j],
+                      opt->galerkin_stage[j]);
+    if (m->stages[i].interp)
+      return npg_fail(err, errlen, "stage %s is forced both to interpolation and to Galerkin", opt->galerkin_stage[j]);
+  }
+  return opt->valid ? tune_choose_reductions(m, f, opt->valid, opt, err, errlen) : 0;
 }
 
 /* Steps 1–2: the bases, from snapshots in memory, by the method of

@@ -43,6 +43,11 @@ typedef struct TrainOptions {
   int ninterp;
   const char *const *interp_stage;
   double interp_oversample; /* 0: the default (TRAIN_INTERP_OVERSAMPLE) */
+  int ngalerkin;            /* the stages named are reduced by Galerkin, whatever `valid` measures */
+  const char *const *galerkin_stage;
+  /* validation samples (same params): every eligible stage neither list names is reduced both
+   * ways and the lower output error kept (tune_choose_reductions); NULL: Galerkin */
+  const struct SampleSource *valid;
 } TrainOptions;
 
 /* Selected entries per basis vector of an interpolated stage when not given.
@@ -168,6 +173,19 @@ typedef struct TuneResult {
 int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *valid, double tol, int max_cap,
                 bool progress, TuneResult *out, char *err, size_t errlen);
 void tune_result_free(TuneResult *r);
+
+/* Training's choice per stage (DESIGN §12): for every stage of `m` (bases
+ * and tensors made, `f` bound to the training params) that is eligible and
+ * not forced either way by `opt`, in evaluation order, the worst output's
+ * mean relative L2 error on the samples of `valid` with the stage reduced
+ * by Galerkin and interpolated (the choices of the stages before it made);
+ * the lower kept, a tie (within 2 %, or both under 1e-12) going to the fewer
+ * multiply-adds. A
+ * configuration that fails on a validation sample counts as an infinite
+ * error. The errors and the reason are left in rs->choice_err and
+ * rs->choice_reason (and on stderr with opt->progress). 0, or -1 with `err`. */
+int tune_choose_reductions(Model *m, NpgFull *f, const SampleSource *valid, const TrainOptions *opt, char *err,
+                           size_t errlen);
 
 /* ---------------------------------------------------------------- reports (report.c) */
 

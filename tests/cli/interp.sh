@@ -1,0 +1,51 @@
+#!/bin/sh
+# interp.sh BUILD_DIR — interpolated stages end to end (DESIGN §12): check
+# marks the eligible stage, train --reduce STAGE:interp writes a format-2
+# model that verify and eval use and reports as interpolated, --valid makes
+# and prints the choice, a stage that is not eligible is refused by name,
+# generated reduced code refuses an interpolated model, a Galerkin model
+# stays format 1.
+set -eu
+B=$1
+W=$(mktemp -d /tmp/npg_cli_XXXXXX)
+trap 'rm -rf "$W"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+
+P=tests/programs/nbody_gravity.npg
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]
+rng = np.random.default_rng(4)
+base = rng.normal(size=(8, 3)) * 2
+modes = rng.normal(size=(3, 8, 3))
+for name, S in (("TRAIN", 40), ("VALID", 8), ("TEST", 8)):
+    os.makedirs(f"{w}/{name}")
+    x = base + np.einsum("sk,kvc->svc", 0.2 * rng.normal(size=(S, 3)), modes)
+    np.save(f"{w}/{name}/x.npy", x)
+    np.save(f"{w}/{name}/mass.npy", np.full(8, 0.125))
+    np.save(f"{w}/{name}/eps.npy", np.array(0.05))
+PY
+"$B/npgc" check $P >"$W/check.txt" || fail "check"
+grep -q 'interpolation: eligible.*--reduce w:interp' "$W/check.txt" || fail "check does not mark w eligible"
+test "$(grep -c 'interpolation: eligible' "$W/check.txt")" = 1 || fail "check marks more than w"
+"$B/npgc" train $P "$W/TRAIN" -o "$W/GAL" >/dev/null || fail "train"
+test "$(head -1 "$W/GAL/manifest")" = "npg-model 1" || fail "a Galerkin model is not format 1"
+"$B/npgc" train $P "$W/TRAIN" -o "$W/INT" --reduce w:interp >"$W/train.txt" || fail "train --reduce w:interp"
+grep -q '^stage w: interpolated at [0-9]* of 64 entries' "$W/train.txt" || fail "training report: $(cat "$W/train.txt")"
+test "$(head -1 "$W/INT/manifest")" = "npg-model 2" || fail "an interpolated model is not format 2"
+"$B/npgc" verify $P "$W/INT" "$W/TEST" --tol 10 >"$W/verify.txt" || fail "verify: $(cat "$W/verify.txt")"
+grep -q '^w  *root, interp' "$W/verify.txt" || fail "verify does not show w interpolated: $(cat "$W/verify.txt")"
+"$B/npgc" eval $P "$W/INT" "$W/TEST" -o "$W/OUT" >/dev/null || fail "eval of an interpolated model"
+test -s "$W/OUT/a.npy" || fail "eval wrote no output"
+if "$B/npgc" emit $P --reduced "$W/INT" -o "$W/red.c" 2>"$W/err.txt"; then fail "emit --reduced of an interpolated model"; fi
+grep -q 'stage w is interpolated' "$W/err.txt" || fail "emit --reduced message: $(cat "$W/err.txt")"
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/BAD" --reduce r2:interp 2>"$W/err.txt" >/dev/null; then fail "r2 interpolated"; fi
+grep -q 'stage r2 cannot be interpolated: it applies no diagonal operator' "$W/err.txt" || fail "r2 message: $(cat "$W/err.txt")"
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/BAD" --reduce w:deim 2>/dev/null >/dev/null; then fail "--reduce w:deim accepted"; fi
+"$B/npgc" train $P "$W/TRAIN" -o "$W/AUTO" --valid "$W/VALID" >"$W/auto.txt" || fail "train --valid"
+grep -q '^stage w: .*output error on the validation samples by Galerkin .*, by interpolation .*: ' "$W/auto.txt" ||
+  fail "training does not print the choice: $(cat "$W/auto.txt")"
+"$B/npgc" train $P "$W/TRAIN" -o "$W/FORCED" --valid "$W/VALID" --reduce w:galerkin >"$W/forced.txt" || fail "train --reduce w:galerkin"
+if grep -q '^stage w' "$W/forced.txt"; then fail "a stage forced to Galerkin was measured"; fi
+grep "^stage w" "$W/auto.txt" "$W/train.txt"
+echo "ok"
