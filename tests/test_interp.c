@@ -384,6 +384,10 @@ static void choice_by_validation(void **state) {
   bool tie = fabs(g - e) <= 0.02 * fmin(g, e) + 1e-12;
   if (!tie) assert_true((rs->interp != NULL) == (e < g));
   model_free(m);
+  memsamples_free(&valid);
+  memsamples_free(&train);
+  npg_full_free(f);
+  npg_free(p);
   /* forced Galerkin: not measured, not interpolated */
   const char *gal[1] = {"w"};
   m = train_choosing(NBODY, &p, &f, &train, &valid, 5, 30, 4, gal, 1);
