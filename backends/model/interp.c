@@ -68,7 +68,8 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
                       "stage %s (interpolated) is not finite at its selected entry %ld at sample %ld (a diagonal zero "
                       "under a negative power, or a root of a negative value, from its inputs' reduced values)",
                       rs->st->sym->name, ip->rows[s], sample);
-  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)ip->m, (int)k, 1.0, ip->pinv, (int)k, py, 1, 0.0, y, 1);
+  if (ip->m == 0 || k == 0) memset(y, 0, sizeof(double) * (size_t)ip->m); /* (a forged model: BLAS wants lda >= 1) */
+  else cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)ip->m, (int)k, 1.0, ip->pinv, (int)k, py, 1, 0.0, y, 1);
   return 0;
 }
 
