@@ -155,6 +155,14 @@ static int parse(Common *c, int argc, char **argv) {
       ok = parse_reduce(c, argv[++i]);
     } else if (strcmp(a, "--valid") == 0 && has && strcmp(c->cmd, "train") == 0) {
       c->valid = argv[++i];
+      /* a fraction: held out of DATA/ (every round(1/F)-th sample) rather than a folder */
+      char *end;
+      double F = strtod(c->valid, &end);
+      if (end != c->valid && *end == 0) {
+        ok = F > 0 && F <= 0.5;
+        c->train.valid_holdout = F;
+        c->valid = NULL;
+      }
     } else if (strcmp(a, "--interp-oversample") == 0 && has && strcmp(c->cmd, "train") == 0) {
       ok = npgc_parse_double(argv[++i], 1, 1000, false, &c->train.interp_oversample);
     } else if (strcmp(a, "--merge") == 0 && has) {

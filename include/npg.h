@@ -249,6 +249,9 @@ typedef struct NpgTrainOptions {
                                in npg_model_report() */
   NpgSampleFn valid_set;
   void *valid_user;
+  double valid_holdout;     /* instead of validation samples, hold out this fraction (0, 0.5] of the
+                               samples added — every round(1/F)-th — from training to validate on
+                               (not over MPI ranks); 0: none */
 } NpgTrainOptions;
 NPG_API void npg_train_options_default(NpgTrainOptions *o);
 /* Whether this build of libnpg has MPI (NpgTrainOptions.mpi). */

@@ -4,7 +4,7 @@
 # model that verify and eval use and reports as interpolated, --valid makes
 # and prints the choice, a stage that is not eligible is refused by name,
 # generated reduced code refuses an interpolated model, a Galerkin model
-# stays format 1.
+# stays format 1, --valid F holds a fraction of the samples out instead.
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_cli_XXXXXX)
@@ -47,5 +47,11 @@ grep -q '^stage w: .*output error on the validation samples by Galerkin .*, by i
   fail "training does not print the choice: $(cat "$W/auto.txt")"
 "$B/npgc" train $P "$W/TRAIN" -o "$W/FORCED" --valid "$W/VALID" --reduce w:galerkin >"$W/forced.txt" || fail "train --reduce w:galerkin"
 if grep -q '^stage w' "$W/forced.txt"; then fail "a stage forced to Galerkin was measured"; fi
-grep "^stage w" "$W/auto.txt" "$W/train.txt"
+# held out of the training samples instead: 40 samples, every 4th validates
+"$B/npgc" train $P "$W/TRAIN" -o "$W/HOLD" --valid 0.25 >"$W/hold.txt" || fail "train --valid 0.25"
+grep -q '^trained .* on 40 samples' "$W/hold.txt" || fail "sample count: $(cat "$W/hold.txt")"
+grep -q '^samples 30$' "$W/HOLD/manifest" || fail "held-out samples trained on: $(grep '^samples' "$W/HOLD/manifest")"
+grep -q '^stage w: .*output error on the validation samples by Galerkin' "$W/hold.txt" || fail "no choice with --valid 0.25"
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/BAD" --valid 0.7 2>/dev/null >/dev/null; then fail "--valid 0.7 accepted"; fi
+grep "^stage w" "$W/auto.txt" "$W/train.txt" "$W/hold.txt"
 echo "ok"
