@@ -6,6 +6,8 @@
 # (npgc bench, best of its passes), on held-out samples. The inputs' bases
 # are kept at energy 1 (x, and r2 or l2, are polynomial in a few modes), so
 # the errors are the eligible stage's reduction and the output's basis.
+# OVERSAMPLE="1 2 4 8 16" sets the oversamplings tried (default "2 16"),
+# ROWS="springs gravity_eps0.1" the programs (default all).
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_interp_XXXXXX)
@@ -13,9 +15,10 @@ trap 'rm -rf "$W"' EXIT
 cd "$(dirname "$0")/.."
 row() { # name program data-kind stage input-basis samples
   name=$1 P=$2 kind=$3 st=$4 inb=$5 S=$6
+  case " ${ROWS:-$name} " in *" $name "*) ;; *) return 0;; esac
   /usr/bin/python3 bench/interp/data.py "$kind" "$W/$name.tr" "$S" 1
   /usr/bin/python3 bench/interp/data.py "$kind" "$W/$name.te" 20 2
-  for how in galerkin interp:2 interp:8; do
+  for how in galerkin $(for x in ${OVERSAMPLE:-2 16}; do echo interp:$x; done); do
     case $how in galerkin) opt="";; interp:*) opt="--reduce $st:interp --interp-oversample ${how#interp:}";; esac
     "$B/npgc" train "$P" "$W/$name.tr" -o "$W/$name.m" --basis x:energy=1 --basis "$inb:energy=1" $opt >/dev/null
     "$B/npgc" verify "$P" "$W/$name.m" "$W/$name.te" --tol 1e9 >"$W/v.txt"
