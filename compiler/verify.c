@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "api.h"
+#include "interp.h"
 #include "compile.h"
 #include "exact.h"
 
@@ -177,6 +178,7 @@ int npg_verify_warnings(const NpgModel *nm, const NpgVerifyReport *rep, double t
   double *means = malloc(sizeof(double) * 2 * (size_t)(m->nq + 1)); /* errors and floors */
   if (!means) return 0;
   for (int q = 0; q < m->nq; q++) means[q] = rep->rows[q].l2, means[m->nq + q] = rep->rows[q].floor;
+  interp_report(m, out); /* the reduction of each eligible stage, as training chose it (DESIGN §12) */
   int n = report_verify_warnings(m, means, means + m->nq, tol, out);
   free(means);
   return n;

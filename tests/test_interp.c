@@ -383,6 +383,19 @@ static void choice_by_validation(void **state) {
   print_message("n-body, caps 4: Galerkin %.3g, interpolation %.3g: %s\n", g, e, rs->choice_reason);
   bool tie = fabs(g - e) <= 0.02 * fmin(g, e) + 1e-12;
   if (!tie) assert_true((rs->interp != NULL) == (e < g));
+  /* the choice is recorded: saved and loaded with its errors and reason; a
+   * model that kept Galerkin stays format 1 */
+  char dir[4096], line[256], err[1024];
+  scratch_path(dir, "interp_choice");
+  assert_int_equal(model_save(m, dir, err, sizeof err), 0);
+  first_line(dir, line, sizeof line);
+  assert_string_equal(line, rs->interp ? "npg-model 2" : "npg-model 1");
+  Model *l = model_load(m->prog, dir, err, sizeof err);
+  if (!l) fail_msg("load: %s", err);
+  assert_ptr_equal(l->stages[wi].choice_reason, rs->choice_reason);
+  assert_true(l->stages[wi].choice_err[0] == g && l->stages[wi].choice_err[1] == e);
+  model_free(l);
+  remove_tree(dir);
   model_free(m);
   memsamples_free(&valid);
   memsamples_free(&train);

@@ -11,6 +11,37 @@
 
 #include "interp.h"
 
+const char *const interp_reasons[INTERP_NREASONS] = {
+    [INTERP_FORCED] = "forced (--reduce STAGE:interp)",
+    [INTERP_LOWER] = "interpolation: lower output error",
+    [GALERKIN_LOWER] = "Galerkin: lower output error",
+    [TIE_INTERP] = "errors tie, interpolation cheaper",
+    [TIE_GALERKIN] = "errors tie, Galerkin cheaper",
+    [BOTH_FAIL] = "both fail on the validation samples",
+};
+
+static int reason_index(const char *r) {
+  for (int i = 0; i < INTERP_NREASONS; i++)
+    if (r == interp_reasons[i]) return i;
+  return -1;
+}
+
+void interp_report(const Model *m, FILE *out) {
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    if (!rs->interp && !rs->choice_reason) continue;
+    fprintf(out, "stage %s: %s", rs->st->sym->name, rs->interp ? "interpolated" : "Galerkin");
+    if (rs->interp)
+      fprintf(out, " at %ld of %ld entries (m %ld, ‖(PB)⁺‖ %.3g)", rs->interp->k, m->classes[m->qclass[rs->q]].n,
+              rs->interp->m, rs->interp->pinv_norm);
+    if (rs->choice_reason && rs->choice_reason != interp_reasons[INTERP_FORCED])
+      fprintf(out, "; output error on the validation samples by Galerkin %.3e, by interpolation %.3e: %s",
+              rs->choice_err[0], rs->choice_err[1], rs->choice_reason);
+    else if (rs->choice_reason) fprintf(out, ": %s", rs->choice_reason);
+    fputc('\n', out);
+  }
+}
+
 void interp_free(RInterp *ip) {
   if (!ip) return;
   free(ip->rows);
@@ -93,6 +124,13 @@ static void stem(char *buf, size_t n, const char *stage, const char *what) {
 
 int interp_save(const Model *m, ModelStore *s) {
   int bad = 0;
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    int why = rs->choice_reason ? reason_index(rs->choice_reason) : -1;
+    if (why >= 0)
+      bad |= model_store_meta(s, "choice %s galerkin %.17g interp %.17g reason %d", rs->st->sym->name,
+                              rs->choice_err[0], rs->choice_err[1], why);
+  }
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
     const RInterp *ip = rs->interp;
@@ -228,9 +266,27 @@ static int load_stage(Model *m, const ModelStore *s, const char *dir, const char
   return 0;
 }
 
+/* A `choice` line: the stage's measured errors and reason. */
+static int load_choice(Model *m, const char *dir, const char *line, char *err, size_t errlen) {
+  char sn[512];
+  double g, e;
+  int why, used = 0;
+  RStage *rs = NULL;
+  if (sscanf(line, "choice %511s galerkin %lf interp %lf reason %d%n", sn, &g, &e, &why, &used) == 4 && !line[used] &&
+      why >= 0 && why < INTERP_NREASONS && !(g < 0) && !(e < 0))
+    for (int i = 0; i < m->nstages && !rs; i++)
+      if (strcmp(m->stages[i].st->sym->name, sn) == 0 && lower_interp_eligible(m->stages[i].st)) rs = &m->stages[i];
+  if (!rs || rs->choice_reason)
+    return npg_fail(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                    dir, line);
+  rs->choice_err[0] = g, rs->choice_err[1] = e, rs->choice_reason = interp_reasons[why];
+  return 0;
+}
+
 int interp_load(Model *m, const ModelStore *s, const char *dir, char *err, size_t errlen) {
   int n = 0;
   for (int i = 0; i < s->nmeta; i++) {
+    if (strncmp(s->meta[i], "choice ", 7) == 0 && load_choice(m, dir, s->meta[i], err, errlen)) return -1;
     if (strncmp(s->meta[i], "interp ", 7) != 0) continue;
     if (s->format < 2)
       return npg_fail(err, errlen, "%s/manifest: an 'interp' line in a model of format 1 (a damaged or forged manifest)",

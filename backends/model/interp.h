@@ -30,6 +30,7 @@
 
 #include <stdbool.h>
 #include <stddef.h>
+#include <stdio.h>
 
 #include "model.h"
 #include "model_store.h"
@@ -60,6 +61,24 @@ typedef struct RInterp {
 
 void interp_free(RInterp *ip);
 
+/* Why a stage is reduced the way it is (RStage.choice_reason points into
+ * this table; the manifest records the index). */
+enum {
+  INTERP_FORCED,          /* --reduce STAGE:interp */
+  INTERP_LOWER,           /* interpolation measured lower at the output */
+  GALERKIN_LOWER,         /* Galerkin measured lower */
+  TIE_INTERP,             /* a tie, interpolation cheaper */
+  TIE_GALERKIN,           /* a tie, Galerkin cheaper */
+  BOTH_FAIL,              /* both fail on the validation samples: Galerkin */
+  INTERP_NREASONS
+};
+extern const char *const interp_reasons[INTERP_NREASONS];
+
+/* The lines "stage w: interpolated at k of n entries …; output error … by
+ * Galerkin …, by interpolation …: reason" for every stage that is
+ * interpolated or whose reduction training chose (report_training, verify). */
+void interp_report(const Model *m, FILE *out);
+
 /* The reduced coordinates of stage `rs` (whose rs->interp is set) from the
  * coordinates x[q] of the quantities it reads, into y (m entries). `work`
  * holds interp_work_size(rs) doubles. 0, or -1 with `err`
@@ -71,10 +90,12 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
 
 /* The model's interpolated stages in `s` (model_save): an `interp` line
  * per stage and its arrays; the store's format raised to 2, which builds
- * that do not know interpolated stages refuse. Nothing for a model without
- * them. -1 when out of memory. */
+ * that do not know interpolated stages refuse; and a `choice` line per
+ * stage whose reduction training measured (format 1 when every one kept
+ * Galerkin: a build that ignores the line evaluates the model the same).
+ * Nothing for a model without them. -1 when out of memory. */
 int interp_save(const Model *m, ModelStore *s);
-/* The `interp` lines of a loaded store: every one checked against the
+/* The `interp` and `choice` lines of a loaded store: every one checked against the
  * layout (stage eligible, sizes, entries in range, tables consistent) and
  * its arrays read into rs->interp. 0, or -1 with `err` naming the file. */
 int interp_load(Model *m, const ModelStore *s, const char *dir, char *err, size_t errlen);

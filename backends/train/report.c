@@ -35,19 +35,7 @@ void report_training(const Model *m, FILE *out) {
                 "or accept the loss\n",
                 mb->name, m->classes[c].label, mb->cap, mb->lost, mb->center ? "centered " : "", mb->name);
     }
-  for (int i = 0; i < m->nstages; i++) { /* DESIGN §12: how each eligible stage is reduced, and why */
-    const RStage *rs = &m->stages[i];
-    if (!rs->interp && !rs->choice_reason) continue;
-    fprintf(out, "stage %s: %s", rs->st->sym->name, rs->interp ? "interpolated" : "Galerkin");
-    if (rs->interp)
-      fprintf(out, " at %ld of %ld entries (m %ld, ‖(PB)⁺‖ %.3g)", rs->interp->k, m->classes[m->qclass[rs->q]].n,
-              rs->interp->m, rs->interp->pinv_norm);
-    if (rs->choice_reason && strncmp(rs->choice_reason, "forced", 6) != 0)
-      fprintf(out, "; output error on the validation samples by Galerkin %.3e, by interpolation %.3e: %s",
-              rs->choice_err[0], rs->choice_err[1], rs->choice_reason);
-    else if (rs->choice_reason) fprintf(out, ": %s", rs->choice_reason);
-    fputc('\n', out);
-  }
+  interp_report(m, out); /* DESIGN §12: how each eligible stage is reduced, and why */
   size_t tb, total = model_bytes(m, &tb);
   fprintf(out, "reduced tensors: %.3f MB; model with bases: %.3f MB\n", (double)tb / 1e6, (double)total / 1e6);
 }

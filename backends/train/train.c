@@ -821,7 +821,7 @@ static int interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, cha
       return npg_fail(err, errlen, "--reduce %s:interp: the program has no stage '%s'", opt->interp_stage[j],
                       opt->interp_stage[j]);
     if (interp_train_stage(m, f, i, over, err, errlen)) return -1;
-    m->stages[i].choice_reason = "forced (--reduce STAGE:interp)";
+    m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
     if (opt->progress)
       fprintf(stderr, "stage %s interpolated: %ld of %ld entries (m %ld), ‖(PB)⁺‖ %.3g\n", opt->interp_stage[j],
               m->stages[i].interp->k, m->classes[m->qclass[m->stages[i].q]].n, m->stages[i].interp->m,

@@ -305,10 +305,10 @@ int tune_choose_reductions(Model *m, NpgFull *f, const SampleSource *valid, cons
     bool tie = fabs(interp - galerkin) <= CHOOSE_TIE * fmin(interp, galerkin) + CHOOSE_ROUNDING;
     bool keep = tie ? wi < wg : interp < galerkin;
     rs->choice_err[0] = galerkin, rs->choice_err[1] = interp;
-    rs->choice_reason = tie ? (keep ? "errors tie, interpolation cheaper" : "errors tie, Galerkin cheaper")
-                            : keep ? "interpolation: lower output error"
-                                   : isfinite(galerkin) || isfinite(interp) ? "Galerkin: lower output error"
-                                                                            : "both fail on the validation samples";
+    rs->choice_reason = interp_reasons[tie    ? (keep ? TIE_INTERP : TIE_GALERKIN)
+                                       : keep ? INTERP_LOWER
+                                       : isfinite(galerkin) || isfinite(interp) ? GALERKIN_LOWER
+                                                                                : BOTH_FAIL];
     if (keep) {
       current = interp;
     } else {

@@ -45,6 +45,9 @@ if "$B/npgc" train $P "$W/TRAIN" -o "$W/BAD" --reduce w:deim 2>/dev/null >/dev/n
 "$B/npgc" train $P "$W/TRAIN" -o "$W/AUTO" --valid "$W/VALID" >"$W/auto.txt" || fail "train --valid"
 grep -q '^stage w: .*output error on the validation samples by Galerkin .*, by interpolation .*: ' "$W/auto.txt" ||
   fail "training does not print the choice: $(cat "$W/auto.txt")"
+"$B/npgc" verify $P "$W/AUTO" "$W/TEST" --tol 10 >"$W/vauto.txt" || fail "verify of the chosen model"
+grep -q "^stage w: .*output error on the validation samples by Galerkin .*, by interpolation .*: " "$W/vauto.txt" ||
+  fail "verify does not print the choice: $(cat "$W/vauto.txt")"
 "$B/npgc" train $P "$W/TRAIN" -o "$W/FORCED" --valid "$W/VALID" --reduce w:galerkin >"$W/forced.txt" || fail "train --reduce w:galerkin"
 if grep -q '^stage w' "$W/forced.txt"; then fail "a stage forced to Galerkin was measured"; fi
 # held out of the training samples instead: 40 samples, every 4th validates
