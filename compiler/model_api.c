@@ -73,6 +73,10 @@ int npg_model_stage_interpolated(const NpgModel *nm, const char *stage, long *en
   return -1;
 }
 
+void npg_model_report_reductions(const NpgModel *nm, FILE *out) {
+  if (nm && nm->m && out) interp_report(nm->m, out);
+}
+
 NpgModel *api_model_wrap(Model *m) {
   NpgModel *nm = calloc(1, sizeof *nm);
   if (!nm) {

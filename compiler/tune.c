@@ -151,6 +151,7 @@ int npgc_tune(int argc, char **argv) {
   printf("chosen: cost %.6g, error %.3e (--tol %.3g): ", ch->cost, ch->err, tol);
   print_sizes(&r, ch);
   printf(" -> %s; error against cost -> %s\n", out, png);
+  npg_model_report_reductions(m, stdout); /* DESIGN §12: eligible stages interpolated where that measured lower */
   rc = 0;
 done:
   npg_model_free(m);

@@ -335,6 +335,9 @@ NPG_API void npg_spectra_free(NpgSpectrum *s, int count);
  * when not NULL, is the number of entries it evaluates the stage at), 0 by
  * Galerkin projection, -1 when the model or the name is not valid. */
 NPG_API int npg_model_stage_interpolated(const NpgModel *m, const char *stage, long *entries);
+/* One line per stage that is interpolated or whose reduction training chose
+ * by measurement: how, both errors and the reason (part of npg_model_report). */
+NPG_API void npg_model_report_reductions(const NpgModel *m, FILE *out);
 NPG_API int npg_model_nclasses(const NpgModel *m);
 NPG_API int npg_model_class(const NpgModel *m, int c, NpgClassInfo *out);
 NPG_API int npg_model_member(const NpgModel *m, int c, int i, NpgMemberInfo *out);

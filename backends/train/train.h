@@ -48,6 +48,7 @@ typedef struct TrainOptions {
   /* validation samples (same params): every eligible stage neither list names is reduced both
    * ways and the lower output error kept (tune_choose_reductions); NULL: Galerkin */
   const struct SampleSource *valid;
+  bool choose_strict;       /* ties keep Galerkin: the choice never raises the error on `valid` (npgc tune) */
 } TrainOptions;
 
 /* Selected entries per basis vector of an interpolated stage when not given

@@ -282,6 +282,9 @@ static double stage_work(const Model *m, const RStage *rs) {
 
 int tune_choose_reductions(Model *m, NpgFull *f, const SampleSource *valid, const TrainOptions *opt, char *err,
                            size_t errlen) {
+  int candidates = 0;
+  for (int i = 0; i < m->nstages; i++) candidates += lower_interp_eligible(m->stages[i].st) && !m->stages[i].interp;
+  if (candidates == 0) return 0; /* nothing to measure: no validation pass */
   Search s = {0};
   s.prog = m->prog;
   double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
@@ -302,7 +305,7 @@ int tune_choose_reductions(Model *m, NpgFull *f, const SampleSource *valid, cons
     if ((rc = interp_train_stage(m, f, i, over, err, errlen)) != 0) break;
     if (validate(&s, m, &interp, NULL, why, sizeof why) != 0) interp = INFINITY;
     double wi = stage_work(m, rs);
-    bool tie = fabs(interp - galerkin) <= CHOOSE_TIE * fmin(interp, galerkin) + CHOOSE_ROUNDING;
+    bool tie = !opt->choose_strict && fabs(interp - galerkin) <= CHOOSE_TIE * fmin(interp, galerkin) + CHOOSE_ROUNDING;
     bool keep = tie ? wi < wg : interp < galerkin;
     rs->choice_err[0] = galerkin, rs->choice_err[1] = interp;
     rs->choice_reason = interp_reasons[tie    ? (keep ? TIE_INTERP : TIE_GALERKIN)

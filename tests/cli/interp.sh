@@ -4,7 +4,8 @@
 # model that verify and eval use and reports as interpolated, --valid makes
 # and prints the choice, a stage that is not eligible is refused by name,
 # generated reduced code hands the interpolated stage to the host, a Galerkin model
-# stays format 1, --valid F holds a fraction of the samples out instead.
+# stays format 1, --valid F holds a fraction of the samples out instead,
+# npgc tune makes the choice at the caps it found.
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_cli_XXXXXX)
@@ -57,5 +58,9 @@ grep -q '^trained .* on 40 samples' "$W/hold.txt" || fail "sample count: $(cat "
 grep -q '^samples 30$' "$W/HOLD/manifest" || fail "held-out samples trained on: $(grep '^samples' "$W/HOLD/manifest")"
 grep -q '^stage w: .*output error on the validation samples by Galerkin' "$W/hold.txt" || fail "no choice with --valid 0.25"
 if "$B/npgc" train $P "$W/TRAIN" -o "$W/BAD" --valid 0.7 2>/dev/null >/dev/null; then fail "--valid 0.7 accepted"; fi
+# npgc tune: at the caps it chose, the stage interpolated only where that measures strictly lower
+"$B/npgc" tune $P "$W/TRAIN" "$W/VALID" --tol 0.5 -o "$W/TUNED" >"$W/tune.txt" || fail "tune: $(cat "$W/tune.txt")"
+grep -q '^stage w: .*by Galerkin .*, by interpolation .*: \(interpolation\|Galerkin\): lower output error' "$W/tune.txt" ||
+  fail "tune does not print the choice: $(cat "$W/tune.txt")"
 grep "^stage w" "$W/auto.txt" "$W/train.txt" "$W/hold.txt"
 echo "ok"
