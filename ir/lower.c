@@ -191,6 +191,21 @@ void lower_program(Ctx *ctx, Program *prog) {
   for (int i = 0; i < prog->inputs.n; i++) vec_push(ctx, &q, prog->inputs.v[i]);
   for (int i = 0; i < prog->stages.n; i++) vec_push(ctx, &q, ((Stage *)prog->stages.v[i])->sym);
   prog->quantities = q;
+  /* `basis w: reduce interp` (DESIGN §12) asks for what only a stage of diagonal operators can do */
+  for (int i = 0; i < q.n; i++) {
+    const Sym *s = q.v[i];
+    if (s->reduce != STAGE_REDUCE_INTERP || (s->stage && lower_interp_eligible(s->stage))) continue;
+    error_at(ctx, s->reduce_loc, "'reduce interp': '%s' %s", s->name,
+             !s->stage || s->stage->kind == ST_INPUT ? "is not a stage (only a stage is reduced)"
+             : s->stage->kind == ST_EXTERN           ? "is an extern (its reduction is a learned map)"
+             : s->stage->kind == ST_INVERSE || s->stage->kind == ST_ROOT
+                 ? "applies a declared operator: only a stage whose every operator is diagonal can be interpolated"
+                 : "applies no diagonal operator: only a stage whose every operator is diagonal can be interpolated");
+  }
+  for (int i = 0; i < prog->inlined.n; i++) {
+    const Sym *s = prog->inlined.v[i];
+    if (s->reduce == STAGE_REDUCE_INTERP) error_at(ctx, s->reduce_loc, "'reduce interp': '%s' is inlined", s->name);
+  }
   PtrVec slots = {0};
   for (int i = 0; i < q.n; i++) vec_push(ctx, &slots, q.v[i]);
   for (int i = 0; i < prog->temps.n; i++) vec_push(ctx, &slots, prog->temps.v[i]);

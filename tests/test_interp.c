@@ -16,6 +16,8 @@
  *     and a stage forced to Galerkin is not measured;
  *   - verify's advice names --reduce STAGE:interp when a stage's own error
  *     dominates while its inputs sit at their floors;
+ *   - the program may state the reduction (`basis y: reduce interp|galerkin`),
+ *     the command line overriding it;
  *   - a stage that is not eligible, or not a stage, is refused by name.
  */
 #include <cblas.h>
@@ -483,6 +485,46 @@ static void advice_names_the_cause(void **state) {
   npg_free(p);
 }
 
+/* ---------------------------------------------------------------- the program states it */
+
+/* `basis y: reduce interp` interpolates y with no option; --reduce
+ * y:galerkin overrides it; `reduce galerkin` keeps it out of the choice. */
+static void program_states_the_reduction(void **state) {
+  (void)state;
+  const char *text[2] = {"dim N\ninput x : real[N]\noutput y[i:N] = (x[i] * x[i] + 1)^(-3/2)\nbasis y: reduce interp\n",
+                         "dim N\ninput x : real[N]\noutput y[i:N] = (x[i] * x[i] + 1)^(-3/2)\nbasis y: reduce galerkin\n"};
+  for (int v = 0; v < 2; v++) {
+    NpgProgram *p = compile_text("stated.npg", text[v]);
+    Program *prog = ir_ok(p);
+    NpgFull *f = npg_full_new(p, NPG_TCC);
+    MemSamples train, valid;
+    if (memsamples_fill(&train, prog, f, 6, 12, 9u)) fail_msg("binding random params failed");
+    held_out(prog, &valid, &train, 6, 4);
+    SampleSource src = {12, &train, memsamples_set, NULL, NULL}, vs = {4, &valid, memsamples_set, NULL, NULL};
+    TrainOptions opt = {0};
+    opt.cap = 3;
+    opt.energy = 1.0;
+    opt.valid = &vs;
+    char err[1024];
+    Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
+    if (!m) fail_msg("%s", err);
+    assert_true((m->stages[0].interp != NULL) == (v == 0));
+    /* stated: forced, not measured */
+    if (v == 0) assert_ptr_equal(m->stages[0].choice_reason, interp_reasons[INTERP_FORCED]);
+    else assert_null(m->stages[0].choice_reason);
+    model_free(m);
+    const char *gal[1] = {"y"};
+    opt.ngalerkin = 1, opt.galerkin_stage = gal;
+    if (!(m = train_model(prog, f, &src, &opt, err, sizeof err))) fail_msg("%s", err);
+    assert_null(m->stages[0].interp);
+    model_free(m);
+    memsamples_free(&valid);
+    memsamples_free(&train);
+    npg_full_free(f);
+    npg_free(p);
+  }
+}
+
 /* ---------------------------------------------------------------- refusals */
 
 static void ineligible_refused(void **state) {
@@ -518,6 +560,7 @@ int main(void) {
       cmocka_unit_test(ineligible_refused),
       cmocka_unit_test(choice_by_validation),
       cmocka_unit_test(advice_names_the_cause),
+      cmocka_unit_test(program_states_the_reduction),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

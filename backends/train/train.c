@@ -812,8 +812,23 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
 /* Step 3b: the stages opt->interp_stage names made interpolated, and with
  * validation samples every other eligible stage reduced the way that
  * measures better there (DESIGN §12). */
+static bool named_in(const char *const *names, int n, const char *name) {
+  for (int j = 0; j < n; j++)
+    if (strcmp(names[j], name) == 0) return true;
+  return false;
+}
+
 static int interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, char *err, size_t errlen) {
   double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
+  /* the program's `basis w: reduce interp`, unless the command line says galerkin */
+  for (int i = 0; i < m->nstages; i++) {
+    const Sym *s = m->stages[i].st->sym;
+    if (s->reduce != STAGE_REDUCE_INTERP || named_in(opt->galerkin_stage, opt->ngalerkin, s->name) ||
+        named_in(opt->interp_stage, opt->ninterp, s->name))
+      continue;
+    if (interp_train_stage(m, f, i, over, err, errlen)) return -1;
+    m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
+  }
   for (int j = 0; j < opt->ninterp; j++) {
     int i = 0;
     while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->interp_stage[j]) != 0) i++;
@@ -833,7 +848,7 @@ static int interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, cha
     if (i == m->nstages)
       return npg_fail(err, errlen, "--reduce %s:galerkin: the program has no stage '%s'", opt->galerkin_stage[j],
                       opt->galerkin_stage[j]);
-    if (m->stages[i].interp)
+    if (named_in(opt->interp_stage, opt->ninterp, opt->galerkin_stage[j]))
       return npg_fail(err, errlen, "stage %s is forced both to interpolation and to Galerkin", opt->galerkin_stage[j]);
   }
   return opt->valid ? tune_choose_reductions(m, f, opt->valid, opt, err, errlen) : 0;

@@ -298,7 +298,7 @@ int tune_choose_reductions(Model *m, NpgFull *f, const SampleSource *valid, cons
   for (int i = 0; rc == 0 && i < m->nstages; i++) {
     RStage *rs = &m->stages[i];
     if (!lower_interp_eligible(rs->st) || rs->interp) continue; /* forced interpolated: kept */
-    bool forced = false;
+    bool forced = rs->st->sym->reduce == STAGE_REDUCE_GALERKIN; /* `basis w: reduce galerkin` */
     for (int j = 0; j < opt->ngalerkin; j++) forced |= strcmp(opt->galerkin_stage[j], rs->st->sym->name) == 0;
     if (forced) continue;
     double galerkin = current, interp = INFINITY, wg = stage_work(m, rs);
