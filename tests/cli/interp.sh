@@ -29,6 +29,9 @@ PY
 "$B/npgc" check $P >"$W/check.txt" || fail "check"
 grep -q 'interpolation: eligible.*--reduce w:interp' "$W/check.txt" || fail "check does not mark w eligible"
 test "$(grep -c 'interpolation: eligible' "$W/check.txt")" = 1 || fail "check marks more than w"
+# the exactness checks interpolate every eligible stage at every entry too
+"$B/npgc" verify $P --exact >"$W/exact.txt" || fail "verify --exact: $(cat "$W/exact.txt")"
+grep -q '^     w  *interpolated at all [0-9]* entries' "$W/exact.txt" || fail "verify --exact lacks w interpolated"
 "$B/npgc" train $P "$W/TRAIN" -o "$W/GAL" >/dev/null || fail "train"
 test "$(head -1 "$W/GAL/manifest")" = "npg-model 1" || fail "a Galerkin model is not format 1"
 "$B/npgc" train $P "$W/TRAIN" -o "$W/INT" --reduce w:interp --interp-oversample 2 >"$W/train.txt" || fail "train --reduce w:interp"
