@@ -11,6 +11,7 @@
 #include <unistd.h>
 
 #include "api.h"
+#include "interp.h"
 #include "model_store.h"
 #include "npy.h"
 #include "compile.h"
@@ -60,6 +61,21 @@ int api_reduced_not_finite(const Model *m, Reduced *r, long sample, char *err, s
 }
 
 /* ---------------------------------------------------------------- models */
+
+int npg_model_stage_interpolated(const NpgModel *nm, const char *stage, long *entries) {
+  if (!nm || !nm->m || !stage) return -1;
+  for (int i = 0; i < nm->m->nstages; i++) {
+    const RStage *rs = &nm->m->stages[i];
+    if (strcmp(rs->st->sym->name, stage) != 0) continue;
+    if (entries) *entries = rs->interp ? rs->interp->k : 0;
+    return rs->interp != NULL;
+  }
+  return -1;
+}
+
+void npg_model_report_reductions(const NpgModel *nm, FILE *out) {
+  if (nm && nm->m && out) interp_report(nm->m, out);
+}
 
 NpgModel *api_model_wrap(Model *m) {
   NpgModel *nm = calloc(1, sizeof *nm);

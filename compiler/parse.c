@@ -529,9 +529,16 @@ static void parse_stmt(Parser *p, Decl ***tail) {
     expect(p, ":", "after the quantities of 'basis' (basis x: cap 60, energy 0.999, center on; or cap=60)");
     do {
       /* `cap` as on the command line (--cap, --basis x:cap=N); `max` is its older name */
-      Token *o = expect_ident(p, "'cap', 'energy' or 'center'");
+      Token *o = expect_ident(p, "'cap', 'energy', 'center' or 'reduce'");
       accept(p, "="); /* `cap=12` as --basis writes it, or `cap 12` */
       Token *v = peek(p);
+      if (strcmp(o->text, "reduce") == 0) { /* as --reduce STAGE:interp|galerkin (DESIGN §12) */
+        if (!is_ident(v, "interp") && !is_ident(v, "galerkin"))
+          error_at(ctx, v->loc, "expected 'interp' or 'galerkin' after 'reduce', found %s", describe(p, v));
+        next(p);
+        d->basis_reduce = strcmp(v->text, "interp") == 0 ? STAGE_REDUCE_INTERP : STAGE_REDUCE_GALERKIN;
+        continue;
+      }
       if (strcmp(o->text, "center") == 0) {
         if (!is_ident(v, "on") && !is_ident(v, "off"))
           error_at(ctx, v->loc, "expected 'on' or 'off' after 'center', found %s", describe(p, v));
@@ -550,7 +557,7 @@ static void parse_stmt(Parser *p, Decl ***tail) {
           error_at(ctx, v->loc, "'energy' is a fraction in (0, 1], found %s", v->text);
         d->basis_energy = v->num;
       } else {
-        error_at(ctx, o->loc, "unknown basis option '%s': expected 'cap', 'energy' or 'center'", o->text);
+        error_at(ctx, o->loc, "unknown basis option '%s': expected 'cap', 'energy', 'center' or 'reduce'", o->text);
       }
     } while (accept(p, ","));
   } else if (strcmp(kw, "inline") == 0) {

@@ -36,6 +36,9 @@ typedef struct Common {
   int *basis_center;
   const char *spectra;      /* train --spectra DIR */
   const char *params;       /* verify --params DIR: the params, when TEST/ holds only the samples */
+  int ninterp, ngalerkin;   /* train --reduce STAGE:interp, STAGE:galerkin */
+  const char **interp_stage, **galerkin_stage;
+  const char *valid;        /* train --valid DIR */
   const char *cmd;
 } Common;
 
@@ -118,7 +121,8 @@ static int parse_basis(Common *c, const char *s, char *err, size_t errlen) {
 
 /* Each command's options: an option of another command is named as such. */
 static const char *const options_of[][2] = {
-    {"train", "-o --cc --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi"},
+    {"train", "-o --cc --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi --reduce --valid "
+              "--interp-oversample"},
     {"eval", "-o --progress --std --exact-roots --full --cc"},
     {"verify", "--tol --cc --exact --exact-size --progress --std --params"},
     {"bench", "--cc --reps --exact-roots --progress --std --params"},
@@ -160,6 +164,24 @@ static bool mine(const Common *c, const NpgArgs *a, const char *name) {
   return false;
 }
 
+/* --reduce STAGE:interp|galerkin (DESIGN §12): galerkin is what training
+ * does without it */
+static bool parse_reduce(Common *c, const char *s) {
+  const char *colon = strrchr(s, ':');
+  if (!colon || colon == s) return false;
+  bool interp = strcmp(colon + 1, "interp") == 0;
+  if (!interp && strcmp(colon + 1, "galerkin") != 0) return false;
+  int *n = interp ? &c->ninterp : &c->ngalerkin;
+  const char ***list = interp ? &c->interp_stage : &c->galerkin_stage;
+  const char **names = realloc(*list, sizeof(char *) * (size_t)(*n + 1));
+  if (!names) return false;
+  *list = names;
+  if (!(names[*n] = strndup(s, (size_t)(colon - s)))) return false;
+  (*n)++;
+  return true;
+}
+
+
 static int parse(Common *c, int argc, char **argv) {
   memset(c, 0, sizeof *c);
   c->cmd = argv[1];
@@ -200,7 +222,22 @@ static int parse(Common *c, int argc, char **argv) {
     else if ((v = npg_args_string(&a, "--params"))) c->params = v;
     else if ((v = npg_args_string(&a, "--basis"))) {
       if (parse_basis(c, v, err, sizeof err) != 0) snprintf(a.error, sizeof a.error, "%s: --basis %s", prog, err);
-    } else if ((v = npg_args_string(&a, "--merge"))) {
+    } else if ((v = npg_args_string(&a, "--reduce"))) {
+      if (!parse_reduce(c, v))
+        snprintf(a.error, sizeof a.error, "%s: --reduce %s: expected STAGE:interp or STAGE:galerkin", prog, v);
+    } else if ((v = npg_args_string(&a, "--valid"))) {
+      /* a folder, or a fraction held out of DATA/ (every round(1/F)-th sample) */
+      char *end, ferr[256];
+      double F;
+      c->valid = v;
+      if (strtod(v, &end) && end != v && *end == 0) { /* a number: the fraction */
+        if (npg_parse_double(v, 0, 0.5, true, &F, ferr, sizeof ferr) != 0)
+          snprintf(a.error, sizeof a.error, "%s: --valid %s (a fraction of DATA/'s samples, or a folder)", prog, ferr);
+        c->train.valid_holdout = F;
+        c->valid = NULL;
+      }
+    } else if (npg_args_double(&a, "--interp-oversample", 1, 1000, false, &c->train.interp_oversample)) ;
+    else if ((v = npg_args_string(&a, "--merge"))) {
       c->train.joint = strcmp(v, "joint") == 0;
       if (!c->train.joint && strcmp(v, "concat") != 0)
         snprintf(a.error, sizeof a.error, "%s: --merge is concat or joint, not '%s'", prog, v);
@@ -225,6 +262,10 @@ static int parse(Common *c, int argc, char **argv) {
   c->train.basis_cap = c->basis_cap;
   c->train.basis_energy = c->basis_energy;
   c->train.basis_center = c->basis_center;
+  c->train.ninterp = c->ninterp;
+  c->train.interp_stage = c->interp_stage;
+  c->train.ngalerkin = c->ngalerkin;
+  c->train.galerkin_stage = c->galerkin_stage;
   return 0;
 }
 
@@ -234,6 +275,10 @@ static void free_common(Common *c) {
   free(c->basis_cap);
   free(c->basis_energy);
   free(c->basis_center);
+  for (int i = 0; i < c->ninterp; i++) free((char *)c->interp_stage[i]);
+  free(c->interp_stage);
+  for (int i = 0; i < c->ngalerkin; i++) free((char *)c->galerkin_stage[i]);
+  free(c->galerkin_stage);
 }
 
 static NpgProgram *compile(Common *c) {
@@ -275,7 +320,7 @@ static int cmd_train(Common *c) {
   if (!p) return 1;
   char err[2048] = "";
   int rc = 1;
-  NpgSamples *s = NULL;
+  NpgSamples *s = NULL, *v = NULL;
   NpgTrainer *t = NULL;
   NpgModel *m = NULL;
   NpgFull *f = npg_full_new(p, c->cc ? NPG_CC : NPG_TCC);
@@ -290,6 +335,20 @@ static int cmd_train(Common *c) {
   if (npg_samples_count(s) < 1) {
     fprintf(stderr, "error: %s: no samples (the first axis of its inputs is 0)\n", c->a);
     goto done;
+  }
+  if (c->valid) { /* DESIGN §12: Galerkin or interpolation per eligible stage, by the error on these */
+    if (!(v = npg_samples_open(p, c->valid, NULL, true, err, sizeof err)) ||
+        npg_full_check_params_dir(f, c->valid, err, sizeof err) != 0) {
+      npgc_error(err);
+      goto done;
+    }
+    c->train.valid_count = npg_samples_count(v);
+    c->train.valid_set = npg_samples_set;
+    c->train.valid_user = v;
+    if (c->train.valid_count < 1) {
+      fprintf(stderr, "error: --valid %s: no samples (the first axis of its inputs is 0)\n", c->valid);
+      goto done;
+    }
   }
   double t0 = now();
   t = npg_trainer_new(f, &c->train);
@@ -316,6 +375,7 @@ done:
   npg_model_free(m);
   npg_trainer_free(t);
   npg_samples_free(s);
+  npg_samples_free(v);
   npg_full_free(f);
   npg_free(p);
   return rc;

@@ -321,6 +321,7 @@ static void apply_directives(Checker *ck) {
         if (d->basis_max > 0) q->basis_max = d->basis_max;
         if (d->basis_energy > 0) q->basis_energy = d->basis_energy;
         if (d->basis_center >= 0) q->basis_center = d->basis_center;
+        if (d->basis_reduce != STAGE_REDUCE_DEFAULT) q->reduce = d->basis_reduce, q->reduce_loc = d->name_locs[i];
       }
       break;
     case D_INLINE:

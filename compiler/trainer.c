@@ -507,6 +507,31 @@ static int ranks_agree(NpgTrainer *t) {
   return rc;
 }
 
+/* Held-out validation (NpgTrainOptions.valid_holdout, DESIGN §12): every
+ * stride-th sample (k % stride == stride - 1) validates, the others train;
+ * interleaved, so both cover a simulation's whole run. */
+typedef struct Holdout {
+  NpgTrainer *t;
+  long stride;
+} Holdout;
+
+static long training_index(const Holdout *h, long j) { return j + j / (h->stride - 1); }
+
+static int replay_training(void *user, NpgFull *f, long j) {
+  const Holdout *h = user;
+  return replay(h->t, f, training_index(h, j));
+}
+
+static int replay_training_part(void *user, NpgFull *f, long j, const Demand *d) {
+  const Holdout *h = user;
+  return replay_part(h->t, f, training_index(h, j), d);
+}
+
+static int replay_held(void *user, NpgFull *f, long j) {
+  const Holdout *h = user;
+  return replay(h->t, f, j * h->stride + h->stride - 1);
+}
+
 NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   /* over ranks the others would wait for this one in a collective: end the job */
   if (t->error[0] && t->opt.mpi && dist_size() > 1) dist_abort("%s", t->error);
@@ -543,7 +568,39 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.override_name = (const char **)t->opt.basis_name;
   o.override_cap = (int *)t->opt.basis_cap;
   o.override_energy = (double *)t->opt.basis_energy;
+  o.ninterp = t->opt.ninterp;
+  o.interp_stage = t->opt.interp_stage;
+  o.interp_oversample = t->opt.interp_oversample;
+  o.ngalerkin = t->opt.ngalerkin;
+  o.galerkin_stage = t->opt.galerkin_stage;
+  SampleSource valid = {t->opt.valid_count, t->opt.valid_user, t->opt.valid_set, NULL, NULL};
+  if (t->opt.valid_count > 0 && !t->opt.valid_set) {
+    tfail(t, "NpgTrainOptions: valid_count %ld validation samples but no valid_set", t->opt.valid_count);
+    return NULL;
+  }
+  o.valid = t->opt.valid_count > 0 ? &valid : NULL;
   SampleSource src = {t->samples, t, replay, replay_part, share_samples};
+  Holdout hold = {t, 0};
+  SampleSource held = {0};
+  if (t->opt.valid_holdout != 0) {
+    double F = t->opt.valid_holdout;
+    if (!(F > 0 && F <= 0.5) || t->opt.valid_count > 0 || t->opt.mpi) {
+      tfail(t, "NpgTrainOptions.valid_holdout %g: %s", F,
+            !(F > 0 && F <= 0.5) ? "must be in (0, 0.5]"
+            : t->opt.mpi         ? "not over MPI ranks (give validation samples instead)"
+                                 : "validation samples are given as well");
+      return NULL;
+    }
+    hold.stride = lround(1 / F);
+    long nheld = t->samples / hold.stride;
+    if (nheld < 1) {
+      tfail(t, "NpgTrainOptions.valid_holdout %g of %ld samples holds none out: add samples", F, t->samples);
+      return NULL;
+    }
+    src = (SampleSource){t->samples - nheld, &hold, replay_training, replay_training_part, NULL};
+    held = (SampleSource){nheld, &hold, replay_held, NULL, NULL};
+    o.valid = &held;
+  }
   char err[2048] = "";
   Model *m = train_model((Program *)t->prog, t->f, &src, &o, err, sizeof err);
   /* over ranks, the others wait for this one in a collective: end the job */

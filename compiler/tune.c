@@ -145,6 +145,11 @@ int npgc_tune(int argc, char **argv) {
            r.limiting_saturated ? "its members have no more directions in the training samples: train with more, "
                                   "or more varied, samples"
                                 : "its members are at --max-cap: raise it");
+    if (r.trials[r.ntrials - 1].err > 2 * r.limiting_floor) /* DESIGN §12 */
+      printf("the error reached is %.1fx that floor: the reduction of a stage, not a basis, limits it; a stage npgc "
+             "check marks eligible for interpolation may do better reduced that way (npgc train --reduce STAGE:interp, "
+             "or --valid DIR to let training choose)\n",
+             r.trials[r.ntrials - 1].err / r.limiting_floor);
     printf("error against cost -> %s; no model written\n", png);
     goto done;
   }
@@ -156,6 +161,7 @@ int npgc_tune(int argc, char **argv) {
   printf("chosen: cost %.6g, error %.3e (--tol %.3g): ", ch->cost, ch->err, tol);
   print_sizes(&r, ch);
   printf(" -> %s; error against cost -> %s\n", out, png);
+  npg_model_report_reductions(m, stdout); /* DESIGN §12: eligible stages interpolated where that measured lower */
   rc = 0;
 done:
   npg_model_free(m);

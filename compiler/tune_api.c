@@ -50,6 +50,13 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
     goto done;
   }
   Model *m = train_set_model(ts, r->best_cap, rep->error, sizeof rep->error);
+  /* DESIGN §12: at the caps chosen, each eligible stage interpolated where that measures strictly lower on
+   * the validation samples (so the tolerance met stays met) */
+  TrainOptions copt = {.valid = &vsrc, .choose_strict = true, .progress = topt.progress};
+  if (m && tune_choose_reductions(m, f, &vsrc, &copt, rep->error, sizeof rep->error) != 0) {
+    model_free(m);
+    m = NULL;
+  }
   if (m && !(m->param_hashes = api_param_hashes(f))) snprintf(rep->error, sizeof rep->error, "out of memory");
   if (m && !m->param_hashes) model_free(m);
   else if (m && !(nm = api_model_wrap(m))) snprintf(rep->error, sizeof rep->error, "out of memory");

@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "api.h"
+#include "interp.h"
 #include "compile.h"
 #include "exact.h"
 
@@ -78,7 +79,9 @@ static void fill_rows(const Model *m, const ErrSum *sum, long S, NpgVerifyReport
     row->name = s->name;
     row->kind = s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage";
     for (int i = 0; i < m->nstages; i++)
-      if (m->stages[i].q == q && m->stages[i].st->kind != ST_EXTERN) row->kind = stage_kind_name[m->stages[i].st->kind];
+      if (m->stages[i].q == q && m->stages[i].st->kind != ST_EXTERN)
+        row->kind = !m->stages[i].interp ? stage_kind_name[m->stages[i].st->kind]
+                    : m->stages[i].st->kind == ST_ROOT ? "root, interp" : "inverse, interp"; /* DESIGN §12 */
     row->m = m->classes[m->qclass[q]].m;
     row->output = s->is_output;
     row->l2 = sum[q].l2 / (double)S;
@@ -188,6 +191,7 @@ int npg_verify_warnings(const NpgModel *nm, const NpgVerifyReport *rep, double t
   double *means = malloc(sizeof(double) * 2 * (size_t)(m->nq + 1)); /* errors and floors */
   if (!means) return 0;
   for (int q = 0; q < m->nq; q++) means[q] = rep->rows[q].l2, means[m->nq + q] = rep->rows[q].floor;
+  interp_report(m, out); /* the reduction of each eligible stage, as training chose it (DESIGN §12) */
   int n = report_verify_warnings(m, means, means + m->nq, tol, out);
   free(means);
   return n;

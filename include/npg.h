@@ -247,6 +247,23 @@ typedef struct NpgTrainOptions {
                                (MPI_Abort, "npg: rank K of N failed: …" on stderr), since the others
                                wait for it; no model is written. A build without MPI refuses it
                                (npg_mpi_available). */
+  /* -- interpolated stages (DESIGN §12; issue 26) -- */
+  int ninterp;              /* the stages interp_stage[0..ninterp) are reduced by interpolation, not
+                               Galerkin: each must be eligible (every operator diagonal: npgc check
+                               says which); the array must outlive the trainer */
+  const char *const *interp_stage;
+  double interp_oversample; /* entries selected per basis vector, >= 1 (0: the default, 16) */
+  int ngalerkin;            /* the stages galerkin_stage[0..ngalerkin) are reduced by Galerkin */
+  const char *const *galerkin_stage;
+  long valid_count;         /* validation samples (the training params), set by valid_set(valid_user, f, k):
+                               every eligible stage neither list names is reduced both ways and the lower
+                               output error on them kept (ties: the cheaper); 0: Galerkin. The choice is
+                               in npg_model_report() */
+  NpgSampleFn valid_set;
+  void *valid_user;
+  double valid_holdout;     /* instead of validation samples, hold out this fraction (0, 0.5] of the
+                               samples added — every round(1/F)-th — from training to validate on
+                               (not over MPI ranks); 0: none */
 } NpgTrainOptions;
 NPG_API void npg_train_options_default(NpgTrainOptions *o);
 /* Whether this build of libnpg has MPI (NpgTrainOptions.mpi). */
@@ -325,6 +342,14 @@ typedef struct NpgSpectrum {
 } NpgSpectrum;
 NPG_API int npg_spectra_read(const char *model_dir, NpgSpectrum **out, int *count, char *err, size_t errlen);
 NPG_API void npg_spectra_free(NpgSpectrum *s, int count);
+/* -- interpolated stages (DESIGN §12; issue 26) --
+ * How the model reduces stage `stage`: 1 by interpolation (then *entries,
+ * when not NULL, is the number of entries it evaluates the stage at), 0 by
+ * Galerkin projection, -1 when the model or the name is not valid. */
+NPG_API int npg_model_stage_interpolated(const NpgModel *m, const char *stage, long *entries);
+/* One line per stage that is interpolated or whose reduction training chose
+ * by measurement: how, both errors and the reason (part of npg_model_report). */
+NPG_API void npg_model_report_reductions(const NpgModel *m, FILE *out);
 NPG_API int npg_model_nclasses(const NpgModel *m);
 NPG_API int npg_model_class(const NpgModel *m, int c, NpgClassInfo *out);
 NPG_API int npg_model_member(const NpgModel *m, int c, int i, NpgMemberInfo *out);

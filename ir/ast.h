@@ -206,6 +206,13 @@ char *print_to_arena(Ctx *ctx, void (*print)(FILE *, const void *), const void *
 
 /* ---------------------------------------------------------------- decls */
 
+/* How a `basis` statement asks a stage be reduced (DESIGN §12). */
+enum {
+  STAGE_REDUCE_DEFAULT,   /* training decides (Galerkin, or by validation) */
+  STAGE_REDUCE_GALERKIN,  /* reduce galerkin */
+  STAGE_REDUCE_INTERP,    /* reduce interp: empirical interpolation */
+};
+
 typedef enum DeclKind {
   D_DIM,      /* dim F, V */
   D_PARAM,    /* param tri : int[F, 3] */
@@ -255,6 +262,7 @@ struct Decl {
   int basis_max;
   double basis_energy;
   int basis_center;             /* 1 on, 0 off */
+  int basis_reduce;             /* STAGE_REDUCE_*: `reduce interp|galerkin` (DESIGN §12) */
   /* D_OP: "on u -> p" */
   const char *on_from, *on_to;
   Loc on_loc, on_to_loc;
@@ -321,6 +329,8 @@ struct Sym {
   int class_basis_max;
   double class_basis_energy;
   int class_basis_center;
+  int reduce;                   /* STAGE_REDUCE_*: how the program asks the stage be reduced (DESIGN §12) */
+  Loc reduce_loc;               /* where it asks */
   struct Stage *stage;          /* canonical form, after lowering */
   struct OpDef *opdef;          /* SYM_OP: its lowered entries */
   int klass;                    /* basis class, after basis_classes() */

@@ -106,6 +106,9 @@ static void print_stage(FILE *out, const Program *prog, const Stage *st, bool ca
   if (dg.n == 0) fputs(" nothing varying", out);
   for (int i = 0; i < dg.n; i++) fprintf(out, "%s %s (degree %d)", i ? "," : "", dg.q[i]->name, dg.d[i]);
   fputc('\n', out);
+  if (lower_interp_eligible(st))
+    fprintf(out, "    interpolation: eligible (every operator diagonal; `npgc train --reduce %s:interp`, DESIGN §12)\n",
+            s->name);
   if (st->kind == ST_EXTERN) {
     fputs("    black box: full values come with the data; reduced: learned convex combination of training samples (paper §8.3)\n", out);
     return;
@@ -299,7 +302,7 @@ void dump_json(FILE *out, const Program *prog) {
       json_str(out, dg.q[k]->name);
       fprintf(out, ":%d", dg.d[k]);
     }
-    fputs("},\"terms\":[", out);
+    fprintf(out, "},\"interp_eligible\":%s,\"terms\":[", lower_interp_eligible(st) ? "true" : "false");
     for (int t = 0; t < st->nterms; t++) {
       const Term *tm = st->terms[t];
       fprintf(out, "%s{\"operators\":[", t ? "," : "");

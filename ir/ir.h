@@ -241,6 +241,12 @@ char *field_key(Ctx *ctx, const Field *f);
 
 /* ir/lower.c: canonical form of every stage and op (program->stages). */
 void lower_program(Ctx *ctx, Program *prog);
+/* ir/lower.c: may stage `st` be reduced by interpolation (DESIGN §12)? Yes
+ * when it applies operators and every one is diagonal (an elementwise
+ * inverse, root or power of a polynomial in named quantities): its value at
+ * an entry then reads its inputs only near that entry, so it can be
+ * evaluated exactly at a few selected entries. */
+bool lower_interp_eligible(const Stage *st);
 /* ir/basis.c: union-find basis classes with reasons. */
 void basis_classes(Ctx *ctx, Program *prog);
 /* ir/verify.c: structural invariants; internal_error on violation. */

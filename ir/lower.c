@@ -24,6 +24,14 @@ static StageKind kind_of_terms(Term **terms, int n) {
   return k;
 }
 
+bool lower_interp_eligible(const Stage *st) {
+  if (st->kind != ST_INVERSE && st->kind != ST_ROOT) return false;
+  for (int t = 0; t < st->nterms; t++)
+    for (int k = 0; k < st->terms[t]->nops; k++)
+      if (st->terms[t]->ops[k].kind != OPK_DIAG) return false;
+  return true;
+}
+
 /* Is the term's polynomial exactly a named quantity of the stage's shape,
  * entry for entry (the identity map)? Then it shares the stage's basis. */
 static Sym *named_numerator(const Sym *s, const Field *f) {
@@ -187,6 +195,21 @@ void lower_program(Ctx *ctx, Program *prog) {
   for (int i = 0; i < prog->inputs.n; i++) vec_push(ctx, &q, prog->inputs.v[i]);
   for (int i = 0; i < prog->stages.n; i++) vec_push(ctx, &q, ((Stage *)prog->stages.v[i])->sym);
   prog->quantities = q;
+  /* `basis w: reduce interp` (DESIGN §12) asks for what only a stage of diagonal operators can do */
+  for (int i = 0; i < q.n; i++) {
+    const Sym *s = q.v[i];
+    if (s->reduce != STAGE_REDUCE_INTERP || (s->stage && lower_interp_eligible(s->stage))) continue;
+    error_at(ctx, s->reduce_loc, "'reduce interp': '%s' %s", s->name,
+             !s->stage || s->stage->kind == ST_INPUT ? "is not a stage (only a stage is reduced)"
+             : s->stage->kind == ST_EXTERN           ? "is an extern (its reduction is a learned map)"
+             : s->stage->kind == ST_INVERSE || s->stage->kind == ST_ROOT
+                 ? "applies a declared operator: only a stage whose every operator is diagonal can be interpolated"
+                 : "applies no diagonal operator: only a stage whose every operator is diagonal can be interpolated");
+  }
+  for (int i = 0; i < prog->inlined.n; i++) {
+    const Sym *s = prog->inlined.v[i];
+    if (s->reduce == STAGE_REDUCE_INTERP) error_at(ctx, s->reduce_loc, "'reduce interp': '%s' is inlined", s->name);
+  }
   PtrVec slots = {0};
   for (int i = 0; i < q.n; i++) vec_push(ctx, &slots, q.v[i]);
   for (int i = 0; i < prog->temps.n; i++) vec_push(ctx, &slots, prog->temps.v[i]);

@@ -241,9 +241,11 @@ static void allocation_failure(void **state) {
 }
 
 /* Programs as test data: every .npg file in tests/programs states its expected
- * classes ("# expect-class: {a, b}") and stage kinds ("# expect-kind: y
- * inverse") and the nonzero counts of declared operators ("# expect-nnz: K N;
- * ≤ 8·N"); all are checked here, and every class must be listed. */
+ * classes ("# expect-class: {a, b}"), stage kinds ("# expect-kind: y
+ * inverse"), the nonzero counts of declared operators ("# expect-nnz: K N;
+ * ≤ 8·N") and, optionally, the stages eligible for interpolation ("#
+ * expect-interp: w" or "none"); all are checked here, and every class must
+ * be listed. */
 #include <dirent.h>
 #include <stdio.h>
 
@@ -303,6 +305,20 @@ static int check_expectations(const char *path) {
       }
       if (!found || strcmp(got, want) != 0) {
         print_message("%s: nnz of op %s is '%s', expected '%s'\n", path, name, found ? got : "(no such op)", want);
+        failures++;
+      }
+    } else if (strncmp(line, "# expect-interp: ", 17) == 0) {
+      /* the stages eligible for interpolation, in evaluation order, or "none" */
+      char got[512] = "";
+      for (int i = 0; i < prog->stages.n; i++) {
+        const Stage *st = prog->stages.v[i];
+        if (!lower_interp_eligible(st)) continue;
+        if (got[0]) strcat(got, ", ");
+        strncat(got, st->sym->name, sizeof got - strlen(got) - 3);
+      }
+      if (strcmp(got[0] ? got : "none", line + 17) != 0) {
+        print_message("%s: stages eligible for interpolation: %s, expected %s\n", path, got[0] ? got : "none",
+                      line + 17);
         failures++;
       }
     } else if (strncmp(line, "# expect-kind: ", 15) == 0) {

@@ -11,8 +11,8 @@
  * sums, which gcc turns into vector lanes without reassociating; tcc does
  * not optimize, so the bodies stay simple with hoisted pointers and
  * literal offsets). Dense linear algebra — inverse powers (Cholesky or
- * LU), roots (eigendecomposition) — and the externs' learned maps are not
- * hand-rolled: they call back into the runtime evaluator through
+ * LU), roots (eigendecomposition) — the externs' learned maps and the
+ * interpolated stages (DESIGN §12) are not hand-rolled: they call back into the runtime evaluator through
  * NpgReducedRt (npg_abi.h), so both agree to rounding. The reduced tensors (megabytes) are not literals: the host
  * passes pointers in NpgReducedCtx.t, in the order of emit_reduced_slots(). */
 #include <setjmp.h>
@@ -432,17 +432,18 @@ static void emit_unit(RedEmit *e) {
 
   const char **fname = arena_alloc(e->ctx, sizeof(char *) * (size_t)(m->nstages + 1));
   for (int i = 0; i < m->nstages; i++) {
-    if (m->stages[i].st->kind == ST_EXTERN) continue;
+    if (m->stages[i].st->kind == ST_EXTERN || m->stages[i].interp) continue; /* the host's (NpgReducedRt.learned) */
     fname[i] = c_ident(e->ctx, "stage_", m->stages[i].st->sym->name);
     emit_stage(e, i, fname[i]);
   }
   fprintf(out,
-          "/* Every stage in evaluation order; externs through their learned maps. */\n"
+          "/* Every stage in evaluation order; externs (their learned maps) and interpolated stages through the host. */\n"
           "int %s(const NpgReducedCtx *c) {\n",
           emit_symbol_name(e->ctx, m->prog, "reduced"));
   for (int i = 0; i < m->nstages; i++) {
     if (fname[i]) fprintf(out, "  if (%s(c)) return -1;\n", fname[i]);
-    else fprintf(out, "  if (c->rt->learned(c, %d)) return -1; /* extern %s */\n", i, m->stages[i].st->sym->name);
+    else fprintf(out, "  if (c->rt->learned(c, %d)) return -1; /* %s %s */\n", i,
+                 m->stages[i].interp ? "interpolated" : "extern", m->stages[i].st->sym->name);
   }
   fputs("  return 0;\n}\n\n", out);
   fprintf(out,

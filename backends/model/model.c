@@ -20,6 +20,7 @@
 #include <unistd.h>
 
 #include "emit.h"
+#include "interp.h"
 #include "model.h"
 #include "model_store.h"
 
@@ -233,6 +234,7 @@ void model_free(Model *m) {
       free(rt->ops);
     }
     free(rs->terms);
+    interp_free(rs->interp);
   }
   for (int i = 0; m->externs && i < m->nexterns; i++) {
     free(m->externs[i].X);
@@ -284,6 +286,9 @@ size_t model_bytes(const Model *m, size_t *tensor_bytes) {
       }
       if (rt->proj) tb += sizeof(double) * (size_t)(qm(m, rs->q) * qm(m, rt->named_q));
     }
+    if (rs->interp)
+      tb += sizeof(double) * (size_t)(rs->interp->k * (rs->interp->m + 1)) +
+            sizeof(RInterpMono) * (size_t)rs->interp->nmono + (sizeof(int) + sizeof(long)) * (size_t)rs->interp->nreads;
   }
   for (int i = 0; i < m->nexterns; i++)
     total += sizeof(double) * (size_t)(m->externs[i].S * (m->externs[i].d + qm(m, m->externs[i].q)));
@@ -404,6 +409,7 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
     shape[1] = m->classes[m->qclass[x->q]].m;
     bad |= model_store_add(&s, name, 2, shape, x->Z);
   }
+  bad |= interp_save(m, &s);
   int rc = -1;
   if (bad) snprintf(err, errlen, "%s: out of memory assembling the model", dir);
   else rc = model_store_write(dir, &s, err, errlen);
@@ -566,7 +572,7 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
   }
   /* every metadata line the model reads must describe this model: a line
    * it cannot use is refused, not skipped */
-  if (check_meta(&s, m, dir, err, errlen)) goto fail;
+  if (check_meta(&s, m, dir, err, errlen) || interp_load(m, &s, dir, err, errlen)) goto fail;
   /* member statistics, for reports */
   for (int i = 0; i < s.nmeta; i++) {
     int c, cap, kept, center = 0;

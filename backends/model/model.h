@@ -77,6 +77,10 @@ typedef struct RStage {
   int q;                    /* index in Program.quantities */
   int nterms;
   RTerm *terms;
+  struct RInterp *interp;   /* reduced by interpolation (interp.h, DESIGN §12), or NULL: Galerkin (owned) */
+  double choice_err[2];     /* training's choice, when made (not saved): the output error on the validation
+                               samples by Galerkin and by interpolation */
+  const char *choice_reason; /* a static string, or NULL: no choice measured */
 } RStage;
 
 /* One member's contribution to a class basis: a quantity or an unnamed

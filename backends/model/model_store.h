@@ -55,6 +55,10 @@ typedef struct ModelText {
 
 typedef struct ModelStore {
   uint64_t program_hash; /* the program the model was trained for */
+  int format;            /* the first line's version: 0 or 1 writes "npg-model 1"; 2 a model with
+                            interpolated stages (interp.h), which builds that predate them refuse
+                            ("model format 'npg-model 2' is not supported") instead of evaluating
+                            it by Galerkin; read: what the file said */
   int nmeta;
   char **meta; /* ordered manifest lines "key value...", without '\n', written verbatim */
   int narrays;

@@ -436,7 +436,7 @@ static int write_contents(const StoreReport *r, const char *tmp, const ModelStor
   FILE *mem = rc == 0 ? open_memstream(&text, &len) : NULL;
   if (rc == 0 && !mem) rc = model_store_fail(r, tmp, 0, "out of memory");
   if (rc == 0) {
-    fprintf(mem, FORMAT_LINE "\nprogram %016" PRIx64 "\n", m->program_hash);
+    fprintf(mem, FORMAT_WORD " %d\nprogram %016" PRIx64 "\n", m->format > 1 ? m->format : 1, m->program_hash);
     for (int i = 0; i < m->nmeta; i++) fprintf(mem, "%s\n", m->meta[i]);
     for (int i = 0; i < m->narrays; i++) {
       char shape[SHAPE_TEXT];

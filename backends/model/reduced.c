@@ -22,6 +22,7 @@
 #include <string.h>
 
 #include "emit.h"
+#include "interp.h"
 #include "krylov.h"
 #include "nnls.h"
 #include "reduced.h"
@@ -55,6 +56,7 @@ struct Reduced {
   double *buf[2];         /* contraction intermediates */
   double *z;              /* packed powers of the inputs of one tensor */
   double *M, *M2, *w;     /* a reduced operator, its factor, a scratch vector */
+  double *interp_work;    /* interp_eval's (interp.h), for the largest interpolated stage */
   lapack_int *piv;
   /* LAPACK workspace of apply_power, sized for maxm once */
   double *tau, *diag, *off; /* dsytrd: reflectors, T's diagonal and off-diagonal */
@@ -92,6 +94,7 @@ void reduced_free(Reduced *r) {
   free(r->M);
   free(r->M2);
   free(r->w);
+  free(r->interp_work);
   free(r->piv);
   free(r->tau);
   free(r->diag);
@@ -194,6 +197,10 @@ Reduced *reduced_new(Model *m, char *err, size_t errlen) {
     }
   }
   r->maxm = maxm;
+  size_t interp_work = 1;
+  for (int i = 0; i < m->nstages; i++)
+    if (m->stages[i].interp && interp_work_size(&m->stages[i]) > interp_work) interp_work = interp_work_size(&m->stages[i]);
+  if (!(r->interp_work = calloc(interp_work, sizeof(double)))) goto oom;
   size_t tensor_bytes = 0;
   model_bytes(m, &tensor_bytes);
   r->one_thread = tensor_bytes < REDUCED_ONE_THREAD_BYTES;
@@ -497,6 +504,11 @@ int reduced_eval_stage(Reduced *r, int i, long sample) {
   }
   long my = qm(m, rs->q);
   double *y = r->x[rs->q];
+  if (rs->interp) { /* DESIGN §12: the formula at the selected entries, fitted */
+    char err[512];
+    if (interp_eval(m, rs, r->x, y, r->interp_work, sample, err, sizeof err)) return rfail(r, "%s", err);
+    return 0;
+  }
   memset(y, 0, sizeof(double) * (size_t)my);
   for (int t = 0; t < rs->nterms; t++) {
     const RTerm *rt = &rs->terms[t];

@@ -37,7 +37,8 @@ static int host_op_power(const NpgReducedCtx *c, int stage, int term, int op, np
 
 static int host_learned(const NpgReducedCtx *c, int stage) {
   RedJit *j = c->host;
-  if (stage < 0 || stage >= j->m->nstages || j->m->stages[stage].st->kind != ST_EXTERN) return -1;
+  if (stage < 0 || stage >= j->m->nstages || (j->m->stages[stage].st->kind != ST_EXTERN && !j->m->stages[stage].interp))
+    return -1;
   return reduced_eval_stage(j->r, stage, c->sample);
 }
 

@@ -4,7 +4,9 @@
  * 1 − 1e-9), and the warnings that say what to change. */
 #include <math.h>
 #include <stdio.h>
+#include <string.h>
 
+#include "interp.h"
 #include "train.h"
 
 /* A member that hits its cap with more than this fraction of its energy
@@ -33,6 +35,7 @@ void report_training(const Model *m, FILE *out) {
                 "or accept the loss\n",
                 mb->name, m->classes[c].label, mb->cap, mb->lost, mb->center ? "centered " : "", mb->name);
     }
+  interp_report(m, out); /* DESIGN §12: how each eligible stage is reduced, and why */
   size_t tb, total = model_bytes(m, &tb);
   fprintf(out, "reduced tensors: %.3f MB; model with bases: %.3f MB\n", (double)tb / 1e6, (double)total / 1e6);
 }
@@ -80,7 +83,18 @@ int report_verify_warnings(const Model *m, const double *err, const double *floo
             "warning: stage %s: error %.2e is %s its projection floor %.2e: the reduction, not its basis, loses "
             "accuracy here",
             rs->st->sym->name, err[q], times, floor[q]);
-    if (w >= 0)
+    /* its inputs at their floors and their error a tenth of its own or less: the stage's own
+     * reduction is the cause (DESIGN §12), not what it reads */
+    bool inputs_at_floor = w < 0 || err[w] <= 1e-12 || (err[w] <= 2 * floor[w] && err[w] <= 0.1 * err[q]);
+    if (inputs_at_floor && rs->interp)
+      fprintf(out, " (its inputs are at their floors and it is interpolated at %ld entries with ‖(PB)⁺‖ %.3g: "
+              "interpolate at more, npgc train --interp-oversample X, or try --reduce %s:galerkin)\n",
+              rs->interp->k, rs->interp->pinv_norm, rs->st->sym->name);
+    else if (inputs_at_floor && lower_interp_eligible(rs->st))
+      fprintf(out, " (its inputs are at their floors and every operator of it is diagonal: reduce it by "
+              "interpolation, npgc train --reduce %s:interp, or let training choose with --valid DIR)\n",
+              rs->st->sym->name);
+    else if (w >= 0)
       fprintf(out, " (it reads %s with error %.2e: a larger basis for it, --basis %s:cap=N; or name an "
               "intermediate to give it a basis, or inline one)\n",
               ((Sym *)m->prog->quantities.v[w])->name, err[w], ((Sym *)m->prog->quantities.v[w])->name);

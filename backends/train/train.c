@@ -26,6 +26,7 @@
 
 #include "dist.h"
 #include "emit.h"
+#include "interp.h"
 #include "reduced.h"
 #include "train.h"
 
@@ -821,6 +822,51 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
   return 0;
 }
 
+/* Step 3b: the stages opt->interp_stage names made interpolated, and with
+ * validation samples every other eligible stage reduced the way that
+ * measures better there (DESIGN §12). */
+static bool named_in(const char *const *names, int n, const char *name) {
+  for (int j = 0; j < n; j++)
+    if (strcmp(names[j], name) == 0) return true;
+  return false;
+}
+
+static int interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, char *err, size_t errlen) {
+  double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
+  /* the program's `basis w: reduce interp`, unless the command line says galerkin */
+  for (int i = 0; i < m->nstages; i++) {
+    const Sym *s = m->stages[i].st->sym;
+    if (s->reduce != STAGE_REDUCE_INTERP || named_in(opt->galerkin_stage, opt->ngalerkin, s->name) ||
+        named_in(opt->interp_stage, opt->ninterp, s->name))
+      continue;
+    if (interp_train_stage(m, f, i, over, err, errlen)) return -1;
+    m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
+  }
+  for (int j = 0; j < opt->ninterp; j++) {
+    int i = 0;
+    while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->interp_stage[j]) != 0) i++;
+    if (i == m->nstages)
+      return npg_fail(err, errlen, "--reduce %s:interp: the program has no stage '%s'", opt->interp_stage[j],
+                      opt->interp_stage[j]);
+    if (interp_train_stage(m, f, i, over, err, errlen)) return -1;
+    m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
+    if (opt->progress)
+      fprintf(stderr, "stage %s interpolated: %ld of %ld entries (m %ld), ‖(PB)⁺‖ %.3g\n", opt->interp_stage[j],
+              m->stages[i].interp->k, m->classes[m->qclass[m->stages[i].q]].n, m->stages[i].interp->m,
+              m->stages[i].interp->pinv_norm);
+  }
+  for (int j = 0; j < opt->ngalerkin; j++) {
+    int i = 0;
+    while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->galerkin_stage[j]) != 0) i++;
+    if (i == m->nstages)
+      return npg_fail(err, errlen, "--reduce %s:galerkin: the program has no stage '%s'", opt->galerkin_stage[j],
+                      opt->galerkin_stage[j]);
+    if (named_in(opt->interp_stage, opt->ninterp, opt->galerkin_stage[j]))
+      return npg_fail(err, errlen, "stage %s is forced both to interpolation and to Galerkin", opt->galerkin_stage[j]);
+  }
+  return opt->valid ? tune_choose_reductions(m, f, opt->valid, opt, err, errlen) : 0;
+}
+
 /* Steps 1–2: the bases, from snapshots in memory, by the method of
  * snapshots, or out of core when the bases exceed opt->mem (ooc.c; then,
  * as after the method of snapshots, *gram: no snapshot is kept). */
@@ -847,7 +893,8 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   Model *m = begin_training(prog, f, src, opt, err, errlen);
   double *sec = m ? m->phase_seconds : NULL, *cpu = m ? m->phase_cpu : NULL;
   if (!m || bases(m, f, src, opt, &sn, &gram, t, sec, cpu, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
-      premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[2], &cpu[2]), 0) ||
+      premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || interpolate_stages(m, f, opt, err, errlen) ||
+      (phase_time(t, &sec[2], &cpu[2]), 0) ||
       fit_externs(m, f, src, &sn, gram, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);

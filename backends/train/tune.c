@@ -17,6 +17,7 @@
 #include <string.h>
 
 #include "emit.h"
+#include "interp.h"
 #include "reduced.h"
 #include "train.h"
 
@@ -248,5 +249,80 @@ done:
   free(cap);
   free(floor);
   model_free(layout);
+  return rc;
+}
+
+/* ---------------------------------------------------------------- Galerkin or interpolation (DESIGN §12) */
+
+/* Multiply-adds of one evaluation of stage `rs` as reduced now: its tensors'
+ * contractions and, by Galerkin, a factorization or eigendecomposition per
+ * operator (ir/cost.c's 9 m³ for a root, m³/3 for an inverse); interpolated,
+ * the lifts, the monomials and the fit. */
+static double stage_work(const Model *m, const RStage *rs) {
+  const RInterp *ip = rs->interp;
+  double w = 0;
+  if (ip) {
+    for (long r = 0; r < ip->nreads; r++) w += (double)m->classes[m->qclass[ip->read_q[r]]].m;
+    for (long i = 0; i < ip->nmono; i++) w += 1 + ip->mono[i].nin;
+    return w + (double)(ip->k * ip->m);
+  }
+  double my = (double)m->classes[m->qclass[rs->q]].m;
+  for (int t = 0; t < rs->nterms; t++) {
+    const RTerm *rt = &rs->terms[t];
+    RTERM_FOR_TENSORS(rt, x) { w += (double)x->rows * (double)x->cols; }
+    for (int k = 0; k < rt->nops; k++) w += rt->ops[k].op->q > 1 ? 9 * my * my * my : my * my * my / 3;
+  }
+  return w;
+}
+
+/* Output errors closer than this (relative), or both at rounding level, are
+ * a tie, settled by cost. */
+#define CHOOSE_TIE 0.02
+#define CHOOSE_ROUNDING 1e-12
+
+int tune_choose_reductions(Model *m, NpgFull *f, const SampleSource *valid, const TrainOptions *opt, char *err,
+                           size_t errlen) {
+  int candidates = 0;
+  for (int i = 0; i < m->nstages; i++) candidates += lower_interp_eligible(m->stages[i].st) && !m->stages[i].interp;
+  if (candidates == 0) return 0; /* nothing to measure: no validation pass */
+  Search s = {0};
+  s.prog = m->prog;
+  double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
+  char why[1024];
+  int rc = cache_valid(&s, f, valid, m, err, errlen);
+  double current = INFINITY;
+  /* a configuration that fails on a validation sample (a reduced root of an
+   * indefinite operator, a power of a negative interpolated value) has an
+   * infinite error: the other may still work */
+  if (rc == 0 && validate(&s, m, &current, NULL, why, sizeof why) != 0) current = INFINITY;
+  for (int i = 0; rc == 0 && i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    if (!lower_interp_eligible(rs->st) || rs->interp) continue; /* forced interpolated: kept */
+    bool forced = rs->st->sym->reduce == STAGE_REDUCE_GALERKIN; /* `basis w: reduce galerkin` */
+    for (int j = 0; j < opt->ngalerkin; j++) forced |= strcmp(opt->galerkin_stage[j], rs->st->sym->name) == 0;
+    if (forced) continue;
+    double galerkin = current, interp = INFINITY, wg = stage_work(m, rs);
+    if ((rc = interp_train_stage(m, f, i, over, err, errlen)) != 0) break;
+    if (validate(&s, m, &interp, NULL, why, sizeof why) != 0) interp = INFINITY;
+    double wi = stage_work(m, rs);
+    bool tie = !opt->choose_strict && fabs(interp - galerkin) <= CHOOSE_TIE * fmin(interp, galerkin) + CHOOSE_ROUNDING;
+    bool keep = tie ? wi < wg : interp < galerkin;
+    rs->choice_err[0] = galerkin, rs->choice_err[1] = interp;
+    rs->choice_reason = interp_reasons[tie    ? (keep ? TIE_INTERP : TIE_GALERKIN)
+                                       : keep ? INTERP_LOWER
+                                       : isfinite(galerkin) || isfinite(interp) ? GALERKIN_LOWER
+                                                                                : BOTH_FAIL];
+    if (keep) {
+      current = interp;
+    } else {
+      interp_free(rs->interp);
+      rs->interp = NULL;
+    }
+    if (opt->progress)
+      fprintf(stderr, "stage %s: output error by Galerkin %.3e, by interpolation %.3e: %s\n", rs->st->sym->name,
+              galerkin, interp, rs->choice_reason);
+  }
+  for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);
+  free(s.v.val);
   return rc;
 }

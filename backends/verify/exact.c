@@ -20,6 +20,7 @@
 #include "ast.h"
 #include "emit.h"
 #include "full.h"
+#include "interp.h"
 #include "memsamples.h"
 #include "reduced.h"
 #include "runtime.h"
@@ -227,6 +228,9 @@ static int check_lowering(Program *prog, const ExactOptions *o, FILE *out, bool 
 
 /* ---------------------------------------------------------------- 2. full rank */
 
+static int held_out_differences(const Program *prog, const Model *m, NpgFull *f, Reduced *r, MemSamples *held,
+                                long held_out, double *y, double *worst, char *err, size_t errlen);
+
 static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
   long n = o->n_full_rank > 0 ? o->n_full_rank : 4, S = 1;
   for (int i = 0; i < prog->quantities.n; i++) {
@@ -270,14 +274,66 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
     else if (!(y = malloc(sizeof(double) * (size_t)(S - 4))))
       rc = npg_fail(err, errlen, "out of memory");
   }
-  if (rc == 0) reduced_use_given_externs(r, true);
+  if (rc == 0) rc = held_out_differences(prog, m, f, r, &held, held_out, y, worst, err, errlen);
+  for (int q = 0; rc == 0 && q < m->nq; q++) {
+    const Sym *s = prog->quantities.v[q];
+    bool bad = !(worst[q] <= EXACT_FULL_RANK_TOL);
+    *failed |= bad;
+    fprintf(out, "     %-16s m = %-7ld %9.2e%s\n", s->name, m->classes[m->qclass[q]].m, worst[q],
+            bad ? "  FAIL: the full-rank reduced value differs from the full one" : "");
+  }
+  /* DESIGN §12: the same model with every eligible stage interpolated at every entry */
+  int neligible = 0;
+  for (int i = 0; rc == 0 && i < m->nstages; i++) {
+    if (!lower_interp_eligible(m->stages[i].st)) continue;
+    char why[2048] = "";
+    if (interp_train_stage(m, f, i, 1.0, why, sizeof why) != 0)
+      rc = npg_fail(err, errlen, "interpolating stage %s at full rank: %s", m->stages[i].st->sym->name, why);
+    neligible++;
+  }
+  if (rc == 0 && neligible > 0) {
+    char why[2048] = "";
+    reduced_free(r);
+    if (!(r = reduced_new(m, why, sizeof why))) rc = npg_fail(err, errlen, "%s", why);
+    if (rc == 0) rc = held_out_differences(prog, m, f, r, &held, held_out, y, worst, err, errlen);
+    double all = 0;
+    for (int q = 0; rc == 0 && q < m->nq; q++) all = isnan(worst[q]) || isnan(all) ? NAN : fmax(all, worst[q]);
+    for (int i = 0; rc == 0 && i < m->nstages; i++)
+      if (m->stages[i].interp)
+        fprintf(out, "     %-16s interpolated at all %ld entries %9.2e\n", m->stages[i].st->sym->name,
+                m->stages[i].interp->k, worst[m->stages[i].q]);
+    if (rc == 0) {
+      bool bad = !(all <= EXACT_FULL_RANK_TOL);
+      *failed |= bad;
+      fprintf(out, "     with them, every quantity    %9.2e%s\n", all,
+              bad ? "  FAIL: the interpolated full-rank model differs from the full one" : "");
+    }
+  }
+  free(y);
+  free(worst);
+  reduced_free(r);
+  model_free(m);
+  memsamples_free(&train);
+  memsamples_free(&held);
+  npg_full_free(f);
+  return rc;
+}
+
+/* worst[q] <- the largest relative difference of quantity q between the
+ * reduced evaluator `r` of full-rank model `m` and the full evaluator `f`
+ * over the held-out samples; y holds the largest class. */
+static int held_out_differences(const Program *prog, const Model *m, NpgFull *f, Reduced *r, MemSamples *held,
+                                long held_out, double *y, double *worst, char *err, size_t errlen) {
+  int rc = 0;
+  memset(worst, 0, sizeof(double) * (size_t)m->nq);
+  reduced_use_given_externs(r, true);
   for (long k = 0; k < held_out && rc == 0; k++) {
-    if (memsamples_set(&held, f, k) != 0 || npg_full_eval(f, k) != 0) {
+    if (memsamples_set(held, f, k) != 0 || npg_full_eval(f, k) != 0) {
       rc = npg_fail(err, errlen, "the full evaluator on held-out sample %ld: %s", k, npg_full_error(f));
       break;
     }
-    for (int i = 0; i < held.n; i++)
-      reduced_project(r, emit_index_of(&prog->quantities, held.sym[i]), held.val[i] + (size_t)k * held.count[i]);
+    for (int i = 0; i < held->n; i++)
+      reduced_project(r, emit_index_of(&prog->quantities, held->sym[i]), held->val[i] + (size_t)k * held->count[i]);
     if (reduced_eval(r, k) != 0) {
       rc = npg_fail(err, errlen, "the reduced evaluator on held-out sample %ld: %s", k, reduced_error(r));
       break;
@@ -295,20 +351,6 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
       worst[q] = isnan(d) || isnan(worst[q]) ? NAN : fmax(worst[q], d);
     }
   }
-  for (int q = 0; rc == 0 && q < m->nq; q++) {
-    const Sym *s = prog->quantities.v[q];
-    bool bad = !(worst[q] <= EXACT_FULL_RANK_TOL);
-    *failed |= bad;
-    fprintf(out, "     %-16s m = %-7ld %9.2e%s\n", s->name, m->classes[m->qclass[q]].m, worst[q],
-            bad ? "  FAIL: the full-rank reduced value differs from the full one" : "");
-  }
-  free(y);
-  free(worst);
-  reduced_free(r);
-  model_free(m);
-  memsamples_free(&train);
-  memsamples_free(&held);
-  npg_full_free(f);
   return rc;
 }
 

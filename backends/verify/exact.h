@@ -7,7 +7,8 @@
  *      evaluator's value to 1e-12 relative (max norm);
  *   2. full rank: a model trained with every basis at its class's full
  *      dimension reproduces the full evaluator to 1e-10 on held-out samples
- *      (paper §7.1 convergence).
+ *      (paper §7.1 convergence); and so does it with every stage eligible
+ *      for interpolation interpolated at every entry (DESIGN §12).
  *
  * Both run on random well-posed data (randdata.h) with every dim of one
  * small size: a user's data fixes sizes at which a full-rank basis (n × n

@@ -145,8 +145,10 @@ typedef struct NpgReducedRt {
    * host recorded a message. */
   int (*op_power)(const NpgReducedCtx *c, int stage, int term, int op, npg_idx m, double *M, long p, long q,
                   double *v);
-  /* Write the coordinates of the extern of stage number `stage` (the
-   * learned map, paper §8.3). Non-zero on failure, as op_power. */
+  /* Write the coordinates of stage number `stage` that the generated code
+   * does not compute: an extern (its learned map, paper §8.3) or an
+   * interpolated stage (its formula at the selected entries, fitted: DESIGN
+   * §12). Non-zero on failure, as op_power. */
   int (*learned)(const NpgReducedCtx *c, int stage);
 } NpgReducedRt;
 

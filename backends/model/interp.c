@@ -1,0 +1,300 @@
+/* interp.c — interpolated stages at run time and on disk (interp.h,
+ * DESIGN §12): ŷ = (P B)⁺ (P y), P y the stage's formula evaluated exactly
+ * at the selected entries from its inputs lifted only where it reads them.
+ * Training (backends/train/interp_train.c) selects the entries and builds
+ * the tables. */
+#include <cblas.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "interp.h"
+
+const char *const interp_reasons[INTERP_NREASONS] = {
+    [INTERP_FORCED] = "forced (--reduce STAGE:interp)",
+    [INTERP_LOWER] = "interpolation: lower output error",
+    [GALERKIN_LOWER] = "Galerkin: lower output error",
+    [TIE_INTERP] = "errors tie, interpolation cheaper",
+    [TIE_GALERKIN] = "errors tie, Galerkin cheaper",
+    [BOTH_FAIL] = "both fail on the validation samples",
+};
+
+static int reason_index(const char *r) {
+  for (int i = 0; i < INTERP_NREASONS; i++)
+    if (r == interp_reasons[i]) return i;
+  return -1;
+}
+
+void interp_report(const Model *m, FILE *out) {
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    if (!rs->interp && !rs->choice_reason) continue;
+    fprintf(out, "stage %s: %s", rs->st->sym->name, rs->interp ? "interpolated" : "Galerkin");
+    if (rs->interp)
+      fprintf(out, " at %ld of %ld entries (m %ld, ‖(PB)⁺‖ %.3g)", rs->interp->k, m->classes[m->qclass[rs->q]].n,
+              rs->interp->m, rs->interp->pinv_norm);
+    if (rs->choice_reason && rs->choice_reason != interp_reasons[INTERP_FORCED])
+      fprintf(out, "; output error on the validation samples by Galerkin %.3e, by interpolation %.3e: %s",
+              rs->choice_err[0], rs->choice_err[1], rs->choice_reason);
+    else if (rs->choice_reason) fprintf(out, ": %s", rs->choice_reason);
+    fputc('\n', out);
+  }
+}
+
+void interp_free(RInterp *ip) {
+  if (!ip) return;
+  free(ip->rows);
+  free(ip->pinv);
+  free(ip->read_q);
+  free(ip->read_e);
+  free(ip->mono);
+  free(ip);
+}
+
+/* Accumulators: one per (term, factor) per selected entry. */
+static long factor_base(const RStage *rs, int term) {
+  long f = 0;
+  for (int t = 0; t < term; t++) f += 1 + rs->terms[t].nops;
+  return f;
+}
+
+size_t interp_work_size(const RStage *rs) {
+  return (size_t)(rs->interp->nreads + rs->interp->k * (factor_base(rs, rs->nterms) + 1) + 1);
+}
+
+static double rational_pow(double b, long p, long q) { return q == 1 ? pow(b, (double)p) : pow(b, (double)p / (double)q); }
+
+int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, double *work, long sample, char *err,
+                size_t errlen) {
+  const RInterp *ip = rs->interp;
+  long k = ip->k, nf = factor_base(rs, rs->nterms);
+  double *val = work, *acc = work + ip->nreads, *py = acc + k * nf;
+  /* the entries the formula reads: one row of their basis each */
+  for (long r = 0; r < ip->nreads; r++) {
+    const RClass *c = &m->classes[m->qclass[ip->read_q[r]]];
+    val[r] = cblas_ddot((int)c->m, c->B + ip->read_e[r] * c->m, 1, x[ip->read_q[r]], 1);
+  }
+  memset(acc, 0, sizeof(double) * (size_t)(k * nf));
+  for (long i = 0; i < ip->nmono; i++) {
+    const RInterpMono *mo = &ip->mono[i];
+    double v = mo->coef;
+    for (int j = 0; j < mo->nin; j++) v *= val[mo->read[j]];
+    acc[(factor_base(rs, mo->term) + mo->factor) * k + mo->slot] += v;
+  }
+  /* y at the selected entries: Σ_t Π_o d_{t,o}^(p/q) q_t, entry by entry */
+  memset(py, 0, sizeof(double) * (size_t)k);
+  for (int t = 0; t < rs->nterms; t++) {
+    const RTerm *rt = &rs->terms[t];
+    const double *num = acc + factor_base(rs, t) * k;
+    for (long s = 0; s < k; s++) {
+      double v = num[s];
+      for (int o = 0; o < rt->nops; o++) v *= rational_pow(num[(o + 1) * k + s], rt->ops[o].op->p, rt->ops[o].op->q);
+      py[s] += v;
+    }
+  }
+  for (long s = 0; s < k; s++)
+    if (!isfinite(py[s]))
+      return npg_fail(err, errlen,
+                      "stage %s (interpolated) is not finite at its selected entry %ld at sample %ld (a diagonal zero "
+                      "under a negative power, or a root of a negative value, from its inputs' reduced values)",
+                      rs->st->sym->name, ip->rows[s], sample);
+  if (ip->m == 0 || k == 0) memset(y, 0, sizeof(double) * (size_t)ip->m); /* (a forged model: BLAS wants lda >= 1) */
+  else cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)ip->m, (int)k, 1.0, ip->pinv, (int)k, py, 1, 0.0, y, 1);
+  return 0;
+}
+
+/* ---------------------------------------------------------------- on disk
+ *
+ * Per interpolated stage y, the manifest line
+ *
+ *   interp y k K m M reads R monos N norm ‖(PB)⁺‖₂
+ *
+ * and the arrays (integers held exactly as float64, as every array of a model is):
+ *   interp_y_rows   K        the selected entries
+ *   interp_y_pinv   M x K    (P B)⁺
+ *   interp_y_reads  R x 2    (quantity, flat entry) lifted
+ *   interp_y_monos  N x (5 + RT_MAX_IN): term, factor, slot, coefficient, inputs, reads (-1 padded) */
+
+#define MONO_COLS (5 + RT_MAX_IN)
+
+static void stem(char *buf, size_t n, const char *stage, const char *what) {
+  snprintf(buf, n, "interp_%s_%s", stage, what);
+}
+
+int interp_save(const Model *m, ModelStore *s) {
+  int bad = 0;
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    int why = rs->choice_reason ? reason_index(rs->choice_reason) : -1;
+    if (why >= 0)
+      bad |= model_store_meta(s, "choice %s galerkin %.17g interp %.17g reason %d", rs->st->sym->name,
+                              rs->choice_err[0], rs->choice_err[1], why);
+  }
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    const RInterp *ip = rs->interp;
+    if (!ip) continue;
+    const char *sn = rs->st->sym->name;
+    s->format = 2;
+    bad |= model_store_meta(s, "interp %s k %ld m %ld reads %ld monos %ld norm %.17g", sn, ip->k, ip->m, ip->nreads,
+                            ip->nmono, ip->pinv_norm);
+    char name[600];
+    double *t = malloc(sizeof(double) * (size_t)(ip->k + 2 * ip->nreads + MONO_COLS * ip->nmono + 1));
+    if (!t) return -1;
+    for (long j = 0; j < ip->k; j++) t[j] = (double)ip->rows[j];
+    long shape[2] = {ip->k, 0};
+    stem(name, sizeof name, sn, "rows");
+    bad |= model_store_add(s, name, 1, shape, t);
+    shape[0] = ip->m, shape[1] = ip->k;
+    stem(name, sizeof name, sn, "pinv");
+    bad |= model_store_add(s, name, 2, shape, ip->pinv);
+    for (long r = 0; r < ip->nreads; r++) t[2 * r] = ip->read_q[r], t[2 * r + 1] = (double)ip->read_e[r];
+    shape[0] = ip->nreads, shape[1] = 2;
+    stem(name, sizeof name, sn, "reads");
+    bad |= model_store_add(s, name, 2, shape, t);
+    for (long j = 0; j < ip->nmono; j++) {
+      const RInterpMono *mo = &ip->mono[j];
+      double *row = t + j * MONO_COLS;
+      row[0] = mo->term, row[1] = mo->factor, row[2] = (double)mo->slot, row[3] = mo->coef, row[4] = mo->nin;
+      for (int c = 0; c < RT_MAX_IN; c++) row[5 + c] = c < mo->nin ? (double)mo->read[c] : -1;
+    }
+    shape[0] = ip->nmono, shape[1] = MONO_COLS;
+    stem(name, sizeof name, sn, "monos");
+    bad |= model_store_add(s, name, 2, shape, t);
+    free(t);
+  }
+  return bad ? -1 : 0;
+}
+
+/* Array `what` of stage `sn`, of `rows` x `cols` (cols 0: a vector). */
+static const double *array_of(const ModelStore *s, const char *dir, const char *sn, const char *what, long rows,
+                              long cols, char *err, size_t errlen) {
+  char name[600];
+  stem(name, sizeof name, sn, what);
+  const NpyArray *a = model_store_array(s, name);
+  if (!a) {
+    npg_fail(err, errlen, "%s/manifest: no array '%s': the model is incomplete", dir, name);
+    return NULL;
+  }
+  if (a->ndim != (cols ? 2 : 1) || a->shape[0] != rows || (cols && a->shape[1] != cols)) {
+    npg_fail(err, errlen, "%s/%s.npy: wrong shape for the manifest's 'interp %s' line", dir, name, sn);
+    return NULL;
+  }
+  return a->data;
+}
+
+/* An integer held as a double, in [lo, hi). */
+static bool whole_in(double v, long lo, long hi) { return v == floor(v) && v >= (double)lo && v < (double)hi; }
+
+static int load_stage(Model *m, const ModelStore *s, const char *dir, const char *line, char *err, size_t errlen) {
+  char sn[512];
+  long k, mm, nreads, nmono;
+  double norm;
+  int used = 0;
+  if (sscanf(line, "interp %511s k %ld m %ld reads %ld monos %ld norm %lf%n", sn, &k, &mm, &nreads, &nmono, &norm,
+             &used) != 6 ||
+      line[used])
+    return npg_fail(err, errlen, "%s/manifest: '%.200s' is not an 'interp' line this npgc reads", dir, line);
+  RStage *rs = NULL;
+  for (int i = 0; i < m->nstages && !rs; i++)
+    if (strcmp(m->stages[i].st->sym->name, sn) == 0) rs = &m->stages[i];
+  if (!rs || !lower_interp_eligible(rs->st) || rs->interp)
+    return npg_fail(err, errlen, "%s/manifest: '%.200s': %s", dir, line,
+                    !rs ? "the program has no such stage" : rs->interp ? "the stage is named twice"
+                                                                     : "the stage is not eligible for interpolation");
+  const RClass *c = &m->classes[m->qclass[rs->q]];
+  if (mm != c->m || k < mm || k > c->n || nreads < 0 || nmono < 0 || nreads > 100000000 || nmono > 100000000 ||
+      !(norm >= 0))
+    return npg_fail(err, errlen, "%s/manifest: '%.200s' does not fit the stage's class %s (n %ld, m %ld)", dir, line,
+                    c->label, c->n, c->m);
+  const double *rows = array_of(s, dir, sn, "rows", k, 0, err, errlen);
+  const double *pinv = rows ? array_of(s, dir, sn, "pinv", mm, k, err, errlen) : NULL;
+  const double *reads = pinv ? array_of(s, dir, sn, "reads", nreads, 2, err, errlen) : NULL;
+  const double *monos = reads ? array_of(s, dir, sn, "monos", nmono, MONO_COLS, err, errlen) : NULL;
+  if (!monos) return -1;
+  RInterp *ip = calloc(1, sizeof *ip);
+  if (!ip) return npg_fail(err, errlen, "%s: out of memory loading the model", dir);
+  rs->interp = ip;
+  ip->k = k, ip->m = mm, ip->nreads = nreads, ip->nmono = nmono, ip->pinv_norm = norm;
+  ip->rows = malloc(sizeof(long) * (size_t)(k + 1));
+  ip->pinv = malloc(sizeof(double) * (size_t)(mm * k + 1));
+  ip->read_q = malloc(sizeof(int) * (size_t)(nreads + 1));
+  ip->read_e = malloc(sizeof(long) * (size_t)(nreads + 1));
+  ip->mono = malloc(sizeof(RInterpMono) * (size_t)(nmono + 1));
+  if (!ip->rows || !ip->pinv || !ip->read_q || !ip->read_e || !ip->mono)
+    return npg_fail(err, errlen, "%s: out of memory loading the model", dir);
+  const char *bad = NULL;
+  for (long j = 0; j < k && !bad; j++) {
+    if (!whole_in(rows[j], 0, c->n)) bad = "rows";
+    ip->rows[j] = (long)rows[j];
+  }
+  memcpy(ip->pinv, pinv, sizeof(double) * (size_t)(mm * k));
+  for (long j = 0; j < mm * k && !bad; j++)
+    if (!isfinite(pinv[j])) bad = "pinv";
+  for (long r = 0; r < nreads && !bad; r++) {
+    if (!whole_in(reads[2 * r], 0, m->nq)) {
+      bad = "reads";
+      break;
+    }
+    ip->read_q[r] = (int)reads[2 * r];
+    if (!whole_in(reads[2 * r + 1], 0, m->classes[m->qclass[ip->read_q[r]]].n)) bad = "reads";
+    ip->read_e[r] = (long)reads[2 * r + 1];
+  }
+  for (long j = 0; j < nmono && !bad; j++) {
+    const double *row = monos + j * MONO_COLS;
+    RInterpMono *mo = &ip->mono[j];
+    if (!whole_in(row[0], 0, rs->nterms) || !whole_in(row[4], 0, RT_MAX_IN + 1) || !isfinite(row[3]) ||
+        !whole_in(row[2], 0, k)) {
+      bad = "monos";
+      break;
+    }
+    mo->term = (int)row[0];
+    if (!whole_in(row[1], 0, rs->terms[mo->term].nops + 1)) {
+      bad = "monos";
+      break;
+    }
+    mo->factor = (int)row[1], mo->slot = (long)row[2], mo->coef = row[3], mo->nin = (int)row[4];
+    for (int i = 0; i < mo->nin && !bad; i++) {
+      if (!whole_in(row[5 + i], 0, nreads)) bad = "monos";
+      mo->read[i] = (long)row[5 + i];
+    }
+  }
+  if (bad)
+    return npg_fail(err, errlen, "%s/interp_%s_%s.npy: an entry out of range for the stage (a damaged or forged model)",
+                    dir, sn, bad);
+  return 0;
+}
+
+/* A `choice` line: the stage's measured errors and reason. */
+static int load_choice(Model *m, const char *dir, const char *line, char *err, size_t errlen) {
+  char sn[512];
+  double g, e;
+  int why, used = 0;
+  RStage *rs = NULL;
+  if (sscanf(line, "choice %511s galerkin %lf interp %lf reason %d%n", sn, &g, &e, &why, &used) == 4 && !line[used] &&
+      why >= 0 && why < INTERP_NREASONS && !(g < 0) && !(e < 0))
+    for (int i = 0; i < m->nstages && !rs; i++)
+      if (strcmp(m->stages[i].st->sym->name, sn) == 0 && lower_interp_eligible(m->stages[i].st)) rs = &m->stages[i];
+  if (!rs || rs->choice_reason)
+    return npg_fail(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                    dir, line);
+  rs->choice_err[0] = g, rs->choice_err[1] = e, rs->choice_reason = interp_reasons[why];
+  return 0;
+}
+
+int interp_load(Model *m, const ModelStore *s, const char *dir, char *err, size_t errlen) {
+  int n = 0;
+  for (int i = 0; i < s->nmeta; i++) {
+    if (strncmp(s->meta[i], "choice ", 7) == 0 && load_choice(m, dir, s->meta[i], err, errlen)) return -1;
+    if (strncmp(s->meta[i], "interp ", 7) != 0) continue;
+    if (s->format < 2)
+      return npg_fail(err, errlen, "%s/manifest: an 'interp' line in a model of format 1 (a damaged or forged manifest)",
+                      dir);
+    if (load_stage(m, s, dir, s->meta[i], err, errlen)) return -1;
+    n++;
+  }
+  if (s->format >= 2 && n == 0)
+    return npg_fail(err, errlen, "%s/manifest: format 2 but no interpolated stage (a damaged or forged manifest)", dir);
+  return 0;
+}

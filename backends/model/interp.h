@@ -1,0 +1,103 @@
+/* interp.h — interpolated stages (DESIGN §12): empirical interpolation of a
+ * stage whose every operator is diagonal (lower_interp_eligible), instead of
+ * its Galerkin reduction.
+ *
+ * Galerkin reduces y = Σ_t Π_k diag(d_{t,k})^{r_k} q_t as Σ_t Π (BᵀD B)^r Bᵀq:
+ * exact only when the basis is invariant under the diagonal operators. An
+ * interpolated stage instead evaluates its formula exactly at k ≥ m selected
+ * entries P of y (Q-DEIM: the first m by QR with column pivoting of Bᵀ,
+ * Drmač & Gugercin 2016; the rest by the largest leverage ‖B[e,:]‖ among the
+ * entries not yet chosen — oversampled "gappy POD") and takes the
+ * least-squares coordinates
+ *
+ *     ŷ = (P B)⁺ (P y),          ‖y − B ŷ‖ ≤ ‖(P B)⁺‖₂ · ‖y − B Bᵀ y‖
+ *
+ * plus the error of its inputs through the formula. (P B)⁺ (m × k) is formed
+ * once at training (QR of P B, R⁻¹ Qᵀ) and stored.
+ *
+ * At entry P_s the formula reads a few entries of named quantities: the
+ * tensor builders say exactly which (the same streams pre-multiplication
+ * reads), with every coefficient a number (params are fixed at training).
+ * Training keeps those entries as a table of monomials; the reduced
+ * evaluator lifts only the entries the table reads (one row of the input's
+ * basis each: B_x[e,:] x̂), evaluates the monomials, applies the diagonal
+ * powers entry by entry and solves the small least-squares problem. Cost
+ * O(k m + reads · m_input + monomials) per stage, nothing of order N unless
+ * one selected entry itself reads O(N) entries (a sum over a dim).
+ */
+#ifndef NPG_INTERP_H
+#define NPG_INTERP_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdio.h>
+
+#include "model.h"
+#include "model_store.h"
+
+/* One monomial of the formula at a selected entry: coef · Π read values,
+ * added into factor `factor` (0: the numerator q_t; o + 1: the diagonal of
+ * operator o) of term `term` at selected entry `slot`. */
+typedef struct RInterpMono {
+  int term, factor;
+  long slot;
+  double coef;
+  int nin;
+  long read[RT_MAX_IN];     /* indices into RInterp.read_q/read_e */
+} RInterpMono;
+
+typedef struct RInterp {
+  long k;                   /* entries selected, m <= k <= n */
+  long m;                   /* the stage's basis size when trained */
+  long *rows;               /* k flat entries of the stage */
+  double *pinv;             /* m x k row-major: (P B)⁺ */
+  double pinv_norm;         /* ‖(P B)⁺‖₂: the factor of the error bound */
+  long nreads;
+  int *read_q;              /* quantity (Program.quantities) of each entry lifted */
+  long *read_e;             /* its flat entry */
+  long nmono;
+  RInterpMono *mono;
+} RInterp;
+
+void interp_free(RInterp *ip);
+
+/* Why a stage is reduced the way it is (RStage.choice_reason points into
+ * this table; the manifest records the index). */
+enum {
+  INTERP_FORCED,          /* --reduce STAGE:interp */
+  INTERP_LOWER,           /* interpolation measured lower at the output */
+  GALERKIN_LOWER,         /* Galerkin measured lower */
+  TIE_INTERP,             /* a tie, interpolation cheaper */
+  TIE_GALERKIN,           /* a tie, Galerkin cheaper */
+  BOTH_FAIL,              /* both fail on the validation samples: Galerkin */
+  INTERP_NREASONS
+};
+extern const char *const interp_reasons[INTERP_NREASONS];
+
+/* The lines "stage w: interpolated at k of n entries …; output error … by
+ * Galerkin …, by interpolation …: reason" for every stage that is
+ * interpolated or whose reduction training chose (report_training, verify). */
+void interp_report(const Model *m, FILE *out);
+
+/* The reduced coordinates of stage `rs` (whose rs->interp is set) from the
+ * coordinates x[q] of the quantities it reads, into y (m entries). `work`
+ * holds interp_work_size(rs) doubles. 0, or -1 with `err`
+ * naming the stage and the selected entry where the formula is not finite
+ * (a diagonal zero under a negative power, a root of a negative value). */
+size_t interp_work_size(const RStage *rs);
+int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, double *work, long sample, char *err,
+                size_t errlen);
+
+/* The model's interpolated stages in `s` (model_save): an `interp` line
+ * per stage and its arrays; the store's format raised to 2, which builds
+ * that do not know interpolated stages refuse; and a `choice` line per
+ * stage whose reduction training measured (format 1 when every one kept
+ * Galerkin: a build that ignores the line evaluates the model the same).
+ * Nothing for a model without them. -1 when out of memory. */
+int interp_save(const Model *m, ModelStore *s);
+/* The `interp` and `choice` lines of a loaded store: every one checked against the
+ * layout (stage eligible, sizes, entries in range, tables consistent) and
+ * its arrays read into rs->interp. 0, or -1 with `err` naming the file. */
+int interp_load(Model *m, const ModelStore *s, const char *dir, char *err, size_t errlen);
+
+#endif

@@ -1,0 +1,69 @@
+#!/bin/sh
+# interp.sh BUILD_DIR — interpolated stages end to end (DESIGN §12): check
+# marks the eligible stage, train --reduce STAGE:interp writes a format-2
+# model that verify and eval use and reports as interpolated, --valid makes
+# and prints the choice, a stage that is not eligible is refused by name,
+# generated reduced code hands the interpolated stage to the host, a Galerkin model
+# stays format 1, --valid F holds a fraction of the samples out instead,
+# npgc tune makes the choice at the caps it found.
+set -eu
+B=$1
+W=$(mktemp -d /tmp/npg_cli_XXXXXX)
+trap 'rm -rf "$W"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+
+P=tests/programs/nbody_gravity.npg
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]
+rng = np.random.default_rng(4)
+base = rng.normal(size=(8, 3)) * 2
+modes = rng.normal(size=(3, 8, 3))
+for name, S in (("TRAIN", 40), ("VALID", 8), ("TEST", 8)):
+    os.makedirs(f"{w}/{name}")
+    x = base + np.einsum("sk,kvc->svc", 0.2 * rng.normal(size=(S, 3)), modes)
+    np.save(f"{w}/{name}/x.npy", x)
+    np.save(f"{w}/{name}/mass.npy", np.full(8, 0.125))
+    np.save(f"{w}/{name}/eps.npy", np.array(0.05))
+PY
+"$B/npgc" check $P >"$W/check.txt" || fail "check"
+grep -q 'interpolation: eligible.*--reduce w:interp' "$W/check.txt" || fail "check does not mark w eligible"
+test "$(grep -c 'interpolation: eligible' "$W/check.txt")" = 1 || fail "check marks more than w"
+# the exactness checks interpolate every eligible stage at every entry too
+"$B/npgc" verify $P --exact >"$W/exact.txt" || fail "verify --exact: $(cat "$W/exact.txt")"
+grep -q '^     w  *interpolated at all [0-9]* entries' "$W/exact.txt" || fail "verify --exact lacks w interpolated"
+"$B/npgc" train $P "$W/TRAIN" -o "$W/GAL" >/dev/null || fail "train"
+test "$(head -1 "$W/GAL/manifest")" = "npg-model 1" || fail "a Galerkin model is not format 1"
+"$B/npgc" train $P "$W/TRAIN" -o "$W/INT" --reduce w:interp --interp-oversample 2 >"$W/train.txt" || fail "train --reduce w:interp"
+grep -q "^stage w: interpolated at 18 of 64 entries (m 9, " "$W/train.txt" || fail "training report: $(cat "$W/train.txt")"
+test "$(head -1 "$W/INT/manifest")" = "npg-model 2" || fail "an interpolated model is not format 2"
+"$B/npgc" verify $P "$W/INT" "$W/TEST" --tol 10 >"$W/verify.txt" || fail "verify: $(cat "$W/verify.txt")"
+grep -q '^w  *root, interp' "$W/verify.txt" || fail "verify does not show w interpolated: $(cat "$W/verify.txt")"
+"$B/npgc" eval $P "$W/INT" "$W/TEST" -o "$W/OUT" >/dev/null || fail "eval of an interpolated model"
+test -s "$W/OUT/a.npy" || fail "eval wrote no output"
+"$B/npgc" emit $P --reduced "$W/INT" -o "$W/red.c" || fail "emit --reduced of an interpolated model"
+grep -q 'c->rt->learned(c, 1)) return -1; /\* interpolated w \*/' "$W/red.c" || fail "generated code does not hand w to the host"
+cc -c -Wall -Wextra -Werror -I stdlib/runtime "$W/red.c" -o "$W/red.o" || fail "generated reduced code does not compile cleanly"
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/BAD" --reduce r2:interp 2>"$W/err.txt" >/dev/null; then fail "r2 interpolated"; fi
+grep -q 'stage r2 cannot be interpolated: it applies no diagonal operator' "$W/err.txt" || fail "r2 message: $(cat "$W/err.txt")"
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/BAD" --reduce w:deim 2>/dev/null >/dev/null; then fail "--reduce w:deim accepted"; fi
+"$B/npgc" train $P "$W/TRAIN" -o "$W/AUTO" --valid "$W/VALID" >"$W/auto.txt" || fail "train --valid"
+grep -q '^stage w: .*output error on the validation samples by Galerkin .*, by interpolation .*: ' "$W/auto.txt" ||
+  fail "training does not print the choice: $(cat "$W/auto.txt")"
+"$B/npgc" verify $P "$W/AUTO" "$W/TEST" --tol 10 >"$W/vauto.txt" || fail "verify of the chosen model"
+grep -q "^stage w: .*output error on the validation samples by Galerkin .*, by interpolation .*: " "$W/vauto.txt" ||
+  fail "verify does not print the choice: $(cat "$W/vauto.txt")"
+"$B/npgc" train $P "$W/TRAIN" -o "$W/FORCED" --valid "$W/VALID" --reduce w:galerkin >"$W/forced.txt" || fail "train --reduce w:galerkin"
+if grep -q '^stage w' "$W/forced.txt"; then fail "a stage forced to Galerkin was measured"; fi
+# held out of the training samples instead: 40 samples, every 4th validates
+"$B/npgc" train $P "$W/TRAIN" -o "$W/HOLD" --valid 0.25 >"$W/hold.txt" || fail "train --valid 0.25"
+grep -q '^trained .* on 40 samples' "$W/hold.txt" || fail "sample count: $(cat "$W/hold.txt")"
+grep -q '^samples 30$' "$W/HOLD/manifest" || fail "held-out samples trained on: $(grep '^samples' "$W/HOLD/manifest")"
+grep -q '^stage w: .*output error on the validation samples by Galerkin' "$W/hold.txt" || fail "no choice with --valid 0.25"
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/BAD" --valid 0.7 2>/dev/null >/dev/null; then fail "--valid 0.7 accepted"; fi
+# npgc tune: at the caps it chose, the stage interpolated only where that measures strictly lower
+"$B/npgc" tune $P "$W/TRAIN" "$W/VALID" --tol 0.5 -o "$W/TUNED" >"$W/tune.txt" || fail "tune: $(cat "$W/tune.txt")"
+grep -q '^stage w: .*by Galerkin .*, by interpolation .*: \(interpolation\|Galerkin\): lower output error' "$W/tune.txt" ||
+  fail "tune does not print the choice: $(cat "$W/tune.txt")"
+grep "^stage w" "$W/auto.txt" "$W/train.txt" "$W/hold.txt"
+echo "ok"
