@@ -6,13 +6,18 @@
  *
  *     build/bench_sparse [n ...]        (default: 100 316 1000, i.e. 1e4, 1e5, 1e6 cells)
  *     build/bench_sparse --crossover     sparse against dense below 1,000 cells
+ *     build/bench_sparse --premul [n] [S] [cap]   pre-multiplication of the operator's tensors
  *
  * For each size: the first evaluation (pattern, symbolic analysis,
  * factorization, solve) and a repeated one with a new conductivity (values
  * refilled, refactorization, solve: the analysis reused), both for npg and
  * the peer; their ratio; the two solutions' difference; the process's peak
  * memory after npg's evaluations (npg runs first; run one size a process
- * for the size's own peak). Prints figures, not pass/fail. */
+ * for the size's own peak). --premul trains the program on S conductivity
+ * fields of many modes (so the bases reach `cap`), then pre-multiplies each
+ * tensor of the sparse operator again alone, timed, with premultiply()'s
+ * own flop count, against OpenBLAS dgemm's rate at the final GEMM's shape
+ * measured in the same run. Prints figures, not pass/fail. */
 #define _POSIX_C_SOURCE 200809L
 #include <limits.h>
 #include <math.h>
@@ -22,10 +27,13 @@
 #include <sys/resource.h>
 #include <time.h>
 
+#include <cblas.h>
 #include <suitesparse/cholmod.h>
 
+#include "compile.h"
 #include "full.h"
 #include "npg.h"
+#include "train.h"
 
 static double now(void) {
   struct timespec t;
@@ -183,6 +191,102 @@ static void crossover(NpgProgram *prog) {
   }
 }
 
+/* ---------------------------------------------------------------- pre-multiplication */
+
+typedef struct Fields {
+  const Grid *g;
+  long S;
+  double *kappa; /* S x N */
+} Fields;
+
+static int fields_set(void *user, NpgFull *f, long k) {
+  const Fields *fs = user;
+  long s1[1] = {fs->g->N};
+  return npg_full_set(f, "kappa", 1, s1, fs->kappa + k * fs->g->N, "kappa");
+}
+
+/* GFLOP/s of C(M x N) += Aᵀ B (A: K x M), premul.c's final GEMM, best of 3. */
+static double dgemm_gflops(int M, int N, int K) {
+  double *A = malloc(sizeof(double) * (size_t)M * K), *B = malloc(sizeof(double) * (size_t)K * N);
+  double *C = calloc((size_t)M * N, sizeof(double));
+  for (long i = 0; i < (long)M * K; i++) A[i] = sin((double)i);
+  for (long i = 0; i < (long)K * N; i++) B[i] = cos((double)i);
+  double best = 1e30;
+  for (int r = 0; r < 3; r++) {
+    double t0 = now();
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, M, N, K, 1.0, A, M, B, N, 1.0, C, N);
+    best = fmin(best, now() - t0);
+  }
+  free(A), free(B), free(C);
+  return 2.0 * M * (double)N * K / best / 1e9;
+}
+
+static void premul_bench(NpgProgram *prog, long n, long S, int cap) {
+  Grid g = grid(n);
+  Fields fs = {&g, S, malloc(sizeof(double) * (size_t)S * (size_t)g.N)};
+  /* 100 smooth modes with random weights: rank min(S, 100) fields */
+  unsigned seed = 5u;
+  enum { MODES = 100 };
+  double fx[MODES], fy[MODES], ph[MODES], w[MODES];
+  for (int q = 0; q < MODES; q++) {
+    seed = seed * 1103515245u + 12345u, fx[q] = 1 + (seed >> 8) % 7;
+    seed = seed * 1103515245u + 12345u, fy[q] = 1 + (seed >> 8) % 7;
+    seed = seed * 1103515245u + 12345u, ph[q] = 6.28 * ((seed >> 8) & 0xFFFF) / 65536.0;
+  }
+  for (long k = 0; k < S; k++) {
+    for (int q = 0; q < MODES; q++) seed = seed * 1103515245u + 12345u, w[q] = (((seed >> 8) & 0xFFFF) / 32768.0 - 1) / 10;
+    for (long i = 0; i < g.N; i++) {
+      double x = (double)(i % n) / (double)(n - 1), y = (double)(i / n) / (double)(n - 1), v = 1;
+      for (int q = 0; q < MODES; q++) v += 0.8 * w[q] * sin(3.141592653589793 * fx[q] * x + ph[q]) * cos(3.141592653589793 * fy[q] * y);
+      fs.kappa[k * g.N + i] = v;
+    }
+  }
+  NpgFull *f = evaluator(prog, &g, NPG_CC, FULL_SPARSE_MIN_ROWS);
+  SampleSource src = {S, &fs, fields_set, NULL, NULL};
+  TrainOptions opt = {0};
+  opt.cap = cap;
+  opt.energy = 1.0;
+  char err[2048] = "";
+  double t0 = now();
+  Model *m = train_model(npg_program_ir(prog), f, &src, &opt, err, sizeof err);
+  if (!m) {
+    fprintf(stderr, "bench_sparse: %s\n", err);
+    exit(1);
+  }
+  printf("%ld cells, %ld samples, cap %d: trained in %.2f s\n", g.N, S, cap, now() - t0);
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    for (int t = 0; t < rs->nterms; t++)
+      for (int k = 0; k < rs->terms[t].nops; k++) {
+        ROp *op = &rs->terms[t].ops[k];
+        if (op->op->kind != OPK_DECL) continue;
+        const RClass *cy = &m->classes[m->qclass[rs->q]];
+        for (int j = 0; j < op->ntensors; j++) {
+          RTensor *x = &op->t[j];
+          double *kept = x->data, fl = 0;
+          x->data = NULL;
+          double s0 = now();
+          if (premultiply(m, f, x, cy->B, cy->n, cy->m, &fl, err, sizeof err)) {
+            fprintf(stderr, "bench_sparse: %s\n", err);
+            exit(1);
+          }
+          double sec = now() - s0, d = 0, sc = 0;
+          for (long e = 0; e < x->rows * x->cols; e++) d = fmax(d, fabs(x->data[e] - kept[e])), sc = fmax(sc, fabs(kept[e]));
+          free(kept);
+          double peak = dgemm_gflops((int)x->rows, (int)x->cols, 2048);
+          printf("  operator tensor %s: %ld x %ld (m_u = %ld), %.3g GFLOP in %.3f s = %.2f GFLOP/s; dgemm at "
+                 "(%ld x %ld x 2048) %.2f GFLOP/s: %.2fx the dgemm-rate time (same as in training to %.1e)\n",
+                 x->name, x->rows, x->cols, cy->m, fl / 1e9, sec, fl / sec / 1e9, x->rows, x->cols, peak,
+                 (fl / sec / 1e9) > 0 ? peak / (fl / sec / 1e9) : 0, sc > 0 ? d / sc : d);
+        }
+      }
+  }
+  model_free(m);
+  npg_full_free(f);
+  free(fs.kappa);
+  free(g.nbr), free(g.inbr), free(g.src), free(g.kappa[0]), free(g.kappa[1]);
+}
+
 int main(int argc, char **argv) {
   NpgOptions opt = {0};
   opt.std_dir = "stdlib";
@@ -193,8 +297,18 @@ int main(int argc, char **argv) {
   }
   if (argc > 1 && strcmp(argv[1], "--crossover") == 0) {
     crossover(prog);
+  } else if (argc > 1 && strcmp(argv[1], "--premul") == 0) {
+    premul_bench(prog, argc > 2 ? strtol(argv[2], NULL, 10) : 316, argc > 3 ? strtol(argv[3], NULL, 10) : 120,
+                 argc > 4 ? (int)strtol(argv[4], NULL, 10) : 60);
   } else if (argc > 1) {
-    for (int i = 1; i < argc; i++) one_size(prog, strtol(argv[i], NULL, 10));
+    for (int i = 1; i < argc; i++) {
+      long n = strtol(argv[i], NULL, 10);
+      if (n < 2) {
+        fprintf(stderr, "bench_sparse: '%s' is not a grid size (cells a side, at least 2)\n", argv[i]);
+        return 1;
+      }
+      one_size(prog, n);
+    }
   } else {
     long sizes[] = {100, 316, 1000};
     for (int i = 0; i < 3; i++) one_size(prog, sizes[i]);
