@@ -47,7 +47,11 @@ static void push(Lexer *lx, TokKind kind, const unsigned char *s, const unsigned
   if (kind == TK_NUM) {
     t->is_int = strpbrk(t->text, ".eE") == NULL;
     t->num = strtod(t->text, NULL);
-    if (t->is_int && t->num > 9007199254740992.0)
+    /* the digits, not the rounded double: 9007199254740993 rounds to 2^53
+     * and would pass a test on t->num */
+    const char *d = t->text;
+    while (*d == '0' && d[1]) d++;
+    if (t->is_int && (strlen(d) > 16 || (strlen(d) == 16 && strcmp(d, "9007199254740992") > 0)))
       error_at(lx->ctx, t->loc, "integer literal '%s' is too large (at most 2^53)", t->text);
     if (!isfinite(t->num)) error_at(lx->ctx, t->loc, "number '%s' is out of the range of double precision", t->text);
   }

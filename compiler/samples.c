@@ -8,6 +8,7 @@
 
 #include "compile.h"
 #include "emit.h"
+#include "full.h"
 #include "npg.h"
 #include "npy.h"
 
@@ -123,6 +124,8 @@ static void samples_close(SampleSet *s) {
 
 NpgSamples *npg_samples_open(NpgProgram *p, const char *dir, const char *fallback, bool externs, char *err,
                              size_t errlen) {
+  NPG_REFUSE_NULL(p, err, errlen, NULL);
+  NPG_REFUSE_NULL(dir, err, errlen, NULL);
   if (!npg_ok(p)) {
     snprintf(err, errlen, "%s", npg_error(p));
     return NULL;
@@ -139,16 +142,30 @@ NpgSamples *npg_samples_open(NpgProgram *p, const char *dir, const char *fallbac
   return s;
 }
 
-long npg_samples_count(const NpgSamples *s) { return s->s.count; }
+long npg_samples_count(const NpgSamples *s) {
+  NPG_REFUSE_NULL(s, NULL, 0, -1);
+  return s->s.count;
+}
 
 const double *npg_samples_get(const NpgSamples *s, const char *name, long k, size_t *count) {
+  NPG_REFUSE_NULL(s, NULL, 0, NULL);
+  NPG_REFUSE_NULL(name, NULL, 0, NULL);
   for (int i = 0; i < s->s.n; i++)
     if (strcmp(s->s.files[i].sym->name, name) == 0 && k >= 0 && k < s->s.count)
       return samples_value(&s->s, i, k, count);
   return NULL;
 }
 
-int npg_samples_set(void *samples, NpgFull *f, long k) { return samples_set(&((NpgSamples *)samples)->s, f, k); }
+int npg_samples_set(void *samples, NpgFull *f, long k) {
+  NPG_REFUSE_NULL(f, NULL, 0, -1);
+  if (!samples) return full_fail(f, (npg_refuse(NULL, 0, __func__, "argument 'samples' is NULL"), npg_refusal()));
+  const SampleSet *s = &((NpgSamples *)samples)->s;
+  if (k < 0 || k >= s->count)
+    return full_fail(f, (npg_refuse(NULL, 0, __func__, "argument 'k' is %ld, but the set holds %ld sample%s (0 to %ld)",
+                                    k, s->count, s->count == 1 ? "" : "s", s->count - 1),
+                         npg_refusal()));
+  return samples_set(&((NpgSamples *)samples)->s, f, k);
+}
 
 void npg_samples_free(NpgSamples *s) {
   if (!s) return;

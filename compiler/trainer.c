@@ -74,10 +74,41 @@ static long kept_index(const NpgTrainer *t, long k) {
 }
 
 void npg_train_options_default(NpgTrainOptions *o) {
+  NPG_REFUSE_NULL(o, NULL, 0, );
   memset(o, 0, sizeof *o);
   o->cap = 60;
   o->energy = 0.999;
   o->mem = half_the_ram();
+}
+
+/* Options out of their documented range are refused, naming the field, not
+ * replaced by a default (a cap of 0 the caller computed is a bug of theirs
+ * that a default would hide). */
+static int refuse_options(NpgTrainer *t, const NpgTrainOptions *o) {
+#define REFUSE(...) npg_refuse(t->error, sizeof t->error, "npg_trainer_new", __VA_ARGS__)
+  if (o->cap <= 0) return REFUSE("NpgTrainOptions.cap is %d (a basis cap is at least 1)", o->cap);
+  if (!(o->energy > 0 && o->energy <= 1))
+    return REFUSE("NpgTrainOptions.energy is %g (an energy fraction is in (0, 1])", o->energy);
+  if (o->mem == 0) return REFUSE("NpgTrainOptions.mem is 0 (bytes of memory for training; npg_train_options_default "
+                                 "gives half the RAM)");
+  if (o->nbasis < 0) return REFUSE("NpgTrainOptions.nbasis is %d (the number of basis overrides)", o->nbasis);
+  if (o->nbasis > 0 && (!o->basis_name || !o->basis_cap || !o->basis_energy))
+    return REFUSE("NpgTrainOptions.nbasis is %d but %s is NULL", o->nbasis,
+                  !o->basis_name ? "basis_name" : !o->basis_cap ? "basis_cap" : "basis_energy");
+  for (int i = 0; i < o->nbasis; i++) {
+    if (!o->basis_name[i]) return REFUSE("NpgTrainOptions.basis_name[%d] is NULL", i);
+    if (o->basis_cap[i] != -1 && o->basis_cap[i] <= 0)
+      return REFUSE("NpgTrainOptions.basis_cap[%d] (%s) is %d (at least 1, or -1 for the default)", i, o->basis_name[i],
+                    o->basis_cap[i]);
+    if (o->basis_energy[i] != -1 && !(o->basis_energy[i] > 0 && o->basis_energy[i] <= 1))
+      return REFUSE("NpgTrainOptions.basis_energy[%d] (%s) is %g (in (0, 1], or -1 for the default)", i,
+                    o->basis_name[i], o->basis_energy[i]);
+    if (o->basis_center && o->basis_center[i] != -1 && o->basis_center[i] != 0 && o->basis_center[i] != 1)
+      return REFUSE("NpgTrainOptions.basis_center[%d] (%s) is %d (1 on, 0 off, -1 the default)", i, o->basis_name[i],
+                    o->basis_center[i]);
+  }
+  return 0;
+#undef REFUSE
 }
 
 NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
@@ -85,13 +116,15 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
   if (!t) return NULL;
   if (o) t->opt = *o;
   else npg_train_options_default(&t->opt);
-  if (t->opt.cap <= 0) t->opt.cap = 60;
-  if (!(t->opt.energy > 0 && t->opt.energy <= 1)) t->opt.energy = 0.999;
-  if (!t->opt.mem) t->opt.mem = half_the_ram();
   t->f = f;
+  if (!f) {
+    npg_refuse(t->error, sizeof t->error, __func__, "argument 'f' is NULL");
+    return t;
+  }
+  if (refuse_options(t, &t->opt)) return t;
   if (t->opt.mpi && dist_start(t->error, sizeof t->error)) return t;
-  if (!f || npg_full_error(f)[0]) {
-    tfail(t, "%s", f ? npg_full_error(f) : "no full evaluator");
+  if (npg_full_error(f)[0]) {
+    tfail(t, "%s", npg_full_error(f));
     return t;
   }
   const Program *prog = t->prog = full_program(f);
@@ -109,8 +142,17 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
   return t;
 }
 
-const char *npg_trainer_error(const NpgTrainer *t) { return t ? t->error : "out of memory"; }
-long npg_trainer_samples(const NpgTrainer *t) { return t->samples; }
+const char *npg_trainer_error(const NpgTrainer *t) {
+  return t ? t->error : npg_refusal()[0] ? npg_refusal() : "out of memory";
+}
+long npg_trainer_samples(const NpgTrainer *t) {
+  NPG_REFUSE_NULL(t, NULL, 0, -1);
+  return t->samples;
+}
+
+/* The argument checks of the npg_trainer_ entry points (ast.h). */
+#define REFUSE_NULL_T(ret) NPG_REFUSE_NULL(t, NULL, 0, ret)
+#define REFUSE_NULL(arg, ret) NPG_REFUSE_NULL(arg, t->error, sizeof t->error, ret)
 
 static int slot_of(const NpgTrainer *t, const char *name) {
   for (int i = 0; i < t->nslots; i++)
@@ -119,6 +161,8 @@ static int slot_of(const NpgTrainer *t, const char *name) {
 }
 
 int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape, const double *values) {
+  REFUSE_NULL_T(-1);
+  REFUSE_NULL(name, -1);
   if (t->error[0]) return -1;
   int i = slot_of(t, name);
   if (i < 0) return tfail(t, "the program has no input or extern '%s'", name);
@@ -294,6 +338,7 @@ static int record(NpgTrainer *t, const NpgFull *g) {
 }
 
 int npg_trainer_add(NpgTrainer *t) {
+  REFUSE_NULL_T(-1);
   if (t->error[0]) return -1;
   bool need_eval = false;
   for (int i = 0; i < t->nslots; i++) {
@@ -309,6 +354,8 @@ int npg_trainer_add(NpgTrainer *t) {
 }
 
 int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {
+  REFUSE_NULL_T(-1);
+  REFUSE_NULL(g, -1);
   if (t->error[0]) return -1;
   if (npg_full_error(g)[0]) return tfail(t, "%s", npg_full_error(g));
   return record(t, g);
@@ -441,6 +488,7 @@ static int check_mem(NpgTrainer *t) {
 }
 
 NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
+  REFUSE_NULL_T(NULL);
   if (t->error[0]) return NULL;
   if (t->samples == 0) {
     tfail(t, "no training samples were added");
@@ -502,6 +550,7 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
 }
 
 void npg_model_train_seconds(const NpgModel *m, double seconds[4], double cpu[4]) {
+  NPG_REFUSE_NULL(seconds, NULL, 0, );
   for (int i = 0; i < 4; i++) {
     seconds[i] = m && m->m ? m->m->phase_seconds[i] : 0;
     if (cpu) cpu[i] = m && m->m ? m->m->phase_cpu[i] : 0;

@@ -122,6 +122,20 @@ int npg_fail_first(char *err, size_t errlen, const char *fmt, ...) {
   return -1;
 }
 
+static _Thread_local char refusal[512];
+
+int npg_refuse(char *err, size_t errlen, const char *func, const char *fmt, ...) {
+  char why[400];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(why, sizeof why, fmt, ap);
+  va_end(ap);
+  snprintf(refusal, sizeof refusal, "%s: %s", func, why);
+  return npg_fail(err, errlen, "%s", refusal);
+}
+
+const char *npg_refusal(void) { return refusal; }
+
 const char *npg_bytes_text(double bytes, char *buf, size_t len) {
   static const char *const units[] = {"B", "kB", "MB", "GB", "TB", "PB", "EB"};
   int u = 0;

@@ -48,7 +48,25 @@ static int fail(NpgFull *f, const char *fmt, ...) {
   return -1;
 }
 
-const char *npg_full_error(const NpgFull *f) { return f ? f->error : "no evaluator"; }
+const char *npg_full_error(const NpgFull *f) { return f ? f->error : npg_refusal()[0] ? npg_refusal() : "no evaluator"; }
+
+/* The argument checks of every npg_full_ entry point (ast.h): the
+ * evaluator itself, then each pointer argument, refused into its message. */
+#define REFUSE_NULL_F(ret) NPG_REFUSE_NULL(f, NULL, 0, ret)
+#define REFUSE_NULL(arg) NPG_REFUSE_NULL(arg, f->error, sizeof f->error, -1)
+
+/* A shape argument: `ndim` axes in [0, MAX_AXES + MAX_STATIC], `shape`
+ * non-NULL when there are any, `values` non-NULL when they hold entries. */
+static int refuse_shape(NpgFull *f, const char *func, int ndim, const long *shape, const double *values) {
+  if (ndim < 0 || ndim > MAX_AXES + MAX_STATIC)
+    return npg_refuse(f->error, sizeof f->error, func, "argument 'ndim' is %d (0 to %d axes)", ndim,
+                      MAX_AXES + MAX_STATIC);
+  if (ndim > 0 && !shape) return npg_refuse(f->error, sizeof f->error, func, "argument 'shape' is NULL");
+  size_t n = 1;
+  for (int i = 0; i < ndim; i++) n = shape[i] > 0 ? n * (size_t)shape[i] : 0;
+  if (n && !values) return npg_refuse(f->error, sizeof f->error, func, "argument 'values' is NULL");
+  return 0;
+}
 
 static int find(const PtrVec *v, const char *name) {
   for (int i = 0; i < v->n; i++)
@@ -78,7 +96,6 @@ NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
     fail(f, "%s", refusal);
     return f;
   }
-  f->prog = prog;
   char *src = NULL;
   size_t len = 0;
   FILE *mem = open_memstream(&src, &len);
@@ -126,6 +143,9 @@ NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
     fail(f, "out of memory");
     return f;
   }
+  /* Only now: an evaluator whose construction failed has no program, so
+   * npg_full_free and every entry point know its arrays do not exist. */
+  f->prog = prog;
   for (int i = 0; i < nd; i++) {
     f->dims[i] = -1;
     f->dim_names[i] = ((Sym *)prog->dims.v[i])->name;
@@ -234,6 +254,10 @@ static double *alloc_entries(NpgFull *f, const Sym *s, size_t n) {
 /* A param from memory: doubles (int params must hold whole numbers). */
 int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape, const double *values,
                        const char *from) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(from);
+  if (refuse_shape(f, __func__, ndim, shape, values)) return -1;
   if (f->error[0]) return -1;
   int k = find(&f->prog->params, name);
   if (k < 0) return fail(f, "%s: the program has no param '%s'", from, name);
@@ -271,6 +295,8 @@ int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape
 }
 
 int npg_full_bind_params(NpgFull *f, const char *data_dir) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(data_dir);
   if (f->error[0]) return -1;
   for (int k = 0; k < f->prog->params.n; k++) {
     const Sym *s = f->prog->params.v[k];
@@ -311,6 +337,10 @@ int npg_full_bind_params(NpgFull *f, const char *data_dir) {
 }
 
 int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, const double *values, const char *from) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(from);
+  if (refuse_shape(f, __func__, ndim, shape, values)) return -1;
   if (f->error[0]) return -1;
   int k = find(&f->prog->slots, name);
   if (k < 0) {
@@ -356,6 +386,8 @@ double *full_extern_values(NpgFull *f, const char *name, size_t n) {
 }
 
 int npg_full_set_extern_fn(NpgFull *f, const char *name, NpgExternFn fn, void *user) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(name);
   if (f->error[0]) return -1;
   int k = find(&f->prog->slots, name);
   const Sym *s = k >= 0 ? f->prog->slots.v[k] : NULL;
@@ -466,7 +498,10 @@ static int evaluate(NpgFull *f, long sample, Demand *d) {
   return 0;
 }
 
-int npg_full_eval(NpgFull *f, long sample) { return evaluate(f, sample, NULL); }
+int npg_full_eval(NpgFull *f, long sample) {
+  REFUSE_NULL_F(-1);
+  return evaluate(f, sample, NULL);
+}
 
 Demand *full_demand(NpgFull *f) {
   if (f->error[0] || !f->plan) return NULL;
@@ -538,6 +573,9 @@ bool full_first_nonfinite(NpgFull *f, const Sym **sym, char *index, size_t len, 
 int full_fail(NpgFull *f, const char *msg) { return fail(f, "%s", msg); }
 
 const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
+  REFUSE_NULL_F(NULL);
+  NPG_REFUSE_NULL(name, NULL, 0, NULL);
+  if (!f->prog) return NULL;
   int k = find(&f->prog->slots, name);
   if (k < 0) return NULL;
   if (count) *count = f->qcount[k];
@@ -545,13 +583,21 @@ const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
 }
 
 long npg_full_dim(const NpgFull *f, const char *name) {
+  REFUSE_NULL_F(-1);
+  NPG_REFUSE_NULL(name, NULL, 0, -1);
+  if (!f->prog) return -1;
   int k = find(&f->prog->dims, name);
   return k < 0 ? -1 : (long)f->dims[k];
 }
 
-void npg_full_clear_error(NpgFull *f) { f->error[0] = 0; }
+/* An evaluator whose construction failed (no program) keeps its error. */
+void npg_full_clear_error(NpgFull *f) {
+  REFUSE_NULL_F();
+  if (f->prog) f->error[0] = 0;
+}
 
 void npg_full_unbind(NpgFull *f) {
+  REFUSE_NULL_F();
   if (!f->prog) return;
   for (int i = 0; i < f->prog->dims.n; i++) {
     f->dims[i] = -1;

@@ -318,7 +318,8 @@ static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quanti
 /* The CSV of a member's spectrum: k, σ_k, the energy fraction lost keeping
  * the first k (malloc'd). */
 static char *spectrum_csv(const RMember *mb) {
-  size_t cap = 64 + 80 * (size_t)mb->nsv, len = 0;
+  /* the header holds the member's name, of any length; a row at most 80 bytes */
+  size_t cap = 64 + strlen(mb->name) + 80 * (size_t)mb->nsv, len = 0;
   char *t = malloc(cap);
   if (!t) return NULL;
   double total = 0, run = 0;
