@@ -179,7 +179,7 @@ char *diag_excerpt(Ctx *ctx, Loc loc) {
   if (!loc.file) return arena_strndup(ctx, "", 0);
   const char *text = loc.file->text;
   size_t start = loc.off <= loc.file->len ? loc.off : loc.file->len;
-  while (start > 0 && text[start - 1] != '\n') start--;
+  while (start > 0 && text[start - 1] != '\n' && text[start - 1] != '\r') start--; /* CR alone ends a line too */
   size_t end = start;
   while (end < loc.file->len && text[end] != '\n' && text[end] != '\r') end++;
   size_t at = start + (size_t)(loc.col > 0 ? loc.col - 1 : 0); /* may lie past the end of the line */

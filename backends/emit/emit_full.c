@@ -21,7 +21,7 @@ char *emit_source_line(Ctx *ctx, Loc loc) {
   if (!loc.file) return "";
   const char *t = loc.file->text;
   size_t s = loc.off, e;
-  while (s > 0 && t[s - 1] != '\n') s--;
+  while (s > 0 && t[s - 1] != '\n' && t[s - 1] != '\r') s--;
   while (s < loc.off && t[s] == ' ') s++;
   for (e = s; e < loc.file->len && t[e] != '\n' && t[e] != '\r'; e++) {}
   bool cut = e - s > 160;
