@@ -106,7 +106,10 @@ static void emit_poly(Emit *e, FILE *out, const Poly *p, const char *acc, int de
   }
 }
 
-/* t <- t * d^(p/q), with the cheap forms for the common powers. */
+/* t <- t * d^(p/q), with the cheap forms for the common powers. A
+ * fractional power (q > 1) of a negative d is NaN whatever p and q are
+ * (grammar.txt: roots of negative numbers), so no cbrt: it would give x^(1/3)
+ * a real value that x^(2/3) and x^(1/5), and the reduced evaluator, do not. */
 static void emit_apply_diag(FILE *out, const char *t, const char *d, long p, long q, int depth) {
   indent(out, depth);
   if (q == 1 && p == -1) fprintf(out, "%s /= %s;\n", t, d);
@@ -114,8 +117,6 @@ static void emit_apply_diag(FILE *out, const char *t, const char *d, long p, lon
   else if (q == 2 && p == -1) fprintf(out, "%s /= sqrt(%s);\n", t, d);
   else if (q == 2 && p == 1) fprintf(out, "%s *= sqrt(%s);\n", t, d);
   else if (q == 2 && p == -3) fprintf(out, "%s /= %s * sqrt(%s);\n", t, d, d);
-  else if (q == 3 && p == 1) fprintf(out, "%s *= cbrt(%s);\n", t, d);
-  else if (q == 3 && p == -1) fprintf(out, "%s /= cbrt(%s);\n", t, d);
   else fprintf(out, "%s *= pow(%s, %ld.0 / %ld.0);\n", t, d, p, q);
 }
 

@@ -592,6 +592,75 @@ static void generated_c_robust(void **state) {
   npg_free(p);
 }
 
+/* One rule for roots of negative numbers (compiler/grammar.txt): a power
+ * p/q with q > 1 of a negative value is undefined for every p and q, odd q
+ * included, in the full evaluator (a NaN named by npg_full_check_finite),
+ * the exactness checks and the reduced evaluator (an indefinite reduced
+ * operator is refused). x^(1/3) was the real cube root while x^(-1/3),
+ * x^(2/3) and x^(1/5) were NaN. */
+static void roots_of_negatives(void **state) {
+  (void)state;
+  static const struct {
+    const char *power;
+    double at8;  /* the power of 8 (of 32 for fifths) */
+  } cases[] = {{"1/3", 2}, {"-1/3", 0.5}, {"2/3", 4}, {"1/5", 2}, {"-2/5", 0.25}, {"1/2", 2.8284271247461903}};
+  for (size_t i = 0; i < sizeof cases / sizeof *cases; i++)
+    for (int form = 0; form < 2; form++) {
+      char text[512];
+      /* the power of a named input (a diagonal operator), and of an unnamed product */
+      if (form == 0)
+        snprintf(text, sizeof text, "input x : real[2]\noutput y = [x[0]^(%s) * x[1], x[1]]\n", cases[i].power);
+      else
+        snprintf(text, sizeof text, "input x : real[2]\noutput y = [(x[0] * x[1])^(%s), x[1]]\n", cases[i].power);
+      NpgProgram *p = compile_text("root.npg", text);
+      NpgFull *f = npg_full_new(p, NPG_TCC);
+      assert_string_equal(npg_full_error(f), "");
+      const long shape[1] = {2};
+      const double base = strchr(cases[i].power, '5') ? 32 : 8;
+      const double pos[2] = {base, 1}, neg[2] = {-base, 1};
+      assert_int_equal(npg_full_set(f, "x", 1, shape, pos, "pos"), 0);
+      assert_int_equal(npg_full_eval(f, 0), 0);
+      size_t n;
+      const double *y = npg_full_get(f, "y", &n);
+      if (fabs(y[0] - cases[i].at8) > 1e-14 * cases[i].at8)
+        fail_msg("%s: %.17g, not %.17g", text, y[0], cases[i].at8);
+      assert_int_equal(npg_full_check_finite(f, 0), 0);
+      assert_int_equal(npg_full_set(f, "x", 1, shape, neg, "neg"), 0);
+      if (npg_full_eval(f, 1) == 0) {
+        y = npg_full_get(f, "y", &n);
+        if (!isnan(y[0])) fail_msg("%s at x = -%g: %.17g, not NaN", text, base, y[0]);
+        assert_int_equal(npg_full_check_finite(f, 1), -1);
+      }
+      says(npg_full_error(f), "a root of a negative number");
+      npg_full_free(f);
+      npg_free(p);
+    }
+
+  /* the reduced evaluator: trained where the base is positive, an indefinite
+   * reduced operator where it is not */
+  NpgProgram *p = compile_text("root.npg", "input x : real[2]\noutput y = [x[0]^(1/3) * x[1], x[1]^(1/3) * x[0]]\n");
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  NpgModel *m = train(f, 30, NULL);
+  NpgReduced *r = npg_reduced_new(m);
+  npg_reduced_exact_roots(r, true);
+  const double neg[2] = {-8, -2};
+  assert_int_equal(npg_reduced_set(r, "x", 2, xs), 0);
+  assert_int_equal(npg_reduced_eval(r, 0), 0);
+  assert_int_equal(npg_reduced_set(r, "x", 2, neg), 0);
+  assert_int_equal(npg_reduced_eval(r, 1), -1);
+  says(npg_reduced_error(r), "is indefinite at sample 1");
+  npg_reduced_free(r);
+  npg_model_free(m);
+  /* the exactness checks pass (their random data make bases positive) */
+  char err[512] = "";
+  FILE *devnull = fopen("/dev/null", "w");
+  int rc = npg_verify_exact(p, 0, NPG_TCC, false, devnull, err, sizeof err);
+  fclose(devnull);
+  if (rc != 0) fail_msg("exactness checks: %d %s", rc, err);
+  npg_full_free(f);
+  npg_free(p);
+}
+
 /* A quantity whose name is longer than the spectrum CSV's row budget: the
  * CSV holds the whole name and every row. */
 static void long_member_name(void **state) {
@@ -652,7 +721,7 @@ int main(void) {
       cmocka_unit_test(null_program_and_full),  cmocka_unit_test(null_training_and_models),
       cmocka_unit_test(train_options_refused),  cmocka_unit_test(reduced_order_of_calls),
       cmocka_unit_test(jit_failures),           cmocka_unit_test(generated_c_robust),
-      cmocka_unit_test(long_member_name),
+      cmocka_unit_test(long_member_name),       cmocka_unit_test(roots_of_negatives),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
