@@ -35,7 +35,7 @@ char *api_param_hashes(const NpgFull *f) {
   const Program *prog = full_program(f);
   size_t cap = 1, len = 0;
   for (int i = 0; i < prog->params.n; i++) cap += strlen(((Sym *)prog->params.v[i])->name) + 19;
-  char *out = malloc(cap);
+  char *out = npg_malloc(cap);
   if (!out) return NULL;
   out[0] = 0;
   for (int i = 0; i < prog->params.n; i++)
@@ -62,7 +62,7 @@ int api_reduced_not_finite(const Model *m, Reduced *r, long sample, char *err, s
 /* ---------------------------------------------------------------- models */
 
 NpgModel *api_model_wrap(Model *m) {
-  NpgModel *nm = calloc(1, sizeof *nm);
+  NpgModel *nm = npg_calloc(1, sizeof *nm);
   if (!nm) {
     model_free(m);
     return NULL;
@@ -143,8 +143,8 @@ static int nonfinite_array(NpgModel *nm, const char *dir) {
 }
 
 NpgModel *npg_model_load(NpgProgram *p, const char *dir) {
-  NpgModel *nm = calloc(1, sizeof *nm);
-  if (!nm) return NULL;
+  NpgModel *nm = npg_calloc(1, sizeof *nm);
+  if (!nm) return npg_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_model_error(NULL) says */
   if (!p || !dir) npg_refuse(nm->error, sizeof nm->error, __func__, "argument '%s' is NULL", !p ? "p" : "dir");
   else if (!npg_ok(p)) snprintf(nm->error, sizeof nm->error, "%s", npg_error(p));
   else if (!(nm->m = model_load(npg_program_ir(p), dir, nm->error, sizeof nm->error)) && !nm->error[0])
@@ -192,7 +192,7 @@ int npg_spectra_read(const char *dir, NpgSpectrum **out, int *count, char *err, 
   *out = NULL;
   *count = 0;
   if (model_store_read_any(dir, &st, err, errlen) != 0) return -1;
-  NpgSpectrum *sp = calloc((size_t)st.nmeta + 1, sizeof *sp);
+  NpgSpectrum *sp = npg_calloc((size_t)st.nmeta + 1, sizeof *sp);
   int n = 0, rc = sp ? 0 : -1;
   if (!sp) snprintf(err, errlen, "out of memory");
   for (int i = 0; i < st.nmeta && rc == 0; i++) {
@@ -211,8 +211,8 @@ int npg_spectra_read(const char *dir, NpgSpectrum **out, int *count, char *err, 
       break;
     }
     NpgSpectrum *x = &sp[n];
-    x->member = strdup(name);
-    x->sigma = malloc(sizeof(double) * (a->count ? a->count : 1));
+    x->member = npg_strdup(name);
+    x->sigma = npg_malloc(sizeof(double) * (a->count ? a->count : 1));
     if (!x->member || !x->sigma) {
       snprintf(err, errlen, "out of memory");
       rc = -1;
@@ -343,7 +343,7 @@ static int check_params_dir(const Program *prog, const char *recorded, const cha
     if (access(path, F_OK) != 0) continue;
     NpyArray a;
     if (npy_read(path, &a, err, errlen) != 0) return -1;
-    double *v = malloc(sizeof(double) * (a.count ? a.count : 1));
+    double *v = npg_malloc(sizeof(double) * (a.count ? a.count : 1));
     if (!v) {
       npy_free(&a);
       snprintf(err, errlen, "out of memory");
@@ -416,12 +416,12 @@ struct NpgReduced {
 #define rfail(r, ...) npg_fail_first((r)->error, sizeof (r)->error, __VA_ARGS__)
 
 NpgReduced *npg_reduced_new(const NpgModel *nm) {
-  NpgReduced *r = calloc(1, sizeof *r);
-  if (!r) return NULL;
+  NpgReduced *r = npg_calloc(1, sizeof *r);
+  if (!r) return npg_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_reduced_error(NULL) says */
   r->nm = nm;
   if (!nm) npg_refuse(r->error, sizeof r->error, __func__, "argument 'm' is NULL");
   else if (!nm->m) rfail(r, "%s", nm->error[0] ? nm->error : "the model holds nothing");
-  else if (!(r->given = calloc((size_t)nm->m->nq + 1, sizeof *r->given))) rfail(r, "out of memory");
+  else if (!(r->given = npg_calloc((size_t)nm->m->nq + 1, sizeof *r->given))) rfail(r, "out of memory");
   else if (!(r->r = reduced_new(nm->m, r->error, sizeof r->error)) && !r->error[0]) rfail(r, "out of memory");
   if (r->r) reduced_krylov_roots(r->r, true);
   return r;
@@ -564,7 +564,7 @@ static int input_product(NpgReduced *r, const RTensor *t) {
   long len = 1;
   for (int j = 0; j < t->nin; j++) len *= t->in_len[j];
   if (len > r->zcap) {
-    double *z = realloc(r->z, sizeof(double) * (size_t)(2 * len));
+    double *z = npg_realloc(r->z, sizeof(double) * (size_t)(2 * len));
     if (!z) return rfail(r, "out of memory");
     r->z = z;
     r->zcap = len;
@@ -578,7 +578,7 @@ static int input_product(NpgReduced *r, const RTensor *t) {
     const double *x = reduced_coords(r->r, t->in_q[j]);
     double *packed = NULL;
     if (t->in_mult[j] > 1) {
-      if (!(packed = malloc(sizeof(double) * (size_t)t->in_len[j]))) return rfail(r, "out of memory");
+      if (!(packed = npg_malloc(sizeof(double) * (size_t)t->in_len[j]))) return rfail(r, "out of memory");
       sym_power(mj, t->in_mult[j], x, packed);
       x = packed;
     }

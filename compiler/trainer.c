@@ -112,8 +112,8 @@ static int refuse_options(NpgTrainer *t, const NpgTrainOptions *o) {
 }
 
 NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
-  NpgTrainer *t = calloc(1, sizeof *t);
-  if (!t) return NULL;
+  NpgTrainer *t = npg_calloc(1, sizeof *t);
+  if (!t) return npg_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_trainer_error(NULL) says */
   if (o) t->opt = *o;
   else npg_train_options_default(&t->opt);
   t->f = f;
@@ -128,9 +128,9 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
     return t;
   }
   const Program *prog = t->prog = full_program(f);
-  t->slot = calloc((size_t)prog->slots.n + 1, sizeof *t->slot);
-  t->count = calloc((size_t)prog->slots.n + 1, sizeof *t->count);
-  t->staged = calloc((size_t)prog->slots.n + 1, sizeof *t->staged);
+  t->slot = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->slot);
+  t->count = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->count);
+  t->staged = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->staged);
   if (!t->slot || !t->count || !t->staged) {
     tfail(t, "out of memory");
     return t;
@@ -253,9 +253,9 @@ static void decode(NpgTrainer *t) {
  * while the records there stay within mem_cap, then in the scratch file. */
 static int store(NpgTrainer *t, Records *r, long kk, size_t bytes) {
   if (kk % 64 == 0) {
-    size_t *at = realloc(r->at, sizeof(size_t) * (size_t)(kk + 64));
+    size_t *at = npg_realloc(r->at, sizeof(size_t) * (size_t)(kk + 64));
     if (at) r->at = at;
-    size_t *len = at ? realloc(r->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
+    size_t *len = at ? npg_realloc(r->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
     if (!len) return tfail(t, "out of memory keeping training sample %ld", t->samples);
     r->len = len;
   }
@@ -263,7 +263,7 @@ static int store(NpgTrainer *t, Records *r, long kk, size_t bytes) {
   if (r->in_mem == kk && r->used + bytes <= t->mem_cap) {
     if (r->used + bytes > r->alloc) {
       size_t want = r->alloc * 2 > r->used + bytes ? r->alloc * 2 : r->used + bytes;
-      unsigned char *m = realloc(r->mem, want < t->mem_cap ? want : t->mem_cap);
+      unsigned char *m = npg_realloc(r->mem, want < t->mem_cap ? want : t->mem_cap);
       if (!m) return tfail(t, "out of memory keeping training sample %ld", t->samples);
       r->mem = m;
       r->alloc = want < t->mem_cap ? want : t->mem_cap;
@@ -317,8 +317,8 @@ static int record(NpgTrainer *t, const NpgFull *g) {
       t->record += t->count[i];
     }
     t->mem_cap = t->opt.mem / 4;
-    if (!(t->buf = malloc(sizeof(double) * (t->record + 1))) ||
-        !(t->enc = malloc(sizeof(double) * t->record + (size_t)t->nslots + 1)))
+    if (!(t->buf = npg_malloc(sizeof(double) * (t->record + 1))) ||
+        !(t->enc = npg_malloc(sizeof(double) * t->record + (size_t)t->nslots + 1)))
       return tfail(t, "out of memory");
   }
   size_t off = 0;
@@ -373,7 +373,7 @@ static int load_record(NpgTrainer *t, NpgFull *f, long k) {
  * rank. */
 static size_t shared_use(NpgTrainer *t) {
   int N = dist_size(), rank = dist_rank();
-  double *len = calloc((size_t)t->samples + 1, sizeof(double));
+  double *len = npg_calloc((size_t)t->samples + 1, sizeof(double));
   if (!len) return tfail(t, "out of memory"), 0;
   for (long k = 0; k < t->samples; k++)
     if ((k == 0 ? 0 : (int)(k % N)) == rank) len[k] = (double)t->rec.len[kept_index(t, k)];

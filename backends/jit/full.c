@@ -90,8 +90,8 @@ int full_emit(Program *prog, FILE *out) {
 }
 
 NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
-  NpgFull *f = calloc(1, sizeof *f);
-  if (!f) return NULL;
+  NpgFull *f = npg_calloc(1, sizeof *f);
+  if (!f) return npg_refuse(NULL, 0, "npg_full_new", "out of memory"), NULL; /* what npg_full_error(NULL) says */
   if (refusal) {
     fail(f, "%s", refusal);
     return f;
@@ -126,18 +126,18 @@ NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
     return f;
   }
   int nd = prog->dims.n, np = prog->params.n, nq = prog->slots.n;
-  f->dims = calloc((size_t)nd + 1, sizeof *f->dims);
-  f->dim_from = calloc((size_t)nd + 1, sizeof *f->dim_from);
-  f->params = calloc((size_t)np + 1, sizeof *f->params);
-  f->iparams = calloc((size_t)np + 1, sizeof *f->iparams);
-  f->param_files = calloc((size_t)np + 1, sizeof *f->param_files);
-  f->q = calloc((size_t)nq + 1, sizeof *f->q);
-  f->qcount = calloc((size_t)nq + 1, sizeof *f->qcount);
-  f->fresh = calloc((size_t)nq + 1, sizeof *f->fresh);
-  f->extern_fn = calloc((size_t)nq + 1, sizeof *f->extern_fn);
-  f->extern_user = calloc((size_t)nq + 1, sizeof *f->extern_user);
-  f->dim_names = calloc((size_t)nd + 1, sizeof *f->dim_names);
-  f->param_names = calloc((size_t)np + 1, sizeof *f->param_names);
+  f->dims = npg_calloc((size_t)nd + 1, sizeof *f->dims);
+  f->dim_from = npg_calloc((size_t)nd + 1, sizeof *f->dim_from);
+  f->params = npg_calloc((size_t)np + 1, sizeof *f->params);
+  f->iparams = npg_calloc((size_t)np + 1, sizeof *f->iparams);
+  f->param_files = npg_calloc((size_t)np + 1, sizeof *f->param_files);
+  f->q = npg_calloc((size_t)nq + 1, sizeof *f->q);
+  f->qcount = npg_calloc((size_t)nq + 1, sizeof *f->qcount);
+  f->fresh = npg_calloc((size_t)nq + 1, sizeof *f->fresh);
+  f->extern_fn = npg_calloc((size_t)nq + 1, sizeof *f->extern_fn);
+  f->extern_user = npg_calloc((size_t)nq + 1, sizeof *f->extern_user);
+  f->dim_names = npg_calloc((size_t)nd + 1, sizeof *f->dim_names);
+  f->param_names = npg_calloc((size_t)np + 1, sizeof *f->param_names);
   if (!f->dims || !f->dim_from || !f->params || !f->iparams || !f->param_files || !f->q || !f->qcount ||
       !f->fresh || !f->extern_fn || !f->extern_user || !f->dim_names || !f->param_names) {
     fail(f, "out of memory");
@@ -174,7 +174,7 @@ static int bind_shape(NpgFull *f, const Sym *s, int ndim, const long *shape, con
     if (f->dims[d] < 0) {
       f->dims[d] = shape[i];
       free(f->dim_from[d]);
-      f->dim_from[d] = strdup(from);
+      f->dim_from[d] = npg_strdup(from);
       f->checked = false;
     } else if (f->dims[d] != shape[i]) {
       return fail(f, "dim %s is %ld in %s but %ld in %s", s->dims[i]->name, (long)f->dims[d],
@@ -218,7 +218,7 @@ static size_t count_of(NpgFull *f, const Sym *s) {
 static double *alloc_entries(NpgFull *f, const Sym *s, size_t n) {
   size_t ram = npg_physical_memory();
   bool fits = n < SIZE_MAX / sizeof(double) && (!ram || n * sizeof(double) <= ram);
-  double *p = fits ? calloc(n ? n : 1, sizeof(double)) : NULL;
+  double *p = fits ? npg_calloc(n ? n : 1, sizeof(double)) : NULL;
   if (p) return p;
   /* "real[N, N, 3] with N = 1000000" */
   char shape[512], need[32], have[32];
@@ -269,7 +269,7 @@ int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape
   f->params[k] = NULL;
   f->iparams[k] = NULL;
   if (s->is_int) {
-    f->iparams[k] = malloc(sizeof(npg_idx) * (n ? n : 1));
+    f->iparams[k] = npg_malloc(sizeof(npg_idx) * (n ? n : 1));
     if (!f->iparams[k]) return fail(f, "out of memory");
     for (size_t i = 0; i < n; i++) {
       char at[128];
@@ -289,7 +289,7 @@ int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape
     }
   }
   free(f->param_files[k]);
-  f->param_files[k] = strdup(from);
+  f->param_files[k] = npg_strdup(from);
   f->checked = false;
   return 0;
 }
@@ -319,7 +319,7 @@ int npg_full_bind_params(NpgFull *f, const char *data_dir) {
                        "only up to 2^53)", path, s->name, v, i);
       }
     }
-    double *v = malloc(sizeof(double) * (a.count ? a.count : 1));
+    double *v = npg_malloc(sizeof(double) * (a.count ? a.count : 1));
     if (!v) {
       npy_free(&a);
       return fail(f, "out of memory");
@@ -545,7 +545,7 @@ uint64_t full_param_hash(const NpgFull *f, int k, const char **from) {
   if (!f->params[k] && !f->iparams[k]) return 0;
   size_t n = count_of((NpgFull *)f, s);
   if (f->params[k]) return full_hash_values(f->params[k], n);
-  double *v = malloc(sizeof(double) * (n ? n : 1));
+  double *v = npg_malloc(sizeof(double) * (n ? n : 1));
   if (!v) return 0;
   for (size_t i = 0; i < n; i++) v[i] = (double)f->iparams[k][i];
   uint64_t h = full_hash_values(v, n);

@@ -1,5 +1,6 @@
 /* krylov.c — M^(p/q) v by the Lanczos process (krylov.h). */
 #include "krylov.h"
+#include "ast.h" /* npg_malloc */
 
 #include <cblas.h>
 #include <lapacke.h>
@@ -11,20 +12,20 @@ int krylov_init(Krylov *k, long maxn) {
   memset(k, 0, sizeof *k);
   k->maxn = maxn;
   size_t n = (size_t)(maxn > 0 ? maxn : 1);
-  k->Q = malloc(sizeof(double) * (n + 1) * n);
-  k->alpha = malloc(sizeof(double) * (n + 1));
-  k->beta = malloc(sizeof(double) * (n + 1));
-  k->d = malloc(sizeof(double) * (n + 1));
-  k->e = malloc(sizeof(double) * (n + 1));
-  k->S = malloc(sizeof(double) * n * n);
+  k->Q = npg_malloc(sizeof(double) * (n + 1) * n);
+  k->alpha = npg_malloc(sizeof(double) * (n + 1));
+  k->beta = npg_malloc(sizeof(double) * (n + 1));
+  k->d = npg_malloc(sizeof(double) * (n + 1));
+  k->e = npg_malloc(sizeof(double) * (n + 1));
+  k->S = npg_malloc(sizeof(double) * n * n);
   k->lwork = (long)(1 + 4 * n + n * n);
-  k->work = malloc(sizeof(double) * (size_t)k->lwork);
-  k->iwork = malloc(sizeof(lapack_int) * (3 + 5 * n));
+  k->work = npg_malloc(sizeof(double) * (size_t)k->lwork);
+  k->iwork = npg_malloc(sizeof(lapack_int) * (3 + 5 * n));
   _Static_assert(sizeof(lapack_int) == sizeof(int), "dstedc's iwork is held as int");
-  k->cprev = malloc(sizeof(double) * (n + 1));
-  k->c = malloc(sizeof(double) * (n + 1));
-  k->w = malloc(sizeof(double) * n);
-  k->cheb = malloc(sizeof(double) * (5 * (KRYLOV_MAX_DEGREE + 1) + 5 * n + 8));
+  k->cprev = npg_malloc(sizeof(double) * (n + 1));
+  k->c = npg_malloc(sizeof(double) * (n + 1));
+  k->w = npg_malloc(sizeof(double) * n);
+  k->cheb = npg_malloc(sizeof(double) * (5 * (KRYLOV_MAX_DEGREE + 1) + 5 * n + 8));
   return k->Q && k->alpha && k->beta && k->d && k->e && k->S && k->work && k->iwork && k->cprev && k->c && k->w &&
                  k->cheb
              ? 0
