@@ -364,7 +364,7 @@ int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, cons
       return fail(f, "%s: '%s' holds %s at %s", from, name, values[i] != values[i] ? "NaN" : "an infinity",
                   index_text(f, s, i, at, sizeof at));
   }
-  memcpy(f->q[k], values, sizeof(double) * n);
+  if (n) memcpy(f->q[k], values, sizeof(double) * n); /* values may be NULL when there are none */
   f->fresh[k] = true;
   return 0;
 }

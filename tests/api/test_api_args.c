@@ -204,6 +204,15 @@ static void null_program_and_full(void **state) {
   npg_samples_free(NULL);
   npg_full_free(f);
   npg_free(p);
+
+  /* no entries: NULL values are fine (fuzz_api found memcpy(q, NULL, 0), UB) */
+  p = compile_text("dim.npg", "dim N\ninput x : real[N]\noutput y[i:N] = x[i] * x[i]\n");
+  f = npg_full_new(p, NPG_TCC);
+  const long zero[1] = {0};
+  assert_int_equal(npg_full_set(f, "x", 1, zero, NULL, "empty"), 0);
+  assert_int_equal(npg_full_eval(f, 0), 0);
+  npg_full_free(f);
+  npg_free(p);
 }
 
 static void null_training_and_models(void **state) {
