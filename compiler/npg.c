@@ -186,12 +186,14 @@ static bool guarded_report(NpgProgram *np, FILE *out, bool json) {
 }
 
 void npg_report(const NpgProgram *p, FILE *out, bool json) {
+  NPG_REFUSE_NULL(p, NULL, 0, );
   NPG_REFUSE_NULL(out, NULL, 0, );
   if (!npg_ok(p)) return;
   if (!guarded_report((NpgProgram *)p, out, json)) fprintf(out, "\n%s", p->ctx.msg ? p->ctx.msg : "error: out of memory\n");
 }
 
 int npg_emit_full(NpgProgram *p, FILE *out) {
+  NPG_REFUSE_NULL(p, NULL, 0, -1);
   if (!npg_ok(p)) return -1;
   if (!out) {
     npg_refuse(NULL, 0, __func__, "argument 'out' is NULL");

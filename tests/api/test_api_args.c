@@ -94,6 +94,10 @@ static void null_program_and_full(void **state) {
   refused(npg_error(p0), "npg_compile", "path");
   npg_free(p0);
 
+  npg_report(NULL, stdout, false);
+  refused(last(), "npg_report", "p");
+  assert_int_equal(npg_emit_full(NULL, stdout), -1);
+  refused(last(), "npg_emit_full", "p");
   NpgProgram *p = compile_text("eq3.npg", eq3);
   npg_report(p, NULL, false);
   refused(last(), "npg_report", "out");
