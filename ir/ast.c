@@ -1,7 +1,6 @@
 /* ast.c — arena, diagnostics, expression nodes and their printer. */
 #include "ast.h"
 
-#include <malloc.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -42,35 +41,6 @@ struct ArenaBlock {
   max_align_t data[];
 };
 
-void *(*npg_alloc_hook)(size_t size) = malloc;
-
-void *npg_malloc(size_t size) { return npg_alloc_hook(size); }
-
-void *npg_calloc(size_t count, size_t size) {
-  size_t n;
-  if (__builtin_mul_overflow(count, size, &n)) return NULL;
-  void *p = npg_alloc_hook(n);
-  if (p) memset(p, 0, n);
-  return p;
-}
-
-void *npg_realloc(void *p, size_t size) {
-  if (npg_alloc_hook == malloc) return realloc(p, size);
-  /* a test's hook: a new block from it, the old contents copied */
-  void *q = npg_alloc_hook(size);
-  if (!q || !p) return q;
-  size_t old = malloc_usable_size(p);
-  memcpy(q, p, old < size ? old : size);
-  free(p);
-  return q;
-}
-
-char *npg_strdup(const char *s) {
-  size_t n = strlen(s) + 1;
-  char *p = npg_alloc_hook(n);
-  if (p) memcpy(p, s, n);
-  return p;
-}
 
 void *arena_alloc(Ctx *ctx, size_t size) {
   size = (size + 15) & ~(size_t)15;

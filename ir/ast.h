@@ -42,18 +42,7 @@ typedef struct Arena {
   size_t used_total;
 } Arena;
 
-/* The one allocation hook: tests replace it to make allocation fail (STYLE:
- * Lua ltests.c). It has malloc's contract. */
-extern void *(*npg_alloc_hook)(size_t size);
-/* malloc, calloc, realloc and strdup through the hook: the library's heap
- * (the front end's arenas, training, the full evaluator's buffers, models
- * and their loading) is allocated by these, so a test makes any allocation
- * fail in turn. Their memory is released with free(). npg_calloc checks
- * count * size for overflow; npg_realloc(NULL, n) is npg_malloc(n). */
-void *npg_malloc(size_t size);
-void *npg_calloc(size_t count, size_t size);
-void *npg_realloc(void *p, size_t size);
-char *npg_strdup(const char *s);
+#include "alloc.h" /* npg_alloc_hook, npg_malloc, ... */
 
 /* Library code's failures: the message formatted into `err` (when `err` and
  * `errlen` are given), and -1 to return. */

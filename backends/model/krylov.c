@@ -1,6 +1,6 @@
 /* krylov.c — M^(p/q) v by the Lanczos process (krylov.h). */
 #include "krylov.h"
-#include "ast.h" /* npg_malloc */
+#include "alloc.h" /* npg_malloc */
 
 #include <cblas.h>
 #include <lapacke.h>

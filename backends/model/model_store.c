@@ -9,7 +9,7 @@
 #define _POSIX_C_SOURCE 200809L
 
 #include "model_store_impl.h"
-#include "ast.h" /* npg_malloc: allocation through the hook */
+#include "alloc.h" /* npg_malloc: allocation through the hook */
 
 #include <errno.h>
 #include <inttypes.h>

@@ -22,7 +22,7 @@
 #include <unistd.h>
 
 #include "model_store_impl.h"
-#include "ast.h" /* npg_malloc: allocation through the hook */
+#include "alloc.h" /* npg_malloc: allocation through the hook */
 
 /* ---------------------------------------------------------------- directories */
 

@@ -3,7 +3,7 @@
 #include <string.h>
 
 #include "memsamples.h"
-#include "ast.h" /* npg_malloc */
+#include "alloc.h" /* npg_malloc */
 #include "randdata.h"
 
 size_t memsamples_count(const Sym *s, long n, long *shape) {
