@@ -68,6 +68,9 @@ static void push(Lexer *lx, TokKind kind, const unsigned char *s, const unsigned
   expo   = [eE] [+-]? digits;
 */
 
+/* The longest name (an identifier), in characters. */
+#define MAX_IDENT 128
+
 Token *lex_file(Ctx *ctx, const SrcFile *file, int *ntok) {
   Lexer lx = {0};
   lx.ctx = ctx;
@@ -94,7 +97,17 @@ Token *lex_file(Ctx *ctx, const SrcFile *file, int *ntok) {
       [ \t\f\v]+ { continue; }
       "#" [^\n\r\x00]* { continue; }
 
-      ident { push(&lx, TK_IDENT, tok, cur); continue; }
+      ident {
+        /* A name becomes file names (MODEL/spectrum_<name>.csv, tensor files
+         * named after stages) and manifest lines, which have limits: a
+         * 4,000-character dim name cut the manifest's line, and training
+         * wrote a model that could not load. */
+        if (cur - tok > MAX_IDENT)
+          error_at(ctx, loc_at(&lx, tok), "the name '%.20s...' is %d characters long (at most %d)", (const char *)tok,
+                   (int)(cur - tok), MAX_IDENT);
+        push(&lx, TK_IDENT, tok, cur);
+        continue;
+      }
       digits ("." digits)? expo? { push(&lx, TK_NUM, tok, cur); continue; }
       digits "." [^0-9.] {
         error_at(ctx, loc_at(&lx, tok), "malformed number '%.*s': a decimal point must be followed by digits",
