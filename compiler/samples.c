@@ -66,6 +66,15 @@ static int samples_open(SampleSet *s, const Program *prog, const char *dir, cons
                sym->ndims + sym->nstatic, sym->ndims + sym->nstatic == 1 ? "is" : "es", sym->name, g->a.ndim);
       goto fail;
     }
+    /* static axes are checked here, not only when a sample is set: a file of
+     * no samples and a wrong shape was accepted (eval wrote nothing, exit 0) */
+    for (int d = 0; d < sym->nstatic; d++)
+      if (g->a.shape[1 + sym->ndims + d] != sym->shape[d]) {
+        snprintf(err, errlen, "%s: axis %d of '%s' is static with size %d, but axis %d of the array (after the sample "
+                              "axis) has %ld", g->path, sym->ndims + d, sym->name, sym->shape[d], 1 + sym->ndims + d,
+                 g->a.shape[1 + sym->ndims + d]);
+        goto fail;
+      }
     /* a NaN or an infinity is named by sample and index, once, here */
     size_t per = 1;
     for (int d = 1; d < g->a.ndim; d++) per *= (size_t)g->a.shape[d];

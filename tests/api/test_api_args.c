@@ -518,6 +518,11 @@ static void reduced_order_of_calls(void **state) {
   says(npg_full_error(f), "argument 'k' is -1");
   npg_full_clear_error(f);
   npg_samples_free(s);
+  /* no samples, but a static axis of the wrong size: refused when opened */
+  const long empty[2] = {0, 5};
+  assert_int_equal(npg_npy_write(path, 2, empty, NULL, err, sizeof err), 0);
+  assert_null(npg_samples_open(p, dir, NULL, true, err, sizeof err));
+  says(err, "x.npy: axis 0 of 'x' is static with size 2, but axis 1 of the array (after the sample axis) has 5");
 
   npg_model_free(m);
   npg_full_free(f);
