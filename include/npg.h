@@ -99,7 +99,8 @@ NPG_API void npg_progress(bool on, const char *what, long done, long total);
  * handed back belong to the evaluator and change with the next evaluation.
  * Every function returns 0, or -1 with a message in npg_full_error() naming
  * the file or the stage and sample; after an error the evaluator refuses
- * further work until npg_full_clear_error(). */
+ * further work until npg_full_clear_error() (never, when npg_full_new itself
+ * failed: no compiler, a bad TMPDIR; its error stays). */
 typedef struct NpgFull NpgFull;
 typedef enum NpgBackend {
   NPG_TCC,  /* libtcc, in memory (default) */
