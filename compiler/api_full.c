@@ -84,6 +84,9 @@ static int to_csr(Entries *s, long rows, long cols, NpgCsr *out) {
 }
 
 int npg_full_op(NpgFull *f, const char *name, NpgCsr *out) {
+  NPG_REFUSE_NULL(f, NULL, 0, -1);
+  if (!out || !name) return full_fail(f, (npg_refuse(NULL, 0, __func__, "argument '%s' is NULL", !out ? "out" : "name"),
+                                          npg_refusal()));
   memset(out, 0, sizeof *out);
   const char *err = npg_full_error(f);
   if (err[0]) return -1;
@@ -118,6 +121,7 @@ int npg_full_op(NpgFull *f, const char *name, NpgCsr *out) {
 }
 
 int npg_full_check_finite(NpgFull *f, long sample) {
+  NPG_REFUSE_NULL(f, NULL, 0, -1);
   if (npg_full_error(f)[0]) return -1;
   const Sym *s;
   char at[256], msg[1024];
@@ -138,11 +142,16 @@ void npg_csr_free(NpgCsr *c) {
   memset(c, 0, sizeof *c);
 }
 
+/* npy_write refuses NULL data for a non-empty shape itself, naming the file. */
 int npg_npy_write(const char *path, int ndim, const long *shape, const double *data, char *err, size_t errlen) {
+  NPG_REFUSE_NULL(path, err, errlen, -1);
+  if (ndim > 0) NPG_REFUSE_NULL(shape, err, errlen, -1);
   return npy_write(path, NPY_F64, ndim, shape, data, err, errlen);
 }
 
 int npg_npy_write_i64(const char *path, int ndim, const long *shape, const long *data, char *err, size_t errlen) {
+  NPG_REFUSE_NULL(path, err, errlen, -1);
+  if (ndim > 0) NPG_REFUSE_NULL(shape, err, errlen, -1);
   return npy_write(path, NPY_I64, ndim, shape, data, err, errlen);
 }
 

@@ -47,7 +47,11 @@ static void push(Lexer *lx, TokKind kind, const unsigned char *s, const unsigned
   if (kind == TK_NUM) {
     t->is_int = strpbrk(t->text, ".eE") == NULL;
     t->num = strtod(t->text, NULL);
-    if (t->is_int && t->num > 9007199254740992.0)
+    /* the digits, not the rounded double: 9007199254740993 rounds to 2^53
+     * and would pass a test on t->num */
+    const char *d = t->text;
+    while (*d == '0' && d[1]) d++;
+    if (t->is_int && (strlen(d) > 16 || (strlen(d) == 16 && strcmp(d, "9007199254740992") > 0)))
       error_at(lx->ctx, t->loc, "integer literal '%s' is too large (at most 2^53)", t->text);
     if (!isfinite(t->num)) error_at(lx->ctx, t->loc, "number '%s' is out of the range of double precision", t->text);
   }
@@ -63,6 +67,9 @@ static void push(Lexer *lx, TokKind kind, const unsigned char *s, const unsigned
   ident  = [a-zA-Z_][a-zA-Z_0-9]*;
   expo   = [eE] [+-]? digits;
 */
+
+/* The longest name (an identifier), in characters. */
+#define MAX_IDENT 128
 
 Token *lex_file(Ctx *ctx, const SrcFile *file, int *ntok) {
   Lexer lx = {0};
@@ -90,7 +97,17 @@ Token *lex_file(Ctx *ctx, const SrcFile *file, int *ntok) {
       [ \t\f\v]+ { continue; }
       "#" [^\n\r\x00]* { continue; }
 
-      ident { push(&lx, TK_IDENT, tok, cur); continue; }
+      ident {
+        /* A name becomes file names (MODEL/spectrum_<name>.csv, tensor files
+         * named after stages) and manifest lines, which have limits: a
+         * 4,000-character dim name cut the manifest's line, and training
+         * wrote a model that could not load. */
+        if (cur - tok > MAX_IDENT)
+          error_at(ctx, loc_at(&lx, tok), "the name '%.20s...' is %d characters long (at most %d)", (const char *)tok,
+                   (int)(cur - tok), MAX_IDENT);
+        push(&lx, TK_IDENT, tok, cur);
+        continue;
+      }
       digits ("." digits)? expo? { push(&lx, TK_NUM, tok, cur); continue; }
       digits "." [^0-9.] {
         error_at(ctx, loc_at(&lx, tok), "malformed number '%.*s': a decimal point must be followed by digits",

@@ -36,7 +36,7 @@ char *api_param_hashes(const NpgFull *f) {
   const Program *prog = full_program(f);
   size_t cap = 1, len = 0;
   for (int i = 0; i < prog->params.n; i++) cap += strlen(((Sym *)prog->params.v[i])->name) + 19;
-  char *out = malloc(cap);
+  char *out = npg_malloc(cap);
   if (!out) return NULL;
   out[0] = 0;
   for (int i = 0; i < prog->params.n; i++)
@@ -78,7 +78,7 @@ void npg_model_report_reductions(const NpgModel *nm, FILE *out) {
 }
 
 NpgModel *api_model_wrap(Model *m) {
-  NpgModel *nm = calloc(1, sizeof *nm);
+  NpgModel *nm = npg_calloc(1, sizeof *nm);
   if (!nm) {
     model_free(m);
     return NULL;
@@ -159,9 +159,10 @@ static int nonfinite_array(NpgModel *nm, const char *dir) {
 }
 
 NpgModel *npg_model_load(NpgProgram *p, const char *dir) {
-  NpgModel *nm = calloc(1, sizeof *nm);
-  if (!nm) return NULL;
-  if (!npg_ok(p)) snprintf(nm->error, sizeof nm->error, "%s", npg_error(p));
+  NpgModel *nm = npg_calloc(1, sizeof *nm);
+  if (!nm) return npg_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_model_error(NULL) says */
+  if (!p || !dir) npg_refuse(nm->error, sizeof nm->error, __func__, "argument '%s' is NULL", !p ? "p" : "dir");
+  else if (!npg_ok(p)) snprintf(nm->error, sizeof nm->error, "%s", npg_error(p));
   else if (!(nm->m = model_load(npg_program_ir(p), dir, nm->error, sizeof nm->error)) && !nm->error[0])
     snprintf(nm->error, sizeof nm->error, "%s: cannot load the model", dir);
   else if (nm->m && (missing_param_hash(nm, dir) != 0 || nonfinite_array(nm, dir) != 0)) {
@@ -171,9 +172,17 @@ NpgModel *npg_model_load(NpgProgram *p, const char *dir) {
   return nm;
 }
 
-const char *npg_model_error(const NpgModel *m) { return m ? m->error : "out of memory"; }
+const char *npg_model_error(const NpgModel *m) {
+  return m ? m->error : npg_refusal()[0] ? npg_refusal() : "out of memory";
+}
+
+/* The argument checks of the npg_model_ entry points (ast.h): the model,
+ * then pointer arguments into its message (or `err` where one is given). */
+#define REFUSE_NULL_M(ret) NPG_REFUSE_NULL(nm, NULL, 0, ret)
 
 int npg_model_save(NpgModel *nm, const char *dir) {
+  REFUSE_NULL_M(-1);
+  NPG_REFUSE_NULL(dir, nm->error, sizeof nm->error, -1);
   if (!nm->m) return -1;
   return model_save(nm->m, dir, nm->error, sizeof nm->error) == 0 ? 0 : -1;
 }
@@ -184,16 +193,22 @@ void npg_model_free(NpgModel *nm) {
   free(nm);
 }
 
-int npg_model_nclasses(const NpgModel *nm) { return nm->m ? nm->m->nclasses : 0; }
+int npg_model_nclasses(const NpgModel *nm) {
+  REFUSE_NULL_M(-1);
+  return nm->m ? nm->m->nclasses : 0;
+}
 
 /* One spectrum per member line of the manifest: "member C NAME cap N energy
  * E kept K captured X [center 0|1 lost L]". */
 int npg_spectra_read(const char *dir, NpgSpectrum **out, int *count, char *err, size_t errlen) {
+  NPG_REFUSE_NULL(dir, err, errlen, -1);
+  NPG_REFUSE_NULL(out, err, errlen, -1);
+  NPG_REFUSE_NULL(count, err, errlen, -1);
   ModelStore st;
   *out = NULL;
   *count = 0;
   if (model_store_read_any(dir, &st, err, errlen) != 0) return -1;
-  NpgSpectrum *sp = calloc((size_t)st.nmeta + 1, sizeof *sp);
+  NpgSpectrum *sp = npg_calloc((size_t)st.nmeta + 1, sizeof *sp);
   int n = 0, rc = sp ? 0 : -1;
   if (!sp) snprintf(err, errlen, "out of memory");
   for (int i = 0; i < st.nmeta && rc == 0; i++) {
@@ -212,8 +227,8 @@ int npg_spectra_read(const char *dir, NpgSpectrum **out, int *count, char *err, 
       break;
     }
     NpgSpectrum *x = &sp[n];
-    x->member = strdup(name);
-    x->sigma = malloc(sizeof(double) * (a->count ? a->count : 1));
+    x->member = npg_strdup(name);
+    x->sigma = npg_malloc(sizeof(double) * (a->count ? a->count : 1));
     if (!x->member || !x->sigma) {
       snprintf(err, errlen, "out of memory");
       rc = -1;
@@ -242,10 +257,14 @@ void npg_spectra_free(NpgSpectrum *s, int count) {
 }
 
 void npg_model_report(const NpgModel *nm, FILE *out) {
+  REFUSE_NULL_M();
+  NPG_REFUSE_NULL(out, NULL, 0, );
   if (nm->m) report_training(nm->m, out);
 }
 
 int npg_model_write_spectra(const NpgModel *nm, const char *dir, char *err, size_t errlen) {
+  NPG_REFUSE_NULL(nm, err, errlen, -1);
+  NPG_REFUSE_NULL(dir, err, errlen, -1);
   if (!nm->m) {
     snprintf(err, errlen, "%s", nm->error);
     return -1;
@@ -254,6 +273,8 @@ int npg_model_write_spectra(const NpgModel *nm, const char *dir, char *err, size
 }
 
 int npg_model_class(const NpgModel *nm, int c, NpgClassInfo *out) {
+  REFUSE_NULL_M(-1);
+  NPG_REFUSE_NULL(out, NULL, 0, -1);
   if (!nm->m || c < 0 || c >= nm->m->nclasses) return -1;
   const RClass *rc = &nm->m->classes[c];
   *out = (NpgClassInfo){rc->label, rc->n, rc->m, rc->nmembers};
@@ -261,6 +282,8 @@ int npg_model_class(const NpgModel *nm, int c, NpgClassInfo *out) {
 }
 
 int npg_model_member(const NpgModel *nm, int c, int i, NpgMemberInfo *out) {
+  REFUSE_NULL_M(-1);
+  NPG_REFUSE_NULL(out, NULL, 0, -1);
   if (!nm->m || c < 0 || c >= nm->m->nclasses || i < 0 || i >= nm->m->classes[c].nmembers) return -1;
   const RMember *mb = &nm->m->classes[c].members[i];
   *out = (NpgMemberInfo){mb->name, mb->kept, mb->cap, mb->captured};
@@ -268,24 +291,34 @@ int npg_model_member(const NpgModel *nm, int c, int i, NpgMemberInfo *out) {
 }
 
 int npg_model_class_of(const NpgModel *nm, const char *quantity) {
+  REFUSE_NULL_M(-1);
+  NPG_REFUSE_NULL(quantity, NULL, 0, -1);
   if (!nm->m) return -1;
   int q = api_quantity(nm->m->prog, quantity);
   return q < 0 ? -1 : nm->m->qclass[q];
 }
 
 const double *npg_model_basis(const NpgModel *nm, int c) {
+  REFUSE_NULL_M(NULL);
   return nm->m && c >= 0 && c < nm->m->nclasses ? nm->m->classes[c].B : NULL;
 }
 
 size_t npg_model_bytes(const NpgModel *nm, size_t *tensor_bytes) {
+  if (tensor_bytes) *tensor_bytes = 0;
+  REFUSE_NULL_M(0);
   size_t tb = 0, total = nm->m ? model_bytes(nm->m, &tb) : 0;
   if (tensor_bytes) *tensor_bytes = tb;
   return total;
 }
 
-long npg_model_samples(const NpgModel *nm) { return nm->m ? nm->m->samples : 0; }
+long npg_model_samples(const NpgModel *nm) {
+  REFUSE_NULL_M(-1);
+  return nm->m ? nm->m->samples : 0;
+}
 
 long npg_model_dim(const NpgModel *nm, const char *name) {
+  REFUSE_NULL_M(-1);
+  NPG_REFUSE_NULL(name, NULL, 0, -1);
   if (!nm->m) return -1;
   const Program *prog = nm->m->prog;
   for (int i = 0; i < prog->dims.n; i++)
@@ -294,6 +327,9 @@ long npg_model_dim(const NpgModel *nm, const char *name) {
 }
 
 int npg_model_check_params(const NpgModel *nm, const NpgFull *f, char *err, size_t errlen) {
+  NPG_REFUSE_NULL(nm, err, errlen, -1);
+  NPG_REFUSE_NULL(f, err, errlen, -1);
+  if (!full_program(f)) return npg_fail(err, errlen, "%s", npg_full_error(f));
   const char *recorded = nm->m ? nm->m->param_hashes : NULL;
   if (!recorded) return 0;
   const Program *prog = full_program(f);
@@ -323,7 +359,7 @@ static int check_params_dir(const Program *prog, const char *recorded, const cha
     if (access(path, F_OK) != 0) continue;
     NpyArray a;
     if (npy_read(path, &a, err, errlen) != 0) return -1;
-    double *v = malloc(sizeof(double) * (a.count ? a.count : 1));
+    double *v = npg_malloc(sizeof(double) * (a.count ? a.count : 1));
     if (!v) {
       npy_free(&a);
       snprintf(err, errlen, "out of memory");
@@ -349,11 +385,16 @@ static int check_params_dir(const Program *prog, const char *recorded, const cha
 }
 
 int npg_model_check_params_dir(const NpgModel *nm, const char *dir, char *err, size_t errlen) {
+  NPG_REFUSE_NULL(nm, err, errlen, -1);
+  NPG_REFUSE_NULL(dir, err, errlen, -1);
   const char *recorded = nm->m ? nm->m->param_hashes : NULL;
   return recorded ? check_params_dir(nm->m->prog, recorded, dir, err, errlen) : 0;
 }
 
 int npg_full_check_params_dir(const NpgFull *f, const char *dir, char *err, size_t errlen) {
+  NPG_REFUSE_NULL(f, err, errlen, -1);
+  NPG_REFUSE_NULL(dir, err, errlen, -1);
+  if (!full_program(f)) return npg_fail(err, errlen, "%s", npg_full_error(f));
   char *recorded = api_param_hashes(f);
   if (!recorded) {
     snprintf(err, errlen, "out of memory");
@@ -365,6 +406,8 @@ int npg_full_check_params_dir(const NpgFull *f, const char *dir, char *err, size
 }
 
 int npg_model_emit(const NpgModel *nm, FILE *out, char *err, size_t errlen) {
+  NPG_REFUSE_NULL(nm, err, errlen, -1);
+  NPG_REFUSE_NULL(out, err, errlen, -1);
   if (!nm->m) {
     snprintf(err, errlen, "%s", nm->error);
     return -1;
@@ -380,6 +423,8 @@ struct NpgReduced {
   bool given_externs;
   bool exact_roots;
   double *z;                /* npg_reduced_op: one tensor's input product (2 zcap) */
+  bool *given;              /* per quantity: set by the caller (an input never set is an error, not a zero) */
+  bool evaluated;           /* an evaluation has succeeded: every quantity has coordinates to lift */
   long zcap;
   char error[1024];
 };
@@ -387,17 +432,19 @@ struct NpgReduced {
 #define rfail(r, ...) npg_fail_first((r)->error, sizeof (r)->error, __VA_ARGS__)
 
 NpgReduced *npg_reduced_new(const NpgModel *nm) {
-  NpgReduced *r = calloc(1, sizeof *r);
-  if (!r) return NULL;
+  NpgReduced *r = npg_calloc(1, sizeof *r);
+  if (!r) return npg_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_reduced_error(NULL) says */
   r->nm = nm;
-  if (!nm || !nm->m) rfail(r, "%s", nm ? nm->error : "no model");
+  if (!nm) npg_refuse(r->error, sizeof r->error, __func__, "argument 'm' is NULL");
+  else if (!nm->m) rfail(r, "%s", nm->error[0] ? nm->error : "the model holds nothing");
+  else if (!(r->given = npg_calloc((size_t)nm->m->nq + 1, sizeof *r->given))) rfail(r, "out of memory");
   else if (!(r->r = reduced_new(nm->m, r->error, sizeof r->error)) && !r->error[0]) rfail(r, "out of memory");
   if (r->r) reduced_krylov_roots(r->r, true);
   return r;
 }
 
 const char *npg_reduced_error(const NpgReduced *r) {
-  if (!r) return "out of memory";
+  if (!r) return npg_refusal()[0] ? npg_refusal() : "out of memory";
   if (r->error[0] || !r->r) return r->error;
   return reduced_error(r->r);
 }
@@ -405,7 +452,13 @@ const char *npg_reduced_error(const NpgReduced *r) {
 /* The evaluator's own error (an unknown name) or the one a stage recorded. */
 static bool failed(const NpgReduced *r) { return npg_reduced_error(r)[0] != 0; }
 
+/* The argument checks of the npg_reduced_ entry points (ast.h). */
+#define REFUSE_NULL_R(ret) NPG_REFUSE_NULL(r, NULL, 0, ret)
+#define REFUSE_NULL(arg) NPG_REFUSE_NULL(arg, r->error, sizeof r->error, -1)
+
 void npg_reduced_clear_error(NpgReduced *r) {
+  REFUSE_NULL_R();
+  if (!r->r) return; /* an evaluator without a model keeps its error */
   r->error[0] = 0;
   if (!r->r || !reduced_error(r->r)[0]) return;
   /* a fresh evaluator with the same coordinates */
@@ -433,6 +486,9 @@ static int settable(NpgReduced *r, const char *name) {
 }
 
 int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double *values) {
+  REFUSE_NULL_R(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(values);
   if (failed(r)) return -1;
   int q = settable(r, name);
   if (q < 0) return -1;
@@ -443,10 +499,14 @@ int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double 
     if (!isfinite(values[i]))
       return rfail(r, "'%s' holds %s at flat entry %zu", name, isnan(values[i]) ? "NaN" : "an infinity", i);
   reduced_project(r->r, q, values);
+  r->given[q] = true;
   return 0;
 }
 
 int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, const double *coords) {
+  REFUSE_NULL_R(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(coords);
   if (failed(r)) return -1;
   int q = settable(r, name);
   if (q < 0) return -1;
@@ -454,28 +514,42 @@ int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, const doub
   if ((long)m != c->m) return rfail(r, "'%s' has %ld reduced coordinates (class %s), %zu were given", name, c->m,
                                     c->label, m);
   memcpy(reduced_coords(r->r, q), coords, sizeof(double) * m);
+  r->given[q] = true;
   return 0;
 }
 
 void npg_reduced_exact_roots(NpgReduced *r, bool on) {
+  REFUSE_NULL_R();
   r->exact_roots = on;
   if (r->r) reduced_krylov_roots(r->r, !on);
 }
 
 void npg_reduced_given_externs(NpgReduced *r, bool on) {
+  REFUSE_NULL_R();
   r->given_externs = on;
   if (r->r) reduced_use_given_externs(r->r, on);
 }
 
 int npg_reduced_eval(NpgReduced *r, long sample) {
+  REFUSE_NULL_R(-1);
   if (failed(r)) return -1;
+  const Model *m = r->nm->m;
+  for (int q = 0; q < m->nq; q++) {
+    const Sym *s = m->prog->quantities.v[q];
+    if (!r->given[q] && (s->kind == SYM_INPUT || (s->kind == SYM_EXTERN && r->given_externs)))
+      return rfail(r, "sample %ld: %s '%s' was never set (npg_reduced_set or npg_reduced_set_coords)", sample,
+                   s->kind == SYM_INPUT ? "input" : "extern", s->name);
+  }
   if (reduced_eval(r->r, sample) != 0) return -1;
   char msg[512];
   if (api_reduced_not_finite(r->nm->m, r->r, sample, msg, sizeof msg)) return rfail(r, "%s", msg);
+  r->evaluated = true;
   return 0;
 }
 
 const double *npg_reduced_coords(const NpgReduced *r, const char *name, size_t *m) {
+  REFUSE_NULL_R(NULL);
+  NPG_REFUSE_NULL(name, NULL, 0, NULL);
   if (!r->r) return NULL;
   const Model *mo = r->nm->m;
   int q = api_quantity(mo->prog, name);
@@ -485,10 +559,15 @@ const double *npg_reduced_coords(const NpgReduced *r, const char *name, size_t *
 }
 
 int npg_reduced_lift(NpgReduced *r, const char *name, double *out, size_t count) {
+  REFUSE_NULL_R(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(out);
   if (failed(r)) return -1;
   const Model *m = r->nm->m;
   int q = api_quantity(m->prog, name);
   if (q < 0) return rfail(r, "the program has no quantity '%s'", name);
+  if (!r->evaluated && !r->given[q])
+    return rfail(r, "'%s' has no value to lift: it was not set and nothing was evaluated yet (npg_reduced_eval)", name);
   const RClass *c = &m->classes[m->qclass[q]];
   if ((long)count != c->n) return rfail(r, "'%s' has %ld entries, a buffer of %zu was given", name, c->n, count);
   reduced_lift(r->r, q, out);
@@ -501,7 +580,7 @@ static int input_product(NpgReduced *r, const RTensor *t) {
   long len = 1;
   for (int j = 0; j < t->nin; j++) len *= t->in_len[j];
   if (len > r->zcap) {
-    double *z = realloc(r->z, sizeof(double) * (size_t)(2 * len));
+    double *z = npg_realloc(r->z, sizeof(double) * (size_t)(2 * len));
     if (!z) return rfail(r, "out of memory");
     r->z = z;
     r->zcap = len;
@@ -515,7 +594,7 @@ static int input_product(NpgReduced *r, const RTensor *t) {
     const double *x = reduced_coords(r->r, t->in_q[j]);
     double *packed = NULL;
     if (t->in_mult[j] > 1) {
-      if (!(packed = malloc(sizeof(double) * (size_t)t->in_len[j]))) return rfail(r, "out of memory");
+      if (!(packed = npg_malloc(sizeof(double) * (size_t)t->in_len[j]))) return rfail(r, "out of memory");
       sym_power(mj, t->in_mult[j], x, packed);
       x = packed;
     }
@@ -530,6 +609,11 @@ static int input_product(NpgReduced *r, const RTensor *t) {
 
 int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t cap, long *rows, long *cols, int *row_class,
                    int *col_class) {
+  REFUSE_NULL_R(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(out);
+  REFUSE_NULL(rows);
+  REFUSE_NULL(cols);
   if (failed(r)) return -1;
   const Model *m = r->nm->m;
   const RStage *rs = NULL;
@@ -563,5 +647,6 @@ void npg_reduced_free(NpgReduced *r) {
   if (!r) return;
   reduced_free(r->r);
   free(r->z);
+  free(r->given);
   free(r);
 }

@@ -152,6 +152,11 @@ NpgProgram *npg_compile(const char *path, const NpgOptions *options) {
     return &oom;
   }
   np->ctx.std_dir = opt->std_dir;
+  if (!path) {
+    npg_refuse(NULL, 0, __func__, "argument 'path' is NULL");
+    np->error = "error: npg_compile: argument 'path' is NULL\n";
+    return np;
+  }
   if (!guarded_compile(np, path, opt)) {
     np->error = np->ctx.msg ? np->ctx.msg : "error: compilation failed\n";
     np->prog = NULL;
@@ -181,12 +186,20 @@ static bool guarded_report(NpgProgram *np, FILE *out, bool json) {
 }
 
 void npg_report(const NpgProgram *p, FILE *out, bool json) {
+  NPG_REFUSE_NULL(p, NULL, 0, );
+  NPG_REFUSE_NULL(out, NULL, 0, );
   if (!npg_ok(p)) return;
   if (!guarded_report((NpgProgram *)p, out, json)) fprintf(out, "\n%s", p->ctx.msg ? p->ctx.msg : "error: out of memory\n");
 }
 
 int npg_emit_full(NpgProgram *p, FILE *out) {
+  NPG_REFUSE_NULL(p, NULL, 0, -1);
   if (!npg_ok(p)) return -1;
+  if (!out) {
+    npg_refuse(NULL, 0, __func__, "argument 'out' is NULL");
+    p->error = "error: npg_emit_full: argument 'out' is NULL\n";
+    return -1;
+  }
   if (full_emit(p->prog, out) != 0) {
     p->error = p->ctx.msg ? p->ctx.msg : "error: code generation failed\n";
     return -1;
@@ -195,6 +208,14 @@ int npg_emit_full(NpgProgram *p, FILE *out) {
 }
 
 NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
+  if (!p) {
+    npg_refuse(NULL, 0, __func__, "argument 'p' is NULL");
+    return full_new(NULL, backend, npg_refusal());
+  }
+  if (backend != NPG_TCC && backend != NPG_CC) {
+    npg_refuse(NULL, 0, __func__, "argument 'backend' is %d (NPG_TCC or NPG_CC)", (int)backend);
+    return full_new(NULL, backend, npg_refusal());
+  }
   return npg_ok(p) ? full_new(p->prog, backend, NULL) : full_new(NULL, backend, npg_error(p));
 }
 
@@ -207,11 +228,14 @@ void npg_free(NpgProgram *p) {
 Program *npg_program_ir(const NpgProgram *p) { return p ? p->prog : NULL; }
 
 int npg_nsymbols(const NpgProgram *np) {
+  NPG_REFUSE_NULL(np, NULL, 0, 0);
   const Program *prog = np->prog;
   return prog ? prog->params.n + prog->quantities.n + prog->ops.n : 0;
 }
 
 int npg_symbol(const NpgProgram *np, int i, NpgSymbol *out) {
+  NPG_REFUSE_NULL(np, NULL, 0, -1);
+  NPG_REFUSE_NULL(out, NULL, 0, -1);
   const Program *prog = np->prog;
   if (!prog || i < 0 || i >= npg_nsymbols(np)) return -1;
   const Sym *s = i < prog->params.n ? prog->params.v[i]
@@ -235,4 +259,7 @@ int npg_symbol(const NpgProgram *np, int i, NpgSymbol *out) {
   return 0;
 }
 
-void npg_progress(bool on, const char *what, long done, long total) { progress_show(on, what, done, total); }
+void npg_progress(bool on, const char *what, long done, long total) {
+  NPG_REFUSE_NULL(what, NULL, 0, );
+  progress_show(on, what, done, total);
+}

@@ -8,6 +8,7 @@
 
 #include "compile.h"
 #include "emit.h"
+#include "full.h"
 #include "npg.h"
 #include "npy.h"
 
@@ -77,6 +78,15 @@ static int samples_open(SampleSet *s, const Program *prog, const char *dir, cons
                sym->ndims + sym->nstatic, sym->ndims + sym->nstatic == 1 ? "is" : "es", found);
       goto fail;
     }
+    /* static axes are checked here, not only when a sample is set: a file of
+     * no samples and a wrong shape was accepted (eval wrote nothing, exit 0) */
+    for (int d = 0; d < sym->nstatic; d++)
+      if (g->a.shape[1 + sym->ndims + d] != sym->shape[d]) {
+        snprintf(err, errlen, "%s: axis %d of '%s' is static with size %d, but axis %d of the array (after the sample "
+                              "axis) has %ld", g->path, sym->ndims + d, sym->name, sym->shape[d], 1 + sym->ndims + d,
+                 g->a.shape[1 + sym->ndims + d]);
+        goto fail;
+      }
     /* a NaN or an infinity is named by sample and index, once, here */
     size_t per = 1;
     for (int d = 1; d < g->a.ndim; d++) per *= (size_t)g->a.shape[d];
@@ -171,6 +181,8 @@ static void samples_close(SampleSet *s) {
 
 NpgSamples *npg_samples_open(NpgProgram *p, const char *dir, const char *fallback, bool externs, char *err,
                              size_t errlen) {
+  NPG_REFUSE_NULL(p, err, errlen, NULL);
+  NPG_REFUSE_NULL(dir, err, errlen, NULL);
   if (!npg_ok(p)) {
     snprintf(err, errlen, "%s", npg_error(p));
     return NULL;
@@ -187,16 +199,30 @@ NpgSamples *npg_samples_open(NpgProgram *p, const char *dir, const char *fallbac
   return s;
 }
 
-long npg_samples_count(const NpgSamples *s) { return s->s.count; }
+long npg_samples_count(const NpgSamples *s) {
+  NPG_REFUSE_NULL(s, NULL, 0, -1);
+  return s->s.count;
+}
 
 const double *npg_samples_get(const NpgSamples *s, const char *name, long k, size_t *count) {
+  NPG_REFUSE_NULL(s, NULL, 0, NULL);
+  NPG_REFUSE_NULL(name, NULL, 0, NULL);
   for (int i = 0; i < s->s.n; i++)
     if (strcmp(s->s.files[i].sym->name, name) == 0 && k >= 0 && k < s->s.count)
       return samples_value(&s->s, i, k, count);
   return NULL;
 }
 
-int npg_samples_set(void *samples, NpgFull *f, long k) { return samples_set(&((NpgSamples *)samples)->s, f, k); }
+int npg_samples_set(void *samples, NpgFull *f, long k) {
+  NPG_REFUSE_NULL(f, NULL, 0, -1);
+  if (!samples) return full_fail(f, (npg_refuse(NULL, 0, __func__, "argument 'samples' is NULL"), npg_refusal()));
+  const SampleSet *s = &((NpgSamples *)samples)->s;
+  if (k < 0 || k >= s->count)
+    return full_fail(f, (npg_refuse(NULL, 0, __func__, "argument 'k' is %ld, but the set holds %ld sample%s (0 to %ld)",
+                                    k, s->count, s->count == 1 ? "" : "s", s->count - 1),
+                         npg_refusal()));
+  return samples_set(&((NpgSamples *)samples)->s, f, k);
+}
 
 void npg_samples_free(NpgSamples *s) {
   if (!s) return;

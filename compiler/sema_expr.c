@@ -512,6 +512,9 @@ static Node *check_call(Checker *ck, Node *n) {
 
 /* ---------------------------------------------------------------- expressions */
 
+/* The most copies of a body that nested sums with literal bounds unroll to. */
+#define MAX_UNROLLED 100000
+
 static Node *check_sum(Checker *ck, Node *n) {
   Ctx *ctx = ck->ctx;
   n->a = sema_expr_check(ck, n->a);
@@ -538,6 +541,17 @@ static Node *check_sum(Checker *ck, Node *n) {
   if (int_range(n->a, &lo, &lo2) && int_range(n->b, &hi, &hi2) && lo == lo2 && hi == hi2) {
     if (hi < lo) error_node(ctx, n, "empty sum: the bounds %ld..%ld are inclusive and decreasing", lo, hi);
     if (hi - lo >= 4096) error_node(ctx, n, "a sum with literal bounds is unrolled; %ld..%ld is too long", lo, hi);
+    /* Nested, they unroll to the product of their lengths: seven 0..9 sums
+     * are 10^7 copies of the body, which exhausted 24 GB. 10^5 (five 0..9)
+     * lowers in about a second. */
+    double copies = (double)(hi - lo + 1);
+    for (int i = 0; i < ck->sums.n; i++) {
+      const Sym *o = ck->sums.v[i];
+      if (o->body) copies *= o->body->args[1]->num - o->body->args[0]->num + 1;
+    }
+    if (copies > MAX_UNROLLED)
+      error_node(ctx, n, "nested sums with literal bounds are unrolled: this one makes %.0f copies of its body, more "
+                 "than %d; sum over a dim (0..D-1) instead", copies, MAX_UNROLLED);
     Node *bounds = new_node(ctx, N_VEC, n->loc);  /* remembered for int_range */
     bounds->nargs = 2;
     bounds->args = arena_alloc(ctx, sizeof(Node *) * 2);

@@ -74,30 +74,63 @@ static long kept_index(const NpgTrainer *t, long k) {
 }
 
 void npg_train_options_default(NpgTrainOptions *o) {
+  NPG_REFUSE_NULL(o, NULL, 0, );
   memset(o, 0, sizeof *o);
   o->cap = 60;
   o->energy = 0.999;
   o->mem = half_the_ram();
 }
 
+/* Options out of their documented range are refused, naming the field, not
+ * replaced by a default (a cap of 0 the caller computed is a bug of theirs
+ * that a default would hide). */
+static int refuse_options(NpgTrainer *t, const NpgTrainOptions *o) {
+#define REFUSE(...) npg_refuse(t->error, sizeof t->error, "npg_trainer_new", __VA_ARGS__)
+  if (o->cap <= 0) return REFUSE("NpgTrainOptions.cap is %d (a basis cap is at least 1)", o->cap);
+  if (!(o->energy > 0 && o->energy <= 1))
+    return REFUSE("NpgTrainOptions.energy is %g (an energy fraction is in (0, 1])", o->energy);
+  if (o->mem == 0) return REFUSE("NpgTrainOptions.mem is 0 (bytes of memory for training; npg_train_options_default "
+                                 "gives half the RAM)");
+  if (o->nbasis < 0) return REFUSE("NpgTrainOptions.nbasis is %d (the number of basis overrides)", o->nbasis);
+  if (o->nbasis > 0 && (!o->basis_name || !o->basis_cap || !o->basis_energy))
+    return REFUSE("NpgTrainOptions.nbasis is %d but %s is NULL", o->nbasis,
+                  !o->basis_name ? "basis_name" : !o->basis_cap ? "basis_cap" : "basis_energy");
+  for (int i = 0; i < o->nbasis; i++) {
+    if (!o->basis_name[i]) return REFUSE("NpgTrainOptions.basis_name[%d] is NULL", i);
+    if (o->basis_cap[i] != -1 && o->basis_cap[i] <= 0)
+      return REFUSE("NpgTrainOptions.basis_cap[%d] (%s) is %d (at least 1, or -1 for the default)", i, o->basis_name[i],
+                    o->basis_cap[i]);
+    if (o->basis_energy[i] != -1 && !(o->basis_energy[i] > 0 && o->basis_energy[i] <= 1))
+      return REFUSE("NpgTrainOptions.basis_energy[%d] (%s) is %g (in (0, 1], or -1 for the default)", i,
+                    o->basis_name[i], o->basis_energy[i]);
+    if (o->basis_center && o->basis_center[i] != -1 && o->basis_center[i] != 0 && o->basis_center[i] != 1)
+      return REFUSE("NpgTrainOptions.basis_center[%d] (%s) is %d (1 on, 0 off, -1 the default)", i, o->basis_name[i],
+                    o->basis_center[i]);
+  }
+  return 0;
+#undef REFUSE
+}
+
 NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
-  NpgTrainer *t = calloc(1, sizeof *t);
-  if (!t) return NULL;
+  NpgTrainer *t = npg_calloc(1, sizeof *t);
+  if (!t) return npg_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_trainer_error(NULL) says */
   if (o) t->opt = *o;
   else npg_train_options_default(&t->opt);
-  if (t->opt.cap <= 0) t->opt.cap = 60;
-  if (!(t->opt.energy > 0 && t->opt.energy <= 1)) t->opt.energy = 0.999;
-  if (!t->opt.mem) t->opt.mem = half_the_ram();
   t->f = f;
+  if (!f) {
+    npg_refuse(t->error, sizeof t->error, __func__, "argument 'f' is NULL");
+    return t;
+  }
+  if (refuse_options(t, &t->opt)) return t;
   if (t->opt.mpi && dist_start(t->error, sizeof t->error)) return t;
-  if (!f || npg_full_error(f)[0]) {
-    tfail(t, "%s", f ? npg_full_error(f) : "no full evaluator");
+  if (npg_full_error(f)[0]) {
+    tfail(t, "%s", npg_full_error(f));
     return t;
   }
   const Program *prog = t->prog = full_program(f);
-  t->slot = calloc((size_t)prog->slots.n + 1, sizeof *t->slot);
-  t->count = calloc((size_t)prog->slots.n + 1, sizeof *t->count);
-  t->staged = calloc((size_t)prog->slots.n + 1, sizeof *t->staged);
+  t->slot = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->slot);
+  t->count = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->count);
+  t->staged = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->staged);
   if (!t->slot || !t->count || !t->staged) {
     tfail(t, "out of memory");
     return t;
@@ -109,8 +142,17 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
   return t;
 }
 
-const char *npg_trainer_error(const NpgTrainer *t) { return t ? t->error : "out of memory"; }
-long npg_trainer_samples(const NpgTrainer *t) { return t->samples; }
+const char *npg_trainer_error(const NpgTrainer *t) {
+  return t ? t->error : npg_refusal()[0] ? npg_refusal() : "out of memory";
+}
+long npg_trainer_samples(const NpgTrainer *t) {
+  NPG_REFUSE_NULL(t, NULL, 0, -1);
+  return t->samples;
+}
+
+/* The argument checks of the npg_trainer_ entry points (ast.h). */
+#define REFUSE_NULL_T(ret) NPG_REFUSE_NULL(t, NULL, 0, ret)
+#define REFUSE_NULL(arg, ret) NPG_REFUSE_NULL(arg, t->error, sizeof t->error, ret)
 
 static int slot_of(const NpgTrainer *t, const char *name) {
   for (int i = 0; i < t->nslots; i++)
@@ -119,6 +161,8 @@ static int slot_of(const NpgTrainer *t, const char *name) {
 }
 
 int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape, const double *values) {
+  REFUSE_NULL_T(-1);
+  REFUSE_NULL(name, -1);
   if (t->error[0]) return -1;
   int i = slot_of(t, name);
   if (i < 0) return tfail(t, "the program has no input or extern '%s'", name);
@@ -209,9 +253,9 @@ static void decode(NpgTrainer *t) {
  * while the records there stay within mem_cap, then in the scratch file. */
 static int store(NpgTrainer *t, Records *r, long kk, size_t bytes) {
   if (kk % 64 == 0) {
-    size_t *at = realloc(r->at, sizeof(size_t) * (size_t)(kk + 64));
+    size_t *at = npg_realloc(r->at, sizeof(size_t) * (size_t)(kk + 64));
     if (at) r->at = at;
-    size_t *len = at ? realloc(r->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
+    size_t *len = at ? npg_realloc(r->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
     if (!len) return tfail(t, "out of memory keeping training sample %ld", t->samples);
     r->len = len;
   }
@@ -219,7 +263,7 @@ static int store(NpgTrainer *t, Records *r, long kk, size_t bytes) {
   if (r->in_mem == kk && r->used + bytes <= t->mem_cap) {
     if (r->used + bytes > r->alloc) {
       size_t want = r->alloc * 2 > r->used + bytes ? r->alloc * 2 : r->used + bytes;
-      unsigned char *m = realloc(r->mem, want < t->mem_cap ? want : t->mem_cap);
+      unsigned char *m = npg_realloc(r->mem, want < t->mem_cap ? want : t->mem_cap);
       if (!m) return tfail(t, "out of memory keeping training sample %ld", t->samples);
       r->mem = m;
       r->alloc = want < t->mem_cap ? want : t->mem_cap;
@@ -273,8 +317,8 @@ static int record(NpgTrainer *t, const NpgFull *g) {
       t->record += t->count[i];
     }
     t->mem_cap = t->opt.mem / 4;
-    if (!(t->buf = malloc(sizeof(double) * (t->record + 1))) ||
-        !(t->enc = malloc(sizeof(double) * t->record + (size_t)t->nslots + 1)))
+    if (!(t->buf = npg_malloc(sizeof(double) * (t->record + 1))) ||
+        !(t->enc = npg_malloc(sizeof(double) * t->record + (size_t)t->nslots + 1)))
       return tfail(t, "out of memory");
   }
   size_t off = 0;
@@ -294,6 +338,7 @@ static int record(NpgTrainer *t, const NpgFull *g) {
 }
 
 int npg_trainer_add(NpgTrainer *t) {
+  REFUSE_NULL_T(-1);
   if (t->error[0]) return -1;
   bool need_eval = false;
   for (int i = 0; i < t->nslots; i++) {
@@ -309,6 +354,8 @@ int npg_trainer_add(NpgTrainer *t) {
 }
 
 int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {
+  REFUSE_NULL_T(-1);
+  REFUSE_NULL(g, -1);
   if (t->error[0]) return -1;
   if (npg_full_error(g)[0]) return tfail(t, "%s", npg_full_error(g));
   return record(t, g);
@@ -326,7 +373,7 @@ static int load_record(NpgTrainer *t, NpgFull *f, long k) {
  * rank. */
 static size_t shared_use(NpgTrainer *t) {
   int N = dist_size(), rank = dist_rank();
-  double *len = calloc((size_t)t->samples + 1, sizeof(double));
+  double *len = npg_calloc((size_t)t->samples + 1, sizeof(double));
   if (!len) return tfail(t, "out of memory"), 0;
   for (long k = 0; k < t->samples; k++)
     if ((k == 0 ? 0 : (int)(k % N)) == rank) len[k] = (double)t->rec.len[kept_index(t, k)];
@@ -533,6 +580,7 @@ static int replay_held(void *user, NpgFull *f, long j) {
 }
 
 NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
+  REFUSE_NULL_T(NULL);
   /* over ranks the others would wait for this one in a collective: end the job */
   if (t->error[0] && t->opt.mpi && dist_size() > 1) dist_abort("%s", t->error);
   if (t->error[0]) return NULL;
@@ -629,6 +677,7 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
 }
 
 void npg_model_train_seconds(const NpgModel *m, double seconds[4], double cpu[4]) {
+  NPG_REFUSE_NULL(seconds, NULL, 0, );
   for (int i = 0; i < 4; i++) {
     seconds[i] = m && m->m ? m->m->phase_seconds[i] : 0;
     if (cpu) cpu[i] = m && m->m ? m->m->phase_cpu[i] : 0;

@@ -1,5 +1,6 @@
 /* tune_api.c — basis sizes chosen by error through npg.h (npg_tune): the
  * search is tune_search (backends/tune.c) over one TrainSet. */
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -8,8 +9,19 @@
 
 NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long nvalid, NpgSampleFn valid,
                    void *vuser, double tol, int max_cap, const NpgTrainOptions *o, NpgTuneReport *rep) {
+  NPG_REFUSE_NULL(rep, NULL, 0, NULL);
   memset(rep, 0, sizeof *rep);
   rep->chosen = -1;
+#define REFUSE(...) return npg_refuse(rep->error, sizeof rep->error, __func__, __VA_ARGS__), NULL
+  if (!f) REFUSE("argument 'f' is NULL");
+  if (!train) REFUSE("argument 'train' is NULL");
+  if (!valid) REFUSE("argument 'valid' is NULL");
+  if (ntrain < 1) REFUSE("argument 'ntrain' is %ld (at least one training sample)", ntrain);
+  if (nvalid < 1) REFUSE("argument 'nvalid' is %ld (at least one validation sample)", nvalid);
+  if (!(tol > 0) || !isfinite(tol)) REFUSE("argument 'tol' is %g (a relative error, positive and finite)", tol);
+  if (max_cap < 1) REFUSE("argument 'max_cap' is %d (at least 1)", max_cap);
+  if (o && o->mem == 0) REFUSE("NpgTrainOptions.mem is 0 (bytes of memory for training)");
+#undef REFUSE
   if (npg_full_error(f)[0]) {
     snprintf(rep->error, sizeof rep->error, "%s", npg_full_error(f));
     return NULL;
@@ -17,7 +29,7 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   Program *prog = (Program *)full_program(f);
   SampleSource tsrc = {ntrain, tuser, train, NULL, NULL}, vsrc = {nvalid, vuser, valid, NULL, NULL};
   TrainOptions topt = {.cap = max_cap, .energy = 1.0, .uncentered = o && o->uncentered, .progress = o && o->progress};
-  if (o && o->mem) topt.mem = o->mem;
+  if (o) topt.mem = o->mem;
   TuneResult *r = calloc(1, sizeof *r);
   const char **names = calloc((size_t)prog->classes.n + 1, sizeof *names);
   TrainSet *ts = NULL;

@@ -11,6 +11,15 @@
  * Ownership: an NpgProgram owns all memory it hands out (strings, reports);
  * pointers stay valid until npg_free(). npg_compile never returns NULL and
  * never exits the process: errors are reported through npg_error().
+ *
+ * Arguments: every function refuses a NULL pointer argument (other than the
+ * optional ones documented, e.g. `count`, `cpu`, the free functions' NULL)
+ * and an argument out of its documented range, before doing anything, with
+ * "npg_FUNC: argument 'ARG' is NULL" (or the reason): in the object's error
+ * (npg_full_error, npg_trainer_error, npg_reduced_error, npg_model_error,
+ * a report's `error`, or `err`), and as this thread's last refusal, which
+ * those error getters return when given NULL (a constructor's NULL result
+ * when out of memory reads "npg_FUNC: out of memory" there).
  */
 #ifndef NPG_H
 #define NPG_H
@@ -90,7 +99,8 @@ NPG_API void npg_progress(bool on, const char *what, long done, long total);
  * handed back belong to the evaluator and change with the next evaluation.
  * Every function returns 0, or -1 with a message in npg_full_error() naming
  * the file or the stage and sample; after an error the evaluator refuses
- * further work until npg_full_clear_error(). */
+ * further work until npg_full_clear_error() (never, when npg_full_new itself
+ * failed: no compiler, a bad TMPDIR; its error stays). */
 typedef struct NpgFull NpgFull;
 typedef enum NpgBackend {
   NPG_TCC,  /* libtcc, in memory (default) */
@@ -170,7 +180,8 @@ NPG_API NpgSamples *npg_samples_open(NpgProgram *p, const char *dir, const char 
 NPG_API long npg_samples_count(const NpgSamples *s);
 /* Sample k of `name` (count entries), NULL when the set does not hold it. */
 NPG_API const double *npg_samples_get(const NpgSamples *s, const char *name, long k, size_t *count);
-/* Set every input and extern of sample k in `f` (an NpgSampleFn). */
+/* Set every input and extern of sample k in `f` (an NpgSampleFn); k out of
+ * [0, count) is an error in `f`. */
 NPG_API int npg_samples_set(void *samples, NpgFull *f, long k);
 NPG_API void npg_samples_free(NpgSamples *s);
 
@@ -218,6 +229,9 @@ typedef int (*NpgSampleFn)(void *user, NpgFull *f, long k);
  * (index, value) for each entry that is not exactly 0 or 1, when that is
  * smaller than the doubles (visibility: fractional only where a face is
  * partly hidden); bit for bit what the callback gave. */
+/* Options out of range are refused by npg_trainer_new naming the field
+ * (cap < 1, energy outside (0, 1] or NaN, mem 0, overrides out of range),
+ * never replaced by defaults: start from npg_train_options_default. */
 typedef struct NpgTrainOptions {
   int cap;                  /* basis cap per member (60) */
   double energy;            /* PCA energy fraction per member (0.999) */
@@ -401,6 +415,8 @@ NPG_API int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, co
 /* With `on`, externs keep the values set by the caller instead of their
  * learned map. */
 NPG_API void npg_reduced_given_externs(NpgReduced *r, bool on);
+/* Every input (and given extern) must have been set: one never set is an
+ * error naming it, not a zero. */
 NPG_API int npg_reduced_eval(NpgReduced *r, long sample);
 /* Roots (fractional powers) of reduced operators are applied by the
  * Lanczos process to an a-posteriori estimate below 1e-8 relative (falling
@@ -409,7 +425,8 @@ NPG_API int npg_reduced_eval(NpgReduced *r, long sample);
 NPG_API void npg_reduced_exact_roots(NpgReduced *r, bool on);
 /* Reduced coordinates of any quantity (m of them), NULL if unknown. */
 NPG_API const double *npg_reduced_coords(const NpgReduced *r, const char *name, size_t *m);
-/* Lift a quantity to full space: out (count entries, the full size) = B x̂. */
+/* Lift a quantity to full space: out (count entries, the full size) = B x̂.
+ * An error before any evaluation, unless the quantity was set. */
 NPG_API int npg_reduced_lift(NpgReduced *r, const char *name, double *out, size_t count);
 /* The `output op` `name` reduced at the last evaluation: out (rows x cols,
  * row-major, at most `cap` entries) = B_rowᵀ M B_col, with the bases of the

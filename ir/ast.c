@@ -41,7 +41,6 @@ struct ArenaBlock {
   max_align_t data[];
 };
 
-void *(*npg_alloc_hook)(size_t size) = malloc;
 
 void *arena_alloc(Ctx *ctx, size_t size) {
   size = (size + 15) & ~(size_t)15;
@@ -122,6 +121,20 @@ int npg_fail_first(char *err, size_t errlen, const char *fmt, ...) {
   return -1;
 }
 
+static _Thread_local char refusal[512];
+
+int npg_refuse(char *err, size_t errlen, const char *func, const char *fmt, ...) {
+  char why[400];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(why, sizeof why, fmt, ap);
+  va_end(ap);
+  snprintf(refusal, sizeof refusal, "%s: %s", func, why);
+  return npg_fail(err, errlen, "%s", refusal);
+}
+
+const char *npg_refusal(void) { return refusal; }
+
 const char *npg_bytes_text(double bytes, char *buf, size_t len) {
   static const char *const units[] = {"B", "kB", "MB", "GB", "TB", "PB", "EB"};
   int u = 0;
@@ -165,7 +178,7 @@ char *diag_excerpt(Ctx *ctx, Loc loc) {
   if (!loc.file) return arena_strndup(ctx, "", 0);
   const char *text = loc.file->text;
   size_t start = loc.off <= loc.file->len ? loc.off : loc.file->len;
-  while (start > 0 && text[start - 1] != '\n') start--;
+  while (start > 0 && text[start - 1] != '\n' && text[start - 1] != '\r') start--; /* CR alone ends a line too */
   size_t end = start;
   while (end < loc.file->len && text[end] != '\n' && text[end] != '\r') end++;
   size_t at = start + (size_t)(loc.col > 0 ? loc.col - 1 : 0); /* may lie past the end of the line */

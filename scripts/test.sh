@@ -8,7 +8,8 @@
 #                                     tests/CMakeLists.txt says why)
 #   3. ThreadSanitizer (build-tsan/): the tests labelled `threads` (one model, many evaluators)
 #   4. fuzz build (build-fuzz/):      libFuzzer on the front end for NPG_FUZZ_SECONDS (60), then on
-#                                     the .npy reader and the model manifest for a third of that each
+#                                     the .npy reader, the model manifest and npg.h call sequences
+#                                     for a third of that each
 #
 # Builds are incremental; delete a build directory to start it afresh.
 set -euo pipefail
@@ -42,7 +43,7 @@ cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=Debug -DNPG_TSAN=ON
 cmake --build build-tsan -j2 --target test_api npgc radiosity_data
 TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$PWD/tests/tsan.supp" ctest --test-dir build-tsan -L threads --output-on-failure
 
-header "4/4 fuzz the front end, the .npy reader and the manifest (build-fuzz/)"
+header "4/4 fuzz the front end, the .npy reader, the manifest and npg.h call sequences (build-fuzz/)"
 CC=clang cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=Debug -DNPG_FUZZ=ON
 cmake --build build-fuzz -j2
 
@@ -81,12 +82,16 @@ model=build-fuzz/manifest-model
 rm -rf build-fuzz/manifest-data "$model"
 build-fuzz/rational_data build-fuzz/manifest-data 20 1 >/dev/null
 ASAN_OPTIONS=detect_leaks=0 build-fuzz/npgc train examples/rational/rational.npg build-fuzz/manifest-data -o "$model" >/dev/null
-for target in fuzz_npy fuzz_manifest; do
+# fuzz_api (npg.h call sequences, bad arguments among them): seeded with
+# tests/fuzz/seeds_api, its own small program and model built in-process.
+for target in fuzz_npy fuzz_manifest fuzz_api; do
   corpus=build-fuzz/corpus_$target
   rm -rf "$corpus"
   mkdir -p "$corpus"
   if [ "$target" = fuzz_npy ]; then
     cp tests/data/npy/*.npy tests/fuzz/seeds_npy/* "$corpus"/
+  elif [ "$target" = fuzz_api ]; then
+    cp tests/fuzz/seeds_api/* "$corpus"/
   else
     cp "$model/manifest" "$corpus/rational_manifest"
     cp tests/fuzz/seeds_manifest/* "$corpus"/

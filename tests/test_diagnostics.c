@@ -361,11 +361,30 @@ static void test_long_line_window(void **state) {
   }
 }
 
+/* Old Mac line endings (CR alone): the diagnostic echoes the line it names,
+ * not the first line of the file, and the caret stands under the fault. The
+ * CRLF case is tests/bad/crlf_unknown_name.npg. (issue 24) */
+static void test_cr_only_caret(void **state) {
+  (void)state;
+  const char *path = write_temp("# c\rinput x : real[2]\routput y = [x[0] * q, x[1]]\r");
+  NpgProgram *p = compile(path);
+  assert_false(npg_ok(p));
+  const char *err = npg_error(p);
+  const char *nl = strchr(err, '\n');
+  assert_non_null(nl);
+  if (strncmp(nl + 1, "output y = [x[0] * q, x[1]]\n                   ^\n", 48) != 0)
+    fail_msg("wrong echo or caret:\n%s", err);
+  assert_non_null(strstr(err, ":3:20: error: unknown name 'q'"));
+  npg_free(p);
+  unlink(path);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_bad_programs_fail_as_expected),
       cmocka_unit_test(test_good_programs_compile),
       cmocka_unit_test(test_long_line_window),
+      cmocka_unit_test(test_cr_only_caret),
   };
   return cmocka_run_group_tests(tests, enter_source_dir, NULL);
 }

@@ -57,6 +57,17 @@ void emit_reset_used(Emit *e) {
 }
 
 void emit_double(FILE *out, double v) {
+  /* A constant may fold to an infinity or NaN (1e300 * 1e300): C has no
+   * literal for them without <math.h>, and "inf" is an undeclared name.
+   * These expressions give them in any C compiler and in libtcc. */
+  if (isnan(v)) {
+    fputs("(0.0 / 0.0)", out);
+    return;
+  }
+  if (isinf(v)) {
+    fputs(v > 0 ? "(1e300 * 1e300)" : "(-1e300 * 1e300)", out);
+    return;
+  }
   if (v == floor(v) && fabs(v) < 1e15) {
     fprintf(out, "%.1f", v);
     return;

@@ -62,6 +62,12 @@ extern const char npg_abi_header[];
 Emit *emit_new(Ctx *ctx, const Program *prog, FILE *out);
 void emit_header(Emit *e, const char *what);
 char *emit_source_line(Ctx *ctx, Loc loc);
+/* `text` made safe inside a C comment: no comment opener or closer (a
+ * program path holding "*" then "/" would end the comment and break the generated C),
+ * no control or non-ASCII byte. An arena copy. */
+char *emit_comment_text(Ctx *ctx, const char *text);
+/* The file of `loc` as emit_comment_text gives it, "?" when it has none. */
+const char *emit_loc_file(Ctx *ctx, Loc loc);
 void emit_full(Ctx *ctx, const Program *prog, FILE *out);
 /* The steps of the full evaluator, in evaluation order: what its entry
  * point calls, and what the generated step entry ("<stem>_npg_full_step",

@@ -248,7 +248,7 @@ static int build(Emit *e, const Node *n, int comp, const DEnv *env) {
         return p < 0 ? cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), r, -1) : r;
       }
       if (q == 1 && p == -1) return cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), a, -1);
-      if (q == 3 && p == 1) return cse_call(cs, "cbrt", a, -1);
+      /* no cbrt for q = 3: a root of a negative number is NaN (emit_apply_diag) */
     }
     return cse_call(cs, "pow", sub(e, n->a, comp, env), build(e, n->b, 0, env));
   case N_SUM: {

@@ -48,7 +48,25 @@ static int fail(NpgFull *f, const char *fmt, ...) {
   return -1;
 }
 
-const char *npg_full_error(const NpgFull *f) { return f ? f->error : "no evaluator"; }
+const char *npg_full_error(const NpgFull *f) { return f ? f->error : npg_refusal()[0] ? npg_refusal() : "no evaluator"; }
+
+/* The argument checks of every npg_full_ entry point (ast.h): the
+ * evaluator itself, then each pointer argument, refused into its message. */
+#define REFUSE_NULL_F(ret) NPG_REFUSE_NULL(f, NULL, 0, ret)
+#define REFUSE_NULL(arg) NPG_REFUSE_NULL(arg, f->error, sizeof f->error, -1)
+
+/* A shape argument: `ndim` axes in [0, MAX_AXES + MAX_STATIC], `shape`
+ * non-NULL when there are any, `values` non-NULL when they hold entries. */
+static int refuse_shape(NpgFull *f, const char *func, int ndim, const long *shape, const double *values) {
+  if (ndim < 0 || ndim > MAX_AXES + MAX_STATIC)
+    return npg_refuse(f->error, sizeof f->error, func, "argument 'ndim' is %d (0 to %d axes)", ndim,
+                      MAX_AXES + MAX_STATIC);
+  if (ndim > 0 && !shape) return npg_refuse(f->error, sizeof f->error, func, "argument 'shape' is NULL");
+  size_t n = 1;
+  for (int i = 0; i < ndim; i++) n = shape[i] > 0 ? n * (size_t)shape[i] : 0;
+  if (n && !values) return npg_refuse(f->error, sizeof f->error, func, "argument 'values' is NULL");
+  return 0;
+}
 
 static int find(const PtrVec *v, const char *name) {
   for (int i = 0; i < v->n; i++)
@@ -72,13 +90,12 @@ int full_emit(Program *prog, FILE *out) {
 }
 
 NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
-  NpgFull *f = calloc(1, sizeof *f);
-  if (!f) return NULL;
+  NpgFull *f = npg_calloc(1, sizeof *f);
+  if (!f) return npg_refuse(NULL, 0, "npg_full_new", "out of memory"), NULL; /* what npg_full_error(NULL) says */
   if (refusal) {
     fail(f, "%s", refusal);
     return f;
   }
-  f->prog = prog;
   char *src = NULL;
   size_t len = 0;
   FILE *mem = open_memstream(&src, &len);
@@ -109,23 +126,26 @@ NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
     return f;
   }
   int nd = prog->dims.n, np = prog->params.n, nq = prog->slots.n;
-  f->dims = calloc((size_t)nd + 1, sizeof *f->dims);
-  f->dim_from = calloc((size_t)nd + 1, sizeof *f->dim_from);
-  f->params = calloc((size_t)np + 1, sizeof *f->params);
-  f->iparams = calloc((size_t)np + 1, sizeof *f->iparams);
-  f->param_files = calloc((size_t)np + 1, sizeof *f->param_files);
-  f->q = calloc((size_t)nq + 1, sizeof *f->q);
-  f->qcount = calloc((size_t)nq + 1, sizeof *f->qcount);
-  f->fresh = calloc((size_t)nq + 1, sizeof *f->fresh);
-  f->extern_fn = calloc((size_t)nq + 1, sizeof *f->extern_fn);
-  f->extern_user = calloc((size_t)nq + 1, sizeof *f->extern_user);
-  f->dim_names = calloc((size_t)nd + 1, sizeof *f->dim_names);
-  f->param_names = calloc((size_t)np + 1, sizeof *f->param_names);
+  f->dims = npg_calloc((size_t)nd + 1, sizeof *f->dims);
+  f->dim_from = npg_calloc((size_t)nd + 1, sizeof *f->dim_from);
+  f->params = npg_calloc((size_t)np + 1, sizeof *f->params);
+  f->iparams = npg_calloc((size_t)np + 1, sizeof *f->iparams);
+  f->param_files = npg_calloc((size_t)np + 1, sizeof *f->param_files);
+  f->q = npg_calloc((size_t)nq + 1, sizeof *f->q);
+  f->qcount = npg_calloc((size_t)nq + 1, sizeof *f->qcount);
+  f->fresh = npg_calloc((size_t)nq + 1, sizeof *f->fresh);
+  f->extern_fn = npg_calloc((size_t)nq + 1, sizeof *f->extern_fn);
+  f->extern_user = npg_calloc((size_t)nq + 1, sizeof *f->extern_user);
+  f->dim_names = npg_calloc((size_t)nd + 1, sizeof *f->dim_names);
+  f->param_names = npg_calloc((size_t)np + 1, sizeof *f->param_names);
   if (!f->dims || !f->dim_from || !f->params || !f->iparams || !f->param_files || !f->q || !f->qcount ||
       !f->fresh || !f->extern_fn || !f->extern_user || !f->dim_names || !f->param_names) {
     fail(f, "out of memory");
     return f;
   }
+  /* Only now: an evaluator whose construction failed has no program, so
+   * npg_full_free and every entry point know its arrays do not exist. */
+  f->prog = prog;
   for (int i = 0; i < nd; i++) {
     f->dims[i] = -1;
     f->dim_names[i] = ((Sym *)prog->dims.v[i])->name;
@@ -163,7 +183,7 @@ static int bind_shape(NpgFull *f, const Sym *s, int ndim, const long *shape, con
     if (f->dims[d] < 0) {
       f->dims[d] = shape[i];
       free(f->dim_from[d]);
-      f->dim_from[d] = strdup(from);
+      f->dim_from[d] = npg_strdup(from);
       f->checked = false;
     } else if (f->dims[d] != shape[i]) {
       return fail(f, "dim %s is %ld in %s but %ld in %s", s->dims[i]->name, (long)f->dims[d],
@@ -207,7 +227,7 @@ static size_t count_of(NpgFull *f, const Sym *s) {
 static double *alloc_entries(NpgFull *f, const Sym *s, size_t n) {
   size_t ram = npg_physical_memory();
   bool fits = n < SIZE_MAX / sizeof(double) && (!ram || n * sizeof(double) <= ram);
-  double *p = fits ? calloc(n ? n : 1, sizeof(double)) : NULL;
+  double *p = fits ? npg_calloc(n ? n : 1, sizeof(double)) : NULL;
   if (p) return p;
   /* "real[N, N, 3] with N = 1000000" */
   char shape[512], need[32], have[32];
@@ -243,6 +263,10 @@ static double *alloc_entries(NpgFull *f, const Sym *s, size_t n) {
 /* A param from memory: doubles (int params must hold whole numbers). */
 int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape, const double *values,
                        const char *from) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(from);
+  if (refuse_shape(f, __func__, ndim, shape, values)) return -1;
   if (f->error[0]) return -1;
   int k = find(&f->prog->params, name);
   if (k < 0) return fail(f, "%s: the program has no param '%s'", from, name);
@@ -254,7 +278,7 @@ int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape
   f->params[k] = NULL;
   f->iparams[k] = NULL;
   if (s->is_int) {
-    f->iparams[k] = malloc(sizeof(npg_idx) * (n ? n : 1));
+    f->iparams[k] = npg_malloc(sizeof(npg_idx) * (n ? n : 1));
     if (!f->iparams[k]) return fail(f, "out of memory");
     for (size_t i = 0; i < n; i++) {
       char at[128];
@@ -274,12 +298,14 @@ int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape
     }
   }
   free(f->param_files[k]);
-  f->param_files[k] = strdup(from);
+  f->param_files[k] = npg_strdup(from);
   f->checked = false;
   return 0;
 }
 
 int npg_full_bind_params(NpgFull *f, const char *data_dir) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(data_dir);
   if (f->error[0]) return -1;
   for (int k = 0; k < f->prog->params.n; k++) {
     const Sym *s = f->prog->params.v[k];
@@ -302,7 +328,7 @@ int npg_full_bind_params(NpgFull *f, const char *data_dir) {
                        "only up to 2^53)", path, s->name, v, i);
       }
     }
-    double *v = malloc(sizeof(double) * (a.count ? a.count : 1));
+    double *v = npg_malloc(sizeof(double) * (a.count ? a.count : 1));
     if (!v) {
       npy_free(&a);
       return fail(f, "out of memory");
@@ -320,6 +346,10 @@ int npg_full_bind_params(NpgFull *f, const char *data_dir) {
 }
 
 int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, const double *values, const char *from) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(from);
+  if (refuse_shape(f, __func__, ndim, shape, values)) return -1;
   if (f->error[0]) return -1;
   int k = find(&f->prog->slots, name);
   if (k < 0) {
@@ -343,7 +373,7 @@ int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, cons
       return fail(f, "%s: '%s' holds %s at %s", from, name, values[i] != values[i] ? "NaN" : "an infinity",
                   index_text(f, s, i, at, sizeof at));
   }
-  memcpy(f->q[k], values, sizeof(double) * n);
+  if (n) memcpy(f->q[k], values, sizeof(double) * n); /* values may be NULL when there are none */
   f->fresh[k] = true;
   return 0;
 }
@@ -365,6 +395,8 @@ double *full_extern_values(NpgFull *f, const char *name, size_t n) {
 }
 
 int npg_full_set_extern_fn(NpgFull *f, const char *name, NpgExternFn fn, void *user) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(name);
   if (f->error[0]) return -1;
   int k = find(&f->prog->slots, name);
   const Sym *s = k >= 0 ? f->prog->slots.v[k] : NULL;
@@ -476,7 +508,10 @@ static int evaluate(NpgFull *f, long sample, Demand *d) {
   return 0;
 }
 
-int npg_full_eval(NpgFull *f, long sample) { return evaluate(f, sample, NULL); }
+int npg_full_eval(NpgFull *f, long sample) {
+  REFUSE_NULL_F(-1);
+  return evaluate(f, sample, NULL);
+}
 
 Demand *full_demand(NpgFull *f) {
   if (f->error[0] || !f->plan) return NULL;
@@ -520,7 +555,7 @@ uint64_t full_param_hash(const NpgFull *f, int k, const char **from) {
   if (!f->params[k] && !f->iparams[k]) return 0;
   size_t n = count_of((NpgFull *)f, s);
   if (f->params[k]) return full_hash_values(f->params[k], n);
-  double *v = malloc(sizeof(double) * (n ? n : 1));
+  double *v = npg_malloc(sizeof(double) * (n ? n : 1));
   if (!v) return 0;
   for (size_t i = 0; i < n; i++) v[i] = (double)f->iparams[k][i];
   uint64_t h = full_hash_values(v, n);
@@ -548,6 +583,9 @@ bool full_first_nonfinite(NpgFull *f, const Sym **sym, char *index, size_t len, 
 int full_fail(NpgFull *f, const char *msg) { return fail(f, "%s", msg); }
 
 const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
+  REFUSE_NULL_F(NULL);
+  NPG_REFUSE_NULL(name, NULL, 0, NULL);
+  if (!f->prog) return NULL;
   int k = find(&f->prog->slots, name);
   if (k < 0) return NULL;
   if (count) *count = f->qcount[k];
@@ -555,13 +593,21 @@ const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
 }
 
 long npg_full_dim(const NpgFull *f, const char *name) {
+  REFUSE_NULL_F(-1);
+  NPG_REFUSE_NULL(name, NULL, 0, -1);
+  if (!f->prog) return -1;
   int k = find(&f->prog->dims, name);
   return k < 0 ? -1 : (long)f->dims[k];
 }
 
-void npg_full_clear_error(NpgFull *f) { f->error[0] = 0; }
+/* An evaluator whose construction failed (no program) keeps its error. */
+void npg_full_clear_error(NpgFull *f) {
+  REFUSE_NULL_F();
+  if (f->prog) f->error[0] = 0;
+}
 
 void npg_full_unbind(NpgFull *f) {
+  REFUSE_NULL_F();
   if (!f->prog) return;
   for (int i = 0; i < f->prog->dims.n; i++) {
     f->dims[i] = -1;

@@ -123,9 +123,19 @@ static JitModule *compile_cc(const char *source, char *err, size_t errlen) {
     return NULL;
   }
   const char *tmp = getenv("TMPDIR");
-  snprintf(m->dir, sizeof m->dir, "%s/npg-cc-XXXXXX", tmp && *tmp ? tmp : "/tmp");
+  tmp = tmp && *tmp ? tmp : "/tmp";
+  /* the folder's name, then its files' (the longest "/cc.log" and "gen.so"
+   * paths are built in 512 bytes below) must fit without being cut */
+  if (strlen(tmp) + sizeof "/npg-cc-XXXXXX" > sizeof m->dir) {
+    snprintf(err, errlen, "cannot create a temporary directory in TMPDIR (%.60s...): its path is %zu bytes long, "
+             "more than the cc backend's %zu", tmp, strlen(tmp), sizeof m->dir - sizeof "/npg-cc-XXXXXX");
+    free(m);
+    return NULL;
+  }
+  snprintf(m->dir, sizeof m->dir, "%s/npg-cc-XXXXXX", tmp);
   if (!mkdtemp(m->dir)) {
-    snprintf(err, errlen, "cannot create a temporary directory in %s: %s", tmp && *tmp ? tmp : "/tmp", strerror(errno));
+    snprintf(err, errlen, "cannot create a temporary directory in %s (TMPDIR): %s", tmp, strerror(errno));
+    m->dir[0] = 0;
     free(m);
     return NULL;
   }

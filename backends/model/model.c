@@ -40,7 +40,7 @@ static char *dupf(const char *fmt, ...) {
   va_start(ap, fmt);
   vsnprintf(buf, sizeof buf, fmt, ap);
   va_end(ap);
-  return strdup(buf);
+  return npg_strdup(buf);
 }
 
 /* File stems keep [A-Za-z0-9_.-]. */
@@ -73,7 +73,7 @@ static bool tensor_inputs(const Program *prog, const TensorGroup *g, RTensor *t)
 static char *class_label(const BasisClass *bc) {
   size_t len = 3;
   for (int i = 0; i < bc->members.n; i++) len += strlen(((Sym *)bc->members.v[i])->name) + 1;
-  char *s = malloc(len);
+  char *s = npg_malloc(len);
   if (!s) return NULL;
   strcpy(s, "{");
   for (int i = 0; i < bc->members.n; i++) {
@@ -85,19 +85,19 @@ static char *class_label(const BasisClass *bc) {
 }
 
 Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
-  Model *m = calloc(1, sizeof *m);
+  Model *m = npg_calloc(1, sizeof *m);
   if (!m) goto oom;
   m->prog = prog;
   m->program_hash = model_program_hash(prog);
   m->ndims = prog->dims.n;
-  m->dims = calloc((size_t)m->ndims + 1, sizeof(long));
+  m->dims = npg_calloc((size_t)m->ndims + 1, sizeof(long));
   m->nq = prog->quantities.n;
-  m->qclass = calloc((size_t)m->nq + 1, sizeof(int));
+  m->qclass = npg_calloc((size_t)m->nq + 1, sizeof(int));
   m->nclasses = prog->classes.n;
-  m->classes = calloc((size_t)m->nclasses + 1, sizeof(RClass));
+  m->classes = npg_calloc((size_t)m->nclasses + 1, sizeof(RClass));
   m->nstages = prog->stages.n;
-  m->stages = calloc((size_t)m->nstages + 1, sizeof(RStage));
-  m->externs = calloc((size_t)prog->externs.n + 1, sizeof(RExtern));
+  m->stages = npg_calloc((size_t)m->nstages + 1, sizeof(RStage));
+  m->externs = npg_calloc((size_t)prog->externs.n + 1, sizeof(RExtern));
   if (!m->dims || !m->qclass || !m->classes || !m->stages || !m->externs) goto oom;
   for (int i = 0; i < m->ndims; i++) m->dims[i] = dims[i];
   for (int q = 0; q < m->nq; q++) m->qclass[q] = ((Sym *)prog->quantities.v[q])->klass;
@@ -109,11 +109,11 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
     if (!(rc->label = class_label(bc))) goto oom;
     rc->n = quantity_count(prog, dims, bc->members.v[0]);
     rc->nmembers = bc->members.n + bc->joiners.n;
-    if (!(rc->members = calloc((size_t)rc->nmembers, sizeof(RMember)))) goto oom;
+    if (!(rc->members = npg_calloc((size_t)rc->nmembers, sizeof(RMember)))) goto oom;
     for (int i = 0; i < bc->members.n; i++) {
       const Sym *s = bc->members.v[i];
       rc->members[i].q = emit_index_of(&prog->quantities, s);
-      if (!(rc->members[i].name = strdup(s->name))) goto oom;
+      if (!(rc->members[i].name = npg_strdup(s->name))) goto oom;
       if (quantity_count(prog, dims, s) != rc->n) {
         snprintf(err, errlen, "class %s: '%s' has %ld entries but '%s' has %ld", rc->label, s->name,
                  quantity_count(prog, dims, s), ((Sym *)bc->members.v[0])->name, rc->n);
@@ -148,7 +148,7 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
       continue;
     }
     rs->nterms = st->nterms;
-    if (!(rs->terms = calloc((size_t)st->nterms + 1, sizeof(RTerm)))) goto oom;
+    if (!(rs->terms = npg_calloc((size_t)st->nterms + 1, sizeof(RTerm)))) goto oom;
     const char *sn = st->sym->name;
     for (int t = 0; t < st->nterms; t++) {
       const Term *tm = st->terms[t];
@@ -161,31 +161,31 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
           goto oom;
       } else {
         rt->nnum = tm->num_tensors.n;
-        if (!(rt->num = calloc((size_t)rt->nnum + 1, sizeof(RTensor)))) goto oom;
+        if (!(rt->num = npg_calloc((size_t)rt->nnum + 1, sizeof(RTensor)))) goto oom;
         for (int g = 0; g < rt->nnum; g++) {
           RTensor *rtn = &rt->num[g];
           rtn->kind = RT_NUM;
           if (!tensor_inputs(prog, &tm->num_tensors.g[g], rtn)) goto nobasis;
           rtn->name = file_stem(dupf("t_%s_t%d_f0_g%d", sn, t, g));
-          rtn->builder = strdup(emit_builder_name(prog->ctx, prog, st, t, 0, g, NULL));
+          rtn->builder = npg_strdup(emit_builder_name(prog->ctx, prog, st, t, 0, g, NULL));
           if (!rtn->name || !rtn->builder) goto oom;
         }
       }
       rt->nops = tm->nops;
-      if (!(rt->ops = calloc((size_t)tm->nops + 1, sizeof(ROp)))) goto oom;
+      if (!(rt->ops = npg_calloc((size_t)tm->nops + 1, sizeof(ROp)))) goto oom;
       for (int k = 0; k < tm->nops; k++) {
         ROp *ro = &rt->ops[k];
         const OpPow *op = &tm->ops[k];
         ro->op = op;
         const TensorList *tl = op->kind == OPK_DIAG ? &tm->op_tensors[k] : &op->op->opdef->tensors;
         ro->ntensors = tl->n;
-        if (!(ro->t = calloc((size_t)tl->n + 1, sizeof(RTensor)))) goto oom;
+        if (!(ro->t = npg_calloc((size_t)tl->n + 1, sizeof(RTensor)))) goto oom;
         for (int g = 0; g < tl->n; g++) {
           RTensor *rtn = &ro->t[g];
           rtn->kind = op->kind == OPK_DIAG ? RT_DIAG : RT_DECL;
           if (!tensor_inputs(prog, &tl->g[g], rtn)) goto nobasis;
           rtn->name = file_stem(dupf("t_%s_t%d_op%d_g%d", sn, t, k + 1, g));
-          rtn->builder = strdup(op->kind == OPK_DIAG ? emit_builder_name(prog->ctx, prog, st, t, k + 1, g, NULL)
+          rtn->builder = npg_strdup(op->kind == OPK_DIAG ? emit_builder_name(prog->ctx, prog, st, t, k + 1, g, NULL)
                                                      : emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op));
           if (!rtn->name || !rtn->builder) goto oom;
         }
@@ -228,7 +228,7 @@ void model_free(Model *m) {
       free(rt->proj);
       free(rt->proj_name);
       for (int k = 0; rt->ops && k < rt->nops; k++) {
-        for (int g = 0; g < rt->ops[k].ntensors; g++) free_tensor(&rt->ops[k].t[g]);
+        for (int g = 0; rt->ops[k].t && g < rt->ops[k].ntensors; g++) free_tensor(&rt->ops[k].t[g]);
         free(rt->ops[k].t);
       }
       free(rt->ops);
@@ -324,8 +324,9 @@ static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quanti
 /* The CSV of a member's spectrum: k, σ_k, the energy fraction lost keeping
  * the first k (malloc'd). */
 static char *spectrum_csv(const RMember *mb) {
-  size_t cap = 64 + 80 * (size_t)mb->nsv, len = 0;
-  char *t = malloc(cap);
+  /* the header holds the member's name, of any length; a row at most 80 bytes */
+  size_t cap = 64 + strlen(mb->name) + 80 * (size_t)mb->nsv, len = 0;
+  char *t = npg_malloc(cap);
   if (!t) return NULL;
   double total = 0, run = 0;
   for (long i = 0; i < mb->nsv; i++) total += mb->sv[i] * mb->sv[i];
@@ -430,7 +431,7 @@ static int take(const ModelStore *s, const char *dir, const char *name, long row
              a->ndim > 0 ? a->shape[0] : 0, a->ndim > 1 ? a->shape[1] : 0, rows, cols);
     return -1;
   }
-  *out = malloc(sizeof(double) * (size_t)(rows * cols) + 1);
+  *out = npg_malloc(sizeof(double) * (size_t)(rows * cols) + 1);
   if (!*out) {
     snprintf(err, errlen, "%s/%s.npy: out of memory", dir, name);
     return -1;
@@ -517,10 +518,10 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
   long *dims = NULL;
   if (model_store_read(dir, model_program_hash(prog), &s, err, errlen) != 0) return NULL;
   /* dims */
-  dims = calloc((size_t)prog->dims.n + 1, sizeof(long));
+  dims = npg_calloc((size_t)prog->dims.n + 1, sizeof(long));
   const char *d = model_store_find(&s, "dims");
   if (!dims || !d) {
-    snprintf(err, errlen, "%s/manifest: no 'dims' line", dir);
+    snprintf(err, errlen, !dims ? "out of memory loading %s" : "%s/manifest: no 'dims' line", dir);
     goto fail;
   }
   for (int i = 0; i < prog->dims.n; i++) {
@@ -556,7 +557,7 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
     goto fail;
   }
   const char *ph = model_store_find(&s, "params");
-  if (!(m->param_hashes = strdup(ph))) goto oom;
+  if (!(m->param_hashes = npg_strdup(ph))) goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     char name[64];
@@ -592,7 +593,7 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
           const NpyArray *a = model_store_array(&s, sname);
           free(mb->sv); /* a member named twice: the last line's spectrum */
           mb->sv = NULL, mb->nsv = 0;
-          if (a && a->ndim == 1 && (mb->sv = malloc(sizeof(double) * (a->count + 1)))) {
+          if (a && a->ndim == 1 && (mb->sv = npg_malloc(sizeof(double) * (a->count + 1)))) {
             memcpy(mb->sv, a->data, sizeof(double) * a->count);
             mb->nsv = (long)a->count;
           }

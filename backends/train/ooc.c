@@ -183,8 +183,8 @@ static int plan(Ooc *o) {
   long P = o->avail > w ? (long)((total + (o->avail - w) - 1) / (o->avail - w)) : maxn; /* else a row at a time */
   if (P > maxn) P = maxn;
   if (P < 1) P = 1;
-  o->seg = calloc((size_t)(P * nstreamed) + 1, sizeof(Segment));
-  o->first = calloc((size_t)P + 2, sizeof(long));
+  o->seg = npg_calloc((size_t)(P * nstreamed) + 1, sizeof(Segment));
+  o->first = npg_calloc((size_t)P + 2, sizeof(long));
   if (!o->seg || !o->first) return -1;
   o->npass = 0;
   for (long p = 0; p < P && nstreamed > 0; p++) {
@@ -253,14 +253,14 @@ static int collect(Ooc *o, long p, bool gram) {
     need += (size_t)(o->seg[g].r1 - o->seg[g].r0) * (size_t)S * (size_t)m->classes[o->seg[g].c].nmembers;
   if (need > o->block_cap) {
     free(o->block);
-    if (!(o->block = malloc(sizeof(double) * need))) return o->block_cap = 0, -1;
+    if (!(o->block = npg_malloc(sizeof(double) * need))) return o->block_cap = 0, -1;
     o->block_cap = need;
   }
   double *next = o->block;
   for (long g = o->first[p]; g < o->first[p + 1]; g++) {
     Segment *sg = &o->seg[g];
     RClass *rc = &m->classes[sg->c];
-    if (!(sg->H = calloc((size_t)rc->nmembers, sizeof(double *)))) return -1;
+    if (!(sg->H = npg_calloc((size_t)rc->nmembers, sizeof(double *)))) return -1;
     for (int i = 0; i < rc->nmembers; i++) {
       sg->H[i] = next;
       next += (size_t)(sg->r1 - sg->r0) * (size_t)S;
@@ -301,7 +301,7 @@ static int whole_sweep(Ooc *o) {
     if (train_fail_hook(o->opt, k, o->err, o->errlen)) return -1;
     progress_show(o->opt->progress, "snapshots (whole, out of core)", k + 1, S);
   }
-  double ***X = calloc((size_t)m->nclasses + 1, sizeof(double **));
+  double ***X = npg_calloc((size_t)m->nclasses + 1, sizeof(double **));
   if (!X) return npg_fail(o->err, o->errlen, "out of memory gathering the snapshots");
   for (int c = 0; c < m->nclasses; c++) X[c] = o->st[c].X;
   int rc = dist_gather_snapshots(m, X, S, o->err, o->errlen);
@@ -335,7 +335,7 @@ static int gram_passes(Ooc *o) {
       Segment *sg = &o->seg[g];
       RClass *rc = &o->m->classes[sg->c];
       long R = sg->r1 - sg->r0;
-      double *mu = malloc(sizeof(double) * (size_t)R);
+      double *mu = npg_malloc(sizeof(double) * (size_t)R);
       if (!mu) return -1;
       for (int i = 0; i < rc->nmembers; i++) {
         double *big = &o->st[sg->c].big[i];
@@ -370,8 +370,8 @@ static int eigen(Ooc *o) {
       RMember *mb = &rc->members[i];
       int cap = mb->center ? (mb->cap > 1 ? mb->cap - 1 : 0) : mb->cap;
       long kmax = cap < S ? cap : S;
-      double *G = st->G[i], *lam = malloc(sizeof(double) * (size_t)S);
-      double *W = malloc(sizeof(double) * (size_t)S * (size_t)(kmax ? kmax : 1));
+      double *G = st->G[i], *lam = npg_malloc(sizeof(double) * (size_t)S);
+      double *W = npg_malloc(sizeof(double) * (size_t)S * (size_t)(kmax ? kmax : 1));
       if (!lam || !W) return free(lam), free(W), -1;
       const char *range = pca_gram_out_of_range(S, G, st->big[i]);
       if (range) {
@@ -396,7 +396,7 @@ static int eigen(Ooc *o) {
       mb->captured = total > 0 ? run / total : 1;
       mb->lost = fmax(0, 1 - mb->captured);
       free(mb->sv);
-      if (!(mb->sv = malloc(sizeof(double) * (size_t)S))) return free(lam), free(W), -1;
+      if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)S))) return free(lam), free(W), -1;
       memcpy(mb->sv, s, sizeof(double) * (size_t)S);
       mb->nsv = S;
       for (long j = 0; j < k; j++)
@@ -406,7 +406,7 @@ static int eigen(Ooc *o) {
       st->col[i] = st->K;
       st->K += k + (mb->center ? 1 : 0);
     }
-    if (!(st->C = calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || !(st->A = tmpfile()))
+    if (!(st->C = npg_calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || !(st->A = tmpfile()))
       return npg_fail(o->err, o->errlen, "cannot create a scratch file for the basis of class %s", rc->label);
   }
   return 0;
@@ -447,7 +447,7 @@ static int basis_passes(Ooc *o) {
       size_t need = (size_t)(R * K) + (size_t)R + 1; /* A, then mu: kept from pass to pass as the blocks are */
       if (need > o->abuf_cap) {
         free(o->abuf);
-        if (!(o->abuf = malloc(sizeof(double) * need))) return o->abuf_cap = 0, -1;
+        if (!(o->abuf = npg_malloc(sizeof(double) * need))) return o->abuf_cap = 0, -1;
         o->abuf_cap = need;
       }
       double *A = o->abuf, *mu = o->abuf + R * K;
@@ -492,11 +492,11 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
   double *C = st->C;
   for (long j = 0; j < K; j++) /* the lower triangle from the upper */
     for (long i = j + 1; i < K; i++) C[j * K + i] = C[i * K + j];
-  double *Q = calloc((size_t)(K * K) + 1, sizeof(double)), *tmp = malloc(sizeof(double) * (size_t)(K + 1));
-  double *R = malloc(sizeof(double) * (size_t)(K * K) + 8), *v = malloc(sizeof(double) * (size_t)(K + 1));
-  double *cc = malloc(sizeof(double) * (size_t)(K + 1));
+  double *Q = npg_calloc((size_t)(K * K) + 1, sizeof(double)), *tmp = npg_malloc(sizeof(double) * (size_t)(K + 1));
+  double *R = npg_malloc(sizeof(double) * (size_t)(K * K) + 8), *v = npg_malloc(sizeof(double) * (size_t)(K + 1));
+  double *cc = npg_malloc(sizeof(double) * (size_t)(K + 1));
   long nq = 0;
-  int *kept = calloc((size_t)rc->nmembers + 1, sizeof(int));
+  int *kept = npg_calloc((size_t)rc->nmembers + 1, sizeof(int));
   if (!Q || !tmp || !R || !v || !cc || !kept) goto oom;
   for (int i = 0; i < rc->nmembers; i++) {
     RMember *mb = &rc->members[i];
@@ -554,8 +554,8 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
    * matrix Qᵀ C Q, dropping dependent directions (below 1e-10 σ_max, the
    * SVD's rule; in memory a direction below 1e-6 σ_max sends pca_merge to
    * the SVD, which out of core is not at hand), and one Cholesky-QR */
-  double *Y = malloc(sizeof(double) * (size_t)(K * nq)), *Cq = malloc(sizeof(double) * (size_t)(nq * nq));
-  double *lam = malloc(sizeof(double) * (size_t)nq), *T = NULL;
+  double *Y = npg_malloc(sizeof(double) * (size_t)(K * nq)), *Cq = npg_malloc(sizeof(double) * (size_t)(nq * nq));
+  double *lam = npg_malloc(sizeof(double) * (size_t)nq), *T = NULL;
   long m = 0;
   if (!Y || !Cq || !lam) goto merge_done;
   cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)nq, (int)K, 1.0, C, (int)K, Q, (int)K, 0.0, Y, (int)K);
@@ -563,8 +563,8 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
   if (LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (lapack_int)nq, Cq, (lapack_int)nq, lam) != 0) goto merge_done;
   double s0 = sqrt(fmax(lam[nq - 1], 0));
   while (m < nq && sqrt(fmax(lam[nq - 1 - m], 0)) > 1e-10 * s0) m++;
-  double *Wq = malloc(sizeof(double) * (size_t)(nq * (m ? m : 1)));
-  T = malloc(sizeof(double) * (size_t)(K * (m ? m : 1)));
+  double *Wq = npg_malloc(sizeof(double) * (size_t)(nq * (m ? m : 1)));
+  T = npg_malloc(sizeof(double) * (size_t)(K * (m ? m : 1)));
   if (!Wq || !T) {
     free(Wq);
     goto merge_done;
@@ -574,7 +574,7 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
   cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)m, (int)nq, 1.0, Q, (int)K, Wq, (int)nq, 0.0, T, (int)K);
   free(Wq);
   if (m > 0) { /* Cholesky-QR: Tᵀ C T = RᵀR, T <- T R⁻¹ */
-    double *Yt = malloc(sizeof(double) * (size_t)(K * m));
+    double *Yt = npg_malloc(sizeof(double) * (size_t)(K * m));
     if (!Yt) goto merge_done;
     cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)m, (int)K, 1.0, C, (int)K, T, (int)K, 0.0, Yt, (int)K);
     cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, (int)m, (int)m, (int)K, 1.0, T, (int)K, Yt, (int)K, 0.0, Cq, (int)m);
@@ -657,9 +657,9 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
   long rows = (long)(o->avail / (sizeof(double) * (size_t)(K + m)));
   if (rows < 1) rows = 1;
   if (rows > n) rows = n;
-  double *A = malloc(sizeof(double) * (size_t)(rows * K) + 8), *B = malloc(sizeof(double) * (size_t)(rows * m));
-  double *big = calloc((size_t)m, sizeof(double)), *first = malloc(sizeof(double) * (size_t)m);
-  long *range = malloc(sizeof(long) * (size_t)(2 * o->npass + 2)), nr = range ? own_rows(o, c, range) : 0;
+  double *A = npg_malloc(sizeof(double) * (size_t)(rows * K) + 8), *B = npg_malloc(sizeof(double) * (size_t)(rows * m));
+  double *big = npg_calloc((size_t)m, sizeof(double)), *first = npg_malloc(sizeof(double) * (size_t)m);
+  long *range = npg_malloc(sizeof(long) * (size_t)(2 * o->npass + 2)), nr = range ? own_rows(o, c, range) : 0;
   int bad = !A || !B || !big || !first || !range;
   for (long j = 0; !bad && j < m; j++) first[j] = -HUGE_VAL;
   /* three sweeps over this rank's rows of A: the largest magnitude of every
@@ -727,24 +727,24 @@ int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions 
   long maxn = 1;
   int rc = -1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-  if (!(o.st = calloc((size_t)m->nclasses, sizeof(Stream))) || !(o.tmp = malloc(sizeof(double) * (size_t)maxn)) ||
+  if (!(o.st = npg_calloc((size_t)m->nclasses, sizeof(Stream))) || !(o.tmp = npg_malloc(sizeof(double) * (size_t)maxn)) ||
       plan(&o))
     goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     Stream *st = &o.st[c];
     int r = m->classes[c].nmembers;
     if (!st->streamed) {
-      if (!(st->X = calloc((size_t)r, sizeof(double *)))) goto oom;
+      if (!(st->X = npg_calloc((size_t)r, sizeof(double *)))) goto oom;
       for (int i = 0; i < r; i++)
-        if (!(st->X[i] = malloc(sizeof(double) * (size_t)m->classes[c].n * (size_t)o.S))) goto oom;
+        if (!(st->X[i] = npg_malloc(sizeof(double) * (size_t)m->classes[c].n * (size_t)o.S))) goto oom;
       continue;
     }
-    if (!(st->G = calloc((size_t)r, sizeof(double *))) || !(st->s = calloc((size_t)r, sizeof(double *))) ||
-        !(st->k = calloc((size_t)r, sizeof(long))) || !(st->big = calloc((size_t)r, sizeof(double))) ||
-        !(st->col = calloc((size_t)r, sizeof(long))))
+    if (!(st->G = npg_calloc((size_t)r, sizeof(double *))) || !(st->s = npg_calloc((size_t)r, sizeof(double *))) ||
+        !(st->k = npg_calloc((size_t)r, sizeof(long))) || !(st->big = npg_calloc((size_t)r, sizeof(double))) ||
+        !(st->col = npg_calloc((size_t)r, sizeof(long))))
       goto oom;
     for (int i = 0; i < r; i++)
-      if (!(st->G[i] = calloc((size_t)(o.S * o.S), sizeof(double))) || !(st->s[i] = malloc(sizeof(double) * (size_t)o.S)))
+      if (!(st->G[i] = npg_calloc((size_t)(o.S * o.S), sizeof(double))) || !(st->s[i] = npg_malloc(sizeof(double) * (size_t)o.S)))
         goto oom;
   }
   if (opt->progress) {

@@ -286,26 +286,26 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
   long b, q;
   train_gram_blocks(S, (long)(opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &b, &q);
   int rc = -1;
-  double ***G = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***H = calloc((size_t)m->nclasses + 1, sizeof(double **));
-  double ***Y = calloc((size_t)m->nclasses + 1, sizeof(double **)); /* the batch of later samples */
-  double *lam = malloc(sizeof(double) * (size_t)S), *V = NULL;
+  double ***G = npg_calloc((size_t)m->nclasses + 1, sizeof(double **)), ***H = npg_calloc((size_t)m->nclasses + 1, sizeof(double **));
+  double ***Y = npg_calloc((size_t)m->nclasses + 1, sizeof(double **)); /* the batch of later samples */
+  double *lam = npg_malloc(sizeof(double) * (size_t)S), *V = NULL;
   /* centered members: the shift x₀ and the sum of the shifted snapshots, then their mean */
-  double ***X0 = calloc((size_t)m->nclasses + 1, sizeof(double **)), ***D = calloc((size_t)m->nclasses + 1, sizeof(double **));
-  double **big = calloc((size_t)m->nclasses + 1, sizeof(double *)); /* every member's largest |entry| */
+  double ***X0 = npg_calloc((size_t)m->nclasses + 1, sizeof(double **)), ***D = npg_calloc((size_t)m->nclasses + 1, sizeof(double **));
+  double **big = npg_calloc((size_t)m->nclasses + 1, sizeof(double *)); /* every member's largest |entry| */
   if (!G || !H || !Y || !lam || !X0 || !D || !big) goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(G[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(H[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(X0[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(D[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(Y[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(big[c] = calloc((size_t)rc->nmembers, sizeof(double))))
+    if (!(G[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(H[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(X0[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(D[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(Y[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(big[c] = npg_calloc((size_t)rc->nmembers, sizeof(double))))
       goto oom;
     for (int i = 0; i < rc->nmembers; i++) {
-      if (!(G[c][i] = calloc((size_t)(S * S), sizeof(double))) ||
-          !(H[c][i] = malloc(sizeof(double) * (size_t)(rc->n * b))) ||
-          (q > 0 && !(Y[c][i] = malloc(sizeof(double) * (size_t)(rc->n * q)))))
+      if (!(G[c][i] = npg_calloc((size_t)(S * S), sizeof(double))) ||
+          !(H[c][i] = npg_malloc(sizeof(double) * (size_t)(rc->n * b))) ||
+          (q > 0 && !(Y[c][i] = npg_malloc(sizeof(double) * (size_t)(rc->n * q)))))
         goto oom;
       if (rc->members[i].center &&
-          (!(X0[c][i] = malloc(sizeof(double) * (size_t)rc->n)) || !(D[c][i] = calloc((size_t)rc->n, sizeof(double)))))
+          (!(X0[c][i] = npg_malloc(sizeof(double) * (size_t)rc->n)) || !(D[c][i] = npg_calloc((size_t)rc->n, sizeof(double)))))
         goto oom;
     }
   }
@@ -381,7 +381,7 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
       int k = 0, cap = mb->center ? mb->cap - 1 : mb->cap;
       long kmax = cap < S ? cap : S;
       free(V);
-      if (!(V = malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1))))) goto oom;
+      if (!(V = npg_malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1))))) goto oom;
       int info = pca_top_eigen(S, G[c][i], kmax, lam, V); /* G whole: either layout */
       if (info != 0) {
         npg_fail(err, errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
@@ -403,14 +403,14 @@ static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const T
       }
       mb->lost = fmax(0, 1 - mb->captured);
       free(mb->sv);
-      if (!(mb->sv = malloc(sizeof(double) * (size_t)S))) goto oom;
+      if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)S))) goto oom;
       mb->nsv = S;
       for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
       mb->kept = kk[c][i] = k;
       /* column a of W = V[:, a] / sqrt(λ), kept in G's place (S x k, row-major with leading dimension S) */
       for (long s2 = 0; s2 < S; s2++)
         for (int a = 0; a < k; a++) G[c][i][s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
-      if (!(U[c][i] = calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double)))) goto oom;
+      if (!(U[c][i] = npg_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double)))) goto oom;
     }
   }
   /* pass 2: U += x_s ⊗ W[s, :] */
@@ -493,8 +493,8 @@ static void take_pca(RMember *mb, PcaMember *p) {
  * snapshots, n x S column-major; `pre` (over ranks): the members' PCAs
  * already made (dist_member_pcas), taken over. */
 int train_member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, char *err, size_t errlen) {
-  double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
-  int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
+  double **U = npg_calloc((size_t)rc->nmembers + 1, sizeof(double *));
+  int *kk = npg_calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
   for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
     RMember *mb = &rc->members[i];
     PcaMember p;
@@ -522,9 +522,9 @@ static int joint_basis(RClass *rc, long S, double *const *X, char *err, size_t e
   int r = rc->nmembers, cap = 0, rc_ok = -1;
   bool center = rc->members[0].center;
   double energy = 1;
-  double *J = malloc(sizeof(double) * n * (size_t)r), *mu = malloc(sizeof(double) * (size_t)(rc->n * r + 1));
-  double **parts = calloc((size_t)r + 1, sizeof(double *));
-  int *ks = calloc((size_t)r + 1, sizeof(int));
+  double *J = npg_malloc(sizeof(double) * n * (size_t)r), *mu = npg_malloc(sizeof(double) * (size_t)(rc->n * r + 1));
+  double **parts = npg_calloc((size_t)r + 1, sizeof(double *));
+  int *ks = npg_calloc((size_t)r + 1, sizeof(int));
   PcaMember p = {0};
   if (!J || !mu || !parts || !ks) goto done;
   for (int i = 0; i < r; i++) {
@@ -559,7 +559,7 @@ static int joint_basis(RClass *rc, long S, double *const *X, char *err, size_t e
     mb->captured = 1 - p.lost;
     free(mb->sv);
     mb->nsv = p.nsv;
-    if ((mb->sv = malloc(sizeof(double) * (size_t)(p.nsv + 1)))) memcpy(mb->sv, p.sv, sizeof(double) * (size_t)p.nsv);
+    if ((mb->sv = npg_malloc(sizeof(double) * (size_t)(p.nsv + 1)))) memcpy(mb->sv, p.sv, sizeof(double) * (size_t)p.nsv);
     else rc_ok = -1;
   }
 done:
@@ -584,8 +584,8 @@ static Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src,
     npg_fail(err, errlen, "%s", npg_full_error(f));
     return NULL;
   }
-  long *dims = calloc((size_t)prog->dims.n + 1, sizeof(long));
-  if (!dims) return NULL;
+  long *dims = npg_calloc((size_t)prog->dims.n + 1, sizeof(long));
+  if (!dims) return npg_fail(err, errlen, "out of memory"), NULL;
   for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(f, i);
   Model *m = model_layout(prog, dims, err, errlen);
   free(dims);
@@ -629,18 +629,18 @@ static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const T
                     "--mem or use --merge concat (the method of snapshots)",
                     (double)need / 1e9, (double)opt->mem / 1e9);
   sn->S = S;
-  double *tmp = malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S));
-  if (!tmp || !(sn->X = calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
-      !(sn->U = calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
-      !(sn->k = calloc((size_t)m->nclasses + 1, sizeof(int *))))
+  double *tmp = npg_malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S));
+  if (!tmp || !(sn->X = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->U = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->k = npg_calloc((size_t)m->nclasses + 1, sizeof(int *))))
     goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(sn->X[c] = calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(sn->U[c] = calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn->k[c] = calloc((size_t)rc->nmembers, sizeof(int))))
+    if (!(sn->X[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(sn->U[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn->k[c] = npg_calloc((size_t)rc->nmembers, sizeof(int))))
       goto oom;
     for (int i = 0; !*gram && i < rc->nmembers; i++)
-      if (!(sn->X[c][i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
+      if (!(sn->X[c][i] = npg_malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
   }
   train_mark_spd(m);
   int rc = 0;
@@ -676,7 +676,7 @@ oom:
  * class whose every snapshot is zero (lifting gives 0). */
 int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
   if (full_rank && rc->m < rc->n) {
-    double *eye = calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
+    double *eye = npg_calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
     double *parts[2] = {rc->B, eye};
     int ks[2] = {(int)rc->m, (int)rc->n};
     if (!eye) return npg_fail(err, errlen, "out of memory completing the basis of class %s", rc->label);
@@ -689,7 +689,7 @@ int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
   }
   if (rc->m == 0) {
     free(rc->B);
-    if (!(rc->B = calloc((size_t)rc->n, sizeof(double)))) return npg_fail(err, errlen, "out of memory");
+    if (!(rc->B = npg_calloc((size_t)rc->n, sizeof(double)))) return npg_fail(err, errlen, "out of memory");
     rc->B[0] = 1;
     rc->m = 1;
   }
@@ -754,7 +754,7 @@ static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char 
       RTerm *rt = &rs->terms[t];
       if (rt->proj_name) {
         RClass *cw = &m->classes[m->qclass[rt->named_q]];
-        if (!(rt->proj = malloc(sizeof(double) * (size_t)(cy->m * cw->m))))
+        if (!(rt->proj = npg_malloc(sizeof(double) * (size_t)(cy->m * cw->m))))
           return npg_fail(err, errlen, "out of memory while training");
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0, cy->B,
                     (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
@@ -790,7 +790,7 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
     RExtern *x = &m->externs[i];
     long mz = m->classes[m->qclass[x->q]].m;
     x->S = S;
-    if (!(x->X = calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = calloc((size_t)(S * mz) + 1, sizeof(double))))
+    if (!(x->X = npg_calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = npg_calloc((size_t)(S * mz) + 1, sizeof(double))))
       return npg_fail(err, errlen, "out of memory while training");
   }
   for (long k = rank; k < S && m->nexterns > 0; k += N) {
@@ -898,6 +898,8 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
       fit_externs(m, f, src, &sn, gram, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);
+    /* the steps name what failed; a helper that only returned NULL ran out of memory */
+    if (!err[0]) npg_fail(err, errlen, "out of memory during training");
     return NULL;
   }
   if (opt->progress)
@@ -934,7 +936,7 @@ void train_set_free(TrainSet *ts) {
 
 TrainSet *train_set_new(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
                         size_t errlen) {
-  TrainSet *ts = calloc(1, sizeof *ts);
+  TrainSet *ts = npg_calloc(1, sizeof *ts);
   TrainOptions o = *opt;
   bool gram = false;
   err[0] = 0;
@@ -946,10 +948,10 @@ TrainSet *train_set_new(Program *prog, NpgFull *f, const SampleSource *src, cons
       take_snapshots(ts->base, f, src, &o, &ts->sn, &gram, err, errlen))
     goto fail;
   Model *m = ts->base;
-  if (!(ts->pm = calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
+  if (!(ts->pm = npg_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(ts->pm[c] = calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
+    if (!(ts->pm[c] = npg_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
     for (int i = 0; i < rc->nmembers; i++) {
       RMember *mb = &rc->members[i];
       if (pca_basis(rc->n, ts->sn.S, ts->sn.X[c][i], mb->cap, mb->energy, mb->center, &ts->pm[c][i], err, errlen))
@@ -982,7 +984,7 @@ static int truncated_member(RMember *mb, const PcaMember *p, int cap, int k) {
   mb->lost = total > 0 ? fmax(0, 1 - run / total) : 0;
   mb->captured = 1 - mb->lost;
   mb->nsv = p->nsv;
-  if (!(mb->sv = malloc(sizeof(double) * (size_t)(p->nsv + 1)))) return -1;
+  if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)(p->nsv + 1)))) return -1;
   memcpy(mb->sv, p->sv, sizeof(double) * (size_t)p->nsv);
   return 0;
 }
@@ -998,15 +1000,15 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
       for (int k = 0; k < m->stages[i].terms[t].nops; k++) m->stages[i].terms[t].ops[k].spd = b->stages[i].terms[t].ops[k].spd;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    double **U = calloc((size_t)rc->nmembers + 1, sizeof(double *));
-    int *kk = calloc((size_t)rc->nmembers + 1, sizeof(int)), ok = U && kk;
+    double **U = npg_calloc((size_t)rc->nmembers + 1, sizeof(double *));
+    int *kk = npg_calloc((size_t)rc->nmembers + 1, sizeof(int)), ok = U && kk;
     for (int i = 0; ok && i < rc->nmembers; i++) {
       const PcaMember *p = &ts->pm[c][i];
       RMember *mb = &rc->members[i];
       mb->energy = b->classes[c].members[i].energy;
       mb->center = b->classes[c].members[i].center;
       kk[i] = cap[c] < p->k ? cap[c] : p->k;
-      if (!(U[i] = malloc(sizeof(double) * (size_t)(rc->n * (kk[i] ? kk[i] : 1)))) || truncated_member(mb, p, cap[c], kk[i]))
+      if (!(U[i] = npg_malloc(sizeof(double) * (size_t)(rc->n * (kk[i] ? kk[i] : 1)))) || truncated_member(mb, p, cap[c], kk[i]))
         ok = 0;
       for (long e = 0; ok && e < rc->n; e++) memcpy(U[i] + e * kk[i], p->U + e * p->k, sizeof(double) * (size_t)kk[i]);
     }

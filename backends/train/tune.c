@@ -43,14 +43,14 @@ static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
 static int cache_valid(Search *s, NpgFull *f, const SampleSource *valid, const Model *layout, char *err, size_t errlen) {
   s->v.S = valid->count;
   s->v.nq = layout->nq;
-  if (!(s->v.val = calloc((size_t)valid->count + 1, sizeof(double *))))
+  if (!(s->v.val = npg_calloc((size_t)valid->count + 1, sizeof(double *))))
     return npg_fail(err, errlen, "out of memory for the validation samples");
   long per = 0;
   for (int q = 0; q < layout->nq; q++) per += qsize(layout, q);
   for (long k = 0; k < valid->count; k++) {
     if (valid->set(valid->user, f, k) != 0 || npg_full_eval(f, k) != 0)
       return npg_fail(err, errlen, "validation sample %ld: %s", k, npg_full_error(f));
-    if (!(s->v.val[k] = malloc(sizeof(double) * (size_t)per))) return npg_fail(err, errlen, "out of memory");
+    if (!(s->v.val[k] = npg_malloc(sizeof(double) * (size_t)per))) return npg_fail(err, errlen, "out of memory");
     long off = 0;
     for (int q = 0; q < layout->nq; q++) {
       memcpy(s->v.val[k] + off, npg_full_get(f, ((Sym *)s->prog->quantities.v[q])->name, NULL),
@@ -76,7 +76,7 @@ static int validate(Search *s, Model *m, double *worst, double *floor, char *err
   if (!r) return -1;
   long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-  double *y = malloc(sizeof(double) * (size_t)maxn), *e = calloc((size_t)s->prog->outputs.n + 1, sizeof(double));
+  double *y = npg_malloc(sizeof(double) * (size_t)maxn), *e = npg_calloc((size_t)s->prog->outputs.n + 1, sizeof(double));
   int rc = y && e ? 0 : npg_fail(err, errlen, "out of memory");
   if (floor) memset(floor, 0, sizeof(double) * (size_t)m->nq);
   for (long k = 0; rc == 0 && k < s->v.S; k++) {
@@ -125,13 +125,13 @@ static int trial(Search *s, const int *cap, bool uniform, char *err, size_t errl
   TuneResult *out = s->out;
   for (int t = 0; t < out->ntrials; t++)
     if (memcmp(out->trials[t].cap, cap, sizeof(int) * (size_t)s->nc) == 0) return t;
-  TuneTrial *grown = realloc(out->trials, sizeof *grown * (size_t)(out->ntrials + 1));
+  TuneTrial *grown = npg_realloc(out->trials, sizeof *grown * (size_t)(out->ntrials + 1));
   if (!grown) return npg_fail(err, errlen, "out of memory");
   out->trials = grown;
   TuneTrial *tr = &out->trials[out->ntrials];
   memset(tr, 0, sizeof *tr);
-  tr->cap = malloc(sizeof(int) * (size_t)s->nc);
-  tr->m = malloc(sizeof(long) * (size_t)s->nc);
+  tr->cap = npg_malloc(sizeof(int) * (size_t)s->nc);
+  tr->m = npg_malloc(sizeof(long) * (size_t)s->nc);
   if (!tr->cap || !tr->m) {
     free(tr->cap), free(tr->m);
     return npg_fail(err, errlen, "out of memory");
@@ -161,9 +161,9 @@ int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *val
   out->chosen = out->limiting = -1;
   Search s = {ts, prog, {0}, train_set_classes(ts), NULL, out, progress};
   out->nclasses = s.nc;
-  int *cap = calloc((size_t)s.nc + 1, sizeof(int)), rc = -1;
-  s.maxk = calloc((size_t)s.nc + 1, sizeof(int));
-  out->best_cap = calloc((size_t)s.nc + 1, sizeof(int));
+  int *cap = npg_calloc((size_t)s.nc + 1, sizeof(int)), rc = -1;
+  s.maxk = npg_calloc((size_t)s.nc + 1, sizeof(int));
+  out->best_cap = npg_calloc((size_t)s.nc + 1, sizeof(int));
   Model *layout = NULL;
   double *floor = NULL;
   if (!cap || !s.maxk || !out->best_cap) goto oom;
@@ -185,7 +185,7 @@ int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *val
     /* unmet at the largest caps: the class whose projection floor is worst limits */
     Model *m = train_set_model(ts, cap, err, errlen);
     double worst;
-    if (!m || !(floor = malloc(sizeof(double) * (size_t)m->nq)) || validate(&s, m, &worst, floor, err, errlen)) {
+    if (!m || !(floor = npg_malloc(sizeof(double) * (size_t)m->nq)) || validate(&s, m, &worst, floor, err, errlen)) {
       model_free(m);
       goto done;
     }
@@ -200,9 +200,9 @@ int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *val
     goto done;
   }
   /* 2. each class bisected down, the costliest to grow first */
-  int *order = malloc(sizeof(int) * (size_t)s.nc);
-  double *gain = malloc(sizeof(double) * (size_t)s.nc);
-  long *m1 = malloc(sizeof(long) * (size_t)s.nc);
+  int *order = npg_malloc(sizeof(int) * (size_t)s.nc);
+  double *gain = npg_malloc(sizeof(double) * (size_t)s.nc);
+  long *m1 = npg_malloc(sizeof(long) * (size_t)s.nc);
   if (!order || !gain || !m1) {
     free(order), free(gain), free(m1);
     goto oom;

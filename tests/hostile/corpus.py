@@ -677,7 +677,9 @@ def program_cases():
     prog("binary_garbage", bytes(range(256)) * 4, "prog/binary_garbage.npg:1:1: error: invalid character NUL")
     prog("nul_byte", "input x : real[2]\noutput y = x[0]\0 + x[1]\n", "prog/nul_byte.npg:2:16: error: invalid character NUL")
     prog("invalid_utf8", "input x : real[2]\noutput y = x[0] \xff\xfe\n", "2:17: error: non-ASCII byte 0xc3 in source")
-    prog("long_name", "input " + "x" * 100000 + " : real[2]\noutput y = " + "x" * 100000 + "[0]\n", "", status=0)  # accepted
+    # refused since issue 24: names become file names and manifest lines (a 4,000-character dim name made an unloadable model)
+    prog("long_name", "input " + "x" * 100000 + " : real[2]\noutput y = " + "x" * 100000 + "[0]\n",
+         "error: the name 'xxxxxxxxxxxxxxxxxxxx...' is 100000 characters long (at most 128)")
     prog("long_comment", "#" + "c" * 2000000 + "\n", "the program has no output")
     prog("unterminated_sum", "dim N\ninput x : real[N]\noutput y = sum(k = 0..",
          "error: expected an expression, found end of file")

@@ -174,7 +174,6 @@ static double entry(RefData *d, const Sym *q, Node *const *args, int nargs, cons
 
 static double rpow(double b, long p, long q) {
   if (q == 1) return pow(b, (double)p);
-  if (b < 0 && q % 2 == 1) return -pow(-b, (double)p / (double)q) * ((p % 2) ? 1 : -1);
   return pow(b, (double)p / (double)q);
 }
 

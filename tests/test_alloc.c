@@ -1,0 +1,175 @@
+/* test_alloc.c — allocation failure in training and model loading (issue
+ * 24; STYLE: one allocation hook, Lua's ltests.c). Each allocation of the
+ * library (npg_alloc_hook, ir/ast.h) fails in turn — the first, then the
+ * second, ... — until the whole operation succeeds: every failure must end
+ * in a message that says "out of memory" (never a crash or a quiet NULL),
+ * and, under the sanitizer build, leak nothing (LeakSanitizer at exit).
+ * The program is small (Eq. 3 of the paper) so the count stays bounded.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <execinfo.h>
+
+#include <cmocka.h>
+
+#include "ast.h" /* npg_alloc_hook */
+#include "npg.h"
+
+static const char *eq3 = "input  x : real[2]\n"
+                         "output y = [ (x[0]*x[1] + x[1]^2) / x[0]^2,  x[0]^2 / x[1]^2 ]\n";
+
+enum { SAMPLES = 12, MAX_FAILURES = 20000 };
+
+static long fail_after, calls, current;
+static long trace = -1; /* NPG_ALLOC_TRACE=k: the stack of the k-th allocation's failure on stderr */
+static void *failing_alloc(size_t n) {
+  calls++;
+  if (fail_after-- > 0) return malloc(n);
+  if (trace == current && fail_after == -1) {
+    void *frames[16];
+    backtrace_symbols_fd(frames, backtrace(frames, 16), 2);
+  }
+  return NULL;
+}
+
+static void hook_on(long k) {
+  current = k;
+  fail_after = k;
+  calls = 0;
+  npg_alloc_hook = failing_alloc;
+}
+static void hook_off(void) { npg_alloc_hook = malloc; }
+
+/* A crash must not leave the hook failing for the next test. */
+static int restore_hook(void **state) {
+  (void)state;
+  hook_off();
+  return 0;
+}
+
+static double xs[2 * SAMPLES];
+static char dir[256];
+
+static NpgProgram *program(void) {
+  NpgOptions o = {0};
+  o.source = eq3;
+  NpgProgram *p = npg_compile("eq3.npg", &o);
+  if (!npg_ok(p)) fail_msg("%s", npg_error(p));
+  return p;
+}
+
+/* Train through `f` on SAMPLES samples, writing `model_dir` when non-NULL:
+ * the model, or NULL with the message in `msg`. */
+static NpgModel *train(NpgFull *f, const char *model_dir, const char **msg) {
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  NpgTrainer *t = npg_trainer_new(f, &o);
+  const long shape[1] = {2};
+  NpgModel *m = NULL;
+  int rc = 0;
+  *msg = NULL;
+  for (long k = 0; k < SAMPLES && rc == 0; k++)
+    if (npg_full_set(f, "x", 1, shape, xs + 2 * k, "sample") || npg_full_eval(f, k)) rc = -1, *msg = npg_full_error(f);
+    else if (npg_trainer_add_full(t, f)) rc = -1;
+  if (rc == 0) m = npg_trainer_finish(t, model_dir);
+  static char copy[2048];
+  snprintf(copy, sizeof copy, "%s", *msg ? *msg : npg_trainer_error(t));
+  *msg = copy;
+  npg_trainer_free(t);
+  return m;
+}
+
+/* The evaluator, the trainer, training itself and writing the model: the
+ * k-th allocation fails, for every k until training succeeds. */
+static void training_fails_cleanly(void **state) {
+  (void)state;
+  NpgProgram *p = program();
+  NpgFull *f = npg_full_new(p, NPG_TCC); /* the JIT's own memory is libtcc's */
+  assert_string_equal(npg_full_error(f), "");
+  long k;
+  for (k = 0; k < MAX_FAILURES; k++) {
+    if (trace >= 0) fprintf(stderr, "training, allocation %ld fails\n", k);
+    hook_on(k);
+    const char *msg;
+    NpgModel *m = train(f, dir, &msg);
+    hook_off();
+    if (m) {
+      npg_model_free(m);
+      break;
+    }
+    if (!strstr(msg, "out of memory")) fail_msg("allocation %ld failing: \"%s\"", k, msg);
+    npg_full_clear_error(f);
+    npg_full_unbind(f);
+  }
+  print_message("training: %ld allocations, each failing in turn\n", k);
+  assert_true(k > 20 && k < MAX_FAILURES);
+  npg_full_free(f);
+  npg_free(p);
+}
+
+/* Loading a model, and evaluating with it. */
+static void loading_fails_cleanly(void **state) {
+  (void)state;
+  NpgProgram *p = program();
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  const char *why;
+  NpgModel *trained = train(f, dir, &why);
+  if (!trained) fail_msg("%s", why);
+  npg_model_free(trained);
+  npg_full_free(f);
+  long k;
+  for (k = 0; k < MAX_FAILURES; k++) {
+    if (trace >= 0) fprintf(stderr, "loading, allocation %ld fails\n", k);
+    hook_on(k);
+    NpgModel *m = npg_model_load(p, dir);
+    NpgReduced *r = NULL;
+    const char *msg = npg_model_error(m);
+    double y[2];
+    if (!msg[0]) {
+      r = npg_reduced_new(m);
+      if (!r) msg = npg_reduced_error(NULL); /* "npg_reduced_new: out of memory" */
+      else if (npg_reduced_set(r, "x", 2, xs) || npg_reduced_eval(r, 0) || npg_reduced_lift(r, "y", y, 2))
+        msg = npg_reduced_error(r);
+    }
+    hook_off();
+    bool done = !msg[0];
+    if (!done && !strstr(msg, "out of memory")) fail_msg("allocation %ld failing: \"%s\"", k, msg);
+    npg_reduced_free(r);
+    npg_model_free(m);
+    if (done) break;
+  }
+  print_message("loading and evaluating: %ld allocations, each failing in turn\n", k);
+  assert_true(k > 5 && k < MAX_FAILURES);
+  npg_free(p);
+}
+
+static int setup(void **state) {
+  (void)state;
+  trace = getenv("NPG_ALLOC_TRACE") ? atol(getenv("NPG_ALLOC_TRACE")) : -1;
+  srand(5);
+  for (int i = 0; i < 2 * SAMPLES; i++) xs[i] = 0.5 + (double)rand() / RAND_MAX;
+  snprintf(dir, sizeof dir, "/tmp/npg_test_alloc_%d", (int)getpid());
+  return 0;
+}
+
+static int teardown(void **state) {
+  (void)state;
+  char cmd[600];
+  snprintf(cmd, sizeof cmd, "rm -rf %s %s.*", dir, dir);
+  return system(cmd) == 0 ? 0 : -1;
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test_teardown(training_fails_cleanly, restore_hook),
+      cmocka_unit_test_teardown(loading_fails_cleanly, restore_hook),
+  };
+  return cmocka_run_group_tests(tests, setup, teardown);
+}
