@@ -136,14 +136,14 @@ static void emit_index_check(Emit *e, FILE *out, const Sym *q, int axis, const N
 /* ---------------------------------------------------------------- sparse operators */
 
 /* The innermost statements of one part of a sparse operator's entry: the
- * guard, the coefficient, then the contribution (rows_, cols_, vals_,
+ * guard, the coefficient, then the contribution (rows_, cols_, slot_, vals_,
  * cnt_ of the entries function). */
 static void entry_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, const Sym *op, int d, const void *arg) {
   (void)arg;
   emit_part_guard(e, out, m, d);
   emit_part_coef(e, out, pt, d);
   indent(out, d);
-  fputs("if (rows_) {\n", out);
+  fputs("if (rows_ && cnt_ < cap_) {\n", out);
   indent(out, d + 1);
   fputs("rows_[cnt_] = ", out);
   emit_flat(e, out, op, 0, op->nrow);
@@ -155,7 +155,7 @@ static void entry_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, co
   indent(out, d);
   fputs("}\n", out);
   indent(out, d);
-  fputs("if (vals_) vals_[cnt_] = w_", out);
+  fputs("if (vals_ && cnt_ < cap_) vals_[slot_[cnt_]] += w_", out);
   for (int a = 0; a < m->natoms; a++) {
     fputs(" * ", out);
     emit_atom(e, out, &m->atoms[a]);
@@ -180,7 +180,9 @@ static void check_fixed(Emit *e, FILE *out, const Node *expr, const Sym *op, int
 
 /* The entries of sparse operator `od`, in a fixed order: with rows_ and
  * cols_ their flat row and column, with vals_ their values at this
- * evaluation; the count returned either way (NpgOpEntriesFn). */
+ * evaluation added into the compressed matrix's values at slot_[k] (the
+ * pattern's slot of contribution k), none past the first cap_; the count
+ * returned either way (NpgOpEntriesFn). */
 static void op_entries_cb(Emit *e, FILE *out, const void *arg) {
   const OpDef *od = arg;
   const Poly *p = &od->entries->comp[0];
@@ -209,7 +211,8 @@ static void emit_sparse_ops(Emit *e) {
     if (!od->sparse) continue;
     fprintf(e->out, "/* entries of sparse operator %s (DESIGN §13) */\n", od->sym->name);
     emit_function_sig(e, e->out,
-                      arena_printf(e->ctx, "static npg_idx %s(const NpgCtx *c, npg_idx *rows_, npg_idx *cols_, double *vals_)",
+                      arena_printf(e->ctx, "static npg_idx %s(const NpgCtx *c, npg_idx cap_, npg_idx *rows_, npg_idx *cols_, const npg_idx *slot_, "
+                                   "double *vals_)",
                                    fn_name(e->ctx, "entries_", od->sym)),
                       NULL, op_entries_cb, od);
   }

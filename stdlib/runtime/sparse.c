@@ -50,7 +50,6 @@ struct SparseOp {
   npg_idx n;                /* rows = cols */
   npg_idx ncontrib;         /* contributions per evaluation */
   npg_idx *map;             /* contribution -> slot */
-  double *val;              /* contributions' values */
   SuiteSparse_long *Ap, *Ai;/* CSC pattern, nnz = Ap[n] */
   double *Ax;
   npg_idx *transpose;       /* slot of (j, i) for slot (i, j), -1 if absent */
@@ -71,7 +70,6 @@ static void op_clear(SparseOp *s) {
   if (s->cc_started) cholmod_l_finish(&s->cc);
   if (s->symbolic) umfpack_dl_free_symbolic(&s->symbolic);
   free(s->map);
-  free(s->val);
   free(s->Ap);
   free(s->Ai);
   free(s->Ax);
@@ -117,21 +115,20 @@ static void order_by(const npg_idx *key, const npg_idx *in, npg_idx *out, npg_id
  * duplicates merged. */
 static int build_pattern(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, npg_idx n,
                          NpgOpEntriesFn entries) {
-  npg_idx count = entries(c, NULL, NULL, NULL);
+  npg_idx count = entries(c, 0, NULL, NULL, NULL, NULL);
   size_t m = (size_t)(count ? count : 1);
   npg_idx *rows = npg_malloc(sizeof(npg_idx) * m), *cols = npg_malloc(sizeof(npg_idx) * m);
   npg_idx *a = npg_calloc(m, sizeof(npg_idx)), *b = npg_malloc(sizeof(npg_idx) * m); /* calloc: gcc cannot see a[] is written first */
   npg_idx *start = npg_malloc(sizeof(npg_idx) * (size_t)(n + 1));
   s->map = npg_malloc(sizeof(npg_idx) * m);
-  s->val = npg_malloc(sizeof(double) * m);
   s->Ap = npg_malloc(sizeof(SuiteSparse_long) * (size_t)(n + 1));
   int rc = -1;
-  if (!rows || !cols || !a || !b || !start || !s->map || !s->val || !s->Ap) {
+  if (!rows || !cols || !a || !b || !start || !s->map || !s->Ap) {
     runtime_record(c, "sample %ld: out of memory assembling operator %s of stage '%s' (%ld entries)", c->sample, op,
                    stage, (long)count);
     goto done;
   }
-  if (entries(c, rows, cols, NULL) != count) {
+  if (entries(c, count, rows, cols, NULL, NULL) != count) {
     runtime_record(c, "sample %ld: operator %s: its entries changed between two enumerations (a bug in npg)", c->sample,
                    op);
     goto done;
@@ -190,16 +187,14 @@ done:
   return 0;
 }
 
-/* Ax from this evaluation's contributions; non-finite entries refused. */
+/* Ax from this evaluation's contributions, each added into its slot by
+ * the generated enumerator; non-finite entries refused. */
 static int fill_values(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, NpgOpEntriesFn entries) {
-  npg_idx count = entries(c, NULL, NULL, s->val);
-  if (count != s->ncontrib) {
+  memset(s->Ax, 0, sizeof(double) * (size_t)s->Ap[s->n]);
+  if (entries(c, s->ncontrib, NULL, NULL, s->map, s->Ax) != s->ncontrib) {
     runtime_record(c, "sample %ld: operator %s: its entries changed between two enumerations (a bug in npg)", c->sample, op);
     return -1;
   }
-  npg_idx nnz = s->Ap[s->n];
-  memset(s->Ax, 0, sizeof(double) * (size_t)nnz);
-  for (npg_idx k = 0; k < count; k++) s->Ax[s->map[k]] += s->val[k];
   for (npg_idx j = 0; j < s->n; j++)
     for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++)
       if (!isfinite(s->Ax[p])) {
