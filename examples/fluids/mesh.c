@@ -2,6 +2,7 @@
  * its deformation (see mesh.h). */
 #include "util.h"
 #include "mesh.h"
+#include "gmshread.h"
 
 #include <gmshc.h>
 #include <math.h>
@@ -13,6 +14,10 @@
 
 TunnelSpec tunnel_spec_default(void) {
   return (TunnelSpec){.L = 4.0, .H = 1.0, .cx = 1.0, .cy = 0.48, .size = 0.3, .cells = 2000};
+}
+
+double tunnel_obstacle_scale(double scale, double pulse, double period, int frame) {
+  return scale + pulse * sin(2 * M_PI * frame / period);
 }
 
 void mesh_free(Mesh *m) {
@@ -130,77 +135,22 @@ static int gmsh_build(const TunnelSpec *s, double h, int *ierr) {
   return *ierr;
 }
 
-typedef struct RawMesh {
-  int nv, nc;
-  double *xy;
-  int *tri;
-} RawMesh;
+typedef struct TunnelBuild {
+  const TunnelSpec *s;
+  double h;
+} TunnelBuild;
+
+static int build_tunnel(const void *ctx, int *ierr) {
+  const TunnelBuild *b = ctx;
+  return gmsh_build(b->s, b->h, ierr);
+}
 
 static int gmsh_mesh(const TunnelSpec *s, RawMesh *raw, char *err, size_t errlen) {
-  int ierr = 0;
-  gmshInitialize(0, NULL, 0, &ierr);
-  if (ierr) return util_fail(err, errlen, "gmsh: initialization failed");
-  gmshOptionSetNumber("General.Terminal", 0, &ierr);
-  gmshOptionSetNumber("General.Verbosity", 0, &ierr);
-  gmshModelAdd("tunnel", &ierr);
   double area = s->L * s->H - sqrt(3.0) / 4 * s->size * s->size;
   /* equilateral cells of the mean area, a little larger: the obstacle is
    * meshed twice as fine and gmsh overshoots the count by about a third */
-  double h = 1.15 * sqrt(4.0 * area / (sqrt(3.0) * s->cells));
-  int rc = 0;
-  size_t *ntags = NULL, *etags = NULL, *enodes = NULL, nn = 0, ne = 0, nen = 0, ncoord = 0, npar = 0;
-  double *coord = NULL, *par = NULL;
-  if (gmsh_build(s, h, &ierr) != 0) {
-    rc = util_fail(err, errlen, "gmsh: building the tunnel geometry failed (code %d)", ierr);
-    goto done;
-  }
-  gmshModelMeshGenerate(2, &ierr);
-  if (ierr) {
-    rc = util_fail(err, errlen, "gmsh: meshing failed (code %d)", ierr);
-    goto done;
-  }
-  gmshModelMeshGetNodes(&ntags, &nn, &coord, &ncoord, &par, &npar, -1, -1, 0, 0, &ierr);
-  gmshModelMeshGetElementsByType(2, &etags, &ne, &enodes, &nen, -1, 0, 1, &ierr);
-  if (ierr || nn == 0 || ne == 0 || nen != 3 * ne) {
-    rc = util_fail(err, errlen, "gmsh: no triangles (code %d)", ierr);
-    goto done;
-  }
-  /* Node tags -> dense indices of the nodes triangles use. */
-  size_t maxtag = 0;
-  for (size_t i = 0; i < nn; i++)
-    if (ntags[i] > maxtag) maxtag = ntags[i];
-  int *index = malloc((maxtag + 1) * sizeof *index);
-  long *where = malloc((maxtag + 1) * sizeof *where);
-  for (size_t i = 0; i <= maxtag; i++) index[i] = -1, where[i] = -1;
-  for (size_t i = 0; i < nn; i++) where[ntags[i]] = (long)i;
-  raw->nc = (int)ne;
-  raw->tri = malloc(3 * ne * sizeof *raw->tri);
-  raw->xy = malloc(2 * nn * sizeof *raw->xy);
-  raw->nv = 0;
-  for (size_t i = 0; i < 3 * ne && rc == 0; i++) {
-    size_t t = enodes[i];
-    if (t > maxtag || where[t] < 0) {
-      rc = util_fail(err, errlen, "gmsh: triangle %zu uses unknown node %zu", i / 3, t);
-      break;
-    }
-    if (index[t] < 0) {
-      index[t] = raw->nv;
-      raw->xy[2 * raw->nv] = coord[3 * where[t]];
-      raw->xy[2 * raw->nv + 1] = coord[3 * where[t] + 1];
-      raw->nv++;
-    }
-    raw->tri[i] = index[t];
-  }
-  free(index);
-  free(where);
-done:
-  gmshFree(ntags);
-  gmshFree(coord);
-  gmshFree(par);
-  gmshFree(etags);
-  gmshFree(enodes);
-  gmshFinalize(&ierr);
-  return rc;
+  TunnelBuild b = {s, 1.15 * sqrt(4.0 * area / (sqrt(3.0) * s->cells))};
+  return gmsh_read("tunnel", 2, build_tunnel, &b, raw, err, errlen);
 }
 
 /* ---------------------------------------------------------------- topology */
@@ -235,12 +185,12 @@ static int match_periodic(const RawMesh *raw, const TunnelSpec *s, int *master, 
   int nl = 0, rc = 0;
   for (int v = 0; v < raw->nv; v++) {
     master[v] = v;
-    if (fabs(raw->xy[2 * v]) < tol) left[nl++] = (YKey){raw->xy[2 * v + 1], v};
+    if (fabs(raw->x[2 * v]) < tol) left[nl++] = (YKey){raw->x[2 * v + 1], v};
   }
   qsort(left, nl, sizeof *left, cmp_y);
   for (int v = 0; v < raw->nv && rc == 0; v++) {
-    if (fabs(raw->xy[2 * v] - s->L) >= tol) continue;
-    double y = raw->xy[2 * v + 1];
+    if (fabs(raw->x[2 * v] - s->L) >= tol) continue;
+    double y = raw->x[2 * v + 1];
     int lo = 0, hi = nl;
     while (lo < hi) {
       int mid = (lo + hi) / 2;
@@ -261,8 +211,8 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
   const TunnelSpec *s = &m->spec;
   m->nv = raw->nv;
   m->nc = raw->nc;
-  m->g0 = raw->xy;
-  m->cell = raw->tri;
+  m->g0 = raw->x;
+  m->cell = raw->cell;
   /* counter-clockwise cells */
   for (int c = 0; c < m->nc; c++)
     if (mesh_volume(m, m->g0, c) < 0) {
@@ -359,8 +309,7 @@ int mesh_tunnel(Mesh *m, const TunnelSpec *spec, char *err, size_t errlen) {
                 spec->size, spec->cx, spec->cy, spec->L, spec->H);
   RawMesh raw = {0};
   if (gmsh_mesh(spec, &raw, err, errlen) != 0) {
-    free(raw.xy);
-    free(raw.tri);
+    gmsh_raw_free(&raw);
     return -1;
   }
   if (build_topology(m, &raw, err, errlen) != 0) {

@@ -68,6 +68,9 @@ typedef struct Mesh {
 /* The default tunnel of the example: L 4, H 1, obstacle at (1, 0.48) (a
  * little below the centre line, so the wake is not symmetric). */
 TunnelSpec tunnel_spec_default(void);
+/* The obstacle's scale at frame `frame` of a run pulsing about `scale`:
+ * scale + pulse sin(2 pi frame / period) (paper §7.1, Fig. 5's runs). */
+double tunnel_obstacle_scale(double scale, double pulse, double period, int frame);
 
 /* Mesh `spec` with gmsh (initialized and finalized inside) and build the
  * topology. 0 on success; otherwise -1 with the reason in `err` and `m`

@@ -407,10 +407,6 @@ static void test_cavity_projection_reuse(void **state) {
   cavity_free(&cv);
 }
 
-static void lift(const double *B, long n, long k, const double *x, double *out) {
-  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)k, 1.0, B, (int)k, x, 1, 0.0, out, 1);
-}
-
 static void test_cavity_reduced_step(void **state) {
   (void)state;
   Cavity cv = cavity_of(150);
@@ -466,7 +462,7 @@ static void test_cavity_reduced_step(void **state) {
   {
     double *gl = malloc(ng * sizeof *gl), *V = malloc(R.mu * R.mu * sizeof *V), worst_v = 0, big = 0;
     red_project_g(&R, G + 30 * ng, R.g);
-    lift(R.Bg, ng, R.mg, R.g, gl);
+    red_lift(R.Bg, ng, R.mg, R.g, gl);
     red_volume(&R, R.g, V);
     for (long a = 0; a < R.mu; a++)
       for (long b = 0; b < R.mu; b++) {
@@ -492,8 +488,8 @@ static void test_cavity_reduced_step(void **state) {
     red_project_f(&R, Fx + t * nf, R.f);
     red_project_u(&R, R.g, pv, R.u);
     memcpy(probe.g, G + t * ng, ng * sizeof *G);
-    lift(R.Bf, nf, R.mf, R.f, probe.f);
-    lift(R.Bu, nu, R.mu, R.u, probe.u);
+    red_lift(R.Bf, nf, R.mf, R.f, probe.f);
+    red_lift(R.Bu, nu, R.mu, R.u, probe.u);
     if (solver_step_to(&probe, G + (t + 1) * ng, err, sizeof err) != 0) fail_msg("%s", err);
     /* ... and the reduced step from the same state */
     red_project_g(&R, G + (t + 1) * ng, gn);
