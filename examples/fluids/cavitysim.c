@@ -21,6 +21,7 @@
 #include "npgbind.h"
 #include "output.h"
 #include "particles.h"
+#include "chart.h"
 #include "plot.h"
 #include "reduced.h"
 #include "report.h"
@@ -238,7 +239,7 @@ static int training_run(Training *tg, int r, double *min_quality, double *second
   long ng = 3L * m->nv, nf = m->nf, nu = 3L * m->nc;
   double *g = malloc(ng * sizeof *g), *g0 = malloc(ng * sizeof *g0), *f0 = malloc(nf * sizeof *f0);
   double *u0 = malloc(nu * sizeof *u0), t_def = 0;
-  const double zero[3] = {0, 0, 0};
+  const double zero[3] = {0};
   FullSolver s;
   if (!g || !g0 || !f0 || !u0) {
     fprintf(stderr, "npg-fluids: training run %d: out of memory\n", r + 1);
@@ -644,7 +645,7 @@ static int replay_trajectory(CavityRun *r) {
 static int set_up_test(CavityRun *r) {
   const CavityOptions *o = &r->o;
   const Mesh *m = r->m;
-  const double zero[3] = {0, 0, 0};
+  const double zero[3] = {0};
   r->t_deform = 0;
   if (deform_at(&r->cv, -1, 0, r->T, r->g, &r->t_deform, r->err, sizeof r->err) != 0 ||
       solver_init_at(&r->s, m, o->projection, r->mu, o->dt, r->g, zero, r->err, sizeof r->err) != 0 ||
@@ -922,17 +923,18 @@ static int plots(CavityRun *r) {
   int T = r->T;
   char path[4096], p2[4096];
   for (int t = 0; t <= T; t++) r->frame_axis[t] = t;
-  const double *xs[2] = {r->frame_axis + 1, r->frame_axis + 1}, *ys[2] = {r->err_traj + 1, r->err_basis + 1},
-               *ys2[1] = {r->err_step + 1};
-  const char *lab[2] = {"reduced vs full", "the full state projected onto B_u"};
-  const char *lab2[1] = {"one step from the projected full state"};
-  int npt[2] = {T, T};
+  bool dots = T <= 40;
+  ChartSeries traj[2] = {{"reduced vs full", T, r->frame_axis + 1, r->err_traj + 1, -1, false, dots},
+                         {"the full state projected onto B_u", T, r->frame_axis + 1, r->err_basis + 1, -1, false, dots}};
+  ChartSeries step = {"one step from the projected full state", T, r->frame_axis + 1, r->err_step + 1, -1, false, dots};
+  Chart c1 = {.title = "cavity test sequence: reduced trajectory error (energy, relative)", .xlabel = "frame",
+              .ylabel = "E(u - B_u û) / E(u)", .logy = true, .nseries = 2, .series = traj};
+  Chart c2 = {.title = "cavity test sequence: one-step error (energy, relative)", .xlabel = "frame",
+              .ylabel = "E(u - B_u û) / E(u)", .logy = true, .nseries = 1, .series = &step};
   snprintf(path, sizeof path, "%s/trajectory_error.png", r->dplots);
   snprintf(p2, sizeof p2, "%s/onestep_error.png", r->dplots);
-  if (plot_lines(path, "cavity test sequence: reduced trajectory error (energy, relative)", "frame",
-                 "E(u - B_u û) / E(u)", 2, npt, xs, ys, lab, 1, r->err, sizeof r->err) != 0 ||
-      plot_lines(p2, "cavity test sequence: one-step error (energy, relative)", "frame", "E(u - B_u û) / E(u)", 1,
-                 npt, xs, ys2, lab2, 1, r->err, sizeof r->err) != 0) {
+  if (chart_png(&c1, path, PLOT_WIDTH, PLOT_HEIGHT, r->err, sizeof r->err) != 0 ||
+      chart_png(&c2, p2, PLOT_WIDTH, PLOT_HEIGHT, r->err, sizeof r->err) != 0) {
     fprintf(stderr, "npg-fluids: %s\n", r->err);
     return 1;
   }
@@ -1058,7 +1060,7 @@ static void release(CavityRun *r) {
   free(r->quality), free(r->divergence), free(r->err_traj), free(r->err_step), free(r->err_basis);
   free(r->step_times), free(r->frame_axis), free(r->traj_g), free(r->traj_gd);
   if (r->mesh_ok) cavity_free(&r->cv);
-  plot_cleanup();
+  chart_cleanup();
 }
 
 int cavity_run(const CavityOptions *o) {

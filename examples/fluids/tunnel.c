@@ -19,6 +19,7 @@
 #include "npgbind.h"
 #include "output.h"
 #include "particles.h"
+#include "chart.h"
 #include "plot.h"
 #include "reduced.h"
 #include "report.h"
@@ -553,44 +554,33 @@ static int bench_reduced_step(TunnelRun *r) {
 static int plots(TunnelRun *r) {
   int K = r->K, T = r->T;
   char path[4096];
-  double **xs = malloc(K * sizeof *xs), **ys = malloc(K * sizeof *ys);
-  char **labels = malloc(K * sizeof *labels);
-  int *ns = malloc(K * sizeof *ns);
+  double *frame = malloc((T + 1) * sizeof *frame), *mx = malloc(K * sizeof *mx);
+  ChartSeries *se = calloc(K, sizeof *se);
+  char(*labels)[64] = malloc(K * sizeof *labels);
+  for (int t = 0; t <= T; t++) frame[t] = t;
   for (int i = 0; i < K; i++) {
-    xs[i] = malloc(T * sizeof(double));
-    ys[i] = r->err_onestep + (size_t)i * T;
-    for (int t = 0; t < T; t++) xs[i][t] = t;
-    ns[i] = T;
-    labels[i] = malloc(64);
-    snprintf(labels[i], 64, "m_u %ld, m_f %ld", r->msz[i][0], r->msz[i][1]);
+    snprintf(labels[i], sizeof *labels, "m_u %ld, m_f %ld", r->msz[i][0], r->msz[i][1]);
+    se[i] = (ChartSeries){labels[i], T, frame, r->err_onestep + (size_t)i * T, -1, false, T <= 40};
+    mx[i] = (double)r->msz[i][0];
   }
+  Chart c = {.title = "one-step error E(u_ground - u_test) / E(u_ground), test (medium obstacle)", .xlabel = "frame",
+             .ylabel = "relative one-step error", .logy = true, .nseries = K, .series = se};
   snprintf(path, sizeof path, "%s/onestep_error.png", r->dplots);
-  int e1 = plot_lines(path, "one-step error E(u_ground - u_test) / E(u_ground), test (medium obstacle)", "frame",
-                      "relative one-step error", K, ns, (const double *const *)xs, (const double *const *)ys,
-                      (const char *const *)labels, 1, r->err, sizeof r->err);
-  double *mx = malloc(K * sizeof *mx);
-  for (int i = 0; i < K; i++) mx[i] = (double)r->msz[i][0];
-  int one = K;
-  const char *lab = "time average";
+  int e1 = chart_png(&c, path, PLOT_WIDTH, PLOT_HEIGHT, r->err, sizeof r->err);
+  ChartSeries avg = {"time average", K, mx, r->err_avg, -1, false, K <= 40};
+  c = (Chart){.title = "time-averaged one-step error against basis size",
+              .xlabel = "m_u, the velocity class's basis size", .ylabel = "time-averaged one-step error", .logy = true,
+              .nseries = 1, .series = &avg};
   snprintf(path, sizeof path, "%s/onestep_error_average.png", r->dplots);
-  int e2 = e1 ? -1
-              : plot_lines(path, "time-averaged one-step error against basis size", "m_u, the velocity class's basis size",
-                           "time-averaged one-step error", 1, &one, (const double *const *)&mx,
-                           (const double *const *)&r->err_avg, &lab, 1, r->err, sizeof r->err);
+  int e2 = e1 ? -1 : chart_png(&c, path, PLOT_WIDTH, PLOT_HEIGHT, r->err, sizeof r->err);
   if (e1 || e2) fprintf(stderr, "npg-fluids: %s\n", r->err);
-  for (int i = 0; i < K; i++) free(xs[i]), free(labels[i]);
-  free(xs), free(ys), free(labels), free(ns), free(mx);
-  /* energies */
-  double *tx = malloc((T + 1) * sizeof *tx);
-  for (int t = 0; t <= T; t++) tx[t] = t;
-  int n2[2] = {T + 1, T + 1};
-  const double *x2[2] = {tx, tx}, *y2[2] = {r->e_full, r->e_red};
-  const char *l2[2] = {"full", "reduced (largest basis)"};
+  ChartSeries en[2] = {{"full", T + 1, frame, r->e_full, -1, false, T + 1 <= 40},
+                       {"reduced (largest basis)", T + 1, frame, r->e_red, -1, false, T + 1 <= 40}};
+  c = (Chart){.title = "energy 1/2 u^T V(g) u of the test runs", .xlabel = "frame", .ylabel = "energy",
+              .nseries = 2, .series = en};
   snprintf(path, sizeof path, "%s/energy.png", r->dplots);
-  if (plot_lines(path, "energy 1/2 u^T V(g) u of the test runs", "frame", "energy", 2, n2, x2, y2, l2, 0, r->err,
-                 sizeof r->err) != 0)
-    fprintf(stderr, "npg-fluids: %s\n", r->err);
-  free(tx);
+  if (chart_png(&c, path, PLOT_WIDTH, PLOT_HEIGHT, r->err, sizeof r->err) != 0) fprintf(stderr, "npg-fluids: %s\n", r->err);
+  free(frame), free(mx), free(se), free(labels);
   return 0;
 }
 
@@ -744,7 +734,7 @@ static void release(TunnelRun *r) {
   if (r->fe) npg_full_free(r->fe);
   if (r->prog) npg_free(r->prog);
   if (r->mesh_ok) mesh_free(&r->m);
-  plot_cleanup();
+  chart_cleanup();
 }
 
 int tunnel_run(const TunnelOptions *o) {

@@ -13,6 +13,7 @@
 #include "npgbind.h"
 #include "output.h"
 #include "particles.h"
+#include "chart.h"
 #include "plot.h"
 #include "report.h"
 #include "solver.h"
@@ -342,7 +343,7 @@ static void release(FullRun *r) {
   particles_free(&r->part);
   if (r->solver_ok) solver_free(&r->s);
   if (r->mesh_ok) mesh_free(&r->m);
-  plot_cleanup(); /* the frames' colour bars (cairo, fontconfig) */
+  chart_cleanup(); /* the frames' colour bars (cairo, fontconfig) */
 }
 
 int tunnel_full_run(const TunnelFullOptions *o) {

@@ -17,6 +17,7 @@
 #include "dense.h"
 #include "fmm.h"
 #include "kernel.h"
+#include "chart.h"
 #include "npg.h"
 #include "rooms.h"
 #include "octree.h"
@@ -586,6 +587,6 @@ int main(int argc, char **argv) {
   }
   if (parse_options(argc, argv, &o)) return 2;
   int rc = !strcmp(argv[1], "demo") ? demo(&o) : sweep(&o);
-  render_shutdown();
+  chart_cleanup(); /* cairo's and fontconfig's caches */
   return rc;
 }

@@ -25,8 +25,5 @@ typedef struct PlotSeries {
 int render_plot(const char *path, const char *title, const char *xlabel, const char *ylabel, int logx,
                 const PlotSeries *series, int nseries);
 
-/* Release cairo's and fontconfig's caches at exit (the text of the plots), so a leak
- * checker sees only the program's own allocations; no rendering after it. */
-void render_shutdown(void);
 
 #endif

@@ -21,6 +21,7 @@
 #include "animation.h"
 #include "commands.h"
 #include "frame.h"
+#include "chart.h"
 #include "npg.h"
 #include "output.h"
 #include "plot.h"
@@ -464,6 +465,6 @@ int main(int argc, char **argv) {
     fprintf(stderr, "npg-radiosity: unknown command '%s'\n", argv[1]);
     usage(stderr);
   }
-  render_shutdown();
+  chart_cleanup(); /* cairo's and fontconfig's caches */
   return rc;
 }
