@@ -97,7 +97,7 @@ int cmd_train(const Options *o) {
   TrainTimes t;
   int rc = 1;
   snprintf(path, sizeof path, "%s/MODEL", o->out);
-  if (out_mkdirs(o->out) || train(o, &s, &r, &t, path)) goto done;
+  if (report_make_dir("npg-radiosity", o->out) || train(o, &s, &r, &t, path)) goto done;
   snprintf(path, sizeof path, "%s/train.json", o->out);
   FILE *js = fopen(path, "w");
   if (!js) goto done;
@@ -190,7 +190,7 @@ int cmd_run(const Options *o) {
       if (o->out) {
         snprintf(path, sizeof path, "%s/%s/frame_%04d", o->out, animation_name(a), k);
         long sb[1] = {s.F};
-        if (out_mkdirs(path) || out_npy(path, "b_reduced", 1, sb, b)) goto done;
+        if (report_make_dir("npg-radiosity", path) || out_npy(path, "b_reduced", 1, sb, b)) goto done;
       }
     }
   double split[3];
@@ -291,7 +291,7 @@ int cmd_demo(const Options *o) {
 
   /* 1. the scene and the model */
   snprintf(model_dir, sizeof model_dir, "%s/MODEL", o->out);
-  if (out_mkdirs(o->out) || out_scene_arrays(o->out, &s) || train(o, &s, &r, &tt, model_dir)) goto done;
+  if (report_make_dir("npg-radiosity", o->out) || out_scene_arrays(o->out, &s) || train(o, &s, &r, &tt, model_dir)) goto done;
 
   /* 2. both animations, full and reduced */
   if (frame_new(&fr, &s, o->k, o->threads, VIS_STREAM, SOLVER_GMRES, err, sizeof err) ||
@@ -339,7 +339,7 @@ int cmd_demo(const Options *o) {
       char dir[4096];
       snprintf(dir, sizeof dir, "%s/%s/frame_%04d", o->out, animation_name(a), k);
       long sg[2] = {s.V, 3}, sv[2] = {F, F}, sb[1] = {F};
-      if (out_mkdirs(dir) || out_npy(dir, "g", 2, sg, s.g) || out_npy(dir, "v", 2, sv, fr.v) ||
+      if (report_make_dir("npg-radiosity", dir) || out_npy(dir, "g", 2, sg, s.g) || out_npy(dir, "v", 2, sv, fr.v) ||
           out_npy(dir, "b_full", 1, sb, fr.b) || out_npy(dir, "b_reduced", 1, sb, bt) ||
           out_npy(dir, "b_reduced_given_v", 1, sb, bv) || out_npy(dir, "e", 1, sb, s.e))
         goto done;
@@ -392,12 +392,9 @@ int cmd_demo(const Options *o) {
   double med_full = out_median(&SER(S_FULL_TOTAL, 0), n), med_red = finite_median(&SER(S_REDUCED, 0), n);
   double med_err = finite_median(&SER(S_TOTAL, 0), n), max_err = 0;
   for (int i = 0; i < n; i++) max_err = fmax(max_err, SER(S_TOTAL, i)); /* fmax skips NaN */
-  snprintf(path, sizeof path, "%s/report.json", o->out);
-  FILE *js = fopen(path, "w");
-  if (!js) {
-    fail("cannot write report.json");
-    goto done;
-  }
+  Report rep;
+  if (report_open(&rep, "npg-radiosity", o->out) != 0) goto done;
+  FILE *js = rep.f;
   fprintf(js, "{\n  \"faces\": %ld,\n  \"vertices\": %ld,\n  \"threads_full\": %d,\n  \"threads_reduced\": 1,\n", F,
           s.V, o->threads);
   fprintf(js, "  \"visibility_points_per_face\": %d,\n  \"frames_per_animation\": %d,\n", o->k, K);
@@ -420,11 +417,11 @@ int cmd_demo(const Options *o) {
   fprintf(js, "  \"per_frame\": {\n");
   for (int a = 0; a < ANIM_COUNT; a++) {
     fprintf(js, "    \"%s\": {", animation_name(a));
-    for (int q = 0; q < NSERIES; q++) out_json_array(js, series_name[q], &SER(q, a * K), K, q + 1 < NSERIES ? ", " : "");
+    for (int q = 0; q < NSERIES; q++) report_json_array(js, "", series_name[q], &SER(q, a * K), K, 6, q + 1 < NSERIES ? ", " : "");
     fprintf(js, "}%s\n", a + 1 < ANIM_COUNT ? "," : "");
   }
   fprintf(js, "  }\n}\n");
-  if (fclose(js) != 0) goto done;
+  if (report_commit(&rep, "npg-radiosity") != 0) goto done;
   printf("error over %d frames: median %.2f%%, max %.2f%% (relative L2 of b); bound %s on every frame\n", n - failures,
          100 * med_err, 100 * max_err, bound_fail ? "FAILS" : "holds");
   if (failures) printf("%d frames failed in reduced space (above)\n", failures);
