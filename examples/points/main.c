@@ -23,7 +23,7 @@
 #include "octree.h"
 #include "render.h"
 #include "report.h"
-#include "scene.h"
+#include "surfels.h"
 #include "util.h"
 #include "visibility.h"
 

@@ -3,7 +3,7 @@
 #ifndef POINTS_RENDER_H
 #define POINTS_RENDER_H
 
-#include "scene.h"
+#include "surfels.h"
 
 /* Splats of `b` (n x 3 radiosity) as discs of radius √(w/π)·1.6 with a
  * depth test, tone mapped by b·exposure and gamma 2.2. 0 or -1. */

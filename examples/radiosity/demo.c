@@ -39,7 +39,7 @@ static double model_files(const TrainTimes *t) {
   return fmax(0, t->finish - t->snapshots - t->pca - t->premultiply - t->externs);
 }
 
-static void json_model(FILE *js, const Reduced *r, int samples, const TrainTimes *t) {
+static void json_model(FILE *js, const ReducedRadiosity *r, int samples, const TrainTimes *t) {
   size_t tensor_bytes = 0, bytes = npg_model_bytes(r->model, &tensor_bytes);
   fprintf(js, "  \"training_samples\": %d,\n  \"model_bytes\": %zu,\n  \"model_tensor_bytes\": %zu,\n", samples, bytes,
           tensor_bytes);
@@ -67,7 +67,7 @@ static void print_train(const TrainTimes *t, int samples) {
          model_files(t));
 }
 
-static int train(const Options *o, Scene *s, Reduced *r, TrainTimes *t, char *model_dir) {
+static int train(const Options *o, Scene *s, ReducedRadiosity *r, TrainTimes *t, char *model_dir) {
   char err[2048];
   if (reduced_open(r, s, o->program, o->k, o->threads, err, sizeof err)) return fail(err);
   if (o->samples < DESIGN_STRUCTURED)
@@ -92,7 +92,7 @@ int cmd_train(const Options *o) {
   char err[1024], path[4096];
   Scene s;
   if (scene_new(o->faces, NULL, &s, err, sizeof err)) return fail(err);
-  Reduced r;
+  ReducedRadiosity r;
   memset(&r, 0, sizeof r);
   TrainTimes t;
   int rc = 1;
@@ -115,7 +115,7 @@ done:
 /* ---------------------------------------------------------------- the reduced frame, timed */
 
 /* The reduced frame of p, `reps` times on one OpenBLAS thread; the median seconds. */
-static int timed_frame(Reduced *r, const Scene *s, const SceneParams *p, long sample, int reps, double *b,
+static int timed_frame(ReducedRadiosity *r, const Scene *s, const SceneParams *p, long sample, int reps, double *b,
                        double *seconds, char *err, size_t errlen) {
   double t[reps];
   int threads = openblas_get_num_threads();
@@ -133,7 +133,7 @@ static int timed_frame(Reduced *r, const Scene *s, const SceneParams *p, long sa
 
 /* Where the reduced frame's time goes, on the nominal parameters (one thread): projecting
  * g and e, the chain, lifting b. Seconds per call, medians of `reps`. */
-static void frame_split(Reduced *r, const Scene *s, int reps, double split[3]) {
+static void frame_split(ReducedRadiosity *r, const Scene *s, int reps, double split[3]) {
   SceneParams p;
   scene_param_nominal(&p);
   double *g = malloc(sizeof(double) * 3 * (size_t)s->V), *e = malloc(sizeof(double) * (size_t)s->F),
@@ -164,7 +164,7 @@ int cmd_run(const Options *o) {
   char err[2048], path[4096];
   Scene s;
   if (scene_new(o->faces, NULL, &s, err, sizeof err)) return fail(err);
-  Reduced r;
+  ReducedRadiosity r;
   memset(&r, 0, sizeof r);
   FullRadiosity fr;
   memset(&fr, 0, sizeof fr);
@@ -273,7 +273,7 @@ int cmd_demo(const Options *o) {
   if (scene_new(o->faces, NULL, &s, err, sizeof err)) return fail(err);
   long F = s.F;
   int K = o->frames, n = ANIM_COUNT * K, rc = 1;
-  Reduced r;
+  ReducedRadiosity r;
   memset(&r, 0, sizeof r);
   FullRadiosity fr;
   memset(&fr, 0, sizeof fr);
