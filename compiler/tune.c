@@ -1,7 +1,7 @@
 /* tune.c — npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/: every class's
  * basis size chosen so that every output's mean relative error on VALID/ is
  * under T at the least reduced cost (issue 11; the search is tune_search in
- * backends/tune.c). Prints the candidates tried, writes the chosen model
+ * backends/train/tune.c). Prints the candidates tried, writes the chosen model
  * and a PNG of error against cost. */
 #include <math.h>
 #include <stdio.h>
