@@ -105,7 +105,7 @@ static void sort3(int v[3]) {
 
 /* Face j = the triangle of cell c opposite its vertex k, oriented so that
  * its area vector points away from that vertex (out of c). */
-static void orient_face(Mesh *m, int j, int c, int k) {
+static void orient_face(FluidMesh *m, int j, int c, int k) {
   int *t = m->cell + 4 * c, *f = m->face + 3 * j, q = 0;
   for (int l = 0; l < 4; l++)
     if (l != k) f[q++] = t[l];
@@ -120,7 +120,7 @@ static void orient_face(Mesh *m, int j, int c, int k) {
   }
 }
 
-static int build_topology(Mesh *m, RawMesh *raw, char *err, size_t errlen) {
+static int build_topology(FluidMesh *m, RawMesh *raw, char *err, size_t errlen) {
   m->dim = 3;
   m->nk = 4;
   m->nv = raw->nv;
@@ -238,7 +238,7 @@ static double blend(double r, double r1, double r2) {
 
 /* Side maps, then the central one with scale kappa, of the rest positions. */
 static void place(const Cavity *cv, const double sigma[CAVITY_SIDES], double kappa, double *g) {
-  const Mesh *m = &cv->m;
+  const FluidMesh *m = &cv->m;
   for (int v = 0; v < m->nv; v++) {
     double x[3] = {m->g0[3 * v], m->g0[3 * v + 1], m->g0[3 * v + 2]};
     for (int i = 0; i < CAVITY_SIDES; i++) {
@@ -256,7 +256,7 @@ static void place(const Cavity *cv, const double sigma[CAVITY_SIDES], double kap
 
 int cavity_deform(const Cavity *cv, const double sigma[CAVITY_SIDES], double *g, double *kappa, char *err,
                   size_t errlen) {
-  const Mesh *m = &cv->m;
+  const FluidMesh *m = &cv->m;
   /* the volume is a cubic in kappa: secant iteration from kappa = 1 */
   double k0 = 1, k1 = 1.01, V0, V1;
   place(cv, sigma, k0, g);

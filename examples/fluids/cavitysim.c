@@ -120,7 +120,7 @@ static int deform_at(const Cavity *cv, int r, int t, int T, double *g, double *s
  * the geometry lifted into gl (n_v x m_g), then each face's flux lifted
  * from pf (whose g is gl) when a particle first reaches one of its cells
  * (paper §6.5). 0, or -1 with a message. */
-static int particles_reduced_frame(Particles *p, const Mesh *m, const RedSolver *R, long ng, double *gl,
+static int particles_reduced_frame(Particles *p, const FluidMesh *m, const RedSolver *R, long ng, double *gl,
                                    const ParticleFlow *pf, double dt, double *seconds) {
   double t0 = util_now();
   red_lift(R->Bg, ng, R->mg, R->g, gl);
@@ -184,7 +184,7 @@ static int stopped(Training *tg) {
 
 /* Stage one sample (x: g, gdot, f, u) in the trainer and add it. */
 static int trainer_add_sample(Training *tg, const double *g, const double *gdot, const double *f, const double *u) {
-  const Mesh *m = &tg->cv->m;
+  const FluidMesh *m = &tg->cv->m;
   long sg[2] = {m->nv, 3}, sf[1] = {m->nf}, su[2] = {m->nc, 3};
   NpgTrainer *tr = tg->tr;
   if (npg_trainer_set(tr, "g", 2, sg, g) || npg_trainer_set(tr, "gdot", 2, sg, gdot) ||
@@ -234,7 +234,7 @@ static int training_run(Training *tg, int r, double *min_quality, double *second
   char err[ERRLEN];
   const Cavity *cv = tg->cv;
   const CavityOptions *o = tg->o;
-  const Mesh *m = &cv->m;
+  const FluidMesh *m = &cv->m;
   int T = o->frames, rc = -1;
   long ng = 3L * m->nv, nf = m->nf, nu = 3L * m->nc;
   double *g = malloc(ng * sizeof *g), *g0 = malloc(ng * sizeof *g0), *f0 = malloc(nf * sizeof *f0);
@@ -347,7 +347,7 @@ int cavity_train(const Cavity *cv, const CavityOptions *given, double mu, NpgTra
   CavityOptions chosen = *given; /* --sample-every 0: from the frames */
   if (chosen.sample_every <= 0) chosen.sample_every = cavity_sample_every_for(chosen.frames);
   const CavityOptions *o = &chosen;
-  const Mesh *m = &cv->m;
+  const FluidMesh *m = &cv->m;
   int workers = o->workers < 1 ? 1 : o->workers < o->runs ? o->workers : o->runs > 0 ? o->runs : 1;
   Training tg = {.cv = cv, .o = o, .mu = mu, .tr = tr, .threaded = workers > 1, .ng = 3L * m->nv, .nf = m->nf,
                  .nu = 3L * m->nc, .min_quality = INFINITY};
@@ -426,7 +426,7 @@ typedef struct CavityRun {
   CavityOptions o;              /* as given, with --frames and --sample-every chosen from the mesh */
   char err[ERRLEN], dframes[1100], dvtk[1100], dplots[1100], dparts[1100];
   Cavity cv;
-  const Mesh *m;
+  const FluidMesh *m;
   int mesh_ok, T, reduced;      /* frames; a model is trained (--runs > 0) */
   double mu, t_mesh;
   long ng, nf, nu, C;
@@ -491,7 +491,7 @@ static int mesh(CavityRun *r) {
   }
   r->mesh_ok = 1;
   r->t_mesh = util_now() - r->t_mesh;
-  const Mesh *m = r->m = &r->cv.m;
+  const FluidMesh *m = r->m = &r->cv.m;
   /* the graph Laplacian's rate in cell c is up to 8 mu / V_c: scaled by the smallest
    * cell, diffusion stays stable at every --nu * dt < 0.3 */
   double vmin = INFINITY;
@@ -644,7 +644,7 @@ static int replay_trajectory(CavityRun *r) {
  * projected full state. */
 static int set_up_test(CavityRun *r) {
   const CavityOptions *o = &r->o;
-  const Mesh *m = r->m;
+  const FluidMesh *m = r->m;
   const double zero[3] = {0};
   r->t_deform = 0;
   if (deform_at(&r->cv, -1, 0, r->T, r->g, &r->t_deform, r->err, sizeof r->err) != 0 ||
@@ -741,7 +741,7 @@ static int full_step(CavityRun *r, int t) {
  * divergence of the lifted flux. */
 static int reduced_step(CavityRun *r, int t) {
   const CavityOptions *o = &r->o;
-  const Mesh *m = r->m;
+  const FluidMesh *m = r->m;
   RedSolver *R = &r->R;
   long nf = r->nf, nu = r->nu, C = r->C;
   double e0 = R->seconds_eval, x0 = R->seconds_advection, p0 = R->seconds_projection;
@@ -785,7 +785,7 @@ static int reduced_step(CavityRun *r, int t) {
 /* Frame t's figures, and its PNG (full | reduced) and VTK files when due. */
 static int output_frame(CavityRun *r, int t) {
   const CavityOptions *o = &r->o;
-  const Mesh *m = r->m;
+  const FluidMesh *m = r->m;
   const FullSolver *s = &r->s;
   RedSolver *R = &r->R;
   char path[4096], p2[4096], p3[4096];
@@ -1013,7 +1013,7 @@ static void report_reduced(const CavityRun *r, FILE *fp) {
 /* The summary, then report.json. */
 static int report(CavityRun *r) {
   const CavityOptions *o = &r->o;
-  const Mesh *m = r->m;
+  const FluidMesh *m = r->m;
   const FullSolver *s = &r->s;
   const FullStats *st = &r->st;
   int T = r->T;

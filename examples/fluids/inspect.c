@@ -16,7 +16,7 @@
 /* npg-fluids mesh: the tunnel's mesh statistics as JSON. */
 int inspect_mesh(const TunnelSpec *spec) {
   char err[ERRLEN];
-  Mesh m;
+  FluidMesh m;
   double t0 = util_now();
   if (mesh_tunnel(&m, spec, err, sizeof err) != 0) {
     fprintf(stderr, "npg-fluids: %s\n", err);
@@ -72,7 +72,7 @@ int inspect_cavity_projection(const CavitySpec *spec, int steps, int which) {
     fprintf(stderr, "npg-fluids: %s\n", err);
     return 1;
   }
-  const Mesh *m = &cv.m;
+  const FluidMesh *m = &cv.m;
   double vmin = INFINITY, sigma[CAVITY_SIDES];
   for (int c = 0; c < m->nc; c++) vmin = fmin(vmin, mesh_volume(m, m->g0, c));
   const double zero[3] = {0, 0, 0}, dt = 0.01;

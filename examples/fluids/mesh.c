@@ -20,7 +20,7 @@ double tunnel_obstacle_scale(double scale, double pulse, double period, int fram
   return scale + pulse * sin(2 * M_PI * frame / period);
 }
 
-void mesh_free(Mesh *m) {
+void mesh_free(FluidMesh *m) {
   free(m->g0);
   free(m->cell);
   free(m->face);
@@ -35,7 +35,7 @@ void mesh_free(Mesh *m) {
   memset(m, 0, sizeof *m);
 }
 
-double mesh_volume(const Mesh *m, const double *g, int c) {
+double mesh_volume(const FluidMesh *m, const double *g, int c) {
   if (m->dim == 3) {
     const int *t = m->cell + 4 * c;
     const double *a = g + 3 * t[0];
@@ -50,7 +50,7 @@ double mesh_volume(const Mesh *m, const double *g, int c) {
   return 0.5 * ((b[0] - a[0]) * (d[1] - a[1]) - (b[1] - a[1]) * (d[0] - a[0]));
 }
 
-void mesh_link_face(Mesh *m, int f, int c0, int k0, int c1, int k1) {
+void mesh_link_face(FluidMesh *m, int f, int c0, int k0, int c1, int k1) {
   int nk = m->nk;
   m->cface[nk * c0 + k0] = f;
   m->csign[nk * c0 + k0] = 1;
@@ -64,14 +64,14 @@ void mesh_link_face(Mesh *m, int f, int c0, int k0, int c1, int k1) {
   m->fkind[f] = BF_INTERIOR;
 }
 
-double mesh_fluid_volume(const Mesh *m, const double *g) {
+double mesh_fluid_volume(const FluidMesh *m, const double *g) {
   double s = 0;
   for (int c = 0; c < m->nc; c++) s += mesh_volume(m, g, c);
   return s;
 }
 
 /* Sum of the squared edge lengths of cell c. */
-static double edge_squares(const Mesh *m, const double *g, int c) {
+static double edge_squares(const FluidMesh *m, const double *g, int c) {
   int dim = m->dim, nk = m->nk;
   const int *t = m->cell + nk * c;
   double l2 = 0;
@@ -84,13 +84,13 @@ static double edge_squares(const Mesh *m, const double *g, int c) {
   return l2;
 }
 
-static double quality(const Mesh *m, const double *g, int c) {
+static double quality(const FluidMesh *m, const double *g, int c) {
   double l2 = edge_squares(m, g, c);
   if (m->dim == 3) return 6.0 * sqrt(2.0) * mesh_volume(m, g, c) / pow(l2 / 6, 1.5);
   return 4.0 * sqrt(3.0) * mesh_volume(m, g, c) / l2;
 }
 
-double mesh_min_quality(const Mesh *m, const double *g, int *worst) {
+double mesh_min_quality(const FluidMesh *m, const double *g, int *worst) {
   double q = INFINITY;
   int w = -1;
   for (int c = 0; c < m->nc; c++) {
@@ -207,7 +207,7 @@ static int match_periodic(const RawMesh *raw, const TunnelSpec *s, int *master, 
   return rc;
 }
 
-static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen) {
+static int build_topology(FluidMesh *m, const RawMesh *raw, char *err, size_t errlen) {
   const TunnelSpec *s = &m->spec;
   m->nv = raw->nv;
   m->nc = raw->nc;
@@ -295,7 +295,7 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
   return rc;
 }
 
-int mesh_tunnel(Mesh *m, const TunnelSpec *spec, char *err, size_t errlen) {
+int mesh_tunnel(FluidMesh *m, const TunnelSpec *spec, char *err, size_t errlen) {
   memset(m, 0, sizeof *m);
   m->dim = 2;
   m->nk = 3;
@@ -322,14 +322,14 @@ int mesh_tunnel(Mesh *m, const TunnelSpec *spec, char *err, size_t errlen) {
 /* ---------------------------------------------------------------- deformation */
 
 /* C1 blend: 1 for r <= r1, 0 for r >= r2 (smoothstep between). */
-static double blend(const Mesh *m, double r) {
+static double blend(const FluidMesh *m, double r) {
   if (r <= m->blend_r1) return 1;
   if (r >= m->blend_r2) return 0;
   double t = (m->blend_r2 - r) / (m->blend_r2 - m->blend_r1);
   return t * t * (3 - 2 * t);
 }
 
-int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen) {
+int mesh_deform(const FluidMesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen) {
   const TunnelSpec *s = &m->spec;
   double A0 = m->obstacle_area0, LH = s->L * s->H;
   /* fluid area after the blend is LH - sigma^2 A0; the stretch kappa in y
@@ -350,7 +350,7 @@ int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *
   return 0;
 }
 
-double mesh_mean_edge(const Mesh *m) {
+double mesh_mean_edge(const FluidMesh *m) {
   double s = 0;
   for (int j = 0; j < m->nf; j++) {
     const double *a = m->g0 + 2 * m->face[2 * j], *b = m->g0 + 2 * m->face[2 * j + 1];
@@ -402,7 +402,7 @@ static int cmp_key(const void *x, const void *y) {
 /* old[i]: the cell numbered i, along the Hilbert curve through the rest
  * centroids (the bounding box's longest side scaled to the curve's grid, so
  * the curve is not stretched along the shorter ones). */
-static void order_hilbert(const Mesh *m, int *old) {
+static void order_hilbert(const FluidMesh *m, int *old) {
   int dim = m->dim, nk = m->nk, bits = dim == 3 ? 21 : 31;
   double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
   double *mid = malloc((size_t)m->nc * dim * sizeof *mid);
@@ -428,7 +428,7 @@ static void order_hilbert(const Mesh *m, int *old) {
   free(mid);
 }
 
-static int degree(const Mesh *m, int c) {
+static int degree(const FluidMesh *m, int c) {
   int n = 0;
   for (int k = 0; k < m->nk; k++) n += m->nbr[m->nk * c + k] >= 0;
   return n;
@@ -437,7 +437,7 @@ static int degree(const Mesh *m, int c) {
 /* Breadth-first from `start` over the cells not yet in old[0..n), each
  * cell's neighbours taken by increasing degree (Cuthill-McKee); appends
  * them to old and returns the new count. */
-static int cuthill_mckee(const Mesh *m, int start, int *old, int n, char *seen) {
+static int cuthill_mckee(const FluidMesh *m, int start, int *old, int n, char *seen) {
   int head = n;
   old[n++] = start, seen[start] = 1;
   while (head < n) {
@@ -457,7 +457,7 @@ static int cuthill_mckee(const Mesh *m, int start, int *old, int n, char *seen) 
 /* old[i]: the cell numbered i by reverse Cuthill-McKee, each connected part
  * started from a pseudo-peripheral cell (the last cell of a breadth-first
  * sweep, twice). */
-static void order_rcm(const Mesh *m, int *old) {
+static void order_rcm(const FluidMesh *m, int *old) {
   char *seen = calloc(m->nc, 1);
   int n = 0;
   for (int s = 0; s < m->nc; s++) {
@@ -483,7 +483,7 @@ static int *permuted_ints(const int *a, const int *old, int n, int width) {
   return b;
 }
 
-void mesh_renumber(Mesh *m, MeshOrder order) {
+void mesh_renumber(FluidMesh *m, MeshOrder order) {
   if (order == MO_MESHER) return;
   int nc = m->nc, nf = m->nf, nv = m->nv, nk = m->nk, dim = m->dim;
   int *oldc = malloc((size_t)nc * sizeof *oldc), *newc = malloc((size_t)nc * sizeof *newc);

@@ -80,7 +80,7 @@ static double energy_area(const double *area, const double *u, long C) {
 
 /* One full training run at obstacle scale `scale`: samples appended to S,
  * and streamed into `t` (when not NULL) as they happen. */
-static int training_run(const Mesh *m, const TunnelOptions *o, double scale, double dt, Samples *S, NpgTrainer *t,
+static int training_run(const FluidMesh *m, const TunnelOptions *o, double scale, double dt, Samples *S, NpgTrainer *t,
                         double *seconds) {
   char err[ERRLEN];
   FullSolver s;
@@ -117,7 +117,7 @@ static int training_run(const Mesh *m, const TunnelOptions *o, double scale, dou
 typedef struct TunnelRun {
   const TunnelOptions *o;
   char err[ERRLEN], dframes[1100], dvtk[1100], dplots[1100], dmodels[1100], dtmp[1100];
-  Mesh m;
+  FluidMesh m;
   int mesh_ok, T, K;             /* frames per run, models */
   double dt;
   long ng, nf, nu, C;            /* sizes of g, f, u; cells */
@@ -180,7 +180,7 @@ static int mesh_and_bind(TunnelRun *r) {
     return 1;
   }
   r->mesh_ok = 1;
-  const Mesh *m = &r->m;
+  const FluidMesh *m = &r->m;
   int T = r->T = o->frames, K = r->K = o->nsizes;
   r->dt = o->cfl * mesh_mean_edge(m) / o->u0;
   long ng = r->ng = 2L * m->nv, nf = r->nf = m->nf, nu = r->nu = 2L * m->nc;
@@ -297,7 +297,7 @@ static int reduced_solvers(TunnelRun *r) {
  * reduced run (the largest model), its projected start, the particles. */
 static int set_up_test(TunnelRun *r) {
   const TunnelOptions *o = r->o;
-  const Mesh *m = &r->m;
+  const FluidMesh *m = &r->m;
   FullSolver *s = &r->s;
   long ng = r->ng;
   double u0[2] = {o->u0, 0}, dt = r->dt;
@@ -344,7 +344,7 @@ static int set_up_test(TunnelRun *r) {
  * VTK files when due. */
 static int output_frame(TunnelRun *r, int t) {
   const TunnelOptions *o = r->o;
-  const Mesh *m = &r->m;
+  const FluidMesh *m = &r->m;
   const FullSolver *s = &r->s;
   const RedSolver *R = &r->rs[r->K - 1];
   char path[4096], p2[4096], p3[4096];
@@ -407,7 +407,7 @@ static int output_frame(TunnelRun *r, int t) {
 /* Every model's one-step error from the projected full state of frame t: the full step
  * from the lifted state (the probe) against the reduced step, in energy (§7.1). */
 static int onestep_errors(TunnelRun *r, int t, double sig1) {
-  const Mesh *m = &r->m;
+  const FluidMesh *m = &r->m;
   FullSolver *s = &r->s, *probe = &r->probe;
   long ng = r->ng, nf = r->nf, nu = r->nu, C = r->C;
   int T = r->T;
@@ -649,7 +649,7 @@ static void report_summary(const TunnelRun *r) {
 /* report.json (every model's figures, the test runs', the timings), then the summary. */
 static int report(TunnelRun *r) {
   const TunnelOptions *o = r->o;
-  const Mesh *m = &r->m;
+  const FluidMesh *m = &r->m;
   const RedSolver *R = &r->rs[r->K - 1];
   int K = r->K, T = r->T;
   Report rep;

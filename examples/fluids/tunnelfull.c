@@ -32,7 +32,7 @@ void tunnel_full_options_default(TunnelFullOptions *o) {
 typedef struct FullRun {
   const TunnelFullOptions *o;
   char err[ERRLEN], dir_frames[1100], dir_vtk[1100], dir_data[1100];
-  Mesh m;
+  FluidMesh m;
   FullSolver s;
   Particles part;
   int mesh_ok, solver_ok, T, nvtk, worst_quality_frame;
@@ -51,7 +51,7 @@ static double sigma_at(const TunnelFullOptions *o, int frame) {
 }
 
 /* FNV-1a of the topology and rest positions: equal hashes, same mesh. */
-static unsigned long long mesh_hash(const Mesh *m) {
+static unsigned long long mesh_hash(const FluidMesh *m) {
   unsigned long long h = 1469598103934665603ull;
   const unsigned char *p[2] = {(const unsigned char *)m->cell, (const unsigned char *)m->g0};
   size_t n[2] = {3 * (size_t)m->nc * sizeof *m->cell, 2 * (size_t)m->nv * sizeof *m->g0};
@@ -91,7 +91,7 @@ static int save(const char *dir, const char *name, SaveType type, int ndim, cons
 }
 
 /* The params of fluids2d.npg, named as its `param`s. */
-static int save_params(const char *dir, const Mesh *m, double mu) {
+static int save_params(const char *dir, const FluidMesh *m, double mu) {
   long c3[2] = {m->nc, 3}, f2[2] = {m->nf, 2}, b1[1] = {m->nb};
   int rc = 0;
   rc |= save(dir, "tri", SAVE_INT, 2, c3, m->cell);
@@ -144,7 +144,7 @@ static int mesh_and_set_up(FullRun *r) {
   }
   r->mesh_ok = 1;
   r->t_mesh = util_now() - r->t_mesh;
-  Mesh *m = &r->m;
+  FluidMesh *m = &r->m;
   r->dt = o->cfl * mesh_mean_edge(m) / o->u0;
   fprintf(stderr, "npg-fluids: mesh %d cells, %d faces (%d boundary), %d vertices; dt %.4g, mu %g\n", m->nc, m->nf,
           m->nb, m->nv, r->dt, o->mu);
@@ -285,7 +285,7 @@ static int data_arrays(FullRun *r) {
 /* report.json, and the summary on stderr. */
 static int report(FullRun *r) {
   const TunnelFullOptions *o = r->o;
-  const Mesh *m = &r->m;
+  const FluidMesh *m = &r->m;
   const FullSolver *s = &r->s;
   int T = r->T;
   double maxdiv = 0, maxdiv_rel = 0, steps = T > 0 ? T : 1;
