@@ -3,7 +3,7 @@
  *   ff_hand_main F [reps [t]]     F even >= 12 faces, reps timed runs (default 5), t in [0,1]
  *                                 the room deformation (default 0.5)
  *
- * Builds the room (bench/meshgen.c) with v = 1 everywhere (the room is convex), runs ff_hand
+ * Builds the room (examples/common/meshgen.c) with v = 1 everywhere (the room is convex), runs ff_hand
  * once to warm up (and fault in the output pages), then reps times, and prints the best wall
  * time (CLOCK_MONOTONIC). Every stage is then checked against a naive reference written
  * straight from the formulas (separate loops per stage, h[j,i] read from the stored h, p as a

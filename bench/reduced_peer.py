@@ -4,7 +4,7 @@
     /usr/bin/python3 bench/reduced_peer.py DIR
 
 DIR holds a reduced model written by model_save() (one .npy per reduced tensor: rows over the
-reduced output coordinates, cols over the packed input axes, backends/reduce.h), plus what
+reduced output coordinates, cols over the packed input axes, backends/model/model.h), plus what
 bench_reduce wrote beside it: `layout` (the stage sequence reduced.c runs: per stage its terms,
 each a numerator — tensors or a named quantity — then operator powers, each a sum of tensors),
 in_<q>.npy (the given coordinates of the inputs and externs) and out_<q>.npy (npg's result for

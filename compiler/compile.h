@@ -50,7 +50,7 @@ Program *sema_program(Ctx *ctx, const SrcFile *file, Decl *decls);
 /* compiler/dumpast.c: -dp, the parsed declarations. */
 void dump_decls(FILE *out, const Decl *d);
 void dump_checked(FILE *out, const Program *prog);
-/* compiler/exact_check.c: exact_check_program() (backends/exact.h) for a
+/* compiler/exact_check.c: exact_check_program() (backends/verify/exact.h) for a
  * compiled NpgProgram; -1 with "the program does not compile" otherwise. */
 struct NpgProgram;
 struct ExactOptions;

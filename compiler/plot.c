@@ -49,15 +49,18 @@ int npgc_plot(int argc, char **argv) {
     /* the dot: the last centered direction kept (the mean is not in the spectrum) */
     int last = sp[i].centered ? sp[i].kept - 2 : sp[i].kept - 1;
     snprintf(labels[i], 600, "%s (%d kept%s)", sp[i].member, sp[i].kept, sp[i].centered ? ", centered" : "");
-    series[i] = (ChartSeries){labels[i], (int)k, xs[i], ys[i], last < k ? last : (int)k - 1, false};
+    series[i] = (ChartSeries){labels[i], (int)k, xs[i], ys[i], last < k ? last : (int)k - 1, false, false};
   }
   char title[4200];
   snprintf(title, sizeof title, "singular values of each member's snapshots: %s", dir);
-  Chart chart = {title, "k", "singular value / largest", false, true, n, series};
+  Chart chart = {.title = title, .xlabel = "k", .ylabel = "singular value / largest", .logy = true, .nseries = n,
+                 .series = series};
   if (npgc_make_parents(out, false) != 0) goto done; /* every writer of npgc creates the parents, as -o does */
   char tmp[4096];
   npgc_tmp_path(tmp, sizeof tmp, out);
-  if (npgc_commit("plot", tmp, out, chart_png(&chart, tmp, 960, 540, err, sizeof err)) != 0) {
+  int drawn = chart_png(&chart, tmp, 960, 540, err, sizeof err);
+  chart_cleanup(); /* a command draws once: cairo's and fontconfig's caches released */
+  if (npgc_commit("plot", tmp, out, drawn) != 0) {
     if (err[0]) npgc_error(err);
     goto done;
   }

@@ -1,7 +1,7 @@
 /* tune.c — npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/: every class's
  * basis size chosen so that every output's mean relative error on VALID/ is
  * under T at the least reduced cost (issue 11; the search is tune_search in
- * backends/tune.c). Prints the candidates tried, writes the chosen model
+ * backends/train/tune.c). Prints the candidates tried, writes the chosen model
  * and a PNG of error against cost. */
 #include <math.h>
 #include <stdio.h>
@@ -33,16 +33,19 @@ static int draw(const NpgTuneReport *r, double tol, const char *path, char *err,
   }
   double tx[2] = {INFINITY, -INFINITY}, ty[2] = {tol, tol};
   for (int t = 0; t < nt; t++) tx[0] = fmin(tx[0], x[t]), tx[1] = fmax(tx[1], x[t]);
-  ChartSeries s[3] = {{"uniform caps", nu, ux, uy, -1, false},
-                      {"candidates (big dot: chosen)", nt, x, y, mark, true},
-                      {"tolerance", 2, tx, ty, -1, false}};
-  Chart c = {"npgc tune: worst output's mean relative error against reduced cost", "reduced multiply-adds",
-             "mean relative L2 error", true, true, 3, s};
+  ChartSeries s[3] = {{"uniform caps", nu, ux, uy, -1, false, false},
+                      {"candidates (big dot: chosen)", nt, x, y, mark, true, false},
+                      {"tolerance", 2, tx, ty, -1, false, false}};
+  Chart c = {.title = "npgc tune: worst output's mean relative error against reduced cost",
+             .xlabel = "reduced multiply-adds", .ylabel = "mean relative L2 error", .logx = true, .logy = true,
+             .nseries = 3, .series = s};
   int rc = -1;
   if (npgc_make_parents(path, false) != 0) /* every writer of npgc creates the parents, as -o does */
     snprintf(err, errlen, "%.1000s: no folder to write it in", path);
-  else
+  else {
     rc = chart_png(&c, path, 960, 540, err, errlen);
+    chart_cleanup(); /* a command draws once: cairo's and fontconfig's caches released */
+  }
   free(x);
   return rc;
 }

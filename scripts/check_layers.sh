@@ -30,9 +30,10 @@ declare -A dirs=(
   [driver]="compiler"
 )
 # The npgc driver's files (outside libnpg): a client of npg.h alone, with
-# its own headers (npgc.h, chart.h).
+# its own header (npgc.h) and the charts it shares with the applications
+# (examples/common/chart.h, the library npg_chart).
 driver_files="compiler/main.c compiler/reduce_cmds.c compiler/eval.c compiler/npgc_util.c compiler/plot.c"
-driver_files+=" compiler/chart.c compiler/tune.c compiler/npgc.h compiler/chart.h"
+driver_files+=" compiler/tune.c compiler/npgc.h"
 driver_may_include="npg.h npgc.h chart.h"
 
 is_driver() { [[ " $driver_files " == *" $1 "* ]]; }
@@ -88,7 +89,7 @@ if [[ -n $build ]]; then
                      [verify]=backends/verify/exact.c [compiler]=compiler/npg.c)
   declare -A own=([runtime]=npy.h [ir]=ir.h [emit]=emit.h [jit]=full.h [model]=reduced.h [train]=train.h
                   [verify]=exact.h [compiler]=compile.h)
-  # (the driver's npgc.h and chart.h share compiler/ with the front end:
+  # (the driver's npgc.h shares compiler/ with the front end:
   # part 1 alone keeps the library from including them)
   higher=(ir.h emit.h full.h model.h reduced.h train.h exact.h compile.h)
   declare -A rank=([ir.h]=1 [emit.h]=2 [full.h]=3 [model.h]=4 [reduced.h]=4 [train.h]=5 [exact.h]=6

@@ -1,4 +1,4 @@
-/* test_krylov.c — backends/model/krylov.c: M^(p/q) v by the Lanczos process
+/* test_krylov.c — stdlib/runtime/krylov.c: M^(p/q) v by the Lanczos process
  * against the exact power U diag(λ^(p/q)) Uᵀ v of matrices built from a
  * known eigendecomposition (random orthogonal U by LAPACK's QR, chosen
  * spectra), so the oracle shares no code with the method. */

@@ -51,7 +51,7 @@ static void swirl(const double *x, double *w) {
   w[0] = -x[1] + 0.1 * x[2], w[1] = x[0], w[2] = 0.3 * sin(x[0]);
 }
 
-static Sample sample_of(const Mesh *m) {
+static Sample sample_of(const FluidMesh *m) {
   Sample s = {malloc(3 * (size_t)m->nv * sizeof(double)), malloc(3 * (size_t)m->nv * sizeof(double)),
               malloc((size_t)m->nf * sizeof(double)), malloc(3 * (size_t)m->nc * sizeof(double))};
   memcpy(s.g, m->g0, 3 * (size_t)m->nv * sizeof(double));
@@ -79,7 +79,7 @@ static void sample_free(Sample *s) {
 }
 
 /* One timed sample: the four inputs set, every stage evaluated. */
-static double timed_sample(NpgFull *fe, const Mesh *m, const Sample *s) {
+static double timed_sample(NpgFull *fe, const FluidMesh *m, const Sample *s) {
   long sg[2] = {m->nv, 3}, sf[1] = {m->nf}, su[2] = {m->nc, 3};
   double t0 = util_now();
   if (npg_full_set(fe, "g", 2, sg, s->g, "g") || npg_full_set(fe, "gdot", 2, sg, s->gdot, "gdot") ||
@@ -104,7 +104,7 @@ static double stage_squares(const NpgFull *fe, const char *name) {
  * (every pair of a cell's interior faces): the factor's entries and flops,
  * which the numbering could change only through the orderings' tie-breaks
  * (CHOLMOD orders the matrix itself); -1 on failure. */
-static int cholmod_fill(const Mesh *m, double *lnz, double *flops) {
+static int cholmod_fill(const FluidMesh *m, double *lnz, double *flops) {
   int *fidx = malloc((size_t)m->nf * sizeof *fidx), ni = 0, rc = -1;
   for (int j = 0; j < m->nf; j++) fidx[j] = m->fkind[j] == BF_INTERIOR ? ni++ : -1;
   cholmod_common cc;

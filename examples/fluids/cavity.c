@@ -3,6 +3,7 @@
  * cavity.h). */
 #include "util.h"
 #include "cavity.h"
+#include "gmshread.h"
 
 #include <gmshc.h>
 #include <math.h>
@@ -24,12 +25,6 @@ static void side_direction(int i, double d[3]) {
 }
 
 /* ---------------------------------------------------------------- gmsh */
-
-typedef struct RawTets {
-  int nv, nc;
-  double *xyz; /* [nv][3] */
-  int *tet;    /* [nc][4] */
-} RawTets;
 
 /* The chambers and tunnels as OpenCASCADE solids, fused into one volume. */
 static void gmsh_build(const CavitySpec *s, int *ierr) {
@@ -63,70 +58,25 @@ static double cavity_volume(const CavitySpec *s) {
   return v + CAVITY_SIDES * M_PI * s->rt * s->rt * (s->D - s->R - s->r);
 }
 
-static int gmsh_mesh(const CavitySpec *s, double h, RawTets *raw, char *err, size_t errlen) {
-  int ierr = 0, rc = 0;
-  gmshInitialize(0, NULL, 0, &ierr);
-  if (ierr) return util_fail(err, errlen, "gmsh: initialization failed");
-  gmshOptionSetNumber("General.Terminal", 0, &ierr);
-  gmshOptionSetNumber("General.Verbosity", 0, &ierr);
-  gmshModelAdd("cavity", &ierr);
-  gmsh_build(s, &ierr);
-  size_t *ntags = NULL, nn = 0, *etags = NULL, ne = 0, *enodes = NULL, nen = 0;
-  double *coord = NULL, *par = NULL;
-  size_t ncoord = 0, npar = 0;
-  if (ierr) {
-    rc = util_fail(err, errlen, "gmsh: building the cavity geometry failed (code %d)", ierr);
-    goto done;
-  }
-  gmshOptionSetNumber("Mesh.MeshSizeMax", h, &ierr);
-  gmshOptionSetNumber("Mesh.MeshSizeMin", 0.5 * h, &ierr);
+typedef struct CavityBuild {
+  const CavitySpec *s;
+  double h;
+} CavityBuild;
+
+static int build_cavity(const void *ctx, int *ierr) {
+  const CavityBuild *b = ctx;
+  gmsh_build(b->s, ierr);
+  if (*ierr) return *ierr;
+  gmshOptionSetNumber("Mesh.MeshSizeMax", b->h, ierr);
+  gmshOptionSetNumber("Mesh.MeshSizeMin", 0.5 * b->h, ierr);
   /* the tunnels are thin: keep at least ~4 elements across them */
-  gmshOptionSetNumber("Mesh.MeshSizeFromCurvature", 10, &ierr);
-  gmshModelMeshGenerate(3, &ierr);
-  if (ierr) {
-    rc = util_fail(err, errlen, "gmsh: meshing failed (code %d)", ierr);
-    goto done;
-  }
-  gmshModelMeshGetNodes(&ntags, &nn, &coord, &ncoord, &par, &npar, -1, -1, 0, 0, &ierr);
-  gmshModelMeshGetElementsByType(4, &etags, &ne, &enodes, &nen, -1, 0, 1, &ierr);
-  if (ierr || ne == 0) {
-    rc = util_fail(err, errlen, "gmsh: no tetrahedra (code %d)", ierr);
-    goto done;
-  }
-  size_t maxtag = 0;
-  for (size_t i = 0; i < nn; i++) maxtag = ntags[i] > maxtag ? ntags[i] : maxtag;
-  int *index = malloc((maxtag + 1) * sizeof *index);
-  for (size_t i = 0; i <= maxtag; i++) index[i] = -1;
-  /* only the nodes the tetrahedra use, numbered in order of first use */
-  raw->xyz = malloc(3 * nn * sizeof *raw->xyz);
-  raw->tet = malloc(4 * ne * sizeof *raw->tet);
-  raw->nc = (int)ne;
-  raw->nv = 0;
-  int *pos = malloc((maxtag + 1) * sizeof *pos);
-  for (size_t i = 0; i <= maxtag; i++) pos[i] = -1;
-  for (size_t i = 0; i < nn; i++) pos[ntags[i]] = (int)i;
-  for (size_t i = 0; i < 4 * ne && rc == 0; i++) {
-    size_t t = enodes[i];
-    if (t > maxtag || pos[t] < 0) {
-      rc = util_fail(err, errlen, "gmsh: tetrahedron %zu uses unknown node %zu", i / 4, t);
-      break;
-    }
-    if (index[t] < 0) {
-      index[t] = raw->nv++;
-      memcpy(raw->xyz + 3 * index[t], coord + 3 * pos[t], 3 * sizeof(double));
-    }
-    raw->tet[i] = index[t];
-  }
-  free(index);
-  free(pos);
-done:
-  gmshFree(ntags);
-  gmshFree(coord);
-  gmshFree(par);
-  gmshFree(etags);
-  gmshFree(enodes);
-  gmshFinalize(&ierr);
-  return rc;
+  gmshOptionSetNumber("Mesh.MeshSizeFromCurvature", 10, ierr);
+  return 0;
+}
+
+static int gmsh_mesh(const CavitySpec *s, double h, RawMesh *raw, char *err, size_t errlen) {
+  CavityBuild b = {s, h};
+  return gmsh_read("cavity", 3, build_cavity, &b, raw, err, errlen);
 }
 
 /* ---------------------------------------------------------------- topology */
@@ -155,7 +105,7 @@ static void sort3(int v[3]) {
 
 /* Face j = the triangle of cell c opposite its vertex k, oriented so that
  * its area vector points away from that vertex (out of c). */
-static void orient_face(Mesh *m, int j, int c, int k) {
+static void orient_face(FluidMesh *m, int j, int c, int k) {
   int *t = m->cell + 4 * c, *f = m->face + 3 * j, q = 0;
   for (int l = 0; l < 4; l++)
     if (l != k) f[q++] = t[l];
@@ -170,15 +120,15 @@ static void orient_face(Mesh *m, int j, int c, int k) {
   }
 }
 
-static int build_topology(Mesh *m, RawTets *raw, char *err, size_t errlen) {
+static int build_topology(FluidMesh *m, RawMesh *raw, char *err, size_t errlen) {
   m->dim = 3;
   m->nk = 4;
   m->nv = raw->nv;
   m->nc = raw->nc;
-  m->g0 = raw->xyz;
-  m->cell = raw->tet;
-  raw->xyz = NULL;
-  raw->tet = NULL;
+  m->g0 = raw->x;
+  m->cell = raw->cell;
+  raw->x = NULL;
+  raw->cell = NULL;
   /* positively oriented cells */
   for (int c = 0; c < m->nc; c++)
     if (mesh_volume(m, m->g0, c) < 0) {
@@ -242,24 +192,20 @@ int cavity_mesh(Cavity *cv, const CavitySpec *spec, char *err, size_t errlen) {
    * the curvature of the thin tunnels refines them further: up to two
    * corrections of h by the cube root of the count's ratio to the target */
   cv->h = cbrt(6.1 * cv->volume0 / s->cells);
-  RawTets raw = {0};
+  RawMesh raw = {0};
   for (int pass = 0;; pass++) {
     if (gmsh_mesh(s, cv->h, &raw, err, errlen) != 0) {
-      free(raw.xyz);
-      free(raw.tet);
+      gmsh_raw_free(&raw);
       cavity_free(cv);
       return -1;
     }
     double ratio = (double)raw.nc / s->cells;
     if (pass == 2 || (ratio > 0.8 && ratio < 1.25)) break;
     cv->h *= cbrt(ratio);
-    free(raw.xyz);
-    free(raw.tet);
-    raw = (RawTets){0};
+    gmsh_raw_free(&raw);
   }
   if (build_topology(&cv->m, &raw, err, errlen) != 0) {
-    free(raw.xyz);
-    free(raw.tet);
+    gmsh_raw_free(&raw);
     cavity_free(cv);
     return -1;
   }
@@ -292,7 +238,7 @@ static double blend(double r, double r1, double r2) {
 
 /* Side maps, then the central one with scale kappa, of the rest positions. */
 static void place(const Cavity *cv, const double sigma[CAVITY_SIDES], double kappa, double *g) {
-  const Mesh *m = &cv->m;
+  const FluidMesh *m = &cv->m;
   for (int v = 0; v < m->nv; v++) {
     double x[3] = {m->g0[3 * v], m->g0[3 * v + 1], m->g0[3 * v + 2]};
     for (int i = 0; i < CAVITY_SIDES; i++) {
@@ -310,7 +256,7 @@ static void place(const Cavity *cv, const double sigma[CAVITY_SIDES], double kap
 
 int cavity_deform(const Cavity *cv, const double sigma[CAVITY_SIDES], double *g, double *kappa, char *err,
                   size_t errlen) {
-  const Mesh *m = &cv->m;
+  const FluidMesh *m = &cv->m;
   /* the volume is a cubic in kappa: secant iteration from kappa = 1 */
   double k0 = 1, k1 = 1.01, V0, V1;
   place(cv, sigma, k0, g);

@@ -42,7 +42,7 @@ typedef struct CavitySpec {
 } CavitySpec;
 
 typedef struct Cavity {
-  Mesh m;                       /* dim 3; fkind BF_WALL on the boundary */
+  FluidMesh m;                       /* dim 3; fkind BF_WALL on the boundary */
   CavitySpec spec;
   double centre[CAVITY_SIDES][3];
   double volume0;               /* fluid volume at rest */

@@ -1,15 +1,17 @@
-/* cavitysim.c — npg-fluids cavity: paper §7.2, Fig. 6 and Table 1 (see
- * cavitysim.h). */
+/* cavitysim.c — npg-fluids cavity: paper §7.2, Fig. 6 and Table 1 (see cavitysim.h).
+ * The deformation schedule, then cavity_run, the table of contents of the experiment (its
+ * training runs are cavitytrain.c's): prepare the folders, mesh and bind,
+ * train, the reduced solver and the replayed trajectory, the test runs (full and reduced
+ * side by side, with the one-step and trajectory errors per frame), timings, plots, the
+ * report (Table 1). */
 #include "util.h"
 #include "cavitysim.h"
 
 #include <errno.h>
-#include <pthread.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cblas.h>
@@ -18,14 +20,17 @@
 #include "npgbind.h"
 #include "output.h"
 #include "particles.h"
+#include "chart.h"
 #include "plot.h"
 #include "reduced.h"
+#include "report.h"
 #include "solver.h"
 
 #ifndef FLUIDS_NPG3
 #define FLUIDS_NPG3 "examples/fluids/fluids3d.npg"
 #endif
 #define ERRLEN 1024
+#define PROGRAM "npg-fluids"
 
 void cavity_options_default(CavityOptions *o) {
   memset(o, 0, sizeof *o);
@@ -87,24 +92,19 @@ void cavity_schedule(int r, int t, int T, double sigma[CAVITY_SIDES]) {
   }
 }
 
-static int make_dir(const char *path) {
-  if (mkdir(path, 0777) != 0 && errno != EEXIST) {
-    fprintf(stderr, "npg-fluids: %s: %s\n", path, strerror(errno));
-    return -1;
-  }
-  return 0;
+int cavity_deform_at(const Cavity *cv, int r, int t, int T, double *g, double *seconds, char *err, size_t errlen) {
+  double sigma[CAVITY_SIDES];
+  cavity_schedule(r, t, T, sigma);
+  double t0 = util_now();
+  int rc = cavity_deform(cv, sigma, g, NULL, err, errlen);
+  *seconds += util_now() - t0;
+  return rc;
 }
 
 static double max_abs(const double *v, long n) {
   double m = 0;
   for (long i = 0; i < n; i++) m = fmax(m, fabs(v[i]));
   return m;
-}
-
-static void json_array(FILE *fp, const char *name, const double *v, long n, const char *tail) {
-  fprintf(fp, "  \"%s\": [", name);
-  for (long i = 0; i < n; i++) fprintf(fp, "%s%.6g", i ? ", " : "", v[i]);
-  fprintf(fp, "]%s\n", tail);
 }
 
 /* The run's figures, filled as it goes. */
@@ -114,303 +114,17 @@ typedef struct FullStats {
   int min_quality_frame;
 } FullStats;
 
-/* Positions of run r at frame t; the time cavity_deform takes is added to *seconds. */
-static int deform_at(const Cavity *cv, int r, int t, int T, double *g, double *seconds, char *err, size_t errlen) {
-  double sigma[CAVITY_SIDES];
-  cavity_schedule(r, t, T, sigma);
-  double t0 = util_now();
-  int rc = cavity_deform(cv, sigma, g, NULL, err, errlen);
-  *seconds += util_now() - t0;
-  return rc;
-}
-
-static void lift(const double *B, long n, long m, const double *x, double *out) {
-  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)m, 1.0, B, (int)m, x, 1, 0.0, out, 1);
-}
-
-static void project(const double *B, long n, long m, const double *x, double *out) {
-  cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)m, 1.0, B, (int)m, x, 1, 0.0, out, 1);
-}
-
 /* One frame of particles through the reduced flow, timed into *seconds:
  * the geometry lifted into gl (n_v x m_g), then each face's flux lifted
  * from pf (whose g is gl) when a particle first reaches one of its cells
  * (paper §6.5). 0, or -1 with a message. */
-static int particles_reduced_frame(Particles *p, const Mesh *m, const RedSolver *R, long ng, double *gl,
+static int particles_reduced_frame(Particles *p, const FluidMesh *m, const RedSolver *R, long ng, double *gl,
                                    const ParticleFlow *pf, double dt, double *seconds) {
   double t0 = util_now();
-  lift(R->Bg, ng, R->mg, R->g, gl);
+  red_lift(R->Bg, ng, R->mg, R->g, gl);
   int rc = particles_advect_flow(p, m, pf, dt, 10);
   *seconds += util_now() - t0;
   if (rc) fprintf(stderr, "npg-fluids: particles: out of memory\n");
-  return rc;
-}
-
-/* ---------------------------------------------------------------- training runs
- *
- * The runs are independent full simulations; the trainer must see their
- * samples in run order (run 1's frames, then run 2's, ...) whatever the
- * number of workers, so that the model does not depend on it. One worker:
- * each run streams into the trainer as it goes (no buffer). W workers: each
- * takes the next run not started, with its own FullSolver (its own CHOLMOD
- * common); this thread adds the samples to the trainer in run order,
- * streaming the oldest unfinished run (the head) while later runs queue
- * their samples. A worker whose run is not the head waits once the queued
- * samples reach `buffer_bytes`, so the queue stays under that bound plus
- * one sample per worker; the head's worker never waits, so the runs always
- * progress. */
-
-/* One frame's sample, queued: g, gdot, f, u in one block. */
-typedef struct Sample {
-  struct Sample *next;
-  double x[];
-} Sample;
-
-/* The samples of one run waiting for the trainer. */
-typedef struct RunQueue {
-  Sample *first, *last;
-  int state; /* 0 running or not started, 1 finished, -1 failed or stopped */
-} RunQueue;
-
-/* The runs shared by the workers and the thread feeding the trainer. */
-typedef struct Training {
-  const Cavity *cv;
-  const CavityOptions *o;
-  double mu;
-  NpgTrainer *tr;
-  int threaded;            /* 0: one worker, on the caller's thread, adding to `tr` itself */
-  long ng, nf, nu;         /* a sample's parts: g and gdot (ng each), f, u */
-  pthread_mutex_t lock;    /* guards everything below */
-  pthread_cond_t changed;  /* a sample queued or taken, a run finished, the head moved, a stop */
-  RunQueue *queue;         /* per run */
-  int next;                /* the next run a worker starts */
-  int head;                /* the run the trainer takes samples from */
-  size_t queued;           /* bytes of samples in `queue` */
-  int stop;                /* a run failed or the trainer refused a sample: every worker stops */
-  double min_quality;      /* over the runs' frames */
-  double seconds_runs;     /* the runs' own seconds (their steps), summed over the runs */
-} Training;
-
-static int stopped(Training *tg) {
-  pthread_mutex_lock(&tg->lock);
-  int stop = tg->stop;
-  pthread_mutex_unlock(&tg->lock);
-  return stop;
-}
-
-/* Stage one sample (x: g, gdot, f, u) in the trainer and add it. */
-static int trainer_add_sample(Training *tg, const double *g, const double *gdot, const double *f, const double *u) {
-  const Mesh *m = &tg->cv->m;
-  long sg[2] = {m->nv, 3}, sf[1] = {m->nf}, su[2] = {m->nc, 3};
-  NpgTrainer *tr = tg->tr;
-  if (npg_trainer_set(tr, "g", 2, sg, g) || npg_trainer_set(tr, "gdot", 2, sg, gdot) ||
-      npg_trainer_set(tr, "f", 1, sf, f) || npg_trainer_set(tr, "u", 2, su, u) || npg_trainer_add(tr)) {
-    fprintf(stderr, "npg-fluids: trainer: %s\n", npg_trainer_error(tr));
-    return -1;
-  }
-  return 0;
-}
-
-/* Hand run r's sample to the trainer (one worker) or to its queue (several):
- * 0, -1 on an error (said), 1 when the training has stopped. */
-static int deliver(Training *tg, int r, const double *g, const double *gdot, const double *f, const double *u) {
-  if (!tg->threaded) return trainer_add_sample(tg, g, gdot, f, u) ? -1 : 0;
-  size_t bytes = sizeof(Sample) + (size_t)(2 * tg->ng + tg->nf + tg->nu) * sizeof(double);
-  Sample *s = malloc(bytes);
-  if (!s) {
-    fprintf(stderr, "npg-fluids: training run %d: out of memory queueing a sample\n", r + 1);
-    return -1;
-  }
-  s->next = NULL;
-  memcpy(s->x, g, tg->ng * sizeof(double));
-  memcpy(s->x + tg->ng, gdot, tg->ng * sizeof(double));
-  memcpy(s->x + 2 * tg->ng, f, tg->nf * sizeof(double));
-  memcpy(s->x + 2 * tg->ng + tg->nf, u, tg->nu * sizeof(double));
-  pthread_mutex_lock(&tg->lock);
-  while (!tg->stop && r != tg->head && tg->queued >= tg->o->buffer_bytes) pthread_cond_wait(&tg->changed, &tg->lock);
-  int stop = tg->stop;
-  if (!stop) {
-    RunQueue *q = &tg->queue[r];
-    if (q->last) q->last->next = s;
-    else q->first = s;
-    q->last = s;
-    tg->queued += bytes;
-    pthread_cond_broadcast(&tg->changed);
-  }
-  pthread_mutex_unlock(&tg->lock);
-  if (stop) free(s);
-  return stop;
-}
-
-/* One full training run r, every o->sample_every-th frame delivered: sample
- * t is the state of frame t (g, f, u) with the mesh velocity of the step
- * that leaves it (as the 2D tunnel's). 0, -1 on an error (said, with the
- * run's number), 1 when stopped by another run's failure. */
-static int training_run(Training *tg, int r, double *min_quality, double *seconds) {
-  char err[ERRLEN];
-  const Cavity *cv = tg->cv;
-  const CavityOptions *o = tg->o;
-  const Mesh *m = &cv->m;
-  int T = o->frames, rc = -1;
-  long ng = 3L * m->nv, nf = m->nf, nu = 3L * m->nc;
-  double *g = malloc(ng * sizeof *g), *g0 = malloc(ng * sizeof *g0), *f0 = malloc(nf * sizeof *f0);
-  double *u0 = malloc(nu * sizeof *u0), t_def = 0;
-  const double zero[3] = {0, 0, 0};
-  FullSolver s;
-  if (!g || !g0 || !f0 || !u0) {
-    fprintf(stderr, "npg-fluids: training run %d: out of memory\n", r + 1);
-    free(g), free(g0), free(f0), free(u0);
-    return -1;
-  }
-  if (deform_at(cv, r, 0, T, g, &t_def, err, sizeof err) != 0 ||
-      solver_init_at(&s, m, o->projection, tg->mu, o->dt, g, zero, err, sizeof err) != 0) {
-    fprintf(stderr, "npg-fluids: training run %d: %s\n", r + 1, err);
-    free(g), free(g0), free(f0), free(u0);
-    return -1;
-  }
-  double t0 = util_now();
-  for (int t = 0; t < T; t++) {
-    memcpy(g0, s.g, ng * sizeof *g0);
-    memcpy(f0, s.f, nf * sizeof *f0);
-    memcpy(u0, s.u, nu * sizeof *u0);
-    if (tg->threaded && stopped(tg)) {
-      rc = 1;
-      goto done;
-    }
-    if (deform_at(cv, r, t + 1, T, g, &t_def, err, sizeof err) != 0 || solver_step_to(&s, g, err, sizeof err) != 0) {
-      fprintf(stderr, "npg-fluids: training run %d, frame %d: %s\n", r + 1, t + 1, err);
-      goto done;
-    }
-    if (s.min_quality < *min_quality) *min_quality = s.min_quality;
-    if (!isfinite(solver_energy(&s))) {
-      fprintf(stderr, "npg-fluids: training run %d diverged at frame %d of %d (the energy is not finite): the step "
-              "--dt %g is too large for a deformation over %d frames; raise --frames (the default grows as the cells shrink) "
-              "or lower --dt\n", r + 1, t + 1, T, o->dt, T);
-      goto done;
-    }
-    if (t % o->sample_every == 0) {
-      int d = deliver(tg, r, g0, s.gdot, f0, u0);
-      if (d != 0) {
-        rc = d;
-        goto done;
-      }
-    }
-  }
-  rc = 0;
-done:
-  *seconds += util_now() - t0;
-  solver_free(&s);
-  free(g), free(g0), free(f0), free(u0);
-  return rc;
-}
-
-/* A worker: runs in turn until none is left or the training stops. */
-static void *training_worker(void *arg) {
-  Training *tg = arg;
-  int runs = tg->o->runs, T = tg->o->frames;
-  pthread_mutex_lock(&tg->lock);
-  while (!tg->stop && tg->next < runs) {
-    int r = tg->next++;
-    pthread_mutex_unlock(&tg->lock);
-    double sg[CAVITY_SIDES], q = INFINITY, seconds = 0;
-    cavity_schedule(r, T / 2, T, sg);
-    fprintf(stderr, "npg-fluids: training run %d of %d: side scales (%.2f, %.2f, %.2f) at mid-run\n", r + 1, runs,
-            sg[0], sg[1], sg[2]);
-    int rc = training_run(tg, r, &q, &seconds);
-    pthread_mutex_lock(&tg->lock);
-    tg->queue[r].state = rc == 0 ? 1 : -1;
-    if (rc != 0) tg->stop = 1;
-    if (q < tg->min_quality) tg->min_quality = q;
-    tg->seconds_runs += seconds;
-    pthread_cond_broadcast(&tg->changed);
-  }
-  pthread_mutex_unlock(&tg->lock);
-  return NULL;
-}
-
-/* The workers' samples into the trainer in run order; -1 when the training
- * stopped (a failed run said why; a refused sample is said here). */
-static int feed_trainer(Training *tg) {
-  size_t bytes = sizeof(Sample) + (size_t)(2 * tg->ng + tg->nf + tg->nu) * sizeof(double);
-  pthread_mutex_lock(&tg->lock);
-  while (!tg->stop && tg->head < tg->o->runs) {
-    RunQueue *q = &tg->queue[tg->head];
-    Sample *s = q->first;
-    if (s) {
-      q->first = s->next;
-      if (!q->first) q->last = NULL;
-      tg->queued -= bytes;
-      pthread_cond_broadcast(&tg->changed);
-      pthread_mutex_unlock(&tg->lock);
-      const double *x = s->x;
-      int rc = trainer_add_sample(tg, x, x + tg->ng, x + 2 * tg->ng, x + 2 * tg->ng + tg->nf);
-      free(s);
-      pthread_mutex_lock(&tg->lock);
-      if (rc != 0) tg->stop = 1, pthread_cond_broadcast(&tg->changed);
-    } else if (q->state != 0) {
-      tg->head++;
-      pthread_cond_broadcast(&tg->changed);
-    } else {
-      pthread_cond_wait(&tg->changed, &tg->lock);
-    }
-  }
-  int stop = tg->stop;
-  pthread_mutex_unlock(&tg->lock);
-  return stop ? -1 : 0;
-}
-
-int cavity_train(const Cavity *cv, const CavityOptions *given, double mu, NpgTrainer *tr, CavityTraining *out) {
-  CavityOptions chosen = *given; /* --sample-every 0: from the frames */
-  if (chosen.sample_every <= 0) chosen.sample_every = cavity_sample_every_for(chosen.frames);
-  const CavityOptions *o = &chosen;
-  const Mesh *m = &cv->m;
-  int workers = o->workers < 1 ? 1 : o->workers < o->runs ? o->workers : o->runs > 0 ? o->runs : 1;
-  Training tg = {.cv = cv, .o = o, .mu = mu, .tr = tr, .threaded = workers > 1, .ng = 3L * m->nv, .nf = m->nf,
-                 .nu = 3L * m->nc, .min_quality = INFINITY};
-  memset(out, 0, sizeof *out);
-  out->workers = workers;
-  tg.queue = calloc(o->runs > 0 ? o->runs : 1, sizeof *tg.queue);
-  if (!tg.queue) {
-    fprintf(stderr, "npg-fluids: out of memory\n");
-    return -1;
-  }
-  pthread_mutex_init(&tg.lock, NULL);
-  pthread_cond_init(&tg.changed, NULL);
-  double t0 = util_now();
-  int rc = 0;
-  if (!tg.threaded) {
-    training_worker(&tg);
-    rc = tg.stop ? -1 : 0;
-  } else {
-    /* the workers fill the cores: OpenBLAS's own threads would only contend */
-    int blas_threads = openblas_get_num_threads();
-    openblas_set_num_threads(1);
-    pthread_t tid[CAVITY_MAX_WORKERS];
-    int started = 0;
-    for (; started < workers; started++) {
-      int e = pthread_create(&tid[started], NULL, training_worker, &tg);
-      if (e != 0) {
-        fprintf(stderr, "npg-fluids: cannot start training worker %d: %s\n", started + 1, strerror(e));
-        pthread_mutex_lock(&tg.lock);
-        tg.stop = 1;
-        pthread_cond_broadcast(&tg.changed);
-        pthread_mutex_unlock(&tg.lock);
-        break;
-      }
-    }
-    rc = feed_trainer(&tg);
-    for (int i = 0; i < started; i++) pthread_join(tid[i], NULL);
-    if (started < workers) rc = -1;
-    openblas_set_num_threads(blas_threads);
-  }
-  out->seconds = util_now() - t0;
-  out->seconds_runs = tg.seconds_runs;
-  out->min_quality = tg.min_quality;
-  for (int r = 0; r < o->runs; r++)
-    for (Sample *s = tg.queue[r].first, *n; s; s = n) n = s->next, free(s);
-  free(tg.queue);
-  pthread_mutex_destroy(&tg.lock);
-  pthread_cond_destroy(&tg.changed);
   return rc;
 }
 
@@ -437,506 +151,663 @@ static int cmp_double(const void *a, const void *b) {
   return x < y ? -1 : x > y;
 }
 
-int cavity_run(const CavityOptions *o) {
-  char err[ERRLEN], path[4096], p2[4096], p3[4096];
-  if (!o->out) {
-    fprintf(stderr, "npg-fluids: cavity needs --out DIR\n");
-    return 2;
-  }
-  if (strlen(o->out) > 1000) {
-    fprintf(stderr, "npg-fluids: --out: path longer than 1000 bytes\n");
-    return 2;
-  }
-  char dframes[1100], dvtk[1100], dplots[1100], dparts[1100];
-  snprintf(dframes, sizeof dframes, "%s/frames", o->out);
-  snprintf(dvtk, sizeof dvtk, "%s/vtk", o->out);
-  snprintf(dplots, sizeof dplots, "%s/plots", o->out);
-  snprintf(dparts, sizeof dparts, "%s/frames/.parts", o->out);
-  if (make_dir(o->out) || make_dir(dframes) || make_dir(dvtk) || make_dir(dplots) || make_dir(dparts)) return 1;
-
-  double t_mesh = util_now();
+/* Everything one experiment holds, so that each phase is a function of it. */
+typedef struct CavityRun {
+  CavityOptions o;              /* as given, with --frames and --sample-every chosen from the mesh */
+  char err[ERRLEN], dframes[1100], dvtk[1100], dplots[1100], dparts[1100];
   Cavity cv;
-  if (cavity_mesh(&cv, &o->spec, err, sizeof err) != 0) {
-    fprintf(stderr, "npg-fluids: %s\n", err);
+  const FluidMesh *m;
+  int mesh_ok, T, reduced;      /* frames; a model is trained (--runs > 0) */
+  double mu, t_mesh;
+  long ng, nf, nu, C;
+  FullSolver s, probe;          /* the full test run; the one-step errors' full step */
+  int s_ok, probe_ok, red_ok;
+  RedSolver R;
+  RedState keep;                /* the run's reduced state while a probe or a repetition steps from it */
+  NpgProgram *prog;
+  NpgFull *fe;
+  NpgModel *model;
+  Particles part, pred, pred1;  /* full flow, reduced flow, reduced on one thread */
+  double *g, *gn, *gl, *fl, *ul, *pv;
+  double *energy, *energy_red, *quality, *divergence; /* [T + 1] */
+  double *err_traj, *err_step;  /* [T + 1] reduced against full; one step from the projected full state */
+  double *err_basis;            /* [T + 1] E(u − B_u û)/E(u) of the full state's own projection */
+  double *step_times, *frame_axis;
+  double *traj_g, *traj_gd;     /* the replayed trajectory of the test: ĝ_t and ĝdot_t */
+  double seconds_particles, seconds_particles_red, seconds_particles_red1, seconds_lift, t_deform;
+  int particles_same;           /* pred1 moved as pred, bit for bit */
+  float *Bf32, *fh32;           /* B_f and f̂ in single precision for the particles' lift */
+  double train_split[4];        /* npg_trainer_finish's snapshots, bases, pre-multiplication, externs */
+  CavityTraining ct;
+  int train_threads;            /* OpenBLAS's in npg_trainer_finish */
+  double seconds_train, div_basis, max_div_red, split[3]; /* split: the reduced step's assembly, exponential, projection */
+  FullStats st;
+  size_t model_bytes, tensor_bytes;
+  /* the test's timings (per step) */
+  double steps, t_full, t_s, t_s_median, t_s_min, t_s_rep, err_traj_mean, err_step_mean;
+} CavityRun;
+
+static void velocity_times_volume(CavityRun *r) {
+  for (long c = 0; c < r->C; c++)
+    for (int d = 0; d < 3; d++) r->pv[3 * c + d] = r->s.ops.area[c] * r->s.u[3 * c + d];
+}
+
+/* ---------------------------------------------------------------- prepare */
+
+/* DIR and its frames/ (with frames/.parts for the halves of a frame), vtk/, plots/. */
+static int prepare(CavityRun *r) {
+  const CavityOptions *o = &r->o;
+  int rc = report_need_out(PROGRAM, "cavity", o->out, 1000);
+  if (rc) return rc;
+  snprintf(r->dframes, sizeof r->dframes, "%s/frames", o->out);
+  snprintf(r->dvtk, sizeof r->dvtk, "%s/vtk", o->out);
+  snprintf(r->dplots, sizeof r->dplots, "%s/plots", o->out);
+  snprintf(r->dparts, sizeof r->dparts, "%s/frames/.parts", o->out);
+  if (report_make_dir(PROGRAM, o->out) || report_make_dir(PROGRAM, r->dframes) || report_make_dir(PROGRAM, r->dvtk) ||
+      report_make_dir(PROGRAM, r->dplots) || report_make_dir(PROGRAM, r->dparts))
+    return 1;
+  return 0;
+}
+
+/* ---------------------------------------------------------------- mesh and bind */
+
+/* The cavity's mesh, the viscosity and the frames it sets, and the buffers. */
+static int mesh(CavityRun *r) {
+  CavityOptions *o = &r->o;
+  r->t_mesh = util_now();
+  if (cavity_mesh(&r->cv, &o->spec, r->err, sizeof r->err) != 0) {
+    fprintf(stderr, "npg-fluids: %s\n", r->err);
     return 1;
   }
-  t_mesh = util_now() - t_mesh;
-  const Mesh *m = &cv.m;
-  /* the graph Laplacian's rate in cell c is up to 8 mu / V_c: scaled by
-   * the smallest cell, diffusion stays stable at every --nu * dt < 0.3 */
+  r->mesh_ok = 1;
+  r->t_mesh = util_now() - r->t_mesh;
+  const FluidMesh *m = r->m = &r->cv.m;
+  /* the graph Laplacian's rate in cell c is up to 8 mu / V_c: scaled by the smallest
+   * cell, diffusion stays stable at every --nu * dt < 0.3 */
   double vmin = INFINITY;
   for (int c = 0; c < m->nc; c++) vmin = fmin(vmin, mesh_volume(m, m->g0, c));
-  double mu = o->nu * vmin;
-  CavityOptions chosen = *o; /* --frames 0: from the mesh */
-  if (chosen.frames <= 0) chosen.frames = cavity_frames_for(m->nc);
-  if (chosen.sample_every <= 0) chosen.sample_every = cavity_sample_every_for(chosen.frames);
-  o = &chosen;
-  int T = o->frames, rc = 1, reduced = o->runs > 0;
-  long ng = 3L * m->nv, nf = m->nf, nu = 3L * m->nc, C = m->nc;
+  r->mu = o->nu * vmin;
+  if (o->frames <= 0) o->frames = cavity_frames_for(m->nc); /* --frames 0: from the mesh */
+  if (o->sample_every <= 0) o->sample_every = cavity_sample_every_for(o->frames);
+  int T = r->T = o->frames;
+  r->reduced = o->runs > 0;
+  long ng = r->ng = 3L * m->nv, nf = r->nf = m->nf, nu = r->nu = 3L * m->nc;
+  r->C = m->nc;
   fprintf(stderr,
           "npg-fluids: cavity %d cells, %d faces (%d boundary), %d vertices, meshed in %.1f s; min quality %.3f; "
           "dt %g, mu %.3g, %d frames per run\n",
-          m->nc, m->nf, m->nb, m->nv, t_mesh, mesh_min_quality(m, m->g0, NULL), o->dt, mu, o->frames);
+          m->nc, m->nf, m->nb, m->nv, r->t_mesh, mesh_min_quality(m, m->g0, NULL), o->dt, r->mu, o->frames);
+  r->g = malloc(ng * sizeof(double)), r->gn = malloc(ng * sizeof(double)), r->gl = malloc(ng * sizeof(double));
+  r->fl = malloc(nf * sizeof(double)), r->ul = malloc(nu * sizeof(double)), r->pv = malloc(nu * sizeof(double));
+  r->energy = calloc(T + 1, sizeof(double)), r->energy_red = calloc(T + 1, sizeof(double));
+  r->quality = calloc(T + 1, sizeof(double)), r->divergence = calloc(T + 1, sizeof(double));
+  r->err_traj = calloc(T + 1, sizeof(double)), r->err_step = calloc(T + 1, sizeof(double));
+  r->err_basis = calloc(T + 1, sizeof(double));
+  r->step_times = calloc(T + 1, sizeof(double)), r->frame_axis = calloc(T + 1, sizeof(double));
+  r->particles_same = 1;
+  r->st.min_quality = INFINITY;
+  return 0;
+}
 
-  FullSolver s = {0}, probe = {0};
-  int s_ok = 0, probe_ok = 0, red_ok = 0;
-  RedSolver R = {0};
-  RedState keep = {0}; /* the run's reduced state while a probe or a repetition steps from it */
-  NpgProgram *prog = NULL;
-  NpgFull *fe = NULL;
-  NpgModel *model = NULL;
-  Particles part = {0}, pred = {0}, pred1 = {0}; /* full flow, reduced flow, reduced on one thread */
-  double *g = malloc(ng * sizeof(double)), *gn = malloc(ng * sizeof(double)), *gl = malloc(ng * sizeof(double));
-  double *fl = malloc(nf * sizeof(double)), *ul = malloc(nu * sizeof(double)), *pv = malloc(nu * sizeof(double));
-  double *energy = calloc(T + 1, sizeof(double)), *energy_red = calloc(T + 1, sizeof(double));
-  double *quality = calloc(T + 1, sizeof(double)), *divergence = calloc(T + 1, sizeof(double));
-  double *err_traj = calloc(T + 1, sizeof(double)), *err_step = calloc(T + 1, sizeof(double));
-  double *err_basis = calloc(T + 1, sizeof(double)); /* E(u − B_u û)/E(u) of the full state's own projection */
-  double *step_times = calloc(T + 1, sizeof(double)), *frame_axis = calloc(T + 1, sizeof(double));
-  double *traj_g = NULL, *traj_gd = NULL, *gc1 = NULL, *gdc = NULL;
-  double seconds_particles = 0, seconds_particles_red = 0, seconds_particles_red1 = 0, seconds_lift = 0, t_deform = 0;
-  int particles_same = 1; /* pred1 moved as pred, bit for bit */
-  float *Bf32 = NULL, *fh32 = NULL; /* B_f and f̂ in single precision for the particles' lift */
-  double train_split[4] = {0}; /* npg_trainer_finish's snapshots, bases, pre-multiplication, externs */
-  CavityTraining ct = {0};
-  int train_threads = 0; /* OpenBLAS's in npg_trainer_finish */
-  double seconds_train = 0, div_basis = 0, max_div_red = 0, split[3] = {0}; /* the reduced step's assembly, exponential, projection */
-  FullStats st = {0};
-  st.min_quality = INFINITY;
-  const double zero[3] = {0, 0, 0};
-  size_t model_bytes = 0, tensor_bytes = 0;
+/* fluids3d.npg compiled, a full evaluator (--backend) bound to the mesh. */
+static int bind(CavityRun *r) {
+  NpgOptions nopt = {0};
+  r->prog = npg_compile(FLUIDS_NPG3, &nopt);
+  if (!npg_ok(r->prog)) {
+    fprintf(stderr, "%s", npg_error(r->prog));
+    return 1;
+  }
+  r->fe = npg_full_new(r->prog, r->o.backend);
+  if (npg_full_error(r->fe)[0] || fluid_bind(r->fe, r->m, r->mu) != 0) {
+    fprintf(stderr, "npg-fluids: %s\n", npg_full_error(r->fe));
+    return 1;
+  }
+  return 0;
+}
 
-  /* 1. training: full runs streamed into npg's trainer (paper §6, §7.2) */
-  if (reduced) {
-    NpgOptions nopt = {0};
-    prog = npg_compile(FLUIDS_NPG3, &nopt);
-    if (!npg_ok(prog)) {
-      fprintf(stderr, "%s", npg_error(prog));
-      goto done;
-    }
-    fe = npg_full_new(prog, o->backend);
-    if (npg_full_error(fe)[0] || fluid_bind(fe, m, mu) != 0) {
-      fprintf(stderr, "npg-fluids: %s\n", npg_full_error(fe));
-      goto done;
-    }
-    /* caps: m_u for the shared class (u's own plus p, pv, pdot, lap), m_f,
-     * m_g and m_gdot; h complete, so that D̂_h ĥ is accurate */
-    NpgTrainOptions to;
-    FluidBasisOptions mo;
-    fluid_train_options(&to, &mo, o->mu - 4, o->mf, o->mg, 60);
-    to.progress = isatty(STDERR_FILENO); /* the trainer's passes take minutes at the paper's size */
-    NpgTrainer *tr = npg_trainer_new(fe, &to);
-    if (cavity_train(&cv, o, mu, tr, &ct) != 0) {
-      npg_trainer_free(tr);
-      goto done;
-    }
-    st.min_quality = ct.min_quality;
-    fprintf(stderr, "npg-fluids: training runs done in %.1f s on %d worker%s; training on %ld samples\n", ct.seconds,
-            ct.workers, ct.workers == 1 ? "" : "s", npg_trainer_samples(tr));
-    /* training on every core: OpenBLAS's threads for the Gram matrices and
-     * their eigendecompositions, then back to what the reduced step is
-     * timed with (on a machine loaded by other jobs one thread was faster:
-     * README) */
-    int blas_threads = openblas_get_num_threads();
-    train_threads = o->train_threads > 0 ? o->train_threads : o->workers;
-    openblas_set_num_threads(train_threads);
-    double t0 = util_now();
-    model = npg_trainer_finish(tr, NULL);
-    seconds_train = util_now() - t0;
-    openblas_set_num_threads(blas_threads);
-    if (!model) {
-      fprintf(stderr, "npg-fluids: training: %s\n", npg_trainer_error(tr));
-      npg_trainer_free(tr);
-      goto done;
-    }
-    npg_model_train_seconds(model, train_split, NULL);
+/* ---------------------------------------------------------------- train */
+
+/* The training runs streamed into npg's trainer (paper §6, §7.2), and the model. */
+static int train(CavityRun *r) {
+  const CavityOptions *o = &r->o;
+  /* caps: m_u for the shared class (u's own plus p, pv, pdot, lap), m_f, m_g and m_gdot;
+   * h complete, so that D̂_h ĥ is accurate */
+  NpgTrainOptions to;
+  FluidBasisOptions mo;
+  fluid_train_options(&to, &mo, o->mu - 4, o->mf, o->mg, 60);
+  to.progress = isatty(STDERR_FILENO); /* the trainer's passes take minutes at the paper's size */
+  NpgTrainer *tr = npg_trainer_new(r->fe, &to);
+  if (cavity_train(&r->cv, o, r->mu, tr, &r->ct) != 0) {
     npg_trainer_free(tr);
-    model_bytes = npg_model_bytes(model, &tensor_bytes);
-    if (red_init(&R, model, 3, mu, o->dt, err, sizeof err) != 0) {
-      fprintf(stderr, "npg-fluids: reduced model: %s\n", err);
-      goto done;
-    }
-    red_ok = 1;
-    if (red_constraints(&R, o->dtol, err, sizeof err) != 0) {
-      fprintf(stderr, "npg-fluids: reduced model: %s\n", err);
-      goto done;
-    }
-    /* the particles' copy of B_f (their lift reads half the bytes) */
-    Bf32 = malloc((size_t)nf * R.mf * sizeof *Bf32);
-    fh32 = malloc(R.mf * sizeof *fh32);
-    if (!Bf32 || !fh32) {
-      fprintf(stderr, "npg-fluids: out of memory\n");
-      goto done;
-    }
-    for (size_t i = 0; i < (size_t)nf * R.mf; i++) Bf32[i] = (float)R.Bf[i];
-    Ops ops;
-    ops_init(&ops, m);
-    div_basis = ops_max_column_divergence(&ops, R.Bf, nf, R.mf);
-    ops_free(&ops);
-    char every[48] = "every frame";
-    if (o->sample_every > 1) snprintf(every, sizeof every, "one frame in %d", o->sample_every);
-    fprintf(stderr,
-            "npg-fluids: %d training runs on %d worker%s (%ld samples, %s) in %.1f s (their steps %.1f s "
-            "summed); trained on %d BLAS thread%s in %.1f s (snapshots %.1f, bases %.1f, pre-multiplication %.1f); "
-            "m_u %ld, m_f %ld, m_g %ld, m_gdot %ld, m_d %ld (rank of D̂ %ld); reduced set-up %.1f s (%ld reduced "
-            "evaluations); model %.1f MB; max |div| over B_f's columns %.2e\n",
-            o->runs, ct.workers, ct.workers == 1 ? "" : "s", npg_model_samples(model), every, ct.seconds,
-            ct.seconds_runs, train_threads, train_threads == 1 ? "" : "s", seconds_train, train_split[0],
-            train_split[1], train_split[2], R.mu, R.mf, R.mg, R.mgd, R.mb, R.drank, R.seconds_setup, R.evals,
-            model_bytes / 1e6, div_basis);
-    /* the replayed trajectory of the test: ĝ_t and ĝdot_t */
-    traj_g = malloc((size_t)(T + 1) * R.mg * sizeof(double));
-    traj_gd = calloc((size_t)T * R.mgd + 1, sizeof(double));
-    gc1 = malloc(R.mg * sizeof(double));
-    gdc = malloc(R.mgd * sizeof(double));
-    for (int t = 0; t <= T; t++) {
-      if (deform_at(&cv, -1, t, T, gl, &t_deform, err, sizeof err) != 0) {
-        fprintf(stderr, "npg-fluids: %s\n", err);
-        goto done;
-      }
-      project(R.Bg, ng, R.mg, gl, traj_g + (size_t)t * R.mg);
-      if (t > 0) {
-        for (long i = 0; i < ng; i++) gn[i] = (gl[i] - gn[i]) / o->dt;
-        project(R.Bgd, ng, R.mgd, gn, traj_gd + (size_t)(t - 1) * R.mgd);
-      }
-      memcpy(gn, gl, ng * sizeof(double));
-    }
+    return 1;
   }
+  r->st.min_quality = r->ct.min_quality;
+  fprintf(stderr, "npg-fluids: training runs done in %.1f s on %d worker%s; training on %ld samples\n", r->ct.seconds,
+          r->ct.workers, r->ct.workers == 1 ? "" : "s", npg_trainer_samples(tr));
+  /* training on every core: OpenBLAS's threads for the Gram matrices and their
+   * eigendecompositions, then back to what the reduced step is timed with (on a machine
+   * loaded by other jobs one thread was faster: README) */
+  int blas_threads = openblas_get_num_threads();
+  r->train_threads = o->train_threads > 0 ? o->train_threads : o->workers;
+  openblas_set_num_threads(r->train_threads);
+  double t0 = util_now();
+  r->model = npg_trainer_finish(tr, NULL);
+  r->seconds_train = util_now() - t0;
+  openblas_set_num_threads(blas_threads);
+  if (!r->model) {
+    fprintf(stderr, "npg-fluids: training: %s\n", npg_trainer_error(tr));
+    npg_trainer_free(tr);
+    return 1;
+  }
+  npg_model_train_seconds(r->model, r->train_split, NULL);
+  npg_trainer_free(tr);
+  r->model_bytes = npg_model_bytes(r->model, &r->tensor_bytes);
+  return 0;
+}
 
-  /* 2. the test sequence: full, and reduced beside it from the projected
-   * start on the replayed trajectory; per frame the one-step error from the
-   * projected full state (a probe solver) and the trajectory error */
-  t_deform = 0;
-  if (deform_at(&cv, -1, 0, T, g, &t_deform, err, sizeof err) != 0 ||
-      solver_init_at(&s, m, o->projection, mu, o->dt, g, zero, err, sizeof err) != 0 ||
-      (s_ok = 1, reduced && solver_init_at(&probe, m, o->projection, mu, o->dt, g, zero, err, sizeof err) != 0)) {
-    fprintf(stderr, "npg-fluids: %s\n", err);
-    goto done;
+/* The reduced solver, its reduced constraints (--dtol), the particles' single-precision
+ * copy of B_f (their lift reads half the bytes), and B_f's divergence. */
+static int reduced_solver(CavityRun *r) {
+  const CavityOptions *o = &r->o;
+  RedSolver *R = &r->R;
+  if (red_init(R, r->model, 3, r->mu, o->dt, r->err, sizeof r->err) != 0) {
+    fprintf(stderr, "npg-fluids: reduced model: %s\n", r->err);
+    return 1;
   }
-  probe_ok = reduced;
-  t_deform = 0;
-  if (particles_seed(&part, m, s.g, o->particles, 12345) != 0 ||
-      (reduced && particles_seed(&pred, m, s.g, o->particles, 12345) != 0) ||
-      (reduced && o->particle_threads > 1 && particles_seed(&pred1, m, s.g, o->particles, 12345) != 0)) {
-    fprintf(stderr, "npg-fluids: out of memory for %d particles: fewer --particles\n", o->particles);
-    goto done;
+  r->red_ok = 1;
+  if (red_constraints(R, o->dtol, r->err, sizeof r->err) != 0) {
+    fprintf(stderr, "npg-fluids: reduced model: %s\n", r->err);
+    return 1;
   }
-  part.threads = o->particle_threads;
-  if (reduced) {
-    pred.threads = o->particle_threads;
-    memcpy(R.g, traj_g, R.mg * sizeof(double));
-    for (long c = 0; c < C; c++)
-      for (int d = 0; d < 3; d++) pv[3 * c + d] = s.ops.area[c] * s.u[3 * c + d];
-    project(R.Bf, nf, R.mf, s.f, R.f);
-    red_project_u(&R, R.g, pv, R.u);
-    energy_red[0] = red_energy(&R, R.g, R.u);
+  long nf = r->nf;
+  r->Bf32 = malloc((size_t)nf * R->mf * sizeof *r->Bf32);
+  r->fh32 = malloc(R->mf * sizeof *r->fh32);
+  if (!r->Bf32 || !r->fh32) {
+    fprintf(stderr, "npg-fluids: out of memory\n");
+    return 1;
   }
-  energy[0] = solver_energy(&s);
-  quality[0] = s.min_quality;
-  int nframes_png = 0;
+  for (size_t i = 0; i < (size_t)nf * R->mf; i++) r->Bf32[i] = (float)R->Bf[i];
+  Ops ops;
+  ops_init(&ops, r->m);
+  r->div_basis = ops_max_column_divergence(&ops, R->Bf, nf, R->mf);
+  ops_free(&ops);
+  char every[48] = "every frame";
+  if (o->sample_every > 1) snprintf(every, sizeof every, "one frame in %d", o->sample_every);
+  const CavityTraining *ct = &r->ct;
+  fprintf(stderr,
+          "npg-fluids: %d training runs on %d worker%s (%ld samples, %s) in %.1f s (their steps %.1f s "
+          "summed); trained on %d BLAS thread%s in %.1f s (snapshots %.1f, bases %.1f, pre-multiplication %.1f); "
+          "m_u %ld, m_f %ld, m_g %ld, m_gdot %ld, m_d %ld (rank of D̂ %ld); reduced set-up %.1f s (%ld reduced "
+          "evaluations); model %.1f MB; max |div| over B_f's columns %.2e\n",
+          o->runs, ct->workers, ct->workers == 1 ? "" : "s", npg_model_samples(r->model), every, ct->seconds,
+          ct->seconds_runs, r->train_threads, r->train_threads == 1 ? "" : "s", r->seconds_train, r->train_split[0],
+          r->train_split[1], r->train_split[2], R->mu, R->mf, R->mg, R->mgd, R->mb, R->drank, R->seconds_setup,
+          R->evals, r->model_bytes / 1e6, r->div_basis);
+  return 0;
+}
+
+/* The replayed trajectory of the test: ĝ_t and ĝdot_t. */
+static int replay_trajectory(CavityRun *r) {
+  const RedSolver *R = &r->R;
+  long ng = r->ng;
+  int T = r->T;
+  r->traj_g = malloc((size_t)(T + 1) * R->mg * sizeof(double));
+  r->traj_gd = calloc((size_t)T * R->mgd + 1, sizeof(double));
   for (int t = 0; t <= T; t++) {
+    if (cavity_deform_at(&r->cv, -1, t, T, r->gl, &r->t_deform, r->err, sizeof r->err) != 0) {
+      fprintf(stderr, "npg-fluids: %s\n", r->err);
+      return 1;
+    }
+    red_coords(R->Bg, ng, R->mg, r->gl, r->traj_g + (size_t)t * R->mg);
     if (t > 0) {
-      if (deform_at(&cv, -1, t, T, g, &t_deform, err, sizeof err) != 0) {
-        fprintf(stderr, "npg-fluids: test frame %d: %s\n", t, err);
-        goto done;
-      }
-      if (reduced) {
-        /* one-step error from the projected full state of frame t - 1 */
-        double *gp = traj_g + (size_t)(t - 1) * R.mg, *gq = traj_g + (size_t)t * R.mg;
-        RedSolver *q = &R;
-        if (red_state_save(q, &keep) != 0) {
-          fprintf(stderr, "npg-fluids: out of memory\n");
-          goto done;
-        }
-        for (long c = 0; c < C; c++)
-          for (int d = 0; d < 3; d++) pv[3 * c + d] = s.ops.area[c] * s.u[3 * c + d];
-        memcpy(q->g, gp, R.mg * sizeof(double));
-        project(R.Bf, nf, R.mf, s.f, q->f);
-        red_project_u(q, q->g, pv, q->u);
-        memcpy(probe.g, s.g, ng * sizeof(double));
-        lift(R.Bf, nf, R.mf, q->f, probe.f);
-        lift(R.Bu, nu, R.mu, q->u, probe.u);
-        err_basis[t - 1] = basis_error(&s, probe.u, ul);
-        ops_set_geometry(&probe.ops, probe.g);
-        int prc = solver_step_to(&probe, g, err, sizeof err);
-        if (!prc) prc = red_step(q, gq, traj_gd + (size_t)(t - 1) * R.mgd, err, sizeof err);
-        if (!prc) {
-          lift(R.Bu, nu, R.mu, q->u, ul);
-          for (long j = 0; j < nu; j++) ul[j] = probe.u[j] - ul[j];
-          double ef = energy3(probe.ops.area, probe.u, C);
-          err_step[t] = ef > 0 ? energy3(probe.ops.area, ul, C) / ef : 0;
-        }
-        red_state_restore(q, &keep);
-        if (prc) {
-          fprintf(stderr, "npg-fluids: one-step error, frame %d: %s\n", t, err);
-          goto done;
-        }
-      }
-      if (solver_step_to(&s, g, err, sizeof err) != 0) {
-        fprintf(stderr, "npg-fluids: test frame %d: %s\n", t, err);
-        goto done;
-      }
-      double t0 = util_now();
-      ParticleFlow pf = {.g = s.g, .f = s.f};
-      if (particles_advect_flow(&part, m, &pf, o->dt, 10) != 0) {
-        fprintf(stderr, "npg-fluids: particles: out of memory\n");
-        goto done;
-      }
-      seconds_particles += util_now() - t0;
-      energy[t] = solver_energy(&s);
-      quality[t] = s.min_quality;
-      double sb = 0;
-      for (int b = 0; b < m->nb; b++) sb += s.h[m->bface[b]];
-      st.max_boundary_residual = fmax(st.max_boundary_residual, fabs(sb) / fmax(max_abs(s.h, nf), 1e-300));
-      if (reduced) {
-        /* the reduced step, timed alone (its split too: the probe's and the
-         * repetitions' steps are not the run's) */
-        double e0 = R.seconds_eval, x0 = R.seconds_advection, p0 = R.seconds_projection;
-        double a0 = util_now();
-        if (red_step(&R, traj_g + (size_t)t * R.mg, traj_gd + (size_t)(t - 1) * R.mgd, err, sizeof err) != 0) {
-          fprintf(stderr, "npg-fluids: reduced step, frame %d: %s\n", t, err);
-          goto done;
-        }
-        step_times[t - 1] = util_now() - a0;
-        split[0] += R.seconds_eval - e0, split[1] += R.seconds_advection - x0, split[2] += R.seconds_projection - p0;
-        energy_red[t] = red_energy(&R, R.g, R.u);
-        /* particles through the reduced flow, never lifted whole */
-        for (long k = 0; k < R.mf; k++) fh32[k] = (float)R.f[k];
-        ParticleFlow pf = {.g = gl, .Bf = Bf32, .fh = fh32, .mf = (int)R.mf};
-        if (particles_reduced_frame(&pred, m, &R, ng, gl, &pf, o->dt, &seconds_particles_red) != 0) goto done;
-        if (pred1.n) { /* the same on one thread, timed apart */
-          if (particles_reduced_frame(&pred1, m, &R, ng, gl, &pf, o->dt, &seconds_particles_red1) != 0) goto done;
-          particles_same &= !memcmp(pred.x, pred1.x, 3 * (size_t)pred.n * sizeof *pred.x) &&
-                            !memcmp(pred.cell, pred1.cell, (size_t)pred.n * sizeof *pred.cell);
-        }
-        /* the whole flux, for the divergence check (timed for comparison) */
-        a0 = util_now();
-        lift(R.Bf, nf, R.mf, R.f, fl);
-        seconds_lift += util_now() - a0;
-        Ops *op = &s.ops; /* V(g_t) of the full run: the energy norm of the error */
-        lift(R.Bu, nu, R.mu, R.u, ul);
-        for (long j = 0; j < nu; j++) ul[j] = s.u[j] - ul[j];
-        double ef = energy3(op->area, s.u, C);
-        err_traj[t] = ef > 0 ? energy3(op->area, ul, C) / ef : 0;
-        double dmax = 0;
-        for (int c = 0; c < C; c++) {
-          double dv = 0;
-          for (int k = 0; k < 4; k++) dv += m->csign[4 * c + k] * fl[m->cface[4 * c + k]];
-          dmax = fmax(dmax, fabs(dv));
-        }
-        max_div_red = fmax(max_div_red, dmax / fmax(max_abs(fl, nf), 1e-300));
-      }
+      for (long i = 0; i < ng; i++) r->gn[i] = (r->gl[i] - r->gn[i]) / r->o.dt;
+      red_coords(R->Bgd, ng, R->mgd, r->gn, r->traj_gd + (size_t)(t - 1) * R->mgd);
     }
-    divergence[t] = projection_max_divergence(&s.ops, s.f) / fmax(max_abs(s.f, nf), 1e-300);
-    st.max_div_rel = fmax(st.max_div_rel, divergence[t]);
-    if (quality[t] < st.min_quality) st.min_quality = quality[t], st.min_quality_frame = t;
-    if (!isfinite(energy[t])) {
-      fprintf(stderr, "npg-fluids: the energy is not finite at frame %d: unstable (lower --dt)\n", t);
-      goto done;
+    memcpy(r->gn, r->gl, ng * sizeof(double));
+  }
+  return 0;
+}
+
+/* ---------------------------------------------------------------- the test runs */
+
+/* The full test run at frame 0 (and its probe), the particles, the reduced start: the
+ * projected full state. */
+static int set_up_test(CavityRun *r) {
+  const CavityOptions *o = &r->o;
+  const FluidMesh *m = r->m;
+  const double zero[3] = {0};
+  r->t_deform = 0;
+  if (cavity_deform_at(&r->cv, -1, 0, r->T, r->g, &r->t_deform, r->err, sizeof r->err) != 0 ||
+      solver_init_at(&r->s, m, o->projection, r->mu, o->dt, r->g, zero, r->err, sizeof r->err) != 0 ||
+      (r->s_ok = 1,
+       r->reduced && solver_init_at(&r->probe, m, o->projection, r->mu, o->dt, r->g, zero, r->err, sizeof r->err) != 0)) {
+    fprintf(stderr, "npg-fluids: %s\n", r->err);
+    return 1;
+  }
+  r->probe_ok = r->reduced;
+  r->t_deform = 0;
+  if (particles_seed(&r->part, m, r->s.g, o->particles, 12345) != 0 ||
+      (r->reduced && particles_seed(&r->pred, m, r->s.g, o->particles, 12345) != 0) ||
+      (r->reduced && o->particle_threads > 1 && particles_seed(&r->pred1, m, r->s.g, o->particles, 12345) != 0)) {
+    fprintf(stderr, "npg-fluids: out of memory for %d particles: fewer --particles\n", o->particles);
+    return 1;
+  }
+  r->part.threads = o->particle_threads;
+  if (r->reduced) {
+    RedSolver *R = &r->R;
+    r->pred.threads = o->particle_threads;
+    memcpy(R->g, r->traj_g, R->mg * sizeof(double));
+    velocity_times_volume(r);
+    red_coords(R->Bf, r->nf, R->mf, r->s.f, R->f);
+    red_project_u(R, R->g, r->pv, R->u);
+    r->energy_red[0] = red_energy(R, R->g, R->u);
+  }
+  r->energy[0] = solver_energy(&r->s);
+  r->quality[0] = r->s.min_quality;
+  return 0;
+}
+
+/* The one-step error from the projected full state of frame t - 1 (to frame t at
+ * positions r->g): the probe's full step from the lifted state against the reduced step. */
+static int onestep_error(CavityRun *r, int t) {
+  RedSolver *q = &r->R;
+  FullSolver *probe = &r->probe;
+  long nf = r->nf, nu = r->nu, C = r->C;
+  double *gp = r->traj_g + (size_t)(t - 1) * q->mg, *gq = r->traj_g + (size_t)t * q->mg;
+  if (red_state_save(q, &r->keep) != 0) {
+    fprintf(stderr, "npg-fluids: out of memory\n");
+    return -1;
+  }
+  velocity_times_volume(r);
+  memcpy(q->g, gp, q->mg * sizeof(double));
+  red_coords(q->Bf, nf, q->mf, r->s.f, q->f);
+  red_project_u(q, q->g, r->pv, q->u);
+  memcpy(probe->g, r->s.g, r->ng * sizeof(double));
+  red_lift(q->Bf, nf, q->mf, q->f, probe->f);
+  red_lift(q->Bu, nu, q->mu, q->u, probe->u);
+  r->err_basis[t - 1] = basis_error(&r->s, probe->u, r->ul);
+  ops_set_geometry(&probe->ops, probe->g);
+  int prc = solver_step_to(probe, r->g, r->err, sizeof r->err);
+  if (!prc) prc = red_step(q, gq, r->traj_gd + (size_t)(t - 1) * q->mgd, r->err, sizeof r->err);
+  if (!prc) {
+    red_lift(q->Bu, nu, q->mu, q->u, r->ul);
+    for (long j = 0; j < nu; j++) r->ul[j] = probe->u[j] - r->ul[j];
+    double ef = energy3(probe->ops.area, probe->u, C);
+    r->err_step[t] = ef > 0 ? energy3(probe->ops.area, r->ul, C) / ef : 0;
+  }
+  red_state_restore(q, &r->keep);
+  if (prc) {
+    fprintf(stderr, "npg-fluids: one-step error, frame %d: %s\n", t, r->err);
+    return -1;
+  }
+  return 0;
+}
+
+/* The full run's step to frame t (positions r->g), its particles and figures. */
+static int full_step(CavityRun *r, int t) {
+  FullSolver *s = &r->s;
+  if (solver_step_to(s, r->g, r->err, sizeof r->err) != 0) {
+    fprintf(stderr, "npg-fluids: test frame %d: %s\n", t, r->err);
+    return -1;
+  }
+  double t0 = util_now();
+  ParticleFlow pf = {.g = s->g, .f = s->f};
+  if (particles_advect_flow(&r->part, r->m, &pf, r->o.dt, 10) != 0) {
+    fprintf(stderr, "npg-fluids: particles: out of memory\n");
+    return -1;
+  }
+  r->seconds_particles += util_now() - t0;
+  r->energy[t] = solver_energy(s);
+  r->quality[t] = s->min_quality;
+  double sb = 0;
+  for (int b = 0; b < r->m->nb; b++) sb += s->h[r->m->bface[b]];
+  r->st.max_boundary_residual = fmax(r->st.max_boundary_residual, fabs(sb) / fmax(max_abs(s->h, r->nf), 1e-300));
+  return 0;
+}
+
+/* The reduced step to frame t, timed alone (its split too: the probe's and the
+ * repetitions' steps are not the run's); the particles through the reduced flow, never
+ * lifted whole (and again on one thread, timed apart); the trajectory error and the
+ * divergence of the lifted flux. */
+static int reduced_step(CavityRun *r, int t) {
+  const CavityOptions *o = &r->o;
+  const FluidMesh *m = r->m;
+  RedSolver *R = &r->R;
+  long nf = r->nf, nu = r->nu, C = r->C;
+  double e0 = R->seconds_eval, x0 = R->seconds_advection, p0 = R->seconds_projection;
+  double a0 = util_now();
+  if (red_step(R, r->traj_g + (size_t)t * R->mg, r->traj_gd + (size_t)(t - 1) * R->mgd, r->err, sizeof r->err) != 0) {
+    fprintf(stderr, "npg-fluids: reduced step, frame %d: %s\n", t, r->err);
+    return -1;
+  }
+  r->step_times[t - 1] = util_now() - a0;
+  r->split[0] += R->seconds_eval - e0, r->split[1] += R->seconds_advection - x0;
+  r->split[2] += R->seconds_projection - p0;
+  r->energy_red[t] = red_energy(R, R->g, R->u);
+  for (long k = 0; k < R->mf; k++) r->fh32[k] = (float)R->f[k];
+  ParticleFlow pf = {.g = r->gl, .Bf = r->Bf32, .fh = r->fh32, .mf = (int)R->mf};
+  if (particles_reduced_frame(&r->pred, m, R, r->ng, r->gl, &pf, o->dt, &r->seconds_particles_red) != 0) return -1;
+  if (r->pred1.n) {
+    if (particles_reduced_frame(&r->pred1, m, R, r->ng, r->gl, &pf, o->dt, &r->seconds_particles_red1) != 0)
+      return -1;
+    r->particles_same &= !memcmp(r->pred.x, r->pred1.x, 3 * (size_t)r->pred.n * sizeof *r->pred.x) &&
+                         !memcmp(r->pred.cell, r->pred1.cell, (size_t)r->pred.n * sizeof *r->pred.cell);
+  }
+  /* the whole flux, for the divergence check (timed for comparison) */
+  a0 = util_now();
+  red_lift(R->Bf, nf, R->mf, R->f, r->fl);
+  r->seconds_lift += util_now() - a0;
+  const Ops *op = &r->s.ops; /* V(g_t) of the full run: the energy norm of the error */
+  red_lift(R->Bu, nu, R->mu, R->u, r->ul);
+  for (long j = 0; j < nu; j++) r->ul[j] = r->s.u[j] - r->ul[j];
+  double ef = energy3(op->area, r->s.u, C);
+  r->err_traj[t] = ef > 0 ? energy3(op->area, r->ul, C) / ef : 0;
+  double dmax = 0;
+  for (int c = 0; c < C; c++) {
+    double dv = 0;
+    for (int k = 0; k < 4; k++) dv += m->csign[4 * c + k] * r->fl[m->cface[4 * c + k]];
+    dmax = fmax(dmax, fabs(dv));
+  }
+  r->max_div_red = fmax(r->max_div_red, dmax / fmax(max_abs(r->fl, nf), 1e-300));
+  return 0;
+}
+
+/* Frame t's figures, and its PNG (full | reduced) and VTK files when due. */
+static int output_frame(CavityRun *r, int t) {
+  const CavityOptions *o = &r->o;
+  const FluidMesh *m = r->m;
+  const FullSolver *s = &r->s;
+  RedSolver *R = &r->R;
+  char path[4096], p2[4096], p3[4096];
+  int T = r->T;
+  r->divergence[t] = projection_max_divergence(&s->ops, s->f) / fmax(max_abs(s->f, r->nf), 1e-300);
+  r->st.max_div_rel = fmax(r->st.max_div_rel, r->divergence[t]);
+  if (r->quality[t] < r->st.min_quality) r->st.min_quality = r->quality[t], r->st.min_quality_frame = t;
+  if (!isfinite(r->energy[t])) {
+    fprintf(stderr, "npg-fluids: the energy is not finite at frame %d: unstable (lower --dt)\n", t);
+    return -1;
+  }
+  if (output_frame_due(t, T, o->png_every)) {
+    double extent = o->spec.D + o->spec.r;
+    snprintf(path, sizeof path, "%s/full_%04d.png", r->dparts, t);
+    if (output_png_points(path, m, s->g, &r->part, extent, o->width, r->err, sizeof r->err) != 0) {
+      fprintf(stderr, "npg-fluids: %s\n", r->err);
+      return -1;
     }
-    if (output_frame_due(t, T, o->png_every)) {
-      double extent = o->spec.D + o->spec.r;
-      snprintf(path, sizeof path, "%s/full_%04d.png", dparts, t);
-      if (output_png_points(path, m, s.g, &part, extent, o->width, err, sizeof err) != 0) {
-        fprintf(stderr, "npg-fluids: %s\n", err);
-        goto done;
+    snprintf(p3, sizeof p3, "%s/frame_%04d.png", r->dframes, t);
+    if (r->reduced) {
+      red_lift(R->Bg, r->ng, R->mg, R->g, r->gl);
+      snprintf(p2, sizeof p2, "%s/reduced_%04d.png", r->dparts, t);
+      char cl[64], cr[96];
+      snprintf(cl, sizeof cl, "full, frame %d", t);
+      snprintf(cr, sizeof cr, "reduced (m_u %ld, m_f %ld, m_g %ld), frame %d", R->mu, R->mf, R->mg, t);
+      if (output_png_points(p2, m, r->gl, &r->pred, extent, o->width, r->err, sizeof r->err) != 0 ||
+          plot_side_by_side(p3, path, p2, cl, cr, r->err, sizeof r->err) != 0) {
+        fprintf(stderr, "npg-fluids: %s\n", r->err);
+        return -1;
       }
-      snprintf(p3, sizeof p3, "%s/frame_%04d.png", dframes, t);
-      if (reduced) {
-        lift(R.Bg, ng, R.mg, R.g, gl);
-        snprintf(p2, sizeof p2, "%s/reduced_%04d.png", dparts, t);
-        char cl[64], cr[96];
-        snprintf(cl, sizeof cl, "full, frame %d", t);
-        snprintf(cr, sizeof cr, "reduced (m_u %ld, m_f %ld, m_g %ld), frame %d", R.mu, R.mf, R.mg, t);
-        if (output_png_points(p2, m, gl, &pred, extent, o->width, err, sizeof err) != 0 ||
-            plot_side_by_side(p3, path, p2, cl, cr, err, sizeof err) != 0) {
-          fprintf(stderr, "npg-fluids: %s\n", err);
-          goto done;
-        }
-        remove(p2);
-      } else if (rename(path, p3) != 0) {
-        fprintf(stderr, "npg-fluids: %s: %s\n", p3, strerror(errno));
-        goto done;
-      }
-      remove(path);
-      nframes_png++;
+      remove(p2);
+    } else if (rename(path, p3) != 0) {
+      fprintf(stderr, "npg-fluids: %s: %s\n", p3, strerror(errno));
+      return -1;
     }
-    if (output_frame_due(t, T, o->vtk_every)) {
-      snprintf(path, sizeof path, "%s/full_%04d.vtk", dvtk, t);
-      if (output_vtk_tets(path, m, s.g, s.u, err, sizeof err) != 0) {
-        fprintf(stderr, "npg-fluids: %s\n", err);
-        goto done;
-      }
-      if (reduced) {
-        lift(R.Bg, ng, R.mg, R.g, gl);
-        lift(R.Bu, nu, R.mu, R.u, ul);
-        snprintf(path, sizeof path, "%s/reduced_%04d.vtk", dvtk, t);
-        if (output_vtk_tets(path, m, gl, ul, err, sizeof err) != 0) {
-          fprintf(stderr, "npg-fluids: %s\n", err);
-          goto done;
-        }
+    remove(path);
+  }
+  if (output_frame_due(t, T, o->vtk_every)) {
+    snprintf(path, sizeof path, "%s/full_%04d.vtk", r->dvtk, t);
+    if (output_vtk_tets(path, m, s->g, s->u, r->err, sizeof r->err) != 0) {
+      fprintf(stderr, "npg-fluids: %s\n", r->err);
+      return -1;
+    }
+    if (r->reduced) {
+      red_lift(R->Bg, r->ng, R->mg, R->g, r->gl);
+      red_lift(R->Bu, r->nu, R->mu, R->u, r->ul);
+      snprintf(path, sizeof path, "%s/reduced_%04d.vtk", r->dvtk, t);
+      if (output_vtk_tets(path, m, r->gl, r->ul, r->err, sizeof r->err) != 0) {
+        fprintf(stderr, "npg-fluids: %s\n", r->err);
+        return -1;
       }
     }
   }
-  rmdir(dparts);
-  if (reduced) { /* the last frame's basis error (the probe gave the others) */
-    for (long c = 0; c < C; c++)
-      for (int d = 0; d < 3; d++) pv[3 * c + d] = s.ops.area[c] * s.u[3 * c + d];
-    double *uc = malloc(R.mu * sizeof(double));
-    if (!uc || red_state_save(&R, &keep) != 0) {
-      free(uc);
-      fprintf(stderr, "npg-fluids: out of memory\n");
-      goto done;
-    }
-    red_project_u(&R, traj_g + (size_t)T * R.mg, pv, uc);
-    red_state_restore(&R, &keep);
-    lift(R.Bu, nu, R.mu, uc, pv);
-    err_basis[T] = basis_error(&s, pv, ul);
+  return 0;
+}
+
+/* The last frame's basis error (the probe gave the others). */
+static int last_basis_error(CavityRun *r) {
+  RedSolver *R = &r->R;
+  velocity_times_volume(r);
+  double *uc = malloc(R->mu * sizeof(double));
+  if (!uc || red_state_save(R, &r->keep) != 0) {
     free(uc);
+    fprintf(stderr, "npg-fluids: out of memory\n");
+    return 1;
   }
-  double steps = T > 0 ? T : 1;
-  st.t_d = (s.seconds_deformation + t_deform) / steps;
-  st.t_a = s.seconds_advection / steps;
-  st.t_p = s.seconds_projection / steps;
-  double t_full = st.t_d + st.t_a + st.t_p;
-  double t_s = 0, t_s_median = 0, t_s_min = 0, t_s_rep = 0, err_traj_mean = 0, err_step_mean = 0;
-  if (reduced) {
-    for (int t = 0; t < T; t++) t_s += step_times[t] / T;
-    qsort(step_times, T, sizeof *step_times, cmp_double);
-    t_s_median = step_times[T / 2], t_s_min = step_times[0];
-    /* the same step repeated from one state: the least disturbed figure */
-    double best = INFINITY;
-    if (red_state_save(&R, &keep) != 0) {
-      fprintf(stderr, "npg-fluids: out of memory\n");
-      goto done;
+  red_project_u(R, r->traj_g + (size_t)r->T * R->mg, r->pv, uc);
+  red_state_restore(R, &r->keep);
+  red_lift(R->Bu, r->nu, R->mu, uc, r->pv);
+  r->err_basis[r->T] = basis_error(&r->s, r->pv, r->ul);
+  free(uc);
+  return 0;
+}
+
+/* The test sequence: full, and reduced beside it from the projected start on the
+ * replayed trajectory; per frame the one-step error from the projected full state (a
+ * probe solver) and the trajectory error. */
+static int run_test(CavityRun *r) {
+  if (set_up_test(r) != 0) return 1;
+  for (int t = 0; t <= r->T; t++) {
+    if (t > 0) {
+      if (cavity_deform_at(&r->cv, -1, t, r->T, r->g, &r->t_deform, r->err, sizeof r->err) != 0) {
+        fprintf(stderr, "npg-fluids: test frame %d: %s\n", t, r->err);
+        return 1;
+      }
+      if (r->reduced && onestep_error(r, t) != 0) return 1;
+      if (full_step(r, t) != 0) return 1;
+      if (r->reduced && reduced_step(r, t) != 0) return 1;
     }
-    for (int k = 0; k < 50; k++) {
-      red_state_restore(&R, &keep);
-      double a0 = util_now();
-      if (red_step(&R, traj_g + (size_t)(T - 1) * R.mg, traj_gd + (size_t)(T - 2) * R.mgd, err, sizeof err) != 0) break;
-      best = fmin(best, util_now() - a0);
-    }
-    t_s_rep = best;
-    for (int t = 1; t <= T; t++) err_traj_mean += err_traj[t] / T, err_step_mean += err_step[t] / T;
-    /* the error plots */
-    for (int t = 0; t <= T; t++) frame_axis[t] = t;
-    const double *xs[2] = {frame_axis + 1, frame_axis + 1}, *ys[2] = {err_traj + 1, err_basis + 1}, *ys2[1] = {err_step + 1};
-    const char *lab[2] = {"reduced vs full", "the full state projected onto B_u"};
-    const char *lab2[1] = {"one step from the projected full state"};
-    int npt[2] = {T, T};
-    snprintf(path, sizeof path, "%s/trajectory_error.png", dplots);
-    snprintf(p2, sizeof p2, "%s/onestep_error.png", dplots);
-    if (plot_lines(path, "cavity test sequence: reduced trajectory error (energy, relative)", "frame",
-                   "E(u - B_u û) / E(u)", 2, npt, xs, ys, lab, 1, err, sizeof err) != 0 ||
-        plot_lines(p2, "cavity test sequence: one-step error (energy, relative)", "frame", "E(u - B_u û) / E(u)", 1,
-                   npt, xs, ys2, lab2, 1, err, sizeof err) != 0) {
-      fprintf(stderr, "npg-fluids: %s\n", err);
-      goto done;
-    }
+    if (output_frame(r, t) != 0) return 1;
   }
+  rmdir(r->dparts);
+  if (r->reduced && last_basis_error(r) != 0) return 1;
+  return 0;
+}
+
+/* The per-step timings; for the reduced run the step's mean, median, minimum and the
+ * minimum of 50 repeats from one state (the least disturbed figure), the error means. */
+static int timings(CavityRun *r) {
+  const FullSolver *s = &r->s;
+  int T = r->T;
+  r->steps = T > 0 ? T : 1;
+  r->st.t_d = (s->seconds_deformation + r->t_deform) / r->steps;
+  r->st.t_a = s->seconds_advection / r->steps;
+  r->st.t_p = s->seconds_projection / r->steps;
+  r->t_full = r->st.t_d + r->st.t_a + r->st.t_p;
+  if (!r->reduced) return 0;
+  RedSolver *R = &r->R;
+  for (int t = 0; t < T; t++) r->t_s += r->step_times[t] / T;
+  qsort(r->step_times, T, sizeof *r->step_times, cmp_double);
+  r->t_s_median = r->step_times[T / 2], r->t_s_min = r->step_times[0];
+  double best = INFINITY;
+  if (red_state_save(R, &r->keep) != 0) {
+    fprintf(stderr, "npg-fluids: out of memory\n");
+    return 1;
+  }
+  for (int k = 0; k < 50; k++) {
+    red_state_restore(R, &r->keep);
+    double a0 = util_now();
+    if (red_step(R, r->traj_g + (size_t)(T - 1) * R->mg, r->traj_gd + (size_t)(T - 2) * R->mgd, r->err,
+                 sizeof r->err) != 0)
+      break;
+    best = fmin(best, util_now() - a0);
+  }
+  r->t_s_rep = best;
+  for (int t = 1; t <= T; t++) r->err_traj_mean += r->err_traj[t] / T, r->err_step_mean += r->err_step[t] / T;
+  return 0;
+}
+
+/* ---------------------------------------------------------------- plots */
+
+/* plots/trajectory_error.png (with the basis error under it) and onestep_error.png. */
+static int plots(CavityRun *r) {
+  if (!r->reduced) return 0;
+  int T = r->T;
+  char path[4096], p2[4096];
+  for (int t = 0; t <= T; t++) r->frame_axis[t] = t;
+  bool dots = T <= 40;
+  ChartSeries traj[2] = {{"reduced vs full", T, r->frame_axis + 1, r->err_traj + 1, -1, false, dots},
+                         {"the full state projected onto B_u", T, r->frame_axis + 1, r->err_basis + 1, -1, false, dots}};
+  ChartSeries step = {"one step from the projected full state", T, r->frame_axis + 1, r->err_step + 1, -1, false, dots};
+  Chart c1 = {.title = "cavity test sequence: reduced trajectory error (energy, relative)", .xlabel = "frame",
+              .ylabel = "E(u - B_u û) / E(u)", .logy = true, .nseries = 2, .series = traj};
+  Chart c2 = {.title = "cavity test sequence: one-step error (energy, relative)", .xlabel = "frame",
+              .ylabel = "E(u - B_u û) / E(u)", .logy = true, .nseries = 1, .series = &step};
+  snprintf(path, sizeof path, "%s/trajectory_error.png", r->dplots);
+  snprintf(p2, sizeof p2, "%s/onestep_error.png", r->dplots);
+  if (chart_png(&c1, path, PLOT_WIDTH, PLOT_HEIGHT, r->err, sizeof r->err) != 0 ||
+      chart_png(&c2, p2, PLOT_WIDTH, PLOT_HEIGHT, r->err, sizeof r->err) != 0) {
+    fprintf(stderr, "npg-fluids: %s\n", r->err);
+    return 1;
+  }
+  return 0;
+}
+
+/* ---------------------------------------------------------------- report */
+
+/* The summary on stderr. */
+static void report_summary(const CavityRun *r) {
+  const CavityOptions *o = &r->o;
+  const FullStats *st = &r->st;
+  int T = r->T;
+  double steps = r->steps;
   fprintf(stderr,
           "npg-fluids: test, %d frames: full t_d %.3g ms, t_a %.3g ms, t_p %.3g ms (step %.3g ms); particles %.3g "
           "ms/frame; max |div| / max |f| %.2e; min quality %.3f (frame %d); energy %.4g -> %.4g\n",
-          T, 1e3 * st.t_d, 1e3 * st.t_a, 1e3 * st.t_p, 1e3 * t_full, 1e3 * seconds_particles / steps, st.max_div_rel,
-          st.min_quality, st.min_quality_frame, energy[0], energy[T]);
-  if (reduced)
+          T, 1e3 * st->t_d, 1e3 * st->t_a, 1e3 * st->t_p, 1e3 * r->t_full, 1e3 * r->seconds_particles / steps,
+          st->max_div_rel, st->min_quality, st->min_quality_frame, r->energy[0], r->energy[T]);
+  if (r->reduced)
     fprintf(stderr,
             "npg-fluids: reduced t_s %.3g ms (median %.3g, min %.3g, repeated %.3g; assembly %.3g, exponential "
             "%.3g, projection %.3g), speedup %.1f (repeated %.1f); "
             "t_pa %.3g ms on %d thread%s (%.3g ms on one; %.0f cells visited, %.0f faces lifted a frame; the whole B_f f̂ "
             "would take %.3g ms); trajectory error mean %.3g, final %.3g (the full state's own projection "
             "onto B_u: %.3g at frame %d, %.3g at the end); one-step error mean %.3g; reduced energy %.4g -> %.4g\n",
-            1e3 * t_s, 1e3 * t_s_median, 1e3 * t_s_min, 1e3 * t_s_rep, 1e3 * split[0] / steps, 1e3 * split[1] / steps,
-            1e3 * split[2] / steps, t_full / t_s, t_full / t_s_rep,
-            1e3 * seconds_particles_red / steps, o->particle_threads, o->particle_threads == 1 ? "" : "s",
-            1e3 * (pred1.n ? seconds_particles_red1 : seconds_particles_red) / steps,
-            (double)pred.cells_visited / steps, (double)pred.faces_lifted / steps, 1e3 * seconds_lift / steps,
-            err_traj_mean, err_traj[T],
-            err_basis[T / 10], T / 10, err_basis[T], err_step_mean, energy_red[0], energy_red[T]);
+            1e3 * r->t_s, 1e3 * r->t_s_median, 1e3 * r->t_s_min, 1e3 * r->t_s_rep, 1e3 * r->split[0] / steps,
+            1e3 * r->split[1] / steps, 1e3 * r->split[2] / steps, r->t_full / r->t_s, r->t_full / r->t_s_rep,
+            1e3 * r->seconds_particles_red / steps, o->particle_threads, o->particle_threads == 1 ? "" : "s",
+            1e3 * (r->pred1.n ? r->seconds_particles_red1 : r->seconds_particles_red) / steps,
+            (double)r->pred.cells_visited / steps, (double)r->pred.faces_lifted / steps, 1e3 * r->seconds_lift / steps,
+            r->err_traj_mean, r->err_traj[T], r->err_basis[T / 10], T / 10, r->err_basis[T], r->err_step_mean,
+            r->energy_red[0], r->energy_red[T]);
+}
 
-  snprintf(path, sizeof path, "%s/report.json", o->out);
-  char tmp[4200];
-  snprintf(tmp, sizeof tmp, "%s.tmp", path);
-  FILE *fp = fopen(tmp, "w");
-  if (!fp) {
-    fprintf(stderr, "npg-fluids: %s: %s\n", tmp, strerror(errno));
-    goto done;
-  }
+/* report.json's reduced half: training, the model, the reduced step (Table 1). */
+static void report_reduced(const CavityRun *r, FILE *fp) {
+  const CavityOptions *o = &r->o;
+  const RedSolver *R = &r->R;
+  int T = r->T;
+  double steps = r->steps;
+  fprintf(fp, "  \"training_runs\": %d,\n  \"workers\": %d,\n  \"train_threads\": %d,\n  \"sample_every\": %d,\n"
+              "  \"train_backend\": \"%s\",\n  \"training_samples\": %ld,\n  \"training_runs_seconds\": %.4g,\n"
+              "  \"training_runs_steps_seconds\": %.4g,\n  \"training_seconds\": %.4g,\n",
+          o->runs, r->ct.workers, r->train_threads, o->sample_every, o->backend == NPG_CC ? "cc" : "tcc",
+          npg_model_samples(r->model), r->ct.seconds, r->ct.seconds_runs, r->seconds_train);
+  fprintf(fp, "  \"training_split\": {\"snapshots\": %.4g, \"bases\": %.4g, \"premultiplication\": %.4g, "
+              "\"externs\": %.4g},\n",
+          r->train_split[0], r->train_split[1], r->train_split[2], r->train_split[3]);
+  fprintf(fp, "  \"reduced_setup_seconds\": %.4g,\n  \"reduced_setup_evaluations\": %ld,\n", R->seconds_setup, R->evals);
+  fprintf(fp, "  \"precomputation_seconds\": %.4g,\n", r->ct.seconds + r->seconds_train + R->seconds_setup);
+  fprintf(fp, "  \"m_f\": %ld,\n  \"m_u\": %ld,\n  \"m_g\": %ld,\n  \"m_gdot\": %ld,\n  \"m_d\": %ld,\n  \"rank_D\": %ld,\n",
+          R->mf, R->mu, R->mg, R->mgd, R->mb, R->drank);
+  fprintf(fp, "  \"model_bytes\": %zu,\n  \"model_tensor_bytes\": %zu,\n", r->model_bytes, r->tensor_bytes);
+  fprintf(fp, "  \"t_s\": %.6g,\n  \"t_s_median\": %.6g,\n  \"t_s_min\": %.6g,\n  \"t_s_repeated_min\": %.6g,\n",
+          r->t_s, r->t_s_median, r->t_s_min, r->t_s_rep);
+  fprintf(fp, "  \"t_s_split\": {\"assembly\": %.6g, \"exponential\": %.6g, \"projection\": %.6g},\n",
+          r->split[0] / steps, r->split[1] / steps, r->split[2] / steps);
+  fprintf(fp, "  \"t_pa\": %.6g,\n  \"t_pa_one_thread\": %.6g,\n  \"particle_threads_same_motion\": %s,\n"
+              "  \"t_lift_whole_flux\": %.6g,\n  \"particle_cells_visited_per_frame\": %.6g,\n"
+              "  \"particle_faces_lifted_per_frame\": %.6g,\n  \"particle_basis_bytes\": %zu,\n",
+          r->seconds_particles_red / steps, (r->pred1.n ? r->seconds_particles_red1 : r->seconds_particles_red) / steps,
+          r->particles_same ? "true" : "false", r->seconds_lift / steps, (double)r->pred.cells_visited / steps,
+          (double)r->pred.faces_lifted / steps, (size_t)r->nf * R->mf * sizeof *r->Bf32);
+  fprintf(fp, "  \"speedup\": %.4g,\n  \"speedup_repeated\": %.4g,\n", r->t_full / r->t_s, r->t_full / r->t_s_rep);
+  fprintf(fp, "  \"basis_f_max_divergence\": %.6g,\n  \"max_divergence_reduced_relative\": %.6g,\n", r->div_basis,
+          r->max_div_red);
+  fprintf(fp, "  \"trajectory_error_mean\": %.6g,\n  \"onestep_error_mean\": %.6g,\n", r->err_traj_mean,
+          r->err_step_mean);
+  report_json_array(fp, "  ", "trajectory_error", r->err_traj, T + 1, 6, ",\n");
+  report_json_array(fp, "  ", "onestep_error", r->err_step, T + 1, 6, ",\n");
+  report_json_array(fp, "  ", "basis_error", r->err_basis, T + 1, 6, ",\n");
+  report_json_array(fp, "  ", "energy_reduced", r->energy_red, T + 1, 6, ",\n");
+}
+
+/* The summary, then report.json. */
+static int report(CavityRun *r) {
+  const CavityOptions *o = &r->o;
+  const FluidMesh *m = r->m;
+  const FullSolver *s = &r->s;
+  const FullStats *st = &r->st;
+  int T = r->T;
+  report_summary(r);
+  Report rep;
+  if (report_open(&rep, PROGRAM, o->out) != 0) return 1;
+  FILE *fp = rep.f;
   fprintf(fp, "{\n  \"command\": \"cavity\",\n  \"cells\": %d,\n  \"faces\": %d,\n  \"boundary_faces\": %d,\n"
               "  \"vertices\": %d,\n  \"mesh_seconds\": %.4g,\n  \"frames\": %d,\n  \"dt\": %g,\n  \"mu\": %.6g,\n",
-          m->nc, m->nf, m->nb, m->nv, t_mesh, T, o->dt, mu);
-  fprintf(fp, "  \"t_d\": %.6g,\n  \"t_a\": %.6g,\n  \"t_p\": %.6g,\n  \"full_step_seconds\": %.6g,\n", st.t_d, st.t_a,
-          st.t_p, t_full);
+          m->nc, m->nf, m->nb, m->nv, r->t_mesh, T, o->dt, r->mu);
+  fprintf(fp, "  \"t_d\": %.6g,\n  \"t_a\": %.6g,\n  \"t_p\": %.6g,\n  \"full_step_seconds\": %.6g,\n", st->t_d, st->t_a,
+          st->t_p, r->t_full);
   fprintf(fp, "  \"projection_method\": \"%s\",\n  \"projection_factorization_seconds\": %.6g,\n"
               "  \"projection_solve_seconds\": %.6g,\n",
-          projection_method_name(o->projection), s.pr.seconds_numeric / steps, s.pr.seconds_solve / steps);
-  projection_report_counts(fp, &s.pr);
+          projection_method_name(o->projection), s->pr.seconds_numeric / r->steps, s->pr.seconds_solve / r->steps);
+  projection_report_counts(fp, &s->pr);
   fprintf(fp, "  \"particles\": %d,\n  \"particle_threads\": %d,\n  \"t_pa_full_flow\": %.6g,\n", o->particles,
-          o->particle_threads, seconds_particles / steps);
-  if (reduced) {
-    fprintf(fp, "  \"training_runs\": %d,\n  \"workers\": %d,\n  \"train_threads\": %d,\n  \"sample_every\": %d,\n"
-                "  \"train_backend\": \"%s\",\n  \"training_samples\": %ld,\n  \"training_runs_seconds\": %.4g,\n"
-                "  \"training_runs_steps_seconds\": %.4g,\n  \"training_seconds\": %.4g,\n",
-            o->runs, ct.workers, train_threads, o->sample_every, o->backend == NPG_CC ? "cc" : "tcc",
-            npg_model_samples(model), ct.seconds, ct.seconds_runs,
-            seconds_train);
-    fprintf(fp, "  \"training_split\": {\"snapshots\": %.4g, \"bases\": %.4g, \"premultiplication\": %.4g, "
-                "\"externs\": %.4g},\n",
-            train_split[0], train_split[1], train_split[2], train_split[3]);
-    fprintf(fp, "  \"reduced_setup_seconds\": %.4g,\n  \"reduced_setup_evaluations\": %ld,\n", R.seconds_setup,
-            R.evals);
-    fprintf(fp, "  \"precomputation_seconds\": %.4g,\n", ct.seconds + seconds_train + R.seconds_setup);
-    fprintf(fp, "  \"m_f\": %ld,\n  \"m_u\": %ld,\n  \"m_g\": %ld,\n  \"m_gdot\": %ld,\n  \"m_d\": %ld,\n  \"rank_D\": %ld,\n",
-            R.mf, R.mu, R.mg, R.mgd, R.mb, R.drank);
-    fprintf(fp, "  \"model_bytes\": %zu,\n  \"model_tensor_bytes\": %zu,\n", model_bytes, tensor_bytes);
-    fprintf(fp, "  \"t_s\": %.6g,\n  \"t_s_median\": %.6g,\n  \"t_s_min\": %.6g,\n  \"t_s_repeated_min\": %.6g,\n",
-            t_s, t_s_median, t_s_min, t_s_rep);
-    fprintf(fp, "  \"t_s_split\": {\"assembly\": %.6g, \"exponential\": %.6g, \"projection\": %.6g},\n",
-            split[0] / steps, split[1] / steps, split[2] / steps);
-    fprintf(fp, "  \"t_pa\": %.6g,\n  \"t_pa_one_thread\": %.6g,\n  \"particle_threads_same_motion\": %s,\n"
-                "  \"t_lift_whole_flux\": %.6g,\n  \"particle_cells_visited_per_frame\": %.6g,\n"
-                "  \"particle_faces_lifted_per_frame\": %.6g,\n  \"particle_basis_bytes\": %zu,\n",
-            seconds_particles_red / steps, (pred1.n ? seconds_particles_red1 : seconds_particles_red) / steps,
-            particles_same ? "true" : "false", seconds_lift / steps, (double)pred.cells_visited / steps,
-            (double)pred.faces_lifted / steps, (size_t)nf * R.mf * sizeof *Bf32);
-    fprintf(fp, "  \"speedup\": %.4g,\n  \"speedup_repeated\": %.4g,\n", t_full / t_s, t_full / t_s_rep);
-    fprintf(fp, "  \"basis_f_max_divergence\": %.6g,\n  \"max_divergence_reduced_relative\": %.6g,\n", div_basis,
-            max_div_red);
-    fprintf(fp, "  \"trajectory_error_mean\": %.6g,\n  \"onestep_error_mean\": %.6g,\n", err_traj_mean, err_step_mean);
-    json_array(fp, "trajectory_error", err_traj, T + 1, ",");
-    json_array(fp, "onestep_error", err_step, T + 1, ",");
-    json_array(fp, "basis_error", err_basis, T + 1, ",");
-    json_array(fp, "energy_reduced", energy_red, T + 1, ",");
-  }
-  fprintf(fp, "  \"min_element_quality\": %.6g,\n  \"min_element_quality_frame\": %d,\n", st.min_quality,
-          st.min_quality_frame);
-  fprintf(fp, "  \"max_divergence_relative\": %.6g,\n  \"max_boundary_flux_sum_relative\": %.6g,\n", st.max_div_rel,
-          st.max_boundary_residual);
-  json_array(fp, "min_quality", quality, T + 1, ",");
-  json_array(fp, "max_divergence_per_frame", divergence, T + 1, ",");
-  json_array(fp, "energy_full", energy, T + 1, "");
+          o->particle_threads, r->seconds_particles / r->steps);
+  if (r->reduced) report_reduced(r, fp);
+  fprintf(fp, "  \"min_element_quality\": %.6g,\n  \"min_element_quality_frame\": %d,\n", st->min_quality,
+          st->min_quality_frame);
+  fprintf(fp, "  \"max_divergence_relative\": %.6g,\n  \"max_boundary_flux_sum_relative\": %.6g,\n", st->max_div_rel,
+          st->max_boundary_residual);
+  report_json_array(fp, "  ", "min_quality", r->quality, T + 1, 6, ",\n");
+  report_json_array(fp, "  ", "max_divergence_per_frame", r->divergence, T + 1, 6, ",\n");
+  report_json_array(fp, "  ", "energy_full", r->energy, T + 1, 6, "\n");
   fprintf(fp, "}\n");
-  if (fclose(fp) != 0 || rename(tmp, path) != 0) {
-    fprintf(stderr, "npg-fluids: %s: %s\n", path, strerror(errno));
-    goto done;
-  }
-  rc = 0;
-done:
-  if (s_ok) solver_free(&s);
-  if (probe_ok) solver_free(&probe);
-  red_state_free(&keep);
-  if (red_ok) red_free(&R);
-  if (model) npg_model_free(model);
-  if (fe) npg_full_free(fe);
-  if (prog) npg_free(prog);
-  particles_free(&part);
-  particles_free(&pred);
-  particles_free(&pred1);
-  free(Bf32), free(fh32);
-  free(g), free(gn), free(gl), free(fl), free(ul), free(pv), free(energy), free(energy_red), free(quality);
-  free(divergence), free(err_traj), free(err_step), free(err_basis), free(step_times), free(frame_axis);
-  free(traj_g), free(traj_gd), free(gc1), free(gdc);
-  cavity_free(&cv);
-  plot_cleanup();
+  return report_commit(&rep, PROGRAM) ? 1 : 0;
+}
+
+static void release(CavityRun *r) {
+  if (r->s_ok) solver_free(&r->s);
+  if (r->probe_ok) solver_free(&r->probe);
+  red_state_free(&r->keep);
+  if (r->red_ok) red_free(&r->R);
+  if (r->model) npg_model_free(r->model);
+  if (r->fe) npg_full_free(r->fe);
+  if (r->prog) npg_free(r->prog);
+  particles_free(&r->part);
+  particles_free(&r->pred);
+  particles_free(&r->pred1);
+  free(r->Bf32), free(r->fh32);
+  free(r->g), free(r->gn), free(r->gl), free(r->fl), free(r->ul), free(r->pv), free(r->energy), free(r->energy_red);
+  free(r->quality), free(r->divergence), free(r->err_traj), free(r->err_step), free(r->err_basis);
+  free(r->step_times), free(r->frame_axis), free(r->traj_g), free(r->traj_gd);
+  if (r->mesh_ok) cavity_free(&r->cv);
+  chart_cleanup();
+}
+
+int cavity_run(const CavityOptions *o) {
+  CavityRun *r = calloc(1, sizeof *r);
+  if (!r) return 1;
+  r->o = *o;
+  int rc = prepare(r);
+  if (!rc) rc = mesh(r);
+  if (!rc && r->reduced) rc = bind(r);
+  if (!rc && r->reduced) rc = train(r);
+  if (!rc && r->reduced) rc = reduced_solver(r);
+  if (!rc && r->reduced) rc = replay_trajectory(r);
+  if (!rc) rc = run_test(r);
+  if (!rc) rc = timings(r);
+  if (!rc) rc = plots(r);
+  if (!rc) rc = report(r);
+  release(r);
+  free(r);
   return rc;
 }

@@ -46,6 +46,9 @@ void cavity_options_default(CavityOptions *o);
 /* The deformation of training run r (0 .. 13) or of the test (r = -1) at
  * frame t of T: side scales sigma[3]. */
 void cavity_schedule(int r, int t, int T, double sigma[CAVITY_SIDES]);
+/* The positions g of run r (-1: the test) at frame t of T (cavity_schedule, then
+ * cavity_deform); the time cavity_deform takes is added to *seconds. 0, or -1 with `err`. */
+int cavity_deform_at(const Cavity *cv, int r, int t, int T, double *g, double *seconds, char *err, size_t errlen);
 /* Frames per run for a mesh of `cells` cells: 100 at 1,000 cells, growing
  * as the cells' edge (cells^(-1/3)) shrinks, so a frame's deformation moves
  * a vertex a similar fraction of its cells' size: at 17,300 cells 100 frames

@@ -2,6 +2,7 @@
  * its deformation (see mesh.h). */
 #include "util.h"
 #include "mesh.h"
+#include "gmshread.h"
 
 #include <gmshc.h>
 #include <math.h>
@@ -15,7 +16,11 @@ TunnelSpec tunnel_spec_default(void) {
   return (TunnelSpec){.L = 4.0, .H = 1.0, .cx = 1.0, .cy = 0.48, .size = 0.3, .cells = 2000};
 }
 
-void mesh_free(Mesh *m) {
+double tunnel_obstacle_scale(double scale, double pulse, double period, int frame) {
+  return scale + pulse * sin(2 * M_PI * frame / period);
+}
+
+void mesh_free(FluidMesh *m) {
   free(m->g0);
   free(m->cell);
   free(m->face);
@@ -30,7 +35,7 @@ void mesh_free(Mesh *m) {
   memset(m, 0, sizeof *m);
 }
 
-double mesh_volume(const Mesh *m, const double *g, int c) {
+double mesh_volume(const FluidMesh *m, const double *g, int c) {
   if (m->dim == 3) {
     const int *t = m->cell + 4 * c;
     const double *a = g + 3 * t[0];
@@ -45,7 +50,7 @@ double mesh_volume(const Mesh *m, const double *g, int c) {
   return 0.5 * ((b[0] - a[0]) * (d[1] - a[1]) - (b[1] - a[1]) * (d[0] - a[0]));
 }
 
-void mesh_link_face(Mesh *m, int f, int c0, int k0, int c1, int k1) {
+void mesh_link_face(FluidMesh *m, int f, int c0, int k0, int c1, int k1) {
   int nk = m->nk;
   m->cface[nk * c0 + k0] = f;
   m->csign[nk * c0 + k0] = 1;
@@ -59,14 +64,14 @@ void mesh_link_face(Mesh *m, int f, int c0, int k0, int c1, int k1) {
   m->fkind[f] = BF_INTERIOR;
 }
 
-double mesh_fluid_volume(const Mesh *m, const double *g) {
+double mesh_fluid_volume(const FluidMesh *m, const double *g) {
   double s = 0;
   for (int c = 0; c < m->nc; c++) s += mesh_volume(m, g, c);
   return s;
 }
 
 /* Sum of the squared edge lengths of cell c. */
-static double edge_squares(const Mesh *m, const double *g, int c) {
+static double edge_squares(const FluidMesh *m, const double *g, int c) {
   int dim = m->dim, nk = m->nk;
   const int *t = m->cell + nk * c;
   double l2 = 0;
@@ -79,13 +84,13 @@ static double edge_squares(const Mesh *m, const double *g, int c) {
   return l2;
 }
 
-static double quality(const Mesh *m, const double *g, int c) {
+static double quality(const FluidMesh *m, const double *g, int c) {
   double l2 = edge_squares(m, g, c);
   if (m->dim == 3) return 6.0 * sqrt(2.0) * mesh_volume(m, g, c) / pow(l2 / 6, 1.5);
   return 4.0 * sqrt(3.0) * mesh_volume(m, g, c) / l2;
 }
 
-double mesh_min_quality(const Mesh *m, const double *g, int *worst) {
+double mesh_min_quality(const FluidMesh *m, const double *g, int *worst) {
   double q = INFINITY;
   int w = -1;
   for (int c = 0; c < m->nc; c++) {
@@ -130,77 +135,22 @@ static int gmsh_build(const TunnelSpec *s, double h, int *ierr) {
   return *ierr;
 }
 
-typedef struct RawMesh {
-  int nv, nc;
-  double *xy;
-  int *tri;
-} RawMesh;
+typedef struct TunnelBuild {
+  const TunnelSpec *s;
+  double h;
+} TunnelBuild;
+
+static int build_tunnel(const void *ctx, int *ierr) {
+  const TunnelBuild *b = ctx;
+  return gmsh_build(b->s, b->h, ierr);
+}
 
 static int gmsh_mesh(const TunnelSpec *s, RawMesh *raw, char *err, size_t errlen) {
-  int ierr = 0;
-  gmshInitialize(0, NULL, 0, &ierr);
-  if (ierr) return util_fail(err, errlen, "gmsh: initialization failed");
-  gmshOptionSetNumber("General.Terminal", 0, &ierr);
-  gmshOptionSetNumber("General.Verbosity", 0, &ierr);
-  gmshModelAdd("tunnel", &ierr);
   double area = s->L * s->H - sqrt(3.0) / 4 * s->size * s->size;
   /* equilateral cells of the mean area, a little larger: the obstacle is
    * meshed twice as fine and gmsh overshoots the count by about a third */
-  double h = 1.15 * sqrt(4.0 * area / (sqrt(3.0) * s->cells));
-  int rc = 0;
-  size_t *ntags = NULL, *etags = NULL, *enodes = NULL, nn = 0, ne = 0, nen = 0, ncoord = 0, npar = 0;
-  double *coord = NULL, *par = NULL;
-  if (gmsh_build(s, h, &ierr) != 0) {
-    rc = util_fail(err, errlen, "gmsh: building the tunnel geometry failed (code %d)", ierr);
-    goto done;
-  }
-  gmshModelMeshGenerate(2, &ierr);
-  if (ierr) {
-    rc = util_fail(err, errlen, "gmsh: meshing failed (code %d)", ierr);
-    goto done;
-  }
-  gmshModelMeshGetNodes(&ntags, &nn, &coord, &ncoord, &par, &npar, -1, -1, 0, 0, &ierr);
-  gmshModelMeshGetElementsByType(2, &etags, &ne, &enodes, &nen, -1, 0, 1, &ierr);
-  if (ierr || nn == 0 || ne == 0 || nen != 3 * ne) {
-    rc = util_fail(err, errlen, "gmsh: no triangles (code %d)", ierr);
-    goto done;
-  }
-  /* Node tags -> dense indices of the nodes triangles use. */
-  size_t maxtag = 0;
-  for (size_t i = 0; i < nn; i++)
-    if (ntags[i] > maxtag) maxtag = ntags[i];
-  int *index = malloc((maxtag + 1) * sizeof *index);
-  long *where = malloc((maxtag + 1) * sizeof *where);
-  for (size_t i = 0; i <= maxtag; i++) index[i] = -1, where[i] = -1;
-  for (size_t i = 0; i < nn; i++) where[ntags[i]] = (long)i;
-  raw->nc = (int)ne;
-  raw->tri = malloc(3 * ne * sizeof *raw->tri);
-  raw->xy = malloc(2 * nn * sizeof *raw->xy);
-  raw->nv = 0;
-  for (size_t i = 0; i < 3 * ne && rc == 0; i++) {
-    size_t t = enodes[i];
-    if (t > maxtag || where[t] < 0) {
-      rc = util_fail(err, errlen, "gmsh: triangle %zu uses unknown node %zu", i / 3, t);
-      break;
-    }
-    if (index[t] < 0) {
-      index[t] = raw->nv;
-      raw->xy[2 * raw->nv] = coord[3 * where[t]];
-      raw->xy[2 * raw->nv + 1] = coord[3 * where[t] + 1];
-      raw->nv++;
-    }
-    raw->tri[i] = index[t];
-  }
-  free(index);
-  free(where);
-done:
-  gmshFree(ntags);
-  gmshFree(coord);
-  gmshFree(par);
-  gmshFree(etags);
-  gmshFree(enodes);
-  gmshFinalize(&ierr);
-  return rc;
+  TunnelBuild b = {s, 1.15 * sqrt(4.0 * area / (sqrt(3.0) * s->cells))};
+  return gmsh_read("tunnel", 2, build_tunnel, &b, raw, err, errlen);
 }
 
 /* ---------------------------------------------------------------- topology */
@@ -235,12 +185,12 @@ static int match_periodic(const RawMesh *raw, const TunnelSpec *s, int *master, 
   int nl = 0, rc = 0;
   for (int v = 0; v < raw->nv; v++) {
     master[v] = v;
-    if (fabs(raw->xy[2 * v]) < tol) left[nl++] = (YKey){raw->xy[2 * v + 1], v};
+    if (fabs(raw->x[2 * v]) < tol) left[nl++] = (YKey){raw->x[2 * v + 1], v};
   }
   qsort(left, nl, sizeof *left, cmp_y);
   for (int v = 0; v < raw->nv && rc == 0; v++) {
-    if (fabs(raw->xy[2 * v] - s->L) >= tol) continue;
-    double y = raw->xy[2 * v + 1];
+    if (fabs(raw->x[2 * v] - s->L) >= tol) continue;
+    double y = raw->x[2 * v + 1];
     int lo = 0, hi = nl;
     while (lo < hi) {
       int mid = (lo + hi) / 2;
@@ -257,12 +207,12 @@ static int match_periodic(const RawMesh *raw, const TunnelSpec *s, int *master, 
   return rc;
 }
 
-static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen) {
+static int build_topology(FluidMesh *m, const RawMesh *raw, char *err, size_t errlen) {
   const TunnelSpec *s = &m->spec;
   m->nv = raw->nv;
   m->nc = raw->nc;
-  m->g0 = raw->xy;
-  m->cell = raw->tri;
+  m->g0 = raw->x;
+  m->cell = raw->cell;
   /* counter-clockwise cells */
   for (int c = 0; c < m->nc; c++)
     if (mesh_volume(m, m->g0, c) < 0) {
@@ -345,7 +295,7 @@ static int build_topology(Mesh *m, const RawMesh *raw, char *err, size_t errlen)
   return rc;
 }
 
-int mesh_tunnel(Mesh *m, const TunnelSpec *spec, char *err, size_t errlen) {
+int mesh_tunnel(FluidMesh *m, const TunnelSpec *spec, char *err, size_t errlen) {
   memset(m, 0, sizeof *m);
   m->dim = 2;
   m->nk = 3;
@@ -359,8 +309,7 @@ int mesh_tunnel(Mesh *m, const TunnelSpec *spec, char *err, size_t errlen) {
                 spec->size, spec->cx, spec->cy, spec->L, spec->H);
   RawMesh raw = {0};
   if (gmsh_mesh(spec, &raw, err, errlen) != 0) {
-    free(raw.xy);
-    free(raw.tri);
+    gmsh_raw_free(&raw);
     return -1;
   }
   if (build_topology(m, &raw, err, errlen) != 0) {
@@ -373,14 +322,14 @@ int mesh_tunnel(Mesh *m, const TunnelSpec *spec, char *err, size_t errlen) {
 /* ---------------------------------------------------------------- deformation */
 
 /* C1 blend: 1 for r <= r1, 0 for r >= r2 (smoothstep between). */
-static double blend(const Mesh *m, double r) {
+static double blend(const FluidMesh *m, double r) {
   if (r <= m->blend_r1) return 1;
   if (r >= m->blend_r2) return 0;
   double t = (m->blend_r2 - r) / (m->blend_r2 - m->blend_r1);
   return t * t * (3 - 2 * t);
 }
 
-int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen) {
+int mesh_deform(const FluidMesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen) {
   const TunnelSpec *s = &m->spec;
   double A0 = m->obstacle_area0, LH = s->L * s->H;
   /* fluid area after the blend is LH - sigma^2 A0; the stretch kappa in y
@@ -401,7 +350,7 @@ int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *
   return 0;
 }
 
-double mesh_mean_edge(const Mesh *m) {
+double mesh_mean_edge(const FluidMesh *m) {
   double s = 0;
   for (int j = 0; j < m->nf; j++) {
     const double *a = m->g0 + 2 * m->face[2 * j], *b = m->g0 + 2 * m->face[2 * j + 1];
@@ -453,7 +402,7 @@ static int cmp_key(const void *x, const void *y) {
 /* old[i]: the cell numbered i, along the Hilbert curve through the rest
  * centroids (the bounding box's longest side scaled to the curve's grid, so
  * the curve is not stretched along the shorter ones). */
-static void order_hilbert(const Mesh *m, int *old) {
+static void order_hilbert(const FluidMesh *m, int *old) {
   int dim = m->dim, nk = m->nk, bits = dim == 3 ? 21 : 31;
   double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
   double *mid = malloc((size_t)m->nc * dim * sizeof *mid);
@@ -479,7 +428,7 @@ static void order_hilbert(const Mesh *m, int *old) {
   free(mid);
 }
 
-static int degree(const Mesh *m, int c) {
+static int degree(const FluidMesh *m, int c) {
   int n = 0;
   for (int k = 0; k < m->nk; k++) n += m->nbr[m->nk * c + k] >= 0;
   return n;
@@ -488,7 +437,7 @@ static int degree(const Mesh *m, int c) {
 /* Breadth-first from `start` over the cells not yet in old[0..n), each
  * cell's neighbours taken by increasing degree (Cuthill-McKee); appends
  * them to old and returns the new count. */
-static int cuthill_mckee(const Mesh *m, int start, int *old, int n, char *seen) {
+static int cuthill_mckee(const FluidMesh *m, int start, int *old, int n, char *seen) {
   int head = n;
   old[n++] = start, seen[start] = 1;
   while (head < n) {
@@ -508,7 +457,7 @@ static int cuthill_mckee(const Mesh *m, int start, int *old, int n, char *seen) 
 /* old[i]: the cell numbered i by reverse Cuthill-McKee, each connected part
  * started from a pseudo-peripheral cell (the last cell of a breadth-first
  * sweep, twice). */
-static void order_rcm(const Mesh *m, int *old) {
+static void order_rcm(const FluidMesh *m, int *old) {
   char *seen = calloc(m->nc, 1);
   int n = 0;
   for (int s = 0; s < m->nc; s++) {
@@ -534,7 +483,7 @@ static int *permuted_ints(const int *a, const int *old, int n, int width) {
   return b;
 }
 
-void mesh_renumber(Mesh *m, MeshOrder order) {
+void mesh_renumber(FluidMesh *m, MeshOrder order) {
   if (order == MO_MESHER) return;
   int nc = m->nc, nf = m->nf, nv = m->nv, nk = m->nk, dim = m->dim;
   int *oldc = malloc((size_t)nc * sizeof *oldc), *newc = malloc((size_t)nc * sizeof *newc);

@@ -2,7 +2,7 @@
  * tetrahedra in 3D: `dim`), and the 2D periodic wind tunnel with a
  * triangular obstacle (paper §7.1, Fig. 5), meshed by gmsh, with its
  * deformation: the obstacle changing size with fixed topology. The 3D
- * deforming cavity (paper §7.2) is cavity.h; it fills the same Mesh.
+ * deforming cavity (paper §7.2) is cavity.h; it fills the same FluidMesh.
  *
  * Domain: [0, L] x [0, H], periodic in x (flow direction), walls at y = 0
  * and y = H; an equilateral triangle (side `size`, apex pointing upstream)
@@ -44,7 +44,9 @@ typedef enum FaceKind {
   BF_OBSTACLE, /* obstacle wall */
 } FaceKind;
 
-typedef struct Mesh {
+/* The fluid's simplicial mesh (triangles or tetrahedra) with its faces and boundary; not
+ * examples/common/meshgen.h's Mesh, a radiosity room. */
+typedef struct FluidMesh {
   int dim;             /* 2: triangles and edges; 3: tetrahedra and triangles */
   int nk;              /* dim + 1: vertices (and faces) of a cell */
   TunnelSpec spec;     /* 2D tunnel only */
@@ -63,17 +65,20 @@ typedef struct Mesh {
   int obstacle[3];     /* the obstacle's corner vertices */
   double obstacle_area0; /* obstacle area at rest */
   double blend_r1, blend_r2; /* deformation blend: 1 inside r1, 0 outside r2 (mesh_deform) */
-} Mesh;
+} FluidMesh;
 
 /* The default tunnel of the example: L 4, H 1, obstacle at (1, 0.48) (a
  * little below the centre line, so the wake is not symmetric). */
 TunnelSpec tunnel_spec_default(void);
+/* The obstacle's scale at frame `frame` of a run pulsing about `scale`:
+ * scale + pulse sin(2 pi frame / period) (paper §7.1, Fig. 5's runs). */
+double tunnel_obstacle_scale(double scale, double pulse, double period, int frame);
 
 /* Mesh `spec` with gmsh (initialized and finalized inside) and build the
  * topology. 0 on success; otherwise -1 with the reason in `err` and `m`
  * zeroed. */
-int mesh_tunnel(Mesh *m, const TunnelSpec *spec, char *err, size_t errlen);
-void mesh_free(Mesh *m);
+int mesh_tunnel(FluidMesh *m, const TunnelSpec *spec, char *err, size_t errlen);
+void mesh_free(FluidMesh *m);
 
 /* Deformed positions `g` [nv][2] for obstacle scale `sigma` (1 = rest):
  * vertices within blend_r1 of the obstacle centroid scale by sigma about it,
@@ -87,7 +92,7 @@ void mesh_free(Mesh *m);
  * Checks every cell: 0 when none is inverted; otherwise -1 and `err` says
  * "deformation to obstacle scale S inverts element C (area A)", `g` then
  * holds the inverted positions (for inspection only). */
-int mesh_deform(const Mesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen);
+int mesh_deform(const FluidMesh *m, double sigma, double sigma_ref, double *g, char *err, size_t errlen);
 
 /* How a mesh's cells, faces and vertices are numbered once meshed. The
  * solver's loops and npg's generated ones gather f, h, u and g through nbr,
@@ -108,23 +113,23 @@ typedef enum MeshOrder {
  * csign, nbr, nshift and fkind follow their cell or face; bface lists the
  * same boundary faces in increasing new number; vmaster and obstacle
  * follow the vertices. */
-void mesh_renumber(Mesh *m, MeshOrder order);
+void mesh_renumber(FluidMesh *m, MeshOrder order);
 
 /* Face f is face k0 of cell c0 (its normal out of c0) and face k1 of cell
  * c1 (c1 = -1 on the boundary): cface, csign, nbr, fcell, and fkind
  * BF_INTERIOR for two cells (a boundary face's kind is the caller's). */
-void mesh_link_face(Mesh *m, int f, int c0, int k0, int c1, int k1);
+void mesh_link_face(FluidMesh *m, int f, int c0, int k0, int c1, int k1);
 /* Signed area (2D) or volume (3D) of cell c at positions g. */
-double mesh_volume(const Mesh *m, const double *g, int c);
+double mesh_volume(const FluidMesh *m, const double *g, int c);
 /* Minimum over cells of the quality, 1 for a regular simplex, 0 degenerate,
  * negative inverted: 4 sqrt(3) A / sum of l^2 in 2D, 6 sqrt(2) V / l_rms^3
  * in 3D (l_rms the root mean square of the six edges), and the worst cell
  * in *worst (when not NULL). */
-double mesh_min_quality(const Mesh *m, const double *g, int *worst);
+double mesh_min_quality(const FluidMesh *m, const double *g, int *worst);
 /* Fluid area or volume (sum of cell volumes) at g. */
-double mesh_fluid_volume(const Mesh *m, const double *g);
+double mesh_fluid_volume(const FluidMesh *m, const double *g);
 /* The mean length of a 2D mesh's faces (its edges) at rest (g0): the length
  * the time step is chosen by. */
-double mesh_mean_edge(const Mesh *m);
+double mesh_mean_edge(const FluidMesh *m);
 
 #endif

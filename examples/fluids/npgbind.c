@@ -11,7 +11,7 @@ static double *ints(const int *v, size_t n) {
 }
 
 /* fluids3d.npg's params: tet, tri, cface, csign, nbr, bface, mu. */
-static int params3d(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]) {
+static int params3d(const FluidMesh *m, double mu, FluidParam out[FLUID_NPARAMS]) {
   long C = m->nc, F = m->nf, B = m->nb;
   int k = 0;
   memset(out, 0, FLUID_NPARAMS * sizeof *out);
@@ -29,7 +29,7 @@ static int params3d(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]) {
   return k;
 }
 
-int fluid_params(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]) {
+int fluid_params(const FluidMesh *m, double mu, FluidParam out[FLUID_NPARAMS]) {
   if (m->dim == 3) return params3d(m, mu, out);
   long C = m->nc, F = m->nf, B = m->nb, U = 2 * C;
   int k = 0;
@@ -60,7 +60,7 @@ void fluid_params_free(FluidParam p[FLUID_NPARAMS]) {
   for (int i = 0; i < FLUID_NPARAMS; i++) free(p[i].v), p[i].v = NULL;
 }
 
-int fluid_bind(NpgFull *f, const Mesh *m, double mu) {
+int fluid_bind(NpgFull *f, const FluidMesh *m, double mu) {
   FluidParam p[FLUID_NPARAMS];
   int n = fluid_params(m, mu, p), rc = 0;
   for (int i = 0; i < n && !rc; i++)

@@ -23,10 +23,10 @@ typedef struct FluidParam {
 /* The params, their number returned: in 2D tri, edge, cface, csign, nbr,
  * bface, ucell, ucomp, unbr, mu; in 3D tet, tri, cface, csign, nbr, bface,
  * mu (the rest of `out` zeroed). */
-int fluid_params(const Mesh *m, double mu, FluidParam out[FLUID_NPARAMS]);
+int fluid_params(const FluidMesh *m, double mu, FluidParam out[FLUID_NPARAMS]);
 void fluid_params_free(FluidParam p[FLUID_NPARAMS]);
 /* Bind them in f. 0, or -1 with npg_full_error(f). */
-int fluid_bind(NpgFull *f, const Mesh *m, double mu);
+int fluid_bind(NpgFull *f, const FluidMesh *m, double mu);
 
 /* The trainer's options for the fluid programs: per-member caps of u (the
  * shared class gets one more vector from each of p, pv, pdot, lap, whose

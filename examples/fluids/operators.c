@@ -62,7 +62,7 @@ static void csr_alloc(Csr *M, int nrow, int ncol, int nnz) {
 
 /* A cell's row over itself and its neighbours: the pattern of A and lap.
  * Entry 0 of row i is the diagonal, then one per face k with a neighbour. */
-static void cell_pattern(const Mesh *m, Csr *M) {
+static void cell_pattern(const FluidMesh *m, Csr *M) {
   int nk = m->nk, nnz = m->nc;
   for (int i = 0; i < nk * m->nc; i++) nnz += m->nbr[i] >= 0;
   csr_alloc(M, m->nc, m->nc, nnz);
@@ -76,7 +76,7 @@ static void cell_pattern(const Mesh *m, Csr *M) {
   M->rowptr[m->nc] = p;
 }
 
-void ops_init(Ops *o, const Mesh *m) {
+void ops_init(Ops *o, const FluidMesh *m) {
   memset(o, 0, sizeof *o);
   o->m = m;
   int dim = m->dim, nk = m->nk;
@@ -129,7 +129,7 @@ void ops_free(Ops *o) {
 }
 
 void ops_set_geometry(Ops *o, const double *g) {
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   o->g = g;
   int dim = m->dim, nk = m->nk;
   for (int c = 0; c < m->nc; c++) {
@@ -150,7 +150,7 @@ void ops_set_geometry(Ops *o, const double *g) {
 }
 
 void ops_set_advection(Ops *o, const double *phi) {
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   /* paper Eq. 6 with the minus sign explicit: csign*phi leaves cell i,
    * carrying the face value (u_e + u_i)/2; boundary faces carry nothing */
   int nk = m->nk;
@@ -169,7 +169,7 @@ void ops_set_advection(Ops *o, const double *phi) {
 }
 
 /* Area vector of triangle face j at g (3D): 0.5 (g1 - g0) x (g2 - g0). */
-static void area_vector(const Mesh *m, const double *g, int j, double n[3]) {
+static void area_vector(const FluidMesh *m, const double *g, int j, double n[3]) {
   const double *a = g + 3 * m->face[3 * j], *b = g + 3 * m->face[3 * j + 1], *c = g + 3 * m->face[3 * j + 2];
   double e[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, q[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
   n[0] = 0.5 * (e[1] * q[2] - e[2] * q[1]);
@@ -177,7 +177,7 @@ static void area_vector(const Mesh *m, const double *g, int j, double n[3]) {
   n[2] = 0.5 * (e[0] * q[1] - e[1] * q[0]);
 }
 
-void ops_induced_flux(const Mesh *m, const double *g, const double *gdot, double *h) {
+void ops_induced_flux(const FluidMesh *m, const double *g, const double *gdot, double *h) {
   if (m->dim == 3) {
     for (int j = 0; j < m->nf; j++) {
       const int *t = m->face + 3 * j;
@@ -196,7 +196,7 @@ void ops_induced_flux(const Mesh *m, const double *g, const double *gdot, double
   }
 }
 
-void ops_swept_flux(const Mesh *m, const double *g0, const double *g1, const double *gmid, const double *gdot,
+void ops_swept_flux(const FluidMesh *m, const double *g0, const double *g1, const double *gmid, const double *gdot,
                     double *h) {
   ops_induced_flux(m, gmid, gdot, h);
   if (m->dim != 3) return; /* the edge's normal is linear in t: the midpoint is exact */

@@ -39,7 +39,7 @@ void csr_mtv(const Csr *M, const double *x, double *y);
 void csr_free(Csr *M);
 
 typedef struct Ops {
-  const Mesh *m;
+  const FluidMesh *m;
   const double *g; /* the positions last set (the caller's array, not copied) */
   double *area; /* [C] V(g) at the geometry last set */
   Csr P;        /* at the geometry last set */
@@ -48,7 +48,7 @@ typedef struct Ops {
 } Ops;
 
 /* Patterns and the constant operators (lap, D, div). */
-void ops_init(Ops *o, const Mesh *m);
+void ops_init(Ops *o, const FluidMesh *m);
 void ops_free(Ops *o);
 /* V(g) and P(g). */
 void ops_set_geometry(Ops *o, const double *g);
@@ -59,12 +59,12 @@ void ops_set_advection(Ops *o, const double *phi);
  * In 2D, with g the midpoint of a linear motion and gdot its rate, h_j dt is
  * exactly the area edge j sweeps; in 3D the area vector is quadratic along
  * the motion and the midpoint is exact only to O(dt^2): ops_swept_flux. */
-void ops_induced_flux(const Mesh *m, const double *g, const double *gdot, double *h);
+void ops_induced_flux(const FluidMesh *m, const double *g, const double *gdot, double *h);
 /* The flux of the linear motion g0 -> g1 (midpoint gmid, rate gdot) over
  * the step, exactly: h_j dt is the volume face j sweeps (2D: h(gmid, gdot);
  * 3D: Simpson's rule on the area vector, exact for its quadratic). So the
  * boundary's h sums to the change of the fluid volume over dt. */
-void ops_swept_flux(const Mesh *m, const double *g0, const double *g1, const double *gmid, const double *gdot,
+void ops_swept_flux(const FluidMesh *m, const double *g0, const double *g1, const double *gmid, const double *gdot,
                     double *h);
 /* u = V^-1 P f (Eq. 13), with the geometry last set. */
 void ops_velocity_from_flux(const Ops *o, const double *f, double *u);

@@ -54,7 +54,7 @@ static int write_png(const char *path, int w, int h, unsigned char *rgb, char *e
   return 0;
 }
 
-int output_png(const char *path, const Mesh *m, const double *g, const double *u, const Particles *p, double vmax,
+int output_png(const char *path, const FluidMesh *m, const double *g, const double *u, const Particles *p, double vmax,
                int width, char *err, size_t errlen) {
   double ymin = INFINITY, ymax = -INFINITY;
   for (int v = 0; v < m->nv; v++) ymin = fmin(ymin, g[2 * v + 1]), ymax = fmax(ymax, g[2 * v + 1]);
@@ -122,7 +122,7 @@ static int close_rename(FILE *fp, const char *tmp, const char *path, char *err, 
   return 0;
 }
 
-static void vtu_points(FILE *fp, const Mesh *m, const double *g) {
+static void vtu_points(FILE *fp, const FluidMesh *m, const double *g) {
   fprintf(fp, "<Points><DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n");
   for (int v = 0; v < m->nv; v++) fprintf(fp, "%.17g %.17g 0\n", g[2 * v], g[2 * v + 1]);
   fprintf(fp, "</DataArray></Points>\n");
@@ -144,7 +144,7 @@ static void vtu_cells(FILE *fp, int n, int nper, const int *conn, int type) {
 static const char *vtu_head = "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"0.1\" "
                               "byte_order=\"LittleEndian\">\n<UnstructuredGrid>\n";
 
-int output_vtu_cells(const char *path, const Mesh *m, const double *g, const double *u, char *err, size_t errlen) {
+int output_vtu_cells(const char *path, const FluidMesh *m, const double *g, const double *u, char *err, size_t errlen) {
   char tmp[4096];
   FILE *fp = open_tmp(path, tmp, sizeof tmp, err, errlen);
   if (!fp) return -1;
@@ -162,7 +162,7 @@ int output_vtu_cells(const char *path, const Mesh *m, const double *g, const dou
   return close_rename(fp, tmp, path, err, errlen);
 }
 
-int output_vtu_faces(const char *path, const Mesh *m, const double *g, const double *f, const double *h, char *err,
+int output_vtu_faces(const char *path, const FluidMesh *m, const double *g, const double *f, const double *h, char *err,
                      size_t errlen) {
   char tmp[4096];
   FILE *fp = open_tmp(path, tmp, sizeof tmp, err, errlen);
@@ -193,7 +193,7 @@ int output_pvd(const char *path, int n, const char *const *files, const double *
 
 /* ---------------------------------------------------------------- 3D */
 
-int output_vtk_tets(const char *path, const Mesh *m, const double *g, const double *u, char *err, size_t errlen) {
+int output_vtk_tets(const char *path, const FluidMesh *m, const double *g, const double *u, char *err, size_t errlen) {
   char tmp[4096];
   FILE *fp = open_tmp(path, tmp, sizeof tmp, err, errlen);
   if (!fp) return -1;
@@ -226,7 +226,7 @@ static void camera(const double x[3], double dist, double *sx, double *sy, doubl
   *sx = xr * dist / z, *sy = xu * dist / z, *depth = z;
 }
 
-int output_png_points(const char *path, const Mesh *m, const double *g, const Particles *p, double extent, int width,
+int output_png_points(const char *path, const FluidMesh *m, const double *g, const Particles *p, double extent, int width,
                       char *err, size_t errlen) {
   int w = width, h = width * 3 / 4;
   unsigned char *rgb = malloc(3 * (size_t)w * h);

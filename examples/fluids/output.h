@@ -14,23 +14,23 @@
 /* The frame: cells coloured by |u| (0 .. vmax, clamped), obstacle and outside
  * grey, particles as dots (white or orange by tag; NULL for none), `width`
  * pixels across the tunnel length, height from the current geometry. */
-int output_png(const char *path, const Mesh *m, const double *g, const double *u, const Particles *p, double vmax,
+int output_png(const char *path, const FluidMesh *m, const double *g, const double *u, const Particles *p, double vmax,
                int width, char *err, size_t errlen);
 /* Cells (triangles) with cell data velocity (3 components, z = 0), speed
  * and area. */
-int output_vtu_cells(const char *path, const Mesh *m, const double *g, const double *u, char *err, size_t errlen);
+int output_vtu_cells(const char *path, const FluidMesh *m, const double *g, const double *u, char *err, size_t errlen);
 /* Faces (edges, as lines) with cell data flux f, induced flux h and kind
  * (0 interior, 1 wall, 2 obstacle). */
-int output_vtu_faces(const char *path, const Mesh *m, const double *g, const double *f, const double *h, char *err,
+int output_vtu_faces(const char *path, const FluidMesh *m, const double *g, const double *f, const double *h, char *err,
                      size_t errlen);
 /* 3D: the tetrahedra with cell data velocity and speed as a legacy .vtk
  * file (ASCII; ParaView opens a numbered series as one time series). */
-int output_vtk_tets(const char *path, const Mesh *m, const double *g, const double *u, char *err, size_t errlen);
+int output_vtk_tets(const char *path, const FluidMesh *m, const double *g, const double *u, char *err, size_t errlen);
 /* 3D: the particles as 2x2 point splats (white or orange by tag, darker
  * farther away, nearest in front) and the boundary's vertices as grey dots,
  * through a perspective camera looking down at the origin at 55 degrees;
  * `extent` is the scene's radius, `width` the image width (height 3/4 of it). */
-int output_png_points(const char *path, const Mesh *m, const double *g, const Particles *p, double extent, int width,
+int output_png_points(const char *path, const FluidMesh *m, const double *g, const Particles *p, double extent, int width,
                       char *err, size_t errlen);
 /* Whether frame t of frames 0 .. last is written when output is asked every
  * `every` frames: the multiples of `every`, and always the last frame, so a

@@ -34,7 +34,7 @@ static double det3(const double *a, const double *b, const double *c, const doub
          e[0][2] * (e[1][0] * e[2][1] - e[1][1] * e[2][0]);
 }
 
-int particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigned seed) {
+int particles_seed(Particles *p, const FluidMesh *m, const double *g, int n, unsigned seed) {
   memset(p, 0, sizeof *p);
   int dim = m->dim, nk = m->nk;
   p->n = n;
@@ -103,7 +103,7 @@ int particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigned
 
 /* Eq. 13 in cell c from its faces' outward fluxes out[k] (face k opposite
  * vertex k). */
-static void cell_velocity(const Mesh *m, const double *g, int c, const double *out, double *u) {
+static void cell_velocity(const FluidMesh *m, const double *g, int c, const double *out, double *u) {
   int dim = m->dim, nk = m->nk;
   const int *t = m->cell + nk * c;
   double cen[3] = {0, 0, 0}, vol = mesh_volume(m, g, c);
@@ -118,14 +118,14 @@ static void cell_velocity(const Mesh *m, const double *g, int c, const double *o
   for (int d = 0; d < dim; d++) u[d] /= vol;
 }
 
-void particles_cell_velocity(const Mesh *m, const double *g, const double *f, int c, double *u) {
+void particles_cell_velocity(const FluidMesh *m, const double *g, const double *f, int c, double *u) {
   double out[4];
   for (int k = 0; k < m->nk; k++) out[k] = m->csign[m->nk * c + k] * f[m->cface[m->nk * c + k]];
   cell_velocity(m, g, c, out, u);
 }
 
 /* Barycentric coordinates of x in cell c. */
-static void barycentric(const Mesh *m, const double *g, int c, const double *x, double *lam) {
+static void barycentric(const FluidMesh *m, const double *g, int c, const double *x, double *lam) {
   if (m->dim == 3) {
     const int *t = m->cell + 4 * c;
     const double *v[4] = {g + 3 * t[0], g + 3 * t[1], g + 3 * t[2], g + 3 * t[3]};
@@ -145,7 +145,7 @@ static void barycentric(const Mesh *m, const double *g, int c, const double *x, 
   }
 }
 
-int particles_locate(const Mesh *m, const double *g, double *x, int *cell) {
+int particles_locate(const FluidMesh *m, const double *g, double *x, int *cell) {
   int dim = m->dim, nk = m->nk, c = *cell, steps = 0;
   for (int d = 0; d < dim; d++)
     if (!isfinite(x[d])) return 0; /* a diverged flow: nothing to find */
@@ -177,7 +177,7 @@ int particles_locate(const Mesh *m, const double *g, double *x, int *cell) {
   return steps;
 }
 
-void particles_advect(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps) {
+void particles_advect(Particles *p, const FluidMesh *m, const double *g, const double *f, double dt, int substeps) {
   int dim = m->dim;
   double h = dt / substeps;
   for (int i = 0; i < p->n; i++) {
@@ -207,7 +207,7 @@ static double face_flux(ParticleCache *pc, const ParticleFlow *fl, int frame, in
 
 /* Cell c's velocity (Eq. 13) and barycentric map (λ_1..3 = M (x - g_0),
  * λ_0 = 1 - their sum), computed on the first visit of the frame. */
-static void visit(ParticleCache *pc, const Mesh *m, const ParticleFlow *fl, int frame, int c) {
+static void visit(ParticleCache *pc, const FluidMesh *m, const ParticleFlow *fl, int frame, int c) {
   if (pc->stamp[c] == frame) return;
   pc->stamp[c] = frame;
   pc->cells++;
@@ -234,7 +234,7 @@ static void visit(ParticleCache *pc, const Mesh *m, const ParticleFlow *fl, int 
   B[9] = a[0], B[10] = a[1], B[11] = a[2];
 }
 
-static int locate3(ParticleCache *pc, const Mesh *m, const ParticleFlow *fl, int frame, double *x, int *cell) {
+static int locate3(ParticleCache *pc, const FluidMesh *m, const ParticleFlow *fl, int frame, double *x, int *cell) {
   const double *g = fl->g;
   int c = *cell, steps = 0;
   if (!isfinite(x[0]) || !isfinite(x[1]) || !isfinite(x[2])) return 0;
@@ -267,7 +267,7 @@ static int locate3(ParticleCache *pc, const Mesh *m, const ParticleFlow *fl, int
   return steps;
 }
 
-void particles_sort_by_cell(Particles *p, const Mesh *m) {
+void particles_sort_by_cell(Particles *p, const FluidMesh *m) {
   int n = p->n, dim = p->dim ? p->dim : m->dim;
   if (!p->order_count) {
     p->order_count = malloc(((size_t)m->nc + 1) * sizeof *p->order_count);
@@ -291,7 +291,7 @@ void particles_sort_by_cell(Particles *p, const Mesh *m) {
 /* One thread's share of the particles, [lo, hi), through its own cache. */
 typedef struct AdvectJob {
   Particles *p;
-  const Mesh *m;
+  const FluidMesh *m;
   const ParticleFlow *fl;
   ParticleCache *pc;
   int lo, hi, substeps;
@@ -315,7 +315,7 @@ static void *advect_range(void *arg) {
   return NULL;
 }
 
-static int cache_alloc(ParticleCache *pc, const Mesh *m, int faces) {
+static int cache_alloc(ParticleCache *pc, const FluidMesh *m, int faces) {
   if (!pc->stamp) {
     pc->stamp = calloc(m->nc, sizeof *pc->stamp);
     pc->vel = malloc(3 * (size_t)m->nc * sizeof *pc->vel);
@@ -328,7 +328,7 @@ static int cache_alloc(ParticleCache *pc, const Mesh *m, int faces) {
   return pc->stamp && pc->vel && pc->bary && (!faces || (pc->fstamp && pc->fval)) ? 0 : -1;
 }
 
-int particles_advect_flow(Particles *p, const Mesh *m, const ParticleFlow *fl, double dt, int substeps) {
+int particles_advect_flow(Particles *p, const FluidMesh *m, const ParticleFlow *fl, double dt, int substeps) {
   if (m->dim != 3) {
     if (!fl->f) return -1;
     particles_advect(p, m, fl->g, fl->f, dt, substeps);
@@ -365,7 +365,7 @@ int particles_advect_flow(Particles *p, const Mesh *m, const ParticleFlow *fl, d
   return 0;
 }
 
-void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps) {
+void particles_advect_cached(Particles *p, const FluidMesh *m, const double *g, const double *f, double dt, int substeps) {
   ParticleFlow fl = {.g = g, .f = f};
   particles_advect_flow(p, m, &fl, dt, substeps);
 }

@@ -55,16 +55,16 @@ typedef struct Particles {
 /* n particles uniformly distributed over 12 thin streaks of the fluid at
  * positions g (bands across y in 2D, slabs across z in 3D), tagged
  * alternately. 0, or -1 (out of memory: `p` then holds no particles). */
-int particles_seed(Particles *p, const Mesh *m, const double *g, int n, unsigned seed);
+int particles_seed(Particles *p, const FluidMesh *m, const double *g, int n, unsigned seed);
 void particles_free(Particles *p);
 /* Eq. 13 evaluated locally in cell c: u [dim]. */
-void particles_cell_velocity(const Mesh *m, const double *g, const double *f, int c, double *u);
+void particles_cell_velocity(const FluidMesh *m, const double *g, const double *f, int c, double *u);
 /* Walk from *cell towards x until a cell contains x (x is wrapped across
  * periodic faces and clamped onto walls). Returns the faces crossed. */
-int particles_locate(const Mesh *m, const double *g, double *x, int *cell);
+int particles_locate(const FluidMesh *m, const double *g, double *x, int *cell);
 /* Advance every particle by dt in `substeps` Euler substeps through the flux
  * field f on the mesh at g (paper: ten substeps per frame). */
-void particles_advect(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps);
+void particles_advect(Particles *p, const FluidMesh *m, const double *g, const double *f, double dt, int substeps);
 
 /* The same in 3D with each visited cell's velocity and barycentric map
  * computed once per call (the flow and the mesh are fixed over the frame):
@@ -74,12 +74,12 @@ void particles_advect(Particles *p, const Mesh *m, const double *g, const double
  * its own cache: the motion is the same bit for bit for any number of
  * threads. In 2D it is particles_advect (f required). 0, or -1 when out of
  * memory or a 2D flow has no f (nothing moved). */
-int particles_advect_flow(Particles *p, const Mesh *m, const ParticleFlow *fl, double dt, int substeps);
+int particles_advect_flow(Particles *p, const FluidMesh *m, const ParticleFlow *fl, double dt, int substeps);
 /* particles_advect_flow through the fluxes f. */
-void particles_advect_cached(Particles *p, const Mesh *m, const double *g, const double *f, double dt, int substeps);
+void particles_advect_cached(Particles *p, const FluidMesh *m, const double *g, const double *f, double dt, int substeps);
 /* Reorder the particles by their cells' numbers (a counting sort, stable):
  * on a mesh numbered for locality (mesh_renumber) consecutive particles
  * then visit nearby cells. particles_advect_cached does it every frame. */
-void particles_sort_by_cell(Particles *p, const Mesh *m);
+void particles_sort_by_cell(Particles *p, const FluidMesh *m);
 
 #endif

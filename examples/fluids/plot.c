@@ -1,4 +1,4 @@
-/* plot.c — line plots and side-by-side frames with cairo (see plot.h). */
+/* plot.c — side-by-side frames and colour bars with cairo (see plot.h). */
 #include "plot.h"
 #include "util.h"
 
@@ -8,129 +8,6 @@
 #include <stdio.h>
 
 #include <cairo.h>
-#include <fontconfig/fontconfig.h>
-
-static const double palette[][3] = {{0.12, 0.47, 0.71}, {1.0, 0.5, 0.05}, {0.17, 0.63, 0.17}, {0.84, 0.15, 0.16},
-                                    {0.58, 0.4, 0.74},  {0.55, 0.34, 0.29}, {0.89, 0.47, 0.76}, {0.5, 0.5, 0.5}};
-
-int plot_lines(const char *path, const char *title, const char *xlabel, const char *ylabel, int nseries,
-               const int *n, const double *const *x, const double *const *y, const char *const *labels, int logy,
-               char *err, size_t errlen) {
-  const int W = 940, H = 560, L = 110, R = 190, T = 50, B = 60;
-  double x0 = INFINITY, x1 = -INFINITY, y0 = INFINITY, y1 = -INFINITY;
-  for (int s = 0; s < nseries; s++)
-    for (int k = 0; k < n[s]; k++) {
-      double yv = y[s][k];
-      if (logy) {
-        if (!(yv > 0)) continue;
-        yv = log10(yv);
-      }
-      if (!isfinite(yv)) continue;
-      x0 = fmin(x0, x[s][k]), x1 = fmax(x1, x[s][k]), y0 = fmin(y0, yv), y1 = fmax(y1, yv);
-    }
-  if (!(x1 >= x0) || !(y1 >= y0)) {
-    snprintf(err, errlen, "%s: nothing to plot", path);
-    return -1;
-  }
-  if (x1 == x0) x0 -= 1, x1 += 1;
-  if (logy) y0 = floor(y0), y1 = ceil(y1);
-  if (y1 == y0) y0 -= 1, y1 += 1;
-  cairo_surface_t *sf = cairo_image_surface_create(CAIRO_FORMAT_RGB24, W, H);
-  cairo_t *cr = cairo_create(sf);
-  cairo_set_source_rgb(cr, 1, 1, 1);
-  cairo_paint(cr);
-  cairo_select_font_face(cr, "sans-serif", CAIRO_FONT_SLANT_NORMAL, CAIRO_FONT_WEIGHT_NORMAL);
-  double pw = W - L - R, ph = H - T - B;
-#define PX(v) (L + ((v) - x0) / (x1 - x0) * pw)
-#define PY(v) (T + ph - ((v) - y0) / (y1 - y0) * ph)
-  /* grid and ticks */
-  cairo_set_font_size(cr, 12);
-  cairo_set_line_width(cr, 1);
-  char buf[64];
-  int ny = logy ? (int)(y1 - y0) : 5;
-  for (int i = 0; i <= ny; i++) {
-    double v = y0 + (y1 - y0) * i / ny;
-    cairo_set_source_rgb(cr, 0.88, 0.88, 0.88);
-    cairo_move_to(cr, L, PY(v)), cairo_line_to(cr, L + pw, PY(v)), cairo_stroke(cr);
-    cairo_set_source_rgb(cr, 0, 0, 0);
-    if (logy)
-      snprintf(buf, sizeof buf, "1e%d", (int)lround(v));
-    else
-      snprintf(buf, sizeof buf, "%.3g", v);
-    cairo_text_extents_t ext;
-    cairo_text_extents(cr, buf, &ext);
-    cairo_move_to(cr, L - 8 - ext.x_advance, PY(v) + 4), cairo_show_text(cr, buf);
-  }
-  /* x ticks at a round step; where every x is a whole number (frames, basis sizes: a
-   * count) the step is too, so no tick falls between two counts */
-  bool counts = true;
-  for (int s = 0; s < nseries; s++)
-    for (int k = 0; k < n[s]; k++) counts = counts && x[s][k] == floor(x[s][k]);
-  double xs = util_tick_step(x1 - x0, 6);
-  if (counts && xs < 1) xs = 1;
-  for (double v = ceil(x0 / xs - 1e-9) * xs; v <= x1 + 1e-9 * xs; v += xs) {
-    cairo_set_source_rgb(cr, 0.88, 0.88, 0.88);
-    cairo_move_to(cr, PX(v), T), cairo_line_to(cr, PX(v), T + ph), cairo_stroke(cr);
-    cairo_set_source_rgb(cr, 0, 0, 0);
-    snprintf(buf, sizeof buf, "%.4g", fabs(v) < 1e-9 * xs ? 0.0 : v);
-    cairo_text_extents_t ext;
-    cairo_text_extents(cr, buf, &ext);
-    cairo_move_to(cr, PX(v) - ext.x_advance / 2, T + ph + 18), cairo_show_text(cr, buf);
-  }
-  cairo_set_source_rgb(cr, 0, 0, 0);
-  cairo_rectangle(cr, L, T, pw, ph), cairo_stroke(cr);
-  cairo_set_font_size(cr, 16);
-  cairo_move_to(cr, L, 30), cairo_show_text(cr, title);
-  cairo_set_font_size(cr, 13);
-  cairo_move_to(cr, L + pw / 2 - 40, H - 15), cairo_show_text(cr, xlabel);
-  cairo_save(cr);
-  cairo_text_extents_t yl;
-  cairo_text_extents(cr, ylabel, &yl);
-  cairo_move_to(cr, 22, T + ph / 2 + yl.x_advance / 2), cairo_rotate(cr, -M_PI / 2), cairo_show_text(cr, ylabel);
-  cairo_restore(cr);
-  /* series */
-  for (int s = 0; s < nseries; s++) {
-    const double *c = palette[s % 8];
-    cairo_set_source_rgb(cr, c[0], c[1], c[2]);
-    cairo_set_line_width(cr, 1.6);
-    int pen = 0;
-    for (int k = 0; k < n[s]; k++) {
-      double yv = y[s][k];
-      if (logy) yv = yv > 0 ? log10(yv) : NAN;
-      if (!isfinite(yv)) {
-        pen = 0;
-        continue;
-      }
-      if (pen)
-        cairo_line_to(cr, PX(x[s][k]), PY(yv));
-      else
-        cairo_move_to(cr, PX(x[s][k]), PY(yv));
-      pen = 1;
-    }
-    cairo_stroke(cr);
-    if (n[s] <= 40)
-      for (int k = 0; k < n[s]; k++) {
-        double yv = logy ? (y[s][k] > 0 ? log10(y[s][k]) : NAN) : y[s][k];
-        if (!isfinite(yv)) continue;
-        cairo_arc(cr, PX(x[s][k]), PY(yv), 3.5, 0, 2 * M_PI), cairo_fill(cr);
-      }
-    if (labels && labels[s]) {
-      cairo_rectangle(cr, L + pw + 15, T + 10 + 22 * s, 18, 4), cairo_fill(cr);
-      cairo_set_source_rgb(cr, 0, 0, 0);
-      cairo_move_to(cr, L + pw + 40, T + 16 + 22 * s), cairo_show_text(cr, labels[s]);
-    }
-  }
-#undef PX
-#undef PY
-  cairo_status_t st = cairo_surface_write_to_png(sf, path);
-  cairo_destroy(cr);
-  cairo_surface_destroy(sf);
-  if (st != CAIRO_STATUS_SUCCESS) {
-    snprintf(err, errlen, "%s: %s", path, cairo_status_to_string(st));
-    return -1;
-  }
-  return 0;
-}
 
 int plot_side_by_side(const char *path, const char *left, const char *right, const char *cap_left,
                       const char *cap_right, char *err, size_t errlen) {
@@ -211,9 +88,4 @@ int plot_colorbar(unsigned char *rgb, int width, int y0, void (*map)(double t, u
     }
   cairo_surface_destroy(sf);
   return 0;
-}
-
-void plot_cleanup(void) {
-  cairo_debug_reset_static_data();
-  FcFini();
 }

@@ -51,7 +51,7 @@ struct AugLagrangian {
  * column. */
 static void triplets(Projection *pr, bool values) {
   const Ops *o = pr->o;
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   int dim = m->dim, nk = m->nk, t = 0;
   for (int c = 0; c < m->nc; c++) {
     const double *P = o->P.val + dim * nk * c; /* rows dim c + d; columns the faces k */
@@ -92,7 +92,7 @@ const char *projection_method_name(ProjectionMethod method) {
  * the pattern alone when `values` is false. Returns w. */
 static double al_assemble(Projection *pr, bool values) {
   const Ops *o = pr->o;
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   int dim = m->dim, nk = m->nk;
   double w = 0;
   for (int c = 0; values && c < m->nc; c++)
@@ -128,7 +128,7 @@ static double al_assemble(Projection *pr, bool values) {
 }
 
 static int al_init(Projection *pr, char *err, size_t errlen) {
-  const Mesh *m = pr->o->m;
+  const FluidMesh *m = pr->o->m;
   AugLagrangian *al = pr->al = calloc(1, sizeof *al);
   cholmod_start(&al->cc);
   al->cc.print = 0;
@@ -161,7 +161,7 @@ static void al_free(AugLagrangian *al) {
 
 int projection_init(Projection *pr, const Ops *o, ProjectionMethod method, char *err, size_t errlen) {
   memset(pr, 0, sizeof *pr);
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   pr->o = o;
   pr->method = method;
   if (method == PROJ_STREAM_CHOLMOD) return stream_init(&pr->stream, o, err, errlen);
@@ -220,7 +220,7 @@ void projection_free(Projection *pr) {
  * pr->work_f (zero on the interior faces). */
 static void kkt_rhs(Projection *pr, const double *u_in, const double *h) {
   const Ops *o = pr->o;
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   double *fb = pr->work_f, *r = pr->work_f2, *w = pr->work_u;
   for (int j = 0; j < m->nf; j++) fb[j] = (pr->fidx[j] < 0 && h) ? h[j] : 0;
   /* r = P^T u - P^T V^-1 P fb */
@@ -266,7 +266,7 @@ static bool al_refactor_next(const Projection *pr, int solves) {
 /* res = bc - D x on the constraint rows (bc the KKT right-hand side's);
  * returns max |res|. */
 static double al_constraint_residual(const Projection *pr, const double *x, double *res) {
-  const Mesh *m = pr->o->m;
+  const FluidMesh *m = pr->o->m;
   const double *bc = pr->rhs + pr->ni;
   int nk = m->nk;
   double rmax = 0;
@@ -299,7 +299,7 @@ static double al_constraint_residual(const Projection *pr, const double *x, doub
  * `err`. Counts the solves into *solves. */
 static int al_iterate(Projection *pr, int *solves, char *err, size_t errlen) {
   const Ops *o = pr->o;
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   AugLagrangian *al = pr->al;
   int dim = m->dim, nk = m->nk, ni = pr->ni, nc1 = m->nc - 1;
   const double *r = pr->rhs;
@@ -411,7 +411,7 @@ int projection_solve(Projection *pr, const double *u_in, const double *h, double
   if (pr->stream)
     return stream_solve(pr->stream, u_in, h, f, u_out, &pr->seconds_numeric, &pr->seconds_solve, err, errlen);
   const Ops *o = pr->o;
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   double t0 = util_now();
   if (!pr->al) {
     triplets(pr, true);
@@ -452,7 +452,7 @@ void projection_report_counts(FILE *fp, const Projection *pr) {
 }
 
 double projection_max_divergence(const Ops *o, const double *f) {
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   int nk = m->nk;
   double worst = 0;
   for (int c = 0; c < m->nc; c++) {

@@ -639,6 +639,14 @@ void red_pmat(const RedSolver *s, const double *gc, double *P) {
     if (gc[l] != 0) cblas_daxpy((int)uf, gc[l], s->Ps + (size_t)l * uf, 1, P, 1);
 }
 
+void red_lift(const double *B, long n, long m, const double *x, double *out) {
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)m, 1.0, B, (int)m, x, 1, 0.0, out, 1);
+}
+
+void red_coords(const double *B, long n, long m, const double *x, double *out) {
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)m, 1.0, B, (int)m, x, 1, 0.0, out, 1);
+}
+
 void red_project_g(const RedSolver *s, const double *g, double *gc) {
   cblas_dgemv(CblasRowMajor, CblasTrans, (int)s->ng, (int)s->mg, 1.0, s->Bg, (int)s->mg, g, 1, 0.0, gc, 1);
 }

@@ -115,6 +115,10 @@ int red_constraints(RedSolver *s, double tol, char *err, size_t errlen);
 /* Coordinates from full values: ĝ = B_gᵀ g, f̂ = B_fᵀ f, and the
  * energy-conserving projection û = V̂⁻¹(ĝ) B_uᵀ V(g) u (paper footnote 2),
  * where pv = V(g) u is given (full). */
+/* The two products with a basis B [n][m] (row-major) every driver needs: out = B x
+ * (lift: the full value of coordinates x) and out = Bᵀ x (coordinates of a full x). */
+void red_lift(const double *B, long n, long m, const double *x, double *out);
+void red_coords(const double *B, long n, long m, const double *x, double *out);
 void red_project_g(const RedSolver *s, const double *g, double *gc);
 void red_project_f(const RedSolver *s, const double *f, double *fc);
 void red_project_u(RedSolver *s, const double *gc, const double *pv, double *uc);

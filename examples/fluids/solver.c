@@ -7,7 +7,7 @@
 #include <string.h>
 #include <time.h>
 
-int solver_init_at(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, const double *g0,
+int solver_init_at(FullSolver *s, const FluidMesh *m, ProjectionMethod method, double mu, double dt, const double *g0,
                    const double *u0, char *err, size_t errlen) {
   memset(s, 0, sizeof *s);
   s->m = m;
@@ -41,7 +41,7 @@ int solver_init_at(FullSolver *s, const Mesh *m, ProjectionMethod method, double
   return 0;
 }
 
-int solver_init(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, double sigma0,
+int solver_init(FullSolver *s, const FluidMesh *m, ProjectionMethod method, double mu, double dt, double sigma0,
                 const double u0[2], char *err, size_t errlen) {
   double *g0 = malloc(2 * (size_t)m->nv * sizeof *g0);
   int rc = mesh_deform(m, sigma0, sigma0, g0, err, errlen);
@@ -76,7 +76,7 @@ int solver_step(FullSolver *s, double sigma_next, char *err, size_t errlen) {
 }
 
 int solver_step_to(FullSolver *s, const double *g_next, char *err, size_t errlen) {
-  const Mesh *m = s->m;
+  const FluidMesh *m = s->m;
   int dim = m->dim, nv = dim * m->nv;
   double t0 = util_now();
   if (g_next != s->g_next) memcpy(s->g_next, g_next, nv * sizeof *g_next);

@@ -20,7 +20,7 @@
 #include "projection.h"
 
 typedef struct FullSolver {
-  const Mesh *m;
+  const FluidMesh *m;
   Ops ops;            /* geometry set at g (the current state) */
   Integrator it;
   Projection pr;
@@ -38,7 +38,7 @@ typedef struct FullSolver {
 /* Any mesh (2D or 3D) at positions g0 [V][dim], velocity u0 [dim]
  * everywhere, projected (h = 0). 0, or -1 with the reason in `err` (the
  * solver is then freed). */
-int solver_init_at(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, const double *g0,
+int solver_init_at(FullSolver *s, const FluidMesh *m, ProjectionMethod method, double mu, double dt, const double *g0,
                    const double *u0, char *err, size_t errlen);
 /* One step to the positions g_next [V][dim] (the caller's deformation,
  * e.g. cavity_deform): refused when a cell of g_next is not positively
@@ -48,7 +48,7 @@ int solver_step_to(FullSolver *s, const double *g_next, char *err, size_t errlen
 /* The tunnel: mesh at obstacle scale sigma0, velocity u0 everywhere, projected (h = 0);
  * every later deformation keeps the fluid area of scale sigma0.
  * 0, or -1 with the reason in `err` (the solver is then freed). */
-int solver_init(FullSolver *s, const Mesh *m, ProjectionMethod method, double mu, double dt, double sigma0,
+int solver_init(FullSolver *s, const FluidMesh *m, ProjectionMethod method, double mu, double dt, double sigma0,
                 const double u0[2], char *err, size_t errlen);
 void solver_free(FullSolver *s);
 /* One step to obstacle scale sigma_next. 0, or -1 with the reason (an

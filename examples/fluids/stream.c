@@ -25,7 +25,7 @@ struct StreamProjection {
 /* Unknowns: one per periodic vertex class off the boundary, one for the top
  * wall, one for the obstacle; the bottom wall is pinned to 0. */
 static void number_dofs(StreamProjection *s) {
-  const Mesh *m = s->o->m;
+  const FluidMesh *m = s->o->m;
   int *comp = malloc(m->nv * sizeof *comp);
   for (int v = 0; v < m->nv; v++) comp[v] = -1;
   for (int b = 0; b < m->nb; b++) {
@@ -52,7 +52,7 @@ static void number_dofs(StreamProjection *s) {
  * (paper §5.3's P applied to the curl): outward flux through face k is
  * psi_{k+2} - psi_{k+1}, and p = sum_k (outward flux)(centroid - g_k)/2, so
  * column q of Q is a_{q+1} - a_{q+2} with a_k = (centroid - g_k)/2. */
-static void cell_curl(const Mesh *m, const double *g, int c, double Q[2][3], double a[3][2]) {
+static void cell_curl(const FluidMesh *m, const double *g, int c, double Q[2][3], double a[3][2]) {
   const int *t = m->cell + 3 * c;
   double cen[2];
   for (int d = 0; d < 2; d++) cen[d] = (g[2 * t[0] + d] + g[2 * t[1] + d] + g[2 * t[2] + d]) / 3;
@@ -65,7 +65,7 @@ static void cell_curl(const Mesh *m, const double *g, int c, double Q[2][3], dou
 /* Fill s->T with C^T K C at the geometry of s->o (fixed entry order). */
 static void assemble(StreamProjection *s) {
   const Ops *o = s->o;
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   cholmod_triplet *T = s->T;
   int *ti = T->i, *tj = T->j;
   double *tx = T->x;
@@ -88,7 +88,7 @@ static void assemble(StreamProjection *s) {
 }
 
 int stream_init(StreamProjection **out, const Ops *o, char *err, size_t errlen) {
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   *out = NULL;
   StreamProjection *s = calloc(1, sizeof *s);
   s->o = o;
@@ -152,7 +152,7 @@ void stream_free(StreamProjection *s) {
 int stream_solve(StreamProjection *s, const double *u_in, const double *h, double *f, double *u_out,
                  double *t_factor, double *t_solve, char *err, size_t errlen) {
   const Ops *o = s->o;
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   double t0 = util_now();
   assemble(s);
   cholmod_sparse *A = cholmod_triplet_to_sparse(s->T, s->T->nnz, &s->cc);

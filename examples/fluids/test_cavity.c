@@ -105,7 +105,7 @@ static Cavity cavity_of(int cells) { return cavity_of_order(cells, cavity_spec_d
 static void test_cavity_deform(void **state) {
   (void)state;
   Cavity cv = cavity_of(300);
-  const Mesh *m = &cv.m;
+  const FluidMesh *m = &cv.m;
   char err[512];
   double *g = malloc(3 * (size_t)m->nv * sizeof *g);
   for (int c = 0; c < m->nc; c++) assert_true(mesh_volume(m, m->g0, c) > 0);
@@ -159,7 +159,7 @@ static void run6_step(const Cavity *cv, int t, double *g, FullSolver *s, int n) 
 static void test_cavity_divergence(void **state) {
   (void)state;
   Cavity cv = cavity_of(300);
-  const Mesh *m = &cv.m;
+  const FluidMesh *m = &cv.m;
   const ProjectionMethod method = PROJ_KKT_UMFPACK;
   FullSolver s;
   double *g = run6_start(&cv, &s, &method, 1);
@@ -186,7 +186,7 @@ static void test_cavity_divergence(void **state) {
 }
 
 /* max_j |f_j - ref_j| / max_j |ref_j| (asserted positive, into *fmx). */
-static double flux_difference(const Mesh *m, const double *ref, const double *f, double *fmx) {
+static double flux_difference(const FluidMesh *m, const double *ref, const double *f, double *fmx) {
   double diff = 0;
   *fmx = 0;
   for (int j = 0; j < m->nf; j++) *fmx = fmax(*fmx, fabs(ref[j])), diff = fmax(diff, fabs(f[j] - ref[j]));
@@ -197,7 +197,7 @@ static double flux_difference(const Mesh *m, const double *ref, const double *f,
 static void test_cavity_projection_methods(void **state) {
   (void)state;
   Cavity cv = cavity_of(300);
-  const Mesh *m = &cv.m;
+  const FluidMesh *m = &cv.m;
   const ProjectionMethod methods[2] = {PROJ_KKT_UMFPACK, PROJ_AL_CHOLMOD};
   FullSolver s[2];
   double *g = run6_start(&cv, s, methods, 2);
@@ -227,7 +227,7 @@ static void test_cavity_projection_methods(void **state) {
  * boundary is closed and oriented out of the fluid: its area vectors sum to
  * zero and Σ_b n_b · x_b / 3 (x_b the centroid) is the fluid volume (the
  * divergence theorem for div x = 3, exact on flat faces). */
-static void check_topology(const Mesh *m) {
+static void check_topology(const FluidMesh *m) {
   const double *g = m->g0;
   int *uses = calloc(m->nf, sizeof *uses), *listed = calloc(m->nf, sizeof *listed);
   for (int c = 0; c < m->nc; c++) {
@@ -280,7 +280,7 @@ static void check_topology(const Mesh *m) {
 
 /* b is a renumbering of a: the same rest positions, and under the vertex
  * map they define, the same cells, faces and boundary faces as vertex sets. */
-static void check_same_mesh(const Mesh *a, const Mesh *b) {
+static void check_same_mesh(const FluidMesh *a, const FluidMesh *b) {
   assert_int_equal(a->nc, b->nc), assert_int_equal(a->nf, b->nf), assert_int_equal(a->nb, b->nb);
   int *to_a = vertex_map(a, b), *bf_a = malloc(a->nb * 3 * sizeof *bf_a), *bf_b = malloc(b->nb * 3 * sizeof *bf_b);
   for (int i = 0; i < a->nb; i++) memcpy(bf_a + 3 * i, a->face + 3 * a->bface[i], 3 * sizeof *bf_a);
@@ -361,7 +361,7 @@ static void test_cavity_numbering_energy(void **state) {
 static void test_cavity_projection_reuse(void **state) {
   (void)state;
   Cavity cv = cavity_of(300);
-  const Mesh *m = &cv.m;
+  const FluidMesh *m = &cv.m;
   const ProjectionMethod methods[2] = {PROJ_AL_CHOLMOD, PROJ_AL_CHOLMOD};
   FullSolver s[2];
   double *g = run6_start(&cv, s, methods, 2);
@@ -407,14 +407,10 @@ static void test_cavity_projection_reuse(void **state) {
   cavity_free(&cv);
 }
 
-static void lift(const double *B, long n, long k, const double *x, double *out) {
-  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)k, 1.0, B, (int)k, x, 1, 0.0, out, 1);
-}
-
 static void test_cavity_reduced_step(void **state) {
   (void)state;
   Cavity cv = cavity_of(150);
-  const Mesh *m = &cv.m;
+  const FluidMesh *m = &cv.m;
   char err[512];
   double mu = 1e-4, dt = 0.01;
   long ng = 3L * m->nv, nf = m->nf, nu = 3L * m->nc, C = m->nc;
@@ -466,7 +462,7 @@ static void test_cavity_reduced_step(void **state) {
   {
     double *gl = malloc(ng * sizeof *gl), *V = malloc(R.mu * R.mu * sizeof *V), worst_v = 0, big = 0;
     red_project_g(&R, G + 30 * ng, R.g);
-    lift(R.Bg, ng, R.mg, R.g, gl);
+    red_lift(R.Bg, ng, R.mg, R.g, gl);
     red_volume(&R, R.g, V);
     for (long a = 0; a < R.mu; a++)
       for (long b = 0; b < R.mu; b++) {
@@ -492,8 +488,8 @@ static void test_cavity_reduced_step(void **state) {
     red_project_f(&R, Fx + t * nf, R.f);
     red_project_u(&R, R.g, pv, R.u);
     memcpy(probe.g, G + t * ng, ng * sizeof *G);
-    lift(R.Bf, nf, R.mf, R.f, probe.f);
-    lift(R.Bu, nu, R.mu, R.u, probe.u);
+    red_lift(R.Bf, nf, R.mf, R.f, probe.f);
+    red_lift(R.Bu, nu, R.mu, R.u, probe.u);
     if (solver_step_to(&probe, G + (t + 1) * ng, err, sizeof err) != 0) fail_msg("%s", err);
     /* ... and the reduced step from the same state */
     red_project_g(&R, G + (t + 1) * ng, gn);
@@ -676,7 +672,7 @@ static Marker *markers(const Particles *p) {
 static void test_cavity_particles_sorted(void **state) {
   (void)state;
   Cavity cv = cavity_of(300);
-  const Mesh *m = &cv.m;
+  const FluidMesh *m = &cv.m;
   Particles a = {0}, b = {0};
   particles_seed(&a, m, m->g0, 200, 5);
   particles_seed(&b, m, m->g0, 200, 5);
@@ -710,7 +706,7 @@ static void test_cavity_particles_sorted(void **state) {
 static void test_cavity_particles_threads(void **state) {
   (void)state;
   Cavity cv = cavity_of(300);
-  const Mesh *m = &cv.m;
+  const FluidMesh *m = &cv.m;
   const int mf = 6, n = 1200;
   float *Bf = malloc((size_t)m->nf * mf * sizeof *Bf), fh[6];
   double *f = malloc(m->nf * sizeof *f);

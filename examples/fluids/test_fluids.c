@@ -36,7 +36,7 @@
 #include "npgbind.h"
 #include "solver.h"
 
-static Mesh mesh;
+static FluidMesh mesh;
 
 static void small_mesh(void) {
   TunnelSpec spec = tunnel_spec_default();
@@ -59,7 +59,7 @@ static double energy_of(const Ops *o, const double *u) { return ops_energy(o, u)
 /* Random velocities projected: a divergence-free flux field with zero
  * boundary flux. */
 static void divergence_free_flux(Ops *o, Projection *pr, double *f) {
-  const Mesh *m = o->m;
+  const FluidMesh *m = o->m;
   double *u = malloc(2 * m->nc * sizeof *u), *uo = malloc(2 * m->nc * sizeof *uo);
   for (int i = 0; i < 2 * m->nc; i++) u[i] = rnd() + (i % 2 == 0);
   char err[512];
@@ -83,7 +83,7 @@ static double rate_bound(const Ops *o) {
 
 static void test_advection_energy(void **state) {
   (void)state;
-  const Mesh *m = &mesh;
+  const FluidMesh *m = &mesh;
   Ops o;
   Projection pr;
   Integrator it;
@@ -134,7 +134,7 @@ static void test_advection_energy(void **state) {
 
 static void test_diffusion_projection_energy(void **state) {
   (void)state;
-  const Mesh *m = &mesh;
+  const FluidMesh *m = &mesh;
   Ops o;
   Projection pr;
   Integrator it;
@@ -183,7 +183,7 @@ static void test_diffusion_projection_energy(void **state) {
 
 static void test_divergence_free(void **state) {
   (void)state;
-  const Mesh *m = &mesh;
+  const FluidMesh *m = &mesh;
   char err[512];
   /* a real moving-mesh step: obstacle scale 1 -> 1.05, both solvers in
    * lockstep; they compute the same minimizer */
@@ -232,7 +232,7 @@ static void test_divergence_free(void **state) {
 
 static void test_inversion_refused(void **state) {
   (void)state;
-  const Mesh *m = &mesh;
+  const FluidMesh *m = &mesh;
   char err[512] = "";
   double *g = malloc(2 * m->nv * sizeof *g);
   assert_int_equal(mesh_deform(m, 1.2, 1.0, g, err, sizeof err), 0);
@@ -293,7 +293,7 @@ static double compare(NpgFull *f, const char *name, const double *mine, size_t n
 
 static void test_operators_match_npg(void **state) {
   (void)state;
-  const Mesh *m = &mesh;
+  const FluidMesh *m = &mesh;
   NpgOptions opt = {0};
   NpgProgram *prog = npg_compile("examples/fluids/fluids2d.npg", &opt);
   if (!npg_ok(prog)) fail_msg("%s", npg_error(prog));
@@ -369,8 +369,8 @@ static void test_operators_match_npg(void **state) {
  * steps of a growing obstacle give the same energies to 1e-12. */
 static void test_tunnel_numbering(void **state) {
   (void)state;
-  const Mesh *a = &mesh;
-  Mesh r;
+  const FluidMesh *a = &mesh;
+  FluidMesh r;
   TunnelSpec spec = tunnel_spec_default();
   spec.cells = 300;
   char err[512];
@@ -407,7 +407,7 @@ static void test_tunnel_numbering(void **state) {
   assert_true(periodic > 0); /* the periodic faces are there, seen from both sides */
   FullSolver s[2];
   double u0[2] = {1, 0}, worst = 0;
-  const Mesh *ms[2] = {a, &r};
+  const FluidMesh *ms[2] = {a, &r};
   for (int o = 0; o < 2; o++)
     if (solver_init(&s[o], ms[o], PROJ_STREAM_CHOLMOD, 1e-3, 0.02, 1.0, u0, err, sizeof err) != 0) fail_msg("%s", err);
   for (int step = 1; step <= 3; step++) {

@@ -23,7 +23,7 @@ static int cmp_mesh_point(const void *pa, const void *pb) {
 
 /* to_a[v]: the vertex of a at b's vertex v's rest position (a and b hold
  * the same distinct points, asserted). */
-static int *vertex_map(const Mesh *a, const Mesh *b) {
+static int *vertex_map(const FluidMesh *a, const FluidMesh *b) {
   assert_int_equal(a->nv, b->nv);
   int nv = a->nv, dim = a->dim, *to_a = malloc(nv * sizeof *to_a);
   MeshPoint *pa = calloc(nv, sizeof *pa), *pb = calloc(nv, sizeof *pb);

@@ -40,8 +40,8 @@ static double rnd(void) {
   return ((seed >> 8) & 0xffffff) / 16777216.0 * 2 - 1;
 }
 
-static Mesh mesh_of(int cells) {
-  Mesh m;
+static FluidMesh mesh_of(int cells) {
+  FluidMesh m;
   TunnelSpec spec = tunnel_spec_default();
   spec.cells = cells;
   char err[512];
@@ -55,7 +55,7 @@ typedef struct Ctx {
   NpgTrainer *tr;
 } Ctx;
 
-static void ctx_open(Ctx *c, const Mesh *m, double mu, int ncaps, const char *const *names, const int *caps,
+static void ctx_open(Ctx *c, const FluidMesh *m, double mu, int ncaps, const char *const *names, const int *caps,
                      const double *energies) {
   NpgOptions opt = {0};
   c->prog = npg_compile("examples/fluids/fluids2d.npg", &opt);
@@ -68,7 +68,7 @@ static void ctx_open(Ctx *c, const Mesh *m, double mu, int ncaps, const char *co
   c->tr = npg_trainer_new(c->fe, &o);
 }
 
-static void add_sample(Ctx *c, const Mesh *m, const double *g, const double *gdot, const double *f, const double *u) {
+static void add_sample(Ctx *c, const FluidMesh *m, const double *g, const double *gdot, const double *f, const double *u) {
   long sg[2] = {m->nv, 2}, sf[1] = {m->nf}, su[1] = {2L * m->nc};
   if (npg_trainer_set(c->tr, "g", 2, sg, g) || npg_trainer_set(c->tr, "gdot", 2, sg, gdot) ||
       npg_trainer_set(c->tr, "f", 1, sf, f) || npg_trainer_set(c->tr, "u", 1, su, u) || npg_trainer_add(c->tr))
@@ -91,7 +91,7 @@ static void ctx_close(Ctx *c, NpgModel *model) {
 
 /* A model of two short runs of the deforming tunnel (obstacle 1.1 and 0.9,
  * pulsing by 0.05), as npg-fluids tunnel trains, smaller. */
-static NpgModel *tunnel_model(Ctx *c, const Mesh *m, double mu, double dt) {
+static NpgModel *tunnel_model(Ctx *c, const FluidMesh *m, double mu, double dt) {
   const char *names[] = {"u", "p", "pv", "pdot", "lap", "f", "g", "gdot", "h", "bf", "bh"};
   int caps[] = {20, 1, 1, 1, 1, 12, 5, 5, 5, 60, 60};
   double en[] = {1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-14, 1 - 1e-14,
@@ -127,7 +127,7 @@ static double energy_matrix(int n, const double *V, const double *u) {
 
 static void test_reduced_energy(void **state) {
   (void)state;
-  Mesh m = mesh_of(300);
+  FluidMesh m = mesh_of(300);
   double mu = 0.002, dt = 0.25 * mesh_mean_edge(&m);
   Ctx c;
   NpgModel *model = tunnel_model(&c, &m, mu, dt);
@@ -250,7 +250,7 @@ static void test_reduced_energy(void **state) {
 
 static void test_reduced_basis_divergence(void **state) {
   (void)state;
-  Mesh m = mesh_of(300);
+  FluidMesh m = mesh_of(300);
   double mu = 0.002, dt = 0.25 * mesh_mean_edge(&m);
   Ctx c;
   NpgModel *model = tunnel_model(&c, &m, mu, dt);
@@ -283,7 +283,7 @@ static void test_reduced_basis_divergence(void **state) {
 
 static void test_reduced_full_rank(void **state) {
   (void)state;
-  Mesh m = mesh_of(30);
+  FluidMesh m = mesh_of(30);
   double mu = 0.01, dt = 0.25 * mesh_mean_edge(&m);
   long U = 2L * m.nc;
   const char *names[] = {"u", "p", "pv", "pdot", "lap", "f", "g", "gdot", "h", "bf", "bh"};

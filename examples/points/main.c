@@ -17,11 +17,13 @@
 #include "dense.h"
 #include "fmm.h"
 #include "kernel.h"
+#include "chart.h"
 #include "npg.h"
 #include "rooms.h"
 #include "octree.h"
 #include "render.h"
-#include "scene.h"
+#include "report.h"
+#include "surfels.h"
 #include "util.h"
 #include "visibility.h"
 
@@ -395,12 +397,9 @@ static int demo(const Options *o) {
     rc_out |= render_comparison(&mc.s, bp, br, exposure, 480, path, "point-based visibility", "ray casting (Embree)");
   }
 
-  out_path(path, sizeof path, o->out, "report.json");
-  FILE *js = fopen(path, "w");
-  if (!js) {
-    fprintf(stderr, "npg-points: cannot write %s\n", path);
-    return 1;
-  }
+  Report rep;
+  if (report_open(&rep, "npg-points", o->out) != 0) return 1;
+  FILE *js = rep.f;
   fprintf(js, "{\n  \"scene\": \"%s\",\n  \"faces\": %d,\n  \"N\": %ld,\n  \"p\": %d,\n  \"s\": %d,\n",
           o->room_faces ? "two_rooms" : "cornell_box", m.scene.nt, n, o->p, m.t.leaf_size);
   fprintf(js, "  \"octree\": {\"nodes\": %d, \"leaves\": %d, \"depth\": %d},\n", m.t.nnode, m.t.nleaf, m.t.depth);
@@ -421,7 +420,7 @@ static int demo(const Options *o) {
           "  \"falls_back_to_direct_sums\": %s\n}\n",
           f.stats.m2l, f.stats.m2l_offsets, f.stats.m2p, f.stats.p2l, f.stats.p2p, f.stats.p2p_points,
           f.stats.dropped_facing, f.stats.dropped_hidden, direct ? "true" : "false");
-  fclose(js);
+  if (report_commit(&rep, "npg-points") != 0) rc_out = -1;
   printf("wrote %s/report.json, b.npy, PNGs\n", o->out);
 
   free(b), free(g), free(g_dense), free(b_dense), free(table), free(bp), free(br);
@@ -586,6 +585,6 @@ int main(int argc, char **argv) {
   }
   if (parse_options(argc, argv, &o)) return 2;
   int rc = !strcmp(argv[1], "demo") ? demo(&o) : sweep(&o);
-  render_shutdown();
+  chart_cleanup(); /* cairo's and fontconfig's caches */
   return rc;
 }

@@ -14,7 +14,7 @@
 #ifndef POINTS_OCTREE_H
 #define POINTS_OCTREE_H
 
-#include "scene.h"
+#include "surfels.h"
 
 typedef struct OctNode {
   double c[3], h;     /* the cube: centre and half width */

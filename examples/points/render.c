@@ -1,8 +1,9 @@
 /* render.c — surfel splats, heat maps and plots through cairo (render.h). */
 #include "render.h"
 
+#include "chart.h"
+
 #include <cairo.h>
-#include <fontconfig/fontconfig.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -211,95 +212,18 @@ int render_comparison(const Surfels *s, const double *b_fmm, const double *b_den
 
 int render_plot(const char *path, const char *title, const char *xlabel, const char *ylabel, int logx,
                 const PlotSeries *series, int nseries) {
-  const int W = 720, H = 480, L = 80, R = 20, T = 40, B = 60;
-  double xmin = INFINITY, xmax = -INFINITY, ymin = INFINITY, ymax = -INFINITY;
+  ChartSeries cs[16];
+  if (nseries > 16) nseries = 16;
   for (int k = 0; k < nseries; k++)
-    for (int i = 0; i < series[k].n; i++) {
-      double x = series[k].x[i], y = series[k].y[i];
-      if (!(y > 0) || (logx && !(x > 0))) continue;
-      xmin = fmin(xmin, x), xmax = fmax(xmax, x), ymin = fmin(ymin, y), ymax = fmax(ymax, y);
-    }
-  if (!(xmin < INFINITY)) return -1;
-  double lx0 = logx ? floor(log10(xmin)) : floor(xmin) - 0.5, lx1 = logx ? ceil(log10(xmax)) : ceil(xmax) + 0.5;
-  double ly0 = floor(log10(ymin)), ly1 = ceil(log10(ymax));
-  if (lx1 <= lx0) lx1 = lx0 + 1;
-  if (ly1 <= ly0) ly1 = ly0 + 1;
-  cairo_surface_t *sf = cairo_image_surface_create(CAIRO_FORMAT_RGB24, W, H);
-  cairo_t *cr = cairo_create(sf);
-  cairo_set_source_rgb(cr, 1, 1, 1);
-  cairo_paint(cr);
-  cairo_select_font_face(cr, "sans-serif", CAIRO_FONT_SLANT_NORMAL, CAIRO_FONT_WEIGHT_NORMAL);
-#define PX(x) (L + ((logx ? log10(x) : (x)) - lx0) / (lx1 - lx0) * (W - L - R))
-#define PY(y) (H - B - (log10(y) - ly0) / (ly1 - ly0) * (H - T - B))
-  /* grid and ticks */
-  cairo_set_line_width(cr, 1);
-  for (double e = ly0; e <= ly1 + 1e-9; e++) {
-    double y = PY(pow(10, e));
-    cairo_set_source_rgb(cr, 0.88, 0.88, 0.88);
-    cairo_move_to(cr, L, y), cairo_line_to(cr, W - R, y), cairo_stroke(cr);
-    char lab[16];
-    snprintf(lab, sizeof lab, "1e%d", (int)e);
-    cairo_set_source_rgb(cr, 0, 0, 0);
-    draw_text(cr, 30, y + 4, 12, lab);
+    cs[k] = (ChartSeries){series[k].label, series[k].n, series[k].x, series[k].y, -1, false, true};
+  static const double palette[6][3] = {{0.12, 0.35, 0.75}, {0.85, 0.33, 0.10}, {0.15, 0.60, 0.25},
+                                       {0.55, 0.25, 0.65}, {0.80, 0.65, 0.10}, {0.30, 0.30, 0.30}};
+  Chart c = {.title = title, .xlabel = xlabel, .ylabel = ylabel, .logx = logx != 0, .logy = true, .nseries = nseries,
+             .series = cs, .legend_inside = true, .palette = palette, .npalette = 6};
+  char err[512];
+  if (chart_png(&c, path, 720, 480, err, sizeof err) != 0) {
+    fprintf(stderr, "npg-points: %s\n", err);
+    return -1;
   }
-  for (double e = ceil(lx0); e <= floor(lx1) + 1e-9; e++) {
-    double xv = logx ? pow(10, e) : e, x = PX(xv);
-    cairo_set_source_rgb(cr, 0.88, 0.88, 0.88);
-    cairo_move_to(cr, x, T), cairo_line_to(cr, x, H - B), cairo_stroke(cr);
-    char lab[16];
-    if (logx)
-      snprintf(lab, sizeof lab, "1e%d", (int)e);
-    else
-      snprintf(lab, sizeof lab, "%d", (int)e);
-    cairo_set_source_rgb(cr, 0, 0, 0);
-    draw_text(cr, x - 10, H - B + 18, 12, lab);
-  }
-  cairo_set_source_rgb(cr, 0, 0, 0);
-  cairo_rectangle(cr, L, T, W - L - R, H - T - B);
-  cairo_stroke(cr);
-  draw_text(cr, L, 26, 16, title);
-  draw_text(cr, L + (W - L - R) / 2 - 40, H - 18, 13, xlabel);
-  cairo_save(cr);
-  cairo_move_to(cr, 18, H / 2 + 40);
-  cairo_rotate(cr, -M_PI / 2);
-  cairo_set_font_size(cr, 13);
-  cairo_show_text(cr, ylabel);
-  cairo_restore(cr);
-  static const double colors[6][3] = {{0.12, 0.35, 0.75}, {0.85, 0.33, 0.10}, {0.15, 0.60, 0.25},
-                                      {0.55, 0.25, 0.65}, {0.80, 0.65, 0.10}, {0.30, 0.30, 0.30}};
-  for (int k = 0; k < nseries; k++) {
-    const double *col = colors[k % 6];
-    cairo_set_source_rgb(cr, col[0], col[1], col[2]);
-    cairo_set_line_width(cr, 2);
-    int started = 0;
-    for (int i = 0; i < series[k].n; i++) {
-      double x = series[k].x[i], y = series[k].y[i];
-      if (!(y > 0)) continue;
-      if (!started) cairo_move_to(cr, PX(x), PY(y)), started = 1;
-      else cairo_line_to(cr, PX(x), PY(y));
-    }
-    cairo_stroke(cr);
-    for (int i = 0; i < series[k].n; i++) {
-      double x = series[k].x[i], y = series[k].y[i];
-      if (!(y > 0)) continue;
-      cairo_arc(cr, PX(x), PY(y), 4, 0, 2 * M_PI);
-      cairo_fill(cr);
-    }
-    double lx = W - R - 300; /* legend in the upper right */
-    cairo_rectangle(cr, lx, T + 12 + 20 * k, 16, 4);
-    cairo_fill(cr);
-    cairo_set_source_rgb(cr, 0, 0, 0);
-    draw_text(cr, lx + 22, T + 18 + 20 * k, 13, series[k].label);
-  }
-#undef PX
-#undef PY
-  cairo_destroy(cr);
-  int rc = write_png(sf, path);
-  cairo_surface_destroy(sf);
-  return rc;
-}
-
-void render_shutdown(void) {
-  cairo_debug_reset_static_data();
-  FcFini();
+  return 0;
 }

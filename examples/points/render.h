@@ -3,7 +3,7 @@
 #ifndef POINTS_RENDER_H
 #define POINTS_RENDER_H
 
-#include "scene.h"
+#include "surfels.h"
 
 /* Splats of `b` (n x 3 radiosity) as discs of radius √(w/π)·1.6 with a
  * depth test, tone mapped by b·exposure and gamma 2.2. 0 or -1. */
@@ -25,8 +25,5 @@ typedef struct PlotSeries {
 int render_plot(const char *path, const char *title, const char *xlabel, const char *ylabel, int logx,
                 const PlotSeries *series, int nseries);
 
-/* Release cairo's and fontconfig's caches at exit (the text of the plots), so a leak
- * checker sees only the program's own allocations; no rendering after it. */
-void render_shutdown(void);
 
 #endif

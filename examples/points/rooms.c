@@ -4,7 +4,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-#include "../radiosity/scene.h"
+#include "scene.h" /* the two rooms (examples/common) */
 
 int scene_rooms(TriScene *out, long faces, char *err, size_t errlen) {
   Scene s;

@@ -5,9 +5,9 @@
 
 #include <stddef.h>
 
-#include "scene.h"
+#include "surfels.h"
 
-/* The living room and bedroom of examples/radiosity/scene.h at its nominal
+/* The living room and bedroom of examples/common/scene.h (radiosity's scene) at its nominal
  * parameters with about `faces` triangles: every triangle with its grey
  * albedo and its emission (the window and skylight openings, radiances 1,
  * 1, 1.5) on all three channels. Radiosity is unchanged by a rigid motion

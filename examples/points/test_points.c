@@ -28,7 +28,7 @@
 #include "kernel.h"
 #include "octree.h"
 #include "rooms.h"
-#include "scene.h"
+#include "surfels.h"
 #include "visibility.h"
 
 static double uniform(unsigned long long *st) {

@@ -39,7 +39,7 @@ static double model_files(const TrainTimes *t) {
   return fmax(0, t->finish - t->snapshots - t->pca - t->premultiply - t->externs);
 }
 
-static void json_model(FILE *js, const Reduced *r, int samples, const TrainTimes *t) {
+static void json_model(FILE *js, const ReducedRadiosity *r, int samples, const TrainTimes *t) {
   size_t tensor_bytes = 0, bytes = npg_model_bytes(r->model, &tensor_bytes);
   fprintf(js, "  \"training_samples\": %d,\n  \"model_bytes\": %zu,\n  \"model_tensor_bytes\": %zu,\n", samples, bytes,
           tensor_bytes);
@@ -67,7 +67,7 @@ static void print_train(const TrainTimes *t, int samples) {
          model_files(t));
 }
 
-static int train(const Options *o, Scene *s, Reduced *r, TrainTimes *t, char *model_dir) {
+static int train(const Options *o, Scene *s, ReducedRadiosity *r, TrainTimes *t, char *model_dir) {
   char err[2048];
   if (reduced_open(r, s, o->program, o->k, o->threads, err, sizeof err)) return fail(err);
   if (o->samples < DESIGN_STRUCTURED)
@@ -92,12 +92,12 @@ int cmd_train(const Options *o) {
   char err[1024], path[4096];
   Scene s;
   if (scene_new(o->faces, NULL, &s, err, sizeof err)) return fail(err);
-  Reduced r;
+  ReducedRadiosity r;
   memset(&r, 0, sizeof r);
   TrainTimes t;
   int rc = 1;
   snprintf(path, sizeof path, "%s/MODEL", o->out);
-  if (out_mkdirs(o->out) || train(o, &s, &r, &t, path)) goto done;
+  if (report_make_dir("npg-radiosity", o->out) || train(o, &s, &r, &t, path)) goto done;
   snprintf(path, sizeof path, "%s/train.json", o->out);
   FILE *js = fopen(path, "w");
   if (!js) goto done;
@@ -115,7 +115,7 @@ done:
 /* ---------------------------------------------------------------- the reduced frame, timed */
 
 /* The reduced frame of p, `reps` times on one OpenBLAS thread; the median seconds. */
-static int timed_frame(Reduced *r, const Scene *s, const SceneParams *p, long sample, int reps, double *b,
+static int timed_frame(ReducedRadiosity *r, const Scene *s, const SceneParams *p, long sample, int reps, double *b,
                        double *seconds, char *err, size_t errlen) {
   double t[reps];
   int threads = openblas_get_num_threads();
@@ -133,7 +133,7 @@ static int timed_frame(Reduced *r, const Scene *s, const SceneParams *p, long sa
 
 /* Where the reduced frame's time goes, on the nominal parameters (one thread): projecting
  * g and e, the chain, lifting b. Seconds per call, medians of `reps`. */
-static void frame_split(Reduced *r, const Scene *s, int reps, double split[3]) {
+static void frame_split(ReducedRadiosity *r, const Scene *s, int reps, double split[3]) {
   SceneParams p;
   scene_param_nominal(&p);
   double *g = malloc(sizeof(double) * 3 * (size_t)s->V), *e = malloc(sizeof(double) * (size_t)s->F),
@@ -164,7 +164,7 @@ int cmd_run(const Options *o) {
   char err[2048], path[4096];
   Scene s;
   if (scene_new(o->faces, NULL, &s, err, sizeof err)) return fail(err);
-  Reduced r;
+  ReducedRadiosity r;
   memset(&r, 0, sizeof r);
   FullRadiosity fr;
   memset(&fr, 0, sizeof fr);
@@ -190,7 +190,7 @@ int cmd_run(const Options *o) {
       if (o->out) {
         snprintf(path, sizeof path, "%s/%s/frame_%04d", o->out, animation_name(a), k);
         long sb[1] = {s.F};
-        if (out_mkdirs(path) || out_npy(path, "b_reduced", 1, sb, b)) goto done;
+        if (report_make_dir("npg-radiosity", path) || out_npy(path, "b_reduced", 1, sb, b)) goto done;
       }
     }
   double split[3];
@@ -273,7 +273,7 @@ int cmd_demo(const Options *o) {
   if (scene_new(o->faces, NULL, &s, err, sizeof err)) return fail(err);
   long F = s.F;
   int K = o->frames, n = ANIM_COUNT * K, rc = 1;
-  Reduced r;
+  ReducedRadiosity r;
   memset(&r, 0, sizeof r);
   FullRadiosity fr;
   memset(&fr, 0, sizeof fr);
@@ -291,7 +291,7 @@ int cmd_demo(const Options *o) {
 
   /* 1. the scene and the model */
   snprintf(model_dir, sizeof model_dir, "%s/MODEL", o->out);
-  if (out_mkdirs(o->out) || out_scene_arrays(o->out, &s) || train(o, &s, &r, &tt, model_dir)) goto done;
+  if (report_make_dir("npg-radiosity", o->out) || out_scene_arrays(o->out, &s) || train(o, &s, &r, &tt, model_dir)) goto done;
 
   /* 2. both animations, full and reduced */
   if (frame_new(&fr, &s, o->k, o->threads, VIS_STREAM, SOLVER_GMRES, err, sizeof err) ||
@@ -339,7 +339,7 @@ int cmd_demo(const Options *o) {
       char dir[4096];
       snprintf(dir, sizeof dir, "%s/%s/frame_%04d", o->out, animation_name(a), k);
       long sg[2] = {s.V, 3}, sv[2] = {F, F}, sb[1] = {F};
-      if (out_mkdirs(dir) || out_npy(dir, "g", 2, sg, s.g) || out_npy(dir, "v", 2, sv, fr.v) ||
+      if (report_make_dir("npg-radiosity", dir) || out_npy(dir, "g", 2, sg, s.g) || out_npy(dir, "v", 2, sv, fr.v) ||
           out_npy(dir, "b_full", 1, sb, fr.b) || out_npy(dir, "b_reduced", 1, sb, bt) ||
           out_npy(dir, "b_reduced_given_v", 1, sb, bv) || out_npy(dir, "e", 1, sb, s.e))
         goto done;
@@ -392,12 +392,9 @@ int cmd_demo(const Options *o) {
   double med_full = out_median(&SER(S_FULL_TOTAL, 0), n), med_red = finite_median(&SER(S_REDUCED, 0), n);
   double med_err = finite_median(&SER(S_TOTAL, 0), n), max_err = 0;
   for (int i = 0; i < n; i++) max_err = fmax(max_err, SER(S_TOTAL, i)); /* fmax skips NaN */
-  snprintf(path, sizeof path, "%s/report.json", o->out);
-  FILE *js = fopen(path, "w");
-  if (!js) {
-    fail("cannot write report.json");
-    goto done;
-  }
+  Report rep;
+  if (report_open(&rep, "npg-radiosity", o->out) != 0) goto done;
+  FILE *js = rep.f;
   fprintf(js, "{\n  \"faces\": %ld,\n  \"vertices\": %ld,\n  \"threads_full\": %d,\n  \"threads_reduced\": 1,\n", F,
           s.V, o->threads);
   fprintf(js, "  \"visibility_points_per_face\": %d,\n  \"frames_per_animation\": %d,\n", o->k, K);
@@ -420,11 +417,11 @@ int cmd_demo(const Options *o) {
   fprintf(js, "  \"per_frame\": {\n");
   for (int a = 0; a < ANIM_COUNT; a++) {
     fprintf(js, "    \"%s\": {", animation_name(a));
-    for (int q = 0; q < NSERIES; q++) out_json_array(js, series_name[q], &SER(q, a * K), K, q + 1 < NSERIES ? ", " : "");
+    for (int q = 0; q < NSERIES; q++) report_json_array(js, "", series_name[q], &SER(q, a * K), K, 6, q + 1 < NSERIES ? ", " : "");
     fprintf(js, "}%s\n", a + 1 < ANIM_COUNT ? "," : "");
   }
   fprintf(js, "  }\n}\n");
-  if (fclose(js) != 0) goto done;
+  if (report_commit(&rep, "npg-radiosity") != 0) goto done;
   printf("error over %d frames: median %.2f%%, max %.2f%% (relative L2 of b); bound %s on every frame\n", n - failures,
          100 * med_err, 100 * max_err, bound_fail ? "FAILS" : "holds");
   if (failures) printf("%d frames failed in reduced space (above)\n", failures);

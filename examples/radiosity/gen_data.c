@@ -1,5 +1,5 @@
 /* gen_data.c — samples for examples/radiosity/formfactors.npg on the
- * deforming room of bench/meshgen (a closed, convex triangulated box whose
+ * deforming room of examples/common/meshgen (a closed, convex triangulated box whose
  * far wall moves out and whose ceiling tilts with a parameter t in [0, 1]):
  *
  *     radiosity_data OUTDIR F SAMPLES T0 T1 SEED

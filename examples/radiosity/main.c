@@ -21,6 +21,7 @@
 #include "animation.h"
 #include "commands.h"
 #include "frame.h"
+#include "chart.h"
 #include "npg.h"
 #include "output.h"
 #include "plot.h"
@@ -146,7 +147,7 @@ static int cmd_scene(const Options *o) {
   if (rc) fprintf(stderr, "npg-radiosity: degenerate or inverted triangles in the parameter box\n");
   if (o->out && !rc) {
     long sg[2] = {s.V, 3};
-    if (out_mkdirs(o->out) || out_scene_arrays(o->out, &s) || out_npy(o->out, "g", 2, sg, s.g)) rc = 1;
+    if (report_make_dir("npg-radiosity", o->out) || out_scene_arrays(o->out, &s) || out_npy(o->out, "g", 2, sg, s.g)) rc = 1;
     /* the picture: albedo, openings bright (no light transport) */
     double *shade = malloc(sizeof(double) * s.F);
     for (long f = 0; f < s.F; f++) shade[f] = s.rho[f] + s.e[f];
@@ -192,7 +193,7 @@ static int cmd_full(const Options *o) {
   int rc = 1;
   FullRadiosity fr = {0};
   double *vk = NULL, *bk = NULL, *series = NULL;
-  if (out_mkdirs(o->out) || out_scene_arrays(o->out, &s)) goto done;
+  if (report_make_dir("npg-radiosity", o->out) || out_scene_arrays(o->out, &s)) goto done;
   printf("scene: %ld faces, %ld vertices; visibility: %d points per face, %d threads\n", F, s.V, o->k, o->threads);
 
   /* 1. the visibility modes on the nominal scene: time each, check they agree, keep the fastest */
@@ -308,7 +309,7 @@ static int cmd_full(const Options *o) {
       char dir[4096];
       snprintf(dir, sizeof dir, "%s/%s/frame_%04d", o->out, animation_name(a), k);
       long sg[2] = {s.V, 3}, sv[2] = {F, F}, sb[1] = {F};
-      if (out_mkdirs(dir) || out_npy(dir, "g", 2, sg, s.g) || out_npy(dir, "v", 2, sv, fr.v) ||
+      if (report_make_dir("npg-radiosity", dir) || out_npy(dir, "g", 2, sg, s.g) || out_npy(dir, "v", 2, sv, fr.v) ||
           out_npy(dir, "b_full", 1, sb, fr.b))
         goto done;
       snprintf(path, sizeof path, "%s/%s/frame_%04d.png", o->out, animation_name(a), k);
@@ -388,12 +389,9 @@ static int cmd_full(const Options *o) {
   }
 
   /* 6. report.json */
-  snprintf(path, sizeof path, "%s/report.json", o->out);
-  FILE *js = fopen(path, "w");
-  if (!js) {
-    fprintf(stderr, "npg-radiosity: %s: %s\n", path, strerror(errno));
-    goto done;
-  }
+  Report rep;
+  if (report_open(&rep, "npg-radiosity", o->out) != 0) goto done;
+  FILE *js = rep.f;
   int n = ANIM_COUNT * K;
   fprintf(js, "{\n  \"faces\": %ld,\n  \"vertices\": %ld,\n  \"threads\": %d,\n  \"visibility_points_per_face\": %d,\n",
           F, s.V, o->threads, o->k);
@@ -414,15 +412,15 @@ static int cmd_full(const Options *o) {
   fprintf(js, "  \"per_frame\": {\n");
   for (int a = 0; a < ANIM_COUNT; a++) {
     fprintf(js, "    \"%s\": {", animation_name(a));
-    out_json_array(js, "visibility_seconds", t_vis + a * K, K, ", ");
-    out_json_array(js, "form_factor_seconds", t_ff + a * K, K, ", ");
-    out_json_array(js, "solve_seconds", t_sol + a * K, K, ", ");
-    out_json_array(js, "mean_b_living", living + a * K, K, ", ");
-    out_json_array(js, "mean_b_bedroom", bedroom + a * K, K, "");
+    report_json_array(js, "", "visibility_seconds", t_vis + a * K, K, 6, ", ");
+    report_json_array(js, "", "form_factor_seconds", t_ff + a * K, K, 6, ", ");
+    report_json_array(js, "", "solve_seconds", t_sol + a * K, K, 6, ", ");
+    report_json_array(js, "", "mean_b_living", living + a * K, K, 6, ", ");
+    report_json_array(js, "", "mean_b_bedroom", bedroom + a * K, K, 6, "");
     fprintf(js, "}%s\n", a + 1 < ANIM_COUNT ? "," : "");
   }
   fprintf(js, "  }\n}\n");
-  if (fclose(js) != 0) goto done;
+  if (report_commit(&rep, "npg-radiosity") != 0) goto done;
   printf("full frame (median): visibility %.3f s, form factors %.3f s, solve %.3f s; wrote %s\n", out_median(t_vis, n),
          out_median(t_ff, n), out_median(t_sol, n), o->out);
   rc = 0;
@@ -464,6 +462,6 @@ int main(int argc, char **argv) {
     fprintf(stderr, "npg-radiosity: unknown command '%s'\n", argv[1]);
     usage(stderr);
   }
-  render_shutdown();
+  chart_cleanup(); /* cairo's and fontconfig's caches */
   return rc;
 }

@@ -1,5 +1,5 @@
-/* output.c — what every subcommand writes: folders, .npy arrays (through npg.h), the
- * scene's arrays, renders, and the small statistics of report.json (output.h). */
+/* output.c — what every subcommand writes besides report.json (examples/common/report.h):
+ * .npy arrays (through npg.h), the scene's arrays, renders, and the median of report.json (output.h). */
 #include "output.h"
 
 #include <errno.h>
@@ -10,22 +10,6 @@
 #include <sys/stat.h>
 
 #include "npg.h"
-
-int out_mkdirs(const char *path) {
-  char buf[4096];
-  snprintf(buf, sizeof buf, "%s", path);
-  for (char *q = buf + 1; *q; q++)
-    if (*q == '/') {
-      *q = 0;
-      if (mkdir(buf, 0777) != 0 && errno != EEXIST) return -1;
-      *q = '/';
-    }
-  if (mkdir(buf, 0777) != 0 && errno != EEXIST) {
-    fprintf(stderr, "npg-radiosity: cannot create %s: %s\n", path, strerror(errno));
-    return -1;
-  }
-  return 0;
-}
 
 /* DIR/NAME.npy from float64 data, through npg.h. */
 int out_npy(const char *dir, const char *name, int nd, const long *shape, const double *data) {
@@ -68,17 +52,6 @@ double out_median(const double *x, int n) {
   double m = n ? (n % 2 ? y[n / 2] : 0.5 * (y[n / 2 - 1] + y[n / 2])) : NAN;
   free(y);
   return m;
-}
-
-void out_json_array(FILE *f, const char *name, const double *x, int n, const char *tail) {
-  fprintf(f, "\"%s\": [", name);
-  for (int i = 0; i < n; i++) {
-    if (isfinite(x[i]))
-      fprintf(f, "%s%.6g", i ? ", " : "", x[i]);
-    else
-      fprintf(f, "%snull", i ? ", " : ""); /* JSON has no NaN */
-  }
-  fprintf(f, "]%s", tail);
 }
 
 int out_render_frame(const Scene *s, const double *b, double exposure, int ss, const char *bar, const char *path,

@@ -1,16 +1,16 @@
-/* output.h — what every subcommand writes: folders, .npy arrays through npg.h
- * (npg_npy_write, npg_npy_write_i64), the scene's arrays, renders, and the statistics of
- * report.json. Functions returning int give 0, or -1 after printing the reason. */
+/* output.h — what every subcommand writes besides its folders and report.json (those are
+ * examples/common/report.h's): .npy arrays through npg.h (npg_npy_write,
+ * npg_npy_write_i64), the scene's arrays, renders, and the statistics of report.json.
+ * Functions returning int give 0, or -1 after printing the reason. */
 #ifndef RADIOSITY_OUTPUT_H
 #define RADIOSITY_OUTPUT_H
 
 #include <stdio.h>
 
 #include "render.h"
+#include "report.h"
 #include "scene.h"
 
-/* mkdir -p. */
-int out_mkdirs(const char *path);
 /* DIR/NAME.npy from float64 data. */
 int out_npy(const char *dir, const char *name, int nd, const long *shape, const double *data);
 /* DIR/tri.npy (int64 F x 3), rho.npy, e.npy (F). */
@@ -21,7 +21,5 @@ int out_scene_arrays(const char *dir, const Scene *s);
 int out_render_frame(const Scene *s, const double *b, double exposure, int ss, const char *bar, const char *path,
                      View *keep);
 double out_median(const double *x, int n);
-/* "name": [x0, x1, ...] followed by `tail`; NaN and infinities as null. */
-void out_json_array(FILE *f, const char *name, const double *x, int n, const char *tail);
 
 #endif

@@ -11,7 +11,7 @@
 
 /* The visibility extern's callback: v of the g the evaluator holds, ray-cast. */
 static int visibility_extern(void *user, const NpgFull *f, long sample, double *out, size_t count) {
-  Reduced *r = user;
+  ReducedRadiosity *r = user;
   size_t ng = 0;
   const double *g = npg_full_get(f, "g", &ng);
   if (!g || ng != (size_t)(3 * r->V) || count != (size_t)(r->F * r->F)) {
@@ -31,7 +31,7 @@ static int failed(char *err, size_t errlen, const char *what, const char *msg) {
   return -1;
 }
 
-int reduced_open(Reduced *r, const Scene *s, const char *program, int k, int threads, char *err, size_t errlen) {
+int reduced_open(ReducedRadiosity *r, const Scene *s, const char *program, int k, int threads, char *err, size_t errlen) {
   memset(r, 0, sizeof *r);
   r->V = s->V, r->F = s->F;
   r->prog = npg_compile(program, NULL);
@@ -57,7 +57,7 @@ int reduced_open(Reduced *r, const Scene *s, const char *program, int k, int thr
   return 0;
 }
 
-int reduced_train(Reduced *r, Scene *s, int samples, int cap, double energy, size_t mem, const char *model_dir,
+int reduced_train(ReducedRadiosity *r, Scene *s, int samples, int cap, double energy, size_t mem, const char *model_dir,
                   TrainTimes *t, char *err, size_t errlen) {
   memset(t, 0, sizeof *t);
   NpgTrainOptions o;
@@ -114,7 +114,7 @@ int reduced_train(Reduced *r, Scene *s, int samples, int cap, double energy, siz
   return 0;
 }
 
-int reduced_load(Reduced *r, const char *model_dir, char *err, size_t errlen) {
+int reduced_load(ReducedRadiosity *r, const char *model_dir, char *err, size_t errlen) {
   r->model = npg_model_load(r->prog, model_dir);
   if (!r->model || npg_model_error(r->model)[0])
     return failed(err, errlen, model_dir, r->model ? npg_model_error(r->model) : "out of memory");
@@ -132,7 +132,7 @@ int reduced_load(Reduced *r, const char *model_dir, char *err, size_t errlen) {
   return 0;
 }
 
-int reduced_frame(Reduced *r, const Scene *s, const SceneParams *p, long sample, double *b, char *err,
+int reduced_frame(ReducedRadiosity *r, const Scene *s, const SceneParams *p, long sample, double *b, char *err,
                   size_t errlen) {
   scene_place((Scene *)s, p, r->g);
   double e[s->F];
@@ -144,7 +144,7 @@ int reduced_frame(Reduced *r, const Scene *s, const SceneParams *p, long sample,
   return 0;
 }
 
-int reduced_frame_given(Reduced *r, const double *g, const double *e, const double *v, long sample, double *b,
+int reduced_frame_given(ReducedRadiosity *r, const double *g, const double *e, const double *v, long sample, double *b,
                         char *err, size_t errlen) {
   NpgReduced *q = r->given;
   if (npg_reduced_set(q, "g", (size_t)(3 * r->V), g) || npg_reduced_set(q, "e", (size_t)r->F, e) ||
@@ -154,7 +154,7 @@ int reduced_frame_given(Reduced *r, const double *g, const double *e, const doub
   return 0;
 }
 
-int reduced_project_b(const Reduced *r, const double *b, double *out) {
+int reduced_project_b(const ReducedRadiosity *r, const double *b, double *out) {
   int c = npg_model_class_of(r->model, "b");
   NpgClassInfo ci;
   if (c < 0 || npg_model_class(r->model, c, &ci)) return -1;
@@ -173,7 +173,7 @@ int reduced_project_b(const Reduced *r, const double *b, double *out) {
   return 0;
 }
 
-void reduced_close(Reduced *r) {
+void reduced_close(ReducedRadiosity *r) {
   npg_reduced_free(r->learned);
   npg_reduced_free(r->given);
   npg_model_free(r->model);

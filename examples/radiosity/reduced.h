@@ -17,7 +17,9 @@
 #include "scene.h"
 #include "visibility.h"
 
-typedef struct Reduced {
+/* The reduced radiosity of one scene: program, evaluators, model (not the library's internal
+ * Reduced of backends/model). */
+typedef struct ReducedRadiosity {
   NpgProgram *prog;
   NpgFull *full;        /* the full evaluator training replays (params bound, v by callback) */
   Visibility *vis;      /* the callback's caster */
@@ -29,7 +31,7 @@ typedef struct Reduced {
   double ray_seconds;   /* in the visibility callback, over training */
   long ray_calls;
   char err[1024];       /* the callback's last error */
-} Reduced;
+} ReducedRadiosity;
 
 /* The time split of training (seconds). */
 typedef struct TrainTimes {
@@ -48,24 +50,24 @@ typedef struct TrainTimes {
 /* Compile `program` and bind the scene's tri and rho into a full evaluator whose
  * visibility extern calls a ray caster of k points per face on `threads` threads.
  * 0, or -1 with err. */
-int reduced_open(Reduced *r, const Scene *s, const char *program, int k, int threads, char *err, size_t errlen);
+int reduced_open(ReducedRadiosity *r, const Scene *s, const char *program, int k, int threads, char *err, size_t errlen);
 /* Train over the first `samples` points of the design, basis cap `cap` and PCA energy
  * `energy` per member, snapshots in at most `mem` bytes; the model to `model_dir`
  * (NULL: not written). Moves the scene's g and e. 0, or -1 with err. */
-int reduced_train(Reduced *r, Scene *s, int samples, int cap, double energy, size_t mem, const char *model_dir,
+int reduced_train(ReducedRadiosity *r, Scene *s, int samples, int cap, double energy, size_t mem, const char *model_dir,
                   TrainTimes *t, char *err, size_t errlen);
 /* Load a model trained for this scene instead (its dims checked). 0, or -1 with err. */
-int reduced_load(Reduced *r, const char *model_dir, char *err, size_t errlen);
+int reduced_load(ReducedRadiosity *r, const char *model_dir, char *err, size_t errlen);
 /* The run-time frame: parameters p -> g -> ĝ, e -> ê, the reduced chain with the learned
  * visibility, b = B b̂ lifted into b (F values). `sample` names the frame in messages. */
-int reduced_frame(Reduced *r, const Scene *s, const SceneParams *p, long sample, double *b, char *err,
+int reduced_frame(ReducedRadiosity *r, const Scene *s, const SceneParams *p, long sample, double *b, char *err,
                   size_t errlen);
 /* The same chain fed the visibility v (F x F, projected) instead of the learned one, at
  * vertex positions g and emission e. */
-int reduced_frame_given(Reduced *r, const double *g, const double *e, const double *v, long sample, double *b,
+int reduced_frame_given(ReducedRadiosity *r, const double *g, const double *e, const double *v, long sample, double *b,
                         char *err, size_t errlen);
 /* B Bᵀ b: the projection of b (F values) onto the basis of its class (discretization). */
-int reduced_project_b(const Reduced *r, const double *b, double *out);
-void reduced_close(Reduced *r);
+int reduced_project_b(const ReducedRadiosity *r, const double *b, double *out);
+void reduced_close(ReducedRadiosity *r);
 
 #endif

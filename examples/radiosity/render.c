@@ -4,7 +4,6 @@
 
 #include <cairo.h>
 #include <embree3/rtcore.h>
-#include <fontconfig/fontconfig.h>
 #include <errno.h>
 #include <math.h>
 #include <png.h>
@@ -438,9 +437,4 @@ int render_side_by_side(const char *path, const Image *const *imgs, const char *
   int rc = render_write_png(path, &out, err, errlen);
   image_free(&out);
   return rc;
-}
-
-void render_shutdown(void) {
-  cairo_debug_reset_static_data();
-  FcFini();
 }

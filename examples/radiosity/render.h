@@ -62,8 +62,5 @@ int render_write_png(const char *path, const Image *img, char *err, size_t errle
 /* n images (same height) side by side, each with its label above it, one PNG. */
 int render_side_by_side(const char *path, const Image *const *imgs, const char *const *labels, int n, char *err,
                         size_t errlen);
-/* Release cairo's and fontconfig's process-wide caches (at exit, so leak checkers see
- * nothing left); no cairo call may follow. */
-void render_shutdown(void);
 
 #endif

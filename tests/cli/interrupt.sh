@@ -1,7 +1,7 @@
 #!/bin/sh
 # interrupt.sh BUILD_DIR — a training killed at any point of writing its
 # model leaves the old model or the new one, complete, and no litter after
-# the next run (NPG_TEST_INTERRUPT, backends/model_store.c).
+# the next run (NPG_TEST_INTERRUPT, backends/model/model_store.c).
 set -u
 B=$1
 W=$(mktemp -d /tmp/npg_kill_XXXXXX)

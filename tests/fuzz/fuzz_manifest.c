@@ -1,5 +1,5 @@
 /* fuzz_manifest.c — libFuzzer target for the model manifest parser
- * (backends/model_store.c model_store_read) and what loads a model on top
+ * (backends/model/model_store.c model_store_read) and what loads a model on top
  * of it (npg_model_load, then a reduced evaluation).
  *
  * Each input becomes the `manifest` of a per-process model folder under

@@ -1,6 +1,6 @@
-/* scene.c — the Cornell box, the two-patch visibility scene, and surfel
- * sampling (scene.h). */
-#include "scene.h"
+/* surfels.c — the Cornell box, the two-patch visibility scene, and surfel
+ * sampling (surfels.h). */
+#include "surfels.h"
 
 #include <math.h>
 #include <stdlib.h>

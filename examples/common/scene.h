@@ -27,9 +27,10 @@
 
 #include <stddef.h>
 
-/* The parameter box (scene_param_lo / scene_param_hi): sizes in metres, tilt in degrees.
- * Every point of the box gives a valid mesh (scene_check: no degenerate or inverted
- * triangle). The three radiances are not geometry: they change e only (any value >= 0). */
+/* The parameter box (scene_param_at over [0, 1]^SCENE_NGEOM): sizes in metres, tilt in
+ * degrees. Every point of the box gives a valid mesh (no degenerate or inverted triangle:
+ * scene_min_area, as `npg-radiosity scene` checks it). The three radiances are not
+ * geometry: they change e only (any value >= 0). */
 typedef struct SceneParams {
   double win_living_w, win_living_h; /* living-room window (back wall, sill 0.9): [0.8, 3.0] x [0.6, 1.5] */
   double win_bed_w, win_bed_h;       /* bedroom window (back wall, sill 0.9):     [0.6, 2.2] x [0.6, 1.4] */
@@ -73,8 +74,8 @@ typedef struct Scene {
   SceneParams params;
 } Scene;
 
-/* The box corners and its nominal point (the middle, radiances 1, 1, 1.5). */
-void scene_param_lo(SceneParams *p);
+/* The box's far corner (every parameter at its upper end) and its nominal point (the
+ * middle, radiances 1, 1, 1.5). */
 void scene_param_hi(SceneParams *p);
 void scene_param_nominal(SceneParams *p);
 /* The point lo + t (hi - lo) of the box, t[k] in [0, 1] per geometric parameter

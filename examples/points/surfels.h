@@ -1,12 +1,12 @@
-/* scene.h — triangle scenes and the point models sampled from them.
+/* surfels.h — triangle scenes and the point models sampled from them.
  *
  * A TriScene is what any triangle scene can hand to this example: vertex
  * positions, triangles, and per triangle an RGB albedo and an RGB emission
  * (radiosity units, W/m²). scene_sample turns it into Surfels, the point
  * model of the seed (paper 002 §2.2.2.3): position, unit normal, area weight,
  * albedo, emission, and no connectivity. */
-#ifndef POINTS_SCENE_H
-#define POINTS_SCENE_H
+#ifndef POINTS_SURFELS_H
+#define POINTS_SURFELS_H
 
 typedef struct TriScene {
   int nv, nt;

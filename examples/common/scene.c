@@ -61,11 +61,6 @@ void scene_param_at(const double *t, SceneParams *p) {
   p->rad_sky = 1.5; /* an overcast sky is brighter at the zenith (CIE: 3x the horizon) */
 }
 
-void scene_param_lo(SceneParams *p) {
-  double t[SCENE_NGEOM] = {0};
-  scene_param_at(t, p);
-}
-
 void scene_param_hi(SceneParams *p) {
   double t[SCENE_NGEOM];
   for (int k = 0; k < SCENE_NGEOM; k++) t[k] = 1;
