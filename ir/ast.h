@@ -1,10 +1,10 @@
 /* ast.h — source text, arena, diagnostics, the expression graph and symbols.
  *
  * This is the shared vocabulary of every stage of the compiler: the parser
- * (compiler/parse.c) builds Nodes and Decls, the checker (compiler/sema.c)
+ * (compiler/front/parse.c) builds Nodes and Decls, the checker (compiler/front/sema.c)
  * resolves names to Syms and types every Node, the lowering (ir/lower.c)
  * turns checked stages into the canonical form of ir/ir.h. Reading files and
- * the lexer's tokens belong to the front end (compiler/compile.h).
+ * the lexer's tokens belong to the front end (compiler/front/compile.h).
  *
  * Memory: everything lives in the compilation's arena (Ctx.arena) and is
  * released at once by ctx_free(). User errors longjmp back to npg_compile().

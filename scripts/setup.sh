@@ -8,7 +8,7 @@ set -euo pipefail
 
 packages=(
   cmake gcc make pkg-config
-  re2c                        # lexer generator (compiler/lex.re)
+  re2c                        # lexer generator (compiler/front/lex.re)
   libopenblas-dev liblapacke-dev  # dense linear algebra: PCA, reduced solves
   libtcc-dev tcc              # in-memory JIT; tcc ships libtcc1.a and the headers
   libcmocka-dev               # unit tests

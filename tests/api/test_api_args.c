@@ -610,7 +610,7 @@ static void generated_c_robust(void **state) {
   npg_free(p);
 }
 
-/* One rule for roots of negative numbers (compiler/grammar.txt): a power
+/* One rule for roots of negative numbers (compiler/front/grammar.txt): a power
  * p/q with q > 1 of a negative value is undefined for every p and q, odd q
  * included, in the full evaluator (a NaN named by npg_full_check_finite),
  * the exactness checks and the reduced evaluator (an indefinite reduced

@@ -1,4 +1,4 @@
-/* sema.h — what the semantic checks share across compiler/sema.c
+/* sema.h — what the semantic checks share across compiler/front/sema.c
  * (declarations, sema_program), sema_expr.c (expressions) and
  * sema_inline.c (fn inlining); private to the three. */
 #ifndef NPG_SEMA_H

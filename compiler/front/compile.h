@@ -37,25 +37,25 @@ typedef struct Token {
   bool bol;          /* first token on its line */
 } Token;
 
-/* compiler/lex.re: tokenize a whole file; the array ends with TK_EOF. */
+/* compiler/front/lex.re: tokenize a whole file; the array ends with TK_EOF. */
 Token *lex_file(Ctx *ctx, const SrcFile *file, int *ntok);
 
 /* ---------------------------------------------------------------- stages */
 
 bool is_keyword(const char *s);
-/* compiler/parse.c: tokens to declarations; reads `use`d modules. */
+/* compiler/front/parse.c: tokens to declarations; reads `use`d modules. */
 Decl *parse_program(Ctx *ctx, const SrcFile *file);
-/* compiler/sema.c: names, fn inlining, types, every rule of DESIGN §3. */
+/* compiler/front/sema.c: names, fn inlining, types, every rule of DESIGN §3. */
 Program *sema_program(Ctx *ctx, const SrcFile *file, Decl *decls);
-/* compiler/dumpast.c: -dp, the parsed declarations. */
+/* compiler/front/dumpast.c: -dp, the parsed declarations. */
 void dump_decls(FILE *out, const Decl *d);
 void dump_checked(FILE *out, const Program *prog);
-/* compiler/exact_check.c: exact_check_program() (backends/verify/exact.h) for a
+/* compiler/api/exact_check.c: exact_check_program() (backends/verify/exact.h) for a
  * compiled NpgProgram; -1 with "the program does not compile" otherwise. */
 struct NpgProgram;
 struct ExactOptions;
 int exact_check(struct NpgProgram *p, const struct ExactOptions *o, FILE *out, char *err, size_t errlen);
-/* compiler/npg.c: the stage program of a compiled NpgProgram (tests, backends). */
+/* compiler/api/npg.c: the stage program of a compiled NpgProgram (tests, backends). */
 struct NpgProgram;
 Program *npg_program_ir(const struct NpgProgram *p);
 

@@ -1,5 +1,5 @@
 /* parse.c — recursive-descent parser: tokens to Decls and Nodes.
- * The full grammar is compiler/grammar.txt; each function carries its rule.
+ * The full grammar is compiler/front/grammar.txt; each function carries its rule.
  * `use NAME` reads <std_dir>/npg/NAME.npg and splices its fn definitions.
  */
 #include <errno.h>
