@@ -21,6 +21,17 @@ int util_fail(char *err, size_t errlen, const char *fmt, ...) {
   return -1;
 }
 
+int util_exit_status(const char *prog, int rc) {
+  errno = 0;
+  bool flushed = fflush(stdout) == 0;
+  int saved = errno;
+  if (!flushed || ferror(stdout)) {
+    fprintf(stderr, "%s: cannot write to standard output%s%s\n", prog, saved ? ": " : "", saved ? strerror(saved) : "");
+    return rc ? rc : 1;
+  }
+  return rc;
+}
+
 double util_now(void) {
   struct timespec t;
   clock_gettime(CLOCK_MONOTONIC, &t);

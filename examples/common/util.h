@@ -11,6 +11,11 @@ int util_fail(char *err, size_t errlen, const char *fmt, ...) __attribute__((for
 /* mkdir -p `path`: every missing parent too (a writer creates the folders
  * it writes into, as npgc -o does). 0, or -1 with "PATH: problem" in `err`. */
 int util_make_dirs(const char *path, char *err, size_t errlen);
+/* A program's exit status once its standard output is flushed: `rc`, or 1
+ * (rc when already non-zero) after "PROG: cannot write to standard output"
+ * when the output did not reach it (a full disk, /dev/full, a closed pipe):
+ * a report that was not written is a failure (issue 24). */
+int util_exit_status(const char *prog, int rc);
 /* Seconds on a monotonic clock. */
 double util_now(void);
 /* A round tick step (1, 2 or 5 times a power of ten) giving about `want` ticks over

@@ -21,6 +21,7 @@
 #include "particles.h"
 #include "tunnel.h"
 #include "tunnelfull.h"
+#include "util.h"
 
 /* Bounds of the sizes a command line can ask for, so that a typo (--frames
  * 1e8) is refused before it asks for terabytes: 100,000 frames of the
@@ -346,7 +347,7 @@ static int parse(int argc, char **argv, int cmd, Cmdline *c) {
   return 0;
 }
 
-int main(int argc, char **argv) {
+static int run(int argc, char **argv) {
   if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
     usage(argc < 2 ? stderr : stdout);
     return argc < 2 ? 2 : 0;
@@ -373,3 +374,5 @@ int main(int argc, char **argv) {
   default: return inspect_cavity_projection(&c.cavity_spec, c.steps, c.method);
   }
 }
+
+int main(int argc, char **argv) { return util_exit_status("npg-fluids", run(argc, argv)); }

@@ -575,7 +575,7 @@ static int sweep(const Options *o) {
   return rc ? 1 : 0;
 }
 
-int main(int argc, char **argv) {
+static int run(int argc, char **argv) {
   Options o;
   setvbuf(stdout, NULL, _IOLBF, 0); /* progress lines reach a log as they happen */
   if (argc < 2 || (strcmp(argv[1], "demo") && strcmp(argv[1], "sweep"))) {
@@ -588,3 +588,5 @@ int main(int argc, char **argv) {
   chart_cleanup(); /* cairo's and fontconfig's caches */
   return rc;
 }
+
+int main(int argc, char **argv) { return util_exit_status("npg-points", run(argc, argv)); }

@@ -29,6 +29,7 @@
 #include "render.h"
 #include "scene.h"
 #include "visibility.h"
+#include "util.h"
 
 static void usage(FILE *out) {
   fputs("usage: npg-radiosity scene [--faces N] [--checks S] [--out DIR]\n"
@@ -436,7 +437,7 @@ done:
   return rc;
 }
 
-int main(int argc, char **argv) {
+static int run(int argc, char **argv) {
   if (argc < 2) {
     usage(stderr);
     return 2;
@@ -465,3 +466,5 @@ int main(int argc, char **argv) {
   chart_cleanup(); /* cairo's and fontconfig's caches */
   return rc;
 }
+
+int main(int argc, char **argv) { return util_exit_status("npg-radiosity", run(argc, argv)); }

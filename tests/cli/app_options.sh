@@ -90,4 +90,20 @@ radiosity)
   ;;
 *) fail "unknown application '$APP'" ;;
 esac
+
+# a report that cannot reach standard output fails the program (issue 24: the
+# applications exited 0 with their output lost on a full disk)
+if [ -w /dev/full ]; then
+  case $APP in
+  points) args="demo --points 150 --out $W/full --p 2 --visibility off --check-points 0" ;;
+  *) args="--help" ;;
+  esac
+  set +e
+  # shellcheck disable=SC2086
+  "$X" $args >/dev/full 2>"$W/err.txt"
+  got=$?
+  set -e
+  [ "$got" != 0 ] || fail "$APP $args >/dev/full exited 0"
+  grep -q "cannot write to standard output" "$W/err.txt" || fail "$APP $args >/dev/full: $(cat "$W/err.txt")"
+fi
 echo "$APP options: ok"
