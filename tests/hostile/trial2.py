@@ -86,6 +86,9 @@ KNOWN_FAILURES = {
                               "(Python's own open() raises ValueError: embedded null byte)",
     "py_full_get_before_eval": "Full.get('y') before any evaluation returns an empty array of shape (0,), not an "
                                "error or None (npg_full_get returns NULL)",
+    "of_spectra_name_is_a_folder": "npgc train --spectra DIR where DIR/spectrum_y.npy is a folder: the folder is "
+                                   "kept and the message names it, but exit 1 comes after the model was written and "
+                                   "half of the spectra (spectrum_x.*) were added to DIR",
     "py_reduced_coords_before_eval": "Reduced.coords('y') before any evaluation returns zeros (npg_reduced_lift "
                                      "refuses the same call; coordinates never computed are not zeros)",
 }
@@ -414,6 +417,7 @@ def front_end_cases():
     prog_case("dump_all", head + "x[0] * x[1]\n", 0, "", args=("-dpslb",))
     prog_case("dump_unknown_letter", head + "x[0]\n", 2, "", args=("-dz",))
     prog_case("std_is_file", "use geometry\n" + head + "x[0]\n", 1, "geometry", args=("--std=vec.npg",))
+    index_cases()
     # sparse operators over index tables: -1, out of range, duplicate entries, against numpy
     sparse_cases()
     interp_cases()
@@ -441,6 +445,34 @@ def laplacian(tab, w, N):
             v[b] -= 1
         L += w[e] * np.outer(v, v)
     return L
+
+
+def index_cases():
+    """Index arithmetic on index variables: out of range is refused at the entry, valid forms equal numpy."""
+    n = X.shape[1]
+    rev = np.arange(n)[::-1]
+    cases = [("plus_one", "x[i+1]", None, "index 5 is out of range"),
+             ("minus_one", "x[i-1]", None, "index -1 is out of range"),
+             ("twice", "x[2*i]", None, "index 6 is out of range"),
+             ("negated", "x[-i]", None, "index -1 is out of range"),
+             ("square", "x[i*i]", None, "index 9 is out of range"),
+             ("sum_one_past", "sum(k = 0..N, x[k])", None, "index 5 is out of range"),
+             ("division", "x[(i+1)/2]", None, "an index must be an integer expression"),
+             ("reversed", "x[N-1-i]", lambda x: x[:, rev], ""),
+             ("guarded_shift", "if(i > 0, x[i-1], 0)", lambda x: np.concatenate([np.zeros((len(x), 1)), x[:, :-1]], 1), ""),
+             ("guarded_both_ends", "if(i > 0, if(i < N-1, x[i-1] + x[i+1], 0), 0)",
+              lambda x: np.concatenate([np.zeros((len(x), 1)), x[:, :-2] + x[:, 2:], np.zeros((len(x), 1))], 1), ""),
+             ("suffix_sum", "sum(k = i..N-1, x[k])", lambda x: np.cumsum(x[:, ::-1], 1)[:, ::-1], ""),
+             ("prefix_sum", "sum(k = 0..i, x[k])", lambda x: np.cumsum(x, 1), ""),
+             ("empty_range_at_end", "sum(k = i+1..N-1, x[k])", lambda x: np.cumsum(x[:, ::-1], 1)[:, ::-1] - x, "")]
+    for name, e, fn, msg in cases:
+        write("ix/%s.npg" % name, "dim N\nparam rho : real[N]\ninput x : real[N]\noutput y[i:N] = %s\n" % e)
+        argv = ["npgc", "eval", "ix/%s.npg" % name, "--full", "D", "D", "-o", "out/ix_" + name]
+        if fn is None:
+            case("index_" + name, argv, 1, msg)
+        else:
+            case("index_" + name, argv, "either" if name == "empty_range_at_end" else 0, "",
+                 check=out_equals("out/ix_%s/y.npy" % name, fn(X), 1e-13))
 
 
 def sparse_cases():
@@ -546,6 +578,93 @@ def interp_cases():
     case("interp_valid_fraction_big", ["npgc", "train", "ip/nbody.npg", d, "-o", "models/ip7", "--valid", "0.9"], None,
          "--valid")
     case("interp_valid_is_training", ["npgc", "train", "ip/nbody.npg", d, "-o", "models/ip8", "--valid", d], "either", "")
+
+
+# ------------------------------------------------------------------ sealed forgeries of an interpolated (format 2) model
+
+def fnv1a64(data):
+    h = 0xcbf29ce484222325
+    for byte in data:
+        h = ((h ^ byte) * 0x100000001b3) & 0xFFFFFFFFFFFFFFFF
+    return h
+
+
+def manifest_lines(d):
+    with open(path(d, "manifest"), "rb") as f:
+        return f.read().split(b"\n")[:-1]
+
+
+def seal(d, ls):
+    """`ls` as d/manifest with the checksum a forger who knows the format computes."""
+    body = b"".join(l + b"\n" for l in ls if not l.startswith(b"manifest "))
+    with open(path(d, "manifest"), "wb") as f:
+        f.write(body + b"manifest fnv1a64 %016x\n" % fnv1a64(body))
+
+
+def reseal_array(d, name, a):
+    blob = npy_bytes_of(a)
+    write(os.path.join(d, name), blob)
+    shape = b"x".join(b"%d" % n for n in a.shape)
+    seal(d, [b"array %s %s fnv1a64 %016x" % (name.encode(), shape, fnv1a64(blob))
+             if l.startswith(b"array " + name.encode() + b" ") else l for l in manifest_lines(d)])
+
+
+def forge_cases():
+    """The interpolated stage's arrays and manifest line, changed and resealed: refused naming the file,
+    or (where the entry is unused padding) the same output as the genuine model."""
+    write("ip/nbody.npg", open(os.path.join(SRC, "tests/programs/nbody_gravity.npg")).read())
+    base = RNG.normal(size=(6, 3)) * 2
+    modes = RNG.normal(size=(3, 6, 3))
+    x = base + np.einsum("sk,kvc->svc", 0.2 * RNG.normal(size=(30, 3)), modes)
+    data_dir("fg/D", {"x": x, "mass": np.full(6, 1 / 6), "eps": np.array(0.05)})
+    npgc_ok("train", "ip/nbody.npg", "fg/D", "-o", "fg/MI", "--reduce", "w:interp")
+    npgc_ok("eval", "ip/nbody.npg", "fg/MI", "fg/D", "-o", "fg/GOOD")
+    good = np.load(path("fg/GOOD/a.npy"))
+
+    def arr(name, mod):
+        def f(d):
+            a = np.load(path(d, name))
+            mod(a)
+            reseal_array(d, name, a)
+        return f
+
+    def setv(i, v):
+        return lambda a: a.flat.__setitem__(i, v)
+
+    def line(new):
+        return lambda d: seal(d, [new if l.startswith(b"interp w") else l for l in manifest_lines(d)])
+    forgeries = {
+        "rows_huge": arr("interp_w_rows.npy", setv(0, 1e6)), "rows_negative": arr("interp_w_rows.npy", setv(3, -1)),
+        "rows_fraction": arr("interp_w_rows.npy", setv(3, 0.5)), "rows_nan": arr("interp_w_rows.npy", setv(3, np.nan)),
+        "rows_duplicate": arr("interp_w_rows.npy", lambda a: a.__setitem__(1, a[0])),
+        "reads_huge": arr("interp_w_reads.npy", setv(5, 1e9)), "reads_negative": arr("interp_w_reads.npy", setv(5, -3)),
+        "monos_huge": arr("interp_w_monos.npy", setv(0, 1e9)), "monos_padding_negative": arr("interp_w_monos.npy", setv(7, -2)),
+        "monos_padding_nan": arr("interp_w_monos.npy", setv(7, np.nan)),
+        "monos_used_negative": arr("interp_w_monos.npy", setv(2, -5)),
+        "monos_used_fraction": arr("interp_w_monos.npy", setv(2, 2.5)),
+        "pinv_inf": arr("interp_w_pinv.npy", setv(7, np.inf)),
+        "pinv_transposed": lambda d: reseal_array(d, "interp_w_pinv.npy", np.load(path(d, "interp_w_pinv.npy")).T.copy()),
+        "rows_shorter": lambda d: reseal_array(d, "interp_w_rows.npy", np.load(path(d, "interp_w_rows.npy"))[:-1].copy()),
+        "line_k_huge": line(b"interp w k 99999 m 9 reads 36 monos 72 norm 1"),
+        "line_m_zero": line(b"interp w k 36 m 0 reads 36 monos 72 norm 1"),
+        "line_reads_huge": line(b"interp w k 36 m 9 reads 9999 monos 72 norm 1"),
+        "line_monos_negative": line(b"interp w k 36 m 9 reads 36 monos -72 norm 1"),
+        "line_norm_nan": line(b"interp w k 36 m 9 reads 36 monos 72 norm nan"),
+        "line_other_stage": line(b"interp a k 36 m 9 reads 36 monos 72 norm 1"),
+        "line_removed": lambda d: seal(d, [l for l in manifest_lines(d) if not l.startswith(b"interp w")]),
+        "line_twice": lambda d: seal(d, manifest_lines(d)[:-1] + [l for l in manifest_lines(d) if l.startswith(b"interp w")]),
+        "choice_garbage": lambda d: seal(d, [b"choice w magic 0 interp nan reason 99" if l.startswith(b"choice") else l
+                                             for l in manifest_lines(d)]),
+        "format_1": lambda d: seal(d, [b"npg-model 1" if l.startswith(b"npg-model") else l for l in manifest_lines(d)]),
+        "format_3": lambda d: seal(d, [b"npg-model 3" if l.startswith(b"npg-model") else l for l in manifest_lines(d)]),
+    }
+    for name, fn in forgeries.items():
+        d = "fg/F_" + name
+        shutil.copytree(path("fg/MI"), path(d))
+        fn(d)
+        case("forge_%s_eval" % name, ["npgc", "eval", "ip/nbody.npg", d, "fg/D", "-o", "out/fg_" + name], "either", d,
+             check=out_equals("out/fg_%s/a.npy" % name, good, 0))
+        case("forge_%s_verify" % name, ["npgc", "verify", "ip/nbody.npg", d, "fg/D", "--tol", "1"], "either", d)
 
 
 # ------------------------------------------------------------------ 3. .npy files not in corpus.py
@@ -743,6 +862,126 @@ def numeric_cases():
          0, "")
     case("num_bench_one_sample", ["npgc", "bench", "vec.npg", "M", "num/t1", "--reps", "1"], 0, "")
     case("num_bench_reps_max", ["npgc", "bench", "vec.npg", "M", "num/t1", "--reps", "1000001"], 2, "--reps")
+
+
+def honesty_cases():
+    """verify's reported mean relative L2 error of an output equals the one computed here from the
+    reduced eval's lifted output and numpy's exact value (a verify that flatters is a quiet wrong answer);
+    and the reduced output is that close to numpy."""
+    def honest(name, prog, train_dir, test_dir, out, want, extra=()):
+        m = "models/hon_" + name
+
+        def before(m=m):
+            subprocess.run([NPGC, "train", prog, train_dir, "-o", m] + list(extra), cwd=W,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+        def check(p, m=m):
+            e = subprocess.run([NPGC, "eval", prog, m, test_dir, "-o", "out/hon_" + name], cwd=W,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+            if e.returncode != 0:
+                return "eval failed: " + e.stderr.decode()[:200]
+            got = np.load(path("out/hon_%s/%s.npy" % (name, out)))
+            g, w = got.reshape(len(got), -1), want.reshape(len(want), -1)
+            mine = float(np.mean(np.linalg.norm(g - w, axis=1) / np.linalg.norm(w, axis=1)))
+            rows = [l.split() for l in p.stdout.decode().splitlines() if l.split()[:1] == [out]]
+            if not rows:
+                return "verify printed no row for %s" % out
+            said = float(rows[0][3])
+            if abs(said - mine) > 1e-6 + 0.02 * mine:
+                return "verify says L2 error %.4e for %s, the reduced eval's output is %.4e off numpy" % (said, out, mine)
+            return None
+        case("hon_" + name, ["npgc", "verify", prog, m, test_dir, "--tol", "1e9"], 0, "", check=check, stream="out",
+             before=before)
+    honest("vec_cap1", "vec.npg", "D", "T", "y", vec_y(XT), ["--cap", "1"])
+    honest("vec_cap2_uncentered", "vec.npg", "D", "T", "y", vec_y(XT), ["--cap", "2", "--center", "off"])
+    honest("vec_energy_half", "vec.npg", "D", "T", "y", vec_y(XT), ["--energy", "0.5"])
+    honest("vec_joint", "vec.npg", "D", "T", "y", vec_y(XT), ["--merge", "joint", "--cap", "2"])
+    honest("vec_full_rank", "vec.npg", "D", "T", "y", vec_y(XT))
+    # the sparse heat operator: trained on 30 conductivities, tested on 5 others
+    N = 6
+    grid = np.array([[1, -1, -1, -1], [0, 2, -1, -1], [1, 3, -1, -1], [2, 4, -1, -1], [3, 5, -1, -1], [4, -1, -1, -1]])
+    src = 1 + RNG.random(N)
+    ktr, kte = 0.5 + RNG.random((30, N)), 0.5 + RNG.random((5, N))
+    data_dir("hon/heat_tr", {"nbr": grid, "src": src, "kappa": ktr})
+    data_dir("hon/heat_te", {"nbr": grid, "src": src, "kappa": kte})
+    want = np.array([np.linalg.solve(heat_K(grid, k), src) for k in kte])
+    honest("heat_cap3", "sp/heat.npg", "hon/heat_tr", "hon/heat_te", "u", want, ["--cap", "3"])
+    honest("heat_full", "sp/heat.npg", "hon/heat_tr", "hon/heat_te", "u", want)
+    # a dense solve stage and a root of an operator
+    F = 4
+    a = RNG.random((F, F)) * 0.3
+    rho = np.full(F, 0.1)
+    xs, es = 1 + RNG.random((30, F)), 1 + RNG.random((30, F))
+    data_dir("hon/solve_tr", {"rho": rho, "a": a, "x": xs[:25], "e": es[:25]})
+    data_dir("hon/solve_te", {"rho": rho, "a": a, "x": xs[25:], "e": es[25:]})
+    want = np.array([np.linalg.solve(np.eye(F) - rho[:, None] * (a * np.outer(xk, xk)), ek)
+                     for xk, ek in zip(xs[25:], es[25:])])
+    honest("solve_cap2", "num/solve.npg", "hon/solve_tr", "hon/solve_te", "b", want, ["--cap", "2"])
+    honest("solve_full", "num/solve.npg", "hon/solve_tr", "hon/solve_te", "b", want)
+    aa = RNG.random((F, F)) * 0.1
+    Mx = aa + aa.T + np.eye(F)
+    wv, V = np.linalg.eigh(Mx)
+    R = V @ np.diag(np.sqrt(wv)) @ V.T
+    data_dir("hon/root_tr", {"a": aa, "x": xs[:25]})
+    data_dir("hon/root_te", {"a": aa, "x": xs[25:]})
+    honest("root_cap2", "num/root.npg", "hon/root_tr", "hon/root_te", "y", np.array([R @ xk for xk in xs[25:]]),
+           ["--cap", "2"])
+    # the n-body stage by interpolation and by Galerkin
+    base = RNG.normal(size=(6, 3)) * 2
+    modes = RNG.normal(size=(3, 6, 3))
+    xb = base + np.einsum("sk,kvc->svc", 0.2 * RNG.normal(size=(36, 3)), modes)
+    mass, eps = np.full(6, 1 / 6), 0.05
+    data_dir("hon/nb_tr", {"x": xb[:30], "mass": mass, "eps": np.array(eps)})
+    data_dir("hon/nb_te", {"x": xb[30:], "mass": mass, "eps": np.array(eps)})
+
+    def accel(x):
+        d = x[None, :, :] - x[:, None, :]
+        r2 = np.sum(d * d, axis=2) + eps
+        np.fill_diagonal(r2, 1)
+        w = r2 ** -1.5
+        return np.einsum("j,ijc,ij->ic", mass, d, w)
+    want = np.array([accel(xk) for xk in xb[30:]])
+    honest("nbody_galerkin", "ip/nbody.npg", "hon/nb_tr", "hon/nb_te", "a", want)
+    honest("nbody_interp", "ip/nbody.npg", "hon/nb_tr", "hon/nb_te", "a", want, ["--reduce", "w:interp"])
+    # the full evaluator of the same program against numpy
+    case("hon_nbody_full_eval", ["npgc", "eval", "ip/nbody.npg", "--full", "hon/nb_te", "hon/nb_te", "-o", "out/nbf"], 0,
+         "", check=out_equals("out/nbf/a.npy", want, 1e-10))
+
+
+def output_folder_cases():
+    """What an output folder already holds that the command does not write must survive."""
+    os.makedirs(path("of/OUT"), exist_ok=True)
+    write("of/OUT/notes.txt", "mine\n")
+    case("of_eval_full_keeps_other_files", ["npgc", "eval", "vec.npg", "--full", "D", "D", "-o", "of/OUT"], 0, "",
+         check=both(kept("of/OUT/notes.txt"), out_equals("of/OUT/y.npy", vec_y(X), 1e-14)))
+    os.makedirs(path("of/OUT2/y.npy"), exist_ok=True)
+    write("of/OUT2/y.npy/inner", "mine\n")
+    case("of_eval_output_name_is_a_folder", ["npgc", "eval", "vec.npg", "--full", "D", "D", "-o", "of/OUT2"], 1,
+         "of/OUT2/y.npy", check=kept("of/OUT2"))
+    os.makedirs(path("of/OUT3"), exist_ok=True)
+    write("of/OUT3/notes.txt", "mine\n")
+    write("of/OUT3/y.reduced.npy", "old\n")
+    case("of_eval_reduced_keeps_other_files", ["npgc", "eval", "vec.npg", "M", "T", "-o", "of/OUT3"], 0, "",
+         check=both(kept("of/OUT3/notes.txt"), out_equals("of/OUT3/y.npy", vec_y(XT), 5e-2)))
+    os.makedirs(path("of/SP"), exist_ok=True)
+    write("of/SP/notes.txt", "mine\n")
+    case("of_spectra_keeps_other_files", ["npgc", "train", "vec.npg", "D", "-o", "models/of_sp", "--spectra", "of/SP"],
+         0, "", check=kept("of/SP/notes.txt"))
+    os.makedirs(path("of/SP2/spectrum_y.npy"), exist_ok=True)
+    case("of_spectra_name_is_a_folder", ["npgc", "train", "vec.npg", "D", "-o", "models/of_sp2", "--spectra", "of/SP2"],
+         None, "of/SP2", check=kept("of/SP2"))
+    write("of/readonly.c", "int mine;\n", mode=0o444)
+    case("of_emit_over_readonly_file", ["npgc", "emit", "vec.npg", "-o", "of/readonly.c"], "either", "",
+         check=lambda p: None if os.stat(path("of/readonly.c")).st_mode & 0o777 in (0o444, 0o644) else
+         "permissions changed to %o" % (os.stat(path("of/readonly.c")).st_mode & 0o777))
+    os.makedirs(path("of/hl"), exist_ok=True)
+    write("of/user.npy", npy_bytes_of(X))
+    shutil.copytree(path("M"), path("of/MH"))
+    name = sorted(f for f in os.listdir(path("of/MH")) if f.startswith("basis"))[0]
+    os.remove(path("of/MH", name))
+    os.link(path("of/user.npy"), path("of/MH", name))
+    case("of_retrain_model_with_hardlink", ["npgc", "train", "vec.npg", "D", "-o", "of/MH", "--cap", "2"], "either", "",
+         check=kept("of/user.npy"))
 
 
 # ------------------------------------------------------------------ 5. command lines not in corpus.py / options.sh
@@ -1248,6 +1487,16 @@ PY_CASES = {
     "extern_returns_none": "p2 = npg.compile(os.path.join(W, 'ext.npg'))\nf = p2.full()\nf.extern('v', lambda g, k: None)\nrefused(lambda: f(x=X[0]))",
     "extern_unknown_name": "p2 = npg.compile(os.path.join(W, 'ext.npg'))\nf = p2.full()\nrefused(lambda: f.extern('nosuch', lambda g, k: np.ones(5)), 'nosuch')",
     "extern_replaced_midway": "p2 = npg.compile(os.path.join(W, 'ext.npg'))\nf = p2.full()\nf.extern('v', lambda g, k: np.ones(5))\nf(x=X[0])\nf.extern('v', lambda g, k: np.full(5, 3.0))\nsame(f(x=X[0])['y'], 3 * X[0])",
+    "threads_share_trainer": "tr = npg.Trainer(full)\nerrs = []\ndef work(k):\n    try:\n        for i in range(20): tr.add(x=X[(k + i) % 12] * (1 + 0.01 * i))\n    except Exception as e: errs.append(repr(e))\nts = [threading.Thread(target=work, args=(k,)) for k in range(4)]\n[t.start() for t in ts]; [t.join() for t in ts]\nassert tr.samples + 0 == 80 - 20 * len(errs) or errs, (tr.samples, errs[:2])\nm = tr.finish(); red = m.reduced(); red(x=X[0]); same(red.lift('y'), want(X[0]), 5e-2)",
+    "threads_full_and_trainer_add_full": "tr = npg.Trainer(full)\nerrs = []\ndef work(k):\n    try:\n        for i in range(20):\n            full(x=X[k]); tr.add_full()\n    except Exception as e: errs.append(repr(e))\nts = [threading.Thread(target=work, args=(k,)) for k in range(3)]\n[t.start() for t in ts]; [t.join() for t in ts]\nassert not [e for e in errs if 'busy' not in e and 'thread' not in e and 'evaluat' not in e], errs[:2]",
+    "verify_with_other_program_full": "p2 = npg.compile(os.path.join(W, 'two.npg'))\nf2 = p2.full()\nrefused(lambda: model.verify(test={'x': X}, full=f2))",
+    "set_coords_nan": "red = model.reduced()\nrefused(lambda: (red.set_coords('x', np.full(5, np.nan)), red())[1], 'x')",
+    "set_coords_int_dtype": "red = model.reduced()\nrefused(lambda: red.set_coords('x', np.zeros(5, dtype=np.int64)))",
+    "reduced_call_with_no_args": "red = model.reduced()\nrefused(lambda: red(), 'x')",
+    "reduced_unknown_kwarg_and_good": "red = model.reduced()\nrefused(lambda: red(x=X[0], nosuch=X[0]), 'nosuch')",
+    "full_many_kwargs_order": "a = full(x=X[0])['y']\nb = full(**{'x': X[0]})['y']\nassert np.array_equal(a, b)",
+    "model_basis_sizes_match_manifest": "bs = model.basis_sizes\nassert set(bs) == {'{x}', '{y}'} and all(isinstance(v, int) and v >= 1 for v in bs.values()), bs",
+    "load_twice_same_model": "m1 = npg.load(prog, os.path.join(W, 'M')); m2 = npg.load(prog, os.path.join(W, 'M'))\nr1, r2 = m1.reduced(), m2.reduced(); r1(x=X[3]); r2(x=X[3])\nassert np.array_equal(r1.lift('y'), r2.lift('y'))",
     "many_objects_gc": "for i in range(200):\n    f = prog.full(params={'rho': RHO}); f(x=X[i % 12]); r = model.reduced(); r(x=X[0])\ngc.collect()",
 }
 
@@ -1421,7 +1670,10 @@ def main():
     expression_cases()
     front_end_cases()
     npy_cases()
+    forge_cases()
     numeric_cases()
+    honesty_cases()
+    output_folder_cases()
     cli_cases()
     fs_cases()
     concurrency_cases()
