@@ -808,6 +808,23 @@ def numeric_cases():
     train("mem_tiny", {"rho": RHO, "x": X}, ["--mem", "1"], status="either")
     train("mem_1k", {"rho": RHO, "x": X}, ["--mem", "1k"], status="either")
     train("fewer_samples_than_dim", {"rho": 1 + RNG.random(40), "x": 1 + RNG.random((3, 40))})
+    # out of core (--mem small) and --cc: the model the in-memory, libtcc training makes, to rounding
+    rng = np.random.default_rng(5)
+    data_dir("num/big", {"rho": 1 + rng.random(40), "x": 1 + rng.random((200, 40))})
+    npgc_ok("train", "vec.npg", "num/big", "-o", "num/big_ref")
+    npgc_ok("eval", "vec.npg", "num/big_ref", "num/big", "-o", "num/big_ref_out")
+    ref = np.load(path("num/big_ref_out/y.npy"))
+    for tag, extra in (("mem_1k", ["--mem", "1k"]), ("mem_20k", ["--mem", "20k"]), ("mem_100k", ["--mem", "100k"]),
+                       ("cc", ["--cc"]), ("progress", ["--progress"])):
+        m = "models/big_" + tag
+
+        def check(p, m=m, tag=tag):
+            e = subprocess.run([NPGC, "eval", "vec.npg", m, "num/big", "-o", "out/big_" + tag], cwd=W,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+            if e.returncode:
+                return "eval: " + e.stderr.decode()[:200]
+            return close(np.load(path("out/big_%s/y.npy" % tag)), ref, 1e-10, 0, "y of the model trained with " + tag)
+        case("num_same_model_" + tag, ["npgc", "train", "vec.npg", "num/big", "-o", m] + extra, 0, "", check=check)
     # verify/eval results against numpy on models trained at extreme scales
     for name, scale in (("1e100", 1e100), ("1e-100", 1e-100), ("1", 1.0)):
         d = data_dir("num/sc_" + name, {"rho": RHO, "x": X * scale})
@@ -1066,6 +1083,21 @@ def cli_cases():
     cli("plot_over_own_model", ["plot", "Mp", "-o", "Mp/basis_0.npy"], 1, "Mp", check=kept("Mp"))
     cli("plot_to_dev_full", ["plot", "M", "-o", "/dev/full"], 1, "/dev/full")
     cli("plot_to_directory", ["plot", "M", "-o", "out"], 1, "out")
+    # a model whose spectra were removed or changed after training
+    for tag, damage in (("npy_removed", lambda d: os.remove(path(d, "spectrum_x.npy"))),
+                        ("csv_removed", lambda d: os.remove(path(d, "spectrum_x.csv"))),
+                        ("npy_truncated", lambda d: os.truncate(path(d, "spectrum_x.npy"), 100)),
+                        ("npy_nan", lambda d: np.save(path(d, "spectrum_y.npy"),
+                                                      np.where(np.arange(len(np.load(path(d, "spectrum_y.npy")))) == 0,
+                                                               np.nan, np.load(path(d, "spectrum_y.npy")))))):
+        shutil.copytree(path("M"), path("plotm/" + tag))
+        damage("plotm/" + tag)
+        cli("plot_spectrum_" + tag, ["plot", "plotm/" + tag, "-o", "out/plot_%s.png" % tag], 1, "plotm/" + tag,
+            check=lambda p, tag=tag: "a PNG was written" if os.path.exists(path("out/plot_%s.png" % tag)) else None)
+    case("cli_tune_tol_unreachable", ["npgc", "tune", "vec.npg", "D", "T", "--tol", "1e-300", "-o", "models/cli_tu"], 1,
+         "cannot be met", stream="out", check=lambda p: "a model was written" if os.path.exists(path("models/cli_tu")) else None)
+    case("cli_tune_max_cap_one", ["npgc", "tune", "vec.npg", "D", "T", "--tol", "1e-3", "--max-cap", "1", "-o",
+                                  "models/cli_tmc"], 1, "--max-cap", stream="out", check=lambda p: "a model was written" if os.path.exists(path("models/cli_tmc")) else None)
     cli("plot_two_models", ["plot", "M", "M", "-o", "out/cli_plot3.png"], 2, "")
     cli("tune_ok", ["tune", "vec.npg", "D", "T", "--tol", "0.01", "-o", "models/cli_tune"], "either")
     cli("tune_tol_zero", ["tune", "vec.npg", "D", "T", "--tol", "0", "-o", "models/cli_tune0"], None, "--tol")
@@ -1174,6 +1206,24 @@ def fs_cases():
         threading.Thread(target=w, daemon=True).start()
     case("fs_fifo_input_with_writer", ["npgc", "eval", "vec.npg", "--full", "fifo_in", "fifo_in", "-o", "out/fs_fifo"],
          "either", "", check=out_equals("out/fs_fifo/y.npy", vec_y(X), 1e-14), before=feed, timeout=30)
+    # standard streams closed: a file opened later gets descriptor 1 or 2; nothing printed may land in it
+    def model_verifies(m):
+        def check(p):
+            v = subprocess.run([NPGC, "verify", "vec.npg", m, "T"], cwd=W, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE)
+            return None if v.returncode == 0 else "the model does not verify: " + v.stderr.decode()[:200]
+        return check
+    case("fs_stdout_closed_train", ["sh", "-c", '"$0" train vec.npg D -o models/fs_so >&-', NPGC], "either", "",
+         check=model_verifies("models/fs_so"))
+    case("fs_stderr_closed_train", ["sh", "-c", '"$0" train vec.npg D -o models/fs_se 2>&- >/dev/null', NPGC], "either",
+         "", check=model_verifies("models/fs_se"))
+    case("fs_stdout_closed_eval", ["sh", "-c", '"$0" eval vec.npg --full D D -o out/fs_so >&-', NPGC], "either", "",
+         check=out_equals("out/fs_so/y.npy", vec_y(X), 1e-14))
+    case("fs_stdout_closed_emit", ["sh", "-c", '"$0" emit vec.npg -o out/fs_so.c >&-', NPGC], "either", "",
+         check=lambda p: None if open(path("out/fs_so.c")).read(2) == "/*" else "the C file does not start as C")
+    case("fs_stdout_closed_check_json", ["sh", "-c", '"$0" check vec.npg --json >&-', NPGC], 1, "standard output")
+    case("fs_stdin_closed_train", ["sh", "-c", '"$0" train vec.npg D -o models/fs_si <&- >/dev/null', NPGC], 0, "",
+         check=model_verifies("models/fs_si"))
     # names: spaces, newlines, unicode, very long
     for tag, name in (("space", "my data dir"), ("newline", "new\nline"), ("unicode", "d\u00e4t\u00e4 \u2603"),
                       ("dash", "-D"), ("quote", "it's \"q\""), ("percent", "%s%n%d"), ("backslash", "a\\b")):
@@ -1548,6 +1598,10 @@ def app_cases():
     write("victim_rad.txt", "mine\n")
     app("rad_out_is_file", R, ["scene", "--out", "victim_rad.txt", "--faces", "40"], None, "victim_rad.txt",
         check=kept("victim_rad.txt"))
+    # a model of a small scene run on the default scene: refused naming the sizes, not evaluated
+    case("app_rad_demo_then_run_other_scene",
+         ["sh", "-c", '"$0" demo --out out/rad_demo --faces 40 --samples 6 --frames 2 --reps 1 >/dev/null && '
+          '"$0" run --model out/rad_demo/MODEL --frames 2', apps[R]], 1, "trained for", timeout=180)
     app("fl_no_command", F, [], 2, "usage")
     app("fl_cells_zero", F, ["mesh", "--cells", "0"], 2, "--cells")
     app("fl_size_negative", F, ["mesh", "--size", "-0.3"], 2, "--size")
