@@ -593,6 +593,12 @@ static int run_case(int argc, char **argv) {
       int rcl, ccl;
       return REFUSED(npg_reduced_op(r, "nosuch", out, 4, &rr, &cc2, &rcl, &ccl), npg_reduced_error(r), "nosuch");
     }
+    if (!strcmp(c, "reduced_coords_before_eval")) {
+      /* nothing was set or evaluated: there are no coordinates of y (npg_reduced_lift refuses the same) */
+      size_t mm = 0;
+      const double *cy = npg_reduced_coords(r, "y", &mm);
+      return cy ? bad("coordinates of y before any evaluation", "zeros") : ok("NULL");
+    }
     if (!strcmp(c, "reduced_coords_unknown")) {
       size_t mm = 5;
       return npg_reduced_coords(r, "nosuch", &mm) ? bad("coords of unknown", NULL) : ok("NULL");
