@@ -68,6 +68,8 @@ KNOWN_FAILURES = {
     "cli_basis_colon_only": "npgc train --basis x: (no key after the colon) trains with the defaults, without a word",
     "app_fl_sizes_trailing_comma": "npg-fluids tunnel --sizes 8, runs as --sizes 8 (strtok drops the empty entry)",
     "app_pt_sweep_points_empty_entry": "npg-points sweep --points 200,,300 runs 200 and 300 (strtok collapses ',,')",
+    "app_rad_out_empty": "npg-radiosity demo --out '': 'cannot create : No such file or directory' names neither "
+                         "--out nor the empty value",
     "py_verify_tol_negative": "Model.verify(tol=-1) is accepted (npgc verify --tol -1 is refused)",
     # unclear: a message that does not name the argument
     "api_train_set_wrong_size": "npg_trainer_set of x with 6 entries (N is 5): 'dim N is 5 in rho.api but 6 in "
@@ -1636,6 +1638,37 @@ def app_cases():
     app("fl_tiny_run", F, ["tunnel-full", "--out", "out/fl_tiny", "--frames", "2", "--cells", "300", "--particles",
                            "10", "--png-every", "100", "--vtk-every", "100"], 0, timeout=120,
         check=lambda p: None if os.path.exists(path("out/fl_tiny/report.json")) else "no report")
+    # more numbers out of their range, each bounded in size so that an accepted one ends quickly
+    small_r = ["--faces", "40", "--frames", "2", "--samples", "6"]
+    for tag, cmd, opt, val in (("rad_out_empty", "demo", "--out", ""), ("rad_frames_one", "full", "--frames", "1"),
+                               ("rad_reps_zero", "demo", "--reps", "0"), ("rad_samples_zero", "train", "--samples", "0"),
+                               ("rad_cap_zero", "train", "--cap", "0"), ("rad_energy_above_one", "train", "--energy", "1.5"),
+                               ("rad_ss_zero", "demo", "--ss", "0"), ("rad_faces_equals_empty", "scene", "--faces=", None)):
+        args = [cmd] + (["--out", "out/rad_" + tag] if opt != "--out" else []) + small_r
+        args = [a for a in args if not (cmd == "scene" and a in ("--frames", "2", "--samples", "6"))]
+        args += [opt] if val is None else [opt, val]
+        if cmd in ("full", "scene"):
+            args = [a for a in args if a not in ("--samples", "6")]
+        app(tag, R, args, None, opt.rstrip("="), timeout=60)
+    small_f = ["--cells", "300", "--frames", "2", "--particles", "10", "--png-every", "100", "--vtk-every", "100"]
+    for tag, cmd, opt, val in (("fl_cells_text_equals", "mesh", "--cells=abc", None), ("fl_cells_exponent", "mesh", "--cells", "1e3"),
+                               ("fl_runs_negative", "cavity", "--runs", "-1"), ("fl_mf_zero", "cavity", "--mf", "0"),
+                               ("fl_dtol_nan", "cavity", "--dtol", "nan"), ("fl_buffer_negative", "cavity", "--buffer-mb", "-1"),
+                               ("fl_sample_every_negative", "cavity", "--sample-every", "-1"),
+                               ("fl_train_threads_zero", "cavity", "--train-threads", "0"),
+                               ("fl_particle_threads_huge", "cavity", "--particle-threads", "99999"),
+                               ("fl_steps_zero", "cavity-projection", "--steps", "0")):
+        args = [cmd] + (["--out", "out/" + tag] if cmd in ("cavity",) else [])
+        args += [opt] if val is None else [opt, val]
+        if cmd == "cavity":
+            args += ["--cells", "300", "--frames", "2"]
+        app(tag, F, args, None, opt.split("=")[0], timeout=60)
+    for tag, opt, val in (("pt_p_nine", "--p", "9"), ("pt_p_one", "--p", "1"), ("pt_leaf_negative", "--leaf", "-1"),
+                          ("pt_check_points_negative", "--check-points", "-1"), ("pt_faces_tiny_rooms", "--faces", "3")):
+        extra = ["--scene", "rooms"] if opt == "--faces" else []
+        # --faces of the rooms is a target size (the scene has a smallest one): either refused or run
+        app(tag, P, ["demo", "--out", "out/" + tag, "--points", "200", opt, val] + extra,
+            "either" if opt == "--faces" else None, opt, timeout=60)
     app("pt_no_command", P, [], 2, "usage")
     app("pt_points_below_min", P, ["demo", "--out", "out/pt_x", "--points", "99"], 2, "--points")
     app("pt_leaf_zero", P, ["demo", "--out", "out/pt_x", "--points", "200", "--leaf", "0"], 2, "--leaf")
