@@ -266,7 +266,7 @@ typedef struct NpgTrainOptions {
                                Galerkin: each must be eligible (every operator diagonal: npgc check
                                says which); the array must outlive the trainer */
   const char *const *interp_stage;
-  double interp_oversample; /* entries selected per basis vector, >= 1 (0: the default, 16) */
+  double interp_oversample; /* entries selected per basis vector, >= 1 (0: the default, 32) */
   int ngalerkin;            /* the stages galerkin_stage[0..ngalerkin) are reduced by Galerkin */
   const char *const *galerkin_stage;
   long valid_count;         /* validation samples (the training params), set by valid_set(valid_user, f, k):

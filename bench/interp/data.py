@@ -1,5 +1,6 @@
 """Samples for bench/interp.sh (issue 26): bodies on a jittered lattice moved
-by a rotation, a scale and smooth random modes (n-body, Lennard-Jones), or a
+by a rotation (any angle, or within ±rot), a scale and smooth random modes of
+amplitude amp (n-body, Lennard-Jones), or a
 cloth-like grid deformed by smooth modes (springs). Deterministic per seed."""
 import os
 import sys
@@ -7,7 +8,7 @@ import sys
 import numpy as np
 
 
-def bodies(N, S, seed, amp, spacing):
+def bodies(N, S, seed, amp, spacing, rot=np.pi):
     rng = np.random.default_rng(7)
     k = int(round(N ** (1 / 3)))
     while k ** 3 < N:
@@ -18,7 +19,7 @@ def bodies(N, S, seed, amp, spacing):
     r = np.random.default_rng(seed)
     out = []
     for _ in range(S):
-        t = r.uniform(0, 2 * np.pi)
+        t = r.uniform(-rot, rot)
         R = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
         x = base @ R.T * r.uniform(0.95, 1.05)
         out.append(x + np.einsum("k,kvc->vc", amp * r.normal(size=4), modes))
@@ -54,10 +55,11 @@ def springs(n, S, seed, amp):
 def main():
     kind, out, S, seed = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
     os.makedirs(out, exist_ok=True)
-    if kind.startswith("nbody"):  # nbody:N:eps
-        _, N, eps = kind.split(":")
-        N = int(N)
-        np.save(f"{out}/x.npy", bodies(N, S, seed, 0.1, 1.0))
+    if kind.startswith("nbody"):  # nbody:N:eps, or nbody:N:eps:amp:rot (smaller motions, the issue's regime)
+        f = kind.split(":")
+        N, eps = int(f[1]), f[2]
+        amp, rot = (float(f[3]), float(f[4])) if len(f) > 3 else (0.1, np.pi)
+        np.save(f"{out}/x.npy", bodies(N, S, seed, amp, 1.0, rot))
         np.save(f"{out}/mass.npy", np.full(N, 1.0 / N))
         np.save(f"{out}/eps.npy", np.array(float(eps)))
     elif kind.startswith("lj"):  # lj:N

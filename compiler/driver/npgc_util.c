@@ -76,7 +76,7 @@ static const Usage usages[] = {
      "  --reduce STAGE:interp   reduce STAGE by interpolation (DESIGN §12): its formula\n"
      "               evaluated exactly at selected entries, its coordinates fitted by least\n"
      "               squares; STAGE must be eligible (npgc check: every operator diagonal)\n"
-     "  --interp-oversample X   entries per basis vector of an interpolated stage (16, >= 1)\n"
+     "  --interp-oversample X   entries per basis vector of an interpolated stage (32, >= 1)\n"
      "  --valid DIR  validation samples (same params): every eligible stage not named by\n"
      "               --reduce is reduced both ways and the lower output error on them kept\n"
      "               (ties: the cheaper); the choice, both errors and the reason are printed;\n"
