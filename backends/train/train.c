@@ -22,6 +22,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <time.h>
 
 #include "dist.h"
@@ -572,6 +573,29 @@ done:
   return rc_ok;
 }
 
+/* Whether --keep-bases `list` (comma-separated) names class `c` (a member
+ * or the class, as --basis names them); *unknown set to the first name
+ * that names nothing (NULL: none). "all" names every class. */
+static bool keep_named(const Model *m, const char *list, int c, char *unknown, size_t ulen) {
+  bool kept = false;
+  for (const char *p = list; p && *p;) {
+    size_t len = strcspn(p, ",");
+    char name[256];
+    snprintf(name, sizeof name, "%.*s", (int)(len < sizeof name ? len : sizeof name - 1), p);
+    bool any = strcmp(name, "all") == 0;
+    kept |= any;
+    for (int k = 0; k < m->nclasses; k++)
+      for (int i = 0; i < m->classes[k].nmembers; i++) {
+        int level = override_level(&m->classes[k], &m->classes[k].members[i], name);
+        any |= level >= 2;
+        kept |= level >= 2 && k == c;
+      }
+    if (!any && unknown && !unknown[0]) snprintf(unknown, ulen, "%s", name);
+    p += len + (p[len] == ',');
+  }
+  return kept;
+}
+
 /* The model's layout for the dims sample 0 binds, with every member's
  * options set and the --basis names checked. NULL with `err`. */
 static Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
@@ -593,7 +617,12 @@ static Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src,
   m->samples = src->count;
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++) member_options(m, &m->classes[c], &m->classes[c].members[i], opt);
-  if (check_overrides(m, opt, err, errlen)) {
+  char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
+  if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
+  if (unknown[0])
+    npg_fail(err, errlen, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)",
+             unknown);
+  if (unknown[0] || check_overrides(m, opt, err, errlen)) {
     model_free(m);
     return NULL;
   }
@@ -880,6 +909,60 @@ static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptio
          build_bases(m, sn, *gram, opt, err, errlen);
 }
 
+/* Step 5 (issue 30): the bases the reduced model never reads
+ * (model_class_streamable), unless --keep-bases names them, dropped from
+ * the model once training has used them; their quantities' projection
+ * floors on the training samples recorded first (verify reports them in
+ * place of the held-out floors it can no longer measure). The values come
+ * from the snapshots in memory, or after the method of snapshots and out of
+ * core from the samples evaluated again (over ranks each rank its samples
+ * k ≡ rank, summed). */
+static int stream_bases(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram,
+                        const TrainOptions *opt, char *err, size_t errlen) {
+  bool *drop = calloc((size_t)m->nclasses + 1, sizeof(bool)), any = false;
+  if (!drop) return npg_fail(err, errlen, "out of memory");
+  for (int c = 0; c < m->nclasses; c++) { /* the names were checked by begin_training */
+    drop[c] = opt->stream && !keep_named(m, opt->keep_bases, c, NULL, 0) && model_class_streamable(m, c);
+    any |= drop[c];
+  }
+  long S = src->count, maxn = 1, maxm = 1;
+  for (int c = 0; c < m->nclasses; c++)
+    if (drop[c]) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
+  double *y = any ? malloc(sizeof(double) * (size_t)maxn) : NULL, *proj = any ? malloc(sizeof(double) * (size_t)maxm) : NULL;
+  if (any && (!y || !proj)) {
+    free(drop), free(y), free(proj);
+    return npg_fail(err, errlen, "out of memory measuring the training floors");
+  }
+  int N = gram && opt->dist ? dist_size() : 1, rank = N > 1 ? dist_rank() : 0, rc = 0;
+  for (long k = rank; any && rc == 0 && k < S; k += N) {
+    if (gram && train_eval_sample(src, f, k, err, errlen)) rc = -1;
+    for (int c = 0; rc == 0 && c < m->nclasses; c++)
+      for (int i = 0; drop[c] && i < m->classes[c].nmembers; i++) {
+        RMember *mb = &m->classes[c].members[i];
+        if (mb->q < 0) continue; /* a numerator is no quantity verify reports */
+        const double *val = gram ? npg_full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL)
+                                 : sn->X[c][i] + (size_t)k * (size_t)m->classes[c].n;
+        double fl[2];
+        model_projection_floor(&m->classes[c], val, proj, y, fl);
+        mb->floor_l2 += fl[0] / (double)S, mb->floor_linf += fl[1] / (double)S;
+      }
+    if (gram) progress_show(opt->progress, "training floors", k + 1, S);
+  }
+  for (int c = 0; rc == 0 && c < m->nclasses; c++) {
+    RClass *rc_ = &m->classes[c];
+    for (int i = 0; N > 1 && drop[c] && i < rc_->nmembers; i++) {
+      dist_allreduce_sum(&rc_->members[i].floor_l2, 1);
+      dist_allreduce_sum(&rc_->members[i].floor_linf, 1);
+    }
+    if (!drop[c]) continue;
+    if (rc_->B_mapped) munmap(rc_->B, rc_->B_mapped);
+    else free(rc_->B);
+    rc_->B = NULL, rc_->B_mapped = 0, rc_->streamed = true;
+  }
+  free(drop), free(y), free(proj);
+  return rc;
+}
+
 /* Training as named steps (DESIGN §5), each step's wall and CPU time kept (out of core: the
  * snapshots and the bases are one step, timed as snapshots). */
 Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
@@ -895,7 +978,8 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   if (!m || bases(m, f, src, opt, &sn, &gram, t, sec, cpu, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
       premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || interpolate_stages(m, f, opt, err, errlen) ||
       (phase_time(t, &sec[2], &cpu[2]), 0) ||
-      fit_externs(m, f, src, &sn, gram, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
+      fit_externs(m, f, src, &sn, gram, opt->progress, opt->dist, err, errlen) ||
+      stream_bases(m, f, src, &sn, gram, opt, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);
     return NULL;
