@@ -806,11 +806,70 @@ static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char 
   return 0;
 }
 
+/* Issue 30: the classes whose bases are streamed — used in training, then
+ * dropped (drop_bases) — marked once the reduction of every stage is
+ * chosen (an interpolated stage's class is needed): the streamable ones
+ * (model_class_streamable) --keep-bases does not name. */
+static bool mark_streamed(Model *m, const TrainOptions *opt) {
+  bool any = false;
+  for (int c = 0; c < m->nclasses; c++) { /* the names were checked by begin_training */
+    m->classes[c].streamed = opt->stream && !keep_named(m, opt->keep_bases, c, NULL, 0) && model_class_streamable(m, c);
+    any |= m->classes[c].streamed;
+  }
+  return any;
+}
+
+/* Sample k's projection floors (model_projection_floor) of every quantity
+ * of a streamed class, added to their means over the S samples: verify
+ * reports them in place of the held-out floors it cannot measure without
+ * the basis. `gram`: the values are the evaluator's (the sample just
+ * evaluated), else the snapshots'. */
+static void take_floors(Model *m, NpgFull *f, const Snapshots *sn, bool gram, long k, long S, double *proj, double *y) {
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; m->classes[c].streamed && i < m->classes[c].nmembers; i++) {
+      RMember *mb = &m->classes[c].members[i];
+      if (mb->q < 0) continue; /* a numerator is no quantity verify reports */
+      const double *val = gram ? npg_full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL)
+                               : sn->X[c][i] + (size_t)k * (size_t)m->classes[c].n;
+      double fl[2];
+      model_projection_floor(&m->classes[c], val, proj, y, fl);
+      mb->floor_l2 += fl[0] / (double)S, mb->floor_linf += fl[1] / (double)S;
+    }
+}
+
+/* Step 5: the streamed classes' bases dropped (their floors taken). */
+static void drop_bases(Model *m) {
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    if (!rc->streamed) continue;
+    if (rc->B_mapped) munmap(rc->B, rc->B_mapped);
+    else free(rc->B);
+    rc->B = NULL, rc->B_mapped = 0;
+  }
+}
+
+static int fit_externs_floors(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram,
+                              bool floors, double *proj, double *y, bool progress, bool dist, char *err, size_t errlen);
+
 /* Step 4: every extern's learned map (paper §8.3): the training samples'
  * reduced inputs and values, from the snapshots or, after the method of
- * snapshots, recomputed. */
-static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool progress,
-                       bool dist, char *err, size_t errlen) {
+ * snapshots, recomputed; with `floors`, in the same pass the streamed
+ * classes' training floors (take_floors). */
+static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
+                       bool progress, bool dist, char *err, size_t errlen) {
+  long maxn = 1, maxm = 1;
+  for (int c = 0; floors && c < m->nclasses; c++)
+    if (m->classes[c].streamed)
+      maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
+  double *y = floors ? malloc(sizeof(double) * (size_t)maxn) : NULL, *proj = floors ? malloc(sizeof(double) * (size_t)maxm) : NULL;
+  if (floors && (!y || !proj)) return free(y), free(proj), npg_fail(err, errlen, "out of memory measuring the training floors");
+  int rc = fit_externs_floors(m, f, src, sn, gram, floors, proj, y, progress, dist, err, errlen);
+  free(y), free(proj);
+  return rc;
+}
+
+static int fit_externs_floors(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
+                              double *proj, double *y, bool progress, bool dist, char *err, size_t errlen) {
   long S = src->count;
   /* recomputed over ranks (out of core): rank r its samples k ≡ r (mod N),
    * the others' rows zero, then summed */
@@ -822,7 +881,7 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
     if (!(x->X = calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = calloc((size_t)(S * mz) + 1, sizeof(double))))
       return npg_fail(err, errlen, "out of memory while training");
   }
-  for (long k = rank; k < S && m->nexterns > 0; k += N) {
+  for (long k = rank; k < S && (m->nexterns > 0 || floors); k += N) {
     if (gram && train_eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
     for (int i = 0; i < m->nexterns; i++) {
       RExtern *x = &m->externs[i];
@@ -841,13 +900,19 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
         if (j < x->nin) off += rc->m;
       }
     }
-    if (gram) progress_show(progress, "extern samples", k + 1, S);
+    if (floors) take_floors(m, f, sn, gram, k, S, proj, y);
+    if (gram) progress_show(progress, floors ? "extern samples, floors" : "extern samples", k + 1, S);
   }
   for (int i = 0; N > 1 && i < m->nexterns; i++) {
     RExtern *x = &m->externs[i];
     dist_allreduce_sum(x->X, S * x->d);
     dist_allreduce_sum(x->Z, S * m->classes[m->qclass[x->q]].m);
   }
+  for (int c = 0; N > 1 && floors && c < m->nclasses; c++) /* every rank's samples' floors summed */
+    for (int i = 0; m->classes[c].streamed && i < m->classes[c].nmembers; i++) {
+      dist_allreduce_sum(&m->classes[c].members[i].floor_l2, 1);
+      dist_allreduce_sum(&m->classes[c].members[i].floor_linf, 1);
+    }
   return 0;
 }
 
@@ -909,60 +974,6 @@ static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptio
          build_bases(m, sn, *gram, opt, err, errlen);
 }
 
-/* Step 5 (issue 30): the bases the reduced model never reads
- * (model_class_streamable), unless --keep-bases names them, dropped from
- * the model once training has used them; their quantities' projection
- * floors on the training samples recorded first (verify reports them in
- * place of the held-out floors it can no longer measure). The values come
- * from the snapshots in memory, or after the method of snapshots and out of
- * core from the samples evaluated again (over ranks each rank its samples
- * k ≡ rank, summed). */
-static int stream_bases(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram,
-                        const TrainOptions *opt, char *err, size_t errlen) {
-  bool *drop = calloc((size_t)m->nclasses + 1, sizeof(bool)), any = false;
-  if (!drop) return npg_fail(err, errlen, "out of memory");
-  for (int c = 0; c < m->nclasses; c++) { /* the names were checked by begin_training */
-    drop[c] = opt->stream && !keep_named(m, opt->keep_bases, c, NULL, 0) && model_class_streamable(m, c);
-    any |= drop[c];
-  }
-  long S = src->count, maxn = 1, maxm = 1;
-  for (int c = 0; c < m->nclasses; c++)
-    if (drop[c]) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
-  double *y = any ? malloc(sizeof(double) * (size_t)maxn) : NULL, *proj = any ? malloc(sizeof(double) * (size_t)maxm) : NULL;
-  if (any && (!y || !proj)) {
-    free(drop), free(y), free(proj);
-    return npg_fail(err, errlen, "out of memory measuring the training floors");
-  }
-  int N = gram && opt->dist ? dist_size() : 1, rank = N > 1 ? dist_rank() : 0, rc = 0;
-  for (long k = rank; any && rc == 0 && k < S; k += N) {
-    if (gram && train_eval_sample(src, f, k, err, errlen)) rc = -1;
-    for (int c = 0; rc == 0 && c < m->nclasses; c++)
-      for (int i = 0; drop[c] && i < m->classes[c].nmembers; i++) {
-        RMember *mb = &m->classes[c].members[i];
-        if (mb->q < 0) continue; /* a numerator is no quantity verify reports */
-        const double *val = gram ? npg_full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL)
-                                 : sn->X[c][i] + (size_t)k * (size_t)m->classes[c].n;
-        double fl[2];
-        model_projection_floor(&m->classes[c], val, proj, y, fl);
-        mb->floor_l2 += fl[0] / (double)S, mb->floor_linf += fl[1] / (double)S;
-      }
-    if (gram) progress_show(opt->progress, "training floors", k + 1, S);
-  }
-  for (int c = 0; rc == 0 && c < m->nclasses; c++) {
-    RClass *rc_ = &m->classes[c];
-    for (int i = 0; N > 1 && drop[c] && i < rc_->nmembers; i++) {
-      dist_allreduce_sum(&rc_->members[i].floor_l2, 1);
-      dist_allreduce_sum(&rc_->members[i].floor_linf, 1);
-    }
-    if (!drop[c]) continue;
-    if (rc_->B_mapped) munmap(rc_->B, rc_->B_mapped);
-    else free(rc_->B);
-    rc_->B = NULL, rc_->B_mapped = 0, rc_->streamed = true;
-  }
-  free(drop), free(y), free(proj);
-  return rc;
-}
-
 /* Training as named steps (DESIGN §5), each step's wall and CPU time kept (out of core: the
  * snapshots and the bases are one step, timed as snapshots). */
 Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
@@ -978,8 +989,8 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   if (!m || bases(m, f, src, opt, &sn, &gram, t, sec, cpu, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
       premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || interpolate_stages(m, f, opt, err, errlen) ||
       (phase_time(t, &sec[2], &cpu[2]), 0) ||
-      fit_externs(m, f, src, &sn, gram, opt->progress, opt->dist, err, errlen) ||
-      stream_bases(m, f, src, &sn, gram, opt, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
+      fit_externs(m, f, src, &sn, gram, mark_streamed(m, opt), opt->progress, opt->dist, err, errlen) ||
+      (drop_bases(m), phase_time(t, &sec[3], &cpu[3]), 0)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);
     return NULL;
@@ -1105,7 +1116,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     }
   }
   model_size_tensors(m);
-  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, false, err, errlen)) {
+  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, false, false, err, errlen)) {
     model_free(m);
     return NULL;
   }
