@@ -632,8 +632,10 @@ static void print_report(const Common *c, const NpgVerifyReport *rep) {
   for (int q = 0; q < rep->nrows; q++) {
     const NpgVerifyRow *e = &rep->rows[q];
     if (e->streamed) { /* no basis in the model: the floors training measured, no lifted error */
-      printf("%-*s %-*s %5ld %10s %9.3e* %10s %10s %10s %9.3e*\n", wn, e->name, wk, e->kind, e->m, "n/a", e->floor,
-             "n/a", "n/a", "n/a", e->linf_floor);
+      char linf[32] = "n/a"; /* not measured out of core */
+      if (!isnan(e->linf_floor)) snprintf(linf, sizeof linf, "%9.3e*", e->linf_floor);
+      printf("%-*s %-*s %5ld %10s %9.3e* %10s %10s %10s %10s\n", wn, e->name, wk, e->kind, e->m, "n/a", e->floor,
+             "n/a", "n/a", "n/a", linf);
       streamed++;
       continue;
     }

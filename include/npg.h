@@ -473,7 +473,8 @@ typedef struct NpgVerifyRow {
   double linf, linf_floor;  /* the same in the max norm */
   bool streamed;            /* its basis was streamed in training, not kept: l2, own, l2_max and linf are
                                NaN (nothing to lift), floor and linf_floor the training samples' mean,
-                               measured by training */
+                               measured by training (out of core from ‖y‖² − ‖Bᵀy‖², resolved to about
+                               1e-7, and linf_floor NaN: not measured) */
 } NpgVerifyRow;
 typedef struct NpgVerifyReport {
   long samples;

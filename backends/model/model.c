@@ -527,8 +527,9 @@ static int check_meta(const ModelStore *s, Model *m, const char *dir, char *err,
     } else if (strncmp(line, "floor ", 6) == 0) {
       int used = 0;
       double l2, linf;
+      /* linf nan: not measured (out of core, ooc.c take_floors) */
       ok = sscanf(line, "floor %511s l2 %lf linf %lf%n", name, &l2, &linf, &used) == 3 && line[used] == 0 && l2 >= 0 &&
-           linf >= 0 && isfinite(l2) && isfinite(linf);
+           isfinite(l2) && (isnan(linf) || (linf >= 0 && isfinite(linf)));
       bool known = false; /* a quantity of a streamed class */
       for (int c = 0; ok && c < m->nclasses; c++)
         for (int k = 0; m->classes[c].streamed && k < m->classes[c].nmembers; k++)

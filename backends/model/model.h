@@ -111,7 +111,8 @@ typedef struct RClass {
   double *B;                /* n x m, row-major, orthonormal columns (owned) */
   size_t B_mapped;          /* when non-zero, B is a read-only mapping of that many bytes of an
                                unnamed file (out-of-core training), unmapped instead of freed */
-  bool streamed;            /* the basis is not kept (B NULL, m its size when trained): model_class_streamed */
+  bool streamed;            /* the basis is not kept (B NULL, m its size when trained): model_class_streamable */
+  bool floors_known;        /* training: its members' floor_l2/floor_linf already measured (out of core) */
   int nmembers;
   RMember *members;
 } RClass;

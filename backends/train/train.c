@@ -811,10 +811,10 @@ static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char 
  * chosen (an interpolated stage's class is needed): the streamable ones
  * (model_class_streamable) --keep-bases does not name. */
 static bool mark_streamed(Model *m, const TrainOptions *opt) {
-  bool any = false;
+  bool any = false; /* whose floors are still to be taken */
   for (int c = 0; c < m->nclasses; c++) { /* the names were checked by begin_training */
     m->classes[c].streamed = opt->stream && !keep_named(m, opt->keep_bases, c, NULL, 0) && model_class_streamable(m, c);
-    any |= m->classes[c].streamed;
+    any |= m->classes[c].streamed && !m->classes[c].floors_known;
   }
   return any;
 }
@@ -826,7 +826,7 @@ static bool mark_streamed(Model *m, const TrainOptions *opt) {
  * evaluated), else the snapshots'. */
 static void take_floors(Model *m, NpgFull *f, const Snapshots *sn, bool gram, long k, long S, double *proj, double *y) {
   for (int c = 0; c < m->nclasses; c++)
-    for (int i = 0; m->classes[c].streamed && i < m->classes[c].nmembers; i++) {
+    for (int i = 0; m->classes[c].streamed && !m->classes[c].floors_known && i < m->classes[c].nmembers; i++) {
       RMember *mb = &m->classes[c].members[i];
       if (mb->q < 0) continue; /* a numerator is no quantity verify reports */
       const double *val = gram ? npg_full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL)
@@ -859,7 +859,7 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
                        bool progress, bool dist, char *err, size_t errlen) {
   long maxn = 1, maxm = 1;
   for (int c = 0; floors && c < m->nclasses; c++)
-    if (m->classes[c].streamed)
+    if (m->classes[c].streamed && !m->classes[c].floors_known)
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
   double *y = floors ? malloc(sizeof(double) * (size_t)maxn) : NULL, *proj = floors ? malloc(sizeof(double) * (size_t)maxm) : NULL;
   if (floors && (!y || !proj)) return free(y), free(proj), npg_fail(err, errlen, "out of memory measuring the training floors");
@@ -909,7 +909,7 @@ static int fit_externs_floors(Model *m, NpgFull *f, const SampleSource *src, con
     dist_allreduce_sum(x->Z, S * m->classes[m->qclass[x->q]].m);
   }
   for (int c = 0; N > 1 && floors && c < m->nclasses; c++) /* every rank's samples' floors summed */
-    for (int i = 0; m->classes[c].streamed && i < m->classes[c].nmembers; i++) {
+    for (int i = 0; m->classes[c].streamed && !m->classes[c].floors_known && i < m->classes[c].nmembers; i++) {
       dist_allreduce_sum(&m->classes[c].members[i].floor_l2, 1);
       dist_allreduce_sum(&m->classes[c].members[i].floor_linf, 1);
     }
@@ -968,6 +968,7 @@ static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptio
                  struct timespec t[2], double *sec, double *cpu, char *err, size_t errlen) {
   if (ooc_needed(m, opt)) {
     *gram = true;
+    mark_streamed(m, opt); /* their floors taken in the passes (the choice is made again after interpolation) */
     return ooc_bases(m, f, src, opt, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0);
   }
   return take_snapshots(m, f, src, opt, sn, gram, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0) ||

@@ -62,8 +62,11 @@ PY
   for q in s h r c d p; do
     rec=$(sed -n "s/^floor $q l2 \([^ ]*\) linf .*/\1/p" "$W/S/manifest")
     got=$(awk -v q=$q '$1 == q { print $5 }' "$W/vk.txt")
-    /usr/bin/python3 -c "import sys; r, g = float(sys.argv[1]), float(sys.argv[2]); sys.exit(abs(r - g) > 1e-3 * g + 1e-15)" \
-      "$rec" "$got" || fail "training floor of $q $mem: recorded $rec, verify on the training samples $got"
+    # out of core the floor is sqrt(‖y‖² − ‖Bᵀy‖²)/‖y‖ from the passes: resolved to about 1e-7
+    abs=1e-15
+    [ -z "$mem" ] || abs=1e-6
+    /usr/bin/python3 -c "import sys; r, g, a = map(float, sys.argv[1:]); sys.exit(abs(r - g) > 1e-3 * g + a)" \
+      "$rec" "$got" "$abs" || fail "training floor of $q $mem: recorded $rec, verify on the training samples $got"
   done
   rm -rf "$W/S" "$W/K" "$W/ES" "$W/EK"
 done
