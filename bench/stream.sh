@@ -3,8 +3,9 @@
 # one after the other in one script: `npgc train` of the radiosity program out of core
 # (--mem MEM), with every basis kept (--keep-bases all, the old layout) and with the default
 # (the pair bases used in training, not stored). Per run: the trainer's phase times, the wall
-# time, peak RSS (/usr/bin/time), the peak scratch disk (the unnamed files training holds open:
-# the disk blocks of the deleted files under /proc/PID/fd, sampled every 0.1 s), the model's size.
+# time, peak RSS (/usr/bin/time), the peak scratch disk (the unnamed files training holds open or
+# maps: the disk blocks of the deleted files under /proc/PID/fd and map_files, sampled every 0.1 s),
+# the model's size.
 set -eu
 cd "$(dirname "$0")/.."
 faces=${1:-1000}
@@ -22,19 +23,34 @@ run() {
   /usr/bin/time -f %M -o "$work/$name.rss" "$build/npgc" train $prog "$work/data" -o "$work/$name" --mem "$mem" \
     --progress "$@" >"$work/$name.out" 2>"$work/$name.err" &
   tpid=$!
-  peak=0
-  while kill -0 $tpid 2>/dev/null; do
-    pid=$(pgrep -P $tpid npgc || true)
-    if [ -n "$pid" ]; then
-      s=$(for fd in /proc/$pid/fd/*; do
-            case "$(readlink "$fd" 2>/dev/null)" in *'(deleted)') stat -L -c '%b %B' "$fd" 2>/dev/null ;; esac
-          done | awk '{s += $1 * $2} END {print s + 0}')
-      [ "$s" -gt "$peak" ] && peak=$s
-    fi
-    sleep 0.1
-  done
+  # the scratch: disk blocks of the deleted files the trainer holds open or mapped (each once)
+  /usr/bin/python3 - $tpid >"$work/$name.scratch" <<'PY'
+import os, subprocess, sys, time
+tpid, peak = sys.argv[1], 0
+while os.path.exists(f"/proc/{tpid}"):
+    pids = subprocess.run(["pgrep", "-P", tpid], capture_output=True, text=True).stdout.split()
+    for pid in pids:
+        seen, total = set(), 0
+        try:
+            paths = [f"/proc/{pid}/fd/{fd}" for fd in os.listdir(f"/proc/{pid}/fd")]
+            paths += [f"/proc/{pid}/map_files/{r}" for r in os.listdir(f"/proc/{pid}/map_files")]
+            for path in paths:
+                try:
+                    if not os.readlink(path).endswith("(deleted)"):
+                        continue
+                    st = os.stat(path)
+                except OSError:
+                    continue
+                if st.st_ino not in seen:
+                    seen.add(st.st_ino)
+                    total += st.st_blocks * 512
+        except OSError:
+            pass
+        peak = max(peak, total)
+    time.sleep(0.1)
+print(peak)
+PY
   wait $tpid
-  echo "$peak" >"$work/$name.scratch"
   du -sk "$work/$name" | cut -f1 >"$work/$name.size"
 }
 run stored --keep-bases all
