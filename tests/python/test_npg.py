@@ -522,3 +522,19 @@ def test_output_op_equals_npgc_eval(tmp_path, npgc):
         full.op("y")
     with pytest.raises(npg.Error):
         red.op("y")
+
+
+def test_streamed_basis_raises(tmp_path, npgc, root):
+    """A basis the model does not keep (issue 30: radiosity's pair class {s,h}) raises naming
+    --keep-bases instead of giving an array of uninitialized memory; a kept one is a view."""
+    import os
+    data = pathlib.Path(os.environ.get("NPG_NPGC", root / "build" / "npgc")).parent / "radiosity_data"
+    import subprocess
+    subprocess.run([str(data), str(tmp_path / "D"), "48", "8", "0", "1", "3"], check=True, capture_output=True)
+    prog_path = root / "examples" / "radiosity" / "formfactors.npg"
+    npgc("train", prog_path, tmp_path / "D", "-o", tmp_path / "M", "--cap", "4")
+    model = npg.load(npg.compile(str(prog_path)), str(tmp_path / "M"))
+    with pytest.raises(npg.Error, match="--keep-bases h"):
+        model.basis("h")
+    b = model.basis("b")
+    assert np.allclose(b.T @ b, np.eye(b.shape[1]), atol=1e-12)
