@@ -74,7 +74,9 @@ PY
 done
 
 # a size: the pair bases are most of the old layout
-"$N" train $R "$W/RT" -o "$W/S" >/dev/null && "$N" train $R "$W/RT" -o "$W/K" --keep-bases all >/dev/null || fail "train"
+"$N" train $R "$W/RT" -o "$W/S" >"$W/ts.txt" && "$N" train $R "$W/RT" -o "$W/K" --keep-bases all >"$W/tk.txt" || fail "train"
+grep -q '^streamed bases, used in training and not kept: {s,h} {r} {c} {d,p} (' "$W/ts.txt" || fail "table: $(cat "$W/ts.txt")"
+grep -q '^streamed bases' "$W/tk.txt" && fail "--keep-bases all: the table names streamed bases"
 s=$(du -sk "$W/S" | cut -f1) k=$(du -sk "$W/K" | cut -f1)
 [ "$s" -lt "$k" ] || fail "the streamed model ($s kB) is not smaller than the old layout ($k kB)"
 
