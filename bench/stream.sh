@@ -68,3 +68,6 @@ for name in stored streamed; do
   printf '%-9s %9s %12.0f %12.0f %10.1f  %s\n' "$name" "$wall" "$(($(cat "$work/$name.rss") / 1024))" \
     "$(echo "$(cat "$work/$name.scratch") / 1000000" | bc -l)" "$(echo "$(cat "$work/$name.size") / 1024" | bc -l)" "$phases"
 done
+for name in stored streamed; do # the out-of-core passes, split (the streamed run's basis passes take the floors)
+  echo "$name: $(grep -a -o 'out of core: [0-9.]* s samples.*' "$work/$name.err" | sed 's/out of core: //')"
+done
