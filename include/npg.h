@@ -268,7 +268,8 @@ typedef struct NpgTrainOptions {
                                of pair quantities that are no input, output or extern: F² rows for F
                                faces) are used in training and not kept in the model; this comma-separated
                                list of quantities or classes (m_x) keeps them too, "all" keeps every
-                               basis (the old layout); NULL: none kept. An unknown name fails training */
+                               basis (the old layout); NULL: none kept. An unknown name fails training;
+                               the string must outlive the trainer */
 } NpgTrainOptions;
 NPG_API void npg_train_options_default(NpgTrainOptions *o);
 /* Whether this build of libnpg has MPI (NpgTrainOptions.mpi). */

@@ -145,7 +145,7 @@ static PyObject *model_basis(ModelObject *self, PyObject *arg) {
   const double *B = npg_model_basis(self->m, c);
   if (!B) /* NULL data would make numpy allocate an uninitialized array */
     return PyErr_Format(npgpy_Error, "the basis of '%s' (class %s) was streamed in training and not kept in the "
-                        "model: retrain with --keep-bases %s (NpgTrainOptions.keep_bases)", name, ci.label, name);
+                        "model: retrain with --keep-bases %s (npg.Trainer(keep_bases=...))", name, ci.label, name);
   npy_intp shape[2] = {ci.n, ci.m};
   PyObject *a = PyArray_New(&PyArray_Type, 2, shape, NPY_DOUBLE, NULL, (void *)B, 0,
                             NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_ALIGNED, NULL);

@@ -538,3 +538,14 @@ def test_streamed_basis_raises(tmp_path, npgc, root):
         model.basis("h")
     b = model.basis("b")
     assert np.allclose(b.T @ b, np.eye(b.shape[1]), atol=1e-12)
+    # Trainer(keep_bases=) as npgc train --keep-bases: the same model, h's basis kept
+    full = npg.compile(str(prog_path)).full(params={n: np.load(tmp_path / "D" / f"{n}.npy") for n in ("tri", "rho")})
+    g, e, v = (np.load(tmp_path / "D" / f"{n}.npy") for n in ("g", "e", "v"))
+    tr = npg.Trainer(full, cap=4, keep_bases="h")
+    for k in range(len(g)):
+        tr.add(g=g[k], e=e[k], v=v[k])
+    kept = tr.finish(tmp_path / "K")
+    npgc("train", prog_path, tmp_path / "D", "-o", tmp_path / "KCLI", "--cap", "4", "--keep-bases", "h")
+    same_model(tmp_path / "K", tmp_path / "KCLI")
+    h = kept.basis("h")
+    assert np.allclose(h.T @ h, np.eye(h.shape[1]), atol=1e-12)
