@@ -671,10 +671,11 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
   /* every metadata line the model reads must describe this model: a line
    * it cannot use is refused, not skipped */
   if (check_meta(&s, m, dir, err, errlen) || interp_load(m, &s, dir, err, errlen)) goto fail;
-  for (int c = 0; c < m->nclasses; c++) /* a basis the reduced model reads is never streamed (model.h) */
-    if (m->classes[c].streamed && model_class_needed(m, c)) {
-      snprintf(err, errlen, "%s/manifest: class %s is marked streamed, but the reduced model reads its basis (a "
-               "damaged or forged manifest; retrain)", dir, m->classes[c].label);
+  for (int c = 0; c < m->nclasses; c++) /* only a class the rule allows is streamed: never one whose basis is read */
+    if (m->classes[c].streamed && !model_class_streamable(m, c)) {
+      snprintf(err, errlen, "%s/manifest: class %s is marked streamed, but %s (a damaged or forged manifest; retrain)",
+               dir, m->classes[c].label,
+               model_class_needed(m, c) ? "the reduced model reads its basis" : "its rows run over one dim only");
       goto fail;
     }
   /* member statistics, for reports */
