@@ -278,6 +278,12 @@ typedef struct NpgTrainOptions {
   double valid_holdout;     /* instead of validation samples, hold out this fraction (0, 0.5] of the
                                samples added — every round(1/F)-th — from training to validate on
                                (not over MPI ranks); 0: none */
+  const char *keep_bases;   /* streamed bases (issue 30): the bases the reduced model never reads (classes
+                               of pair quantities that are no input, output or extern: F² rows for F
+                               faces) are used in training and not kept in the model; this comma-separated
+                               list of quantities or classes (m_x) keeps them too, "all" keeps every
+                               basis (the old layout); NULL: none kept. An unknown name fails training;
+                               the string must outlive the trainer */
 } NpgTrainOptions;
 NPG_API void npg_train_options_default(NpgTrainOptions *o);
 /* Whether this build of libnpg has MPI (NpgTrainOptions.mpi). */
@@ -369,7 +375,9 @@ NPG_API int npg_model_class(const NpgModel *m, int c, NpgClassInfo *out);
 NPG_API int npg_model_member(const NpgModel *m, int c, int i, NpgMemberInfo *out);
 /* The class of a quantity (input, extern or stage), -1 if it has none. */
 NPG_API int npg_model_class_of(const NpgModel *m, const char *quantity);
-/* The orthonormal basis of class c, n x m row-major (owned by the model). */
+/* The orthonormal basis of class c, n x m row-major (owned by the model);
+ * NULL for a class whose basis was streamed in training and not kept
+ * (NpgTrainOptions.keep_bases). */
 NPG_API const double *npg_model_basis(const NpgModel *m, int c);
 /* Bytes of the whole model; *tensor_bytes (optional) those of the reduced tensors. */
 NPG_API size_t npg_model_bytes(const NpgModel *m, size_t *tensor_bytes);
@@ -481,6 +489,10 @@ typedef struct NpgVerifyRow {
   double l2_max;            /* the worst sample's L2 error */
   long l2_max_sample;
   double linf, linf_floor;  /* the same in the max norm */
+  bool streamed;            /* its basis was streamed in training, not kept: l2, own, l2_max and linf are
+                               NaN (nothing to lift), floor and linf_floor the training samples' mean,
+                               measured by training (out of core from ‖y‖² − ‖Bᵀy‖², resolved to about
+                               1e-7, and linf_floor NaN: not measured) */
 } NpgVerifyRow;
 typedef struct NpgVerifyReport {
   long samples;

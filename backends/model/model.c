@@ -9,6 +9,7 @@
  * store checks) and every array's shape is checked against it, naming the
  * file. */
 #include <errno.h>
+#include <cblas.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdbool.h>
@@ -274,9 +275,59 @@ void model_size_tensors(Model *m) {
   }
 }
 
+bool model_class_needed(const Model *m, int c) {
+  for (int q = 0; q < m->nq; q++) {
+    const Sym *s = m->prog->quantities.v[q];
+    if (m->qclass[q] == c && (s->kind == SYM_INPUT || s->kind == SYM_EXTERN || s->is_output)) return true;
+  }
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    if (rs->interp) {
+      if (m->qclass[rs->q] == c) return true;
+      for (long r = 0; r < rs->interp->nreads; r++)
+        if (m->qclass[rs->interp->read_q[r]] == c) return true;
+    }
+    for (int t = 0; t < rs->nterms; t++)
+      for (int k = 0; k < rs->terms[t].nops; k++) {
+        const ROp *ro = &rs->terms[t].ops[k];
+        if (ro->op->kind == OPK_DECL && ro->op->op->is_output && m->qclass[rs->q] == c) return true;
+      }
+  }
+  return false;
+}
+
+bool model_class_streamable(const Model *m, int c) {
+  if (model_class_needed(m, c)) return false;
+  const RClass *rc = &m->classes[c];
+  for (int i = 0; i < rc->nmembers; i++) {
+    const RMember *mb = &rc->members[i];
+    const Sym *s = mb->q >= 0 ? m->prog->quantities.v[mb->q] : mb->joiner->stage->sym;
+    if (s->ndims >= 2) return true;
+  }
+  return false;
+}
+
+void model_projection_floor(const RClass *rc, const double *full, double *proj, double *y, double out[2]) {
+  double big = 0, ny = 0, f2 = 0, finf = 0;
+  for (long e = 0; e < rc->n; e++) big = fmax(big, fabs(full[e]));
+  double unit = big > 0 && isfinite(big) ? 1 / big : 1;
+  if (!isfinite(unit)) unit = 1; /* subnormal data: 1/big overflows; their squares are lost anyway */
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, full, 1, 0.0, proj, 1);
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, proj, 1, 0.0, y, 1);
+  for (long e = 0; e < rc->n; e++) {
+    double d = (full[e] - y[e]) * unit, v = full[e] * unit;
+    ny += v * v;
+    f2 += d * d;
+    finf = fmax(finf, fabs(full[e] - y[e]));
+  }
+  out[0] = ny > 0 ? sqrt(f2 / ny) : sqrt(f2);
+  out[1] = big > 0 ? finf / big : finf;
+}
+
 size_t model_bytes(const Model *m, size_t *tensor_bytes) {
   size_t total = 0, tb = 0;
-  for (int c = 0; c < m->nclasses; c++) total += sizeof(double) * (size_t)(m->classes[c].n * m->classes[c].m);
+  for (int c = 0; c < m->nclasses; c++)
+    if (!m->classes[c].streamed) total += sizeof(double) * (size_t)(m->classes[c].n * m->classes[c].m);
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
     for (int t = 0; t < rs->nterms; t++) {
@@ -379,6 +430,14 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
       bad |= csv ? model_store_add_text(&s, name, csv) : -1;
       free(csv);
     }
+    if (rc->streamed) { /* no basis file: its quantities' training floors instead (issue 30) */
+      bad |= model_store_meta(&s, "streamed %d", c);
+      for (int i = 0; i < rc->nmembers; i++)
+        if (rc->members[i].q >= 0)
+          bad |= model_store_meta(&s, "floor %s l2 %.17g linf %.17g", rc->members[i].name, rc->members[i].floor_l2,
+                                  rc->members[i].floor_linf);
+      continue;
+    }
     char name[64];
     snprintf(name, sizeof name, "basis_%d", c);
     long shape[2] = {rc->n, rc->m};
@@ -442,7 +501,7 @@ static int take(const ModelStore *s, const char *dir, const char *name, long row
 
 /* The class, member and spd lines of a loaded manifest against the layout
  * and the bases: 0, or -1 with `err` naming the line. */
-static int check_meta(const ModelStore *s, const Model *m, const char *dir, char *err, size_t errlen) {
+static int check_meta(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
   for (int i = 0; i < s->nmeta; i++) {
     const char *line = s->meta[i];
     bool ok = true;
@@ -463,6 +522,24 @@ static int check_meta(const ModelStore *s, const Model *m, const char *dir, char
       bool known = false;
       for (int k = 0; ok && k < m->classes[c].nmembers; k++) known |= strcmp(m->classes[c].members[k].name, name) == 0;
       ok = ok && known;
+    } else if (strncmp(line, "streamed ", 9) == 0) {
+      int c, used = 0;
+      ok = sscanf(line, "streamed %d%n", &c, &used) == 1 && line[used] == 0 && c >= 0 && c < m->nclasses;
+    } else if (strncmp(line, "floor ", 6) == 0) {
+      int used = 0;
+      double l2, linf;
+      /* linf nan: not measured (out of core, ooc.c take_floors) */
+      ok = sscanf(line, "floor %511s l2 %lf linf %lf%n", name, &l2, &linf, &used) == 3 && line[used] == 0 && l2 >= 0 &&
+           isfinite(l2) && (isnan(linf) || (linf >= 0 && isfinite(linf)));
+      bool known = false; /* a quantity of a streamed class */
+      for (int c = 0; ok && c < m->nclasses; c++)
+        for (int k = 0; m->classes[c].streamed && k < m->classes[c].nmembers; k++)
+          known |= m->classes[c].members[k].q >= 0 && strcmp(m->classes[c].members[k].name, name) == 0;
+      ok = ok && known;
+      for (int c = 0; ok && c < m->nclasses; c++)
+        for (int k = 0; k < m->classes[c].nmembers; k++)
+          if (strcmp(m->classes[c].members[k].name, name) == 0)
+            m->classes[c].members[k].floor_l2 = l2, m->classes[c].members[k].floor_linf = linf;
     } else if (strncmp(line, "spd ", 4) == 0) {
       int t, k, used = 0;
       ok = sscanf(line, "spd %511s %d %d%n", name, &t, &k, &used) == 3 && line[used] == 0;
@@ -510,6 +587,12 @@ static int check_required(const ModelStore *s, const Model *m, const char *dir, 
     }
   }
   return 0;
+}
+
+static bool has_line(const ModelStore *s, const char *line) {
+  for (int i = 0; i < s->nmeta; i++)
+    if (strcmp(s->meta[i], line) == 0) return true;
+  return false;
 }
 
 Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
@@ -561,6 +644,21 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     char name[64];
+    snprintf(name, sizeof name, "streamed %d", c);
+    if (has_line(&s, name)) { /* no basis: its size from the class line (check_meta) */
+      snprintf(name, sizeof name, "class %d ", c);
+      for (int j = 0; j < s.nmeta; j++)
+        if (strncmp(s.meta[j], name, strlen(name)) == 0) {
+          const char *mp = strstr(s.meta[j], " m ");
+          rc->m = mp ? strtol(mp + 3, NULL, 10) : 0;
+        }
+      if (rc->m < 1 || rc->m > rc->n) {
+        snprintf(err, errlen, "%s/manifest: streamed class %s has no valid basis size on its class line", dir, rc->label);
+        goto fail;
+      }
+      rc->streamed = true;
+      continue;
+    }
     snprintf(name, sizeof name, "basis_%d", c);
     const NpyArray *a = model_store_array(&s, name);
     if (!a || a->ndim != 2 || a->shape[0] != rc->n) {
@@ -574,6 +672,13 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
   /* every metadata line the model reads must describe this model: a line
    * it cannot use is refused, not skipped */
   if (check_meta(&s, m, dir, err, errlen) || interp_load(m, &s, dir, err, errlen)) goto fail;
+  for (int c = 0; c < m->nclasses; c++) /* only a class the rule allows is streamed: never one whose basis is read */
+    if (m->classes[c].streamed && !model_class_streamable(m, c)) {
+      snprintf(err, errlen, "%s/manifest: class %s is marked streamed, but %s (a damaged or forged manifest; retrain)",
+               dir, m->classes[c].label,
+               model_class_needed(m, c) ? "the reduced model reads its basis" : "its rows run over one dim only");
+      goto fail;
+    }
   /* member statistics, for reports */
   for (int i = 0; i < s.nmeta; i++) {
     int c, cap, kept, center = 0;

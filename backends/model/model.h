@@ -97,6 +97,10 @@ typedef struct RMember {
   double lost;              /* energy fraction lost (of the centered energy when centered) */
   double *sv;               /* singular values of its snapshots (centered when centered), descending (owned) */
   long nsv;
+  /* a streamed class's quantity (RClass.streamed): its projection floor ‖y − BBᵀy‖/‖y‖, L2 and L∞,
+   * the mean over the training samples, measured by training while the basis existed (verify
+   * reports it in place of the held-out floor it can no longer measure) */
+  double floor_l2, floor_linf;
 } RMember;
 
 typedef struct RClass {
@@ -107,6 +111,8 @@ typedef struct RClass {
   double *B;                /* n x m, row-major, orthonormal columns (owned) */
   size_t B_mapped;          /* when non-zero, B is a read-only mapping of that many bytes of an
                                unnamed file (out-of-core training), unmapped instead of freed */
+  bool streamed;            /* the basis is not kept (B NULL, m its size when trained): model_class_streamable */
+  bool floors_known;        /* training: its members' floor_l2/floor_linf already measured (out of core) */
   int nmembers;
   RMember *members;
 } RClass;
@@ -150,6 +156,28 @@ void model_free(Model *m);
 void model_size_tensors(Model *m);
 /* Bytes of every reduced tensor, basis, extern table. */
 size_t model_bytes(const Model *m, size_t *tensor_bytes);
+/* Streamed bases (issue 30). A class's basis is needed after training
+ * when the reduced evaluator or the API reads it at run time: the class of
+ * an input (npg_reduced_set projects it), of an output (npg_reduced_lift),
+ * of an extern (npg_reduced_given_externs then npg_reduced_set projects
+ * it), of the stage applying an `output op` (npg_reduced_op's rows and
+ * columns are in its basis), of an interpolated stage or of a quantity one
+ * reads (interp.c lifts rows of those bases). A class is streamed — its
+ * basis used during training and then dropped, not stored in the model —
+ * when it is not needed, some member's rows run over two or more dims (a
+ * pair quantity: F² rows for F faces, the bases that dominate a model's
+ * size; a class of single-dim rows costs little to keep, and keeping it
+ * leaves lift, verify and the model files of such programs as they were),
+ * and the user did not name it (--keep-bases). Lifting a quantity of a
+ * streamed class is refused, naming --keep-bases. */
+bool model_class_needed(const Model *m, int c);
+/* Whether class `c` is not needed and has a member over two or more dims. */
+bool model_class_streamable(const Model *m, int c);
+/* The projection floor of one value `full` (n = rc->n entries) in class
+ * `rc`'s basis: out[0] = ‖y − BBᵀy‖₂/‖y‖₂, out[1] = ‖y − BBᵀy‖∞/‖y‖∞
+ * (sums of squares taken of values over the largest |entry|, so any
+ * scale gives the same ratios); `proj` holds rc->m, `y` rc->n doubles. */
+void model_projection_floor(const RClass *rc, const double *full, double *proj, double *y, double out[2]);
 /* FNV-1a 64 of the program's source files (main file and used modules). */
 uint64_t model_program_hash(const Program *prog);
 

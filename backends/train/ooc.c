@@ -85,6 +85,10 @@ typedef struct Stream {
   long K;                   /* columns of A */
   double *C;                /* K x K column-major: AᵀA */
   FILE *A;                  /* A: n x K row-major, in an unnamed file */
+  /* the training floors of a class whose basis the model drops (RClass.streamed, issue 30), from
+   * the basis passes: per member AᵀX (K x S column-major) and every sample's ‖y_k‖² (S), so that
+   * BᵀX = Tᵀ(AᵀX) and ‖y_k − BBᵀy_k‖² = ‖y_k‖² − ‖Bᵀy_k‖² need neither the basis nor another pass */
+  double **AX, **yy;
 } Stream;
 
 typedef struct Ooc {
@@ -408,6 +412,13 @@ static int eigen(Ooc *o) {
     }
     if (!(st->C = npg_calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || !(st->A = tmpfile()))
       return npg_fail(o->err, o->errlen, "cannot create a scratch file for the basis of class %s", rc->label);
+    if (!rc->streamed) continue; /* the model keeps its basis: no floors to take */
+    if (!(st->AX = calloc((size_t)rc->nmembers, sizeof(double *))) || !(st->yy = calloc((size_t)rc->nmembers, sizeof(double *))))
+      return npg_fail(o->err, o->errlen, "out of memory");
+    for (int i = 0; i < rc->nmembers; i++)
+      if (rc->members[i].q >= 0 && (!(st->AX[i] = calloc((size_t)(st->K * S) + 1, sizeof(double))) ||
+                                    !(st->yy[i] = calloc((size_t)S, sizeof(double)))))
+        return npg_fail(o->err, o->errlen, "out of memory");
   }
   return 0;
 }
@@ -429,6 +440,71 @@ static int read_at(FILE *fp, void *p, size_t bytes, size_t off) {
     if (r <= 0) return -1;
     c += r, bytes -= (size_t)r, off += (size_t)r;
   }
+  return 0;
+}
+
+/* A segment's share of the training floors (Stream.AX, yy): for every
+ * quantity member, AX += A_bᵀX_b and yy_k += ‖X_b(:, k)‖², X_b the block's
+ * snapshots as they were (a centered member's block is held centered, its
+ * mean μ_b in A's column col[i]: X_b = H_b + μ_b1ᵀ). */
+static int floor_products(Ooc *o, const Segment *sg, const double *A, long K) {
+  Stream *st = &o->st[sg->c];
+  RClass *rc = &o->m->classes[sg->c];
+  long R = sg->r1 - sg->r0, S = o->S;
+  double *Amu = malloc(sizeof(double) * (size_t)(K + 1));
+  if (!Amu) return npg_fail(o->err, o->errlen, "out of memory");
+  for (int i = 0; i < rc->nmembers; i++) {
+    if (rc->members[i].q < 0 || K == 0) continue;
+    bool centered = rc->members[i].center;
+    const double *mu = A + st->col[i];
+    cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)S, (int)R, 1.0, A, (int)K, sg->H[i], (int)R,
+                1.0, st->AX[i], (int)K);
+    if (centered) { /* + (A_bᵀμ_b)1ᵀ */
+      cblas_dgemv(CblasColMajor, CblasNoTrans, (int)K, (int)R, 1.0, A, (int)K, mu, (int)K, 0.0, Amu, 1);
+      for (long k = 0; k < S; k++) cblas_daxpy((int)K, 1.0, Amu, 1, st->AX[i] + k * K, 1);
+    }
+    for (long k = 0; k < S; k++) {
+      double t = 0;
+      for (long e = 0; e < R; e++) {
+        double v = sg->H[i][k * R + e] + (centered ? mu[e * K] : 0);
+        t += v * v;
+      }
+      st->yy[i][k] += t;
+    }
+  }
+  free(Amu);
+  return 0;
+}
+
+/* The training floors of streamed class `c` once its T is final (signs
+ * included): per quantity member the mean over the samples of
+ * sqrt(max(0, ‖y_k‖² − ‖Tᵀ(AᵀX)_k‖²)/‖y_k‖²). The difference of two
+ * squares resolves a floor only down to about 1e-7 (√ε times the
+ * rounding of the sums; below it, the figure is rounding: 7.7e-8 measured for
+ * a floor of 5e-14); the L∞ floor would need the residual itself and is
+ * left NaN (not measured). */
+static int take_floors(Ooc *o, int c, const double *T, long m) {
+  Stream *st = &o->st[c];
+  RClass *rc = &o->m->classes[c];
+  long K = st->K, S = o->S;
+  double *P = malloc(sizeof(double) * (size_t)(m * S + 1));
+  if (!P) return npg_fail(o->err, o->errlen, "out of memory");
+  for (int i = 0; i < rc->nmembers; i++) {
+    RMember *mb = &rc->members[i];
+    if (mb->q < 0) continue;
+    if (m > 0 && K > 0)
+      cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, (int)m, (int)S, (int)K, 1.0, T, (int)K, st->AX[i], (int)K, 0.0,
+                  P, (int)m);
+    double sum = 0;
+    for (long k = 0; k < S; k++) {
+      double p2 = m > 0 && K > 0 ? cblas_ddot((int)m, P + k * m, 1, P + k * m, 1) : 0, y2 = st->yy[i][k];
+      sum += y2 > 0 ? sqrt(fmax(0, y2 - p2) / y2) : 0;
+    }
+    mb->floor_l2 = sum / (double)S;
+    mb->floor_linf = NAN;
+  }
+  rc->floors_known = true;
+  free(P);
   return 0;
 }
 
@@ -465,13 +541,18 @@ static int basis_passes(Ooc *o) {
       }
       if (K > 0)
         cblas_dsyrk(CblasColMajor, CblasUpper, CblasNoTrans, (int)K, (int)R, 1.0, A, (int)K, 1.0, st->C, (int)K);
+      if (st->AX && floor_products(o, sg, A, K)) return -1;
       int bad = write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
       if (bad) return npg_fail(o->err, o->errlen, "cannot write the scratch file of class %s (disk full?)", rc->label);
     }
     release(o, p);
   }
   for (int c = 0; o->N > 1 && c < o->m->nclasses; c++) /* every rank's rows summed */
-    if (o->st[c].streamed) dist_allreduce_sum(o->st[c].C, o->st[c].K * o->st[c].K);
+    if (o->st[c].streamed) {
+      dist_allreduce_sum(o->st[c].C, o->st[c].K * o->st[c].K);
+      for (int i = 0; o->st[c].AX && i < o->m->classes[c].nmembers; i++)
+        if (o->st[c].AX[i]) dist_allreduce_sum(o->st[c].AX[i], o->st[c].K * S), dist_allreduce_sum(o->st[c].yy[i], S);
+    }
   return 0;
 }
 
@@ -714,6 +795,11 @@ static void ooc_free(Ooc *o) {
       if (st->G) free(st->G[i]);
       if (st->s) free(st->s[i]);
     }
+    for (int i = 0; i < o->m->classes[c].nmembers; i++) {
+      if (st->AX) free(st->AX[i]);
+      if (st->yy) free(st->yy[i]);
+    }
+    free(st->AX), free(st->yy);
     free(st->X), free(st->G), free(st->s), free(st->k), free(st->big), free(st->col), free(st->C);
     if (st->A) fclose(st->A);
   }
@@ -774,7 +860,7 @@ int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions 
     } else {
       double *T = NULL;
       long mm = 0;
-      int bad = coefficients(&o, c, &T, &mm) || write_basis(&o, c, T, mm);
+      int bad = coefficients(&o, c, &T, &mm) || write_basis(&o, c, T, mm) || (o.st[c].AX && take_floors(&o, c, T, mm));
       free(T);
       if (bad) goto done;
     }

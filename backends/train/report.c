@@ -38,6 +38,18 @@ void report_training(const Model *m, FILE *out) {
   interp_report(m, out); /* DESIGN §12: how each eligible stage is reduced, and why */
   size_t tb, total = model_bytes(m, &tb);
   fprintf(out, "reduced tensors: %.3f MB; model with bases: %.3f MB\n", (double)tb / 1e6, (double)total / 1e6);
+  double dropped = 0;
+  char names[512] = "";
+  size_t len = 0;
+  for (int c = 0; c < m->nclasses; c++)
+    if (m->classes[c].streamed) {
+      dropped += 8.0 * (double)m->classes[c].n * (double)m->classes[c].m;
+      if (len < sizeof names)
+        len += (size_t)snprintf(names + len, sizeof names - len, "%s%s", len ? " " : "", m->classes[c].label);
+    }
+  if (dropped > 0) /* issue 30: what the model does not store, and how to have it */
+    fprintf(out, "streamed bases, used in training and not kept: %s (%.3f MB; --keep-bases all keeps them)\n", names,
+            dropped / 1e6);
 }
 
 /* The stage's input whose own error is largest: where a larger basis helps. */

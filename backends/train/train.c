@@ -22,6 +22,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <time.h>
 
 #include "dist.h"
@@ -572,6 +573,29 @@ done:
   return rc_ok;
 }
 
+/* Whether --keep-bases `list` (comma-separated) names class `c` (a member
+ * or the class, as --basis names them); *unknown set to the first name
+ * that names nothing (NULL: none). "all" names every class. */
+static bool keep_named(const Model *m, const char *list, int c, char *unknown, size_t ulen) {
+  bool kept = false;
+  for (const char *p = list; p && *p;) {
+    size_t len = strcspn(p, ",");
+    char name[256];
+    snprintf(name, sizeof name, "%.*s", (int)(len < sizeof name ? len : sizeof name - 1), p);
+    bool any = strcmp(name, "all") == 0;
+    kept |= any;
+    for (int k = 0; k < m->nclasses; k++)
+      for (int i = 0; i < m->classes[k].nmembers; i++) {
+        int level = override_level(&m->classes[k], &m->classes[k].members[i], name);
+        any |= level >= 2;
+        kept |= level >= 2 && k == c;
+      }
+    if (!any && unknown && !unknown[0]) snprintf(unknown, ulen, "%s", name);
+    p += len + (p[len] == ',');
+  }
+  return kept;
+}
+
 /* The model's layout for the dims sample 0 binds, with every member's
  * options set and the --basis names checked. NULL with `err`. */
 static Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
@@ -593,7 +617,12 @@ static Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src,
   m->samples = src->count;
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++) member_options(m, &m->classes[c], &m->classes[c].members[i], opt);
-  if (check_overrides(m, opt, err, errlen)) {
+  char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
+  if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
+  if (unknown[0])
+    npg_fail(err, errlen, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)",
+             unknown);
+  if (unknown[0] || check_overrides(m, opt, err, errlen)) {
     model_free(m);
     return NULL;
   }
@@ -777,11 +806,70 @@ static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char 
   return 0;
 }
 
+/* Issue 30: the classes whose bases are streamed — used in training, then
+ * dropped (drop_bases) — marked once the reduction of every stage is
+ * chosen (an interpolated stage's class is needed): the streamable ones
+ * (model_class_streamable) --keep-bases does not name. */
+static bool mark_streamed(Model *m, const TrainOptions *opt) {
+  bool any = false; /* whose floors are still to be taken */
+  for (int c = 0; c < m->nclasses; c++) { /* the names were checked by begin_training */
+    m->classes[c].streamed = opt->stream && !keep_named(m, opt->keep_bases, c, NULL, 0) && model_class_streamable(m, c);
+    any |= m->classes[c].streamed && !m->classes[c].floors_known;
+  }
+  return any;
+}
+
+/* Sample k's projection floors (model_projection_floor) of every quantity
+ * of a streamed class, added to their means over the S samples: verify
+ * reports them in place of the held-out floors it cannot measure without
+ * the basis. `gram`: the values are the evaluator's (the sample just
+ * evaluated), else the snapshots'. */
+static void take_floors(Model *m, NpgFull *f, const Snapshots *sn, bool gram, long k, long S, double *proj, double *y) {
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; m->classes[c].streamed && !m->classes[c].floors_known && i < m->classes[c].nmembers; i++) {
+      RMember *mb = &m->classes[c].members[i];
+      if (mb->q < 0) continue; /* a numerator is no quantity verify reports */
+      const double *val = gram ? npg_full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL)
+                               : sn->X[c][i] + (size_t)k * (size_t)m->classes[c].n;
+      double fl[2];
+      model_projection_floor(&m->classes[c], val, proj, y, fl);
+      mb->floor_l2 += fl[0] / (double)S, mb->floor_linf += fl[1] / (double)S;
+    }
+}
+
+/* Step 5: the streamed classes' bases dropped (their floors taken). */
+static void drop_bases(Model *m) {
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    if (!rc->streamed) continue;
+    if (rc->B_mapped) munmap(rc->B, rc->B_mapped);
+    else free(rc->B);
+    rc->B = NULL, rc->B_mapped = 0;
+  }
+}
+
+static int fit_externs_floors(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram,
+                              bool floors, double *proj, double *y, bool progress, bool dist, char *err, size_t errlen);
+
 /* Step 4: every extern's learned map (paper §8.3): the training samples'
  * reduced inputs and values, from the snapshots or, after the method of
- * snapshots, recomputed. */
-static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool progress,
-                       bool dist, char *err, size_t errlen) {
+ * snapshots, recomputed; with `floors`, in the same pass the streamed
+ * classes' training floors (take_floors). */
+static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
+                       bool progress, bool dist, char *err, size_t errlen) {
+  long maxn = 1, maxm = 1;
+  for (int c = 0; floors && c < m->nclasses; c++)
+    if (m->classes[c].streamed && !m->classes[c].floors_known)
+      maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
+  double *y = floors ? malloc(sizeof(double) * (size_t)maxn) : NULL, *proj = floors ? malloc(sizeof(double) * (size_t)maxm) : NULL;
+  if (floors && (!y || !proj)) return free(y), free(proj), npg_fail(err, errlen, "out of memory measuring the training floors");
+  int rc = fit_externs_floors(m, f, src, sn, gram, floors, proj, y, progress, dist, err, errlen);
+  free(y), free(proj);
+  return rc;
+}
+
+static int fit_externs_floors(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
+                              double *proj, double *y, bool progress, bool dist, char *err, size_t errlen) {
   long S = src->count;
   /* recomputed over ranks (out of core): rank r its samples k ≡ r (mod N),
    * the others' rows zero, then summed */
@@ -793,7 +881,7 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
     if (!(x->X = npg_calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = npg_calloc((size_t)(S * mz) + 1, sizeof(double))))
       return npg_fail(err, errlen, "out of memory while training");
   }
-  for (long k = rank; k < S && m->nexterns > 0; k += N) {
+  for (long k = rank; k < S && (m->nexterns > 0 || floors); k += N) {
     if (gram && train_eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
     for (int i = 0; i < m->nexterns; i++) {
       RExtern *x = &m->externs[i];
@@ -812,13 +900,19 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
         if (j < x->nin) off += rc->m;
       }
     }
-    if (gram) progress_show(progress, "extern samples", k + 1, S);
+    if (floors) take_floors(m, f, sn, gram, k, S, proj, y);
+    if (gram) progress_show(progress, floors ? "extern samples, floors" : "extern samples", k + 1, S);
   }
   for (int i = 0; N > 1 && i < m->nexterns; i++) {
     RExtern *x = &m->externs[i];
     dist_allreduce_sum(x->X, S * x->d);
     dist_allreduce_sum(x->Z, S * m->classes[m->qclass[x->q]].m);
   }
+  for (int c = 0; N > 1 && floors && c < m->nclasses; c++) /* every rank's samples' floors summed */
+    for (int i = 0; m->classes[c].streamed && !m->classes[c].floors_known && i < m->classes[c].nmembers; i++) {
+      dist_allreduce_sum(&m->classes[c].members[i].floor_l2, 1);
+      dist_allreduce_sum(&m->classes[c].members[i].floor_linf, 1);
+    }
   return 0;
 }
 
@@ -874,6 +968,7 @@ static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptio
                  struct timespec t[2], double *sec, double *cpu, char *err, size_t errlen) {
   if (ooc_needed(m, opt)) {
     *gram = true;
+    mark_streamed(m, opt); /* their floors taken in the passes (the choice is made again after interpolation) */
     return ooc_bases(m, f, src, opt, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0);
   }
   return take_snapshots(m, f, src, opt, sn, gram, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0) ||
@@ -895,7 +990,8 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   if (!m || bases(m, f, src, opt, &sn, &gram, t, sec, cpu, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
       premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || interpolate_stages(m, f, opt, err, errlen) ||
       (phase_time(t, &sec[2], &cpu[2]), 0) ||
-      fit_externs(m, f, src, &sn, gram, opt->progress, opt->dist, err, errlen) || (phase_time(t, &sec[3], &cpu[3]), 0)) {
+      fit_externs(m, f, src, &sn, gram, mark_streamed(m, opt), opt->progress, opt->dist, err, errlen) ||
+      (drop_bases(m), phase_time(t, &sec[3], &cpu[3]), 0)) {
     if (m) free_snapshots(m, &sn);
     model_free(m);
     /* the steps name what failed; a helper that only returned NULL ran out of memory */
@@ -1023,7 +1119,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     }
   }
   model_size_tensors(m);
-  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, false, err, errlen)) {
+  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, false, false, err, errlen)) {
     model_free(m);
     return NULL;
   }

@@ -49,6 +49,10 @@ typedef struct TrainOptions {
    * ways and the lower output error kept (tune_choose_reductions); NULL: Galerkin */
   const struct SampleSource *valid;
   bool choose_strict;       /* ties keep Galerkin: the choice never raises the error on `valid` (npgc tune) */
+  bool stream;              /* drop the streamable bases (model_class_streamable) once used (issue 30;
+                               npg_trainer's default); false: every basis kept (the old layout) */
+  const char *keep_bases;   /* with `stream`, the bases kept though streamable: comma-separated
+                               quantities or classes, "all" for every one; NULL: none */
 } TrainOptions;
 
 /* Selected entries per basis vector of an interpolated stage when not given

@@ -137,7 +137,7 @@ __attribute__((format(printf, 5, 6))) static int finite_array(NpgModel *nm, cons
 static int nonfinite_array(NpgModel *nm, const char *dir) {
   const Model *m = nm->m;
   for (int c = 0; c < m->nclasses; c++)
-    if (finite_array(nm, dir, m->classes[c].B, m->classes[c].n * m->classes[c].m, "basis_%d", c)) return -1;
+    if (!m->classes[c].streamed && finite_array(nm, dir, m->classes[c].B, m->classes[c].n * m->classes[c].m, "basis_%d", c)) return -1;
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) {
       RTerm *rt = &m->stages[i].terms[t];
@@ -485,6 +485,15 @@ static int settable(NpgReduced *r, const char *name) {
                s->kind == SYM_EXTERN ? " (and externs after npg_reduced_given_externs)" : " and externs");
 }
 
+/* Why quantity `name` of streamed class `c` cannot be `what` (model.h, issue 30). */
+static const char *streamed_message(const RClass *c, const char *name, const char *what) {
+  static _Thread_local char msg[512];
+  snprintf(msg, sizeof msg, "'%s' cannot be %s: the basis of its class %s was streamed in training and not kept in "
+           "the model (its reduced coordinates remain: npg_reduced_coords); retrain with --keep-bases %s to keep it",
+           name, what, c->label, name);
+  return msg;
+}
+
 int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double *values) {
   REFUSE_NULL_R(-1);
   REFUSE_NULL(name);
@@ -493,6 +502,7 @@ int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double 
   int q = settable(r, name);
   if (q < 0) return -1;
   const RClass *c = &r->nm->m->classes[r->nm->m->qclass[q]];
+  if (c->streamed) return rfail(r, "%s", streamed_message(c, name, "projected"));
   if ((long)count != c->n)
     return rfail(r, "'%s' has %ld entries in the model, %zu were given", name, c->n, count);
   for (size_t i = 0; i < count; i++)
@@ -569,6 +579,7 @@ int npg_reduced_lift(NpgReduced *r, const char *name, double *out, size_t count)
   if (!r->evaluated && !r->given[q])
     return rfail(r, "'%s' has no value to lift: it was not set and nothing was evaluated yet (npg_reduced_eval)", name);
   const RClass *c = &m->classes[m->qclass[q]];
+  if (c->streamed) return rfail(r, "%s", streamed_message(c, name, "lifted"));
   if ((long)count != c->n) return rfail(r, "'%s' has %ld entries, a buffer of %zu was given", name, c->n, count);
   reduced_lift(r->r, q, out);
   return 0;

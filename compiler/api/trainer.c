@@ -621,6 +621,8 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.interp_oversample = t->opt.interp_oversample;
   o.ngalerkin = t->opt.ngalerkin;
   o.galerkin_stage = t->opt.galerkin_stage;
+  o.stream = true;
+  o.keep_bases = t->opt.keep_bases;
   SampleSource valid = {t->opt.valid_count, t->opt.valid_user, t->opt.valid_set, NULL, NULL};
   if (t->opt.valid_count > 0 && !t->opt.valid_set) {
     tfail(t, "NpgTrainOptions: valid_count %ld validation samples but no valid_set", t->opt.valid_count);

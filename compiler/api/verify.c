@@ -45,7 +45,7 @@ static double worst_input(const Model *m, const RStage *rs, const NpgVerifyRow *
  * the same relative errors (issue 24: 1e-200 data verified as error 0). */
 static void sample_errors(const RClass *rc, const double *full, Reduced *r, int q, double *y, double *proj,
                           double out[4]) {
-  double ny = 0, nyinf = 0, e2 = 0, einf = 0, f2 = 0, finf = 0;
+  double ny = 0, nyinf = 0, e2 = 0, einf = 0;
   bool nan = false;
   reduced_lift(r, q, y);
   for (long e = 0; e < rc->n; e++) nyinf = fmax(nyinf, fabs(full[e]));
@@ -58,17 +58,12 @@ static void sample_errors(const RClass *rc, const double *full, Reduced *r, int 
     einf = fmax(einf, fabs(full[e] - y[e]));
     nan |= d != d; /* fmax drops a NaN: the error is then not finite */
   }
-  cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, full, 1, 0.0, proj, 1);
-  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, proj, 1, 0.0, y, 1);
-  for (long e = 0; e < rc->n; e++) {
-    double d = (full[e] - y[e]) * unit;
-    f2 += d * d;
-    finf = fmax(finf, fabs(full[e] - y[e]));
-  }
+  double fl[2];
+  model_projection_floor(rc, full, proj, y, fl);
   out[0] = ny > 0 ? sqrt(e2 / ny) : sqrt(e2);
   out[1] = nan ? NAN : nyinf > 0 ? einf / nyinf : einf;
-  out[2] = ny > 0 ? sqrt(f2 / ny) : sqrt(f2);
-  out[3] = nyinf > 0 ? finf / nyinf : finf;
+  out[2] = fl[0];
+  out[3] = fl[1];
 }
 
 static void fill_rows(const Model *m, const ErrSum *sum, long S, NpgVerifyReport *rep) {
@@ -93,6 +88,13 @@ static void fill_rows(const Model *m, const ErrSum *sum, long S, NpgVerifyReport
     if (row->own < 0 && row->own > -1e-12) row->own = 0;
     row->linf = sum[q].linf / (double)S;
     row->linf_floor = sum[q].floorinf / (double)S;
+    const RClass *rc = &m->classes[m->qclass[q]];
+    for (int i = 0; rc->streamed && i < rc->nmembers; i++) /* no basis to lift with: training's floors */
+      if (rc->members[i].q == q) {
+        row->streamed = true;
+        row->l2 = row->own = row->l2_max = row->linf = NAN;
+        row->floor = rc->members[i].floor_l2, row->linf_floor = rc->members[i].floor_linf;
+      }
   }
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
@@ -155,6 +157,7 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
                    k, ((Sym *)m->prog->quantities.v[q])->name, n, rc_->n);
         break;
       }
+      if (rc_->streamed) continue; /* fill_rows: the training's floors */
       double e[4];
       sample_errors(rc_, full, r, q, y, proj, e);
       sum[q].l2 += e[0];

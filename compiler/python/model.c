@@ -142,8 +142,12 @@ static PyObject *model_basis(ModelObject *self, PyObject *arg) {
   if (c < 0) return PyErr_Format(npgpy_Error, "the model has no basis for '%s'", name);
   NpgClassInfo ci;
   npg_model_class(self->m, c, &ci);
+  const double *B = npg_model_basis(self->m, c);
+  if (!B) /* NULL data would make numpy allocate an uninitialized array */
+    return PyErr_Format(npgpy_Error, "the basis of '%s' (class %s) was streamed in training and not kept in the "
+                        "model: retrain with --keep-bases %s (npg.Trainer(keep_bases=...))", name, ci.label, name);
   npy_intp shape[2] = {ci.n, ci.m};
-  PyObject *a = PyArray_New(&PyArray_Type, 2, shape, NPY_DOUBLE, NULL, (void *)npg_model_basis(self->m, c), 0,
+  PyObject *a = PyArray_New(&PyArray_Type, 2, shape, NPY_DOUBLE, NULL, (void *)B, 0,
                             NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_ALIGNED, NULL);
   if (!a) return NULL;
   if (PyArray_SetBaseObject((PyArrayObject *)a, Py_NewRef(self)) < 0) {

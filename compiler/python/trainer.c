@@ -13,6 +13,7 @@ typedef struct TrainerObject {
   int *basis_cap;
   double *basis_energy;
   int *basis_center;
+  char *keep_bases;         /* keep_bases= (owned here for the same reason) */
 } TrainerObject;
 
 static void free_basis(TrainerObject *self) {
@@ -92,12 +93,13 @@ static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o)
 }
 
 static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
-  static char *kwlist[] = {"full", "energy", "cap", "center", "mem", "joint", "progress", "basis", NULL};
+  static char *kwlist[] = {"full", "energy", "cap", "center", "mem", "joint", "progress", "basis", "keep_bases", NULL};
   PyObject *full, *center = Py_True, *joint = Py_False, *progress = Py_False, *mem = Py_None, *basis = Py_None;
+  const char *keep = NULL;
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|diOOOOO:Trainer", kwlist, &npgpy_FullType, &full, &o.energy, &o.cap,
-                                   &center, &mem, &joint, &progress, &basis))
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|diOOOOOz:Trainer", kwlist, &npgpy_FullType, &full, &o.energy, &o.cap,
+                                   &center, &mem, &joint, &progress, &basis, &keep))
     return -1;
   if (self->t) {
     PyErr_SetString(PyExc_RuntimeError, "Trainer: already initialized");
@@ -122,6 +124,12 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   o.joint = j;
   o.progress = p;
   if (parse_basis(self, basis, &o) != 0) return -1;
+  if (keep) { /* streamed bases (issue 30): as npgc train --keep-bases */
+    PyMem_Free(self->keep_bases);
+    if (!(self->keep_bases = PyMem_Malloc(strlen(keep) + 1))) return PyErr_NoMemory(), -1;
+    strcpy(self->keep_bases, keep);
+    o.keep_bases = self->keep_bases;
+  }
   Py_XSETREF(self->full, (FullObject *)Py_NewRef(full));
   self->t = npg_trainer_new(self->full->f, &o);
   if (!self->t) {
@@ -141,6 +149,7 @@ static void trainer_dealloc(TrainerObject *self) {
   PyObject_GC_UnTrack(self);
   npg_trainer_free(self->t); /* before the evaluator it points into, and the overrides */
   free_basis(self);
+  PyMem_Free(self->keep_bases);
   Py_XDECREF(self->full);
   Py_TYPE(self)->tp_free((PyObject *)self);
 }
@@ -265,7 +274,9 @@ PyTypeObject npgpy_TrainerType = {
             "Streams samples into the library's trainer; finish() trains as npgc train does. mem: bytes for\n"
             "the samples in memory (beyond: a scratch file; None: half the RAM). center=False: the paper's\n"
             "uncentered truncation. basis={name: {'cap': N, 'energy': E, 'center': bool}}: per quantity,\n"
-            "class (m_x), numerator (y.num1) or '*', as npgc train --basis.",
+            "class (m_x), numerator (y.num1) or '*', as npgc train --basis. keep_bases='h,m_r' or 'all': keep\n"
+            "those bases in the model too, as npgc train --keep-bases (by default the bases the reduced\n"
+            "model never reads, of pair quantities, are used in training and not kept).",
   .tp_traverse = (traverseproc)trainer_traverse,
   .tp_init = (initproc)trainer_init,
   .tp_new = PyType_GenericNew,

@@ -450,6 +450,43 @@ static void shared_model_threads(void **state) {
   npg_samples_free(s);
 }
 
+/* ---------------------------------------------------------------- streamed bases (issue 30) */
+
+/* The model radiosity_pipeline trained keeps no basis of the pair classes
+ * the reduced model never reads ({s,h}: neither input, output nor extern):
+ * its basis is NULL, lifting or setting h is refused naming --keep-bases,
+ * its reduced coordinates still exist; v (an extern) and b (the output)
+ * keep theirs, and the output lifts as before. */
+static void streamed_bases(void **state) {
+  (void)state;
+  assert_non_null(radiosity_model);
+  int ch = npg_model_class_of(radiosity_model, "h"), cv = npg_model_class_of(radiosity_model, "v");
+  assert_true(ch >= 0 && cv >= 0);
+  assert_null(npg_model_basis(radiosity_model, ch));
+  assert_non_null(npg_model_basis(radiosity_model, cv));
+  assert_non_null(npg_model_basis(radiosity_model, npg_model_class_of(radiosity_model, "b")));
+  char data[512], err[1024];
+  snprintf(data, sizeof data, "%s/RDATA", scratch);
+  NpgSamples *s = npg_samples_open(radiosity_prog, data, NULL, false, err, sizeof err);
+  assert_non_null(s);
+  size_t ng, ne;
+  const double *g = npg_samples_get(s, "g", 3, &ng), *e = npg_samples_get(s, "e", 3, &ne);
+  NpgReduced *r = npg_reduced_new(radiosity_model);
+  double *b = calloc(ne * ne, sizeof(double));
+  assert_int_equal(npg_reduced_set(r, "g", ng, g), 0);
+  assert_int_equal(npg_reduced_set(r, "e", ne, e), 0);
+  assert_int_equal(npg_reduced_eval(r, 3), 0);
+  assert_int_equal(npg_reduced_lift(r, "b", b, ne), 0);
+  size_t mh = 0;
+  assert_non_null(npg_reduced_coords(r, "h", &mh));
+  assert_true(mh > 0);
+  assert_int_equal(npg_reduced_lift(r, "h", b, ne * ne), -1);
+  assert_non_null(strstr(npg_reduced_error(r), "retrain with --keep-bases h"));
+  free(b);
+  npg_reduced_free(r);
+  npg_samples_free(s);
+}
+
 /* ---------------------------------------------------------------- output operators */
 
 static void output_operator(void **state) {
@@ -549,6 +586,7 @@ int main(int argc, char **argv) {
       cmocka_unit_test(eq3_pipeline),
       cmocka_unit_test(radiosity_pipeline),
       cmocka_unit_test(shared_model_threads),
+      cmocka_unit_test(streamed_bases),
       cmocka_unit_test(output_operator),
   };
   return cmocka_run_group_tests(tests, NULL, teardown);

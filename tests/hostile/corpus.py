@@ -457,6 +457,9 @@ def model_cases():
                                                 else l for l in ls]), "unknown checksum kind 'sha256'")
     c["array_line_short"] = (edit(lambda ls: [b"array basis_0.npy 5x5" if l.startswith(b"array basis_0") else l
                                               for l in ls]), "expected 'array <name>.npy <shape> fnv1a64")
+    # a class marked streamed (issue 30) whose basis the reduced model reads: refused, though sealed
+    c["streamed_input_class"] = (edit(lambda ls: ls + [b"streamed 0"], seal=True),
+                                 "is marked streamed, but the reduced model reads its basis")
     # the array files
     c["basis_truncated"] = (lambda d: open(path(d, "basis_0.npy"), "r+b").truncate(100),
                             "{m}/basis_0.npy: checksum mismatch: the file is corrupted or was changed after training")

@@ -522,3 +522,30 @@ def test_output_op_equals_npgc_eval(tmp_path, npgc):
         full.op("y")
     with pytest.raises(npg.Error):
         red.op("y")
+
+
+def test_streamed_basis_raises(tmp_path, npgc, root):
+    """A basis the model does not keep (issue 30: radiosity's pair class {s,h}) raises naming
+    --keep-bases instead of giving an array of uninitialized memory; a kept one is a view."""
+    import os
+    data = pathlib.Path(os.environ.get("NPG_NPGC", root / "build" / "npgc")).parent / "radiosity_data"
+    import subprocess
+    subprocess.run([str(data), str(tmp_path / "D"), "48", "8", "0", "1", "3"], check=True, capture_output=True)
+    prog_path = root / "examples" / "radiosity" / "formfactors.npg"
+    npgc("train", prog_path, tmp_path / "D", "-o", tmp_path / "M", "--cap", "4")
+    model = npg.load(npg.compile(str(prog_path)), str(tmp_path / "M"))
+    with pytest.raises(npg.Error, match="--keep-bases h"):
+        model.basis("h")
+    b = model.basis("b")
+    assert np.allclose(b.T @ b, np.eye(b.shape[1]), atol=1e-12)
+    # Trainer(keep_bases=) as npgc train --keep-bases: the same model, h's basis kept
+    full = npg.compile(str(prog_path)).full(params={n: np.load(tmp_path / "D" / f"{n}.npy") for n in ("tri", "rho")})
+    g, e, v = (np.load(tmp_path / "D" / f"{n}.npy") for n in ("g", "e", "v"))
+    tr = npg.Trainer(full, cap=4, keep_bases="h")
+    for k in range(len(g)):
+        tr.add(g=g[k], e=e[k], v=v[k])
+    kept = tr.finish(tmp_path / "K")
+    npgc("train", prog_path, tmp_path / "D", "-o", tmp_path / "KCLI", "--cap", "4", "--keep-bases", "h")
+    same_model(tmp_path / "K", tmp_path / "KCLI")
+    h = kept.basis("h")
+    assert np.allclose(h.T @ h, np.eye(h.shape[1]), atol=1e-12)

@@ -1,0 +1,113 @@
+#!/bin/sh
+# stream.sh BUILD_DIR — streamed bases (issue 30; model.h,
+# model_class_streamable): by default a model keeps only the bases the
+# reduced model reads (inputs', outputs', externs'); the pair classes of
+# radiosity are used in training and not stored. The model equals the one
+# that keeps every basis (--keep-bases all) array for array, bit for bit,
+# in memory and out of core; verify reports the floors training measured;
+# a program without such classes gets the same files either way; a
+# streamed training killed at any moment leaves the previous model whole,
+# no litter and no scratch.
+set -u
+B=$1
+W=$(mktemp -d /tmp/npg_stream_XXXXXX)
+trap 'rm -rf "$W"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+N="$B/npgc"
+R=examples/radiosity/formfactors.npg
+"$B/radiosity_data" "$W/RT" 96 30 0 1 1 >/dev/null || fail "radiosity data"
+"$B/radiosity_data" "$W/RV" 96 6 0.05 0.95 2 >/dev/null || fail "radiosity data"
+cp "$W/RT/tri.npy" "$W/RT/rho.npy" "$W/RV/"
+
+# every file of model $1 but the manifest is in $2 with the same bytes; $2
+# has a basis file for each class, $1 none for its streamed classes
+same_arrays() {
+  for f in "$1"/*; do
+    b=$(basename "$f")
+    [ "$b" = manifest ] && continue
+    cmp -s "$f" "$2/$b" || fail "$1/$b differs from $2/$b"
+  done
+}
+streamed_labels() { # the labels of the classes model $1 streamed, and a check that their basis files are absent
+  for c in $(sed -n 's/^streamed \([0-9]*\)$/\1/p' "$1/manifest"); do
+    test ! -e "$1/basis_$c.npy" || fail "$1: streamed class $c has a basis file"
+    sed -n "s/^class $c \([^ ]*\) .*/\1/p" "$1/manifest"
+  done | tr '\n' ' '
+}
+
+# in memory; by the method of snapshots (the floors from the samples evaluated again); out of core
+# (the bases in unnamed mapped files while training, the floors from the basis passes)
+for mem in "" "--cap 8 --mem 10M" "--mem 160k"; do
+  "$N" train $R "$W/RT" -o "$W/S" $mem >/dev/null || fail "train streamed $mem"
+  "$N" train $R "$W/RT" -o "$W/K" $mem --keep-bases all >/dev/null || fail "train --keep-bases all $mem"
+  [ "$(streamed_labels "$W/S")" = "{s,h} {r} {c} {d,p} " ] || fail "streamed classes $mem: $(streamed_labels "$W/S")"
+  grep -Eq '^(streamed|floor) ' "$W/K/manifest" && fail "--keep-bases all $mem: streamed lines in the manifest"
+  for c in $(sed -n 's/^class \([0-9]*\) .*/\1/p' "$W/K/manifest"); do
+    test -e "$W/K/basis_$c.npy" || fail "--keep-bases all $mem: no basis_$c.npy"
+  done
+  same_arrays "$W/S" "$W/K"
+  # the reduced outputs on held-out samples: the same numbers
+  "$N" eval $R "$W/S" "$W/RV" -o "$W/ES" >/dev/null || fail "eval streamed $mem"
+  "$N" eval $R "$W/K" "$W/RV" -o "$W/EK" >/dev/null || fail "eval stored $mem"
+  /usr/bin/python3 - "$W/ES" "$W/EK" <<'PY' || fail "reduced outputs differ $mem"
+import sys, numpy as np
+for name in ("b.npy", "b.reduced.npy"):
+    a, b = np.load(sys.argv[1] + "/" + name), np.load(sys.argv[2] + "/" + name)
+    assert a.shape == b.shape and np.max(np.abs(a - b)) <= 1e-10 * max(1.0, np.max(np.abs(b))), name
+PY
+  # the training floors recorded: verify of the stored model on the training samples measures the same
+  "$N" verify $R "$W/S" "$W/RV" --tol 0.05 >"$W/vs.txt" || fail "verify streamed $mem: $(cat "$W/vs.txt")"
+  grep -q '^h .* n/a  *[0-9.e+-]*\* ' "$W/vs.txt" || fail "verify: h not reported as streamed: $(cat "$W/vs.txt")"
+  grep -q '^\* 6 quantities of streamed bases' "$W/vs.txt" || fail "verify: no note on streamed bases"
+  grep -q '^b .*(output)$' "$W/vs.txt" || fail "verify: output b not lifted"
+  "$N" verify $R "$W/K" "$W/RT" --tol 1 >"$W/vk.txt" || fail "verify stored on training samples"
+  for q in s h r c d p; do
+    rec=$(sed -n "s/^floor $q l2 \([^ ]*\) linf .*/\1/p" "$W/S/manifest")
+    got=$(awk -v q=$q '$1 == q { print $5 }' "$W/vk.txt")
+    # out of core the floor is sqrt(‖y‖² − ‖Bᵀy‖²)/‖y‖ from the passes: resolved to about 1e-7
+    abs=1e-15
+    case "$mem" in *160k) abs=1e-6 ;; esac
+    /usr/bin/python3 -c "import sys; r, g, a = map(float, sys.argv[1:]); sys.exit(abs(r - g) > 1e-3 * g + a)" \
+      "$rec" "$got" "$abs" || fail "training floor of $q $mem: recorded $rec, verify on the training samples $got"
+  done
+  rm -rf "$W/S" "$W/K" "$W/ES" "$W/EK"
+done
+
+# a size: the pair bases are most of the old layout
+"$N" train $R "$W/RT" -o "$W/S" >"$W/ts.txt" && "$N" train $R "$W/RT" -o "$W/K" --keep-bases all >"$W/tk.txt" || fail "train"
+grep -q '^streamed bases, used in training and not kept: {s,h} {r} {c} {d,p} (' "$W/ts.txt" || fail "table: $(cat "$W/ts.txt")"
+grep -q '^streamed bases' "$W/tk.txt" && fail "--keep-bases all: the table names streamed bases"
+s=$(du -sk "$W/S" | cut -f1) k=$(du -sk "$W/K" | cut -f1)
+[ "$s" -lt "$k" ] || fail "the streamed model ($s kB) is not smaller than the old layout ($k kB)"
+
+# --keep-bases NAME keeps that class; an unknown name is refused before training
+"$N" train $R "$W/RT" -o "$W/H" --keep-bases h,m_r >/dev/null || fail "train --keep-bases h,m_r"
+[ "$(streamed_labels "$W/H")" = "{c} {d,p} " ] || fail "--keep-bases h,m_r: $(streamed_labels "$W/H")"
+if "$N" train $R "$W/RT" -o "$W/X" --keep-bases hh 2>"$W/err.txt"; then fail "unknown --keep-bases name accepted"; fi
+grep -q "keep-bases hh: no quantity or class of that name" "$W/err.txt" || fail "message: $(cat "$W/err.txt")"
+test ! -e "$W/X" || fail "a refused training left a model"
+
+# a program without pair classes: the same files, the manifest included, either way
+P=examples/rational/rational.npg
+"$B/rational_data" "$W/QT" 40 1 >/dev/null || fail "rational data"
+"$N" train $P "$W/QT" -o "$W/Q1" >/dev/null && "$N" train $P "$W/QT" -o "$W/Q2" --keep-bases all >/dev/null || fail "rational"
+for f in "$W/Q1"/*; do cmp -s "$f" "$W/Q2/$(basename "$f")" || fail "rational: $(basename "$f") differs"; done
+[ "$(ls "$W/Q1" | wc -l)" = "$(ls "$W/Q2" | wc -l)" ] || fail "rational: different files"
+
+# kill -9 at random moments of a streamed out-of-core training: the previous
+# model or the new one stays whole (it verifies), no scratch in TMPDIR
+mkdir -p "$W/tmp"
+cp -r "$W/S" "$W/M"
+for i in 1 2 3 4 5 6; do
+  TMPDIR="$W/tmp" "$N" train $R "$W/RT" -o "$W/M" --mem 160k --cap 6 >/dev/null 2>&1 &
+  pid=$!
+  sleep "$(/usr/bin/python3 -c "import random; random.seed($i); print(round(random.uniform(0.05, 3.0), 2))")"
+  kill -9 $pid 2>/dev/null
+  wait $pid 2>/dev/null
+  "$N" verify $R "$W/M" "$W/RV" --tol 0.05 >/dev/null 2>&1 || fail "kill $i: the model left does not verify"
+  [ -z "$(ls "$W/tmp")" ] || fail "kill $i: scratch left in TMPDIR: $(ls "$W/tmp")"
+done
+# a temporary folder a kill -9 left is removed by the next training
+TMPDIR="$W/tmp" "$N" train $R "$W/RT" -o "$W/M" --mem 160k --cap 6 >/dev/null || fail "training after the kills"
+[ -z "$(ls "$W" | grep -E '^M\.' || true)" ] || fail "litter after the next run: $(ls "$W")"
+echo "ok"
