@@ -26,8 +26,9 @@ row() { # name program data-kind stage input-basis samples
     out=$(grep '(output)' "$W/v.txt" | sed 's/, interp//' | awk '{print $4, $5}')
     stg=$(grep "^$st " "$W/v.txt" | sed 's/, interp//' | awk '{print $4, $5}')
     m=$(grep "^$st " "$W/v.txt" | sed 's/, interp//' | awk '{print $3}')
-    full=$(grep '^full evaluation' "$W/b.txt" | sed 's/.*best \([^)]*\)).*/\1/')
-    red=$(grep '^reduced evaluation' "$W/b.txt" | sed 's/.*best \([^)]*\)).*/\1/')
+    # npgc bench: "full evaluation   T s per sample [Q1, Q3]": the median
+    full=$(grep '^full evaluation' "$W/b.txt" | awk '{print $3}')
+    red=$(grep '^reduced evaluation' "$W/b.txt" | awk '{print $3}')
     echo "$name $st $m $how $out $stg $full $red"
   done
 }
