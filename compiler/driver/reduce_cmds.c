@@ -58,6 +58,10 @@ static int parse_basis(Common *c, const char *s, char *err, size_t errlen) {
     snprintf(err, errlen, "'%s': expected NAME:cap=N,energy=E,center=on|off (NAME a quantity, a class or '*')", s);
     return -1;
   }
+  if (!colon[1 + strspn(colon + 1, " ")]) {
+    snprintf(err, errlen, "'%s': nothing after the colon (expected NAME:cap=N,energy=E,center=on|off)", s);
+    return -1;
+  }
   int k = c->nbasis;
   const char **names = realloc(c->basis_name, sizeof(char *) * (size_t)(k + 1));
   if (names) c->basis_name = names;

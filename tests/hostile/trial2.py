@@ -63,20 +63,9 @@ W = tempfile.mkdtemp(prefix="npg_trial2_")
 os.chmod(W, 0o755)
 CASES = []
 KNOWN_FAILURES = {
-    # unclear: an invalid value accepted without a word
-    "fe_dump_unknown_letter": "npgc check -dz: an unknown dump letter is ignored (exit 0, nothing dumped, no message)",
-    "cli_basis_colon_only": "npgc train --basis x: (no key after the colon) trains with the defaults, without a word",
-    "app_fl_sizes_trailing_comma": "npg-fluids tunnel --sizes 8, runs as --sizes 8 (strtok drops the empty entry)",
-    "app_pt_sweep_points_empty_entry": "npg-points sweep --points 200,,300 runs 200 and 300 (strtok collapses ',,')",
-    "app_rad_out_empty": "npg-radiosity demo --out '': 'cannot create : No such file or directory' names neither "
-                         "--out nor the empty value",
-    "py_verify_tol_negative": "Model.verify(tol=-1) is accepted (npgc verify --tol -1 is refused)",
     # unclear: a message that does not name the argument
     "api_train_set_wrong_size": "npg_trainer_set of x with 6 entries (N is 5): 'dim N is 5 in rho.api but 6 in "
                                 "training sample 8' does not name the input x",
-    "api_model_class_out_of_range": "npg_model_class(m, 99, ...) returns -1 with no message in npg_model_error",
-    "py_trainer_cap_huge": "npg.Trainer(full, cap=10**30): 'Python int too large to convert to C long' does not "
-                           "name cap",
     "cli_tune_png_is_own_model": "npgc tune --png MODEL/manifest -o MODEL: the PNG is written first (MODEL/ is "
                                  "created holding a PNG named manifest), then the model is refused as 'exists and "
                                  "is not a model': a leftover file and a message naming neither --png nor the clash",
@@ -85,17 +74,9 @@ KNOWN_FAILURES = {
                                         "names and sizes) without a word; npg.h says 'of the same program'. The "
                                         "model is right (the inputs are taken by name and the stages recomputed: "
                                         "4e-16 at a training sample), the contract is just not checked",
-    "py_compile_nul_in_path": "npg.compile('.../vec.npg\\0x') compiles vec.npg: the path is cut at the NUL "
-                              "(Python's own open() raises ValueError: embedded null byte)",
-    "py_full_get_before_eval": "Full.get('y') before any evaluation returns an empty array of shape (0,), not an "
-                               "error or None (npg_full_get returns NULL)",
     "of_spectra_name_is_a_folder": "npgc train --spectra DIR where DIR/spectrum_y.npy is a folder: the folder is "
                                    "kept and the message names it, but exit 1 comes after the model was written and "
                                    "half of the spectra (spectrum_x.*) were added to DIR",
-    "api_reduced_coords_before_eval": "npg_reduced_coords(r, 'y') before any evaluation returns m zeros, not NULL "
-                                      "(npg_reduced_lift refuses the same call)",
-    "py_reduced_coords_before_eval": "Reduced.coords('y') before any evaluation returns zeros (npg_reduced_lift "
-                                     "refuses the same call; coordinates never computed are not zeros)",
 }
 
 
