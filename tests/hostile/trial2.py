@@ -64,16 +64,10 @@ os.chmod(W, 0o755)
 CASES = []
 KNOWN_FAILURES = {
     # unclear: a message that does not name the argument
-    "api_train_set_wrong_size": "npg_trainer_set of x with 6 entries (N is 5): 'dim N is 5 in rho.api but 6 in "
-                                "training sample 8' does not name the input x",
     "cli_tune_png_is_own_model": "npgc tune --png MODEL/manifest -o MODEL: the PNG is written first (MODEL/ is "
                                  "created holding a PNG named manifest), then the model is refused as 'exists and "
                                  "is not a model': a leftover file and a message naming neither --png nor the clash",
     # misuse answered quietly (none gives a wrong number)
-    "api_train_add_full_other_program": "npg_trainer_add_full takes an evaluator of another program (same input "
-                                        "names and sizes) without a word; npg.h says 'of the same program'. The "
-                                        "model is right (the inputs are taken by name and the stages recomputed: "
-                                        "4e-16 at a training sample), the contract is just not checked",
     "of_spectra_name_is_a_folder": "npgc train --spectra DIR where DIR/spectrum_y.npy is a folder: the folder is "
                                    "kept and the message names it, but exit 1 comes after the model was written and "
                                    "half of the spectra (spectrum_x.*) were added to DIR",
