@@ -64,9 +64,6 @@ os.chmod(W, 0o755)
 CASES = []
 KNOWN_FAILURES = {
     # unclear: a message that does not name the argument
-    "cli_tune_png_is_own_model": "npgc tune --png MODEL/manifest -o MODEL: the PNG is written first (MODEL/ is "
-                                 "created holding a PNG named manifest), then the model is refused as 'exists and "
-                                 "is not a model': a leftover file and a message naming neither --png nor the clash",
     # misuse answered quietly (none gives a wrong number)
     "of_spectra_name_is_a_folder": "npgc train --spectra DIR where DIR/spectrum_y.npy is a folder: the folder is "
                                    "kept and the message names it, but exit 1 comes after the model was written and "
@@ -1087,9 +1084,13 @@ def cli_cases():
         "--max-cap")
     cli("tune_valid_is_data", ["tune", "vec.npg", "D", "D", "--tol", "0.1", "-o", "models/cli_t4"], "either")
     cli("tune_valid_missing", ["tune", "vec.npg", "D", "nosuch", "--tol", "0.1", "-o", "models/cli_t5"], 1, "nosuch")
+    # refused before anything is written: no model folder left holding a PNG (nor a model with a PNG manifest)
     cli("tune_png_is_own_model", ["tune", "vec.npg", "D", "T", "--tol", "0.1", "-o", "models/cli_t6", "--png",
-                                  "models/cli_t6/manifest"], 1, "cli_t6", check=lambda p: None if not
-        open(path("models/cli_t6/manifest"), "rb").read(4).startswith(b"\x89PN") else "the model's manifest is a PNG")
+                                  "models/cli_t6/manifest"], 1, "--png", check=lambda p: None if not
+        os.path.exists(path("models/cli_t6")) else "models/cli_t6 was left: %s" % os.listdir(path("models/cli_t6")))
+    cli("tune_png_in_own_model_dotted", ["tune", "vec.npg", "D", "T", "--tol", "0.1", "-o", "models/cli_t7/", "--png",
+                                         "./models//x/../cli_t7/sub/chart.png"], 1, "--png", check=lambda p: None if
+        not os.path.exists(path("models/cli_t7")) else "models/cli_t7 was left")
     cli("tune_out_is_valid", ["tune", "vec.npg", "D", "T", "--tol", "0.1", "-o", "T"], 1, "T", check=kept("T"))
     cli("spectra_into_data", ["train", "vec.npg", "D", "-o", "models/cli_sp", "--spectra", "D"], "either", "",
         check=kept("D/x.npy", "D/rho.npy"))
