@@ -28,12 +28,15 @@ static void free_basis(TrainerObject *self) {
 /* A basis size, as `npgc train --cap`: a whole number in 1..1000000; an
  * error naming `what` otherwise (a huge int is named, not just "too large"). */
 static int cap_value(PyObject *v, const char *what, int *out) {
-  if (!PyLong_Check(v) || PyBool_Check(v)) {
+  PyObject *iv = PyBool_Check(v) ? NULL : PyNumber_Index(v); /* an int, numpy's too */
+  if (!iv) {
+    PyErr_Clear();
     PyErr_Format(PyExc_TypeError, "Trainer: %s must be an int, not %s", what, Py_TYPE(v)->tp_name);
     return -1;
   }
   int overflow = 0;
-  long c = PyLong_AsLongAndOverflow(v, &overflow);
+  long c = PyLong_AsLongAndOverflow(iv, &overflow);
+  Py_DECREF(iv);
   if (c == -1 && PyErr_Occurred()) return -1;
   if (overflow || c < 1 || c > 1000000) {
     PyErr_Format(PyExc_ValueError, "Trainer: %s %R: expected 1..1000000", what, v);
