@@ -431,7 +431,8 @@ NPG_API int npg_reduced_eval(NpgReduced *r, long sample);
  * back to the eigendecomposition where that is not faster); with `on`,
  * always by the eigendecomposition (the exact reference). */
 NPG_API void npg_reduced_exact_roots(NpgReduced *r, bool on);
-/* Reduced coordinates of any quantity (m of them), NULL if unknown. */
+/* Reduced coordinates of any quantity (m of them), NULL if unknown or if it
+ * was not set and nothing was evaluated yet. */
 NPG_API const double *npg_reduced_coords(const NpgReduced *r, const char *name, size_t *m);
 /* Lift a quantity to full space: out (count entries, the full size) = B x̂.
  * An error before any evaluation, unless the quantity was set. */

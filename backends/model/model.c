@@ -757,6 +757,16 @@ int model_write_spectra(const Model *m, const char *dir, char *err, size_t errle
   if (lstat(manifest, &st) == 0)
     return npg_fail(err, errlen, "%s: holds a model (its manifest): refusing to write spectra into it; give a folder of "
                     "its own", dir);
+  /* Every name is checked before any file is written: a folder in the place
+   * of the last spectrum would otherwise leave the first ones written. */
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; i < m->classes[c].nmembers; i++)
+      for (int k = 0; k < 2; k++) {
+        char path[4096];
+        snprintf(path, sizeof path, "%s/spectrum_%s.%s", dir, m->classes[c].members[i].name, k ? "csv" : "npy");
+        if (lstat(path, &st) == 0 && !S_ISREG(st.st_mode))
+          return npg_fail(err, errlen, "%s: is not a regular file: refusing to replace it", path);
+      }
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++) {
       const RMember *mb = &m->classes[c].members[i];

@@ -275,7 +275,15 @@ int npg_model_write_spectra(const NpgModel *nm, const char *dir, char *err, size
 int npg_model_class(const NpgModel *nm, int c, NpgClassInfo *out) {
   REFUSE_NULL_M(-1);
   NPG_REFUSE_NULL(out, NULL, 0, -1);
-  if (!nm->m || c < 0 || c >= nm->m->nclasses) return -1;
+  if (!nm->m) return -1;
+  if (c < 0 || c >= nm->m->nclasses) {
+    /* The message goes where npg_model_error reads it; `nm` is const only to
+     * say the model is not changed (every NpgModel is allocated, never const). */
+    NpgModel *w = (NpgModel *)nm;
+    snprintf(w->error, sizeof w->error, "npg_model_class: class %d does not exist (the model has %d, 0..%d)", c,
+             nm->m->nclasses, nm->m->nclasses - 1);
+    return -1;
+  }
   const RClass *rc = &nm->m->classes[c];
   *out = (NpgClassInfo){rc->label, rc->n, rc->m, rc->nmembers};
   return 0;
@@ -564,6 +572,8 @@ const double *npg_reduced_coords(const NpgReduced *r, const char *name, size_t *
   const Model *mo = r->nm->m;
   int q = api_quantity(mo->prog, name);
   if (q < 0) return NULL;
+  /* Coordinates never computed are not zeros (npg_reduced_lift refuses the same). */
+  if (!r->evaluated && !r->given[q]) return NULL;
   if (m) *m = (size_t)mo->classes[mo->qclass[q]].m;
   return reduced_coords(r->r, q);
 }

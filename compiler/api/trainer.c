@@ -167,7 +167,9 @@ int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape
   int i = slot_of(t, name);
   if (i < 0) return tfail(t, "the program has no input or extern '%s'", name);
   char from[256];
-  snprintf(from, sizeof from, "training sample %ld", t->samples);
+  /* Named in a message about the value ("dim N is 5 in … but 6 in input 'x' of training sample 8"). */
+  snprintf(from, sizeof from, "%s '%.100s' of training sample %ld", t->slot[i]->kind == SYM_INPUT ? "input" : "extern",
+           name, t->samples);
   if (npg_full_set(t->f, name, ndim, shape, values, from) != 0) return tfail(t, "%s", npg_full_error(t->f));
   t->staged[i] = true;
   return 0;
@@ -358,6 +360,15 @@ int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {
   REFUSE_NULL(g, -1);
   if (t->error[0]) return -1;
   if (npg_full_error(g)[0]) return tfail(t, "%s", npg_full_error(g));
+  /* npg.h: an evaluator of the same program. Another program whose inputs
+   * have the same names and sizes would be taken silently; the same source
+   * compiled twice is the same program (its hash, as a model records it). */
+  const Program *gp = full_program(g);
+  if (!gp) return tfail(t, "npg_trainer_add_full: the evaluator has no program");
+  if (gp != t->prog && model_program_hash(gp) != model_program_hash(t->prog))
+    return tfail(t, "npg_trainer_add_full: the evaluator is of another program (%s) than the trainer's (%s)",
+                 gp->ctx->files.n ? ((const SrcFile *)gp->ctx->files.v[0])->name : "?",
+                 t->prog->ctx->files.n ? ((const SrcFile *)t->prog->ctx->files.v[0])->name : "?");
   return record(t, g);
 }
 

@@ -99,7 +99,14 @@ static int run(int argc, char **argv) {
     const char *v, *s = argv[a.i];
     if (npg_args_flag(&a, "--help") || npg_args_flag(&a, "-h")) return npgc_usage("check", true);
     if (npg_args_flag(&a, "--json")) json = true;
-    else if (strncmp(s, "-d", 2) == 0 && s[2]) opt.dump = s + 2, opt.dump_out = stdout;
+    else if (strncmp(s, "-d", 2) == 0 && s[2]) {
+      size_t bad = strspn(s + 2, "pslb");
+      if (s[2 + bad]) {
+        fprintf(stderr, "npgc check: unknown dump letter '%c' in '%s' (the letters are p, s, l, b)\n", s[2 + bad], s);
+        return 2;
+      }
+      opt.dump = s + 2, opt.dump_out = stdout;
+    }
     else if ((v = npg_args_string(&a, "--std"))) opt.std_dir = v;
     else if ((v = npg_args_positional(&a)) && !path) path = v;
     else if (v) npgc_args_extra(&a, "program", path);

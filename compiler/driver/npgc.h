@@ -41,6 +41,10 @@ int npgc_make_parents(const char *path, bool self);
 bool npgc_same_file(const char *a, const char *b);
 /* `path` would be written inside directory `dir`. */
 bool npgc_inside(const char *path, const char *dir);
+/* `path` names `dir` or something under it at any depth, neither needing to
+ * exist (outputs not written yet): compared as absolute paths with '.',
+ * '..' and repeated '/' resolved by their text (symbolic links are not). */
+bool npgc_under(const char *path, const char *dir);
 /* Before loading MODEL/: the arguments swapped (a model given where the
  * data is, the data where the model is) or a data folder given as a model
  * are said as such, not as "MODEL/manifest: cannot open". `data` may be

@@ -243,6 +243,42 @@ bool npgc_inside(const char *path, const char *dir) {
   return npgc_same_file(parent, dir);
 }
 
+/* `path` made absolute (from the working folder) with '.', '..' and
+ * repeated '/' resolved by text, into `out`; false when it does not fit. */
+static bool lexical_abs(const char *path, char *out, size_t n) {
+  char cwd[4096] = "";
+  if (path[0] != '/' && !getcwd(cwd, sizeof cwd)) return false;
+  char full[8192];
+  if ((size_t)snprintf(full, sizeof full, "%s/%s", cwd, path) >= sizeof full) return false;
+  size_t len = 0;
+  for (char *save = NULL, *part = strtok_r(full, "/", &save); part; part = strtok_r(NULL, "/", &save)) {
+    if (!strcmp(part, ".")) continue;
+    if (!strcmp(part, "..")) {
+      if (len > 0) /* drop the last component ("/.." is "/") */
+        do len--;
+        while (len > 0 && out[len] != '/');
+      continue;
+    }
+    size_t k = strlen(part);
+    if (len + 1 + k + 1 > n) return false;
+    out[len] = '/';
+    memcpy(out + len + 1, part, k);
+    len += 1 + k;
+  }
+  if (len + 1 > n) return false;
+  if (len == 0) out[len++] = '/';
+  out[len] = 0;
+  return true;
+}
+
+bool npgc_under(const char *path, const char *dir) {
+  char p[4096], d[4096];
+  if (!lexical_abs(path, p, sizeof p) || !lexical_abs(dir, d, sizeof d)) return false;
+  size_t n = strlen(d);
+  if (!strcmp(d, "/")) return true;
+  return strncmp(p, d, n) == 0 && (p[n] == 0 || p[n] == '/');
+}
+
 int npgc_args_error(const NpgArgs *a, const char *cmd) {
   fprintf(stderr, "%s (npgc %s --help for its usage)\n", a->error, cmd);
   return 2;

@@ -6,6 +6,7 @@
  *   npgc bench  PROG.npg MODEL/ TEST/        (full vs reduced time, memory)
  *
  * A client of npg.h only: what these commands do, a C program can do. */
+#include <dirent.h>
 #include <errno.h>
 #include <math.h>
 #include <stdlib.h>
@@ -56,6 +57,10 @@ static int parse_basis(Common *c, const char *s, char *err, size_t errlen) {
   const char *colon = strchr(s, ':');
   if (!colon || colon == s) {
     snprintf(err, errlen, "'%s': expected NAME:cap=N,energy=E,center=on|off (NAME a quantity, a class or '*')", s);
+    return -1;
+  }
+  if (!colon[1 + strspn(colon + 1, " ")]) {
+    snprintf(err, errlen, "'%s': nothing after the colon (expected NAME:cap=N,energy=E,center=on|off)", s);
     return -1;
   }
   int k = c->nbasis;
@@ -296,6 +301,40 @@ static NpgProgram *compile(Common *c) {
 
 /* ---------------------------------------------------------------- train */
 
+/* Before training: an entry of --spectra DIR that a spectrum of `p` would
+ * replace (spectrum_Q.npy or .csv, Q a quantity or its numerator Q.numK) and
+ * that is not a regular file (a folder, a link) refuses the command, rather
+ * than after the model is written. 0, or -1 after saying which. */
+static int check_spectra_names(const char *dir, const NpgProgram *p) {
+  DIR *d = opendir(dir);
+  if (!d) return 0; /* absent: made when writing */
+  int rc = 0;
+  for (struct dirent *e; rc == 0 && (e = readdir(d));) {
+    const char *n = e->d_name;
+    size_t len = strlen(n);
+    if (strncmp(n, "spectrum_", 9) != 0 || len < 14 || (strcmp(n + len - 4, ".npy") && strcmp(n + len - 4, ".csv")))
+      continue;
+    char q[256];
+    snprintf(q, sizeof q, "%.*s", (int)(len - 13 < 255 ? len - 13 : 255), n + 9);
+    char *num = strstr(q, ".num");
+    if (num && num[4] && strspn(num + 4, "0123456789") == strlen(num + 4)) *num = 0;
+    bool member = false;
+    NpgSymbol sym;
+    for (int i = 0; i < npg_nsymbols(p) && !member; i++)
+      member = npg_symbol(p, i, &sym) == 0 && sym.kind != NPG_PARAM && !strcmp(sym.name, q);
+    char path[4096];
+    struct stat st;
+    snprintf(path, sizeof path, "%s/%s", dir, n);
+    if (member && lstat(path, &st) == 0 && !S_ISREG(st.st_mode)) {
+      fprintf(stderr, "npgc train: --spectra %s: %s is not a regular file (a spectrum of the model would replace it): "
+                      "refusing to train\n", dir, path);
+      rc = -1;
+    }
+  }
+  closedir(d);
+  return rc;
+}
+
 /* The samples of DATA/ streamed into a trainer, as any C program would. */
 static int cmd_train(Common *c) {
   if (!c->prog_path) return npgc_missing("train", "the program (PROG.npg)");
@@ -318,9 +357,12 @@ static int cmd_train(Common *c) {
                     "write %s; add --mpi to train over the ranks, or run one process\n", atol(ranks), c->out);
     return 2;
   }
-  if (npgc_make_parents(c->out, false) != 0) return 1;
   NpgProgram *p = compile(c);
   if (!p) return 1;
+  if ((c->spectra && check_spectra_names(c->spectra, p) != 0) || npgc_make_parents(c->out, false) != 0) {
+    npg_free(p);
+    return 1;
+  }
   char err[2048] = "";
   int rc = 1;
   NpgSamples *s = NULL, *v = NULL;

@@ -98,6 +98,13 @@ int npgc_tune(int argc, char **argv) {
   if (npgc_check_output("tune", "-o", out, NPGC_OUT_MODEL, inputs) != 0 ||
       npgc_check_output("tune", "--png", png, NPGC_OUT_FILE, png_inputs) != 0)
     return 1;
+  /* Both outputs are checked before either is written: the chart drawn first
+   * into the model folder would leave a file there when the model is refused. */
+  if (npgc_under(png, out)) {
+    fprintf(stderr, "npgc tune: --png %s lies in the model folder -o %s: refusing to write there (a model folder "
+                    "holds only the model's files)\n", png, out);
+    return 1;
+  }
   NpgProgram *p = npg_compile(prog_path, &opt);
   if (!npg_ok(p)) {
     fputs(npg_error(p), stderr);

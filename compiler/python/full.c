@@ -207,7 +207,8 @@ static PyObject *value_of(FullObject *self, const char *name) {
   for (int i = 0; i < self->prog->nsym && !s; i++)
     if (strcmp(self->prog->sym[i].name, name) == 0 && self->prog->sym[i].kind != NPG_PARAM) s = &self->prog->sym[i];
   if (!s) return PyErr_Format(npgpy_Error, "the program has no quantity '%s'", name);
-  if (!v && n > 0) return PyErr_Format(npgpy_Error, "'%s' has no value yet: evaluate first", name);
+  /* NULL: never set nor evaluated (a zero-size quantity still has a buffer). */
+  if (!v) return PyErr_Format(npgpy_Error, "'%s' has no value yet: evaluate first", name);
   npy_intp shape[16];
   int nd = npgpy_shape(s, full_dim, self->f, shape);
   npy_intp total = 1;

@@ -207,6 +207,9 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
     return NULL;
   double tol = -1;
   if (tolo != Py_None && ((tol = PyFloat_AsDouble(tolo)) == -1 && PyErr_Occurred())) return NULL;
+  /* As npgc verify --tol: a finite number >= 0 (-1 would otherwise mean "no tolerance" below). */
+  if (tolo != Py_None && !(isfinite(tol) && tol >= 0))
+    return PyErr_Format(PyExc_ValueError, "verify: tol is %g; expected a finite number >= 0", tol);
   FullObject *full = self->full;
   if (fullo != Py_None) {
     if (!PyObject_TypeCheck(fullo, &npgpy_FullType))
@@ -542,6 +545,11 @@ static PyObject *reduced_coords(ReducedObject *self, PyObject *arg) {
   npgpy_busy_enter(&self->busy);
   size_t m = 0;
   const double *c = npg_reduced_coords(self->r, name, &m);
+  if (!c) {
+    npgpy_busy_leave(&self->busy);
+    return PyErr_Format(npgpy_Error, "coords('%s'): '%s' was not set and nothing was evaluated yet (red.eval)", name,
+                        name);
+  }
   npy_intp dm = (npy_intp)m;
   PyObject *a = PyArray_SimpleNew(1, &dm, NPY_DOUBLE);
   if (a && m) memcpy(PyArray_DATA((PyArrayObject *)a), c, sizeof(double) * m);

@@ -27,8 +27,15 @@ PyObject *npgpy_compile(PyObject *self, PyObject *args, PyObject *kw) {
   } else {
     text = Py_NewRef(what);
   }
-  const char *s = PyUnicode_AsUTF8(text);
+  Py_ssize_t slen = 0;
+  const char *s = PyUnicode_AsUTF8AndSize(text, &slen);
   if (!s) goto fail;
+  /* The C side reads up to the first NUL: "vec.npg\0x" would compile vec.npg (as open() does, refuse). */
+  if (strlen(s) != (size_t)slen) {
+    PyErr_Format(PyExc_ValueError, "compile: the %s holds a NUL byte at character %zu",
+                 pathlike || looks_like_path(s) ? "path" : "source", strlen(s));
+    goto fail;
+  }
   NpgOptions opt = {0};
   const char *src = NULL;
   if (pathlike || looks_like_path(s)) {

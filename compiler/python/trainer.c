@@ -26,6 +26,27 @@ static void free_basis(TrainerObject *self) {
   self->basis_name = NULL, self->basis_cap = NULL, self->basis_energy = NULL, self->basis_center = NULL;
 }
 
+/* A basis size, as `npgc train --cap`: a whole number in 1..1000000; an
+ * error naming `what` otherwise (a huge int is named, not just "too large"). */
+static int cap_value(PyObject *v, const char *what, int *out) {
+  PyObject *iv = PyBool_Check(v) ? NULL : PyNumber_Index(v); /* an int, numpy's too */
+  if (!iv) {
+    PyErr_Clear();
+    PyErr_Format(PyExc_TypeError, "Trainer: %s must be an int, not %s", what, Py_TYPE(v)->tp_name);
+    return -1;
+  }
+  int overflow = 0;
+  long c = PyLong_AsLongAndOverflow(iv, &overflow);
+  Py_DECREF(iv);
+  if (c == -1 && PyErr_Occurred()) return -1;
+  if (overflow || c < 1 || c > 1000000) {
+    PyErr_Format(PyExc_ValueError, "Trainer: %s %R: expected 1..1000000", what, v);
+    return -1;
+  }
+  *out = (int)c;
+  return 0;
+}
+
 /* basis={NAME: {"cap": N, "energy": E, "center": bool}} as the C options
  * (`npgc train --basis NAME:cap=N,energy=E,center=on|off`; NAME a quantity,
  * a class m_x, a numerator y.num1 or '*'; the library checks the names). */
@@ -64,10 +85,9 @@ static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o)
     for (Py_ssize_t p2 = 0; PyDict_Next(value, &p2, &ok, &ov);) {
       const char *opt = PyUnicode_Check(ok) ? PyUnicode_AsUTF8(ok) : "";
       if (strcmp(opt, "cap") == 0) {
-        long c = PyLong_AsLong(ov);
-        if (c == -1 && PyErr_Occurred()) return -1;
-        if (c < 1) return PyErr_Format(PyExc_ValueError, "Trainer: basis['%s']['cap'] %ld: at least 1", name, c), -1;
-        self->basis_cap[k] = (int)c;
+        char what[300];
+        snprintf(what, sizeof what, "basis['%s']['cap']", name);
+        if (cap_value(ov, what, &self->basis_cap[k]) != 0) return -1;
       } else if (strcmp(opt, "energy") == 0) {
         double e = PyFloat_AsDouble(ov);
         if (e == -1 && PyErr_Occurred()) return -1;
@@ -96,21 +116,19 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   static char *kwlist[] = {"full", "energy", "cap", "center", "mem", "joint", "progress", "basis", "keep_bases", NULL};
   PyObject *full, *center = Py_True, *joint = Py_False, *progress = Py_False, *mem = Py_None, *basis = Py_None;
   const char *keep = NULL;
+  PyObject *capo = NULL;
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|diOOOOOz:Trainer", kwlist, &npgpy_FullType, &full, &o.energy, &o.cap,
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|dOOOOOOz:Trainer", kwlist, &npgpy_FullType, &full, &o.energy, &capo,
                                    &center, &mem, &joint, &progress, &basis, &keep))
     return -1;
+  if (capo && cap_value(capo, "cap", &o.cap) != 0) return -1;
   if (self->t) {
     PyErr_SetString(PyExc_RuntimeError, "Trainer: already initialized");
     return -1;
   }
   if (!(o.energy > 0 && o.energy <= 1)) {
     PyErr_Format(PyExc_ValueError, "Trainer: energy %g: a fraction in (0, 1]", o.energy);
-    return -1;
-  }
-  if (o.cap < 1) {
-    PyErr_Format(PyExc_ValueError, "Trainer: cap %d: at least 1", o.cap);
     return -1;
   }
   if (mem != Py_None) {

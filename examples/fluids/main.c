@@ -257,9 +257,13 @@ static void parse_sizes(NpgArgs *a, const char *v, TunnelOptions *o) {
   o->nsizes = 0;
   char buf[256], err[256];
   snprintf(buf, sizeof buf, "%s", v);
-  for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok && !a->error[0]; tok = strtok_r(NULL, ",", &save)) {
+  /* Split by hand: strtok would drop an empty entry ("8," or "8,,16") without a word. */
+  for (char *tok = buf, *next = NULL; buf[0] && tok && !a->error[0]; tok = next) {
     long n;
-    if (o->nsizes >= 16)
+    if ((next = strchr(tok, ','))) *next++ = '\0';
+    if (!tok[0])
+      snprintf(a->error, sizeof a->error, "%s: --sizes: entry %d is empty in '%s'", a->prog, o->nsizes + 1, v);
+    else if (o->nsizes >= 16)
       snprintf(a->error, sizeof a->error, "%s: --sizes: at most 16 sizes", a->prog);
     else if (npg_parse_long(tok, 2, 256, &n, err, sizeof err) != 0)
       snprintf(a->error, sizeof a->error, "%s: --sizes: entry %d: %s", a->prog, o->nsizes + 1, err);

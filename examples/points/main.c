@@ -159,8 +159,14 @@ static int parse_list(const char *opt, const char *text, long lo, long hi, doubl
   int n = 0;
   char buf[1024], err[256];
   snprintf(buf, sizeof buf, "%s", text);
-  for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+  /* Split by hand: strtok would drop an empty entry ("200,,300") without a word. */
+  for (char *tok = buf, *next = NULL; buf[0] && tok; tok = next) {
     long v;
+    if ((next = strchr(tok, ','))) *next++ = '\0';
+    if (!tok[0]) {
+      fprintf(stderr, "npg-points: %s: entry %d is empty in '%s'\n", opt, n + 1, text);
+      return -1;
+    }
     if (n == cap) {
       fprintf(stderr, "npg-points: %s: at most %d entries\n", opt, cap);
       return -1;

@@ -64,7 +64,10 @@ static int parse(int argc, char **argv, Options *o) {
     } else if (npg_args_int(&a, "--threads", 1, 64, &o->threads)) ;
     else if (npg_args_int(&a, "--ss", 1, 8, &o->ss)) ;
     else if (npg_args_int(&a, "--checks", 0, 100000000, &o->checks)) ;
-    else if ((v = npg_args_string(&a, "--out"))) o->out = v;
+    else if ((v = npg_args_string(&a, "--out"))) {
+      o->out = v;
+      if (!v[0]) snprintf(a.error, sizeof a.error, "%s: --out: the folder name is empty", prog);
+    }
     else if ((v = npg_args_string(&a, "--vis-mode"))) {
       o->vis_mode = v;
       if (strcmp(v, "auto") && strcmp(v, "single") && strcmp(v, "stream") && strcmp(v, "packet"))

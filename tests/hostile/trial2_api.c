@@ -11,6 +11,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "npg.h"
@@ -519,6 +520,21 @@ static int run_case(int argc, char **argv) {
       return refused(!l || has_err(npg_model_error(l)) ? 1 : 0, l ? npg_model_error(l) : "NULL", "program");
     }
     if (!strcmp(c, "model_dim_unknown")) return npg_model_dim(m, "Q") >= 0 ? bad("size of unknown dim", NULL) : ok("neg");
+    if (!strcmp(c, "model_spectra_name_is_a_folder")) {
+      /* a folder in the place of one spectrum: refused before any spectrum is written */
+      char sp[1024], q[1100];
+      snprintf(sp, sizeof sp, "%s/api_spectra", W);
+      snprintf(q, sizeof q, "%s/spectrum_y.csv", sp);
+      if (mkdir(sp, 0755) != 0 || mkdir(q, 0755) != 0) return bad("cannot make the folders", sp);
+      char err[1024] = "";
+      int r = npg_model_write_spectra(m, sp, err, sizeof err);
+      const char *names[] = {"spectrum_x.npy", "spectrum_x.csv", "spectrum_y.npy"};
+      for (int i = 0; i < 3; i++) {
+        snprintf(q, sizeof q, "%s/%s", sp, names[i]);
+        if (access(q, F_OK) == 0) return bad("a spectrum was written before the refusal", q);
+      }
+      return refused(r, err, "spectrum_y.csv");
+    }
     if (!strcmp(c, "model_class_out_of_range")) {
       NpgClassInfo ci;
       return REFUSED(npg_model_class(m, 99, &ci) == 0 ? 0 : 1, npg_model_error(m), NULL);
