@@ -548,7 +548,12 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
     test_point("cleanup");
     char ignored[16];
     StoreReport quiet = {ignored, sizeof ignored};
-    if (remove_store_dir(&quiet, tmp) != 0)
+    /* the previous model, now in our `tmp`, was marked above; marked again,
+     * since a concurrent training of the same model that moved it in clears
+     * the marker of whatever `dir` holds when it ends, and may have done so
+     * between our mark and the exchange (seen in CI: the previous model was
+     * then refused as "not made by npg's model store") */
+    if (mark(&quiet, tmp, 1) != 0 || remove_store_dir(&quiet, tmp) != 0)
       rc = model_store_fail(&r, tmp, 0, "the new model in %s is complete, but the previous one could not be removed from here",
                 dir);
     goto done;
@@ -578,7 +583,7 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
     goto done;
   }
   if (exists) test_point("cleanup");
-  if (exists && remove_store_dir(&r, old) != 0) {
+  if (exists && (mark(&r, old, 1) != 0 || remove_store_dir(&r, old) != 0)) { /* marked again: as above */
     size_t n = err ? strlen(err) : 0;
     if (err && n < errlen)
       snprintf(err + n, errlen - n, " (the new model in %s is complete; remove %s by hand)", dir, old);
