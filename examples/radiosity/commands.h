@@ -1,4 +1,5 @@
-/* commands.h — the options of npg-radiosity and its reduced subcommands (demo.c). */
+/* commands.h — the options of npg-radiosity and its subcommands: full (full.c) and the
+ * reduced ones (demo.c). */
 #ifndef RADIOSITY_COMMANDS_H
 #define RADIOSITY_COMMANDS_H
 
@@ -14,6 +15,9 @@ typedef struct Options {
   const char *program;    /* formfactors.npg */
 } Options;
 
+/* full: both animations in full, the visibility modes and solvers timed, pictures, plots and
+ * DIR/report.json. */
+int cmd_full(const Options *o);
 /* train: the design's samples streamed into a trainer, the model to DIR/MODEL and the
  * precomputation figures to DIR/train.json. */
 int cmd_train(const Options *o);

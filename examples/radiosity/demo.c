@@ -225,27 +225,10 @@ static const char *series_name[NSERIES] = {
 /* Full | reduced | error map for one frame, to `path`. */
 static int compare_png(const Scene *s, const double *b, const double *bt, double exposure, int ss, double err_l2,
                        const char *path) {
-  Camera cam;
-  render_camera_default(&cam);
-  cam.ss = ss;
-  View view;
-  Image im[3] = {{0}};
-  char err[512];
-  if (render_view(&cam, s->V, s->F, s->g, s->tri, &view, err, sizeof err)) return fail(err);
-  double scale = 0.1 * -log(0.4) / exposure; /* 10 % of the bright walls' radiosity */
-  render_shade(&view, s->V, s->F, s->tri, s->g, b, exposure, &im[0]);
-  render_shade(&view, s->V, s->F, s->tri, s->g, bt, exposure, &im[1]);
-  render_error(&view, s->F, b, bt, scale, &im[2]);
-  render_view_free(&view);
-  for (int q = 0; q < 2; q++) render_add_colorbar(&im[q], SCALE_SHADE, exposure, "radiosity b");
-  render_add_colorbar(&im[2], SCALE_ERROR, scale, "|b full - b reduced|");
   char l2[128];
   snprintf(l2, sizeof l2, "|full - reduced| (white: 10%% of bright walls), rel. L2 %.2f%%", 100 * err_l2);
-  const Image *ims[3] = {&im[0], &im[1], &im[2]};
-  const char *labels[3] = {"full (ray-cast visibility)", "reduced (learned visibility)", l2};
-  int rc = render_side_by_side(path, ims, labels, 3, err, sizeof err);
-  for (int q = 0; q < 3; q++) image_free(&im[q]);
-  return rc ? fail(err) : 0;
+  const char *const labels[3] = {"full (ray-cast visibility)", "reduced (learned visibility)", l2};
+  return out_render_compare(s, b, bt, exposure, ss, labels, "|b full - b reduced|", path) ? 1 : 0;
 }
 
 static int plot(const char *dir, const char *file, const char *title, const char *ylabel, const PlotSeries *ps,
@@ -266,177 +249,221 @@ static double finite_median(const double *x, int n) {
 
 static int chosen(int k, int K) { return k == 0 || k == K / 2 || k == K - 1; }
 
-int cmd_demo(const Options *o) {
-  if (!o->out) return fail("demo: --out DIR is required");
-  char err[2048], path[4096], model_dir[4096];
+/* The state of a demo run; its per-frame series are NSERIES rows of ANIM_COUNT x K values. */
+typedef struct DemoRun {
+  const Options *o;
   Scene s;
-  if (scene_new(o->faces, NULL, &s, err, sizeof err)) return fail(err);
-  long F = s.F;
-  int K = o->frames, n = ANIM_COUNT * K, rc = 1;
   ReducedRadiosity r;
-  memset(&r, 0, sizeof r);
   FullRadiosity fr;
-  memset(&fr, 0, sizeof fr);
   TrainTimes tt;
-  double *ser = calloc((size_t)NSERIES * (size_t)n, sizeof(double));
-  double *bt = malloc(sizeof(double) * (size_t)F), *bv = malloc(sizeof(double) * (size_t)F),
-         *pb = malloc(sizeof(double) * (size_t)F);
-  int in_training = 0, bound_fail = 0, failures = 0;
-  double exposure = 1, split[3] = {NAN, NAN, NAN};
-  if (!ser || !bt || !bv || !pb) {
-    fail("out of memory");
-    goto done;
-  }
-#define SER(q, i) ser[(size_t)(q) * (size_t)n + (size_t)(i)]
+  int K, n;                   /* frames per animation; frames in all */
+  double *ser, *bt, *bv, *pb; /* the series; b reduced, reduced given v, projected (F each) */
+  int in_training, bound_fail, failures;
+  double exposure, split[3];
+  char err[2048];
+} DemoRun;
 
-  /* 1. the scene and the model */
-  snprintf(model_dir, sizeof model_dir, "%s/MODEL", o->out);
-  if (report_make_dir("npg-radiosity", o->out) || out_scene_arrays(o->out, &s) || train(o, &s, &r, &tt, model_dir)) goto done;
+/* Series q at frame i (i = animation * K + frame). */
+static double *ser(const DemoRun *d, int q, int i) { return d->ser + (size_t)q * (size_t)d->n + (size_t)i; }
 
-  /* 2. both animations, full and reduced */
-  if (frame_new(&fr, &s, o->k, o->threads, VIS_STREAM, SOLVER_GMRES, err, sizeof err) ||
-      frame_compute(&fr, NULL, err, sizeof err)) {
-    fail(err);
-    goto done;
+/* One frame of animation a, full and reduced: the error split and the bounds into the series,
+ * the arrays, the picture, a line. A frame the reduced model cannot evaluate (an error from
+ * npg) is reported and counted, not fatal: its errors are NaN (null in report.json).
+ * 1 on a failure that stops the demo. */
+static int demo_frame(DemoRun *d, int a, int k) {
+  const Options *o = d->o;
+  const Scene *s = &d->s;
+  FullRadiosity *fr = &d->fr;
+  long F = s->F;
+  int i = a * d->K + k;
+  SceneParams p;
+  animation_params(a, (double)k / (d->K - 1), &p);
+  d->in_training += design_contains(o->samples, &p);
+  if (frame_compute(fr, &p, d->err, sizeof d->err)) return fail(d->err);
+  ArvoSplit as;
+  if (timed_frame(&d->r, s, &p, i, o->reps, d->bt, ser(d, S_REDUCED, i), d->err, sizeof d->err) ||
+      reduced_frame_given(&d->r, s->g, s->e, fr->v, i, d->bv, d->err, sizeof d->err) ||
+      reduced_project_b(&d->r, fr->b, d->pb) < 0 ||
+      arvo_split(F, s->rho, fr->p, s->e, fr->b, d->bt, d->bv, d->pb, &as, d->err, sizeof d->err)) {
+    fprintf(stderr, "npg-radiosity: %s frame %d: %s\n", animation_name(a), k, d->err);
+    npg_reduced_clear_error(d->r.learned), npg_reduced_clear_error(d->r.given);
+    for (int q = 0; q < NSERIES; q++) *ser(d, q, i) = NAN;
+    *ser(d, S_FULL_VIS, i) = fr->t_vis, *ser(d, S_FULL_FF, i) = fr->t_ff, *ser(d, S_FULL_SOLVE, i) = fr->t_solve;
+    *ser(d, S_FULL_TOTAL, i) = fr->t_vis + fr->t_ff + fr->t_solve;
+    d->failures++;
+    return 0;
   }
-  exposure = render_exposure(F, fr.b, s.rho);
-  for (int a = 0; a < ANIM_COUNT; a++) {
-    for (int k = 0; k < K; k++) {
-      int i = a * K + k;
-      SceneParams p;
-      animation_params(a, (double)k / (K - 1), &p);
-      in_training += design_contains(o->samples, &p);
-      if (frame_compute(&fr, &p, err, sizeof err)) {
-        fail(err);
-        goto done;
-      }
-      /* a frame the reduced model cannot evaluate (an error from npg) is reported and
-       * counted, not fatal: its errors are NaN (null in report.json) */
-      ArvoSplit as;
-      if (timed_frame(&r, &s, &p, i, o->reps, bt, &SER(S_REDUCED, i), err, sizeof err) ||
-          reduced_frame_given(&r, s.g, s.e, fr.v, i, bv, err, sizeof err) || reduced_project_b(&r, fr.b, pb) < 0 ||
-          arvo_split(F, s.rho, fr.p, s.e, fr.b, bt, bv, pb, &as, err, sizeof err)) {
-        fprintf(stderr, "npg-radiosity: %s frame %d: %s\n", animation_name(a), k, err);
-        npg_reduced_clear_error(r.learned), npg_reduced_clear_error(r.given);
-        for (int q = 0; q < NSERIES; q++) SER(q, i) = NAN;
-        SER(S_FULL_VIS, i) = fr.t_vis, SER(S_FULL_FF, i) = fr.t_ff, SER(S_FULL_SOLVE, i) = fr.t_solve;
-        SER(S_FULL_TOTAL, i) = fr.t_vis + fr.t_ff + fr.t_solve;
-        failures++;
-        continue;
-      }
-      double vals[NSERIES] = {as.total, as.total_indirect, as.boundary, as.discretization, as.computation,
-                              as.err_inf, as.residual_inf, as.rho_f_inf, as.bound_arvo, as.bound_neumann,
-                              fr.t_vis, fr.t_ff, fr.t_solve, fr.t_vis + fr.t_ff + fr.t_solve, SER(S_REDUCED, i)};
-      for (int q = 0; q < NSERIES; q++) SER(q, i) = vals[q];
-      /* a bound that fails is a bug: b is GMRES's to 1e-13, so allow that much slack */
-      double slack = 1e-9 * fabs(as.err_inf) + 1e-12;
-      if ((!isnan(as.bound_arvo) && as.err_inf > as.bound_arvo + slack) ||
-          (!isnan(as.bound_neumann) && as.err_inf > as.bound_neumann + slack)) {
-        fprintf(stderr, "npg-radiosity: %s frame %d: the bound fails: error %.3e, Arvo %.3e, Neumann %.3e\n",
-                animation_name(a), k, as.err_inf, as.bound_arvo, as.bound_neumann);
-        bound_fail++;
-      }
-      char dir[4096];
-      snprintf(dir, sizeof dir, "%s/%s/frame_%04d", o->out, animation_name(a), k);
-      long sg[2] = {s.V, 3}, sv[2] = {F, F}, sb[1] = {F};
-      if (report_make_dir("npg-radiosity", dir) || out_npy(dir, "g", 2, sg, s.g) || out_npy(dir, "v", 2, sv, fr.v) ||
-          out_npy(dir, "b_full", 1, sb, fr.b) || out_npy(dir, "b_reduced", 1, sb, bt) ||
-          out_npy(dir, "b_reduced_given_v", 1, sb, bv) || out_npy(dir, "e", 1, sb, s.e))
-        goto done;
-      snprintf(path, sizeof path, "%s/%s/frame_%04d.png", o->out, animation_name(a), k);
-      if (out_render_frame(&s, bt, exposure, o->ss, "radiosity b (reduced)", path, NULL)) goto done;
-      if (chosen(k, K)) {
-        snprintf(path, sizeof path, "%s/%s_compare_%04d.png", o->out, animation_name(a), k);
-        if (compare_png(&s, fr.b, bt, exposure, o->ss, as.total, path)) goto done;
-      }
-      /* Arvo's bound ||r|| / (1 - ||rhoF||) exists only where ||rhoF|| < 1 */
-      char arvo[64];
-      if (isnan(as.bound_arvo))
-        snprintf(arvo, sizeof arvo, "no Arvo bound: ||rhoF|| %.3f >= 1", as.rho_f_inf);
-      else
-        snprintf(arvo, sizeof arvo, "Arvo %.3g, ||rhoF|| %.3f", as.bound_arvo, as.rho_f_inf);
-      printf("%s frame %2d: error %.2f%% (indirect %.2f%%; boundary %.2f%%, discretization %.2f%%, computation "
-             "%.2f%%), Linf %.3g <= bound %.3g (%s); full %.3f s, reduced %.1f us\n",
-             animation_name(a), k, 100 * as.total, 100 * as.total_indirect, 100 * as.boundary,
-             100 * as.discretization, 100 * as.computation, as.err_inf, as.bound_neumann, arvo,
-             SER(S_FULL_TOTAL, i), 1e6 * SER(S_REDUCED, i));
-      fflush(stdout);
-    }
+  double vals[NSERIES] = {as.total, as.total_indirect, as.boundary, as.discretization, as.computation,
+                          as.err_inf, as.residual_inf, as.rho_f_inf, as.bound_arvo, as.bound_neumann,
+                          fr->t_vis, fr->t_ff, fr->t_solve, fr->t_vis + fr->t_ff + fr->t_solve, *ser(d, S_REDUCED, i)};
+  for (int q = 0; q < NSERIES; q++) *ser(d, q, i) = vals[q];
+  /* a bound that fails is a bug: b is GMRES's to 1e-13, so allow that much slack */
+  double slack = 1e-9 * fabs(as.err_inf) + 1e-12;
+  if ((!isnan(as.bound_arvo) && as.err_inf > as.bound_arvo + slack) ||
+      (!isnan(as.bound_neumann) && as.err_inf > as.bound_neumann + slack)) {
+    fprintf(stderr, "npg-radiosity: %s frame %d: the bound fails: error %.3e, Arvo %.3e, Neumann %.3e\n",
+            animation_name(a), k, as.err_inf, as.bound_arvo, as.bound_neumann);
+    d->bound_fail++;
   }
-  frame_split(&r, &s, o->reps * 10, split);
-  if (in_training) fprintf(stderr, "npg-radiosity: warning: %d frames are training samples\n", in_training);
+  char dir[4096], path[4096];
+  snprintf(dir, sizeof dir, "%s/%s/frame_%04d", o->out, animation_name(a), k);
+  long sg[2] = {s->V, 3}, sv[2] = {F, F}, sb[1] = {F};
+  if (report_make_dir("npg-radiosity", dir) || out_npy(dir, "g", 2, sg, s->g) || out_npy(dir, "v", 2, sv, fr->v) ||
+      out_npy(dir, "b_full", 1, sb, fr->b) || out_npy(dir, "b_reduced", 1, sb, d->bt) ||
+      out_npy(dir, "b_reduced_given_v", 1, sb, d->bv) || out_npy(dir, "e", 1, sb, s->e))
+    return 1;
+  snprintf(path, sizeof path, "%s/%s/frame_%04d.png", o->out, animation_name(a), k);
+  if (out_render_frame(s, d->bt, d->exposure, o->ss, "radiosity b (reduced)", path, NULL)) return 1;
+  if (chosen(k, d->K)) {
+    snprintf(path, sizeof path, "%s/%s_compare_%04d.png", o->out, animation_name(a), k);
+    if (compare_png(s, fr->b, d->bt, d->exposure, o->ss, as.total, path)) return 1;
+  }
+  /* Arvo's bound ||r|| / (1 - ||rhoF||) exists only where ||rhoF|| < 1 */
+  char arvo[64];
+  if (isnan(as.bound_arvo))
+    snprintf(arvo, sizeof arvo, "no Arvo bound: ||rhoF|| %.3f >= 1", as.rho_f_inf);
+  else
+    snprintf(arvo, sizeof arvo, "Arvo %.3g, ||rhoF|| %.3f", as.bound_arvo, as.rho_f_inf);
+  printf("%s frame %2d: error %.2f%% (indirect %.2f%%; boundary %.2f%%, discretization %.2f%%, computation "
+         "%.2f%%), Linf %.3g <= bound %.3g (%s); full %.3f s, reduced %.1f us\n",
+         animation_name(a), k, 100 * as.total, 100 * as.total_indirect, 100 * as.boundary, 100 * as.discretization,
+         100 * as.computation, as.err_inf, as.bound_neumann, arvo, *ser(d, S_FULL_TOTAL, i),
+         1e6 * *ser(d, S_REDUCED, i));
+  fflush(stdout);
+  return 0;
+}
 
-  /* 3. plots (paper Fig. 8 and the split) */
-  PlotSeries fig8[2] = {{"window", &SER(S_TOTAL, 0), K}, {"ceiling", &SER(S_TOTAL, K), K}};
-  char title[256];
-  snprintf(title, sizeof title, "reduced vs full radiosity, %ld faces, %d training samples", F, o->samples);
-  if (plot(o->out, "error.png", title, "relative L2 error of b", fig8, 2)) goto done;
+/* 2. Both animations, full and reduced, frame by frame; the reduced frame's split. */
+static int run_frames(DemoRun *d) {
+  if (frame_new(&d->fr, &d->s, d->o->k, d->o->threads, VIS_STREAM, SOLVER_GMRES, d->err, sizeof d->err) ||
+      frame_compute(&d->fr, NULL, d->err, sizeof d->err))
+    return fail(d->err);
+  d->exposure = render_exposure(d->s.F, d->fr.b, d->s.rho);
+  for (int a = 0; a < ANIM_COUNT; a++)
+    for (int k = 0; k < d->K; k++)
+      if (demo_frame(d, a, k)) return 1;
+  frame_split(&d->r, &d->s, d->o->reps * 10, d->split);
+  if (d->in_training) fprintf(stderr, "npg-radiosity: warning: %d frames are training samples\n", d->in_training);
+  return 0;
+}
+
+/* 3. Plots: paper Fig. 8 (the error of both animations), Arvo's split and the bounds. */
+static int plot_demo(const DemoRun *d) {
+  const Options *o = d->o;
+  int K = d->K;
+  char title[256], file[64];
+  PlotSeries fig8[2] = {{"window", ser(d, S_TOTAL, 0), K}, {"ceiling", ser(d, S_TOTAL, K), K}};
+  snprintf(title, sizeof title, "reduced vs full radiosity, %ld faces, %d training samples", d->s.F, o->samples);
+  if (plot(o->out, "error.png", title, "relative L2 error of b", fig8, 2)) return 1;
   for (int a = 0; a < ANIM_COUNT; a++) {
     const char *an = animation_name(a);
-    PlotSeries sp[4] = {{"total", &SER(S_TOTAL, a * K), K},
-                        {"boundary data (learned visibility)", &SER(S_BOUNDARY, a * K), K},
-                        {"discretization (projection floor)", &SER(S_DISCRETIZATION, a * K), K},
-                        {"computation (reduction)", &SER(S_COMPUTATION, a * K), K}};
+    PlotSeries sp[4] = {{"total", ser(d, S_TOTAL, a * K), K},
+                        {"boundary data (learned visibility)", ser(d, S_BOUNDARY, a * K), K},
+                        {"discretization (projection floor)", ser(d, S_DISCRETIZATION, a * K), K},
+                        {"computation (reduction)", ser(d, S_COMPUTATION, a * K), K}};
     snprintf(title, sizeof title, "error split (Arvo), %s animation", an);
-    snprintf(path, sizeof path, "%s_arvo.png", an);
-    if (plot(o->out, path, title, "relative L2 of b", sp, 4)) goto done;
-    PlotSeries bp[3] = {{"true max error", &SER(S_ERR_INF, a * K), K},
-                        {"bound ||r|| ||(I-rhoF)^-1 1||", &SER(S_BOUND_NEUMANN, a * K), K},
-                        {"Arvo's bound ||r|| / (1 - ||rhoF||): none where ||rhoF|| >= 1", &SER(S_BOUND_ARVO, a * K), K}};
+    snprintf(file, sizeof file, "%s_arvo.png", an);
+    if (plot(o->out, file, title, "relative L2 of b", sp, 4)) return 1;
+    PlotSeries bp[3] = {{"true max error", ser(d, S_ERR_INF, a * K), K},
+                        {"bound ||r|| ||(I-rhoF)^-1 1||", ser(d, S_BOUND_NEUMANN, a * K), K},
+                        {"Arvo's bound ||r|| / (1 - ||rhoF||): none where ||rhoF|| >= 1", ser(d, S_BOUND_ARVO, a * K), K}};
     snprintf(title, sizeof title, "a-posteriori bounds, %s animation", an);
-    snprintf(path, sizeof path, "%s_bound.png", an);
-    if (plot(o->out, path, title, "max-norm error of b", bp, 3)) goto done;
+    snprintf(file, sizeof file, "%s_bound.png", an);
+    if (plot(o->out, file, title, "max-norm error of b", bp, 3)) return 1;
   }
+  return 0;
+}
 
-  /* 4. report.json */
-  double med_full = out_median(&SER(S_FULL_TOTAL, 0), n), med_red = finite_median(&SER(S_REDUCED, 0), n);
-  double med_err = finite_median(&SER(S_TOTAL, 0), n), max_err = 0;
-  for (int i = 0; i < n; i++) max_err = fmax(max_err, SER(S_TOTAL, i)); /* fmax skips NaN */
+/* The medians and the worst error of a run, for report.json and the summary. */
+typedef struct DemoFigures {
+  double full, full_vis, full_ff, full_solve, reduced, err_median, err_max;
+} DemoFigures;
+
+static DemoFigures demo_figures(const DemoRun *d) {
+  int n = d->n;
+  DemoFigures f = {out_median(ser(d, S_FULL_TOTAL, 0), n), out_median(ser(d, S_FULL_VIS, 0), n),
+                   out_median(ser(d, S_FULL_FF, 0), n),    out_median(ser(d, S_FULL_SOLVE, 0), n),
+                   finite_median(ser(d, S_REDUCED, 0), n), finite_median(ser(d, S_TOTAL, 0), n), 0};
+  for (int i = 0; i < n; i++) f.err_max = fmax(f.err_max, *ser(d, S_TOTAL, i)); /* fmax skips NaN */
+  return f;
+}
+
+/* 4. DIR/report.json. */
+static int write_demo_report(const DemoRun *d, const DemoFigures *f) {
+  const Options *o = d->o;
+  int K = d->K;
   Report rep;
-  if (report_open(&rep, "npg-radiosity", o->out) != 0) goto done;
+  if (report_open(&rep, "npg-radiosity", o->out) != 0) return 1;
   FILE *js = rep.f;
-  fprintf(js, "{\n  \"faces\": %ld,\n  \"vertices\": %ld,\n  \"threads_full\": %d,\n  \"threads_reduced\": 1,\n", F,
-          s.V, o->threads);
+  fprintf(js, "{\n  \"faces\": %ld,\n  \"vertices\": %ld,\n  \"threads_full\": %d,\n  \"threads_reduced\": 1,\n",
+          d->s.F, d->s.V, o->threads);
   fprintf(js, "  \"visibility_points_per_face\": %d,\n  \"frames_per_animation\": %d,\n", o->k, K);
   fprintf(js, "  \"animations\": [\"%s\", \"%s\"],\n  \"test_frames_in_training\": %d,\n", animation_name(0),
-          animation_name(1), in_training);
-  json_model(js, &r, o->samples, &tt);
+          animation_name(1), d->in_training);
+  json_model(js, &d->r, o->samples, &d->tt);
   fprintf(js, "  \"full_frame_seconds\": {\"visibility\": %.6g, \"form_factors\": %.6g, \"solve\": %.6g, "
               "\"total\": %.6g, \"statistic\": \"median over the frames\"},\n",
-          out_median(&SER(S_FULL_VIS, 0), n), out_median(&SER(S_FULL_FF, 0), n),
-          out_median(&SER(S_FULL_SOLVE, 0), n), med_full);
-  fprintf(js, "  \"reduced_frame_seconds\": %.6g,\n  \"reduced_frames_per_second\": %.1f,\n", med_red, 1 / med_red);
+          f->full_vis, f->full_ff, f->full_solve, f->full);
+  fprintf(js, "  \"reduced_frame_seconds\": %.6g,\n  \"reduced_frames_per_second\": %.1f,\n", f->reduced,
+          1 / f->reduced);
   fprintf(js, "  \"reduced_frame_split_seconds\": {\"project_g_e\": %.4g, \"chain\": %.4g, \"lift_b\": %.4g},\n",
-          split[0], split[1], split[2]);
-  fprintf(js, "  \"speedup\": %.1f,\n", med_full / med_red);
+          d->split[0], d->split[1], d->split[2]);
+  fprintf(js, "  \"speedup\": %.1f,\n", f->full / f->reduced);
   fprintf(js, "  \"error\": {\"median\": %.6g, \"max\": %.6g, \"median_indirect\": %.6g, \"measure\": \"relative L2 "
               "of b over both animations\"},\n",
-          med_err, max_err, finite_median(&SER(S_INDIRECT, 0), n));
-  fprintf(js, "  \"bound_holds_every_frame\": %s,\n  \"reduced_frames_failed\": %d,\n", bound_fail ? "false" : "true",
-          failures);
+          f->err_median, f->err_max, finite_median(ser(d, S_INDIRECT, 0), d->n));
+  fprintf(js, "  \"bound_holds_every_frame\": %s,\n  \"reduced_frames_failed\": %d,\n",
+          d->bound_fail ? "false" : "true", d->failures);
   fprintf(js, "  \"per_frame\": {\n");
   for (int a = 0; a < ANIM_COUNT; a++) {
     fprintf(js, "    \"%s\": {", animation_name(a));
-    for (int q = 0; q < NSERIES; q++) report_json_array(js, "", series_name[q], &SER(q, a * K), K, 6, q + 1 < NSERIES ? ", " : "");
+    for (int q = 0; q < NSERIES; q++)
+      report_json_array(js, "", series_name[q], ser(d, q, a * K), K, 6, q + 1 < NSERIES ? ", " : "");
     fprintf(js, "}%s\n", a + 1 < ANIM_COUNT ? "," : "");
   }
   fprintf(js, "  }\n}\n");
-  if (report_commit(&rep, "npg-radiosity") != 0) goto done;
-  printf("error over %d frames: median %.2f%%, max %.2f%% (relative L2 of b); bound %s on every frame\n", n - failures,
-         100 * med_err, 100 * max_err, bound_fail ? "FAILS" : "holds");
-  if (failures) printf("%d frames failed in reduced space (above)\n", failures);
+  return report_commit(&rep, "npg-radiosity") != 0;
+}
+
+static void print_summary(const DemoRun *d, const DemoFigures *f) {
+  printf("error over %d frames: median %.2f%%, max %.2f%% (relative L2 of b); bound %s on every frame\n",
+         d->n - d->failures, 100 * f->err_median, 100 * f->err_max, d->bound_fail ? "FAILS" : "holds");
+  if (d->failures) printf("%d frames failed in reduced space (above)\n", d->failures);
   printf("full frame %.4f s (median; visibility %.4f, form factors %.4f, solve %.4f); reduced frame %.1f us (%.0f "
          "frames/s, one core; nominal: projection %.1f us, chain %.1f us, lift %.1f us); speedup %.0fx\n",
-         med_full, out_median(&SER(S_FULL_VIS, 0), n), out_median(&SER(S_FULL_FF, 0), n),
-         out_median(&SER(S_FULL_SOLVE, 0), n), 1e6 * med_red, 1 / med_red, 1e6 * split[0], 1e6 * split[1],
-         1e6 * split[2], med_full / med_red);
-  printf("wrote %s\n", o->out);
-  rc = bound_fail || failures ? 1 : 0;
-#undef SER
+         f->full, f->full_vis, f->full_ff, f->full_solve, 1e6 * f->reduced, 1 / f->reduced, 1e6 * d->split[0],
+         1e6 * d->split[1], 1e6 * d->split[2], f->full / f->reduced);
+  printf("wrote %s\n", d->o->out);
+}
+
+int cmd_demo(const Options *o) {
+  if (!o->out) return fail("demo: --out DIR is required");
+  DemoRun d = {.o = o, .K = o->frames, .n = ANIM_COUNT * o->frames, .exposure = 1, .split = {NAN, NAN, NAN}};
+  if (scene_new(o->faces, NULL, &d.s, d.err, sizeof d.err)) return fail(d.err);
+  long F = d.s.F;
+  int rc = 1;
+  d.ser = calloc((size_t)NSERIES * (size_t)d.n, sizeof(double));
+  d.bt = malloc(sizeof(double) * (size_t)F), d.bv = malloc(sizeof(double) * (size_t)F);
+  d.pb = malloc(sizeof(double) * (size_t)F);
+  if (!d.ser || !d.bt || !d.bv || !d.pb) {
+    fail("out of memory");
+    goto done;
+  }
+  /* 1. the scene and the model */
+  char model_dir[4096];
+  snprintf(model_dir, sizeof model_dir, "%s/MODEL", o->out);
+  if (report_make_dir("npg-radiosity", o->out) || out_scene_arrays(o->out, &d.s) ||
+      train(o, &d.s, &d.r, &d.tt, model_dir))
+    goto done;
+  if (run_frames(&d) || plot_demo(&d)) goto done;
+  DemoFigures f = demo_figures(&d);
+  if (write_demo_report(&d, &f)) goto done;
+  print_summary(&d, &f);
+  rc = d.bound_fail || d.failures ? 1 : 0;
 done:
-  free(ser), free(bt), free(bv), free(pb);
-  frame_free(&fr);
-  reduced_close(&r);
-  scene_free(&s);
+  free(d.ser), free(d.bt), free(d.bv), free(d.pb);
+  frame_free(&d.fr);
+  reduced_close(&d.r);
+  scene_free(&d.s);
   return rc;
 }

@@ -54,6 +54,32 @@ double out_median(const double *x, int n) {
   return m;
 }
 
+int out_render_compare(const Scene *s, const double *b, const double *bt, double exposure, int ss,
+                       const char *const labels[3], const char *err_bar, const char *path) {
+  Camera cam;
+  render_camera_default(&cam);
+  cam.ss = ss;
+  View view;
+  Image im[3] = {{0}};
+  char err[512];
+  if (render_view(&cam, s->V, s->F, s->g, s->tri, &view, err, sizeof err)) {
+    fprintf(stderr, "npg-radiosity: %s\n", err);
+    return -1;
+  }
+  double scale = 0.1 * -log(0.4) / exposure; /* 10 % of the bright walls' radiosity */
+  render_shade(&view, s->V, s->F, s->tri, s->g, b, exposure, &im[0]);
+  render_shade(&view, s->V, s->F, s->tri, s->g, bt, exposure, &im[1]);
+  render_error(&view, s->F, b, bt, scale, &im[2]);
+  render_view_free(&view);
+  for (int q = 0; q < 2; q++) render_add_colorbar(&im[q], SCALE_SHADE, exposure, "radiosity b");
+  render_add_colorbar(&im[2], SCALE_ERROR, scale, err_bar);
+  const Image *ims[3] = {&im[0], &im[1], &im[2]};
+  int rc = render_side_by_side(path, ims, labels, 3, err, sizeof err);
+  for (int q = 0; q < 3; q++) image_free(&im[q]);
+  if (rc) fprintf(stderr, "npg-radiosity: %s\n", err);
+  return rc ? -1 : 0;
+}
+
 int out_render_frame(const Scene *s, const double *b, double exposure, int ss, const char *bar, const char *path,
                      View *keep) {
   Camera cam;

@@ -20,6 +20,11 @@ int out_scene_arrays(const char *dir, const Scene *s);
  * render_view_free). */
 int out_render_frame(const Scene *s, const double *b, double exposure, int ss, const char *bar, const char *path,
                      View *keep);
+/* Three renders side by side, labelled `labels`, to `path`: b and bt shaded at `exposure`
+ * (colour bars "radiosity b") and |b - bt| with white at 10 % of the bright walls' radiosity
+ * (colour bar `err_bar`). */
+int out_render_compare(const Scene *s, const double *b, const double *bt, double exposure, int ss,
+                       const char *const labels[3], const char *err_bar, const char *path);
 double out_median(const double *x, int n);
 
 #endif
