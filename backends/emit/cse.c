@@ -428,10 +428,6 @@ static void print_val(Cse *c, FILE *out, int v, bool top) {
   internal_error(c->ctx, __FILE__, __LINE__, "value not printed");
 }
 
-static void indent(FILE *out, int depth) {
-  for (int i = 0; i < depth; i++) fputs("  ", out);
-}
-
 static const char *local_name(Cse *c, const Val *x) {
   if (x->hint) {
     bool taken = false;
@@ -492,14 +488,14 @@ static void emit_operands(Cse *c, FILE *out, int v, int extra, int depth) {
     emit_deps(c, out, o->c, depth);
     o->local = local_name(c, o);
     o->pending = true;
-    indent(out, depth);
+    emit_indent(out, depth);
     fprintf(out, "%s %s;\n", o->is_int ? "npg_idx" : "double", o->local);
   }
 }
 
 static void emit_local(Cse *c, FILE *out, int v, int depth) {
   Val *x = &c->v[v];
-  indent(out, depth);
+  emit_indent(out, depth);
   fprintf(out, "const %s ", x->is_int ? "npg_idx" : "double");
   const char *name = local_name(c, x);
   fprintf(out, "%s = ", name);
@@ -543,7 +539,7 @@ void cse_emit_store(Cse *c, FILE *out, const char *array, int offset, int v, int
   } else {
     emit_deps(c, out, offset, depth);
   }
-  indent(out, depth);
+  emit_indent(out, depth);
   if (define && x->named) { /* read again later: a local too, without a reload (see emit_operands) */
     x->local = local_name(c, x);
     fprintf(out, "const %s %s = ", x->is_int ? "npg_idx" : "double", x->local);
@@ -696,7 +692,7 @@ static const char *row_op_name(ValOp op) {
 
 void cse_emit_rows(Cse *c, FILE *out, const CseStore *st, int nst, const char *len, int depth) {
   for (int k = 0; k < nst; k++) {
-    indent(out, depth);
+    emit_indent(out, depth);
     fprintf(out, "double *const w%d_ = ", k);
     print_row_start(c, out, st[k].array, st[k].offset);
     fputs(";\n", out);
@@ -704,13 +700,13 @@ void cse_emit_rows(Cse *c, FILE *out, const CseStore *st, int nst, const char *l
   for (int i = 0; i < c->n; i++) {
     Val *x = &c->v[i];
     if (x->row == ROW_LOAD) {
-      indent(out, depth);
+      emit_indent(out, depth);
       fprintf(out, "const double *const l%d_ = ", i);
       print_row_start(c, out, x->text, x->a);
       fputs(";\n", out);
     }
     if (x->row != ROW_VALUE) continue;
-    indent(out, depth);
+    emit_indent(out, depth);
     if (x->op == VAL_NEG) {
       fprintf(out, "c->rt->row_unary(%s, NPG_ROW_NEG, ", len);
     } else if (x->op == VAL_SELECT) {
@@ -723,7 +719,7 @@ void cse_emit_rows(Cse *c, FILE *out, const CseStore *st, int nst, const char *l
         fputs(", ", out);
         print_row_arg(c, out, i);
         fputs(");\n", out);
-        indent(out, depth);
+        emit_indent(out, depth);
       }
       print_row_arg(c, out, i);
       fputc('[', out);
@@ -748,7 +744,7 @@ void cse_emit_rows(Cse *c, FILE *out, const CseStore *st, int nst, const char *l
   for (int k = 0; k < nst; k++) {
     const Val *x = &c->v[st[k].val];
     if (x->row == ROW_VALUE && x->outer == k) continue;
-    indent(out, depth);
+    emit_indent(out, depth);
     fprintf(out, row_array(c, st[k].val) ? "c->rt->row_unary(%s, NPG_ROW_COPY, " : "c->rt->row_fill(%s, ", len);
     print_row_arg(c, out, st[k].val);
     fprintf(out, ", w%d_);\n", k);

@@ -69,6 +69,17 @@ char *emit_comment_text(Ctx *ctx, const char *text);
 /* The file of `loc` as emit_comment_text gives it, "?" when it has none. */
 const char *emit_loc_file(Ctx *ctx, Loc loc);
 void emit_full(Ctx *ctx, const Program *prog, FILE *out);
+/* Shared by the full evaluator's units (emit_full.c, emit_checks.c): two
+ * spaces per depth; loops over the index domain of `s` with the entry's flat
+ * index e_ (the depth inside returned) and their closing braces; `prefix` and
+ * a symbol's name as a C identifier. */
+void emit_indent(FILE *out, int depth);
+int emit_open_entry_loops(Emit *e, FILE *out, const Sym *s, int depth);
+void emit_close_loops(FILE *out, int from, int to);
+const char *emit_fn_name(Ctx *ctx, const char *prefix, const Sym *s);
+/* backends/emit/emit_checks.c: the bind-time gather checks of every stage,
+ * temporary and operator, and the entry point that runs them all. */
+void emit_checks(Emit *e);
 /* The steps of the full evaluator, in evaluation order: what its entry
  * point calls, and what the generated step entry ("<stem>_npg_full_step",
  * NpgStepFn) runs by number. A step computes a temp, one stage, or a fused

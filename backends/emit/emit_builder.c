@@ -15,10 +15,6 @@
 
 #include "emit.h"
 
-static void indent(FILE *out, int depth) {
-  for (int i = 0; i < depth; i++) fputs("  ", out);
-}
-
 static char *c_ident(Ctx *ctx, const char *s) {
   char *n = arena_strdup(ctx, s);
   for (char *c = n; *c; c++)
@@ -80,7 +76,7 @@ void emit_flat(Emit *e, FILE *out, const Sym *s, int from, int to) {
 static void emit_inputs(Emit *e, FILE *out, const Mono *m, const int *order, int n, int depth) {
   for (int k = 0; k < n; k++) {
     const Atom *a = &m->atoms[order[k]];
-    indent(out, depth);
+    emit_indent(out, depth);
     fprintf(out, "in_[%d] = ", k);
     emit_offset(e, out, a->q, a->idx, a->nidx);
     fputs(";\n", out);
@@ -96,7 +92,7 @@ static void sparse_entry_body(Emit *e, FILE *out, const Mono *m, const MonoPart 
   emit_part_guard(e, out, m, d);
   emit_part_coef(e, out, pt, d);
   emit_inputs(e, out, m, order, m->natoms, d);
-  indent(out, d);
+  emit_indent(out, d);
   fputs("if (sink->entry(sink->user, e_, ", out);
   emit_flat(e, out, op, op->nrow, op->nivars);
   fprintf(out, ", %d, in_, w_)) return -1;\n", m->natoms);
@@ -115,19 +111,19 @@ static void build_body_sparse(Emit *e, FILE *out, const BuildArgs *b) {
   for (int i = 0; i < nrow; i++) {
     const char *v = emit_name(e, s->ivars[i]);
     emit_use(e, s->ivars[i]->range);
-    indent(out, 1 + i);
+    emit_indent(out, 1 + i);
     fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, s->ivars[i]->range), v);
   }
   int depth = 1 + nrow;
-  indent(out, depth);
+  emit_indent(out, depth);
   fputs("const npg_idx e_ = ", out);
   emit_flat(e, out, s, 0, nrow);
   fputs(";\n", out);
-  indent(out, depth);
+  emit_indent(out, depth);
   fputs("if (np_ > 1 && e_ % np_ != part_) continue;\n", out);
-  indent(out, depth);
+  emit_indent(out, depth);
   fprintf(out, "npg_idx in_[%d] = {0};\n", g->ninputs ? g->ninputs : 1);
-  indent(out, depth);
+  emit_indent(out, depth);
   fputs("(void)in_;\n", out);
   const Poly *p = &b->field->comp[0];
   for (int i = 0; i < p->n; i++) {
@@ -138,7 +134,7 @@ static void build_body_sparse(Emit *e, FILE *out, const BuildArgs *b) {
     for (int k = 0; k < np; k++) emit_part(e, out, s, p->m[i], &parts[k], depth, nrow, &(PartEmit){NULL, sparse_entry_body, order});
   }
   for (int i = nrow; i >= 1; i--) {
-    indent(out, i);
+    emit_indent(out, i);
     fputs("}\n", out);
   }
   memset(e->used_q, 0, sizeof(bool) * (size_t)e->prog->slots.n);
@@ -166,7 +162,7 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
   for (int i = 0; i < s->nivars; i++) {
     const char *v = emit_name(e, s->ivars[i]), *range = emit_name(e, s->ivars[i]->range);
     emit_use(e, s->ivars[i]->range);
-    indent(out, 1 + i);
+    emit_indent(out, 1 + i);
     if (stride && i == s->nivars - 1) {
       fprintf(out, "for (npg_idx %s = np_ == 1 ? 0 : ((part_ - ", v);
       emit_flat(e, out, s, 0, i);
@@ -175,26 +171,26 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
       fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, range, v);
     }
     if (b->kind == 2 && i == nrow - 1) {
-      indent(out, 2 + i);
+      emit_indent(out, 2 + i);
       fputs("if (np_ > 1 && ", out);
       emit_flat(e, out, s, 0, nrow);
       fputs(" % np_ != part_) continue;\n", out);
     }
   }
   int depth = 1 + s->nivars;
-  indent(out, depth);
+  emit_indent(out, depth);
   fputs("const npg_idx e_ = ", out);
   emit_flat(e, out, s, 0, nrow);
   fputs(";\n", out);
   if (b->kind == 2) {
-    indent(out, depth);
+    emit_indent(out, depth);
     fputs("const npg_idx col_ = ", out);
     emit_flat(e, out, s, nrow, s->nivars);
     fputs(";\n", out);
   }
-  indent(out, depth);
+  emit_indent(out, depth);
   fprintf(out, "npg_idx in_[%d] = {0};\n", g->ninputs ? g->ninputs : 1);
-  indent(out, depth);
+  emit_indent(out, depth);
   fputs("(void)in_;\n", out);
   for (int c = 0; c < b->ncomp; c++) {
     const Poly *p = &b->field->comp[c];
@@ -203,24 +199,24 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
     for (int i = 0; i < p->n && !any; i++) any = mono_in_group(p->m[i], g, order);
     if (!any) continue;
     if (guard) {
-      indent(out, depth);
+      emit_indent(out, depth);
       fprintf(out, "if (np_ == 1 || (e_ * %d + %d) %% np_ == part_) {\n", b->ncomp, c);
     }
     for (int i = 0; i < p->n; i++) {
       const Mono *m = p->m[i];
       if (!mono_in_group(m, g, order)) continue;
       int d = depth + guard;
-      indent(out, d++);
+      emit_indent(out, d++);
       fputs("{\n", out);
       for (int k = 0; k < m->nsums; k++) emit_sum_loop(e, out, &m->sums[k], d++, true);
       if (m->guard) {
-        indent(out, d++);
+        emit_indent(out, d++);
         fputs("if (", out);
         emit_cexpr(e, out, m->guard);
         fputs(") {\n", out);
       }
       emit_inputs(e, out, m, order, g->ninputs, d);
-      indent(out, d);
+      emit_indent(out, d);
       const char *row = arena_printf(e->ctx, "e_ * %d + %d", b->ncomp, c);
       const char *col = b->kind == 0 ? "-1" : b->kind == 1 ? row : "col_";
       if (m->coef->kind == N_NUM) {
@@ -234,17 +230,17 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
                 g->ninputs);
       }
       for (int k = d - 1; k >= depth + guard; k--) {
-        indent(out, k);
+        emit_indent(out, k);
         fputs("}\n", out);
       }
     }
     if (guard) {
-      indent(out, depth);
+      emit_indent(out, depth);
       fputs("}\n", out);
     }
   }
   for (int i = s->nivars; i >= 1; i--) {
-    indent(out, i);
+    emit_indent(out, i);
     fputs("}\n", out);
   }
   /* a builder reads offsets, never values: declare no quantity */

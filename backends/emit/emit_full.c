@@ -1,5 +1,5 @@
-/* emit_full.c — the full evaluator and the bind-time gather checker as C
- * (DESIGN §6). One function per stage, named after it, with its source line
+/* emit_full.c — the full evaluator as C (DESIGN §6; its bind-time gather
+ * checker is emit_checks.c's). One function per stage, named after it, with its source line
  * in a comment; loops over the stage's index domain with gathers; tensors
  * are never materialized. Diagonal operators are applied entry by entry;
  * declared operators are assembled densely and applied through the runtime
@@ -14,7 +14,7 @@
 
 /* ---------------------------------------------------------------- helpers */
 
-static void indent(FILE *out, int depth) {
+void emit_indent(FILE *out, int depth) {
   for (int i = 0; i < depth; i++) fputs("  ", out);
 }
 
@@ -47,15 +47,15 @@ const char *emit_loc_file(Ctx *ctx, Loc loc) { return loc.file ? emit_comment_te
 
 /* Loops over the index domain of `s`; the entry's flat index is e_.
  * Returns the depth inside. */
-static int open_entry_loops(Emit *e, FILE *out, const Sym *s, int depth) {
+int emit_open_entry_loops(Emit *e, FILE *out, const Sym *s, int depth) {
   for (int i = 0; i < s->nivars; i++) {
     const char *v = emit_name(e, s->ivars[i]);
     emit_use(e, s->ivars[i]->range);
-    indent(out, depth + i);
+    emit_indent(out, depth + i);
     fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, s->ivars[i]->range), v);
   }
   depth += s->nivars;
-  indent(out, depth);
+  emit_indent(out, depth);
   fputs("const npg_idx e_ = ", out);
   if (!s->nivars) fputc('0', out);
   for (int i = 1; i < s->nivars; i++) fputc('(', out);
@@ -65,14 +65,14 @@ static int open_entry_loops(Emit *e, FILE *out, const Sym *s, int depth) {
     if (i) fputc(')', out);
   }
   fputs(";\n", out);
-  indent(out, depth);
+  emit_indent(out, depth);
   fputs("(void)e_;\n", out);
   return depth;
 }
 
-static void close_loops(FILE *out, int from, int to) {
+void emit_close_loops(FILE *out, int from, int to) {
   for (int d = from - 1; d >= to; d--) {
-    indent(out, d);
+    emit_indent(out, d);
     fputs("}\n", out);
   }
 }
@@ -92,12 +92,12 @@ static void emit_poly(Emit *e, FILE *out, const Poly *p, const char *acc, int de
     int d = depth;
     for (int s = 0; s < m->nsums; s++) emit_sum_loop(e, out, &m->sums[s], d++, false);
     if (m->guard) {
-      indent(out, d++);
+      emit_indent(out, d++);
       fputs("if (", out);
       emit_cexpr(e, out, m->guard);
       fputs(")\n", out);
     }
-    indent(out, d);
+    emit_indent(out, d);
     fprintf(out, "%s += ", acc);
     bool one = m->coef->kind == N_NUM && m->coef->num == 1 && m->natoms;
     if (!one) emit_cexpr(e, out, m->coef);
@@ -114,7 +114,7 @@ static void emit_poly(Emit *e, FILE *out, const Poly *p, const char *acc, int de
  * (grammar.txt: roots of negative numbers), so no cbrt: it would give x^(1/3)
  * a real value that x^(2/3) and x^(1/5), and the reduced evaluator, do not. */
 static void emit_apply_diag(FILE *out, const char *t, const char *d, long p, long q, int depth) {
-  indent(out, depth);
+  emit_indent(out, depth);
   if (q == 1 && p == -1) fprintf(out, "%s /= %s;\n", t, d);
   else if (q == 1 && p == -2) fprintf(out, "%s /= %s * %s;\n", t, d, d);
   else if (q == 2 && p == -1) fprintf(out, "%s /= sqrt(%s);\n", t, d);
@@ -129,9 +129,6 @@ static bool term_has_decl(const Term *t) {
   return false;
 }
 
-static const char *fn_name(Ctx *ctx, const char *prefix, const Sym *s);
-static void emit_node_checks(Emit *e, FILE *out, const Node *n, const Sym *where, int depth);
-static void emit_index_check(Emit *e, FILE *out, const Sym *q, int axis, const Node *idx, const Sym *where, int depth);
 
 /* ---------------------------------------------------------------- sparse operators */
 
@@ -142,41 +139,28 @@ static void entry_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, co
   (void)arg;
   emit_part_guard(e, out, m, d);
   emit_part_coef(e, out, pt, d);
-  indent(out, d);
+  emit_indent(out, d);
   fputs("if (rows_ && cnt_ < cap_) {\n", out);
-  indent(out, d + 1);
+  emit_indent(out, d + 1);
   fputs("rows_[cnt_] = ", out);
   emit_flat(e, out, op, 0, op->nrow);
   fputs(";\n", out);
-  indent(out, d + 1);
+  emit_indent(out, d + 1);
   fputs("cols_[cnt_] = ", out);
   emit_flat(e, out, op, op->nrow, op->nivars);
   fputs(";\n", out);
-  indent(out, d);
+  emit_indent(out, d);
   fputs("}\n", out);
-  indent(out, d);
+  emit_indent(out, d);
   fputs("if (vals_ && cnt_ < cap_) vals_[slot_[cnt_]] += w_", out);
   for (int a = 0; a < m->natoms; a++) {
     fputs(" * ", out);
     emit_atom(e, out, &m->atoms[a]);
   }
   fputs(";\n", out);
-  indent(out, d);
+  emit_indent(out, d);
   fputs("cnt_++;\n", out);
 }
-
-/* The bind-time gather checks at the same points: the guard's gathers, then
- * (where it holds) the coefficient's and the atoms' indices. */
-static void check_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, const Sym *op, int d, const void *arg) {
-  (void)arg;
-  emit_node_checks(e, out, m->guard, op, d);
-  emit_part_guard(e, out, m, d);
-  for (int f = 0; f < pt->nfactors; f++) emit_node_checks(e, out, pt->factors[f], op, d);
-  for (int a = 0; a < m->natoms; a++)
-    for (int k = 0; k < m->atoms[a].q->ndims; k++) emit_index_check(e, out, m->atoms[a].q, k, m->atoms[a].idx[k], op, d);
-}
-
-static void check_fixed(Emit *e, FILE *out, const Node *expr, const Sym *op, int d) { emit_node_checks(e, out, expr, op, d); }
 
 /* The entries of sparse operator `od`, in a fixed order: with rows_ and
  * cols_ their flat row and column, with vals_ their values at this
@@ -195,16 +179,6 @@ static void op_entries_cb(Emit *e, FILE *out, const void *arg) {
   fputs("  return cnt_;\n", out);
 }
 
-/* Bind-time gather checks of a sparse operator, at its entries' points. */
-static void sparse_op_checks(Emit *e, FILE *out, const OpDef *od) {
-  const Poly *p = &od->entries->comp[0];
-  for (int i = 0; i < p->n; i++) {
-    MonoPart parts[TENSOR_MAXPARTS];
-    int np = tensor_mono_parts(e->ctx, p->m[i], od->sym->ivars, od->sym->nivars, parts);
-    for (int k = 0; k < np; k++) emit_part(e, out, od->sym, p->m[i], &parts[k], 1, 0, &(PartEmit){check_fixed, check_body, NULL});
-  }
-}
-
 static void emit_sparse_ops(Emit *e) {
   for (int i = 0; i < e->prog->opdefs.n; i++) {
     const OpDef *od = e->prog->opdefs.v[i];
@@ -213,7 +187,7 @@ static void emit_sparse_ops(Emit *e) {
     emit_function_sig(e, e->out,
                       arena_printf(e->ctx, "static npg_idx %s(const NpgCtx *c, npg_idx cap_, npg_idx *rows_, npg_idx *cols_, const npg_idx *slot_, "
                                    "double *vals_)",
-                                   fn_name(e->ctx, "entries_", od->sym)),
+                                   emit_fn_name(e->ctx, "entries_", od->sym)),
                       NULL, op_entries_cb, od);
   }
 }
@@ -231,47 +205,47 @@ static void emit_stage_body(Emit *e, FILE *out, const Stage *st) {
   }
   bool any_entrywise = false;
   for (int t = 0; t < st->nterms; t++) any_entrywise |= !term_has_decl(st->terms[t]);
-  int depth = open_entry_loops(e, out, s, 1);
+  int depth = emit_open_entry_loops(e, out, s, 1);
   for (int c = 0; c < nc; c++) {
-    indent(out, depth);
+    emit_indent(out, depth);
     fprintf(out, "double y%d_ = 0.0;\n", c);
   }
   for (int t = 0; t < st->nterms && any_entrywise; t++) {
     const Term *tm = st->terms[t];
     if (term_has_decl(tm)) continue;
-    indent(out, depth);
+    emit_indent(out, depth);
     fprintf(out, "{ /* term %d */\n", t + 1);
     for (int c = 0; c < nc; c++) {
-      indent(out, depth + 1);
+      emit_indent(out, depth + 1);
       fputs("double t_ = 0.0;\n", out);
       emit_poly(e, out, &tm->num->comp[c], "t_", depth + 1);
       for (int k = 0; k < tm->nops; k++) {
-        indent(out, depth + 1);
+        emit_indent(out, depth + 1);
         fprintf(out, "{\n");
-        indent(out, depth + 2);
+        emit_indent(out, depth + 2);
         fputs("double d_ = 0.0;\n", out);
         emit_poly(e, out, &tm->ops[k].diag->comp[c], "d_", depth + 2);
         emit_apply_diag(out, "t_", "d_", tm->ops[k].p, tm->ops[k].q, depth + 2);
-        indent(out, depth + 1);
+        emit_indent(out, depth + 1);
         fputs("}\n", out);
       }
-      indent(out, depth + 1);
+      emit_indent(out, depth + 1);
       fprintf(out, "y%d_ += t_;\n", c);
       if (c + 1 < nc) {
-        indent(out, depth);
+        emit_indent(out, depth);
         fprintf(out, "}\n");
-        indent(out, depth);
+        emit_indent(out, depth);
         fprintf(out, "{\n");
       }
     }
-    indent(out, depth);
+    emit_indent(out, depth);
     fputs("}\n", out);
   }
   for (int c = 0; c < nc; c++) {
-    indent(out, depth);
+    emit_indent(out, depth);
     fprintf(out, "%s[e_ * %d + %d] = y%d_;\n", y, nc, c, c);
   }
-  close_loops(out, depth, 1);
+  emit_close_loops(out, depth, 1);
 
   /* Terms with declared operators: the whole vector, then dense operators. */
   for (int t = 0; t < st->nterms; t++) {
@@ -285,8 +259,8 @@ static void emit_stage_body(Emit *e, FILE *out, const Stage *st) {
       fprintf(out, "    n_ *= %s;\n", emit_name(e, s->ivars[i]->range));
     }
     fputs("    double *v_ = c->rt->scratch(c, n_);\n    if (!v_) return -1;\n", out);
-    int d = open_entry_loops(e, out, s, 2);
-    indent(out, d);
+    int d = emit_open_entry_loops(e, out, s, 2);
+    emit_indent(out, d);
     fputs("double t_ = 0.0;\n", out);
     emit_poly(e, out, &tm->num->comp[0], "t_", d);
     for (int k = 0; k < tm->nops; k++) {
@@ -295,25 +269,25 @@ static void emit_stage_body(Emit *e, FILE *out, const Stage *st) {
       bool inner = true;
       for (int j = 0; j < k; j++) inner &= tm->ops[j].kind == OPK_DIAG;
       iassert(e->ctx, inner);
-      indent(out, d);
+      emit_indent(out, d);
       fputs("{\n", out);
-      indent(out, d + 1);
+      emit_indent(out, d + 1);
       fputs("double d_ = 0.0;\n", out);
       emit_poly(e, out, &tm->ops[k].diag->comp[0], "d_", d + 1);
       emit_apply_diag(out, "t_", "d_", tm->ops[k].p, tm->ops[k].q, d + 1);
-      indent(out, d);
+      emit_indent(out, d);
       fputs("}\n", out);
     }
-    indent(out, d);
+    emit_indent(out, d);
     fputs("v_[e_] = t_;\n", out);
-    close_loops(out, d, 2);
+    emit_close_loops(out, d, 2);
     for (int k = 0; k < tm->nops; k++) {
       if (tm->ops[k].kind != OPK_DECL) continue;
       const Sym *op = tm->ops[k].op;
       if (op->opdef->sparse) {
         fprintf(out, "    { /* %s^(%ld/%ld), sparse */\n", op->name, tm->ops[k].p, tm->ops[k].q);
         fprintf(out, "      if (c->rt->sparse_power(c, \"%s\", \"%s\", %d, n_, %s, %ld, %ld, v_)) { c->rt->release(c, v_); return -1; }\n",
-                s->name, op->name, emit_index_of(&e->prog->opdefs, op->opdef), fn_name(e->ctx, "entries_", op),
+                s->name, op->name, emit_index_of(&e->prog->opdefs, op->opdef), emit_fn_name(e->ctx, "entries_", op),
                 tm->ops[k].p, tm->ops[k].q);
         fputs("    }\n", out);
         continue;
@@ -321,13 +295,13 @@ static void emit_stage_body(Emit *e, FILE *out, const Stage *st) {
       fprintf(out, "    { /* %s^(%ld/%ld) */\n", op->name, tm->ops[k].p, tm->ops[k].q);
       fputs("      double *m_ = c->rt->scratch(c, n_ * n_);\n", out);
       fputs("      if (!m_) { c->rt->release(c, v_); return -1; }\n", out);
-      int od = open_entry_loops(e, out, op, 3);
-      indent(out, od);
+      int od = emit_open_entry_loops(e, out, op, 3);
+      emit_indent(out, od);
       fputs("double t_ = 0.0;\n", out);
       emit_poly(e, out, &op->opdef->entries->comp[0], "t_", od);
-      indent(out, od);
+      emit_indent(out, od);
       fputs("m_[e_] = t_;\n", out);
-      close_loops(out, od, 3);
+      emit_close_loops(out, od, 3);
       fprintf(out, "      int bad_ = c->rt->op_power(c, \"%s\", \"%s\", n_, m_, %ld, %ld, v_);\n", s->name, op->name,
               tm->ops[k].p, tm->ops[k].q);
       fputs("      c->rt->release(c, m_);\n", out);
@@ -361,147 +335,10 @@ void emit_function_sig(Emit *e, FILE *out, const char *signature, const Sym *wri
 
 static void stage_body_cb(Emit *e, FILE *out, const void *st) { emit_stage_body(e, out, st); }
 
-/* ---------------------------------------------------------------- gather checks */
-
-/* Check every dim-axis index inside n (a param gather) before it is used. */
-static void emit_node_checks(Emit *e, FILE *out, const Node *n, const Sym *where, int depth);
-
-/* `s` as a C string literal: printable ASCII as is, everything else (and
- * '"', '\\', '?' against trigraphs) as octal escapes. */
-static void emit_c_string(FILE *out, const char *s) {
-  fputc('"', out);
-  for (const unsigned char *c = (const unsigned char *)s; *c; c++)
-    if (*c >= 32 && *c < 127 && *c != '"' && *c != '\\' && *c != '?') fputc(*c, out);
-    else fprintf(out, "\\%03o", *c);
-  fputc('"', out);
-}
-
-/* The first node of `n` (itself, then its operands) that has a source
- * location: a compound index made by lowering has none, its param has. */
-static const Node *located(const Node *n) {
-  if (!n || n->loc.file) return n;
-  const Node *kids[3] = {n->a, n->b, n->c};
-  for (int i = 0; i < 3; i++)
-    if (located(kids[i])) return located(kids[i]);
-  for (int i = 0; i < n->nargs; i++)
-    if (located(n->args[i])) return located(n->args[i]);
-  return NULL;
-}
-
-/* The location of the use `idx` in the user's program (the outermost fn
- * call it was inlined from, if any; else the stage's definition) as the
- * arguments `at, excerpt` of gather_error. */
-static void emit_use_site(Emit *e, FILE *out, const Node *idx, const Sym *where) {
-  const Node *use = located(idx);
-  Loc loc = use ? use->loc : where->loc;
-  for (const Node *c = use ? use->inl : NULL; c; c = c->inl) loc = c->loc;
-  emit_c_string(out, loc.file ? arena_printf(e->ctx, "%s:%d:%d", loc.file->name, loc.line, loc.col) : where->name);
-  fputs(", ", out);
-  emit_c_string(out, diag_excerpt(e->ctx, loc));
-}
-
-/* idx indexes axis `axis` (a dim) of q: report if out of range. */
-static void emit_index_check(Emit *e, FILE *out, const Sym *q, int axis, const Node *idx, const Sym *where,
-                             int depth) {
-  emit_node_checks(e, out, idx, where, depth);
-  const Sym *dim = q->dims[axis];
-  /* An index variable over the same dim is in range by construction. */
-  if (idx->kind == N_NAME && idx->sym && (idx->sym->kind == SYM_IVAR || idx->sym->kind == SYM_SUMVAR) &&
-      idx->sym->range == dim)
-    return;
-  emit_use(e, dim);
-  int t = e->tmp++;
-  indent(out, depth);
-  fprintf(out, "{ const npg_idx v%d_ = ", t);
-  emit_cexpr(e, out, idx);
-  fprintf(out, "; if (v%d_ < 0 || v%d_ >= %s) { ", t, t, emit_name(e, dim));
-  int dim_id = emit_index_of(&e->prog->dims, dim);
-  if (idx->kind == N_INDEX && idx->sym && idx->sym->kind == SYM_PARAM) {
-    const Sym *p = idx->sym;
-    fprintf(out, "npg_idx w_[%d] = {", idx->nargs);
-    for (int i = 0; i < idx->nargs; i++) {
-      if (i) fputs(", ", out);
-      emit_cexpr(e, out, idx->args[i]);
-    }
-    fprintf(out, "}; c->rt->gather_error(c, \"%s\", ", where->name);
-    emit_use_site(e, out, idx, where);
-    fprintf(out, ", %d, %d, w_, v%d_, %d); return -1; } }\n", emit_index_of(&e->prog->params, p), idx->nargs, t, dim_id);
-  } else {
-    fprintf(out, "npg_idx w_[%d] = {", where->nivars ? where->nivars : 1);
-    for (int i = 0; i < where->nivars; i++) fprintf(out, "%s%s", i ? ", " : "", emit_name(e, where->ivars[i]));
-    if (!where->nivars) fputc('0', out);
-    fprintf(out, "}; c->rt->gather_error(c, \"%s\", ", where->name);
-    emit_use_site(e, out, idx, where);
-    fprintf(out, ", -1, %d, w_, v%d_, %d); return -1; } }\n", where->nivars, t, dim_id);
-  }
-}
-
-static void emit_node_checks(Emit *e, FILE *out, const Node *n, const Sym *where, int depth) {
-  if (!n) return;
-  if (n->kind == N_INDEX && n->sym && n->sym->kind == SYM_PARAM) {
-    for (int i = 0; i < n->nargs && i < n->sym->ndims; i++) emit_index_check(e, out, n->sym, i, n->args[i], where, depth);
-    return;
-  }
-  if (n->kind == N_SUM || n->kind == N_IF) return; /* inner guards/loops: checked when evaluated (rare) */
-  emit_node_checks(e, out, n->a, where, depth);
-  emit_node_checks(e, out, n->b, where, depth);
-  emit_node_checks(e, out, n->c, where, depth);
-  for (int i = 0; i < n->nargs; i++) emit_node_checks(e, out, n->args[i], where, depth);
-}
-
-static void emit_poly_checks(Emit *e, FILE *out, const Poly *p, const Sym *where, int depth) {
-  for (int i = 0; i < p->n; i++) {
-    const Mono *m = p->m[i];
-    int d = depth;
-    indent(out, d++);
-    fputs("{\n", out);
-    for (int s = 0; s < m->nsums; s++) emit_sum_loop(e, out, &m->sums[s], d++, true);
-    emit_node_checks(e, out, m->guard, where, d);
-    if (m->guard) {
-      indent(out, d++);
-      fputs("if (", out);
-      emit_cexpr(e, out, m->guard);
-      fputs(") {\n", out);
-    }
-    emit_node_checks(e, out, m->coef, where, d);
-    for (int a = 0; a < m->natoms; a++)
-      for (int k = 0; k < m->atoms[a].q->ndims; k++) emit_index_check(e, out, m->atoms[a].q, k, m->atoms[a].idx[k], where, d);
-    close_loops(out, d, depth + 1);
-    indent(out, depth);
-    fputs("}\n", out);
-  }
-}
-
-static void emit_field_checks(Emit *e, FILE *out, const Field *f, const Sym *where, int depth) {
-  for (int c = 0; c < f->ncomp; c++) emit_poly_checks(e, out, &f->comp[c], where, depth);
-}
-
-static void check_stage_cb(Emit *e, FILE *out, const void *arg) {
-  const Stage *st = arg;
-  int d = open_entry_loops(e, out, st->sym, 1);
-  for (int t = 0; t < st->nterms; t++) {
-    const Term *tm = st->terms[t];
-    emit_field_checks(e, out, tm->num, st->sym, d);
-    for (int k = 0; k < tm->nops; k++)
-      if (tm->ops[k].kind == OPK_DIAG) emit_field_checks(e, out, tm->ops[k].diag, st->sym, d);
-  }
-  close_loops(out, d, 1);
-}
-
-static void check_op_cb(Emit *e, FILE *out, const void *arg) {
-  const OpDef *od = arg;
-  if (od->sparse) {
-    sparse_op_checks(e, out, od);
-    return;
-  }
-  int d = open_entry_loops(e, out, od->sym, 1);
-  emit_field_checks(e, out, od->entries, od->sym, d);
-  close_loops(out, d, 1);
-}
-
 /* ---------------------------------------------------------------- the unit */
 
-static const char *fn_name(Ctx *ctx, const char *prefix, const Sym *s) {
+/* `prefix` and the symbol's name, made a C identifier. */
+const char *emit_fn_name(Ctx *ctx, const char *prefix, const Sym *s) {
   char *n = arena_printf(ctx, "%s%s", prefix, s->name);
   for (char *c = n; *c; c++)
     if (!((*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || (*c >= '0' && *c <= '9') || *c == '_')) *c = '_';
@@ -601,7 +438,7 @@ static void emit_temps(Emit *e) {
     const Sym *s = prog->temps.v[i];
     fprintf(out, "/* %s: inlined (computed once here), %s:%d\n   %s */\n", s->name, emit_loc_file(ctx, s->loc),
             s->loc.line, emit_source_line(ctx, s->loc));
-    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e->ctx, "temp_", s)), s,
+    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", emit_fn_name(e->ctx, "temp_", s)), s,
                       stage_body_cb, s->stage);
   }
 }
@@ -649,18 +486,18 @@ static PtrVec plan_calls(Ctx *ctx, const Program *prog) {
     }
     for (int b = 0; b < nbefore; b++) {
       FullStep *c = arena_alloc(ctx, sizeof *c);
-      *c = (FullStep){STEP_STAGE, fn_name(ctx, "stage_", before[b]->sym), before + b, 1, true, false};
+      *c = (FullStep){STEP_STAGE, emit_fn_name(ctx, "stage_", before[b]->sym), before + b, 1, true, false};
       vec_push(ctx, &calls, c);
     }
     FullStep *c = arena_alloc(ctx, sizeof *c);
     if (n >= 2) {
       char *name = "fused";
-      for (int m = 0; m < n; m++) name = arena_printf(ctx, "%s_%s", name, fn_name(ctx, "", members[m]->sym));
+      for (int m = 0; m < n; m++) name = arena_printf(ctx, "%s_%s", name, emit_fn_name(ctx, "", members[m]->sym));
       *c = (FullStep){STEP_FUSED, name, members, n, false, true};
       i = end;
     } else {
       members[0] = st;
-      *c = (FullStep){STEP_STAGE, fn_name(ctx, "stage_", st->sym), members, 1, false,
+      *c = (FullStep){STEP_STAGE, emit_fn_name(ctx, "stage_", st->sym), members, 1, false,
                       emit_direct_ok(st) && !st->sym->body->ty.nwhole};
       i++;
     }
@@ -685,7 +522,7 @@ FullPlan *emit_full_plan(Ctx *ctx, const Program *prog) {
       if (!done[t] && tmp->id < last->sym->id) {
         const Stage **m = arena_alloc(ctx, sizeof *m);
         m[0] = tmp->stage;
-        p->steps[p->n++] = (FullStep){STEP_TEMP, fn_name(ctx, "temp_", tmp), m, 1, false, false};
+        p->steps[p->n++] = (FullStep){STEP_TEMP, emit_fn_name(ctx, "temp_", tmp), m, 1, false, false};
         done[t] = true;
       }
     }
@@ -765,45 +602,6 @@ static void emit_entry(Emit *e, const FullPlan *p) {
     else fprintf(out, "  case %d: return %s(c);\n", k, c->fn);
   }
   fputs("  }\n  return -1;\n}\n\n", out);
-}
-
-/* Bind-time gather checks: every index into a dim, where its guard holds;
- * the entry point that runs them all. */
-static void emit_checks(Emit *e) {
-  Ctx *ctx = e->ctx;
-  const Program *prog = e->prog;
-  FILE *out = e->out;
-  for (int i = 0; i < prog->stages.n; i++) {
-    const Stage *st = prog->stages.v[i];
-    if (st->kind == ST_EXTERN) continue;
-    fprintf(out, "/* gathers of %s */\n", st->sym->name);
-    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e->ctx, "check_", st->sym)), NULL,
-                  check_stage_cb, st);
-  }
-  for (int i = 0; i < prog->temps.n; i++) {
-    const Sym *s = prog->temps.v[i];
-    fprintf(out, "/* gathers of %s */\n", s->name);
-    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e->ctx, "check_temp_", s)), NULL,
-                      check_stage_cb, s->stage);
-  }
-  for (int i = 0; i < prog->opdefs.n; i++) {
-    const OpDef *od = prog->opdefs.v[i];
-    fprintf(out, "/* gathers of operator %s */\n", od->sym->name);
-    emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", fn_name(e->ctx, "check_op_", od->sym)), NULL,
-                  check_op_cb, od);
-  }
-  fputs("/* Every gather in range of its dim where its guard holds: run once per binding. */\n", out);
-  fprintf(out, "int %s(const NpgCtx *c) {\n", emit_symbol_name(ctx, prog, "check"));
-  for (int i = 0; i < prog->stages.n; i++) {
-    const Stage *st = prog->stages.v[i];
-    if (st->kind == ST_EXTERN) continue;
-    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e->ctx, "check_", st->sym));
-  }
-  for (int i = 0; i < prog->temps.n; i++)
-    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e->ctx, "check_temp_", prog->temps.v[i]));
-  for (int i = 0; i < prog->opdefs.n; i++)
-    fprintf(out, "  if (%s(c)) return -1;\n", fn_name(e->ctx, "check_op_", ((OpDef *)prog->opdefs.v[i])->sym));
-  fputs("  return 0;\n}\n", out);
 }
 
 void emit_full(Ctx *ctx, const Program *prog, FILE *out) {

@@ -2,7 +2,7 @@
  * An equality in a monomial's guard or coefficient (`nbr[i, k] == j`,
  * `delta(j, tab[i, k])`) determines a variable, so the generated C computes
  * it instead of looping over its dim: K·N points, not N^2. The full
- * evaluator's entry enumeration and bind-time checks (emit_full.c) and the
+ * evaluator's entry enumeration and bind-time checks (emit_full.c, emit_checks.c) and the
  * tensor builders (emit_builder.c) share these loops. */
 #include "emit.h"
 
