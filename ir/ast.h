@@ -1,4 +1,5 @@
-/* ast.h — source text, arena, diagnostics, the expression graph and symbols.
+/* ast.h — the expression graph and symbols (source text, the arena and
+ * diagnostics: context.h).
  *
  * This is the shared vocabulary of every stage of the compiler: the parser
  * (compiler/front/parse.c) builds Nodes and Decls, the checker (compiler/front/sema.c)
@@ -12,127 +13,16 @@
 #ifndef NPG_AST_H
 #define NPG_AST_H
 
-#include <setjmp.h>
-#include <stdarg.h>
-#include <stdbool.h>
-#include <stddef.h>
-#include <stdio.h>
-
-#define NPG_HIDDEN __attribute__((visibility("hidden")))
-
-/* ---------------------------------------------------------------- sources */
-
-typedef struct SrcFile {
-  const char *name;  /* path as given by the user, used in diagnostics */
-  const char *text;  /* NUL-terminated contents */
-  size_t len;        /* bytes, excluding the terminating NUL */
-} SrcFile;
-
-typedef struct Loc {
-  const SrcFile *file;
-  int line, col;     /* 1-based */
-  size_t off;        /* byte offset of the token */
-} Loc;
-
-/* ---------------------------------------------------------------- arena */
-
-typedef struct ArenaBlock ArenaBlock;
-typedef struct Arena {
-  ArenaBlock *head;
-  size_t used_total;
-} Arena;
-
-#include "alloc.h" /* npg_alloc_hook, npg_malloc, ... */
-
-/* Library code's failures: the message formatted into `err` (when `err` and
- * `errlen` are given), and -1 to return. */
-int npg_fail(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-/* The same, unless `err` already holds a message: the first error of an
- * object stays (the evaluators and the trainer refuse work after one). */
-int npg_fail_first(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-/* The public API's argument checks (STYLE: CHOLMOD's RETURN_IF_NULL):
- * every npg_ entry point refuses a NULL pointer argument, or one out of its
- * documented range, before touching anything, with "FUNC: argument 'ARG'
- * is NULL" (or the reason given). The message goes to `err` when given (the
- * object's own error, so its getter returns it) and is kept as this
- * thread's last refusal, which the error getters (npg_full_error,
- * npg_trainer_error, npg_reduced_error, npg_model_error) return when the
- * object itself is the NULL argument. It replaces a message already there:
- * a call refused is the latest thing the caller should hear about. -1. */
-int npg_refuse(char *err, size_t errlen, const char *func, const char *fmt, ...) __attribute__((format(printf, 4, 5)));
-/* This thread's last refusal ("" when none). */
-const char *npg_refusal(void);
-/* Return `ret` after refusing `arg` when it is NULL; `err`/`errlen` as for
- * npg_refuse (NULL, 0 when the object itself is checked). */
-#define NPG_REFUSE_NULL(arg, err, errlen, ret)                                    \
-  do {                                                                            \
-    if (!(arg)) {                                                                 \
-      npg_refuse((err), (errlen), __func__, "argument '%s' is NULL", #arg);       \
-      return ret;                                                                 \
-    }                                                                             \
-  } while (0)
-/* `bytes` for a message, in the units --mem takes (powers of 1000):
- * "800 B", "1.12 GB", "8 TB"; into `buf`, which is returned. */
-const char *npg_bytes_text(double bytes, char *buf, size_t len);
-/* This machine's physical memory in bytes (0 if unknown). */
-size_t npg_physical_memory(void);
-
-typedef struct Ctx Ctx;
-void *arena_alloc(Ctx *ctx, size_t size);            /* zeroed; never NULL */
-char *arena_strdup(Ctx *ctx, const char *s);
-char *arena_strndup(Ctx *ctx, const char *s, size_t n);
-char *arena_printf(Ctx *ctx, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-void *arena_grow(Ctx *ctx, void *old, size_t old_size, size_t new_size);
-void arena_release(Arena *arena);   /* frees every block */
-
-/* Growable array of pointers, in the arena. */
-typedef struct PtrVec {
-  void **v;
-  int n, cap;
-} PtrVec;
-void vec_push(Ctx *ctx, PtrVec *vec, void *p);
-
-/* ---------------------------------------------------------------- context */
+#include "context.h"
 
 typedef struct Node Node;
 typedef struct Decl Decl;
 typedef struct Sym Sym;
 typedef struct Program Program;
 
-struct Ctx {
-  Arena arena;
-  jmp_buf *on_error;     /* where user errors and OOM jump to */
-  char *msg;             /* the diagnostic text of the error (arena) */
-  Loc err_loc;           /* location of the error */
-  bool failed;
-  const char *std_dir;   /* directory with npg/<module>.npg */
-  PtrVec files;          /* SrcFile*, every file read */
-  int uniq;              /* counter for fresh names */
-  FILE *open_file;       /* a file being read, closed if an error jumps out */
-  char *pending_free;    /* a malloc'd buffer being copied, freed if an error jumps out */
-};
-
-/* User error: "file:line:col: error: message", the source line, a caret.
- * Never returns: jumps to ctx->on_error. */
-_Noreturn void error_at(Ctx *ctx, Loc loc, const char *fmt, ...)
-    __attribute__((format(printf, 3, 4)));
-/* The same, with an extra "note:" line pointing at a second location. */
-_Noreturn void error_note(Ctx *ctx, Loc loc, Loc note, const char *note_msg,
-                          const char *fmt, ...) __attribute__((format(printf, 5, 6)));
 /* An error at a node: adds "note: inlined from here" lines for fn calls. */
 _Noreturn void error_node(Ctx *ctx, const Node *n, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
-/* The source line of `loc` (a window of it around the column when long,
- * its cuts marked "…") and below it a caret under the column: the lines
- * that follow "file:line:col: error: message" in a diagnostic, for errors
- * found later than compilation (bind time). "" without a file. */
-char *diag_excerpt(Ctx *ctx, Loc loc);
-/* Error without a source location (files, data). */
-_Noreturn void error_plain(Ctx *ctx, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-/* Internal error: a broken invariant of the compiler itself. */
-_Noreturn void internal_error(Ctx *ctx, const char *file, int line, const char *what);
-#define iassert(ctx, cond) \
-  do { if (!(cond)) internal_error((ctx), __FILE__, __LINE__, #cond); } while (0)
 
 /* ---------------------------------------------------------------- nodes */
 
