@@ -212,8 +212,8 @@ static void watch_stop(Watch *w) {
   close(w->rd);
 }
 
-/* Visit every reduced tensor of a model in training order. */
-#define FOR_TENSORS(m, rs, x)                                                       \
+/* Visit every reduced tensor of a model in training order, with its stage. */
+#define FOR_STAGE_TENSORS(m, rs, x)                                                    \
   for (int i_ = 0; i_ < (m)->nstages; i_++)                                         \
     for (RStage *rs = &(m)->stages[i_]; rs; rs = NULL)                              \
       for (int t_ = 0; t_ < rs->nterms; t_++)                                       \
@@ -323,7 +323,7 @@ static Trained *train(NpgProgram *p, long F, long S, int cap, bool rerun_all) {
   tr->t_train = t1 - t0;
   tr->t_snap = w.t_snap - t0;
   Model *m = tr->m;
-  FOR_TENSORS(m, rs, x) {
+  FOR_STAGE_TENSORS(m, rs, x) {
     TensorRun *run = &tr->runs[tr->nt];
     run->t = x;
     run->stage = rs->st->sym->name;

@@ -71,6 +71,12 @@ typedef struct RTerm {
   for (int k_ = -1; k_ < (rt)->nops; k_++)                                           \
     for (int g_ = 0; g_ < (k_ < 0 ? (rt)->nnum : (rt)->ops[k_].ntensors); g_++)      \
       for (RTensor *x = k_ < 0 ? &(rt)->num[g_] : &(rt)->ops[k_].t[g_]; x; x = NULL)
+/* Visit every reduced tensor of a model. */
+#define FOR_TENSORS(m, x)                                           \
+  for (int i_ = 0; i_ < (m)->nstages; i_++)                         \
+    for (int t_ = 0; t_ < (m)->stages[i_].nterms; t_++)             \
+      for (RTerm *rt_ = &(m)->stages[i_].terms[t_]; rt_; rt_ = NULL) \
+        RTERM_FOR_TENSORS(rt_, x)
 
 typedef struct RStage {
   const Stage *st;

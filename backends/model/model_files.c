@@ -1,0 +1,466 @@
+/* model_files.c — the model to and from MODEL/ (DESIGN §2): the manifest
+ * holds the dims, the classes with their sizes and, per member, its cap,
+ * energy fraction, centering, vectors kept and energy lost, which inverse
+ * operators factor by Cholesky; every basis, reduced tensor, projection,
+ * extern table and member spectrum is one .npy (the spectra also as CSV).
+ * Member lines without "center" load as uncentered, their lost energy
+ * 1 − captured. The layout is recomputed from the program (whose hash the
+ * store checks, model.c) and every array's shape is checked against it,
+ * naming the file. */
+#include <errno.h>
+#include <math.h>
+#include <stdbool.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "interp.h"
+#include "model.h"
+#include "model_store.h"
+
+/* ---------------------------------------------------------------- files */
+
+static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quantities.v[q])->name; }
+
+/* The CSV of a member's spectrum: k, σ_k, the energy fraction lost keeping
+ * the first k (malloc'd). */
+static char *spectrum_csv(const RMember *mb) {
+  /* the header holds the member's name, of any length; a row at most 80 bytes */
+  size_t cap = 64 + strlen(mb->name) + 80 * (size_t)mb->nsv, len = 0;
+  char *t = npg_malloc(cap);
+  if (!t) return NULL;
+  double total = 0, run = 0;
+  for (long i = 0; i < mb->nsv; i++) total += mb->sv[i] * mb->sv[i];
+  len += (size_t)snprintf(t + len, cap - len, "# %s: singular values of its %ssnapshots\nk,singular_value,lost\n",
+                          mb->name, mb->center ? "centered " : "");
+  for (long i = 0; i < mb->nsv; i++) {
+    run += mb->sv[i] * mb->sv[i];
+    len += (size_t)snprintf(t + len, cap - len, "%ld,%.17g,%.6e\n", i + 1, mb->sv[i],
+                            total > 0 ? fmax(0, 1 - run / total) : 0.0);
+  }
+  return t;
+}
+
+int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
+  ModelStore s;
+  model_store_init(&s);
+  s.program_hash = m->program_hash;
+  int bad = 0;
+  /* the dims line grows with the names: a fixed buffer cut a long name and
+   * the model could not be loaded (issue 24) */
+  char *line = NULL;
+  size_t len = 0;
+  FILE *mem = open_memstream(&line, &len);
+  if (mem) {
+    fputs("dims", mem);
+    for (int i = 0; i < m->ndims; i++) fprintf(mem, " %s=%ld", ((Sym *)m->prog->dims.v[i])->name, m->dims[i]);
+  }
+  if (!mem || fclose(mem) != 0 || !line) bad = -1;
+  else bad |= model_store_meta(&s, "%s", line);
+  free(line);
+  bad |= model_store_meta(&s, "samples %ld", m->samples);
+  /* always written, empty when none were recorded: loading requires it */
+  bad |= model_store_meta(&s, "params%s%s", m->param_hashes && *m->param_hashes ? " " : "",
+                          m->param_hashes ? m->param_hashes : "");
+  size_t tb = 0, total = model_bytes(m, &tb);
+  bad |= model_store_meta(&s, "bytes %zu tensors %zu", total, tb);
+  for (int c = 0; c < m->nclasses; c++) {
+    const RClass *rc = &m->classes[c];
+    bad |= model_store_meta(&s, "class %d %s n %ld m %ld", c, rc->label, rc->n, rc->m);
+    for (int i = 0; i < rc->nmembers; i++) {
+      const RMember *mb = &rc->members[i];
+      bad |= model_store_meta(&s, "member %d %s cap %d energy %.17g kept %d captured %.17g center %d lost %.17g", c,
+                              mb->name, mb->cap, mb->energy, mb->kept, mb->captured, mb->center ? 1 : 0, mb->lost);
+      char name[600];
+      long shape[1] = {mb->nsv};
+      snprintf(name, sizeof name, "spectrum_%s", mb->name);
+      bad |= model_store_add(&s, name, 1, shape, mb->sv);
+      char *csv = spectrum_csv(mb);
+      snprintf(name, sizeof name, "spectrum_%s.csv", mb->name);
+      bad |= csv ? model_store_add_text(&s, name, csv) : -1;
+      free(csv);
+    }
+    if (rc->streamed) { /* no basis file: its quantities' training floors instead (issue 30) */
+      bad |= model_store_meta(&s, "streamed %d", c);
+      for (int i = 0; i < rc->nmembers; i++)
+        if (rc->members[i].q >= 0)
+          bad |= model_store_meta(&s, "floor %s l2 %.17g linf %.17g", rc->members[i].name, rc->members[i].floor_l2,
+                                  rc->members[i].floor_linf);
+      continue;
+    }
+    char name[64];
+    snprintf(name, sizeof name, "basis_%d", c);
+    long shape[2] = {rc->n, rc->m};
+    bad |= rc->B_mapped ? model_store_add_borrowed(&s, name, 2, shape, rc->B) : model_store_add(&s, name, 2, shape, rc->B);
+  }
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    for (int t = 0; t < rs->nterms; t++) {
+      const RTerm *rt = &rs->terms[t];
+      for (int k = 0; k < rt->nops; k++)
+        if (rt->ops[k].spd) bad |= model_store_meta(&s, "spd %s %d %d", rs->st->sym->name, t, k);
+      if (rt->proj) {
+        long shape[2] = {m->classes[m->qclass[rs->q]].m, m->classes[m->qclass[rt->named_q]].m};
+        bad |= model_store_add(&s, rt->proj_name, 2, shape, rt->proj);
+      }
+    }
+  }
+  FOR_TENSORS(m, x) {
+    long shape[2] = {x->rows, x->cols};
+    bad |= model_store_add(&s, x->name, 2, shape, x->data);
+  }
+  for (int i = 0; i < m->nexterns; i++) {
+    const RExtern *x = &m->externs[i];
+    char name[512];
+    snprintf(name, sizeof name, "extern_%s_inputs", qname(m, x->q));
+    long shape[2] = {x->S, x->d};
+    bad |= model_store_add(&s, name, 2, shape, x->X);
+    snprintf(name, sizeof name, "extern_%s_values", qname(m, x->q));
+    shape[1] = m->classes[m->qclass[x->q]].m;
+    bad |= model_store_add(&s, name, 2, shape, x->Z);
+  }
+  bad |= interp_save(m, &s);
+  int rc = -1;
+  if (bad) snprintf(err, errlen, "%s: out of memory assembling the model", dir);
+  else rc = model_store_write(dir, &s, err, errlen);
+  model_store_free(&s);
+  return rc;
+}
+
+/* Copy array `name` of shape rows x cols out of the store. */
+static int take(const ModelStore *s, const char *dir, const char *name, long rows, long cols, double **out, char *err,
+                size_t errlen) {
+  const NpyArray *a = model_store_array(s, name);
+  if (!a) {
+    snprintf(err, errlen, "%s/manifest: no array '%s': the model is incomplete", dir, name);
+    return -1;
+  }
+  if (a->ndim != 2 || a->shape[0] != rows || a->shape[1] != cols) {
+    snprintf(err, errlen, "%s/%s.npy: shape %ldx%ld, the program and the model's bases need %ldx%ld", dir, name,
+             a->ndim > 0 ? a->shape[0] : 0, a->ndim > 1 ? a->shape[1] : 0, rows, cols);
+    return -1;
+  }
+  *out = npg_malloc(sizeof(double) * (size_t)(rows * cols) + 1);
+  if (!*out) {
+    snprintf(err, errlen, "%s/%s.npy: out of memory", dir, name);
+    return -1;
+  }
+  memcpy(*out, a->data, sizeof(double) * (size_t)(rows * cols));
+  return 0;
+}
+
+/* The class, member and spd lines of a loaded manifest against the layout
+ * and the bases: 0, or -1 with `err` naming the line. */
+static int check_meta(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
+  for (int i = 0; i < s->nmeta; i++) {
+    const char *line = s->meta[i];
+    bool ok = true;
+    char name[512];
+    if (strncmp(line, "class ", 6) == 0) {
+      int c, used = 0;
+      long n, mm;
+      ok = sscanf(line, "class %d %511s n %ld m %ld%n", &c, name, &n, &mm, &used) == 4 && line[used] == 0 && c >= 0 &&
+           c < m->nclasses && strcmp(name, m->classes[c].label) == 0 && n == m->classes[c].n && mm == m->classes[c].m;
+    } else if (strncmp(line, "member ", 7) == 0) {
+      int c, cap, kept, center = 0, used = 0;
+      double energy, captured, lost = 0;
+      int got = sscanf(line, "member %d %511s cap %d energy %lf kept %d captured %lf%n center %d lost %lf%n", &c, name,
+                       &cap, &energy, &kept, &captured, &used, &center, &lost, &used);
+      ok = (got == 6 || got == 8) && line[used] == 0 && c >= 0 && c < m->nclasses && cap >= 1 && energy > 0 &&
+           energy <= 1 && kept >= 0 && captured >= 0 && captured <= 1 + 1e-9 && lost >= 0 && lost <= 1 + 1e-9 &&
+           (center == 0 || center == 1);
+      bool known = false;
+      for (int k = 0; ok && k < m->classes[c].nmembers; k++) known |= strcmp(m->classes[c].members[k].name, name) == 0;
+      ok = ok && known;
+    } else if (strncmp(line, "streamed ", 9) == 0) {
+      int c, used = 0;
+      ok = sscanf(line, "streamed %d%n", &c, &used) == 1 && line[used] == 0 && c >= 0 && c < m->nclasses;
+    } else if (strncmp(line, "floor ", 6) == 0) {
+      int used = 0;
+      double l2, linf;
+      /* linf nan: not measured (out of core, ooc.c take_floors) */
+      ok = sscanf(line, "floor %511s l2 %lf linf %lf%n", name, &l2, &linf, &used) == 3 && line[used] == 0 && l2 >= 0 &&
+           isfinite(l2) && (isnan(linf) || (linf >= 0 && isfinite(linf)));
+      bool known = false; /* a quantity of a streamed class */
+      for (int c = 0; ok && c < m->nclasses; c++)
+        for (int k = 0; m->classes[c].streamed && k < m->classes[c].nmembers; k++)
+          known |= m->classes[c].members[k].q >= 0 && strcmp(m->classes[c].members[k].name, name) == 0;
+      ok = ok && known;
+      for (int c = 0; ok && c < m->nclasses; c++)
+        for (int k = 0; k < m->classes[c].nmembers; k++)
+          if (strcmp(m->classes[c].members[k].name, name) == 0)
+            m->classes[c].members[k].floor_l2 = l2, m->classes[c].members[k].floor_linf = linf;
+    } else if (strncmp(line, "spd ", 4) == 0) {
+      int t, k, used = 0;
+      ok = sscanf(line, "spd %511s %d %d%n", name, &t, &k, &used) == 3 && line[used] == 0;
+      bool found = false;
+      for (int j = 0; ok && j < m->nstages; j++) {
+        const RStage *rs = &m->stages[j];
+        if (strcmp(rs->st->sym->name, name) != 0 || t < 0 || t >= rs->nterms || k < 0 || k >= rs->terms[t].nops) continue;
+        found = true;
+      }
+      ok = ok && found;
+    } else {
+      continue;
+    }
+    if (!ok) {
+      snprintf(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)", dir,
+               line);
+      return -1;
+    }
+  }
+  return 0;
+}
+
+/* The lines model_save always writes: a manifest without one of them is
+ * damaged or forged (its checksum can be recomputed), and is refused here
+ * rather than read with a default. */
+static const char *const REQUIRED_LINES[] = {"dims", "samples", "params", "bytes"};
+
+/* 0 if the manifest holds every required line, a 'class' line per class and
+ * a 'member' line per member of the layout `m`; else -1 naming the first
+ * missing. */
+static int check_required(const ModelStore *s, const Model *m, const char *dir, char *err, size_t errlen) {
+  for (size_t i = 0; i < sizeof REQUIRED_LINES / sizeof *REQUIRED_LINES; i++)
+    if (!model_store_find(s, REQUIRED_LINES[i]))
+      return npg_fail(err, errlen, "%s/manifest: no '%s' line: the model is damaged; retrain", dir, REQUIRED_LINES[i]);
+  for (int c = 0; c < m->nclasses; c++) {
+    const RClass *rc = &m->classes[c];
+    for (int k = -1; k < rc->nmembers; k++) {
+      char want[600];
+      int n = k < 0 ? snprintf(want, sizeof want, "class %d %s ", c, rc->label)
+                    : snprintf(want, sizeof want, "member %d %s ", c, rc->members[k].name);
+      bool found = false;
+      for (int j = 0; j < s->nmeta && !found; j++) found = strncmp(s->meta[j], want, (size_t)n) == 0;
+      if (!found)
+        return npg_fail(err, errlen, "%s/manifest: no '%.*s' line: the model is damaged; retrain", dir, n - 1, want);
+    }
+  }
+  return 0;
+}
+
+static bool has_line(const ModelStore *s, const char *line) {
+  for (int i = 0; i < s->nmeta; i++)
+    if (strcmp(s->meta[i], line) == 0) return true;
+  return false;
+}
+
+/* The manifest's "dims" line: the size of every dim of `prog` into dims[]. */
+static int read_dims(const ModelStore *s, const Program *prog, const char *dir, long *dims, char *err, size_t errlen) {
+  const char *d = model_store_find(s, "dims");
+  if (!d) return npg_fail(err, errlen, "%s/manifest: no 'dims' line", dir);
+  for (int i = 0; i < prog->dims.n; i++) {
+    const char *name = ((Sym *)prog->dims.v[i])->name;
+    size_t nl = strlen(name);
+    const char *p = d;
+    dims[i] = -1;
+    while ((p = strstr(p, name)) != NULL) {
+      if ((p == d || p[-1] == ' ') && p[nl] == '=') {
+        char *end;
+        errno = 0;
+        dims[i] = strtol(p + nl + 1, &end, 10);
+        /* every size product of the layout stays far from overflow */
+        if (errno || end == p + nl + 1 || (*end && *end != ' ') || dims[i] < 0 || dims[i] > 100000000)
+          return npg_fail(err, errlen, "%s/manifest: dim %s has no valid size in '%.100s'", dir, name, d);
+        break;
+      }
+      p += nl;
+    }
+    if (dims[i] < 0) return npg_fail(err, errlen, "%s/manifest: no size for dim %s", dir, name);
+  }
+  return 0;
+}
+
+/* Every class's basis: basis_C.npy, or for a streamed class (no basis kept,
+ * model.h) its size from the class line (check_meta checks that line). */
+static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    char name[64];
+    snprintf(name, sizeof name, "streamed %d", c);
+    if (has_line(s, name)) {
+      snprintf(name, sizeof name, "class %d ", c);
+      for (int j = 0; j < s->nmeta; j++)
+        if (strncmp(s->meta[j], name, strlen(name)) == 0) {
+          const char *mp = strstr(s->meta[j], " m ");
+          rc->m = mp ? strtol(mp + 3, NULL, 10) : 0;
+        }
+      if (rc->m < 1 || rc->m > rc->n)
+        return npg_fail(err, errlen, "%s/manifest: streamed class %s has no valid basis size on its class line", dir,
+                        rc->label);
+      rc->streamed = true;
+      continue;
+    }
+    snprintf(name, sizeof name, "basis_%d", c);
+    const NpyArray *a = model_store_array(s, name);
+    if (!a || a->ndim != 2 || a->shape[0] != rc->n)
+      return npg_fail(err, errlen, "%s/%s.npy: %s, class %s needs %ld rows", dir, name, a ? "wrong shape" : "missing",
+                      rc->label, rc->n);
+    rc->m = a->shape[1];
+    if (take(s, dir, name, rc->n, rc->m, &rc->B, err, errlen)) return -1;
+  }
+  return 0;
+}
+
+/* Only a class the rule allows is streamed: never one whose basis is read. */
+static int check_streamed(const Model *m, const char *dir, char *err, size_t errlen) {
+  for (int c = 0; c < m->nclasses; c++)
+    if (m->classes[c].streamed && !model_class_streamable(m, c))
+      return npg_fail(err, errlen,
+                      "%s/manifest: class %s is marked streamed, but %s (a damaged or forged manifest; retrain)", dir,
+                      m->classes[c].label,
+                      model_class_needed(m, c) ? "the reduced model reads its basis" : "its rows run over one dim only");
+  return 0;
+}
+
+/* The members' statistics and spectra (for reports) and the operators known
+ * SPD, from the "member" and "spd" lines. */
+static void read_member_stats(const ModelStore *s, Model *m) {
+  for (int i = 0; i < s->nmeta; i++) {
+    int c, cap, kept, center = 0;
+    double energy, captured, lost = -1;
+    char name[512];
+    int got = sscanf(s->meta[i], "member %d %511s cap %d energy %lf kept %d captured %lf center %d lost %lf", &c, name,
+                     &cap, &energy, &kept, &captured, &center, &lost);
+    if (got >= 6 && c >= 0 && c < m->nclasses)
+      for (int k = 0; k < m->classes[c].nmembers; k++)
+        if (strcmp(m->classes[c].members[k].name, name) == 0) {
+          RMember *mb = &m->classes[c].members[k];
+          mb->cap = cap, mb->energy = energy, mb->kept = kept, mb->captured = captured;
+          mb->center = got == 8 && center != 0;
+          mb->lost = got == 8 ? lost : fmax(0, 1 - captured);
+          char sname[600];
+          snprintf(sname, sizeof sname, "spectrum_%s", name);
+          const NpyArray *a = model_store_array(s, sname);
+          free(mb->sv); /* a member named twice: the last line's spectrum */
+          mb->sv = NULL, mb->nsv = 0;
+          if (a && a->ndim == 1 && (mb->sv = npg_malloc(sizeof(double) * (a->count + 1)))) {
+            memcpy(mb->sv, a->data, sizeof(double) * a->count);
+            mb->nsv = (long)a->count;
+          }
+        }
+    char stage[512];
+    int t, k;
+    if (sscanf(s->meta[i], "spd %511s %d %d", stage, &t, &k) == 3)
+      for (int j = 0; j < m->nstages; j++)
+        if (strcmp(m->stages[j].st->sym->name, stage) == 0 && t >= 0 && t < m->stages[j].nterms && k >= 0 &&
+            k < m->stages[j].terms[t].nops)
+          m->stages[j].terms[t].ops[k].spd = true;
+  }
+}
+
+/* The reduced tensors, the named operators' projections and the externs'
+ * learned maps (inputs and values), each checked against its shape. */
+static int load_arrays(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
+  model_size_tensors(m);
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    for (int t = 0; t < rs->nterms; t++) {
+      RTerm *rt = &rs->terms[t];
+      if (rt->proj_name &&
+          take(s, dir, rt->proj_name, m->classes[m->qclass[rs->q]].m, m->classes[m->qclass[rt->named_q]].m,
+               &rt->proj, err, errlen))
+        return -1;
+    }
+  }
+  FOR_TENSORS(m, x) {
+    if (take(s, dir, x->name, x->rows, x->cols, &x->data, err, errlen)) return -1;
+  }
+  for (int i = 0; i < m->nexterns; i++) {
+    RExtern *x = &m->externs[i];
+    char name[512];
+    snprintf(name, sizeof name, "extern_%s_inputs", qname(m, x->q));
+    const NpyArray *a = model_store_array(s, name);
+    x->S = a && a->ndim == 2 ? a->shape[0] : 0;
+    if (take(s, dir, name, x->S, x->d, &x->X, err, errlen)) return -1;
+    snprintf(name, sizeof name, "extern_%s_values", qname(m, x->q));
+    if (take(s, dir, name, x->S, m->classes[m->qclass[x->q]].m, &x->Z, err, errlen)) return -1;
+  }
+  return 0;
+}
+
+Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
+  ModelStore s;
+  Model *m = NULL;
+  if (model_store_read(dir, model_program_hash(prog), &s, err, errlen) != 0) return NULL;
+  long *dims = npg_calloc((size_t)prog->dims.n + 1, sizeof(long));
+  if (!dims) goto oom;
+  if (read_dims(&s, prog, dir, dims, err, errlen) || !(m = model_layout(prog, dims, err, errlen)) ||
+      check_required(&s, m, dir, err, errlen))
+    goto fail;
+  const char *ns = model_store_find(&s, "samples");
+  char *end = NULL;
+  m->samples = strtol(ns, &end, 10);
+  if (end == ns || *end || m->samples < 1) {
+    snprintf(err, errlen, "%s/manifest: 'samples %s' is not a count of training samples", dir, ns);
+    goto fail;
+  }
+  if (!(m->param_hashes = npg_strdup(model_store_find(&s, "params")))) goto oom;
+  /* every metadata line the model reads must describe this model: a line
+   * it cannot use is refused, not skipped */
+  if (load_bases(&s, m, dir, err, errlen) || check_meta(&s, m, dir, err, errlen) ||
+      interp_load(m, &s, dir, err, errlen) || check_streamed(m, dir, err, errlen))
+    goto fail;
+  read_member_stats(&s, m);
+  if (load_arrays(&s, m, dir, err, errlen)) goto fail;
+  free(dims);
+  model_store_free(&s);
+  return m;
+oom:
+  snprintf(err, errlen, "%s: out of memory loading the model", dir);
+fail:
+  free(dims);
+  model_store_free(&s);
+  model_free(m);
+  return NULL;
+}
+
+int model_write_spectra(const Model *m, const char *dir, char *err, size_t errlen) {
+  if (mkdir(dir, 0777) != 0 && errno != EEXIST) return npg_fail(err, errlen, "%s: cannot create: %s", dir, strerror(errno));
+  /* a model's spectra are files its manifest vouches for: writing another
+   * model's over them would leave it unloadable (issue 24) */
+  char manifest[4096];
+  struct stat st;
+  snprintf(manifest, sizeof manifest, "%s/manifest", dir);
+  if (lstat(manifest, &st) == 0)
+    return npg_fail(err, errlen, "%s: holds a model (its manifest): refusing to write spectra into it; give a folder of "
+                    "its own", dir);
+  /* Every name is checked before any file is written: a folder in the place
+   * of the last spectrum would otherwise leave the first ones written. */
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; i < m->classes[c].nmembers; i++)
+      for (int k = 0; k < 2; k++) {
+        char path[4096];
+        snprintf(path, sizeof path, "%s/spectrum_%s.%s", dir, m->classes[c].members[i].name, k ? "csv" : "npy");
+        if (lstat(path, &st) == 0 && !S_ISREG(st.st_mode))
+          return npg_fail(err, errlen, "%s: is not a regular file: refusing to replace it", path);
+      }
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; i < m->classes[c].nmembers; i++) {
+      const RMember *mb = &m->classes[c].members[i];
+      char path[4096];
+      long shape[1] = {mb->nsv};
+      snprintf(path, sizeof path, "%s/spectrum_%s.npy", dir, mb->name);
+      if (npy_write(path, NPY_F64, 1, shape, mb->sv, err, errlen) != 0) return -1;
+      snprintf(path, sizeof path, "%s/spectrum_%s.csv", dir, mb->name);
+      /* to a temporary name, renamed when whole, over a regular file only (as npy_write) */
+      char tmp[4200];
+      snprintf(tmp, sizeof tmp, "%s.tmp.%ld", path, (long)getpid());
+      if (lstat(path, &st) == 0 && !S_ISREG(st.st_mode))
+        return npg_fail(err, errlen, "%s: is not a regular file: refusing to replace it", path);
+      char *csv = spectrum_csv(mb);
+      FILE *f = csv ? fopen(tmp, "w") : NULL;
+      int ok = f && fputs(csv, f) >= 0;
+      if (f && fclose(f) != 0) ok = 0;
+      free(csv);
+      if (ok && rename(tmp, path) != 0) ok = 0;
+      if (!ok) {
+        int saved = errno;
+        remove(tmp);
+        return npg_fail(err, errlen, "%s: cannot write: %s", path, strerror(saved));
+      }
+    }
+  return 0;
+}
