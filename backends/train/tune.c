@@ -54,6 +54,7 @@ typedef struct Search {
   double tol;               /* the tolerance to meet */
   Model *last;              /* the model of the trial made last, until kept (keep) or dropped */
   int model_trial;          /* the trial whose model out->model is, or -1 */
+  char why[1024];           /* why the first candidate that failed on a validation sample failed */
 } Search;
 
 static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
@@ -152,11 +153,13 @@ static Model *configure(Search *s, const int *cap, TuneTrial *tr, char *err, siz
   for (int c = 0; c < s->nc; c++) tr->m[c] = m->classes[c].m;
   tr->cost = cost_value(s->prog, tr->m, m->samples);
   char why[1024];
-  if (train_interpolate_stages(m, s->f, &s->copt, err, errlen) || choose(s, m, &s->copt, s->tol, &tr->err, why, err, errlen) ||
-      (isinf(tr->err) && why[0] && npg_fail(err, errlen, "%s", why))) { /* fails whichever way reduced */
+  if (train_interpolate_stages(m, s->f, &s->copt, err, errlen) || choose(s, m, &s->copt, s->tol, &tr->err, why, err, errlen)) {
     model_free(m);
     return NULL;
   }
+  /* a candidate that fails on a validation sample (small caps can make a reduced root's operator
+   * indefinite, an interpolated power's base negative) meets nothing; the search goes on */
+  if (isinf(tr->err) && why[0] && !s->why[0]) snprintf(s->why, sizeof s->why, "%s", why);
   size_t len = 1;
   for (int i = 0; i < m->nstages; i++) len += m->stages[i].interp ? strlen(m->stages[i].st->sym->name) + 1 : 0;
   free(tr->interp);
@@ -226,7 +229,7 @@ int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *val
                 const TrainOptions *opt, TuneResult *out, char *err, size_t errlen) {
   memset(out, 0, sizeof *out);
   out->chosen = out->limiting = -1;
-  Search s = {ts, prog, f, {0}, train_set_classes(ts), NULL, out, {0}, tol, NULL, -1};
+  Search s = {ts, prog, f, {0}, train_set_classes(ts), NULL, out, {0}, tol, NULL, -1, ""};
   if (opt) s.copt = *opt;
   s.copt.valid = NULL, s.copt.progress = false, s.copt.choose_strict = true;
   out->nclasses = s.nc;
@@ -250,6 +253,10 @@ int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *val
     if ((t = trial(&s, cap, true, err, errlen)) < 0) goto done;
     keep(&s, t, out->trials[t].err <= tol);
     if (out->trials[t].err <= tol) break;
+  }
+  if (isinf(out->trials[t].err) && s.why[0]) { /* every candidate failed */
+    npg_fail(err, errlen, "%s", s.why);
+    goto done;
   }
   if (out->trials[t].err > tol) {
     /* unmet at the largest caps: the class whose projection floor is worst limits */

@@ -90,6 +90,12 @@ grep -q '^stage f: interpolated at .*by Galerkin .*, by interpolation .*: interp
 test "$(head -1 "$W/SI/manifest")" = "npg-model 2" || fail "the tuned model does not record the interpolated stage"
 "$B/npgc" verify $S "$W/SI" "$W/sp.va" --tol 0.1 >"$W/vi.txt" || fail "verify of the tuned model: $(cat "$W/vi.txt")"
 grep -q '^f  *.*, interp' "$W/vi.txt" || fail "verify does not show f interpolated: $(cat "$W/vi.txt")"
+# f forced interpolated at 4 entries per vector: the smallest candidates fail on a validation sample
+# (an interpolated power of a negative value); they meet nothing and the search goes on
+"$B/npgc" tune $S "$W/sp.tr" "$W/sp.va" --tol 0.1 -o "$W/SF" --reduce f:interp --interp-oversample 4 >"$W/tf.txt" ||
+  fail "tune with f forced: $(cat "$W/tf.txt")"
+grep -q '^ *[0-9]* uniform  *[0-9.e+]*  *inf  .*interpolated: f$' "$W/tf.txt" || fail "no failed candidate: $(cat "$W/tf.txt")"
+grep -q '^stage f: interpolated at .*: forced (--reduce STAGE:interp)$' "$W/tf.txt" || fail "forced f: $(cat "$W/tf.txt")"
 echo "springs, tune --tol 0.1: m_f $mg with f by Galerkin, $mi with the choice in the search"
 grep "^stage w" "$W/auto.txt" "$W/train.txt" "$W/hold.txt"
 echo "ok"
