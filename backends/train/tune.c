@@ -52,9 +52,9 @@ typedef struct Search {
   TuneResult *out;
   TrainOptions copt;        /* the reductions forced and the choice's settings; no output, no valid */
   double tol;               /* the tolerance to meet */
-  Model *last;              /* the model of the trial made last, until kept (keep) or dropped */
+  Model *last;              /* the model of the trial made last, until kept (keep_model) or dropped */
   int model_trial;          /* the trial whose model out->model is, or -1 */
-  char why[1024];           /* why the first candidate that failed on a validation sample failed */
+  char why[1024];           /* why the last candidate that failed on a validation sample failed */
 } Search;
 
 static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
@@ -159,7 +159,7 @@ static Model *configure(Search *s, const int *cap, TuneTrial *tr, char *err, siz
   }
   /* a candidate that fails on a validation sample (small caps can make a reduced root's operator
    * indefinite, an interpolated power's base negative) meets nothing; the search goes on */
-  if (isinf(tr->err) && why[0] && !s->why[0]) snprintf(s->why, sizeof s->why, "%s", why);
+  if (isinf(tr->err) && why[0]) snprintf(s->why, sizeof s->why, "%s", why);
   size_t len = 1;
   for (int i = 0; i < m->nstages; i++) len += m->stages[i].interp ? strlen(m->stages[i].st->sym->name) + 1 : 0;
   free(tr->interp);
@@ -208,7 +208,7 @@ static int trial(Search *s, const int *cap, bool uniform, char *err, size_t errl
 
 /* Trial t's model (s->last, when it was just made) becomes the one the
  * search returns; `accept` false: dropped. */
-static void keep(Search *s, int t, bool accept) {
+static void keep_model(Search *s, int t, bool accept) {
   if (accept && s->last) {
     model_free(s->out->model);
     s->out->model = s->last, s->model_trial = t, s->last = NULL;
@@ -251,10 +251,10 @@ int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *val
   for (int u = 1; u <= top; u++) {
     for (int c = 0; c < s.nc; c++) cap[c] = u < s.maxk[c] ? u : s.maxk[c];
     if ((t = trial(&s, cap, true, err, errlen)) < 0) goto done;
-    keep(&s, t, out->trials[t].err <= tol);
+    keep_model(&s, t, out->trials[t].err <= tol);
     if (out->trials[t].err <= tol) break;
   }
-  if (isinf(out->trials[t].err) && s.why[0]) { /* every candidate failed */
+  if (isinf(out->trials[t].err) && s.why[0]) { /* failed at the largest caps: why is the error */
     npg_fail(err, errlen, "%s", s.why);
     goto done;
   }
@@ -308,7 +308,7 @@ int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *val
         goto done;
       }
       bool ok = out->trials[k].err <= tol && out->trials[k].cost <= out->trials[best].cost;
-      keep(&s, k, ok);
+      keep_model(&s, k, ok);
       if (ok) hi = mid, best = k;
       else lo = mid + 1, cap[c] = was;
       cap[c] = hi;
