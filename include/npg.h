@@ -455,6 +455,8 @@ typedef struct NpgTuneTrial {
   double cost;              /* reduced multiply-adds */
   double err;               /* the worst output's mean relative L2 error on the validation samples */
   bool uniform;             /* one cap for every class */
+  const char *interpolated; /* the stages reduced by interpolation at these sizes, comma-separated ("": none):
+                               each eligible stage is measured both ways at every candidate (DESIGN §12) */
 } NpgTuneTrial;
 typedef struct NpgTuneReport {
   int nclasses;
@@ -470,7 +472,9 @@ typedef struct NpgTuneReport {
 } NpgTuneReport;
 /* Train on `ntrain` samples (train(tuser, f, k) sets sample k in `f`, its
  * params bound), validate on `nvalid` (valid(vuser, f, k)), caps at most
- * `max_cap`; `o` (may be NULL) gives centering and progress. The chosen
+ * `max_cap`; `o` (may be NULL) gives centering, progress, the stages forced
+ * to interpolation or Galerkin (the others eligible are chosen at every
+ * candidate), the oversampling, and the bases kept (keep_bases). The chosen
  * model, or NULL: report->error says why, or is "" when `tol` cannot be met
  * (report->limiting). npg_tune_free(report) either way. */
 NPG_API NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long nvalid, NpgSampleFn valid,

@@ -782,12 +782,10 @@ static void check_tune(const char *name, Program *prog, NpgFull *f, SampleSource
   if (!ts) fail_msg("%s: %s", name, err);
   SampleSource vsrc = {Sv, valid, set, NULL, NULL};
   TuneResult r;
-  if (tune_search(ts, prog, f, &vsrc, tol, 60, false, &r, err, sizeof err)) fail_msg("%s: %s", name, err);
-  assert_true(r.chosen >= 0);
-  Model *m = train_set_model(ts, r.best_cap, err, sizeof err);
-  if (!m) fail_msg("%s: %s", name, err);
-  double chosen_err = mean_error(prog, f, m, valid, set, Sv, out), chosen_cost = r.trials[r.chosen].cost;
-  model_free(m);
+  if (tune_search(ts, prog, f, &vsrc, tol, 60, NULL, &r, err, sizeof err)) fail_msg("%s: %s", name, err);
+  assert_true(r.chosen >= 0 && r.model);
+  /* the model tune returns, its reductions as chosen in the search */
+  double chosen_err = mean_error(prog, f, r.model, valid, set, Sv, out), chosen_cost = r.trials[r.chosen].cost;
   print_message("%s: tune --tol %g chose cost %.6g, error %.3e (%d candidates); uniform caps:", name, tol, chosen_cost,
                 chosen_err, r.ntrials);
   assert_true(chosen_err <= tol);

@@ -18,6 +18,8 @@ const char *const interp_reasons[INTERP_NREASONS] = {
     [TIE_INTERP] = "errors tie, interpolation cheaper",
     [TIE_GALERKIN] = "errors tie, Galerkin cheaper",
     [BOTH_FAIL] = "both fail on the validation samples",
+    [TOL_INTERP] = "both meet the tolerance, interpolation cheaper",
+    [TOL_GALERKIN] = "both meet the tolerance, Galerkin cheaper",
 };
 
 static int reason_index(const char *r) {

@@ -70,6 +70,8 @@ enum {
   TIE_INTERP,             /* a tie, interpolation cheaper */
   TIE_GALERKIN,           /* a tie, Galerkin cheaper */
   BOTH_FAIL,              /* both fail on the validation samples: Galerkin */
+  TOL_INTERP,             /* npgc tune: both meet the tolerance, interpolation cheaper */
+  TOL_GALERKIN,           /* npgc tune: both meet the tolerance, Galerkin cheaper */
   INTERP_NREASONS
 };
 extern const char *const interp_reasons[INTERP_NREASONS];

@@ -925,7 +925,7 @@ static bool named_in(const char *const *names, int n, const char *name) {
   return false;
 }
 
-static int interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, char *err, size_t errlen) {
+int train_interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, char *err, size_t errlen) {
   double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
   /* the program's `basis w: reduce interp`, unless the command line says galerkin */
   for (int i = 0; i < m->nstages; i++) {
@@ -988,7 +988,7 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
   Model *m = begin_training(prog, f, src, opt, err, errlen);
   double *sec = m ? m->phase_seconds : NULL, *cpu = m ? m->phase_cpu : NULL;
   if (!m || bases(m, f, src, opt, &sn, &gram, t, sec, cpu, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
-      premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || interpolate_stages(m, f, opt, err, errlen) ||
+      premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || train_interpolate_stages(m, f, opt, err, errlen) ||
       (phase_time(t, &sec[2], &cpu[2]), 0) ||
       fit_externs(m, f, src, &sn, gram, mark_streamed(m, opt), opt->progress, opt->dist, err, errlen) ||
       (drop_bases(m), phase_time(t, &sec[3], &cpu[3]), 0)) {
@@ -1017,6 +1017,23 @@ struct TrainSet {
   Snapshots sn;             /* in memory */
   PcaMember **pm;           /* [class][member]: its ordered basis at its cap */
 };
+
+/* Step 5 for a truncation (npgc tune; issue 30): as train_model does,
+ * the streamable classes --keep-bases does not name marked, their
+ * training floors taken from the snapshots, their bases dropped. */
+int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err, size_t errlen) {
+  if (!mark_streamed(m, opt)) return 0;
+  long maxn = 1, maxm = 1;
+  for (int c = 0; c < m->nclasses; c++)
+    if (m->classes[c].streamed)
+      maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
+  double *y = npg_malloc(sizeof(double) * (size_t)maxn), *proj = npg_malloc(sizeof(double) * (size_t)maxm);
+  if (!y || !proj) return free(y), free(proj), npg_fail(err, errlen, "out of memory measuring the training floors");
+  for (long k = 0; k < ts->sn.S; k++) take_floors(m, ts->f, &ts->sn, false, k, ts->sn.S, proj, y);
+  free(y), free(proj);
+  drop_bases(m);
+  return 0;
+}
 
 void train_set_free(TrainSet *ts) {
   if (!ts) return;

@@ -104,6 +104,11 @@ int train_set_max_cap(const TrainSet *ts, int c);
 /* The model whose members of class c keep min(cap[c], what they have)
  * vectors. NULL with `err`. */
 Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen);
+/* The streamed classes of a truncation `m` (issue 30, train_model's rule:
+ * model_class_streamable, opt->stream, opt->keep_bases), its reductions
+ * chosen: marked, their floors measured on the set's training snapshots,
+ * their bases dropped. 0, or -1 with `err` (out of memory). */
+int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err, size_t errlen);
 void train_set_free(TrainSet *ts);
 
 /* The steps of training that the out-of-core bases (ooc.c) share (train.c). */
@@ -129,6 +134,13 @@ int train_member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, cha
 int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- interpolated stages (interp_train.c) */
+
+/* Training's step 3b (train.c), on `m` pre-multiplied: the stages forced to
+ * interpolation (the program's `reduce interp`, opt->interp_stage) made
+ * interpolated, the names of opt->galerkin_stage checked, and with
+ * opt->valid every other eligible stage chosen (tune_choose_reductions).
+ * 0, or -1 with `err`. */
+int train_interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, char *err, size_t errlen);
 
 /* Make stage number `stage` of `m` (bases built, `f` bound as for
  * pre-multiplication) interpolated: its entries selected from its class
@@ -160,6 +172,7 @@ typedef struct TuneTrial {
   double cost;              /* reduced multiply-adds (ir/cost.c) */
   double err;               /* the worst output's mean relative L2 error on the validation samples */
   bool uniform;             /* one cap for every class */
+  char *interp;             /* the stages interpolated at these caps, comma-separated ("" none) */
 } TuneTrial;
 
 typedef struct TuneResult {
@@ -171,17 +184,23 @@ typedef struct TuneResult {
   int limiting;             /* when unmet: the class whose projection floor is the largest */
   double limiting_floor;
   bool limiting_saturated;  /* its members have no more directions in the training samples */
+  Model *model;             /* the chosen trial's model, its reductions chosen (NULL when unmet); owned
+                               until taken (set to NULL) */
 } TuneResult;
 
 /* Choose every class's cap so that every output's mean relative L2 error
  * on the samples of `valid` (evaluated in full by `f`, bound to the
  * training params) is at most `tol` at the least reduced cost, caps at most
  * `max_cap`: uniform caps 1, 2, … up to the first that meets `tol`, then
- * each class bisected down with the others fixed, the costliest first.
+ * each class bisected down with the others fixed, the costliest first. At
+ * every candidate, the stages `opt` forces (interp_stage, the program's
+ * `reduce`) reduced so, every other eligible stage both ways and the lower
+ * error kept, the cheaper when both meet `tol` (DESIGN §12; opt->ngalerkin
+ * excludes stages; opt may be NULL). out->model: the chosen trial's model.
  * 0 (`out` filled; out->chosen < 0 when `tol` cannot be met, naming the
  * limiting class), or -1 with `err`. tune_result_free() either way. */
 int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *valid, double tol, int max_cap,
-                bool progress, TuneResult *out, char *err, size_t errlen);
+                const TrainOptions *opt, TuneResult *out, char *err, size_t errlen);
 void tune_result_free(TuneResult *r);
 
 /* Training's choice per stage (DESIGN §12): for every stage of `m` (bases

@@ -11,7 +11,22 @@
  * in turn — the one whose growth costs most first — bisected down to the
  * smallest cap that still meets it with the others fixed. Every accepted
  * step meets the tolerance and costs no more, so the result costs no more
- * than any uniform cap that meets the tolerance. */
+ * than any uniform cap that meets the tolerance.
+ *
+ * The reduction of each stage eligible for interpolation (DESIGN §12) is
+ * part of every trial, not chosen once the caps are fixed: at each
+ * candidate's caps the stage is reduced by Galerkin and interpolated and
+ * the lower output error kept, or the cheaper when both meet the tolerance
+ * (choose), so a trial's error and cost are those of its best
+ * configuration, and caps at which only interpolation meets the tolerance
+ * can win (an interpolated stage's cost is its own, stage_work). Affordable:
+ * with E eligible stages (none forced either way) a trial takes 1 + E
+ * passes of reduced evaluations over the V validation samples and E
+ * selections of rows (a pivoted QR of the stage's n x m basis), for
+ * T = u + Σ_c ⌈log2 cap_c⌉ trials (u the uniform cap reached): T (1 + E)
+ * validation passes in all, against T + 1 + E when the choice followed the
+ * search; the snapshots and SVDs, which dominate, are made once either way.
+ * The choice is greedy in evaluation order, not over all 2^E combinations. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -30,11 +45,16 @@ typedef struct Valid {
 typedef struct Search {
   TrainSet *ts;
   Program *prog;
+  NpgFull *f;
   Valid v;
   int nc;
   int *maxk;                /* per class: the most vectors its members have, at most max_cap */
   TuneResult *out;
-  bool progress;
+  TrainOptions copt;        /* the reductions forced and the choice's settings; no output, no valid */
+  double tol;               /* the tolerance to meet */
+  Model *last;              /* the model of the trial made last, until kept (keep_model) or dropped */
+  int model_trial;          /* the trial whose model out->model is, or -1 */
+  char why[1024];           /* why the last candidate that failed on a validation sample failed */
 } Search;
 
 static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
@@ -120,7 +140,51 @@ static int validate(Search *s, Model *m, double *worst, double *floor, char *err
   return rc;
 }
 
-/* Evaluate caps `cap`: a new trial (reusing an identical one). Its index, or -1. */
+static int choose(Search *s, Model *m, const TrainOptions *opt, double tol, double *out, char why[static 1024],
+                  char *err, size_t errlen);
+static double stage_work(const Model *m, const RStage *rs);
+
+/* The model at caps `cap` with every stage reduced as forced and the
+ * others chosen (choose): its sizes, cost, error and interpolated stages
+ * into `tr`. NULL with `err`. */
+static Model *configure(Search *s, const int *cap, TuneTrial *tr, char *err, size_t errlen) {
+  Model *m = train_set_model(s->ts, cap, err, errlen);
+  if (!m) return NULL;
+  for (int c = 0; c < s->nc; c++) tr->m[c] = m->classes[c].m;
+  tr->cost = cost_value(s->prog, tr->m, m->samples);
+  char why[1024];
+  if (train_interpolate_stages(m, s->f, &s->copt, err, errlen) || choose(s, m, &s->copt, s->tol, &tr->err, why, err, errlen)) {
+    model_free(m);
+    return NULL;
+  }
+  /* a candidate that fails on a validation sample (small caps can make a reduced root's operator
+   * indefinite, an interpolated power's base negative) meets nothing; the search goes on */
+  if (isinf(tr->err) && why[0]) snprintf(s->why, sizeof s->why, "%s", why);
+  size_t len = 1;
+  for (int i = 0; i < m->nstages; i++) len += m->stages[i].interp ? strlen(m->stages[i].st->sym->name) + 1 : 0;
+  free(tr->interp);
+  if (!(tr->interp = npg_malloc(len))) {
+    model_free(m);
+    return npg_fail(err, errlen, "out of memory"), NULL;
+  }
+  tr->interp[0] = 0;
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    if (!rs->interp) continue;
+    /* the cost: the stage's interpolated work in place of its Galerkin work */
+    struct RInterp *ip = rs->interp;
+    double wi = stage_work(m, rs);
+    rs->interp = NULL;
+    tr->cost += wi - stage_work(m, rs);
+    rs->interp = ip;
+    if (tr->interp[0]) strcat(tr->interp, ",");
+    strcat(tr->interp, rs->st->sym->name);
+  }
+  return m;
+}
+
+/* Evaluate caps `cap`: a new trial (reusing an identical one), its model
+ * left in s->last. Its index, or -1. */
 static int trial(Search *s, const int *cap, bool uniform, char *err, size_t errlen) {
   TuneResult *out = s->out;
   for (int t = 0; t < out->ntrials; t++)
@@ -139,27 +203,35 @@ static int trial(Search *s, const int *cap, bool uniform, char *err, size_t errl
   memcpy(tr->cap, cap, sizeof(int) * (size_t)s->nc);
   tr->uniform = uniform;
   out->ntrials++;
-  Model *m = train_set_model(s->ts, cap, err, errlen);
-  if (!m) return -1;
-  for (int c = 0; c < s->nc; c++) tr->m[c] = m->classes[c].m;
-  tr->cost = cost_value(s->prog, tr->m, m->samples);
-  int rc = validate(s, m, &tr->err, NULL, err, errlen);
-  model_free(m);
-  return rc ? -1 : out->ntrials - 1;
+  return (s->last = configure(s, cap, tr, err, errlen)) ? out->ntrials - 1 : -1;
+}
+
+/* Trial t's model (s->last, when it was just made) becomes the one the
+ * search returns; `accept` false: dropped. */
+static void keep_model(Search *s, int t, bool accept) {
+  if (accept && s->last) {
+    model_free(s->out->model);
+    s->out->model = s->last, s->model_trial = t, s->last = NULL;
+  }
+  model_free(s->last);
+  s->last = NULL;
 }
 
 void tune_result_free(TuneResult *r) {
-  for (int t = 0; r->trials && t < r->ntrials; t++) free(r->trials[t].cap), free(r->trials[t].m);
+  for (int t = 0; r->trials && t < r->ntrials; t++) free(r->trials[t].cap), free(r->trials[t].m), free(r->trials[t].interp);
   free(r->trials);
+  model_free(r->model);
   free(r->best_cap);
   memset(r, 0, sizeof *r);
 }
 
 int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *valid, double tol, int max_cap,
-                bool progress, TuneResult *out, char *err, size_t errlen) {
+                const TrainOptions *opt, TuneResult *out, char *err, size_t errlen) {
   memset(out, 0, sizeof *out);
   out->chosen = out->limiting = -1;
-  Search s = {ts, prog, {0}, train_set_classes(ts), NULL, out, progress};
+  Search s = {ts, prog, f, {0}, train_set_classes(ts), NULL, out, {0}, tol, NULL, -1, ""};
+  if (opt) s.copt = *opt;
+  s.copt.valid = NULL, s.copt.progress = false, s.copt.choose_strict = true;
   out->nclasses = s.nc;
   int *cap = npg_calloc((size_t)s.nc + 1, sizeof(int)), rc = -1;
   s.maxk = npg_calloc((size_t)s.nc + 1, sizeof(int));
@@ -179,7 +251,12 @@ int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *val
   for (int u = 1; u <= top; u++) {
     for (int c = 0; c < s.nc; c++) cap[c] = u < s.maxk[c] ? u : s.maxk[c];
     if ((t = trial(&s, cap, true, err, errlen)) < 0) goto done;
+    keep_model(&s, t, out->trials[t].err <= tol);
     if (out->trials[t].err <= tol) break;
+  }
+  if (isinf(out->trials[t].err) && s.why[0]) { /* failed at the largest caps: why is the error */
+    npg_fail(err, errlen, "%s", s.why);
+    goto done;
   }
   if (out->trials[t].err > tol) {
     /* unmet at the largest caps: the class whose projection floor is worst limits */
@@ -223,26 +300,34 @@ int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *val
   for (int i = 0; i < s.nc; i++) {
     int c = order[i], lo = 1, hi = cap[c];
     while (lo < hi) {
-      int mid = (lo + hi) / 2, keep = cap[c];
+      int mid = (lo + hi) / 2, was = cap[c];
       cap[c] = mid;
       int k = trial(&s, cap, false, err, errlen);
       if (k < 0) {
         free(order), free(gain), free(m1);
         goto done;
       }
-      if (out->trials[k].err <= tol && out->trials[k].cost <= out->trials[best].cost) hi = mid, best = k;
-      else lo = mid + 1, cap[c] = keep;
+      bool ok = out->trials[k].err <= tol && out->trials[k].cost <= out->trials[best].cost;
+      keep_model(&s, k, ok);
+      if (ok) hi = mid, best = k;
+      else lo = mid + 1, cap[c] = was;
       cap[c] = hi;
     }
   }
   free(order), free(gain), free(m1);
   out->chosen = best;
   memcpy(out->best_cap, out->trials[best].cap, sizeof(int) * (size_t)s.nc);
+  if (s.model_trial != best) { /* a trial found again (trial's reuse): its model made anew */
+    model_free(out->model);
+    out->model = configure(&s, out->best_cap, &out->trials[best], err, errlen);
+    if (!out->model) goto done;
+  }
   rc = 0;
   goto done;
 oom:
   npg_fail(err, errlen, "out of memory");
 done:
+  model_free(s.last);
   for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);
   free(s.v.val);
   free(s.maxk);
@@ -280,35 +365,41 @@ static double stage_work(const Model *m, const RStage *rs) {
 #define CHOOSE_TIE 0.02
 #define CHOOSE_ROUNDING 1e-12
 
-int tune_choose_reductions(Model *m, NpgFull *f, const SampleSource *valid, const TrainOptions *opt, char *err,
-                           size_t errlen) {
-  int candidates = 0;
-  for (int i = 0; i < m->nstages; i++) candidates += lower_interp_eligible(m->stages[i].st) && !m->stages[i].interp;
-  if (candidates == 0) return 0; /* nothing to measure: no validation pass */
-  Search s = {0};
-  s.prog = m->prog;
+/* The choice for every stage of `m` eligible and not forced
+ * (tune_choose_reductions' contract) on the samples cached in `s`; *out:
+ * the worst output's error as chosen; when both ways meet `tol` (npgc
+ * tune's; training's is -1), the cheaper is kept. Without such a stage,
+ * one validation.
+ * A configuration that fails on a sample counts as an infinite error; the
+ * all-Galerkin one's failure is left in `why` (else ""). 0, or -1 with
+ * `err` (interp_train_stage failed). */
+static int choose(Search *s, Model *m, const TrainOptions *opt, double tol, double *out, char why[static 1024],
+                  char *err, size_t errlen) {
   double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
-  char why[1024];
-  int rc = cache_valid(&s, f, valid, m, err, errlen);
+  char why2[1024];
+  why[0] = 0;
   double current = INFINITY;
   /* a configuration that fails on a validation sample (a reduced root of an
    * indefinite operator, a power of a negative interpolated value) has an
    * infinite error: the other may still work */
-  if (rc == 0 && validate(&s, m, &current, NULL, why, sizeof why) != 0) current = INFINITY;
-  for (int i = 0; rc == 0 && i < m->nstages; i++) {
+  if (validate(s, m, &current, NULL, why, 1024) != 0) current = INFINITY;
+  for (int i = 0; i < m->nstages; i++) {
     RStage *rs = &m->stages[i];
     if (!lower_interp_eligible(rs->st) || rs->interp) continue; /* forced interpolated: kept */
     bool forced = rs->st->sym->reduce == STAGE_REDUCE_GALERKIN; /* `basis w: reduce galerkin` */
     for (int j = 0; j < opt->ngalerkin; j++) forced |= strcmp(opt->galerkin_stage[j], rs->st->sym->name) == 0;
     if (forced) continue;
     double galerkin = current, interp = INFINITY, wg = stage_work(m, rs);
-    if ((rc = interp_train_stage(m, f, i, over, err, errlen)) != 0) break;
-    if (validate(&s, m, &interp, NULL, why, sizeof why) != 0) interp = INFINITY;
+    if (interp_train_stage(m, s->f, i, over, err, errlen) != 0) return -1;
+    if (validate(s, m, &interp, NULL, why2, sizeof why2) != 0) interp = INFINITY;
     double wi = stage_work(m, rs);
-    bool tie = !opt->choose_strict && fabs(interp - galerkin) <= CHOOSE_TIE * fmin(interp, galerkin) + CHOOSE_ROUNDING;
-    bool keep = tie ? wi < wg : interp < galerkin;
+    /* strict (tune): only rounding-level differences tie, so a choice never raises the error measured */
+    bool tie = fabs(interp - galerkin) <= (opt->choose_strict ? 0 : CHOOSE_TIE * fmin(interp, galerkin)) + CHOOSE_ROUNDING;
+    bool both = galerkin <= tol && interp <= tol; /* the tune objective: the cheaper of two that meet it */
+    bool keep = tie || both ? wi < wg : interp < galerkin;
     rs->choice_err[0] = galerkin, rs->choice_err[1] = interp;
-    rs->choice_reason = interp_reasons[tie    ? (keep ? TIE_INTERP : TIE_GALERKIN)
+    rs->choice_reason = interp_reasons[both   ? (keep ? TOL_INTERP : TOL_GALERKIN)
+                                       : tie  ? (keep ? TIE_INTERP : TIE_GALERKIN)
                                        : keep ? INTERP_LOWER
                                        : isfinite(galerkin) || isfinite(interp) ? GALERKIN_LOWER
                                                                                 : BOTH_FAIL];
@@ -322,6 +413,21 @@ int tune_choose_reductions(Model *m, NpgFull *f, const SampleSource *valid, cons
       fprintf(stderr, "stage %s: output error by Galerkin %.3e, by interpolation %.3e: %s\n", rs->st->sym->name,
               galerkin, interp, rs->choice_reason);
   }
+  *out = current;
+  return 0;
+}
+
+int tune_choose_reductions(Model *m, NpgFull *f, const SampleSource *valid, const TrainOptions *opt, char *err,
+                           size_t errlen) {
+  int candidates = 0;
+  for (int i = 0; i < m->nstages; i++) candidates += lower_interp_eligible(m->stages[i].st) && !m->stages[i].interp;
+  if (candidates == 0) return 0; /* nothing to measure: no validation pass */
+  Search s = {0};
+  s.prog = m->prog, s.f = f;
+  double chosen;
+  char why[1024];
+  /* a model whose every configuration fails on a validation sample is kept (the reasons say so) */
+  int rc = cache_valid(&s, f, valid, m, err, errlen) || choose(&s, m, opt, -1, &chosen, why, err, errlen) ? -1 : 0;
   for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);
   free(s.v.val);
   return rc;

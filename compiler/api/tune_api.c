@@ -28,8 +28,15 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   }
   Program *prog = (Program *)full_program(f);
   SampleSource tsrc = {ntrain, tuser, train, NULL, NULL}, vsrc = {nvalid, vuser, valid, NULL, NULL};
-  TrainOptions topt = {.cap = max_cap, .energy = 1.0, .uncentered = o && o->uncentered, .progress = o && o->progress};
-  if (o) topt.mem = o->mem;
+  /* the reductions as NpgTrainOptions force them (the choice of the others is part of the search), and the
+   * bases kept as npg_trainer keeps them (issue 30: the streamable ones dropped unless named) */
+  TrainOptions topt = {.cap = max_cap, .energy = 1.0, .uncentered = o && o->uncentered, .progress = o && o->progress,
+                       .stream = true};
+  if (o) {
+    topt.mem = o->mem, topt.keep_bases = o->keep_bases, topt.interp_oversample = o->interp_oversample;
+    topt.ninterp = o->ninterp, topt.interp_stage = o->interp_stage;
+    topt.ngalerkin = o->ngalerkin, topt.galerkin_stage = o->galerkin_stage;
+  }
   TuneResult *r = calloc(1, sizeof *r);
   const char **names = calloc((size_t)prog->classes.n + 1, sizeof *names);
   TrainSet *ts = NULL;
@@ -44,7 +51,7 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   rep->class_name = names;
   for (int c = 0; c < prog->classes.n; c++) names[c] = ((BasisClass *)prog->classes.v[c])->size_name;
   if (!(ts = train_set_new(prog, f, &tsrc, &topt, rep->error, sizeof rep->error)) ||
-      tune_search(ts, prog, f, &vsrc, tol, max_cap, topt.progress, r, rep->error, sizeof rep->error) != 0)
+      tune_search(ts, prog, f, &vsrc, tol, max_cap, &topt, r, rep->error, sizeof rep->error) != 0)
     goto done;
   rep->nclasses = r->nclasses;
   rep->ntrials = r->ntrials;
@@ -53,7 +60,8 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
     goto done;
   }
   for (int t = 0; t < r->ntrials; t++)
-    rep->trials[t] = (NpgTuneTrial){r->trials[t].m, r->trials[t].cost, r->trials[t].err, r->trials[t].uniform};
+    rep->trials[t] =
+        (NpgTuneTrial){r->trials[t].m, r->trials[t].cost, r->trials[t].err, r->trials[t].uniform, r->trials[t].interp};
   rep->chosen = r->chosen;
   if (r->chosen < 0) {
     rep->limiting = names[r->limiting];
@@ -61,11 +69,9 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
     rep->limiting_saturated = r->limiting_saturated;
     goto done;
   }
-  Model *m = train_set_model(ts, r->best_cap, rep->error, sizeof rep->error);
-  /* DESIGN §12: at the caps chosen, each eligible stage interpolated where that measures strictly lower on
-   * the validation samples (so the tolerance met stays met) */
-  TrainOptions copt = {.valid = &vsrc, .choose_strict = true, .progress = topt.progress};
-  if (m && tune_choose_reductions(m, f, &vsrc, &copt, rep->error, sizeof rep->error) != 0) {
+  Model *m = r->model; /* its reductions chosen in the search */
+  r->model = NULL;
+  if (train_set_stream(ts, m, &topt, rep->error, sizeof rep->error) != 0) {
     model_free(m);
     m = NULL;
   }

@@ -34,6 +34,11 @@ void npgc_args_extra(NpgArgs *a, const char *what, const char *first);
 int npgc_missing(const char *cmd, const char *what);
 /* BYTES with an optional suffix k, M, G, T (powers of 1000). */
 bool npgc_parse_bytes(const char *s, size_t *out);
+/* --reduce STAGE:interp|galerkin (DESIGN §12; npgc train and tune): STAGE
+ * added to o->interp_stage or o->galerkin_stage (copies, freed by
+ * npgc_free_reduce). false when it is neither form, or out of memory. */
+bool npgc_parse_reduce(NpgTrainOptions *o, const char *s);
+void npgc_free_reduce(NpgTrainOptions *o);
 /* mkdir -p of the parent of `path` (and `path` itself with `self`);
  * -1 after printing which directory could not be made. */
 int npgc_make_parents(const char *path, bool self);

@@ -133,13 +133,19 @@ static const Usage usages[] = {
      "  dot where its basis was truncated.\n"},
     {"tune",
      "usage: npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/ [--max-cap N] [--center on|off]\n"
-     "                 [--png FILE] [--cc]\n"
+     "                 [--png FILE] [--cc] [--reduce STAGE:interp|galerkin] [--interp-oversample X]\n"
+     "                 [--keep-bases NAME,...|all]\n"
      "\n"
      "  Choose every class's basis size so that every output's mean relative L2 error on\n"
      "  VALID/ (held-out samples, the same params) is under T at the least reduced cost\n"
      "  (the cost npgc check prints); one snapshot pass and one SVD per member. Prints the\n"
      "  candidates, writes the chosen model to MODEL/ and a PNG of error against cost\n"
-     "  (MODEL-tune.png, or --png FILE); says when T cannot be met and which class limits it.\n"},
+     "  (MODEL-tune.png, or --png FILE); says when T cannot be met and which class limits it.\n"
+     "  At every candidate, each stage eligible for interpolation (npgc check) and not\n"
+     "  named by --reduce is reduced both ways and the lower error kept, so the sizes\n"
+     "  found are those of the better reduction; the table names the stages interpolated.\n"
+     "  --reduce, --interp-oversample, --keep-bases: as npgc train (by default the bases\n"
+     "  the reduced model never reads are not stored)\n"},
 };
 
 int npgc_usage(const char *cmd, bool help) {
@@ -388,4 +394,26 @@ int npgc_commit(const char *cmd, const char *tmp, const char *out, int rc) {
   }
   if (rc != 0) remove(tmp);
   return rc;
+}
+
+bool npgc_parse_reduce(NpgTrainOptions *o, const char *s) {
+  const char *colon = strrchr(s, ':');
+  if (!colon || colon == s) return false;
+  bool interp = strcmp(colon + 1, "interp") == 0;
+  if (!interp && strcmp(colon + 1, "galerkin") != 0) return false;
+  int *n = interp ? &o->ninterp : &o->ngalerkin;
+  const char *const **list = interp ? &o->interp_stage : &o->galerkin_stage;
+  const char **names = realloc((void *)*list, sizeof(char *) * (size_t)(*n + 1));
+  if (!names) return false;
+  *list = names;
+  if (!(names[*n] = strndup(s, (size_t)(colon - s)))) return false;
+  (*n)++;
+  return true;
+}
+
+void npgc_free_reduce(NpgTrainOptions *o) {
+  for (int i = 0; i < o->ninterp; i++) free((char *)o->interp_stage[i]);
+  for (int i = 0; i < o->ngalerkin; i++) free((char *)o->galerkin_stage[i]);
+  free((void *)o->interp_stage), free((void *)o->galerkin_stage);
+  o->ninterp = o->ngalerkin = 0, o->interp_stage = o->galerkin_stage = NULL;
 }

@@ -37,8 +37,6 @@ typedef struct Common {
   int *basis_center;
   const char *spectra;      /* train --spectra DIR */
   const char *params;       /* verify --params DIR: the params, when TEST/ holds only the samples */
-  int ninterp, ngalerkin;   /* train --reduce STAGE:interp, STAGE:galerkin */
-  const char **interp_stage, **galerkin_stage;
   const char *valid;        /* train --valid DIR */
   const char *cmd;
 } Common;
@@ -169,24 +167,6 @@ static bool mine(const Common *c, const NpgArgs *a, const char *name) {
   return false;
 }
 
-/* --reduce STAGE:interp|galerkin (DESIGN §12): galerkin is what training
- * does without it */
-static bool parse_reduce(Common *c, const char *s) {
-  const char *colon = strrchr(s, ':');
-  if (!colon || colon == s) return false;
-  bool interp = strcmp(colon + 1, "interp") == 0;
-  if (!interp && strcmp(colon + 1, "galerkin") != 0) return false;
-  int *n = interp ? &c->ninterp : &c->ngalerkin;
-  const char ***list = interp ? &c->interp_stage : &c->galerkin_stage;
-  const char **names = realloc(*list, sizeof(char *) * (size_t)(*n + 1));
-  if (!names) return false;
-  *list = names;
-  if (!(names[*n] = strndup(s, (size_t)(colon - s)))) return false;
-  (*n)++;
-  return true;
-}
-
-
 static int parse(Common *c, int argc, char **argv) {
   memset(c, 0, sizeof *c);
   c->cmd = argv[1];
@@ -228,7 +208,7 @@ static int parse(Common *c, int argc, char **argv) {
     else if ((v = npg_args_string(&a, "--basis"))) {
       if (parse_basis(c, v, err, sizeof err) != 0) snprintf(a.error, sizeof a.error, "%s: --basis %s", prog, err);
     } else if ((v = npg_args_string(&a, "--reduce"))) {
-      if (!parse_reduce(c, v))
+      if (!npgc_parse_reduce(&c->train, v))
         snprintf(a.error, sizeof a.error, "%s: --reduce %s: expected STAGE:interp or STAGE:galerkin", prog, v);
     } else if ((v = npg_args_string(&a, "--valid"))) {
       /* a folder, or a fraction held out of DATA/ (every round(1/F)-th sample) */
@@ -270,10 +250,6 @@ static int parse(Common *c, int argc, char **argv) {
   c->train.basis_cap = c->basis_cap;
   c->train.basis_energy = c->basis_energy;
   c->train.basis_center = c->basis_center;
-  c->train.ninterp = c->ninterp;
-  c->train.interp_stage = c->interp_stage;
-  c->train.ngalerkin = c->ngalerkin;
-  c->train.galerkin_stage = c->galerkin_stage;
   return 0;
 }
 
@@ -283,10 +259,7 @@ static void free_common(Common *c) {
   free(c->basis_cap);
   free(c->basis_energy);
   free(c->basis_center);
-  for (int i = 0; i < c->ninterp; i++) free((char *)c->interp_stage[i]);
-  free(c->interp_stage);
-  for (int i = 0; i < c->ngalerkin; i++) free((char *)c->galerkin_stage[i]);
-  free(c->galerkin_stage);
+  npgc_free_reduce(&c->train);
 }
 
 static NpgProgram *compile(Common *c) {

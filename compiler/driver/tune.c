@@ -50,14 +50,36 @@ static int draw(const NpgTuneReport *r, double tol, const char *path, char *err,
   return rc;
 }
 
+static int tune(int argc, char **argv, NpgTrainOptions *topt);
+
+/* Issue 30: the bases the model does not keep, as npgc train says it. */
+static void print_streamed(const NpgModel *m) {
+  double bytes = 0;
+  bool any = false;
+  for (int c = 0; c < npg_model_nclasses(m); c++) {
+    NpgClassInfo ci;
+    if (npg_model_class(m, c, &ci) != 0 || npg_model_basis(m, c)) continue;
+    printf("%s%s", any ? " " : "streamed bases, used in training and not kept: ", ci.label);
+    bytes += 8.0 * (double)ci.n * (double)ci.m, any = true;
+  }
+  if (any) printf(" (%.3f MB; --keep-bases all keeps them)\n", bytes / 1e6);
+}
+
 int npgc_tune(int argc, char **argv) {
+  NpgTrainOptions topt;
+  npg_train_options_default(&topt);
+  int rc = tune(argc, argv, &topt);
+  npgc_free_reduce(&topt); /* the --reduce names */
+  return rc;
+}
+
+static int tune(int argc, char **argv, NpgTrainOptions *to) {
   const char *prog_path = NULL, *data = NULL, *valid = NULL, *out = NULL, *png = NULL;
   double tol = -1;
   long max_cap = 60;
   bool cc = false;
   NpgOptions opt = {0};
-  NpgTrainOptions topt;
-  npg_train_options_default(&topt);
+  NpgTrainOptions topt = *to;
   NpgArgs a;
   npg_args_init(&a, argc, argv, 2, "npgc tune");
   while (npg_args_next(&a)) {
@@ -71,6 +93,13 @@ int npgc_tune(int argc, char **argv) {
       topt.uncentered = strcmp(v, "off") == 0;
       if (!topt.uncentered && strcmp(v, "on") != 0)
         snprintf(a.error, sizeof a.error, "npgc tune: --center is on or off, not '%s'", v);
+    } else if ((v = npg_args_string(&a, "--reduce"))) {
+      if (!npgc_parse_reduce(&topt, v))
+        snprintf(a.error, sizeof a.error, "npgc tune: --reduce %s: expected STAGE:interp or STAGE:galerkin", v);
+    } else if (npg_args_double(&a, "--interp-oversample", 1, 1000, false, &topt.interp_oversample)) ;
+    else if ((v = npg_args_string(&a, "--keep-bases"))) {
+      if (!*v) snprintf(a.error, sizeof a.error, "npgc tune: --keep-bases: give quantities or classes (m_x), or all");
+      topt.keep_bases = v;
     } else if (npg_args_flag(&a, "--cc")) cc = true;
     else if ((v = npg_args_string(&a, "--std"))) opt.std_dir = v;
     else if ((v = npg_args_positional(&a))) {
@@ -80,6 +109,7 @@ int npgc_tune(int argc, char **argv) {
       else npgc_args_extra(&a, "folder", valid);
     } else npg_args_unknown(&a);
   }
+  *to = topt; /* the --reduce lists, to be freed */
   if (a.error[0]) return npgc_args_error(&a, "tune");
   if (!prog_path) return npgc_missing("tune", "the program (PROG.npg)");
   if (!data) return npgc_missing("tune", "DATA/ (the training samples)");
@@ -140,6 +170,7 @@ int npgc_tune(int argc, char **argv) {
     const NpgTuneTrial *tr = &r.trials[t];
     printf("%5d %-8s %14.6g %12.3e  ", t + 1, tr->uniform ? "uniform" : "class", tr->cost, tr->err);
     print_sizes(&r, tr);
+    if (tr->interpolated[0]) printf("  interpolated: %s", tr->interpolated); /* DESIGN §12: chosen at these sizes */
     printf("%s%s\n", tr->err <= tol ? "  meets" : "", t == r.chosen ? "  <- chosen" : "");
   }
   char tmp[4096];
@@ -155,11 +186,15 @@ int npgc_tune(int argc, char **argv) {
            r.limiting_saturated ? "its members have no more directions in the training samples: train with more, "
                                   "or more varied, samples"
                                 : "its members are at --max-cap: raise it");
-    if (r.trials[r.ntrials - 1].err > 2 * r.limiting_floor) /* DESIGN §12 */
-      printf("the error reached is %.1fx that floor: the reduction of a stage, not a basis, limits it; a stage npgc "
-             "check marks eligible for interpolation may do better reduced that way (npgc train --reduce STAGE:interp, "
-             "or --valid DIR to let training choose)\n",
-             r.trials[r.ntrials - 1].err / r.limiting_floor);
+    const NpgTuneTrial *last = &r.trials[r.ntrials - 1];
+    if (last->err > 2 * r.limiting_floor && last->interpolated[0]) /* DESIGN §12 */
+      printf("the error reached is %.1fx that floor: the reduction of a stage, not a basis, limits it; %s %s "
+             "interpolated there: more entries may help (a larger --interp-oversample)\n",
+             last->err / r.limiting_floor, strchr(last->interpolated, ',') ? "stages" : "stage", last->interpolated);
+    else if (last->err > 2 * r.limiting_floor)
+      printf("the error reached is %.1fx that floor: the reduction of a stage, not a basis, limits it (every stage "
+             "npgc check marks eligible for interpolation was measured interpolated too, unless --reduce named it)\n",
+             last->err / r.limiting_floor);
     printf("error against cost -> %s; no model written\n", png);
     goto done;
   }
@@ -170,8 +205,10 @@ int npgc_tune(int argc, char **argv) {
   const NpgTuneTrial *ch = &r.trials[r.chosen];
   printf("chosen: cost %.6g, error %.3e (--tol %.3g): ", ch->cost, ch->err, tol);
   print_sizes(&r, ch);
+  if (ch->interpolated[0]) printf(", interpolated: %s", ch->interpolated);
   printf(" -> %s; error against cost -> %s\n", out, png);
-  npg_model_report_reductions(m, stdout); /* DESIGN §12: eligible stages interpolated where that measured lower */
+  npg_model_report_reductions(m, stdout); /* DESIGN §12: how each eligible stage is reduced at these sizes, and why */
+  print_streamed(m);
   rc = 0;
 done:
   npg_model_free(m);

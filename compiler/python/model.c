@@ -110,17 +110,20 @@ static PyObject *get_classes(ModelObject *self, void *unused) {
 static PyObject *get_samples(ModelObject *self, void *unused) { return PyLong_FromLong(npg_model_samples(self->m)); }
 static PyObject *get_program(ModelObject *self, void *unused) { return Py_NewRef(self->prog); }
 
-static PyObject *model_report(ModelObject *self, PyObject *unused) {
+/* What `print` writes about the model, as a str. */
+static PyObject *report_str(ModelObject *self, void (*print)(const NpgModel *, FILE *)) {
   char *buf = NULL;
   size_t len = 0;
   FILE *out = open_memstream(&buf, &len);
   if (!out) return PyErr_NoMemory();
-  npg_model_report(self->m, out);
+  print(self->m, out);
   fclose(out);
-  PyObject *s = PyUnicode_DecodeUTF8(buf, (Py_ssize_t)len, "replace");
+  PyObject *s = PyUnicode_DecodeUTF8(buf ? buf : "", (Py_ssize_t)len, "replace");
   free(buf);
   return s;
 }
+
+static PyObject *model_report(ModelObject *self, PyObject *unused) { return report_str(self, npg_model_report); }
 
 static PyObject *model_save(ModelObject *self, PyObject *dir) {
   PyObject *b;
@@ -157,6 +160,20 @@ static PyObject *model_basis(ModelObject *self, PyObject *arg) {
   return a;
 }
 
+/* model.interpolated(stage): how training reduced it (DESIGN §12; npg_model_stage_interpolated) */
+static PyObject *model_interpolated(ModelObject *self, PyObject *arg) {
+  const char *name = PyUnicode_AsUTF8(arg);
+  if (!name) return NULL;
+  long entries = 0;
+  int how = npg_model_stage_interpolated(self->m, name, &entries);
+  if (how < 0) return PyErr_Format(npgpy_Error, "the model has no stage '%s'", name);
+  return how ? PyLong_FromLong(entries) : Py_NewRef(Py_None);
+}
+
+static PyObject *model_reductions(ModelObject *self, PyObject *unused) {
+  return report_str(self, npg_model_report_reductions);
+}
+
 static PyObject *model_dim_method(ModelObject *self, PyObject *arg) {
   const char *name = PyUnicode_AsUTF8(arg);
   return name ? PyLong_FromLong(npg_model_dim(self->m, name)) : NULL;
@@ -164,26 +181,62 @@ static PyObject *model_dim_method(ModelObject *self, PyObject *arg) {
 
 /* -------------------------------------------------------- verify */
 
-/* The test samples: arrays with a leading sample axis, set one sample at a
- * time into the evaluator (runs with the GIL released: plain C). */
-typedef struct TestSet {
-  int n;
-  const char **name;
-  PyArrayObject **a;
-  char (*from)[128];
-} TestSet;
+void npgpy_samples_free(NpgpySamples *t) {
+  for (int i = 0; i < t->n; i++) Py_XDECREF(t->a[i]);
+  PyMem_Free(t->name);
+  PyMem_Free(t->a);
+  PyMem_Free(t->from);
+  memset(t, 0, sizeof *t);
+}
 
-static int set_test_sample(void *user, NpgFull *f, long k) {
-  TestSet *t = user;
+int npgpy_samples_set(void *user, NpgFull *f, long k) {
+  NpgpySamples *t = user;
   for (int i = 0; i < t->n; i++) {
     PyArrayObject *a = t->a[i];
     long shape[NPY_MAXDIMS];
     size_t per = 1;
     for (int d = 1; d < PyArray_NDIM(a); d++) per *= (size_t)(shape[d - 1] = (long)PyArray_DIM(a, d));
-    snprintf(t->from[i], sizeof t->from[i], "test['%s'] sample %ld", t->name[i], k);
+    snprintf(t->from[i], sizeof t->from[i], "%s['%s'] sample %ld", t->arg, t->name[i], k);
     if (npg_full_set(f, t->name[i], PyArray_NDIM(a) - 1, shape, (const double *)PyArray_DATA(a) + per * (size_t)k,
                      t->from[i]) != 0)
       return -1;
+  }
+  return 0;
+}
+
+int npgpy_samples(PyObject *dict, const char *who, const char *arg, NpgpySamples *t) {
+  memset(t, 0, sizeof *t);
+  t->arg = arg;
+  Py_ssize_t n = PyDict_GET_SIZE(dict);
+  t->name = PyMem_Calloc((size_t)n + 1, sizeof *t->name);
+  t->a = PyMem_Calloc((size_t)n + 1, sizeof *t->a);
+  t->from = PyMem_Calloc((size_t)n + 1, sizeof *t->from);
+  if (!t->name || !t->a || !t->from) return PyErr_NoMemory(), npgpy_samples_free(t), -1;
+  PyObject *key, *value;
+  t->count = -1;
+  for (Py_ssize_t pos = 0; PyDict_Next(dict, &pos, &key, &value);) {
+    const char *name = PyUnicode_AsUTF8(key);
+    if (!name) return npgpy_samples_free(t), -1;
+    char what[256];
+    snprintf(what, sizeof what, "%s: %s['%s']", who, arg, name);
+    PyArrayObject *a = npgpy_values(value, what);
+    if (!a) return npgpy_samples_free(t), -1;
+    t->name[t->n] = name;
+    t->a[t->n++] = a;
+    if (PyArray_NDIM(a) < 1) {
+      PyErr_Format(npgpy_Error, "%s: %s['%s'] has no sample axis (the first axis is the sample)", who, arg, name);
+      return npgpy_samples_free(t), -1;
+    }
+    long S = (long)PyArray_DIM(a, 0);
+    if (t->count >= 0 && S != t->count) {
+      PyErr_Format(npgpy_Error, "%s: %s['%s'] has %ld samples, the arrays before it %ld", who, arg, name, S, t->count);
+      return npgpy_samples_free(t), -1;
+    }
+    t->count = S;
+  }
+  if (t->count < 1) {
+    PyErr_Format(npgpy_Error, "%s: no %s samples (give %s={'x': array of samples x ...})", who, arg, arg);
+    return npgpy_samples_free(t), -1;
   }
   return 0;
 }
@@ -209,7 +262,7 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
   if (tolo != Py_None && ((tol = PyFloat_AsDouble(tolo)) == -1 && PyErr_Occurred())) return NULL;
   /* As npgc verify --tol: a finite number >= 0 (-1 would otherwise mean "no tolerance" below). */
   if (tolo != Py_None && !(isfinite(tol) && tol >= 0))
-    return PyErr_Format(PyExc_ValueError, "verify: tol is %g; expected a finite number >= 0", tol);
+    return npgpy_value_error("verify: tol is %g; expected a finite number >= 0", tol);
   FullObject *full = self->full;
   if (fullo != Py_None) {
     if (!PyObject_TypeCheck(fullo, &npgpy_FullType))
@@ -220,41 +273,9 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
     return PyErr_Format(npgpy_Error, "verify: this model has no full evaluator (a loaded model): give full=, an "
                                      "evaluator with the model's params bound");
   if (full->prog != self->prog) return PyErr_Format(npgpy_Error, "verify: full evaluates another program");
-  Py_ssize_t n = PyDict_GET_SIZE(test);
-  TestSet t = {0};
-  t.name = PyMem_Calloc((size_t)n + 1, sizeof *t.name);
-  t.a = PyMem_Calloc((size_t)n + 1, sizeof *t.a);
-  t.from = PyMem_Calloc((size_t)n + 1, sizeof *t.from);
-  PyObject *res = NULL, *key, *value;
-  long samples = -1;
-  if (!t.name || !t.a || !t.from) {
-    PyErr_NoMemory();
-    goto done;
-  }
-  for (Py_ssize_t pos = 0; PyDict_Next(test, &pos, &key, &value);) {
-    const char *name = PyUnicode_AsUTF8(key);
-    if (!name) goto done;
-    char what[256];
-    snprintf(what, sizeof what, "verify: test['%s']", name);
-    PyArrayObject *a = npgpy_values(value, what);
-    if (!a) goto done;
-    t.name[t.n] = name;
-    t.a[t.n++] = a;
-    if (PyArray_NDIM(a) < 1) {
-      PyErr_Format(npgpy_Error, "verify: test['%s'] has no sample axis (the first axis is the sample)", name);
-      goto done;
-    }
-    long S = (long)PyArray_DIM(a, 0);
-    if (samples >= 0 && S != samples) {
-      PyErr_Format(npgpy_Error, "verify: test['%s'] has %ld samples, the arrays before it %ld", name, S, samples);
-      goto done;
-    }
-    samples = S;
-  }
-  if (samples < 1) {
-    PyErr_SetString(npgpy_Error, "verify: no test samples (give test={'x': array of samples x ...})");
-    goto done;
-  }
+  NpgpySamples t;
+  PyObject *res = NULL;
+  if (npgpy_samples(test, "verify", "test", &t) != 0) return NULL;
   if (npgpy_busy_mine(&full->busy)) {
     PyErr_SetString(npgpy_Error, "verify: called from an extern callable of the evaluator");
     goto done;
@@ -263,7 +284,7 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
   NpgVerifyReport rep;
   int rc;
   Py_BEGIN_ALLOW_THREADS
-  rc = npg_verify(self->m, full->f, samples, set_test_sample, &t, progress, &rep);
+  rc = npg_verify(self->m, full->f, t.count, npgpy_samples_set, &t, progress, &rep);
   Py_END_ALLOW_THREADS
   npg_full_clear_error(full->f);
   npgpy_busy_leave(&full->busy);
@@ -280,10 +301,7 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
   }
   npg_verify_free(&rep);
 done:
-  for (int i = 0; i < t.n; i++) Py_XDECREF(t.a[i]);
-  PyMem_Free(t.name);
-  PyMem_Free(t.a);
-  PyMem_Free(t.from);
+  npgpy_samples_free(&t);
   return res;
 }
 
@@ -654,6 +672,11 @@ static PyMethodDef model_methods[] = {
   {"save", (PyCFunction)model_save, METH_O, "save(model_dir): write MODEL/"},
   {"basis", (PyCFunction)model_basis, METH_O, "basis(name) -> n x m read-only view of the basis of name's class"},
   {"dim", (PyCFunction)model_dim_method, METH_O, "dim(name) -> int: the size a dim had in training"},
+  {"interpolated", (PyCFunction)model_interpolated, METH_O,
+   "interpolated(stage) -> int or None: the entries stage is evaluated at when training reduced it by\n"
+   "interpolation (DESIGN §12), None when by Galerkin projection; npg.Error for a name that is no stage"},
+  {"reductions", (PyCFunction)model_reductions, METH_NOARGS,
+   "reductions() -> str: per stage interpolated or chosen by measurement, how, both errors and the reason"},
   {"reduced", (PyCFunction)(void (*)(void))model_reduced, METH_VARARGS | METH_KEYWORDS,
    "reduced(exact_roots=False) -> Reduced: a reduced evaluator (one per thread)"},
   {"verify", (PyCFunction)(void (*)(void))model_verify, METH_VARARGS | METH_KEYWORDS,

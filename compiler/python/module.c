@@ -4,6 +4,7 @@
 #define NPGPY_MODULE_C
 #include "npgpy.h"
 
+#include <stdarg.h>
 #include <string.h>
 
 PyObject *npgpy_Error, *npgpy_CompileError;
@@ -72,6 +73,16 @@ PyArrayObject *npgpy_values(PyObject *obj, const char *what) {
 
 void npgpy_long_shape(PyArrayObject *a, long *shape) {
   for (int i = 0; i < PyArray_NDIM(a); i++) shape[i] = (long)PyArray_DIM(a, i);
+}
+
+PyObject *npgpy_value_error(const char *fmt, ...) {
+  char msg[1024];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(msg, sizeof msg, fmt, ap);
+  va_end(ap);
+  PyErr_SetString(PyExc_ValueError, msg);
+  return NULL;
 }
 
 PyObject *npgpy_raise(PyObject *type, const char *msg) {

@@ -57,6 +57,8 @@ PyArrayObject *npgpy_values(PyObject *obj, const char *what);
 void npgpy_long_shape(PyArrayObject *a, long *shape);
 /* A library message as npg.Error (or `type`). Returns NULL. */
 PyObject *npgpy_raise(PyObject *type, const char *msg);
+/* ValueError with a printf message (PyErr_Format has no %g); NULL. */
+PyObject *npgpy_value_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 /* The shape of symbol `s` with its dims sized by `dim(ctx, name)` (-1 if
  * unknown); returns its ndim, or -1. */
 int npgpy_shape(const NpgSymbol *s, long (*dim)(const void *ctx, const char *name), const void *ctx, npy_intp *shape);
@@ -92,6 +94,22 @@ PyObject *npgpy_full_new(ProgramObject *prog, PyObject *params, const char *back
 /* After a failed call of the library on `self`: npg.Error with `msg`, its
  * __cause__ the exception an extern callable raised, if any. */
 PyObject *npgpy_full_raise(FullObject *self, const char *msg);
+
+/* Samples given as {name: array whose first axis is the sample} (model.verify's test=, Trainer's
+ * valid=), set one sample at a time into an evaluator by npgpy_samples_set (an NpgSampleFn: plain C,
+ * it runs with the GIL released). The arrays are held until npgpy_samples_free. */
+typedef struct NpgpySamples {
+  int n;
+  long count;               /* samples */
+  const char *arg;          /* the argument's name in messages ("test") */
+  const char **name;
+  PyArrayObject **a;
+  char (*from)[128];
+} NpgpySamples;
+/* 0, or -1 with an exception naming `who` and `arg` (no sample axis, counts that differ, none). */
+int npgpy_samples(PyObject *dict, const char *who, const char *arg, NpgpySamples *out);
+int npgpy_samples_set(void *user, NpgFull *f, long k);
+void npgpy_samples_free(NpgpySamples *t);
 
 /* ---------------------------------------------------------------- trainer.c */
 extern PyTypeObject npgpy_TrainerType;

@@ -14,7 +14,79 @@ typedef struct TrainerObject {
   double *basis_energy;
   int *basis_center;
   char *keep_bases;         /* keep_bases= (owned here for the same reason) */
+  char **interp, **galerkin; /* interp=, galerkin=: stage names (NULL-ended, owned here) */
+  PyObject *valid_dict;     /* valid=: a copy of the dict, which holds the names NpgpySamples points to */
+  NpgpySamples valid;
 } TrainerObject;
+
+static void free_names(char **v) {
+  for (int i = 0; v && v[i]; i++) PyMem_Free(v[i]);
+  PyMem_Free(v);
+}
+
+static void free_reduce(TrainerObject *self) {
+  free_names(self->interp), free_names(self->galerkin);
+  self->interp = self->galerkin = NULL;
+  npgpy_samples_free(&self->valid);
+  Py_CLEAR(self->valid_dict);
+}
+
+/* interp=["w"], galerkin=[...]: stage names (DESIGN §12, as npgc train --reduce STAGE:interp|galerkin);
+ * a str alone is one name. NULL-ended copies into *out, their count into *n. */
+static int stage_names(PyObject *v, const char *what, char ***out, int *n) {
+  *out = NULL, *n = 0;
+  if (v == Py_None) return 0;
+  PyObject *seq = PyUnicode_Check(v) ? PyTuple_Pack(1, v) : PySequence_Fast(v, "");
+  if (!seq) {
+    PyErr_Clear();
+    return PyErr_Format(PyExc_TypeError, "Trainer: %s must be a stage name or a list of them, not %s", what,
+                        Py_TYPE(v)->tp_name), -1;
+  }
+  Py_ssize_t k = PySequence_Fast_GET_SIZE(seq);
+  if (!(*out = PyMem_Calloc((size_t)k + 1, sizeof **out))) return Py_DECREF(seq), PyErr_NoMemory(), -1;
+  for (Py_ssize_t i = 0; i < k; i++) {
+    PyObject *e = PySequence_Fast_GET_ITEM(seq, i);
+    const char *name = PyUnicode_Check(e) ? PyUnicode_AsUTF8(e) : NULL;
+    if (!name) {
+      if (!PyErr_Occurred())
+        PyErr_Format(PyExc_TypeError, "Trainer: %s[%zd] must be a stage name (str), not %s", what, i, Py_TYPE(e)->tp_name);
+      return Py_DECREF(seq), -1;
+    }
+    if (!((*out)[i] = PyMem_Malloc(strlen(name) + 1))) return Py_DECREF(seq), PyErr_NoMemory(), -1;
+    strcpy((*out)[i], name);
+    (*n)++;
+  }
+  Py_DECREF(seq);
+  return 0;
+}
+
+/* The interpolated stages' options (DESIGN §12; NpgTrainOptions' fields of the same names). */
+static int parse_reduce(TrainerObject *self, PyObject *interp, PyObject *galerkin, PyObject *valid, double oversample,
+                        double holdout, NpgTrainOptions *o) {
+  free_reduce(self);
+  if (stage_names(interp, "interp", &self->interp, &o->ninterp) != 0 ||
+      stage_names(galerkin, "galerkin", &self->galerkin, &o->ngalerkin) != 0)
+    return -1;
+  o->interp_stage = (const char *const *)self->interp, o->galerkin_stage = (const char *const *)self->galerkin;
+  if (oversample != 0 && !(oversample >= 1 && oversample <= 1000)) /* npgc train --interp-oversample's range */
+    return npgpy_value_error("Trainer: interp_oversample %g: entries per basis vector, 1..1000 (0: the "
+                        "default)", oversample), -1;
+  o->interp_oversample = oversample;
+  if (valid != Py_None && holdout != 0)
+    return PyErr_SetString(PyExc_ValueError, "Trainer: valid= and valid_holdout= both given (one or the other)"), -1;
+  if (!(holdout >= 0 && holdout <= 0.5))
+    return npgpy_value_error("Trainer: valid_holdout %g: a fraction in (0, 0.5] of the samples added",
+                        holdout), -1;
+  o->valid_holdout = holdout;
+  if (valid == Py_None) return 0;
+  if (!PyDict_Check(valid))
+    return PyErr_Format(PyExc_TypeError, "Trainer: valid={'x': array of samples x ...}, not %s",
+                        Py_TYPE(valid)->tp_name), -1;
+  if (!(self->valid_dict = PyDict_Copy(valid)) || npgpy_samples(self->valid_dict, "Trainer", "valid", &self->valid))
+    return -1;
+  o->valid_count = self->valid.count, o->valid_set = npgpy_samples_set, o->valid_user = &self->valid;
+  return 0;
+}
 
 static void free_basis(TrainerObject *self) {
   for (int i = 0; i < self->nbasis; i++) PyMem_Free(self->basis_name[i]);
@@ -92,7 +164,7 @@ static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o)
         double e = PyFloat_AsDouble(ov);
         if (e == -1 && PyErr_Occurred()) return -1;
         if (!(e > 0 && e <= 1))
-          return PyErr_Format(PyExc_ValueError, "Trainer: basis['%s']['energy'] %g: a fraction in (0, 1]", name, e), -1;
+          return npgpy_value_error("Trainer: basis['%s']['energy'] %g: a fraction in (0, 1]", name, e), -1;
         self->basis_energy[k] = e;
       } else if (strcmp(opt, "center") == 0) {
         int c = PyObject_IsTrue(ov);
@@ -113,14 +185,18 @@ static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o)
 }
 
 static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
-  static char *kwlist[] = {"full", "energy", "cap", "center", "mem", "joint", "progress", "basis", "keep_bases", NULL};
+  static char *kwlist[] = {"full", "energy", "cap", "center", "mem", "joint", "progress", "basis", "keep_bases",
+                           "interp", "galerkin", "interp_oversample", "valid", "valid_holdout", NULL};
   PyObject *full, *center = Py_True, *joint = Py_False, *progress = Py_False, *mem = Py_None, *basis = Py_None;
+  PyObject *interp = Py_None, *galerkin = Py_None, *valid = Py_None;
+  double oversample = 0, holdout = 0;
   const char *keep = NULL;
   PyObject *capo = NULL;
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|dOOOOOOz:Trainer", kwlist, &npgpy_FullType, &full, &o.energy, &capo,
-                                   &center, &mem, &joint, &progress, &basis, &keep))
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|dOOOOOOz$OOdOd:Trainer", kwlist, &npgpy_FullType, &full, &o.energy,
+                                   &capo, &center, &mem, &joint, &progress, &basis, &keep, &interp, &galerkin,
+                                   &oversample, &valid, &holdout))
     return -1;
   if (capo && cap_value(capo, "cap", &o.cap) != 0) return -1;
   if (self->t) {
@@ -128,7 +204,7 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
     return -1;
   }
   if (!(o.energy > 0 && o.energy <= 1)) {
-    PyErr_Format(PyExc_ValueError, "Trainer: energy %g: a fraction in (0, 1]", o.energy);
+    npgpy_value_error("Trainer: energy %g: a fraction in (0, 1]", o.energy);
     return -1;
   }
   if (mem != Py_None) {
@@ -141,7 +217,8 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   o.uncentered = !c;
   o.joint = j;
   o.progress = p;
-  if (parse_basis(self, basis, &o) != 0) return -1;
+  if (parse_basis(self, basis, &o) != 0 || parse_reduce(self, interp, galerkin, valid, oversample, holdout, &o) != 0)
+    return -1;
   if (keep) { /* streamed bases (issue 30): as npgc train --keep-bases */
     PyMem_Free(self->keep_bases);
     if (!(self->keep_bases = PyMem_Malloc(strlen(keep) + 1))) return PyErr_NoMemory(), -1;
@@ -160,6 +237,7 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
 
 static int trainer_traverse(TrainerObject *self, visitproc visit, void *arg) {
   Py_VISIT(self->full);
+  Py_VISIT(self->valid_dict);
   return 0;
 }
 
@@ -167,6 +245,7 @@ static void trainer_dealloc(TrainerObject *self) {
   PyObject_GC_UnTrack(self);
   npg_trainer_free(self->t); /* before the evaluator it points into, and the overrides */
   free_basis(self);
+  free_reduce(self);
   PyMem_Free(self->keep_bases);
   Py_XDECREF(self->full);
   Py_TYPE(self)->tp_free((PyObject *)self);
@@ -288,13 +367,19 @@ PyTypeObject npgpy_TrainerType = {
   .tp_basicsize = sizeof(TrainerObject),
   .tp_dealloc = (destructor)trainer_dealloc,
   .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
-  .tp_doc = "Trainer(full, energy=0.999, cap=60, center=True, mem=None, joint=False, progress=False, basis=None)\n\n"
+  .tp_doc = "Trainer(full, energy=0.999, cap=60, center=True, mem=None, joint=False, progress=False, basis=None,\n"
+            "        keep_bases=None, *, interp=None, galerkin=None, interp_oversample=0, valid=None, valid_holdout=0)\n\n"
             "Streams samples into the library's trainer; finish() trains as npgc train does. mem: bytes for\n"
             "the samples in memory (beyond: a scratch file; None: half the RAM). center=False: the paper's\n"
             "uncentered truncation. basis={name: {'cap': N, 'energy': E, 'center': bool}}: per quantity,\n"
             "class (m_x), numerator (y.num1) or '*', as npgc train --basis. keep_bases='h,m_r' or 'all': keep\n"
             "those bases in the model too, as npgc train --keep-bases (by default the bases the reduced\n"
-            "model never reads, of pair quantities, are used in training and not kept).",
+            "model never reads, of pair quantities, are used in training and not kept).\n"
+            "Interpolated stages (DESIGN §12), keywords only: interp=['w'] / galerkin=['w'] force a stage's\n"
+            "reduction (npgc train --reduce w:interp|galerkin); interp_oversample=X entries per basis vector\n"
+            "(default 32); valid={'x': array of samples x ...} validation samples (the trainer's params), or\n"
+            "valid_holdout=F a fraction of the samples added held out: every other eligible stage is reduced\n"
+            "both ways and the lower output error kept (model.interpolated(stage) reads the choice).",
   .tp_traverse = (traverseproc)trainer_traverse,
   .tp_init = (initproc)trainer_init,
   .tp_new = PyType_GenericNew,

@@ -7,7 +7,7 @@
 # in memory and out of core; verify reports the floors training measured;
 # a program without such classes gets the same files either way; a
 # streamed training killed at any moment leaves the previous model whole,
-# no litter and no scratch.
+# no litter and no scratch; npgc tune keeps the bases by the same rule.
 set -u
 B=$1
 W=$(mktemp -d /tmp/npg_stream_XXXXXX)
@@ -86,6 +86,25 @@ s=$(du -sk "$W/S" | cut -f1) k=$(du -sk "$W/K" | cut -f1)
 if "$N" train $R "$W/RT" -o "$W/X" --keep-bases hh 2>"$W/err.txt"; then fail "unknown --keep-bases name accepted"; fi
 grep -q "keep-bases hh: no quantity or class of that name" "$W/err.txt" || fail "message: $(cat "$W/err.txt")"
 test ! -e "$W/X" || fail "a refused training left a model"
+
+# npgc tune follows the same rule: its model keeps no pair basis unless --keep-bases names it, and
+# equals the one that keeps every basis array for array; verify reads the floors it recorded
+"$N" tune $R "$W/RT" "$W/RV" --tol 0.05 -o "$W/TS" >"$W/tune.txt" || fail "tune streamed: $(cat "$W/tune.txt")"
+"$N" tune $R "$W/RT" "$W/RV" --tol 0.05 -o "$W/TK" --keep-bases all >"$W/tunek.txt" || fail "tune --keep-bases all"
+[ "$(streamed_labels "$W/TS")" = "{s,h} {r} {c} {d,p} " ] || fail "tune: streamed classes: $(streamed_labels "$W/TS")"
+grep -Eq '^(streamed|floor) ' "$W/TK/manifest" && fail "tune --keep-bases all: streamed lines in the manifest"
+same_arrays "$W/TS" "$W/TK"
+grep -q '^streamed bases, used in training and not kept: {s,h} {r} {c} {d,p} (' "$W/tune.txt" || fail "tune: $(cat "$W/tune.txt")"
+grep -q '^streamed bases' "$W/tunek.txt" && fail "tune --keep-bases all: names streamed bases"
+"$N" verify $R "$W/TS" "$W/RV" --tol 0.05 >"$W/vts.txt" || fail "verify of the tuned model: $(cat "$W/vts.txt")"
+grep -q '^h .* n/a  *[0-9.e+-]*\* ' "$W/vts.txt" || fail "verify: h of the tuned model not reported as streamed"
+"$N" tune $R "$W/RT" "$W/RV" --tol 0.05 -o "$W/TH" --keep-bases h,m_r >/dev/null || fail "tune --keep-bases h,m_r"
+[ "$(streamed_labels "$W/TH")" = "{c} {d,p} " ] || fail "tune --keep-bases h,m_r: $(streamed_labels "$W/TH")"
+if "$N" tune $R "$W/RT" "$W/RV" --tol 0.05 -o "$W/X" --keep-bases hh 2>"$W/err.txt" >/dev/null; then
+  fail "tune: unknown --keep-bases name accepted"
+fi
+grep -q "keep-bases hh: no quantity or class of that name" "$W/err.txt" || fail "tune message: $(cat "$W/err.txt")"
+test ! -e "$W/X" || fail "a refused tune left a model"
 
 # a program without pair classes: the same files, the manifest included, either way
 P=examples/rational/rational.npg

@@ -549,3 +549,72 @@ def test_streamed_basis_raises(tmp_path, npgc, root):
     same_model(tmp_path / "K", tmp_path / "KCLI")
     h = kept.basis("h")
     assert np.allclose(h.T @ h, np.eye(h.shape[1]), atol=1e-12)
+
+
+def gravity_data(d):
+    """The n-body program's samples of tests/cli/interp.sh: 8 bodies moved by 3 modes."""
+    rng = np.random.default_rng(4)
+    base = rng.normal(size=(8, 3)) * 2
+    modes = rng.normal(size=(3, 8, 3))
+    out = {}
+    for name, S in (("TRAIN", 40), ("VALID", 8)):
+        (d / name).mkdir()
+        x = base + np.einsum("sk,kvc->svc", 0.2 * rng.normal(size=(S, 3)), modes)
+        np.save(d / name / "x.npy", x)
+        np.save(d / name / "mass.npy", np.full(8, 0.125))
+        np.save(d / name / "eps.npy", np.array(0.05))
+        out[name] = x
+    return out
+
+
+def test_interpolated_stages(tmp_path, npgc, root):
+    """Issue 26 through Python: the trainer's interp=, galerkin=, interp_oversample=, valid= and
+    valid_holdout= give the models npgc train's --reduce, --interp-oversample and --valid give (byte
+    for byte), and model.interpolated() / model.reductions() read the choice the model records."""
+    x = gravity_data(tmp_path)
+    prog_path = root / "tests" / "programs" / "nbody_gravity.npg"
+    prog = npg.compile(str(prog_path))
+    full = prog.full(str(tmp_path / "TRAIN"))
+
+    def train(name, **kw):
+        tr = npg.Trainer(full, **kw)
+        for s in x["TRAIN"]:
+            tr.add(x=s)
+        return tr.finish(tmp_path / name)
+
+    forced = train("PI", interp=["w"], interp_oversample=2)
+    npgc("train", prog_path, tmp_path / "TRAIN", "-o", tmp_path / "CI", "--reduce", "w:interp", "--interp-oversample", "2")
+    same_model(tmp_path / "PI", tmp_path / "CI")
+    assert forced.interpolated("w") == 18  # 2 x m 9 entries, as tests/cli/interp.sh reads in npgc train's report
+    assert forced.interpolated("r2") is None  # not eligible: Galerkin
+    assert npg.load(prog, str(tmp_path / "CI")).interpolated("w") == 18
+    assert "stage w: interpolated at 18 of 64 entries" in forced.reductions()
+    with pytest.raises(npg.Error, match="no stage 'x'"):
+        forced.interpolated("x")
+
+    chosen = train("PV", valid={"x": x["VALID"]})
+    npgc("train", prog_path, tmp_path / "TRAIN", "-o", tmp_path / "CV", "--valid", tmp_path / "VALID")
+    same_model(tmp_path / "PV", tmp_path / "CV")
+    assert "output error on the validation samples by Galerkin" in chosen.reductions()
+    assert chosen.interpolated("w") == npg.load(prog, str(tmp_path / "CV")).interpolated("w")
+
+    held = train("PH", valid_holdout=0.25)
+    npgc("train", prog_path, tmp_path / "TRAIN", "-o", tmp_path / "CH", "--valid", "0.25")
+    same_model(tmp_path / "PH", tmp_path / "CH")
+    assert held.samples == 30 and "stage w" in held.reductions()
+
+    galerkin = train("PG", valid={"x": x["VALID"]}, galerkin="w")
+    assert galerkin.interpolated("w") is None and "stage w" not in galerkin.reductions()
+
+    with pytest.raises(npg.Error, match="stage r2 cannot be interpolated"):
+        train("BAD", interp=["r2"])
+    with pytest.raises(ValueError, match="interp_oversample 0.5"):
+        npg.Trainer(full, interp_oversample=0.5)
+    with pytest.raises(ValueError, match="valid= and valid_holdout= both"):
+        npg.Trainer(full, valid={"x": x["VALID"]}, valid_holdout=0.25)
+    with pytest.raises(ValueError, match="valid_holdout 0.7"):
+        npg.Trainer(full, valid_holdout=0.7)
+    with pytest.raises(npg.Error, match=r"Trainer: valid\['x'\] has no sample axis"):
+        npg.Trainer(full, valid={"x": np.array(1.0)})
+    with pytest.raises(TypeError, match=r"interp\[0\] must be a stage name"):
+        npg.Trainer(full, interp=[3])
