@@ -13,7 +13,7 @@
  * K's row for a key being B_y[row] (numerator), the packed upper triangle
  * of B_y[row] ⊗ B_y[row] (diagonal operator: BᵀDB is symmetric), or
  * B_y[row] ⊗ B_y[col] (declared operator). An input repeated k times
- * contributes its packed symmetrized power (reduce.h), so x ⊗ x is stored
+ * contributes its packed symmetrized power (model.h), so x ⊗ x is stored
  * once. All dense work is OpenBLAS dgemm.
  *
  * Map and reduce across output blocks: the builder's callback only records

@@ -1,5 +1,5 @@
 /* tune_api.c — basis sizes chosen by error through npg.h (npg_tune): the
- * search is tune_search (backends/tune.c) over one TrainSet. */
+ * search is tune_search (backends/train/tune.c) over one TrainSet. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
