@@ -59,7 +59,7 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   const long n = 4; /* 3 vertices cannot make 3 distinct triangles */
   long S = largest_class(prog, n) + 4;
   if (S > 400) print_message("%s: largest class %ld entries\n", path, S - 4);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   MemSamples train;
   if (memsamples_fill(&train, prog, f, n, S, 11u)) fail_msg("binding random params failed");
   SampleSource src = {S, &train, memsamples_set, NULL, NULL};
@@ -88,13 +88,13 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   held.S = 3;
   int failures = 0;
   for (long k = 0; k < 3; k++) {
-    if (memsamples_set(&held, f, k) || npg_full_eval(f, k)) fail_msg("%s: %s", path, npg_full_error(f));
+    if (memsamples_set(&held, f, k) || full_eval(f, k)) fail_msg("%s: %s", path, full_error(f));
     for (int i = 0; i < held.n; i++) reduced_project(r, emit_index_of(&prog->quantities, held.sym[i]), held.val[i] + (size_t)k * held.count[i]);
     if (reduced_eval(r, k)) fail_msg("%s: %s", path, reduced_error(r));
     for (int q = 0; q < m->nq; q++) {
       const Sym *s = prog->quantities.v[q];
       size_t cnt;
-      const double *full = npg_full_get(f, s->name, &cnt);
+      const double *full = full_get(f, s->name, &cnt);
       double *y = malloc(sizeof(double) * cnt);
       reduced_lift(r, q, y);
       double d = rel_diff(full, y, cnt);
@@ -111,7 +111,7 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   memsamples_free(&train);
   reduced_free(r);
   model_free(m);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
   return failures;
 }
@@ -177,7 +177,7 @@ static int cmp_long(const void *a, const void *b) {
  * force from the explicit tensor: every nonzero of Q times the explicit
  * basis rows, accumulated into the packed layout. Returns the relative
  * difference, or -1 when the tensor is too large to do this way. */
-static double brute_premul(const Model *m, NpgFull *f, const RTensor *t, const RClass *cy) {
+static double brute_premul(const Model *m, Full *f, const RTensor *t, const RClass *cy) {
   const TensorGroup *g = t->group;
   Dense d = {0};
   d.nin = g->ninputs;
@@ -203,7 +203,7 @@ static double brute_premul(const Model *m, NpgFull *f, const RTensor *t, const R
   if (d.size > 4000000 || (double)d.size * (double)red > 4e8) return -1;
   d.q = calloc((size_t)d.size, sizeof(double));
   NpgSink sink = {&d, dense_entry, 0, 1}; /* every row */
-  if (full_build(f, t->builder, &sink)) fail_msg("%s", npg_full_error(f));
+  if (full_build(f, t->builder, &sink)) fail_msg("%s", full_error(f));
   double *packed = calloc((size_t)(t->rows * t->cols), sizeof(double));
   long fidx[RT_MAX_IN + 2];
   for (long p = 0; p < d.size; p++) {
@@ -257,7 +257,7 @@ typedef struct PremulStats {
  * only its rows; premul refuses an entry of another's) sum to the whole, for
  * 2 and 3 parts and for more parts than the tensor has rows (ranks with
  * nothing to do). Non-zero after printing a failure. */
-static int premul_split_check(Model *m, NpgFull *f, RTensor *x, const RClass *cy, const char *path, PremulStats *ps) {
+static int premul_split_check(Model *m, Full *f, RTensor *x, const RClass *cy, const char *path, PremulStats *ps) {
   long nparts[] = {2, 3, cy->n + 1}, len = x->rows * x->cols;
   double *kept = x->data, *sum = calloc((size_t)len + 1, sizeof(double));
   int failures = 0;
@@ -371,14 +371,14 @@ static int field_at_entry(void *user, npg_idx row, npg_idx col, int nin, const n
 }
 
 /* Σ over tensors ts of their field at the lifted values xt[q]. */
-static void field_at(const Model *m, NpgFull *f, const RTensor *ts, int nt, double *const *xt, double *out, long ncols) {
+static void field_at(const Model *m, Full *f, const RTensor *ts, int nt, double *const *xt, double *out, long ncols) {
   FieldAt fa = {out, ncols, {0}};
   for (int g = 0; g < nt; g++) {
     int pos = 0;
     for (int j = 0; j < ts[g].nin; j++)
       for (int l = 0; l < ts[g].in_mult[j]; l++) fa.x[pos++] = xt[ts[g].in_q[j]];
     NpgSink sink = {&fa, field_at_entry, 0, 1}; /* every row */
-    if (full_build(f, ts[g].builder, &sink)) fail_msg("%s", npg_full_error(f));
+    if (full_build(f, ts[g].builder, &sink)) fail_msg("%s", full_error(f));
   }
   (void)m;
 }
@@ -394,11 +394,11 @@ static int stages_program(const char *path, void *arg) {
   RefData *rd = ref_new(prog, 4);
   int failures = 0;
   /* coordinates: the projections of a training sample's values */
-  if (memsamples_set(&tr.train, tr.f, 3) || npg_full_eval(tr.f, 3)) fail_msg("%s", npg_full_error(tr.f));
+  if (memsamples_set(&tr.train, tr.f, 3) || full_eval(tr.f, 3)) fail_msg("%s", full_error(tr.f));
   double **xt = calloc((size_t)m->nq, sizeof(double *));
   for (int q = 0; q < m->nq; q++) {
     const RClass *c = &m->classes[m->qclass[q]];
-    reduced_project(r, q, npg_full_get(tr.f, ((Sym *)prog->quantities.v[q])->name, NULL));
+    reduced_project(r, q, full_get(tr.f, ((Sym *)prog->quantities.v[q])->name, NULL));
     xt[q] = malloc(sizeof(double) * (size_t)c->n);
     reduced_lift(r, q, xt[q]);
   }
@@ -445,7 +445,7 @@ static int stages_program(const char *path, void *arg) {
       failures++;
     }
     /* the next stages read this stage's reduced value: keep the projection */
-    reduced_project(r, rs->q, npg_full_get(tr.f, rs->st->sym->name, NULL));
+    reduced_project(r, rs->q, full_get(tr.f, rs->st->sym->name, NULL));
     free(yhat), free(v), free(full), free(Mh), free(tmp);
   }
   for (int q = 0; q < m->nq; q++) free(xt[q]);
@@ -529,7 +529,7 @@ typedef struct RoomSamples {
   double *v;     /* F x F ones */
 } RoomSamples;
 
-static void room_samples(RoomSamples *rs, NpgFull *f, long F, long S, double t0, double dt) {
+static void room_samples(RoomSamples *rs, Full *f, long F, long S, double t0, double dt) {
   memset(rs, 0, sizeof *rs);
   Mesh mesh;
   char err[256];
@@ -541,8 +541,8 @@ static void room_samples(RoomSamples *rs, NpgFull *f, long F, long S, double t0,
   for (long i = 0; i < 3 * F; i++) tri[i] = mesh.tri[i];
   mesh_rho(&mesh, rho);
   long ts[2] = {F, 3}, fs[1] = {F};
-  if (f && (npg_full_set_param(f, "tri", 2, ts, tri, "tri") || npg_full_set_param(f, "rho", 1, fs, rho, "rho")))
-    fail_msg("%s", npg_full_error(f));
+  if (f && (full_set_param(f, "tri", 2, ts, tri, "tri") || full_set_param(f, "rho", 1, fs, rho, "rho")))
+    fail_msg("%s", full_error(f));
   free(tri);
   free(rho);
   rs->g = malloc(sizeof(double) * (size_t)(S * rs->V * 3));
@@ -561,11 +561,11 @@ static void room_samples(RoomSamples *rs, NpgFull *f, long F, long S, double t0,
   mesh_free(&mesh);
 }
 
-static int room_set(void *user, NpgFull *f, long k) {
+static int room_set(void *user, Full *f, long k) {
   RoomSamples *rs = user;
   long gs[2] = {rs->V, 3}, es[1] = {rs->F}, vs[2] = {rs->F, rs->F};
-  return npg_full_set(f, "g", 2, gs, rs->g + k * rs->V * 3, "g") || npg_full_set(f, "e", 1, es, rs->e + k * rs->F, "e") ||
-         npg_full_set(f, "v", 2, vs, rs->v, "v");
+  return full_set(f, "g", 2, gs, rs->g + k * rs->V * 3, "g") || full_set(f, "e", 1, es, rs->e + k * rs->F, "e") ||
+         full_set(f, "v", 2, vs, rs->v, "v");
 }
 
 static void room_free(RoomSamples *rs) {
@@ -575,7 +575,7 @@ static void room_free(RoomSamples *rs) {
 }
 
 /* Mean over the test samples of ‖y − B ŷ‖ / ‖y‖ of output `out`. */
-static double mean_error(Program *prog, NpgFull *f, Model *m, void *test, int (*set)(void *, NpgFull *, long), long S,
+static double mean_error(Program *prog, Full *f, Model *m, void *test, int (*set)(void *, Full *, long), long S,
                          const char *out) {
   char err[1024];
   Reduced *r = reduced_new(m, err, sizeof err);
@@ -583,14 +583,14 @@ static double mean_error(Program *prog, NpgFull *f, Model *m, void *test, int (*
   int qo = emit_index_of(&prog->quantities, find_quantity(prog, out));
   double total = 0;
   for (long k = 0; k < S; k++) {
-    if (set(test, f, k) || npg_full_eval(f, k)) fail_msg("%s", npg_full_error(f));
+    if (set(test, f, k) || full_eval(f, k)) fail_msg("%s", full_error(f));
     for (int q = 0; q < m->nq; q++) {
       const Sym *s = prog->quantities.v[q];
-      if (s->kind == SYM_INPUT) reduced_project(r, q, npg_full_get(f, s->name, NULL));
+      if (s->kind == SYM_INPUT) reduced_project(r, q, full_get(f, s->name, NULL));
     }
     if (reduced_eval(r, k)) fail_msg("%s", reduced_error(r));
     size_t n;
-    const double *y = npg_full_get(f, out, &n);
+    const double *y = full_get(f, out, &n);
     double *yl = malloc(sizeof(double) * n), num = 0, den = 0;
     reduced_lift(r, qo, yl);
     for (size_t i = 0; i < n; i++) num += (y[i] - yl[i]) * (y[i] - yl[i]), den += y[i] * y[i];
@@ -609,7 +609,7 @@ static void error_falls_with_caps(void **state) {
   /* radiosity: train on 48 deformations of the room and lights, test between them */
   NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
   Program *prog = ir_ok(p);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   RoomSamples train, test;
   room_samples(&train, f, 48, 48, 0.0, 1.0 / 47);
   room_samples(&test, NULL, 48, 12, 0.5 / 47, 4.0 / 47);
@@ -626,12 +626,12 @@ static void error_falls_with_caps(void **state) {
   }
   room_free(&train);
   room_free(&test);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
   /* rational (paper Eq. 3): random x in [0.5, 1.5]^2 */
   p = compile_file("examples/rational/rational.npg");
   prog = ir_ok(p);
-  f = npg_full_new(p, NPG_TCC);
+  f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   MemSamples rtrain, rtest;
   if (memsamples_fill(&rtrain, prog, f, 2, 40, 3u)) fail_msg("binding random params failed");
   if (memsamples_fill(&rtest, prog, f, 2, 20, 4u)) fail_msg("binding random params failed");
@@ -648,7 +648,7 @@ static void error_falls_with_caps(void **state) {
   }
   memsamples_free(&rtrain);
   memsamples_free(&rtest);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
   print_message("mean relative L2 error of the output over held-out samples, by cap per member:\n");
   print_message("  cap          ");
@@ -666,7 +666,7 @@ static void error_falls_with_caps(void **state) {
 
 /* A model trained with `cap`, `energy`, centered or not, within `mem`
  * bytes of snapshots (0: no limit); the test fails if training does. */
-static Model *train_with(Program *prog, NpgFull *f, const SampleSource *src, int cap, double energy, bool uncentered,
+static Model *train_with(Program *prog, Full *f, const SampleSource *src, int cap, double energy, bool uncentered,
                          size_t mem) {
   TrainOptions opt = {0};
   opt.cap = cap;
@@ -687,14 +687,14 @@ typedef struct MeshSamples {
   double *x;                /* S x V x 3 */
 } MeshSamples;
 
-static int mesh_set(void *user, NpgFull *f, long k) {
+static int mesh_set(void *user, Full *f, long k) {
   MeshSamples *ms = user;
   long shape[2] = {ms->V, 3};
-  return npg_full_set(f, "x", 2, shape, ms->x + k * ms->V * 3, "x");
+  return full_set(f, "x", 2, shape, ms->x + k * ms->V * 3, "x");
 }
 
 /* Bind the grid's params in `f` (when non-NULL) and draw S deformations. */
-static void mesh_samples(MeshSamples *ms, NpgFull *f, long nx, long S, unsigned seed) {
+static void mesh_samples(MeshSamples *ms, Full *f, long nx, long S, unsigned seed) {
   long V = nx * nx, E = 0;
   double *edge = malloc(sizeof(double) * (size_t)(V * 6)), *L0 = malloc(sizeof(double) * (size_t)(V * 3));
   double *rest = malloc(sizeof(double) * (size_t)(V * 3));
@@ -718,8 +718,8 @@ static void mesh_samples(MeshSamples *ms, NpgFull *f, long nx, long S, unsigned 
     }
   if (f) {
     long se[2] = {E, 2}, sl[1] = {E};
-    if (npg_full_set_param(f, "edge", 2, se, edge, "edge") || npg_full_set_param(f, "L0", 1, sl, L0, "L0"))
-      fail_msg("%s", npg_full_error(f));
+    if (full_set_param(f, "edge", 2, se, edge, "edge") || full_set_param(f, "L0", 1, sl, L0, "L0"))
+      fail_msg("%s", full_error(f));
   }
   *ms = (MeshSamples){V, E, S, malloc(sizeof(double) * (size_t)(S * V * 3))};
   for (long s = 0; s < S; s++) {
@@ -743,7 +743,7 @@ static void centered_beats_uncentered_on_deforming_mesh(void **state) {
   (void)state;
   NpgProgram *p = compile_file("tests/programs/deforming_springs.npg");
   Program *prog = ir_ok(p);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   MeshSamples train, test;
   mesh_samples(&train, f, 8, 60, 7u);
   mesh_samples(&test, NULL, 8, 20, 8u);
@@ -763,7 +763,7 @@ static void centered_beats_uncentered_on_deforming_mesh(void **state) {
   assert_true(err[0] * 5 <= err[1]);
   free(train.x);
   free(test.x);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
 }
 
@@ -772,8 +772,8 @@ static void centered_beats_uncentered_on_deforming_mesh(void **state) {
 /* tune_search on `prog` meets `tol` (checked independently, by mean_error
  * on the validation samples), and no uniform cap 1..`umax` that meets it
  * (trained from scratch by train_model) costs less than its choice. */
-static void check_tune(const char *name, Program *prog, NpgFull *f, SampleSource *src, void *valid,
-                       int (*set)(void *, NpgFull *, long), long Sv, const char *out, double tol, int umax) {
+static void check_tune(const char *name, Program *prog, Full *f, SampleSource *src, void *valid,
+                       int (*set)(void *, Full *, long), long Sv, const char *out, double tol, int umax) {
   TrainOptions opt = {0};
   opt.cap = 60;
   opt.energy = 1.0;
@@ -810,18 +810,18 @@ static void tune_meets_tolerance_at_least_cost(void **state) {
   (void)state;
   NpgProgram *p = compile_file("examples/rational/rational.npg");
   Program *prog = ir_ok(p);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   MemSamples rtrain, rtest;
   if (memsamples_fill(&rtrain, prog, f, 2, 40, 3u) || memsamples_fill(&rtest, prog, NULL, 2, 20, 4u)) fail_msg("random samples");
   SampleSource src = {rtrain.S, &rtrain, memsamples_set, NULL, NULL};
   check_tune("rational", prog, f, &src, &rtest, memsamples_set, rtest.S, "y", 1e-8, 3);
   memsamples_free(&rtrain);
   memsamples_free(&rtest);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
   p = compile_file("examples/radiosity/formfactors.npg");
   prog = ir_ok(p);
-  f = npg_full_new(p, NPG_TCC);
+  f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   RoomSamples train, test;
   room_samples(&train, f, 48, 48, 0.0, 1.0 / 47);
   room_samples(&test, NULL, 48, 12, 0.5 / 47, 4.0 / 47);
@@ -830,7 +830,7 @@ static void tune_meets_tolerance_at_least_cost(void **state) {
   check_tune("radiosity", prog, f, &rsrc, &test, room_set, test.S, "b", 0.13, 12);
   room_free(&train);
   room_free(&test);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
 }
 
@@ -845,7 +845,7 @@ static void tune_meets_tolerance_at_least_cost(void **state) {
 static void snapshots_match_memory(long S, long fit, long b, long q) {
   NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
   Program *prog = ir_ok(p);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   RoomSamples train;
   room_samples(&train, f, 24, S, 0.0, 1.0 / (double)(S - 1));
   SampleSource src = {train.S, &train, room_set, NULL, NULL};
@@ -878,7 +878,7 @@ static void snapshots_match_memory(long S, long fit, long b, long q) {
     model_free(m);
   }
   room_free(&train);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
 }
 
@@ -904,7 +904,7 @@ static void method_of_snapshots_batches_match_memory(void **state) {
  * to its largest entry (NaN when a basis vector has opposite signs in the
  * two: the sign convention failed), and the largest relative
  * difference of output `out` lifted from both on the samples of `test`. */
-static void model_distance(Program *prog, NpgFull *f, Model *a, Model *b, void *test, int (*set)(void *, NpgFull *, long),
+static void model_distance(Program *prog, Full *f, Model *a, Model *b, void *test, int (*set)(void *, Full *, long),
                            long S, const char *out, double *dbasis, double *dtensor, double *dout) {
   bool same_signs = true;
   *dbasis = *dtensor = *dout = 0;
@@ -941,14 +941,14 @@ static void model_distance(Program *prog, NpgFull *f, Model *a, Model *b, void *
   assert_non_null(ra), assert_non_null(rb);
   int qo = emit_index_of(&prog->quantities, find_quantity(prog, out));
   for (long k = 0; k < S; k++) {
-    if (set(test, f, k) || npg_full_eval(f, k)) fail_msg("%s", npg_full_error(f));
+    if (set(test, f, k) || full_eval(f, k)) fail_msg("%s", full_error(f));
     for (int q = 0; q < a->nq; q++) {
       const Sym *sy = prog->quantities.v[q];
-      if (sy->kind == SYM_INPUT) reduced_project(ra, q, npg_full_get(f, sy->name, NULL)), reduced_project(rb, q, npg_full_get(f, sy->name, NULL));
+      if (sy->kind == SYM_INPUT) reduced_project(ra, q, full_get(f, sy->name, NULL)), reduced_project(rb, q, full_get(f, sy->name, NULL));
     }
     if (reduced_eval(ra, k) || reduced_eval(rb, k)) fail_msg("%s%s", reduced_error(ra), reduced_error(rb));
     size_t n;
-    npg_full_get(f, out, &n);
+    full_get(f, out, &n);
     double *ya = malloc(sizeof(double) * n), *yb = malloc(sizeof(double) * n), big = 0, d = 0;
     reduced_lift(ra, qo, ya);
     reduced_lift(rb, qo, yb);
@@ -979,7 +979,7 @@ static void out_of_core_matches_memory(void **state) {
   (void)state;
   NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
   Program *prog = ir_ok(p);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   RoomSamples train, test;
   room_samples(&train, f, 24, 20, 0.0, 1.0 / 19);
   room_samples(&test, NULL, 24, 6, 0.5 / 19, 3.0 / 19);
@@ -1007,7 +1007,7 @@ static void out_of_core_matches_memory(void **state) {
   }
   room_free(&train);
   room_free(&test);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
 }
 
@@ -1016,7 +1016,7 @@ static void out_of_core_matches_memory_extern(void **state) {
   (void)state;
   NpgProgram *p = compile_file("tests/programs/extern_stage.npg");
   Program *prog = ir_ok(p);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   MemSamples train, test;
   if (memsamples_fill(&train, prog, f, 200, 20, 11u) || memsamples_fill(&test, prog, f, 200, 5, 12u))
     fail_msg("binding random params failed");
@@ -1033,7 +1033,7 @@ static void out_of_core_matches_memory_extern(void **state) {
   model_free(b);
   memsamples_free(&train);
   memsamples_free(&test);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
 }
 

@@ -10,7 +10,7 @@
 typedef struct Trained {
   NpgProgram *p;
   Program *prog;
-  NpgFull *f;
+  Full *f;
   MemSamples train;
   Model *m;
 } Trained;
@@ -21,7 +21,7 @@ static inline void train(Trained *tr, const char *path, const char *text, long n
   memset(tr, 0, sizeof *tr);
   tr->p = text ? compile_text(path, text) : compile_file(path);
   tr->prog = ir_ok(tr->p);
-  tr->f = npg_full_new(tr->p, NPG_TCC);
+  tr->f = full_new(npg_program_ir(tr->p), JIT_TCC, NULL);
   if (memsamples_fill(&tr->train, tr->prog, tr->f, n, S, 5u)) fail_msg("binding random params failed");
   SampleSource src = {S, &tr->train, memsamples_set, NULL, NULL};
   TrainOptions opt = {0};
@@ -35,7 +35,7 @@ static inline void train(Trained *tr, const char *path, const char *text, long n
 static inline void trained_free(Trained *tr) {
   model_free(tr->m);
   memsamples_free(&tr->train);
-  npg_full_free(tr->f);
+  full_free(tr->f);
   npg_free(tr->p);
 }
 

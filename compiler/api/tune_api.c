@@ -26,8 +26,9 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
     snprintf(rep->error, sizeof rep->error, "%s", npg_full_error(f));
     return NULL;
   }
-  Program *prog = (Program *)full_program(f);
-  SampleSource tsrc = {ntrain, tuser, train, NULL, NULL}, vsrc = {nvalid, vuser, valid, NULL, NULL};
+  Program *prog = (Program *)full_program(f->full);
+  SampleClosure tset = {train, tuser, f}, vset = {valid, vuser, f};
+  SampleSource tsrc = {ntrain, &tset, api_sample_set, NULL, NULL}, vsrc = {nvalid, &vset, api_sample_set, NULL, NULL};
   TrainOptions topt = {.cap = max_cap, .energy = 1.0, .uncentered = o && o->uncentered, .progress = o && o->progress};
   if (o) topt.mem = o->mem;
   TuneResult *r = calloc(1, sizeof *r);
@@ -43,8 +44,8 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   rep->priv = r;
   rep->class_name = names;
   for (int c = 0; c < prog->classes.n; c++) names[c] = ((BasisClass *)prog->classes.v[c])->size_name;
-  if (!(ts = train_set_new(prog, f, &tsrc, &topt, rep->error, sizeof rep->error)) ||
-      tune_search(ts, prog, f, &vsrc, tol, max_cap, topt.progress, r, rep->error, sizeof rep->error) != 0)
+  if (!(ts = train_set_new(prog, f->full, &tsrc, &topt, rep->error, sizeof rep->error)) ||
+      tune_search(ts, prog, f->full, &vsrc, tol, max_cap, topt.progress, r, rep->error, sizeof rep->error) != 0)
     goto done;
   rep->nclasses = r->nclasses;
   rep->ntrials = r->ntrials;
@@ -65,11 +66,11 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   /* DESIGN §12: at the caps chosen, each eligible stage interpolated where that measures strictly lower on
    * the validation samples (so the tolerance met stays met) */
   TrainOptions copt = {.valid = &vsrc, .choose_strict = true, .progress = topt.progress};
-  if (m && tune_choose_reductions(m, f, &vsrc, &copt, rep->error, sizeof rep->error) != 0) {
+  if (m && tune_choose_reductions(m, f->full, &vsrc, &copt, rep->error, sizeof rep->error) != 0) {
     model_free(m);
     m = NULL;
   }
-  if (m && !(m->param_hashes = api_param_hashes(f))) snprintf(rep->error, sizeof rep->error, "out of memory");
+  if (m && !(m->param_hashes = api_param_hashes(f->full))) snprintf(rep->error, sizeof rep->error, "out of memory");
   if (m && !m->param_hashes) model_free(m);
   else if (m && !(nm = api_model_wrap(m))) snprintf(rep->error, sizeof rep->error, "out of memory");
 done:
