@@ -9,7 +9,7 @@
  *      stage sequence on the same reduced tensors (bench/reduced_peer.py,
  *      reading the model_save() files), and against the bandwidth bound
  *      (bytes of reduced tensors / streaming bandwidth measured here);
- *   3. full evaluation (npg_full_eval, cc and libtcc) against reduced
+ *   3. full evaluation (full_eval, cc and libtcc) against reduced
  *      evaluation, for F = 500, 1000, 2000.
  *
  *     build/bench_reduce [1] [2] [3] [F=500,1000] [S=64] [caps=10,20,40,60]
@@ -136,15 +136,15 @@ static void room_free(Room *r) {
   memset(r, 0, sizeof *r);
 }
 
-static void room_bind(const Room *r, NpgFull *f) {
+static void room_bind(const Room *r, Full *f) {
   long st[2] = {r->F, 3};
-  if (npg_full_set_param(f, "tri", 2, st, r->tri, "tri")) die("bind tri", npg_full_error(f));
+  if (full_set_param(f, "tri", 2, st, r->tri, "tri")) die("bind tri", full_error(f));
 }
 
-static int room_set(void *user, NpgFull *f, long k) {
+static int room_set(void *user, Full *f, long k) {
   const Room *r = user;
   long sg[2] = {r->V, 3}, sv[2] = {r->F, r->F};
-  return npg_full_set(f, "g", 2, sg, r->g + k * r->V * 3, "g") || npg_full_set(f, "v", 2, sv, r->v, "v");
+  return full_set(f, "g", 2, sg, r->g + k * r->V * 3, "g") || full_set(f, "v", 2, sv, r->v, "v");
 }
 
 /* ---------------------------------------------------------------- training, its phases timed
@@ -237,7 +237,7 @@ typedef struct Trained {
   long F, S;
   int cap;
   Room room;
-  NpgFull *f; /* the training evaluator (cc), bound to the room */
+  Full *f; /* the training evaluator (cc), bound to the room */
   Model *m;
   double t_train, t_snap, t_pca, t_premul;
   int nt;
@@ -304,8 +304,8 @@ static Trained *train(NpgProgram *p, long F, long S, int cap, bool rerun_all) {
   if (!tr) die("out of memory", "train");
   tr->F = F, tr->S = S, tr->cap = cap;
   room_make(&tr->room, F, S, 0.5 / (double)S, 1.0 / (double)S, 1000u + (uint64_t)F);
-  tr->f = npg_full_new(p, NPG_CC);
-  if (npg_full_error(tr->f)[0]) die("npg_full_new", npg_full_error(tr->f));
+  tr->f = full_new(npg_program_ir(p), JIT_CC, NULL);
+  if (full_error(tr->f)[0]) die("npg_full_new", full_error(tr->f));
   room_bind(&tr->room, tr->f);
   SampleSource src = {S, &tr->room, room_set, NULL, NULL};
   TrainOptions opt = {0};
@@ -332,7 +332,7 @@ static Trained *train(NpgProgram *p, long F, long S, int cap, bool rerun_all) {
     run->rerun_seconds = NAN;
     Count c = {0, 0, 0};
     NpgSink sink = {&c, count_entry, 0, 1}; /* every row */
-    if (full_build(tr->f, x->builder, &sink)) die("full_build", npg_full_error(tr->f));
+    if (full_build(tr->f, x->builder, &sink)) die("full_build", full_error(tr->f));
     run->entries = c.entries, run->keys = c.keys;
     run->flops = premul_flops(x, c.entries, c.keys);
     tr->premul_flops += run->flops;
@@ -350,7 +350,7 @@ static Trained *train(NpgProgram *p, long F, long S, int cap, bool rerun_all) {
 static void trained_free(Trained *tr) {
   if (!tr) return;
   model_free(tr->m);
-  npg_full_free(tr->f);
+  full_free(tr->f);
   room_free(&tr->room);
   free(tr);
 }
@@ -769,7 +769,7 @@ static int eval_projected(void *arg) {
   return reduced_eval(c->r, 0);
 }
 
-static int eval_full(void *arg) { return npg_full_eval(arg, 0); }
+static int eval_full(void *arg) { return full_eval(arg, 0); }
 
 typedef struct Part3Row {
   long F, S;
@@ -790,14 +790,14 @@ static void part3_row(NpgProgram *p, Trained *tr, Part3Row *row) {
   Room test;
   room_make(&test, tr->F, 1, 0.37, 0, 7u);
   /* full: the training evaluator (cc) and a libtcc one, on the held-out sample */
-  NpgFull *ft = npg_full_new(p, NPG_TCC);
-  if (npg_full_error(ft)[0]) die("npg_full_new", npg_full_error(ft));
+  Full *ft = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  if (full_error(ft)[0]) die("npg_full_new", full_error(ft));
   room_bind(&test, ft);
-  if (room_set(&test, tr->f, 0) || npg_full_eval(tr->f, 0)) die("full", npg_full_error(tr->f));
-  if (room_set(&test, ft, 0) || npg_full_eval(ft, 0)) die("full", npg_full_error(ft));
+  if (room_set(&test, tr->f, 0) || full_eval(tr->f, 0)) die("full", full_error(tr->f));
+  if (room_set(&test, ft, 0) || full_eval(ft, 0)) die("full", full_error(ft));
   row->cc = best_of(eval_full, tr->f, 0.5);
   row->tcc = best_of(eval_full, ft, 0.5);
-  npg_full_free(ft);
+  full_free(ft);
   /* reduced: project g, every stage (v by its learned map), no lifting */
   Reduced *r = reduced_new(m, err, sizeof err);
   if (!r) die("reduced_new", err);
@@ -815,7 +815,7 @@ static void part3_row(NpgProgram *p, Trained *tr, Part3Row *row) {
   openblas_set_num_threads(threads);
   /* the accuracy of what was timed: ‖p − B p̂‖ / ‖p‖, and the floor ‖p − B Bᵀp‖ / ‖p‖ */
   size_t n;
-  const double *pf = npg_full_get(tr->f, "p", &n);
+  const double *pf = full_get(tr->f, "p", &n);
   double *pl = xmalloc(sizeof(double) * n), *pc = xmalloc(sizeof(double) * (size_t)m->classes[m->qclass[qp]].m);
   reduced_lift(r, qp, pl);
   double num = 0, den = 0;

@@ -29,18 +29,18 @@ static double now(void) {
 
 static const char *const PAIRS[] = {"s", "r", "h", "c", "d", "p"};
 
-static NpgFull *evaluator(NpgProgram *p, NpgBackend b, const Mesh *m, const double *v) {
-  NpgFull *f = npg_full_new(p, b);
+static Full *evaluator(NpgProgram *p, JitBackend b, const Mesh *m, const double *v) {
+  Full *f = full_new(npg_program_ir(p), b, NULL);
   long F = m->F;
   double *t = malloc(sizeof(double) * (size_t)F * 3), *rho = malloc(sizeof(double) * (size_t)F);
   double *e = malloc(sizeof(double) * (size_t)F);
   for (long i = 0; i < F * 3; i++) t[i] = m->tri[i];
   for (long i = 0; i < F; i++) rho[i] = 0.5, e[i] = (double)(i % 7) / 7.0;
   long st[2] = {F, 3}, sf[1] = {F}, sg[2] = {m->V, 3}, sv[2] = {F, F};
-  if (npg_full_set_param(f, "tri", 2, st, t, "tri") || npg_full_set_param(f, "rho", 1, sf, rho, "rho") ||
-      npg_full_set(f, "g", 2, sg, m->g, "g") || npg_full_set(f, "e", 1, sf, e, "e") ||
-      npg_full_set(f, "v", 2, sv, v, "v") || npg_full_eval(f, 0)) {
-    fprintf(stderr, "bench_restricted: %s\n", npg_full_error(f));
+  if (full_set_param(f, "tri", 2, st, t, "tri") || full_set_param(f, "rho", 1, sf, rho, "rho") ||
+      full_set(f, "g", 2, sg, m->g, "g") || full_set(f, "e", 1, sf, e, "e") ||
+      full_set(f, "v", 2, sv, v, "v") || full_eval(f, 0)) {
+    fprintf(stderr, "bench_restricted: %s\n", full_error(f));
     exit(1);
   }
   free(t), free(rho), free(e);
@@ -49,9 +49,9 @@ static NpgFull *evaluator(NpgProgram *p, NpgBackend b, const Mesh *m, const doub
 
 /* One sweep: P restricted evaluations, pass k the rows [n k / P, n (k+1) / P)
  * of every pair quantity (as ooc.c cuts them). */
-static double sweep(NpgFull *f, const Program *prog, long P) {
+static double sweep(Full *f, const Program *prog, long P) {
   double t0 = now();
-  size_t n = (size_t)npg_full_dim(f, "F") * (size_t)npg_full_dim(f, "F");
+  size_t n = (size_t)full_dim(f, "F") * (size_t)full_dim(f, "F");
   for (long k = 0; k < P; k++) {
     Demand *d = full_demand(f);
     for (int q = 0; q < prog->quantities.n; q++) {
@@ -60,7 +60,7 @@ static double sweep(NpgFull *f, const Program *prog, long P) {
         if (strcmp(s->name, PAIRS[i]) == 0) demand_entries(d, s, n * (size_t)k / (size_t)P, n * (size_t)(k + 1) / (size_t)P);
     }
     if (full_eval_demand(f, k, d)) {
-      fprintf(stderr, "bench_restricted: %s\n", npg_full_error(f));
+      fprintf(stderr, "bench_restricted: %s\n", full_error(f));
       exit(1);
     }
   }
@@ -100,17 +100,17 @@ int main(int argc, char **argv) {
     double *v = malloc(sizeof(double) * (size_t)F * (size_t)F);
     for (long i = 0; i < F * F; i++) v[i] = 1;
     for (int b = 0; b < 2; b++) {
-      NpgFull *f = evaluator(p, b ? NPG_CC : NPG_TCC, &m, v);
+      Full *f = evaluator(p, b ? JIT_CC : JIT_TCC, &m, v);
       double whole = 1e30, sw = 1e30;
       for (int r = 0; r < reps; r++) {
         double t0 = now();
-        npg_full_eval(f, r);
+        full_eval(f, r);
         whole = fmin(whole, now() - t0);
         sw = fmin(sw, sweep(f, prog, P));
       }
       printf("%6ld %8s %12.4f %12.4f %12.2f %14.2f\n", F, b ? "cc -O3" : "libtcc", whole, sw, sw / whole,
              (double)P * whole / sw);
-      npg_full_free(f);
+      full_free(f);
     }
     free(v);
     mesh_free(&m);

@@ -49,7 +49,7 @@ static double peak_gb(void) {
 
 typedef struct Grid {
   long n, N;
-  double *nbr;     /* N x 4, -1 padding (as doubles, for npg_full_set_param) */
+  double *nbr;     /* N x 4, -1 padding (as doubles, for full_set_param) */
   long *inbr;
   double *src;
   double *kappa[2]; /* two samples */
@@ -117,22 +117,22 @@ static double peer_solve(Peer *p, const Grid *g, const double *kappa, bool analy
   return now() - t0;
 }
 
-static NpgFull *evaluator(NpgProgram *prog, const Grid *g, NpgBackend backend, long min_rows) {
-  NpgFull *f = npg_full_new(prog, backend);
+static Full *evaluator(NpgProgram *prog, const Grid *g, JitBackend backend, long min_rows) {
+  Full *f = full_new(npg_program_ir(prog), backend, NULL);
   long s2[2] = {g->N, 4}, s1[1] = {g->N};
-  if (!f || npg_full_set_param(f, "nbr", 2, s2, g->nbr, "nbr") || npg_full_set_param(f, "src", 1, s1, g->src, "src")) {
-    fprintf(stderr, "bench_sparse: %s\n", f ? npg_full_error(f) : "out of memory");
+  if (!f || full_set_param(f, "nbr", 2, s2, g->nbr, "nbr") || full_set_param(f, "src", 1, s1, g->src, "src")) {
+    fprintf(stderr, "bench_sparse: %s\n", f ? full_error(f) : "out of memory");
     exit(1);
   }
   full_set_sparse_min_rows(f, min_rows);
   return f;
 }
 
-static double npg_solve(NpgFull *f, const Grid *g, const double *kappa, long sample) {
+static double npg_solve(Full *f, const Grid *g, const double *kappa, long sample) {
   long s1[1] = {g->N};
   double t0 = now();
-  if (npg_full_set(f, "kappa", 1, s1, kappa, "kappa") || npg_full_eval(f, sample)) {
-    fprintf(stderr, "bench_sparse: %s\n", npg_full_error(f));
+  if (full_set(f, "kappa", 1, s1, kappa, "kappa") || full_eval(f, sample)) {
+    fprintf(stderr, "bench_sparse: %s\n", full_error(f));
     exit(1);
   }
   return now() - t0;
@@ -142,7 +142,7 @@ static void one_size(NpgProgram *prog, long n) {
   Grid g = grid(n);
   /* npg first, so the process's peak memory up to here is npg's (with the
      grid's data) */
-  NpgFull *f = evaluator(prog, &g, NPG_CC, FULL_SPARSE_MIN_ROWS);
+  Full *f = evaluator(prog, &g, JIT_CC, FULL_SPARSE_MIN_ROWS);
   double npg_first = npg_solve(f, &g, g.kappa[0], 0);
   double npg_again = npg_solve(f, &g, g.kappa[1], 1);
   double npg_peak = peak_gb();
@@ -154,7 +154,7 @@ static void one_size(NpgProgram *prog, long n) {
   double peer_first = peer_solve(&p, &g, g.kappa[0], true);
   double peer_again = peer_solve(&p, &g, g.kappa[1], false);
   size_t cnt;
-  const double *u = npg_full_get(f, "u", &cnt);
+  const double *u = full_get(f, "u", &cnt);
   double d = 0, s = 0;
   for (long i = 0; i < g.N; i++) d = fmax(d, fabs(u[i] - p.u[i])), s = fmax(s, fabs(p.u[i]));
   long patterns, chol, lu;
@@ -165,7 +165,7 @@ static void one_size(NpgProgram *prog, long n) {
          g.N, npg_first, npg_again, peer_first, peer_again, npg_first / peer_first, npg_again / peer_again, d / s, patterns,
          chol, lu, npg_peak);
   fflush(stdout);
-  npg_full_free(f);
+  full_free(f);
   cholmod_l_free_factor(&p.L, &p.cc);
   cholmod_l_free_sparse(&p.A, &p.cc);
   cholmod_l_finish(&p.cc);
@@ -179,14 +179,14 @@ static void crossover(NpgProgram *prog) {
   printf("%9s %12s %12s %8s\n", "cells", "sparse (s)", "dense (s)", "dense/sparse");
   for (long n = 4; n <= 32; n += 2) {
     Grid g = grid(n);
-    NpgFull *sp = evaluator(prog, &g, NPG_TCC, 0), *de = evaluator(prog, &g, NPG_TCC, LONG_MAX);
+    Full *sp = evaluator(prog, &g, JIT_TCC, 0), *de = evaluator(prog, &g, JIT_TCC, LONG_MAX);
     double bs = 1e30, bd = 1e30;
     for (int r = 0; r < 7; r++) {
       bs = fmin(bs, npg_solve(sp, &g, g.kappa[r & 1], r));
       bd = fmin(bd, npg_solve(de, &g, g.kappa[r & 1], r));
     }
     printf("%9ld %12.2e %12.2e %8.2f\n", g.N, bs, bd, bd / bs);
-    npg_full_free(sp), npg_full_free(de);
+    full_free(sp), full_free(de);
     free(g.nbr), free(g.inbr), free(g.src), free(g.kappa[0]), free(g.kappa[1]);
   }
 }
@@ -199,10 +199,10 @@ typedef struct Fields {
   double *kappa; /* S x N */
 } Fields;
 
-static int fields_set(void *user, NpgFull *f, long k) {
+static int fields_set(void *user, Full *f, long k) {
   const Fields *fs = user;
   long s1[1] = {fs->g->N};
-  return npg_full_set(f, "kappa", 1, s1, fs->kappa + k * fs->g->N, "kappa");
+  return full_set(f, "kappa", 1, s1, fs->kappa + k * fs->g->N, "kappa");
 }
 
 /* GFLOP/s of C(M x N) += Aᵀ B (A: K x M), premul.c's final GEMM, best of 3. */
@@ -241,7 +241,7 @@ static void premul_bench(NpgProgram *prog, long n, long S, int cap) {
       fs.kappa[k * g.N + i] = v;
     }
   }
-  NpgFull *f = evaluator(prog, &g, NPG_CC, FULL_SPARSE_MIN_ROWS);
+  Full *f = evaluator(prog, &g, JIT_CC, FULL_SPARSE_MIN_ROWS);
   SampleSource src = {S, &fs, fields_set, NULL, NULL};
   TrainOptions opt = {0};
   opt.cap = cap;
@@ -282,7 +282,7 @@ static void premul_bench(NpgProgram *prog, long n, long S, int cap) {
       }
   }
   model_free(m);
-  npg_full_free(f);
+  full_free(f);
   free(fs.kappa);
   free(g.nbr), free(g.inbr), free(g.src), free(g.kappa[0]), free(g.kappa[1]);
 }

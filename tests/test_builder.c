@@ -16,7 +16,7 @@
 
 typedef struct Collect {
   const Program *prog;
-  NpgFull *f;
+  Full *f;
   const TensorGroup *g;
   double *out;          /* numerator or diagonal: [rows]; declared operator: [rows * ncols] */
   long ncols;
@@ -32,7 +32,7 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
   k->last_row = row;
   if (k->diag && row != col) k->diag_ok = false;
   double v = coef;
-  for (int i = 0; i < nin; i++) v *= npg_full_get(k->f, k->g->inputs[i]->name, NULL)[in[i]];
+  for (int i = 0; i < nin; i++) v *= full_get(k->f, k->g->inputs[i]->name, NULL)[in[i]];
   if (k->ncols) k->out[row * k->ncols + col] += v;
   else k->out[row] += v;
   k->count++;
@@ -72,7 +72,7 @@ static int run_group(Collect *k, const char *name, const TensorGroup *g, long n,
   k->ordered = k->diag_ok = true;
   NpgSink sink = {k, on_entry, 0, 1}; /* every row */
   if (full_build(k->f, name, &sink) != 0) {
-    print_message("%s: %s: %s\n", path, what, npg_full_error(k->f));
+    print_message("%s: %s: %s\n", path, what, full_error(k->f));
     return 1;
   }
   int bad = 0;
@@ -92,7 +92,7 @@ static double rpow(double b, long p, long q) {
 static int check_program(const char *path, double *worst) {
   NpgProgram *p = compile_file(path);
   Program *prog = ir_ok(p);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   int failures = 0;
   const long n = 6;
   unsigned seed = 4321u;
@@ -111,9 +111,9 @@ static int check_program(const char *path, double *worst) {
     long shape[MAX_AXES + MAX_STATIC];
     for (int a = 0; a < s->ndims; a++) shape[a] = n;
     for (int a = 0; a < s->nstatic; a++) shape[s->ndims + a] = s->shape[a];
-    if (npg_full_set(f, s->name, s->ndims + s->nstatic, shape, v, s->name)) fail_msg("%s", npg_full_error(f));
+    if (full_set(f, s->name, s->ndims + s->nstatic, shape, v, s->name)) fail_msg("%s", full_error(f));
   }
-  if (npg_full_eval(f, 0)) fail_msg("%s: %s", path, npg_full_error(f));
+  if (full_eval(f, 0)) fail_msg("%s: %s", path, full_error(f));
   for (int i = 0; i < prog->stages.n; i++) {
     const Stage *st = prog->stages.v[i];
     if (st->kind == ST_EXTERN) continue;
@@ -125,7 +125,7 @@ static int check_program(const char *path, double *worst) {
       const Term *tm = st->terms[t];
       memset(num, 0, sizeof(double) * count);
       if (tm->named_num) {
-        memcpy(num, npg_full_get(f, tm->named_num->name, NULL), sizeof(double) * count);
+        memcpy(num, full_get(f, tm->named_num->name, NULL), sizeof(double) * count);
       } else {
         k.out = num;
         k.ncols = 0;
@@ -160,7 +160,7 @@ static int check_program(const char *path, double *worst) {
       }
       for (size_t e = 0; e < count; e++) y[e] += num[e];
     }
-    const double *full = npg_full_get(f, st->sym->name, NULL);
+    const double *full = full_get(f, st->sym->name, NULL);
     double dn = 0, dd = 0;
     for (size_t e = 0; e < count; e++) {
       dn = fmax(dn, fabs(y[e] - full[e]));
@@ -177,7 +177,7 @@ static int check_program(const char *path, double *worst) {
     free(dg);
   }
   ref_free(d);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
   return failures;
 }

@@ -26,7 +26,7 @@ static const char *const transposes =
     "output o = sum(k = 0..N-1, z[k, k])\n";
 
 /* Bind `f` to sample `k` of `prog` (the radiosity room, or the program above). */
-static void bind_sample(NpgFull *f, bool radiosity, long n, long k) {
+static void bind_sample(Full *f, bool radiosity, long n, long k) {
   unsigned seed = 7u + 31u * (unsigned)k;
   if (radiosity) {
     Mesh mesh;
@@ -38,10 +38,10 @@ static void bind_sample(NpgFull *f, bool radiosity, long n, long k) {
     for (long i = 0; i < n; i++) rho[i] = randdata_uniform(&seed, 0.1, 0.8), e[i] = randdata_uniform(&seed, 0, 1);
     for (long i = 0; i < n * n; i++) v[i] = randdata_uniform(&seed, 0, 1);
     long ts[2] = {n, 3}, fs[1] = {n}, gs[2] = {mesh.V, 3}, vs[2] = {n, n};
-    if (npg_full_set_param(f, "tri", 2, ts, tri, "tri") || npg_full_set_param(f, "rho", 1, fs, rho, "rho") ||
-        npg_full_set(f, "g", 2, gs, mesh.g, "g") || npg_full_set(f, "e", 1, fs, e, "e") ||
-        npg_full_set(f, "v", 2, vs, v, "v"))
-      fail_msg("%s", npg_full_error(f));
+    if (full_set_param(f, "tri", 2, ts, tri, "tri") || full_set_param(f, "rho", 1, fs, rho, "rho") ||
+        full_set(f, "g", 2, gs, mesh.g, "g") || full_set(f, "e", 1, fs, e, "e") ||
+        full_set(f, "v", 2, vs, v, "v"))
+      fail_msg("%s", full_error(f));
     free(tri), free(rho), free(e), free(v);
     mesh_free(&mesh);
     return;
@@ -54,10 +54,10 @@ static void bind_sample(NpgFull *f, bool radiosity, long n, long k) {
   for (long i = 0; i < n * n; i++) y[i] = randdata_uniform(&seed, -1, 1), e2[i] = randdata_uniform(&seed, 0, 1);
   double m[3] = {randdata_uniform(&seed, 1, 2), randdata_uniform(&seed, 1, 2), randdata_uniform(&seed, 1, 2)};
   long is[1] = {n}, xs[1] = {V}, ys[2] = {n, n}, ms[1] = {3};
-  if (npg_full_set_param(f, "idx", 1, is, idx, "idx") || npg_full_set(f, "x", 1, xs, x, "x") ||
-      npg_full_set(f, "y", 2, ys, y, "y") || npg_full_set(f, "m", 1, ms, m, "m") ||
-      npg_full_set(f, "e2", 2, ys, e2, "e2"))
-    fail_msg("%s", npg_full_error(f));
+  if (full_set_param(f, "idx", 1, is, idx, "idx") || full_set(f, "x", 1, xs, x, "x") ||
+      full_set(f, "y", 2, ys, y, "y") || full_set(f, "m", 1, ms, m, "m") ||
+      full_set(f, "e2", 2, ys, e2, "e2"))
+    fail_msg("%s", full_error(f));
   free(idx), free(x), free(y), free(e2);
 }
 
@@ -71,21 +71,21 @@ typedef struct Want {
  * is 0), and compare the wanted entries bit for bit; `skipped` must stay
  * 0 on sample 0, and so must some entry of the first wanted quantity that
  * a whole evaluation makes nonzero. */
-static void check_restricted(NpgProgram *p, bool radiosity, long n, NpgBackend backend, const Want *want, int nwant,
+static void check_restricted(NpgProgram *p, bool radiosity, long n, JitBackend backend, const Want *want, int nwant,
                              const char *skipped) {
   Program *prog = ir_ok(p);
-  NpgFull *whole = npg_full_new(p, backend), *part = npg_full_new(p, backend);
+  Full *whole = full_new(npg_program_ir(p), backend, NULL), *part = full_new(npg_program_ir(p), backend, NULL);
   for (long k = 0; k < 2; k++) {
     bind_sample(whole, radiosity, n, k);
     bind_sample(part, radiosity, n, k);
-    if (npg_full_eval(whole, k)) fail_msg("%s", npg_full_error(whole));
+    if (full_eval(whole, k)) fail_msg("%s", full_error(whole));
     Demand *d = full_demand(part);
     assert_non_null(d);
     for (int i = 0; i < nwant; i++) demand_entries(d, find_quantity(prog, want[i].name), want[i].e0, want[i].e1);
-    if (full_eval_demand(part, k, d)) fail_msg("%s", npg_full_error(part));
+    if (full_eval_demand(part, k, d)) fail_msg("%s", full_error(part));
     for (int i = 0; i < nwant; i++) {
       size_t na, nb;
-      const double *a = npg_full_get(whole, want[i].name, &na), *b = npg_full_get(part, want[i].name, &nb);
+      const double *a = full_get(whole, want[i].name, &na), *b = full_get(part, want[i].name, &nb);
       assert_int_equal(na, nb);
       for (size_t e = want[i].e0; e < want[i].e1; e++)
         if (memcmp(&a[e], &b[e], sizeof(double)) != 0)
@@ -94,19 +94,19 @@ static void check_restricted(NpgProgram *p, bool radiosity, long n, NpgBackend b
     }
     if (k == 0) {
       size_t ns;
-      const double *s = npg_full_get(part, skipped, &ns), *w = npg_full_get(whole, skipped, NULL);
+      const double *s = full_get(part, skipped, &ns), *w = full_get(whole, skipped, NULL);
       bool zero = true, nonzero = false;
       for (size_t e = 0; e < ns; e++) zero &= s[e] == 0, nonzero |= w[e] != 0;
       assert_true(nonzero && zero); /* computed whole, never restricted */
       size_t no;
-      const double *o = npg_full_get(part, want[0].name, &no), *ow = npg_full_get(whole, want[0].name, NULL);
+      const double *o = full_get(part, want[0].name, &no), *ow = full_get(whole, want[0].name, NULL);
       bool restricted = false; /* some entry of it not computed */
       for (size_t e = 0; e < no; e++) restricted |= ow[e] != 0 && o[e] == 0;
       assert_true(restricted);
     }
   }
-  npg_full_free(whole);
-  npg_full_free(part);
+  full_free(whole);
+  full_free(part);
 }
 
 /* Radiosity's pair rows as out-of-core passes ask for them: partial first
@@ -117,7 +117,7 @@ static void radiosity_rows_equal_whole(void **state) {
   NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
   const long F = 24;
   Want want[] = {{"p", 30, 100}, {"c", 90, 150}, {"h", 201, 202}, {"r", 575, 576}, {"s", 48, 72}, {"d", 0, 5}};
-  check_restricted(p, true, F, NPG_TCC, want, 6, "b");
+  check_restricted(p, true, F, JIT_TCC, want, 6, "b");
   npg_free(p);
 }
 
@@ -126,7 +126,7 @@ static void transposes_and_gathers_equal_whole(void **state) {
   NpgProgram *p = compile_text("transposes.npg", transposes);
   const long N = 13;
   Want want[] = {{"z", 20, 61}, {"t", 100, 110}, {"u", 140, 169}};
-  for (int cc = 0; cc < 2; cc++) check_restricted(p, false, N, cc ? NPG_CC : NPG_TCC, want, 3, "o");
+  for (int cc = 0; cc < 2; cc++) check_restricted(p, false, N, cc ? JIT_CC : JIT_TCC, want, 3, "o");
   npg_free(p);
 }
 
@@ -136,7 +136,7 @@ static void entries_become_boxes(void **state) {
   (void)state;
   NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
   Program *prog = ir_ok(p);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   bind_sample(f, true, 24, 0);
   Demand *d = full_demand(f);
   demand_entries(d, find_quantity(prog, "p"), 30, 100); /* row 1 from 6, rows 2-3, row 4 to 4 */
@@ -159,7 +159,7 @@ static void entries_become_boxes(void **state) {
     for (int i = 0; i < n; i++) found |= memcmp(box + 4 * i, want[b], sizeof want[b]) == 0;
     assert_true(found);
   }
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
 }
 
@@ -171,7 +171,7 @@ static void transposed_read_demands_rows_and_columns(void **state) {
   (void)state;
   NpgProgram *p = compile_text("transposes.npg", transposes);
   Program *prog = ir_ok(p);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   const long N = 13;
   bind_sample(f, false, N, 0);
   Demand *d = full_demand(f);
@@ -198,7 +198,7 @@ static void transposed_read_demands_rows_and_columns(void **state) {
   const size_t in = 7 * N + 2, out = 7 * N + 5; /* row 7: column 2 is read, column 5 not */
   for (long i = 0; i < nr; i++) col |= r[2 * i] <= in && in < r[2 * i + 1], other |= r[2 * i] <= out && out < r[2 * i + 1];
   assert_true(col && !other);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
 }
 

@@ -22,9 +22,6 @@
 
 /* ---------------------------------------------------------------- a trained model */
 
-static void train_small(Trained *tr, const char *path) { train(tr, path, NULL, 4, 12, 3); }
-
-
 /* Project the inputs of sample k of `ms` into every Reduced of r[0..n). */
 static void project_inputs(const Program *prog, const MemSamples *ms, long k, Reduced *const *r, int n) {
   for (int i = 0; i < ms->n; i++) {
@@ -210,7 +207,7 @@ static void generated_equals_runtime_larger(void **state) {
 static void singular_operator_named(void **state) {
   (void)state;
   Trained tr;
-  train_small(&tr, "examples/rational/rational.npg");
+  train_small(&tr, "examples/rational/rational.npg", 3, 4);
   char err[2048] = "";
   Reduced *r[2];
   for (int j = 0; j < 2; j++) assert_non_null(r[j] = reduced_new(tr.m, err, sizeof err));
@@ -227,7 +224,7 @@ static void singular_operator_named(void **state) {
 
   /* coordinates of another model are refused */
   Trained other;
-  train_small(&other, "tests/programs/root_of_op.npg");
+  train_small(&other, "tests/programs/root_of_op.npg", 3, 4);
   Reduced *ro = reduced_new(other.m, err, sizeof err);
   assert_int_equal(reduced_jit_eval(jit, ro, 0), -1);
   assert_non_null(strstr(reduced_jit_error(jit), "another model"));
@@ -276,7 +273,7 @@ static void npgc_emit_reduced(void **state) {
   const char *progs[] = {"examples/radiosity/formfactors.npg", "tests/programs/extern_stage.npg"};
   for (size_t i = 0; i < sizeof progs / sizeof *progs; i++) {
     Trained tr;
-    train_small(&tr, progs[i]);
+    train_small(&tr, progs[i], 3, 4);
     char dir[1024], model[1100], cpath[1100], cmd[4096], err[2048] = "";
     snprintf(dir, sizeof dir, "%s/npg-emit-reduced-XXXXXX", tmp_dir());
     assert_non_null(mkdtemp(dir));

@@ -131,7 +131,7 @@ static void detects_a_wrong_lowering(void **state) {
  * both, and the report names the stage. */
 /* exact_check with the defaults; its report in *report (to free). */
 static int run_exact(NpgProgram *p, char *err, size_t errlen, char **report) {
-  ExactOptions o = {0, 0, 1u, NPG_TCC, false};
+  ExactOptions o = {0, 0, 1u, JIT_TCC, false};
   size_t len = 0;
   FILE *out = open_memstream(report, &len);
   int rc = exact_check(p, &o, out, err, errlen);

@@ -58,20 +58,20 @@ static void held_out(const Program *prog, MemSamples *held, const MemSamples *tr
 
 /* Evaluate model `m` on held sample k: the worst relative difference of any
  * quantity from the full evaluator's. */
-static double reduced_vs_full(Model *m, NpgFull *f, MemSamples *held, long k, const char *path) {
+static double reduced_vs_full(Model *m, Full *f, MemSamples *held, long k, const char *path) {
   const Program *prog = m->prog;
   char err[1024];
   Reduced *r = reduced_new(m, err, sizeof err);
   assert_non_null(r);
   reduced_use_given_externs(r, true);
-  if (memsamples_set(held, f, k) || npg_full_eval(f, k)) fail_msg("%s: %s", path, npg_full_error(f));
+  if (memsamples_set(held, f, k) || full_eval(f, k)) fail_msg("%s: %s", path, full_error(f));
   for (int i = 0; i < held->n; i++)
     reduced_project(r, emit_index_of(&prog->quantities, held->sym[i]), held->val[i] + (size_t)k * held->count[i]);
   if (reduced_eval(r, k)) fail_msg("%s: %s", path, reduced_error(r));
   double worst = 0;
   for (int q = 0; q < m->nq; q++) {
     size_t cnt;
-    const double *full = npg_full_get(f, ((const Sym *)prog->quantities.v[q])->name, &cnt);
+    const double *full = full_get(f, ((const Sym *)prog->quantities.v[q])->name, &cnt);
     double *y = malloc(sizeof(double) * cnt + 1);
     reduced_lift(r, q, y);
     double d = rel_diff(full, y, cnt);
@@ -104,7 +104,7 @@ static int full_rank_program(const char *path, void *arg) {
     long c = (long)memsamples_count(prog->quantities.v[i], n, shape);
     S = c + 4 > S ? c + 4 : S;
   }
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   MemSamples train, held;
   if (memsamples_fill(&train, prog, f, n, S, 11u)) fail_msg("binding random params failed");
   SampleSource src = {S, &train, memsamples_set, NULL, NULL};
@@ -142,7 +142,7 @@ static int full_rank_program(const char *path, void *arg) {
   memsamples_free(&train);
   model_free(m);
   model_free(g);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
   return failures;
 }
@@ -174,7 +174,7 @@ static void truncated_obeys_bound(void **state) {
   NpgProgram *p = compile_file(NBODY);
   Program *prog = ir_ok(p);
   const long n = 6, S = 40;
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   MemSamples train, held;
   if (memsamples_fill(&train, prog, f, n, S, 5u)) fail_msg("binding random params failed");
   SampleSource src = {S, &train, memsamples_set, NULL, NULL};
@@ -200,13 +200,13 @@ static void truncated_obeys_bound(void **state) {
   for (long k = 0; k < 3; k++) {
     Reduced *r = reduced_new(m, err, sizeof err);
     assert_non_null(r);
-    if (memsamples_set(&held, f, k) || npg_full_eval(f, k)) fail_msg("%s", npg_full_error(f));
+    if (memsamples_set(&held, f, k) || full_eval(f, k)) fail_msg("%s", full_error(f));
     for (int i = 0; i < held.n; i++)
       reduced_project(r, emit_index_of(&prog->quantities, held.sym[i]), held.val[i] + (size_t)k * held.count[i]);
     for (int i = 0; i <= wi; i++)
       if (reduced_eval_stage(r, i, k)) fail_msg("%s", reduced_error(r));
     size_t cnt;
-    const double *y = npg_full_get(f, "w", &cnt);
+    const double *y = full_get(f, "w", &cnt);
     assert_int_equal((long)cnt, c->n);
     /* dense: ŷ = (PB)⁺ P y by LAPACK least squares on P B */
     double *PB = malloc(sizeof(double) * (size_t)(ip->k * c->m)), *py = malloc(sizeof(double) * (size_t)ip->k);
@@ -238,7 +238,7 @@ static void truncated_obeys_bound(void **state) {
   memsamples_free(&held);
   memsamples_free(&train);
   model_free(m);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
 }
 
@@ -354,11 +354,11 @@ static void save_load_evaluate(void **state) {
 
 /* Train `path` (every dim n, S samples, caps `cap`) with validation samples:
  * the model whose choices were made. */
-static Model *train_choosing(const char *path, NpgProgram **pp, NpgFull **ff, MemSamples *train, MemSamples *valid,
+static Model *train_choosing(const char *path, NpgProgram **pp, Full **ff, MemSamples *train, MemSamples *valid,
                              long n, long S, int cap, const char *const *galerkin, int ngalerkin) {
   NpgProgram *p = compile_file(path);
   Program *prog = ir_ok(p);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   if (memsamples_fill(train, prog, f, n, S, 21u)) fail_msg("binding random params failed");
   held_out(prog, valid, train, n, 6);
   SampleSource src = {S, train, memsamples_set, NULL, NULL}, vs = {6, valid, memsamples_set, NULL, NULL};
@@ -378,7 +378,7 @@ static Model *train_choosing(const char *path, NpgProgram **pp, NpgFull **ff, Me
 static void choice_by_validation(void **state) {
   (void)state;
   NpgProgram *p;
-  NpgFull *f;
+  Full *f;
   MemSamples train, valid;
   /* full rank: both ways exact, a tie, and interpolation (a lift and a power
    * per entry) is cheaper than an eigendecomposition */
@@ -394,7 +394,7 @@ static void choice_by_validation(void **state) {
   model_free(m);
   memsamples_free(&valid);
   memsamples_free(&train);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
   /* truncated: whichever is kept measured lower (or tied and cheaper), and
    * the kept model's own error on the validation samples is that one */
@@ -423,7 +423,7 @@ static void choice_by_validation(void **state) {
   model_free(m);
   memsamples_free(&valid);
   memsamples_free(&train);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
   /* forced Galerkin: not measured, not interpolated */
   const char *gal[1] = {"w"};
@@ -434,7 +434,7 @@ static void choice_by_validation(void **state) {
   model_free(m);
   memsamples_free(&valid);
   memsamples_free(&train);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
 }
 
@@ -496,7 +496,7 @@ static void program_states_the_reduction(void **state) {
   for (int v = 0; v < 2; v++) {
     NpgProgram *p = compile_text("stated.npg", text[v]);
     Program *prog = ir_ok(p);
-    NpgFull *f = npg_full_new(p, NPG_TCC);
+    Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
     MemSamples train, valid;
     if (memsamples_fill(&train, prog, f, 6, 12, 9u)) fail_msg("binding random params failed");
     held_out(prog, &valid, &train, 6, 4);
@@ -520,7 +520,7 @@ static void program_states_the_reduction(void **state) {
     model_free(m);
     memsamples_free(&valid);
     memsamples_free(&train);
-    npg_full_free(f);
+    full_free(f);
     npg_free(p);
   }
 }
@@ -531,7 +531,7 @@ static void ineligible_refused(void **state) {
   (void)state;
   NpgProgram *p = compile_file(NBODY);
   Program *prog = ir_ok(p);
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   MemSamples train;
   if (memsamples_fill(&train, prog, f, 4, 10, 5u)) fail_msg("binding random params failed");
   SampleSource src = {10, &train, memsamples_set, NULL, NULL};
@@ -548,7 +548,7 @@ static void ineligible_refused(void **state) {
   assert_null(train_model(prog, f, &src, &opt, err, sizeof err));
   assert_string_equal(err, "--reduce nope:interp: the program has no stage 'nope'");
   memsamples_free(&train);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
 }
 

@@ -13,7 +13,10 @@
  *     route);
  *   - spectra: a Gram matrix's decay (1 to 1e-12), low rank (10 of 160,
  *     the rest a null space of 150), repeated leading eigenvalues;
- *     k from 1 to the whole (the dsyevd branch included), and k = 0. */
+ *     k from 1 to the whole (the dsyevd branch included), and k = 0;
+ *
+ * and PCA of tall snapshots through the Gram matrix (pca_member,
+ * pca_merge): orthonormal bases of the optimal energy. */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -21,6 +24,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <cblas.h>
 #include <cmocka.h>
 #include <lapacke.h>
 
@@ -122,9 +126,105 @@ static void top_eigen_matches_dsyevd(void **state) {
   }
 }
 
+/* ---------------------------------------------------------------- PCA through the Gram matrix */
+
+/* X = Q diag(σ) Pᵀ with random orthonormal Q (n x S), P (S x S). */
+static double *spectrum_matrix(long n, long S, const double *sigma, unsigned seed) {
+  double *Q = malloc(sizeof(double) * (size_t)(n * S)), *P = malloc(sizeof(double) * (size_t)(S * S));
+  double *X = calloc((size_t)(n * S), sizeof(double)), *tau = malloc(sizeof(double) * (size_t)S);
+  for (long i = 0; i < n * S; i++) Q[i] = rand_r(&seed) / (double)RAND_MAX - 0.5;
+  for (long i = 0; i < S * S; i++) P[i] = rand_r(&seed) / (double)RAND_MAX - 0.5;
+  LAPACKE_dgeqrf(LAPACK_COL_MAJOR, (int)n, (int)S, Q, (int)n, tau);
+  LAPACKE_dorgqr(LAPACK_COL_MAJOR, (int)n, (int)S, (int)S, Q, (int)n, tau);
+  LAPACKE_dgeqrf(LAPACK_COL_MAJOR, (int)S, (int)S, P, (int)S, tau);
+  LAPACKE_dorgqr(LAPACK_COL_MAJOR, (int)S, (int)S, (int)S, P, (int)S, tau);
+  for (long k = 0; k < S; k++) /* X (column-major n x S) = Σ_k σ_k q_k p_kᵀ */
+    for (long j = 0; j < S; j++)
+      for (long i = 0; i < n; i++) X[j * n + i] += sigma[k] * Q[k * n + i] * P[k * S + j];
+  free(Q), free(P), free(tau);
+  return X;
+}
+
+/* ‖X − U UᵀX‖_F² / ‖X‖_F² for U n x k row-major, X column-major n x S. */
+static double residual_energy(long n, long S, const double *X, const double *U, int k) {
+  double *C = malloc(sizeof(double) * (size_t)(k * S + 1)), res = 0, tot = 0;
+  cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, k, (int)S, (int)n, 1.0, U, k, X, (int)n, 0.0, C, k);
+  for (long j = 0; j < S; j++)
+    for (long i = 0; i < n; i++) {
+      double v = X[j * n + i];
+      for (int a = 0; a < k; a++) v -= U[i * k + a] * C[j * k + a];
+      res += v * v;
+      tot += X[j * n + i] * X[j * n + i];
+    }
+  free(C);
+  return res / tot;
+}
+
+/* Tall snapshots go through the Gram matrix: the bases are orthonormal and
+ * capture the optimal energy (that of the leading singular vectors); where
+ * the Gram matrix cannot resolve a direction the result needs, the SVD
+ * decides (the full-rank count then matches the exact rank). Merging
+ * overlapping member bases drops the dependent directions either way. */
+static void pca_gram_matches_svd(void **state) {
+  (void)state;
+  long n = 600, S = 40;
+  double sigma[40];
+  for (int i = 0; i < S; i++) sigma[i] = pow(10.0, -i / 4.0); /* 1 … 1e-9.75 */
+  double *X = spectrum_matrix(n, S, sigma, 7u);
+  int caps[] = {5, 20, 40};
+  double worst_orth = 0, worst_energy = 0;
+  for (int c = 0; c < 3; c++) {
+    double *U, captured;
+    int k;
+    char err[256];
+    if (pca_member(n, S, X, caps[c], 1.0, &U, &k, &captured, err, sizeof err)) fail_msg("%s", err);
+    /* every σ here is above the 1e-10 rank tolerance; energy 1 stops where
+     * the rest no longer changes the sum (σ ≈ 1e-8) */
+    if (c < 2) assert_int_equal(k, caps[c]);
+    else assert_true(k >= 30 && k <= 40);
+    double opt = 0, tot = 0;
+    for (int i = 0; i < S; i++) tot += sigma[i] * sigma[i], opt += i >= k ? sigma[i] * sigma[i] : 0;
+    double res = residual_energy(n, S, X, U, k);
+    worst_energy = fmax(worst_energy, fabs(res - opt / tot));
+    for (int a = 0; a < k; a++)
+      for (int b = 0; b < k; b++) {
+        double d = 0;
+        for (long i = 0; i < n; i++) d += U[i * k + a] * U[i * k + b];
+        worst_orth = fmax(worst_orth, fabs(d - (a == b)));
+      }
+    assert_true(fabs(captured - (1 - opt / tot)) < 1e-12);
+    free(U);
+  }
+  print_message("PCA of 600 x 40 snapshots, σ from 1 to 1e-9.75, caps 5/20/40: orthonormal to %.2g, residual "
+                "energy optimal to %.2g\n", worst_orth, worst_energy);
+  assert_true(worst_orth < 1e-12);
+  assert_true(worst_energy < 1e-12);
+  /* merging two bases that share 5 directions: 35 + 35 − 5 independent */
+  double *U1, *U2, cap1, cap2;
+  int k1, k2;
+  char err[256];
+  double flat[40];
+  for (int i = 0; i < S; i++) flat[i] = 1;
+  free(X);
+  X = spectrum_matrix(n, S, flat, 9u);
+  double *Y = spectrum_matrix(n, S, flat, 10u);
+  for (long j = 0; j < 5; j++) memcpy(Y + j * n, X + j * n, sizeof(double) * (size_t)n);
+  if (pca_member(n, 35, X, 40, 1.0, &U1, &k1, &cap1, err, sizeof err)) fail_msg("%s", err);
+  if (pca_member(n, 35, Y, 40, 1.0, &U2, &k2, &cap2, err, sizeof err)) fail_msg("%s", err);
+  double *parts[2] = {U1, U2}, *B;
+  int ks[2] = {k1, k2};
+  long m;
+  if (pca_merge(n, 2, parts, ks, &B, &m, err, sizeof err)) fail_msg("%s", err);
+  assert_int_equal(k1, 35);
+  assert_int_equal(k2, 35);
+  assert_int_equal(m, 65);
+  free(U1), free(U2), free(B), free(X), free(Y);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(top_eigen_matches_dsyevd),
+      cmocka_unit_test(pca_gram_matches_svd),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -57,8 +57,8 @@ static double uniform(void) {
 }
 
 /* The same data every call (the sparse and the dense evaluator compare). */
-static NpgFull *heat_full(NpgProgram *p) {
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+static Full *heat_full(NpgProgram *p) {
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   assert_non_null(f);
   double nbr[N * 4], src[N];
   unsigned seed = 7u;
@@ -73,23 +73,23 @@ static NpgFull *heat_full(NpgProgram *p) {
       src[i] = ((seed >> 8) & 0xFFFF) / 65536.0;
     }
   long s2[2] = {N, 4}, s1[1] = {N};
-  assert_int_equal(npg_full_set_param(f, "nbr", 2, s2, nbr, "nbr"), 0);
-  assert_int_equal(npg_full_set_param(f, "src", 1, s1, src, "src"), 0);
+  assert_int_equal(full_set_param(f, "nbr", 2, s2, nbr, "nbr"), 0);
+  assert_int_equal(full_set_param(f, "src", 1, s1, src, "src"), 0);
   return f;
 }
 
 /* Evaluate `sparse` (sparse path forced) and `dense` (dense path forced)
  * on the same input; every output equal to 1e-12. */
-static void same_outputs(NpgFull *sparse, NpgFull *dense, const char *input, long n, const double *values,
+static void same_outputs(Full *sparse, Full *dense, const char *input, long n, const double *values,
                          const char *const *outputs, int nout, long sample) {
   long shape[1] = {n};
-  assert_int_equal(npg_full_set(sparse, input, 1, shape, values, input), 0);
-  assert_int_equal(npg_full_set(dense, input, 1, shape, values, input), 0);
-  if (npg_full_eval(sparse, sample)) fail_msg("%s", npg_full_error(sparse));
-  if (npg_full_eval(dense, sample)) fail_msg("%s", npg_full_error(dense));
+  assert_int_equal(full_set(sparse, input, 1, shape, values, input), 0);
+  assert_int_equal(full_set(dense, input, 1, shape, values, input), 0);
+  if (full_eval(sparse, sample)) fail_msg("%s", full_error(sparse));
+  if (full_eval(dense, sample)) fail_msg("%s", full_error(dense));
   for (int k = 0; k < nout; k++) {
     size_t cs, cd;
-    const double *a = npg_full_get(sparse, outputs[k], &cs), *b = npg_full_get(dense, outputs[k], &cd);
+    const double *a = full_get(sparse, outputs[k], &cs), *b = full_get(dense, outputs[k], &cd);
     assert_int_equal(cs, cd);
     double d = rel_diff(a, b, cs);
     if (!(d <= 1e-12)) fail_msg("output %s: sparse and dense differ by %.3g", outputs[k], d);
@@ -102,7 +102,7 @@ static void heat_umfpack_equals_dense(void **state) {
   (void)state;
   NpgProgram *p = compile_text("heat.npg", heat);
   ir_ok(p);
-  NpgFull *sparse = heat_full(p), *dense = heat_full(p);
+  Full *sparse = heat_full(p), *dense = heat_full(p);
   full_set_sparse_min_rows(sparse, 0);
   full_set_sparse_min_rows(dense, LONG_MAX);
   const char *outs[] = {"u", "y"};
@@ -122,20 +122,20 @@ static void heat_umfpack_equals_dense(void **state) {
   double src[N];
   for (int i = 0; i < N; i++) src[i] = uniform();
   long s1[1] = {N};
-  assert_int_equal(npg_full_set_param(sparse, "src", 1, s1, src, "src"), 0);
-  assert_int_equal(npg_full_set_param(dense, "src", 1, s1, src, "src"), 0);
+  assert_int_equal(full_set_param(sparse, "src", 1, s1, src, "src"), 0);
+  assert_int_equal(full_set_param(dense, "src", 1, s1, src, "src"), 0);
   same_outputs(sparse, dense, "kappa", N, kappa, outs, 2, 3);
   full_sparse_counts(sparse, &patterns, &chol, &lu);
   assert_int_equal(patterns, 2);
-  npg_full_free(sparse);
-  npg_full_free(dense);
+  full_free(sparse);
+  full_free(dense);
   npg_free(p);
 }
 
 /* A ring with chords: E edges over N nodes. */
 enum { LN = 150, LE = 300 };
-static NpgFull *laplacian_full(NpgProgram *p, double shift) {
-  NpgFull *f = npg_full_new(p, NPG_TCC);
+static Full *laplacian_full(NpgProgram *p, double shift) {
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
   assert_non_null(f);
   static double tab[LE * 2], rhs[LN];
   for (int e = 0; e < LE; e++) {
@@ -149,9 +149,9 @@ static NpgFull *laplacian_full(NpgProgram *p, double shift) {
     rhs[i] = ((seed >> 8) & 0xFFFF) / 65536.0 - 0.5;
   }
   long st[2] = {LE, 2}, sf[1] = {LN};
-  assert_int_equal(npg_full_set_param(f, "tab", 2, st, tab, "tab"), 0);
-  assert_int_equal(npg_full_set_param(f, "f", 1, sf, rhs, "f"), 0);
-  assert_int_equal(npg_full_set_param(f, "shift", 0, NULL, &shift, "shift"), 0);
+  assert_int_equal(full_set_param(f, "tab", 2, st, tab, "tab"), 0);
+  assert_int_equal(full_set_param(f, "f", 1, sf, rhs, "f"), 0);
+  assert_int_equal(full_set_param(f, "shift", 0, NULL, &shift, "shift"), 0);
   return f;
 }
 
@@ -162,7 +162,7 @@ static void laplacian_cholmod_and_indefinite(void **state) {
   NpgProgram *p = compile_text("laplacian.npg", laplacian);
   Program *prog = ir_ok(p);
   assert_true(((OpDef *)prog->opdefs.v[0])->sparse);
-  NpgFull *sparse = laplacian_full(p, 0.5), *dense = laplacian_full(p, 0.5);
+  Full *sparse = laplacian_full(p, 0.5), *dense = laplacian_full(p, 0.5);
   full_set_sparse_min_rows(sparse, 0);
   full_set_sparse_min_rows(dense, LONG_MAX);
   const char *outs[] = {"y"};
@@ -178,15 +178,15 @@ static void laplacian_cholmod_and_indefinite(void **state) {
   assert_int_equal(lu, 0);
   /* the Laplacian's eigenvalue 0 shifted below zero: symmetric indefinite */
   double shift = -0.37;
-  assert_int_equal(npg_full_set_param(sparse, "shift", 0, NULL, &shift, "shift"), 0);
-  assert_int_equal(npg_full_set_param(dense, "shift", 0, NULL, &shift, "shift"), 0);
+  assert_int_equal(full_set_param(sparse, "shift", 0, NULL, &shift, "shift"), 0);
+  assert_int_equal(full_set_param(dense, "shift", 0, NULL, &shift, "shift"), 0);
   same_outputs(sparse, dense, "w", LE, w, outs, 1, 2);
   full_sparse_counts(sparse, &patterns, &chol, &lu);
   assert_int_equal(patterns, 2);
   assert_int_equal(chol, 2);
   assert_int_equal(lu, 1);
-  npg_full_free(sparse);
-  npg_full_free(dense);
+  full_free(sparse);
+  full_free(dense);
   npg_free(p);
 }
 
@@ -197,30 +197,30 @@ static void roots_by_lanczos(void **state) {
   (void)state;
   NpgProgram *p = compile_text("roots.npg", laplacian_roots);
   ir_ok(p);
-  NpgFull *sparse = laplacian_full(p, 0.5), *dense = laplacian_full(p, 0.5);
+  Full *sparse = laplacian_full(p, 0.5), *dense = laplacian_full(p, 0.5);
   full_set_sparse_min_rows(sparse, 0);
   full_set_sparse_min_rows(dense, LONG_MAX);
   const char *outs[] = {"r", "s", "t"};
   double w[LE];
   for (int e = 0; e < LE; e++) w[e] = 0.1 + uniform();
   long shape[1] = {LE};
-  assert_int_equal(npg_full_set(sparse, "w", 1, shape, w, "w"), 0);
-  assert_int_equal(npg_full_set(dense, "w", 1, shape, w, "w"), 0);
-  if (npg_full_eval(sparse, 0)) fail_msg("%s", npg_full_error(sparse));
-  if (npg_full_eval(dense, 0)) fail_msg("%s", npg_full_error(dense));
+  assert_int_equal(full_set(sparse, "w", 1, shape, w, "w"), 0);
+  assert_int_equal(full_set(dense, "w", 1, shape, w, "w"), 0);
+  if (full_eval(sparse, 0)) fail_msg("%s", full_error(sparse));
+  if (full_eval(dense, 0)) fail_msg("%s", full_error(dense));
   for (int k = 0; k < 3; k++) {
     size_t cs, cd;
-    const double *a = npg_full_get(sparse, outs[k], &cs), *b = npg_full_get(dense, outs[k], &cd);
+    const double *a = full_get(sparse, outs[k], &cs), *b = full_get(dense, outs[k], &cd);
     double d = rel_diff(a, b, cs);
     if (!(d <= 1e-10)) fail_msg("output %s: Lanczos and the eigendecomposition differ by %.3g", outs[k], d);
   }
   double shift = -0.37;
-  assert_int_equal(npg_full_set_param(sparse, "shift", 0, NULL, &shift, "shift"), 0);
-  assert_int_not_equal(npg_full_eval(sparse, 4), 0);
-  if (!strstr(npg_full_error(sparse), "operator L") || !strstr(npg_full_error(sparse), "sample 4"))
-    fail_msg("unexpected message: %s", npg_full_error(sparse));
-  npg_full_free(sparse);
-  npg_full_free(dense);
+  assert_int_equal(full_set_param(sparse, "shift", 0, NULL, &shift, "shift"), 0);
+  assert_int_not_equal(full_eval(sparse, 4), 0);
+  if (!strstr(full_error(sparse), "operator L") || !strstr(full_error(sparse), "sample 4"))
+    fail_msg("unexpected message: %s", full_error(sparse));
+  full_free(sparse);
+  full_free(dense);
   npg_free(p);
 }
 
@@ -230,17 +230,17 @@ static void singular_refused(void **state) {
   (void)state;
   NpgProgram *p = compile_text("laplacian.npg", laplacian);
   ir_ok(p);
-  NpgFull *f = laplacian_full(p, 0.0);
+  Full *f = laplacian_full(p, 0.0);
   full_set_sparse_min_rows(f, 0);
   double w[LE];
   for (int e = 0; e < LE; e++) w[e] = 0.1 + uniform();
   long shape[1] = {LE};
-  assert_int_equal(npg_full_set(f, "w", 1, shape, w, "w"), 0);
-  assert_int_not_equal(npg_full_eval(f, 7), 0);
-  const char *msg = npg_full_error(f);
+  assert_int_equal(full_set(f, "w", 1, shape, w, "w"), 0);
+  assert_int_not_equal(full_eval(f, 7), 0);
+  const char *msg = full_error(f);
   if (!strstr(msg, "sample 7") || !strstr(msg, "operator L is singular") || !strstr(msg, "stage 'y'"))
     fail_msg("unexpected message: %s", msg);
-  npg_full_free(f);
+  full_free(f);
   npg_free(p);
 }
 

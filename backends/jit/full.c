@@ -12,11 +12,10 @@
 #include "emit.h"
 #include "full.h"
 #include "jit.h"
-#include "npg.h"
 #include "npy.h"
 #include "runtime.h"
 
-struct NpgFull {
+struct Full {
   Program *prog;
   JitModule *jit;
   NpgStageFn full, check;
@@ -32,14 +31,14 @@ struct NpgFull {
   double **q;               /* every quantity */
   size_t *qcount;
   bool checked;             /* gathers checked for the current binding */
-  bool *fresh;              /* set by npg_full_set since the last evaluation */
-  NpgExternFn *extern_fn;   /* per slot: the callback of an extern, or NULL */
+  bool *fresh;              /* set by full_set since the last evaluation */
+  FullExternFn *extern_fn;  /* per slot: the callback of an extern, or NULL */
   void **extern_user;
   NpgHost host;
   const char **dim_names, **param_names;
 };
 
-static int fail(NpgFull *f, const char *fmt, ...) {
+static int fail(Full *f, const char *fmt, ...) {
   if (f->error[0]) return -1;
   va_list ap;
   va_start(ap, fmt);
@@ -48,25 +47,7 @@ static int fail(NpgFull *f, const char *fmt, ...) {
   return -1;
 }
 
-const char *npg_full_error(const NpgFull *f) { return f ? f->error : npg_refusal()[0] ? npg_refusal() : "no evaluator"; }
-
-/* The argument checks of every npg_full_ entry point (ast.h): the
- * evaluator itself, then each pointer argument, refused into its message. */
-#define REFUSE_NULL_F(ret) NPG_REFUSE_NULL(f, NULL, 0, ret)
-#define REFUSE_NULL(arg) NPG_REFUSE_NULL(arg, f->error, sizeof f->error, -1)
-
-/* A shape argument: `ndim` axes in [0, MAX_AXES + MAX_STATIC], `shape`
- * non-NULL when there are any, `values` non-NULL when they hold entries. */
-static int refuse_shape(NpgFull *f, const char *func, int ndim, const long *shape, const double *values) {
-  if (ndim < 0 || ndim > MAX_AXES + MAX_STATIC)
-    return npg_refuse(f->error, sizeof f->error, func, "argument 'ndim' is %d (0 to %d axes)", ndim,
-                      MAX_AXES + MAX_STATIC);
-  if (ndim > 0 && !shape) return npg_refuse(f->error, sizeof f->error, func, "argument 'shape' is NULL");
-  size_t n = 1;
-  for (int i = 0; i < ndim; i++) n = shape[i] > 0 ? n * (size_t)shape[i] : 0;
-  if (n && !values) return npg_refuse(f->error, sizeof f->error, func, "argument 'values' is NULL");
-  return 0;
-}
+const char *full_error(const Full *f) { return f->error; }
 
 static int find(const PtrVec *v, const char *name) {
   for (int i = 0; i < v->n; i++)
@@ -89,9 +70,9 @@ int full_emit(Program *prog, FILE *out) {
   return ok ? 0 : -1;
 }
 
-NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
-  NpgFull *f = npg_calloc(1, sizeof *f);
-  if (!f) return npg_refuse(NULL, 0, "npg_full_new", "out of memory"), NULL; /* what npg_full_error(NULL) says */
+Full *full_new(Program *prog, JitBackend backend, const char *refusal) {
+  Full *f = npg_calloc(1, sizeof *f);
+  if (!f) return NULL;
   if (refusal) {
     fail(f, "%s", refusal);
     return f;
@@ -107,7 +88,7 @@ NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
   }
   fclose(mem);
   char err[1024];
-  f->jit = jit_compile(src, backend == NPG_CC, err, sizeof err);
+  f->jit = jit_compile(src, backend == JIT_CC, err, sizeof err);
   free(src);
   if (!f->jit) {
     fail(f, "%s", err);
@@ -144,7 +125,7 @@ NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
     return f;
   }
   /* Only now: an evaluator whose construction failed has no program, so
-   * npg_full_free and every entry point know its arrays do not exist. */
+   * full_free and every entry point know its arrays do not exist. */
   f->prog = prog;
   for (int i = 0; i < nd; i++) {
     f->dims[i] = -1;
@@ -158,9 +139,9 @@ NpgFull *full_new(Program *prog, NpgBackend backend, const char *refusal) {
   return f;
 }
 
-void full_set_sparse_min_rows(NpgFull *f, long rows) { f->host.sparse_min_rows = rows; }
+void full_set_sparse_min_rows(Full *f, long rows) { f->host.sparse_min_rows = rows; }
 
-void full_sparse_counts(const NpgFull *f, long *patterns, long *cholesky, long *lu) {
+void full_sparse_counts(const Full *f, long *patterns, long *cholesky, long *lu) {
   *patterns = f->host.sparse_patterns;
   *cholesky = f->host.sparse_cholesky;
   *lu = f->host.sparse_lu;
@@ -168,7 +149,7 @@ void full_sparse_counts(const NpgFull *f, long *patterns, long *cholesky, long *
 
 /* Bind the dims of `s` from a shape (dims then static axes); `from` names
  * the source in messages. */
-static int bind_shape(NpgFull *f, const Sym *s, int ndim, const long *shape, const char *from) {
+static int bind_shape(Full *f, const Sym *s, int ndim, const long *shape, const char *from) {
   if (ndim != s->ndims + s->nstatic)
     return fail(f, "%s: '%s' has %d ax%s, but the array has %d", from, s->name, s->ndims + s->nstatic,
                 s->ndims + s->nstatic == 1 ? "is" : "es", ndim);
@@ -194,7 +175,7 @@ static int bind_shape(NpgFull *f, const Sym *s, int ndim, const long *shape, con
 }
 
 /* "[2, 5]": the index of flat entry e of `s` as bound, into `buf`. */
-static const char *index_text(NpgFull *f, const Sym *s, size_t e, char *buf, size_t len) {
+static const char *index_text(Full *f, const Sym *s, size_t e, char *buf, size_t len) {
   long shape[MAX_AXES + MAX_STATIC], idx[MAX_AXES + MAX_STATIC];
   int nd = 0;
   for (int i = 0; i < s->ndims; i++) shape[nd++] = (long)f->dims[emit_index_of(&f->prog->dims, s->dims[i])];
@@ -210,7 +191,7 @@ static const char *index_text(NpgFull *f, const Sym *s, size_t e, char *buf, siz
 }
 
 /* The entries of `s` as bound; SIZE_MAX when their count overflows. */
-static size_t count_of(NpgFull *f, const Sym *s) {
+static size_t count_of(Full *f, const Sym *s) {
   size_t n = 1;
   for (int i = 0; i < s->ndims; i++)
     if (__builtin_mul_overflow(n, (size_t)f->dims[emit_index_of(&f->prog->dims, s->dims[i])], &n)) return SIZE_MAX;
@@ -224,7 +205,7 @@ static size_t count_of(NpgFull *f, const Sym *s) {
  * is more than the machine has (a 1e12-entry stage is refused before it is
  * touched, not left to the kernel's out-of-memory killer) or the
  * allocation fails. */
-static double *alloc_entries(NpgFull *f, const Sym *s, size_t n) {
+static double *alloc_entries(Full *f, const Sym *s, size_t n) {
   size_t ram = npg_physical_memory();
   bool fits = n < SIZE_MAX / sizeof(double) && (!ram || n * sizeof(double) <= ram);
   double *p = fits ? npg_calloc(n ? n : 1, sizeof(double)) : NULL;
@@ -261,12 +242,7 @@ static double *alloc_entries(NpgFull *f, const Sym *s, size_t n) {
 }
 
 /* A param from memory: doubles (int params must hold whole numbers). */
-int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape, const double *values,
-                       const char *from) {
-  REFUSE_NULL_F(-1);
-  REFUSE_NULL(name);
-  REFUSE_NULL(from);
-  if (refuse_shape(f, __func__, ndim, shape, values)) return -1;
+int full_set_param(Full *f, const char *name, int ndim, const long *shape, const double *values, const char *from) {
   if (f->error[0]) return -1;
   int k = find(&f->prog->params, name);
   if (k < 0) return fail(f, "%s: the program has no param '%s'", from, name);
@@ -303,9 +279,7 @@ int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape
   return 0;
 }
 
-int npg_full_bind_params(NpgFull *f, const char *data_dir) {
-  REFUSE_NULL_F(-1);
-  REFUSE_NULL(data_dir);
+int full_bind_params(Full *f, const char *data_dir) {
   if (f->error[0]) return -1;
   for (int k = 0; k < f->prog->params.n; k++) {
     const Sym *s = f->prog->params.v[k];
@@ -337,7 +311,7 @@ int npg_full_bind_params(NpgFull *f, const char *data_dir) {
       v[i] = a.type == NPY_F64 ? ((double *)a.data)[i]
              : a.type == NPY_I32 ? (double)((int *)a.data)[i]
                                  : (double)((long long *)a.data)[i];
-    int rc = npg_full_set_param(f, s->name, a.ndim, a.shape, v, path);
+    int rc = full_set_param(f, s->name, a.ndim, a.shape, v, path);
     free(v);
     npy_free(&a);
     if (rc) return -1;
@@ -345,15 +319,11 @@ int npg_full_bind_params(NpgFull *f, const char *data_dir) {
   return 0;
 }
 
-int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, const double *values, const char *from) {
-  REFUSE_NULL_F(-1);
-  REFUSE_NULL(name);
-  REFUSE_NULL(from);
-  if (refuse_shape(f, __func__, ndim, shape, values)) return -1;
+int full_set(Full *f, const char *name, int ndim, const long *shape, const double *values, const char *from) {
   if (f->error[0]) return -1;
   int k = find(&f->prog->slots, name);
   if (k < 0) {
-    if (find(&f->prog->params, name) >= 0) return npg_full_set_param(f, name, ndim, shape, values, from);
+    if (find(&f->prog->params, name) >= 0) return full_set_param(f, name, ndim, shape, values, from);
     return fail(f, "%s: the program has no input or param '%s'", from, name);
   }
   const Sym *s = f->prog->slots.v[k];
@@ -378,7 +348,7 @@ int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, cons
   return 0;
 }
 
-double *full_extern_values(NpgFull *f, const char *name, size_t n) {
+double *full_extern_values(Full *f, const char *name, size_t n) {
   if (f->error[0]) return NULL;
   int k = find(&f->prog->slots, name);
   const Sym *s = k >= 0 ? f->prog->slots.v[k] : NULL;
@@ -394,9 +364,7 @@ double *full_extern_values(NpgFull *f, const char *name, size_t n) {
   return f->q[k];
 }
 
-int npg_full_set_extern_fn(NpgFull *f, const char *name, NpgExternFn fn, void *user) {
-  REFUSE_NULL_F(-1);
-  REFUSE_NULL(name);
+int full_set_extern_fn(Full *f, const char *name, FullExternFn fn, void *user) {
   if (f->error[0]) return -1;
   int k = find(&f->prog->slots, name);
   const Sym *s = k >= 0 ? f->prog->slots.v[k] : NULL;
@@ -404,14 +372,14 @@ int npg_full_set_extern_fn(NpgFull *f, const char *name, NpgExternFn fn, void *u
   for (int i = 0; i < s->nof; i++)
     if (s->of[i]->kind != SYM_INPUT)
       return fail(f, "extern '%s' reads '%s', which is not an input: a callback runs before the stages, so give its "
-                     "values with npg_full_set instead", name, s->of[i]->name);
+                     "values with full_set instead", name, s->of[i]->name);
   f->extern_fn[k] = fn;
   f->extern_user[k] = user;
   return 0;
 }
 
 /* Externs with a callback and no value given since the last evaluation. */
-static int call_externs(NpgFull *f, long sample) {
+static int call_externs(Full *f, long sample) {
   for (int k = 0; k < f->prog->slots.n; k++) {
     const Sym *s = f->prog->slots.v[k];
     if (!f->extern_fn[k] || f->fresh[k]) continue;
@@ -432,7 +400,7 @@ static int call_externs(NpgFull *f, long sample) {
   return 0;
 }
 
-static NpgCtx context(NpgFull *f, long sample) {
+static NpgCtx context(Full *f, long sample) {
   NpgCtx c;
   c.dims = f->dims;
   c.params = (const double *const *)f->params;
@@ -445,7 +413,7 @@ static NpgCtx context(NpgFull *f, long sample) {
 }
 
 /* The steps a demand asks for, each whole or over its boxes. */
-static int run_steps(NpgFull *f, const NpgCtx *c, Demand *d) {
+static int run_steps(Full *f, const NpgCtx *c, Demand *d) {
   if (demand_propagate(d)) return fail(f, "out of memory");
   for (int k = 0; k < f->plan->n; k++) {
     const npg_idx *box;
@@ -456,7 +424,7 @@ static int run_steps(NpgFull *f, const NpgCtx *c, Demand *d) {
 }
 
 /* Evaluate sample `sample`: everything, or (d non-NULL) what d demands. */
-static int evaluate(NpgFull *f, long sample, Demand *d) {
+static int evaluate(Full *f, long sample, Demand *d) {
   if (f->error[0]) return -1;
   const Program *prog = f->prog;
   for (int i = 0; i < prog->dims.n; i++)
@@ -508,12 +476,9 @@ static int evaluate(NpgFull *f, long sample, Demand *d) {
   return 0;
 }
 
-int npg_full_eval(NpgFull *f, long sample) {
-  REFUSE_NULL_F(-1);
-  return evaluate(f, sample, NULL);
-}
+int full_eval(Full *f, long sample) { return evaluate(f, sample, NULL); }
 
-Demand *full_demand(NpgFull *f) {
+Demand *full_demand(Full *f) {
   if (f->error[0] || !f->plan) return NULL;
   if (!f->demand && !(f->demand = demand_new(f->prog, f->plan))) {
     fail(f, "out of memory");
@@ -523,9 +488,9 @@ Demand *full_demand(NpgFull *f) {
   return f->demand;
 }
 
-int full_eval_demand(NpgFull *f, long sample, Demand *d) { return evaluate(f, sample, d); }
+int full_eval_demand(Full *f, long sample, Demand *d) { return evaluate(f, sample, d); }
 
-int full_build(NpgFull *f, const char *name, NpgSink *sink) {
+int full_build(Full *f, const char *name, NpgSink *sink) {
   if (f->error[0]) return -1;
   NpgBuildFn fn = (NpgBuildFn)jit_symbol(f->jit, name);
   if (!fn) return fail(f, "no tensor builder '%s' in the generated code", name);
@@ -535,7 +500,7 @@ int full_build(NpgFull *f, const char *name, NpgSink *sink) {
   return 0;
 }
 
-long full_dim_size(const NpgFull *f, int k) { return (long)f->dims[k]; }
+long full_dim_size(const Full *f, int k) { return (long)f->dims[k]; }
 
 uint64_t full_hash_values(const double *v, size_t n) {
   /* FNV-1a over the values as doubles: an int param hashes alike from int32
@@ -549,11 +514,11 @@ uint64_t full_hash_values(const double *v, size_t n) {
   return h;
 }
 
-uint64_t full_param_hash(const NpgFull *f, int k, const char **from) {
+uint64_t full_param_hash(const Full *f, int k, const char **from) {
   const Sym *s = f->prog->params.v[k];
   if (from) *from = f->param_files[k] ? f->param_files[k] : s->name;
   if (!f->params[k] && !f->iparams[k]) return 0;
-  size_t n = count_of((NpgFull *)f, s);
+  size_t n = count_of((Full *)f, s);
   if (f->params[k]) return full_hash_values(f->params[k], n);
   double *v = npg_malloc(sizeof(double) * (n ? n : 1));
   if (!v) return 0;
@@ -563,9 +528,9 @@ uint64_t full_param_hash(const NpgFull *f, int k, const char **from) {
   return h;
 }
 
-const Program *full_program(const NpgFull *f) { return f->prog; }
+const Program *full_program(const Full *f) { return f->prog; }
 
-bool full_first_nonfinite(NpgFull *f, const Sym **sym, char *index, size_t len, double *value) {
+bool full_first_nonfinite(Full *f, const Sym **sym, char *index, size_t len, double *value) {
   for (int q = 0; q < f->prog->quantities.n; q++) {
     const Sym *s = f->prog->quantities.v[q];
     int k = find(&f->prog->slots, s->name);
@@ -580,11 +545,14 @@ bool full_first_nonfinite(NpgFull *f, const Sym **sym, char *index, size_t len, 
   return false;
 }
 
-int full_fail(NpgFull *f, const char *msg) { return fail(f, "%s", msg); }
+int full_fail(Full *f, const char *msg) { return fail(f, "%s", msg); }
 
-const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
-  REFUSE_NULL_F(NULL);
-  NPG_REFUSE_NULL(name, NULL, 0, NULL);
+int full_refuse(Full *f, const char *msg) {
+  snprintf(f->error, sizeof f->error, "%s", msg);
+  return -1;
+}
+
+const double *full_get(const Full *f, const char *name, size_t *count) {
   if (!f->prog) return NULL;
   int k = find(&f->prog->slots, name);
   if (k < 0) return NULL;
@@ -592,22 +560,18 @@ const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
   return f->q[k];
 }
 
-long npg_full_dim(const NpgFull *f, const char *name) {
-  REFUSE_NULL_F(-1);
-  NPG_REFUSE_NULL(name, NULL, 0, -1);
+long full_dim(const Full *f, const char *name) {
   if (!f->prog) return -1;
   int k = find(&f->prog->dims, name);
   return k < 0 ? -1 : (long)f->dims[k];
 }
 
 /* An evaluator whose construction failed (no program) keeps its error. */
-void npg_full_clear_error(NpgFull *f) {
-  REFUSE_NULL_F();
+void full_clear_error(Full *f) {
   if (f->prog) f->error[0] = 0;
 }
 
-void npg_full_unbind(NpgFull *f) {
-  REFUSE_NULL_F();
+void full_unbind(Full *f) {
   if (!f->prog) return;
   for (int i = 0; i < f->prog->dims.n; i++) {
     f->dims[i] = -1;
@@ -632,7 +596,7 @@ void npg_full_unbind(NpgFull *f) {
   f->error[0] = 0;
 }
 
-void npg_full_free(NpgFull *f) {
+void full_free(Full *f) {
   if (!f) return;
   runtime_sparse_free(&f->host);
   jit_free(f->jit);

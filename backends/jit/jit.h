@@ -9,6 +9,13 @@
 
 typedef struct JitModule JitModule;
 
+/* Which compiler builds the generated C (npg.h's NpgBackend, translated by
+ * the facade). */
+typedef enum JitBackend {
+  JIT_TCC,  /* libtcc, in memory */
+  JIT_CC,   /* the system compiler, loaded with dlopen */
+} JitBackend;
+
 /* NULL on failure, with the reason in err. */
 JitModule *jit_compile(const char *source, bool use_cc, char *err, size_t errlen);
 void *jit_symbol(JitModule *m, const char *name);

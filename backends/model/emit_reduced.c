@@ -1,7 +1,7 @@
 /* emit_reduced.c — the reduced evaluator as C, specialized to one trained
  * model (DESIGN §6; paper §4); reduced_jit.c compiles and runs it.
  *
- * The generated code does what reduced_eval() does (backends/reduced.c is
+ * The generated code does what reduced_eval() does (backends/model/reduced.c is
  * the reference), with every size a literal: for each stage
  *
  *     ŷ = Σ_t  (M̂_{t,k})^{r_k} ⋯ (M̂_{t,1})^{r_1} ŵ_t,

@@ -1,6 +1,6 @@
 /* model.h — the reduced model: its layout derived from the stage program
  * and its files (DESIGN §1, §2, §5, §7; paper §4, §8.2–§8.3). Training
- * fills it (train/train.h); the reduced evaluator runs it (reduced.h).
+ * fills it (backends/train/train.h); the reduced evaluator runs it (reduced.h).
  *
  * A model is fully determined by the program (whose hash it records) plus
  * arrays: one orthonormal basis per basis class and one pre-multiplied

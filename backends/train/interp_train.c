@@ -173,18 +173,18 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
   return add_mono(tb, s, coef, nin, tb->in_q, in);
 }
 
-static int stream_tensor(Table *tb, NpgFull *f, const RTensor *x, const char *stage) {
+static int stream_tensor(Table *tb, Full *f, const RTensor *x, const char *stage) {
   const TensorGroup *g = x->group;
   tb->nin = g->ninputs;
   for (int i = 0; i < g->ninputs && i < RT_MAX_IN; i++) tb->in_q[i] = emit_index_of(&tb->m->prog->quantities, g->inputs[i]);
   NpgSink sink = {tb, on_entry, 0, 1};
   if (full_build(f, x->builder, &sink) != 0)
     return npg_fail(tb->err, tb->errlen, "stage %s: reading tensor %s for interpolation: %s", stage, x->name,
-                    npg_full_error(f)[0] ? npg_full_error(f) : "out of memory");
+                    full_error(f)[0] ? full_error(f) : "out of memory");
   return 0;
 }
 
-int interp_train_stage(Model *m, NpgFull *f, int stage, double oversample, char *err, size_t errlen) {
+int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen) {
   RStage *rs = &m->stages[stage];
   const char *sn = rs->st->sym->name;
   const RClass *c = &m->classes[m->qclass[rs->q]];

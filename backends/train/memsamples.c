@@ -13,7 +13,7 @@ size_t memsamples_count(const Sym *s, long n, long *shape) {
   return c;
 }
 
-int memsamples_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, long S, unsigned seed) {
+int memsamples_fill(MemSamples *ms, const Program *prog, Full *f, long n, long S, unsigned seed) {
   memset(ms, 0, sizeof *ms);
   ms->S = S;
   for (int i = 0; i < prog->params.n && f; i++) {
@@ -23,7 +23,7 @@ int memsamples_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, lon
     double *v = npg_malloc(sizeof(double) * (c ? c : 1));
     if (!v) return -2;
     randdata_fill(prog, s, n, &seed, false, v, c);
-    int rc = npg_full_set_param(f, s->name, s->ndims + s->nstatic, shape, v, s->name);
+    int rc = full_set_param(f, s->name, s->ndims + s->nstatic, shape, v, s->name);
     free(v);
     if (rc) return -1;
   }
@@ -48,10 +48,10 @@ int memsamples_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, lon
   return 0;
 }
 
-int memsamples_set(void *user, NpgFull *f, long k) {
+int memsamples_set(void *user, Full *f, long k) {
   MemSamples *ms = user;
   for (int i = 0; i < ms->n; i++)
-    if (npg_full_set(f, ms->sym[i]->name, ms->nd[i], ms->shape[i], ms->val[i] + (size_t)k * ms->count[i],
+    if (full_set(f, ms->sym[i]->name, ms->nd[i], ms->shape[i], ms->val[i] + (size_t)k * ms->count[i],
                      ms->sym[i]->name))
       return -1;
   return 0;

@@ -24,13 +24,13 @@ size_t memsamples_count(const Sym *s, long n, long *shape);
 
 /* Random params into `f` (when non-NULL), then S samples of every input
  * and extern (randdata.h), every dim of size n. 0; -1 when binding a
- * param failed (npg_full_error(f) says why), -2 when memory ran out or the
+ * param failed (full_error(f) says why), -2 when memory ran out or the
  * program has more than MEM_MAX_QUANTITIES inputs and externs (then `ms`
  * holds nothing to free). */
-int memsamples_fill(MemSamples *ms, const Program *prog, NpgFull *f, long n, long S, unsigned seed);
+int memsamples_fill(MemSamples *ms, const Program *prog, Full *f, long n, long S, unsigned seed);
 
 /* SampleSource callback: sets sample k. */
-int memsamples_set(void *user, NpgFull *f, long k);
+int memsamples_set(void *user, Full *f, long k);
 
 void memsamples_free(MemSamples *ms);
 

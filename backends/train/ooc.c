@@ -93,7 +93,7 @@ typedef struct Stream {
 
 typedef struct Ooc {
   Model *m;
-  NpgFull *f;
+  Full *f;
   const SampleSource *src;
   const TrainOptions *opt;
   long S;
@@ -216,7 +216,7 @@ static int member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long 
     memcpy(out, o->tmp + r0, sizeof(double) * (size_t)(r1 - r0));
     return 0;
   }
-  const double *v = npg_full_get(o->f, ((Sym *)o->m->prog->quantities.v[mb->q])->name, NULL);
+  const double *v = full_get(o->f, ((Sym *)o->m->prog->quantities.v[mb->q])->name, NULL);
   for (long e = r0; e < r1; e++)
     if (!isfinite(v[e])) /* the message naming where it arises */
       return train_member_value(o->m, o->f, mb, k, n, o->tmp, o->err, o->errlen) ? -1
@@ -251,7 +251,7 @@ static int collect(Ooc *o, long p, bool gram) {
   long S = o->S;
   bool whole = p == 0 && gram && o->N == 1; /* over ranks: whole_sweep */
   Demand *d = whole ? NULL : full_demand(o->f);
-  if (!whole && !d) return npg_fail(o->err, o->errlen, "%s", npg_full_error(o->f));
+  if (!whole && !d) return npg_fail(o->err, o->errlen, "%s", full_error(o->f));
   size_t need = 0;
   for (long g = o->first[p]; g < o->first[p + 1]; g++)
     need += (size_t)(o->seg[g].r1 - o->seg[g].r0) * (size_t)S * (size_t)m->classes[o->seg[g].c].nmembers;
@@ -278,7 +278,7 @@ static int collect(Ooc *o, long p, bool gram) {
       if (whole_sample(o, k)) return -1;
     } else if ((o->src->set_part ? o->src->set_part(o->src->user, o->f, k, d) : o->src->set(o->src->user, o->f, k)) ||
                full_eval_demand(o->f, k, d)) {
-      return npg_fail(o->err, o->errlen, "%s", npg_full_error(o->f));
+      return npg_fail(o->err, o->errlen, "%s", full_error(o->f));
     }
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
@@ -807,7 +807,7 @@ static void ooc_free(Ooc *o) {
   free(o->st), free(o->seg), free(o->first), free(o->tmp), free(o->block), free(o->abuf);
 }
 
-int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen) {
+int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen) {
   Ooc o = {m, f, src, opt, src->count, NULL, NULL, 0, NULL, 0, 0, NULL, err, errlen, 0, 0, 1, NULL, NULL, 0, 0};
   if (opt->dist) o.rank = dist_rank(), o.N = dist_size();
   long maxn = 1;

@@ -13,7 +13,7 @@
  * K's row for a key being B_y[row] (numerator), the packed upper triangle
  * of B_y[row] ⊗ B_y[row] (diagonal operator: BᵀDB is symmetric), or
  * B_y[row] ⊗ B_y[col] (declared operator). An input repeated k times
- * contributes its packed symmetrized power (reduce.h), so x ⊗ x is stored
+ * contributes its packed symmetrized power (model.h), so x ⊗ x is stored
  * once. All dense work is OpenBLAS dgemm.
  *
  * Map and reduce across output blocks: the builder's callback only records
@@ -350,25 +350,25 @@ static int workers_online(void) {
   return n < 1 ? 1 : n > PREMUL_MAX_WORKERS ? PREMUL_MAX_WORKERS : (int)n;
 }
 
-static int premultiply_rows(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my,
+static int premultiply_rows(Model *m, Full *f, RTensor *t, const double *By, long ny, long my,
                             int unpack_min_monos, int part, int nparts, double *flops, char *err, size_t errlen);
 
-int premultiply(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
+int premultiply(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
                 size_t errlen) {
   return premultiply_rows(m, f, t, By, ny, my, PREMUL_UNPACK_MONOS, 0, 1, flops, err, errlen);
 }
 
-int premultiply_unpacking(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
+int premultiply_unpacking(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
                           double *flops, char *err, size_t errlen) {
   return premultiply_rows(m, f, t, By, ny, my, unpack_min_monos, 0, 1, flops, err, errlen);
 }
 
-int premultiply_part(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int part, int nparts,
+int premultiply_part(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, int part, int nparts,
                      double *flops, char *err, size_t errlen) {
   return premultiply_rows(m, f, t, By, ny, my, PREMUL_UNPACK_MONOS, part, nparts, flops, err, errlen);
 }
 
-static int premultiply_rows(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my,
+static int premultiply_rows(Model *m, Full *f, RTensor *t, const double *By, long ny, long my,
                             int unpack_min_monos, int part, int nparts, double *flops, char *err, size_t errlen) {
   Premul p = {0};
   p.part = part;
@@ -433,7 +433,7 @@ static int premultiply_rows(Model *m, NpgFull *f, RTensor *t, const double *By, 
   if (built == 0) flush_block(&p);
   if (p.local) openblas_set_num_threads(blas_threads);
   if (built != 0) {
-    if (!err[0]) snprintf(err, errlen, "%s", npg_full_error(f));
+    if (!err[0]) snprintf(err, errlen, "%s", full_error(f));
     goto done;
   }
   for (int i = 1; i < p.nworkers && p.local; i++)

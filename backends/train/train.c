@@ -70,13 +70,13 @@ static int sum_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_id
 
 /* out[0..n) = the field whose tensors are `ts` (builders named in `ts`),
  * evaluated on the current values of the evaluator. */
-static int field_value(NpgFull *f, const RTensor *ts, int nt, double *out, long n, char *err, size_t errlen) {
+static int field_value(Full *f, const RTensor *ts, int nt, double *out, long n, char *err, size_t errlen) {
   memset(out, 0, sizeof(double) * (size_t)n);
   for (int g = 0; g < nt; g++) {
     FieldSum s = {{0}, out, n};
-    for (int i = 0; i < ts[g].group->ninputs; i++) s.in[i] = npg_full_get(f, ts[g].group->inputs[i]->name, NULL);
+    for (int i = 0; i < ts[g].group->ninputs; i++) s.in[i] = full_get(f, ts[g].group->inputs[i]->name, NULL);
     NpgSink sink = {&s, sum_entry, 0, 1}; /* every row */
-    if (full_build(f, ts[g].builder, &sink) != 0) return npg_fail(err, errlen, "%s", npg_full_error(f));
+    if (full_build(f, ts[g].builder, &sink) != 0) return npg_fail(err, errlen, "%s", full_error(f));
   }
   return 0;
 }
@@ -191,8 +191,8 @@ static RTerm *joiner_term(Model *m, const Joiner *j) {
 
 
 /* Set and evaluate training sample k. */
-int train_eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, size_t errlen) {
-  if (src->set(src->user, f, k) != 0 || npg_full_eval(f, k) != 0) return npg_fail(err, errlen, "%s", npg_full_error(f));
+int train_eval_sample(const SampleSource *src, Full *f, long k, char *err, size_t errlen) {
+  if (src->set(src->user, f, k) != 0 || full_eval(f, k) != 0) return npg_fail(err, errlen, "%s", full_error(f));
   return 0;
 }
 
@@ -200,10 +200,10 @@ int train_eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, si
  * through its builders) at sample k into out[0..n); refused when not
  * finite, since a basis of it would be meaningless (and the SVD would fail
  * without saying why). */
-int train_member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n, double *out, char *err,
+int train_member_value(Model *m, Full *f, const RMember *mb, long k, long n, double *out, char *err,
                         size_t errlen) {
   if (mb->q >= 0) {
-    memcpy(out, npg_full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)n);
+    memcpy(out, full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)n);
   } else {
     RTerm *rt = joiner_term(m, mb->joiner);
     if (!rt) return npg_fail(err, errlen, "a numerator without its term (a bug in npg)");
@@ -231,7 +231,7 @@ int train_member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n, 
 
 /* A diagonal operator stays marked SPD while every training diagonal seen is
  * positive (then BᵀDB is SPD for every basis: Cholesky). */
-int train_check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen) {
+int train_check_spd(Model *m, Full *f, double *tmp, char *err, size_t errlen) {
   FOR_DIAG_OPS(m, rs, rt, ro) {
     if (!ro->spd) continue;
     long n = m->classes[m->qclass[rs->q]].n;
@@ -280,7 +280,7 @@ void train_gram_blocks(long S, long fit, long *b, long *q) {
  * Gram matrix is then J G J (J = I − 11ᵀ/S: the mean of a shift is
  * removed exactly), its eigenvectors give U_c = (X − x₀1ᵀ − d1ᵀ) W, and
  * the member's basis is the orthonormalization of [μ = x₀ + d, U_c]. */
-static int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, double ***U,
+static int snapshot_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, double ***U,
                           int **kk, double *tmp, char *err, size_t errlen) {
   long S = src->count, per = 0;
   for (int c = 0; c < m->nclasses; c++) per += m->classes[c].n * m->classes[c].nmembers;
@@ -598,14 +598,14 @@ static bool keep_named(const Model *m, const char *list, int c, char *unknown, s
 
 /* The model's layout for the dims sample 0 binds, with every member's
  * options set and the --basis names checked. NULL with `err`. */
-static Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+static Model *begin_training(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                              size_t errlen) {
   if (src->count < 1) {
     npg_fail(err, errlen, "no training samples");
     return NULL;
   }
-  if (src->set(src->user, f, 0) != 0 || npg_full_eval(f, 0) != 0) { /* sample 0 binds every dim */
-    npg_fail(err, errlen, "%s", npg_full_error(f));
+  if (src->set(src->user, f, 0) != 0 || full_eval(f, 0) != 0) { /* sample 0 binds every dim */
+    npg_fail(err, errlen, "%s", full_error(f));
     return NULL;
   }
   long *dims = npg_calloc((size_t)prog->dims.n + 1, sizeof(long));
@@ -638,7 +638,7 @@ int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {
 /* Step 1: every member's snapshots in memory (sn->X), or, when they need
  * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
  * *gram set). Marks which diagonal operators stay SPD. */
-static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
+static int take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
                           bool *gram, char *err, size_t errlen) {
   long S = src->count, maxn = 1;
   size_t need = 0;
@@ -764,7 +764,7 @@ static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
 /* Step 3: the projections between classes and every tensor pre-multiplied.
  * Over ranks, with progress on, rank 0 says how long its own rows took and
  * how long the sums over ranks (the wait for the slowest rank included). */
-static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char *err, size_t errlen) {
+static int premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err, size_t errlen) {
   long ntensors = 0, done = 0;
   int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1;
   for (int i = 0; i < m->nstages; i++)
@@ -824,12 +824,12 @@ static bool mark_streamed(Model *m, const TrainOptions *opt) {
  * reports them in place of the held-out floors it cannot measure without
  * the basis. `gram`: the values are the evaluator's (the sample just
  * evaluated), else the snapshots'. */
-static void take_floors(Model *m, NpgFull *f, const Snapshots *sn, bool gram, long k, long S, double *proj, double *y) {
+static void take_floors(Model *m, Full *f, const Snapshots *sn, bool gram, long k, long S, double *proj, double *y) {
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; m->classes[c].streamed && !m->classes[c].floors_known && i < m->classes[c].nmembers; i++) {
       RMember *mb = &m->classes[c].members[i];
       if (mb->q < 0) continue; /* a numerator is no quantity verify reports */
-      const double *val = gram ? npg_full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL)
+      const double *val = gram ? full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL)
                                : sn->X[c][i] + (size_t)k * (size_t)m->classes[c].n;
       double fl[2];
       model_projection_floor(&m->classes[c], val, proj, y, fl);
@@ -848,14 +848,14 @@ static void drop_bases(Model *m) {
   }
 }
 
-static int fit_externs_floors(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram,
+static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram,
                               bool floors, double *proj, double *y, bool progress, bool dist, char *err, size_t errlen);
 
 /* Step 4: every extern's learned map (paper §8.3): the training samples'
  * reduced inputs and values, from the snapshots or, after the method of
  * snapshots, recomputed; with `floors`, in the same pass the streamed
  * classes' training floors (take_floors). */
-static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
+static int fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
                        bool progress, bool dist, char *err, size_t errlen) {
   long maxn = 1, maxm = 1;
   for (int c = 0; floors && c < m->nclasses; c++)
@@ -868,7 +868,7 @@ static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snap
   return rc;
 }
 
-static int fit_externs_floors(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
+static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
                               double *proj, double *y, bool progress, bool dist, char *err, size_t errlen) {
   long S = src->count;
   /* recomputed over ranks (out of core): rank r its samples k ≡ r (mod N),
@@ -889,7 +889,7 @@ static int fit_externs_floors(Model *m, NpgFull *f, const SampleSource *src, con
       for (int j = 0; j <= x->nin; j++) {
         int q = j < x->nin ? x->in_q[j] : x->q;
         RClass *rc = &m->classes[m->qclass[q]];
-        const double *val = npg_full_get(f, ((Sym *)m->prog->quantities.v[q])->name, NULL);
+        const double *val = full_get(f, ((Sym *)m->prog->quantities.v[q])->name, NULL);
         if (!gram) {
           int mi = 0;
           while (rc->members[mi].q != q) mi++;
@@ -925,7 +925,7 @@ static bool named_in(const char *const *names, int n, const char *name) {
   return false;
 }
 
-int train_interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, char *err, size_t errlen) {
+int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *err, size_t errlen) {
   double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
   /* the program's `basis w: reduce interp`, unless the command line says galerkin */
   for (int i = 0; i < m->nstages; i++) {
@@ -964,7 +964,7 @@ int train_interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, char
 /* Steps 1–2: the bases, from snapshots in memory, by the method of
  * snapshots, or out of core when the bases exceed opt->mem (ooc.c; then,
  * as after the method of snapshots, *gram: no snapshot is kept). */
-static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn, bool *gram,
+static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn, bool *gram,
                  struct timespec t[2], double *sec, double *cpu, char *err, size_t errlen) {
   if (ooc_needed(m, opt)) {
     *gram = true;
@@ -977,7 +977,7 @@ static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptio
 
 /* Training as named steps (DESIGN §5), each step's wall and CPU time kept (out of core: the
  * snapshots and the bases are one step, timed as snapshots). */
-Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen) {
   Snapshots sn = {0};
   bool gram = false;
@@ -1011,7 +1011,7 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
 
 struct TrainSet {
   Model *base;              /* layout, member options, SPD marks */
-  NpgFull *f;
+  Full *f;
   const SampleSource *src;
   bool progress;
   Snapshots sn;             /* in memory */
@@ -1047,7 +1047,7 @@ void train_set_free(TrainSet *ts) {
   free(ts);
 }
 
-TrainSet *train_set_new(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                         size_t errlen) {
   TrainSet *ts = npg_calloc(1, sizeof *ts);
   TrainOptions o = *opt;

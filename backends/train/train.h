@@ -70,11 +70,11 @@ typedef struct TrainOptions {
 typedef struct SampleSource {
   long count;
   void *user;
-  int (*set)(void *user, NpgFull *f, long k);
+  int (*set)(void *user, Full *f, long k);
   /* Optional: as `set`, for a restricted evaluation (full_eval_demand) by
    * `d` after demand_propagate: only the entries of externs `d` demands need
    * be given (full_extern_values), the others may keep stale values. */
-  int (*set_part)(void *user, NpgFull *f, long k, const Demand *d);
+  int (*set_part)(void *user, Full *f, long k, const Demand *d);
   /* Optional, for a source that holds only this rank's samples (over MPI
    * ranks): make every sample available to `set` and `set_part` on every
    * rank (a collective call). Out of core over ranks a rank's passes
@@ -85,7 +85,7 @@ typedef struct SampleSource {
 /* Train: snapshots of every stage and joining numerator on every sample,
  * one basis per class, every tensor pre-multiplied, externs fitted. `f` is
  * bound to the training params. NULL with `err` on failure. */
-Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen);
 
 /* Training for a search over basis sizes (npgc tune): the snapshots (in
@@ -96,7 +96,7 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
 typedef struct TrainSet TrainSet;
 /* `opt` as for train_model (its energy should be 1: the caps decide); NULL
  * with `err`. `f` and `src` must outlive the set. */
-TrainSet *train_set_new(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                         size_t errlen);
 int train_set_classes(const TrainSet *ts);
 /* The most vectors a member of class `c` has: caps above it change nothing. */
@@ -113,10 +113,10 @@ void train_set_free(TrainSet *ts);
 
 /* The steps of training that the out-of-core bases (ooc.c) share (train.c). */
 /* Set and evaluate training sample k. */
-int train_eval_sample(const SampleSource *src, NpgFull *f, long k, char *err, size_t errlen);
+int train_eval_sample(const SampleSource *src, Full *f, long k, char *err, size_t errlen);
 /* Member `mb`'s value (a quantity, or an unnamed numerator) after an
  * evaluation of sample k into out[0..n); refused, naming where, when not finite. */
-int train_member_value(Model *m, NpgFull *f, const RMember *mb, long k, long n, double *out, char *err, size_t errlen);
+int train_member_value(Model *m, Full *f, const RMember *mb, long k, long n, double *out, char *err, size_t errlen);
 /* Over ranks (opt->dist), the test hook of dist_fail_here at rank r's
  * first sample k == r: -1 with `err` saying so; 0 otherwise. */
 int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen);
@@ -124,7 +124,7 @@ int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen);
 void train_mark_spd(Model *m);
 /* Unmark every diagonal operator whose diagonal is not positive in the
  * current evaluation (`tmp`: room for the largest class). */
-int train_check_spd(Model *m, NpgFull *f, double *tmp, char *err, size_t errlen);
+int train_check_spd(Model *m, Full *f, double *tmp, char *err, size_t errlen);
 /* The class basis from its members' snapshots X[i] (n x S column-major):
  * one PCA per member, concatenated and re-orthonormalized; `pre` (over MPI
  * ranks): the members' PCAs already made, taken over, or NULL. */
@@ -140,7 +140,7 @@ int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen);
  * interpolated, the names of opt->galerkin_stage checked, and with
  * opt->valid every other eligible stage chosen (tune_choose_reductions).
  * 0, or -1 with `err`. */
-int train_interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, char *err, size_t errlen);
+int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *err, size_t errlen);
 
 /* Make stage number `stage` of `m` (bases built, `f` bound as for
  * pre-multiplication) interpolated: its entries selected from its class
@@ -148,7 +148,7 @@ int train_interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, char
  * builders into m->stages[stage].interp (replacing any). 0, or -1 with
  * `err` (the stage not eligible, the selected rows rank deficient, out of
  * memory). */
-int interp_train_stage(Model *m, NpgFull *f, int stage, double oversample, char *err, size_t errlen);
+int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- out-of-core bases (ooc.c) */
 
@@ -162,7 +162,7 @@ bool ooc_needed(const Model *m, const TrainOptions *opt);
  * memory-mapped read-only (rc->B_mapped). The result is the in-memory
  * training's (pca_basis, pca_merge through their Gram route) up to
  * rounding. 0, or -1 with `err`. */
-int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen);
+int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- basis sizes by error (tune.c) */
 
@@ -199,7 +199,7 @@ typedef struct TuneResult {
  * excludes stages; opt may be NULL). out->model: the chosen trial's model.
  * 0 (`out` filled; out->chosen < 0 when `tol` cannot be met, naming the
  * limiting class), or -1 with `err`. tune_result_free() either way. */
-int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *valid, double tol, int max_cap,
+int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid, double tol, int max_cap,
                 const TrainOptions *opt, TuneResult *out, char *err, size_t errlen);
 void tune_result_free(TuneResult *r);
 
@@ -213,7 +213,7 @@ void tune_result_free(TuneResult *r);
  * configuration that fails on a validation sample counts as an infinite
  * error. The errors and the reason are left in rs->choice_err and
  * rs->choice_reason (and on stderr with opt->progress). 0, or -1 with `err`. */
-int tune_choose_reductions(Model *m, NpgFull *f, const SampleSource *valid, const TrainOptions *opt, char *err,
+int tune_choose_reductions(Model *m, Full *f, const SampleSource *valid, const TrainOptions *opt, char *err,
                            size_t errlen);
 
 /* ---------------------------------------------------------------- reports (report.c) */
@@ -307,19 +307,19 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
  * GEMM against the output basis. `t` sized by model_size_tensors; fills
  * t->data. `flops` (optional) accumulates the useful arithmetic (that of
  * the packed products). */
-int premultiply(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
+int premultiply(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
                 size_t errlen);
 /* The same, choosing the path for a last x ⊗ x axis: unpacked (one GEMM of
  * full basis rows per batch, folded into packed form) when the group has at
  * least unpack_min_monos monomials, packed per entry otherwise. premultiply
  * uses 8; tests force each path. */
-int premultiply_unpacking(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
+int premultiply_unpacking(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
                           double *flops, char *err, size_t errlen);
 /* The share of premultiply of rank `part` of `nparts`: the rows r ≡ part
  * (mod nparts) of the output only, the others left zero, so the sum of the
  * parts over the ranks is the whole (to rounding). The tensor's builder
  * enumerates only those rows' entries: the work divides over the ranks. */
-int premultiply_part(Model *m, NpgFull *f, RTensor *t, const double *By, long ny, long my, int part, int nparts,
+int premultiply_part(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, int part, int nparts,
                      double *flops, char *err, size_t errlen);
 /* Output keys (rows, or (row, col) pairs) pre-multiplied per block of t. */
 long premul_keys_per_block(const RTensor *t);

@@ -45,7 +45,7 @@ typedef struct Valid {
 typedef struct Search {
   TrainSet *ts;
   Program *prog;
-  NpgFull *f;
+  Full *f;
   Valid v;
   int nc;
   int *maxk;                /* per class: the most vectors its members have, at most max_cap */
@@ -60,7 +60,7 @@ typedef struct Search {
 static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
 
 /* Full values of every quantity on every validation sample. */
-static int cache_valid(Search *s, NpgFull *f, const SampleSource *valid, const Model *layout, char *err, size_t errlen) {
+static int cache_valid(Search *s, Full *f, const SampleSource *valid, const Model *layout, char *err, size_t errlen) {
   s->v.S = valid->count;
   s->v.nq = layout->nq;
   if (!(s->v.val = npg_calloc((size_t)valid->count + 1, sizeof(double *))))
@@ -68,12 +68,12 @@ static int cache_valid(Search *s, NpgFull *f, const SampleSource *valid, const M
   long per = 0;
   for (int q = 0; q < layout->nq; q++) per += qsize(layout, q);
   for (long k = 0; k < valid->count; k++) {
-    if (valid->set(valid->user, f, k) != 0 || npg_full_eval(f, k) != 0)
-      return npg_fail(err, errlen, "validation sample %ld: %s", k, npg_full_error(f));
+    if (valid->set(valid->user, f, k) != 0 || full_eval(f, k) != 0)
+      return npg_fail(err, errlen, "validation sample %ld: %s", k, full_error(f));
     if (!(s->v.val[k] = npg_malloc(sizeof(double) * (size_t)per))) return npg_fail(err, errlen, "out of memory");
     long off = 0;
     for (int q = 0; q < layout->nq; q++) {
-      memcpy(s->v.val[k] + off, npg_full_get(f, ((Sym *)s->prog->quantities.v[q])->name, NULL),
+      memcpy(s->v.val[k] + off, full_get(f, ((Sym *)s->prog->quantities.v[q])->name, NULL),
              sizeof(double) * (size_t)qsize(layout, q));
       off += qsize(layout, q);
     }
@@ -225,7 +225,7 @@ void tune_result_free(TuneResult *r) {
   memset(r, 0, sizeof *r);
 }
 
-int tune_search(TrainSet *ts, Program *prog, NpgFull *f, const SampleSource *valid, double tol, int max_cap,
+int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid, double tol, int max_cap,
                 const TrainOptions *opt, TuneResult *out, char *err, size_t errlen) {
   memset(out, 0, sizeof *out);
   out->chosen = out->limiting = -1;
@@ -417,7 +417,7 @@ static int choose(Search *s, Model *m, const TrainOptions *opt, double tol, doub
   return 0;
 }
 
-int tune_choose_reductions(Model *m, NpgFull *f, const SampleSource *valid, const TrainOptions *opt, char *err,
+int tune_choose_reductions(Model *m, Full *f, const SampleSource *valid, const TrainOptions *opt, char *err,
                            size_t errlen) {
   int candidates = 0;
   for (int i = 0; i < m->nstages; i++) candidates += lower_interp_eligible(m->stages[i].st) && !m->stages[i].interp;

@@ -57,15 +57,15 @@ static int add_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_id
 
 /* out += the entries of tensor group `g` (builder `name`) contracted with
  * the current values of its inputs; mag (when not NULL) += their moduli. */
-static int sum_group(NpgFull *f, const char *name, const TensorGroup *g, double *out, double *mag, long ncols,
+static int sum_group(Full *f, const char *name, const TensorGroup *g, double *out, double *mag, long ncols,
                      char *err, size_t errlen) {
   Sum s = {.out = out, .mag = mag, .ncols = ncols};
   for (int i = 0; i < g->ninputs && i < 16; i++)
-    if (!(s.in[i] = npg_full_get(f, g->inputs[i]->name, NULL)))
+    if (!(s.in[i] = full_get(f, g->inputs[i]->name, NULL)))
       return npg_fail(err, errlen, "tensor %s reads '%s', which the full evaluator does not hold (a bug in npg)", name,
                       g->inputs[i]->name);
   NpgSink sink = {&s, add_entry, 0, 1}; /* every row */
-  if (full_build(f, name, &sink) != 0) return npg_fail(err, errlen, "tensor %s: %s", name, npg_full_error(f));
+  if (full_build(f, name, &sink) != 0) return npg_fail(err, errlen, "tensor %s: %s", name, full_error(f));
   return 0;
 }
 
@@ -106,7 +106,7 @@ static double max_abs(const double *x, size_t n) {
  * value); a diagonal power d^r adds |r| · Σ|monomials of d| / |d| of
  * relative condition; a declared operator's power multiplies the relative
  * condition of the whole vector by κ(M)^|r|. */
-static int stage_from_tensors(const Program *prog, NpgFull *f, const Stage *st, size_t count, double *y,
+static int stage_from_tensors(const Program *prog, Full *f, const Stage *st, size_t count, double *y,
                               double *scale, char *err, size_t errlen) {
   size_t ne = count / (size_t)(st->ncomp > 0 ? st->ncomp : 1), n1 = count ? count : 1;
   double *num = calloc(n1, sizeof(double)), *mag = calloc(n1, sizeof(double));
@@ -120,7 +120,7 @@ static int stage_from_tensors(const Program *prog, NpgFull *f, const Stage *st, 
     memset(num, 0, sizeof(double) * count);
     memset(mag, 0, sizeof(double) * count);
     if (tm->named_num) {
-      const double *w = npg_full_get(f, tm->named_num->name, NULL);
+      const double *w = full_get(f, tm->named_num->name, NULL);
       if (!w) rc = npg_fail(err, errlen, "stage %s: numerator '%s' not held (a bug in npg)", st->sym->name,
                             tm->named_num->name);
       for (size_t e = 0; e < count && rc == 0; e++) num[e] = w[e], mag[e] = fabs(w[e]);
@@ -180,21 +180,22 @@ static int check_lowering(Program *prog, const ExactOptions *o, FILE *out, bool 
   fprintf(out, "  1. lowering: every stage from its tensors' entries against the full evaluator, every dim %ld (bar "
                "%.0e)\n",
           n, EXACT_LOWERING_TOL);
-  NpgFull *f = full_new(prog, o->backend, NULL);
+  Full *f = full_new(prog, o->backend, NULL);
   MemSamples ms;
   memset(&ms, 0, sizeof ms);
   int rc = 0;
-  if (npg_full_error(f)[0]) rc = npg_fail(err, errlen, "%s", npg_full_error(f));
+  if (!f) rc = npg_fail(err, errlen, "out of memory for the full evaluator");
+  else if (full_error(f)[0]) rc = npg_fail(err, errlen, "%s", full_error(f));
   else if ((rc = memsamples_fill(&ms, prog, f, n, 1, o->seed)) != 0)
-    rc = npg_fail(err, errlen, "%s", rc == -1 ? npg_full_error(f) : "out of memory for the random samples");
-  else if (memsamples_set(&ms, f, 0) != 0 || npg_full_eval(f, 0) != 0)
-    rc = npg_fail(err, errlen, "the full evaluator on the random data: %s", npg_full_error(f));
+    rc = npg_fail(err, errlen, "%s", rc == -1 ? full_error(f) : "out of memory for the random samples");
+  else if (memsamples_set(&ms, f, 0) != 0 || full_eval(f, 0) != 0)
+    rc = npg_fail(err, errlen, "the full evaluator on the random data: %s", full_error(f));
   for (int i = 0; i < prog->stages.n && rc == 0; i++) {
     const Stage *st = prog->stages.v[i];
     if (st->kind == ST_EXTERN) continue;
     long shape[MAX_AXES + MAX_STATIC];
     size_t count = memsamples_count(st->sym, n, shape);
-    const double *full = npg_full_get(f, st->sym->name, NULL);
+    const double *full = full_get(f, st->sym->name, NULL);
     double *y = malloc(sizeof(double) * (count ? count : 1));
     if (!y || !full) {
       free(y);
@@ -222,13 +223,13 @@ static int check_lowering(Program *prog, const ExactOptions *o, FILE *out, bool 
     free(y);
   }
   memsamples_free(&ms);
-  npg_full_free(f);
+  full_free(f);
   return rc;
 }
 
 /* ---------------------------------------------------------------- 2. full rank */
 
-static int held_out_differences(const Program *prog, const Model *m, NpgFull *f, Reduced *r, MemSamples *held,
+static int held_out_differences(const Program *prog, const Model *m, Full *f, Reduced *r, MemSamples *held,
                                 long held_out, double *y, double *worst, char *err, size_t errlen);
 
 static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool *failed, char *err, size_t errlen) {
@@ -246,7 +247,7 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
   if (S > 20000)
     return npg_fail(err, errlen, "the full-rank check would train on %ld samples of %ld entries; give a smaller size", S,
                  S - 4);
-  NpgFull *f = full_new(prog, o->backend, NULL);
+  Full *f = full_new(prog, o->backend, NULL);
   MemSamples train, held;
   memset(&train, 0, sizeof train);
   memset(&held, 0, sizeof held);
@@ -254,11 +255,11 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
   Reduced *r = NULL;
   double *y = NULL, *worst = calloc((size_t)prog->quantities.n + 1, sizeof(double));
   int rc = 0;
-  if (!worst) rc = npg_fail(err, errlen, "out of memory");
-  else if (npg_full_error(f)[0]) rc = npg_fail(err, errlen, "%s", npg_full_error(f));
+  if (!worst || !f) rc = npg_fail(err, errlen, "out of memory");
+  else if (full_error(f)[0]) rc = npg_fail(err, errlen, "%s", full_error(f));
   else if ((rc = memsamples_fill(&train, prog, f, n, S, o->seed + 1)) != 0 ||
            (rc = memsamples_fill(&held, prog, NULL, n, held_out, o->seed + 977)) != 0)
-    rc = npg_fail(err, errlen, "%s", rc == -1 ? npg_full_error(f) : "out of memory for the random samples");
+    rc = npg_fail(err, errlen, "%s", rc == -1 ? full_error(f) : "out of memory for the random samples");
   if (rc == 0) {
     SampleSource src = {S, &train, memsamples_set, NULL, NULL};
     TrainOptions opt;
@@ -315,21 +316,21 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
   model_free(m);
   memsamples_free(&train);
   memsamples_free(&held);
-  npg_full_free(f);
+  full_free(f);
   return rc;
 }
 
 /* worst[q] <- the largest relative difference of quantity q between the
  * reduced evaluator `r` of full-rank model `m` and the full evaluator `f`
  * over the held-out samples; y holds the largest class. */
-static int held_out_differences(const Program *prog, const Model *m, NpgFull *f, Reduced *r, MemSamples *held,
+static int held_out_differences(const Program *prog, const Model *m, Full *f, Reduced *r, MemSamples *held,
                                 long held_out, double *y, double *worst, char *err, size_t errlen) {
   int rc = 0;
   memset(worst, 0, sizeof(double) * (size_t)m->nq);
   reduced_use_given_externs(r, true);
   for (long k = 0; k < held_out && rc == 0; k++) {
-    if (memsamples_set(held, f, k) != 0 || npg_full_eval(f, k) != 0) {
-      rc = npg_fail(err, errlen, "the full evaluator on held-out sample %ld: %s", k, npg_full_error(f));
+    if (memsamples_set(held, f, k) != 0 || full_eval(f, k) != 0) {
+      rc = npg_fail(err, errlen, "the full evaluator on held-out sample %ld: %s", k, full_error(f));
       break;
     }
     for (int i = 0; i < held->n; i++)
@@ -340,7 +341,7 @@ static int held_out_differences(const Program *prog, const Model *m, NpgFull *f,
     }
     for (int q = 0; q < m->nq; q++) {
       size_t cnt = 0;
-      const double *full = npg_full_get(f, ((Sym *)prog->quantities.v[q])->name, &cnt);
+      const double *full = full_get(f, ((Sym *)prog->quantities.v[q])->name, &cnt);
       if (!full || (long)cnt != m->classes[m->qclass[q]].n) {
         rc = npg_fail(err, errlen, "quantity %s: full and reduced sizes differ (a bug in npg)",
                    ((Sym *)prog->quantities.v[q])->name);

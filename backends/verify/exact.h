@@ -21,7 +21,7 @@
 #include <stdio.h>
 
 #include "ir.h"
-#include "npg.h"
+#include "jit.h"
 
 #define EXACT_LOWERING_TOL 1e-12
 #define EXACT_FULL_RANK_TOL 1e-10
@@ -30,7 +30,7 @@ typedef struct ExactOptions {
   long n_lowering;    /* size of every dim for check 1 (6 when 0) */
   long n_full_rank;   /* size of every dim for check 2 (4 when 0) */
   unsigned seed;      /* of the random data */
-  NpgBackend backend; /* of the full evaluator */
+  JitBackend backend; /* of the full evaluator */
   bool progress;      /* training's progress bars */
 } ExactOptions;
 

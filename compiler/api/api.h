@@ -1,5 +1,5 @@
 /* api.h — what the public API's files share inside the facade layer: the
- * structs behind NpgModel, and the param hashes a model records. */
+ * structs behind NpgFull and NpgModel, and the param hashes a model records. */
 #ifndef NPG_API_INTERNAL_H
 #define NPG_API_INTERNAL_H
 
@@ -8,20 +8,45 @@
 #include "reduced.h"
 #include "train.h"
 
+/* An extern's callback as npg.h gives it, called by the internal evaluator
+ * through api_full.c's trampoline with the NpgFull the caller knows. */
+typedef struct ExternClosure {
+  NpgExternFn fn;
+  void *user;
+  const NpgFull *f;
+} ExternClosure;
+
+/* The public full evaluator: the internal one (backends/jit/full.h), which
+ * every layer below evaluates with, wrapped as NpgModel wraps Model. */
+struct NpgFull {
+  Full *full;               /* never NULL */
+  ExternClosure *externs;   /* per quantity (Program.quantities); NULL when full has no program */
+};
+
 struct NpgModel {
   Model *m;                 /* NULL when loading failed */
   char error[2048];
 };
 
+/* A caller's NpgSampleFn as a SampleSource's `set` (train.h), handed the
+ * NpgFull the caller knows rather than the internal evaluator the trainer
+ * holds (f->full). */
+typedef struct SampleClosure {
+  NpgSampleFn fn;
+  void *user;
+  NpgFull *f;
+} SampleClosure;
+int api_sample_set(void *closure, Full *full, long k);
+
 /* A model object owning `m` (NULL: out of memory, `m` freed). */
 NpgModel *api_model_wrap(Model *m);
 /* "name=<hex> …": the hashes of the values of every param bound in `f`
  * (malloc'd; NULL when out of memory). */
-char *api_param_hashes(const NpgFull *f);
+char *api_param_hashes(const Full *f);
 /* The index of quantity `name` in Program.quantities, -1 if none. */
 int api_quantity(const Program *prog, const char *name);
 /* Shape of quantity `s` as bound in `f`: dims then static axes; ndim. */
-int api_shape(const NpgFull *f, const Sym *s, long *shape);
+int api_shape(const Full *f, const Sym *s, long *shape);
 
 /* 0 when every reduced coordinate held by `r` is finite; else -1 with a
  * message naming the first quantity in evaluation order that is not. */

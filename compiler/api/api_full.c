@@ -1,5 +1,11 @@
-/* api_full.c — the full evaluator's `output op` operators as CSR (npg.h),
- * and the .npy writers of the public API.
+/* api_full.c — the full evaluator of npg.h: NpgFull over the internal
+ * Full (backends/jit/full.h), its `output op` operators as CSR, and the
+ * .npy writers of the public API.
+ *
+ * NpgFull wraps Full as NpgModel wraps Model: every entry point checks its
+ * arguments (ast.h's npg_refuse: the evaluator itself, each pointer, a
+ * shape) and calls in; the lower layers trust theirs. An extern's callback
+ * gets the NpgFull its caller knows, through one closure per extern.
  *
  * An operator's entries are polynomials in stage values; its tensor
  * builders stream them as (row, column, inputs, coefficient), the entries
@@ -7,14 +13,156 @@
  * of the last evaluation gives the operator itself, sparse as the program
  * wrote it: no dense n × n matrix is formed. */
 #include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "api.h"
 #include "compile.h"
 #include "emit.h"
-#include "full.h"
-#include "npg.h"
 #include "npy.h"
+
+/* ---------------------------------------------------------------- the evaluator */
+
+/* The argument checks of every npg_full_ entry point: the evaluator itself
+ * (into this thread's refusal, which npg_full_error(NULL) returns), then
+ * each pointer argument, refused into the evaluator's error. */
+#define REFUSE_NULL_F(ret) NPG_REFUSE_NULL(f, NULL, 0, ret)
+#define REFUSE_NULL(arg)                                                        \
+  do {                                                                          \
+    if (!(arg)) return refuse(f, __func__, "argument '%s' is NULL", #arg);      \
+  } while (0)
+
+__attribute__((format(printf, 3, 4))) static int refuse(NpgFull *f, const char *func, const char *fmt, ...) {
+  char why[400];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(why, sizeof why, fmt, ap);
+  va_end(ap);
+  npg_refuse(NULL, 0, func, "%s", why);
+  return full_refuse(f->full, npg_refusal());
+}
+
+/* A shape argument: `ndim` axes in [0, MAX_AXES + MAX_STATIC], `shape`
+ * non-NULL when there are any, `values` non-NULL when they hold entries. */
+static int refuse_shape(NpgFull *f, const char *func, int ndim, const long *shape, const double *values) {
+  if (ndim < 0 || ndim > MAX_AXES + MAX_STATIC)
+    return refuse(f, func, "argument 'ndim' is %d (0 to %d axes)", ndim, MAX_AXES + MAX_STATIC);
+  if (ndim > 0 && !shape) return refuse(f, func, "argument 'shape' is NULL");
+  size_t n = 1;
+  for (int i = 0; i < ndim; i++) n = shape[i] > 0 ? n * (size_t)shape[i] : 0;
+  if (n && !values) return refuse(f, func, "argument 'values' is NULL");
+  return 0;
+}
+
+NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
+  const char *refusal = NULL; /* an evaluator that refuses all work with this */
+  if (!p) refusal = (npg_refuse(NULL, 0, __func__, "argument 'p' is NULL"), npg_refusal());
+  else if (backend != NPG_TCC && backend != NPG_CC)
+    refusal = (npg_refuse(NULL, 0, __func__, "argument 'backend' is %d (NPG_TCC or NPG_CC)", (int)backend),
+               npg_refusal());
+  else if (!npg_ok(p)) refusal = npg_error(p);
+  NpgFull *f = npg_calloc(1, sizeof *f);
+  Full *full = f ? full_new(refusal ? NULL : npg_program_ir(p), backend == NPG_CC ? JIT_CC : JIT_TCC, refusal) : NULL;
+  const Program *prog = full ? full_program(full) : NULL;
+  ExternClosure *externs = prog ? npg_calloc((size_t)prog->quantities.n + 1, sizeof *externs) : NULL;
+  if (!full || (prog && !externs)) {
+    full_free(full);
+    free(f);
+    npg_refuse(NULL, 0, __func__, "out of memory"); /* what npg_full_error(NULL) says */
+    return NULL;
+  }
+  f->full = full;
+  f->externs = externs;
+  return f;
+}
+
+const char *npg_full_error(const NpgFull *f) {
+  return f ? full_error(f->full) : npg_refusal()[0] ? npg_refusal() : "no evaluator";
+}
+
+void npg_full_clear_error(NpgFull *f) {
+  REFUSE_NULL_F();
+  full_clear_error(f->full);
+}
+
+void npg_full_unbind(NpgFull *f) {
+  REFUSE_NULL_F();
+  full_unbind(f->full);
+}
+
+int npg_full_bind_params(NpgFull *f, const char *data_dir) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(data_dir);
+  return full_bind_params(f->full, data_dir);
+}
+
+int npg_full_set_param(NpgFull *f, const char *name, int ndim, const long *shape, const double *values,
+                       const char *from) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(from);
+  if (refuse_shape(f, __func__, ndim, shape, values)) return -1;
+  return full_set_param(f->full, name, ndim, shape, values, from);
+}
+
+int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, const double *values, const char *from) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(from);
+  if (refuse_shape(f, __func__, ndim, shape, values)) return -1;
+  return full_set(f->full, name, ndim, shape, values, from);
+}
+
+/* Full calls this for an extern given by npg_full_set_extern_fn. */
+static int call_extern(void *user, const Full *full, long sample, double *out, size_t count) {
+  (void)full;
+  const ExternClosure *x = user;
+  return x->fn(x->user, x->f, sample, out, count);
+}
+
+int npg_full_set_extern_fn(NpgFull *f, const char *name, NpgExternFn fn, void *user) {
+  REFUSE_NULL_F(-1);
+  REFUSE_NULL(name);
+  const Program *prog = full_program(f->full);
+  int q = prog ? api_quantity(prog, name) : -1;
+  if (q < 0 || !fn) return full_set_extern_fn(f->full, name, NULL, NULL); /* refused by name, or removed */
+  f->externs[q] = (ExternClosure){fn, user, f};
+  return full_set_extern_fn(f->full, name, call_extern, &f->externs[q]);
+}
+
+int npg_full_eval(NpgFull *f, long sample) {
+  REFUSE_NULL_F(-1);
+  return full_eval(f->full, sample);
+}
+
+const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
+  REFUSE_NULL_F(NULL);
+  NPG_REFUSE_NULL(name, NULL, 0, NULL);
+  return full_get(f->full, name, count);
+}
+
+long npg_full_dim(const NpgFull *f, const char *name) {
+  REFUSE_NULL_F(-1);
+  NPG_REFUSE_NULL(name, NULL, 0, -1);
+  return full_dim(f->full, name);
+}
+
+int api_sample_set(void *closure, Full *full, long k) {
+  (void)full; /* closure->f->full */
+  const SampleClosure *x = closure;
+  return x->fn(x->user, x->f, k);
+}
+
+void npg_full_free(NpgFull *f) {
+  if (!f) return;
+  full_free(f->full);
+  free(f->externs);
+  free(f);
+}
+
+/* ---------------------------------------------------------------- operators */
 
 typedef struct Entry {
   long row, col;
@@ -53,9 +201,9 @@ static int by_row_col(const void *a, const void *b) {
 }
 
 /* Product of the sizes of ivars [from, to) of `op`. */
-static long axis_size(NpgFull *f, const Sym *op, int from, int to) {
+static long axis_size(const Full *f, const Sym *op, int from, int to) {
   long n = 1;
-  for (int i = from; i < to; i++) n *= npg_full_dim(f, op->ivars[i]->range->name);
+  for (int i = from; i < to; i++) n *= full_dim(f, op->ivars[i]->range->name);
   return n;
 }
 
@@ -84,20 +232,22 @@ static int to_csr(Entries *s, long rows, long cols, NpgCsr *out) {
 }
 
 int npg_full_op(NpgFull *f, const char *name, NpgCsr *out) {
-  NPG_REFUSE_NULL(f, NULL, 0, -1);
-  if (!out || !name) return full_fail(f, (npg_refuse(NULL, 0, __func__, "argument '%s' is NULL", !out ? "out" : "name"),
-                                          npg_refusal()));
+  REFUSE_NULL_F(-1);
+  Full *full = f->full;
+  if (!out || !name) {
+    npg_refuse(NULL, 0, __func__, "argument '%s' is NULL", !out ? "out" : "name");
+    return full_fail(full, npg_refusal());
+  }
   memset(out, 0, sizeof *out);
-  const char *err = npg_full_error(f);
-  if (err[0]) return -1;
-  const Program *prog = full_program(f);
+  if (full_error(full)[0]) return -1;
+  const Program *prog = full_program(full);
   const Sym *op = NULL;
   for (int i = 0; i < prog->ops.n; i++)
     if (strcmp(((Sym *)prog->ops.v[i])->name, name) == 0) op = prog->ops.v[i];
   char msg[512];
   if (!op || !op->is_output) {
     snprintf(msg, sizeof msg, "'%s' is not an output op of the program", name);
-    return full_fail(f, msg);
+    return full_fail(full, msg);
   }
   const OpDef *od = op->opdef;
   Entries s = {0};
@@ -105,33 +255,35 @@ int npg_full_op(NpgFull *f, const char *name, NpgCsr *out) {
   for (int g = 0; g < od->tensors.n && rc == 0; g++) {
     const TensorGroup *tg = &od->tensors.g[g];
     for (int i = 0; i < tg->ninputs && i < 16; i++)
-      if (!(s.in[i] = npg_full_get(f, tg->inputs[i]->name, NULL))) {
+      if (!(s.in[i] = full_get(full, tg->inputs[i]->name, NULL))) {
         snprintf(msg, sizeof msg, "operator %s reads '%s', which has no value: evaluate first", name,
                  tg->inputs[i]->name);
-        rc = full_fail(f, msg);
+        rc = full_fail(full, msg);
       }
     NpgSink sink = {&s, add_entry, 0, 1}; /* every row */
-    if (rc == 0 && full_build(f, emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op), &sink) != 0) rc = -1;
+    if (rc == 0 && full_build(full, emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op), &sink) != 0) rc = -1;
   }
-  if (rc == 0 && (s.oom || to_csr(&s, axis_size(f, op, 0, op->nrow), axis_size(f, op, op->nrow, op->nivars), out)))
-    rc = full_fail(f, "out of memory for the operator's entries");
+  if (rc == 0 &&
+      (s.oom || to_csr(&s, axis_size(full, op, 0, op->nrow), axis_size(full, op, op->nrow, op->nivars), out)))
+    rc = full_fail(full, "out of memory for the operator's entries");
   free(s.e);
   if (rc != 0) npg_csr_free(out);
   return rc;
 }
 
 int npg_full_check_finite(NpgFull *f, long sample) {
-  NPG_REFUSE_NULL(f, NULL, 0, -1);
-  if (npg_full_error(f)[0]) return -1;
+  REFUSE_NULL_F(-1);
+  Full *full = f->full;
+  if (full_error(full)[0]) return -1;
   const Sym *s;
   char at[256], msg[1024];
   double v;
-  if (!full_first_nonfinite(f, &s, at, sizeof at, &v)) return 0;
+  if (!full_first_nonfinite(full, &s, at, sizeof at, &v)) return 0;
   snprintf(msg, sizeof msg, "sample %ld: %s '%s' is not finite: %s%s is %s%s", sample,
            s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage", s->name, s->name, at,
            isnan(v) ? "NaN" : "an infinity",
            s->kind == SYM_STAGE ? " (a division by zero or a root of a negative number at this sample?)" : "");
-  return full_fail(f, msg);
+  return full_fail(full, msg);
 }
 
 void npg_csr_free(NpgCsr *c) {

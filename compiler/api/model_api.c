@@ -25,14 +25,14 @@ int api_quantity(const Program *prog, const char *name) {
   return -1;
 }
 
-int api_shape(const NpgFull *f, const Sym *s, long *shape) {
+int api_shape(const Full *f, const Sym *s, long *shape) {
   int nd = 0;
-  for (int i = 0; i < s->ndims; i++) shape[nd++] = npg_full_dim(f, s->dims[i]->name);
+  for (int i = 0; i < s->ndims; i++) shape[nd++] = full_dim(f, s->dims[i]->name);
   for (int i = 0; i < s->nstatic; i++) shape[nd++] = s->shape[i];
   return nd;
 }
 
-char *api_param_hashes(const NpgFull *f) {
+char *api_param_hashes(const Full *f) {
   const Program *prog = full_program(f);
   size_t cap = 1, len = 0;
   for (int i = 0; i < prog->params.n; i++) cap += strlen(((Sym *)prog->params.v[i])->name) + 19;
@@ -337,10 +337,10 @@ long npg_model_dim(const NpgModel *nm, const char *name) {
 int npg_model_check_params(const NpgModel *nm, const NpgFull *f, char *err, size_t errlen) {
   NPG_REFUSE_NULL(nm, err, errlen, -1);
   NPG_REFUSE_NULL(f, err, errlen, -1);
-  if (!full_program(f)) return npg_fail(err, errlen, "%s", npg_full_error(f));
+  if (!full_program(f->full)) return npg_fail(err, errlen, "%s", npg_full_error(f));
   const char *recorded = nm->m ? nm->m->param_hashes : NULL;
   if (!recorded) return 0;
-  const Program *prog = full_program(f);
+  const Program *prog = full_program(f->full);
   for (int i = 0; i < prog->params.n; i++) {
     const Sym *p = prog->params.v[i];
     char key[512];
@@ -348,7 +348,7 @@ int npg_model_check_params(const NpgModel *nm, const NpgFull *f, char *err, size
     const char *at = recorded;
     while ((at = strstr(at, key)) && at != recorded && at[-1] != ' ') at++;
     const char *from;
-    uint64_t h = full_param_hash(f, i, &from);
+    uint64_t h = full_param_hash(f->full, i, &from);
     if (!at || strtoull(at + strlen(key), NULL, 16) != h) {
       snprintf(err, errlen, "%s: param '%s' differs from the one the model was trained with: retrain, or give the "
                             "training data's params", from, p->name);
@@ -402,13 +402,13 @@ int npg_model_check_params_dir(const NpgModel *nm, const char *dir, char *err, s
 int npg_full_check_params_dir(const NpgFull *f, const char *dir, char *err, size_t errlen) {
   NPG_REFUSE_NULL(f, err, errlen, -1);
   NPG_REFUSE_NULL(dir, err, errlen, -1);
-  if (!full_program(f)) return npg_fail(err, errlen, "%s", npg_full_error(f));
-  char *recorded = api_param_hashes(f);
+  if (!full_program(f->full)) return npg_fail(err, errlen, "%s", npg_full_error(f));
+  char *recorded = api_param_hashes(f->full);
   if (!recorded) {
     snprintf(err, errlen, "out of memory");
     return -1;
   }
-  int rc = check_params_dir(full_program(f), recorded, dir, err, errlen);
+  int rc = check_params_dir(full_program(f->full), recorded, dir, err, errlen);
   free(recorded);
   return rc;
 }

@@ -207,18 +207,6 @@ int npg_emit_full(NpgProgram *p, FILE *out) {
   return 0;
 }
 
-NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
-  if (!p) {
-    npg_refuse(NULL, 0, __func__, "argument 'p' is NULL");
-    return full_new(NULL, backend, npg_refusal());
-  }
-  if (backend != NPG_TCC && backend != NPG_CC) {
-    npg_refuse(NULL, 0, __func__, "argument 'backend' is %d (NPG_TCC or NPG_CC)", (int)backend);
-    return full_new(NULL, backend, npg_refusal());
-  }
-  return npg_ok(p) ? full_new(p->prog, backend, NULL) : full_new(NULL, backend, npg_error(p));
-}
-
 void npg_free(NpgProgram *p) {
   if (!p || p->is_static) return;
   arena_release(&p->ctx.arena);

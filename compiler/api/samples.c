@@ -6,10 +6,9 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "api.h"
 #include "compile.h"
 #include "emit.h"
-#include "full.h"
-#include "npg.h"
 #include "npy.h"
 
 typedef struct SampleFile {
@@ -215,12 +214,16 @@ const double *npg_samples_get(const NpgSamples *s, const char *name, long k, siz
 
 int npg_samples_set(void *samples, NpgFull *f, long k) {
   NPG_REFUSE_NULL(f, NULL, 0, -1);
-  if (!samples) return full_fail(f, (npg_refuse(NULL, 0, __func__, "argument 'samples' is NULL"), npg_refusal()));
+  if (!samples) {
+    npg_refuse(NULL, 0, __func__, "argument 'samples' is NULL");
+    return full_fail(f->full, npg_refusal());
+  }
   const SampleSet *s = &((NpgSamples *)samples)->s;
-  if (k < 0 || k >= s->count)
-    return full_fail(f, (npg_refuse(NULL, 0, __func__, "argument 'k' is %ld, but the set holds %ld sample%s (0 to %ld)",
-                                    k, s->count, s->count == 1 ? "" : "s", s->count - 1),
-                         npg_refusal()));
+  if (k < 0 || k >= s->count) {
+    npg_refuse(NULL, 0, __func__, "argument 'k' is %ld, but the set holds %ld sample%s (0 to %ld)", k, s->count,
+               s->count == 1 ? "" : "s", s->count - 1);
+    return full_fail(f->full, npg_refusal());
+  }
   return samples_set(&((NpgSamples *)samples)->s, f, k);
 }
 

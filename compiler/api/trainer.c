@@ -127,7 +127,7 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
     tfail(t, "%s", npg_full_error(f));
     return t;
   }
-  const Program *prog = t->prog = full_program(f);
+  const Program *prog = t->prog = full_program(f->full);
   t->slot = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->slot);
   t->count = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->count);
   t->staged = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->staged);
@@ -363,7 +363,7 @@ int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {
   /* npg.h: an evaluator of the same program. Another program whose inputs
    * have the same names and sizes would be taken silently; the same source
    * compiled twice is the same program (its hash, as a model records it). */
-  const Program *gp = full_program(g);
+  const Program *gp = full_program(g->full);
   if (!gp) return tfail(t, "npg_trainer_add_full: the evaluator has no program");
   if (gp != t->prog && model_program_hash(gp) != model_program_hash(t->prog))
     return tfail(t, "npg_trainer_add_full: the evaluator is of another program (%s) than the trainer's (%s)",
@@ -373,7 +373,7 @@ int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {
 }
 
 /* Sample k's encoded record into t->enc. */
-static int load_record(NpgTrainer *t, NpgFull *f, long k) {
+static int load_record(NpgTrainer *t, Full *f, long k) {
   if (!own_sample(t, k)) return full_fail(f, "a training sample of another rank was asked for (a bug in npg)");
   if (fetch(t, &t->rec, kept_index(t, k))) return full_fail(f, "cannot read a training sample back from the scratch file");
   return 0;
@@ -431,7 +431,7 @@ static int share_samples(void *user, char *err, size_t errlen) {
 }
 
 /* SampleSource: sample k back into the evaluator. */
-static int replay(void *user, NpgFull *f, long k) {
+static int replay(void *user, Full *f, long k) {
   NpgTrainer *t = user;
   if (load_record(t, f, k)) return -1;
   decode(t);
@@ -441,7 +441,7 @@ static int replay(void *user, NpgFull *f, long k) {
   for (int i = 0; i < t->nslots; i++) {
     long shape[MAX_AXES + MAX_STATIC];
     int nd = api_shape(f, t->slot[i], shape);
-    if (npg_full_set(f, t->slot[i]->name, nd, shape, v, from) != 0) return -1;
+    if (full_set(f, t->slot[i]->name, nd, shape, v, from) != 0) return -1;
     v += t->count[i];
   }
   return 0;
@@ -451,7 +451,7 @@ static int replay(void *user, NpgFull *f, long k) {
  * entries the restricted evaluation `d` reads (at the paper's size the
  * visibility is 25 M entries, a pass reads a few of its rows), decoded
  * straight into the evaluator. */
-static int replay_part(void *user, NpgFull *f, long k, const Demand *d) {
+static int replay_part(void *user, Full *f, long k, const Demand *d) {
   NpgTrainer *t = user;
   if (load_record(t, f, k)) return -1;
   char from[64];
@@ -463,7 +463,7 @@ static int replay_part(void *user, NpgFull *f, long k, const Demand *d) {
       pos = decode_slot(t, i, pos, t->buf + off, NULL, -1);
       long shape[MAX_AXES + MAX_STATIC];
       int nd = api_shape(f, t->slot[i], shape);
-      if (npg_full_set(f, t->slot[i]->name, nd, shape, t->buf + off, from) != 0) return -1;
+      if (full_set(f, t->slot[i]->name, nd, shape, t->buf + off, from) != 0) return -1;
     } else { /* recorded from values that passed those checks */
       double *v = full_extern_values(f, t->slot[i]->name, t->count[i]);
       if (!v) return -1;
@@ -482,7 +482,7 @@ static int check_mem(NpgTrainer *t) {
   for (int k = 0; k < t->prog->slots.n; k++) {
     const Sym *s = t->prog->slots.v[k];
     long shape[MAX_AXES + MAX_STATIC];
-    int nd = api_shape(t->f, s, shape);
+    int nd = api_shape(t->f->full, s, shape);
     double entries = 1;
     for (int i = 0; i < nd; i++) entries *= (double)shape[i];
     if (entries * sizeof(double) <= (double)t->opt.mem) continue;
@@ -529,7 +529,7 @@ static int ranks_agree(NpgTrainer *t) {
         FIGURE(npg_full_dim(t->f, d), "dim %s", d);
       }
       for (int i = 0; i < prog->params.n; i++) {
-        uint64_t ph = full_param_hash(t->f, i, NULL);
+        uint64_t ph = full_param_hash(t->f->full, i, NULL);
         const char *p = ((Sym *)prog->params.v[i])->name;
         FIGURE(ph >> 32, "param '%s' (the hash of its values)", p);
         FIGURE(ph & 0xffffffffu, "param '%s' (the hash of its values)", p);
@@ -575,17 +575,17 @@ typedef struct Holdout {
 
 static long training_index(const Holdout *h, long j) { return j + j / (h->stride - 1); }
 
-static int replay_training(void *user, NpgFull *f, long j) {
+static int replay_training(void *user, Full *f, long j) {
   const Holdout *h = user;
   return replay(h->t, f, training_index(h, j));
 }
 
-static int replay_training_part(void *user, NpgFull *f, long j, const Demand *d) {
+static int replay_training_part(void *user, Full *f, long j, const Demand *d) {
   const Holdout *h = user;
   return replay_part(h->t, f, training_index(h, j), d);
 }
 
-static int replay_held(void *user, NpgFull *f, long j) {
+static int replay_held(void *user, Full *f, long j) {
   const Holdout *h = user;
   return replay(h->t, f, j * h->stride + h->stride - 1);
 }
@@ -634,7 +634,8 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.galerkin_stage = t->opt.galerkin_stage;
   o.stream = true;
   o.keep_bases = t->opt.keep_bases;
-  SampleSource valid = {t->opt.valid_count, t->opt.valid_user, t->opt.valid_set, NULL, NULL};
+  SampleClosure valid_set = {t->opt.valid_set, t->opt.valid_user, t->f};
+  SampleSource valid = {t->opt.valid_count, &valid_set, api_sample_set, NULL, NULL};
   if (t->opt.valid_count > 0 && !t->opt.valid_set) {
     tfail(t, "NpgTrainOptions: valid_count %ld validation samples but no valid_set", t->opt.valid_count);
     return NULL;
@@ -663,14 +664,14 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
     o.valid = &held;
   }
   char err[2048] = "";
-  Model *m = train_model((Program *)t->prog, t->f, &src, &o, err, sizeof err);
+  Model *m = train_model((Program *)t->prog, t->f->full, &src, &o, err, sizeof err);
   /* over ranks, the others wait for this one in a collective: end the job */
   if (!m && t->opt.mpi && dist_size() > 1) dist_abort("%s", err);
   if (!m) {
     tfail(t, "%s", err);
     return NULL;
   }
-  if (!(m->param_hashes = api_param_hashes(t->f))) {
+  if (!(m->param_hashes = api_param_hashes(t->f->full))) {
     model_free(m);
     tfail(t, "out of memory");
     return NULL;

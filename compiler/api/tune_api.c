@@ -1,5 +1,5 @@
 /* tune_api.c — basis sizes chosen by error through npg.h (npg_tune): the
- * search is tune_search (backends/tune.c) over one TrainSet. */
+ * search is tune_search (backends/train/tune.c) over one TrainSet. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -26,8 +26,9 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
     snprintf(rep->error, sizeof rep->error, "%s", npg_full_error(f));
     return NULL;
   }
-  Program *prog = (Program *)full_program(f);
-  SampleSource tsrc = {ntrain, tuser, train, NULL, NULL}, vsrc = {nvalid, vuser, valid, NULL, NULL};
+  Program *prog = (Program *)full_program(f->full);
+  SampleClosure tset = {train, tuser, f}, vset = {valid, vuser, f};
+  SampleSource tsrc = {ntrain, &tset, api_sample_set, NULL, NULL}, vsrc = {nvalid, &vset, api_sample_set, NULL, NULL};
   /* the reductions as NpgTrainOptions force them (the choice of the others is part of the search), and the
    * bases kept as npg_trainer keeps them (issue 30: the streamable ones dropped unless named) */
   TrainOptions topt = {.cap = max_cap, .energy = 1.0, .uncentered = o && o->uncentered, .progress = o && o->progress,
@@ -50,8 +51,8 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   rep->priv = r;
   rep->class_name = names;
   for (int c = 0; c < prog->classes.n; c++) names[c] = ((BasisClass *)prog->classes.v[c])->size_name;
-  if (!(ts = train_set_new(prog, f, &tsrc, &topt, rep->error, sizeof rep->error)) ||
-      tune_search(ts, prog, f, &vsrc, tol, max_cap, &topt, r, rep->error, sizeof rep->error) != 0)
+  if (!(ts = train_set_new(prog, f->full, &tsrc, &topt, rep->error, sizeof rep->error)) ||
+      tune_search(ts, prog, f->full, &vsrc, tol, max_cap, &topt, r, rep->error, sizeof rep->error) != 0)
     goto done;
   rep->nclasses = r->nclasses;
   rep->ntrials = r->ntrials;
@@ -75,7 +76,7 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
     model_free(m);
     m = NULL;
   }
-  if (m && !(m->param_hashes = api_param_hashes(f))) snprintf(rep->error, sizeof rep->error, "out of memory");
+  if (m && !(m->param_hashes = api_param_hashes(f->full))) snprintf(rep->error, sizeof rep->error, "out of memory");
   if (m && !m->param_hashes) model_free(m);
   else if (m && !(nm = api_model_wrap(m))) snprintf(rep->error, sizeof rep->error, "out of memory");
 done:

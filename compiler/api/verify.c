@@ -193,7 +193,7 @@ int npg_verify_exact(NpgProgram *p, long size, NpgBackend backend, bool progress
   if (size < 0)
     return npg_refuse(err, errlen, __func__, "argument 'size' is %ld (the size of every dim, at least 1, or 0 for the "
                                              "defaults)", size);
-  ExactOptions o = {size, size, 1u, backend, progress};
+  ExactOptions o = {size, size, 1u, backend == NPG_CC ? JIT_CC : JIT_TCC, progress};
   return exact_check(p, &o, out, err, errlen);
 }
 

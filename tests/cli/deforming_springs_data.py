@@ -1,5 +1,5 @@
 """deforming_springs_data.py OUT S SEED — data for tests/programs/deforming_springs.npg: the
-spring mesh of tests/test_reduce.c (an 8 x 8 grid with horizontal, vertical and diagonal springs,
+spring mesh of tests/test_train.c (an 8 x 8 grid with horizontal, vertical and diagonal springs,
 its rest shape far from the origin) deformed by seven smooth modes of random amplitude: OUT/edge.npy,
 OUT/L0.npy (rest lengths) and OUT/x.npy (S x 64 x 3)."""
 import sys, os, numpy as np

@@ -1,0 +1,161 @@
+/* test_ooc.c — out-of-core training (backends/train/ooc.c; DESIGN §11):
+ *
+ *   - with a budget of a tenth of one basis, the radiosity program and a
+ *     program whose extern is the only input of its stage give the
+ *     in-memory model: every basis vector, every pre-multiplied tensor and
+ *     the lifted output.
+ */
+#include "emit.h"
+#include "memsamples.h"
+#include "reduced.h"
+#include "train.h"
+#include "testutil.h"
+#include "trained.h"
+
+/* ---------------------------------------------------------------- out of core */
+
+/* How far two models of one program are apart: the largest | |B_aᵀB_b| − I |
+ * over classes, the largest difference of a pre-multiplied tensor relative
+ * to its largest entry (NaN when a basis vector has opposite signs in the
+ * two: the sign convention failed), and the largest relative
+ * difference of output `out` lifted from both on the samples of `test`. */
+static void model_distance(Program *prog, Full *f, Model *a, Model *b, void *test, int (*set)(void *, Full *, long),
+                           long S, const char *out, double *dbasis, double *dtensor, double *dout) {
+  bool same_signs = true;
+  *dbasis = *dtensor = *dout = 0;
+  assert_int_equal(a->nclasses, b->nclasses);
+  for (int c = 0; c < a->nclasses; c++) {
+    const RClass *x = &a->classes[c], *y = &b->classes[c];
+    if (x->m != y->m) {
+      for (int i = 0; i < x->nmembers; i++)
+        print_message("class %s member %s: kept %d / %d, lost %.3g / %.3g\n", x->label, x->members[i].name,
+                      x->members[i].kept, y->members[i].kept, x->members[i].lost, y->members[i].lost);
+      fail_msg("class %s: %ld vectors in memory, %ld out of core", x->label, x->m, y->m);
+    }
+    for (long i = 0; i < x->m; i++)
+      for (long j = 0; j < x->m; j++) {
+        double d = 0;
+        for (long e = 0; e < x->n; e++) d += x->B[e * x->m + i] * y->B[e * y->m + j];
+        *dbasis = fmax(*dbasis, fabs(fabs(d) - (i == j)));
+        if (i == j && d < 0) same_signs = false;
+      }
+  }
+  for (int i = 0; same_signs && i < a->nstages; i++)
+    for (int t = 0; t < a->stages[i].nterms; t++) {
+      RTerm *ta = &a->stages[i].terms[t], *tb = &b->stages[i].terms[t];
+      RTERM_FOR_TENSORS(ta, x) {
+        const RTensor *y = k_ < 0 ? &tb->num[g_] : &tb->ops[k_].t[g_];
+        double big = 0, d = 0;
+        for (long e = 0; e < x->rows * x->cols; e++) big = fmax(big, fabs(x->data[e])), d = fmax(d, fabs(x->data[e] - y->data[e]));
+        *dtensor = fmax(*dtensor, big > 0 ? d / big : d);
+      }
+    }
+  if (!same_signs) *dtensor = NAN;
+  char err[1024];
+  Reduced *ra = reduced_new(a, err, sizeof err), *rb = reduced_new(b, err, sizeof err);
+  assert_non_null(ra), assert_non_null(rb);
+  int qo = emit_index_of(&prog->quantities, find_quantity(prog, out));
+  for (long k = 0; k < S; k++) {
+    if (set(test, f, k) || full_eval(f, k)) fail_msg("%s", full_error(f));
+    for (int q = 0; q < a->nq; q++) {
+      const Sym *sy = prog->quantities.v[q];
+      if (sy->kind == SYM_INPUT) reduced_project(ra, q, full_get(f, sy->name, NULL)), reduced_project(rb, q, full_get(f, sy->name, NULL));
+    }
+    if (reduced_eval(ra, k) || reduced_eval(rb, k)) fail_msg("%s%s", reduced_error(ra), reduced_error(rb));
+    size_t n;
+    full_get(f, out, &n);
+    double *ya = malloc(sizeof(double) * n), *yb = malloc(sizeof(double) * n), big = 0, d = 0;
+    reduced_lift(ra, qo, ya);
+    reduced_lift(rb, qo, yb);
+    for (size_t i = 0; i < n; i++) big = fmax(big, fabs(ya[i])), d = fmax(d, fabs(ya[i] - yb[i]));
+    *dout = fmax(*dout, d / big);
+    free(ya), free(yb);
+  }
+  reduced_free(ra), reduced_free(rb);
+}
+
+/* Bytes of the largest class basis of `m` at its caps. */
+static size_t largest_basis(const Model *m) {
+  size_t big = 0;
+  for (int c = 0; c < m->nclasses; c++) {
+    size_t cols = 0;
+    for (int i = 0; i < m->classes[c].nmembers; i++) cols += (size_t)m->classes[c].members[i].cap;
+    big = big > cols * (size_t)m->classes[c].n * 8 ? big : cols * (size_t)m->classes[c].n * 8;
+  }
+  return big;
+}
+
+/* Out-of-core training (DESIGN §11): with a budget of a tenth of one basis,
+ * the radiosity program (pair classes streamed by row blocks, the extern v
+ * recomputed from its samples on every pass, bases in mapped files) gives
+ * the in-memory model: every basis vector (signs by the convention of
+ * pca_fix_signs), every pre-multiplied tensor and the lifted b to 1e-10. */
+static void out_of_core_matches_memory(void **state) {
+  (void)state;
+  NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
+  Program *prog = ir_ok(p);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  RoomSamples train, test;
+  room_samples(&train, f, 24, 20, 0.0, 1.0 / 19);
+  room_samples(&test, NULL, 24, 6, 0.5 / 19, 3.0 / 19);
+  SampleSource src = {train.S, &train, room_set, NULL, NULL};
+  /* a tenth of the largest basis: a row of each class per pass; the whole
+   * of it: passes of many rows of several classes (restricted evaluation) */
+  for (int run = 0; run < 3; run++) {
+    int uncentered = run == 1;
+    Model *a = train_with(prog, f, &src, 8, 0.9999, uncentered, 0);
+    size_t mem = run < 2 ? largest_basis(a) / 10 : largest_basis(a);
+    TrainOptions o = {.cap = 8, .energy = 0.9999, .uncentered = uncentered, .mem = mem};
+    assert_true(ooc_needed(a, &o));
+    Model *b = train_with(prog, f, &src, 8, 0.9999, uncentered, mem);
+    bool mapped = false;
+    for (int c = 0; c < b->nclasses; c++) mapped |= b->classes[c].B_mapped > 0;
+    assert_true(mapped);
+    double db, dt, dy;
+    model_distance(prog, f, a, b, &test, room_set, test.S, "b", &db, &dt, &dy);
+    print_message("out of core (--mem %zu bytes, %s) vs in memory, radiosity, %s: bases %.2g, "
+                  "tensors %.2g, lifted b %.2g\n", mem, run < 2 ? "a tenth of the largest basis" : "the largest basis", uncentered ? "uncentered" : "centered",
+                  db, dt, dy);
+    assert_true(db < 1e-10 && dt < 1e-10 && dy < 1e-10); /* dt NaN: a vector's sign differs */
+    model_free(a);
+    model_free(b);
+  }
+  room_free(&train);
+  room_free(&test);
+  full_free(f);
+  npg_free(p);
+}
+
+/* The same on a program whose extern is the only input of its stage. */
+static void out_of_core_matches_memory_extern(void **state) {
+  (void)state;
+  NpgProgram *p = compile_file("tests/programs/extern_stage.npg");
+  Program *prog = ir_ok(p);
+  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  MemSamples train, test;
+  if (memsamples_fill(&train, prog, f, 200, 20, 11u) || memsamples_fill(&test, prog, f, 200, 5, 12u))
+    fail_msg("binding random params failed");
+  SampleSource src = {train.S, &train, memsamples_set, NULL, NULL};
+  Model *a = train_with(prog, f, &src, 8, 0.9999, false, 0);
+  size_t mem = largest_basis(a) / 10;
+  Model *b = train_with(prog, f, &src, 8, 0.9999, false, mem);
+  double db, dt, dy;
+  model_distance(prog, f, a, b, &test, memsamples_set, test.S, "d", &db, &dt, &dy);
+  print_message("out of core (--mem %zu bytes) vs in memory, extern_stage: bases %.2g, tensors %.2g, lifted d %.2g\n", mem,
+                db, dt, dy);
+  assert_true(db < 1e-10 && dt < 1e-10 && dy < 1e-10);
+  model_free(a);
+  model_free(b);
+  memsamples_free(&train);
+  memsamples_free(&test);
+  full_free(f);
+  npg_free(p);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(out_of_core_matches_memory),
+      cmocka_unit_test(out_of_core_matches_memory_extern),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
