@@ -130,14 +130,7 @@ static void member_options(const Model *m, const RClass *c, RMember *mb, const T
 
 /* ---------------------------------------------------------------- training */
 
-typedef struct Snapshots {
-  long S;
-  double ***X;      /* [class][member] n x S column-major (NULL: method of snapshots) */
-  double ***U;      /* [class][member] its PCA basis, n x k row-major (method of snapshots) */
-  int **k;
-} Snapshots;
-
-static void free_snapshots(Model *m, Snapshots *sn) {
+void free_snapshots(Model *m, Snapshots *sn) {
   for (int c = 0; c < m->nclasses; c++) {
     for (int i = 0; i < m->classes[c].nmembers; i++) {
       if (sn->X && sn->X[c]) free(sn->X[c][i]);
@@ -284,8 +277,8 @@ static bool keep_named(const Model *m, const char *list, int c, char *unknown, s
 
 /* The model's layout for the dims sample 0 binds, with every member's
  * options set and the --basis names checked. NULL with `err`. */
-static Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                             size_t errlen) {
+Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                      size_t errlen) {
   if (src->count < 1) {
     npg_fail(err, errlen, "no training samples");
     return NULL;
@@ -324,8 +317,8 @@ int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {
 /* Step 1: every member's snapshots in memory (sn->X), or, when they need
  * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
  * *gram set). Marks which diagonal operators stay SPD. */
-static int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
-                          bool *gram, char *err, size_t errlen) {
+int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
+                   bool *gram, char *err, size_t errlen) {
   long S = src->count, maxn = 1;
   size_t need = 0;
   for (int c = 0; c < m->nclasses; c++) {
@@ -450,7 +443,7 @@ static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
 /* Step 3: the projections between classes and every tensor pre-multiplied.
  * Over ranks, with progress on, rank 0 says how long its own rows took and
  * how long the sums over ranks (the wait for the slowest rank included). */
-static int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char *err, size_t errlen) {
+int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char *err, size_t errlen) {
   long ntensors = 0, done = 0;
   int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1;
   for (int i = 0; i < m->nstages; i++)
@@ -541,8 +534,8 @@ static int fit_externs_floors(Model *m, NpgFull *f, const SampleSource *src, con
  * reduced inputs and values, from the snapshots or, after the method of
  * snapshots, recomputed; with `floors`, in the same pass the streamed
  * classes' training floors (take_floors). */
-static int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
-                       bool progress, bool dist, char *err, size_t errlen) {
+int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
+                bool progress, bool dist, char *err, size_t errlen) {
   long maxn = 1, maxm = 1;
   for (int c = 0; floors && c < m->nclasses; c++)
     if (m->classes[c].streamed && !m->classes[c].floors_known)
@@ -690,124 +683,5 @@ Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const Tra
             ooc_needed(m, opt) ? "out of core, with the snapshots" : gram ? "method of snapshots" : "in memory",
             m->phase_seconds[2], m->phase_seconds[3]);
   free_snapshots(m, &sn);
-  return m;
-}
-
-/* ---------------------------------------------------------------- truncations (npgc tune) */
-
-struct TrainSet {
-  Model *base;              /* layout, member options, SPD marks */
-  NpgFull *f;
-  const SampleSource *src;
-  bool progress;
-  Snapshots sn;             /* in memory */
-  PcaMember **pm;           /* [class][member]: its ordered basis at its cap */
-};
-
-void train_set_free(TrainSet *ts) {
-  if (!ts) return;
-  for (int c = 0; ts->pm && c < ts->base->nclasses; c++) {
-    for (int i = 0; ts->pm[c] && i < ts->base->classes[c].nmembers; i++) free(ts->pm[c][i].U), free(ts->pm[c][i].sv);
-    free(ts->pm[c]);
-  }
-  free(ts->pm);
-  if (ts->base) free_snapshots(ts->base, &ts->sn);
-  model_free(ts->base);
-  free(ts);
-}
-
-TrainSet *train_set_new(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                        size_t errlen) {
-  TrainSet *ts = npg_calloc(1, sizeof *ts);
-  TrainOptions o = *opt;
-  bool gram = false;
-  err[0] = 0;
-  o.mem = 0; /* truncations re-use the snapshots: they stay in memory */
-  o.joint = false;
-  if (!ts) return NULL;
-  ts->f = f, ts->src = src, ts->progress = opt->progress;
-  if (!(ts->base = begin_training(prog, f, src, &o, err, errlen)) ||
-      take_snapshots(ts->base, f, src, &o, &ts->sn, &gram, err, errlen))
-    goto fail;
-  Model *m = ts->base;
-  if (!(ts->pm = npg_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    if (!(ts->pm[c] = npg_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
-    for (int i = 0; i < rc->nmembers; i++) {
-      RMember *mb = &rc->members[i];
-      if (pca_basis(rc->n, ts->sn.S, ts->sn.X[c][i], mb->cap, mb->energy, mb->center, &ts->pm[c][i], err, errlen))
-        goto fail;
-    }
-    progress_show(ts->progress, "member bases", c + 1, m->nclasses);
-  }
-  return ts;
-fail:
-  if (!err[0]) npg_fail(err, errlen, "out of memory while training");
-  train_set_free(ts);
-  return NULL;
-}
-
-int train_set_classes(const TrainSet *ts) { return ts->base->nclasses; }
-
-int train_set_max_cap(const TrainSet *ts, int c) {
-  int k = 1;
-  for (int i = 0; i < ts->base->classes[c].nmembers; i++) k = ts->pm[c][i].k > k ? ts->pm[c][i].k : k;
-  return k;
-}
-
-/* Member `mb` keeping the first `k` of its ordered basis `p`: its report. */
-static int truncated_member(RMember *mb, const PcaMember *p, int cap, int k) {
-  double total = 0, run = 0;
-  int r = mb->center ? k - 1 : k; /* a centered basis starts with the mean */
-  for (long j = 0; j < p->nsv; j++) total += p->sv[j] * p->sv[j], run += j < r ? p->sv[j] * p->sv[j] : 0;
-  mb->cap = cap;
-  mb->kept = k;
-  mb->lost = total > 0 ? fmax(0, 1 - run / total) : 0;
-  mb->captured = 1 - mb->lost;
-  mb->nsv = p->nsv;
-  if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)(p->nsv + 1)))) return -1;
-  memcpy(mb->sv, p->sv, sizeof(double) * (size_t)p->nsv);
-  return 0;
-}
-
-Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
-  const Model *b = ts->base;
-  err[0] = 0;
-  Model *m = model_layout(b->prog, b->dims, err, errlen);
-  if (!m) return NULL;
-  m->samples = b->samples;
-  for (int i = 0; i < m->nstages; i++) /* the SPD marks the snapshots set */
-    for (int t = 0; t < m->stages[i].nterms; t++)
-      for (int k = 0; k < m->stages[i].terms[t].nops; k++) m->stages[i].terms[t].ops[k].spd = b->stages[i].terms[t].ops[k].spd;
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    double **U = npg_calloc((size_t)rc->nmembers + 1, sizeof(double *));
-    int *kk = npg_calloc((size_t)rc->nmembers + 1, sizeof(int)), ok = U && kk;
-    for (int i = 0; ok && i < rc->nmembers; i++) {
-      const PcaMember *p = &ts->pm[c][i];
-      RMember *mb = &rc->members[i];
-      mb->energy = b->classes[c].members[i].energy;
-      mb->center = b->classes[c].members[i].center;
-      kk[i] = cap[c] < p->k ? cap[c] : p->k;
-      if (!(U[i] = npg_malloc(sizeof(double) * (size_t)(rc->n * (kk[i] ? kk[i] : 1)))) || truncated_member(mb, p, cap[c], kk[i]))
-        ok = 0;
-      for (long e = 0; ok && e < rc->n; e++) memcpy(U[i] + e * kk[i], p->U + e * p->k, sizeof(double) * (size_t)kk[i]);
-    }
-    int rc_ok = ok ? pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen) : -1;
-    for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
-    free(U);
-    free(kk);
-    if (rc_ok || train_complete_basis(rc, false, err, errlen)) {
-      if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
-      model_free(m);
-      return NULL;
-    }
-  }
-  model_size_tensors(m);
-  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, false, false, err, errlen)) {
-    model_free(m);
-    return NULL;
-  }
   return m;
 }

@@ -6,6 +6,32 @@
 
 #include "train.h"
 
+/* Every member's snapshots, or (method of snapshots) its basis. */
+typedef struct Snapshots {
+  long S;
+  double ***X;      /* [class][member] n x S column-major (NULL: method of snapshots) */
+  double ***U;      /* [class][member] its PCA basis, n x k row-major (method of snapshots) */
+  int **k;
+} Snapshots;
+void free_snapshots(Model *m, Snapshots *sn);
+
+/* The steps of train_model (train.c) the tune sample set (train_set.c)
+ * runs too. The model's layout for the dims sample 0 binds, every member's
+ * options set and the --basis names checked: NULL with `err`. */
+Model *begin_training(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                      size_t errlen);
+/* Step 1: every member's snapshots in memory (sn->X), or, when they need
+ * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
+ * *gram set). Marks which diagonal operators stay SPD. */
+int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
+                   bool *gram, char *err, size_t errlen);
+/* Step 3: the projections between classes and every tensor pre-multiplied. */
+int premultiply_all(Model *m, NpgFull *f, bool progress, bool dist, char *err, size_t errlen);
+/* Step 4: every extern's learned map from the snapshots (or, `gram`,
+ * recomputed); with `floors` the streamed classes' training floors. */
+int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
+                bool progress, bool dist, char *err, size_t errlen);
+
 /* The method of snapshots (snapshots.c): every member's basis of `m` from
  * S x S Gram matrices, recomputing the samples of `src` in passes within
  * opt->mem; U[c][i] (n x kk[c][i] row-major, malloc'd) and kk[c][i] per
