@@ -13,8 +13,12 @@
  *   4. the learned map of every extern (paper §8.3): the training samples'
  *      reduced inputs and reduced values.
  *
- * A TrainSet (npgc tune) runs 0–1 and every member's PCA once, then builds
- * models of any caps from truncations of those bases, steps 2–4 only.
+ * train_model below is that list, one call a step, each phase timed. The
+ * tune sample set (train_set.c) runs 0–1 and every member's PCA once, then
+ * builds models of any caps from truncations of those bases, steps 2–4
+ * only. Elsewhere: the method of snapshots (snapshots.c), --merge joint
+ * (joint.c), out of core (ooc.c), over MPI ranks (dist_train.c), the
+ * progress bar (progress.c).
  */
 #include <cblas.h>
 #include <float.h>
@@ -429,6 +433,9 @@ static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOpti
   return 0;
 }
 
+/* Training's phases, as Model.phase_seconds and phase_cpu index them. */
+enum { PHASE_SNAPSHOTS, PHASE_BASES, PHASE_PREMULTIPLY, PHASE_EXTERNS };
+
 /* The wall and CPU (this process's threads) seconds since t0[0], t0[1]
  * into sec[0], cpu[0]; t0 moved to now. */
 static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
@@ -438,6 +445,18 @@ static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
   *sec = (double)(t[0].tv_sec - t0[0].tv_sec) + 1e-9 * (double)(t[0].tv_nsec - t0[0].tv_nsec);
   *cpu = (double)(t[1].tv_sec - t0[1].tv_sec) + 1e-9 * (double)(t[1].tv_nsec - t0[1].tv_nsec);
   t0[0] = t[0], t0[1] = t[1];
+}
+
+/* The phase timer: `clock` (wall, CPU) set to now. */
+static void phase_start(struct timespec clock[2]) {
+  clock_gettime(CLOCK_MONOTONIC, &clock[0]);
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &clock[1]);
+}
+
+/* Phase `phase` of training `m` ends now: its seconds since `clock` kept,
+ * and the next phase timed from now. */
+static void phase_end(struct timespec clock[2], Model *m, int phase) {
+  phase_time(clock, &m->phase_seconds[phase], &m->phase_cpu[phase]);
 }
 
 /* Step 3: the projections between classes and every tensor pre-multiplied.
@@ -541,9 +560,10 @@ int fit_externs(Model *m, NpgFull *f, const SampleSource *src, const Snapshots *
     if (m->classes[c].streamed && !m->classes[c].floors_known)
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
   double *y = floors ? malloc(sizeof(double) * (size_t)maxn) : NULL, *proj = floors ? malloc(sizeof(double) * (size_t)maxm) : NULL;
-  if (floors && (!y || !proj)) return free(y), free(proj), npg_fail(err, errlen, "out of memory measuring the training floors");
-  int rc = fit_externs_floors(m, f, src, sn, gram, floors, proj, y, progress, dist, err, errlen);
-  free(y), free(proj);
+  int rc = floors && (!y || !proj) ? npg_fail(err, errlen, "out of memory measuring the training floors")
+                                     : fit_externs_floors(m, f, src, sn, gram, floors, proj, y, progress, dist, err, errlen);
+  free(y);
+  free(proj);
   return rc;
 }
 
@@ -642,46 +662,53 @@ static int interpolate_stages(Model *m, NpgFull *f, const TrainOptions *opt, cha
 
 /* Steps 1–2: the bases, from snapshots in memory, by the method of
  * snapshots, or out of core when the bases exceed opt->mem (ooc.c; then,
- * as after the method of snapshots, *gram: no snapshot is kept). */
+ * as after the method of snapshots, *gram: no snapshot is kept). Ends the
+ * phase of the snapshots (out of core: the snapshots and the bases are one
+ * step, timed as snapshots). */
 static int bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn, bool *gram,
-                 struct timespec t[2], double *sec, double *cpu, char *err, size_t errlen) {
+                 struct timespec clock[2], char *err, size_t errlen) {
   if (ooc_needed(m, opt)) {
     *gram = true;
     mark_streamed(m, opt); /* their floors taken in the passes (the choice is made again after interpolation) */
-    return ooc_bases(m, f, src, opt, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0);
+    if (ooc_bases(m, f, src, opt, err, errlen)) return -1;
+    phase_end(clock, m, PHASE_SNAPSHOTS);
+    return 0;
   }
-  return take_snapshots(m, f, src, opt, sn, gram, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0) ||
-         build_bases(m, sn, *gram, opt, err, errlen);
+  if (take_snapshots(m, f, src, opt, sn, gram, err, errlen)) return -1;
+  phase_end(clock, m, PHASE_SNAPSHOTS);
+  return build_bases(m, sn, *gram, opt, err, errlen);
 }
 
-/* Training as named steps (DESIGN §5), each step's wall and CPU time kept (out of core: the
- * snapshots and the bases are one step, timed as snapshots). */
+/* Training as named steps (DESIGN §5), each phase's wall and CPU time kept. */
 Model *train_model(Program *prog, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen) {
   Snapshots sn = {0};
   bool gram = false;
+  struct timespec clock[2];
   err[0] = 0;
-  struct timespec t[2];
-  clock_gettime(CLOCK_MONOTONIC, &t[0]);
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t[1]);
+  phase_start(clock);
   Model *m = begin_training(prog, f, src, opt, err, errlen);
-  double *sec = m ? m->phase_seconds : NULL, *cpu = m ? m->phase_cpu : NULL;
-  if (!m || bases(m, f, src, opt, &sn, &gram, t, sec, cpu, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
-      premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || interpolate_stages(m, f, opt, err, errlen) ||
-      (phase_time(t, &sec[2], &cpu[2]), 0) ||
-      fit_externs(m, f, src, &sn, gram, mark_streamed(m, opt), opt->progress, opt->dist, err, errlen) ||
-      (drop_bases(m), phase_time(t, &sec[3], &cpu[3]), 0)) {
-    if (m) free_snapshots(m, &sn);
-    model_free(m);
-    /* the steps name what failed; a helper that only returned NULL ran out of memory */
-    if (!err[0]) npg_fail(err, errlen, "out of memory during training");
-    return NULL;
-  }
+  if (!m) goto fail;
+  if (bases(m, f, src, opt, &sn, &gram, clock, err, errlen)) goto fail;
+  phase_end(clock, m, PHASE_BASES);
+  if (premultiply_all(m, f, opt->progress, opt->dist, err, errlen)) goto fail;
+  if (interpolate_stages(m, f, opt, err, errlen)) goto fail;
+  phase_end(clock, m, PHASE_PREMULTIPLY);
+  bool floors = mark_streamed(m, opt); /* the reductions chosen: which bases are streamed is known */
+  if (fit_externs(m, f, src, &sn, gram, floors, opt->progress, opt->dist, err, errlen)) goto fail;
+  drop_bases(m);
+  phase_end(clock, m, PHASE_EXTERNS);
   if (opt->progress)
     fprintf(stderr, "training phases: snapshots %.2f s, bases %.2f s (%s), pre-multiplication %.2f s, externs %.2f s\n",
-            m->phase_seconds[0], m->phase_seconds[1],
+            m->phase_seconds[PHASE_SNAPSHOTS], m->phase_seconds[PHASE_BASES],
             ooc_needed(m, opt) ? "out of core, with the snapshots" : gram ? "method of snapshots" : "in memory",
-            m->phase_seconds[2], m->phase_seconds[3]);
+            m->phase_seconds[PHASE_PREMULTIPLY], m->phase_seconds[PHASE_EXTERNS]);
   free_snapshots(m, &sn);
   return m;
+fail:
+  if (m) free_snapshots(m, &sn);
+  model_free(m);
+  /* the steps name what failed; a helper that only returned NULL ran out of memory */
+  if (!err[0]) npg_fail(err, errlen, "out of memory during training");
+  return NULL;
 }
