@@ -37,6 +37,226 @@ void train_gram_blocks(long S, long fit, long *b, long *q) {
   else *b = fit - *q;
 }
 
+/* One member's state in the method of snapshots. */
+typedef struct GramMember {
+  RMember *mb;
+  double *G;   /* S x S: XᵀX (of the shifted snapshots), then W = V Λ^(-1/2) in its first k columns */
+  double *H;   /* the held block: b samples of n entries */
+  double *Y;   /* the batch of later samples: q of n (NULL when q is 0) */
+  double *x0;  /* centered: the shift, the member's first sample (NULL: uncentered) */
+  double *d;   /* centered: the sum of the shifted snapshots, then their mean d, then μ = x₀ + d */
+  double big;  /* the largest |entry| that entered G */
+} GramMember;
+
+/* The method of snapshots under way: every member's state, [class][member]. */
+typedef struct Gram {
+  Model *m;
+  NpgFull *f;
+  const SampleSource *src;
+  const TrainOptions *opt;
+  long S, b, q;        /* samples; the held block; the batch (train_gram_blocks) */
+  GramMember **gm;
+  double *lam;         /* S eigenvalues */
+  double *tmp;         /* room for max(largest class, S) doubles */
+  char *err;
+  size_t errlen;
+} Gram;
+
+static void gram_free(Gram *g) {
+  for (int c = 0; g->gm && c < g->m->nclasses; c++) {
+    for (int i = 0; g->gm[c] && i < g->m->classes[c].nmembers; i++) {
+      GramMember *x = &g->gm[c][i];
+      free(x->G), free(x->H), free(x->Y), free(x->x0), free(x->d);
+    }
+    free(g->gm[c]);
+  }
+  free(g->gm);
+  free(g->lam);
+}
+
+/* Every member's Gram matrix (zero), held block and batch, and for a
+ * centered one its shift and sum. 0, or -1 when out of memory. */
+static int gram_alloc(Gram *g) {
+  Model *m = g->m;
+  long S = g->S;
+  if (!(g->gm = npg_calloc((size_t)m->nclasses + 1, sizeof(GramMember *))) || !(g->lam = npg_malloc(sizeof(double) * (size_t)S)))
+    return -1;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    if (!(g->gm[c] = npg_calloc((size_t)rc->nmembers + 1, sizeof(GramMember)))) return -1;
+    for (int i = 0; i < rc->nmembers; i++) {
+      GramMember *x = &g->gm[c][i];
+      x->mb = &rc->members[i];
+      if (!(x->G = npg_calloc((size_t)(S * S), sizeof(double))) || !(x->H = npg_malloc(sizeof(double) * (size_t)(rc->n * g->b))) ||
+          (g->q > 0 && !(x->Y = npg_malloc(sizeof(double) * (size_t)(rc->n * g->q)))))
+        return -1;
+      if (x->mb->center &&
+          (!(x->x0 = npg_malloc(sizeof(double) * (size_t)rc->n)) || !(x->d = npg_calloc((size_t)rc->n, sizeof(double)))))
+        return -1;
+    }
+  }
+  return 0;
+}
+
+/* G[I, K] = X_Iᵀ X_K for the held block I = [i0, i1) and the batch
+ * K = [k0, k] (one sample: a dgemv, faster than a dgemm of one column),
+ * and its mirror. */
+static void gram_cross(const Gram *g, GramMember *x, long n, long i0, long i1, long k0, long k) {
+  long S = g->S, nb = i1 - i0, nk = k + 1 - k0;
+  double *G = x->G;
+  if (nk == 1)
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)nb, (int)n, 1.0, x->H, (int)n, x->Y, 1, 0.0, G + i0 * S + k0, (int)S);
+  else
+    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nk, (int)n, 1.0, x->H, (int)n, x->Y, (int)n, 0.0,
+                G + i0 * S + k0, (int)S);
+  for (long a = i0; a < i1; a++)
+    for (long e = k0; e <= k; e++) G[e * S + a] = G[a * S + e];
+}
+
+/* Pass 1 for the held block [i0, i1): its samples evaluated and held (their
+ * SPD marks checked), the samples after it recomputed in batches against
+ * it, then the block against itself. `done` counts the evaluations of all
+ * passes (of `work`). */
+static int gram_pass(Gram *g, long i0, long i1, long *done, long work) {
+  Model *m = g->m;
+  long S = g->S, nb = i1 - i0;
+  for (long k = i0, k0 = i1; k < S; k++) { /* k0: the first sample of the batch */
+    if (train_eval_sample(g->src, g->f, k, g->err, g->errlen)) return -1;
+    if (k < i1 && train_check_spd(m, g->f, g->tmp, g->err, g->errlen)) return -1;
+    bool full = k >= i1 && (k + 1 - k0 == g->q || k + 1 == S);
+    for (int c = 0; c < m->nclasses; c++) {
+      RClass *rc = &m->classes[c];
+      for (int i = 0; i < rc->nmembers; i++) {
+        GramMember *x = &g->gm[c][i];
+        double *v = k < i1 ? x->H + (k - i0) * rc->n : x->Y + (k - k0) * rc->n;
+        if (train_member_value(m, g->f, x->mb, k, rc->n, v, g->err, g->errlen)) return -1;
+        if (x->x0) {
+          if (k == 0) memcpy(x->x0, v, sizeof(double) * (size_t)rc->n);
+          cblas_daxpy((int)rc->n, -1.0, x->x0, 1, v, 1);
+          if (k < i1) cblas_daxpy((int)rc->n, 1.0, v, 1, x->d, 1);
+        }
+        for (long e = 0; k < i1 && e < rc->n; e++) x->big = fmax(x->big, fabs(v[e])); /* what enters G */
+        if (full) gram_cross(g, x, rc->n, i0, i1, k0, k);
+      }
+    }
+    if (full) k0 = k + 1;
+    progress_show(g->opt->progress, g->b < S ? "snapshots (Gram, recomputing)" : "snapshots (Gram)", ++*done, work);
+  }
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    for (int i = 0; i < rc->nmembers; i++) { /* G[I, I] = X_Iᵀ X_I */
+      GramMember *x = &g->gm[c][i];
+      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nb, (int)rc->n, 1.0, x->H, (int)rc->n, x->H,
+                  (int)rc->n, 0.0, x->G + i0 * S + i0, (int)S);
+    }
+  }
+  return 0;
+}
+
+/* A centered member's Gram matrix made J G J (J = I − 11ᵀ/S), and its d
+ * the mean of the shifted snapshots. `rows`: room for S doubles. */
+static void gram_center(GramMember *x, long n, long S, double *rows) {
+  double *G = x->G, all = 0;
+  for (long a = 0; a < S; a++) {
+    double row = 0;
+    for (long e = 0; e < S; e++) row += G[a * S + e];
+    rows[a] = row / (double)S;
+    all += row;
+  }
+  all /= (double)S * (double)S;
+  for (long a = 0; a < S; a++)
+    for (long e = 0; e < S; e++) G[a * S + e] += all - rows[a] - rows[e];
+  cblas_dscal((int)n, 1.0 / (double)S, x->d, 1);
+}
+
+/* The member's eigenvectors: how many it keeps (its cap and energy; its
+ * report set), and W = V Λ^(-1/2) for them in G's place (S x k, row-major
+ * with leading dimension S); *U allocated (zero) for pass 2. */
+static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int *kk) {
+  RMember *mb = x->mb;
+  long S = g->S;
+  double *lam = g->lam;
+  const char *range = pca_gram_out_of_range(S, x->G, x->big);
+  if (range)
+    return npg_fail(g->err, g->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
+  if (mb->center) gram_center(x, rc->n, S, lam);
+  int cap = mb->center ? mb->cap - 1 : mb->cap;
+  long kmax = cap < S ? cap : S;
+  double *V = npg_malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1)));
+  if (!V) return npg_fail(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  int info = pca_top_eigen(S, x->G, kmax, lam, V); /* G whole: either layout */
+  if (info != 0) {
+    free(V);
+    return npg_fail(g->err, g->errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
+                    rc->label, mb->name, info);
+  }
+  free(mb->sv);
+  if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)S))) {
+    free(V);
+    return npg_fail(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  }
+  mb->nsv = S;
+  for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
+  /* the truncation rule of every route (a centered Gram matrix's null
+   * vector, 1, is one its rounding stop drops) */
+  int k = (int)pca_choose(mb->sv, S, cap, mb->energy, NULL);
+  double total = 0, run = 0;
+  for (long a = 0; a < S; a++) total += fmax(lam[a], 0);
+  for (int a = 0; a < k; a++) run += lam[S - 1 - a];
+  mb->captured = total > 0 ? run / total : 1;
+  mb->lost = fmax(0, 1 - mb->captured);
+  mb->kept = *kk = k;
+  /* column a of W = V[:, a] / sqrt(λ), kept in G's place (S x k, row-major with leading dimension S) */
+  for (long s2 = 0; s2 < S; s2++)
+    for (int a = 0; a < k; a++) x->G[s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
+  free(V);
+  if (!(*U = npg_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double))))
+    return npg_fail(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  return 0;
+}
+
+/* Pass 2: every sample recomputed once, U += x_s ⊗ W[s, :] (shifted). */
+static int basis_pass(Gram *g, double ***U, int **kk) {
+  Model *m = g->m;
+  for (long k = 0; k < g->S; k++) {
+    if (train_eval_sample(g->src, g->f, k, g->err, g->errlen)) return -1;
+    for (int c = 0; c < m->nclasses; c++) {
+      RClass *rc = &m->classes[c];
+      for (int i = 0; i < rc->nmembers; i++) {
+        GramMember *x = &g->gm[c][i];
+        if (!kk[c][i]) continue;
+        if (train_member_value(m, g->f, x->mb, k, rc->n, g->tmp, g->err, g->errlen)) return -1;
+        if (x->x0) cblas_daxpy((int)rc->n, -1.0, x->x0, 1, g->tmp, 1);
+        cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, g->tmp, 1, x->G + k * g->S, 1, U[c][i], kk[c][i]);
+      }
+    }
+    progress_show(g->opt->progress, "snapshots (basis)", k + 1, g->S);
+  }
+  return 0;
+}
+
+/* A centered member's basis: U_c −= d (1ᵀW), then [μ = x₀ + d, U_c]
+ * orthonormalized in that order (*U replaced, *kk and the report's kept
+ * set to its size). */
+static int centered_basis(Gram *g, GramMember *x, long n, double **U, int *kk) {
+  long S = g->S;
+  int k = *kk;
+  for (int a = 0; a < k; a++) {
+    double w = 0;
+    for (long s2 = 0; s2 < S; s2++) w += x->G[s2 * S + a];
+    g->tmp[a] = w;
+  }
+  if (k > 0) cblas_dger(CblasRowMajor, (int)n, k, -1.0, x->d, 1, g->tmp, 1, *U, k);
+  cblas_daxpy((int)n, 1.0, x->x0, 1, x->d, 1); /* μ = x₀ + d */
+  double *parts[2] = {x->d, *U}, *Q = NULL;
+  int ks[2] = {1, k}, mm = 0;
+  if (pca_in_order(n, 2, parts, ks, &Q, &mm, g->err, g->errlen)) return -1;
+  free(*U);
+  *U = Q;
+  x->mb->kept = *kk = mm;
+  return 0;
+}
+
 /* The method of snapshots (DESIGN §5), for snapshots that do not fit in
  * `mem`: no snapshot matrix is held whole. Pass 1 builds every member's
  * S x S Gram matrix G = XᵀX holding a block of b samples at a time and
@@ -54,198 +274,28 @@ void train_gram_blocks(long S, long fit, long *b, long *q) {
  * the member's basis is the orthonormalization of [μ = x₀ + d, U_c]. */
 int snapshot_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, double ***U,
                    int **kk, double *tmp, char *err, size_t errlen) {
-  long S = src->count, per = 0;
+  Gram g = {m, f, src, opt, src->count, 0, 0, NULL, NULL, tmp, err, errlen};
+  long S = g.S, per = 0;
   for (int c = 0; c < m->nclasses; c++) per += m->classes[c].n * m->classes[c].nmembers;
-  long b, q;
-  train_gram_blocks(S, (long)(opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &b, &q);
+  train_gram_blocks(S, (long)(opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &g.b, &g.q);
   int rc = -1;
-  double ***G = npg_calloc((size_t)m->nclasses + 1, sizeof(double **)), ***H = npg_calloc((size_t)m->nclasses + 1, sizeof(double **));
-  double ***Y = npg_calloc((size_t)m->nclasses + 1, sizeof(double **)); /* the batch of later samples */
-  double *lam = npg_malloc(sizeof(double) * (size_t)S), *V = NULL;
-  /* centered members: the shift x₀ and the sum of the shifted snapshots, then their mean */
-  double ***X0 = npg_calloc((size_t)m->nclasses + 1, sizeof(double **)), ***D = npg_calloc((size_t)m->nclasses + 1, sizeof(double **));
-  double **big = npg_calloc((size_t)m->nclasses + 1, sizeof(double *)); /* every member's largest |entry| */
-  if (!G || !H || !Y || !lam || !X0 || !D || !big) goto oom;
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    if (!(G[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(H[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(X0[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(D[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(Y[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(big[c] = npg_calloc((size_t)rc->nmembers, sizeof(double))))
-      goto oom;
-    for (int i = 0; i < rc->nmembers; i++) {
-      if (!(G[c][i] = npg_calloc((size_t)(S * S), sizeof(double))) ||
-          !(H[c][i] = npg_malloc(sizeof(double) * (size_t)(rc->n * b))) ||
-          (q > 0 && !(Y[c][i] = npg_malloc(sizeof(double) * (size_t)(rc->n * q)))))
-        goto oom;
-      if (rc->members[i].center &&
-          (!(X0[c][i] = npg_malloc(sizeof(double) * (size_t)rc->n)) || !(D[c][i] = npg_calloc((size_t)rc->n, sizeof(double)))))
-        goto oom;
-    }
+  if (gram_alloc(&g)) {
+    npg_fail(err, errlen, "out of memory for the Gram matrices of %ld samples", S);
+    goto done;
   }
-  long passes = (S + b - 1) / b, done = 0, work = 0;
-  for (long i0 = 0; i0 < S; i0 += b) work += S - i0;
-  for (long i0 = 0; i0 < S; i0 += b) {
-    long i1 = i0 + b < S ? i0 + b : S, nb = i1 - i0;
-    for (long k = i0, k0 = i1; k < S; k++) { /* k0: the first sample of the batch */
-      if (train_eval_sample(src, f, k, err, errlen)) goto done;
-      if (k < i1 && train_check_spd(m, f, tmp, err, errlen)) goto done;
-      bool full = k >= i1 && (k + 1 - k0 == q || k + 1 == S);
-      for (int c = 0; c < m->nclasses; c++) {
-        RClass *rc = &m->classes[c];
-        for (int i = 0; i < rc->nmembers; i++) {
-          double *x = k < i1 ? H[c][i] + (k - i0) * rc->n : Y[c][i] + (k - k0) * rc->n;
-          if (train_member_value(m, f, &rc->members[i], k, rc->n, x, err, errlen)) goto done;
-          if (X0[c][i]) {
-            if (k == 0) memcpy(X0[c][i], x, sizeof(double) * (size_t)rc->n);
-            cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, x, 1);
-            if (k < i1) cblas_daxpy((int)rc->n, 1.0, x, 1, D[c][i], 1);
-          }
-          for (long e = 0; k < i1 && e < rc->n; e++) big[c][i] = fmax(big[c][i], fabs(x[e])); /* what enters G */
-          if (!full) continue;
-          /* G[I, K] = X_Iᵀ X_K for the batch K = [k0, k] (one sample: a
-           * dgemv, faster than a dgemm of one column), and its mirror */
-          long nk = k + 1 - k0;
-          double *g = G[c][i];
-          if (nk == 1)
-            cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)nb, (int)rc->n, 1.0, H[c][i], (int)rc->n, Y[c][i], 1, 0.0,
-                        g + i0 * S + k0, (int)S);
-          else
-            cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nk, (int)rc->n, 1.0, H[c][i], (int)rc->n,
-                        Y[c][i], (int)rc->n, 0.0, g + i0 * S + k0, (int)S);
-          for (long a = i0; a < i1; a++)
-            for (long e = k0; e <= k; e++) g[e * S + a] = g[a * S + e];
-        }
-      }
-      if (full) k0 = k + 1;
-      progress_show(opt->progress, passes > 1 ? "snapshots (Gram, recomputing)" : "snapshots (Gram)", ++done, work);
-    }
-    for (int c = 0; c < m->nclasses; c++) {
-      RClass *rc = &m->classes[c];
-      for (int i = 0; i < rc->nmembers; i++) { /* G[I, I] = X_Iᵀ X_I */
-        double *gi = G[c][i] + i0 * S + i0;
-        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nb, (int)rc->n, 1.0, H[c][i], (int)rc->n,
-                    H[c][i], (int)rc->n, 0.0, gi, (int)S);
-      }
-    }
-  }
-  /* eigenvectors of every Gram matrix: the coefficients of the basis */
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    for (int i = 0; i < rc->nmembers; i++) {
-      RMember *mb = &rc->members[i];
-      const char *range = pca_gram_out_of_range(S, G[c][i], big[c][i]);
-      if (range) {
-        npg_fail(err, errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
-        goto done;
-      }
-      if (mb->center) { /* J G J, and d the mean of the shifted snapshots */
-        double *g = G[c][i], all = 0;
-        for (long a = 0; a < S; a++) {
-          double row = 0;
-          for (long e = 0; e < S; e++) row += g[a * S + e];
-          lam[a] = row / (double)S;
-          all += row;
-        }
-        all /= (double)S * (double)S;
-        for (long a = 0; a < S; a++)
-          for (long e = 0; e < S; e++) g[a * S + e] += all - lam[a] - lam[e];
-        cblas_dscal((int)rc->n, 1.0 / (double)S, D[c][i], 1);
-      }
-      int k = 0, cap = mb->center ? mb->cap - 1 : mb->cap;
-      long kmax = cap < S ? cap : S;
-      free(V);
-      if (!(V = npg_malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1))))) goto oom;
-      int info = pca_top_eigen(S, G[c][i], kmax, lam, V); /* G whole: either layout */
-      if (info != 0) {
-        npg_fail(err, errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
-              rc->label, mb->name, info);
-        goto done;
-      }
-      double total = 0, run = 0;
-      for (long a = 0; a < S; a++) total += fmax(lam[a], 0);
-      mb->captured = 1;
-      if (total > 0) {
-        while (k < S && k < cap && lam[S - 1 - k] > 1e-20 * lam[S - 1]) {
-          /* what is left is rounding (a centered Gram matrix has a null vector, 1) */
-          if (k > 0 && total - run <= (double)S * DBL_EPSILON * total) break;
-          run += lam[S - 1 - k];
-          k++;
-          if (run >= mb->energy * total) break;
-        }
-        mb->captured = run / total;
-      }
-      mb->lost = fmax(0, 1 - mb->captured);
-      free(mb->sv);
-      if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)S))) goto oom;
-      mb->nsv = S;
-      for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
-      mb->kept = kk[c][i] = k;
-      /* column a of W = V[:, a] / sqrt(λ), kept in G's place (S x k, row-major with leading dimension S) */
-      for (long s2 = 0; s2 < S; s2++)
-        for (int a = 0; a < k; a++) G[c][i][s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
-      if (!(U[c][i] = npg_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double)))) goto oom;
-    }
-  }
-  /* pass 2: U += x_s ⊗ W[s, :] */
-  for (long k = 0; k < S; k++) {
-    if (train_eval_sample(src, f, k, err, errlen)) goto done;
-    for (int c = 0; c < m->nclasses; c++) {
-      RClass *rc = &m->classes[c];
-      for (int i = 0; i < rc->nmembers; i++) {
-        if (!kk[c][i]) continue;
-        if (train_member_value(m, f, &rc->members[i], k, rc->n, tmp, err, errlen)) goto done;
-        if (X0[c][i]) cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, tmp, 1);
-        cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, tmp, 1, G[c][i] + k * S, 1, U[c][i], kk[c][i]);
-      }
-    }
-    progress_show(opt->progress, "snapshots (basis)", k + 1, S);
-  }
-  /* centered members: U_c -= d (1ᵀW), then [μ, U_c] orthonormalized */
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    for (int i = 0; i < rc->nmembers; i++) {
-      if (!X0[c][i]) continue;
-      int k = kk[c][i];
-      for (int a = 0; a < k; a++) {
-        double w = 0;
-        for (long s2 = 0; s2 < S; s2++) w += G[c][i][s2 * S + a];
-        tmp[a] = w;
-      }
-      if (k > 0) cblas_dger(CblasRowMajor, (int)rc->n, k, -1.0, D[c][i], 1, tmp, 1, U[c][i], k);
-      cblas_daxpy((int)rc->n, 1.0, X0[c][i], 1, D[c][i], 1); /* μ = x₀ + d */
-      double *parts[2] = {D[c][i], U[c][i]}, *Q = NULL;
-      int ks[2] = {1, k}, mm = 0;
-      if (pca_in_order(rc->n, 2, parts, ks, &Q, &mm, err, errlen)) goto done;
-      free(U[c][i]);
-      U[c][i] = Q;
-      rc->members[i].kept = kk[c][i] = mm;
-    }
-  }
+  long done = 0, work = 0;
+  for (long i0 = 0; i0 < S; i0 += g.b) work += S - i0;
+  for (long i0 = 0; i0 < S; i0 += g.b)
+    if (gram_pass(&g, i0, i0 + g.b < S ? i0 + g.b : S, &done, work)) goto done;
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; i < m->classes[c].nmembers; i++)
+      if (gram_eigen(&g, &g.gm[c][i], &m->classes[c], &U[c][i], &kk[c][i])) goto done;
+  if (basis_pass(&g, U, kk)) goto done;
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; i < m->classes[c].nmembers; i++)
+      if (g.gm[c][i].x0 && centered_basis(&g, &g.gm[c][i], m->classes[c].n, &U[c][i], &kk[c][i])) goto done;
   rc = 0;
-  goto done;
-oom:
-  npg_fail(err, errlen, "out of memory for the Gram matrices of %ld samples", S);
 done:
-  for (int c = 0; c < m->nclasses; c++) {
-    for (int i = 0; G && G[c] && i < m->classes[c].nmembers; i++) free(G[c][i]);
-    for (int i = 0; H && H[c] && i < m->classes[c].nmembers; i++) free(H[c][i]);
-    for (int i = 0; Y && Y[c] && i < m->classes[c].nmembers; i++) free(Y[c][i]);
-    for (int i = 0; X0 && X0[c] && i < m->classes[c].nmembers; i++) free(X0[c][i]);
-    for (int i = 0; D && D[c] && i < m->classes[c].nmembers; i++) free(D[c][i]);
-    if (G) free(G[c]);
-    if (H) free(H[c]);
-    if (Y) free(Y[c]);
-    if (X0) free(X0[c]);
-    if (D) free(D[c]);
-    if (big) free(big[c]);
-  }
-  free(big);
-  free(G);
-  free(H);
-  free(Y);
-  free(X0);
-  free(D);
-  free(lam);
-  free(V);
+  gram_free(&g);
   return rc;
 }
