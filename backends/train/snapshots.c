@@ -6,7 +6,6 @@
  * pass. train.c's take_snapshots calls it instead of keeping the snapshot
  * matrices; the result is the in-memory PCA's (pca_basis) to rounding. */
 #include <cblas.h>
-#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -199,7 +198,7 @@ static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int 
   for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
   /* the truncation rule of every route (a centered Gram matrix's null
    * vector, 1, is one its rounding stop drops) */
-  int k = (int)pca_choose(mb->sv, S, cap, mb->energy, NULL);
+  int k = (int)pca_choose(mb->sv, S, cap, mb->energy, true, NULL);
   double total = 0, run = 0;
   for (long a = 0; a < S; a++) total += fmax(lam[a], 0);
   for (int a = 0; a < k; a++) run += lam[S - 1 - a];
