@@ -21,8 +21,6 @@
  * progress bar (progress.c).
  */
 #include <cblas.h>
-#include <float.h>
-#include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -30,9 +28,7 @@
 #include <time.h>
 
 #include "dist.h"
-#include "emit.h"
 #include "interp.h"
-#include "reduced.h"
 #include "train.h"
 #include "train_steps.h"
 
