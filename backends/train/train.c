@@ -314,6 +314,53 @@ int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {
                   k, dist_rank());
 }
 
+/* Room for every member's snapshots of S samples (sn->X, none with
+ * `gram`) and for their bases by the method of snapshots (sn->U, sn->k).
+ * 0, or -1 when out of memory (what was allocated left to free_snapshots). */
+static int snapshots_alloc(Model *m, Snapshots *sn, long S, bool gram) {
+  sn->S = S;
+  if (!(sn->X = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->U = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->k = npg_calloc((size_t)m->nclasses + 1, sizeof(int *))))
+    return -1;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    if (!(sn->X[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(sn->U[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn->k[c] = npg_calloc((size_t)rc->nmembers, sizeof(int))))
+      return -1;
+    for (int i = 0; !gram && i < rc->nmembers; i++)
+      if (!(sn->X[c][i] = npg_malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) return -1;
+  }
+  return 0;
+}
+
+/* Every member's snapshots into sn->X, the SPD marks checked on every
+ * sample. Over ranks (opt->dist): rank r takes the samples k ≡ r (mod N),
+ * then the columns are gathered on every rank (a rank that fails returns
+ * here, before the gather: its caller ends the job). Sample 0 is already
+ * evaluated (begin_training). `tmp`: room for the largest class. */
+static int snapshots_in_memory(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
+                               double *tmp, char *err, size_t errlen) {
+  long S = sn->S;
+  int rc = 0, rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1;
+  for (long k = rank; rc == 0 && k < S; k += N) {
+    if (k > 0 && train_eval_sample(src, f, k, err, errlen)) rc = -1;
+    for (int c = 0; rc == 0 && c < m->nclasses; c++) {
+      RClass *cl = &m->classes[c];
+      for (int i = 0; rc == 0 && i < cl->nmembers; i++)
+        rc = train_member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
+    }
+    if (rc == 0) rc = train_check_spd(m, f, tmp, err, errlen);
+    if (rc == 0) rc = train_fail_hook(opt, k, err, errlen);
+    progress_show(opt->progress, "snapshots", k + 1, S);
+  }
+  if (rc == 0 && N > 1 && (rc = dist_gather_snapshots(m, sn->X, S, err, errlen)) == 0) {
+    dist_and_spd(m);
+    progress_show(opt->progress, "snapshots", S, S); /* every rank's are in */
+  }
+  return rc;
+}
+
 /* Step 1: every member's snapshots in memory (sn->X), or, when they need
  * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
  * *gram set). Marks which diagonal operators stay SPD. */
@@ -336,47 +383,16 @@ int take_snapshots(Model *m, NpgFull *f, const SampleSource *src, const TrainOpt
                     "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
                     "--mem or use --merge concat (the method of snapshots)",
                     (double)need / 1e9, (double)opt->mem / 1e9);
-  sn->S = S;
   double *tmp = npg_malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S));
-  if (!tmp || !(sn->X = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
-      !(sn->U = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
-      !(sn->k = npg_calloc((size_t)m->nclasses + 1, sizeof(int *))))
-    goto oom;
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    if (!(sn->X[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(sn->U[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn->k[c] = npg_calloc((size_t)rc->nmembers, sizeof(int))))
-      goto oom;
-    for (int i = 0; !*gram && i < rc->nmembers; i++)
-      if (!(sn->X[c][i] = npg_malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
+  if (!tmp || snapshots_alloc(m, sn, S, *gram)) {
+    free(tmp);
+    return npg_fail(err, errlen, "out of memory for the snapshots of %ld samples", S);
   }
   train_mark_spd(m);
-  int rc = 0;
-  if (*gram) rc = snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen);
-  /* over ranks (opt->dist): rank r takes the samples k ≡ r (mod N), then
-   * the columns are gathered on every rank (a rank that fails returns
-   * here, before the gather: its caller ends the job) */
-  int rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1;
-  for (long k = rank; !*gram && rc == 0 && k < S; k += N) {
-    if (k > 0 && train_eval_sample(src, f, k, err, errlen)) rc = -1;
-    for (int c = 0; rc == 0 && c < m->nclasses; c++) {
-      RClass *cl = &m->classes[c];
-      for (int i = 0; rc == 0 && i < cl->nmembers; i++)
-        rc = train_member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
-    }
-    if (rc == 0) rc = train_check_spd(m, f, tmp, err, errlen);
-    if (rc == 0) rc = train_fail_hook(opt, k, err, errlen);
-    progress_show(opt->progress, "snapshots", k + 1, S);
-  }
-  if (rc == 0 && !*gram && N > 1 && (rc = dist_gather_snapshots(m, sn->X, S, err, errlen)) == 0) {
-    dist_and_spd(m);
-    progress_show(opt->progress, "snapshots", S, S); /* every rank's are in */
-  }
+  int rc = *gram ? snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen)
+                 : snapshots_in_memory(m, f, src, opt, sn, tmp, err, errlen);
   free(tmp);
   return rc;
-oom:
-  free(tmp);
-  return npg_fail(err, errlen, "out of memory for the snapshots of %ld samples", S);
 }
 
 /* A class basis completed to full rank (convergence tests: the PCA
