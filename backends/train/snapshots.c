@@ -4,7 +4,8 @@
  * samples (train_gram_blocks shares the budget between a held block and a
  * batch); their eigenvectors V give U = X V Λ^(-1/2), formed in a last
  * pass. train.c's take_snapshots calls it instead of keeping the snapshot
- * matrices; the result is the in-memory PCA's (pca_basis) to rounding. */
+ * matrices; the bases are the in-memory PCA's (pca_basis) to rounding
+ * (test_reduce's snapshots_match_memory compares the projectors). */
 #include <cblas.h>
 #include <math.h>
 #include <stdlib.h>

@@ -1,6 +1,8 @@
-/* train_steps.h — the steps of training shared by the files of
- * backends/train that make it (train.c the pipeline, snapshots.c the method
- * of snapshots, joint.c the joint bases); private to backends/train, train.h is the interface. */
+/* train_steps.h — the steps of training shared by the files that make it:
+ * train.c the pipeline, train_set.c the tune sample set, snapshots.c the
+ * method of snapshots, joint.c the joint bases. Private to backends/train
+ * (train.h is the interface): Snapshots and these steps are the
+ * pipeline's own, not an API. */
 #ifndef NPG_TRAIN_STEPS_H
 #define NPG_TRAIN_STEPS_H
 
@@ -11,7 +13,7 @@ typedef struct Snapshots {
   long S;
   double ***X;      /* [class][member] n x S column-major (NULL: method of snapshots) */
   double ***U;      /* [class][member] its PCA basis, n x k row-major (method of snapshots) */
-  int **k;
+  int **k;          /* [class][member] its basis's vectors (method of snapshots) */
 } Snapshots;
 void free_snapshots(Model *m, Snapshots *sn);
 
