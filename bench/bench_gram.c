@@ -15,7 +15,7 @@
  *   snapshots  the Gram matrix G = XᵀX of S synthetic snapshots of n
  *              entries that do not fit in the budget of `fit` samples:
  *              the route before (a held block of `fit` samples, a dgemv
- *              per later sample) against train.c's (train_gram_blocks:
+ *              per later sample) against snapshots.c's (train_gram_blocks:
  *              a held block and a batch, a dgemm per batch). Snapshot k
  *              is Σ_j a_kj φ_j over 3 fixed random modes φ_j (3n flops
  *              to "recompute", the same in both routes; the trainer's
@@ -149,7 +149,7 @@ static void gram_by_dgemv(const Modes *md, long S, long b, double *G, double *H,
   }
 }
 
-/* train.c's route: blocks of b held, later samples in batches of q, one
+/* snapshots.c's route: blocks of b held, later samples in batches of q, one
  * dgemm per batch (a dgemv for a batch of one). */
 static void gram_by_dgemm(const Modes *md, long S, long b, long q, double *G, double *H, double *Y) {
   long n = md->n;

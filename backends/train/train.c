@@ -13,12 +13,14 @@
  *   4. the learned map of every extern (paper §8.3): the training samples'
  *      reduced inputs and reduced values.
  *
- * A TrainSet (npgc tune) runs 0–1 and every member's PCA once, then builds
- * models of any caps from truncations of those bases, steps 2–4 only.
+ * train_model below is that list, one call a step, each phase timed. The
+ * tune sample set (train_set.c) runs 0–1 and every member's PCA once, then
+ * builds models of any caps from truncations of those bases, steps 2–4
+ * only. Elsewhere: the method of snapshots (snapshots.c), --merge joint
+ * (joint.c), out of core (ooc.c), over MPI ranks (dist_train.c), the
+ * progress bar (progress.c).
  */
 #include <cblas.h>
-#include <float.h>
-#include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -26,29 +28,9 @@
 #include <time.h>
 
 #include "dist.h"
-#include "emit.h"
 #include "interp.h"
-#include "reduced.h"
 #include "train.h"
-
-/* Redrawn at most ten times a second (a pass of many tiny steps would
- * otherwise spend its time drawing), and always at the first and last step. */
-void progress_show(bool on, const char *what, long done, long total) {
-  if (!on) return;
-  static _Thread_local double last = -1;
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  double now = (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-  if (done > 1 && done < total && now - last < 0.1) return;
-  last = now;
-  int width = 30, fill = total > 0 ? (int)((double)done / (double)total * width) : width;
-  fprintf(stderr, "\r%-28s [", what);
-  for (int i = 0; i < width; i++) fputc(i < fill ? '#' : ' ', stderr);
-  fprintf(stderr, "] %ld/%ld", done, total);
-  if (done >= total) fputc('\n', stderr);
-  fflush(stderr);
-}
-
+#include "train_steps.h"
 
 /* ---------------------------------------------------------------- fields through the builders */
 
@@ -148,14 +130,7 @@ static void member_options(const Model *m, const RClass *c, RMember *mb, const T
 
 /* ---------------------------------------------------------------- training */
 
-typedef struct Snapshots {
-  long S;
-  double ***X;      /* [class][member] n x S column-major (NULL: method of snapshots) */
-  double ***U;      /* [class][member] its PCA basis, n x k row-major (method of snapshots) */
-  int **k;
-} Snapshots;
-
-static void free_snapshots(Model *m, Snapshots *sn) {
+void free_snapshots(Model *m, Snapshots *sn) {
   for (int c = 0; c < m->nclasses; c++) {
     for (int i = 0; i < m->classes[c].nmembers; i++) {
       if (sn->X && sn->X[c]) free(sn->X[c][i]);
@@ -242,242 +217,6 @@ int train_check_spd(Model *m, Full *f, double *tmp, char *err, size_t errlen) {
   return 0;
 }
 
-/* How the method of snapshots shares a budget of `fit` samples (half of
- * --mem over the bytes of one sample's members): a held block of *b and a
- * batch of *q later samples. All S held when they fit (one pass, no
- * batch). Otherwise the held block is as large as the budget allows: every
- * pass recomputes the samples after its block, about S²/2b evaluations in
- * all. The cross block G[I, K] = H_Iᵀ X_K is one dgemm per batch, reading
- * the held block once per batch where a dgemv per sample read it once per
- * sample; but OpenBLAS's dgemm with 1, 2 or 4 columns is 4, 2 and 1.2 times
- * slower than as many dgemv (bench/gram.md), so the batch takes an eighth of
- * the budget, at most TRAIN_GRAM_BATCH samples, when that is 8 or more
- * (evaluations grow by at most 1/7), and otherwise is one sample outside
- * the budget (a small block stays in cache: the dgemv route as before). */
-#define TRAIN_GRAM_BATCH 32
-void train_gram_blocks(long S, long fit, long *b, long *q) {
-  if (fit >= S) {
-    *b = S > 0 ? S : 1, *q = 0;
-    return;
-  }
-  *q = fit / 8 < TRAIN_GRAM_BATCH ? fit / 8 : TRAIN_GRAM_BATCH;
-  if (*q < 8) *q = 1, *b = fit > 1 ? fit : 1;
-  else *b = fit - *q;
-}
-
-/* The method of snapshots (DESIGN §5), for snapshots that do not fit in
- * `mem`: no snapshot matrix is held whole. Pass 1 builds every member's
- * S x S Gram matrix G = XᵀX holding a block of b samples at a time and
- * recomputing the later samples against it in batches of q (one dgemm per
- * member and batch: train_gram_blocks; one pass when the budget holds every
- * sample, ⌈S/b⌉ in general); the eigenvectors of G give the basis
- * U = X V Λ^(-1/2), formed in pass 2 by recomputing every sample once and
- * adding its rank-one contribution. U[c][i], kk[c][i] per member.
- *
- * A centered member's snapshots are shifted by its first sample x₀ (on a
- * deforming mesh that removes the dominant rest shape before any product,
- * so nothing cancels), their mean d accumulated in pass 1; the centered
- * Gram matrix is then J G J (J = I − 11ᵀ/S: the mean of a shift is
- * removed exactly), its eigenvectors give U_c = (X − x₀1ᵀ − d1ᵀ) W, and
- * the member's basis is the orthonormalization of [μ = x₀ + d, U_c]. */
-static int snapshot_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, double ***U,
-                          int **kk, double *tmp, char *err, size_t errlen) {
-  long S = src->count, per = 0;
-  for (int c = 0; c < m->nclasses; c++) per += m->classes[c].n * m->classes[c].nmembers;
-  long b, q;
-  train_gram_blocks(S, (long)(opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &b, &q);
-  int rc = -1;
-  double ***G = npg_calloc((size_t)m->nclasses + 1, sizeof(double **)), ***H = npg_calloc((size_t)m->nclasses + 1, sizeof(double **));
-  double ***Y = npg_calloc((size_t)m->nclasses + 1, sizeof(double **)); /* the batch of later samples */
-  double *lam = npg_malloc(sizeof(double) * (size_t)S), *V = NULL;
-  /* centered members: the shift x₀ and the sum of the shifted snapshots, then their mean */
-  double ***X0 = npg_calloc((size_t)m->nclasses + 1, sizeof(double **)), ***D = npg_calloc((size_t)m->nclasses + 1, sizeof(double **));
-  double **big = npg_calloc((size_t)m->nclasses + 1, sizeof(double *)); /* every member's largest |entry| */
-  if (!G || !H || !Y || !lam || !X0 || !D || !big) goto oom;
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    if (!(G[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(H[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(X0[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(D[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(Y[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(big[c] = npg_calloc((size_t)rc->nmembers, sizeof(double))))
-      goto oom;
-    for (int i = 0; i < rc->nmembers; i++) {
-      if (!(G[c][i] = npg_calloc((size_t)(S * S), sizeof(double))) ||
-          !(H[c][i] = npg_malloc(sizeof(double) * (size_t)(rc->n * b))) ||
-          (q > 0 && !(Y[c][i] = npg_malloc(sizeof(double) * (size_t)(rc->n * q)))))
-        goto oom;
-      if (rc->members[i].center &&
-          (!(X0[c][i] = npg_malloc(sizeof(double) * (size_t)rc->n)) || !(D[c][i] = npg_calloc((size_t)rc->n, sizeof(double)))))
-        goto oom;
-    }
-  }
-  long passes = (S + b - 1) / b, done = 0, work = 0;
-  for (long i0 = 0; i0 < S; i0 += b) work += S - i0;
-  for (long i0 = 0; i0 < S; i0 += b) {
-    long i1 = i0 + b < S ? i0 + b : S, nb = i1 - i0;
-    for (long k = i0, k0 = i1; k < S; k++) { /* k0: the first sample of the batch */
-      if (train_eval_sample(src, f, k, err, errlen)) goto done;
-      if (k < i1 && train_check_spd(m, f, tmp, err, errlen)) goto done;
-      bool full = k >= i1 && (k + 1 - k0 == q || k + 1 == S);
-      for (int c = 0; c < m->nclasses; c++) {
-        RClass *rc = &m->classes[c];
-        for (int i = 0; i < rc->nmembers; i++) {
-          double *x = k < i1 ? H[c][i] + (k - i0) * rc->n : Y[c][i] + (k - k0) * rc->n;
-          if (train_member_value(m, f, &rc->members[i], k, rc->n, x, err, errlen)) goto done;
-          if (X0[c][i]) {
-            if (k == 0) memcpy(X0[c][i], x, sizeof(double) * (size_t)rc->n);
-            cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, x, 1);
-            if (k < i1) cblas_daxpy((int)rc->n, 1.0, x, 1, D[c][i], 1);
-          }
-          for (long e = 0; k < i1 && e < rc->n; e++) big[c][i] = fmax(big[c][i], fabs(x[e])); /* what enters G */
-          if (!full) continue;
-          /* G[I, K] = X_Iᵀ X_K for the batch K = [k0, k] (one sample: a
-           * dgemv, faster than a dgemm of one column), and its mirror */
-          long nk = k + 1 - k0;
-          double *g = G[c][i];
-          if (nk == 1)
-            cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)nb, (int)rc->n, 1.0, H[c][i], (int)rc->n, Y[c][i], 1, 0.0,
-                        g + i0 * S + k0, (int)S);
-          else
-            cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nk, (int)rc->n, 1.0, H[c][i], (int)rc->n,
-                        Y[c][i], (int)rc->n, 0.0, g + i0 * S + k0, (int)S);
-          for (long a = i0; a < i1; a++)
-            for (long e = k0; e <= k; e++) g[e * S + a] = g[a * S + e];
-        }
-      }
-      if (full) k0 = k + 1;
-      progress_show(opt->progress, passes > 1 ? "snapshots (Gram, recomputing)" : "snapshots (Gram)", ++done, work);
-    }
-    for (int c = 0; c < m->nclasses; c++) {
-      RClass *rc = &m->classes[c];
-      for (int i = 0; i < rc->nmembers; i++) { /* G[I, I] = X_Iᵀ X_I */
-        double *gi = G[c][i] + i0 * S + i0;
-        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nb, (int)rc->n, 1.0, H[c][i], (int)rc->n,
-                    H[c][i], (int)rc->n, 0.0, gi, (int)S);
-      }
-    }
-  }
-  /* eigenvectors of every Gram matrix: the coefficients of the basis */
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    for (int i = 0; i < rc->nmembers; i++) {
-      RMember *mb = &rc->members[i];
-      const char *range = pca_gram_out_of_range(S, G[c][i], big[c][i]);
-      if (range) {
-        npg_fail(err, errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
-        goto done;
-      }
-      if (mb->center) { /* J G J, and d the mean of the shifted snapshots */
-        double *g = G[c][i], all = 0;
-        for (long a = 0; a < S; a++) {
-          double row = 0;
-          for (long e = 0; e < S; e++) row += g[a * S + e];
-          lam[a] = row / (double)S;
-          all += row;
-        }
-        all /= (double)S * (double)S;
-        for (long a = 0; a < S; a++)
-          for (long e = 0; e < S; e++) g[a * S + e] += all - lam[a] - lam[e];
-        cblas_dscal((int)rc->n, 1.0 / (double)S, D[c][i], 1);
-      }
-      int k = 0, cap = mb->center ? mb->cap - 1 : mb->cap;
-      long kmax = cap < S ? cap : S;
-      free(V);
-      if (!(V = npg_malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1))))) goto oom;
-      int info = pca_top_eigen(S, G[c][i], kmax, lam, V); /* G whole: either layout */
-      if (info != 0) {
-        npg_fail(err, errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
-              rc->label, mb->name, info);
-        goto done;
-      }
-      double total = 0, run = 0;
-      for (long a = 0; a < S; a++) total += fmax(lam[a], 0);
-      mb->captured = 1;
-      if (total > 0) {
-        while (k < S && k < cap && lam[S - 1 - k] > 1e-20 * lam[S - 1]) {
-          /* what is left is rounding (a centered Gram matrix has a null vector, 1) */
-          if (k > 0 && total - run <= (double)S * DBL_EPSILON * total) break;
-          run += lam[S - 1 - k];
-          k++;
-          if (run >= mb->energy * total) break;
-        }
-        mb->captured = run / total;
-      }
-      mb->lost = fmax(0, 1 - mb->captured);
-      free(mb->sv);
-      if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)S))) goto oom;
-      mb->nsv = S;
-      for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
-      mb->kept = kk[c][i] = k;
-      /* column a of W = V[:, a] / sqrt(λ), kept in G's place (S x k, row-major with leading dimension S) */
-      for (long s2 = 0; s2 < S; s2++)
-        for (int a = 0; a < k; a++) G[c][i][s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
-      if (!(U[c][i] = npg_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double)))) goto oom;
-    }
-  }
-  /* pass 2: U += x_s ⊗ W[s, :] */
-  for (long k = 0; k < S; k++) {
-    if (train_eval_sample(src, f, k, err, errlen)) goto done;
-    for (int c = 0; c < m->nclasses; c++) {
-      RClass *rc = &m->classes[c];
-      for (int i = 0; i < rc->nmembers; i++) {
-        if (!kk[c][i]) continue;
-        if (train_member_value(m, f, &rc->members[i], k, rc->n, tmp, err, errlen)) goto done;
-        if (X0[c][i]) cblas_daxpy((int)rc->n, -1.0, X0[c][i], 1, tmp, 1);
-        cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, tmp, 1, G[c][i] + k * S, 1, U[c][i], kk[c][i]);
-      }
-    }
-    progress_show(opt->progress, "snapshots (basis)", k + 1, S);
-  }
-  /* centered members: U_c -= d (1ᵀW), then [μ, U_c] orthonormalized */
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    for (int i = 0; i < rc->nmembers; i++) {
-      if (!X0[c][i]) continue;
-      int k = kk[c][i];
-      for (int a = 0; a < k; a++) {
-        double w = 0;
-        for (long s2 = 0; s2 < S; s2++) w += G[c][i][s2 * S + a];
-        tmp[a] = w;
-      }
-      if (k > 0) cblas_dger(CblasRowMajor, (int)rc->n, k, -1.0, D[c][i], 1, tmp, 1, U[c][i], k);
-      cblas_daxpy((int)rc->n, 1.0, X0[c][i], 1, D[c][i], 1); /* μ = x₀ + d */
-      double *parts[2] = {D[c][i], U[c][i]}, *Q = NULL;
-      int ks[2] = {1, k}, mm = 0;
-      if (pca_in_order(rc->n, 2, parts, ks, &Q, &mm, err, errlen)) goto done;
-      free(U[c][i]);
-      U[c][i] = Q;
-      rc->members[i].kept = kk[c][i] = mm;
-    }
-  }
-  rc = 0;
-  goto done;
-oom:
-  npg_fail(err, errlen, "out of memory for the Gram matrices of %ld samples", S);
-done:
-  for (int c = 0; c < m->nclasses; c++) {
-    for (int i = 0; G && G[c] && i < m->classes[c].nmembers; i++) free(G[c][i]);
-    for (int i = 0; H && H[c] && i < m->classes[c].nmembers; i++) free(H[c][i]);
-    for (int i = 0; Y && Y[c] && i < m->classes[c].nmembers; i++) free(Y[c][i]);
-    for (int i = 0; X0 && X0[c] && i < m->classes[c].nmembers; i++) free(X0[c][i]);
-    for (int i = 0; D && D[c] && i < m->classes[c].nmembers; i++) free(D[c][i]);
-    if (G) free(G[c]);
-    if (H) free(H[c]);
-    if (Y) free(Y[c]);
-    if (X0) free(X0[c]);
-    if (D) free(D[c]);
-    if (big) free(big[c]);
-  }
-  free(big);
-  free(G);
-  free(H);
-  free(Y);
-  free(X0);
-  free(D);
-  free(lam);
-  free(V);
-  return rc;
-}
-
 /* Record a member's PCA (its size, lost energy and spectrum). */
 static void take_pca(RMember *mb, PcaMember *p) {
   mb->kept = p->k;
@@ -513,66 +252,6 @@ int train_member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, cha
   return rc_ok;
 }
 
-/* --merge joint (DESIGN §5): one PCA of the members' snapshot blocks, each
- * scaled to unit norm first; centered (when the first member is), each
- * block minus its own mean, and the class basis the orthonormalization of
- * [μ_1 … μ_r, U_c], at most Σ cap vectors. Every member reports the joint
- * PCA. */
-static int joint_basis(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
-  size_t n = (size_t)rc->n * (size_t)S;
-  int r = rc->nmembers, cap = 0, rc_ok = -1;
-  bool center = rc->members[0].center;
-  double energy = 1;
-  double *J = npg_malloc(sizeof(double) * n * (size_t)r), *mu = npg_malloc(sizeof(double) * (size_t)(rc->n * r + 1));
-  double **parts = npg_calloc((size_t)r + 1, sizeof(double *));
-  int *ks = npg_calloc((size_t)r + 1, sizeof(int));
-  PcaMember p = {0};
-  if (!J || !mu || !parts || !ks) goto done;
-  for (int i = 0; i < r; i++) {
-    double *Ji = J + (size_t)i * n, *mi = mu + (size_t)i * (size_t)rc->n;
-    memcpy(Ji, X[i], sizeof(double) * n);
-    if (center) {
-      pca_mean(rc->n, S, X[i], mi);
-      for (long s = 0; s < S; s++) cblas_daxpy((int)rc->n, -1.0, mi, 1, Ji + s * rc->n, 1);
-    }
-    double nrm = cblas_dnrm2((int)n, Ji, 1);
-    if (nrm > 0) cblas_dscal((int)n, 1 / nrm, Ji, 1);
-    cap += rc->members[i].cap;
-    energy = fmin(energy, rc->members[i].energy);
-    parts[i] = mi;
-    ks[i] = 1;
-  }
-  if (center) cap = cap > r ? cap - r : 0;
-  if (pca_basis(rc->n, S * r, J, cap, energy, false, &p, err, errlen)) goto done;
-  if (center) {
-    parts[r] = p.U;
-    ks[r] = p.k;
-    int mm = 0;
-    rc_ok = pca_in_order(rc->n, r + 1, parts, ks, &rc->B, &mm, err, errlen);
-    rc->m = mm;
-  } else {
-    rc_ok = pca_merge(rc->n, 1, &p.U, &p.k, &rc->B, &rc->m, err, errlen);
-  }
-  for (int i = 0; rc_ok == 0 && i < r; i++) {
-    RMember *mb = &rc->members[i];
-    mb->kept = (int)rc->m;
-    mb->lost = p.lost;
-    mb->captured = 1 - p.lost;
-    free(mb->sv);
-    mb->nsv = p.nsv;
-    if ((mb->sv = npg_malloc(sizeof(double) * (size_t)(p.nsv + 1)))) memcpy(mb->sv, p.sv, sizeof(double) * (size_t)p.nsv);
-    else rc_ok = -1;
-  }
-done:
-  free(J);
-  free(mu);
-  free(parts);
-  free(ks);
-  free(p.U);
-  free(p.sv);
-  return rc_ok;
-}
-
 /* Whether --keep-bases `list` (comma-separated) names class `c` (a member
  * or the class, as --basis names them); *unknown set to the first name
  * that names nothing (NULL: none). "all" names every class. */
@@ -598,8 +277,8 @@ static bool keep_named(const Model *m, const char *list, int c, char *unknown, s
 
 /* The model's layout for the dims sample 0 binds, with every member's
  * options set and the --basis names checked. NULL with `err`. */
-static Model *begin_training(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                             size_t errlen) {
+Model *begin_training(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                      size_t errlen) {
   if (src->count < 1) {
     npg_fail(err, errlen, "no training samples");
     return NULL;
@@ -635,11 +314,58 @@ int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {
                   k, dist_rank());
 }
 
+/* Room for every member's snapshots of S samples (sn->X, none with
+ * `gram`) and for their bases by the method of snapshots (sn->U, sn->k).
+ * 0, or -1 when out of memory (what was allocated left to free_snapshots). */
+static int snapshots_alloc(Model *m, Snapshots *sn, long S, bool gram) {
+  sn->S = S;
+  if (!(sn->X = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->U = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->k = npg_calloc((size_t)m->nclasses + 1, sizeof(int *))))
+    return -1;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    if (!(sn->X[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(sn->U[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn->k[c] = npg_calloc((size_t)rc->nmembers, sizeof(int))))
+      return -1;
+    for (int i = 0; !gram && i < rc->nmembers; i++)
+      if (!(sn->X[c][i] = npg_malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) return -1;
+  }
+  return 0;
+}
+
+/* Every member's snapshots into sn->X, the SPD marks checked on every
+ * sample. Over ranks (opt->dist): rank r takes the samples k ≡ r (mod N),
+ * then the columns are gathered on every rank (a rank that fails returns
+ * here, before the gather: its caller ends the job). Sample 0 is already
+ * evaluated (begin_training). `tmp`: room for the largest class. */
+static int snapshots_in_memory(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
+                               double *tmp, char *err, size_t errlen) {
+  long S = sn->S;
+  int rc = 0, rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1;
+  for (long k = rank; rc == 0 && k < S; k += N) {
+    if (k > 0 && train_eval_sample(src, f, k, err, errlen)) rc = -1;
+    for (int c = 0; rc == 0 && c < m->nclasses; c++) {
+      RClass *cl = &m->classes[c];
+      for (int i = 0; rc == 0 && i < cl->nmembers; i++)
+        rc = train_member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
+    }
+    if (rc == 0) rc = train_check_spd(m, f, tmp, err, errlen);
+    if (rc == 0) rc = train_fail_hook(opt, k, err, errlen);
+    progress_show(opt->progress, "snapshots", k + 1, S);
+  }
+  if (rc == 0 && N > 1 && (rc = dist_gather_snapshots(m, sn->X, S, err, errlen)) == 0) {
+    dist_and_spd(m);
+    progress_show(opt->progress, "snapshots", S, S); /* every rank's are in */
+  }
+  return rc;
+}
+
 /* Step 1: every member's snapshots in memory (sn->X), or, when they need
  * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
  * *gram set). Marks which diagonal operators stay SPD. */
-static int take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
-                          bool *gram, char *err, size_t errlen) {
+int take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
+                   bool *gram, char *err, size_t errlen) {
   long S = src->count, maxn = 1;
   size_t need = 0;
   for (int c = 0; c < m->nclasses; c++) {
@@ -657,47 +383,16 @@ static int take_snapshots(Model *m, Full *f, const SampleSource *src, const Trai
                     "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
                     "--mem or use --merge concat (the method of snapshots)",
                     (double)need / 1e9, (double)opt->mem / 1e9);
-  sn->S = S;
   double *tmp = npg_malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S));
-  if (!tmp || !(sn->X = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
-      !(sn->U = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
-      !(sn->k = npg_calloc((size_t)m->nclasses + 1, sizeof(int *))))
-    goto oom;
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    if (!(sn->X[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(sn->U[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn->k[c] = npg_calloc((size_t)rc->nmembers, sizeof(int))))
-      goto oom;
-    for (int i = 0; !*gram && i < rc->nmembers; i++)
-      if (!(sn->X[c][i] = npg_malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) goto oom;
+  if (!tmp || snapshots_alloc(m, sn, S, *gram)) {
+    free(tmp);
+    return npg_fail(err, errlen, "out of memory for the snapshots of %ld samples", S);
   }
   train_mark_spd(m);
-  int rc = 0;
-  if (*gram) rc = snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen);
-  /* over ranks (opt->dist): rank r takes the samples k ≡ r (mod N), then
-   * the columns are gathered on every rank (a rank that fails returns
-   * here, before the gather: its caller ends the job) */
-  int rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1;
-  for (long k = rank; !*gram && rc == 0 && k < S; k += N) {
-    if (k > 0 && train_eval_sample(src, f, k, err, errlen)) rc = -1;
-    for (int c = 0; rc == 0 && c < m->nclasses; c++) {
-      RClass *cl = &m->classes[c];
-      for (int i = 0; rc == 0 && i < cl->nmembers; i++)
-        rc = train_member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
-    }
-    if (rc == 0) rc = train_check_spd(m, f, tmp, err, errlen);
-    if (rc == 0) rc = train_fail_hook(opt, k, err, errlen);
-    progress_show(opt->progress, "snapshots", k + 1, S);
-  }
-  if (rc == 0 && !*gram && N > 1 && (rc = dist_gather_snapshots(m, sn->X, S, err, errlen)) == 0) {
-    dist_and_spd(m);
-    progress_show(opt->progress, "snapshots", S, S); /* every rank's are in */
-  }
+  int rc = *gram ? snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen)
+                 : snapshots_in_memory(m, f, src, opt, sn, tmp, err, errlen);
   free(tmp);
   return rc;
-oom:
-  free(tmp);
-  return npg_fail(err, errlen, "out of memory for the snapshots of %ld samples", S);
 }
 
 /* A class basis completed to full rank (convergence tests: the PCA
@@ -750,6 +445,9 @@ static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOpti
   return 0;
 }
 
+/* Training's phases, as Model.phase_seconds and phase_cpu index them. */
+enum { PHASE_SNAPSHOTS, PHASE_BASES, PHASE_PREMULTIPLY, PHASE_EXTERNS };
+
 /* The wall and CPU (this process's threads) seconds since t0[0], t0[1]
  * into sec[0], cpu[0]; t0 moved to now. */
 static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
@@ -761,10 +459,22 @@ static void phase_time(struct timespec t0[2], double *sec, double *cpu) {
   t0[0] = t[0], t0[1] = t[1];
 }
 
+/* The phase timer: `clock` (wall, CPU) set to now. */
+static void phase_start(struct timespec clock[2]) {
+  clock_gettime(CLOCK_MONOTONIC, &clock[0]);
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &clock[1]);
+}
+
+/* Phase `phase` of training `m` ends now: its seconds since `clock` kept,
+ * and the next phase timed from now. */
+static void phase_end(struct timespec clock[2], Model *m, int phase) {
+  phase_time(clock, &m->phase_seconds[phase], &m->phase_cpu[phase]);
+}
+
 /* Step 3: the projections between classes and every tensor pre-multiplied.
  * Over ranks, with progress on, rank 0 says how long its own rows took and
  * how long the sums over ranks (the wait for the slowest rank included). */
-static int premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err, size_t errlen) {
+int premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err, size_t errlen) {
   long ntensors = 0, done = 0;
   int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1;
   for (int i = 0; i < m->nstages; i++)
@@ -810,7 +520,7 @@ static int premultiply_all(Model *m, Full *f, bool progress, bool dist, char *er
  * dropped (drop_bases) — marked once the reduction of every stage is
  * chosen (an interpolated stage's class is needed): the streamable ones
  * (model_class_streamable) --keep-bases does not name. */
-static bool mark_streamed(Model *m, const TrainOptions *opt) {
+bool mark_streamed(Model *m, const TrainOptions *opt) {
   bool any = false; /* whose floors are still to be taken */
   for (int c = 0; c < m->nclasses; c++) { /* the names were checked by begin_training */
     m->classes[c].streamed = opt->stream && !keep_named(m, opt->keep_bases, c, NULL, 0) && model_class_streamable(m, c);
@@ -824,7 +534,7 @@ static bool mark_streamed(Model *m, const TrainOptions *opt) {
  * reports them in place of the held-out floors it cannot measure without
  * the basis. `gram`: the values are the evaluator's (the sample just
  * evaluated), else the snapshots'. */
-static void take_floors(Model *m, Full *f, const Snapshots *sn, bool gram, long k, long S, double *proj, double *y) {
+void take_floors(Model *m, Full *f, const Snapshots *sn, bool gram, long k, long S, double *proj, double *y) {
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; m->classes[c].streamed && !m->classes[c].floors_known && i < m->classes[c].nmembers; i++) {
       RMember *mb = &m->classes[c].members[i];
@@ -838,7 +548,7 @@ static void take_floors(Model *m, Full *f, const Snapshots *sn, bool gram, long 
 }
 
 /* Step 5: the streamed classes' bases dropped (their floors taken). */
-static void drop_bases(Model *m) {
+void drop_bases(Model *m) {
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     if (!rc->streamed) continue;
@@ -855,16 +565,17 @@ static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const 
  * reduced inputs and values, from the snapshots or, after the method of
  * snapshots, recomputed; with `floors`, in the same pass the streamed
  * classes' training floors (take_floors). */
-static int fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
-                       bool progress, bool dist, char *err, size_t errlen) {
+int fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
+                bool progress, bool dist, char *err, size_t errlen) {
   long maxn = 1, maxm = 1;
   for (int c = 0; floors && c < m->nclasses; c++)
     if (m->classes[c].streamed && !m->classes[c].floors_known)
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
   double *y = floors ? malloc(sizeof(double) * (size_t)maxn) : NULL, *proj = floors ? malloc(sizeof(double) * (size_t)maxm) : NULL;
-  if (floors && (!y || !proj)) return free(y), free(proj), npg_fail(err, errlen, "out of memory measuring the training floors");
-  int rc = fit_externs_floors(m, f, src, sn, gram, floors, proj, y, progress, dist, err, errlen);
-  free(y), free(proj);
+  int rc = floors && (!y || !proj) ? npg_fail(err, errlen, "out of memory measuring the training floors")
+                                     : fit_externs_floors(m, f, src, sn, gram, floors, proj, y, progress, dist, err, errlen);
+  free(y);
+  free(proj);
   return rc;
 }
 
@@ -963,182 +674,53 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
 
 /* Steps 1–2: the bases, from snapshots in memory, by the method of
  * snapshots, or out of core when the bases exceed opt->mem (ooc.c; then,
- * as after the method of snapshots, *gram: no snapshot is kept). */
+ * as after the method of snapshots, *gram: no snapshot is kept). Ends the
+ * phase of the snapshots (out of core: the snapshots and the bases are one
+ * step, timed as snapshots). */
 static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn, bool *gram,
-                 struct timespec t[2], double *sec, double *cpu, char *err, size_t errlen) {
+                 struct timespec clock[2], char *err, size_t errlen) {
   if (ooc_needed(m, opt)) {
     *gram = true;
     mark_streamed(m, opt); /* their floors taken in the passes (the choice is made again after interpolation) */
-    return ooc_bases(m, f, src, opt, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0);
+    if (ooc_bases(m, f, src, opt, err, errlen)) return -1;
+    phase_end(clock, m, PHASE_SNAPSHOTS);
+    return 0;
   }
-  return take_snapshots(m, f, src, opt, sn, gram, err, errlen) || (phase_time(t, &sec[0], &cpu[0]), 0) ||
-         build_bases(m, sn, *gram, opt, err, errlen);
+  if (take_snapshots(m, f, src, opt, sn, gram, err, errlen)) return -1;
+  phase_end(clock, m, PHASE_SNAPSHOTS);
+  return build_bases(m, sn, *gram, opt, err, errlen);
 }
 
-/* Training as named steps (DESIGN §5), each step's wall and CPU time kept (out of core: the
- * snapshots and the bases are one step, timed as snapshots). */
+/* Training as named steps (DESIGN §5), each phase's wall and CPU time kept. */
 Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen) {
   Snapshots sn = {0};
   bool gram = false;
+  struct timespec clock[2];
   err[0] = 0;
-  struct timespec t[2];
-  clock_gettime(CLOCK_MONOTONIC, &t[0]);
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t[1]);
+  phase_start(clock);
   Model *m = begin_training(prog, f, src, opt, err, errlen);
-  double *sec = m ? m->phase_seconds : NULL, *cpu = m ? m->phase_cpu : NULL;
-  if (!m || bases(m, f, src, opt, &sn, &gram, t, sec, cpu, err, errlen) || (phase_time(t, &sec[1], &cpu[1]), 0) ||
-      premultiply_all(m, f, opt->progress, opt->dist, err, errlen) || train_interpolate_stages(m, f, opt, err, errlen) ||
-      (phase_time(t, &sec[2], &cpu[2]), 0) ||
-      fit_externs(m, f, src, &sn, gram, mark_streamed(m, opt), opt->progress, opt->dist, err, errlen) ||
-      (drop_bases(m), phase_time(t, &sec[3], &cpu[3]), 0)) {
-    if (m) free_snapshots(m, &sn);
-    model_free(m);
-    /* the steps name what failed; a helper that only returned NULL ran out of memory */
-    if (!err[0]) npg_fail(err, errlen, "out of memory during training");
-    return NULL;
-  }
+  if (!m) goto fail;
+  if (bases(m, f, src, opt, &sn, &gram, clock, err, errlen)) goto fail;
+  phase_end(clock, m, PHASE_BASES);
+  if (premultiply_all(m, f, opt->progress, opt->dist, err, errlen)) goto fail;
+  if (train_interpolate_stages(m, f, opt, err, errlen)) goto fail;
+  phase_end(clock, m, PHASE_PREMULTIPLY);
+  bool floors = mark_streamed(m, opt); /* the reductions chosen: which bases are streamed is known */
+  if (fit_externs(m, f, src, &sn, gram, floors, opt->progress, opt->dist, err, errlen)) goto fail;
+  drop_bases(m);
+  phase_end(clock, m, PHASE_EXTERNS);
   if (opt->progress)
     fprintf(stderr, "training phases: snapshots %.2f s, bases %.2f s (%s), pre-multiplication %.2f s, externs %.2f s\n",
-            m->phase_seconds[0], m->phase_seconds[1],
+            m->phase_seconds[PHASE_SNAPSHOTS], m->phase_seconds[PHASE_BASES],
             ooc_needed(m, opt) ? "out of core, with the snapshots" : gram ? "method of snapshots" : "in memory",
-            m->phase_seconds[2], m->phase_seconds[3]);
+            m->phase_seconds[PHASE_PREMULTIPLY], m->phase_seconds[PHASE_EXTERNS]);
   free_snapshots(m, &sn);
   return m;
-}
-
-/* ---------------------------------------------------------------- truncations (npgc tune) */
-
-struct TrainSet {
-  Model *base;              /* layout, member options, SPD marks */
-  Full *f;
-  const SampleSource *src;
-  bool progress;
-  Snapshots sn;             /* in memory */
-  PcaMember **pm;           /* [class][member]: its ordered basis at its cap */
-};
-
-/* Step 5 for a truncation (npgc tune; issue 30): as train_model does,
- * the streamable classes --keep-bases does not name marked, their
- * training floors taken from the snapshots, their bases dropped. */
-int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err, size_t errlen) {
-  if (!mark_streamed(m, opt)) return 0;
-  long maxn = 1, maxm = 1;
-  for (int c = 0; c < m->nclasses; c++)
-    if (m->classes[c].streamed)
-      maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
-  double *y = npg_malloc(sizeof(double) * (size_t)maxn), *proj = npg_malloc(sizeof(double) * (size_t)maxm);
-  if (!y || !proj) return free(y), free(proj), npg_fail(err, errlen, "out of memory measuring the training floors");
-  for (long k = 0; k < ts->sn.S; k++) take_floors(m, ts->f, &ts->sn, false, k, ts->sn.S, proj, y);
-  free(y), free(proj);
-  drop_bases(m);
-  return 0;
-}
-
-void train_set_free(TrainSet *ts) {
-  if (!ts) return;
-  for (int c = 0; ts->pm && c < ts->base->nclasses; c++) {
-    for (int i = 0; ts->pm[c] && i < ts->base->classes[c].nmembers; i++) free(ts->pm[c][i].U), free(ts->pm[c][i].sv);
-    free(ts->pm[c]);
-  }
-  free(ts->pm);
-  if (ts->base) free_snapshots(ts->base, &ts->sn);
-  model_free(ts->base);
-  free(ts);
-}
-
-TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                        size_t errlen) {
-  TrainSet *ts = npg_calloc(1, sizeof *ts);
-  TrainOptions o = *opt;
-  bool gram = false;
-  err[0] = 0;
-  o.mem = 0; /* truncations re-use the snapshots: they stay in memory */
-  o.joint = false;
-  if (!ts) return NULL;
-  ts->f = f, ts->src = src, ts->progress = opt->progress;
-  if (!(ts->base = begin_training(prog, f, src, &o, err, errlen)) ||
-      take_snapshots(ts->base, f, src, &o, &ts->sn, &gram, err, errlen))
-    goto fail;
-  Model *m = ts->base;
-  if (!(ts->pm = npg_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    if (!(ts->pm[c] = npg_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
-    for (int i = 0; i < rc->nmembers; i++) {
-      RMember *mb = &rc->members[i];
-      if (pca_basis(rc->n, ts->sn.S, ts->sn.X[c][i], mb->cap, mb->energy, mb->center, &ts->pm[c][i], err, errlen))
-        goto fail;
-    }
-    progress_show(ts->progress, "member bases", c + 1, m->nclasses);
-  }
-  return ts;
 fail:
-  if (!err[0]) npg_fail(err, errlen, "out of memory while training");
-  train_set_free(ts);
+  if (m) free_snapshots(m, &sn);
+  model_free(m);
+  /* the steps name what failed; a helper that only returned NULL ran out of memory */
+  if (!err[0]) npg_fail(err, errlen, "out of memory during training");
   return NULL;
-}
-
-int train_set_classes(const TrainSet *ts) { return ts->base->nclasses; }
-
-int train_set_max_cap(const TrainSet *ts, int c) {
-  int k = 1;
-  for (int i = 0; i < ts->base->classes[c].nmembers; i++) k = ts->pm[c][i].k > k ? ts->pm[c][i].k : k;
-  return k;
-}
-
-/* Member `mb` keeping the first `k` of its ordered basis `p`: its report. */
-static int truncated_member(RMember *mb, const PcaMember *p, int cap, int k) {
-  double total = 0, run = 0;
-  int r = mb->center ? k - 1 : k; /* a centered basis starts with the mean */
-  for (long j = 0; j < p->nsv; j++) total += p->sv[j] * p->sv[j], run += j < r ? p->sv[j] * p->sv[j] : 0;
-  mb->cap = cap;
-  mb->kept = k;
-  mb->lost = total > 0 ? fmax(0, 1 - run / total) : 0;
-  mb->captured = 1 - mb->lost;
-  mb->nsv = p->nsv;
-  if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)(p->nsv + 1)))) return -1;
-  memcpy(mb->sv, p->sv, sizeof(double) * (size_t)p->nsv);
-  return 0;
-}
-
-Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
-  const Model *b = ts->base;
-  err[0] = 0;
-  Model *m = model_layout(b->prog, b->dims, err, errlen);
-  if (!m) return NULL;
-  m->samples = b->samples;
-  for (int i = 0; i < m->nstages; i++) /* the SPD marks the snapshots set */
-    for (int t = 0; t < m->stages[i].nterms; t++)
-      for (int k = 0; k < m->stages[i].terms[t].nops; k++) m->stages[i].terms[t].ops[k].spd = b->stages[i].terms[t].ops[k].spd;
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    double **U = npg_calloc((size_t)rc->nmembers + 1, sizeof(double *));
-    int *kk = npg_calloc((size_t)rc->nmembers + 1, sizeof(int)), ok = U && kk;
-    for (int i = 0; ok && i < rc->nmembers; i++) {
-      const PcaMember *p = &ts->pm[c][i];
-      RMember *mb = &rc->members[i];
-      mb->energy = b->classes[c].members[i].energy;
-      mb->center = b->classes[c].members[i].center;
-      kk[i] = cap[c] < p->k ? cap[c] : p->k;
-      if (!(U[i] = npg_malloc(sizeof(double) * (size_t)(rc->n * (kk[i] ? kk[i] : 1)))) || truncated_member(mb, p, cap[c], kk[i]))
-        ok = 0;
-      for (long e = 0; ok && e < rc->n; e++) memcpy(U[i] + e * kk[i], p->U + e * p->k, sizeof(double) * (size_t)kk[i]);
-    }
-    int rc_ok = ok ? pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen) : -1;
-    for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
-    free(U);
-    free(kk);
-    if (rc_ok || train_complete_basis(rc, false, err, errlen)) {
-      if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
-      model_free(m);
-      return NULL;
-    }
-  }
-  model_size_tensors(m);
-  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, false, false, err, errlen)) {
-    model_free(m);
-    return NULL;
-  }
-  return m;
 }

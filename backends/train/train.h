@@ -88,6 +88,8 @@ typedef struct SampleSource {
 Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen);
 
+/* ---------------------------------------------------------------- the tune sample set (train_set.c) */
+
 /* Training for a search over basis sizes (npgc tune): the snapshots (in
  * memory) and every member's ordered basis at its cap (pca_basis: for a
  * centered member [μ, U_c,1, …]) once; then models whose members keep the
@@ -111,7 +113,9 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen);
 int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err, size_t errlen);
 void train_set_free(TrainSet *ts);
 
-/* The steps of training that the out-of-core bases (ooc.c) share (train.c). */
+/* ---------------------------------------------------------------- steps shared with out of core (train.c) */
+
+/* The steps of training that the out-of-core bases (ooc.c) share. */
 /* Set and evaluate training sample k. */
 int train_eval_sample(const SampleSource *src, Full *f, long k, char *err, size_t errlen);
 /* Member `mb`'s value (a quantity, or an unnamed numerator) after an
@@ -228,12 +232,18 @@ void report_training(const Model *m, FILE *out);
  * input whose floor exceeds `tol`. Returns how many were printed. */
 int report_verify_warnings(const Model *m, const double *err, const double *floor, double tol, FILE *out);
 
+/* ---------------------------------------------------------------- the method of snapshots (snapshots.c) */
+
 /* The method of snapshots' split of a budget of `fit` samples: a held
  * block of *b samples and a batch of *q later ones (*q 0: all S held). */
 void train_gram_blocks(long S, long fit, long *b, long *q);
 
+/* ---------------------------------------------------------------- the progress bar (progress.c) */
+
 /* A progress bar on stderr ("what [####    ] done/total"), when `on`. */
 void progress_show(bool on, const char *what, long done, long total);
+
+/* ---------------------------------------------------------------- bases from snapshots (pca.c) */
 
 /* PCA of one member: X is n x S column-major (sample s at X + s*n). Keeps
  * at most `cap` left singular vectors, the fewest reaching `energy`.
@@ -262,11 +272,18 @@ int pca_basis(long n, long S, const double *X, int cap, double energy, bool cent
  * of its norm: n x m row-major whose first j columns span the first
  * independent columns given. */
 int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int *m, char *err, size_t errlen);
-/* How many of the singular values s[0..K) (descending, through a Gram
- * matrix) a member keeps at `cap` and `energy`, as pca_member's Gram route
- * decides; *unresolved set when the decision needs directions below what
- * a Gram matrix resolves (pca_member then asks the SVD). */
-long pca_choose(const double *s, long K, int cap, double energy, bool *unresolved);
+/* The truncation rule, one for every route to a member's basis (the SVD
+ * and the Gram route of pca_member, the method of snapshots, out of core):
+ * how many of the singular values s[0..K) (descending) a member keeps —
+ * the leading ones, at most `cap`, the fewest whose energy reaches
+ * `energy` of the total, none at the floor of what the values resolve: a
+ * singular value at most 1e-10 of the largest (dependent), and with `gram`
+ * (the values are square roots of a Gram matrix's eigenvalues) the energy
+ * left within its rounding (K ε of the total). *unresolved (when not NULL)
+ * set when a kept value, or the one whose smallness ended the count, is at
+ * most 1e-6 of the largest, below what a Gram matrix resolves well
+ * (pca_member then asks the SVD). */
+long pca_choose(const double *s, long K, int cap, double energy, bool gram, bool *unresolved);
 /* The eigenproblem of a Gram matrix when few eigenvectors are kept: every
  * eigenvalue of the symmetric S x S matrix G (its upper triangle read,
  * column-major with leading dimension S — a matrix stored whole may be in
@@ -301,6 +318,8 @@ void pca_mean(long n, long S, const double *X, double *mu);
 /* Orthonormal basis of the span of [U_1 … U_r] (each n x k_i, row-major),
  * dropping dependent directions (σ < 1e-10 σ_max): n x m row-major. */
 int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m, char *err, size_t errlen);
+
+/* ---------------------------------------------------------------- pre-multiplication (premul.c) */
 
 /* Pre-multiply one tensor group: stream the builder's entries, accumulate
  * outer products of basis rows per output block, finish each block with a

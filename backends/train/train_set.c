@@ -1,0 +1,146 @@
+/* train_set.c — the tune sample set (TrainSet, train.h; npgc tune): the
+ * snapshots kept in memory and every member's PCA made once at its cap,
+ * then a model for any caps from truncations of those ordered bases —
+ * steps 2–4 of training (train.c) only, no new snapshot or SVD. The search
+ * over caps (tune.c) builds a model per trial; this makes each one cost a
+ * merge, a pre-multiplication and an extern fit instead of a training. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "train.h"
+#include "train_steps.h"
+
+struct TrainSet {
+  Model *base;              /* layout, member options, SPD marks */
+  Full *f;
+  const SampleSource *src;
+  bool progress;
+  Snapshots sn;             /* in memory */
+  PcaMember **pm;           /* [class][member]: its ordered basis at its cap */
+};
+
+/* Step 5 for a truncation (npgc tune; issue 30): as train_model does,
+ * the streamable classes --keep-bases does not name marked, their
+ * training floors taken from the snapshots, their bases dropped. */
+int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err, size_t errlen) {
+  if (!mark_streamed(m, opt)) return 0;
+  long maxn = 1, maxm = 1;
+  for (int c = 0; c < m->nclasses; c++)
+    if (m->classes[c].streamed)
+      maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
+  double *y = npg_malloc(sizeof(double) * (size_t)maxn), *proj = npg_malloc(sizeof(double) * (size_t)maxm);
+  if (!y || !proj) return free(y), free(proj), npg_fail(err, errlen, "out of memory measuring the training floors");
+  for (long k = 0; k < ts->sn.S; k++) take_floors(m, ts->f, &ts->sn, false, k, ts->sn.S, proj, y);
+  free(y), free(proj);
+  drop_bases(m);
+  return 0;
+}
+
+void train_set_free(TrainSet *ts) {
+  if (!ts) return;
+  for (int c = 0; ts->pm && c < ts->base->nclasses; c++) {
+    for (int i = 0; ts->pm[c] && i < ts->base->classes[c].nmembers; i++) free(ts->pm[c][i].U), free(ts->pm[c][i].sv);
+    free(ts->pm[c]);
+  }
+  free(ts->pm);
+  if (ts->base) free_snapshots(ts->base, &ts->sn);
+  model_free(ts->base);
+  free(ts);
+}
+
+TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                        size_t errlen) {
+  TrainSet *ts = npg_calloc(1, sizeof *ts);
+  TrainOptions o = *opt;
+  bool gram = false;
+  err[0] = 0;
+  o.mem = 0; /* truncations re-use the snapshots: they stay in memory */
+  o.joint = false;
+  if (!ts) return NULL;
+  ts->f = f, ts->src = src, ts->progress = opt->progress;
+  if (!(ts->base = begin_training(prog, f, src, &o, err, errlen)) ||
+      take_snapshots(ts->base, f, src, &o, &ts->sn, &gram, err, errlen))
+    goto fail;
+  Model *m = ts->base;
+  if (!(ts->pm = npg_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    if (!(ts->pm[c] = npg_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
+    for (int i = 0; i < rc->nmembers; i++) {
+      RMember *mb = &rc->members[i];
+      if (pca_basis(rc->n, ts->sn.S, ts->sn.X[c][i], mb->cap, mb->energy, mb->center, &ts->pm[c][i], err, errlen))
+        goto fail;
+    }
+    progress_show(ts->progress, "member bases", c + 1, m->nclasses);
+  }
+  return ts;
+fail:
+  if (!err[0]) npg_fail(err, errlen, "out of memory while training");
+  train_set_free(ts);
+  return NULL;
+}
+
+int train_set_classes(const TrainSet *ts) { return ts->base->nclasses; }
+
+int train_set_max_cap(const TrainSet *ts, int c) {
+  int k = 1;
+  for (int i = 0; i < ts->base->classes[c].nmembers; i++) k = ts->pm[c][i].k > k ? ts->pm[c][i].k : k;
+  return k;
+}
+
+/* Member `mb` keeping the first `k` of its ordered basis `p`: its report. */
+static int truncated_member(RMember *mb, const PcaMember *p, int cap, int k) {
+  double total = 0, run = 0;
+  int r = mb->center ? k - 1 : k; /* a centered basis starts with the mean */
+  for (long j = 0; j < p->nsv; j++) total += p->sv[j] * p->sv[j], run += j < r ? p->sv[j] * p->sv[j] : 0;
+  mb->cap = cap;
+  mb->kept = k;
+  mb->lost = total > 0 ? fmax(0, 1 - run / total) : 0;
+  mb->captured = 1 - mb->lost;
+  mb->nsv = p->nsv;
+  if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)(p->nsv + 1)))) return -1;
+  memcpy(mb->sv, p->sv, sizeof(double) * (size_t)p->nsv);
+  return 0;
+}
+
+Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
+  const Model *b = ts->base;
+  err[0] = 0;
+  Model *m = model_layout(b->prog, b->dims, err, errlen);
+  if (!m) return NULL;
+  m->samples = b->samples;
+  for (int i = 0; i < m->nstages; i++) /* the SPD marks the snapshots set */
+    for (int t = 0; t < m->stages[i].nterms; t++)
+      for (int k = 0; k < m->stages[i].terms[t].nops; k++) m->stages[i].terms[t].ops[k].spd = b->stages[i].terms[t].ops[k].spd;
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    double **U = npg_calloc((size_t)rc->nmembers + 1, sizeof(double *));
+    int *kk = npg_calloc((size_t)rc->nmembers + 1, sizeof(int)), ok = U && kk;
+    for (int i = 0; ok && i < rc->nmembers; i++) {
+      const PcaMember *p = &ts->pm[c][i];
+      RMember *mb = &rc->members[i];
+      mb->energy = b->classes[c].members[i].energy;
+      mb->center = b->classes[c].members[i].center;
+      kk[i] = cap[c] < p->k ? cap[c] : p->k;
+      if (!(U[i] = npg_malloc(sizeof(double) * (size_t)(rc->n * (kk[i] ? kk[i] : 1)))) || truncated_member(mb, p, cap[c], kk[i]))
+        ok = 0;
+      for (long e = 0; ok && e < rc->n; e++) memcpy(U[i] + e * kk[i], p->U + e * p->k, sizeof(double) * (size_t)kk[i]);
+    }
+    int rc_ok = ok ? pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen) : -1;
+    for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
+    free(U);
+    free(kk);
+    if (rc_ok || train_complete_basis(rc, false, err, errlen)) {
+      if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
+      model_free(m);
+      return NULL;
+    }
+  }
+  model_size_tensors(m);
+  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, false, false, err, errlen)) {
+    model_free(m);
+    return NULL;
+  }
+  return m;
+}
