@@ -46,6 +46,7 @@ void interp_free(RInterp *ip) {
   if (!ip) return;
   free(ip->rows);
   free(ip->pinv);
+  free(ip->weight);
   free(ip->read_q);
   free(ip->read_e);
   free(ip->mono);

@@ -50,8 +50,9 @@ typedef struct RInterp {
   long k;                   /* entries selected, m <= k <= n */
   long m;                   /* the stage's basis size when trained */
   long *rows;               /* k flat entries of the stage */
-  double *pinv;             /* m x k row-major: (P B)⁺ */
-  double pinv_norm;         /* ‖(P B)⁺‖₂: the factor of the error bound */
+  double *pinv;             /* m x k row-major: the fit (W P B)⁺ W */
+  double pinv_norm;         /* ‖(W P B)⁺‖₂: the factor of the error bound */
+  double *weight;           /* k least-squares weights W (training only: not saved, NULL once loaded) */
   long nreads;
   int *read_q;              /* quantity (Program.quantities) of each entry lifted */
   long *read_e;             /* its flat entry */
