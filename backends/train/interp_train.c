@@ -296,3 +296,66 @@ done:
   interp_free(ip);
   return rc;
 }
+
+static bool named(const char *const *list, int n, const char *name) {
+  for (int i = 0; i < n; i++)
+    if (strcmp(list[i], name) == 0) return true;
+  return false;
+}
+
+int interp_open_choices(const Program *prog, int ninterp, const char *const *interp, int ngalerkin,
+                        const char *const *galerkin) {
+  int open = 0;
+  /* an extern's learned model is fitted after the choice is made: the
+   * reduced model cannot be evaluated on held-out samples then (both
+   * reductions fail, Galerkin is kept), so holding samples out would only
+   * take them from training */
+  if (prog->externs.n > 0) return 0;
+  for (int i = 0; i < prog->stages.n; i++) {
+    const Stage *st = prog->stages.v[i];
+    open += lower_interp_eligible(st) && st->sym->reduce == STAGE_REDUCE_DEFAULT &&
+            !named(interp, ninterp, st->sym->name) && !named(galerkin, ngalerkin, st->sym->name);
+  }
+  return open;
+}
+
+Model *interp_train_with_choice(Program *prog, NpgFull *f, const SampleSource *all, const TrainOptions *opt,
+                               Model *chosen, char *err, size_t errlen) {
+  int n = chosen->nstages, ni = 0, ng = 0;
+  const char **ilist = malloc(sizeof(char *) * (size_t)(n + opt->ninterp + 1));
+  const char **glist = malloc(sizeof(char *) * (size_t)(n + opt->ngalerkin + 1));
+  double *errs = malloc(sizeof(double) * (size_t)(2 * n + 1));
+  const char **reason = calloc((size_t)n + 1, sizeof(char *));
+  Model *m = NULL;
+  if (!ilist || !glist || !errs || !reason) {
+    npg_fail(err, errlen, "out of memory");
+    model_free(chosen);
+    goto done;
+  }
+  for (int j = 0; j < opt->ninterp; j++) ilist[ni++] = opt->interp_stage[j];
+  for (int j = 0; j < opt->ngalerkin; j++) glist[ng++] = opt->galerkin_stage[j];
+  for (int i = 0; i < n; i++) { /* stage names belong to the program, which outlives both models */
+    const RStage *rs = &chosen->stages[i];
+    if (!rs->choice_reason || rs->choice_reason == interp_reasons[INTERP_FORCED]) continue;
+    if (rs->interp) ilist[ni++] = rs->st->sym->name;
+    else glist[ng++] = rs->st->sym->name;
+    reason[i] = rs->choice_reason, errs[2 * i] = rs->choice_err[0], errs[2 * i + 1] = rs->choice_err[1];
+  }
+  model_free(chosen); /* before the second training: never both in memory */
+  TrainOptions o = *opt;
+  o.valid = NULL;
+  o.ninterp = ni, o.interp_stage = ilist;
+  o.ngalerkin = ng, o.galerkin_stage = glist;
+  if (!(m = train_model(prog, f, all, &o, err, errlen))) goto done;
+  for (int i = 0; i < n && i < m->nstages; i++) /* the measured errors and reason, not "forced" */
+    if (reason[i]) {
+      m->stages[i].choice_err[0] = errs[2 * i], m->stages[i].choice_err[1] = errs[2 * i + 1];
+      m->stages[i].choice_reason = reason[i];
+    }
+done:
+  free(ilist);
+  free(glist);
+  free(errs);
+  free(reason);
+  return m;
+}
