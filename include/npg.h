@@ -277,7 +277,12 @@ typedef struct NpgTrainOptions {
   void *valid_user;
   double valid_holdout;     /* instead of validation samples, hold out this fraction (0, 0.5] of the
                                samples added — every round(1/F)-th — from training to validate on
-                               (not over MPI ranks); 0: none */
+                               (not over MPI ranks); 0: none; negative (npg_train_options_default's -1):
+                               automatic — when some eligible stage is forced neither way, the program
+                               has no extern (its learned model is fitted after the choice) and at least 30
+                               samples are added, every 10th is held out to choose on, then the model is
+                               trained again on every sample with the choice fixed (twice the training);
+                               otherwise none, and the model is the same as with 0 */
   const char *keep_bases;   /* streamed bases (issue 30): the bases the reduced model never reads (classes
                                of pair quantities that are no input, output or extern: F² rows for F
                                faces) are used in training and not kept in the model; this comma-separated

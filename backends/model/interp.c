@@ -1,5 +1,5 @@
 /* interp.c — interpolated stages at run time and on disk (interp.h,
- * DESIGN §12): ŷ = (P B)⁺ (P y), P y the stage's formula evaluated exactly
+ * DESIGN §12): ŷ = (W P B)⁺ W (P y), P y the stage's formula evaluated exactly
  * at the selected entries from its inputs lifted only where it reads them.
  * Training (backends/train/interp_train.c) selects the entries and builds
  * the tables. */
@@ -34,7 +34,7 @@ void interp_report(const Model *m, FILE *out) {
     if (!rs->interp && !rs->choice_reason) continue;
     fprintf(out, "stage %s: %s", rs->st->sym->name, rs->interp ? "interpolated" : "Galerkin");
     if (rs->interp)
-      fprintf(out, " at %ld of %ld entries (m %ld, ‖(PB)⁺‖ %.3g)", rs->interp->k, m->classes[m->qclass[rs->q]].n,
+      fprintf(out, " at %ld of %ld entries (m %ld, ‖(WPB)⁺‖ %.3g)", rs->interp->k, m->classes[m->qclass[rs->q]].n,
               rs->interp->m, rs->interp->pinv_norm);
     if (rs->choice_reason && rs->choice_reason != interp_reasons[INTERP_FORCED])
       fprintf(out, "; output error on the validation samples by Galerkin %.3e, by interpolation %.3e: %s",
@@ -48,6 +48,7 @@ void interp_free(RInterp *ip) {
   if (!ip) return;
   free(ip->rows);
   free(ip->pinv);
+  free(ip->weight);
   free(ip->read_q);
   free(ip->read_e);
   free(ip->mono);
@@ -110,11 +111,11 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
  *
  * Per interpolated stage y, the manifest line
  *
- *   interp y k K m M reads R monos N norm ‖(PB)⁺‖₂
+ *   interp y k K m M reads R monos N norm ‖(WPB)⁺‖₂
  *
  * and the arrays (integers held exactly as float64, as every array of a model is):
  *   interp_y_rows   K        the selected entries
- *   interp_y_pinv   M x K    (P B)⁺
+ *   interp_y_pinv   M x K    (W P B)⁺ W (the weighted fit)
  *   interp_y_reads  R x 2    (quantity, flat entry) lifted
  *   interp_y_monos  N x (5 + RT_MAX_IN): term, factor, slot, coefficient, inputs, reads (-1 padded) */
 

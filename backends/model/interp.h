@@ -6,14 +6,15 @@
  * exact only when the basis is invariant under the diagonal operators. An
  * interpolated stage instead evaluates its formula exactly at k ≥ m selected
  * entries P of y (Q-DEIM: the first m by QR with column pivoting of Bᵀ,
- * Drmač & Gugercin 2016; the rest by the largest leverage ‖B[e,:]‖ among the
- * entries not yet chosen — oversampled "gappy POD") and takes the
- * least-squares coordinates
+ * Drmač & Gugercin 2016; the rest drawn from the leverage distribution
+ * ‖B[e,:]‖²/m with least-squares weights W, Cohen & Migliorati 2017 —
+ * oversampled "gappy POD", interp_train.c says why weighted) and takes the
+ * weighted least-squares coordinates
  *
- *     ŷ = (P B)⁺ (P y),          ‖y − B ŷ‖ ≤ ‖(P B)⁺‖₂ · ‖y − B Bᵀ y‖
+ *     ŷ = (W P B)⁺ W (P y),   ‖y − B ŷ‖² ≤ ‖r‖² + ‖(W P B)⁺‖₂² ‖W P r‖²,  r = y − B Bᵀ y
  *
- * plus the error of its inputs through the formula. (P B)⁺ (m × k) is formed
- * once at training (QR of P B, R⁻¹ Qᵀ) and stored.
+ * plus the error of its inputs through the formula. (W P B)⁺ W (m × k) is
+ * formed once at training (QR of W P B, R⁻¹ Qᵀ W) and stored.
  *
  * At entry P_s the formula reads a few entries of named quantities: the
  * tensor builders say exactly which (the same streams pre-multiplication
@@ -50,8 +51,9 @@ typedef struct RInterp {
   long k;                   /* entries selected, m <= k <= n */
   long m;                   /* the stage's basis size when trained */
   long *rows;               /* k flat entries of the stage */
-  double *pinv;             /* m x k row-major: (P B)⁺ */
-  double pinv_norm;         /* ‖(P B)⁺‖₂: the factor of the error bound */
+  double *pinv;             /* m x k row-major: the fit (W P B)⁺ W */
+  double pinv_norm;         /* ‖(W P B)⁺‖₂: the factor of the error bound */
+  double *weight;           /* k least-squares weights W (training only: not saved, NULL once loaded) */
   long nreads;
   int *read_q;              /* quantity (Program.quantities) of each entry lifted */
   long *read_e;             /* its flat entry */

@@ -99,12 +99,13 @@ int report_verify_warnings(const Model *m, const double *err, const double *floo
      * reduction is the cause (DESIGN §12), not what it reads */
     bool inputs_at_floor = w < 0 || err[w] <= 1e-12 || (err[w] <= 2 * floor[w] && err[w] <= 0.1 * err[q]);
     if (inputs_at_floor && rs->interp)
-      fprintf(out, " (its inputs are at their floors and it is interpolated at %ld entries with ‖(PB)⁺‖ %.3g: "
+      fprintf(out, " (its inputs are at their floors and it is interpolated at %ld entries with ‖(WPB)⁺‖ %.3g: "
               "interpolate at more, npgc train --interp-oversample X, or try --reduce %s:galerkin)\n",
               rs->interp->k, rs->interp->pinv_norm, rs->st->sym->name);
     else if (inputs_at_floor && lower_interp_eligible(rs->st))
       fprintf(out, " (its inputs are at their floors and every operator of it is diagonal: reduce it by "
-              "interpolation, npgc train --reduce %s:interp, or let training choose with --valid DIR)\n",
+              "interpolation, npgc train --reduce %s:interp, or let training choose: with 30 samples or more it does "
+              "unless --valid none, or give --valid DIR)\n",
               rs->st->sym->name);
     else if (w >= 0)
       fprintf(out, " (it reads %s with error %.2e: a larger basis for it, --basis %s:cap=N; or name an "

@@ -656,7 +656,7 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
     if (interp_train_stage(m, f, i, over, err, errlen)) return -1;
     m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
     if (opt->progress)
-      fprintf(stderr, "stage %s interpolated: %ld of %ld entries (m %ld), ‖(PB)⁺‖ %.3g\n", opt->interp_stage[j],
+      fprintf(stderr, "stage %s interpolated: %ld of %ld entries (m %ld), ‖(WPB)⁺‖ %.3g\n", opt->interp_stage[j],
               m->stages[i].interp->k, m->classes[m->qclass[m->stages[i].q]].n, m->stages[i].interp->m,
               m->stages[i].interp->pinv_norm);
   }

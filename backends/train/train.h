@@ -55,15 +55,12 @@ typedef struct TrainOptions {
                                quantities or classes, "all" for every one; NULL: none */
 } TrainOptions;
 
-/* Selected entries per basis vector of an interpolated stage when not given
- * (bench/interp.md, k = X·m): at 16 the stage's error is within 1.04x of
- * its projection floor on softened gravity (two softenings), Lennard-Jones
- * and springs, against 1.1-6.3x at 2-8; at 32 the stage gains at most 3 %
- * more, but the output, which reads the stage's entries through a sum over
- * every body, gains 1.2-2.1x more (gravity at eps² 0.01: 0.490 -> 0.262;
- * in the regime where Galerkin is 8x above the output's floor, 3.3x -> 1.6x
- * the floor), and the reduced evaluation still takes 1.1-1.6x the Galerkin
- * one's time (the issue's bound: 2x). */
+/* Draws per basis vector of an interpolated stage when not given
+ * (bench/interp.md, k = X·m draws, fewer distinct entries): weighted, at 8
+ * the output is within 1.02x of its floor in the small-motion gravity rows
+ * and at 32 too, but at 32 springs reach their floor (1.00x against 1.07x),
+ * Lennard-Jones and large-motion gravity gain 3-18 % more, and the reduced
+ * evaluation still takes 0.2-0.5x the Galerkin one's time at 64 bodies. */
 #define TRAIN_INTERP_OVERSAMPLE 32.0
 
 /* The source of samples: sets every input and extern of sample k. */
@@ -153,6 +150,31 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
  * `err` (the stage not eligible, the selected rows rank deficient, out of
  * memory). */
 int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen);
+
+/* The stages of `prog` whose reduction is open to a choice: eligible for
+ * interpolation and forced neither by the program (`reduce interp|galerkin`)
+ * nor by the named lists; 0 for a program with externs (their learned model
+ * is fitted after the choice, so it cannot be validated). Training holds
+ * samples out to choose only when there is one (TRAIN_HOLDOUT_*): a program
+ * without one trains as before. */
+int interp_open_choices(const Program *prog, int ninterp, const char *const *interp, int ngalerkin,
+                        const char *const *galerkin);
+
+/* The automatic hold-out (NpgTrainOptions.valid_holdout < 0, the default):
+ * every TRAIN_HOLDOUT_STRIDE-th sample validates the choice when the program
+ * has an open choice and at least TRAIN_HOLDOUT_MIN samples are given (so at
+ * least 3 validate); then the model is trained again on every sample with
+ * the choice fixed (interp_train_with_choice; README "Interpolated stages"
+ * says why). */
+#define TRAIN_HOLDOUT_STRIDE 10
+#define TRAIN_HOLDOUT_MIN 30
+
+/* The model trained on every sample of `all` with `opt`, each stage whose
+ * reduction `chosen` (trained on part of them, validated on the rest) chose
+ * forced the way it chose, its measured errors and reason kept for the
+ * reports. Frees `chosen`. NULL with `err`. */
+Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all, const TrainOptions *opt,
+                               Model *chosen, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- out-of-core bases (ooc.c) */
 

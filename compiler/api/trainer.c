@@ -79,6 +79,7 @@ void npg_train_options_default(NpgTrainOptions *o) {
   o->cap = 60;
   o->energy = 0.999;
   o->mem = half_the_ram();
+  o->valid_holdout = -1; /* automatic: DESIGN §12 */
 }
 
 /* Options out of their documented range are refused, naming the field, not
@@ -644,8 +645,17 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   SampleSource src = {t->samples, t, replay, replay_part, share_samples};
   Holdout hold = {t, 0};
   SampleSource held = {0};
-  if (t->opt.valid_holdout != 0) {
-    double F = t->opt.valid_holdout;
+  double F = t->opt.valid_holdout;
+  bool retrain = F < 0;
+  if (F < 0) /* automatic: only where a stage's reduction is open to a choice (else the model is as before) */
+    F = t->opt.valid_count == 0 && !t->opt.mpi && t->samples >= TRAIN_HOLDOUT_MIN &&
+                interp_open_choices(t->prog, t->opt.ninterp, t->opt.interp_stage, t->opt.ngalerkin,
+                                    t->opt.galerkin_stage) > 0
+            ? 1.0 / TRAIN_HOLDOUT_STRIDE
+            : 0;
+  retrain &= F != 0;
+  SampleSource all = src;
+  if (F != 0) {
     if (!(F > 0 && F <= 0.5) || t->opt.valid_count > 0 || t->opt.mpi) {
       tfail(t, "NpgTrainOptions.valid_holdout %g: %s", F,
             !(F > 0 && F <= 0.5) ? "must be in (0, 0.5]"
@@ -665,6 +675,8 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   }
   char err[2048] = "";
   Model *m = train_model((Program *)t->prog, t->f->full, &src, &o, err, sizeof err);
+  /* the automatic choice made, every sample trains the model (DESIGN §12) */
+  if (m && retrain) m = interp_train_with_choice((Program *)t->prog, t->f->full, &all, &o, m, err, sizeof err);
   /* over ranks, the others wait for this one in a collective: end the job */
   if (!m && t->opt.mpi && dist_size() > 1) dist_abort("%s", err);
   if (!m) {

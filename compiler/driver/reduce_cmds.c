@@ -215,7 +215,10 @@ static int parse(Common *c, int argc, char **argv) {
       char *end, ferr[256];
       double F;
       c->valid = v;
-      if (strtod(v, &end) && end != v && *end == 0) { /* a number: the fraction */
+      if (strcmp(v, "none") == 0) { /* no choice: every eligible stage not forced is reduced by Galerkin */
+        c->train.valid_holdout = 0;
+        c->valid = NULL;
+      } else if (strtod(v, &end) && end != v && *end == 0) { /* a number: the fraction */
         if (npg_parse_double(v, 0, 0.5, true, &F, ferr, sizeof ferr) != 0)
           snprintf(a.error, sizeof a.error, "%s: --valid %s (a fraction of DATA/'s samples, or a folder)", prog, ferr);
         c->train.valid_holdout = F;
@@ -383,7 +386,10 @@ static int cmd_train(Common *c) {
   else {
     double sec[4], cpu[4];
     npg_model_train_seconds(m, sec, cpu);
-    printf("trained %s on %ld samples in %.2f s -> %s\n", c->prog_path, npg_samples_count(s), now() - t0, c->out);
+    printf("trained %s on %ld samples in %.2f s -> %s\n", c->prog_path, npg_model_samples(m), now() - t0, c->out);
+    if (npg_model_samples(m) < npg_samples_count(s))
+      printf("%ld of the %ld samples held out of training to choose how each eligible stage is reduced\n",
+             npg_samples_count(s) - npg_model_samples(m), npg_samples_count(s));
     printf("phases: snapshots %.2f s, bases %.2f s, pre-multiplication %.2f s, externs %.2f s (cpu %.2f %.2f %.2f "
            "%.2f s)\n", sec[0], sec[1], sec[2], sec[3], cpu[0], cpu[1], cpu[2], cpu[3]);
     npg_model_report(m, stdout);

@@ -97,7 +97,7 @@ D=tests/programs/deforming_springs.npg
 /usr/bin/python3 tests/cli/deforming_springs_data.py "$W/MTRAIN" 60 7
 /usr/bin/python3 tests/cli/deforming_springs_data.py "$W/MTEST" 20 8
 for c in on off; do
-  "$B/npgc" train $D "$W/MTRAIN" -o "$W/MESH$c" --center $c >/dev/null || fail "train the mesh, --center $c"
+  "$B/npgc" train $D "$W/MTRAIN" -o "$W/MESH$c" --center $c --valid none >/dev/null || fail "train the mesh, --center $c"
   "$B/npgc" verify $D "$W/MESH$c" "$W/MTEST" --tol 10 >"$W/mesh$c.txt" || fail "verify the mesh, --center $c"
 done
 on=$(awk '$1 == "f" { print $4 }' "$W/meshon.txt"); off=$(awk '$1 == "f" { print $4 }' "$W/meshoff.txt")

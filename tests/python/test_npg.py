@@ -585,10 +585,13 @@ def test_interpolated_stages(tmp_path, npgc, root):
     forced = train("PI", interp=["w"], interp_oversample=2)
     npgc("train", prog_path, tmp_path / "TRAIN", "-o", tmp_path / "CI", "--reduce", "w:interp", "--interp-oversample", "2")
     same_model(tmp_path / "PI", tmp_path / "CI")
-    assert forced.interpolated("w") == 18  # 2 x m 9 entries, as tests/cli/interp.sh reads in npgc train's report
+    # 2 x m 9 draws: the 9 pivoted entries and 9 by leverage, the distinct ones counted (as
+    # tests/cli/interp.sh reads in npgc train's report)
+    k = forced.interpolated("w")
+    assert 9 < k <= 18
     assert forced.interpolated("r2") is None  # not eligible: Galerkin
-    assert npg.load(prog, str(tmp_path / "CI")).interpolated("w") == 18
-    assert "stage w: interpolated at 18 of 64 entries" in forced.reductions()
+    assert npg.load(prog, str(tmp_path / "CI")).interpolated("w") == k
+    assert f"stage w: interpolated at {k} of 64 entries" in forced.reductions()
     with pytest.raises(npg.Error, match="no stage 'x'"):
         forced.interpolated("x")
 
