@@ -558,14 +558,14 @@ void drop_bases(Model *m) {
   }
 }
 
-static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram,
+static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, int nx,
                               bool floors, double *proj, double *y, bool progress, bool dist, char *err, size_t errlen);
 
-/* Step 4: every extern's learned map (paper §8.3): the training samples'
- * reduced inputs and values, from the snapshots or, after the method of
- * snapshots, recomputed; with `floors`, in the same pass the streamed
- * classes' training floors (take_floors). */
-int fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
+/* Step 4: with `externs` every extern's learned map (paper §8.3): the
+ * training samples' reduced inputs and values, from the snapshots or, after
+ * the method of snapshots, recomputed; with `floors`, in the same pass the
+ * streamed classes' training floors (take_floors). */
+int fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool externs, bool floors,
                 bool progress, bool dist, char *err, size_t errlen) {
   long maxn = 1, maxm = 1;
   for (int c = 0; floors && c < m->nclasses; c++)
@@ -573,28 +573,29 @@ int fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn,
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
   double *y = floors ? malloc(sizeof(double) * (size_t)maxn) : NULL, *proj = floors ? malloc(sizeof(double) * (size_t)maxm) : NULL;
   int rc = floors && (!y || !proj) ? npg_fail(err, errlen, "out of memory measuring the training floors")
-                                     : fit_externs_floors(m, f, src, sn, gram, floors, proj, y, progress, dist, err, errlen);
+                                     : fit_externs_floors(m, f, src, sn, gram, externs ? m->nexterns : 0, floors, proj, y,
+                                                          progress, dist, err, errlen);
   free(y);
   free(proj);
   return rc;
 }
 
-static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
-                              double *proj, double *y, bool progress, bool dist, char *err, size_t errlen) {
+static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, int nx,
+                              bool floors, double *proj, double *y, bool progress, bool dist, char *err, size_t errlen) {
   long S = src->count;
   /* recomputed over ranks (out of core): rank r its samples k ≡ r (mod N),
    * the others' rows zero, then summed */
   int N = gram && dist ? dist_size() : 1, rank = N > 1 ? dist_rank() : 0;
-  for (int i = 0; i < m->nexterns; i++) {
+  for (int i = 0; i < nx; i++) {
     RExtern *x = &m->externs[i];
     long mz = m->classes[m->qclass[x->q]].m;
     x->S = S;
     if (!(x->X = npg_calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = npg_calloc((size_t)(S * mz) + 1, sizeof(double))))
       return npg_fail(err, errlen, "out of memory while training");
   }
-  for (long k = rank; k < S && (m->nexterns > 0 || floors); k += N) {
+  for (long k = rank; k < S && (nx > 0 || floors); k += N) {
     if (gram && train_eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
-    for (int i = 0; i < m->nexterns; i++) {
+    for (int i = 0; i < nx; i++) {
       RExtern *x = &m->externs[i];
       long mz = m->classes[m->qclass[x->q]].m, off = 0;
       for (int j = 0; j <= x->nin; j++) {
@@ -614,7 +615,7 @@ static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const 
     if (floors) take_floors(m, f, sn, gram, k, S, proj, y);
     if (gram) progress_show(progress, floors ? "extern samples, floors" : "extern samples", k + 1, S);
   }
-  for (int i = 0; N > 1 && i < m->nexterns; i++) {
+  for (int i = 0; N > 1 && i < nx; i++) {
     RExtern *x = &m->externs[i];
     dist_allreduce_sum(x->X, S * x->d);
     dist_allreduce_sum(x->Z, S * m->classes[m->qclass[x->q]].m);
@@ -704,10 +705,17 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   if (bases(m, f, src, opt, &sn, &gram, clock, err, errlen)) goto fail;
   phase_end(clock, m, PHASE_BASES);
   if (premultiply_all(m, f, opt->progress, opt->dist, err, errlen)) goto fail;
+  /* the choice on validation samples (DESIGN §12) measures the reduced model, its externs' learned
+   * maps included: with both, they are fitted first (they read the bases, not the reductions), and
+   * the streamed classes' floors, known only once the choice is made, take a pass of their own */
+  bool externs_first = opt->valid && m->nexterns > 0;
+  if (externs_first && fit_externs(m, f, src, &sn, gram, true, false, opt->progress, opt->dist, err, errlen)) goto fail;
   if (train_interpolate_stages(m, f, opt, err, errlen)) goto fail;
   phase_end(clock, m, PHASE_PREMULTIPLY);
   bool floors = mark_streamed(m, opt); /* the reductions chosen: which bases are streamed is known */
-  if (fit_externs(m, f, src, &sn, gram, floors, opt->progress, opt->dist, err, errlen)) goto fail;
+  if ((!externs_first || floors) &&
+      fit_externs(m, f, src, &sn, gram, !externs_first, floors, opt->progress, opt->dist, err, errlen))
+    goto fail;
   drop_bases(m);
   phase_end(clock, m, PHASE_EXTERNS);
   if (opt->progress)

@@ -138,7 +138,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     }
   }
   model_size_tensors(m);
-  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, false, false, false, err, errlen)) {
+  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, true, false, false, false, err, errlen)) {
     model_free(m);
     return NULL;
   }

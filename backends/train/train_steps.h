@@ -29,9 +29,10 @@ int take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOption
                    bool *gram, char *err, size_t errlen);
 /* Step 3: the projections between classes and every tensor pre-multiplied. */
 int premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err, size_t errlen);
-/* Step 4: every extern's learned map from the snapshots (or, `gram`,
- * recomputed); with `floors` the streamed classes' training floors. */
-int fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool floors,
+/* Step 4: with `externs` every extern's learned map from the snapshots
+ * (or, `gram`, recomputed), with `floors` the streamed classes' training
+ * floors, in one pass over the samples. */
+int fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool externs, bool floors,
                 bool progress, bool dist, char *err, size_t errlen);
 
 /* Streamed bases (issue 30; train.c), shared with the tune sample set:
