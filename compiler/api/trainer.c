@@ -590,6 +590,25 @@ static int replay_held(void *user, NpgFull *f, long j) {
   return replay(h->t, f, j * h->stride + h->stride - 1);
 }
 
+/* Whether a param's value changed during training (`before`: api_param_hashes then): only a
+ * validation sample can do it (valid_set setting a param with npg_full_set), and the model would
+ * then be trained with one value and validated with another. Names the param in t->error. */
+static bool params_changed(NpgTrainer *t, const char *before) {
+  char *after = api_param_hashes(t->f);
+  if (!after) return tfail(t, "out of memory"), true;
+  /* "name=hash" per param, space-separated, in the program's order in both */
+  const char *a = before, *b = after;
+  for (int i = 0; i < t->prog->params.n && !t->error[0]; i++) {
+    size_t la = strcspn(a, " "), lb = strcspn(b, " ");
+    if (la != lb || strncmp(a, b, la) != 0)
+      tfail(t, "NpgTrainOptions.valid_set changed param '%s': a validation sample holds inputs and externs only "
+               "(the params are the trainer's)", ((Sym *)t->prog->params.v[i])->name);
+    a += la + (a[la] == ' '), b += lb + (b[lb] == ' ');
+  }
+  free(after);
+  return t->error[0] != 0;
+}
+
 NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   REFUSE_NULL_T(NULL);
   /* over ranks the others would wait for this one in a collective: end the job */
@@ -663,18 +682,27 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
     o.valid = &held;
   }
   char err[2048] = "";
-  Model *m = train_model((Program *)t->prog, t->f, &src, &o, err, sizeof err);
-  /* over ranks, the others wait for this one in a collective: end the job */
-  if (!m && t->opt.mpi && dist_size() > 1) dist_abort("%s", err);
-  if (!m) {
-    tfail(t, "%s", err);
-    return NULL;
-  }
-  if (!(m->param_hashes = api_param_hashes(t->f))) {
-    model_free(m);
+  /* the params the samples are replayed with, recorded before any validation sample is set: a
+   * valid_set that sets a param would otherwise leave its hash in the model (trial3) */
+  char *params = api_param_hashes(t->f);
+  if (!params) {
     tfail(t, "out of memory");
     return NULL;
   }
+  Model *m = train_model((Program *)t->prog, t->f, &src, &o, err, sizeof err);
+  if (m && params_changed(t, params)) {
+    model_free(m);
+    m = NULL;
+    snprintf(err, sizeof err, "%s", t->error);
+  }
+  /* over ranks, the others wait for this one in a collective: end the job */
+  if (!m && t->opt.mpi && dist_size() > 1) dist_abort("%s", err);
+  if (!m) {
+    free(params);
+    tfail(t, "%s", err);
+    return NULL;
+  }
+  m->param_hashes = params;
   NpgModel *nm = api_model_wrap(m);
   if (!nm) {
     tfail(t, "out of memory");

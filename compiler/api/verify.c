@@ -137,6 +137,12 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
       rc = vfail(rep, "%s", npg_full_error(f));
       break;
     }
+    /* `set` may set a param too (npg_full_set takes one): the model would then be compared with
+     * a full evaluation of other params (trial3) */
+    if (npg_model_check_params(nm, f, rep->error, sizeof rep->error) != 0) {
+      rc = -1;
+      break;
+    }
     for (int q = 0; q < m->nq; q++)
       if (((Sym *)m->prog->quantities.v[q])->kind == SYM_INPUT)
         reduced_project(r, q, npg_full_get(f, ((Sym *)m->prog->quantities.v[q])->name, NULL));

@@ -204,7 +204,7 @@ int npgpy_samples_set(void *user, NpgFull *f, long k) {
   return 0;
 }
 
-int npgpy_samples(PyObject *dict, const char *who, const char *arg, NpgpySamples *t) {
+int npgpy_samples(const ProgramObject *prog, PyObject *dict, const char *who, const char *arg, NpgpySamples *t) {
   memset(t, 0, sizeof *t);
   t->arg = arg;
   Py_ssize_t n = PyDict_GET_SIZE(dict);
@@ -217,6 +217,12 @@ int npgpy_samples(PyObject *dict, const char *who, const char *arg, NpgpySamples
   for (Py_ssize_t pos = 0; PyDict_Next(dict, &pos, &key, &value);) {
     const char *name = PyUnicode_AsUTF8(key);
     if (!name) return npgpy_samples_free(t), -1;
+    for (int i = 0; i < prog->nsym; i++) /* a param would rebind the evaluator for every later use (trial3) */
+      if (prog->sym[i].kind == NPG_PARAM && strcmp(prog->sym[i].name, name) == 0) {
+        PyErr_Format(npgpy_Error, "%s: %s['%s'] is a param: samples hold inputs and externs (the params are the "
+                                  "evaluator's, bound by program.full(params=...) or full.bind)", who, arg, name);
+        return npgpy_samples_free(t), -1;
+      }
     char what[256];
     snprintf(what, sizeof what, "%s: %s['%s']", who, arg, name);
     PyArrayObject *a = npgpy_values(value, what);
@@ -275,7 +281,7 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
   if (full->prog != self->prog) return PyErr_Format(npgpy_Error, "verify: full evaluates another program");
   NpgpySamples t;
   PyObject *res = NULL;
-  if (npgpy_samples(test, "verify", "test", &t) != 0) return NULL;
+  if (npgpy_samples(self->prog, test, "verify", "test", &t) != 0) return NULL;
   if (npgpy_busy_mine(&full->busy)) {
     PyErr_SetString(npgpy_Error, "verify: called from an extern callable of the evaluator");
     goto done;

@@ -106,8 +106,9 @@ typedef struct NpgpySamples {
   PyArrayObject **a;
   char (*from)[128];
 } NpgpySamples;
-/* 0, or -1 with an exception naming `who` and `arg` (no sample axis, counts that differ, none). */
-int npgpy_samples(PyObject *dict, const char *who, const char *arg, NpgpySamples *out);
+/* 0, or -1 with an exception naming `who` and `arg` (no sample axis, counts that differ, none, a
+ * name that is one of `prog`'s params: setting it would rebind the evaluator). */
+int npgpy_samples(const ProgramObject *prog, PyObject *dict, const char *who, const char *arg, NpgpySamples *out);
 int npgpy_samples_set(void *user, NpgFull *f, long k);
 void npgpy_samples_free(NpgpySamples *t);
 
