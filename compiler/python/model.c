@@ -139,7 +139,7 @@ static PyObject *model_save(ModelObject *self, PyObject *dir) {
 
 /* model.basis(name) -> n x m read-only view of the basis of name's class */
 static PyObject *model_basis(ModelObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Model.basis");
   if (!name) return NULL;
   int c = npg_model_class_of(self->m, name);
   if (c < 0) return PyErr_Format(npgpy_Error, "the model has no basis for '%s'", name);
@@ -162,7 +162,7 @@ static PyObject *model_basis(ModelObject *self, PyObject *arg) {
 
 /* model.interpolated(stage): how training reduced it (DESIGN §12; npg_model_stage_interpolated) */
 static PyObject *model_interpolated(ModelObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Model.interpolated");
   if (!name) return NULL;
   long entries = 0;
   int how = npg_model_stage_interpolated(self->m, name, &entries);
@@ -175,7 +175,7 @@ static PyObject *model_reductions(ModelObject *self, PyObject *unused) {
 }
 
 static PyObject *model_dim_method(ModelObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Model.dim");
   return name ? PyLong_FromLong(npg_model_dim(self->m, name)) : NULL;
 }
 
@@ -564,7 +564,7 @@ static PyObject *reduced_lift(ReducedObject *self, PyObject *args, PyObject *kw)
 
 /* red.coords(name) -> a copy of any quantity's reduced coordinates */
 static PyObject *reduced_coords(ReducedObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Reduced.coords");
   if (!name || !quantity(self, name)) return NULL;
   npgpy_busy_enter(&self->busy);
   size_t m = 0;
@@ -608,7 +608,7 @@ static PyObject *reduced_set_coords(ReducedObject *self, PyObject *args) {
 
 /* red.op(name) -> the reduced `output op` matrix B_rowᵀ M B_col (rows x cols) */
 static PyObject *reduced_op(ReducedObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Reduced.op");
   if (!name) return NULL;
   size_t cap = 0;
   for (int c = 0; c < npg_model_nclasses(self->model->m); c++) {

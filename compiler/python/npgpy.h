@@ -57,6 +57,9 @@ PyArrayObject *npgpy_values(PyObject *obj, const char *what);
 void npgpy_long_shape(PyArrayObject *a, long *shape);
 /* A library message as npg.Error (or `type`). Returns NULL. */
 PyObject *npgpy_raise(PyObject *type, const char *msg);
+/* The name a one-argument method was given, as UTF-8; NULL with a TypeError naming `method`
+ * ("Model.interpolated") when it is not a str. */
+const char *npgpy_name(PyObject *arg, const char *method);
 /* ValueError with a printf message (PyErr_Format has no %g); NULL. */
 PyObject *npgpy_value_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 /* The shape of symbol `s` with its dims sized by `dim(ctx, name)` (-1 if

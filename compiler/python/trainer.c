@@ -191,15 +191,20 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   PyObject *full, *center = Py_True, *joint = Py_False, *progress = Py_False, *mem = Py_None, *basis = Py_None;
   PyObject *interp = Py_None, *galerkin = Py_None, *valid = Py_None;
   double oversample = 0, holdout = 0;
-  const char *keep = NULL;
+  PyObject *keepo = Py_None;
   PyObject *capo = NULL;
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|dOOOOOOz$OOdOd:Trainer", kwlist, &npgpy_FullType, &full, &o.energy,
-                                   &capo, &center, &mem, &joint, &progress, &basis, &keep, &interp, &galerkin,
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|dOOOOOOO$OOdOd:Trainer", kwlist, &npgpy_FullType, &full, &o.energy,
+                                   &capo, &center, &mem, &joint, &progress, &basis, &keepo, &interp, &galerkin,
                                    &oversample, &valid, &holdout))
     return -1;
   if (capo && cap_value(capo, "cap", &o.cap) != 0) return -1;
+  if (keepo != Py_None && !PyUnicode_Check(keepo))
+    return PyErr_Format(PyExc_TypeError, "Trainer: keep_bases must be a str ('h,m_r' or 'all'), not %s",
+                        Py_TYPE(keepo)->tp_name), -1;
+  const char *keep = keepo == Py_None ? NULL : PyUnicode_AsUTF8(keepo);
+  if (keepo != Py_None && !keep) return -1;
   if (self->t) {
     PyErr_SetString(PyExc_RuntimeError, "Trainer: already initialized");
     return -1;

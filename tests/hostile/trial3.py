@@ -77,9 +77,6 @@ KNOWN_FAILURES = {
     "stream_mem_merged_class_eval": OOC,
     "stream_mem_shared_full_rank": OOC,
     "stream_mem_shared_full_rank_eval": OOC,
-    "py_interpolated_none_argument": "'bad argument type for built-in operation'",
-    "py_interpolated_int_argument": "'bad argument type for built-in operation'",
-    "py_keep_bases_list": "'Trainer() argument 9 must be str or None'",
 }
 
 
