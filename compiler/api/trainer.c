@@ -674,7 +674,8 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
     hold.stride = lround(1 / F);
     long nheld = t->samples / hold.stride;
     if (nheld < 1) {
-      tfail(t, "NpgTrainOptions.valid_holdout %g of %ld samples holds none out: add samples", F, t->samples);
+      tfail(t, "--valid %g (NpgTrainOptions.valid_holdout) holds out one sample in %ld, none of %ld: give a "
+               "fraction of at least %.3g, or more samples", F, hold.stride, t->samples, 1.0 / (double)t->samples);
       return NULL;
     }
     src = (SampleSource){t->samples - nheld, &hold, replay_training, replay_training_part, NULL};

@@ -70,7 +70,6 @@ KNOWN_FAILURES = {
     "sparse_power_cube_root_indefinite": "the sparse root's refusal says 'stopped after 0 steps (estimate inf)'",
     "sparse_power_two_thirds_indefinite": "the sparse root's refusal says 'stopped after 0 steps (estimate inf)'",
     "sparse_power_inv_three_halves_indefinite": "the sparse root's refusal says 'stopped after 0 steps (estimate inf)'",
-    "interp_valid_fraction_none_held": "names NpgTrainOptions.valid_holdout, not --valid",
     "stream_verify_advice_not_misleading": "a streamed input's unknown error: advice to enlarge an exact basis",
     "stream_verify_advice_names_streamed": "a streamed input's unknown error: advice to enlarge an exact basis",
     "stream_mem_merged_class_rank": OOC,
