@@ -70,8 +70,6 @@ KNOWN_FAILURES = {
     "sparse_power_cube_root_indefinite": "the sparse root's refusal says 'stopped after 0 steps (estimate inf)'",
     "sparse_power_two_thirds_indefinite": "the sparse root's refusal says 'stopped after 0 steps (estimate inf)'",
     "sparse_power_inv_three_halves_indefinite": "the sparse root's refusal says 'stopped after 0 steps (estimate inf)'",
-    "stream_verify_advice_not_misleading": "a streamed input's unknown error: advice to enlarge an exact basis",
-    "stream_verify_advice_names_streamed": "a streamed input's unknown error: advice to enlarge an exact basis",
     "stream_mem_merged_class_rank": OOC,
     "stream_mem_merged_class_eval": OOC,
     "stream_mem_shared_full_rank": OOC,
