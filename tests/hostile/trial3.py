@@ -66,10 +66,6 @@ CASES = []
 # name -> reason; reported, not failed. Each fixed case leaves this list in the commit that fixes it.
 OOC = "out-of-core merge of a class whose members' vectors outnumber its rows (backends/train/ooc.c)"
 KNOWN_FAILURES = {
-    "sparse_power_inv_sqrt_indefinite": "the sparse root's refusal says 'stopped after 0 steps (estimate inf)'",
-    "sparse_power_cube_root_indefinite": "the sparse root's refusal says 'stopped after 0 steps (estimate inf)'",
-    "sparse_power_two_thirds_indefinite": "the sparse root's refusal says 'stopped after 0 steps (estimate inf)'",
-    "sparse_power_inv_three_halves_indefinite": "the sparse root's refusal says 'stopped after 0 steps (estimate inf)'",
     "stream_mem_merged_class_rank": OOC,
     "stream_mem_merged_class_eval": OOC,
     "stream_mem_shared_full_rank": OOC,
