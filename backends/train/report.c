@@ -129,6 +129,13 @@ int report_verify_warnings(const Model *m, const double *err, const double *floo
         fprintf(out, ", and %s may be reduced by interpolation: --reduce %s:interp, or let training choose with "
                 "--valid DIR", wn, wn);
       fputs(")\n", out);
+    } else if (w >= 0 && ((Sym *)m->prog->quantities.v[w])->kind == SYM_EXTERN && err[w] > 3 * floor[w]) {
+      /* an extern's error above its floor is its learned map's (paper §8.3), which a larger basis
+       * does not lower (trial3: "--basis v:cap=N" for v at a floor of 2e-16) */
+      const char *wn = ((Sym *)m->prog->quantities.v[w])->name;
+      fprintf(out, " (it reads extern %s, whose learned map has error %.2e against a floor of %.2e: train on more "
+              "samples like these, or give %s's values to the reduced evaluator, npg_reduced_given_externs)\n",
+              wn, err[w], floor[w], wn);
     } else if (w >= 0)
       fprintf(out, " (it reads %s with error %.2e: a larger basis for it, --basis %s:cap=N; or name an "
               "intermediate to give it a basis, or inline one)\n",

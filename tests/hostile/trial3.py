@@ -493,6 +493,9 @@ def interp_cases():
          "", stream="out", check=text_lacks("both fail"))
     case("interp_valid_holdout_with_extern", ["npgc", "train", "ip/ext.npg", "ip/ED", "-o", "ip/ME2", "--valid", "0.2"],
          0, "", stream="out", check=text_lacks("both fail"))
+    npgc_ok("train", "ip/ext.npg", "ip/ED", "-o", "ip/MEG")
+    case("interp_verify_extern_advice", ["npgc", "verify", "ip/ext.npg", "ip/MEG", "ip/EV", "--tol", "1"], 0,
+         "learned map", stream="out", check=text_lacks("--basis v:cap"))
     case("interp_tune_with_extern", ["npgc", "tune", "ip/ext.npg", "ip/ED", "ip/EV", "--tol", "0.5", "-o", "ip/MTE",
                                      "--png", "out/tune_ext.png"], 0, "", stream="out", check=text_lacks("both fail"),
          timeout=300)
