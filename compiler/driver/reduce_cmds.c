@@ -383,7 +383,10 @@ static int cmd_train(Common *c) {
   else {
     double sec[4], cpu[4];
     npg_model_train_seconds(m, sec, cpu);
-    printf("trained %s on %ld samples in %.2f s -> %s\n", c->prog_path, npg_samples_count(s), now() - t0, c->out);
+    long held = npg_samples_count(s) - npg_model_samples(m); /* --valid F: held out to validate on */
+    printf("trained %s on %ld samples", c->prog_path, npg_model_samples(m));
+    if (held > 0) printf(" (%ld more of DATA/ held out to validate on)", held);
+    printf(" in %.2f s -> %s\n", now() - t0, c->out);
     printf("phases: snapshots %.2f s, bases %.2f s, pre-multiplication %.2f s, externs %.2f s (cpu %.2f %.2f %.2f "
            "%.2f s)\n", sec[0], sec[1], sec[2], sec[3], cpu[0], cpu[1], cpu[2], cpu[3]);
     npg_model_report(m, stdout);

@@ -401,7 +401,8 @@ def interp_cases():
     # --valid F: every round(1/F)-th sample held out; one that holds none out is refused naming --valid
     case("interp_valid_fraction_none_held", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/M1", "--valid", "0.01"],
          1, "--valid 0.01")
-    case("interp_valid_fraction_dot", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/M2", "--valid", ".5"], 0, "",
+    case("interp_valid_fraction_dot", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/M2", "--valid", ".5"], 0,
+         "on 20 samples (20 more", stream="out",
          check=lambda p: None if "samples 20" in open(path("ip/M2/manifest")).read() else "not 20 samples trained")
     case("interp_valid_fraction_exponent", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/M3", "--valid",
                                             "2.5e-1"], 0, "",
