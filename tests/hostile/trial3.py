@@ -282,6 +282,31 @@ def sparse_cases():
         return None
     case("sparse_output_op_csr", ["npgc", "eval", "sp/out_op.npg", "--full", "sp/D_grid", "sp/D_grid", "-o",
                                   "out/sp_op"], 0, "", check=csr_equals)
+    # index-table and stencil conditions the enumerator solves for the column, as products A x against numpy
+    K3 = 3
+    tab = RNG.integers(-1, 20, size=(20, K3))
+    cc = 1 + RNG.random(20)
+    xs = RNG.normal(size=(3, 20))
+    data_dir("sp/D_st", {"nbr": tab, "c": cc, "x": xs})
+    forms = {
+        "eq_reversed": ("sum(k = 0..2, if(j == nbr[i, k], c[j], 0))", lambda i, j: sum(cc[j] for k in range(K3) if j == tab[i, k])),
+        "transposed": ("sum(k = 0..2, if(nbr[j, k] == i, c[i], 0))", lambda i, j: sum(cc[i] for k in range(K3) if tab[j, k] == i)),
+        "shift": ("if(j == i + 1, c[i], 0)", lambda i, j: cc[i] * (j == i + 1)),
+        "half": ("if(2 * j == i, c[i], 0)", lambda i, j: cc[i] * (2 * j == i)),
+        "square": ("if(j * j == i, c[i], 0)", lambda i, j: cc[i] * (j * j == i)),
+        "antidiagonal": ("if(i + j == N - 1, c[i], 0)", lambda i, j: cc[i] * (i + j == 19)),
+        "delta_shift": ("delta(j, i - 1) * c[i]", lambda i, j: cc[i] * (j == i - 1)),
+        "out_of_range_shift": ("if(j == i - 25, c[i], 0)", lambda i, j: 0.0),
+        "both_ways": ("sum(k = 0..2, if(nbr[i, k] == j, c[j], 0) + if(nbr[j, k] == i, c[i], 0))",
+                      lambda i, j: sum(cc[j] * (tab[i, k] == j) + cc[i] * (tab[j, k] == i) for k in range(K3))),
+    }
+    for name, (e, fn) in forms.items():
+        write("sp/st_%s.npg" % name, "dim N\nparam nbr : int[N, 3]\nparam c : real[N]\ninput x : real[N]\n"
+                                     "op A[i:N, j:N] = delta(i, j) + %s\noutput u = A * x\n" % e)
+        A = np.eye(20) + np.array([[fn(i, j) for j in range(20)] for i in range(20)], dtype=float)
+        case("sparse_stencil_" + name, ["npgc", "eval", "sp/st_%s.npg" % name, "--full", "sp/D_st", "sp/D_st", "-o",
+                                        "out/sp_st_" + name], 0, "",
+             check=out_equals("out/sp_st_%s/u.npy" % name, xs @ A.T, 1e-13))
     # 900 cells, each sample's solve against numpy
     big = grid(30, 30)
     kb = 0.2 + RNG.random((2, 900))
@@ -299,6 +324,19 @@ def sparse_cases():
     data_dir("sp/TR", {"nbr": nbr, "src": src, "kappa": ktr})
     data_dir("sp/TE", {"nbr": nbr, "src": src, "kappa": kte})
     npgc_ok("train", "sp/spd.npg", "sp/TR", "-o", "sp/M", "--energy", "0.999999")
+    # the reduced output op equals B^T K B with the kept basis of u, for every sample
+    npgc_ok("train", "sp/out_op.npg", "sp/TR", "-o", "sp/MOP")
+
+    def reduced_op_equals(proc):
+        B = np.load(path("sp/MOP/basis_1.npy"))
+        R = np.load(path("out/sp_opr/K.reduced.npy"))
+        for k, kk in enumerate(np.load(path("sp/TE/kappa.npy"))):
+            prob = close(R[k], B.T @ heat_K(nbr, kk, True) @ B, 1e-12, "K.reduced sample %d" % k)
+            if prob:
+                return prob
+        return None
+    case("sparse_output_op_reduced", ["npgc", "eval", "sp/out_op.npg", "sp/MOP", "sp/TE", "-o", "out/sp_opr"], 0, "",
+         check=reduced_op_equals)
     want = np.array([np.linalg.solve(heat_K(nbr, k, True), src) for k in kte])
     case("sparse_trained_reduced_eval", ["npgc", "eval", "sp/spd.npg", "sp/M", "sp/TE", "-o", "out/sp_red"], 0, "",
          check=out_equals("out/sp_red/u.npy", want, 1e-3))
