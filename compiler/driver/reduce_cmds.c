@@ -318,7 +318,9 @@ static int cmd_train(Common *c) {
     return 2;
   }
   if (!c->out) return npgc_missing("train", "-o MODEL/ (where to write the model)");
-  const char *inputs[] = {c->prog_path, c->a, NULL}, *spectra_inputs[] = {c->prog_path, c->a, c->out, NULL};
+  /* --valid DIR is read as DATA/ is: --spectra may not write into it (trial3); NULL ends the lists early */
+  const char *inputs[] = {c->prog_path, c->a, c->valid, NULL};
+  const char *spectra_inputs[] = {c->prog_path, c->a, c->out, c->valid, NULL};
   if (npgc_check_output("train", "-o", c->out, NPGC_OUT_MODEL, inputs) != 0 ||
       (c->spectra && npgc_check_output("train", "--spectra", c->spectra, NPGC_OUT_DIR, spectra_inputs) != 0))
     return 1;

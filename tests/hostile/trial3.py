@@ -474,6 +474,13 @@ def interp_cases():
     case("interp_valid_dir_choice", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/MV", "--valid", "ip/V"], 0,
          "", stream="out", check=lambda p: None if "choice w " in open(path("ip/MV/manifest")).read()
          else "no choice line")
+    # --valid DIR is an input of the command: --spectra may not write into it, as into DATA/
+    shutil.copytree(path("ip/V"), path("ip/VS"))
+    keep_vs = {f: open(path("ip/VS", f), "rb").read() for f in os.listdir(path("ip/VS"))}
+    case("interp_spectra_into_valid", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/MSP", "--valid", "ip/VS",
+                                       "--spectra", "ip/VS"], None, "ip/VS",
+         check=lambda p: None if {f: open(path("ip/VS", f), "rb").read() for f in os.listdir(path("ip/VS"))} == keep_vs
+         else "ip/VS changed: %s" % sorted(os.listdir(path("ip/VS"))))
     case("interp_reduce_galerkin_wins_over_valid", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/MVG", "--valid",
                                                     "ip/V", "--reduce", "w:galerkin"], 0, "",
          check=lambda p: None if open(path("ip/MVG/manifest")).readline().strip() == "npg-model 1"
