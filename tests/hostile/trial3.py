@@ -474,6 +474,8 @@ def interp_cases():
     case("interp_valid_dir_choice", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/MV", "--valid", "ip/V"], 0,
          "", stream="out", check=lambda p: None if "choice w " in open(path("ip/MV/manifest")).read()
          else "no choice line")
+    case("interp_docs_options", ["sh", "-c", "true"], 0, "",
+         check=docs_name("--reduce STAGE:interp", "--interp-oversample", "--valid DIR", "--valid F", "npg-model 2"))
     # --valid DIR is an input of the command: --spectra may not write into it, as into DATA/
     shutil.copytree(path("ip/V"), path("ip/VS"))
     keep_vs = {f: open(path("ip/VS", f), "rb").read() for f in os.listdir(path("ip/VS"))}
@@ -568,6 +570,7 @@ def stream_cases():
          "keep-bases w", stream="out")
     case("stream_verify_floor_marked", ["npgc", "verify", "ip/nb.npg", "ip/MG", "ip/T", "--tol", "1"], 0, "*",
          stream="out")
+    case("stream_docs_options", ["sh", "-c", "true"], 0, "", check=docs_name("--keep-bases", "marked `*`"))
     case("stream_keep_bases_empty", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "st/M1", "--keep-bases", ""], 2,
          "--keep-bases")
     case("stream_keep_bases_unknown", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "st/M1", "--keep-bases", "zz"], None,
@@ -727,6 +730,15 @@ PY_CASES = {
 }
 
 
+def docs_name(*words):
+    """A check: docs/reducing.md (the commands' documentation in docs/) mentions every word."""
+    def check(proc):
+        text = open(os.path.join(SRC, "docs/reducing.md")).read()
+        missing = [w for w in words if w not in text]
+        return "docs/reducing.md does not mention %s" % missing if missing else None
+    return check
+
+
 def readme_python():
     """The README's "From Python" example, as the reader copies it."""
     text = open(os.path.join(SRC, "README.md")).read()
@@ -743,6 +755,9 @@ def python_cases():
         lib = subprocess.run(["cc", "-print-file-name=libasan.so"], stdout=subprocess.PIPE).stdout.decode().strip()
         env.update(LD_PRELOAD=lib, ASAN_OPTIONS="detect_leaks=0:abort_on_error=1",
                    UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1")
+    case("py_docs_keywords", ["sh", "-c", "true"], 0, "",
+         check=docs_name("interp=", "galerkin=", "interp_oversample=", "valid=", "valid_holdout=", "keep_bases=",
+                         "model.interpolated", "model.reductions"))
     for name, body in PY_CASES.items():
         write("py/%s.py" % name, PY_HEAD + body + "\nprint('OK')\n")
         after = "interp_eval_MI" if "npgc_eval" in name else "interp_valid_fraction_dot" if "holdout_same" in name \
