@@ -665,9 +665,9 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   if (t->opt.valid_holdout != 0) {
     double F = t->opt.valid_holdout;
     if (!(F > 0 && F <= 0.5) || t->opt.valid_count > 0 || t->opt.mpi) {
-      tfail(t, "NpgTrainOptions.valid_holdout %g: %s", F,
+      tfail(t, "--valid %g (NpgTrainOptions.valid_holdout): %s", F,
             !(F > 0 && F <= 0.5) ? "must be in (0, 0.5]"
-            : t->opt.mpi         ? "not over MPI ranks (give validation samples instead)"
+            : t->opt.mpi         ? "not over MPI ranks (give a folder of validation samples instead, --valid DIR)"
                                  : "validation samples are given as well");
       return NULL;
     }

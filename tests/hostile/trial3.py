@@ -445,6 +445,9 @@ def interp_cases():
     case("interp_valid_fraction_exponent", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/M3", "--valid",
                                             "2.5e-1"], 0, "",
          check=lambda p: None if "samples 30" in open(path("ip/M3/manifest")).read() else "not 30 samples trained")
+    case("interp_valid_fraction_mpi", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/M4", "--mpi", "--valid", "0.25"],
+         None, "", check=lambda p: None if "--valid 0.25" in p.stderr.decode() or "has no MPI" in p.stderr.decode()
+         else "stderr does not name --valid 0.25")
     case("interp_valid_fraction_text", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/M4", "--valid", "0.2x"], None,
          "0.2x")
     case("interp_valid_fraction_inf", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/M4", "--valid", "inf"], None,
