@@ -726,6 +726,10 @@ PY_CASES = {
                                "want = np.load('out/sp_spd_lopsided/u.npy')[0]\n"
                                "assert np.max(abs(u2 - want)) <= 1e-12 * np.max(abs(want)), np.max(abs(u2 - want))\n"
                                "assert np.max(abs(u1 - u2)) > 1e-3, 'the table change had no effect'",
+    "forced_by_statement_reason": "open('nbs.npg', 'w').write(open('ip/nb.npg').read() + 'basis w: reduce interp\\n')\n"
+                                  "p2 = npg.compile('nbs.npg')\ntr = npg.Trainer(p2.full(params='ip/D'))\n"
+                                  "for x in X: tr.add(x=x)\nm = tr.finish()\nassert m.interpolated('w')\n"
+                                  "assert 'basis STAGE: reduce interp' in m.reductions(), m.reductions()",
     "readme_from_python": "os.chdir(os.environ['NPG_SRC'])\nimport runpy, tempfile\n"
                           "d = tempfile.mkdtemp(); os.chdir(d)\n"
                           "os.symlink(os.path.join(os.environ['NPG_SRC'], 'examples'), 'examples')\n"
