@@ -81,6 +81,37 @@ void npg_train_options_default(NpgTrainOptions *o) {
   o->mem = half_the_ram();
 }
 
+int api_refuse_reduce_options(const NpgTrainOptions *o, const char *func, char *err, size_t errlen) {
+#define REFUSE(...) npg_refuse(err, errlen, func, __VA_ARGS__)
+  /* the interpolated stages' and streamed bases' fields (DESIGN §12, issue 30): a NULL list of
+   * names was read as one (SIGSEGV), a NaN or negative oversampling, a negative count or an empty
+   * keep_bases taken for the default (trial3) */
+  const char *const *lists[2] = {o->interp_stage, o->galerkin_stage};
+  int counts[2] = {o->ninterp, o->ngalerkin};
+  const char *names[2][2] = {{"ninterp", "interp_stage"}, {"ngalerkin", "galerkin_stage"}};
+  for (int l = 0; l < 2; l++) {
+    if (counts[l] < 0) return REFUSE("NpgTrainOptions.%s is %d (the number of names in %s)", names[l][0], counts[l],
+                                     names[l][1]);
+    if (counts[l] > 0 && !lists[l])
+      return REFUSE("NpgTrainOptions.%s is %d but %s is NULL", names[l][0], counts[l], names[l][1]);
+    for (int i = 0; i < counts[l]; i++)
+      if (!lists[l][i]) return REFUSE("NpgTrainOptions.%s[%d] is NULL (a stage name)", names[l][1], i);
+  }
+  if (o->interp_oversample != 0 && !(o->interp_oversample >= 1 && isfinite(o->interp_oversample)))
+    return REFUSE("NpgTrainOptions.interp_oversample is %g (entries per basis vector, at least 1; 0 for the default)",
+                  o->interp_oversample);
+  if (o->valid_count < 0)
+    return REFUSE("NpgTrainOptions.valid_count is %ld (the number of validation samples, 0 for none)", o->valid_count);
+  if (o->valid_holdout != 0 && !(o->valid_holdout > 0 && o->valid_holdout <= 0.5))
+    return REFUSE("NpgTrainOptions.valid_holdout is %g (a fraction in (0, 0.5] of the samples, 0 for none)",
+                  o->valid_holdout);
+  if (o->keep_bases && !o->keep_bases[0])
+    return REFUSE("NpgTrainOptions.keep_bases is empty (comma-separated quantities or classes m_x, \"all\", or NULL "
+                  "for none)");
+  return 0;
+#undef REFUSE
+}
+
 /* Options out of their documented range are refused, naming the field, not
  * replaced by a default (a cap of 0 the caller computed is a bug of theirs
  * that a default would hide). */
@@ -107,6 +138,7 @@ static int refuse_options(NpgTrainer *t, const NpgTrainOptions *o) {
       return REFUSE("NpgTrainOptions.basis_center[%d] (%s) is %d (1 on, 0 off, -1 the default)", i, o->basis_name[i],
                     o->basis_center[i]);
   }
+  if (api_refuse_reduce_options(o, "npg_trainer_new", t->error, sizeof t->error) != 0) return -1;
   return 0;
 #undef REFUSE
 }
@@ -594,19 +626,13 @@ static int replay_held(void *user, NpgFull *f, long j) {
  * validation sample can do it (valid_set setting a param with npg_full_set), and the model would
  * then be trained with one value and validated with another. Names the param in t->error. */
 static bool params_changed(NpgTrainer *t, const char *before) {
-  char *after = api_param_hashes(t->f);
-  if (!after) return tfail(t, "out of memory"), true;
-  /* "name=hash" per param, space-separated, in the program's order in both */
-  const char *a = before, *b = after;
-  for (int i = 0; i < t->prog->params.n && !t->error[0]; i++) {
-    size_t la = strcspn(a, " "), lb = strcspn(b, " ");
-    if (la != lb || strncmp(a, b, la) != 0)
-      tfail(t, "NpgTrainOptions.valid_set changed param '%s': a validation sample holds inputs and externs only "
-               "(the params are the trainer's)", ((Sym *)t->prog->params.v[i])->name);
-    a += la + (a[la] == ' '), b += lb + (b[lb] == ' ');
-  }
-  free(after);
-  return t->error[0] != 0;
+  bool oom;
+  const char *name = api_param_changed(t->f, before, &oom);
+  if (oom) tfail(t, "out of memory");
+  else if (name)
+    tfail(t, "NpgTrainOptions.valid_set changed param '%s': a validation sample holds inputs and externs only (the "
+             "params are the trainer's)", name);
+  return oom || name;
 }
 
 NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {

@@ -790,8 +790,16 @@ def build_api():
 
 def api_cases():
     build_api()
-    for name in ("valid_set_param", "verify_set_param"):
+    for name in ("valid_set_param", "verify_set_param", "tune_valid_set_param"):
         case("api_" + name, [API_BIN, name, W], 0, "OK", stream="out")
+    # NpgTrainOptions' interpolation and streaming fields out of range, through the trainer and npg_tune
+    for field in ("oversample_half", "oversample_nan", "oversample_negative", "ninterp_negative", "interp_stage_null",
+                  "interp_name_null", "ngalerkin_negative", "galerkin_stage_null", "valid_count_negative",
+                  "holdout_nan", "keep_bases_empty"):
+        case("api_options_" + field, [API_BIN, "options_" + field, W], 0, "OK", stream="out")
+        if field not in ("valid_count_negative", "holdout_nan"):
+            case("api_tune_options_" + field, [API_BIN, "options_" + field, W, "tune"], 0, "OK", stream="out",
+                 timeout=300)
 
 
 # ------------------------------------------------------------------ running

@@ -39,7 +39,7 @@ static int report(int failed, const char *msg, const char *word) {
 }
 
 int main(int argc, char **argv) {
-  if (argc != 3) return fprintf(stderr, "usage: trial3_api CASE WORKDIR\n"), 2;
+  if (argc < 3) return fprintf(stderr, "usage: trial3_api CASE WORKDIR [tune]\n"), 2;
   const char *w = argv[2];
   char err[1024] = "";
   NpgProgram *p = npg_compile(at(w, "ip/nb.npg"), NULL);
@@ -69,9 +69,60 @@ int main(int argc, char **argv) {
     rc = report(m && v != 0, m ? rep.error : npg_model_error(m), "mass");
     if (m) npg_verify_free(&rep);
     npg_model_free(m);
+  } else if (strcmp(argv[1], "tune_valid_set_param") == 0) {
+    NpgTuneReport rep;
+    NpgModel *m = npg_tune(f, npg_samples_count(train), npg_samples_set, train, npg_samples_count(valid),
+                           set_with_param, valid, 0.5, 8, NULL, &rep);
+    rc = report(!m, rep.error, "mass");
+    npg_model_free(m);
+    npg_tune_free(&rep);
+  } else if (strncmp(argv[1], "options_", 8) == 0) {
+    /* NpgTrainOptions of the interpolated stages out of their range: refused naming the field, at
+     * npg_trainer_new or at the latest npg_trainer_finish, never trained with silently */
+    NpgTrainOptions o;
+    npg_train_options_default(&o);
+    const char *w_only[] = {"w"}, *null_name[] = {NULL};
+    const char *field = argv[1] + 8;
+    if (strcmp(field, "oversample_half") == 0) o.interp_oversample = 0.5, o.ninterp = 1, o.interp_stage = w_only;
+    else if (strcmp(field, "oversample_nan") == 0) o.interp_oversample = 0.0 / 0.0, o.ninterp = 1, o.interp_stage = w_only;
+    else if (strcmp(field, "oversample_negative") == 0) o.interp_oversample = -3, o.ninterp = 1, o.interp_stage = w_only;
+    else if (strcmp(field, "ninterp_negative") == 0) o.ninterp = -1, o.interp_stage = w_only;
+    else if (strcmp(field, "interp_stage_null") == 0) o.ninterp = 1, o.interp_stage = NULL;
+    else if (strcmp(field, "interp_name_null") == 0) o.ninterp = 1, o.interp_stage = null_name;
+    else if (strcmp(field, "ngalerkin_negative") == 0) o.ngalerkin = -2, o.galerkin_stage = w_only;
+    else if (strcmp(field, "galerkin_stage_null") == 0) o.ngalerkin = 1, o.galerkin_stage = NULL;
+    else if (strcmp(field, "valid_count_negative") == 0) o.valid_count = -4, o.valid_set = npg_samples_set, o.valid_user = valid;
+    else if (strcmp(field, "holdout_nan") == 0) o.valid_holdout = 0.0 / 0.0;
+    else if (strcmp(field, "keep_bases_empty") == 0) o.keep_bases = "";
+    const char *word = strstr(field, "oversample") ? "interp_oversample" : strstr(field, "ninterp") ? "ninterp"
+                     : strstr(field, "interp_") ? "interp_stage" : strstr(field, "ngalerkin") ? "ngalerkin"
+                     : strstr(field, "galerkin_") ? "galerkin_stage" : strstr(field, "valid_count") ? "valid_count"
+                     : strstr(field, "holdout") ? "valid_holdout" : "keep_bases";
+    if (argc > 3 && strcmp(argv[3], "tune") == 0) { /* the same options through npg_tune */
+      NpgTuneReport rep;
+      NpgModel *m = npg_tune(f, npg_samples_count(train), npg_samples_set, train, npg_samples_count(valid),
+                             npg_samples_set, valid, 0.5, 8, &o, &rep);
+      rc = report(!m, rep.error, word);
+      npg_model_free(m);
+      npg_tune_free(&rep);
+      goto done;
+    }
+    NpgTrainer *t = npg_trainer_new(f, &o);
+    const char *e = t ? npg_trainer_error(t) : "npg_trainer_new returned NULL";
+    NpgModel *m = NULL;
+    if (t && !e[0]) {
+      for (long k = 0; k < npg_samples_count(train); k++)
+        if (npg_samples_set(train, f, k) != 0 || npg_trainer_add_full(t, f) != 0) break;
+      m = npg_trainer_finish(t, NULL);
+      e = npg_trainer_error(t);
+    }
+    rc = report(!m, e, word);
+    npg_model_free(m);
+    npg_trainer_free(t);
   } else {
     printf("BAD unknown case %s\n", argv[1]);
   }
+done:
   npg_samples_free(train);
   npg_samples_free(valid);
   npg_full_free(f);
