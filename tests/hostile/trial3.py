@@ -702,6 +702,7 @@ PY_CASES = {
                                       "refused(lambda: m.verify(test={'x': XT, 'mass': np.full((8, 8), 5.0)}, full=full),"
                                       " 'mass')\nassert np.array_equal(full(x=XT[0])['a'], A0), 'the evaluator was changed'",
     "keep_bases_list": "refused(lambda: train(keep_bases=['r2']), 'keep_bases')",
+    "keep_bases_empty": "refused(lambda: train(keep_bases=''), 'keep_bases')",
     "keep_bases_unknown": "refused(lambda: train(keep_bases='zz'), 'zz')",
     "streamed_lift_refused": "m = npg.load(prog, 'ip/MG'); red = m.reduced(); red(x=XT[0])\n"
                              "refused(lambda: red.lift('r2'), 'r2', 'keep')",
