@@ -493,6 +493,8 @@ def interp_cases():
                                        "--spectra", "ip/VS"], None, "ip/VS",
          check=lambda p: None if {f: open(path("ip/VS", f), "rb").read() for f in os.listdir(path("ip/VS"))} == keep_vs
          else "ip/VS changed: %s" % sorted(os.listdir(path("ip/VS"))))
+    case("interp_valid_small_mem", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/MVM", "--valid", "ip/V", "--mem",
+                                    "10k"], 0, "", stream="out", check=text_lacks("both fail"))
     case("interp_reduce_galerkin_wins_over_valid", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/MVG", "--valid",
                                                     "ip/V", "--reduce", "w:galerkin"], 0, "",
          check=lambda p: None if open(path("ip/MVG/manifest")).readline().strip() == "npg-model 1"
@@ -738,6 +740,14 @@ PY_CASES = {
                                   "p2 = npg.compile('nbs.npg')\ntr = npg.Trainer(p2.full(params='ip/D'))\n"
                                   "for x in X: tr.add(x=x)\nm = tr.finish()\nassert m.interpolated('w')\n"
                                   "assert 'basis STAGE: reduce interp' in m.reductions(), m.reductions()",
+    "valid_small_mem_same_as_npgc": "m = train('py_MVM', valid={'x': XV}, mem=10000)\nsame_dir('py_MVM', 'ip/MVM')",
+    "threads_interp_model": "import threading\nm = npg.load(prog, 'ip/MI')\nr0 = m.reduced()\n"
+                            "ref = [(r0(x=x), r0.lift('a').copy())[1] for x in XT]\nerrs = []\n"
+                            "def work(t):\n    red = m.reduced()\n    for it in range(200):\n"
+                            "        k = (t + it) % len(XT)\n        red(x=XT[k])\n"
+                            "        if not np.array_equal(red.lift('a'), ref[k]): errs.append((t, it)); return\n"
+                            "ts = [threading.Thread(target=work, args=(t,)) for t in range(4)]\n"
+                            "[t.start() for t in ts]; [t.join() for t in ts]\nassert not errs, errs",
     "readme_from_python": "os.chdir(os.environ['NPG_SRC'])\nimport runpy, tempfile\n"
                           "d = tempfile.mkdtemp(); os.chdir(d)\n"
                           "os.symlink(os.path.join(os.environ['NPG_SRC'], 'examples'), 'examples')\n"
@@ -776,7 +786,8 @@ def python_cases():
     for name, body in PY_CASES.items():
         write("py/%s.py" % name, PY_HEAD + body + "\nprint('OK')\n")
         after = "interp_eval_MI" if "npgc_eval" in name else "interp_valid_fraction_dot" if "holdout_same" in name \
-            else "sparse_spd_lopsided_solve" if "sparse" in name else "interp_valid_dir_choice"
+            else "sparse_spd_lopsided_solve" if "sparse" in name else "interp_valid_small_mem" if "small_mem" in name \
+            else "interp_valid_dir_choice"
         case("py_" + name, ["/usr/bin/python3", path("py/%s.py" % name), W], 0, "OK", stream="out", env=env,
              after=after)
 
