@@ -493,6 +493,16 @@ def interp_cases():
                                        "--spectra", "ip/VS"], None, "ip/VS",
          check=lambda p: None if {f: open(path("ip/VS", f), "rb").read() for f in os.listdir(path("ip/VS"))} == keep_vs
          else "ip/VS changed: %s" % sorted(os.listdir(path("ip/VS"))))
+    # --valid 0.25 holds out samples 3, 7, 11, ...: the model equals training on the others with those as --valid DIR
+    xd = np.load(path("ip/D/x.npy"))
+    held = [k for k in range(len(xd)) if k % 4 == 3]
+    kept_ = [k for k in range(len(xd)) if k % 4 != 3]
+    for d, idx in (("ip/DK", kept_), ("ip/DH", held)):
+        data_dir(d, {"x": xd[idx], "mass": np.load(path("ip/D/mass.npy")), "eps": np.load(path("ip/D/eps.npy"))})
+    npgc_ok("train", "ip/nb.npg", "ip/DK", "-o", "ip/MHD", "--valid", "ip/DH")
+    case("interp_valid_fraction_equals_dir", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/MHF", "--valid", "0.25"],
+         0, "", check=lambda p: None if digest(path("ip/MHF")) == digest(path("ip/MHD"))
+         else "--valid 0.25 and --valid DIR of the same held-out samples give different models")
     case("interp_valid_small_mem", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/MVM", "--valid", "ip/V", "--mem",
                                     "10k"], 0, "", stream="out", check=text_lacks("both fail"))
     case("interp_reduce_galerkin_wins_over_valid", ["npgc", "train", "ip/nb.npg", "ip/D", "-o", "ip/MVG", "--valid",
