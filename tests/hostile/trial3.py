@@ -340,6 +340,13 @@ def sparse_cases():
         return None
     case("sparse_output_op_reduced", ["npgc", "eval", "sp/out_op.npg", "sp/MOP", "sp/TE", "-o", "out/sp_opr"], 0, "",
          check=reduced_op_equals)
+    # full-rank models of the sparse roots and powers reproduce numpy (DESIGN §4: to 1e-10)
+    for name in ("inv_sqrt", "cube_root", "square"):
+        npgc_ok("train", "sp/pow_%s.npg" % name, "sp/TR", "-o", "sp/MP_" + name, "--energy", "1")
+        fn = exprs[name][1]
+        case("sparse_full_rank_" + name, ["npgc", "eval", "sp/pow_%s.npg" % name, "sp/MP_" + name, "sp/TE", "-o",
+                                          "out/sp_fr_" + name], 0, "",
+             check=out_equals("out/sp_fr_%s/u.npy" % name, np.array([fn(heat_K(nbr, k, True)) for k in kte]), 1e-10))
     want = np.array([np.linalg.solve(heat_K(nbr, k, True), src) for k in kte])
     case("sparse_trained_reduced_eval", ["npgc", "eval", "sp/spd.npg", "sp/M", "sp/TE", "-o", "out/sp_red"], 0, "",
          check=out_equals("out/sp_red/u.npy", want, 1e-3))
