@@ -629,6 +629,57 @@ def stream_cases():
          "", check=out_equals("out/st_ms/y.npy", a * b, 1e-10), after="stream_mem_shared_full_rank")
 
 
+def fnv1a64(data):
+    h = 0xcbf29ce484222325
+    for byte in data:
+        h = ((h ^ byte) * 0x100000001b3) & 0xFFFFFFFFFFFFFFFF
+    return h
+
+
+def reseal(d, edit):
+    """d/manifest's lines through `edit`, with the checksum a forger who knows the format computes."""
+    with open(path(d, "manifest"), "rb") as f:
+        ls = f.read().split(b"\n")[:-1]
+    body = b"".join(l + b"\n" for l in edit(ls) if not l.startswith(b"manifest "))
+    with open(path(d, "manifest"), "wb") as f:
+        f.write(body + b"manifest fnv1a64 %016x\n" % fnv1a64(body))
+
+
+def forge_stream_cases():
+    """The streamed-basis lines of a model (issue 30: 'streamed C', 'floor Q l2 .. linf ..') changed and
+    resealed: refused naming the model, or (a repeated line) the genuine model's output."""
+    def sub(prefix, new):
+        return lambda ls: [new if l.startswith(prefix) else l for l in ls]
+    forgeries = {
+        "floor_nan": sub(b"floor r2", b"floor r2 l2 nan linf nan"),
+        "floor_negative": sub(b"floor r2", b"floor r2 l2 -0.5 linf -1"),
+        "floor_above_one": sub(b"floor r2", b"floor r2 l2 1e300 linf 1e308"),
+        "floor_removed": lambda ls: [l for l in ls if not l.startswith(b"floor r2")],
+        "floor_unknown": sub(b"floor r2", b"floor zz l2 0.1 linf 0.1"),
+        "floor_of_kept_class": lambda ls: ls + [b"floor a l2 0.5 linf 0.5"],
+        "floor_garbage": sub(b"floor r2", b"floor r2 l2 abc linf"),
+        "streamed_removed": lambda ls: [l for l in ls if l != b"streamed 1"],
+        "streamed_input_class": lambda ls: ls + [b"streamed 0"],
+        "streamed_output_class": lambda ls: ls + [b"streamed 3"],
+        "streamed_out_of_range": lambda ls: ls + [b"streamed 99"],
+        "streamed_negative": lambda ls: ls + [b"streamed -1"],
+        "floor_twice": lambda ls: ls + [l for l in ls if l.startswith(b"floor r2")],
+        "streamed_twice": lambda ls: ls + [b"streamed 1"],
+    }
+    good = None
+    for name, edit in forgeries.items():
+        d = "st/F_" + name
+        shutil.copytree(path("ip/MG"), path(d))
+        reseal(d, edit)
+        if name.endswith("_twice"):
+            case("stream_forge_%s_eval" % name, ["npgc", "eval", "ip/nb.npg", d, "ip/T", "-o", "out/stf_" + name],
+                 "either", d, check=lambda p, name=name: close(np.load(path("out/stf_%s/a.npy" % name)),
+                                                               np.load(path("st/OK/a.npy")), 1e-13, "a"))
+        else:
+            case("stream_forge_%s_eval" % name, ["npgc", "eval", "ip/nb.npg", d, "ip/T", "-o", "out/stf_" + name], 1, d)
+            case("stream_forge_%s_verify" % name, ["npgc", "verify", "ip/nb.npg", d, "ip/T", "--tol", "1"], 1, d)
+
+
 def ranks_at_most_rows(model):
     """A check: every class line of the model's manifest has m <= n."""
     def check(proc):
@@ -908,6 +959,7 @@ def main():
     sparse_cases()
     interp_cases()
     stream_cases()
+    forge_stream_cases()
     python_cases()
     api_cases()
     names = [c["name"] for c in CASES]
