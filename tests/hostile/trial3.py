@@ -779,6 +779,9 @@ PY_CASES = {
                                       "refused(lambda: m.verify(test={'x': XT, 'mass': np.full((8, 8), 5.0)}, full=full),"
                                       " 'mass')\nassert np.array_equal(full(x=XT[0])['a'], A0), 'the evaluator was changed'",
     "keep_bases_list": "refused(lambda: train(keep_bases=['r2']), 'keep_bases')",
+    "keep_bases_all_same_as_npgc": "m = train('py_MK', keep_bases='all')\nsame_dir('py_MK', 'st/MK')\n"
+                                   "red = m.reduced(); red(x=XT[0]); assert red.lift('r2').shape == (8, 8)",
+    "keep_bases_default_same_as_npgc": "m = train('py_MG')\nsame_dir('py_MG', 'ip/MG')",
     "keep_bases_empty": "refused(lambda: train(keep_bases=''), 'keep_bases')",
     "keep_bases_unknown": "refused(lambda: train(keep_bases='zz'), 'zz')",
     "streamed_lift_refused": "m = npg.load(prog, 'ip/MG'); red = m.reduced(); red(x=XT[0])\n"
