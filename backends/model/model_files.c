@@ -154,8 +154,9 @@ static int take(const ModelStore *s, const char *dir, const char *name, long row
 /* The class, member and spd lines of a loaded manifest against the layout
  * and the bases: 0, or -1 with `err` naming the line. */
 static int check_meta(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
-  /* every quantity of a streamed class has its floor line (NaN until read): verify prints it in place of
-   * a measured floor, and a missing one read as 0 claimed a perfect basis (trial3) */
+  /* every quantity of a streamed class has its floor line (NaN until read; check_streamed refuses one
+   * left NaN): verify prints it in place of a measured floor, and a missing one read as 0 claimed a
+   * perfect basis (trial3) */
   for (int c = 0; c < m->nclasses; c++)
     for (int k = 0; m->classes[c].streamed && k < m->classes[c].nmembers; k++)
       if (m->classes[c].members[k].q >= 0) m->classes[c].members[k].floor_l2 = NAN;
@@ -217,11 +218,6 @@ static int check_meta(const ModelStore *s, Model *m, const char *dir, char *err,
       return -1;
     }
   }
-  for (int c = 0; c < m->nclasses; c++)
-    for (int k = 0; m->classes[c].streamed && k < m->classes[c].nmembers; k++)
-      if (m->classes[c].members[k].q >= 0 && isnan(m->classes[c].members[k].floor_l2))
-        return npg_fail(err, errlen, "%s/manifest: no floor line for %s, a quantity of the streamed class %s (a damaged or "
-                                     "forged manifest; retrain)", dir, m->classes[c].members[k].name, m->classes[c].label);
   return 0;
 }
 
@@ -323,6 +319,12 @@ static int check_streamed(const Model *m, const char *dir, char *err, size_t err
                       "%s/manifest: class %s is marked streamed, but %s (a damaged or forged manifest; retrain)", dir,
                       m->classes[c].label,
                       model_class_needed(m, c) ? "the reduced model reads its basis" : "its rows run over one dim only");
+  /* check_meta left NaN where no floor line was read */
+  for (int c = 0; c < m->nclasses; c++)
+    for (int k = 0; m->classes[c].streamed && k < m->classes[c].nmembers; k++)
+      if (m->classes[c].members[k].q >= 0 && isnan(m->classes[c].members[k].floor_l2))
+        return npg_fail(err, errlen, "%s/manifest: no floor line for %s, a quantity of the streamed class %s (a damaged or "
+                                     "forged manifest; retrain)", dir, m->classes[c].members[k].name, m->classes[c].label);
   return 0;
 }
 
