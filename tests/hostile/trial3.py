@@ -76,7 +76,7 @@ KNOWN_FAILURES = {
 
 
 def case(name, argv, status=1, msg="", check=None, stream="err", env=None, timeout=None, after=None):
-    """argv[0] 'npgc', 'py' (a script run by /usr/bin/python3 with the build's module) or a path. `status`
+    """argv[0] 'npgc' (this build's) or a path. `status`
     None: any refusal (exit 1 or 2 with a message); 'either': 0 with check() passing, or a refusal whose
     message holds `msg`. `check(proc)` returns a problem or None; `after` names cases that must run first."""
     CASES.append(dict(name=name, argv=argv, status=status, msg=msg, check=check, stream=stream, env=env,
@@ -583,7 +583,6 @@ def interp_cases():
 # ------------------------------------------------------------------ streamed bases (issue 30)
 
 def stream_cases():
-    xt = np.load(path("ip/T/x.npy"))
     npgc_ok("train", "ip/nb.npg", "ip/D", "-o", "st/MK", "--keep-bases", "all")
     files = set(os.listdir(path("ip/MG")))
     case("stream_pair_bases_not_kept", ["sh", "-c", "true"], 0, "",
@@ -666,7 +665,6 @@ def forge_stream_cases():
         "floor_twice": lambda ls: ls + [l for l in ls if l.startswith(b"floor r2")],
         "streamed_twice": lambda ls: ls + [b"streamed 1"],
     }
-    good = None
     for name, edit in forgeries.items():
         d = "st/F_" + name
         shutil.copytree(path("ip/MG"), path(d))
@@ -942,7 +940,6 @@ def run_all(todo):
     """Cases in two workers; a case waits for the one it names in `after` (its output is this one's input)."""
     done, results = {}, []
     by_name = {c["name"]: c for c in todo}
-    waves = []
     left = list(todo)
     while left:
         wave = [c for c in left if not c["after"] or c["after"] not in by_name or c["after"] in done]
@@ -953,7 +950,6 @@ def run_all(todo):
                 results.append(r)
                 done[r[0]] = r
         left = [c for c in left if c["name"] not in done]
-        waves.append(len(wave))
     return results
 
 
