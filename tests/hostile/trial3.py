@@ -576,6 +576,8 @@ def interp_cases():
     case("interp_tune_with_extern", ["npgc", "tune", "ip/ext.npg", "ip/ED", "ip/EV", "--tol", "0.5", "-o", "ip/MTE",
                                      "--png", "out/tune_ext.png"], 0, "", stream="out", check=text_lacks("both fail"),
          timeout=300)
+    case("interp_tune_valid_option", ["npgc", "tune", "ip/nb.npg", "ip/D", "ip/V", "--tol", "0.08", "-o", "ip/MT3",
+                                      "--valid", "ip/V"], 2, "VALID/")
     case("interp_tune_valid_other_params", ["npgc", "tune", "ip/nb.npg", "ip/D", "ip/V_mass", "--tol", "0.08", "-o",
                                             "ip/MT2"], 1, "mass")
 
