@@ -218,6 +218,20 @@ def sparse_cases():
             case("sparse_%s_%s_solve" % (prog, name), ["npgc", "eval", "sp/%s.npg" % prog, "--full", d, d, "-o",
                                                        "out/sp_%s_%s" % (prog, name)], 0, "",
                  check=out_equals("out/sp_%s_%s/u.npy" % (prog, name), want, 1e-11))
+    # at the dense/sparse boundary (FULL_SPARSE_MIN_ROWS 16), a table of padding only, and every cell
+    # reading one hub cell (a dense column: a pattern far from symmetric)
+    hub = -np.ones((20, 4), dtype=np.int64)
+    hub[1:, 0] = 0
+    for name, tab in (("boundary_15", grid(5, 3)), ("boundary_16", grid(4, 4)),
+                      ("padding_only", -np.ones((20, 4), dtype=np.int64)), ("hub", hub)):
+        n_ = len(tab)
+        s_, k_ = 1 + RNG.random(n_), 0.2 + RNG.random((2, n_))
+        d = data_dir("sp/D_" + name, {"nbr": tab, "src": s_, "kappa": k_})
+        for prog, sym in (("spd", True), ("ns", False)):
+            case("sparse_%s_%s" % (prog, name), ["npgc", "eval", "sp/%s.npg" % prog, "--full", d, d, "-o",
+                                                 "out/sp_%s_%s" % (prog, name)], 0, "",
+                 check=out_equals("out/sp_%s_%s/u.npy" % (prog, name),
+                                  np.array([np.linalg.solve(heat_K(tab, kk, sym), s_) for kk in k_]), 1e-11))
     # powers, roots and products of the SPD operator, against numpy's eigendecomposition
     exprs = {"inv_sqrt": ("K^(-1/2) * src", lambda K: mpow(K, -0.5) @ src),
              "cube_root": ("root(K, 3) * src", lambda K: mpow(K, 1 / 3) @ src),
