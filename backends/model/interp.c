@@ -12,7 +12,7 @@
 #include "interp.h"
 
 const char *const interp_reasons[INTERP_NREASONS] = {
-    [INTERP_FORCED] = "forced (--reduce STAGE:interp)",
+    [INTERP_FORCED] = "forced (--reduce STAGE:interp, or basis STAGE: reduce interp in the program)",
     [INTERP_LOWER] = "interpolation: lower output error",
     [GALERKIN_LOWER] = "Galerkin: lower output error",
     [TIE_INTERP] = "errors tie, interpolation cheaper",

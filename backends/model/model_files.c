@@ -154,6 +154,12 @@ static int take(const ModelStore *s, const char *dir, const char *name, long row
 /* The class, member and spd lines of a loaded manifest against the layout
  * and the bases: 0, or -1 with `err` naming the line. */
 static int check_meta(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
+  /* every quantity of a streamed class has its floor line (NaN until read; check_streamed refuses one
+   * left NaN): verify prints it in place of a measured floor, and a missing one read as 0 claimed a
+   * perfect basis (trial3) */
+  for (int c = 0; c < m->nclasses; c++)
+    for (int k = 0; m->classes[c].streamed && k < m->classes[c].nmembers; k++)
+      if (m->classes[c].members[k].q >= 0) m->classes[c].members[k].floor_l2 = NAN;
   for (int i = 0; i < s->nmeta; i++) {
     const char *line = s->meta[i];
     bool ok = true;
@@ -180,9 +186,10 @@ static int check_meta(const ModelStore *s, Model *m, const char *dir, char *err,
     } else if (strncmp(line, "floor ", 6) == 0) {
       int used = 0;
       double l2, linf;
-      /* linf nan: not measured (out of core, ooc.c take_floors) */
+      /* linf nan: not measured (out of core, ooc.c take_floors); l2 is a mean of ‖y − BBᵀy‖/‖y‖ ≤ 1 (a
+       * projection shortens y), with the out-of-core route's rounding of about 1e-7 */
       ok = sscanf(line, "floor %511s l2 %lf linf %lf%n", name, &l2, &linf, &used) == 3 && line[used] == 0 && l2 >= 0 &&
-           isfinite(l2) && (isnan(linf) || (linf >= 0 && isfinite(linf)));
+           l2 <= 1 + 1e-6 && (isnan(linf) || (linf >= 0 && isfinite(linf)));
       bool known = false; /* a quantity of a streamed class */
       for (int c = 0; ok && c < m->nclasses; c++)
         for (int k = 0; m->classes[c].streamed && k < m->classes[c].nmembers; k++)
@@ -312,6 +319,12 @@ static int check_streamed(const Model *m, const char *dir, char *err, size_t err
                       "%s/manifest: class %s is marked streamed, but %s (a damaged or forged manifest; retrain)", dir,
                       m->classes[c].label,
                       model_class_needed(m, c) ? "the reduced model reads its basis" : "its rows run over one dim only");
+  /* check_meta left NaN where no floor line was read */
+  for (int c = 0; c < m->nclasses; c++)
+    for (int k = 0; m->classes[c].streamed && k < m->classes[c].nmembers; k++)
+      if (m->classes[c].members[k].q >= 0 && isnan(m->classes[c].members[k].floor_l2))
+        return npg_fail(err, errlen, "%s/manifest: no floor line for %s, a quantity of the streamed class %s (a damaged or "
+                                     "forged manifest; retrain)", dir, m->classes[c].members[k].name, m->classes[c].label);
   return 0;
 }
 

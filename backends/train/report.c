@@ -52,22 +52,36 @@ void report_training(const Model *m, FILE *out) {
             dropped / 1e6);
 }
 
-/* The stage's input whose own error is largest: where a larger basis helps. */
+/* The stage's input whose own error is largest: where a larger basis helps. An input whose error
+ * is NaN was not measured (its basis streamed, issue 30): it is returned first, since nothing says
+ * it is not the worst, and advice naming a measured one could send the user to a basis already
+ * exact (trial3: "it reads x with error 2.2e-16"). */
+static bool worse(const double *err, int q, int best) {
+  return best < 0 || (isnan(err[q]) && !isnan(err[best])) || err[q] > err[best];
+}
+
 static int worst_read(const Model *m, const RStage *rs, const double *err) {
   int best = -1;
   for (int t = 0; t < rs->nterms; t++) {
     const RTerm *rt = &rs->terms[t];
-    if (rt->named_q >= 0 && (best < 0 || err[rt->named_q] > err[best])) best = rt->named_q;
+    if (rt->named_q >= 0 && worse(err, rt->named_q, best)) best = rt->named_q;
     for (int k = -1; k < rt->nops; k++) {
       int n = k < 0 ? rt->nnum : rt->ops[k].ntensors;
       for (int g = 0; g < n; g++) {
         const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
         for (int j = 0; j < x->nin; j++)
-          if (best < 0 || err[x->in_q[j]] > err[best]) best = x->in_q[j];
+          if (worse(err, x->in_q[j], best)) best = x->in_q[j];
       }
     }
   }
   return best;
+}
+
+/* The stage computing quantity q, or NULL (an input). */
+static const RStage *stage_of(const Model *m, int q) {
+  for (int i = 0; i < m->nstages; i++)
+    if (m->stages[i].q == q) return &m->stages[i];
+  return NULL;
 }
 
 int report_verify_warnings(const Model *m, const double *err, const double *floor, double tol, FILE *out) {
@@ -107,7 +121,23 @@ int report_verify_warnings(const Model *m, const double *err, const double *floo
               "interpolation, npgc train --reduce %s:interp, or let training choose: with 30 samples or more it does "
               "unless --valid none, or give --valid DIR)\n",
               rs->st->sym->name);
-    else if (w >= 0)
+    else if (w >= 0 && isnan(err[w])) { /* streamed: its error is unknown here (issue 30) */
+      const char *wn = ((Sym *)m->prog->quantities.v[w])->name;
+      const RStage *ws = stage_of(m, w);
+      fprintf(out, " (it reads %s, whose basis was streamed in training: its error is not measured here; retrain "
+              "with --keep-bases %s to see it", wn, wn);
+      if (ws && !ws->interp && lower_interp_eligible(ws->st))
+        fprintf(out, ", and %s may be reduced by interpolation: --reduce %s:interp, or let training choose with "
+                "--valid DIR", wn, wn);
+      fputs(")\n", out);
+    } else if (w >= 0 && ((Sym *)m->prog->quantities.v[w])->kind == SYM_EXTERN && err[w] > 3 * floor[w]) {
+      /* an extern's error above its floor is its learned map's (paper §8.3), which a larger basis
+       * does not lower (trial3: "--basis v:cap=N" for v at a floor of 2e-16) */
+      const char *wn = ((Sym *)m->prog->quantities.v[w])->name;
+      fprintf(out, " (it reads extern %s, whose learned map has error %.2e against a floor of %.2e: train on more "
+              "samples like these, or give %s's values to the reduced evaluator, npg_reduced_given_externs)\n",
+              wn, err[w], floor[w], wn);
+    } else if (w >= 0)
       fprintf(out, " (it reads %s with error %.2e: a larger basis for it, --basis %s:cap=N; or name an "
               "intermediate to give it a basis, or inline one)\n",
               ((Sym *)m->prog->quantities.v[w])->name, err[w], ((Sym *)m->prog->quantities.v[w])->name);

@@ -189,7 +189,10 @@ static int check_lowering(Program *prog, const ExactOptions *o, FILE *out, bool 
   else if ((rc = memsamples_fill(&ms, prog, f, n, 1, o->seed)) != 0)
     rc = npg_fail(err, errlen, "%s", rc == -1 ? full_error(f) : "out of memory for the random samples");
   else if (memsamples_set(&ms, f, 0) != 0 || full_eval(f, 0) != 0)
-    rc = npg_fail(err, errlen, "the full evaluator on the random data: %s", full_error(f));
+    rc = npg_fail(err, errlen, "the full evaluator on the random data: %s (every param and input is drawn at random: "
+                               "a program whose evaluation needs structured params, such as a symmetric neighbour "
+                               "table under a root, cannot be checked this way; that is not a defect of npg)",
+                  full_error(f));
   for (int i = 0; i < prog->stages.n && rc == 0; i++) {
     const Stage *st = prog->stages.v[i];
     if (st->kind == ST_EXTERN) continue;

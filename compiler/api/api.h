@@ -43,6 +43,13 @@ NpgModel *api_model_wrap(Model *m);
 /* "name=<hex> …": the hashes of the values of every param bound in `f`
  * (malloc'd; NULL when out of memory). */
 char *api_param_hashes(const Full *f);
+/* After `before` = api_param_hashes(f): the name of the first param whose value changed since (a
+ * sample function that set one: validation and test samples hold inputs and externs only), NULL if
+ * none; *oom on a failed allocation. */
+const char *api_param_changed(const Full *f, const char *before, bool *oom);
+/* The interpolation and streaming fields of `o` (DESIGN §12, issue 30) in their documented ranges:
+ * 0, or -1 with a message naming the field, for `func`, in err. */
+int api_refuse_reduce_options(const NpgTrainOptions *o, const char *func, char *err, size_t errlen);
 /* The index of quantity `name` in Program.quantities, -1 if none. */
 int api_quantity(const Program *prog, const char *name);
 /* Shape of quantity `s` as bound in `f`: dims then static axes; ndim. */

@@ -45,6 +45,22 @@ char *api_param_hashes(const Full *f) {
   return out;
 }
 
+const char *api_param_changed(const Full *f, const char *before, bool *oom) {
+  char *after = api_param_hashes(f);
+  *oom = !after;
+  if (!after) return NULL;
+  const Program *prog = full_program(f);
+  const char *changed = NULL, *a = before, *b = after;
+  /* "name=hash" per param, space-separated, in the program's order in both */
+  for (int i = 0; i < prog->params.n && !changed; i++) {
+    size_t la = strcspn(a, " "), lb = strcspn(b, " ");
+    if (la != lb || strncmp(a, b, la) != 0) changed = ((Sym *)prog->params.v[i])->name;
+    a += la + (a[la] == ' '), b += lb + (b[lb] == ' ');
+  }
+  free(after);
+  return changed;
+}
+
 int api_reduced_not_finite(const Model *m, Reduced *r, long sample, char *err, size_t errlen) {
   for (int q = 0; q < m->nq; q++) {
     const double *x = reduced_coords(r, q);

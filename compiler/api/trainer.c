@@ -82,6 +82,38 @@ void npg_train_options_default(NpgTrainOptions *o) {
   o->valid_holdout = -1; /* automatic: DESIGN §12 */
 }
 
+int api_refuse_reduce_options(const NpgTrainOptions *o, const char *func, char *err, size_t errlen) {
+#define REFUSE(...) npg_refuse(err, errlen, func, __VA_ARGS__)
+  /* the interpolated stages' and streamed bases' fields (DESIGN §12, issue 30): a NULL list of
+   * names was read as one (SIGSEGV), a NaN or negative oversampling, a negative count or an empty
+   * keep_bases taken for the default (trial3) */
+  const char *const *lists[2] = {o->interp_stage, o->galerkin_stage};
+  int counts[2] = {o->ninterp, o->ngalerkin};
+  const char *names[2][2] = {{"ninterp", "interp_stage"}, {"ngalerkin", "galerkin_stage"}};
+  for (int l = 0; l < 2; l++) {
+    if (counts[l] < 0) return REFUSE("NpgTrainOptions.%s is %d (the number of names in %s)", names[l][0], counts[l],
+                                     names[l][1]);
+    if (counts[l] > 0 && !lists[l])
+      return REFUSE("NpgTrainOptions.%s is %d but %s is NULL", names[l][0], counts[l], names[l][1]);
+    for (int i = 0; i < counts[l]; i++)
+      if (!lists[l][i]) return REFUSE("NpgTrainOptions.%s[%d] is NULL (a stage name)", names[l][1], i);
+  }
+  if (o->interp_oversample != 0 && !(o->interp_oversample >= 1 && isfinite(o->interp_oversample)))
+    return REFUSE("NpgTrainOptions.interp_oversample is %g (entries per basis vector, at least 1; 0 for the default)",
+                  o->interp_oversample);
+  if (o->valid_count < 0)
+    return REFUSE("NpgTrainOptions.valid_count is %ld (the number of validation samples, 0 for none)", o->valid_count);
+  if (!(o->valid_holdout <= 0.5)) /* NaN too */
+    return REFUSE("NpgTrainOptions.valid_holdout is %g (a fraction in (0, 0.5] of the samples, 0 for none, negative "
+                  "for the automatic choice)",
+                  o->valid_holdout);
+  if (o->keep_bases && !o->keep_bases[0])
+    return REFUSE("NpgTrainOptions.keep_bases is empty (comma-separated quantities or classes m_x, \"all\", or NULL "
+                  "for none)");
+  return 0;
+#undef REFUSE
+}
+
 /* Options out of their documented range are refused, naming the field, not
  * replaced by a default (a cap of 0 the caller computed is a bug of theirs
  * that a default would hide). */
@@ -108,6 +140,7 @@ static int refuse_options(NpgTrainer *t, const NpgTrainOptions *o) {
       return REFUSE("NpgTrainOptions.basis_center[%d] (%s) is %d (1 on, 0 off, -1 the default)", i, o->basis_name[i],
                     o->basis_center[i]);
   }
+  if (api_refuse_reduce_options(o, "npg_trainer_new", t->error, sizeof t->error) != 0) return -1;
   return 0;
 #undef REFUSE
 }
@@ -591,6 +624,19 @@ static int replay_held(void *user, Full *f, long j) {
   return replay(h->t, f, j * h->stride + h->stride - 1);
 }
 
+/* Whether a param's value changed during training (`before`: api_param_hashes then): only a
+ * validation sample can do it (valid_set setting a param with npg_full_set), and the model would
+ * then be trained with one value and validated with another. Names the param in t->error. */
+static bool params_changed(NpgTrainer *t, const char *before) {
+  bool oom;
+  const char *name = api_param_changed(t->f->full, before, &oom);
+  if (oom) tfail(t, "out of memory");
+  else if (name)
+    tfail(t, "NpgTrainOptions.valid_set changed param '%s': a validation sample holds inputs and externs only (the "
+             "params are the trainer's)", name);
+  return oom || name;
+}
+
 NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   REFUSE_NULL_T(NULL);
   /* over ranks the others would wait for this one in a collective: end the job */
@@ -657,16 +703,17 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   SampleSource all = src;
   if (F != 0) {
     if (!(F > 0 && F <= 0.5) || t->opt.valid_count > 0 || t->opt.mpi) {
-      tfail(t, "NpgTrainOptions.valid_holdout %g: %s", F,
+      tfail(t, "--valid %g (NpgTrainOptions.valid_holdout): %s", F,
             !(F > 0 && F <= 0.5) ? "must be in (0, 0.5]"
-            : t->opt.mpi         ? "not over MPI ranks (give validation samples instead)"
+            : t->opt.mpi         ? "not over MPI ranks (give a folder of validation samples instead, --valid DIR)"
                                  : "validation samples are given as well");
       return NULL;
     }
     hold.stride = lround(1 / F);
     long nheld = t->samples / hold.stride;
     if (nheld < 1) {
-      tfail(t, "NpgTrainOptions.valid_holdout %g of %ld samples holds none out: add samples", F, t->samples);
+      tfail(t, "--valid %g (NpgTrainOptions.valid_holdout) holds out one sample in %ld, none of %ld: give a "
+               "fraction of at least %.3g, or more samples", F, hold.stride, t->samples, 1.0 / (double)t->samples);
       return NULL;
     }
     src = (SampleSource){t->samples - nheld, &hold, replay_training, replay_training_part, NULL};
@@ -674,20 +721,29 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
     o.valid = &held;
   }
   char err[2048] = "";
-  Model *m = train_model((Program *)t->prog, t->f->full, &src, &o, err, sizeof err);
-  /* the automatic choice made, every sample trains the model (DESIGN §12) */
-  if (m && retrain) m = interp_train_with_choice((Program *)t->prog, t->f->full, &all, &o, m, err, sizeof err);
-  /* over ranks, the others wait for this one in a collective: end the job */
-  if (!m && t->opt.mpi && dist_size() > 1) dist_abort("%s", err);
-  if (!m) {
-    tfail(t, "%s", err);
-    return NULL;
-  }
-  if (!(m->param_hashes = api_param_hashes(t->f->full))) {
-    model_free(m);
+  /* the params the samples are replayed with, recorded before any validation sample is set: a
+   * valid_set that sets a param would otherwise leave its hash in the model (trial3) */
+  char *params = api_param_hashes(t->f->full);
+  if (!params) {
     tfail(t, "out of memory");
     return NULL;
   }
+  Model *m = train_model((Program *)t->prog, t->f->full, &src, &o, err, sizeof err);
+  /* the automatic choice made, every sample trains the model (DESIGN §12) */
+  if (m && retrain) m = interp_train_with_choice((Program *)t->prog, t->f->full, &all, &o, m, err, sizeof err);
+  if (m && params_changed(t, params)) {
+    model_free(m);
+    m = NULL;
+    snprintf(err, sizeof err, "%s", t->error);
+  }
+  /* over ranks, the others wait for this one in a collective: end the job */
+  if (!m && t->opt.mpi && dist_size() > 1) dist_abort("%s", err);
+  if (!m) {
+    free(params);
+    tfail(t, "%s", err);
+    return NULL;
+  }
+  m->param_hashes = params;
   NpgModel *nm = api_model_wrap(m);
   if (!nm) {
     tfail(t, "out of memory");

@@ -21,6 +21,7 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   if (!(tol > 0) || !isfinite(tol)) REFUSE("argument 'tol' is %g (a relative error, positive and finite)", tol);
   if (max_cap < 1) REFUSE("argument 'max_cap' is %d (at least 1)", max_cap);
   if (o && o->mem == 0) REFUSE("NpgTrainOptions.mem is 0 (bytes of memory for training)");
+  if (o && api_refuse_reduce_options(o, __func__, rep->error, sizeof rep->error) != 0) return NULL;
 #undef REFUSE
   if (npg_full_error(f)[0]) {
     snprintf(rep->error, sizeof rep->error, "%s", npg_full_error(f));
@@ -51,9 +52,21 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   rep->priv = r;
   rep->class_name = names;
   for (int c = 0; c < prog->classes.n; c++) names[c] = ((BasisClass *)prog->classes.v[c])->size_name;
-  if (!(ts = train_set_new(prog, f->full, &tsrc, &topt, rep->error, sizeof rep->error)) ||
-      tune_search(ts, prog, f->full, &vsrc, tol, max_cap, &topt, r, rep->error, sizeof rep->error) != 0)
+  /* the params before any sample is set: a `valid` that sets one is refused after the search (trial3) */
+  char *params = api_param_hashes(f->full);
+  bool oom = !params;
+  const char *changed = NULL;
+  if (oom || !(ts = train_set_new(prog, f->full, &tsrc, &topt, rep->error, sizeof rep->error)) ||
+      tune_search(ts, prog, f->full, &vsrc, tol, max_cap, &topt, r, rep->error, sizeof rep->error) != 0 ||
+      (changed = api_param_changed(f->full, params, &oom)) || oom) {
+    if (oom) snprintf(rep->error, sizeof rep->error, "out of memory");
+    else if (changed)
+      snprintf(rep->error, sizeof rep->error, "npg_tune: a training or validation sample function changed param "
+                                              "'%s' (samples hold inputs and externs only)", changed);
+    free(params);
     goto done;
+  }
+  free(params);
   rep->nclasses = r->nclasses;
   rep->ntrials = r->ntrials;
   if (!(rep->trials = calloc((size_t)r->ntrials + 1, sizeof *rep->trials))) {

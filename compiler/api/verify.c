@@ -21,20 +21,23 @@ typedef struct ErrSum {
 #define vfail(rep, ...) npg_fail_first((rep)->error, sizeof (rep)->error, __VA_ARGS__)
 
 /* The worst mean error among the quantities stage `rs` reads (tensor
- * inputs, named numerators, an extern's inputs). */
+ * inputs, named numerators, an extern's inputs); NaN when one of them was
+ * not measured (its basis streamed): then how much the stage adds is
+ * unknown, and fmax would have ignored it (trial3). */
 static double worst_input(const Model *m, const RStage *rs, const NpgVerifyRow *row) {
   double w = 0;
+  bool unknown = false;
   for (int t = 0; t < rs->nterms; t++) {
     const RTerm *rt = &rs->terms[t];
-    if (rt->named_q >= 0) w = fmax(w, row[rt->named_q].l2);
+    if (rt->named_q >= 0) w = fmax(w, row[rt->named_q].l2), unknown |= isnan(row[rt->named_q].l2);
     RTERM_FOR_TENSORS(rt, x)
-      for (int j = 0; j < x->nin; j++) w = fmax(w, row[x->in_q[j]].l2);
+      for (int j = 0; j < x->nin; j++) w = fmax(w, row[x->in_q[j]].l2), unknown |= isnan(row[x->in_q[j]].l2);
   }
   if (rs->st->kind == ST_EXTERN)
     for (int i = 0; i < m->nexterns; i++)
       if (m->externs[i].q == rs->q)
         for (int j = 0; j < m->externs[i].nin; j++) w = fmax(w, row[m->externs[i].in_q[j]].l2);
-  return w;
+  return unknown ? NAN : w;
 }
 
 /* Errors of quantity q at one sample: full value `full`, reduced `r`. */
@@ -135,6 +138,12 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
   for (long k = 0; k < S && rc == 0; k++) {
     if (set(user, f, k) != 0 || npg_full_eval(f, k) != 0 || npg_full_check_finite(f, k) != 0) {
       rc = vfail(rep, "%s", npg_full_error(f));
+      break;
+    }
+    /* `set` may set a param too (npg_full_set takes one): the model would then be compared with
+     * a full evaluation of other params (trial3) */
+    if (npg_model_check_params(nm, f, rep->error, sizeof rep->error) != 0) {
+      rc = -1;
       break;
     }
     for (int q = 0; q < m->nq; q++)

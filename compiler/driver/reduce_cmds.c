@@ -321,7 +321,9 @@ static int cmd_train(Common *c) {
     return 2;
   }
   if (!c->out) return npgc_missing("train", "-o MODEL/ (where to write the model)");
-  const char *inputs[] = {c->prog_path, c->a, NULL}, *spectra_inputs[] = {c->prog_path, c->a, c->out, NULL};
+  /* --valid DIR is read as DATA/ is: --spectra may not write into it (trial3); NULL ends the lists early */
+  const char *inputs[] = {c->prog_path, c->a, c->valid, NULL};
+  const char *spectra_inputs[] = {c->prog_path, c->a, c->out, c->valid, NULL};
   if (npgc_check_output("train", "-o", c->out, NPGC_OUT_MODEL, inputs) != 0 ||
       (c->spectra && npgc_check_output("train", "--spectra", c->spectra, NPGC_OUT_DIR, spectra_inputs) != 0))
     return 1;
@@ -386,10 +388,10 @@ static int cmd_train(Common *c) {
   else {
     double sec[4], cpu[4];
     npg_model_train_seconds(m, sec, cpu);
-    printf("trained %s on %ld samples in %.2f s -> %s\n", c->prog_path, npg_model_samples(m), now() - t0, c->out);
-    if (npg_model_samples(m) < npg_samples_count(s))
-      printf("%ld of the %ld samples held out of training to choose how each eligible stage is reduced\n",
-             npg_samples_count(s) - npg_model_samples(m), npg_samples_count(s));
+    long held = npg_samples_count(s) - npg_model_samples(m); /* --valid F: held out to validate on */
+    printf("trained %s on %ld samples", c->prog_path, npg_model_samples(m));
+    if (held > 0) printf(" (%ld more of DATA/ held out to validate on)", held);
+    printf(" in %.2f s -> %s\n", now() - t0, c->out);
     printf("phases: snapshots %.2f s, bases %.2f s, pre-multiplication %.2f s, externs %.2f s (cpu %.2f %.2f %.2f "
            "%.2f s)\n", sec[0], sec[1], sec[2], sec[3], cpu[0], cpu[1], cpu[2], cpu[3]);
     npg_model_report(m, stdout);

@@ -107,7 +107,10 @@ static int tune(int argc, char **argv, NpgTrainOptions *to) {
       else if (!data) data = v;
       else if (!valid) valid = v;
       else npgc_args_extra(&a, "folder", valid);
-    } else npg_args_unknown(&a);
+    } else if (strncmp(a.argv[a.i], "--valid", 7) == 0 && strcspn(a.argv[a.i], "=") == 7) /* as npgc train has it */
+      snprintf(a.error, sizeof a.error, "npgc tune: --valid is npgc train's; tune validates on the samples of its "
+                                        "third argument, VALID/ (npgc tune PROG.npg DATA/ VALID/ ...)");
+    else npg_args_unknown(&a);
   }
   *to = topt; /* the --reduce lists, to be freed */
   if (a.error[0]) return npgc_args_error(&a, "tune");

@@ -276,7 +276,7 @@ done:
 }
 
 static PyObject *full_get(FullObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Full.get");
   if (!name) return NULL;
   bool inside = npgpy_busy_mine(&self->busy); /* from an extern callable: the evaluation holds the lock */
   if (!inside) npgpy_busy_enter(&self->busy);
@@ -286,7 +286,7 @@ static PyObject *full_get(FullObject *self, PyObject *arg) {
 }
 
 static PyObject *full_dim_method(FullObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Full.dim");
   if (!name) return NULL;
   return PyLong_FromLong(npg_full_dim(self->f, name));
 }
@@ -358,7 +358,7 @@ static PyObject *owning(void *data, npy_intp n, int type) {
  * CSR (scipy.sparse.csr_matrix((data, indices, indptr), shape)); the arrays
  * own the library's buffers (no copy). */
 static PyObject *full_op(FullObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Full.op");
   if (!name) return NULL;
   if (!enter(self, "Full.op")) return NULL;
   NpgCsr c = {0};

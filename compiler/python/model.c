@@ -139,7 +139,7 @@ static PyObject *model_save(ModelObject *self, PyObject *dir) {
 
 /* model.basis(name) -> n x m read-only view of the basis of name's class */
 static PyObject *model_basis(ModelObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Model.basis");
   if (!name) return NULL;
   int c = npg_model_class_of(self->m, name);
   if (c < 0) return PyErr_Format(npgpy_Error, "the model has no basis for '%s'", name);
@@ -162,7 +162,7 @@ static PyObject *model_basis(ModelObject *self, PyObject *arg) {
 
 /* model.interpolated(stage): how training reduced it (DESIGN §12; npg_model_stage_interpolated) */
 static PyObject *model_interpolated(ModelObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Model.interpolated");
   if (!name) return NULL;
   long entries = 0;
   int how = npg_model_stage_interpolated(self->m, name, &entries);
@@ -175,7 +175,7 @@ static PyObject *model_reductions(ModelObject *self, PyObject *unused) {
 }
 
 static PyObject *model_dim_method(ModelObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Model.dim");
   return name ? PyLong_FromLong(npg_model_dim(self->m, name)) : NULL;
 }
 
@@ -204,7 +204,7 @@ int npgpy_samples_set(void *user, NpgFull *f, long k) {
   return 0;
 }
 
-int npgpy_samples(PyObject *dict, const char *who, const char *arg, NpgpySamples *t) {
+int npgpy_samples(const ProgramObject *prog, PyObject *dict, const char *who, const char *arg, NpgpySamples *t) {
   memset(t, 0, sizeof *t);
   t->arg = arg;
   Py_ssize_t n = PyDict_GET_SIZE(dict);
@@ -217,6 +217,12 @@ int npgpy_samples(PyObject *dict, const char *who, const char *arg, NpgpySamples
   for (Py_ssize_t pos = 0; PyDict_Next(dict, &pos, &key, &value);) {
     const char *name = PyUnicode_AsUTF8(key);
     if (!name) return npgpy_samples_free(t), -1;
+    for (int i = 0; i < prog->nsym; i++) /* a param would rebind the evaluator for every later use (trial3) */
+      if (prog->sym[i].kind == NPG_PARAM && strcmp(prog->sym[i].name, name) == 0) {
+        PyErr_Format(npgpy_Error, "%s: %s['%s'] is a param: samples hold inputs and externs (the params are the "
+                                  "evaluator's, bound by program.full(params=...) or full.bind)", who, arg, name);
+        return npgpy_samples_free(t), -1;
+      }
     char what[256];
     snprintf(what, sizeof what, "%s: %s['%s']", who, arg, name);
     PyArrayObject *a = npgpy_values(value, what);
@@ -275,7 +281,7 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
   if (full->prog != self->prog) return PyErr_Format(npgpy_Error, "verify: full evaluates another program");
   NpgpySamples t;
   PyObject *res = NULL;
-  if (npgpy_samples(test, "verify", "test", &t) != 0) return NULL;
+  if (npgpy_samples(self->prog, test, "verify", "test", &t) != 0) return NULL;
   if (npgpy_busy_mine(&full->busy)) {
     PyErr_SetString(npgpy_Error, "verify: called from an extern callable of the evaluator");
     goto done;
@@ -558,7 +564,7 @@ static PyObject *reduced_lift(ReducedObject *self, PyObject *args, PyObject *kw)
 
 /* red.coords(name) -> a copy of any quantity's reduced coordinates */
 static PyObject *reduced_coords(ReducedObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Reduced.coords");
   if (!name || !quantity(self, name)) return NULL;
   npgpy_busy_enter(&self->busy);
   size_t m = 0;
@@ -602,7 +608,7 @@ static PyObject *reduced_set_coords(ReducedObject *self, PyObject *args) {
 
 /* red.op(name) -> the reduced `output op` matrix B_rowᵀ M B_col (rows x cols) */
 static PyObject *reduced_op(ReducedObject *self, PyObject *arg) {
-  const char *name = PyUnicode_AsUTF8(arg);
+  const char *name = npgpy_name(arg, "Reduced.op");
   if (!name) return NULL;
   size_t cap = 0;
   for (int c = 0; c < npg_model_nclasses(self->model->m); c++) {

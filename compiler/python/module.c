@@ -75,6 +75,12 @@ void npgpy_long_shape(PyArrayObject *a, long *shape) {
   for (int i = 0; i < PyArray_NDIM(a); i++) shape[i] = (long)PyArray_DIM(a, i);
 }
 
+const char *npgpy_name(PyObject *arg, const char *method) {
+  if (PyUnicode_Check(arg)) return PyUnicode_AsUTF8(arg);
+  PyErr_Format(PyExc_TypeError, "%s(name): the name must be a str, not %s", method, Py_TYPE(arg)->tp_name);
+  return NULL;
+}
+
 PyObject *npgpy_value_error(const char *fmt, ...) {
   char msg[1024];
   va_list ap;

@@ -57,6 +57,9 @@ PyArrayObject *npgpy_values(PyObject *obj, const char *what);
 void npgpy_long_shape(PyArrayObject *a, long *shape);
 /* A library message as npg.Error (or `type`). Returns NULL. */
 PyObject *npgpy_raise(PyObject *type, const char *msg);
+/* The name a one-argument method was given, as UTF-8; NULL with a TypeError naming `method`
+ * ("Model.interpolated") when it is not a str. */
+const char *npgpy_name(PyObject *arg, const char *method);
 /* ValueError with a printf message (PyErr_Format has no %g); NULL. */
 PyObject *npgpy_value_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 /* The shape of symbol `s` with its dims sized by `dim(ctx, name)` (-1 if
@@ -106,8 +109,9 @@ typedef struct NpgpySamples {
   PyArrayObject **a;
   char (*from)[128];
 } NpgpySamples;
-/* 0, or -1 with an exception naming `who` and `arg` (no sample axis, counts that differ, none). */
-int npgpy_samples(PyObject *dict, const char *who, const char *arg, NpgpySamples *out);
+/* 0, or -1 with an exception naming `who` and `arg` (no sample axis, counts that differ, none, a
+ * name that is one of `prog`'s params: setting it would rebind the evaluator). */
+int npgpy_samples(const ProgramObject *prog, PyObject *dict, const char *who, const char *arg, NpgpySamples *out);
 int npgpy_samples_set(void *user, NpgFull *f, long k);
 void npgpy_samples_free(NpgpySamples *t);
 

@@ -61,8 +61,8 @@ static int stage_names(PyObject *v, const char *what, char ***out, int *n) {
 }
 
 /* The interpolated stages' options (DESIGN §12; NpgTrainOptions' fields of the same names). */
-static int parse_reduce(TrainerObject *self, PyObject *interp, PyObject *galerkin, PyObject *valid, double oversample,
-                        double holdout, NpgTrainOptions *o) {
+static int parse_reduce(TrainerObject *self, PyObject *full, PyObject *interp, PyObject *galerkin, PyObject *valid,
+                        double oversample, double holdout, NpgTrainOptions *o) {
   free_reduce(self);
   if (stage_names(interp, "interp", &self->interp, &o->ninterp) != 0 ||
       stage_names(galerkin, "galerkin", &self->galerkin, &o->ngalerkin) != 0)
@@ -82,7 +82,8 @@ static int parse_reduce(TrainerObject *self, PyObject *interp, PyObject *galerki
   if (!PyDict_Check(valid))
     return PyErr_Format(PyExc_TypeError, "Trainer: valid={'x': array of samples x ...}, not %s",
                         Py_TYPE(valid)->tp_name), -1;
-  if (!(self->valid_dict = PyDict_Copy(valid)) || npgpy_samples(self->valid_dict, "Trainer", "valid", &self->valid))
+  if (!(self->valid_dict = PyDict_Copy(valid)) ||
+      npgpy_samples(((FullObject *)full)->prog, self->valid_dict, "Trainer", "valid", &self->valid))
     return -1;
   o->valid_count = self->valid.count, o->valid_set = npgpy_samples_set, o->valid_user = &self->valid;
   return 0;
@@ -190,15 +191,20 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   PyObject *full, *center = Py_True, *joint = Py_False, *progress = Py_False, *mem = Py_None, *basis = Py_None;
   PyObject *interp = Py_None, *galerkin = Py_None, *valid = Py_None;
   double oversample = 0, holdout = 0;
-  const char *keep = NULL;
+  PyObject *keepo = Py_None;
   PyObject *capo = NULL;
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|dOOOOOOz$OOdOd:Trainer", kwlist, &npgpy_FullType, &full, &o.energy,
-                                   &capo, &center, &mem, &joint, &progress, &basis, &keep, &interp, &galerkin,
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|dOOOOOOO$OOdOd:Trainer", kwlist, &npgpy_FullType, &full, &o.energy,
+                                   &capo, &center, &mem, &joint, &progress, &basis, &keepo, &interp, &galerkin,
                                    &oversample, &valid, &holdout))
     return -1;
   if (capo && cap_value(capo, "cap", &o.cap) != 0) return -1;
+  if (keepo != Py_None && !PyUnicode_Check(keepo))
+    return PyErr_Format(PyExc_TypeError, "Trainer: keep_bases must be a str ('h,m_r' or 'all'), not %s",
+                        Py_TYPE(keepo)->tp_name), -1;
+  const char *keep = keepo == Py_None ? NULL : PyUnicode_AsUTF8(keepo);
+  if (keepo != Py_None && !keep) return -1;
   if (self->t) {
     PyErr_SetString(PyExc_RuntimeError, "Trainer: already initialized");
     return -1;
@@ -217,7 +223,7 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   o.uncentered = !c;
   o.joint = j;
   o.progress = p;
-  if (parse_basis(self, basis, &o) != 0 || parse_reduce(self, interp, galerkin, valid, oversample, holdout, &o) != 0)
+  if (parse_basis(self, basis, &o) != 0 || parse_reduce(self, full, interp, galerkin, valid, oversample, holdout, &o) != 0)
     return -1;
   if (keep) { /* streamed bases (issue 30): as npgc train --keep-bases */
     PyMem_Free(self->keep_bases);

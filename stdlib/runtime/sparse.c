@@ -417,9 +417,19 @@ static int krylov_root(const NpgCtx *c, const char *stage, const char *op, Spars
   double estimate = 0;
   int rc = krylov_power_op(&k, (int)s->n, csc_matvec, s, p, q, NPG_SPARSE_ROOT_TOL, (int)k.maxsteps, y, &done,
                            &estimate);
+  /* stopped before any step counted: a Ritz value, which bounds M's smallest eigenvalue from
+   * above, was not positive (krylov.c approximate(): k.d ascending) — say so, as the dense path
+   * does, rather than "stopped after 0 steps (estimate inf)" (trial3) */
+  double ritz = rc > 0 && done == 0 && k.maxsteps > 0 ? k.d[0] : NAN;
   krylov_free(&k);
   if (rc < 0) {
     runtime_record(c, "sample %ld: stage '%s': LAPACK failed in the Lanczos root of operator %s", c->sample, stage, op);
+    return -1;
+  }
+  if (rc > 0 && !isnan(ritz)) {
+    runtime_record(c, "sample %ld: stage '%s': operator %s is %snot positive definite (an eigenvalue is at most "
+                      "%.3g: a Lanczos Ritz value), so its power %ld/%ld is undefined",
+                   c->sample, stage, op, ritz > 0 ? "numerically " : "", ritz, p, q);
     return -1;
   }
   if (rc > 0) {
