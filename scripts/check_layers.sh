@@ -32,9 +32,9 @@ declare -A dirs=(
   [api]="compiler/api"
   [driver]="compiler/driver"
 )
-# The driver, a client of npg.h alone, with its own header and the charts it
+# The driver, a client of npg.h alone, with its own headers and the charts it
 # shares with the applications (examples/common/chart.h, library npg_chart).
-driver_may_include="npg.h npgc.h chart.h"
+driver_may_include="npg.h npgc.h reduce_cmds.h chart.h"
 
 # The files of a layer (sources and headers).
 files_of() {

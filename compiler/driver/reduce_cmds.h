@@ -1,0 +1,45 @@
+/* reduce_cmds.h — what the reduced-model commands share (reduce_cmds.c:
+ * the options and train; reduce_use.c: eval, verify, bench). Private to
+ * the driver. */
+#ifndef NPGC_REDUCE_CMDS_H
+#define NPGC_REDUCE_CMDS_H
+
+#include <stdbool.h>
+
+#include "npg.h"
+
+/* The parsed command line of train, eval, verify and bench. */
+typedef struct Common {
+  const char *prog_path, *a, *b, *out;
+  NpgOptions opt;
+  bool cc;
+  bool exact;               /* verify: the exactness checks of DESIGN §4 */
+  long exact_size;          /* their size of every dim (0: exact.c's defaults) */
+  double tol;
+  bool tol_set;
+  long reps;                /* bench: passes over the samples */
+  bool progress;            /* --progress: progress on stderr even when it is not a terminal */
+  bool exact_roots;         /* eval, bench: roots by eigendecomposition, not Lanczos */
+  NpgTrainOptions train;
+  int nbasis;               /* --basis overrides */
+  const char **basis_name;
+  int *basis_cap;
+  double *basis_energy;
+  int *basis_center;
+  const char *spectra;      /* train --spectra DIR */
+  const char *params;       /* verify --params DIR: the params, when TEST/ holds only the samples */
+  const char *valid;        /* train --valid DIR */
+  const char *cmd;
+} Common;
+
+/* Seconds on the monotonic clock. */
+double reduce_now(void);
+/* PROG.npg compiled with the command's options; NULL after the message. */
+NpgProgram *reduce_compile(Common *c);
+
+/* reduce_use.c: npgc eval (reduced), verify, bench; the exit status. */
+int cmd_eval_reduced(Common *c);
+int cmd_verify(Common *c);
+int cmd_bench(Common *c);
+
+#endif

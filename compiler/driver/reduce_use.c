@@ -1,0 +1,441 @@
+/* reduce_use.c — the commands that use a reduced model (reduce_cmds.h):
+ *
+ *   npgc eval   PROG.npg MODEL/ IN/ -o OUT/  (reduced: coordinates and lifted outputs)
+ *   npgc verify PROG.npg MODEL/ TEST/        (DESIGN §7: the auto-check)
+ *   npgc bench  PROG.npg MODEL/ TEST/        (full vs reduced time, memory)
+ *
+ * over one Session: the program, the model, its reduced evaluator, the
+ * samples and (verify, bench) the full evaluator. A client of npg.h only. */
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "npg.h"
+#include "npgc.h"
+#include "reduce_cmds.h"
+
+/* ---------------------------------------------------------------- shared by eval, verify, bench */
+
+typedef struct Session {
+  NpgProgram *p;
+  NpgModel *m;
+  NpgReduced *r;
+  NpgSamples *s;
+  NpgFull *f;               /* only verify and bench */
+  int nsym;
+  NpgSymbol *sym;           /* every symbol of the program */
+} Session;
+
+
+static void close_session(Session *x) {
+  npg_reduced_free(x->r);
+  npg_model_free(x->m);
+  npg_samples_free(x->s);
+  npg_full_free(x->f);
+  free(x->sym);
+  npg_free(x->p);
+}
+
+/* Compile, load MODEL/ (c->a), open the samples of c->b; with `full`, a
+ * full evaluator bound to c->b's params, which must be the model's. */
+static int open_session(Common *c, Session *x, bool full) {
+  memset(x, 0, sizeof *x);
+  char err[2048] = "";
+  if (!(x->p = reduce_compile(c))) return -1;
+  x->nsym = npg_nsymbols(x->p);
+  if (!(x->sym = calloc((size_t)x->nsym + 1, sizeof *x->sym))) {
+    fputs("error: out of memory\n", stderr);
+    return -1;
+  }
+  for (int i = 0; i < x->nsym; i++) npg_symbol(x->p, i, &x->sym[i]);
+  if (npgc_check_model_and_data(c->cmd, c->a, c->b, strcmp(c->cmd, "eval") ? "TEST/" : "IN/") != 0) return -1;
+  x->m = npg_model_load(x->p, c->a);
+  if (npg_model_error(x->m)[0]) {
+    npgc_error(npg_model_error(x->m));
+    return -1;
+  }
+  x->r = npg_reduced_new(x->m);
+  npg_reduced_exact_roots(x->r, c->exact_roots);
+  if (npg_reduced_error(x->r)[0]) {
+    npgc_error(npg_reduced_error(x->r));
+    return -1;
+  }
+  /* a full evaluation needs the extern values of the data; a reduced one learns them */
+  if (!(x->s = npg_samples_open(x->p, c->b, NULL, full, err, sizeof err))) {
+    npgc_error(err);
+    return -1;
+  }
+  if (!full && npg_model_check_params_dir(x->m, c->b, err, sizeof err) != 0) {
+    npgc_error(err);
+    return -1;
+  }
+  if (full) {
+    x->f = npg_full_new(x->p, c->cc ? NPG_CC : NPG_TCC);
+    const char *params = c->params ? c->params : c->b;
+    if (npg_full_error(x->f)[0] || npg_full_bind_params(x->f, params) != 0) {
+      npgc_error(npg_full_error(x->f));
+      if (!c->params)
+        fprintf(stderr, "(npgc %s reads the params from %s, the TEST/ folder, beside its samples; --params DIR reads "
+                        "them from another folder, such as the training data's)\n", c->cmd, c->b);
+      return -1;
+    }
+    if (npg_model_check_params(x->m, x->f, err, sizeof err) != 0) {
+      npgc_error(err);
+      return -1;
+    }
+  }
+  if (npg_samples_count(x->s) < 1) {
+    fprintf(stderr, "error: %s: no samples (the first axis of its inputs is 0)\n", c->b);
+    return -1;
+  }
+  /* the inputs' shapes, and so their sizes, must be the model's */
+  if (npg_samples_check_model(x->s, x->m, err, sizeof err) != 0) {
+    npgc_error(err);
+    return -1;
+  }
+  for (int i = 0; i < x->nsym; i++) {
+    if (x->sym[i].kind != NPG_INPUT) continue;
+    size_t n = 0;
+    NpgClassInfo ci;
+    npg_samples_get(x->s, x->sym[i].name, 0, &n);
+    npg_model_class(x->m, npg_model_class_of(x->m, x->sym[i].name), &ci);
+    if ((long)n != ci.n) {
+      fprintf(stderr, "error: %s/%s.npy: '%s' has %zu entries per sample, the model was trained with %ld\n", c->b,
+              x->sym[i].name, x->sym[i].name, n, ci.n);
+      return -1;
+    }
+  }
+  return 0;
+}
+
+/* Project the inputs of sample k and evaluate the reduced model. */
+static int reduced_sample(Session *x, long k) {
+  for (int i = 0; i < x->nsym; i++) {
+    if (x->sym[i].kind != NPG_INPUT) continue;
+    size_t n;
+    const double *v = npg_samples_get(x->s, x->sym[i].name, k, &n);
+    if (npg_reduced_set(x->r, x->sym[i].name, n, v) != 0) return -1;
+  }
+  return npg_reduced_eval(x->r, k);
+}
+
+/* ---------------------------------------------------------------- eval (reduced) */
+
+/* One output over every sample: lifted values and reduced coordinates, or
+ * an operator's reduced matrices. */
+typedef struct Out {
+  const NpgSymbol *sym;
+  long n, m;                /* full size and coordinates (an op: rows x cols in m) */
+  long rows, cols;
+  double *lifted, *coords;
+} Out;
+
+static int write_outputs(const Common *c, const Session *x, const Out *outs, int nout, long S) {
+  if (npgc_make_parents(c->out, true) != 0) return -1;
+  for (int o = 0; o < nout; o++) {
+    const Out *u = &outs[o];
+    char path[4096], err[2048];
+    long shape[16];
+    int nd = 0;
+    shape[nd++] = S;
+    if (u->sym->kind != NPG_OP) {
+      for (int i = 0; i < u->sym->ndims; i++) shape[nd++] = npg_model_dim(x->m, u->sym->dims[i]);
+      for (int i = 0; i < u->sym->nstatic; i++) shape[nd++] = u->sym->shape[i];
+      snprintf(path, sizeof path, "%s/%s.npy", c->out, u->sym->name);
+      if (npg_npy_write(path, nd, shape, u->lifted, err, sizeof err) != 0) goto fail;
+      long cs[2] = {S, u->m};
+      snprintf(path, sizeof path, "%s/%s.reduced.npy", c->out, u->sym->name);
+      if (npg_npy_write(path, 2, cs, u->coords, err, sizeof err) != 0) goto fail;
+    } else {
+      long os[3] = {S, u->rows, u->cols};
+      snprintf(path, sizeof path, "%s/%s.reduced.npy", c->out, u->sym->name);
+      if (npg_npy_write(path, 3, os, u->coords, err, sizeof err) != 0) goto fail;
+    }
+    continue;
+  fail:
+    npgc_error(err);
+    return -1;
+  }
+  return 0;
+}
+
+/* Output o of sample k into its arrays. */
+static int keep_output(Session *x, Out *u, long k) {
+  if (u->sym->kind == NPG_OP) {
+    size_t cap = (size_t)u->m;
+    return npg_reduced_op(x->r, u->sym->name, u->coords + k * u->m, cap, &u->rows, &u->cols, NULL, NULL);
+  }
+  size_t m;
+  const double *v = npg_reduced_coords(x->r, u->sym->name, &m);
+  memcpy(u->coords + k * u->m, v, sizeof(double) * m);
+  return npg_reduced_lift(x->r, u->sym->name, u->lifted + k * u->n, (size_t)u->n);
+}
+
+int cmd_eval_reduced(Common *c) {
+  if (!c->prog_path || !c->a) return npgc_missing("eval", "MODEL/ (or --full DATA/)");
+  if (!c->b) return npgc_missing("eval", "IN/ (the inputs to evaluate)");
+  if (!c->out) return npgc_missing("eval", "-o OUT/ (where to write the outputs)");
+  const char *inputs[] = {c->prog_path, c->a, c->b, NULL};
+  if (npgc_check_output("eval", "-o", c->out, NPGC_OUT_DIR, inputs) != 0) return 1;
+  Session x;
+  int rc = 1, nout = 0;
+  Out *outs = NULL;
+  if (open_session(c, &x, false) != 0) goto done;
+  long S = npg_samples_count(x.s);
+  if (!(outs = calloc((size_t)x.nsym + 1, sizeof *outs))) goto oom;
+  for (int i = 0; i < x.nsym; i++) {
+    if (!x.sym[i].output) continue;
+    Out *u = &outs[nout++];
+    u->sym = &x.sym[i];
+    NpgClassInfo ci;
+    if (u->sym->kind == NPG_OP) { /* rows x cols of the reduced operator: at most the largest class squared */
+      for (int k = 0; k < npg_model_nclasses(x.m); k++)
+        if (npg_model_class(x.m, k, &ci) == 0 && ci.m * ci.m > u->m) u->m = ci.m * ci.m;
+    } else {
+      npg_model_class(x.m, npg_model_class_of(x.m, u->sym->name), &ci);
+      u->n = ci.n;
+      u->m = ci.m;
+    }
+    u->lifted = malloc(sizeof(double) * (size_t)(u->n * S + 1));
+    u->coords = malloc(sizeof(double) * (size_t)(u->m * S + 1));
+    if (!u->lifted || !u->coords) goto oom;
+  }
+  for (long k = 0; k < S; k++) {
+    if (reduced_sample(&x, k) != 0) goto failed;
+    for (int o = 0; o < nout; o++)
+      if (keep_output(&x, &outs[o], k) != 0) goto failed;
+    npg_progress(c->train.progress && S > 1, "reduced evaluation", k + 1, S);
+  }
+  /* an operator's matrices were kept at the largest stride: pack them */
+  for (int o = 0; o < nout; o++) {
+    Out *u = &outs[o];
+    if (u->sym->kind != NPG_OP) continue;
+    for (long k = 1; k < S; k++)
+      memmove(u->coords + k * u->rows * u->cols, u->coords + k * u->m, sizeof(double) * (size_t)(u->rows * u->cols));
+  }
+  rc = write_outputs(c, &x, outs, nout, S) == 0 ? 0 : 1;
+  goto done;
+failed:
+  npgc_error(npg_reduced_error(x.r));
+  goto done;
+oom:
+  fputs("error: out of memory\n", stderr);
+done:
+  for (int o = 0; outs && o < nout; o++) {
+    free(outs[o].lifted);
+    free(outs[o].coords);
+  }
+  free(outs);
+  close_session(&x);
+  return rc;
+}
+
+/* ---------------------------------------------------------------- verify */
+
+/* The exactness checks of the design (npg_verify_exact): 0 pass, 1 fail or error. */
+static int verify_exact(Common *c) {
+  NpgProgram *p = reduce_compile(c);
+  if (!p) return 1;
+  char err[2048] = "";
+  fflush(stdout);
+  int rc = npg_verify_exact(p, c->exact_size, c->cc ? NPG_CC : NPG_TCC, c->train.progress, stdout, err, sizeof err);
+  if (rc < 0)
+    fprintf(stderr, "error: exactness checks of %s: %s%s\n", c->prog_path, err,
+            strstr(err, "not finite") || strstr(err, "singular") || strstr(err, "indefinite")
+                ? " (random data can be degenerate at small sizes, e.g. meshes with too few vertices: try a larger "
+                  "--exact-size)"
+                : "");
+  npg_free(p);
+  return rc == 0 ? 0 : 1;
+}
+
+static void print_report(const Common *c, const NpgVerifyReport *rep) {
+  printf("verify %s against %s on %ld held-out samples (relative errors, mean over samples)\n", c->prog_path, c->a,
+         rep->samples);
+  int wn = 8, wk = 4; /* columns as wide as their widest entry */
+  for (int q = 0; q < rep->nrows; q++) {
+    wn = (int)strlen(rep->rows[q].name) > wn ? (int)strlen(rep->rows[q].name) : wn;
+    wk = (int)strlen(rep->rows[q].kind) > wk ? (int)strlen(rep->rows[q].kind) : wk;
+  }
+  printf("%-*s %-*s %5s %10s %10s %10s %10s %10s %10s\n", wn, "quantity", wk, "kind", "m", "L2 error", "floor", "own",
+         "max L2", "Linf error", "Linf floor");
+  int streamed = 0;
+  for (int q = 0; q < rep->nrows; q++) {
+    const NpgVerifyRow *e = &rep->rows[q];
+    if (e->streamed) { /* no basis in the model: the floors training measured, no lifted error */
+      char linf[32] = "n/a"; /* not measured out of core */
+      if (!isnan(e->linf_floor)) snprintf(linf, sizeof linf, "%9.3e*", e->linf_floor);
+      printf("%-*s %-*s %5ld %10s %9.3e* %10s %10s %10s %10s\n", wn, e->name, wk, e->kind, e->m, "n/a", e->floor,
+             "n/a", "n/a", "n/a", linf);
+      streamed++;
+      continue;
+    }
+    printf("%-*s %-*s %5ld %10.3e %10.3e %10.3e %10.3e %10.3e %10.3e%s\n", wn, e->name, wk, e->kind, e->m, e->l2,
+           e->floor, e->own, e->l2_max, e->linf, e->linf_floor, e->output ? "  (output)" : "");
+  }
+  if (streamed)
+    printf("* %d quantit%s of streamed bases (not kept in the model, issue 30): floor from the training run (mean over "
+           "the training samples), no lifted error; retrain with --keep-bases NAME (or all) to verify them here\n",
+           streamed, streamed == 1 ? "y" : "ies");
+  if (rep->grows_at)
+    printf("error grows most at stage %s (+%.3e over the worst quantity it reads)\n", rep->grows_at, rep->growth);
+}
+
+int cmd_verify(Common *c) {
+  if (c->exact && c->prog_path && !c->a && !c->b && !c->out) return verify_exact(c);
+  if (!c->prog_path) return npgc_missing("verify", "the program (PROG.npg)");
+  if (!c->a) return npgc_missing("verify", "MODEL/ (a model trained by npgc train), or --exact");
+  if (!c->b) return npgc_missing("verify", "TEST/ (held-out samples)");
+  Session x;
+  NpgVerifyReport rep;
+  memset(&rep, 0, sizeof rep);
+  int rc = 1;
+  if (open_session(c, &x, true) != 0) goto done;
+  if (npg_verify(x.m, x.f, npg_samples_count(x.s), npg_samples_set, x.s, c->train.progress, &rep) != 0) {
+    npgc_error(rep.error);
+    goto done;
+  }
+  print_report(c, &rep);
+  npg_verify_warnings(x.m, &rep, c->tol, stdout);
+  rc = 0;
+  for (int q = 0; q < rep.nrows; q++)
+    if (rep.rows[q].output && !(rep.rows[q].l2 <= c->tol && isfinite(rep.rows[q].linf))) { /* NaN never passes */
+      printf("FAIL: output %s: mean relative L2 error %.3e above --tol %.3g\n", rep.rows[q].name, rep.rows[q].l2,
+             c->tol);
+      rc = 1;
+    }
+  if (rc == 0) printf("ok: every output within --tol %.3g\n", c->tol);
+  if (c->exact) {
+    printf("\n");
+    rc |= verify_exact(c);
+  }
+done:
+  npg_verify_free(&rep);
+  close_session(&x);
+  return rc;
+}
+
+/* ---------------------------------------------------------------- bench */
+
+/* Lift every output that is not an operator (the caller's buffer `y`). */
+static int lift_outputs(Session *x, double *y, size_t n) {
+  for (int i = 0; i < x->nsym; i++)
+    if (x->sym[i].output && x->sym[i].kind != NPG_OP) {
+      NpgClassInfo ci;
+      npg_model_class(x->m, npg_model_class_of(x->m, x->sym[i].name), &ci);
+      if ((size_t)ci.n > n || npg_reduced_lift(x->r, x->sym[i].name, y, (size_t)ci.n) != 0) return -1;
+    }
+  return 0;
+}
+
+static int by_value(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}
+
+/* The median and the quartiles of v[0..n) (sorted in place). */
+static void quartiles(double *v, long n, double q[3]) {
+  qsort(v, (size_t)n, sizeof *v, by_value);
+  for (int k = 0; k < 3; k++) {
+    double at = (double)(n - 1) * (k + 1) / 4; /* linear interpolation between order statistics */
+    long i = (long)at;
+    q[k] = i + 1 < n ? v[i] + (at - (double)i) * (v[i + 1] - v[i]) : v[n - 1];
+  }
+}
+
+/* An error during the timed passes: the progress line is ended first. */
+static void bench_error(const Common *c, const char *msg) {
+  if (c->train.progress) fputc('\n', stderr);
+  npgc_error(msg);
+}
+
+int cmd_bench(Common *c) {
+  if (!c->prog_path) return npgc_missing("bench", "the program (PROG.npg)");
+  if (!c->a) return npgc_missing("bench", "MODEL/ (a model trained by npgc train)");
+  if (!c->b) return npgc_missing("bench", "TEST/ (the samples to time)");
+  Session x;
+  int rc = 1;
+  double *y = NULL, *tf = NULL;
+  if (open_session(c, &x, true) != 0) goto done;
+  long S = npg_samples_count(x.s);
+  size_t maxn = 1;
+  for (int k = 0; k < npg_model_nclasses(x.m); k++) {
+    NpgClassInfo ci;
+    npg_model_class(x.m, k, &ci);
+    maxn = (size_t)ci.n > maxn ? (size_t)ci.n : maxn;
+  }
+  long total = c->reps * S, shown = -1;
+  /* per timed evaluation: full, reduced (projected and lifted), lifting alone, and their ratio */
+  if (!(y = malloc(sizeof(double) * maxn)) || !(tf = malloc(sizeof(double) * (size_t)(4 * total + 4)))) {
+    fputs("error: out of memory\n", stderr);
+    goto done;
+  }
+  double *tr = tf + total + 1, *tl = tr + total + 1, *ratio = tl + total + 1;
+  long timed = 0;
+  for (long rep = 0; rep < c->reps; rep++)
+    for (long k = 0; k < S; k++) {
+      /* progress between timed evaluations, redrawn once per percent */
+      long done = rep * S + k;
+      if (done * 100 / total != shown) {
+        shown = done * 100 / total;
+        npg_progress(c->train.progress, "bench (full and reduced)", done, total);
+      }
+      if (npg_samples_set(x.s, x.f, k) != 0) {
+        bench_error(c, npg_full_error(x.f));
+        goto done;
+      }
+      double t0 = reduce_now();
+      if (npg_full_eval(x.f, k) != 0) {
+        bench_error(c, npg_full_error(x.f));
+        goto done;
+      }
+      double t1 = reduce_now();
+      if (reduced_sample(&x, k) != 0) {
+        bench_error(c, npg_reduced_error(x.r));
+        goto done;
+      }
+      double t2 = reduce_now();
+      if (lift_outputs(&x, y, maxn) != 0) {
+        bench_error(c, npg_reduced_error(x.r));
+        goto done;
+      }
+      double t3 = reduce_now();
+      if (rep == 0 && k == 0 && !(S == 1 && c->reps == 1)) continue; /* the first full evaluation also checks gathers */
+      tf[timed] = t1 - t0;
+      tr[timed] = t3 - t1;
+      tl[timed] = t3 - t2;
+      ratio[timed] = (t1 - t0) / fmax(t3 - t1, 1e-12);
+      timed++;
+    }
+  npg_progress(c->train.progress, "bench (full and reduced)", total, total);
+  size_t tb, bytes = npg_model_bytes(x.m, &tb);
+  /* one statistic, the median (robust to the machine's other load, which the mean is not), with the quartiles
+   * as its spread; the speedup is the median of the per-evaluation ratios, each full evaluation against the
+   * reduced one that follows it */
+  double qf[3], qr[3], ql[3], qs[3];
+  quartiles(tf, timed, qf);
+  quartiles(tr, timed, qr);
+  quartiles(tl, timed, ql);
+  quartiles(ratio, timed, qs);
+  printf("bench %s: %ld samples x %ld passes, %ld evaluations timed; medians, quartiles in brackets\n", c->prog_path, S,
+         c->reps, timed);
+  printf("full evaluator: %s\n", c->cc ? "cc (the system compiler at -O3 -march=native)"
+                                        : "libtcc (npg's default; --cc times the system compiler at -O3)");
+  printf("full evaluation     %12.3e s per sample [%.3e, %.3e]\n", qf[1], qf[0], qf[2]);
+  printf("reduced evaluation  %12.3e s per sample [%.3e, %.3e], inputs projected and outputs lifted\n", qr[1], qr[0],
+         qr[2]);
+  printf("  of which lifting  %12.3e s per sample [%.3e, %.3e]\n", ql[1], ql[0], ql[2]);
+  printf("speedup             %12.3gx [%.3gx, %.3gx] (full time / reduced time per evaluation%s)\n", qs[1], qs[0],
+         qs[2], qs[1] < 1 ? ": below 1, the reduced evaluation is slower" : "");
+  printf("reduced model       %12.3f MB of reduced tensors, %.3f MB with bases and extern tables\n", (double)tb / 1e6,
+         (double)bytes / 1e6);
+  rc = 0;
+done:
+  free(tf);
+  free(y);
+  close_session(&x);
+  return rc;
+}
