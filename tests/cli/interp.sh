@@ -140,6 +140,32 @@ grep -q '^stage w: Galerkin; .*: Galerkin: lower output error' "$W/large.txt" ||
 for f in "$W/large.none"/*.npy; do cmp -s "$f" "$W/large.m/$(basename "$f")" || fail "large: $(basename "$f") differs"; done
 test "$(grep -v '^choice \|^manifest fnv1a64 ' "$W/large.m/manifest")" = "$(grep -v '^manifest fnv1a64 ' "$W/large.none/manifest")" ||
   fail "large: manifests differ"
+# Issue 26's acceptance by default (no --valid): softened gravity at the second softening, Lennard-Jones
+# and the normalized edge vectors of a deforming mesh (springs): the automatic choice interpolates,
+# the output falls within 2x of its projection floor and below the Galerkin model's (--valid none)
+for case in "g01 tests/programs/nbody_gravity.npg nbody:64:0.1:0.02:0.3 w r2" \
+  "lj bench/interp/lennard_jones.npg lj:64 g r2" "sp tests/programs/deforming_springs.npg springs:8 f l2"; do
+  # shellcheck disable=SC2086
+  set -- $case
+  /usr/bin/python3 bench/interp/data.py "$3" "$W/$1.tr" 100 1 >/dev/null && /usr/bin/python3 bench/interp/data.py "$3" "$W/$1.te" 10 2 >/dev/null ||
+    fail "$1 data"
+  for how in auto none; do
+    v=""
+    [ $how = none ] && v="--valid none"
+    # shellcheck disable=SC2086
+    "$B/npgc" train "$2" "$W/$1.tr" -o "$W/$1.$how" --basis x:energy=1 --basis "$5:energy=1" $v >"$W/$1.$how.txt" ||
+      fail "train $1 ($how): $(cat "$W/$1.$how.txt")"
+    "$B/npgc" verify "$2" "$W/$1.$how" "$W/$1.te" --tol 1e9 | grep '(output)' >"$W/$1.$how.v" || fail "verify $1 ($how)"
+  done
+  grep -q "^stage $4: interpolated .*: interpolation: lower output error" "$W/$1.auto.txt" ||
+    fail "$1: stage $4 not interpolated by default: $(cat "$W/$1.auto.txt")"
+  # columns: L2 error, floor (4, 5; an interpolated output's kind is two words)
+  e=$(sed 's/, interp//' "$W/$1.auto.v" | awk '{print $4, $5}') g=$(awk '{print $4}' "$W/$1.none.v")
+  /usr/bin/python3 -c "import sys; e, f, g = map(float, sys.argv[1:]); sys.exit(not (e <= 2 * f and e < g))" $e "$g" ||
+    fail "$1: output error and floor $e, Galerkin $g"
+  echo "$1: output error by default $e (error, floor), Galerkin $g"
+done
+
 # A program with an extern (radiosity's learned visibility v): with --valid its learned map is fitted
 # before the choice, so both reductions of h and p are measured (before, both failed on the validation
 # samples and Galerkin was kept unmeasured), and the error of the last choice is verify's on the same samples
