@@ -202,7 +202,7 @@ static double brute_premul(const Model *m, NpgFull *f, const RTensor *t, const R
   for (int l = 0; l < d.nin; l++) red *= mm[l];
   if (d.size > 4000000 || (double)d.size * (double)red > 4e8) return -1;
   d.q = calloc((size_t)d.size, sizeof(double));
-  NpgSink sink = {&d, dense_entry, 0, 1}; /* every row */
+  NpgSink sink = {&d, dense_entry, 0, 1, 0, 0}; /* every row */
   if (full_build(f, t->builder, &sink)) fail_msg("%s", npg_full_error(f));
   double *packed = calloc((size_t)(t->rows * t->cols), sizeof(double));
   long fidx[RT_MAX_IN + 2];
@@ -377,7 +377,7 @@ static void field_at(const Model *m, NpgFull *f, const RTensor *ts, int nt, doub
     int pos = 0;
     for (int j = 0; j < ts[g].nin; j++)
       for (int l = 0; l < ts[g].in_mult[j]; l++) fa.x[pos++] = xt[ts[g].in_q[j]];
-    NpgSink sink = {&fa, field_at_entry, 0, 1}; /* every row */
+    NpgSink sink = {&fa, field_at_entry, 0, 1, 0, 0}; /* every row */
     if (full_build(f, ts[g].builder, &sink)) fail_msg("%s", npg_full_error(f));
   }
   (void)m;
