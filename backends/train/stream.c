@@ -47,6 +47,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "dist.h"
 #include "ooc.h"
@@ -85,8 +86,15 @@ typedef struct Streamer {
   long nt;
   long done, total;         /* progress: samples evaluated, of all blocks' (estimated by passes) */
   long nblocks;             /* this rank's blocks */
+  double sec[4];            /* wall seconds: dry runs, evaluations, A and B, pre-multiplying */
   size_t peak;              /* the largest block's bytes of held rows */
 } Streamer;
+
+static double now(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
 
 bool stream_blockwise(const Ooc *o, int c) {
   const Model *m = o->m;
@@ -259,6 +267,7 @@ static int form_rows(Streamer *s) {
         demand_entries(d, ooc_member_quantity(m, &rc->members[i]), (size_t)h->run[2 * q], (size_t)h->run[2 * q + 1]);
   }
   if (demand_propagate(d)) return npg_fail(o->err, o->errlen, "out of memory");
+  double t0 = now();
   for (long k = 0; k < S; k++) {
     if ((o->src->set_part ? o->src->set_part(o->src->user, o->f, k, d) : o->src->set(o->src->user, o->f, k)) ||
         full_eval_demand(o->f, k, d))
@@ -272,6 +281,7 @@ static int form_rows(Streamer *s) {
     }
     progress_show(o->opt->progress, "pre-multiplication (streamed bases)", ++s->done, s->total);
   }
+  s->sec[3] += now() - t0;
   for (int c = 0; c < m->nclasses; c++) {
     if (!blockwise(s, c)) continue;
     Held *h = &s->held[c];
@@ -342,7 +352,10 @@ static int block(Streamer *s, long u, long U, bool split) {
   Ooc *o = s->o;
   Model *m = o->m;
   size_t need = 0;
+  double t0 = now();
   if (mark_block(s, u, U, &need)) return -1;
+  double t1 = now();
+  s->sec[0] += t1 - t0;
   long parts = o->avail > 0 ? (long)((need + o->avail - 1) / o->avail) : 1;
   if (split && parts > 1) { /* the rows it reads exceed a pass's share of --mem */
     s->total += (parts - 1) * o->S;
@@ -353,6 +366,8 @@ static int block(Streamer *s, long u, long U, bool split) {
   s->nblocks++;
   s->peak = need > s->peak ? need : s->peak;
   if (form_rows(s)) return -1;
+  double t2 = now();
+  s->sec[1] += t2 - t1;
   for (int c = 0; c < m->nclasses; c++) {
     long r0, r1;
     home_rows(m->classes[c].n, u, U, &r0, &r1);
@@ -373,6 +388,7 @@ static int block(Streamer *s, long u, long U, bool split) {
     }
     if (premultiply_block(m, o->f, t->x, &b, &flops, o->err, o->errlen)) return -1;
   }
+  s->sec[2] += now() - t2;
   return 0;
 }
 
@@ -476,7 +492,7 @@ static void held_free(Streamer *s) {
 
 int stream_premultiply(Ooc *o) {
   Model *m = o->m;
-  Streamer s = {o, NULL, NULL, 0, 0, 0, 0, 0};
+  Streamer s = {.o = o};
   bool any = false;
   for (int c = 0; c < m->nclasses; c++) any |= o->st[c].blockwise;
   if (!any) return 0;
@@ -509,6 +525,9 @@ int stream_premultiply(Ooc *o) {
         !(h->peaks = npg_calloc((size_t)o->st[c].m + 1, sizeof(Peaks))))
       goto oom;
   }
+  /* the passes' buffers are done with: their bytes are this sweep's */
+  free(o->block), free(o->abuf);
+  o->block = o->abuf = NULL, o->block_cap = o->abuf_cap = 0;
   s.total = (o->npass - o->rank + o->N - 1) / o->N * o->S; /* this rank's passes, before any split */
   for (long p = 0; p < o->npass; p++)
     if (ooc_mine(o, p) && block(&s, p, o->npass, true)) goto done;
@@ -517,8 +536,9 @@ int stream_premultiply(Ooc *o) {
     fprintf(stderr, "out of core: bases formed block by block for the pre-multiplication, no basis file:");
     for (int c = 0; c < m->nclasses; c++)
       if (blockwise(&s, c)) fprintf(stderr, " %s", m->classes[c].label);
-    fprintf(stderr, " (%ld blocks on this rank, at most %.3g MB of rows held, %ld tensors)\n", s.nblocks,
-            (double)s.peak / 1e6, s.nt);
+    fprintf(stderr, " (%ld blocks on this rank, at most %.3g MB of rows held, %ld tensors; %.2f s finding the rows, "
+            "%.2f s forming them (%.2f s of it evaluating), %.2f s pre-multiplying)\n", s.nblocks, (double)s.peak / 1e6,
+            s.nt, s.sec[0], s.sec[1], s.sec[3], s.sec[2]);
   }
   for (long i = 0; i < s.nt; i++) {
     RTensor *x = s.t[i].x;
