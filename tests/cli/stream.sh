@@ -119,6 +119,15 @@ for name in ("b.npy", "b.reduced.npy"):
     assert a.shape == b.shape and np.max(np.abs(a - b)) <= 1e-10 * max(1.0, np.max(np.abs(b))), name
 PY
 rm -rf "$W/F" "$W/G" "$W/EF" "$W/EG"
+# a block whose rows (c[i,j] reads h[j,i]: the transposed stripe too) exceed a pass's share of
+# --mem is split into sub-blocks (at cap 2 the passes' rows are small against them): the same model
+"$N" train $R "$W/RT" -o "$W/F" --cap 2 --mem 1M --progress >/dev/null 2>"$W/f.err" || fail "train --cap 2 --mem 1M"
+passes=$(tr '\r' '\n' <"$W/f.err" | sed -n 's/^out of core: .* \([0-9]*\) passes over .*/\1/p')
+blocks=$(tr '\r' '\n' <"$W/f.err" | sed -n 's/^out of core: bases formed block by block.* (\([0-9]*\) blocks .*/\1/p')
+[ -n "$passes" ] && [ -n "$blocks" ] && [ "$blocks" -gt "$passes" ] || fail "--cap 2 --mem 1M: $blocks blocks for $passes passes"
+"$N" train $R "$W/RT" -o "$W/G" --cap 2 --mem 1M --keep-bases all >/dev/null || fail "train --cap 2 --mem 1M --keep-bases all"
+same_numbers "$W/F" "$W/G"
+rm -rf "$W/F" "$W/G"
 
 # a size: the pair bases are most of the old layout
 "$N" train $R "$W/RT" -o "$W/S" >"$W/ts.txt" && "$N" train $R "$W/RT" -o "$W/K" --keep-bases all >"$W/tk.txt" || fail "train"
