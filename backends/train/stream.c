@@ -247,6 +247,44 @@ static int held_member_rows(Ooc *o, const Held *h, const RMember *mb, long k, lo
   return 0;
 }
 
+/* Demand the held rows of member quantity q. Its flat rows run over its
+ * dims; for one of two dims (a pair quantity, no static axes) the rows
+ * are cut at the rows of its last dim and the pieces of consecutive first
+ * indices over the same columns joined into one box: a transposed stripe
+ * (*, [i0, i1)) is then one box, not one per row (the demand takes a
+ * quantity of more than 64 boxes whole, DEMAND_MAX_BOXES). */
+static void demand_held(Ooc *o, Demand *d, const Sym *q, const Held *h) {
+  long L = 0;
+  for (int k = 0; q->ndims == 2 && q->nstatic == 0 && k < o->m->prog->dims.n; k++)
+    if (o->m->prog->dims.v[k] == q->dims[1]) L = full_dim_size(o->f, k);
+  if (L <= 0) {
+    for (long r = 0; r < h->nrun; r++) demand_entries(d, q, (size_t)h->run[2 * r], (size_t)h->run[2 * r + 1]);
+    return;
+  }
+  enum { OPEN = 16 };
+  npg_idx box[OPEN][4]; /* lo0, lo1, hi0, hi1: the boxes still growing, oldest first */
+  int nbox = 0;
+  for (long r = 0; r < h->nrun; r++)
+    for (long a = h->run[2 * r], b = h->run[2 * r + 1]; a < b;) {
+      long i = a / L, j = a % L, rows = j == 0 ? (b - a) / L : 0;
+      npg_idx x[4] = {i, j, i + (rows ? rows : 1), rows ? L : (b < (i + 1) * L ? b - i * L : L)};
+      a = rows ? a + rows * L : (b < (i + 1) * L ? b : (i + 1) * L);
+      int k = 0;
+      while (k < nbox && !(box[k][2] == x[0] && box[k][1] == x[1] && box[k][3] == x[3])) k++;
+      if (k < nbox) {
+        box[k][2] = x[2]; /* the same columns on the next first indices */
+        continue;
+      }
+      if (nbox == OPEN) { /* the oldest can no longer grow much: out */
+        demand_box(d, q, box[0], box[0] + 2);
+        memmove(box[0], box[1], sizeof(box[0]) * (OPEN - 1));
+        nbox--;
+      }
+      memcpy(box[nbox++], x, sizeof x);
+    }
+  for (int k = 0; k < nbox; k++) demand_box(d, q, box[k], box[k] + 2);
+}
+
 /* Every sample evaluated restricted to the held rows; each blockwise
  * class's rows of A (as basis_passes forms them) and of B = A T. */
 static int form_rows(Streamer *s) {
@@ -262,9 +300,7 @@ static int form_rows(Streamer *s) {
     if (grow(&h->H[0], &h->Hcap, (size_t)h->map.count * (size_t)S * (size_t)rc->nmembers + 1))
       return npg_fail(o->err, o->errlen, "out of memory forming the basis rows of class %s", rc->label);
     for (int i = 1; i < rc->nmembers; i++) h->H[i] = h->H[i - 1] + (size_t)h->map.count * (size_t)S;
-    for (int i = 0; i < rc->nmembers; i++)
-      for (long q = 0; q < h->nrun; q++)
-        demand_entries(d, ooc_member_quantity(m, &rc->members[i]), (size_t)h->run[2 * q], (size_t)h->run[2 * q + 1]);
+    for (int i = 0; i < rc->nmembers; i++) demand_held(o, d, ooc_member_quantity(m, &rc->members[i]), h);
   }
   if (demand_propagate(d)) return npg_fail(o->err, o->errlen, "out of memory");
   double t0 = now();
