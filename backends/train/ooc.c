@@ -23,7 +23,11 @@
  *                 (after two sweeps that decide the sign convention,
  *                 pca_fix_signs), then mapped read-only: pre-multiplication
  *                 and the extern fit read basis rows through rc->B as from
- *                 memory.
+ *                 memory — except for a class the model drops
+ *                 (Stream.blockwise, issue 30): neither A nor B is written,
+ *                 a third sweep forms each block's rows of B = A T and
+ *                 pre-multiplies the tensors that read them at once
+ *                 (stream.c), and rc->B stays NULL.
  *
  * Small classes keep their snapshots in memory (collected on the first
  * pass) and go through train_member_bases as in memory. A pass holds the

@@ -148,9 +148,12 @@ bool ooc_needed(const Model *m, const TrainOptions *opt);
  * at most opt->mem bytes of snapshots, Gram matrices and basis rows in
  * memory, by passes over the samples that keep a block of rows of the
  * large classes (DESIGN §11); large bases are left in unnamed files and
- * memory-mapped read-only (rc->B_mapped). The result is the in-memory
- * training's (pca_basis, pca_merge through their Gram route) up to
- * rounding. 0, or -1 with `err`. */
+ * memory-mapped read-only (rc->B_mapped). A large class the model drops
+ * (RClass.streamed) is never formed whole (stream.c): rc->B stays NULL,
+ * rc->m is its size, and every tensor that reads it is pre-multiplied here
+ * (t->data set; premultiply_all does the others). The result is the
+ * in-memory training's (pca_basis, pca_merge through their Gram route) up
+ * to rounding. 0, or -1 with `err`. */
 int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- basis sizes by error (tune.c) */
