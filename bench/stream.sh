@@ -1,9 +1,9 @@
 #!/bin/sh
 # bench/stream.sh [FACES] [SAMPLES] [MEM] — streamed bases (issue 30) against the old layout,
 # one after the other in one script: `npgc train` of the radiosity program out of core
-# (--mem MEM), with every basis kept (--keep-bases all, the old layout: every basis formed whole,
-# in unnamed files) and with the default (the pair bases the model drops formed block by block
-# and used at once, stream.c). Per run: the trainer's phase times, the wall
+# (--mem MEM), with every basis kept (--keep-bases all, the old layout: every basis written to its
+# file) and with the default (the pair bases the model drops formed block by block and used at
+# once, stream.c). BUILD=DIR runs another build's binaries (an older commit's, for before/after). Per run: the trainer's phase times, the wall
 # time, peak RSS (/usr/bin/time), the peak scratch disk (the unnamed files training holds open or
 # maps: the disk blocks of the deleted files under /proc/PID/fd and map_files, sampled every 0.1 s),
 # the model's size.

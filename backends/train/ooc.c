@@ -23,11 +23,13 @@
  *                 (after two sweeps that decide the sign convention,
  *                 pca_fix_signs), then mapped read-only: pre-multiplication
  *                 and the extern fit read basis rows through rc->B as from
- *                 memory — except for a class the model drops
- *                 (Stream.blockwise, issue 30): neither A nor B is written,
- *                 a third sweep forms each block's rows of B = A T and
+ *                 memory. Unless a stage may yet become interpolated (issue
+ *                 30, Stream.blockwise): then A is never written, and a
+ *                 third sweep forms each block's rows of B = A T and
  *                 pre-multiplies the tensors that read them at once
- *                 (stream.c), and rc->B stays NULL.
+ *                 (stream.c); a class the model drops is never stored
+ *                 (rc->B stays NULL), one it keeps (v's) has its rows
+ *                 written to its basis file as they are formed, then mapped.
  *
  * Small classes keep their snapshots in memory (collected on the first
  * pass) and go through train_member_bases as in memory. A pass holds the
@@ -379,7 +381,7 @@ static int eigen(Ooc *o) {
   return 0;
 }
 
-static int write_at(FILE *fp, const void *p, size_t bytes, size_t off) {
+int ooc_write_at(FILE *fp, const void *p, size_t bytes, size_t off) {
   const char *c = p;
   while (bytes > 0) {
     ssize_t w = pwrite(fileno(fp), c, bytes, (off_t)off);
@@ -389,7 +391,7 @@ static int write_at(FILE *fp, const void *p, size_t bytes, size_t off) {
   return 0;
 }
 
-static int read_at(FILE *fp, void *p, size_t bytes, size_t off) {
+int ooc_read_at(FILE *fp, void *p, size_t bytes, size_t off) {
   char *c = p;
   while (bytes > 0) {
     ssize_t r = pread(fileno(fp), c, bytes, (off_t)off);
@@ -498,7 +500,7 @@ static int basis_passes(Ooc *o) {
       if (K > 0)
         cblas_dsyrk(CblasColMajor, CblasUpper, CblasNoTrans, (int)K, (int)R, 1.0, A, (int)K, 1.0, st->C, (int)K);
       if (st->AX && floor_products(o, sg, A, K)) return -1;
-      int bad = !st->blockwise && write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
+      int bad = !st->blockwise && ooc_write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
       if (bad) return npg_fail(o->err, o->errlen, "cannot write the scratch file of class %s (disk full?)", rc->label);
     }
     release(o, p);
@@ -635,7 +637,7 @@ oom:
  * over ranks a file every rank opens (rank 0 creates it as
  * PREFIX.ooc.XXXXXX, opt->shared_prefix, sizes it and unlinks it once every
  * rank has it open, so no name outlives the step). NULL with o->err. */
-static FILE *basis_file(Ooc *o, const RClass *rc, size_t bytes) {
+FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes) {
   if (o->N == 1) {
     FILE *fp = tmpfile();
     if (fp && ftruncate(fileno(fp), (off_t)bytes) == 0) return fp;
@@ -689,7 +691,7 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
   rc->m = m;
   if (m == 0) return 0; /* train_complete_basis gives it one direction */
   size_t bytes = sizeof(double) * (size_t)n * (size_t)m;
-  FILE *fp = basis_file(o, rc, bytes);
+  FILE *fp = ooc_basis_file(o, rc, bytes);
   if (!fp) return -1;
   long rows = (long)(o->avail / (sizeof(double) * (size_t)(K + m)));
   if (rows < 1) rows = 1;
@@ -714,7 +716,7 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
     for (long q = 0; !bad && q < nr; q++)
       for (long r0 = range[2 * q]; !bad && r0 < range[2 * q + 1]; r0 += rows) {
         long R = r0 + rows < range[2 * q + 1] ? rows : range[2 * q + 1] - r0;
-        bad = read_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(r0 * K));
+        bad = ooc_read_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(r0 * K));
         if (bad) break;
         cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)R, (int)m, (int)K, 1.0, A, (int)K, T, (int)K, 0.0, B,
                     (int)m);
@@ -725,7 +727,7 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
             else if (first[j] == -HUGE_VAL && big[j] > 0 && fabs(v) >= 0.5 * big[j])
               first[j] = -(2.0 * (double)(r0 + e) + (v > 0 ? 0 : 1));
           }
-        if (sweep == 2) bad = write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));
+        if (sweep == 2) bad = ooc_write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));
       }
   }
   free(A), free(B), free(big), free(first), free(range);

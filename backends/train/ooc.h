@@ -68,19 +68,26 @@ const Sym *ooc_member_quantity(const Model *m, const RMember *mb);
 /* Rows [r0, r1) of member `mb` (of a class of n rows) after evaluating
  * sample k (restricted to a demand holding them), into out. 0, or -1 with o->err. */
 int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1, double *out);
+/* pwrite / pread of `bytes` at offset `off` of fp, whole: 0, or -1. */
+int ooc_write_at(FILE *fp, const void *p, size_t bytes, size_t off);
+int ooc_read_at(FILE *fp, void *p, size_t bytes, size_t off);
+/* The file of a class basis, `bytes` long, unnamed (over ranks: one file
+ * every rank opens, a collective). NULL with o->err. */
+FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes);
 /* A centered member's block (R x S column-major) minus its mean, mu[0..R) the mean. */
 void ooc_center_block(long R, long S, double *H, double *mu);
 
 /* ---------------------------------------------------------------- streamed pre-multiplication (stream.c) */
 
 /* Whether class c's basis can be formed block by block and used at once
- * (Stream.blockwise): streamed by rows out of core, dropped from the model
- * (RClass.streamed), and surely so — no stage may yet be interpolated
- * (which would make its class needed) and no projection B_yᵀB_w reads it. */
+ * (Stream.blockwise): streamed by rows out of core, no stage may yet be
+ * interpolated (which reads bases outside the tensors, and may make a
+ * dropped class needed) and no projection B_yᵀB_w reads it. */
 bool stream_blockwise(const Ooc *o, int c);
 /* Every tensor that reads a blockwise class's basis, pre-multiplied by
  * passes over row blocks (t->data set; the others are left NULL for
- * premultiply_all). 0, or -1 with o->err. */
+ * premultiply_all); a blockwise class the model keeps (not
+ * RClass.streamed) gets its basis file, mapped as rc->B. 0, or -1 with o->err. */
 int stream_premultiply(Ooc *o);
 
 #endif

@@ -2,7 +2,8 @@
  *
  * A class whose basis the model drops (RClass.streamed: radiosity's pair
  * classes, F² rows) needs its basis only to pre-multiply the tensors
- * (paper §4: Q̂ = B_yᵀ Q (B_a ⊗ … ⊗ B_b)). Out of core (ooc.c) its basis is
+ * (paper §4: Q̂ = B_yᵀ Q (B_a ⊗ … ⊗ B_b)); one it keeps (radiosity's v, the
+ * extern) needs no scratch beyond its basis file. Out of core (ooc.c) a basis is
  * B = A T, A = [μ, (X − μ1ᵀ) W] per member, row by row: a row of B needs only
  * the same row of every sample's snapshot, the Gram eigenvectors W and the
  * small K x m matrix T. So instead of writing A and B to disk (n x K and
@@ -40,6 +41,10 @@
  * maximum can no longer decide: each column keeps the running maxima above
  * half the current largest (Peaks), as home rows come in ascending order.
  *
+ * A class the model keeps has its home rows written to its basis file as
+ * they are formed, the signs fixed in the file at the end (one read and
+ * write of this rank's rows, only when a column flips), then mapped.
+ *
  * Over MPI ranks every rank takes the passes p ≡ rank (mod N) as in ooc.c;
  * the tensors' sums are summed over the ranks, the largest magnitudes and
  * the deciding rows reduced as write_basis does. */
@@ -47,6 +52,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <time.h>
 
 #include "dist.h"
@@ -71,6 +77,11 @@ typedef struct Held {
   size_t Hcap, Acap;
   Peaks *peaks;             /* per column of B */
   double *sign;             /* per column, once every row is seen: ±1 */
+  /* a class the model keeps (v's, the extern's): its home rows of B written to its basis file as
+   * they are formed, their signs fixed in the file at the end, then mapped (rc->B) */
+  FILE *file;
+  long *own;                /* the home ranges this rank wrote: own[2i] <= r < own[2i + 1] */
+  long nown, owncap;
 } Held;
 
 /* A tensor reading a blockwise basis. */
@@ -98,7 +109,7 @@ static double now(void) {
 
 bool stream_blockwise(const Ooc *o, int c) {
   const Model *m = o->m;
-  if (!o->st[c].streamed || !m->classes[c].streamed || o->opt->ninterp > 0 || o->opt->valid) return false;
+  if (!o->st[c].streamed || o->opt->ninterp > 0 || o->opt->valid) return false;
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
     if (rs->st->sym->reduce == STAGE_REDUCE_INTERP) return false; /* its class and reads become needed */
@@ -382,6 +393,63 @@ static int take_peaks(Streamer *s, int c, long r0, long r1) {
   return 0;
 }
 
+/* A kept class's home rows [r0, r1) of B (signs still to fix) into its
+ * basis file: they are consecutive among the held rows. */
+static int write_home(Streamer *s, int c, long r0, long r1) {
+  Held *h = &s->held[c];
+  long mm = s->o->st[c].m;
+  if (r1 <= r0) return 0;
+  if (h->nown == h->owncap) {
+    long cap = h->owncap ? 2 * h->owncap : 64;
+    long *own = npg_realloc(h->own, sizeof(long) * (size_t)(2 * cap));
+    if (!own) return npg_fail(s->o->err, s->o->errlen, "out of memory");
+    h->own = own, h->owncap = cap;
+  }
+  h->own[2 * h->nown] = r0, h->own[2 * h->nown + 1] = r1, h->nown++;
+  if (ooc_write_at(h->file, h->B + row_map_at(&h->map, r0) * mm, sizeof(double) * (size_t)((r1 - r0) * mm),
+                   sizeof(double) * (size_t)(r0 * mm)))
+    return npg_fail(s->o->err, s->o->errlen, "cannot write the basis of class %s (disk full?)",
+                    s->o->m->classes[c].label);
+  return 0;
+}
+
+/* A kept class's basis once its signs are known: this rank's rows' columns
+ * of negative sign flipped in the file, then the whole file mapped
+ * read-only on every rank as rc->B (write_basis's ending). */
+static int map_kept(Streamer *s, int c) {
+  Ooc *o = s->o;
+  Held *h = &s->held[c];
+  RClass *rc = &o->m->classes[c];
+  long mm = o->st[c].m, chunk = 4096;
+  size_t bytes = sizeof(double) * (size_t)rc->n * (size_t)mm;
+  bool flip = false;
+  for (long j = 0; j < mm; j++) flip |= h->sign[j] < 0;
+  double *buf = flip ? npg_malloc(sizeof(double) * (size_t)(chunk * mm)) : NULL;
+  int bad = flip && !buf;
+  for (long q = 0; flip && !bad && q < h->nown; q++)
+    for (long r0 = h->own[2 * q]; !bad && r0 < h->own[2 * q + 1]; r0 += chunk) {
+      long R = r0 + chunk < h->own[2 * q + 1] ? chunk : h->own[2 * q + 1] - r0;
+      size_t len = sizeof(double) * (size_t)(R * mm), off = sizeof(double) * (size_t)(r0 * mm);
+      bad = ooc_read_at(h->file, buf, len, off);
+      for (long e = 0; !bad && e < R; e++)
+        for (long j = 0; j < mm; j++) buf[e * mm + j] *= h->sign[j];
+      bad = bad || ooc_write_at(h->file, buf, len, off);
+    }
+  free(buf);
+  double ok = !bad; /* every rank's rows written (a rank that failed ends the job before it) */
+  dist_allreduce_sum(&ok, 1);
+  void *map = ok == o->N ? mmap(NULL, bytes, PROT_READ, MAP_SHARED, fileno(h->file), 0) : MAP_FAILED;
+  fclose(h->file); /* the mapping keeps the file */
+  h->file = NULL;
+  if (map == MAP_FAILED)
+    return npg_fail(o->err, o->errlen, "cannot write or map the basis of class %s (%.3g GB; disk full?)", rc->label,
+                    (double)bytes / 1e9);
+  free(rc->B);
+  rc->B = map;
+  rc->B_mapped = bytes;
+  return 0;
+}
+
 /* ---------------------------------------------------------------- a block */
 
 static int block(Streamer *s, long u, long U, bool split) {
@@ -407,7 +475,7 @@ static int block(Streamer *s, long u, long U, bool split) {
   for (int c = 0; c < m->nclasses; c++) {
     long r0, r1;
     home_rows(m->classes[c].n, u, U, &r0, &r1);
-    if (blockwise(s, c) && take_peaks(s, c, r0, r1)) return -1;
+    if (blockwise(s, c) && (take_peaks(s, c, r0, r1) || (s->held[c].file && write_home(s, c, r0, r1)))) return -1;
   }
   double flops = 0;
   for (long i = 0; i < s->nt; i++) {
@@ -517,7 +585,8 @@ static int fix_signs(Streamer *s, const STensor *t) {
 static void held_free(Streamer *s) {
   for (int c = 0; s->held && c < s->o->m->nclasses; c++) {
     Held *h = &s->held[c];
-    free(h->map.bits), free(h->map.before), free(h->run), free(h->A), free(h->sign);
+    free(h->map.bits), free(h->map.before), free(h->run), free(h->A), free(h->sign), free(h->own);
+    if (h->file) fclose(h->file);
     if (h->H) free(h->H[0]);
     free(h->H);
     for (long j = 0; h->peaks && j < s->o->st[c].m; j++) free(h->peaks[j].row), free(h->peaks[j].v);
@@ -561,6 +630,10 @@ int stream_premultiply(Ooc *o) {
         !(h->peaks = npg_calloc((size_t)o->st[c].m + 1, sizeof(Peaks))))
       goto oom;
   }
+  for (int c = 0; c < m->nclasses; c++) /* every rank in the same order: over ranks a collective */
+    if (blockwise(&s, c) && !m->classes[c].streamed &&
+        !(s.held[c].file = ooc_basis_file(o, &m->classes[c], sizeof(double) * (size_t)m->classes[c].n * (size_t)o->st[c].m)))
+      goto done;
   /* the passes' buffers are done with: their bytes are this sweep's */
   free(o->block), free(o->abuf);
   o->block = o->abuf = NULL, o->block_cap = o->abuf_cap = 0;
@@ -568,10 +641,15 @@ int stream_premultiply(Ooc *o) {
   for (long p = 0; p < o->npass; p++)
     if (ooc_mine(o, p) && block(&s, p, o->npass, true)) goto done;
   if (decide_signs(&s)) goto done;
+  for (int c = 0; c < m->nclasses; c++)
+    if (s.held[c].file && map_kept(&s, c)) goto done;
   if (o->opt->progress) {
     fprintf(stderr, "out of core: bases formed block by block for the pre-multiplication, no basis file:");
     for (int c = 0; c < m->nclasses; c++)
-      if (blockwise(&s, c)) fprintf(stderr, " %s", m->classes[c].label);
+      if (blockwise(&s, c) && m->classes[c].streamed) fprintf(stderr, " %s", m->classes[c].label);
+    fprintf(stderr, "; kept, written as formed (no scratch A):");
+    for (int c = 0; c < m->nclasses; c++)
+      if (blockwise(&s, c) && !m->classes[c].streamed) fprintf(stderr, " %s", m->classes[c].label);
     fprintf(stderr, " (%ld blocks on this rank, at most %.3g MB of rows held, %ld tensors; %.2f s finding the rows, "
             "%.2f s forming them (%.2f s of it evaluating), %.2f s pre-multiplying)\n", s.nblocks, (double)s.peak / 1e6,
             s.nt, s.sec[0], s.sec[1], s.sec[3], s.sec[2]);

@@ -148,10 +148,12 @@ bool ooc_needed(const Model *m, const TrainOptions *opt);
  * at most opt->mem bytes of snapshots, Gram matrices and basis rows in
  * memory, by passes over the samples that keep a block of rows of the
  * large classes (DESIGN §11); large bases are left in unnamed files and
- * memory-mapped read-only (rc->B_mapped). A large class the model drops
- * (RClass.streamed) is never formed whole (stream.c): rc->B stays NULL,
- * rc->m is its size, and every tensor that reads it is pre-multiplied here
- * (t->data set; premultiply_all does the others). The result is the
+ * memory-mapped read-only (rc->B_mapped). Unless a stage may yet be made
+ * interpolated (opt->valid, interpolation asked for), the large classes'
+ * bases are formed block by block (stream.c) and every tensor that reads
+ * one is pre-multiplied here (t->data set; premultiply_all does the
+ * others): a class the model drops (RClass.streamed) is never stored
+ * (rc->B stays NULL, rc->m its size), one it keeps is mapped. The result is the
  * in-memory training's (pca_basis, pca_merge through their Gram route) up
  * to rounding. 0, or -1 with `err`. */
 int ooc_bases(Model *m, NpgFull *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen);

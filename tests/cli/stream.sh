@@ -104,7 +104,7 @@ done
 opts="--mem 4M --energy 0.9999999"
 (ulimit -f 400 && exec "$N" train $R "$W/RT" -o "$W/F" $opts --progress >/dev/null 2>"$W/f.err") ||
   fail "streamed training under a 200 kB file-size limit: $(tr '\r' '\n' <"$W/f.err" | tail -3)"
-grep -aq '^out of core: bases formed block by block for the pre-multiplication, no basis file: {s,h} {r} {c} {d,p} (' \
+grep -aq '^out of core: bases formed block by block for the pre-multiplication, no basis file: {s,h} {r} {c} {d,p}; kept, written as formed (no scratch A): {v} (' \
   "$W/f.err" || fail "no block-by-block bases: $(tr '\r' '\n' <"$W/f.err" | grep -a 'out of core')"
 if (ulimit -f 400 && exec "$N" train $R "$W/RT" -o "$W/G" $opts --keep-bases all >/dev/null 2>&1); then
   fail "the file-size limit does not bite: --keep-bases all trained under it"

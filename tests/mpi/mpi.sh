@@ -78,7 +78,7 @@ for np in 2 3; do
   grep -q "out of core: 5 of 9 classes streamed by rows, 23 passes" "$scratch/o$np.log" ||
     fail "--mem $mem over $np ranks did not go out of core: $(cat "$scratch/o$np.log")"
   # the pair bases the model drops formed block by block over the ranks (stream.c), no basis file
-  grep -aq "bases formed block by block for the pre-multiplication, no basis file: {s,h} {r} {c} {d,p}" \
+  grep -aq "bases formed block by block for the pre-multiplication, no basis file: {s,h} {r} {c} {d,p}; kept, written as formed (no scratch A): {v}" \
     "$scratch/o$np.log" || fail "over $np ranks the pair bases were not formed block by block"
   $compare "$scratch/o1" "$scratch/o$np" 1e-10 1e-7
   # the streamed classes' training floors (issue 30), summed over the ranks' passes: one process's
