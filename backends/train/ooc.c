@@ -731,6 +731,11 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
       }
   }
   free(A), free(B), free(big), free(first), free(range);
+  return ooc_map_basis(o, rc, fp, bad);
+}
+
+int ooc_map_basis(Ooc *o, RClass *rc, FILE *fp, int bad) {
+  size_t bytes = sizeof(double) * (size_t)rc->n * (size_t)rc->m;
   /* every rank's rows written (a rank that failed ends the job before it) */
   double ok = !bad;
   dist_allreduce_sum(&ok, 1);

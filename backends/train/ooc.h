@@ -74,6 +74,10 @@ int ooc_read_at(FILE *fp, void *p, size_t bytes, size_t off);
 /* The file of a class basis, `bytes` long, unnamed (over ranks: one file
  * every rank opens, a collective). NULL with o->err. */
 FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes);
+/* Class rc's basis file (rc->n x rc->m, every rank's rows written unless
+ * `bad` on some rank) mapped read-only as rc->B on every rank, fp closed (a
+ * collective). 0, or -1 with o->err. */
+int ooc_map_basis(Ooc *o, RClass *rc, FILE *fp, int bad);
 /* A centered member's block (R x S column-major) minus its mean, mu[0..R) the mean. */
 void ooc_center_block(long R, long S, double *H, double *mu);
 

@@ -52,7 +52,6 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/mman.h>
 #include <time.h>
 
 #include "dist.h"
@@ -421,7 +420,6 @@ static int map_kept(Streamer *s, int c) {
   Held *h = &s->held[c];
   RClass *rc = &o->m->classes[c];
   long mm = o->st[c].m, chunk = 4096;
-  size_t bytes = sizeof(double) * (size_t)rc->n * (size_t)mm;
   bool flip = false;
   for (long j = 0; j < mm; j++) flip |= h->sign[j] < 0;
   double *buf = flip ? npg_malloc(sizeof(double) * (size_t)(chunk * mm)) : NULL;
@@ -436,18 +434,9 @@ static int map_kept(Streamer *s, int c) {
       bad = bad || ooc_write_at(h->file, buf, len, off);
     }
   free(buf);
-  double ok = !bad; /* every rank's rows written (a rank that failed ends the job before it) */
-  dist_allreduce_sum(&ok, 1);
-  void *map = ok == o->N ? mmap(NULL, bytes, PROT_READ, MAP_SHARED, fileno(h->file), 0) : MAP_FAILED;
-  fclose(h->file); /* the mapping keeps the file */
+  FILE *fp = h->file;
   h->file = NULL;
-  if (map == MAP_FAILED)
-    return npg_fail(o->err, o->errlen, "cannot write or map the basis of class %s (%.3g GB; disk full?)", rc->label,
-                    (double)bytes / 1e9);
-  free(rc->B);
-  rc->B = map;
-  rc->B_mapped = bytes;
-  return 0;
+  return ooc_map_basis(o, rc, fp, bad);
 }
 
 /* ---------------------------------------------------------------- a block */
