@@ -331,7 +331,7 @@ static Trained *train(NpgProgram *p, long F, long S, int cap, bool rerun_all) {
     run->seconds = tr->nt == 0 ? NAN : w.t_premul[tr->nt + 1] - w.t_premul[tr->nt];
     run->rerun_seconds = NAN;
     Count c = {0, 0, 0};
-    NpgSink sink = {&c, count_entry, 0, 1}; /* every row */
+    NpgSink sink = {&c, count_entry, 0, 1, 0, 0}; /* every row */
     if (full_build(tr->f, x->builder, &sink)) die("full_build", full_error(tr->f));
     run->entries = c.entries, run->keys = c.keys;
     run->flops = premul_flops(x, c.entries, c.keys);

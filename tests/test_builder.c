@@ -39,6 +39,22 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
   return 0;
 }
 
+/* The entries of output rows [lo, hi): their number and a checksum of
+ * everything they carry (the same entries in the same order give the same). */
+typedef struct RangeCount {
+  long lo, hi, count;
+  double sum;
+} RangeCount;
+
+static int count_in_range(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
+  RangeCount *r = user;
+  if (row < r->lo || row >= r->hi) return 0;
+  r->count++;
+  r->sum += coef * (double)(row + 1) + 0.5 * (double)col;
+  for (int i = 0; i < nin; i++) r->sum += 1e-3 * (double)(i + 1) * (double)in[i];
+  return 0;
+}
+
 /* Value of a symbolic count like "18·F^2 + 3·F" with every dim = n. */
 static long eval_count(const char *s, long n) {
   long total = 0;
@@ -70,7 +86,7 @@ static int run_group(Collect *k, const char *name, const TensorGroup *g, long n,
   k->last_row = -1;
   k->count = 0;
   k->ordered = k->diag_ok = true;
-  NpgSink sink = {k, on_entry, 0, 1}; /* every row */
+  NpgSink sink = {k, on_entry, 0, 1, 0, 0}; /* every row */
   if (full_build(k->f, name, &sink) != 0) {
     print_message("%s: %s: %s\n", path, what, full_error(k->f));
     return 1;
@@ -81,6 +97,16 @@ static int run_group(Collect *k, const char *name, const TensorGroup *g, long n,
   if (!k->diag_ok) print_message("%s: %s: a diagonal operator entry off the diagonal\n", path, what), bad++;
   if (g->nnz_bound ? k->count > expect : k->count != expect)
     print_message("%s: %s: %ld entries, nnz formula '%s' gives %ld\n", path, what, k->count, g->nnz, expect), bad++;
+  /* a block of rows (NpgSink.lo, .hi, out-of-core pre-multiplication): the
+   * builder may skip the rows outside, and gives every entry of those inside */
+  long rows = k->last_row + 1;
+  RangeCount whole = {rows / 3, 2 * rows / 3 + 1, 0, 0}, part = whole;
+  NpgSink all = {&whole, count_in_range, 0, 1, 0, 0}, block = {&part, count_in_range, 0, 1, part.lo, part.hi};
+  if (rows > 1 && (full_build(k->f, name, &all) || full_build(k->f, name, &block)))
+    print_message("%s: %s: %s\n", path, what, full_error(k->f)), bad++;
+  else if (part.count != whole.count || part.sum != whole.sum)
+    print_message("%s: %s: rows [%ld, %ld): %ld entries built as a block, %ld of the whole\n", path, what, part.lo,
+                  part.hi, part.count, whole.count), bad++;
   return bad;
 }
 

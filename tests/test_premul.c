@@ -86,7 +86,7 @@ static double brute_premul(const Model *m, Full *f, const RTensor *t, const RCla
   for (int l = 0; l < d.nin; l++) red *= mm[l];
   if (d.size > 4000000 || (double)d.size * (double)red > 4e8) return -1;
   d.q = calloc((size_t)d.size, sizeof(double));
-  NpgSink sink = {&d, dense_entry, 0, 1}; /* every row */
+  NpgSink sink = {&d, dense_entry, 0, 1, 0, 0}; /* every row */
   if (full_build(f, t->builder, &sink)) fail_msg("%s", full_error(f));
   double *packed = calloc((size_t)(t->rows * t->cols), sizeof(double));
   long fidx[RT_MAX_IN + 2];

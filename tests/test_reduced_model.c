@@ -139,7 +139,7 @@ static void field_at(const Model *m, Full *f, const RTensor *ts, int nt, double 
     int pos = 0;
     for (int j = 0; j < ts[g].nin; j++)
       for (int l = 0; l < ts[g].in_mult[j]; l++) fa.x[pos++] = xt[ts[g].in_q[j]];
-    NpgSink sink = {&fa, field_at_entry, 0, 1}; /* every row */
+    NpgSink sink = {&fa, field_at_entry, 0, 1, 0, 0}; /* every row */
     if (full_build(f, ts[g].builder, &sink)) fail_msg("%s", full_error(f));
   }
   (void)m;

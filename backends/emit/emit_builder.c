@@ -107,6 +107,9 @@ static void build_body_sparse(Emit *e, FILE *out, const BuildArgs *b) {
   int nrow = s->nrow;
   fputs("  const npg_idx np_ = sink->nparts > 1 ? sink->nparts : 1, part_ = np_ > 1 ? sink->part : 0;\n", out);
   fputs("  (void)np_, (void)part_;\n", out);
+  /* a block of rows (NpgSink.lo, .hi): the rows outside skipped before their entries are made */
+  fputs("  const npg_idx lo_ = sink->hi > sink->lo ? sink->lo : 0, hi_ = sink->hi > sink->lo ? sink->hi : -1;\n", out);
+  fputs("  (void)lo_, (void)hi_;\n", out);
   if (nrow == 0) fputs("  if (part_ != 0) return 0;\n", out);
   for (int i = 0; i < nrow; i++) {
     const char *v = emit_name(e, s->ivars[i]);
@@ -119,6 +122,10 @@ static void build_body_sparse(Emit *e, FILE *out, const BuildArgs *b) {
   fputs("const npg_idx e_ = ", out);
   emit_flat(e, out, s, 0, nrow);
   fputs(";\n", out);
+  if (nrow > 0) {
+    emit_indent(out, depth);
+    fputs("if (hi_ >= 0 && (e_ < lo_ || e_ >= hi_)) continue;\n", out);
+  }
   emit_indent(out, depth);
   fputs("if (np_ > 1 && e_ % np_ != part_) continue;\n", out);
   emit_indent(out, depth);
@@ -158,6 +165,9 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
   int guard = b->kind != 2 && !stride; /* the per-component test opens a block */
   fputs("  const npg_idx np_ = sink->nparts > 1 ? sink->nparts : 1, part_ = np_ > 1 ? sink->part : 0;\n", out);
   fputs("  (void)np_, (void)part_;\n", out);
+  /* a block of rows (NpgSink.lo, .hi): the rows outside skipped before their entries are made */
+  fputs("  const npg_idx lo_ = sink->hi > sink->lo ? sink->lo : 0, hi_ = sink->hi > sink->lo ? sink->hi : -1;\n", out);
+  fputs("  (void)lo_, (void)hi_;\n", out);
   if (b->kind == 2 && nrow == 0) fputs("  if (part_ != 0) return 0;\n", out);
   for (int i = 0; i < s->nivars; i++) {
     const char *v = emit_name(e, s->ivars[i]), *range = emit_name(e, s->ivars[i]->range);
@@ -175,6 +185,12 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
       fputs("if (np_ > 1 && ", out);
       emit_flat(e, out, s, 0, nrow);
       fputs(" % np_ != part_) continue;\n", out);
+      emit_indent(out, 2 + i);
+      fputs("if (hi_ >= 0 && (", out);
+      emit_flat(e, out, s, 0, nrow);
+      fputs(" < lo_ || ", out);
+      emit_flat(e, out, s, 0, nrow);
+      fputs(" >= hi_)) continue;\n", out);
     }
   }
   int depth = 1 + s->nivars;
@@ -182,6 +198,10 @@ static void build_body(Emit *e, FILE *out, const void *arg) {
   fputs("const npg_idx e_ = ", out);
   emit_flat(e, out, s, 0, nrow);
   fputs(";\n", out);
+  if (b->kind != 2 && s->nivars > 0) { /* no component of this entry's rows in the block */
+    emit_indent(out, depth);
+    fprintf(out, "if (hi_ >= 0 && ((e_ + 1) * %d <= lo_ || e_ * %d >= hi_)) continue;\n", b->ncomp, b->ncomp);
+  }
   if (b->kind == 2) {
     emit_indent(out, depth);
     fputs("const npg_idx col_ = ", out);

@@ -23,7 +23,13 @@
  *                 (after two sweeps that decide the sign convention,
  *                 pca_fix_signs), then mapped read-only: pre-multiplication
  *                 and the extern fit read basis rows through rc->B as from
- *                 memory.
+ *                 memory. Unless a stage may yet become interpolated (issue
+ *                 30, Stream.blockwise): then A is never written, and a
+ *                 third sweep forms each block's rows of B = A T and
+ *                 pre-multiplies the tensors that read them at once
+ *                 (stream.c); a class the model drops is never stored
+ *                 (rc->B stays NULL), one it keeps (v's) has its rows
+ *                 written to its basis file as they are formed, then mapped.
  *
  * Small classes keep their snapshots in memory (collected on the first
  * pass) and go through train_member_bases as in memory. A pass holds the
@@ -57,7 +63,7 @@
 #include <unistd.h>
 
 #include "dist.h"
-#include "train.h"
+#include "ooc.h"
 
 /* A direction whose remainder after the previous ones is below this
  * fraction of its norm is dependent on them. In memory (pca_in_order) the
@@ -67,54 +73,6 @@
  * over the samples) would otherwise keep that noise. */
 #define OOC_DEPENDENT_TOL 1e-6
 
-/* Rows [r0, r1) of streamed class c, collected in one pass. */
-typedef struct Segment {
-  int c;
-  long r0, r1;
-  double **H;               /* per member: (r1 − r0) x S column-major, the rows of every sample */
-} Segment;
-
-typedef struct Stream {
-  bool streamed;
-  double **X;               /* small class: per member n x S column-major */
-  double **G;               /* streamed: per member S x S column-major (upper), Gram of its centered snapshots */
-  double **s;               /* per member: singular values, descending (S) */
-  long *k;                  /* per member: directions kept from its Gram matrix */
-  double *big;              /* per member: its largest |snapshot entry| (squares underflowing to 0 leave G 0) */
-  long *col;                /* per member: its first column of A (μ when centered, then k directions) */
-  long K;                   /* columns of A */
-  double *C;                /* K x K column-major: AᵀA */
-  FILE *A;                  /* A: n x K row-major, in an unnamed file */
-  /* the training floors of a class whose basis the model drops (RClass.streamed, issue 30), from
-   * the basis passes: per member AᵀX (K x S column-major) and every sample's ‖y_k‖² (S), so that
-   * BᵀX = Tᵀ(AᵀX) and ‖y_k − BBᵀy_k‖² = ‖y_k‖² − ‖Bᵀy_k‖² need neither the basis nor another pass */
-  double **AX, **yy;
-} Stream;
-
-typedef struct Ooc {
-  Model *m;
-  Full *f;
-  const SampleSource *src;
-  const TrainOptions *opt;
-  long S;
-  Stream *st;
-  Segment *seg;
-  long nseg;
-  long *first;              /* pass p collects segments [first[p], first[p + 1]) */
-  long npass;
-  size_t avail;             /* bytes for the blocks of one pass */
-  double *tmp;              /* one member value */
-  char *err;
-  size_t errlen;
-  size_t fixed;             /* bytes of the Gram matrices, the small classes and the sample scratch */
-  int rank, N;              /* over ranks (opt->dist): this rank takes the passes p ≡ rank (mod N) */
-  /* the blocks of the pass being collected, and a basis pass's A and
-   * mean, kept from pass to pass: allocated afresh, every pass paid page
-   * faults on them (measured over MPI ranks, bench/mpi.md) */
-  double *block, *abuf;
-  size_t block_cap, abuf_cap;
-} Ooc;
-
 static double now(void) {
   struct timespec ts;
   clock_gettime(CLOCK_MONOTONIC, &ts);
@@ -122,7 +80,7 @@ static double now(void) {
 }
 
 /* Whether pass p is this rank's. */
-static bool mine(const Ooc *o, long p) { return p % o->N == o->rank; }
+bool ooc_mine(const Ooc *o, long p) { return p % o->N == o->rank; }
 
 /* Bytes of member bases at their caps. */
 static size_t basis_bytes(const RClass *rc) {
@@ -205,12 +163,12 @@ static int plan(Ooc *o) {
 /* The quantity whose rows member `mb` is: itself, or for an unnamed
  * numerator the stage it is the numerator of (its expression reads what
  * the numerator reads, at the same entries). */
-static const Sym *member_quantity(const Model *m, const RMember *mb) {
+const Sym *ooc_member_quantity(const Model *m, const RMember *mb) {
   return mb->q >= 0 ? m->prog->quantities.v[mb->q] : mb->joiner->stage->sym;
 }
 
 /* Rows [r0, r1) of member `mb` after evaluating sample k, into out. */
-static int member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1, double *out) {
+int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1, double *out) {
   if (mb->q < 0) { /* an unnamed numerator: through its tensors, whole */
     if (train_member_value(o->m, o->f, mb, k, n, o->tmp, o->err, o->errlen)) return -1;
     memcpy(out, o->tmp + r0, sizeof(double) * (size_t)(r1 - r0));
@@ -268,7 +226,7 @@ static int collect(Ooc *o, long p, bool gram) {
     for (int i = 0; i < rc->nmembers; i++) {
       sg->H[i] = next;
       next += (size_t)(sg->r1 - sg->r0) * (size_t)S;
-      if (d) demand_entries(d, member_quantity(m, &rc->members[i]), (size_t)sg->r0, (size_t)sg->r1);
+      if (d) demand_entries(d, ooc_member_quantity(m, &rc->members[i]), (size_t)sg->r0, (size_t)sg->r1);
     }
   }
   if (d && demand_propagate(d)) return npg_fail(o->err, o->errlen, "out of memory");
@@ -285,7 +243,7 @@ static int collect(Ooc *o, long p, bool gram) {
       RClass *rc = &m->classes[sg->c];
       long R = sg->r1 - sg->r0;
       for (int i = 0; i < rc->nmembers; i++)
-        if (member_rows(o, &rc->members[i], k, rc->n, sg->r0, sg->r1, sg->H[i] + (size_t)k * (size_t)R)) return -1;
+        if (ooc_member_rows(o, &rc->members[i], k, rc->n, sg->r0, sg->r1, sg->H[i] + (size_t)k * (size_t)R)) return -1;
     }
     /* this rank's passes: p / N of (npass − rank) / N, rounded up */
     progress_show(o->opt->progress, what, p / o->N * S + k + 1, (o->npass - o->rank + o->N - 1) / o->N * S);
@@ -323,7 +281,7 @@ static void release(Ooc *o, long p) {
 
 /* A centered member's block minus its mean (pca_basis's arithmetic, row by
  * row); mu[0..R) the mean. */
-static void center_block(long R, long S, double *H, double *mu) {
+void ooc_center_block(long R, long S, double *H, double *mu) {
   pca_mean(R, S, H, mu);
   for (long s = 0; s < S; s++)
     for (long e = 0; e < R; e++) H[s * R + e] -= mu[e];
@@ -333,7 +291,7 @@ static void center_block(long R, long S, double *H, double *mu) {
 static int gram_passes(Ooc *o) {
   long S = o->S;
   for (long p = 0; p < o->npass; p++) {
-    if (!mine(o, p)) continue;
+    if (!ooc_mine(o, p)) continue;
     if (collect(o, p, true)) return -1;
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
@@ -343,7 +301,7 @@ static int gram_passes(Ooc *o) {
       if (!mu) return -1;
       for (int i = 0; i < rc->nmembers; i++) {
         double *big = &o->st[sg->c].big[i];
-        if (rc->members[i].center) center_block(R, S, sg->H[i], mu);
+        if (rc->members[i].center) ooc_center_block(R, S, sg->H[i], mu);
         for (size_t e = 0; e < (size_t)R * (size_t)S; e++) *big = fmax(*big, fabs(sg->H[i][e])); /* what enters G */
         cblas_dsyrk(CblasColMajor, CblasUpper, CblasTrans, (int)S, (int)R, 1.0, sg->H[i], (int)R, 1.0,
                     o->st[sg->c].G[i], (int)S);
@@ -410,7 +368,7 @@ static int eigen(Ooc *o) {
       st->col[i] = st->K;
       st->K += k + (mb->center ? 1 : 0);
     }
-    if (!(st->C = npg_calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || !(st->A = tmpfile()))
+    if (!(st->C = npg_calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || (!st->blockwise && !(st->A = tmpfile())))
       return npg_fail(o->err, o->errlen, "cannot create a scratch file for the basis of class %s", rc->label);
     if (!rc->streamed) continue; /* the model keeps its basis: no floors to take */
     if (!(st->AX = calloc((size_t)rc->nmembers, sizeof(double *))) || !(st->yy = calloc((size_t)rc->nmembers, sizeof(double *))))
@@ -423,7 +381,7 @@ static int eigen(Ooc *o) {
   return 0;
 }
 
-static int write_at(FILE *fp, const void *p, size_t bytes, size_t off) {
+int ooc_write_at(FILE *fp, const void *p, size_t bytes, size_t off) {
   const char *c = p;
   while (bytes > 0) {
     ssize_t w = pwrite(fileno(fp), c, bytes, (off_t)off);
@@ -433,7 +391,7 @@ static int write_at(FILE *fp, const void *p, size_t bytes, size_t off) {
   return 0;
 }
 
-static int read_at(FILE *fp, void *p, size_t bytes, size_t off) {
+int ooc_read_at(FILE *fp, void *p, size_t bytes, size_t off) {
   char *c = p;
   while (bytes > 0) {
     ssize_t r = pread(fileno(fp), c, bytes, (off_t)off);
@@ -513,7 +471,7 @@ static int take_floors(Ooc *o, int c, const double *T, long m) {
 static int basis_passes(Ooc *o) {
   long S = o->S;
   for (long p = 0; p < o->npass && o->nseg > 0; p++) {
-    if (!mine(o, p)) continue;
+    if (!ooc_mine(o, p)) continue;
     if (collect(o, p, false)) return -1;
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
@@ -531,7 +489,7 @@ static int basis_passes(Ooc *o) {
       for (int i = 0; i < rc->nmembers; i++) {
         long col = st->col[i];
         if (rc->members[i].center) {
-          center_block(R, S, sg->H[i], mu);
+          ooc_center_block(R, S, sg->H[i], mu);
           for (long e = 0; e < R; e++) A[e * K + col] = mu[e];
           col++;
         }
@@ -542,7 +500,7 @@ static int basis_passes(Ooc *o) {
       if (K > 0)
         cblas_dsyrk(CblasColMajor, CblasUpper, CblasNoTrans, (int)K, (int)R, 1.0, A, (int)K, 1.0, st->C, (int)K);
       if (st->AX && floor_products(o, sg, A, K)) return -1;
-      int bad = write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
+      int bad = !st->blockwise && ooc_write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
       if (bad) return npg_fail(o->err, o->errlen, "cannot write the scratch file of class %s (disk full?)", rc->label);
     }
     release(o, p);
@@ -679,7 +637,7 @@ oom:
  * over ranks a file every rank opens (rank 0 creates it as
  * PREFIX.ooc.XXXXXX, opt->shared_prefix, sizes it and unlinks it once every
  * rank has it open, so no name outlives the step). NULL with o->err. */
-static FILE *basis_file(Ooc *o, const RClass *rc, size_t bytes) {
+FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes) {
   if (o->N == 1) {
     FILE *fp = tmpfile();
     if (fp && ftruncate(fileno(fp), (off_t)bytes) == 0) return fp;
@@ -719,7 +677,7 @@ static long own_rows(const Ooc *o, int c, long *r) {
     return 1;
   }
   for (long p = 0; p < o->npass; p++)
-    for (long g = o->first[p]; mine(o, p) && g < o->first[p + 1]; g++)
+    for (long g = o->first[p]; ooc_mine(o, p) && g < o->first[p + 1]; g++)
       if (o->seg[g].c == c) r[2 * nr] = o->seg[g].r0, r[2 * nr + 1] = o->seg[g].r1, nr++;
   return nr;
 }
@@ -733,7 +691,7 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
   rc->m = m;
   if (m == 0) return 0; /* train_complete_basis gives it one direction */
   size_t bytes = sizeof(double) * (size_t)n * (size_t)m;
-  FILE *fp = basis_file(o, rc, bytes);
+  FILE *fp = ooc_basis_file(o, rc, bytes);
   if (!fp) return -1;
   long rows = (long)(o->avail / (sizeof(double) * (size_t)(K + m)));
   if (rows < 1) rows = 1;
@@ -758,7 +716,7 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
     for (long q = 0; !bad && q < nr; q++)
       for (long r0 = range[2 * q]; !bad && r0 < range[2 * q + 1]; r0 += rows) {
         long R = r0 + rows < range[2 * q + 1] ? rows : range[2 * q + 1] - r0;
-        bad = read_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(r0 * K));
+        bad = ooc_read_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(r0 * K));
         if (bad) break;
         cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)R, (int)m, (int)K, 1.0, A, (int)K, T, (int)K, 0.0, B,
                     (int)m);
@@ -769,10 +727,15 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
             else if (first[j] == -HUGE_VAL && big[j] > 0 && fabs(v) >= 0.5 * big[j])
               first[j] = -(2.0 * (double)(r0 + e) + (v > 0 ? 0 : 1));
           }
-        if (sweep == 2) bad = write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));
+        if (sweep == 2) bad = ooc_write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));
       }
   }
   free(A), free(B), free(big), free(first), free(range);
+  return ooc_map_basis(o, rc, fp, bad);
+}
+
+int ooc_map_basis(Ooc *o, RClass *rc, FILE *fp, int bad) {
+  size_t bytes = sizeof(double) * (size_t)rc->n * (size_t)rc->m;
   /* every rank's rows written (a rank that failed ends the job before it) */
   double ok = !bad;
   dist_allreduce_sum(&ok, 1);
@@ -800,7 +763,7 @@ static void ooc_free(Ooc *o) {
       if (st->yy) free(st->yy[i]);
     }
     free(st->AX), free(st->yy);
-    free(st->X), free(st->G), free(st->s), free(st->k), free(st->big), free(st->col), free(st->C);
+    free(st->X), free(st->G), free(st->s), free(st->k), free(st->big), free(st->col), free(st->C), free(st->T);
     if (st->A) fclose(st->A);
   }
   for (long p = 0; o->seg && p < o->npass; p++) release(o, p);
@@ -844,8 +807,9 @@ int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *op
               "and the small classes' snapshots need %.3g MB of it), so each pass keeps one row of each streamed class; raise "
               "--mem for fewer passes\n", o.S, (double)o.fixed / 1e6);
   }
+  for (int c = 0; c < m->nclasses; c++) o.st[c].blockwise = stream_blockwise(&o, c);
   train_mark_spd(m);
-  double t[5] = {now()};
+  double t[6] = {now()};
   /* over ranks every rank's passes evaluate every sample */
   if (o.N > 1 && ((src->share && src->share(src->user, err, errlen)) || whole_sweep(&o))) goto done;
   t[1] = now();
@@ -860,17 +824,26 @@ int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *op
     } else {
       double *T = NULL;
       long mm = 0;
-      int bad = coefficients(&o, c, &T, &mm) || write_basis(&o, c, T, mm) || (o.st[c].AX && take_floors(&o, c, T, mm));
-      free(T);
+      Stream *st = &o.st[c];
+      if (coefficients(&o, c, &T, &mm)) goto done;
+      if (st->blockwise && mm == 0) st->blockwise = false; /* train_complete_basis gives it one direction */
+      /* the floors need only ‖Tᵀ(AᵀX)‖, whatever the columns' signs */
+      int bad = (!st->blockwise && write_basis(&o, c, T, mm)) || (st->AX && take_floors(&o, c, T, mm));
+      if (st->blockwise) st->T = T, st->m = rcl->m = mm; /* its basis formed block by block: stream_premultiply */
+      else free(T);
       if (bad) goto done;
+      if (st->blockwise) continue;
     }
     if (train_complete_basis(rcl, false, err, errlen)) goto done;
   }
   model_size_tensors(m);
   t[4] = now();
+  if (stream_premultiply(&o)) goto done;
+  t[5] = now();
   if (opt->progress)
     fprintf(stderr, "out of core: %.2f s samples shared and whole evaluations (over ranks), %.2f s Gram passes, %.2f s "
-            "basis passes, %.2f s bases\n", t[1] - t[0], t[2] - t[1], t[3] - t[2], t[4] - t[3]);
+            "basis passes, %.2f s bases, %.2f s streamed pre-multiplication\n", t[1] - t[0], t[2] - t[1], t[3] - t[2],
+            t[4] - t[3], t[5] - t[4]);
   rc = 0;
   goto done;
 oom:

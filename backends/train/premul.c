@@ -27,7 +27,14 @@
  *
  * A last x ⊗ x axis with many monomials per key is accumulated unpacked —
  * one real GEMM of full basis rows per batch, folded into packed form —
- * instead of one packed row per entry. */
+ * instead of one packed row per entry.
+ *
+ * A block of output rows (premultiply_block, issue 30): the entries of the
+ * output rows [lo, hi) only, added to the tensor's sum, the bases' rows read
+ * through row maps from buffers holding only the rows the block reads
+ * (stream.c forms them block by block and never stores a whole basis). A
+ * reduced entry is a sum over output keys, so the blocks' sums add up to
+ * the whole. */
 #include <cblas.h>
 #include <pthread.h>
 #include <stdlib.h>
@@ -79,6 +86,9 @@ typedef struct Premul {
   npg_idx *ent_in;
   int part, nparts;           /* the output rows ≡ part (mod nparts) only (premultiply_part):
                                  the builder enumerates no other row (NpgSink) */
+  long lo, hi;                /* the output rows [lo, hi) only (premultiply_block): others skipped */
+  const RowMap *ymap;         /* By's row r at ymap's index of r (NULL: at r) */
+  const RowMap *inmap[RT_MAX_IN];
   int nworkers;
   bool local;                 /* each worker finishes its own keys (see flush_block) */
   Worker wk[PREMUL_MAX_WORKERS];
@@ -125,7 +135,7 @@ static void key_row(const Premul *p, long k) {
   const RTensor *t = p->t;
   long my = p->my;
   double *Kk = p->K + k * t->rows;
-  const double *b = p->By + p->key_row[k] * my;
+  const double *b = p->By + row_map_at(p->ymap, p->key_row[k]) * my;
   if (t->kind == RT_NUM) {
     memcpy(Kk, b, sizeof(double) * (size_t)my);
   } else if (t->kind == RT_DIAG) {
@@ -133,7 +143,7 @@ static void key_row(const Premul *p, long k) {
     for (long a = 0; a < my; a++)
       for (long c = a; c < my; c++) Kk[q++] = b[a] * b[c];
   } else {
-    const double *bc = p->By + p->key_col[k] * my;
+    const double *bc = p->By + row_map_at(p->ymap, p->key_col[k]) * my;
     for (long a = 0; a < my; a++)
       for (long c = 0; c < my; c++) Kk[a * my + c] = b[a] * bc[c];
   }
@@ -159,7 +169,7 @@ static void pend_entry(Worker *w, long e) {
   double *vp = w->vec;
   for (int j = 0; j < t->nin; j++) {
     const double *rows[RT_MAX_IN];
-    for (int l = 0; l < t->in_mult[j]; l++, pos++) rows[l] = p->Bin[j] + in[pos] * p->min[j];
+    for (int l = 0; l < t->in_mult[j]; l++, pos++) rows[l] = p->Bin[j] + row_map_at(p->inmap[j], in[pos]) * p->min[j];
     if (j == t->nin - 1 && p->unpack) {
       v[nk] = rows[0];
       vl[nk++] = p->mu;
@@ -300,6 +310,15 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
         snprintf(p->err, p->errlen, "tensor %s: input offset out of range (a bug in npg)", t->name);
         return -1;
       }
+  if (row < p->lo || row >= p->hi) return 0; /* another block's */
+  bool held = row_map_has(p->ymap, row) && (t->kind != RT_DECL || row_map_has(p->ymap, col));
+  for (int pos = 0, j = 0; j < t->nin; j++)
+    for (int l = 0; l < t->in_mult[j]; l++, pos++) held = held && row_map_has(p->inmap[j], in[pos]);
+  if (!held) {
+    snprintf(p->err, p->errlen, "tensor %s: a basis row of output row %ld is not among the block's (a bug in npg)",
+             t->name, (long)row);
+    return -1;
+  }
   if (row % p->nparts != p->part) {
     snprintf(p->err, p->errlen, "tensor %s: row %ld is not this rank's (%d of %d; a bug in npg)", t->name, (long)row,
              p->part, p->nparts);
@@ -350,27 +369,37 @@ static int workers_online(void) {
   return n < 1 ? 1 : n > PREMUL_MAX_WORKERS ? PREMUL_MAX_WORKERS : (int)n;
 }
 
-static int premultiply_rows(Model *m, Full *f, RTensor *t, const double *By, long ny, long my,
-                            int unpack_min_monos, int part, int nparts, double *flops, char *err, size_t errlen);
+static int premultiply_rows(Model *m, Full *f, RTensor *t, const PremulBlock *b, const double *By, long ny,
+                            long my, int unpack_min_monos, int part, int nparts, double *flops, char *err,
+                            size_t errlen);
 
 int premultiply(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
                 size_t errlen) {
-  return premultiply_rows(m, f, t, By, ny, my, PREMUL_UNPACK_MONOS, 0, 1, flops, err, errlen);
+  return premultiply_rows(m, f, t, NULL, By, ny, my, PREMUL_UNPACK_MONOS, 0, 1, flops, err, errlen);
 }
 
 int premultiply_unpacking(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
                           double *flops, char *err, size_t errlen) {
-  return premultiply_rows(m, f, t, By, ny, my, unpack_min_monos, 0, 1, flops, err, errlen);
+  return premultiply_rows(m, f, t, NULL, By, ny, my, unpack_min_monos, 0, 1, flops, err, errlen);
 }
 
 int premultiply_part(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, int part, int nparts,
                      double *flops, char *err, size_t errlen) {
-  return premultiply_rows(m, f, t, By, ny, my, PREMUL_UNPACK_MONOS, part, nparts, flops, err, errlen);
+  return premultiply_rows(m, f, t, NULL, By, ny, my, PREMUL_UNPACK_MONOS, part, nparts, flops, err, errlen);
 }
 
-static int premultiply_rows(Model *m, Full *f, RTensor *t, const double *By, long ny, long my,
-                            int unpack_min_monos, int part, int nparts, double *flops, char *err, size_t errlen) {
+int premultiply_block(Model *m, Full *f, RTensor *t, const PremulBlock *b, double *flops, char *err,
+                      size_t errlen) {
+  return premultiply_rows(m, f, t, b, b->By, b->ny, b->my, PREMUL_UNPACK_MONOS, 0, 1, flops, err, errlen);
+}
+
+static int premultiply_rows(Model *m, Full *f, RTensor *t, const PremulBlock *b, const double *By, long ny,
+                            long my, int unpack_min_monos, int part, int nparts, double *flops, char *err,
+                            size_t errlen) {
   Premul p = {0};
+  p.lo = b ? b->lo : 0;
+  p.hi = b ? b->hi : ny;
+  p.ymap = b ? b->ymap : NULL;
   p.part = part;
   p.nparts = nparts > 0 ? nparts : 1;
   p.m = m;
@@ -383,7 +412,8 @@ static int premultiply_rows(Model *m, Full *f, RTensor *t, const double *By, lon
   long veclen = 1;
   for (int j = 0; j < t->nin; j++) {
     const RClass *c = &m->classes[m->qclass[t->in_q[j]]];
-    p.Bin[j] = c->B;
+    p.Bin[j] = b ? b->Bin[j] : c->B;
+    p.inmap[j] = b ? b->inmap[j] : NULL;
     p.min[j] = c->m;
     p.nin_full[j] = c->n;
     p.nidx += t->in_mult[j];
@@ -404,7 +434,7 @@ static int premultiply_rows(Model *m, Full *f, RTensor *t, const double *By, lon
    * work of one worker overlapping the other's GEMM */
   p.local = p.nworkers > 1 && (double)t->rows * (double)t->cols * (double)(p.nworkers - 1) * sizeof(double) <=
                                   (double)PREMUL_LOCAL_BYTES;
-  t->data = npg_calloc((size_t)(t->rows * t->cols) + 1, sizeof(double));
+  if (!b) t->data = npg_calloc((size_t)(t->rows * t->cols) + 1, sizeof(double)); /* a block adds to the caller's */
   p.key_row = npg_malloc(sizeof(long) * (size_t)p.KB);
   p.key_col = npg_malloc(sizeof(long) * (size_t)p.KB);
   p.W = npg_malloc(sizeof(double) * (size_t)(p.KB * t->cols));
@@ -426,7 +456,8 @@ static int premultiply_rows(Model *m, Full *f, RTensor *t, const double *By, lon
     goto done;
   }
   err[0] = 0;
-  NpgSink sink = {&p, on_entry, p.part, p.nparts}; /* the builder enumerates this rank's rows only */
+  /* the builder enumerates this rank's rows only, of the block's (premultiply_block) */
+  NpgSink sink = {&p, on_entry, p.part, p.nparts, b ? b->lo : 0, b ? b->hi : 0};
   blas_threads = openblas_get_num_threads();
   if (p.local) openblas_set_num_threads(1);
   int built = full_build(f, t->builder, &sink);
@@ -456,7 +487,7 @@ done:
     free(p.wk[i].vec);
     if (i > 0) free(p.wk[i].acc);
   }
-  if (rc != 0) {
+  if (rc != 0 && !b) {
     free(t->data);
     t->data = NULL;
   }

@@ -57,7 +57,7 @@ static int field_value(Full *f, const RTensor *ts, int nt, double *out, long n, 
   for (int g = 0; g < nt; g++) {
     FieldSum s = {{0}, out, n};
     for (int i = 0; i < ts[g].group->ninputs; i++) s.in[i] = full_get(f, ts[g].group->inputs[i]->name, NULL);
-    NpgSink sink = {&s, sum_entry, 0, 1}; /* every row */
+    NpgSink sink = {&s, sum_entry, 0, 1, 0, 0}; /* every row */
     if (full_build(f, ts[g].builder, &sink) != 0) return npg_fail(err, errlen, "%s", full_error(f));
   }
   return 0;
@@ -499,6 +499,10 @@ int premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err, size
                     (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
       }
       RTERM_FOR_TENSORS(rt, x) {
+        if (x->data) { /* pre-multiplied out of core by the streamed bases (stream.c) */
+          progress_show(progress, "pre-multiplication", ++done, ntensors);
+          continue;
+        }
         /* over ranks: every rank its share of the rows, summed on all */
         if (premultiply_part(m, f, x, cy->B, cy->n, cy->m, rank, N, &flops, err, errlen)) return -1;
         phase_time(t0, &d[0], &d[1]);

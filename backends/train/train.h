@@ -6,6 +6,7 @@
 
 #include <stdbool.h>
 #include <stddef.h>
+#include <stdint.h>
 
 #include "full.h"
 #include "model.h"
@@ -185,9 +186,14 @@ bool ooc_needed(const Model *m, const TrainOptions *opt);
  * at most opt->mem bytes of snapshots, Gram matrices and basis rows in
  * memory, by passes over the samples that keep a block of rows of the
  * large classes (DESIGN §11); large bases are left in unnamed files and
- * memory-mapped read-only (rc->B_mapped). The result is the in-memory
- * training's (pca_basis, pca_merge through their Gram route) up to
- * rounding. 0, or -1 with `err`. */
+ * memory-mapped read-only (rc->B_mapped). Unless a stage may yet be made
+ * interpolated (opt->valid, interpolation asked for), the large classes'
+ * bases are formed block by block (stream.c) and every tensor that reads
+ * one is pre-multiplied here (t->data set; premultiply_all does the
+ * others): a class the model drops (RClass.streamed) is never stored
+ * (rc->B stays NULL, rc->m its size), one it keeps is mapped. The result is the
+ * in-memory training's (pca_basis, pca_merge through their Gram route) up
+ * to rounding. 0, or -1 with `err`. */
 int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- basis sizes by error (tune.c) */
@@ -362,6 +368,42 @@ int premultiply_unpacking(Model *m, Full *f, RTensor *t, const double *By, long 
  * enumerates only those rows' entries: the work divides over the ranks. */
 int premultiply_part(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, int part, int nparts,
                      double *flops, char *err, size_t errlen);
+/* A set of rows of a class (stream.c): a bit per row, and per 64 rows the
+ * number held before them, so that a buffer of the held rows only, in
+ * ascending order, is indexed by row_map_at. */
+typedef struct RowMap {
+  long n;                   /* rows of the class */
+  uint64_t *bits;           /* (n + 63) / 64 words */
+  long *before;             /* per word: rows held in the words before it */
+  long count;               /* rows held */
+} RowMap;
+/* Whether row r is held (a NULL map holds every row). */
+static inline bool row_map_has(const RowMap *map, long r) {
+  return !map || (map->bits[r >> 6] >> (r & 63) & 1);
+}
+/* Row r's place in the buffer of the held rows (a NULL map: r itself). */
+static inline long row_map_at(const RowMap *map, long r) {
+  if (!map) return r;
+  uint64_t below = map->bits[r >> 6] & ((UINT64_C(1) << (r & 63)) - 1);
+  return map->before[r >> 6] + __builtin_popcountll(below);
+}
+/* One block of a tensor's pre-multiplication (issue 30): the output rows
+ * [lo, hi) only, their sum added to t->data (allocated and zeroed by the
+ * caller: the blocks' sums add up to the whole tensor), the output basis
+ * `By` (ny x my) and the inputs' bases Bin[j] (t's distinct inputs, their
+ * class's m columns) read through row maps (NULL: every row, at its
+ * index). Every basis row the block's entries read must be held: one that
+ * is not fails, naming the tensor. */
+typedef struct PremulBlock {
+  long lo, hi;
+  const double *By;
+  long ny, my;
+  const RowMap *ymap;
+  const double *Bin[RT_MAX_IN];
+  const RowMap *inmap[RT_MAX_IN];
+} PremulBlock;
+int premultiply_block(Model *m, Full *f, RTensor *t, const PremulBlock *b, double *flops, char *err,
+                      size_t errlen);
 /* Output keys (rows, or (row, col) pairs) pre-multiplied per block of t. */
 long premul_keys_per_block(const RTensor *t);
 

@@ -64,7 +64,7 @@ static int sum_group(Full *f, const char *name, const TensorGroup *g, double *ou
     if (!(s.in[i] = full_get(f, g->inputs[i]->name, NULL)))
       return npg_fail(err, errlen, "tensor %s reads '%s', which the full evaluator does not hold (a bug in npg)", name,
                       g->inputs[i]->name);
-  NpgSink sink = {&s, add_entry, 0, 1}; /* every row */
+  NpgSink sink = {&s, add_entry, 0, 1, 0, 0}; /* every row */
   if (full_build(f, name, &sink) != 0) return npg_fail(err, errlen, "tensor %s: %s", name, full_error(f));
   return 0;
 }

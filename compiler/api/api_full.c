@@ -260,7 +260,7 @@ int npg_full_op(NpgFull *f, const char *name, NpgCsr *out) {
                  tg->inputs[i]->name);
         rc = full_fail(full, msg);
       }
-    NpgSink sink = {&s, add_entry, 0, 1}; /* every row */
+    NpgSink sink = {&s, add_entry, 0, 1, 0, 0}; /* every row */
     if (rc == 0 && full_build(full, emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op), &sink) != 0) rc = -1;
   }
   if (rc == 0 &&

@@ -3,8 +3,9 @@
 # model_class_streamable): by default a model keeps only the bases the
 # reduced model reads (inputs', outputs', externs'); the pair classes of
 # radiosity are used in training and not stored. The model equals the one
-# that keeps every basis (--keep-bases all) array for array, bit for bit,
-# in memory and out of core; verify reports the floors training measured;
+# that keeps every basis (--keep-bases all) array for array, bit for bit
+# in memory, to 1e-10 out of core where the pair bases are formed block by
+# block and used at once (no file of their size written); verify reports the floors training measured;
 # a program without such classes gets the same files either way; a
 # streamed training killed at any moment leaves the previous model whole,
 # no litter and no scratch; npgc tune keeps the bases by the same rule.
@@ -28,6 +29,25 @@ same_arrays() {
     cmp -s "$f" "$2/$b" || fail "$1/$b differs from $2/$b"
   done
 }
+# every array of model $1 is in $2 with the same numbers to 1e-10 (relative to the largest
+# entry, at least 1); the bases $1 keeps bit for bit
+same_numbers() {
+  /usr/bin/python3 - "$1" "$2" <<'PY' || fail "$1 and $2 differ"
+import os, sys, numpy as np
+a, b = sys.argv[1], sys.argv[2]
+assert all(os.path.exists(os.path.join(b, f)) for f in os.listdir(a)), "a file of %s not in %s" % (a, b)
+for f in os.listdir(a):
+    if not f.endswith(".npy"):
+        continue
+    x, y = np.load(os.path.join(a, f)), np.load(os.path.join(b, f))
+    assert x.shape == y.shape, f
+    if f.startswith("basis_"):
+        assert np.array_equal(x, y), f
+    elif x.size:
+        d = np.max(np.abs(x - y)) / max(1.0, np.max(np.abs(y)))
+        assert d <= 1e-10, "%s: %g" % (f, d)
+PY
+}
 streamed_labels() { # the labels of the classes model $1 streamed, and a check that their basis files are absent
   for c in $(sed -n 's/^streamed \([0-9]*\)$/\1/p' "$1/manifest"); do
     test ! -e "$1/basis_$c.npy" || fail "$1: streamed class $c has a basis file"
@@ -45,7 +65,10 @@ for mem in "" "--cap 8 --mem 10M" "--mem 160k"; do
   for c in $(sed -n 's/^class \([0-9]*\) .*/\1/p' "$W/K/manifest"); do
     test -e "$W/K/basis_$c.npy" || fail "--keep-bases all $mem: no basis_$c.npy"
   done
-  same_arrays "$W/S" "$W/K"
+  case "$mem" in
+    *160k) same_numbers "$W/S" "$W/K" ;; # the pair bases formed block by block (stream.c): sums in another order
+    *) same_arrays "$W/S" "$W/K" ;;
+  esac
   # the reduced outputs on held-out samples: the same numbers
   "$N" eval $R "$W/S" "$W/RV" -o "$W/ES" >/dev/null || fail "eval streamed $mem"
   "$N" eval $R "$W/K" "$W/RV" -o "$W/EK" >/dev/null || fail "eval stored $mem"
@@ -72,6 +95,39 @@ PY
   done
   rm -rf "$W/S" "$W/K" "$W/ES" "$W/EK"
 done
+
+# out of core the pair bases are formed block by block and used at once (stream.c): no file of a
+# pair basis's size (rows x basis size) is written. Under a file-size limit of 200 kB, below the
+# smallest of them ({r}: 9,216 x 3 doubles; v's, kept, is 9,216 x 1 and its scratch 9,216 x 2),
+# streamed training succeeds where keeping every basis cannot; the model is the old layout's to
+# 1e-10 and gives the same reduced outputs on held-out samples
+opts="--mem 4M --energy 0.9999999"
+(ulimit -f 400 && exec "$N" train $R "$W/RT" -o "$W/F" $opts --progress >/dev/null 2>"$W/f.err") ||
+  fail "streamed training under a 200 kB file-size limit: $(tr '\r' '\n' <"$W/f.err" | tail -3)"
+grep -aq '^out of core: bases formed block by block for the pre-multiplication, no basis file: {s,h} {r} {c} {d,p}; kept, written as formed (no scratch A): {v} (' \
+  "$W/f.err" || fail "no block-by-block bases: $(tr '\r' '\n' <"$W/f.err" | grep -a 'out of core')"
+if (ulimit -f 400 && exec "$N" train $R "$W/RT" -o "$W/G" $opts --keep-bases all >/dev/null 2>&1); then
+  fail "the file-size limit does not bite: --keep-bases all trained under it"
+fi
+"$N" train $R "$W/RT" -o "$W/G" $opts --keep-bases all >/dev/null || fail "train --keep-bases all $opts"
+same_numbers "$W/F" "$W/G"
+"$N" eval $R "$W/F" "$W/RV" -o "$W/EF" >/dev/null && "$N" eval $R "$W/G" "$W/RV" -o "$W/EG" >/dev/null || fail "eval $opts"
+/usr/bin/python3 - "$W/EF" "$W/EG" <<'PY' || fail "reduced outputs differ $opts"
+import sys, numpy as np
+for name in ("b.npy", "b.reduced.npy"):
+    a, b = np.load(sys.argv[1] + "/" + name), np.load(sys.argv[2] + "/" + name)
+    assert a.shape == b.shape and np.max(np.abs(a - b)) <= 1e-10 * max(1.0, np.max(np.abs(b))), name
+PY
+rm -rf "$W/F" "$W/G" "$W/EF" "$W/EG"
+# a block whose rows (c[i,j] reads h[j,i]: the transposed stripe too) exceed a pass's share of
+# --mem is split into sub-blocks (at cap 2 the passes' rows are small against them): the same model
+"$N" train $R "$W/RT" -o "$W/F" --cap 2 --mem 1M --progress >/dev/null 2>"$W/f.err" || fail "train --cap 2 --mem 1M"
+passes=$(tr '\r' '\n' <"$W/f.err" | sed -n 's/^out of core: .* \([0-9]*\) passes over .*/\1/p')
+blocks=$(tr '\r' '\n' <"$W/f.err" | sed -n 's/^out of core: bases formed block by block.* (\([0-9]*\) blocks .*/\1/p')
+[ -n "$passes" ] && [ -n "$blocks" ] && [ "$blocks" -gt "$passes" ] || fail "--cap 2 --mem 1M: $blocks blocks for $passes passes"
+"$N" train $R "$W/RT" -o "$W/G" --cap 2 --mem 1M --keep-bases all >/dev/null || fail "train --cap 2 --mem 1M --keep-bases all"
+same_numbers "$W/F" "$W/G"
+rm -rf "$W/F" "$W/G"
 
 # a size: the pair bases are most of the old layout
 "$N" train $R "$W/RT" -o "$W/S" >"$W/ts.txt" && "$N" train $R "$W/RT" -o "$W/K" --keep-bases all >"$W/tk.txt" || fail "train"
@@ -125,6 +181,22 @@ for i in 1 2 3 4 5 6; do
   wait $pid 2>/dev/null
   "$N" verify $R "$W/M" "$W/RV" --tol 0.05 >/dev/null 2>&1 || fail "kill $i: the model left does not verify"
   [ -z "$(ls "$W/tmp")" ] || fail "kill $i: scratch left in TMPDIR: $(ls "$W/tmp")"
+done
+# and killed during the block-by-block pre-multiplication (once its progress shows)
+for i in 1 2; do
+  TMPDIR="$W/tmp" "$N" train $R "$W/RT" -o "$W/M" --mem 160k --cap 6 --progress >/dev/null 2>"$W/kill.err" &
+  pid=$!
+  n=0
+  while ! grep -aq 'streamed bases' "$W/kill.err" && kill -0 $pid 2>/dev/null && [ $n -lt 1200 ]; do
+    sleep 0.05
+    n=$((n + 1))
+  done
+  grep -aq 'streamed bases' "$W/kill.err" || fail "kill in the streamed pre-multiplication $i: it never began"
+  sleep "0.$i"
+  kill -9 $pid 2>/dev/null
+  wait $pid 2>/dev/null
+  "$N" verify $R "$W/M" "$W/RV" --tol 0.05 >/dev/null 2>&1 || fail "kill in the streamed pre-multiplication $i: the model left does not verify"
+  [ -z "$(ls "$W/tmp")" ] || fail "kill in the streamed pre-multiplication $i: scratch left in TMPDIR: $(ls "$W/tmp")"
 done
 # a temporary folder a kill -9 left is removed by the next training
 TMPDIR="$W/tmp" "$N" train $R "$W/RT" -o "$W/M" --mem 160k --cap 6 >/dev/null || fail "training after the kills"

@@ -65,7 +65,8 @@ $compare "$scratch/x1" "$scratch/x2"
 
 # (c) out of core over ranks: --mem far below the bases, so the pair classes stream by rows (23
 # passes); the ranks share the passes, sum the Gram matrices and write their rows of the basis
-# files all ranks map. Equal to one process out of core and to in memory (the streamed members'
+# files all ranks map, or for the bases the model drops form their blocks' rows and sum the
+# tensors' blocks. Equal to one process out of core and to in memory (the streamed members'
 # singular values to 1e-7: compare_models.py says why); through npg.h the extern's records are
 # shared, its callback still runs once per sample (mpi_api counts)
 mem=300000
@@ -76,6 +77,9 @@ for np in 2 3; do
     >/dev/null 2>"$scratch/o$np.log"
   grep -q "out of core: 5 of 9 classes streamed by rows, 23 passes" "$scratch/o$np.log" ||
     fail "--mem $mem over $np ranks did not go out of core: $(cat "$scratch/o$np.log")"
+  # the pair bases the model drops formed block by block over the ranks (stream.c), no basis file
+  grep -aq "bases formed block by block for the pre-multiplication, no basis file: {s,h} {r} {c} {d,p}; kept, written as formed (no scratch A): {v}" \
+    "$scratch/o$np.log" || fail "over $np ranks the pair bases were not formed block by block"
   $compare "$scratch/o1" "$scratch/o$np" 1e-10 1e-7
   # the streamed classes' training floors (issue 30), summed over the ranks' passes: one process's
   # to the 1e-7 the out-of-core floors resolve

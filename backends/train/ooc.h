@@ -1,0 +1,97 @@
+/* ooc.h — the state of out-of-core training (ooc.c), shared with the
+ * streamed pre-multiplication (stream.c) that runs on it before it is freed. */
+#ifndef NPG_OOC_H
+#define NPG_OOC_H
+
+#include <stdio.h>
+
+#include "train.h"
+
+/* Rows [r0, r1) of streamed class c, collected in one pass. */
+typedef struct Segment {
+  int c;
+  long r0, r1;
+  double **H;               /* per member: (r1 − r0) x S column-major, the rows of every sample */
+} Segment;
+
+typedef struct Stream {
+  bool streamed;
+  double **X;               /* small class: per member n x S column-major */
+  double **G;               /* streamed: per member S x S column-major (upper), Gram of its centered snapshots */
+  double **s;               /* per member: singular values, descending (S) */
+  long *k;                  /* per member: directions kept from its Gram matrix */
+  double *big;              /* per member: its largest |snapshot entry| (squares underflowing to 0 leave G 0) */
+  long *col;                /* per member: its first column of A (μ when centered, then k directions) */
+  long K;                   /* columns of A */
+  double *C;                /* K x K column-major: AᵀA */
+  FILE *A;                  /* A: n x K row-major, in an unnamed file */
+  /* the training floors of a class whose basis the model drops (RClass.streamed, issue 30), from
+   * the basis passes: per member AᵀX (K x S column-major) and every sample's ‖y_k‖² (S), so that
+   * BᵀX = Tᵀ(AᵀX) and ‖y_k − BBᵀy_k‖² = ‖y_k‖² − ‖Bᵀy_k‖² need neither the basis nor another pass */
+  double **AX, **yy;
+  /* a class whose basis is formed block by block and used at once (stream.c, issue 30): A is not
+   * kept either; the basis is B = A T, T here, its columns' signs fixed on the tensors at the end */
+  bool blockwise;
+  double *T;                /* K x m column-major */
+  long m;
+} Stream;
+
+typedef struct Ooc {
+  Model *m;
+  Full *f;
+  const SampleSource *src;
+  const TrainOptions *opt;
+  long S;
+  Stream *st;
+  Segment *seg;
+  long nseg;
+  long *first;              /* pass p collects segments [first[p], first[p + 1]) */
+  long npass;
+  size_t avail;             /* bytes for the blocks of one pass */
+  double *tmp;              /* one member value */
+  char *err;
+  size_t errlen;
+  size_t fixed;             /* bytes of the Gram matrices, the small classes and the sample scratch */
+  int rank, N;              /* over ranks (opt->dist): this rank takes the passes p ≡ rank (mod N) */
+  /* the blocks of the pass being collected, and a basis pass's A and
+   * mean, kept from pass to pass: allocated afresh, every pass paid page
+   * faults on them (measured over MPI ranks, bench/mpi.md) */
+  double *block, *abuf;
+  size_t block_cap, abuf_cap;
+} Ooc;
+
+/* Whether pass p is this rank's. */
+bool ooc_mine(const Ooc *o, long p);
+/* The quantity whose rows member `mb` is: itself, or for an unnamed
+ * numerator the stage it is the numerator of. */
+const Sym *ooc_member_quantity(const Model *m, const RMember *mb);
+/* Rows [r0, r1) of member `mb` (of a class of n rows) after evaluating
+ * sample k (restricted to a demand holding them), into out. 0, or -1 with o->err. */
+int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1, double *out);
+/* pwrite / pread of `bytes` at offset `off` of fp, whole: 0, or -1. */
+int ooc_write_at(FILE *fp, const void *p, size_t bytes, size_t off);
+int ooc_read_at(FILE *fp, void *p, size_t bytes, size_t off);
+/* The file of a class basis, `bytes` long, unnamed (over ranks: one file
+ * every rank opens, a collective). NULL with o->err. */
+FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes);
+/* Class rc's basis file (rc->n x rc->m, every rank's rows written unless
+ * `bad` on some rank) mapped read-only as rc->B on every rank, fp closed (a
+ * collective). 0, or -1 with o->err. */
+int ooc_map_basis(Ooc *o, RClass *rc, FILE *fp, int bad);
+/* A centered member's block (R x S column-major) minus its mean, mu[0..R) the mean. */
+void ooc_center_block(long R, long S, double *H, double *mu);
+
+/* ---------------------------------------------------------------- streamed pre-multiplication (stream.c) */
+
+/* Whether class c's basis can be formed block by block and used at once
+ * (Stream.blockwise): streamed by rows out of core, no stage may yet be
+ * interpolated (which reads bases outside the tensors, and may make a
+ * dropped class needed) and no projection B_yᵀB_w reads it. */
+bool stream_blockwise(const Ooc *o, int c);
+/* Every tensor that reads a blockwise class's basis, pre-multiplied by
+ * passes over row blocks (t->data set; the others are left NULL for
+ * premultiply_all); a blockwise class the model keeps (not
+ * RClass.streamed) gets its basis file, mapped as rc->B. 0, or -1 with o->err. */
+int stream_premultiply(Ooc *o);
+
+#endif
