@@ -22,7 +22,7 @@ void *arena_alloc(Ctx *ctx, size_t size) {
   ArenaBlock *b = ctx->arena.head;
   if (!b || b->used + size > b->size) {
     size_t cap = size > 65536 ? size : 65536;
-    b = npg_alloc_hook(sizeof(ArenaBlock) + cap);
+    b = mem_alloc_hook(sizeof(ArenaBlock) + cap);
     if (!b) {
       /* The message itself must not need the arena. */
       ctx->msg = "error: out of memory";
@@ -76,7 +76,7 @@ char *arena_vprintf(Ctx *ctx, const char *fmt, va_list ap) {
   return p;
 }
 
-int npg_fail(char *err, size_t errlen, const char *fmt, ...) {
+int error_set(char *err, size_t errlen, const char *fmt, ...) {
   if (err && errlen) {
     va_list ap;
     va_start(ap, fmt);
@@ -86,7 +86,7 @@ int npg_fail(char *err, size_t errlen, const char *fmt, ...) {
   return -1;
 }
 
-int npg_fail_first(char *err, size_t errlen, const char *fmt, ...) {
+int error_set_first(char *err, size_t errlen, const char *fmt, ...) {
   if (err && errlen && !err[0]) {
     va_list ap;
     va_start(ap, fmt);
@@ -98,19 +98,19 @@ int npg_fail_first(char *err, size_t errlen, const char *fmt, ...) {
 
 static _Thread_local char refusal[512];
 
-int npg_refuse(char *err, size_t errlen, const char *func, const char *fmt, ...) {
+int api_refuse(char *err, size_t errlen, const char *func, const char *fmt, ...) {
   char why[400];
   va_list ap;
   va_start(ap, fmt);
   vsnprintf(why, sizeof why, fmt, ap);
   va_end(ap);
   snprintf(refusal, sizeof refusal, "%s: %s", func, why);
-  return npg_fail(err, errlen, "%s", refusal);
+  return error_set(err, errlen, "%s", refusal);
 }
 
-const char *npg_refusal(void) { return refusal; }
+const char *api_refusal(void) { return refusal; }
 
-const char *npg_bytes_text(double bytes, char *buf, size_t len) {
+const char *bytes_text(double bytes, char *buf, size_t len) {
   static const char *const units[] = {"B", "kB", "MB", "GB", "TB", "PB", "EB"};
   int u = 0;
   while (bytes >= 1000 && u < 6) bytes /= 1000, u++;
@@ -118,7 +118,7 @@ const char *npg_bytes_text(double bytes, char *buf, size_t len) {
   return buf;
 }
 
-size_t npg_physical_memory(void) {
+size_t physical_memory(void) {
   long pages = sysconf(_SC_PHYS_PAGES), psize = sysconf(_SC_PAGE_SIZE);
   return pages > 0 && psize > 0 ? (size_t)pages * (size_t)psize : 0;
 }

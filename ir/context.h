@@ -39,14 +39,14 @@ typedef struct Arena {
   size_t used_total;
 } Arena;
 
-#include "alloc.h" /* npg_alloc_hook, npg_malloc, ... */
+#include "alloc.h" /* mem_alloc_hook, mem_malloc, ... */
 
 /* Library code's failures: the message formatted into `err` (when `err` and
  * `errlen` are given), and -1 to return. */
-int npg_fail(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+int error_set(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 /* The same, unless `err` already holds a message: the first error of an
  * object stays (the evaluators and the trainer refuse work after one). */
-int npg_fail_first(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+int error_set_first(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 /* The public API's argument checks (STYLE: CHOLMOD's RETURN_IF_NULL):
  * every npg_ entry point refuses a NULL pointer argument, or one out of its
  * documented range, before touching anything, with "FUNC: argument 'ARG'
@@ -56,23 +56,23 @@ int npg_fail_first(char *err, size_t errlen, const char *fmt, ...) __attribute__
  * npg_trainer_error, npg_reduced_error, npg_model_error) return when the
  * object itself is the NULL argument. It replaces a message already there:
  * a call refused is the latest thing the caller should hear about. -1. */
-int npg_refuse(char *err, size_t errlen, const char *func, const char *fmt, ...) __attribute__((format(printf, 4, 5)));
+int api_refuse(char *err, size_t errlen, const char *func, const char *fmt, ...) __attribute__((format(printf, 4, 5)));
 /* This thread's last refusal ("" when none). */
-const char *npg_refusal(void);
+const char *api_refusal(void);
 /* Return `ret` after refusing `arg` when it is NULL; `err`/`errlen` as for
- * npg_refuse (NULL, 0 when the object itself is checked). */
-#define NPG_REFUSE_NULL(arg, err, errlen, ret)                                    \
+ * api_refuse (NULL, 0 when the object itself is checked). */
+#define API_REFUSE_NULL(arg, err, errlen, ret)                                    \
   do {                                                                            \
     if (!(arg)) {                                                                 \
-      npg_refuse((err), (errlen), __func__, "argument '%s' is NULL", #arg);       \
+      api_refuse((err), (errlen), __func__, "argument '%s' is NULL", #arg);       \
       return ret;                                                                 \
     }                                                                             \
   } while (0)
 /* `bytes` for a message, in the units --mem takes (powers of 1000):
  * "800 B", "1.12 GB", "8 TB"; into `buf`, which is returned. */
-const char *npg_bytes_text(double bytes, char *buf, size_t len);
+const char *bytes_text(double bytes, char *buf, size_t len);
 /* This machine's physical memory in bytes (0 if unknown). */
-size_t npg_physical_memory(void);
+size_t physical_memory(void);
 
 typedef struct Ctx Ctx;
 void *arena_alloc(Ctx *ctx, size_t size);            /* zeroed; never NULL */

@@ -1,6 +1,6 @@
 /* test_alloc.c — allocation failure in training and model loading (issue
  * 24; STYLE: one allocation hook, Lua's ltests.c). Each allocation of the
- * library (npg_alloc_hook, ir/ast.h) fails in turn — the first, then the
+ * library (mem_alloc_hook, ir/ast.h) fails in turn — the first, then the
  * second, ... — until the whole operation succeeds: every failure must end
  * in a message that says "out of memory" (never a crash or a quiet NULL),
  * and, under the sanitizer build, leak nothing (LeakSanitizer at exit).
@@ -19,7 +19,7 @@
 
 #include <cmocka.h>
 
-#include "ast.h" /* npg_alloc_hook */
+#include "ast.h" /* mem_alloc_hook */
 #include "npg.h"
 
 static const char *eq3 = "input  x : real[2]\n"
@@ -43,9 +43,9 @@ static void hook_on(long k) {
   current = k;
   fail_after = k;
   calls = 0;
-  npg_alloc_hook = failing_alloc;
+  mem_alloc_hook = failing_alloc;
 }
-static void hook_off(void) { npg_alloc_hook = malloc; }
+static void hook_off(void) { mem_alloc_hook = malloc; }
 
 /* A crash must not leave the hook failing for the next test. */
 static int restore_hook(void **state) {

@@ -228,9 +228,9 @@ static void allocation_failure(void **state) {
   (void)state;
   for (int k = 0; k < 200; k++) {
     fail_after = k;
-    npg_alloc_hook = failing_alloc;
+    mem_alloc_hook = failing_alloc;
     NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
-    npg_alloc_hook = malloc;
+    mem_alloc_hook = malloc;
     if (npg_ok(p)) {
       npg_free(p);
       return;

@@ -25,7 +25,7 @@
 
 #include <cmocka.h>
 
-#include "ast.h" /* npg_alloc_hook */
+#include "ast.h" /* mem_alloc_hook */
 #include "nnls.h"
 
 /* ---------------------------------------------------------------- random data */
@@ -681,9 +681,9 @@ static void allocation_failure(void **state) {
   int k;
   for (k = 0; k < 100; k++) {
     fail_after = k;
-    npg_alloc_hook = failing_alloc;
+    mem_alloc_hook = failing_alloc;
     int rc = nnls_convex(S, d, X, x, w, err, sizeof err);
-    npg_alloc_hook = malloc;
+    mem_alloc_hook = malloc;
     if (rc == 0) break;
     if (!strstr(err, "out of memory")) fail_msg("failing allocation %d: %s", k, err);
   }

@@ -31,12 +31,12 @@ struct Demand {
 };
 
 Demand *demand_new(const Program *prog, const FullPlan *plan) {
-  Demand *d = npg_calloc(1, sizeof *d);
+  Demand *d = mem_calloc(1, sizeof *d);
   if (!d) return NULL;
   d->prog = prog;
   d->plan = plan;
-  d->slot = npg_calloc((size_t)prog->slots.n + 1, sizeof(Boxes));
-  d->step = npg_calloc((size_t)plan->n + 1, sizeof(Boxes));
+  d->slot = mem_calloc((size_t)prog->slots.n + 1, sizeof(Boxes));
+  d->step = mem_calloc((size_t)plan->n + 1, sizeof(Boxes));
   if (!d->slot || !d->step) {
     demand_free(d);
     return NULL;
@@ -87,7 +87,7 @@ static void boxes_add(Demand *d, Boxes *b, int nax, const npg_idx *x) {
   }
   if (b->n == b->cap) {
     int cap = b->cap ? 2 * b->cap : 4;
-    npg_idx *v = npg_realloc(b->v, sizeof(npg_idx) * (size_t)(cap * w));
+    npg_idx *v = mem_realloc(b->v, sizeof(npg_idx) * (size_t)(cap * w));
     if (!v) {
       d->oom = true;
       b->state = BOX_ALL;
@@ -316,7 +316,7 @@ static bool same_tails(const npg_idx *a, const npg_idx *b, int nax) {
 static void normalize(Demand *d, Boxes *b) {
   int nax = b->nax, w = 2 * nax;
   if (b->state != BOX_SOME || b->n < 2) return;
-  npg_idx *t = npg_malloc(sizeof(npg_idx) * (size_t)(2 * b->n));
+  npg_idx *t = mem_malloc(sizeof(npg_idx) * (size_t)(2 * b->n));
   if (!t) {
     d->oom = true;
     return;

@@ -71,7 +71,7 @@ int full_emit(Program *prog, FILE *out) {
 }
 
 Full *full_new(Program *prog, JitBackend backend, const char *refusal) {
-  Full *f = npg_calloc(1, sizeof *f);
+  Full *f = mem_calloc(1, sizeof *f);
   if (!f) return NULL;
   if (refusal) {
     fail(f, "%s", refusal);
@@ -107,18 +107,18 @@ Full *full_new(Program *prog, JitBackend backend, const char *refusal) {
     return f;
   }
   int nd = prog->dims.n, np = prog->params.n, nq = prog->slots.n;
-  f->dims = npg_calloc((size_t)nd + 1, sizeof *f->dims);
-  f->dim_from = npg_calloc((size_t)nd + 1, sizeof *f->dim_from);
-  f->params = npg_calloc((size_t)np + 1, sizeof *f->params);
-  f->iparams = npg_calloc((size_t)np + 1, sizeof *f->iparams);
-  f->param_files = npg_calloc((size_t)np + 1, sizeof *f->param_files);
-  f->q = npg_calloc((size_t)nq + 1, sizeof *f->q);
-  f->qcount = npg_calloc((size_t)nq + 1, sizeof *f->qcount);
-  f->fresh = npg_calloc((size_t)nq + 1, sizeof *f->fresh);
-  f->extern_fn = npg_calloc((size_t)nq + 1, sizeof *f->extern_fn);
-  f->extern_user = npg_calloc((size_t)nq + 1, sizeof *f->extern_user);
-  f->dim_names = npg_calloc((size_t)nd + 1, sizeof *f->dim_names);
-  f->param_names = npg_calloc((size_t)np + 1, sizeof *f->param_names);
+  f->dims = mem_calloc((size_t)nd + 1, sizeof *f->dims);
+  f->dim_from = mem_calloc((size_t)nd + 1, sizeof *f->dim_from);
+  f->params = mem_calloc((size_t)np + 1, sizeof *f->params);
+  f->iparams = mem_calloc((size_t)np + 1, sizeof *f->iparams);
+  f->param_files = mem_calloc((size_t)np + 1, sizeof *f->param_files);
+  f->q = mem_calloc((size_t)nq + 1, sizeof *f->q);
+  f->qcount = mem_calloc((size_t)nq + 1, sizeof *f->qcount);
+  f->fresh = mem_calloc((size_t)nq + 1, sizeof *f->fresh);
+  f->extern_fn = mem_calloc((size_t)nq + 1, sizeof *f->extern_fn);
+  f->extern_user = mem_calloc((size_t)nq + 1, sizeof *f->extern_user);
+  f->dim_names = mem_calloc((size_t)nd + 1, sizeof *f->dim_names);
+  f->param_names = mem_calloc((size_t)np + 1, sizeof *f->param_names);
   if (!f->dims || !f->dim_from || !f->params || !f->iparams || !f->param_files || !f->q || !f->qcount ||
       !f->fresh || !f->extern_fn || !f->extern_user || !f->dim_names || !f->param_names) {
     fail(f, "out of memory");
@@ -164,7 +164,7 @@ static int bind_shape(Full *f, const Sym *s, int ndim, const long *shape, const 
     if (f->dims[d] < 0) {
       f->dims[d] = shape[i];
       free(f->dim_from[d]);
-      f->dim_from[d] = npg_strdup(from);
+      f->dim_from[d] = mem_strdup(from);
       f->checked = false;
     } else if (f->dims[d] != shape[i]) {
       return fail(f, "dim %s is %ld in %s but %ld in %s", s->dims[i]->name, (long)f->dims[d],
@@ -206,9 +206,9 @@ static size_t count_of(Full *f, const Sym *s) {
  * touched, not left to the kernel's out-of-memory killer) or the
  * allocation fails. */
 static double *alloc_entries(Full *f, const Sym *s, size_t n) {
-  size_t ram = npg_physical_memory();
+  size_t ram = physical_memory();
   bool fits = n < SIZE_MAX / sizeof(double) && (!ram || n * sizeof(double) <= ram);
-  double *p = fits ? npg_calloc(n ? n : 1, sizeof(double)) : NULL;
+  double *p = fits ? mem_calloc(n ? n : 1, sizeof(double)) : NULL;
   if (p) return p;
   /* "real[N, N, 3] with N = 1000000" */
   char shape[512], need[32], have[32];
@@ -231,10 +231,10 @@ static double *alloc_entries(Full *f, const Sym *s, size_t n) {
                      : s->kind == SYM_EXTERN ? "extern"
                      : s->kind == SYM_PARAM  ? "param"
                                              : "stage";
-  npg_bytes_text(entries * sizeof(double), need, sizeof need);
+  bytes_text(entries * sizeof(double), need, sizeof need);
   if (!fits && ram)
     fail(f, "out of memory: %s '%s', %s, has %.4g entries and needs %s, more than this machine's memory (%s)", kind,
-         s->name, shape, entries, need, npg_bytes_text((double)ram, have, sizeof have));
+         s->name, shape, entries, need, bytes_text((double)ram, have, sizeof have));
   else
     fail(f, "out of memory: %s '%s', %s, has %.4g entries and needs %s, which could not be allocated", kind, s->name,
          shape, entries, need);
@@ -254,7 +254,7 @@ int full_set_param(Full *f, const char *name, int ndim, const long *shape, const
   f->params[k] = NULL;
   f->iparams[k] = NULL;
   if (s->is_int) {
-    f->iparams[k] = npg_malloc(sizeof(npg_idx) * (n ? n : 1));
+    f->iparams[k] = mem_malloc(sizeof(npg_idx) * (n ? n : 1));
     if (!f->iparams[k]) return fail(f, "out of memory");
     for (size_t i = 0; i < n; i++) {
       char at[128];
@@ -274,7 +274,7 @@ int full_set_param(Full *f, const char *name, int ndim, const long *shape, const
     }
   }
   free(f->param_files[k]);
-  f->param_files[k] = npg_strdup(from);
+  f->param_files[k] = mem_strdup(from);
   f->checked = false;
   return 0;
 }
@@ -302,7 +302,7 @@ int full_bind_params(Full *f, const char *data_dir) {
                        "only up to 2^53)", path, s->name, v, i);
       }
     }
-    double *v = npg_malloc(sizeof(double) * (a.count ? a.count : 1));
+    double *v = mem_malloc(sizeof(double) * (a.count ? a.count : 1));
     if (!v) {
       npy_free(&a);
       return fail(f, "out of memory");
@@ -520,7 +520,7 @@ uint64_t full_param_hash(const Full *f, int k, const char **from) {
   if (!f->params[k] && !f->iparams[k]) return 0;
   size_t n = count_of((Full *)f, s);
   if (f->params[k]) return full_hash_values(f->params[k], n);
-  double *v = npg_malloc(sizeof(double) * (n ? n : 1));
+  double *v = mem_malloc(sizeof(double) * (n ? n : 1));
   if (!v) return 0;
   for (size_t i = 0; i < n; i++) v[i] = (double)f->iparams[k][i];
   uint64_t h = full_hash_values(v, n);

@@ -112,7 +112,7 @@ bool full_first_nonfinite(Full *f, const Sym **sym, char *index, size_t len, dou
 int full_fail(Full *f, const char *msg);
 /* Record `msg` as the evaluator's error, replacing one already there (an
  * argument refused by the facade: the latest thing the caller should hear
- * about, npg_refuse in ast.h); -1. */
+ * about, api_refuse in ast.h); -1. */
 int full_refuse(Full *f, const char *msg);
 
 #endif

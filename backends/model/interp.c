@@ -98,10 +98,10 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
   }
   for (long s = 0; s < k; s++)
     if (!isfinite(py[s]))
-      return npg_fail(err, errlen,
-                      "stage %s (interpolated) is not finite at its selected entry %ld at sample %ld (a diagonal zero "
-                      "under a negative power, or a root of a negative value, from its inputs' reduced values)",
-                      rs->st->sym->name, ip->rows[s], sample);
+      return error_set(err, errlen,
+                       "stage %s (interpolated) is not finite at its selected entry %ld at sample %ld (a diagonal zero "
+                       "under a negative power, or a root of a negative value, from its inputs' reduced values)",
+                       rs->st->sym->name, ip->rows[s], sample);
   if (ip->m == 0 || k == 0) memset(y, 0, sizeof(double) * (size_t)ip->m); /* (a forged model: BLAS wants lda >= 1) */
   else cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)ip->m, (int)k, 1.0, ip->pinv, (int)k, py, 1, 0.0, y, 1);
   return 0;
@@ -177,11 +177,11 @@ static const double *array_of(const ModelStore *s, const char *dir, const char *
   stem(name, sizeof name, sn, what);
   const NpyArray *a = model_store_array(s, name);
   if (!a) {
-    npg_fail(err, errlen, "%s/manifest: no array '%s': the model is incomplete", dir, name);
+    error_set(err, errlen, "%s/manifest: no array '%s': the model is incomplete", dir, name);
     return NULL;
   }
   if (a->ndim != (cols ? 2 : 1) || a->shape[0] != rows || (cols && a->shape[1] != cols)) {
-    npg_fail(err, errlen, "%s/%s.npy: wrong shape for the manifest's 'interp %s' line", dir, name, sn);
+    error_set(err, errlen, "%s/%s.npy: wrong shape for the manifest's 'interp %s' line", dir, name, sn);
     return NULL;
   }
   return a->data;
@@ -198,26 +198,26 @@ static int load_stage(Model *m, const ModelStore *s, const char *dir, const char
   if (sscanf(line, "interp %511s k %ld m %ld reads %ld monos %ld norm %lf%n", sn, &k, &mm, &nreads, &nmono, &norm,
              &used) != 6 ||
       line[used])
-    return npg_fail(err, errlen, "%s/manifest: '%.200s' is not an 'interp' line this npgc reads", dir, line);
+    return error_set(err, errlen, "%s/manifest: '%.200s' is not an 'interp' line this npgc reads", dir, line);
   RStage *rs = NULL;
   for (int i = 0; i < m->nstages && !rs; i++)
     if (strcmp(m->stages[i].st->sym->name, sn) == 0) rs = &m->stages[i];
   if (!rs || !lower_interp_eligible(rs->st) || rs->interp)
-    return npg_fail(err, errlen, "%s/manifest: '%.200s': %s", dir, line,
-                    !rs ? "the program has no such stage" : rs->interp ? "the stage is named twice"
+    return error_set(err, errlen, "%s/manifest: '%.200s': %s", dir, line,
+                     !rs ? "the program has no such stage" : rs->interp ? "the stage is named twice"
                                                                      : "the stage is not eligible for interpolation");
   const RClass *c = &m->classes[m->qclass[rs->q]];
   if (mm != c->m || k < mm || k > c->n || nreads < 0 || nmono < 0 || nreads > 100000000 || nmono > 100000000 ||
       !(norm >= 0))
-    return npg_fail(err, errlen, "%s/manifest: '%.200s' does not fit the stage's class %s (n %ld, m %ld)", dir, line,
-                    c->label, c->n, c->m);
+    return error_set(err, errlen, "%s/manifest: '%.200s' does not fit the stage's class %s (n %ld, m %ld)", dir, line,
+                     c->label, c->n, c->m);
   const double *rows = array_of(s, dir, sn, "rows", k, 0, err, errlen);
   const double *pinv = rows ? array_of(s, dir, sn, "pinv", mm, k, err, errlen) : NULL;
   const double *reads = pinv ? array_of(s, dir, sn, "reads", nreads, 2, err, errlen) : NULL;
   const double *monos = reads ? array_of(s, dir, sn, "monos", nmono, MONO_COLS, err, errlen) : NULL;
   if (!monos) return -1;
   RInterp *ip = calloc(1, sizeof *ip);
-  if (!ip) return npg_fail(err, errlen, "%s: out of memory loading the model", dir);
+  if (!ip) return error_set(err, errlen, "%s: out of memory loading the model", dir);
   rs->interp = ip;
   ip->k = k, ip->m = mm, ip->nreads = nreads, ip->nmono = nmono, ip->pinv_norm = norm;
   ip->rows = malloc(sizeof(long) * (size_t)(k + 1));
@@ -226,7 +226,7 @@ static int load_stage(Model *m, const ModelStore *s, const char *dir, const char
   ip->read_e = malloc(sizeof(long) * (size_t)(nreads + 1));
   ip->mono = malloc(sizeof(RInterpMono) * (size_t)(nmono + 1));
   if (!ip->rows || !ip->pinv || !ip->read_q || !ip->read_e || !ip->mono)
-    return npg_fail(err, errlen, "%s: out of memory loading the model", dir);
+    return error_set(err, errlen, "%s: out of memory loading the model", dir);
   const char *bad = NULL;
   for (long j = 0; j < k && !bad; j++) {
     if (!whole_in(rows[j], 0, c->n)) bad = "rows";
@@ -264,8 +264,8 @@ static int load_stage(Model *m, const ModelStore *s, const char *dir, const char
     }
   }
   if (bad)
-    return npg_fail(err, errlen, "%s/interp_%s_%s.npy: an entry out of range for the stage (a damaged or forged model)",
-                    dir, sn, bad);
+    return error_set(err, errlen, "%s/interp_%s_%s.npy: an entry out of range for the stage (a damaged or forged model)",
+                     dir, sn, bad);
   return 0;
 }
 
@@ -280,8 +280,8 @@ static int load_choice(Model *m, const char *dir, const char *line, char *err, s
     for (int i = 0; i < m->nstages && !rs; i++)
       if (strcmp(m->stages[i].st->sym->name, sn) == 0 && lower_interp_eligible(m->stages[i].st)) rs = &m->stages[i];
   if (!rs || rs->choice_reason)
-    return npg_fail(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
-                    dir, line);
+    return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                     dir, line);
   rs->choice_err[0] = g, rs->choice_err[1] = e, rs->choice_reason = interp_reasons[why];
   return 0;
 }
@@ -292,12 +292,12 @@ int interp_load(Model *m, const ModelStore *s, const char *dir, char *err, size_
     if (strncmp(s->meta[i], "choice ", 7) == 0 && load_choice(m, dir, s->meta[i], err, errlen)) return -1;
     if (strncmp(s->meta[i], "interp ", 7) != 0) continue;
     if (s->format < 2)
-      return npg_fail(err, errlen, "%s/manifest: an 'interp' line in a model of format 1 (a damaged or forged manifest)",
-                      dir);
+      return error_set(err, errlen, "%s/manifest: an 'interp' line in a model of format 1 (a damaged or forged manifest)",
+                       dir);
     if (load_stage(m, s, dir, s->meta[i], err, errlen)) return -1;
     n++;
   }
   if (s->format >= 2 && n == 0)
-    return npg_fail(err, errlen, "%s/manifest: format 2 but no interpolated stage (a damaged or forged manifest)", dir);
+    return error_set(err, errlen, "%s/manifest: format 2 but no interpolated stage (a damaged or forged manifest)", dir);
   return 0;
 }

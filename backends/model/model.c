@@ -33,7 +33,7 @@ static char *dupf(const char *fmt, ...) {
   va_start(ap, fmt);
   vsnprintf(buf, sizeof buf, fmt, ap);
   va_end(ap);
-  return npg_strdup(buf);
+  return mem_strdup(buf);
 }
 
 /* File stems keep [A-Za-z0-9_.-]. */
@@ -66,7 +66,7 @@ static bool tensor_inputs(const Program *prog, const TensorGroup *g, RTensor *t)
 static char *class_label(const BasisClass *bc) {
   size_t len = 3;
   for (int i = 0; i < bc->members.n; i++) len += strlen(((Sym *)bc->members.v[i])->name) + 1;
-  char *s = npg_malloc(len);
+  char *s = mem_malloc(len);
   if (!s) return NULL;
   strcpy(s, "{");
   for (int i = 0; i < bc->members.n; i++) {
@@ -78,19 +78,19 @@ static char *class_label(const BasisClass *bc) {
 }
 
 Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
-  Model *m = npg_calloc(1, sizeof *m);
+  Model *m = mem_calloc(1, sizeof *m);
   if (!m) goto oom;
   m->prog = prog;
   m->program_hash = model_program_hash(prog);
   m->ndims = prog->dims.n;
-  m->dims = npg_calloc((size_t)m->ndims + 1, sizeof(long));
+  m->dims = mem_calloc((size_t)m->ndims + 1, sizeof(long));
   m->nq = prog->quantities.n;
-  m->qclass = npg_calloc((size_t)m->nq + 1, sizeof(int));
+  m->qclass = mem_calloc((size_t)m->nq + 1, sizeof(int));
   m->nclasses = prog->classes.n;
-  m->classes = npg_calloc((size_t)m->nclasses + 1, sizeof(RClass));
+  m->classes = mem_calloc((size_t)m->nclasses + 1, sizeof(RClass));
   m->nstages = prog->stages.n;
-  m->stages = npg_calloc((size_t)m->nstages + 1, sizeof(RStage));
-  m->externs = npg_calloc((size_t)prog->externs.n + 1, sizeof(RExtern));
+  m->stages = mem_calloc((size_t)m->nstages + 1, sizeof(RStage));
+  m->externs = mem_calloc((size_t)prog->externs.n + 1, sizeof(RExtern));
   if (!m->dims || !m->qclass || !m->classes || !m->stages || !m->externs) goto oom;
   for (int i = 0; i < m->ndims; i++) m->dims[i] = dims[i];
   for (int q = 0; q < m->nq; q++) m->qclass[q] = ((Sym *)prog->quantities.v[q])->klass;
@@ -102,11 +102,11 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
     if (!(rc->label = class_label(bc))) goto oom;
     rc->n = quantity_count(prog, dims, bc->members.v[0]);
     rc->nmembers = bc->members.n + bc->joiners.n;
-    if (!(rc->members = npg_calloc((size_t)rc->nmembers, sizeof(RMember)))) goto oom;
+    if (!(rc->members = mem_calloc((size_t)rc->nmembers, sizeof(RMember)))) goto oom;
     for (int i = 0; i < bc->members.n; i++) {
       const Sym *s = bc->members.v[i];
       rc->members[i].q = emit_index_of(&prog->quantities, s);
-      if (!(rc->members[i].name = npg_strdup(s->name))) goto oom;
+      if (!(rc->members[i].name = mem_strdup(s->name))) goto oom;
       if (quantity_count(prog, dims, s) != rc->n) {
         snprintf(err, errlen, "class %s: '%s' has %ld entries but '%s' has %ld", rc->label, s->name,
                  quantity_count(prog, dims, s), ((Sym *)bc->members.v[0])->name, rc->n);
@@ -141,7 +141,7 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
       continue;
     }
     rs->nterms = st->nterms;
-    if (!(rs->terms = npg_calloc((size_t)st->nterms + 1, sizeof(RTerm)))) goto oom;
+    if (!(rs->terms = mem_calloc((size_t)st->nterms + 1, sizeof(RTerm)))) goto oom;
     const char *sn = st->sym->name;
     for (int t = 0; t < st->nterms; t++) {
       const Term *tm = st->terms[t];
@@ -154,31 +154,31 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
           goto oom;
       } else {
         rt->nnum = tm->num_tensors.n;
-        if (!(rt->num = npg_calloc((size_t)rt->nnum + 1, sizeof(RTensor)))) goto oom;
+        if (!(rt->num = mem_calloc((size_t)rt->nnum + 1, sizeof(RTensor)))) goto oom;
         for (int g = 0; g < rt->nnum; g++) {
           RTensor *rtn = &rt->num[g];
           rtn->kind = RT_NUM;
           if (!tensor_inputs(prog, &tm->num_tensors.g[g], rtn)) goto nobasis;
           rtn->name = file_stem(dupf("t_%s_t%d_f0_g%d", sn, t, g));
-          rtn->builder = npg_strdup(emit_builder_name(prog->ctx, prog, st, t, 0, g, NULL));
+          rtn->builder = mem_strdup(emit_builder_name(prog->ctx, prog, st, t, 0, g, NULL));
           if (!rtn->name || !rtn->builder) goto oom;
         }
       }
       rt->nops = tm->nops;
-      if (!(rt->ops = npg_calloc((size_t)tm->nops + 1, sizeof(ROp)))) goto oom;
+      if (!(rt->ops = mem_calloc((size_t)tm->nops + 1, sizeof(ROp)))) goto oom;
       for (int k = 0; k < tm->nops; k++) {
         ROp *ro = &rt->ops[k];
         const OpPow *op = &tm->ops[k];
         ro->op = op;
         const TensorList *tl = op->kind == OPK_DIAG ? &tm->op_tensors[k] : &op->op->opdef->tensors;
         ro->ntensors = tl->n;
-        if (!(ro->t = npg_calloc((size_t)tl->n + 1, sizeof(RTensor)))) goto oom;
+        if (!(ro->t = mem_calloc((size_t)tl->n + 1, sizeof(RTensor)))) goto oom;
         for (int g = 0; g < tl->n; g++) {
           RTensor *rtn = &ro->t[g];
           rtn->kind = op->kind == OPK_DIAG ? RT_DIAG : RT_DECL;
           if (!tensor_inputs(prog, &tl->g[g], rtn)) goto nobasis;
           rtn->name = file_stem(dupf("t_%s_t%d_op%d_g%d", sn, t, k + 1, g));
-          rtn->builder = npg_strdup(op->kind == OPK_DIAG ? emit_builder_name(prog->ctx, prog, st, t, k + 1, g, NULL)
+          rtn->builder = mem_strdup(op->kind == OPK_DIAG ? emit_builder_name(prog->ctx, prog, st, t, k + 1, g, NULL)
                                                      : emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op));
           if (!rtn->name || !rtn->builder) goto oom;
         }

@@ -29,7 +29,7 @@ static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quanti
 static char *spectrum_csv(const RMember *mb) {
   /* the header holds the member's name, of any length; a row at most 80 bytes */
   size_t cap = 64 + strlen(mb->name) + 80 * (size_t)mb->nsv, len = 0;
-  char *t = npg_malloc(cap);
+  char *t = mem_malloc(cap);
   if (!t) return NULL;
   double total = 0, run = 0;
   for (long i = 0; i < mb->nsv; i++) total += mb->sv[i] * mb->sv[i];
@@ -142,7 +142,7 @@ static int take(const ModelStore *s, const char *dir, const char *name, long row
              a->ndim > 0 ? a->shape[0] : 0, a->ndim > 1 ? a->shape[1] : 0, rows, cols);
     return -1;
   }
-  *out = npg_malloc(sizeof(double) * (size_t)(rows * cols) + 1);
+  *out = mem_malloc(sizeof(double) * (size_t)(rows * cols) + 1);
   if (!*out) {
     snprintf(err, errlen, "%s/%s.npy: out of memory", dir, name);
     return -1;
@@ -232,7 +232,7 @@ static const char *const REQUIRED_LINES[] = {"dims", "samples", "params", "bytes
 static int check_required(const ModelStore *s, const Model *m, const char *dir, char *err, size_t errlen) {
   for (size_t i = 0; i < sizeof REQUIRED_LINES / sizeof *REQUIRED_LINES; i++)
     if (!model_store_find(s, REQUIRED_LINES[i]))
-      return npg_fail(err, errlen, "%s/manifest: no '%s' line: the model is damaged; retrain", dir, REQUIRED_LINES[i]);
+      return error_set(err, errlen, "%s/manifest: no '%s' line: the model is damaged; retrain", dir, REQUIRED_LINES[i]);
   for (int c = 0; c < m->nclasses; c++) {
     const RClass *rc = &m->classes[c];
     for (int k = -1; k < rc->nmembers; k++) {
@@ -242,7 +242,7 @@ static int check_required(const ModelStore *s, const Model *m, const char *dir, 
       bool found = false;
       for (int j = 0; j < s->nmeta && !found; j++) found = strncmp(s->meta[j], want, (size_t)n) == 0;
       if (!found)
-        return npg_fail(err, errlen, "%s/manifest: no '%.*s' line: the model is damaged; retrain", dir, n - 1, want);
+        return error_set(err, errlen, "%s/manifest: no '%.*s' line: the model is damaged; retrain", dir, n - 1, want);
     }
   }
   return 0;
@@ -257,7 +257,7 @@ static bool has_line(const ModelStore *s, const char *line) {
 /* The manifest's "dims" line: the size of every dim of `prog` into dims[]. */
 static int read_dims(const ModelStore *s, const Program *prog, const char *dir, long *dims, char *err, size_t errlen) {
   const char *d = model_store_find(s, "dims");
-  if (!d) return npg_fail(err, errlen, "%s/manifest: no 'dims' line", dir);
+  if (!d) return error_set(err, errlen, "%s/manifest: no 'dims' line", dir);
   for (int i = 0; i < prog->dims.n; i++) {
     const char *name = ((Sym *)prog->dims.v[i])->name;
     size_t nl = strlen(name);
@@ -270,12 +270,12 @@ static int read_dims(const ModelStore *s, const Program *prog, const char *dir, 
         dims[i] = strtol(p + nl + 1, &end, 10);
         /* every size product of the layout stays far from overflow */
         if (errno || end == p + nl + 1 || (*end && *end != ' ') || dims[i] < 0 || dims[i] > 100000000)
-          return npg_fail(err, errlen, "%s/manifest: dim %s has no valid size in '%.100s'", dir, name, d);
+          return error_set(err, errlen, "%s/manifest: dim %s has no valid size in '%.100s'", dir, name, d);
         break;
       }
       p += nl;
     }
-    if (dims[i] < 0) return npg_fail(err, errlen, "%s/manifest: no size for dim %s", dir, name);
+    if (dims[i] < 0) return error_set(err, errlen, "%s/manifest: no size for dim %s", dir, name);
   }
   return 0;
 }
@@ -295,16 +295,16 @@ static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err,
           rc->m = mp ? strtol(mp + 3, NULL, 10) : 0;
         }
       if (rc->m < 1 || rc->m > rc->n)
-        return npg_fail(err, errlen, "%s/manifest: streamed class %s has no valid basis size on its class line", dir,
-                        rc->label);
+        return error_set(err, errlen, "%s/manifest: streamed class %s has no valid basis size on its class line", dir,
+                         rc->label);
       rc->streamed = true;
       continue;
     }
     snprintf(name, sizeof name, "basis_%d", c);
     const NpyArray *a = model_store_array(s, name);
     if (!a || a->ndim != 2 || a->shape[0] != rc->n)
-      return npg_fail(err, errlen, "%s/%s.npy: %s, class %s needs %ld rows", dir, name, a ? "wrong shape" : "missing",
-                      rc->label, rc->n);
+      return error_set(err, errlen, "%s/%s.npy: %s, class %s needs %ld rows", dir, name, a ? "wrong shape" : "missing",
+                       rc->label, rc->n);
     rc->m = a->shape[1];
     if (take(s, dir, name, rc->n, rc->m, &rc->B, err, errlen)) return -1;
   }
@@ -315,15 +315,15 @@ static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err,
 static int check_streamed(const Model *m, const char *dir, char *err, size_t errlen) {
   for (int c = 0; c < m->nclasses; c++)
     if (m->classes[c].streamed && !model_class_streamable(m, c))
-      return npg_fail(err, errlen,
-                      "%s/manifest: class %s is marked streamed, but %s (a damaged or forged manifest; retrain)", dir,
-                      m->classes[c].label,
-                      model_class_needed(m, c) ? "the reduced model reads its basis" : "its rows run over one dim only");
+      return error_set(err, errlen,
+                       "%s/manifest: class %s is marked streamed, but %s (a damaged or forged manifest; retrain)", dir,
+                       m->classes[c].label,
+                       model_class_needed(m, c) ? "the reduced model reads its basis" : "its rows run over one dim only");
   /* check_meta left NaN where no floor line was read */
   for (int c = 0; c < m->nclasses; c++)
     for (int k = 0; m->classes[c].streamed && k < m->classes[c].nmembers; k++)
       if (m->classes[c].members[k].q >= 0 && isnan(m->classes[c].members[k].floor_l2))
-        return npg_fail(err, errlen, "%s/manifest: no floor line for %s, a quantity of the streamed class %s (a damaged or "
+        return error_set(err, errlen, "%s/manifest: no floor line for %s, a quantity of the streamed class %s (a damaged or "
                                      "forged manifest; retrain)", dir, m->classes[c].members[k].name, m->classes[c].label);
   return 0;
 }
@@ -349,7 +349,7 @@ static void read_member_stats(const ModelStore *s, Model *m) {
           const NpyArray *a = model_store_array(s, sname);
           free(mb->sv); /* a member named twice: the last line's spectrum */
           mb->sv = NULL, mb->nsv = 0;
-          if (a && a->ndim == 1 && (mb->sv = npg_malloc(sizeof(double) * (a->count + 1)))) {
+          if (a && a->ndim == 1 && (mb->sv = mem_malloc(sizeof(double) * (a->count + 1)))) {
             memcpy(mb->sv, a->data, sizeof(double) * a->count);
             mb->nsv = (long)a->count;
           }
@@ -398,7 +398,7 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
   ModelStore s;
   Model *m = NULL;
   if (model_store_read(dir, model_program_hash(prog), &s, err, errlen) != 0) return NULL;
-  long *dims = npg_calloc((size_t)prog->dims.n + 1, sizeof(long));
+  long *dims = mem_calloc((size_t)prog->dims.n + 1, sizeof(long));
   if (!dims) goto oom;
   if (read_dims(&s, prog, dir, dims, err, errlen) || !(m = model_layout(prog, dims, err, errlen)) ||
       check_required(&s, m, dir, err, errlen))
@@ -410,7 +410,7 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
     snprintf(err, errlen, "%s/manifest: 'samples %s' is not a count of training samples", dir, ns);
     goto fail;
   }
-  if (!(m->param_hashes = npg_strdup(model_store_find(&s, "params")))) goto oom;
+  if (!(m->param_hashes = mem_strdup(model_store_find(&s, "params")))) goto oom;
   /* every metadata line the model reads must describe this model: a line
    * it cannot use is refused, not skipped */
   if (load_bases(&s, m, dir, err, errlen) || check_meta(&s, m, dir, err, errlen) ||
@@ -431,15 +431,15 @@ fail:
 }
 
 int model_write_spectra(const Model *m, const char *dir, char *err, size_t errlen) {
-  if (mkdir(dir, 0777) != 0 && errno != EEXIST) return npg_fail(err, errlen, "%s: cannot create: %s", dir, strerror(errno));
+  if (mkdir(dir, 0777) != 0 && errno != EEXIST) return error_set(err, errlen, "%s: cannot create: %s", dir, strerror(errno));
   /* a model's spectra are files its manifest vouches for: writing another
    * model's over them would leave it unloadable (issue 24) */
   char manifest[4096];
   struct stat st;
   snprintf(manifest, sizeof manifest, "%s/manifest", dir);
   if (lstat(manifest, &st) == 0)
-    return npg_fail(err, errlen, "%s: holds a model (its manifest): refusing to write spectra into it; give a folder of "
-                    "its own", dir);
+    return error_set(err, errlen, "%s: holds a model (its manifest): refusing to write spectra into it; give a folder of "
+                     "its own", dir);
   /* Every name is checked before any file is written: a folder in the place
    * of the last spectrum would otherwise leave the first ones written. */
   for (int c = 0; c < m->nclasses; c++)
@@ -448,7 +448,7 @@ int model_write_spectra(const Model *m, const char *dir, char *err, size_t errle
         char path[4096];
         snprintf(path, sizeof path, "%s/spectrum_%s.%s", dir, m->classes[c].members[i].name, k ? "csv" : "npy");
         if (lstat(path, &st) == 0 && !S_ISREG(st.st_mode))
-          return npg_fail(err, errlen, "%s: is not a regular file: refusing to replace it", path);
+          return error_set(err, errlen, "%s: is not a regular file: refusing to replace it", path);
       }
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++) {
@@ -462,7 +462,7 @@ int model_write_spectra(const Model *m, const char *dir, char *err, size_t errle
       char tmp[4200];
       snprintf(tmp, sizeof tmp, "%s.tmp.%ld", path, (long)getpid());
       if (lstat(path, &st) == 0 && !S_ISREG(st.st_mode))
-        return npg_fail(err, errlen, "%s: is not a regular file: refusing to replace it", path);
+        return error_set(err, errlen, "%s: is not a regular file: refusing to replace it", path);
       char *csv = spectrum_csv(mb);
       FILE *f = csv ? fopen(tmp, "w") : NULL;
       int ok = f && fputs(csv, f) >= 0;
@@ -472,7 +472,7 @@ int model_write_spectra(const Model *m, const char *dir, char *err, size_t errle
       if (!ok) {
         int saved = errno;
         remove(tmp);
-        return npg_fail(err, errlen, "%s: cannot write: %s", path, strerror(saved));
+        return error_set(err, errlen, "%s: cannot write: %s", path, strerror(saved));
       }
     }
   return 0;

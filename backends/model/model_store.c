@@ -9,7 +9,7 @@
 #define _POSIX_C_SOURCE 200809L
 
 #include "model_store_impl.h"
-#include "alloc.h" /* npg_malloc: allocation through the hook */
+#include "alloc.h" /* mem_malloc: allocation through the hook */
 
 #include <errno.h>
 #include <inttypes.h>
@@ -42,7 +42,7 @@ static char *str_vprintf(const char *fmt, va_list ap) {
   va_list ap2;
   va_copy(ap2, ap);
   int n = vsnprintf(NULL, 0, fmt, ap);
-  char *s = n < 0 ? NULL : npg_malloc((size_t)n + 1);
+  char *s = n < 0 ? NULL : mem_malloc((size_t)n + 1);
   if (s) vsnprintf(s, (size_t)n + 1, fmt, ap2);
   va_end(ap2);
   return s;
@@ -199,7 +199,7 @@ void model_store_free(ModelStore *m) {
 
 /* Append the malloc'd line `line` (taken over, freed on failure). */
 static int append_meta(ModelStore *m, char *line) {
-  char **grown = npg_realloc(m->meta, ((size_t)m->nmeta + 1) * sizeof *grown);
+  char **grown = mem_realloc(m->meta, ((size_t)m->nmeta + 1) * sizeof *grown);
   if (!grown) {
     free(line);
     return -1;
@@ -230,8 +230,8 @@ static int find_array(const ModelStore *m, const char *name) {
 
 /* Append `name` with the array `a` (taken over: freed on failure). */
 static int append_array(ModelStore *m, const char *name, NpyArray *a, uint64_t checksum) {
-  char *copy = npg_strdup(name);
-  ModelArray *grown = copy ? npg_realloc(m->arrays, ((size_t)m->narrays + 1) * sizeof *grown) : NULL;
+  char *copy = mem_strdup(name);
+  ModelArray *grown = copy ? mem_realloc(m->arrays, ((size_t)m->narrays + 1) * sizeof *grown) : NULL;
   if (!grown) {
     free(copy);
     npy_free(a);
@@ -250,7 +250,7 @@ int model_store_add(ModelStore *m, const char *name, int ndim, const long *shape
     return -1;
   NpyArray a = {.type = NPY_F64, .ndim = ndim, .count = count};
   for (int i = 0; i < ndim; i++) a.shape[i] = shape[i];
-  a.data = npg_malloc(count ? count * sizeof(double) : 1);
+  a.data = mem_malloc(count ? count * sizeof(double) : 1);
   if (!a.data) return -1;
   if (count) memcpy(a.data, data, count * sizeof(double));
   return append_array(m, name, &a, 0);
@@ -275,8 +275,8 @@ static int valid_text_name(const char *name) {
 }
 
 static int append_text(ModelStore *m, const char *name, const char *text, size_t len, uint64_t checksum) {
-  char *n = npg_strdup(name), *t = npg_malloc(len + 1);
-  ModelText *grown = n && t ? npg_realloc(m->texts, ((size_t)m->ntexts + 1) * sizeof *grown) : NULL;
+  char *n = mem_strdup(name), *t = mem_malloc(len + 1);
+  ModelText *grown = n && t ? mem_realloc(m->texts, ((size_t)m->ntexts + 1) * sizeof *grown) : NULL;
   if (!grown) {
     free(n), free(t);
     return -1;
@@ -327,7 +327,7 @@ int model_store_slurp(const StoreReport *r, const char *path, char **text, size_
   FILE *f = fopen(path, "rb");
   if (!f) return model_store_fail(r, path, 0, "cannot open: %s", strerror(errno));
   size_t cap = 4096, n = 0;
-  char *buf = npg_malloc(cap + 1);
+  char *buf = mem_malloc(cap + 1);
   int rc = buf ? 0 : model_store_fail(r, path, 0, "out of memory");
   while (rc == 0) {
     n += fread(buf + n, 1, cap - n, f);
@@ -335,7 +335,7 @@ int model_store_slurp(const StoreReport *r, const char *path, char **text, size_
     else if (n < cap) break;
     else if (cap >= MANIFEST_MAX) rc = model_store_fail(r, path, 0, "larger than %zu bytes: not a model manifest", MANIFEST_MAX);
     else {
-      char *grown = npg_realloc(buf, 2 * cap + 1);
+      char *grown = mem_realloc(buf, 2 * cap + 1);
       if (!grown) rc = model_store_fail(r, path, 0, "out of memory");
       else buf = grown, cap *= 2;
     }
@@ -442,7 +442,7 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
       for (int i = 0; i < *nlisted; i++)
         if (strcmp((*listed)[i].name, x.name) == 0)
           return model_store_fail(r, mpath, ln, "array %s.npy listed twice (first on line %d)", x.name, (*listed)[i].line);
-      Listed *grown = npg_realloc(*listed, ((size_t)*nlisted + 1) * sizeof *grown);
+      Listed *grown = mem_realloc(*listed, ((size_t)*nlisted + 1) * sizeof *grown);
       if (!grown) return model_store_fail(r, mpath, 0, "out of memory");
       *listed = grown;
       grown[(*nlisted)++] = x;
@@ -459,7 +459,7 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
       for (int i = 0; i < *nlisted; i++)
         if (strcmp((*listed)[i].name, x.name) == 0)
           return model_store_fail(r, mpath, ln, "file %s listed twice (first on line %d)", x.name, (*listed)[i].line);
-      Listed *grown = npg_realloc(*listed, ((size_t)*nlisted + 1) * sizeof *grown);
+      Listed *grown = mem_realloc(*listed, ((size_t)*nlisted + 1) * sizeof *grown);
       if (!grown) return model_store_fail(r, mpath, 0, "out of memory");
       *listed = grown;
       grown[(*nlisted)++] = x;
@@ -468,7 +468,7 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
     } else if (*line == ' ' || *line == '\t') {
       return model_store_fail(r, mpath, ln, "line starts with a space (expected 'key value...')");
     } else {
-      char *copy = npg_strdup(line);
+      char *copy = mem_strdup(line);
       if (!copy || append_meta(m, copy) != 0) return model_store_fail(r, mpath, 0, "out of memory");
     }
     line = next;

@@ -28,7 +28,7 @@
 #include <unistd.h>
 
 #include "model_store_impl.h"
-#include "alloc.h" /* npg_malloc: allocation through the hook */
+#include "alloc.h" /* mem_malloc: allocation through the hook */
 
 /* ---------------------------------------------------------------- directories */
 
@@ -209,8 +209,8 @@ static int sync_dir(const StoreReport *r, const char *path) {
 /* The directory holding `dir` (malloc'd): "." for a bare name. */
 static char *parent_of(const char *dir) {
   const char *slash = strrchr(dir, '/');
-  if (!slash) return npg_strdup(".");
-  if (slash == dir) return npg_strdup("/");
+  if (!slash) return mem_strdup(".");
+  if (slash == dir) return mem_strdup("/");
   return model_store_printf("%.*s", (int)(slash - dir), dir);
 }
 
@@ -276,7 +276,7 @@ static void disarm(void) {
  * model write at a time per process: a second one is not armed). */
 static void arm(const char *tmp, const ModelStore *m) {
   if (cleanup.paths) return;
-  char **paths = npg_calloc((size_t)(2 * m->narrays + m->ntexts + 2), sizeof *paths);
+  char **paths = mem_calloc((size_t)(2 * m->narrays + m->ntexts + 2), sizeof *paths);
   if (!paths) return;
   cleanup.paths = paths;
   long pid = (long)getpid();
@@ -400,7 +400,7 @@ static int check_store(const StoreReport *r, const char *dir, const ModelStore *
 /* Write the arrays of `m`, then the manifest with their checksums, into the
  * existing empty directory `tmp`, and sync it all. */
 static int write_contents(const StoreReport *r, const char *tmp, const ModelStore *m) {
-  uint64_t *checksums = npg_calloc((size_t)m->narrays + 1, sizeof *checksums);
+  uint64_t *checksums = mem_calloc((size_t)m->narrays + 1, sizeof *checksums);
   if (!checksums) return model_store_fail(r, tmp, 0, "out of memory");
   int rc = 0;
   for (int i = 0; i < m->narrays && rc == 0; i++) {
@@ -414,7 +414,7 @@ static int write_contents(const StoreReport *r, const char *tmp, const ModelStor
     free(path);
     if (i == m->narrays / 2) test_point("arrays");
   }
-  uint64_t *text_sums = rc == 0 ? npg_calloc((size_t)m->ntexts + 1, sizeof *text_sums) : NULL;
+  uint64_t *text_sums = rc == 0 ? mem_calloc((size_t)m->ntexts + 1, sizeof *text_sums) : NULL;
   if (rc == 0 && !text_sums) rc = model_store_fail(r, tmp, 0, "out of memory");
   for (int i = 0; i < m->ntexts && rc == 0; i++) {
     char *tpath = model_store_printf("%s/%s", tmp, m->texts[i].name);

@@ -52,7 +52,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-#include "ast.h" /* npg_alloc_hook, npg_fail */
+#include "ast.h" /* mem_alloc_hook, error_set */
 #include "nnls.h"
 
 
@@ -61,7 +61,7 @@
 static void *alloc_array(size_t count, size_t size) {
   if (count == 0) count = 1;
   if (count > SIZE_MAX / size) return NULL;
-  return npg_alloc_hook(count * size);
+  return mem_alloc_hook(count * size);
 }
 
 static int max_int(int a, int b) { return a > b ? a : b; }
@@ -99,7 +99,7 @@ static int reserve(Solver *s, size_t nwork) {
     s->nwork = s->work ? nwork : 0;
   }
   if (!s->work)
-    return npg_fail(s->err, s->errlen, "nnls: out of memory for the LAPACK workspace (%d × %d problem)", s->m, s->n);
+    return error_set(s->err, s->errlen, "nnls: out of memory for the LAPACK workspace (%d × %d problem)", s->m, s->n);
   return 0;
 }
 
@@ -128,13 +128,13 @@ static int solve_gelsy(Solver *s, const int *P, int k, double *z) {
     lapack_int info = LAPACKE_dgelsy_work(LAPACK_COL_MAJOR, m, n, 1, s->cols, max_int(m, 1), s->rhs,
                                           max_int(max_int(m, n), 1), s->jpvt, rcond, &rank, &wq, -1);
     if (info != 0)
-      return npg_fail(s->err, s->errlen, "nnls: LAPACK dgelsy rejected argument %d in its workspace query (a bug in npg)",
+      return error_set(s->err, s->errlen, "nnls: LAPACK dgelsy rejected argument %d in its workspace query (a bug in npg)",
                   (int)-info);
     if (reserve(s, (size_t)wq + (size_t)(4 * (m + n)) + 1)) return -1;
   }
   lapack_int info = LAPACKE_dgelsy_work(LAPACK_COL_MAJOR, m, k, 1, s->cols, max_int(m, 1), s->rhs, ld, s->jpvt, rcond,
                                         &rank, s->work, (lapack_int)s->nwork);
-  if (info != 0) return npg_fail(s->err, s->errlen, "nnls: LAPACK dgelsy rejected argument %d (a bug in npg)", (int)-info);
+  if (info != 0) return error_set(s->err, s->errlen, "nnls: LAPACK dgelsy rejected argument %d (a bug in npg)", (int)-info);
   for (int j = 0; j < n; j++) z[j] = 0;
   for (int c = 0; c < k; c++) z[P[c]] = s->rhs[c];
   return 0;
@@ -238,13 +238,13 @@ int nnls_solve_with(int m, int n, const double *A, const double *b, double *w, b
                     char *err, size_t errlen) {
   if (err && errlen) err[0] = '\0';
   if (gelsy_solves) *gelsy_solves = 0;
-  if (m < 0 || n < 0) return npg_fail(err, errlen, "nnls: bad problem size %d × %d", m, n);
-  if ((m > 0 && n > 0 && !A) || (m > 0 && !b) || (n > 0 && !w)) return npg_fail(err, errlen, "nnls: NULL argument");
+  if (m < 0 || n < 0) return error_set(err, errlen, "nnls: bad problem size %d × %d", m, n);
+  if ((m > 0 && n > 0 && !A) || (m > 0 && !b) || (n > 0 && !w)) return error_set(err, errlen, "nnls: NULL argument");
   for (int i = 0; i < m; i++) {
     for (int j = 0; j < n; j++)
       if (!isfinite(A[(size_t)i * n + j]))
-        return npg_fail(err, errlen, "nnls: A[%d][%d] is not finite (%g)", i, j, A[(size_t)i * n + j]);
-    if (!isfinite(b[i])) return npg_fail(err, errlen, "nnls: b[%d] is not finite (%g)", i, b[i]);
+        return error_set(err, errlen, "nnls: A[%d][%d] is not finite (%g)", i, j, A[(size_t)i * n + j]);
+    if (!isfinite(b[i])) return error_set(err, errlen, "nnls: b[%d] is not finite (%g)", i, b[i]);
   }
   for (int j = 0; j < n; j++) w[j] = 0;
   if (n == 0) return 0;
@@ -269,7 +269,7 @@ int nnls_solve_with(int m, int n, const double *A, const double *b, double *w, b
   bool scaled = false; /* w holds the iterate of the scaled problem */
   if (!unit || !s.cols || !s.rhs || !s.jpvt || !s.qr || !s.tau || !s.qtb || !s.qtb0 || !z || !r || !g || !P || !colnorm ||
       !state) {
-    rc = npg_fail(err, errlen, "nnls: out of memory (%d × %d problem)", m, n);
+    rc = error_set(err, errlen, "nnls: out of memory (%d × %d problem)", m, n);
     goto done;
   }
   for (int j = 0; j < n; j++) state[j] = AT_ZERO;
@@ -304,7 +304,7 @@ int nnls_solve_with(int m, int n, const double *A, const double *b, double *w, b
       if (state[t] == AT_ZERO && g[t] > tol && (j < 0 || g[t] > g[j])) j = t;
     if (j < 0) break;
     if (iter == max_iter) {
-      rc = npg_fail(err, errlen,
+      rc = error_set(err, errlen,
                 "nnls: no convergence in %d iterations (%d × %d problem, largest gradient %.2e, tolerance %.2e)",
                 max_iter, m, n, g[j], tol);
       break;
@@ -394,17 +394,17 @@ done:
  * problem (see the top of this file). */
 int nnls_convex(int S, int d, const double *X, const double *x, double *w, char *err, size_t errlen) {
   if (err && errlen) err[0] = '\0';
-  if (S < 1) return npg_fail(err, errlen, "learned model: no training samples (S = %d)", S);
-  if (d < 0) return npg_fail(err, errlen, "learned model: bad input dimension %d", d);
-  if ((d > 0 && (!X || !x)) || !w) return npg_fail(err, errlen, "learned model: NULL argument");
+  if (S < 1) return error_set(err, errlen, "learned model: no training samples (S = %d)", S);
+  if (d < 0) return error_set(err, errlen, "learned model: bad input dimension %d", d);
+  if ((d > 0 && (!X || !x)) || !w) return error_set(err, errlen, "learned model: NULL argument");
   for (int s = 0; s < S; s++)
     for (int i = 0; i < d; i++)
       if (!isfinite(X[(size_t)s * d + i]))
-        return npg_fail(err, errlen, "learned model: component %d of training input %d is not finite (%g)", i, s,
+        return error_set(err, errlen, "learned model: component %d of training input %d is not finite (%g)", i, s,
                     X[(size_t)s * d + i]);
   for (int i = 0; i < d; i++)
     if (!isfinite(x[i]))
-      return npg_fail(err, errlen, "learned model: component %d of the input to predict is not finite (%g)", i, x[i]);
+      return error_set(err, errlen, "learned model: component %d of the input to predict is not finite (%g)", i, x[i]);
 
   int m = d + 1;
   double *E = alloc_array((size_t)m * (size_t)S, sizeof(double));
@@ -412,7 +412,7 @@ int nnls_convex(int S, int d, const double *X, const double *x, double *w, char 
   if (!E || !f) {
     free(E);
     free(f);
-    return npg_fail(err, errlen, "learned model: out of memory for %d training samples of dimension %d", S, d);
+    return error_set(err, errlen, "learned model: out of memory for %d training samples of dimension %d", S, d);
   }
 
   /* E = [C / σ; 1ᵀ], σ the largest column norm of C = X − x (0 when every
@@ -442,9 +442,9 @@ int nnls_convex(int S, int d, const double *X, const double *x, double *w, char 
   for (int s = 0; s < S; s++) t += w[s];
   if (t > 0)
     for (int s = 0; s < S; s++) w[s] /= t;
-  if (rc) return npg_fail(err, errlen, "learned model (%d training samples of dimension %d): %s", S, d, why);
+  if (rc) return error_set(err, errlen, "learned model (%d training samples of dimension %d): %s", S, d, why);
   if (!(t > 0)) /* Σu ≥ 1 / (1 + 1) after scaling: cannot happen */
-    return npg_fail(err, errlen, "learned model: the weights of the convex combination vanished (Σu = %g; a bug in npg)",
+    return error_set(err, errlen, "learned model: the weights of the convex combination vanished (Σu = %g; a bug in npg)",
                 t);
   return 0;
 }

@@ -11,7 +11,7 @@
  * nnls_convex() computes those weights; nnls_solve() is the Lawson–Hanson
  * non-negative least-squares solver under it. Both are plain library code:
  * no exit(), every failure is a return value with a message in `err`, and
- * all of their memory comes from npg_alloc_hook (ir/ast.h), so tests can
+ * all of their memory comes from mem_alloc_hook (ir/ast.h), so tests can
  * make allocation fail. */
 #ifndef NPG_NNLS_H
 #define NPG_NNLS_H

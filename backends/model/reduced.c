@@ -80,7 +80,7 @@ struct Reduced {
 
 const char *reduced_error(const Reduced *r) { return r->error; }
 
-#define rfail(r, ...) npg_fail_first((r)->error, sizeof (r)->error, __VA_ARGS__)
+#define rfail(r, ...) error_set_first((r)->error, sizeof (r)->error, __VA_ARGS__)
 
 void reduced_free(Reduced *r) {
   if (!r) return;
@@ -119,11 +119,11 @@ static int power_workspace(Reduced *r) {
   r->lwork = (lapack_int)query;
   if (r->lwork < 1 + 4 * n + n * n) r->lwork = 1 + 4 * n + n * n;
   r->liwork = 3 + 5 * n;
-  r->tau = npg_calloc((size_t)n + 1, sizeof(double));
-  r->diag = npg_calloc((size_t)n + 1, sizeof(double));
-  r->off = npg_calloc((size_t)n + 1, sizeof(double));
-  r->work = npg_calloc((size_t)r->lwork, sizeof(double));
-  r->iwork = npg_calloc((size_t)r->liwork, sizeof(lapack_int));
+  r->tau = mem_calloc((size_t)n + 1, sizeof(double));
+  r->diag = mem_calloc((size_t)n + 1, sizeof(double));
+  r->off = mem_calloc((size_t)n + 1, sizeof(double));
+  r->work = mem_calloc((size_t)r->lwork, sizeof(double));
+  r->iwork = mem_calloc((size_t)r->liwork, sizeof(lapack_int));
   return r->tau && r->diag && r->off && r->work && r->iwork ? 0 : -1;
 }
 
@@ -156,14 +156,14 @@ static int colmajor_copies(Reduced *r) {
             n++;
             continue;
           }
-          double *c = npg_malloc(sizeof(double) * (size_t)lead * (size_t)last);
+          double *c = mem_malloc(sizeof(double) * (size_t)lead * (size_t)last);
           if (!c) return -1;
           r->colmajor[r->ncolmajor].t = x, r->colmajor[r->ncolmajor].data = c, r->ncolmajor++;
           for (long a = 0; a < lead; a++)
             for (long b = 0; b < last; b++) c[b * lead + a] = x->data[a * last + b];
         }
       }
-    if (pass == 0 && !(r->colmajor = npg_calloc((size_t)n + 1, sizeof *r->colmajor))) return -1;
+    if (pass == 0 && !(r->colmajor = mem_calloc((size_t)n + 1, sizeof *r->colmajor))) return -1;
   }
   return 0;
 }
@@ -175,14 +175,14 @@ static const double *colmajor_of(const Reduced *r, const RTensor *t) {
 }
 
 Reduced *reduced_new(Model *m, char *err, size_t errlen) {
-  Reduced *r = npg_calloc(1, sizeof *r);
+  Reduced *r = mem_calloc(1, sizeof *r);
   if (!r) goto oom;
   r->m = m;
-  if (!(r->x = npg_calloc((size_t)m->nq + 1, sizeof(double *)))) goto oom;
+  if (!(r->x = mem_calloc((size_t)m->nq + 1, sizeof(double *)))) goto oom;
   long maxm = 1, maxbuf = 1, maxz = 1;
   for (int c = 0; c < m->nclasses; c++) maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
   for (int q = 0; q < m->nq; q++)
-    if (!(r->x[q] = npg_calloc((size_t)qm(m, q) + 1, sizeof(double)))) goto oom;
+    if (!(r->x[q] = mem_calloc((size_t)qm(m, q) + 1, sizeof(double)))) goto oom;
   for (int i = 0; i < m->nstages; i++) {
     RStage *rs = &m->stages[i];
     for (int t = 0; t < rs->nterms; t++) {
@@ -204,17 +204,17 @@ Reduced *reduced_new(Model *m, char *err, size_t errlen) {
   size_t tensor_bytes = 0;
   model_bytes(m, &tensor_bytes);
   r->one_thread = tensor_bytes < REDUCED_ONE_THREAD_BYTES;
-  r->v = npg_calloc((size_t)maxm, sizeof(double));
-  r->acc = npg_calloc((size_t)(maxm * maxm), sizeof(double));
-  r->buf[0] = npg_calloc((size_t)maxbuf, sizeof(double));
-  r->buf[1] = npg_calloc((size_t)maxbuf, sizeof(double));
-  r->z = npg_calloc((size_t)maxz, sizeof(double));
-  r->M = npg_calloc((size_t)(maxm * maxm), sizeof(double));
-  r->M2 = npg_calloc((size_t)(maxm * maxm), sizeof(double));
-  r->w = npg_calloc((size_t)maxm, sizeof(double));
-  r->piv = npg_calloc((size_t)maxm, sizeof(lapack_int));
-  r->root_start = npg_calloc((size_t)m->nstages + 1, sizeof(long));
-  r->root_shrink = npg_calloc((size_t)m->nstages + 1, sizeof(double));
+  r->v = mem_calloc((size_t)maxm, sizeof(double));
+  r->acc = mem_calloc((size_t)(maxm * maxm), sizeof(double));
+  r->buf[0] = mem_calloc((size_t)maxbuf, sizeof(double));
+  r->buf[1] = mem_calloc((size_t)maxbuf, sizeof(double));
+  r->z = mem_calloc((size_t)maxz, sizeof(double));
+  r->M = mem_calloc((size_t)(maxm * maxm), sizeof(double));
+  r->M2 = mem_calloc((size_t)(maxm * maxm), sizeof(double));
+  r->w = mem_calloc((size_t)maxm, sizeof(double));
+  r->piv = mem_calloc((size_t)maxm, sizeof(lapack_int));
+  r->root_start = mem_calloc((size_t)m->nstages + 1, sizeof(long));
+  r->root_shrink = mem_calloc((size_t)m->nstages + 1, sizeof(double));
   if (!r->root_start || !r->root_shrink || !r->v || !r->acc || !r->buf[0] || !r->buf[1] || !r->z || !r->M || !r->M2 || !r->w || !r->piv) goto oom;
   if (power_workspace(r) || krylov_init(&r->kr, maxm) || colmajor_copies(r)) goto oom;
   return r;
@@ -456,7 +456,7 @@ static int apply_power(Reduced *r, const RStage *rs, const ROp *ro, int term, in
 }
 
 static int eval_extern(Reduced *r, const RExtern *x, long sample) {
-  double *in = npg_malloc(sizeof(double) * (size_t)(x->d + 1)), *w = npg_malloc(sizeof(double) * (size_t)(x->S + 1));
+  double *in = mem_malloc(sizeof(double) * (size_t)(x->d + 1)), *w = mem_malloc(sizeof(double) * (size_t)(x->S + 1));
   if (!in || !w) {
     free(in);
     free(w);

@@ -74,7 +74,7 @@ static bool layout_matches(RedJit *j, const ReducedSlot *slots) {
 }
 
 RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
-  RedJit *j = npg_calloc(1, sizeof *j);
+  RedJit *j = mem_calloc(1, sizeof *j);
   char *src = NULL;
   size_t len = 0;
   ReducedSlot *slots = NULL;
@@ -93,9 +93,9 @@ RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
   j->stage_fn = (NpgReducedStageFn)entry(j, "reduced_stage");
   const npg_idx *nwork = entry(j, "reduced_work");
   j->nslots = emit_reduced_slots(m, NULL);
-  slots = npg_calloc((size_t)j->nslots + 1, sizeof *slots);
-  j->t = npg_calloc((size_t)j->nslots + 1, sizeof *j->t);
-  j->x = npg_calloc((size_t)m->nq + 1, sizeof *j->x);
+  slots = mem_calloc((size_t)j->nslots + 1, sizeof *slots);
+  j->t = mem_calloc((size_t)j->nslots + 1, sizeof *j->t);
+  j->x = mem_calloc((size_t)m->nq + 1, sizeof *j->x);
   if (!slots || !j->t || !j->x) goto oom;
   emit_reduced_slots(m, slots);
   if (!j->fn || !j->stage_fn || !nwork || !layout_matches(j, slots)) {
@@ -110,7 +110,7 @@ RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
     }
     j->t[k] = slots[k].data;
   }
-  if (!(j->work = npg_calloc((size_t)*nwork + 1, sizeof(double)))) goto oom;
+  if (!(j->work = mem_calloc((size_t)*nwork + 1, sizeof(double)))) goto oom;
   free(slots);
   return j;
 oom:

@@ -40,7 +40,7 @@ int dist_start(char *err, size_t errlen) {
   int up = 0;
   MPI_Initialized(&up);
   if (!up) {
-    if (MPI_Init(NULL, NULL) != MPI_SUCCESS) return npg_fail(err, errlen, "MPI_Init failed");
+    if (MPI_Init(NULL, NULL) != MPI_SUCCESS) return error_set(err, errlen, "MPI_Init failed");
     atexit(finalize);
   }
   MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
@@ -48,9 +48,9 @@ int dist_start(char *err, size_t errlen) {
   started = true;
   return 0;
 #else
-  return npg_fail(err, errlen,
-                  "this build of npg has no MPI: install OpenMPI (scripts/setup.sh installs libopenmpi-dev "
-                  "openmpi-bin) and configure the build again");
+  return error_set(err, errlen,
+                   "this build of npg has no MPI: install OpenMPI (scripts/setup.sh installs libopenmpi-dev "
+                   "openmpi-bin) and configure the build again");
 #endif
 }
 
@@ -78,10 +78,10 @@ int dist_allgather(double *all, const long *counts, char *err, size_t errlen) {
   int *cnt = malloc(sizeof(int) * (size_t)size_), *displ = malloc(sizeof(int) * (size_t)size_);
   long at = 0;
   int rc = 0;
-  if (!cnt || !displ) rc = npg_fail(err, errlen, "out of memory gathering the ranks' blocks");
+  if (!cnt || !displ) rc = error_set(err, errlen, "out of memory gathering the ranks' blocks");
   for (int r = 0; rc == 0 && r < size_; r++) {
     if (counts[r] > INT_MAX || at > INT_MAX)
-      rc = npg_fail(err, errlen, "a block of %ld entries is more than one MPI call gathers", counts[r]);
+      rc = error_set(err, errlen, "a block of %ld entries is more than one MPI call gathers", counts[r]);
     else cnt[r] = (int)counts[r], displ[r] = (int)at;
     at += counts[r];
   }

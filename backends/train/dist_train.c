@@ -27,12 +27,12 @@ int dist_gather_snapshots(Model *m, double ***X, long S, char *err, size_t errle
   for (int c = 0; c < m->nclasses; c++) maxn = X[c] && m->classes[c].n > maxn ? m->classes[c].n : maxn;
   long R = rounds_per_call(maxn), rounds = (S + N - 1) / N;
   if (R > rounds) R = rounds;
-  long *counts = npg_malloc(sizeof(long) * (size_t)N);
-  double *all = npg_malloc(sizeof(double) * (size_t)maxn * (size_t)(R * N));
+  long *counts = mem_malloc(sizeof(long) * (size_t)N);
+  double *all = mem_malloc(sizeof(double) * (size_t)maxn * (size_t)(R * N));
   if (!counts || !all) {
     free(counts);
     free(all);
-    return npg_fail(err, errlen, "out of memory gathering the snapshots");
+    return error_set(err, errlen, "out of memory gathering the snapshots");
   }
   int rc = 0;
   /* rounds j0 … j1−1 at a time: rank r's columns jN + r packed in order
@@ -69,7 +69,7 @@ void dist_and_spd(Model *m) {
   long n = 0, at = 0;
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) n += m->stages[i].terms[t].nops;
-  double *not_spd = npg_calloc((size_t)n + 1, sizeof(double));
+  double *not_spd = mem_calloc((size_t)n + 1, sizeof(double));
   if (!not_spd) dist_abort("out of memory combining the SPD marks");
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++)
@@ -92,20 +92,20 @@ void dist_free_pcas(Model *m, PcaMember **pcas) {
 
 int dist_member_pcas(Model *m, long S, double ***X, PcaMember ***out, char *err, size_t errlen) {
   int N = dist_size(), rank = dist_rank();
-  PcaMember **p = npg_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *));
+  PcaMember **p = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *));
   int *owner = NULL;
   long *size = NULL;
   double *load = NULL;
-  if (!p) return npg_fail(err, errlen, "out of memory for the member bases");
+  if (!p) return error_set(err, errlen, "out of memory for the member bases");
   for (int c = 0; c < m->nclasses; c++)
-    if (!(p[c] = npg_calloc((size_t)m->classes[c].nmembers + 1, sizeof(PcaMember)))) goto oom;
+    if (!(p[c] = mem_calloc((size_t)m->classes[c].nmembers + 1, sizeof(PcaMember)))) goto oom;
   /* owners: the largest member first, each to the least loaded rank
    * (a PCA costs about n S² either way); the same on every rank */
   long nm = 0;
   for (int c = 0; c < m->nclasses; c++) nm += m->classes[c].nmembers;
-  owner = npg_malloc(sizeof(int) * (size_t)(nm + 1));
-  size = npg_malloc(sizeof(long) * (size_t)(nm + 1));
-  load = npg_calloc((size_t)N, sizeof(double));
+  owner = mem_malloc(sizeof(int) * (size_t)(nm + 1));
+  size = mem_malloc(sizeof(long) * (size_t)(nm + 1));
+  load = mem_calloc((size_t)N, sizeof(double));
   if (!owner || !size || !load) goto oom;
   for (int c = 0, g = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++, g++) owner[g] = -1, size[g] = m->classes[c].n;
@@ -135,8 +135,8 @@ int dist_member_pcas(Model *m, long S, double ***X, PcaMember ***out, char *err,
       dist_broadcast(head, 3, owner[g]);
       if (owner[g] != rank) {
         q->k = (int)head[0], q->nsv = (long)head[1], q->lost = head[2];
-        if (!(q->U = npg_malloc(sizeof(double) * (size_t)(n * (q->k ? q->k : 1)))) ||
-            !(q->sv = npg_malloc(sizeof(double) * (size_t)(q->nsv + 1))))
+        if (!(q->U = mem_malloc(sizeof(double) * (size_t)(n * (q->k ? q->k : 1)))) ||
+            !(q->sv = mem_malloc(sizeof(double) * (size_t)(q->nsv + 1))))
           goto oom;
       }
       dist_broadcast(q->U, n * q->k, owner[g]);
@@ -148,7 +148,7 @@ int dist_member_pcas(Model *m, long S, double ***X, PcaMember ***out, char *err,
   *out = p;
   return 0;
 oom:
-  npg_fail(err, errlen, "out of memory for the member bases");
+  error_set(err, errlen, "out of memory for the member bases");
 fail:
   free(owner);
   free(size);

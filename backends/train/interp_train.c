@@ -58,7 +58,7 @@ static int select_rows(const RClass *c, RInterp *ip, long k, char *err, size_t e
     memcpy(A, c->B, sizeof(double) * (size_t)(n * m));
     lapack_int info = LAPACKE_dgeqp3(LAPACK_COL_MAJOR, (lapack_int)m, (lapack_int)n, A, (lapack_int)m, jpvt, tau);
     if (info != 0) {
-      rc = npg_fail(err, errlen, "class %s: pivoted QR of the basis failed (LAPACK dgeqp3 info %d)", c->label, (int)info);
+      rc = error_set(err, errlen, "class %s: pivoted QR of the basis failed (LAPACK dgeqp3 info %d)", c->label, (int)info);
       goto done;
     }
     for (long j = 0; j < m; j++) count[jpvt[j] - 1]++;
@@ -100,7 +100,7 @@ static int select_rows(const RClass *c, RInterp *ip, long k, char *err, size_t e
   for (long e = 0; e < n; e++) ip->rows[e] = e, ip->weight[e] = 1;
   goto done;
 oom:
-  rc = npg_fail(err, errlen, "out of memory selecting the interpolation entries of class %s", c->label);
+  rc = error_set(err, errlen, "out of memory selecting the interpolation entries of class %s", c->label);
 done:
   free(A);
   free(tau);
@@ -118,7 +118,7 @@ static int pseudo_inverse(const RClass *c, RInterp *ip, const char *stage, char 
   double *tau = malloc(sizeof(double) * (size_t)(m + 1)), *sv = malloc(sizeof(double) * (size_t)(m + 1));
   int rc = 0;
   if (!PB || !S || !tau || !sv || !(ip->pinv = malloc(sizeof(double) * (size_t)(m * k + 1)))) {
-    rc = npg_fail(err, errlen, "out of memory factoring the interpolation of stage %s", stage);
+    rc = error_set(err, errlen, "out of memory factoring the interpolation of stage %s", stage);
     goto done;
   }
   for (long s = 0; s < k; s++) /* column-major k x m */
@@ -127,15 +127,15 @@ static int pseudo_inverse(const RClass *c, RInterp *ip, const char *stage, char 
   lapack_int info = LAPACKE_dgesvd(LAPACK_COL_MAJOR, 'N', 'N', (lapack_int)k, (lapack_int)m, S, (lapack_int)k, sv, NULL,
                                    1, NULL, 1, tau);
   if (info != 0) {
-    rc = npg_fail(err, errlen, "stage %s: singular values of the selected basis rows failed (LAPACK dgesvd info %d)",
-                  stage, (int)info);
+    rc = error_set(err, errlen, "stage %s: singular values of the selected basis rows failed (LAPACK dgesvd info %d)",
+                   stage, (int)info);
     goto done;
   }
   if (m > 0 && !(sv[m - 1] > 1e-12 * sv[0])) {
-    rc = npg_fail(err, errlen,
-                  "stage %s: the %ld selected entries do not determine its %ld basis coordinates (smallest singular "
-                  "value %.3g of %.3g): raise the oversampling",
-                  stage, k, m, sv[m - 1], sv[0]);
+    rc = error_set(err, errlen,
+                   "stage %s: the %ld selected entries do not determine its %ld basis coordinates (smallest singular "
+                   "value %.3g of %.3g): raise the oversampling",
+                   stage, k, m, sv[m - 1], sv[0]);
     goto done;
   }
   ip->pinv_norm = m > 0 ? 1 / sv[m - 1] : 0;
@@ -150,7 +150,7 @@ static int pseudo_inverse(const RClass *c, RInterp *ip, const char *stage, char 
     double *QT = ip->pinv; /* column-major m x k, transposed to row-major below */
     double *tmp = malloc(sizeof(double) * (size_t)(m * k + 1));
     if (!tmp) {
-      rc = npg_fail(err, errlen, "out of memory factoring the interpolation of stage %s", stage);
+      rc = error_set(err, errlen, "out of memory factoring the interpolation of stage %s", stage);
       goto done;
     }
     for (long s = 0; s < k; s++)
@@ -162,8 +162,8 @@ static int pseudo_inverse(const RClass *c, RInterp *ip, const char *stage, char 
     free(tmp);
   }
   if (info != 0)
-    rc = npg_fail(err, errlen, "stage %s: factoring the selected basis rows failed (LAPACK dgeqrf/dorgqr/dtrtrs info %d)",
-                  stage, (int)info);
+    rc = error_set(err, errlen, "stage %s: factoring the selected basis rows failed (LAPACK dgeqrf/dorgqr/dtrtrs info %d)",
+                   stage, (int)info);
 done:
   free(PB);
   free(S);
@@ -235,8 +235,8 @@ static int stream_tensor(Table *tb, Full *f, const RTensor *x, const char *stage
   for (int i = 0; i < g->ninputs && i < RT_MAX_IN; i++) tb->in_q[i] = emit_index_of(&tb->m->prog->quantities, g->inputs[i]);
   NpgSink sink = {tb, on_entry, 0, 1, 0, 0};
   if (full_build(f, x->builder, &sink) != 0)
-    return npg_fail(tb->err, tb->errlen, "stage %s: reading tensor %s for interpolation: %s", stage, x->name,
-                    full_error(f)[0] ? full_error(f) : "out of memory");
+    return error_set(tb->err, tb->errlen, "stage %s: reading tensor %s for interpolation: %s", stage, x->name,
+                     full_error(f)[0] ? full_error(f) : "out of memory");
   return 0;
 }
 
@@ -245,11 +245,11 @@ int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *er
   const char *sn = rs->st->sym->name;
   const RClass *c = &m->classes[m->qclass[rs->q]];
   if (!lower_interp_eligible(rs->st))
-    return npg_fail(err, errlen, "stage %s cannot be interpolated: %s", sn,
-                    rs->st->kind == ST_INVERSE || rs->st->kind == ST_ROOT
+    return error_set(err, errlen, "stage %s cannot be interpolated: %s", sn,
+                     rs->st->kind == ST_INVERSE || rs->st->kind == ST_ROOT
                         ? "one of its operators is a declared op, not diagonal (npgc check says which stages can)"
                         : "it applies no diagonal operator (npgc check says which stages can)");
-  if (!(oversample >= 1)) return npg_fail(err, errlen, "interpolation oversampling %g: must be at least 1", oversample);
+  if (!(oversample >= 1)) return error_set(err, errlen, "interpolation oversampling %g: must be at least 1", oversample);
   RInterp *ip = calloc(1, sizeof *ip);
   Table tb = {.m = m, .ip = ip, .err = err, .errlen = errlen};
   long *slot = NULL;
@@ -288,7 +288,7 @@ int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *er
   rc = 0;
   goto done;
 oom:
-  npg_fail(err, errlen, "out of memory making stage %s interpolated", sn);
+  error_set(err, errlen, "out of memory making stage %s interpolated", sn);
 done:
   for (int q = 0; tb.read_of && q < m->nq; q++) free(tb.read_of[q]);
   free(tb.read_of);
@@ -328,7 +328,7 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
   const char **reason = calloc((size_t)n + 1, sizeof(char *));
   Model *m = NULL;
   if (!ilist || !glist || !errs || !reason) {
-    npg_fail(err, errlen, "out of memory");
+    error_set(err, errlen, "out of memory");
     model_free(chosen);
     goto done;
   }

@@ -23,9 +23,9 @@ int joint_basis(RClass *rc, long S, double *const *X, char *err, size_t errlen) 
   int r = rc->nmembers, cap = 0, rc_ok = -1;
   bool center = rc->members[0].center;
   double energy = 1;
-  double *J = npg_malloc(sizeof(double) * n * (size_t)r), *mu = npg_malloc(sizeof(double) * (size_t)(rc->n * r + 1));
-  double **parts = npg_calloc((size_t)r + 1, sizeof(double *));
-  int *ks = npg_calloc((size_t)r + 1, sizeof(int));
+  double *J = mem_malloc(sizeof(double) * n * (size_t)r), *mu = mem_malloc(sizeof(double) * (size_t)(rc->n * r + 1));
+  double **parts = mem_calloc((size_t)r + 1, sizeof(double *));
+  int *ks = mem_calloc((size_t)r + 1, sizeof(int));
   PcaMember p = {0};
   if (!J || !mu || !parts || !ks) goto done;
   for (int i = 0; i < r; i++) {
@@ -60,7 +60,7 @@ int joint_basis(RClass *rc, long S, double *const *X, char *err, size_t errlen) 
     mb->captured = 1 - p.lost;
     free(mb->sv);
     mb->nsv = p.nsv;
-    if ((mb->sv = npg_malloc(sizeof(double) * (size_t)(p.nsv + 1)))) memcpy(mb->sv, p.sv, sizeof(double) * (size_t)p.nsv);
+    if ((mb->sv = mem_malloc(sizeof(double) * (size_t)(p.nsv + 1)))) memcpy(mb->sv, p.sv, sizeof(double) * (size_t)p.nsv);
     else rc_ok = -1;
   }
 done:

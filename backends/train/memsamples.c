@@ -3,7 +3,7 @@
 #include <string.h>
 
 #include "memsamples.h"
-#include "alloc.h" /* npg_malloc */
+#include "alloc.h" /* mem_malloc */
 #include "randdata.h"
 
 size_t memsamples_count(const Sym *s, long n, long *shape) {
@@ -20,7 +20,7 @@ int memsamples_fill(MemSamples *ms, const Program *prog, Full *f, long n, long S
     const Sym *s = prog->params.v[i];
     long shape[MAX_AXES + MAX_STATIC];
     size_t c = memsamples_count(s, n, shape);
-    double *v = npg_malloc(sizeof(double) * (c ? c : 1));
+    double *v = mem_malloc(sizeof(double) * (c ? c : 1));
     if (!v) return -2;
     randdata_fill(prog, s, n, &seed, false, v, c);
     int rc = full_set_param(f, s->name, s->ndims + s->nstatic, shape, v, s->name);
@@ -38,7 +38,7 @@ int memsamples_fill(MemSamples *ms, const Program *prog, Full *f, long n, long S
     ms->sym[k] = s;
     ms->nd[k] = s->ndims + s->nstatic;
     ms->count[k] = memsamples_count(s, n, ms->shape[k]);
-    ms->val[k] = npg_malloc(sizeof(double) * (ms->count[k] ? ms->count[k] : 1) * (size_t)(S > 0 ? S : 1));
+    ms->val[k] = mem_malloc(sizeof(double) * (ms->count[k] ? ms->count[k] : 1) * (size_t)(S > 0 ? S : 1));
     if (!ms->val[k]) {
       memsamples_free(ms);
       return -2;

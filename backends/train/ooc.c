@@ -145,8 +145,8 @@ static int plan(Ooc *o) {
   long P = o->avail > w ? (long)((total + (o->avail - w) - 1) / (o->avail - w)) : maxn; /* else a row at a time */
   if (P > maxn) P = maxn;
   if (P < 1) P = 1;
-  o->seg = npg_calloc((size_t)(P * nstreamed) + 1, sizeof(Segment));
-  o->first = npg_calloc((size_t)P + 2, sizeof(long));
+  o->seg = mem_calloc((size_t)(P * nstreamed) + 1, sizeof(Segment));
+  o->first = mem_calloc((size_t)P + 2, sizeof(long));
   if (!o->seg || !o->first) return -1;
   o->npass = 0;
   for (long p = 0; p < P && nstreamed > 0; p++) {
@@ -178,7 +178,7 @@ int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1,
   for (long e = r0; e < r1; e++)
     if (!isfinite(v[e])) /* the message naming where it arises */
       return train_member_value(o->m, o->f, mb, k, n, o->tmp, o->err, o->errlen) ? -1
-             : npg_fail(o->err, o->errlen, "training sample %ld: %s is not finite", k, mb->name);
+             : error_set(o->err, o->errlen, "training sample %ld: %s is not finite", k, mb->name);
   memcpy(out, v + r0, sizeof(double) * (size_t)(r1 - r0));
   return 0;
 }
@@ -209,34 +209,34 @@ static int collect(Ooc *o, long p, bool gram) {
   long S = o->S;
   bool whole = p == 0 && gram && o->N == 1; /* over ranks: whole_sweep */
   Demand *d = whole ? NULL : full_demand(o->f);
-  if (!whole && !d) return npg_fail(o->err, o->errlen, "%s", full_error(o->f));
+  if (!whole && !d) return error_set(o->err, o->errlen, "%s", full_error(o->f));
   size_t need = 0;
   for (long g = o->first[p]; g < o->first[p + 1]; g++)
     need += (size_t)(o->seg[g].r1 - o->seg[g].r0) * (size_t)S * (size_t)m->classes[o->seg[g].c].nmembers;
   if (need > o->block_cap) {
     free(o->block);
-    if (!(o->block = npg_malloc(sizeof(double) * need))) return o->block_cap = 0, -1;
+    if (!(o->block = mem_malloc(sizeof(double) * need))) return o->block_cap = 0, -1;
     o->block_cap = need;
   }
   double *next = o->block;
   for (long g = o->first[p]; g < o->first[p + 1]; g++) {
     Segment *sg = &o->seg[g];
     RClass *rc = &m->classes[sg->c];
-    if (!(sg->H = npg_calloc((size_t)rc->nmembers, sizeof(double *)))) return -1;
+    if (!(sg->H = mem_calloc((size_t)rc->nmembers, sizeof(double *)))) return -1;
     for (int i = 0; i < rc->nmembers; i++) {
       sg->H[i] = next;
       next += (size_t)(sg->r1 - sg->r0) * (size_t)S;
       if (d) demand_entries(d, ooc_member_quantity(m, &rc->members[i]), (size_t)sg->r0, (size_t)sg->r1);
     }
   }
-  if (d && demand_propagate(d)) return npg_fail(o->err, o->errlen, "out of memory");
+  if (d && demand_propagate(d)) return error_set(o->err, o->errlen, "out of memory");
   const char *what = gram ? "snapshots (Gram, out of core)" : "snapshots (basis, out of core)";
   for (long k = 0; k < S; k++) {
     if (whole) {
       if (whole_sample(o, k)) return -1;
     } else if ((o->src->set_part ? o->src->set_part(o->src->user, o->f, k, d) : o->src->set(o->src->user, o->f, k)) ||
                full_eval_demand(o->f, k, d)) {
-      return npg_fail(o->err, o->errlen, "%s", full_error(o->f));
+      return error_set(o->err, o->errlen, "%s", full_error(o->f));
     }
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
@@ -263,8 +263,8 @@ static int whole_sweep(Ooc *o) {
     if (train_fail_hook(o->opt, k, o->err, o->errlen)) return -1;
     progress_show(o->opt->progress, "snapshots (whole, out of core)", k + 1, S);
   }
-  double ***X = npg_calloc((size_t)m->nclasses + 1, sizeof(double **));
-  if (!X) return npg_fail(o->err, o->errlen, "out of memory gathering the snapshots");
+  double ***X = mem_calloc((size_t)m->nclasses + 1, sizeof(double **));
+  if (!X) return error_set(o->err, o->errlen, "out of memory gathering the snapshots");
   for (int c = 0; c < m->nclasses; c++) X[c] = o->st[c].X;
   int rc = dist_gather_snapshots(m, X, S, o->err, o->errlen);
   free(X);
@@ -297,7 +297,7 @@ static int gram_passes(Ooc *o) {
       Segment *sg = &o->seg[g];
       RClass *rc = &o->m->classes[sg->c];
       long R = sg->r1 - sg->r0;
-      double *mu = npg_malloc(sizeof(double) * (size_t)R);
+      double *mu = mem_malloc(sizeof(double) * (size_t)R);
       if (!mu) return -1;
       for (int i = 0; i < rc->nmembers; i++) {
         double *big = &o->st[sg->c].big[i];
@@ -332,19 +332,19 @@ static int eigen(Ooc *o) {
       RMember *mb = &rc->members[i];
       int cap = mb->center ? (mb->cap > 1 ? mb->cap - 1 : 0) : mb->cap;
       long kmax = cap < S ? cap : S;
-      double *G = st->G[i], *lam = npg_malloc(sizeof(double) * (size_t)S);
-      double *W = npg_malloc(sizeof(double) * (size_t)S * (size_t)(kmax ? kmax : 1));
+      double *G = st->G[i], *lam = mem_malloc(sizeof(double) * (size_t)S);
+      double *W = mem_malloc(sizeof(double) * (size_t)S * (size_t)(kmax ? kmax : 1));
       if (!lam || !W) return free(lam), free(W), -1;
       const char *range = pca_gram_out_of_range(S, G, st->big[i]);
       if (range) {
         free(lam), free(W);
-        return npg_fail(o->err, o->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
+        return error_set(o->err, o->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
       }
       int info = pca_top_eigen(S, G, kmax, lam, W);
       if (info != 0) {
         free(lam), free(W);
-        return npg_fail(o->err, o->errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
-                        rc->label, mb->name, (int)info);
+        return error_set(o->err, o->errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
+                         rc->label, mb->name, (int)info);
       }
       double *s = st->s[i];
       for (long j = 0; j < S; j++) s[j] = sqrt(fmax(lam[S - 1 - j], 0.0));
@@ -358,7 +358,7 @@ static int eigen(Ooc *o) {
       mb->captured = total > 0 ? run / total : 1;
       mb->lost = fmax(0, 1 - mb->captured);
       free(mb->sv);
-      if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)S))) return free(lam), free(W), -1;
+      if (!(mb->sv = mem_malloc(sizeof(double) * (size_t)S))) return free(lam), free(W), -1;
       memcpy(mb->sv, s, sizeof(double) * (size_t)S);
       mb->nsv = S;
       for (long j = 0; j < k; j++)
@@ -368,15 +368,15 @@ static int eigen(Ooc *o) {
       st->col[i] = st->K;
       st->K += k + (mb->center ? 1 : 0);
     }
-    if (!(st->C = npg_calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || (!st->blockwise && !(st->A = tmpfile())))
-      return npg_fail(o->err, o->errlen, "cannot create a scratch file for the basis of class %s", rc->label);
+    if (!(st->C = mem_calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || (!st->blockwise && !(st->A = tmpfile())))
+      return error_set(o->err, o->errlen, "cannot create a scratch file for the basis of class %s", rc->label);
     if (!rc->streamed) continue; /* the model keeps its basis: no floors to take */
     if (!(st->AX = calloc((size_t)rc->nmembers, sizeof(double *))) || !(st->yy = calloc((size_t)rc->nmembers, sizeof(double *))))
-      return npg_fail(o->err, o->errlen, "out of memory");
+      return error_set(o->err, o->errlen, "out of memory");
     for (int i = 0; i < rc->nmembers; i++)
       if (rc->members[i].q >= 0 && (!(st->AX[i] = calloc((size_t)(st->K * S) + 1, sizeof(double))) ||
                                     !(st->yy[i] = calloc((size_t)S, sizeof(double)))))
-        return npg_fail(o->err, o->errlen, "out of memory");
+        return error_set(o->err, o->errlen, "out of memory");
   }
   return 0;
 }
@@ -410,7 +410,7 @@ static int floor_products(Ooc *o, const Segment *sg, const double *A, long K) {
   RClass *rc = &o->m->classes[sg->c];
   long R = sg->r1 - sg->r0, S = o->S;
   double *Amu = malloc(sizeof(double) * (size_t)(K + 1));
-  if (!Amu) return npg_fail(o->err, o->errlen, "out of memory");
+  if (!Amu) return error_set(o->err, o->errlen, "out of memory");
   for (int i = 0; i < rc->nmembers; i++) {
     if (rc->members[i].q < 0 || K == 0) continue;
     bool centered = rc->members[i].center;
@@ -446,7 +446,7 @@ static int take_floors(Ooc *o, int c, const double *T, long m) {
   RClass *rc = &o->m->classes[c];
   long K = st->K, S = o->S;
   double *P = malloc(sizeof(double) * (size_t)(m * S + 1));
-  if (!P) return npg_fail(o->err, o->errlen, "out of memory");
+  if (!P) return error_set(o->err, o->errlen, "out of memory");
   for (int i = 0; i < rc->nmembers; i++) {
     RMember *mb = &rc->members[i];
     if (mb->q < 0) continue;
@@ -481,7 +481,7 @@ static int basis_passes(Ooc *o) {
       size_t need = (size_t)(R * K) + (size_t)R + 1; /* A, then mu: kept from pass to pass as the blocks are */
       if (need > o->abuf_cap) {
         free(o->abuf);
-        if (!(o->abuf = npg_malloc(sizeof(double) * need))) return o->abuf_cap = 0, -1;
+        if (!(o->abuf = mem_malloc(sizeof(double) * need))) return o->abuf_cap = 0, -1;
         o->abuf_cap = need;
       }
       double *A = o->abuf, *mu = o->abuf + R * K;
@@ -501,7 +501,7 @@ static int basis_passes(Ooc *o) {
         cblas_dsyrk(CblasColMajor, CblasUpper, CblasNoTrans, (int)K, (int)R, 1.0, A, (int)K, 1.0, st->C, (int)K);
       if (st->AX && floor_products(o, sg, A, K)) return -1;
       int bad = !st->blockwise && ooc_write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
-      if (bad) return npg_fail(o->err, o->errlen, "cannot write the scratch file of class %s (disk full?)", rc->label);
+      if (bad) return error_set(o->err, o->errlen, "cannot write the scratch file of class %s (disk full?)", rc->label);
     }
     release(o, p);
   }
@@ -531,11 +531,11 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
   double *C = st->C;
   for (long j = 0; j < K; j++) /* the lower triangle from the upper */
     for (long i = j + 1; i < K; i++) C[j * K + i] = C[i * K + j];
-  double *Q = npg_calloc((size_t)(K * K) + 1, sizeof(double)), *tmp = npg_malloc(sizeof(double) * (size_t)(K + 1));
-  double *R = npg_malloc(sizeof(double) * (size_t)(K * K) + 8), *v = npg_malloc(sizeof(double) * (size_t)(K + 1));
-  double *cc = npg_malloc(sizeof(double) * (size_t)(K + 1));
+  double *Q = mem_calloc((size_t)(K * K) + 1, sizeof(double)), *tmp = mem_malloc(sizeof(double) * (size_t)(K + 1));
+  double *R = mem_malloc(sizeof(double) * (size_t)(K * K) + 8), *v = mem_malloc(sizeof(double) * (size_t)(K + 1));
+  double *cc = mem_malloc(sizeof(double) * (size_t)(K + 1));
   long nq = 0;
-  int *kept = npg_calloc((size_t)rc->nmembers + 1, sizeof(int));
+  int *kept = mem_calloc((size_t)rc->nmembers + 1, sizeof(int));
   if (!Q || !tmp || !R || !v || !cc || !kept) goto oom;
   for (int i = 0; i < rc->nmembers; i++) {
     RMember *mb = &rc->members[i];
@@ -547,10 +547,10 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
       if (LAPACKE_dpotrf(LAPACK_COL_MAJOR, 'U', (lapack_int)k, R, (lapack_int)k) != 0 ||
           LAPACKE_dtrtri(LAPACK_COL_MAJOR, 'U', 'N', (lapack_int)k, R, (lapack_int)k) != 0)
         return free(Q), free(tmp), free(R), free(v), free(cc), free(kept),
-               npg_fail(o->err, o->errlen,
-                        "class %s, member %s: its directions are numerically dependent out of core (Cholesky failed): "
-                        "lower its cap or its energy fraction",
-                        rc->label, mb->name);
+               error_set(o->err, o->errlen,
+                         "class %s, member %s: its directions are numerically dependent out of core (Cholesky failed): "
+                         "lower its cap or its energy fraction",
+                         rc->label, mb->name);
     }
     /* the member's columns in order: μ first when centered, then U R⁻¹;
      * each kept when its remainder after the previous ones (twice) is above
@@ -593,8 +593,8 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
    * matrix Qᵀ C Q, dropping dependent directions (below 1e-10 σ_max, the
    * SVD's rule; in memory a direction below 1e-6 σ_max sends pca_merge to
    * the SVD, which out of core is not at hand), and one Cholesky-QR */
-  double *Y = npg_malloc(sizeof(double) * (size_t)(K * nq)), *Cq = npg_malloc(sizeof(double) * (size_t)(nq * nq));
-  double *lam = npg_malloc(sizeof(double) * (size_t)nq), *T = NULL;
+  double *Y = mem_malloc(sizeof(double) * (size_t)(K * nq)), *Cq = mem_malloc(sizeof(double) * (size_t)(nq * nq));
+  double *lam = mem_malloc(sizeof(double) * (size_t)nq), *T = NULL;
   long m = 0;
   if (!Y || !Cq || !lam) goto merge_done;
   cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)nq, (int)K, 1.0, C, (int)K, Q, (int)K, 0.0, Y, (int)K);
@@ -602,8 +602,8 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
   if (LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (lapack_int)nq, Cq, (lapack_int)nq, lam) != 0) goto merge_done;
   double s0 = sqrt(fmax(lam[nq - 1], 0));
   while (m < nq && sqrt(fmax(lam[nq - 1 - m], 0)) > 1e-10 * s0) m++;
-  double *Wq = npg_malloc(sizeof(double) * (size_t)(nq * (m ? m : 1)));
-  T = npg_malloc(sizeof(double) * (size_t)(K * (m ? m : 1)));
+  double *Wq = mem_malloc(sizeof(double) * (size_t)(nq * (m ? m : 1)));
+  T = mem_malloc(sizeof(double) * (size_t)(K * (m ? m : 1)));
   if (!Wq || !T) {
     free(Wq);
     goto merge_done;
@@ -613,7 +613,7 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
   cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)m, (int)nq, 1.0, Q, (int)K, Wq, (int)nq, 0.0, T, (int)K);
   free(Wq);
   if (m > 0) { /* Cholesky-QR: Tᵀ C T = RᵀR, T <- T R⁻¹ */
-    double *Yt = npg_malloc(sizeof(double) * (size_t)(K * m));
+    double *Yt = mem_malloc(sizeof(double) * (size_t)(K * m));
     if (!Yt) goto merge_done;
     cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)m, (int)K, 1.0, C, (int)K, T, (int)K, 0.0, Yt, (int)K);
     cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, (int)m, (int)m, (int)K, 1.0, T, (int)K, Yt, (int)K, 0.0, Cq, (int)m);
@@ -627,10 +627,10 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
   return 0;
 merge_done:
   free(Y), free(Cq), free(lam), free(T), free(Q), free(tmp), free(R), free(kept);
-  return npg_fail(o->err, o->errlen, "class %s: merging its member bases out of core failed", rc->label);
+  return error_set(o->err, o->errlen, "class %s: merging its member bases out of core failed", rc->label);
 oom:
   free(Q), free(tmp), free(R), free(v), free(cc), free(kept);
-  return npg_fail(o->err, o->errlen, "out of memory orthonormalizing the basis of class %s", rc->label);
+  return error_set(o->err, o->errlen, "out of memory orthonormalizing the basis of class %s", rc->label);
 }
 
 /* The file of a class basis, `bytes` long: one process, an unnamed file;
@@ -642,7 +642,7 @@ FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes) {
     FILE *fp = tmpfile();
     if (fp && ftruncate(fileno(fp), (off_t)bytes) == 0) return fp;
     if (fp) fclose(fp);
-    npg_fail(o->err, o->errlen, "cannot create the file of the basis of class %s (%.3g GB)", rc->label, (double)bytes / 1e9);
+    error_set(o->err, o->errlen, "cannot create the file of the basis of class %s (%.3g GB)", rc->label, (double)bytes / 1e9);
     return NULL;
   }
   char path[4096] = "";
@@ -662,8 +662,8 @@ FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes) {
   if (opened == o->N && fp) return fp;
   if (fp) fclose(fp);
   else if (fd >= 0) close(fd);
-  npg_fail(o->err, o->errlen, "cannot create or open the shared file of the basis of class %s (%.3g GB) next to %s",
-           rc->label, (double)bytes / 1e9, o->opt->shared_prefix ? o->opt->shared_prefix : "$TMPDIR/npg");
+  error_set(o->err, o->errlen, "cannot create or open the shared file of the basis of class %s (%.3g GB) next to %s",
+            rc->label, (double)bytes / 1e9, o->opt->shared_prefix ? o->opt->shared_prefix : "$TMPDIR/npg");
   return NULL;
 }
 
@@ -696,9 +696,9 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
   long rows = (long)(o->avail / (sizeof(double) * (size_t)(K + m)));
   if (rows < 1) rows = 1;
   if (rows > n) rows = n;
-  double *A = npg_malloc(sizeof(double) * (size_t)(rows * K) + 8), *B = npg_malloc(sizeof(double) * (size_t)(rows * m));
-  double *big = npg_calloc((size_t)m, sizeof(double)), *first = npg_malloc(sizeof(double) * (size_t)m);
-  long *range = npg_malloc(sizeof(long) * (size_t)(2 * o->npass + 2)), nr = range ? own_rows(o, c, range) : 0;
+  double *A = mem_malloc(sizeof(double) * (size_t)(rows * K) + 8), *B = mem_malloc(sizeof(double) * (size_t)(rows * m));
+  double *big = mem_calloc((size_t)m, sizeof(double)), *first = mem_malloc(sizeof(double) * (size_t)m);
+  long *range = mem_malloc(sizeof(long) * (size_t)(2 * o->npass + 2)), nr = range ? own_rows(o, c, range) : 0;
   int bad = !A || !B || !big || !first || !range;
   for (long j = 0; !bad && j < m; j++) first[j] = -HUGE_VAL;
   /* three sweeps over this rank's rows of A: the largest magnitude of every
@@ -742,8 +742,8 @@ int ooc_map_basis(Ooc *o, RClass *rc, FILE *fp, int bad) {
   void *map = ok == o->N ? mmap(NULL, bytes, PROT_READ, MAP_SHARED, fileno(fp), 0) : MAP_FAILED;
   fclose(fp); /* the mapping keeps the file */
   if (map == MAP_FAILED)
-    return npg_fail(o->err, o->errlen, "cannot write or map the basis of class %s (%.3g GB; disk full?)", rc->label,
-                    (double)bytes / 1e9);
+    return error_set(o->err, o->errlen, "cannot write or map the basis of class %s (%.3g GB; disk full?)", rc->label,
+                     (double)bytes / 1e9);
   free(rc->B);
   rc->B = map;
   rc->B_mapped = bytes;
@@ -776,24 +776,24 @@ int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *op
   long maxn = 1;
   int rc = -1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-  if (!(o.st = npg_calloc((size_t)m->nclasses, sizeof(Stream))) || !(o.tmp = npg_malloc(sizeof(double) * (size_t)maxn)) ||
+  if (!(o.st = mem_calloc((size_t)m->nclasses, sizeof(Stream))) || !(o.tmp = mem_malloc(sizeof(double) * (size_t)maxn)) ||
       plan(&o))
     goto oom;
   for (int c = 0; c < m->nclasses; c++) {
     Stream *st = &o.st[c];
     int r = m->classes[c].nmembers;
     if (!st->streamed) {
-      if (!(st->X = npg_calloc((size_t)r, sizeof(double *)))) goto oom;
+      if (!(st->X = mem_calloc((size_t)r, sizeof(double *)))) goto oom;
       for (int i = 0; i < r; i++)
-        if (!(st->X[i] = npg_malloc(sizeof(double) * (size_t)m->classes[c].n * (size_t)o.S))) goto oom;
+        if (!(st->X[i] = mem_malloc(sizeof(double) * (size_t)m->classes[c].n * (size_t)o.S))) goto oom;
       continue;
     }
-    if (!(st->G = npg_calloc((size_t)r, sizeof(double *))) || !(st->s = npg_calloc((size_t)r, sizeof(double *))) ||
-        !(st->k = npg_calloc((size_t)r, sizeof(long))) || !(st->big = npg_calloc((size_t)r, sizeof(double))) ||
-        !(st->col = npg_calloc((size_t)r, sizeof(long))))
+    if (!(st->G = mem_calloc((size_t)r, sizeof(double *))) || !(st->s = mem_calloc((size_t)r, sizeof(double *))) ||
+        !(st->k = mem_calloc((size_t)r, sizeof(long))) || !(st->big = mem_calloc((size_t)r, sizeof(double))) ||
+        !(st->col = mem_calloc((size_t)r, sizeof(long))))
       goto oom;
     for (int i = 0; i < r; i++)
-      if (!(st->G[i] = npg_calloc((size_t)(o.S * o.S), sizeof(double))) || !(st->s[i] = npg_malloc(sizeof(double) * (size_t)o.S)))
+      if (!(st->G[i] = mem_calloc((size_t)(o.S * o.S), sizeof(double))) || !(st->s[i] = mem_malloc(sizeof(double) * (size_t)o.S)))
         goto oom;
   }
   if (opt->progress) {
@@ -847,9 +847,9 @@ int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *op
   rc = 0;
   goto done;
 oom:
-  npg_fail(err, errlen, "out of memory planning out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
+  error_set(err, errlen, "out of memory planning out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
 done:
-  if (rc && !err[0]) npg_fail(err, errlen, "out of memory in out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
+  if (rc && !err[0]) error_set(err, errlen, "out of memory in out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
   ooc_free(&o);
   return rc;
 }

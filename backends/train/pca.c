@@ -75,9 +75,9 @@ static long ld(const Cols *c, long n) { return c->colmajor ? n : c->k; }
  * bisection and inverse iteration (dstebz, dstein), as dsyevr does. d and
  * e are left as they were. 0, or LAPACK's info (-1 when out of memory). */
 static lapack_int tridiagonal_top_vectors(long S, const double *d, const double *e, long k, double *V) {
-  double *d2 = npg_malloc(sizeof(double) * (size_t)S), *e2 = npg_malloc(sizeof(double) * (size_t)S);
-  double *w = npg_malloc(sizeof(double) * (size_t)S);
-  lapack_int *iw = npg_malloc(sizeof(lapack_int) * (size_t)(2 * S + 2)), m = 0, nsplit = 0, info = -1;
+  double *d2 = mem_malloc(sizeof(double) * (size_t)S), *e2 = mem_malloc(sizeof(double) * (size_t)S);
+  double *w = mem_malloc(sizeof(double) * (size_t)S);
+  lapack_int *iw = mem_malloc(sizeof(lapack_int) * (size_t)(2 * S + 2)), m = 0, nsplit = 0, info = -1;
   if (!d2 || !e2 || !w || !iw) goto done;
   memcpy(d2, d, sizeof(double) * (size_t)S);
   memcpy(e2, e, sizeof(double) * (size_t)S);
@@ -90,7 +90,7 @@ static lapack_int tridiagonal_top_vectors(long S, const double *d, const double 
                         iw, iw + S);
   if (info == 0 && m != k) info = -1;
   if (info == 0) {
-    lapack_int *ifail = npg_malloc(sizeof(lapack_int) * (size_t)k);
+    lapack_int *ifail = mem_malloc(sizeof(lapack_int) * (size_t)k);
     info = ifail ? LAPACKE_dstein(LAPACK_COL_MAJOR, (lapack_int)S, d, e, m, w, iw, iw + S, V, (lapack_int)S, ifail) : -1;
     free(ifail);
   }
@@ -118,8 +118,8 @@ int pca_top_eigen(long S, double *G, long k, double *lam, double *V) {
   }
   /* G = Q T Qᵀ (dsytrd), T's every eigenvalue (dsterf on a copy), the top
    * k eigenvectors of T, then Q applied to them (dormtr) */
-  double *d = npg_malloc(sizeof(double) * (size_t)S), *e = npg_calloc((size_t)S, sizeof(double));
-  double *tau = npg_malloc(sizeof(double) * (size_t)S), *w = npg_malloc(sizeof(double) * (size_t)S);
+  double *d = mem_malloc(sizeof(double) * (size_t)S), *e = mem_calloc((size_t)S, sizeof(double));
+  double *tau = mem_malloc(sizeof(double) * (size_t)S), *w = mem_malloc(sizeof(double) * (size_t)S);
   lapack_int info = -1;
   if (!d || !e || !tau || !w) goto done;
   if ((info = LAPACKE_dsytrd(LAPACK_COL_MAJOR, 'U', (lapack_int)S, G, (lapack_int)S, d, e, tau)) != 0) goto done;
@@ -152,8 +152,8 @@ static GramResult gram_basis(long n, int r, const Cols *X, ChooseFn choose, cons
   long K = 0;
   for (int i = 0; i < r; i++) K += X[i].k;
   if (kmax > K) kmax = K;
-  double *G = npg_calloc((size_t)(K * K), sizeof(double)), *lam = npg_malloc(sizeof(double) * (size_t)K);
-  double *V = npg_malloc(sizeof(double) * (size_t)(K * (kmax ? kmax : 1))), *W = NULL, *Ut = NULL;
+  double *G = mem_calloc((size_t)(K * K), sizeof(double)), *lam = mem_malloc(sizeof(double) * (size_t)K);
+  double *V = mem_malloc(sizeof(double) * (size_t)(K * (kmax ? kmax : 1))), *W = NULL, *Ut = NULL;
   GramResult res = GRAM_FAILED;
   if (!G || !lam || !V) goto done;
   /* G = XᵀX, column-major K x K, upper triangle */
@@ -179,8 +179,8 @@ static GramResult gram_basis(long n, int r, const Cols *X, ChooseFn choose, cons
   long kk = kept ? kept : 1;
   /* W = V_kept Σ⁻¹ (K x kept, column-major), then Uᵀ = Σ_i W_iᵀ X_iᵀ
    * (kept x n column-major = U row-major) */
-  W = npg_malloc(sizeof(double) * (size_t)(K * kk));
-  Ut = npg_calloc((size_t)(n * kk), sizeof(double));
+  W = mem_malloc(sizeof(double) * (size_t)(K * kk));
+  Ut = mem_calloc((size_t)(n * kk), sizeof(double));
   if (!W || !Ut) goto done;
   for (long j = 0; j < kept; j++)
     for (long i = 0; i < K; i++) W[j * K + i] = V[j * K + i] / s[j];
@@ -312,7 +312,7 @@ static int pca_core(long n, long S, const double *X, int cap, double energy, dou
   }
   long r = n < S ? n : S;
   if (n >= 4 * S && S > 0) {
-    double *sg = npg_malloc(sizeof(double) * (size_t)S), *Ug = NULL;
+    double *sg = mem_malloc(sizeof(double) * (size_t)S), *Ug = NULL;
     long kept = 0;
     MemberChoice mc = {cap, energy};
     Cols X1 = {X, S, true};
@@ -330,10 +330,10 @@ static int pca_core(long n, long S, const double *X, int cap, double energy, dou
     free(Ug);
     /* unresolved or out of memory: the SVD below decides */
   }
-  double *A = npg_malloc(sizeof(double) * (size_t)(n * S + 1));
-  double *s = npg_malloc(sizeof(double) * (size_t)(r + 1));
-  double *u = npg_malloc(sizeof(double) * (size_t)(n * r + 1));
-  double *vt = npg_malloc(sizeof(double) * (size_t)(r * S + 1));
+  double *A = mem_malloc(sizeof(double) * (size_t)(n * S + 1));
+  double *s = mem_malloc(sizeof(double) * (size_t)(r + 1));
+  double *u = mem_malloc(sizeof(double) * (size_t)(n * r + 1));
+  double *vt = mem_malloc(sizeof(double) * (size_t)(r * S + 1));
   if (!A || !s || !u || !vt) {
     free(A), free(s), free(u), free(vt);
     snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
@@ -353,7 +353,7 @@ static int pca_core(long n, long S, const double *X, int cap, double energy, dou
   double total = energy_total(s, r);
   int kept = (int)pca_choose(s, r, cap, energy, false, NULL);
   if (total > 0) *captured = energy_total(s, kept) / total;
-  double *out = npg_malloc(sizeof(double) * (size_t)(n * (kept ? kept : 1)));
+  double *out = mem_malloc(sizeof(double) * (size_t)(n * (kept ? kept : 1)));
   if (!out) {
     free(s), free(u);
     snprintf(err, errlen, "out of memory for a basis of %ld x %d", n, kept);
@@ -377,8 +377,8 @@ int pca_member(long n, long S, const double *X, int cap, double energy, double *
 int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int *m, char *err, size_t errlen) {
   long K = 0;
   for (int i = 0; i < r; i++) K += k[i];
-  double *q = npg_malloc(sizeof(double) * (size_t)(n * (K ? K : 1))), *v = npg_malloc(sizeof(double) * (size_t)(n + 1));
-  double *c = npg_malloc(sizeof(double) * (size_t)(K + 1));
+  double *q = mem_malloc(sizeof(double) * (size_t)(n * (K ? K : 1))), *v = mem_malloc(sizeof(double) * (size_t)(n + 1));
+  double *c = mem_malloc(sizeof(double) * (size_t)(K + 1));
   *Q = NULL;
   *m = 0;
   if (!q || !v || !c) {
@@ -403,7 +403,7 @@ int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int 
       kept++;
     }
   free(v), free(c);
-  double *out = npg_malloc(sizeof(double) * (size_t)(n * (kept ? kept : 1)));
+  double *out = mem_malloc(sizeof(double) * (size_t)(n * (kept ? kept : 1)));
   if (!out) {
     free(q);
     snprintf(err, errlen, "out of memory orthonormalizing a basis of %ld entries", n);
@@ -436,7 +436,7 @@ int pca_basis(long n, long S, const double *X, int cap, double energy, bool cent
     return rc;
   }
   /* centered: [μ, U_c] with U_c the leading directions of X − μ1ᵀ, at most cap − 1 */
-  double *mu = npg_malloc(sizeof(double) * (size_t)(n + 1)), *Xc = npg_malloc(sizeof(double) * (size_t)(n * S + 1));
+  double *mu = mem_malloc(sizeof(double) * (size_t)(n + 1)), *Xc = mem_malloc(sizeof(double) * (size_t)(n * S + 1));
   double *Uc = NULL;
   int kc = 0, rc = -1;
   if (!mu || !Xc) {
@@ -469,11 +469,11 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
   long K = 0;
   for (int i = 0; i < r; i++) K += k[i];
   if (K == 0) {
-    *B = npg_malloc(sizeof(double));
+    *B = mem_malloc(sizeof(double));
     return *B ? 0 : -1;
   }
   if (r == 1) { /* already orthonormal */
-    *B = npg_malloc(sizeof(double) * (size_t)(n * K));
+    *B = mem_malloc(sizeof(double) * (size_t)(n * K));
     if (!*B) goto oom;
     memcpy(*B, U[0], sizeof(double) * (size_t)(n * K));
     *m = K;
@@ -481,7 +481,7 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
   }
   if (n >= 4 * K) {
     Cols X[64];
-    double *sg = npg_malloc(sizeof(double) * (size_t)K), *Ug = NULL;
+    double *sg = mem_malloc(sizeof(double) * (size_t)K), *Ug = NULL;
     long kept = 0;
     GramResult g = GRAM_FAILED;
     if (r <= (int)(sizeof X / sizeof *X) && sg) {
@@ -497,8 +497,8 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
     free(Ug);
   }
   long rk = n < K ? n : K;
-  double *A = npg_malloc(sizeof(double) * (size_t)(n * K)), *s = npg_malloc(sizeof(double) * (size_t)rk);
-  double *u = npg_malloc(sizeof(double) * (size_t)(n * rk)), *vt = npg_malloc(sizeof(double) * (size_t)(rk * K));
+  double *A = mem_malloc(sizeof(double) * (size_t)(n * K)), *s = mem_malloc(sizeof(double) * (size_t)rk);
+  double *u = mem_malloc(sizeof(double) * (size_t)(n * rk)), *vt = mem_malloc(sizeof(double) * (size_t)(rk * K));
   if (!A || !s || !u || !vt) {
     free(A), free(s), free(u), free(vt);
     goto oom;
@@ -520,7 +520,7 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
   }
   long kept = 0;
   while (kept < rk && s[kept] > PCA_RANK_TOL * s[0]) kept++;
-  double *out = npg_malloc(sizeof(double) * (size_t)(n * (kept ? kept : 1)));
+  double *out = mem_malloc(sizeof(double) * (size_t)(n * (kept ? kept : 1)));
   if (!out) {
     free(s), free(u);
     goto oom;
@@ -552,8 +552,8 @@ void pca_sign_scan(long n, long m, const double *B, double *big, int *sign, bool
 }
 
 int pca_fix_signs(long n, long m, double *B) {
-  double *big = npg_calloc((size_t)m + 1, sizeof(double));
-  int *sign = npg_calloc((size_t)m + 1, sizeof(int));
+  double *big = mem_calloc((size_t)m + 1, sizeof(double));
+  int *sign = mem_calloc((size_t)m + 1, sizeof(int));
   if (!big || !sign) return free(big), free(sign), -1;
   pca_sign_scan(n, m, B, big, sign, false);
   pca_sign_scan(n, m, B, big, sign, true);

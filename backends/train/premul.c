@@ -282,11 +282,11 @@ static void flush_block(Premul *p) {
 
 static int grow_entries(Premul *p) {
   long cap = p->capent ? 2 * p->capent : 4096;
-  long *k = npg_realloc(p->ent_key, sizeof(long) * (size_t)cap);
+  long *k = mem_realloc(p->ent_key, sizeof(long) * (size_t)cap);
   if (k) p->ent_key = k;
-  double *c = npg_realloc(p->ent_coef, sizeof(double) * (size_t)cap);
+  double *c = mem_realloc(p->ent_coef, sizeof(double) * (size_t)cap);
   if (c) p->ent_coef = c;
-  npg_idx *in = npg_realloc(p->ent_in, sizeof(npg_idx) * (size_t)(cap * (p->nidx ? p->nidx : 1)));
+  npg_idx *in = mem_realloc(p->ent_in, sizeof(npg_idx) * (size_t)(cap * (p->nidx ? p->nidx : 1)));
   if (in) p->ent_in = in;
   if (!k || !c || !in) {
     snprintf(p->err, p->errlen, "out of memory pre-multiplying %s (%ld entries in a block)", p->t->name, cap);
@@ -434,20 +434,20 @@ static int premultiply_rows(Model *m, Full *f, RTensor *t, const PremulBlock *b,
    * work of one worker overlapping the other's GEMM */
   p.local = p.nworkers > 1 && (double)t->rows * (double)t->cols * (double)(p.nworkers - 1) * sizeof(double) <=
                                   (double)PREMUL_LOCAL_BYTES;
-  if (!b) t->data = npg_calloc((size_t)(t->rows * t->cols) + 1, sizeof(double)); /* a block adds to the caller's */
-  p.key_row = npg_malloc(sizeof(long) * (size_t)p.KB);
-  p.key_col = npg_malloc(sizeof(long) * (size_t)p.KB);
-  p.W = npg_malloc(sizeof(double) * (size_t)(p.KB * t->cols));
-  p.K = npg_malloc(sizeof(double) * (size_t)(p.KB * t->rows));
+  if (!b) t->data = mem_calloc((size_t)(t->rows * t->cols) + 1, sizeof(double)); /* a block adds to the caller's */
+  p.key_row = mem_malloc(sizeof(long) * (size_t)p.KB);
+  p.key_col = mem_malloc(sizeof(long) * (size_t)p.KB);
+  p.W = mem_malloc(sizeof(double) * (size_t)(p.KB * t->cols));
+  p.K = mem_malloc(sizeof(double) * (size_t)(p.KB * t->rows));
   bool ok = t->data && p.key_row && p.key_col && p.W && p.K;
   for (int i = 0; i < p.nworkers; i++) {
     Worker *w = &p.wk[i];
     w->p = &p;
-    w->U = npg_malloc(sizeof(double) * (size_t)(PREMUL_PENDING * p.ulen));
-    w->V = npg_malloc(sizeof(double) * (size_t)(PREMUL_PENDING * p.vlen));
-    w->G = p.unpack ? npg_malloc(sizeof(double) * (size_t)(p.ulen * p.mu)) : NULL;
-    w->vec = npg_malloc(sizeof(double) * (size_t)veclen);
-    w->acc = !p.local ? NULL : i == 0 ? t->data : npg_calloc((size_t)(t->rows * t->cols) + 1, sizeof(double));
+    w->U = mem_malloc(sizeof(double) * (size_t)(PREMUL_PENDING * p.ulen));
+    w->V = mem_malloc(sizeof(double) * (size_t)(PREMUL_PENDING * p.vlen));
+    w->G = p.unpack ? mem_malloc(sizeof(double) * (size_t)(p.ulen * p.mu)) : NULL;
+    w->vec = mem_malloc(sizeof(double) * (size_t)veclen);
+    w->acc = !p.local ? NULL : i == 0 ? t->data : mem_calloc((size_t)(t->rows * t->cols) + 1, sizeof(double));
     ok = ok && w->U && w->V && w->vec && (!p.unpack || w->G) && (!p.local || w->acc);
   }
   int rc = -1, blas_threads;

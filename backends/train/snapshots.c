@@ -79,19 +79,19 @@ static void gram_free(Gram *g) {
 static int gram_alloc(Gram *g) {
   Model *m = g->m;
   long S = g->S;
-  if (!(g->gm = npg_calloc((size_t)m->nclasses + 1, sizeof(GramMember *))) || !(g->lam = npg_malloc(sizeof(double) * (size_t)S)))
+  if (!(g->gm = mem_calloc((size_t)m->nclasses + 1, sizeof(GramMember *))) || !(g->lam = mem_malloc(sizeof(double) * (size_t)S)))
     return -1;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(g->gm[c] = npg_calloc((size_t)rc->nmembers + 1, sizeof(GramMember)))) return -1;
+    if (!(g->gm[c] = mem_calloc((size_t)rc->nmembers + 1, sizeof(GramMember)))) return -1;
     for (int i = 0; i < rc->nmembers; i++) {
       GramMember *x = &g->gm[c][i];
       x->mb = &rc->members[i];
-      if (!(x->G = npg_calloc((size_t)(S * S), sizeof(double))) || !(x->H = npg_malloc(sizeof(double) * (size_t)(rc->n * g->b))) ||
-          (g->q > 0 && !(x->Y = npg_malloc(sizeof(double) * (size_t)(rc->n * g->q)))))
+      if (!(x->G = mem_calloc((size_t)(S * S), sizeof(double))) || !(x->H = mem_malloc(sizeof(double) * (size_t)(rc->n * g->b))) ||
+          (g->q > 0 && !(x->Y = mem_malloc(sizeof(double) * (size_t)(rc->n * g->q)))))
         return -1;
       if (x->mb->center &&
-          (!(x->x0 = npg_malloc(sizeof(double) * (size_t)rc->n)) || !(x->d = npg_calloc((size_t)rc->n, sizeof(double)))))
+          (!(x->x0 = mem_malloc(sizeof(double) * (size_t)rc->n)) || !(x->d = mem_calloc((size_t)rc->n, sizeof(double)))))
         return -1;
     }
   }
@@ -178,22 +178,22 @@ static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int 
   double *lam = g->lam;
   const char *range = pca_gram_out_of_range(S, x->G, x->big);
   if (range)
-    return npg_fail(g->err, g->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
+    return error_set(g->err, g->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
   if (mb->center) gram_center(x, rc->n, S, lam);
   int cap = mb->center ? mb->cap - 1 : mb->cap;
   long kmax = cap < S ? cap : S;
-  double *V = npg_malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1)));
-  if (!V) return npg_fail(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  double *V = mem_malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1)));
+  if (!V) return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
   int info = pca_top_eigen(S, x->G, kmax, lam, V); /* G whole: either layout */
   if (info != 0) {
     free(V);
-    return npg_fail(g->err, g->errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
-                    rc->label, mb->name, info);
+    return error_set(g->err, g->errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
+                     rc->label, mb->name, info);
   }
   free(mb->sv);
-  if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)S))) {
+  if (!(mb->sv = mem_malloc(sizeof(double) * (size_t)S))) {
     free(V);
-    return npg_fail(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+    return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
   }
   mb->nsv = S;
   for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
@@ -210,8 +210,8 @@ static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int 
   for (long s2 = 0; s2 < S; s2++)
     for (int a = 0; a < k; a++) x->G[s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
   free(V);
-  if (!(*U = npg_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double))))
-    return npg_fail(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  if (!(*U = mem_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double))))
+    return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
   return 0;
 }
 
@@ -280,7 +280,7 @@ int snapshot_bases(Model *m, Full *f, const SampleSource *src, const TrainOption
   train_gram_blocks(S, (long)(opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &g.b, &g.q);
   int rc = -1;
   if (gram_alloc(&g)) {
-    npg_fail(err, errlen, "out of memory for the Gram matrices of %ld samples", S);
+    error_set(err, errlen, "out of memory for the Gram matrices of %ld samples", S);
     goto done;
   }
   long done = 0, work = 0;

@@ -125,8 +125,8 @@ static bool blockwise(const Streamer *s, int c) { return s->o->st[c].blockwise; 
 static int map_alloc(RowMap *map, long n) {
   long words = (n + 63) / 64;
   map->n = n;
-  map->bits = npg_calloc((size_t)words + 1, sizeof(uint64_t));
-  map->before = npg_calloc((size_t)words + 1, sizeof(long));
+  map->bits = mem_calloc((size_t)words + 1, sizeof(uint64_t));
+  map->before = mem_calloc((size_t)words + 1, sizeof(long));
   return map->bits && map->before ? 0 : -1;
 }
 
@@ -151,7 +151,7 @@ static int map_finish(Held *h) {
       } else {
         if (h->nrun == h->runcap) {
           long cap = h->runcap ? 2 * h->runcap : 64;
-          long *run = npg_realloc(h->run, sizeof(long) * (size_t)(2 * cap));
+          long *run = mem_realloc(h->run, sizeof(long) * (size_t)(2 * cap));
           if (!run) return -1;
           h->run = run, h->runcap = cap;
         }
@@ -220,12 +220,12 @@ static int mark_block(Streamer *s, long u, long U, size_t *need) {
       k.inmap[j] = blockwise(s, c) ? &s->held[c].map : NULL;
     }
     NpgSink sink = {&k, mark_entry, 0, 1, k.lo, k.hi}; /* the builder skips the other rows */
-    if (full_build(o->f, t->x->builder, &sink)) return npg_fail(o->err, o->errlen, "%s", full_error(o->f));
+    if (full_build(o->f, t->x->builder, &sink)) return error_set(o->err, o->errlen, "%s", full_error(o->f));
   }
   *need = 0;
   for (int c = 0; c < m->nclasses; c++) {
     if (!blockwise(s, c)) continue;
-    if (map_finish(&s->held[c])) return npg_fail(o->err, o->errlen, "out of memory");
+    if (map_finish(&s->held[c])) return error_set(o->err, o->errlen, "out of memory");
     const RClass *rc = &m->classes[c];
     *need += sizeof(double) * (size_t)s->held[c].map.count *
              ((size_t)o->S * (size_t)rc->nmembers + (size_t)o->st[c].K + (size_t)o->st[c].m + 1);
@@ -238,7 +238,7 @@ static int mark_block(Streamer *s, long u, long U, size_t *need) {
 static int grow(double **p, size_t *cap, size_t need) {
   if (need <= *cap) return 0;
   free(*p);
-  *p = npg_malloc(sizeof(double) * need);
+  *p = mem_malloc(sizeof(double) * need);
   *cap = *p ? need : 0;
   return *p ? 0 : -1;
 }
@@ -302,22 +302,22 @@ static int form_rows(Streamer *s) {
   Model *m = o->m;
   long S = o->S;
   Demand *d = full_demand(o->f);
-  if (!d) return npg_fail(o->err, o->errlen, "%s", full_error(o->f));
+  if (!d) return error_set(o->err, o->errlen, "%s", full_error(o->f));
   for (int c = 0; c < m->nclasses; c++) {
     if (!blockwise(s, c)) continue;
     Held *h = &s->held[c];
     const RClass *rc = &m->classes[c];
     if (grow(&h->H[0], &h->Hcap, (size_t)h->map.count * (size_t)S * (size_t)rc->nmembers + 1))
-      return npg_fail(o->err, o->errlen, "out of memory forming the basis rows of class %s", rc->label);
+      return error_set(o->err, o->errlen, "out of memory forming the basis rows of class %s", rc->label);
     for (int i = 1; i < rc->nmembers; i++) h->H[i] = h->H[i - 1] + (size_t)h->map.count * (size_t)S;
     for (int i = 0; i < rc->nmembers; i++) demand_held(o, d, ooc_member_quantity(m, &rc->members[i]), h);
   }
-  if (demand_propagate(d)) return npg_fail(o->err, o->errlen, "out of memory");
+  if (demand_propagate(d)) return error_set(o->err, o->errlen, "out of memory");
   double t0 = now();
   for (long k = 0; k < S; k++) {
     if ((o->src->set_part ? o->src->set_part(o->src->user, o->f, k, d) : o->src->set(o->src->user, o->f, k)) ||
         full_eval_demand(o->f, k, d))
-      return npg_fail(o->err, o->errlen, "%s", full_error(o->f));
+      return error_set(o->err, o->errlen, "%s", full_error(o->f));
     for (int c = 0; c < m->nclasses; c++) {
       if (!blockwise(s, c)) continue;
       Held *h = &s->held[c];
@@ -335,7 +335,7 @@ static int form_rows(Streamer *s) {
     const RClass *rc = &m->classes[c];
     long R = h->map.count, K = st->K, mm = st->m;
     if (grow(&h->A, &h->Acap, (size_t)R * (size_t)(K + mm + 1) + 1))
-      return npg_fail(o->err, o->errlen, "out of memory forming the basis rows of class %s", rc->label);
+      return error_set(o->err, o->errlen, "out of memory forming the basis rows of class %s", rc->label);
     h->B = h->A + (size_t)R * (size_t)K, h->mu = h->B + (size_t)R * (size_t)mm;
     memset(h->A, 0, sizeof(double) * (size_t)(R * K));
     for (int i = 0; i < rc->nmembers; i++) { /* basis_passes's arithmetic, row for row */
@@ -378,11 +378,11 @@ static int take_peaks(Streamer *s, int c, long r0, long r1) {
         }
         if (pk->len == pk->cap) {
           long cap = pk->cap ? 2 * pk->cap : 16;
-          long *row = npg_realloc(pk->row, sizeof(long) * (size_t)cap);
+          long *row = mem_realloc(pk->row, sizeof(long) * (size_t)cap);
           if (row) pk->row = row;
-          double *v = npg_realloc(pk->v, sizeof(double) * (size_t)cap);
+          double *v = mem_realloc(pk->v, sizeof(double) * (size_t)cap);
           if (v) pk->v = v;
-          if (!row || !v) return npg_fail(s->o->err, s->o->errlen, "out of memory");
+          if (!row || !v) return error_set(s->o->err, s->o->errlen, "out of memory");
           pk->cap = cap;
         }
       }
@@ -400,15 +400,15 @@ static int write_home(Streamer *s, int c, long r0, long r1) {
   if (r1 <= r0) return 0;
   if (h->nown == h->owncap) {
     long cap = h->owncap ? 2 * h->owncap : 64;
-    long *own = npg_realloc(h->own, sizeof(long) * (size_t)(2 * cap));
-    if (!own) return npg_fail(s->o->err, s->o->errlen, "out of memory");
+    long *own = mem_realloc(h->own, sizeof(long) * (size_t)(2 * cap));
+    if (!own) return error_set(s->o->err, s->o->errlen, "out of memory");
     h->own = own, h->owncap = cap;
   }
   h->own[2 * h->nown] = r0, h->own[2 * h->nown + 1] = r1, h->nown++;
   if (ooc_write_at(h->file, h->B + row_map_at(&h->map, r0) * mm, sizeof(double) * (size_t)((r1 - r0) * mm),
                    sizeof(double) * (size_t)(r0 * mm)))
-    return npg_fail(s->o->err, s->o->errlen, "cannot write the basis of class %s (disk full?)",
-                    s->o->m->classes[c].label);
+    return error_set(s->o->err, s->o->errlen, "cannot write the basis of class %s (disk full?)",
+                     s->o->m->classes[c].label);
   return 0;
 }
 
@@ -422,7 +422,7 @@ static int map_kept(Streamer *s, int c) {
   long mm = o->st[c].m, chunk = 4096;
   bool flip = false;
   for (long j = 0; j < mm; j++) flip |= h->sign[j] < 0;
-  double *buf = flip ? npg_malloc(sizeof(double) * (size_t)(chunk * mm)) : NULL;
+  double *buf = flip ? mem_malloc(sizeof(double) * (size_t)(chunk * mm)) : NULL;
   int bad = flip && !buf;
   for (long q = 0; flip && !bad && q < h->nown; q++)
     for (long r0 = h->own[2 * q]; !bad && r0 < h->own[2 * q + 1]; r0 += chunk) {
@@ -494,9 +494,9 @@ static int decide_signs(Streamer *s) {
     if (!blockwise(s, c)) continue;
     Held *h = &s->held[c];
     long mm = o->st[c].m;
-    double *big = npg_malloc(sizeof(double) * (size_t)(mm + 1)), *first = npg_malloc(sizeof(double) * (size_t)(mm + 1));
-    if (!big || !first || !(h->sign = npg_malloc(sizeof(double) * (size_t)(mm + 1))))
-      return free(big), free(first), npg_fail(o->err, o->errlen, "out of memory");
+    double *big = mem_malloc(sizeof(double) * (size_t)(mm + 1)), *first = mem_malloc(sizeof(double) * (size_t)(mm + 1));
+    if (!big || !first || !(h->sign = mem_malloc(sizeof(double) * (size_t)(mm + 1))))
+      return free(big), free(first), error_set(o->err, o->errlen, "out of memory");
     for (long j = 0; j < mm; j++) big[j] = h->peaks[j].big;
     dist_allreduce_max(big, mm);
     for (long j = 0; j < mm; j++) {
@@ -536,12 +536,12 @@ static int fix_signs(Streamer *s, const STensor *t) {
   double one = 1;
   const double *dy = blockwise(s, t->cy) ? s->held[t->cy].sign : NULL;
   long my = m->classes[t->cy].m;
-  double *rs = npg_malloc(sizeof(double) * (size_t)(x->rows + 1)), *cs = npg_malloc(sizeof(double) * (size_t)(x->cols + 1));
+  double *rs = mem_malloc(sizeof(double) * (size_t)(x->rows + 1)), *cs = mem_malloc(sizeof(double) * (size_t)(x->cols + 1));
   double *pk = NULL;
   long maxlen = 1;
   for (int j = 0; j < x->nin; j++) maxlen = x->in_len[j] > maxlen ? x->in_len[j] : maxlen;
-  pk = npg_malloc(sizeof(double) * (size_t)(maxlen + 1));
-  if (!rs || !cs || !pk) return free(rs), free(cs), free(pk), npg_fail(s->o->err, s->o->errlen, "out of memory");
+  pk = mem_malloc(sizeof(double) * (size_t)(maxlen + 1));
+  if (!rs || !cs || !pk) return free(rs), free(cs), free(pk), error_set(s->o->err, s->o->errlen, "out of memory");
   long q = 0;
   if (x->kind == RT_NUM)
     for (long a = 0; a < my; a++) rs[q++] = dy ? dy[a] : one;
@@ -597,7 +597,7 @@ int stream_premultiply(Ooc *o) {
       RTERM_FOR_TENSORS(rt, x) ntensors++;
     }
   int rc = -1;
-  if (!(s.held = npg_calloc((size_t)m->nclasses, sizeof(Held))) || !(s.t = npg_calloc((size_t)ntensors + 1, sizeof(STensor))))
+  if (!(s.held = mem_calloc((size_t)m->nclasses, sizeof(Held))) || !(s.t = mem_calloc((size_t)ntensors + 1, sizeof(STensor))))
     goto oom;
   for (int i = 0; i < m->nstages; i++) {
     int cy = m->qclass[m->stages[i].q];
@@ -607,7 +607,7 @@ int stream_premultiply(Ooc *o) {
         bool reads = blockwise(&s, cy);
         for (int j = 0; j < x->nin; j++) reads |= blockwise(&s, m->qclass[x->in_q[j]]);
         if (!reads) continue; /* premultiply_all's */
-        if (!(x->data = npg_calloc((size_t)(x->rows * x->cols) + 1, sizeof(double)))) goto oom;
+        if (!(x->data = mem_calloc((size_t)(x->rows * x->cols) + 1, sizeof(double)))) goto oom;
         s.t[s.nt++] = (STensor){x, cy};
       }
     }
@@ -615,8 +615,8 @@ int stream_premultiply(Ooc *o) {
   for (int c = 0; c < m->nclasses; c++) {
     if (!blockwise(&s, c)) continue;
     Held *h = &s.held[c];
-    if (map_alloc(&h->map, m->classes[c].n) || !(h->H = npg_calloc((size_t)m->classes[c].nmembers, sizeof(double *))) ||
-        !(h->peaks = npg_calloc((size_t)o->st[c].m + 1, sizeof(Peaks))))
+    if (map_alloc(&h->map, m->classes[c].n) || !(h->H = mem_calloc((size_t)m->classes[c].nmembers, sizeof(double *))) ||
+        !(h->peaks = mem_calloc((size_t)o->st[c].m + 1, sizeof(Peaks))))
       goto oom;
   }
   for (int c = 0; c < m->nclasses; c++) /* every rank in the same order: over ranks a collective */
@@ -651,7 +651,7 @@ int stream_premultiply(Ooc *o) {
   rc = 0;
   goto done;
 oom:
-  npg_fail(o->err, o->errlen, "out of memory pre-multiplying by the streamed bases");
+  error_set(o->err, o->errlen, "out of memory pre-multiplying by the streamed bases");
 done:
   held_free(&s);
   return rc;

@@ -58,7 +58,7 @@ static int field_value(Full *f, const RTensor *ts, int nt, double *out, long n, 
     FieldSum s = {{0}, out, n};
     for (int i = 0; i < ts[g].group->ninputs; i++) s.in[i] = full_get(f, ts[g].group->inputs[i]->name, NULL);
     NpgSink sink = {&s, sum_entry, 0, 1, 0, 0}; /* every row */
-    if (full_build(f, ts[g].builder, &sink) != 0) return npg_fail(err, errlen, "%s", full_error(f));
+    if (full_build(f, ts[g].builder, &sink) != 0) return error_set(err, errlen, "%s", full_error(f));
   }
   return 0;
 }
@@ -96,9 +96,9 @@ static int check_overrides(const Model *m, const TrainOptions *opt, char *err, s
         len += (size_t)snprintf(list + len, sizeof list - len, "%s%s", k ? ", " : "", rc->members[k].name);
       if (len < sizeof list) len += (size_t)snprintf(list + len, sizeof list - len, ")");
     }
-    return npg_fail(err, errlen,
-                    "--basis %s: no quantity, class or numerator of that name; classes (members): %s, or '*' for all",
-                    opt->override_name[i], list);
+    return error_set(err, errlen,
+                     "--basis %s: no quantity, class or numerator of that name; classes (members): %s, or '*' for all",
+                     opt->override_name[i], list);
   }
   return 0;
 }
@@ -167,7 +167,7 @@ static RTerm *joiner_term(Model *m, const Joiner *j) {
 
 /* Set and evaluate training sample k. */
 int train_eval_sample(const SampleSource *src, Full *f, long k, char *err, size_t errlen) {
-  if (src->set(src->user, f, k) != 0 || full_eval(f, k) != 0) return npg_fail(err, errlen, "%s", full_error(f));
+  if (src->set(src->user, f, k) != 0 || full_eval(f, k) != 0) return error_set(err, errlen, "%s", full_error(f));
   return 0;
 }
 
@@ -181,7 +181,7 @@ int train_member_value(Model *m, Full *f, const RMember *mb, long k, long n, dou
     memcpy(out, full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)n);
   } else {
     RTerm *rt = joiner_term(m, mb->joiner);
-    if (!rt) return npg_fail(err, errlen, "a numerator without its term (a bug in npg)");
+    if (!rt) return error_set(err, errlen, "a numerator without its term (a bug in npg)");
     if (field_value(f, rt->num, rt->nnum, out, n, err, errlen)) return -1;
   }
   for (long e = 0; e < n; e++)
@@ -192,14 +192,14 @@ int train_member_value(Model *m, Full *f, const RMember *mb, long k, long n, dou
       char at[256];
       double v;
       if (full_first_nonfinite(f, &s, at, sizeof at, &v))
-        return npg_fail(err, errlen,
-                        "training sample %ld: %s is not finite (%s%s is %s): the sample makes it undefined (a "
-                        "division by zero or a root of a negative number in the program?)",
-                        k, s->name, s->name, at, isnan(v) ? "NaN" : v > 0 ? "inf" : "-inf");
-      return npg_fail(err, errlen,
-                      "training sample %ld: %s is not finite (entry %ld is %g): the sample makes it undefined (a "
-                      "division by zero or a root of a negative number in the program?)",
-                      k, mb->name, e, out[e]);
+        return error_set(err, errlen,
+                         "training sample %ld: %s is not finite (%s%s is %s): the sample makes it undefined (a "
+                         "division by zero or a root of a negative number in the program?)",
+                         k, s->name, s->name, at, isnan(v) ? "NaN" : v > 0 ? "inf" : "-inf");
+      return error_set(err, errlen,
+                       "training sample %ld: %s is not finite (entry %ld is %g): the sample makes it undefined (a "
+                       "division by zero or a root of a negative number in the program?)",
+                       k, mb->name, e, out[e]);
     }
   return 0;
 }
@@ -233,8 +233,8 @@ static void take_pca(RMember *mb, PcaMember *p) {
  * snapshots, n x S column-major; `pre` (over ranks): the members' PCAs
  * already made (dist_member_pcas), taken over. */
 int train_member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, char *err, size_t errlen) {
-  double **U = npg_calloc((size_t)rc->nmembers + 1, sizeof(double *));
-  int *kk = npg_calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
+  double **U = mem_calloc((size_t)rc->nmembers + 1, sizeof(double *));
+  int *kk = mem_calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
   for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
     RMember *mb = &rc->members[i];
     PcaMember p;
@@ -280,15 +280,15 @@ static bool keep_named(const Model *m, const char *list, int c, char *unknown, s
 Model *begin_training(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                       size_t errlen) {
   if (src->count < 1) {
-    npg_fail(err, errlen, "no training samples");
+    error_set(err, errlen, "no training samples");
     return NULL;
   }
   if (src->set(src->user, f, 0) != 0 || full_eval(f, 0) != 0) { /* sample 0 binds every dim */
-    npg_fail(err, errlen, "%s", full_error(f));
+    error_set(err, errlen, "%s", full_error(f));
     return NULL;
   }
-  long *dims = npg_calloc((size_t)prog->dims.n + 1, sizeof(long));
-  if (!dims) return npg_fail(err, errlen, "out of memory"), NULL;
+  long *dims = mem_calloc((size_t)prog->dims.n + 1, sizeof(long));
+  if (!dims) return error_set(err, errlen, "out of memory"), NULL;
   for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(f, i);
   Model *m = model_layout(prog, dims, err, errlen);
   free(dims);
@@ -299,8 +299,8 @@ Model *begin_training(Program *prog, Full *f, const SampleSource *src, const Tra
   char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
   if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
   if (unknown[0])
-    npg_fail(err, errlen, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)",
-             unknown);
+    error_set(err, errlen, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)",
+              unknown);
   if (unknown[0] || check_overrides(m, opt, err, errlen)) {
     model_free(m);
     return NULL;
@@ -310,8 +310,8 @@ Model *begin_training(Program *prog, Full *f, const SampleSource *src, const Tra
 
 int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {
   if (!opt->dist || k != dist_rank() || !dist_fail_here()) return 0;
-  return npg_fail(err, errlen, "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)",
-                  k, dist_rank());
+  return error_set(err, errlen, "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)",
+                   k, dist_rank());
 }
 
 /* Room for every member's snapshots of S samples (sn->X, none with
@@ -319,17 +319,17 @@ int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {
  * 0, or -1 when out of memory (what was allocated left to free_snapshots). */
 static int snapshots_alloc(Model *m, Snapshots *sn, long S, bool gram) {
   sn->S = S;
-  if (!(sn->X = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
-      !(sn->U = npg_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
-      !(sn->k = npg_calloc((size_t)m->nclasses + 1, sizeof(int *))))
+  if (!(sn->X = mem_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->U = mem_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
+      !(sn->k = mem_calloc((size_t)m->nclasses + 1, sizeof(int *))))
     return -1;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(sn->X[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) ||
-        !(sn->U[c] = npg_calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn->k[c] = npg_calloc((size_t)rc->nmembers, sizeof(int))))
+    if (!(sn->X[c] = mem_calloc((size_t)rc->nmembers, sizeof(double *))) ||
+        !(sn->U[c] = mem_calloc((size_t)rc->nmembers, sizeof(double *))) || !(sn->k[c] = mem_calloc((size_t)rc->nmembers, sizeof(int))))
       return -1;
     for (int i = 0; !gram && i < rc->nmembers; i++)
-      if (!(sn->X[c][i] = npg_malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) return -1;
+      if (!(sn->X[c][i] = mem_malloc(sizeof(double) * (size_t)rc->n * (size_t)S))) return -1;
   }
   return 0;
 }
@@ -374,19 +374,19 @@ int take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOption
   }
   *gram = opt->mem && need > opt->mem;
   if (*gram && opt->dist && dist_size() > 1)
-    return npg_fail(err, errlen,
-                    "the snapshots need %.3g GB, more than --mem %.3g GB: training over MPI ranks keeps them in "
-                    "memory (the method of snapshots runs on one process): raise --mem",
-                    (double)need / 1e9, (double)opt->mem / 1e9);
+    return error_set(err, errlen,
+                     "the snapshots need %.3g GB, more than --mem %.3g GB: training over MPI ranks keeps them in "
+                     "memory (the method of snapshots runs on one process): raise --mem",
+                     (double)need / 1e9, (double)opt->mem / 1e9);
   if (*gram && opt->joint)
-    return npg_fail(err, errlen,
-                    "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
-                    "--mem or use --merge concat (the method of snapshots)",
-                    (double)need / 1e9, (double)opt->mem / 1e9);
-  double *tmp = npg_malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S));
+    return error_set(err, errlen,
+                     "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
+                     "--mem or use --merge concat (the method of snapshots)",
+                     (double)need / 1e9, (double)opt->mem / 1e9);
+  double *tmp = mem_malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S));
   if (!tmp || snapshots_alloc(m, sn, S, *gram)) {
     free(tmp);
-    return npg_fail(err, errlen, "out of memory for the snapshots of %ld samples", S);
+    return error_set(err, errlen, "out of memory for the snapshots of %ld samples", S);
   }
   train_mark_spd(m);
   int rc = *gram ? snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen)
@@ -400,10 +400,10 @@ int take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOption
  * class whose every snapshot is zero (lifting gives 0). */
 int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
   if (full_rank && rc->m < rc->n) {
-    double *eye = npg_calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
+    double *eye = mem_calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
     double *parts[2] = {rc->B, eye};
     int ks[2] = {(int)rc->m, (int)rc->n};
-    if (!eye) return npg_fail(err, errlen, "out of memory completing the basis of class %s", rc->label);
+    if (!eye) return error_set(err, errlen, "out of memory completing the basis of class %s", rc->label);
     for (long e = 0; e < rc->n; e++) eye[e * rc->n + e] = 1;
     int rc_ok = pca_merge(rc->n, 2, parts, ks, &B, &rc->m, err, errlen);
     free(eye);
@@ -413,11 +413,11 @@ int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
   }
   if (rc->m == 0) {
     free(rc->B);
-    if (!(rc->B = npg_calloc((size_t)rc->n, sizeof(double)))) return npg_fail(err, errlen, "out of memory");
+    if (!(rc->B = mem_calloc((size_t)rc->n, sizeof(double)))) return error_set(err, errlen, "out of memory");
     rc->B[0] = 1;
     rc->m = 1;
   }
-  if (!rc->B_mapped && pca_fix_signs(rc->n, rc->m, rc->B)) return npg_fail(err, errlen, "out of memory");
+  if (!rc->B_mapped && pca_fix_signs(rc->n, rc->m, rc->B)) return error_set(err, errlen, "out of memory");
   return 0;
 }
 
@@ -435,7 +435,7 @@ static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOpti
     else rc_ok = train_member_bases(rc, sn->S, sn->X[c], pre ? pre[c] : NULL, err, errlen);
     if (rc_ok != 0) {
       dist_free_pcas(m, pre);
-      if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
+      if (!err[0]) error_set(err, errlen, "out of memory building the basis of class %s", rc->label);
       return -1;
     }
     if (train_complete_basis(rc, opt->full_rank, err, errlen)) return dist_free_pcas(m, pre), -1;
@@ -493,8 +493,8 @@ int premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err, size
       RTerm *rt = &rs->terms[t];
       if (rt->proj_name) {
         RClass *cw = &m->classes[m->qclass[rt->named_q]];
-        if (!(rt->proj = npg_malloc(sizeof(double) * (size_t)(cy->m * cw->m))))
-          return npg_fail(err, errlen, "out of memory while training");
+        if (!(rt->proj = mem_malloc(sizeof(double) * (size_t)(cy->m * cw->m))))
+          return error_set(err, errlen, "out of memory while training");
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0, cy->B,
                     (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
       }
@@ -576,7 +576,7 @@ int fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn,
     if (m->classes[c].streamed && !m->classes[c].floors_known)
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
   double *y = floors ? malloc(sizeof(double) * (size_t)maxn) : NULL, *proj = floors ? malloc(sizeof(double) * (size_t)maxm) : NULL;
-  int rc = floors && (!y || !proj) ? npg_fail(err, errlen, "out of memory measuring the training floors")
+  int rc = floors && (!y || !proj) ? error_set(err, errlen, "out of memory measuring the training floors")
                                      : fit_externs_floors(m, f, src, sn, gram, externs ? m->nexterns : 0, floors, proj, y,
                                                           progress, dist, err, errlen);
   free(y);
@@ -594,8 +594,8 @@ static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const 
     RExtern *x = &m->externs[i];
     long mz = m->classes[m->qclass[x->q]].m;
     x->S = S;
-    if (!(x->X = npg_calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = npg_calloc((size_t)(S * mz) + 1, sizeof(double))))
-      return npg_fail(err, errlen, "out of memory while training");
+    if (!(x->X = mem_calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = mem_calloc((size_t)(S * mz) + 1, sizeof(double))))
+      return error_set(err, errlen, "out of memory while training");
   }
   for (long k = rank; k < S && (nx > 0 || floors); k += N) {
     if (gram && train_eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
@@ -656,8 +656,8 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
     int i = 0;
     while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->interp_stage[j]) != 0) i++;
     if (i == m->nstages)
-      return npg_fail(err, errlen, "--reduce %s:interp: the program has no stage '%s'", opt->interp_stage[j],
-                      opt->interp_stage[j]);
+      return error_set(err, errlen, "--reduce %s:interp: the program has no stage '%s'", opt->interp_stage[j],
+                       opt->interp_stage[j]);
     if (interp_train_stage(m, f, i, over, err, errlen)) return -1;
     m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
     if (opt->progress)
@@ -669,10 +669,10 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
     int i = 0;
     while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->galerkin_stage[j]) != 0) i++;
     if (i == m->nstages)
-      return npg_fail(err, errlen, "--reduce %s:galerkin: the program has no stage '%s'", opt->galerkin_stage[j],
-                      opt->galerkin_stage[j]);
+      return error_set(err, errlen, "--reduce %s:galerkin: the program has no stage '%s'", opt->galerkin_stage[j],
+                       opt->galerkin_stage[j]);
     if (named_in(opt->interp_stage, opt->ninterp, opt->galerkin_stage[j]))
-      return npg_fail(err, errlen, "stage %s is forced both to interpolation and to Galerkin", opt->galerkin_stage[j]);
+      return error_set(err, errlen, "stage %s is forced both to interpolation and to Galerkin", opt->galerkin_stage[j]);
   }
   return opt->valid ? tune_choose_reductions(m, f, opt->valid, opt, err, errlen) : 0;
 }
@@ -733,6 +733,6 @@ fail:
   if (m) free_snapshots(m, &sn);
   model_free(m);
   /* the steps name what failed; a helper that only returned NULL ran out of memory */
-  if (!err[0]) npg_fail(err, errlen, "out of memory during training");
+  if (!err[0]) error_set(err, errlen, "out of memory during training");
   return NULL;
 }

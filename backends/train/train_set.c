@@ -29,8 +29,8 @@ int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err,
   for (int c = 0; c < m->nclasses; c++)
     if (m->classes[c].streamed)
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
-  double *y = npg_malloc(sizeof(double) * (size_t)maxn), *proj = npg_malloc(sizeof(double) * (size_t)maxm);
-  if (!y || !proj) return free(y), free(proj), npg_fail(err, errlen, "out of memory measuring the training floors");
+  double *y = mem_malloc(sizeof(double) * (size_t)maxn), *proj = mem_malloc(sizeof(double) * (size_t)maxm);
+  if (!y || !proj) return free(y), free(proj), error_set(err, errlen, "out of memory measuring the training floors");
   for (long k = 0; k < ts->sn.S; k++) take_floors(m, ts->f, &ts->sn, false, k, ts->sn.S, proj, y);
   free(y), free(proj);
   drop_bases(m);
@@ -51,7 +51,7 @@ void train_set_free(TrainSet *ts) {
 
 TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                         size_t errlen) {
-  TrainSet *ts = npg_calloc(1, sizeof *ts);
+  TrainSet *ts = mem_calloc(1, sizeof *ts);
   TrainOptions o = *opt;
   bool gram = false;
   err[0] = 0;
@@ -63,10 +63,10 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
       take_snapshots(ts->base, f, src, &o, &ts->sn, &gram, err, errlen))
     goto fail;
   Model *m = ts->base;
-  if (!(ts->pm = npg_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
+  if (!(ts->pm = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(ts->pm[c] = npg_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
+    if (!(ts->pm[c] = mem_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
     for (int i = 0; i < rc->nmembers; i++) {
       RMember *mb = &rc->members[i];
       if (pca_basis(rc->n, ts->sn.S, ts->sn.X[c][i], mb->cap, mb->energy, mb->center, &ts->pm[c][i], err, errlen))
@@ -76,7 +76,7 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
   }
   return ts;
 fail:
-  if (!err[0]) npg_fail(err, errlen, "out of memory while training");
+  if (!err[0]) error_set(err, errlen, "out of memory while training");
   train_set_free(ts);
   return NULL;
 }
@@ -99,7 +99,7 @@ static int truncated_member(RMember *mb, const PcaMember *p, int cap, int k) {
   mb->lost = total > 0 ? fmax(0, 1 - run / total) : 0;
   mb->captured = 1 - mb->lost;
   mb->nsv = p->nsv;
-  if (!(mb->sv = npg_malloc(sizeof(double) * (size_t)(p->nsv + 1)))) return -1;
+  if (!(mb->sv = mem_malloc(sizeof(double) * (size_t)(p->nsv + 1)))) return -1;
   memcpy(mb->sv, p->sv, sizeof(double) * (size_t)p->nsv);
   return 0;
 }
@@ -115,15 +115,15 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
       for (int k = 0; k < m->stages[i].terms[t].nops; k++) m->stages[i].terms[t].ops[k].spd = b->stages[i].terms[t].ops[k].spd;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    double **U = npg_calloc((size_t)rc->nmembers + 1, sizeof(double *));
-    int *kk = npg_calloc((size_t)rc->nmembers + 1, sizeof(int)), ok = U && kk;
+    double **U = mem_calloc((size_t)rc->nmembers + 1, sizeof(double *));
+    int *kk = mem_calloc((size_t)rc->nmembers + 1, sizeof(int)), ok = U && kk;
     for (int i = 0; ok && i < rc->nmembers; i++) {
       const PcaMember *p = &ts->pm[c][i];
       RMember *mb = &rc->members[i];
       mb->energy = b->classes[c].members[i].energy;
       mb->center = b->classes[c].members[i].center;
       kk[i] = cap[c] < p->k ? cap[c] : p->k;
-      if (!(U[i] = npg_malloc(sizeof(double) * (size_t)(rc->n * (kk[i] ? kk[i] : 1)))) || truncated_member(mb, p, cap[c], kk[i]))
+      if (!(U[i] = mem_malloc(sizeof(double) * (size_t)(rc->n * (kk[i] ? kk[i] : 1)))) || truncated_member(mb, p, cap[c], kk[i]))
         ok = 0;
       for (long e = 0; ok && e < rc->n; e++) memcpy(U[i] + e * kk[i], p->U + e * p->k, sizeof(double) * (size_t)kk[i]);
     }
@@ -132,7 +132,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     free(U);
     free(kk);
     if (rc_ok || train_complete_basis(rc, false, err, errlen)) {
-      if (!err[0]) npg_fail(err, errlen, "out of memory building the basis of class %s", rc->label);
+      if (!err[0]) error_set(err, errlen, "out of memory building the basis of class %s", rc->label);
       model_free(m);
       return NULL;
     }

@@ -63,14 +63,14 @@ static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
 static int cache_valid(Search *s, Full *f, const SampleSource *valid, const Model *layout, char *err, size_t errlen) {
   s->v.S = valid->count;
   s->v.nq = layout->nq;
-  if (!(s->v.val = npg_calloc((size_t)valid->count + 1, sizeof(double *))))
-    return npg_fail(err, errlen, "out of memory for the validation samples");
+  if (!(s->v.val = mem_calloc((size_t)valid->count + 1, sizeof(double *))))
+    return error_set(err, errlen, "out of memory for the validation samples");
   long per = 0;
   for (int q = 0; q < layout->nq; q++) per += qsize(layout, q);
   for (long k = 0; k < valid->count; k++) {
     if (valid->set(valid->user, f, k) != 0 || full_eval(f, k) != 0)
-      return npg_fail(err, errlen, "validation sample %ld: %s", k, full_error(f));
-    if (!(s->v.val[k] = npg_malloc(sizeof(double) * (size_t)per))) return npg_fail(err, errlen, "out of memory");
+      return error_set(err, errlen, "validation sample %ld: %s", k, full_error(f));
+    if (!(s->v.val[k] = mem_malloc(sizeof(double) * (size_t)per))) return error_set(err, errlen, "out of memory");
     long off = 0;
     for (int q = 0; q < layout->nq; q++) {
       memcpy(s->v.val[k] + off, full_get(f, ((Sym *)s->prog->quantities.v[q])->name, NULL),
@@ -96,14 +96,14 @@ static int validate(Search *s, Model *m, double *worst, double *floor, char *err
   if (!r) return -1;
   long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-  double *y = npg_malloc(sizeof(double) * (size_t)maxn), *e = npg_calloc((size_t)s->prog->outputs.n + 1, sizeof(double));
-  int rc = y && e ? 0 : npg_fail(err, errlen, "out of memory");
+  double *y = mem_malloc(sizeof(double) * (size_t)maxn), *e = mem_calloc((size_t)s->prog->outputs.n + 1, sizeof(double));
+  int rc = y && e ? 0 : error_set(err, errlen, "out of memory");
   if (floor) memset(floor, 0, sizeof(double) * (size_t)m->nq);
   for (long k = 0; rc == 0 && k < s->v.S; k++) {
     for (int q = 0; q < m->nq; q++)
       if (((Sym *)s->prog->quantities.v[q])->kind == SYM_INPUT) reduced_project(r, q, s->v.val[k] + qoff(m, q));
     if (reduced_eval(r, k) != 0) {
-      rc = npg_fail(err, errlen, "%s", reduced_error(r));
+      rc = error_set(err, errlen, "%s", reduced_error(r));
       break;
     }
     for (int o = 0; o < s->prog->outputs.n; o++) {
@@ -163,9 +163,9 @@ static Model *configure(Search *s, const int *cap, TuneTrial *tr, char *err, siz
   size_t len = 1;
   for (int i = 0; i < m->nstages; i++) len += m->stages[i].interp ? strlen(m->stages[i].st->sym->name) + 1 : 0;
   free(tr->interp);
-  if (!(tr->interp = npg_malloc(len))) {
+  if (!(tr->interp = mem_malloc(len))) {
     model_free(m);
-    return npg_fail(err, errlen, "out of memory"), NULL;
+    return error_set(err, errlen, "out of memory"), NULL;
   }
   tr->interp[0] = 0;
   for (int i = 0; i < m->nstages; i++) {
@@ -189,16 +189,16 @@ static int trial(Search *s, const int *cap, bool uniform, char *err, size_t errl
   TuneResult *out = s->out;
   for (int t = 0; t < out->ntrials; t++)
     if (memcmp(out->trials[t].cap, cap, sizeof(int) * (size_t)s->nc) == 0) return t;
-  TuneTrial *grown = npg_realloc(out->trials, sizeof *grown * (size_t)(out->ntrials + 1));
-  if (!grown) return npg_fail(err, errlen, "out of memory");
+  TuneTrial *grown = mem_realloc(out->trials, sizeof *grown * (size_t)(out->ntrials + 1));
+  if (!grown) return error_set(err, errlen, "out of memory");
   out->trials = grown;
   TuneTrial *tr = &out->trials[out->ntrials];
   memset(tr, 0, sizeof *tr);
-  tr->cap = npg_malloc(sizeof(int) * (size_t)s->nc);
-  tr->m = npg_malloc(sizeof(long) * (size_t)s->nc);
+  tr->cap = mem_malloc(sizeof(int) * (size_t)s->nc);
+  tr->m = mem_malloc(sizeof(long) * (size_t)s->nc);
   if (!tr->cap || !tr->m) {
     free(tr->cap), free(tr->m);
-    return npg_fail(err, errlen, "out of memory");
+    return error_set(err, errlen, "out of memory");
   }
   memcpy(tr->cap, cap, sizeof(int) * (size_t)s->nc);
   tr->uniform = uniform;
@@ -233,9 +233,9 @@ int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid,
   if (opt) s.copt = *opt;
   s.copt.valid = NULL, s.copt.progress = false, s.copt.choose_strict = true;
   out->nclasses = s.nc;
-  int *cap = npg_calloc((size_t)s.nc + 1, sizeof(int)), rc = -1;
-  s.maxk = npg_calloc((size_t)s.nc + 1, sizeof(int));
-  out->best_cap = npg_calloc((size_t)s.nc + 1, sizeof(int));
+  int *cap = mem_calloc((size_t)s.nc + 1, sizeof(int)), rc = -1;
+  s.maxk = mem_calloc((size_t)s.nc + 1, sizeof(int));
+  out->best_cap = mem_calloc((size_t)s.nc + 1, sizeof(int));
   Model *layout = NULL;
   double *floor = NULL;
   if (!cap || !s.maxk || !out->best_cap) goto oom;
@@ -255,14 +255,14 @@ int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid,
     if (out->trials[t].err <= tol) break;
   }
   if (isinf(out->trials[t].err) && s.why[0]) { /* failed at the largest caps: why is the error */
-    npg_fail(err, errlen, "%s", s.why);
+    error_set(err, errlen, "%s", s.why);
     goto done;
   }
   if (out->trials[t].err > tol) {
     /* unmet at the largest caps: the class whose projection floor is worst limits */
     Model *m = train_set_model(ts, cap, err, errlen);
     double worst;
-    if (!m || !(floor = npg_malloc(sizeof(double) * (size_t)m->nq)) || validate(&s, m, &worst, floor, err, errlen)) {
+    if (!m || !(floor = mem_malloc(sizeof(double) * (size_t)m->nq)) || validate(&s, m, &worst, floor, err, errlen)) {
       model_free(m);
       goto done;
     }
@@ -277,9 +277,9 @@ int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid,
     goto done;
   }
   /* 2. each class bisected down, the costliest to grow first */
-  int *order = npg_malloc(sizeof(int) * (size_t)s.nc);
-  double *gain = npg_malloc(sizeof(double) * (size_t)s.nc);
-  long *m1 = npg_malloc(sizeof(long) * (size_t)s.nc);
+  int *order = mem_malloc(sizeof(int) * (size_t)s.nc);
+  double *gain = mem_malloc(sizeof(double) * (size_t)s.nc);
+  long *m1 = mem_malloc(sizeof(long) * (size_t)s.nc);
   if (!order || !gain || !m1) {
     free(order), free(gain), free(m1);
     goto oom;
@@ -325,7 +325,7 @@ int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid,
   rc = 0;
   goto done;
 oom:
-  npg_fail(err, errlen, "out of memory");
+  error_set(err, errlen, "out of memory");
 done:
   model_free(s.last);
   for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);

@@ -62,10 +62,10 @@ static int sum_group(Full *f, const char *name, const TensorGroup *g, double *ou
   Sum s = {.out = out, .mag = mag, .ncols = ncols};
   for (int i = 0; i < g->ninputs && i < 16; i++)
     if (!(s.in[i] = full_get(f, g->inputs[i]->name, NULL)))
-      return npg_fail(err, errlen, "tensor %s reads '%s', which the full evaluator does not hold (a bug in npg)", name,
-                      g->inputs[i]->name);
+      return error_set(err, errlen, "tensor %s reads '%s', which the full evaluator does not hold (a bug in npg)", name,
+                       g->inputs[i]->name);
   NpgSink sink = {&s, add_entry, 0, 1, 0, 0}; /* every row */
-  if (full_build(f, name, &sink) != 0) return npg_fail(err, errlen, "tensor %s: %s", name, full_error(f));
+  if (full_build(f, name, &sink) != 0) return error_set(err, errlen, "tensor %s: %s", name, full_error(f));
   return 0;
 }
 
@@ -112,7 +112,7 @@ static int stage_from_tensors(const Program *prog, Full *f, const Stage *st, siz
   double *num = calloc(n1, sizeof(double)), *mag = calloc(n1, sizeof(double));
   double *dg = calloc(n1, sizeof(double)), *dmag = calloc(n1, sizeof(double));
   int rc = 0;
-  if (!num || !mag || !dg || !dmag) rc = npg_fail(err, errlen, "out of memory rebuilding stage %s", st->sym->name);
+  if (!num || !mag || !dg || !dmag) rc = error_set(err, errlen, "out of memory rebuilding stage %s", st->sym->name);
   memset(y, 0, sizeof(double) * count);
   memset(scale, 0, sizeof(double) * count);
   for (int t = 0; t < st->nterms && rc == 0; t++) {
@@ -121,8 +121,8 @@ static int stage_from_tensors(const Program *prog, Full *f, const Stage *st, siz
     memset(mag, 0, sizeof(double) * count);
     if (tm->named_num) {
       const double *w = full_get(f, tm->named_num->name, NULL);
-      if (!w) rc = npg_fail(err, errlen, "stage %s: numerator '%s' not held (a bug in npg)", st->sym->name,
-                            tm->named_num->name);
+      if (!w) rc = error_set(err, errlen, "stage %s: numerator '%s' not held (a bug in npg)", st->sym->name,
+                             tm->named_num->name);
       for (size_t e = 0; e < count && rc == 0; e++) num[e] = w[e], mag[e] = fabs(w[e]);
     }
     for (int g = 0; g < tm->num_tensors.n && rc == 0 && !tm->named_num; g++)
@@ -146,8 +146,8 @@ static int stage_from_tensors(const Program *prog, Full *f, const Stage *st, siz
       }
       double *M = ne <= 50000 ? calloc(ne > 0 ? ne * ne : 1, sizeof(double)) : NULL;
       if (!M) {
-        rc = npg_fail(err, errlen, "stage %s: operator %s of %zu × %zu entries too large for the check", st->sym->name,
-                      op->op->name, ne, ne);
+        rc = error_set(err, errlen, "stage %s: operator %s of %zu × %zu entries too large for the check", st->sym->name,
+                       op->op->name, ne, ne);
         break;
       }
       const OpDef *od = op->op->opdef;
@@ -160,7 +160,7 @@ static int stage_from_tensors(const Program *prog, Full *f, const Stage *st, siz
       memset(&host, 0, sizeof host);
       NpgCtx c = {.rt = &npg_runtime, .host = &host};
       if (rc == 0 && npg_runtime.op_power(&c, st->sym->name, op->op->name, (npg_idx)ne, M, op->p, op->q, num) != 0)
-        rc = npg_fail(err, errlen, "on the random data: %s", host.msg);
+        rc = error_set(err, errlen, "on the random data: %s", host.msg);
       double out_mag = kappa * fmax(cond_in, 1) * max_abs(num, count);
       for (size_t e = 0; e < count && rc == 0; e++) mag[e] = out_mag;
       free(M);
@@ -184,12 +184,12 @@ static int check_lowering(Program *prog, const ExactOptions *o, FILE *out, bool 
   MemSamples ms;
   memset(&ms, 0, sizeof ms);
   int rc = 0;
-  if (!f) rc = npg_fail(err, errlen, "out of memory for the full evaluator");
-  else if (full_error(f)[0]) rc = npg_fail(err, errlen, "%s", full_error(f));
+  if (!f) rc = error_set(err, errlen, "out of memory for the full evaluator");
+  else if (full_error(f)[0]) rc = error_set(err, errlen, "%s", full_error(f));
   else if ((rc = memsamples_fill(&ms, prog, f, n, 1, o->seed)) != 0)
-    rc = npg_fail(err, errlen, "%s", rc == -1 ? full_error(f) : "out of memory for the random samples");
+    rc = error_set(err, errlen, "%s", rc == -1 ? full_error(f) : "out of memory for the random samples");
   else if (memsamples_set(&ms, f, 0) != 0 || full_eval(f, 0) != 0)
-    rc = npg_fail(err, errlen, "the full evaluator on the random data: %s (every param and input is drawn at random: "
+    rc = error_set(err, errlen, "the full evaluator on the random data: %s (every param and input is drawn at random: "
                                "a program whose evaluation needs structured params, such as a symmetric neighbour "
                                "table under a root, cannot be checked this way; that is not a defect of npg)",
                   full_error(f));
@@ -202,12 +202,12 @@ static int check_lowering(Program *prog, const ExactOptions *o, FILE *out, bool 
     double *y = malloc(sizeof(double) * (count ? count : 1));
     if (!y || !full) {
       free(y);
-      rc = npg_fail(err, errlen, "stage %s: %s", st->sym->name, y ? "not held by the full evaluator" : "out of memory");
+      rc = error_set(err, errlen, "stage %s: %s", st->sym->name, y ? "not held by the full evaluator" : "out of memory");
       break;
     }
     double *scale = malloc(sizeof(double) * (count ? count : 1));
     rc = scale ? stage_from_tensors(prog, f, st, count, y, scale, err, errlen)
-               : npg_fail(err, errlen, "out of memory rebuilding stage %s", st->sym->name);
+               : error_set(err, errlen, "out of memory rebuilding stage %s", st->sym->name);
     if (rc == 0) {
       /* the difference relative to the larger of the value and the rounding
        * scale of the canonical form: the two evaluate one function in
@@ -248,7 +248,7 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
                "samples, every dim %ld (bar %.0e)\n",
           S, held_out, n, EXACT_FULL_RANK_TOL);
   if (S > 20000)
-    return npg_fail(err, errlen, "the full-rank check would train on %ld samples of %ld entries; give a smaller size", S,
+    return error_set(err, errlen, "the full-rank check would train on %ld samples of %ld entries; give a smaller size", S,
                  S - 4);
   Full *f = full_new(prog, o->backend, NULL);
   MemSamples train, held;
@@ -258,11 +258,11 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
   Reduced *r = NULL;
   double *y = NULL, *worst = calloc((size_t)prog->quantities.n + 1, sizeof(double));
   int rc = 0;
-  if (!worst || !f) rc = npg_fail(err, errlen, "out of memory");
-  else if (full_error(f)[0]) rc = npg_fail(err, errlen, "%s", full_error(f));
+  if (!worst || !f) rc = error_set(err, errlen, "out of memory");
+  else if (full_error(f)[0]) rc = error_set(err, errlen, "%s", full_error(f));
   else if ((rc = memsamples_fill(&train, prog, f, n, S, o->seed + 1)) != 0 ||
            (rc = memsamples_fill(&held, prog, NULL, n, held_out, o->seed + 977)) != 0)
-    rc = npg_fail(err, errlen, "%s", rc == -1 ? full_error(f) : "out of memory for the random samples");
+    rc = error_set(err, errlen, "%s", rc == -1 ? full_error(f) : "out of memory for the random samples");
   if (rc == 0) {
     SampleSource src = {S, &train, memsamples_set, NULL, NULL};
     TrainOptions opt;
@@ -273,10 +273,10 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
     opt.progress = o->progress;
     char why[2048] = "";
     if (!(m = train_model(prog, f, &src, &opt, why, sizeof why)))
-      rc = npg_fail(err, errlen, "training with full-rank bases on the random data: %s", why);
-    else if (!(r = reduced_new(m, why, sizeof why))) rc = npg_fail(err, errlen, "%s", why);
+      rc = error_set(err, errlen, "training with full-rank bases on the random data: %s", why);
+    else if (!(r = reduced_new(m, why, sizeof why))) rc = error_set(err, errlen, "%s", why);
     else if (!(y = malloc(sizeof(double) * (size_t)(S - 4))))
-      rc = npg_fail(err, errlen, "out of memory");
+      rc = error_set(err, errlen, "out of memory");
   }
   if (rc == 0) rc = held_out_differences(prog, m, f, r, &held, held_out, y, worst, err, errlen);
   for (int q = 0; rc == 0 && q < m->nq; q++) {
@@ -292,13 +292,13 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
     if (!lower_interp_eligible(m->stages[i].st)) continue;
     char why[2048] = "";
     if (interp_train_stage(m, f, i, 1.0, why, sizeof why) != 0)
-      rc = npg_fail(err, errlen, "interpolating stage %s at full rank: %s", m->stages[i].st->sym->name, why);
+      rc = error_set(err, errlen, "interpolating stage %s at full rank: %s", m->stages[i].st->sym->name, why);
     neligible++;
   }
   if (rc == 0 && neligible > 0) {
     char why[2048] = "";
     reduced_free(r);
-    if (!(r = reduced_new(m, why, sizeof why))) rc = npg_fail(err, errlen, "%s", why);
+    if (!(r = reduced_new(m, why, sizeof why))) rc = error_set(err, errlen, "%s", why);
     if (rc == 0) rc = held_out_differences(prog, m, f, r, &held, held_out, y, worst, err, errlen);
     double all = 0;
     for (int q = 0; rc == 0 && q < m->nq; q++) all = isnan(worst[q]) || isnan(all) ? NAN : fmax(all, worst[q]);
@@ -333,20 +333,20 @@ static int held_out_differences(const Program *prog, const Model *m, Full *f, Re
   reduced_use_given_externs(r, true);
   for (long k = 0; k < held_out && rc == 0; k++) {
     if (memsamples_set(held, f, k) != 0 || full_eval(f, k) != 0) {
-      rc = npg_fail(err, errlen, "the full evaluator on held-out sample %ld: %s", k, full_error(f));
+      rc = error_set(err, errlen, "the full evaluator on held-out sample %ld: %s", k, full_error(f));
       break;
     }
     for (int i = 0; i < held->n; i++)
       reduced_project(r, emit_index_of(&prog->quantities, held->sym[i]), held->val[i] + (size_t)k * held->count[i]);
     if (reduced_eval(r, k) != 0) {
-      rc = npg_fail(err, errlen, "the reduced evaluator on held-out sample %ld: %s", k, reduced_error(r));
+      rc = error_set(err, errlen, "the reduced evaluator on held-out sample %ld: %s", k, reduced_error(r));
       break;
     }
     for (int q = 0; q < m->nq; q++) {
       size_t cnt = 0;
       const double *full = full_get(f, ((Sym *)prog->quantities.v[q])->name, &cnt);
       if (!full || (long)cnt != m->classes[m->qclass[q]].n) {
-        rc = npg_fail(err, errlen, "quantity %s: full and reduced sizes differ (a bug in npg)",
+        rc = error_set(err, errlen, "quantity %s: full and reduced sizes differ (a bug in npg)",
                    ((Sym *)prog->quantities.v[q])->name);
         break;
       }

@@ -3,7 +3,7 @@
  * .npy writers of the public API.
  *
  * NpgFull wraps Full as NpgModel wraps Model: every entry point checks its
- * arguments (ast.h's npg_refuse: the evaluator itself, each pointer, a
+ * arguments (ast.h's api_refuse: the evaluator itself, each pointer, a
  * shape) and calls in; the lower layers trust theirs. An extern's callback
  * gets the NpgFull its caller knows, through one closure per extern.
  *
@@ -28,7 +28,7 @@
 /* The argument checks of every npg_full_ entry point: the evaluator itself
  * (into this thread's refusal, which npg_full_error(NULL) returns), then
  * each pointer argument, refused into the evaluator's error. */
-#define REFUSE_NULL_F(ret) NPG_REFUSE_NULL(f, NULL, 0, ret)
+#define REFUSE_NULL_F(ret) API_REFUSE_NULL(f, NULL, 0, ret)
 #define REFUSE_NULL(arg)                                                        \
   do {                                                                          \
     if (!(arg)) return refuse(f, __func__, "argument '%s' is NULL", #arg);      \
@@ -40,8 +40,8 @@ __attribute__((format(printf, 3, 4))) static int refuse(NpgFull *f, const char *
   va_start(ap, fmt);
   vsnprintf(why, sizeof why, fmt, ap);
   va_end(ap);
-  npg_refuse(NULL, 0, func, "%s", why);
-  return full_refuse(f->full, npg_refusal());
+  api_refuse(NULL, 0, func, "%s", why);
+  return full_refuse(f->full, api_refusal());
 }
 
 /* A shape argument: `ndim` axes in [0, MAX_AXES + MAX_STATIC], `shape`
@@ -58,19 +58,19 @@ static int refuse_shape(NpgFull *f, const char *func, int ndim, const long *shap
 
 NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
   const char *refusal = NULL; /* an evaluator that refuses all work with this */
-  if (!p) refusal = (npg_refuse(NULL, 0, __func__, "argument 'p' is NULL"), npg_refusal());
+  if (!p) refusal = (api_refuse(NULL, 0, __func__, "argument 'p' is NULL"), api_refusal());
   else if (backend != NPG_TCC && backend != NPG_CC)
-    refusal = (npg_refuse(NULL, 0, __func__, "argument 'backend' is %d (NPG_TCC or NPG_CC)", (int)backend),
-               npg_refusal());
+    refusal = (api_refuse(NULL, 0, __func__, "argument 'backend' is %d (NPG_TCC or NPG_CC)", (int)backend),
+               api_refusal());
   else if (!npg_ok(p)) refusal = npg_error(p);
-  NpgFull *f = npg_calloc(1, sizeof *f);
+  NpgFull *f = mem_calloc(1, sizeof *f);
   Full *full = f ? full_new(refusal ? NULL : npg_program_ir(p), backend == NPG_CC ? JIT_CC : JIT_TCC, refusal) : NULL;
   const Program *prog = full ? full_program(full) : NULL;
-  ExternClosure *externs = prog ? npg_calloc((size_t)prog->quantities.n + 1, sizeof *externs) : NULL;
+  ExternClosure *externs = prog ? mem_calloc((size_t)prog->quantities.n + 1, sizeof *externs) : NULL;
   if (!full || (prog && !externs)) {
     full_free(full);
     free(f);
-    npg_refuse(NULL, 0, __func__, "out of memory"); /* what npg_full_error(NULL) says */
+    api_refuse(NULL, 0, __func__, "out of memory"); /* what npg_full_error(NULL) says */
     return NULL;
   }
   f->full = full;
@@ -79,7 +79,7 @@ NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
 }
 
 const char *npg_full_error(const NpgFull *f) {
-  return f ? full_error(f->full) : npg_refusal()[0] ? npg_refusal() : "no evaluator";
+  return f ? full_error(f->full) : api_refusal()[0] ? api_refusal() : "no evaluator";
 }
 
 void npg_full_clear_error(NpgFull *f) {
@@ -139,13 +139,13 @@ int npg_full_eval(NpgFull *f, long sample) {
 
 const double *npg_full_get(const NpgFull *f, const char *name, size_t *count) {
   REFUSE_NULL_F(NULL);
-  NPG_REFUSE_NULL(name, NULL, 0, NULL);
+  API_REFUSE_NULL(name, NULL, 0, NULL);
   return full_get(f->full, name, count);
 }
 
 long npg_full_dim(const NpgFull *f, const char *name) {
   REFUSE_NULL_F(-1);
-  NPG_REFUSE_NULL(name, NULL, 0, -1);
+  API_REFUSE_NULL(name, NULL, 0, -1);
   return full_dim(f->full, name);
 }
 
@@ -235,8 +235,8 @@ int npg_full_op(NpgFull *f, const char *name, NpgCsr *out) {
   REFUSE_NULL_F(-1);
   Full *full = f->full;
   if (!out || !name) {
-    npg_refuse(NULL, 0, __func__, "argument '%s' is NULL", !out ? "out" : "name");
-    return full_fail(full, npg_refusal());
+    api_refuse(NULL, 0, __func__, "argument '%s' is NULL", !out ? "out" : "name");
+    return full_fail(full, api_refusal());
   }
   memset(out, 0, sizeof *out);
   if (full_error(full)[0]) return -1;
@@ -296,14 +296,14 @@ void npg_csr_free(NpgCsr *c) {
 
 /* npy_write refuses NULL data for a non-empty shape itself, naming the file. */
 int npg_npy_write(const char *path, int ndim, const long *shape, const double *data, char *err, size_t errlen) {
-  NPG_REFUSE_NULL(path, err, errlen, -1);
-  if (ndim > 0) NPG_REFUSE_NULL(shape, err, errlen, -1);
+  API_REFUSE_NULL(path, err, errlen, -1);
+  if (ndim > 0) API_REFUSE_NULL(shape, err, errlen, -1);
   return npy_write(path, NPY_F64, ndim, shape, data, err, errlen);
 }
 
 int npg_npy_write_i64(const char *path, int ndim, const long *shape, const long *data, char *err, size_t errlen) {
-  NPG_REFUSE_NULL(path, err, errlen, -1);
-  if (ndim > 0) NPG_REFUSE_NULL(shape, err, errlen, -1);
+  API_REFUSE_NULL(path, err, errlen, -1);
+  if (ndim > 0) API_REFUSE_NULL(shape, err, errlen, -1);
   return npy_write(path, NPY_I64, ndim, shape, data, err, errlen);
 }
 

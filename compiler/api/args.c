@@ -13,7 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "ast.h" /* npg_fail */
+#include "ast.h" /* error_set */
 #include "npg.h"
 
 /* The range as the messages print it: "1..10000", "at least 1", "(0, 1]". */
@@ -29,34 +29,34 @@ static void double_range(char *buf, size_t n, double lo, double hi, bool lo_open
 }
 
 int npg_parse_long(const char *s, long lo, long hi, long *out, char *err, size_t errlen) {
-  if (!out) return npg_fail(err, errlen, "npg_parse_long: out is NULL");
+  if (!out) return error_set(err, errlen, "npg_parse_long: out is NULL");
   char range[96];
   long_range(range, sizeof range, lo, hi);
-  if (!s) return npg_fail(err, errlen, "no value (expected %s)", range);
+  if (!s) return error_set(err, errlen, "no value (expected %s)", range);
   char *end;
   errno = 0;
   long v = strtol(s, &end, 10);
   /* strtol skips leading blanks: " 5" is not what a user typed as a number either */
   if (!*s || end == s || *end || s[0] == ' ' || s[0] == '\t')
-    return npg_fail(err, errlen, "'%s' is not a whole number (expected %s)", s, range);
-  if (errno == ERANGE || v < lo || v > hi) return npg_fail(err, errlen, "%s is out of range (expected %s)", s, range);
+    return error_set(err, errlen, "'%s' is not a whole number (expected %s)", s, range);
+  if (errno == ERANGE || v < lo || v > hi) return error_set(err, errlen, "%s is out of range (expected %s)", s, range);
   *out = v;
   return 0;
 }
 
 int npg_parse_double(const char *s, double lo, double hi, bool lo_open, double *out, char *err, size_t errlen) {
-  if (!out) return npg_fail(err, errlen, "npg_parse_double: out is NULL");
+  if (!out) return error_set(err, errlen, "npg_parse_double: out is NULL");
   char range[96];
   double_range(range, sizeof range, lo, hi, lo_open);
-  if (!s) return npg_fail(err, errlen, "no value (expected %s)", range);
+  if (!s) return error_set(err, errlen, "no value (expected %s)", range);
   char *end;
   errno = 0;
   double v = strtod(s, &end);
   if (!*s || end == s || *end || s[0] == ' ' || s[0] == '\t' || isnan(v))
-    return npg_fail(err, errlen, "'%s' is not a number (expected %s)", s, range);
+    return error_set(err, errlen, "'%s' is not a number (expected %s)", s, range);
   /* ERANGE on underflow still gives a usable tiny value; overflow gives inf, refused below */
   if (!isfinite(v) || v < lo || v > hi || (lo_open && v == lo))
-    return npg_fail(err, errlen, "%s is out of range (expected %s)", s, range);
+    return error_set(err, errlen, "%s is out of range (expected %s)", s, range);
   *out = v;
   return 0;
 }

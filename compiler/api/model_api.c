@@ -36,7 +36,7 @@ char *api_param_hashes(const Full *f) {
   const Program *prog = full_program(f);
   size_t cap = 1, len = 0;
   for (int i = 0; i < prog->params.n; i++) cap += strlen(((Sym *)prog->params.v[i])->name) + 19;
-  char *out = npg_malloc(cap);
+  char *out = mem_malloc(cap);
   if (!out) return NULL;
   out[0] = 0;
   for (int i = 0; i < prog->params.n; i++)
@@ -94,7 +94,7 @@ void npg_model_report_reductions(const NpgModel *nm, FILE *out) {
 }
 
 NpgModel *api_model_wrap(Model *m) {
-  NpgModel *nm = npg_calloc(1, sizeof *nm);
+  NpgModel *nm = mem_calloc(1, sizeof *nm);
   if (!nm) {
     model_free(m);
     return NULL;
@@ -175,9 +175,9 @@ static int nonfinite_array(NpgModel *nm, const char *dir) {
 }
 
 NpgModel *npg_model_load(NpgProgram *p, const char *dir) {
-  NpgModel *nm = npg_calloc(1, sizeof *nm);
-  if (!nm) return npg_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_model_error(NULL) says */
-  if (!p || !dir) npg_refuse(nm->error, sizeof nm->error, __func__, "argument '%s' is NULL", !p ? "p" : "dir");
+  NpgModel *nm = mem_calloc(1, sizeof *nm);
+  if (!nm) return api_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_model_error(NULL) says */
+  if (!p || !dir) api_refuse(nm->error, sizeof nm->error, __func__, "argument '%s' is NULL", !p ? "p" : "dir");
   else if (!npg_ok(p)) snprintf(nm->error, sizeof nm->error, "%s", npg_error(p));
   else if (!(nm->m = model_load(npg_program_ir(p), dir, nm->error, sizeof nm->error)) && !nm->error[0])
     snprintf(nm->error, sizeof nm->error, "%s: cannot load the model", dir);
@@ -189,16 +189,16 @@ NpgModel *npg_model_load(NpgProgram *p, const char *dir) {
 }
 
 const char *npg_model_error(const NpgModel *m) {
-  return m ? m->error : npg_refusal()[0] ? npg_refusal() : "out of memory";
+  return m ? m->error : api_refusal()[0] ? api_refusal() : "out of memory";
 }
 
 /* The argument checks of the npg_model_ entry points (ast.h): the model,
  * then pointer arguments into its message (or `err` where one is given). */
-#define REFUSE_NULL_M(ret) NPG_REFUSE_NULL(nm, NULL, 0, ret)
+#define REFUSE_NULL_M(ret) API_REFUSE_NULL(nm, NULL, 0, ret)
 
 int npg_model_save(NpgModel *nm, const char *dir) {
   REFUSE_NULL_M(-1);
-  NPG_REFUSE_NULL(dir, nm->error, sizeof nm->error, -1);
+  API_REFUSE_NULL(dir, nm->error, sizeof nm->error, -1);
   if (!nm->m) return -1;
   return model_save(nm->m, dir, nm->error, sizeof nm->error) == 0 ? 0 : -1;
 }
@@ -217,14 +217,14 @@ int npg_model_nclasses(const NpgModel *nm) {
 /* One spectrum per member line of the manifest: "member C NAME cap N energy
  * E kept K captured X [center 0|1 lost L]". */
 int npg_spectra_read(const char *dir, NpgSpectrum **out, int *count, char *err, size_t errlen) {
-  NPG_REFUSE_NULL(dir, err, errlen, -1);
-  NPG_REFUSE_NULL(out, err, errlen, -1);
-  NPG_REFUSE_NULL(count, err, errlen, -1);
+  API_REFUSE_NULL(dir, err, errlen, -1);
+  API_REFUSE_NULL(out, err, errlen, -1);
+  API_REFUSE_NULL(count, err, errlen, -1);
   ModelStore st;
   *out = NULL;
   *count = 0;
   if (model_store_read_any(dir, &st, err, errlen) != 0) return -1;
-  NpgSpectrum *sp = npg_calloc((size_t)st.nmeta + 1, sizeof *sp);
+  NpgSpectrum *sp = mem_calloc((size_t)st.nmeta + 1, sizeof *sp);
   int n = 0, rc = sp ? 0 : -1;
   if (!sp) snprintf(err, errlen, "out of memory");
   for (int i = 0; i < st.nmeta && rc == 0; i++) {
@@ -243,8 +243,8 @@ int npg_spectra_read(const char *dir, NpgSpectrum **out, int *count, char *err, 
       break;
     }
     NpgSpectrum *x = &sp[n];
-    x->member = npg_strdup(name);
-    x->sigma = npg_malloc(sizeof(double) * (a->count ? a->count : 1));
+    x->member = mem_strdup(name);
+    x->sigma = mem_malloc(sizeof(double) * (a->count ? a->count : 1));
     if (!x->member || !x->sigma) {
       snprintf(err, errlen, "out of memory");
       rc = -1;
@@ -274,13 +274,13 @@ void npg_spectra_free(NpgSpectrum *s, int count) {
 
 void npg_model_report(const NpgModel *nm, FILE *out) {
   REFUSE_NULL_M();
-  NPG_REFUSE_NULL(out, NULL, 0, );
+  API_REFUSE_NULL(out, NULL, 0, );
   if (nm->m) report_training(nm->m, out);
 }
 
 int npg_model_write_spectra(const NpgModel *nm, const char *dir, char *err, size_t errlen) {
-  NPG_REFUSE_NULL(nm, err, errlen, -1);
-  NPG_REFUSE_NULL(dir, err, errlen, -1);
+  API_REFUSE_NULL(nm, err, errlen, -1);
+  API_REFUSE_NULL(dir, err, errlen, -1);
   if (!nm->m) {
     snprintf(err, errlen, "%s", nm->error);
     return -1;
@@ -290,7 +290,7 @@ int npg_model_write_spectra(const NpgModel *nm, const char *dir, char *err, size
 
 int npg_model_class(const NpgModel *nm, int c, NpgClassInfo *out) {
   REFUSE_NULL_M(-1);
-  NPG_REFUSE_NULL(out, NULL, 0, -1);
+  API_REFUSE_NULL(out, NULL, 0, -1);
   if (!nm->m) return -1;
   if (c < 0 || c >= nm->m->nclasses) {
     /* The message goes where npg_model_error reads it; `nm` is const only to
@@ -307,7 +307,7 @@ int npg_model_class(const NpgModel *nm, int c, NpgClassInfo *out) {
 
 int npg_model_member(const NpgModel *nm, int c, int i, NpgMemberInfo *out) {
   REFUSE_NULL_M(-1);
-  NPG_REFUSE_NULL(out, NULL, 0, -1);
+  API_REFUSE_NULL(out, NULL, 0, -1);
   if (!nm->m || c < 0 || c >= nm->m->nclasses || i < 0 || i >= nm->m->classes[c].nmembers) return -1;
   const RMember *mb = &nm->m->classes[c].members[i];
   *out = (NpgMemberInfo){mb->name, mb->kept, mb->cap, mb->captured};
@@ -316,7 +316,7 @@ int npg_model_member(const NpgModel *nm, int c, int i, NpgMemberInfo *out) {
 
 int npg_model_class_of(const NpgModel *nm, const char *quantity) {
   REFUSE_NULL_M(-1);
-  NPG_REFUSE_NULL(quantity, NULL, 0, -1);
+  API_REFUSE_NULL(quantity, NULL, 0, -1);
   if (!nm->m) return -1;
   int q = api_quantity(nm->m->prog, quantity);
   return q < 0 ? -1 : nm->m->qclass[q];
@@ -342,7 +342,7 @@ long npg_model_samples(const NpgModel *nm) {
 
 long npg_model_dim(const NpgModel *nm, const char *name) {
   REFUSE_NULL_M(-1);
-  NPG_REFUSE_NULL(name, NULL, 0, -1);
+  API_REFUSE_NULL(name, NULL, 0, -1);
   if (!nm->m) return -1;
   const Program *prog = nm->m->prog;
   for (int i = 0; i < prog->dims.n; i++)
@@ -351,9 +351,9 @@ long npg_model_dim(const NpgModel *nm, const char *name) {
 }
 
 int npg_model_check_params(const NpgModel *nm, const NpgFull *f, char *err, size_t errlen) {
-  NPG_REFUSE_NULL(nm, err, errlen, -1);
-  NPG_REFUSE_NULL(f, err, errlen, -1);
-  if (!full_program(f->full)) return npg_fail(err, errlen, "%s", npg_full_error(f));
+  API_REFUSE_NULL(nm, err, errlen, -1);
+  API_REFUSE_NULL(f, err, errlen, -1);
+  if (!full_program(f->full)) return error_set(err, errlen, "%s", npg_full_error(f));
   const char *recorded = nm->m ? nm->m->param_hashes : NULL;
   if (!recorded) return 0;
   const Program *prog = full_program(f->full);
@@ -383,7 +383,7 @@ static int check_params_dir(const Program *prog, const char *recorded, const cha
     if (access(path, F_OK) != 0) continue;
     NpyArray a;
     if (npy_read(path, &a, err, errlen) != 0) return -1;
-    double *v = npg_malloc(sizeof(double) * (a.count ? a.count : 1));
+    double *v = mem_malloc(sizeof(double) * (a.count ? a.count : 1));
     if (!v) {
       npy_free(&a);
       snprintf(err, errlen, "out of memory");
@@ -409,16 +409,16 @@ static int check_params_dir(const Program *prog, const char *recorded, const cha
 }
 
 int npg_model_check_params_dir(const NpgModel *nm, const char *dir, char *err, size_t errlen) {
-  NPG_REFUSE_NULL(nm, err, errlen, -1);
-  NPG_REFUSE_NULL(dir, err, errlen, -1);
+  API_REFUSE_NULL(nm, err, errlen, -1);
+  API_REFUSE_NULL(dir, err, errlen, -1);
   const char *recorded = nm->m ? nm->m->param_hashes : NULL;
   return recorded ? check_params_dir(nm->m->prog, recorded, dir, err, errlen) : 0;
 }
 
 int npg_full_check_params_dir(const NpgFull *f, const char *dir, char *err, size_t errlen) {
-  NPG_REFUSE_NULL(f, err, errlen, -1);
-  NPG_REFUSE_NULL(dir, err, errlen, -1);
-  if (!full_program(f->full)) return npg_fail(err, errlen, "%s", npg_full_error(f));
+  API_REFUSE_NULL(f, err, errlen, -1);
+  API_REFUSE_NULL(dir, err, errlen, -1);
+  if (!full_program(f->full)) return error_set(err, errlen, "%s", npg_full_error(f));
   char *recorded = api_param_hashes(f->full);
   if (!recorded) {
     snprintf(err, errlen, "out of memory");
@@ -430,8 +430,8 @@ int npg_full_check_params_dir(const NpgFull *f, const char *dir, char *err, size
 }
 
 int npg_model_emit(const NpgModel *nm, FILE *out, char *err, size_t errlen) {
-  NPG_REFUSE_NULL(nm, err, errlen, -1);
-  NPG_REFUSE_NULL(out, err, errlen, -1);
+  API_REFUSE_NULL(nm, err, errlen, -1);
+  API_REFUSE_NULL(out, err, errlen, -1);
   if (!nm->m) {
     snprintf(err, errlen, "%s", nm->error);
     return -1;
@@ -453,22 +453,22 @@ struct NpgReduced {
   char error[1024];
 };
 
-#define rfail(r, ...) npg_fail_first((r)->error, sizeof (r)->error, __VA_ARGS__)
+#define rfail(r, ...) error_set_first((r)->error, sizeof (r)->error, __VA_ARGS__)
 
 NpgReduced *npg_reduced_new(const NpgModel *nm) {
-  NpgReduced *r = npg_calloc(1, sizeof *r);
-  if (!r) return npg_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_reduced_error(NULL) says */
+  NpgReduced *r = mem_calloc(1, sizeof *r);
+  if (!r) return api_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_reduced_error(NULL) says */
   r->nm = nm;
-  if (!nm) npg_refuse(r->error, sizeof r->error, __func__, "argument 'm' is NULL");
+  if (!nm) api_refuse(r->error, sizeof r->error, __func__, "argument 'm' is NULL");
   else if (!nm->m) rfail(r, "%s", nm->error[0] ? nm->error : "the model holds nothing");
-  else if (!(r->given = npg_calloc((size_t)nm->m->nq + 1, sizeof *r->given))) rfail(r, "out of memory");
+  else if (!(r->given = mem_calloc((size_t)nm->m->nq + 1, sizeof *r->given))) rfail(r, "out of memory");
   else if (!(r->r = reduced_new(nm->m, r->error, sizeof r->error)) && !r->error[0]) rfail(r, "out of memory");
   if (r->r) reduced_krylov_roots(r->r, true);
   return r;
 }
 
 const char *npg_reduced_error(const NpgReduced *r) {
-  if (!r) return npg_refusal()[0] ? npg_refusal() : "out of memory";
+  if (!r) return api_refusal()[0] ? api_refusal() : "out of memory";
   if (r->error[0] || !r->r) return r->error;
   return reduced_error(r->r);
 }
@@ -477,8 +477,8 @@ const char *npg_reduced_error(const NpgReduced *r) {
 static bool failed(const NpgReduced *r) { return npg_reduced_error(r)[0] != 0; }
 
 /* The argument checks of the npg_reduced_ entry points (ast.h). */
-#define REFUSE_NULL_R(ret) NPG_REFUSE_NULL(r, NULL, 0, ret)
-#define REFUSE_NULL(arg) NPG_REFUSE_NULL(arg, r->error, sizeof r->error, -1)
+#define REFUSE_NULL_R(ret) API_REFUSE_NULL(r, NULL, 0, ret)
+#define REFUSE_NULL(arg) API_REFUSE_NULL(arg, r->error, sizeof r->error, -1)
 
 void npg_reduced_clear_error(NpgReduced *r) {
   REFUSE_NULL_R();
@@ -583,7 +583,7 @@ int npg_reduced_eval(NpgReduced *r, long sample) {
 
 const double *npg_reduced_coords(const NpgReduced *r, const char *name, size_t *m) {
   REFUSE_NULL_R(NULL);
-  NPG_REFUSE_NULL(name, NULL, 0, NULL);
+  API_REFUSE_NULL(name, NULL, 0, NULL);
   if (!r->r) return NULL;
   const Model *mo = r->nm->m;
   int q = api_quantity(mo->prog, name);
@@ -617,7 +617,7 @@ static int input_product(NpgReduced *r, const RTensor *t) {
   long len = 1;
   for (int j = 0; j < t->nin; j++) len *= t->in_len[j];
   if (len > r->zcap) {
-    double *z = npg_realloc(r->z, sizeof(double) * (size_t)(2 * len));
+    double *z = mem_realloc(r->z, sizeof(double) * (size_t)(2 * len));
     if (!z) return rfail(r, "out of memory");
     r->z = z;
     r->zcap = len;
@@ -631,7 +631,7 @@ static int input_product(NpgReduced *r, const RTensor *t) {
     const double *x = reduced_coords(r->r, t->in_q[j]);
     double *packed = NULL;
     if (t->in_mult[j] > 1) {
-      if (!(packed = npg_malloc(sizeof(double) * (size_t)t->in_len[j]))) return rfail(r, "out of memory");
+      if (!(packed = mem_malloc(sizeof(double) * (size_t)t->in_len[j]))) return rfail(r, "out of memory");
       sym_power(mj, t->in_mult[j], x, packed);
       x = packed;
     }

@@ -153,7 +153,7 @@ NpgProgram *npg_compile(const char *path, const NpgOptions *options) {
   }
   np->ctx.std_dir = opt->std_dir;
   if (!path) {
-    npg_refuse(NULL, 0, __func__, "argument 'path' is NULL");
+    api_refuse(NULL, 0, __func__, "argument 'path' is NULL");
     np->error = "error: npg_compile: argument 'path' is NULL\n";
     return np;
   }
@@ -186,17 +186,17 @@ static bool guarded_report(NpgProgram *np, FILE *out, bool json) {
 }
 
 void npg_report(const NpgProgram *p, FILE *out, bool json) {
-  NPG_REFUSE_NULL(p, NULL, 0, );
-  NPG_REFUSE_NULL(out, NULL, 0, );
+  API_REFUSE_NULL(p, NULL, 0, );
+  API_REFUSE_NULL(out, NULL, 0, );
   if (!npg_ok(p)) return;
   if (!guarded_report((NpgProgram *)p, out, json)) fprintf(out, "\n%s", p->ctx.msg ? p->ctx.msg : "error: out of memory\n");
 }
 
 int npg_emit_full(NpgProgram *p, FILE *out) {
-  NPG_REFUSE_NULL(p, NULL, 0, -1);
+  API_REFUSE_NULL(p, NULL, 0, -1);
   if (!npg_ok(p)) return -1;
   if (!out) {
-    npg_refuse(NULL, 0, __func__, "argument 'out' is NULL");
+    api_refuse(NULL, 0, __func__, "argument 'out' is NULL");
     p->error = "error: npg_emit_full: argument 'out' is NULL\n";
     return -1;
   }
@@ -216,14 +216,14 @@ void npg_free(NpgProgram *p) {
 Program *npg_program_ir(const NpgProgram *p) { return p ? p->prog : NULL; }
 
 int npg_nsymbols(const NpgProgram *np) {
-  NPG_REFUSE_NULL(np, NULL, 0, 0);
+  API_REFUSE_NULL(np, NULL, 0, 0);
   const Program *prog = np->prog;
   return prog ? prog->params.n + prog->quantities.n + prog->ops.n : 0;
 }
 
 int npg_symbol(const NpgProgram *np, int i, NpgSymbol *out) {
-  NPG_REFUSE_NULL(np, NULL, 0, -1);
-  NPG_REFUSE_NULL(out, NULL, 0, -1);
+  API_REFUSE_NULL(np, NULL, 0, -1);
+  API_REFUSE_NULL(out, NULL, 0, -1);
   const Program *prog = np->prog;
   if (!prog || i < 0 || i >= npg_nsymbols(np)) return -1;
   const Sym *s = i < prog->params.n ? prog->params.v[i]
@@ -248,6 +248,6 @@ int npg_symbol(const NpgProgram *np, int i, NpgSymbol *out) {
 }
 
 void npg_progress(bool on, const char *what, long done, long total) {
-  NPG_REFUSE_NULL(what, NULL, 0, );
+  API_REFUSE_NULL(what, NULL, 0, );
   progress_show(on, what, done, total);
 }

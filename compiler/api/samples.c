@@ -180,8 +180,8 @@ static void samples_close(SampleSet *s) {
 
 NpgSamples *npg_samples_open(NpgProgram *p, const char *dir, const char *fallback, bool externs, char *err,
                              size_t errlen) {
-  NPG_REFUSE_NULL(p, err, errlen, NULL);
-  NPG_REFUSE_NULL(dir, err, errlen, NULL);
+  API_REFUSE_NULL(p, err, errlen, NULL);
+  API_REFUSE_NULL(dir, err, errlen, NULL);
   if (!npg_ok(p)) {
     snprintf(err, errlen, "%s", npg_error(p));
     return NULL;
@@ -199,13 +199,13 @@ NpgSamples *npg_samples_open(NpgProgram *p, const char *dir, const char *fallbac
 }
 
 long npg_samples_count(const NpgSamples *s) {
-  NPG_REFUSE_NULL(s, NULL, 0, -1);
+  API_REFUSE_NULL(s, NULL, 0, -1);
   return s->s.count;
 }
 
 const double *npg_samples_get(const NpgSamples *s, const char *name, long k, size_t *count) {
-  NPG_REFUSE_NULL(s, NULL, 0, NULL);
-  NPG_REFUSE_NULL(name, NULL, 0, NULL);
+  API_REFUSE_NULL(s, NULL, 0, NULL);
+  API_REFUSE_NULL(name, NULL, 0, NULL);
   for (int i = 0; i < s->s.n; i++)
     if (strcmp(s->s.files[i].sym->name, name) == 0 && k >= 0 && k < s->s.count)
       return samples_value(&s->s, i, k, count);
@@ -213,16 +213,16 @@ const double *npg_samples_get(const NpgSamples *s, const char *name, long k, siz
 }
 
 int npg_samples_set(void *samples, NpgFull *f, long k) {
-  NPG_REFUSE_NULL(f, NULL, 0, -1);
+  API_REFUSE_NULL(f, NULL, 0, -1);
   if (!samples) {
-    npg_refuse(NULL, 0, __func__, "argument 'samples' is NULL");
-    return full_fail(f->full, npg_refusal());
+    api_refuse(NULL, 0, __func__, "argument 'samples' is NULL");
+    return full_fail(f->full, api_refusal());
   }
   const SampleSet *s = &((NpgSamples *)samples)->s;
   if (k < 0 || k >= s->count) {
-    npg_refuse(NULL, 0, __func__, "argument 'k' is %ld, but the set holds %ld sample%s (0 to %ld)", k, s->count,
+    api_refuse(NULL, 0, __func__, "argument 'k' is %ld, but the set holds %ld sample%s (0 to %ld)", k, s->count,
                s->count == 1 ? "" : "s", s->count - 1);
-    return full_fail(f->full, npg_refusal());
+    return full_fail(f->full, api_refusal());
   }
   return samples_set(&((NpgSamples *)samples)->s, f, k);
 }

@@ -51,10 +51,10 @@ struct NpgTrainer {
   char error[2048];
 };
 
-#define tfail(t, ...) npg_fail_first((t)->error, sizeof (t)->error, __VA_ARGS__)
+#define tfail(t, ...) error_set_first((t)->error, sizeof (t)->error, __VA_ARGS__)
 
 static size_t half_the_ram(void) {
-  size_t ram = npg_physical_memory();
+  size_t ram = physical_memory();
   return ram ? ram / 2 : (size_t)8 << 30;
 }
 
@@ -74,7 +74,7 @@ static long kept_index(const NpgTrainer *t, long k) {
 }
 
 void npg_train_options_default(NpgTrainOptions *o) {
-  NPG_REFUSE_NULL(o, NULL, 0, );
+  API_REFUSE_NULL(o, NULL, 0, );
   memset(o, 0, sizeof *o);
   o->cap = 60;
   o->energy = 0.999;
@@ -83,7 +83,7 @@ void npg_train_options_default(NpgTrainOptions *o) {
 }
 
 int api_refuse_reduce_options(const NpgTrainOptions *o, const char *func, char *err, size_t errlen) {
-#define REFUSE(...) npg_refuse(err, errlen, func, __VA_ARGS__)
+#define REFUSE(...) api_refuse(err, errlen, func, __VA_ARGS__)
   /* the interpolated stages' and streamed bases' fields (DESIGN §12, issue 30): a NULL list of
    * names was read as one (SIGSEGV), a NaN or negative oversampling, a negative count or an empty
    * keep_bases taken for the default (trial3) */
@@ -118,7 +118,7 @@ int api_refuse_reduce_options(const NpgTrainOptions *o, const char *func, char *
  * replaced by a default (a cap of 0 the caller computed is a bug of theirs
  * that a default would hide). */
 static int refuse_options(NpgTrainer *t, const NpgTrainOptions *o) {
-#define REFUSE(...) npg_refuse(t->error, sizeof t->error, "npg_trainer_new", __VA_ARGS__)
+#define REFUSE(...) api_refuse(t->error, sizeof t->error, "npg_trainer_new", __VA_ARGS__)
   if (o->cap <= 0) return REFUSE("NpgTrainOptions.cap is %d (a basis cap is at least 1)", o->cap);
   if (!(o->energy > 0 && o->energy <= 1))
     return REFUSE("NpgTrainOptions.energy is %g (an energy fraction is in (0, 1])", o->energy);
@@ -146,13 +146,13 @@ static int refuse_options(NpgTrainer *t, const NpgTrainOptions *o) {
 }
 
 NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
-  NpgTrainer *t = npg_calloc(1, sizeof *t);
-  if (!t) return npg_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_trainer_error(NULL) says */
+  NpgTrainer *t = mem_calloc(1, sizeof *t);
+  if (!t) return api_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_trainer_error(NULL) says */
   if (o) t->opt = *o;
   else npg_train_options_default(&t->opt);
   t->f = f;
   if (!f) {
-    npg_refuse(t->error, sizeof t->error, __func__, "argument 'f' is NULL");
+    api_refuse(t->error, sizeof t->error, __func__, "argument 'f' is NULL");
     return t;
   }
   if (refuse_options(t, &t->opt)) return t;
@@ -162,9 +162,9 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
     return t;
   }
   const Program *prog = t->prog = full_program(f->full);
-  t->slot = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->slot);
-  t->count = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->count);
-  t->staged = npg_calloc((size_t)prog->slots.n + 1, sizeof *t->staged);
+  t->slot = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->slot);
+  t->count = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->count);
+  t->staged = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->staged);
   if (!t->slot || !t->count || !t->staged) {
     tfail(t, "out of memory");
     return t;
@@ -177,16 +177,16 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
 }
 
 const char *npg_trainer_error(const NpgTrainer *t) {
-  return t ? t->error : npg_refusal()[0] ? npg_refusal() : "out of memory";
+  return t ? t->error : api_refusal()[0] ? api_refusal() : "out of memory";
 }
 long npg_trainer_samples(const NpgTrainer *t) {
-  NPG_REFUSE_NULL(t, NULL, 0, -1);
+  API_REFUSE_NULL(t, NULL, 0, -1);
   return t->samples;
 }
 
 /* The argument checks of the npg_trainer_ entry points (ast.h). */
-#define REFUSE_NULL_T(ret) NPG_REFUSE_NULL(t, NULL, 0, ret)
-#define REFUSE_NULL(arg, ret) NPG_REFUSE_NULL(arg, t->error, sizeof t->error, ret)
+#define REFUSE_NULL_T(ret) API_REFUSE_NULL(t, NULL, 0, ret)
+#define REFUSE_NULL(arg, ret) API_REFUSE_NULL(arg, t->error, sizeof t->error, ret)
 
 static int slot_of(const NpgTrainer *t, const char *name) {
   for (int i = 0; i < t->nslots; i++)
@@ -289,9 +289,9 @@ static void decode(NpgTrainer *t) {
  * while the records there stay within mem_cap, then in the scratch file. */
 static int store(NpgTrainer *t, Records *r, long kk, size_t bytes) {
   if (kk % 64 == 0) {
-    size_t *at = npg_realloc(r->at, sizeof(size_t) * (size_t)(kk + 64));
+    size_t *at = mem_realloc(r->at, sizeof(size_t) * (size_t)(kk + 64));
     if (at) r->at = at;
-    size_t *len = at ? npg_realloc(r->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
+    size_t *len = at ? mem_realloc(r->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
     if (!len) return tfail(t, "out of memory keeping training sample %ld", t->samples);
     r->len = len;
   }
@@ -299,7 +299,7 @@ static int store(NpgTrainer *t, Records *r, long kk, size_t bytes) {
   if (r->in_mem == kk && r->used + bytes <= t->mem_cap) {
     if (r->used + bytes > r->alloc) {
       size_t want = r->alloc * 2 > r->used + bytes ? r->alloc * 2 : r->used + bytes;
-      unsigned char *m = npg_realloc(r->mem, want < t->mem_cap ? want : t->mem_cap);
+      unsigned char *m = mem_realloc(r->mem, want < t->mem_cap ? want : t->mem_cap);
       if (!m) return tfail(t, "out of memory keeping training sample %ld", t->samples);
       r->mem = m;
       r->alloc = want < t->mem_cap ? want : t->mem_cap;
@@ -353,8 +353,8 @@ static int record(NpgTrainer *t, const NpgFull *g) {
       t->record += t->count[i];
     }
     t->mem_cap = t->opt.mem / 4;
-    if (!(t->buf = npg_malloc(sizeof(double) * (t->record + 1))) ||
-        !(t->enc = npg_malloc(sizeof(double) * t->record + (size_t)t->nslots + 1)))
+    if (!(t->buf = mem_malloc(sizeof(double) * (t->record + 1))) ||
+        !(t->enc = mem_malloc(sizeof(double) * t->record + (size_t)t->nslots + 1)))
       return tfail(t, "out of memory");
   }
   size_t off = 0;
@@ -418,7 +418,7 @@ static int load_record(NpgTrainer *t, Full *f, long k) {
  * rank. */
 static size_t shared_use(NpgTrainer *t) {
   int N = dist_size(), rank = dist_rank();
-  double *len = npg_calloc((size_t)t->samples + 1, sizeof(double));
+  double *len = mem_calloc((size_t)t->samples + 1, sizeof(double));
   if (!len) return tfail(t, "out of memory"), 0;
   for (long k = 0; k < t->samples; k++)
     if ((k == 0 ? 0 : (int)(k % N)) == rank) len[k] = (double)t->rec.len[kept_index(t, k)];
@@ -445,17 +445,17 @@ static int share_samples(void *user, char *err, size_t errlen) {
     int from = k == 0 ? 0 : (int)(k % N); /* sample 0: every rank has it */
     double bytes = 0;
     if (rank == from) {
-      if (fetch(t, &old, kept_index(t, k))) rc = npg_fail(err, errlen, "cannot read training sample %ld back from the scratch file", k);
+      if (fetch(t, &old, kept_index(t, k))) rc = error_set(err, errlen, "cannot read training sample %ld back from the scratch file", k);
       bytes = rc ? -1 : (double)old.len[kept_index(t, k)];
     }
     dist_broadcast(&bytes, 1, from);
     if (bytes < 0) {
-      if (!rc) rc = npg_fail(err, errlen, "rank %d could not read training sample %ld back from its scratch file", from, k);
+      if (!rc) rc = error_set(err, errlen, "rank %d could not read training sample %ld back from its scratch file", from, k);
       break;
     }
     dist_broadcast_bytes(t->enc, (long)bytes, from);
     if (store(t, &t->rec, k, (size_t)bytes)) {
-      rc = npg_fail(err, errlen, "%s", t->error);
+      rc = error_set(err, errlen, "%s", t->error);
       break;
     }
   }
@@ -525,8 +525,8 @@ static int check_mem(NpgTrainer *t) {
                     "memory (the full evaluator keeps every stage of a sample), so it cannot stay within --mem; raise "
                     "--mem, or train on smaller data",
                  s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage", s->name,
-                 npg_bytes_text(entries * sizeof(double), need, sizeof need), entries,
-                 npg_bytes_text((double)t->opt.mem, have, sizeof have),
+                 bytes_text(entries * sizeof(double), need, sizeof need), entries,
+                 bytes_text((double)t->opt.mem, have, sizeof have),
                  t->opt.mem == half_the_ram() ? " (the default: half of this machine's memory)" : "");
   }
   return 0;
@@ -759,7 +759,7 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
 }
 
 void npg_model_train_seconds(const NpgModel *m, double seconds[4], double cpu[4]) {
-  NPG_REFUSE_NULL(seconds, NULL, 0, );
+  API_REFUSE_NULL(seconds, NULL, 0, );
   for (int i = 0; i < 4; i++) {
     seconds[i] = m && m->m ? m->m->phase_seconds[i] : 0;
     if (cpu) cpu[i] = m && m->m ? m->m->phase_cpu[i] : 0;

@@ -9,10 +9,10 @@
 
 NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long nvalid, NpgSampleFn valid,
                    void *vuser, double tol, int max_cap, const NpgTrainOptions *o, NpgTuneReport *rep) {
-  NPG_REFUSE_NULL(rep, NULL, 0, NULL);
+  API_REFUSE_NULL(rep, NULL, 0, NULL);
   memset(rep, 0, sizeof *rep);
   rep->chosen = -1;
-#define REFUSE(...) return npg_refuse(rep->error, sizeof rep->error, __func__, __VA_ARGS__), NULL
+#define REFUSE(...) return api_refuse(rep->error, sizeof rep->error, __func__, __VA_ARGS__), NULL
   if (!f) REFUSE("argument 'f' is NULL");
   if (!train) REFUSE("argument 'train' is NULL");
   if (!valid) REFUSE("argument 'valid' is NULL");

@@ -18,7 +18,7 @@ typedef struct ErrSum {
   double l2, linf, floor2, floorinf;    /* sums over samples */
 } ErrSum;
 
-#define vfail(rep, ...) npg_fail_first((rep)->error, sizeof (rep)->error, __VA_ARGS__)
+#define vfail(rep, ...) error_set_first((rep)->error, sizeof (rep)->error, __VA_ARGS__)
 
 /* The worst mean error among the quantities stage `rs` reads (tensor
  * inputs, named numerators, an extern's inputs); NaN when one of them was
@@ -111,11 +111,11 @@ static void fill_rows(const Model *m, const ErrSum *sum, long S, NpgVerifyReport
 
 int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *user, bool progress,
                NpgVerifyReport *rep) {
-  NPG_REFUSE_NULL(rep, NULL, 0, -1);
+  API_REFUSE_NULL(rep, NULL, 0, -1);
   memset(rep, 0, sizeof *rep);
-  NPG_REFUSE_NULL(nm, rep->error, sizeof rep->error, -1);
-  NPG_REFUSE_NULL(f, rep->error, sizeof rep->error, -1);
-  NPG_REFUSE_NULL(set, rep->error, sizeof rep->error, -1);
+  API_REFUSE_NULL(nm, rep->error, sizeof rep->error, -1);
+  API_REFUSE_NULL(f, rep->error, sizeof rep->error, -1);
+  API_REFUSE_NULL(set, rep->error, sizeof rep->error, -1);
   if (!nm->m) return vfail(rep, "%s", nm->error);
   Model *m = nm->m;
   if (npg_full_error(f)[0]) return vfail(rep, "%s", npg_full_error(f));
@@ -197,19 +197,19 @@ void npg_verify_free(NpgVerifyReport *rep) {
 
 int npg_verify_exact(NpgProgram *p, long size, NpgBackend backend, bool progress, FILE *out, char *err,
                      size_t errlen) {
-  NPG_REFUSE_NULL(p, err, errlen, -1);
-  NPG_REFUSE_NULL(out, err, errlen, -1);
+  API_REFUSE_NULL(p, err, errlen, -1);
+  API_REFUSE_NULL(out, err, errlen, -1);
   if (size < 0)
-    return npg_refuse(err, errlen, __func__, "argument 'size' is %ld (the size of every dim, at least 1, or 0 for the "
+    return api_refuse(err, errlen, __func__, "argument 'size' is %ld (the size of every dim, at least 1, or 0 for the "
                                              "defaults)", size);
   ExactOptions o = {size, size, 1u, backend == NPG_CC ? JIT_CC : JIT_TCC, progress};
   return exact_check(p, &o, out, err, errlen);
 }
 
 int npg_verify_warnings(const NpgModel *nm, const NpgVerifyReport *rep, double tol, FILE *out) {
-  NPG_REFUSE_NULL(nm, NULL, 0, 0);
-  NPG_REFUSE_NULL(rep, NULL, 0, 0);
-  NPG_REFUSE_NULL(out, NULL, 0, 0);
+  API_REFUSE_NULL(nm, NULL, 0, 0);
+  API_REFUSE_NULL(rep, NULL, 0, 0);
+  API_REFUSE_NULL(out, NULL, 0, 0);
   const Model *m = nm->m;
   if (!m || rep->nrows != m->nq) return 0;
   double *means = malloc(sizeof(double) * 2 * (size_t)(m->nq + 1)); /* errors and floors */

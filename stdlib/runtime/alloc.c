@@ -6,22 +6,22 @@
 #include <stdlib.h>
 #include <string.h>
 
-void *(*npg_alloc_hook)(size_t size) = malloc;
+void *(*mem_alloc_hook)(size_t size) = malloc;
 
-void *npg_malloc(size_t size) { return npg_alloc_hook(size); }
+void *mem_malloc(size_t size) { return mem_alloc_hook(size); }
 
-void *npg_calloc(size_t count, size_t size) {
+void *mem_calloc(size_t count, size_t size) {
   size_t n;
   if (__builtin_mul_overflow(count, size, &n)) return NULL;
-  void *p = npg_alloc_hook(n);
+  void *p = mem_alloc_hook(n);
   if (p) memset(p, 0, n);
   return p;
 }
 
-void *npg_realloc(void *p, size_t size) {
-  if (npg_alloc_hook == malloc) return realloc(p, size);
+void *mem_realloc(void *p, size_t size) {
+  if (mem_alloc_hook == malloc) return realloc(p, size);
   /* a test's hook: a new block from it, the old contents copied */
-  void *q = npg_alloc_hook(size);
+  void *q = mem_alloc_hook(size);
   if (!q || !p) return q;
   size_t old = malloc_usable_size(p);
   memcpy(q, p, old < size ? old : size);
@@ -29,9 +29,9 @@ void *npg_realloc(void *p, size_t size) {
   return q;
 }
 
-char *npg_strdup(const char *s) {
+char *mem_strdup(const char *s) {
   size_t n = strlen(s) + 1;
-  char *p = npg_alloc_hook(n);
+  char *p = mem_alloc_hook(n);
   if (p) memcpy(p, s, n);
   return p;
 }

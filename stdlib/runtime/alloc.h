@@ -8,14 +8,14 @@
 #include <stddef.h>
 
 /* Tests replace it to make allocation fail. It has malloc's contract. */
-extern void *(*npg_alloc_hook)(size_t size);
+extern void *(*mem_alloc_hook)(size_t size);
 /* malloc, calloc, realloc and strdup through the hook: the front end's
  * arenas, training, the full evaluator's buffers, models, their loading and
- * .npy files are allocated by these. Their memory is released with free(). npg_calloc checks
- * count * size for overflow; npg_realloc(NULL, n) is npg_malloc(n). */
-void *npg_malloc(size_t size);
-void *npg_calloc(size_t count, size_t size);
-void *npg_realloc(void *p, size_t size);
-char *npg_strdup(const char *s);
+ * .npy files are allocated by these. Their memory is released with free(). mem_calloc checks
+ * count * size for overflow; mem_realloc(NULL, n) is mem_malloc(n). */
+void *mem_malloc(size_t size);
+void *mem_calloc(size_t count, size_t size);
+void *mem_realloc(void *p, size_t size);
+char *mem_strdup(const char *s);
 
 #endif

@@ -1,6 +1,6 @@
 /* krylov.c — M^(p/q) v by the Lanczos process (krylov.h). */
 #include "krylov.h"
-#include "alloc.h" /* npg_malloc */
+#include "alloc.h" /* mem_malloc */
 
 #include <cblas.h>
 #include <lapacke.h>
@@ -14,20 +14,20 @@ int krylov_init_steps(Krylov *k, long maxn, long maxsteps) {
   k->maxn = maxn;
   k->maxsteps = maxsteps;
   size_t n = (size_t)(maxn > 0 ? maxn : 1), s = (size_t)(maxsteps > 0 ? maxsteps : 1);
-  k->Q = npg_malloc(sizeof(double) * (s + 1) * n);
-  k->alpha = npg_malloc(sizeof(double) * (s + 1));
-  k->beta = npg_malloc(sizeof(double) * (s + 1));
-  k->d = npg_malloc(sizeof(double) * (s + 1));
-  k->e = npg_malloc(sizeof(double) * (s + 1));
-  k->S = npg_malloc(sizeof(double) * s * s);
+  k->Q = mem_malloc(sizeof(double) * (s + 1) * n);
+  k->alpha = mem_malloc(sizeof(double) * (s + 1));
+  k->beta = mem_malloc(sizeof(double) * (s + 1));
+  k->d = mem_malloc(sizeof(double) * (s + 1));
+  k->e = mem_malloc(sizeof(double) * (s + 1));
+  k->S = mem_malloc(sizeof(double) * s * s);
   k->lwork = (long)(1 + 4 * s + s * s);
-  k->work = npg_malloc(sizeof(double) * (size_t)k->lwork);
-  k->iwork = npg_malloc(sizeof(lapack_int) * (3 + 5 * s));
+  k->work = mem_malloc(sizeof(double) * (size_t)k->lwork);
+  k->iwork = mem_malloc(sizeof(lapack_int) * (3 + 5 * s));
   _Static_assert(sizeof(lapack_int) == sizeof(int), "dstedc's iwork is held as int");
-  k->cprev = npg_malloc(sizeof(double) * (s + 1));
-  k->c = npg_malloc(sizeof(double) * (s + 1));
-  k->w = npg_malloc(sizeof(double) * s);
-  k->cheb = npg_malloc(sizeof(double) * (5 * (KRYLOV_MAX_DEGREE + 1) + 5 * s + 8));
+  k->cprev = mem_malloc(sizeof(double) * (s + 1));
+  k->c = mem_malloc(sizeof(double) * (s + 1));
+  k->w = mem_malloc(sizeof(double) * s);
+  k->cheb = mem_malloc(sizeof(double) * (5 * (KRYLOV_MAX_DEGREE + 1) + 5 * s + 8));
   return k->Q && k->alpha && k->beta && k->d && k->e && k->S && k->work && k->iwork && k->cprev && k->c && k->w &&
                  k->cheb
              ? 0

@@ -11,7 +11,7 @@
 #define _POSIX_C_SOURCE 200809L /* fileno, fstat, fsync, getpid */
 
 #include "npy.h"
-#include "alloc.h" /* npg_malloc: allocation through the hook */
+#include "alloc.h" /* mem_malloc: allocation through the hook */
 
 #include <errno.h>
 #include <limits.h>
@@ -399,12 +399,12 @@ static int read_data(const Report *r, FILE *f, size_t offset, size_t expected, v
     if (avail > expected) return fail(r, "trailing garbage: expected %zu bytes of data, found %ju", expected, avail);
   }
   size_t cap = sized || expected < READ_CHUNK ? expected : READ_CHUNK, got = 0;
-  unsigned char *buf = npg_malloc(cap ? cap : 1);
+  unsigned char *buf = mem_malloc(cap ? cap : 1);
   if (!buf) return fail(r, "out of memory for %zu bytes of data", expected);
   while (got < expected) {
     if (got == cap) {
       size_t grown = expected - cap < cap ? expected : 2 * cap;
-      unsigned char *bigger = npg_realloc(buf, grown);
+      unsigned char *bigger = mem_realloc(buf, grown);
       if (!bigger) {
         free(buf);
         return fail(r, "out of memory for %zu bytes of data", expected);
@@ -465,7 +465,7 @@ static int read_npy(const Report *r, FILE *f, NpyArray *a) {
   if (len > HEADER_MAX)
     return fail(r, "header of %zu bytes is too long (numpy.load's limit is %d)", len, HEADER_MAX);
 
-  char *header = npg_malloc(len + 1);
+  char *header = mem_malloc(len + 1);
   if (!header) return fail(r, "out of memory for the header");
   size_t size = 0;
   int swap = 0;
@@ -566,7 +566,7 @@ int npy_write(const char *path, NpyType type, int ndim, const long *shape, const
   char header[1024];
   size_t hlen = format_header(header, sizeof header, type, ndim, shape);
   size_t tmplen = strlen(path) + 32;
-  char *tmp = npg_malloc(tmplen);
+  char *tmp = mem_malloc(tmplen);
   if (!tmp) return fail(&r, "out of memory");
   snprintf(tmp, tmplen, "%s.tmp.%ld", path, (long)getpid());
   FILE *f = fopen(tmp, "wb");

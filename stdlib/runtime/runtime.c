@@ -2,7 +2,7 @@
  * generated code. Every LAPACK call's info is checked and turned into a
  * message a user understands (STYLE). */
 #include "runtime.h"
-#include "alloc.h" /* npg_malloc: allocation through the hook */
+#include "alloc.h" /* mem_malloc: allocation through the hook */
 
 #include <lapacke.h>
 #include <math.h>
@@ -25,7 +25,7 @@ static double *scratch(const NpgCtx *c, npg_idx count) {
     runtime_record(c, "sample %ld: scratch of %ld doubles is too large", c->sample, (long)count);
     return NULL;
   }
-  double *p = npg_calloc(count ? (size_t)count : 1, sizeof(double));
+  double *p = mem_calloc(count ? (size_t)count : 1, sizeof(double));
   if (!p) runtime_record(c, "sample %ld: out of memory (%ld doubles of scratch)", c->sample, (long)count);
   return p;
 }
@@ -48,7 +48,7 @@ static double norm1(const double *M, npg_idx n) {
 
 /* y <- M^-k y by LU: one factorization, k solves. */
 static int inverse_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long k, double *y) {
-  lapack_int *piv = npg_malloc(sizeof(lapack_int) * (size_t)(n ? n : 1));
+  lapack_int *piv = mem_malloc(sizeof(lapack_int) * (size_t)(n ? n : 1));
   if (!piv) {
     runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
     return -1;
@@ -92,8 +92,8 @@ static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx
            c->sample, stage, op, asym, p, q);
     return -1;
   }
-  double *w = npg_malloc(sizeof(double) * (size_t)(n ? n : 1));
-  double *t = npg_malloc(sizeof(double) * (size_t)(n ? n : 1));
+  double *w = mem_malloc(sizeof(double) * (size_t)(n ? n : 1));
+  double *t = mem_malloc(sizeof(double) * (size_t)(n ? n : 1));
   if (!w || !t) {
     free(w);
     free(t);
@@ -152,7 +152,7 @@ static int op_power(const NpgCtx *c, const char *stage, const char *op, npg_idx 
   if (q != 1) return sym_power(c, stage, op, n, M, p, q, y);
   if (p < 0) return inverse_power(c, stage, op, n, M, -p, y);
   /* positive integer power: repeated products */
-  double *t = npg_malloc(sizeof(double) * (size_t)(n ? n : 1));
+  double *t = mem_malloc(sizeof(double) * (size_t)(n ? n : 1));
   if (!t) {
     runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
     return -1;

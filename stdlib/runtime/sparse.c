@@ -91,7 +91,7 @@ void runtime_sparse_free(NpgHost *h) {
 static SparseOp *op_slot(const NpgCtx *c, int opid) {
   NpgHost *h = c->host;
   if (opid >= h->nsparse) {
-    SparseOp *grown = npg_realloc(h->sparse, sizeof(SparseOp) * (size_t)(opid + 1));
+    SparseOp *grown = mem_realloc(h->sparse, sizeof(SparseOp) * (size_t)(opid + 1));
     if (!grown) return NULL;
     memset(grown + h->nsparse, 0, sizeof(SparseOp) * (size_t)(opid + 1 - h->nsparse));
     h->sparse = grown;
@@ -117,11 +117,11 @@ static int build_pattern(const NpgCtx *c, const char *stage, const char *op, Spa
                          NpgOpEntriesFn entries) {
   npg_idx count = entries(c, 0, NULL, NULL, NULL, NULL);
   size_t m = (size_t)(count ? count : 1);
-  npg_idx *rows = npg_malloc(sizeof(npg_idx) * m), *cols = npg_malloc(sizeof(npg_idx) * m);
-  npg_idx *a = npg_calloc(m, sizeof(npg_idx)), *b = npg_malloc(sizeof(npg_idx) * m); /* calloc: gcc cannot see a[] is written first */
-  npg_idx *start = npg_malloc(sizeof(npg_idx) * (size_t)(n + 1));
-  s->map = npg_malloc(sizeof(npg_idx) * m);
-  s->Ap = npg_malloc(sizeof(SuiteSparse_long) * (size_t)(n + 1));
+  npg_idx *rows = mem_malloc(sizeof(npg_idx) * m), *cols = mem_malloc(sizeof(npg_idx) * m);
+  npg_idx *a = mem_calloc(m, sizeof(npg_idx)), *b = mem_malloc(sizeof(npg_idx) * m); /* calloc: gcc cannot see a[] is written first */
+  npg_idx *start = mem_malloc(sizeof(npg_idx) * (size_t)(n + 1));
+  s->map = mem_malloc(sizeof(npg_idx) * m);
+  s->Ap = mem_malloc(sizeof(SuiteSparse_long) * (size_t)(n + 1));
   int rc = -1;
   if (!rows || !cols || !a || !b || !start || !s->map || !s->Ap) {
     runtime_record(c, "sample %ld: out of memory assembling operator %s of stage '%s' (%ld entries)", c->sample, op,
@@ -139,9 +139,9 @@ static int build_pattern(const NpgCtx *c, const char *stage, const char *op, Spa
   npg_idx nnz = 0;
   for (npg_idx k = 0; k < count; k++)
     if (k == 0 || rows[a[k]] != rows[a[k - 1]] || cols[a[k]] != cols[a[k - 1]]) nnz++;
-  s->Ai = npg_malloc(sizeof(SuiteSparse_long) * (size_t)(nnz ? nnz : 1));
-  s->Ax = npg_malloc(sizeof(double) * (size_t)(nnz ? nnz : 1));
-  s->transpose = npg_malloc(sizeof(npg_idx) * (size_t)(nnz ? nnz : 1));
+  s->Ai = mem_malloc(sizeof(SuiteSparse_long) * (size_t)(nnz ? nnz : 1));
+  s->Ax = mem_malloc(sizeof(double) * (size_t)(nnz ? nnz : 1));
+  s->transpose = mem_malloc(sizeof(npg_idx) * (size_t)(nnz ? nnz : 1));
   if (!s->Ai || !s->Ax || !s->transpose) {
     runtime_record(c, "sample %ld: out of memory assembling operator %s of stage '%s' (%ld nonzeros)", c->sample, op,
                    stage, (long)nnz);
@@ -301,9 +301,9 @@ static double lu_rcond(SparseOp *s, void *numeric) {
     for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) col += fabs(s->Ax[p]);
     anorm = fmax(anorm, col);
   }
-  double *x = npg_malloc(sizeof(double) * (size_t)(n ? n : 1)), *v = npg_malloc(sizeof(double) * (size_t)(n ? n : 1)),
-         *b = npg_malloc(sizeof(double) * (size_t)(n ? n : 1));
-  int *isgn = npg_malloc(sizeof(int) * (size_t)(n ? n : 1));
+  double *x = mem_malloc(sizeof(double) * (size_t)(n ? n : 1)), *v = mem_malloc(sizeof(double) * (size_t)(n ? n : 1)),
+         *b = mem_malloc(sizeof(double) * (size_t)(n ? n : 1));
+  int *isgn = mem_malloc(sizeof(int) * (size_t)(n ? n : 1));
   double rcond = -1;
   if (x && v && b && isgn) {
     for (;;) {
@@ -350,7 +350,7 @@ static int lu_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp
     umfpack_dl_free_numeric(&numeric);
     return -1;
   }
-  double *x = npg_malloc(sizeof(double) * (size_t)(s->n ? s->n : 1));
+  double *x = mem_malloc(sizeof(double) * (size_t)(s->n ? s->n : 1));
   if (!x) {
     umfpack_dl_free_numeric(&numeric);
     runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
@@ -373,7 +373,7 @@ static int lu_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp
 
 /* y <- M^k y, k products with the CSC matrix. */
 static int sparse_products(const NpgCtx *c, const char *stage, SparseOp *s, long k, double *y) {
-  double *t = npg_malloc(sizeof(double) * (size_t)(s->n ? s->n : 1));
+  double *t = mem_malloc(sizeof(double) * (size_t)(s->n ? s->n : 1));
   if (!t) {
     runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
     return -1;
@@ -445,7 +445,7 @@ static int krylov_root(const NpgCtx *c, const char *stage, const char *op, Spars
 /* The assembled matrix as a dense row-major n x n array (for small
  * operators and roots). */
 static double *densify(const NpgCtx *c, const char *stage, const SparseOp *s) {
-  double *M = npg_calloc((size_t)s->n * (size_t)s->n, sizeof(double));
+  double *M = mem_calloc((size_t)s->n * (size_t)s->n, sizeof(double));
   if (!M) {
     runtime_record(c, "sample %ld: out of memory in stage '%s' (%ld x %ld operator)", c->sample, stage, (long)s->n, (long)s->n);
     return NULL;
