@@ -563,6 +563,7 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
         long u = mb->center ? j - 1 : j;
         for (long a = 0; a <= u; a++) v[cu + a] = R[u * k + a];
       }
+      if (nq - q0 >= rc->n) break; /* n columns span the class's rows: any further one is dependent */
       if (!mb->center) { /* uncentered: U R⁻¹ is the member's basis as it is */
         memcpy(Q + nq * K, v, sizeof(double) * (size_t)K);
         nq++;
@@ -590,9 +591,12 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
     return 0;
   }
   /* merged: the left singular vectors of [Q_1 … Q_r] through their Gram
-   * matrix Qᵀ C Q, dropping dependent directions (below 1e-10 σ_max, the
-   * SVD's rule; in memory a direction below 1e-6 σ_max sends pca_merge to
-   * the SVD, which out of core is not at hand), and one Cholesky-QR */
+   * matrix Qᵀ C Q, dropping dependent directions and at most n kept, and
+   * one Cholesky-QR. The Gram matrix resolves σ only down to about √ε σ_max
+   * (in memory a direction below 1e-6 σ_max sends pca_merge to the SVD,
+   * which out of core is not at hand): below OOC_DEPENDENT_TOL σ_max a
+   * direction is rounding (members sharing every row of a small class gave
+   * n + 8 directions and a failed Cholesky-QR at the 1e-10 of the SVD's rule). */
   double *Y = mem_malloc(sizeof(double) * (size_t)(K * nq)), *Cq = mem_malloc(sizeof(double) * (size_t)(nq * nq));
   double *lam = mem_malloc(sizeof(double) * (size_t)nq), *T = NULL;
   long m = 0;
@@ -601,7 +605,7 @@ static int coefficients(Ooc *o, int c, double **Tout, long *mout) {
   cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, (int)nq, (int)nq, (int)K, 1.0, Q, (int)K, Y, (int)K, 0.0, Cq, (int)nq);
   if (LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (lapack_int)nq, Cq, (lapack_int)nq, lam) != 0) goto merge_done;
   double s0 = sqrt(fmax(lam[nq - 1], 0));
-  while (m < nq && sqrt(fmax(lam[nq - 1 - m], 0)) > 1e-10 * s0) m++;
+  while (m < nq && m < rc->n && sqrt(fmax(lam[nq - 1 - m], 0)) > OOC_DEPENDENT_TOL * s0) m++;
   double *Wq = mem_malloc(sizeof(double) * (size_t)(nq * (m ? m : 1)));
   T = mem_malloc(sizeof(double) * (size_t)(K * (m ? m : 1)));
   if (!Wq || !T) {

@@ -64,12 +64,7 @@ W = tempfile.mkdtemp(prefix="npg_trial3_")
 os.chmod(W, 0o755)
 CASES = []
 # name -> reason; reported, not failed. Each fixed case leaves this list in the commit that fixes it.
-OOC = "out-of-core merge of a class whose members' vectors outnumber its rows (backends/train/ooc.c)"
 KNOWN_FAILURES = {
-    "stream_mem_merged_class_rank": OOC,
-    "stream_mem_merged_class_eval": OOC,
-    "stream_mem_shared_full_rank": OOC,
-    "stream_mem_shared_full_rank_eval": OOC,
 }
 
 
