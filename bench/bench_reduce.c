@@ -304,7 +304,7 @@ static Trained *train(NpgProgram *p, long F, long S, int cap, bool rerun_all) {
   if (!tr) die("out of memory", "train");
   tr->F = F, tr->S = S, tr->cap = cap;
   room_make(&tr->room, F, S, 0.5 / (double)S, 1.0 / (double)S, 1000u + (uint64_t)F);
-  tr->f = full_new(npg_program_ir(p), JIT_CC, NULL);
+  tr->f = full_new(program_ir(p), JIT_CC, NULL);
   if (full_error(tr->f)[0]) die("npg_full_new", full_error(tr->f));
   room_bind(&tr->room, tr->f);
   SampleSource src = {S, &tr->room, room_set, NULL, NULL};
@@ -316,7 +316,7 @@ static Trained *train(NpgProgram *p, long F, long S, int cap, bool rerun_all) {
   Watch w;
   watch_start(&w);
   double t0 = now();
-  tr->m = train_model(npg_program_ir(p), tr->f, &src, &opt, err, sizeof err);
+  tr->m = train_model(program_ir(p), tr->f, &src, &opt, err, sizeof err);
   double t1 = now();
   watch_stop(&w);
   if (!tr->m) die("train_model", err);
@@ -790,7 +790,7 @@ static void part3_row(NpgProgram *p, Trained *tr, Part3Row *row) {
   Room test;
   room_make(&test, tr->F, 1, 0.37, 0, 7u);
   /* full: the training evaluator (cc) and a libtcc one, on the held-out sample */
-  Full *ft = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *ft = full_new(program_ir(p), JIT_TCC, NULL);
   if (full_error(ft)[0]) die("npg_full_new", full_error(ft));
   room_bind(&test, ft);
   if (room_set(&test, tr->f, 0) || full_eval(tr->f, 0)) die("full", full_error(tr->f));

@@ -30,7 +30,7 @@ static double now(void) {
 static const char *const PAIRS[] = {"s", "r", "h", "c", "d", "p"};
 
 static Full *evaluator(NpgProgram *p, JitBackend b, const Mesh *m, const double *v) {
-  Full *f = full_new(npg_program_ir(p), b, NULL);
+  Full *f = full_new(program_ir(p), b, NULL);
   long F = m->F;
   double *t = malloc(sizeof(double) * (size_t)F * 3), *rho = malloc(sizeof(double) * (size_t)F);
   double *e = malloc(sizeof(double) * (size_t)F);
@@ -85,7 +85,7 @@ int main(int argc, char **argv) {
     fputs(npg_error(p), stderr);
     return 1;
   }
-  const Program *prog = npg_program_ir(p);
+  const Program *prog = program_ir(p);
   printf("radiosity (solve included), best of %d; a sweep is %ld restricted evaluations, each one %ld-th of the pair rows\n",
          reps, P, P);
   printf("%6s %8s %12s %12s %12s %14s\n", "F", "backend", "whole s", "sweep s", "sweep/whole", "P whole/sweep");

@@ -118,7 +118,7 @@ static double peer_solve(Peer *p, const Grid *g, const double *kappa, bool analy
 }
 
 static Full *evaluator(NpgProgram *prog, const Grid *g, JitBackend backend, long min_rows) {
-  Full *f = full_new(npg_program_ir(prog), backend, NULL);
+  Full *f = full_new(program_ir(prog), backend, NULL);
   long s2[2] = {g->N, 4}, s1[1] = {g->N};
   if (!f || full_set_param(f, "nbr", 2, s2, g->nbr, "nbr") || full_set_param(f, "src", 1, s1, g->src, "src")) {
     fprintf(stderr, "bench_sparse: %s\n", f ? full_error(f) : "out of memory");
@@ -248,7 +248,7 @@ static void premul_bench(NpgProgram *prog, long n, long S, int cap) {
   opt.energy = 1.0;
   char err[2048] = "";
   double t0 = now();
-  Model *m = train_model(npg_program_ir(prog), f, &src, &opt, err, sizeof err);
+  Model *m = train_model(program_ir(prog), f, &src, &opt, err, sizeof err);
   if (!m) {
     fprintf(stderr, "bench_sparse: %s\n", err);
     exit(1);

@@ -118,7 +118,7 @@ static double rpow(double b, long p, long q) {
 static int check_program(const char *path, double *worst) {
   NpgProgram *p = compile_file(path);
   Program *prog = ir_ok(p);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   int failures = 0;
   const long n = 6;
   unsigned seed = 4321u;

@@ -74,7 +74,7 @@ typedef struct Want {
 static void check_restricted(NpgProgram *p, bool radiosity, long n, JitBackend backend, const Want *want, int nwant,
                              const char *skipped) {
   Program *prog = ir_ok(p);
-  Full *whole = full_new(npg_program_ir(p), backend, NULL), *part = full_new(npg_program_ir(p), backend, NULL);
+  Full *whole = full_new(program_ir(p), backend, NULL), *part = full_new(program_ir(p), backend, NULL);
   for (long k = 0; k < 2; k++) {
     bind_sample(whole, radiosity, n, k);
     bind_sample(part, radiosity, n, k);
@@ -136,7 +136,7 @@ static void entries_become_boxes(void **state) {
   (void)state;
   NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
   Program *prog = ir_ok(p);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   bind_sample(f, true, 24, 0);
   Demand *d = full_demand(f);
   demand_entries(d, find_quantity(prog, "p"), 30, 100); /* row 1 from 6, rows 2-3, row 4 to 4 */
@@ -171,7 +171,7 @@ static void transposed_read_demands_rows_and_columns(void **state) {
   (void)state;
   NpgProgram *p = compile_text("transposes.npg", transposes);
   Program *prog = ir_ok(p);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   const long N = 13;
   bind_sample(f, false, N, 0);
   Demand *d = full_demand(f);

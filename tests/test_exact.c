@@ -31,7 +31,7 @@ static int check_program(const char *path) {
     npg_free(p);
     return 1;
   }
-  Program *prog = npg_program_ir(p);
+  Program *prog = program_ir(p);
   int failures = 0, nchecked = 0, npadded = 0;
   double worst = 0;
   /* Two sizes; then, with -1 padding in the int params, once more: kept

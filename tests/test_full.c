@@ -48,7 +48,7 @@ static int check_program(const char *path, double *worst_ref, double *worst_cc) 
     npg_free(p);
     return 1;
   }
-  Program *prog = npg_program_ir(p);
+  Program *prog = program_ir(p);
   NpgFull *fs[2] = {npg_full_new(p, NPG_TCC), npg_full_new(p, NPG_CC)};
   int failures = 0;
   for (int f = 0; f < 2; f++)

@@ -104,7 +104,7 @@ static int full_rank_program(const char *path, void *arg) {
     long c = (long)memsamples_count(prog->quantities.v[i], n, shape);
     S = c + 4 > S ? c + 4 : S;
   }
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   MemSamples train, held;
   if (memsamples_fill(&train, prog, f, n, S, 11u)) fail_msg("binding random params failed");
   SampleSource src = {S, &train, memsamples_set, NULL, NULL};
@@ -175,7 +175,7 @@ static void truncated_obeys_bound(void **state) {
   NpgProgram *p = compile_file(NBODY);
   Program *prog = ir_ok(p);
   const long n = 6, S = 40;
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   MemSamples train, held;
   if (memsamples_fill(&train, prog, f, n, S, 5u)) fail_msg("binding random params failed");
   SampleSource src = {S, &train, memsamples_set, NULL, NULL};
@@ -367,7 +367,7 @@ static Model *train_choosing(const char *path, NpgProgram **pp, Full **ff, MemSa
                              long n, long S, int cap, const char *const *galerkin, int ngalerkin) {
   NpgProgram *p = compile_file(path);
   Program *prog = ir_ok(p);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   if (memsamples_fill(train, prog, f, n, S, 21u)) fail_msg("binding random params failed");
   held_out(prog, valid, train, n, 6);
   SampleSource src = {S, train, memsamples_set, NULL, NULL}, vs = {6, valid, memsamples_set, NULL, NULL};
@@ -505,7 +505,7 @@ static void program_states_the_reduction(void **state) {
   for (int v = 0; v < 2; v++) {
     NpgProgram *p = compile_text("stated.npg", text[v]);
     Program *prog = ir_ok(p);
-    Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+    Full *f = full_new(program_ir(p), JIT_TCC, NULL);
     MemSamples train, valid;
     if (memsamples_fill(&train, prog, f, 6, 12, 9u)) fail_msg("binding random params failed");
     held_out(prog, &valid, &train, 6, 4);
@@ -540,7 +540,7 @@ static void ineligible_refused(void **state) {
   (void)state;
   NpgProgram *p = compile_file(NBODY);
   Program *prog = ir_ok(p);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   MemSamples train;
   if (memsamples_fill(&train, prog, f, 4, 10, 5u)) fail_msg("binding random params failed");
   SampleSource src = {10, &train, memsamples_set, NULL, NULL};

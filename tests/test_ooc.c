@@ -94,7 +94,7 @@ static void out_of_core_matches_memory(void **state) {
   (void)state;
   NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
   Program *prog = ir_ok(p);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   RoomSamples train, test;
   room_samples(&train, f, 24, 20, 0.0, 1.0 / 19);
   room_samples(&test, NULL, 24, 6, 0.5 / 19, 3.0 / 19);
@@ -131,7 +131,7 @@ static void out_of_core_matches_memory_extern(void **state) {
   (void)state;
   NpgProgram *p = compile_file("tests/programs/extern_stage.npg");
   Program *prog = ir_ok(p);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   MemSamples train, test;
   if (memsamples_fill(&train, prog, f, 200, 20, 11u) || memsamples_fill(&test, prog, f, 200, 5, 12u))
     fail_msg("binding random params failed");

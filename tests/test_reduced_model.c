@@ -44,7 +44,7 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   const long n = 4; /* 3 vertices cannot make 3 distinct triangles */
   long S = largest_class(prog, n) + 4;
   if (S > 400) print_message("%s: largest class %ld entries\n", path, S - 4);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   MemSamples train;
   if (memsamples_fill(&train, prog, f, n, S, 11u)) fail_msg("binding random params failed");
   SampleSource src = {S, &train, memsamples_set, NULL, NULL};

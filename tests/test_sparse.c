@@ -58,7 +58,7 @@ static double uniform(void) {
 
 /* The same data every call (the sparse and the dense evaluator compare). */
 static Full *heat_full(NpgProgram *p) {
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   assert_non_null(f);
   double nbr[N * 4], src[N];
   unsigned seed = 7u;
@@ -135,7 +135,7 @@ static void heat_umfpack_equals_dense(void **state) {
 /* A ring with chords: E edges over N nodes. */
 enum { LN = 150, LE = 300 };
 static Full *laplacian_full(NpgProgram *p, double shift) {
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   assert_non_null(f);
   static double tab[LE * 2], rhs[LN];
   for (int e = 0; e < LE; e++) {

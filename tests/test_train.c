@@ -24,7 +24,7 @@ static void error_falls_with_caps(void **state) {
   /* radiosity: train on 48 deformations of the room and lights, test between them */
   NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
   Program *prog = ir_ok(p);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   RoomSamples train, test;
   room_samples(&train, f, 48, 48, 0.0, 1.0 / 47);
   room_samples(&test, NULL, 48, 12, 0.5 / 47, 4.0 / 47);
@@ -46,7 +46,7 @@ static void error_falls_with_caps(void **state) {
   /* rational (paper Eq. 3): random x in [0.5, 1.5]^2 */
   p = compile_file("examples/rational/rational.npg");
   prog = ir_ok(p);
-  f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  f = full_new(program_ir(p), JIT_TCC, NULL);
   MemSamples rtrain, rtest;
   if (memsamples_fill(&rtrain, prog, f, 2, 40, 3u)) fail_msg("binding random params failed");
   if (memsamples_fill(&rtest, prog, f, 2, 20, 4u)) fail_msg("binding random params failed");
@@ -143,7 +143,7 @@ static void centered_beats_uncentered_on_deforming_mesh(void **state) {
   (void)state;
   NpgProgram *p = compile_file("tests/programs/deforming_springs.npg");
   Program *prog = ir_ok(p);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   MeshSamples train, test;
   mesh_samples(&train, f, 8, 60, 7u);
   mesh_samples(&test, NULL, 8, 20, 8u);
@@ -178,7 +178,7 @@ static void centered_beats_uncentered_on_deforming_mesh(void **state) {
 static void snapshots_match_memory(long S, long fit, long b, long q) {
   NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
   Program *prog = ir_ok(p);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   RoomSamples train;
   room_samples(&train, f, 24, S, 0.0, 1.0 / (double)(S - 1));
   SampleSource src = {train.S, &train, room_set, NULL, NULL};

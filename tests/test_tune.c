@@ -50,7 +50,7 @@ static void tune_meets_tolerance_at_least_cost(void **state) {
   (void)state;
   NpgProgram *p = compile_file("examples/rational/rational.npg");
   Program *prog = ir_ok(p);
-  Full *f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
   MemSamples rtrain, rtest;
   if (memsamples_fill(&rtrain, prog, f, 2, 40, 3u) || memsamples_fill(&rtest, prog, NULL, 2, 20, 4u)) fail_msg("random samples");
   SampleSource src = {rtrain.S, &rtrain, memsamples_set, NULL, NULL};
@@ -61,7 +61,7 @@ static void tune_meets_tolerance_at_least_cost(void **state) {
   npg_free(p);
   p = compile_file("examples/radiosity/formfactors.npg");
   prog = ir_ok(p);
-  f = full_new(npg_program_ir(p), JIT_TCC, NULL);
+  f = full_new(program_ir(p), JIT_TCC, NULL);
   RoomSamples train, test;
   room_samples(&train, f, 48, 48, 0.0, 1.0 / 47);
   room_samples(&test, NULL, 48, 12, 0.5 / 47, 4.0 / 47);

@@ -37,7 +37,7 @@ static inline NpgProgram *compile_file(const char *path) {
 
 static inline Program *ir_ok(NpgProgram *p) {
   if (!npg_ok(p)) fail_msg("compilation failed:\n%s", npg_error(p));
-  return npg_program_ir(p);
+  return program_ir(p);
 }
 
 static inline const Stage *find_stage(const Program *prog, const char *name) {

@@ -27,7 +27,7 @@ static inline void train(Trained *tr, const char *path, const char *text, long n
   memset(tr, 0, sizeof *tr);
   tr->p = text ? compile_text(path, text) : compile_file(path);
   tr->prog = ir_ok(tr->p);
-  tr->f = full_new(npg_program_ir(tr->p), JIT_TCC, NULL);
+  tr->f = full_new(program_ir(tr->p), JIT_TCC, NULL);
   if (memsamples_fill(&tr->train, tr->prog, tr->f, n, S, 5u)) fail_msg("binding random params failed");
   SampleSource src = {S, &tr->train, memsamples_set, NULL, NULL};
   TrainOptions opt = {0};

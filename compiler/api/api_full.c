@@ -64,7 +64,7 @@ NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
                api_refusal());
   else if (!npg_ok(p)) refusal = npg_error(p);
   NpgFull *f = mem_calloc(1, sizeof *f);
-  Full *full = f ? full_new(refusal ? NULL : npg_program_ir(p), backend == NPG_CC ? JIT_CC : JIT_TCC, refusal) : NULL;
+  Full *full = f ? full_new(refusal ? NULL : program_ir(p), backend == NPG_CC ? JIT_CC : JIT_TCC, refusal) : NULL;
   const Program *prog = full ? full_program(full) : NULL;
   ExternClosure *externs = prog ? mem_calloc((size_t)prog->quantities.n + 1, sizeof *externs) : NULL;
   if (!full || (prog && !externs)) {

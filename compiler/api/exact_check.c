@@ -7,5 +7,5 @@
 int exact_check(NpgProgram *p, const ExactOptions *o, FILE *out, char *err, size_t errlen) {
   if (err && errlen) err[0] = '\0';
   if (!p || !npg_ok(p)) return error_set(err, errlen, "the program does not compile");
-  return exact_check_program(npg_program_ir(p), o, out, err, errlen);
+  return exact_check_program(program_ir(p), o, out, err, errlen);
 }

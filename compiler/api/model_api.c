@@ -179,7 +179,7 @@ NpgModel *npg_model_load(NpgProgram *p, const char *dir) {
   if (!nm) return api_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_model_error(NULL) says */
   if (!p || !dir) api_refuse(nm->error, sizeof nm->error, __func__, "argument '%s' is NULL", !p ? "p" : "dir");
   else if (!npg_ok(p)) snprintf(nm->error, sizeof nm->error, "%s", npg_error(p));
-  else if (!(nm->m = model_load(npg_program_ir(p), dir, nm->error, sizeof nm->error)) && !nm->error[0])
+  else if (!(nm->m = model_load(program_ir(p), dir, nm->error, sizeof nm->error)) && !nm->error[0])
     snprintf(nm->error, sizeof nm->error, "%s: cannot load the model", dir);
   else if (nm->m && (missing_param_hash(nm, dir) != 0 || nonfinite_array(nm, dir) != 0)) {
     model_free(nm->m);

@@ -213,7 +213,7 @@ void npg_free(NpgProgram *p) {
   free(p);
 }
 
-Program *npg_program_ir(const NpgProgram *p) { return p ? p->prog : NULL; }
+Program *program_ir(const NpgProgram *p) { return p ? p->prog : NULL; }
 
 int npg_nsymbols(const NpgProgram *np) {
   API_REFUSE_NULL(np, NULL, 0, 0);

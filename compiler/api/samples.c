@@ -191,7 +191,7 @@ NpgSamples *npg_samples_open(NpgProgram *p, const char *dir, const char *fallbac
     snprintf(err, errlen, "out of memory");
     return NULL;
   }
-  if (samples_open(&s->s, npg_program_ir(p), dir, fallback, externs, err, errlen) != 0) {
+  if (samples_open(&s->s, program_ir(p), dir, fallback, externs, err, errlen) != 0) {
     free(s);
     return NULL;
   }

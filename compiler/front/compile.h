@@ -57,6 +57,6 @@ struct ExactOptions;
 int exact_check(struct NpgProgram *p, const struct ExactOptions *o, FILE *out, char *err, size_t errlen);
 /* compiler/api/npg.c: the stage program of a compiled NpgProgram (tests, backends). */
 struct NpgProgram;
-Program *npg_program_ir(const struct NpgProgram *p);
+Program *program_ir(const struct NpgProgram *p);
 
 #endif

@@ -106,7 +106,7 @@ static void setup(void) {
     fprintf(stderr, "fuzz_manifest: %s", npg_error(program));
     abort();
   }
-  program_hash = model_program_hash(npg_program_ir(program));
+  program_hash = model_program_hash(program_ir(program));
   const char *model = getenv("NPG_FUZZ_MODEL");
   if (!model || !*model || copy_arrays(model, dir) == 0) { /* two small arrays of our own */
     double v[6] = {1, 2, 3, 4, 5, 6};
