@@ -94,4 +94,17 @@ bool stream_blockwise(const Ooc *o, int c);
  * RClass.streamed) gets its basis file, mapped as rc->B. 0, or -1 with o->err. */
 int stream_premultiply(Ooc *o);
 
+/* A direction whose remainder after the previous ones is below this
+ * fraction of its norm is dependent on them. In memory (pca_in_order) the
+ * remainder is computed from the vectors, to 1e-8; here it comes from the
+ * Gram matrix AᵀA, which resolves it only down to about √ε — a mean whose
+ * centered directions are rounding noise along itself (a quantity constant
+ * over the samples) would otherwise keep that noise. */
+#define OOC_DEPENDENT_TOL 1e-6
+
+/* ooc_basis.c: T (K x *m column-major, malloc'd) with class c's basis
+ * B = A T, its members orthonormalized, put in order and merged through
+ * C = AᵀA. 0, or -1 with o->err. */
+int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout);
+
 #endif
