@@ -28,14 +28,14 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from trialkit import SANITIZER_MARKS, fnv1a64
+
 BUILD = os.path.abspath(sys.argv[1])
 NPGC = os.path.join(BUILD, "npgc")
 ONLY = sys.argv[2:]
 VERBOSE = os.environ.get("NPG_CORPUS_VERBOSE") == "1"
 # sanitizer builds are several times slower; a hang is a minute or more anyway
 TIMEOUT = 60
-SANITIZER_MARKS = ("ERROR: AddressSanitizer", "ERROR: LeakSanitizer", "runtime error:", "ERROR: UndefinedBehavior",
-                   "AddressSanitizer:DEADLYSIGNAL")
 
 W = tempfile.mkdtemp(prefix="npg_corpus_")
 CASES = []          # (name, argv, status, message)
@@ -374,12 +374,6 @@ def manifest_lines(d):
     with open(path(d, "manifest"), "rb") as f:
         return f.read().split(b"\n")[:-1]
 
-
-def fnv1a64(data):
-    h = 0xcbf29ce484222325
-    for b in data:
-        h = ((h ^ b) * 0x100000001b3) & 0xFFFFFFFFFFFFFFFF
-    return h
 
 
 def set_manifest(d, lines, seal):

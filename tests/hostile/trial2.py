@@ -35,6 +35,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+import trialkit
+from trialkit import SANITIZER_MARKS, fnv1a64, sanitized
+
 np.seterr(all="ignore")   # the recipes overflow on purpose (1e300 data); npg must say so, numpy need not
 
 BUILD = os.path.abspath(sys.argv[1])
@@ -43,22 +46,10 @@ NPGC = os.path.join(BUILD, "npgc")
 ONLY = sys.argv[2:]
 VERBOSE = os.environ.get("NPG_TRIAL_VERBOSE") == "1"
 TIMEOUT = 90
-SANITIZER_MARKS = ("ERROR: AddressSanitizer", "ERROR: LeakSanitizer", "runtime error:", "ERROR: UndefinedBehavior",
-                   "AddressSanitizer:DEADLYSIGNAL", "ThreadSanitizer")
 
 
-def cmake_cache(key):
-    try:
-        with open(os.path.join(BUILD, "CMakeCache.txt")) as f:
-            for line in f:
-                if line.startswith(key + ":"):
-                    return line.split("=", 1)[1].strip()
-    except OSError:
-        pass
-    return ""
 
-
-SANITIZED = cmake_cache("NPG_SANITIZE").upper() in ("ON", "1", "TRUE", "YES")
+SANITIZED = sanitized(BUILD)
 W = tempfile.mkdtemp(prefix="npg_trial2_")
 os.chmod(W, 0o755)
 CASES = []
@@ -553,12 +544,6 @@ def interp_cases():
 
 
 # ------------------------------------------------------------------ sealed forgeries of an interpolated (format 2) model
-
-def fnv1a64(data):
-    h = 0xcbf29ce484222325
-    for byte in data:
-        h = ((h ^ byte) * 0x100000001b3) & 0xFFFFFFFFFFFFFFFF
-    return h
 
 
 def manifest_lines(d):
@@ -1718,13 +1703,7 @@ def run(c):
 
 
 def build_api():
-    cc = ["cc", "-std=c11", "-O1", "-g", "-I", os.path.join(SRC, "include"), os.path.join(SRC, "tests/hostile/trial2_api.c"),
-          "-o", API_BIN, "-L", BUILD, "-Wl,-rpath," + BUILD, "-lnpg", "-ltcc", "-ldl", "-lm"]
-    if SANITIZED:
-        cc[1:1] = ["-fsanitize=address,undefined"]
-    p = subprocess.run(cc, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    if p.returncode != 0:
-        raise SystemExit("cannot build the API driver: %s" % p.stderr.decode()[:2000])
+    trialkit.build_api(SRC, BUILD, "tests/hostile/trial2_api.c", API_BIN)
 
 
 def main():

@@ -38,28 +38,19 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+import trialkit
+from trialkit import SANITIZER_MARKS, fnv1a64, sanitized
+
 BUILD = os.path.abspath(sys.argv[1])
 SRC = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 NPGC = os.path.join(BUILD, "npgc")
 ONLY = sys.argv[2:]
 VERBOSE = os.environ.get("NPG_TRIAL_VERBOSE") == "1"
 TIMEOUT = 120
-SANITIZER_MARKS = ("ERROR: AddressSanitizer", "ERROR: LeakSanitizer", "runtime error:", "ERROR: UndefinedBehavior",
-                   "AddressSanitizer:DEADLYSIGNAL", "ThreadSanitizer")
 
 
-def cmake_cache(key):
-    try:
-        with open(os.path.join(BUILD, "CMakeCache.txt")) as f:
-            for line in f:
-                if line.startswith(key + ":"):
-                    return line.split("=", 1)[1].strip()
-    except OSError:
-        pass
-    return ""
 
-
-SANITIZED = cmake_cache("NPG_SANITIZE").upper() in ("ON", "1", "TRUE", "YES")
+SANITIZED = sanitized(BUILD)
 W = tempfile.mkdtemp(prefix="npg_trial3_")
 os.chmod(W, 0o755)
 CASES = []
@@ -639,12 +630,6 @@ def stream_cases():
          "", check=out_equals("out/st_ms/y.npy", a * b, 1e-10), after="stream_mem_shared_full_rank")
 
 
-def fnv1a64(data):
-    h = 0xcbf29ce484222325
-    for byte in data:
-        h = ((h ^ byte) * 0x100000001b3) & 0xFFFFFFFFFFFFFFFF
-    return h
-
 
 def reseal(d, edit):
     """d/manifest's lines through `edit`, with the checksum a forger who knows the format computes."""
@@ -879,13 +864,7 @@ API_BIN = os.path.join(W, "trial3_api")
 
 
 def build_api():
-    cc = ["cc", "-std=c11", "-O1", "-g", "-I", os.path.join(SRC, "include"), os.path.join(SRC, "tests/hostile/trial3_api.c"),
-          "-o", API_BIN, "-L", BUILD, "-Wl,-rpath," + BUILD, "-lnpg", "-ltcc", "-ldl", "-lm"]
-    if SANITIZED:
-        cc[1:1] = ["-fsanitize=address,undefined"]
-    p = subprocess.run(cc, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    if p.returncode != 0:
-        raise SystemExit("cannot build the API driver: %s" % p.stderr.decode()[:2000])
+    trialkit.build_api(SRC, BUILD, "tests/hostile/trial3_api.c", API_BIN)
 
 
 def api_cases():
