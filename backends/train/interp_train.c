@@ -320,7 +320,7 @@ int interp_open_choices(const Program *prog, int ninterp, const char *const *int
 }
 
 Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all, const TrainOptions *opt,
-                               Model *chosen, char *err, size_t errlen) {
+                                Model *chosen, char *err, size_t errlen) {
   int n = chosen->nstages, ni = 0, ng = 0;
   const char **ilist = malloc(sizeof(char *) * (size_t)(n + opt->ninterp + 1));
   const char **glist = malloc(sizeof(char *) * (size_t)(n + opt->ngalerkin + 1));

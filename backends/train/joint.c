@@ -18,7 +18,7 @@
  * block minus its own mean, and the class basis the orthonormalization of
  * [μ_1 … μ_r, U_c], at most Σ cap vectors. Every member reports the joint
  * PCA. */
-int joint_basis(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
+int train_joint_basis(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
   size_t n = (size_t)rc->n * (size_t)S;
   int r = rc->nmembers, cap = 0, rc_ok = -1;
   bool center = rc->members[0].center;

@@ -52,7 +52,7 @@ int memsamples_set(void *user, Full *f, long k) {
   MemSamples *ms = user;
   for (int i = 0; i < ms->n; i++)
     if (full_set(f, ms->sym[i]->name, ms->nd[i], ms->shape[i], ms->val[i] + (size_t)k * ms->count[i],
-                     ms->sym[i]->name))
+                 ms->sym[i]->name))
       return -1;
   return 0;
 }

@@ -90,7 +90,7 @@ void ooc_center_block(long R, long S, double *H, double *mu);
 bool stream_blockwise(const Ooc *o, int c);
 /* Every tensor that reads a blockwise class's basis, pre-multiplied by
  * passes over row blocks (t->data set; the others are left NULL for
- * premultiply_all); a blockwise class the model keeps (not
+ * train_premultiply_all); a blockwise class the model keeps (not
  * RClass.streamed) gets its basis file, mapped as rc->B. 0, or -1 with o->err. */
 int stream_premultiply(Ooc *o);
 

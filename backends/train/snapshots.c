@@ -3,7 +3,7 @@
  * S x S Gram matrices G = XᵀX are held, built by passes that recompute the
  * samples (train_gram_blocks shares the budget between a held block and a
  * batch); their eigenvectors V give U = X V Λ^(-1/2), formed in a last
- * pass. train.c's take_snapshots calls it instead of keeping the snapshot
+ * pass. train.c's train_take_snapshots calls it instead of keeping the snapshot
  * matrices; the bases are the in-memory PCA's (pca_basis) to rounding
  * (test_reduce's snapshots_match_memory compares the projectors). */
 #include <cblas.h>
@@ -272,8 +272,8 @@ static int centered_basis(Gram *g, GramMember *x, long n, double **U, int *kk) {
  * Gram matrix is then J G J (J = I − 11ᵀ/S: the mean of a shift is
  * removed exactly), its eigenvectors give U_c = (X − x₀1ᵀ − d1ᵀ) W, and
  * the member's basis is the orthonormalization of [μ = x₀ + d, U_c]. */
-int snapshot_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, double ***U,
-                   int **kk, double *tmp, char *err, size_t errlen) {
+int train_snapshot_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, double ***U,
+                         int **kk, double *tmp, char *err, size_t errlen) {
   Gram g = {m, f, src, opt, src->count, 0, 0, NULL, NULL, tmp, err, errlen};
   long S = g.S, per = 0;
   for (int c = 0; c < m->nclasses; c++) per += m->classes[c].n * m->classes[c].nmembers;

@@ -606,7 +606,7 @@ int stream_premultiply(Ooc *o) {
       RTERM_FOR_TENSORS(rt, x) {
         bool reads = blockwise(&s, cy);
         for (int j = 0; j < x->nin; j++) reads |= blockwise(&s, m->qclass[x->in_q[j]]);
-        if (!reads) continue; /* premultiply_all's */
+        if (!reads) continue; /* train_premultiply_all's */
         if (!(x->data = mem_calloc((size_t)(x->rows * x->cols) + 1, sizeof(double)))) goto oom;
         s.t[s.nt++] = (STensor){x, cy};
       }

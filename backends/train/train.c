@@ -130,7 +130,7 @@ static void member_options(const Model *m, const RClass *c, RMember *mb, const T
 
 /* ---------------------------------------------------------------- training */
 
-void free_snapshots(Model *m, Snapshots *sn) {
+void train_free_snapshots(Model *m, Snapshots *sn) {
   for (int c = 0; c < m->nclasses; c++) {
     for (int i = 0; i < m->classes[c].nmembers; i++) {
       if (sn->X && sn->X[c]) free(sn->X[c][i]);
@@ -176,7 +176,7 @@ int train_eval_sample(const SampleSource *src, Full *f, long k, char *err, size_
  * finite, since a basis of it would be meaningless (and the SVD would fail
  * without saying why). */
 int train_member_value(Model *m, Full *f, const RMember *mb, long k, long n, double *out, char *err,
-                        size_t errlen) {
+                       size_t errlen) {
   if (mb->q >= 0) {
     memcpy(out, full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)n);
   } else {
@@ -277,8 +277,8 @@ static bool keep_named(const Model *m, const char *list, int c, char *unknown, s
 
 /* The model's layout for the dims sample 0 binds, with every member's
  * options set and the --basis names checked. NULL with `err`. */
-Model *begin_training(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                      size_t errlen) {
+Model *train_begin(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                   size_t errlen) {
   if (src->count < 1) {
     error_set(err, errlen, "no training samples");
     return NULL;
@@ -316,7 +316,7 @@ int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {
 
 /* Room for every member's snapshots of S samples (sn->X, none with
  * `gram`) and for their bases by the method of snapshots (sn->U, sn->k).
- * 0, or -1 when out of memory (what was allocated left to free_snapshots). */
+ * 0, or -1 when out of memory (what was allocated left to train_free_snapshots). */
 static int snapshots_alloc(Model *m, Snapshots *sn, long S, bool gram) {
   sn->S = S;
   if (!(sn->X = mem_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
@@ -338,7 +338,7 @@ static int snapshots_alloc(Model *m, Snapshots *sn, long S, bool gram) {
  * sample. Over ranks (opt->dist): rank r takes the samples k ≡ r (mod N),
  * then the columns are gathered on every rank (a rank that fails returns
  * here, before the gather: its caller ends the job). Sample 0 is already
- * evaluated (begin_training). `tmp`: room for the largest class. */
+ * evaluated (train_begin). `tmp`: room for the largest class. */
 static int snapshots_in_memory(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
                                double *tmp, char *err, size_t errlen) {
   long S = sn->S;
@@ -364,8 +364,8 @@ static int snapshots_in_memory(Model *m, Full *f, const SampleSource *src, const
 /* Step 1: every member's snapshots in memory (sn->X), or, when they need
  * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
  * *gram set). Marks which diagonal operators stay SPD. */
-int take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
-                   bool *gram, char *err, size_t errlen) {
+int train_take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
+                         bool *gram, char *err, size_t errlen) {
   long S = src->count, maxn = 1;
   size_t need = 0;
   for (int c = 0; c < m->nclasses; c++) {
@@ -389,7 +389,7 @@ int take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOption
     return error_set(err, errlen, "out of memory for the snapshots of %ld samples", S);
   }
   train_mark_spd(m);
-  int rc = *gram ? snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen)
+  int rc = *gram ? train_snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen)
                  : snapshots_in_memory(m, f, src, opt, sn, tmp, err, errlen);
   free(tmp);
   return rc;
@@ -430,7 +430,7 @@ static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOpti
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     int rc_ok = 0;
-    if (opt->joint && rc->nmembers > 1) rc_ok = joint_basis(rc, sn->S, sn->X[c], err, errlen);
+    if (opt->joint && rc->nmembers > 1) rc_ok = train_joint_basis(rc, sn->S, sn->X[c], err, errlen);
     else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn->U[c], sn->k[c], &rc->B, &rc->m, err, errlen);
     else rc_ok = train_member_bases(rc, sn->S, sn->X[c], pre ? pre[c] : NULL, err, errlen);
     if (rc_ok != 0) {
@@ -474,7 +474,7 @@ static void phase_end(struct timespec clock[2], Model *m, int phase) {
 /* Step 3: the projections between classes and every tensor pre-multiplied.
  * Over ranks, with progress on, rank 0 says how long its own rows took and
  * how long the sums over ranks (the wait for the slowest rank included). */
-int premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err, size_t errlen) {
+int train_premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err, size_t errlen) {
   long ntensors = 0, done = 0;
   int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1;
   for (int i = 0; i < m->nstages; i++)
@@ -521,12 +521,12 @@ int premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err, size
 }
 
 /* Issue 30: the classes whose bases are streamed — used in training, then
- * dropped (drop_bases) — marked once the reduction of every stage is
+ * dropped (train_drop_bases) — marked once the reduction of every stage is
  * chosen (an interpolated stage's class is needed): the streamable ones
  * (model_class_streamable) --keep-bases does not name. */
-bool mark_streamed(Model *m, const TrainOptions *opt) {
+bool train_mark_streamed(Model *m, const TrainOptions *opt) {
   bool any = false; /* whose floors are still to be taken */
-  for (int c = 0; c < m->nclasses; c++) { /* the names were checked by begin_training */
+  for (int c = 0; c < m->nclasses; c++) { /* the names were checked by train_begin */
     m->classes[c].streamed = opt->stream && !keep_named(m, opt->keep_bases, c, NULL, 0) && model_class_streamable(m, c);
     any |= m->classes[c].streamed && !m->classes[c].floors_known;
   }
@@ -538,7 +538,7 @@ bool mark_streamed(Model *m, const TrainOptions *opt) {
  * reports them in place of the held-out floors it cannot measure without
  * the basis. `gram`: the values are the evaluator's (the sample just
  * evaluated), else the snapshots'. */
-void take_floors(Model *m, Full *f, const Snapshots *sn, bool gram, long k, long S, double *proj, double *y) {
+void train_take_floors(Model *m, Full *f, const Snapshots *sn, bool gram, long k, long S, double *proj, double *y) {
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; m->classes[c].streamed && !m->classes[c].floors_known && i < m->classes[c].nmembers; i++) {
       RMember *mb = &m->classes[c].members[i];
@@ -552,7 +552,7 @@ void take_floors(Model *m, Full *f, const Snapshots *sn, bool gram, long k, long
 }
 
 /* Step 5: the streamed classes' bases dropped (their floors taken). */
-void drop_bases(Model *m) {
+void train_drop_bases(Model *m) {
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     if (!rc->streamed) continue;
@@ -568,9 +568,9 @@ static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const 
 /* Step 4: with `externs` every extern's learned map (paper §8.3): the
  * training samples' reduced inputs and values, from the snapshots or, after
  * the method of snapshots, recomputed; with `floors`, in the same pass the
- * streamed classes' training floors (take_floors). */
-int fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool externs, bool floors,
-                bool progress, bool dist, char *err, size_t errlen) {
+ * streamed classes' training floors (train_take_floors). */
+int train_fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool externs, bool floors,
+                      bool progress, bool dist, char *err, size_t errlen) {
   long maxn = 1, maxm = 1;
   for (int c = 0; floors && c < m->nclasses; c++)
     if (m->classes[c].streamed && !m->classes[c].floors_known)
@@ -616,7 +616,7 @@ static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const 
         if (j < x->nin) off += rc->m;
       }
     }
-    if (floors) take_floors(m, f, sn, gram, k, S, proj, y);
+    if (floors) train_take_floors(m, f, sn, gram, k, S, proj, y);
     if (gram) progress_show(progress, floors ? "extern samples, floors" : "extern samples", k + 1, S);
   }
   for (int i = 0; N > 1 && i < nx; i++) {
@@ -686,12 +686,12 @@ static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions 
                  struct timespec clock[2], char *err, size_t errlen) {
   if (ooc_needed(m, opt)) {
     *gram = true;
-    mark_streamed(m, opt); /* their floors taken in the passes (the choice is made again after interpolation) */
+    train_mark_streamed(m, opt); /* their floors taken in the passes (the choice is made again after interpolation) */
     if (ooc_bases(m, f, src, opt, err, errlen)) return -1;
     phase_end(clock, m, PHASE_SNAPSHOTS);
     return 0;
   }
-  if (take_snapshots(m, f, src, opt, sn, gram, err, errlen)) return -1;
+  if (train_take_snapshots(m, f, src, opt, sn, gram, err, errlen)) return -1;
   phase_end(clock, m, PHASE_SNAPSHOTS);
   return build_bases(m, sn, *gram, opt, err, errlen);
 }
@@ -704,33 +704,33 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   struct timespec clock[2];
   err[0] = 0;
   phase_start(clock);
-  Model *m = begin_training(prog, f, src, opt, err, errlen);
+  Model *m = train_begin(prog, f, src, opt, err, errlen);
   if (!m) goto fail;
   if (bases(m, f, src, opt, &sn, &gram, clock, err, errlen)) goto fail;
   phase_end(clock, m, PHASE_BASES);
-  if (premultiply_all(m, f, opt->progress, opt->dist, err, errlen)) goto fail;
+  if (train_premultiply_all(m, f, opt->progress, opt->dist, err, errlen)) goto fail;
   /* the choice on validation samples (DESIGN §12) measures the reduced model, its externs' learned
    * maps included: with both, they are fitted first (they read the bases, not the reductions), and
    * the streamed classes' floors, known only once the choice is made, take a pass of their own */
   bool externs_first = opt->valid && m->nexterns > 0;
-  if (externs_first && fit_externs(m, f, src, &sn, gram, true, false, opt->progress, opt->dist, err, errlen)) goto fail;
+  if (externs_first && train_fit_externs(m, f, src, &sn, gram, true, false, opt->progress, opt->dist, err, errlen)) goto fail;
   if (train_interpolate_stages(m, f, opt, err, errlen)) goto fail;
   phase_end(clock, m, PHASE_PREMULTIPLY);
-  bool floors = mark_streamed(m, opt); /* the reductions chosen: which bases are streamed is known */
+  bool floors = train_mark_streamed(m, opt); /* the reductions chosen: which bases are streamed is known */
   if ((!externs_first || floors) &&
-      fit_externs(m, f, src, &sn, gram, !externs_first, floors, opt->progress, opt->dist, err, errlen))
+      train_fit_externs(m, f, src, &sn, gram, !externs_first, floors, opt->progress, opt->dist, err, errlen))
     goto fail;
-  drop_bases(m);
+  train_drop_bases(m);
   phase_end(clock, m, PHASE_EXTERNS);
   if (opt->progress)
     fprintf(stderr, "training phases: snapshots %.2f s, bases %.2f s (%s), pre-multiplication %.2f s, externs %.2f s\n",
             m->phase_seconds[PHASE_SNAPSHOTS], m->phase_seconds[PHASE_BASES],
             ooc_needed(m, opt) ? "out of core, with the snapshots" : gram ? "method of snapshots" : "in memory",
             m->phase_seconds[PHASE_PREMULTIPLY], m->phase_seconds[PHASE_EXTERNS]);
-  free_snapshots(m, &sn);
+  train_free_snapshots(m, &sn);
   return m;
 fail:
-  if (m) free_snapshots(m, &sn);
+  if (m) train_free_snapshots(m, &sn);
   model_free(m);
   /* the steps name what failed; a helper that only returned NULL ran out of memory */
   if (!err[0]) error_set(err, errlen, "out of memory during training");

@@ -175,7 +175,7 @@ int interp_open_choices(const Program *prog, int ninterp, const char *const *int
  * forced the way it chose, its measured errors and reason kept for the
  * reports. Frees `chosen`. NULL with `err`. */
 Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all, const TrainOptions *opt,
-                               Model *chosen, char *err, size_t errlen);
+                                Model *chosen, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- out-of-core bases (ooc.c) */
 
@@ -189,7 +189,7 @@ bool ooc_needed(const Model *m, const TrainOptions *opt);
  * memory-mapped read-only (rc->B_mapped). Unless a stage may yet be made
  * interpolated (opt->valid, interpolation asked for), the large classes'
  * bases are formed block by block (stream.c) and every tensor that reads
- * one is pre-multiplied here (t->data set; premultiply_all does the
+ * one is pre-multiplied here (t->data set; train_premultiply_all does the
  * others): a class the model drops (RClass.streamed) is never stored
  * (rc->B stays NULL, rc->m its size), one it keeps is mapped. The result is the
  * in-memory training's (pca_basis, pca_merge through their Gram route) up

@@ -24,16 +24,16 @@ struct TrainSet {
  * the streamable classes --keep-bases does not name marked, their
  * training floors taken from the snapshots, their bases dropped. */
 int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err, size_t errlen) {
-  if (!mark_streamed(m, opt)) return 0;
+  if (!train_mark_streamed(m, opt)) return 0;
   long maxn = 1, maxm = 1;
   for (int c = 0; c < m->nclasses; c++)
     if (m->classes[c].streamed)
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
   double *y = mem_malloc(sizeof(double) * (size_t)maxn), *proj = mem_malloc(sizeof(double) * (size_t)maxm);
   if (!y || !proj) return free(y), free(proj), error_set(err, errlen, "out of memory measuring the training floors");
-  for (long k = 0; k < ts->sn.S; k++) take_floors(m, ts->f, &ts->sn, false, k, ts->sn.S, proj, y);
+  for (long k = 0; k < ts->sn.S; k++) train_take_floors(m, ts->f, &ts->sn, false, k, ts->sn.S, proj, y);
   free(y), free(proj);
-  drop_bases(m);
+  train_drop_bases(m);
   return 0;
 }
 
@@ -44,7 +44,7 @@ void train_set_free(TrainSet *ts) {
     free(ts->pm[c]);
   }
   free(ts->pm);
-  if (ts->base) free_snapshots(ts->base, &ts->sn);
+  if (ts->base) train_free_snapshots(ts->base, &ts->sn);
   model_free(ts->base);
   free(ts);
 }
@@ -59,8 +59,8 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
   o.joint = false;
   if (!ts) return NULL;
   ts->f = f, ts->src = src, ts->progress = opt->progress;
-  if (!(ts->base = begin_training(prog, f, src, &o, err, errlen)) ||
-      take_snapshots(ts->base, f, src, &o, &ts->sn, &gram, err, errlen))
+  if (!(ts->base = train_begin(prog, f, src, &o, err, errlen)) ||
+      train_take_snapshots(ts->base, f, src, &o, &ts->sn, &gram, err, errlen))
     goto fail;
   Model *m = ts->base;
   if (!(ts->pm = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
@@ -138,7 +138,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     }
   }
   model_size_tensors(m);
-  if (premultiply_all(m, ts->f, false, false, err, errlen) || fit_externs(m, ts->f, ts->src, &ts->sn, false, true, false, false, false, err, errlen)) {
+  if (train_premultiply_all(m, ts->f, false, false, err, errlen) || train_fit_externs(m, ts->f, ts->src, &ts->sn, false, true, false, false, false, err, errlen)) {
     model_free(m);
     return NULL;
   }
