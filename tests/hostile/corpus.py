@@ -375,7 +375,6 @@ def manifest_lines(d):
         return f.read().split(b"\n")[:-1]
 
 
-
 def set_manifest(d, lines, seal):
     """Write `lines` as d/manifest; with `seal`, the last line is replaced by
     the checksum of the others, as a forger who knows the format would."""

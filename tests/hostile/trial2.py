@@ -48,7 +48,6 @@ VERBOSE = os.environ.get("NPG_TRIAL_VERBOSE") == "1"
 TIMEOUT = 90
 
 
-
 SANITIZED = sanitized(BUILD)
 W = tempfile.mkdtemp(prefix="npg_trial2_")
 os.chmod(W, 0o755)

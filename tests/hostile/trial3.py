@@ -49,7 +49,6 @@ VERBOSE = os.environ.get("NPG_TRIAL_VERBOSE") == "1"
 TIMEOUT = 120
 
 
-
 SANITIZED = sanitized(BUILD)
 W = tempfile.mkdtemp(prefix="npg_trial3_")
 os.chmod(W, 0o755)
@@ -628,7 +627,6 @@ def stream_cases():
                                          "--mem", "5k"], 0, "", check=ranks_at_most_rows("st/MS"))
     case("stream_mem_shared_full_rank_eval", ["npgc", "eval", "st/share.npg", "st/MS", "st/SD", "-o", "out/st_ms"], 0,
          "", check=out_equals("out/st_ms/y.npy", a * b, 1e-10), after="stream_mem_shared_full_rank")
-
 
 
 def reseal(d, edit):
