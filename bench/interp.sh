@@ -4,8 +4,9 @@
 # projection floor, the output error of each reduction and of the eligible
 # stage, and the reduced evaluation time of each against the full one
 # (npgc bench, best of its passes), on held-out samples. The inputs' bases
-# are kept at energy 1 (x, and r2 or l2, are polynomial in a few modes), so
-# the errors are the eligible stage's reduction and the output's basis.
+# are kept at energy 1 (x, and r2 or l2, are polynomial in a few modes; the
+# training default since the quantities under a power are kept whole, DESIGN
+# §12), so the errors are the eligible stage's reduction and the output's basis.
 # OVERSAMPLE="1 2 4 8 16" sets the oversamplings tried (default "16 32"),
 # ROWS="springs gravity_eps0.1" the programs (default all).
 set -eu

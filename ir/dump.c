@@ -1,5 +1,6 @@
 /* dump.c — the stage program in readable form (npgc check, -dl, -db) and
  * as JSON (npgc check --json). */
+#include <stdlib.h>
 #include <string.h>
 
 #include "ir.h"
@@ -230,6 +231,14 @@ void dump_program(FILE *out, const Program *prog) {
   dump_classes(out, prog);
   for (int i = 0; i < prog->notes.n; i++) fprintf(out, "note: %s\n", (char *)prog->notes.v[i]);
   fputs("basis defaults: energy 0.999, cap 60 per member, centered (README: Reducing a program)\n", out);
+  bool *powered = lower_under_powers(prog);
+  if (powered) {
+    fputs("  kept whole (energy 1, up to the cap) as under a power (DESIGN §12):", out);
+    for (int q = 0; q < prog->quantities.n; q++)
+      if (powered[q]) fprintf(out, " %s", ((Sym *)prog->quantities.v[q])->name);
+    fputc('\n', out);
+  }
+  free(powered);
   fputs("reduced cost per evaluation (multiply-adds; m_X = basis size of class X, S = training samples):\n", out);
   fprintf(out, "  %s\n", cost_formula(prog->ctx, prog));
 }

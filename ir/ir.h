@@ -247,6 +247,18 @@ void lower_program(Ctx *ctx, Program *prog);
  * an entry then reads its inputs only near that entry, so it can be
  * evaluated exactly at a few selected entries. */
 bool lower_interp_eligible(const Stage *st);
+/* ir/lower.c: the quantities under a power (DESIGN §12), marks per
+ * prog->quantities (malloc'd; NULL when none or out of memory): in a program
+ * without extern, those the operators of an interpolation-eligible stage
+ * read and those they are computed from. Training keeps their bases whole
+ * by default (energy 1, up to the cap): their truncation error is raised to
+ * the stage's negative or fractional power where their values are smallest,
+ * a part of the snapshots an energy fraction weighs least. Kept at 0.999
+ * they left Lennard-Jones 4-5x its output floor and gave springs a negative
+ * reduced edge length on held-out samples; whole, 1.0-1.2x
+ * (bench/interp.md). An extern's program is left alone: its pair classes
+ * would grow (radiosity). */
+bool *lower_under_powers(const Program *prog);
 /* ir/basis.c: union-find basis classes with reasons. */
 void basis_classes(Ctx *ctx, Program *prog);
 /* ir/verify.c: structural invariants; internal_error on violation. */

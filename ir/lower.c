@@ -32,6 +32,43 @@ bool lower_interp_eligible(const Stage *st) {
   return true;
 }
 
+/* Mark `s` in `marked` (per prog->quantities) and, recursively, every
+ * quantity its stage's terms read. */
+static void mark_reads(const Program *prog, const Sym *s, bool *marked) {
+  int q = 0;
+  while (q < prog->quantities.n && prog->quantities.v[q] != s) q++;
+  if (q == prog->quantities.n || marked[q]) return;
+  marked[q] = true;
+  const Stage *st = s->stage;
+  for (int t = 0; st && t < st->nterms; t++) {
+    const Term *tm = st->terms[t];
+    if (tm->named_num) mark_reads(prog, tm->named_num, marked);
+    for (int g = 0; g < tm->num_tensors.n; g++)
+      for (int k = 0; k < tm->num_tensors.g[g].ninputs; k++) mark_reads(prog, tm->num_tensors.g[g].inputs[k], marked);
+    for (int o = 0; o < tm->nops && tm->op_tensors; o++)
+      for (int g = 0; g < tm->op_tensors[o].n; g++)
+        for (int k = 0; k < tm->op_tensors[o].g[g].ninputs; k++)
+          mark_reads(prog, tm->op_tensors[o].g[g].inputs[k], marked);
+  }
+}
+
+bool *lower_under_powers(const Program *prog) {
+  if (prog->externs.n > 0) return NULL;
+  bool *marked = mem_calloc((size_t)prog->quantities.n + 1, sizeof(bool));
+  bool any = false;
+  for (int i = 0; marked && i < prog->stages.n; i++) {
+    const Stage *st = prog->stages.v[i];
+    if (!lower_interp_eligible(st)) continue;
+    for (int t = 0; t < st->nterms; t++)
+      for (int o = 0; o < st->terms[t]->nops; o++)
+        for (int g = 0; g < st->terms[t]->op_tensors[o].n; g++)
+          for (int k = 0; k < st->terms[t]->op_tensors[o].g[g].ninputs; k++, any = true)
+            mark_reads(prog, st->terms[t]->op_tensors[o].g[g].inputs[k], marked);
+  }
+  if (!any) free(marked);
+  return any ? marked : NULL;
+}
+
 /* Is the term's polynomial exactly a named quantity of the stage's shape,
  * entry for entry (the identity map)? Then it shares the stage's basis. */
 static Sym *named_numerator(const Sym *s, const Field *f) {

@@ -139,6 +139,14 @@ static inline Model *train_with(Program *prog, Full *f, const SampleSource *src,
   opt.energy = energy;
   opt.uncentered = uncentered;
   opt.mem = mem;
+  /* `energy` for every member, those under a power too (DESIGN §12: whole by default), as --basis '*':energy=E */
+  const char *every[1] = {"*"};
+  int nocap[1] = {0};
+  double energies[1] = {energy};
+  opt.noverride = 1;
+  opt.override_name = every;
+  opt.override_cap = nocap;
+  opt.override_energy = energies;
   char err[2048] = "";
   Model *m = train_model(prog, f, src, &opt, err, sizeof err);
   if (!m) fail_msg("training: %s", err);

@@ -103,11 +103,14 @@ static int check_overrides(const Model *m, const TrainOptions *opt, char *err, s
   return 0;
 }
 
-/* A member's cap, energy and centering: the defaults, then the program's
- * `basis` statements, then --basis from the least specific to the most. */
-static void member_options(const Model *m, const RClass *c, RMember *mb, const TrainOptions *opt) {
+/* A member's cap, energy and centering: the defaults (energy 1 for a
+ * quantity under a power, `powered`, whatever the default energy), then the
+ * program's `basis` statements, then --basis from the least specific to the
+ * most. */
+static void member_options(const Model *m, const RClass *c, RMember *mb, const TrainOptions *opt,
+                           const bool *powered) {
   mb->cap = opt->cap > 0 ? opt->cap : 60;
-  mb->energy = opt->energy > 0 ? opt->energy : 0.999;
+  mb->energy = powered && mb->q >= 0 && powered[mb->q] ? 1 : opt->energy > 0 ? opt->energy : 0.999;
   mb->center = !opt->uncentered;
   const BasisClass *bc = c->bc;
   if (bc->basis_max > 0) mb->cap = bc->basis_max;
@@ -294,8 +297,11 @@ Model *train_begin(Program *prog, Full *f, const SampleSource *src, const TrainO
   free(dims);
   if (!m) return NULL;
   m->samples = src->count;
+  bool *powered = lower_under_powers(m->prog);
   for (int c = 0; c < m->nclasses; c++)
-    for (int i = 0; i < m->classes[c].nmembers; i++) member_options(m, &m->classes[c], &m->classes[c].members[i], opt);
+    for (int i = 0; i < m->classes[c].nmembers; i++)
+      member_options(m, &m->classes[c], &m->classes[c].members[i], opt, powered);
+  free(powered);
   char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
   if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
   if (unknown[0])

@@ -31,6 +31,10 @@ PY
 "$B/npgc" check $P >"$W/check.txt" || fail "check"
 grep -q 'interpolation: eligible.*--reduce w:interp' "$W/check.txt" || fail "check does not mark w eligible"
 test "$(grep -c 'interpolation: eligible' "$W/check.txt")" = 1 || fail "check marks more than w"
+# the quantities under w's power are kept whole by default (DESIGN §12); radiosity (an extern) keeps none
+grep -q '^  kept whole (energy 1, up to the cap) as under a power (DESIGN §12): x r2$' "$W/check.txt" ||
+  fail "check does not list x and r2 as under a power: $(grep -A1 'basis defaults' "$W/check.txt")"
+"$B/npgc" check examples/radiosity/formfactors.npg | grep -q "kept whole" && fail "radiosity keeps a quantity whole"
 # the exactness checks interpolate every eligible stage at every entry too
 "$B/npgc" verify $P --exact >"$W/exact.txt" || fail "verify --exact: $(cat "$W/exact.txt")"
 grep -q '^     w  *interpolated at all [0-9]* entries' "$W/exact.txt" || fail "verify --exact lacks w interpolated"
@@ -153,10 +157,13 @@ for case in "g01 tests/programs/nbody_gravity.npg nbody:64:0.1:0.02:0.3 w r2" \
     v=""
     [ $how = none ] && v="--valid none"
     # shellcheck disable=SC2086
-    "$B/npgc" train "$2" "$W/$1.tr" -o "$W/$1.$how" --basis x:energy=1 --basis "$5:energy=1" $v >"$W/$1.$how.txt" ||
+    "$B/npgc" train "$2" "$W/$1.tr" -o "$W/$1.$how" $v >"$W/$1.$how.txt" ||
       fail "train $1 ($how): $(cat "$W/$1.$how.txt")"
     "$B/npgc" verify "$2" "$W/$1.$how" "$W/$1.te" --tol 1e9 | grep '(output)' >"$W/$1.$how.v" || fail "verify $1 ($how)"
   done
+  # x and the quantity under the power kept whole by default (DESIGN §12)
+  grep -q "^member [0-9]* $5 cap 60 energy 1 " "$W/$1.auto/manifest" && grep -q "^member 0 x cap 60 energy 1 " "$W/$1.auto/manifest" ||
+    fail "$1: x and $5 not kept whole: $(grep '^member' "$W/$1.auto/manifest")"
   grep -q "^stage $4: interpolated .*: interpolation: lower output error" "$W/$1.auto.txt" ||
     fail "$1: stage $4 not interpolated by default: $(cat "$W/$1.auto.txt")"
   # columns: L2 error, floor (4, 5; an interpolated output's kind is two words)
