@@ -266,6 +266,48 @@ def measure(build, prog, tr, te, w, extra):
     return res
 
 
+def bench_seconds(build, prog, model, te):
+    """npgc bench's median seconds per sample: (full, reduced), or None when it fails."""
+    rc, b = npgc(build, "bench", prog, model, te)
+    full = re.search(r"^full evaluation\s+(" + FLOAT + r") s per sample", b, re.M)
+    red = re.search(r"^reduced evaluation\s+(" + FLOAT + r") s per sample", b, re.M)
+    return (float(full.group(1)), float(red.group(1))) if rc == 0 and full and red else None
+
+
+def each_way(build, prog, tr, te, w, stages):
+    """The output error, floor and reduced time per sample of the program with every eligible stage
+    reduced by Galerkin (--valid none) and by interpolation (--reduce S:interp each), and the full
+    evaluation's time: {"galerkin"/"interp": (output, error, floor, seconds) or a message, "full": s}."""
+    res = {"full": None}
+    for key, opts in (("galerkin", ["--valid", "none"]),
+                      ("interp", [a for st in stages for a in ("--reduce", f"{st}:interp")])):
+        model = os.path.join(w, "each." + key)
+        rc, t = npgc(build, "train", prog, tr, "-o", model, *opts)
+        if rc:
+            res[key] = "train failed: " + last_line(t)
+            continue
+        rc, v = npgc(build, "verify", prog, model, te, "--tol", "1e9")
+        o = outputs(v)
+        if rc or not o:
+            res[key] = "verify failed: " + last_line(v)
+            continue
+        secs = bench_seconds(build, prog, model, te)
+        if secs is None:
+            res[key] = "bench failed"
+            continue
+        res["full"] = secs[0]
+        res[key] = (*worst(o), secs[1])
+    return res
+
+
+def each_way_row(name, r):
+    g, i, full = r["galerkin"], r["interp"], r["full"]
+    if isinstance(g, str) or isinstance(i, str):
+        return f"| {name} | {g if isinstance(g, str) else ''} {i if isinstance(i, str) else ''} | | | | | |"
+    return (f"| {name} | {g[0]}: {g[2]:.3e} | {g[1]:.3e} ({ratio(g[1], g[2])}) | {i[1]:.3e} ({ratio(i[1], i[2])}) | "
+            f"{full:.2e} | {g[3]:.2e} ({full / g[3]:.1f}×) | {i[3]:.2e} ({full / i[3]:.1f}×) |")
+
+
 def worst(o):
     """The output furthest above its floor: (name, error, floor)."""
     k = max(o, key=lambda k: (o[k][0] / o[k][1]) if o[k][1] >= ROUNDING else 0.0)
@@ -348,6 +390,8 @@ def main():
                 gen(te, S_TEST, seed + 1)
                 results[i, seed, False] = measure(build, prog, tr, te, w, [])
                 results[i, seed, True] = measure(build, prog, tr, te, w, ["--basis", "*:energy=0.999"])
+                if seed == SEEDS[0]:
+                    results[i, seed, "each"] = each_way(build, prog, tr, te, w, eligible(build, prog))
                 shutil.rmtree(w)
         s0 = SEEDS[0]
         for e1 in (False, True):
@@ -366,6 +410,13 @@ def main():
                 label = name
                 print(f"| {label} | {', '.join(eligible(build, prog))} | {'; '.join(r['choice'])} | {cell(r['default'])} | "
                       f"{cell(r['galerkin'])} | {a} | {b} |")
+        print(f"\nEach program, every eligible stage by Galerkin (--valid none) and by interpolation (--reduce S:interp "
+              f"each), seeds {s0} and {s0 + 1}: the output's floor, each way's output error (× the floor), and the "
+              f"reduced evaluation's median time per sample (npgc bench; × faster than the full evaluation):\n")
+        print("| program | output: floor | Galerkin error | interpolation error | full s/sample | Galerkin s/sample | "
+              "interpolation s/sample |\n|---|---|---|---|---|---|---|")
+        for i, (name, prog, gen, what, hint) in enumerate(PROGRAMS):
+            print(each_way_row(name, results[i, s0, "each"]))
         print(f"\nEvery seed: the default's output error over its floor, over Galerkin alone's (worst output), "
               f"the choice; ✗ where the goal is missed.\n")
         print("| program | setting | " + " | ".join(f"seed {s}" for s in SEEDS) + " | goal met |")
@@ -383,7 +434,7 @@ def main():
         print(f"\ngoal met on every seed: {met[False]} of {len(PROGRAMS)} rows at the default settings; "
               f"{met[True]} of {len(PROGRAMS)} with every member at 0.999")
         print(f"\n{time.time() - t0:.0f} s; data: " + "; ".join(f"{n}: {w}" for n, _, _, w, _ in PROGRAMS))
-        fails = [(PROGRAMS[i][0], s, e1, k, r[k]) for (i, s, e1), r in results.items()
+        fails = [(PROGRAMS[i][0], s, e1, k, r[k]) for (i, s, e1), r in results.items() if e1 != "each"
                  for k in ("default", "galerkin") if isinstance(r[k], str)]
         for name, s, e1, k, msg in fails:
             print(f"\nfailure: {name}, seed {s}{', all at 0.999' if e1 else ''}, {k} model: {msg}")

@@ -52,6 +52,14 @@ void interp_free(RInterp *ip) {
   free(ip->read_q);
   free(ip->read_e);
   free(ip->mono);
+  free(ip->pk_run_acc);
+  free(ip->pk_run_end);
+  free(ip->pk_whole_q);
+  free(ip->pk_whole_off);
+  free(ip->pk_src);
+  free(ip->pk_coef);
+  free(ip->pk_nin);
+  free(ip->pk_read);
   free(ip);
 }
 
@@ -63,27 +71,134 @@ static long factor_base(const RStage *rs, int term) {
 }
 
 size_t interp_work_size(const RStage *rs) {
-  return (size_t)(rs->interp->nreads + rs->interp->k * (factor_base(rs, rs->nterms) + 1) + 1);
+  return (size_t)(rs->interp->nreads + rs->interp->k * (factor_base(rs, rs->nterms) + 1) + rs->interp->pk_lift + 1);
 }
 
-static double rational_pow(double b, long p, long q) { return q == 1 ? pow(b, (double)p) : pow(b, (double)p / (double)q); }
+/* Monomial order for interp_pack: by accumulator, then as trained (a stable sort). */
+typedef struct PackKey {
+  long acc, index;
+} PackKey;
+
+static int by_acc(const void *a, const void *b) {
+  const PackKey *x = a, *y = b;
+  return x->acc != y->acc ? (x->acc > y->acc) - (x->acc < y->acc) : (x->index > y->index) - (x->index < y->index);
+}
+
+/* Which quantities interp_eval lifts whole (RInterp.pk_whole_*): 0, or -1 out of memory. */
+static int pack_lifts(const Model *m, RInterp *ip) {
+  free(ip->pk_whole_q), free(ip->pk_whole_off), free(ip->pk_src);
+  long *count = calloc((size_t)m->nq + 1, sizeof(long)), *off = malloc(sizeof(long) * (size_t)(m->nq + 1));
+  ip->pk_whole_q = malloc(sizeof(int) * (size_t)(m->nq + 1));
+  ip->pk_whole_off = malloc(sizeof(long) * (size_t)(m->nq + 1));
+  ip->pk_src = malloc(sizeof(long) * (size_t)(ip->nreads + 1));
+  if (!count || !off || !ip->pk_whole_q || !ip->pk_whole_off || !ip->pk_src) {
+    free(count), free(off);
+    return -1;
+  }
+  for (long r = 0; r < ip->nreads; r++) count[ip->read_q[r]]++;
+  ip->pk_nwhole = 0, ip->pk_lift = 0;
+  for (int q = 0; q < m->nq; q++) {
+    long n = m->classes[m->qclass[q]].n;
+    off[q] = -1;
+    if (count[q] == 0 || 4 * count[q] < n) continue;
+    ip->pk_whole_q[ip->pk_nwhole] = q, ip->pk_whole_off[ip->pk_nwhole++] = off[q] = ip->pk_lift;
+    ip->pk_lift += n;
+  }
+  for (long r = 0; r < ip->nreads; r++)
+    ip->pk_src[r] = off[ip->read_q[r]] >= 0 ? off[ip->read_q[r]] + ip->read_e[r] : -1;
+  free(count), free(off);
+  return 0;
+}
+
+int interp_pack(const Model *m, const RStage *rs, RInterp *ip) {
+  if (pack_lifts(m, ip)) return -1;
+  long nread = 0, n = ip->nmono;
+  for (long i = 0; i < n; i++) nread += ip->mono[i].nin;
+  free(ip->pk_run_acc), free(ip->pk_run_end), free(ip->pk_coef), free(ip->pk_nin), free(ip->pk_read);
+  PackKey *key = malloc(sizeof(PackKey) * (size_t)(n + 1));
+  ip->pk_run_acc = malloc(sizeof(long) * (size_t)(n + 1));
+  ip->pk_run_end = malloc(sizeof(long) * (size_t)(n + 1));
+  ip->pk_coef = malloc(sizeof(double) * (size_t)(n + 1));
+  ip->pk_nin = malloc((size_t)n + 1);
+  ip->pk_read = malloc(sizeof(int32_t) * (size_t)(nread + 1));
+  if (!key || !ip->pk_run_acc || !ip->pk_run_end || !ip->pk_coef || !ip->pk_nin || !ip->pk_read) {
+    free(key);
+    return -1;
+  }
+  for (long i = 0; i < n; i++)
+    key[i] = (PackKey){(factor_base(rs, ip->mono[i].term) + ip->mono[i].factor) * ip->k + ip->mono[i].slot, i};
+  qsort(key, (size_t)n, sizeof *key, by_acc);
+  int32_t *rd = ip->pk_read;
+  ip->pk_nrun = 0;
+  for (long i = 0; i < n; i++) {
+    const RInterpMono *mo = &ip->mono[key[i].index];
+    if (i == 0 || key[i].acc != key[i - 1].acc) ip->pk_run_acc[ip->pk_nrun++] = key[i].acc;
+    ip->pk_run_end[ip->pk_nrun - 1] = i + 1;
+    ip->pk_coef[i] = mo->coef;
+    ip->pk_nin[i] = (unsigned char)mo->nin;
+    for (int j = 0; j < mo->nin; j++) *rd++ = (int32_t)mo->read[j];
+  }
+  free(key);
+  return 0;
+}
+
+/* b^(p/q): integer powers by multiplication and half-integer ones through one sqrt (an
+ * interpolated stage takes one per selected entry and operator: pow() was a measurable part
+ * of its time), others by pow(). */
+static double rational_pow(double b, long p, long q) {
+  if ((q == 1 || q == 2) && p >= -16 && p <= 16) {
+    double base = q == 2 ? sqrt(b) : b, v = 1;
+    for (long i = 0; i < labs(p); i++) v *= base;
+    return p < 0 ? 1 / v : v;
+  }
+  return pow(b, (double)p / (double)q);
+}
+
+/* A packed monomial's value: its coefficient times the `nin` lifted entries *rd names (advanced
+ * past them); the common degrees unrolled. */
+static inline double mono_value(double coef, int nin, const int32_t **rd, const double *val) {
+  const int32_t *r = *rd;
+  *rd = r + nin;
+  switch (nin) {
+  case 0: return coef;
+  case 1: return coef * val[r[0]];
+  case 2: return coef * val[r[0]] * val[r[1]];
+  case 3: return coef * val[r[0]] * val[r[1]] * val[r[2]];
+  default:
+    for (int j = 0; j < nin; j++) coef *= val[r[j]];
+    return coef;
+  }
+}
 
 int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, double *work, long sample, char *err,
                 size_t errlen) {
   const RInterp *ip = rs->interp;
   long k = ip->k, nf = factor_base(rs, rs->nterms);
-  double *val = work, *acc = work + ip->nreads, *py = acc + k * nf;
-  /* the entries the formula reads: one row of their basis each */
+  double *val = work, *acc = work + ip->nreads, *py = acc + k * nf, *lift = py + k;
+  /* the entries the formula reads: the quantities read at many entries lifted whole, the
+   * others one row of their basis each */
+  for (int w = 0; w < ip->pk_nwhole; w++) {
+    const RClass *c = &m->classes[m->qclass[ip->pk_whole_q[w]]];
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)c->n, (int)c->m, 1.0, c->B, (int)(c->m > 0 ? c->m : 1),
+                x[ip->pk_whole_q[w]], 1, 0.0, lift + ip->pk_whole_off[w], 1);
+  }
   for (long r = 0; r < ip->nreads; r++) {
     const RClass *c = &m->classes[m->qclass[ip->read_q[r]]];
-    val[r] = cblas_ddot((int)c->m, c->B + ip->read_e[r] * c->m, 1, x[ip->read_q[r]], 1);
+    val[r] = ip->pk_src[r] >= 0 ? lift[ip->pk_src[r]]
+                                : cblas_ddot((int)c->m, c->B + ip->read_e[r] * c->m, 1, x[ip->read_q[r]], 1);
   }
   memset(acc, 0, sizeof(double) * (size_t)(k * nf));
-  for (long i = 0; i < ip->nmono; i++) {
-    const RInterpMono *mo = &ip->mono[i];
-    double v = mo->coef;
-    for (int j = 0; j < mo->nin; j++) v *= val[mo->read[j]];
-    acc[(factor_base(rs, mo->term) + mo->factor) * k + mo->slot] += v;
+  const int32_t *rd = ip->pk_read;
+  for (long r = 0, i = 0; r < ip->pk_nrun; r++) { /* two sums per run: half the dependent additions */
+    double s0 = 0, s1 = 0;
+    long end = ip->pk_run_end[r];
+    for (; i + 1 < end; i += 2) {
+      double v0 = mono_value(ip->pk_coef[i], ip->pk_nin[i], &rd, val);
+      s1 += mono_value(ip->pk_coef[i + 1], ip->pk_nin[i + 1], &rd, val);
+      s0 += v0;
+    }
+    if (i < end) s0 += mono_value(ip->pk_coef[i], ip->pk_nin[i], &rd, val), i++;
+    acc[ip->pk_run_acc[r]] += s0 + s1;
   }
   /* y at the selected entries: Σ_t Π_o d_{t,o}^(p/q) q_t, entry by entry */
   memset(py, 0, sizeof(double) * (size_t)k);
@@ -266,6 +381,7 @@ static int load_stage(Model *m, const ModelStore *s, const char *dir, const char
   if (bad)
     return error_set(err, errlen, "%s/interp_%s_%s.npy: an entry out of range for the stage (a damaged or forged model)",
                      dir, sn, bad);
+  if (interp_pack(m, rs, ip)) return error_set(err, errlen, "%s: out of memory loading the model", dir);
   return 0;
 }
 

@@ -32,6 +32,7 @@
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdio.h>
+#include <stdint.h>
 
 #include "model.h"
 #include "model_store.h"
@@ -59,9 +60,30 @@ typedef struct RInterp {
   long *read_e;             /* its flat entry */
   long nmono;
   RInterpMono *mono;
+  /* the monomials packed for interp_eval (interp_pack), in runs that share an accumulator
+   * (factor_base(term) + factor)·k + slot: per run its accumulator and the end of its
+   * monomials; per monomial its coefficient and input count; the reads of every monomial in
+   * turn (int32). Summed run by run in registers: accumulated in memory one by one, each
+   * monomial waited for the previous one's store (a stage of 21,204 monomials spent 3/4 of
+   * its time there), and RInterpMono's 16-read array made the table 5x larger. */
+  long pk_nrun;
+  /* the quantities read at a quarter of their entries or more are lifted whole, one dgemv
+   * each (a ddot per entry cost more in calls than in work: 390 reads of m <= 13): their
+   * quantity and offset in the lift scratch, whose size is pk_lift; per read its place in
+   * the scratch, or -1 for a ddot of its basis row */
+  int pk_nwhole;
+  int *pk_whole_q;
+  long *pk_whole_off, pk_lift, *pk_src;
+  long *pk_run_acc, *pk_run_end;
+  double *pk_coef;
+  unsigned char *pk_nin;
+  int32_t *pk_read;
 } RInterp;
 
 void interp_free(RInterp *ip);
+/* Fill ip's packed table (pk_*) from ip->mono and ip->read_* for stage rs of m: 0, or -1 out
+ * of memory. */
+int interp_pack(const Model *m, const RStage *rs, RInterp *ip);
 
 /* Why a stage is reduced the way it is (RStage.choice_reason points into
  * this table; the manifest records the index). */

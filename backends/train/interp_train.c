@@ -282,6 +282,7 @@ int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *er
         if (stream_tensor(&tb, f, &rt->ops[o].t[g], sn)) goto done;
     }
   }
+  if (interp_pack(m, rs, ip)) goto oom;
   interp_free(rs->interp);
   rs->interp = ip;
   ip = NULL;
