@@ -320,6 +320,13 @@ NPG_API long npg_trainer_samples(const NpgTrainer *t);
  * npg_trainer_error() on failure. The model belongs to the caller. */
 NPG_API NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir);
 NPG_API void npg_trainer_free(NpgTrainer *t);
+/* dots[k] = <values, the value input or extern `name` had in training sample k> for every
+ * sample added (npg_trainer_samples(t) of them, in order; `count` entries each), from the
+ * trainer's own record of them (an extern's callback is not called again). Before or after
+ * npg_trainer_finish, while the trainer lives; over MPI ranks a collective (every rank calls
+ * it; each gets every dot). With npg_model_coefficients, the coordinates of a value of a class
+ * kept as coefficients of its training values. 0, or -1 with npg_trainer_error(). */
+NPG_API int npg_trainer_dots(NpgTrainer *t, const char *name, size_t count, const double *values, double *dots);
 /* The wall time, in seconds, of the training that made `m` (0 for a
  * loaded model): seconds[0] snapshots, [1] bases, [2] pre-multiplication,
  * [3] externs; `cpu` (may be NULL) the same phases' CPU time of this
@@ -384,6 +391,13 @@ NPG_API int npg_model_class_of(const NpgModel *m, const char *quantity);
  * NULL for a class whose basis was streamed in training and not kept
  * (NpgTrainOptions.keep_bases). */
 NPG_API const double *npg_model_basis(const NpgModel *m, int c);
+/* A class kept as coefficients of its training values instead of a basis (an extern over two or
+ * more dims, trained out of core: radiosity's visibility, issue 30): its basis is B = X C, X the
+ * n x S matrix of the extern's S training values in training order, C returned here, S x m
+ * row-major (owned by the model), *samples (optional) set to S. A value v then has the
+ * coordinates Bᵀv = Cᵀ(Xᵀv): its inner products with the training values (npg_trainer_dots)
+ * times C, for npg_reduced_set_coords. NULL for a class that has its basis, or none. */
+NPG_API const double *npg_model_coefficients(const NpgModel *m, int c, long *samples);
 /* Bytes of the whole model; *tensor_bytes (optional) those of the reduced tensors. */
 NPG_API size_t npg_model_bytes(const NpgModel *m, size_t *tensor_bytes);
 NPG_API long npg_model_samples(const NpgModel *m);

@@ -516,9 +516,9 @@ static void read_errors(void **state) {
   edit_file(path, "npg-model 1", "hello");
   snprintf(want, sizeof want, "%s:1: not a model manifest: first line is 'hello', expected 'npg-model 1'", path);
   expect_read_error(dir, PROGRAM, want);
-  edit_file(path, "hello", "npg-model 3");
+  edit_file(path, "hello", "npg-model 4");
   snprintf(want, sizeof want,
-           "%s:1: model format 'npg-model 3' is not supported (this npgc reads 'npg-model 1' to 'npg-model 2': a "
+           "%s:1: model format 'npg-model 4' is not supported (this npgc reads 'npg-model 1' to 'npg-model 3': a "
            "newer npgc wrote it?)",
            path);
   expect_read_error(dir, PROGRAM, want);

@@ -596,6 +596,10 @@ void full_unbind(Full *f) {
   f->error[0] = 0;
 }
 
+void full_forget_given(Full *f) {
+  if (f->prog) memset(f->fresh, 0, sizeof(bool) * (size_t)f->prog->slots.n);
+}
+
 void full_free(Full *f) {
   if (!f) return;
   runtime_sparse_free(&f->host);

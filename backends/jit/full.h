@@ -58,6 +58,9 @@ int full_set(Full *f, const char *name, int ndim, const long *shape, const doubl
 int full_set_extern_fn(Full *f, const char *name, FullExternFn fn, void *user);
 /* Evaluate sample `sample` (externs' callbacks run first). */
 int full_eval(Full *f, long sample);
+/* The values full_set gave since the last evaluation no longer count as given: the next
+ * evaluation calls the externs' callbacks again (after values were set only to be read back). */
+void full_forget_given(Full *f);
 /* The values of quantity `name` and their count (optional), NULL when the
  * program has none by that name or it holds no value yet. */
 const double *full_get(const Full *f, const char *name, size_t *count);

@@ -254,7 +254,7 @@ int interp_save(const Model *m, ModelStore *s) {
     const RInterp *ip = rs->interp;
     if (!ip) continue;
     const char *sn = rs->st->sym->name;
-    s->format = 2;
+    s->format = s->format > 2 ? s->format : 2;
     bad |= model_store_meta(s, "interp %s k %ld m %ld reads %ld monos %ld norm %.17g", sn, ip->k, ip->m, ip->nreads,
                             ip->nmono, ip->pinv_norm);
     char name[600];
@@ -413,7 +413,7 @@ int interp_load(Model *m, const ModelStore *s, const char *dir, char *err, size_
     if (load_stage(m, s, dir, s->meta[i], err, errlen)) return -1;
     n++;
   }
-  if (s->format >= 2 && n == 0)
+  if (s->format == 2 && n == 0)
     return error_set(err, errlen, "%s/manifest: format 2 but no interpolated stage (a damaged or forged manifest)", dir);
   return 0;
 }

@@ -209,6 +209,8 @@ void model_free(Model *m) {
     free(rc->label);
     if (rc->B_mapped) munmap(rc->B, rc->B_mapped);
     else free(rc->B);
+    free(rc->coef);
+    free(rc->train_coords);
     for (int i = 0; rc->members && i < rc->nmembers; i++) free(rc->members[i].name), free(rc->members[i].sv);
     free(rc->members);
   }
@@ -267,10 +269,11 @@ void model_size_tensors(Model *m) {
   }
 }
 
-bool model_class_needed(const Model *m, int c) {
+/* model_class_needed, an extern's class counted needed or not (`externs`). */
+static bool needed(const Model *m, int c, bool externs) {
   for (int q = 0; q < m->nq; q++) {
     const Sym *s = m->prog->quantities.v[q];
-    if (m->qclass[q] == c && (s->kind == SYM_INPUT || s->kind == SYM_EXTERN || s->is_output)) return true;
+    if (m->qclass[q] == c && (s->kind == SYM_INPUT || (externs && s->kind == SYM_EXTERN) || s->is_output)) return true;
   }
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
@@ -286,6 +289,15 @@ bool model_class_needed(const Model *m, int c) {
       }
   }
   return false;
+}
+
+bool model_class_needed(const Model *m, int c) { return needed(m, c, true); }
+
+bool model_class_by_coefficients(const Model *m, int c) {
+  const RClass *rc = &m->classes[c];
+  if (rc->nmembers != 1 || rc->members[0].q < 0 || needed(m, c, false)) return false;
+  const Sym *s = m->prog->quantities.v[rc->members[0].q];
+  return s->kind == SYM_EXTERN && s->ndims >= 2;
 }
 
 bool model_class_streamable(const Model *m, int c) {
@@ -320,6 +332,7 @@ size_t model_bytes(const Model *m, size_t *tensor_bytes) {
   size_t total = 0, tb = 0;
   for (int c = 0; c < m->nclasses; c++)
     if (!m->classes[c].streamed) total += sizeof(double) * (size_t)(m->classes[c].n * m->classes[c].m);
+    else if (m->classes[c].coef) total += sizeof(double) * (size_t)(m->classes[c].coef_S * m->classes[c].m);
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
     for (int t = 0; t < rs->nterms; t++) {

@@ -119,6 +119,15 @@ typedef struct RClass {
                                unnamed file (out-of-core training), unmapped instead of freed */
   bool streamed;            /* the basis is not kept (B NULL, m its size when trained): model_class_streamable */
   bool floors_known;        /* training: its members' floor_l2/floor_linf already measured (out of core) */
+  /* an extern's class kept as coefficients of its training values instead of a basis (issue 30,
+   * model_class_by_coefficients; streamed is set too): B = X C for X the n x S matrix of the
+   * extern's S training values in training order, so a value v has the coordinates
+   * Bᵀv = Cᵀ(Xᵀv) from its inner products with them (npg_trainer_dots). C: S x m row-major
+   * (owned), NULL otherwise. coef_S > 0 with C NULL: training, out of core, is to form it. */
+  double *coef;
+  long coef_S;
+  double *train_coords;     /* training only: the S training values' coordinates Bᵀx_k, S x m
+                               row-major (owned), for the extern's learned map (B is never whole) */
   int nmembers;
   RMember *members;
 } RClass;
@@ -179,6 +188,10 @@ size_t model_bytes(const Model *m, size_t *tensor_bytes);
 bool model_class_needed(const Model *m, int c);
 /* Whether class `c` is not needed and has a member over two or more dims. */
 bool model_class_streamable(const Model *m, int c);
+/* Whether class `c` may be kept as coefficients of its training values (RClass.coef): its one
+ * member an extern over two or more dims (radiosity's visibility v, F² rows), whose basis
+ * nothing but npg_reduced_given_externs reads. */
+bool model_class_by_coefficients(const Model *m, int c);
 /* The projection floor of one value `full` (n = rc->n entries) in class
  * `rc`'s basis: out[0] = ‖y − BBᵀy‖₂/‖y‖₂, out[1] = ‖y − BBᵀy‖∞/‖y‖∞
  * (sums of squares taken of values over the largest |entry|, so any

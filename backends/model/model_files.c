@@ -88,6 +88,14 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
         if (rc->members[i].q >= 0)
           bad |= model_store_meta(&s, "floor %s l2 %.17g linf %.17g", rc->members[i].name, rc->members[i].floor_l2,
                                   rc->members[i].floor_linf);
+      if (rc->coef) { /* kept as coefficients of its training values: a format older builds refuse */
+        char name[64];
+        long shape[2] = {rc->coef_S, rc->m};
+        snprintf(name, sizeof name, "coef_%d", c);
+        s.format = 3;
+        bad |= model_store_meta(&s, "coefficients %d samples %ld", c, rc->coef_S);
+        bad |= model_store_add(&s, name, 2, shape, rc->coef);
+      }
       continue;
     }
     char name[64];
@@ -280,6 +288,34 @@ static int read_dims(const ModelStore *s, const Program *prog, const char *dir, 
   return 0;
 }
 
+/* Class c's coefficients (RClass.coef) when its "coefficients C samples S" line says it has them:
+ * coef_C.npy, S x m. 0 (also when it has none), or -1 with `err`. */
+static int load_coefficients(const ModelStore *s, Model *m, int c, const char *dir, char *err, size_t errlen) {
+  RClass *rc = &m->classes[c];
+  char prefix[64];
+  int n = snprintf(prefix, sizeof prefix, "coefficients %d ", c);
+  for (int j = 0; j < s->nmeta; j++) {
+    if (strncmp(s->meta[j], prefix, (size_t)n) != 0) continue;
+    int cc, used = 0;
+    long S;
+    if (sscanf(s->meta[j], "coefficients %d samples %ld%n", &cc, &S, &used) != 2 || s->meta[j][used] || S < 1 ||
+        S != m->samples || rc->coef)
+      return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                       dir, s->meta[j]);
+    if (s->format < 3)
+      return error_set(err, errlen, "%s/manifest: a 'coefficients' line in a model of format %d (a damaged or forged "
+                       "manifest)", dir, s->format);
+    char name[64];
+    snprintf(name, sizeof name, "coef_%d", c);
+    if (take(s, dir, name, S, rc->m, &rc->coef, err, errlen)) return -1;
+    for (long e = 0; e < S * rc->m; e++)
+      if (!isfinite(rc->coef[e]))
+        return error_set(err, errlen, "%s/%s.npy: holds a value that is not finite (a damaged or forged model)", dir, name);
+    rc->coef_S = S;
+  }
+  return 0;
+}
+
 /* Every class's basis: basis_C.npy, or for a streamed class (no basis kept,
  * model.h) its size from the class line (check_meta checks that line). */
 static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
@@ -298,6 +334,7 @@ static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err,
         return error_set(err, errlen, "%s/manifest: streamed class %s has no valid basis size on its class line", dir,
                          rc->label);
       rc->streamed = true;
+      if (load_coefficients(s, m, c, dir, err, errlen)) return -1;
       continue;
     }
     snprintf(name, sizeof name, "basis_%d", c);
@@ -308,13 +345,19 @@ static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err,
     rc->m = a->shape[1];
     if (take(s, dir, name, rc->n, rc->m, &rc->B, err, errlen)) return -1;
   }
+  bool coef = false;
+  for (int c = 0; c < m->nclasses; c++) coef |= m->classes[c].coef != NULL;
+  if (s->format == 3 && !coef)
+    return error_set(err, errlen, "%s/manifest: format 3 but no class kept as coefficients (a damaged or forged "
+                     "manifest)", dir);
   return 0;
 }
 
 /* Only a class the rule allows is streamed: never one whose basis is read. */
 static int check_streamed(const Model *m, const char *dir, char *err, size_t errlen) {
   for (int c = 0; c < m->nclasses; c++)
-    if (m->classes[c].streamed && !model_class_streamable(m, c))
+    if (m->classes[c].streamed && !model_class_streamable(m, c) &&
+        !(m->classes[c].coef && model_class_by_coefficients(m, c)))
       return error_set(err, errlen,
                        "%s/manifest: class %s is marked streamed, but %s (a damaged or forged manifest; retrain)", dir,
                        m->classes[c].label,

@@ -412,7 +412,10 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
     *nl = '\0';
     char *next = nl + 1;
     if (strlen(line) != (size_t)(nl - line)) return model_store_fail(r, mpath, ln, "line holds a NUL byte");
-    if (ln == 1 && strcmp(line, FORMAT_LINE) != 0 && strcmp(line, FORMAT_LINE_MAX) != 0) {
+    int version = 0, vend = 0;
+    if (ln == 1 && (sscanf(line, FORMAT_WORD " %d%n", &version, &vend) != 1 || line[vend] || version < 1 ||
+                    version > FORMAT_MAX || strncmp(line, FORMAT_WORD " ", strlen(FORMAT_WORD) + 1) != 0 ||
+                    !(line[strlen(FORMAT_WORD) + 1] >= '1' && line[strlen(FORMAT_WORD) + 1] <= '9'))) {
       if (key_is(line, FORMAT_WORD))
         return model_store_fail(r, mpath, ln,
                                 "model format '%s' is not supported (this npgc reads '" FORMAT_LINE "' to '" FORMAT_LINE_MAX
@@ -421,7 +424,7 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
       return model_store_fail(r, mpath, ln, "not a model manifest: first line is '%s', expected '" FORMAT_LINE "'",
                   model_store_excerpt(buf, line));
     } else if (ln == 1) {
-      m->format = strcmp(line, FORMAT_LINE) == 0 ? 1 : FORMAT_MAX;
+      m->format = version;
     } else if (key_is(line, FORMAT_WORD)) {
       return model_store_fail(r, mpath, ln, "'" FORMAT_WORD "' may only be the first line");
     } else if (key_is(line, "manifest")) {

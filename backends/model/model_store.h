@@ -58,7 +58,9 @@ typedef struct ModelStore {
   int format;            /* the first line's version: 0 or 1 writes "npg-model 1"; 2 a model with
                             interpolated stages (interp.h), which builds that predate them refuse
                             ("model format 'npg-model 2' is not supported") instead of evaluating
-                            it by Galerkin; read: what the file said */
+                            it by Galerkin; 3 a model with a class kept as coefficients of its
+                            training values (RClass.coef), which older builds refuse the same way
+                            instead of finding no basis; read: what the file said */
   int nmeta;
   char **meta; /* ordered manifest lines "key value...", without '\n', written verbatim */
   int narrays;

@@ -11,8 +11,8 @@
 
 #define FORMAT_LINE "npg-model 1"
 /* the newest format this build reads (model_store.h: ModelStore.format) */
-#define FORMAT_LINE_MAX "npg-model 2"
-#define FORMAT_MAX 2
+#define FORMAT_LINE_MAX "npg-model 3"
+#define FORMAT_MAX 3
 #define FORMAT_WORD "npg-model"
 #define CHECKSUM_KIND "fnv1a64"
 

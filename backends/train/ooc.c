@@ -681,6 +681,11 @@ int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *op
               "--mem for fewer passes\n", o.S, (double)o.fixed / 1e6);
   }
   for (int c = 0; c < m->nclasses; c++) o.st[c].blockwise = stream_blockwise(&o, c);
+  /* an extern's pair class formed block by block: kept as coefficients of its training values, its
+   * basis never whole (issue 30: radiosity's v, 12 GB at the paper's size) */
+  for (int c = 0; c < m->nclasses; c++)
+    if (o.st[c].blockwise && !m->classes[c].streamed && !train_keeps_basis(m, opt, c) && model_class_by_coefficients(m, c))
+      m->classes[c].streamed = true, m->classes[c].coef_S = o.S;
   train_mark_spd(m);
   double t[6] = {now()};
   /* over ranks every rank's passes evaluate every sample */
@@ -700,6 +705,7 @@ int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *op
       Stream *st = &o.st[c];
       if (ooc_coefficients(&o, c, &T, &mm)) goto done;
       if (st->blockwise && mm == 0) st->blockwise = false; /* train_complete_basis gives it one direction */
+      if (!st->blockwise && rcl->coef_S > 0) rcl->streamed = false, rcl->coef_S = 0; /* kept as a basis after all */
       /* the floors need only ‖Tᵀ(AᵀX)‖, whatever the columns' signs */
       int bad = (!st->blockwise && write_basis(&o, c, T, mm)) || (st->AX && take_floors(&o, c, T, mm));
       if (st->blockwise) st->T = T, st->m = rcl->m = mm; /* its basis formed block by block: stream_premultiply */

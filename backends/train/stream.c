@@ -106,6 +106,46 @@ static double now(void) {
   return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
+/* An extern's class kept as coefficients (RClass.coef, issue 30): its basis is B = A T diag(sign)
+ * with A = X G0 (the mean is X 1/S, the Gram directions (X − μ1ᵀ)W = X (W − 1 1ᵀW/S), or X W
+ * uncentered), so C = G0 T diag(sign); and its training values' coordinates are
+ * BᵀX = diag(sign) Tᵀ(AᵀX), AᵀX from the basis passes (Stream.AX). */
+static int coefficients(Ooc *o, int c, const double *sign) {
+  Stream *st = &o->st[c];
+  RClass *rc = &o->m->classes[c];
+  const RMember *mb = &rc->members[0];
+  long S = o->S, K = st->K, m = st->m, u = st->col[0];
+  double *G0 = mem_calloc((size_t)(S * K) + 1, sizeof(double)), *P = mem_malloc(sizeof(double) * (size_t)(S * m + 1));
+  rc->coef = mem_malloc(sizeof(double) * (size_t)(S * m + 1));
+  rc->train_coords = mem_malloc(sizeof(double) * (size_t)(S * m + 1));
+  if (!G0 || !P || !rc->coef || !rc->train_coords || !st->AX || !st->AX[0]) {
+    free(G0), free(P);
+    return error_set(o->err, o->errlen, "out of memory keeping class %s as coefficients", rc->label);
+  }
+  if (mb->center) {
+    for (long e = 0; e < S; e++) G0[u * S + e] = 1.0 / (double)S;
+    u++;
+  }
+  for (long j = 0; j < st->k[0]; j++) {
+    const double *w = st->G[0] + j * S;
+    double mean = 0;
+    for (long e = 0; mb->center && e < S; e++) mean += w[e] / (double)S;
+    for (long e = 0; e < S; e++) G0[(u + j) * S + e] = w[e] - mean;
+  }
+  /* P = G0 T (S x m column-major), then C row-major with the signs */
+  cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)S, (int)m, (int)K, 1.0, G0, (int)S, st->T, (int)K, 0.0, P,
+              (int)S);
+  for (long e = 0; e < S; e++)
+    for (long j = 0; j < m; j++) rc->coef[e * m + j] = P[j * S + e] * sign[j];
+  /* Tᵀ(AᵀX): m x S column-major, that is S x m row-major */
+  cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, (int)m, (int)S, (int)K, 1.0, st->T, (int)K, st->AX[0], (int)K, 0.0,
+              rc->train_coords, (int)m);
+  for (long e = 0; e < S; e++)
+    for (long j = 0; j < m; j++) rc->train_coords[e * m + j] *= sign[j];
+  free(G0), free(P);
+  return 0;
+}
+
 bool stream_blockwise(const Ooc *o, int c) {
   const Model *m = o->m;
   if (!o->st[c].streamed || o->opt->ninterp > 0 || o->opt->valid) return false;
@@ -631,11 +671,15 @@ int stream_premultiply(Ooc *o) {
     if (ooc_mine(o, p) && block(&s, p, o->npass, true)) goto done;
   if (decide_signs(&s)) goto done;
   for (int c = 0; c < m->nclasses; c++)
+    if (m->classes[c].coef_S > 0 && blockwise(&s, c) && coefficients(o, c, s.held[c].sign)) goto done;
+  for (int c = 0; c < m->nclasses; c++)
     if (s.held[c].file && map_kept(&s, c)) goto done;
   if (o->opt->progress) {
     fprintf(stderr, "out of core: bases formed block by block for the pre-multiplication, no basis file:");
     for (int c = 0; c < m->nclasses; c++)
       if (blockwise(&s, c) && m->classes[c].streamed) fprintf(stderr, " %s", m->classes[c].label);
+    for (int c = 0; c < m->nclasses; c++)
+      if (m->classes[c].coef) fprintf(stderr, "; %s kept as coefficients of its training values", m->classes[c].label);
     fprintf(stderr, "; kept, written as formed (no scratch A):");
     for (int c = 0; c < m->nclasses; c++)
       if (blockwise(&s, c) && !m->classes[c].streamed) fprintf(stderr, " %s", m->classes[c].label);

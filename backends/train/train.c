@@ -530,10 +530,15 @@ int train_premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err
  * dropped (train_drop_bases) — marked once the reduction of every stage is
  * chosen (an interpolated stage's class is needed): the streamable ones
  * (model_class_streamable) --keep-bases does not name. */
+bool train_keeps_basis(const Model *m, const TrainOptions *opt, int c) {
+  return !opt->stream || keep_named(m, opt->keep_bases, c, NULL, 0);
+}
+
 bool train_mark_streamed(Model *m, const TrainOptions *opt) {
   bool any = false; /* whose floors are still to be taken */
-  for (int c = 0; c < m->nclasses; c++) { /* the names were checked by train_begin */
-    m->classes[c].streamed = opt->stream && !keep_named(m, opt->keep_bases, c, NULL, 0) && model_class_streamable(m, c);
+  for (int c = 0; c < m->nclasses; c++) { /* the names were checked by train_begin; out of core kept as coefficients */
+    m->classes[c].streamed =
+        (!train_keeps_basis(m, opt, c) && model_class_streamable(m, c)) || m->classes[c].coef_S > 0;
     any |= m->classes[c].streamed && !m->classes[c].floors_known;
   }
   return any;
@@ -565,6 +570,8 @@ void train_drop_bases(Model *m) {
     if (rc->B_mapped) munmap(rc->B, rc->B_mapped);
     else free(rc->B);
     rc->B = NULL, rc->B_mapped = 0;
+    free(rc->train_coords);
+    rc->train_coords = NULL;
   }
 }
 
@@ -603,8 +610,17 @@ static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const 
     if (!(x->X = mem_calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = mem_calloc((size_t)(S * mz) + 1, sizeof(double))))
       return error_set(err, errlen, "out of memory while training");
   }
+  /* an extern's map reads only what a sample gives (its inputs and externs are the program's own):
+   * setting the sample is enough, no evaluation (at the paper's size each is a 5,000-face solve) */
+  bool given_only = !floors;
+  for (int i = 0; i < nx; i++)
+    for (int j = 0; j <= m->externs[i].nin; j++) {
+      const Sym *s = m->prog->quantities.v[j < m->externs[i].nin ? m->externs[i].in_q[j] : m->externs[i].q];
+      given_only &= s->kind == SYM_INPUT || s->kind == SYM_EXTERN;
+    }
   for (long k = rank; k < S && (nx > 0 || floors); k += N) {
-    if (gram && train_eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
+    if (gram && given_only && src->set(src->user, f, k) != 0) return error_set(err, errlen, "%s", full_error(f));
+    if (gram && !given_only && train_eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
     for (int i = 0; i < nx; i++) {
       RExtern *x = &m->externs[i];
       long mz = m->classes[m->qclass[x->q]].m, off = 0;
@@ -618,13 +634,16 @@ static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const 
           val = sn->X[m->qclass[q]][mi] + (size_t)k * (size_t)rc->n;
         }
         double *dst = j < x->nin ? x->X + k * x->d + off : x->Z + k * mz;
-        cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, val, 1, 0.0, dst, 1);
+        if (!rc->B && rc->train_coords) /* kept as coefficients: its coordinates from the basis passes */
+          memcpy(dst, rc->train_coords + k * rc->m, sizeof(double) * (size_t)rc->m);
+        else cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, val, 1, 0.0, dst, 1);
         if (j < x->nin) off += rc->m;
       }
     }
     if (floors) train_take_floors(m, f, sn, gram, k, S, proj, y);
     if (gram) progress_show(progress, floors ? "extern samples, floors" : "extern samples", k + 1, S);
   }
+  if (gram && given_only) full_forget_given(f); /* set, never evaluated: callbacks as before */
   for (int i = 0; N > 1 && i < nx; i++) {
     RExtern *x = &m->externs[i];
     dist_allreduce_sum(x->X, S * x->d);

@@ -56,6 +56,10 @@ typedef struct TrainOptions {
                                quantities or classes, "all" for every one; NULL: none */
 } TrainOptions;
 
+/* Whether training keeps class c's basis whatever the rule (no opt->stream, or --keep-bases
+ * names it; train.c). */
+bool train_keeps_basis(const Model *m, const TrainOptions *opt, int c);
+
 /* Draws per basis vector of an interpolated stage when not given
  * (bench/interp.md, k = X·m draws, fewer distinct entries): weighted, at 8
  * the output is within 1.02x of its floor in the small-motion gravity rows

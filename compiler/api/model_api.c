@@ -327,6 +327,14 @@ const double *npg_model_basis(const NpgModel *nm, int c) {
   return nm->m && c >= 0 && c < nm->m->nclasses ? nm->m->classes[c].B : NULL;
 }
 
+const double *npg_model_coefficients(const NpgModel *nm, int c, long *samples) {
+  if (samples) *samples = 0;
+  REFUSE_NULL_M(NULL);
+  if (!nm->m || c < 0 || c >= nm->m->nclasses || !nm->m->classes[c].coef) return NULL;
+  if (samples) *samples = nm->m->classes[c].coef_S;
+  return nm->m->classes[c].coef;
+}
+
 size_t npg_model_bytes(const NpgModel *nm, size_t *tensor_bytes) {
   if (tensor_bytes) *tensor_bytes = 0;
   REFUSE_NULL_M(0);
@@ -511,10 +519,16 @@ static int settable(NpgReduced *r, const char *name) {
 
 /* Why quantity `name` of streamed class `c` cannot be `what` (model.h, issue 30). */
 static const char *streamed_message(const RClass *c, const char *name, const char *what) {
-  static _Thread_local char msg[512];
-  snprintf(msg, sizeof msg, "'%s' cannot be %s: the basis of its class %s was streamed in training and not kept in "
-           "the model (its reduced coordinates remain: npg_reduced_coords); retrain with --keep-bases %s to keep it",
-           name, what, c->label, name);
+  static _Thread_local char msg[640];
+  if (c->coef)
+    snprintf(msg, sizeof msg, "'%s' cannot be %s: the basis of its class %s is kept as coefficients of its %ld training "
+             "values, not whole (issue 30); give its coordinates Cᵀ(Xᵀv) with npg_reduced_set_coords (C: "
+             "npg_model_coefficients; Xᵀv: npg_trainer_dots), or retrain with --keep-bases %s", name, what, c->label,
+             c->coef_S, name);
+  else
+    snprintf(msg, sizeof msg, "'%s' cannot be %s: the basis of its class %s was streamed in training and not kept in "
+             "the model (its reduced coordinates remain: npg_reduced_coords); retrain with --keep-bases %s to keep it",
+             name, what, c->label, name);
   return msg;
 }
 

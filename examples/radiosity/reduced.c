@@ -1,6 +1,7 @@
 /* reduced.c — the reduced radiosity through npg.h (reduced.h). */
 #include "reduced.h"
 
+#include <cblas.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -100,7 +101,17 @@ int reduced_train(ReducedRadiosity *r, Scene *s, int samples, int cap, double en
     npg_trainer_free(tr);
     return -1;
   }
-  npg_trainer_free(tr);
+  int cv = npg_model_class_of(r->model, "v");
+  NpgClassInfo vi;
+  r->vcoef = cv >= 0 && npg_model_class(r->model, cv, &vi) == 0 ? npg_model_coefficients(r->model, cv, &r->vS) : NULL;
+  if (r->vcoef) { /* out of core: v's coordinates from the trainer's records of the training values */
+    r->trainer = tr, r->vm = vi.m;
+    r->dots = malloc(sizeof(double) * (size_t)r->vS);
+    r->vcoords = malloc(sizeof(double) * (size_t)r->vm);
+    if (!r->dots || !r->vcoords) return failed(err, errlen, "reduced evaluator", "out of memory");
+  } else {
+    npg_trainer_free(tr);
+  }
   /* the split of npg_trainer_finish is the library's own (the trainer's "training
    * phases" line gives the same figures): snapshots, bases, pre-multiplication, and the
    * learned visibility's fit (its samples' extern values are cached: no ray is cast) */
@@ -144,12 +155,32 @@ int reduced_frame(ReducedRadiosity *r, const Scene *s, const SceneParams *p, lon
   return 0;
 }
 
+/* v's coordinates into the visibility-given evaluator: projected onto its basis, or, when the model
+ * keeps v as coefficients C of its training values X, Cᵀ(Xᵀv) from the trainer's records. */
+static int set_given_v(ReducedRadiosity *r, const double *v, char *err, size_t errlen) {
+  NpgReduced *q = r->given;
+  if (!r->vcoef) {
+    if (npg_reduced_set(q, "v", (size_t)(r->F * r->F), v)) return failed(err, errlen, "visibility given", npg_reduced_error(q));
+    return 0;
+  }
+  if (!r->trainer)
+    return failed(err, errlen, "visibility given",
+                  "the model keeps v as coefficients of its training values: their records are the trainer's (train in "
+                  "this run, or with --keep-bases v)");
+  if (npg_trainer_dots(r->trainer, "v", (size_t)(r->F * r->F), v, r->dots))
+    return failed(err, errlen, "visibility given", npg_trainer_error(r->trainer));
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)r->vS, (int)r->vm, 1.0, r->vcoef, (int)r->vm, r->dots, 1, 0.0, r->vcoords, 1);
+  if (npg_reduced_set_coords(q, "v", (size_t)r->vm, r->vcoords))
+    return failed(err, errlen, "visibility given", npg_reduced_error(q));
+  return 0;
+}
+
 int reduced_frame_given(ReducedRadiosity *r, const double *g, const double *e, const double *v, long sample, double *b,
                         char *err, size_t errlen) {
   NpgReduced *q = r->given;
+  if (set_given_v(r, v, err, errlen)) return -1;
   if (npg_reduced_set(q, "g", (size_t)(3 * r->V), g) || npg_reduced_set(q, "e", (size_t)r->F, e) ||
-      npg_reduced_set(q, "v", (size_t)(r->F * r->F), v) || npg_reduced_eval(q, sample) ||
-      npg_reduced_lift(q, "b", b, (size_t)r->F))
+      npg_reduced_eval(q, sample) || npg_reduced_lift(q, "b", b, (size_t)r->F))
     return failed(err, errlen, "reduced frame (visibility given)", npg_reduced_error(q));
   return 0;
 }
@@ -174,6 +205,9 @@ int reduced_project_b(const ReducedRadiosity *r, const double *b, double *out) {
 }
 
 void reduced_close(ReducedRadiosity *r) {
+  npg_trainer_free(r->trainer);
+  free(r->dots);
+  free(r->vcoords);
   npg_reduced_free(r->learned);
   npg_reduced_free(r->given);
   npg_model_free(r->model);

@@ -26,6 +26,13 @@ typedef struct ReducedRadiosity {
   NpgModel *model;
   NpgReduced *learned;  /* v from the learned map */
   NpgReduced *given;    /* v given (projected) */
+  /* the model keeps v's basis as coefficients C of its training values (trained out of core, issue
+   * 30: 25 M rows at the paper's size): the trainer kept to give v's coordinates Cᵀ(Xᵀv) from
+   * its records (npg_trainer_dots); NULL when the model has v's basis */
+  NpgTrainer *trainer;
+  const double *vcoef;  /* C, S x m (the model's) */
+  long vS, vm;
+  double *dots, *vcoords; /* S, m */
   long V, F;
   double *g;            /* V x 3 scratch of the run-time frame */
   double ray_seconds;   /* in the visibility callback, over training */

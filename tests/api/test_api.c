@@ -238,8 +238,64 @@ static int visibility_partly(void *user, const NpgFull *f, long sample, double *
   return 0;
 }
 
+/* Every sample of s added to t with its g and e staged (v by the evaluator's callback). */
+static void add_g_e(NpgTrainer *t, NpgSamples *s, const long *gs, const long *es) {
+  for (long k = 0; k < npg_samples_count(s); k++) {
+    assert_int_equal(npg_trainer_set(t, "g", 2, gs, npg_samples_get(s, "g", k, NULL)), 0);
+    assert_int_equal(npg_trainer_set(t, "e", 1, es, npg_samples_get(s, "e", k, NULL)), 0);
+    assert_int_equal(npg_trainer_add(t), 0);
+  }
+}
+
 static NpgModel *radiosity_model;
 static NpgProgram *radiosity_prog;
+
+/* For a model whose v is kept as coefficients C (npg_model_coefficients) and the trainer that made
+ * it: the largest difference, relative to the largest |z|, between every training sample's
+ * learned-map value z_k (the npy at zpath) and Cᵀ(Xᵀv_k) (npg_trainer_dots), and the largest
+ * between X C z_k = Σ_l (C z_k)_l v_l and v_k itself (`vis`: the value the callback gave for
+ * the data's v, NULL: the data's). */
+static double coefficients_reproduce(const NpgModel *m, NpgTrainer *t, NpgSamples *s, const char *zpath,
+                                     double (*vis)(long k, size_t e, double v)) {
+  int cv = npg_model_class_of(m, "v");
+  NpgClassInfo vi;
+  assert_int_equal(npg_model_class(m, cv, &vi), 0);
+  assert_null(npg_model_basis(m, cv));
+  long S = npg_samples_count(s), cs = 0, zn = 0;
+  const double *C = npg_model_coefficients(m, cv, &cs);
+  assert_non_null(C);
+  assert_int_equal(cs, S);
+  double *Z = npy_payload(zpath, &zn);
+  assert_int_equal(zn, S * vi.m);
+  double *vk = malloc(sizeof(double) * (size_t)vi.n), *dots = malloc(sizeof(double) * (size_t)S);
+  double *w = malloc(sizeof(double) * (size_t)S), *lifted = calloc((size_t)vi.n, sizeof(double));
+  double zmax = 0, worst_z = 0, worst_v = 0;
+  for (long k = 0; k < S * vi.m; k++) zmax = fmax(zmax, fabs(Z[k]));
+  for (long k = 0; k < S; k++) {
+    const double *data = npg_samples_get(s, "v", k, NULL);
+    for (long e = 0; e < vi.n; e++) vk[e] = vis ? vis(k, (size_t)e, data[e]) : data[e];
+    if (npg_trainer_dots(t, "v", (size_t)vi.n, vk, dots) != 0) fail_msg("%s", npg_trainer_error(t));
+    for (long j = 0; j < vi.m; j++) {
+      double z = 0;
+      for (long l = 0; l < S; l++) z += C[l * vi.m + j] * dots[l];
+      worst_z = fmax(worst_z, fabs(z - Z[k * vi.m + j]) / zmax);
+    }
+    for (long l = 0; l < S; l++) {
+      w[l] = 0;
+      for (long j = 0; j < vi.m; j++) w[l] += C[l * vi.m + j] * Z[k * vi.m + j];
+    }
+    memset(lifted, 0, sizeof(double) * (size_t)vi.n);
+    for (long l = 0; l < S; l++) {
+      const double *vl = npg_samples_get(s, "v", l, NULL);
+      for (long e = 0; e < vi.n; e++) lifted[e] += w[l] * (vis ? vis(l, (size_t)e, vl[e]) : vl[e]);
+    }
+    for (long e = 0; e < vi.n; e++) worst_v = fmax(worst_v, fabs(lifted[e] - vk[e]));
+  }
+  print_message("v kept as coefficients of its %ld training values (m %ld): z_k against Cᵀ(Xᵀv_k) %.2e (of the largest "
+                "|z|), X C z_k against v_k %.2e\n", S, vi.m, worst_z, worst_v);
+  free(Z), free(vk), free(dots), free(w), free(lifted);
+  return fmax(worst_z, worst_v);
+}
 
 static void radiosity_pipeline(void **state) {
   (void)state;
@@ -285,11 +341,7 @@ static void radiosity_pipeline(void **state) {
   VisData vd = {s, 0};
   assert_int_equal(npg_full_set_extern_fn(fc, "v", visibility, &vd), 0);
   t = npg_trainer_new(fc, &o);
-  for (long k = 0; k < npg_samples_count(s); k++) {
-    assert_int_equal(npg_trainer_set(t, "g", 2, gs, npg_samples_get(s, "g", k, NULL)), 0);
-    assert_int_equal(npg_trainer_set(t, "e", 1, es, npg_samples_get(s, "e", k, NULL)), 0);
-    assert_int_equal(npg_trainer_add(t), 0);
-  }
+  add_g_e(t, s, gs, es);
   assert_int_equal(vd.calls, npg_samples_count(s));
   m = npg_trainer_finish(t, bycall);
   if (!m) fail_msg("%s", npg_trainer_error(t));
@@ -310,39 +362,23 @@ static void radiosity_pipeline(void **state) {
   small.mem = 160000;
   vd.calls = 0;
   t = npg_trainer_new(fc, &small);
-  for (long k = 0; k < npg_samples_count(s); k++) {
-    assert_int_equal(npg_trainer_set(t, "g", 2, gs, npg_samples_get(s, "g", k, NULL)), 0);
-    assert_int_equal(npg_trainer_set(t, "e", 1, es, npg_samples_get(s, "e", k, NULL)), 0);
-    assert_int_equal(npg_trainer_add(t), 0);
-  }
+  add_g_e(t, s, gs, es);
   NpgModel *ms = npg_trainer_finish(t, smallcall);
   if (!ms) fail_msg("%s", npg_trainer_error(t));
   assert_int_equal(vd.calls, npg_samples_count(s));
-  npg_trainer_free(t);
   assert_same_model(smallcall, smallcli);
-  /* the cache kept v exactly: every training sample's learned-map value
-   * z_k = B_vᵀ v_k (extern_v_values.npy) lifts back to the ray caster's v_k,
-   * which lies in the span of B_v here (v is 1 everywhere in a convex room) */
+  /* out of core v's class is kept as coefficients C of its training values, not as a basis (issue
+   * 30): B_v = X C. The cache kept v exactly: every training sample's learned-map value
+   * z_k = B_vᵀ v_k (extern_v_values.npy) is Cᵀ(Xᵀv_k) from the trainer's inner products, and
+   * lifts back to the ray caster's v_k, which lies in the span of B_v here (v is 1 everywhere in a
+   * convex room) */
   int cv = npg_model_class_of(ms, "v");
   NpgClassInfo vi;
   assert_int_equal(npg_model_class(ms, cv, &vi), 0);
-  const double *Bv = npg_model_basis(ms, cv);
   char zpath[600];
   snprintf(zpath, sizeof zpath, "%s/extern_v_values.npy", smallcall);
-  long zn = 0;
-  double *Z = npy_payload(zpath, &zn);
-  assert_int_equal(zn, npg_samples_count(s) * vi.m);
-  double worst = 0;
-  for (long k = 0; k < npg_samples_count(s); k++) {
-    const double *vk = npg_samples_get(s, "v", k, NULL);
-    for (long e = 0; e < vi.n; e++) {
-      double lifted = 0;
-      for (long j = 0; j < vi.m; j++) lifted += Bv[e * vi.m + j] * Z[k * vi.m + j];
-      worst = fmax(worst, fabs(lifted - vk[e]));
-    }
-  }
-  assert_true(worst <= 1e-10);
-  free(Z);
+  assert_true(coefficients_reproduce(ms, t, s, zpath, NULL) <= 1e-10);
+  npg_trainer_free(t);
 
   /* visibility with partly hidden faces (fractional and -0 entries, kept
    * beside the bits): with bases of every direction (cap 16 = S, energy 1)
@@ -354,34 +390,64 @@ static void radiosity_pipeline(void **state) {
   NpgTrainOptions every = small;
   every.cap = 16, every.energy = 1;
   t = npg_trainer_new(fp, &every);
-  for (long k = 0; k < npg_samples_count(s); k++) {
-    assert_int_equal(npg_trainer_set(t, "g", 2, gs, npg_samples_get(s, "g", k, NULL)), 0);
-    assert_int_equal(npg_trainer_set(t, "e", 1, es, npg_samples_get(s, "e", k, NULL)), 0);
-    assert_int_equal(npg_trainer_add(t), 0);
-  }
+  add_g_e(t, s, gs, es);
   char partpath[512];
   snprintf(partpath, sizeof partpath, "%s/RPARTLY", scratch);
   NpgModel *mp = npg_trainer_finish(t, partpath);
   if (!mp) fail_msg("%s", npg_trainer_error(t));
   assert_int_equal(vd.calls, npg_samples_count(s));
-  npg_trainer_free(t);
-  cv = npg_model_class_of(mp, "v");
-  assert_int_equal(npg_model_class(mp, cv, &vi), 0);
-  Bv = npg_model_basis(mp, cv);
   snprintf(zpath, sizeof zpath, "%s/extern_v_values.npy", partpath);
-  Z = npy_payload(zpath, &zn);
-  assert_int_equal(zn, npg_samples_count(s) * vi.m);
-  worst = 0;
-  for (long k = 0; k < npg_samples_count(s); k++) {
-    const double *vk = npg_samples_get(s, "v", k, NULL);
-    for (long e = 0; e < vi.n; e++) {
-      double lifted = 0;
-      for (long j = 0; j < vi.m; j++) lifted += Bv[e * vi.m + j] * Z[k * vi.m + j];
-      worst = fmax(worst, fabs(lifted - partly(k, (size_t)e, vk[e])));
-    }
+  assert_true(coefficients_reproduce(mp, t, s, zpath, partly) <= 1e-10);
+  /* --keep-bases v keeps the basis itself (the old layout): a visibility that is no training
+   * sample's gets the same coordinates Bᵀv as Cᵀ(Xᵀv), and the reduced b with v given is the same */
+  NpgTrainOptions keep = every;
+  keep.keep_bases = "v";
+  NpgTrainer *tk = npg_trainer_new(fp, &keep);
+  add_g_e(tk, s, gs, es);
+  NpgModel *mk = npg_trainer_finish(tk, NULL);
+  if (!mk) fail_msg("%s", npg_trainer_error(tk));
+  npg_trainer_free(tk);
+  cv = npg_model_class_of(mk, "v");
+  assert_int_equal(npg_model_class(mk, cv, &vi), 0);
+  const double *Bk = npg_model_basis(mk, cv), *Cp = npg_model_coefficients(mp, cv, NULL);
+  assert_non_null(Bk);
+  assert_null(npg_model_coefficients(mk, cv, NULL));
+  double *vt = malloc(sizeof(double) * (size_t)vi.n), *dots = malloc(sizeof(double) * (size_t)npg_samples_count(s));
+  double *zb = calloc((size_t)vi.m, sizeof(double)), *zc = calloc((size_t)vi.m, sizeof(double));
+  const double *v5 = npg_samples_get(s, "v", 5, NULL), *g5 = npg_samples_get(s, "g", 5, NULL);
+  const double *e5 = npg_samples_get(s, "e", 5, NULL);
+  for (long e = 0; e < vi.n; e++) vt[e] = partly(5, (size_t)e, v5[e]) * (1 + 0.1 * sin(0.37 * (double)e));
+  assert_int_equal(npg_trainer_dots(t, "v", (size_t)vi.n, vt, dots), 0);
+  double zmax = 0, dz = 0;
+  for (long j = 0; j < vi.m; j++) {
+    for (long e = 0; e < vi.n; e++) zb[j] += Bk[e * vi.m + j] * vt[e];
+    for (long l = 0; l < npg_samples_count(s); l++) zc[j] += Cp[l * vi.m + j] * dots[l];
+    zmax = fmax(zmax, fabs(zb[j])), dz = fmax(dz, fabs(zb[j] - zc[j]));
   }
-  assert_true(worst <= 1e-10);
-  free(Z);
+  print_message("a visibility of no training sample: Bᵀv against Cᵀ(Xᵀv) %.2e of the largest coordinate\n", dz / zmax);
+  assert_true(dz <= 1e-10 * zmax);
+  NpgReduced *rb = npg_reduced_new(mk), *rcf = npg_reduced_new(mp);
+  npg_reduced_given_externs(rb, true), npg_reduced_given_externs(rcf, true);
+  double *bb = malloc(sizeof(double) * (size_t)F), *bc = malloc(sizeof(double) * (size_t)F);
+  assert_int_equal(npg_reduced_set(rb, "g", (size_t)(3 * V), g5) || npg_reduced_set(rb, "e", (size_t)F, e5) ||
+                       npg_reduced_set(rb, "v", (size_t)vi.n, vt) || npg_reduced_eval(rb, 0) ||
+                       npg_reduced_lift(rb, "b", bb, (size_t)F),
+                   0);
+  /* the coefficient model refuses v in full, naming the way */
+  assert_int_equal(npg_reduced_set(rcf, "v", (size_t)vi.n, vt), -1);
+  assert_non_null(strstr(npg_reduced_error(rcf), "npg_trainer_dots"));
+  npg_reduced_clear_error(rcf);
+  assert_int_equal(npg_reduced_set(rcf, "g", (size_t)(3 * V), g5) || npg_reduced_set(rcf, "e", (size_t)F, e5) ||
+                       npg_reduced_set_coords(rcf, "v", (size_t)vi.m, zc) || npg_reduced_eval(rcf, 0) ||
+                       npg_reduced_lift(rcf, "b", bc, (size_t)F),
+                   0);
+  double bmax = 0, db = 0;
+  for (long i = 0; i < F; i++) bmax = fmax(bmax, fabs(bb[i])), db = fmax(db, fabs(bb[i] - bc[i]));
+  assert_true(db <= 1e-10 * bmax);
+  free(vt), free(dots), free(zb), free(zc), free(bb), free(bc);
+  npg_reduced_free(rb), npg_reduced_free(rcf);
+  npg_model_free(mk);
+  npg_trainer_free(t);
   npg_model_free(mp);
   npg_full_free(fp);
   npg_model_free(ms);

@@ -30,13 +30,21 @@ same_arrays() {
   done
 }
 # every array of model $1 is in $2 with the same numbers to 1e-10 (relative to the largest
-# entry, at least 1); the bases $1 keeps bit for bit
+# entry, at least 1); the bases $1 keeps bit for bit; a class $1 keeps as coefficients C of its
+# training values X (v's out of core, issue 30: coef_C.npy) has X C equal to $2's basis to 1e-10
 same_numbers() {
-  /usr/bin/python3 - "$1" "$2" <<'PY' || fail "$1 and $2 differ"
+  /usr/bin/python3 - "$1" "$2" "$W/RT/v.npy" <<'PY' || fail "$1 and $2 differ"
 import os, sys, numpy as np
 a, b = sys.argv[1], sys.argv[2]
-assert all(os.path.exists(os.path.join(b, f)) for f in os.listdir(a)), "a file of %s not in %s" % (a, b)
+assert all(os.path.exists(os.path.join(b, f.replace("coef_", "basis_"))) for f in os.listdir(a)), \
+    "a file of %s not in %s" % (a, b)
 for f in os.listdir(a):
+    if f.startswith("coef_"):
+        C, B = np.load(os.path.join(a, f)), np.load(os.path.join(b, f.replace("coef_", "basis_")))
+        X = np.load(sys.argv[3]).reshape(C.shape[0], -1)
+        d = np.max(np.abs(X.T @ C - B)) / max(1.0, np.max(np.abs(B)))
+        assert d <= 1e-10, "%s: X C against the basis: %g" % (f, d)
+        continue
     if not f.endswith(".npy"):
         continue
     x, y = np.load(os.path.join(a, f)), np.load(os.path.join(b, f))
@@ -60,7 +68,10 @@ streamed_labels() { # the labels of the classes model $1 streamed, and a check t
 for mem in "" "--cap 8 --mem 10M" "--mem 160k"; do
   "$N" train $R "$W/RT" -o "$W/S" $mem >/dev/null || fail "train streamed $mem"
   "$N" train $R "$W/RT" -o "$W/K" $mem --keep-bases all >/dev/null || fail "train --keep-bases all $mem"
-  [ "$(streamed_labels "$W/S")" = "{s,h} {r} {c} {d,p} " ] || fail "streamed classes $mem: $(streamed_labels "$W/S")"
+  # out of core v's class too, kept as coefficients of its training values (issue 30)
+  want="{s,h} {r} {c} {d,p} " nstreamed=6 floors="s h r c d p"
+  case "$mem" in *160k) want="{s,h} {r} {c} {v} {d,p} " nstreamed=7 floors="s h r c d p v" ;; esac
+  [ "$(streamed_labels "$W/S")" = "$want" ] || fail "streamed classes $mem: $(streamed_labels "$W/S")"
   grep -Eq '^(streamed|floor) ' "$W/K/manifest" && fail "--keep-bases all $mem: streamed lines in the manifest"
   for c in $(sed -n 's/^class \([0-9]*\) .*/\1/p' "$W/K/manifest"); do
     test -e "$W/K/basis_$c.npy" || fail "--keep-bases all $mem: no basis_$c.npy"
@@ -81,10 +92,10 @@ PY
   # the training floors recorded: verify of the stored model on the training samples measures the same
   "$N" verify $R "$W/S" "$W/RV" --tol 0.05 >"$W/vs.txt" || fail "verify streamed $mem: $(cat "$W/vs.txt")"
   grep -q '^h .* n/a  *[0-9.e+-]*\* ' "$W/vs.txt" || fail "verify: h not reported as streamed: $(cat "$W/vs.txt")"
-  grep -q '^\* 6 quantities of streamed bases' "$W/vs.txt" || fail "verify: no note on streamed bases"
+  grep -q "^\* $nstreamed quantities of streamed bases" "$W/vs.txt" || fail "verify: no note on streamed bases: $(cat "$W/vs.txt")"
   grep -q '^b .*(output)$' "$W/vs.txt" || fail "verify: output b not lifted"
   "$N" verify $R "$W/K" "$W/RT" --tol 1 >"$W/vk.txt" || fail "verify stored on training samples"
-  for q in s h r c d p; do
+  for q in $floors; do
     rec=$(sed -n "s/^floor $q l2 \([^ ]*\) linf .*/\1/p" "$W/S/manifest")
     got=$(awk -v q=$q '$1 == q { print $5 }' "$W/vk.txt")
     # out of core the floor is sqrt(‖y‖² − ‖Bᵀy‖²)/‖y‖ from the passes: resolved to about 1e-7
@@ -97,14 +108,14 @@ PY
 done
 
 # out of core the pair bases are formed block by block and used at once (stream.c): no file of a
-# pair basis's size (rows x basis size) is written. Under a file-size limit of 200 kB, below the
-# smallest of them ({r}: 9,216 x 3 doubles; v's, kept, is 9,216 x 1 and its scratch 9,216 x 2),
+# pair basis's size (rows x basis size) is written, v's neither (kept as coefficients of its training
+# values). Under a file-size limit of 200 kB, below the smallest of them ({r}: 9,216 x 3 doubles),
 # streamed training succeeds where keeping every basis cannot; the model is the old layout's to
 # 1e-10 and gives the same reduced outputs on held-out samples
 opts="--mem 4M --energy 0.9999999"
 (ulimit -f 400 && exec "$N" train $R "$W/RT" -o "$W/F" $opts --progress >/dev/null 2>"$W/f.err") ||
   fail "streamed training under a 200 kB file-size limit: $(tr '\r' '\n' <"$W/f.err" | tail -3)"
-grep -aq '^out of core: bases formed block by block for the pre-multiplication, no basis file: {s,h} {r} {c} {d,p}; kept, written as formed (no scratch A): {v} (' \
+grep -aq '^out of core: bases formed block by block for the pre-multiplication, no basis file: {s,h} {r} {c} {v} {d,p}; {v} kept as coefficients of its training values; kept, written as formed (no scratch A): (' \
   "$W/f.err" || fail "no block-by-block bases: $(tr '\r' '\n' <"$W/f.err" | grep -a 'out of core')"
 if (ulimit -f 400 && exec "$N" train $R "$W/RT" -o "$W/G" $opts --keep-bases all >/dev/null 2>&1); then
   fail "the file-size limit does not bite: --keep-bases all trained under it"

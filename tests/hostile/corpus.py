@@ -415,7 +415,7 @@ def model_cases():
                                "{m}/manifest: larger than 16777216 bytes: not a model manifest")
     c["manifest_binary"] = (lambda d: write(os.path.join(d, "manifest"), bytes(range(256))),
                             "{m}/manifest:1: line holds a NUL byte")
-    c["manifest_format_3"] = (replace(b"npg-model 1", b"npg-model 3"), "{m}/manifest:1: model format 'npg-model 3'")
+    c["manifest_format_4"] = (replace(b"npg-model 1", b"npg-model 4"), "{m}/manifest:1: model format 'npg-model 4'")
     c["manifest_first_line"] = (edit(lambda ls: ls[1:]), "{m}/manifest:1: not a model manifest")
     c["manifest_dims_removed"] = (edit(lambda ls: [l for l in ls if not l.startswith(b"dims")]),
                                   "checksum mismatch: the manifest was changed after training")

@@ -612,7 +612,7 @@ def forge_cases():
         "choice_garbage": lambda d: seal(d, [b"choice w magic 0 interp nan reason 99" if l.startswith(b"choice") else l
                                              for l in manifest_lines(d)]),
         "format_1": lambda d: seal(d, [b"npg-model 1" if l.startswith(b"npg-model") else l for l in manifest_lines(d)]),
-        "format_3": lambda d: seal(d, [b"npg-model 3" if l.startswith(b"npg-model") else l for l in manifest_lines(d)]),
+        "format_4": lambda d: seal(d, [b"npg-model 4" if l.startswith(b"npg-model") else l for l in manifest_lines(d)]),
     }
     for name, fn in forgeries.items():
         d = "fg/F_" + name
