@@ -433,9 +433,15 @@ int npg_trainer_add(NpgTrainer *t) {
       return tfail(t, "training sample %ld: input '%s' is not set", t->samples, t->slot[i]->name);
     need_eval = true;
   }
-  /* externs not given: their callbacks fill them (for this rank's samples) */
-  if (need_eval && own_sample(t, t->samples) && npg_full_eval(t->f, t->samples) != 0)
-    return tfail(t, "%s", npg_full_error(t->f));
+  /* externs not given: their callbacks fill them (for this rank's samples). They read inputs only
+   * (full.h), so after the first sample no stage is evaluated: an empty demand runs the callbacks
+   * alone (at radiosity's paper size a whole evaluation is a 5,000-face solve, 2 s a sample) */
+  if (need_eval && own_sample(t, t->samples)) {
+    Demand *d = t->samples > 0 ? full_demand(t->f->full) : NULL;
+    if (t->samples > 0 && !d) return tfail(t, "%s", npg_full_error(t->f));
+    if ((d ? full_eval_demand(t->f->full, t->samples, d) : npg_full_eval(t->f, t->samples)) != 0)
+      return tfail(t, "%s", npg_full_error(t->f));
+  }
   return record(t, t->f);
 }
 
