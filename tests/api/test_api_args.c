@@ -250,6 +250,43 @@ static void null_training_and_models(void **state) {
   refused(npg_trainer_error(t), "npg_trainer_add_full", "g");
   npg_trainer_free(t);
   npg_trainer_free(NULL);
+  /* npg_trainer_dots: every pointer, then a name that is no input, a wrong count, no samples */
+  double dots[4];
+  assert_int_equal(npg_trainer_dots(NULL, "x", 2, xs, dots), -1);
+  refused(last(), "npg_trainer_dots", "t");
+  const char *const dot_args[3] = {"name", "values", "dots"};
+  for (int a = 0; a < 3; a++) {
+    t = npg_trainer_new(f, NULL);
+    assert_int_equal(npg_trainer_dots(t, a == 0 ? NULL : "x", 2, a == 1 ? NULL : xs, a == 2 ? NULL : dots), -1);
+    refused(npg_trainer_error(t), "npg_trainer_dots", dot_args[a]);
+    npg_trainer_free(t);
+  }
+  t = npg_trainer_new(f, NULL);
+  assert_int_equal(npg_trainer_dots(t, "x", 2, xs, dots), -1);
+  says(npg_trainer_error(t), "no training samples were added");
+  npg_trainer_free(t);
+  t = npg_trainer_new(f, NULL);
+  assert_int_equal(npg_trainer_set(t, "x", 1, shape, xs) || npg_trainer_add(t), 0);
+  assert_int_equal(npg_trainer_dots(t, "zz", 2, xs, dots), -1);
+  says(npg_trainer_error(t), "no input or extern 'zz'");
+  npg_trainer_free(t);
+  t = npg_trainer_new(f, NULL);
+  assert_int_equal(npg_trainer_set(t, "x", 1, shape, xs) || npg_trainer_add(t), 0);
+  assert_int_equal(npg_trainer_dots(t, "x", 3, xs, dots), -1);
+  says(npg_trainer_error(t), "'x' has 2 entries a sample, 3 were given");
+  npg_trainer_free(t);
+  t = npg_trainer_new(f, NULL);
+  double bad[2] = {1, NAN};
+  assert_int_equal(npg_trainer_set(t, "x", 1, shape, xs) || npg_trainer_add(t), 0);
+  assert_int_equal(npg_trainer_dots(t, "x", 2, bad, dots), -1);
+  says(npg_trainer_error(t), "NaN at flat entry 1");
+  npg_trainer_free(t);
+  t = npg_trainer_new(f, NULL); /* two samples: the dots are the inner products with each */
+  assert_int_equal(npg_trainer_set(t, "x", 1, shape, xs) || npg_trainer_add(t) ||
+                       npg_trainer_set(t, "x", 1, shape, xs + 2) || npg_trainer_add(t), 0);
+  assert_int_equal(npg_trainer_dots(t, "x", 2, xs + 4, dots), 0);
+  for (int k = 0; k < 2; k++) assert_true(fabs(dots[k] - (xs[2 * k] * xs[4] + xs[2 * k + 1] * xs[5])) <= 1e-15 * 4);
+  npg_trainer_free(t);
 
   NpgModel *m = train(f, 20, NULL);
   npg_model_train_seconds(m, NULL, NULL);
@@ -298,6 +335,12 @@ static void null_training_and_models(void **state) {
   refused(last(), "npg_model_class_of", "quantity");
   assert_null(npg_model_basis(NULL, 0));
   refused(last(), "npg_model_basis", "nm");
+  long cs = 7;
+  assert_null(npg_model_coefficients(NULL, 0, &cs));
+  refused(last(), "npg_model_coefficients", "nm");
+  assert_int_equal(cs, 0);
+  assert_null(npg_model_coefficients(m, 0, NULL)); /* a class with its basis: no coefficients */
+  assert_null(npg_model_coefficients(m, 99, &cs));
   size_t tb = 7;
   assert_int_equal(npg_model_bytes(NULL, &tb), 0);
   assert_int_equal(tb, 0);
