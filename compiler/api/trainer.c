@@ -22,36 +22,7 @@
 #include "api.h"
 #include "compile.h"
 #include "dist.h"
-
-/* Encoded sample records: the first in memory, the others in a scratch
- * file, indexed by their place among those kept. */
-typedef struct Records {
-  unsigned char *mem;       /* the first records, back to back */
-  size_t used, alloc;       /* bytes held in `mem`, allocated */
-  long in_mem;              /* records held in `mem` */
-  FILE *scratch;            /* the others, in order */
-  size_t *at, *len;         /* per record: where it starts (in `mem` or the scratch file) and its bytes */
-} Records;
-
-struct NpgTrainer {
-  NpgFull *f;
-  const Program *prog;
-  NpgTrainOptions opt;
-  int nslots;
-  const Sym **slot;         /* inputs and externs, program order */
-  size_t *count;            /* entries of each, fixed by the first sample */
-  bool *staged;             /* npg_trainer_set since the last add */
-  size_t record;            /* doubles per sample: Σ count */
-  Records rec;              /* the samples this process keeps */
-  size_t mem_cap;           /* bytes allowed in rec.mem */
-  bool all;                 /* over ranks: every rank keeps every sample (share_samples) */
-  long samples;
-  double *buf;              /* one record, decoded */
-  unsigned char *enc;       /* one record, encoded */
-  char error[2048];
-};
-
-#define tfail(t, ...) error_set_first((t)->error, sizeof (t)->error, __VA_ARGS__)
+#include "trainer_impl.h"
 
 static size_t half_the_ram(void) {
   size_t ram = physical_memory();
@@ -61,17 +32,6 @@ static size_t half_the_ram(void) {
 bool npg_mpi_available(void) { return dist_available(); }
 int npg_mpi_rank(void) { return dist_rank(); }
 int npg_mpi_size(void) { return dist_size(); }
-
-/* Over MPI ranks (NpgTrainOptions.mpi) a rank keeps sample 0 (every rank
- * binds the dims with it) and its own samples k ≡ rank (mod ranks), in
- * order: sample k's place among those kept. */
-static bool own_sample(const NpgTrainer *t, long k) {
-  return !t->opt.mpi || t->all || k == 0 || k % dist_size() == dist_rank();
-}
-static long kept_index(const NpgTrainer *t, long k) {
-  int N = t->opt.mpi && !t->all ? dist_size() : 1, r = t->opt.mpi ? dist_rank() : 0;
-  return k == 0 || N == 1 ? k : r == 0 ? k / N : 1 + (k - r) / N;
-}
 
 void npg_train_options_default(NpgTrainOptions *o) {
   API_REFUSE_NULL(o, NULL, 0, );
@@ -209,184 +169,6 @@ int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape
   return 0;
 }
 
-/* An entry a bit cannot hold: neither +0 nor 1. */
-static bool exceptional(double v) { return !(v == 1.0 || (v == 0.0 && !signbit(v))); }
-
-/* The record of t->buf into t->enc: per slot, an input's doubles; an
- * extern's tag byte and its entries — tag 1: one bit per entry (set: 1),
- * then the count of exceptional entries and (index, value) for each,
- * whenever that is smaller than the doubles (tag 0). Its bytes. */
-static size_t encode(NpgTrainer *t) {
-  size_t off = 0, pos = 0;
-  for (int i = 0; i < t->nslots; i++) {
-    const double *v = t->buf + off;
-    size_t n = t->count[i];
-    off += n;
-    if (t->slot[i]->kind == SYM_EXTERN) {
-      uint64_t x = 0;
-      for (size_t e = 0; e < n; e++) x += exceptional(v[e]);
-      bool bits = (n + 7) / 8 + 8 + 16 * x < 8 * n;
-      t->enc[pos++] = bits;
-      if (bits) {
-        memset(t->enc + pos, 0, (n + 7) / 8);
-        for (size_t e = 0; e < n; e++) t->enc[pos + e / 8] |= (unsigned char)((v[e] == 1.0) << (e % 8));
-        pos += (n + 7) / 8;
-        memcpy(t->enc + pos, &x, 8);
-        pos += 8;
-        for (uint64_t e = 0; e < n && x > 0; e++)
-          if (exceptional(v[e])) memcpy(t->enc + pos, &e, 8), memcpy(t->enc + pos + 8, v + e, 8), pos += 16;
-        continue;
-      }
-    }
-    memcpy(t->enc + pos, v, sizeof(double) * n);
-    pos += sizeof(double) * n;
-  }
-  return pos;
-}
-
-/* Slot i of the record at t->enc + pos into v[0..n): every entry (nr < 0),
- * or the entries in the nr ranges r[2j] <= e < r[2j+1]. The position after
- * the slot. */
-static size_t decode_slot(const NpgTrainer *t, int i, size_t pos, double *v, const size_t *r, long nr) {
-  size_t n = t->count[i], all[2] = {0, n};
-  if (nr < 0) r = all, nr = 1;
-  if (t->slot[i]->kind == SYM_EXTERN && t->enc[pos++]) {
-    const unsigned char *bits = t->enc + pos;
-    for (long j = 0; j < nr; j++)
-      for (size_t e = r[2 * j]; e < r[2 * j + 1]; e++) v[e] = (bits[e / 8] >> (e % 8)) & 1 ? 1.0 : 0.0;
-    pos += (n + 7) / 8;
-    uint64_t x, e;
-    memcpy(&x, t->enc + pos, 8);
-    pos += 8;
-    const unsigned char *ex = t->enc + pos; /* (index, value), indices ascending */
-    for (long j = 0; j < nr; j++) {
-      uint64_t lo = 0, hi = x; /* the first exceptional entry at r[2j] or after */
-      while (lo < hi) {
-        uint64_t mid = lo + (hi - lo) / 2;
-        memcpy(&e, ex + 16 * mid, 8);
-        if (e < r[2 * j]) lo = mid + 1;
-        else hi = mid;
-      }
-      for (; lo < x && (memcpy(&e, ex + 16 * lo, 8), e < r[2 * j + 1]); lo++) memcpy(v + e, ex + 16 * lo + 8, 8);
-    }
-    return pos + 16 * x;
-  }
-  for (long j = 0; j < nr; j++)
-    memcpy(v + r[2 * j], t->enc + pos + sizeof(double) * r[2 * j], sizeof(double) * (r[2 * j + 1] - r[2 * j]));
-  return pos + sizeof(double) * n;
-}
-
-/* The inner product of values[0..n) with slot i of the record at t->enc + *pos, *pos moved past
- * the slot: a bit-coded extern summed over its set bits and its exceptional entries, undecoded
- * (radiosity's v at the paper's size: 25 M entries, a few MB of bits a sample). */
-static double dot_slot(NpgTrainer *t, int i, size_t *pos, const double *values) {
-  size_t n = t->count[i], p = *pos;
-  double sum = 0;
-  if (t->slot[i]->kind == SYM_EXTERN && t->enc[p++]) {
-    const unsigned char *bits = t->enc + p;
-    size_t e = 0;
-#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-    for (; e + 64 <= n; e += 64) { /* a word's bit j is entry e + j */
-      uint64_t w;
-      memcpy(&w, bits + e / 8, 8);
-      for (; w; w &= w - 1) sum += values[e + (size_t)__builtin_ctzll(w)];
-    }
-#endif
-    for (; e < n; e++)
-      if ((bits[e / 8] >> (e % 8)) & 1) sum += values[e];
-    p += (n + 7) / 8;
-    uint64_t x, k;
-    double v;
-    memcpy(&x, t->enc + p, 8);
-    p += 8;
-    for (uint64_t j = 0; j < x; j++) { /* an exceptional entry's bit is 0 (encode) */
-      memcpy(&k, t->enc + p + 16 * j, 8), memcpy(&v, t->enc + p + 16 * j + 8, 8);
-      sum += v * values[k];
-    }
-    *pos = p + 16 * x;
-    return sum;
-  }
-  for (size_t e = 0; e < n; e++) {
-    double v;
-    memcpy(&v, t->enc + p + sizeof(double) * e, sizeof(double));
-    sum += v * values[e];
-  }
-  *pos = p + sizeof(double) * n;
-  return sum;
-}
-
-/* The position after slot i of the record at t->enc + pos. */
-static size_t slot_end(const NpgTrainer *t, int i, size_t pos) {
-  size_t n = t->count[i];
-  if (t->slot[i]->kind == SYM_EXTERN && t->enc[pos++]) {
-    uint64_t x;
-    memcpy(&x, t->enc + pos + (n + 7) / 8, 8);
-    return pos + (n + 7) / 8 + 8 + 16 * x;
-  }
-  return pos + sizeof(double) * n;
-}
-
-/* t->enc back into t->buf (the inverse of encode, bit for bit). */
-static void decode(NpgTrainer *t) {
-  size_t off = 0, pos = 0;
-  for (int i = 0; i < t->nslots; i++) {
-    pos = decode_slot(t, i, pos, t->buf + off, NULL, -1);
-    off += t->count[i];
-  }
-}
-
-/* The encoded record in t->enc (`bytes`) as record kk of `r`: in memory
- * while the records there stay within mem_cap, then in the scratch file. */
-static int store(NpgTrainer *t, Records *r, long kk, size_t bytes) {
-  if (kk % 64 == 0) {
-    size_t *at = mem_realloc(r->at, sizeof(size_t) * (size_t)(kk + 64));
-    if (at) r->at = at;
-    size_t *len = at ? mem_realloc(r->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
-    if (!len) return tfail(t, "out of memory keeping training sample %ld", t->samples);
-    r->len = len;
-  }
-  r->len[kk] = bytes;
-  if (r->in_mem == kk && r->used + bytes <= t->mem_cap) {
-    if (r->used + bytes > r->alloc) {
-      size_t want = r->alloc * 2 > r->used + bytes ? r->alloc * 2 : r->used + bytes;
-      unsigned char *m = mem_realloc(r->mem, want < t->mem_cap ? want : t->mem_cap);
-      if (!m) return tfail(t, "out of memory keeping training sample %ld", t->samples);
-      r->mem = m;
-      r->alloc = want < t->mem_cap ? want : t->mem_cap;
-    }
-    if (bytes) memcpy(r->mem + r->used, t->enc, bytes); /* a record of zero-size arrays has no bytes */
-    r->at[kk] = r->used;
-    r->used += bytes;
-    r->in_mem++;
-  } else {
-    if (!r->scratch && !(r->scratch = tmpfile()))
-      return tfail(t, "cannot create a scratch file for the training samples beyond --mem");
-    if (fseeko(r->scratch, 0, SEEK_END) != 0) return tfail(t, "cannot seek in the scratch file");
-    r->at[kk] = (size_t)ftello(r->scratch);
-    if (fwrite(t->enc, 1, bytes, r->scratch) != bytes)
-      return tfail(t, "cannot write training sample %ld to the scratch file (disk full?)", t->samples);
-  }
-  return 0;
-}
-
-/* Record kk of `r` into t->enc. */
-static int fetch(NpgTrainer *t, const Records *r, long kk) {
-  if (kk < r->in_mem) {
-    if (r->len[kk]) memcpy(t->enc, r->mem + r->at[kk], r->len[kk]);
-    return 0;
-  }
-  return fseeko(r->scratch, (off_t)r->at[kk], SEEK_SET) != 0 || fread(t->enc, 1, r->len[kk], r->scratch) != r->len[kk]
-             ? -1 : 0;
-}
-
-static void records_free(Records *r) {
-  if (r->scratch) fclose(r->scratch);
-  free(r->mem);
-  free(r->at);
-  free(r->len);
-  memset(r, 0, sizeof *r);
-}
-
 /* Append the values now in `g` as one sample (another rank's: counted only). */
 static int record(NpgTrainer *t, const NpgFull *g) {
   if (!own_sample(t, t->samples)) {
@@ -417,7 +199,7 @@ static int record(NpgTrainer *t, const NpgFull *g) {
     memcpy(t->buf + off, v, sizeof(double) * n);
     off += n;
   }
-  if (store(t, &t->rec, kk, encode(t))) return -1;
+  if (trainer_store(t, &t->rec, kk, trainer_encode(t))) return -1;
   t->samples++;
   memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
   return 0;
@@ -465,7 +247,7 @@ int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {
 /* Sample k's encoded record into t->enc. */
 static int load_record(NpgTrainer *t, Full *f, long k) {
   if (!own_sample(t, k)) return full_fail(f, "a training sample of another rank was asked for (a bug in npg)");
-  if (fetch(t, &t->rec, kept_index(t, k))) return full_fail(f, "cannot read a training sample back from the scratch file");
+  if (trainer_fetch(t, &t->rec, kept_index(t, k))) return full_fail(f, "cannot read a training sample back from the scratch file");
   return 0;
 }
 
@@ -501,7 +283,7 @@ static int share_samples(void *user, char *err, size_t errlen) {
     int from = k == 0 ? 0 : (int)(k % N); /* sample 0: every rank has it */
     double bytes = 0;
     if (rank == from) {
-      if (fetch(t, &old, kept_index(t, k))) rc = error_set(err, errlen, "cannot read training sample %ld back from the scratch file", k);
+      if (trainer_fetch(t, &old, kept_index(t, k))) rc = error_set(err, errlen, "cannot read training sample %ld back from the scratch file", k);
       bytes = rc ? -1 : (double)old.len[kept_index(t, k)];
     }
     dist_broadcast(&bytes, 1, from);
@@ -510,12 +292,12 @@ static int share_samples(void *user, char *err, size_t errlen) {
       break;
     }
     dist_broadcast_bytes(t->enc, (long)bytes, from);
-    if (store(t, &t->rec, k, (size_t)bytes)) {
+    if (trainer_store(t, &t->rec, k, (size_t)bytes)) {
       rc = error_set(err, errlen, "%s", t->error);
       break;
     }
   }
-  records_free(&old);
+  trainer_records_free(&old);
   t->all = true;
   return rc;
 }
@@ -540,11 +322,11 @@ int npg_trainer_dots(NpgTrainer *t, const char *name, size_t count, const double
   for (long k = 0; k < t->samples; k++) {
     dots[k] = 0;
     if (!own_sample(t, k) || (split && k == 0 && dist_rank() != 0)) continue;
-    if (fetch(t, &t->rec, kept_index(t, k)))
+    if (trainer_fetch(t, &t->rec, kept_index(t, k)))
       return tfail(t, "npg_trainer_dots: cannot read training sample %ld back from the scratch file", k);
     size_t pos = 0;
-    for (int j = 0; j < i; j++) pos = slot_end(t, j, pos);
-    dots[k] = dot_slot(t, i, &pos, values);
+    for (int j = 0; j < i; j++) pos = trainer_slot_end(t, j, pos);
+    dots[k] = trainer_dot_slot(t, i, &pos, values);
   }
   if (split) dist_allreduce_sum(dots, t->samples);
   return 0;
@@ -554,7 +336,7 @@ int npg_trainer_dots(NpgTrainer *t, const char *name, size_t count, const double
 static int replay(void *user, Full *f, long k) {
   NpgTrainer *t = user;
   if (load_record(t, f, k)) return -1;
-  decode(t);
+  trainer_decode(t);
   const double *v = t->buf;
   char from[64];
   snprintf(from, sizeof from, "training sample %ld", kept_index(t, k));
@@ -580,14 +362,14 @@ static int replay_part(void *user, Full *f, long k, const Demand *d) {
   for (int i = 0; i < t->nslots; i++) {
     long nr = t->slot[i]->kind == SYM_EXTERN ? demand_ranges(d, t->slot[i], r, 64) : -1;
     if (nr < 0) { /* whole, through the checks of npg_full_set */
-      pos = decode_slot(t, i, pos, t->buf + off, NULL, -1);
+      pos = trainer_decode_slot(t, i, pos, t->buf + off, NULL, -1);
       long shape[MAX_AXES + MAX_STATIC];
       int nd = api_shape(f, t->slot[i], shape);
       if (full_set(f, t->slot[i]->name, nd, shape, t->buf + off, from) != 0) return -1;
     } else { /* recorded from values that passed those checks */
       double *v = full_extern_values(f, t->slot[i]->name, t->count[i]);
       if (!v) return -1;
-      pos = decode_slot(t, i, pos, v, r, nr);
+      pos = trainer_decode_slot(t, i, pos, v, r, nr);
     }
     off += t->count[i];
   }
@@ -854,7 +636,7 @@ void npg_model_train_seconds(const NpgModel *m, double seconds[4], double cpu[4]
 
 void npg_trainer_free(NpgTrainer *t) {
   if (!t) return;
-  records_free(&t->rec);
+  trainer_records_free(&t->rec);
   free(t->slot);
   free(t->count);
   free(t->staged);

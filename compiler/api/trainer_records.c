@@ -1,0 +1,188 @@
+/* trainer_records.c — the trainer's sample records (trainer_impl.h): a sample's inputs and
+ * externs encoded compactly, kept in memory up to a quarter of --mem and in an unnamed scratch
+ * file beyond, read back bit for bit, and their inner products with a value (npg_trainer_dots). */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "trainer_impl.h"
+
+/* An entry a bit cannot hold: neither +0 nor 1. */
+static bool exceptional(double v) { return !(v == 1.0 || (v == 0.0 && !signbit(v))); }
+
+/* The record of t->buf into t->enc: per slot, an input's doubles; an
+ * extern's tag byte and its entries — tag 1: one bit per entry (set: 1),
+ * then the count of exceptional entries and (index, value) for each,
+ * whenever that is smaller than the doubles (tag 0). Its bytes. */
+size_t trainer_encode(NpgTrainer *t) {
+  size_t off = 0, pos = 0;
+  for (int i = 0; i < t->nslots; i++) {
+    const double *v = t->buf + off;
+    size_t n = t->count[i];
+    off += n;
+    if (t->slot[i]->kind == SYM_EXTERN) {
+      uint64_t x = 0;
+      for (size_t e = 0; e < n; e++) x += exceptional(v[e]);
+      bool bits = (n + 7) / 8 + 8 + 16 * x < 8 * n;
+      t->enc[pos++] = bits;
+      if (bits) {
+        memset(t->enc + pos, 0, (n + 7) / 8);
+        for (size_t e = 0; e < n; e++) t->enc[pos + e / 8] |= (unsigned char)((v[e] == 1.0) << (e % 8));
+        pos += (n + 7) / 8;
+        memcpy(t->enc + pos, &x, 8);
+        pos += 8;
+        for (uint64_t e = 0; e < n && x > 0; e++)
+          if (exceptional(v[e])) memcpy(t->enc + pos, &e, 8), memcpy(t->enc + pos + 8, v + e, 8), pos += 16;
+        continue;
+      }
+    }
+    memcpy(t->enc + pos, v, sizeof(double) * n);
+    pos += sizeof(double) * n;
+  }
+  return pos;
+}
+
+/* Slot i of the record at t->enc + pos into v[0..n): every entry (nr < 0),
+ * or the entries in the nr ranges r[2j] <= e < r[2j+1]. The position after
+ * the slot. */
+size_t trainer_decode_slot(const NpgTrainer *t, int i, size_t pos, double *v, const size_t *r, long nr) {
+  size_t n = t->count[i], all[2] = {0, n};
+  if (nr < 0) r = all, nr = 1;
+  if (t->slot[i]->kind == SYM_EXTERN && t->enc[pos++]) {
+    const unsigned char *bits = t->enc + pos;
+    for (long j = 0; j < nr; j++)
+      for (size_t e = r[2 * j]; e < r[2 * j + 1]; e++) v[e] = (bits[e / 8] >> (e % 8)) & 1 ? 1.0 : 0.0;
+    pos += (n + 7) / 8;
+    uint64_t x, e;
+    memcpy(&x, t->enc + pos, 8);
+    pos += 8;
+    const unsigned char *ex = t->enc + pos; /* (index, value), indices ascending */
+    for (long j = 0; j < nr; j++) {
+      uint64_t lo = 0, hi = x; /* the first exceptional entry at r[2j] or after */
+      while (lo < hi) {
+        uint64_t mid = lo + (hi - lo) / 2;
+        memcpy(&e, ex + 16 * mid, 8);
+        if (e < r[2 * j]) lo = mid + 1;
+        else hi = mid;
+      }
+      for (; lo < x && (memcpy(&e, ex + 16 * lo, 8), e < r[2 * j + 1]); lo++) memcpy(v + e, ex + 16 * lo + 8, 8);
+    }
+    return pos + 16 * x;
+  }
+  for (long j = 0; j < nr; j++)
+    memcpy(v + r[2 * j], t->enc + pos + sizeof(double) * r[2 * j], sizeof(double) * (r[2 * j + 1] - r[2 * j]));
+  return pos + sizeof(double) * n;
+}
+
+/* The inner product of values[0..n) with slot i of the record at t->enc + *pos, *pos moved past
+ * the slot: a bit-coded extern summed over its set bits and its exceptional entries, undecoded
+ * (radiosity's v at the paper's size: 25 M entries, a few MB of bits a sample). */
+double trainer_dot_slot(NpgTrainer *t, int i, size_t *pos, const double *values) {
+  size_t n = t->count[i], p = *pos;
+  double sum = 0;
+  if (t->slot[i]->kind == SYM_EXTERN && t->enc[p++]) {
+    const unsigned char *bits = t->enc + p;
+    size_t e = 0;
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    for (; e + 64 <= n; e += 64) { /* a word's bit j is entry e + j */
+      uint64_t w;
+      memcpy(&w, bits + e / 8, 8);
+      for (; w; w &= w - 1) sum += values[e + (size_t)__builtin_ctzll(w)];
+    }
+#endif
+    for (; e < n; e++)
+      if ((bits[e / 8] >> (e % 8)) & 1) sum += values[e];
+    p += (n + 7) / 8;
+    uint64_t x, k;
+    double v;
+    memcpy(&x, t->enc + p, 8);
+    p += 8;
+    for (uint64_t j = 0; j < x; j++) { /* an exceptional entry's bit is 0 (encode) */
+      memcpy(&k, t->enc + p + 16 * j, 8), memcpy(&v, t->enc + p + 16 * j + 8, 8);
+      sum += v * values[k];
+    }
+    *pos = p + 16 * x;
+    return sum;
+  }
+  for (size_t e = 0; e < n; e++) {
+    double v;
+    memcpy(&v, t->enc + p + sizeof(double) * e, sizeof(double));
+    sum += v * values[e];
+  }
+  *pos = p + sizeof(double) * n;
+  return sum;
+}
+
+/* The position after slot i of the record at t->enc + pos. */
+size_t trainer_slot_end(const NpgTrainer *t, int i, size_t pos) {
+  size_t n = t->count[i];
+  if (t->slot[i]->kind == SYM_EXTERN && t->enc[pos++]) {
+    uint64_t x;
+    memcpy(&x, t->enc + pos + (n + 7) / 8, 8);
+    return pos + (n + 7) / 8 + 8 + 16 * x;
+  }
+  return pos + sizeof(double) * n;
+}
+
+/* t->enc back into t->buf (the inverse of encode, bit for bit). */
+void trainer_decode(NpgTrainer *t) {
+  size_t off = 0, pos = 0;
+  for (int i = 0; i < t->nslots; i++) {
+    pos = trainer_decode_slot(t, i, pos, t->buf + off, NULL, -1);
+    off += t->count[i];
+  }
+}
+
+/* The encoded record in t->enc (`bytes`) as record kk of `r`: in memory
+ * while the records there stay within mem_cap, then in the scratch file. */
+int trainer_store(NpgTrainer *t, Records *r, long kk, size_t bytes) {
+  if (kk % 64 == 0) {
+    size_t *at = mem_realloc(r->at, sizeof(size_t) * (size_t)(kk + 64));
+    if (at) r->at = at;
+    size_t *len = at ? mem_realloc(r->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
+    if (!len) return tfail(t, "out of memory keeping training sample %ld", t->samples);
+    r->len = len;
+  }
+  r->len[kk] = bytes;
+  if (r->in_mem == kk && r->used + bytes <= t->mem_cap) {
+    if (r->used + bytes > r->alloc) {
+      size_t want = r->alloc * 2 > r->used + bytes ? r->alloc * 2 : r->used + bytes;
+      unsigned char *m = mem_realloc(r->mem, want < t->mem_cap ? want : t->mem_cap);
+      if (!m) return tfail(t, "out of memory keeping training sample %ld", t->samples);
+      r->mem = m;
+      r->alloc = want < t->mem_cap ? want : t->mem_cap;
+    }
+    if (bytes) memcpy(r->mem + r->used, t->enc, bytes); /* a record of zero-size arrays has no bytes */
+    r->at[kk] = r->used;
+    r->used += bytes;
+    r->in_mem++;
+  } else {
+    if (!r->scratch && !(r->scratch = tmpfile()))
+      return tfail(t, "cannot create a scratch file for the training samples beyond --mem");
+    if (fseeko(r->scratch, 0, SEEK_END) != 0) return tfail(t, "cannot seek in the scratch file");
+    r->at[kk] = (size_t)ftello(r->scratch);
+    if (fwrite(t->enc, 1, bytes, r->scratch) != bytes)
+      return tfail(t, "cannot write training sample %ld to the scratch file (disk full?)", t->samples);
+  }
+  return 0;
+}
+
+/* Record kk of `r` into t->enc. */
+int trainer_fetch(NpgTrainer *t, const Records *r, long kk) {
+  if (kk < r->in_mem) {
+    if (r->len[kk]) memcpy(t->enc, r->mem + r->at[kk], r->len[kk]);
+    return 0;
+  }
+  return fseeko(r->scratch, (off_t)r->at[kk], SEEK_SET) != 0 || fread(t->enc, 1, r->len[kk], r->scratch) != r->len[kk]
+             ? -1 : 0;
+}
+
+void trainer_records_free(Records *r) {
+  if (r->scratch) fclose(r->scratch);
+  free(r->mem);
+  free(r->at);
+  free(r->len);
+  memset(r, 0, sizeof *r);
+}
+
