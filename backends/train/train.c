@@ -526,14 +526,14 @@ int train_premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err
   return 0;
 }
 
-/* Issue 30: the classes whose bases are streamed — used in training, then
- * dropped (train_drop_bases) — marked once the reduction of every stage is
- * chosen (an interpolated stage's class is needed): the streamable ones
- * (model_class_streamable) --keep-bases does not name. */
 bool train_keeps_basis(const Model *m, const TrainOptions *opt, int c) {
   return !opt->stream || keep_named(m, opt->keep_bases, c, NULL, 0);
 }
 
+/* Issue 30: the classes whose bases are streamed — used in training, then
+ * dropped (train_drop_bases) — marked once the reduction of every stage is
+ * chosen (an interpolated stage's class is needed): the streamable ones
+ * (model_class_streamable) --keep-bases does not name. */
 bool train_mark_streamed(Model *m, const TrainOptions *opt) {
   bool any = false; /* whose floors are still to be taken */
   for (int c = 0; c < m->nclasses; c++) { /* the names were checked by train_begin; out of core kept as coefficients */
