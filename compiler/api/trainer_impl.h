@@ -57,7 +57,7 @@ size_t trainer_encode(NpgTrainer *t);
  * r[2j] <= e < r[2j+1]. The position after the slot. */
 size_t trainer_decode_slot(const NpgTrainer *t, int i, size_t pos, double *v, const size_t *r, long nr);
 /* <values, slot i of the record at t->enc + *pos>, *pos moved past the slot. */
-double trainer_dot_slot(NpgTrainer *t, int i, size_t *pos, const double *values);
+double trainer_dot_slot(const NpgTrainer *t, int i, size_t *pos, const double *values);
 /* The position after slot i of the record at t->enc + pos. */
 size_t trainer_slot_end(const NpgTrainer *t, int i, size_t pos);
 /* t->enc back into t->buf, bit for bit. */

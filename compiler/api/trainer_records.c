@@ -78,7 +78,7 @@ size_t trainer_decode_slot(const NpgTrainer *t, int i, size_t pos, double *v, co
 /* The inner product of values[0..n) with slot i of the record at t->enc + *pos, *pos moved past
  * the slot: a bit-coded extern summed over its set bits and its exceptional entries, undecoded
  * (radiosity's v at the paper's size: 25 M entries, a few MB of bits a sample). */
-double trainer_dot_slot(NpgTrainer *t, int i, size_t *pos, const double *values) {
+double trainer_dot_slot(const NpgTrainer *t, int i, size_t *pos, const double *values) {
   size_t n = t->count[i], p = *pos;
   double sum = 0;
   if (t->slot[i]->kind == SYM_EXTERN && t->enc[p++]) {
