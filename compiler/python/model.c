@@ -138,6 +138,19 @@ static PyObject *model_save(ModelObject *self, PyObject *dir) {
 }
 
 /* model.basis(name) -> n x m read-only view of the basis of name's class */
+/* A read-only rows x cols view of the model's memory, keeping the model alive. */
+static PyObject *matrix_view(ModelObject *self, long rows, long cols, const double *data) {
+  npy_intp shape[2] = {rows, cols};
+  PyObject *a = PyArray_New(&PyArray_Type, 2, shape, NPY_DOUBLE, NULL, (void *)data, 0,
+                            NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_ALIGNED, NULL);
+  if (!a) return NULL;
+  if (PyArray_SetBaseObject((PyArrayObject *)a, Py_NewRef(self)) < 0) {
+    Py_DECREF(a);
+    return NULL;
+  }
+  return a;
+}
+
 static PyObject *model_basis(ModelObject *self, PyObject *arg) {
   const char *name = npgpy_name(arg, "Model.basis");
   if (!name) return NULL;
@@ -149,15 +162,24 @@ static PyObject *model_basis(ModelObject *self, PyObject *arg) {
   if (!B) /* NULL data would make numpy allocate an uninitialized array */
     return PyErr_Format(npgpy_Error, "the basis of '%s' (class %s) was streamed in training and not kept in the "
                         "model: retrain with --keep-bases %s (npg.Trainer(keep_bases=...))", name, ci.label, name);
-  npy_intp shape[2] = {ci.n, ci.m};
-  PyObject *a = PyArray_New(&PyArray_Type, 2, shape, NPY_DOUBLE, NULL, (void *)B, 0,
-                            NPY_ARRAY_C_CONTIGUOUS | NPY_ARRAY_ALIGNED, NULL);
-  if (!a) return NULL;
-  if (PyArray_SetBaseObject((PyArrayObject *)a, Py_NewRef(self)) < 0) {
-    Py_DECREF(a);
-    return NULL;
-  }
-  return a;
+  return matrix_view(self, ci.n, ci.m, B);
+}
+
+/* model.coefficients(name): C (samples x m), read-only view, of a class kept as coefficients
+ * of its training values (npg_model_coefficients): its basis is X C, X the training values. */
+static PyObject *model_coefficients(ModelObject *self, PyObject *arg) {
+  const char *name = npgpy_name(arg, "Model.coefficients");
+  if (!name) return NULL;
+  int c = npg_model_class_of(self->m, name);
+  if (c < 0) return PyErr_Format(npgpy_Error, "the model has no basis class for '%s'", name);
+  NpgClassInfo ci;
+  npg_model_class(self->m, c, &ci);
+  long S = 0;
+  const double *C = npg_model_coefficients(self->m, c, &S);
+  if (!C)
+    return PyErr_Format(npgpy_Error, "the class of '%s' (%s) is not kept as coefficients of its training values%s",
+                        name, ci.label, npg_model_basis(self->m, c) ? ": it keeps its basis (model.basis)" : "");
+  return matrix_view(self, S, ci.m, C);
 }
 
 /* model.interpolated(stage): how training reduced it (DESIGN §12; npg_model_stage_interpolated) */
@@ -678,6 +700,10 @@ static PyMethodDef model_methods[] = {
   {"save", (PyCFunction)model_save, METH_O, "save(model_dir): write MODEL/"},
   {"basis", (PyCFunction)model_basis, METH_O, "basis(name) -> n x m read-only view of the basis of name's class"},
   {"dim", (PyCFunction)model_dim_method, METH_O, "dim(name) -> int: the size a dim had in training"},
+  {"coefficients", (PyCFunction)model_coefficients, METH_O,
+   "coefficients(name) -> samples x m read-only view C of a class kept as coefficients of its training\n"
+   "values (its basis is X C; out of core, an extern's pair class): C.T @ trainer.dots(name, v) are v's\n"
+   "reduced coordinates. npg.Error for a class that keeps its basis"},
   {"interpolated", (PyCFunction)model_interpolated, METH_O,
    "interpolated(stage) -> int or None: the entries stage is evaluated at when training reduced it by\n"
    "interpolation (DESIGN §12), None when by Galerkin projection; npg.Error for a name that is no stage"},

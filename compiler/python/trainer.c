@@ -348,6 +348,33 @@ static PyObject *trainer_finish(TrainerObject *self, PyObject *args, PyObject *k
   return npgpy_model_wrap(self->full->prog, m, self->full);
 }
 
+/* tr.dots(name, values) -> array of samples: the inner products of one value of an input or
+ * extern with every training sample's value, from the trainer's own records (npg_trainer_dots);
+ * with model.coefficients(name) C, the coordinates Cᵀ(Xᵀv) of a class kept as coefficients. */
+static PyObject *trainer_dots(TrainerObject *self, PyObject *args) {
+  const char *name;
+  PyObject *obj;
+  if (!PyArg_ParseTuple(args, "sO:dots", &name, &obj)) return NULL;
+  if (!ready(self)) return NULL;
+  char what[256];
+  snprintf(what, sizeof what, "Trainer.dots: the values of '%s'", name);
+  PyArrayObject *a = npgpy_values(obj, what);
+  if (!a) return NULL;
+  npy_intp S = npg_trainer_samples(self->t);
+  PyObject *out = PyArray_SimpleNew(1, &S, NPY_DOUBLE);
+  if (!out) return Py_DECREF(a), NULL;
+  npgpy_busy_enter(&self->full->busy);
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_trainer_dots(self->t, name, (size_t)PyArray_SIZE(a), PyArray_DATA(a),
+                        PyArray_DATA((PyArrayObject *)out));
+  Py_END_ALLOW_THREADS
+  npgpy_busy_leave(&self->full->busy);
+  Py_DECREF(a);
+  if (rc) return Py_DECREF(out), fail(self);
+  return out;
+}
+
 static PyObject *get_samples(TrainerObject *self, void *unused) {
   return PyLong_FromLong(self->t ? npg_trainer_samples(self->t) : 0);
 }
@@ -364,6 +391,11 @@ static PyMethodDef trainer_methods[] = {
    "add_full(): the sample the evaluator evaluated last (full(x=...) then tr.add_full())"},
   {"finish", (PyCFunction)(void (*)(void))trainer_finish, METH_VARARGS | METH_KEYWORDS,
    "finish(model_dir=None) -> Model: train on the samples added; with model_dir, write MODEL/ as npgc train"},
+  {"dots", (PyCFunction)trainer_dots, METH_VARARGS,
+   "dots(name, values) -> array (samples): the inner products of one value of an input or extern with\n"
+   "every training sample's (from the trainer's records; also after finish). With model.coefficients(name)\n"
+   "C, C.T @ tr.dots(name, v) are the reduced coordinates of v for reduced.set_coords (a class kept as\n"
+   "coefficients of its training values: an extern's pair class out of core)"},
   {NULL},
 };
 

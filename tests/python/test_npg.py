@@ -551,6 +551,52 @@ def test_streamed_basis_raises(tmp_path, npgc, root):
     assert np.allclose(h.T @ h, np.eye(h.shape[1]), atol=1e-12)
 
 
+def test_coefficients_and_dots(tmp_path, root):
+    """Out of core, radiosity's v is kept as coefficients C of its training values (issue 30):
+    model.coefficients("v") and tr.dots("v", v) give the training coordinates Cᵀ(Xᵀv_k) the
+    model learned, and a visibility no sample had the same coordinates as keep_bases="v"'s
+    basis gives; the refusals name the class."""
+    import os
+    import subprocess
+    data = pathlib.Path(os.environ.get("NPG_NPGC", root / "build" / "npgc")).parent / "radiosity_data"
+    subprocess.run([str(data), str(tmp_path / "D"), "48", "16", "0", "1", "3"], check=True, capture_output=True)
+    prog = npg.compile(str(root / "examples" / "radiosity" / "formfactors.npg"))
+    params = {n: np.load(tmp_path / "D" / f"{n}.npy") for n in ("tri", "rho")}
+    g, e, v = (np.load(tmp_path / "D" / f"{n}.npy") for n in ("g", "e", "v"))
+
+    def train(**opt):
+        tr = npg.Trainer(prog.full(params=params), cap=16, energy=1, mem=160000, **opt)
+        for k in range(len(g)):
+            tr.add(g=g[k], e=e[k], v=v[k])
+        return tr, tr.finish(tmp_path / ("K" if opt else "M"))
+
+    tr, model = train()
+    C = model.coefficients("v")
+    assert C.shape[0] == len(g) and not C.flags.writeable
+    with pytest.raises(npg.Error, match="keep_bases|--keep-bases"):
+        model.basis("v")
+    z = np.load(tmp_path / "M" / "extern_v_values.npy")
+    for k in range(len(g)):
+        d = tr.dots("v", v[k])
+        assert d.shape == (len(g),)
+        assert np.allclose(d, [np.vdot(v[k], v[l]) for l in range(len(g))], rtol=1e-12, atol=0)
+        assert np.abs(C.T @ d - z[k]).max() <= 1e-10 * np.abs(z).max()
+    # a visibility of no training sample: the same coordinates as the kept basis's Bᵀv
+    trk, kept = train(keep_bases="v")
+    B = kept.basis("v")
+    with pytest.raises(npg.Error, match="keeps its basis"):
+        kept.coefficients("v")
+    w = np.where(np.random.default_rng(2).random(v[0].shape) < 0.5, v[3], v[7])
+    zb, zc = B.T @ w.ravel(), C.T @ tr.dots("v", w)
+    assert np.abs(zb - zc).max() <= 1e-10 * max(1.0, np.abs(zb).max())
+    with pytest.raises(npg.Error, match="entries"):
+        tr.dots("v", v[0][:5])
+    with pytest.raises(npg.Error, match="no input or extern"):  # a failed trainer refuses further work
+        trk.dots("nothing", v[0])
+    with pytest.raises(npg.Error, match="not kept as coefficients"):
+        model.coefficients("b")
+
+
 def gravity_data(d):
     """The n-body program's samples of tests/cli/interp.sh: 8 bodies moved by 3 modes."""
     rng = np.random.default_rng(4)
