@@ -434,6 +434,21 @@ long demand_ranges(const Demand *d, const Sym *q, size_t *r, long cap) {
   return n;
 }
 
+long demand_range_bound(const Demand *d, const Sym *q) {
+  int s = slot_of(d, q);
+  if (s < 0 || d->slot[s].state == BOX_ALL || q->ndims == 0) return s >= 0 && d->slot[s].state == BOX_NONE ? 0 : -1;
+  const Boxes *b = &d->slot[s];
+  if (b->state == BOX_NONE) return 0;
+  long n = 0;
+  for (int i = 0; i < b->n; i++) { /* one range per index of the axes but the last */
+    const npg_idx *lo = b->v + i * 2 * q->ndims, *hi = lo + q->ndims;
+    long rows = 1;
+    for (int k = 0; k + 1 < q->ndims; k++) rows *= (long)(hi[k] - lo[k]);
+    n += rows;
+  }
+  return n;
+}
+
 int demand_step(const Demand *d, int k, const npg_idx **box) {
   const Boxes *r = &d->step[k];
   *box = r->v;

@@ -52,6 +52,9 @@ int demand_propagate(Demand *d);
  * ascending, possibly overlapping; returns n (0: none), or -1 when every
  * entry is demanded or more than `cap` ranges would be needed. */
 long demand_ranges(const Demand *d, const Sym *q, size_t *r, long cap);
+/* A `cap` for demand_ranges that always suffices: -1 when every entry of
+ * `q` is demanded (or `q` is no input or extern), 0 when none. */
+long demand_range_bound(const Demand *d, const Sym *q);
 /* After demand_propagate: step k is not needed (-1), runs whole (0), or
  * runs over n > 0 boxes at *box (as NpgStepFn takes them). */
 int demand_step(const Demand *d, int k, const npg_idx **box);

@@ -358,9 +358,18 @@ static int replay_part(void *user, Full *f, long k, const Demand *d) {
   if (load_record(t, f, k)) return -1;
   char from[64];
   snprintf(from, sizeof from, "training sample %ld", kept_index(t, k));
-  size_t pos = 0, off = 0, r[2 * 64];
+  size_t pos = 0, off = 0;
   for (int i = 0; i < t->nslots; i++) {
-    long nr = t->slot[i]->kind == SYM_EXTERN ? demand_ranges(d, t->slot[i], r, 64) : -1;
+    /* as many ranges as the demand has rows of boxes: a block of radiosity's stream sweep reads v at
+     * a stripe and its transpose, one range a face (decoding all 25 M entries instead cost as much
+     * as the evaluation) */
+    long nr = t->slot[i]->kind == SYM_EXTERN ? demand_range_bound(d, t->slot[i]) : -1;
+    if (nr > t->range_cap) {
+      size_t *r = realloc(t->ranges, sizeof(size_t) * 2 * (size_t)nr);
+      if (!r) return full_fail(f, "out of memory reading a training sample back");
+      t->ranges = r, t->range_cap = nr;
+    }
+    if (nr > 0) nr = demand_ranges(d, t->slot[i], t->ranges, nr);
     if (nr < 0) { /* whole, through the checks of npg_full_set */
       pos = trainer_decode_slot(t, i, pos, t->buf + off, NULL, -1);
       long shape[MAX_AXES + MAX_STATIC];
@@ -369,7 +378,7 @@ static int replay_part(void *user, Full *f, long k, const Demand *d) {
     } else { /* recorded from values that passed those checks */
       double *v = full_extern_values(f, t->slot[i]->name, t->count[i]);
       if (!v) return -1;
-      pos = trainer_decode_slot(t, i, pos, v, r, nr);
+      pos = trainer_decode_slot(t, i, pos, v, t->ranges, nr);
     }
     off += t->count[i];
   }
@@ -641,6 +650,7 @@ void npg_trainer_free(NpgTrainer *t) {
   free(t->count);
   free(t->staged);
   free(t->buf);
+  free(t->ranges);
   free(t->enc);
   free(t);
 }

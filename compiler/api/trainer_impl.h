@@ -35,6 +35,8 @@ struct NpgTrainer {
   long samples;
   double *buf;              /* one record, decoded */
   unsigned char *enc;       /* one record, encoded */
+  size_t *ranges;           /* an extern's entries a restricted evaluation reads (replay_part) */
+  long range_cap;           /* ranges' room, in ranges */
   char error[2048];
 };
 
