@@ -292,9 +292,13 @@ static int gram_passes(Ooc *o) {
       double *mu = mem_malloc(sizeof(double) * (size_t)R);
       if (!mu) return -1;
       for (int i = 0; i < rc->nmembers; i++) {
-        double *big = &o->st[sg->c].big[i];
         if (rc->members[i].center) ooc_center_block(R, S, sg->H[i], mu);
-        for (size_t e = 0; e < (size_t)R * (size_t)S; e++) *big = fmax(*big, fabs(sg->H[i][e])); /* what enters G */
+        double big = o->st[sg->c].big[i]; /* the largest |entry| of what enters G (fmax's NaN rule, inlined) */
+        for (size_t e = 0; e < (size_t)R * (size_t)S; e++) {
+          double a = fabs(sg->H[i][e]);
+          big = a > big ? a : big;
+        }
+        o->st[sg->c].big[i] = big;
         cblas_dsyrk(CblasColMajor, CblasUpper, CblasTrans, (int)S, (int)R, 1.0, sg->H[i], (int)R, 1.0,
                     o->st[sg->c].G[i], (int)S);
       }
