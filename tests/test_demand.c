@@ -194,6 +194,10 @@ static void transposed_read_demands_rows_and_columns(void **state) {
   size_t r[2 * 32];
   long nr = demand_ranges(d, find_quantity(prog, "e2"), r, 32);
   assert_int_equal(nr, 12); /* rows 2-3 as one range, columns 2-3 of the 11 other rows */
+  /* the bound training's replay sizes its ranges by: one a row of a box, so never too few */
+  long bound = demand_range_bound(d, find_quantity(prog, "e2"));
+  assert_int_equal(bound, 2 + 2 + (N - 4));
+  assert_int_equal(demand_ranges(d, find_quantity(prog, "e2"), r, nr - 1), -1);
   bool col = false, other = false;
   const size_t in = 7 * N + 2, out = 7 * N + 5; /* row 7: column 2 is read, column 5 not */
   for (long i = 0; i < nr; i++) col |= r[2 * i] <= in && in < r[2 * i + 1], other |= r[2 * i] <= out && out < r[2 * i + 1];
