@@ -6,8 +6,7 @@
 #   2. sanitizer build (build-asan/): every ctest test under ASan + UBSan, leaks fatal (python_npg:
 #                                     ASan preloaded into the interpreter, leaks not checked there,
 #                                     tests/CMakeLists.txt says why)
-#   3. ThreadSanitizer (build-tsan/): the tests labelled `threads` (one model, many evaluators;
-#      a restricted evaluation's steps over threads)
+#   3. ThreadSanitizer (build-tsan/): the tests labelled `threads` (one model, many evaluators)
 #   4. fuzz build (build-fuzz/):      libFuzzer on the front end for NPG_FUZZ_SECONDS (60), then on
 #                                     the .npy reader, the model manifest and npg.h call sequences
 #                                     for a third of that each
@@ -41,7 +40,7 @@ UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
 
 header "3/4 ThreadSanitizer: the tests labelled threads (build-tsan/)"
 cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=Debug -DNPG_TSAN=ON
-cmake --build build-tsan -j2 --target test_api test_demand npgc radiosity_data
+cmake --build build-tsan -j2 --target test_api npgc radiosity_data
 TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$PWD/tests/tsan.supp" ctest --test-dir build-tsan -L threads --output-on-failure
 
 header "4/4 fuzz the front end, the .npy reader, the manifest and npg.h call sequences (build-fuzz/)"

@@ -67,15 +67,14 @@ typedef struct Want {
 } Want;
 
 /* For samples 0 and 1: evaluate whole with one evaluator, restricted to
- * `want` with another (its boxed steps over `threads` threads) (fresh before sample 0, so what it did not compute
+ * `want` with another (fresh before sample 0, so what it did not compute
  * is 0), and compare the wanted entries bit for bit; `skipped` must stay
  * 0 on sample 0, and so must some entry of the first wanted quantity that
  * a whole evaluation makes nonzero. */
-static void check_restricted(NpgProgram *p, bool radiosity, long n, JitBackend backend, int threads, const Want *want,
-                             int nwant, const char *skipped) {
+static void check_restricted(NpgProgram *p, bool radiosity, long n, JitBackend backend, const Want *want, int nwant,
+                             const char *skipped) {
   Program *prog = ir_ok(p);
   Full *whole = full_new(program_ir(p), backend, NULL), *part = full_new(program_ir(p), backend, NULL);
-  full_set_threads(part, threads);
   for (long k = 0; k < 2; k++) {
     bind_sample(whole, radiosity, n, k);
     bind_sample(part, radiosity, n, k);
@@ -118,22 +117,7 @@ static void radiosity_rows_equal_whole(void **state) {
   NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
   const long F = 24;
   Want want[] = {{"p", 30, 100}, {"c", 90, 150}, {"h", 201, 202}, {"r", 575, 576}, {"s", 48, 72}, {"d", 0, 5}};
-  check_restricted(p, true, F, JIT_TCC, 1, want, 6, "b");
-  npg_free(p);
-}
-
-/* The same over threads (full_set_threads): a step of more than
- * FULL_THREAD_MIN_ENTRIES entries split along its rows over 2 and 3
- * threads (a cut inside a box, boxes of different widths), still bit for
- * bit a whole evaluation's; run under ThreadSanitizer too (label threads). */
-static void threaded_rows_equal_whole(void **state) {
-  (void)state;
-  NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
-  const long F = 300;
-  Want want[] = {{"p", 1234, 80000}, {"c", 85000, 88000}, {"h", 45001, 45002}, {"s", 89990, 90000}};
-  assert_true(80000 - 1234 > FULL_THREAD_MIN_ENTRIES);
-  for (int threads = 2; threads <= 3; threads++)
-    for (int cc = 0; cc < 2; cc++) check_restricted(p, true, F, cc ? JIT_CC : JIT_TCC, threads, want, 4, "b");
+  check_restricted(p, true, F, JIT_TCC, want, 6, "b");
   npg_free(p);
 }
 
@@ -142,7 +126,7 @@ static void transposes_and_gathers_equal_whole(void **state) {
   NpgProgram *p = compile_text("transposes.npg", transposes);
   const long N = 13;
   Want want[] = {{"z", 20, 61}, {"t", 100, 110}, {"u", 140, 169}};
-  for (int cc = 0; cc < 2; cc++) check_restricted(p, false, N, cc ? JIT_CC : JIT_TCC, 1, want, 3, "o");
+  for (int cc = 0; cc < 2; cc++) check_restricted(p, false, N, cc ? JIT_CC : JIT_TCC, want, 3, "o");
   npg_free(p);
 }
 
@@ -225,7 +209,6 @@ static void transposed_read_demands_rows_and_columns(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(radiosity_rows_equal_whole),
-      cmocka_unit_test(threaded_rows_equal_whole),
       cmocka_unit_test(transposes_and_gathers_equal_whole),
       cmocka_unit_test(entries_become_boxes),
       cmocka_unit_test(transposed_read_demands_rows_and_columns),

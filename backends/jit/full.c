@@ -2,9 +2,7 @@
  * (libtcc or cc), bind params and dims, check gathers once, evaluate
  * samples, hand back every stage value. */
 #include <errno.h>
-#include <limits.h>
 #include <math.h>
-#include <pthread.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stdlib.h>
@@ -38,9 +36,6 @@ struct Full {
   void **extern_user;
   NpgHost host;
   const char **dim_names, **param_names;
-  int threads;              /* a boxed step's boxes split over this many threads (full_set_threads) */
-  npg_idx *parts;           /* their boxes, per thread */
-  size_t partcap;           /* parts' room, in npg_idx */
 };
 
 static int fail(Full *f, const char *fmt, ...) {
@@ -141,7 +136,6 @@ Full *full_new(Program *prog, JitBackend backend, const char *refusal) {
   f->host.param_names = f->param_names;
   f->host.param_files = (const char *const *)f->param_files;
   f->host.sparse_min_rows = FULL_SPARSE_MIN_ROWS;
-  f->threads = 1;
   return f;
 }
 
@@ -418,110 +412,13 @@ static NpgCtx context(Full *f, long sample) {
   return c;
 }
 
-void full_set_threads(Full *f, int threads) {
-  f->threads = threads < 1 ? 1 : threads > FULL_MAX_THREADS ? FULL_MAX_THREADS : threads;
-}
-
-/* One thread's share of a boxed step: its boxes, and a host of its own for
- * an error message (the generated code's scratch is calloc'd per call). */
-typedef struct StepPart {
-  const Full *f;
-  NpgCtx c;
-  NpgHost host;
-  int k, n, rc;
-  const npg_idx *box;
-} StepPart;
-
-static void *run_part(void *arg) {
-  StepPart *p = arg;
-  p->rc = p->n > 0 ? p->f->step(&p->c, p->k, p->n, p->box) : 0;
-  return NULL;
-}
-
-/* Entries of the boxes' rows below x along the first axis. */
-static double volume_below(const npg_idx *box, int n, int nax, npg_idx x) {
-  double v = 0;
-  for (int b = 0; b < n; b++) {
-    const npg_idx *lo = box + (size_t)b * 2 * (size_t)nax, *hi = lo + nax;
-    double w = 1;
-    for (int a = 1; a < nax; a++) w *= (double)(hi[a] - lo[a]);
-    npg_idx top = x < hi[0] ? x : hi[0];
-    if (top > lo[0]) v += w * (double)(top - lo[0]);
-  }
-  return v;
-}
-
-/* Step k over its n boxes split along the first axis into f->threads parts
- * of about equal entries, one a thread. The parts cover disjoint entries, so
- * no two threads write one entry; a boxed step writes only its members'
- * entries in its boxes and reads what earlier steps computed (a fused group
- * rematerializes its members' other entries), so each entry is computed by
- * the same code as on one thread: the same bits. */
-static int run_step_threaded(Full *f, const NpgCtx *c, int k, int n, const npg_idx *box) {
-  int nax = f->plan->steps[k].members[0]->sym->nivars, T = f->threads;
-  double total = volume_below(box, n, nax, LONG_MAX);
-  if (T < 2 || nax < 1 || total < FULL_THREAD_MIN_ENTRIES) return f->step(c, k, n, box);
-  size_t need = (size_t)T * (size_t)n * 2 * (size_t)nax;
-  if (need > f->partcap) {
-    npg_idx *p = realloc(f->parts, sizeof(npg_idx) * need);
-    if (!p) return fail(f, "out of memory");
-    f->parts = p, f->partcap = need;
-  }
-  npg_idx lo0 = LONG_MAX, hi0 = 0;
-  for (int b = 0; b < n; b++) {
-    const npg_idx *lo = box + (size_t)b * 2 * (size_t)nax;
-    lo0 = lo[0] < lo0 ? lo[0] : lo0, hi0 = lo[nax] > hi0 ? lo[nax] : hi0;
-  }
-  StepPart part[FULL_MAX_THREADS];
-  pthread_t tid[FULL_MAX_THREADS];
-  bool started[FULL_MAX_THREADS] = {false};
-  npg_idx cut = lo0;
-  for (int t = 0; t < T; t++) {
-    npg_idx from = cut, lo = from, hi = hi0; /* the first row at which the rows below hold (t+1)/T of the entries */
-    double want = total * (double)(t + 1) / (double)T;
-    while (t + 1 < T && lo < hi) {
-      npg_idx mid = lo + (hi - lo) / 2;
-      if (volume_below(box, n, nax, mid) >= want) hi = mid;
-      else lo = mid + 1;
-    }
-    cut = t + 1 < T ? lo : hi0;
-    StepPart *p = &part[t];
-    *p = (StepPart){.f = f, .c = *c, .k = k, .n = 0, .box = f->parts + (size_t)t * (size_t)n * 2 * (size_t)nax};
-    p->host = f->host;
-    p->host.msg[0] = 0;
-    p->host.sparse = NULL, p->host.nsparse = 0; /* a boxed step solves nothing */
-    p->c.host = &p->host;
-    for (int b = 0; b < n; b++) { /* the box's rows in [from, cut) */
-      const npg_idx *bl = box + (size_t)b * 2 * (size_t)nax;
-      npg_idx a = bl[0] > from ? bl[0] : from, z = bl[nax] < cut ? bl[nax] : cut;
-      if (a >= z) continue;
-      npg_idx *q = (npg_idx *)p->box + (size_t)p->n * 2 * (size_t)nax;
-      memcpy(q, bl, sizeof(npg_idx) * 2 * (size_t)nax);
-      q[0] = a, q[nax] = z;
-      p->n++;
-    }
-  }
-  for (int t = 1; t < T; t++) started[t] = part[t].n > 0 && pthread_create(&tid[t], NULL, run_part, &part[t]) == 0;
-  run_part(&part[0]);
-  int rc = 0;
-  for (int t = 0; t < T; t++) {
-    if (t > 0 && started[t]) pthread_join(tid[t], NULL);
-    else if (t > 0) run_part(&part[t]); /* no thread: here */
-    if (part[t].rc && !rc) {
-      rc = -1;
-      if (!f->host.msg[0]) memcpy(f->host.msg, part[t].host.msg, sizeof f->host.msg);
-    }
-  }
-  return rc;
-}
-
 /* The steps a demand asks for, each whole or over its boxes. */
 static int run_steps(Full *f, const NpgCtx *c, Demand *d) {
   if (demand_propagate(d)) return fail(f, "out of memory");
   for (int k = 0; k < f->plan->n; k++) {
     const npg_idx *box;
     int n = demand_step(d, k, &box);
-    if (n > 0 ? run_step_threaded(f, c, k, n, box) != 0 : n == 0 && f->step(c, k, -1, box) != 0) return -1;
+    if (n >= 0 && f->step(c, k, n ? n : -1, box) != 0) return -1;
   }
   return 0;
 }
@@ -706,7 +603,6 @@ void full_forget_given(Full *f) {
 void full_free(Full *f) {
   if (!f) return;
   runtime_sparse_free(&f->host);
-  free(f->parts);
   jit_free(f->jit);
   demand_free(f->demand);
   if (f->prog) {

@@ -95,14 +95,6 @@ int full_build(Full *f, const char *name, NpgSink *sink);
  * --crossover`: 1.3x at 16, 3.4x at 256, 46x at 1,024). */
 #define FULL_SPARSE_MIN_ROWS 16
 void full_set_sparse_min_rows(Full *f, long rows);
-/* A restricted evaluation's boxed steps (full_eval_demand) over `threads`
- * threads (1 by default, at most FULL_MAX_THREADS): each step's boxes split
- * along their first axis into parts of about equal entries, the same bits as
- * on one thread. Steps of fewer than FULL_THREAD_MIN_ENTRIES entries, and
- * every other step, run on the calling thread. */
-#define FULL_MAX_THREADS 8
-#define FULL_THREAD_MIN_ENTRIES 65536
-void full_set_threads(Full *f, int threads);
 /* How many sparse patterns were built, and factorizations made by CHOLMOD
  * and by UMFPACK, since the evaluator was made. */
 void full_sparse_counts(const Full *f, long *patterns, long *cholesky, long *lu);

@@ -691,7 +691,6 @@ int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *op
     if (o.st[c].blockwise && !m->classes[c].streamed && !train_keeps_basis(m, opt, c) && model_class_by_coefficients(m, c))
       m->classes[c].streamed = true, m->classes[c].coef_S = o.S;
   train_mark_spd(m);
-  full_set_threads(f, train_threads()); /* the passes' restricted evaluations */
   double t[6] = {now()};
   /* over ranks every rank's passes evaluate every sample */
   if (o.N > 1 && ((src->share && src->share(src->user, err, errlen)) || whole_sweep(&o))) goto done;
@@ -734,7 +733,6 @@ oom:
   error_set(err, errlen, "out of memory planning out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
 done:
   if (rc && !err[0]) error_set(err, errlen, "out of memory in out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
-  full_set_threads(f, 1);
   ooc_free(&o);
   return rc;
 }

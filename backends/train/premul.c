@@ -359,7 +359,9 @@ long premul_keys_per_block(const RTensor *t) {
   return kb > PREMUL_MAX_KEYS ? PREMUL_MAX_KEYS : kb < 1 ? 1 : kb;
 }
 
-int train_threads(void) {
+/* One worker per core, at most OPENBLAS_NUM_THREADS when the environment
+ * sets it (1: one thread, as for MPI ranks sharing a machine). */
+static int workers_online(void) {
   long n = sysconf(_SC_NPROCESSORS_ONLN);
   const char *env = getenv("OPENBLAS_NUM_THREADS");
   long blas = env ? strtol(env, NULL, 10) : 0;
@@ -426,7 +428,7 @@ static int premultiply_rows(Model *m, Full *f, RTensor *t, const PremulBlock *b,
   p.ulen = p.unpack ? p.pre * p.mu : p.pre;
   p.vlen = p.unpack ? p.mu : p.last;
   p.KB = premul_keys_per_block(t);
-  p.nworkers = train_threads();
+  p.nworkers = workers_online();
   /* each worker finishes its own keys into its own sum when the sums fit:
    * no BLAS threads (which would spin while the workers run), the per-key
    * work of one worker overlapping the other's GEMM */

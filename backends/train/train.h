@@ -358,11 +358,6 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
  * GEMM against the output basis. `t` sized by model_size_tensors; fills
  * t->data. `flops` (optional) accumulates the useful arithmetic (that of
  * the packed products). */
-/* Threads training's own parallel loops use (pre-multiplication's workers,
- * the restricted evaluations' boxed steps): one per core, at most
- * OPENBLAS_NUM_THREADS when the environment sets it (1: one thread, as for
- * MPI ranks sharing a machine). */
-int train_threads(void);
 int premultiply(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
                 size_t errlen);
 /* The same, choosing the path for a last x ⊗ x axis: unpacked (one GEMM of
