@@ -365,7 +365,7 @@ static int replay_part(void *user, Full *f, long k, const Demand *d) {
      * as the evaluation) */
     long nr = t->slot[i]->kind == SYM_EXTERN ? demand_range_bound(d, t->slot[i]) : -1;
     if (nr > t->range_cap) {
-      size_t *r = realloc(t->ranges, sizeof(size_t) * 2 * (size_t)nr);
+      size_t *r = mem_realloc(t->ranges, sizeof(size_t) * 2 * (size_t)nr);
       if (!r) return full_fail(f, "out of memory reading a training sample back");
       t->ranges = r, t->range_cap = nr;
     }

@@ -137,7 +137,6 @@ static PyObject *model_save(ModelObject *self, PyObject *dir) {
   Py_RETURN_NONE;
 }
 
-/* model.basis(name) -> n x m read-only view of the basis of name's class */
 /* A read-only rows x cols view of the model's memory, keeping the model alive. */
 static PyObject *matrix_view(ModelObject *self, long rows, long cols, const double *data) {
   npy_intp shape[2] = {rows, cols};
@@ -151,6 +150,7 @@ static PyObject *matrix_view(ModelObject *self, long rows, long cols, const doub
   return a;
 }
 
+/* model.basis(name) -> n x m read-only view of the basis of name's class */
 static PyObject *model_basis(ModelObject *self, PyObject *arg) {
   const char *name = npgpy_name(arg, "Model.basis");
   if (!name) return NULL;
@@ -161,7 +161,9 @@ static PyObject *model_basis(ModelObject *self, PyObject *arg) {
   const double *B = npg_model_basis(self->m, c);
   if (!B) /* NULL data would make numpy allocate an uninitialized array */
     return PyErr_Format(npgpy_Error, "the basis of '%s' (class %s) was streamed in training and not kept in the "
-                        "model: retrain with --keep-bases %s (npg.Trainer(keep_bases=...))", name, ci.label, name);
+                        "model%s: retrain with --keep-bases %s (npg.Trainer(keep_bases=...))", name, ci.label,
+                        npg_model_coefficients(self->m, c, NULL) ? " (its coefficients are: model.coefficients)" : "",
+                        name);
   return matrix_view(self, ci.n, ci.m, B);
 }
 
