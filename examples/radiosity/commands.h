@@ -3,6 +3,8 @@
 #ifndef RADIOSITY_COMMANDS_H
 #define RADIOSITY_COMMANDS_H
 
+#define RADIOSITY_MAX_BASIS 16
+
 typedef struct Options {
   long faces;
   int frames, k, threads, checks, ss;
@@ -10,6 +12,10 @@ typedef struct Options {
   const char *vis_mode, *solver;
   int samples, cap, reps; /* training samples, basis cap per member, timing repetitions per frame */
   double energy;          /* PCA energy per member */
+  int nbasis;             /* --basis NAME:cap=N,energy=E overrides, in the order given */
+  char basis_name[RADIOSITY_MAX_BASIS][32];
+  int basis_cap[RADIOSITY_MAX_BASIS];       /* -1: --cap */
+  double basis_energy[RADIOSITY_MAX_BASIS]; /* -1: --energy */
   long mem_mb;            /* the trainer's memory for snapshots and cached samples */
   const char *model;      /* run: the model folder */
   const char *program;    /* formfactors.npg */

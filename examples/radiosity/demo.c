@@ -76,8 +76,14 @@ static int train(const Options *o, Scene *s, ReducedRadiosity *r, TrainTimes *t,
   printf("training: %ld faces, %ld vertices, %d samples (%d structured, %d interior), cap %d, energy %g\n", s->F,
          s->V, o->samples, o->samples < DESIGN_STRUCTURED ? o->samples : DESIGN_STRUCTURED,
          o->samples > DESIGN_STRUCTURED ? o->samples - DESIGN_STRUCTURED : 0, o->cap, o->energy);
+  for (int i = 0; i < o->nbasis; i++) {
+    printf("  --basis %s:", o->basis_name[i]);
+    if (o->basis_cap[i] > 0) printf("cap=%d%s", o->basis_cap[i], o->basis_energy[i] > 0 ? "," : "");
+    if (o->basis_energy[i] > 0) printf("energy=%g", o->basis_energy[i]);
+    printf("\n");
+  }
   fflush(stdout);
-  if (reduced_train(r, s, o->samples, o->cap, o->energy, (size_t)o->mem_mb << 20, model_dir, t, err, sizeof err))
+  if (reduced_train(r, s, o, model_dir, t, err, sizeof err))
     return fail(err);
   npg_model_report(r->model, stdout);
   print_train(t, o->samples);

@@ -65,21 +65,29 @@ int reduced_open(ReducedRadiosity *r, const Scene *s, const char *program, int k
   return 0;
 }
 
-int reduced_train(ReducedRadiosity *r, Scene *s, int samples, int cap, double energy, size_t mem, const char *model_dir,
-                  TrainTimes *t, char *err, size_t errlen) {
+int reduced_train(ReducedRadiosity *r, Scene *s, const Options *opt, const char *model_dir, TrainTimes *t, char *err,
+                  size_t errlen) {
   memset(t, 0, sizeof *t);
+  int samples = opt->samples;
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  o.cap = cap, o.energy = energy, o.progress = isatty(2); /* bars on a terminal, not in a log */
+  o.cap = opt->cap, o.energy = opt->energy, o.progress = isatty(2); /* bars on a terminal, not in a log */
   /* g moves linearly with eight of the nine parameters (patch corners slide) and with the
    * sine and cosine of the tilt: dropping one of its few directions at 0.999 loses a
    * parameter outright, and the thin faces its areas then miss (a strip over a large
    * window) turn the root's operator diag(a) indefinite. The small classes of the geometry
-   * (g, the area vectors n, the squared areas a) keep 1 - 1e-6 of their energy. */
-  static const char *const names[3] = {"g", "n", "a"};
-  static const int caps[3] = {-1, -1, -1}, centers[3] = {-1, -1, -1};
-  static const double energies[3] = {1 - 1e-6, 1 - 1e-6, 1 - 1e-6};
-  o.nbasis = 3, o.basis_name = names, o.basis_cap = caps, o.basis_energy = energies, o.basis_center = centers;
+   * (g, the area vectors n, the squared areas a) keep 1 - 1e-6 of their energy; the
+   * user's --basis options come after, so they win. */
+  enum { FIXED = 3 };
+  const char *names[FIXED + RADIOSITY_MAX_BASIS] = {"g", "n", "a"};
+  int caps[FIXED + RADIOSITY_MAX_BASIS] = {-1, -1, -1}, centers[FIXED + RADIOSITY_MAX_BASIS];
+  double energies[FIXED + RADIOSITY_MAX_BASIS] = {1 - 1e-6, 1 - 1e-6, 1 - 1e-6};
+  for (int i = 0; i < opt->nbasis; i++)
+    names[FIXED + i] = opt->basis_name[i], caps[FIXED + i] = opt->basis_cap[i], energies[FIXED + i] = opt->basis_energy[i];
+  for (int i = 0; i < FIXED + opt->nbasis; i++) centers[i] = -1;
+  o.nbasis = FIXED + opt->nbasis, o.basis_name = names, o.basis_cap = caps, o.basis_energy = energies,
+  o.basis_center = centers;
+  size_t mem = (size_t)opt->mem_mb << 20;
   if (mem) o.mem = mem;
   NpgTrainer *tr = npg_trainer_new(r->full, &o);
   if (!tr) return failed(err, errlen, "trainer", "out of memory");

@@ -13,6 +13,7 @@
 
 #include <stddef.h>
 
+#include "commands.h"
 #include "npg.h"
 #include "scene.h"
 #include "visibility.h"
@@ -58,11 +59,12 @@ typedef struct TrainTimes {
  * visibility extern calls a ray caster of k points per face on `threads` threads.
  * 0, or -1 with err. */
 int reduced_open(ReducedRadiosity *r, const Scene *s, const char *program, int k, int threads, char *err, size_t errlen);
-/* Train over the first `samples` points of the design, basis cap `cap` and PCA energy
- * `energy` per member, snapshots in at most `mem` bytes; the model to `model_dir`
- * (NULL: not written). Moves the scene's g and e. 0, or -1 with err. */
-int reduced_train(ReducedRadiosity *r, Scene *s, int samples, int cap, double energy, size_t mem, const char *model_dir,
-                  TrainTimes *t, char *err, size_t errlen);
+/* Train over the first `o->samples` points of the design, basis cap `o->cap` and PCA energy
+ * `o->energy` per member but where o's --basis overrides say otherwise, snapshots in at
+ * most `o->mem_mb` MB; the model to `model_dir` (NULL: not written). Moves the scene's g
+ * and e. 0, or -1 with err. */
+int reduced_train(ReducedRadiosity *r, Scene *s, const Options *o, const char *model_dir, TrainTimes *t, char *err,
+                  size_t errlen);
 /* Load a model trained for this scene instead (its dims checked). 0, or -1 with err. */
 int reduced_load(ReducedRadiosity *r, const char *model_dir, char *err, size_t errlen);
 /* The run-time frame: parameters p -> g -> ĝ, e -> ê, the reduced chain with the learned

@@ -35,40 +35,45 @@ static void release(const NpgCtx *c, double *p) {
   free(p);
 }
 
-/* 1-norm of a row-major n x n matrix, for the condition estimate. */
-static double norm1(const double *M, npg_idx n) {
+/* Largest absolute row sum of a row-major n x n matrix M: the 1-norm of M^T, the matrix
+ * LAPACK factors (below), for the condition estimate. */
+static double norm_rows(const double *M, npg_idx n) {
   double best = 0;
-  for (npg_idx j = 0; j < n; j++) {
+  for (npg_idx i = 0; i < n; i++) {
     double s = 0;
-    for (npg_idx i = 0; i < n; i++) s += fabs(M[i * n + j]);
+    for (npg_idx j = 0; j < n; j++) s += fabs(M[i * n + j]);
     if (s > best) best = s;
   }
   return best;
 }
 
-/* y <- M^-k y by LU: one factorization, k solves. */
+/* y <- M^-k y by LU: one factorization, k solves. The row-major M is the column-major
+ * M^T, so LAPACK factors M^T in place and solves with its transpose: LAPACKE's row-major
+ * interface would copy the matrix into column-major order and back (at 5,000 rows that
+ * copy took 0.55 of the LU's 1.34 s). */
 static int inverse_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long k, double *y) {
   lapack_int *piv = mem_malloc(sizeof(lapack_int) * (size_t)(n ? n : 1));
   if (!piv) {
     runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
     return -1;
   }
-  double anorm = norm1(M, n);
-  lapack_int info = LAPACKE_dgetrf(LAPACK_ROW_MAJOR, (lapack_int)n, (lapack_int)n, M, (lapack_int)n, piv);
+  lapack_int ld = (lapack_int)(n ? n : 1);
+  double anorm = norm_rows(M, n);
+  lapack_int info = LAPACKE_dgetrf(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)n, M, ld, piv);
   if (info < 0) {
     runtime_record(c, "sample %ld: stage '%s': LAPACK dgetrf rejected argument %d (a bug in npg)", c->sample, stage, (int)-info);
     free(piv);
     return -1;
   }
   double rcond = 0;
-  if (info == 0) LAPACKE_dgecon(LAPACK_ROW_MAJOR, '1', (lapack_int)n, M, (lapack_int)n, anorm, &rcond);
+  if (info == 0) LAPACKE_dgecon(LAPACK_COL_MAJOR, '1', (lapack_int)n, M, ld, anorm, &rcond);
   if (info > 0 || !(rcond > 1e-15)) {
     runtime_record(c, "sample %ld: stage '%s': operator %s is singular (rcond %.1e)", c->sample, stage, op, rcond);
     free(piv);
     return -1;
   }
   for (long r = 0; r < k; r++) {
-    info = LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', (lapack_int)n, 1, M, (lapack_int)n, piv, y, 1);
+    info = LAPACKE_dgetrs(LAPACK_COL_MAJOR, 'T', (lapack_int)n, 1, M, ld, piv, y, ld);
     if (info != 0) {
       runtime_record(c, "sample %ld: stage '%s': LAPACK dgetrs failed (info %d)", c->sample, stage, (int)info);
       free(piv);
