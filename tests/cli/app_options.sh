@@ -82,6 +82,20 @@ radiosity)
   expect 2 "npg-radiosity scene: unknown option '--face'" scene --face 100
   expect 2 "npg-radiosity full: --vis-mode is auto, single, stream or packet, not 'fast'" full --out "$W/o" --vis-mode fast
   expect 2 "npg-radiosity full: --solver is auto, lu, gs or gmres, not 'cg'" full --out "$W/o" --solver=cg
+  # --basis NAME:cap=N,energy=E: malformed lists refused with the option named; a name the
+  # program lacks refused by training; a cap given reaches the member it names, the others not
+  expect 2 "npg-radiosity train: --basis 'v': expected NAME:cap=N,energy=E" train --out "$W/o" --basis v
+  expect 2 "npg-radiosity demo: --basis 'v:cap=0': cap: 0 is out of range (expected 1..1000000)" \
+    demo --out "$W/o" --basis v:cap=0
+  expect 2 "npg-radiosity train: --basis 'v:size=3': 'size=3' is not cap=N or energy=E" train --out "$W/o" --basis v:size=3
+  expect 2 "npg-radiosity train: --basis 'c:energy=1.5': energy: 1.5 is out of range (expected (0, 1])" \
+    train --out "$W/o" --basis c:energy=1.5
+  expect 1 "training: --basis zz: no quantity, class or numerator of that name" \
+    train --out "$W/z" --faces 100 --samples 6 --basis zz:cap=5
+  "$X" train --out "$W/t" --faces 100 --samples 8 --basis c:cap=2 --basis d:energy=0.5 >"$W/t.txt" 2>&1 ||
+    fail "train --basis c:cap=2: $(cat "$W/t.txt")"
+  grep -q " c 2/2 lost" "$W/t.txt" || fail "train --basis c:cap=2: c is not 2/2: $(grep -F '{c}' "$W/t.txt")"
+  grep -q " v [0-9]*/60 lost" "$W/t.txt" || fail "train --basis c:cap=2: v's cap moved: $(grep -F '{v}' "$W/t.txt")"
   "$X" scene --faces=200 --checks=5 >"$W/a.txt" || fail "scene --faces=200"
   "$X" scene --faces 200 --checks 5 >"$W/b.txt" || fail "scene --faces 200"
   head -1 "$W/a.txt" >"$W/a1.txt"
