@@ -313,6 +313,12 @@ NPG_API int npg_trainer_add(NpgTrainer *t);
 /* Add the inputs and externs now held by `g` (an evaluator of the same
  * program, after npg_full_eval). */
 NPG_API int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g);
+/* The weight of the next sample added (positive and finite; 1 when not given, and again after
+ * every add): the bases' PCA minimizes Σ_k w_k ‖x_k − BBᵀx_k‖², so weight 2 counts a sample
+ * as if it had been added twice (a training design's rare points weighed up, e.g. the extremes
+ * its interior points outnumber). The floors and reports stay per sample. Not with --merge
+ * joint, nor when the snapshots take the method of snapshots (raise mem). */
+NPG_API int npg_trainer_weight(NpgTrainer *t, double w);
 NPG_API long npg_trainer_samples(const NpgTrainer *t);
 /* Train on the samples added: snapshots, one basis per class, every tensor
  * pre-multiplied, externs fitted. When `model_dir` is non-NULL the model is

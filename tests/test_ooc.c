@@ -106,7 +106,7 @@ static void out_of_core_matches_memory(void **state) {
     Model *a = train_with(prog, f, &src, 8, 0.9999, uncentered, 0);
     size_t mem = run < 2 ? largest_basis(a) / 10 : largest_basis(a);
     TrainOptions o = {.cap = 8, .energy = 0.9999, .uncentered = uncentered, .mem = mem};
-    assert_true(ooc_needed(a, &o));
+    assert_true(ooc_needed(a, &o, src.count));
     Model *b = train_with(prog, f, &src, 8, 0.9999, uncentered, mem);
     bool mapped = false;
     for (int c = 0; c < b->nclasses; c++) mapped |= b->classes[c].B_mapped > 0;

@@ -90,7 +90,7 @@ void dist_free_pcas(Model *m, PcaMember **pcas) {
   free(pcas);
 }
 
-int dist_member_pcas(Model *m, long S, double ***X, PcaMember ***out, char *err, size_t errlen) {
+int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember ***out, char *err, size_t errlen) {
   int N = dist_size(), rank = dist_rank();
   PcaMember **p = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *));
   int *owner = NULL;
@@ -123,7 +123,7 @@ int dist_member_pcas(Model *m, long S, double ***X, PcaMember ***out, char *err,
     for (int i = 0; i < m->classes[c].nmembers; i++, g++) {
       const RClass *rc = &m->classes[c];
       const RMember *mb = &rc->members[i];
-      if (owner[g] == rank && pca_basis(rc->n, S, X[c][i], mb->cap, mb->energy, mb->center, &p[c][i], err, errlen))
+      if (owner[g] == rank && pca_basis(rc->n, S, X[c][i], mb->cap, mb->energy, mb->center, w, &p[c][i], err, errlen))
         goto fail;
     }
   /* share: each member from its rank, in the same order on every rank */

@@ -43,7 +43,7 @@ int train_joint_basis(RClass *rc, long S, double *const *X, char *err, size_t er
     ks[i] = 1;
   }
   if (center) cap = cap > r ? cap - r : 0;
-  if (pca_basis(rc->n, S * r, J, cap, energy, false, &p, err, errlen)) goto done;
+  if (pca_basis(rc->n, S * r, J, cap, energy, false, NULL, &p, err, errlen)) goto done;
   if (center) {
     parts[r] = p.U;
     ks[r] = p.k;

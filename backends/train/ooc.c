@@ -81,11 +81,15 @@ static size_t basis_bytes(const RClass *rc) {
   return sizeof(double) * (size_t)rc->n * cols;
 }
 
-bool ooc_needed(const Model *m, const TrainOptions *opt) {
+bool ooc_needed(const Model *m, const TrainOptions *opt, long S) {
   if (!opt->mem || opt->joint || opt->full_rank) return false;
-  size_t need = 0;
-  for (int c = 0; c < m->nclasses; c++) need += basis_bytes(&m->classes[c]);
-  return need > opt->mem;
+  size_t need = 0, snapshots = 0;
+  for (int c = 0; c < m->nclasses; c++) {
+    need += basis_bytes(&m->classes[c]);
+    snapshots += sizeof(double) * (size_t)m->classes[c].n * (size_t)m->classes[c].nmembers * (size_t)S;
+  }
+  /* weighted samples: out of core rather than by the method of snapshots, which does not take them */
+  return need > opt->mem || (opt->weights && snapshots > opt->mem);
 }
 
 /* Bytes a row of streamed class `rc` needs in a pass: every member's S
@@ -271,14 +275,6 @@ static void release(Ooc *o, long p) {
   }
 }
 
-/* A centered member's block minus its mean (pca_basis's arithmetic, row by
- * row); mu[0..R) the mean. */
-void ooc_center_block(long R, long S, double *H, double *mu) {
-  pca_mean(R, S, H, mu);
-  for (long s = 0; s < S; s++)
-    for (long e = 0; e < R; e++) H[s * R + e] -= mu[e];
-}
-
 /* Gram passes: G += X_bᵀX_b for every streamed member. */
 static int gram_passes(Ooc *o) {
   long S = o->S;
@@ -292,7 +288,7 @@ static int gram_passes(Ooc *o) {
       double *mu = mem_malloc(sizeof(double) * (size_t)R);
       if (!mu) return -1;
       for (int i = 0; i < rc->nmembers; i++) {
-        if (rc->members[i].center) ooc_center_block(R, S, sg->H[i], mu);
+        pca_weigh(R, S, sg->H[i], o->opt->weights, rc->members[i].center ? mu : NULL); /* pca_basis's arithmetic, row by row */
         double big = o->st[sg->c].big[i]; /* the largest |entry| of what enters G (fmax's NaN rule, inlined) */
         for (size_t e = 0; e < (size_t)R * (size_t)S; e++) {
           double a = fabs(sg->H[i][e]);
@@ -400,7 +396,8 @@ int ooc_read_at(FILE *fp, void *p, size_t bytes, size_t off) {
 /* A segment's share of the training floors (Stream.AX, yy): for every
  * quantity member, AX += A_bᵀX_b and yy_k += ‖X_b(:, k)‖², X_b the block's
  * snapshots as they were (a centered member's block is held centered, its
- * mean μ_b in A's column col[i]: X_b = H_b + μ_b1ᵀ). */
+ * mean μ_b in A's column col[i]: X_b = H_b + μ_b1ᵀ; weighted, its columns
+ * are first divided by √w_k back). */
 static int floor_products(Ooc *o, const Segment *sg, const double *A, long K) {
   Stream *st = &o->st[sg->c];
   RClass *rc = &o->m->classes[sg->c];
@@ -410,7 +407,8 @@ static int floor_products(Ooc *o, const Segment *sg, const double *A, long K) {
   for (int i = 0; i < rc->nmembers; i++) {
     if (rc->members[i].q < 0 || K == 0) continue;
     bool centered = rc->members[i].center;
-    const double *mu = A + st->col[i];
+    const double *mu = A + st->col[i], *w = o->opt->weights;
+    for (long k = 0; w && k < S; k++) cblas_dscal((int)R, 1 / sqrt(w[k]), sg->H[i] + k * R, 1);
     cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)S, (int)R, 1.0, A, (int)K, sg->H[i], (int)R,
                 1.0, st->AX[i], (int)K);
     if (centered) { /* + (A_bᵀμ_b)1ᵀ */
@@ -484,8 +482,8 @@ static int basis_passes(Ooc *o) {
       memset(A, 0, sizeof(double) * (size_t)(R * K));
       for (int i = 0; i < rc->nmembers; i++) {
         long col = st->col[i];
+        pca_weigh(R, S, sg->H[i], o->opt->weights, rc->members[i].center ? mu : NULL);
         if (rc->members[i].center) {
-          ooc_center_block(R, S, sg->H[i], mu);
           for (long e = 0; e < R; e++) A[e * K + col] = mu[e];
           col++;
         }
@@ -702,7 +700,7 @@ int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *op
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rcl = &m->classes[c];
     if (!o.st[c].streamed) {
-      if (train_member_bases(rcl, o.S, o.st[c].X, NULL, err, errlen)) goto done;
+      if (train_member_bases(rcl, o.S, o.st[c].X, opt->weights, NULL, err, errlen)) goto done;
     } else {
       double *T = NULL;
       long mm = 0;

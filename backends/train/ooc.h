@@ -78,8 +78,6 @@ FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes);
  * `bad` on some rank) mapped read-only as rc->B on every rank, fp closed (a
  * collective). 0, or -1 with o->err. */
 int ooc_map_basis(Ooc *o, RClass *rc, FILE *fp, int bad);
-/* A centered member's block (R x S column-major) minus its mean, mu[0..R) the mean. */
-void ooc_center_block(long R, long S, double *H, double *mu);
 
 /* ---------------------------------------------------------------- streamed pre-multiplication (stream.c) */
 

@@ -426,16 +426,40 @@ void pca_mean(long n, long S, const double *X, double *mu) {
     for (long e = 0; e < n; e++) mu[e] += w * X[s * n + e];
 }
 
-int pca_basis(long n, long S, const double *X, int cap, double energy, bool center, PcaMember *out, char *err,
-              size_t errlen) {
+void pca_weigh(long n, long S, double *X, const double *w, double *mu) {
+  if (mu && !w) pca_mean(n, S, X, mu);
+  if (mu && w) { /* pca_mean's loop, weighted */
+    double W = 0;
+    for (long s = 0; s < S; s++) W += w[s];
+    memset(mu, 0, sizeof(double) * (size_t)n);
+    for (long s = 0; s < S; s++)
+      for (long e = 0; e < n; e++) mu[e] += w[s] / W * X[s * n + e];
+  }
+  for (long s = 0; s < S; s++) {
+    double r = w ? sqrt(w[s]) : 1;
+    for (long e = 0; mu && e < n; e++) X[s * n + e] -= mu[e];
+    for (long e = 0; w && e < n; e++) X[s * n + e] *= r;
+  }
+}
+
+int pca_basis(long n, long S, const double *X, int cap, double energy, bool center, const double *w, PcaMember *out,
+              char *err, size_t errlen) {
   memset(out, 0, sizeof *out);
   double captured = 1;
+  double *Xw = !center && w ? mem_malloc(sizeof(double) * (size_t)(n * S + 1)) : NULL;
+  if (!center && w && !Xw) {
+    snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+    return -1;
+  }
   if (!center) {
-    int rc = pca_core(n, S, X, cap, energy, &out->U, &out->k, &captured, &out->sv, &out->nsv, err, errlen);
+    if (Xw) memcpy(Xw, X, sizeof(double) * (size_t)(n * S)), pca_weigh(n, S, Xw, w, NULL);
+    int rc = pca_core(n, S, Xw ? Xw : X, cap, energy, &out->U, &out->k, &captured, &out->sv, &out->nsv, err, errlen);
     out->lost = fmax(0, 1 - captured);
+    free(Xw);
     return rc;
   }
-  /* centered: [μ, U_c] with U_c the leading directions of X − μ1ᵀ, at most cap − 1 */
+  /* centered: [μ, U_c] with U_c the leading directions of X − μ1ᵀ, at most cap − 1 (weighted: of
+   * (X − μ1ᵀ) diag(√w), μ the weighted mean) */
   double *mu = mem_malloc(sizeof(double) * (size_t)(n + 1)), *Xc = mem_malloc(sizeof(double) * (size_t)(n * S + 1));
   double *Uc = NULL;
   int kc = 0, rc = -1;
@@ -443,9 +467,8 @@ int pca_basis(long n, long S, const double *X, int cap, double energy, bool cent
     snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
     goto done;
   }
-  pca_mean(n, S, X, mu);
-  for (long s = 0; s < S; s++)
-    for (long e = 0; e < n; e++) Xc[s * n + e] = X[s * n + e] - mu[e];
+  memcpy(Xc, X, sizeof(double) * (size_t)(n * S));
+  pca_weigh(n, S, Xc, w, mu);
   if (pca_core(n, S, Xc, cap > 1 ? cap - 1 : 0, energy, &Uc, &kc, &captured, &out->sv, &out->nsv, err, errlen))
     goto done;
   double *parts[2] = {mu, Uc};

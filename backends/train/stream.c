@@ -108,8 +108,8 @@ static double now(void) {
 
 /* An extern's class kept as coefficients (RClass.coef, issue 30): its basis is B = A T diag(sign)
  * with A = X G0 (the mean is X 1/S, the Gram directions (X − μ1ᵀ)W = X (W − 1 1ᵀW/S), or X W
- * uncentered), so C = G0 T diag(sign); and its training values' coordinates are
- * BᵀX = diag(sign) Tᵀ(AᵀX), AᵀX from the basis passes (Stream.AX). */
+ * uncentered; weighted, X wt/Σwt and X (DW − wt 1ᵀDW/Σwt), D = diag(√wt)), so C = G0 T diag(sign);
+ * and its training values' coordinates are BᵀX = diag(sign) Tᵀ(AᵀX), AᵀX from the basis passes (Stream.AX). */
 static int coefficients(Ooc *o, int c, const double *sign) {
   Stream *st = &o->st[c];
   RClass *rc = &o->m->classes[c];
@@ -122,15 +122,19 @@ static int coefficients(Ooc *o, int c, const double *sign) {
     free(G0), free(P);
     return error_set(o->err, o->errlen, "out of memory keeping class %s as coefficients", rc->label);
   }
+  /* weighted (pca_weigh): μ = X wt/Σwt, the directions (X − μ1ᵀ) diag(√wt) W */
+  const double *wt = o->opt->weights;
+  double total = 0;
+  for (long e = 0; e < S; e++) total += wt ? wt[e] : 1;
   if (mb->center) {
-    for (long e = 0; e < S; e++) G0[u * S + e] = 1.0 / (double)S;
+    for (long e = 0; e < S; e++) G0[u * S + e] = wt ? wt[e] / total : 1.0 / (double)S;
     u++;
   }
   for (long j = 0; j < st->k[0]; j++) {
     const double *w = st->G[0] + j * S;
     double mean = 0;
-    for (long e = 0; mb->center && e < S; e++) mean += w[e] / (double)S;
-    for (long e = 0; e < S; e++) G0[(u + j) * S + e] = w[e] - mean;
+    for (long e = 0; mb->center && e < S; e++) mean += wt ? sqrt(wt[e]) * w[e] : w[e] / (double)S;
+    for (long e = 0; e < S; e++) G0[(u + j) * S + e] = wt ? sqrt(wt[e]) * w[e] - wt[e] / total * mean : w[e] - mean;
   }
   /* P = G0 T (S x m column-major), then C row-major with the signs */
   cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)S, (int)m, (int)K, 1.0, G0, (int)S, st->T, (int)K, 0.0, P,
@@ -380,8 +384,8 @@ static int form_rows(Streamer *s) {
     memset(h->A, 0, sizeof(double) * (size_t)(R * K));
     for (int i = 0; i < rc->nmembers; i++) { /* basis_passes's arithmetic, row for row */
       long col = st->col[i];
+      pca_weigh(R, S, h->H[i], o->opt->weights, rc->members[i].center ? h->mu : NULL);
       if (rc->members[i].center) {
-        ooc_center_block(R, S, h->H[i], h->mu);
         for (long e = 0; e < R; e++) h->A[e * K + col] = h->mu[e];
         col++;
       }

@@ -235,14 +235,14 @@ static void take_pca(RMember *mb, PcaMember *p) {
  * member bases concatenated and re-orthonormalized. X[i]: member i's
  * snapshots, n x S column-major; `pre` (over ranks): the members' PCAs
  * already made (dist_member_pcas), taken over. */
-int train_member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, char *err, size_t errlen) {
+int train_member_bases(RClass *rc, long S, double *const *X, const double *w, PcaMember *pre, char *err, size_t errlen) {
   double **U = mem_calloc((size_t)rc->nmembers + 1, sizeof(double *));
   int *kk = mem_calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
   for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
     RMember *mb = &rc->members[i];
     PcaMember p;
     if (pre) p = pre[i], memset(&pre[i], 0, sizeof pre[i]);
-    else rc_ok = pca_basis(rc->n, S, X[i], mb->cap, mb->energy, mb->center, &p, err, errlen);
+    else rc_ok = pca_basis(rc->n, S, X[i], mb->cap, mb->energy, mb->center, w, &p, err, errlen);
     if (rc_ok) break;
     U[i] = p.U;
     kk[i] = p.k;
@@ -384,6 +384,10 @@ int train_take_snapshots(Model *m, Full *f, const SampleSource *src, const Train
                      "the snapshots need %.3g GB, more than --mem %.3g GB: training over MPI ranks keeps them in "
                      "memory (the method of snapshots runs on one process): raise --mem",
                      (double)need / 1e9, (double)opt->mem / 1e9);
+  if (*gram && opt->weights)
+    return error_set(err, errlen,
+                     "the snapshots need %.3g GB, more than --mem %.3g GB, and sample weights are not implemented in the "
+                     "method of snapshots: raise --mem to keep them in memory", (double)need / 1e9, (double)opt->mem / 1e9);
   if (*gram && opt->joint)
     return error_set(err, errlen,
                      "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
@@ -431,14 +435,14 @@ int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
 static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOptions *opt, char *err, size_t errlen) {
   /* over ranks: the members' PCAs shared out, each made on one rank */
   PcaMember **pre = NULL;
-  if (opt->dist && dist_size() > 1 && !gram && !opt->joint && dist_member_pcas(m, sn->S, sn->X, &pre, err, errlen))
+  if (opt->dist && dist_size() > 1 && !gram && !opt->joint && dist_member_pcas(m, sn->S, sn->X, opt->weights, &pre, err, errlen))
     return -1;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     int rc_ok = 0;
     if (opt->joint && rc->nmembers > 1) rc_ok = train_joint_basis(rc, sn->S, sn->X[c], err, errlen);
     else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn->U[c], sn->k[c], &rc->B, &rc->m, err, errlen);
-    else rc_ok = train_member_bases(rc, sn->S, sn->X[c], pre ? pre[c] : NULL, err, errlen);
+    else rc_ok = train_member_bases(rc, sn->S, sn->X[c], opt->weights, pre ? pre[c] : NULL, err, errlen);
     if (rc_ok != 0) {
       dist_free_pcas(m, pre);
       if (!err[0]) error_set(err, errlen, "out of memory building the basis of class %s", rc->label);
@@ -709,7 +713,7 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
  * step, timed as snapshots). */
 static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn, bool *gram,
                  struct timespec clock[2], char *err, size_t errlen) {
-  if (ooc_needed(m, opt)) {
+  if (ooc_needed(m, opt, src->count)) {
     *gram = true;
     train_mark_streamed(m, opt); /* their floors taken in the passes (the choice is made again after interpolation) */
     if (ooc_bases(m, f, src, opt, err, errlen)) return -1;
@@ -721,6 +725,17 @@ static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions 
   return build_bases(m, sn, *gram, opt, err, errlen);
 }
 
+/* Sample weights the PCA can take: positive and finite, not with --merge joint. */
+static int check_weights(const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen) {
+  for (long k = 0; opt->weights && k < src->count; k++)
+    if (!(opt->weights[k] > 0 && isfinite(opt->weights[k])))
+      return error_set(err, errlen, "the weight of training sample %ld is %g: weights must be positive and finite", k,
+                       opt->weights[k]);
+  if (opt->weights && opt->joint)
+    return error_set(err, errlen, "sample weights are not implemented with --merge joint: use --merge concat");
+  return 0;
+}
+
 /* Training as named steps (DESIGN §5), each phase's wall and CPU time kept. */
 Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen) {
@@ -728,6 +743,7 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   bool gram = false;
   struct timespec clock[2];
   err[0] = 0;
+  if (check_weights(src, opt, err, errlen)) return NULL;
   phase_start(clock);
   Model *m = train_begin(prog, f, src, opt, err, errlen);
   if (!m) goto fail;
@@ -750,7 +766,7 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   if (opt->progress)
     fprintf(stderr, "training phases: snapshots %.2f s, bases %.2f s (%s), pre-multiplication %.2f s, externs %.2f s\n",
             m->phase_seconds[PHASE_SNAPSHOTS], m->phase_seconds[PHASE_BASES],
-            ooc_needed(m, opt) ? "out of core, with the snapshots" : gram ? "method of snapshots" : "in memory",
+            ooc_needed(m, opt, src->count) ? "out of core, with the snapshots" : gram ? "method of snapshots" : "in memory",
             m->phase_seconds[PHASE_PREMULTIPLY], m->phase_seconds[PHASE_EXTERNS]);
   train_free_snapshots(m, &sn);
   return m;

@@ -54,6 +54,9 @@ typedef struct TrainOptions {
                                npg_trainer's default); false: every basis kept (the old layout) */
   const char *keep_bases;   /* with `stream`, the bases kept though streamable: comma-separated
                                quantities or classes, "all" for every one; NULL: none */
+  const double *weights;    /* per sample (src->count, each > 0): the PCA minimizes Σ_k w_k ‖x_k − BBᵀx_k‖²
+                               (pca_weigh), weight 2 a sample taken twice; NULL: every weight 1.
+                               The floors and reports stay per sample, unweighted */
 } TrainOptions;
 
 /* Whether training keeps class c's basis whatever the rule (no opt->stream, or --keep-bases
@@ -134,7 +137,7 @@ int train_check_spd(Model *m, Full *f, double *tmp, char *err, size_t errlen);
 /* The class basis from its members' snapshots X[i] (n x S column-major):
  * one PCA per member, concatenated and re-orthonormalized; `pre` (over MPI
  * ranks): the members' PCAs already made, taken over, or NULL. */
-int train_member_bases(RClass *rc, long S, double *const *X, PcaMember *pre, char *err, size_t errlen);
+int train_member_bases(RClass *rc, long S, double *const *X, const double *w, PcaMember *pre, char *err, size_t errlen);
 /* One direction for a class whose every snapshot is zero; with `full_rank`
  * the basis completed to the class's dimension. */
 int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen);
@@ -184,8 +187,10 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
 /* ---------------------------------------------------------------- out-of-core bases (ooc.c) */
 
 /* Whether the member bases of `m` at their caps (Σ n × cap doubles) exceed
- * opt->mem, so that training must keep them out of core. */
-bool ooc_needed(const Model *m, const TrainOptions *opt);
+ * opt->mem, so that training must keep them out of core; with sample weights
+ * (opt->weights), also when the snapshots of the S samples exceed it (the
+ * method of snapshots does not take weights). */
+bool ooc_needed(const Model *m, const TrainOptions *opt, long S);
 /* Every class basis of `m` (rc->B, rc->m, member reports, SPD marks) with
  * at most opt->mem bytes of snapshots, Gram matrices and basis rows in
  * memory, by passes over the samples that keep a block of rows of the
@@ -296,9 +301,15 @@ struct PcaMember {
  * of [μ, U_c,1 … U_c,r] in that order, μ the snapshots' mean (always kept),
  * U_c the left singular vectors of X − μ1ᵀ, r the fewest reaching `energy`
  * of the centered energy, at most cap − 1 (a direction dependent on the
- * previous ones dropped). 0, or -1 with `err` and nothing allocated. */
-int pca_basis(long n, long S, const double *X, int cap, double energy, bool center, PcaMember *out, char *err,
-              size_t errlen);
+ * previous ones dropped). Weighted (w not NULL, S positive weights): the PCA of pca_weigh's
+ * snapshots, μ their weighted mean. 0, or -1 with `err` and nothing allocated. */
+int pca_basis(long n, long S, const double *X, int cap, double energy, bool center, const double *w, PcaMember *out,
+              char *err, size_t errlen);
+/* Weighted snapshots (TrainOptions.weights, w NULL: every weight 1): with `mu`, the mean
+ * Σ_s w_s X_s / Σ_s w_s into mu and subtracted from every column (pca_mean's arithmetic when w
+ * is NULL); then column s times √w_s. X n x S column-major, in place. The PCA of the result
+ * minimizes Σ_s w_s ‖x_s − BBᵀx_s‖²: weight k is sample s taken k times. */
+void pca_weigh(long n, long S, double *X, const double *w, double *mu);
 /* Gram–Schmidt (twice) of the columns of A_0 … A_{r-1} (each n x k_i,
  * row-major) in that order, dropping a column whose remainder is below 1e-8
  * of its norm: n x m row-major whose first j columns span the first
@@ -424,7 +435,7 @@ void dist_and_spd(Model *m);
  * broadcast: (*out)[c][i] on every rank, bit-identical to one process's.
  * 0, or -1 with `err` (the rank that failed; the others then wait for it
  * to end the job). dist_free_pcas frees what is left of it. */
-int dist_member_pcas(Model *m, long S, double ***X, PcaMember ***out, char *err, size_t errlen);
+int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember ***out, char *err, size_t errlen);
 void dist_free_pcas(Model *m, PcaMember **pcas);
 
 #endif

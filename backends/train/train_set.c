@@ -69,7 +69,7 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
     if (!(ts->pm[c] = mem_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
     for (int i = 0; i < rc->nmembers; i++) {
       RMember *mb = &rc->members[i];
-      if (pca_basis(rc->n, ts->sn.S, ts->sn.X[c][i], mb->cap, mb->energy, mb->center, &ts->pm[c][i], err, errlen))
+      if (pca_basis(rc->n, ts->sn.S, ts->sn.X[c][i], mb->cap, mb->energy, mb->center, NULL, &ts->pm[c][i], err, errlen))
         goto fail;
     }
     progress_show(ts->progress, "member bases", c + 1, m->nclasses);

@@ -110,6 +110,7 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
   if (!t) return api_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_trainer_error(NULL) says */
   if (o) t->opt = *o;
   else npg_train_options_default(&t->opt);
+  t->weight = 1;
   t->f = f;
   if (!f) {
     api_refuse(t->error, sizeof t->error, __func__, "argument 'f' is NULL");
@@ -169,8 +170,36 @@ int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape
   return 0;
 }
 
+int npg_trainer_weight(NpgTrainer *t, double w) {
+  REFUSE_NULL_T(-1);
+  if (t->error[0]) return -1;
+  if (!(w > 0 && isfinite(w)))
+    return tfail(t, "npg_trainer_weight: the weight of training sample %ld is %g: weights must be positive and finite",
+                 t->samples, w);
+  t->weight = w;
+  return 0;
+}
+
+/* Sample t->samples's weight kept (the array made at the first weight not 1), the next reset to 1. */
+static int keep_weight(NpgTrainer *t) {
+  if (t->weight != 1 && !t->weights) {
+    t->weights_cap = t->samples + 64;
+    if (!(t->weights = mem_malloc(sizeof(double) * (size_t)t->weights_cap))) return tfail(t, "out of memory");
+    for (long k = 0; k < t->samples; k++) t->weights[k] = 1;
+  }
+  if (t->weights && t->samples == t->weights_cap) {
+    double *w = mem_realloc(t->weights, sizeof(double) * (size_t)(2 * t->weights_cap));
+    if (!w) return tfail(t, "out of memory");
+    t->weights = w, t->weights_cap *= 2;
+  }
+  if (t->weights) t->weights[t->samples] = t->weight;
+  t->weight = 1;
+  return 0;
+}
+
 /* Append the values now in `g` as one sample (another rank's: counted only). */
 static int record(NpgTrainer *t, const NpgFull *g) {
+  if (keep_weight(t)) return -1;
   if (!own_sample(t, t->samples)) {
     t->samples++;
     memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
@@ -597,17 +626,28 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
     held = (SampleSource){nheld, &hold, replay_held, NULL, NULL};
     o.valid = &held;
   }
+  /* the training samples' weights (of those left when some are held out) */
+  double *train_w = t->weights && src.count < t->samples ? mem_malloc(sizeof(double) * (size_t)src.count) : NULL;
+  if (t->weights && src.count < t->samples && !train_w) {
+    tfail(t, "out of memory");
+    return NULL;
+  }
+  for (long j = 0; train_w && j < src.count; j++) train_w[j] = t->weights[training_index(&hold, j)];
+  o.weights = train_w ? train_w : t->weights;
   char err[2048] = "";
   /* the params the samples are replayed with, recorded before any validation sample is set: a
    * valid_set that sets a param would otherwise leave its hash in the model (trial3) */
   char *params = api_param_hashes(t->f->full);
   if (!params) {
+    free(train_w);
     tfail(t, "out of memory");
     return NULL;
   }
   Model *m = train_model((Program *)t->prog, t->f->full, &src, &o, err, sizeof err);
   /* the automatic choice made, every sample trains the model (DESIGN §12) */
+  o.weights = t->weights;
   if (m && retrain) m = interp_train_with_choice((Program *)t->prog, t->f->full, &all, &o, m, err, sizeof err);
+  free(train_w);
   if (m && params_changed(t, params)) {
     model_free(m);
     m = NULL;
@@ -652,5 +692,6 @@ void npg_trainer_free(NpgTrainer *t) {
   free(t->buf);
   free(t->ranges);
   free(t->enc);
+  free(t->weights);
   free(t);
 }

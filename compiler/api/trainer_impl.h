@@ -37,6 +37,9 @@ struct NpgTrainer {
   unsigned char *enc;       /* one record, encoded */
   size_t *ranges;           /* an extern's entries a restricted evaluation reads (replay_part) */
   long range_cap;           /* ranges' room, in ranges */
+  double weight;            /* the next sample's (npg_trainer_weight; 1 after every add) */
+  double *weights;          /* every sample's, in order (every rank's too); NULL while all are 1 */
+  long weights_cap;
   char error[2048];
 };
 

@@ -311,6 +311,15 @@ done:
   return res;
 }
 
+/* tr.weight(w): the weight of the next sample added (npg_trainer_weight). */
+static PyObject *trainer_weight(TrainerObject *self, PyObject *arg) {
+  double w = PyFloat_AsDouble(arg);
+  if (w == -1 && PyErr_Occurred()) return NULL;
+  if (!ready(self)) return NULL;
+  if (npg_trainer_weight(self->t, w)) return fail(self);
+  Py_RETURN_NONE;
+}
+
 /* tr.add_full(): the inputs and externs the evaluator holds after full(...). */
 static PyObject *trainer_add_full(TrainerObject *self, PyObject *unused) {
   if (!ready(self)) return NULL;
@@ -387,6 +396,8 @@ static PyGetSetDef trainer_getset[] = {
 static PyMethodDef trainer_methods[] = {
   {"add", (PyCFunction)(void (*)(void))trainer_add, METH_VARARGS | METH_KEYWORDS,
    "add(**arrays): stream one sample: every input, and externs (else computed by their callables)"},
+  {"weight", (PyCFunction)trainer_weight, METH_O,
+   "weight(w): the weight of the next sample added (positive, 1 if not given): the PCA counts it w times"},
   {"add_full", (PyCFunction)trainer_add_full, METH_NOARGS,
    "add_full(): the sample the evaluator evaluated last (full(x=...) then tr.add_full())"},
   {"finish", (PyCFunction)(void (*)(void))trainer_finish, METH_VARARGS | METH_KEYWORDS,

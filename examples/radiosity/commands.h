@@ -17,6 +17,8 @@ typedef struct Options {
   int basis_cap[RADIOSITY_MAX_BASIS];       /* -1: --cap */
   double basis_energy[RADIOSITY_MAX_BASIS]; /* -1: --energy */
   long mem_mb;            /* the trainer's memory for snapshots and cached samples */
+  double structured_weight; /* --structured-weight: each structured design point's weight in the PCA
+                               (npg_trainer_weight); 0 (default): balanced (design_structured_weight) */
   const char *model;      /* run: the model folder */
   const char *program;    /* formfactors.npg */
 } Options;

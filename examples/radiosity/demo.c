@@ -39,10 +39,11 @@ static double model_files(const TrainTimes *t) {
   return fmax(0, t->finish - t->snapshots - t->pca - t->premultiply - t->externs);
 }
 
-static void json_model(FILE *js, const ReducedRadiosity *r, int samples, const TrainTimes *t) {
+static void json_model(FILE *js, const ReducedRadiosity *r, int samples, double structured_weight, const TrainTimes *t) {
   size_t tensor_bytes = 0, bytes = npg_model_bytes(r->model, &tensor_bytes);
-  fprintf(js, "  \"training_samples\": %d,\n  \"model_bytes\": %zu,\n  \"model_tensor_bytes\": %zu,\n", samples, bytes,
-          tensor_bytes);
+  fprintf(js, "  \"training_samples\": %d,\n  \"structured_weight\": %.17g,\n", samples,
+          design_structured_weight(samples, structured_weight));
+  fprintf(js, "  \"model_bytes\": %zu,\n  \"model_tensor_bytes\": %zu,\n", bytes, tensor_bytes);
   fprintf(js, "  \"basis_sizes\": {");
   for (int c = 0; c < npg_model_nclasses(r->model); c++) {
     NpgClassInfo ci;
@@ -73,8 +74,9 @@ static int train(const Options *o, Scene *s, ReducedRadiosity *r, TrainTimes *t,
   if (o->samples < DESIGN_STRUCTURED)
     fprintf(stderr, "npg-radiosity: warning: %d samples keep only part of the design's %d structured points\n",
             o->samples, DESIGN_STRUCTURED);
-  printf("training: %ld faces, %ld vertices, %d samples (%d structured, %d interior), cap %d, energy %g\n", s->F,
-         s->V, o->samples, o->samples < DESIGN_STRUCTURED ? o->samples : DESIGN_STRUCTURED,
+  printf("training: %ld faces, %ld vertices, %d samples (%d structured of weight %.4g, %d interior), cap %d, energy %g\n",
+         s->F, s->V, o->samples, o->samples < DESIGN_STRUCTURED ? o->samples : DESIGN_STRUCTURED,
+         design_structured_weight(o->samples, o->structured_weight),
          o->samples > DESIGN_STRUCTURED ? o->samples - DESIGN_STRUCTURED : 0, o->cap, o->energy);
   for (int i = 0; i < o->nbasis; i++) {
     printf("  --basis %s:", o->basis_name[i]);
@@ -108,7 +110,7 @@ int cmd_train(const Options *o) {
   FILE *js = fopen(path, "w");
   if (!js) goto done;
   fprintf(js, "{\n  \"faces\": %ld,\n  \"vertices\": %ld,\n", s.F, s.V);
-  json_model(js, &r, o->samples, &t);
+  json_model(js, &r, o->samples, o->structured_weight, &t);
   fprintf(js, "  \"model\": \"MODEL\"\n}\n");
   rc = fclose(js) != 0;
   printf("wrote %s/MODEL and %s\n", o->out, path);
@@ -406,7 +408,7 @@ static int write_demo_report(const DemoRun *d, const DemoFigures *f) {
   fprintf(js, "  \"visibility_points_per_face\": %d,\n  \"frames_per_animation\": %d,\n", o->k, K);
   fprintf(js, "  \"animations\": [\"%s\", \"%s\"],\n  \"test_frames_in_training\": %d,\n", animation_name(0),
           animation_name(1), d->in_training);
-  json_model(js, &d->r, o->samples, &d->tt);
+  json_model(js, &d->r, o->samples, o->structured_weight, &d->tt);
   fprintf(js, "  \"full_frame_seconds\": {\"visibility\": %.6g, \"form_factors\": %.6g, \"solve\": %.6g, "
               "\"total\": %.6g, \"statistic\": \"median over the frames\"},\n",
           f->full_vis, f->full_ff, f->full_solve, f->full);

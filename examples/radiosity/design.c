@@ -41,6 +41,11 @@ void design_point(int k, SceneParams *p) {
   }
 }
 
+double design_structured_weight(int n, double w) {
+  if (w > 0) return w;
+  return n > 2 * DESIGN_STRUCTURED ? (double)(n - DESIGN_STRUCTURED) / DESIGN_STRUCTURED : 1;
+}
+
 int design_contains(int n, const SceneParams *p) {
   for (int k = 0; k < n; k++) {
     SceneParams q;

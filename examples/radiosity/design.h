@@ -22,6 +22,11 @@ enum { DESIGN_STRUCTURED = 1 + 2 * SCENE_NGEOM + 32 }; /* middle, axis extremes,
 /* Sample k (0 .. n-1) of a design of n samples (n >= DESIGN_STRUCTURED; fewer keep its
  * first n points). */
 void design_point(int k, SceneParams *p);
+/* The weight in the PCA of each structured point of a design of n samples: w when w > 0;
+ * w = 0 ("balanced"): where the interior points outnumber the structured ones, their count over
+ * the structured ones', so both parts weigh alike (540 samples: 489/51 = 9.59); else 1. The
+ * interior points weigh 1. */
+double design_structured_weight(int n, double w);
 /* True when p equals a point of the design of n samples (a test frame must not). */
 int design_contains(int n, const SceneParams *p);
 

@@ -37,10 +37,10 @@ static void usage(FILE *out) {
         "       npg-radiosity full --out DIR [--faces N] [--frames K] [--vis-samples 1|4|16] [--threads T]\n"
         "                          [--vis-mode auto|single|stream|packet] [--solver auto|lu|gs|gmres] [--ss S]\n"
         "       npg-radiosity train --out DIR [--faces N] [--samples S] [--cap C] [--energy E] [--mem MB]\n"
-        "                           [--basis NAME:cap=N,energy=E]...\n"
+        "                           [--basis NAME:cap=N,energy=E]... [--structured-weight W|balanced]\n"
         "       npg-radiosity run --model OUT/MODEL [--faces N] [--frames K] [--reps R] [--out DIR]\n"
         "       npg-radiosity demo --out DIR [--faces N] [--samples S] [--frames K] [--cap C] [--energy E] [--mem MB]\n"
-        "                          [--basis NAME:cap=N,energy=E]... [--ss S] [--reps R]\n",
+        "                          [--basis NAME:cap=N,energy=E]... [--structured-weight W|balanced] [--ss S] [--reps R]\n",
         out);
 }
 
@@ -96,7 +96,7 @@ static int parse_basis(Options *o, const char *s, char *err, size_t errlen) {
 static int parse(int argc, char **argv, Options *o) {
   *o = (Options){.faces = 800, .frames = 24, .k = 4, .threads = 2, .checks = 1000, .ss = 3, .vis_mode = "auto",
                  .solver = "auto", .samples = 120, .cap = 60, .energy = 0.999, .mem_mb = 4096, .reps = 9,
-                 .program = RADIOSITY_PROGRAM};
+                 .structured_weight = 0, .program = RADIOSITY_PROGRAM};
   char prog[48];
   snprintf(prog, sizeof prog, "npg-radiosity %s", argv[1]);
   NpgArgs a;
@@ -134,6 +134,12 @@ static int parse(int argc, char **argv, Options *o) {
     else if ((v = npg_args_string(&a, "--basis"))) {
       char why[384];
       if (parse_basis(o, v, why, sizeof why)) snprintf(a.error, sizeof a.error, "%s: --basis %s", prog, why);
+    }
+    else if ((v = npg_args_string(&a, "--structured-weight"))) {
+      char why[256];
+      if (strcmp(v, "balanced") == 0) o->structured_weight = 0;
+      else if (npg_parse_double(v, 0, 1e6, true, &o->structured_weight, why, sizeof why))
+        snprintf(a.error, sizeof a.error, "%s: --structured-weight: %s (a weight in (0, 1e6], or 'balanced')", prog, why);
     }
     else if (npg_args_long(&a, "--mem", 1, 1L << 30, &o->mem_mb)) ;
     else if (npg_args_int(&a, "--reps", 1, 10000, &o->reps)) ;

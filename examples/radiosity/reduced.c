@@ -94,11 +94,13 @@ int reduced_train(ReducedRadiosity *r, Scene *s, const Options *opt, const char 
   long sg[2] = {s->V, 3}, sf[1] = {s->F};
   double t0 = frame_now();
   r->ray_seconds = 0, r->ray_calls = 0;
+  double ws = design_structured_weight(samples, opt->structured_weight);
   for (int k = 0; k < samples; k++) {
     SceneParams p;
     design_point(k, &p);
     scene_place(s, &p, NULL);
-    if (npg_trainer_set(tr, "g", 2, sg, s->g) || npg_trainer_set(tr, "e", 1, sf, s->e) || npg_trainer_add(tr)) {
+    if ((k < DESIGN_STRUCTURED && ws != 1 && npg_trainer_weight(tr, ws)) || npg_trainer_set(tr, "g", 2, sg, s->g) ||
+        npg_trainer_set(tr, "e", 1, sf, s->e) || npg_trainer_add(tr)) {
       snprintf(err, errlen, "training sample %d: %s%s%s", k, npg_trainer_error(tr), r->err[0] ? ": " : "", r->err);
       npg_trainer_free(tr);
       return -1;

@@ -553,6 +553,119 @@ static void streamed_bases(void **state) {
   npg_samples_free(s);
 }
 
+/* ---------------------------------------------------------------- sample weights */
+
+/* The radiosity data's samples into a model, sample k of weight w(k) = 3 when k % 3 == 0, else 1:
+ * given as weights (npg_trainer_weight), or by adding sample k w(k) times (`dup`); weights all 1
+ * when `flat`. `mem` 0: the default budget (in memory). Cap 16: every direction (energy 1). */
+static NpgModel *weighted_model(NpgSamples *s, long mem, int cap, bool dup, bool flat, NpgTrainer **keep) {
+  NpgFull *f = npg_full_new(radiosity_prog, NPG_TCC);
+  char data[512];
+  snprintf(data, sizeof data, "%s/RDATA", scratch);
+  assert_int_equal(npg_full_bind_params(f, data), 0);
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  o.cap = cap, o.energy = cap == 16 ? 1 : o.energy;
+  if (mem) o.mem = (size_t)mem;
+  NpgTrainer *t = npg_trainer_new(f, &o);
+  size_t ng, ne;
+  npg_samples_get(s, "g", 0, &ng);
+  npg_samples_get(s, "e", 0, &ne);
+  long gs[2] = {(long)ng / 3, 3}, es[1] = {(long)ne}, vs[2] = {(long)ne, (long)ne};
+  /* v partly hidden (partly): v's class then has more than its mean, and out of core its
+   * coefficients use the weighted directions */
+  double *vis = malloc(sizeof(double) * ne * ne * (size_t)npg_samples_count(s));
+  for (long k = 0; k < npg_samples_count(s); k++)
+    for (size_t e = 0; e < ne * ne; e++) vis[k * (long)(ne * ne) + (long)e] = partly(k, e, npg_samples_get(s, "v", k, NULL)[e]);
+  for (long k = 0; k < npg_samples_count(s); k++) {
+    int w = flat || k % 3 ? 1 : 3;
+    for (int copy = 0; copy < (dup ? w : 1); copy++) {
+      if (!dup && w != 1) assert_int_equal(npg_trainer_weight(t, w), 0);
+      if (npg_trainer_set(t, "g", 2, gs, npg_samples_get(s, "g", k, NULL)) ||
+          npg_trainer_set(t, "e", 1, es, npg_samples_get(s, "e", k, NULL)) ||
+          npg_trainer_set(t, "v", 2, vs, vis + k * (long)(ne * ne)) || npg_trainer_add(t))
+        fail_msg("%s", npg_trainer_error(t));
+    }
+  }
+  free(vis);
+  NpgModel *m = npg_trainer_finish(t, NULL);
+  if (!m) fail_msg("%s", npg_trainer_error(t));
+  if (keep) *keep = t;
+  else npg_trainer_free(t);
+  npg_full_free(f);
+  return m;
+}
+
+/* The largest difference between two models' reduced b over the data's samples, relative to the
+ * largest |b|. */
+static double reduced_b_apart(const NpgModel *a, const NpgModel *b, NpgSamples *s) {
+  size_t ng, ne;
+  npg_samples_get(s, "e", 0, &ne);
+  double *x = malloc(sizeof(double) * ne), *y = malloc(sizeof(double) * ne), worst = 0, big = 0;
+  NpgReduced *ra = npg_reduced_new(a), *rb = npg_reduced_new(b);
+  for (long k = 0; k < npg_samples_count(s); k++) {
+    const double *g = npg_samples_get(s, "g", k, &ng), *e = npg_samples_get(s, "e", k, NULL);
+    NpgReduced *r[2] = {ra, rb};
+    double *out[2] = {x, y};
+    for (int i = 0; i < 2; i++) {
+      assert_int_equal(npg_reduced_set(r[i], "g", ng, g), 0);
+      assert_int_equal(npg_reduced_set(r[i], "e", ne, e), 0);
+      if (npg_reduced_eval(r[i], k) != 0) fail_msg("%s", npg_reduced_error(r[i]));
+      assert_int_equal(npg_reduced_lift(r[i], "b", out[i], ne), 0);
+    }
+    for (size_t e2 = 0; e2 < ne; e2++) worst = fmax(worst, fabs(x[e2] - y[e2])), big = fmax(big, fabs(x[e2]));
+  }
+  npg_reduced_free(ra), npg_reduced_free(rb);
+  free(x), free(y);
+  return worst / big;
+}
+
+/* A weight is a sample counted that many times: the models trained with weights 3 and with those
+ * samples added three times give the same reduced b to rounding, in memory and out of core (where
+ * v is kept as coefficients of its training values, which must still reproduce them); and the
+ * weights do change the model. Bad weights are refused, naming the sample. */
+static void sample_weights(void **state) {
+  (void)state;
+  assert_non_null(radiosity_prog);
+  char data[512], err[1024];
+  snprintf(data, sizeof data, "%s/RDATA", scratch);
+  NpgSamples *s = npg_samples_open(radiosity_prog, data, NULL, true, err, sizeof err);
+  if (!s) fail_msg("%s", err);
+  long mems[2] = {0, 160000};
+  for (int i = 0; i < 2; i++) {
+    NpgModel *w = weighted_model(s, mems[i], 8, false, false, NULL), *d = weighted_model(s, mems[i], 8, true, false, NULL);
+    NpgModel *flat = weighted_model(s, mems[i], 8, false, true, NULL);
+    double same = reduced_b_apart(w, d, s), moved = reduced_b_apart(w, flat, s);
+    print_message("%s: weights against duplicates %.2e, against no weights %.2e (of the largest |b|)\n",
+                  mems[i] ? "out of core" : "in memory", same, moved);
+    assert_true(same <= 1e-10);
+    assert_true(moved >= 1e-6);
+    npg_model_free(w), npg_model_free(d), npg_model_free(flat);
+  }
+  /* out of core with every direction, v as coefficients C of the weighted directions: z_k =
+   * Cᵀ(Xᵀv_k), and X C z_k = v_k */
+  NpgTrainer *tw = NULL;
+  NpgModel *w = weighted_model(s, mems[1], 16, false, false, &tw);
+  char dir[600], zpath[700];
+  snprintf(dir, sizeof dir, "%s/RWEIGHTED", scratch);
+  assert_int_equal(npg_model_save(w, dir), 0);
+  snprintf(zpath, sizeof zpath, "%s/extern_v_values.npy", dir);
+  assert_true(coefficients_reproduce(w, tw, s, zpath, partly) <= 1e-10);
+  npg_trainer_free(tw);
+  npg_model_free(w);
+  NpgFull *f = npg_full_new(radiosity_prog, NPG_TCC);
+  NpgTrainer *t = npg_trainer_new(f, NULL);
+  assert_int_equal(npg_trainer_weight(t, 0), -1);
+  assert_non_null(strstr(npg_trainer_error(t), "weight of training sample 0 is 0: weights must be positive and finite"));
+  npg_trainer_free(t);
+  t = npg_trainer_new(f, NULL);
+  assert_int_equal(npg_trainer_weight(t, NAN), -1);
+  assert_non_null(strstr(npg_trainer_error(t), "is nan"));
+  npg_trainer_free(t);
+  npg_full_free(f);
+  npg_samples_free(s);
+}
+
 /* ---------------------------------------------------------------- output operators */
 
 static void output_operator(void **state) {
@@ -653,6 +766,7 @@ int main(int argc, char **argv) {
       cmocka_unit_test(radiosity_pipeline),
       cmocka_unit_test(shared_model_threads),
       cmocka_unit_test(streamed_bases),
+      cmocka_unit_test(sample_weights),
       cmocka_unit_test(output_operator),
   };
   return cmocka_run_group_tests(tests, NULL, teardown);

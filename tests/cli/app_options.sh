@@ -96,6 +96,24 @@ radiosity)
     fail "train --basis c:cap=2: $(cat "$W/t.txt")"
   grep -q " c 2/2 lost" "$W/t.txt" || fail "train --basis c:cap=2: c is not 2/2: $(grep -F '{c}' "$W/t.txt")"
   grep -q " v [0-9]*/60 lost" "$W/t.txt" || fail "train --basis c:cap=2: v's cap moved: $(grep -F '{v}' "$W/t.txt")"
+  # --structured-weight W|balanced: the design's structured points weighed in the PCA
+  # (npg_trainer_weight; the library's test_api checks weights against duplicated samples)
+  expect 2 "npg-radiosity train: --structured-weight: 0 is out of range (expected (0, 1e+06])" \
+    train --out "$W/o" --structured-weight 0
+  expect 2 "npg-radiosity demo: --structured-weight: 'x' is not a number" demo --out "$W/o" --structured-weight x
+  # (balanced, the default: 1 until the interior points outnumber the structured ones, then
+  # their ratio)
+  "$X" train --out "$W/sw" --faces 100 --samples 150 >"$W/sw.txt" 2>&1 || fail "train --samples 150: $(cat "$W/sw.txt")"
+  grep -q "150 samples (51 structured of weight 1.941, 99 interior)" "$W/sw.txt" ||
+    fail "train --samples 150 (balanced): $(grep training: "$W/sw.txt")"
+  grep -q '"structured_weight": 1.9411764705882' "$W/sw/train.json" || fail "train.json lacks structured_weight"
+  "$X" train --out "$W/sw1" --faces 100 --samples 150 --structured-weight 1 >"$W/sw1.txt" 2>&1 ||
+    fail "train --structured-weight 1: $(cat "$W/sw1.txt")"
+  grep -q "150 samples (51 structured of weight 1, 99 interior)" "$W/sw1.txt" || fail "--structured-weight 1: $(grep training: "$W/sw1.txt")"
+  [ "$(grep -F '{s,h}' "$W/sw.txt")" != "$(grep -F '{s,h}' "$W/sw1.txt")" ] ||
+    fail "balanced weights trained the same {s,h} as weight 1: $(grep -F '{s,h}' "$W/sw.txt")"
+  "$X" train --out "$W/sw2" --faces 100 --samples 60 >"$W/sw2.txt" 2>&1 || fail "train --samples 60: $(cat "$W/sw2.txt")"
+  grep -q "60 samples (51 structured of weight 1, 9 interior)" "$W/sw2.txt" || fail "--samples 60: $(grep training: "$W/sw2.txt")"
   "$X" scene --faces=200 --checks=5 >"$W/a.txt" || fail "scene --faces=200"
   "$X" scene --faces 200 --checks 5 >"$W/b.txt" || fail "scene --faces 200"
   head -1 "$W/a.txt" >"$W/a1.txt"

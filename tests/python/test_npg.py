@@ -149,6 +149,27 @@ def test_trained_model_equals_npgc_train(eq3, tmp_path):
     same_model(eq3["dir"] / "CLI", tmp_path / "PY2")
 
 
+def test_weight_counts_a_sample_that_many_times(eq3):
+    full = eq3["prog"].full()
+    weighted, twice, flat = (npg.Trainer(full, cap=1) for _ in range(3))  # cap 1: the mean alone
+    for k, xk in enumerate(eq3["x"]):
+        w = 2 if k % 4 == 0 else 1
+        weighted.weight(w) if w != 1 else None
+        weighted.add(x=xk)
+        flat.add(x=xk)
+        for _ in range(w):
+            twice.add(x=xk)
+    ys = []
+    for tr in (weighted, twice, flat):
+        red = tr.finish().reduced()
+        ys.append(np.array([(red(x=xk), red.lift("y").copy())[1] for xk in eq3["x"][:8]]))
+    assert np.allclose(ys[0], ys[1], rtol=0, atol=1e-10 * np.abs(ys[1]).max())
+    assert not np.allclose(ys[0], ys[2], rtol=0, atol=1e-8 * np.abs(ys[2]).max())
+    tr = npg.Trainer(full)
+    with pytest.raises(npg.Error, match="weight of training sample 0 is -1: weights must be positive"):
+        tr.weight(-1)
+
+
 def test_trained_springs_equal_npgc_train(tmp_path, npgc):
     edge, L0, x = springs_data(40, 2)
     data = tmp_path / "DATA"
