@@ -105,7 +105,7 @@ static int parse_basis(Common *c, const char *s, char *err, size_t errlen) {
 /* Each command's options: an option of another command is named as such. */
 static const char *const options_of[][2] = {
     {"train", "-o --cc --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi --reduce --valid "
-              "--interp-oversample --keep-bases"},
+              "--interp-oversample --keep-bases --weights"},
     {"eval", "-o --progress --std --exact-roots --full --cc"},
     {"verify", "--tol --cc --exact --exact-size --progress --std --params"},
     {"bench", "--cc --reps --exact-roots --progress --std --params"},
@@ -184,6 +184,7 @@ static int parse(Common *c, int argc, char **argv) {
       if (!c->train.uncentered && strcmp(v, "on") != 0)
         snprintf(a.error, sizeof a.error, "%s: --center is on or off, not '%s'", prog, v);
     } else if ((v = npg_args_string(&a, "--spectra"))) c->spectra = v;
+    else if ((v = npg_args_string(&a, "--weights"))) c->weights = v;
     else if ((v = npg_args_string(&a, "--params"))) c->params = v;
     else if ((v = npg_args_string(&a, "--basis"))) {
       if (parse_basis(c, v, err, sizeof err) != 0) snprintf(a.error, sizeof a.error, "%s: --basis %s", prog, err);
@@ -353,10 +354,32 @@ static int cmd_train(Common *c) {
       goto done;
     }
   }
+  /* --weights: a float64 vector, one positive weight per sample (npg_trainer_weight) */
+  double *w = NULL;
+  int wnd = 0;
+  long wshape[NPG_NPY_MAX_DIMS];
+  size_t wn = 0;
+  if (c->weights && !(w = npg_npy_read(c->weights, &wnd, wshape, &wn, err, sizeof err))) {
+    fprintf(stderr, "error: --weights %s\n", err);
+    goto done;
+  }
+  if (w && (wnd != 1 || (long)wn != npg_samples_count(s))) {
+    fprintf(stderr, "error: --weights %s: %s %zu entries, DATA/ has %ld samples (a vector of one weight per sample)\n",
+            c->weights, wnd == 1 ? "a vector of" : "not a vector but", wn, npg_samples_count(s));
+    free(w);
+    goto done;
+  }
+  for (size_t k = 0; k < wn; k++)
+    if (!(w[k] > 0 && isfinite(w[k]))) {
+      fprintf(stderr, "error: --weights %s: entry %zu is %g (weights are positive and finite)\n", c->weights, k, w[k]);
+      free(w);
+      goto done;
+    }
   double t0 = reduce_now();
   t = npg_trainer_new(f, &c->train);
   for (long k = 0; k < npg_samples_count(s) && !npg_trainer_error(t)[0]; k++)
-    if (npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0) break;
+    if ((w && npg_trainer_weight(t, w[k]) != 0) || npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0) break;
+  free(w);
   if (npg_full_error(f)[0]) npgc_error(npg_full_error(f));
   else if (!(m = npg_trainer_finish(t, c->out))) npgc_error(npg_trainer_error(t));
   else if (c->spectra && npg_mpi_rank() == 0 && npgc_make_parents(c->spectra, false) != 0)

@@ -29,6 +29,7 @@ typedef struct Common {
   const char *spectra;      /* train --spectra DIR */
   const char *params;       /* verify --params DIR: the params, when TEST/ holds only the samples */
   const char *valid;        /* train --valid DIR */
+  const char *weights;      /* train --weights FILE.npy: one per sample of DATA/ */
   const char *cmd;
 } Common;
 

@@ -33,6 +33,38 @@ test ! -e "$W/ZMODEL" || fail "a failed training left a model"
 # cap 1: y is not representable; verify must exit 1 above --tol
 "$B/npgc" train $P "$W/TRAIN" -o "$W/SMALL" --cap 1 >/dev/null || fail "train --cap 1"
 if "$B/npgc" verify $P "$W/SMALL" "$W/TEST" --tol 1e-3 >/dev/null; then fail "verify passed a cap-1 model"; fi
+# --weights FILE.npy: sample k counted w_k times — the model of DATA/ with weights is the model of
+# DATA/ with those samples repeated (cap 1: the weighted mean alone, which the weights move)
+/usr/bin/python3 - "$W" <<'PY' || fail "writing the weighted data"
+import sys, os, numpy as np
+w = sys.argv[1]
+x = np.load(w + "/TRAIN/x.npy")
+wt = np.where(np.arange(len(x)) % 5 == 0, 3.0, 1.0)
+np.save(w + "/weights.npy", wt)
+os.mkdir(w + "/DUP")
+np.save(w + "/DUP/x.npy", np.repeat(x, wt.astype(int), axis=0))
+np.save(w + "/short.npy", wt[:-1])
+np.save(w + "/neg.npy", np.where(np.arange(len(x)) == 7, -1.0, wt))
+PY
+"$B/npgc" train $P "$W/TRAIN" -o "$W/WMODEL" --cap 1 --weights "$W/weights.npy" >/dev/null || fail "train --weights"
+"$B/npgc" train $P "$W/DUP" -o "$W/DMODEL" --cap 1 >/dev/null || fail "train the repeated samples"
+for M in WMODEL DMODEL SMALL; do "$B/npgc" eval $P "$W/$M" "$W/TEST" -o "$W/OUT_$M" >/dev/null || fail "eval $M"; done
+/usr/bin/python3 - "$W" <<'PY' || fail "--weights is not the repeated samples"
+import sys, numpy as np
+w = sys.argv[1]
+a, b, c = (np.load(w + "/OUT_%s/y.npy" % m) for m in ("WMODEL", "DMODEL", "SMALL"))
+same, moved = np.max(np.abs(a - b)) / np.max(np.abs(b)), np.max(np.abs(a - c)) / np.max(np.abs(c))
+print("--weights against repeated samples %.2e, against no weights %.2e" % (same, moved))
+assert same < 1e-10 and moved > 1e-6
+PY
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/X1" --weights "$W/short.npy" 2>"$W/err.txt" >/dev/null; then fail "short --weights accepted"; fi
+grep -q "error: --weights $W/short.npy: a vector of 199 entries, DATA/ has 200 samples" "$W/err.txt" || fail "short weights: $(cat "$W/err.txt")"
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/X1" --weights "$W/neg.npy" 2>"$W/err.txt" >/dev/null; then fail "negative --weights accepted"; fi
+grep -q "entry 7 is -1 (weights are positive and finite)" "$W/err.txt" || fail "negative weight: $(cat "$W/err.txt")"
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/X1" --weights "$W/none.npy" 2>"$W/err.txt" >/dev/null; then fail "missing --weights accepted"; fi
+grep -q "error: --weights $W/none.npy" "$W/err.txt" || fail "missing weights file: $(cat "$W/err.txt")"
+if "$B/npgc" eval $P "$W/MODEL" "$W/TEST" -o "$W/X2" --weights "$W/weights.npy" 2>"$W/err.txt"; then fail "eval --weights accepted"; fi
+test ! -e "$W/X1" || fail "a refused training left a model"
 # reduced eval = Eq. 3 computed by numpy
 "$B/npgc" eval $P "$W/MODEL" "$W/TEST" -o "$W/OUT" || fail "reduced eval"
 /usr/bin/python3 - "$W" <<'PY' || fail "reduced eval differs from numpy"
