@@ -447,7 +447,8 @@ static int check_mem(NpgTrainer *t) {
 static int ranks_agree(NpgTrainer *t) {
   if (!t->opt.mpi || dist_size() < 2) return 0;
   const Program *prog = t->prog;
-  int n = 0, cap = 8 + 2 * prog->dims.n + 2 * prog->params.n;
+  /* the figures: 4, then 1 + dims + 2 per param + 7 */
+  int n = 0, cap = 12 + prog->dims.n + 2 * prog->params.n;
   double *v = malloc(sizeof(double) * (size_t)cap * 3);
   const char **what = calloc((size_t)cap, sizeof *what), **name = calloc((size_t)cap, sizeof *name);
   int rc = 0;
@@ -479,6 +480,11 @@ static int ranks_agree(NpgTrainer *t) {
       FIGURE(t->opt.uncentered, "--center%s", "");
       FIGURE(t->opt.joint, "--merge%s", "");
       FIGURE(t->opt.nbasis, "the number of --basis options%s", "");
+      double sum = 0, moment = 0; /* the sample weights, by two sums (1 and k + 1 each when none) */
+      for (long k = 0; k < t->samples; k++)
+        sum += t->weights ? t->weights[k] : 1, moment += (double)(k + 1) * (t->weights ? t->weights[k] : 1);
+      FIGURE(sum, "the sum of the sample weights%s", "");
+      FIGURE(moment, "the sum of the sample weights times their sample's number%s", "");
     }
     int len = n - from;
     double *hi = v + cap, *lo = v + 2 * cap;

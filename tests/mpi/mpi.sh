@@ -99,6 +99,11 @@ PY
 done
 $mpirun -np 2 "$build/tests/mpi_api" $prog "$scratch/rdata" "$scratch/ao2" --mpi --mem $mem
 $compare "$scratch/o2" "$scratch/ao2" 1e-10 1e-7
+# sample weights (--weights) out of core over 2 ranks: the one-process weighted model
+/usr/bin/python3 -c "import numpy as np, sys; w = np.ones(13); w[::4] = 3; np.save(sys.argv[1], w)" "$scratch/w.npy"
+"$npgc" train $prog "$scratch/rdata" -o "$scratch/w1" --cap 8 --mem $mem --weights "$scratch/w.npy" >/dev/null
+$mpirun -np 2 "$npgc" train $prog "$scratch/rdata" -o "$scratch/w2" --cap 8 --mem $mem --mpi --weights "$scratch/w.npy" >/dev/null
+$compare "$scratch/w1" "$scratch/w2" 1e-10 1e-7
 
 # (d) rank 1 fails after its first sample, then rank 1 is killed there: the job ends (no
 # rank waits forever: timeout 300 would say so), the message names the rank, no model and no
@@ -134,7 +139,8 @@ done
 for case in "rsame|param 'rho' (the hash of its values) differs between ranks" \
             "rfew|the number of training samples is 9 on some ranks and 13 on others" \
             "rdims|dim F is 48 on some ranks and 60 on others" \
-            "rdata --cap 4|--cap is 4 on some ranks and 8 on others"; do
+            "rdata --cap 4|--cap is 4 on some ranks and 8 on others" \
+            "rdata --weights $scratch/w.npy|the sum of the sample weights is 13 on some ranks and 21 on others"; do
   other=${case%%|*} want=${case#*|}
   rm -rf "$scratch/differ"*
   # shellcheck disable=SC2086
