@@ -97,6 +97,7 @@ typedef struct Streamer {
   long done, total;         /* progress: samples evaluated, of all blocks' (estimated by passes) */
   long nblocks;             /* this rank's blocks */
   double sec[4];            /* wall seconds: dry runs, evaluations, A and B, pre-multiplying */
+  double flops;             /* the pre-multiplication's (premultiply_block's count: the packed products) */
   size_t peak;              /* the largest block's bytes of held rows */
 } Streamer;
 
@@ -526,6 +527,7 @@ static int block(Streamer *s, long u, long U, bool split) {
     if (premultiply_block(m, o->f, t->x, &b, &flops, o->err, o->errlen)) return -1;
   }
   s->sec[2] += now() - t2;
+  s->flops += flops;
   return 0;
 }
 
@@ -688,8 +690,9 @@ int stream_premultiply(Ooc *o) {
     for (int c = 0; c < m->nclasses; c++)
       if (blockwise(&s, c) && !m->classes[c].streamed) fprintf(stderr, " %s", m->classes[c].label);
     fprintf(stderr, " (%ld blocks on this rank, at most %.3g MB of rows held, %ld tensors; %.2f s finding the rows, "
-            "%.2f s forming them (%.2f s of it evaluating), %.2f s pre-multiplying)\n", s.nblocks, (double)s.peak / 1e6,
-            s.nt, s.sec[0], s.sec[1], s.sec[3], s.sec[2]);
+            "%.2f s forming them (%.2f s of it evaluating), %.2f s pre-multiplying: %.3g flops, %.3g GFLOP/s)\n", s.nblocks,
+            (double)s.peak / 1e6, s.nt, s.sec[0], s.sec[1], s.sec[3], s.sec[2], s.flops,
+            s.sec[2] > 0 ? s.flops / s.sec[2] / 1e9 : 0.0);
   }
   for (long i = 0; i < s.nt; i++) {
     RTensor *x = s.t[i].x;
