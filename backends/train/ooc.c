@@ -288,7 +288,8 @@ static int gram_passes(Ooc *o) {
       double *mu = mem_malloc(sizeof(double) * (size_t)R);
       if (!mu) return -1;
       for (int i = 0; i < rc->nmembers; i++) {
-        pca_weigh(R, S, sg->H[i], o->opt->weights, rc->members[i].center ? mu : NULL); /* pca_basis's arithmetic, row by row */
+        /* pca_basis's arithmetic, row by row */
+        pca_weigh(R, S, sg->H[i], o->opt->weights, rc->members[i].center ? mu : NULL);
         double big = o->st[sg->c].big[i]; /* the largest |entry| of what enters G (fmax's NaN rule, inlined) */
         for (size_t e = 0; e < (size_t)R * (size_t)S; e++) {
           double a = fabs(sg->H[i][e]);

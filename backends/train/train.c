@@ -435,7 +435,8 @@ int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
 static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOptions *opt, char *err, size_t errlen) {
   /* over ranks: the members' PCAs shared out, each made on one rank */
   PcaMember **pre = NULL;
-  if (opt->dist && dist_size() > 1 && !gram && !opt->joint && dist_member_pcas(m, sn->S, sn->X, opt->weights, &pre, err, errlen))
+  if (opt->dist && dist_size() > 1 && !gram && !opt->joint &&
+      dist_member_pcas(m, sn->S, sn->X, opt->weights, &pre, err, errlen))
     return -1;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];

@@ -576,7 +576,8 @@ static NpgModel *weighted_model(NpgSamples *s, long mem, int cap, bool dup, bool
    * coefficients use the weighted directions */
   double *vis = malloc(sizeof(double) * ne * ne * (size_t)npg_samples_count(s));
   for (long k = 0; k < npg_samples_count(s); k++)
-    for (size_t e = 0; e < ne * ne; e++) vis[k * (long)(ne * ne) + (long)e] = partly(k, e, npg_samples_get(s, "v", k, NULL)[e]);
+    for (size_t e = 0; e < ne * ne; e++)
+      vis[k * (long)(ne * ne) + (long)e] = partly(k, e, npg_samples_get(s, "v", k, NULL)[e]);
   for (long k = 0; k < npg_samples_count(s); k++) {
     int w = flat || k % 3 ? 1 : 3;
     for (int copy = 0; copy < (dup ? w : 1); copy++) {
