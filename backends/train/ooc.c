@@ -83,13 +83,10 @@ static size_t basis_bytes(const RClass *rc) {
 
 bool ooc_needed(const Model *m, const TrainOptions *opt, long S) {
   if (!opt->mem || opt->joint || opt->full_rank) return false;
-  size_t need = 0, snapshots = 0;
-  for (int c = 0; c < m->nclasses; c++) {
-    need += basis_bytes(&m->classes[c]);
-    snapshots += sizeof(double) * (size_t)m->classes[c].n * (size_t)m->classes[c].nmembers * (size_t)S;
-  }
+  size_t need = 0;
+  for (int c = 0; c < m->nclasses; c++) need += basis_bytes(&m->classes[c]);
   /* weighted samples: out of core rather than by the method of snapshots, which does not take them */
-  return need > opt->mem || (opt->weights && snapshots > opt->mem);
+  return need > opt->mem || (opt->weights && train_snapshot_bytes(m, S) > opt->mem);
 }
 
 /* Bytes a row of streamed class `rc` needs in a pass: every member's S

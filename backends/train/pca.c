@@ -446,12 +446,12 @@ int pca_basis(long n, long S, const double *X, int cap, double energy, bool cent
               char *err, size_t errlen) {
   memset(out, 0, sizeof *out);
   double captured = 1;
-  double *Xw = !center && w ? mem_malloc(sizeof(double) * (size_t)(n * S + 1)) : NULL;
-  if (!center && w && !Xw) {
-    snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
-    return -1;
-  }
   if (!center) {
+    double *Xw = w ? mem_malloc(sizeof(double) * (size_t)(n * S + 1)) : NULL;
+    if (w && !Xw) {
+      snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+      return -1;
+    }
     if (Xw) memcpy(Xw, X, sizeof(double) * (size_t)(n * S)), pca_weigh(n, S, Xw, w, NULL);
     int rc = pca_core(n, S, Xw ? Xw : X, cap, energy, &out->U, &out->k, &captured, &out->sv, &out->nsv, err, errlen);
     out->lost = fmax(0, 1 - captured);

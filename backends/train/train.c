@@ -367,17 +367,21 @@ static int snapshots_in_memory(Model *m, Full *f, const SampleSource *src, const
   return rc;
 }
 
+size_t train_snapshot_bytes(const Model *m, long S) {
+  size_t need = 0;
+  for (int c = 0; c < m->nclasses; c++)
+    need += sizeof(double) * (size_t)m->classes[c].n * (size_t)S * (size_t)m->classes[c].nmembers;
+  return need;
+}
+
 /* Step 1: every member's snapshots in memory (sn->X), or, when they need
  * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
  * *gram set). Marks which diagonal operators stay SPD. */
 int train_take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
                          bool *gram, char *err, size_t errlen) {
   long S = src->count, maxn = 1;
-  size_t need = 0;
-  for (int c = 0; c < m->nclasses; c++) {
-    need += sizeof(double) * (size_t)m->classes[c].n * (size_t)S * (size_t)m->classes[c].nmembers;
-    maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-  }
+  size_t need = train_snapshot_bytes(m, S);
+  for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
   *gram = opt->mem && need > opt->mem;
   if (*gram && opt->dist && dist_size() > 1)
     return error_set(err, errlen,
@@ -726,17 +730,6 @@ static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions 
   return build_bases(m, sn, *gram, opt, err, errlen);
 }
 
-/* Sample weights the PCA can take: positive and finite, not with --merge joint. */
-static int check_weights(const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen) {
-  for (long k = 0; opt->weights && k < src->count; k++)
-    if (!(opt->weights[k] > 0 && isfinite(opt->weights[k])))
-      return error_set(err, errlen, "the weight of training sample %ld is %g: weights must be positive and finite", k,
-                       opt->weights[k]);
-  if (opt->weights && opt->joint)
-    return error_set(err, errlen, "sample weights are not implemented with --merge joint: use --merge concat");
-  return 0;
-}
-
 /* Training as named steps (DESIGN §5), each phase's wall and CPU time kept. */
 Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen) {
@@ -744,7 +737,11 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   bool gram = false;
   struct timespec clock[2];
   err[0] = 0;
-  if (check_weights(src, opt, err, errlen)) return NULL;
+  /* the weights themselves are checked where they are given (npg_trainer_weight) */
+  if (opt->weights && opt->joint) {
+    error_set(err, errlen, "sample weights are not implemented with --merge joint: use --merge concat");
+    return NULL;
+  }
   phase_start(clock);
   Model *m = train_begin(prog, f, src, opt, err, errlen);
   if (!m) goto fail;

@@ -191,6 +191,8 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
  * (opt->weights), also when the snapshots of the S samples exceed it (the
  * method of snapshots does not take weights). */
 bool ooc_needed(const Model *m, const TrainOptions *opt, long S);
+/* Bytes of every member's snapshots of S samples (train.c). */
+size_t train_snapshot_bytes(const Model *m, long S);
 /* Every class basis of `m` (rc->B, rc->m, member reports, SPD marks) with
  * at most opt->mem bytes of snapshots, Gram matrices and basis rows in
  * memory, by passes over the samples that keep a block of rows of the

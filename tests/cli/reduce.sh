@@ -63,6 +63,10 @@ if "$B/npgc" train $P "$W/TRAIN" -o "$W/X1" --weights "$W/neg.npy" 2>"$W/err.txt
 grep -q "entry 7 is -1 (weights are positive and finite)" "$W/err.txt" || fail "negative weight: $(cat "$W/err.txt")"
 if "$B/npgc" train $P "$W/TRAIN" -o "$W/X1" --weights "$W/none.npy" 2>"$W/err.txt" >/dev/null; then fail "missing --weights accepted"; fi
 grep -q "error: --weights $W/none.npy" "$W/err.txt" || fail "missing weights file: $(cat "$W/err.txt")"
+if "$B/npgc" train $P "$W/TRAIN" -o "$W/X1" --weights "$W/weights.npy" --merge joint 2>"$W/err.txt" >/dev/null; then
+  fail "--weights with --merge joint accepted"
+fi
+grep -q "sample weights are not implemented with --merge joint" "$W/err.txt" || fail "joint weights: $(cat "$W/err.txt")"
 if "$B/npgc" eval $P "$W/MODEL" "$W/TEST" -o "$W/X2" --weights "$W/weights.npy" 2>"$W/err.txt"; then fail "eval --weights accepted"; fi
 test ! -e "$W/X1" || fail "a refused training left a model"
 # reduced eval = Eq. 3 computed by numpy
