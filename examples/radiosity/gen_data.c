@@ -16,13 +16,14 @@
 
 #include "meshgen.h"
 #include "npg.h"
-#include "npy.h"
 #include "util.h"
 
-static int write(const char *dir, const char *name, NpyType type, int nd, const long *shape, const void *data) {
+/* DIR/NAME.npy: float64 `data`, or int64 `idata` when `data` is NULL. */
+static int write(const char *dir, const char *name, int nd, const long *shape, const double *data, const long *idata) {
   char path[4096], err[1024];
   snprintf(path, sizeof path, "%s/%s.npy", dir, name);
-  if (npy_write(path, type, nd, shape, data, err, sizeof err) != 0) {
+  if ((data ? npg_npy_write(path, nd, shape, data, err, sizeof err)
+            : npg_npy_write_i64(path, nd, shape, idata, err, sizeof err)) != 0) {
     fprintf(stderr, "radiosity_data: %s\n", err);
     return -1;
   }
@@ -65,7 +66,7 @@ int main(int argc, char **argv) {
     return 1;
   }
   long V = mesh.V;
-  long long *tri = malloc(sizeof(long long) * (size_t)(3 * F));
+  long *tri = malloc(sizeof(long) * (size_t)(3 * F));
   double *rho = malloc(sizeof(double) * (size_t)F), *g = malloc(sizeof(double) * (size_t)(S * V * 3));
   double *e = malloc(sizeof(double) * (size_t)(S * F)), *v = malloc(sizeof(double) * (size_t)(S * F * F));
   int rc = 1;
@@ -97,9 +98,8 @@ int main(int argc, char **argv) {
   }
   for (long i = 0; i < S * F * F; i++) v[i] = 1;
   long st[2] = {F, 3}, sr[1] = {F}, sg[3] = {S, V, 3}, se[2] = {S, F}, sv[3] = {S, F, F};
-  if (write(argv[1], "tri", NPY_I64, 2, st, tri) || write(argv[1], "rho", NPY_F64, 1, sr, rho) ||
-      write(argv[1], "g", NPY_F64, 3, sg, g) || write(argv[1], "e", NPY_F64, 2, se, e) ||
-      write(argv[1], "v", NPY_F64, 3, sv, v))
+  if (write(argv[1], "tri", 2, st, NULL, tri) || write(argv[1], "rho", 1, sr, rho, NULL) ||
+      write(argv[1], "g", 3, sg, g, NULL) || write(argv[1], "e", 2, se, e, NULL) || write(argv[1], "v", 3, sv, v, NULL))
     goto done;
   rc = 0;
 done:

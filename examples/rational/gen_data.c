@@ -8,7 +8,6 @@
 #include <stdlib.h>
 
 #include "npg.h"
-#include "npy.h"
 #include "util.h"
 
 int main(int argc, char **argv) {
@@ -43,7 +42,7 @@ int main(int argc, char **argv) {
   char path[4096];
   snprintf(path, sizeof path, "%s/x.npy", argv[1]);
   long shape[2] = {n, 2};
-  int rc = npy_write(path, NPY_F64, 2, shape, x, err, sizeof err);
+  int rc = npg_npy_write(path, 2, shape, x, err, sizeof err);
   if (rc) fprintf(stderr, "%s\n", err);
   free(x);
   return rc ? 1 : 0;
