@@ -1,6 +1,6 @@
 /* chart.h — line charts as PNG with cairo: the one chart module of npgc (plot, tune) and
- * the applications (fluids, radiosity, points), built once as the library npg_chart.
- * libnpg stays free of cairo. */
+ * the applications (fluids, radiosity, points), built once as the library npg_chart, a
+ * layer of its own above the npg.h facade (compiler/README.md). libnpg stays free of cairo. */
 #ifndef NPG_CHART_H
 #define NPG_CHART_H
 
