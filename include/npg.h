@@ -601,6 +601,18 @@ NPG_API void npg_args_unknown(NpgArgs *a);
 NPG_API int npg_parse_long(const char *s, long lo, long hi, long *out, char *err, size_t errlen);
 NPG_API int npg_parse_double(const char *s, double lo, double hi, bool lo_open, double *out, char *err,
                              size_t errlen);
+/* One per-name basis option, as `npgc train --basis`, the applications' --basis and Python's
+ * Trainer(basis=[...]) all take it: "NAME:KEY=VALUE,KEY=VALUE,...", NAME a quantity, a class
+ * (m_x, as npgc check prints it), a numerator (y.num1) or '*' (training checks the name), and
+ * at least one of the keys, each at most once: cap (a whole number 1..1000000; `max` is the
+ * same key), energy (a fraction in (0, 1]), center (on or off). `KEY VALUE` reads as
+ * `KEY=VALUE`, as in the language's basis statement; blanks around items are ignored. On
+ * success `*name` is NAME (malloc'd: free() it) and `*cap`, `*energy`, `*center` what was
+ * given, -1 for a key not given (one entry of NpgTrainOptions' basis_* arrays); 0. Else -1,
+ * the outputs untouched, and "'SPEC': problem" in `err`, naming the key: "'x:cap=0': cap: 0
+ * is out of range (expected 1..1000000)". */
+NPG_API int npg_parse_basis(const char *spec, char **name, int *cap, double *energy, int *center, char *err,
+                            size_t errlen);
 
 #ifdef __cplusplus
 }

@@ -1,6 +1,8 @@
 /* args.c — the command-line parser npgc and the applications share
  * (npg.h, "command lines"): `--opt value` and `--opt=value`, strict numbers
- * with their range in the message, unknown options named as such.
+ * with their range in the message, unknown options named as such; and the
+ * one reader of a per-name basis option (`--basis NAME:cap=N,...`,
+ * npg_parse_basis), which npgc, the Python module and the applications call.
  *
  * Why a public function and not a helper of examples/common: the
  * applications may use npg.h only, and npgc is a client of npg.h too; one
@@ -164,4 +166,72 @@ void npg_args_unknown(NpgArgs *a) {
   } else {
     args_fail(a, "unexpected argument '%s'", s);
   }
+}
+
+/* ---------------------------------------------------------------- --basis */
+
+#define BASIS_SYNTAX "NAME:cap=N,energy=E,center=on|off"
+
+int npg_parse_basis(const char *spec, char **name, int *cap, double *energy, int *center, char *err, size_t errlen) {
+  if (!spec || !name || !cap || !energy || !center)
+    return error_set(err, errlen, "npg_parse_basis: argument '%s' is NULL",
+                     !spec ? "spec" : !name ? "name" : !cap ? "cap" : !energy ? "energy" : "center");
+  const char *colon = strchr(spec, ':');
+  if (!colon || colon == spec)
+    return error_set(err, errlen, "'%s': expected " BASIS_SYNTAX " (NAME a quantity, a class or '*')", spec);
+  int c = -1, k_center = -1;
+  double e = -1;
+  bool given[3] = {false, false, false}; /* cap, energy, center */
+  const char *p = colon + 1;
+  p += strspn(p, " \t");
+  if (!*p) return error_set(err, errlen, "'%s': nothing after the colon (expected " BASIS_SYNTAX ")", spec);
+  for (;;) {
+    /* one item: KEY=VALUE or KEY VALUE, blanks around */
+    size_t klen = strcspn(p, "= \t,");
+    const char *v = p + klen;
+    v += strspn(v, " \t");
+    if (*v == '=') v += 1 + strspn(v + 1, " \t");
+    size_t vlen = strcspn(v, " \t,");
+    const char *next = v + vlen;
+    next += strspn(next, " \t");
+    if (*next && *next != ',')
+      return error_set(err, errlen, "'%s': '%.*s' after %.*s's value (items are separated by commas: " BASIS_SYNTAX ")",
+                       spec, (int)strcspn(next, ","), next, (int)klen, p);
+    if (klen == 0 && vlen == 0) return error_set(err, errlen, "'%s': an empty item (expected " BASIS_SYNTAX ")", spec);
+    if (klen == 0)
+      return error_set(err, errlen, "'%s': '%.*s' has no key (expected " BASIS_SYNTAX ")", spec, (int)(next - p), p);
+    char key[16] = "", value[256], why[384];
+    if (klen < sizeof key) memcpy(key, p, klen), key[klen] = 0; /* a longer one is no key */
+    int which = !strcmp(key, "cap") || !strcmp(key, "max") ? 0 : !strcmp(key, "energy") ? 1 : !strcmp(key, "center") ? 2 : -1;
+    if (which < 0)
+      return error_set(err, errlen, "'%s': unknown key '%.*s' (the keys are cap, energy and center: " BASIS_SYNTAX ")",
+                       spec, (int)klen, p);
+    if (vlen >= sizeof value) return error_set(err, errlen, "'%s': the value of %s is too long", spec, key);
+    memcpy(value, v, vlen), value[vlen] = 0;
+    if (given[which]) return error_set(err, errlen, "'%s': %s is given twice", spec, which ? key : "cap");
+    given[which] = true;
+    if (which == 0) {
+      long n;
+      if (npg_parse_long(value, 1, 1000000, &n, why, sizeof why) != 0)
+        return error_set(err, errlen, "'%s': %s: %s", spec, key, why);
+      c = (int)n;
+    } else if (which == 1) {
+      if (npg_parse_double(value, 0, 1, true, &e, why, sizeof why) != 0)
+        return error_set(err, errlen, "'%s': energy: %s", spec, why);
+    } else if (!strcmp(value, "on") || !strcmp(value, "off")) {
+      k_center = !strcmp(value, "on");
+    } else {
+      return error_set(err, errlen, "'%s': center is on or off, not '%s'", spec, value);
+    }
+    if (!*next) break;
+    p = next + 1;
+    p += strspn(p, " \t");
+    if (!*p) return error_set(err, errlen, "'%s': an empty item after the last comma (expected " BASIS_SYNTAX ")", spec);
+  }
+  char *n = mem_malloc((size_t)(colon - spec) + 1);
+  if (!n) return error_set(err, errlen, "out of memory");
+  memcpy(n, spec, (size_t)(colon - spec));
+  n[colon - spec] = 0;
+  *name = n, *cap = c, *energy = e, *center = k_center;
+  return 0;
 }

@@ -27,20 +27,9 @@ double reduce_now(void) {
   return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
-/* --basis NAME:cap=N,energy=E,center=on|off (NAME: a quantity, a class, a
- * numerator or '*', checked by training; `max=N` is accepted for `cap=N`,
- * and `cap N` for `cap=N`, as in the language's basis statement). 0, or -1
- * with the problem in `err`. */
-static int parse_basis(Common *c, const char *s, char *err, size_t errlen) {
-  const char *colon = strchr(s, ':');
-  if (!colon || colon == s) {
-    snprintf(err, errlen, "'%s': expected NAME:cap=N,energy=E,center=on|off (NAME a quantity, a class or '*')", s);
-    return -1;
-  }
-  if (!colon[1 + strspn(colon + 1, " ")]) {
-    snprintf(err, errlen, "'%s': nothing after the colon (expected NAME:cap=N,energy=E,center=on|off)", s);
-    return -1;
-  }
+/* --basis NAME:cap=N,energy=E,center=on|off (npg_parse_basis; NAME checked
+ * by training): one more override in `c`. 0, or -1 with the problem in `err`. */
+static int add_basis(Common *c, const char *s, char *err, size_t errlen) {
   int k = c->nbasis;
   const char **names = realloc(c->basis_name, sizeof(char *) * (size_t)(k + 1));
   if (names) c->basis_name = names;
@@ -54,51 +43,11 @@ static int parse_basis(Common *c, const char *s, char *err, size_t errlen) {
     snprintf(err, errlen, "out of memory");
     return -1;
   }
+  char *name;
+  if (npg_parse_basis(s, &name, &c->basis_cap[k], &c->basis_energy[k], &c->basis_center[k], err, errlen) != 0)
+    return -1;
+  c->basis_name[k] = name;
   c->nbasis++;
-  c->basis_center[k] = -1;
-  c->basis_name[k] = strndup(s, (size_t)(colon - s));
-  c->basis_cap[k] = -1;
-  c->basis_energy[k] = -1;
-  const char *p = colon + 1;
-  while (*p == ' ') p++;
-  while (*p) {
-    size_t klen = strcspn(p, "= ,");
-    const char *v = p + klen;
-    while (*v == ' ') v++;
-    if (*v == '=') v++;
-    while (*v == ' ') v++;
-    size_t vlen = strcspn(v, ", ");
-    char key[64], val[64], why[256];
-    snprintf(key, sizeof key, "%.*s", (int)(klen < 63 ? klen : 63), p);
-    snprintf(val, sizeof val, "%.*s", (int)(vlen < 63 ? vlen : 63), v);
-    if (!strcmp(key, "cap") || !strcmp(key, "max")) {
-      long cap;
-      if (npg_parse_long(val, 1, 1000000, &cap, why, sizeof why) != 0) {
-        snprintf(err, errlen, "'%s': %s: %s", s, key, why);
-        return -1;
-      }
-      c->basis_cap[k] = (int)cap;
-    } else if (!strcmp(key, "energy")) {
-      if (npg_parse_double(val, 0, 1, true, &c->basis_energy[k], why, sizeof why) != 0) {
-        snprintf(err, errlen, "'%s': energy: %s", s, why);
-        return -1;
-      }
-    } else if (!strcmp(key, "center")) {
-      if (strcmp(val, "on") && strcmp(val, "off")) {
-        snprintf(err, errlen, "'%s': center is on or off, not '%s'", s, val);
-        return -1;
-      }
-      c->basis_center[k] = !strcmp(val, "on");
-    } else {
-      snprintf(err, errlen, "'%s': unknown key '%s' (the keys are cap, energy and center: NAME:cap=N,energy=E,center=on|off)",
-               s, key);
-      return -1;
-    }
-    p = v + vlen;
-    while (*p == ' ') p++;
-    if (*p == ',') p++;
-    while (*p == ' ') p++;
-  }
   return 0;
 }
 
@@ -187,7 +136,7 @@ static int parse(Common *c, int argc, char **argv) {
     else if ((v = npg_args_string(&a, "--weights"))) c->weights = v;
     else if ((v = npg_args_string(&a, "--params"))) c->params = v;
     else if ((v = npg_args_string(&a, "--basis"))) {
-      if (parse_basis(c, v, err, sizeof err) != 0) snprintf(a.error, sizeof a.error, "%s: --basis %s", prog, err);
+      if (add_basis(c, v, err, sizeof err) != 0) snprintf(a.error, sizeof a.error, "%s: --basis %s", prog, err);
     } else if ((v = npg_args_string(&a, "--reduce"))) {
       if (!npgc_parse_reduce(&c->train, v))
         snprintf(a.error, sizeof a.error, "%s: --reduce %s: expected STAGE:interp or STAGE:galerkin", prog, v);

@@ -90,7 +90,7 @@ static int parse_reduce(TrainerObject *self, PyObject *full, PyObject *interp, P
 }
 
 static void free_basis(TrainerObject *self) {
-  for (int i = 0; i < self->nbasis; i++) PyMem_Free(self->basis_name[i]);
+  for (int i = 0; i < self->nbasis; i++) free(self->basis_name[i]); /* npg_parse_basis's */
   PyMem_Free(self->basis_name);
   PyMem_Free(self->basis_cap);
   PyMem_Free(self->basis_energy);
@@ -120,63 +120,47 @@ static int cap_value(PyObject *v, const char *what, int *out) {
   return 0;
 }
 
-/* basis={NAME: {"cap": N, "energy": E, "center": bool}} as the C options
- * (`npgc train --basis NAME:cap=N,energy=E,center=on|off`; NAME a quantity,
- * a class m_x, a numerator y.num1 or '*'; the library checks the names). */
+/* basis=["NAME:cap=N,energy=E,center=on|off", ...] (or one such string) as the C options:
+ * each string read by npg_parse_basis, as `npgc train --basis` reads it (NAME a quantity, a
+ * class m_x, a numerator y.num1 or '*'; the library checks the names). */
 static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o) {
   free_basis(self); /* a second __init__ after a failed one */
   if (basis == Py_None) return 0;
-  if (!PyDict_Check(basis)) {
-    PyErr_SetString(PyExc_TypeError, "Trainer: basis={name: {'cap': N, 'energy': E, 'center': bool}}");
+  PyObject *list = PyUnicode_Check(basis) ? PyTuple_Pack(1, basis)
+                   : PyList_Check(basis) || PyTuple_Check(basis) ? PySequence_Tuple(basis) : NULL;
+  if (!list) {
+    if (!PyErr_Occurred())
+      PyErr_Format(PyExc_TypeError, "Trainer: basis is a list of 'NAME:cap=N,energy=E,center=on|off' strings (as npgc "
+                   "train --basis), not %s", Py_TYPE(basis)->tp_name);
     return -1;
   }
-  Py_ssize_t n = PyDict_GET_SIZE(basis);
+  Py_ssize_t n = PyTuple_GET_SIZE(list);
   self->basis_name = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_name);
   self->basis_cap = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_cap);
   self->basis_energy = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_energy);
   self->basis_center = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_center);
-  if (!self->basis_name || !self->basis_cap || !self->basis_energy || !self->basis_center) {
-    PyErr_NoMemory();
-    return -1;
-  }
-  PyObject *key, *value;
-  for (Py_ssize_t pos = 0; PyDict_Next(basis, &pos, &key, &value);) {
-    const char *name = PyUnicode_Check(key) ? PyUnicode_AsUTF8(key) : NULL;
-    if (!name || !PyDict_Check(value)) {
-      if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "Trainer: basis={name: {'cap': N, ...}}");
-      return -1;
-    }
+  int rc = 0;
+  if (!self->basis_name || !self->basis_cap || !self->basis_energy || !self->basis_center) rc = -1, PyErr_NoMemory();
+  for (Py_ssize_t i = 0; i < n && rc == 0; i++) {
+    PyObject *item = PyTuple_GET_ITEM(list, i);
+    const char *spec = PyUnicode_Check(item) ? PyUnicode_AsUTF8(item) : NULL;
+    char err[1024];
     int k = self->nbasis;
-    if (!(self->basis_name[k] = PyMem_Malloc(strlen(name) + 1))) {
-      PyErr_NoMemory();
-      return -1;
-    }
-    strcpy(self->basis_name[k], name);
-    self->nbasis++;
-    self->basis_cap[k] = -1, self->basis_energy[k] = -1, self->basis_center[k] = -1;
-    PyObject *ok, *ov;
-    for (Py_ssize_t p2 = 0; PyDict_Next(value, &p2, &ok, &ov);) {
-      const char *opt = PyUnicode_Check(ok) ? PyUnicode_AsUTF8(ok) : "";
-      if (strcmp(opt, "cap") == 0) {
-        char what[300];
-        snprintf(what, sizeof what, "basis['%s']['cap']", name);
-        if (cap_value(ov, what, &self->basis_cap[k]) != 0) return -1;
-      } else if (strcmp(opt, "energy") == 0) {
-        double e = PyFloat_AsDouble(ov);
-        if (e == -1 && PyErr_Occurred()) return -1;
-        if (!(e > 0 && e <= 1))
-          return npgpy_value_error("Trainer: basis['%s']['energy'] %g: a fraction in (0, 1]", name, e), -1;
-        self->basis_energy[k] = e;
-      } else if (strcmp(opt, "center") == 0) {
-        int c = PyObject_IsTrue(ov);
-        if (c < 0) return -1;
-        self->basis_center[k] = c;
-      } else {
-        PyErr_Format(PyExc_ValueError, "Trainer: basis['%s']: unknown option %R (cap, energy, center)", name, ok);
-        return -1;
-      }
+    if (!spec) {
+      if (!PyErr_Occurred())
+        PyErr_Format(PyExc_TypeError, "Trainer: basis[%zd] is a 'NAME:cap=N,energy=E,center=on|off' string, not %s", i,
+                     Py_TYPE(item)->tp_name);
+      rc = -1;
+    } else if (npg_parse_basis(spec, &self->basis_name[k], &self->basis_cap[k], &self->basis_energy[k],
+                               &self->basis_center[k], err, sizeof err) != 0) {
+      PyErr_Format(PyExc_ValueError, "Trainer: basis %s", err);
+      rc = -1;
+    } else {
+      self->nbasis++;
     }
   }
+  Py_DECREF(list);
+  if (rc != 0) return -1;
   o->nbasis = self->nbasis;
   o->basis_name = (const char *const *)self->basis_name;
   o->basis_cap = self->basis_cap;

@@ -12,10 +12,11 @@ typedef struct Options {
   const char *vis_mode, *solver;
   int samples, cap, reps; /* training samples, basis cap per member, timing repetitions per frame */
   double energy;          /* PCA energy per member */
-  int nbasis;             /* --basis NAME:cap=N,energy=E overrides, in the order given */
-  char basis_name[RADIOSITY_MAX_BASIS][32];
+  int nbasis;             /* --basis NAME:cap=N,energy=E,center=on|off overrides, in the order given */
+  char *basis_name[RADIOSITY_MAX_BASIS];    /* malloc'd (npg_parse_basis) */
   int basis_cap[RADIOSITY_MAX_BASIS];       /* -1: --cap */
   double basis_energy[RADIOSITY_MAX_BASIS]; /* -1: --energy */
+  int basis_center[RADIOSITY_MAX_BASIS];    /* 1 on, 0 off, -1: centered (the default) */
   long mem_mb;            /* the trainer's memory for snapshots and cached samples */
   double structured_weight; /* --structured-weight: each structured design point's weight in the PCA
                                (npg_trainer_weight); 0 (default): balanced (design_structured_weight) */

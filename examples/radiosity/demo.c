@@ -79,9 +79,11 @@ static int train(const Options *o, Scene *s, ReducedRadiosity *r, TrainTimes *t,
          design_structured_weight(o->samples, o->structured_weight),
          o->samples > DESIGN_STRUCTURED ? o->samples - DESIGN_STRUCTURED : 0, o->cap, o->energy);
   for (int i = 0; i < o->nbasis; i++) {
+    const char *sep = "";
     printf("  --basis %s:", o->basis_name[i]);
-    if (o->basis_cap[i] > 0) printf("cap=%d%s", o->basis_cap[i], o->basis_energy[i] > 0 ? "," : "");
-    if (o->basis_energy[i] > 0) printf("energy=%g", o->basis_energy[i]);
+    if (o->basis_cap[i] > 0) printf("cap=%d", o->basis_cap[i]), sep = ",";
+    if (o->basis_energy[i] > 0) printf("%senergy=%g", sep, o->basis_energy[i]), sep = ",";
+    if (o->basis_center[i] >= 0) printf("%scenter=%s", sep, o->basis_center[i] ? "on" : "off");
     printf("\n");
   }
   fflush(stdout);

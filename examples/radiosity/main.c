@@ -37,58 +37,25 @@ static void usage(FILE *out) {
         "       npg-radiosity full --out DIR [--faces N] [--frames K] [--vis-samples 1|4|16] [--threads T]\n"
         "                          [--vis-mode auto|single|stream|packet] [--solver auto|lu|gs|gmres] [--ss S]\n"
         "       npg-radiosity train --out DIR [--faces N] [--samples S] [--cap C] [--energy E] [--mem MB]\n"
-        "                           [--basis NAME:cap=N,energy=E]... [--structured-weight W|balanced]\n"
+        "                           [--basis NAME:cap=N,energy=E,center=on|off]... [--structured-weight W|balanced]\n"
         "       npg-radiosity run --model OUT/MODEL [--faces N] [--frames K] [--reps R] [--out DIR]\n"
         "       npg-radiosity demo --out DIR [--faces N] [--samples S] [--frames K] [--cap C] [--energy E] [--mem MB]\n"
-        "                          [--basis NAME:cap=N,energy=E]... [--structured-weight W|balanced] [--ss S] [--reps R]\n",
+        "                          [--basis NAME:cap=N,energy=E,center=on|off]... [--structured-weight W|balanced] [--ss S] [--reps R]\n",
         out);
 }
 
 
-/* --basis NAME:cap=N,energy=E (either key or both; NAME a quantity or a class of
- * formfactors.npg, checked by training): one more override in `o`. 0, or -1 with the
+/* --basis NAME:cap=N,energy=E,center=on|off (npg_parse_basis; NAME a quantity or a class
+ * of formfactors.npg, checked by training): one more override in `o`. 0, or -1 with the
  * problem in `err`. */
-static int parse_basis(Options *o, const char *s, char *err, size_t errlen) {
-  const char *colon = strchr(s, ':');
-  if (!colon || colon == s || !colon[1]) {
-    snprintf(err, errlen, "'%s': expected NAME:cap=N,energy=E (NAME a quantity or a class, e.g. v:cap=90)", s);
-    return -1;
-  }
-  if ((size_t)(colon - s) >= sizeof o->basis_name[0]) {
-    snprintf(err, errlen, "'%s': the name is longer than %zu characters", s, sizeof o->basis_name[0] - 1);
-    return -1;
-  }
+static int add_basis(Options *o, const char *s, char *err, size_t errlen) {
   if (o->nbasis == RADIOSITY_MAX_BASIS) {
     snprintf(err, errlen, "'%s': at most %d --basis options", s, RADIOSITY_MAX_BASIS);
     return -1;
   }
   int k = o->nbasis;
-  snprintf(o->basis_name[k], sizeof o->basis_name[k], "%.*s", (int)(colon - s), s);
-  o->basis_cap[k] = -1, o->basis_energy[k] = -1;
-  for (const char *p = colon + 1; *p;) {
-    size_t len = strcspn(p, ",");
-    char item[64], why[256];
-    snprintf(item, sizeof item, "%.*s", (int)(len < 63 ? len : 63), p);
-    char *eq = strchr(item, '=');
-    if (eq) *eq = 0;
-    long cap;
-    if (!eq || (strcmp(item, "cap") && strcmp(item, "energy"))) {
-      snprintf(err, errlen, "'%s': '%.*s' is not cap=N or energy=E", s, (int)len, p);
-      return -1;
-    }
-    if (!strcmp(item, "cap")) {
-      if (npg_parse_long(eq + 1, 1, 1000000, &cap, why, sizeof why)) {
-        snprintf(err, errlen, "'%s': cap: %s", s, why);
-        return -1;
-      }
-      o->basis_cap[k] = (int)cap;
-    } else if (npg_parse_double(eq + 1, 0, 1, true, &o->basis_energy[k], why, sizeof why)) {
-      snprintf(err, errlen, "'%s': energy: %s", s, why);
-      return -1;
-    }
-    p += len;
-    if (*p == ',') p++;
-  }
+  if (npg_parse_basis(s, &o->basis_name[k], &o->basis_cap[k], &o->basis_energy[k], &o->basis_center[k], err, errlen))
+    return -1;
   o->nbasis++;
   return 0;
 }
@@ -133,7 +100,7 @@ static int parse(int argc, char **argv, Options *o) {
     else if (npg_args_double(&a, "--energy", 0, 1, true, &o->energy)) ;
     else if ((v = npg_args_string(&a, "--basis"))) {
       char why[384];
-      if (parse_basis(o, v, why, sizeof why)) snprintf(a.error, sizeof a.error, "%s: --basis %s", prog, why);
+      if (add_basis(o, v, why, sizeof why)) snprintf(a.error, sizeof a.error, "%s: --basis %s", prog, why);
     }
     else if ((v = npg_args_string(&a, "--structured-weight"))) {
       char why[256];
@@ -235,8 +202,11 @@ static int run(int argc, char **argv) {
     usage(stdout);
     return 0;
   }
-  if (parse(argc, argv, &o)) return 2;
   int rc = 2;
+  if (parse(argc, argv, &o)) {
+    for (int i = 0; i < o.nbasis; i++) free(o.basis_name[i]);
+    return rc;
+  }
   if (!strcmp(argv[1], "scene"))
     rc = cmd_scene(&o);
   else if (!strcmp(argv[1], "full"))
@@ -252,6 +222,7 @@ static int run(int argc, char **argv) {
     usage(stderr);
   }
   chart_cleanup(); /* cairo's and fontconfig's caches */
+  for (int i = 0; i < o.nbasis; i++) free(o.basis_name[i]);
   return rc;
 }
 

@@ -82,9 +82,10 @@ int reduced_train(ReducedRadiosity *r, Scene *s, const Options *opt, const char 
   const char *names[FIXED + RADIOSITY_MAX_BASIS] = {"g", "n", "a"};
   int caps[FIXED + RADIOSITY_MAX_BASIS] = {-1, -1, -1}, centers[FIXED + RADIOSITY_MAX_BASIS];
   double energies[FIXED + RADIOSITY_MAX_BASIS] = {1 - 1e-6, 1 - 1e-6, 1 - 1e-6};
+  for (int i = 0; i < FIXED; i++) centers[i] = -1;
   for (int i = 0; i < opt->nbasis; i++)
-    names[FIXED + i] = opt->basis_name[i], caps[FIXED + i] = opt->basis_cap[i], energies[FIXED + i] = opt->basis_energy[i];
-  for (int i = 0; i < FIXED + opt->nbasis; i++) centers[i] = -1;
+    names[FIXED + i] = opt->basis_name[i], caps[FIXED + i] = opt->basis_cap[i], energies[FIXED + i] = opt->basis_energy[i],
+    centers[FIXED + i] = opt->basis_center[i];
   o.nbasis = FIXED + opt->nbasis, o.basis_name = names, o.basis_cap = caps, o.basis_energy = energies,
   o.basis_center = centers;
   size_t mem = (size_t)opt->mem_mb << 20;

@@ -1,4 +1,4 @@
-/* test_cli_args.c — npg.h's command-line parser (npg_args_*, npg_parse_*),
+/* test_cli_args.c — npg.h's command-line parser (npg_args_*, npg_parse_*, npg_parse_basis),
  * the one npgc and the applications share, and its public .npy reader
  * (npg_npy_read): table-driven, through the public API alone. */
 #include <limits.h>
@@ -219,6 +219,84 @@ static void npy_read_roundtrip(void **state) {
   rmdir(dir);
 }
 
+/* npg_parse_basis: the one reader of --basis (npgc, Python, the applications). Accepted
+ * specs give the name and exactly the keys given (-1 elsewhere); refused ones leave the
+ * outputs as they were and say what is wrong, naming the key. */
+typedef struct BasisCase {
+  const char *spec;
+  const char *name;    /* NULL: refused, with `message` */
+  int cap;
+  double energy;
+  int center;
+  const char *message; /* the whole message when refused */
+} BasisCase;
+
+static void parse_basis_table(void **state) {
+  (void)state;
+  static const BasisCase cases[] = {
+      {"x:cap=3", "x", 3, -1, -1, NULL},
+      {"m_y:energy=0.99", "m_y", -1, 0.99, -1, NULL},
+      {"h.num1:center=off", "h.num1", -1, -1, 0, NULL},
+      {"*:cap=5,energy=1,center=on", "*", 5, 1, 1, NULL},
+      {"x:max=7", "x", 7, -1, -1, NULL},                   /* `max` is cap, as in the basis statement */
+      {"x:cap 4, energy 0.5", "x", 4, 0.5, -1, NULL},     /* KEY VALUE, blanks around items */
+      {"x: cap = 2 ,center=off", "x", 2, -1, 0, NULL},
+      {"x", NULL, 0, 0, 0, "'x': expected NAME:cap=N,energy=E,center=on|off (NAME a quantity, a class or '*')"},
+      {":cap=3", NULL, 0, 0, 0, "':cap=3': expected NAME:cap=N,energy=E,center=on|off (NAME a quantity, a class or '*')"},
+      {"", NULL, 0, 0, 0, "'': expected NAME:cap=N,energy=E,center=on|off (NAME a quantity, a class or '*')"},
+      {"x:", NULL, 0, 0, 0, "'x:': nothing after the colon (expected NAME:cap=N,energy=E,center=on|off)"},
+      {"x:  ", NULL, 0, 0, 0, "'x:  ': nothing after the colon (expected NAME:cap=N,energy=E,center=on|off)"},
+      {"x:cap=0", NULL, 0, 0, 0, "'x:cap=0': cap: 0 is out of range (expected 1..1000000)"},
+      {"x:max=1000001", NULL, 0, 0, 0, "'x:max=1000001': max: 1000001 is out of range (expected 1..1000000)"},
+      {"x:cap=3;", NULL, 0, 0, 0, "'x:cap=3;': cap: '3;' is not a whole number (expected 1..1000000)"},
+      {"x:cap=2.5", NULL, 0, 0, 0, "'x:cap=2.5': cap: '2.5' is not a whole number (expected 1..1000000)"},
+      {"x:cap=", NULL, 0, 0, 0, "'x:cap=': cap: '' is not a whole number (expected 1..1000000)"},
+      {"x:energy=0", NULL, 0, 0, 0, "'x:energy=0': energy: 0 is out of range (expected (0, 1])"},
+      {"x:energy=nan", NULL, 0, 0, 0, "'x:energy=nan': energy: 'nan' is not a number (expected (0, 1])"},
+      {"x:energy=1.5", NULL, 0, 0, 0, "'x:energy=1.5': energy: 1.5 is out of range (expected (0, 1])"},
+      {"x:center=maybe", NULL, 0, 0, 0, "'x:center=maybe': center is on or off, not 'maybe'"},
+      {"x:size=3", NULL, 0, 0, 0,
+       "'x:size=3': unknown key 'size' (the keys are cap, energy and center: NAME:cap=N,energy=E,center=on|off)"},
+      {"x:capacity=3", NULL, 0, 0, 0,
+       "'x:capacity=3': unknown key 'capacity' (the keys are cap, energy and center: NAME:cap=N,energy=E,center=on|off)"},
+      {"x:cap=2,cap=3", NULL, 0, 0, 0, "'x:cap=2,cap=3': cap is given twice"},
+      {"x:max=2,cap=3", NULL, 0, 0, 0, "'x:max=2,cap=3': cap is given twice"},
+      {"x:cap=2 energy=0.5", NULL, 0, 0, 0,
+       "'x:cap=2 energy=0.5': 'energy=0.5' after cap's value (items are separated by commas: "
+       "NAME:cap=N,energy=E,center=on|off)"},
+      {"x:cap=2,,energy=0.5", NULL, 0, 0, 0, "'x:cap=2,,energy=0.5': an empty item (expected NAME:cap=N,energy=E,center=on|off)"},
+      {"x:cap=2,", NULL, 0, 0, 0,
+       "'x:cap=2,': an empty item after the last comma (expected NAME:cap=N,energy=E,center=on|off)"},
+      {"x:=3", NULL, 0, 0, 0, "'x:=3': '=3' has no key (expected NAME:cap=N,energy=E,center=on|off)"},
+  };
+  for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    const BasisCase *c = &cases[i];
+    char *name = (char *)"untouched", err[512] = "";
+    int cap = -7, center = -7;
+    double energy = -7;
+    int rc = npg_parse_basis(c->spec, &name, &cap, &energy, &center, err, sizeof err);
+    if (c->name) {
+      if (rc != 0) fail_msg("'%s': refused: %s", c->spec, err);
+      if (strcmp(name, c->name) || cap != c->cap || energy != c->energy || center != c->center)
+        fail_msg("'%s': got %s cap %d energy %g center %d", c->spec, name, cap, energy, center);
+      free(name);
+    } else {
+      if (rc != -1) fail_msg("'%s': accepted", c->spec);
+      if (strcmp(err, c->message)) fail_msg("'%s': '%s', expected '%s'", c->spec, err, c->message);
+      if (strcmp(name, "untouched") || cap != -7 || energy != -7 || center != -7) fail_msg("'%s': outputs written", c->spec);
+    }
+  }
+  /* NULL arguments refused with their name */
+  char err[128];
+  char *name;
+  int cap, center;
+  double energy;
+  assert_int_equal(npg_parse_basis(NULL, &name, &cap, &energy, &center, err, sizeof err), -1);
+  assert_string_equal(err, "npg_parse_basis: argument 'spec' is NULL");
+  assert_int_equal(npg_parse_basis("x:cap=1", &name, &cap, NULL, &center, err, sizeof err), -1);
+  assert_string_equal(err, "npg_parse_basis: argument 'energy' is NULL");
+}
+
 /* NULL arguments are refused with their name, never dereferenced */
 static void null_arguments(void **state) {
   (void)state;
@@ -251,6 +329,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(parse_long_table), cmocka_unit_test(parse_double_table), cmocka_unit_test(args_both_forms),
       cmocka_unit_test(args_errors),      cmocka_unit_test(npy_read_roundtrip), cmocka_unit_test(null_arguments),
+      cmocka_unit_test(parse_basis_table),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

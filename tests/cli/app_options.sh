@@ -82,12 +82,15 @@ radiosity)
   expect 2 "npg-radiosity scene: unknown option '--face'" scene --face 100
   expect 2 "npg-radiosity full: --vis-mode is auto, single, stream or packet, not 'fast'" full --out "$W/o" --vis-mode fast
   expect 2 "npg-radiosity full: --solver is auto, lu, gs or gmres, not 'cg'" full --out "$W/o" --solver=cg
-  # --basis NAME:cap=N,energy=E: malformed lists refused with the option named; a name the
+  # --basis NAME:cap=N,energy=E,center=on|off (npg_parse_basis): malformed lists refused with the option named; a name the
   # program lacks refused by training; a cap given reaches the member it names, the others not
   expect 2 "npg-radiosity train: --basis 'v': expected NAME:cap=N,energy=E" train --out "$W/o" --basis v
   expect 2 "npg-radiosity demo: --basis 'v:cap=0': cap: 0 is out of range (expected 1..1000000)" \
     demo --out "$W/o" --basis v:cap=0
-  expect 2 "npg-radiosity train: --basis 'v:size=3': 'size=3' is not cap=N or energy=E" train --out "$W/o" --basis v:size=3
+  expect 2 "npg-radiosity train: --basis 'v:size=3': unknown key 'size' (the keys are cap, energy and center" \
+    train --out "$W/o" --basis v:size=3
+  expect 2 "npg-radiosity train: --basis 'v:center=maybe': center is on or off, not 'maybe'" \
+    train --out "$W/o" --basis v:center=maybe
   expect 2 "npg-radiosity train: --basis 'c:energy=1.5': energy: 1.5 is out of range (expected (0, 1])" \
     train --out "$W/o" --basis c:energy=1.5
   expect 1 "training: --basis zz: no quantity, class or numerator of that name" \

@@ -186,15 +186,23 @@ def test_trained_springs_equal_npgc_train(tmp_path, npgc):
     same_model(tmp_path / "CLI", tmp_path / "PY")
     # per-name options, as npgc train --basis
     npgc("train", SPRINGS, data, "-o", tmp_path / "CLI2", "--basis", "l2:cap=3,center=off", "--basis", "f:energy=0.99")
-    tr = npg.Trainer(full, basis={"l2": {"cap": 3, "center": False}, "f": {"energy": 0.99}})
+    tr = npg.Trainer(full, basis=["l2:cap=3,center=off", "f:energy=0.99"])
     for xk in x:
         tr.add(x=xk)
     model = tr.finish(tmp_path / "PY2")
     same_model(tmp_path / "CLI2", tmp_path / "PY2")
     assert model.basis_sizes["{l2}"] == 3
-    with pytest.raises(ValueError, match="unknown option 'size'"):
-        npg.Trainer(full, basis={"l2": {"size": 3}})
-    tr = npg.Trainer(full, basis={"nosuch": {"cap": 3}})
+    # npg_parse_basis's syntax and messages (tests/api/test_cli_args.c)
+    with pytest.raises(ValueError, match=r"^Trainer: basis 'l2:size=3': unknown key 'size' \(the keys are cap, energy "
+                                         r"and center"):
+        npg.Trainer(full, basis=["l2:size=3"])
+    with pytest.raises(ValueError, match=r"'l2:cap=0': cap: 0 is out of range \(expected 1\.\.1000000\)"):
+        npg.Trainer(full, basis="l2:cap=0")
+    with pytest.raises(TypeError, match="list of 'NAME:cap=N"):
+        npg.Trainer(full, basis={"l2": {"cap": 3}})
+    with pytest.raises(TypeError, match=r"basis\[1\]"):
+        npg.Trainer(full, basis=["l2:cap=3", 3])
+    tr = npg.Trainer(full, basis="nosuch:cap=3")
     tr.add(x=x[0])
     with pytest.raises(npg.Error, match="nosuch"):
         tr.finish()
