@@ -4,13 +4,11 @@
  * (1e-12 relative, the exactness of lowering of DESIGN §4 seen through the
  * tensors); entries arrive output-major; their count equals the symbolic
  * nonzero count npgc check reports (at most, where guards make it a bound). */
-#include <dirent.h>
 #include <math.h>
 #include <stdio.h>
 
 #include "emit.h"
 #include "full.h"
-#include "randdata.h"
 #include "support/refeval.h"
 #include "testutil.h"
 
@@ -115,30 +113,19 @@ static double rpow(double b, long p, long q) {
   return pow(b, (double)p / (double)q);
 }
 
-static int check_program(const char *path, double *worst) {
-  NpgProgram *p = compile_file(path);
-  Program *prog = ir_ok(p);
-  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
+/* Each given symbol's random values into the evaluator too (bind_random). */
+static void set_full(void *user, const Sym *s, int ndim, const long *shape, const double *values) {
+  if (full_set(user, s->name, ndim, shape, values, s->name)) fail_msg("%s", full_error(user));
+}
+
+static int check_program(NpgProgram *p, const char *path, void *arg) {
+  double *worst = arg;
+  Program *prog = program_ir(p);
+  Full *f = full_new(prog, JIT_TCC, NULL);
   int failures = 0;
   const long n = 6;
-  unsigned seed = 4321u;
   RefData *d = ref_new(prog, n);
-  PtrVec given = {0};
-  for (int i = 0; i < prog->params.n; i++) vec_push(prog->ctx, &given, prog->params.v[i]);
-  for (int i = 0; i < prog->quantities.n; i++) {
-    const Sym *s = prog->quantities.v[i];
-    if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) vec_push(prog->ctx, &given, (void *)s);
-  }
-  for (int i = 0; i < given.n; i++) {
-    const Sym *s = given.v[i];
-    size_t cnt = ref_count(d, s);
-    double *v = ref_values(d, s);
-    randdata_fill(prog, s, n, &seed, false, v, cnt);
-    long shape[MAX_AXES + MAX_STATIC];
-    for (int a = 0; a < s->ndims; a++) shape[a] = n;
-    for (int a = 0; a < s->nstatic; a++) shape[s->ndims + a] = s->shape[a];
-    if (full_set(f, s->name, s->ndims + s->nstatic, shape, v, s->name)) fail_msg("%s", full_error(f));
-  }
+  bind_random(d, prog, n, 4321u, false, set_full, f);
   if (full_eval(f, 0)) fail_msg("%s: %s", path, full_error(f));
   for (int i = 0; i < prog->stages.n; i++) {
     const Stage *st = prog->stages.v[i];
@@ -204,18 +191,14 @@ static int check_program(const char *path, double *worst) {
   }
   ref_free(d);
   full_free(f);
-  npg_free(p);
   return failures;
 }
 
-static int check_cb(const char *path, void *worst) { return check_program(path, worst); }
-
 static void tensor_form_equals_full(void **state) {
   (void)state;
-  const char *dirs[] = {"examples/rational", "examples/radiosity", "examples/fluids", "tests/programs"};
-  int n = 0, failures = 0;
+  int n = 0;
   double worst = 0;
-  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += for_each_program(dirs[i], check_cb, &worst, &n);
+  int failures = check_programs(corpus_all, check_program, &worst, &n);
   print_message("%d programs: tensor form vs full evaluator, worst relative difference %.2g\n", n, worst);
   assert_true(n >= 20);
   assert_int_equal(failures, 0);

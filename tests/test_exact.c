@@ -2,35 +2,14 @@
  * every program in tests/programs, each stage's canonical form evaluated in
  * full space equals the stage's source expression evaluated directly, to
  * 1e-12 relative (max norm), on random data of several sizes. */
-#include <dirent.h>
 #include <math.h>
 #include <stdio.h>
 
-#include "randdata.h"
 #include "support/refeval.h"
 #include "testutil.h"
 
-/* Random data for every param, input and extern (see randdata.h). */
-static int bind_random(RefData *d, const Program *prog, long n, unsigned seed, bool padded) {
-  int npad = 0;
-  for (int i = 0; i < prog->params.n; i++) {
-    const Sym *s = prog->params.v[i];
-    npad += randdata_fill(prog, s, n, &seed, padded, ref_values(d, s), ref_count(d, s));
-  }
-  for (int i = 0; i < prog->quantities.n; i++) {
-    const Sym *s = prog->quantities.v[i];
-    if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) randdata_fill(prog, s, n, &seed, false, ref_values(d, s), ref_count(d, s));
-  }
-  return npad;
-}
-
-static int check_program(const char *path) {
-  NpgProgram *p = compile_file(path);
-  if (!npg_ok(p)) {
-    print_message("%s: does not compile:\n%s", path, npg_error(p));
-    npg_free(p);
-    return 1;
-  }
+static int check_program(NpgProgram *p, const char *path, void *arg) {
+  (void)arg;
   Program *prog = program_ir(p);
   int failures = 0, nchecked = 0, npadded = 0;
   double worst = 0;
@@ -40,7 +19,7 @@ static int check_program(const char *path) {
   for (int si = 0; si < 3; si++) {
     bool padded = si == 2;
     RefData *d = ref_new(prog, sizes[si]);
-    if (!bind_random(d, prog, sizes[si], 1234u + (unsigned)si, padded) && padded) {
+    if (!bind_random(d, prog, sizes[si], 1234u + (unsigned)si, padded, NULL, NULL) && padded) {
       ref_free(d);
       break;  /* nothing to pad */
     }
@@ -75,21 +54,12 @@ static int check_program(const char *path) {
   }
   print_message("%-40s %3d stage checks, worst relative difference %.2g%s\n", path, nchecked, worst,
                 npadded ? ", with -1 padding" : "");
-  npg_free(p);
   return failures;
-}
-
-
-static int check_cb(const char *path, void *arg) {
-  (void)arg;
-  return check_program(path);
 }
 
 static void examples_exact(void **state) {
   (void)state;
-  int n = 0, failures = 0;
-  const char *dirs[] = {"examples/rational", "examples/radiosity", "examples/fluids"};
-  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += for_each_program(dirs[i], check_cb, NULL, &n);
+  int n = 0, failures = check_programs(corpus_examples, check_program, NULL, &n);
   assert_true(n >= 2);
   assert_int_equal(failures, 0);
 }
@@ -97,7 +67,8 @@ static void examples_exact(void **state) {
 static void test_programs_exact(void **state) {
   (void)state;
   int n = 0;
-  int failures = for_each_program("tests/programs", check_cb, NULL, &n);
+  int failures = check_programs((const char *const[]){"tests/programs", NULL}, check_program, NULL, &n);
+  assert_true(n >= 20);
   assert_int_equal(failures, 0);
 }
 
@@ -108,7 +79,7 @@ static void detects_a_wrong_lowering(void **state) {
   NpgProgram *p = compile_file("examples/rational/rational.npg");
   Program *prog = ir_ok(p);
   RefData *d = ref_new(prog, 3);
-  bind_random(d, prog, 3, 7u, false);
+  bind_random(d, prog, 3, 7u, false, NULL, NULL);
   Stage *y = prog->stages.v[0];
   Mono *m = y->terms[0]->num->comp[0].m[0];
   Node *saved = m->coef;
@@ -139,22 +110,18 @@ static int run_exact(NpgProgram *p, char *err, size_t errlen, char **report) {
   return rc;
 }
 
-static int exact_cb(const char *path, void *arg) {
+static int exact_cb(NpgProgram *p, const char *path, void *arg) {
   (void)arg;
-  NpgProgram *p = compile_file(path);
   char err[2048] = "", *report = NULL;
   int rc = run_exact(p, err, sizeof err, &report);
   if (rc != 0) print_message("%s: exact_check %d: %s\n%s", path, rc, err, report);
   free(report);
-  npg_free(p);
   return rc != 0;
 }
 
 static void verify_exact_passes_and_fails(void **state) {
   (void)state;
-  int n = 0, failures = 0;
-  const char *dirs[] = {"examples/rational", "examples/radiosity", "examples/fluids", "tests/programs"};
-  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += for_each_program(dirs[i], exact_cb, NULL, &n);
+  int n = 0, failures = check_programs(corpus_all, exact_cb, NULL, &n);
   assert_true(n >= 20);
   assert_int_equal(failures, 0);
 

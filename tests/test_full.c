@@ -4,50 +4,25 @@
  * same upstream values (1e-12 relative; test_exact shows the reference's
  * canonical form equals the source expression), and the libtcc and cc
  * backends agree (1e-13 relative). */
-#include <dirent.h>
 #include <math.h>
 #include <stdio.h>
 
-#include "randdata.h"
 #include "support/refeval.h"
 #include "testutil.h"
 
-/* Shape of s with every dim of size n. */
-static int shape_of(const Sym *s, long n, long *shape) {
-  for (int i = 0; i < s->ndims; i++) shape[i] = n;
-  for (int i = 0; i < s->nstatic; i++) shape[s->ndims + i] = s->shape[i];
-  return s->ndims + s->nstatic;
+/* Each given symbol's random values into both evaluators too (bind_random). */
+static void set_both(void *user, const Sym *s, int ndim, const long *shape, const double *values) {
+  NpgFull **fs = user;
+  for (int f = 0; f < 2; f++)
+    if (npg_full_set(fs[f], s->name, ndim, shape, values, s->name) != 0) fail_msg("%s", npg_full_error(fs[f]));
 }
 
-static bool is_given(const Sym *s) { return s->kind == SYM_PARAM || s->kind == SYM_INPUT || s->kind == SYM_EXTERN; }
+typedef struct Worst {
+  double ref, cc;
+} Worst;
 
-/* Bind the same random data into the reference and into evaluators. */
-static void bind_all(const Program *prog, RefData *d, NpgFull **fs, int nf, long n, unsigned seed, bool padded) {
-  PtrVec given = {0};
-  Ctx scratch = {0};
-  for (int i = 0; i < prog->params.n; i++) vec_push(prog->ctx, &given, prog->params.v[i]);
-  for (int i = 0; i < prog->quantities.n; i++)
-    if (is_given(prog->quantities.v[i])) vec_push(prog->ctx, &given, prog->quantities.v[i]);
-  (void)scratch;
-  for (int i = 0; i < given.n; i++) {
-    const Sym *s = given.v[i];
-    double *v = ref_values(d, s);
-    size_t k = ref_count(d, s);
-    randdata_fill(prog, s, n, &seed, padded && s->kind == SYM_PARAM, v, k);
-    long shape[MAX_AXES + MAX_STATIC];
-    int nd = shape_of(s, n, shape);
-    for (int f = 0; f < nf; f++)
-      if (npg_full_set(fs[f], s->name, nd, shape, v, s->name) != 0) fail_msg("%s", npg_full_error(fs[f]));
-  }
-}
-
-static int check_program(const char *path, double *worst_ref, double *worst_cc) {
-  NpgProgram *p = compile_file(path);
-  if (!npg_ok(p)) {
-    print_message("%s: %s", path, npg_error(p));
-    npg_free(p);
-    return 1;
-  }
+static int check_program(NpgProgram *p, const char *path, void *arg) {
+  Worst *w = arg;
   Program *prog = program_ir(p);
   NpgFull *fs[2] = {npg_full_new(p, NPG_TCC), npg_full_new(p, NPG_CC)};
   int failures = 0;
@@ -60,7 +35,7 @@ static int check_program(const char *path, double *worst_ref, double *worst_cc) 
     long n = round ? 7 : 6;
     RefData *d = ref_new(prog, n);
     for (int f = 0; f < 2; f++) npg_full_unbind(fs[f]);
-    bind_all(prog, d, fs, 2, n, 99u + (unsigned)round, round == 1);
+    bind_random(d, prog, n, 99u + (unsigned)round, round == 1, set_both, fs);
     for (int f = 0; f < 2; f++)
       if (npg_full_eval(fs[f], round) != 0) {
         print_message("%s (%s): %s\n", path, f ? "cc" : "tcc", npg_full_error(fs[f]));
@@ -89,33 +64,21 @@ static int check_program(const char *path, double *worst_ref, double *worst_cc) 
         print_message("%s: stage %s: generated vs reference %.3g, tcc vs cc %.3g\n", path, st->sym->name, e_ref, e_cc);
         failures++;
       }
-      *worst_ref = fmax(*worst_ref, e_ref);
-      *worst_cc = fmax(*worst_cc, e_cc);
+      w->ref = fmax(w->ref, e_ref);
+      w->cc = fmax(w->cc, e_cc);
     }
     ref_free(d);
   }
   npg_full_free(fs[0]);
   npg_full_free(fs[1]);
-  npg_free(p);
   return failures;
-}
-
-
-typedef struct Worst {
-  double ref, cc;
-} Worst;
-
-static int check_cb(const char *path, void *arg) {
-  Worst *w = arg;
-  return check_program(path, &w->ref, &w->cc);
 }
 
 static void generated_equals_reference(void **state) {
   (void)state;
-  int n = 0, failures = 0;
+  int n = 0;
   Worst w = {0, 0};
-  const char *dirs[] = {"examples/rational", "examples/radiosity", "examples/fluids", "tests/programs"};
-  for (size_t i = 0; i < sizeof dirs / sizeof *dirs; i++) failures += for_each_program(dirs[i], check_cb, &w, &n);
+  int failures = check_programs(corpus_all, check_program, &w, &n);
   double wr = w.ref, wc = w.cc;
   print_message("%d programs: generated vs reference worst %.2g, tcc vs cc worst %.2g\n", n, wr, wc);
   assert_true(n >= 20);

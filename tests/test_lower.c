@@ -1,5 +1,6 @@
 /* test_lower.c — the canonical form of the paper's programs (DESIGN §4,
  * paper §4.1 and Table 2), and of the splitting rules. */
+#include "support/failing_alloc.h"
 #include "testutil.h"
 
 /* Paper §4.1, Eq. 3: one inverse term; the denominator [x0^2, x1^2] folded
@@ -221,23 +222,21 @@ static void sums(void **state) {
 
 /* Every reachable allocation failure is reported as an error, never a crash
  * (and, under the sanitizers, never a leak). */
-static int fail_after;
-static void *failing_alloc(size_t n) { return fail_after-- > 0 ? malloc(n) : NULL; }
-
 static void allocation_failure(void **state) {
   (void)state;
   for (int k = 0; k < 200; k++) {
-    fail_after = k;
-    mem_alloc_hook = failing_alloc;
+    failing_alloc_after(k);
     NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
-    mem_alloc_hook = malloc;
+    failing_alloc_off();
     if (npg_ok(p)) {
       npg_free(p);
+      assert_true(k > 0); /* the compilation allocates, and every failure before was reported */
       return;
     }
     assert_non_null(strstr(npg_error(p), "out of memory"));
     npg_free(p);
   }
+  fail_msg("the compilation still fails with 200 allocations allowed");
 }
 
 /* Programs as test data: every .npg file in tests/programs states its expected

@@ -20,6 +20,7 @@
 #include "compile.h"
 #include "exact.h"
 #include "npg.h"
+#include "support/corpus.h" /* for_each_program, check_programs, bind_random */
 
 /* Compile source text named `name`; the stdlib is the repository's. */
 static inline NpgProgram *compile_text(const char *name, const char *text) {
@@ -96,25 +97,6 @@ static inline int max_order(const Program *prog, const Stage *st) {
     }
   }
   return m;
-}
-
-/* Run check(path, arg) on every .npg file in `dir` (a missing dir has none);
- * returns the sum of what check returned, and adds the programs to *n. */
-static inline int for_each_program(const char *dir, int (*check)(const char *path, void *arg), void *arg, int *n) {
-  DIR *d = opendir(dir);
-  if (!d) return 0;
-  int failures = 0;
-  struct dirent *e;
-  while ((e = readdir(d))) {
-    size_t l = strlen(e->d_name);
-    if (l < 5 || strcmp(e->d_name + l - 4, ".npg") != 0) continue;
-    char path[1024];
-    snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
-    failures += check(path, arg);
-    (*n)++;
-  }
-  closedir(d);
-  return failures;
 }
 
 /* Relative max-norm difference of b from a; NaN where exactly one side is
