@@ -40,7 +40,7 @@ static int samples_open(SampleSet *s, const Program *prog, const char *dir, cons
   memset(s, 0, sizeof *s);
   s->prog = prog;
   s->count = -1;
-  s->files = calloc((size_t)prog->slots.n + 1, sizeof(SampleFile));
+  s->files = mem_calloc((size_t)prog->slots.n + 1, sizeof(SampleFile));
   if (!s->files) {
     snprintf(err, errlen, "out of memory");
     return -1;
@@ -186,7 +186,7 @@ NpgSamples *npg_samples_open(NpgProgram *p, const char *dir, const char *fallbac
     snprintf(err, errlen, "%s", npg_error(p));
     return NULL;
   }
-  NpgSamples *s = calloc(1, sizeof *s);
+  NpgSamples *s = mem_calloc(1, sizeof *s);
   if (!s) {
     snprintf(err, errlen, "out of memory");
     return NULL;
