@@ -23,6 +23,10 @@ is output it must print, in order (numbers compared to 1 %, and equal below
 Every relative link of docs/*.md and README.md must name a file that exists
 (and a heading of it, for a #fragment), and no file of the repository may
 point at the design document outside it (after `git clone` there is none).
+
+Each layer's folder (ir/, backends/*/, compiler/*/, stdlib/*/, examples/common,
+tests/support) has a README that names every file in it, and the index READMEs
+of backends/, compiler/ and stdlib/ name every sub-folder.
 """
 import glob, json, os, re, subprocess, sys, tempfile
 
@@ -33,7 +37,7 @@ npgc = os.path.join(build, "npgc")
 docs = sorted(glob.glob("docs/*.md"))
 fence = re.compile(r"^```(npg|npg-error|console)\s*$")
 failures = []
-counts = {"npg": 0, "npg-error": 0, "console": 0, "expectations": 0, "links": 0}
+counts = {"npg": 0, "npg-error": 0, "console": 0, "expectations": 0, "links": 0, "map": 0}
 
 
 def blocks(path):
@@ -252,13 +256,46 @@ for path in docs:
             {"npg": check_block, "npg-error": check_error_block, "console": check_console}[kind](path, first, text,
                                                                                                 work)
 
-for path in docs + ["README.md"]:
+def check_map():
+    """Each layer's folder opens with a README that names every file it holds (the map a
+    newcomer reads: kept true when a file is added, moved or removed); an index README
+    names each sub-folder."""
+    folders = ["ir"] + sorted(glob.glob("backends/*/")) + sorted(glob.glob("compiler/*/")) + \
+        ["stdlib/runtime", "stdlib/npg", "examples/common", "tests/support"]
+    indexes = {"backends": "backends/*/", "compiler": "compiler/*/", "stdlib": "stdlib/*/"}
+    readmes = []
+    for folder in (f.rstrip("/") for f in folders):
+        readme = "tests/README.md" if folder == "tests/support" else os.path.join(folder, "README.md")
+        if not os.path.exists(readme):
+            failures.append("%s: no README.md listing its files" % folder)
+            continue
+        readmes.append(readme)
+        with open(readme, encoding="utf-8") as f:
+            text = f.read()
+        for name in sorted(os.listdir(folder)):
+            if name != "README.md" and os.path.isfile(os.path.join(folder, name)) and "`" not in name:
+                counts["map"] += 1
+                if name not in text:
+                    failures.append("%s: %s/%s is not in the folder's list" % (readme, folder, name))
+    for index, pattern in indexes.items():
+        readme = os.path.join(index, "README.md")
+        readmes.append(readme)
+        with open(readme, encoding="utf-8") as f:
+            text = f.read()
+        for sub in sorted(glob.glob(pattern)):
+            if os.path.basename(sub.rstrip("/")) + "/" not in text:
+                failures.append("%s: the sub-folder %s is not in the index" % (readme, sub))
+    return readmes
+
+
+for path in docs + ["README.md"] + check_map():
     check_links(path)
 check_no_outside_design()
 
-print("docs: %d programs, %d refused programs, %d sessions, %d stated results and %d links checked in %s" %
+print("docs: %d programs, %d refused programs, %d sessions, %d stated results and %d links checked in %s; "
+      "%d files found in their folder's README" %
       (counts["npg"], counts["npg-error"], counts["console"], counts["expectations"], counts["links"],
-       ", ".join(docs)))
+       ", ".join(docs), counts["map"]))
 if counts["npg"] == 0:
     failures.append("no ```npg block found in docs/*.md")
 for f in failures:
