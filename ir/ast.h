@@ -125,7 +125,7 @@ enum {
 typedef enum DeclKind {
   D_DIM,      /* dim F, V */
   D_PARAM,    /* param tri : int[F, 3] */
-  D_INPUT,    /* input g : real[V, 3] */
+  D_INPUT,    /* input g : real[V, 3]; state u : real[N] (is_state) */
   D_STAGE,    /* name[i:N, ...] = expr  (and output name... = expr) */
   D_OP,       /* op M[i:N, j:N] = expr */
   D_EXTERN,   /* extern v[i:F, j:F] of g */
@@ -167,6 +167,9 @@ struct Decl {
   Loc *name_locs;
   int nnames;
   bool is_output;
+  bool is_state;            /* D_INPUT: `state u : ...`, carried from step to step */
+  const char *next_of;      /* D_STAGE: `next u = ...` defines the state u's next value */
+  Loc next_of_loc;
   /* D_BASIS options (negative when not given) */
   int basis_max;
   double basis_energy;
@@ -213,6 +216,9 @@ struct Sym {
   int nivars;
   Node *body;                   /* checked body */
   bool is_output;
+  /* a state (`state u`, SYM_INPUT) and the stage of its next value (`next u`, SYM_STAGE `u.next`) */
+  Sym *next;
+  Sym *state_of;
   bool inlined;                 /* `inline name`, or a constant definition */
   Loc inline_loc;               /* the `inline` statement naming it (line 0: constant) */
   bool introduced;              /* created by the compiler (y.t1) */

@@ -111,6 +111,11 @@ void basis_classes(Ctx *ctx, Program *prog) {
               arena_printf(ctx, "'share' at %s:%d", d->loc.file ? d->loc.file->name : "?", d->loc.line), d->loc);
     }
   }
+  for (int i = 0; i < prog->states.n; i++) { /* the step's output is the next step's input (DESIGN §15) */
+    Sym *st = prog->states.v[i];
+    merge(ctx, prog, &u, st, st->next, arena_printf(ctx, "state '%s' and its next value", st->name),
+          st->next->decl->next_of_loc);
+  }
   /* Number the classes in order of their first member. */
   int *id = arena_alloc(ctx, sizeof(int) * (size_t)(u.n + 1));
   for (int i = 0; i < u.n; i++) id[i] = -1;

@@ -208,6 +208,7 @@ void dump_program(FILE *out, const Program *prog) {
     const Sym *s = prog->inputs.v[i];
     fprintf(out, "  %s : ", s->name);
     print_shape(out, s, false);
+    if (s->next) fprintf(out, "   state (next value: %s)", s->next->name);
     if (s->is_output) fputs("   output", out);
     fputc('\n', out);
   }
@@ -294,6 +295,10 @@ void dump_json(FILE *out, const Program *prog) {
     json_str(out, s->name);
     fputs(",\"shape\":", out);
     json_shape(out, s);
+    if (s->next) {
+      fputs(",\"next\":", out);
+      json_str(out, s->next->name);
+    }
     fprintf(out, ",\"class\":%d}", s->klass);
   }
   fputs("],\"stages\":[", out);

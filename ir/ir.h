@@ -183,6 +183,7 @@ struct Program {
   PtrVec stages;         /* Stage*, in evaluation order (introduced ones too) */
   PtrVec opdefs;         /* OpDef* */
   PtrVec outputs;        /* Sym* */
+  PtrVec states;         /* Sym*: the inputs declared `state`, each with its `next` stage (Sym.next) */
   PtrVec inlined;        /* Sym*: stages named by `inline` */
   PtrVec temps;          /* Sym*: inlined stages that read inputs: folded into the
                             tensors, but computed once by the full evaluator */

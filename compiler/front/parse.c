@@ -19,7 +19,7 @@ typedef struct Parser {
 } Parser;
 
 static const char *const keywords[] = {"dim", "param", "input", "output", "fn", "op",
-                                       "extern", "share", "basis", "inline", "use", NULL};
+                                       "extern", "share", "basis", "inline", "use", "state", "next", NULL};
 
 bool is_keyword(const char *s) {
   for (int i = 0; keywords[i]; i++)
@@ -485,8 +485,9 @@ static void parse_stmt(Parser *p, Decl ***tail) {
   if (strcmp(kw, "dim") == 0) {
     d = new_decl(p, D_DIM, t->loc);
     parse_names(p, d, "a dim name");
-  } else if (strcmp(kw, "param") == 0 || strcmp(kw, "input") == 0) {
+  } else if (strcmp(kw, "param") == 0 || strcmp(kw, "input") == 0 || strcmp(kw, "state") == 0) {
     d = new_decl(p, kw[0] == 'p' ? D_PARAM : D_INPUT, t->loc);
+    d->is_state = kw[0] == 's';
     Token *n = expect_name(p, arena_printf(ctx, "a name after '%s'", kw));
     d->name = n->text;
     d->name_loc = n->loc;
@@ -495,6 +496,13 @@ static void parse_stmt(Parser *p, Decl ***tail) {
                kw, n->text, kw, n->text);
     expect(p, ":", arena_printf(ctx, "after '%s %s' (%s %s : real[N])", kw, n->text, kw, n->text));
     parse_type(p, d);
+  } else if (strcmp(kw, "next") == 0) { /* next u [ivars] = expr: the state u after one step */
+    Token *n = expect_name(p, "the state's name after 'next'");
+    d = parse_def(p, D_STAGE, n);
+    d->name = arena_printf(ctx, "%s.next", n->text);
+    d->next_of = n->text;
+    d->next_of_loc = n->loc;
+    d->is_output = true;
   } else if (strcmp(kw, "fn") == 0) {
     Token *n = expect_name(p, "a function name after 'fn'");
     d = new_decl(p, D_FN, n->loc);

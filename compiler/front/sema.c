@@ -80,6 +80,9 @@ char *sema_sym_type_str(Ctx *ctx, const Sym *s) {
 
 static void declare(Checker *ck, Sym *s) {
   Sym *old = sema_find_global(ck, s->name);
+  if (old && s->decl && s->decl->next_of)
+    error_note(ck->ctx, s->decl->next_of_loc, old->loc, "the first is here", "state '%s' has two next values",
+               s->decl->next_of);
   if (old)
     error_note(ck->ctx, s->loc, old->loc, "previous definition is here", "redefinition of '%s' (already %s)", s->name,
                sema_kind_word(old));
@@ -155,6 +158,8 @@ static void check_stage(Checker *ck, Sym *s, Decl *d) {
   if (body->ty.var != V_VARYING) {
     /* A constant definition: folded into its users as a coefficient. */
     s->inlined = true;
+    if (d->next_of)
+      error_node(ctx, body, "the next value of state '%s' does not depend on any state or input", d->next_of);
     if (s->is_output)
       error_node(ctx, body, "output '%s' does not depend on any input; make it a param", s->name);
   }
@@ -219,8 +224,11 @@ static void declare_all(Checker *ck) {
       s->decl = d;
       set_axes(ck, s, d);
       if (d->kind == D_INPUT) {
-        if (d->is_int) error_at(ctx, d->loc, "input '%s' must be real: inputs get a basis", d->name);
+        if (d->is_int)
+          error_at(ctx, d->loc, "%s '%s' must be real: %ss get a basis", d->is_state ? "state" : "input", d->name,
+                   d->is_state ? "state" : "input");
         vec_push(ctx, &prog->inputs, s);
+        if (d->is_state) vec_push(ctx, &prog->states, s);
       } else {
         vec_push(ctx, &prog->params, s);
       }
@@ -256,6 +264,46 @@ static void declare_all(Checker *ck) {
       s->id = order++;
       declare(ck, s);
     }
+  }
+}
+
+/* Each `next u = ...` to its state: u declared `state`, given one next value. */
+static void link_states(Checker *ck) {
+  Ctx *ctx = ck->ctx;
+  for (Decl *d = ck->prog->decls; d; d = d->next) {
+    if (d->kind != D_STAGE || !d->next_of) continue;
+    Sym *u = sema_find_global(ck, d->next_of);
+    if (!u) error_at(ctx, d->next_of_loc, "'next %s' names no state: declare it first with 'state %s : real[...]'",
+                     d->next_of, d->next_of);
+    if (u->kind != SYM_INPUT || !u->decl->is_state)
+      error_note(ctx, d->next_of_loc, u->loc, "declared here",
+                 "'%s' is %s, not a state: only a quantity declared 'state %s : ...' has a next value", u->name,
+                 sema_kind_word(u), u->name);
+    if (u->next)
+      error_note(ctx, d->next_of_loc, u->next->loc, "the first is here", "state '%s' has two next values", u->name);
+    u->next = sema_find_global(ck, d->name);
+    u->next->state_of = u;
+  }
+  for (int i = 0; i < ck->prog->states.n; i++) {
+    Sym *u = ck->prog->states.v[i];
+    if (!u->next)
+      error_at(ctx, u->loc, "state '%s' has no next value: define it with 'next %s = ...' (or declare it 'input')",
+               u->name, u->name);
+  }
+}
+
+/* A state and its next value have one shape: the step's output is its next input. */
+static void check_state_shapes(Checker *ck) {
+  Ctx *ctx = ck->ctx;
+  for (int i = 0; i < ck->prog->states.n; i++) {
+    Sym *u = ck->prog->states.v[i], *n = u->next;
+    bool same = u->ndims == n->ndims && u->nstatic == n->nstatic;
+    for (int k = 0; same && k < u->ndims; k++) same = u->dims[k] == n->dims[k];
+    for (int k = 0; same && k < u->nstatic; k++) same = u->shape[k] == n->shape[k];
+    if (!same)
+      error_note(ctx, n->decl->next_of_loc, u->loc, "the state is declared here",
+                 "the next value of state '%s' is %s but the state is %s", u->name, sema_sym_type_str(ctx, n),
+                 sema_sym_type_str(ctx, u));
   }
 }
 
@@ -393,7 +441,9 @@ Program *sema_program(Ctx *ctx, const SrcFile *file, Decl *decls) {
   prog->decls = decls;
   ck.prog = prog;
   declare_all(&ck);
+  link_states(&ck);
   check_definitions(&ck);
+  check_state_shapes(&ck);
   apply_directives(&ck);
   list_quantities(&ck);
   return prog;
