@@ -78,6 +78,8 @@ typedef struct NpgSymbol {
   int nrow;                    /* an op: how many of dims[] are rows */
   int nstatic;                 /* static axes after the dims */
   int shape[4];
+  const char *next;            /* a state (`state u`): the stage of its next value ("u.next"); else NULL */
+  const char *state_of;        /* that stage: the state it advances; else NULL */
 } NpgSymbol;
 /* Params, then quantities in evaluation order (inputs, stages and externs),
  * then operators. npg_symbol returns 0, or -1 when i is out of range. */
@@ -134,6 +136,31 @@ NPG_API void npg_full_free(NpgFull *f);
  * the sample and the entry's index ("sample 3: stage 'p' is not finite:
  * p[2, 5] is NaN"). */
 NPG_API int npg_full_check_finite(NpgFull *f, long sample);
+
+/* Simulations (DESIGN §15): a program with `state u` and `next u = ...` is one time step.
+ * npg_full_step evaluates it `steps` times (sample `sample`, for messages and callbacks), every
+ * state taking its next value after each (no copy: after a call, npg_full_get("u") is the state
+ * after the steps, the other stages hold the last step's values). Set the states (npg_full_set)
+ * and the other inputs first; inputs not set again are held. Setting a state starts a new rollout.
+ * A step whose next value is not finite, or whose state's energy ‖u‖² exceeds the blow-up factor
+ * (default 10; 0 checks finiteness only) times its value at the rollout's start, stops the call
+ * with an error naming the step and the state. 0, or -1 with npg_full_error(). */
+NPG_API int npg_full_step(NpgFull *f, long steps, long sample);
+/* Steps taken since a state was last set. */
+NPG_API long npg_full_steps(const NpgFull *f);
+NPG_API int npg_full_set_blowup(NpgFull *f, double factor);
+/* A rollout of `steps` steps saving every `every`-th (steps 0, every, 2 every, …, so
+ * steps/every + 1 saves): before_step (optional) runs before each step t = 0 … steps-1 to set
+ * the inputs given per step; at_save runs at each saved step t, after the step that reached it
+ * (t = 0: before any), to read the states. A callback's non-zero return stops the rollout (-1,
+ * the error names the step). The same for the reduced step: npg_reduced_simulate. */
+typedef struct NpgRollout {
+  long steps, every;
+  int (*before_step)(void *user, long step);
+  int (*at_save)(void *user, long step);
+  void *user;
+} NpgRollout;
+NPG_API int npg_full_simulate(NpgFull *f, long sample, const NpgRollout *ro);
 
 /* Externs given by a C function instead of data: at every npg_full_eval
  * the evaluator calls fn(user, f, sample, out, count) to fill the extern's
@@ -313,6 +340,12 @@ NPG_API int npg_trainer_add(NpgTrainer *t);
 /* Add the inputs and externs now held by `g` (an evaluator of the same
  * program, after npg_full_eval). */
 NPG_API int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g);
+/* Training from a trajectory (DESIGN §15): run `f`'s step ro->steps times from the states and
+ * inputs it holds (ro->before_step sets inputs given per step) and add the visited states, every
+ * ro->every-th step (steps 0, every, …), as npg_trainer_add_full does; ro->at_save, when given,
+ * runs after each is added. Nothing is written to disk but the trainer's own records. 0, or -1
+ * with npg_trainer_error(t) or, when the step failed (a blow-up), npg_full_error(f). */
+NPG_API int npg_trainer_add_trajectory(NpgTrainer *t, NpgFull *f, long sample, const NpgRollout *ro);
 /* The weight of the next sample added (positive and finite; 1 when not given, and again after
  * every add): the bases' PCA minimizes Σ_k w_k ‖x_k − BBᵀx_k‖², so weight 2 counts a sample
  * as if it had been added twice (a training design's rare points weighed up, e.g. the extremes
@@ -467,6 +500,13 @@ NPG_API int npg_reduced_lift(NpgReduced *r, const char *name, double *out, size_
  * classes *row_class and *col_class (npg_model_class). */
 NPG_API int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t cap, long *rows, long *cols,
                            int *row_class, int *col_class);
+/* The reduced step (DESIGN §15): npg_full_step's contract with every state kept in reduced
+ * coordinates (a state and its next value share one basis: the next value's coordinates become
+ * the state's, nothing lifted); energy is ‖û‖² of the state's coordinates. */
+NPG_API int npg_reduced_step(NpgReduced *r, long steps, long sample);
+NPG_API long npg_reduced_steps(const NpgReduced *r);
+NPG_API int npg_reduced_set_blowup(NpgReduced *r, double factor);
+NPG_API int npg_reduced_simulate(NpgReduced *r, long sample, const NpgRollout *ro);
 NPG_API void npg_reduced_free(NpgReduced *r);
 
 /* ---------------------------------------------------------------- basis sizes by error

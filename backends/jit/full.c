@@ -552,6 +552,21 @@ int full_refuse(Full *f, const char *msg) {
   return -1;
 }
 
+int full_advance(Full *f) {
+  if (f->error[0]) return -1;
+  const Program *prog = f->prog;
+  for (int i = 0; i < prog->states.n; i++) {
+    const Sym *u = prog->states.v[i];
+    int a = emit_index_of(&prog->slots, u), b = emit_index_of(&prog->slots, u->next);
+    if (a < 0 || b < 0 || !f->q[b] || f->qcount[a] != f->qcount[b])
+      return fail(f, "state '%s' cannot advance: its next value '%s' was not evaluated", u->name, u->next->name);
+    double *t = f->q[a];
+    f->q[a] = f->q[b];
+    f->q[b] = t;
+  }
+  return 0;
+}
+
 const double *full_get(const Full *f, const char *name, size_t *count) {
   if (!f->prog) return NULL;
   int k = find(&f->prog->slots, name);

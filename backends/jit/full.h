@@ -58,6 +58,10 @@ int full_set(Full *f, const char *name, int ndim, const long *shape, const doubl
 int full_set_extern_fn(Full *f, const char *name, FullExternFn fn, void *user);
 /* Evaluate sample `sample` (externs' callbacks run first). */
 int full_eval(Full *f, long sample);
+/* One step of a simulation (DESIGN §15), after a full_eval: every state takes its next value
+ * (buffers exchanged, nothing copied; the next stage then holds the state before the step until
+ * the next evaluation). 0, or -1 with full_error() when a next value was not evaluated. */
+int full_advance(Full *f);
 /* The values full_set gave since the last evaluation no longer count as given: the next
  * evaluation calls the externs' callbacks again (after values were set only to be read back). */
 void full_forget_given(Full *f);

@@ -16,11 +16,36 @@ typedef struct ExternClosure {
   const NpgFull *f;
 } ExternClosure;
 
+/* A rollout's bookkeeping (DESIGN §15), shared by the full and the reduced step: steps taken since
+ * a state was last set, the states' energies then, and the blow-up factor (0: energy unchecked). */
+typedef struct Rollout {
+  long steps;
+  double blowup;            /* set: 10 by default (api_rollout_blowup) */
+  bool blowup_set;
+  double *start;            /* per state (Program.states): ‖u‖² when the rollout started */
+} Rollout;
+/* The blow-up factor in effect. */
+double api_rollout_blowup(const Rollout *ro);
+
 /* The public full evaluator: the internal one (backends/jit/full.h), which
  * every layer below evaluates with, wrapped as NpgModel wraps Model. */
 struct NpgFull {
   Full *full;               /* never NULL */
   ExternClosure *externs;   /* per quantity (Program.quantities); NULL when full has no program */
+  Rollout roll;             /* simulations (simulate.c) */
+};
+
+struct NpgReduced {
+  const NpgModel *nm;
+  Reduced *r;
+  bool given_externs;
+  bool exact_roots;
+  double *z;                /* npg_reduced_op: one tensor's input product (2 zcap) */
+  bool *given;              /* per quantity: set by the caller (an input never set is an error, not a zero) */
+  bool evaluated;           /* an evaluation has succeeded: every quantity has coordinates to lift */
+  long zcap;
+  Rollout roll;             /* simulations (simulate.c) */
+  char error[1024];
 };
 
 struct NpgModel {

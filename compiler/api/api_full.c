@@ -112,6 +112,9 @@ int npg_full_set(NpgFull *f, const char *name, int ndim, const long *shape, cons
   REFUSE_NULL(name);
   REFUSE_NULL(from);
   if (refuse_shape(f, __func__, ndim, shape, values)) return -1;
+  const Program *prog = full_program(f->full);
+  for (int i = 0; prog && i < prog->states.n; i++)
+    if (strcmp(((const Sym *)prog->states.v[i])->name, name) == 0) f->roll.steps = 0; /* a new rollout */
   return full_set(f->full, name, ndim, shape, values, from);
 }
 
@@ -159,6 +162,7 @@ void npg_full_free(NpgFull *f) {
   if (!f) return;
   full_free(f->full);
   free(f->externs);
+  free(f->roll.start);
   free(f);
 }
 

@@ -449,18 +449,6 @@ int npg_model_emit(const NpgModel *nm, FILE *out, char *err, size_t errlen) {
 
 /* ---------------------------------------------------------------- reduced evaluation */
 
-struct NpgReduced {
-  const NpgModel *nm;
-  Reduced *r;
-  bool given_externs;
-  bool exact_roots;
-  double *z;                /* npg_reduced_op: one tensor's input product (2 zcap) */
-  bool *given;              /* per quantity: set by the caller (an input never set is an error, not a zero) */
-  bool evaluated;           /* an evaluation has succeeded: every quantity has coordinates to lift */
-  long zcap;
-  char error[1024];
-};
-
 #define rfail(r, ...) error_set_first((r)->error, sizeof (r)->error, __VA_ARGS__)
 
 NpgReduced *npg_reduced_new(const NpgModel *nm) {
@@ -548,6 +536,7 @@ int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double 
       return rfail(r, "'%s' holds %s at flat entry %zu", name, isnan(values[i]) ? "NaN" : "an infinity", i);
   reduced_project(r->r, q, values);
   r->given[q] = true;
+  if (((const Sym *)r->nm->m->prog->quantities.v[q])->next) r->roll.steps = 0; /* a new rollout */
   return 0;
 }
 
@@ -563,6 +552,7 @@ int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, const doub
                                     c->label, m);
   memcpy(reduced_coords(r->r, q), coords, sizeof(double) * m);
   r->given[q] = true;
+  if (((const Sym *)r->nm->m->prog->quantities.v[q])->next) r->roll.steps = 0; /* a new rollout */
   return 0;
 }
 
@@ -696,6 +686,7 @@ int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t cap, lon
 
 void npg_reduced_free(NpgReduced *r) {
   if (!r) return;
+  free(r->roll.start);
   reduced_free(r->r);
   free(r->z);
   free(r->given);

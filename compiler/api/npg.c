@@ -234,6 +234,8 @@ int npg_symbol(const NpgProgram *np, int i, NpgSymbol *out) {
   out->kind = s->kind == SYM_PARAM ? NPG_PARAM : s->kind == SYM_INPUT ? NPG_INPUT : s->kind == SYM_EXTERN ? NPG_EXTERN
               : s->kind == SYM_OP ? NPG_OP : NPG_STAGE;
   out->output = s->is_output;
+  out->next = s->next ? s->next->name : NULL;
+  out->state_of = s->state_of ? s->state_of->name : NULL;
   if (s->kind == SYM_OP) {
     out->ndims = s->nivars;
     out->nrow = s->nrow;

@@ -85,6 +85,7 @@ static int run(int argc, char **argv) {
   if (strcmp(cmd, "eval") == 0) return npgc_eval(argc, argv);
   if (strcmp(cmd, "plot") == 0) return npgc_plot(argc, argv);
   if (strcmp(cmd, "tune") == 0) return npgc_tune(argc, argv);
+  if (strcmp(cmd, "simulate") == 0) return npgc_simulate(argc, argv);
   if (!strcmp(cmd, "train") || !strcmp(cmd, "verify") || !strcmp(cmd, "bench")) return npgc_reduce(argc, argv);
   if (strcmp(cmd, "check") != 0) {
     fprintf(stderr, "npgc: unknown command '%s' (npgc --help lists them)\n", cmd);

@@ -9,6 +9,33 @@
 
 /* eval.c: `npgc eval --full` (the reduced form goes to npgc_reduce). */
 int npgc_eval(int argc, char **argv);
+/* simulate.c: npgc simulate PROG.npg DATA/ --steps T [--every K] [--model MODEL/] -o OUT/. */
+int npgc_simulate(int argc, char **argv);
+/* trajectories.c: the inputs of rollouts from a folder. Each input's file holds [S, ...] (held
+ * for every step; a state: its initial value) or [S, T', ...] (one value per step, T' >= the
+ * steps run); externs are refused. */
+typedef struct TrajInput {
+  NpgSymbol sym;
+  char path[4096];
+  double *v;
+  int ndim, axes;           /* the file's axes; the value's (ndim less the sample and step axes) */
+  long shape[8];
+  size_t each;              /* entries of one value */
+  bool per_step;
+} TrajInput;
+typedef struct Trajectories {
+  TrajInput *in;
+  int n;
+  long samples;             /* trajectories */
+} Trajectories;
+int npgc_trajectories_open(NpgProgram *p, const char *dir, long steps, Trajectories *t, char *err, size_t errlen);
+const double *npgc_trajectory_value(const TrajInput *in, long k, long step);
+/* Trajectory k's inputs at `step`: every input (all), or only those given per step. */
+int npgc_trajectories_set_full(const Trajectories *t, NpgFull *f, long k, long step, bool all);
+int npgc_trajectories_set_reduced(const Trajectories *t, NpgReduced *r, long k, long step, bool all);
+void npgc_trajectories_free(Trajectories *t);
+/* The median and the quartiles of v[0..n) (sorted in place); reduce_use.c. */
+void npgc_quartiles(double *v, long n, double q[3]);
 /* reduce_cmds.c: train, reduced eval, verify, bench. */
 int npgc_reduce(int argc, char **argv);
 

@@ -53,6 +53,23 @@ static const Usage usages[] = {
      "  --exact-roots  roots of reduced operators by eigendecomposition\n"
      "  --progress   progress on stderr even when it is not a terminal\n"
      "  -o OUT/      created with its missing parents\n"},
+    {"simulate",
+     "usage: npgc simulate PROG.npg DATA/ --steps T [--every K] [--model MODEL/] [--blowup F]\n"
+     "                     -o OUT/ [--cc] [--progress] [--std=DIR]\n"
+     "\n"
+     "  Run the program's time step (a program with `state u` and `next u = ...`) T\n"
+     "  times from each trajectory's initial states: DATA/<state>.npy holds them\n"
+     "  [trajectories, ...]; every other input is held, [trajectories, ...], or given per\n"
+     "  step, [trajectories, steps, ...]; params from DATA/ too. Writes every state as\n"
+     "  OUT/<state>.npy, [trajectories, T/K + 1, ...]: steps 0, K, 2K, ...\n"
+     "  --every K    save every K-th step (1)\n"
+     "  --model MODEL/  run the reduced step instead, every state kept in reduced\n"
+     "               coordinates and lifted only at the saved steps\n"
+     "  --blowup F   stop when a state's energy exceeds F times its start (10; 0: only\n"
+     "               a value that is not finite stops the run); the step and state named\n"
+     "  --cc         compile the full evaluator with the system compiler at -O3\n"
+     "  --progress   progress on stderr even when it is not a terminal\n"
+     "  -o OUT/      created with its missing parents; written when every trajectory ran\n"},
     {"train",
      "usage: npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--center on|off]\n"
      "                  [--basis NAME:cap=N,energy=E,center=on|off] [--merge concat|joint]\n"

@@ -54,10 +54,10 @@ static int add_basis(Common *c, const char *s, char *err, size_t errlen) {
 /* Each command's options: an option of another command is named as such. */
 static const char *const options_of[][2] = {
     {"train", "-o --cc --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi --reduce --valid "
-              "--interp-oversample --keep-bases --weights"},
+              "--interp-oversample --keep-bases --weights --steps --every"},
     {"eval", "-o --progress --std --exact-roots --full --cc"},
-    {"verify", "--tol --cc --exact --exact-size --progress --std --params"},
-    {"bench", "--cc --reps --exact-roots --progress --std --params"},
+    {"verify", "--tol --cc --exact --exact-size --progress --std --params --steps --every --png"},
+    {"bench", "--cc --reps --exact-roots --progress --std --params --steps --every"},
 };
 
 /* Whether `opt` (up to '=') is in the space-separated `list`. */
@@ -101,6 +101,8 @@ static int parse(Common *c, int argc, char **argv) {
   c->cmd = argv[1];
   c->tol = 1e-2;
   c->reps = 3;
+  c->steps = -1;
+  c->every = 1;
   npg_train_options_default(&c->train);
   char prog[64], err[400];
   snprintf(prog, sizeof prog, "npgc %s", c->cmd);
@@ -174,9 +176,20 @@ static int parse(Common *c, int argc, char **argv) {
       }
       c->train.mpi = true;
     } else if (npg_args_long(&a, "--reps", 1, 1000000, &c->reps)) ;
+    else if (npg_args_long(&a, "--steps", 1, 1000000000L, &c->steps)) ;
+    else if (npg_args_long(&a, "--every", 1, 1000000000L, &c->every)) ;
+    else if ((v = npg_args_string(&a, "--png"))) c->png = v;
     else npg_args_unknown(&a);
   }
   if (a.error[0]) return npgc_args_error(&a, c->cmd);
+  if (c->every != 1 && c->steps < 0) {
+    fprintf(stderr, "%s: --every %ld saves every K-th step of a rollout: give --steps T too\n", prog, c->every);
+    return 2;
+  }
+  if (c->png && c->steps < 0) {
+    fprintf(stderr, "%s: --png plots the error along a rollout: give --steps T too\n", prog);
+    return 2;
+  }
   c->train.progress = c->progress || isatty(2);
   c->train.nbasis = c->nbasis;
   c->train.basis_name = c->basis_name;
@@ -241,6 +254,39 @@ static int check_spectra_names(const char *dir, const NpgProgram *p) {
   return rc;
 }
 
+typedef struct TrainRoll {
+  const Trajectories *tr;
+  NpgFull *f;
+  long k;
+} TrainRoll;
+
+static int train_before_step(void *user, long step) {
+  TrainRoll *x = user;
+  return step ? npgc_trajectories_set_full(x->tr, x->f, x->k, step, false) : 0;
+}
+
+/* --steps T: DATA/'s trajectories run by the full step, every K-th visited state streamed into the
+ * trainer (DESIGN §15); nothing written but the trainer's records. 0, or -1 after the message. */
+static int add_trajectories(Common *c, NpgProgram *p, NpgFull *f, NpgTrainer *t) {
+  Trajectories tr;
+  char err[4400];
+  if (npgc_trajectories_open(p, c->a, c->steps, &tr, err, sizeof err) != 0) return npgc_error(err), -1;
+  TrainRoll x = {&tr, f, 0};
+  NpgRollout ro = {.steps = c->steps, .every = c->every, .before_step = train_before_step, .user = &x};
+  int rc = 0;
+  for (x.k = 0; x.k < tr.samples && rc == 0; x.k++) {
+    if (npgc_trajectories_set_full(&tr, f, x.k, 0, true) != 0 || npg_trainer_add_trajectory(t, f, x.k, &ro) != 0) {
+      snprintf(err, sizeof err, "trajectory %ld of %s: %s", x.k, c->a,
+               npg_trainer_error(t)[0] ? npg_trainer_error(t) : npg_full_error(f));
+      npgc_error(err);
+      rc = -1;
+    }
+    npg_progress(c->train.progress, "trajectories", x.k + 1, tr.samples);
+  }
+  npgc_trajectories_free(&tr);
+  return rc;
+}
+
 /* The samples of DATA/ streamed into a trainer, as any C program would. */
 static int cmd_train(Common *c) {
   if (!c->prog_path) return npgc_missing("train", "the program (PROG.npg)");
@@ -281,11 +327,15 @@ static int cmd_train(Common *c) {
     npgc_error(npg_full_error(f));
     goto done;
   }
-  if (!(s = npg_samples_open(p, c->a, NULL, true, err, sizeof err))) {
+  if (c->steps >= 0 && c->weights) {
+    fprintf(stderr, "npgc train: --weights weighs samples, not trajectories: not with --steps\n");
+    goto done;
+  }
+  if (c->steps < 0 && !(s = npg_samples_open(p, c->a, NULL, true, err, sizeof err))) {
     npgc_error(err);
     goto done;
   }
-  if (npg_samples_count(s) < 1) {
+  if (s && npg_samples_count(s) < 1) {
     fprintf(stderr, "error: %s: no samples (the first axis of its inputs is 0)\n", c->a);
     goto done;
   }
@@ -312,7 +362,7 @@ static int cmd_train(Common *c) {
     fprintf(stderr, "error: --weights %s\n", err);
     goto done;
   }
-  if (w && (wnd != 1 || (long)wn != npg_samples_count(s))) {
+  if (w && s && (wnd != 1 || (long)wn != npg_samples_count(s))) {
     fprintf(stderr, "error: --weights %s: %s %zu entries, DATA/ has %ld samples (a vector of one weight per sample)\n",
             c->weights, wnd == 1 ? "a vector of" : "not a vector but", wn, npg_samples_count(s));
     free(w);
@@ -326,10 +376,16 @@ static int cmd_train(Common *c) {
     }
   double t0 = reduce_now();
   t = npg_trainer_new(f, &c->train);
-  for (long k = 0; k < npg_samples_count(s) && !npg_trainer_error(t)[0]; k++)
-    if ((w && npg_trainer_weight(t, w[k]) != 0) || npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0) break;
+  if (c->steps >= 0) {
+    if (add_trajectories(c, p, f, t) != 0) goto done_w;
+  } else {
+    for (long k = 0; k < npg_samples_count(s) && !npg_trainer_error(t)[0]; k++)
+      if ((w && npg_trainer_weight(t, w[k]) != 0) || npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0)
+        break;
+  }
   free(w);
-  if (npg_full_error(f)[0]) npgc_error(npg_full_error(f));
+  if (npg_trainer_error(t)[0]) npgc_error(npg_trainer_error(t));
+  else if (npg_full_error(f)[0]) npgc_error(npg_full_error(f));
   else if (!(m = npg_trainer_finish(t, c->out))) npgc_error(npg_trainer_error(t));
   else if (c->spectra && npg_mpi_rank() == 0 && npgc_make_parents(c->spectra, false) != 0)
     ; /* said which folder could not be made */
@@ -340,8 +396,8 @@ static int cmd_train(Common *c) {
   else {
     double sec[4], cpu[4];
     npg_model_train_seconds(m, sec, cpu);
-    long held = npg_samples_count(s) - npg_model_samples(m); /* --valid F: held out to validate on */
-    printf("trained %s on %ld samples", c->prog_path, npg_model_samples(m));
+    long held = s ? npg_samples_count(s) - npg_model_samples(m) : 0; /* --valid F: held out to validate on */
+    printf("trained %s on %ld %s", c->prog_path, npg_model_samples(m), s ? "samples" : "visited states");
     if (held > 0) printf(" (%ld more of DATA/ held out to validate on)", held);
     printf(" in %.2f s -> %s\n", reduce_now() - t0, c->out);
     printf("phases: snapshots %.2f s, bases %.2f s, pre-multiplication %.2f s, externs %.2f s (cpu %.2f %.2f %.2f "
@@ -349,6 +405,9 @@ static int cmd_train(Common *c) {
     npg_model_report(m, stdout);
     rc = 0;
   }
+  goto done;
+done_w:
+  free(w);
 done:
   npg_model_free(m);
   npg_trainer_free(t);

@@ -30,6 +30,8 @@ typedef struct Common {
   const char *params;       /* verify --params DIR: the params, when TEST/ holds only the samples */
   const char *valid;        /* train --valid DIR */
   const char *weights;      /* train --weights FILE.npy: one per sample of DATA/ */
+  const char *png;          /* verify --png FILE: the rollout error against time */
+  long steps, every;        /* --steps T --every K: rollouts of a program with state (DESIGN §15); steps < 0: none */
   const char *cmd;
 } Common;
 
@@ -42,5 +44,8 @@ NpgProgram *reduce_compile(Common *c);
 int cmd_eval_reduced(Common *c);
 int cmd_verify(Common *c);
 int cmd_bench(Common *c);
+/* rollout_cmds.c: verify and bench with --steps (the trajectory, not one step). */
+int cmd_verify_steps(Common *c);
+int cmd_bench_steps(Common *c);
 
 #endif

@@ -285,6 +285,7 @@ static void print_report(const Common *c, const NpgVerifyReport *rep) {
 }
 
 int cmd_verify(Common *c) {
+  if (c->steps >= 0) return cmd_verify_steps(c);
   if (c->exact && c->prog_path && !c->a && !c->b && !c->out) return verify_exact(c);
   if (!c->prog_path) return npgc_missing("verify", "the program (PROG.npg)");
   if (!c->a) return npgc_missing("verify", "MODEL/ (a model trained by npgc train), or --exact");
@@ -336,8 +337,7 @@ static int by_value(const void *a, const void *b) {
   return (x > y) - (x < y);
 }
 
-/* The median and the quartiles of v[0..n) (sorted in place). */
-static void quartiles(double *v, long n, double q[3]) {
+void npgc_quartiles(double *v, long n, double q[3]) {
   qsort(v, (size_t)n, sizeof *v, by_value);
   for (int k = 0; k < 3; k++) {
     double at = (double)(n - 1) * (k + 1) / 4; /* linear interpolation between order statistics */
@@ -353,6 +353,7 @@ static void bench_error(const Common *c, const char *msg) {
 }
 
 int cmd_bench(Common *c) {
+  if (c->steps >= 0) return cmd_bench_steps(c);
   if (!c->prog_path) return npgc_missing("bench", "the program (PROG.npg)");
   if (!c->a) return npgc_missing("bench", "MODEL/ (a model trained by npgc train)");
   if (!c->b) return npgc_missing("bench", "TEST/ (the samples to time)");
@@ -416,10 +417,10 @@ int cmd_bench(Common *c) {
    * as its spread; the speedup is the median of the per-evaluation ratios, each full evaluation against the
    * reduced one that follows it */
   double qf[3], qr[3], ql[3], qs[3];
-  quartiles(tf, timed, qf);
-  quartiles(tr, timed, qr);
-  quartiles(tl, timed, ql);
-  quartiles(ratio, timed, qs);
+  npgc_quartiles(tf, timed, qf);
+  npgc_quartiles(tr, timed, qr);
+  npgc_quartiles(tl, timed, ql);
+  npgc_quartiles(ratio, timed, qs);
   printf("bench %s: %ld samples x %ld passes, %ld evaluations timed; medians, quartiles in brackets\n", c->prog_path, S,
          c->reps, timed);
   printf("full evaluator: %s\n", c->cc ? "cc (the system compiler at -O3 -march=native)"

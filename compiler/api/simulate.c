@@ -1,0 +1,224 @@
+/* simulate.c — simulations through npg.h (DESIGN §15): the full step and the reduced step in
+ * coordinates, many steps per call, each checked for blow-up (a next value not finite, or a
+ * state's energy grown past the blow-up factor times its start), and rollouts that save every
+ * K-th step through the caller's callbacks. */
+#include <cblas.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "api.h"
+
+double api_rollout_blowup(const Rollout *ro) { return ro->blowup_set ? ro->blowup : 10; }
+
+/* Where the blow-up check reads a state and its next value: the full evaluator's buffers or the
+ * reduced coordinates. */
+typedef struct StateView {
+  const double *next;       /* the next value (or its coordinates) */
+  size_t n;
+} StateView;
+
+/* "step 41: state 'u' ..." when the next value of state `u` (view `v`) blew up, into err; the
+ * start energies are recorded at the rollout's first step. 0 when the step is sound. */
+static int blown_up(Rollout *ro, int i, const Sym *u, StateView v, char *err, size_t errlen) {
+  for (size_t k = 0; k < v.n; k++)
+    if (!isfinite(v.next[k]))
+      return snprintf(err, errlen, "step %ld: state '%s' blew up: its next value is %s at flat entry %zu",
+                      ro->steps + 1, u->name, isnan(v.next[k]) ? "NaN" : "an infinity", k), -1;
+  double e = v.n ? cblas_ddot((int)v.n, v.next, 1, v.next, 1) : 0, factor = api_rollout_blowup(ro);
+  if (factor > 0 && ro->start[i] > 0 && e > factor * ro->start[i])
+    return snprintf(err, errlen,
+                    "step %ld: state '%s' blew up: its energy ‖%s‖² = %.4g is %.3g× its value %.4g at the "
+                    "rollout's start (blow-up factor %g)", ro->steps + 1, u->name, u->name, e, e / ro->start[i],
+                    ro->start[i], factor), -1;
+  return 0;
+}
+
+/* The start energies of the states, at a rollout's first step. */
+static int rollout_start(Rollout *ro, const Program *prog, StateView (*view)(void *, const Sym *, bool), void *at) {
+  if (ro->steps > 0 && ro->start) return 0;
+  if (!ro->start && !(ro->start = calloc((size_t)prog->states.n + 1, sizeof(double)))) return -1;
+  for (int i = 0; i < prog->states.n; i++) {
+    StateView v = view(at, prog->states.v[i], false);
+    ro->start[i] = v.n ? cblas_ddot((int)v.n, v.next, 1, v.next, 1) : 0;
+  }
+  return 0;
+}
+
+static int set_blowup(Rollout *ro, double factor, char *err, size_t errlen, const char *func) {
+  if (!(factor >= 0) || !isfinite(factor))
+    return api_refuse(err, errlen, func, "argument 'factor' is %g (a blow-up factor > 1, or 0 to check finiteness only)",
+                      factor);
+  if (factor > 0 && factor <= 1)
+    return api_refuse(err, errlen, func, "argument 'factor' is %g: a blow-up factor must exceed 1 (0 checks finiteness "
+                      "only)", factor);
+  ro->blowup = factor;
+  ro->blowup_set = true;
+  return 0;
+}
+
+static int refuse_steps(const Program *prog, long steps, char *err, size_t errlen, const char *func) {
+  if (!prog) return -1;
+  if (prog->states.n == 0)
+    return api_refuse(err, errlen, func, "the program has no state: declare one with 'state u : ...' and its next value "
+                      "with 'next u = ...' to step it");
+  if (steps < 0) return api_refuse(err, errlen, func, "argument 'steps' is %ld (0 or more)", steps);
+  return 0;
+}
+
+/* ---------------------------------------------------------------- the full step */
+
+static StateView full_view(void *at, const Sym *u, bool next) {
+  size_t n = 0;
+  const double *v = full_get(at, next ? u->next->name : u->name, &n);
+  return (StateView){v, v ? n : 0};
+}
+
+int npg_full_step(NpgFull *f, long steps, long sample) {
+  API_REFUSE_NULL(f, NULL, 0, -1);
+  const Program *prog = full_program(f->full);
+  char err[600];
+  if (full_error(f->full)[0]) return -1;
+  if (refuse_steps(prog, steps, err, sizeof err, __func__)) return full_fail(f->full, err);
+  for (long t = 0; t < steps; t++) {
+    if (full_eval(f->full, sample) != 0) return -1;
+    if (f->roll.steps == 0 || !f->roll.start) {
+      for (int i = 0; i < prog->states.n; i++) /* the state before the first step */
+        if (!full_get(f->full, ((const Sym *)prog->states.v[i])->name, NULL))
+          return full_fail(f->full, "a state has no value");
+      if (rollout_start(&f->roll, prog, full_view, f->full)) return full_fail(f->full, "out of memory");
+    }
+    for (int i = 0; i < prog->states.n; i++)
+      if (blown_up(&f->roll, i, prog->states.v[i], full_view(f->full, prog->states.v[i], true), err, sizeof err))
+        return full_fail(f->full, err);
+    if (full_advance(f->full) != 0) return -1;
+    f->roll.steps++;
+  }
+  return 0;
+}
+
+long npg_full_steps(const NpgFull *f) {
+  API_REFUSE_NULL(f, NULL, 0, -1);
+  return f->roll.steps;
+}
+
+int npg_full_set_blowup(NpgFull *f, double factor) {
+  API_REFUSE_NULL(f, NULL, 0, -1);
+  char err[400];
+  if (set_blowup(&f->roll, factor, err, sizeof err, __func__)) return full_refuse(f->full, err);
+  return 0;
+}
+
+/* ---------------------------------------------------------------- the reduced step */
+
+static StateView reduced_view(void *at, const Sym *u, bool next) {
+  NpgReduced *r = at;
+  const Model *m = r->nm->m;
+  int q = api_quantity(m->prog, next ? u->next->name : u->name);
+  return (StateView){reduced_coords(r->r, q), (size_t)m->classes[m->qclass[q]].m};
+}
+
+int npg_reduced_step(NpgReduced *r, long steps, long sample) {
+  API_REFUSE_NULL(r, NULL, 0, -1);
+  if (npg_reduced_error(r)[0]) return -1;
+  const Program *prog = r->nm->m->prog;
+  char err[600];
+  if (refuse_steps(prog, steps, err, sizeof err, __func__))
+    return error_set_first(r->error, sizeof r->error, "%s", err);
+  for (long t = 0; t < steps; t++) {
+    if (npg_reduced_eval(r, sample) != 0) return -1;
+    if ((r->roll.steps == 0 || !r->roll.start) && rollout_start(&r->roll, prog, reduced_view, r))
+      return error_set_first(r->error, sizeof r->error, "out of memory");
+    for (int i = 0; i < prog->states.n; i++) {
+      const Sym *u = prog->states.v[i];
+      StateView next = reduced_view(r, u, true);
+      if (blown_up(&r->roll, i, u, next, err, sizeof err)) return error_set_first(r->error, sizeof r->error, "%s", err);
+      memcpy((double *)reduced_view(r, u, false).next, next.next, sizeof(double) * next.n); /* one class: one basis */
+    }
+    r->roll.steps++;
+  }
+  return 0;
+}
+
+long npg_reduced_steps(const NpgReduced *r) {
+  API_REFUSE_NULL(r, NULL, 0, -1);
+  return r->roll.steps;
+}
+
+int npg_reduced_set_blowup(NpgReduced *r, double factor) {
+  API_REFUSE_NULL(r, NULL, 0, -1);
+  return set_blowup(&r->roll, factor, r->error, sizeof r->error, __func__);
+}
+
+/* ---------------------------------------------------------------- rollouts */
+
+typedef int (*StepFn)(void *at, long steps, long sample);
+
+static int rollout(void *at, StepFn step, long sample, const NpgRollout *ro, char *err, size_t errlen,
+                   const char *func) {
+  if (!ro) return api_refuse(err, errlen, func, "argument 'ro' is NULL");
+  if (ro->steps < 0) return api_refuse(err, errlen, func, "ro->steps is %ld (0 or more)", ro->steps);
+  if (ro->every < 1) return api_refuse(err, errlen, func, "ro->every is %ld (1 or more: save every K-th step)", ro->every);
+  for (long t = 0; t <= ro->steps; t++) {
+    if (t % ro->every == 0 && ro->at_save && ro->at_save(ro->user, t) != 0)
+      return snprintf(err, errlen, "step %ld: saving the states failed", t), -1;
+    if (t == ro->steps) break;
+    if (ro->before_step && ro->before_step(ro->user, t) != 0)
+      return snprintf(err, errlen, "step %ld: setting the inputs failed", t), -1;
+    if (step(at, 1, sample) != 0) return 1;
+  }
+  return 0;
+}
+
+static int full_step1(void *at, long steps, long sample) { return npg_full_step(at, steps, sample); }
+static int reduced_step1(void *at, long steps, long sample) { return npg_reduced_step(at, steps, sample); }
+
+int npg_full_simulate(NpgFull *f, long sample, const NpgRollout *ro) {
+  API_REFUSE_NULL(f, NULL, 0, -1);
+  if (full_error(f->full)[0]) return -1;
+  char err[600] = "";
+  int rc = rollout(f, full_step1, sample, ro, err, sizeof err, __func__);
+  if (rc < 0 && !full_error(f->full)[0]) full_fail(f->full, err);
+  return rc ? -1 : 0;
+}
+
+int npg_reduced_simulate(NpgReduced *r, long sample, const NpgRollout *ro) {
+  API_REFUSE_NULL(r, NULL, 0, -1);
+  if (npg_reduced_error(r)[0]) return -1;
+  char err[600] = "";
+  int rc = rollout(r, reduced_step1, sample, ro, err, sizeof err, __func__);
+  if (rc < 0 && !r->error[0]) error_set_first(r->error, sizeof r->error, "%s", err);
+  return rc ? -1 : 0;
+}
+
+/* ---------------------------------------------------------------- training from trajectories */
+
+typedef struct AddVisited {
+  NpgTrainer *t;
+  NpgFull *f;
+  const NpgRollout *ro;
+} AddVisited;
+
+static int add_visited(void *user, long step) {
+  AddVisited *a = user;
+  if (npg_trainer_add_full(a->t, a->f) != 0) return -1;
+  return a->ro->at_save ? a->ro->at_save(a->ro->user, step) : 0;
+}
+
+static int before_visit(void *user, long step) {
+  AddVisited *a = user;
+  return a->ro->before_step(a->ro->user, step);
+}
+
+int npg_trainer_add_trajectory(NpgTrainer *t, NpgFull *f, long sample, const NpgRollout *ro) {
+  API_REFUSE_NULL(t, NULL, 0, -1);
+  if (npg_trainer_error(t)[0]) return -1;
+  if (!f) return npg_trainer_add_full(t, NULL); /* the trainer's own refusal of a NULL evaluator */
+  if (!ro) return npg_full_simulate(f, sample, NULL); /* its refusal, in f */
+  AddVisited a = {t, f, ro};
+  NpgRollout visit = *ro;
+  visit.at_save = add_visited;
+  visit.before_step = ro->before_step ? before_visit : NULL;
+  visit.user = &a;
+  return npg_full_simulate(f, sample, &visit);
+}
