@@ -240,7 +240,7 @@ int cmd_verify_steps(Common *c) {
   for (int i = 0; i < x.ns; i++) {
     double te = ss[i].n2 > 0 ? sqrt(ss[i].e2 / ss[i].n2) : 0, tf = ss[i].n2 > 0 ? sqrt(ss[i].f2 / ss[i].n2) : 0;
     char ratio[32];
-    if (tf > 0) snprintf(ratio, sizeof ratio, "%.2f", te / tf);
+    if (tf > 0) snprintf(ratio, sizeof ratio, "%.3g", te / tf);
     else snprintf(ratio, sizeof ratio, "-");
     printf("%-10s %12.3e %12.3e %12.3e %12.3e %8s  trajectory %ld, step %ld\n", x.st[i]->sym.name, te, tf, ss[i].final,
            ss[i].max, ratio, ss[i].max_k, ss[i].max_t);
@@ -248,7 +248,9 @@ int cmd_verify_steps(Common *c) {
       printf("FAIL: state %s: trajectory error %.3e above --tol %.3g (its projection floor is %.3e%s)\n",
              x.st[i]->sym.name, te, c->tol, tf,
              tf > c->tol ? ": the bases cannot hold the trajectory; train on more of it or raise their cap/energy"
-             : te > 3 * tf ? ": the rollout drifts from the bases' best; more training states or a larger basis" : "");
+             : te > 3 * tf ? ": the state's bases hold the trajectory, the step drifts from them; raise the bases of "
+                             "the step's other quantities (npgc verify without --steps reports each one's error) or "
+                             "train on more of the trajectories" : "");
       rc = 1;
     }
   }
