@@ -316,6 +316,12 @@ typedef struct NpgTrainOptions {
                                list of quantities or classes (m_x) keeps them too, "all" keeps every
                                basis (the old layout); NULL: none kept. An unknown name fails training;
                                the string must outlive the trainer */
+  long rollout_steps;       /* npg_tune of a program with state (DESIGN §15): each candidate judged by the
+                               reduced rollout of this many steps from every validation sample against the
+                               full one (the states' trajectory error: ‖R − F‖ / ‖F‖ over the saved steps,
+                               mean over the samples, the worst state), not one step; inputs are held.
+                               0 (the default): one evaluation, the outputs' error */
+  long rollout_every;       /* its states compared every this many steps (0: every step) */
 } NpgTrainOptions;
 NPG_API void npg_train_options_default(NpgTrainOptions *o);
 /* Whether this build of libnpg has MPI (NpgTrainOptions.mpi). */

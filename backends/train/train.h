@@ -57,6 +57,8 @@ typedef struct TrainOptions {
   const double *weights;    /* per sample (src->count, each > 0): the PCA minimizes Σ_k w_k ‖x_k − BBᵀx_k‖²
                                (pca_weigh), weight 2 a sample taken twice; NULL: every weight 1.
                                The floors and reports stay per sample, unweighted */
+  long rollout_steps;       /* tune: candidates judged by reduced rollouts of this many steps (DESIGN §15); 0: one step */
+  long rollout_every;       /* their states compared every this many steps */
 } TrainOptions;
 
 /* Whether training keeps class c's basis whatever the rule (no opt->stream, or --keep-bases

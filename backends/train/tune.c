@@ -40,6 +40,9 @@ typedef struct Valid {
   long S;
   int nq;
   double **val;             /* [sample][q]: the full value of every quantity */
+  long steps, every, saves; /* rollouts (TrainOptions.rollout_steps): their length, the states compared every */
+  double **traj;            /* [sample]: saves x (every state's entries): the full trajectory */
+  long state_n;             /* the entries of every state */
 } Valid;
 
 typedef struct Search {
@@ -79,6 +82,93 @@ static int cache_valid(Search *s, Full *f, const SampleSource *valid, const Mode
     }
   }
   return 0;
+}
+
+static long qoff(const Model *m, int q);
+
+/* Rollouts: each validation sample's full trajectory, its states every v.every steps. */
+static int cache_rollouts(Search *s, Full *f, const SampleSource *valid, const Model *layout, char *err, size_t errlen) {
+  const Program *prog = s->prog;
+  s->v.state_n = 0;
+  for (int i = 0; i < prog->states.n; i++)
+    s->v.state_n += qsize(layout, emit_index_of(&prog->quantities, prog->states.v[i]));
+  s->v.saves = s->v.steps / s->v.every + 1;
+  if (!(s->v.traj = mem_calloc((size_t)valid->count + 1, sizeof(double *)))) return error_set(err, errlen, "out of memory");
+  for (long k = 0; k < valid->count; k++) {
+    if (!(s->v.traj[k] = mem_malloc(sizeof(double) * (size_t)(s->v.saves * s->v.state_n + 1))))
+      return error_set(err, errlen, "out of memory");
+    if (valid->set(valid->user, f, k) != 0) return error_set(err, errlen, "validation sample %ld: %s", k, full_error(f));
+    for (long t = 0; t <= s->v.steps; t++) {
+      if (t % s->v.every == 0) {
+        double *at = s->v.traj[k] + (t / s->v.every) * s->v.state_n;
+        for (int i = 0; i < prog->states.n; i++) {
+          size_t n = 0;
+          const double *u = full_get(f, ((const Sym *)prog->states.v[i])->name, &n);
+          memcpy(at, u, sizeof(double) * n);
+          at += n;
+        }
+      }
+      if (t < s->v.steps && (full_eval(f, k) != 0 || full_advance(f) != 0))
+        return error_set(err, errlen, "validation sample %ld, step %ld of its full rollout: %s", k, t + 1, full_error(f));
+    }
+  }
+  return 0;
+}
+
+/* The worst state's trajectory error of `m`'s reduced rollouts, mean over the validation samples
+ * (infinite where a rollout fails or blows up: that candidate meets nothing). */
+static int validate_rollouts(Search *s, Model *m, double *worst, char *err, size_t errlen) {
+  const Program *prog = s->prog;
+  int ns = prog->states.n;
+  Reduced *r = reduced_new(m, err, errlen);
+  if (!r) return -1;
+  long maxn = 1;
+  for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
+  double *y = mem_malloc(sizeof(double) * (size_t)maxn), *e = mem_calloc((size_t)ns + 1, sizeof(double));
+  double *e2 = mem_calloc((size_t)ns + 1, sizeof(double)), *n2 = mem_calloc((size_t)ns + 1, sizeof(double));
+  int rc = y && e && e2 && n2 ? 0 : error_set(err, errlen, "out of memory");
+  for (long k = 0; rc == 0 && k < s->v.S; k++) {
+    for (int q = 0; q < m->nq; q++)
+      if (((Sym *)prog->quantities.v[q])->kind == SYM_INPUT) reduced_project(r, q, s->v.val[k] + qoff(m, q));
+    memset(e2, 0, sizeof(double) * (size_t)ns);
+    memset(n2, 0, sizeof(double) * (size_t)ns);
+    bool blown = false;
+    for (long t = 0; t <= s->v.steps && !blown; t++) {
+      if (t % s->v.every == 0) {
+        const double *full = s->v.traj[k] + (t / s->v.every) * s->v.state_n;
+        for (int i = 0; i < ns; i++) {
+          int q = emit_index_of(&prog->quantities, prog->states.v[i]);
+          reduced_lift(r, q, y);
+          for (long j = 0; j < qsize(m, q); j++) e2[i] += (full[j] - y[j]) * (full[j] - y[j]), n2[i] += full[j] * full[j];
+          full += qsize(m, q);
+        }
+      }
+      if (t == s->v.steps) break;
+      if (reduced_eval(r, k) != 0) {
+        blown = true;
+        break;
+      }
+      for (int i = 0; i < ns; i++) {
+        const Sym *u = prog->states.v[i];
+        int q = emit_index_of(&prog->quantities, u), qn = emit_index_of(&prog->quantities, u->next);
+        const double *next = reduced_coords(r, qn);
+        long mq = m->classes[m->qclass[q]].m;
+        for (long j = 0; j < mq; j++) blown |= !isfinite(next[j]);
+        memcpy(reduced_coords(r, q), next, sizeof(double) * (size_t)mq);
+      }
+    }
+    for (int i = 0; i < ns; i++)
+      e[i] += blown ? INFINITY : (n2[i] > 0 ? sqrt(e2[i] / n2[i]) : sqrt(e2[i])) / (double)s->v.S;
+    if (blown) { /* a fresh evaluator for the next sample: this one keeps its error */
+      reduced_free(r);
+      if (!(r = reduced_new(m, err, errlen))) rc = -1;
+    }
+  }
+  *worst = 0;
+  for (int i = 0; rc == 0 && i < ns; i++) *worst = fmax(*worst, e[i]);
+  free(y), free(e), free(e2), free(n2);
+  reduced_free(r);
+  return rc;
 }
 
 /* The offset of quantity q in a cached sample. */
@@ -137,6 +227,7 @@ static int validate(Search *s, Model *m, double *worst, double *floor, char *err
   free(y);
   free(e);
   reduced_free(r);
+  if (rc == 0 && s->v.steps > 0) return validate_rollouts(s, m, worst, err, errlen);
   return rc;
 }
 
@@ -245,7 +336,11 @@ int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid,
     top = s.maxk[c] > top ? s.maxk[c] : top;
     cap[c] = 1;
   }
-  if (!(layout = train_set_model(ts, cap, err, errlen)) || cache_valid(&s, f, valid, layout, err, errlen)) goto done;
+  s.v.steps = opt ? opt->rollout_steps : 0;
+  s.v.every = opt && opt->rollout_every > 0 ? opt->rollout_every : 1;
+  if (!(layout = train_set_model(ts, cap, err, errlen)) || cache_valid(&s, f, valid, layout, err, errlen) ||
+      (s.v.steps > 0 && cache_rollouts(&s, f, valid, layout, err, errlen)))
+    goto done;
   /* 1. the cheapest uniform cap that meets tol */
   int t = -1;
   for (int u = 1; u <= top; u++) {
@@ -330,6 +425,8 @@ done:
   model_free(s.last);
   for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);
   free(s.v.val);
+  for (long k = 0; s.v.traj && k < s.v.S; k++) free(s.v.traj[k]);
+  free(s.v.traj);
   free(s.maxk);
   free(cap);
   free(floor);
@@ -430,5 +527,7 @@ int tune_choose_reductions(Model *m, Full *f, const SampleSource *valid, const T
   int rc = cache_valid(&s, f, valid, m, err, errlen) || choose(&s, m, opt, -1, &chosen, why, err, errlen) ? -1 : 0;
   for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);
   free(s.v.val);
+  for (long k = 0; s.v.traj && k < s.v.S; k++) free(s.v.traj[k]);
+  free(s.v.traj);
   return rc;
 }

@@ -21,6 +21,11 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   if (!(tol > 0) || !isfinite(tol)) REFUSE("argument 'tol' is %g (a relative error, positive and finite)", tol);
   if (max_cap < 1) REFUSE("argument 'max_cap' is %d (at least 1)", max_cap);
   if (o && o->mem == 0) REFUSE("NpgTrainOptions.mem is 0 (bytes of memory for training)");
+  if (o && o->rollout_steps < 0) REFUSE("NpgTrainOptions.rollout_steps is %ld (0: one step, or the steps of a rollout)",
+                                        o->rollout_steps);
+  if (o && o->rollout_every < 0) REFUSE("NpgTrainOptions.rollout_every is %ld (0 or more)", o->rollout_every);
+  if (o && o->rollout_steps > 0 && !full_program(f->full)->states.n)
+    REFUSE("NpgTrainOptions.rollout_steps is %ld but the program has no state (DESIGN §15)", o->rollout_steps);
   if (o && api_refuse_reduce_options(o, __func__, rep->error, sizeof rep->error) != 0) return NULL;
 #undef REFUSE
   if (npg_full_error(f)[0]) {
@@ -38,6 +43,7 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
     topt.mem = o->mem, topt.keep_bases = o->keep_bases, topt.interp_oversample = o->interp_oversample;
     topt.ninterp = o->ninterp, topt.interp_stage = o->interp_stage;
     topt.ngalerkin = o->ngalerkin, topt.galerkin_stage = o->galerkin_stage;
+    topt.rollout_steps = o->rollout_steps, topt.rollout_every = o->rollout_every > 0 ? o->rollout_every : 1;
   }
   TuneResult *r = calloc(1, sizeof *r);
   const char **names = calloc((size_t)prog->classes.n + 1, sizeof *names);

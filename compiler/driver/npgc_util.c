@@ -157,7 +157,7 @@ static const Usage usages[] = {
     {"tune",
      "usage: npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/ [--max-cap N] [--center on|off]\n"
      "                 [--png FILE] [--cc] [--reduce STAGE:interp|galerkin] [--interp-oversample X]\n"
-     "                 [--keep-bases NAME,...|all]\n"
+     "                 [--keep-bases NAME,...|all] [--steps T [--every K]]\n"
      "\n"
      "  Choose every class's basis size so that every output's mean relative L2 error on\n"
      "  VALID/ (held-out samples, the same params) is under T at the least reduced cost\n"
@@ -168,7 +168,11 @@ static const Usage usages[] = {
      "  named by --reduce is reduced both ways and the lower error kept, so the sizes\n"
      "  found are those of the better reduction; the table names the stages interpolated.\n"
      "  --reduce, --interp-oversample, --keep-bases: as npgc train (by default the bases\n"
-     "  the reduced model never reads are not stored)\n"},
+     "  the reduced model never reads are not stored)\n"
+     "  --steps T    a program with state (DESIGN §15): train on the states DATA/'s full\n"
+     "               rollouts of T steps visit (every K-th, --every K) and judge every\n"
+     "               candidate by its reduced rollouts of T steps from VALID/'s initial\n"
+     "               states: the worst state's trajectory error, not one step's\n"},
 };
 
 int npgc_usage(const char *cmd, bool help) {

@@ -240,7 +240,7 @@ int cmd_verify_steps(Common *c) {
   for (int i = 0; i < x.ns; i++) {
     double te = ss[i].n2 > 0 ? sqrt(ss[i].e2 / ss[i].n2) : 0, tf = ss[i].n2 > 0 ? sqrt(ss[i].f2 / ss[i].n2) : 0;
     char ratio[32];
-    if (tf > 0) snprintf(ratio, sizeof ratio, "%.3g", te / tf);
+    if (tf > 1e-12) snprintf(ratio, sizeof ratio, "%.3g", te / tf); /* a whole basis: no floor to compare with */
     else snprintf(ratio, sizeof ratio, "-");
     printf("%-10s %12.3e %12.3e %12.3e %12.3e %8s  trajectory %ld, step %ld\n", x.st[i]->sym.name, te, tf, ss[i].final,
            ss[i].max, ratio, ss[i].max_k, ss[i].max_t);

@@ -52,6 +52,84 @@ static int draw(const NpgTuneReport *r, double tol, const char *path, char *err,
 
 static int tune(int argc, char **argv, NpgTrainOptions *topt);
 
+/* --steps T --every K (DESIGN §15): the training samples are the states DATA/'s full rollouts
+ * visit, every K-th step, each with its trajectory's held inputs; the validation samples are
+ * VALID/'s initial states, each judged by its rollout (NpgTrainOptions.rollout_steps). */
+typedef struct Visited {
+  Trajectories tr;
+  long saves, every;
+  double **state;           /* per input of tr that is a state: trajectories x saves x its entries */
+  NpgFull *f;               /* the rollouts' evaluator, while they run */
+  long k;                   /* the trajectory running */
+} Visited;
+
+static void visited_free(Visited *v) {
+  for (int i = 0; v->state && i < v->tr.n; i++) free(v->state[i]);
+  free(v->state);
+  npgc_trajectories_free(&v->tr);
+}
+
+static int visit_save(void *user, long step) {
+  Visited *v = user;
+  for (int i = 0; i < v->tr.n; i++) {
+    const TrajInput *in = &v->tr.in[i];
+    size_t n = 0;
+    const double *u = in->sym.next ? npg_full_get(v->f, in->sym.name, &n) : NULL;
+    if (in->sym.next && (!u || n != in->each)) return -1;
+    if (u) memcpy(v->state[i] + ((size_t)v->k * (size_t)v->saves + (size_t)(step / v->every)) * n, u, sizeof(double) * n);
+  }
+  return 0;
+}
+
+/* DIR's trajectories run by the full step (inputs held: per-step inputs are refused), their
+ * visited states kept. 0, or -1 after the message. */
+static int visit(NpgProgram *p, NpgFull *f, const char *dir, long steps, long every, Visited *v) {
+  char err[4400];
+  memset(v, 0, sizeof *v);
+  if (npgc_trajectories_open(p, dir, steps, &v->tr, err, sizeof err) != 0) return npgc_error(err), -1;
+  v->every = every, v->saves = steps / every + 1, v->f = f;
+  if (!(v->state = calloc((size_t)v->tr.n + 1, sizeof *v->state))) return fputs("npgc tune: out of memory\n", stderr), -1;
+  for (int i = 0; i < v->tr.n; i++) {
+    const TrajInput *in = &v->tr.in[i];
+    if (in->per_step) {
+      fprintf(stderr, "error: %s: npgc tune --steps holds every input for a trajectory; '%s' is given per step\n",
+              in->path, in->sym.name);
+      return -1;
+    }
+    if (in->sym.next && !(v->state[i] = malloc(sizeof(double) * ((size_t)v->tr.samples * (size_t)v->saves * in->each + 1))))
+      return fputs("npgc tune: out of memory\n", stderr), -1;
+  }
+  NpgRollout ro = {.steps = steps, .every = every, .at_save = visit_save, .user = v};
+  for (v->k = 0; v->k < v->tr.samples; v->k++)
+    if (npgc_trajectories_set_full(&v->tr, f, v->k, 0, true) != 0 || npg_full_simulate(f, v->k, &ro) != 0) {
+      snprintf(err, sizeof err, "%s, trajectory %ld: %s", dir, v->k, npg_full_error(f));
+      return npgc_error(err), -1;
+    }
+  return 0;
+}
+
+/* Training sample k: trajectory k / saves at its (k % saves)-th saved step (an NpgSampleFn). */
+static int visited_set(void *user, NpgFull *f, long k) {
+  Visited *v = user;
+  long j = k / v->saves, s = k % v->saves;
+  if (npgc_trajectories_set_full(&v->tr, f, j, 0, true) != 0) return -1;
+  for (int i = 0; i < v->tr.n; i++) {
+    const TrajInput *in = &v->tr.in[i];
+    if (!in->sym.next) continue;
+    char from[64];
+    snprintf(from, sizeof from, "trajectory %ld, step %ld", j, s * v->every);
+    if (npg_full_set(f, in->sym.name, in->axes, in->shape + (in->ndim - in->axes),
+                     v->state[i] + ((size_t)j * (size_t)v->saves + (size_t)s) * in->each, from) != 0)
+      return -1;
+  }
+  return 0;
+}
+
+/* Validation sample k: trajectory k's initial states and inputs. */
+static int initial_set(void *user, NpgFull *f, long k) {
+  return npgc_trajectories_set_full(&((Visited *)user)->tr, f, k, 0, true);
+}
+
 /* Issue 30: the bases the model does not keep, as npgc train says it. */
 static void print_streamed(const NpgModel *m) {
   double bytes = 0;
@@ -76,7 +154,7 @@ int npgc_tune(int argc, char **argv) {
 static int tune(int argc, char **argv, NpgTrainOptions *to) {
   const char *prog_path = NULL, *data = NULL, *valid = NULL, *out = NULL, *png = NULL;
   double tol = -1;
-  long max_cap = 60;
+  long max_cap = 60, steps = -1, every = 1;
   bool cc = false;
   NpgOptions opt = {0};
   NpgTrainOptions topt = *to;
@@ -89,6 +167,8 @@ static int tune(int argc, char **argv, NpgTrainOptions *to) {
     else if ((v = npg_args_string(&a, "--png"))) png = v;
     else if (npg_args_double(&a, "--tol", 0, INFINITY, true, &tol)) ;
     else if (npg_args_long(&a, "--max-cap", 1, 100000, &max_cap)) ;
+    else if (npg_args_long(&a, "--steps", 1, 1000000000L, &steps)) ;
+    else if (npg_args_long(&a, "--every", 1, 1000000000L, &every)) ;
     else if ((v = npg_args_string(&a, "--center"))) {
       topt.uncentered = strcmp(v, "off") == 0;
       if (!topt.uncentered && strcmp(v, "on") != 0)
@@ -118,6 +198,10 @@ static int tune(int argc, char **argv, NpgTrainOptions *to) {
   if (!data) return npgc_missing("tune", "DATA/ (the training samples)");
   if (!valid) return npgc_missing("tune", "VALID/ (held-out samples the error is measured on)");
   if (tol < 0) return npgc_missing("tune", "--tol T (the error to meet)");
+  if (every != 1 && steps < 0) {
+    fprintf(stderr, "npgc tune: --every %ld saves every K-th step of a rollout: give --steps T too\n", every);
+    return 2;
+  }
   if (!out) return npgc_missing("tune", "-o MODEL/ (where to write the chosen model)");
   topt.progress = isatty(2);
   char pngbuf[4096], err[2048] = "";
@@ -146,6 +230,7 @@ static int tune(int argc, char **argv, NpgTrainOptions *to) {
   }
   int rc = 1;
   NpgSamples *ds = NULL, *vs = NULL;
+  Visited dv = {0}, vv = {0};
   NpgTuneReport r = {0};
   NpgModel *m = NULL;
   NpgFull *f = npg_full_new(p, cc ? NPG_CC : NPG_TCC);
@@ -153,21 +238,37 @@ static int tune(int argc, char **argv, NpgTrainOptions *to) {
     npgc_error(npg_full_error(f));
     goto done;
   }
-  if (!(ds = npg_samples_open(p, data, NULL, true, err, sizeof err)) ||
-      !(vs = npg_samples_open(p, valid, NULL, true, err, sizeof err)) ||
-      npg_full_check_params_dir(f, valid, err, sizeof err) != 0) {
-    npgc_error(err[0] ? err : "out of memory");
-    goto done;
+  long nvalid;
+  if (steps > 0) { /* DESIGN §15: trained on visited states, judged by rollouts */
+    if (npg_full_check_params_dir(f, valid, err, sizeof err) != 0) {
+      npgc_error(err);
+      goto done;
+    }
+    if (visit(p, f, data, steps, every, &dv) != 0 || visit(p, f, valid, 0, 1, &vv) != 0) goto done;
+    topt.rollout_steps = steps, topt.rollout_every = every;
+    nvalid = vv.tr.samples;
+    m = npg_tune(f, dv.tr.samples * dv.saves, visited_set, &dv, nvalid, initial_set, &vv, tol, (int)max_cap, &topt, &r);
+  } else {
+    if (!(ds = npg_samples_open(p, data, NULL, true, err, sizeof err)) ||
+        !(vs = npg_samples_open(p, valid, NULL, true, err, sizeof err)) ||
+        npg_full_check_params_dir(f, valid, err, sizeof err) != 0) {
+      npgc_error(err[0] ? err : "out of memory");
+      goto done;
+    }
+    nvalid = npg_samples_count(vs);
+    m = npg_tune(f, npg_samples_count(ds), npg_samples_set, ds, nvalid, npg_samples_set, vs, tol, (int)max_cap, &topt,
+                 &r);
   }
-  m = npg_tune(f, npg_samples_count(ds), npg_samples_set, ds, npg_samples_count(vs), npg_samples_set, vs, tol,
-               (int)max_cap, &topt, &r);
   if (!m && r.error[0]) {
     npgc_error(r.error);
     goto done;
   }
-  printf("tune %s: %d candidates (every class's cap; the basis sizes they give), worst output's mean relative L2 "
-         "error on %ld samples of %s\n",
-         prog_path, r.ntrials, npg_samples_count(vs), valid);
+  if (steps > 0)
+    printf("tune %s: %d candidates (every class's cap; the basis sizes they give), worst state's trajectory error "
+           "over %ld-step rollouts from %ld initial states of %s\n", prog_path, r.ntrials, steps, nvalid, valid);
+  else
+    printf("tune %s: %d candidates (every class's cap; the basis sizes they give), worst output's mean relative L2 "
+           "error on %ld samples of %s\n", prog_path, r.ntrials, nvalid, valid);
   printf("%5s %-8s %14s %12s  %s\n", "trial", "kind", "cost", "error", "sizes");
   for (int t = 0; t < r.ntrials; t++) {
     const NpgTuneTrial *tr = &r.trials[t];
@@ -218,6 +319,8 @@ done:
   npg_tune_free(&r);
   npg_samples_free(ds);
   npg_samples_free(vs);
+  visited_free(&dv);
+  visited_free(&vv);
   npg_full_free(f);
   npg_free(p);
   return rc;

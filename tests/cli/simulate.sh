@@ -46,7 +46,7 @@ for prog in heat heat_implicit; do
   grep -q "^trained .* on 306 visited states" "$W/train.txt" || fail "$prog: visited states: $(head -1 "$W/train.txt")"
   "$B/npgc" verify $H/$prog.npg "$W/m_$prog" "$W/test" --steps 100 --every 10 --tol 0.05 --png "$W/$prog.png" >"$W/verify.txt" ||
     fail "verify --steps $prog: $(cat "$W/verify.txt")"
-  grep -q '^u  *[0-9.e+-]* *[0-9.e+-]* *[0-9.e+-]* *[0-9.e+-]* *[0-9.]*  trajectory [0-9]*, step [0-9]*$' "$W/verify.txt" ||
+  grep -q '^u  *[0-9.e+-]* *[0-9.e+-]* *[0-9.e+-]* *[0-9.e+-]* *[0-9.e+-]*  trajectory [0-9]*, step [0-9]*$' "$W/verify.txt" ||
     fail "verify --steps row: $(cat "$W/verify.txt")"
   $PY -c "import sys; sys.exit(open('$W/$prog.png','rb').read(8) != b'\x89PNG\r\n\x1a\n')" || fail "--png is not a PNG"
   # the trajectory error is at least its floor, and a bad --tol fails
@@ -73,6 +73,13 @@ done
 "$B/npgc" bench $H/heat.npg "$W/m_heat" "$W/test" --steps 50 --reps 1 >"$W/bench.txt" || fail "bench --steps: $(cat "$W/bench.txt")"
 grep -q "^reduced step .* in reduced coordinates" "$W/bench.txt" || fail "bench --steps: $(cat "$W/bench.txt")"
 grep -q "^speedup  *[0-9.e+-]*x" "$W/bench.txt" || fail "bench --steps speedup: $(cat "$W/bench.txt")"
+
+# tune --steps: sizes chosen by the rollout error, which verify --steps then confirms
+"$B/npgc" tune $H/heat.npg "$W/train" "$W/test" --steps 60 --every 3 --tol 0.02 -o "$W/tuned" >"$W/tune.txt" ||
+  fail "tune --steps: $(cat "$W/tune.txt")"
+grep -q "worst state's trajectory error over 60-step rollouts from 2 initial states" "$W/tune.txt" || fail "tune --steps header: $(head -1 "$W/tune.txt")"
+grep -q "^chosen: cost .*, error .* (--tol 0.02)" "$W/tune.txt" || fail "tune --steps chose nothing: $(cat "$W/tune.txt")"
+"$B/npgc" verify $H/heat.npg "$W/tuned" "$W/test" --steps 60 --every 3 --tol 0.03 >"$W/vt.txt" || fail "tuned model: $(cat "$W/vt.txt")"
 
 # a blow-up: explicit Euler past its stability limit
 $PY $H/heat_data.py "$W/unstable" --n 8 --trajectories 1 --dt 1.5 --source held
