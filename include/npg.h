@@ -152,7 +152,7 @@ NPG_API int npg_full_set_blowup(NpgFull *f, double factor);
 /* A rollout of `steps` steps saving every `every`-th (steps 0, every, 2 every, …, so
  * steps/every + 1 saves): before_step (optional) runs before each step t = 0 … steps-1 to set
  * the inputs given per step; at_save runs at each saved step t, after the step that reached it
- * (t = 0: before any), to read the states. A callback's non-zero return stops the rollout (-1,
+ * and before_step(t) (t = 0: before any step), to read the states. A callback's non-zero return stops the rollout (-1,
  * the error names the step). The same for the reduced step: npg_reduced_simulate. */
 typedef struct NpgRollout {
   long steps, every;

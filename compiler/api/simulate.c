@@ -160,11 +160,11 @@ static int rollout(void *at, StepFn step, long sample, const NpgRollout *ro, cha
   if (ro->steps < 0) return api_refuse(err, errlen, func, "ro->steps is %ld (0 or more)", ro->steps);
   if (ro->every < 1) return api_refuse(err, errlen, func, "ro->every is %ld (1 or more: save every K-th step)", ro->every);
   for (long t = 0; t <= ro->steps; t++) {
+    if (t < ro->steps && ro->before_step && ro->before_step(ro->user, t) != 0)
+      return snprintf(err, errlen, "step %ld: setting the inputs failed", t), -1;
     if (t % ro->every == 0 && ro->at_save && ro->at_save(ro->user, t) != 0)
       return snprintf(err, errlen, "step %ld: saving the states failed", t), -1;
     if (t == ro->steps) break;
-    if (ro->before_step && ro->before_step(ro->user, t) != 0)
-      return snprintf(err, errlen, "step %ld: setting the inputs failed", t), -1;
     if (step(at, 1, sample) != 0) return 1;
   }
   return 0;
