@@ -178,6 +178,7 @@ static int plot_png(const Common *c, const Roll *x, const StateStats *ss, char *
   char tmp[4200];
   npgc_tmp_path(tmp, sizeof tmp, c->png);
   rc = chart_png(&ch, tmp, 900, 520, err, errlen);
+  chart_cleanup(); /* a command draws once: cairo's and fontconfig's caches released */
   rc = npgc_commit("verify", tmp, c->png, rc);
 done:
   free(ser);
