@@ -381,6 +381,29 @@ static PyObject *full_op(FullObject *self, PyObject *arg) {
   return res;
 }
 
+/* full.simulate(steps, every=1, **inputs) -> {state: array [steps // every + 1, ...]} (DESIGN §15) */
+static PyObject *full_simulate(FullObject *self, PyObject *args, PyObject *kw) {
+  NpgpyRoll roll;
+  if (npgpy_roll_args(self->prog, args, kw, "Full.simulate", &roll) != 0) return NULL;
+  if (!enter(self, "Full.simulate")) return npgpy_roll_free(&roll), NULL;
+  roll.f = self->f;
+  long sample = self->calls;
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npgpy_roll_run(&roll, sample);
+  Py_END_ALLOW_THREADS
+  self->calls += roll.steps;
+  PyObject *out = NULL;
+  if (rc) fail(self);
+  else {
+    self->evaluated = true;
+    out = npgpy_roll_result(&roll);
+  }
+  npgpy_busy_leave(&self->busy);
+  npgpy_roll_free(&roll);
+  return out;
+}
+
 static PyObject *full_repr(FullObject *self) { return PyUnicode_FromFormat("<npg.Full of %R>", self->prog->path); }
 
 static PyObject *get_program(FullObject *self, void *unused) { return Py_NewRef(self->prog); }
@@ -393,6 +416,11 @@ static PyGetSetDef full_getset[] = {
 static PyMethodDef full_methods[] = {
   {"get", (PyCFunction)full_get, METH_O,
    "get(name) -> array: a copy of any quantity (input, extern, stage) of the last evaluation"},
+  {"simulate", (PyCFunction)(void (*)(void))full_simulate, METH_VARARGS | METH_KEYWORDS,
+   "simulate(steps, every=1, **inputs) -> {state: array}: a program with state (DESIGN §15) stepped `steps`\n"
+   "times from the states' initial values (state=array); every other input held (its shape) or given per\n"
+   "step (a leading steps axis). Each state's array is [steps // every + 1, ...]: steps 0, every, 2 every, ...\n"
+   "A blow-up (a state not finite, or its energy past 10x its start) raises npg.Error naming the step."},
   {"dim", (PyCFunction)full_dim_method, METH_O, "dim(name) -> int: the bound size of a dim (-1: unbound)"},
   {"bind", (PyCFunction)full_bind, METH_O, "bind(params): forget every binding and bind these params"},
   {"extern", (PyCFunction)full_extern, METH_VARARGS,

@@ -664,7 +664,32 @@ static PyGetSetDef reduced_getset[] = {
   {NULL},
 };
 
+/* red.simulate(steps, every=1, **inputs) -> {state: array}: the reduced step in coordinates (DESIGN §15);
+ * the states projected once, lifted only at the kept steps. */
+static PyObject *reduced_simulate(ReducedObject *self, PyObject *args, PyObject *kw) {
+  NpgpyRoll roll;
+  if (npgpy_roll_args(self->model->prog, args, kw, "Reduced.simulate", &roll) != 0) return NULL;
+  npgpy_busy_enter(&self->busy);
+  roll.r = self->r;
+  long sample = self->sample;
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npgpy_roll_run(&roll, sample);
+  Py_END_ALLOW_THREADS
+  self->sample += roll.steps;
+  for (int k = 0; k < self->ninputs; k++)
+    for (int i = 0; i < roll.n; i++)
+      if (strcmp(roll.in[i].name, self->input[k]->name) == 0) self->input_set[k] = true;
+  PyObject *out = rc ? rfail(self) : npgpy_roll_result(&roll);
+  npgpy_busy_leave(&self->busy);
+  npgpy_roll_free(&roll);
+  return out;
+}
+
 static PyMethodDef reduced_methods[] = {
+  {"simulate", (PyCFunction)(void (*)(void))reduced_simulate, METH_VARARGS | METH_KEYWORDS,
+   "simulate(steps, every=1, **inputs) -> {state: array}: Full.simulate's contract, the reduced step in\n"
+   "reduced coordinates: the states' initial values projected once, lifted only at the kept steps"},
   {"lift", (PyCFunction)(void (*)(void))reduced_lift, METH_VARARGS | METH_KEYWORDS,
    "lift(name, out=None) -> array: B ŷ of any quantity, shaped like it; written into `out` when given"},
   {"coords", (PyCFunction)reduced_coords, METH_O, "coords(name) -> array: a copy of the reduced coordinates"},

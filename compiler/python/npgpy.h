@@ -115,6 +115,38 @@ int npgpy_samples(const ProgramObject *prog, PyObject *dict, const char *who, co
 int npgpy_samples_set(void *user, NpgFull *f, long k);
 void npgpy_samples_free(NpgpySamples *t);
 
+/* ---------------------------------------------------------------- simulate.c */
+/* A rollout's keyword arrays (DESIGN §15): states' initial values, inputs held or per step. */
+typedef struct NpgpyRollInput {
+  const char *name;         /* the program's (outlives the call) */
+  char what[160];           /* "Full.simulate argument 'u'" */
+  PyArrayObject *a;
+  bool state, per_step;
+  int ndim;                 /* of one value */
+  long shape[NPY_MAXDIMS];
+  size_t each;              /* entries of one value */
+  double *out;              /* a state: saves x each, what the rollout kept */
+} NpgpyRollInput;
+typedef struct NpgpyRoll {
+  int n;
+  NpgpyRollInput *in;
+  long steps, every, saves;
+  NpgFull *f;               /* the full rollout's evaluator (and a trainer's: t) */
+  NpgReduced *r;            /* or the reduced one's */
+  NpgTrainer *t;            /* add_trajectory: the visited states added, nothing kept */
+} NpgpyRoll;
+/* Read `kw` for a rollout of `steps` steps keeping every `every`-th; 0, or -1 with an exception
+ * naming `who`. With the GIL. */
+int npgpy_roll(const ProgramObject *prog, PyObject *kw, long steps, long every, const char *who, NpgpyRoll *r);
+/* The same from a method's (steps, every=1, **inputs). */
+int npgpy_roll_args(const ProgramObject *prog, PyObject *args, PyObject *kw, const char *who, NpgpyRoll *r);
+/* Set step 0's values and run (r->f, r->r or r->t set by the caller): 0, or -1 with the
+ * library's error in the evaluator or trainer. Without the GIL. */
+int npgpy_roll_run(NpgpyRoll *r, long sample);
+/* {state: array [saves, ...]}; NULL with an exception. */
+PyObject *npgpy_roll_result(const NpgpyRoll *r);
+void npgpy_roll_free(NpgpyRoll *r);
+
 /* ---------------------------------------------------------------- trainer.c */
 extern PyTypeObject npgpy_TrainerType;
 

@@ -377,7 +377,35 @@ static PyGetSetDef trainer_getset[] = {
   {NULL},
 };
 
+/* tr.add_trajectory(steps, every=1, **inputs): the trainer's evaluator runs the rollout (Full.simulate's
+ * arguments) and every `every`-th visited state is added (DESIGN §15). */
+static PyObject *trainer_add_trajectory(TrainerObject *self, PyObject *args, PyObject *kw) {
+  if (!ready(self)) return NULL;
+  NpgpyRoll roll;
+  if (npgpy_roll_args(self->full->prog, args, kw, "Trainer.add_trajectory", &roll) != 0) return NULL;
+  npgpy_busy_enter(&self->full->busy);
+  roll.f = self->full->f, roll.t = self->t;
+  long sample = self->full->calls;
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npgpy_roll_run(&roll, sample);
+  Py_END_ALLOW_THREADS
+  self->full->calls += roll.steps;
+  PyObject *res = NULL;
+  if (rc && npg_trainer_error(self->t)[0]) fail(self);
+  else if (rc) {
+    npgpy_full_raise(self->full, npg_full_error(self->full->f));
+    npg_full_clear_error(self->full->f);
+  } else res = Py_NewRef(Py_None);
+  npgpy_busy_leave(&self->full->busy);
+  npgpy_roll_free(&roll);
+  return res;
+}
+
 static PyMethodDef trainer_methods[] = {
+  {"add_trajectory", (PyCFunction)(void (*)(void))trainer_add_trajectory, METH_VARARGS | METH_KEYWORDS,
+   "add_trajectory(steps, every=1, **inputs): run the full step `steps` times from the states' initial values\n"
+   "(Full.simulate's arguments) and add every `every`-th visited state; nothing is kept but the samples"},
   {"add", (PyCFunction)(void (*)(void))trainer_add, METH_VARARGS | METH_KEYWORDS,
    "add(**arrays): stream one sample: every input, and externs (else computed by their callables)"},
   {"weight", (PyCFunction)trainer_weight, METH_O,
