@@ -57,6 +57,8 @@ void interp_free(RInterp *ip) {
   free(ip->pk_whole_q);
   free(ip->pk_whole_off);
   free(ip->pk_src);
+  free(ip->pk_gather_q), free(ip->pk_gather_rows), free(ip->pk_gather_off), free(ip->pk_gather_at);
+  free(ip->pk_gather_B);
   free(ip->pk_coef);
   free(ip->pk_nin);
   free(ip->pk_read);
@@ -84,30 +86,65 @@ static int by_acc(const void *a, const void *b) {
   return x->acc != y->acc ? (x->acc > y->acc) - (x->acc < y->acc) : (x->index > y->index) - (x->index < y->index);
 }
 
-/* Which quantities interp_eval lifts whole (RInterp.pk_whole_*): 0, or -1 out of memory. */
+/* Which quantities interp_eval lifts whole (RInterp.pk_whole_*) and which it reads through their
+ * gathered basis rows (pk_gather_*): 0, or -1 out of memory. */
 static int pack_lifts(const Model *m, RInterp *ip) {
   free(ip->pk_whole_q), free(ip->pk_whole_off), free(ip->pk_src);
+  free(ip->pk_gather_q), free(ip->pk_gather_rows), free(ip->pk_gather_off), free(ip->pk_gather_at);
+  free(ip->pk_gather_B);
+  ip->pk_gather_q = NULL, ip->pk_gather_rows = ip->pk_gather_off = ip->pk_gather_at = NULL, ip->pk_gather_B = NULL;
   long *count = calloc((size_t)m->nq + 1, sizeof(long)), *off = malloc(sizeof(long) * (size_t)(m->nq + 1));
+  long *next = calloc((size_t)m->nq + 1, sizeof(long));
   ip->pk_whole_q = malloc(sizeof(int) * (size_t)(m->nq + 1));
   ip->pk_whole_off = malloc(sizeof(long) * (size_t)(m->nq + 1));
   ip->pk_src = malloc(sizeof(long) * (size_t)(ip->nreads + 1));
-  if (!count || !off || !ip->pk_whole_q || !ip->pk_whole_off || !ip->pk_src) {
-    free(count), free(off);
-    return -1;
-  }
+  ip->pk_gather_q = malloc(sizeof(int) * (size_t)(m->nq + 1));
+  ip->pk_gather_rows = malloc(sizeof(long) * (size_t)(m->nq + 1));
+  ip->pk_gather_off = malloc(sizeof(long) * (size_t)(m->nq + 1));
+  ip->pk_gather_at = malloc(sizeof(long) * (size_t)(m->nq + 1));
+  int rc = -1;
+  if (!count || !off || !next || !ip->pk_whole_q || !ip->pk_whole_off || !ip->pk_src || !ip->pk_gather_q ||
+      !ip->pk_gather_rows || !ip->pk_gather_off || !ip->pk_gather_at)
+    goto done;
   for (long r = 0; r < ip->nreads; r++) count[ip->read_q[r]]++;
-  ip->pk_nwhole = 0, ip->pk_lift = 0;
+  ip->pk_nwhole = 0, ip->pk_lift = 0, ip->pk_ngather = 0;
+  long gathered = 0;
   for (int q = 0; q < m->nq; q++) {
-    long n = m->classes[m->qclass[q]].n;
+    const RClass *c = &m->classes[m->qclass[q]];
     off[q] = -1;
-    if (count[q] == 0 || 4 * count[q] < n) continue;
-    ip->pk_whole_q[ip->pk_nwhole] = q, ip->pk_whole_off[ip->pk_nwhole++] = off[q] = ip->pk_lift;
-    ip->pk_lift += n;
+    if (count[q] == 0 || !c->B) continue; /* no basis (streamed): read row by row, as trained */
+    off[q] = ip->pk_lift;
+    if (4 * count[q] >= c->n) {
+      ip->pk_whole_q[ip->pk_nwhole] = q, ip->pk_whole_off[ip->pk_nwhole++] = ip->pk_lift;
+      ip->pk_lift += c->n;
+    } else {
+      int g = ip->pk_ngather++;
+      ip->pk_gather_q[g] = q, ip->pk_gather_rows[g] = count[q], ip->pk_gather_off[g] = ip->pk_lift;
+      ip->pk_gather_at[g] = gathered;
+      ip->pk_lift += count[q];
+      gathered += count[q] * c->m;
+    }
   }
-  for (long r = 0; r < ip->nreads; r++)
-    ip->pk_src[r] = off[ip->read_q[r]] >= 0 ? off[ip->read_q[r]] + ip->read_e[r] : -1;
-  free(count), free(off);
-  return 0;
+  if (!(ip->pk_gather_B = malloc(sizeof(double) * (size_t)(gathered + 1)))) goto done;
+  for (long r = 0; r < ip->nreads; r++) {
+    int q = ip->read_q[r];
+    const RClass *c = &m->classes[m->qclass[q]];
+    if (off[q] < 0) {
+      ip->pk_src[r] = -1;
+    } else if (4 * count[q] >= c->n) {
+      ip->pk_src[r] = off[q] + ip->read_e[r];
+    } else {
+      int g = 0;
+      while (ip->pk_gather_q[g] != q) g++;
+      long j = next[q]++;
+      memcpy(ip->pk_gather_B + ip->pk_gather_at[g] + j * c->m, c->B + ip->read_e[r] * c->m, sizeof(double) * (size_t)c->m);
+      ip->pk_src[r] = off[q] + j;
+    }
+  }
+  rc = 0;
+done:
+  free(count), free(off), free(next);
+  return rc;
 }
 
 int interp_pack(const Model *m, const RStage *rs, RInterp *ip) {
@@ -181,6 +218,16 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
     const RClass *c = &m->classes[m->qclass[ip->pk_whole_q[w]]];
     cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)c->n, (int)c->m, 1.0, c->B, (int)(c->m > 0 ? c->m : 1),
                 x[ip->pk_whole_q[w]], 1, 0.0, lift + ip->pk_whole_off[w], 1);
+  }
+  for (int g = 0; g < ip->pk_ngather; g++) {
+    const RClass *c = &m->classes[m->qclass[ip->pk_gather_q[g]]];
+    if (c->m == 0) {
+      memset(lift + ip->pk_gather_off[g], 0, sizeof(double) * (size_t)ip->pk_gather_rows[g]);
+      continue;
+    }
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)ip->pk_gather_rows[g], (int)c->m, 1.0,
+                ip->pk_gather_B + ip->pk_gather_at[g], (int)c->m, x[ip->pk_gather_q[g]], 1, 0.0,
+                lift + ip->pk_gather_off[g], 1);
   }
   for (long r = 0; r < ip->nreads; r++) {
     const RClass *c = &m->classes[m->qclass[ip->read_q[r]]];

@@ -74,6 +74,13 @@ typedef struct RInterp {
   int pk_nwhole;
   int *pk_whole_q;
   long *pk_whole_off, pk_lift, *pk_src;
+  /* the other quantities read: their read rows of the basis gathered into one matrix each
+   * (pk_gather_rows[g] rows of m, at pk_gather_B + pk_gather_at[g]), one dgemv each into the
+   * scratch at pk_gather_off[g] (a ddot per read cost 40 µs a step in calls on 287 reads) */
+  int pk_ngather;
+  int *pk_gather_q;
+  long *pk_gather_rows, *pk_gather_off, *pk_gather_at;
+  double *pk_gather_B;
   long *pk_run_acc, *pk_run_end;
   double *pk_coef;
   unsigned char *pk_nin;
