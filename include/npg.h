@@ -584,6 +584,32 @@ typedef struct NpgVerifyReport {
 NPG_API int npg_verify(const NpgModel *m, NpgFull *f, long samples, NpgSampleFn set, void *user, bool progress,
                        NpgVerifyReport *report);
 NPG_API void npg_verify_free(NpgVerifyReport *report);
+/* The check of a simulation (DESIGN §15, `npgc verify --steps`): for each of `trajectories`
+ * trajectories the full and the reduced rollouts of `steps` steps, their states compared every
+ * `every` steps with the trajectory's projection floor (the full states projected onto the model's
+ * bases). set(user, f, k, t) sets trajectory k's values at step t in `f`: at t = 0 its states'
+ * initial values and every input, at t > 0 the inputs given per step (or nothing); the reduced
+ * rollout reads them from `f` (projected). Errors are relative L2: per state, the trajectory's
+ * ‖R − F‖ / ‖F‖ over every trajectory and saved step, its floor the same for the projection, and
+ * the largest per trajectory and saved step. A rollout that blows up fails the call, naming the
+ * trajectory, the step and the state. 0, or -1 with report->error; npg_verify_rollout_free. */
+typedef int (*NpgTrajectoryFn)(void *user, NpgFull *f, long trajectory, long step);
+typedef struct NpgRolloutRow {
+  const char *state;
+  double *err, *floor;      /* per saved step: the largest over the trajectories (saves entries each) */
+  double traj_err, traj_floor;
+  double err_max, err_final;
+  long max_trajectory, max_step;
+} NpgRolloutRow;
+typedef struct NpgRolloutReport {
+  long trajectories, steps, every, saves;
+  int nstates;
+  NpgRolloutRow *rows;
+  char error[2048];
+} NpgRolloutReport;
+NPG_API int npg_verify_rollout(const NpgModel *m, NpgFull *f, long trajectories, long steps, long every, NpgTrajectoryFn set,
+                               void *user, bool progress, NpgRolloutReport *report);
+NPG_API void npg_verify_rollout_free(NpgRolloutReport *report);
 /* Warnings where they help: a stage whose own error exceeds 3x its
  * projection floor (naming what it reads worst and the remedies), an input
  * whose floor alone exceeds `tol`. Returns how many were printed. */

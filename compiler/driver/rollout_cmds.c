@@ -24,26 +24,20 @@ typedef struct Roll {
   NpgProgram *p;
   NpgModel *m;
   NpgFull *f;
-  NpgReduced *r, *proj;     /* the reduced rollout; the projection onto the bases */
+  NpgReduced *r;            /* the reduced rollout */
   Trajectories tr;
   int ns;
   TrajInput **st;           /* the states */
   long saves, k;
-  double **full, **red;     /* per state: saves x each, of the current trajectory */
-  bool lifting;             /* at_save of the reduced rollout: lift (verify) or not (bench) */
+  double **red;             /* per state: one lifted value (bench) */
 } Roll;
 
 static void close_roll(Roll *x) {
-  for (int i = 0; i < x->ns; i++) {
-    if (x->full) free(x->full[i]);
-    if (x->red) free(x->red[i]);
-  }
-  free(x->full);
+  for (int i = 0; x->red && i < x->ns; i++) free(x->red[i]);
   free(x->red);
   free(x->st);
   npgc_trajectories_free(&x->tr);
   npg_reduced_free(x->r);
-  npg_reduced_free(x->proj);
   npg_full_free(x->f);
   npg_model_free(x->m);
   npg_free(x->p);
@@ -66,20 +60,16 @@ static int open_roll(Common *c, Roll *x, const char *cmd) {
   x->f = npg_full_new(x->p, c->cc ? NPG_CC : NPG_TCC);
   if (npg_full_error(x->f)[0] || npg_full_bind_params(x->f, params) != 0) return npgc_error(npg_full_error(x->f)), 1;
   x->r = npg_reduced_new(x->m);
-  x->proj = npg_reduced_new(x->m);
   if (npg_reduced_error(x->r)[0]) return npgc_error(npg_reduced_error(x->r)), 1;
   x->saves = c->steps / c->every + 1;
   x->st = calloc((size_t)x->tr.n + 1, sizeof *x->st);
-  x->full = calloc((size_t)x->tr.n + 1, sizeof *x->full);
   x->red = calloc((size_t)x->tr.n + 1, sizeof *x->red);
-  if (!x->st || !x->full || !x->red) return fputs("error: out of memory\n", stderr), 1;
+  if (!x->st || !x->red) return fputs("error: out of memory\n", stderr), 1;
   for (int i = 0; i < x->tr.n; i++)
     if (x->tr.in[i].sym.next) {
       x->st[x->ns] = &x->tr.in[i];
-      size_t n = (size_t)x->saves * x->tr.in[i].each + 1;
-      x->full[x->ns] = malloc(sizeof(double) * n);
-      x->red[x->ns] = malloc(sizeof(double) * n);
-      if (!x->full[x->ns] || !x->red[x->ns++]) return fputs("error: out of memory\n", stderr), 1;
+      if (!(x->red[x->ns++] = malloc(sizeof(double) * (x->tr.in[i].each + 1))))
+        return fputs("error: out of memory\n", stderr), 1;
     }
   if (x->ns == 0) {
     fprintf(stderr, "error: %s has no state: --steps judges a rollout of a program with 'state u' and 'next u = "
@@ -99,80 +89,34 @@ static int reduced_before(void *user, long step) {
   return step ? npgc_trajectories_set_reduced(&x->tr, x->r, x->k, step, false) : 0;
 }
 
-static int full_save(void *user, long step) {
-  Roll *x = user;
-  for (int i = 0; i < x->ns; i++) {
-    size_t n = 0;
-    const double *v = npg_full_get(x->f, x->st[i]->sym.name, &n);
-    if (!v || n != x->st[i]->each) return -1;
-    memcpy(x->full[i] + (size_t)(step / x->c->every) * n, v, sizeof(double) * n);
-  }
-  return 0;
-}
-
-static int reduced_save(void *user, long step) {
-  Roll *x = user;
-  for (int i = 0; i < x->ns && x->lifting; i++)
-    if (npg_reduced_lift(x->r, x->st[i]->sym.name, x->red[i] + (size_t)(step / x->c->every) * x->st[i]->each,
-                         x->st[i]->each) != 0)
-      return -1;
-  return 0;
-}
-
-/* Trajectory x->k, full (into x->full) and reduced (into x->red when lifting). 0, or -1 after the message. */
-static int run_both(Roll *x, bool full, bool reduced) {
-  char err[2400];
-  NpgRollout fro = {.steps = x->c->steps, .every = x->c->every, .before_step = full_before, .at_save = full_save, .user = x};
-  NpgRollout rro = {.steps = x->c->steps, .every = x->c->every, .before_step = reduced_before, .at_save = reduced_save,
-                    .user = x};
-  if (full && (npgc_trajectories_set_full(&x->tr, x->f, x->k, 0, true) != 0 || npg_full_simulate(x->f, x->k, &fro) != 0)) {
-    snprintf(err, sizeof err, "trajectory %ld, full rollout: %s", x->k, npg_full_error(x->f));
-    return npgc_error(err), -1;
-  }
-  if (reduced &&
-      (npgc_trajectories_set_reduced(&x->tr, x->r, x->k, 0, true) != 0 || npg_reduced_simulate(x->r, x->k, &rro) != 0)) {
-    snprintf(err, sizeof err, "trajectory %ld, reduced rollout: %s", x->k, npg_reduced_error(x->r));
-    return npgc_error(err), -1;
-  }
-  return 0;
-}
-
-static double dist2(const double *a, const double *b, size_t n) {
-  double s = 0;
-  for (size_t i = 0; i < n; i++) s += (a[i] - b[i]) * (a[i] - b[i]);
-  return s;
-}
-
 /* ---------------------------------------------------------------- verify --steps */
 
-typedef struct StateStats {
-  double *err, *floor;      /* per save: the largest relative error over the trajectories */
-  double e2, f2, n2;        /* sums over every trajectory and save: ‖R − F‖², ‖PF − F‖², ‖F‖² */
-  double max;
-  long max_k, max_t;
-  double final;
-} StateStats;
+/* Trajectory k's values at step t from TEST/ (an NpgStepFn). */
+static int set_step(void *user, NpgFull *f, long k, long t) {
+  return npgc_trajectories_set_full(&((Roll *)user)->tr, f, k, t, t == 0);
+}
 
-static int plot_png(const Common *c, const Roll *x, const StateStats *ss, char *err, size_t errlen) {
-  int nser = 2 * x->ns;
+static int plot_png(const Common *c, const NpgRolloutReport *rep, char *err, size_t errlen) {
+  int nser = 2 * rep->nstates;
   ChartSeries *ser = calloc((size_t)nser, sizeof *ser);
-  double *t = malloc(sizeof(double) * (size_t)x->saves);
+  double *t = malloc(sizeof(double) * (size_t)rep->saves);
   char (*labels)[160] = calloc((size_t)nser, sizeof *labels);
   int rc = -1;
   if (!ser || !t || !labels) {
     snprintf(err, errlen, "out of memory");
     goto done;
   }
-  for (long s = 0; s < x->saves; s++) t[s] = (double)(s * c->every);
-  for (int i = 0; i < x->ns; i++) {
-    snprintf(labels[2 * i], sizeof labels[0], "%s: reduced rollout", x->st[i]->sym.name);
-    snprintf(labels[2 * i + 1], sizeof labels[0], "%s: projection floor", x->st[i]->sym.name);
-    ser[2 * i] = (ChartSeries){.label = labels[2 * i], .n = (int)x->saves, .x = t, .y = ss[i].err, .mark = -1};
-    ser[2 * i + 1] = (ChartSeries){.label = labels[2 * i + 1], .n = (int)x->saves, .x = t, .y = ss[i].floor, .mark = -1};
+  for (long s = 0; s < rep->saves; s++) t[s] = (double)(s * rep->every);
+  for (int i = 0; i < rep->nstates; i++) {
+    const NpgRolloutRow *row = &rep->rows[i];
+    snprintf(labels[2 * i], sizeof labels[0], "%s: reduced rollout", row->state);
+    snprintf(labels[2 * i + 1], sizeof labels[0], "%s: projection floor", row->state);
+    ser[2 * i] = (ChartSeries){.label = labels[2 * i], .n = (int)rep->saves, .x = t, .y = row->err, .mark = -1};
+    ser[2 * i + 1] = (ChartSeries){.label = labels[2 * i + 1], .n = (int)rep->saves, .x = t, .y = row->floor, .mark = -1};
   }
   char title[400];
   snprintf(title, sizeof title, "%s: rollout error against time (largest over %ld trajectories)", c->prog_path,
-           x->tr.samples);
+           rep->trajectories);
   Chart ch = {.title = title, .xlabel = "step", .ylabel = "relative L2 error of the state", .logy = true,
               .nseries = nser, .series = ser};
   char tmp[4200];
@@ -189,65 +133,33 @@ done:
 
 int cmd_verify_steps(Common *c) {
   Roll x;
+  NpgRolloutReport rep = {0};
   int rc = 1;
-  StateStats *ss = NULL;
   if (c->png) {
     const char *inputs[] = {c->prog_path, c->a, c->b, c->params, NULL};
     if (npgc_check_output("verify", "--png", c->png, NPGC_OUT_FILE, inputs) != 0) return 1;
   }
   if (open_roll(c, &x, "verify") != 0) goto done;
-  x.lifting = true;
-  if (!(ss = calloc((size_t)x.ns, sizeof *ss))) goto oom;
-  for (int i = 0; i < x.ns; i++) {
-    ss[i].err = calloc((size_t)x.saves, sizeof(double));
-    ss[i].floor = calloc((size_t)x.saves, sizeof(double));
-    if (!ss[i].err || !ss[i].floor) goto oom;
+  if (npg_verify_rollout(x.m, x.f, x.tr.samples, c->steps, c->every, set_step, &x, c->train.progress, &rep) != 0) {
+    if (c->train.progress) fputc('\n', stderr);
+    npgc_error(rep.error);
+    goto done;
   }
-  double *pf = NULL;
-  size_t maxn = 1;
-  for (int i = 0; i < x.ns; i++) maxn = x.st[i]->each > maxn ? x.st[i]->each : maxn;
-  if (!(pf = malloc(sizeof(double) * maxn))) goto oom;
-  for (x.k = 0; x.k < x.tr.samples; x.k++) {
-    if (run_both(&x, true, true) != 0) {
-      free(pf);
-      goto done;
-    }
-    for (int i = 0; i < x.ns; i++) {
-      size_t n = x.st[i]->each;
-      for (long s = 0; s < x.saves; s++) {
-        const double *F = x.full[i] + (size_t)s * n, *R = x.red[i] + (size_t)s * n;
-        if (npg_reduced_set(x.proj, x.st[i]->sym.name, n, F) != 0 || npg_reduced_lift(x.proj, x.st[i]->sym.name, pf, n)) {
-          npgc_error(npg_reduced_error(x.proj));
-          free(pf);
-          goto done;
-        }
-        double n2 = 0, e2 = dist2(R, F, n), f2 = dist2(pf, F, n);
-        for (size_t j = 0; j < n; j++) n2 += F[j] * F[j];
-        double scale = n2 > 0 ? sqrt(n2) : 1, e = sqrt(e2) / scale, fl = sqrt(f2) / scale;
-        ss[i].e2 += e2, ss[i].f2 += f2, ss[i].n2 += n2;
-        if (e > ss[i].err[s]) ss[i].err[s] = e;
-        if (fl > ss[i].floor[s]) ss[i].floor[s] = fl;
-        if (e > ss[i].max || x.k + s == 0) ss[i].max = e, ss[i].max_k = x.k, ss[i].max_t = s * c->every;
-        if (s == x.saves - 1 && e > ss[i].final) ss[i].final = e;
-      }
-    }
-    npg_progress(c->train.progress, "rollouts (full and reduced)", x.k + 1, x.tr.samples);
-  }
-  free(pf);
   printf("verify %s: %ld trajector%s of %s, %ld steps, states compared every %ld (%ld saves); relative L2 errors\n",
-         c->prog_path, x.tr.samples, x.tr.samples == 1 ? "y" : "ies", c->b, c->steps, c->every, x.saves);
+         c->prog_path, rep.trajectories, rep.trajectories == 1 ? "y" : "ies", c->b, rep.steps, rep.every, rep.saves);
   printf("%-10s %12s %12s %12s %12s %8s  %s\n", "state", "trajectory", "floor", "final", "max", "err/flr", "max at");
   rc = 0;
-  for (int i = 0; i < x.ns; i++) {
-    double te = ss[i].n2 > 0 ? sqrt(ss[i].e2 / ss[i].n2) : 0, tf = ss[i].n2 > 0 ? sqrt(ss[i].f2 / ss[i].n2) : 0;
+  for (int i = 0; i < rep.nstates; i++) {
+    const NpgRolloutRow *row = &rep.rows[i];
+    double te = row->traj_err, tf = row->traj_floor;
     char ratio[32];
     if (tf > 1e-12) snprintf(ratio, sizeof ratio, "%.3g", te / tf); /* a whole basis: no floor to compare with */
     else snprintf(ratio, sizeof ratio, "-");
-    printf("%-10s %12.3e %12.3e %12.3e %12.3e %8s  trajectory %ld, step %ld\n", x.st[i]->sym.name, te, tf, ss[i].final,
-           ss[i].max, ratio, ss[i].max_k, ss[i].max_t);
+    printf("%-10s %12.3e %12.3e %12.3e %12.3e %8s  trajectory %ld, step %ld\n", row->state, te, tf, row->err_final,
+           row->err_max, ratio, row->max_trajectory, row->max_step);
     if (!(te <= c->tol)) {
-      printf("FAIL: state %s: trajectory error %.3e above --tol %.3g (its projection floor is %.3e%s)\n",
-             x.st[i]->sym.name, te, c->tol, tf,
+      printf("FAIL: state %s: trajectory error %.3e above --tol %.3g (its projection floor is %.3e%s)\n", row->state, te,
+             c->tol, tf,
              tf > c->tol ? ": the bases cannot hold the trajectory; train on more of it or raise their cap/energy"
              : te > 3 * tf ? ": the state's bases hold the trajectory, the step drifts from them; raise the bases of "
                              "the step's other quantities (npgc verify without --steps reports each one's error) or "
@@ -260,20 +172,15 @@ int cmd_verify_steps(Common *c) {
   if (rc == 0) printf("ok: every state's trajectory error within --tol %.3g\n", c->tol);
   if (c->png) {
     char err[4400];
-    if (plot_png(c, &x, ss, err, sizeof err) != 0) {
+    if (plot_png(c, &rep, err, sizeof err) != 0) {
       npgc_error(err);
       rc = 1;
     } else {
       printf("error against time -> %s\n", c->png);
     }
   }
-  goto done;
-oom:
-  fputs("error: out of memory\n", stderr);
-  rc = 1;
 done:
-  for (int i = 0; ss && i < x.ns; i++) free(ss[i].err), free(ss[i].floor);
-  free(ss);
+  npg_verify_rollout_free(&rep);
   close_roll(&x);
   return rc;
 }

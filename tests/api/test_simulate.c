@@ -149,6 +149,58 @@ static void test_whole_bases_reduced_equals_full(void **state) {
   npg_free(p);
 }
 
+/* Trajectory k's initial state: a bump of height 0.6 + 0.1 k (an NpgTrajectoryFn; nothing per step). */
+static int bump(void *user, NpgFull *f, long k, long t) {
+  (void)user;
+  if (t > 0) return 0;
+  double u[N];
+  for (int i = 0; i < N; i++) {
+    double x = (double)(i % SIDE) - 1.5, y = (double)(i / SIDE) - 1.5 + 0.3 * (double)k;
+    u[i] = (0.6 + 0.1 * (double)k) * exp(-0.4 * (x * x + y * y));
+  }
+  long n = N;
+  return npg_full_set(f, "u", 1, &n, u, "bump");
+}
+
+/* The semi-implicit step (a solve with a state-dependent operator): trained from trajectories,
+ * checked over held-out ones by npg_verify_rollout. */
+static void test_semi_implicit_verified_over_the_trajectory(void **state) {
+  (void)state;
+  NpgProgram *p;
+  NpgFull *f = heat("examples/heat/heat_implicit.npg", &p, 0.5);
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  o.progress = false;
+  NpgTrainer *t = npg_trainer_new(f, &o);
+  NpgRollout ro = {.steps = 40, .every = 2};
+  for (long k = 0; k < 4; k++) {
+    assert_int_equal(bump(NULL, f, 2 * k, 0), 0);
+    if (npg_trainer_add_trajectory(t, f, k, &ro) != 0) fputs(npg_trainer_error(t), stderr);
+  }
+  NpgModel *m = npg_trainer_finish(t, NULL);
+  if (!m) fputs(npg_trainer_error(t), stderr);
+  assert_non_null(m);
+  NpgRolloutReport rep;
+  if (npg_verify_rollout(m, f, 3, 40, 5, bump, NULL, false, &rep) != 0) fputs(rep.error, stderr);
+  assert_int_equal(rep.nstates, 1);
+  assert_string_equal(rep.rows[0].state, "u");
+  assert_int_equal(rep.saves, 9);
+  const NpgRolloutRow *row = &rep.rows[0];
+  assert_true(row->traj_floor <= row->traj_err * (1 + 1e-9));
+  assert_true(row->traj_err > 0 && row->traj_err < 0.05);
+  assert_true(row->err_max >= row->err_final && row->err_max >= row->err[0]);
+  npg_verify_rollout_free(&rep);
+  /* refusals */
+  assert_int_equal(npg_verify_rollout(m, f, 0, 40, 5, bump, NULL, false, &rep), -1);
+  assert_non_null(strstr(rep.error, "'trajectories' is 0"));
+  assert_int_equal(npg_verify_rollout(m, f, 1, 40, 0, bump, NULL, false, &rep), -1);
+  assert_non_null(strstr(rep.error, "'every' is 0"));
+  npg_model_free(m);
+  npg_trainer_free(t);
+  npg_full_free(f);
+  npg_free(p);
+}
+
 /* Explicit Euler past its stability limit: the full step stops, naming the step and the state. */
 static void test_blowup_named(void **state) {
   (void)state;
@@ -211,6 +263,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_full_rollout_matches_c),
       cmocka_unit_test(test_whole_bases_reduced_equals_full),
+      cmocka_unit_test(test_semi_implicit_verified_over_the_trajectory),
       cmocka_unit_test(test_blowup_named),
       cmocka_unit_test(test_refusals),
   };

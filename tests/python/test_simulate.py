@@ -38,21 +38,23 @@ def test_full_simulate_equals_numpy(root, tmp_path):
     assert held["u"].shape == (6, u0.size)
 
 
-def test_trajectory_training_equals_npgc(root, tmp_path, npgc):
+@pytest.mark.parametrize("program", ["heat", "heat_implicit"])
+def test_trajectory_training_equals_npgc(root, tmp_path, npgc, program):
+    """Explicit (an inverse stage) and semi-implicit (a solve with a state-dependent operator)."""
     d, folder = heat_data(root, tmp_path, "train", "--n", "8", "--trajectories", "4", "--seed", "1")
-    prog = npg.compile(str(root / "examples/heat/heat.npg"))
+    prog = npg.compile(str(root / f"examples/heat/{program}.npg"))
     full = prog.full(params=params(d))
     tr = npg.Trainer(full)
     for u0 in d["u"]:
         tr.add_trajectory(60, every=3, u=u0)
     assert tr.samples == 4 * 21
     model = tr.finish(str(tmp_path / "PY"))
-    npgc("train", "examples/heat/heat.npg", folder, "--steps", 60, "--every", 3, "-o", tmp_path / "CLI")
+    npgc("train", f"examples/heat/{program}.npg", folder, "--steps", 60, "--every", 3, "-o", tmp_path / "CLI")
     same_model(tmp_path / "CLI", tmp_path / "PY")
     # the reduced rollout in coordinates equals npgc simulate --model's
     t, tfolder = heat_data(root, tmp_path, "test", "--n", "8", "--trajectories", "1", "--seed", "2")
     red = model.reduced().simulate(60, every=20, u=t["u"][0])["u"]
-    npgc("simulate", "examples/heat/heat.npg", tfolder, "--steps", 60, "--every", 20, "--model", tmp_path / "CLI",
+    npgc("simulate", f"examples/heat/{program}.npg", tfolder, "--steps", 60, "--every", 20, "--model", tmp_path / "CLI",
          "-o", tmp_path / "OUT")
     assert np.array_equal(red, np.load(tmp_path / "OUT" / "u.npy")[0])
     ref = full.simulate(60, every=20, u=t["u"][0])["u"]
