@@ -18,4 +18,4 @@ $B/npgc train examples/burgers/burgers.npg "$W/train" --steps 100 --energy 0.999
 echo "== verify --steps 100 (held-out blends 0.15, 0.55, 0.85)"
 $B/npgc verify examples/burgers/burgers.npg "$W/model" "$W/test" --steps 100 --every 5 --tol 1e-3 --cc --png "$W/error.png" || true
 echo "== bench --steps 100 (full step: cc -O3 and UMFPACK)"
-$B/npgc bench examples/burgers/burgers.npg "$W/model" "$W/test" --steps 100 --cc --reps 3
+OPENBLAS_NUM_THREADS=1 $B/npgc bench examples/burgers/burgers.npg "$W/model" "$W/test" --steps 100 --cc --reps 3
