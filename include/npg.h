@@ -90,7 +90,7 @@ NPG_API void npg_progress(bool on, const char *what, long done, long total);
 
 /* ---------------------------------------------------------------- full evaluation
  *
- *     NpgFull *f = npg_full_new(p, NPG_TCC);       // generate + compile (libtcc)
+ *     NpgFull *f = npg_full_new(p, NPG_AUTO);      // generate + compile (cc if installed, else libtcc)
  *     npg_full_bind_params(f, "DATA");             // DATA/<param>.npy; dims from shapes
  *     npg_full_set(f, "g", 2, shape, values, "g"); // an input (or extern) of one sample
  *     if (npg_full_eval(f, 0)) fputs(npg_full_error(f), stderr);
@@ -104,12 +104,33 @@ NPG_API void npg_progress(bool on, const char *what, long done, long total);
  * further work until npg_full_clear_error() (never, when npg_full_new itself
  * failed: no compiler, a bad TMPDIR; its error stays). */
 typedef struct NpgFull NpgFull;
+/* Which compiler builds the full evaluator's C (npgc's --jit, Python's backend=). */
 typedef enum NpgBackend {
-  NPG_TCC,  /* libtcc, in memory (default) */
-  NPG_CC,   /* the system compiler (CC, default cc) at -O3 -march=native, dlopen */
+  NPG_TCC,  /* libtcc, in memory: milliseconds to compile, slower code */
+  NPG_CC,   /* the system compiler ($CC, else cc on PATH) at -O3 -march=native, loaded
+               with dlopen; the shared object kept in a content-addressed cache
+               ($NPG_CACHE_DIR, else $XDG_CACHE_HOME/npg or ~/.cache/npg; at most
+               $NPG_CACHE_MAX bytes, default 256M, 0 for no cache) */
+  NPG_AUTO, /* the default: $NPG_JIT (auto, cc or tcc) when set, else cc when
+               installed, else libtcc */
 } NpgBackend;
+/* "auto", "cc" or "tcc" into `out`: 0, or -1 for anything else. */
+NPG_API int npg_backend_parse(const char *name, NpgBackend *out);
+/* "auto", "cc", "tcc" (NULL for a value outside the enum). */
+NPG_API const char *npg_backend_name(NpgBackend b);
 
 NPG_API NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend);
+/* How the evaluator was compiled: the backend that built it (NPG_TCC or
+ * NPG_CC, NPG_AUTO resolved), the seconds compiling and loading took (for a
+ * cache hit: hashing the generated C and loading the entry), and `cache`: 1 loaded from the cache, 0 compiled and stored, 2 a
+ * damaged or foreign entry found and rebuilt, -1 not cached (libtcc, cache off).
+ * -1 when `f` failed to compile (its error says why). */
+typedef struct NpgJitInfo {
+  NpgBackend backend;
+  double compile_seconds;
+  int cache;
+} NpgJitInfo;
+NPG_API int npg_full_jit_info(const NpgFull *f, NpgJitInfo *out);
 NPG_API const char *npg_full_error(const NpgFull *f);
 NPG_API void npg_full_clear_error(NpgFull *f);
 /* Forget every dim, param and value (to bind data of other sizes). */
@@ -514,6 +535,9 @@ NPG_API long npg_reduced_steps(const NpgReduced *r);
 NPG_API int npg_reduced_set_blowup(NpgReduced *r, double factor);
 NPG_API int npg_reduced_simulate(NpgReduced *r, long sample, const NpgRollout *ro);
 NPG_API void npg_reduced_free(NpgReduced *r);
+/* The BLAS threads of the process (reduced evaluation, training's GEMMs):
+ * `n` >= 1 sets them, 0 only asks. Returns the number before the call. */
+NPG_API int npg_blas_threads(int n);
 
 /* ---------------------------------------------------------------- basis sizes by error
  *
@@ -632,7 +656,7 @@ NPG_API int npg_verify_exact(NpgProgram *p, long size, NpgBackend backend, bool 
  *       if (npg_args_int(&a, "--frames", 2, 100000, &frames)) continue;
  *       if (npg_args_double(&a, "--mu", 0, 10, true, &mu)) continue;
  *       if ((v = npg_args_string(&a, "--out"))) { out = v; continue; }
- *       if (npg_args_flag(&a, "--cc")) { cc = true; continue; }
+ *       if (npg_args_backend(&a, &backend)) continue;      // --jit auto|cc|tcc, --cc
  *       npg_args_unknown(&a);
  *     }
  *     if (a.error[0]) { fprintf(stderr, "%s\n", a.error); return 2; }
@@ -664,6 +688,9 @@ NPG_API bool npg_args_int(NpgArgs *a, const char *name, int lo, int hi, int *out
 NPG_API bool npg_args_double(NpgArgs *a, const char *name, double lo, double hi, bool lo_open, double *out);
 /* The argument when it is not an option (does not start with '-', or is "-"), else NULL. */
 NPG_API const char *npg_args_positional(NpgArgs *a);
+/* `--jit auto|cc|tcc` (anything else refused, naming the choices), or its
+ * alias `--cc` (= --jit cc), into `out`. */
+NPG_API bool npg_args_backend(NpgArgs *a, NpgBackend *out);
 /* No matcher took the argument: "unknown option '--x'" (an option) or
  * "unexpected argument 'x'" into `error`. */
 NPG_API void npg_args_unknown(NpgArgs *a);

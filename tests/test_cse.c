@@ -333,7 +333,7 @@ static Outcome run_pair(const Expr *e1, const Expr *e2, bool rows, unsigned seed
   arena_release(&ctx.arena);
   if (rows && nrows < 0) fail_msg("the row kernels cannot compute this nest:\n%s", text + cse_at);
   char err[4096];
-  JitModule *m = jit_compile(text, false, err, sizeof err);
+  JitModule *m = jit_compile(text, JIT_TCC, err, sizeof err);
   if (!m) fail_msg("%s\n%s", err, text + plain_at);
   NestFn plain = (NestFn)jit_symbol(m, "plain_nest"), shared = (NestFn)jit_symbol(m, "cse_nest");
   assert_non_null(plain);

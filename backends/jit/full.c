@@ -49,6 +49,8 @@ static int fail(Full *f, const char *fmt, ...) {
 
 const char *full_error(const Full *f) { return f->error; }
 
+const JitModule *full_jit(const Full *f) { return f ? f->jit : NULL; }
+
 static int find(const PtrVec *v, const char *name) {
   for (int i = 0; i < v->n; i++)
     if (strcmp(((Sym *)v->v[i])->name, name) == 0) return i;
@@ -88,7 +90,7 @@ Full *full_new(Program *prog, JitBackend backend, const char *refusal) {
   }
   fclose(mem);
   char err[1024];
-  f->jit = jit_compile(src, backend == JIT_CC, err, sizeof err);
+  f->jit = jit_compile(src, backend, err, sizeof err);
   free(src);
   if (!f->jit) {
     fail(f, "%s", err);

@@ -34,12 +34,14 @@ typedef int (*FullExternFn)(void *user, const Full *f, long sample, double *out,
  * compilation's error handler armed: 0, or -1 with the diagnostic in
  * prog->ctx->msg. What the facade's npg_emit_full() writes. */
 int full_emit(Program *prog, FILE *out);
-/* The full evaluator of `prog`: its C generated and compiled (libtcc, or cc
- * with JIT_CC). With `refusal` non-NULL, an evaluator that refuses all work
+/* The full evaluator of `prog`: its C generated and compiled (jit.h's
+ * `backend`: libtcc, cc, or JIT_AUTO's choice). With `refusal` non-NULL, an evaluator that refuses all work
  * with that message (the program did not compile), and has no program
  * (full_program() is NULL). NULL only when out of memory; otherwise errors
  * are in full_error(). */
 Full *full_new(Program *prog, JitBackend backend, const char *refusal);
+/* The compiled module (how it was built: jit_info), NULL when compiling failed. */
+const JitModule *full_jit(const Full *f);
 /* The evaluator's error, "" when none. */
 const char *full_error(const Full *f);
 /* Forget the error, unless the construction failed (that one stays). */

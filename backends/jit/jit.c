@@ -1,5 +1,6 @@
-/* jit.c — libtcc in memory, or cc + dlopen. */
+/* jit.c — libtcc in memory, or cc + dlopen through the cache of jit_cache.h. */
 #include "jit.h"
+#include "jit_cache.h"
 
 #include <dlfcn.h>
 #include <errno.h>
@@ -8,7 +9,10 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <pthread.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
+#include <time.h>
 #include <unistd.h>
 
 #ifndef NPG_TCC_LIB_DIR
@@ -19,6 +23,9 @@ struct JitModule {
   TCCState *tcc;
   void *dl;
   char dir[256];   /* cc: the temporary directory of the shared object */
+  JitBackend backend;
+  double seconds;  /* JitInfo.seconds */
+  int cache;       /* JitInfo.cache */
 };
 
 typedef struct TccErr {
@@ -68,6 +75,8 @@ static JitModule *compile_tcc(const char *source, char *err, size_t errlen) {
     return NULL;
   }
   tcc_set_error_func(m->tcc, NULL, NULL);
+  m->backend = JIT_TCC;
+  m->cache = -1;
   return m;
 }
 
@@ -98,7 +107,7 @@ static int run(char *const argv[], char *err, size_t errlen, const char *log) {
     fclose(f);
   }
   if (WIFEXITED(status) && WEXITSTATUS(status) == 127)
-    snprintf(err, errlen, "cannot run the C compiler '%s' (set CC, or use the default libtcc backend)", argv[0]);
+    snprintf(err, errlen, "cannot run the C compiler '%s' (set CC, or choose libtcc: --jit tcc)", argv[0]);
   else
     snprintf(err, errlen, "%s failed on generated code (a bug in npg): %s", argv[0], msg);
   return -1;
@@ -116,11 +125,126 @@ static void remove_dir(JitModule *m) {
   m->dir[0] = 0;
 }
 
+/* The compiler cc runs: $CC, else "cc". */
+static const char *cc_name(void) {
+  const char *cc = getenv("CC");
+  return cc && *cc ? cc : "cc";
+}
+
+/* `name` resolved on PATH into `path` (as given when it holds a '/'): 0 or -1. */
+static int find_on_path(const char *name, char *path, size_t n) {
+  if (strchr(name, '/')) {
+    snprintf(path, n, "%s", name);
+    return access(path, X_OK) == 0 ? 0 : -1;
+  }
+  const char *p = getenv("PATH");
+  if (!p || !*p) p = "/usr/local/bin:/usr/bin:/bin";
+  while (*p) {
+    const char *e = strchr(p, ':');
+    size_t len = e ? (size_t)(e - p) : strlen(p);
+    if (len && (size_t)snprintf(path, n, "%.*s/%s", (int)len, p, name) < n) {
+      struct stat st;
+      if (stat(path, &st) == 0 && S_ISREG(st.st_mode) && access(path, X_OK) == 0) return 0;
+    }
+    p += len + (e != NULL);
+  }
+  return -1;
+}
+
+/* The compiler's identity for the cache key: its resolved path and what
+ * `CC --version` prints, computed once a process per value of CC. */
+static pthread_mutex_t identity_lock = PTHREAD_MUTEX_INITIALIZER;
+static char identity_cc[256], identity[2048];
+
+static int cc_identity(char *out, size_t n, char *err, size_t errlen) {
+  const char *cc = cc_name();
+  pthread_mutex_lock(&identity_lock);
+  if (!identity[0] || strcmp(identity_cc, cc) != 0) {
+    char path[1024];
+    identity[0] = 0;
+    if (find_on_path(cc, path, sizeof path) != 0) {
+      pthread_mutex_unlock(&identity_lock);
+      snprintf(err, errlen, "cannot run the C compiler '%s': not found on PATH (set CC, or choose libtcc: --jit tcc)", cc);
+      return -1;
+    }
+    int fd[2];
+    if (pipe(fd) != 0) {
+      pthread_mutex_unlock(&identity_lock);
+      snprintf(err, errlen, "cannot run %s --version: %s", path, strerror(errno));
+      return -1;
+    }
+    pid_t pid = fork();
+    if (pid == 0) {
+      dup2(fd[1], 1);
+      close(fd[0]);
+      close(fd[1]);
+      execl(path, path, "--version", (char *)NULL);
+      _exit(127);
+    }
+    close(fd[1]);
+    size_t got = (size_t)snprintf(identity, sizeof identity, "%s\n", path);
+    ssize_t r;
+    while (got < sizeof identity - 1 && ((r = read(fd[0], identity + got, sizeof identity - 1 - got)) > 0 || (r < 0 && errno == EINTR)))
+      if (r > 0) got += (size_t)r;
+    identity[got] = 0;
+    char sink[256];
+    while ((r = read(fd[0], sink, sizeof sink)) > 0 || (r < 0 && errno == EINTR)) ; /* the rest, unread, would block the child */
+    close(fd[0]);
+    int status = 0;
+    if (pid > 0)
+      while (waitpid(pid, &status, 0) < 0 && errno == EINTR) ;
+    if (pid < 0 || !WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+      identity[0] = 0;
+      pthread_mutex_unlock(&identity_lock);
+      snprintf(err, errlen, "cannot run the C compiler '%s --version' (set CC, or choose libtcc: --jit tcc)", path);
+      return -1;
+    }
+    snprintf(identity_cc, sizeof identity_cc, "%s", cc);
+  }
+  snprintf(out, n, "%s", identity);
+  pthread_mutex_unlock(&identity_lock);
+  return 0;
+}
+
+static double now_seconds(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+#define CC_FLAGS "-O3", "-march=native", "-ffp-contract=off", "-fno-trapping-math", "-fno-math-errno", "-fPIC", "-shared"
+
+static JitModule *cc_fail(JitModule *m) {
+  remove_dir(m);
+  free(m);
+  return NULL;
+}
+
 static JitModule *compile_cc(const char *source, char *err, size_t errlen) {
   JitModule *m = calloc(1, sizeof *m);
   if (!m) {
     snprintf(err, errlen, "out of memory");
     return NULL;
+  }
+  m->backend = JIT_CC;
+  m->cache = -1;
+  JitCache cache;
+  char ident[2048], key[65] = "";
+  if (jit_cache_open(&cache, err, errlen) != 0 || cc_identity(ident, sizeof ident, err, errlen) != 0) {
+    free(m);
+    return NULL;
+  }
+  if (cache.dir[0]) {
+    static const char *const flags[] = {CC_FLAGS, "-lm"};
+    char fl[256] = "";
+    for (size_t i = 0; i < sizeof flags / sizeof *flags; i++) strcat(strcat(fl, flags[i]), " ");
+    jit_cache_key(source, ident, fl, key);
+    bool damaged;
+    if ((m->dl = jit_cache_load(&cache, key, &damaged))) {
+      m->cache = 1;
+      return m;
+    }
+    m->cache = damaged ? 2 : 0;
   }
   const char *tmp = getenv("TMPDIR");
   tmp = tmp && *tmp ? tmp : "/tmp";
@@ -139,37 +263,75 @@ static JitModule *compile_cc(const char *source, char *err, size_t errlen) {
     free(m);
     return NULL;
   }
-  char src[512], so[512], log[512];
+  char src[512], so[1400], log[512];
   snprintf(src, sizeof src, "%s/gen.c", m->dir);
-  snprintf(so, sizeof so, "%s/gen.so", m->dir);
   snprintf(log, sizeof log, "%s/cc.log", m->dir);
+  /* a new entry is built under a temporary name in the cache folder, so the
+   * rename that publishes it is atomic */
+  static unsigned counter;
+  if (key[0])
+    snprintf(so, sizeof so, "%s/%s.so.tmp.%ld.%u", cache.dir, key, (long)getpid(), __atomic_fetch_add(&counter, 1, __ATOMIC_RELAXED));
+  else
+    snprintf(so, sizeof so, "%s/gen.so", m->dir);
   FILE *f = fopen(src, "w");
   if (!f || fputs(source, f) < 0 || fclose(f) != 0) {
     snprintf(err, errlen, "cannot write %s: %s", src, strerror(errno));
-    remove_dir(m);
-    free(m);
-    return NULL;
+    return cc_fail(m);
   }
-  const char *cc = getenv("CC");
-  char *argv[] = {(char *)(cc && *cc ? cc : "cc"), "-O3", "-march=native", "-ffp-contract=off", "-fno-trapping-math", "-fno-math-errno", "-fPIC", "-shared", "-o", so, src, "-lm", NULL};
+  char *argv[] = {(char *)cc_name(), CC_FLAGS, "-o", so, src, "-lm", NULL};
   if (run(argv, err, errlen, log) != 0) {
-    remove_dir(m);
-    free(m);
-    return NULL;
+    if (key[0]) unlink(so);
+    return cc_fail(m);
+  }
+  if (key[0] && jit_cache_seal(so, key, err, errlen) != 0) {
+    unlink(so);
+    return cc_fail(m);
   }
   m->dl = dlopen(so, RTLD_NOW | RTLD_LOCAL);
   if (!m->dl) {
     snprintf(err, errlen, "cannot load %s: %s", so, dlerror());
-    remove_dir(m);
-    free(m);
-    return NULL;
+    if (key[0]) unlink(so);
+    return cc_fail(m);
+  }
+  if (key[0] && jit_cache_store(&cache, so, key, err, errlen) != 0) {
+    dlclose(m->dl);
+    return cc_fail(m);
   }
   remove_dir(m); /* the mapping stays valid */
   return m;
 }
 
-JitModule *jit_compile(const char *source, bool use_cc, char *err, size_t errlen) {
-  return use_cc ? compile_cc(source, err, errlen) : compile_tcc(source, err, errlen);
+int jit_resolve(JitBackend b, JitBackend *out, char *err, size_t errlen) {
+  if (b == JIT_AUTO) {
+    const char *env = getenv("NPG_JIT");
+    if (env && *env && strcmp(env, "auto") != 0) {
+      if (strcmp(env, "cc") == 0) b = JIT_CC;
+      else if (strcmp(env, "tcc") == 0) b = JIT_TCC;
+      else {
+        snprintf(err, errlen, "NPG_JIT='%.60s' is not a backend (expected auto, cc or tcc)", env);
+        return -1;
+      }
+    }
+  }
+  if (b == JIT_AUTO) {
+    char path[1024];
+    b = find_on_path(cc_name(), path, sizeof path) == 0 ? JIT_CC : JIT_TCC;
+  }
+  *out = b;
+  return 0;
+}
+
+JitModule *jit_compile(const char *source, JitBackend backend, char *err, size_t errlen) {
+  if (jit_resolve(backend, &backend, err, errlen) != 0) return NULL;
+  double t0 = now_seconds();
+  JitModule *m = backend == JIT_CC ? compile_cc(source, err, errlen) : compile_tcc(source, err, errlen);
+  if (m) m->seconds = now_seconds() - t0;
+  return m;
+}
+
+JitInfo jit_info(const JitModule *m) {
+  JitInfo i = {m ? m->backend : JIT_TCC, m ? m->seconds : 0, m ? m->cache : -1};
+  return i;
 }
 
 void *jit_symbol(JitModule *m, const char *name) {

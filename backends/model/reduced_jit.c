@@ -85,7 +85,7 @@ RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
   int rc = emit_reduced(m, mem, err, errlen);
   fclose(mem);
   if (rc != 0) goto fail;
-  j->jit = jit_compile(src, cc, err, errlen);
+  j->jit = jit_compile(src, cc ? JIT_CC : JIT_TCC, err, errlen);
   free(src);
   src = NULL;
   if (!j->jit) goto fail;

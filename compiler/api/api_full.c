@@ -59,12 +59,12 @@ static int refuse_shape(NpgFull *f, const char *func, int ndim, const long *shap
 NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
   const char *refusal = NULL; /* an evaluator that refuses all work with this */
   if (!p) refusal = (api_refuse(NULL, 0, __func__, "argument 'p' is NULL"), api_refusal());
-  else if (backend != NPG_TCC && backend != NPG_CC)
-    refusal = (api_refuse(NULL, 0, __func__, "argument 'backend' is %d (NPG_TCC or NPG_CC)", (int)backend),
+  else if (backend != NPG_TCC && backend != NPG_CC && backend != NPG_AUTO)
+    refusal = (api_refuse(NULL, 0, __func__, "argument 'backend' is %d (NPG_AUTO, NPG_TCC or NPG_CC)", (int)backend),
                api_refusal());
   else if (!npg_ok(p)) refusal = npg_error(p);
   NpgFull *f = mem_calloc(1, sizeof *f);
-  Full *full = f ? full_new(refusal ? NULL : program_ir(p), backend == NPG_CC ? JIT_CC : JIT_TCC, refusal) : NULL;
+  Full *full = f ? full_new(refusal ? NULL : program_ir(p), backend == NPG_CC ? JIT_CC : backend == NPG_TCC ? JIT_TCC : JIT_AUTO, refusal) : NULL;
   const Program *prog = full ? full_program(full) : NULL;
   ExternClosure *externs = prog ? mem_calloc((size_t)prog->quantities.n + 1, sizeof *externs) : NULL;
   if (!full || (prog && !externs)) {
@@ -80,6 +80,15 @@ NpgFull *npg_full_new(NpgProgram *p, NpgBackend backend) {
 
 const char *npg_full_error(const NpgFull *f) {
   return f ? full_error(f->full) : api_refusal()[0] ? api_refusal() : "no evaluator";
+}
+
+int npg_full_jit_info(const NpgFull *f, NpgJitInfo *out) {
+  if (!f || !out || !full_jit(f->full)) return -1;
+  JitInfo i = jit_info(full_jit(f->full));
+  out->backend = i.backend == JIT_CC ? NPG_CC : NPG_TCC;
+  out->compile_seconds = i.seconds;
+  out->cache = i.cache;
+  return 0;
 }
 
 void npg_full_clear_error(NpgFull *f) {

@@ -152,6 +152,31 @@ bool npg_args_double(NpgArgs *a, const char *name, double lo, double hi, bool lo
   return true;
 }
 
+int npg_backend_parse(const char *name, NpgBackend *out) {
+  static const char *const names[] = {"tcc", "cc", "auto"}; /* indexed by NpgBackend */
+  for (int i = 0; name && out && i < 3; i++)
+    if (strcmp(name, names[i]) == 0) {
+      *out = (NpgBackend)i;
+      return 0;
+    }
+  return -1;
+}
+
+const char *npg_backend_name(NpgBackend b) {
+  return b == NPG_TCC ? "tcc" : b == NPG_CC ? "cc" : b == NPG_AUTO ? "auto" : NULL;
+}
+
+bool npg_args_backend(NpgArgs *a, NpgBackend *out) {
+  const char *v;
+  if (npg_args_flag(a, "--cc")) {
+    if (!a->error[0]) *out = NPG_CC;
+    return true;
+  }
+  if (!matched(a, "--jit", &v)) return false;
+  if (v && npg_backend_parse(v, out) != 0) args_fail(a, "--jit: '%s' is not a backend (expected auto, cc or tcc)", v);
+  return true;
+}
+
 const char *npg_args_positional(NpgArgs *a) {
   const char *s = current(a);
   return s && (s[0] != '-' || s[1] == 0) ? s : NULL;

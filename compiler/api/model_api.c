@@ -3,6 +3,7 @@
  * set in full or reduced form, evaluation, lifting, and `output op`
  * operators in reduced form. */
 #include <cblas.h>
+#include <cblas.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdlib.h>
@@ -691,4 +692,10 @@ void npg_reduced_free(NpgReduced *r) {
   free(r->z);
   free(r->given);
   free(r);
+}
+
+int npg_blas_threads(int n) {
+  int before = openblas_get_num_threads();
+  if (n >= 1) openblas_set_num_threads(n);
+  return before;
 }

@@ -80,10 +80,10 @@ static int write_out(const Out *o, NpgFull *f, const char *outdir, long samples)
   return rc;
 }
 
-static int eval_full(NpgProgram *p, const char *data, const char *in, const char *outdir, bool cc, bool progress) {
+static int eval_full(NpgProgram *p, const char *data, const char *in, const char *outdir, NpgBackend backend, bool progress) {
   int rc = 1, nout = 0;
   char err[2048] = "";
-  NpgFull *f = npg_full_new(p, cc ? NPG_CC : NPG_TCC);
+  NpgFull *f = npg_full_new(p, backend);
   NpgSamples *s = NULL;
   Out *outs = calloc((size_t)npg_nsymbols(p) + 1, sizeof *outs);
   if (!outs) {
@@ -142,7 +142,8 @@ done:
 
 int npgc_eval(int argc, char **argv) {
   const char *prog_path = NULL, *data = NULL, *in = NULL, *outdir = NULL;
-  bool full = false, cc = false, progress = false, exact_roots = false;
+  bool full = false, progress = false, exact_roots = false;
+  NpgBackend backend = NPG_AUTO;
   NpgOptions opt = {0};
   NpgArgs a;
   npg_args_init(&a, argc, argv, 2, "npgc eval");
@@ -150,7 +151,7 @@ int npgc_eval(int argc, char **argv) {
     const char *v;
     if (npg_args_flag(&a, "--help") || npg_args_flag(&a, "-h")) return npgc_usage("eval", true);
     if (npg_args_flag(&a, "--full")) full = true;
-    else if (npg_args_flag(&a, "--cc")) cc = true;
+    else if (npg_args_backend(&a, &backend)) ;
     else if (npg_args_flag(&a, "--progress")) progress = true;
     else if (npg_args_flag(&a, "--exact-roots")) exact_roots = true; /* the reduced evaluation's */
     else if ((v = npg_args_string(&a, "-o"))) outdir = v;
@@ -181,7 +182,7 @@ int npgc_eval(int argc, char **argv) {
   NpgProgram *p = npg_compile(prog_path, &opt);
   int rc = 1;
   if (!npg_ok(p)) fputs(npg_error(p), stderr);
-  else rc = eval_full(p, data, in, outdir, cc, progress);
+  else rc = eval_full(p, data, in, outdir, backend, progress);
   npg_free(p);
   return rc;
 }

@@ -36,6 +36,9 @@ int npgc_trajectories_set_reduced(const Trajectories *t, NpgReduced *r, long k, 
 void npgc_trajectories_free(Trajectories *t);
 /* The median and the quartiles of v[0..n) (sorted in place); reduce_use.c. */
 void npgc_quartiles(double *v, long n, double q[3]);
+/* bench's line naming the full evaluator's backend, its compile (or cache load) time
+ * and whether the cache had it; reduce_use.c. */
+void npgc_print_jit(const NpgFull *f);
 /* reduce_cmds.c: train, reduced eval, verify, bench. */
 int npgc_reduce(int argc, char **argv);
 

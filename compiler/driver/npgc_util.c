@@ -38,7 +38,7 @@ static const Usage usages[] = {
      "  -o FILE.c    written to a temporary name and renamed when complete; missing\n"
      "               parent directories are created; an input of the command is refused\n"},
     {"eval",
-     "usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--cc] [--progress] [--std=DIR]\n"
+     "usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--jit auto|cc|tcc] [--progress] [--std=DIR]\n"
      "       npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--exact-roots] [--progress] [--std=DIR]\n"
      "\n"
      "  --full: evaluate the full program on every sample of IN/<input>.npy (leading\n"
@@ -49,13 +49,14 @@ static const Usage usages[] = {
      "  With MODEL/: the reduced evaluation; writes OUT/<name>.npy (lifted) and\n"
      "  OUT/<name>.reduced.npy (reduced coordinates; an output op: samples x m x m).\n"
      "  Params in IN/ must be those the model was trained with.\n"
-     "  --cc         compile the full evaluator with the system compiler at -O3\n"
+     "  --jit B      the full evaluator's compiler: auto (the default: $NPG_JIT, else\n"
+     "               cc when installed, else libtcc), cc (-O3, cached), tcc; --cc = --jit cc\n"
      "  --exact-roots  roots of reduced operators by eigendecomposition\n"
      "  --progress   progress on stderr even when it is not a terminal\n"
      "  -o OUT/      created with its missing parents\n"},
     {"simulate",
      "usage: npgc simulate PROG.npg DATA/ --steps T [--every K] [--model MODEL/] [--blowup F]\n"
-     "                     -o OUT/ [--cc] [--progress] [--std=DIR]\n"
+     "                     -o OUT/ [--jit auto|cc|tcc] [--progress] [--std=DIR]\n"
      "\n"
      "  Run the program's time step (a program with `state u` and `next u = ...`) T\n"
      "  times from each trajectory's initial states: DATA/<state>.npy holds them\n"
@@ -67,13 +68,13 @@ static const Usage usages[] = {
      "               coordinates and lifted only at the saved steps\n"
      "  --blowup F   stop when a state's energy exceeds F times its start (10; 0: only\n"
      "               a value that is not finite stops the run); the step and state named\n"
-     "  --cc         compile the full evaluator with the system compiler at -O3\n"
+     "  --jit B      the full evaluator's compiler: auto, cc or tcc (as npgc train)\n"
      "  --progress   progress on stderr even when it is not a terminal\n"
      "  -o OUT/      created with its missing parents; written when every trajectory ran\n"},
     {"train",
      "usage: npgc train PROG.npg DATA/ -o MODEL/ [--cap N] [--energy E] [--center on|off]\n"
      "                  [--basis NAME:cap=N,energy=E,center=on|off] [--merge concat|joint]\n"
-     "                  [--mem BYTES] [--spectra DIR] [--mpi] [--cc] [--progress] [--std=DIR]\n"
+     "                  [--mem BYTES] [--spectra DIR] [--mpi] [--jit auto|cc|tcc] [--progress] [--std=DIR]\n"
      "                  [--reduce STAGE:interp|galerkin] [--interp-oversample X] [--valid DIR|F|none]\n"
      "                  [--keep-bases NAME,...|all] [--weights FILE.npy]\n"
      "\n"
@@ -117,12 +118,13 @@ static const Usage usages[] = {
      "  --mpi        over the ranks of an MPI job (mpirun -np N npgc train ... --mpi):\n"
      "               samples and tensor rows partitioned, the same model as one\n"
      "               process; rank 0 writes MODEL/; a failed rank ends the job\n"
-     "  --cc         compile the full evaluator with the system compiler at -O3\n"
+     "  --jit B      the full evaluator's compiler: auto (the default: $NPG_JIT, else\n"
+     "               cc when installed, else libtcc), cc (-O3, cached), tcc; --cc = --jit cc\n"
      "  --progress   progress on stderr even when it is not a terminal\n"},
     {"verify",
-     "usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--params DIR] [--cc] [--exact] [--exact-size N]\n"
+     "usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--params DIR] [--jit auto|cc|tcc] [--exact] [--exact-size N]\n"
      "                   [--progress]\n"
-     "       npgc verify PROG.npg --exact [--exact-size N] [--cc]\n"
+     "       npgc verify PROG.npg --exact [--exact-size N] [--jit auto|cc|tcc]\n"
      "\n"
      "  Evaluate full and reduced on the held-out samples of TEST/ (same params as\n"
      "  training) and report, per quantity, the relative error of the lifted reduced\n"
@@ -135,15 +137,20 @@ static const Usage usages[] = {
      "               rebuilt from its tensors equals the full evaluator to 1e-12, and a\n"
      "               model with full-rank bases reproduces it to 1e-10\n"
      "  --exact-size N   that size (1..64; 6 and 4 by default)\n"
+     "  --jit B      the full evaluator's compiler: auto, cc or tcc (as npgc train)\n"
      "  --progress   progress on stderr even when it is not a terminal\n"},
     {"bench",
-     "usage: npgc bench PROG.npg MODEL/ TEST/ [--cc] [--reps N] [--params DIR] [--exact-roots] [--progress]\n"
+     "usage: npgc bench PROG.npg MODEL/ TEST/ [--jit auto|cc|tcc] [--threads N] [--reps N] [--params DIR]\n"
+     "                  [--exact-roots] [--progress]\n"
      "\n"
      "  Time the full and the reduced evaluation of every sample of TEST/, N passes\n"
-     "  (3): the full evaluator (libtcc, npg's default, or --cc: the system compiler\n"
-     "  at -O3), the reduced one with its inputs projected and, reported apart and\n"
-     "  included in the total, its outputs lifted: medians and quartiles; the speedup\n"
-     "  (the median of the per-evaluation ratios); the model's memory.\n"
+     "  (3): the full evaluator (its backend named, with its compile time and whether\n"
+     "  it came from the cache), the reduced one with its inputs projected and its\n"
+     "  outputs lifted, and each part apart (the reduced evaluation alone: coordinates\n"
+     "  in, coordinates out): medians and quartiles; the speedups with and without\n"
+     "  projection and lift (medians of the per-evaluation ratios); the model's memory.\n"
+     "  --threads N  BLAS threads of the reduced evaluation (1)\n"
+     "  --jit B      the full evaluator's compiler: auto, cc or tcc (as npgc train)\n"
      "  --params DIR the params from DIR instead of TEST/\n"
      "  --exact-roots  roots of reduced operators by eigendecomposition (the exact\n"
      "               reference) instead of the Lanczos process (to 1e-8 relative)\n"
@@ -156,7 +163,7 @@ static const Usage usages[] = {
      "  dot where its basis was truncated.\n"},
     {"tune",
      "usage: npgc tune PROG.npg DATA/ VALID/ --tol T -o MODEL/ [--max-cap N] [--center on|off]\n"
-     "                 [--png FILE] [--cc] [--reduce STAGE:interp|galerkin] [--interp-oversample X]\n"
+     "                 [--png FILE] [--jit auto|cc|tcc] [--reduce STAGE:interp|galerkin] [--interp-oversample X]\n"
      "                 [--keep-bases NAME,...|all] [--steps T [--every K]]\n"
      "\n"
      "  Choose every class's basis size so that every output's mean relative L2 error on\n"

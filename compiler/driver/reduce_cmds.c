@@ -53,11 +53,11 @@ static int add_basis(Common *c, const char *s, char *err, size_t errlen) {
 
 /* Each command's options: an option of another command is named as such. */
 static const char *const options_of[][2] = {
-    {"train", "-o --cc --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi --reduce --valid "
+    {"train", "-o --cc --jit --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi --reduce --valid "
               "--interp-oversample --keep-bases --weights --steps --every"},
-    {"eval", "-o --progress --std --exact-roots --full --cc"},
-    {"verify", "--tol --cc --exact --exact-size --progress --std --params --steps --every --png"},
-    {"bench", "--cc --reps --exact-roots --progress --std --params --steps --every"},
+    {"eval", "-o --progress --std --exact-roots --full --cc --jit"},
+    {"verify", "--tol --cc --jit --exact --exact-size --progress --std --params --steps --every --png"},
+    {"bench", "--cc --jit --threads --reps --exact-roots --progress --std --params --steps --every"},
 };
 
 /* Whether `opt` (up to '=') is in the space-separated `list`. */
@@ -103,6 +103,8 @@ static int parse(Common *c, int argc, char **argv) {
   c->reps = 3;
   c->steps = -1;
   c->every = 1;
+  c->backend = NPG_AUTO;
+  c->threads = 1;
   npg_train_options_default(&c->train);
   char prog[64], err[400];
   snprintf(prog, sizeof prog, "npgc %s", c->cmd);
@@ -120,7 +122,8 @@ static int parse(Common *c, int argc, char **argv) {
     } else if (!mine(c, &a, argv[a.i])) {
       unknown_option(&a, c->cmd);
     } else if ((v = npg_args_string(&a, "-o"))) c->out = v;
-    else if (npg_args_flag(&a, "--cc")) c->cc = true;
+    else if (npg_args_backend(&a, &c->backend)) ;
+    else if (npg_args_int(&a, "--threads", 1, 1024, &c->threads)) ;
     else if (npg_args_flag(&a, "--full")) ; /* eval.c took it */
     else if (npg_args_flag(&a, "--progress")) c->progress = true;
     else if (npg_args_flag(&a, "--exact")) c->exact = true;
@@ -322,7 +325,7 @@ static int cmd_train(Common *c) {
   NpgSamples *s = NULL, *v = NULL;
   NpgTrainer *t = NULL;
   NpgModel *m = NULL;
-  NpgFull *f = npg_full_new(p, c->cc ? NPG_CC : NPG_TCC);
+  NpgFull *f = npg_full_new(p, c->backend);
   if (npg_full_error(f)[0] || npg_full_bind_params(f, c->a) != 0) {
     npgc_error(npg_full_error(f));
     goto done;

@@ -12,7 +12,8 @@
 typedef struct Common {
   const char *prog_path, *a, *b, *out;
   NpgOptions opt;
-  bool cc;
+  NpgBackend backend; /* --jit (--cc), NPG_AUTO by default */
+  int threads;        /* bench: BLAS threads (--threads, 1 by default) */
   bool exact;               /* verify: the exactness checks of DESIGN §4 */
   long exact_size;          /* their size of every dim (0: exact.c's defaults) */
   double tol;

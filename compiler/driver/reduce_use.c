@@ -73,7 +73,7 @@ static int open_session(Common *c, Session *x, bool full) {
     return -1;
   }
   if (full) {
-    x->f = npg_full_new(x->p, c->cc ? NPG_CC : NPG_TCC);
+    x->f = npg_full_new(x->p, c->backend);
     const char *params = c->params ? c->params : c->b;
     if (npg_full_error(x->f)[0] || npg_full_bind_params(x->f, params) != 0) {
       npgc_error(npg_full_error(x->f));
@@ -112,13 +112,19 @@ static int open_session(Common *c, Session *x, bool full) {
 }
 
 /* Project the inputs of sample k and evaluate the reduced model. */
-static int reduced_sample(Session *x, long k) {
+/* Sample k's inputs projected onto their bases (npg_reduced_set). */
+static int project_inputs(Session *x, long k) {
   for (int i = 0; i < x->nsym; i++) {
     if (x->sym[i].kind != NPG_INPUT) continue;
     size_t n;
     const double *v = npg_samples_get(x->s, x->sym[i].name, k, &n);
     if (npg_reduced_set(x->r, x->sym[i].name, n, v) != 0) return -1;
   }
+  return 0;
+}
+
+static int reduced_sample(Session *x, long k) {
+  if (project_inputs(x, k) != 0) return -1;
   return npg_reduced_eval(x->r, k);
 }
 
@@ -241,7 +247,7 @@ static int verify_exact(Common *c) {
   if (!p) return 1;
   char err[2048] = "";
   fflush(stdout);
-  int rc = npg_verify_exact(p, c->exact_size, c->cc ? NPG_CC : NPG_TCC, c->train.progress, stdout, err, sizeof err);
+  int rc = npg_verify_exact(p, c->exact_size, c->backend, c->train.progress, stdout, err, sizeof err);
   if (rc < 0)
     fprintf(stderr, "error: exactness checks of %s: %s%s\n", c->prog_path, err,
             strstr(err, "not finite") || strstr(err, "singular") || strstr(err, "indefinite")
@@ -346,6 +352,16 @@ void npgc_quartiles(double *v, long n, double q[3]) {
   }
 }
 
+void npgc_print_jit(const NpgFull *f) {
+  NpgJitInfo ji;
+  if (npg_full_jit_info(f, &ji) != 0) return;
+  const char *cache = ji.cache == 1 ? "loaded from the cache" : ji.cache == 0 ? "compiled, then cached"
+                      : ji.cache == 2 ? "compiled again, the cached entry was damaged" : "not cached";
+  printf("full evaluator: %s, %s in %.1f ms (%s)\n",
+         ji.backend == NPG_CC ? "cc (the system compiler at -O3 -march=native)" : "libtcc",
+         ji.cache == 1 ? "loaded" : "compiled", 1e3 * ji.compile_seconds, cache);
+}
+
 /* An error during the timed passes: the progress line is ended first. */
 static void bench_error(const Common *c, const char *msg) {
   if (c->train.progress) fputc('\n', stderr);
@@ -353,6 +369,7 @@ static void bench_error(const Common *c, const char *msg) {
 }
 
 int cmd_bench(Common *c) {
+  npg_blas_threads(c->threads); /* one unless asked: a loaded machine's threads slow small GEMMs down */
   if (c->steps >= 0) return cmd_bench_steps(c);
   if (!c->prog_path) return npgc_missing("bench", "the program (PROG.npg)");
   if (!c->a) return npgc_missing("bench", "MODEL/ (a model trained by npgc train)");
@@ -369,12 +386,14 @@ int cmd_bench(Common *c) {
     maxn = (size_t)ci.n > maxn ? (size_t)ci.n : maxn;
   }
   long total = c->reps * S, shown = -1;
-  /* per timed evaluation: full, reduced (projected and lifted), lifting alone, and their ratio */
-  if (!(y = malloc(sizeof(double) * maxn)) || !(tf = malloc(sizeof(double) * (size_t)(4 * total + 4)))) {
+  /* per timed evaluation: full; reduced (projected and lifted); projection, the reduced evaluation alone
+   * (coordinates in, coordinates out) and lifting; the ratios of full to the reduced with and without */
+  if (!(y = malloc(sizeof(double) * maxn)) || !(tf = malloc(sizeof(double) * (size_t)(7 * total + 7)))) {
     fputs("error: out of memory\n", stderr);
     goto done;
   }
-  double *tr = tf + total + 1, *tl = tr + total + 1, *ratio = tl + total + 1;
+  double *tr = tf + total + 1, *tl = tr + total + 1, *ratio = tl + total + 1, *tp = ratio + total + 1,
+         *te = tp + total + 1, *ratio_core = te + total + 1;
   long timed = 0;
   for (long rep = 0; rep < c->reps; rep++)
     for (long k = 0; k < S; k++) {
@@ -394,7 +413,12 @@ int cmd_bench(Common *c) {
         goto done;
       }
       double t1 = reduce_now();
-      if (reduced_sample(&x, k) != 0) {
+      if (project_inputs(&x, k) != 0) {
+        bench_error(c, npg_reduced_error(x.r));
+        goto done;
+      }
+      double t1p = reduce_now();
+      if (npg_reduced_eval(x.r, k) != 0) {
         bench_error(c, npg_reduced_error(x.r));
         goto done;
       }
@@ -408,7 +432,10 @@ int cmd_bench(Common *c) {
       tf[timed] = t1 - t0;
       tr[timed] = t3 - t1;
       tl[timed] = t3 - t2;
+      tp[timed] = t1p - t1;
+      te[timed] = t2 - t1p;
       ratio[timed] = (t1 - t0) / fmax(t3 - t1, 1e-12);
+      ratio_core[timed] = (t1 - t0) / fmax(t2 - t1p, 1e-12);
       timed++;
     }
   npg_progress(c->train.progress, "bench (full and reduced)", total, total);
@@ -416,21 +443,27 @@ int cmd_bench(Common *c) {
   /* one statistic, the median (robust to the machine's other load, which the mean is not), with the quartiles
    * as its spread; the speedup is the median of the per-evaluation ratios, each full evaluation against the
    * reduced one that follows it */
-  double qf[3], qr[3], ql[3], qs[3];
+  double qf[3], qr[3], ql[3], qs[3], qp[3], qe[3], qc[3];
   npgc_quartiles(tf, timed, qf);
   npgc_quartiles(tr, timed, qr);
   npgc_quartiles(tl, timed, ql);
   npgc_quartiles(ratio, timed, qs);
-  printf("bench %s: %ld samples x %ld passes, %ld evaluations timed; medians, quartiles in brackets\n", c->prog_path, S,
-         c->reps, timed);
-  printf("full evaluator: %s\n", c->cc ? "cc (the system compiler at -O3 -march=native)"
-                                        : "libtcc (npg's default; --cc times the system compiler at -O3)");
+  npgc_quartiles(tp, timed, qp);
+  npgc_quartiles(te, timed, qe);
+  npgc_quartiles(ratio_core, timed, qc);
+  printf("bench %s: %ld samples x %ld passes, %ld evaluations timed, %d BLAS thread%s; medians, quartiles in "
+         "brackets\n", c->prog_path, S, c->reps, timed, c->threads, c->threads == 1 ? " (--threads N for more)" : "s");
+  npgc_print_jit(x.f);
   printf("full evaluation     %12.3e s per sample [%.3e, %.3e]\n", qf[1], qf[0], qf[2]);
   printf("reduced evaluation  %12.3e s per sample [%.3e, %.3e], inputs projected and outputs lifted\n", qr[1], qr[0],
          qr[2]);
-  printf("  of which lifting  %12.3e s per sample [%.3e, %.3e]\n", ql[1], ql[0], ql[2]);
+  printf("  projecting inputs %12.3e s per sample [%.3e, %.3e]\n", qp[1], qp[0], qp[2]);
+  printf("  reduced alone     %12.3e s per sample [%.3e, %.3e], coordinates in, coordinates out\n", qe[1], qe[0],
+         qe[2]);
+  printf("  lifting outputs   %12.3e s per sample [%.3e, %.3e]\n", ql[1], ql[0], ql[2]);
   printf("speedup             %12.3gx [%.3gx, %.3gx] (full time / reduced time per evaluation%s)\n", qs[1], qs[0],
          qs[2], qs[1] < 1 ? ": below 1, the reduced evaluation is slower" : "");
+  printf("  without projection and lift %.3gx [%.3gx, %.3gx]\n", qc[1], qc[0], qc[2]);
   printf("reduced model       %12.3f MB of reduced tensors, %.3f MB with bases and extern tables\n", (double)tb / 1e6,
          (double)bytes / 1e6);
   rc = 0;

@@ -57,7 +57,7 @@ static int open_roll(Common *c, Roll *x, const char *cmd) {
   if (npg_model_error(x->m)[0]) return npgc_error(npg_model_error(x->m)), 1;
   if (npg_model_check_params_dir(x->m, params, err, sizeof err) != 0) return npgc_error(err), 1;
   if (npgc_trajectories_open(x->p, c->b, c->steps, &x->tr, err, sizeof err) != 0) return npgc_error(err), 1;
-  x->f = npg_full_new(x->p, c->cc ? NPG_CC : NPG_TCC);
+  x->f = npg_full_new(x->p, c->backend);
   if (npg_full_error(x->f)[0] || npg_full_bind_params(x->f, params) != 0) return npgc_error(npg_full_error(x->f)), 1;
   x->r = npg_reduced_new(x->m);
   if (npg_reduced_error(x->r)[0]) return npgc_error(npg_reduced_error(x->r)), 1;
@@ -236,10 +236,10 @@ int cmd_bench_steps(Common *c) {
   npgc_quartiles(tr, timed, qr);
   npgc_quartiles(tl, timed, ql);
   npgc_quartiles(ratio, timed, qs);
-  printf("bench %s: %ld trajector%s x %ld passes of %ld steps; per step, medians over the rollouts, quartiles in "
-         "brackets\n", c->prog_path, S, S == 1 ? "y" : "ies", c->reps, c->steps);
-  printf("full evaluator: %s\n", c->cc ? "cc (the system compiler at -O3 -march=native)"
-                                        : "libtcc (npg's default; --cc times the system compiler at -O3)");
+  printf("bench %s: %ld trajector%s x %ld passes of %ld steps, %d BLAS thread%s; per step, medians over the rollouts, "
+         "quartiles in brackets\n", c->prog_path, S, S == 1 ? "y" : "ies", c->reps, c->steps, c->threads,
+         c->threads == 1 ? " (--threads N for more)" : "s");
+  npgc_print_jit(x.f);
   printf("full step           %12.3e s [%.3e, %.3e]\n", qf[1], qf[0], qf[2]);
   printf("reduced step        %12.3e s [%.3e, %.3e], in reduced coordinates (states never lifted)\n", qr[1], qr[0],
          qr[2]);

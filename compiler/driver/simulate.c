@@ -65,7 +65,7 @@ static int write_states(const Sim *s, const char *outdir) {
 }
 
 static int simulate(NpgProgram *p, const char *data, const char *model_dir, long steps, long every, double blowup,
-                    bool cc, bool progress, const char *outdir) {
+                    NpgBackend backend, bool progress, const char *outdir) {
   int rc = 1;
   char err[4400] = "";
   Trajectories t = {0};
@@ -105,7 +105,7 @@ static int simulate(NpgProgram *p, const char *data, const char *model_dir, long
     s.r = npg_reduced_new(m);
     if (blowup >= 0) npg_reduced_set_blowup(s.r, blowup);
   } else {
-    s.f = npg_full_new(p, cc ? NPG_CC : NPG_TCC);
+    s.f = npg_full_new(p, backend);
     if (!npg_full_error(s.f)[0]) npg_full_bind_params(s.f, data);
     if (blowup >= 0) npg_full_set_blowup(s.f, blowup);
   }
@@ -144,14 +144,15 @@ int npgc_simulate(int argc, char **argv) {
   const char *prog_path = NULL, *data = NULL, *outdir = NULL, *model = NULL;
   long steps = -1, every = 1;
   double blowup = -1;
-  bool cc = false, progress = false;
+  bool progress = false;
+  NpgBackend backend = NPG_AUTO;
   NpgOptions opt = {0};
   NpgArgs a;
   npg_args_init(&a, argc, argv, 2, "npgc simulate");
   while (npg_args_next(&a)) {
     const char *v;
     if (npg_args_flag(&a, "--help") || npg_args_flag(&a, "-h")) return npgc_usage("simulate", true);
-    if (npg_args_flag(&a, "--cc")) cc = true;
+    if (npg_args_backend(&a, &backend)) {}
     else if (npg_args_flag(&a, "--progress")) progress = true;
     else if (npg_args_long(&a, "--steps", 0, 1000000000L, &steps)) {}
     else if (npg_args_long(&a, "--every", 1, 1000000000L, &every)) {}
@@ -180,7 +181,7 @@ int npgc_simulate(int argc, char **argv) {
   NpgProgram *p = npg_compile(prog_path, &opt);
   int rc = 1;
   if (!npg_ok(p)) fputs(npg_error(p), stderr);
-  else rc = simulate(p, data, model, steps, every, blowup, cc, progress, outdir);
+  else rc = simulate(p, data, model, steps, every, blowup, backend, progress, outdir);
   npg_free(p);
   return rc;
 }

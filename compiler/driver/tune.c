@@ -155,7 +155,7 @@ static int tune(int argc, char **argv, NpgTrainOptions *to) {
   const char *prog_path = NULL, *data = NULL, *valid = NULL, *out = NULL, *png = NULL;
   double tol = -1;
   long max_cap = 60, steps = -1, every = 1;
-  bool cc = false;
+  NpgBackend backend = NPG_AUTO;
   NpgOptions opt = {0};
   NpgTrainOptions topt = *to;
   NpgArgs a;
@@ -180,7 +180,7 @@ static int tune(int argc, char **argv, NpgTrainOptions *to) {
     else if ((v = npg_args_string(&a, "--keep-bases"))) {
       if (!*v) snprintf(a.error, sizeof a.error, "npgc tune: --keep-bases: give quantities or classes (m_x), or all");
       topt.keep_bases = v;
-    } else if (npg_args_flag(&a, "--cc")) cc = true;
+    } else if (npg_args_backend(&a, &backend)) ;
     else if ((v = npg_args_string(&a, "--std"))) opt.std_dir = v;
     else if ((v = npg_args_positional(&a))) {
       if (!prog_path) prog_path = v;
@@ -233,7 +233,7 @@ static int tune(int argc, char **argv, NpgTrainOptions *to) {
   Visited dv = {0}, vv = {0};
   NpgTuneReport r = {0};
   NpgModel *m = NULL;
-  NpgFull *f = npg_full_new(p, cc ? NPG_CC : NPG_TCC);
+  NpgFull *f = npg_full_new(p, backend);
   if (npg_full_error(f)[0] || npg_full_bind_params(f, data) != 0) {
     npgc_error(npg_full_error(f));
     goto done;

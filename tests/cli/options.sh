@@ -46,7 +46,21 @@ test -s "$W/OUT/y.npy" || fail "eval -o=OUT wrote no y.npy"
 "$N" check "$P" --std=stdlib >/dev/null || fail "check --std=DIR"
 "$N" bench "$P" "$W/M1" "$W/TEST" --reps=3 >"$W/bench.txt" || fail "bench --reps=3"
 # bench: one statistic, stated (medians), with its spread (quartiles), one speedup (not a mean beside a best)
-grep -q "59 evaluations timed; medians, quartiles in brackets" "$W/bench.txt" || fail "bench statistic: $(cat "$W/bench.txt")"
+grep -q "59 evaluations timed, 1 BLAS thread (--threads N for more); medians, quartiles in brackets" "$W/bench.txt" ||
+  fail "bench statistic: $(cat "$W/bench.txt")"
+# honest bench (issue 42): the full evaluator's backend named with its compile time and cache state, the
+# reduced time with and without projection and lift, the BLAS threads asked for
+grep -q "^full evaluator: \(cc (the system compiler at -O3 -march=native)\|libtcc\), \(compiled\|loaded\) in [0-9.]* ms (" "$W/bench.txt" ||
+  fail "bench names no backend: $(cat "$W/bench.txt")"
+grep -q "^  reduced alone  *[0-9.e+-]* s per sample .*coordinates in, coordinates out" "$W/bench.txt" &&
+  grep -q "^  without projection and lift [0-9.e+-]*x" "$W/bench.txt" || fail "bench lacks the reduced time alone: $(cat "$W/bench.txt")"
+NPG_JIT=tcc "$N" bench "$P" "$W/M1" "$W/TEST" --reps 1 --threads 2 >"$W/bench2.txt" || fail "bench --threads 2"
+grep -q "evaluations timed, 2 BLAS threads;" "$W/bench2.txt" && grep -q "^full evaluator: libtcc, compiled in" "$W/bench2.txt" ||
+  fail "bench --threads 2 under NPG_JIT=tcc: $(cat "$W/bench2.txt")"
+"$N" bench "$P" "$W/M1" "$W/TEST" --reps 1 --jit cc >"$W/bench3.txt" || fail "bench --jit cc"
+grep -q "^full evaluator: cc (the system compiler" "$W/bench3.txt" || fail "bench --jit cc: $(cat "$W/bench3.txt")"
+expect 2 "npgc bench: --jit: 'gcc' is not a backend (expected auto, cc or tcc)" "$N" bench "$P" "$W/M1" "$W/TEST" --jit gcc
+expect 2 "npgc bench: --threads: 0 is out of range (expected 1..1024)" "$N" bench "$P" "$W/M1" "$W/TEST" --threads 0
 [ "$(grep -c "speedup" "$W/bench.txt")" = 1 ] || fail "bench prints more than one speedup: $(cat "$W/bench.txt")"
 grep -q "^speedup  *[0-9.e+-]*x \[[0-9.e+-]*x, [0-9.e+-]*x\] (full time / reduced time per evaluation" "$W/bench.txt" ||
   fail "bench speedup line: $(cat "$W/bench.txt")"

@@ -72,6 +72,8 @@ PY
 done
 "$B/npgc" bench $H/heat.npg "$W/m_heat" "$W/test" --steps 50 --reps 1 >"$W/bench.txt" || fail "bench --steps: $(cat "$W/bench.txt")"
 grep -q "^reduced step .* in reduced coordinates" "$W/bench.txt" || fail "bench --steps: $(cat "$W/bench.txt")"
+grep -q "^full evaluator: \(cc (the system compiler at -O3 -march=native)\|libtcc\), \(compiled\|loaded\) in" "$W/bench.txt" &&
+  grep -q "steps, 1 BLAS thread (--threads N for more);" "$W/bench.txt" || fail "bench --steps names no backend or threads: $(cat "$W/bench.txt")"
 grep -q "^speedup  *[0-9.e+-]*x" "$W/bench.txt" || fail "bench --steps speedup: $(cat "$W/bench.txt")"
 
 # tune --steps: sizes chosen by the rollout error, which verify --steps then confirms
