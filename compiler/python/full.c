@@ -125,10 +125,9 @@ static int bind(FullObject *self, PyObject *params) {
 
 PyObject *npgpy_full_new(ProgramObject *prog, PyObject *params, const char *backend) {
   NpgBackend b;
-  if (strcmp(backend, "tcc") == 0) b = NPG_TCC;
-  else if (strcmp(backend, "cc") == 0) b = NPG_CC;
-  else return PyErr_Format(PyExc_ValueError, "backend '%s': 'tcc' (libtcc, in memory) or 'cc' (the system compiler)",
-                           backend);
+  if (npg_backend_parse(backend, &b) != 0)
+    return PyErr_Format(PyExc_ValueError, "backend '%s': 'auto' (cc where installed, else libtcc; $NPG_JIT "
+                        "overrides), 'cc' (the system compiler, cached) or 'tcc' (libtcc, in memory)", backend);
   FullObject *self = PyObject_GC_New(FullObject, &npgpy_FullType);
   if (!self) return NULL;
   self->prog = (ProgramObject *)Py_NewRef(prog);
@@ -408,8 +407,20 @@ static PyObject *full_repr(FullObject *self) { return PyUnicode_FromFormat("<npg
 
 static PyObject *get_program(FullObject *self, void *unused) { return Py_NewRef(self->prog); }
 
+/* npg_full_jit_info as a dict. */
+static PyObject *get_jit(FullObject *self, void *unused) {
+  NpgJitInfo ji;
+  if (npg_full_jit_info(self->f, &ji) != 0) return PyErr_Format(PyExc_RuntimeError, "%s", npg_full_error(self->f));
+  const char *cache = ji.cache == 1 ? "hit" : ji.cache == 0 ? "miss" : ji.cache == 2 ? "rebuilt" : "none";
+  return Py_BuildValue("{s:s,s:d,s:s}", "backend", npg_backend_name(ji.backend), "compile_seconds",
+                       ji.compile_seconds, "cache", cache);
+}
+
 static PyGetSetDef full_getset[] = {
   {"program", (getter)get_program, NULL, "the Program", NULL},
+  {"jit", (getter)get_jit, NULL,
+   "how the evaluator was compiled: {'backend': 'cc' or 'tcc', 'compile_seconds': float, 'cache': 'hit', "
+   "'miss', 'rebuilt' (a damaged entry replaced) or 'none' (libtcc, cache off)}", NULL},
   {NULL},
 };
 

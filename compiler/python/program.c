@@ -173,7 +173,7 @@ static PyObject *program_check(ProgramObject *self, PyObject *unused) { return r
 static PyObject *program_full(ProgramObject *self, PyObject *args, PyObject *kw) {
   static char *kwlist[] = {"params", "backend", NULL};
   PyObject *params = Py_None;
-  const char *backend = "tcc";
+  const char *backend = "auto";
   if (!PyArg_ParseTupleAndKeywords(args, kw, "|Os:full", kwlist, &params, &backend)) return NULL;
   return npgpy_full_new(self, params, backend);
 }
@@ -194,8 +194,10 @@ static PyGetSetDef program_getset[] = {
 static PyMethodDef program_methods[] = {
   {"check", (PyCFunction)program_check, METH_NOARGS, "check() -> str: the npgc check report as text"},
   {"full", (PyCFunction)(void (*)(void))program_full, METH_VARARGS | METH_KEYWORDS,
-   "full(params=None, backend='tcc') -> Full\n\n"
-   "A full evaluator (generated C compiled by libtcc, or by the system compiler with 'cc').\n"
+   "full(params=None, backend='auto') -> Full\n\n"
+   "A full evaluator: its generated C compiled by the system compiler ('cc', -O3, kept in\n"
+   "the cache of compiled evaluators) or by libtcc ('tcc', in memory); 'auto' is $NPG_JIT\n"
+   "when set, else cc where installed, else libtcc (npgc's --jit).\n"
    "params: a dict name -> array (int params as integer arrays), or a directory holding\n"
    "<param>.npy files."},
   {NULL},

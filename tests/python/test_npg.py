@@ -118,6 +118,30 @@ def test_full_equals_npgc_eval_full(tmp_path, npgc, backend):
     by_dir = npg.compile(SPRINGS).full(params=str(data))
     assert np.array_equal(by_dir(x=x[0])["f"], full(x=x[0])["f"])
     assert full.dim("E") == len(edge) and full.get("l2").shape == (len(edge),)
+    assert full.jit["backend"] == backend
+
+
+def test_backends_tcc_cc_auto_identical(tmp_path, monkeypatch):
+    """issue 42: backend='tcc', 'cc' and the default 'auto' give the same values, bit for bit (the
+    generated C is compiled with -ffp-contract=off, so no fused multiply-add differs), and 'auto' is
+    NPG_JIT's choice, else cc"""
+    monkeypatch.setenv("NPG_CACHE_DIR", str(tmp_path / "cache"))
+    edge, L0, x = springs_data(6, 3)
+    prog = npg.compile(SPRINGS)
+    params = {"edge": edge, "L0": L0}
+    monkeypatch.delenv("NPG_JIT", raising=False)
+    fulls = {b: prog.full(params=params, backend=b) for b in ("tcc", "cc", "auto")}
+    assert fulls["tcc"].jit["backend"] == "tcc" and fulls["tcc"].jit["cache"] == "none"
+    assert fulls["cc"].jit["backend"] == "cc" and fulls["cc"].jit["cache"] in ("miss", "hit")
+    assert fulls["auto"].jit == dict(fulls["auto"].jit, backend="cc", cache="hit")  # cc installed: auto is cc, cached
+    for k in range(len(x)):
+        outs = {b: f(x=x[k])["f"] for b, f in fulls.items()}
+        assert np.array_equal(outs["tcc"], outs["cc"]) and np.array_equal(outs["cc"], outs["auto"])
+    monkeypatch.setenv("NPG_JIT", "tcc")
+    assert prog.full(params=params).jit["backend"] == "tcc"
+    monkeypatch.setenv("NPG_JIT", "gcc")
+    with pytest.raises(Exception, match="NPG_JIT='gcc' is not a backend"):
+        prog.full(params=params)
 
 
 def test_full_outputs_are_fresh_arrays(eq3):
