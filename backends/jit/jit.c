@@ -3,6 +3,7 @@
 #include "jit_cache.h"
 
 #include <dlfcn.h>
+#include <limits.h>
 #include <errno.h>
 #include <libtcc.h>
 #include <math.h>
@@ -151,53 +152,85 @@ static int find_on_path(const char *name, char *path, size_t n) {
   return -1;
 }
 
+/* `path --version`'s output after "path\n" into `out`: 0 or -1. */
+static int version_text(const char *path, char *out, size_t n) {
+  int fd[2];
+  if (pipe(fd) != 0) return -1;
+  pid_t pid = fork();
+  if (pid == 0) {
+    dup2(fd[1], 1);
+    close(fd[0]);
+    close(fd[1]);
+    execl(path, path, "--version", (char *)NULL);
+    _exit(127);
+  }
+  close(fd[1]);
+  size_t got = (size_t)snprintf(out, n, "%s\n", path);
+  ssize_t r;
+  while (got < n - 1 && ((r = read(fd[0], out + got, n - 1 - got)) > 0 || (r < 0 && errno == EINTR)))
+    if (r > 0) got += (size_t)r;
+  out[got] = 0;
+  char sink[256];
+  while ((r = read(fd[0], sink, sizeof sink)) > 0 || (r < 0 && errno == EINTR)) ; /* the rest, unread, would block the child */
+  close(fd[0]);
+  int status = 0;
+  if (pid > 0)
+    while (waitpid(pid, &status, 0) < 0 && errno == EINTR) ;
+  return pid > 0 && WIFEXITED(status) && WEXITSTATUS(status) == 0 ? 0 : -1;
+}
+
 /* The compiler's identity for the cache key: its resolved path and what
- * `CC --version` prints, computed once a process per value of CC. */
+ * `CC --version` prints. Running it costs 2-3 ms (measured from a Python
+ * process), more than loading a cached evaluator, so it is computed once a
+ * process per value of CC, and kept in the cache folder as cc-HASH.id, HASH
+ * naming the compiler's file (real path, device, inode, size, mtime): a
+ * compiler upgraded or switched is another file, another identity. A damaged
+ * .id file can only change the key (a miss), never load a wrong object. */
 static pthread_mutex_t identity_lock = PTHREAD_MUTEX_INITIALIZER;
 static char identity_cc[256], identity[2048];
 
-static int cc_identity(char *out, size_t n, char *err, size_t errlen) {
+static int cc_identity(const char *cache_dir, char *out, size_t n, char *err, size_t errlen) {
   const char *cc = cc_name();
   pthread_mutex_lock(&identity_lock);
   if (!identity[0] || strcmp(identity_cc, cc) != 0) {
-    char path[1024];
+    char path[1024], real[PATH_MAX], memo[1400] = "";
     identity[0] = 0;
     if (find_on_path(cc, path, sizeof path) != 0) {
       pthread_mutex_unlock(&identity_lock);
       snprintf(err, errlen, "cannot run the C compiler '%s': not found on PATH (set CC, or choose libtcc: --jit tcc)", cc);
       return -1;
     }
-    int fd[2];
-    if (pipe(fd) != 0) {
-      pthread_mutex_unlock(&identity_lock);
-      snprintf(err, errlen, "cannot run %s --version: %s", path, strerror(errno));
-      return -1;
+    struct stat st;
+    if (cache_dir[0] && realpath(path, real) && stat(real, &st) == 0) {
+      char id[PATH_MAX + 200], hex[65];
+      int len = snprintf(id, sizeof id, "%s %s %llu %llu %lld %lld.%09ld", path, real, (unsigned long long)st.st_dev,
+                         (unsigned long long)st.st_ino, (long long)st.st_size, (long long)st.st_mtim.tv_sec,
+                         st.st_mtim.tv_nsec);
+      jit_cache_sha256_hex(id, (size_t)len, hex);
+      snprintf(memo, sizeof memo, "%s/cc-%.32s.id", cache_dir, hex);
+      FILE *f = fopen(memo, "rb");
+      if (f) {
+        size_t got = fread(identity, 1, sizeof identity - 1, f);
+        identity[got] = 0;
+        fclose(f);
+        if (got == 0 || strncmp(identity, path, strlen(path)) != 0 || identity[strlen(path)] != '\n') identity[0] = 0;
+      }
     }
-    pid_t pid = fork();
-    if (pid == 0) {
-      dup2(fd[1], 1);
-      close(fd[0]);
-      close(fd[1]);
-      execl(path, path, "--version", (char *)NULL);
-      _exit(127);
-    }
-    close(fd[1]);
-    size_t got = (size_t)snprintf(identity, sizeof identity, "%s\n", path);
-    ssize_t r;
-    while (got < sizeof identity - 1 && ((r = read(fd[0], identity + got, sizeof identity - 1 - got)) > 0 || (r < 0 && errno == EINTR)))
-      if (r > 0) got += (size_t)r;
-    identity[got] = 0;
-    char sink[256];
-    while ((r = read(fd[0], sink, sizeof sink)) > 0 || (r < 0 && errno == EINTR)) ; /* the rest, unread, would block the child */
-    close(fd[0]);
-    int status = 0;
-    if (pid > 0)
-      while (waitpid(pid, &status, 0) < 0 && errno == EINTR) ;
-    if (pid < 0 || !WIFEXITED(status) || WEXITSTATUS(status) != 0) {
-      identity[0] = 0;
-      pthread_mutex_unlock(&identity_lock);
-      snprintf(err, errlen, "cannot run the C compiler '%s --version' (set CC, or choose libtcc: --jit tcc)", path);
-      return -1;
+    if (!identity[0]) {
+      if (version_text(path, identity, sizeof identity) != 0) {
+        identity[0] = 0;
+        pthread_mutex_unlock(&identity_lock);
+        snprintf(err, errlen, "cannot run the C compiler '%s --version' (set CC, or choose libtcc: --jit tcc)", path);
+        return -1;
+      }
+      if (memo[0]) { /* a temporary name, renamed: another process reads it whole or not at all */
+        char tmp[1500];
+        snprintf(tmp, sizeof tmp, "%s.tmp.%ld", memo, (long)getpid());
+        FILE *f = fopen(tmp, "wb");
+        bool ok = f && fputs(identity, f) >= 0;
+        if (f && fclose(f) != 0) ok = false;
+        if (!ok || rename(tmp, memo) != 0) unlink(tmp);
+      }
     }
     snprintf(identity_cc, sizeof identity_cc, "%s", cc);
   }
@@ -230,7 +263,7 @@ static JitModule *compile_cc(const char *source, char *err, size_t errlen) {
   m->cache = -1;
   JitCache cache;
   char ident[2048], key[65] = "";
-  if (jit_cache_open(&cache, err, errlen) != 0 || cc_identity(ident, sizeof ident, err, errlen) != 0) {
+  if (jit_cache_open(&cache, err, errlen) != 0 || cc_identity(cache.dir, ident, sizeof ident, err, errlen) != 0) {
     free(m);
     return NULL;
   }

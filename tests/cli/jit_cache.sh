@@ -40,3 +40,9 @@ PY
 "$B/npgc" bench $P "$W/MODEL" "$W/DATA" --reps 1 >"$W/bench.txt" || fail "bench: $(cat "$W/bench.txt")"
 grep -q "^full evaluator: cc (the system compiler at -O3 -march=native), loaded in [0-9.]* ms (loaded from the cache)" \
   "$W/bench.txt" || fail "bench did not load the cached evaluator: $(cat "$W/bench.txt")"
+# the compiler's identity kept beside the entries (cc-*.id, saving a `cc --version` a process):
+# damaged, it changes the key at worst, never the results
+ls "$W/cache"/cc-*.id >/dev/null 2>&1 || fail "no compiler identity kept: $(ls "$W/cache")"
+for f in "$W/cache"/cc-*.id; do printf 'garbage' >"$f"; done
+"$B/npgc" eval $P --full "$W/DATA" "$W/DATA" -o "$W/CC3" --jit cc >/dev/null || fail "eval after a damaged identity"
+for f in "$W"/CC1/*.npy; do cmp -s "$f" "$W/CC3/$(basename "$f")" || fail "$(basename "$f") differs after a damaged identity"; done
