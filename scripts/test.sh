@@ -17,6 +17,13 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 fuzz_seconds=${NPG_FUZZ_SECONDS:-60}
 
+# The full evaluators of the suite compiled by libtcc (milliseconds each) rather than the system
+# compiler, npg's default (0.1-1 s each; the suite creates thousands): NPG_JIT is what --jit auto,
+# NPG_AUTO and backend="auto" mean. test_jit_cache, cli_jit_cache, test_full, test_emit_direct,
+# test_demand and the Python tests ask for cc explicitly. NPG_JIT=auto bash scripts/test.sh runs
+# everything the default way. The tests' cc cache is build*/jit-cache (CMake sets NPG_CACHE_DIR).
+export NPG_JIT=${NPG_JIT:-tcc}
+
 header() {
   printf '\n==================== %s ====================\n' "$*"
 }

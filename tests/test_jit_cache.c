@@ -1,8 +1,8 @@
 /* test_jit_cache.c — the cache of cc-compiled evaluators (backends/jit/jit_cache.h):
  * the key's SHA-256 against FIPS 180-4's vectors; an evaluator compiled, stored,
  * loaded from the cache and compiled with the cache off gives the same stage values
- * bit for bit; an entry truncated, with a byte flipped, emptied or replaced by another
- * program's (foreign) is detected, rebuilt and then loaded; the folder is bounded by
+ * bit for bit; an entry truncated, with a byte flipped, emptied, replaced by another
+ * program's (foreign) or owned by another user is detected, rebuilt and then loaded; the folder is bounded by
  * NPG_CACHE_MAX, oldest out first; badly set NPG_CACHE_DIR, NPG_CACHE_MAX and NPG_JIT
  * are refused naming the variable; with no cc on PATH, auto is libtcc. Every test
  * works in its own scratch folder (NPG_CACHE_DIR), never the user's cache. */
@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "support/refeval.h"
 #include "testutil.h"
@@ -162,6 +163,8 @@ static void damaged(NpgProgram *p, NpgFull *ref, const char *how) {
     write_file(path, bytes, n / 3);
   } else if (strcmp(how, "empty") == 0) {
     write_file(path, bytes, 0);
+  } else if (strcmp(how, "owner") == 0) { /* a valid entry another user owns */
+    assert_int_equal(chown(path, 65534, 65534), 0);
   } else if (strcmp(how, "foreign") == 0) { /* another program's valid entry under this key */
     char other[600];
     NpgProgram *q = compile_text("foreign", "input x : real[3]\noutput y = [x[0]*x[2], x[1]^2]\n");
@@ -206,6 +209,7 @@ static void damaged_entries_rebuilt(void **state) {
   damaged(p, ref, "truncate");
   damaged(p, ref, "empty");
   damaged(p, ref, "foreign");
+  if (geteuid() == 0) damaged(p, ref, "owner"); /* only root may give a file away */
   npg_full_free(ref);
   npg_free(p);
 }

@@ -327,8 +327,8 @@ static JitModule *compile_cc(const char *source, char *err, size_t errlen) {
     return cc_fail(m);
   }
   if (key[0] && jit_cache_store(&cache, so, key, err, errlen) != 0) {
-    dlclose(m->dl);
-    return cc_fail(m);
+    err[0] = 0; /* not published (another user's file in the way): loaded all the same, not cached */
+    m->cache = -1;
   }
   remove_dir(m); /* the mapping stays valid */
   return m;

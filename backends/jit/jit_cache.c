@@ -154,8 +154,10 @@ int jit_cache_open(JitCache *c, char *err, size_t errlen) {
     }
     snprintf(c->dir, sizeof c->dir, "%s", env);
     if (make_dirs(c->dir) != 0) {
-      snprintf(err, errlen, "NPG_CACHE_DIR='%.200s' is not a folder npg can write: %s", env, strerror(errno));
+      int e = errno;
       c->dir[0] = 0;
+      if (e == EACCES || e == EPERM || e == EROFS) return 0; /* another user's or a read-only folder: not cached */
+      snprintf(err, errlen, "NPG_CACHE_DIR='%.200s' is not a folder npg can write: %s", env, strerror(e));
       return -1;
     }
     return 0;
@@ -178,13 +180,15 @@ static void entry_path(const JitCache *c, const char *key, char *path, size_t n)
   snprintf(path, n, "%s/%s.so", c->dir, key);
 }
 
-/* Whole file into memory (NULL on failure). */
+/* Whole file into memory (NULL on failure), when this user owns it: a shared
+ * object someone else put in the folder is never loaded. */
 static unsigned char *read_all(const char *path, size_t *n) {
   int fd = open(path, O_RDONLY | O_CLOEXEC);
   if (fd < 0) return NULL;
   struct stat st;
   unsigned char *buf = NULL;
-  if (fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0 && (buf = malloc((size_t)st.st_size))) {
+  if (fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && st.st_uid == geteuid() && st.st_size > 0 &&
+      (buf = malloc((size_t)st.st_size))) {
     size_t got = 0;
     while (got < (size_t)st.st_size) {
       ssize_t r = read(fd, buf + got, (size_t)st.st_size - got);

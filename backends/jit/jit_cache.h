@@ -10,7 +10,7 @@
  * (created on first use). An entry is KEY.so: the shared object followed by
  * a trailer (magic, the key, the SHA-256 of the object's bytes), so a
  * truncated, corrupted or renamed ("foreign") entry is detected before it is
- * loaded, removed and rebuilt.
+ * loaded, removed and rebuilt; an entry another user owns is never loaded.
  * Concurrency: a new entry is written under a temporary name in the folder,
  * loaded from there, then renamed onto KEY.so (atomic): two processes
  * compiling the same program both succeed, one rename winning.
@@ -18,9 +18,11 @@
  * 256M; 0 turns the cache off): after a store the oldest entries (by mtime,
  * refreshed on every hit) are removed until the folder fits.
  *
- * Failures: a badly set variable (NPG_CACHE_DIR not a usable folder,
- * NPG_CACHE_MAX not a size) is an error naming it; an unusable default
- * folder (no HOME, read-only home) only turns the cache off. */
+ * Failures: a badly set variable (NPG_CACHE_DIR not a folder nor a path
+ * one can be made at, NPG_CACHE_MAX not a size) is an error naming it; a
+ * folder this process may not write (another user's, read-only), like an
+ * unusable default folder (no HOME), only turns the cache off: nothing is
+ * loaded from a folder others could write into unseen. */
 #ifndef NPG_JIT_CACHE_H
 #define NPG_JIT_CACHE_H
 
@@ -51,7 +53,8 @@ void *jit_cache_load(const JitCache *c, const char *key, bool *damaged);
 int jit_cache_seal(const char *tmp_so, const char *key, char *err, size_t errlen);
 
 /* Rename the sealed `tmp_so` onto entry `key`, then evict the oldest
- * entries beyond the limit (never `key`). 0, or -1 with `err`. */
+ * entries beyond the limit (never `key`). 0, or -1 with `err` (`tmp_so`
+ * removed; the caller's loaded copy stays valid, merely not cached). */
 int jit_cache_store(const JitCache *c, const char *tmp_so, const char *key, char *err, size_t errlen);
 
 #endif

@@ -39,12 +39,8 @@ int reduced_open(ReducedRadiosity *r, const Scene *s, const char *program, int k
   if (!npg_ok(r->prog)) return failed(err, errlen, program, npg_error(r->prog));
   /* training evaluates every sample restricted to each pass's rows many times over (out of core at
    * 5,000 faces): the system compiler's code evaluates 1.7x faster than libtcc's and gives the same
-   * model (-ffp-contract=off); libtcc where no compiler is found */
-  r->full = npg_full_new(r->prog, NPG_CC);
-  if (npg_full_error(r->full)[0]) {
-    npg_full_free(r->full);
-    r->full = npg_full_new(r->prog, NPG_TCC);
-  }
+   * model (-ffp-contract=off); libtcc where no compiler is found: npg's default, NPG_AUTO */
+  r->full = npg_full_new(r->prog, NPG_AUTO);
   if (npg_full_error(r->full)[0]) return failed(err, errlen, "full evaluator", npg_full_error(r->full));
   double *tri = malloc(sizeof(double) * 3 * (size_t)s->F);
   r->g = malloc(sizeof(double) * 3 * (size_t)s->V);
