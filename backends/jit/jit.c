@@ -239,6 +239,30 @@ static int cc_identity(const char *cache_dir, char *out, size_t n, char *err, si
   return 0;
 }
 
+/* The processor -march=native compiles for: its model and feature flags (the
+ * first processor's lines of /proc/cpuinfo), once a process, never from the
+ * disk: a cache folder in a home shared by machines must not hand one
+ * machine's AVX-512 code to another. "" where /proc is absent. */
+static pthread_once_t cpu_once = PTHREAD_ONCE_INIT;
+static char cpu_identity[4096];
+
+static void read_cpu_identity(void) {
+  FILE *f = fopen("/proc/cpuinfo", "r");
+  char line[8192];
+  size_t n = 0;
+  while (f && fgets(line, sizeof line, f)) {
+    bool keep = strncmp(line, "vendor_id", 9) == 0 || strncmp(line, "model", 5) == 0 ||
+                strncmp(line, "cpu family", 10) == 0 || strncmp(line, "flags", 5) == 0 ||
+                strncmp(line, "Features", 8) == 0 || strncmp(line, "CPU ", 4) == 0;
+    if (keep && n + strlen(line) < sizeof cpu_identity) {
+      memcpy(cpu_identity + n, line, strlen(line) + 1);
+      n += strlen(line);
+    }
+    if (line[0] == '\n' && n) break; /* the first processor's block ends */
+  }
+  if (f) fclose(f);
+}
+
 static double now_seconds(void) {
   struct timespec t;
   clock_gettime(CLOCK_MONOTONIC, &t);
@@ -262,7 +286,7 @@ static JitModule *compile_cc(const char *source, char *err, size_t errlen) {
   m->backend = JIT_CC;
   m->cache = -1;
   JitCache cache;
-  char ident[2048], key[65] = "";
+  char ident[2048 + sizeof cpu_identity], key[65] = "";
   if (jit_cache_open(&cache, err, errlen) != 0 || cc_identity(cache.dir, ident, sizeof ident, err, errlen) != 0) {
     free(m);
     return NULL;
@@ -271,6 +295,9 @@ static JitModule *compile_cc(const char *source, char *err, size_t errlen) {
     static const char *const flags[] = {CC_FLAGS, "-lm"};
     char fl[256] = "";
     for (size_t i = 0; i < sizeof flags / sizeof *flags; i++) strcat(strcat(fl, flags[i]), " ");
+    pthread_once(&cpu_once, read_cpu_identity); /* -march=native: the flags mean this processor */
+    size_t len = strlen(ident);
+    snprintf(ident + len, sizeof ident - len, "%s", cpu_identity);
     jit_cache_key(source, ident, fl, key);
     bool damaged;
     if ((m->dl = jit_cache_load(&cache, key, &damaged))) {

@@ -5,7 +5,8 @@
  * same shared object, so it is kept on disk and loaded next time.
  *
  * Key: SHA-256 of (the generated C, the compiler's identity — its resolved
- * path and the output of `CC --version` —, the flags), 64 hex digits.
+ * path and the output of `CC --version`, and the processor -march=native
+ * targets —, the flags), 64 hex digits.
  * Folder: $NPG_CACHE_DIR, else $XDG_CACHE_HOME/npg, else $HOME/.cache/npg
  * (created on first use). An entry is KEY.so: the shared object followed by
  * a trailer (magic, the key, the SHA-256 of the object's bytes), so a
