@@ -315,7 +315,7 @@ static void evict(const JitCache *c, const char *keep) {
     n++;
   }
   closedir(d);
-  qsort(e, n, sizeof *e, by_age);
+  if (n) qsort(e, n, sizeof *e, by_age);
   for (size_t i = 0; i < n && total > c->max; i++) {
     snprintf(path, sizeof path, "%s/%s", c->dir, e[i].name);
     if (unlink(path) == 0) total -= e[i].size;
