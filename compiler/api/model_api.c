@@ -668,6 +668,12 @@ int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t cap, lon
   if (!ro) return rfail(r, "'%s' is not an operator applied in the program (an `output op` that no stage applies has "
                            "no reduced form in the model)", name);
   if (!ro->op->op->is_output) return rfail(r, "'%s' is not an output op", name);
+  /* its entries read coordinates: never computed they are not zeros (npg_reduced_lift refuses the same) */
+  for (int g = 0; g < ro->ntensors && !r->evaluated; g++)
+    for (int j = 0; j < ro->t[g].nin; j++)
+      if (!r->given[ro->t[g].in_q[j]])
+        return rfail(r, "operator %s reads '%s', which has no value: it was not set and nothing was evaluated yet "
+                        "(npg_reduced_eval)", name, ((Sym *)m->prog->quantities.v[ro->t[g].in_q[j]])->name);
   int c = m->qclass[rs->q];
   long my = m->classes[c].m;
   if ((size_t)(my * my) > cap) return rfail(r, "operator %s is %ld x %ld, the buffer holds %zu", name, my, my, cap);

@@ -75,6 +75,26 @@ void npgpy_long_shape(PyArrayObject *a, long *shape) {
   for (int i = 0; i < PyArray_NDIM(a); i++) shape[i] = (long)PyArray_DIM(a, i);
 }
 
+int npgpy_flag(PyObject *v, const char *what, bool *out) {
+  /* a str, None or any other object is true or false by Python's rule: center='off' was true (issue 38) */
+  if (PyBool_Check(v) || PyArray_IsScalar(v, Bool)) {
+    int t = PyObject_IsTrue(v);
+    if (t < 0) return -1;
+    *out = t;
+    return 0;
+  }
+  if (PyLong_CheckExact(v)) {
+    int overflow = 0;
+    long x = PyLong_AsLongAndOverflow(v, &overflow);
+    if (!overflow && (x == 0 || x == 1)) {
+      *out = x == 1;
+      return 0;
+    }
+  }
+  PyErr_Format(PyExc_TypeError, "%s must be True or False, not %s %R", what, Py_TYPE(v)->tp_name, v);
+  return -1;
+}
+
 const char *npgpy_name(PyObject *arg, const char *method) {
   if (PyUnicode_Check(arg)) return PyUnicode_AsUTF8(arg);
   PyErr_Format(PyExc_TypeError, "%s(name): the name must be a str, not %s", method, Py_TYPE(arg)->tp_name);
