@@ -65,28 +65,29 @@ def test_dots_sized_under_the_lock():
     assert np.allclose(got["d"], [np.vdot(g[0], g[0]), np.vdot(g[0], g[1])], rtol=1e-14)
 
 
-def test_verify_survives_a_callable_clearing_its_test_dict(tmp_path):
+def test_verify_survives_a_callable_clearing_its_test_dict():
     """An extern callable that clears model.verify's test= dict: the names and arrays verify
     sets each sample from stay alive (they were read from the freed dict's keys)."""
-    prog = npg.compile(EXTERN)
-    tri, g, v = extern_data(20)
-    full = prog.full(params={"tri": tri})
-    full.extern("v", lambda f, k: np.sin(f.get("g")[tri[:, 1], 1]) + 2)
+    prog = npg.compile("dim F\ninput gpos : real[F]\nextern vis[i:F] of gpos\n"
+                       "output d[i:F] = vis[i] * gpos[i]\n", name="clear.npg")
+    g = 1 + np.random.default_rng(6).random((20, 5))
+    full = prog.full()
+    full.extern("vis", lambda f, k: np.sin(f.get("gpos")) + 2)
     tr = npg.Trainer(full)
     for k in range(20):
-        tr.add(g=g[k])
+        tr.add(gpos=g[k])
     model = tr.finish()
-    expect = model.verify(test={"g": g[:3].copy()})["d"]["l2"]
-    test = {"".join(["g"]): g[:3].copy()}  # a key and an array only the dict holds
+    expect = model.verify(test={"gpos": g[:3].copy()})["d"]["l2"]
+    test = {"".join(["gp", "os"]): g[:3].copy()}  # a key and an array only the dict holds
 
     def clearing(f, k):
         test.clear()
         gc.collect()
-        junk = ["?" * 2 for _ in range(1000)]  # reuse the freed memory
-        del junk
-        return np.sin(f.get("g")[tri[:, 1], 1]) + 2
+        junk = ["".join(["ab", "cd"]) for _ in range(2000)]  # the freed key's memory reused
+        junk.clear()
+        return np.sin(f.get("gpos")) + 2
 
-    full.extern("v", clearing)
+    full.extern("vis", clearing)
     assert model.verify(test=test)["d"]["l2"] == expect
 
 
