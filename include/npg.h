@@ -494,7 +494,7 @@ NPG_API void npg_reduced_clear_error(NpgReduced *r);
 /* An input (or an extern, see npg_reduced_given_externs) from its `count`
  * full-space values. */
 NPG_API int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double *values);
-/* The same from its `m` reduced coordinates. */
+/* The same from its `m` reduced coordinates (finite: NaN or an infinity is refused). */
 NPG_API int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, const double *coords);
 /* With `on`, externs keep the values set by the caller instead of their
  * learned map. */

@@ -550,6 +550,10 @@ int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, const doub
   const RClass *c = &r->nm->m->classes[r->nm->m->qclass[q]];
   if ((long)m != c->m) return rfail(r, "'%s' has %ld reduced coordinates (class %s), %zu were given", name, c->m,
                                     c->label, m);
+  for (size_t i = 0; i < m; i++) /* as npg_reduced_set refuses them in full (a lift returned NaN silently) */
+    if (!isfinite(coords[i]))
+      return rfail(r, "the coordinates of '%s' hold %s at entry %zu", name, isnan(coords[i]) ? "NaN" : "an infinity",
+                   i);
   memcpy(reduced_coords(r->r, q), coords, sizeof(double) * m);
   r->given[q] = true;
   if (((const Sym *)r->nm->m->prog->quantities.v[q])->next) r->roll.steps = 0; /* a new rollout */

@@ -279,6 +279,15 @@ static int samples_from(const ProgramObject *prog, PyObject *dict, const char *w
       return npgpy_samples_free(t), -1;
     }
     long S = (long)PyArray_DIM(a, 0);
+    /* refused when given (Trainer's valid= at construction, not at finish after every sample) */
+    const double *v = PyArray_DATA(a);
+    size_t total = (size_t)PyArray_SIZE(a), per = S > 0 ? total / (size_t)S : 0;
+    for (size_t e = 0; e < total; e++)
+      if (!isfinite(v[e])) {
+        PyErr_Format(npgpy_Error, "%s: %s['%s'] sample %zu holds %s at flat entry %zu", who, arg, name, e / per,
+                     isnan(v[e]) ? "NaN" : "an infinity", e % per);
+        return npgpy_samples_free(t), -1;
+      }
     if (t->count >= 0 && S != t->count) {
       PyErr_Format(npgpy_Error, "%s: %s['%s'] has %ld samples, the arrays before it %ld", who, arg, name, S, t->count);
       return npgpy_samples_free(t), -1;
@@ -311,7 +320,7 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
       npgpy_flag(progresso, "verify: progress", &progress))
     return NULL;
   double tol = -1;
-  if (tolo != Py_None && ((tol = PyFloat_AsDouble(tolo)) == -1 && PyErr_Occurred())) return NULL;
+  if (tolo != Py_None && npgpy_real(tolo, "verify: tol", &tol)) return NULL;
   /* As npgc verify --tol: a finite number >= 0 (-1 would otherwise mean "no tolerance" below). */
   if (tolo != Py_None && !(isfinite(tol) && tol >= 0))
     return npgpy_value_error("verify: tol is %g; expected a finite number >= 0", tol);

@@ -58,6 +58,9 @@ void npgpy_long_shape(PyArrayObject *a, long *shape);
 /* A flag option (`what`: "Trainer: center"): True, False, numpy.bool_, or the int 0 or 1; anything
  * else (a str such as 'off', None, 2) is a TypeError naming `what`. 0, or -1 with the exception. */
 int npgpy_flag(PyObject *v, const char *what, bool *out);
+/* A number option (`what`: "Trainer: energy"): an int or float (numpy's too) as a double; None, a
+ * bool, a str is a TypeError naming `what`. 0, or -1 with the exception. */
+int npgpy_real(PyObject *v, const char *what, double *out);
 /* A library message as npg.Error (or `type`). Returns NULL. */
 PyObject *npgpy_raise(PyObject *type, const char *msg);
 /* The name a one-argument method was given, as UTF-8; NULL with a TypeError naming `method`

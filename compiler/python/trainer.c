@@ -176,22 +176,23 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
                            "interp", "galerkin", "interp_oversample", "valid", "valid_holdout", NULL};
   PyObject *full, *center = Py_True, *joint = Py_False, *progress = Py_False, *mem = Py_None, *basis = Py_None;
   PyObject *interp = Py_None, *galerkin = Py_None, *valid = Py_None, *holdouto = Py_None;
+  PyObject *energyo = NULL, *oversampleo = NULL;
   double oversample = 0;
   PyObject *keepo = Py_None;
   PyObject *capo = NULL;
   /* every default is the library's (npgc train's and npg.h's: one source, issue 38) */
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|dOOOOOOO$OOdOO:Trainer", kwlist, &npgpy_FullType, &full, &o.energy,
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|OOOOOOOO$OOOOO:Trainer", kwlist, &npgpy_FullType, &full, &energyo,
                                    &capo, &center, &mem, &joint, &progress, &basis, &keepo, &interp, &galerkin,
-                                   &oversample, &valid, &holdouto))
+                                   &oversampleo, &valid, &holdouto))
+    return -1;
+  if ((energyo && npgpy_real(energyo, "Trainer: energy", &o.energy)) ||
+      (oversampleo && npgpy_real(oversampleo, "Trainer: interp_oversample", &oversample)))
     return -1;
   double holdout = o.valid_holdout; /* None: the library's automatic choice */
   if (holdouto != Py_None) {
-    if (PyBool_Check(holdouto) || !PyNumber_Check(holdouto) || PyUnicode_Check(holdouto))
-      return PyErr_Format(PyExc_TypeError, "Trainer: valid_holdout must be a fraction (a float) or None, not %s",
-                          Py_TYPE(holdouto)->tp_name), -1;
-    if ((holdout = PyFloat_AsDouble(holdouto)) == -1 && PyErr_Occurred()) return -1;
+    if (npgpy_real(holdouto, "Trainer: valid_holdout (a fraction, or None)", &holdout)) return -1;
     if (!(holdout >= 0 && holdout <= 0.5))
       return npgpy_value_error("Trainer: valid_holdout %g: a fraction in (0, 0.5] of the samples added (0: none; None: "
                                "the automatic choice)", holdout), -1;
@@ -382,8 +383,8 @@ done:
 
 /* tr.weight(w): the weight of the next sample added (npg_trainer_weight). */
 static PyObject *trainer_weight(TrainerObject *self, PyObject *arg) {
-  double w = PyFloat_AsDouble(arg);
-  if (w == -1 && PyErr_Occurred()) return NULL;
+  double w;
+  if (npgpy_real(arg, "Trainer.weight: the weight", &w)) return NULL;
   if (!ready(self)) return NULL;
   if (npg_trainer_weight(self->t, w)) return fail(self);
   Py_RETURN_NONE;

@@ -310,3 +310,64 @@ def test_python_npgc_and_c_train_the_same_model(tmp_path, npgc, root):
     assert "by interpolation" in model.reductions()  # the hold-out ran
     same_model(tmp_path / "CLI", tmp_path / "API")
     same_model(tmp_path / "CLI", tmp_path / "PY")
+
+
+# ---------------------------------------------------------------- found by a hostile trial
+
+def test_none_is_not_an_array():
+    """None was made a 0-d NaN array by numpy: 'has 0 axes' or 'holds NaN' named the wrong problem."""
+    prog = npg.compile(RATIONAL)
+    full = prog.full()
+    with pytest.raises(TypeError, match="argument 'x': None"):
+        full(x=None)
+    with pytest.raises(TypeError, match="'x': None"):
+        npg.Trainer(full).add(x=None)
+    tr = npg.Trainer(full)
+    for x in 0.5 + np.random.default_rng(1).random((12, 2)):
+        tr.add(x=x)
+    model = tr.finish()
+    with pytest.raises(TypeError, match="input 'x': None"):
+        model.reduced()(x=None)
+    with pytest.raises(TypeError, match=r"test\['x'\]: None"):
+        model.verify(test={"x": None})
+
+
+def test_number_options_are_named():
+    """A str or None given for a number option said 'must be real number, not str' without naming it."""
+    full = npg.compile(RATIONAL).full()
+    for opt in ("energy", "interp_oversample", "valid_holdout"):
+        for bad in ("0.9", True):
+            with pytest.raises(TypeError, match=f"Trainer: {opt}"):
+                npg.Trainer(full, **{opt: bad})
+    with pytest.raises(TypeError, match="Trainer: energy must be a number, not NoneType"):
+        npg.Trainer(full, energy=None)
+    tr = npg.Trainer(full)
+    for bad in (None, "2"):
+        with pytest.raises(TypeError, match="Trainer.weight: the weight must be a number"):
+            tr.weight(bad)
+    tr.weight(np.float32(2))
+    tr.add(x=np.array([1.0, 2.0]))
+    for x in 0.5 + np.random.default_rng(1).random((11, 2)):
+        tr.add(x=x)
+    with pytest.raises(TypeError, match="verify: tol must be a number"):
+        tr.finish().verify(test={"x": 0.5 + np.ones((2, 2))}, tol="1e-3")
+
+
+def test_nonfinite_coordinates_and_validation_samples_refused():
+    prog = npg.compile(GRAVITY)
+    full = prog.full(params={"mass": np.full(8, 0.125), "eps": np.array(0.05)})
+    bad = np.ones((3, 8, 3))
+    bad[2, 1, 2] = np.nan
+    with pytest.raises(npg.Error, match=r"Trainer: valid\['x'\] sample 2 holds NaN at flat entry 5"):
+        npg.Trainer(full, valid={"x": bad})  # when made, not at finish() after every sample
+    eq3 = npg.compile(RATIONAL)
+    tr = npg.Trainer(eq3.full())
+    for x in 0.5 + np.random.default_rng(1).random((12, 2)):
+        tr.add(x=x)
+    red = tr.finish().reduced()
+    with pytest.raises(npg.Error, match="coordinates of 'x' hold NaN at entry 0"):
+        red.set_coords("x", [np.nan, 1.0])
+    with pytest.raises(npg.Error, match="coordinates of 'x' hold an infinity"):
+        red.set_coords("x", [1.0, np.inf])
+    with pytest.raises(npg.Error, match="'x' has no value to lift"):
+        red.lift("x")  # the refused coordinates were not set
