@@ -62,7 +62,7 @@ static int call_extern(void *user, const NpgFull *f, long sample, double *out, s
       PyErr_Format(PyExc_ValueError, "extern '%s': its callable returned %zd values, the extern has %zu at sample %ld",
                    x->name, (Py_ssize_t)PyArray_SIZE(a), count, sample);
     else if (a) {
-      memcpy(out, PyArray_DATA(a), sizeof(double) * count);
+      if (count) memcpy(out, PyArray_DATA(a), sizeof(double) * count); /* out may be NULL when empty */
       rc = 0;
     }
     Py_XDECREF(a);

@@ -371,3 +371,13 @@ def test_nonfinite_coordinates_and_validation_samples_refused():
         red.set_coords("x", [1.0, np.inf])
     with pytest.raises(npg.Error, match="'x' has no value to lift"):
         red.lift("x")  # the refused coordinates were not set
+
+
+def test_empty_extern_from_a_callable():
+    """A dim of 0: the callable's empty result is copied into the evaluator's empty buffer (a
+    memcpy to NULL, undefined behaviour under UBSan) and the output is empty."""
+    prog = npg.compile("dim F\ninput gpos : real[F]\nextern vis[i:F] of gpos\noutput d[i:F] = vis[i] * gpos[i]\n",
+                       name="empty.npg")
+    full = prog.full()
+    full.extern("vis", lambda f, k: np.sin(f.get("gpos")) + 2)
+    assert full(gpos=np.zeros(0))["d"].shape == (0,)
