@@ -628,6 +628,12 @@ int full_check_given(Full *f, const char *what) {
   return 0;
 }
 
+const char *full_unbound_param(const Full *f) {
+  for (int k = 0; f->prog && k < f->prog->params.n; k++)
+    if (!f->params[k] && !f->iparams[k]) return ((Sym *)f->prog->params.v[k])->name;
+  return NULL;
+}
+
 bool full_has_extern_fn(const Full *f, const char *name) {
   int k = find(&f->prog->slots, name);
   return k >= 0 && f->extern_fn[k];

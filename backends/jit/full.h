@@ -70,6 +70,8 @@ void full_forget_given(Full *f);
  * evaluation; one left out would silently be evaluated with the previous sample's value (issue
  * 38). 0, or -1 with "<what>: input 'x' is not given ..." naming the first left out. */
 int full_check_given(Full *f, const char *what);
+/* The first param not bound, or NULL when every one is. */
+const char *full_unbound_param(const Full *f);
 /* Whether extern `name` has a callback (full_set_extern_fn). */
 bool full_has_extern_fn(const Full *f, const char *name);
 /* The values of quantity `name` and their count (optional), NULL when the

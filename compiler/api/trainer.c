@@ -220,6 +220,11 @@ static int keep_weight(NpgTrainer *t) {
 
 /* Append the values now in `g` as one sample (another rank's: counted only). */
 static int record(NpgTrainer *t, const NpgFull *g) {
+  /* the samples are replayed with the trainer's params: without them finish() alone said so */
+  const char *unbound = full_unbound_param(t->f->full);
+  if (unbound)
+    return tfail(t, "training sample %ld: param '%s' is not bound (bind the params of the trainer's evaluator first)",
+                 t->samples, unbound);
   if (keep_weight(t)) return -1;
   if (!own_sample(t, t->samples)) {
     t->samples++;

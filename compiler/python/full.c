@@ -272,7 +272,10 @@ static PyObject *full_call(FullObject *self, PyObject *args, PyObject *kw) {
   }
   if (!enter(self, "Full.__call__")) return NULL;
   PyObject *out = NULL;
-  if (set_inputs(self, kw) != 0) goto done;
+  if (set_inputs(self, kw) != 0) {
+    self->evaluated = false;
+    goto done;
+  }
   int rc;
   long sample = self->calls++;
   Py_BEGIN_ALLOW_THREADS
@@ -280,6 +283,7 @@ static PyObject *full_call(FullObject *self, PyObject *args, PyObject *kw) {
   if (rc == 0) rc = npg_full_check_finite(self->f, sample);
   Py_END_ALLOW_THREADS
   if (rc) {
+    self->evaluated = false; /* its values are of no one sample: Trainer.add_full refuses them */
     fail(self);
     goto done;
   }
@@ -304,6 +308,14 @@ static PyObject *full_get(FullObject *self, PyObject *arg) {
    * runs (a helper it may wait for: taking the lock would wait forever, issue 38) the evaluation
    * is paused in the callable, which cannot return before this thread lets the GIL go: the
    * values are read without the lock (value_of copies them at once). */
+  if (self->in_callback > 0) { /* the callables run before the stages: a stage or extern holds the last sample's */
+    for (int i = 0; i < self->prog->nsym; i++)
+      if (strcmp(self->prog->sym[i].name, name) == 0 && self->prog->sym[i].kind != NPG_INPUT &&
+          self->prog->sym[i].kind != NPG_PARAM)
+        return PyErr_Format(npgpy_Error, "Full.get('%s') while an extern callable runs: the callables run before the "
+                            "stages and the other externs' callables, so only the inputs hold this sample's values "
+                            "(an extern reads inputs: `extern v of g`)", name);
+  }
   bool unlocked = npgpy_busy_mine(&self->busy) || self->in_callback > 0;
   if (!unlocked) npgpy_busy_enter(&self->busy);
   PyObject *v = value_of(self, name);

@@ -203,6 +203,9 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
                         Py_TYPE(keepo)->tp_name), -1;
   const char *keep = keepo == Py_None ? NULL : PyUnicode_AsUTF8(keepo);
   if (keepo != Py_None && !keep) return -1;
+  if (keep && !keep[0])
+    return PyErr_SetString(PyExc_ValueError, "Trainer: keep_bases is '': quantities or classes m_x separated by "
+                           "commas, 'all', or None for none"), -1;
   if (self->t) {
     PyErr_SetString(PyExc_RuntimeError, "Trainer: already initialized");
     return -1;
@@ -397,7 +400,8 @@ static PyObject *trainer_add_full(TrainerObject *self, PyObject *unused) {
   int rc;
   if (!self->full->evaluated) {
     npgpy_busy_leave(&self->full->busy);
-    PyErr_SetString(npgpy_Error, "Trainer.add_full: the evaluator has not evaluated a sample yet");
+    PyErr_SetString(npgpy_Error, "Trainer.add_full: the evaluator holds no evaluated sample (none was evaluated yet, "
+                    "or its last call failed)");
     return NULL;
   }
   Py_BEGIN_ALLOW_THREADS

@@ -381,3 +381,60 @@ def test_empty_extern_from_a_callable():
     full = prog.full()
     full.extern("vis", lambda f, k: np.sin(f.get("gpos")) + 2)
     assert full(gpos=np.zeros(0))["d"].shape == (0,)
+
+
+def test_callable_reads_inputs_only():
+    """While extern callables run, the stages and the other externs still hold the previous
+    sample's values: reading them is refused (it returned them silently)."""
+    prog = npg.compile("dim F\ninput gpos : real[F]\nextern va[i:F] of gpos\nextern vb[i:F] of gpos\n"
+                       "output d[i:F] = va[i] * vb[i] * gpos[i]\n", name="two.npg")
+    g = 1 + np.random.default_rng(7).random((2, 5))
+    full = prog.full()
+    full.extern("va", lambda f, k: np.sin(f.get("gpos")) + 2)
+    full.extern("vb", lambda f, k: np.cos(f.get("gpos")) + 2)
+    full(gpos=g[0])
+    full.extern("vb", lambda f, k: f.get("va") + 1)
+    with pytest.raises(npg.Error) as e:
+        full(gpos=g[1])
+    assert "Full.get('va') while an extern callable runs" in str(e.value.__cause__)
+    full.extern("vb", lambda f, k: f.get("d"))
+    with pytest.raises(npg.Error) as e:
+        full(gpos=g[1])
+    assert "Full.get('d') while an extern callable runs" in str(e.value.__cause__)
+    assert np.array_equal(full.get("d"), full.get("d"))  # outside a callable: the last evaluation's
+
+
+def test_add_full_after_a_failed_evaluation_is_refused():
+    """full() failed after its inputs were set: the evaluator holds this sample's inputs and the
+    last one's externs, which tr.add_full recorded as one sample."""
+    prog = npg.compile(EXTERN)
+    tri, g, v = extern_data(3)
+    full = prog.full(params={"tri": tri})
+    calls = []
+
+    def oracle(f, k):
+        calls.append(k)
+        if len(calls) == 2:
+            raise RuntimeError("the oracle failed")
+        return np.sin(f.get("g")[tri[:, 1], 1]) + 2
+
+    full.extern("v", oracle)
+    tr = npg.Trainer(full)
+    full(g=g[0])
+    tr.add_full()
+    with pytest.raises(npg.Error):
+        full(g=g[1])
+    with pytest.raises(npg.Error, match="its last call failed"):
+        tr.add_full()
+    full(g=g[2])
+    tr.add_full()
+    assert tr.samples == 2
+
+
+def test_unbound_params_and_empty_keep_bases():
+    prog = npg.compile("tests/programs/output_op.npg")
+    tr = npg.Trainer(prog.full())
+    with pytest.raises(npg.Error, match="training sample 0: param 'a' is not bound"):
+        tr.add(w=np.ones(3), x=np.ones(3))  # finish() alone said so, after every sample
+    with pytest.raises(ValueError, match="Trainer: keep_bases is ''"):
+        npg.Trainer(prog.full(), keep_bases="")
