@@ -281,12 +281,15 @@ static bool ready(TrainerObject *self) {
 
 /* The library's message in Python's words: npgc train's option flags, which the library's
  * training messages name, become Trainer's keywords ("--basis x: ..." is "basis x: ...",
- * "--reduce w:interp" is "interp w", "raise --mem" is "raise mem"). A new str, or NULL. */
+ * "--reduce w:interp" is "interp w", "raise --mem" is "raise mem"), and the C functions it names
+ * their methods (npg_trainer_weight is Trainer.weight). A new str, or NULL. */
 static char *python_words(const char *msg) {
   static const char *const flag[][2] = {
     {"--keep-bases", "keep_bases"}, {"--basis", "basis"}, {"--mem", "mem"}, {"--cap", "cap"},
     {"--energy", "energy"}, {"--center", "center"}, {"--merge joint", "joint=True"}, {"--merge", "joint"},
     {"--interp-oversample", "interp_oversample"}, {"--valid", "valid_holdout"}, {"--progress", "progress"},
+    {"npg_full_set_extern_fn", "full.extern"}, {"npg_trainer_weight", "Trainer.weight"},
+    {"npg_trainer_dots", "Trainer.dots"},
   };
   size_t n = strlen(msg);
   char *out = PyMem_Malloc(2 * n + 64);

@@ -125,7 +125,7 @@ def test_extern_left_out_is_refused():
     tri, g, v = extern_data(40)
     tr = npg.Trainer(prog.full(params={"tri": tri}))
     tr.add(g=g[0], v=v[0])
-    with pytest.raises(npg.Error, match=r"extern 'v'.*not given"):
+    with pytest.raises(npg.Error, match=r"training sample 1: extern 'v' is not given and has no callback.*full.extern"):
         tr.add(g=g[1])
     tr.add(g=g[1], v=v[1])  # the trainer is still usable: the refused sample is not counted
     assert tr.samples == 2
@@ -209,7 +209,7 @@ def test_refused_add_leaves_the_trainer_usable():
         tr.add(z=np.ones(2))
     with pytest.raises(npg.Error):
         tr.add(x=np.ones(3))
-    with pytest.raises(npg.Error, match="weight"):
+    with pytest.raises(npg.Error, match="^Trainer.weight: the weight of training sample 6 is -1"):
         tr.weight(-1)
     with pytest.raises(npg.Error, match="no input or extern"):
         tr.dots("nothing", np.ones(2))
