@@ -55,6 +55,9 @@ NPG_API const char *npg_error(const NpgProgram *p);
 /* The `npgc check` report, human readable (json=false) or JSON. */
 NPG_API void npg_report(const NpgProgram *p, FILE *out, bool json);
 NPG_API void npg_free(NpgProgram *p);
+/* Whether `a` and `b` are the same program: compiled (both successfully) from the same source
+ * text and modules, as a model's program hash reads them; the same file compiled twice is. */
+NPG_API bool npg_same_program(const NpgProgram *a, const NpgProgram *b);
 
 /* Write the generated C of the full evaluator (every stage, the bind-time
  * gather checker) and the tensor builders to `out`. Returns 0, or -1 with
@@ -359,10 +362,19 @@ typedef struct NpgModel NpgModel;
  * npg_trainer_error(), after which it refuses further work. */
 NPG_API NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o);
 NPG_API const char *npg_trainer_error(const NpgTrainer *t);
+/* After a refused call (a sample's values, npg_trainer_add, _add_full, _weight, _dots, or a
+ * finish that failed before writing anything): forget the refused sample's staged values and
+ * weight, and take samples again; the samples added before are kept. 0, or -1 keeping the error
+ * when the trainer cannot go on: its construction was refused, a failure left its records
+ * incomplete (out of memory, the scratch file), or it trains over MPI ranks. The option names
+ * (basis_name, keep_bases, interp_stage, galerkin_stage) are checked by npg_trainer_new. */
+NPG_API int npg_trainer_clear_error(NpgTrainer *t);
 /* Stage the values of an input or extern of the next sample (C order). */
 NPG_API int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape, const double *values);
 /* Add the staged sample: every input must be staged; an extern not staged
- * is computed by evaluating the full program (its callback). */
+ * is computed by its callback (npg_full_set_extern_fn), and one that has no
+ * callback is refused, naming it (no value is carried over from the previous
+ * sample). */
 NPG_API int npg_trainer_add(NpgTrainer *t);
 /* Add the inputs and externs now held by `g` (an evaluator of the same
  * program, after npg_full_eval). */
@@ -503,7 +515,7 @@ NPG_API void npg_reduced_clear_error(NpgReduced *r);
 /* An input (or an extern, see npg_reduced_given_externs) from its `count`
  * full-space values. */
 NPG_API int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double *values);
-/* The same from its `m` reduced coordinates. */
+/* The same from its `m` reduced coordinates (finite: NaN or an infinity is refused). */
 NPG_API int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, const double *coords);
 /* With `on`, externs keep the values set by the caller instead of their
  * learned map. */
@@ -524,7 +536,8 @@ NPG_API const double *npg_reduced_coords(const NpgReduced *r, const char *name, 
 NPG_API int npg_reduced_lift(NpgReduced *r, const char *name, double *out, size_t count);
 /* The `output op` `name` reduced at the last evaluation: out (rows x cols,
  * row-major, at most `cap` entries) = B_rowᵀ M B_col, with the bases of the
- * classes *row_class and *col_class (npg_model_class). */
+ * classes *row_class and *col_class (npg_model_class). An error before any
+ * evaluation, unless every quantity its entries read was set. */
 NPG_API int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t cap, long *rows, long *cols,
                            int *row_class, int *col_class);
 /* The reduced step (DESIGN §15): npg_full_step's contract with every state kept in reduced

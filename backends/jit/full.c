@@ -617,6 +617,30 @@ void full_forget_given(Full *f) {
   if (f->prog) memset(f->fresh, 0, sizeof(bool) * (size_t)f->prog->slots.n);
 }
 
+int full_check_given(Full *f, const char *what) {
+  if (f->error[0]) return -1;
+  for (int k = 0; k < f->prog->slots.n; k++) {
+    const Sym *s = f->prog->slots.v[k];
+    if (f->fresh[k] || !(s->kind == SYM_INPUT || (s->kind == SYM_EXTERN && !f->extern_fn[k]))) continue;
+    return fail(f, "%s: %s '%s' is not given%s: a sample gives every input%s (a value is never carried over from "
+                   "the previous sample)", what, s->kind == SYM_INPUT ? "input" : "extern", s->name,
+                s->kind == SYM_EXTERN ? " and has no callback" : "",
+                s->kind == SYM_EXTERN ? ", and every extern that has no callback" : "");
+  }
+  return 0;
+}
+
+const char *full_unbound_param(const Full *f) {
+  for (int k = 0; f->prog && k < f->prog->params.n; k++)
+    if (!f->params[k] && !f->iparams[k]) return ((Sym *)f->prog->params.v[k])->name;
+  return NULL;
+}
+
+bool full_has_extern_fn(const Full *f, const char *name) {
+  int k = find(&f->prog->slots, name);
+  return k >= 0 && f->extern_fn[k];
+}
+
 void full_free(Full *f) {
   if (!f) return;
   runtime_sparse_free(&f->host);

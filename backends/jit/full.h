@@ -67,6 +67,15 @@ int full_advance(Full *f);
 /* The values full_set gave since the last evaluation no longer count as given: the next
  * evaluation calls the externs' callbacks again (after values were set only to be read back). */
 void full_forget_given(Full *f);
+/* After one sample's values were set (a test or validation sample, a training sample staged):
+ * every input, and every extern without a callback, must have been given since the last
+ * evaluation; one left out would silently be evaluated with the previous sample's value (issue
+ * 38). 0, or -1 with "<what>: input 'x' is not given ..." naming the first left out. */
+int full_check_given(Full *f, const char *what);
+/* The first param not bound, or NULL when every one is. */
+const char *full_unbound_param(const Full *f);
+/* Whether extern `name` has a callback (full_set_extern_fn). */
+bool full_has_extern_fn(const Full *f, const char *name);
 /* The values of quantity `name` and their count (optional), NULL when the
  * program has none by that name or it holds no value yet. */
 const double *full_get(const Full *f, const char *name, size_t *count);

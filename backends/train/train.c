@@ -278,6 +278,8 @@ static bool keep_named(const Model *m, const char *list, int c, char *unknown, s
   return kept;
 }
 
+static bool named_in(const char *const *names, int n, const char *name);
+
 /* The model's layout for the dims sample 0 binds, with every member's
  * options set and the --basis names checked. NULL with `err`. */
 Model *train_begin(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
@@ -312,6 +314,42 @@ Model *train_begin(Program *prog, Full *f, const SampleSource *src, const TrainO
     return NULL;
   }
   return m;
+}
+
+int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t errlen) {
+  /* classes and stages do not depend on the dims' sizes: the layout at size 1 names them all */
+  long *dims = mem_calloc((size_t)prog->dims.n + 1, sizeof(long));
+  if (!dims) return error_set(err, errlen, "out of memory");
+  for (int i = 0; i < prog->dims.n; i++) dims[i] = 1;
+  Model *m = model_layout(prog, dims, err, errlen);
+  free(dims);
+  if (!m) return -1;
+  char unknown[256] = "";
+  int rc = 0;
+  if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
+  if (unknown[0])
+    rc = error_set(err, errlen, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)",
+                   unknown);
+  if (rc == 0) rc = check_overrides(m, opt, err, errlen);
+  for (int l = 0; l < 2 && rc == 0; l++) {
+    const char *const *names = l ? opt->galerkin_stage : opt->interp_stage;
+    for (int j = 0; j < (l ? opt->ngalerkin : opt->ninterp) && rc == 0; j++) {
+      int i = 0;
+      while (i < m->nstages && strcmp(m->stages[i].st->sym->name, names[j]) != 0) i++;
+      if (i == m->nstages)
+        rc = error_set(err, errlen, "--reduce %s:%s: the program has no stage '%s'", names[j],
+                       l ? "galerkin" : "interp", names[j]);
+      else if (!l && !lower_interp_eligible(m->stages[i].st))
+        rc = error_set(err, errlen, "--reduce %s:interp: stage %s cannot be interpolated: %s", names[j], names[j],
+                       m->stages[i].st->kind == ST_INVERSE || m->stages[i].st->kind == ST_ROOT
+                           ? "one of its operators is a declared op, not diagonal (npgc check says which stages can)"
+                           : "it applies no diagonal operator (npgc check says which stages can)");
+      else if (l && named_in(opt->interp_stage, opt->ninterp, names[j]))
+        rc = error_set(err, errlen, "stage %s is forced both to interpolation and to Galerkin", names[j]);
+    }
+  }
+  model_free(m);
+  return rc;
 }
 
 int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {

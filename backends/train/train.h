@@ -94,6 +94,12 @@ typedef struct SampleSource {
  * bound to the training params. NULL with `err` on failure. */
 Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen);
+/* The names the options give (--basis, --keep-bases, --reduce STAGE:interp|galerkin) checked
+ * against the program before any sample: each names a quantity, class or stage of `prog`, and a
+ * stage forced to interpolation is eligible. Training checks the same again; this lets a
+ * trainer refuse them when it is made instead of after every sample was streamed (issue 38).
+ * 0, or -1 with `err` in the words of npgc train's options. */
+int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- the tune sample set (train_set.c) */
 

@@ -164,7 +164,12 @@ long npg_full_dim(const NpgFull *f, const char *name) {
 int api_sample_set(void *closure, Full *full, long k) {
   (void)full; /* closure->f->full */
   const SampleClosure *x = closure;
-  return x->fn(x->user, x->f, k);
+  /* what x->fn gives is sample k: a value it leaves out is refused, not the previous sample's */
+  char what[64];
+  snprintf(what, sizeof what, "sample %ld", k);
+  full_forget_given(x->f->full);
+  if (x->fn(x->user, x->f, k) != 0) return -1;
+  return full_check_given(x->f->full, what);
 }
 
 void npg_full_free(NpgFull *f) {

@@ -551,6 +551,10 @@ int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, const doub
   const RClass *c = &r->nm->m->classes[r->nm->m->qclass[q]];
   if ((long)m != c->m) return rfail(r, "'%s' has %ld reduced coordinates (class %s), %zu were given", name, c->m,
                                     c->label, m);
+  for (size_t i = 0; i < m; i++) /* as npg_reduced_set refuses them in full (a lift returned NaN silently) */
+    if (!isfinite(coords[i]))
+      return rfail(r, "the coordinates of '%s' hold %s at entry %zu", name, isnan(coords[i]) ? "NaN" : "an infinity",
+                   i);
   memcpy(reduced_coords(r->r, q), coords, sizeof(double) * m);
   r->given[q] = true;
   if (((const Sym *)r->nm->m->prog->quantities.v[q])->next) r->roll.steps = 0; /* a new rollout */
@@ -669,6 +673,12 @@ int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t cap, lon
   if (!ro) return rfail(r, "'%s' is not an operator applied in the program (an `output op` that no stage applies has "
                            "no reduced form in the model)", name);
   if (!ro->op->op->is_output) return rfail(r, "'%s' is not an output op", name);
+  /* its entries read coordinates: never computed they are not zeros (npg_reduced_lift refuses the same) */
+  for (int g = 0; g < ro->ntensors && !r->evaluated; g++)
+    for (int j = 0; j < ro->t[g].nin; j++)
+      if (!r->given[ro->t[g].in_q[j]])
+        return rfail(r, "operator %s reads '%s', which has no value: it was not set and nothing was evaluated yet "
+                        "(npg_reduced_eval)", name, ((Sym *)m->prog->quantities.v[ro->t[g].in_q[j]])->name);
   int c = m->qclass[rs->q];
   long my = m->classes[c].m;
   if ((size_t)(my * my) > cap) return rfail(r, "operator %s is %ld x %ld, the buffer holds %zu", name, my, my, cap);

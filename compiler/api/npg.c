@@ -213,6 +213,18 @@ void npg_free(NpgProgram *p) {
   free(p);
 }
 
+bool npg_same_program(const NpgProgram *a, const NpgProgram *b) {
+  if (!a || !b || !a->prog || !b->prog) return false;
+  if (a == b) return true;
+  const PtrVec *fa = &a->prog->ctx->files, *fb = &b->prog->ctx->files;
+  if (fa->n != fb->n) return false;
+  for (int i = 0; i < fa->n; i++) { /* the texts, as a model's program hash reads them */
+    const SrcFile *x = fa->v[i], *y = fb->v[i];
+    if (x->len != y->len || memcmp(x->text, y->text, x->len) != 0) return false;
+  }
+  return true;
+}
+
 Program *program_ir(const NpgProgram *p) { return p ? p->prog : NULL; }
 
 int npg_nsymbols(const NpgProgram *np) {

@@ -116,6 +116,7 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
     api_refuse(t->error, sizeof t->error, __func__, "argument 'f' is NULL");
     return t;
   }
+  t->broken = true; /* until constructed */
   if (refuse_options(t, &t->opt)) return t;
   if (t->opt.mpi && dist_start(t->error, sizeof t->error)) return t;
   if (npg_full_error(f)[0]) {
@@ -123,6 +124,12 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
     return t;
   }
   const Program *prog = t->prog = full_program(f->full);
+  /* the names the options give, refused now rather than after every sample was streamed */
+  TrainOptions names = {.noverride = t->opt.nbasis, .override_name = (const char **)t->opt.basis_name,
+                        .keep_bases = t->opt.keep_bases, .ninterp = t->opt.ninterp,
+                        .interp_stage = t->opt.interp_stage, .ngalerkin = t->opt.ngalerkin,
+                        .galerkin_stage = t->opt.galerkin_stage};
+  if (prog && train_check_names((Program *)prog, &names, t->error, sizeof t->error) != 0) return t;
   t->slot = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->slot);
   t->count = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->count);
   t->staged = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->staged);
@@ -134,8 +141,10 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
     const Sym *s = prog->slots.v[i];
     if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) t->slot[t->nslots++] = s;
   }
+  t->broken = false;
   return t;
 }
+
 
 const char *npg_trainer_error(const NpgTrainer *t) {
   return t ? t->error : api_refusal()[0] ? api_refusal() : "out of memory";
@@ -148,6 +157,18 @@ long npg_trainer_samples(const NpgTrainer *t) {
 /* The argument checks of the npg_trainer_ entry points (ast.h). */
 #define REFUSE_NULL_T(ret) API_REFUSE_NULL(t, NULL, 0, ret)
 #define REFUSE_NULL(arg, ret) API_REFUSE_NULL(arg, t->error, sizeof t->error, ret)
+
+/* A refused sample forgotten: its staged values dropped, the evaluator's error cleared. */
+int npg_trainer_clear_error(NpgTrainer *t) {
+  REFUSE_NULL_T(-1);
+  if (t->broken || (t->opt.mpi && dist_size() > 1)) return t->error[0] ? -1 : 0;
+  if (t->staged) memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
+  t->weight = 1;
+  npg_full_clear_error(t->f);
+  full_forget_given(t->f->full);
+  t->error[0] = 0;
+  return 0;
+}
 
 static int slot_of(const NpgTrainer *t, const char *name) {
   for (int i = 0; i < t->nslots; i++)
@@ -199,6 +220,11 @@ static int keep_weight(NpgTrainer *t) {
 
 /* Append the values now in `g` as one sample (another rank's: counted only). */
 static int record(NpgTrainer *t, const NpgFull *g) {
+  /* the samples are replayed with the trainer's params: without them finish() alone said so */
+  const char *unbound = full_unbound_param(t->f->full);
+  if (unbound)
+    return tfail(t, "training sample %ld: param '%s' is not bound (bind the params of the trainer's evaluator first)",
+                 t->samples, unbound);
   if (keep_weight(t)) return -1;
   if (!own_sample(t, t->samples)) {
     t->samples++;
@@ -207,16 +233,19 @@ static int record(NpgTrainer *t, const NpgFull *g) {
   }
   long kk = kept_index(t, t->samples); /* its place among the samples this process keeps */
   if (t->samples == 0) { /* the first sample fixes every size */
+    t->record = 0; /* again after a refused first sample */
     for (int i = 0; i < t->nslots; i++) {
       if (!npg_full_get(g, t->slot[i]->name, &t->count[i]))
         return tfail(t, "training sample 0: %s '%s' has no value", t->slot[i]->kind == SYM_INPUT ? "input" : "extern",
                      t->slot[i]->name);
       t->record += t->count[i];
     }
+    free(t->buf), free(t->enc);
+    t->buf = NULL, t->enc = NULL;
     t->mem_cap = t->opt.mem / 4;
     if (!(t->buf = mem_malloc(sizeof(double) * (t->record + 1))) ||
         !(t->enc = mem_malloc(sizeof(double) * t->record + (size_t)t->nslots + 1)))
-      return tfail(t, "out of memory");
+      return t->broken = true, tfail(t, "out of memory");
   }
   size_t off = 0;
   for (int i = 0; i < t->nslots; i++) {
@@ -228,7 +257,7 @@ static int record(NpgTrainer *t, const NpgFull *g) {
     memcpy(t->buf + off, v, sizeof(double) * n);
     off += n;
   }
-  if (trainer_store(t, &t->rec, kk, trainer_encode(t))) return -1;
+  if (trainer_store(t, &t->rec, kk, trainer_encode(t))) return t->broken = true, -1;
   t->samples++;
   memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
   return 0;
@@ -242,8 +271,13 @@ int npg_trainer_add(NpgTrainer *t) {
     if (t->staged[i]) continue;
     if (t->slot[i]->kind == SYM_INPUT)
       return tfail(t, "training sample %ld: input '%s' is not set", t->samples, t->slot[i]->name);
+    /* without a callback the evaluator would silently reuse the previous sample's value (issue 38) */
+    if (!full_has_extern_fn(t->f->full, t->slot[i]->name))
+      return tfail(t, "training sample %ld: extern '%s' is not given and has no callback: a sample gives every input, "
+                      "and every extern that has no callback (npg_full_set_extern_fn)", t->samples, t->slot[i]->name);
     need_eval = true;
   }
+
   /* externs not given: their callbacks fill them (for this rank's samples). They read inputs only
    * (full.h), so after the first sample no stage is evaluated: an empty demand runs the callbacks
    * alone (at radiosity's paper size a whole evaluation is a 5,000-face solve, 2 s a sample) */
@@ -253,7 +287,10 @@ int npg_trainer_add(NpgTrainer *t) {
     if ((d ? full_eval_demand(t->f->full, t->samples, d) : npg_full_eval(t->f, t->samples)) != 0)
       return tfail(t, "%s", npg_full_error(t->f));
   }
-  return record(t, t->f);
+  int rc = record(t, t->f);
+  /* the staged values were this sample's: the next one's externs not staged run their callbacks */
+  full_forget_given(t->f->full);
+  return rc;
 }
 
 int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {

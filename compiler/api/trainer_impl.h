@@ -40,6 +40,8 @@ struct NpgTrainer {
   double weight;            /* the next sample's (npg_trainer_weight; 1 after every add) */
   double *weights;          /* every sample's, in order (every rank's too); NULL while all are 1 */
   long weights_cap;
+  bool broken;              /* a failure that may have left the records incomplete (or the construction's):
+                               npg_trainer_clear_error keeps the error */
   char error[2048];
 };
 

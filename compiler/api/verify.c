@@ -136,7 +136,12 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
   if (!sum || !y || !proj || !rep->rows || !r) rc = vfail(rep, "%s", err[0] ? err : "out of memory");
   rep->nrows = m->nq;
   for (long k = 0; k < S && rc == 0; k++) {
-    if (set(user, f, k) != 0 || npg_full_eval(f, k) != 0 || npg_full_check_finite(f, k) != 0) {
+    /* only what `set` gives counts as this sample's: a value left out is refused, not the previous one's */
+    char what[64];
+    snprintf(what, sizeof what, "test sample %ld", k);
+    full_forget_given(f->full);
+    if (set(user, f, k) != 0 || full_check_given(f->full, what) != 0 || npg_full_eval(f, k) != 0 ||
+        npg_full_check_finite(f, k) != 0) {
       rc = vfail(rep, "%s", npg_full_error(f));
       break;
     }

@@ -48,6 +48,7 @@ static PyObject *fail(FullObject *self) {
 static int call_extern(void *user, const NpgFull *f, long sample, double *out, size_t count) {
   ExternSlot *x = user;
   PyGILState_STATE g = PyGILState_Ensure();
+  x->owner->in_callback++; /* changed with the GIL held: while another thread holds it, the callable is running */
   int rc = -1;
   if (!x->fn) {
     PyErr_Format(npgpy_Error, "extern '%s': its callable was cleared (the evaluator is being collected)", x->name);
@@ -61,7 +62,7 @@ static int call_extern(void *user, const NpgFull *f, long sample, double *out, s
       PyErr_Format(PyExc_ValueError, "extern '%s': its callable returned %zd values, the extern has %zu at sample %ld",
                    x->name, (Py_ssize_t)PyArray_SIZE(a), count, sample);
     else if (a) {
-      memcpy(out, PyArray_DATA(a), sizeof(double) * count);
+      if (count) memcpy(out, PyArray_DATA(a), sizeof(double) * count); /* out may be NULL when empty */
       rc = 0;
     }
     Py_XDECREF(a);
@@ -75,6 +76,7 @@ static int call_extern(void *user, const NpgFull *f, long sample, double *out, s
     Py_XDECREF(tb);
     Py_XSETREF(x->owner->cb_error, value);
   }
+  x->owner->in_callback--;
   PyGILState_Release(g);
   return rc;
 }
@@ -135,6 +137,7 @@ PyObject *npgpy_full_new(ProgramObject *prog, PyObject *params, const char *back
   self->externs = NULL;
   self->cb_error = NULL;
   self->evaluated = false;
+  self->in_callback = 0;
   self->calls = 0;
   self->busy.lock = NULL;
   PyObject_GC_Track(self);
@@ -198,6 +201,21 @@ static bool enter(FullObject *self, const char *what) {
   return true;
 }
 
+/* The PyCapsule destructor of an array that owns a malloc'd buffer. */
+static void free_buffer(PyObject *cap) { free(PyCapsule_GetPointer(cap, "npg.buffer")); }
+
+/* An array of `nd` axes `shape` owning `data` (malloc'd): freed with the array (and on failure). */
+static PyObject *owning(void *data, int nd, npy_intp *shape, int type) {
+  PyObject *a = PyArray_SimpleNewFromData(nd, shape, type, data);
+  PyObject *cap = a ? PyCapsule_New(data ? data : (void *)"", "npg.buffer", data ? free_buffer : NULL) : NULL;
+  if (!cap || PyArray_SetBaseObject((PyArrayObject *)a, cap) < 0) {
+    if (!cap) free(data);
+    Py_XDECREF(a);
+    return NULL;
+  }
+  return a;
+}
+
 /* A copy of quantity `name` (input, extern or stage) shaped by its dims. */
 static PyObject *value_of(FullObject *self, const char *name) {
   size_t n = 0;
@@ -216,9 +234,13 @@ static PyObject *value_of(FullObject *self, const char *name) {
     nd = 1;
     shape[0] = (npy_intp)n;
   }
-  PyObject *a = PyArray_SimpleNew(nd, shape, NPY_DOUBLE);
-  if (a && n) memcpy(PyArray_DATA((PyArrayObject *)a), v, sizeof(double) * n);
-  return a;
+  /* copied before anything that may run Python code (an allocation may collect, a finalizer
+   * switch threads): read from a thread an extern callable waits for (full_get), the values
+   * stay put only while this thread holds the GIL */
+  double *copy = malloc(sizeof(double) * (n ? n : 1));
+  if (!copy) return PyErr_NoMemory();
+  if (n) memcpy(copy, v, sizeof(double) * n);
+  return owning(copy, nd, shape, NPY_DOUBLE);
 }
 
 /* Set every keyword array as an input or extern of the next evaluation. */
@@ -249,7 +271,10 @@ static PyObject *full_call(FullObject *self, PyObject *args, PyObject *kw) {
   }
   if (!enter(self, "Full.__call__")) return NULL;
   PyObject *out = NULL;
-  if (set_inputs(self, kw) != 0) goto done;
+  if (set_inputs(self, kw) != 0) {
+    self->evaluated = false;
+    goto done;
+  }
   int rc;
   long sample = self->calls++;
   Py_BEGIN_ALLOW_THREADS
@@ -257,6 +282,7 @@ static PyObject *full_call(FullObject *self, PyObject *args, PyObject *kw) {
   if (rc == 0) rc = npg_full_check_finite(self->f, sample);
   Py_END_ALLOW_THREADS
   if (rc) {
+    self->evaluated = false; /* its values are of no one sample: Trainer.add_full refuses them */
     fail(self);
     goto done;
   }
@@ -277,10 +303,22 @@ done:
 static PyObject *full_get(FullObject *self, PyObject *arg) {
   const char *name = npgpy_name(arg, "Full.get");
   if (!name) return NULL;
-  bool inside = npgpy_busy_mine(&self->busy); /* from an extern callable: the evaluation holds the lock */
-  if (!inside) npgpy_busy_enter(&self->busy);
+  /* From an extern callable the evaluation holds the lock; from another thread while a callable
+   * runs (a helper it may wait for: taking the lock would wait forever, issue 38) the evaluation
+   * is paused in the callable, which cannot return before this thread lets the GIL go: the
+   * values are read without the lock (value_of copies them at once). */
+  if (self->in_callback > 0) { /* the callables run before the stages: a stage or extern holds the last sample's */
+    for (int i = 0; i < self->prog->nsym; i++)
+      if (strcmp(self->prog->sym[i].name, name) == 0 && self->prog->sym[i].kind != NPG_INPUT &&
+          self->prog->sym[i].kind != NPG_PARAM)
+        return PyErr_Format(npgpy_Error, "Full.get('%s') while an extern callable runs: the callables run before the "
+                            "stages and the other externs' callables, so only the inputs hold this sample's values "
+                            "(an extern reads inputs: `extern v of g`)", name);
+  }
+  bool unlocked = npgpy_busy_mine(&self->busy) || self->in_callback > 0;
+  if (!unlocked) npgpy_busy_enter(&self->busy);
   PyObject *v = value_of(self, name);
-  if (!inside) npgpy_busy_leave(&self->busy);
+  if (!unlocked) npgpy_busy_leave(&self->busy);
   return v;
 }
 
@@ -338,21 +376,6 @@ done:
   return res;
 }
 
-/* The PyCapsule destructor of an array that owns a malloc'd buffer. */
-static void free_buffer(PyObject *cap) { free(PyCapsule_GetPointer(cap, "npg.buffer")); }
-
-/* A 1-D array owning `data` (malloc'd): freed with the array. */
-static PyObject *owning(void *data, npy_intp n, int type) {
-  PyObject *a = PyArray_SimpleNewFromData(1, &n, type, data);
-  PyObject *cap = a ? PyCapsule_New(data ? data : (void *)"", "npg.buffer", data ? free_buffer : NULL) : NULL;
-  if (!cap || PyArray_SetBaseObject((PyArrayObject *)a, cap) < 0) {
-    if (!cap) free(data);
-    Py_XDECREF(a);
-    return NULL;
-  }
-  return a;
-}
-
 /* full.op(name) -> {'data', 'indices', 'indptr', 'shape'}: an `output op` as
  * CSR (scipy.sparse.csr_matrix((data, indices, indptr), shape)); the arrays
  * own the library's buffers (no copy). */
@@ -366,9 +389,10 @@ static PyObject *full_op(FullObject *self, PyObject *arg) {
   if (rc) fail(self);
   else {
     static_assert(sizeof(long) == sizeof(npy_int64), "long is int64");
-    PyObject *data = owning(c.data, (npy_intp)c.nnz, NPY_DOUBLE);
-    PyObject *indices = owning(c.indices, (npy_intp)c.nnz, NPY_INT64);
-    PyObject *indptr = owning(c.indptr, (npy_intp)c.rows + 1, NPY_INT64);
+    npy_intp nnz = (npy_intp)c.nnz, rows1 = (npy_intp)c.rows + 1;
+    PyObject *data = owning(c.data, 1, &nnz, NPY_DOUBLE);
+    PyObject *indices = owning(c.indices, 1, &nnz, NPY_INT64);
+    PyObject *indptr = owning(c.indptr, 1, &rows1, NPY_INT64);
     if (data && indices && indptr)
       res = Py_BuildValue("{s:O,s:O,s:O,s:(ll)}", "data", data, "indices", indices, "indptr", indptr, "shape",
                           c.rows, c.cols);
@@ -436,7 +460,8 @@ static PyMethodDef full_methods[] = {
   {"bind", (PyCFunction)full_bind, METH_O, "bind(params): forget every binding and bind these params"},
   {"extern", (PyCFunction)full_extern, METH_VARARGS,
    "extern(name, fn): the extern's values from fn(full, sample) at every evaluation (None: from data again).\n"
-   "fn reads what it needs with full.get(); it may not evaluate the same evaluator."},
+   "fn reads what it needs with full.get() (from its own thread or one it starts); it may not evaluate the\n"
+   "same evaluator."},
   {"op", (PyCFunction)full_op, METH_O,
    "op(name) -> dict(data, indices, indptr, shape): an output op as CSR; the arrays own the library's buffers"},
   {NULL},

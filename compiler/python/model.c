@@ -37,8 +37,9 @@ PyObject *npgpy_load(PyObject *mod, PyObject *args, PyObject *kw) {
     return NULL;
   if (full != Py_None && !PyObject_TypeCheck(full, &npgpy_FullType))
     return PyErr_Format(PyExc_TypeError, "load: full must be an npg.Full, not %s", Py_TYPE(full)->tp_name);
-  if (full != Py_None && ((FullObject *)full)->prog != (ProgramObject *)prog)
-    return PyErr_Format(npgpy_Error, "load: full evaluates another program than prog");
+  if (full != Py_None && !npg_same_program(((FullObject *)full)->prog->p, ((ProgramObject *)prog)->p))
+    return PyErr_Format(npgpy_Error, "load: full evaluates another program than prog (the same source compiled "
+                        "twice is the same program)");
   if (!PyUnicode_FSConverter(dir, &b)) return NULL;
   NpgModel *m;
   Py_BEGIN_ALLOW_THREADS
@@ -206,7 +207,8 @@ static PyObject *model_dim_method(ModelObject *self, PyObject *arg) {
 /* -------------------------------------------------------- verify */
 
 void npgpy_samples_free(NpgpySamples *t) {
-  for (int i = 0; i < t->n; i++) Py_XDECREF(t->a[i]);
+  for (int i = 0; i < t->n; i++) Py_XDECREF(t->a[i]), Py_XDECREF(t->key[i]);
+  PyMem_Free(t->key);
   PyMem_Free(t->name);
   PyMem_Free(t->a);
   PyMem_Free(t->from);
@@ -228,17 +230,34 @@ int npgpy_samples_set(void *user, NpgFull *f, long k) {
   return 0;
 }
 
+static int samples_from(const ProgramObject *prog, PyObject *dict, const char *who, const char *arg, NpgpySamples *t);
+
 int npgpy_samples(const ProgramObject *prog, PyObject *dict, const char *who, const char *arg, NpgpySamples *t) {
+  /* read from a copy: converting a value (its __array__) may change the caller's dict */
+  PyObject *copy = PyDict_Copy(dict);
+  if (!copy) return memset(t, 0, sizeof *t), -1;
+  int rc = samples_from(prog, copy, who, arg, t);
+  Py_DECREF(copy);
+  return rc;
+}
+
+static int samples_from(const ProgramObject *prog, PyObject *dict, const char *who, const char *arg, NpgpySamples *t) {
   memset(t, 0, sizeof *t);
   t->arg = arg;
   Py_ssize_t n = PyDict_GET_SIZE(dict);
   t->name = PyMem_Calloc((size_t)n + 1, sizeof *t->name);
   t->a = PyMem_Calloc((size_t)n + 1, sizeof *t->a);
   t->from = PyMem_Calloc((size_t)n + 1, sizeof *t->from);
-  if (!t->name || !t->a || !t->from) return PyErr_NoMemory(), npgpy_samples_free(t), -1;
+  t->key = PyMem_Calloc((size_t)n + 1, sizeof *t->key);
+  if (!t->name || !t->a || !t->from || !t->key) return PyErr_NoMemory(), npgpy_samples_free(t), -1;
   PyObject *key, *value;
   t->count = -1;
-  for (Py_ssize_t pos = 0; PyDict_Next(dict, &pos, &key, &value);) {
+  for (Py_ssize_t pos = 0; PyDict_Next(dict, &pos, &key, &value) && t->n < n;) {
+    if (!PyUnicode_Check(key)) {
+      PyErr_Format(PyExc_TypeError, "%s: %s's keys are input and extern names (str), not %s", who, arg,
+                   Py_TYPE(key)->tp_name);
+      return npgpy_samples_free(t), -1;
+    }
     const char *name = PyUnicode_AsUTF8(key);
     if (!name) return npgpy_samples_free(t), -1;
     for (int i = 0; i < prog->nsym; i++) /* a param would rebind the evaluator for every later use (trial3) */
@@ -251,6 +270,8 @@ int npgpy_samples(const ProgramObject *prog, PyObject *dict, const char *who, co
     snprintf(what, sizeof what, "%s: %s['%s']", who, arg, name);
     PyArrayObject *a = npgpy_values(value, what);
     if (!a) return npgpy_samples_free(t), -1;
+    /* the key held: `name` points into it, and an extern callable may clear the dict (issue 38) */
+    t->key[t->n] = Py_NewRef(key);
     t->name[t->n] = name;
     t->a[t->n++] = a;
     if (PyArray_NDIM(a) < 1) {
@@ -258,6 +279,15 @@ int npgpy_samples(const ProgramObject *prog, PyObject *dict, const char *who, co
       return npgpy_samples_free(t), -1;
     }
     long S = (long)PyArray_DIM(a, 0);
+    /* refused when given (Trainer's valid= at construction, not at finish after every sample) */
+    const double *v = PyArray_DATA(a);
+    size_t total = (size_t)PyArray_SIZE(a), per = S > 0 ? total / (size_t)S : 0;
+    for (size_t e = 0; e < total; e++)
+      if (!isfinite(v[e])) {
+        PyErr_Format(npgpy_Error, "%s: %s['%s'] sample %zu holds %s at flat entry %zu", who, arg, name, e / per,
+                     isnan(v[e]) ? "NaN" : "an infinity", e % per);
+        return npgpy_samples_free(t), -1;
+      }
     if (t->count >= 0 && S != t->count) {
       PyErr_Format(npgpy_Error, "%s: %s['%s'] has %ld samples, the arrays before it %ld", who, arg, name, S, t->count);
       return npgpy_samples_free(t), -1;
@@ -284,12 +314,13 @@ static PyObject *row_dict(const NpgVerifyRow *r, double tol) {
 /* model.verify(test, tol=None, full=None, progress=False) -> {quantity: {...}} */
 static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
   static char *kwlist[] = {"test", "tol", "full", "progress", NULL};
-  PyObject *test, *tolo = Py_None, *fullo = Py_None;
-  int progress = 0;
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|OOp:verify", kwlist, &PyDict_Type, &test, &tolo, &fullo, &progress))
+  PyObject *test, *tolo = Py_None, *fullo = Py_None, *progresso = Py_False;
+  bool progress;
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|OOO:verify", kwlist, &PyDict_Type, &test, &tolo, &fullo, &progresso) ||
+      npgpy_flag(progresso, "verify: progress", &progress))
     return NULL;
   double tol = -1;
-  if (tolo != Py_None && ((tol = PyFloat_AsDouble(tolo)) == -1 && PyErr_Occurred())) return NULL;
+  if (tolo != Py_None && npgpy_real(tolo, "verify: tol", &tol)) return NULL;
   /* As npgc verify --tol: a finite number >= 0 (-1 would otherwise mean "no tolerance" below). */
   if (tolo != Py_None && !(isfinite(tol) && tol >= 0))
     return npgpy_value_error("verify: tol is %g; expected a finite number >= 0", tol);
@@ -302,7 +333,9 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
   if (!full)
     return PyErr_Format(npgpy_Error, "verify: this model has no full evaluator (a loaded model): give full=, an "
                                      "evaluator with the model's params bound");
-  if (full->prog != self->prog) return PyErr_Format(npgpy_Error, "verify: full evaluates another program");
+  if (!npg_same_program(full->prog->p, self->prog->p))
+    return PyErr_Format(npgpy_Error, "verify: full evaluates another program than the model's (the same source "
+                        "compiled twice is the same program)");
   NpgpySamples t;
   PyObject *res = NULL;
   if (npgpy_samples(self->prog, test, "verify", "test", &t) != 0) return NULL;
@@ -343,7 +376,8 @@ typedef struct ReducedObject {
   NpgReduced *r;
   Busy busy;
   int ninputs, noutputs;
-  const NpgSymbol **input;  /* the program's inputs, and for each: */
+  bool given_externs;       /* red.given_externs(True): externs are given like inputs */
+  const NpgSymbol **input;  /* the program's inputs and externs, and for each: */
   PyObject **input_name;    /*   its name as str (keyword lookup by identity first) */
   npy_intp (*input_shape)[16];
   int *input_nd;
@@ -386,8 +420,11 @@ static PyObject *rfail(ReducedObject *self) {
 
 static PyObject *model_reduced(ModelObject *model, PyObject *args, PyObject *kw) {
   static char *kwlist[] = {"exact_roots", NULL};
-  int exact = 0;
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "|p:reduced", kwlist, &exact)) return NULL;
+  PyObject *exacto = Py_False;
+  bool exact;
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "|O:reduced", kwlist, &exacto) ||
+      npgpy_flag(exacto, "reduced: exact_roots", &exact))
+    return NULL;
   ReducedObject *self = PyObject_GC_New(ReducedObject, &npgpy_ReducedType);
   if (!self) return NULL;
   memset((char *)self + sizeof(PyObject), 0, sizeof *self - sizeof(PyObject));
@@ -411,7 +448,7 @@ static PyObject *model_reduced(ModelObject *model, PyObject *args, PyObject *kw)
   }
   for (int i = 0; i < n; i++) {
     const NpgSymbol *s = &p->sym[i];
-    if (s->kind == NPG_INPUT) {
+    if (s->kind == NPG_INPUT || s->kind == NPG_EXTERN) { /* an extern: after red.given_externs(True) */
       int k = self->ninputs++;
       self->input[k] = s;
       if (!(self->input_name[k] = PyUnicode_InternFromString(s->name))) goto fail;
@@ -419,7 +456,8 @@ static PyObject *model_reduced(ModelObject *model, PyObject *args, PyObject *kw)
       size_t c = 1;
       for (int d = 0; d < self->input_nd[k]; d++) c *= (size_t)self->input_shape[k][d];
       self->input_count[k] = c;
-    } else if (s->output && s->kind != NPG_OP) {
+    }
+    if (s->output && s->kind != NPG_OP && s->kind != NPG_INPUT) {
       int k = self->noutputs++;
       self->output[k] = s;
       if (!(self->output_name[k] = PyUnicode_InternFromString(s->name))) goto fail;
@@ -477,6 +515,11 @@ static PyObject *reduced_call(ReducedObject *self, PyObject *args, PyObject *kw)
                    key);
       goto done;
     }
+    if (self->input[k]->kind == NPG_EXTERN && !self->given_externs) {
+      PyErr_Format(npgpy_Error, "red(...): '%U' is an extern, which the model computes from its inputs: give it "
+                   "after red.given_externs(True)", key);
+      goto done;
+    }
     PyArrayObject *a;
     if (PyArray_CheckExact(value) && PyArray_TYPE((PyArrayObject *)value) == NPY_DOUBLE &&
         PyArray_ISCARRAY_RO((PyArrayObject *)value) && PyArray_ISNOTSWAPPED((PyArrayObject *)value)) {
@@ -506,7 +549,7 @@ static PyObject *reduced_call(ReducedObject *self, PyObject *args, PyObject *kw)
   npgpy_busy_enter(&self->busy);
   for (int i = 0; i < na; i++) self->input_set[idx[i]] = true;
   for (int k = 0; k < self->ninputs; k++)
-    if (!self->input_set[k]) {
+    if (!self->input_set[k] && self->input[k]->kind == NPG_INPUT) { /* an extern never given: the library says */
       npgpy_busy_leave(&self->busy);
       PyErr_Format(npgpy_Error, "input '%s' is not set: give it (red(%s=array)) at least once, or its coordinates "
                    "(red.set_coords('%s', coords))", self->input[k]->name, self->input[k]->name,
@@ -630,6 +673,18 @@ static PyObject *reduced_set_coords(ReducedObject *self, PyObject *args) {
   return res;
 }
 
+/* red.given_externs(on): with True, externs keep the values given (red(v=...), red.set_coords)
+ * instead of the learned map's (npg_reduced_given_externs: the Arvo split of errors) */
+static PyObject *reduced_given_externs(ReducedObject *self, PyObject *arg) {
+  bool on;
+  if (npgpy_flag(arg, "given_externs: on", &on)) return NULL;
+  npgpy_busy_enter(&self->busy);
+  npg_reduced_given_externs(self->r, on);
+  self->given_externs = on;
+  npgpy_busy_leave(&self->busy);
+  Py_RETURN_NONE;
+}
+
 /* red.op(name) -> the reduced `output op` matrix B_rowᵀ M B_col (rows x cols) */
 static PyObject *reduced_op(ReducedObject *self, PyObject *arg) {
   const char *name = npgpy_name(arg, "Reduced.op");
@@ -694,8 +749,12 @@ static PyMethodDef reduced_methods[] = {
    "lift(name, out=None) -> array: B ŷ of any quantity, shaped like it; written into `out` when given"},
   {"coords", (PyCFunction)reduced_coords, METH_O, "coords(name) -> array: a copy of the reduced coordinates"},
   {"set_coords", (PyCFunction)reduced_set_coords, METH_VARARGS,
-   "set_coords(name, coords): set an input from its reduced coordinates"},
-  {"op", (PyCFunction)reduced_op, METH_O, "op(name) -> array: the reduced output op B_rowᵀ M B_col"},
+   "set_coords(name, coords): set an input (or an extern after given_externs(True)) from its reduced coordinates"},
+  {"op", (PyCFunction)reduced_op, METH_O,
+   "op(name) -> array: the reduced output op B_rowᵀ M B_col at the last evaluation (npg.Error before any)"},
+  {"given_externs", (PyCFunction)reduced_given_externs, METH_O,
+   "given_externs(on): True: externs are given like inputs (red(v=array) projected, or\n"
+   "red.set_coords('v', coords)) instead of the learned map's values; False: learned again"},
   {NULL},
 };
 

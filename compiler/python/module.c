@@ -46,6 +46,10 @@ bool npgpy_busy_mine(const Busy *b) { return b->holder == PyThread_get_thread_id
 /* ---------------------------------------------------------------- arrays and errors */
 
 PyArrayObject *npgpy_values(PyObject *obj, const char *what) {
+  if (obj == Py_None) { /* numpy makes None a 0-d NaN: "has 0 axes" or "holds NaN" named the wrong problem */
+    PyErr_Format(PyExc_TypeError, "%s: None, not an array of float64", what);
+    return NULL;
+  }
   if (PyArray_Check(obj)) {
     PyArrayObject *a = (PyArrayObject *)obj;
     if (PyArray_TYPE(a) != NPY_DOUBLE) {
@@ -73,6 +77,42 @@ PyArrayObject *npgpy_values(PyObject *obj, const char *what) {
 
 void npgpy_long_shape(PyArrayObject *a, long *shape) {
   for (int i = 0; i < PyArray_NDIM(a); i++) shape[i] = (long)PyArray_DIM(a, i);
+}
+
+int npgpy_real(PyObject *v, const char *what, double *out) {
+  /* PyArg's "d" said "must be real number, not str" without naming the option */
+  if (v == Py_None || PyBool_Check(v) || PyUnicode_Check(v) || PyBytes_Check(v) || !PyNumber_Check(v)) {
+    PyErr_Format(PyExc_TypeError, "%s must be a number, not %s", what, Py_TYPE(v)->tp_name);
+    return -1;
+  }
+  double d = PyFloat_AsDouble(v);
+  if (d == -1 && PyErr_Occurred()) {
+    PyErr_Clear();
+    PyErr_Format(PyExc_TypeError, "%s must be a real number, not %s %R", what, Py_TYPE(v)->tp_name, v);
+    return -1;
+  }
+  *out = d;
+  return 0;
+}
+
+int npgpy_flag(PyObject *v, const char *what, bool *out) {
+  /* a str, None or any other object is true or false by Python's rule: center='off' was true (issue 38) */
+  if (PyBool_Check(v) || PyArray_IsScalar(v, Bool)) {
+    int t = PyObject_IsTrue(v);
+    if (t < 0) return -1;
+    *out = t;
+    return 0;
+  }
+  if (PyLong_CheckExact(v)) {
+    int overflow = 0;
+    long x = PyLong_AsLongAndOverflow(v, &overflow);
+    if (!overflow && (x == 0 || x == 1)) {
+      *out = x == 1;
+      return 0;
+    }
+  }
+  PyErr_Format(PyExc_TypeError, "%s must be True or False, not %s %R", what, Py_TYPE(v)->tp_name, v);
+  return -1;
 }
 
 const char *npgpy_name(PyObject *arg, const char *method) {

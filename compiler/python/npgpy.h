@@ -55,6 +55,12 @@ bool npgpy_busy_mine(const Busy *b);
 PyArrayObject *npgpy_values(PyObject *obj, const char *what);
 /* The shape of `a` as the C API takes it (long[], at most NPY_MAXDIMS). */
 void npgpy_long_shape(PyArrayObject *a, long *shape);
+/* A flag option (`what`: "Trainer: center"): True, False, numpy.bool_, or the int 0 or 1; anything
+ * else (a str such as 'off', None, 2) is a TypeError naming `what`. 0, or -1 with the exception. */
+int npgpy_flag(PyObject *v, const char *what, bool *out);
+/* A number option (`what`: "Trainer: energy"): an int or float (numpy's too) as a double; None, a
+ * bool, a str is a TypeError naming `what`. 0, or -1 with the exception. */
+int npgpy_real(PyObject *v, const char *what, double *out);
 /* A library message as npg.Error (or `type`). Returns NULL. */
 PyObject *npgpy_raise(PyObject *type, const char *msg);
 /* The name a one-argument method was given, as UTF-8; NULL with a TypeError naming `method`
@@ -90,6 +96,7 @@ typedef struct FullObject {
   ExternSlot *externs;      /* linked list of callables registered as externs */
   PyObject *cb_error;       /* the exception an extern callable raised (an exception instance), or NULL */
   bool evaluated;           /* one evaluation happened since the last binding */
+  int in_callback;          /* extern callables running (changed with the GIL held) */
   long calls;               /* evaluations so far: the sample number of the next (messages, extern callables) */
 } FullObject;
 extern PyTypeObject npgpy_FullType;
@@ -105,7 +112,8 @@ typedef struct NpgpySamples {
   int n;
   long count;               /* samples */
   const char *arg;          /* the argument's name in messages ("test") */
-  const char **name;
+  const char **name;        /* into key[i], held */
+  PyObject **key;
   PyArrayObject **a;
   char (*from)[128];
 } NpgpySamples;

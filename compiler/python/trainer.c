@@ -4,6 +4,9 @@
  * samples give the same model, byte for byte). */
 #include "npgpy.h"
 
+#include <stdint.h>
+#include <string.h>
+
 typedef struct TrainerObject {
   PyObject_HEAD
   FullObject *full;         /* the trainer replays its samples through full->f */
@@ -18,6 +21,8 @@ typedef struct TrainerObject {
   PyObject *valid_dict;     /* valid=: a copy of the dict, which holds the names NpgpySamples points to */
   NpgpySamples valid;
 } TrainerObject;
+
+static PyObject *raise_words(TrainerObject *self, const char *prefix, const char *msg);
 
 static void free_names(char **v) {
   for (int i = 0; v && v[i]; i++) PyMem_Free(v[i]);
@@ -72,11 +77,8 @@ static int parse_reduce(TrainerObject *self, PyObject *full, PyObject *interp, P
     return npgpy_value_error("Trainer: interp_oversample %g: entries per basis vector, 1..1000 (0: the "
                         "default)", oversample), -1;
   o->interp_oversample = oversample;
-  if (valid != Py_None && holdout != 0)
+  if (valid != Py_None && holdout > 0)
     return PyErr_SetString(PyExc_ValueError, "Trainer: valid= and valid_holdout= both given (one or the other)"), -1;
-  if (!(holdout >= 0 && holdout <= 0.5))
-    return npgpy_value_error("Trainer: valid_holdout %g: a fraction in (0, 0.5] of the samples added",
-                        holdout), -1;
   o->valid_holdout = holdout;
   if (valid == Py_None) return 0;
   if (!PyDict_Check(valid))
@@ -173,22 +175,37 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   static char *kwlist[] = {"full", "energy", "cap", "center", "mem", "joint", "progress", "basis", "keep_bases",
                            "interp", "galerkin", "interp_oversample", "valid", "valid_holdout", NULL};
   PyObject *full, *center = Py_True, *joint = Py_False, *progress = Py_False, *mem = Py_None, *basis = Py_None;
-  PyObject *interp = Py_None, *galerkin = Py_None, *valid = Py_None;
-  double oversample = 0, holdout = 0;
+  PyObject *interp = Py_None, *galerkin = Py_None, *valid = Py_None, *holdouto = Py_None;
+  PyObject *energyo = NULL, *oversampleo = NULL;
+  double oversample = 0;
   PyObject *keepo = Py_None;
   PyObject *capo = NULL;
+  /* every default is the library's (npgc train's and npg.h's: one source, issue 38) */
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|dOOOOOOO$OOdOd:Trainer", kwlist, &npgpy_FullType, &full, &o.energy,
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|OOOOOOOO$OOOOO:Trainer", kwlist, &npgpy_FullType, &full, &energyo,
                                    &capo, &center, &mem, &joint, &progress, &basis, &keepo, &interp, &galerkin,
-                                   &oversample, &valid, &holdout))
+                                   &oversampleo, &valid, &holdouto))
     return -1;
+  if ((energyo && npgpy_real(energyo, "Trainer: energy", &o.energy)) ||
+      (oversampleo && npgpy_real(oversampleo, "Trainer: interp_oversample", &oversample)))
+    return -1;
+  double holdout = o.valid_holdout; /* None: the library's automatic choice */
+  if (holdouto != Py_None) {
+    if (npgpy_real(holdouto, "Trainer: valid_holdout (a fraction, or None)", &holdout)) return -1;
+    if (!(holdout >= 0 && holdout <= 0.5))
+      return npgpy_value_error("Trainer: valid_holdout %g: a fraction in (0, 0.5] of the samples added (0: none; None: "
+                               "the automatic choice)", holdout), -1;
+  }
   if (capo && cap_value(capo, "cap", &o.cap) != 0) return -1;
   if (keepo != Py_None && !PyUnicode_Check(keepo))
     return PyErr_Format(PyExc_TypeError, "Trainer: keep_bases must be a str ('h,m_r' or 'all'), not %s",
                         Py_TYPE(keepo)->tp_name), -1;
   const char *keep = keepo == Py_None ? NULL : PyUnicode_AsUTF8(keepo);
   if (keepo != Py_None && !keep) return -1;
+  if (keep && !keep[0])
+    return PyErr_SetString(PyExc_ValueError, "Trainer: keep_bases is '': quantities or classes m_x separated by "
+                           "commas, 'all', or None for none"), -1;
   if (self->t) {
     PyErr_SetString(PyExc_RuntimeError, "Trainer: already initialized");
     return -1;
@@ -197,13 +214,26 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
     npgpy_value_error("Trainer: energy %g: a fraction in (0, 1]", o.energy);
     return -1;
   }
-  if (mem != Py_None) {
-    unsigned long long b = PyLong_AsUnsignedLongLong(mem);
-    if (PyErr_Occurred()) return -1;
+  if (mem != Py_None) { /* bytes, as npgc train --mem: a whole number >= 1 */
+    PyObject *iv = PyBool_Check(mem) ? NULL : PyNumber_Index(mem);
+    if (!iv) {
+      PyErr_Clear();
+      return PyErr_Format(PyExc_TypeError, "Trainer: mem must be an int (bytes) or None (half the RAM), not %s",
+                          Py_TYPE(mem)->tp_name), -1;
+    }
+    int overflow = 0;
+    long long b = PyLong_AsLongLongAndOverflow(iv, &overflow);
+    Py_DECREF(iv);
+    if (b == -1 && PyErr_Occurred()) return -1;
+    if (overflow || b < 1 || (unsigned long long)b > SIZE_MAX)
+      return PyErr_Format(PyExc_ValueError, "Trainer: mem %R: bytes of memory for training, 1 to %zu (None: half the "
+                          "RAM)", mem, (size_t)SIZE_MAX), -1;
     o.mem = (size_t)b;
   }
-  int c = PyObject_IsTrue(center), j = PyObject_IsTrue(joint), p = PyObject_IsTrue(progress);
-  if (c < 0 || j < 0 || p < 0) return -1;
+  bool c, j, p;
+  if (npgpy_flag(center, "Trainer: center", &c) || npgpy_flag(joint, "Trainer: joint", &j) ||
+      npgpy_flag(progress, "Trainer: progress", &p))
+    return -1;
   o.uncentered = !c;
   o.joint = j;
   o.progress = p;
@@ -221,7 +251,7 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
     PyErr_NoMemory();
     return -1;
   }
-  if (npg_trainer_error(self->t)[0]) return npgpy_raise(npgpy_Error, npg_trainer_error(self->t)), -1;
+  if (npg_trainer_error(self->t)[0]) return raise_words(self, "Trainer: ", npg_trainer_error(self->t)), -1;
   return 0;
 }
 
@@ -249,11 +279,73 @@ static bool ready(TrainerObject *self) {
   return false;
 }
 
-/* The library failed: its message (the extern callable's exception as the
- * cause). The trainer refuses further work (the C API's contract); its
- * evaluator is made usable again for evaluations and other trainers. */
+/* The library's message in Python's words: npgc train's option flags, which the library's
+ * training messages name, become Trainer's keywords ("--basis x: ..." is "basis x: ...",
+ * "--reduce w:interp" is "interp w", "raise --mem" is "raise mem"), and the C functions it names
+ * their methods (npg_trainer_weight is Trainer.weight). A new str, or NULL. */
+static char *python_words(const char *msg) {
+  static const char *const flag[][2] = {
+    {"--keep-bases", "keep_bases"}, {"--basis", "basis"}, {"--mem", "mem"}, {"--cap", "cap"},
+    {"--energy", "energy"}, {"--center", "center"}, {"--merge joint", "joint=True"}, {"--merge", "joint"},
+    {"--interp-oversample", "interp_oversample"}, {"--valid", "valid_holdout"}, {"--progress", "progress"},
+    {"npg_full_set_extern_fn", "full.extern"}, {"npg_trainer_weight", "Trainer.weight"},
+    {"npg_trainer_dots", "Trainer.dots"},
+  };
+  size_t n = strlen(msg);
+  char *out = PyMem_Malloc(2 * n + 64);
+  if (!out) return NULL;
+  size_t o = 0;
+  for (size_t i = 0; i < n;) {
+    if (strncmp(msg + i, "--reduce ", 9) == 0) { /* --reduce NAME:interp -> interp NAME */
+      const char *name = msg + i + 9, *colon = strchr(name, ':');
+      const char *kind = colon && strncmp(colon + 1, "interp", 6) == 0     ? "interp"
+                         : colon && strncmp(colon + 1, "galerkin", 8) == 0 ? "galerkin"
+                                                                           : NULL;
+      if (kind && colon - name < 256) {
+        o += (size_t)sprintf(out + o, "%s %.*s", kind, (int)(colon - name), name);
+        i = (size_t)(colon + 1 - msg) + strlen(kind);
+        continue;
+      }
+    }
+    bool done = false;
+    for (size_t k = 0; k < sizeof flag / sizeof *flag && !done; k++) {
+      size_t len = strlen(flag[k][0]);
+      if (strncmp(msg + i, flag[k][0], len) == 0 && (msg[i + len] == 0 || msg[i + len] == ' ' ||
+                                                     msg[i + len] == ':' || msg[i + len] == ',' ||
+                                                     msg[i + len] == ')' || msg[i + len] == '=')) {
+        o += (size_t)sprintf(out + o, "%s", flag[k][1]);
+        i += len;
+        done = true;
+      }
+    }
+    if (!done) out[o++] = msg[i++];
+  }
+  out[o] = 0;
+  return out;
+}
+
+/* `msg` in Python's words as npg.Error (the cause: the extern callable's exception), prefixed. */
+static PyObject *raise_words(TrainerObject *self, const char *prefix, const char *msg) {
+  char *w = python_words(msg);
+  if (!w) return PyErr_NoMemory();
+  size_t len = strlen(prefix) + strlen(w) + 1;
+  char *text = PyMem_Malloc(len);
+  if (text) snprintf(text, len, "%s%s", prefix, w);
+  PyMem_Free(w);
+  if (!text) return PyErr_NoMemory();
+  if (self->full) npgpy_full_raise(self->full, text);
+  else npgpy_raise(npgpy_Error, text);
+  PyMem_Free(text);
+  return NULL;
+}
+
+/* The library refused a call: its message (the extern callable's exception as the cause). The
+ * refused sample is forgotten and the trainer takes samples again (npg_trainer_clear_error),
+ * unless the failure left its records incomplete; its evaluator is made usable again for
+ * evaluations and other trainers. */
 static PyObject *fail(TrainerObject *self) {
-  npgpy_full_raise(self->full, npg_trainer_error(self->t));
+  raise_words(self, "", npg_trainer_error(self->t));
+  npg_trainer_clear_error(self->t);
   npg_full_clear_error(self->full->f);
   return NULL;
 }
@@ -297,8 +389,8 @@ done:
 
 /* tr.weight(w): the weight of the next sample added (npg_trainer_weight). */
 static PyObject *trainer_weight(TrainerObject *self, PyObject *arg) {
-  double w = PyFloat_AsDouble(arg);
-  if (w == -1 && PyErr_Occurred()) return NULL;
+  double w;
+  if (npgpy_real(arg, "Trainer.weight: the weight", &w)) return NULL;
   if (!ready(self)) return NULL;
   if (npg_trainer_weight(self->t, w)) return fail(self);
   Py_RETURN_NONE;
@@ -311,7 +403,8 @@ static PyObject *trainer_add_full(TrainerObject *self, PyObject *unused) {
   int rc;
   if (!self->full->evaluated) {
     npgpy_busy_leave(&self->full->busy);
-    PyErr_SetString(npgpy_Error, "Trainer.add_full: the evaluator has not evaluated a sample yet");
+    PyErr_SetString(npgpy_Error, "Trainer.add_full: the evaluator holds no evaluated sample (none was evaluated yet, "
+                    "or its last call failed)");
     return NULL;
   }
   Py_BEGIN_ALLOW_THREADS
@@ -353,10 +446,11 @@ static PyObject *trainer_dots(TrainerObject *self, PyObject *args) {
   snprintf(what, sizeof what, "Trainer.dots: the values of '%s'", name);
   PyArrayObject *a = npgpy_values(obj, what);
   if (!a) return NULL;
+  npgpy_busy_enter(&self->full->busy);
+  /* sized under the lock: a tr.add on another thread adds a sample until it is taken */
   npy_intp S = npg_trainer_samples(self->t);
   PyObject *out = PyArray_SimpleNew(1, &S, NPY_DOUBLE);
-  if (!out) return Py_DECREF(a), NULL;
-  npgpy_busy_enter(&self->full->busy);
+  if (!out) return npgpy_busy_leave(&self->full->busy), Py_DECREF(a), NULL;
   int rc;
   Py_BEGIN_ALLOW_THREADS
   rc = npg_trainer_dots(self->t, name, (size_t)PyArray_SIZE(a), PyArray_DATA(a),
@@ -429,18 +523,25 @@ PyTypeObject npgpy_TrainerType = {
   .tp_dealloc = (destructor)trainer_dealloc,
   .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
   .tp_doc = "Trainer(full, energy=0.999, cap=60, center=True, mem=None, joint=False, progress=False, basis=None,\n"
-            "        keep_bases=None, *, interp=None, galerkin=None, interp_oversample=0, valid=None, valid_holdout=0)\n\n"
-            "Streams samples into the library's trainer; finish() trains as npgc train does. mem: bytes for\n"
-            "the samples in memory (beyond: a scratch file; None: half the RAM). center=False: the paper's\n"
-            "uncentered truncation. basis={name: {'cap': N, 'energy': E, 'center': bool}}: per quantity,\n"
+            "        keep_bases=None, *, interp=None, galerkin=None, interp_oversample=0, valid=None, valid_holdout=None)\n\n"
+            "Streams samples into the library's trainer; finish() trains as npgc train does, and every default is\n"
+            "the library's (npg_train_options_default: the same as npgc train's and npg.h's, so the same samples\n"
+            "give the same model byte for byte). mem: bytes for the samples in memory (beyond: a scratch file;\n"
+            "None: half the RAM). center=False: the paper's uncentered truncation; center, joint and progress take\n"
+            "True or False (or 0/1), never a str. basis=['NAME:cap=N,energy=E,center=on|off', ...]: per quantity,\n"
             "class (m_x), numerator (y.num1) or '*', as npgc train --basis. keep_bases='h,m_r' or 'all': keep\n"
             "those bases in the model too, as npgc train --keep-bases (by default the bases the reduced\n"
             "model never reads, of pair quantities, are used in training and not kept).\n"
             "Interpolated stages (DESIGN §12), keywords only: interp=['w'] / galerkin=['w'] force a stage's\n"
             "reduction (npgc train --reduce w:interp|galerkin); interp_oversample=X entries per basis vector\n"
             "(default 32); valid={'x': array of samples x ...} validation samples (the trainer's params), or\n"
-            "valid_holdout=F a fraction of the samples added held out: every other eligible stage is reduced\n"
-            "both ways and the lower output error kept (model.interpolated(stage) reads the choice).",
+            "valid_holdout=F a fraction of the samples added held out (0: none; None: the automatic choice of\n"
+            "npgc train, every 10th of 30 or more samples when a stage's reduction is open to a choice): every\n"
+            "other eligible stage is reduced both ways and the lower output error kept (model.interpolated(stage)\n"
+            "reads the choice).\n"
+            "Every option, names included, is checked here, when the trainer is made. A refused call (a sample\n"
+            "with a NaN, an extern without a callable left out, a bad weight) raises and leaves the trainer\n"
+            "usable: the refused sample is forgotten, the samples added before are kept.",
   .tp_traverse = (traverseproc)trainer_traverse,
   .tp_init = (initproc)trainer_init,
   .tp_new = PyType_GenericNew,

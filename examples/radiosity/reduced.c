@@ -88,6 +88,11 @@ int reduced_train(ReducedRadiosity *r, Scene *s, const Options *opt, const char 
   if (mem) o.mem = mem;
   NpgTrainer *tr = npg_trainer_new(r->full, &o);
   if (!tr) return failed(err, errlen, "trainer", "out of memory");
+  if (npg_trainer_error(tr)[0]) { /* the options (a --basis name) refused before any ray is cast */
+    snprintf(err, errlen, "training: %s", npg_trainer_error(tr));
+    npg_trainer_free(tr);
+    return -1;
+  }
   long sg[2] = {s->V, 3}, sf[1] = {s->F};
   double t0 = frame_now();
   r->ray_seconds = 0, r->ray_calls = 0;

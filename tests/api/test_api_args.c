@@ -7,7 +7,8 @@
  * compilation failed (no C compiler, an unusable TMPDIR) is freed without
  * a crash; a program path holding a comment closer and constants folding
  * to infinities compile; a member name longer than its spectrum's CSV
- * buffer is written whole.
+ * buffer is written whole. An extern without a callback left out of a sample is refused (issue
+ * 38), and a refused sample leaves the trainer usable.
  *
  *     test_api_args      (from the source root: it writes under /tmp)
  */
@@ -772,6 +773,59 @@ static int setup(void **state) {
   return 0;
 }
 
+/* Issue 38 in C: an extern without a callback left out of a sample is refused naming it (it
+ * was evaluated with the previous sample's value), in npg_trainer_add and npg_verify; a refused
+ * sample is forgotten by npg_trainer_clear_error and the trainer goes on; the option names are
+ * refused by npg_trainer_new; the same source compiled twice is the same program. */
+static void externs_left_out(void **state) {
+  (void)state;
+  const char *src = "dim N\ninput  x : real[N]\nextern v[i:N] of x\noutput y[i:N] = v[i] * x[i]\n";
+  NpgProgram *p = compile_text("ext.npg", src), *q = compile_text("ext.npg", src);
+  NpgProgram *other = compile_text("ext.npg", eq3);
+  assert_true(npg_same_program(p, q));
+  assert_false(npg_same_program(p, other));
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  const char *bad[] = {"nosuch"};
+  int cap[] = {3};
+  double energy[] = {-1};
+  o.nbasis = 1, o.basis_name = bad, o.basis_cap = cap, o.basis_energy = energy;
+  NpgTrainer *t = npg_trainer_new(f, &o);
+  says(npg_trainer_error(t), "--basis nosuch: no quantity");
+  assert_int_equal(npg_trainer_clear_error(t), -1); /* a refused construction stays refused */
+  npg_trainer_free(t);
+  npg_train_options_default(&o);
+  t = npg_trainer_new(f, &o);
+  long two = 2;
+  double v[2];
+  for (int k = 0; k < 12; k++) {
+    v[0] = 1 + xs[2 * k], v[1] = 2 - xs[2 * k + 1];
+    assert_int_equal(npg_trainer_set(t, "x", 1, &two, xs + 2 * k), 0);
+    if (k == 3) { /* v left out: refused, then forgotten */
+      assert_int_equal(npg_trainer_add(t), -1);
+      says(npg_trainer_error(t), "training sample 3: extern 'v' is not given and has no callback");
+      assert_int_equal(npg_trainer_clear_error(t), 0);
+      assert_int_equal(npg_trainer_samples(t), 3);
+      assert_int_equal(npg_trainer_set(t, "x", 1, &two, xs + 2 * k), 0);
+    }
+    assert_int_equal(npg_trainer_set(t, "v", 1, &two, v), 0);
+    assert_int_equal(npg_trainer_add(t), 0);
+  }
+  NpgModel *m = npg_trainer_finish(t, NULL);
+  if (!m) fail_msg("%s", npg_trainer_error(t));
+  assert_int_equal(npg_model_samples(m), 12);
+  NpgVerifyReport rep;
+  assert_int_equal(npg_verify(m, f, 2, set_x, NULL, false, &rep), -1); /* set_x gives x alone */
+  says(rep.error, "test sample 0: extern 'v' is not given and has no callback");
+  npg_verify_free(&rep);
+  npg_full_clear_error(f);
+  npg_model_free(m);
+  npg_trainer_free(t);
+  npg_full_free(f);
+  npg_free(p), npg_free(q), npg_free(other);
+}
+
 static int teardown(void **state) {
   (void)state;
   char cmd[512];
@@ -785,6 +839,7 @@ int main(void) {
       cmocka_unit_test(train_options_refused),  cmocka_unit_test(reduced_order_of_calls),
       cmocka_unit_test(jit_failures),           cmocka_unit_test(generated_c_robust),
       cmocka_unit_test(long_member_name),       cmocka_unit_test(roots_of_negatives),
+      cmocka_unit_test(externs_left_out),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

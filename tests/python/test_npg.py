@@ -226,10 +226,8 @@ def test_trained_springs_equal_npgc_train(tmp_path, npgc):
         npg.Trainer(full, basis={"l2": {"cap": 3}})
     with pytest.raises(TypeError, match=r"basis\[1\]"):
         npg.Trainer(full, basis=["l2:cap=3", 3])
-    tr = npg.Trainer(full, basis="nosuch:cap=3")
-    tr.add(x=x[0])
-    with pytest.raises(npg.Error, match="nosuch"):
-        tr.finish()
+    with pytest.raises(npg.Error, match="Trainer: basis nosuch: no quantity"):  # when made, not at finish()
+        npg.Trainer(full, basis="nosuch:cap=3")
 
 
 def test_trainer_options_checked(eq3):
@@ -642,6 +640,16 @@ def test_coefficients_and_dots(tmp_path, root):
     w = np.where(np.random.default_rng(2).random(v[0].shape) < 0.5, v[3], v[7])
     zb, zc = B.T @ w.ravel(), C.T @ tr.dots("v", w)
     assert np.abs(zb - zc).max() <= 1e-10 * max(1.0, np.abs(zb).max())
+    # the README's recipe: the extern given by those coordinates (red.given_externs) evaluates as
+    # the kept basis's model given w in full
+    red, redk = model.reduced(), kept.reduced()
+    with pytest.raises(npg.Error, match="extern"):
+        red.set_coords("v", zc)
+    red.given_externs(True), redk.given_externs(True)
+    red.set_coords("v", zc)
+    b = red(g=g[2], e=e[2])["b"]
+    bk = redk(g=g[2], e=e[2], v=w)["b"]
+    assert np.abs(b - bk).max() <= 1e-8 * np.abs(bk).max()
     with pytest.raises(npg.Error, match="entries"):
         tr.dots("v", v[0][:5])
     with pytest.raises(npg.Error, match="no input or extern"):  # a failed trainer refuses further work
