@@ -313,12 +313,25 @@ static PyObject *row_dict(const NpgVerifyRow *r, double tol) {
 
 /* model.verify(test, tol=None, full=None, progress=False) -> {quantity: {...}} */
 static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
-  static char *kwlist[] = {"test", "tol", "full", "progress", NULL};
-  PyObject *test, *tolo = Py_None, *fullo = Py_None, *progresso = Py_False;
+  static char *kwlist[] = {"test", "tol", "full", "progress", "steps", "every", NULL};
+  PyObject *test, *tolo = Py_None, *fullo = Py_None, *progresso = Py_False, *stepso = Py_None, *everyo = Py_None;
   bool progress;
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|OOO:verify", kwlist, &PyDict_Type, &test, &tolo, &fullo, &progresso) ||
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|OOOOO:verify", kwlist, &PyDict_Type, &test, &tolo, &fullo, &progresso,
+                                   &stepso, &everyo) ||
       npgpy_flag(progresso, "verify: progress", &progress))
     return NULL;
+  long steps = -1, every = 1;
+  PyObject *ints[2] = {stepso, everyo};
+  long *dst[2] = {&steps, &every};
+  for (int i = 0; i < 2; i++) {
+    if (ints[i] == Py_None) continue;
+    if (!PyLong_Check(ints[i]) || PyBool_Check(ints[i]))
+      return PyErr_Format(PyExc_TypeError, "verify: %s must be an int, not %s", i ? "every" : "steps",
+                          Py_TYPE(ints[i])->tp_name);
+    if ((*dst[i] = PyLong_AsLong(ints[i])) == -1 && PyErr_Occurred()) return NULL;
+  }
+  if (everyo != Py_None && stepso == Py_None)
+    return PyErr_Format(PyExc_TypeError, "verify: every keeps every K-th step of a rollout: give steps too");
   double tol = -1;
   if (tolo != Py_None && npgpy_real(tolo, "verify: tol", &tol)) return NULL;
   /* As npgc verify --tol: a finite number >= 0 (-1 would otherwise mean "no tolerance" below). */
@@ -336,6 +349,8 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
   if (!npg_same_program(full->prog->p, self->prog->p))
     return PyErr_Format(npgpy_Error, "verify: full evaluates another program than the model's (the same source "
                         "compiled twice is the same program)");
+  if (stepso != Py_None) /* DESIGN §15: the trajectory, not one step */
+    return npgpy_verify_rollout(self->prog, self->m, full, test, steps, every, progress, tol);
   NpgpySamples t;
   PyObject *res = NULL;
   if (npgpy_samples(self->prog, test, "verify", "test", &t) != 0) return NULL;
@@ -800,7 +815,10 @@ static PyMethodDef model_methods[] = {
   {"verify", (PyCFunction)(void (*)(void))model_verify, METH_VARARGS | METH_KEYWORDS,
    "verify(test, tol=None, full=None, progress=False) -> {quantity: {kind, m, output, l2, floor, own, l2_max,\n"
    "l2_max_sample, linf, linf_floor[, pass]}}: npgc verify on test samples (a dict name -> array whose\n"
-   "first axis is the sample). full: an evaluator with the model's params (default: the trainer's)."},
+   "first axis is the sample). full: an evaluator with the model's params (default: the trainer's).\n"
+   "verify(test, steps=T, every=K, ...) -> {state: {trajectory, floor, final, max, max_at, error_per_save,\n"
+   "floor_per_save[, ok]}}: npgc verify --steps (DESIGN §15): test holds each trajectory's initial states and\n"
+   "inputs (a leading trajectory axis; an input per step: [trajectories, steps, ...])."},
   {NULL},
 };
 

@@ -154,6 +154,12 @@ int npgpy_roll_run(NpgpyRoll *r, long sample);
 /* {state: array [saves, ...]}; NULL with an exception. */
 PyObject *npgpy_roll_result(const NpgpyRoll *r);
 void npgpy_roll_free(NpgpyRoll *r);
+/* model.verify(test, steps=T, every=K): npg_verify_rollout over test's trajectories ({name: array}
+ * with a leading trajectory axis; inputs held or per step): {state: {trajectory, floor, final, max,
+ * max_at, error_per_save, floor_per_save[, ok]}}. NULL with an exception. */
+struct ModelObject;
+PyObject *npgpy_verify_rollout(const ProgramObject *prog, const NpgModel *m, FullObject *full, PyObject *test,
+                               long steps, long every, bool progress, double tol);
 
 /* ---------------------------------------------------------------- trainer.c */
 extern PyTypeObject npgpy_TrainerType;

@@ -181,3 +181,139 @@ PyObject *npgpy_roll_result(const NpgpyRoll *r) {
   }
   return out;
 }
+
+/* ---------------------------------------------------------------- model.verify(test, steps=T) */
+
+typedef struct VerifyInput {
+  const char *name;
+  char what[160];
+  PyArrayObject *a;         /* [trajectories, ...] or [trajectories, steps, ...] */
+  bool per_step;
+  int ndim;
+  long shape[NPY_MAXDIMS];
+  size_t each;
+} VerifyInput;
+
+typedef struct VerifyRoll {
+  int n;
+  VerifyInput *in;
+  long trajectories, steps;
+} VerifyRoll;
+
+static void verify_roll_free(VerifyRoll *v) {
+  for (int i = 0; i < v->n; i++) Py_XDECREF(v->in[i].a);
+  PyMem_Free(v->in);
+}
+
+/* Trajectory k's values at step t (an NpgTrajectoryFn, without the GIL: it only reads the arrays). */
+static int verify_set(void *user, NpgFull *f, long k, long t) {
+  VerifyRoll *v = user;
+  for (int i = 0; i < v->n; i++) {
+    const VerifyInput *in = &v->in[i];
+    if (t > 0 && !in->per_step) continue;
+    size_t at = in->per_step ? (size_t)k * (size_t)PyArray_DIM(in->a, 1) + (size_t)t : (size_t)k;
+    if (npg_full_set(f, in->name, in->ndim, in->shape, (const double *)PyArray_DATA(in->a) + at * in->each, in->what))
+      return -1;
+  }
+  return 0;
+}
+
+static PyObject *array_of(const double *v, long n) {
+  npy_intp dim = n;
+  PyObject *a = PyArray_SimpleNew(1, &dim, NPY_DOUBLE);
+  if (a) memcpy(PyArray_DATA((PyArrayObject *)a), v, sizeof(double) * (size_t)n);
+  return a;
+}
+
+PyObject *npgpy_verify_rollout(const ProgramObject *prog, const NpgModel *m, FullObject *full, PyObject *test,
+                               long steps, long every, bool progress, double tol) {
+  const char *who = "verify";
+  if (steps < 0) return npgpy_value_error("%s: steps is %ld (0 or more)", who, steps);
+  if (every < 1) return npgpy_value_error("%s: every is %ld (1 or more)", who, every);
+  VerifyRoll v = {0};
+  PyObject *res = NULL;
+  Py_ssize_t nkw = PyDict_Size(test);
+  if (!(v.in = PyMem_Calloc((size_t)nkw + 1, sizeof *v.in))) return PyErr_NoMemory();
+  v.trajectories = -1, v.steps = steps;
+  PyObject *key, *value;
+  Py_ssize_t pos = 0;
+  while (PyDict_Next(test, &pos, &key, &value)) {
+    const char *name = PyUnicode_Check(key) ? PyUnicode_AsUTF8(key) : NULL;
+    if (!name) {
+      if (!PyErr_Occurred()) PyErr_Format(PyExc_TypeError, "%s: the keys of test are names (str)", who);
+      goto done;
+    }
+    const NpgSymbol *s = NULL;
+    for (int i = 0; i < prog->nsym && !s; i++)
+      if (strcmp(prog->sym[i].name, name) == 0) s = &prog->sym[i];
+    if (!s || s->kind != NPG_INPUT) {
+      PyErr_Format(PyExc_TypeError, "%s: test['%s'] is %s: give the states' initial values and the inputs, a leading "
+                   "trajectory axis", who, name, !s ? "not in the program" : "not an input");
+      goto done;
+    }
+    VerifyInput *in = &v.in[v.n++];
+    in->name = s->name;
+    snprintf(in->what, sizeof in->what, "verify: test['%s']", name);
+    if (!(in->a = npgpy_values(value, in->what))) goto done;
+    int rank = s->ndims + s->nstatic, nd = PyArray_NDIM(in->a);
+    if (nd != rank + 1 && (nd != rank + 2 || s->next)) {
+      npgpy_value_error("%s: test['%s'] has %d axes: %s", who, name, nd,
+                        s->next ? "a state's initial values are [trajectories, ...]"
+                                : "an input is [trajectories, ...] (held) or [trajectories, steps, ...] (per step)");
+      goto done;
+    }
+    in->per_step = nd == rank + 2;
+    long shape[NPY_MAXDIMS];
+    npgpy_long_shape(in->a, shape);
+    in->ndim = rank;
+    memcpy(in->shape, shape + (nd - rank), sizeof(long) * (size_t)rank);
+    in->each = 1;
+    for (int k = 0; k < rank; k++) in->each *= (size_t)in->shape[k];
+    if (v.trajectories >= 0 && shape[0] != v.trajectories) {
+      npgpy_value_error("%s: test['%s'] holds %ld trajectories, another array %ld", who, name, shape[0], v.trajectories);
+      goto done;
+    }
+    v.trajectories = shape[0];
+    if (in->per_step && shape[1] < steps) {
+      npgpy_value_error("%s: test['%s'] is given for %ld steps, fewer than the %ld to run", who, name, shape[1], steps);
+      goto done;
+    }
+  }
+  if (v.trajectories < 1) {
+    npgpy_value_error("%s: test holds no trajectory", who);
+    goto done;
+  }
+  if (npgpy_busy_mine(&full->busy)) {
+    PyErr_SetString(npgpy_Error, "verify: called from an extern callable of the evaluator");
+    goto done;
+  }
+  npgpy_busy_enter(&full->busy);
+  NpgRolloutReport rep;
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_verify_rollout(m, full->f, v.trajectories, steps, every, verify_set, &v, progress, &rep);
+  Py_END_ALLOW_THREADS
+  npg_full_clear_error(full->f);
+  npgpy_busy_leave(&full->busy);
+  if (rc) {
+    npgpy_full_raise(full, rep.error);
+    goto done;
+  }
+  res = PyDict_New();
+  for (int i = 0; res && i < rep.nstates; i++) {
+    const NpgRolloutRow *row = &rep.rows[i];
+    PyObject *err = array_of(row->err, rep.saves), *floor = array_of(row->floor, rep.saves);
+    PyObject *d = err && floor ? Py_BuildValue("{s:d,s:d,s:d,s:d,s:(ll),s:O,s:O}", "trajectory", row->traj_err,
+                                               "floor", row->traj_floor, "final", row->err_final, "max", row->err_max,
+                                               "max_at", row->max_trajectory, row->max_step, "error_per_save", err,
+                                               "floor_per_save", floor)
+                               : NULL;
+    if (d && tol >= 0 && PyDict_SetItemString(d, "ok", row->traj_err <= tol ? Py_True : Py_False) < 0) Py_CLEAR(d);
+    if (!d || PyDict_SetItemString(res, row->state, d) < 0) Py_CLEAR(res);
+    Py_XDECREF(d), Py_XDECREF(err), Py_XDECREF(floor);
+  }
+  npg_verify_rollout_free(&rep);
+done:
+  verify_roll_free(&v);
+  return res;
+}

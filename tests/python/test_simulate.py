@@ -59,6 +59,18 @@ def test_trajectory_training_equals_npgc(root, tmp_path, npgc, program):
     assert np.array_equal(red, np.load(tmp_path / "OUT" / "u.npy")[0])
     ref = full.simulate(60, every=20, u=t["u"][0])["u"]
     assert 0 < np.linalg.norm(red - ref) / np.linalg.norm(ref) < 0.05
+    # verify over the trajectory: the figures npgc verify --steps prints
+    rep = model.verify({"u": t["u"]}, steps=60, every=20, tol=0.05)["u"]
+    assert rep["ok"] and rep["floor"] <= rep["trajectory"] and rep["error_per_save"].shape == (4,)
+    out = npgc("verify", f"examples/heat/{program}.npg", tmp_path / "CLI", tfolder, "--steps", 60, "--every", 20,
+               "--tol", 0.05).stdout
+    row = [line.split() for line in out.splitlines() if line.startswith("u ")][0]
+    assert np.allclose([rep["trajectory"], rep["floor"], rep["final"], rep["max"]], [float(x) for x in row[1:5]],
+                       rtol=1e-3)
+    with pytest.raises(TypeError, match="give steps too"):
+        model.verify({"u": t["u"]}, every=3)
+    with pytest.raises(ValueError, match="has 3 axes"):
+        model.verify({"u": t["u"][:, None, :]}, steps=3)
 
 
 def test_blowup_and_bad_arguments(root, tmp_path):
