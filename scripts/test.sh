@@ -34,7 +34,7 @@ header "1/4 plain build (build/)"
 cmake -S . -B build -DCMAKE_BUILD_TYPE=RelWithDebInfo
 cmake --build build -j2
 bash scripts/check_layers.sh build
-ctest --test-dir build --output-on-failure
+ctest --test-dir build --output-on-failure -j2  # two at a time on two cores (points_*, mpi_train run alone)
 
 # The sanitizer and fuzz builds are Debug so that assertions and the
 # between-stage IR verifiers run too.
@@ -43,7 +43,7 @@ cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DNPG_SANITIZE=ON
 cmake --build build-asan -j2
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 \
 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
-  ctest --test-dir build-asan --output-on-failure
+  ctest --test-dir build-asan --output-on-failure -j2
 
 header "3/4 ThreadSanitizer: the tests labelled threads (build-tsan/)"
 cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=Debug -DNPG_TSAN=ON
