@@ -632,28 +632,46 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
     held = (SampleSource){nheld, &hold, replay_held, NULL, NULL};
     o.valid = &held;
   }
+  /* The weights divided by the largest (over every rank): only their ratios
+   * count, and 20 weights of 1.5e308 overflowed their sum to infinity, lost
+   * a basis vector and were refused out of core as "snapshot values beyond
+   * 1e154". Scaled so, equal weights give the model of weights 1, bit for bit. */
+  double *weights = NULL;
+  if (t->weights) {
+    double big = 0;
+    for (long k = 0; k < t->samples; k++) big = fmax(big, t->weights[k]);
+    if (t->opt.mpi) dist_allreduce_max(&big, 1);
+    if (!(weights = mem_malloc(sizeof(double) * (size_t)t->samples))) {
+      tfail(t, "out of memory");
+      return NULL;
+    }
+    for (long k = 0; k < t->samples; k++) weights[k] = t->weights[k] / big;
+  }
   /* the training samples' weights (of those left when some are held out) */
-  double *train_w = t->weights && src.count < t->samples ? mem_malloc(sizeof(double) * (size_t)src.count) : NULL;
-  if (t->weights && src.count < t->samples && !train_w) {
+  double *train_w = weights && src.count < t->samples ? mem_malloc(sizeof(double) * (size_t)src.count) : NULL;
+  if (weights && src.count < t->samples && !train_w) {
+    free(weights);
     tfail(t, "out of memory");
     return NULL;
   }
-  for (long j = 0; train_w && j < src.count; j++) train_w[j] = t->weights[training_index(&hold, j)];
-  o.weights = train_w ? train_w : t->weights;
+  for (long j = 0; train_w && j < src.count; j++) train_w[j] = weights[training_index(&hold, j)];
+  o.weights = train_w ? train_w : weights;
   char err[2048] = "";
   /* the params the samples are replayed with, recorded before any validation sample is set: a
    * valid_set that sets a param would otherwise leave its hash in the model (trial3) */
   char *params = api_param_hashes(t->f->full);
   if (!params) {
     free(train_w);
+    free(weights);
     tfail(t, "out of memory");
     return NULL;
   }
   Model *m = train_model((Program *)t->prog, t->f->full, &src, &o, err, sizeof err);
   /* the automatic choice made, every sample trains the model (DESIGN §12) */
-  o.weights = t->weights;
+  o.weights = weights;
   if (m && retrain) m = interp_train_with_choice((Program *)t->prog, t->f->full, &all, &o, m, err, sizeof err);
   free(train_w);
+  free(weights);
   if (m && params_changed(t, params)) {
     model_free(m);
     m = NULL;

@@ -1,0 +1,78 @@
+#!/bin/sh
+# numerics.sh BUILD_DIR — numbers npgc must not get quietly wrong (issue 38),
+# one section per cause: (1) a negative root of a singular operator is
+# refused in training as solve refuses it; (2) sample weights near the
+# largest double give the model of weights 1, in memory and out of core.
+set -eu
+B=$1
+W=$(mktemp -d /tmp/npg_numerics_XXXXXX)
+trap 'rm -rf "$W"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+N=$B/npgc
+# refused: $1 what, $2 message, then the command
+refused() {
+  what=$1 msg=$2
+  shift 2
+  if "$N" "$@" >"$W/out.txt" 2>"$W/err.txt"; then fail "$what accepted"; fi
+  grep -q -- "$msg" "$W/err.txt" || fail "$what: $(cat "$W/err.txt")"
+}
+
+# 1. L^(-1/2) and L^(-1/3) of a graph Laplacian (singular: constants are its
+#    null space), dense (12 rows) and sparse (400 rows, Lanczos), the vector
+#    in its range or not: training stops at the first sample, naming the stage
+cat >"$W/lap.npg" <<'NPG'
+dim N, E
+param tab : int[E, 2]
+param f : real[N]
+input w : real[E]
+op L[i:N, j:N] = sum(e = 0..E-1, w[e] * (delta(i, tab[e, 0]) - delta(i, tab[e, 1])) * (delta(j, tab[e, 0]) - delta(j, tab[e, 1])))
+output s = L^(-1/2) * f
+output t = L^(-1/3) * f
+NPG
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]
+for n in (12, 400):
+    for z in (0, 1):
+        d = "%s/L%d_%d" % (w, n, z)
+        os.makedirs(d)
+        rng = np.random.default_rng(n + z)
+        tab = [[i, (i + 1) % n] for i in range(n)] + [[i, (i * 7 + 3) % n] for i in range(n) if (i * 7 + 3) % n != i]
+        np.save(d + "/tab.npy", np.array(tab, dtype=np.int64))
+        f = rng.random(n)
+        np.save(d + "/f.npy", f - z * f.mean())   # z: f in the range of L
+        np.save(d + "/w.npy", 0.1 + rng.random((3, len(tab))))
+PY
+for d in L12_0 L12_1 L400_0 L400_1; do
+  refused "train, singular root ($d)" "stage 's': operator L is singular" train "$W/lap.npg" "$W/$d" -o "$W/M_$d"
+  test ! -e "$W/M_$d" || fail "a refused training wrote its model ($d)"
+done
+
+# 2. weights: 20 equal weights of 1.5e308 (their sum overflows) and of the
+#    smallest subnormal give the model of weights 1, byte for byte, in
+#    memory and out of core (--mem 1k)
+cat >"$W/w.npg" <<'NPG'
+dim N
+input x : real[N]
+output y[i:N] = x[i] * x[i] + x[i]
+NPG
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]; rng = np.random.default_rng(3)
+os.makedirs(w + "/WD")
+np.save(w + "/WD/x.npy", rng.random((20, 40)))
+np.save(w + "/w1.npy", np.ones(20))
+np.save(w + "/wbig.npy", np.full(20, 1.5e308))
+np.save(w + "/wtiny.npy", np.full(20, 5e-324))
+PY
+for mem in "" 1k; do
+  for wt in w1 wbig wtiny; do
+    "$N" train "$W/w.npg" "$W/WD" -o "$W/W_${wt}_$mem" --weights "$W/$wt.npy" ${mem:+--mem $mem} >/dev/null 2>"$W/err.txt" ||
+      fail "train --weights $wt ${mem:+--mem $mem}: $(cat "$W/err.txt")"
+  done
+  for wt in wbig wtiny; do
+    diff -r "$W/W_w1_$mem" "$W/W_${wt}_$mem" >/dev/null ||
+      fail "--weights $wt ${mem:+--mem $mem}: not the model of weights 1"
+  done
+done
+echo "numerics: ok"
