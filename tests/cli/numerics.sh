@@ -2,7 +2,8 @@
 # numerics.sh BUILD_DIR — numbers npgc must not get quietly wrong (issue 38),
 # one section per cause: (1) a negative root of a singular operator is
 # refused in training as solve refuses it; (2) sample weights near the
-# largest double give the model of weights 1, in memory and out of core.
+# largest double give the model of weights 1, in memory and out of core;
+# (3) a cavity run that blows up fails, naming the frame.
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_numerics_XXXXXX)
@@ -75,4 +76,16 @@ for mem in "" 1k; do
       fail "--weights $wt ${mem:+--mem $mem}: not the model of weights 1"
   done
 done
+# 3. npg-fluids cavity --runs 0 at dt 1: the energy grows 1e16-fold by frame
+#    3 and is still finite at frame 4 (it reported success): now stopped
+F=$B/npg-fluids
+if [ -x "$F" ]; then
+  if "$F" cavity --out "$W/cav" --runs 0 --cells 200 --frames 4 --particles 10 --dt 1 --png-every 100 \
+      --vtk-every 100 >/dev/null 2>"$W/err.txt"; then
+    fail "an unstable cavity run reported success"
+  fi
+  grep -q "test frame 3: the flow's energy reached .* the run is unstable" "$W/err.txt" || fail "cavity: $(cat "$W/err.txt")"
+  "$F" cavity --out "$W/cav1" --runs 0 --cells 200 --frames 20 --particles 10 --png-every 100 --vtk-every 100 \
+    >/dev/null 2>"$W/err.txt" || fail "a stable cavity run: $(cat "$W/err.txt")"
+fi
 echo "numerics: ok"
