@@ -200,6 +200,13 @@ static int keep_weight(NpgTrainer *t) {
 /* Append the values now in `g` as one sample (another rank's: counted only). */
 static int record(NpgTrainer *t, const NpgFull *g) {
   if (keep_weight(t)) return -1;
+  /* over ranks every rank sees every sample: their inputs' hash, compared by ranks_agree (ranks
+   * given two data folders of the same shapes trained on a mixture of them, issue 38) */
+  for (int i = 0; t->opt.mpi && i < t->nslots; i++) {
+    size_t n = 0;
+    const double *v = t->slot[i]->kind == SYM_INPUT ? npg_full_get(g, t->slot[i]->name, &n) : NULL;
+    if (v) t->inputs_hash = (t->inputs_hash ^ full_hash_values(v, n)) * 0x100000001b3ull + (uint64_t)i;
+  }
   if (!own_sample(t, t->samples)) {
     t->samples++;
     memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
@@ -447,8 +454,8 @@ static int check_mem(NpgTrainer *t) {
 static int ranks_agree(NpgTrainer *t) {
   if (!t->opt.mpi || dist_size() < 2) return 0;
   const Program *prog = t->prog;
-  /* the figures: 4, then 1 + dims + 2 per param + 7 */
-  int n = 0, cap = 12 + prog->dims.n + 2 * prog->params.n;
+  /* the figures: 4, then 3 + dims + 2 per param + 7 */
+  int n = 0, cap = 14 + prog->dims.n + 2 * prog->params.n;
   double *v = malloc(sizeof(double) * (size_t)cap * 3);
   const char **what = calloc((size_t)cap, sizeof *what), **name = calloc((size_t)cap, sizeof *name);
   int rc = 0;
@@ -485,6 +492,9 @@ static int ranks_agree(NpgTrainer *t) {
         sum += t->weights ? t->weights[k] : 1, moment += (double)(k + 1) * (t->weights ? t->weights[k] : 1);
       FIGURE(sum, "the sum of the sample weights%s", "");
       FIGURE(moment, "the sum of the sample weights times their sample's number%s", "");
+      /* last: a rank given other shapes or params is told that, not this */
+      FIGURE(t->inputs_hash >> 32, "the training samples' inputs%s (the hash of their values)", "");
+      FIGURE(t->inputs_hash & 0xffffffffu, "the training samples' inputs%s (the hash of their values)", "");
     }
     int len = n - from;
     double *hi = v + cap, *lo = v + 2 * cap;

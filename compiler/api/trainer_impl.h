@@ -40,6 +40,7 @@ struct NpgTrainer {
   double weight;            /* the next sample's (npg_trainer_weight; 1 after every add) */
   double *weights;          /* every sample's, in order (every rank's too); NULL while all are 1 */
   long weights_cap;
+  uint64_t inputs_hash;     /* over ranks: of every sample's inputs, in order (every rank's too: ranks_agree) */
   char error[2048];
 };
 
