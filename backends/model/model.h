@@ -160,6 +160,8 @@ typedef struct Model {
   double phase_seconds[4];  /* training's wall time: snapshots, bases, pre-multiplication, externs (not saved) */
   double phase_cpu[4];      /* the same phases' CPU time, this process's threads (not saved) */
   char *param_hashes;       /* "tri=<hex> rho=<hex>": what DATA/ held at training; NULL: none recorded */
+  char choice_failure[600]; /* training's choice: why the chosen reduction failed on a validation sample ("": it
+                               did not, or no choice was made; not saved) */
 } Model;
 
 /* ---------------------------------------------------------------- layout (model.c) */
