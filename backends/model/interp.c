@@ -288,12 +288,15 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
       py[s] += v;
     }
   }
+  char at[64];
+  if (sample >= 0) snprintf(at, sizeof at, "at sample %ld", sample);
+  else snprintf(at, sizeof at, "at these inputs"); /* no sample of a set (npg_reduced_eval) */
   for (long s = 0; s < k; s++)
     if (!isfinite(py[s]))
       return error_set(err, errlen,
-                       "stage %s (interpolated) is not finite at its selected entry %ld at sample %ld (a diagonal zero "
+                       "stage %s (interpolated) is not finite at its selected entry %ld %s (a diagonal zero "
                        "under a negative power, or a root of a negative value, from its inputs' reduced values)",
-                       rs->st->sym->name, ip->rows[s], sample);
+                       rs->st->sym->name, ip->rows[s], at);
   if (ip->m == 0 || k == 0) memset(y, 0, sizeof(double) * (size_t)ip->m); /* (a forged model: BLAS wants lda >= 1) */
   else cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)ip->m, (int)k, 1.0, ip->pinv, (int)k, py, 1, 0.0, y, 1);
   return 0;
