@@ -22,6 +22,7 @@
 #include "api.h"
 #include "compile.h"
 #include "dist.h"
+#include "lower.h"
 #include "trainer_impl.h"
 
 static size_t half_the_ram(void) {
@@ -434,13 +435,17 @@ static int check_mem(NpgTrainer *t) {
     for (int i = 0; i < nd; i++) entries *= (double)shape[i];
     if (entries * sizeof(double) <= (double)t->opt.mem) continue;
     char need[32], have[32];
+    /* an op entry named whole: the cure is in the program (issue 38) */
+    bool dense_entry = s->kind == SYM_STAGE && s->introduced && s->introduced_for &&
+                       s->introduced_for->kind == SYM_OP && s->nivars >= 2;
     return tfail(t, "%s '%s' alone needs %s per sample (%.4g entries), more than --mem %s%s: training holds it in "
-                    "memory (the full evaluator keeps every stage of a sample), so it cannot stay within --mem; raise "
-                    "--mem, or train on smaller data",
+                    "memory (the full evaluator keeps every stage of a sample), so it cannot stay within --mem; %s%s",
                  s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage", s->name,
                  bytes_text(entries * sizeof(double), need, sizeof need), entries,
                  bytes_text((double)t->opt.mem, have, sizeof have),
-                 t->opt.mem == half_the_ram() ? " (the default: half of this machine's memory)" : "");
+                 t->opt.mem == half_the_ram() ? " (the default: half of this machine's memory)" : "",
+                 dense_entry ? "" : "raise --mem, or train on smaller data",
+                 dense_entry ? lower_dense_entry_cure(t->prog->ctx, s) : "");
   }
   return 0;
 }

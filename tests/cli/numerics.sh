@@ -5,7 +5,8 @@
 # largest double give the model of weights 1, in memory and out of core;
 # (3) a cavity run that blows up fails, naming the frame; (4) a model whose
 # reduced stage fails on the validation samples both ways is never written
-# quietly.
+# quietly; (5) a division inside an op entry, which makes the op dense, is
+# said with its cure, in check and when training runs out of --mem.
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_numerics_XXXXXX)
@@ -110,4 +111,35 @@ PY
 "$N" train "$W/root.npg" "$W/RD" -o "$W/RM" --basis a:cap=3 >"$W/out.txt" 2>&1 || fail "train root: $(cat "$W/out.txt")"
 grep -q "^warning: stage y: the reduced model fails on the validation samples by Galerkin and by interpolation: .*the failure: stage y .* is indefinite" "$W/out.txt" ||
   fail "a model failing on its validation samples, written quietly: $(cat "$W/out.txt")"
+# 5. kappa[i] / h[i] inside a neighbour operator: the entry is named whole
+#    (an N x N stage, the op dense); check and training say so and the cure,
+#    and the cure (r = 1 / h named) keeps it sparse and trains in 8 MB
+cat >"$W/hd.npg" <<'NPG'
+dim N
+param nbr : int[N, 4]
+param src : real[N]
+input kappa : real[N]
+input h : real[N]
+op K[i:N, j:N] = delta(i, j) * (1 + sum(k = 0..3, if(nbr[i, k] >= 0, kappa[i] / h[i], 0))) - sum(k = 0..3, if(nbr[i, k] == j, kappa[i] / h[i], 0))
+output u = solve(K, src)
+NPG
+sed -e 's|^op K|r[i:N] = 1 / h[i]\nop K|' -e 's|kappa\[i\] / h\[i\]|kappa[i] * r[i]|g' "$W/hd.npg" >"$W/hr.npg"
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]; n = 40; N = n * n; rng = np.random.default_rng(1)
+os.makedirs(w + "/HD")
+nbr = -np.ones((N, 4), dtype=np.int64)
+for y in range(n):
+    for x in range(n):
+        i = y * n + x
+        nbr[i] = [i - 1 if x > 0 else -1, i + 1 if x < n - 1 else -1, i - n if y > 0 else -1, i + n if y < n - 1 else -1]
+np.save(w + "/HD/nbr.npy", nbr); np.save(w + "/HD/src.npy", rng.random(N))
+np.save(w + "/HD/kappa.npy", 0.5 + rng.random((4, N))); np.save(w + "/HD/h.npy", 0.5 + rng.random((4, N)))
+PY
+cure="stage 'K.t1' names a whole entry of op 'K' (a division or root of a stage inside it), so it is N x N, and 'K' is dense: name the reciprocal"
+"$N" check "$W/hd.npg" >"$W/out.txt" 2>&1 || fail "check hd: $(cat "$W/out.txt")"
+grep -qF "note: $W/hd.npg:6:92: $cure" "$W/out.txt" || fail "check hd: no cure: $(cat "$W/out.txt")"
+refused "train hd in 8 MB" "alone needs 20.5 MB per sample .* cannot stay within --mem; $cure" train "$W/hd.npg" "$W/HD" -o "$W/HM" --mem 8M
+"$N" check "$W/hr.npg" | grep -qF "K[i:N, j:N]  (1 row axis; sparse" || fail "the named reciprocal: K not sparse"
+"$N" train "$W/hr.npg" "$W/HD" -o "$W/HM" --mem 8M >/dev/null 2>"$W/err.txt" || fail "train hr in 8 MB: $(cat "$W/err.txt")"
 echo "numerics: ok"
