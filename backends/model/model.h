@@ -45,6 +45,8 @@ typedef struct RTensor {
   long in_len[RT_MAX_IN];   /* C(m + k - 1, k) */
   long rows, cols;
   double *data;             /* rows x cols, row-major (owned) */
+  double premul_seconds;    /* training's wall time pre-multiplying it (the sum over ranks included); NAN when
+                               pre-multiplied out of core by streamed bases; not saved */
 } RTensor;
 
 typedef struct ROp {

@@ -515,16 +515,21 @@ int train_premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err
       }
       RTERM_FOR_TENSORS(rt, x) {
         if (x->data) { /* pre-multiplied out of core by the streamed bases (stream.c) */
+          x->premul_seconds = NAN;
           progress_show(progress, "pre-multiplication", ++done, ntensors);
+          phase_time(t0, &d[0], &d[1]);
           continue;
         }
         /* over ranks: every rank its share of the rows, summed on all */
+        phase_time(t0, &d[0], &d[1]); /* from here: this tensor's own time */
         if (premultiply_part(m, f, x, cy->B, cy->n, cy->m, rank, N, &flops, err, errlen)) return -1;
         phase_time(t0, &d[0], &d[1]);
         own[0] += d[0], own[1] += d[1];
+        x->premul_seconds = d[0];
         if (N > 1) dist_allreduce_sum(x->data, x->rows * x->cols);
         phase_time(t0, &d[0], &d[1]);
         sum[0] += d[0], sum[1] += d[1];
+        x->premul_seconds += d[0];
         progress_show(progress, "pre-multiplication", ++done, ntensors);
       }
     }
