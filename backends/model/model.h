@@ -164,6 +164,8 @@ typedef struct Model {
   char *param_hashes;       /* "tri=<hex> rho=<hex>": what DATA/ held at training; NULL: none recorded */
   char choice_failure[600]; /* training's choice: why the chosen reduction failed on a validation sample ("": it
                                did not, or no choice was made; not saved) */
+  long self_check_sample;   /* training's own check: a training sample the reduced model failed on, or -1 */
+  char self_check_failure[600]; /* and why ("": none failed; not saved) */
 } Model;
 
 /* ---------------------------------------------------------------- layout (model.c) */

@@ -36,6 +36,11 @@ void report_training(const Model *m, FILE *out) {
                 mb->name, m->classes[c].label, mb->cap, mb->lost, mb->center ? "centered " : "", mb->name);
     }
   interp_report(m, out); /* DESIGN §12: how each eligible stage is reduced, and why */
+  if (m->self_check_failure[0]) /* train.c self_check: never quietly (issue 38) */
+    fprintf(out, "warning: the reduced model fails on training sample %ld, one it was trained on: %s; it will fail on "
+                 "inputs like it: give what that stage reads larger bases (--basis NAME:cap=N,energy=E), or let "
+                 "training choose its reduction on held-out samples (--valid F or DIR)\n",
+            m->self_check_sample, m->self_check_failure);
   size_t tb, total = model_bytes(m, &tb);
   fprintf(out, "reduced tensors: %.3f MB; model with bases: %.3f MB\n", (double)tb / 1e6, (double)total / 1e6);
   double dropped = 0;

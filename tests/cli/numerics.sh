@@ -4,9 +4,10 @@
 # refused in training as solve refuses it; (2) sample weights near the
 # largest double give the model of weights 1, in memory and out of core;
 # (3) a cavity run that blows up fails, naming the frame; (4) a model whose
-# reduced stage fails on the validation samples both ways is never written
-# quietly; (5) a division inside an op entry, which makes the op dense, is
-# said with its cure, in check and when training runs out of --mem.
+# reduced stage fails on the validation samples both ways, or on its own
+# training samples, is never written quietly; (5) a division inside an op
+# entry, which makes the op dense, is said with its cure, in check and when
+# training runs out of --mem.
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_numerics_XXXXXX)
@@ -113,6 +114,11 @@ PY
 "$N" train "$W/root.npg" "$W/RD" -o "$W/RM" --basis a:cap=3 >"$W/out.txt" 2>&1 || fail "train root: $(cat "$W/out.txt")"
 grep -q "^warning: stage y: the reduced model fails on the validation samples by Galerkin and by interpolation: .*the failure: stage y .* is indefinite" "$W/out.txt" ||
   fail "a model failing on its validation samples, written quietly: $(cat "$W/out.txt")"
+# without held-out samples (--valid none): training's own check on three training samples says it
+"$N" train "$W/root.npg" "$W/RD" -o "$W/RM0" --basis a:cap=3 --valid none >"$W/out.txt" 2>&1 ||
+  fail "train root --valid none: $(cat "$W/out.txt")"
+grep -q "^warning: the reduced model fails on training sample 0, one it was trained on: stage y .* is indefinite" \
+  "$W/out.txt" || fail "a model failing on its own training samples, written quietly: $(cat "$W/out.txt")"
 # 5. kappa[i] / h[i] inside a neighbour operator: the entry is named whole
 #    (an N x N stage, the op dense); check and training say so and the cure,
 #    and the cure (r = 1 / h named) keeps it sparse and trains in 8 MB
