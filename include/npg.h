@@ -521,7 +521,9 @@ NPG_API int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, co
  * learned map. */
 NPG_API void npg_reduced_given_externs(NpgReduced *r, bool on);
 /* Every input (and given extern) must have been set: one never set is an
- * error naming it, not a zero. */
+ * error naming it, not a zero. `sample` is the number of the sample in the
+ * caller's set, for messages ("at sample 12"); a negative one: no set, and
+ * messages say "at these inputs". */
 NPG_API int npg_reduced_eval(NpgReduced *r, long sample);
 /* Roots (fractional powers) of reduced operators are applied by the
  * Lanczos process to an a-posteriori estimate below 1e-8 relative (falling

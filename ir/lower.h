@@ -32,6 +32,9 @@ Value *lower_expr(Lowerer *L, Node *n, Env *env);
  * that is not one operator-free polynomial term), `at` the expression it
  * came from; the value reading it. */
 Value *lower_expr_introduce(Lowerer *L, Value *v, const Node *at, PtrVec *open_sums);
+/* The note on an introduced stage that names a whole `op` entry over two or more index
+ * variables: its size, that the op is dense, and the cure (name the reciprocal). */
+const char *lower_dense_entry_cure(Ctx *ctx, const Sym *s);
 /* lower.c: the stage of quantity `s` from its value. */
 Stage *lower_stage(Lowerer *L, Sym *s, Value *v);
 

@@ -425,6 +425,22 @@ static bool value_uses(const Value *v, const Sym *s) {
   return false;
 }
 
+/* What an introduced stage `s` that names a whole `op` entry over two or
+ * more of its index variables costs, and the cure (the note of `npgc
+ * check`, and training's message when it does not fit in memory). */
+const char *lower_dense_entry_cure(Ctx *ctx, const Sym *s) {
+  char dims[128] = "";
+  size_t len = 0;
+  for (int i = 0; i < s->nivars && len + 40 < sizeof dims; i++)
+    len += (size_t)snprintf(dims + len, sizeof dims - len, "%s%s", i ? " x " : "", s->dims[i]->name);
+  return arena_printf(ctx, "stage '%s' names a whole entry of op '%s' (a division or root of a stage inside it), "
+                      "so it is %s, and '%s' is dense: name the reciprocal or root as a stage over its own "
+                      "indices (e.g. `r[i:N] = 1 / h[i]`, and `a[i] * r[i]` where '%s' had `a[i] / h[i]`) to keep "
+                      "'%s' sparse",
+                      s->name, s->introduced_for->name, dims, s->introduced_for->name, s->introduced_for->name,
+                      s->introduced_for->name);
+}
+
 /* Name a non-polynomial divisor (or root base) as a stage "cur.tN" over the
  * index variables it uses (DESIGN §4), and return its entries. */
 Value *lower_expr_introduce(Lowerer *L, Value *v, const Node *at, PtrVec *open_sums) {
@@ -464,6 +480,12 @@ Value *lower_expr_introduce(Lowerer *L, Value *v, const Node *at, PtrVec *open_s
   vec_push(ctx, &L->prog->notes,
            arena_printf(ctx, "%s:%d:%d: stage '%s' introduced for '%s': a divisor or root whose value is not one polynomial term",
                         at->loc.file ? at->loc.file->name : "?", at->loc.line, at->loc.col, s->name, node_str(ctx, at)));
+  /* an `op` entry named whole over two of its index variables: an N × N stage, and the op
+   * dense (issue 38: at 40,000 unknowns "needs 12.8 GB"); say so, and the cure */
+  if (L->cur->kind == SYM_OP && s->nivars >= 2)
+    vec_push(ctx, &L->prog->notes,
+             arena_printf(ctx, "%s:%d:%d: %s", at->loc.file ? at->loc.file->name : "?", at->loc.line, at->loc.col,
+                          lower_dense_entry_cure(ctx, s)));
   Value *r = val_new(L, v->ncomp);
   Term *t = term_new(L, v->ncomp);
   for (int c = 0; c < v->ncomp; c++) {

@@ -479,6 +479,37 @@ static void advice_names_the_cause(void **state) {
   assert_null(strstr(text, "--reduce w:interp"));
   assert_non_null(strstr(text, "it reads r2 with error 5.00e-02: a larger basis for it, --basis r2:cap=N"));
   free(text);
+  /* the advice follows why r2's basis was cut (issue 38): by its energy fraction (10 of a cap
+   * of 60 kept), raise the energy, not the cap; at its cap, raise the cap */
+  RClass *rc2 = &m->classes[m->qclass[1]];
+  RMember *mb2 = NULL;
+  for (int i = 0; i < rc2->nmembers; i++)
+    if (rc2->members[i].q == 1) mb2 = &rc2->members[i];
+  assert_non_null(mb2);
+  mb2->kept = 10, mb2->cap = 60, mb2->energy = 0.999;
+  out = open_memstream(&text, &len);
+  report_verify_warnings(m, e, f, 1, out);
+  fclose(out);
+  assert_non_null(strstr(text, "a larger basis for it, --basis r2:energy=E with E above 0.999, up to energy=1"));
+  assert_null(strstr(text, "r2:cap="));
+  free(text);
+  mb2->kept = 60;
+  out = open_memstream(&text, &len);
+  report_verify_warnings(m, e, f, 1, out);
+  fclose(out);
+  assert_non_null(strstr(text, "a larger basis for it, --basis r2:cap=N with N above 60"));
+  free(text);
+  /* a floor of 0 (a basis that holds the stage exactly) is no yardstick: no ratio to it, and
+   * the advice passes through a stage read at floor 0 to the basis that is cut */
+  double e0[4] = {1e-16, 0.05, 0.1, 0.01}, f0[4] = {1e-16, 0.05, 0, 0};
+  out = open_memstream(&text, &len);
+  report_verify_warnings(m, e0, f0, 1, out);
+  fclose(out);
+  assert_null(strstr(text, "projection floor 0.00e+00"));
+  assert_null(strstr(text, "1000x"));
+  assert_non_null(strstr(text, "warning: stage w: error 1.00e-01 while its basis holds the test values exactly"));
+  free(text);
+  mb2->kept = 0, mb2->cap = 0;
   /* interpolated already: more entries */
   e[1] = f[1] = 1e-16;
   m->stages[1].interp = calloc(1, sizeof(RInterp));

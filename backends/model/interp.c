@@ -42,6 +42,36 @@ void interp_report(const Model *m, FILE *out) {
     else if (rs->choice_reason) fprintf(out, ": %s", rs->choice_reason);
     fputc('\n', out);
   }
+  interp_report_warnings(m, out);
+}
+
+/* A choice measured on validation samples whose kept reduction failed on
+ * one of them, or whose output error is over 100 % (worse than answering
+ * zero): the model is written, as the user may still want it, but never
+ * quietly (a cloth bending stage was kept at 298 %, and every evaluation of
+ * another failed, with no word). Saved with the model (its `choice`
+ * lines), so verify and check say it too; the failure itself is known only
+ * to the training that met it (Model.choice_failure). */
+#define CHOICE_WARN_ERROR 1.0
+void interp_report_warnings(const Model *m, FILE *out) {
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    if (!rs->choice_reason || rs->choice_reason == interp_reasons[INTERP_FORCED]) continue;
+    const char *sn = rs->st->sym->name;
+    double kept = rs->choice_err[rs->interp ? 1 : 0];
+    if (!isfinite(kept)) {
+      fprintf(out, "warning: stage %s: the reduced model fails on the validation samples by Galerkin and by "
+                   "interpolation: it will fail on inputs like them; give what the stage reads larger bases "
+                   "(--basis NAME:cap=N,energy=E) or train on more samples%s%s\n",
+              sn, m->choice_failure[0] ? "; the failure: " : "", m->choice_failure);
+    } else if (kept > CHOICE_WARN_ERROR) {
+      fprintf(out, "warning: stage %s: output error %.3g (%.0f %%) on the validation samples as reduced by %s (%s %s): "
+                   "the model is worse than answering zero there; give what the stage reads larger bases "
+                   "(--basis NAME:cap=N,energy=E) or train on more samples\n",
+              sn, kept, 100 * kept, rs->interp ? "interpolation" : "Galerkin", rs->interp ? "Galerkin" : "interpolation",
+              isfinite(rs->choice_err[rs->interp ? 0 : 1]) ? "is worse" : "fails");
+    }
+  }
 }
 
 void interp_free(RInterp *ip) {
@@ -258,12 +288,15 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
       py[s] += v;
     }
   }
+  char at[64];
+  if (sample >= 0) snprintf(at, sizeof at, "at sample %ld", sample);
+  else snprintf(at, sizeof at, "at these inputs"); /* no sample of a set (npg_reduced_eval) */
   for (long s = 0; s < k; s++)
     if (!isfinite(py[s]))
       return error_set(err, errlen,
-                       "stage %s (interpolated) is not finite at its selected entry %ld at sample %ld (a diagonal zero "
+                       "stage %s (interpolated) is not finite at its selected entry %ld %s (a diagonal zero "
                        "under a negative power, or a root of a negative value, from its inputs' reduced values)",
-                       rs->st->sym->name, ip->rows[s], sample);
+                       rs->st->sym->name, ip->rows[s], at);
   if (ip->m == 0 || k == 0) memset(y, 0, sizeof(double) * (size_t)ip->m); /* (a forged model: BLAS wants lda >= 1) */
   else cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)ip->m, (int)k, 1.0, ip->pinv, (int)k, py, 1, 0.0, y, 1);
   return 0;

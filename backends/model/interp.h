@@ -111,6 +111,9 @@ extern const char *const interp_reasons[INTERP_NREASONS];
  * Galerkin …, by interpolation …: reason" for every stage that is
  * interpolated or whose reduction training chose (report_training, verify). */
 void interp_report(const Model *m, FILE *out);
+/* The warnings of interp_report: a kept reduction that failed on a validation sample, or
+ * whose output error there is over 100 %. */
+void interp_report_warnings(const Model *m, FILE *out);
 
 /* The reduced coordinates of stage `rs` (whose rs->interp is set) from the
  * coordinates x[q] of the quantities it reads, into y (m entries). `work`

@@ -45,6 +45,8 @@ typedef struct RTensor {
   long in_len[RT_MAX_IN];   /* C(m + k - 1, k) */
   long rows, cols;
   double *data;             /* rows x cols, row-major (owned) */
+  double premul_seconds;    /* training's wall time pre-multiplying it (the sum over ranks included); NAN when
+                               pre-multiplied out of core by streamed bases; not saved */
 } RTensor;
 
 typedef struct ROp {
@@ -160,6 +162,10 @@ typedef struct Model {
   double phase_seconds[4];  /* training's wall time: snapshots, bases, pre-multiplication, externs (not saved) */
   double phase_cpu[4];      /* the same phases' CPU time, this process's threads (not saved) */
   char *param_hashes;       /* "tri=<hex> rho=<hex>": what DATA/ held at training; NULL: none recorded */
+  char choice_failure[600]; /* training's choice: why the chosen reduction failed on a validation sample ("": it
+                               did not, or no choice was made; not saved) */
+  long self_check_sample;   /* training's own check: a training sample the reduced model failed on, or -1 */
+  char self_check_failure[600]; /* and why ("": none failed; not saved) */
 } Model;
 
 /* ---------------------------------------------------------------- layout (model.c) */

@@ -336,12 +336,34 @@ static const char *singular_why(const RClass *c, char *buf, size_t n) {
   return buf;
 }
 
+/* "at sample 12" for a sample of a set (npgc eval's IN/, training's and
+ * verify's samples); "at these inputs" when the caller evaluates no set
+ * (sample < 0: npg.h, Python's red(...), whose count of calls is no sample). */
+static const char *at_sample(long sample, char *buf, size_t n) {
+  if (sample >= 0) snprintf(buf, n, "at sample %ld", sample);
+  else snprintf(buf, n, "at these inputs");
+  return buf;
+}
+
+/* A reduced operator that is exactly zero: the full operator vanishes at
+ * these inputs (a parameter scaling it is 0), whatever the basis. */
+static int zero_operator(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, long sample,
+                         const char *what) {
+  const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
+  char lab[256], at[64];
+  return rfail(r, "stage %s (class %s): reduced operator %s is zero %s: the operator itself vanishes there (every "
+                  "entry 0, e.g. a factor of it that is 0 at these inputs), so its %s is undefined",
+               rs->st->sym->name, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at),
+               what);
+}
+
 static int apply_inverse(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, int n, double *v,
                          long sample) {
   const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
-  char lab[256], why[256];
+  char lab[256], why[256], at[64];
   const char *sn = rs->st->sym->name;
   double anorm = one_norm(r->M, n, r->w), rcond = 0; /* ‖M̂‖₁ = ‖M̂ᵀ‖∞ */
+  if (n > 0 && anorm == 0) return zero_operator(r, rs, ro, term, k, sample, "inverse");
   bool chol = false;
   if (ro->spd) { /* paper §4: BᵀMB of a positive definite M is positive definite */
     memcpy(r->M2, r->M, sizeof(double) * (size_t)n * (size_t)n);
@@ -353,15 +375,16 @@ static int apply_inverse(Reduced *r, const RStage *rs, const ROp *ro, int term, 
   if (!chol) {
     lapack_int info = LAPACKE_dgetrf_work(LAPACK_COL_MAJOR, n, n, r->M, n, r->piv);
     if (info > 0)
-      return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (exact zero pivot %d): %s",
-                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, (int)info,
+      return rfail(r, "stage %s (class %s): reduced operator %s is singular %s (exact zero pivot %d): %s",
+                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at), (int)info,
                    singular_why(c, why, sizeof why));
     if (info < 0) return rfail(r, "stage %s: LAPACK dgetrf argument %d (a bug in npg)", sn, (int)-info);
     /* the ∞-norm condition of M̂ᵀ is the 1-norm condition of M̂ */
     LAPACKE_dgecon_work(LAPACK_COL_MAJOR, 'I', n, r->M, n, anorm, &rcond, r->work, r->iwork);
     if (!(rcond > 1e-15))
-      return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (rcond %.3g): %s", sn,
-                   c->label, op_label(ro, term, k, lab, sizeof lab), sample, rcond, singular_why(c, why, sizeof why));
+      return rfail(r, "stage %s (class %s): reduced operator %s is singular %s (rcond %.3g): %s", sn,
+                   c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at), rcond,
+                   singular_why(c, why, sizeof why));
   }
   for (long i = 0; i < -ro->op->p; i++) {
     if (chol) LAPACKE_dpotrs_work(LAPACK_COL_MAJOR, 'L', n, 1, r->M2, n, v, n);
@@ -386,7 +409,7 @@ static lapack_int reflect(Reduced *r, int n, char trans, double *v) {
 static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, int n, double *v, long sample) {
   const OpPow *op = ro->op;
   const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
-  char lab[256], why[256];
+  char lab[256], why[256], at[64];
   const char *sn = rs->st->sym->name;
   double *lam = r->diag, *Z = r->M2, *u = r->w;
   if (r->krylov_roots) { /* the eigendecomposition below only where Lanczos does not converge soon */
@@ -405,28 +428,30 @@ static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int
   }
   for (long i = 0; i < (long)n * n; i++)
     if (!isfinite(r->M[i]))
-      return rfail(r, "stage %s (class %s): eigendecomposition of reduced operator %s failed at sample %ld (entries "
+      return rfail(r, "stage %s (class %s): eigendecomposition of reduced operator %s failed %s (entries "
                       "not finite)",
-                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample);
+                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at));
   lapack_int info = LAPACKE_dsytrd_work(LAPACK_COL_MAJOR, 'L', n, r->M, n, lam, r->off, r->tau, r->work, r->lwork);
   if (info == 0) info = reflect(r, n, 'T', v);
   if (info != 0) return rfail(r, "stage %s: LAPACK dsytrd or dormtr argument %d (a bug in npg)", sn, (int)-info);
   info = LAPACKE_dstedc_work(LAPACK_COL_MAJOR, 'I', n, lam, r->off, Z, n, r->work, r->lwork, r->iwork, r->liwork);
   if (info != 0)
-    return rfail(r, "stage %s (class %s): eigendecomposition of reduced operator %s failed at sample %ld (LAPACK "
+    return rfail(r, "stage %s (class %s): eigendecomposition of reduced operator %s failed %s (LAPACK "
                     "dstedc info %d)",
-                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, (int)info);
+                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at), (int)info);
   double big = 0, low = lam[0];
   for (int i = 0; i < n; i++) big = fmax(big, fabs(lam[i])), low = fmin(low, lam[i]);
   double tol = 1e-12 * (big > 0 ? big : 1);
   if (low < -tol)
-    return rfail(r, "stage %s (class %s): reduced operator %s is indefinite at sample %ld (eigenvalue %.3g, largest "
+    return rfail(r, "stage %s (class %s): reduced operator %s is indefinite %s (eigenvalue %.3g, largest "
                     "%.3g): a root needs a positive semidefinite operator",
-                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, low, big);
+                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at), low, big);
+  if (op->p < 0 && big == 0) return zero_operator(r, rs, ro, term, k, sample, "negative power");
   if (op->p < 0 && low <= tol)
-    return rfail(r, "stage %s (class %s): reduced operator %s is singular at sample %ld (eigenvalue %.3g, largest "
+    return rfail(r, "stage %s (class %s): reduced operator %s is singular %s (eigenvalue %.3g, largest "
                     "%.3g, condition estimate %.3g): %s",
-                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), sample, low, big, low > 0 ? big / low : INFINITY,
+                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at), low, big,
+                 low > 0 ? big / low : INFINITY,
                  singular_why(c, why, sizeof why));
   cblas_dgemv(CblasColMajor, CblasTrans, n, n, 1.0, Z, n, v, 1, 0.0, u, 1);
   for (int i = 0; i < n; i++) u[i] *= lam[i] > 0 ? pow(lam[i], (double)op->p / (double)op->q) : 0.0;
@@ -476,9 +501,10 @@ static int eval_extern(Reduced *r, const RExtern *x, long sample) {
   }
   free(in);
   free(w);
+  char at[64];
   if (rc != 0)
-    return rfail(r, "extern '%s' at sample %ld: %s", ((Sym *)r->m->prog->quantities.v[x->q])->name,
-                 sample, err);
+    return rfail(r, "extern '%s' %s: %s", ((Sym *)r->m->prog->quantities.v[x->q])->name,
+                 at_sample(sample, at, sizeof at), err);
   return 0;
 }
 

@@ -342,12 +342,15 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
     else glist[ng++] = rs->st->sym->name;
     reason[i] = rs->choice_reason, errs[2 * i] = rs->choice_err[0], errs[2 * i + 1] = rs->choice_err[1];
   }
+  char failure[sizeof chosen->choice_failure];
+  snprintf(failure, sizeof failure, "%s", chosen->choice_failure);
   model_free(chosen); /* before the second training: never both in memory */
   TrainOptions o = *opt;
   o.valid = NULL;
   o.ninterp = ni, o.interp_stage = ilist;
   o.ngalerkin = ng, o.galerkin_stage = glist;
   if (!(m = train_model(prog, f, all, &o, err, errlen))) goto done;
+  snprintf(m->choice_failure, sizeof m->choice_failure, "%s", failure);
   for (int i = 0; i < n && i < m->nstages; i++) /* the measured errors and reason, not "forced" */
     if (reason[i]) {
       m->stages[i].choice_err[0] = errs[2 * i], m->stages[i].choice_err[1] = errs[2 * i + 1];

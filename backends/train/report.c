@@ -36,6 +36,11 @@ void report_training(const Model *m, FILE *out) {
                 mb->name, m->classes[c].label, mb->cap, mb->lost, mb->center ? "centered " : "", mb->name);
     }
   interp_report(m, out); /* DESIGN §12: how each eligible stage is reduced, and why */
+  if (m->self_check_failure[0]) /* train.c self_check: never quietly (issue 38) */
+    fprintf(out, "warning: the reduced model fails on training sample %ld, one it was trained on: %s; it will fail on "
+                 "inputs like it: give what that stage reads larger bases (--basis NAME:cap=N,energy=E), or let "
+                 "training choose its reduction on held-out samples (--valid F or DIR)\n",
+            m->self_check_sample, m->self_check_failure);
   size_t tb, total = model_bytes(m, &tb);
   fprintf(out, "reduced tensors: %.3f MB; model with bases: %.3f MB\n", (double)tb / 1e6, (double)total / 1e6);
   double dropped = 0;
@@ -84,15 +89,54 @@ static const RStage *stage_of(const Model *m, int q) {
   return NULL;
 }
 
+/* The member of quantity q, or NULL. */
+static const RMember *member_of(const Model *m, int q) {
+  const RClass *c = &m->classes[m->qclass[q]];
+  for (int i = 0; i < c->nmembers; i++)
+    if (c->members[i].q == q) return &c->members[i];
+  return NULL;
+}
+
+/* How to give quantity q a larger basis, from why its basis was cut: at its
+ * cap, raise the cap; below it, the energy fraction decided, and raising
+ * the cap gives the same model again (issue 38: 10 of 60 kept, advised
+ * cap=N; energy=1 took the error from 5.3 to 0.056). */
+static void basis_advice(const Model *m, int q, char *buf, size_t n) {
+  const char *name = ((Sym *)m->prog->quantities.v[q])->name;
+  const RMember *mb = member_of(m, q);
+  if (!mb) snprintf(buf, n, "--basis %s:cap=N,energy=E", name);
+  else if (mb->kept >= mb->cap)
+    snprintf(buf, n, "--basis %s:cap=N with N above %d (its cap: it kept %d)", name, mb->cap, mb->kept);
+  else
+    snprintf(buf, n, "--basis %s:energy=E with E above %.6g, up to energy=1 (its energy fraction decided: it kept %d "
+                     "of a cap of %d)", name, mb->energy, mb->kept, mb->cap);
+}
+
+/* Where a stage's error comes from: follow the inputs with the largest
+ * error through stages whose own basis holds their values exactly (floor
+ * 0: a larger basis for them changes nothing) to the first quantity whose
+ * basis is cut. */
+static int error_source(const Model *m, int w, const double *err, const double *floor) {
+  for (int hops = 0; w >= 0 && hops < m->nq && !(floor[w] > 0); hops++) {
+    const RStage *ws = stage_of(m, w);
+    int up = ws ? worst_read(m, ws, err) : -1;
+    if (up < 0 || !(err[up] > 1e-12)) break;
+    w = up;
+  }
+  return w;
+}
+
 int report_verify_warnings(const Model *m, const double *err, const double *floor, double tol, FILE *out) {
   int n = 0;
   for (int q = 0; q < m->nq; q++) {
     const Sym *s = m->prog->quantities.v[q];
     if (s->kind == SYM_INPUT && floor[q] > tol) {
+      char advice[256];
+      basis_advice(m, q, advice, sizeof advice);
       fprintf(out,
               "warning: input %s: its projection floor %.2e exceeds --tol %.3g: its basis cannot represent the test "
-              "samples (train with more or more varied samples, or a larger basis: --basis %s:cap=N,energy=E)\n",
-              s->name, floor[q], tol, s->name);
+              "samples (train with more or more varied samples, or a larger basis: %s)\n",
+              s->name, floor[q], tol, advice);
       n++;
     }
   }
@@ -105,10 +149,18 @@ int report_verify_warnings(const Model *m, const double *err, const double *floo
     char times[32];
     if (ratio < 1000) snprintf(times, sizeof times, "%.1fx", ratio);
     else snprintf(times, sizeof times, "over 1000x");
-    fprintf(out,
-            "warning: stage %s: error %.2e is %s its projection floor %.2e: the reduction, not its basis, loses "
-            "accuracy here",
-            rs->st->sym->name, err[q], times, floor[q]);
+    /* a floor of 0 (its basis holds every test value exactly, e.g. a scalar's one vector) is no
+     * yardstick: no "1000x its projection floor 0" (issue 38) */
+    if (floor[q] > 0)
+      fprintf(out,
+              "warning: stage %s: error %.2e is %s its projection floor %.2e: the reduction, not its basis, loses "
+              "accuracy here",
+              rs->st->sym->name, err[q], times, floor[q]);
+    else
+      fprintf(out,
+              "warning: stage %s: error %.2e while its basis holds the test values exactly (projection floor 0): "
+              "the reduction, not its basis, loses accuracy here",
+              rs->st->sym->name, err[q]);
     /* its inputs at their floors and their error a tenth of its own or less: the stage's own
      * reduction is the cause (DESIGN §12), not what it reads */
     bool inputs_at_floor = w < 0 || err[w] <= 1e-12 || (err[w] <= 2 * floor[w] && err[w] <= 0.1 * err[q]);
@@ -137,10 +189,20 @@ int report_verify_warnings(const Model *m, const double *err, const double *floo
       fprintf(out, " (it reads extern %s, whose learned map has error %.2e against a floor of %.2e: train on more "
               "samples like these, or give %s's values to the reduced evaluator, npg_reduced_given_externs)\n",
               wn, err[w], floor[w], wn);
-    } else if (w >= 0)
-      fprintf(out, " (it reads %s with error %.2e: a larger basis for it, --basis %s:cap=N; or name an "
-              "intermediate to give it a basis, or inline one)\n",
-              ((Sym *)m->prog->quantities.v[w])->name, err[w], ((Sym *)m->prog->quantities.v[w])->name);
+    } else if (w >= 0) {
+      int src = error_source(m, w, err, floor);
+      char advice[256];
+      basis_advice(m, src, advice, sizeof advice);
+      if (src == w)
+        fprintf(out, " (it reads %s with error %.2e: a larger basis for it, %s; or name an intermediate to give it a "
+                "basis, or inline one)\n",
+                ((Sym *)m->prog->quantities.v[w])->name, err[w], advice);
+      else
+        fprintf(out, " (it reads %s with error %.2e, whose basis holds it exactly: the error comes from %s (error "
+                "%.2e, projection floor %.2e): a larger basis for that, %s)\n",
+                ((Sym *)m->prog->quantities.v[w])->name, err[w], ((Sym *)m->prog->quantities.v[src])->name, err[src],
+                floor[src], advice);
+    }
     else fputs(" (name an intermediate to give it a basis of its own, or inline one)\n", out);
     n++;
   }

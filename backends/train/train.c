@@ -29,6 +29,7 @@
 
 #include "dist.h"
 #include "interp.h"
+#include "reduced.h"
 #include "train.h"
 #include "train_steps.h"
 
@@ -553,16 +554,21 @@ int train_premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err
       }
       RTERM_FOR_TENSORS(rt, x) {
         if (x->data) { /* pre-multiplied out of core by the streamed bases (stream.c) */
+          x->premul_seconds = NAN;
           progress_show(progress, "pre-multiplication", ++done, ntensors);
+          phase_time(t0, &d[0], &d[1]);
           continue;
         }
         /* over ranks: every rank its share of the rows, summed on all */
+        phase_time(t0, &d[0], &d[1]); /* from here: this tensor's own time */
         if (premultiply_part(m, f, x, cy->B, cy->n, cy->m, rank, N, &flops, err, errlen)) return -1;
         phase_time(t0, &d[0], &d[1]);
         own[0] += d[0], own[1] += d[1];
+        x->premul_seconds = d[0];
         if (N > 1) dist_allreduce_sum(x->data, x->rows * x->cols);
         phase_time(t0, &d[0], &d[1]);
         sum[0] += d[0], sum[1] += d[1];
+        x->premul_seconds += d[0];
         progress_show(progress, "pre-multiplication", ++done, ntensors);
       }
     }
@@ -768,6 +774,42 @@ static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions 
   return build_bases(m, sn, *gram, opt, err, errlen);
 }
 
+/* Step 5: the model trained evaluated on three of its own training samples
+ * (the first, the middle and the last). Without held-out samples nothing
+ * else runs it before the user does: a Galerkin root whose reduced
+ * operator was indefinite at every input trained "fine" and then failed
+ * every evaluation (issue 38). A failure is kept for the report
+ * (report_training warns); training itself succeeds. Not over ranks: a
+ * rank holds only its own samples; not with externs: setting a sample again
+ * may call an extern's callback again, which runs once per sample (the
+ * radiosity visibility: seconds a sample). */
+static void self_check(Model *m, Full *f, const SampleSource *src) {
+  m->self_check_sample = -1;
+  char err[600];
+  Reduced *r = src->count > 0 && m->nexterns == 0 ? reduced_new(m, err, sizeof err) : NULL;
+  if (!r) return;
+  long pick[3] = {0, src->count / 2, src->count - 1};
+  for (int i = 0; i < 3 && m->self_check_sample < 0; i++) {
+    long k = pick[i];
+    if (i > 0 && k == pick[i - 1]) continue;
+    if (src->set(src->user, f, k) != 0) break;
+    bool ok = true;
+    for (int q = 0; q < m->nq && ok; q++) {
+      const Sym *s = m->prog->quantities.v[q];
+      if (s->kind != SYM_INPUT) continue;
+      size_t n = 0;
+      const double *v = full_get(f, s->name, &n);
+      if (!v || (long)n != m->classes[m->qclass[q]].n) ok = false;
+      else reduced_project(r, q, v);
+    }
+    if (ok && reduced_eval(r, k) != 0) {
+      m->self_check_sample = k;
+      snprintf(m->self_check_failure, sizeof m->self_check_failure, "%.590s", reduced_error(r));
+    }
+  }
+  reduced_free(r);
+}
+
 /* Training as named steps (DESIGN §5), each phase's wall and CPU time kept. */
 Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen) {
@@ -805,6 +847,8 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
             ooc_needed(m, opt, src->count) ? "out of core, with the snapshots" : gram ? "method of snapshots" : "in memory",
             m->phase_seconds[PHASE_PREMULTIPLY], m->phase_seconds[PHASE_EXTERNS]);
   train_free_snapshots(m, &sn);
+  m->self_check_sample = -1;
+  if (!opt->dist) self_check(m, f, src);
   return m;
 fail:
   if (m) train_free_snapshots(m, &sn);

@@ -473,7 +473,7 @@ static double stage_work(const Model *m, const RStage *rs) {
 static int choose(Search *s, Model *m, const TrainOptions *opt, double tol, double *out, char why[static 1024],
                   char *err, size_t errlen) {
   double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
-  char why2[1024];
+  char why2[1024] = "";
   why[0] = 0;
   double current = INFINITY;
   /* a configuration that fails on a validation sample (a reduced root of an
@@ -502,6 +502,7 @@ static int choose(Search *s, Model *m, const TrainOptions *opt, double tol, doub
                                                                                 : BOTH_FAIL];
     if (keep) {
       current = interp;
+      if (!isfinite(interp)) snprintf(why, 1024, "%s", why2); /* the failure of the configuration kept */
     } else {
       interp_free(rs->interp);
       rs->interp = NULL;
@@ -525,6 +526,8 @@ int tune_choose_reductions(Model *m, Full *f, const SampleSource *valid, const T
   char why[1024];
   /* a model whose every configuration fails on a validation sample is kept (the reasons say so) */
   int rc = cache_valid(&s, f, valid, m, err, errlen) || choose(&s, m, opt, -1, &chosen, why, err, errlen) ? -1 : 0;
+  /* kept, but never quietly: interp_report warns, naming this failure */
+  if (rc == 0 && !isfinite(chosen)) snprintf(m->choice_failure, sizeof m->choice_failure, "%.590s", why);
   for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);
   free(s.v.val);
   for (long k = 0; s.v.traj && k < s.v.S; k++) free(s.v.traj[k]);

@@ -22,6 +22,7 @@
 #include "api.h"
 #include "compile.h"
 #include "dist.h"
+#include "lower.h"
 #include "trainer_impl.h"
 
 static size_t half_the_ram(void) {
@@ -226,6 +227,13 @@ static int record(NpgTrainer *t, const NpgFull *g) {
     return tfail(t, "training sample %ld: param '%s' is not bound (bind the params of the trainer's evaluator first)",
                  t->samples, unbound);
   if (keep_weight(t)) return -1;
+  /* over ranks every rank sees every sample: their inputs' hash, compared by ranks_agree (ranks
+   * given two data folders of the same shapes trained on a mixture of them, issue 38) */
+  for (int i = 0; t->opt.mpi && i < t->nslots; i++) {
+    size_t n = 0;
+    const double *v = t->slot[i]->kind == SYM_INPUT ? npg_full_get(g, t->slot[i]->name, &n) : NULL;
+    if (v) t->inputs_hash = (t->inputs_hash ^ full_hash_values(v, n)) * 0x100000001b3ull + (uint64_t)i;
+  }
   if (!own_sample(t, t->samples)) {
     t->samples++;
     memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
@@ -464,13 +472,17 @@ static int check_mem(NpgTrainer *t) {
     for (int i = 0; i < nd; i++) entries *= (double)shape[i];
     if (entries * sizeof(double) <= (double)t->opt.mem) continue;
     char need[32], have[32];
+    /* an op entry named whole: the cure is in the program (issue 38) */
+    bool dense_entry = s->kind == SYM_STAGE && s->introduced && s->introduced_for &&
+                       s->introduced_for->kind == SYM_OP && s->nivars >= 2;
     return tfail(t, "%s '%s' alone needs %s per sample (%.4g entries), more than --mem %s%s: training holds it in "
-                    "memory (the full evaluator keeps every stage of a sample), so it cannot stay within --mem; raise "
-                    "--mem, or train on smaller data",
+                    "memory (the full evaluator keeps every stage of a sample), so it cannot stay within --mem; %s%s",
                  s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage", s->name,
                  bytes_text(entries * sizeof(double), need, sizeof need), entries,
                  bytes_text((double)t->opt.mem, have, sizeof have),
-                 t->opt.mem == half_the_ram() ? " (the default: half of this machine's memory)" : "");
+                 t->opt.mem == half_the_ram() ? " (the default: half of this machine's memory)" : "",
+                 dense_entry ? "" : "raise --mem, or train on smaller data",
+                 dense_entry ? lower_dense_entry_cure(t->prog->ctx, s) : "");
   }
   return 0;
 }
@@ -484,8 +496,8 @@ static int check_mem(NpgTrainer *t) {
 static int ranks_agree(NpgTrainer *t) {
   if (!t->opt.mpi || dist_size() < 2) return 0;
   const Program *prog = t->prog;
-  /* the figures: 4, then 1 + dims + 2 per param + 7 */
-  int n = 0, cap = 12 + prog->dims.n + 2 * prog->params.n;
+  /* the figures: 4, then 3 + dims + 2 per param + 7 */
+  int n = 0, cap = 14 + prog->dims.n + 2 * prog->params.n;
   double *v = malloc(sizeof(double) * (size_t)cap * 3);
   const char **what = calloc((size_t)cap, sizeof *what), **name = calloc((size_t)cap, sizeof *name);
   int rc = 0;
@@ -522,6 +534,9 @@ static int ranks_agree(NpgTrainer *t) {
         sum += t->weights ? t->weights[k] : 1, moment += (double)(k + 1) * (t->weights ? t->weights[k] : 1);
       FIGURE(sum, "the sum of the sample weights%s", "");
       FIGURE(moment, "the sum of the sample weights times their sample's number%s", "");
+      /* last: a rank given other shapes or params is told that, not this */
+      FIGURE(t->inputs_hash >> 32, "the training samples' inputs%s (the hash of their values)", "");
+      FIGURE(t->inputs_hash & 0xffffffffu, "the training samples' inputs%s (the hash of their values)", "");
     }
     int len = n - from;
     double *hi = v + cap, *lo = v + 2 * cap;
@@ -669,28 +684,46 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
     held = (SampleSource){nheld, &hold, replay_held, NULL, NULL};
     o.valid = &held;
   }
+  /* The weights divided by the largest (over every rank): only their ratios
+   * count, and 20 weights of 1.5e308 overflowed their sum to infinity, lost
+   * a basis vector and were refused out of core as "snapshot values beyond
+   * 1e154". Scaled so, equal weights give the model of weights 1, bit for bit. */
+  double *weights = NULL;
+  if (t->weights) {
+    double big = 0;
+    for (long k = 0; k < t->samples; k++) big = fmax(big, t->weights[k]);
+    if (t->opt.mpi) dist_allreduce_max(&big, 1);
+    if (!(weights = mem_malloc(sizeof(double) * (size_t)t->samples))) {
+      tfail(t, "out of memory");
+      return NULL;
+    }
+    for (long k = 0; k < t->samples; k++) weights[k] = t->weights[k] / big;
+  }
   /* the training samples' weights (of those left when some are held out) */
-  double *train_w = t->weights && src.count < t->samples ? mem_malloc(sizeof(double) * (size_t)src.count) : NULL;
-  if (t->weights && src.count < t->samples && !train_w) {
+  double *train_w = weights && src.count < t->samples ? mem_malloc(sizeof(double) * (size_t)src.count) : NULL;
+  if (weights && src.count < t->samples && !train_w) {
+    free(weights);
     tfail(t, "out of memory");
     return NULL;
   }
-  for (long j = 0; train_w && j < src.count; j++) train_w[j] = t->weights[training_index(&hold, j)];
-  o.weights = train_w ? train_w : t->weights;
+  for (long j = 0; train_w && j < src.count; j++) train_w[j] = weights[training_index(&hold, j)];
+  o.weights = train_w ? train_w : weights;
   char err[2048] = "";
   /* the params the samples are replayed with, recorded before any validation sample is set: a
    * valid_set that sets a param would otherwise leave its hash in the model (trial3) */
   char *params = api_param_hashes(t->f->full);
   if (!params) {
     free(train_w);
+    free(weights);
     tfail(t, "out of memory");
     return NULL;
   }
   Model *m = train_model((Program *)t->prog, t->f->full, &src, &o, err, sizeof err);
   /* the automatic choice made, every sample trains the model (DESIGN §12) */
-  o.weights = t->weights;
+  o.weights = weights;
   if (m && retrain) m = interp_train_with_choice((Program *)t->prog, t->f->full, &all, &o, m, err, sizeof err);
   free(train_w);
+  free(weights);
   if (m && params_changed(t, params)) {
     model_free(m);
     m = NULL;

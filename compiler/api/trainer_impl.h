@@ -42,6 +42,7 @@ struct NpgTrainer {
   long weights_cap;
   bool broken;              /* a failure that may have left the records incomplete (or the construction's):
                                npg_trainer_clear_error keeps the error */
+  uint64_t inputs_hash;     /* over ranks: of every sample's inputs, in order (every rank's too: ranks_agree) */
   char error[2048];
 };
 

@@ -400,7 +400,8 @@ typedef struct ReducedObject {
   bool *input_set;          /*   set at least once (an input never set is an error, not a zero) */
   const NpgSymbol **output; /* the outputs that are quantities (not ops) */
   PyObject **output_name;
-  long sample;              /* evaluations so far: the sample number in messages */
+  long sample;              /* steps simulated so far: the sample number of a rollout's next step (red(...)
+                               evaluates no sample of a set: its messages say "at these inputs") */
 } ReducedObject;
 
 static int reduced_traverse(ReducedObject *self, visitproc visit, void *arg) {
@@ -572,7 +573,9 @@ static PyObject *reduced_call(ReducedObject *self, PyObject *args, PyObject *kw)
       goto done;
     }
   int rc = 0;
-  long sample = self->sample++;
+  /* no sample of a set: the library's messages say "at these inputs" (a count of calls called
+   * "sample 2" misled, issue 38) */
+  long sample = -1;
   Py_BEGIN_ALLOW_THREADS
   for (int i = 0; i < na && rc == 0; i++)
     rc = npg_reduced_set(self->r, self->input[idx[i]]->name, self->input_count[idx[i]], PyArray_DATA(arr[i]));

@@ -112,14 +112,24 @@ static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx
            op, (int)info);
     rc = -1;
   }
-  double wmax = 0;
-  for (npg_idx i = 0; i < n && rc == 0; i++) wmax = fmax(wmax, fabs(w[i]));
-  for (npg_idx i = 0; i < n && rc == 0; i++)
-    if (w[i] < -1e-12 * (wmax > 0 ? wmax : 1) || (p < 0 && w[i] <= 0)) {
-      runtime_record(c, "sample %ld: stage '%s': operator %s is not positive %sdefinite (eigenvalue %.3g), so its power %ld/%ld is undefined",
-             c->sample, stage, op, p < 0 ? "" : "semi", w[i], p, q);
-      rc = -1;
-    }
+  /* An eigenvalue within 1e-12 of the largest is zero to rounding (dsyevd's
+   * error is about n·eps·‖M‖; a singular 12 x 12 Laplacian gave +6e-15, whose
+   * -1/2 power made the answer 1.3e7): a negative power of it is refused as
+   * singular, as solve and the reduced evaluator (reduced.c apply_root, the
+   * same tolerance) refuse it. */
+  double wmax = 0, wmin = INFINITY;
+  for (npg_idx i = 0; i < n && rc == 0; i++) wmax = fmax(wmax, fabs(w[i])), wmin = fmin(wmin, w[i]);
+  double tol = 1e-12 * (wmax > 0 ? wmax : 1);
+  if (rc == 0 && n > 0 && wmin < -tol) {
+    runtime_record(c, "sample %ld: stage '%s': operator %s is not positive %sdefinite (eigenvalue %.3g), so its power %ld/%ld is undefined",
+                   c->sample, stage, op, p < 0 ? "" : "semi", wmin, p, q);
+    rc = -1;
+  } else if (rc == 0 && n > 0 && p < 0 && wmin <= tol) {
+    runtime_record(c, "sample %ld: stage '%s': operator %s is singular (eigenvalue %.3g, largest %.3g), so its power %ld/%ld "
+                      "is undefined",
+                   c->sample, stage, op, wmin, wmax, p, q);
+    rc = -1;
+  }
   if (rc == 0) {
     double r = (double)p / (double)q;
     for (npg_idx k = 0; k < n; k++) {

@@ -234,6 +234,66 @@ static cholmod_sparse csc_view(SparseOp *s, int stype) {
   return A;
 }
 
+/* LAPACK's 1-norm estimator (Hager, Higham), by reverse communication: the
+ * one dgecon uses for the dense path. */
+extern void dlacn2_(const int *n, double *v, double *x, int *isgn, double *est, int *kase, int *isave);
+
+/* x <- M⁻¹ x (trans false) or M⁻ᵀ x (true) by a factorization already made:
+ * 0, or -1 on failure. */
+typedef int (*FactorSolve)(SparseOp *s, void *factor, bool trans, double *x, double *b);
+
+/* rcond = 1 / (‖M‖₁ ‖M⁻¹‖₁), ‖M⁻¹‖₁ estimated with a few solves by the
+ * factorization `factor`: the estimate the dense path's dgecon makes. -1 on
+ * failure. */
+static double factor_rcond(SparseOp *s, FactorSolve solve, void *factor) {
+  int n = (int)s->n, kase = 0, isave[3] = {0, 0, 0};
+  double est = 0, anorm = 0;
+  for (npg_idx j = 0; j < s->n; j++) {
+    double col = 0;
+    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) col += fabs(s->Ax[p]);
+    anorm = fmax(anorm, col);
+  }
+  double *x = mem_malloc(sizeof(double) * (size_t)(n ? n : 1)), *v = mem_malloc(sizeof(double) * (size_t)(n ? n : 1)),
+         *b = mem_malloc(sizeof(double) * (size_t)(n ? n : 1));
+  int *isgn = mem_malloc(sizeof(int) * (size_t)(n ? n : 1));
+  double rcond = -1;
+  if (x && v && b && isgn) {
+    for (;;) {
+      dlacn2_(&n, v, x, isgn, &est, &kase, isave);
+      if (kase == 0) break;
+      memcpy(b, x, sizeof(double) * (size_t)n);
+      if (solve(s, factor, kase != 1, x, b) != 0) break;
+    }
+    if (kase == 0) rcond = est > 0 && anorm > 0 ? 1 / (anorm * est) : 0;
+  }
+  free(x), free(v), free(b), free(isgn);
+  return rcond;
+}
+
+static int umfpack_factor_solve(SparseOp *s, void *numeric, bool trans, double *x, double *b) {
+  return umfpack_dl_solve(trans ? UMFPACK_At : UMFPACK_A, s->Ap, s->Ai, s->Ax, x, b, numeric, s->umf_control, NULL) ==
+                 UMFPACK_OK
+             ? 0
+             : -1;
+}
+
+/* M is symmetric: Mᵀ = M. */
+static int cholmod_factor_solve(SparseOp *s, void *factor, bool trans, double *x, double *b) {
+  (void)trans;
+  cholmod_dense d;
+  memset(&d, 0, sizeof d);
+  d.nrow = d.d = d.nzmax = (size_t)s->n;
+  d.ncol = 1;
+  d.xtype = CHOLMOD_REAL;
+  d.dtype = CHOLMOD_DOUBLE;
+  d.x = b;
+  cholmod_dense *r = cholmod_l_solve(CHOLMOD_A, factor, &d, &s->cc);
+  if (!r) return -1;
+  memcpy(x, r->x, sizeof(double) * (size_t)s->n);
+  cholmod_l_free_dense(&r, &s->cc);
+  return 0;
+}
+
 /* y <- M^-k y by Cholesky; 1 when M is not positive definite (the caller
  * moves to UMFPACK), -1 on another failure. */
 static int cholesky_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, long k, double *y) {
@@ -262,7 +322,11 @@ static int cholesky_solve(const NpgCtx *c, const char *stage, const char *op, Sp
   }
   if (s->cc.status == CHOLMOD_NOT_POSDEF || s->L->minor < (size_t)s->n) return 1;
   ((NpgHost *)c->host)->sparse_cholesky++;
+  /* CHOLMOD's rcond is the squared ratio of L's smallest to largest
+     diagonal entry: a singular Laplacian of 150 rows left 2e-15 there, so
+     below 1e-10 the dense path's estimate decides, as for UMFPACK */
   double rcond = cholmod_l_rcond(s->L, &s->cc);
+  if (!(rcond > 1e-10)) rcond = factor_rcond(s, cholmod_factor_solve, s->L);
   if (!(rcond > 1e-15)) {
     runtime_record(c, "sample %ld: stage '%s': operator %s is singular (CHOLMOD's rcond %.1e)", c->sample, stage, op, rcond);
     return -1;
@@ -287,39 +351,6 @@ static int cholesky_solve(const NpgCtx *c, const char *stage, const char *op, Sp
   return 0;
 }
 
-/* LAPACK's 1-norm estimator (Hager, Higham), by reverse communication: the
- * one dgecon uses for the dense path. */
-extern void dlacn2_(const int *n, double *v, double *x, int *isgn, double *est, int *kase, int *isave);
-
-/* rcond = 1 / (‖M‖₁ ‖M⁻¹‖₁), ‖M⁻¹‖₁ estimated with a few solves by the LU
- * in `numeric`: the estimate the dense path's dgecon makes. -1 on failure. */
-static double lu_rcond(SparseOp *s, void *numeric) {
-  int n = (int)s->n, kase = 0, isave[3] = {0, 0, 0};
-  double est = 0, anorm = 0;
-  for (npg_idx j = 0; j < s->n; j++) {
-    double col = 0;
-    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) col += fabs(s->Ax[p]);
-    anorm = fmax(anorm, col);
-  }
-  double *x = mem_malloc(sizeof(double) * (size_t)(n ? n : 1)), *v = mem_malloc(sizeof(double) * (size_t)(n ? n : 1)),
-         *b = mem_malloc(sizeof(double) * (size_t)(n ? n : 1));
-  int *isgn = mem_malloc(sizeof(int) * (size_t)(n ? n : 1));
-  double rcond = -1;
-  if (x && v && b && isgn) {
-    for (;;) {
-      dlacn2_(&n, v, x, isgn, &est, &kase, isave);
-      if (kase == 0) break;
-      memcpy(b, x, sizeof(double) * (size_t)n);
-      if (umfpack_dl_solve(kase == 1 ? UMFPACK_A : UMFPACK_At, s->Ap, s->Ai, s->Ax, x, b, numeric, s->umf_control,
-                           NULL) != UMFPACK_OK)
-        break;
-    }
-    if (kase == 0) rcond = est > 0 && anorm > 0 ? 1 / (anorm * est) : 0;
-  }
-  free(x), free(v), free(b), free(isgn);
-  return rcond;
-}
-
 /* y <- M^-k y by UMFPACK's LU. */
 static int lu_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, long k, double *y) {
   if (!s->symbolic) {
@@ -339,7 +370,7 @@ static int lu_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp
      singular matrix leaves ~n·eps there after rounding, so below 1e-10 the
      dense path's estimate decides (a few more solves, only then) */
   double rcond = st == UMFPACK_OK ? info[UMFPACK_RCOND] : 0.0;
-  if (st == UMFPACK_OK && !(rcond > 1e-10)) rcond = lu_rcond(s, numeric);
+  if (st == UMFPACK_OK && !(rcond > 1e-10)) rcond = factor_rcond(s, umfpack_factor_solve, numeric);
   if (st == UMFPACK_WARNING_singular_matrix || (st == UMFPACK_OK && !(rcond > 1e-15))) {
     runtime_record(c, "sample %ld: stage '%s': operator %s is singular (rcond %.1e)", c->sample, stage, op, rcond);
     umfpack_dl_free_numeric(&numeric);
@@ -480,6 +511,21 @@ int runtime_sparse_power(const NpgCtx *c, const char *stage, const char *op, int
     int rc = npg_runtime.op_power(c, stage, op, n, M, p, q, y);
     free(M);
     return rc;
+  }
+  if (q != 1 && p < 0 && values_symmetric(s)) {
+    /* A negative root needs M nonsingular, and Lanczos cannot tell: with y
+     * in M's range it never meets the null space and converges to the
+     * pseudo-inverse's root; with rounding in it, to that noise amplified.
+     * The factorization solve uses decides, with solve's tolerances. */
+    int rc = cholesky_solve(c, stage, op, s, 0, y);
+    if (rc < 0) return -1;
+    if (rc > 0) {
+      if (lu_solve(c, stage, op, s, 0, y) != 0) return -1;
+      runtime_record(c, "sample %ld: stage '%s': operator %s is not positive definite (its Cholesky factorization "
+                        "breaks down), so its power %ld/%ld is undefined",
+                     c->sample, stage, op, p, q);
+      return -1;
+    }
   }
   if (q != 1) return krylov_root(c, stage, op, s, p, q, y);
   if (p > 0) return sparse_products(c, stage, s, p, y);

@@ -136,8 +136,12 @@ done
 "$build/radiosity_data" "$scratch/rfew" 60 9 0 1 7 >/dev/null
 "$build/radiosity_data" "$scratch/rdims" 48 13 0 1 7 >/dev/null
 /usr/bin/python3 -c "import numpy as np,sys; r=np.load(sys.argv[1]); np.save(sys.argv[1], r*0.5)" "$scratch/rsame/rho.npy"
+# another folder of the same shapes and params, its inputs other (issue 38: trained on a mixture)
+cp -r "$scratch/rdata" "$scratch/rinputs"
+/usr/bin/python3 -c "import numpy as np,sys; r=np.load(sys.argv[1]); np.save(sys.argv[1], r*1.5)" "$scratch/rinputs/e.npy"
 for case in "rsame|param 'rho' (the hash of its values) differs between ranks" \
             "rfew|the number of training samples is 9 on some ranks and 13 on others" \
+            "rinputs|the training samples' inputs (the hash of their values) differs between ranks" \
             "rdims|dim F is 48 on some ranks and 60 on others" \
             "rdata --cap 4|--cap is 4 on some ranks and 8 on others" \
             "rdata --weights $scratch/w.npy|the sum of the sample weights is 13 on some ranks and 21 on others"; do

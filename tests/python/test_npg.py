@@ -239,6 +239,35 @@ def test_trainer_options_checked(eq3):
 
 # ---------------------------------------------------------------- reduced evaluation
 
+ZERO_OP = """dim N, P
+param K : real[N, N]
+input mu : real[P]
+input x : real[N]
+op M[i:N, j:N] = mu[0] * (K[i, j] + K[j, i]) + mu[0] * delta(i, j)
+output y = solve(M, x)
+"""
+
+
+def test_reduced_zero_operator_said(tmp_path):
+    # at mu = 0 the operator is zero: said so, at these inputs (no "sample 2", the count of calls,
+    # and no "basis too small?"), issue 38
+    rng = np.random.default_rng(2)
+    K = rng.random((20, 20))
+    full = npg.compile(ZERO_OP, name="zero_op.npg").full(params={"K": K})
+    tr = npg.Trainer(full, cap=3)
+    for _ in range(20):
+        tr.add(mu=1 + rng.random(1), x=rng.random(20))
+    red = tr.finish(str(tmp_path / "Z")).reduced()
+    x = rng.random(20)
+    red(mu=np.array([1.5]), x=x)
+    red(mu=np.array([1.2]), x=x)
+    with pytest.raises(npg.Error) as e:
+        red(mu=np.array([0.0]), x=x)
+    msg = str(e.value)
+    assert "reduced operator M is zero at these inputs" in msg, msg
+    assert "sample" not in msg and "too small" not in msg, msg
+
+
 def test_reduced_equals_npgc_eval(eq3, npgc):
     d = eq3["dir"]
     npgc("eval", RATIONAL, d / "CLI", d / "TEST", "-o", d / "OUT")
