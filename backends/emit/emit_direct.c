@@ -27,6 +27,12 @@ typedef struct DEnv {
   const struct DEnv *next;
 } DEnv;
 
+/* A varying denominator v as v + (v − v): the same bits when v is finite (v − v is +0), NaN when
+ * it is infinite, so an infinite intermediate is not absorbed into a finite quotient (1/(1/x) at a
+ * subnormal x would be 0): the stage is then not finite and refused where it arises, as the
+ * named-stage form 1/r is. */
+static int cured(Cse *cs, int v) { return cse_op(cs, VAL_ADD, v, cse_op(cs, VAL_SUB, v, v, -1), -1); }
+
 static int build(Emit *e, const Node *n, int comp, const DEnv *env);
 
 static const DEnv *lookup(const DEnv *env, const Sym *s) {
@@ -221,7 +227,7 @@ static int build(Emit *e, const Node *n, int comp, const DEnv *env) {
     /* dividing by a coefficient is multiplying by it (DESIGN §3): the
      * reciprocal is loop invariant */
     if (n->b->ty.var != V_VARYING) b = cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), b, -1);
-    return cse_op(cs, n->b->ty.var != V_VARYING ? VAL_MUL : VAL_DIV, a, b, -1);
+    return cse_op(cs, n->b->ty.var != V_VARYING ? VAL_MUL : VAL_DIV, a, n->b->ty.var != V_VARYING ? b : cured(cs, b), -1);
   }
   case N_EQ: return binop(e, n, comp, env, VAL_EQ);
   case N_NE: return binop(e, n, comp, env, VAL_NE);
@@ -245,9 +251,9 @@ static int build(Emit *e, const Node *n, int comp, const DEnv *env) {
       if (q == 1 && p == 1) return a;
       if (q == 2 && (p == 1 || p == -1)) {
         int r = cse_call(cs, "sqrt", a, -1);
-        return p < 0 ? cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), r, -1) : r;
+        return p < 0 ? cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), cured(cs, r), -1) : r;
       }
-      if (q == 1 && p == -1) return cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), a, -1);
+      if (q == 1 && p == -1) return cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), cured(cs, a), -1);
       /* no cbrt for q = 3: a root of a negative number is NaN (emit_apply_diag) */
     }
     return cse_call(cs, "pow", sub(e, n->a, comp, env), build(e, n->b, 0, env));

@@ -150,4 +150,16 @@ grep -qF "note: $W/hd.npg:6:92: $cure" "$W/out.txt" || fail "check hd: no cure: 
 refused "train hd in 8 MB" "alone needs 20.5 MB per sample .* cannot stay within --mem; $cure" train "$W/hd.npg" "$W/HD" -o "$W/HM" --mem 8M
 "$N" check "$W/hr.npg" | grep -qF "K[i:N, j:N]  (1 row axis; sparse" || fail "the named reciprocal: K not sparse"
 "$N" train "$W/hr.npg" "$W/HD" -o "$W/HM" --mem 8M >/dev/null 2>"$W/err.txt" || fail "train hr in 8 MB: $(cat "$W/err.txt")"
+# 6. an infinite intermediate is not absorbed: 1/(1/x) at a subnormal x is refused as 1/r with r named is
+printf 'dim N\ninput x : real[N]\noutput y[i:N] = 1 / (1 / x[i])\n' >"$W/rr.npg"
+printf 'dim N\ninput x : real[N]\nr[i:N] = 1 / x[i]\noutput y[i:N] = 1 / r[i]\n' >"$W/rn.npg"
+mkdir -p "$W/RR"
+/usr/bin/python3 -c "import numpy as np, sys; np.save(sys.argv[1], np.array([[5e-324, 1.0]]))" "$W/RR/x.npy"
+for jit in tcc cc; do
+  refused "1/(1/x) at a subnormal x ($jit)" "stage 'y' is not finite: y\[0\] is NaN" eval "$W/rr.npg" --full "$W/RR" "$W/RR" -o "$W/RO" --jit $jit
+  refused "1/r at a subnormal x ($jit)" "stage 'r' is not finite: r\[0\] is an infinity" eval "$W/rn.npg" --full "$W/RR" "$W/RR" -o "$W/RO" --jit $jit
+done
+/usr/bin/python3 -c "import numpy as np, sys; np.save(sys.argv[1], np.array([[0.5, 4.0]]))" "$W/RR/x.npy"
+"$N" eval "$W/rr.npg" --full "$W/RR" "$W/RR" -o "$W/RO" >/dev/null || fail "1/(1/x) at a normal x"
+/usr/bin/python3 -c "import numpy as np, sys; assert np.load(sys.argv[1]).tolist() == [[0.5, 4.0]]" "$W/RO/y.npy" || fail "1/(1/x) not x"
 echo "numerics: ok"
