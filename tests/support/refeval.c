@@ -445,6 +445,9 @@ void ref_eval_direct(RefData *d, const Sym *s, double *out) {
 
 static double eval_mono_sums(RefData *d, const Mono *m, int k, const Env *env) {
   if (k == m->nsums) {
+    /* the guard may read the sums' variables (`if(col[i, q] >= 0, …)` in a sum over q): it is
+       evaluated where they are bound, and nothing else is where it fails */
+    if (m->guard && eval(d, m->guard, env, 0) == 0) return 0;
     double v = eval(d, m->coef, env, 0);
     for (int a = 0; a < m->natoms; a++) {
       const Atom *at = &m->atoms[a];
@@ -465,8 +468,7 @@ static double eval_poly(RefData *d, const Poly *p, const Env *env) {
   double s = 0;
   for (int i = 0; i < p->n; i++) {
     const Mono *m = p->m[i];
-    if (m->guard && eval(d, m->guard, env, 0) == 0) continue;  /* never evaluated where the guard fails */
-    s += eval_mono_sums(d, m, 0, env);
+    s += eval_mono_sums(d, m, 0, env);  /* the guard inside: never evaluated where it fails */
   }
   return s;
 }
