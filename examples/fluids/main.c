@@ -36,7 +36,7 @@ static void usage(FILE *fp) {
   fputs("usage: npg-fluids tunnel-full --out DIR [--frames N] [--cells N] [--size S]\n"
         "                  [--scale X] [--pulse A] [--period P] [--mu MU] [--cfl C] [--u0 U]\n"
         "                  [--particles N] [--png-every K] [--vtk-every K] [--width PX]\n"
-        "                  [--projection stream|kkt]\n"
+        "                  [--projection stream|kkt] [--dump-step DIR]\n"
         "       npg-fluids tunnel --out DIR [--frames N] [--cells N] [--sizes 8,16,32,64,128]\n"
         "                  [--pulse A] [--period P] [--mu MU] [--cfl C] [--mg N] [--particles N]\n"
         "                  [--png-every K] [--vtk-every K] [--width PX] [--keep-models 0|1]\n"
@@ -63,6 +63,8 @@ static void usage(FILE *fp) {
         "  --png-every K, --vtk-every K   output every K frames (1, 10)\n"
         "  --projection M stream: CHOLMOD on the stream function (default); kkt: UMFPACK on\n"
         "                 the KKT system (the same minimizer)\n"
+        "  --dump-step DIR  with --pulse 0: the step's operators, frame 0 and the run's frames\n"
+        "                 as .npy for examples/fluids/tunnel_step.npg (npgc simulate)\n"
         "\n"
         "tunnel: paper Fig. 5. Full training runs with a large and a small obstacle (scales\n"
         "  1.25 and 0.75, each pulsing by A, default 0.05) streamed into npg trainers, one\n"
@@ -193,6 +195,7 @@ enum { TF = TUNNEL_FULL | MESH, CP = CAVITY_PROJECTION, CM = CAVITY_MESH };
 static const Option options[] = {
     /* tunnel-full (and mesh, which takes the same options) */
     STR("--out", TF, full.out),
+    STR("--dump-step", TUNNEL_FULL, full.dump_step),
     INT("--frames", TF, 1, FLUIDS_MAX_FRAMES, full.frames),
     INT("--cells", TF, 50, FLUIDS_MAX_CELLS, full.spec.cells),
     INT("--particles", TF, 0, FLUIDS_MAX_PARTICLES, full.particles),
@@ -343,6 +346,10 @@ static int parse(int argc, char **argv, int cmd, Cmdline *c) {
   if (!a.error[0] && (cmd & TF) && f->pulse >= f->scale)
     snprintf(a.error, sizeof a.error, "%s: --pulse %g must stay below --scale %g (the obstacle's scale X + A sin(...) "
              "would reach 0)", prog, f->pulse, f->scale);
+  if (!a.error[0] && (cmd & TUNNEL_FULL) && f->dump_step && f->pulse != 0)
+    snprintf(a.error, sizeof a.error, "%s: --dump-step needs a fixed obstacle (--pulse 0, not %g): the step program "
+             "tunnel_step.npg holds the operators of one geometry, and a pulsing obstacle moves the mesh every step",
+             prog, f->pulse);
   if (a.error[0]) {
     fprintf(stderr, "%s\n", a.error);
     return 2;

@@ -22,10 +22,7 @@ struct StreamProjection {
   double *fp;        /* [F] particular solution */
 };
 
-/* Unknowns: one per periodic vertex class off the boundary, one for the top
- * wall, one for the obstacle; the bottom wall is pinned to 0. */
-static void number_dofs(StreamProjection *s) {
-  const FluidMesh *m = s->o->m;
+int stream_number_dofs(const FluidMesh *m, int *dof) {
   int *comp = malloc(m->nv * sizeof *comp);
   for (int v = 0; v < m->nv; v++) comp[v] = -1;
   for (int b = 0; b < m->nb; b++) {
@@ -35,24 +32,21 @@ static void number_dofs(StreamProjection *s) {
       comp[v] = m->fkind[j] == BF_OBSTACLE ? 2 : m->g0[2 * v + 1] < m->spec.H / 2 ? 0 : 1;
     }
   }
-  int top = -1, obstacle = -1;
-  s->ndof = 0;
+  int top = -1, obstacle = -1, ndof = 0;
   for (int v = 0; v < m->nv; v++) {
     if (m->vmaster[v] != v) continue;
-    if (comp[v] == 0) s->dof[v] = -1;
-    else if (comp[v] == 1) s->dof[v] = top >= 0 ? top : (top = s->ndof++);
-    else if (comp[v] == 2) s->dof[v] = obstacle >= 0 ? obstacle : (obstacle = s->ndof++);
-    else s->dof[v] = s->ndof++;
+    if (comp[v] == 0) dof[v] = -1;
+    else if (comp[v] == 1) dof[v] = top >= 0 ? top : (top = ndof++);
+    else if (comp[v] == 2) dof[v] = obstacle >= 0 ? obstacle : (obstacle = ndof++);
+    else dof[v] = ndof++;
   }
-  for (int v = 0; v < m->nv; v++) s->dof[v] = s->dof[m->vmaster[v]];
+  for (int v = 0; v < m->nv; v++) dof[v] = dof[m->vmaster[v]];
   free(comp);
+  return ndof;
 }
 
-/* The local map from a cell's three vertex values of psi to its momentum
- * (paper §5.3's P applied to the curl): outward flux through face k is
- * psi_{k+2} - psi_{k+1}, and p = sum_k (outward flux)(centroid - g_k)/2, so
- * column q of Q is a_{q+1} - a_{q+2} with a_k = (centroid - g_k)/2. */
-static void cell_curl(const FluidMesh *m, const double *g, int c, double Q[2][3], double a[3][2]) {
+/* Column q of Q is a_{q+1} - a_{q+2} with a_k = (centroid - g_k)/2 (stream.h). */
+void stream_cell_curl(const FluidMesh *m, const double *g, int c, double Q[2][3], double a[3][2]) {
   const int *t = m->cell + 3 * c;
   double cen[2];
   for (int d = 0; d < 2; d++) cen[d] = (g[2 * t[0] + d] + g[2 * t[1] + d] + g[2 * t[2] + d]) / 3;
@@ -72,7 +66,7 @@ static void assemble(StreamProjection *s) {
   size_t n = 0;
   for (int c = 0; c < m->nc; c++) {
     double Q[2][3], a[3][2];
-    cell_curl(m, o->g, c, Q, a);
+    stream_cell_curl(m, o->g, c, Q, a);
     for (int p = 0; p < 3; p++) {
       int dp = s->dof[m->cell[3 * c + p]];
       if (dp < 0) continue;
@@ -96,7 +90,7 @@ int stream_init(StreamProjection **out, const Ops *o, char *err, size_t errlen) 
   s->cc.print = 0;
   s->dof = malloc(m->nv * sizeof *s->dof);
   s->fp = calloc(m->nf, sizeof *s->fp);
-  number_dofs(s);
+  s->ndof = stream_number_dofs(m, s->dof);
   /* the cells' graph Laplacian G_i G_i^T over interior faces, last cell pinned */
   int nphi = m->nc - 1;
   cholmod_triplet *T = cholmod_allocate_triplet(nphi, nphi, 3 * (size_t)m->nf, 1, CHOLMOD_REAL, &s->cc);
@@ -184,7 +178,7 @@ int stream_solve(StreamProjection *s, const double *u_in, const double *h, doubl
   memset(b, 0, s->ndof * sizeof *b);
   for (int c = 0; c < m->nc; c++) {
     double Q[2][3], a[3][2], r[2] = {u_in[2 * c], u_in[2 * c + 1]};
-    cell_curl(m, o->g, c, Q, a);
+    stream_cell_curl(m, o->g, c, Q, a);
     for (int k = 0; k < 3; k++) {
       double out = m->csign[3 * c + k] * fp[m->cface[3 * c + k]];
       r[0] -= out * a[k][0] / o->area[c];

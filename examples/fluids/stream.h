@@ -36,4 +36,15 @@ void stream_free(StreamProjection *s);
 int stream_solve(StreamProjection *s, const double *u_in, const double *h, double *f, double *u_out,
                  double *t_factor, double *t_solve, char *err, size_t errlen);
 
+/* The stream function's unknowns on mesh `m` (2D tunnel): dof[v] for every
+ * vertex, one per periodic vertex class off the boundary, one for the top
+ * wall, one for the obstacle, -1 on the bottom wall (pinned to 0). Returns
+ * their count. */
+int stream_number_dofs(const FluidMesh *m, int *dof);
+/* The local map from cell c's three vertex values of psi to its momentum at
+ * positions g (paper §5.3's P applied to the curl): the outward flux through
+ * face k is psi_{k+2} - psi_{k+1}, p = sum_k (outward flux) a_k with
+ * a_k = (centroid - g_k)/2, so p[d] = sum_q Q[d][q] psi_q. */
+void stream_cell_curl(const FluidMesh *m, const double *g, int c, double Q[2][3], double a[3][2]);
+
 #endif

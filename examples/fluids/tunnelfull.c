@@ -17,6 +17,7 @@
 #include "plot.h"
 #include "report.h"
 #include "solver.h"
+#include "tunnelstep.h"
 #include "util.h"
 
 #define ERRLEN 512
@@ -282,6 +283,16 @@ static int data_arrays(FullRun *r) {
   return rc ? 1 : 0;
 }
 
+/* --dump-step DIR: the step's operators, frame 0 and the driver's frames (tunnelstep.h). */
+static int dump_step(FullRun *r) {
+  if (!r->o->dump_step) return 0;
+  if (tunnel_step_dump(r->o->dump_step, &r->s, r->Su, r->Sf, r->T, r->err, sizeof r->err) != 0) {
+    fprintf(stderr, "npg-fluids: %s\n", r->err);
+    return 1;
+  }
+  return 0;
+}
+
 /* report.json, and the summary on stderr. */
 static int report(FullRun *r) {
   const TunnelFullOptions *o = r->o;
@@ -355,6 +366,7 @@ int tunnel_full_run(const TunnelFullOptions *o) {
   if (!rc) rc = run_full(r);
   if (!rc) rc = vtk_collections(r);
   if (!rc) rc = data_arrays(r);
+  if (!rc) rc = dump_step(r);
   if (!rc) rc = report(r);
   release(r);
   free(r);
