@@ -78,6 +78,10 @@ typedef struct TensorGroup {
   char *nnz;        /* symbolic nonzero count, e.g. "6·F" */
   bool nnz_bound;   /* guards make nnz an upper bound */
   int nnz_degree;   /* dims multiplied in nnz's largest term: 1 for "4·N" */
+  bool rows_bound;  /* an operator's: every monomial's column indices are determined by equalities
+                       and its free sums run over no dim of the operator's axes, so each row holds
+                       a number of entries bounded independently of the column dims (a padded row
+                       table `sum(q = 0..W-1, delta(j, col[i, q]) * val[i, q])`: W per row) */
   bool symmetric;   /* repeated inputs (x ⊗ x): stored packed */
 } TensorGroup;
 

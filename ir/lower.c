@@ -140,9 +140,11 @@ static void lower_op(Lowerer *L, Sym *op) {
   field_combine_like(L->ctx, od->entries);
   tensor_groups(ctx, op, od->entries, 2, &od->tensors);
   /* DESIGN §13: fewer entries than rows × cols grow as — every tensor's
-     count of lower degree in the dims than the op's index variables */
+     count of lower degree in the dims than the op's index variables, or
+     its columns fixed per row by a padded row table (TensorGroup.rows_bound) */
   od->sparse = op->nivars >= 2;
-  for (int g = 0; g < od->tensors.n; g++) od->sparse &= od->tensors.g[g].nnz_degree < op->nivars;
+  for (int g = 0; g < od->tensors.n; g++)
+    od->sparse &= od->tensors.g[g].nnz_degree < op->nivars || od->tensors.g[g].rows_bound;
   vec_push(ctx, &L->prog->opdefs, od);
 }
 

@@ -724,10 +724,29 @@ static Value *lower_sum(Lowerer *L, Node *n, Env *env) {
   return r;
 }
 
+/* Whether `n`, an expression over params and index variables in the entries of the operator
+ * being lowered, holds a sum whose body reads one of the operator's column indices: a padded
+ * row table (`sum(q = 0..W-1, delta(j, col[i, q]) * val[i, q])`). Such an expression is lowered
+ * term by term instead of folded into one coefficient, so the sum stays a monomial's sum and
+ * the delta fixes the column: the operator is then sparse, W entries per row (DESIGN §13). */
+static bool op_row_table(const Lowerer *L, const Node *n) {
+  const Sym *op = L->cur;
+  if (!op || op->kind != SYM_OP || !n) return false;
+  switch (n->kind) {
+  case N_SUM:
+    for (int c = op->nrow; c < op->nivars; c++)
+      if (node_uses(n->c, op->ivars[c])) return true;
+    return false;
+  case N_ADD: case N_SUB: case N_MUL: return op_row_table(L, n->a) || op_row_table(L, n->b);
+  case N_NEG: return op_row_table(L, n->a);
+  default: return false;
+  }
+}
+
 Value *lower_expr(Lowerer *L, Node *n, Env *env) {
   Ctx *ctx = L->ctx;
   int ncomp = type_ncomp(&n->ty);
-  if (n->ty.var != V_VARYING && !n->ty.op) return val_coef(L, n, env, ncomp);
+  if (n->ty.var != V_VARYING && !n->ty.op && !op_row_table(L, n)) return val_coef(L, n, env, ncomp);
   switch (n->kind) {
   case N_NAME: return ref_value(L, n->sym, NULL, 0, env);
   case N_INDEX:

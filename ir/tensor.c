@@ -276,6 +276,33 @@ int tensor_mono_parts(Ctx *ctx, const Mono *m, Sym *const *ivars, int nivars, Mo
   return np;
 }
 
+/* Whether every part of monomial `m` of operator `op`'s entries determines the column
+ * indices by equalities (`delta(j, col[i, q])`) and sums freely over no range that grows
+ * with a dim of the operator's axes: then a row holds a bounded number of entries however
+ * large the column dims are (TensorGroup.rows_bound). */
+static bool mono_rows_bound(Ctx *ctx, const Mono *m, const Sym *op) {
+  MonoPart parts[MAXPARTS];
+  int np = tensor_mono_parts(ctx, m, op->ivars, op->nivars, parts);
+  for (int k = 0; k < np; k++) {
+    const MonoPart *pt = &parts[k];
+    for (int v = op->nrow; v < op->nivars; v++)
+      if (!pt->fixed_by[v]) return false;
+    for (int v = op->nivars; v < pt->nvars; v++) {
+      if (pt->fixed_by[v]) continue;
+      const SumVar *sv = NULL;
+      for (int s = 0; s < m->nsums; s++)
+        if (m->sums[s].var == pt->vars[v]) sv = &m->sums[s];
+      for (int a = 0; a < op->nivars; a++) {
+        const Sym *dim = op->ivars[a]->range;
+        if (!dim) return false;
+        if (pt->vars[v]->range == dim) return false;
+        if (sv && (node_uses(sv->lo, dim) || node_uses(sv->hi, dim))) return false;
+      }
+    }
+  }
+  return true;
+}
+
 static char *count_str(Ctx *ctx, Count *cs, int n) {
   char *s = "";
   for (int i = 0; i < n; i++) {
@@ -323,6 +350,8 @@ void tensor_groups(Ctx *ctx, const Sym *owner, const Field *f, int base_order, T
           if (in[a] == in[a - 1]) g[k].symmetric = true;
         ng++;
       }
+      if (g[k].nmono == 0) g[k].rows_bound = owner->kind == SYM_OP && owner->nrow < owner->nivars;
+      if (g[k].rows_bound) g[k].rows_bound = mono_rows_bound(ctx, m, owner);
       g[k].nmono++;
       bool bound = false;
       Count cnt[MAXPARTS];

@@ -4,6 +4,7 @@
  * solved by CHOLMOD when symmetric positive definite, by UMFPACK otherwise;
  * every result equals the dense path (assembled whole, LAPACK) to 1e-12. */
 #include <limits.h>
+#include <math.h>
 
 #include "full.h"
 #include "testutil.h"
@@ -288,6 +289,78 @@ static void singular_negative_roots_refused(void **state) {
   }
 }
 
+/* A sparse matrix given as data in padded rows (ELLPACK: a column table with -1 padding and
+ * a value table, W entries per row, W a dim): an operator over params alone, sparse because
+ * the delta fixes the column and the sum runs over the row width, not over a dim of the
+ * operator's axes (examples/fluids/tunnel_step.npg's projection). The same sum over the
+ * whole column dim stays dense. */
+static const char *padded =
+    "dim N, W\n"
+    "param col : int[N, W]\n"
+    "param val : real[N, W]\n"
+    "input a : real[N]\n"
+    "op S[i:N, j:N] = sum(q = 0..W-1, delta(j, col[i, q]) * val[i, q])\n"
+    "output y = solve(S, a)\n"
+    "output z = S * a\n";
+
+static void padded_rows_cholmod(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("padded.npg", padded);
+  Program *prog = ir_ok(p);
+  assert_true(((OpDef *)prog->opdefs.v[0])->sparse);
+  /* a 1D Laplacian plus 2.5 I, rows in shuffled slot order, padded to W = 5 */
+  enum { PN = 120, PW = 5 };
+  static double col[PN * PW], val[PN * PW];
+  Full *fs[2];
+  for (int k = 0; k < 2; k++) {
+    fs[k] = full_new(prog, JIT_TCC, NULL);
+    assert_non_null(fs[k]);
+  }
+  for (int i = 0; i < PN; i++) {
+    int n = 0, slot0 = i % PW;
+    for (int q = 0; q < PW; q++) col[i * PW + q] = -1, val[i * PW + q] = 0;
+    const int cols[3] = {i, i - 1, i + 1};
+    const double vals[3] = {4.5, -1, -1};
+    for (int t = 0; t < 3; t++) {
+      if (cols[t] < 0 || cols[t] >= PN) continue;
+      int q = (slot0 + 2 * n++) % PW;
+      col[i * PW + q] = cols[t], val[i * PW + q] = vals[t];
+    }
+  }
+  long sh[2] = {PN, PW};
+  for (int k = 0; k < 2; k++) {
+    assert_int_equal(full_set_param(fs[k], "col", 2, sh, col, "col"), 0);
+    assert_int_equal(full_set_param(fs[k], "val", 2, sh, val, "val"), 0);
+  }
+  full_set_sparse_min_rows(fs[0], 0);
+  full_set_sparse_min_rows(fs[1], LONG_MAX);
+  double a[PN];
+  for (int i = 0; i < PN; i++) a[i] = uniform() - 0.5;
+  const char *outs[] = {"y", "z"};
+  same_outputs(fs[0], fs[1], "a", PN, a, outs, 2, 0);
+  /* z = S a by hand */
+  size_t n;
+  const double *z = full_get(fs[0], "z", &n);
+  assert_int_equal(n, PN);
+  for (int i = 0; i < PN; i++) {
+    double want = 4.5 * a[i] - (i > 0 ? a[i - 1] : 0) - (i + 1 < PN ? a[i + 1] : 0);
+    assert_true(fabs(z[i] - want) <= 1e-13);
+  }
+  long patterns, chol, lu;
+  full_sparse_counts(fs[0], &patterns, &chol, &lu);
+  assert_int_equal(chol, 1);
+  assert_int_equal(lu, 0);
+  for (int k = 0; k < 2; k++) full_free(fs[k]);
+  npg_free(p);
+  /* a sum over the column dim itself is not a row table: dense */
+  p = compile_text("wide.npg", "dim N\nparam col : int[N, N]\nparam val : real[N, N]\ninput a : real[N]\n"
+                               "op S[i:N, j:N] = sum(q = 0..N-1, delta(j, col[i, q]) * val[i, q])\n"
+                               "output y = solve(S, a)\n");
+  prog = ir_ok(p);
+  assert_false(((OpDef *)prog->opdefs.v[0])->sparse);
+  npg_free(p);
+}
+
 /* `npgc check` treats a neighbour gather as sparse and radiosity's form
  * factors as dense. */
 static void density_decided_by_pattern(void **state) {
@@ -310,6 +383,7 @@ int main(void) {
       cmocka_unit_test(singular_refused),
       cmocka_unit_test(singular_negative_roots_refused),
       cmocka_unit_test(density_decided_by_pattern),
+      cmocka_unit_test(padded_rows_cholmod),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
