@@ -286,7 +286,7 @@ static int data_arrays(FullRun *r) {
 /* --dump-step DIR: the step's operators, frame 0 and the driver's frames (tunnelstep.h). */
 static int dump_step(FullRun *r) {
   if (!r->o->dump_step) return 0;
-  if (tunnel_step_dump(r->o->dump_step, &r->s, r->Su, r->Sf, r->T, r->err, sizeof r->err) != 0) {
+  if (tunnel_step_dump(r->o->dump_step, &r->s, r->Su, r->Sf, r->Sg, r->T, r->o->pulse != 0, r->err, sizeof r->err) != 0) {
     fprintf(stderr, "npg-fluids: %s\n", r->err);
     return 1;
   }

@@ -15,7 +15,7 @@
 
 typedef struct TunnelFullOptions {
   const char *out;
-  const char *dump_step; /* --dump-step DIR: the step as data for tunnel_step.npg (tunnelstep.h), or NULL */
+  const char *dump_step; /* --dump-step DIR: the step as data for tunnel_step.npg or tunnel_step_moving.npg (tunnelstep.h), or NULL */
   int frames, particles, png_every, vtk_every, png_width;
   double scale, pulse, period, mu, cfl, u0;
   ProjectionMethod projection;

@@ -1,5 +1,5 @@
-/* tunnelstep.c — the fixed-obstacle tunnel's step as data for tunnel_step.npg (see
- * tunnelstep.h). The sparse matrices are written as padded rows (ELLPACK: a column table
+/* tunnelstep.c — the tunnel's step as data for tunnel_step.npg and tunnel_step_moving.npg
+ * (see tunnelstep.h). The sparse matrices are written as padded rows (ELLPACK: a column table
  * with -1 padding and a value table), the form an npg program reads a sparse matrix in:
  * `sum(q = 0..W-1, if(col[i, q] >= 0, val[i, q] * x[col[i, q]], 0))` applies it and
  * `sum(q = 0..W-1, delta(j, col[i, q]) * val[i, q])` defines it as an operator. */
@@ -98,6 +98,31 @@ static int ell_from(const Triplets *t, int nrow, Ell *e) {
 
 static void ell_free(Ell *e) { free(e->col), free(e->val); }
 
+/* Contributions listed per row, not merged (their values depend on the positions): entry k of
+ * `t` is row t->row[k] and the NTAB integers tab[j][k]; out[j] [nrow][*width], -1 padding. */
+enum { NTAB = 6 };
+static int lists_from(const Triplets *t, int *const tab[NTAB], int ntab, int nrow, int *width, long *out[NTAB]) {
+  int *len = calloc(nrow ? nrow : 1, sizeof *len), w = 1;
+  if (!len) return -1;
+  for (int k = 0; k < t->n; k++)
+    if (++len[t->row[k]] > w) w = len[t->row[k]];
+  *width = w;
+  int rc = 0;
+  for (int j = 0; j < ntab; j++) {
+    out[j] = malloc((size_t)nrow * w * sizeof *out[j]);
+    if (!out[j]) rc = -1;
+    else
+      for (size_t q = 0; q < (size_t)nrow * w; q++) out[j][q] = -1;
+  }
+  memset(len, 0, (nrow ? nrow : 1) * sizeof *len);
+  for (int k = 0; k < t->n && rc == 0; k++) {
+    int r = t->row[k], q = len[r]++;
+    for (int j = 0; j < ntab; j++) out[j][(size_t)r * w + q] = tab[j][k];
+  }
+  free(len);
+  return rc;
+}
+
 /* The projection's matrices at the solver's geometry: R = C^T P^T and S = C^T K C
  * (stream.c's assembly, both triangles of S), and the edges' unknowns. */
 static int stream_matrices(const FullSolver *s, int *dof, Ell *R, Ell *S) {
@@ -126,8 +151,126 @@ static int stream_matrices(const FullSolver *s, int *dof, Ell *R, Ell *S) {
 }
 
 static int save_f64(const char *dir, const char *name, int ndim, const long *shape, const double *v, char *err,
+                    size_t errlen);
+static int save_int(const char *dir, const char *name, int ndim, const long *shape, const int *v, char *err,
+                    size_t errlen);
+
+static int save_i64(const char *dir, const char *name, int ndim, const long *shape, const long *v, char *err,
                     size_t errlen) {
-  char path[4096];
+  char path[8192];
+  snprintf(path, sizeof path, "%s/%s.npy", dir, name);
+  return npg_npy_write_i64(path, ndim, shape, v, err, errlen);
+}
+
+/* The moving mesh's step (tunnel_step_moving.npg): the operators are rebuilt from the
+ * positions every step, so the tables say which positions each entry reads. R and S by rows
+ * of contributions: cell c's vertex q adds Q[d][q] = a_{q+1}[d] - a_{q+2}[d] = (g_{q+2} -
+ * g_{q+1})[d] / 2 (stream_cell_curl), so a contribution names its cell and two vertices; the
+ * cells' graph Laplacian (the particular flux's system, last cell pinned) by merged rows; the
+ * positions of every step g_t and g_{t+1}, given per step. */
+static int dump_moving(const char *dir, const FullSolver *s, const int *dof, int ndof, const double *Sg, int T,
+                       char *err, size_t errlen) {
+  const FluidMesh *m = s->m;
+  int C = m->nc, F = m->nf, nphi = C - 1;
+  Triplets tr = {0}, ts = {0}, tl = {0}, td = {0};
+  int *rt[NTAB], *st[NTAB], *dt_[NTAB] = {0};
+  size_t cap = 9 * (size_t)C + 1;
+  int rc = 0;
+  for (int j = 0; j < NTAB; j++) {
+    rt[j] = malloc(cap * sizeof *rt[j]), st[j] = malloc(cap * sizeof *st[j]), dt_[j] = malloc(cap * sizeof *dt_[j]);
+    if (!rt[j] || !st[j] || !dt_[j]) rc = -1;
+  }
+  for (int c = 0; c < C && rc == 0; c++) {
+    const int *t = m->cell + 3 * c;
+    for (int p = 0; p < 3; p++) {
+      int dp = dof[t[p]];
+      if (dp < 0) continue;
+      int n = tr.n;
+      rt[0][n] = 2 * c, rt[1][n] = 2 * c + 1, rt[2][n] = t[(p + 1) % 3], rt[3][n] = t[(p + 2) % 3];
+      rc |= triplet_add(&tr, dp, 0, 0);
+      /* S's diagonal terms |Q_p|^2 / area apart: the squares that make it definite */
+      n = td.n;
+      dt_[0][n] = c, dt_[1][n] = t[(p + 1) % 3], dt_[2][n] = t[(p + 2) % 3];
+      rc |= triplet_add(&td, dp, 0, 0);
+      for (int q = 0; q < 3; q++) {
+        int dq = dof[t[q]];
+        if (dq < 0 || q == p) continue;
+        n = ts.n;
+        st[0][n] = dq, st[1][n] = c, st[2][n] = t[(p + 1) % 3], st[3][n] = t[(p + 2) % 3];
+        st[4][n] = t[(q + 1) % 3], st[5][n] = t[(q + 2) % 3];
+        rc |= triplet_add(&ts, dp, 0, 0);
+      }
+    }
+  }
+  for (int j = 0; j < F && rc == 0; j++) {
+    if (m->fkind[j] != BF_INTERIOR) continue;
+    int c0 = m->fcell[2 * j], c1 = m->fcell[2 * j + 1];
+    if (c0 < nphi) rc |= triplet_add(&tl, c0, c0, 1);
+    if (c1 < nphi) rc |= triplet_add(&tl, c1, c1, 1);
+    if (c0 < nphi && c1 < nphi) rc |= triplet_add(&tl, c0, c1, -1), rc |= triplet_add(&tl, c1, c0, -1);
+  }
+  if (rc == 0) rc = triplet_add(&tl, nphi, nphi, 1); /* the pinned cell: phi = 0 */
+  long *rl[NTAB] = {0}, *sl[NTAB] = {0}, *dl[NTAB] = {0};
+  int wr = 0, ws = 0, wd = 0;
+  Ell L = {0};
+  if (rc == 0) rc = lists_from(&tr, rt, 4, ndof, &wr, rl);
+  if (rc == 0) rc = lists_from(&ts, st, 6, ndof, &ws, sl);
+  if (rc == 0) rc = lists_from(&td, dt_, 3, ndof, &wd, dl);
+  if (rc == 0) rc = ell_from(&tl, C, &L);
+  int *fint = malloc(F * sizeof *fint), *fc0 = malloc(F * sizeof *fc0), *fc1 = malloc(F * sizeof *fc1);
+  int *ucomp = malloc(2 * (size_t)C * sizeof *ucomp);
+  double *cfree = malloc(C * sizeof *cfree), *fbnd = malloc(F * sizeof *fbnd);
+  size_t gv = 2 * (size_t)m->nv;
+  double *gn = malloc(((size_t)T + 1) * gv * sizeof *gn);
+  if (rc || !fint || !fc0 || !fc1 || !ucomp || !gn || !cfree || !fbnd) {
+    rc = util_fail(err, errlen, "out of memory for the moving step's tables (--dump-step %s)", dir);
+    goto done;
+  }
+  for (int j = 0; j < F; j++) {
+    int interior = m->fkind[j] == BF_INTERIOR, c0 = m->fcell[2 * j], c1 = m->fcell[2 * j + 1];
+    fint[j] = interior;
+    fc0[j] = interior && c0 < nphi ? c0 : -1;
+    fc1[j] = interior && c1 < nphi ? c1 : -1;
+  }
+  for (int i = 0; i < 2 * C; i++) ucomp[i] = i % 2;
+  for (int c = 0; c < C; c++) cfree[c] = c < nphi;
+  long c3[2] = {C, 3}, f2[2] = {F, 2}, f1[1] = {F}, u1[1] = {2 * (long)C};
+  long rs[2] = {ndof, wr}, ss[2] = {ndof, ws}, ds[2] = {ndof, wd}, ls[2] = {C, L.width}, c1[1] = {C};
+  const char *rname[4] = {"rx", "ry", "rv1", "rv2"}, *sname[6] = {"mcol", "mcell", "mp1", "mp2", "mq1", "mq2"};
+  rc = save_int(dir, "tri", 2, c3, m->cell, err, errlen);
+  if (!rc) rc = save_int(dir, "edge", 2, f2, m->face, err, errlen);
+  if (!rc) rc = save_int(dir, "ucomp", 1, u1, ucomp, err, errlen);
+  if (!rc) rc = save_int(dir, "fint", 1, f1, fint, err, errlen);
+  for (int j = 0; j < F; j++) fbnd[j] = 1 - fint[j];
+  if (!rc) rc = save_f64(dir, "fbnd", 1, f1, fbnd, err, errlen);
+  if (!rc) rc = save_int(dir, "fc0", 1, f1, fc0, err, errlen);
+  if (!rc) rc = save_int(dir, "fc1", 1, f1, fc1, err, errlen);
+  for (int j = 0; j < 4 && !rc; j++) rc = save_i64(dir, rname[j], 2, rs, rl[j], err, errlen);
+  for (int j = 0; j < 6 && !rc; j++) rc = save_i64(dir, sname[j], 2, ss, sl[j], err, errlen);
+  const char *dname[3] = {"dcell", "d1", "d2"};
+  for (int j = 0; j < 3 && !rc; j++) rc = save_i64(dir, dname[j], 2, ds, dl[j], err, errlen);
+  if (!rc) rc = save_i64(dir, "lcol", 2, ls, L.col, err, errlen);
+  if (!rc) rc = save_f64(dir, "lval", 2, ls, L.val, err, errlen);
+  if (!rc) rc = save_f64(dir, "cfree", 1, c1, cfree, err, errlen);
+  /* the positions of steps 0..T-1 and the ones each step moves to */
+  if (!rc && T > 0) {
+    long sg[4] = {1, T, m->nv, 2};
+    rc = save_f64(dir, "g", 4, sg, Sg, err, errlen);
+    memcpy(gn, Sg + gv, (size_t)(T - 1) * gv * sizeof *gn);
+    memcpy(gn + (size_t)(T - 1) * gv, s->g, gv * sizeof *gn);
+    if (!rc) rc = save_f64(dir, "gn", 4, sg, gn, err, errlen);
+  }
+done:
+  for (int j = 0; j < NTAB; j++) free(rt[j]), free(st[j]), free(dt_[j]), free(rl[j]), free(sl[j]), free(dl[j]);
+  triplets_free(&tr), triplets_free(&ts), triplets_free(&tl), triplets_free(&td);
+  ell_free(&L);
+  free(fint), free(fc0), free(fc1), free(ucomp), free(gn), free(cfree), free(fbnd);
+  return rc ? -1 : 0;
+}
+
+static int save_f64(const char *dir, const char *name, int ndim, const long *shape, const double *v, char *err,
+                    size_t errlen) {
+  char path[8192];
   snprintf(path, sizeof path, "%s/%s.npy", dir, name);
   return npg_npy_write(path, ndim, shape, v, err, errlen);
 }
@@ -139,15 +282,15 @@ static int save_int(const char *dir, const char *name, int ndim, const long *sha
   long *w = malloc((n ? n : 1) * sizeof *w);
   if (!w) return util_fail(err, errlen, "out of memory writing %s/%s.npy", dir, name);
   for (size_t i = 0; i < n; i++) w[i] = v[i];
-  char path[4096];
+  char path[8192];
   snprintf(path, sizeof path, "%s/%s.npy", dir, name);
   int rc = npg_npy_write_i64(path, ndim, shape, w, err, errlen);
   free(w);
   return rc;
 }
 
-int tunnel_step_dump(const char *dir, const FullSolver *s, const double *Su, const double *Sf, int T, char *err,
-                     size_t errlen) {
+int tunnel_step_dump(const char *dir, const FullSolver *s, const double *Su, const double *Sf, const double *Sg, int T,
+                     int moving, char *err, size_t errlen) {
   const FluidMesh *m = s->m;
   long C = m->nc, U = 2 * C, F = m->nf;
   char sub[4096];
@@ -184,21 +327,17 @@ int tunnel_step_dump(const char *dir, const FullSolver *s, const double *Su, con
   if (!rc) rc = save_int(dir, "unbr", 2, u3, unbr, err, errlen);
   if (!rc) rc = save_int(dir, "cface", 2, c3, m->cface, err, errlen);
   if (!rc) rc = save_f64(dir, "csign", 2, c3, m->csign, err, errlen);
-  if (!rc) rc = save_f64(dir, "area", 1, c1, s->ops.area, err, errlen);
+  if (!rc && !moving) rc = save_f64(dir, "area", 1, c1, s->ops.area, err, errlen);
   if (!rc) rc = save_f64(dir, "mu", 0, NULL, &s->mu, err, errlen);
   if (!rc) rc = save_f64(dir, "dt", 0, NULL, &s->dt, err, errlen);
-  if (!rc) {
-    char path[4096];
-    snprintf(path, sizeof path, "%s/rcol.npy", dir);
-    rc = npg_npy_write_i64(path, 2, rs, R.col, err, errlen);
-    snprintf(path, sizeof path, "%s/scol.npy", dir);
-    if (!rc) rc = npg_npy_write_i64(path, 2, ss, S.col, err, errlen);
-  }
-  if (!rc) rc = save_f64(dir, "rval", 2, rs, R.val, err, errlen);
-  if (!rc) rc = save_f64(dir, "sval", 2, ss, S.val, err, errlen);
+  if (!rc && !moving) rc = save_i64(dir, "rcol", 2, rs, R.col, err, errlen);
+  if (!rc && !moving) rc = save_i64(dir, "scol", 2, ss, S.col, err, errlen);
+  if (!rc && !moving) rc = save_f64(dir, "rval", 2, rs, R.val, err, errlen);
+  if (!rc && !moving) rc = save_f64(dir, "sval", 2, ss, S.val, err, errlen);
   if (!rc) rc = save_int(dir, "fhead", 1, f1, fhead, err, errlen);
   if (!rc) rc = save_int(dir, "ftail", 1, f1, ftail, err, errlen);
-  if (!rc) rc = save_f64(dir, "pval", 2, u3, pval, err, errlen);
+  if (!rc && !moving) rc = save_f64(dir, "pval", 2, u3, pval, err, errlen);
+  if (!rc) rc = dump_moving(dir, s, dof, ndof, Sg, T, err, errlen);
   /* frame 0, one trajectory */
   if (!rc) rc = save_f64(dir, "u", 2, (long[]){1, U}, T > 0 ? Su : s->u, err, errlen);
   if (!rc) rc = save_f64(dir, "f", 2, (long[]){1, F}, T > 0 ? Sf : s->f, err, errlen);
@@ -214,9 +353,9 @@ int tunnel_step_dump(const char *dir, const FullSolver *s, const double *Su, con
     rc = save_f64(sub, "f", 3, (long[]){1, T + 1, F}, traj, err, errlen);
   }
   if (!rc)
-    fprintf(stderr, "npg-fluids: the step's data in %s: %ld velocity entries, %ld edges, %d stream function unknowns "
-                    "(rows of R %d wide, of S %d); the driver's %d steps in %s\n",
-            dir, U, F, ndof, R.width, S.width, T, sub);
+    fprintf(stderr, "npg-fluids: the %s step's data in %s: %ld velocity entries, %ld edges, %d stream function "
+                    "unknowns; the driver's %d steps in %s\n",
+            moving ? "moving (tunnel_step_moving.npg)" : "fixed (tunnel_step.npg)", dir, U, F, ndof, T, sub);
 done:
   free(dof), free(ucell), free(unbr), free(fhead), free(ftail), free(pval), free(traj);
   ell_free(&R), ell_free(&S);
