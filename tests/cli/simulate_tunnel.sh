@@ -48,6 +48,23 @@ for n in ("u", "f"):
     assert err.max() <= 1e-8, (n, err.max(), int(err.argmax()))
     print(f"{n} (moving mesh): largest relative difference from the driver over 40 steps {err.max():.2e}")
 PY
+# the moving step reduced: positions per step cut to each trajectory's steps
+$PY examples/fluids/tunnel_step_data.py "$W/moving" "$W/nosteps" --starts 0
+if "$B/npgc" simulate examples/fluids/tunnel_step_moving.npg "$W/nosteps" --steps 4 -o "$W/bad" 2>"$W/err.txt"; then
+  fail "the moving step without its positions"
+fi
+grep -q "g.npy" "$W/err.txt" || fail "no positions message: $(cat "$W/err.txt")"
+if $PY examples/fluids/tunnel_step_data.py "$W/moving" "$W/bad" --starts 35 --steps 10 2>"$W/err.txt"; then fail "past the positions"; fi
+grep -q -- "--steps 10 from frame 35 needs the positions of 45 steps" "$W/err.txt" || fail "positions message: $(cat "$W/err.txt")"
+$PY examples/fluids/tunnel_step_data.py "$W/moving" "$W/mtrain" --starts 0,10 --steps 12
+$PY examples/fluids/tunnel_step_data.py "$W/moving" "$W/mtest" --starts 25 --steps 12
+$PY -c "import numpy as np, sys; g = np.load(sys.argv[1]); assert g.shape[:2] == (2, 12), g.shape" "$W/mtrain/g.npy" ||
+  fail "positions per step not cut"
+"$B/npgc" train examples/fluids/tunnel_step_moving.npg "$W/mtrain" --steps 12 --energy 0.99999 -o "$W/mmodel" >"$W/train.txt" ||
+  fail "train --steps (moving): $(cat "$W/train.txt")"
+"$B/npgc" verify examples/fluids/tunnel_step_moving.npg "$W/mmodel" "$W/mtest" --steps 12 --every 4 --tol 0.2 >"$W/mverify.txt" ||
+  fail "verify --steps (moving): $(cat "$W/mverify.txt")"
+grep -E "^(u|f) " "$W/mverify.txt"
 if "$B/npgc" simulate $PROG "$W/moving" --steps 4 -o "$W/bad" 2>"$W/err.txt"; then fail "the fixed step on moving data"; fi
 grep -q "area" "$W/err.txt" || fail "missing param message: $(cat "$W/err.txt")"
 if $PY examples/fluids/tunnel_step_data.py "$W/step" "$W/bad" --starts 0,41 2>"$W/err.txt"; then fail "start past the run"; fi
