@@ -12,6 +12,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
@@ -146,18 +147,29 @@ static int parse(Common *c, int argc, char **argv) {
       if (!npgc_parse_reduce(&c->train, v))
         snprintf(a.error, sizeof a.error, "%s: --reduce %s: expected STAGE:interp or STAGE:galerkin", prog, v);
     } else if ((v = npg_args_string(&a, "--valid"))) {
-      /* a folder, or a fraction held out of DATA/ (every round(1/F)-th sample) */
+      /* a fraction held out of DATA/ (every round(1/F)-th sample), none, or a folder that exists: a value
+       * that is none of them (0, 0.25x, NONE, a missing folder) is refused here, naming --valid, not read
+       * later as a folder of samples */
       char *end, ferr[256];
-      double F;
+      double F = 0;
+      struct stat st;
       c->valid = v;
+      strtod(v, &end);
+      bool number = end != v && *end == 0, numeric_start = end != v;
       if (strcmp(v, "none") == 0) { /* no choice: every eligible stage not forced is reduced by Galerkin */
         c->train.valid_holdout = 0;
         c->valid = NULL;
-      } else if (strtod(v, &end) && end != v && *end == 0) { /* a number: the fraction */
+      } else if (number || (numeric_start && stat(v, &st) != 0)) { /* a number (or what starts as one): the fraction */
         if (npg_parse_double(v, 0, 0.5, true, &F, ferr, sizeof ferr) != 0)
-          snprintf(a.error, sizeof a.error, "%s: --valid %s (a fraction of DATA/'s samples, or a folder)", prog, ferr);
+          snprintf(a.error, sizeof a.error, "%s: --valid %s (a fraction of DATA/'s samples, none, or a folder)", prog,
+                   ferr);
         c->train.valid_holdout = F;
         c->valid = NULL;
+      } else if (stat(v, &st) != 0 || !S_ISDIR(st.st_mode)) {
+        snprintf(a.error, sizeof a.error, "%s: --valid '%s' is %s (expected a fraction in (0, 0.5] of DATA/'s "
+                 "samples, none, or a folder of validation samples)%s", prog, v,
+                 stat(v, &st) != 0 ? "not a folder that exists" : "not a folder",
+                 strcasecmp(v, "none") == 0 ? "; did you mean 'none'?" : "");
       }
     } else if (npg_args_double(&a, "--interp-oversample", 1, 1000, false, &c->train.interp_oversample)) ;
     else if ((v = npg_args_string(&a, "--keep-bases"))) {

@@ -1,0 +1,42 @@
+#!/bin/sh
+# messages.sh BUILD_DIR — issue 38's messages and file safety: each value, file or
+# failure named as it is (--valid read strictly, write errors of plot and --spectra
+# reported with the file, the files that disagree named, ...).
+set -eu
+B=$1
+W=$(mktemp -d /tmp/npg_msg_XXXXXX)
+trap 'rm -rf "$W"' EXIT
+fail() { echo "FAIL: $*"; exit 1; }
+N=$B/npgc
+
+cat >"$W/sqrt.npg" <<'NPG'
+dim N
+input x : real[N]
+output y[i:N] = x[i]^(1/2)
+NPG
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]; rng = np.random.default_rng(1)
+os.makedirs(w + "/TR")
+np.save(w + "/TR/x.npy", 1 + rng.random((20, 5)))
+PY
+
+# 1. --valid is a fraction in (0, 0.5], none, or a folder that exists: anything else is refused naming
+#    --valid and the value (0, 0.25x and NONE were read as folder names)
+touch "$W/afile"
+for bad in "0|--valid 0 is out of range (expected (0, 0.5])" \
+           "0.25x|--valid '0.25x' is not a number (expected (0, 0.5])" \
+           "0.7|--valid 0.7 is out of range" \
+           "NONE|--valid 'NONE' is not a folder that exists (expected a fraction in (0, 0.5] of DATA/'s samples, none, or a folder of validation samples); did you mean 'none'?" \
+           "$W/nosuch|--valid '$W/nosuch' is not a folder that exists" \
+           "$W/afile|--valid '$W/afile' is not a folder (expected"; do
+  v=${bad%%|*}; msg=${bad#*|}
+  if "$N" train "$W/sqrt.npg" "$W/TR" -o "$W/M" --valid "$v" >/dev/null 2>"$W/err.txt"; then fail "--valid $v accepted"; fi
+  grep -qF "npgc train: $msg" "$W/err.txt" || fail "--valid $v: $(cat "$W/err.txt")"
+  test ! -e "$W/M" || fail "--valid $v left a model"
+done
+"$N" train "$W/sqrt.npg" "$W/TR" -o "$W/M" --valid 0.25 >/dev/null || fail "--valid 0.25"
+"$N" train "$W/sqrt.npg" "$W/TR" -o "$W/M2" --valid none >/dev/null || fail "--valid none"
+"$N" train "$W/sqrt.npg" "$W/TR" -o "$W/M3" --valid "$W/TR" >/dev/null || fail "--valid DIR"
+
+echo "messages: ok"
