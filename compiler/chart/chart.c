@@ -79,6 +79,24 @@ static void tick_label(char *buf, size_t n, double v, bool log) {
   else snprintf(buf, n, "%g", fabs(v) < 1e-12 ? 0.0 : v);
 }
 
+/* cairo's PNG writer into a FILE, keeping the first write error's errno (cairo's own file writer
+ * reports a full disk as "error while writing to output stream", without the cause) */
+typedef struct {
+  FILE *f;
+  int err; /* errno of the first failed write, 0 while all went well */
+} PngSink;
+
+static cairo_status_t png_write(void *closure, const unsigned char *data, unsigned int n) {
+  PngSink *s = closure;
+  if (s->err) return CAIRO_STATUS_WRITE_ERROR;
+  errno = 0;
+  if (fwrite(data, 1, n, s->f) != n) {
+    s->err = errno ? errno : EIO;
+    return CAIRO_STATUS_WRITE_ERROR;
+  }
+  return CAIRO_STATUS_SUCCESS;
+}
+
 int chart_png(const Chart *c, const char *path, int width, int height, char *err, size_t errlen) {
   double x0 = INFINITY, x1 = -INFINITY, y0 = INFINITY, y1 = -INFINITY;
   for (int s = 0; s < c->nseries; s++)
@@ -201,16 +219,34 @@ int chart_png(const Chart *c, const char *path, int width, int height, char *err
   }
 #undef PX
 #undef PY
+  cairo_status_t drawn = cairo_status(cr);
   cairo_destroy(cr);
   cairo_surface_flush(surf);
+  if (drawn == CAIRO_STATUS_SUCCESS) drawn = cairo_surface_status(surf);
+  if (drawn != CAIRO_STATUS_SUCCESS) {
+    cairo_surface_destroy(surf);
+    snprintf(err, errlen, "%s: cannot draw the chart: %s", path, cairo_status_to_string(drawn));
+    return -1;
+  }
   /* written to a temporary name and renamed: a reader never sees half a chart */
   char tmp[4200];
   snprintf(tmp, sizeof tmp, "%s.tmp.%ld.png", path, (long)getpid());
-  cairo_status_t st = cairo_surface_write_to_png(surf, tmp);
+  FILE *f = fopen(tmp, "wb");
+  if (!f) {
+    cairo_surface_destroy(surf);
+    snprintf(err, errlen, "%s: cannot create %s: %s", path, tmp, strerror(errno));
+    return -1;
+  }
+  PngSink sink = {f, 0};
+  cairo_status_t st = cairo_surface_write_to_png_stream(surf, png_write, &sink);
   cairo_surface_destroy(surf);
-  if (st != CAIRO_STATUS_SUCCESS) {
+  /* the buffered tail reaches the disk at fflush/fclose: a full disk shows there as often as in fwrite */
+  if (fflush(f) != 0 && !sink.err) sink.err = errno ? errno : EIO;
+  if (fclose(f) != 0 && !sink.err) sink.err = errno ? errno : EIO;
+  if (st != CAIRO_STATUS_SUCCESS || sink.err) {
     remove(tmp);
-    snprintf(err, errlen, "%s: cannot write the PNG: %s", path, cairo_status_to_string(st));
+    snprintf(err, errlen, "%s: cannot write the PNG: %s", path,
+             sink.err ? strerror(sink.err) : cairo_status_to_string(st));
     return -1;
   }
   if (rename(tmp, path) != 0) {

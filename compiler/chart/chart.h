@@ -29,7 +29,8 @@ typedef struct Chart {
 
 /* Draw `c` into the PNG file `path` (width x height pixels). An axis whose values are all
  * whole numbers (frames, basis sizes) gets whole-number ticks. 0, or -1 with `err`
- * ("path: problem"). */
+ * ("path: problem": a failed write or close names its cause, e.g. "No space left on device"); the
+ * file is written to a temporary name and renamed, so a failure leaves `path` as it was. */
 int chart_png(const Chart *c, const char *path, int width, int height, char *err, size_t errlen);
 /* Release cairo's and fontconfig's caches (once, at exit: a leak checker then sees only
  * the program's own allocations); no drawing with cairo text after it. */

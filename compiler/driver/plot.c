@@ -56,12 +56,11 @@ int npgc_plot(int argc, char **argv) {
   Chart chart = {.title = title, .xlabel = "k", .ylabel = "singular value / largest", .logy = true, .nseries = n,
                  .series = series};
   if (npgc_make_parents(out, false) != 0) goto done; /* every writer of npgc creates the parents, as -o does */
-  char tmp[4096];
-  npgc_tmp_path(tmp, sizeof tmp, out);
-  int drawn = chart_png(&chart, tmp, 960, 540, err, sizeof err);
+  /* chart_png writes a temporary name, checks every write and the close, and renames it to `out` */
+  int drawn = chart_png(&chart, out, 960, 540, err, sizeof err);
   chart_cleanup(); /* a command draws once: cairo's and fontconfig's caches released */
-  if (npgc_commit("plot", tmp, out, drawn) != 0) {
-    if (err[0]) npgc_error(err);
+  if (drawn != 0) {
+    npgc_error(err);
     goto done;
   }
   printf("%d spectra -> %s\n", n, out);

@@ -39,4 +39,23 @@ done
 "$N" train "$W/sqrt.npg" "$W/TR" -o "$W/M2" --valid none >/dev/null || fail "--valid none"
 "$N" train "$W/sqrt.npg" "$W/TR" -o "$W/M3" --valid "$W/TR" >/dev/null || fail "--valid DIR"
 
+# 2. npgc plot checks every write and the close: a full disk (a 16 kB tmpfs, when this runs as root and may
+#    mount one) or a file size limit (ulimit -f, anywhere) is reported with the file and its cause, and the
+#    chart already there is left as it was, with no temporary file beside it
+"$N" plot "$W/M" -o "$W/p.png" >/dev/null || fail "plot"
+cp "$W/p.png" "$W/p0.png"
+if (trap '' XFSZ; ulimit -f 8; "$N" plot "$W/M" -o "$W/p.png") >/dev/null 2>"$W/err.txt"; then fail "plot past ulimit -f"; fi
+grep -qF "error: $W/p.png: cannot write the PNG: File too large" "$W/err.txt" || fail "plot EFBIG: $(cat "$W/err.txt")"
+cmp -s "$W/p.png" "$W/p0.png" || fail "a failed plot changed the chart there"
+test -z "$(ls "$W" | grep 'p.png.tmp')" || fail "a failed plot left $(ls "$W" | grep 'p.png.tmp')"
+mkdir "$W/full"
+if [ "$(id -u)" = 0 ] && mount -t tmpfs -o size=16k tmpfs "$W/full" 2>/dev/null; then
+  if "$N" plot "$W/M" -o "$W/full/p.png" >/dev/null 2>"$W/err.txt"; then umount "$W/full"; fail "plot on a full disk"; fi
+  left=$(ls -A "$W/full")
+  umount "$W/full"
+  grep -qF "error: $W/full/p.png: cannot write the PNG: No space left on device" "$W/err.txt" ||
+    fail "plot ENOSPC: $(cat "$W/err.txt")"
+  test -z "$left" || fail "a plot on a full disk left $left"
+fi
+
 echo "messages: ok"
