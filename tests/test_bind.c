@@ -292,6 +292,24 @@ static void unbound_dim(void **state) {
   npg_free(p);
 }
 
+/* A dim bound by one source and then given another size by the same source (a caller naming every value of
+ * an input alike): the message says which binding came first, not "9 in 'mu' but 8 in 'mu'" (issue 38). */
+static void dim_rebound_by_same_source(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("u.npg", "dim B\ninput mu : real[B]\noutput y[i:B] = mu[i] * mu[i]\n");
+  ir_ok(p);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  double mu[9] = {1, 2, 3, 4, 5, 6, 7, 8, 9};
+  long s9[1] = {9}, s8[1] = {8};
+  assert_int_equal(npg_full_set(f, "mu", 1, s9, mu, "argument 'mu'"), 0);
+  assert_int_equal(npg_full_eval(f, 0), 0);
+  assert_int_equal(npg_full_set(f, "mu", 1, s8, mu, "argument 'mu'"), -1);
+  assert_string_equal(npg_full_error(f), "dim B is 8 in argument 'mu' but was bound to 9 by an earlier value of it: a "
+                                         "dim keeps the size it was first bound to (give every value over it that size)");
+  npg_full_free(f);
+  npg_free(p);
+}
+
 static int setup(void **state) {
   (void)state;
   snprintf(dir, sizeof dir, "/tmp/npg-bind-XXXXXX");
@@ -314,7 +332,7 @@ int main(void) {
       cmocka_unit_test(gather_out_of_range),  cmocka_unit_test(gather_out_of_range_located),
       cmocka_unit_test(nan_in_input),         cmocka_unit_test(zero_area_triangle),
       cmocka_unit_test(singular_and_indefinite), cmocka_unit_test(operator_not_finite),
-      cmocka_unit_test(unbound_dim),
+      cmocka_unit_test(unbound_dim),          cmocka_unit_test(dim_rebound_by_same_source),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -169,6 +169,11 @@ static int bind_shape(Full *f, const Sym *s, int ndim, const long *shape, const 
       f->dim_from[d] = mem_strdup(from);
       f->checked = false;
     } else if (f->dims[d] != shape[i]) {
+      /* the same source twice (a call's argument, then the next call's): which binding came first is the news */
+      if (f->dim_from[d] && strcmp(f->dim_from[d], from) == 0)
+        return fail(f, "dim %s is %ld in %s but was bound to %ld by an earlier value of it: a dim keeps the size "
+                       "it was first bound to (give every value over it that size)", s->dims[i]->name, shape[i], from,
+                    (long)f->dims[d]);
       return fail(f, "dim %s is %ld in %s but %ld in %s", s->dims[i]->name, (long)f->dims[d],
                   f->dim_from[d] ? f->dim_from[d] : "an earlier binding", shape[i], from);
     }

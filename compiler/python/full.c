@@ -251,7 +251,7 @@ static int set_inputs(FullObject *self, PyObject *kw) {
     const char *name = PyUnicode_AsUTF8(key);
     if (!name) return -1;
     char what[256];
-    snprintf(what, sizeof what, "argument '%s'", name);
+    snprintf(what, sizeof what, "argument '%s' (sample %ld)", name, self->calls); /* the sample the call evaluates */
     PyArrayObject *a = npgpy_values(value, what);
     if (!a) return -1;
     long shape[NPY_MAXDIMS];

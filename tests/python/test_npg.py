@@ -151,6 +151,21 @@ def test_full_outputs_are_fresh_arrays(eq3):
     assert not np.shares_memory(a, b) and not np.array_equal(a, b)
 
 
+
+def test_dim_disagreement_names_the_calls():
+    """A dim bound by one call's argument and given another size by the next: the message names both calls
+    (issue 38: it said "dim B is 9 in argument 'mu' but 8 in argument 'mu'")."""
+    full = npg.compile("dim B\ninput mu : real[B]\noutput y[i:B] = mu[i]^2\n").full()
+    full(mu=np.ones(9))
+    with pytest.raises(npg.Error) as e:
+        full(mu=np.ones(8))
+    assert str(e.value) == "dim B is 9 in argument 'mu' (sample 0) but 8 in argument 'mu' (sample 1)"
+    full = npg.compile("dim B\nparam w : real[B]\ninput mu : real[B]\noutput y[i:B] = w[i] * mu[i]\n").full(
+        params={"w": np.ones(9)})
+    with pytest.raises(npg.Error) as e:
+        full(mu=np.ones(8))
+    assert str(e.value) == "dim B is 9 in param 'w' but 8 in argument 'mu' (sample 0)"
+
 # ---------------------------------------------------------------- training
 
 def test_trained_model_equals_npgc_train(eq3, tmp_path):
