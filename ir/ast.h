@@ -221,7 +221,7 @@ struct Sym {
   Sym *state_of;
   bool inlined;                 /* `inline name`, or a constant definition */
   Loc inline_loc;               /* the `inline` statement naming it (line 0: constant) */
-  bool introduced;              /* created by the compiler (y.t1) */
+  bool introduced;              /* created by the compiler (y.t1; an implicit index variable of y = 2 * x) */
   Loc introduced_at;
   Sym *introduced_for;
   /* SYM_EXTERN */

@@ -15,7 +15,8 @@ static void print_shape(FILE *out, const Sym *s, bool with_vars) {
   fputc('[', out);
   for (int i = 0; i < s->ndims; i++) {
     if (i) fputs(", ", out);
-    if (with_vars && i < s->nivars && s->ivars[i]) fprintf(out, "%s:", s->ivars[i]->name);
+    /* an implicit index variable (y = 2 * x) is the compiler's, not the user's: real[N], not real[_i:N] */
+    if (with_vars && i < s->nivars && s->ivars[i] && !s->ivars[i]->introduced) fprintf(out, "%s:", s->ivars[i]->name);
     fputs(s->dims[i]->name, out);
   }
   for (int i = 0; i < s->nstatic; i++) fprintf(out, "%s%d", s->ndims + i ? ", " : "", s->shape[i]);

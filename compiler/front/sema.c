@@ -128,6 +128,7 @@ static void implicit_ivars(Checker *ck, Sym *s, const Type *t) {
   for (int i = 0; i < t->nwhole; i++) {
     Sym *v = sema_new_sym(ck, SYM_IVAR, arena_printf(ck->ctx, "_%c", "ijklmnop"[i]), s->loc);
     v->range = t->whole[i];
+    v->introduced = true; /* npgc check prints real[N], not the name it was given here */
     s->ivars[i] = v;
     s->dims[i] = t->whole[i];
   }

@@ -58,4 +58,20 @@ if [ "$(id -u)" = 0 ] && mount -t tmpfs -o size=16k tmpfs "$W/full" 2>/dev/null;
   test -z "$left" || fail "a plot on a full disk left $left"
 fi
 
+# 3. npgc check prints a stage's shape as the user wrote it: an explicit index variable with its dim
+#    (real[i:N]), an implicit one (z = y + x) as the dim alone, never the compiler's name (real[_i:N])
+cat >"$W/implicit.npg" <<'NPG'
+dim N, M
+input x : real[N]
+input u : real[N, M]
+y[i:N] = x[i] * x[i]
+output z = y + x
+output w = 2 * u
+NPG
+"$N" check "$W/implicit.npg" >"$W/out.txt" || fail "check implicit.npg"
+grep -q "^  y : real\[i:N\]   contraction" "$W/out.txt" || fail "check, explicit: $(grep ' y :' "$W/out.txt")"
+grep -q "^  z : real\[N\]   contraction, output" "$W/out.txt" || fail "check, implicit: $(grep ' z :' "$W/out.txt")"
+grep -q "^  w : real\[N, M\]   contraction, output" "$W/out.txt" || fail "check, implicit 2: $(grep ' w :' "$W/out.txt")"
+! grep -q "_[ij]:" "$W/out.txt" || fail "check prints a compiler's index name: $(grep '_[ij]:' "$W/out.txt")"
+
 echo "messages: ok"
