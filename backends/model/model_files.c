@@ -427,12 +427,23 @@ static int load_arrays(const ModelStore *s, Model *m, const char *dir, char *err
   for (int i = 0; i < m->nexterns; i++) {
     RExtern *x = &m->externs[i];
     char name[512];
+    char values[512];
     snprintf(name, sizeof name, "extern_%s_inputs", qname(m, x->q));
-    const NpyArray *a = model_store_array(s, name);
+    snprintf(values, sizeof values, "extern_%s_values", qname(m, x->q));
+    /* one row per training sample in both files: when their counts differ, the one that is not the model's
+     * sample count is the damaged file (a shortened inputs file was blamed on the values) */
+    const NpyArray *a = model_store_array(s, name), *z = model_store_array(s, values);
     x->S = a && a->ndim == 2 ? a->shape[0] : 0;
+    if (a && z && a->ndim == 2 && z->ndim == 2 && a->shape[0] != z->shape[0]) {
+      bool inputs_bad = z->shape[0] == m->samples || a->shape[0] != m->samples;
+      snprintf(err, errlen, "%s/%s.npy: %ld rows, but %s.npy has %ld and the model %ld training samples: the learned "
+               "map of extern '%s' needs one row per training sample in both files", dir, inputs_bad ? name : values,
+               (long)(inputs_bad ? a : z)->shape[0], inputs_bad ? values : name, (long)(inputs_bad ? z : a)->shape[0],
+               m->samples, qname(m, x->q));
+      return -1;
+    }
     if (take(s, dir, name, x->S, x->d, &x->X, err, errlen)) return -1;
-    snprintf(name, sizeof name, "extern_%s_values", qname(m, x->q));
-    if (take(s, dir, name, x->S, m->classes[m->qclass[x->q]].m, &x->Z, err, errlen)) return -1;
+    if (take(s, dir, values, x->S, m->classes[m->qclass[x->q]].m, &x->Z, err, errlen)) return -1;
   }
   return 0;
 }

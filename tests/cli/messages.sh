@@ -74,4 +74,44 @@ grep -q "^  z : real\[N\]   contraction, output" "$W/out.txt" || fail "check, im
 grep -q "^  w : real\[N, M\]   contraction, output" "$W/out.txt" || fail "check, implicit 2: $(grep ' w :' "$W/out.txt")"
 ! grep -q "_[ij]:" "$W/out.txt" || fail "check prints a compiler's index name: $(grep '_[ij]:' "$W/out.txt")"
 
+# 4. a learned extern map whose inputs file was shortened (and resealed in the manifest, so no checksum
+#    catches it) is reported as that file, not as extern_v_values.npy
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]; rng = np.random.default_rng(3)
+os.makedirs(w + "/ED")
+F, V, S = 4, 6, 30
+np.save(w + "/ED/tri.npy", rng.integers(0, V, (F, 3)).astype(np.int64))
+np.save(w + "/ED/g.npy", rng.random((S, V, 3)))
+np.save(w + "/ED/v.npy", rng.random((S, F)))
+PY
+"$N" train tests/programs/extern_stage.npg "$W/ED" -o "$W/EM" >/dev/null || fail "train extern_stage"
+reseal() { # reseal MODEL NAME ROWS: keep the first ROWS rows of MODEL/NAME.npy and reseal the manifest
+  /usr/bin/python3 - "$@" <<'PY'
+import io, sys, numpy as np
+d, name, rows = sys.argv[1], sys.argv[2], int(sys.argv[3])
+def fnv1a64(b):
+    h = 0xcbf29ce484222325
+    for x in b:
+        h = ((h ^ x) * 0x100000001b3) & 0xFFFFFFFFFFFFFFFF
+    return h
+a = np.load("%s/%s.npy" % (d, name))[:rows]
+buf = io.BytesIO(); np.save(buf, a); blob = buf.getvalue()
+open("%s/%s.npy" % (d, name), "wb").write(blob)
+lines = open(d + "/manifest", "rb").read().split(b"\n")[:-2]
+lines = [b"array %s.npy %s fnv1a64 %016x" % (name.encode(), b"x".join(b"%d" % n for n in a.shape), fnv1a64(blob))
+         if l.startswith(b"array %s.npy " % name.encode()) else l for l in lines]
+body = b"\n".join(lines) + b"\n"
+open(d + "/manifest", "wb").write(body + b"manifest fnv1a64 %016x\n" % fnv1a64(body))
+PY
+}
+for f in inputs values; do
+  rm -rf "$W/EM2"; cp -r "$W/EM" "$W/EM2"
+  reseal "$W/EM2" extern_v_$f 20
+  other=values; test $f = inputs || other=inputs
+  if "$N" eval tests/programs/extern_stage.npg "$W/EM2" "$W/ED" -o "$W/EO" 2>"$W/err.txt"; then fail "eval with a short extern_v_$f"; fi
+  grep -qF "error: $W/EM2/extern_v_$f.npy: 20 rows, but extern_v_$other.npy has 30 and the model 30 training samples: the learned map of extern 'v' needs one row per training sample in both files" "$W/err.txt" ||
+    fail "short extern_v_$f: $(cat "$W/err.txt")"
+done
+
 echo "messages: ok"
