@@ -468,16 +468,16 @@ static int evaluate(Full *f, long sample, Demand *d) {
      * arose: name the first stage holding one when another stage failed (a
      * zero-area triangle makes p = d·a^(-1/2) NaN, and b = solve(M, e) fails). */
     const Sym *s;
-    char at[256], named[300], prefix[48];
+    char at[256], named[300], prefix[48], cause[512];
     double v;
     const char *then = f->host.msg;
     size_t np = (size_t)snprintf(prefix, sizeof prefix, "sample %ld: ", sample);
     if (strncmp(then, prefix, np) == 0) then += np;
-    if (full_first_nonfinite(f, &s, at, sizeof at, &v) && s->kind == SYM_STAGE &&
+    if (full_first_nonfinite(f, &s, at, sizeof at, &v, cause, sizeof cause) && s->kind == SYM_STAGE &&
         (snprintf(named, sizeof named, "stage '%s'", s->name), !strstr(then, named)))
-      return fail(f, "sample %ld: stage '%s' is not finite: %s%s is %s (a division by zero or a root of a negative "
-                     "number at this sample?); then %s", sample, s->name, s->name, at, isnan(v) ? "NaN" : "an infinity",
-                  then);
+      return fail(f, "sample %ld: stage '%s' is not finite: %s%s is %s (%s); then %s", sample, s->name, s->name, at,
+                  isnan(v) ? "NaN" : "an infinity",
+                  cause[0] ? cause : "a division by zero or a root of a negative number at this sample?", then);
     return fail(f, "%s", f->host.msg);
   }
   return 0;
@@ -537,7 +537,87 @@ uint64_t full_param_hash(const Full *f, int k, const char **from) {
 
 const Program *full_program(const Full *f) { return f->prog; }
 
-bool full_first_nonfinite(Full *f, const Sym **sym, char *index, size_t len, double *value) {
+/* The value of atom `a` (q[idx...]) of a monomial of stage `s` at the stage's index `iv` (one per index
+ * variable), when its indices are the stage's index variables or numbers: false otherwise (a gather, a sum
+ * variable), or when its quantity has no value. `where` gets the entry as "a[0]". */
+static bool atom_value(Full *f, const Sym *s, const long *iv, const Atom *a, double *v, char *where, size_t len) {
+  const Sym *q = a->q;
+  size_t flat = 0;
+  size_t at = (size_t)snprintf(where, len, "%s[", q->name);
+  for (int i = 0; i < q->ndims + q->nstatic; i++) {
+    const Node *n = a->idx[i];
+    long size = i < q->ndims ? (long)f->dims[emit_index_of(&f->prog->dims, q->dims[i])] : q->shape[i - q->ndims], x = -1;
+    if (n->kind == N_NUM) x = (long)n->num;
+    for (int j = 0; j < s->nivars && n->kind == N_NAME; j++)
+      if (n->sym == s->ivars[j]) x = iv[j];
+    if (x < 0 || x >= size) return false;
+    flat = flat * (size_t)size + (size_t)x;
+    if (at < len) at += (size_t)snprintf(where + at, len - at, "%s%ld", i ? ", " : "", x);
+  }
+  if (at < len) snprintf(where + at, len - at, "]");
+  if (q->ndims + q->nstatic == 0) snprintf(where, len, "%s", q->name);
+  int k = find(&f->prog->slots, q->name), pk = find(&f->prog->params, q->name);
+  if (k >= 0 && f->q[k] && flat < f->qcount[k]) *v = f->q[k][flat];
+  else if (pk >= 0 && f->params[pk]) *v = f->params[pk][flat];
+  else if (pk >= 0 && f->iparams[pk]) *v = (double)f->iparams[pk][flat];
+  else return false;
+  return true;
+}
+
+/* Why entry `e` of stage `s` is not finite, when a diagonal power of it (a division, a negative or fractional
+ * power) has a base of 0 (negative power) or below 0 (root) there: "a division by zero: a[0] is 0, and p
+ * raises it to the power -1/2", into `cause`; false when no such base is found (the value arose otherwise, or the base is not a plain
+ * polynomial of entries at the stage's own indices). Names the zero area or length itself, not only the stage
+ * where the NaN appears. */
+static bool nonfinite_cause(Full *f, const Sym *s, size_t e, char *cause, size_t len) {
+  const Stage *st = s->stage;
+  if (!st || s->kind != SYM_STAGE) return false;
+  long iv[MAX_AXES] = {0};
+  size_t comp = st->ncomp > 0 ? e % (size_t)st->ncomp : 0, rest = st->ncomp > 0 ? e / (size_t)st->ncomp : e;
+  for (int i = s->nivars - 1; i >= 0; i--) {
+    long size = (long)f->dims[emit_index_of(&f->prog->dims, s->ivars[i]->range)];
+    if (size <= 0) return false;
+    iv[i] = (long)(rest % (size_t)size);
+    rest /= (size_t)size;
+  }
+  for (int t = 0; t < st->nterms; t++)
+    for (int k = 0; k < st->terms[t]->nops; k++) {
+      const OpPow *op = &st->terms[t]->ops[k];
+      if (op->kind != OPK_DIAG || op->diag->ncomp < 1) continue;
+      const Poly *poly = &op->diag->comp[op->diag->ncomp == st->ncomp ? comp : 0];
+      double base = 0;
+      char one[256] = "";
+      bool plain = true;
+      for (int m = 0; m < poly->n && plain; m++) {
+        const Mono *mo = poly->m[m];
+        plain = !mo->guard && !mo->nsums && mo->coef->kind == N_NUM;
+        double term = plain ? mo->coef->num : 0;
+        for (int a = 0; a < mo->natoms && plain; a++) {
+          double v = 0;
+          plain = atom_value(f, s, iv, &mo->atoms[a], &v, one, sizeof one);
+          term *= v;
+        }
+        base += term;
+      }
+      /* the base itself named when it is one entry (a[i]^(-1/2)), else described */
+      bool named = plain && poly->n == 1 && poly->m[0]->natoms == 1 && coef_is_num(poly->m[0]->coef, 1);
+      char power[64];
+      snprintf(power, sizeof power, op->q == 1 ? "%ld" : "%ld/%ld", op->p, op->q);
+      if (!plain || !((op->p < 0 && base == 0) || (op->q % 2 == 0 && base < 0))) continue;
+      char how[128];
+      if (op->p == -1 && op->q == 1) snprintf(how, sizeof how, "divides by it");
+      else snprintf(how, sizeof how, "raises it to the power %s", power);
+      const char *kind = base == 0 ? "a division by zero" : "a root of a negative number";
+      if (named) snprintf(cause, len, "%s: %s is %g, and %s %s", kind, one, base, s->name, how);
+      else snprintf(cause, len, "%s: the base of its power %s is %g there", kind, power, base);
+      return true;
+    }
+  return false;
+}
+
+bool full_first_nonfinite(Full *f, const Sym **sym, char *index, size_t len, double *value, char *cause,
+                          size_t causelen) {
+  if (cause && causelen) cause[0] = 0;
   for (int q = 0; q < f->prog->quantities.n; q++) {
     const Sym *s = f->prog->quantities.v[q];
     int k = find(&f->prog->slots, s->name);
@@ -546,6 +626,7 @@ bool full_first_nonfinite(Full *f, const Sym **sym, char *index, size_t len, dou
         *sym = s;
         *value = f->q[k][e];
         index_text(f, s, e, index, len);
+        if (cause && causelen) nonfinite_cause(f, s, e, cause, causelen);
         return true;
       }
   }

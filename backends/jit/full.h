@@ -124,8 +124,13 @@ uint64_t full_hash_values(const double *v, size_t n);
 const Program *full_program(const Full *f);
 /* After an evaluation: the first quantity in evaluation order holding a
  * NaN or an infinity (where it arises, not where it spreads to), its entry
- * as "[2, 5]" and the value; false when every value is finite. */
-bool full_first_nonfinite(Full *f, const Sym **sym, char *index, size_t len, double *value);
+ * as "[2, 5]" and the value; false when every value is finite. `cause`
+ * (may be NULL) gets why, when a division or a power of that stage has a
+ * base of 0 (or a root a negative base) at that entry: "a division by
+ * zero: a[0] is 0, and p raises it to the power -1/2" (the zero area
+ * itself); else "". */
+bool full_first_nonfinite(Full *f, const Sym **sym, char *index, size_t len, double *value, char *cause,
+                          size_t causelen);
 /* Record `msg` as the evaluator's error (the first one stays); -1. */
 int full_fail(Full *f, const char *msg);
 /* Record `msg` as the evaluator's error, replacing one already there (an

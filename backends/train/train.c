@@ -193,13 +193,14 @@ int train_member_value(Model *m, Full *f, const RMember *mb, long k, long n, dou
       /* name where the NaN arises (the first quantity in evaluation order
        * holding one), not the member that happened to be looked at */
       const Sym *s;
-      char at[256];
+      char at[256], cause[512];
       double v;
-      if (full_first_nonfinite(f, &s, at, sizeof at, &v))
-        return error_set(err, errlen,
-                         "training sample %ld: %s is not finite (%s%s is %s): the sample makes it undefined (a "
-                         "division by zero or a root of a negative number in the program?)",
-                         k, s->name, s->name, at, isnan(v) ? "NaN" : v > 0 ? "inf" : "-inf");
+      if (full_first_nonfinite(f, &s, at, sizeof at, &v, cause, sizeof cause))
+        return error_set(err, errlen, "training sample %ld: %s is not finite (%s%s is %s): %s%s%s", k, s->name,
+                         s->name, at, isnan(v) ? "NaN" : v > 0 ? "inf" : "-inf",
+                         cause[0] ? "the sample makes it undefined (" : "",
+                         cause[0] ? cause : "the sample makes it undefined (a division by zero or a root of a negative "
+                                            "number in the program?)", cause[0] ? ")" : "");
       return error_set(err, errlen,
                        "training sample %ld: %s is not finite (entry %ld is %g): the sample makes it undefined (a "
                        "division by zero or a root of a negative number in the program?)",

@@ -294,13 +294,16 @@ int npg_full_check_finite(NpgFull *f, long sample) {
   Full *full = f->full;
   if (full_error(full)[0]) return -1;
   const Sym *s;
-  char at[256], msg[1024];
+  char at[256], msg[1024], cause[512];
   double v;
-  if (!full_first_nonfinite(full, &s, at, sizeof at, &v)) return 0;
-  snprintf(msg, sizeof msg, "sample %ld: %s '%s' is not finite: %s%s is %s%s", sample,
+  if (!full_first_nonfinite(full, &s, at, sizeof at, &v, cause, sizeof cause)) return 0;
+  snprintf(msg, sizeof msg, "sample %ld: %s '%s' is not finite: %s%s is %s%s%s%s", sample,
            s->kind == SYM_INPUT ? "input" : s->kind == SYM_EXTERN ? "extern" : "stage", s->name, s->name, at,
-           isnan(v) ? "NaN" : "an infinity",
-           s->kind == SYM_STAGE ? " (a division by zero or a root of a negative number at this sample?)" : "");
+           isnan(v) ? "NaN" : "an infinity", s->kind == SYM_STAGE ? " (" : "",
+           cause[0]               ? cause
+           : s->kind == SYM_STAGE ? "a division by zero or a root of a negative number at this sample?"
+                                  : "",
+           s->kind == SYM_STAGE ? ")" : "");
   return full_fail(full, msg);
 }
 

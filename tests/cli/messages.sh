@@ -114,4 +114,30 @@ for f in inputs values; do
     fail "short extern_v_$f: $(cat "$W/err.txt")"
 done
 
+# 5. a degenerate triangle (two equal corners at sample 5) is named where the zero is, a[1] = 0, not only as
+#    the NaN in the stage that divides by it
+cat >"$W/un.npg" <<'NPG'
+use geometry
+dim F, V
+param tri : int[F, 3]
+input g : real[V, 3]
+n[f:F] = tri_normal(g, tri, f)
+a[f:F] = norm2(n[f])
+output u[f:F] = n[f] * a[f]^(-1/2)
+NPG
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]; rng = np.random.default_rng(5)
+os.makedirs(w + "/UD")
+np.save(w + "/UD/tri.npy", np.array([[0, 1, 2], [1, 2, 3], [0, 2, 3]], dtype=np.int64))
+g = rng.random((12, 4, 3)); g[5, 3] = g[5, 1]
+np.save(w + "/UD/g.npy", g)
+PY
+if "$N" eval "$W/un.npg" --full "$W/UD" "$W/UD" -o "$W/UO" 2>"$W/err.txt"; then fail "eval of a degenerate triangle"; fi
+grep -qF "error: sample 5: stage 'u' is not finite: u[1, 0] is NaN (a division by zero: a[1] is 0, and u raises it to the power -1/2)" "$W/err.txt" ||
+  fail "degenerate triangle, eval: $(cat "$W/err.txt")"
+if "$N" train "$W/un.npg" "$W/UD" -o "$W/UM" 2>"$W/err.txt" >/dev/null; then fail "training on a degenerate triangle"; fi
+grep -qF "error: training sample 5: u is not finite (u[1, 0] is NaN): the sample makes it undefined (a division by zero: a[1] is 0, and u raises it to the power -1/2)" "$W/err.txt" ||
+  fail "degenerate triangle, train: $(cat "$W/err.txt")"
+
 echo "messages: ok"
