@@ -10,6 +10,7 @@
  * exponent of a varying quantity is an N_RAT literal.
  */
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "sema.h"
@@ -52,6 +53,64 @@ Sym *sema_find_global(Checker *ck, const char *name) {
     if (strcmp(s->name, name) == 0) return s;
   }
   return NULL;
+}
+
+/* The edit distance of `a` and `b` (insertions, deletions, substitutions and swaps of neighbours, each 1:
+ * "sovle" is 1 from "solve"), or `cap` + 1 when it is more than `cap` or a name is over 63 characters. */
+static int edit_distance(const char *a, const char *b, int cap) {
+  int n = (int)strlen(a), m = (int)strlen(b);
+  if (n > 63 || m > 63 || abs(n - m) > cap) return cap + 1;
+  int d[64][64];
+  for (int i = 0; i <= n; i++) d[i][0] = i;
+  for (int j = 0; j <= m; j++) d[0][j] = j;
+  for (int i = 1; i <= n; i++)
+    for (int j = 1; j <= m; j++) {
+      int best = d[i - 1][j - 1] + (a[i - 1] != b[j - 1]);
+      if (d[i - 1][j] + 1 < best) best = d[i - 1][j] + 1;
+      if (d[i][j - 1] + 1 < best) best = d[i][j - 1] + 1;
+      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] && d[i - 2][j - 2] + 1 < best)
+        best = d[i - 2][j - 2] + 1;
+      d[i][j] = best;
+    }
+  return d[n][m] > cap ? cap + 1 : d[n][m];
+}
+
+/* Keep `cand` in *best when it is nearer `name` than *best (at most a third of the name's length away, at
+ * least 1: "q" suggests nothing, "nromal" suggests "normal"). */
+static void nearer(const char *name, const char *cand, const char **best, int *dist) {
+  int cap = (int)strlen(name) / 3 > 0 ? (int)strlen(name) / 3 : 1;
+  if (cap > 3) cap = 3;
+  int d = edit_distance(name, cand, cap);
+  if (d <= cap && d < (int)strlen(name) && d < *dist && strcmp(name, cand) != 0) *best = cand, *dist = d;
+}
+
+const char *sema_suggest(Checker *ck, const char *name, SemaSuggest what) {
+  const char *best = NULL;
+  int dist = 1 << 20;
+  if (what == SUGGEST_FUNCTION) {
+    for (int b = 1; b < B__COUNT; b++) /* the algebraic builtins: the others are refused anyway */
+      if (builtin_info[b].algebraic) nearer(name, builtin_info[b].name, &best, &dist);
+    for (int i = 0; i < ck->globals.n; i++)
+      if (((Sym *)ck->globals.v[i])->kind == SYM_FN) nearer(name, ((Sym *)ck->globals.v[i])->name, &best, &dist);
+    return best;
+  }
+  for (int i = ck->sums.n - 1; what == SUGGEST_VALUE && i >= 0; i--)
+    if (!strchr(((Sym *)ck->sums.v[i])->name, '#')) nearer(name, ((Sym *)ck->sums.v[i])->name, &best, &dist);
+  for (int i = 0; what == SUGGEST_VALUE && ck->cur && i < ck->cur->nivars; i++)
+    if (ck->cur->ivars[i] && !ck->cur->ivars[i]->introduced) nearer(name, ck->cur->ivars[i]->name, &best, &dist);
+  for (int i = 0; i < ck->globals.n; i++) {
+    const Sym *g = ck->globals.v[i];
+    bool quantity = g->kind == SYM_INPUT || g->kind == SYM_STAGE || g->kind == SYM_EXTERN;
+    if (what == SUGGEST_VALUE ? g->kind != SYM_FN : quantity || (what == SUGGEST_OUTPUT && g->kind == SYM_OP))
+      nearer(name, g->name, &best, &dist);
+  }
+  if (what == SUGGEST_VALUE) nearer(name, "pi", &best, &dist);
+  return best;
+}
+
+const char *sema_did_you_mean(Checker *ck, const char *name, SemaSuggest what) {
+  const char *best = sema_suggest(ck, name, what);
+  return best ? arena_printf(ck->ctx, "; did you mean '%s'?", best) : "";
 }
 
 char *sema_shape_str(Ctx *ctx, const Type *t) {
@@ -115,7 +174,7 @@ static void declare_ivars(Checker *ck, Sym *s, Decl *d) {
 
 static Sym *need_quantity(Checker *ck, const char *name, Loc loc, const char *what) {
   Sym *s = sema_find_global(ck, name);
-  if (!s) error_at(ck->ctx, loc, "unknown name '%s'", name);
+  if (!s) error_at(ck->ctx, loc, "unknown name '%s'%s", name, sema_did_you_mean(ck, name, SUGGEST_QUANTITY));
   if (s->kind != SYM_INPUT && s->kind != SYM_STAGE && s->kind != SYM_EXTERN)
     error_at(ck->ctx, loc, "%s: '%s' is %s, not a quantity with a basis (input, stage or extern)", what, name,
              sema_kind_word(s));
@@ -365,7 +424,7 @@ static void apply_directives(Checker *ck) {
         }
         if (!sema_find_global(ck, name))
           error_at(ctx, d->name_locs[i], "unknown name '%s': 'basis' takes quantities and classes (m_x, the class of "
-                   "quantity x, as npgc check names it)", name);
+                   "quantity x, as npgc check names it)%s", name, sema_did_you_mean(ck, name, SUGGEST_QUANTITY));
         Sym *q = need_quantity(ck, name, d->name_locs[i], "basis");
         if (d->basis_max > 0) q->basis_max = d->basis_max;
         if (d->basis_energy > 0) q->basis_energy = d->basis_energy;
@@ -376,7 +435,9 @@ static void apply_directives(Checker *ck) {
     case D_INLINE:
       for (int i = 0; i < d->nnames; i++) {
         Sym *q = sema_find_global(ck, d->names[i]);
-        if (!q) error_at(ctx, d->name_locs[i], "unknown name '%s'", d->names[i]);
+        if (!q)
+          error_at(ctx, d->name_locs[i], "unknown name '%s'%s", d->names[i],
+                   sema_did_you_mean(ck, d->names[i], SUGGEST_QUANTITY));
         if (q->kind != SYM_STAGE)
           error_at(ctx, d->name_locs[i], "only a stage can be inlined; '%s' is %s", q->name, sema_kind_word(q));
         if (q->is_output) error_at(ctx, d->name_locs[i], "'%s' is an output and cannot be inlined", q->name);
@@ -388,7 +449,9 @@ static void apply_directives(Checker *ck) {
     case D_OUTPUT:
       for (int i = 0; i < d->nnames; i++) {
         Sym *q = sema_find_global(ck, d->names[i]);
-        if (!q) error_at(ctx, d->name_locs[i], "unknown name '%s'", d->names[i]);
+        if (!q)
+          error_at(ctx, d->name_locs[i], "unknown name '%s'%s", d->names[i],
+                   sema_did_you_mean(ck, d->names[i], SUGGEST_OUTPUT));
         if (q->kind != SYM_INPUT && q->kind != SYM_STAGE && q->kind != SYM_EXTERN && q->kind != SYM_OP)
           error_at(ctx, d->name_locs[i], "'%s' is %s and cannot be an output", q->name, sema_kind_word(q));
         q->is_output = true;

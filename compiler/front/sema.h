@@ -26,6 +26,15 @@ Sym *sema_new_sym(Checker *ck, SymKind kind, const char *name, Loc loc);
 /* sema.c: what a name is, with its article: "an input", "a stage". */
 const char *sema_kind_word(const Sym *s);
 Sym *sema_find_global(Checker *ck, const char *name);
+/* What a misspelt name may have meant: a value in an expression (sum and index variables, globals but fns,
+ * pi), a function (the algebraic builtins and the fns), a quantity with a basis (input, stage, extern; for
+ * `basis`, `share`, `inline`, `on`), or an output (a quantity or an op). */
+typedef enum SemaSuggest { SUGGEST_VALUE, SUGGEST_FUNCTION, SUGGEST_QUANTITY, SUGGEST_OUTPUT } SemaSuggest;
+/* sema.c: the known name of that kind nearest `name` by edit distance (at most a third of its length, 1 to
+ * 3), or NULL. */
+const char *sema_suggest(Checker *ck, const char *name, SemaSuggest what);
+/* "; did you mean 'solve'?" for sema_suggest's answer, or "" (for the end of an "unknown" message). */
+const char *sema_did_you_mean(Checker *ck, const char *name, SemaSuggest what);
 char *sema_shape_str(Ctx *ctx, const Type *t);
 char *sema_sym_type_str(Ctx *ctx, const Sym *s);
 

@@ -209,7 +209,7 @@ static void type_name(Checker *ck, Node *n) {
     }
     if (builtin_lookup(n->name))
       error_node(ctx, n, "'%s' is a builtin function: call it with arguments", n->name);
-    error_node(ctx, n, "unknown name '%s'", n->name);
+    error_node(ctx, n, "unknown name '%s'%s", n->name, sema_did_you_mean(ck, n->name, SUGGEST_VALUE));
   }
   n->sym = s;
   Type t = {0};
@@ -446,7 +446,7 @@ static Node *check_call(Checker *ck, Node *n) {
   Builtin b = builtin_lookup(n->name);
   if (!b || b == B_SUMF) {
     if (strcmp(n->name, "sum") == 0) error_node(ctx, n, "sum needs the form sum(k = a..b, expr)");
-    error_node(ctx, n, "unknown function '%s'", n->name);
+    error_node(ctx, n, "unknown function '%s'%s", n->name, sema_did_you_mean(ck, n->name, SUGGEST_FUNCTION));
   }
   const BuiltinInfo *bi = &builtin_info[b];
   if (bi->arity >= 0 && n->nargs != bi->arity)
