@@ -438,7 +438,8 @@ typedef struct NpgMemberInfo {
  * a warning where a member hit its cap with more than 1e-3 lost. */
 NPG_API void npg_model_report(const NpgModel *m, FILE *out);
 /* Every member's singular values into DIR as .npy and CSV (MODEL/ holds them
- * too). 0, or -1 with `err`. */
+ * too). 0, or -1 with `err` naming the file; all or none: a failure (a full
+ * disk) leaves DIR's files as they were. */
 NPG_API int npg_model_write_spectra(const NpgModel *m, const char *dir, char *err, size_t errlen);
 /* Every member's singular values as MODEL/ holds them, read without the
  * program (any model folder): `*out` (malloc'd, `*count` entries) until

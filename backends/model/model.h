@@ -221,7 +221,9 @@ void sym_outer(long m, int k, const double *const *rows, double *v);
 int model_save(const Model *m, const char *dir, char *err, size_t errlen);
 /* Every member's singular values as DIR/spectrum_<member>.npy and .csv
  * (k, singular value, energy lost keeping the first k), DIR created if
- * needed. The same files model_save lists in MODEL/. */
+ * needed. The same files model_save lists in MODEL/. All or none: every
+ * file is written to a temporary name and renamed when all are whole, so a
+ * failure (a full disk) leaves DIR as it was, with `err` naming the file. */
 int model_write_spectra(const Model *m, const char *dir, char *err, size_t errlen);
 /* Load MODEL/ for `prog` (hash checked), every array checked. A manifest
  * without one of the lines model_save writes (dims, samples, params, bytes,

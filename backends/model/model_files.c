@@ -504,30 +504,47 @@ int model_write_spectra(const Model *m, const char *dir, char *err, size_t errle
         if (lstat(path, &st) == 0 && !S_ISREG(st.st_mode))
           return error_set(err, errlen, "%s: is not a regular file: refusing to replace it", path);
       }
-  for (int c = 0; c < m->nclasses; c++)
-    for (int i = 0; i < m->classes[c].nmembers; i++) {
+  /* Every file is written to a temporary name first and renamed only when all of them are whole: a full
+   * disk leaves the folder as it was (no spectrum_x.npy of this model beside a spectrum_y.npy of the last),
+   * not a partial set or a partial file (issue 38). */
+  int nfiles = 0;
+  for (int c = 0; c < m->nclasses; c++) nfiles += 2 * m->classes[c].nmembers;
+  char(*paths)[2][4096] = mem_calloc((size_t)nfiles + 1, sizeof *paths); /* [k][0] the file, [k][1] its temporary */
+  if (!paths) return error_set(err, errlen, "%s: out of memory writing the spectra", dir);
+  int written = 0, rc = 0;
+  for (int c = 0; c < m->nclasses && !rc; c++)
+    for (int i = 0; i < m->classes[c].nmembers && !rc; i++) {
       const RMember *mb = &m->classes[c].members[i];
-      char path[4096];
       long shape[1] = {mb->nsv};
-      snprintf(path, sizeof path, "%s/spectrum_%s.npy", dir, mb->name);
-      if (npy_write(path, NPY_F64, 1, shape, mb->sv, err, errlen) != 0) return -1;
-      snprintf(path, sizeof path, "%s/spectrum_%s.csv", dir, mb->name);
-      /* to a temporary name, renamed when whole, over a regular file only (as npy_write) */
-      char tmp[4200];
-      snprintf(tmp, sizeof tmp, "%s.tmp.%ld", path, (long)getpid());
-      if (lstat(path, &st) == 0 && !S_ISREG(st.st_mode))
-        return error_set(err, errlen, "%s: is not a regular file: refusing to replace it", path);
-      char *csv = spectrum_csv(mb);
-      FILE *f = csv ? fopen(tmp, "w") : NULL;
-      int ok = f && fputs(csv, f) >= 0;
-      if (f && fclose(f) != 0) ok = 0;
-      free(csv);
-      if (ok && rename(tmp, path) != 0) ok = 0;
-      if (!ok) {
-        int saved = errno;
-        remove(tmp);
-        return error_set(err, errlen, "%s: cannot write: %s", path, strerror(saved));
+      for (int k = 0; k < 2 && !rc; k++) {
+        char *path = paths[written][0], *tmp = paths[written][1];
+        snprintf(path, 4096, "%s/spectrum_%s.%s", dir, mb->name, k ? "csv" : "npy");
+        snprintf(tmp, 4096, "%s/spectrum_%s.%s.part.%ld", dir, mb->name, k ? "csv" : "npy", (long)getpid());
+        if (k == 0) {
+          char why[1024];
+          if (npy_write(tmp, NPY_F64, 1, shape, mb->sv, why, sizeof why) != 0) {
+            /* npy_write names its temporary file; the user's is `path` */
+            const char *cause = strrchr(why, ':');
+            rc = error_set(err, errlen, "%s: cannot write: %s", path, cause ? cause + 2 : why);
+          }
+        } else {
+          char *csv = spectrum_csv(mb);
+          FILE *f = csv ? fopen(tmp, "w") : NULL;
+          errno = csv ? errno : ENOMEM;
+          int ok = f && fputs(csv, f) >= 0 && fflush(f) == 0;
+          int saved = errno;
+          if (f && fclose(f) != 0 && ok) ok = 0, saved = errno;
+          free(csv);
+          if (!ok) rc = error_set(err, errlen, "%s: cannot write: %s", path, strerror(saved ? saved : EIO));
+        }
+        written++;
       }
     }
-  return 0;
+  for (int k = 0; k < written && !rc; k++)
+    if (rename(paths[k][1], paths[k][0]) != 0)
+      rc = error_set(err, errlen, "%s: cannot replace it with %s: %s", paths[k][0], paths[k][1], strerror(errno));
+  if (rc)
+    for (int k = 0; k < written; k++) remove(paths[k][1]); /* those renamed already are gone from here */
+  free(paths);
+  return rc;
 }

@@ -404,8 +404,11 @@ static int cmd_train(Common *c) {
   else if (!(m = npg_trainer_finish(t, c->out))) npgc_error(npg_trainer_error(t));
   else if (c->spectra && npg_mpi_rank() == 0 && npgc_make_parents(c->spectra, false) != 0)
     ; /* said which folder could not be made */
-  else if (c->spectra && npg_mpi_rank() == 0 && npg_model_write_spectra(m, c->spectra, err, sizeof err) != 0)
+  else if (c->spectra && npg_mpi_rank() == 0 && npg_model_write_spectra(m, c->spectra, err, sizeof err) != 0) {
     npgc_error(err);
+    fprintf(stderr, "npgc train: the model in %s is whole; no spectrum was written to %s (its files are as they "
+                    "were)\n", c->out, c->spectra);
+  }
   else if (npg_mpi_rank() > 0) /* rank 0 reports */
     rc = 0;
   else {

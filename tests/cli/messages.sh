@@ -140,4 +140,29 @@ if "$N" train "$W/un.npg" "$W/UD" -o "$W/UM" 2>"$W/err.txt" >/dev/null; then fai
 grep -qF "error: training sample 5: u is not finite (u[1, 0] is NaN): the sample makes it undefined (a division by zero: a[1] is 0, and u raises it to the power -1/2)" "$W/err.txt" ||
   fail "degenerate triangle, train: $(cat "$W/err.txt")"
 
+# 6. --spectra DIR is all or none: on a disk that fills after two of the new spectra's files, the spectra of
+#    the last training stay there byte for byte and no temporary file is left (root, a 64 kB tmpfs)
+mkdir "$W/full2"
+if [ "$(id -u)" = 0 ] && mount -t tmpfs -o size=64k tmpfs "$W/full2" 2>/dev/null; then
+  /usr/bin/python3 -c "import numpy as np, sys; np.save(sys.argv[1], 1 + np.random.default_rng(2).random((200, 300)))" \
+    "$W/big.npy"
+  mkdir "$W/TRB"; mv "$W/big.npy" "$W/TRB/x.npy"
+  ok=1
+  "$N" train "$W/sqrt.npg" "$W/TR" -o "$W/S1" --spectra "$W/full2/SP" >/dev/null || ok=0
+  cp -r "$W/full2/SP" "$W/SP0"
+  avail=$(df -k "$W/full2" | awk 'NR==2 {print $4}')
+  head -c $(( (avail - 12) * 1024 )) /dev/zero >"$W/full2/fill" || true
+  if "$N" train "$W/sqrt.npg" "$W/TRB" -o "$W/S2" --spectra "$W/full2/SP" >/dev/null 2>"$W/err.txt"; then ok=2; fi
+  left=$(ls "$W/full2/SP" | grep -v '^spectrum_[a-z0-9.]*\.\(npy\|csv\)$' || true)
+  diff -r "$W/SP0" "$W/full2/SP" >/dev/null || ok=3
+  umount "$W/full2"
+  test $ok = 1 || fail "spectra on a filling disk: case $ok: $(cat "$W/err.txt")"
+  grep -qF "error: $W/full2/SP/spectrum_y.npy: cannot write: No space left on device" "$W/err.txt" ||
+    fail "spectra ENOSPC message: $(cat "$W/err.txt")"
+  grep -qF "npgc train: the model in $W/S2 is whole; no spectrum was written to $W/full2/SP (its files are as they were)" \
+    "$W/err.txt" || fail "spectra ENOSPC, the model: $(cat "$W/err.txt")"
+  test -z "$left" || fail "spectra on a full disk left $left"
+  "$N" verify "$W/sqrt.npg" "$W/S2" "$W/TRB" --tol 10 >/dev/null || fail "the model beside failed spectra"
+fi
+
 echo "messages: ok"
