@@ -15,6 +15,7 @@ typedef struct Checker {
   PtrVec sums;           /* Sym* of enclosing sums, innermost last */
   int depth;             /* fn expansion depth */
   long expanded;         /* nodes created by fn expansion, bounded */
+  double unrolled;       /* expression nodes the sums with literal bounds unroll to, bounded */
   bool in_cond;          /* checking a condition (for messages) */
 } Checker;
 
