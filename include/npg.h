@@ -234,6 +234,12 @@ NPG_API const double *npg_samples_get(const NpgSamples *s, const char *name, lon
 /* Set every input and extern of sample k in `f` (an NpgSampleFn); k out of
  * [0, count) is an error in `f`. */
 NPG_API int npg_samples_set(void *samples, NpgFull *f, long k);
+/* Bind the dims of `f` from the shapes of the set's files (after their sample
+ * axis), setting no value: with no samples too, where npg_samples_set has no
+ * sample to set, so the outputs of no samples get their shapes
+ * (npg_full_dim). 0, or -1 with the disagreement (a dim 6 in DATA/rho.npy but
+ * 5 in IN/x.npy) as `f`'s error. */
+NPG_API int npg_samples_bind_dims(const NpgSamples *s, NpgFull *f);
 NPG_API void npg_samples_free(NpgSamples *s);
 
 /* Write a float64 array as a .npy file (to a temporary name, renamed when

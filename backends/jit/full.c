@@ -326,6 +326,14 @@ int full_bind_params(Full *f, const char *data_dir) {
   return 0;
 }
 
+int full_bind_shape(Full *f, const char *name, int ndim, const long *shape, const char *from) {
+  if (f->error[0]) return -1;
+  int k = find(&f->prog->slots, name);
+  if (k < 0 || (((Sym *)f->prog->slots.v[k])->kind != SYM_INPUT && ((Sym *)f->prog->slots.v[k])->kind != SYM_EXTERN))
+    return fail(f, "%s: the program has no input or extern '%s'", from, name);
+  return bind_shape(f, f->prog->slots.v[k], ndim, shape, from);
+}
+
 int full_set(Full *f, const char *name, int ndim, const long *shape, const double *values, const char *from) {
   if (f->error[0]) return -1;
   int k = find(&f->prog->slots, name);

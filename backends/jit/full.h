@@ -28,6 +28,10 @@ typedef struct Full Full;
  * extern not given by full_set since the last evaluation, to write its
  * `count` values (C order) to `out`; 0, or non-zero for a failure. */
 typedef int (*FullExternFn)(void *user, const Full *f, long sample, double *out, size_t count);
+/* Bind the dims of input or extern `name` from `shape` (its dims, then its
+ * static axes) without a value, as full_set would bind them: the shapes of
+ * the outputs of no samples. 0, or -1 naming `from` and the disagreement. */
+int full_bind_shape(Full *f, const char *name, int ndim, const long *shape, const char *from);
 
 /* The generated C of `prog`'s full evaluator (every stage, the bind-time
  * gather checker) and its tensor builders, written to `out` with the

@@ -134,6 +134,19 @@ static int samples_set(void *user, NpgFull *f, long k) {
   return 0;
 }
 
+int npg_samples_bind_dims(const NpgSamples *ns, NpgFull *f) {
+  API_REFUSE_NULL(f, NULL, 0, -1);
+  if (!ns) {
+    api_refuse(NULL, 0, __func__, "argument 's' is NULL");
+    return full_fail(f->full, api_refusal());
+  }
+  for (int i = 0; i < ns->s.n; i++) {
+    const SampleFile *g = &ns->s.files[i];
+    if (full_bind_shape(f->full, g->sym->name, g->a.ndim - 1, g->a.shape + 1, g->path) != 0) return -1;
+  }
+  return 0;
+}
+
 /* "(S, 5, 3)": a sample axis and `n` entries of `shape`. */
 static void shape_text(char *buf, size_t len, const long *shape, int n) {
   size_t o = (size_t)snprintf(buf, len, "(S");

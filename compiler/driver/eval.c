@@ -111,6 +111,18 @@ static int eval_full(NpgProgram *p, const char *data, const char *in, const char
     goto done;
   }
   long samples = npg_samples_count(s);
+  /* no samples: every output is empty, of the shape the files' dims give it (without this, a dim that only
+   * inputs bind stayed unbound and a zero-sample output was refused as "shape entry 1 is negative (-1)") */
+  if (samples == 0 && npg_samples_bind_dims(s, f) != 0) {
+    npgc_error(npg_full_error(f));
+    goto done;
+  }
+  for (int o = 0; samples == 0 && o < nout; o++)
+    if (outs[o].sym.kind == NPG_OP) {
+      fprintf(stderr, "error: %s: no samples, and output op '%s' takes its sparsity structure from one: give a sample "
+                      "(or leave it out of the outputs)\n", in, outs[o].sym.name);
+      goto done;
+    }
   bool tty = progress || isatty(2);
   for (long k = 0; k < samples; k++) {
     if (npg_samples_set(s, f, k) != 0 || npg_full_eval(f, k) != 0 || npg_full_check_finite(f, k) != 0) {

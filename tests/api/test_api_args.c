@@ -208,6 +208,11 @@ static void null_program_and_full(void **state) {
   npg_full_clear_error(f);
   assert_int_equal(npg_samples_set(NULL, NULL, 0), -1);
   refused(last(), "npg_samples_set", "f");
+  assert_int_equal(npg_samples_bind_dims(NULL, f), -1);
+  refused(npg_full_error(f), "npg_samples_bind_dims", "s");
+  npg_full_clear_error(f);
+  assert_int_equal(npg_samples_bind_dims(NULL, NULL), -1);
+  refused(last(), "npg_samples_bind_dims", "f");
   npg_samples_free(NULL);
   npg_full_free(f);
   npg_free(p);

@@ -165,4 +165,50 @@ if [ "$(id -u)" = 0 ] && mount -t tmpfs -o size=64k tmpfs "$W/full2" 2>/dev/null
   "$N" verify "$W/sqrt.npg" "$W/S2" "$W/TRB" --tol 10 >/dev/null || fail "the model beside failed spectra"
 fi
 
+# 7. inputs of no samples, of a small and of a huge dim (10^12: the file holds its header only): the full
+#    evaluation writes empty outputs of the shapes the files give (it said "shape entry 1 is negative (-1)"),
+#    a dim they disagree on is named as with samples, and the commands that need samples say so
+/usr/bin/python3 - "$W" <<'PY'
+import sys, os, numpy as np
+w = sys.argv[1]
+for d in ("Z0", "ZH", "ZD", "ZP"):
+    os.makedirs(w + "/" + d)
+for d in ("Z0", "ZD", "ZP"):
+    np.save(w + "/%s/x.npy" % d, np.zeros((0, 5)))
+with open(w + "/ZH/x.npy", "wb") as f:
+    np.lib.format.write_array_header_1_0(f, {"descr": "<f8", "fortran_order": False, "shape": (0, 10**12)})
+np.save(w + "/ZD/w.npy", np.ones(6))
+np.save(w + "/ZP/w.npy", np.ones(5))
+PY
+for z in "Z0 5" "ZH 1000000000000"; do
+  set -- $z
+  "$N" eval "$W/sqrt.npg" --full "$W/$1" "$W/$1" -o "$W/ZO$1" >/dev/null || fail "eval --full of no samples ($1)"
+  /usr/bin/python3 -c "import numpy as np, sys; a = np.load(sys.argv[1]); assert a.shape == (0, $2) and a.dtype == np.float64, a.shape" \
+    "$W/ZO$1/y.npy" || fail "eval --full of no samples ($1): the output's shape"
+  for cmd in "eval $W/sqrt.npg $W/M $W/$1 -o $W/ZO" "verify $W/sqrt.npg $W/M $W/$1" "train $W/sqrt.npg $W/$1 -o $W/ZM"; do
+    if "$N" $cmd >/dev/null 2>"$W/err.txt"; then fail "npgc $cmd accepted no samples"; fi
+    grep -qF "error: $W/$1: no samples (the first axis of its inputs is 0)" "$W/err.txt" || fail "npgc $cmd: $(cat "$W/err.txt")"
+    test ! -e "$W/ZO" && test ! -e "$W/ZM" || fail "npgc $cmd wrote an output"
+  done
+done
+cat >"$W/wx.npg" <<'NPG'
+dim N
+param w : real[N]
+input x : real[N]
+output y[i:N] = w[i] * x[i]
+NPG
+"$N" eval "$W/wx.npg" --full "$W/ZP" "$W/ZP" -o "$W/ZOP" >/dev/null || fail "eval --full of no samples with a param"
+if "$N" eval "$W/wx.npg" --full "$W/ZD" "$W/ZD" -o "$W/ZOD" 2>"$W/err.txt"; then fail "no samples of another dim"; fi
+grep -qF "error: dim N is 6 in $W/ZD/w.npy but 5 in $W/ZD/x.npy" "$W/err.txt" || fail "no samples, dims: $(cat "$W/err.txt")"
+cat >"$W/opout.npg" <<'NPG'
+dim N
+input x : real[N]
+output op M[i:N, j:N] = delta(i, j) * x[i]
+output y = M * x
+NPG
+if "$N" eval "$W/opout.npg" --full "$W/Z0" "$W/Z0" -o "$W/ZOO" 2>"$W/err.txt"; then fail "an op output of no samples"; fi
+grep -qF "error: $W/Z0: no samples, and output op 'M' takes its sparsity structure from one" "$W/err.txt" ||
+  fail "no samples, op: $(cat "$W/err.txt")"
+test ! -e "$W/ZOO" || fail "an op output of no samples wrote files"
+
 echo "messages: ok"
