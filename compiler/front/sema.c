@@ -9,6 +9,8 @@
  * node its Type, sqrt/root/if calls are rewritten to POW/IF nodes and every
  * exponent of a varying quantity is an N_RAT literal.
  */
+#include <ctype.h>
+#include <dirent.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -106,6 +108,37 @@ const char *sema_suggest(Checker *ck, const char *name, SemaSuggest what) {
   }
   if (what == SUGGEST_VALUE) nearer(name, "pi", &best, &dist);
   return best;
+}
+
+static int compare_names(const void *a, const void *b) { return strcmp((const char *)a, (const char *)b); }
+
+const char *sema_module_of_fn(Checker *ck, const char *name) {
+  Ctx *ctx = ck->ctx;
+  char dir[4096], names[64][128];
+  int n = 0;
+  snprintf(dir, sizeof dir, "%s/npg", ctx->std_dir ? ctx->std_dir : ".");
+  DIR *d = opendir(dir);
+  if (!d) return NULL;
+  for (struct dirent *e; n < 64 && (e = readdir(d));) { /* no arena allocation while the folder is open */
+    size_t len = strlen(e->d_name);
+    if (len > 4 && len < sizeof names[0] && strcmp(e->d_name + len - 4, ".npg") == 0)
+      snprintf(names[n++], sizeof names[0], "%.*s", (int)(len - 4), e->d_name);
+  }
+  closedir(d);
+  qsort(names, (size_t)n, sizeof names[0], compare_names); /* the first module in name order, on every system */
+  for (int i = 0; i < n; i++) {
+    SrcFile *f = source_read(ctx, arena_printf(ctx, "%s/%s.npg", dir, names[i]));
+    for (const char *line = f ? f->text : NULL; line && *line; line = strchr(line, '\n') ? strchr(line, '\n') + 1 : NULL) {
+      while (*line == ' ' || *line == '\t') line++;
+      if (strncmp(line, "fn", 2) != 0 || !isspace((unsigned char)line[2])) continue;
+      const char *id = line + 2;
+      while (*id == ' ' || *id == '\t') id++;
+      size_t len = strlen(name);
+      if (strncmp(id, name, len) == 0 && !(isalnum((unsigned char)id[len]) || id[len] == '_'))
+        return arena_strdup(ctx, names[i]);
+    }
+  }
+  return NULL;
 }
 
 const char *sema_did_you_mean(Checker *ck, const char *name, SemaSuggest what) {

@@ -34,6 +34,9 @@ typedef enum SemaSuggest { SUGGEST_VALUE, SUGGEST_FUNCTION, SUGGEST_QUANTITY, SU
 /* sema.c: the known name of that kind nearest `name` by edit distance (at most a third of its length, 1 to
  * 3), or NULL. */
 const char *sema_suggest(Checker *ck, const char *name, SemaSuggest what);
+/* sema.c: the stdlib module (<std_dir>/npg/<module>.npg, the first in name order) defining fn `name`, or
+ * NULL: for a call of a fn whose module the program does not use. */
+const char *sema_module_of_fn(Checker *ck, const char *name);
 /* "; did you mean 'solve'?" for sema_suggest's answer, or "" (for the end of an "unknown" message). */
 const char *sema_did_you_mean(Checker *ck, const char *name, SemaSuggest what);
 char *sema_shape_str(Ctx *ctx, const Type *t);

@@ -446,6 +446,10 @@ static Node *check_call(Checker *ck, Node *n) {
   Builtin b = builtin_lookup(n->name);
   if (!b || b == B_SUMF) {
     if (strcmp(n->name, "sum") == 0) error_node(ctx, n, "sum needs the form sum(k = a..b, expr)");
+    const char *module = sema_module_of_fn(ck, n->name);
+    if (module)
+      error_node(ctx, n, "unknown function '%s': it is a fn of the stdlib module %s, which this program does not use "
+                 "(add 'use %s')", n->name, module, module);
     error_node(ctx, n, "unknown function '%s'%s", n->name, sema_did_you_mean(ck, n->name, SUGGEST_FUNCTION));
   }
   const BuiltinInfo *bi = &builtin_info[b];
