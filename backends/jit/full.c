@@ -574,9 +574,9 @@ static bool atom_value(Full *f, const Sym *s, const long *iv, const Atom *a, dou
 
 /* Why entry `e` of stage `s` is not finite, when a diagonal power of it (a division, a negative or fractional
  * power) has a base of 0 (negative power) or below 0 (root) there: "a division by zero: a[0] is 0, and p
- * raises it to the power -1/2", into `cause`; false when no such base is found (the value arose otherwise, or the base is not a plain
- * polynomial of entries at the stage's own indices). Names the zero area or length itself, not only the stage
- * where the NaN appears. */
+ * raises it to the power -1/2", into `cause`; false when no such base is found (the value arose otherwise, or
+ * the base is not a plain polynomial of entries at the stage's own indices). Names the zero area or length
+ * itself, not only the stage where the NaN appears. */
 static bool nonfinite_cause(Full *f, const Sym *s, size_t e, char *cause, size_t len) {
   const Stage *st = s->stage;
   if (!st || s->kind != SYM_STAGE) return false;
