@@ -128,11 +128,11 @@ const char *sema_module_of_fn(Checker *ck, const char *name) {
   qsort(names, (size_t)n, sizeof names[0], compare_names); /* the first module in name order, on every system */
   for (int i = 0; i < n; i++) {
     SrcFile *f = source_read(ctx, arena_printf(ctx, "%s/%s.npg", dir, names[i]));
-    for (const char *line = f ? f->text : NULL; line && *line; line = strchr(line, '\n') ? strchr(line, '\n') + 1 : NULL) {
-      while (*line == ' ' || *line == '\t') line++;
-      if (strncmp(line, "fn", 2) != 0 || !isspace((unsigned char)line[2])) continue;
-      const char *id = line + 2;
-      while (*id == ' ' || *id == '\t') id++;
+    for (const char *line = f ? f->text : NULL; line && *line;) { /* "fn NAME(" at the start of a line */
+      const char *id = line + strspn(line, " \t"), *eol = strchr(line, '\n');
+      line = eol ? eol + 1 : NULL;
+      if (strncmp(id, "fn", 2) != 0 || !isspace((unsigned char)id[2])) continue;
+      id += 2 + strspn(id + 2, " \t");
       size_t len = strlen(name);
       if (strncmp(id, name, len) == 0 && !(isalnum((unsigned char)id[len]) || id[len] == '_'))
         return arena_strdup(ctx, names[i]);
