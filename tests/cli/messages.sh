@@ -5,7 +5,7 @@
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_msg_XXXXXX)
-trap 'rm -rf "$W"' EXIT
+trap 'umount "$W/full" "$W/full2" 2>/dev/null || true; rm -rf "$W"' EXIT
 fail() { echo "FAIL: $*"; exit 1; }
 N=$B/npgc
 
