@@ -250,13 +250,15 @@ static int set_inputs(FullObject *self, PyObject *kw) {
   while (kw && PyDict_Next(kw, &pos, &key, &value)) {
     const char *name = PyUnicode_AsUTF8(key);
     if (!name) return -1;
-    char what[256];
-    snprintf(what, sizeof what, "argument '%s' (sample %ld)", name, self->calls); /* the sample the call evaluates */
+    char what[256], from[300];
+    snprintf(what, sizeof what, "argument '%s'", name);
+    /* where it binds a dim: the sample the call evaluates, so that two calls that disagree are told apart */
+    snprintf(from, sizeof from, "%s (sample %ld)", what, self->calls);
     PyArrayObject *a = npgpy_values(value, what);
     if (!a) return -1;
     long shape[NPY_MAXDIMS];
     npgpy_long_shape(a, shape);
-    int rc = npg_full_set(self->f, name, PyArray_NDIM(a), shape, PyArray_DATA(a), what);
+    int rc = npg_full_set(self->f, name, PyArray_NDIM(a), shape, PyArray_DATA(a), from);
     Py_DECREF(a);
     if (rc) return fail(self), -1;
   }
