@@ -97,6 +97,26 @@ static cairo_status_t png_write(void *closure, const unsigned char *data, unsign
   return CAIRO_STATUS_SUCCESS;
 }
 
+/* The legend at x = lx: right of the plot, or inside its upper right corner on a light box. */
+static void draw_legend(cairo_t *cr, const Chart *c, double lx, double T, double lw, const double *dash) {
+  if (c->legend_inside) {
+    cairo_set_source_rgba(cr, 1, 1, 1, 0.85);
+    cairo_rectangle(cr, lx - 6, T + 4, lw - 14, 18.0 * c->nseries + 6), cairo_fill(cr);
+  }
+  for (int s = 0; s < c->nseries; s++) {
+    const double *rgb = series_colour(c, s);
+    double ly = T + 10 + 18.0 * s;
+    if (!c->series[s].label) continue;
+    cairo_set_source_rgb(cr, rgb[0], rgb[1], rgb[2]);
+    cairo_set_line_width(cr, 2);
+    if (series_dashed(c, s)) cairo_set_dash(cr, dash, 2, 0);
+    cairo_move_to(cr, lx, ly), cairo_line_to(cr, lx + 24, ly), cairo_stroke(cr);
+    cairo_set_dash(cr, NULL, 0, 0);
+    cairo_set_source_rgb(cr, 0, 0, 0);
+    cairo_move_to(cr, lx + 30, ly + 4), cairo_show_text(cr, c->series[s].label);
+  }
+}
+
 int chart_png(const Chart *c, const char *path, int width, int height, char *err, size_t errlen) {
   double x0 = INFINITY, x1 = -INFINITY, y0 = INFINITY, y1 = -INFINITY;
   for (int s = 0; s < c->nseries; s++)
@@ -199,24 +219,7 @@ int chart_png(const Chart *c, const char *path, int width, int height, char *err
     }
     cairo_restore(cr);
   }
-  /* the legend: right of the plot, or inside its upper right corner on a light box */
-  double lx = c->legend_inside ? R - lw + 8 : R + 12;
-  if (c->legend_inside) {
-    cairo_set_source_rgba(cr, 1, 1, 1, 0.85);
-    cairo_rectangle(cr, lx - 6, T + 4, lw - 14, 18.0 * c->nseries + 6), cairo_fill(cr);
-  }
-  for (int s = 0; s < c->nseries; s++) {
-    const double *rgb = series_colour(c, s);
-    double ly = T + 10 + 18.0 * s;
-    if (!c->series[s].label) continue;
-    cairo_set_source_rgb(cr, rgb[0], rgb[1], rgb[2]);
-    cairo_set_line_width(cr, 2);
-    if (series_dashed(c, s)) cairo_set_dash(cr, dash, 2, 0);
-    cairo_move_to(cr, lx, ly), cairo_line_to(cr, lx + 24, ly), cairo_stroke(cr);
-    cairo_set_dash(cr, NULL, 0, 0);
-    cairo_set_source_rgb(cr, 0, 0, 0);
-    cairo_move_to(cr, lx + 30, ly + 4), cairo_show_text(cr, c->series[s].label);
-  }
+  draw_legend(cr, c, c->legend_inside ? R - lw + 8 : R + 12, T, lw, dash);
 #undef PX
 #undef PY
   cairo_status_t drawn = cairo_status(cr);

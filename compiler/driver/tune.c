@@ -151,6 +151,46 @@ int npgc_tune(int argc, char **argv) {
   return rc;
 }
 
+/* MODEL-tune.png beside MODEL/, which holds only what a model store writes. */
+static const char *beside(const char *out, char *buf, size_t len) {
+  size_t n = strlen(out);
+  while (n > 1 && out[n - 1] == '/') n--;
+  snprintf(buf, len, "%.*s-tune.png", (int)n, out);
+  return buf;
+}
+
+/* The candidates tried, one line each. */
+static void print_trials(const NpgTuneReport *r, double tol) {
+  printf("%5s %-8s %14s %12s  %s\n", "trial", "kind", "cost", "error", "sizes");
+  for (int t = 0; t < r->ntrials; t++) {
+    const NpgTuneTrial *tr = &r->trials[t];
+    printf("%5d %-8s %14.6g %12.3e  ", t + 1, tr->uniform ? "uniform" : "class", tr->cost, tr->err);
+    print_sizes(r, tr);
+    if (tr->interpolated[0]) printf("  interpolated: %s", tr->interpolated); /* DESIGN §12: chosen at these sizes */
+    printf("%s%s\n", tr->err <= tol ? "  meets" : "", t == r->chosen ? "  <- chosen" : "");
+  }
+}
+
+/* Why `tol` cannot be met: the class whose floor limits, or the reduction of a stage. */
+static void print_unmet(const NpgTuneReport *r, double tol, long max_cap, const char *valid, const char *png) {
+  const NpgTuneTrial *last = &r->trials[r->ntrials - 1];
+  printf("--tol %.3g cannot be met: the smallest error reached is %.3e with every cap at its largest (%ld).\n"
+         "class %s limits it: its projection floor on %s is %.3e, and %s\n",
+         tol, last->err, max_cap, r->limiting, valid, r->limiting_floor,
+         r->limiting_saturated ? "its members have no more directions in the training samples: train with more, "
+                                 "or more varied, samples"
+                               : "its members are at --max-cap: raise it");
+  if (last->err > 2 * r->limiting_floor && last->interpolated[0]) /* DESIGN §12 */
+    printf("the error reached is %.1fx that floor: the reduction of a stage, not a basis, limits it; %s %s "
+           "interpolated there: more entries may help (a larger --interp-oversample)\n",
+           last->err / r->limiting_floor, strchr(last->interpolated, ',') ? "stages" : "stage", last->interpolated);
+  else if (last->err > 2 * r->limiting_floor)
+    printf("the error reached is %.1fx that floor: the reduction of a stage, not a basis, limits it (every stage "
+           "npgc check marks eligible for interpolation was measured interpolated too, unless --reduce named it)\n",
+           last->err / r->limiting_floor);
+  printf("error against cost -> %s; no model written\n", png);
+}
+
 static int tune(int argc, char **argv, NpgTrainOptions *to) {
   const char *prog_path = NULL, *data = NULL, *valid = NULL, *out = NULL, *png = NULL;
   double tol = -1;
@@ -205,12 +245,7 @@ static int tune(int argc, char **argv, NpgTrainOptions *to) {
   if (!out) return npgc_missing("tune", "-o MODEL/ (where to write the chosen model)");
   topt.progress = isatty(2);
   char pngbuf[4096], err[2048] = "";
-  if (!png) { /* beside MODEL/, which holds only what a model store writes */
-    size_t n = strlen(out);
-    while (n > 1 && out[n - 1] == '/') n--;
-    snprintf(pngbuf, sizeof pngbuf, "%.*s-tune.png", (int)n, out);
-    png = pngbuf;
-  }
+  if (!png) png = beside(out, pngbuf, sizeof pngbuf);
   const char *inputs[] = {prog_path, data, valid, NULL}, *png_inputs[] = {prog_path, data, valid, out, NULL};
   if (npgc_check_output("tune", "-o", out, NPGC_OUT_MODEL, inputs) != 0 ||
       npgc_check_output("tune", "--png", png, NPGC_OUT_FILE, png_inputs) != 0)
@@ -269,14 +304,7 @@ static int tune(int argc, char **argv, NpgTrainOptions *to) {
   else
     printf("tune %s: %d candidates (every class's cap; the basis sizes they give), worst output's mean relative L2 "
            "error on %ld samples of %s\n", prog_path, r.ntrials, nvalid, valid);
-  printf("%5s %-8s %14s %12s  %s\n", "trial", "kind", "cost", "error", "sizes");
-  for (int t = 0; t < r.ntrials; t++) {
-    const NpgTuneTrial *tr = &r.trials[t];
-    printf("%5d %-8s %14.6g %12.3e  ", t + 1, tr->uniform ? "uniform" : "class", tr->cost, tr->err);
-    print_sizes(&r, tr);
-    if (tr->interpolated[0]) printf("  interpolated: %s", tr->interpolated); /* DESIGN §12: chosen at these sizes */
-    printf("%s%s\n", tr->err <= tol ? "  meets" : "", t == r.chosen ? "  <- chosen" : "");
-  }
+  print_trials(&r, tol);
   char tmp[4096];
   npgc_tmp_path(tmp, sizeof tmp, png);
   if (npgc_commit("tune", tmp, png, draw(&r, tol, tmp, err, sizeof err)) != 0) {
@@ -284,22 +312,7 @@ static int tune(int argc, char **argv, NpgTrainOptions *to) {
     goto done;
   }
   if (!m) {
-    printf("--tol %.3g cannot be met: the smallest error reached is %.3e with every cap at its largest (%ld).\n"
-           "class %s limits it: its projection floor on %s is %.3e, and %s\n",
-           tol, r.trials[r.ntrials - 1].err, max_cap, r.limiting, valid, r.limiting_floor,
-           r.limiting_saturated ? "its members have no more directions in the training samples: train with more, "
-                                  "or more varied, samples"
-                                : "its members are at --max-cap: raise it");
-    const NpgTuneTrial *last = &r.trials[r.ntrials - 1];
-    if (last->err > 2 * r.limiting_floor && last->interpolated[0]) /* DESIGN §12 */
-      printf("the error reached is %.1fx that floor: the reduction of a stage, not a basis, limits it; %s %s "
-             "interpolated there: more entries may help (a larger --interp-oversample)\n",
-             last->err / r.limiting_floor, strchr(last->interpolated, ',') ? "stages" : "stage", last->interpolated);
-    else if (last->err > 2 * r.limiting_floor)
-      printf("the error reached is %.1fx that floor: the reduction of a stage, not a basis, limits it (every stage "
-             "npgc check marks eligible for interpolation was measured interpolated too, unless --reduce named it)\n",
-             last->err / r.limiting_floor);
-    printf("error against cost -> %s; no model written\n", png);
+    print_unmet(&r, tol, max_cap, valid, png);
     goto done;
   }
   if (npgc_make_parents(out, false) != 0 || npg_model_save(m, out) != 0) {
