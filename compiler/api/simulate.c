@@ -45,6 +45,17 @@ static int rollout_start(Rollout *ro, const Program *prog, StateView (*view)(voi
   return 0;
 }
 
+/* After an evaluation of the step: the start energies at a rollout's first step, then every next
+ * value checked for a blow-up. 0, or -1 with the message in err. */
+static int check_step(Rollout *ro, const Program *prog, StateView (*view)(void *, const Sym *, bool), void *at,
+                      char *err, size_t errlen) {
+  if ((ro->steps == 0 || !ro->start) && rollout_start(ro, prog, view, at))
+    return snprintf(err, errlen, "out of memory"), -1;
+  for (int i = 0; i < prog->states.n; i++)
+    if (blown_up(ro, i, prog->states.v[i], view(at, prog->states.v[i], true), err, errlen)) return -1;
+  return 0;
+}
+
 static int set_blowup(Rollout *ro, double factor, char *err, size_t errlen, const char *func) {
   if (!(factor >= 0) || !isfinite(factor))
     return api_refuse(err, errlen, func, "argument 'factor' is %g (a blow-up factor > 1, or 0 to check finiteness only)",
@@ -82,15 +93,7 @@ int npg_full_step(NpgFull *f, long steps, long sample) {
   if (refuse_steps(prog, steps, err, sizeof err, __func__)) return full_fail(f->full, err);
   for (long t = 0; t < steps; t++) {
     if (full_eval(f->full, sample) != 0) return -1;
-    if (f->roll.steps == 0 || !f->roll.start) {
-      for (int i = 0; i < prog->states.n; i++) /* the state before the first step */
-        if (!full_get(f->full, ((const Sym *)prog->states.v[i])->name, NULL))
-          return full_fail(f->full, "a state has no value");
-      if (rollout_start(&f->roll, prog, full_view, f->full)) return full_fail(f->full, "out of memory");
-    }
-    for (int i = 0; i < prog->states.n; i++)
-      if (blown_up(&f->roll, i, prog->states.v[i], full_view(f->full, prog->states.v[i], true), err, sizeof err))
-        return full_fail(f->full, err);
+    if (check_step(&f->roll, prog, full_view, f->full, err, sizeof err)) return full_fail(f->full, err);
     if (full_advance(f->full) != 0) return -1;
     f->roll.steps++;
   }
@@ -127,13 +130,12 @@ int npg_reduced_step(NpgReduced *r, long steps, long sample) {
     return error_set_first(r->error, sizeof r->error, "%s", err);
   for (long t = 0; t < steps; t++) {
     if (npg_reduced_eval(r, sample) != 0) return -1;
-    if ((r->roll.steps == 0 || !r->roll.start) && rollout_start(&r->roll, prog, reduced_view, r))
-      return error_set_first(r->error, sizeof r->error, "out of memory");
-    for (int i = 0; i < prog->states.n; i++) {
+    if (check_step(&r->roll, prog, reduced_view, r, err, sizeof err))
+      return error_set_first(r->error, sizeof r->error, "%s", err);
+    for (int i = 0; i < prog->states.n; i++) { /* one class, one basis: the next coordinates are the state's */
       const Sym *u = prog->states.v[i];
       StateView next = reduced_view(r, u, true);
-      if (blown_up(&r->roll, i, u, next, err, sizeof err)) return error_set_first(r->error, sizeof r->error, "%s", err);
-      memcpy((double *)reduced_view(r, u, false).next, next.next, sizeof(double) * next.n); /* one class: one basis */
+      memcpy((double *)reduced_view(r, u, false).next, next.next, sizeof(double) * next.n);
     }
     r->roll.steps++;
   }
