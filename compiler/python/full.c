@@ -457,7 +457,8 @@ static PyMethodDef full_methods[] = {
    "simulate(steps, every=1, **inputs) -> {state: array}: a program with state (DESIGN §15) stepped `steps`\n"
    "times from the states' initial values (state=array); every other input held (its shape) or given per\n"
    "step (a leading steps axis). Each state's array is [steps // every + 1, ...]: steps 0, every, 2 every, ...\n"
-   "A blow-up (a state not finite, or its energy past 10x its start) raises npg.Error naming the step."},
+   "A blow-up (a state not finite, or its energy past 10x its start; blowup=F changes the factor for this\n"
+   "call, 0 checks finiteness only) raises npg.Error naming the step."},
   {"dim", (PyCFunction)full_dim_method, METH_O, "dim(name) -> int: the bound size of a dim (-1: unbound)"},
   {"bind", (PyCFunction)full_bind, METH_O, "bind(params): forget every binding and bind these params"},
   {"extern", (PyCFunction)full_extern, METH_VARARGS,

@@ -139,6 +139,7 @@ typedef struct NpgpyRoll {
   int n;
   NpgpyRollInput *in;
   long steps, every, saves;
+  double blowup;            /* blowup=F of the call, -1 when not given (the default, 10) */
   NpgFull *f;               /* the full rollout's evaluator (and a trainer's: t) */
   NpgReduced *r;            /* or the reduced one's */
   NpgTrainer *t;            /* add_trajectory: the visited states added, nothing kept */

@@ -3,6 +3,7 @@
  * a state's initial value (its declared shape), an input held (its shape) or given per step (a
  * leading steps axis, at least `steps` long). The rollout itself is plain C with the GIL released;
  * its callbacks only copy between these arrays and the evaluator. */
+#include <math.h>
 #include <string.h>
 
 #include "npgpy.h"
@@ -16,9 +17,26 @@ void npgpy_roll_free(NpgpyRoll *r) {
   memset(r, 0, sizeof *r);
 }
 
-/* steps and every from the positional arguments or the keywords; the other keywords, a new dict,
- * into *inputs. 0, or -1 with an exception. */
-static int split_args(PyObject *args, PyObject *kw, const char *who, long *steps, long *every, PyObject **inputs) {
+/* blowup=F, a keyword only: the blow-up factor of this call (npgc simulate --blowup), -1 when not
+ * given. 0, or -1 with an exception. */
+static int split_blowup(PyObject *inputs, const char *who, double *blowup) {
+  *blowup = -1;
+  PyObject *v = PyDict_GetItemString(inputs, "blowup");
+  if (!v) return 0;
+  if (PyBool_Check(v) || !(PyFloat_Check(v) || PyLong_Check(v)))
+    return PyErr_Format(PyExc_TypeError, "%s: 'blowup' must be a number, not %s", who, Py_TYPE(v)->tp_name), -1;
+  double f = PyFloat_AsDouble(v);
+  if (f == -1 && PyErr_Occurred()) return -1;
+  if (!(f == 0 || f > 1) || !isfinite(f))
+    return npgpy_value_error("%s: blowup is %g (a blow-up factor > 1, or 0 to check finiteness only)", who, f), -1;
+  *blowup = f;
+  return PyDict_DelItemString(inputs, "blowup");
+}
+
+/* steps and every from the positional arguments or the keywords, and blowup; the other keywords, a
+ * new dict, into *inputs. 0, or -1 with an exception. */
+static int split_args(PyObject *args, PyObject *kw, const char *who, long *steps, long *every, double *blowup,
+                      PyObject **inputs) {
   *steps = -1, *every = 1;
   *inputs = kw ? PyDict_Copy(kw) : PyDict_New();
   if (!*inputs) return -1;
@@ -39,13 +57,15 @@ static int split_args(PyObject *args, PyObject *kw, const char *who, long *steps
   }
   if (*steps < 0 && !PyErr_Occurred())
     return PyErr_Format(PyExc_TypeError, "%s: give steps, the steps to run (0 or more)", who), -1;
-  return 0;
+  return split_blowup(*inputs, who, blowup);
 }
 
 int npgpy_roll_args(const ProgramObject *prog, PyObject *args, PyObject *kw, const char *who, NpgpyRoll *r) {
   long steps, every;
+  double blowup;
   PyObject *inputs = NULL;
-  int rc = split_args(args, kw, who, &steps, &every, &inputs) ? -1 : npgpy_roll(prog, inputs, steps, every, who, r);
+  int rc = split_args(args, kw, who, &steps, &every, &blowup, &inputs) ? -1 : npgpy_roll(prog, inputs, steps, every, who, r);
+  r->blowup = blowup;
   Py_XDECREF(inputs);
   return rc;
 }
@@ -162,6 +182,10 @@ int npgpy_roll_run(NpgpyRoll *r, long sample) {
   NpgRollout ro = {.steps = r->steps, .every = r->every, .before_step = before_step, .user = r};
   ro.at_save = r->t ? NULL : at_save;
   if (set_step(r, 0, true) != 0) return -1;
+  /* The factor holds for this call only: an unset one is the library's default. */
+  double blowup = r->blowup >= 0 ? r->blowup : 10;
+  if (r->f && npg_full_set_blowup(r->f, blowup) != 0) return -1;
+  if (r->r && npg_reduced_set_blowup(r->r, blowup) != 0) return -1;
   if (r->t) return npg_trainer_add_trajectory(r->t, r->f, sample, &ro);
   return r->f ? npg_full_simulate(r->f, sample, &ro) : npg_reduced_simulate(r->r, sample, &ro);
 }

@@ -79,6 +79,17 @@ def test_blowup_and_bad_arguments(root, tmp_path):
     u0 = np.where(np.arange(36) % 2, 1.0, -1.0)
     with pytest.raises(npg.Error, match=r"step \d+: state 'u' blew up"):
         full.simulate(500, u=u0, f=np.zeros(36))
+    # blowup=F: this call's factor (npgc simulate --blowup); 0 checks finiteness only
+    with pytest.raises(npg.Error, match=r"step \d+: state 'u' blew up"):
+        full.simulate(12, u=u0, f=np.zeros(36))
+    grown = full.simulate(12, u=u0, f=np.zeros(36), blowup=0)["u"]
+    assert np.all(np.isfinite(grown)) and np.linalg.norm(grown[-1]) > 10 * np.linalg.norm(u0)
+    with pytest.raises(npg.Error, match="blew up"):  # the factor does not outlive its call
+        full.simulate(12, u=u0, f=np.zeros(36))
+    with pytest.raises(ValueError, match="blowup is 0.5"):
+        full.simulate(3, u=u0, f=np.zeros(36), blowup=0.5)
+    with pytest.raises(TypeError, match="'blowup' must be a number"):
+        full.simulate(3, u=u0, f=np.zeros(36), blowup="10")
     with pytest.raises(TypeError, match="state 'u' has no initial value"):
         full.simulate(3, f=np.zeros(36))
     with pytest.raises(ValueError, match="fewer than the 5 to run"):
