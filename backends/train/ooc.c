@@ -338,10 +338,7 @@ static int eigen(Ooc *o) {
       }
       double *s = st->s[i];
       for (long j = 0; j < S; j++) s[j] = sqrt(fmax(lam[S - 1 - j], 0.0));
-      bool unresolved = false;
-      long k = pca_choose(s, S, cap, mb->energy, true, &unresolved);
-      /* unresolved: in memory the SVD would decide; out of core the Gram
-       * matrix is all there is (directions below 1e-6 σ_max lose digits) */
+      long k = pca_choose(s, S, cap, mb->energy, true);
       double total = 0, run = 0;
       for (long j = 0; j < S; j++) total += s[j] * s[j];
       for (long j = 0; j < k; j++) run += s[j] * s[j];

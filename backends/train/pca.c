@@ -11,15 +11,16 @@
  * dependent directions (paper §6.1: two 60-vector bases gave a 120-vector
  * one). All factorizations through LAPACKE.
  *
- * Tall snapshot matrices (n ≥ 4 columns) go through their Gram matrix, the
- * method of snapshots of DESIGN §5: G = XᵀX (one dsyrk or dgemm per block
- * pair), its eigenvalues and the kept eigenvectors V (pca_top_eigen),
- * U = X V Σ⁻¹ (dgemm), one Cholesky-QR
- * pass to restore orthonormality — an order of magnitude faster than a
- * tall SVD, whose QR is bandwidth-bound. The Gram matrix resolves singular
- * values only down to about √ε σ_max, so when a direction the result needs
- * (kept, or to be told apart from a dependent one) lies below
- * PCA_GRAM_TOL σ_max, the SVD (dgesdd) decides instead. */
+ * Every basis comes from an SVD of the snapshots themselves, never of
+ * their Gram matrix XᵀX: the Gram matrix squares the snapshots' condition
+ * number and resolves singular values only down to about √ε σ_max, so a
+ * basis built from it stops near 1e-8 (issue 41). Tall snapshots (n ≥ S)
+ * take a QR first (dgeqrf), the SVD of the S x S factor R (dgesdd), and
+ * the kept vectors Q [U_R; 0] (dormqr): only the kept columns are formed,
+ * and what is held beyond the snapshots is n x S for the factored copy
+ * and n x k for the basis. Singular values are then exact to about ε σ_max,
+ * and the basis reproduces the snapshots to that: the truncation keeps
+ * directions down to PCA_ROUNDOFF_TOL σ_max. */
 #include <cblas.h>
 #include <float.h>
 #include <lapacke.h>
@@ -29,11 +30,15 @@
 
 #include "train.h"
 
-/* Singular values below this fraction of the largest are dependent
- * directions, not data. */
-#define PCA_RANK_TOL 1e-10
-/* Singular values the Gram route resolves: above this fraction of the largest. */
-#define PCA_GRAM_TOL 1e-6
+/* Singular values at most this fraction of the largest are rounding, not
+ * data: a backward-stable SVD gives every singular value to about ε σ_max
+ * times a small factor of the sizes, and a direction below that carries
+ * nothing the snapshots resolve. 100 ε (2.2e-14) keeps every direction of
+ * test_pca's spectrum 1 … 1e-14 down to 1e-13 and drops the 1e-14 one. */
+#define PCA_ROUNDOFF_TOL (100 * DBL_EPSILON)
+/* Merging member bases (orthonormal blocks): a direction of [U_1 … U_r]
+ * whose singular value is below this is a repeat of the others. */
+#define PCA_MERGE_DEPENDENT_TOL 1e-10
 /* A direction whose remainder after removing the previous ones is below
  * this fraction of its norm is dependent on them (pca_in_order). */
 #define PCA_DEPENDENT_TOL 1e-8
@@ -46,17 +51,6 @@
 /* A Gram matrix whose largest diagonal entry (a snapshot's squared norm) is
  * below this lost its small entries to underflow. */
 #define PCA_GRAM_MIN 1e-290
-
-/* A block of columns of a snapshot matrix with n rows: column-major (ld n)
- * or row-major (ld k). */
-typedef struct Cols {
-  const double *p;
-  long k;
-  bool colmajor;
-} Cols;
-
-static CBLAS_TRANSPOSE as_rows(const Cols *c) { return c->colmajor ? CblasTrans : CblasNoTrans; }
-static long ld(const Cols *c, long n) { return c->colmajor ? n : c->k; }
 
 /* pca_top_eigen goes the whole way (dsyevd) when it is asked for more than
  * this fraction of the eigenvectors: from about three quarters on, the
@@ -137,79 +131,6 @@ done:
   return (int)info;
 }
 
-typedef enum { GRAM_DONE, GRAM_UNRESOLVED, GRAM_FAILED } GramResult;
-
-/* Left singular vectors of X = [X_0 … X_{r-1}] (n rows, K columns) through
- * the Gram matrix: on GRAM_DONE, *U (n x kept, row-major) and the singular
- * values s[0..K) descending. `choose` picks how many to keep from s, at
- * most `kmax` (only that many eigenvectors are formed: pca_top_eigen); it
- * is told unresolved ones are below resolved (s below PCA_GRAM_TOL s[0]
- * unreliable): GRAM_UNRESOLVED when it needs one. */
-typedef long (*ChooseFn)(const double *s, long K, const void *arg, bool *unresolved);
-
-static GramResult gram_basis(long n, int r, const Cols *X, ChooseFn choose, const void *arg, long kmax, double *s,
-                             double **U, long *kept_out) {
-  long K = 0;
-  for (int i = 0; i < r; i++) K += X[i].k;
-  if (kmax > K) kmax = K;
-  double *G = mem_calloc((size_t)(K * K), sizeof(double)), *lam = mem_malloc(sizeof(double) * (size_t)K);
-  double *V = mem_malloc(sizeof(double) * (size_t)(K * (kmax ? kmax : 1))), *W = NULL, *Ut = NULL;
-  GramResult res = GRAM_FAILED;
-  if (!G || !lam || !V) goto done;
-  /* G = XᵀX, column-major K x K, upper triangle */
-  for (int i = 0, oi = 0; i < r; oi += (int)X[i].k, i++)
-    for (int j = i, oj = oi; j < r; oj += (int)X[j].k, j++) {
-      double *Gij = G + (size_t)oj * (size_t)K + (size_t)oi;
-      if (i == j)
-        cblas_dsyrk(CblasColMajor, CblasUpper, as_rows(&X[i]), (int)X[i].k, (int)n, 1.0,
-                    X[i].p, (int)ld(&X[i], n), 0.0, Gij, (int)K);
-      else
-        cblas_dgemm(CblasColMajor, as_rows(&X[i]), X[j].colmajor ? CblasNoTrans : CblasTrans, (int)X[i].k,
-                    (int)X[j].k, (int)n, 1.0, X[i].p, (int)ld(&X[i], n), X[j].p, (int)ld(&X[j], n), 0.0, Gij, (int)K);
-    }
-  if (pca_top_eigen(K, G, kmax, lam, V) != 0) goto done;
-  for (long i = 0; i < K; i++) s[i] = sqrt(fmax(lam[K - 1 - i], 0.0)); /* descending */
-  bool unresolved = false;
-  long kept = choose(s, K, arg, &unresolved);
-  if (kept > kmax) goto done; /* `choose` keeps at most kmax: a bug if not */
-  if (unresolved || (kept > 0 && !(s[kept - 1] > PCA_GRAM_TOL * s[0]))) {
-    res = GRAM_UNRESOLVED;
-    goto done;
-  }
-  long kk = kept ? kept : 1;
-  /* W = V_kept Σ⁻¹ (K x kept, column-major), then Uᵀ = Σ_i W_iᵀ X_iᵀ
-   * (kept x n column-major = U row-major) */
-  W = mem_malloc(sizeof(double) * (size_t)(K * kk));
-  Ut = mem_calloc((size_t)(n * kk), sizeof(double));
-  if (!W || !Ut) goto done;
-  for (long j = 0; j < kept; j++)
-    for (long i = 0; i < K; i++) W[j * K + i] = V[j * K + i] / s[j];
-  for (int i = 0, oi = 0; i < r && kept > 0; oi += (int)X[i].k, i++)
-    cblas_dgemm(CblasColMajor, CblasTrans, as_rows(&X[i]), (int)kept, (int)n, (int)X[i].k, 1.0, W + oi, (int)K,
-                X[i].p, (int)ld(&X[i], n), 1.0, Ut, (int)kk);
-  if (kept > 0) { /* Cholesky-QR: C = UᵀU = RᵀR, U <- U R⁻¹ */
-    double *C = G; /* K x K >= kept x kept, no longer needed */
-    cblas_dsyrk(CblasColMajor, CblasUpper, CblasNoTrans, (int)kept, (int)n, 1.0, Ut, (int)kept, 0.0, C, (int)kept);
-    if (LAPACKE_dpotrf(LAPACK_COL_MAJOR, 'U', (lapack_int)kept, C, (lapack_int)kept) != 0) {
-      res = GRAM_UNRESOLVED;
-      goto done;
-    }
-    cblas_dtrsm(CblasColMajor, CblasLeft, CblasUpper, CblasTrans, CblasNonUnit, (int)kept, (int)n, 1.0, C, (int)kept,
-                Ut, (int)kept);
-  }
-  *U = Ut;
-  Ut = NULL;
-  *kept_out = kept;
-  res = GRAM_DONE;
-done:
-  free(G);
-  free(lam);
-  free(V);
-  free(W);
-  free(Ut);
-  return res;
-}
-
 /* Σ (s_i / s_0)²: the energy of singular values `s` (descending) relative
  * to the largest's, so that it neither underflows (data at 1e-200, whose
  * squares are 0) nor overflows (1e200) — the truncation is scale-invariant
@@ -222,64 +143,122 @@ static double energy_total(const double *s, long K) {
 }
 
 /* The truncation rule (train.h) every route to a member's basis takes:
- * the SVD and the Gram route below, the method of snapshots (snapshots.c),
- * out of core (ooc.c). It was written three times with three floors: the
- * SVD stopped at PCA_RANK_TOL, the method of snapshots there or where the
- * energy left is the Gram matrix's rounding, the Gram routes here and out
- * of core at PCA_GRAM_TOL. Now the floor is what the values resolve:
- * PCA_RANK_TOL for all, and for eigenvalues of a Gram matrix (`gram`) the
- * rounding of its trace, K ε of the total — an eigenvalue is exact only to
- * about ε of the largest, so at energy 1 the count would otherwise run
- * on through eigen-noise to the cap. One rounding floor for both cannot
- * be had: at K ε the SVD would stop at σ 5.6e-8 of the largest on
- * test_reduce's pca_gram_matches_svd (k 29, which asks 30..40); at ε the
- * Gram routes keep noise (out of core at energy 1: 12 vectors where the
- * SVD finds 2).
- *
- * Below energy 1 − 1e-12 K (every default, every test) the change
- * decides nothing, the energy is reached first: every model the tests and
- * demos write is bit for bit as before. At energy 1 out of core now stops
- * as the method of snapshots does, measured on formfactors.npg (96 faces,
- * 30 samples, cap 20): c, d, p 6 -> 7 vectors (as in memory), s 2 -> 6 and
- * r 3 -> 5 (in memory 2 and 3: values below PCA_GRAM_TOL, fewer digits),
- * the energy lost from 1.0e-14..3.5e-14 to 2.3e-15..6.3e-15. */
-long pca_choose(const double *s, long K, int cap, double energy, bool gram, bool *unresolved) {
-  double total = energy_total(s, K), run = 0;
-  long kept = 0;
+ * the SVD here, the method of snapshots (snapshots.c), out of core
+ * (ooc.c). The energy left out, Σ_{i≥k} (s_i/s_0)², is summed from the
+ * smallest value up and compared with (1 − energy) of the total, so that a
+ * tolerance far below ε of the total (energy 1 − 1e-24) is not lost to
+ * the rounding of total − kept; at energy 1 the floors alone stop the
+ * count. The floors are what the values resolve: PCA_ROUNDOFF_TOL σ_max
+ * for singular values, and for square roots of a Gram matrix's eigenvalues
+ * (`gram`) the rounding of its trace, K ε of the total — an eigenvalue is
+ * exact only to about ε of the largest, so at energy 1 the count would
+ * otherwise run on through eigen-noise to the cap. */
+long pca_choose(const double *s, long K, int cap, double energy, bool gram) {
+  double total = energy_total(s, K);
   if (!(total > 0)) return 0;
-  for (;;) {
-    if (kept == K || kept == cap) break;
-    /* what is left is the Gram matrix's rounding (of the trace, of the
-     * snapshots): no direction below carries energy it resolves */
-    if (gram && kept > 0 && total - run <= (double)K * DBL_EPSILON * total) break;
-    /* kept or dropped, a direction this small only the SVD can tell */
-    if (!(s[kept] > PCA_GRAM_TOL * s[0]) && unresolved) *unresolved = true;
-    if (!(s[kept] > PCA_RANK_TOL * s[0])) break; /* a dependent direction */
-    run += (s[kept] / s[0]) * (s[kept] / s[0]);
-    kept++;
-    if (run >= energy * total) break;
+  long limit = 0; /* the cap, and the first value at the rounding floor */
+  while (limit < K && limit < cap && s[limit] > PCA_ROUNDOFF_TOL * s[0]) limit++;
+  double tol = (1 - energy) * total, tail = 0;
+  if (gram) tol = fmax(tol, (double)K * DBL_EPSILON * total);
+  long kept = K; /* the fewest whose tail is within tol: tails grow as k falls */
+  for (long i = K - 1; i >= 0; i--) {
+    tail += (s[i] / s[0]) * (s[i] / s[0]);
+    if (tail > tol) break;
+    kept = i;
   }
-  return kept;
+  if (kept == 0) kept = 1; /* total > tol: energy > 0 keeps the largest */
+  return kept < limit ? kept : limit;
 }
 
-typedef struct MemberChoice {
-  int cap;
-  double energy;
-} MemberChoice;
+/* The SVD of tall snapshots X (n x S column-major, n ≥ S) by a QR first:
+ * X = Q R (dgeqrf, reflectors kept in A), R = U_R Σ Vᵀ (dgesdd); the left
+ * singular vectors are Q [U_R; 0], formed only for the kept columns
+ * (tall_svd_vectors). Wide snapshots (n < S) take dgesdd whole. */
+typedef struct TallSvd {
+  long n, S, r;  /* r = min(n, S) singular values */
+  double *A;     /* n x S: the QR's reflectors (tall), or the whole U (wide, n x r) */
+  double *tau;   /* the reflectors' scales (tall) */
+  double *ur;    /* S x S: R's left singular vectors (tall) */
+} TallSvd;
 
-/* pca_choose as the Gram route's ChooseFn. */
-static long choose_member(const double *s, long K, const void *arg, bool *unresolved) {
-  const MemberChoice *mc = arg;
-  return pca_choose(s, K, mc->cap, mc->energy, true, unresolved);
+static void tall_svd_free(TallSvd *t) { free(t->A), free(t->tau), free(t->ur); }
+
+/* s[0..r) descending; 0, or -1 with `err`. */
+static int tall_svd(TallSvd *t, long n, long S, const double *X, double *s, char *err, size_t errlen) {
+  memset(t, 0, sizeof *t);
+  t->n = n, t->S = S, t->r = n < S ? n : S;
+  long r = t->r;
+  double *R = NULL, *vt = mem_malloc(sizeof(double) * (size_t)(r * S + 1));
+  t->A = mem_malloc(sizeof(double) * (size_t)(n * S + 1));
+  lapack_int info = 0;
+  const char *what = "SVD";
+  if (!t->A || !vt) goto oom;
+  memcpy(t->A, X, sizeof(double) * (size_t)(n * S));
+  if (n < S) { /* wide: the SVD whole, U in place of the copy */
+    double *A = t->A;
+    if (!(t->A = mem_malloc(sizeof(double) * (size_t)(n * r + 1)))) {
+      t->A = A;
+      goto oom;
+    }
+    info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)n, (lapack_int)S, A, (lapack_int)n, s, t->A,
+                          (lapack_int)n, vt, (lapack_int)r);
+    free(A);
+    goto done;
+  }
+  t->tau = mem_malloc(sizeof(double) * (size_t)(S + 1));
+  R = mem_calloc((size_t)(S * S + 1), sizeof(double));
+  t->ur = mem_malloc(sizeof(double) * (size_t)(S * S + 1));
+  if (!t->tau || !R || !t->ur) goto oom;
+  what = "QR";
+  if ((info = LAPACKE_dgeqrf(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)S, t->A, (lapack_int)n, t->tau)) != 0)
+    goto done;
+  for (long j = 0; j < S; j++) memcpy(R + j * S, t->A + j * n, sizeof(double) * (size_t)(j + 1));
+  what = "SVD";
+  info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)S, (lapack_int)S, R, (lapack_int)S, s, t->ur,
+                        (lapack_int)S, vt, (lapack_int)S);
+done:
+  free(R), free(vt);
+  if (info != 0) {
+    tall_svd_free(t);
+    snprintf(err, errlen, "the %s of %ld x %ld snapshots did not converge (LAPACK info %d)", what, n, S, (int)info);
+    return -1;
+  }
+  return 0;
+oom:
+  free(R), free(vt);
+  tall_svd_free(t);
+  snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+  return -1;
 }
 
-/* Keep every direction above the rank tolerance: the small ones cannot be
- * told from dependent ones through the Gram matrix. */
-static long choose_independent(const double *s, long K, const void *arg, bool *unresolved) {
-  (void)arg;
-  for (long i = 0; i < K; i++)
-    if (!(s[i] > PCA_GRAM_TOL * s[0])) *unresolved = true;
-  return *unresolved ? 0 : K;
+/* The first k left singular vectors into *U (n x k row-major, malloc'd).
+ * 0, or -1 with `err`. */
+static int tall_svd_vectors(const TallSvd *t, long k, double **U, char *err, size_t errlen) {
+  long n = t->n, S = t->S;
+  double *out = mem_malloc(sizeof(double) * (size_t)(n * (k ? k : 1)));
+  double *C = t->ur ? mem_calloc((size_t)(n * (k ? k : 1)), sizeof(double)) : NULL;
+  if (!out || (t->ur && !C)) {
+    free(out), free(C);
+    snprintf(err, errlen, "out of memory for a basis of %ld x %ld", n, k);
+    return -1;
+  }
+  const double *u = t->A; /* n x k column-major: the vectors */
+  if (t->ur && k > 0) {   /* C = Q [U_R(:, 0:k); 0] */
+    for (long j = 0; j < k; j++) memcpy(C + j * n, t->ur + j * S, sizeof(double) * (size_t)S);
+    lapack_int info = LAPACKE_dormqr(LAPACK_COL_MAJOR, 'L', 'N', (lapack_int)n, (lapack_int)k, (lapack_int)S, t->A,
+                                     (lapack_int)n, t->tau, C, (lapack_int)n);
+    if (info != 0) {
+      free(out), free(C);
+      snprintf(err, errlen, "applying the QR of %ld x %ld snapshots failed (LAPACK info %d)", n, S, (int)info);
+      return -1;
+    }
+    u = C;
+  }
+  for (long i = 0; i < n; i++)
+    for (long j = 0; j < k; j++) out[i * k + j] = u[(size_t)j * (size_t)n + (size_t)i];
+  free(C);
+  *U = out;
+  return 0;
 }
 
 /* pca_member, also handing back the singular values (descending, *nsv of
@@ -291,7 +270,7 @@ static int pca_core(long n, long S, const double *X, int cap, double energy, dou
   *captured = 1;
   if (sv) *sv = NULL, *nsv = 0;
   /* Snapshots far from 1 (issue 24: 1e-200 or 1e200 times O(1) data): the
-   * Gram matrix's products underflow to 0 or overflow to inf, so they are
+   * energies' squares underflow to 0 or overflow to inf, so they are
    * scaled by a power of two (exact) into [1, 2) first; the basis does not
    * change with the scale, and the singular values are scaled back. */
   double big = 0;
@@ -311,60 +290,21 @@ static int pca_core(long n, long S, const double *X, int cap, double energy, dou
     return rc;
   }
   long r = n < S ? n : S;
-  if (n >= 4 * S && S > 0) {
-    double *sg = mem_malloc(sizeof(double) * (size_t)S), *Ug = NULL;
-    long kept = 0;
-    MemberChoice mc = {cap, energy};
-    Cols X1 = {X, S, true};
-    GramResult g = sg ? gram_basis(n, 1, &X1, choose_member, &mc, cap, sg, &Ug, &kept) : GRAM_FAILED;
-    if (g == GRAM_DONE) {
-      double total = energy_total(sg, S), run = energy_total(sg, kept);
-      *captured = total > 0 ? run / total : 1;
-      *U = Ug;
-      *k = (int)kept;
-      if (sv) *sv = sg, *nsv = S;
-      else free(sg);
-      return 0;
-    }
-    free(sg);
-    free(Ug);
-    /* unresolved or out of memory: the SVD below decides */
-  }
-  double *A = mem_malloc(sizeof(double) * (size_t)(n * S + 1));
   double *s = mem_malloc(sizeof(double) * (size_t)(r + 1));
-  double *u = mem_malloc(sizeof(double) * (size_t)(n * r + 1));
-  double *vt = mem_malloc(sizeof(double) * (size_t)(r * S + 1));
-  if (!A || !s || !u || !vt) {
-    free(A), free(s), free(u), free(vt);
+  TallSvd t;
+  if (!s) {
     snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
     return -1;
   }
-  memcpy(A, X, sizeof(double) * (size_t)(n * S));
-  /* X is n x S column-major: its left singular vectors are the basis */
-  lapack_int info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)n, (lapack_int)S, A, (lapack_int)n, s, u,
-                                   (lapack_int)n, vt, (lapack_int)(r ? r : 1));
-  free(A);
-  free(vt);
-  if (info != 0) {
-    free(s), free(u);
-    snprintf(err, errlen, "the SVD of %ld x %ld snapshots did not converge (LAPACK info %d)", n, S, (int)info);
-    return -1;
-  }
+  if (tall_svd(&t, n, S, X, s, err, errlen)) return free(s), -1;
   double total = energy_total(s, r);
-  int kept = (int)pca_choose(s, r, cap, energy, false, NULL);
+  int kept = (int)pca_choose(s, r, cap, energy, false);
   if (total > 0) *captured = energy_total(s, kept) / total;
-  double *out = mem_malloc(sizeof(double) * (size_t)(n * (kept ? kept : 1)));
-  if (!out) {
-    free(s), free(u);
-    snprintf(err, errlen, "out of memory for a basis of %ld x %d", n, kept);
-    return -1;
-  }
-  for (long i = 0; i < n; i++)
-    for (int j = 0; j < kept; j++) out[i * kept + j] = u[(size_t)j * (size_t)n + (size_t)i];
+  int rc = tall_svd_vectors(&t, kept, U, err, errlen);
+  tall_svd_free(&t);
+  if (rc) return free(s), -1;
   if (sv) *sv = s, *nsv = r;
   else free(s);
-  free(u);
-  *U = out;
   *k = kept;
   return 0;
 }
@@ -502,57 +442,26 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
     *m = K;
     return 0;
   }
-  if (n >= 4 * K) {
-    Cols X[64];
-    double *sg = mem_malloc(sizeof(double) * (size_t)K), *Ug = NULL;
-    long kept = 0;
-    GramResult g = GRAM_FAILED;
-    if (r <= (int)(sizeof X / sizeof *X) && sg) {
-      for (int i = 0; i < r; i++) X[i] = (Cols){U[i], k[i], false};
-      g = gram_basis(n, r, X, choose_independent, NULL, K, sg, &Ug, &kept);
-    }
-    free(sg);
-    if (g == GRAM_DONE) {
-      *B = Ug;
-      *m = kept;
-      return 0;
-    }
-    free(Ug);
-  }
+  /* [U_1 … U_r] column-major, its SVD by the member PCA's route */
   long rk = n < K ? n : K;
   double *A = mem_malloc(sizeof(double) * (size_t)(n * K)), *s = mem_malloc(sizeof(double) * (size_t)rk);
-  double *u = mem_malloc(sizeof(double) * (size_t)(n * rk)), *vt = mem_malloc(sizeof(double) * (size_t)(rk * K));
-  if (!A || !s || !u || !vt) {
-    free(A), free(s), free(u), free(vt);
+  if (!A || !s) {
+    free(A), free(s);
     goto oom;
   }
-  long col = 0;
-  for (int i = 0; i < r; i++) {
-    for (long row = 0; row < n; row++)
-      for (int j = 0; j < k[i]; j++) A[row * K + col + j] = U[i][row * k[i] + j];
-    col += k[i];
-  }
-  lapack_int info = LAPACKE_dgesdd(LAPACK_ROW_MAJOR, 'S', (lapack_int)n, (lapack_int)K, A, (lapack_int)K, s, u,
-                                   (lapack_int)rk, vt, (lapack_int)K);
+  for (int i = 0, col = 0; i < r; col += k[i], i++)
+    for (int j = 0; j < k[i]; j++)
+      for (long row = 0; row < n; row++) A[(size_t)(col + j) * (size_t)n + (size_t)row] = U[i][row * k[i] + j];
+  TallSvd t;
+  int rc = tall_svd(&t, n, K, A, s, err, errlen);
   free(A);
-  free(vt);
-  if (info != 0) {
-    free(s), free(u);
-    snprintf(err, errlen, "re-orthonormalizing a merged basis: SVD did not converge (LAPACK info %d)", (int)info);
-    return -1;
-  }
+  if (rc) return free(s), -1;
   long kept = 0;
-  while (kept < rk && s[kept] > PCA_RANK_TOL * s[0]) kept++;
-  double *out = mem_malloc(sizeof(double) * (size_t)(n * (kept ? kept : 1)));
-  if (!out) {
-    free(s), free(u);
-    goto oom;
-  }
-  for (long row = 0; row < n; row++)
-    for (long j = 0; j < kept; j++) out[row * kept + j] = u[row * rk + j];
+  while (kept < rk && s[kept] > PCA_MERGE_DEPENDENT_TOL * s[0]) kept++;
   free(s);
-  free(u);
-  *B = out;
+  rc = tall_svd_vectors(&t, kept, B, err, errlen);
+  tall_svd_free(&t);
+  if (rc) return -1;
   *m = kept;
   return 0;
 oom:

@@ -199,7 +199,7 @@ static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int 
   for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
   /* the truncation rule of every route (a centered Gram matrix's null
    * vector, 1, is one its rounding stop drops) */
-  int k = (int)pca_choose(mb->sv, S, cap, mb->energy, true, NULL);
+  int k = (int)pca_choose(mb->sv, S, cap, mb->energy, true);
   double total = 0, run = 0;
   for (long a = 0; a < S; a++) total += fmax(lam[a], 0);
   for (int a = 0; a < k; a++) run += lam[S - 1 - a];

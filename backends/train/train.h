@@ -326,17 +326,15 @@ void pca_weigh(long n, long S, double *X, const double *w, double *mu);
  * independent columns given. */
 int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int *m, char *err, size_t errlen);
 /* The truncation rule, one for every route to a member's basis (the SVD
- * and the Gram route of pca_member, the method of snapshots, out of core):
- * how many of the singular values s[0..K) (descending) a member keeps —
- * the leading ones, at most `cap`, the fewest whose energy reaches
- * `energy` of the total, none at the floor of what the values resolve: a
- * singular value at most 1e-10 of the largest (dependent), and with `gram`
- * (the values are square roots of a Gram matrix's eigenvalues) the energy
- * left within its rounding (K ε of the total). *unresolved (when not NULL)
- * set when a kept value, or the one whose smallness ended the count, is at
- * most 1e-6 of the largest, below what a Gram matrix resolves well
- * (pca_member then asks the SVD). */
-long pca_choose(const double *s, long K, int cap, double energy, bool gram, bool *unresolved);
+ * of pca_member, the method of snapshots, out of core): how many of the
+ * singular values s[0..K) (descending) a member keeps — the leading ones,
+ * at most `cap`, the fewest whose energy left out, Σ_{i≥k} s_i², is at most
+ * (1 − energy) of the total (summed from the smallest, so tolerances far
+ * below ε of the total hold), none at the floor of what the values
+ * resolve: a singular value at most 100 ε of the largest (rounding), and
+ * with `gram` (the values are square roots of a Gram matrix's eigenvalues)
+ * the energy left within its rounding (K ε of the total). */
+long pca_choose(const double *s, long K, int cap, double energy, bool gram);
 /* The eigenproblem of a Gram matrix when few eigenvectors are kept: every
  * eigenvalue of the symmetric S x S matrix G (its upper triangle read,
  * column-major with leading dimension S — a matrix stored whole may be in
@@ -369,7 +367,8 @@ void pca_sign_scan(long n, long m, const double *B, double *big, int *sign, bool
 void pca_mean(long n, long S, const double *X, double *mu);
 
 /* Orthonormal basis of the span of [U_1 … U_r] (each n x k_i, row-major),
- * dropping dependent directions (σ < 1e-10 σ_max): n x m row-major. */
+ * dropping dependent directions (σ < 1e-10 σ_max): n x m row-major, by a
+ * QR and an SVD (never the Gram matrix). */
 int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- pre-multiplication (premul.c) */
