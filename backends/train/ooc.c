@@ -10,9 +10,13 @@
  * step of the in-memory PCA (pca_basis) runs on a block exactly as it
  * would on the whole:
  *
- *   Gram passes   μ_b = the block's sample mean, X_b − μ_b1ᵀ (centered
- *                 members), G += X_bᵀX_b (dsyrk); G's eigenvectors give
- *                 W = V Σ⁻¹ with the same choice of k (pca_choose);
+ *   factor passes μ_b = the block's sample mean, X_b − μ_b1ᵀ (centered
+ *                 members), R ← the R of the QR of [R; X_b] (dtpqrt: a
+ *                 tall-skinny QR, never the Gram matrix, whose squared
+ *                 condition number stopped bases near 1e-8, issue 41);
+ *                 the SVD of R gives W = V Σ⁻¹ with the same choice of k
+ *                 (pca_choose), and X W the left singular vectors to
+ *                 ε σ_max;
  *   basis passes  A_b = [μ_b, X_b W] per member (dgemm), written to an
  *                 unnamed file at its rows' offset, and AᵀA += A_bᵀA_b;
  *   coefficients  the member's Cholesky-QR, its [μ, U] orthonormalized in
@@ -44,8 +48,9 @@
  * from the rank that keeps each; npgc train's data is read on every rank).
  * The whole evaluations (the small classes' snapshots, the SPD marks) are
  * divided by samples and the small snapshots gathered (whole_sweep); the
- * Gram matrices G and AᵀA are summed over the ranks, so the eigenproblems
- * and T are the same on every rank; each rank's A file holds only its rows;
+ * ranks' R factors are gathered and folded in rank order on every rank
+ * and AᵀA is summed over the ranks, so the SVDs and T are the same on
+ * every rank; each rank's A file holds only its rows;
  * each rank writes its rows of B into one file all ranks open (basis_file),
  * the sign convention taken over all rows by two reductions; then every
  * rank maps the whole basis, and pre-multiplication and the extern fit run
@@ -272,7 +277,8 @@ static void release(Ooc *o, long p) {
   }
 }
 
-/* Gram passes: G += X_bᵀX_b for every streamed member. */
+/* Factor passes: every streamed member's R (in G's place) the R of the QR
+ * of [R; X_b], block by block (TSQR: never the Gram matrix, issue 41). */
 static int gram_passes(Ooc *o) {
   long S = o->S;
   for (long p = 0; p < o->npass; p++) {
@@ -293,24 +299,34 @@ static int gram_passes(Ooc *o) {
           big = a > big ? a : big;
         }
         o->st[sg->c].big[i] = big;
-        cblas_dsyrk(CblasColMajor, CblasUpper, CblasTrans, (int)S, (int)R, 1.0, sg->H[i], (int)R, 1.0,
-                    o->st[sg->c].G[i], (int)S);
+        /* the block's rows folded into the member's R (TSQR), H_b overwritten: it is not read again */
+        if (pca_fold_rows(S, o->st[sg->c].G[i], R, sg->H[i], R) != 0) {
+          free(mu);
+          return error_set(o->err, o->errlen, "class %s, member %s: the QR of a block of snapshots failed", rc->label,
+                           rc->members[i].name);
+        }
       }
       free(mu);
     }
     release(o, p);
   }
-  for (int c = 0; o->N > 1 && c < o->m->nclasses; c++) /* every rank's passes summed */
+  for (int c = 0; o->N > 1 && c < o->m->nclasses; c++) /* every rank's R gathered, folded alike on every rank */
     for (int i = 0; o->st[c].streamed && i < o->m->classes[c].nmembers; i++) {
-      dist_allreduce_sum(o->st[c].G[i], S * S);
+      double *all = mem_calloc((size_t)(o->N * S * S) + 1, sizeof(double));
+      if (!all) return error_set(o->err, o->errlen, "out of memory");
+      memcpy(all + (size_t)o->rank * (size_t)(S * S), o->st[c].G[i], sizeof(double) * (size_t)(S * S));
+      dist_allreduce_sum(all, o->N * S * S); /* each rank's slot from it alone: exact */
+      int bad = pca_fold_r(S, o->N, all, o->st[c].G[i]);
+      free(all);
+      if (bad) return error_set(o->err, o->errlen, "the QR of the ranks' snapshot factors failed");
       dist_allreduce_max(&o->st[c].big[i], 1);
     }
   return 0;
 }
 
-/* Every streamed member's eigenvectors: W = V Σ⁻¹ in G's place (S x k
- * column-major), the choice of k and the member's report as pca_core's
- * Gram route makes them. */
+/* Every streamed member's directions from its R factor (pca_r_basis):
+ * W = V Σ⁻¹ in G's place (S x k column-major), the choice of k and the
+ * member's report as pca_core makes them. */
 static int eigen(Ooc *o) {
   long S = o->S;
   for (int c = 0; c < o->m->nclasses; c++) {
@@ -322,35 +338,37 @@ static int eigen(Ooc *o) {
       RMember *mb = &rc->members[i];
       int cap = mb->center ? (mb->cap > 1 ? mb->cap - 1 : 0) : mb->cap;
       long kmax = cap < S ? cap : S;
-      double *G = st->G[i], *lam = mem_malloc(sizeof(double) * (size_t)S);
-      double *W = mem_malloc(sizeof(double) * (size_t)S * (size_t)(kmax ? kmax : 1));
-      if (!lam || !W) return free(lam), free(W), -1;
-      const char *range = pca_gram_out_of_range(S, G, st->big[i]);
+      double *G = st->G[i], *W = mem_malloc(sizeof(double) * (size_t)S * (size_t)(kmax ? kmax : 1));
+      if (!W) return -1;
+      /* snapshots whose squares leave the range of doubles: AᵀA below would lose them */
+      double *Gd = mem_calloc((size_t)(S * S) + 1, sizeof(double));
+      if (!Gd) return free(W), -1;
+      for (long j = 0; j < S; j++) Gd[j * S + j] = cblas_ddot((int)(j + 1), G + j * S, 1, G + j * S, 1);
+      const char *range = pca_gram_out_of_range(S, Gd, st->big[i]);
+      free(Gd);
       if (range) {
-        free(lam), free(W);
+        free(W);
         return error_set(o->err, o->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
       }
-      int info = pca_top_eigen(S, G, kmax, lam, W);
+      double *s = st->s[i];
+      long k = 0;
+      int info = pca_r_basis(S, G, cap, mb->energy, s, W, &k);
       if (info != 0) {
-        free(lam), free(W);
-        return error_set(o->err, o->errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
+        free(W);
+        return error_set(o->err, o->errlen, "class %s, member %s: the SVD of the snapshots' R factor failed (LAPACK info %d)",
                          rc->label, mb->name, (int)info);
       }
-      double *s = st->s[i];
-      for (long j = 0; j < S; j++) s[j] = sqrt(fmax(lam[S - 1 - j], 0.0));
-      long k = pca_choose(s, S, cap, mb->energy, true);
       double total = 0, run = 0;
       for (long j = 0; j < S; j++) total += s[j] * s[j];
       for (long j = 0; j < k; j++) run += s[j] * s[j];
       mb->captured = total > 0 ? run / total : 1;
       mb->lost = fmax(0, 1 - mb->captured);
       free(mb->sv);
-      if (!(mb->sv = mem_malloc(sizeof(double) * (size_t)S))) return free(lam), free(W), -1;
+      if (!(mb->sv = mem_malloc(sizeof(double) * (size_t)S))) return free(W), -1;
       memcpy(mb->sv, s, sizeof(double) * (size_t)S);
       mb->nsv = S;
-      for (long j = 0; j < k; j++)
-        for (long e = 0; e < S; e++) G[j * S + e] = W[j * S + e] / s[j];
-      free(lam), free(W);
+      memcpy(G, W, sizeof(double) * (size_t)(k * S));
+      free(W);
       st->k[i] = k;
       st->col[i] = st->K;
       st->K += k + (mb->center ? 1 : 0);

@@ -17,9 +17,10 @@ typedef struct Segment {
 typedef struct Stream {
   bool streamed;
   double **X;               /* small class: per member n x S column-major */
-  double **G;               /* streamed: per member S x S column-major (upper), Gram of its centered snapshots */
+  double **G;               /* streamed: per member S x S column-major (upper), the R factor of its centered
+                               snapshots (pca_fold_rows), then W = V Σ⁻¹ (S x k) */
   double **s;               /* per member: singular values, descending (S) */
-  long *k;                  /* per member: directions kept from its Gram matrix */
+  long *k;                  /* per member: directions kept from its R factor */
   double *big;              /* per member: its largest |snapshot entry| (squares underflowing to 0 leave G 0) */
   long *col;                /* per member: its first column of A (μ when centered, then k directions) */
   long K;                   /* columns of A */

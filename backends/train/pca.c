@@ -507,3 +507,44 @@ const char *pca_gram_out_of_range(long S, const double *G, double big) {
     return "values below about 1e-145, whose squares underflow in the Gram matrix (the truncation would see no energy)";
   return NULL;
 }
+
+int pca_fold_rows(long S, double *R, long rows, double *B, long ldb) {
+  if (S <= 0 || rows <= 0) return 0;
+  long nb = S < 32 ? S : 32;
+  double *T = mem_malloc(sizeof(double) * (size_t)(nb * S));
+  if (!T) return -1;
+  lapack_int info = LAPACKE_dtpqrt(LAPACK_COL_MAJOR, (lapack_int)rows, (lapack_int)S, 0, (lapack_int)nb, R,
+                                   (lapack_int)S, B, (lapack_int)ldb, T, (lapack_int)nb);
+  free(T);
+  return (int)info;
+}
+
+int pca_fold_r(long S, int nr, const double *Rs, double *R) {
+  memset(R, 0, sizeof(double) * (size_t)(S * S));
+  double *B = mem_malloc(sizeof(double) * (size_t)(S * S + 1));
+  int info = B ? 0 : -1;
+  for (int i = 0; info == 0 && i < nr; i++) {
+    memcpy(B, Rs + (size_t)i * (size_t)(S * S), sizeof(double) * (size_t)(S * S));
+    info = pca_fold_rows(S, R, S, B, S);
+  }
+  free(B);
+  return info;
+}
+
+int pca_r_basis(long S, const double *R, int cap, double energy, double *s, double *W, long *k) {
+  double *A = mem_malloc(sizeof(double) * (size_t)(S * S + 1)), *u = mem_malloc(sizeof(double) * (size_t)(S * S + 1));
+  double *vt = mem_malloc(sizeof(double) * (size_t)(S * S + 1));
+  int info = -1;
+  if (!A || !u || !vt) goto done;
+  for (long j = 0; j < S; j++) /* the upper triangle only: below it dtpqrt leaves nothing of use */
+    for (long i = 0; i < S; i++) A[j * S + i] = i <= j ? R[j * S + i] : 0;
+  info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)S, (lapack_int)S, A, (lapack_int)S, s, u, (lapack_int)S, vt,
+                        (lapack_int)S);
+  if (info != 0) goto done;
+  *k = pca_choose(s, S, cap, energy, false);
+  for (long j = 0; j < *k; j++) /* W(:, j) = V(:, j) / σ_j, V(e, j) = vt(j, e) */
+    for (long e = 0; e < S; e++) W[j * S + e] = vt[e * S + j] / s[j];
+done:
+  free(A), free(u), free(vt);
+  return info;
+}

@@ -346,6 +346,23 @@ long pca_choose(const double *s, long K, int cap, double energy, bool gram);
  * k is over half of S. G is overwritten. 0, or LAPACK's info (-1 when out
  * of memory). */
 int pca_top_eigen(long S, double *G, long k, double *lam, double *V);
+/* Snapshots by blocks of rows (out of core, over ranks), their R factor
+ * built as a tall-skinny QR (TSQR) instead of their Gram matrix, which
+ * squares their condition number (issue 41): R (S x S column-major, upper
+ * triangle; start from zeros) becomes the R of the QR of [R; B], B the
+ * next `rows` rows of the snapshots (rows x S column-major, leading
+ * dimension ldb, overwritten). LAPACK dtpqrt. 0, or LAPACK's info (-1 out
+ * of memory). */
+int pca_fold_rows(long S, double *R, long rows, double *B, long ldb);
+/* The R of nr factors Rs[i] (each S x S, one after the other) stacked, in
+ * that order (every rank folding the same factors gets the same R). */
+int pca_fold_r(long S, int nr, const double *Rs, double *R);
+/* The right singular vectors of the snapshots from their R factor (its
+ * SVD, dgesdd): s[0..S) descending, *k kept by pca_choose, and W = V_k Σ_k⁻¹
+ * (S x *k column-major; room for S x min(cap, S)), so that X W holds the
+ * kept left singular vectors, exact to ε σ_max in every direction. 0, or
+ * LAPACK's info (-1 out of memory). */
+int pca_r_basis(long S, const double *R, int cap, double energy, double *s, double *W, long *k);
 /* The Gram matrix G (S x S, either layout) of snapshots too large or too
  * small for their squares (issue 24: 1e200 or 1e-200 data), `big` their
  * largest |entry| (0: not known): what is wrong, else NULL. The Gram routes
