@@ -215,6 +215,28 @@ void sym_power(long m, int k, const double *x, double *z);
 /* v[α] = Σ over distinct arrangements π of α of Π_l row_l[π_l]: the packed
  * symmetrization of row_1 ⊗ … ⊗ row_k (rows of one basis at k offsets). */
 void sym_outer(long m, int k, const double *const *rows, double *v);
+/* The places among the packed coordinates of m (k-fold) of those whose
+ * every index is below m2 <= m, in their order: map[0..sym_len(m2, k)).
+ * The coordinates of the first m2 vectors of a basis of m (model_truncate). */
+void sym_leading(long m, int k, long m2, long *map);
+
+/* ---------------------------------------------------------------- smaller sizes (truncate.c) */
+
+/* The model `src` at smaller basis sizes, without retraining (issue 41):
+ * class c keeps the first sizes[c] vectors of its basis (sizes[c] < 0:
+ * all), and every pre-multiplied tensor, projection and extern table its
+ * leading block in those coordinates — what training at those sizes would
+ * give where the class's first vectors are what a smaller cap keeps (one
+ * member: its PCA in order, centered [μ, U_c] too). An interpolated stage's
+ * own class keeps its size (its fit (PB)⁺ is of the whole basis; the
+ * classes it reads may shrink). A new model (src unchanged), or NULL with
+ * `err` naming the class: a size above the class's, or out of memory. */
+Model *model_truncate(const Model *src, const long *sizes, char *err, size_t errlen);
+/* Class sizes from "NAME=N,NAME=N" (`npgc eval --sizes`): NAME a class as
+ * `npgc check` names it (m_u), m_<member>, its label {u,v}, or a member;
+ * sizes[c] set for each named class, -1 for the others. 0, or -1 with
+ * `err` naming the entry (no such class, N not a whole number ≥ 0). */
+int model_parse_sizes(const Model *m, const char *spec, long *sizes, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- files (model.c) */
 

@@ -77,3 +77,12 @@ void sym_outer(long m, int k, const double *const *rows, double *v) {
   do v[p++] = arrangements(k, a, rows, 0, used);
   while (next_sorted(m, k, a));
 }
+
+void sym_leading(long m, int k, long m2, long *map) {
+  if (m <= 0 || m2 <= 0) return;
+  long a[RT_MAX_IN] = {0}, p = 0, j = 0;
+  do {
+    if (a[k - 1] < m2) map[j++] = p; /* sorted: the last index is the largest */
+    p++;
+  } while (next_sorted(m, k, a));
+}
