@@ -517,6 +517,20 @@ NPG_API int npg_model_emit(const NpgModel *m, FILE *out, char *err, size_t errle
  * refuses further work until npg_reduced_clear_error(). */
 typedef struct NpgReduced NpgReduced;
 NPG_API NpgReduced *npg_reduced_new(const NpgModel *m);
+/* The reduced evaluator of `m` at smaller basis sizes, without retraining (issue 41): `sizes`
+ * is "NAME=N,NAME=N" (npgc's --sizes), NAME a class as `npgc check` names it (m_u), m_<member>,
+ * its label {u,v} or a member, N from 1 to the class's size; the classes not named keep theirs.
+ * Every class keeps the first N vectors of its basis and every pre-multiplied tensor its
+ * leading block (npg_model_at_sizes; the evaluator owns that model). NULL or "" sizes: as
+ * npg_reduced_new. A bad entry or an interpolated stage's class made smaller: the evaluator
+ * holds the error (npg_reduced_error), naming the entry. */
+NPG_API NpgReduced *npg_reduced_new_sizes(const NpgModel *m, const char *sizes);
+/* The model `m` at smaller basis sizes (`sizes` as npg_reduced_new_sizes), a new model the
+ * caller frees before `m`'s program; for one cut of a trained model: training at caps that keep
+ * those first vectors (one member per class, or --merge joint) gives the same model to rounding.
+ * An interpolated stage's own class keeps its size (its fit is of the whole basis; the classes
+ * it reads may shrink). Never NULL but out of memory: the error through npg_model_error(). */
+NPG_API NpgModel *npg_model_at_sizes(const NpgModel *m, const char *sizes);
 NPG_API const char *npg_reduced_error(const NpgReduced *r);
 NPG_API void npg_reduced_clear_error(NpgReduced *r);
 /* An input (or an extern, see npg_reduced_given_externs) from its `count`

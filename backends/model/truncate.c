@@ -230,6 +230,10 @@ int model_parse_sizes(const Model *m, const char *spec, long *sizes, char *err, 
                                m->classes[c].label);
       return error_set(err, errlen, "--sizes %s: no class of that name; the classes: %s", name, list);
     }
+    if (v > m->classes[found].m)
+      return error_set(err, errlen, "--sizes %s=%ld: class %s has %ld basis vectors: give at most that (a smaller "
+                       "size needs no retraining, a larger one does)", name, v, m->classes[found].bc->size_name,
+                       m->classes[found].m);
     sizes[found] = v;
     p += len + (end ? 1 : 0);
   }

@@ -45,6 +45,7 @@ struct NpgReduced {
   bool evaluated;           /* an evaluation has succeeded: every quantity has coordinates to lift */
   long zcap;
   Rollout roll;             /* simulations (simulate.c) */
+  NpgModel *own;            /* npg_reduced_new_sizes: the model at those sizes, freed with the evaluator */
   char error[1024];
 };
 

@@ -464,6 +464,29 @@ NpgReduced *npg_reduced_new(const NpgModel *nm) {
   return r;
 }
 
+NpgModel *npg_model_at_sizes(const NpgModel *nm, const char *sizes) {
+  NpgModel *out = mem_calloc(1, sizeof *out);
+  if (!out) return api_refuse(NULL, 0, __func__, "out of memory"), NULL;
+  if (!nm) return api_refuse(out->error, sizeof out->error, __func__, "argument 'm' is NULL"), out;
+  if (!nm->m) return snprintf(out->error, sizeof out->error, "%s", nm->error[0] ? nm->error : "the model holds nothing"), out;
+  long *n = mem_calloc((size_t)nm->m->nclasses + 1, sizeof(long));
+  if (!n) return snprintf(out->error, sizeof out->error, "out of memory"), out;
+  if (model_parse_sizes(nm->m, sizes ? sizes : "", n, out->error, sizeof out->error) == 0)
+    out->m = model_truncate(nm->m, n, out->error, sizeof out->error);
+  free(n);
+  return out;
+}
+
+NpgReduced *npg_reduced_new_sizes(const NpgModel *nm, const char *sizes) {
+  if (!nm || !nm->m || !sizes || !*sizes) return npg_reduced_new(nm);
+  NpgModel *own = npg_model_at_sizes(nm, sizes);
+  if (!own) return api_refuse(NULL, 0, __func__, "out of memory"), NULL;
+  NpgReduced *r = npg_reduced_new(own);
+  if (!r) return npg_model_free(own), NULL;
+  r->own = own; /* r->nm: the model at those sizes */
+  return r;
+}
+
 const char *npg_reduced_error(const NpgReduced *r) {
   if (!r) return api_refusal()[0] ? api_refusal() : "out of memory";
   if (r->error[0] || !r->r) return r->error;
@@ -701,6 +724,7 @@ void npg_reduced_free(NpgReduced *r) {
   reduced_free(r->r);
   free(r->z);
   free(r->given);
+  npg_model_free(r->own);
   free(r);
 }
 

@@ -154,7 +154,7 @@ done:
 
 int npgc_eval(int argc, char **argv) {
   const char *prog_path = NULL, *data = NULL, *in = NULL, *outdir = NULL;
-  bool full = false, progress = false, exact_roots = false;
+  bool full = false, progress = false, exact_roots = false, sizes = false;
   NpgBackend backend = NPG_AUTO;
   NpgOptions opt = {0};
   NpgArgs a;
@@ -166,6 +166,7 @@ int npgc_eval(int argc, char **argv) {
     else if (npg_args_backend(&a, &backend)) ;
     else if (npg_args_flag(&a, "--progress")) progress = true;
     else if (npg_args_flag(&a, "--exact-roots")) exact_roots = true; /* the reduced evaluation's */
+    else if (npg_args_string(&a, "--sizes")) sizes = true;           /* the reduced evaluation's too */
     else if ((v = npg_args_string(&a, "-o"))) outdir = v;
     else if ((v = npg_args_string(&a, "--std"))) opt.std_dir = v;
     else if ((v = npg_args_positional(&a))) {
@@ -185,8 +186,9 @@ int npgc_eval(int argc, char **argv) {
   if (!in) return npgc_missing("eval", "IN/ (the inputs to evaluate, a leading sample axis)");
   if (!outdir) return npgc_missing("eval", "-o OUT/ (where to write the outputs)");
   if (!full) return npgc_reduce(argc, argv);
-  if (exact_roots) {
-    fputs("npgc eval: --exact-roots is an option of the reduced evaluation (with MODEL/), not of --full\n", stderr);
+  if (exact_roots || sizes) {
+    fprintf(stderr, "npgc eval: %s is an option of the reduced evaluation (with MODEL/), not of --full\n",
+            exact_roots ? "--exact-roots" : "--sizes");
     return 2;
   }
   const char *inputs[] = {prog_path, data, in, NULL};

@@ -39,7 +39,7 @@ static const Usage usages[] = {
      "               parent directories are created; an input of the command is refused\n"},
     {"eval",
      "usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--jit auto|cc|tcc] [--progress] [--std=DIR]\n"
-     "       npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--exact-roots] [--progress] [--std=DIR]\n"
+     "       npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--sizes NAME=N,...] [--exact-roots] [--progress] [--std=DIR]\n"
      "\n"
      "  --full: evaluate the full program on every sample of IN/<input>.npy (leading\n"
      "  sample axis; params from DATA/<param>.npy, inputs and externs from IN/, else\n"
@@ -52,6 +52,9 @@ static const Usage usages[] = {
      "  --jit B      the full evaluator's compiler: auto (the default: $NPG_JIT, else\n"
      "               cc when installed, else libtcc), cc (-O3, cached), tcc; --cc = --jit cc\n"
      "  --exact-roots  roots of reduced operators by eigendecomposition\n"
+     "  --sizes NAME=N,...  evaluate at smaller basis sizes, without retraining: class\n"
+     "               NAME (as npgc check names it: m_u) keeps the first N vectors of\n"
+     "               its basis and every tensor its leading block\n"
      "  --progress   progress on stderr even when it is not a terminal\n"
      "  -o OUT/      created with its missing parents\n"},
     {"simulate",
@@ -123,7 +126,7 @@ static const Usage usages[] = {
      "  --progress   progress on stderr even when it is not a terminal\n"},
     {"verify",
      "usage: npgc verify PROG.npg MODEL/ TEST/ [--tol T] [--params DIR] [--jit auto|cc|tcc] [--exact] [--exact-size N]\n"
-     "                   [--progress]\n"
+     "                   [--sizes NAME=N,...] [--progress]\n"
      "       npgc verify PROG.npg --exact [--exact-size N] [--jit auto|cc|tcc]\n"
      "\n"
      "  Evaluate full and reduced on the held-out samples of TEST/ (same params as\n"
@@ -137,11 +140,14 @@ static const Usage usages[] = {
      "               rebuilt from its tensors equals the full evaluator to 1e-12, and a\n"
      "               model with full-rank bases reproduces it to 1e-10\n"
      "  --exact-size N   that size (1..64; 6 and 4 by default)\n"
+     "  --sizes NAME=N,...  evaluate at smaller basis sizes, without retraining: class\n"
+     "               NAME (as npgc check names it: m_u) keeps the first N vectors of\n"
+     "               its basis and every tensor its leading block\n"
      "  --jit B      the full evaluator's compiler: auto, cc or tcc (as npgc train)\n"
      "  --progress   progress on stderr even when it is not a terminal\n"},
     {"bench",
      "usage: npgc bench PROG.npg MODEL/ TEST/ [--jit auto|cc|tcc] [--threads N] [--reps N] [--params DIR]\n"
-     "                  [--exact-roots] [--progress]\n"
+     "                  [--sizes NAME=N,...] [--exact-roots] [--progress]\n"
      "\n"
      "  Time the full and the reduced evaluation of every sample of TEST/, N passes\n"
      "  (3): the full evaluator (its backend named, with its compile time and whether\n"
@@ -154,6 +160,9 @@ static const Usage usages[] = {
      "  --params DIR the params from DIR instead of TEST/\n"
      "  --exact-roots  roots of reduced operators by eigendecomposition (the exact\n"
      "               reference) instead of the Lanczos process (to 1e-8 relative)\n"
+     "  --sizes NAME=N,...  evaluate at smaller basis sizes, without retraining: class\n"
+     "               NAME (as npgc check names it: m_u) keeps the first N vectors of\n"
+     "               its basis and every tensor its leading block\n"
      "  --progress   a progress bar on stderr even when it is not a terminal (on a\n"
      "               terminal it is always shown)\n"},
     {"plot",

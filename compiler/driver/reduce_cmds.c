@@ -56,9 +56,9 @@ static int add_basis(Common *c, const char *s, char *err, size_t errlen) {
 static const char *const options_of[][2] = {
     {"train", "-o --cc --jit --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi --reduce --valid "
               "--interp-oversample --keep-bases --weights --steps --every"},
-    {"eval", "-o --progress --std --exact-roots --full --cc --jit"},
-    {"verify", "--tol --cc --jit --exact --exact-size --progress --std --params --steps --every --png"},
-    {"bench", "--cc --jit --threads --reps --exact-roots --progress --std --params --steps --every"},
+    {"eval", "-o --progress --std --exact-roots --full --cc --jit --sizes"},
+    {"verify", "--tol --cc --jit --exact --exact-size --progress --std --params --steps --every --png --sizes"},
+    {"bench", "--cc --jit --threads --reps --exact-roots --progress --std --params --steps --every --sizes"},
 };
 
 /* Whether `opt` (up to '=') is in the space-separated `list`. */
@@ -141,6 +141,10 @@ static int parse(Common *c, int argc, char **argv) {
     } else if ((v = npg_args_string(&a, "--spectra"))) c->spectra = v;
     else if ((v = npg_args_string(&a, "--weights"))) c->weights = v;
     else if ((v = npg_args_string(&a, "--params"))) c->params = v;
+    else if ((v = npg_args_string(&a, "--sizes"))) {
+      if (!*v) snprintf(a.error, sizeof a.error, "%s: --sizes: give NAME=N,... (classes as npgc check names them)", prog);
+      c->sizes = v;
+    }
     else if ((v = npg_args_string(&a, "--basis"))) {
       if (add_basis(c, v, err, sizeof err) != 0) snprintf(a.error, sizeof a.error, "%s: --basis %s", prog, err);
     } else if ((v = npg_args_string(&a, "--reduce"))) {

@@ -29,6 +29,7 @@ typedef struct Common {
   int *basis_center;
   const char *spectra;      /* train --spectra DIR */
   const char *params;       /* verify --params DIR: the params, when TEST/ holds only the samples */
+  const char *sizes;        /* eval, verify, bench --sizes NAME=N,...: the model at smaller sizes */
   const char *valid;        /* train --valid DIR */
   const char *weights;      /* train --weights FILE.npy: one per sample of DATA/ */
   const char *png;          /* verify --png FILE: the rollout error against time */

@@ -57,6 +57,15 @@ static int open_session(Common *c, Session *x, bool full) {
     npgc_error(npg_model_error(x->m));
     return -1;
   }
+  if (c->sizes) { /* the model at smaller sizes: the leading blocks of its bases and tensors */
+    NpgModel *cut = npg_model_at_sizes(x->m, c->sizes);
+    npg_model_free(x->m);
+    x->m = cut;
+    if (!cut || npg_model_error(cut)[0]) {
+      npgc_error(cut ? npg_model_error(cut) : "out of memory");
+      return -1;
+    }
+  }
   x->r = npg_reduced_new(x->m);
   npg_reduced_exact_roots(x->r, c->exact_roots);
   if (npg_reduced_error(x->r)[0]) {

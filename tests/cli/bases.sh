@@ -71,6 +71,27 @@ if "$B/npgc" tune $P "$W/TRAIN" "$W/TEST" --tol 1e-3 --max-cap 1 -o "$W/TUNED1" 
 grep -q "^--tol 0.001 cannot be met: .*" "$W/tune.txt" && grep -q "^class m_x limits it: .*raise it" "$W/tune.txt" ||
   fail "unmet message: $(cat "$W/tune.txt")"
 test ! -e "$W/TUNED1" || fail "an unmet tune wrote a model"
+# --sizes (issue 41): eval, verify and bench at smaller sizes without retraining; m_x at 1 equals
+# training with x's cap at 1, uncentered as M (one member: its first vector either way); names and sizes checked
+"$B/npgc" train $P "$W/TRAIN" -o "$W/M1" --center off --basis x:cap=1 >/dev/null || fail "train x:cap=1"
+"$B/npgc" eval $P "$W/M" "$W/TEST" -o "$W/OCUT" --sizes m_x=1 || fail "eval --sizes"
+"$B/npgc" eval $P "$W/M1" "$W/TEST" -o "$W/ORET" || fail "eval the retrained model"
+/usr/bin/python3 - "$W" <<'PY' || fail "--sizes m_x=1 differs from retraining at cap 1"
+import sys, numpy as np
+w = sys.argv[1]
+a, b = np.load(w + "/OCUT/y.npy"), np.load(w + "/ORET/y.npy")
+assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max(), np.abs(a - b).max()
+PY
+"$B/npgc" verify $P "$W/M" "$W/TEST" --sizes x=1 --tol 10 >"$W/verify.txt" || fail "verify --sizes"
+grep -q "^x  *input  *1 " "$W/verify.txt" || fail "verify at size 1: $(cat "$W/verify.txt")"
+"$B/npgc" bench $P "$W/M" "$W/TEST" --sizes m_x=1 --reps 1 >/dev/null || fail "bench --sizes"
+if "$B/npgc" eval $P "$W/M" "$W/TEST" -o "$W/OBAD" --sizes m_q=1 2>"$W/err.txt"; then fail "--sizes m_q accepted"; fi
+grep -q -- "--sizes m_q: no class of that name; the classes: m_x {x}, m_y {y}" "$W/err.txt" || fail "message: $(cat "$W/err.txt")"
+if "$B/npgc" eval $P "$W/M" "$W/TEST" -o "$W/OBAD" --sizes m_x=9 2>"$W/err.txt"; then fail "--sizes m_x=9 accepted"; fi
+grep -q -- "--sizes m_x=9: class m_x has 2 basis vectors" "$W/err.txt" || fail "message: $(cat "$W/err.txt")"
+if "$B/npgc" eval $P "$W/M" "$W/TEST" -o "$W/OBAD" --sizes m_x=0 2>"$W/err.txt"; then fail "--sizes m_x=0 accepted"; fi
+grep -q -- "--sizes m_x: '0' is not a whole number of at least 1" "$W/err.txt" || fail "message: $(cat "$W/err.txt")"
+test ! -e "$W/OBAD" || fail "a refused eval wrote its output"
 # member lines without center/lost and no spectra (as models before centering were written) load
 # as uncentered once the manifest vouches for itself (its checksum line: a model written before
 # the manifest had one is refused, "retrain"); plot says what it lacks
