@@ -434,13 +434,51 @@ static PyObject *rfail(ReducedObject *self) {
   return NULL;
 }
 
+/* sizes={class: n, ...} as npgc's --sizes text "class=n,..." (malloc'd; NULL with a Python error). */
+static char *sizes_spec(PyObject *sizes) {
+  if (!PyDict_Check(sizes)) {
+    PyErr_Format(PyExc_TypeError, "reduced: sizes must be a dict {class: size} (classes as npgc check names them, "
+                 "m_u), not %.80s", Py_TYPE(sizes)->tp_name);
+    return NULL;
+  }
+  size_t cap = 1, len = 0;
+  char *spec = malloc(cap);
+  if (!spec) return PyErr_NoMemory(), NULL;
+  spec[0] = 0;
+  Py_ssize_t pos = 0;
+  PyObject *key, *val;
+  while (PyDict_Next(sizes, &pos, &key, &val)) {
+    const char *name = PyUnicode_Check(key) ? PyUnicode_AsUTF8(key) : NULL;
+    if (!name || strchr(name, ',') || strchr(name, '=')) {
+      if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "reduced: sizes: every key is a class name (str: m_u)");
+      return free(spec), NULL;
+    }
+    if (!PyLong_Check(val) || PyBool_Check(val)) {
+      PyErr_Format(PyExc_TypeError, "reduced: sizes['%s'] must be an int, not %.80s", name, Py_TYPE(val)->tp_name);
+      return free(spec), NULL;
+    }
+    long n = PyLong_AsLong(val);
+    if (n == -1 && PyErr_Occurred()) return free(spec), NULL;
+    size_t need = len + strlen(name) + 32;
+    if (need > cap) {
+      char *grown = realloc(spec, need * 2);
+      if (!grown) return free(spec), PyErr_NoMemory(), NULL;
+      spec = grown, cap = need * 2;
+    }
+    len += (size_t)snprintf(spec + len, cap - len, "%s%s=%ld", len ? "," : "", name, n);
+  }
+  return spec;
+}
+
 static PyObject *model_reduced(ModelObject *model, PyObject *args, PyObject *kw) {
-  static char *kwlist[] = {"exact_roots", NULL};
-  PyObject *exacto = Py_False;
+  static char *kwlist[] = {"exact_roots", "sizes", NULL};
+  PyObject *exacto = Py_False, *sizes = Py_None;
   bool exact;
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "|O:reduced", kwlist, &exacto) ||
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "|OO:reduced", kwlist, &exacto, &sizes) ||
       npgpy_flag(exacto, "reduced: exact_roots", &exact))
     return NULL;
+  char *spec = sizes == Py_None ? NULL : sizes_spec(sizes);
+  if (sizes != Py_None && !spec) return NULL;
   ReducedObject *self = PyObject_GC_New(ReducedObject, &npgpy_ReducedType);
   if (!self) return NULL;
   memset((char *)self + sizeof(PyObject), 0, sizeof *self - sizeof(PyObject));
@@ -479,7 +517,8 @@ static PyObject *model_reduced(ModelObject *model, PyObject *args, PyObject *kw)
       if (!(self->output_name[k] = PyUnicode_InternFromString(s->name))) goto fail;
     }
   }
-  self->r = npg_reduced_new(model->m);
+  self->r = npg_reduced_new_sizes(model->m, spec);
+  free(spec), spec = NULL;
   if (!self->r) {
     PyErr_NoMemory();
     goto fail;
@@ -491,6 +530,7 @@ static PyObject *model_reduced(ModelObject *model, PyObject *args, PyObject *kw)
   npg_reduced_exact_roots(self->r, exact);
   return (PyObject *)self;
 fail:
+  free(spec);
   Py_DECREF(self);
   return NULL;
 }
@@ -814,7 +854,8 @@ static PyMethodDef model_methods[] = {
   {"reductions", (PyCFunction)model_reductions, METH_NOARGS,
    "reductions() -> str: per stage interpolated or chosen by measurement, how, both errors and the reason"},
   {"reduced", (PyCFunction)(void (*)(void))model_reduced, METH_VARARGS | METH_KEYWORDS,
-   "reduced(exact_roots=False) -> Reduced: a reduced evaluator (one per thread)"},
+   "reduced(exact_roots=False, sizes=None) -> Reduced: a reduced evaluator (one per thread); sizes={class: n}\n"
+   "(classes as npgc check names them, m_u) evaluates at smaller basis sizes without retraining"},
   {"verify", (PyCFunction)(void (*)(void))model_verify, METH_VARARGS | METH_KEYWORDS,
    "verify(test, tol=None, full=None, progress=False) -> {quantity: {kind, m, output, l2, floor, own, l2_max,\n"
    "l2_max_sample, linf, linf_floor[, pass]}}: npgc verify on test samples (a dict name -> array whose\n"

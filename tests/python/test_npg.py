@@ -324,6 +324,36 @@ def test_verify(eq3):
         model.verify(test={"x": eq3["xt"], "y": eq3["xt"][:3]})
 
 
+def test_reduced_at_smaller_sizes(eq3, npgc):
+    """Issue 41: model.reduced(sizes=...) evaluates at smaller sizes without retraining, as
+    npgc eval --sizes does, and as training with x's cap at 1 (one member: its first vector)."""
+    d = eq3["dir"]
+    model = npg.load(eq3["prog"], str(d / "CLI"))
+    full = eq3["prog"].full()
+    tr = npg.Trainer(full, basis="x:cap=1")
+    for xk in eq3["x"]:
+        tr.add(x=xk)
+    small = tr.finish()
+    assert small.basis_sizes["{x}"] == 1 < model.basis_sizes["{x}"]
+    npgc("eval", RATIONAL, d / "CLI", d / "TEST", "-o", d / "OUTSIZES", "--sizes", "m_x=1")
+    lifted = np.load(d / "OUTSIZES" / "y.npy")
+    red, ret = model.reduced(sizes={"m_x": 1}), small.reduced()
+    for k, xk in enumerate(eq3["xt"]):
+        red(x=xk), ret(x=xk)
+        y, yr = red.lift("y"), ret.lift("y")
+        assert np.array_equal(y, lifted[k])
+        assert np.abs(y - yr).max() <= 1e-12 * np.abs(yr).max()
+    assert red.coords("x").shape == (1,)
+    with pytest.raises(npg.Error, match="--sizes m_q: no class of that name"):
+        model.reduced(sizes={"m_q": 1})
+    with pytest.raises(npg.Error, match="class m_x has 2 basis vectors"):
+        model.reduced(sizes={"m_x": 3})
+    with pytest.raises(TypeError, match="must be an int"):
+        model.reduced(sizes={"m_x": 1.5})
+    with pytest.raises(TypeError, match="must be a dict"):
+        model.reduced(sizes=["m_x", 1])
+
+
 # ---------------------------------------------------------------- bad input
 
 def test_bad_arrays_raise(eq3):
