@@ -458,16 +458,17 @@ static double lifted_distance(Program *prog, Full *f, Model *a, Model *b, MemSam
  * does: every output lifted on held-out samples equal to 1e-12, centered and uncentered. The
  * programs: contractions with packed repeated inputs (x ⊗ x, a ⊗ a) over three classes of one
  * member; an inverse stage (a diagonal operator, packed BᵀMB rows) whose class {z, z.num1}
- * is one joint PCA (--merge joint: its vectors in order); an explicit size above the
- * class's is refused, naming the class. */
+ * merges two members (interleaved, pca_merge) or is one joint PCA (--merge joint); an
+ * explicit size above the class's is refused, naming the class. */
 static void smaller_sizes_equal_retraining(void **state) {
   (void)state;
   const char *programs[2] = {"dim N\ninput x : real[N]\na[i:N] = x[i] * x[i] + x[i]\n"
                              "output y[i:N] = a[i] * a[i] * x[i] + a[i]\n",
                              "dim N\ninput x : real[N]\nw[i:N] = x[i] * x[i]\n"
                              "output z[i:N] = (w[i] + x[i]) / (w[i] + 2)\n"};
-  for (int pr = 0; pr < 2; pr++)
-    for (int uncentered = 0; uncentered < 2; uncentered++) {
+  for (int run = 0; run < 6; run++) {
+      int pr = run / 2 > 0, uncentered = run % 2;
+      bool joint = run / 2 == 2;
       NpgProgram *p = compile_text("sizes.npg", programs[pr]);
       Program *prog = ir_ok(p);
       Full *f = full_new(program_ir(p), JIT_TCC, NULL);
@@ -475,7 +476,7 @@ static void smaller_sizes_equal_retraining(void **state) {
       if (memsamples_fill(&train, prog, f, 30, 14, 3u) || memsamples_fill(&test, prog, f, 30, 5, 4u))
         fail_msg("binding random params failed");
       SampleSource src = {train.S, &train, memsamples_set, NULL, NULL};
-      TrainOptions opt = {.cap = 8, .energy = 1.0, .uncentered = uncentered, .joint = pr == 1};
+      TrainOptions opt = {.cap = 8, .energy = 1.0, .uncentered = uncentered, .joint = joint};
       char err[2048] = "";
       Model *big = train_model(prog, f, &src, &opt, err, sizeof err);
       if (!big) fail_msg("%s", err);
@@ -493,8 +494,9 @@ static void smaller_sizes_equal_retraining(void **state) {
         worst = fmax(worst, lifted_distance(prog, f, small, cut, &test));
         model_free(small), model_free(cut);
       }
-      print_message("program %d, %s: caps 8 cut to the sizes of caps 2, 3, 5 against retraining there: lifted outputs "
-                    "equal to %.2g\n", pr + 1, uncentered ? "uncentered" : "centered", worst);
+      print_message("program %d, %s, %s: caps 8 cut to the sizes of caps 2, 3, 5 against retraining there: lifted "
+                    "outputs equal to %.2g\n", pr + 1, uncentered ? "uncentered" : "centered",
+                    joint ? "merge joint" : "members merged", worst);
       assert_true(worst < 1e-12);
       long too[16];
       for (int c = 0; c < big->nclasses; c++) too[c] = -1;

@@ -20,8 +20,8 @@
  *   basis passes  A_b = [μ_b, X_b W] per member (dgemm), written to an
  *                 unnamed file at its rows' offset, and AᵀA += A_bᵀA_b;
  *   coefficients  the member's Cholesky-QR, its [μ, U] orthonormalized in
- *                 order, and the class's members merged (pca_merge's Gram
- *                 route) all act on A's columns: B = A T with T small,
+ *                 order, and the class's members merged (interleaved, in
+ *                 order, as pca_merge) all act on A's columns: B = A T with T small,
  *                 computed from AᵀA alone;
  *   the basis     B_b = A_b T block by block into another unnamed file
  *                 (after two sweeps that decide the sign convention,

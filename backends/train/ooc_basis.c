@@ -1,7 +1,8 @@
 /* ooc_basis.c — a class basis out of core as coefficients of A (ooc.h):
- * B = A T, where A holds the class's mean and Gram directions, found by the
- * in-memory steps (gram_basis, pca_in_order, pca_merge) acting on A's
- * columns through C = AᵀA, never on A itself. */
+ * B = A T, where A holds the class's means and its members' directions X W
+ * (W from the SVD of their R factors), found by the in-memory steps
+ * (Cholesky-QR, pca_in_order, pca_merge) acting on A's columns through
+ * C = AᵀA, never on A itself. */
 #include <cblas.h>
 #include <lapacke.h>
 #include <math.h>
@@ -18,8 +19,8 @@ static double quad(const double *C, long K, const double *x, const double *y, do
 
 /* T (K x *m column-major, malloc'd): the class basis is B = A T, by the
  * in-memory steps acting on A's columns through C = AᵀA: each member's
- * Cholesky-QR (gram_basis), its [μ, U] in order (pca_in_order), the
- * members merged (pca_merge's Gram route). */
+ * Cholesky-QR, its [μ, U] in order (pca_in_order), the members merged as
+ * pca_merge merges them (interleaved, in order). */
 int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
   Stream *st = &o->st[c];
   RClass *rc = &o->m->classes[c];
@@ -32,17 +33,19 @@ int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
   double *cc = mem_malloc(sizeof(double) * (size_t)(K + 1));
   long nq = 0;
   int *kept = mem_calloc((size_t)rc->nmembers + 1, sizeof(int));
-  if (!Q || !tmp || !R || !v || !cc || !kept) goto oom;
+  long *first = mem_calloc((size_t)rc->nmembers + 1, sizeof(long));
+  if (!Q || !tmp || !R || !v || !cc || !kept || !first) goto oom;
   for (int i = 0; i < rc->nmembers; i++) {
     RMember *mb = &rc->members[i];
     long k = st->k[i], cu = st->col[i] + (mb->center ? 1 : 0), q0 = nq;
+    first[i] = q0;
     /* Cholesky-QR of U: U R⁻¹, R from C's block of U */
     if (k > 0) {
       for (long a = 0; a < k; a++)
         for (long b = 0; b < k; b++) R[b * k + a] = C[(cu + b) * K + cu + a];
       if (LAPACKE_dpotrf(LAPACK_COL_MAJOR, 'U', (lapack_int)k, R, (lapack_int)k) != 0 ||
           LAPACKE_dtrtri(LAPACK_COL_MAJOR, 'U', 'N', (lapack_int)k, R, (lapack_int)k) != 0)
-        return free(Q), free(tmp), free(R), free(v), free(cc), free(kept),
+        return free(Q), free(tmp), free(R), free(v), free(cc), free(kept), free(first),
                error_set(o->err, o->errlen,
                          "class %s, member %s: its directions are numerically dependent out of core (Cholesky failed): "
                          "lower its cap or its energy fraction",
@@ -80,55 +83,40 @@ int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
     kept[i] = (int)(nq - q0);
     mb->kept = kept[i];
   }
-  free(v), free(cc);
   if (rc->nmembers == 1 || nq == 0) {
-    free(tmp), free(R), free(kept);
+    free(tmp), free(R), free(kept), free(first), free(v), free(cc);
     *Tout = Q, *mout = nq;
     return 0;
   }
-  /* merged: the left singular vectors of [Q_1 … Q_r] through their Gram
-   * matrix Qᵀ C Q, dropping dependent directions and at most n kept, and
-   * one Cholesky-QR. The Gram matrix resolves σ only down to about √ε σ_max
-   * (in memory a direction below 1e-6 σ_max sends pca_merge to the SVD,
-   * which out of core is not at hand): below OOC_DEPENDENT_TOL σ_max a
-   * direction is rounding (members sharing every row of a small class gave
-   * n + 8 directions and a failed Cholesky-QR at the 1e-10 of the SVD's rule). */
-  double *Y = mem_malloc(sizeof(double) * (size_t)(K * nq)), *Cq = mem_malloc(sizeof(double) * (size_t)(nq * nq));
-  double *lam = mem_malloc(sizeof(double) * (size_t)nq), *T = NULL;
-  long m = 0;
-  if (!Y || !Cq || !lam) goto merge_done;
-  cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)nq, (int)K, 1.0, C, (int)K, Q, (int)K, 0.0, Y, (int)K);
-  cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, (int)nq, (int)nq, (int)K, 1.0, Q, (int)K, Y, (int)K, 0.0, Cq, (int)nq);
-  if (LAPACKE_dsyevd(LAPACK_COL_MAJOR, 'V', 'U', (lapack_int)nq, Cq, (lapack_int)nq, lam) != 0) goto merge_done;
-  double s0 = sqrt(fmax(lam[nq - 1], 0));
-  while (m < nq && m < rc->n && sqrt(fmax(lam[nq - 1 - m], 0)) > OOC_DEPENDENT_TOL * s0) m++;
-  double *Wq = mem_malloc(sizeof(double) * (size_t)(nq * (m ? m : 1)));
-  T = mem_malloc(sizeof(double) * (size_t)(K * (m ? m : 1)));
-  if (!Wq || !T) {
-    free(Wq);
-    goto merge_done;
-  }
-  for (long j = 0; j < m; j++)
-    for (long a = 0; a < nq; a++) Wq[j * nq + a] = Cq[(nq - 1 - j) * nq + a] / sqrt(lam[nq - 1 - j]);
-  cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)m, (int)nq, 1.0, Q, (int)K, Wq, (int)nq, 0.0, T, (int)K);
-  free(Wq);
-  if (m > 0) { /* Cholesky-QR: Tᵀ C T = RᵀR, T <- T R⁻¹ */
-    double *Yt = mem_malloc(sizeof(double) * (size_t)(K * m));
-    if (!Yt) goto merge_done;
-    cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)m, (int)K, 1.0, C, (int)K, T, (int)K, 0.0, Yt, (int)K);
-    cblas_dgemm(CblasColMajor, CblasTrans, CblasNoTrans, (int)m, (int)m, (int)K, 1.0, T, (int)K, Yt, (int)K, 0.0, Cq, (int)m);
-    free(Yt);
-    if (LAPACKE_dpotrf(LAPACK_COL_MAJOR, 'U', (lapack_int)m, Cq, (lapack_int)m) != 0) goto merge_done;
-    cblas_dtrsm(CblasColMajor, CblasRight, CblasUpper, CblasNoTrans, CblasNonUnit, (int)K, (int)m, 1.0, Cq, (int)m, T,
-                (int)K);
-  }
-  free(Y), free(Cq), free(lam), free(Q), free(tmp), free(R), free(kept);
+  /* merged as pca_merge merges: the members' columns interleaved (the first of every member,
+   * then the second, …) and orthonormalized in that order, twice, each kept when its remainder
+   * is above OOC_DEPENDENT_TOL of its norm (through C a remainder is resolved only to about
+   * √ε: below it a direction is rounding — members sharing every row of a small class gave
+   * n + 8 directions at 1e-10) and at most n kept */
+  double *T = mem_malloc(sizeof(double) * (size_t)(K * nq + 1));
+  long m = 0, kmax = 0;
+  if (!T) goto oom;
+  for (int i = 0; i < rc->nmembers; i++) kmax = kept[i] > kmax ? kept[i] : kmax;
+  for (long j = 0; j < kmax; j++)
+    for (int i = 0; i < rc->nmembers && m < rc->n; i++) {
+      if (j >= kept[i]) continue;
+      memcpy(v, Q + (first[i] + j) * K, sizeof(double) * (size_t)K);
+      double norm0 = sqrt(fmax(quad(C, K, v, v, tmp), 0));
+      if (!(norm0 > 0)) continue;
+      for (int pass = 0; pass < 2 && m > 0; pass++) {
+        for (long a = 0; a < m; a++) cc[a] = quad(C, K, T + a * K, v, tmp);
+        for (long a = 0; a < m; a++) cblas_daxpy((int)K, -cc[a], T + a * K, 1, v, 1);
+      }
+      double norm = sqrt(fmax(quad(C, K, v, v, tmp), 0));
+      if (!(norm > OOC_DEPENDENT_TOL * norm0)) continue;
+      cblas_dscal((int)K, 1 / norm, v, 1);
+      memcpy(T + m * K, v, sizeof(double) * (size_t)K);
+      m++;
+    }
+  free(Q), free(tmp), free(R), free(kept), free(first), free(v), free(cc);
   *Tout = T, *mout = m;
   return 0;
-merge_done:
-  free(Y), free(Cq), free(lam), free(T), free(Q), free(tmp), free(R), free(kept);
-  return error_set(o->err, o->errlen, "class %s: merging its member bases out of core failed", rc->label);
 oom:
-  free(Q), free(tmp), free(R), free(v), free(cc), free(kept);
+  free(Q), free(tmp), free(R), free(v), free(cc), free(kept), free(first);
   return error_set(o->err, o->errlen, "out of memory orthonormalizing the basis of class %s", rc->label);
 }

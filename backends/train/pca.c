@@ -7,9 +7,13 @@
  * deforming mesh the rest shape dominates the uncentered energy, and the
  * paper's uncentered rule (the mean a direction like any other) then drops
  * the deformation modes. The basis stays linear: [μ, U_c] orthonormalized.
- * A class's member bases are concatenated and re-orthonormalized, dropping
- * dependent directions (paper §6.1: two 60-vector bases gave a 120-vector
- * one). All factorizations through LAPACKE.
+ * A class's member bases are merged, dropping dependent directions (paper
+ * §6.1: two 60-vector bases gave a 120-vector one): their vectors
+ * interleaved (the first of every member, then the second, …) and
+ * orthonormalized in that order, so that the first vectors of the class
+ * basis are what smaller caps would give — a model evaluated at a smaller
+ * size (model_truncate) is the model trained at that cap. All
+ * factorizations through LAPACKE.
  *
  * Every basis comes from an SVD of the snapshots themselves, never of
  * their Gram matrix XᵀX: the Gram matrix squares the snapshots' condition
@@ -36,9 +40,6 @@
  * nothing the snapshots resolve. 100 ε (2.2e-14) keeps every direction of
  * test_pca's spectrum 1 … 1e-14 down to 1e-13 and drops the 1e-14 one. */
 #define PCA_ROUNDOFF_TOL (100 * DBL_EPSILON)
-/* Merging member bases (orthonormal blocks): a direction of [U_1 … U_r]
- * whose singular value is below this is a repeat of the others. */
-#define PCA_MERGE_DEPENDENT_TOL 1e-10
 /* A direction whose remainder after removing the previous ones is below
  * this fraction of its norm is dependent on them (pca_in_order). */
 #define PCA_DEPENDENT_TOL 1e-8
@@ -430,7 +431,8 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
   *B = NULL;
   *m = 0;
   long K = 0;
-  for (int i = 0; i < r; i++) K += k[i];
+  int kmax = 0;
+  for (int i = 0; i < r; i++) K += k[i], kmax = k[i] > kmax ? k[i] : kmax;
   if (K == 0) {
     *B = mem_malloc(sizeof(double));
     return *B ? 0 : -1;
@@ -442,28 +444,22 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
     *m = K;
     return 0;
   }
-  /* [U_1 … U_r] column-major, its SVD by the member PCA's route */
-  long rk = n < K ? n : K;
-  double *A = mem_malloc(sizeof(double) * (size_t)(n * K)), *s = mem_malloc(sizeof(double) * (size_t)rk);
-  if (!A || !s) {
-    free(A), free(s);
-    goto oom;
-  }
-  for (int i = 0, col = 0; i < r; col += k[i], i++)
-    for (int j = 0; j < k[i]; j++)
-      for (long row = 0; row < n; row++) A[(size_t)(col + j) * (size_t)n + (size_t)row] = U[i][row * k[i] + j];
-  TallSvd t;
-  int rc = tall_svd(&t, n, K, A, s, err, errlen);
+  /* the members' vectors interleaved (the first of each, then the second of each, …), then
+   * Gram–Schmidt in that order: the first vectors of the result span the members' first ones */
+  double *A = mem_malloc(sizeof(double) * (size_t)(n * K));
+  if (!A) goto oom;
+  long col = 0;
+  for (int j = 0; j < kmax; j++)
+    for (int i = 0; i < r; i++) {
+      if (j >= k[i]) continue;
+      for (long row = 0; row < n; row++) A[row * K + col] = U[i][row * k[i] + j];
+      col++;
+    }
+  int kk = (int)K, mm = 0;
+  int rc = pca_in_order(n, 1, &A, &kk, B, &mm, err, errlen);
   free(A);
-  if (rc) return free(s), -1;
-  long kept = 0;
-  while (kept < rk && s[kept] > PCA_MERGE_DEPENDENT_TOL * s[0]) kept++;
-  free(s);
-  rc = tall_svd_vectors(&t, kept, B, err, errlen);
-  tall_svd_free(&t);
-  if (rc) return -1;
-  *m = kept;
-  return 0;
+  *m = mm;
+  return rc;
 oom:
   snprintf(err, errlen, "out of memory merging bases of %ld entries", n);
   return -1;

@@ -459,7 +459,8 @@ int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
     int ks[2] = {(int)rc->m, (int)rc->n};
     if (!eye) return error_set(err, errlen, "out of memory completing the basis of class %s", rc->label);
     for (long e = 0; e < rc->n; e++) eye[e * rc->n + e] = 1;
-    int rc_ok = pca_merge(rc->n, 2, parts, ks, &B, &rc->m, err, errlen);
+    int mm = 0, rc_ok = pca_in_order(rc->n, 2, parts, ks, &B, &mm, err, errlen); /* the PCA directions first */
+    rc->m = mm;
     free(eye);
     if (rc_ok != 0) return -1;
     free(rc->B);

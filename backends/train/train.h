@@ -383,9 +383,12 @@ void pca_sign_scan(long n, long m, const double *B, double *big, int *sign, bool
 /* mu[0..n) = the mean of the S columns of X (n x S column-major). */
 void pca_mean(long n, long S, const double *X, double *mu);
 
-/* Orthonormal basis of the span of [U_1 … U_r] (each n x k_i, row-major),
- * dropping dependent directions (σ < 1e-10 σ_max): n x m row-major, by a
- * QR and an SVD (never the Gram matrix). */
+/* Orthonormal basis of the span of [U_1 … U_r] (each n x k_i, row-major,
+ * orthonormal columns in order): their columns interleaved — the first of
+ * every U_i, then the second, … (a U_i out of columns skipped) — and
+ * orthonormalized in that order by pca_in_order, dropping dependent ones:
+ * n x m row-major whose first columns span the first c of every U_i (the
+ * basis caps of c give), so a smaller cap is a truncation (issue 41). */
 int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- pre-multiplication (premul.c) */
