@@ -1,9 +1,13 @@
 /* train_set.c — the tune sample set (TrainSet, train.h; npgc tune): the
  * snapshots kept in memory and every member's PCA made once at its cap,
- * then a model for any caps from truncations of those ordered bases —
- * steps 2–4 of training (train.c) only, no new snapshot or SVD. The search
- * over caps (tune.c) builds a model per trial; this makes each one cost a
- * merge, a pre-multiplication and an extern fit instead of a training. */
+ * then a model for any caps from truncations of those ordered bases, no
+ * new snapshot or SVD. The search over caps (tune.c) builds a model per
+ * trial; since a class basis is its members' vectors interleaved in order
+ * (pca_merge), the model at caps c is the leading block of a model at
+ * larger caps (model_truncate, issue 41): the set keeps one model
+ * pre-multiplied at caps at least as large as any asked (doubled when a
+ * trial asks more, so a sweep 1, 2, 3, … pre-multiplies about twice the
+ * largest), and every trial costs a merge and a truncation. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -18,6 +22,8 @@ struct TrainSet {
   bool progress;
   Snapshots sn;             /* in memory */
   PcaMember **pm;           /* [class][member]: its ordered basis at its cap */
+  Model *top;               /* pre-multiplied at caps top_cap, which cover every trial's so far */
+  int *top_cap;
 };
 
 /* Step 5 for a truncation (npgc tune; issue 30): as train_model does,
@@ -44,6 +50,8 @@ void train_set_free(TrainSet *ts) {
     free(ts->pm[c]);
   }
   free(ts->pm);
+  model_free(ts->top);
+  free(ts->top_cap);
   if (ts->base) train_free_snapshots(ts->base, &ts->sn);
   model_free(ts->base);
   free(ts);
@@ -104,7 +112,9 @@ static int truncated_member(RMember *mb, const PcaMember *p, int cap, int k) {
   return 0;
 }
 
-Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
+/* The model whose members keep the first cap[c] of their ordered bases,
+ * merged, with no tensor (its layout sized). */
+static Model *set_bases(TrainSet *ts, const int *cap, char *err, size_t errlen) {
   const Model *b = ts->base;
   err[0] = 0;
   Model *m = model_layout(b->prog, b->dims, err, errlen);
@@ -138,9 +148,51 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     }
   }
   model_size_tensors(m);
-  if (train_premultiply_all(m, ts->f, false, false, err, errlen) || train_fit_externs(m, ts->f, ts->src, &ts->sn, false, true, false, false, false, err, errlen)) {
-    model_free(m);
-    return NULL;
-  }
   return m;
+}
+
+/* ts->top at caps covering `cap`: kept when it does, else made at
+ * max(cap, twice its caps), at most what the members have. 0, or -1 with `err`. */
+static int cover(TrainSet *ts, const int *cap, char *err, size_t errlen) {
+  int nc = ts->base->nclasses, grow = !ts->top;
+  if (!ts->top_cap && !(ts->top_cap = mem_calloc((size_t)nc + 1, sizeof(int))))
+    return error_set(err, errlen, "out of memory");
+  for (int c = 0; c < nc; c++) grow |= cap[c] > ts->top_cap[c] && ts->top_cap[c] < train_set_max_cap(ts, c);
+  if (!grow) return 0;
+  int *want = mem_calloc((size_t)nc + 1, sizeof(int));
+  if (!want) return error_set(err, errlen, "out of memory");
+  for (int c = 0; c < nc; c++) {
+    want[c] = cap[c] > 2 * ts->top_cap[c] ? cap[c] : 2 * ts->top_cap[c];
+    if (want[c] > train_set_max_cap(ts, c)) want[c] = train_set_max_cap(ts, c);
+    if (want[c] < 1) want[c] = 1;
+  }
+  Model *m = set_bases(ts, want, err, errlen);
+  if (m && (train_premultiply_all(m, ts->f, false, false, err, errlen) ||
+            train_fit_externs(m, ts->f, ts->src, &ts->sn, false, true, false, false, false, err, errlen)))
+    model_free(m), m = NULL;
+  if (m) {
+    model_free(ts->top);
+    ts->top = m;
+    memcpy(ts->top_cap, want, sizeof(int) * (size_t)nc);
+  }
+  free(want);
+  return m ? 0 : -1;
+}
+
+Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
+  Model *m = set_bases(ts, cap, err, errlen), *cut = NULL;
+  long *sizes = m ? mem_calloc((size_t)m->nclasses + 1, sizeof(long)) : NULL;
+  if (m && !sizes) error_set(err, errlen, "out of memory");
+  if (sizes && cover(ts, cap, err, errlen) == 0) {
+    for (int c = 0; c < m->nclasses; c++) sizes[c] = m->classes[c].m;
+    cut = model_truncate(ts->top, sizes, err, errlen);
+  }
+  for (int c = 0; cut && c < m->nclasses; c++) /* the members' reports at these caps */
+    for (int i = 0; i < m->classes[c].nmembers; i++) {
+      RMember *a = &cut->classes[c].members[i], *b = &m->classes[c].members[i];
+      a->cap = b->cap, a->kept = b->kept, a->lost = b->lost, a->captured = b->captured;
+    }
+  free(sizes);
+  model_free(m);
+  return cut;
 }
