@@ -580,7 +580,8 @@ NPG_API int npg_blas_threads(int n);
  * `npgc tune`: every class's cap chosen so that every output's mean relative
  * L2 error on validation samples is at most `tol` at the least reduced cost
  * (the cost `npgc check` prints). One snapshot pass and one SVD per member;
- * every candidate is a truncation of those bases, re-pre-multiplied. */
+ * every candidate is a truncation of those bases, its tensors the leading
+ * blocks of one model pre-multiplied at caps covering the candidates. */
 typedef struct NpgTuneTrial {
   const long *m;            /* per class: the basis size */
   double cost;              /* reduced multiply-adds */
