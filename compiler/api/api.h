@@ -45,6 +45,9 @@ struct NpgReduced {
   bool evaluated;           /* an evaluation has succeeded: every quantity has coordinates to lift */
   long zcap;
   Rollout roll;             /* simulations (simulate.c) */
+  double *in_err;           /* per quantity: an input's own error ‖x − B x̂‖ as last set (0: by coordinates) */
+  struct EstimateResult *est; /* the last evaluation's estimates (estimate.h), once asked for */
+  bool est_fresh;           /* est is of the last evaluation */
   char error[1024];
 };
 

@@ -258,6 +258,23 @@ static int verify_exact(Common *c) {
   return rc == 0 ? 0 : 1;
 }
 
+/* The online estimate against the true error (absolute, 2-norm; docs/estimates.md). */
+static void print_estimates(const NpgVerifyReport *rep, int wn) {
+  printf("online estimate (absolute 2-norm, mean over samples; effectivity = estimate / true error, min..max)\n");
+  printf("%-*s %10s %10s %21s %s\n", wn, "quantity", "estimate", "true", "effectivity", "kind");
+  for (int q = 0; q < rep->nrows; q++) {
+    const NpgVerifyRow *e = &rep->rows[q];
+    if (e->est_samples == 0) {
+      printf("%-*s %10s %10s %21s %s\n", wn, e->name, "n/a", "n/a", "n/a", "no estimate (npgc eval says why)");
+      continue;
+    }
+    char eff[48];
+    snprintf(eff, sizeof eff, "%.3g..%.3g", e->eff_min, e->eff_max);
+    printf("%-*s %10.3e %10.3e %21s %s%s\n", wn, e->name, e->est, e->err, eff, e->est_bound ? "bound" : "estimate",
+           e->est_samples < rep->samples ? " (some samples had none)" : "");
+  }
+}
+
 static void print_report(const Common *c, const NpgVerifyReport *rep) {
   printf("verify %s against %s on %ld held-out samples (relative errors, mean over samples)\n", c->prog_path, c->a,
          rep->samples);
@@ -288,6 +305,7 @@ static void print_report(const Common *c, const NpgVerifyReport *rep) {
            streamed, streamed == 1 ? "y" : "ies");
   if (rep->grows_at)
     printf("error grows most at stage %s (+%.3e over the worst quantity it reads)\n", rep->grows_at, rep->growth);
+  print_estimates(rep, wn);
 }
 
 int cmd_verify(Common *c) {
