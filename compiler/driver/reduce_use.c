@@ -311,18 +311,20 @@ static int verify_exact(Common *c) {
 
 /* The online estimate against the true error (absolute, 2-norm; docs/estimates.md). */
 static void print_verify_estimates(const NpgVerifyReport *rep, int wn) {
+  /* each row starts "estimate", so that a row of the table above stays the only one naming a quantity first */
   printf("online estimate (absolute 2-norm, mean over samples; effectivity = estimate / true error, min..max)\n");
-  printf("%-*s %10s %10s %21s %s\n", wn, "quantity", "estimate", "true", "effectivity", "kind");
+  printf("estimate %-*s %10s %10s %21s %s\n", wn, "quantity", "estimate", "true", "effectivity", "kind");
   for (int q = 0; q < rep->nrows; q++) {
     const NpgVerifyRow *e = &rep->rows[q];
     if (e->est_samples == 0) {
-      printf("%-*s %10s %10s %21s %s\n", wn, e->name, "n/a", "n/a", "n/a", "no estimate (npgc eval says why)");
+      printf("estimate %-*s %10s %10s %21s %s\n", wn, e->name, "n/a", "n/a", "n/a", "none (npgc eval says why)");
       continue;
     }
     char eff[48];
-    snprintf(eff, sizeof eff, "%.3g..%.3g", e->eff_min, e->eff_max);
-    printf("%-*s %10.3e %10.3e %21s %s%s\n", wn, e->name, e->est, e->err, eff, e->est_bound ? "bound" : "estimate",
-           e->est_samples < rep->samples ? " (some samples had none)" : "");
+    if (isnan(e->eff_min)) snprintf(eff, sizeof eff, "n/a (no error)");
+    else snprintf(eff, sizeof eff, "%.3g..%.3g", e->eff_min, e->eff_max);
+    printf("estimate %-*s %10.3e %10.3e %21s %s%s\n", wn, e->name, e->est, e->err, eff,
+           e->est_bound ? "bound" : "estimate", e->est_samples < rep->samples ? " (some samples had none)" : "");
   }
 }
 

@@ -90,7 +90,8 @@ def main():
         if not (eff <= 20).all():
             fail("the estimate exceeds 20x the true error at samples %s" % np.nonzero(eff > 20)[0])
         v = run("verify", PROG, os.path.join(w, "MODEL"), test).stdout
-        if not any(l.split()[:1] == ["u"] and "estimate" in l and ".." in l for l in v.splitlines()):
+        if not any(l.split()[:2] == ["estimate", "u"] and ".." in l and l.split()[-1] == "estimate"
+                   for l in v.splitlines()):
             fail("npgc verify prints no estimate with its effectivity for u:\n" + v)
         # conductivities beyond the training range: the warning names the input, the estimate says so
         far = os.path.join(w, "FAR")
