@@ -617,6 +617,37 @@ NPG_API NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tus
                            void *vuser, double tol, int max_cap, const NpgTrainOptions *o, NpgTuneReport *report);
 NPG_API void npg_tune_free(NpgTuneReport *report);
 
+/* ---------------------------------------------------------------- greedy training
+ *
+ * The weak greedy (pyMOR's, DESIGN §16): train on the `nstart` samples `start` sets (as few as
+ * one), then repeatedly evaluate the reduced model and its online estimate (npg_reduced_estimate)
+ * on every candidate of the pool that `pool` sets, and add the one whose largest estimated
+ * relative error over the outputs (estimate / ‖output‖) is worst to the training set, retraining;
+ * stop when every candidate's is below `tol` or when the training set holds `budget` samples.
+ * Full evaluations run only at the training samples (the start and the chosen). A candidate
+ * whose input the model's basis does not hold (its own error above roundoff) counts as worst
+ * (infinite): a full evaluation there adds the direction. Every output needs an estimate (the
+ * reason is the error otherwise). Progress (one line an iteration) on
+ * stderr with `progress`. The model is written to `model_dir` (when not NULL) with the manifest
+ * line `greedy tol E budget N converged 0|1 worst X chosen k1,k2,...` (pool indices, in the
+ * order chosen). */
+typedef struct NpgGreedyOptions {
+  double tol;               /* > 0 */
+  long budget;              /* at most this many training samples (start included); 0: nstart + npool */
+  bool progress;
+} NpgGreedyOptions;
+typedef struct NpgGreedyResult {
+  long *chosen;             /* pool indices chosen, in order (malloc'd; free()) */
+  long nchosen;
+  double worst;             /* the worst candidate's estimated relative error of the final model */
+  long worst_at;            /* which candidate (-1: the pool was used up) */
+  bool converged;           /* worst < tol (else the budget stopped it) */
+  char error[1024];
+} NpgGreedyResult;
+NPG_API NpgModel *npg_train_greedy(NpgFull *f, const NpgTrainOptions *o, long nstart, NpgSampleFn start, void *suser,
+                                   long npool, NpgSampleFn pool, void *puser, const NpgGreedyOptions *g,
+                                   const char *model_dir, NpgGreedyResult *res);
+
 /* ---------------------------------------------------------------- verification
  *
  * The auto-check (`npgc verify`): on held-out samples, the full evaluator

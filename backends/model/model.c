@@ -239,6 +239,7 @@ void model_free(Model *m) {
   free(m->externs);
   for (int q = 0; m->in_range && q < m->nq; q++) free(m->in_range[q]);
   free(m->in_range);
+  free(m->greedy);
   free(m->stages);
   free(m->classes);
   free(m->qclass);

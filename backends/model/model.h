@@ -164,6 +164,8 @@ typedef struct Model {
   int nexterns;
   RExtern *externs;
   long samples;             /* training samples */
+  char *greedy;             /* greedy training's record, the manifest's `greedy` line without its key
+                               (owned; NULL: not trained greedily) */
   double **in_range;        /* per quantity: an input's training range, 2 x m (each reduced coordinate's min,
                                then max; estimate.h), or NULL: not recorded */
   double phase_seconds[4];  /* training's wall time: snapshots, bases, pre-multiplication, externs (not saved) */

@@ -132,6 +132,7 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
   }
   bad |= interp_save(m, &s);
   bad |= estimate_save(m, &s);
+  if (m->greedy) bad |= model_store_meta(&s, "greedy %s", m->greedy);
   int rc = -1;
   if (bad) snprintf(err, errlen, "%s: out of memory assembling the model", dir);
   else rc = model_store_write(dir, &s, err, errlen);
