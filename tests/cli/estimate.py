@@ -3,7 +3,9 @@ thermal block (tests/cli/thermal_block.npg: K(mu) = K0 + sum_q mu_q K_q, SPD, so
 user runs them: npgc train, npgc eval (OUT/u.estimate.npy), npgc verify's effectivity column.
 The true errors come from numpy's own solve of the same operator (an independent oracle): on
 every test sample the estimate must be at least the true error and at most 20 times it. Inputs
-outside the training range are named by a warning and flagged on their estimates."""
+outside the training range are named by a warning and flagged on their estimates. Greedy training
+(npgc train --greedy) from one sample reaches the accuracy of the POD model of the whole pool
+with fewer full evaluations; the choice is in the manifest; a budget stops it with a message."""
 import os
 import subprocess
 import sys
@@ -13,7 +15,7 @@ import numpy as np
 
 B = sys.argv[1]
 PROG = "tests/cli/thermal_block.npg"
-G = 12  # cells per side: N = 144, four blocks
+G = 12  # cells per side: N = 144, four blocks (8 for the greedy part)
 
 
 def fail(msg):
@@ -21,7 +23,7 @@ def fail(msg):
     sys.exit(1)
 
 
-def grid():
+def grid(G=G):
     N = G * G
     nbr = -np.ones((N, 4), np.int32)
     blk = np.zeros(N, np.int32)
@@ -59,9 +61,9 @@ def solve(mu, nbr, blk, src):
     return np.linalg.solve(K, src)
 
 
-def run(*args):
+def run(*args, ok=True):
     p = subprocess.run([os.path.join(B, "npgc")] + list(args), capture_output=True, text=True)
-    if p.returncode != 0:
+    if ok and p.returncode != 0:
         fail("npgc %s: %s%s" % (" ".join(args), p.stdout, p.stderr))
     return p
 
@@ -105,7 +107,56 @@ def main():
         inside = p.stderr.count("lies outside the training range")
         if inside > 3:
             fail("%d of 25 test samples drawn from the training box flagged outside:\n%s" % (inside, p.stderr))
-    print("ok")
+
+def max_error(w, model, test, mu, data):
+    out = os.path.join(w, "OUT_" + os.path.basename(model))
+    run("eval", PROG, model, test, "-o", out)
+    red = np.load(os.path.join(out, "u.npy"))
+    return max(np.linalg.norm(solve(mu[k], *data) - red[k]) / np.linalg.norm(solve(mu[k], *data))
+               for k in range(len(mu)))
+
+
+def greedy_line(model):
+    for l in open(os.path.join(model, "manifest")):
+        if l.startswith("greedy "):
+            return l.split()
+    fail("no greedy line in %s/manifest" % model)
+
+
+def greedy():
+    data = grid(8)
+    rng = np.random.default_rng(42)
+    with tempfile.TemporaryDirectory() as w:
+        start, pool, test = (os.path.join(w, n) for n in ("START", "POOL", "TEST"))
+        write(start, rng.uniform(0.1, 1, (1, 4)), *data)
+        write(pool, rng.uniform(0.1, 1, (40, 4)), *data)
+        mu_test = rng.uniform(0.1, 1, (20, 4))
+        write(test, mu_test, *data)
+        pod, gm, bm = (os.path.join(w, n) for n in ("POD", "GREEDY", "BUDGET"))
+        run("train", PROG, pool, "--basis", "u:cap=60", "-o", pod)
+        p = run("train", PROG, start, "--greedy", pool, "--tol", "1e-3", "--basis", "u:cap=60,energy=1", "-o", gm)
+        if p.stderr.count("greedy: ") < 2:
+            fail("no progress of greedy training on stderr:\n" + p.stderr)
+        line = greedy_line(gm)
+        chosen = line[line.index("chosen") + 1].split(",")
+        if line[line.index("converged") + 1] != "1" or len(chosen) >= 40 or len(set(chosen)) != len(chosen):
+            fail("greedy did not converge with fewer full evaluations than the pool: " + " ".join(line))
+        e_pod, e_greedy = max_error(w, pod, test, mu_test, data), max_error(w, gm, test, mu_test, data)
+        print("greedy: %d full evaluations, max relative error %.3e; POD of the 40 candidates: %.3e"
+              % (len(chosen) + 1, e_greedy, e_pod))
+        if not e_greedy <= e_pod:
+            fail("the greedy model (%d samples) is less accurate than POD of the pool: %.3e > %.3e"
+                 % (len(chosen) + 1, e_greedy, e_pod))
+        p = run("train", PROG, start, "--greedy", pool, "--tol", "1e-9", "--budget", "4", "-o", bm)
+        line = greedy_line(bm)
+        if "stopped at the budget of 4 training samples" not in p.stderr or line[line.index("converged") + 1] != "0" \
+                or len(line[line.index("chosen") + 1].split(",")) != 3:
+            fail("a budget of 4 did not stop greedy training with a message:\n%s\n%s" % (p.stderr, " ".join(line)))
+        p = run("train", PROG, start, "--tol", "1e-3", "-o", os.path.join(w, "X"), ok=False)
+        if p.returncode == 0 or "--tol and --budget are options of greedy training" not in p.stderr:
+            fail("--tol without --greedy was accepted:\n" + p.stderr)
 
 
 main()
+greedy()
+print("ok")
