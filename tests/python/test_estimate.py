@@ -68,3 +68,26 @@ def test_outside_the_training_range_is_flagged(block):
         red.outside("u")
     with pytest.raises(npg.Error, match="the program has no quantity 'nope'"):
         red.estimate("nope")
+
+
+def test_greedy_reaches_the_tolerance_on_its_pool(root):
+    """Trainer.greedy from one sample: every candidate's true relative error ends below tol (the
+    estimate bounds it), with fewer full evaluations than the pool holds."""
+    nbr, blk, src = grid()
+    prog = npg.compile((root / "tests/cli/thermal_block.npg").read_text())
+    full = prog.full(params={"nbr": nbr, "blk": blk, "src": src})
+    rng = np.random.default_rng(11)
+    pool = rng.uniform(0.1, 1, (30, 4))
+    tr = npg.Trainer(full, basis=["u:cap=60,energy=1"])
+    model, info = tr.greedy({"mu": rng.uniform(0.1, 1, (1, 4))}, {"mu": pool}, 1e-3)
+    assert info["converged"] and info["worst"] < 1e-3
+    assert 0 < len(info["chosen"]) < 30 and len(set(info["chosen"])) == len(info["chosen"])
+    red = model.reduced()
+    for mu in pool:
+        red(mu=mu)
+        u = solve(mu, nbr, blk, src)
+        assert np.linalg.norm(u - red.lift("u")) <= 1e-3 * np.linalg.norm(u)
+    _, budget = tr.greedy({"mu": pool[:1]}, {"mu": pool}, 1e-12, budget=3)
+    assert not budget["converged"] and len(budget["chosen"]) == 2
+    with pytest.raises(npg.Error, match="tolerance -1"):
+        tr.greedy({"mu": pool[:1]}, {"mu": pool}, -1)
