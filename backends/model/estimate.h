@@ -39,12 +39,13 @@
 #define EST_ROUNDOFF 4u /* the residual is below the roundoff of its expansion: the figure is that level */
 #define EST_NONE 8u     /* no estimate (the figure is NaN): EstimateResult.why says why */
 
-/* Operators up to this many rows get their σ_min measured by a dense SVD in
- * training (2000: about 8 s a sample on one core); larger ones leave their
- * stage without an estimate. */
-#define ESTIMATE_DENSE_MAX 2000
+/* Operators up to this many rows get their σ_min measured in training by a dense SVD (an SPD
+ * one by its smallest eigenvalue, dsyevr): at 1444 rows that took 0.5 s of CPU a sample (26 s
+ * of wall time for 12 samples on the loaded 2-core machine, training 0.2 s without), so at 800
+ * rows the 8 samples take under 1 s. Larger operators leave their stage without an estimate. */
+#define ESTIMATE_DENSE_MAX 800
 /* Training samples whose operator σ_min is measured, spread over the set. */
-#define ESTIMATE_SIGMA_SAMPLES 12
+#define ESTIMATE_SIGMA_SAMPLES 8
 /* The trust signal's margin: a coordinate is outside the training range when it lies
  * more than this fraction of the range (or of its magnitude, for a range of one value)
  * beyond the training samples' min or max. */
