@@ -557,6 +557,25 @@ NPG_API const double *npg_reduced_coords(const NpgReduced *r, const char *name, 
 /* Lift a quantity to full space: out (count entries, the full size) = B x̂.
  * An error before any evaluation, unless the quantity was set. */
 NPG_API int npg_reduced_lift(NpgReduced *r, const char *name, double *out, size_t count);
+/* The online error estimate of quantity `name` at the last evaluation (DESIGN §16,
+ * docs/estimates.md): *estimate the estimated absolute error of its lifted values in the
+ * 2-norm, ‖y − B ŷ‖, computed at reduced cost from tables training stored in the model; NaN
+ * when there is none (npg_reduced_estimate_why says why). *flags (may be NULL) holds
+ * NPG_EST_ bits. An input's own figure is ‖x − B x̂‖ when it was set in full
+ * (npg_reduced_set; 0 below its roundoff), 0 when set by coordinates (taken as exact). 0, or
+ * -1 (an unknown name, no evaluation yet) with npg_reduced_error. */
+#define NPG_EST_BOUND 1u    /* a rigorous bound (up to roundoff); unset: an estimate */
+#define NPG_EST_OUTSIDE 2u  /* an input it depends on lies outside the training range (npg_reduced_outside) */
+#define NPG_EST_ROUNDOFF 4u /* the residual is below the roundoff of its expansion: the figure is that level */
+#define NPG_EST_NONE 8u     /* no estimate: the figure is NaN */
+NPG_API int npg_reduced_estimate(NpgReduced *r, const char *name, double *estimate, unsigned *flags);
+/* Why quantity `name` has no estimate ("" when it has one, or on an error). */
+NPG_API const char *npg_reduced_estimate_why(NpgReduced *r, const char *name);
+/* The trust signal: 1 when input `name`'s coordinates, as last set, lie outside the range of
+ * the training samples' by more than a tenth of that range (*coord, may be NULL: the first
+ * such coordinate), 0 inside or when the model recorded no range, -1 on an error (not an
+ * input, never set). */
+NPG_API int npg_reduced_outside(NpgReduced *r, const char *name, long *coord);
 /* The `output op` `name` reduced at the last evaluation: out (rows x cols,
  * row-major, at most `cap` entries) = B_rowᵀ M B_col, with the bases of the
  * classes *row_class and *col_class (npg_model_class). An error before any
@@ -613,6 +632,37 @@ NPG_API NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tus
                            void *vuser, double tol, int max_cap, const NpgTrainOptions *o, NpgTuneReport *report);
 NPG_API void npg_tune_free(NpgTuneReport *report);
 
+/* ---------------------------------------------------------------- greedy training
+ *
+ * The weak greedy (pyMOR's, DESIGN §16): train on the `nstart` samples `start` sets (as few as
+ * one), then repeatedly evaluate the reduced model and its online estimate (npg_reduced_estimate)
+ * on every candidate of the pool that `pool` sets, and add the one whose largest estimated
+ * relative error over the outputs (estimate / ‖output‖) is worst to the training set, retraining;
+ * stop when every candidate's is below `tol` or when the training set holds `budget` samples.
+ * Full evaluations run only at the training samples (the start and the chosen). A candidate
+ * whose input the model's basis does not hold (its own error above roundoff) counts as worst
+ * (infinite): a full evaluation there adds the direction. Every output needs an estimate (the
+ * reason is the error otherwise). Progress (one line an iteration) on
+ * stderr with `progress`. The model is written to `model_dir` (when not NULL) with the manifest
+ * line `greedy tol E budget N converged 0|1 worst X chosen k1,k2,...` (pool indices, in the
+ * order chosen). */
+typedef struct NpgGreedyOptions {
+  double tol;               /* > 0 */
+  long budget;              /* at most this many training samples (start included); 0: nstart + npool */
+  bool progress;
+} NpgGreedyOptions;
+typedef struct NpgGreedyResult {
+  long *chosen;             /* pool indices chosen, in order (malloc'd; free()) */
+  long nchosen;
+  double worst;             /* the worst candidate's estimated relative error of the final model */
+  long worst_at;            /* which candidate (-1: the pool was used up) */
+  bool converged;           /* worst < tol (else the budget stopped it) */
+  char error[1024];
+} NpgGreedyResult;
+NPG_API NpgModel *npg_train_greedy(NpgFull *f, const NpgTrainOptions *o, long nstart, NpgSampleFn start, void *suser,
+                                   long npool, NpgSampleFn pool, void *puser, const NpgGreedyOptions *g,
+                                   const char *model_dir, NpgGreedyResult *res);
+
 /* ---------------------------------------------------------------- verification
  *
  * The auto-check (`npgc verify`): on held-out samples, the full evaluator
@@ -630,6 +680,11 @@ typedef struct NpgVerifyRow {
                                NaN (nothing to lift), floor and linf_floor the training samples' mean,
                                measured by training (out of core from ‖y‖² − ‖Bᵀy‖², resolved to about
                                1e-7, and linf_floor NaN: not measured) */
+  /* the online estimate (npg_reduced_estimate) against the true error, absolute 2-norm: */
+  double est, err;          /* means over the samples that had an estimate (est NaN: none had one) */
+  double eff_min, eff_max;  /* effectivity est / err over those samples (where err > 0) */
+  long est_samples;         /* samples with an estimate */
+  bool est_bound;           /* every sample's estimate was a rigorous bound (NPG_EST_BOUND) */
 } NpgVerifyRow;
 typedef struct NpgVerifyReport {
   long samples;

@@ -227,6 +227,7 @@ void model_free(Model *m) {
         free(rt->ops[k].t);
       }
       free(rt->ops);
+      free(rt->est_G);
     }
     free(rs->terms);
     interp_free(rs->interp);
@@ -236,6 +237,9 @@ void model_free(Model *m) {
     free(m->externs[i].Z);
   }
   free(m->externs);
+  for (int q = 0; m->in_range && q < m->nq; q++) free(m->in_range[q]);
+  free(m->in_range);
+  free(m->greedy);
   free(m->stages);
   free(m->classes);
   free(m->qclass);

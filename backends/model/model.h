@@ -65,6 +65,11 @@ typedef struct RTerm {
   char *proj_name;
   int nops;
   ROp *ops;
+  /* the residual's Gram table of the online estimate (estimate.h, issue 41): (est_D + 1) x est_D,
+   * G then the unprojected columns' norms (owned); NULL: the term has no estimate */
+  double *est_G;
+  long est_D;
+  double est_sigma;         /* an inverse term: min over training samples of σ_min(M)/σ_min(BᵀMB); NaN: unknown */
 } RTerm;
 
 /* Every tensor x of term `rt`: its numerator's, then each operator's in
@@ -159,6 +164,10 @@ typedef struct Model {
   int nexterns;
   RExtern *externs;
   long samples;             /* training samples */
+  char *greedy;             /* greedy training's record, the manifest's `greedy` line without its key
+                               (owned; NULL: not trained greedily) */
+  double **in_range;        /* per quantity: an input's training range, 2 x m (each reduced coordinate's min,
+                               then max; estimate.h), or NULL: not recorded */
   double phase_seconds[4];  /* training's wall time: snapshots, bases, pre-multiplication, externs (not saved) */
   double phase_cpu[4];      /* the same phases' CPU time, this process's threads (not saved) */
   char *param_hashes;       /* "tri=<hex> rho=<hex>": what DATA/ held at training; NULL: none recorded */

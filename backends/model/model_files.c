@@ -16,6 +16,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "estimate.h"
 #include "interp.h"
 #include "model.h"
 #include "model_store.h"
@@ -130,6 +131,8 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
     bad |= model_store_add(&s, name, 2, shape, x->Z);
   }
   bad |= interp_save(m, &s);
+  bad |= estimate_save(m, &s);
+  if (m->greedy) bad |= model_store_meta(&s, "greedy %s", m->greedy);
   int rc = -1;
   if (bad) snprintf(err, errlen, "%s: out of memory assembling the model", dir);
   else rc = model_store_write(dir, &s, err, errlen);
@@ -471,7 +474,7 @@ Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
       interp_load(m, &s, dir, err, errlen) || check_streamed(m, dir, err, errlen))
     goto fail;
   read_member_stats(&s, m);
-  if (load_arrays(&s, m, dir, err, errlen)) goto fail;
+  if (load_arrays(&s, m, dir, err, errlen) || estimate_load(m, &s, dir, err, errlen)) goto fail;
   free(dims);
   model_store_free(&s);
   return m;

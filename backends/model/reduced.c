@@ -226,6 +226,8 @@ oom:
 
 double *reduced_coords(Reduced *r, int q) { return r->x[q]; }
 
+double *const *reduced_all_coords(Reduced *r) { return r->x; }
+
 void reduced_project(Reduced *r, int q, const double *x) {
   const RClass *c = &r->m->classes[r->m->qclass[q]];
   cblas_dgemv(CblasRowMajor, CblasTrans, (int)c->n, (int)c->m, 1.0, c->B, (int)c->m, x, 1, 0.0, r->x[q], 1);
@@ -518,6 +520,31 @@ void reduced_root_stats(const Reduced *r, long *roots, long *steps, long *fallba
   *fallbacks = r->root_fallbacks;
 }
 
+/* v <- term t of stage rs: its reduced numerator, then each operator power
+ * applied innermost first (DESIGN §4); with `M`, the last operator's reduced
+ * matrix as assembled, before it is applied. */
+static int eval_term(Reduced *r, const RStage *rs, int t, double *v, double *M, long sample) {
+  const Model *m = r->m;
+  const RTerm *rt = &rs->terms[t];
+  long my = qm(m, rs->q);
+  if (rt->named_q >= 0) {
+    const double *w = r->x[rt->named_q];
+    if (rt->proj)
+      cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)my, (int)qm(m, rt->named_q), 1.0, rt->proj,
+                  (int)qm(m, rt->named_q), w, 1, 0.0, v, 1);
+    else memcpy(v, w, sizeof(double) * (size_t)my);
+  } else {
+    memset(v, 0, sizeof(double) * (size_t)my);
+    for (int g = 0; g < rt->nnum; g++) contract(r, &rt->num[g], v);
+  }
+  for (int k = 0; k < rt->nops; k++) { /* innermost first (DESIGN §4) */
+    assemble_op(r, &rt->ops[k], my);
+    if (M) memcpy(M, r->M, sizeof(double) * (size_t)(my * my));
+    if (apply_power(r, rs, &rt->ops[k], t, k, my, v, sample)) return -1;
+  }
+  return 0;
+}
+
 int reduced_eval_stage(Reduced *r, int i, long sample) {
   if (r->error[0]) return -1;
   Model *m = r->m;
@@ -537,25 +564,15 @@ int reduced_eval_stage(Reduced *r, int i, long sample) {
   }
   memset(y, 0, sizeof(double) * (size_t)my);
   for (int t = 0; t < rs->nterms; t++) {
-    const RTerm *rt = &rs->terms[t];
-    double *v = r->v;
-    if (rt->named_q >= 0) {
-      const double *w = r->x[rt->named_q];
-      if (rt->proj)
-        cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)my, (int)qm(m, rt->named_q), 1.0, rt->proj,
-                    (int)qm(m, rt->named_q), w, 1, 0.0, v, 1);
-      else memcpy(v, w, sizeof(double) * (size_t)my);
-    } else {
-      memset(v, 0, sizeof(double) * (size_t)my);
-      for (int g = 0; g < rt->nnum; g++) contract(r, &rt->num[g], v);
-    }
-    for (int k = 0; k < rt->nops; k++) { /* innermost first (DESIGN §4) */
-      assemble_op(r, &rt->ops[k], my);
-      if (apply_power(r, rs, &rt->ops[k], t, k, my, v, sample)) return -1;
-    }
-    cblas_daxpy((int)my, 1.0, v, 1, y, 1);
+    if (eval_term(r, rs, t, r->v, NULL, sample)) return -1;
+    cblas_daxpy((int)my, 1.0, r->v, 1, y, 1);
   }
   return 0;
+}
+
+int reduced_term(Reduced *r, int i, int t, double *v, double *M, long sample) {
+  if (r->error[0]) return -1;
+  return eval_term(r, &r->m->stages[i], t, v, M, sample);
 }
 
 int reduced_eval(Reduced *r, long sample) {

@@ -15,12 +15,19 @@ Reduced *reduced_new(Model *m, char *err, size_t errlen);
 void reduced_free(Reduced *r);
 /* Reduced coordinates of quantity q (set for inputs, computed for stages). */
 double *reduced_coords(Reduced *r, int q);
+/* Every quantity's coordinates (Program.quantities order). */
+double *const *reduced_all_coords(Reduced *r);
 /* x̂ = Bᵀx for an input or extern given in full. */
 void reduced_project(Reduced *r, int q, const double *x);
 /* Evaluate every stage. 0, or -1 with the message in reduced_error(). */
 int reduced_eval(Reduced *r, long sample);
 /* Evaluate stage number i (Model.stages) from the current coordinates. */
 int reduced_eval_stage(Reduced *r, int i, long sample);
+/* Term `t` of stage number `i` alone into v[0..m) (its class's m), from the
+ * current coordinates; with `M` (m x m, may be NULL) the reduced matrix of
+ * its last operator as assembled, before it was applied (the online
+ * estimate's σ_min, estimate.h). 0, or -1 with reduced_error(). */
+int reduced_term(Reduced *r, int i, int t, double *v, double *M, long sample);
 /* With `on`, externs keep the coordinates the caller set (reduced_project)
  * instead of the learned map: for tests and for verifying the rest. */
 void reduced_use_given_externs(Reduced *r, bool on);

@@ -836,6 +836,7 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   bool externs_first = opt->valid && m->nexterns > 0;
   if (externs_first && train_fit_externs(m, f, src, &sn, gram, true, false, opt->progress, opt->dist, err, errlen)) goto fail;
   if (train_interpolate_stages(m, f, opt, err, errlen)) goto fail;
+  if (train_estimates(m, f, src, opt, err, errlen)) goto fail;
   phase_end(clock, m, PHASE_PREMULTIPLY);
   bool floors = train_mark_streamed(m, opt); /* the reductions chosen: which bases are streamed is known */
   if ((!externs_first || floors) &&

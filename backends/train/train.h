@@ -89,6 +89,12 @@ typedef struct SampleSource {
   int (*share)(void *user, char *err, size_t errlen);
 } SampleSource;
 
+/* The online estimate's tables (estimate.h, estimate_train.c): per eligible term the residual's
+ * projected Gram table and, for an inverse, the σ_min ratio of the training samples; per input
+ * its training range. Needs the bases (before train_drop_bases); builds nothing over ranks or
+ * with externs. 0, or -1 with `err`. */
+int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen);
+
 /* Train: snapshots of every stage and joining numerator on every sample,
  * one basis per class, every tensor pre-multiplied, externs fitted. `f` is
  * bound to the training params. NULL with `err` on failure. */

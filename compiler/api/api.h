@@ -46,6 +46,9 @@ struct NpgReduced {
   long zcap;
   Rollout roll;             /* simulations (simulate.c) */
   NpgModel *own;            /* npg_reduced_new_sizes: the model at those sizes, freed with the evaluator */
+  double *in_err;           /* per quantity: an input's own error ‖x − B x̂‖ as last set (0: by coordinates) */
+  struct EstimateResult *est; /* the last evaluation's estimates (estimate.h), once asked for */
+  bool est_fresh;           /* est is of the last evaluation */
   char error[1024];
 };
 

@@ -4,6 +4,7 @@
  * operators in reduced form. */
 #include <cblas.h>
 #include <cblas.h>
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdlib.h>
@@ -12,6 +13,7 @@
 #include <unistd.h>
 
 #include "api.h"
+#include "estimate.h"
 #include "interp.h"
 #include "model_store.h"
 #include "npy.h"
@@ -458,7 +460,9 @@ NpgReduced *npg_reduced_new(const NpgModel *nm) {
   r->nm = nm;
   if (!nm) api_refuse(r->error, sizeof r->error, __func__, "argument 'm' is NULL");
   else if (!nm->m) rfail(r, "%s", nm->error[0] ? nm->error : "the model holds nothing");
-  else if (!(r->given = mem_calloc((size_t)nm->m->nq + 1, sizeof *r->given))) rfail(r, "out of memory");
+  else if (!(r->given = mem_calloc((size_t)nm->m->nq + 1, sizeof *r->given)) ||
+           !(r->in_err = mem_calloc((size_t)nm->m->nq + 1, sizeof *r->in_err)))
+    rfail(r, "out of memory");
   else if (!(r->r = reduced_new(nm->m, r->error, sizeof r->error)) && !r->error[0]) rfail(r, "out of memory");
   if (r->r) reduced_krylov_roots(r->r, true);
   return r;
@@ -515,6 +519,7 @@ void npg_reduced_clear_error(NpgReduced *r) {
   reduced_krylov_roots(n, !r->exact_roots);
   reduced_free(r->r);
   r->r = n;
+  r->est_fresh = false;
 }
 
 /* Quantity `name` that the caller may set: an input, or an extern when
@@ -544,6 +549,19 @@ static const char *streamed_message(const RClass *c, const char *name, const cha
   return msg;
 }
 
+/* ‖x − B x̂‖ of input q just projected (O(n m), as the projection), 0 within its roundoff
+ * (64 ε √n ‖x‖): a basis that holds x is exact; NaN when out of memory. */
+static double input_error(NpgReduced *r, int q, const RClass *c, const double *x) {
+  double *y = mem_malloc(sizeof(double) * (size_t)c->n + 1);
+  if (!y) return NAN;
+  reduced_lift(r->r, q, y);
+  double d = 0, xn = 0;
+  for (long i = 0; i < c->n; i++) d += (x[i] - y[i]) * (x[i] - y[i]), xn += x[i] * x[i];
+  free(y);
+  d = sqrt(d);
+  return d <= 64 * DBL_EPSILON * sqrt((double)c->n) * sqrt(xn) ? 0 : d;
+}
+
 int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double *values) {
   REFUSE_NULL_R(-1);
   REFUSE_NULL(name);
@@ -559,6 +577,7 @@ int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double 
     if (!isfinite(values[i]))
       return rfail(r, "'%s' holds %s at flat entry %zu", name, isnan(values[i]) ? "NaN" : "an infinity", i);
   reduced_project(r->r, q, values);
+  r->in_err[q] = input_error(r, q, c, values);
   r->given[q] = true;
   if (((const Sym *)r->nm->m->prog->quantities.v[q])->next) r->roll.steps = 0; /* a new rollout */
   return 0;
@@ -579,6 +598,7 @@ int npg_reduced_set_coords(NpgReduced *r, const char *name, size_t m, const doub
       return rfail(r, "the coordinates of '%s' hold %s at entry %zu", name, isnan(coords[i]) ? "NaN" : "an infinity",
                    i);
   memcpy(reduced_coords(r->r, q), coords, sizeof(double) * m);
+  r->in_err[q] = 0;
   r->given[q] = true;
   if (((const Sym *)r->nm->m->prog->quantities.v[q])->next) r->roll.steps = 0; /* a new rollout */
   return 0;
@@ -606,6 +626,7 @@ int npg_reduced_eval(NpgReduced *r, long sample) {
       return rfail(r, "sample %ld: %s '%s' was never set (npg_reduced_set or npg_reduced_set_coords)", sample,
                    s->kind == SYM_INPUT ? "input" : "extern", s->name);
   }
+  r->est_fresh = false;
   if (reduced_eval(r->r, sample) != 0) return -1;
   char msg[512];
   if (api_reduced_not_finite(r->nm->m, r->r, sample, msg, sizeof msg)) return rfail(r, "%s", msg);
@@ -718,8 +739,54 @@ int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t cap, lon
   return 0;
 }
 
+/* The estimates of the last evaluation, computed once; NULL with the error recorded. */
+static EstimateResult *estimates(NpgReduced *r) {
+  if (!r->evaluated) return rfail(r, "no estimate before an evaluation (npg_reduced_eval)"), NULL;
+  if (r->est_fresh) return r->est;
+  if (!r->est && !(r->est = estimate_result_new(r->nm->m))) return rfail(r, "out of memory"), NULL;
+  if (estimate_eval(r->r, r->in_err, r->est)) return rfail(r, "out of memory estimating the error"), NULL;
+  r->est_fresh = true;
+  return r->est;
+}
+
+int npg_reduced_estimate(NpgReduced *r, const char *name, double *estimate, unsigned *flags) {
+  REFUSE_NULL_R(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(estimate);
+  if (failed(r)) return -1;
+  int q = api_quantity(r->nm->m->prog, name);
+  if (q < 0) return rfail(r, "the program has no quantity '%s'", name);
+  EstimateResult *e = estimates(r);
+  if (!e) return -1;
+  *estimate = e->err[q];
+  if (flags) *flags = e->flags[q];
+  return 0;
+}
+
+const char *npg_reduced_estimate_why(NpgReduced *r, const char *name) {
+  REFUSE_NULL_R("");
+  if (!name || failed(r)) return "";
+  int q = api_quantity(r->nm->m->prog, name);
+  EstimateResult *e = q >= 0 ? estimates(r) : NULL;
+  return e ? e->why_q[q] : "";
+}
+
+int npg_reduced_outside(NpgReduced *r, const char *name, long *coord) {
+  REFUSE_NULL_R(-1);
+  REFUSE_NULL(name);
+  if (failed(r)) return -1;
+  const Model *m = r->nm->m;
+  int q = api_quantity(m->prog, name);
+  if (q < 0 || ((const Sym *)m->prog->quantities.v[q])->kind != SYM_INPUT)
+    return rfail(r, "'%s' is not an input of the program", name);
+  if (!r->given[q]) return rfail(r, "input '%s' was never set", name);
+  return estimate_outside(m, q, reduced_coords(r->r, q), coord) ? 1 : 0;
+}
+
 void npg_reduced_free(NpgReduced *r) {
   if (!r) return;
+  estimate_result_free(r->est);
+  free(r->in_err);
   free(r->roll.start);
   reduced_free(r->r);
   free(r->z);

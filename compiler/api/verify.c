@@ -4,12 +4,14 @@
  * (the best any method can do in that basis: Arvo's discretization error),
  * the reduction's own error, and the stage where error grows most. */
 #include <cblas.h>
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "api.h"
+#include "estimate.h"
 #include "interp.h"
 #include "compile.h"
 #include "exact.h"
@@ -69,6 +71,41 @@ static void sample_errors(const RClass *rc, const double *full, Reduced *r, int 
   out[3] = fl[1];
 }
 
+/* Each input's own error ‖x − B x̂‖ (npg_reduced_set's), the estimates, and every quantity's
+ * estimate against its true absolute error `full` − lifted, into the rows' sums. */
+static int sample_estimates(const Model *m, Reduced *r, NpgFull *f, EstimateResult *e, double *in_err, double *y,
+                            NpgVerifyReport *rep) {
+  for (int q = 0; q < m->nq; q++) {
+    const RClass *rc = &m->classes[m->qclass[q]];
+    in_err[q] = 0;
+    if (((Sym *)m->prog->quantities.v[q])->kind != SYM_INPUT || rc->streamed) continue;
+    const double *x = npg_full_get(f, ((Sym *)m->prog->quantities.v[q])->name, NULL);
+    reduced_lift(r, q, y);
+    double d = 0, xn = 0;
+    for (long i = 0; i < rc->n; i++) d += (x[i] - y[i]) * (x[i] - y[i]), xn += x[i] * x[i];
+    in_err[q] = sqrt(d) <= 64 * DBL_EPSILON * sqrt((double)rc->n) * sqrt(xn) ? 0 : sqrt(d);
+  }
+  if (estimate_eval(r, in_err, e)) return -1;
+  for (int q = 0; q < m->nq; q++) {
+    const RClass *rc = &m->classes[m->qclass[q]];
+    NpgVerifyRow *row = &rep->rows[q];
+    if (rc->streamed || isnan(e->err[q])) continue;
+    const double *full = npg_full_get(f, ((Sym *)m->prog->quantities.v[q])->name, NULL);
+    reduced_lift(r, q, y);
+    double d = 0, fn = 0;
+    for (long i = 0; i < rc->n; i++) d += (full[i] - y[i]) * (full[i] - y[i]), fn += full[i] * full[i];
+    d = sqrt(d);
+    /* an error within the lift's own roundoff (an input its basis holds) has no effectivity */
+    if (d <= 64 * DBL_EPSILON * sqrt((double)rc->n) * sqrt(fn)) d = 0;
+    if (row->est_samples == 0) row->eff_min = INFINITY, row->eff_max = 0, row->est_bound = true;
+    row->est_samples++;
+    row->est += e->err[q], row->err += d;
+    row->est_bound = row->est_bound && (e->flags[q] & EST_BOUND);
+    if (d > 0) row->eff_min = fmin(row->eff_min, e->err[q] / d), row->eff_max = fmax(row->eff_max, e->err[q] / d);
+  }
+  return 0;
+}
+
 static void fill_rows(const Model *m, const ErrSum *sum, long S, NpgVerifyReport *rep) {
   const Program *prog = m->prog;
   for (int q = 0; q < m->nq; q++) {
@@ -91,6 +128,9 @@ static void fill_rows(const Model *m, const ErrSum *sum, long S, NpgVerifyReport
     if (row->own < 0 && row->own > -1e-12) row->own = 0;
     row->linf = sum[q].linf / (double)S;
     row->linf_floor = sum[q].floorinf / (double)S;
+    if (row->est_samples > 0) row->est /= (double)row->est_samples, row->err /= (double)row->est_samples;
+    else row->est = row->err = row->eff_min = row->eff_max = NAN;
+    if (!(row->eff_min <= row->eff_max)) row->eff_min = row->eff_max = NAN; /* no sample with an error above 0 */
     const RClass *rc = &m->classes[m->qclass[q]];
     for (int i = 0; rc->streamed && i < rc->nmembers; i++) /* no basis to lift with: training's floors */
       if (rc->members[i].q == q) {
@@ -132,8 +172,10 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
   char err[1024] = "";
   Reduced *r = reduced_new(m, err, sizeof err);
   if (r) reduced_krylov_roots(r, true); /* what users run */
+  EstimateResult *est = estimate_result_new(m);
+  double *in_err = calloc((size_t)m->nq + 1, sizeof(double));
   int rc = 0;
-  if (!sum || !y || !proj || !rep->rows || !r) rc = vfail(rep, "%s", err[0] ? err : "out of memory");
+  if (!sum || !y || !proj || !rep->rows || !r || !est || !in_err) rc = vfail(rep, "%s", err[0] ? err : "out of memory");
   rep->nrows = m->nq;
   for (long k = 0; k < S && rc == 0; k++) {
     /* only what `set` gives counts as this sample's: a value left out is refused, not the previous one's */
@@ -180,6 +222,7 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
       sum[q].floorinf += e[3];
       if (e[0] > rep->rows[q].l2_max || k == 0) rep->rows[q].l2_max = e[0], rep->rows[q].l2_max_sample = k;
     }
+    if (rc == 0 && sample_estimates(m, r, f, est, in_err, y, rep)) rc = vfail(rep, "out of memory estimating errors");
     progress_show(progress, "verification", k + 1, S);
   }
   if (rc == 0) {
@@ -189,6 +232,8 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
   free(sum);
   free(y);
   free(proj);
+  free(in_err);
+  estimate_result_free(est);
   reduced_free(r);
   return rc;
 }

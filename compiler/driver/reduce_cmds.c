@@ -55,7 +55,7 @@ static int add_basis(Common *c, const char *s, char *err, size_t errlen) {
 /* Each command's options: an option of another command is named as such. */
 static const char *const options_of[][2] = {
     {"train", "-o --cc --jit --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi --reduce --valid "
-              "--interp-oversample --keep-bases --weights --steps --every"},
+              "--interp-oversample --keep-bases --weights --steps --every --greedy --tol --budget"},
     {"eval", "-o --progress --std --exact-roots --full --cc --jit --sizes"},
     {"verify", "--tol --cc --jit --exact --exact-size --progress --std --params --steps --every --png --sizes"},
     {"bench", "--cc --jit --threads --reps --exact-roots --progress --std --params --steps --every --sizes"},
@@ -140,6 +140,8 @@ static int parse(Common *c, int argc, char **argv) {
         snprintf(a.error, sizeof a.error, "%s: --center is on or off, not '%s'", prog, v);
     } else if ((v = npg_args_string(&a, "--spectra"))) c->spectra = v;
     else if ((v = npg_args_string(&a, "--weights"))) c->weights = v;
+    else if ((v = npg_args_string(&a, "--greedy"))) c->greedy = v;
+    else if (npg_args_long(&a, "--budget", 1, 1000000000, &c->budget)) ;
     else if ((v = npg_args_string(&a, "--params"))) c->params = v;
     else if ((v = npg_args_string(&a, "--sizes"))) {
       if (!*v) snprintf(a.error, sizeof a.error, "%s: --sizes: give NAME=N,... (classes as npgc check names them)", prog);
@@ -306,6 +308,43 @@ static int add_trajectories(Common *c, NpgProgram *p, NpgFull *f, NpgTrainer *t)
   return rc;
 }
 
+/* --greedy POOL/: npg_train_greedy from DATA/'s samples over POOL/'s candidates; 0, or 1 after
+ * the message. The budget reached without --tol met is said on stderr and is no failure. */
+static int train_greedy(Common *c, NpgProgram *p, NpgFull *f, NpgSamples *s) {
+  char err[2048];
+  NpgSamples *pool = npg_samples_open(p, c->greedy, NULL, true, err, sizeof err);
+  if (!pool) return npgc_error(err), 1;
+  int rc = 1;
+  if (npg_samples_count(pool) < 1) {
+    fprintf(stderr, "error: --greedy %s: no candidates (the first axis of its inputs is 0)\n", c->greedy);
+    goto done;
+  }
+  if (!c->tol_set) {
+    fprintf(stderr, "npgc train: --greedy needs --tol E, the estimated relative error every candidate must reach\n");
+    goto done;
+  }
+  NpgGreedyOptions g = {c->tol, c->budget, true};
+  NpgGreedyResult res;
+  double t0 = reduce_now();
+  NpgModel *m = npg_train_greedy(f, &c->train, npg_samples_count(s), npg_samples_set, s, npg_samples_count(pool),
+                                 npg_samples_set, pool, &g, c->out, &res);
+  if (!m) npgc_error(res.error);
+  else {
+    printf("trained %s greedily on %ld samples (%ld of DATA/, %ld chosen of %ld candidates in %s) in %.2f s -> %s\n",
+           c->prog_path, npg_model_samples(m), npg_samples_count(s), res.nchosen, npg_samples_count(pool), c->greedy,
+           reduce_now() - t0, c->out);
+    printf("worst candidate's estimated relative error %.3e: %s --tol %.3g\n", res.worst,
+           res.converged ? "below" : "above (the budget stopped it)", c->tol);
+    npg_model_report(m, stdout);
+    rc = 0;
+  }
+  free(res.chosen);
+  npg_model_free(m);
+done:
+  npg_samples_free(pool);
+  return rc;
+}
+
 /* The samples of DATA/ streamed into a trainer, as any C program would. */
 static int cmd_train(Common *c) {
   if (!c->prog_path) return npgc_missing("train", "the program (PROG.npg)");
@@ -393,6 +432,18 @@ static int cmd_train(Common *c) {
       free(w);
       goto done;
     }
+  if (c->greedy) {
+    if (c->steps >= 0 || c->weights || c->valid || c->spectra) {
+      fprintf(stderr, "npgc train: --greedy is not with --steps, --weights, --valid or --spectra\n");
+      goto done_w;
+    }
+    rc = train_greedy(c, p, f, s);
+    goto done_w;
+  }
+  if (c->tol_set || c->budget) {
+    fprintf(stderr, "npgc train: --tol and --budget are options of greedy training (--greedy POOL/)\n");
+    goto done_w;
+  }
   double t0 = reduce_now();
   t = npg_trainer_new(f, &c->train);
   if (c->steps >= 0) {

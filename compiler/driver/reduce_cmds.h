@@ -18,6 +18,8 @@ typedef struct Common {
   long exact_size;          /* their size of every dim (0: exact.c's defaults) */
   double tol;
   bool tol_set;
+  const char *greedy;       /* train --greedy POOL/: the candidates of greedy training (DESIGN §16) */
+  long budget;              /* train --budget N: its most training samples (0: no bound but the pool) */
   long reps;                /* bench: passes over the samples */
   bool progress;            /* --progress: progress on stderr even when it is not a terminal */
   bool exact_roots;         /* eval, bench: roots by eigendecomposition, not Lanczos */

@@ -146,6 +146,8 @@ typedef struct Out {
   long n, m;                /* full size and coordinates (an op: rows x cols in m) */
   long rows, cols;
   double *lifted, *coords;
+  double *est;              /* per sample: the online estimate (absolute 2-norm; NaN: none) */
+  unsigned *flags;          /* and its NPG_EST_ bits */
 } Out;
 
 static int write_outputs(const Common *c, const Session *x, const Out *outs, int nout, long S) {
@@ -164,6 +166,8 @@ static int write_outputs(const Common *c, const Session *x, const Out *outs, int
       long cs[2] = {S, u->m};
       snprintf(path, sizeof path, "%s/%s.reduced.npy", c->out, u->sym->name);
       if (npg_npy_write(path, 2, cs, u->coords, err, sizeof err) != 0) goto fail;
+      snprintf(path, sizeof path, "%s/%s.estimate.npy", c->out, u->sym->name);
+      if (npg_npy_write(path, 1, cs, u->est, err, sizeof err) != 0) goto fail;
     } else {
       long os[3] = {S, u->rows, u->cols};
       snprintf(path, sizeof path, "%s/%s.reduced.npy", c->out, u->sym->name);
@@ -186,7 +190,49 @@ static int keep_output(Session *x, Out *u, long k) {
   size_t m;
   const double *v = npg_reduced_coords(x->r, u->sym->name, &m);
   memcpy(u->coords + k * u->m, v, sizeof(double) * m);
+  if (npg_reduced_estimate(x->r, u->sym->name, &u->est[k], &u->flags[k]) != 0) return -1;
   return npg_reduced_lift(x->r, u->sym->name, u->lifted + k * u->n, (size_t)u->n);
+}
+
+/* The trust signal of sample k: a warning naming each input outside the training range. */
+static int warn_outside(Session *x, long k) {
+  for (int i = 0; i < x->nsym; i++) {
+    long coord = 0;
+    if (x->sym[i].kind != NPG_INPUT) continue;
+    int out = npg_reduced_outside(x->r, x->sym[i].name, &coord);
+    if (out < 0) return -1;
+    if (out)
+      fprintf(stderr, "warning: sample %ld: input '%s' lies outside the training range (its reduced coordinate %ld, "
+              "beyond the training samples' by more than a tenth of their range): the reduced answer and its error "
+              "estimate are extrapolations there\n", k, x->sym[i].name, coord);
+  }
+  return 0;
+}
+
+/* The estimates of every output, a row per sample (docs/estimates.md); why one has none, once. */
+static void print_estimates(Session *x, const Out *outs, int nout, long S) {
+  printf("%8s", "sample");
+  for (int o = 0; o < nout; o++)
+    if (outs[o].sym->kind != NPG_OP) printf(" %14s", outs[o].sym->name);
+  printf("   (online error estimate, absolute 2-norm; b: a bound, e: an estimate, !: inputs outside the training "
+         "range, r: at the roundoff level)\n");
+  for (long k = 0; k < S; k++) {
+    printf("%8ld", k);
+    for (int o = 0; o < nout; o++) {
+      const Out *u = &outs[o];
+      if (u->sym->kind == NPG_OP) continue;
+      unsigned f = u->flags[k];
+      char cell[32];
+      if (f & NPG_EST_NONE) snprintf(cell, sizeof cell, "n/a%s", f & NPG_EST_OUTSIDE ? " !" : "");
+      else snprintf(cell, sizeof cell, "%.3e %s%s%s", u->est[k], f & NPG_EST_BOUND ? "b" : "e",
+                    f & NPG_EST_OUTSIDE ? "!" : "", f & NPG_EST_ROUNDOFF ? "r" : "");
+      printf(" %14s", cell);
+    }
+    printf("\n");
+  }
+  for (int o = 0; o < nout; o++)
+    if (outs[o].sym->kind != NPG_OP && S > 0 && (outs[o].flags[S - 1] & NPG_EST_NONE))
+      printf("%s has no estimate: %s\n", outs[o].sym->name, npg_reduced_estimate_why(x->r, outs[o].sym->name));
 }
 
 int cmd_eval_reduced(Common *c) {
@@ -216,14 +262,17 @@ int cmd_eval_reduced(Common *c) {
     }
     u->lifted = malloc(sizeof(double) * (size_t)(u->n * S + 1));
     u->coords = malloc(sizeof(double) * (size_t)(u->m * S + 1));
-    if (!u->lifted || !u->coords) goto oom;
+    u->est = malloc(sizeof(double) * (size_t)(S + 1));
+    u->flags = calloc((size_t)S + 1, sizeof(unsigned));
+    if (!u->lifted || !u->coords || !u->est || !u->flags) goto oom;
   }
   for (long k = 0; k < S; k++) {
-    if (reduced_sample(&x, k) != 0) goto failed;
+    if (reduced_sample(&x, k) != 0 || warn_outside(&x, k) != 0) goto failed;
     for (int o = 0; o < nout; o++)
       if (keep_output(&x, &outs[o], k) != 0) goto failed;
     npg_progress(c->train.progress && S > 1, "reduced evaluation", k + 1, S);
   }
+  print_estimates(&x, outs, nout, S);
   /* an operator's matrices were kept at the largest stride: pack them */
   for (int o = 0; o < nout; o++) {
     Out *u = &outs[o];
@@ -242,6 +291,8 @@ done:
   for (int o = 0; outs && o < nout; o++) {
     free(outs[o].lifted);
     free(outs[o].coords);
+    free(outs[o].est);
+    free(outs[o].flags);
   }
   free(outs);
   close_session(&x);
@@ -265,6 +316,25 @@ static int verify_exact(Common *c) {
                 : "");
   npg_free(p);
   return rc == 0 ? 0 : 1;
+}
+
+/* The online estimate against the true error (absolute, 2-norm; docs/estimates.md). */
+static void print_verify_estimates(const NpgVerifyReport *rep, int wn) {
+  /* each row starts "estimate", so that a row of the table above stays the only one naming a quantity first */
+  printf("online estimate (absolute 2-norm, mean over samples; effectivity = estimate / true error, min..max)\n");
+  printf("estimate %-*s %10s %10s %21s %s\n", wn, "quantity", "estimate", "true", "effectivity", "kind");
+  for (int q = 0; q < rep->nrows; q++) {
+    const NpgVerifyRow *e = &rep->rows[q];
+    if (e->est_samples == 0) {
+      printf("estimate %-*s %10s %10s %21s %s\n", wn, e->name, "n/a", "n/a", "n/a", "none (npgc eval says why)");
+      continue;
+    }
+    char eff[48];
+    if (isnan(e->eff_min)) snprintf(eff, sizeof eff, "n/a (no error)");
+    else snprintf(eff, sizeof eff, "%.3g..%.3g", e->eff_min, e->eff_max);
+    printf("estimate %-*s %10.3e %10.3e %21s %s%s\n", wn, e->name, e->est, e->err, eff,
+           e->est_bound ? "bound" : "estimate", e->est_samples < rep->samples ? " (some samples had none)" : "");
+  }
 }
 
 static void print_report(const Common *c, const NpgVerifyReport *rep) {
@@ -297,6 +367,7 @@ static void print_report(const Common *c, const NpgVerifyReport *rep) {
            streamed, streamed == 1 ? "y" : "ies");
   if (rep->grows_at)
     printf("error grows most at stage %s (+%.3e over the worst quantity it reads)\n", rep->grows_at, rep->growth);
+  print_verify_estimates(rep, wn);
 }
 
 int cmd_verify(Common *c) {

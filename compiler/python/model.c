@@ -770,6 +770,49 @@ static PyObject *reduced_op(ReducedObject *self, PyObject *arg) {
   return a;
 }
 
+/* red.estimate(name) -> float: the online estimate of quantity `name` at the last evaluation,
+ * absolute, the 2-norm of its lifted values' error (NaN: none; npg_reduced_estimate) */
+static PyObject *reduced_estimate(ReducedObject *self, PyObject *arg) {
+  const char *name = npgpy_name(arg, "Reduced.estimate");
+  if (!name || !quantity(self, name)) return NULL;
+  npgpy_busy_enter(&self->busy);
+  double e = NAN;
+  int rc = npg_reduced_estimate(self->r, name, &e, NULL);
+  PyObject *res = rc ? rfail(self) : PyFloat_FromDouble(e);
+  npgpy_busy_leave(&self->busy);
+  return res;
+}
+
+/* red.estimate_info(name) -> dict: the estimate with its flags and why there is none */
+static PyObject *reduced_estimate_info(ReducedObject *self, PyObject *arg) {
+  const char *name = npgpy_name(arg, "Reduced.estimate_info");
+  if (!name || !quantity(self, name)) return NULL;
+  npgpy_busy_enter(&self->busy);
+  double e = NAN;
+  unsigned f = 0;
+  PyObject *res = NULL;
+  if (npg_reduced_estimate(self->r, name, &e, &f)) res = rfail(self);
+  else
+    res = Py_BuildValue("{s:d,s:O,s:O,s:O,s:s}", "estimate", e, "bound", f & NPG_EST_BOUND ? Py_True : Py_False,
+                        "outside", f & NPG_EST_OUTSIDE ? Py_True : Py_False, "roundoff",
+                        f & NPG_EST_ROUNDOFF ? Py_True : Py_False, "why", npg_reduced_estimate_why(self->r, name));
+  npgpy_busy_leave(&self->busy);
+  return res;
+}
+
+/* red.outside(name) -> the first reduced coordinate of input `name` outside the training
+ * range, or None (npg_reduced_outside) */
+static PyObject *reduced_outside(ReducedObject *self, PyObject *arg) {
+  const char *name = npgpy_name(arg, "Reduced.outside");
+  if (!name) return NULL;
+  npgpy_busy_enter(&self->busy);
+  long coord = -1;
+  int rc = npg_reduced_outside(self->r, name, &coord);
+  PyObject *res = rc < 0 ? rfail(self) : rc ? PyLong_FromLong(coord) : Py_NewRef(Py_None);
+  npgpy_busy_leave(&self->busy);
+  return res;
+}
+
 static PyObject *get_model(ReducedObject *self, void *unused) { return Py_NewRef(self->model); }
 
 static PyGetSetDef reduced_getset[] = {
@@ -806,6 +849,13 @@ static PyMethodDef reduced_methods[] = {
   {"lift", (PyCFunction)(void (*)(void))reduced_lift, METH_VARARGS | METH_KEYWORDS,
    "lift(name, out=None) -> array: B ŷ of any quantity, shaped like it; written into `out` when given"},
   {"coords", (PyCFunction)reduced_coords, METH_O, "coords(name) -> array: a copy of the reduced coordinates"},
+  {"estimate", (PyCFunction)reduced_estimate, METH_O,
+   "estimate(name) -> float: the online error estimate of `name` at the last evaluation, absolute, in the\n"
+   "2-norm of its lifted values (NaN: none; estimate_info says why; docs/estimates.md)"},
+  {"estimate_info", (PyCFunction)reduced_estimate_info, METH_O,
+   "estimate_info(name) -> dict(estimate, bound, outside, roundoff, why): the estimate and its flags"},
+  {"outside", (PyCFunction)reduced_outside, METH_O,
+   "outside(name) -> int or None: the first reduced coordinate of input `name` outside the training range"},
   {"set_coords", (PyCFunction)reduced_set_coords, METH_VARARGS,
    "set_coords(name, coords): set an input (or an extern after given_externs(True)) from its reduced coordinates"},
   {"op", (PyCFunction)reduced_op, METH_O,

@@ -20,6 +20,7 @@ typedef struct TrainerObject {
   char **interp, **galerkin; /* interp=, galerkin=: stage names (NULL-ended, owned here) */
   PyObject *valid_dict;     /* valid=: a copy of the dict, which holds the names NpgpySamples points to */
   NpgpySamples valid;
+  NpgTrainOptions opt;      /* the options it was made with (greedy() trains with them) */
 } TrainerObject;
 
 static PyObject *raise_words(TrainerObject *self, const char *prefix, const char *msg);
@@ -246,6 +247,7 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
     o.keep_bases = self->keep_bases;
   }
   Py_XSETREF(self->full, (FullObject *)Py_NewRef(full));
+  self->opt = o;
   self->t = npg_trainer_new(self->full->f, &o);
   if (!self->t) {
     PyErr_NoMemory();
@@ -434,6 +436,56 @@ static PyObject *trainer_finish(TrainerObject *self, PyObject *args, PyObject *k
   return npgpy_model_wrap(self->full->prog, m, self->full);
 }
 
+/* tr.greedy(start, pool, tol, budget=0, model_dir=None) -> Model: greedy training with this
+ * trainer's options (npg_train_greedy; docs/estimates.md): `start` and `pool` dicts of arrays with
+ * a leading sample axis; the samples added to the trainer itself are not used. The result's
+ * record: model.greedy (chosen, worst, converged). */
+static PyObject *trainer_greedy(TrainerObject *self, PyObject *args, PyObject *kw) {
+  static char *kwlist[] = {"start", "pool", "tol", "budget", "model_dir", NULL};
+  PyObject *start, *pool, *dir = Py_None, *b = NULL;
+  double tol;
+  long budget = 0;
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!O!d|lO:greedy", kwlist, &PyDict_Type, &start, &PyDict_Type, &pool,
+                                   &tol, &budget, &dir))
+    return NULL;
+  if (!ready(self)) return NULL;
+  if (dir != Py_None && !PyUnicode_FSConverter(dir, &b)) return NULL;
+  NpgpySamples s = {0}, p = {0};
+  PyObject *res = NULL;
+  if (npgpy_samples(self->full->prog, start, "Trainer.greedy", "start", &s) ||
+      npgpy_samples(self->full->prog, pool, "Trainer.greedy", "pool", &p))
+    goto done;
+  NpgGreedyOptions g = {tol, budget, self->opt.progress};
+  NpgGreedyResult r;
+  NpgModel *m;
+  const char *path = b ? PyBytes_AS_STRING(b) : NULL;
+  npgpy_busy_enter(&self->full->busy);
+  Py_BEGIN_ALLOW_THREADS
+  m = npg_train_greedy(self->full->f, &self->opt, s.count, npgpy_samples_set, &s, p.count, npgpy_samples_set, &p, &g,
+                       path, &r);
+  Py_END_ALLOW_THREADS
+  self->full->evaluated = false; /* the evaluator holds the last candidate's inputs, not an evaluated sample */
+  npgpy_busy_leave(&self->full->busy);
+  if (!m) {
+    PyErr_SetString(npgpy_Error, r.error);
+    free(r.chosen);
+    goto done;
+  }
+  PyObject *chosen = PyList_New(r.nchosen);
+  for (long j = 0; chosen && j < r.nchosen; j++) PyList_SET_ITEM(chosen, j, PyLong_FromLong(r.chosen[j]));
+  free(r.chosen);
+  PyObject *model = chosen ? npgpy_model_wrap(self->full->prog, m, self->full) : NULL;
+  if (model)
+    res = Py_BuildValue("(N{s:N,s:d,s:O})", model, "chosen", chosen, "worst", r.worst, "converged",
+                        r.converged ? Py_True : Py_False);
+  else Py_XDECREF(chosen);
+done:
+  npgpy_samples_free(&s);
+  npgpy_samples_free(&p);
+  Py_XDECREF(b);
+  return res;
+}
+
 /* tr.dots(name, values) -> array of samples: the inner products of one value of an input or
  * extern with every training sample's value, from the trainer's own records (npg_trainer_dots);
  * with model.coefficients(name) C, the coordinates Cᵀ(Xᵀv) of a class kept as coefficients. */
@@ -497,6 +549,10 @@ static PyObject *trainer_add_trajectory(TrainerObject *self, PyObject *args, PyO
 }
 
 static PyMethodDef trainer_methods[] = {
+  {"greedy", (PyCFunction)(void (*)(void))trainer_greedy, METH_VARARGS | METH_KEYWORDS,
+   "greedy(start, pool, tol, budget=0, model_dir=None) -> (Model, {chosen, worst, converged}): greedy\n"
+   "training with this trainer's options (npgc train --greedy): start and pool are dicts of arrays with a\n"
+   "leading sample axis; full evaluations only at start and at the chosen candidates of pool"},
   {"add_trajectory", (PyCFunction)(void (*)(void))trainer_add_trajectory, METH_VARARGS | METH_KEYWORDS,
    "add_trajectory(steps, every=1, **inputs): run the full step `steps` times from the states' initial values\n"
    "(Full.simulate's arguments) and add every `every`-th visited state; nothing is kept but the samples"},

@@ -1,0 +1,367 @@
+/* estimate.c — the online error estimate of a reduced evaluation, chained
+ * through the stages, the trust signal of its inputs, and their tables in
+ * MODEL/ (estimate.h; training builds the tables: backends/train/estimate_train.c).
+ *
+ * Per term, ‖r_t‖² = z_tᵀ G_t z_t (estimate.h). Its floating-point value is
+ * uncertain by about ε (√n Σ |z_i| ‖C_i‖)² (C_i the unprojected columns:
+ * their projection by I − BBᵀ and the Gram product round at that level) plus
+ * D ε (Σ |z_i| √G_ii)²; below that level the figure is the level, flagged
+ * EST_ROUNDOFF, never the square root of a negative number or of noise. */
+#include <cblas.h>
+#include <lapacke.h>
+#include <float.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "estimate.h"
+
+static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
+static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quantities.v[q])->name; }
+
+bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
+  const RStage *rs = &m->stages[i];
+  const RTerm *rt = &rs->terms[t];
+  if (rs->st->kind == ST_EXTERN) return snprintf(why, n, "an extern's learned map has no estimate"), false;
+  if (rs->interp) return snprintf(why, n, "interpolated stages have no estimate yet"), false;
+  if (rt->nops > 1) return snprintf(why, n, "term %d applies %d operators (one inverse at most has an estimate)", t + 1,
+                                    rt->nops), false;
+  if (rt->nops == 1 && !(rt->ops[0].op->p == -1 && rt->ops[0].op->q == 1))
+    return snprintf(why, n, "term %d applies a power %ld/%ld (only inverses have an estimate)", t + 1,
+                    (long)rt->ops[0].op->p, (long)rt->ops[0].op->q), false;
+  if (!m->classes[m->qclass[rs->q]].B && !m->classes[m->qclass[rs->q]].streamed)
+    return snprintf(why, n, "class %s has no basis", m->classes[m->qclass[rs->q]].label), false;
+  return true;
+}
+
+long estimate_term_dim(const Model *m, int i, int t) {
+  const RTerm *rt = &m->stages[i].terms[t];
+  long d = 0;
+  if (rt->named_q >= 0) d = qm(m, rt->named_q);
+  else
+    for (int g = 0; g < rt->nnum; g++) d += rt->num[g].cols;
+  for (int k = 0; k < rt->nops; k++)
+    for (int g = 0; g < rt->ops[k].ntensors; g++) d += qm(m, m->stages[i].q) * rt->ops[k].t[g].cols;
+  return d;
+}
+
+void estimate_input_product(const Model *m, double *const *coords, const RTensor *x, double *z, double *scratch) {
+  z[0] = 1;
+  long len = 1;
+  for (int j = 0; j < x->nin; j++) {
+    const double *v = coords[x->in_q[j]];
+    if (x->in_mult[j] > 1) {
+      sym_power(qm(m, x->in_q[j]), x->in_mult[j], v, scratch);
+      v = scratch;
+    }
+    long lj = x->in_len[j];
+    for (long a = len - 1; a >= 0; a--) { /* expand in place from the back, the last axis fastest */
+      double za = z[a];
+      for (long b = lj - 1; b >= 0; b--) z[a * lj + b] = za * v[b];
+    }
+    len *= lj;
+  }
+}
+
+EstimateResult *estimate_result_new(const Model *m) {
+  EstimateResult *e = calloc(1, sizeof *e);
+  if (!e) return NULL;
+  e->nq = m->nq;
+  e->err = calloc((size_t)m->nq + 1, sizeof(double));
+  e->flags = calloc((size_t)m->nq + 1, sizeof(unsigned));
+  e->why_q = calloc((size_t)m->nq + 1, sizeof(char[256]));
+  if (!e->err || !e->flags || !e->why_q) {
+    estimate_result_free(e);
+    return NULL;
+  }
+  return e;
+}
+
+void estimate_result_free(EstimateResult *e) {
+  if (!e) return;
+  free(e->why_q);
+  free(e->err);
+  free(e->flags);
+  free(e);
+}
+
+bool estimate_outside(const Model *m, int q, const double *coords, long *coord) {
+  const double *rg = m->in_range ? m->in_range[q] : NULL;
+  if (!rg) return false;
+  long mq = qm(m, q);
+  for (long a = 0; a < mq; a++) {
+    double lo = rg[a], hi = rg[mq + a], span = hi - lo;
+    double margin = ESTIMATE_RANGE_MARGIN * (span > 0 ? span : fmax(fabs(lo), fabs(hi)));
+    if (coords[a] < lo - margin || coords[a] > hi + margin) {
+      if (coord) *coord = a;
+      return true;
+    }
+  }
+  return false;
+}
+
+/* The scratch of one evaluation of the estimate. */
+typedef struct Scratch {
+  double *z, *Gz, *v, *M, *sv, *pack;
+  long svlen;
+} Scratch;
+
+/* ‖r_t‖ of term `rt` (of a stage of full size n, basis size my) with its
+ * value ŷ_t in s->v; *roundoff when below the roundoff of the expansion
+ * (the figure is then that level). */
+static double residual_norm(Reduced *r, const RTerm *rt, long n, long my, Scratch *s, bool *roundoff) {
+  const Model *m = reduced_model(r);
+  double *const *x = reduced_all_coords(r);
+  long D = rt->est_D, off = 0;
+  if (rt->named_q >= 0) {
+    memcpy(s->z, x[rt->named_q], sizeof(double) * (size_t)qm(m, rt->named_q));
+    off = qm(m, rt->named_q);
+  } else {
+    for (int g = 0; g < rt->nnum; g++) {
+      estimate_input_product(m, x, &rt->num[g], s->z + off, s->pack);
+      off += rt->num[g].cols;
+    }
+  }
+  for (int k = 0; k < rt->nops; k++)
+    for (int g = 0; g < rt->ops[k].ntensors; g++) {
+      const RTensor *t = &rt->ops[k].t[g];
+      estimate_input_product(m, x, t, s->Gz, s->pack);
+      for (long a = 0; a < my; a++)
+        for (long c = 0; c < t->cols; c++) s->z[off + a * t->cols + c] = s->v[a] * s->Gz[c];
+      off += my * t->cols;
+    }
+  const double *G = rt->est_G, *cn = rt->est_G + D * D;
+  cblas_dsymv(CblasRowMajor, CblasUpper, (int)D, 1.0, G, (int)D, s->z, 1, 0.0, s->Gz, 1);
+  double res2 = cblas_ddot((int)D, s->z, 1, s->Gz, 1), a = 0, b = 0;
+  for (long i = 0; i < D; i++) a += fabs(s->z[i]) * cn[i], b += fabs(s->z[i]) * sqrt(fmax(G[i * D + i], 0));
+  /* the projected columns carry about ε‖C_i‖ each; the Gram sums of n products and the form's D */
+  double level = (8 * DBL_EPSILON * a) * (8 * DBL_EPSILON * a) + (sqrt((double)n) + (double)D) * DBL_EPSILON * b * b;
+  *roundoff = !(res2 > level);
+  return sqrt(*roundoff ? level : res2);
+}
+
+/* σ_min of the my x my matrix M (destroyed), dgesvd's smallest singular value; NaN if it fails. */
+static double sigma_min(double *M, long my, Scratch *s) {
+  if (my == 0) return INFINITY;
+  lapack_int info = LAPACKE_dgesvd_work(LAPACK_ROW_MAJOR, 'N', 'N', (int)my, (int)my, M, (int)my, s->sv, NULL, 1, NULL,
+                                        1, s->sv + my, (lapack_int)(s->svlen - my));
+  return info == 0 ? s->sv[my - 1] : NAN;
+}
+
+/* Why stage `rs` has no estimate because of its input q, or NULL: q's error is known and
+ * zero, or q is a named numerator (its error is carried through). */
+static const char *input_blocks(const EstimateResult *e, const Model *m, int q, char *buf, size_t n) {
+  if (isnan(e->err[q])) return snprintf(buf, n, "its input %s has no estimate", qname(m, q)), buf;
+  if (e->err[q] > 0)
+    return snprintf(buf, n, "its input %s carries an error (%.3g) whose propagation through a tensor is not "
+                    "implemented", qname(m, q), e->err[q]), buf;
+  return NULL;
+}
+
+/* The estimate of stage number i into e (err, flags, why_q of its quantity). */
+static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
+  const Model *m = reduced_model(r);
+  const RStage *rs = &m->stages[i];
+  int q = rs->q;
+  long my = qm(m, q), n = m->classes[m->qclass[q]].n;
+  char why[256] = "";
+  double sum = 0;
+  unsigned flags = EST_BOUND;
+  for (int t = 0; t < rs->nterms; t++) {
+    const RTerm *rt = &rs->terms[t];
+    if (!estimate_term_eligible(m, i, t, why, sizeof why)) goto none;
+    if (!rt->est_G) {
+      snprintf(why, sizeof why, "the model holds no estimate table for term %d (trained without one: see npgc train's "
+               "report, or a model older than the estimates)", t + 1);
+      goto none;
+    }
+    RTERM_FOR_TENSORS(rt, x)
+      for (int j = 0; j < x->nin; j++) {
+        flags |= e->flags[x->in_q[j]] & EST_OUTSIDE;
+        if (input_blocks(e, m, x->in_q[j], why, sizeof why)) goto none;
+      }
+    double carried = 0; /* a named numerator's own error */
+    if (rt->named_q >= 0) {
+      if (isnan(e->err[rt->named_q])) {
+        snprintf(why, sizeof why, "its numerator %s has no estimate", qname(m, rt->named_q));
+        goto none;
+      }
+      carried = e->err[rt->named_q];
+      flags |= e->flags[rt->named_q] & (EST_OUTSIDE | EST_ROUNDOFF);
+      if (!(e->flags[rt->named_q] & EST_BOUND)) flags &= ~EST_BOUND;
+    }
+    if (reduced_term(r, i, t, s->v, rt->nops ? s->M : NULL, -1)) {
+      snprintf(why, sizeof why, "term %d failed: %.200s", t + 1, reduced_error(r));
+      goto none;
+    }
+    bool roundoff;
+    double res = residual_norm(r, rt, n, my, s, &roundoff);
+    if (roundoff) flags |= EST_ROUNDOFF;
+    if (rt->nops == 0) {
+      sum += res + carried;
+      continue;
+    }
+    if (isnan(rt->est_sigma)) {
+      snprintf(why, sizeof why, "no lower bound of σ_min of term %d's operator (its rows exceed %d, the dense SVD's limit in "
+               "training)", t + 1, ESTIMATE_DENSE_MAX);
+      goto none;
+    }
+    double sig = rt->est_sigma * sigma_min(s->M, my, s);
+    if (!(sig > 0)) {
+      snprintf(why, sizeof why, "term %d's reduced operator has σ_min %.3g: no estimate", t + 1, sig);
+      goto none;
+    }
+    flags &= ~EST_BOUND; /* σ_min is estimated from the training samples */
+    sum += (res + carried) / sig;
+  }
+  e->err[q] = sum, e->flags[q] = flags, e->why_q[q][0] = 0;
+  return;
+none:
+  snprintf(e->why_q[q], sizeof e->why_q[q], "%s", why);
+  e->err[q] = NAN;
+  e->flags[q] = EST_NONE | (flags & EST_OUTSIDE);
+}
+
+int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
+  const Model *m = reduced_model(r);
+  long maxm = 1, maxD = 1, maxpack = 1, maxcols = 1;
+  for (int c = 0; c < m->nclasses; c++) maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
+  FOR_TENSORS(m, x) {
+    long z = 0;
+    for (int j = 0; j < x->nin; j++) z += x->in_len[j];
+    maxpack = z > maxpack ? z : maxpack;
+    maxcols = x->cols > maxcols ? x->cols : maxcols;
+  }
+  for (int i = 0; i < m->nstages; i++)
+    for (int t = 0; t < m->stages[i].nterms; t++)
+      maxD = m->stages[i].terms[t].est_D > maxD ? m->stages[i].terms[t].est_D : maxD;
+  Scratch s = {0};
+  s.svlen = maxm + 5 * maxm + 64;
+  s.z = malloc(sizeof(double) * (size_t)maxD);
+  s.Gz = malloc(sizeof(double) * (size_t)(maxD > maxcols ? maxD : maxcols));
+  s.v = malloc(sizeof(double) * (size_t)maxm);
+  s.M = malloc(sizeof(double) * (size_t)(maxm * maxm));
+  s.sv = malloc(sizeof(double) * (size_t)s.svlen);
+  s.pack = malloc(sizeof(double) * (size_t)maxpack);
+  int rc = s.z && s.Gz && s.v && s.M && s.sv && s.pack ? 0 : -1;
+  e->why[0] = 0;
+  for (int q = 0; rc == 0 && q < m->nq; q++) { /* inputs: their own error, and the trust signal */
+    const Sym *sy = m->prog->quantities.v[q];
+    e->err[q] = 0, e->flags[q] = EST_BOUND, e->why_q[q][0] = 0;
+    if (sy->kind != SYM_INPUT) continue;
+    e->err[q] = input_err ? input_err[q] : 0;
+    if (estimate_outside(m, q, reduced_all_coords(r)[q], NULL)) e->flags[q] |= EST_OUTSIDE;
+  }
+  for (int i = 0; rc == 0 && i < m->nstages; i++) {
+    if (m->stages[i].st->kind == ST_EXTERN) {
+      int q = m->stages[i].q;
+      e->err[q] = NAN, e->flags[q] = EST_NONE;
+      snprintf(e->why_q[q], 256, "an extern's learned map has no estimate");
+    } else {
+      stage_estimate(r, i, e, &s);
+    }
+    int q = m->stages[i].q;
+    if (isnan(e->err[q]) && !e->why[0]) snprintf(e->why, sizeof e->why, "%s: %s", qname(m, q), e->why_q[q]);
+  }
+  free(s.z), free(s.Gz), free(s.v), free(s.M), free(s.sv), free(s.pack);
+  return rc;
+}
+
+/* ---------------------------------------------------------------- files */
+
+static void est_name(char *buf, size_t n, const char *stage, int t) { snprintf(buf, n, "est_%s_t%d", stage, t); }
+
+int estimate_save(const Model *m, ModelStore *s) {
+  int bad = 0;
+  char name[600];
+  for (int i = 0; i < m->nstages; i++)
+    for (int t = 0; t < m->stages[i].nterms; t++) {
+      const RTerm *rt = &m->stages[i].terms[t];
+      if (!rt->est_G) continue;
+      const char *sn = m->stages[i].st->sym->name;
+      bad |= model_store_meta(s, "estimate %s %d dim %ld sigma %.17g", sn, t, rt->est_D, rt->est_sigma);
+      est_name(name, sizeof name, sn, t);
+      long shape[2] = {rt->est_D + 1, rt->est_D};
+      bad |= model_store_add(s, name, 2, shape, rt->est_G);
+    }
+  for (int q = 0; m->in_range && q < m->nq; q++) {
+    if (!m->in_range[q]) continue;
+    bad |= model_store_meta(s, "range %s", qname(m, q));
+    snprintf(name, sizeof name, "range_%s", qname(m, q));
+    long shape[2] = {2, qm(m, q)};
+    bad |= model_store_add(s, name, 2, shape, m->in_range[q]);
+  }
+  return bad;
+}
+
+/* The array `name` of shape rows x cols, copied; NULL with `err`. */
+static double *take(const ModelStore *s, const char *dir, const char *name, long rows, long cols, char *err,
+                    size_t errlen) {
+  const NpyArray *a = model_store_array(s, name);
+  if (!a || a->ndim != 2 || a->shape[0] != rows || a->shape[1] != cols) {
+    snprintf(err, errlen, "%s/%s.npy: %s, the model's layout needs %ld x %ld (a damaged or forged model; retrain)", dir,
+             name, a ? "another shape" : "missing", rows, cols);
+    return NULL;
+  }
+  double *d = malloc(sizeof(double) * (size_t)(rows * cols) + 1);
+  if (!d) snprintf(err, errlen, "%s/%s.npy: out of memory", dir, name);
+  else memcpy(d, a->data, sizeof(double) * (size_t)(rows * cols));
+  return d;
+}
+
+static int load_estimate_line(Model *m, const ModelStore *s, const char *line, const char *dir, char *err,
+                              size_t errlen) {
+  char stage[512], name[600], why[256];
+  int t, used = 0;
+  long D;
+  double sigma;
+  bool ok = sscanf(line, "estimate %511s %d dim %ld sigma %lf%n", stage, &t, &D, &sigma, &used) == 4 && !line[used];
+  for (int i = 0; ok && i < m->nstages; i++) {
+    if (strcmp(m->stages[i].st->sym->name, stage) != 0) continue;
+    if (t < 0 || t >= m->stages[i].nterms || !estimate_term_eligible(m, i, t, why, sizeof why) ||
+        D != estimate_term_dim(m, i, t) || !(isnan(sigma) || sigma > 0))
+      break;
+    RTerm *rt = &m->stages[i].terms[t];
+    est_name(name, sizeof name, stage, t);
+    free(rt->est_G);
+    if (!(rt->est_G = take(s, dir, name, D + 1, D, err, errlen))) return -1;
+    rt->est_D = D, rt->est_sigma = sigma;
+    for (long k = 0; k < (D + 1) * D; k++)
+      if (!isfinite(rt->est_G[k])) return error_set(err, errlen, "%s/%s.npy: not finite at entry %ld", dir, name, k);
+    return 0;
+  }
+  return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                   dir, line);
+}
+
+static int load_range_line(Model *m, const ModelStore *s, const char *line, const char *dir, char *err,
+                           size_t errlen) {
+  char qn[512], name[600];
+  int used = 0;
+  int q = -1;
+  if (sscanf(line, "range %511s%n", qn, &used) == 1 && !line[used])
+    for (int k = 0; k < m->nq; k++)
+      if (strcmp(qname(m, k), qn) == 0 && ((Sym *)m->prog->quantities.v[k])->kind == SYM_INPUT) q = k;
+  if (q < 0)
+    return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                     dir, line);
+  if (!m->in_range && !(m->in_range = calloc((size_t)m->nq + 1, sizeof(double *))))
+    return error_set(err, errlen, "%s: out of memory", dir);
+  snprintf(name, sizeof name, "range_%s", qn);
+  free(m->in_range[q]);
+  if (!(m->in_range[q] = take(s, dir, name, 2, qm(m, q), err, errlen))) return -1;
+  for (long a = 0; a < qm(m, q); a++)
+    if (!(m->in_range[q][a] <= m->in_range[q][qm(m, q) + a]))
+      return error_set(err, errlen, "%s/%s.npy: coordinate %ld's min is not at most its max", dir, name, a);
+  return 0;
+}
+
+int estimate_load(Model *m, const ModelStore *s, const char *dir, char *err, size_t errlen) {
+  for (int i = 0; i < s->nmeta; i++) {
+    const char *line = s->meta[i];
+    if (strncmp(line, "estimate ", 9) == 0 && load_estimate_line(m, s, line, dir, err, errlen)) return -1;
+    if (strncmp(line, "range ", 6) == 0 && load_range_line(m, s, line, dir, err, errlen)) return -1;
+  }
+  return 0;
+}

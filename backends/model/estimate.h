@@ -1,0 +1,95 @@
+/* estimate.h — online error estimates of a reduced evaluation and the trust
+ * signal of its inputs (DESIGN §16, issue 41; docs/estimates.md says which
+ * figures are bounds and which estimates).
+ *
+ * A term t of a Galerkin stage y with basis B is either a projection
+ * (ŷ_t = Bᵀ w_t, no operator) or one inverse (ŷ_t = (BᵀMB)⁻¹ Bᵀ w_t). Its
+ * residual r_t = w_t − M B ŷ_t (M = I for a projection) is C_t z_t: z_t the
+ * reduced numerator coordinates (the packed input products of its tensors,
+ * or a named numerator's coordinates ŵ) followed by ŷ_t ⊗ (each operator
+ * tensor's packed input product), C_t the full-space columns of those
+ * monomials. Galerkin makes r_t orthogonal to B, so training stores the
+ * Gram matrix of the projected columns, G_t = C'_tᵀ C'_t with C'_t =
+ * (I − BBᵀ) C_t (no cancellation against ‖Bᵀ r‖), and
+ *
+ *     ‖r_t‖² = z_tᵀ G_t z_t,   ‖y_t − B ŷ_t‖ ≤ ‖r_t‖ / σ_min(M),
+ *
+ * a polynomial in the reduced inputs evaluated in O(D²), D the length of
+ * z_t. A projection term's ‖r_t‖ is its error exactly (M = I). For an
+ * inverse, σ_min(M) is estimated as c · σ_min(BᵀMB): c the smallest ratio
+ * σ_min(M)/σ_min(BᵀMB) over training samples (dense SVDs in training, up to
+ * ESTIMATE_DENSE_MAX rows). A stage's estimate is the sum of its terms'.
+ *
+ * Chaining: a named numerator w carries its own estimate e_w into the term
+ * (plus e_w for a projection, plus e_w / σ for an inverse); an input of a
+ * tensor that carries an error leaves the stage without an estimate (the
+ * propagation through polynomial tensors is not implemented), as do
+ * externs, interpolated stages, roots and terms of several operators. */
+#ifndef NPG_ESTIMATE_H
+#define NPG_ESTIMATE_H
+
+#include <stdbool.h>
+
+#include "model.h"
+#include "model_store.h"
+#include "reduced.h"
+
+#define EST_BOUND 1u    /* a rigorous bound of the error (up to roundoff); unset: an estimate */
+#define EST_OUTSIDE 2u  /* an input it depends on lies outside the training range (estimate_outside) */
+#define EST_ROUNDOFF 4u /* the residual is below the roundoff of its expansion: the figure is that level */
+#define EST_NONE 8u     /* no estimate (the figure is NaN): EstimateResult.why says why */
+
+/* Operators up to this many rows get their σ_min measured in training by a dense SVD (an SPD
+ * one by its smallest eigenvalue, dsyevr): at 1444 rows that took 0.5 s of CPU a sample (26 s
+ * of wall time for 12 samples on the loaded 2-core machine, training 0.2 s without), so at 800
+ * rows the 8 samples take under 1 s. Larger operators leave their stage without an estimate. */
+#define ESTIMATE_DENSE_MAX 800
+/* Training samples whose operator σ_min is measured, spread over the set. */
+#define ESTIMATE_SIGMA_SAMPLES 8
+/* The trust signal's margin: a coordinate is outside the training range when it lies
+ * more than this fraction of the range (or of its magnitude, for a range of one value)
+ * beyond the training samples' min or max. */
+#define ESTIMATE_RANGE_MARGIN 0.1
+
+/* Whether term `t` of stage number `i` can carry an estimate: a Galerkin
+ * stage (not an extern or interpolated), the term a projection or one
+ * inverse (power −1), its tensors and named numerator of classes whose
+ * bases exist. Else false with the reason in `why`. */
+bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n);
+/* D, the length of z_t (above) for term `t` of stage `i`. */
+long estimate_term_dim(const Model *m, int i, int t);
+/* The packed input product of tensor `x` (its columns' monomials) at
+ * coordinates `coords` (per quantity) into z[0..x->cols); `scratch` holds
+ * Σ in_len doubles. */
+void estimate_input_product(const Model *m, double *const *coords, const RTensor *x, double *z, double *scratch);
+
+/* Per quantity: the estimated error of the last evaluation (absolute, 2-norm of the lifted
+ * values; NaN: none), its EST_ flags, and why there is none. */
+typedef struct EstimateResult {
+  int nq;
+  double *err;
+  unsigned *flags;
+  char why[512];            /* the first quantity without an estimate and why ("" if every one has one) */
+  char (*why_q)[256];       /* per quantity: why it has none ("" if it has one) */
+} EstimateResult;
+
+EstimateResult *estimate_result_new(const Model *m);
+void estimate_result_free(EstimateResult *e);
+/* Every quantity's estimate after reduced_eval(r) succeeded. `input_err`
+ * (per quantity, NULL: every input exact) is each input's own error
+ * ‖x − B x̂‖ (npg_reduced_set measures it). 0, or -1 out of memory. */
+int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e);
+/* Whether input `q`'s coordinates lie outside the training range with the
+ * margin: true with the first such coordinate in *coord. False when the
+ * model recorded no range. */
+bool estimate_outside(const Model *m, int q, const double *coords, long *coord);
+
+/* The estimate tables to and from MODEL/: lines `estimate STAGE TERM dim D
+ * sigma C`, arrays est_STAGE_tTERM ((D + 1) x D: G_t, then the unprojected
+ * columns' norms, for the roundoff level), `range Q` lines with arrays
+ * range_Q (2 x m: each coordinate's min, then max). A model without them
+ * has no estimates; a line that does not match the layout is refused. */
+int estimate_save(const Model *m, ModelStore *s);
+int estimate_load(Model *m, const ModelStore *s, const char *dir, char *err, size_t errlen);
+
+#endif

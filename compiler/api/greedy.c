@@ -1,0 +1,156 @@
+/* greedy.c — greedy training through npg.h (npg_train_greedy; DESIGN §16, issue 41): the weak
+ * greedy of reduced-basis methods (pyMOR's), driven by the online estimate (estimate.h). Each
+ * iteration is one training (npg_trainer) on the start samples and the candidates chosen so far,
+ * then one reduced evaluation and estimate per remaining candidate; the worst joins. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "api.h"
+#include "estimate.h"
+
+#define gfail(res, ...) error_set_first((res)->error, sizeof (res)->error, __VA_ARGS__)
+
+/* One training on the start samples and the chosen ones; NULL with res->error. */
+static NpgModel *train_once(NpgFull *f, const NpgTrainOptions *o, long nstart, NpgSampleFn start, void *suser,
+                            NpgSampleFn pool, void *puser, NpgGreedyResult *res) {
+  NpgTrainer *t = npg_trainer_new(f, o);
+  NpgModel *m = NULL;
+  for (long k = 0; k < nstart + res->nchosen && !npg_trainer_error(t)[0]; k++) {
+    int rc = k < nstart ? start(suser, f, k) : pool(puser, f, res->chosen[k - nstart]);
+    if (rc != 0) {
+      gfail(res, "%s sample %ld: %s", k < nstart ? "start" : "pool", k < nstart ? k : res->chosen[k - nstart],
+            npg_full_error(f));
+      npg_trainer_free(t);
+      return NULL;
+    }
+    npg_trainer_add_full(t, f);
+  }
+  if (!npg_trainer_error(t)[0]) m = npg_trainer_finish(t, NULL);
+  if (!m) gfail(res, "%s", npg_trainer_error(t));
+  npg_trainer_free(t);
+  return m;
+}
+
+/* Candidate c's worst estimated relative error over the outputs; NAN with res->error. */
+static double candidate_error(NpgFull *f, NpgReduced *r, NpgSampleFn pool, void *puser, long c, NpgGreedyResult *res) {
+  const Model *m = r->nm->m;
+  if (pool(puser, f, c) != 0) return gfail(res, "pool sample %ld: %s", c, npg_full_error(f)), NAN;
+  for (int q = 0; q < m->nq; q++) {
+    const Sym *s = m->prog->quantities.v[q];
+    size_t n = 0;
+    const double *v = s->kind == SYM_INPUT ? npg_full_get(f, s->name, &n) : NULL;
+    if (v && npg_reduced_set(r, s->name, n, v) != 0) return gfail(res, "pool sample %ld: %s", c, npg_reduced_error(r)), NAN;
+  }
+  if (npg_reduced_eval(r, c) != 0) return gfail(res, "pool sample %ld: %s", c, npg_reduced_error(r)), NAN;
+  double worst = 0;
+  for (int q = 0; q < m->nq; q++) { /* an input its basis does not hold: a full evaluation there adds the direction */
+    const Sym *s = m->prog->quantities.v[q];
+    double e = 0;
+    if (s->kind == SYM_INPUT && npg_reduced_estimate(r, s->name, &e, NULL) == 0 && e > 0) return INFINITY;
+  }
+  for (int q = 0; q < m->nq; q++) {
+    const Sym *s = m->prog->quantities.v[q];
+    if (!s->is_output) continue;
+    double e;
+    if (npg_reduced_estimate(r, s->name, &e, NULL) != 0) return gfail(res, "%s", npg_reduced_error(r)), NAN;
+    if (isnan(e))
+      return gfail(res, "greedy training needs an estimate of every output: %s has none (%s)", s->name,
+                   npg_reduced_estimate_why(r, s->name)), NAN;
+    size_t mq = 0;
+    const double *y = npg_reduced_coords(r, s->name, &mq);
+    double ny = 0; /* ‖B ŷ‖ = ‖ŷ‖: B is orthonormal */
+    for (size_t a = 0; a < mq; a++) ny += y[a] * y[a];
+    ny = sqrt(ny);
+    worst = fmax(worst, ny > 0 ? e / ny : e > 0 ? INFINITY : 0);
+  }
+  return worst;
+}
+
+/* The worst candidate not chosen into res (worst, worst_at); -1 on an error. */
+static int worst_candidate(NpgFull *f, NpgModel *nm, long npool, NpgSampleFn pool, void *puser, NpgGreedyResult *res) {
+  NpgReduced *r = npg_reduced_new(nm);
+  if (npg_reduced_error(r)[0]) {
+    gfail(res, "%s", npg_reduced_error(r));
+    npg_reduced_free(r);
+    return -1;
+  }
+  res->worst = -1, res->worst_at = -1;
+  int rc = 0;
+  for (long c = 0; c < npool && rc == 0; c++) {
+    bool taken = false;
+    for (long j = 0; j < res->nchosen; j++) taken |= res->chosen[j] == c;
+    if (taken) continue;
+    double e = candidate_error(f, r, pool, puser, c, res);
+    if (isnan(e)) rc = -1;
+    else if (e > res->worst) res->worst = e, res->worst_at = c;
+  }
+  if (res->worst_at < 0) res->worst = 0; /* every candidate chosen */
+  npg_reduced_free(r);
+  return rc;
+}
+
+/* The manifest's greedy line: the record of the choice. */
+static int record(NpgModel *nm, const NpgGreedyOptions *g, long budget, const NpgGreedyResult *res) {
+  size_t cap = 128 + 24 * (size_t)res->nchosen;
+  char *line = malloc(cap);
+  if (!line) return -1;
+  int n = snprintf(line, cap, "tol %.17g budget %ld converged %d worst %.17g chosen ", g->tol, budget,
+                   res->converged ? 1 : 0, res->worst);
+  for (long j = 0; j < res->nchosen; j++) n += snprintf(line + n, cap - (size_t)n, "%s%ld", j ? "," : "", res->chosen[j]);
+  if (res->nchosen == 0) snprintf(line + n, cap - (size_t)n, "none");
+  free(nm->m->greedy);
+  nm->m->greedy = line;
+  return 0;
+}
+
+NpgModel *npg_train_greedy(NpgFull *f, const NpgTrainOptions *o, long nstart, NpgSampleFn start, void *suser,
+                           long npool, NpgSampleFn pool, void *puser, const NpgGreedyOptions *g,
+                           const char *model_dir, NpgGreedyResult *res) {
+  API_REFUSE_NULL(res, NULL, 0, NULL);
+  memset(res, 0, sizeof *res);
+  API_REFUSE_NULL(f, res->error, sizeof res->error, NULL);
+  API_REFUSE_NULL(o, res->error, sizeof res->error, NULL);
+  API_REFUSE_NULL(start, res->error, sizeof res->error, NULL);
+  API_REFUSE_NULL(pool, res->error, sizeof res->error, NULL);
+  API_REFUSE_NULL(g, res->error, sizeof res->error, NULL);
+  if (nstart < 1) return gfail(res, "greedy training: no start samples (at least one)"), NULL;
+  if (npool < 1) return gfail(res, "greedy training: an empty pool of candidates"), NULL;
+  if (!(g->tol > 0) || !isfinite(g->tol)) return gfail(res, "greedy training: tolerance %g (a positive number)", g->tol), NULL;
+  if (g->budget < 0 || (g->budget > 0 && g->budget < nstart))
+    return gfail(res, "greedy training: budget %ld below the %ld start samples", g->budget, nstart), NULL;
+  long budget = g->budget ? g->budget : nstart + npool;
+  if (!(res->chosen = calloc((size_t)npool + 1, sizeof(long)))) return gfail(res, "out of memory"), NULL;
+  NpgModel *nm = NULL;
+  for (;;) {
+    npg_model_free(nm);
+    if (!(nm = train_once(f, o, nstart, start, suser, pool, puser, res)) ||
+        worst_candidate(f, nm, npool, pool, puser, res) != 0)
+      goto fail;
+    res->converged = res->worst < g->tol;
+    if (g->progress && isinf(res->worst))
+      fprintf(stderr, "greedy: %ld training samples, candidate %ld: an input outside its basis\n",
+              nstart + res->nchosen, res->worst_at);
+    else if (g->progress)
+      fprintf(stderr, "greedy: %ld training samples, worst candidate %ld: estimated relative error %.3e (tol %.3g)\n",
+              nstart + res->nchosen, res->worst_at, res->worst, g->tol);
+    if (res->converged || res->worst_at < 0 || nstart + res->nchosen >= budget) break;
+    res->chosen[res->nchosen++] = res->worst_at;
+  }
+  if (!res->converged && g->progress)
+    fprintf(stderr, "greedy: stopped at the budget of %ld training samples with the worst candidate's estimate %.3e "
+            "above --tol %.3g\n", budget, res->worst, g->tol);
+  if (record(nm, g, budget, res) != 0) {
+    gfail(res, "out of memory");
+    goto fail;
+  }
+  if (model_dir && npg_model_save(nm, model_dir) != 0) {
+    gfail(res, "%s", npg_model_error(nm));
+    goto fail;
+  }
+  return nm;
+fail:
+  npg_model_free(nm);
+  return NULL;
+}

@@ -1,0 +1,162 @@
+"""estimate.py BUILD_DIR — the online error estimate and the trust signal (issue 41) on a small
+thermal block (tests/cli/thermal_block.npg: K(mu) = K0 + sum_q mu_q K_q, SPD, source fixed), as a
+user runs them: npgc train, npgc eval (OUT/u.estimate.npy), npgc verify's effectivity column.
+The true errors come from numpy's own solve of the same operator (an independent oracle): on
+every test sample the estimate must be at least the true error and at most 20 times it. Inputs
+outside the training range are named by a warning and flagged on their estimates. Greedy training
+(npgc train --greedy) from one sample reaches the accuracy of the POD model of the whole pool
+with fewer full evaluations; the choice is in the manifest; a budget stops it with a message."""
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+B = sys.argv[1]
+PROG = "tests/cli/thermal_block.npg"
+G = 12  # cells per side: N = 144, four blocks (8 for the greedy part)
+
+
+def fail(msg):
+    print("FAIL: " + msg)
+    sys.exit(1)
+
+
+def grid(G=G):
+    N = G * G
+    nbr = -np.ones((N, 4), np.int32)
+    blk = np.zeros(N, np.int32)
+    for y in range(G):
+        for x in range(G):
+            i = y * G + x
+            for k, (dx, dy) in enumerate([(1, 0), (-1, 0), (0, 1), (0, -1)]):
+                if 0 <= x + dx < G and 0 <= y + dy < G:
+                    nbr[i, k] = (y + dy) * G + x + dx
+            blk[i] = (2 * y // G) * 2 + (2 * x // G)
+    xs, ys = np.arange(N) % G, np.arange(N) // G
+    src = np.exp(-((xs - G / 3) ** 2 + (ys - G / 4) ** 2) / G)
+    return nbr, blk, src
+
+
+def write(d, mu, nbr, blk, src):
+    os.makedirs(d)
+    np.save(os.path.join(d, "nbr.npy"), nbr)
+    np.save(os.path.join(d, "blk.npy"), blk)
+    np.save(os.path.join(d, "src.npy"), src)
+    np.save(os.path.join(d, "mu.npy"), mu)
+
+
+def solve(mu, nbr, blk, src):
+    """The program's operator assembled by numpy, solved densely."""
+    N = len(blk)
+    K = np.eye(N)
+    for i in range(N):
+        for k in range(4):
+            j = nbr[i, k]
+            if j >= 0:
+                c = 0.5 * (mu[blk[i]] + mu[blk[j]])
+                K[i, i] += c
+                K[i, j] -= c
+    return np.linalg.solve(K, src)
+
+
+def run(*args, ok=True):
+    p = subprocess.run([os.path.join(B, "npgc")] + list(args), capture_output=True, text=True)
+    if ok and p.returncode != 0:
+        fail("npgc %s: %s%s" % (" ".join(args), p.stdout, p.stderr))
+    return p
+
+
+def main():
+    nbr, blk, src = grid()
+    rng = np.random.default_rng(41)
+    with tempfile.TemporaryDirectory() as w:
+        train, test, out = (os.path.join(w, n) for n in ("TRAIN", "TEST", "OUT"))
+        write(train, rng.uniform(0.1, 1, (20, 4)), nbr, blk, src)
+        mu_test = rng.uniform(0.1, 1, (25, 4))
+        write(test, mu_test, nbr, blk, src)
+        run("train", PROG, train, "-o", os.path.join(w, "MODEL"))
+        manifest = open(os.path.join(w, "MODEL", "manifest")).read()
+        if "estimate u 0 dim" not in manifest or "range mu" not in manifest:
+            fail("the model holds no estimate table or no input range:\n" + manifest)
+        run("eval", PROG, os.path.join(w, "MODEL"), test, "-o", out)
+        est = np.load(os.path.join(out, "u.estimate.npy"))
+        red = np.load(os.path.join(out, "u.npy"))
+        err = np.array([np.linalg.norm(solve(mu_test[k], nbr, blk, src) - red[k]) for k in range(len(mu_test))])
+        eff = est / err
+        print("effectivity over %d test samples: %.3g .. %.3g (true errors %.2e .. %.2e)"
+              % (len(eff), eff.min(), eff.max(), err.min(), err.max()))
+        if not (eff >= 1).all():
+            fail("the estimate is below the true error at samples %s" % np.nonzero(eff < 1)[0])
+        if not (eff <= 20).all():
+            fail("the estimate exceeds 20x the true error at samples %s" % np.nonzero(eff > 20)[0])
+        v = run("verify", PROG, os.path.join(w, "MODEL"), test).stdout
+        if not any(l.split()[:2] == ["estimate", "u"] and ".." in l and l.split()[-1] == "estimate"
+                   for l in v.splitlines()):
+            fail("npgc verify prints no estimate with its effectivity for u:\n" + v)
+        # conductivities beyond the training range: the warning names the input, the estimate says so
+        far = os.path.join(w, "FAR")
+        write(far, rng.uniform(1.5, 2, (3, 4)), nbr, blk, src)
+        p = run("eval", PROG, os.path.join(w, "MODEL"), far, "-o", os.path.join(w, "OUT2"))
+        if p.stderr.count("input 'mu' lies outside the training range") != 3:
+            fail("no warning naming input mu outside the training range:\n" + p.stderr)
+        if p.stdout.count("e!") != 3:
+            fail("the estimates of the samples outside the range are not flagged:\n" + p.stdout)
+        p = run("eval", PROG, os.path.join(w, "MODEL"), test, "-o", os.path.join(w, "OUT3"))
+        inside = p.stderr.count("lies outside the training range")
+        if inside > 3:
+            fail("%d of 25 test samples drawn from the training box flagged outside:\n%s" % (inside, p.stderr))
+
+def max_error(w, model, test, mu, data):
+    out = os.path.join(w, "OUT_" + os.path.basename(model))
+    run("eval", PROG, model, test, "-o", out)
+    red = np.load(os.path.join(out, "u.npy"))
+    return max(np.linalg.norm(solve(mu[k], *data) - red[k]) / np.linalg.norm(solve(mu[k], *data))
+               for k in range(len(mu)))
+
+
+def greedy_line(model):
+    for l in open(os.path.join(model, "manifest")):
+        if l.startswith("greedy "):
+            return l.split()
+    fail("no greedy line in %s/manifest" % model)
+
+
+def greedy():
+    data = grid(8)
+    rng = np.random.default_rng(42)
+    with tempfile.TemporaryDirectory() as w:
+        start, pool, test = (os.path.join(w, n) for n in ("START", "POOL", "TEST"))
+        write(start, rng.uniform(0.1, 1, (1, 4)), *data)
+        write(pool, rng.uniform(0.1, 1, (40, 4)), *data)
+        mu_test = rng.uniform(0.1, 1, (20, 4))
+        write(test, mu_test, *data)
+        pod, gm, bm = (os.path.join(w, n) for n in ("POD", "GREEDY", "BUDGET"))
+        run("train", PROG, pool, "--basis", "u:cap=60", "-o", pod)
+        p = run("train", PROG, start, "--greedy", pool, "--tol", "1e-3", "--basis", "u:cap=60,energy=1", "-o", gm)
+        if p.stderr.count("greedy: ") < 2:
+            fail("no progress of greedy training on stderr:\n" + p.stderr)
+        line = greedy_line(gm)
+        chosen = line[line.index("chosen") + 1].split(",")
+        if line[line.index("converged") + 1] != "1" or len(chosen) >= 40 or len(set(chosen)) != len(chosen):
+            fail("greedy did not converge with fewer full evaluations than the pool: " + " ".join(line))
+        e_pod, e_greedy = max_error(w, pod, test, mu_test, data), max_error(w, gm, test, mu_test, data)
+        print("greedy: %d full evaluations, max relative error %.3e; POD of the 40 candidates: %.3e"
+              % (len(chosen) + 1, e_greedy, e_pod))
+        if not e_greedy <= e_pod:
+            fail("the greedy model (%d samples) is less accurate than POD of the pool: %.3e > %.3e"
+                 % (len(chosen) + 1, e_greedy, e_pod))
+        p = run("train", PROG, start, "--greedy", pool, "--tol", "1e-9", "--budget", "4", "-o", bm)
+        line = greedy_line(bm)
+        if "stopped at the budget of 4 training samples" not in p.stderr or line[line.index("converged") + 1] != "0" \
+                or len(line[line.index("chosen") + 1].split(",")) != 3:
+            fail("a budget of 4 did not stop greedy training with a message:\n%s\n%s" % (p.stderr, " ".join(line)))
+        p = run("train", PROG, start, "--tol", "1e-3", "-o", os.path.join(w, "X"), ok=False)
+        if p.returncode == 0 or "--tol and --budget are options of greedy training" not in p.stderr:
+            fail("--tol without --greedy was accepted:\n" + p.stderr)
+
+
+main()
+greedy()
+print("ok")
