@@ -102,6 +102,11 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
     snprintf(name, sizeof name, "basis_%d", c);
     long shape[2] = {rc->n, rc->m};
     bad |= rc->B_mapped ? model_store_add_borrowed(&s, name, 2, shape, rc->B) : model_store_add(&s, name, 2, shape, rc->B);
+    if (rc->D) { /* `basis u: product K0`: the dual K0 B that projects (issue 41) */
+      snprintf(name, sizeof name, "dual_%d", c);
+      bad |= model_store_meta(&s, "product %d %s", c, rc->bc->product->name);
+      bad |= model_store_add(&s, name, 2, shape, rc->D);
+    }
   }
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
@@ -316,6 +321,24 @@ static int load_coefficients(const ModelStore *s, Model *m, int c, const char *d
   return 0;
 }
 
+/* A class with a product (`basis u: product K0`, issue 41): its dual
+ * dual_C.npy (K0 B), which the program and the model must agree on. */
+static int load_dual(const ModelStore *s, RClass *rc, int c, const char *dir, char *err, size_t errlen) {
+  char name[64];
+  snprintf(name, sizeof name, "dual_%d", c);
+  const NpyArray *a = model_store_array(s, name);
+  if (!a && !rc->bc->product) return 0;
+  if (!a)
+    return error_set(err, errlen, "%s: class %s has product %s in the program but the model was trained without it "
+                     "(no %s.npy): train again", dir, rc->label, rc->bc->product->name, name);
+  if (!rc->bc->product)
+    return error_set(err, errlen, "%s/%s.npy: the model's class %s was trained with a product the program does not "
+                     "declare (basis ...: product K0)", dir, name, rc->label);
+  if (a->ndim != 2 || a->shape[0] != rc->n || a->shape[1] != rc->m)
+    return error_set(err, errlen, "%s/%s.npy: wrong shape, class %s needs %ld x %ld", dir, name, rc->label, rc->n, rc->m);
+  return take(s, dir, name, rc->n, rc->m, &rc->D, err, errlen);
+}
+
 /* Every class's basis: basis_C.npy, or for a streamed class (no basis kept,
  * model.h) its size from the class line (check_meta checks that line). */
 static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
@@ -344,6 +367,7 @@ static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err,
                        rc->label, rc->n);
     rc->m = a->shape[1];
     if (take(s, dir, name, rc->n, rc->m, &rc->B, err, errlen)) return -1;
+    if (load_dual(s, rc, c, dir, err, errlen)) return -1;
   }
   bool coef = false;
   for (int c = 0; c < m->nclasses; c++) coef |= m->classes[c].coef != NULL;

@@ -228,7 +228,8 @@ double *reduced_coords(Reduced *r, int q) { return r->x[q]; }
 
 void reduced_project(Reduced *r, int q, const double *x) {
   const RClass *c = &r->m->classes[r->m->qclass[q]];
-  cblas_dgemv(CblasRowMajor, CblasTrans, (int)c->n, (int)c->m, 1.0, c->B, (int)c->m, x, 1, 0.0, r->x[q], 1);
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)c->n, (int)c->m, 1.0, model_projector(c), (int)c->m, x, 1, 0.0, r->x[q],
+              1);
 }
 
 void reduced_lift(const Reduced *r, int q, double *y) {

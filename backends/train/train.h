@@ -149,6 +149,11 @@ int train_member_bases(RClass *rc, long S, double *const *X, const double *w, Pc
 /* One direction for a class whose every snapshot is zero; with `full_rank`
  * the basis completed to the class's dimension. */
 int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen);
+/* Class rc's basis orthonormal in the inner product of its product op
+ * (rc->bc->product, `basis u: product K0`; product.c): BᵀK0B = I, rc->D =
+ * K0 B; K0 read from `f` (params bound). X[i]: member i's snapshots. */
+int train_product_basis(Model *m, Full *f, RClass *rc, long S, double *const *X, const double *w, bool full_rank,
+                        char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- interpolated stages (interp_train.c) */
 
