@@ -7,8 +7,9 @@ product K0`), end to end through npgc, checked against numpy:
    uncentered POD in the H¹ product keeps the rough ones (Eckart–Young in each norm): its
    H-norm projection error is far below the Euclidean basis's, which wins in the 2-norm; a
    reduced evaluation projects an input by the product (Dᵀx) where the model says so;
-3. products refused with a message naming them: not SPD, not symmetric, reading an input,
-   of another size (sema), not an op, not a name.
+3. products refused with a message naming them: not SPD, not symmetric, reading an input, in
+   npgc tune (not implemented there); tests/bad/basis_product_*.npg: not a name, not an op, not
+   square, of another size.
 
     python3 tests/cli/products.py BUILD_DIR
 """
@@ -150,6 +151,9 @@ def rough(tmp):
     want = (2 * By @ (By.T @ (Bx @ (Bx.T @ H @ Xt.T)))).T
     got = np.load(os.path.join(out, "y.npy"))
     check(abs(got - want).max() < 1e-12 * abs(want).max(), "rough: the reduced y projects x by its product (BᵀH x)")
+    msg = npgc("tune", prog, os.path.join(tmp, "data"), os.path.join(tmp, "test"), "--tol", "0.1", "-o",
+               os.path.join(tmp, "m_tune"), fail=True)
+    check("product H is not implemented in tune" in msg, "refused: npgc tune of a class with a product")
 
 
 def refused(tmp):
