@@ -41,8 +41,9 @@ static int product_entry(void *user, npg_idx row, npg_idx col, int nin, const np
   if (nin != 0 || row < 0 || col < 0 || row >= s->n || col >= s->n) return s->bad = true, -1;
   if (s->nnz == s->cap) {
     long cap = s->cap ? 2 * s->cap : 4096;
-    SuiteSparse_long *i = realloc(s->i, sizeof *i * (size_t)cap), *j = i ? realloc(s->j, sizeof *j * (size_t)cap) : NULL;
-    double *x = j ? realloc(s->x, sizeof(double) * (size_t)cap) : NULL;
+    SuiteSparse_long *i = mem_realloc(s->i, sizeof *i * (size_t)cap);
+    SuiteSparse_long *j = i ? mem_realloc(s->j, sizeof *j * (size_t)cap) : NULL;
+    double *x = j ? mem_realloc(s->x, sizeof(double) * (size_t)cap) : NULL;
     if (i) s->i = i;
     if (j) s->j = j;
     if (x) s->x = x;
@@ -156,7 +157,7 @@ static int unweigh(const cholmod_factor *L, RClass *rc) {
   const SuiteSparse_long *Lp = L->p, *Li = L->i, *Lnz = L->nz, *P = L->Perm;
   const double *Lx = L->x;
   long n = rc->n, m = rc->m;
-  double *z = malloc(sizeof(double) * (size_t)n);
+  double *z = mem_malloc(sizeof(double) * (size_t)n);
   if (!z) return -1;
   for (long c = 0; c < m; c++) {
     for (long j = n - 1; j >= 0; j--) {
@@ -177,7 +178,7 @@ static int dual(const cholmod_sparse *A, RClass *rc) {
   long n = rc->n, m = rc->m;
   const SuiteSparse_long *Ap = A->p, *Ai = A->i;
   const double *Ax = A->x;
-  if (!(rc->D = calloc((size_t)n * (size_t)m, sizeof(double)))) return -1;
+  if (!(rc->D = mem_calloc((size_t)n * (size_t)m, sizeof(double)))) return -1;
   for (long j = 0; j < n; j++)
     for (SuiteSparse_long p = Ap[j]; p < Ap[j + 1]; p++) {
       double a = Ax[p];
@@ -195,11 +196,11 @@ int train_product_basis(Model *m, Full *f, RClass *rc, long S, double *const *X,
   cc.print = 0;
   cholmod_sparse *A = product_matrix(m, f, rc, &cc, err, errlen);
   cholmod_factor *L = A ? product_factor(rc, A, &cc, err, errlen) : NULL;
-  double **Y = L ? calloc((size_t)rc->nmembers, sizeof(double *)) : NULL;
+  double **Y = L ? mem_calloc((size_t)rc->nmembers, sizeof(double *)) : NULL;
   int rc_ok = Y ? 0 : -1;
   if (L && !Y) error_set(err, errlen, "out of memory for the weighted snapshots of class %s", rc->label);
   for (int i = 0; rc_ok == 0 && i < rc->nmembers; i++) {
-    if (!(Y[i] = malloc(sizeof(double) * (size_t)rc->n * (size_t)S)))
+    if (!(Y[i] = mem_malloc(sizeof(double) * (size_t)rc->n * (size_t)S)))
       rc_ok = error_set(err, errlen, "out of memory for the weighted snapshots of class %s", rc->label);
     else weigh(L, rc->n, S, X[i], Y[i]);
   }
