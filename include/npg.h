@@ -304,6 +304,8 @@ typedef struct NpgTrainOptions {
   const int *basis_cap;
   const double *basis_energy;
   const int *basis_center;
+  const char *const *basis_product; /* per override: an op's name (product=OP), or NULL; the whole
+                                       array may be NULL */
   bool mpi;                 /* train over the ranks of MPI_COMM_WORLD (a job started by mpirun; MPI
                                initialized here when the program has not). Every rank runs the same
                                code and adds the same samples; rank r keeps and evaluates the samples
@@ -734,6 +736,13 @@ NPG_API int npg_parse_double(const char *s, double lo, double hi, bool lo_open, 
  * is out of range (expected 1..1000000)". */
 NPG_API int npg_parse_basis(const char *spec, char **name, int *cap, double *energy, int *center, char *err,
                             size_t errlen);
+/* The same reader with one more key, product=OP (issue 41): the class of NAME orthonormal in
+ * the inner product of the program's SPD op OP (as the language's `basis u: product OP`);
+ * `*product` is OP (malloc'd: free() it) or NULL when not given (NpgTrainOptions.basis_product).
+ * npgc train and Python's Trainer(basis=[...]) read --basis with it; npg_parse_basis refuses
+ * the key as unknown. */
+NPG_API int npg_parse_basis_product(const char *spec, char **name, int *cap, double *energy, int *center,
+                                    char **product, char *err, size_t errlen);
 
 #ifdef __cplusplus
 }

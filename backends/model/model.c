@@ -99,6 +99,7 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
     RClass *rc = &m->classes[c];
     const BasisClass *bc = prog->classes.v[c];
     rc->bc = bc;
+    rc->product = bc->product;
     if (!(rc->label = class_label(bc))) goto oom;
     rc->n = quantity_count(prog, dims, bc->members.v[0]);
     rc->nmembers = bc->members.n + bc->joiners.n;

@@ -117,7 +117,9 @@ typedef struct RClass {
   long n;                   /* full size (entries of every member) */
   long m;                   /* basis size */
   double *B;                /* n x m, row-major, orthonormal columns (owned); with a product
-                               (bc->product, `basis u: product K0`) K0-orthonormal: BᵀK0B = I */
+                               (`product`) K0-orthonormal: BᵀK0B = I */
+  const Sym *product;        /* the op whose inner product B is orthonormal in (`basis u: product K0`,
+                               --basis u:product=K0; the manifest's `product C K0`), or NULL */
   double *D;                /* with a product: K0 B, n x m row-major (owned), so the coordinates
                                of a value x are Dᵀx (its K0-projection); NULL otherwise */
   size_t B_mapped;          /* when non-zero, B is a read-only mapping of that many bytes of an

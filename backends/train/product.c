@@ -59,7 +59,7 @@ static int product_entry(void *user, npg_idx row, npg_idx col, int nin, const np
  * duplicates summed. */
 static cholmod_sparse *product_matrix(Model *m, Full *f, const RClass *rc, cholmod_common *cc, char *err,
                                       size_t errlen) {
-  const Sym *op = rc->bc->product;
+  const Sym *op = rc->product;
   const OpDef *od = op->opdef;
   long rows = 1, cols = 1;
   for (int a = 0; a < op->nrow; a++) rows *= full_dim(f, op->ivars[a]->range->name);
@@ -102,7 +102,7 @@ static cholmod_sparse *product_matrix(Model *m, Full *f, const RClass *rc, cholm
 /* K0 = Pᵀ L Lᵀ P, after checking K0 symmetric; L simplicial LLᵀ. */
 static cholmod_factor *product_factor(const RClass *rc, cholmod_sparse *A, cholmod_common *cc, char *err,
                                       size_t errlen) {
-  const char *name = rc->bc->product->name;
+  const char *name = rc->product->name;
   double one[2] = {1, 0}, minus[2] = {-1, 0};
   cholmod_sparse *At = cholmod_l_transpose(A, 1, cc);
   cholmod_sparse *Dif = At ? cholmod_l_add(A, At, one, minus, 1, 0, cc) : NULL;

@@ -132,6 +132,37 @@ static void member_options(const Model *m, const RClass *c, RMember *mb, const T
     }
 }
 
+/* Every class's product (issue 41): the program's (`basis u: product K0`),
+ * then --basis NAME:product=K0 from the least specific name to the most; an
+ * op of the program, square over one set of dims (its size is checked with
+ * the class's in product.c). */
+static int class_products(Model *m, const TrainOptions *opt, char *err, size_t errlen) {
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    int best = 0;
+    for (int i = 0; opt->override_product && i < opt->noverride; i++) {
+      const char *name = opt->override_product[i];
+      int level = 0;
+      for (int k = 0; name && k < rc->nmembers; k++) {
+        int l = override_level(rc, &rc->members[k], opt->override_name[i]);
+        level = l > level ? l : level;
+      }
+      if (!name || level == 0 || level < best) continue;
+      const Sym *op = NULL;
+      for (int j = 0; j < m->prog->ops.n && !op; j++)
+        if (strcmp(((const Sym *)m->prog->ops.v[j])->name, name) == 0) op = m->prog->ops.v[j];
+      bool square = op && op->nivars == 2 * op->nrow;
+      for (int a = 0; square && a < op->nrow; a++) square = op->ivars[a]->range == op->ivars[op->nrow + a]->range;
+      if (!op || !square)
+        return error_set(err, errlen, "--basis %s:product=%s: %s", opt->override_name[i], name,
+                         !op ? "the program has no op of that name (the product is an SPD op of the program)"
+                             : "not a square operator (its rows and columns must run over the same dims)");
+      rc->product = op, best = level;
+    }
+  }
+  return 0;
+}
+
 /* ---------------------------------------------------------------- training */
 
 void train_free_snapshots(Model *m, Snapshots *sn) {
@@ -306,6 +337,10 @@ Model *train_begin(Program *prog, Full *f, const SampleSource *src, const TrainO
     for (int i = 0; i < m->classes[c].nmembers; i++)
       member_options(m, &m->classes[c], &m->classes[c].members[i], opt, powered);
   free(powered);
+  if (class_products(m, opt, err, errlen)) {
+    model_free(m);
+    return NULL;
+  }
   char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
   if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
   if (unknown[0])
@@ -333,6 +368,7 @@ int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t 
     rc = error_set(err, errlen, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)",
                    unknown);
   if (rc == 0) rc = check_overrides(m, opt, err, errlen);
+  if (rc == 0) rc = class_products(m, opt, err, errlen);
   for (int l = 0; l < 2 && rc == 0; l++) {
     const char *const *names = l ? opt->galerkin_stage : opt->interp_stage;
     for (int j = 0; j < (l ? opt->ngalerkin : opt->ninterp) && rc == 0; j++) {
@@ -486,14 +522,14 @@ static int build_bases(Model *m, Full *f, const Snapshots *sn, bool gram, const 
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     int rc_ok = 0;
-    if (rc->bc->product) { /* issue 41: BᵀK0B = I, a transform around the members' PCAs (product.c) */
+    if (rc->product) { /* issue 41: BᵀK0B = I, a transform around the members' PCAs (product.c) */
       const char *why = gram ? "the snapshots do not fit in --mem (raise it)"
                         : opt->joint && rc->nmembers > 1 ? "--merge joint (use --merge concat)"
                         : pre ? "training over MPI ranks" : NULL;
       if (why) {
         dist_free_pcas(m, pre);
         return error_set(err, errlen, "basis %s: product %s is not implemented with %s", rc->bc->size_name,
-                         rc->bc->product->name, why);
+                         rc->product->name, why);
       }
       if (train_product_basis(m, f, rc, sn->S, sn->X[c], opt->weights, opt->full_rank, err, errlen))
         return dist_free_pcas(m, pre), -1;
@@ -783,9 +819,9 @@ static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions 
                  struct timespec clock[2], char *err, size_t errlen) {
   if (ooc_needed(m, opt, src->count)) {
     for (int c = 0; c < m->nclasses; c++)
-      if (m->classes[c].bc->product)
+      if (m->classes[c].product)
         return error_set(err, errlen, "basis %s: product %s is not implemented out of core (the bases exceed --mem: "
-                         "raise it)", m->classes[c].bc->size_name, m->classes[c].bc->product->name);
+                         "raise it)", m->classes[c].bc->size_name, m->classes[c].product->name);
     *gram = true;
     train_mark_streamed(m, opt); /* their floors taken in the passes (the choice is made again after interpolation) */
     if (ooc_bases(m, f, src, opt, err, errlen)) return -1;

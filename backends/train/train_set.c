@@ -64,9 +64,9 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
     goto fail;
   Model *m = ts->base;
   for (int c = 0; c < m->nclasses; c++)
-    if (m->classes[c].bc->product) { /* its truncations would need the weighted snapshots (product.c) */
+    if (m->classes[c].product) { /* its truncations would need the weighted snapshots (product.c) */
       error_set(err, errlen, "basis %s: product %s is not implemented in tune (the sizes' sweep): train each size with "
-                "npgc train", m->classes[c].bc->size_name, m->classes[c].bc->product->name);
+                "npgc train", m->classes[c].bc->size_name, m->classes[c].product->name);
       goto fail;
     }
   if (!(ts->pm = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;

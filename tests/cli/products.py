@@ -7,7 +7,8 @@ product K0`), end to end through npgc, checked against numpy:
    uncentered POD in the H¹ product keeps the rough ones (Eckart–Young in each norm): its
    H-norm projection error is far below the Euclidean basis's, which wins in the 2-norm; a
    reduced evaluation projects an input by the product (Dᵀx) where the model says so;
-3. products refused with a message naming them: not SPD, not symmetric, reading an input, in
+3. --basis x:product=H (npg_parse_basis_product) equal to the statement, bit for bit;
+4. products refused with a message naming them: not SPD, not symmetric, reading an input, in
    npgc tune (not implemented there); tests/bad/basis_product_*.npg: not a name, not an op, not
    square, of another size.
 
@@ -151,6 +152,27 @@ def rough(tmp):
     want = (2 * By @ (By.T @ (Bx @ (Bx.T @ H @ Xt.T)))).T
     got = np.load(os.path.join(out, "y.npy"))
     check(abs(got - want).max() < 1e-12 * abs(want).max(), "rough: the reduced y projects x by its product (BᵀH x)")
+    # --basis x:product=H: the same basis as the statement, from the program without it, and the
+    # model evaluated by that program (the manifest names the product)
+    eprog = models["euclid"][0]
+    opt_model = os.path.join(tmp, "model_option")
+    npgc("train", eprog, os.path.join(tmp, "data"), "-o", opt_model, "--center", "off", "--basis",
+         "x:cap=3,energy=1,product=H", "--basis", "y:cap=6,energy=1")
+    Bo = np.load(os.path.join(opt_model, f"basis_{class_of(opt_model, 'x')}.npy"))
+    check(np.array_equal(Bo, Bx), "--basis x:product=H gives the basis of 'basis x: product H', bit for bit")
+    npgc("eval", eprog, opt_model, os.path.join(tmp, "test"), "-o", os.path.join(tmp, "out_option"))
+    check(np.array_equal(np.load(os.path.join(tmp, "out_option", "y.npy")), got),
+          "a model trained with --basis x:product=H evaluates the same from the program without the statement")
+    msg = npgc("eval", prog, os.path.join(tmp, "model_euclid"), os.path.join(tmp, "test"), "-o",
+               os.path.join(tmp, "out_refused"), fail=True)
+    check("model was trained for another program" in msg,
+          "refused: a model trained without the product the program declares (another program)")
+    msg = npgc("train", eprog, os.path.join(tmp, "data"), "-o", os.path.join(tmp, "m_bad"), "--basis", "x:product=Hx",
+               fail=True)
+    check("--basis x:product=Hx: the program has no op of that name" in msg, "refused: --basis x:product= of no op")
+    msg = npgc("train", eprog, os.path.join(tmp, "data"), "-o", os.path.join(tmp, "m_bad"), "--basis", "x:product=",
+               fail=True)
+    check("product: no op named" in msg, "refused: --basis x:product= without a name")
     msg = npgc("tune", prog, os.path.join(tmp, "data"), os.path.join(tmp, "test"), "--tol", "0.1", "-o",
                os.path.join(tmp, "m_tune"), fail=True)
     check("product H is not implemented in tune" in msg, "refused: npgc tune of a class with a product")
