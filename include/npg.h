@@ -476,8 +476,14 @@ NPG_API int npg_model_member(const NpgModel *m, int c, int i, NpgMemberInfo *out
 NPG_API int npg_model_class_of(const NpgModel *m, const char *quantity);
 /* The orthonormal basis of class c, n x m row-major (owned by the model);
  * NULL for a class whose basis was streamed in training and not kept
- * (NpgTrainOptions.keep_bases). */
+ * (NpgTrainOptions.keep_bases). A class with a product (`basis u: product K0`,
+ * --basis u:product=K0) is K0-orthonormal, BᵀK0B = I: a value x then has the
+ * coordinates BᵀK0x = Dᵀx, D from npg_model_dual, not Bᵀx. */
 NPG_API const double *npg_model_basis(const NpgModel *m, int c);
+/* The dual K0 B of a class with a product, n x m row-major (owned by the
+ * model), what projects a value onto its basis (npg_reduced_set does); NULL
+ * for a class without a product (its basis projects: Bᵀx). */
+NPG_API const double *npg_model_dual(const NpgModel *m, int c);
 /* A class kept as coefficients of its training values instead of a basis (an extern over two or
  * more dims, trained out of core: radiosity's visibility, issue 30): its basis is B = X C, X the
  * n x S matrix of the extern's S training values in training order, C returned here, S x m
