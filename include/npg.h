@@ -304,6 +304,8 @@ typedef struct NpgTrainOptions {
   const int *basis_cap;
   const double *basis_energy;
   const int *basis_center;
+  const char *const *basis_product; /* per override: an op's name (product=OP), or NULL; the whole
+                                       array may be NULL */
   bool mpi;                 /* train over the ranks of MPI_COMM_WORLD (a job started by mpirun; MPI
                                initialized here when the program has not). Every rank runs the same
                                code and adds the same samples; rank r keeps and evaluates the samples
@@ -474,8 +476,14 @@ NPG_API int npg_model_member(const NpgModel *m, int c, int i, NpgMemberInfo *out
 NPG_API int npg_model_class_of(const NpgModel *m, const char *quantity);
 /* The orthonormal basis of class c, n x m row-major (owned by the model);
  * NULL for a class whose basis was streamed in training and not kept
- * (NpgTrainOptions.keep_bases). */
+ * (NpgTrainOptions.keep_bases). A class with a product (`basis u: product K0`,
+ * --basis u:product=K0) is K0-orthonormal, BᵀK0B = I: a value x then has the
+ * coordinates BᵀK0x = Dᵀx, D from npg_model_dual, not Bᵀx. */
 NPG_API const double *npg_model_basis(const NpgModel *m, int c);
+/* The dual K0 B of a class with a product, n x m row-major (owned by the
+ * model), what projects a value onto its basis (npg_reduced_set does); NULL
+ * for a class without a product (its basis projects: Bᵀx). */
+NPG_API const double *npg_model_dual(const NpgModel *m, int c);
 /* A class kept as coefficients of its training values instead of a basis (an extern over two or
  * more dims, trained out of core: radiosity's visibility, issue 30): its basis is B = X C, X the
  * n x S matrix of the extern's S training values in training order, C returned here, S x m
@@ -804,6 +812,13 @@ NPG_API int npg_parse_double(const char *s, double lo, double hi, bool lo_open, 
  * is out of range (expected 1..1000000)". */
 NPG_API int npg_parse_basis(const char *spec, char **name, int *cap, double *energy, int *center, char *err,
                             size_t errlen);
+/* The same reader with one more key, product=OP (issue 41): the class of NAME orthonormal in
+ * the inner product of the program's SPD op OP (as the language's `basis u: product OP`);
+ * `*product` is OP (malloc'd: free() it) or NULL when not given (NpgTrainOptions.basis_product).
+ * npgc train and Python's Trainer(basis=[...]) read --basis with it; npg_parse_basis refuses
+ * the key as unknown. */
+NPG_API int npg_parse_basis_product(const char *spec, char **name, int *cap, double *energy, int *center,
+                                    char **product, char *err, size_t errlen);
 
 #ifdef __cplusplus
 }

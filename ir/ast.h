@@ -175,6 +175,8 @@ struct Decl {
   double basis_energy;
   int basis_center;             /* 1 on, 0 off */
   int basis_reduce;             /* STAGE_REDUCE_*: `reduce interp|galerkin` (DESIGN §12) */
+  const char *basis_product;    /* `product K0`: the class orthonormal in K0's inner product (NULL: Euclidean) */
+  Loc basis_product_loc;
   /* D_OP: "on u -> p" */
   const char *on_from, *on_to;
   Loc on_loc, on_to_loc;
@@ -244,6 +246,9 @@ struct Sym {
   int class_basis_max;
   double class_basis_energy;
   int class_basis_center;
+  /* `basis x: product K0`: x's class orthonormal in the inner product of the op K0 (NULL: Euclidean) */
+  struct Sym *product;
+  Loc product_loc;
   int reduce;                   /* STAGE_REDUCE_*: how the program asks the stage be reduced (DESIGN §12) */
   Loc reduce_loc;               /* where it asks */
   struct Stage *stage;          /* canonical form, after lowering */

@@ -80,6 +80,29 @@ static void merge(Ctx *ctx, Program *prog, UF *u, Sym *a, Sym *b, char *reason, 
   if (ra < rb) u->parent[rb] = ra;
   else u->parent[ra] = rb;
 }
+/* `basis q: product K0` (issue 41): the product of q's class. K0 must be
+ * square, rows and columns over the same dims, and those the dims of q; two
+ * members naming different products are refused. */
+static void class_product(Ctx *ctx, Program *prog, const Sym *q) {
+  if (!q->product) return;
+  BasisClass *c = prog->classes.v[q->klass];
+  const Sym *op = q->product;
+  bool square = op->nivars == 2 * op->nrow;
+  for (int a = 0; square && a < op->nrow; a++) square = op->ivars[a]->range == op->ivars[op->nrow + a]->range;
+  if (!square)
+    error_at(ctx, q->product_loc, "basis %s: product %s is not a square operator (its rows and columns must run "
+             "over the same dims)", q->name, op->name);
+  bool same = op->nrow == q->ndims && q->nstatic == 0;
+  for (int a = 0; same && a < op->nrow; a++) same = op->ivars[a]->range == q->dims[a];
+  if (!same)
+    error_at(ctx, q->product_loc, "basis %s: product %s is not an operator of %s's size: its rows and columns must "
+             "run over %s's dims, in order", q->name, op->name, q->name, q->name);
+  if (c->product && c->product != op)
+    error_at(ctx, q->product_loc, "basis %s: product %s, but its class %s already has product %s: a class has one "
+             "inner product", q->name, op->name, c->size_name, c->product->name);
+  c->product = (Sym *)op;
+}
+
 
 void basis_classes(Ctx *ctx, Program *prog) {
   UF u;
@@ -153,6 +176,7 @@ void basis_classes(Ctx *ctx, Program *prog) {
     if (s->class_basis_energy > 0) c->basis_energy = s->class_basis_energy;
     if (s->class_basis_center >= 0) c->basis_center = s->class_basis_center;
   }
+  for (int i = 0; i < prog->quantities.n; i++) class_product(ctx, prog, prog->quantities.v[i]);
   for (int i = 0; i < prog->stages.n; i++) {
     Stage *st = prog->stages.v[i];
     for (int t = 0; t < st->nterms; t++) {

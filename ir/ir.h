@@ -175,6 +175,7 @@ typedef struct BasisClass {
   int basis_max;         /* -1: default */
   double basis_energy;   /* <0: default */
   int basis_center;      /* -1: default, 1 on, 0 off */
+  Sym *product;          /* `basis x: product K0`: BᵀK0B = I (NULL: BᵀB = I) */
   char *size_name;       /* m_<first member> */
 } BasisClass;
 

@@ -99,6 +99,7 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
     RClass *rc = &m->classes[c];
     const BasisClass *bc = prog->classes.v[c];
     rc->bc = bc;
+    rc->product = bc->product;
     if (!(rc->label = class_label(bc))) goto oom;
     rc->n = quantity_count(prog, dims, bc->members.v[0]);
     rc->nmembers = bc->members.n + bc->joiners.n;
@@ -209,6 +210,7 @@ void model_free(Model *m) {
     free(rc->label);
     if (rc->B_mapped) munmap(rc->B, rc->B_mapped);
     else free(rc->B);
+    free(rc->D);
     free(rc->coef);
     free(rc->train_coords);
     for (int i = 0; rc->members && i < rc->nmembers; i++) free(rc->members[i].name), free(rc->members[i].sv);
@@ -320,7 +322,9 @@ void model_projection_floor(const RClass *rc, const double *full, double *proj, 
   for (long e = 0; e < rc->n; e++) big = fmax(big, fabs(full[e]));
   double unit = big > 0 && isfinite(big) ? 1 / big : 1;
   if (!isfinite(unit)) unit = 1; /* subnormal data: 1/big overflows; their squares are lost anyway */
-  cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, full, 1, 0.0, proj, 1);
+  /* with a product, the K0-projection (BᵀK0 = Dᵀ) */
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, model_projector(rc), (int)rc->m, full, 1, 0.0,
+              proj, 1);
   cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, proj, 1, 0.0, y, 1);
   for (long e = 0; e < rc->n; e++) {
     double d = (full[e] - y[e]) * unit, v = full[e] * unit;

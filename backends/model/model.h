@@ -121,7 +121,12 @@ typedef struct RClass {
   char *label;              /* "{b,e}" */
   long n;                   /* full size (entries of every member) */
   long m;                   /* basis size */
-  double *B;                /* n x m, row-major, orthonormal columns (owned) */
+  double *B;                /* n x m, row-major, orthonormal columns (owned); with a product
+                               (`product`) K0-orthonormal: BᵀK0B = I */
+  const Sym *product;        /* the op whose inner product B is orthonormal in (`basis u: product K0`,
+                               --basis u:product=K0; the manifest's `product C K0`), or NULL */
+  double *D;                /* with a product: K0 B, n x m row-major (owned), so the coordinates
+                               of a value x are Dᵀx (its K0-projection); NULL otherwise */
   size_t B_mapped;          /* when non-zero, B is a read-only mapping of that many bytes of an
                                unnamed file (out-of-core training), unmapped instead of freed */
   bool streamed;            /* the basis is not kept (B NULL, m its size when trained): model_class_streamable */
@@ -212,6 +217,9 @@ bool model_class_by_coefficients(const Model *m, int c);
  * (sums of squares taken of values over the largest |entry|, so any
  * scale gives the same ratios); `proj` holds rc->m, `y` rc->n doubles. */
 void model_projection_floor(const RClass *rc, const double *full, double *proj, double *y, double out[2]);
+/* What projects a value onto class rc's basis, coordinates = Pᵀx: D with a
+ * product (BᵀK0 = Dᵀ), else B. */
+static inline const double *model_projector(const RClass *rc) { return rc->D ? rc->D : rc->B; }
 /* FNV-1a 64 of the program's source files (main file and used modules). */
 uint64_t model_program_hash(const Program *prog);
 

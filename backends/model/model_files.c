@@ -103,6 +103,11 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
     snprintf(name, sizeof name, "basis_%d", c);
     long shape[2] = {rc->n, rc->m};
     bad |= rc->B_mapped ? model_store_add_borrowed(&s, name, 2, shape, rc->B) : model_store_add(&s, name, 2, shape, rc->B);
+    if (rc->D) { /* `basis u: product K0`: the dual K0 B that projects (issue 41) */
+      snprintf(name, sizeof name, "dual_%d", c);
+      bad |= model_store_meta(&s, "product %d %s", c, rc->product->name);
+      bad |= model_store_add(&s, name, 2, shape, rc->D);
+    }
   }
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
@@ -319,6 +324,39 @@ static int load_coefficients(const ModelStore *s, Model *m, int c, const char *d
   return 0;
 }
 
+/* A class with a product (`basis u: product K0` or --basis u:product=K0,
+ * issue 41): the manifest's `product C K0` names the op, which the program
+ * must have (and declare, if it declares one for the class, the same), and
+ * dual_C.npy holds K0 B. */
+static int load_dual(const ModelStore *s, const Model *m, RClass *rc, int c, const char *dir, char *err,
+                     size_t errlen) {
+  char name[64], prefix[64];
+  snprintf(name, sizeof name, "dual_%d", c);
+  snprintf(prefix, sizeof prefix, "product %d ", c);
+  const char *op = NULL;
+  for (int j = 0; j < s->nmeta && !op; j++)
+    if (strncmp(s->meta[j], prefix, strlen(prefix)) == 0) op = s->meta[j] + strlen(prefix);
+  const NpyArray *a = model_store_array(s, name);
+  if (!a && !op && !rc->product) return 0;
+  if (!op && rc->product)
+    return error_set(err, errlen, "%s: class %s has product %s in the program but the model was trained without it: "
+                     "train again", dir, rc->label, rc->product->name);
+  if (!op || !a)
+    return error_set(err, errlen, "%s/manifest: class %s has %s but not %s (a damaged model)", dir, rc->label,
+                     op ? "a product line" : name, op ? name : "its product line");
+  if (rc->product && strcmp(rc->product->name, op) != 0)
+    return error_set(err, errlen, "%s/manifest: class %s was trained with product %s, the program declares product %s: "
+                     "train again", dir, rc->label, op, rc->product->name);
+  for (int i = 0; i < m->prog->ops.n && !rc->product; i++)
+    if (strcmp(((const Sym *)m->prog->ops.v[i])->name, op) == 0) rc->product = m->prog->ops.v[i];
+  if (!rc->product)
+    return error_set(err, errlen, "%s/manifest: class %s was trained with product %s, which is no op of the program",
+                     dir, rc->label, op);
+  if (a->ndim != 2 || a->shape[0] != rc->n || a->shape[1] != rc->m)
+    return error_set(err, errlen, "%s/%s.npy: wrong shape, class %s needs %ld x %ld", dir, name, rc->label, rc->n, rc->m);
+  return take(s, dir, name, rc->n, rc->m, &rc->D, err, errlen);
+}
+
 /* Every class's basis: basis_C.npy, or for a streamed class (no basis kept,
  * model.h) its size from the class line (check_meta checks that line). */
 static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
@@ -347,6 +385,7 @@ static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err,
                        rc->label, rc->n);
     rc->m = a->shape[1];
     if (take(s, dir, name, rc->n, rc->m, &rc->B, err, errlen)) return -1;
+    if (load_dual(s, m, rc, c, dir, err, errlen)) return -1;
   }
   bool coef = false;
   for (int c = 0; c < m->nclasses; c++) coef |= m->classes[c].coef != NULL;

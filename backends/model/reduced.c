@@ -230,7 +230,8 @@ double *const *reduced_all_coords(Reduced *r) { return r->x; }
 
 void reduced_project(Reduced *r, int q, const double *x) {
   const RClass *c = &r->m->classes[r->m->qclass[q]];
-  cblas_dgemv(CblasRowMajor, CblasTrans, (int)c->n, (int)c->m, 1.0, c->B, (int)c->m, x, 1, 0.0, r->x[q], 1);
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)c->n, (int)c->m, 1.0, model_projector(c), (int)c->m, x, 1, 0.0, r->x[q],
+              1);
 }
 
 void reduced_lift(const Reduced *r, int q, double *y) {

@@ -132,6 +132,37 @@ static void member_options(const Model *m, const RClass *c, RMember *mb, const T
     }
 }
 
+/* Every class's product (issue 41): the program's (`basis u: product K0`),
+ * then --basis NAME:product=K0 from the least specific name to the most; an
+ * op of the program, square over one set of dims (its size is checked with
+ * the class's in product.c). */
+static int class_products(Model *m, const TrainOptions *opt, char *err, size_t errlen) {
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    int best = 0;
+    for (int i = 0; opt->override_product && i < opt->noverride; i++) {
+      const char *name = opt->override_product[i];
+      int level = 0;
+      for (int k = 0; name && k < rc->nmembers; k++) {
+        int l = override_level(rc, &rc->members[k], opt->override_name[i]);
+        level = l > level ? l : level;
+      }
+      if (!name || level == 0 || level < best) continue;
+      const Sym *op = NULL;
+      for (int j = 0; j < m->prog->ops.n && !op; j++)
+        if (strcmp(((const Sym *)m->prog->ops.v[j])->name, name) == 0) op = m->prog->ops.v[j];
+      bool square = op && op->nivars == 2 * op->nrow;
+      for (int a = 0; square && a < op->nrow; a++) square = op->ivars[a]->range == op->ivars[op->nrow + a]->range;
+      if (!op || !square)
+        return error_set(err, errlen, "--basis %s:product=%s: %s", opt->override_name[i], name,
+                         !op ? "the program has no op of that name (the product is an SPD op of the program)"
+                             : "not a square operator (its rows and columns must run over the same dims)");
+      rc->product = op, best = level;
+    }
+  }
+  return 0;
+}
+
 /* ---------------------------------------------------------------- training */
 
 void train_free_snapshots(Model *m, Snapshots *sn) {
@@ -306,6 +337,10 @@ Model *train_begin(Program *prog, Full *f, const SampleSource *src, const TrainO
     for (int i = 0; i < m->classes[c].nmembers; i++)
       member_options(m, &m->classes[c], &m->classes[c].members[i], opt, powered);
   free(powered);
+  if (class_products(m, opt, err, errlen)) {
+    model_free(m);
+    return NULL;
+  }
   char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
   if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
   if (unknown[0])
@@ -333,6 +368,7 @@ int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t 
     rc = error_set(err, errlen, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)",
                    unknown);
   if (rc == 0) rc = check_overrides(m, opt, err, errlen);
+  if (rc == 0) rc = class_products(m, opt, err, errlen);
   for (int l = 0; l < 2 && rc == 0; l++) {
     const char *const *names = l ? opt->galerkin_stage : opt->interp_stage;
     for (int j = 0; j < (l ? opt->ngalerkin : opt->ninterp) && rc == 0; j++) {
@@ -477,7 +513,8 @@ int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
 }
 
 /* Step 2: one basis per class (DESIGN §5), sized into the tensors. */
-static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOptions *opt, char *err, size_t errlen) {
+static int build_bases(Model *m, Full *f, const Snapshots *sn, bool gram, const TrainOptions *opt, char *err,
+                       size_t errlen) {
   /* over ranks: the members' PCAs shared out, each made on one rank */
   PcaMember **pre = NULL;
   if (opt->dist && dist_size() > 1 && !gram && !opt->joint &&
@@ -486,6 +523,19 @@ static int build_bases(Model *m, const Snapshots *sn, bool gram, const TrainOpti
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     int rc_ok = 0;
+    if (rc->product) { /* issue 41: BᵀK0B = I, a transform around the members' PCAs (product.c) */
+      const char *why = gram ? "the snapshots do not fit in --mem (raise it)"
+                        : opt->joint && rc->nmembers > 1 ? "--merge joint (use --merge concat)"
+                        : pre ? "training over MPI ranks" : NULL;
+      if (why) {
+        dist_free_pcas(m, pre);
+        return error_set(err, errlen, "basis %s: product %s is not implemented with %s", rc->bc->size_name,
+                         rc->product->name, why);
+      }
+      if (train_product_basis(m, f, rc, sn->S, sn->X[c], opt->weights, opt->full_rank, err, errlen))
+        return dist_free_pcas(m, pre), -1;
+      continue;
+    }
     if (opt->joint && rc->nmembers > 1) rc_ok = train_joint_basis(rc, sn->S, sn->X[c], err, errlen);
     else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn->U[c], sn->k[c], &rc->B, &rc->m, err, errlen);
     else rc_ok = train_member_bases(rc, sn->S, sn->X[c], opt->weights, pre ? pre[c] : NULL, err, errlen);
@@ -551,8 +601,8 @@ int train_premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err
         RClass *cw = &m->classes[m->qclass[rt->named_q]];
         if (!(rt->proj = mem_malloc(sizeof(double) * (size_t)(cy->m * cw->m))))
           return error_set(err, errlen, "out of memory while training");
-        cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0, cy->B,
-                    (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
+        cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0,
+                    rt->nops ? cy->B : model_projector(cy), (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
       }
       RTERM_FOR_TENSORS(rt, x) {
         if (x->data) { /* pre-multiplied out of core by the streamed bases (stream.c) */
@@ -563,7 +613,10 @@ int train_premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err
         }
         /* over ranks: every rank its share of the rows, summed on all */
         phase_time(t0, &d[0], &d[1]); /* from here: this tensor's own time */
-        if (premultiply_part(m, f, x, cy->B, cy->n, cy->m, rank, N, &flops, err, errlen)) return -1;
+        /* a term that applies operators is reduced by Galerkin (BᵀMB, Bᵀw); one that does not is
+         * projected (with a product, the K0-projection Dᵀ: issue 41) */
+        const double *row = rt->nops ? cy->B : model_projector(cy);
+        if (premultiply_part(m, f, x, row, cy->n, cy->m, rank, N, &flops, err, errlen)) return -1;
         phase_time(t0, &d[0], &d[1]);
         own[0] += d[0], own[1] += d[1];
         x->premul_seconds = d[0];
@@ -691,7 +744,8 @@ static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const 
         double *dst = j < x->nin ? x->X + k * x->d + off : x->Z + k * mz;
         if (!rc->B && rc->train_coords) /* kept as coefficients: its coordinates from the basis passes */
           memcpy(dst, rc->train_coords + k * rc->m, sizeof(double) * (size_t)rc->m);
-        else cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, rc->B, (int)rc->m, val, 1, 0.0, dst, 1);
+        else cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)rc->m, 1.0, model_projector(rc), (int)rc->m, val, 1,
+                         0.0, dst, 1);
         if (j < x->nin) off += rc->m;
       }
     }
@@ -765,6 +819,10 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
 static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn, bool *gram,
                  struct timespec clock[2], char *err, size_t errlen) {
   if (ooc_needed(m, opt, src->count)) {
+    for (int c = 0; c < m->nclasses; c++)
+      if (m->classes[c].product)
+        return error_set(err, errlen, "basis %s: product %s is not implemented out of core (the bases exceed --mem: "
+                         "raise it)", m->classes[c].bc->size_name, m->classes[c].product->name);
     *gram = true;
     train_mark_streamed(m, opt); /* their floors taken in the passes (the choice is made again after interpolation) */
     if (ooc_bases(m, f, src, opt, err, errlen)) return -1;
@@ -773,7 +831,7 @@ static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions 
   }
   if (train_take_snapshots(m, f, src, opt, sn, gram, err, errlen)) return -1;
   phase_end(clock, m, PHASE_SNAPSHOTS);
-  return build_bases(m, sn, *gram, opt, err, errlen);
+  return build_bases(m, f, sn, *gram, opt, err, errlen);
 }
 
 /* Step 5: the model trained evaluated on three of its own training samples

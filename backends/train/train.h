@@ -39,6 +39,7 @@ typedef struct TrainOptions {
   int *override_cap;
   double *override_energy;
   int *override_center;     /* 1 on, 0 off, -1 not given (may be NULL: not given) */
+  const char **override_product; /* an op's name (product=OP), NULL not given (may be NULL: none) */
   /* interpolated stages (DESIGN §12, interp.h): the stages named are reduced by interpolation
    * (each must be eligible: lower_interp_eligible), at k = ceil(oversample · m) entries */
   int ninterp;
@@ -155,6 +156,11 @@ int train_member_bases(RClass *rc, long S, double *const *X, const double *w, Pc
 /* One direction for a class whose every snapshot is zero; with `full_rank`
  * the basis completed to the class's dimension. */
 int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen);
+/* Class rc's basis orthonormal in the inner product of its product op
+ * (rc->product: `basis u: product K0`, --basis u:product=K0; product.c): BᵀK0B = I, rc->D =
+ * K0 B; K0 read from `f` (params bound). X[i]: member i's snapshots. */
+int train_product_basis(Model *m, Full *f, RClass *rc, long S, double *const *X, const double *w, bool full_rank,
+                        char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- interpolated stages (interp_train.c) */
 

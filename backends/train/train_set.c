@@ -71,6 +71,12 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
       train_take_snapshots(ts->base, f, src, &o, &ts->sn, &gram, err, errlen))
     goto fail;
   Model *m = ts->base;
+  for (int c = 0; c < m->nclasses; c++)
+    if (m->classes[c].product) { /* its truncations would need the weighted snapshots (product.c) */
+      error_set(err, errlen, "basis %s: product %s is not implemented in tune (the sizes' sweep): train each size with "
+                "npgc train", m->classes[c].bc->size_name, m->classes[c].product->name);
+      goto fail;
+    }
   if (!(ts->pm = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];

@@ -197,16 +197,21 @@ void npg_args_unknown(NpgArgs *a) {
 
 #define BASIS_SYNTAX "NAME:cap=N,energy=E,center=on|off"
 
-int npg_parse_basis(const char *spec, char **name, int *cap, double *energy, int *center, char *err, size_t errlen) {
+/* The one reader of --basis: npg_parse_basis (`product`, NULL, not a key)
+ * and npg_parse_basis_product (`product=OP` too, issue 41). */
+static int parse_basis(const char *fn, const char *spec, char **name, int *cap, double *energy, int *center,
+                       char **product, char *err, size_t errlen) {
   if (!spec || !name || !cap || !energy || !center)
-    return error_set(err, errlen, "npg_parse_basis: argument '%s' is NULL",
+    return error_set(err, errlen, "%s: argument '%s' is NULL", fn,
                      !spec ? "spec" : !name ? "name" : !cap ? "cap" : !energy ? "energy" : "center");
+  const char *keys = product ? "cap, energy, center and product" : "cap, energy and center";
+  char prod[256] = "";
   const char *colon = strchr(spec, ':');
   if (!colon || colon == spec)
     return error_set(err, errlen, "'%s': expected " BASIS_SYNTAX " (NAME a quantity, a class or '*')", spec);
   int c = -1, k_center = -1;
   double e = -1;
-  bool given[3] = {false, false, false}; /* cap, energy, center */
+  bool given[4] = {false, false, false, false}; /* cap, energy, center, product */
   const char *p = colon + 1;
   p += strspn(p, " \t");
   if (!*p) return error_set(err, errlen, "'%s': nothing after the colon (expected " BASIS_SYNTAX ")", spec);
@@ -227,10 +232,11 @@ int npg_parse_basis(const char *spec, char **name, int *cap, double *energy, int
       return error_set(err, errlen, "'%s': '%.*s' has no key (expected " BASIS_SYNTAX ")", spec, (int)(next - p), p);
     char key[16] = "", value[256], why[384];
     if (klen < sizeof key) memcpy(key, p, klen), key[klen] = 0; /* a longer one is no key */
-    int which = !strcmp(key, "cap") || !strcmp(key, "max") ? 0 : !strcmp(key, "energy") ? 1 : !strcmp(key, "center") ? 2 : -1;
+    int which = !strcmp(key, "cap") || !strcmp(key, "max") ? 0 : !strcmp(key, "energy") ? 1 : !strcmp(key, "center") ? 2
+                : product && !strcmp(key, "product") ? 3 : -1;
     if (which < 0)
-      return error_set(err, errlen, "'%s': unknown key '%.*s' (the keys are cap, energy and center: " BASIS_SYNTAX ")",
-                       spec, (int)klen, p);
+      return error_set(err, errlen, "'%s': unknown key '%.*s' (the keys are %s: " BASIS_SYNTAX "%s)", spec, (int)klen,
+                       p, keys, product ? ",product=OP" : "");
     if (vlen >= sizeof value) return error_set(err, errlen, "'%s': the value of %s is too long", spec, key);
     memcpy(value, v, vlen), value[vlen] = 0;
     if (given[which]) return error_set(err, errlen, "'%s': %s is given twice", spec, which ? key : "cap");
@@ -243,6 +249,9 @@ int npg_parse_basis(const char *spec, char **name, int *cap, double *energy, int
     } else if (which == 1) {
       if (npg_parse_double(value, 0, 1, true, &e, why, sizeof why) != 0)
         return error_set(err, errlen, "'%s': energy: %s", spec, why);
+    } else if (which == 3) { /* an op's name; training checks it names an SPD op of the program */
+      if (!value[0]) return error_set(err, errlen, "'%s': product: no op named (expected product=OP)", spec);
+      snprintf(prod, sizeof prod, "%s", value);
     } else if (!strcmp(value, "on") || !strcmp(value, "off")) {
       k_center = !strcmp(value, "on");
     } else {
@@ -257,6 +266,20 @@ int npg_parse_basis(const char *spec, char **name, int *cap, double *energy, int
   if (!n) return error_set(err, errlen, "out of memory");
   memcpy(n, spec, (size_t)(colon - spec));
   n[colon - spec] = 0;
+  char *pr = NULL;
+  if (prod[0] && !(pr = mem_malloc(strlen(prod) + 1))) return free(n), error_set(err, errlen, "out of memory");
+  if (pr) memcpy(pr, prod, strlen(prod) + 1);
   *name = n, *cap = c, *energy = e, *center = k_center;
+  if (product) *product = pr;
   return 0;
+}
+
+int npg_parse_basis(const char *spec, char **name, int *cap, double *energy, int *center, char *err, size_t errlen) {
+  return parse_basis("npg_parse_basis", spec, name, cap, energy, center, NULL, err, errlen);
+}
+
+int npg_parse_basis_product(const char *spec, char **name, int *cap, double *energy, int *center, char **product,
+                            char *err, size_t errlen) {
+  if (!product) return error_set(err, errlen, "npg_parse_basis_product: argument 'product' is NULL");
+  return parse_basis("npg_parse_basis_product", spec, name, cap, energy, center, product, err, errlen);
 }

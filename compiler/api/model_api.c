@@ -157,6 +157,9 @@ static int nonfinite_array(NpgModel *nm, const char *dir) {
   const Model *m = nm->m;
   for (int c = 0; c < m->nclasses; c++)
     if (!m->classes[c].streamed && finite_array(nm, dir, m->classes[c].B, m->classes[c].n * m->classes[c].m, "basis_%d", c)) return -1;
+  for (int c = 0; c < m->nclasses; c++)
+    if (m->classes[c].D && finite_array(nm, dir, m->classes[c].D, m->classes[c].n * m->classes[c].m, "dual_%d", c))
+      return -1;
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) {
       RTerm *rt = &m->stages[i].terms[t];
@@ -328,6 +331,11 @@ int npg_model_class_of(const NpgModel *nm, const char *quantity) {
 const double *npg_model_basis(const NpgModel *nm, int c) {
   REFUSE_NULL_M(NULL);
   return nm->m && c >= 0 && c < nm->m->nclasses ? nm->m->classes[c].B : NULL;
+}
+
+const double *npg_model_dual(const NpgModel *nm, int c) {
+  REFUSE_NULL_M(NULL);
+  return nm->m && c >= 0 && c < nm->m->nclasses ? nm->m->classes[c].D : NULL;
 }
 
 const double *npg_model_coefficients(const NpgModel *nm, int c, long *samples) {

@@ -127,6 +127,7 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
   const Program *prog = t->prog = full_program(f->full);
   /* the names the options give, refused now rather than after every sample was streamed */
   TrainOptions names = {.noverride = t->opt.nbasis, .override_name = (const char **)t->opt.basis_name,
+                        .override_product = (const char **)t->opt.basis_product,
                         .keep_bases = t->opt.keep_bases, .ninterp = t->opt.ninterp,
                         .interp_stage = t->opt.interp_stage, .ngalerkin = t->opt.ngalerkin,
                         .galerkin_stage = t->opt.galerkin_stage};
@@ -635,6 +636,7 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.uncentered = t->opt.uncentered;
   o.noverride = t->opt.nbasis;
   o.override_center = (int *)t->opt.basis_center;
+  o.override_product = (const char **)t->opt.basis_product;
   o.override_name = (const char **)t->opt.basis_name;
   o.override_cap = (int *)t->opt.basis_cap;
   o.override_energy = (double *)t->opt.basis_energy;

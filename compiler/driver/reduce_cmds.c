@@ -28,7 +28,7 @@ double reduce_now(void) {
   return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
-/* --basis NAME:cap=N,energy=E,center=on|off (npg_parse_basis; NAME checked
+/* --basis NAME:cap=N,energy=E,center=on|off,product=OP (npg_parse_basis_product; NAME checked
  * by training): one more override in `c`. 0, or -1 with the problem in `err`. */
 static int add_basis(Common *c, const char *s, char *err, size_t errlen) {
   int k = c->nbasis;
@@ -40,14 +40,18 @@ static int add_basis(Common *c, const char *s, char *err, size_t errlen) {
   if (energies) c->basis_energy = energies;
   int *centers = realloc(c->basis_center, sizeof(int) * (size_t)(k + 1));
   if (centers) c->basis_center = centers;
-  if (!names || !caps || !energies || !centers) {
+  const char **products = realloc(c->basis_product, sizeof(char *) * (size_t)(k + 1));
+  if (products) c->basis_product = products;
+  if (!names || !caps || !energies || !centers || !products) {
     snprintf(err, errlen, "out of memory");
     return -1;
   }
-  char *name;
-  if (npg_parse_basis(s, &name, &c->basis_cap[k], &c->basis_energy[k], &c->basis_center[k], err, errlen) != 0)
+  char *name, *product;
+  if (npg_parse_basis_product(s, &name, &c->basis_cap[k], &c->basis_energy[k], &c->basis_center[k], &product, err,
+                              errlen) != 0)
     return -1;
   c->basis_name[k] = name;
+  c->basis_product[k] = product;
   c->nbasis++;
   return 0;
 }
@@ -217,11 +221,13 @@ static int parse(Common *c, int argc, char **argv) {
   c->train.basis_cap = c->basis_cap;
   c->train.basis_energy = c->basis_energy;
   c->train.basis_center = c->basis_center;
+  c->train.basis_product = c->basis_product;
   return 0;
 }
 
 static void free_common(Common *c) {
-  for (int i = 0; i < c->nbasis; i++) free((char *)c->basis_name[i]);
+  for (int i = 0; i < c->nbasis; i++) free((char *)c->basis_name[i]), free((char *)c->basis_product[i]);
+  free(c->basis_product);
   free(c->basis_name);
   free(c->basis_cap);
   free(c->basis_energy);

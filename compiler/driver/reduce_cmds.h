@@ -29,6 +29,7 @@ typedef struct Common {
   int *basis_cap;
   double *basis_energy;
   int *basis_center;
+  const char **basis_product; /* product=OP, or NULL */
   const char *spectra;      /* train --spectra DIR */
   const char *params;       /* verify --params DIR: the params, when TEST/ holds only the samples */
   const char *sizes;        /* eval, verify, bench --sizes NAME=N,...: the model at smaller sizes */

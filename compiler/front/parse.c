@@ -537,9 +537,15 @@ static void parse_stmt(Parser *p, Decl ***tail) {
     expect(p, ":", "after the quantities of 'basis' (basis x: cap 60, energy 0.999, center on; or cap=60)");
     do {
       /* `cap` as on the command line (--cap, --basis x:cap=N); `max` is its older name */
-      Token *o = expect_ident(p, "'cap', 'energy', 'center' or 'reduce'");
+      Token *o = expect_ident(p, "'cap', 'energy', 'center', 'reduce' or 'product'");
       accept(p, "="); /* `cap=12` as --basis writes it, or `cap 12` */
       Token *v = peek(p);
+      if (strcmp(o->text, "product") == 0) { /* an SPD op of the program: BᵀK0B = I (pyMOR's H¹ product) */
+        v = expect_name(p, "the name of an op after 'product' (basis u: product K0)");
+        d->basis_product = v->text;
+        d->basis_product_loc = v->loc;
+        continue;
+      }
       if (strcmp(o->text, "reduce") == 0) { /* as --reduce STAGE:interp|galerkin (DESIGN §12) */
         if (!is_ident(v, "interp") && !is_ident(v, "galerkin"))
           error_at(ctx, v->loc, "expected 'interp' or 'galerkin' after 'reduce', found %s", describe(p, v));
@@ -565,7 +571,8 @@ static void parse_stmt(Parser *p, Decl ***tail) {
           error_at(ctx, v->loc, "'energy' is a fraction in (0, 1], found %s", v->text);
         d->basis_energy = v->num;
       } else {
-        error_at(ctx, o->loc, "unknown basis option '%s': expected 'cap', 'energy', 'center' or 'reduce'", o->text);
+        error_at(ctx, o->loc, "unknown basis option '%s': expected 'cap', 'energy', 'center', 'reduce' or 'product'",
+                 o->text);
       }
     } while (accept(p, ","));
   } else if (strcmp(kw, "inline") == 0) {

@@ -214,6 +214,22 @@ static Sym *need_quantity(Checker *ck, const char *name, Loc loc, const char *wh
   return s;
 }
 
+/* `basis q: product K0` (issue 41): K0 must be an op of the program; that it
+ * is square over the dims of q's class is checked with the classes
+ * (basis_classes), that it is SPD and of the class's size in training. */
+static void basis_product(Checker *ck, const Decl *d, Sym *q) {
+  if (!d->basis_product) return;
+  Sym *op = sema_find_global(ck, d->basis_product);
+  if (!op)
+    error_at(ck->ctx, d->basis_product_loc, "basis %s: product '%s' is not a name of the program: it takes an op "
+             "(op K0[i:N, j:N] = ...)%s", q->name, d->basis_product, sema_did_you_mean(ck, d->basis_product, SUGGEST_VALUE));
+  if (op->kind != SYM_OP)
+    error_at(ck->ctx, d->basis_product_loc, "basis %s: product '%s' is %s, not an op: the inner product is an SPD "
+             "operator of the program (op K0[i:N, j:N] = ...)", q->name, d->basis_product, sema_kind_word(op));
+  q->product = op;
+  q->product_loc = d->basis_product_loc;
+}
+
 /* A definition without index variables whose value is a whole quantity
  * (b = solve(M, e)) gets implicit index variables over its dims. */
 static void implicit_ivars(Checker *ck, Sym *s, const Type *t) {
@@ -453,6 +469,7 @@ static void apply_directives(Checker *ck) {
           if (d->basis_max > 0) q->class_basis_max = d->basis_max;
           if (d->basis_energy > 0) q->class_basis_energy = d->basis_energy;
           if (d->basis_center >= 0) q->class_basis_center = d->basis_center;
+          basis_product(ck, d, q);
           continue;
         }
         if (!sema_find_global(ck, name))
@@ -462,6 +479,7 @@ static void apply_directives(Checker *ck) {
         if (d->basis_max > 0) q->basis_max = d->basis_max;
         if (d->basis_energy > 0) q->basis_energy = d->basis_energy;
         if (d->basis_center >= 0) q->basis_center = d->basis_center;
+        basis_product(ck, d, q);
         if (d->basis_reduce != STAGE_REDUCE_DEFAULT) q->reduce = d->basis_reduce, q->reduce_loc = d->name_locs[i];
       }
       break;

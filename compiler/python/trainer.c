@@ -16,6 +16,7 @@ typedef struct TrainerObject {
   int *basis_cap;
   double *basis_energy;
   int *basis_center;
+  char **basis_product;     /* product=OP per override, or NULL */
   char *keep_bases;         /* keep_bases= (owned here for the same reason) */
   char **interp, **galerkin; /* interp=, galerkin=: stage names (NULL-ended, owned here) */
   PyObject *valid_dict;     /* valid=: a copy of the dict, which holds the names NpgpySamples points to */
@@ -93,13 +94,15 @@ static int parse_reduce(TrainerObject *self, PyObject *full, PyObject *interp, P
 }
 
 static void free_basis(TrainerObject *self) {
-  for (int i = 0; i < self->nbasis; i++) free(self->basis_name[i]); /* npg_parse_basis's */
+  for (int i = 0; i < self->nbasis; i++) free(self->basis_name[i]), free(self->basis_product[i]); /* the parser's */
   PyMem_Free(self->basis_name);
+  PyMem_Free(self->basis_product);
   PyMem_Free(self->basis_cap);
   PyMem_Free(self->basis_energy);
   PyMem_Free(self->basis_center);
   self->nbasis = 0;
   self->basis_name = NULL, self->basis_cap = NULL, self->basis_energy = NULL, self->basis_center = NULL;
+  self->basis_product = NULL;
 }
 
 /* A basis size, as `npgc train --cap`: a whole number in 1..1000000; an
@@ -123,8 +126,8 @@ static int cap_value(PyObject *v, const char *what, int *out) {
   return 0;
 }
 
-/* basis=["NAME:cap=N,energy=E,center=on|off", ...] (or one such string) as the C options:
- * each string read by npg_parse_basis, as `npgc train --basis` reads it (NAME a quantity, a
+/* basis=["NAME:cap=N,energy=E,center=on|off,product=OP", ...] (or one such string) as the C
+ * options: each string read by npg_parse_basis_product, as `npgc train --basis` reads it (NAME a quantity, a
  * class m_x, a numerator y.num1 or '*'; the library checks the names). */
 static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o) {
   free_basis(self); /* a second __init__ after a failed one */
@@ -142,8 +145,10 @@ static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o)
   self->basis_cap = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_cap);
   self->basis_energy = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_energy);
   self->basis_center = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_center);
+  self->basis_product = PyMem_Calloc((size_t)n + 1, sizeof *self->basis_product);
   int rc = 0;
-  if (!self->basis_name || !self->basis_cap || !self->basis_energy || !self->basis_center) rc = -1, PyErr_NoMemory();
+  if (!self->basis_name || !self->basis_cap || !self->basis_energy || !self->basis_center || !self->basis_product)
+    rc = -1, PyErr_NoMemory();
   for (Py_ssize_t i = 0; i < n && rc == 0; i++) {
     PyObject *item = PyTuple_GET_ITEM(list, i);
     const char *spec = PyUnicode_Check(item) ? PyUnicode_AsUTF8(item) : NULL;
@@ -154,8 +159,8 @@ static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o)
         PyErr_Format(PyExc_TypeError, "Trainer: basis[%zd] is a 'NAME:cap=N,energy=E,center=on|off' string, not %s", i,
                      Py_TYPE(item)->tp_name);
       rc = -1;
-    } else if (npg_parse_basis(spec, &self->basis_name[k], &self->basis_cap[k], &self->basis_energy[k],
-                               &self->basis_center[k], err, sizeof err) != 0) {
+    } else if (npg_parse_basis_product(spec, &self->basis_name[k], &self->basis_cap[k], &self->basis_energy[k],
+                                       &self->basis_center[k], &self->basis_product[k], err, sizeof err) != 0) {
       PyErr_Format(PyExc_ValueError, "Trainer: basis %s", err);
       rc = -1;
     } else {
@@ -169,6 +174,7 @@ static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o)
   o->basis_cap = self->basis_cap;
   o->basis_energy = self->basis_energy;
   o->basis_center = self->basis_center;
+  o->basis_product = (const char *const *)self->basis_product;
   return 0;
 }
 

@@ -2,7 +2,7 @@
  * include/ on its include path): compile, train from memory, load, reduced
  * evaluation, lifting, operators, verification; streamed training equal to
  * `npgc train`; an extern by callback equal to the extern as data; one
- * model shared by two threads.
+ * model shared by two threads; a basis in an inner product (npg_model_dual).
  *
  *     test_api NPGC RADIOSITY_DATA   (paths of the two programs, from CMake)
  */
@@ -667,6 +667,90 @@ static void sample_weights(void **state) {
   npg_samples_free(s);
 }
 
+/* ---------------------------------------------------------------- inner products */
+
+/* `--basis x:product=H` through NpgTrainOptions.basis_product (issue 41): the basis of x is
+ * H-orthonormal, npg_model_dual gives H B, and npg_reduced_set projects by it: x̂ = BᵀHx. */
+static void product_dual(void **state) {
+  (void)state;
+  enum { N = 10, S = 6 };
+  char prog[512], dir[512];
+  snprintf(prog, sizeof prog, "%s/product.npg", scratch);
+  snprintf(dir, sizeof dir, "%s/PRODUCT", scratch);
+  FILE *fp = fopen(prog, "w");
+  assert_non_null(fp);
+  fputs("dim N, W\nparam cols : int[N, W]\nparam h : real[N, W]\ninput x : real[N]\n"
+        "op H[i:N, j:N] = sum(k = 0..W-1, h[i, k] * delta(j, cols[i, k]))\noutput y[i:N] = 2 * x[i]\n", fp);
+  fclose(fp);
+  double cols[N * 3], h[N * 3], H[N * N] = {0}, x[S][N];
+  for (int i = 0; i < N; i++)
+    for (int k = 0; k < 3; k++) {
+      int j = i + k - 1;
+      cols[i * 3 + k] = j >= 0 && j < N ? j : -1;
+      h[i * 3 + k] = j < 0 || j >= N ? 0 : j == i ? 3 : -1;
+      if (j >= 0 && j < N) H[i * N + j] = h[i * 3 + k];
+    }
+  for (int k = 0; k < S; k++)
+    for (int e = 0; e < N; e++) x[k][e] = sin(0.7 * (k + 1) * e) + 0.1 * k;
+  NpgProgram *p = compile(prog);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  long shape[2] = {N, 3};
+  assert_int_equal(npg_full_set_param(f, "cols", 2, shape, cols, "cols"), 0);
+  assert_int_equal(npg_full_set_param(f, "h", 2, shape, h, "h"), 0);
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  const char *names[] = {"x"}, *products[] = {"H"};
+  int caps[] = {4}, centers[] = {-1};
+  double energies[] = {1};
+  o.nbasis = 1, o.basis_name = names, o.basis_cap = caps, o.basis_energy = energies, o.basis_center = centers;
+  o.basis_product = products;
+  NpgTrainer *t = npg_trainer_new(f, &o);
+  long xs[1] = {N};
+  for (int k = 0; k < S; k++) {
+    assert_int_equal(npg_full_set(f, "x", 1, xs, x[k], "x"), 0);
+    if (npg_full_eval(f, k) != 0) fail_msg("%s", npg_full_error(f));
+    if (npg_trainer_add_full(t, f) != 0) fail_msg("%s", npg_trainer_error(t));
+  }
+  NpgModel *m = npg_trainer_finish(t, dir);
+  if (!m) fail_msg("%s", npg_trainer_error(t));
+  int cx = npg_model_class_of(m, "x"), cy = npg_model_class_of(m, "y");
+  NpgClassInfo ci;
+  assert_int_equal(npg_model_class(m, cx, &ci), 0);
+  const double *B = npg_model_basis(m, cx), *D = npg_model_dual(m, cx);
+  assert_non_null(D);
+  assert_null(npg_model_dual(m, cy)); /* y's basis is Euclidean */
+  double worst_d = 0, worst_i = 0, worst_p = 0;
+  for (long a = 0; a < ci.m; a++) /* D = H B and BᵀD = I */
+    for (long b = 0; b < ci.m; b++) {
+      double g = 0;
+      for (long e = 0; e < N; e++) g += B[e * ci.m + a] * D[e * ci.m + b];
+      worst_i = fmax(worst_i, fabs(g - (a == b)));
+    }
+  for (long e = 0; e < N; e++)
+    for (long a = 0; a < ci.m; a++) {
+      double v = 0;
+      for (long j = 0; j < N; j++) v += H[e * N + j] * B[j * ci.m + a];
+      worst_d = fmax(worst_d, fabs(v - D[e * ci.m + a]));
+    }
+  NpgReduced *r = npg_reduced_new(m);
+  assert_int_equal(npg_reduced_set(r, "x", N, x[2]), 0);
+  size_t mx = 0;
+  const double *xh = npg_reduced_coords(r, "x", &mx);
+  assert_int_equal((long)mx, ci.m);
+  for (long a = 0; a < ci.m; a++) {
+    double v = 0;
+    for (long e = 0; e < N; e++) v += D[e * ci.m + a] * x[2][e];
+    worst_p = fmax(worst_p, fabs(v - xh[a]));
+  }
+  print_message("product H: BᵀHB − I %.1e, D − HB %.1e, x̂ − BᵀHx %.1e\n", worst_i, worst_d, worst_p);
+  assert_true(worst_i < 1e-12 && worst_d < 1e-12 && worst_p < 1e-12);
+  npg_reduced_free(r);
+  npg_model_free(m);
+  npg_trainer_free(t);
+  npg_full_free(f);
+  npg_free(p);
+}
+
 /* ---------------------------------------------------------------- output operators */
 
 static void output_operator(void **state) {
@@ -769,6 +853,7 @@ int main(int argc, char **argv) {
       cmocka_unit_test(streamed_bases),
       cmocka_unit_test(sample_weights),
       cmocka_unit_test(output_operator),
+      cmocka_unit_test(product_dual),
   };
   return cmocka_run_group_tests(tests, NULL, teardown);
 }

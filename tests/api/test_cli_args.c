@@ -297,6 +297,37 @@ static void parse_basis_table(void **state) {
   assert_string_equal(err, "npg_parse_basis: argument 'energy' is NULL");
 }
 
+/* npg_parse_basis_product: the same reader with product=OP (issue 41); npg_parse_basis
+ * refuses the key as unknown. */
+static void parse_basis_product(void **state) {
+  (void)state;
+  char err[512] = "", *name = NULL, *product = (char *)"untouched";
+  int cap = -7, center = -7;
+  double energy = -7;
+  assert_int_equal(npg_parse_basis_product("u:product=H,cap=4", &name, &cap, &energy, &center, &product, err, sizeof err), 0);
+  assert_string_equal(name, "u");
+  assert_string_equal(product, "H");
+  assert_int_equal(cap, 4);
+  assert_true(energy == -1 && center == -1);
+  free(name), free(product);
+  assert_int_equal(npg_parse_basis_product("u:cap=4", &name, &cap, &energy, &center, &product, err, sizeof err), 0);
+  assert_null(product);
+  free(name);
+  assert_int_equal(npg_parse_basis_product("u:product=H,product=K", &name, &cap, &energy, &center, &product, err,
+                                           sizeof err), -1);
+  assert_string_equal(err, "'u:product=H,product=K': product is given twice");
+  assert_int_equal(npg_parse_basis_product("u:product=", &name, &cap, &energy, &center, &product, err, sizeof err), -1);
+  assert_string_equal(err, "'u:product=': product: no op named (expected product=OP)");
+  assert_int_equal(npg_parse_basis_product("u:size=3", &name, &cap, &energy, &center, &product, err, sizeof err), -1);
+  assert_string_equal(err, "'u:size=3': unknown key 'size' (the keys are cap, energy, center and product: "
+                           "NAME:cap=N,energy=E,center=on|off,product=OP)");
+  assert_int_equal(npg_parse_basis_product("u:cap=1", &name, &cap, &energy, &center, NULL, err, sizeof err), -1);
+  assert_string_equal(err, "npg_parse_basis_product: argument 'product' is NULL");
+  assert_int_equal(npg_parse_basis("u:product=H", &name, &cap, &energy, &center, err, sizeof err), -1);
+  assert_string_equal(err, "'u:product=H': unknown key 'product' (the keys are cap, energy and center: "
+                           "NAME:cap=N,energy=E,center=on|off)");
+}
+
 /* NULL arguments are refused with their name, never dereferenced */
 static void null_arguments(void **state) {
   (void)state;
@@ -330,6 +361,7 @@ int main(void) {
       cmocka_unit_test(parse_long_table), cmocka_unit_test(parse_double_table), cmocka_unit_test(args_both_forms),
       cmocka_unit_test(args_errors),      cmocka_unit_test(npy_read_roundtrip), cmocka_unit_test(null_arguments),
       cmocka_unit_test(parse_basis_table),
+      cmocka_unit_test(parse_basis_product),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

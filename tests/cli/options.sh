@@ -83,7 +83,7 @@ expect 2 "npgc train: --cap: '300abc' is not a whole number (expected 1..1000000
 expect 2 "npgc bench: --reps: '2.9' is not a whole number (expected 1..1000000)" "$N" bench "$P" "$W/M1" "$W/TEST" --reps 2.9
 
 # 4. --basis names the bad key and the allowed ones; `cap 12` is cap=12 (the program's syntax)
-expect 2 "unknown key 'size' (the keys are cap, energy and center" "$N" train "$P" "$W/TEST" -o "$W/X" --basis u:size=5
+expect 2 "unknown key 'size' (the keys are cap, energy, center and product" "$N" train "$P" "$W/TEST" -o "$W/X" --basis u:size=5
 "$N" train "$P" "$W/deep/er/TRAIN" -o "$W/M3" --basis "y:cap 2" >/dev/null || fail "--basis 'y:cap 2'"
 "$N" train "$P" "$W/deep/er/TRAIN" -o "$W/M4" --basis "y:cap=2" >/dev/null || fail "--basis y:cap=2"
 cmp "$W/M3/manifest" "$W/M4/manifest" || fail "--basis 'y:cap 2' and y:cap=2 trained different models"

@@ -782,7 +782,7 @@ def cli_cases():
             ("merge_unknown", "--merge", "both", "--merge is concat or joint, not 'both'"),
             ("basis_no_colon", "--basis", "x", "--basis 'x': expected NAME:cap=N,energy=E,center=on|off"),
             ("basis_bad_option", "--basis", "x:size=3",
-             "--basis 'x:size=3': unknown key 'size' (the keys are cap, energy and center"),
+             "--basis 'x:size=3': unknown key 'size' (the keys are cap, energy, center and product"),
             ("basis_cap_zero", "--basis", "x:cap=0", "--basis 'x:cap=0': cap: 0 is out of range " + capr),
             ("basis_energy_two", "--basis", "x:energy=2", "--basis 'x:energy=2': energy: 2 is out of range " + enr),
             ("basis_trailing", "--basis", "x:cap=3;", "--basis 'x:cap=3;': cap: '3;' is not a whole number " + capr)]:

@@ -231,9 +231,9 @@ def test_trained_springs_equal_npgc_train(tmp_path, npgc):
     model = tr.finish(tmp_path / "PY2")
     same_model(tmp_path / "CLI2", tmp_path / "PY2")
     assert model.basis_sizes["{l2}"] == 3
-    # npg_parse_basis's syntax and messages (tests/api/test_cli_args.c)
-    with pytest.raises(ValueError, match=r"^Trainer: basis 'l2:size=3': unknown key 'size' \(the keys are cap, energy "
-                                         r"and center"):
+    # npg_parse_basis_product's syntax and messages (tests/api/test_cli_args.c)
+    with pytest.raises(ValueError, match=r"^Trainer: basis 'l2:size=3': unknown key 'size' \(the keys are cap, energy, "
+                                         r"center and product"):
         npg.Trainer(full, basis=["l2:size=3"])
     with pytest.raises(ValueError, match=r"'l2:cap=0': cap: 0 is out of range \(expected 1\.\.1000000\)"):
         npg.Trainer(full, basis="l2:cap=0")
@@ -243,6 +243,43 @@ def test_trained_springs_equal_npgc_train(tmp_path, npgc):
         npg.Trainer(full, basis=["l2:cap=3", 3])
     with pytest.raises(npg.Error, match="Trainer: basis nosuch: no quantity"):  # when made, not at finish()
         npg.Trainer(full, basis="nosuch:cap=3")
+
+
+PRODUCT = """dim N, W
+param cols : int[N, W]
+param h : real[N, W]
+input x : real[N]
+op H[i:N, j:N] = sum(k = 0..W-1, h[i, k] * delta(j, cols[i, k]))
+output y[i:N] = 2 * x[i]
+"""
+
+
+def test_trainer_basis_product_equals_npgc(tmp_path, npgc):
+    """basis=["x:product=H"] (npg_parse_basis_product, issue 41) trains what npgc train --basis does."""
+    n = 12
+    cols = -np.ones((n, 3), dtype=np.int64)
+    h = np.zeros((n, 3))
+    for i in range(n):
+        for k, j in enumerate((i - 1, i, i + 1)):
+            if 0 <= j < n:
+                cols[i, k], h[i, k] = j, (3.0 if i == j else -1.0)
+    x = np.random.default_rng(4).standard_normal((9, n))
+    prog = tmp_path / "product.npg"
+    prog.write_text(PRODUCT)
+    data = tmp_path / "DATA"
+    data.mkdir()
+    for name, v in (("cols", cols), ("h", h), ("x", x)):
+        np.save(data / f"{name}.npy", v)
+    npgc("train", prog, data, "-o", tmp_path / "CLI", "--basis", "x:cap=4,product=H")
+    full = npg.compile(str(prog)).full(params={"cols": cols, "h": h})
+    tr = npg.Trainer(full, basis=["x:cap=4,product=H"])
+    for xk in x:
+        tr.add(x=xk)
+    tr.finish(tmp_path / "PY")
+    same_model(tmp_path / "CLI", tmp_path / "PY")
+    assert (tmp_path / "PY" / "dual_0.npy").exists()
+    with pytest.raises(npg.Error, match=r"^Trainer: basis x:product=K: the program has no op of that name"):
+        npg.Trainer(full, basis=["x:product=K"])
 
 
 def test_trainer_options_checked(eq3):

@@ -1,0 +1,231 @@
+"""pymor_thermalblock.py — npg against pyMOR on pyMOR's own thermal block, in one run (issue 41).
+
+Run by bench/pymor_thermalblock.sh, which sets PYTHONPATH to pyMOR's sources:
+
+    python3 bench/pymor_thermalblock.py NPGC OUT --blocks 2x2 --grid 100 --snapshots 5 \
+        --test 100 --sizes 20,30 [--greedy-tol 1e-6] [--seed 0]
+
+1. pyMOR discretizes the problem (discretize_stationary_cg, diameter 1/grid) and the matrices
+   are exported as the params of examples/thermalblock/thermalblock.npg (K_b, K_q, the H¹₀
+   product H in one padded row pattern, f) in OUT/data/ and OUT/test/ (.npy);
+2. the training parameters are pyMOR's POD's (parameter_space.sample_uniformly(snapshots)),
+   the test ones --test random parameters (sample_randomly, seeded): the same for both tools;
+3. pyMOR: the full solves of the training and test parameters (timed), POD in the H¹₀ product
+   at each size (CoerciveRBReductor, as its demo), the reduced solves (timed) and the errors,
+   and its weak greedy (rb_greedy with its estimator, atol --greedy-tol): the full solves it
+   needed;
+4. npg: `npgc train` on the same training parameters at the same sizes (class m of u: n − 1
+   vectors of u's snapshots and f's direction, uncentered and untruncated as pyMOR's POD),
+   `npgc eval` of the test parameters, `npgc bench` for the full and reduced times;
+5. both tools' errors measured here alike against pyMOR's full solutions: the H¹₀ seminorm
+   of u − u_rb, absolute and relative to the solution's.
+
+Prints the table and writes OUT/results.json. Columns of features npg does not have yet
+(an online estimate, greedy training) print "n/a (not built)".
+"""
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+PROG = os.path.join(ROOT, "examples", "thermalblock", "thermalblock.npg")
+
+
+def padded_sparse(mats):
+    """The scipy sparse matrices (n x n) in one padded row pattern: cols (int64, -1 padding)
+    and each matrix's values in it."""
+    import scipy.sparse as sp
+    pattern = sum(abs(sp.csr_matrix(m)) for m in mats).tocsr()
+    pattern.sort_indices()
+    n = pattern.shape[0]
+    counts = np.diff(pattern.indptr)
+    w = int(counts.max())
+    rows = np.repeat(np.arange(n), counts)
+    slot = np.arange(pattern.nnz) - np.repeat(pattern.indptr[:-1], counts)
+    cols = -np.ones((n, w), dtype=np.int64)
+    cols[rows, slot] = pattern.indices
+    vals = []
+    for m in mats:
+        v = np.zeros((n, w))
+        v[rows, slot] = np.asarray(sp.csr_matrix(m)[rows, pattern.indices]).ravel()
+        vals.append(v)
+    return cols, vals
+
+
+def export(fom, folder, mus):
+    """The program's params from pyMOR's matrices, and `mu` for `mus`."""
+    op = fom.operator
+    kb, kq = None, {}
+    for o, c in zip(op.operators, op.coefficients):
+        if isinstance(c, (int, float)):
+            kb = o.matrix * c if kb is None else kb + o.matrix * c
+        else:
+            kq[c.index] = o.matrix
+    q = len(kq)
+    h = fom.h1_0_semi_product.matrix
+    f = fom.rhs.as_range_array().to_numpy().ravel()
+    cols, vals = padded_sparse([kb, *[kq[i] for i in range(q)], h])
+    os.makedirs(folder, exist_ok=True)
+    np.save(os.path.join(folder, "cols.npy"), cols)
+    np.save(os.path.join(folder, "a0.npy"), vals[0])
+    np.save(os.path.join(folder, "a.npy"), np.stack(vals[1:-1]))
+    np.save(os.path.join(folder, "h.npy"), vals[-1])
+    np.save(os.path.join(folder, "f.npy"), f)
+    np.save(os.path.join(folder, "mu.npy"), np.array([m["diffusion"] for m in mus], dtype=float))
+    return h
+
+
+def run(cmd):
+    t = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        sys.exit(f"{' '.join(cmd)}: exit {r.returncode}\n{r.stdout}{r.stderr}")
+    return r.stdout + r.stderr, time.perf_counter() - t
+
+
+def h1_errors(H, U, V):
+    """Per sample (rows): ‖U − V‖_H and ‖U‖_H."""
+    E = U - V
+    return np.sqrt(np.einsum("ij,ij->i", E, (H @ E.T).T)), np.sqrt(np.einsum("ij,ij->i", U, (H @ U.T).T))
+
+
+def pymor_side(fom, ps, train, test, sizes, greedy_tol):
+    from pymor.algorithms.greedy import rb_greedy
+    from pymor.algorithms.pod import pod
+    from pymor.parameters.functionals import ExpressionParameterFunctional
+    from pymor.reductors.coercive import CoerciveRBReductor
+    product = fom.h1_0_semi_product
+    coercivity = ExpressionParameterFunctional("min(diffusion)", fom.parameters)
+    t = time.perf_counter()
+    snaps = fom.solution_space.empty()
+    for mu in train:
+        snaps.append(fom.solve(mu))
+    train_solve = (time.perf_counter() - t) / len(train)
+    U, full_times = [], []
+    for mu in test:
+        t = time.perf_counter()
+        U.append(fom.solve(mu).to_numpy().ravel())
+        full_times.append(time.perf_counter() - t)
+    U = np.array(U)
+    out = {"full_solve_s": float(np.median(full_times)), "train_full_solve_s": train_solve, "sizes": {}}
+    for n in sizes:
+        modes, svals = pod(snaps, modes=n, product=product)
+        red = CoerciveRBReductor(fom, RB=modes, product=product, coercivity_estimator=coercivity,
+                                 check_orthonormality=False)
+        rom = red.reduce()
+        V, times, eff = [], [], []
+        for mu in test:
+            t = time.perf_counter()
+            u = rom.solve(mu)
+            times.append(time.perf_counter() - t)
+            V.append(red.reconstruct(u).to_numpy().ravel())
+            eff.append(float(rom.estimate_error(mu)[0]))
+        V = np.array(V)
+        out["sizes"][n] = {"m": len(modes), "V": V, "online_s": float(np.median(times)), "estimates": np.array(eff)}
+    red = CoerciveRBReductor(fom, product=product, coercivity_estimator=coercivity, check_orthonormality=False)
+    # its weak greedy over the same training parameters, as its demo (pyMOR's estimator, H¹₀ norm)
+    g = rb_greedy(fom, red, train, use_error_estimator=True, error_norm=fom.h1_0_semi_norm, atol=greedy_tol,
+                  max_extensions=200)
+    out["greedy_full_solves"] = int(g["extensions"])
+    out["greedy_max_estimate"] = float(g["max_errs"][-1]) if len(g["max_errs"]) else float("nan")
+    return U, out
+
+
+def npg_side(npgc, out, sizes):
+    res = {}
+    data, test = os.path.join(out, "data"), os.path.join(out, "test")
+    for n in sizes:
+        model, pred = os.path.join(out, f"npg_model_{n}"), os.path.join(out, f"npg_out_{n}")
+        # as pyMOR's POD: uncentered, no energy threshold; u's class holds u's snapshots and its
+        # numerator f's (DESIGN §4): n - 1 vectors of u and f's one, so that m = n
+        text, train_s = run([npgc, "train", PROG, data, "-o", model, "--center", "off", "--basis",
+                             f"u:cap={n - 1},energy=1", "--basis", "u.num1:cap=1"])
+        m = int(re.search(r"^\{u\}\s+\d+\s+(\d+)", text, re.M).group(1))
+        run([npgc, "eval", PROG, model, test, "-o", pred])
+        bench, _ = run([npgc, "bench", PROG, model, test, "--reps", "3"])
+        full = float(re.search(r"full evaluation\s+([0-9.e+-]+) s", bench).group(1))
+        alone = float(re.search(r"reduced alone\s+([0-9.e+-]+) s", bench).group(1))
+        res[n] = {"m": m, "V": np.load(os.path.join(pred, "u.npy")), "train_s": train_s, "online_s": alone,
+                  "full_solve_s": full}
+    return res
+
+
+def has_feature(npgc, command, option):
+    r = subprocess.run([npgc, command, "--help"], capture_output=True, text=True)
+    return option in r.stdout + r.stderr
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("npgc")
+    ap.add_argument("out")
+    ap.add_argument("--blocks", default="2x2")
+    ap.add_argument("--grid", type=int, default=100)
+    ap.add_argument("--snapshots", type=int, default=5)
+    ap.add_argument("--test", type=int, default=100)
+    ap.add_argument("--sizes", default="20,30")
+    ap.add_argument("--greedy-tol", type=float, default=1e-6)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args()
+    xb, yb = (int(v) for v in a.blocks.split("x"))
+    sizes = [int(v) for v in a.sizes.split(",")]
+    from pymor.analyticalproblems.thermalblock import thermal_block_problem
+    from pymor.core.logger import set_log_levels
+    from pymor.discretizers.builtin import discretize_stationary_cg
+    from pymor.tools.random import new_rng
+    set_log_levels({"pymor": "WARN"})
+    fom, _ = discretize_stationary_cg(thermal_block_problem(num_blocks=(xb, yb)), diameter=1.0 / a.grid)
+    ps = fom.parameters.space(0.1, 1.0)
+    train = ps.sample_uniformly(a.snapshots)
+    with new_rng(a.seed):
+        test = ps.sample_randomly(a.test)
+    H = export(fom, os.path.join(a.out, "data"), train)
+    export(fom, os.path.join(a.out, "test"), test)
+    U, py = pymor_side(fom, ps, train, test, sizes, a.greedy_tol)
+    npg = npg_side(a.npgc, a.out, sizes)
+    estimate = has_feature(a.npgc, "eval", "--estimate")
+    greedy = has_feature(a.npgc, "train", "--greedy")
+    na = "n/a (not built)"
+    rows, report = [], {"blocks": a.blocks, "grid": a.grid, "unknowns": int(U.shape[1]), "train": len(train),
+                        "test": len(test), "sizes": {}}
+    for n in sizes:
+        e_py, norm = h1_errors(H, U, py["sizes"][n]["V"])
+        e_npg, _ = h1_errors(H, U, npg[n]["V"])
+        eff = py["sizes"][n]["estimates"] / np.maximum(e_py, 1e-300)
+        report["sizes"][n] = {
+            "m_pymor": py["sizes"][n]["m"], "m_npg": npg[n]["m"],
+            "max_err_pymor": float(e_py.max()), "max_err_npg": float(e_npg.max()),
+            "max_rel_pymor": float((e_py / norm).max()), "max_rel_npg": float((e_npg / norm).max()),
+            "pymor_effectivity": [float(eff.min()), float(eff.max())],
+            "online_s_pymor": py["sizes"][n]["online_s"], "online_s_npg": npg[n]["online_s"],
+            "train_s_npg": npg[n]["train_s"]}
+    report.update({"full_solve_s_pymor": py["full_solve_s"], "full_solve_s_npg": npg[sizes[0]]["full_solve_s"],
+                   "greedy_full_solves_pymor": py["greedy_full_solves"], "greedy_tol": a.greedy_tol,
+                   "greedy_full_solves_npg": None if not greedy else "see npgc train --greedy",
+                   "npg_estimate": estimate})
+    print(f"thermal block {a.blocks}, grid {a.grid} ({U.shape[1]} unknowns): {len(train)} training parameters "
+          f"(pyMOR's POD's, {a.snapshots} per block), {len(test)} random test parameters; errors in the H¹₀ "
+          f"seminorm against pyMOR's full solutions, max over the test parameters (absolute, relative)")
+    print(f"{'':34s}{'npg':>28s}{'pyMOR':>28s}")
+    for n in sizes:
+        r = report["sizes"][n]
+        print(f"{'max error at ' + str(n) + ' vectors':34s}{r['max_err_npg']:>14.3e} ({r['max_rel_npg']:.2e})"
+              f"{r['max_err_pymor']:>14.3e} ({r['max_rel_pymor']:.2e})")
+        print(f"{'  basis size (class m)':34s}{r['m_npg']:>28d}{r['m_pymor']:>28d}")
+        print(f"{'  online solve (median)':34s}{r['online_s_npg']:>26.3e} s{r['online_s_pymor']:>26.3e} s")
+        print(f"{'  estimate effectivity':34s}{na:>28s}{'%.2f .. %.2f' % tuple(r['pymor_effectivity']):>28s}")
+    print(f"{'full solve (median)':34s}{report['full_solve_s_npg']:>26.3e} s{report['full_solve_s_pymor']:>26.3e} s")
+    print(f"{'greedy full solves (tol %g)' % a.greedy_tol:34s}{na if not greedy else 'see --greedy':>28s}"
+          f"{report['greedy_full_solves_pymor']:>28d}")
+    with open(os.path.join(a.out, "results.json"), "w") as fh:
+        json.dump(report, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()
