@@ -161,6 +161,27 @@ NPG_API void npg_full_free(NpgFull *f);
  * p[2, 5] is NaN"). */
 NPG_API int npg_full_check_finite(NpgFull *f, long sample);
 
+/* Derivatives of the full evaluator (DESIGN §17), exact, from generated C (compiled on
+ * first use with the evaluator's backend): each evaluates sample `sample` at the inputs as
+ * bound (as npg_full_eval), then differentiates there. Derivatives are taken with respect
+ * to inputs; an output may be any stage (or an input). Every array is C order, its count
+ * the quantity's as bound.
+ *   npg_full_jvp: out (output's count) = Σ_i J(output, inputs[i]) · directions[i];
+ *   npg_full_vjp: out (input's count)  = Σ_i J(outputs[i], input)^T · cotangents[i];
+ *   npg_full_jacobian: out = J(output, input), count(output) × count(input), row-major
+ *   (by forward products per input entry, or reverse products per output entry,
+ *   whichever are fewer).
+ * Polynomial stages differentiate entry by entry; inverses reuse one LU for the
+ * tangent's (or the transposed) solves; roots use the eigendecomposition (Daleckii-
+ * Krein). A program with an extern has no derivative (refused, the message naming it);
+ * declared operators are assembled dense here, sparse ones too. 0, or -1 with
+ * npg_full_error() naming the argument or the stage and sample. */
+NPG_API int npg_full_jvp(NpgFull *f, long sample, int nin, const char *const *inputs, const double *const *directions,
+                         const char *output, double *out);
+NPG_API int npg_full_vjp(NpgFull *f, long sample, int nout, const char *const *outputs,
+                         const double *const *cotangents, const char *input, double *out);
+NPG_API int npg_full_jacobian(NpgFull *f, long sample, const char *output, const char *input, double *out);
+
 /* Simulations (DESIGN §15): a program with `state u` and `next u = ...` is one time step.
  * npg_full_step evaluates it `steps` times (sample `sample`, for messages and callbacks), every
  * state taking its next value after each (no copy: after a call, npg_full_get("u") is the state

@@ -77,16 +77,14 @@ void emit_close_loops(FILE *out, int from, int to) {
   }
 }
 
-static void emit_atom(Emit *e, FILE *out, const Atom *a) {
+void emit_atom(Emit *e, FILE *out, const Atom *a) {
   emit_use(e, a->q);
   fprintf(out, "%s[", emit_name(e, a->q));
   emit_offset(e, out, a->q, a->idx, a->nidx);
   fputc(']', out);
 }
 
-/* acc += the polynomial's value, as statements: sums as loops, guards
- * evaluated before any gather they protect. */
-static void emit_poly(Emit *e, FILE *out, const Poly *p, const char *acc, int depth) {
+void emit_poly(Emit *e, FILE *out, const Poly *p, const char *acc, int depth) {
   for (int i = 0; i < p->n; i++) {
     const Mono *m = p->m[i];
     int d = depth;

@@ -142,4 +142,17 @@ int full_fail(Full *f, const char *msg);
  * about, api_refuse in ast.h); -1. */
 int full_refuse(Full *f, const char *msg);
 
+/* Derivatives (DESIGN §17; the C: backends/emit/emit_deriv.c), compiled on first use with
+ * the evaluator's backend. full_deriv_emit writes that C as full_emit does (-1 for a
+ * program with an extern: a black box has no derivative). After an evaluation,
+ * full_deriv_arrays gives one zeroed array per quantity (Program.slots, counts as
+ * bound), owned by the evaluator; set the inputs' tangents and call full_jvp: every
+ * stage's array then holds its tangent (J times the inputs' tangents); or set the
+ * outputs' cotangents and call full_vjp: every input's array then holds the reverse
+ * product (the stages' are consumed). Each NULL or -1 with full_error(). */
+int full_deriv_emit(Program *prog, FILE *out);
+double *const *full_deriv_arrays(Full *f);
+int full_jvp(Full *f, long sample);
+int full_vjp(Full *f, long sample);
+
 #endif

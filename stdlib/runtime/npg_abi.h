@@ -12,7 +12,7 @@
 #ifndef NPG_ABI_H
 #define NPG_ABI_H
 
-#define NPG_ABI_VERSION 4
+#define NPG_ABI_VERSION 5
 
 typedef long npg_idx;
 
@@ -118,6 +118,18 @@ struct NpgRt {
    * Non-zero on failure, after recording a message naming `stage` and `op`. */
   int (*sparse_power)(const NpgCtx *c, const char *stage, const char *op, int opid, npg_idx n,
                       NpgOpEntriesFn entries, long p, long q, double *y);
+  /* Derivatives of y = M^(p/q) x for dense row-major n x n M (DESIGN §17),
+   * M overwritten. Forward: x <- M^(p/q) x and dx <- M^(p/q) dx +
+   * D(M^(p/q))[dM] x, the tangent dM of M given. Reverse: given x and the
+   * cotangent ybar of y, Mbar += d<ybar, M^(p/q) x>/dM (entry by entry) and
+   * ybar <- (M^(p/q))^T ybar. Integer powers by one LU (the same
+   * factorization for the tangent's or the transposed solves), fractional
+   * ones from the eigendecomposition (Daleckii-Krein). Non-zero on failure,
+   * after recording a message naming `stage` and `op`, as op_power. */
+  int (*power_jvp)(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, const double *dM,
+                   long p, long q, double *x, double *dx);
+  int (*power_vjp)(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, double *Mbar,
+                   long p, long q, const double *x, double *ybar);
 };
 
 /* Entry points of generated code (prefixed when several programs share a
@@ -128,6 +140,12 @@ typedef int (*NpgStageFn)(const NpgCtx *c);
  * box[b * 2 * nivars ...] (lo per index variable, then hi; half-open). */
 typedef int (*NpgStepFn)(const NpgCtx *c, int step, int nbox, const npg_idx *box);
 typedef int (*NpgBuildFn)(const NpgCtx *c, NpgSink *sink);
+/* The derivative entry points of the full evaluator (backends/emit/emit_deriv.c,
+ * DESIGN §17), run after the evaluation `c` holds. P_npg_full_jvp: d->q[k] is the tangent
+ * of quantity k (the inputs' given, every stage's written). P_npg_full_vjp: d->q[k] the
+ * cotangent of quantity k: the outputs' given, every other quantity's zero on entry; on
+ * return the inputs' hold the reverse product (the stages' are consumed). */
+typedef int (*NpgDerivFn)(const NpgCtx *c, const NpgCtx *d);
 
 /* ---------------------------------------------------------------- the reduced evaluator
  *
