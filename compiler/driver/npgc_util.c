@@ -38,7 +38,8 @@ static const Usage usages[] = {
      "  -o FILE.c    written to a temporary name and renamed when complete; missing\n"
      "               parent directories are created; an input of the command is refused\n"},
     {"eval",
-     "usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--jit auto|cc|tcc] [--progress] [--std=DIR]\n"
+     "usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--jacobian OUT:IN]... [--jit auto|cc|tcc]\n"
+     "                 [--progress] [--std=DIR]\n"
      "       npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--exact-roots] [--progress] [--std=DIR]\n"
      "\n"
      "  --full: evaluate the full program on every sample of IN/<input>.npy (leading\n"
@@ -49,6 +50,8 @@ static const Usage usages[] = {
      "  With MODEL/: the reduced evaluation; writes OUT/<name>.npy (lifted) and\n"
      "  OUT/<name>.reduced.npy (reduced coordinates; an output op: samples x m x m).\n"
      "  Params in IN/ must be those the model was trained with.\n"
+     "  --jacobian OUT:IN  also the exact Jacobian of stage OUT by input IN at every\n"
+     "               sample: OUT/jacobian_OUT_IN.npy, samples x OUT's axes x IN's axes\n"
      "  --jit B      the full evaluator's compiler: auto (the default: $NPG_JIT, else\n"
      "               cc when installed, else libtcc), cc (-O3, cached), tcc; --cc = --jit cc\n"
      "  --exact-roots  roots of reduced operators by eigendecomposition\n"
