@@ -30,6 +30,8 @@ typedef struct Emit {
   struct Cse *cse;       /* the values of the loop nest being built */
   PtrVec soa;            /* Sym*: quantities the innermost loop reads from a copy per component */
   bool *writes;          /* per slot: the function writes it */
+  bool *used_deriv;      /* per slot: the derivative function being emitted reads or writes
+                            its tangent or cotangent (emit_deriv.c), NULL elsewhere */
   bool box;              /* emitting the box twin of a loop nest: its loops run over
                             the boxes box_[0..nbox_) (emit_full.c) */
 } Emit;

@@ -26,9 +26,51 @@ typedef enum DerivMode {
   DERIV_ADJOINT, /* cotangents += acc · ∂(poly) */
 } DerivMode;
 
-/* The derivative array (tangent or cotangent) of quantity q, entry `idx`. */
+/* The C name of quantity q's derivative array (tangent or cotangent), dQ_<name>: a local
+ * the function's prologue loads from d->q (deriv_function). */
+static const char *dname(Emit *e, const Sym *q) {
+  e->used_deriv[emit_index_of(&e->prog->slots, q)] = true;
+  return arena_printf(e->ctx, "d%s", emit_name(e, q));
+}
+
+/* A derivative function's body, and the derivative arrays it uses loaded into locals
+ * before it (libtcc would reload d->q[k] at every access). */
+typedef struct DerivBody {
+  void (*body)(Emit *, FILE *, const void *);
+  const void *arg;
+  bool *used;               /* per slot, from a first pass over the body */
+} DerivBody;
+
+static void deriv_body(Emit *e, FILE *out, const void *arg) {
+  const DerivBody *b = arg;
+  for (int k = 0; k < e->prog->slots.n; k++)
+    if (b->used[k]) fprintf(out, "  double *restrict const d%s = d->q[%d];\n", emit_name(e, e->prog->slots.v[k]), k);
+  b->body(e, out, b->arg);
+}
+
+/* emit_function_sig's function with deriv_body: the body emitted once into scratch text
+ * to learn the arrays it uses, then for real. */
+static void deriv_function(Emit *e, FILE *out, const char *signature, void (*body)(Emit *, FILE *, const void *),
+                           const void *arg) {
+  char *buf = NULL;
+  size_t len = 0;
+  FILE *scratch = open_memstream(&buf, &len);
+  if (!scratch) error_plain(e->ctx, "out of memory");
+  int nslots = e->prog->slots.n;
+  memset(e->used_deriv, 0, sizeof(bool) * (size_t)(nslots + 1));
+  e->ctx->pending_free = buf;
+  body(e, scratch, arg);
+  fclose(scratch);
+  e->ctx->pending_free = NULL;
+  free(buf);
+  DerivBody b = {body, arg, arena_alloc(e->ctx, sizeof(bool) * (size_t)(nslots + 1))};
+  memcpy(b.used, e->used_deriv, sizeof(bool) * (size_t)(nslots + 1));
+  emit_function_sig(e, out, signature, NULL, deriv_body, &b);
+}
+
+/* The entry (tangent or cotangent) of atom `a`'s quantity. */
 static void emit_datom(Emit *e, FILE *out, const Atom *a) {
-  fprintf(out, "d->q[%d][", emit_index_of(&e->prog->slots, a->q));
+  fprintf(out, "%s[", dname(e, a->q));
   emit_offset(e, out, a->q, a->idx, a->nidx);
   fputc(']', out);
 }
@@ -168,7 +210,6 @@ static void emit_assemble(Emit *e, FILE *out, const Sym *op, bool tangent, int d
 static void emit_decl_tangent(Emit *e, FILE *out, const Stage *st, int t) {
   const Sym *s = st->sym;
   const Term *tm = st->terms[t];
-  int slot = emit_index_of(&e->prog->slots, s);
   fprintf(out, "  { /* term %d: declared operators */\n", t + 1);
   emit_count(e, out, s);
   fputs("    double *v_ = c->rt->scratch(c, n_), *dv_ = c->rt->scratch(c, n_);\n", out);
@@ -198,7 +239,7 @@ static void emit_decl_tangent(Emit *e, FILE *out, const Stage *st, int t) {
     fputs("      c->rt->release(c, m_);\n      c->rt->release(c, dm_);\n", out);
     fputs("      if (bad_) { c->rt->release(c, v_); c->rt->release(c, dv_); return -1; }\n    }\n", out);
   }
-  fprintf(out, "    for (npg_idx e_ = 0; e_ < n_; e_++) d->q[%d][e_] += dv_[e_];\n", slot);
+  fprintf(out, "    for (npg_idx e_ = 0; e_ < n_; e_++) %s[e_] += dv_[e_];\n", dname(e, s));
   fputs("    c->rt->release(c, v_);\n    c->rt->release(c, dv_);\n  }\n", out);
 }
 
@@ -207,7 +248,7 @@ static void emit_decl_tangent(Emit *e, FILE *out, const Stage *st, int t) {
 static void emit_stage_tangent(Emit *e, FILE *out, const void *arg) {
   const Stage *st = arg;
   const Sym *s = st->sym;
-  int nc = st->ncomp, slot = emit_index_of(&e->prog->slots, s);
+  int nc = st->ncomp;
   int depth = emit_open_entry_loops(e, out, s, 1);
   for (int c = 0; c < nc; c++) {
     emit_indent(out, depth);
@@ -232,7 +273,7 @@ static void emit_stage_tangent(Emit *e, FILE *out, const void *arg) {
   }
   for (int c = 0; c < nc; c++) {
     emit_indent(out, depth);
-    fprintf(out, "d->q[%d][e_ * %d + %d] = dy%d_;\n", slot, nc, c, c);
+    fprintf(out, "%s[e_ * %d + %d] = dy%d_;\n", dname(e, s), nc, c, c);
   }
   emit_close_loops(out, depth, 1);
   for (int t = 0; t < st->nterms; t++)
@@ -249,7 +290,7 @@ static void emit_stage_tangent(Emit *e, FILE *out, const void *arg) {
 static void emit_decl_adjoint(Emit *e, FILE *out, const Stage *st, int t) {
   const Sym *s = st->sym;
   const Term *tm = st->terms[t];
-  int slot = emit_index_of(&e->prog->slots, s), nd = 0;
+  int nd = 0;
   for (int k = 0; k < tm->nops; k++) nd += tm->ops[k].kind == OPK_DECL;
   fprintf(out, "  { /* term %d: declared operators, reverse */\n", t + 1);
   emit_count(e, out, s);
@@ -282,7 +323,7 @@ static void emit_decl_adjoint(Emit *e, FILE *out, const Stage *st, int t) {
         fputs("      if (bad_) { c->rt->release(c, w_); c->rt->release(c, vb_); return -1; }\n    }\n", out);
         continue;
       }
-      if (j == 0) fprintf(out, "      for (npg_idx e_ = 0; e_ < n_; e_++) vb_[e_] = d->q[%d][e_];\n", slot);
+      if (j == 0) fprintf(out, "      for (npg_idx e_ = 0; e_ < n_; e_++) vb_[e_] = %s[e_];\n", dname(e, s));
       fputs("      double *mb_ = c->rt->scratch(c, n_ * n_);\n", out);
       fprintf(out, "      int bad_ = !mb_ || c->rt->power_vjp(c, \"%s\", \"%s\", n_, m_, mb_, %ld, %ld, w_ + n_ * %d, vb_);\n",
               s->name, o->op->name, o->p, o->q, jj);
@@ -312,16 +353,18 @@ static void emit_decl_adjoint(Emit *e, FILE *out, const Stage *st, int t) {
 static void emit_stage_adjoint(Emit *e, FILE *out, const void *arg) {
   const Stage *st = arg;
   const Sym *s = st->sym;
-  int nc = st->ncomp, slot = emit_index_of(&e->prog->slots, s);
+  int nc = st->ncomp;
   bool any_entrywise = false;
   for (int t = 0; t < st->nterms; t++) any_entrywise |= !term_has_decl(st->terms[t]);
   if (any_entrywise) {
     int depth = emit_open_entry_loops(e, out, s, 1);
     for (int c = 0; c < nc; c++) {
       emit_indent(out, depth);
-      fprintf(out, "if (d->q[%d][e_ * %d + %d] != 0.0) { /* component %d */\n", slot, nc, c, c);
+      fprintf(out, "const double yb%d_ = %s[e_ * %d + %d];\n", c, dname(e, s), nc, c);
+      emit_indent(out, depth);
+      fprintf(out, "if (yb%d_ != 0.0) { /* component %d */\n", c, c);
       emit_indent(out, depth + 1);
-      fprintf(out, "const double yb_ = d->q[%d][e_ * %d + %d];\n", slot, nc, c);
+      fprintf(out, "const double yb_ = yb%d_;\n", c);
       for (int t = 0; t < st->nterms; t++)
         if (!term_has_decl(st->terms[t])) emit_diags_adjoint(e, out, st->terms[t], c, "yb_", depth + 1);
       emit_indent(out, depth);
@@ -345,6 +388,7 @@ void emit_deriv(Ctx *ctx, const Program *prog, FILE *out) {
                      "need every stage in closed form",
                 ((Sym *)prog->externs.v[0])->name);
   Emit *e = emit_new(ctx, prog, out);
+  e->used_deriv = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->slots.n + 1));
   emit_header(e, "Derivatives of the full evaluator");
   for (int i = 0; i < prog->stages.n; i++) {
     const Stage *st = prog->stages.v[i];
@@ -352,12 +396,10 @@ void emit_deriv(Ctx *ctx, const Program *prog, FILE *out) {
     const Sym *s = st->sym;
     fprintf(out, "/* %s: %s, %s:%d\n   %s */\n", s->name, stage_kind_name[st->kind], emit_loc_file(ctx, s->loc),
             s->loc.line, emit_source_line(ctx, s->loc));
-    emit_function_sig(e, out,
-                      arena_printf(ctx, "static int %s(const NpgCtx *c, const NpgCtx *d)", emit_fn_name(ctx, "jvp_", s)),
-                      NULL, emit_stage_tangent, st);
-    emit_function_sig(e, out,
-                      arena_printf(ctx, "static int %s(const NpgCtx *c, const NpgCtx *d)", emit_fn_name(ctx, "vjp_", s)),
-                      NULL, emit_stage_adjoint, st);
+    deriv_function(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c, const NpgCtx *d)", emit_fn_name(ctx, "jvp_", s)),
+                   emit_stage_tangent, st);
+    deriv_function(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c, const NpgCtx *d)", emit_fn_name(ctx, "vjp_", s)),
+                   emit_stage_adjoint, st);
   }
   fputs("/* Tangents of every stage, in evaluation order. */\n", out);
   fprintf(out, "int %s(const NpgCtx *c, const NpgCtx *d) {\n", emit_symbol_name(ctx, prog, "full_jvp"));
