@@ -14,8 +14,10 @@
  * so the loops are the forward loops with the statement turned around) and a declared
  * operator's entries getting the cotangent of M from NpgRt.power_vjp (transposed solves).
  * Both run after the evaluation whose values they read (NpgCtx c); the derivatives live
- * in a second context d (npg_abi.h NpgDerivFn). Declared operators are assembled dense
- * here, sparse ones too (their entries polynomial evaluated over rows × columns). */
+ * in a second context d (npg_abi.h NpgDerivFn). Declared operators are assembled dense,
+ * as the evaluator assembles them; a sparse one's tangent or cotangent lives on its
+ * pattern, listed by a derivative enumerator of its entries (NpgOpDerivFn), its solves
+ * by SuiteSparse (NpgRt.sparse_power_jvp / sparse_power_vjp). */
 #include <stdlib.h>
 #include <string.h>
 
@@ -75,8 +77,34 @@ static void emit_datom(Emit *e, FILE *out, const Atom *a) {
   fputc(']', out);
 }
 
-/* For each monomial coef · Π_a A_a of p and each atom a, one statement: the tangent
- * `acc += coef · Π_{b≠a} A_b · dA_a`, or the adjoint `dA_a += acc · coef · Π_{b≠a} A_b`. */
+/* For each atom a of monomial m = coef · Π_a A_a, one statement: the tangent
+ * `acc += coef · Π_{b≠a} A_b · dA_a`, or the adjoint `dA_a += acc · coef · Π_{b≠a} A_b`;
+ * `coef` the C text of the coefficient, or NULL for m's own. */
+static void emit_mono_partials(Emit *e, FILE *out, const Mono *m, const char *coef, const char *acc, DerivMode mode,
+                               int d) {
+  for (int a = 0; a < m->natoms; a++) {
+    emit_indent(out, d);
+    if (mode == DERIV_TANGENT) fprintf(out, "%s += ", acc);
+    else {
+      emit_datom(e, out, &m->atoms[a]);
+      fprintf(out, " += %s * ", acc);
+    }
+    if (coef) fputs(coef, out);
+    else emit_cexpr(e, out, m->coef);
+    for (int b = 0; b < m->natoms; b++)
+      if (b != a) {
+        fputs(" * ", out);
+        emit_atom(e, out, &m->atoms[b]);
+      }
+    if (mode == DERIV_TANGENT) {
+      fputs(" * ", out);
+      emit_datom(e, out, &m->atoms[a]);
+    }
+    fputs(";\n", out);
+  }
+}
+
+/* emit_mono_partials for every monomial of p, its sums as loops and its guard tested. */
 static void emit_dpoly(Emit *e, FILE *out, const Poly *p, const char *acc, DerivMode mode, int depth) {
   for (int i = 0; i < p->n; i++) {
     const Mono *m = p->m[i];
@@ -89,26 +117,61 @@ static void emit_dpoly(Emit *e, FILE *out, const Poly *p, const char *acc, Deriv
       emit_cexpr(e, out, m->guard);
       fputs(") {\n", out);
     }
-    for (int a = 0; a < m->natoms; a++) {
-      emit_indent(out, d);
-      if (mode == DERIV_TANGENT) fprintf(out, "%s += ", acc);
-      else {
-        emit_datom(e, out, &m->atoms[a]);
-        fprintf(out, " += %s * ", acc);
-      }
-      emit_cexpr(e, out, m->coef);
-      for (int b = 0; b < m->natoms; b++)
-        if (b != a) {
-          fputs(" * ", out);
-          emit_atom(e, out, &m->atoms[b]);
-        }
-      if (mode == DERIV_TANGENT) {
-        fputs(" * ", out);
-        emit_datom(e, out, &m->atoms[a]);
-      }
-      fputs(";\n", out);
-    }
+    emit_mono_partials(e, out, m, NULL, acc, mode, d);
     emit_close_loops(out, d, depth);
+  }
+}
+
+/* ---------------------------------------------------------------- sparse operators */
+
+/* One contribution of a sparse operator's entries (emit_full.c's entry_body, in the same
+ * order): its tangent into val_, or val_'s cotangent through its partial derivatives. */
+static void dentry_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, const Sym *op, int d, const void *arg) {
+  (void)op, (void)arg;
+  emit_part_guard(e, out, m, d);
+  emit_part_coef(e, out, pt, d);
+  emit_indent(out, d);
+  fputs("if (cnt_ < cap_ && mode_ == 0) {\n", out);
+  emit_indent(out, d + 1);
+  fputs("double t_ = 0.0;\n", out);
+  emit_mono_partials(e, out, m, "w_", "t_", DERIV_TANGENT, d + 1);
+  emit_indent(out, d + 1);
+  fputs("val_[slot_[cnt_]] += t_;\n", out);
+  emit_indent(out, d);
+  fputs("} else if (cnt_ < cap_) {\n", out);
+  emit_indent(out, d + 1);
+  fputs("const double g_ = val_[slot_[cnt_]];\n", out);
+  emit_mono_partials(e, out, m, "w_", "g_", DERIV_ADJOINT, d + 1);
+  emit_indent(out, d);
+  fputs("}\n", out);
+  emit_indent(out, d);
+  fputs("cnt_++;\n", out);
+}
+
+static void dentries_cb(Emit *e, FILE *out, const void *arg) {
+  const OpDef *od = arg;
+  const Poly *p = &od->entries->comp[0];
+  fputs("  npg_idx cnt_ = 0;\n", out);
+  for (int i = 0; i < p->n; i++) {
+    MonoPart parts[TENSOR_MAXPARTS];
+    int np = tensor_mono_parts(e->ctx, p->m[i], od->sym->ivars, od->sym->nivars, parts);
+    for (int k = 0; k < np; k++) emit_part(e, out, od->sym, p->m[i], &parts[k], 1, 0, &(PartEmit){NULL, dentry_body, NULL});
+  }
+  fputs("  return cnt_;\n", out);
+}
+
+/* The entries function of every sparse operator (as the evaluator's), and its derivative
+ * enumerator (NpgOpDerivFn). */
+static void emit_sparse_derivs(Emit *e) {
+  emit_sparse_ops(e);
+  for (int i = 0; i < e->prog->opdefs.n; i++) {
+    const OpDef *od = e->prog->opdefs.v[i];
+    if (!od->sparse) continue;
+    fprintf(e->out, "/* derivatives of the entries of sparse operator %s */\n", od->sym->name);
+    deriv_function(e, e->out,
+                   arena_printf(e->ctx, "static npg_idx %s(const NpgCtx *c, const NpgCtx *d, int mode_, npg_idx cap_, "
+                                "const npg_idx *slot_, double *val_)", emit_fn_name(e->ctx, "dentries_", od->sym)),
+                   dentries_cb, od);
   }
 }
 
@@ -228,6 +291,14 @@ static void emit_decl_tangent(Emit *e, FILE *out, const Stage *st, int t) {
   for (int k = 0; k < tm->nops; k++) {
     if (tm->ops[k].kind != OPK_DECL) continue;
     const Sym *op = tm->ops[k].op;
+    if (op->opdef->sparse) {
+      fprintf(out, "    /* %s^(%ld/%ld), sparse, and its tangent */\n", op->name, tm->ops[k].p, tm->ops[k].q);
+      fprintf(out, "    if (c->rt->sparse_power_jvp(c, d, \"%s\", \"%s\", %d, n_, %s, %s, %ld, %ld, v_, dv_)) {\n", s->name,
+              op->name, emit_index_of(&e->prog->opdefs, op->opdef), emit_fn_name(e->ctx, "entries_", op),
+              emit_fn_name(e->ctx, "dentries_", op), tm->ops[k].p, tm->ops[k].q);
+      fputs("      c->rt->release(c, v_);\n      c->rt->release(c, dv_);\n      return -1;\n    }\n", out);
+      continue;
+    }
     fprintf(out, "    { /* %s^(%ld/%ld) and its tangent */\n", op->name, tm->ops[k].p, tm->ops[k].q);
     fputs("      double *m_ = c->rt->scratch(c, n_ * n_), *dm_ = c->rt->scratch(c, n_ * n_);\n", out);
     fputs("      if (!m_ || !dm_) { c->rt->release(c, m_); c->rt->release(c, dm_); c->rt->release(c, v_); "
@@ -283,6 +354,26 @@ static void emit_stage_tangent(Emit *e, FILE *out, const void *arg) {
     }
 }
 
+/* A sparse operator's step of emit_decl_adjoint: with `pass` 0 its power applied to
+ * w_[jj] into w_[jj + 1]; with pass 1 (`first`: the last operator, vb_ loaded from the
+ * stage's cotangent first) vb_ sent back through it, its entries' cotangents scattered by
+ * its derivative enumerator. */
+static void emit_sparse_adjoint(Emit *e, FILE *out, const Sym *s, const OpPow *o, int pass, int jj, bool first) {
+  const char *entries = emit_fn_name(e->ctx, "entries_", o->op);
+  int opid = emit_index_of(&e->prog->opdefs, o->op->opdef);
+  fprintf(out, "    /* %s^(%ld/%ld), sparse%s */\n", o->op->name, o->p, o->q, pass ? ", reverse" : "");
+  if (!pass) {
+    fprintf(out, "    for (npg_idx e_ = 0; e_ < n_; e_++) w_[n_ * %d + e_] = w_[n_ * %d + e_];\n", jj + 1, jj);
+    fprintf(out, "    if (c->rt->sparse_power(c, \"%s\", \"%s\", %d, n_, %s, %ld, %ld, w_ + n_ * %d)) {\n", s->name,
+            o->op->name, opid, entries, o->p, o->q, jj + 1);
+  } else {
+    if (first) fprintf(out, "    for (npg_idx e_ = 0; e_ < n_; e_++) vb_[e_] = %s[e_];\n", dname(e, s));
+    fprintf(out, "    if (c->rt->sparse_power_vjp(c, d, \"%s\", \"%s\", %d, n_, %s, %s, %ld, %ld, w_ + n_ * %d, vb_)) {\n",
+            s->name, o->op->name, opid, entries, emit_fn_name(e->ctx, "dentries_", o->op), o->p, o->q, jj);
+  }
+  fputs("      c->rt->release(c, w_);\n      c->rt->release(c, vb_);\n      return -1;\n    }\n", out);
+}
+
 /* The reverse product of a term with declared operators: the forward vectors
  * w_[j] (the numerator with its diagonals, then after each operator) recomputed, then
  * the operators backwards (transposed solves, the cotangent of each operator's entries
@@ -311,6 +402,10 @@ static void emit_decl_adjoint(Emit *e, FILE *out, const Stage *st, int t) {
       int jj = pass ? nd - 1 - j : j, k = -1;
       for (int seen = -1; seen < jj;) seen += tm->ops[++k].kind == OPK_DECL;
       const OpPow *o = &tm->ops[k];
+      if (o->op->opdef->sparse) {
+        emit_sparse_adjoint(e, out, s, o, pass, jj, j == 0);
+        continue;
+      }
       fprintf(out, "    { /* %s^(%ld/%ld)%s */\n", o->op->name, o->p, o->q, pass ? ", reverse" : "");
       fputs("      double *m_ = c->rt->scratch(c, n_ * n_);\n", out);
       fputs("      if (!m_) { c->rt->release(c, w_); c->rt->release(c, vb_); return -1; }\n", out);
@@ -390,6 +485,7 @@ void emit_deriv(Ctx *ctx, const Program *prog, FILE *out) {
   Emit *e = emit_new(ctx, prog, out);
   e->used_deriv = arena_alloc(ctx, sizeof(bool) * (size_t)(prog->slots.n + 1));
   emit_header(e, "Derivatives of the full evaluator");
+  emit_sparse_derivs(e);
   for (int i = 0; i < prog->stages.n; i++) {
     const Stage *st = prog->stages.v[i];
     if (!computed(st)) continue;

@@ -177,7 +177,7 @@ static void op_entries_cb(Emit *e, FILE *out, const void *arg) {
   fputs("  return cnt_;\n", out);
 }
 
-static void emit_sparse_ops(Emit *e) {
+void emit_sparse_ops(Emit *e) {
   for (int i = 0; i < e->prog->opdefs.n; i++) {
     const OpDef *od = e->prog->opdefs.v[i];
     if (!od->sparse) continue;

@@ -85,6 +85,15 @@ typedef struct NpgSink {
 typedef npg_idx (*NpgOpEntriesFn)(const NpgCtx *c, npg_idx cap, npg_idx *row, npg_idx *col, const npg_idx *slot,
                                   double *val);
 
+/* The derivatives of a sparse declared operator's entries (backends/emit/emit_deriv.c,
+ * DESIGN §17), its contributions listed in the order of its NpgOpEntriesFn: with `mode` 0
+ * each one's tangent (reading the tangents in `d`) added into val[slot[k]]; with `mode` 1,
+ * val[slot[k]] holds the cotangent of the compressed matrix's value at contribution k's
+ * slot, and each contribution's partial derivatives times it are added into the cotangents
+ * in `d`. Nothing past the first `cap`; returns how many contributions there are. */
+typedef npg_idx (*NpgOpDerivFn)(const NpgCtx *c, const NpgCtx *d, int mode, npg_idx cap, const npg_idx *slot,
+                                double *val);
+
 struct NpgRt {
   /* y <- M^(p/q) y for dense row-major n x n M (overwritten). Negative
    * integer powers by LU (info checked); fractional powers of a symmetric
@@ -130,6 +139,15 @@ struct NpgRt {
                    long p, long q, double *x, double *dx);
   int (*power_vjp)(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, double *Mbar,
                    long p, long q, const double *x, double *ybar);
+  /* The same for sparse declared operator number `opid` (as sparse_power), its tangent or
+   * the cotangent of its values through `dentries` (d the derivatives' context): integer
+   * powers on its pattern with one factorization for every solve (stdlib/runtime/sparse.c),
+   * roots and small operators densified. */
+  int (*sparse_power_jvp)(const NpgCtx *c, const NpgCtx *d, const char *stage, const char *op, int opid, npg_idx n,
+                          NpgOpEntriesFn entries, NpgOpDerivFn dentries, long p, long q, double *x, double *dx);
+  int (*sparse_power_vjp)(const NpgCtx *c, const NpgCtx *d, const char *stage, const char *op, int opid, npg_idx n,
+                          NpgOpEntriesFn entries, NpgOpDerivFn dentries, long p, long q, const double *x,
+                          double *ybar);
 };
 
 /* Entry points of generated code (prefixed when several programs share a

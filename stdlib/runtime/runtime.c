@@ -228,4 +228,5 @@ static void gather_error(const NpgCtx *c, const char *stage, const char *at, con
 
 const NpgRt npg_runtime = {op_power,   scratch,    release,   gather_error, rows_vv,
                            rows_vs,    rows_sv,    rows_unary, rows_fill,    runtime_sparse_power,
-                           runtime_power_jvp, runtime_power_vjp};
+                           runtime_power_jvp, runtime_power_vjp, runtime_sparse_power_jvp,
+                           runtime_sparse_power_vjp};

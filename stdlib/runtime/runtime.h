@@ -49,6 +49,12 @@ int runtime_power_jvp(const NpgCtx *c, const char *stage, const char *op, npg_id
 int runtime_power_vjp(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, double *Mbar,
                       long p, long q, const double *x, double *ybar);
 
+/* stdlib/runtime/sparse.c: NpgRt.sparse_power_jvp and sparse_power_vjp (npg_abi.h). */
+int runtime_sparse_power_jvp(const NpgCtx *c, const NpgCtx *d, const char *stage, const char *op, int opid, npg_idx n,
+                             NpgOpEntriesFn entries, NpgOpDerivFn dentries, long p, long q, double *x, double *dx);
+int runtime_sparse_power_vjp(const NpgCtx *c, const NpgCtx *d, const char *stage, const char *op, int opid, npg_idx n,
+                             NpgOpEntriesFn entries, NpgOpDerivFn dentries, long p, long q, const double *x,
+                             double *ybar);
 /* stdlib/runtime/sparse.c: NpgRt.sparse_power, and dropping the patterns
  * when the binding changes (reset) or the host goes (free). */
 int runtime_sparse_power(const NpgCtx *c, const char *stage, const char *op, int opid, npg_idx n,
