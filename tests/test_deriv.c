@@ -18,6 +18,7 @@
 #include "emit.h"
 #include "full.h"
 #include "randdata.h"
+#include "support/failing_alloc.h"
 #include "support/refeval.h"
 #include "testutil.h"
 
@@ -396,10 +397,49 @@ static void sparse_operators(void **state) {
   assert_true(checked >= 4);
 }
 
+/* Every allocation that fails during a Jacobian (the derivative arrays, the runtime's and
+ * the generated code's scratch, a dense LU and a sparse factorization) is reported as "out
+ * of memory", never a crash or a leak; then the Jacobian is the one computed without
+ * failures. */
+static void allocation_failure(void **state) {
+  (void)state;
+  NpgProgram *ps[2] = {compile_file("tests/programs/heat_neighbours.npg"), compile_text(operator_programs[1][0], operator_programs[1][1])};
+  for (int k = 0; k < 2; k++) {
+    Program *prog = ir_ok(ps[k]);
+    NpgFull *f = npg_full_new(ps[k], NPG_AUTO);
+    RefData *d = ref_new(prog, 20);
+    bind_random(d, prog, 20, 8u, false, set_one, f);
+    ref_free(d);
+    const char *in = ((Sym *)prog->inputs.v[0])->name, *out = ((Sym *)prog->outputs.v[0])->name;
+    assert_int_equal(npg_full_eval(f, 0), 0);
+    size_t nin = 0, nout = 0;
+    npg_full_get(f, in, &nin);
+    npg_full_get(f, out, &nout);
+    double *want = malloc(sizeof(double) * nin * nout), *got = malloc(sizeof(double) * nin * nout);
+    if (npg_full_jacobian(f, 0, out, in, want) != 0) fail_msg("%s", npg_full_error(f));
+    int failed = 0;
+    for (long after = 0; after < 100000; after++) {
+      failing_alloc_after(after);
+      int rc = npg_full_jacobian(f, 0, out, in, got);
+      failing_alloc_off();
+      if (rc == 0) break;
+      if (!strstr(npg_full_error(f), "out of memory")) fail_msg("allocation %ld failing: %s", after, npg_full_error(f));
+      npg_full_clear_error(f);
+      failed++;
+    }
+    assert_true(failed > 3);
+    assert_memory_equal(want, got, sizeof(double) * nin * nout);
+    free(want), free(got);
+    npg_full_free(f);
+    npg_free(ps[k]);
+  }
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(corpus_derivatives),
       cmocka_unit_test(sparse_operators),
+      cmocka_unit_test(allocation_failure),
       cmocka_unit_test(detects_a_wrong_derivative),
       cmocka_unit_test(backends_agree),
   };

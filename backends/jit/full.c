@@ -792,8 +792,16 @@ int full_deriv_emit(Program *prog, FILE *out) {
 
 /* The derivative code, compiled on first use. */
 static int deriv_compile(Full *f) {
-  if (f->jvp) return 0;
   Program *prog = f->prog;
+  if (f->jvp && !f->dq) { /* compiled, but the arrays' allocation failed */
+    f->dq = mem_calloc((size_t)prog->slots.n + 1, sizeof *f->dq);
+    if (!f->dq) return fail(f, "out of memory");
+  }
+  if (f->jvp && !f->dqcount) {
+    f->dqcount = mem_calloc((size_t)prog->slots.n + 1, sizeof *f->dqcount);
+    if (!f->dqcount) return fail(f, "out of memory");
+  }
+  if (f->jvp) return 0;
   char *src = NULL;
   size_t len = 0;
   FILE *mem = open_memstream(&src, &len);
