@@ -63,6 +63,11 @@ NPG_API bool npg_same_program(const NpgProgram *a, const NpgProgram *b);
  * gather checker) and the tensor builders to `out`. Returns 0, or -1 with
  * the reason in npg_error(). The C compiles standalone (cc -c). */
 NPG_API int npg_emit_full(NpgProgram *p, FILE *out);
+/* The generated C of the full evaluator's derivatives (DESIGN §17): "<stem>_npg_full_jvp"
+ * and "<stem>_npg_full_vjp" (NpgDerivFn in the ABI header), run after the evaluator's entry
+ * point on the same context. Compiles standalone and links beside npg_emit_full's unit.
+ * 0, or -1 with the reason in npg_error() (a program with an extern has no derivative). */
+NPG_API int npg_emit_derivatives(NpgProgram *p, FILE *out);
 
 /* ---------------------------------------------------------------- what a program declares */
 typedef enum NpgKind {

@@ -73,7 +73,10 @@ static void deriv_function(Emit *e, FILE *out, const char *signature, void (*bod
 /* The entry (tangent or cotangent) of atom `a`'s quantity. */
 static void emit_datom(Emit *e, FILE *out, const Atom *a) {
   fprintf(out, "%s[", dname(e, a->q));
+  int k = emit_index_of(&e->prog->slots, a->q);
+  bool used = e->used_q[k]; /* the offset reads the dims, not the values */
   emit_offset(e, out, a->q, a->idx, a->nidx);
+  e->used_q[k] = used;
   fputc(']', out);
 }
 
@@ -130,6 +133,11 @@ static void dentry_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, c
   (void)op, (void)arg;
   emit_part_guard(e, out, m, d);
   emit_part_coef(e, out, pt, d);
+  if (!m->natoms) { /* a constant entry: no derivative, but a contribution all the same */
+    emit_indent(out, d);
+    fputs("cnt_++;\n", out);
+    return;
+  }
   emit_indent(out, d);
   fputs("if (cnt_ < cap_ && mode_ == 0) {\n", out);
   emit_indent(out, d + 1);
@@ -151,7 +159,7 @@ static void dentry_body(Emit *e, FILE *out, const Mono *m, const MonoPart *pt, c
 static void dentries_cb(Emit *e, FILE *out, const void *arg) {
   const OpDef *od = arg;
   const Poly *p = &od->entries->comp[0];
-  fputs("  npg_idx cnt_ = 0;\n", out);
+  fputs("  npg_idx cnt_ = 0;\n  (void)d, (void)mode_, (void)cap_, (void)slot_, (void)val_;\n", out);
   for (int i = 0; i < p->n; i++) {
     MonoPart parts[TENSOR_MAXPARTS];
     int np = tensor_mono_parts(e->ctx, p->m[i], od->sym->ivars, od->sym->nivars, parts);
@@ -209,6 +217,8 @@ static void emit_diags_adjoint(Emit *e, FILE *out, const Term *tm, int c, const 
   emit_indent(out, depth + 1);
   fputs("double t_ = 0.0;\n", out);
   emit_poly(e, out, &tm->num->comp[c], "t_", depth + 1);
+  emit_indent(out, depth + 1);
+  fputs("(void)t_;\n", out);
   for (int k = 0; k < tm->nops; k++) {
     const OpPow *o = &tm->ops[k];
     if (o->kind != OPK_DIAG) continue;
@@ -229,6 +239,8 @@ static void emit_diags_adjoint(Emit *e, FILE *out, const Term *tm, int c, const 
     for (int k = 0; k < tm->nops; k++)
       if (k != j && tm->ops[k].kind == OPK_DIAG) fprintf(out, " * pw%d_", k);
     fputs(";\n", out);
+    emit_indent(out, depth + 2);
+    fputs("(void)g_;\n", out);
     emit_dpoly(e, out, j < 0 ? &tm->num->comp[c] : &tm->ops[j].diag->comp[c], "g_", DERIV_ADJOINT, depth + 2);
     emit_indent(out, depth + 1);
     fprintf(out, "}\n");
@@ -336,6 +348,8 @@ static void emit_stage_tangent(Emit *e, FILE *out, const void *arg) {
       emit_poly(e, out, &tm->num->comp[c], "t_", depth + 1);
       emit_dpoly(e, out, &tm->num->comp[c], "dt_", DERIV_TANGENT, depth + 1);
       emit_diags_tangent(e, out, tm, c, depth + 1);
+      emit_indent(out, depth + 1);
+      fprintf(out, "(void)t_;\n");
       emit_indent(out, depth + 1);
       fprintf(out, "dy%d_ += dt_;\n", c);
       emit_indent(out, depth);

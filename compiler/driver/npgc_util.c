@@ -28,13 +28,15 @@ static const Usage usages[] = {
      "  -dLETTERS    dump the IR after stages: p parse, s check, l lower, b basis classes\n"
      "  --std=DIR    the directory holding npg/<module>.npg\n"},
     {"emit",
-     "usage: npgc emit PROG.npg [--reduced MODEL/] -o FILE.c [--std=DIR]\n"
+     "usage: npgc emit PROG.npg [--reduced MODEL/ | --derivatives] -o FILE.c [--std=DIR]\n"
      "\n"
      "  Write the generated C of the full evaluator (one function per stage) and the\n"
      "  bind-time gather checker; it compiles standalone with cc -c.\n"
      "  --reduced MODEL/  instead, the reduced evaluator of the model trained in MODEL/,\n"
      "               specialized to its sizes (the host passes the reduced tensors,\n"
      "               NpgReducedCtx in npg_abi.h)\n"
+     "  --derivatives  instead, the full evaluator's forward and reverse products\n"
+     "               (<stem>_npg_full_jvp, <stem>_npg_full_vjp: NpgDerivFn in npg_abi.h)\n"
      "  -o FILE.c    written to a temporary name and renamed when complete; missing\n"
      "               parent directories are created; an input of the command is refused\n"},
     {"eval",

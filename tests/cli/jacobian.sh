@@ -1,8 +1,9 @@
 #!/bin/sh
-# jacobian.sh BUILD_DIR — npgc eval --full ... --jacobian OUT:IN (DESIGN §17): the Jacobian of
-# rational.npg's y by x at every sample, written as OUT/jacobian_y_x.npy (samples x 2 x 2),
-# equals the analytic derivative; a bad spec, an unknown or non-input name, and --jacobian
-# with a model are refused with a message naming the option.
+# jacobian.sh BUILD_DIR — npgc eval --full ... --jacobian OUT:IN and npgc emit --derivatives
+# (DESIGN §17): the Jacobian of rational.npg's y by x at every sample, written as
+# OUT/jacobian_y_x.npy (samples x 2 x 2), equals the analytic derivative; a bad spec, an
+# unknown or non-input name, and --jacobian with a model are refused with a message naming
+# the option; the derivatives' C has its two entry points, and is refused with --reduced.
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_jacobian_XXXXXX)
@@ -37,4 +38,10 @@ grep -q "input 'y' is not an input of the program" "$W/err.txt" || fail "$(cat "
 if "$B/npgc" eval $P "$W/M" "$W/IN" -o "$W/BAD" --jacobian y:x 2>"$W/err.txt"; then fail "with a model"; fi
 grep -q -- "--jacobian is an option of the full evaluation" "$W/err.txt" || fail "$(cat "$W/err.txt")"
 test ! -e "$W/BAD" || fail "a refused evaluation wrote OUT/"
+# npgc emit --derivatives: the C of the forward and reverse products; not with --reduced
+"$B/npgc" emit $P --derivatives -o "$W/d.c" || fail "emit --derivatives"
+grep -q "^int rational_npg_full_jvp(const NpgCtx \*c, const NpgCtx \*d)" "$W/d.c" || fail "no jvp entry point"
+grep -q "^int rational_npg_full_vjp(const NpgCtx \*c, const NpgCtx \*d)" "$W/d.c" || fail "no vjp entry point"
+if "$B/npgc" emit $P --derivatives --reduced "$W" -o "$W/e.c" 2>"$W/err.txt"; then fail "--derivatives with --reduced"; fi
+grep -q "does not go with --reduced" "$W/err.txt" || fail "$(cat "$W/err.txt")"
 echo "ok: --jacobian y:x equals the analytic Jacobian at 5 samples; bad specs refused"
