@@ -185,6 +185,24 @@ static void emit_sparse_derivs(Emit *e) {
 
 static const char *ratio(Ctx *ctx, const OpPow *o) { return arena_printf(ctx, "(%ld.0 / %ld.0)", o->p, o->q); }
 
+/* `const double pw<k>_ = d^r, dpw<k>_ = r d^(r-1);` for the diagonal d<k>_ (k < 0: no
+ * suffix), the common powers without pow() (as the evaluator's emit_apply_diag): the
+ * derivative as r pw / d where d is not 0. */
+static void emit_power_pair(Emit *e, FILE *out, const OpPow *o, int k, int depth) {
+  const char *sfx = k < 0 ? "_" : arena_printf(e->ctx, "%d_", k), *r = ratio(e->ctx, o);
+  const char *d = arena_printf(e->ctx, "d%s", sfx), *pw;
+  if (o->q == 1 && o->p == -1) pw = arena_printf(e->ctx, "1.0 / %s", d);
+  else if (o->q == 1 && o->p == -2) pw = arena_printf(e->ctx, "1.0 / (%s * %s)", d, d);
+  else if (o->q == 2 && o->p == -1) pw = arena_printf(e->ctx, "1.0 / sqrt(%s)", d);
+  else if (o->q == 2 && o->p == 1) pw = arena_printf(e->ctx, "sqrt(%s)", d);
+  else if (o->q == 2 && o->p == -3) pw = arena_printf(e->ctx, "1.0 / (%s * sqrt(%s))", d, d);
+  else pw = arena_printf(e->ctx, "pow(%s, %s)", d, r);
+  emit_indent(out, depth);
+  fprintf(out, "const double pw%s = %s;\n", sfx, pw);
+  emit_indent(out, depth);
+  fprintf(out, "const double dpw%s = %s != 0.0 ? %s * pw%s / %s : %s * pow(%s, %s - 1.0);\n", sfx, d, r, sfx, d, r, d, r);
+}
+
 /* t_ and its tangent dt_ (declared by the caller) multiplied by the diagonals of term
  * `tm` (component c), each d^r: dt_ <- dt_ d^r + t_ r d^(r-1) dd. */
 static void emit_diags_tangent(Emit *e, FILE *out, const Term *tm, int c, int depth) {
@@ -197,9 +215,7 @@ static void emit_diags_tangent(Emit *e, FILE *out, const Term *tm, int c, int de
     fputs("double d_ = 0.0, dd_ = 0.0;\n", out);
     emit_poly(e, out, &o->diag->comp[c], "d_", depth + 1);
     emit_dpoly(e, out, &o->diag->comp[c], "dd_", DERIV_TANGENT, depth + 1);
-    emit_indent(out, depth + 1);
-    const char *r = ratio(e->ctx, o);
-    fprintf(out, "const double pw_ = pow(d_, %s), dpw_ = %s * pow(d_, %s - 1.0);\n", r, r, r);
+    emit_power_pair(e, out, o, -1, depth + 1);
     emit_indent(out, depth + 1);
     fputs("dt_ = dt_ * pw_ + t_ * dpw_ * dd_;\n", out);
     emit_indent(out, depth + 1);
@@ -225,9 +241,7 @@ static void emit_diags_adjoint(Emit *e, FILE *out, const Term *tm, int c, const 
     emit_indent(out, depth + 1);
     fprintf(out, "double d%d_ = 0.0;\n", k);
     emit_poly(e, out, &o->diag->comp[c], arena_printf(e->ctx, "d%d_", k), depth + 1);
-    const char *r = ratio(e->ctx, o);
-    emit_indent(out, depth + 1);
-    fprintf(out, "const double pw%d_ = pow(d%d_, %s), dpw%d_ = %s * pow(d%d_, %s - 1.0);\n", k, k, r, k, r, k, r);
+    emit_power_pair(e, out, o, k, depth + 1);
   }
   /* the partial derivative in the numerator, then in each diagonal */
   for (int j = -1; j < tm->nops; j++) {
