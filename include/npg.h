@@ -234,6 +234,13 @@ typedef struct NpgCsr {
   double *data;    /* nnz */
 } NpgCsr;
 NPG_API void npg_csr_free(NpgCsr *c);
+/* npg_full_jacobian as CSR (`out` overwritten; free it with npg_csr_free), on its
+ * structural pattern at the params as bound (which input entries each output entry reads
+ * through the stages; a declared operator's power makes its term dense): one forward
+ * product per color of a greedy coloring of the columns (columns that share no row share a
+ * color), so a Jacobian whose rows read few entries costs a few products, not one per
+ * column. Entries on the pattern that are 0 at this point are kept. */
+NPG_API int npg_full_jacobian_csr(NpgFull *f, long sample, const char *output, const char *input, NpgCsr *out);
 
 /* The `output op` named `name` at the values of the last evaluation, as CSR
  * (rows: the product of its row dims, columns of its column dims; every

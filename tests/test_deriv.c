@@ -75,7 +75,7 @@ static int central(Pair *p, double h, double *fd) {
 #define ROUNDING 1e-14
 
 typedef struct Tally {
-  int pairs, quadratic_order, exact;
+  int pairs, quadratic_order, exact, sparse;
   double worst_adjoint;
 } Tally;
 
@@ -117,6 +117,25 @@ static int check_pair(Pair *p, const char *path, unsigned *seed, Tally *t) {
                   p->in->name, ej);
     failures++;
   }
+  /* the Jacobian on its structural pattern, by colored forward products: the dense one */
+  NpgCsr csr;
+  if (npg_full_jacobian_csr(p->f, 0, p->out->name, p->in->name, &csr) != 0) {
+    print_message("%s: %s by %s: %s\n", path, p->out->name, p->in->name, npg_full_error(p->f));
+    failures++;
+    goto done;
+  }
+  double *dense = calloc(p->nout * p->nin + 1, sizeof(double)), ec = 0;
+  for (long r = 0; r < csr.rows; r++)
+    for (long k = csr.indptr[r]; k < csr.indptr[r + 1]; k++) dense[r * csr.cols + csr.indices[k]] = csr.data[k];
+  for (size_t k = 0; k < p->nout * p->nin; k++) ec = fmax(ec, fabs(dense[k] - jac[k]));
+  if ((size_t)csr.rows != p->nout || (size_t)csr.cols != p->nin || ec > fmax(1e-12 * jmax, ROUNDING)) {
+    print_message("%s: %s by %s: the CSR Jacobian (%ld x %ld, %ld entries) differs from the dense one by %.3g\n", path,
+                  p->out->name, p->in->name, csr.rows, csr.cols, csr.nnz, ec);
+    failures++;
+  }
+  if ((size_t)csr.nnz < p->nout * p->nin / 4) t->sparse++;
+  free(dense);
+  npg_csr_free(&csr);
   /* central differences at halving steps until two consecutive errors show the
    * h² term (a ratio near 4), or both are at rounding (linear or quadratic) */
   double h = 1e-2, e1 = -1, e2 = -1, ref = max_abs(jw, p->nout), ratio = 0;
@@ -198,6 +217,7 @@ static int check_program(NpgProgram *p, const char *path, void *arg) {
   total->pairs += t.pairs;
   total->quadratic_order += t.quadratic_order;
   total->exact += t.exact;
+  total->sparse += t.sparse;
   ref_free(d);
   npg_full_free(f);
   return failures;
@@ -232,6 +252,8 @@ static void corpus_derivatives(void **state) {
   assert_true(n >= 20);
   assert_int_equal(failures, 0);
   assert_true(t.quadratic_order >= 20); /* the order check ran, not only the rounding one */
+  assert_true(t.sparse >= 10);          /* and the CSR one on Jacobians under a quarter full */
+  print_message("%d stage-input pairs, %d of them with a Jacobian under a quarter full\n", t.pairs, t.sparse);
 }
 
 /* The checks can fail: a direction scaled after the fact is caught by both. */

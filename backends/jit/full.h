@@ -151,6 +151,12 @@ int full_refuse(Full *f, const char *msg);
  * outputs' cotangents and call full_vjp: every input's array then holds the reverse
  * product (the stages' are consumed). Each NULL or -1 with full_error(). */
 int full_deriv_emit(Program *prog, FILE *out);
+/* backends/jit/full_pattern.c: after an evaluation, the structural pattern of
+ * d output / d input at the params as bound (the tensor builders' entries propagated
+ * through the stages; a declared operator's power makes its term dense): per entry of
+ * `output`, the sorted entries of input `input` it reads, as CSR (*indptr: count(output)
+ * + 1, *indices), malloc'd. 0, or -1 with full_error(). */
+int full_jacobian_pattern(Full *f, const char *output, const char *input, long **indptr, long **indices);
 double *const *full_deriv_arrays(Full *f);
 int full_jvp(Full *f, long sample);
 int full_vjp(Full *f, long sample);

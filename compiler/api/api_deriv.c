@@ -130,3 +130,66 @@ int npg_full_jacobian(NpgFull *f, long sample, const char *output, const char *i
   }
   return 0;
 }
+
+/* Greedy coloring of the columns of a pattern (rows × ncols, CSR): two columns that share
+ * a row get different colors. color[ncols]; returns the number of colors, -1 out of memory. */
+static long color_columns(long rows, long ncols, const long *ptr, const long *idx, long *color) {
+  long *cptr = calloc((size_t)ncols + 2, sizeof(long)), *cidx = malloc(sizeof(long) * ((size_t)ptr[rows] + 1));
+  long *mark = malloc(sizeof(long) * ((size_t)ncols + 1)), ncolors = 0;
+  if (!cptr || !cidx || !mark) {
+    free(cptr), free(cidx), free(mark);
+    return -1;
+  }
+  for (long k = 0; k < ptr[rows]; k++) cptr[idx[k] + 2]++; /* the transpose: rows of each column */
+  for (long j = 0; j < ncols; j++) cptr[j + 2] += cptr[j + 1];
+  for (long r = 0; r < rows; r++)
+    for (long k = ptr[r]; k < ptr[r + 1]; k++) cidx[cptr[idx[k] + 1]++] = r;
+  for (long j = 0; j < ncols; j++) mark[j] = -1, color[j] = -1;
+  for (long j = 0; j < ncols; j++) { /* colors of the columns sharing a row with j are taken */
+    for (long a = cptr[j]; a < cptr[j + 1]; a++)
+      for (long k = ptr[cidx[a]]; k < ptr[cidx[a] + 1]; k++)
+        if (color[idx[k]] >= 0) mark[color[idx[k]]] = j;
+    long c = 0;
+    while (c < ncolors && mark[c] == j) c++;
+    color[j] = c;
+    if (c == ncolors) ncolors++;
+  }
+  free(cptr), free(cidx), free(mark);
+  return ncolors;
+}
+
+int npg_full_jacobian_csr(NpgFull *f, long sample, const char *output, const char *input, NpgCsr *out) {
+  API_REFUSE_NULL(f, NULL, 0, -1);
+  if (!out) return refuse(f, __func__, "argument 'out' is NULL");
+  memset(out, 0, sizeof *out);
+  int ko = slot_of(f, __func__, "output", output, false), ki = ko < 0 ? -1 : slot_of(f, __func__, "input", input, true);
+  if (ko < 0 || ki < 0 || !prepare(f, sample)) return -1;
+  size_t nout = 0, nin = 0;
+  full_get(f->full, output, &nout);
+  full_get(f->full, input, &nin);
+  long *ptr = NULL, *idx = NULL;
+  if (full_jacobian_pattern(f->full, output, input, &ptr, &idx) != 0) return -1;
+  long *color = malloc(sizeof(long) * (nin + 1));
+  double *data = malloc(sizeof(double) * ((size_t)ptr[nout] + 1));
+  long ncolors = color && data ? color_columns((long)nout, (long)nin, ptr, idx, color) : -1;
+  int rc = ncolors < 0 ? full_fail(f->full, "out of memory") : 0;
+  for (long c = 0; c < ncolors && rc == 0; c++) {
+    double *const *dq = full_deriv_arrays(f->full);
+    if (!dq) {
+      rc = -1;
+      break;
+    }
+    for (size_t j = 0; j < nin; j++) dq[ki][j] = color[j] == c ? 1.0 : 0.0;
+    if ((rc = full_jvp(f->full, sample)) != 0) break;
+    for (size_t r = 0; r < nout; r++) /* a row reads at most one column of each color */
+      for (long k = ptr[r]; k < ptr[r + 1]; k++)
+        if (color[idx[k]] == c) data[k] = ko == ki ? (idx[k] == (long)r ? 1.0 : 0.0) : dq[ko][r];
+  }
+  free(color);
+  if (rc != 0) {
+    free(ptr), free(idx), free(data);
+    return -1;
+  }
+  *out = (NpgCsr){(long)nout, (long)nin, ptr[nout], ptr, idx, data};
+  return 0;
+}
