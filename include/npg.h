@@ -63,6 +63,11 @@ NPG_API bool npg_same_program(const NpgProgram *a, const NpgProgram *b);
  * gather checker) and the tensor builders to `out`. Returns 0, or -1 with
  * the reason in npg_error(). The C compiles standalone (cc -c). */
 NPG_API int npg_emit_full(NpgProgram *p, FILE *out);
+/* The generated C of the full evaluator's derivatives (DESIGN §17): "<stem>_npg_full_jvp"
+ * and "<stem>_npg_full_vjp" (NpgDerivFn in the ABI header), run after the evaluator's entry
+ * point on the same context. Compiles standalone and links beside npg_emit_full's unit.
+ * 0, or -1 with the reason in npg_error() (a program with an extern has no derivative). */
+NPG_API int npg_emit_derivatives(NpgProgram *p, FILE *out);
 
 /* ---------------------------------------------------------------- what a program declares */
 typedef enum NpgKind {
@@ -161,6 +166,27 @@ NPG_API void npg_full_free(NpgFull *f);
  * p[2, 5] is NaN"). */
 NPG_API int npg_full_check_finite(NpgFull *f, long sample);
 
+/* Derivatives of the full evaluator (DESIGN §17), exact, from generated C (compiled on
+ * first use with the evaluator's backend): each evaluates sample `sample` at the inputs as
+ * bound (as npg_full_eval), then differentiates there. Derivatives are taken with respect
+ * to inputs; an output may be any stage (or an input). Every array is C order, its count
+ * the quantity's as bound.
+ *   npg_full_jvp: out (output's count) = Σ_i J(output, inputs[i]) · directions[i];
+ *   npg_full_vjp: out (input's count)  = Σ_i J(outputs[i], input)^T · cotangents[i];
+ *   npg_full_jacobian: out = J(output, input), count(output) × count(input), row-major
+ *   (by forward products per input entry, or reverse products per output entry,
+ *   whichever are fewer).
+ * Polynomial stages differentiate entry by entry; inverses reuse one LU for the
+ * tangent's (or the transposed) solves; roots use the eigendecomposition (Daleckii-
+ * Krein). A program with an extern has no derivative (refused, the message naming it);
+ * declared operators are assembled dense here, sparse ones too. 0, or -1 with
+ * npg_full_error() naming the argument or the stage and sample. */
+NPG_API int npg_full_jvp(NpgFull *f, long sample, int nin, const char *const *inputs, const double *const *directions,
+                         const char *output, double *out);
+NPG_API int npg_full_vjp(NpgFull *f, long sample, int nout, const char *const *outputs,
+                         const double *const *cotangents, const char *input, double *out);
+NPG_API int npg_full_jacobian(NpgFull *f, long sample, const char *output, const char *input, double *out);
+
 /* Simulations (DESIGN §15): a program with `state u` and `next u = ...` is one time step.
  * npg_full_step evaluates it `steps` times (sample `sample`, for messages and callbacks), every
  * state taking its next value after each (no copy: after a call, npg_full_get("u") is the state
@@ -208,6 +234,13 @@ typedef struct NpgCsr {
   double *data;    /* nnz */
 } NpgCsr;
 NPG_API void npg_csr_free(NpgCsr *c);
+/* npg_full_jacobian as CSR (`out` overwritten; free it with npg_csr_free), on its
+ * structural pattern at the params as bound (which input entries each output entry reads
+ * through the stages; a declared operator's power makes its term dense): one forward
+ * product per color of a greedy coloring of the columns (columns that share no row share a
+ * color), so a Jacobian whose rows read few entries costs a few products, not one per
+ * column. Entries on the pattern that are 0 at this point are kept. */
+NPG_API int npg_full_jacobian_csr(NpgFull *f, long sample, const char *output, const char *input, NpgCsr *out);
 
 /* The `output op` named `name` at the values of the last evaluation, as CSR
  * (rows: the product of its row dims, columns of its column dims; every

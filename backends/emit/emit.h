@@ -30,6 +30,8 @@ typedef struct Emit {
   struct Cse *cse;       /* the values of the loop nest being built */
   PtrVec soa;            /* Sym*: quantities the innermost loop reads from a copy per component */
   bool *writes;          /* per slot: the function writes it */
+  bool *used_deriv;      /* per slot: the derivative function being emitted reads or writes
+                            its tangent or cotangent (emit_deriv.c), NULL elsewhere */
   bool box;              /* emitting the box twin of a loop nest: its loops run over
                             the boxes box_[0..nbox_) (emit_full.c) */
 } Emit;
@@ -69,6 +71,17 @@ char *emit_comment_text(Ctx *ctx, const char *text);
 /* The file of `loc` as emit_comment_text gives it, "?" when it has none. */
 const char *emit_loc_file(Ctx *ctx, Loc loc);
 void emit_full(Ctx *ctx, const Program *prog, FILE *out);
+/* Shared with emit_deriv.c: q[idx...] as C; `acc += ` the polynomial's value, as
+ * statements: sums as loops, guards evaluated before any gather they protect. */
+void emit_atom(Emit *e, FILE *out, const Atom *a);
+void emit_poly(Emit *e, FILE *out, const Poly *p, const char *acc, int depth);
+/* The entries function of every sparse declared operator ("entries_<op>", NpgOpEntriesFn). */
+void emit_sparse_ops(Emit *e);
+/* backends/emit/emit_deriv.c: the derivatives of the full evaluator (DESIGN §17),
+ * "<stem>_npg_full_jvp" and "<stem>_npg_full_vjp" (NpgDerivFn in npg_abi.h), into `out`
+ * after the ABI header. Refuses (error_plain) a program with an extern: a black box has
+ * no derivative. */
+void emit_deriv(Ctx *ctx, const Program *prog, FILE *out);
 /* Shared by the full evaluator's units (emit_full.c, emit_checks.c): two
  * spaces per depth; loops over the index domain of `s` with the entry's flat
  * index e_ (the depth inside returned) and their closing braces; `prefix` and

@@ -77,16 +77,14 @@ void emit_close_loops(FILE *out, int from, int to) {
   }
 }
 
-static void emit_atom(Emit *e, FILE *out, const Atom *a) {
+void emit_atom(Emit *e, FILE *out, const Atom *a) {
   emit_use(e, a->q);
   fprintf(out, "%s[", emit_name(e, a->q));
   emit_offset(e, out, a->q, a->idx, a->nidx);
   fputc(']', out);
 }
 
-/* acc += the polynomial's value, as statements: sums as loops, guards
- * evaluated before any gather they protect. */
-static void emit_poly(Emit *e, FILE *out, const Poly *p, const char *acc, int depth) {
+void emit_poly(Emit *e, FILE *out, const Poly *p, const char *acc, int depth) {
   for (int i = 0; i < p->n; i++) {
     const Mono *m = p->m[i];
     int d = depth;
@@ -179,7 +177,7 @@ static void op_entries_cb(Emit *e, FILE *out, const void *arg) {
   fputs("  return cnt_;\n", out);
 }
 
-static void emit_sparse_ops(Emit *e) {
+void emit_sparse_ops(Emit *e) {
   for (int i = 0; i < e->prog->opdefs.n; i++) {
     const OpDef *od = e->prog->opdefs.v[i];
     if (!od->sparse) continue;

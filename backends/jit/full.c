@@ -36,6 +36,12 @@ struct Full {
   void **extern_user;
   NpgHost host;
   const char **dim_names, **param_names;
+  /* derivatives (DESIGN §17): their C compiled on first use with the evaluator's backend */
+  JitBackend backend;
+  JitModule *djit;
+  NpgDerivFn jvp, vjp;
+  double **dq;              /* per slot: its tangent or cotangent */
+  size_t *dqcount;
 };
 
 static int fail(Full *f, const char *fmt, ...) {
@@ -138,6 +144,7 @@ Full *full_new(Program *prog, JitBackend backend, const char *refusal) {
   f->host.param_names = f->param_names;
   f->host.param_files = (const char *const *)f->param_files;
   f->host.sparse_min_rows = FULL_SPARSE_MIN_ROWS;
+  f->backend = backend;
   return f;
 }
 
@@ -739,6 +746,11 @@ void full_free(Full *f) {
   if (!f) return;
   runtime_sparse_free(&f->host);
   jit_free(f->jit);
+  jit_free(f->djit);
+  if (f->prog && f->dq)
+    for (int i = 0; i < f->prog->slots.n; i++) free(f->dq[i]);
+  free(f->dq);
+  free(f->dqcount);
   demand_free(f->demand);
   if (f->prog) {
     for (int i = 0; i < f->prog->dims.n; i++) free(f->dim_from[i]);
@@ -763,3 +775,93 @@ void full_free(Full *f) {
   free(f->param_names);
   free(f);
 }
+
+/* ---------------------------------------------------------------- derivatives */
+
+int full_deriv_emit(Program *prog, FILE *out) {
+  Ctx *ctx = prog->ctx;
+  jmp_buf env;
+  ctx->on_error = &env;
+  bool ok = setjmp(env) == 0;
+  if (ok) emit_deriv(ctx, prog, out);
+  ctx->on_error = NULL;
+  free(ctx->pending_free);
+  ctx->pending_free = NULL;
+  return ok ? 0 : -1;
+}
+
+/* The derivative code, compiled on first use. */
+static int deriv_compile(Full *f) {
+  Program *prog = f->prog;
+  if (f->jvp && !f->dq) { /* compiled, but the arrays' allocation failed */
+    f->dq = mem_calloc((size_t)prog->slots.n + 1, sizeof *f->dq);
+    if (!f->dq) return fail(f, "out of memory");
+  }
+  if (f->jvp && !f->dqcount) {
+    f->dqcount = mem_calloc((size_t)prog->slots.n + 1, sizeof *f->dqcount);
+    if (!f->dqcount) return fail(f, "out of memory");
+  }
+  if (f->jvp) return 0;
+  char *src = NULL;
+  size_t len = 0;
+  FILE *mem = open_memstream(&src, &len);
+  if (!mem) return fail(f, "out of memory");
+  if (full_deriv_emit(prog, mem) != 0) {
+    fclose(mem);
+    free(src);
+    return fail(f, "%s", prog->ctx->msg ? prog->ctx->msg : "error: code generation failed\n");
+  }
+  fclose(mem);
+  char err[1024], jvp[1024], vjp[1024];
+  f->djit = jit_compile(src, f->backend, err, sizeof err);
+  free(src);
+  if (!f->djit) return fail(f, "%s", err);
+  bool named = emit_symbol(prog, "full_jvp", jvp, sizeof jvp) < (int)sizeof jvp &&
+               emit_symbol(prog, "full_vjp", vjp, sizeof vjp) < (int)sizeof vjp;
+  f->jvp = named ? (NpgDerivFn)jit_symbol(f->djit, jvp) : NULL;
+  f->vjp = named ? (NpgDerivFn)jit_symbol(f->djit, vjp) : NULL;
+  if (!f->jvp || !f->vjp) return fail(f, "generated derivative code lacks its entry points (a bug in npg)");
+  f->dq = mem_calloc((size_t)prog->slots.n + 1, sizeof *f->dq);
+  f->dqcount = mem_calloc((size_t)prog->slots.n + 1, sizeof *f->dqcount);
+  if (!f->dq || !f->dqcount) return fail(f, "out of memory");
+  return 0;
+}
+
+double *const *full_deriv_arrays(Full *f) {
+  if (f->error[0]) return NULL;
+  if (!f->prog) {
+    fail(f, "the evaluator has no program");
+    return NULL;
+  }
+  if (deriv_compile(f) != 0) return NULL;
+  for (int k = 0; k < f->prog->slots.n; k++) {
+    if (!f->q[k]) {
+      fail(f, "derivatives: '%s' has no value yet (evaluate the program first)", ((Sym *)f->prog->slots.v[k])->name);
+      return NULL;
+    }
+    if (f->dqcount[k] != f->qcount[k]) {
+      free(f->dq[k]);
+      f->dqcount[k] = 0;
+      if (!(f->dq[k] = mem_calloc(f->qcount[k] ? f->qcount[k] : 1, sizeof(double)))) {
+        fail(f, "out of memory");
+        return NULL;
+      }
+      f->dqcount[k] = f->qcount[k];
+    } else memset(f->dq[k], 0, sizeof(double) * f->qcount[k]);
+  }
+  return f->dq;
+}
+
+/* Run a derivative entry point on the evaluation the values hold. */
+static int deriv_run(Full *f, NpgDerivFn fn, long sample) {
+  if (f->error[0]) return -1;
+  if (!fn || !f->dq) return fail(f, "derivatives: full_deriv_arrays was not called (a bug in npg)");
+  NpgCtx c = context(f, sample), d = context(f, sample);
+  d.q = f->dq;
+  f->host.msg[0] = 0;
+  if (fn(&c, &d) != 0) return fail(f, "%s", f->host.msg);
+  return 0;
+}
+
+int full_jvp(Full *f, long sample) { return deriv_run(f, f->jvp, sample); }
+int full_vjp(Full *f, long sample) { return deriv_run(f, f->vjp, sample); }

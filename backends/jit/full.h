@@ -142,4 +142,23 @@ int full_fail(Full *f, const char *msg);
  * about, api_refuse in ast.h); -1. */
 int full_refuse(Full *f, const char *msg);
 
+/* Derivatives (DESIGN §17; the C: backends/emit/emit_deriv.c), compiled on first use with
+ * the evaluator's backend. full_deriv_emit writes that C as full_emit does (-1 for a
+ * program with an extern: a black box has no derivative). After an evaluation,
+ * full_deriv_arrays gives one zeroed array per quantity (Program.slots, counts as
+ * bound), owned by the evaluator; set the inputs' tangents and call full_jvp: every
+ * stage's array then holds its tangent (J times the inputs' tangents); or set the
+ * outputs' cotangents and call full_vjp: every input's array then holds the reverse
+ * product (the stages' are consumed). Each NULL or -1 with full_error(). */
+int full_deriv_emit(Program *prog, FILE *out);
+/* backends/jit/full_pattern.c: after an evaluation, the structural pattern of
+ * d output / d input at the params as bound (the tensor builders' entries propagated
+ * through the stages; a declared operator's power makes its term dense): per entry of
+ * `output`, the sorted entries of input `input` it reads, as CSR (*indptr: count(output)
+ * + 1, *indices), malloc'd. 0, or -1 with full_error(). */
+int full_jacobian_pattern(Full *f, const char *output, const char *input, long **indptr, long **indices);
+double *const *full_deriv_arrays(Full *f);
+int full_jvp(Full *f, long sample);
+int full_vjp(Full *f, long sample);
+
 #endif

@@ -207,6 +207,21 @@ int npg_emit_full(NpgProgram *p, FILE *out) {
   return 0;
 }
 
+int npg_emit_derivatives(NpgProgram *p, FILE *out) {
+  API_REFUSE_NULL(p, NULL, 0, -1);
+  if (!npg_ok(p)) return -1;
+  if (!out) {
+    api_refuse(NULL, 0, __func__, "argument 'out' is NULL");
+    p->error = "error: npg_emit_derivatives: argument 'out' is NULL\n";
+    return -1;
+  }
+  if (full_deriv_emit(p->prog, out) != 0) {
+    p->error = p->ctx.msg ? p->ctx.msg : "error: code generation failed\n";
+    return -1;
+  }
+  return 0;
+}
+
 void npg_free(NpgProgram *p) {
   if (!p || p->is_static) return;
   arena_release(&p->ctx.arena);

@@ -6,7 +6,9 @@
  * OUT/<name>.indices.npy (its structure, the same for every sample) and
  * OUT/<name>.data.npy (samples x nonzeros). Every file is written to a
  * temporary name and renamed when complete, after all samples succeeded: a
- * failure leaves OUT/ as it was. */
+ * failure leaves OUT/ as it was. With --jacobian OUT:IN (repeatable), the
+ * Jacobian of quantity OUT with respect to input IN at every sample is written
+ * as OUT/jacobian_<OUT>_<IN>.npy: samples x OUT's axes x IN's axes (DESIGN §17). */
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
@@ -80,7 +82,80 @@ static int write_out(const Out *o, NpgFull *f, const char *outdir, long samples)
   return rc;
 }
 
-static int eval_full(NpgProgram *p, const char *data, const char *in, const char *outdir, NpgBackend backend, bool progress) {
+/* One --jacobian OUT:IN: the derivative of `out` by input `in` at every sample. */
+#define MAX_JACOBIANS 16
+typedef struct Jac {
+  char out[256], in[256];
+  NpgSymbol so, si;
+  double *v;                /* samples x count(out) x count(in) */
+  size_t nout, nin;
+} Jac;
+
+/* "OUT:IN" into j, checked against the program: OUT a quantity (an input or a stage), IN an
+ * input. 0, or -1 after a message naming the option. */
+static int jac_parse(NpgProgram *p, const char *spec, Jac *j) {
+  const char *colon = strchr(spec, ':');
+  size_t lo = colon ? (size_t)(colon - spec) : 0;
+  if (!colon || lo == 0 || !colon[1] || lo >= sizeof j->out || strlen(colon + 1) >= sizeof j->in) {
+    fprintf(stderr, "npgc eval: --jacobian '%s': expected OUT:IN (a stage or output, then an input)\n", spec);
+    return -1;
+  }
+  memcpy(j->out, spec, lo);
+  j->out[lo] = 0;
+  strcpy(j->in, colon + 1);
+  bool found_out = false, found_in = false;
+  for (int i = 0; i < npg_nsymbols(p); i++) {
+    NpgSymbol s;
+    if (npg_symbol(p, i, &s) != 0) continue;
+    if (strcmp(s.name, j->out) == 0 && (s.kind == NPG_INPUT || s.kind == NPG_STAGE)) j->so = s, found_out = true;
+    if (strcmp(s.name, j->in) == 0 && s.kind == NPG_INPUT) j->si = s, found_in = true;
+  }
+  if (!found_out || !found_in) {
+    fprintf(stderr, "npgc eval: --jacobian '%s': %s '%s' %s\n", spec, found_out ? "input" : "quantity",
+            found_out ? j->in : j->out,
+            found_out ? "is not an input of the program (derivatives are taken with respect to inputs)"
+                      : "is not a stage or input of the program");
+    return -1;
+  }
+  return 0;
+}
+
+/* Jacobian `j` at sample k of `samples` (allocated at sample 0). */
+static int jac_keep(Jac *j, NpgFull *f, long k, long samples) {
+  if (k == 0) {
+    npg_full_get(f, j->out, &j->nout);
+    npg_full_get(f, j->in, &j->nin);
+    size_t n = j->nout * j->nin;
+    if (!(j->v = malloc(sizeof(double) * (n ? n : 1) * (size_t)samples))) {
+      fputs("npgc eval: out of memory\n", stderr);
+      return -1;
+    }
+  }
+  if (npg_full_jacobian(f, k, j->out, j->in, j->v + (size_t)k * j->nout * j->nin) != 0) {
+    npgc_error(npg_full_error(f));
+    return -1;
+  }
+  return 0;
+}
+
+static int jac_write(const Jac *j, NpgFull *f, const char *outdir, long samples) {
+  char path[4096], err[1024];
+  long shape[40];
+  int nd = 0;
+  shape[nd++] = samples;
+  const NpgSymbol *sy[2] = {&j->so, &j->si};
+  for (int k = 0; k < 2; k++) {
+    for (int i = 0; i < sy[k]->ndims; i++) shape[nd++] = npg_full_dim(f, sy[k]->dims[i]);
+    for (int i = 0; i < sy[k]->nstatic; i++) shape[nd++] = sy[k]->shape[i];
+  }
+  snprintf(path, sizeof path, "%s/jacobian_%s_%s.npy", outdir, j->out, j->in);
+  int rc = npg_npy_write(path, nd, shape, j->v, err, sizeof err);
+  if (rc != 0) npgc_error(err);
+  return rc;
+}
+
+static int eval_full(NpgProgram *p, const char *data, const char *in, const char *outdir, NpgBackend backend, bool progress,
+                     Jac *jacs, int njac) {
   int rc = 1, nout = 0;
   char err[2048] = "";
   NpgFull *f = npg_full_new(p, backend);
@@ -135,11 +210,15 @@ static int eval_full(NpgProgram *p, const char *data, const char *in, const char
         if (npg_full_error(f)[0]) npgc_error(npg_full_error(f));
         goto done;
       }
+    for (int j = 0; j < njac; j++)
+      if (jac_keep(&jacs[j], f, k, samples) != 0) goto done;
     npg_progress(tty, "full evaluation", k + 1, samples);
   }
   if (npgc_make_parents(outdir, true) != 0) goto done;
   for (int o = 0; o < nout; o++)
     if (write_out(&outs[o], f, outdir, samples) != 0) goto done;
+  for (int j = 0; j < njac && samples > 0; j++)
+    if (jac_write(&jacs[j], f, outdir, samples) != 0) goto done;
   rc = 0;
 done:
   for (int o = 0; outs && o < nout; o++) {
@@ -155,6 +234,8 @@ done:
 int npgc_eval(int argc, char **argv) {
   const char *prog_path = NULL, *data = NULL, *in = NULL, *outdir = NULL;
   bool full = false, progress = false, exact_roots = false, sizes = false;
+  const char *jac_specs[MAX_JACOBIANS];
+  int njac = 0;
   NpgBackend backend = NPG_AUTO;
   NpgOptions opt = {0};
   NpgArgs a;
@@ -168,6 +249,13 @@ int npgc_eval(int argc, char **argv) {
     else if (npg_args_flag(&a, "--exact-roots")) exact_roots = true; /* the reduced evaluation's */
     else if (npg_args_string(&a, "--sizes")) sizes = true;           /* the reduced evaluation's too */
     else if ((v = npg_args_string(&a, "-o"))) outdir = v;
+    else if ((v = npg_args_string(&a, "--jacobian"))) {
+      if (njac == MAX_JACOBIANS) {
+        fprintf(stderr, "npgc eval: --jacobian given more than %d times\n", MAX_JACOBIANS);
+        return 2;
+      }
+      jac_specs[njac++] = v;
+    }
     else if ((v = npg_args_string(&a, "--std"))) opt.std_dir = v;
     else if ((v = npg_args_positional(&a))) {
       if (!prog_path) prog_path = v;
@@ -185,6 +273,10 @@ int npgc_eval(int argc, char **argv) {
                                 "IN/ (the full one); one folder was given");
   if (!in) return npgc_missing("eval", "IN/ (the inputs to evaluate, a leading sample axis)");
   if (!outdir) return npgc_missing("eval", "-o OUT/ (where to write the outputs)");
+  if (!full && njac) {
+    fputs("npgc eval: --jacobian is an option of the full evaluation (--full DATA/), not of a model's\n", stderr);
+    return 2;
+  }
   if (!full) return npgc_reduce(argc, argv);
   if (exact_roots || sizes) {
     fprintf(stderr, "npgc eval: %s is an option of the reduced evaluation (with MODEL/), not of --full\n",
@@ -196,7 +288,15 @@ int npgc_eval(int argc, char **argv) {
   NpgProgram *p = npg_compile(prog_path, &opt);
   int rc = 1;
   if (!npg_ok(p)) fputs(npg_error(p), stderr);
-  else rc = eval_full(p, data, in, outdir, backend, progress);
+  else {
+    Jac *jacs = calloc((size_t)njac + 1, sizeof *jacs);
+    if (!jacs) fputs("npgc eval: out of memory\n", stderr);
+    bool ok = jacs != NULL;
+    for (int j = 0; j < njac && ok; j++) ok = jac_parse(p, jac_specs[j], &jacs[j]) == 0;
+    rc = ok ? eval_full(p, data, in, outdir, backend, progress, jacs, njac) : 2;
+    for (int j = 0; jacs && j < njac; j++) free(jacs[j].v);
+    free(jacs);
+  }
   npg_free(p);
   return rc;
 }

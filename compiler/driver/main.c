@@ -7,10 +7,11 @@
 #include "npg.h"
 #include "npgc.h"
 
-/* npgc emit PROG.npg [--reduced MODEL/] -o FILE.c: written to FILE.c.tmp.<pid>,
- * renamed when complete. */
+/* npgc emit PROG.npg [--reduced MODEL/ | --derivatives] -o FILE.c: written to
+ * FILE.c.tmp.<pid>, renamed when complete. */
 static int cmd_emit(int argc, char **argv) {
   const char *path = NULL, *outpath = NULL, *model_dir = NULL;
+  bool derivatives = false;
   NpgOptions opt = {0};
   NpgArgs a;
   npg_args_init(&a, argc, argv, 2, "npgc emit");
@@ -19,6 +20,7 @@ static int cmd_emit(int argc, char **argv) {
     if (npg_args_flag(&a, "--help") || npg_args_flag(&a, "-h")) return npgc_usage("emit", true);
     if ((v = npg_args_string(&a, "-o"))) outpath = v;
     else if ((v = npg_args_string(&a, "--reduced"))) model_dir = v;
+    else if (npg_args_flag(&a, "--derivatives")) derivatives = true;
     else if ((v = npg_args_string(&a, "--std"))) opt.std_dir = v;
     else if ((v = npg_args_positional(&a)) && !path) path = v;
     else if (v) npgc_args_extra(&a, "program", path);
@@ -26,6 +28,10 @@ static int cmd_emit(int argc, char **argv) {
   }
   if (a.error[0]) return npgc_args_error(&a, "emit");
   if (!path || !outpath) return npgc_missing("emit", !path ? "the program (PROG.npg)" : "-o FILE.c (where to write the C)");
+  if (derivatives && model_dir) {
+    fputs("npgc emit: --derivatives writes the full evaluator's derivatives; it does not go with --reduced\n", stderr);
+    return 2;
+  }
   const char *inputs[] = {path, model_dir, NULL};
   if (npgc_check_output("emit", "-o", outpath, NPGC_OUT_FILE, inputs) != 0) return 1;
   NpgProgram *p = npg_compile(path, &opt);
@@ -60,7 +66,7 @@ static int cmd_emit(int argc, char **argv) {
     return 1;
   }
   char err[2048] = "";
-  int rc = m ? npg_model_emit(m, f, err, sizeof err) : npg_emit_full(p, f);
+  int rc = m ? npg_model_emit(m, f, err, sizeof err) : derivatives ? npg_emit_derivatives(p, f) : npg_emit_full(p, f);
   if (fclose(f) != 0 && rc == 0) {
     fprintf(stderr, "npgc emit: cannot write %s: %s\n", tmp, strerror(errno));
     rc = -1;

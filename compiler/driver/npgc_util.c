@@ -28,17 +28,20 @@ static const Usage usages[] = {
      "  -dLETTERS    dump the IR after stages: p parse, s check, l lower, b basis classes\n"
      "  --std=DIR    the directory holding npg/<module>.npg\n"},
     {"emit",
-     "usage: npgc emit PROG.npg [--reduced MODEL/] -o FILE.c [--std=DIR]\n"
+     "usage: npgc emit PROG.npg [--reduced MODEL/ | --derivatives] -o FILE.c [--std=DIR]\n"
      "\n"
      "  Write the generated C of the full evaluator (one function per stage) and the\n"
      "  bind-time gather checker; it compiles standalone with cc -c.\n"
      "  --reduced MODEL/  instead, the reduced evaluator of the model trained in MODEL/,\n"
      "               specialized to its sizes (the host passes the reduced tensors,\n"
      "               NpgReducedCtx in npg_abi.h)\n"
+     "  --derivatives  instead, the full evaluator's forward and reverse products\n"
+     "               (<stem>_npg_full_jvp, <stem>_npg_full_vjp: NpgDerivFn in npg_abi.h)\n"
      "  -o FILE.c    written to a temporary name and renamed when complete; missing\n"
      "               parent directories are created; an input of the command is refused\n"},
     {"eval",
-     "usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--jit auto|cc|tcc] [--progress] [--std=DIR]\n"
+     "usage: npgc eval PROG.npg --full DATA/ IN/ -o OUT/ [--jacobian OUT:IN]... [--jit auto|cc|tcc]\n"
+     "                 [--progress] [--std=DIR]\n"
      "       npgc eval PROG.npg MODEL/ IN/ -o OUT/ [--sizes NAME=N,...] [--exact-roots] [--progress] [--std=DIR]\n"
      "\n"
      "  --full: evaluate the full program on every sample of IN/<input>.npy (leading\n"
@@ -49,6 +52,8 @@ static const Usage usages[] = {
      "  With MODEL/: the reduced evaluation; writes OUT/<name>.npy (lifted) and\n"
      "  OUT/<name>.reduced.npy (reduced coordinates; an output op: samples x m x m).\n"
      "  Params in IN/ must be those the model was trained with.\n"
+     "  --jacobian OUT:IN  also the exact Jacobian of stage OUT by input IN at every\n"
+     "               sample: OUT/jacobian_OUT_IN.npy, samples x OUT's axes x IN's axes\n"
      "  --jit B      the full evaluator's compiler: auto (the default: $NPG_JIT, else\n"
      "               cc when installed, else libtcc), cc (-O3, cached), tcc; --cc = --jit cc\n"
      "  --exact-roots  roots of reduced operators by eigendecomposition\n"

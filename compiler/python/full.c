@@ -429,6 +429,155 @@ static PyObject *full_simulate(FullObject *self, PyObject *args, PyObject *kw) {
   return out;
 }
 
+/* ---------------------------------------------------------------- derivatives (DESIGN §17) */
+
+/* The names and float64 arrays of a dict {name: array} (a direction per input, a
+ * cotangent per output), each of the quantity's count as bound; `what` names the
+ * argument. Returns the number of entries, or -1 with an exception. */
+static void free_named(int n, const char **names, PyArrayObject **arrays) {
+  for (int i = 0; arrays && i < n; i++) Py_XDECREF(arrays[i]);
+  PyMem_Free(names);
+  PyMem_Free(arrays);
+}
+
+static int named_arrays(FullObject *self, PyObject *dict, const char *what, const char ***names,
+                        PyArrayObject ***arrays) {
+  if (!PyDict_Check(dict)) {
+    PyErr_Format(PyExc_TypeError, "%s: a dict name -> array", what);
+    return -1;
+  }
+  Py_ssize_t n = PyDict_Size(dict), pos = 0;
+  int k = 0;
+  *names = PyMem_Calloc((size_t)n + 1, sizeof **names);
+  *arrays = PyMem_Calloc((size_t)n + 1, sizeof **arrays);
+  if (!*names || !*arrays) {
+    PyErr_NoMemory();
+    goto fail;
+  }
+  PyObject *key, *value;
+  while (PyDict_Next(dict, &pos, &key, &value)) {
+    const char *name = PyUnicode_Check(key) ? PyUnicode_AsUTF8(key) : NULL;
+    if (!name) {
+      PyErr_Format(PyExc_TypeError, "%s: keys are quantity names (str)", what);
+      goto fail;
+    }
+    char item[300];
+    snprintf(item, sizeof item, "%s['%s']", what, name);
+    size_t count = 0;
+    const double *v = npg_full_get(self->f, name, &count);
+    (*names)[k] = name;
+    if (!((*arrays)[k] = npgpy_values(value, item))) goto fail;
+    Py_ssize_t size = PyArray_SIZE((*arrays)[k]);
+    k++;
+    if (v && (size_t)size != count) {
+      PyErr_Format(PyExc_ValueError, "%s: %zd values, but '%s' has %zu", item, size, name, count);
+      goto fail;
+    }
+  }
+  return k;
+fail:
+  free_named(k, *names, *arrays);
+  *names = NULL;
+  *arrays = NULL;
+  return -1;
+}
+
+typedef enum DerivKind { DERIV_JVP, DERIV_VJP, DERIV_JACOBIAN } DerivKind;
+
+/* jvp(output, {input: direction}), vjp({output: cotangent}, input), jacobian(output, input), each
+ * with **inputs set first: the library's product at the inputs, shaped. */
+static PyObject *derivative(FullObject *self, PyObject *args, PyObject *kw, DerivKind kind) {
+  static const char *const method[] = {"Full.jvp", "Full.vjp", "Full.jacobian"};
+  PyObject *a0, *a1;
+  if (!PyArg_UnpackTuple(args, method[kind], 2, 2, &a0, &a1)) return NULL;
+  const char *one = npgpy_name(kind == DERIV_VJP ? a1 : a0, method[kind]);
+  const char *two = kind == DERIV_JACOBIAN ? npgpy_name(a1, method[kind]) : "";
+  if (!one || !two) return NULL;
+  if (!enter(self, method[kind])) return NULL;
+  PyObject *res = NULL, *shaped = NULL, *other = NULL;
+  const char **names = NULL;
+  PyArrayObject **arrays = NULL;
+  int n = 0;
+  if (set_inputs(self, kw) != 0) goto done;
+  self->evaluated = false;
+  long sample = self->calls++;
+  int rc;
+  /* evaluated first: the sizes the arrays are checked against are the point's (the library
+   * evaluates again, at the same point) */
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_full_eval(self->f, sample);
+  Py_END_ALLOW_THREADS
+  if (rc) {
+    fail(self);
+    goto done;
+  }
+  if (kind != DERIV_JACOBIAN &&
+      (n = named_arrays(self, kind == DERIV_JVP ? a1 : a0, kind == DERIV_JVP ? "directions" : "cotangents", &names,
+                        &arrays)) < 0) {
+    n = 0;
+    goto done;
+  }
+  size_t c1 = 0, c2 = 1;
+  npg_full_get(self->f, one, &c1);
+  if (kind == DERIV_JACOBIAN) npg_full_get(self->f, two, &c2);
+  size_t count = c1 * c2;
+  const double **data = PyMem_Calloc((size_t)n + 1, sizeof *data);
+  double *buf = malloc(sizeof(double) * (count ? count : 1));
+  if (!data || !buf) {
+    PyMem_Free(data);
+    free(buf);
+    PyErr_NoMemory();
+    goto done;
+  }
+  for (int i = 0; i < n; i++) data[i] = PyArray_DATA(arrays[i]);
+  Py_BEGIN_ALLOW_THREADS
+  if (kind == DERIV_JVP) rc = npg_full_jvp(self->f, sample, n, names, data, one, buf);
+  else if (kind == DERIV_VJP) rc = npg_full_vjp(self->f, sample, n, names, data, one, buf);
+  else rc = npg_full_jacobian(self->f, sample, one, two, buf);
+  Py_END_ALLOW_THREADS
+  PyMem_Free(data);
+  if (rc) {
+    free(buf);
+    fail(self);
+    goto done;
+  }
+  self->evaluated = true;
+  /* shaped like the quantities: their values' arrays give the shapes */
+  if (!(shaped = value_of(self, one)) || (kind == DERIV_JACOBIAN && !(other = value_of(self, two)))) {
+    free(buf);
+    goto done;
+  }
+  if (kind != DERIV_JACOBIAN) {
+    memcpy(PyArray_DATA((PyArrayObject *)shaped), buf, sizeof(double) * count);
+    free(buf);
+    res = Py_NewRef(shaped);
+    goto done;
+  }
+  npy_intp shape[2 * NPY_MAXDIMS];
+  int nd = 0, nd0 = PyArray_NDIM((PyArrayObject *)shaped), nd1 = PyArray_NDIM((PyArrayObject *)other);
+  if (nd0 + nd1 > NPY_MAXDIMS) {
+    free(buf);
+    PyErr_Format(npgpy_Error, "Full.jacobian: '%s' and '%s' have %d axes together, more than NumPy's %d", one, two,
+                 nd0 + nd1, NPY_MAXDIMS);
+    goto done;
+  }
+  for (int i = 0; i < nd0; i++) shape[nd++] = PyArray_DIM((PyArrayObject *)shaped, i);
+  for (int i = 0; i < nd1; i++) shape[nd++] = PyArray_DIM((PyArrayObject *)other, i);
+  res = owning(buf, nd, shape, NPY_DOUBLE);
+done:
+  Py_XDECREF(shaped);
+  Py_XDECREF(other);
+  free_named(n, names, arrays);
+  npgpy_busy_leave(&self->busy);
+  return res;
+}
+
+static PyObject *full_jvp(FullObject *self, PyObject *args, PyObject *kw) { return derivative(self, args, kw, DERIV_JVP); }
+static PyObject *full_vjp(FullObject *self, PyObject *args, PyObject *kw) { return derivative(self, args, kw, DERIV_VJP); }
+static PyObject *full_jacobian(FullObject *self, PyObject *args, PyObject *kw) {
+  return derivative(self, args, kw, DERIV_JACOBIAN);
+}
+
 static PyObject *full_repr(FullObject *self) { return PyUnicode_FromFormat("<npg.Full of %R>", self->prog->path); }
 
 static PyObject *get_program(FullObject *self, void *unused) { return Py_NewRef(self->prog); }
@@ -465,6 +614,15 @@ static PyMethodDef full_methods[] = {
    "extern(name, fn): the extern's values from fn(full, sample) at every evaluation (None: from data again).\n"
    "fn reads what it needs with full.get() (from its own thread or one it starts); it may not evaluate the\n"
    "same evaluator."},
+  {"jacobian", (PyCFunction)(void (*)(void))full_jacobian, METH_VARARGS | METH_KEYWORDS,
+   "jacobian(output, input, **inputs) -> array of shape output.shape + input.shape: d output / d input at the\n"
+   "inputs given (the others as last set), exact (DESIGN §17)"},
+  {"jvp", (PyCFunction)(void (*)(void))full_jvp, METH_VARARGS | METH_KEYWORDS,
+   "jvp(output, {input: direction, ...}, **inputs) -> array of output's shape: the forward product\n"
+   "sum of J(output, input) @ direction"},
+  {"vjp", (PyCFunction)(void (*)(void))full_vjp, METH_VARARGS | METH_KEYWORDS,
+   "vjp({output: cotangent, ...}, input, **inputs) -> array of input's shape: the reverse product\n"
+   "sum of J(output, input)^T @ cotangent"},
   {"op", (PyCFunction)full_op, METH_O,
    "op(name) -> dict(data, indices, indptr, shape): an output op as CSR; the arrays own the library's buffers"},
   {NULL},

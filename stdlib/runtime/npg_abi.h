@@ -12,7 +12,7 @@
 #ifndef NPG_ABI_H
 #define NPG_ABI_H
 
-#define NPG_ABI_VERSION 4
+#define NPG_ABI_VERSION 5
 
 typedef long npg_idx;
 
@@ -85,6 +85,15 @@ typedef struct NpgSink {
 typedef npg_idx (*NpgOpEntriesFn)(const NpgCtx *c, npg_idx cap, npg_idx *row, npg_idx *col, const npg_idx *slot,
                                   double *val);
 
+/* The derivatives of a sparse declared operator's entries (backends/emit/emit_deriv.c,
+ * DESIGN §17), its contributions listed in the order of its NpgOpEntriesFn: with `mode` 0
+ * each one's tangent (reading the tangents in `d`) added into val[slot[k]]; with `mode` 1,
+ * val[slot[k]] holds the cotangent of the compressed matrix's value at contribution k's
+ * slot, and each contribution's partial derivatives times it are added into the cotangents
+ * in `d`. Nothing past the first `cap`; returns how many contributions there are. */
+typedef npg_idx (*NpgOpDerivFn)(const NpgCtx *c, const NpgCtx *d, int mode, npg_idx cap, const npg_idx *slot,
+                                double *val);
+
 struct NpgRt {
   /* y <- M^(p/q) y for dense row-major n x n M (overwritten). Negative
    * integer powers by LU (info checked); fractional powers of a symmetric
@@ -118,6 +127,27 @@ struct NpgRt {
    * Non-zero on failure, after recording a message naming `stage` and `op`. */
   int (*sparse_power)(const NpgCtx *c, const char *stage, const char *op, int opid, npg_idx n,
                       NpgOpEntriesFn entries, long p, long q, double *y);
+  /* Derivatives of y = M^(p/q) x for dense row-major n x n M (DESIGN §17),
+   * M overwritten. Forward: x <- M^(p/q) x and dx <- M^(p/q) dx +
+   * D(M^(p/q))[dM] x, the tangent dM of M given. Reverse: given x and the
+   * cotangent ybar of y, Mbar += d<ybar, M^(p/q) x>/dM (entry by entry) and
+   * ybar <- (M^(p/q))^T ybar. Integer powers by one LU (the same
+   * factorization for the tangent's or the transposed solves), fractional
+   * ones from the eigendecomposition (Daleckii-Krein). Non-zero on failure,
+   * after recording a message naming `stage` and `op`, as op_power. */
+  int (*power_jvp)(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, const double *dM,
+                   long p, long q, double *x, double *dx);
+  int (*power_vjp)(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, double *Mbar,
+                   long p, long q, const double *x, double *ybar);
+  /* The same for sparse declared operator number `opid` (as sparse_power), its tangent or
+   * the cotangent of its values through `dentries` (d the derivatives' context): integer
+   * powers on its pattern with one factorization for every solve (stdlib/runtime/sparse.c),
+   * roots and small operators densified. */
+  int (*sparse_power_jvp)(const NpgCtx *c, const NpgCtx *d, const char *stage, const char *op, int opid, npg_idx n,
+                          NpgOpEntriesFn entries, NpgOpDerivFn dentries, long p, long q, double *x, double *dx);
+  int (*sparse_power_vjp)(const NpgCtx *c, const NpgCtx *d, const char *stage, const char *op, int opid, npg_idx n,
+                          NpgOpEntriesFn entries, NpgOpDerivFn dentries, long p, long q, const double *x,
+                          double *ybar);
 };
 
 /* Entry points of generated code (prefixed when several programs share a
@@ -128,6 +158,12 @@ typedef int (*NpgStageFn)(const NpgCtx *c);
  * box[b * 2 * nivars ...] (lo per index variable, then hi; half-open). */
 typedef int (*NpgStepFn)(const NpgCtx *c, int step, int nbox, const npg_idx *box);
 typedef int (*NpgBuildFn)(const NpgCtx *c, NpgSink *sink);
+/* The derivative entry points of the full evaluator (backends/emit/emit_deriv.c,
+ * DESIGN §17), run after the evaluation `c` holds. P_npg_full_jvp: d->q[k] is the tangent
+ * of quantity k (the inputs' given, every stage's written). P_npg_full_vjp: d->q[k] the
+ * cotangent of quantity k: the outputs' given, every other quantity's zero on entry; on
+ * return the inputs' hold the reverse product (the stages' are consumed). */
+typedef int (*NpgDerivFn)(const NpgCtx *c, const NpgCtx *d);
 
 /* ---------------------------------------------------------------- the reduced evaluator
  *

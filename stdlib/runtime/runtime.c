@@ -47,45 +47,56 @@ static double norm_rows(const double *M, npg_idx n) {
   return best;
 }
 
-/* y <- M^-k y by LU: one factorization, k solves. The row-major M is the column-major
- * M^T, so LAPACK factors M^T in place and solves with its transpose: LAPACKE's row-major
+/* LU of the row-major M in place. The row-major M is the column-major M^T, so LAPACK
+ * factors M^T in place: solves with 'T' apply M^-1, with 'N' M^-T. LAPACKE's row-major
  * interface would copy the matrix into column-major order and back (at 5,000 rows that
  * copy took 0.55 of the LU's 1.34 s). */
-static int inverse_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long k, double *y) {
-  lapack_int *piv = mem_malloc(sizeof(lapack_int) * (size_t)(n ? n : 1));
-  if (!piv) {
-    runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
-    return -1;
-  }
+int runtime_lu(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, lapack_int *piv) {
   lapack_int ld = (lapack_int)(n ? n : 1);
   double anorm = norm_rows(M, n);
   lapack_int info = LAPACKE_dgetrf(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)n, M, ld, piv);
   if (info < 0) {
     runtime_record(c, "sample %ld: stage '%s': LAPACK dgetrf rejected argument %d (a bug in npg)", c->sample, stage, (int)-info);
-    free(piv);
     return -1;
   }
   double rcond = 0;
   if (info == 0) LAPACKE_dgecon(LAPACK_COL_MAJOR, '1', (lapack_int)n, M, ld, anorm, &rcond);
   if (info > 0 || !(rcond > 1e-15)) {
     runtime_record(c, "sample %ld: stage '%s': operator %s is singular (rcond %.1e)", c->sample, stage, op, rcond);
-    free(piv);
     return -1;
   }
-  for (long r = 0; r < k; r++) {
-    info = LAPACKE_dgetrs(LAPACK_COL_MAJOR, 'T', (lapack_int)n, 1, M, ld, piv, y, ld);
-    if (info != 0) {
-      runtime_record(c, "sample %ld: stage '%s': LAPACK dgetrs failed (info %d)", c->sample, stage, (int)info);
-      free(piv);
-      return -1;
-    }
-  }
-  free(piv);
   return 0;
 }
 
-/* y <- M^(p/q) y for symmetric positive semidefinite M: V diag(w^(p/q)) V^T y. */
-static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long p, long q, double *y) {
+int runtime_lu_solve(const NpgCtx *c, const char *stage, npg_idx n, const double *LU, const lapack_int *piv,
+                     bool transpose, double *y) {
+  lapack_int ld = (lapack_int)(n ? n : 1);
+  lapack_int info = LAPACKE_dgetrs(LAPACK_COL_MAJOR, transpose ? 'N' : 'T', (lapack_int)n, 1, LU, ld, piv, y, ld);
+  if (info != 0) {
+    runtime_record(c, "sample %ld: stage '%s': LAPACK dgetrs failed (info %d)", c->sample, stage, (int)info);
+    return -1;
+  }
+  return 0;
+}
+
+/* y <- M^-k y by LU: one factorization, k solves. */
+static int inverse_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long k, double *y) {
+  lapack_int *piv = mem_malloc(sizeof(lapack_int) * (size_t)(n ? n : 1));
+  if (!piv) {
+    runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+    return -1;
+  }
+  int rc = runtime_lu(c, stage, op, n, M, piv);
+  for (long r = 0; r < k && rc == 0; r++) rc = runtime_lu_solve(c, stage, n, M, piv, false, y);
+  free(piv);
+  return rc;
+}
+
+/* The eigendecomposition of symmetric M for its power p/q: M overwritten by the
+ * eigenvectors (column k of the row-major M), w by the eigenvalues; refused when M is
+ * not symmetric, not positive (semi)definite, or singular under a negative power. */
+int runtime_sym_eigen(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long p, long q,
+                      double *w) {
   double asym = 0, scale = 0;
   for (npg_idx i = 0; i < n; i++)
     for (npg_idx j = 0; j < n; j++) {
@@ -97,6 +108,36 @@ static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx
            c->sample, stage, op, asym, p, q);
     return -1;
   }
+  lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, M, (lapack_int)n, w);
+  if (info != 0) {
+    runtime_record(c, "sample %ld: stage '%s': eigendecomposition of operator %s failed to converge (info %d)", c->sample, stage,
+           op, (int)info);
+    return -1;
+  }
+  /* An eigenvalue within 1e-12 of the largest is zero to rounding (dsyevd's
+   * error is about n·eps·‖M‖; a singular 12 x 12 Laplacian gave +6e-15, whose
+   * -1/2 power made the answer 1.3e7): a negative power of it is refused as
+   * singular, as solve and the reduced evaluator (reduced.c apply_root, the
+   * same tolerance) refuse it. */
+  double wmax = 0, wmin = INFINITY;
+  for (npg_idx i = 0; i < n; i++) wmax = fmax(wmax, fabs(w[i])), wmin = fmin(wmin, w[i]);
+  double tol = 1e-12 * (wmax > 0 ? wmax : 1);
+  if (n > 0 && wmin < -tol) {
+    runtime_record(c, "sample %ld: stage '%s': operator %s is not positive %sdefinite (eigenvalue %.3g), so its power %ld/%ld is undefined",
+                   c->sample, stage, op, p < 0 ? "" : "semi", wmin, p, q);
+    return -1;
+  }
+  if (n > 0 && p < 0 && wmin <= tol) {
+    runtime_record(c, "sample %ld: stage '%s': operator %s is singular (eigenvalue %.3g, largest %.3g), so its power %ld/%ld "
+                      "is undefined",
+                   c->sample, stage, op, wmin, wmax, p, q);
+    return -1;
+  }
+  return 0;
+}
+
+/* y <- M^(p/q) y for symmetric positive semidefinite M: V diag(w^(p/q)) V^T y. */
+static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long p, long q, double *y) {
   double *w = mem_malloc(sizeof(double) * (size_t)(n ? n : 1));
   double *t = mem_malloc(sizeof(double) * (size_t)(n ? n : 1));
   if (!w || !t) {
@@ -105,31 +146,7 @@ static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx
     runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
     return -1;
   }
-  lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, M, (lapack_int)n, w);
-  int rc = 0;
-  if (info != 0) {
-    runtime_record(c, "sample %ld: stage '%s': eigendecomposition of operator %s failed to converge (info %d)", c->sample, stage,
-           op, (int)info);
-    rc = -1;
-  }
-  /* An eigenvalue within 1e-12 of the largest is zero to rounding (dsyevd's
-   * error is about n·eps·‖M‖; a singular 12 x 12 Laplacian gave +6e-15, whose
-   * -1/2 power made the answer 1.3e7): a negative power of it is refused as
-   * singular, as solve and the reduced evaluator (reduced.c apply_root, the
-   * same tolerance) refuse it. */
-  double wmax = 0, wmin = INFINITY;
-  for (npg_idx i = 0; i < n && rc == 0; i++) wmax = fmax(wmax, fabs(w[i])), wmin = fmin(wmin, w[i]);
-  double tol = 1e-12 * (wmax > 0 ? wmax : 1);
-  if (rc == 0 && n > 0 && wmin < -tol) {
-    runtime_record(c, "sample %ld: stage '%s': operator %s is not positive %sdefinite (eigenvalue %.3g), so its power %ld/%ld is undefined",
-                   c->sample, stage, op, p < 0 ? "" : "semi", wmin, p, q);
-    rc = -1;
-  } else if (rc == 0 && n > 0 && p < 0 && wmin <= tol) {
-    runtime_record(c, "sample %ld: stage '%s': operator %s is singular (eigenvalue %.3g, largest %.3g), so its power %ld/%ld "
-                      "is undefined",
-                   c->sample, stage, op, wmin, wmax, p, q);
-    rc = -1;
-  }
+  int rc = runtime_sym_eigen(c, stage, op, n, M, p, q, w);
   if (rc == 0) {
     double r = (double)p / (double)q;
     for (npg_idx k = 0; k < n; k++) {
@@ -149,7 +166,8 @@ static int sym_power(const NpgCtx *c, const char *stage, const char *op, npg_idx
   return rc;
 }
 
-static int op_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long p, long q, double *y) {
+int runtime_check_finite(const NpgCtx *c, const char *stage, const char *op, npg_idx n, const double *M,
+                         const double *y) {
   /* LAPACKE refuses NaN as a bad argument: say what the data did instead */
   for (npg_idx i = 0; i < n * n; i++)
     if (!isfinite(M[i])) {
@@ -164,6 +182,11 @@ static int op_power(const NpgCtx *c, const char *stage, const char *op, npg_idx 
              stage, op, (long)i, y[i]);
       return -1;
     }
+  return 0;
+}
+
+static int op_power(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long p, long q, double *y) {
+  if (runtime_check_finite(c, stage, op, n, M, y)) return -1;
   if (q != 1) return sym_power(c, stage, op, n, M, p, q, y);
   if (p < 0) return inverse_power(c, stage, op, n, M, -p, y);
   /* positive integer power: repeated products */
@@ -204,4 +227,6 @@ static void gather_error(const NpgCtx *c, const char *stage, const char *at, con
 }
 
 const NpgRt npg_runtime = {op_power,   scratch,    release,   gather_error, rows_vv,
-                           rows_vs,    rows_sv,    rows_unary, rows_fill,    runtime_sparse_power};
+                           rows_vs,    rows_sv,    rows_unary, rows_fill,    runtime_sparse_power,
+                           runtime_power_jvp, runtime_power_vjp, runtime_sparse_power_jvp,
+                           runtime_sparse_power_vjp};

@@ -6,6 +6,8 @@
 #include <stdbool.h>
 #include <stddef.h>
 
+#include <lapacke.h>
+
 #include "npg_abi.h"
 
 /* What the runtime needs to word its messages. */
@@ -28,6 +30,31 @@ typedef struct SparseOp SparseOp;
 /* Records the first error of an evaluation in its host (NpgCtx.host). */
 void runtime_record(const NpgCtx *c, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 
+/* runtime.c, shared with deriv.c: M (row-major) and y finite, else a message naming
+ * `stage` and `op`; LU of M in place (M^T factored column-major, so a solve without
+ * `transpose` applies M^-1, with it M^-T), refused when singular (rcond <= 1e-15); the
+ * eigendecomposition of symmetric M for its power p/q (eigenvectors the columns of M,
+ * eigenvalues in w), refused when not symmetric, not positive (semi)definite, or singular
+ * under a negative power. Each 0, or -1 after recording the message. */
+int runtime_check_finite(const NpgCtx *c, const char *stage, const char *op, npg_idx n, const double *M,
+                         const double *y);
+int runtime_lu(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, lapack_int *piv);
+int runtime_lu_solve(const NpgCtx *c, const char *stage, npg_idx n, const double *LU, const lapack_int *piv,
+                     bool transpose, double *y);
+int runtime_sym_eigen(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, long p, long q,
+                      double *w);
+/* stdlib/runtime/deriv.c: NpgRt.power_jvp and NpgRt.power_vjp (npg_abi.h). */
+int runtime_power_jvp(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, const double *dM,
+                      long p, long q, double *x, double *dx);
+int runtime_power_vjp(const NpgCtx *c, const char *stage, const char *op, npg_idx n, double *M, double *Mbar,
+                      long p, long q, const double *x, double *ybar);
+
+/* stdlib/runtime/sparse.c: NpgRt.sparse_power_jvp and sparse_power_vjp (npg_abi.h). */
+int runtime_sparse_power_jvp(const NpgCtx *c, const NpgCtx *d, const char *stage, const char *op, int opid, npg_idx n,
+                             NpgOpEntriesFn entries, NpgOpDerivFn dentries, long p, long q, double *x, double *dx);
+int runtime_sparse_power_vjp(const NpgCtx *c, const NpgCtx *d, const char *stage, const char *op, int opid, npg_idx n,
+                             NpgOpEntriesFn entries, NpgOpDerivFn dentries, long p, long q, const double *x,
+                             double *ybar);
 /* stdlib/runtime/sparse.c: NpgRt.sparse_power, and dropping the patterns
  * when the binding changes (reset) or the host goes (free). */
 int runtime_sparse_power(const NpgCtx *c, const char *stage, const char *op, int opid, npg_idx n,

@@ -351,8 +351,9 @@ static int cholesky_solve(const NpgCtx *c, const char *stage, const char *op, Sp
   return 0;
 }
 
-/* y <- M^-k y by UMFPACK's LU. */
-static int lu_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, long k, double *y) {
+/* M's numeric LU by UMFPACK into *numeric (its symbolic analysis kept per binding): 0, or
+ * -1 after a message (singular, or a failure). */
+static int lu_numeric(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, void **numeric) {
   if (!s->symbolic) {
     umfpack_dl_defaults(s->umf_control);
     int st = (int)umfpack_dl_symbolic((SuiteSparse_long)s->n, (SuiteSparse_long)s->n, s->Ap, s->Ai, s->Ax,
@@ -362,25 +363,32 @@ static int lu_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp
       return -1;
     }
   }
-  void *numeric = NULL;
+  *numeric = NULL;
   double info[UMFPACK_INFO];
   ((NpgHost *)c->host)->sparse_lu++;
-  int st = (int)umfpack_dl_numeric(s->Ap, s->Ai, s->Ax, s->symbolic, &numeric, s->umf_control, info);
+  int st = (int)umfpack_dl_numeric(s->Ap, s->Ai, s->Ax, s->symbolic, numeric, s->umf_control, info);
   /* UMFPACK's own rcond is the ratio of U's smallest to largest pivot: a
      singular matrix leaves ~n·eps there after rounding, so below 1e-10 the
      dense path's estimate decides (a few more solves, only then) */
   double rcond = st == UMFPACK_OK ? info[UMFPACK_RCOND] : 0.0;
-  if (st == UMFPACK_OK && !(rcond > 1e-10)) rcond = factor_rcond(s, umfpack_factor_solve, numeric);
+  if (st == UMFPACK_OK && !(rcond > 1e-10)) rcond = factor_rcond(s, umfpack_factor_solve, *numeric);
   if (st == UMFPACK_WARNING_singular_matrix || (st == UMFPACK_OK && !(rcond > 1e-15))) {
     runtime_record(c, "sample %ld: stage '%s': operator %s is singular (rcond %.1e)", c->sample, stage, op, rcond);
-    umfpack_dl_free_numeric(&numeric);
+    umfpack_dl_free_numeric(numeric);
     return -1;
   }
   if (st != UMFPACK_OK) {
     runtime_record(c, "sample %ld: stage '%s': UMFPACK could not factorize operator %s (status %d)", c->sample, stage, op, st);
-    umfpack_dl_free_numeric(&numeric);
+    umfpack_dl_free_numeric(numeric);
     return -1;
   }
+  return 0;
+}
+
+/* y <- M^-k y by UMFPACK's LU. */
+static int lu_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, long k, double *y) {
+  void *numeric = NULL;
+  if (lu_numeric(c, stage, op, s, &numeric) != 0) return -1;
   double *x = mem_malloc(sizeof(double) * (size_t)(s->n ? s->n : 1));
   if (!x) {
     umfpack_dl_free_numeric(&numeric);
@@ -389,7 +397,7 @@ static int lu_solve(const NpgCtx *c, const char *stage, const char *op, SparseOp
   }
   int rc = 0;
   for (long r = 0; r < k && rc == 0; r++) {
-    st = (int)umfpack_dl_solve(UMFPACK_A, s->Ap, s->Ai, s->Ax, x, y, numeric, s->umf_control, NULL);
+    int st = (int)umfpack_dl_solve(UMFPACK_A, s->Ap, s->Ai, s->Ax, x, y, numeric, s->umf_control, NULL);
     if (st != UMFPACK_OK) {
       runtime_record(c, "sample %ld: stage '%s': UMFPACK's solve with operator %s failed (status %d)", c->sample, stage, op, st);
       rc = -1;
@@ -475,16 +483,19 @@ static int krylov_root(const NpgCtx *c, const char *stage, const char *op, Spars
 
 /* The assembled matrix as a dense row-major n x n array (for small
  * operators and roots). */
-static double *densify(const NpgCtx *c, const char *stage, const SparseOp *s) {
+/* The dense row-major matrix of values Ax on s's pattern. */
+static double *densify_values(const NpgCtx *c, const char *stage, const SparseOp *s, const double *Ax) {
   double *M = mem_calloc((size_t)s->n * (size_t)s->n, sizeof(double));
   if (!M) {
     runtime_record(c, "sample %ld: out of memory in stage '%s' (%ld x %ld operator)", c->sample, stage, (long)s->n, (long)s->n);
     return NULL;
   }
   for (npg_idx j = 0; j < s->n; j++)
-    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) M[s->Ai[p] * s->n + j] = s->Ax[p];
+    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) M[s->Ai[p] * s->n + j] = Ax[p];
   return M;
 }
+
+static double *densify(const NpgCtx *c, const char *stage, const SparseOp *s) { return densify_values(c, stage, s, s->Ax); }
 
 int runtime_sparse_power(const NpgCtx *c, const char *stage, const char *op, int opid, npg_idx n,
                          NpgOpEntriesFn entries, long p, long q, double *y) {
@@ -535,4 +546,160 @@ int runtime_sparse_power(const NpgCtx *c, const char *stage, const char *op, int
     s->not_spd = true;   /* indefinite: LU from now on */
   }
   return lu_solve(c, stage, op, s, -p, y);
+}
+
+/* ---------------------------------------------------------------- derivatives (DESIGN §17)
+ *
+ * y = M^r x for a sparse M: M's values, and its tangent dM's or the cotangent of its values,
+ * live on M's pattern (the derivative enumerator, NpgOpDerivFn, lists M's contributions in
+ * the order the entries function does, so contribution k lands in slot map[k] for both).
+ * Integer powers: products by the CSC values, or one factorization (CHOLMOD when M is
+ * symmetric positive definite, else UMFPACK) for every solve of the tangent's or the
+ * transposed ones: d(M^-1 f) = M^-1 (df - dM M^-1 f). Roots, and operators under the dense
+ * threshold: densified, then the dense derivatives (deriv.c, Daleckii-Krein). */
+
+/* out <- V x (trans: V^T x) for values V on s's pattern. */
+static void csc_apply(const SparseOp *s, const double *V, bool trans, const double *x, double *out) {
+  memset(out, 0, sizeof(double) * (size_t)s->n);
+  for (npg_idx j = 0; j < s->n; j++)
+    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) {
+      if (trans) out[j] += V[p] * x[s->Ai[p]];
+      else out[s->Ai[p]] += V[p] * x[j];
+    }
+}
+
+/* M's factorization for solves with M and M^T. */
+typedef struct SparseFactor {
+  FactorSolve solve;
+  void *factor;
+} SparseFactor;
+
+static int sparse_factor(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, SparseFactor *f) {
+  if (!s->not_spd && values_symmetric(s)) {
+    int rc = cholesky_solve(c, stage, op, s, 0, NULL);
+    if (rc < 0) return -1;
+    if (rc == 0) {
+      *f = (SparseFactor){cholmod_factor_solve, s->L};
+      return 0;
+    }
+    s->not_spd = true; /* indefinite: LU from now on */
+  }
+  *f = (SparseFactor){umfpack_factor_solve, NULL};
+  return lu_numeric(c, stage, op, s, &f->factor);
+}
+
+static void sparse_unfactor(SparseFactor *f) {
+  if (f->solve == umfpack_factor_solve && f->factor) umfpack_dl_free_numeric(&f->factor);
+}
+
+/* M's pattern and values for this evaluation: the SparseOp, or NULL after a message. */
+static SparseOp *sparse_ready(const NpgCtx *c, const char *stage, const char *op, int opid, npg_idx n,
+                              NpgOpEntriesFn entries, const double *x) {
+  for (npg_idx i = 0; i < n; i++)
+    if (!isfinite(x[i])) {
+      runtime_record(c, "sample %ld: stage '%s': the vector operator %s acts on is not finite (entry %ld is %g)", c->sample,
+             stage, op, (long)i, x[i]);
+      return NULL;
+    }
+  SparseOp *s = op_slot(c, opid);
+  if (!s) {
+    runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+    return NULL;
+  }
+  if (!s->ready && build_pattern(c, stage, op, s, n, entries) != 0) {
+    op_clear(s);
+    return NULL;
+  }
+  return fill_values(c, stage, op, s, entries) == 0 ? s : NULL;
+}
+
+int runtime_sparse_power_jvp(const NpgCtx *c, const NpgCtx *d, const char *stage, const char *op, int opid, npg_idx n,
+                             NpgOpEntriesFn entries, NpgOpDerivFn dentries, long p, long q, double *x, double *dx) {
+  SparseOp *s = sparse_ready(c, stage, op, opid, n, entries, x);
+  if (!s) return -1;
+  size_t nnz = (size_t)s->Ap[n];
+  double *dA = mem_calloc(nnz ? nnz : 1, sizeof(double)), *t = mem_malloc(sizeof(double) * (size_t)(n ? n : 1));
+  double *u = mem_malloc(sizeof(double) * (size_t)(n ? n : 1));
+  int rc = !dA || !t || !u ? -1 : 0;
+  if (rc) runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+  if (rc == 0) dentries(c, d, 0, s->ncontrib, s->map, dA);
+  if (rc == 0 && (n < ((NpgHost *)c->host)->sparse_min_rows || q != 1)) {
+    double *M = densify(c, stage, s), *dM = M ? densify_values(c, stage, s, dA) : NULL;
+    rc = M && dM ? runtime_power_jvp(c, stage, op, n, M, dM, p, q, x, dx) : -1;
+    free(M), free(dM), free(dA), free(t), free(u);
+    return rc;
+  }
+  SparseFactor f = {NULL, NULL};
+  if (rc == 0 && p < 0) rc = sparse_factor(c, stage, op, s, &f);
+  for (long k = 0; k < labs(p) && rc == 0; k++) {
+    if (p > 0) { /* x' = M x, dx' = M dx + dM x */
+      csc_apply(s, s->Ax, false, x, t);
+      csc_apply(s, s->Ax, false, dx, u);
+      csc_apply(s, dA, false, x, dx);
+      for (npg_idx i = 0; i < n; i++) dx[i] += u[i];
+      memcpy(x, t, sizeof(double) * (size_t)n);
+    } else { /* x' = M^-1 x, dx' = M^-1 (dx - dM x') */
+      memcpy(t, x, sizeof(double) * (size_t)n);
+      rc = f.solve(s, f.factor, false, x, t);
+      if (rc == 0) {
+        csc_apply(s, dA, false, x, u);
+        for (npg_idx i = 0; i < n; i++) t[i] = dx[i] - u[i];
+        rc = f.solve(s, f.factor, false, dx, t);
+      }
+      if (rc) runtime_record(c, "sample %ld: stage '%s': a solve with operator %s failed", c->sample, stage, op);
+    }
+  }
+  sparse_unfactor(&f);
+  free(dA), free(t), free(u);
+  return rc;
+}
+
+int runtime_sparse_power_vjp(const NpgCtx *c, const NpgCtx *d, const char *stage, const char *op, int opid, npg_idx n,
+                             NpgOpEntriesFn entries, NpgOpDerivFn dentries, long p, long q, const double *x,
+                             double *ybar) {
+  SparseOp *s = sparse_ready(c, stage, op, opid, n, entries, x);
+  if (!s) return -1;
+  size_t nnz = (size_t)s->Ap[n];
+  long k = labs(p);
+  double *Ab = mem_calloc(nnz ? nnz : 1, sizeof(double)), *t = mem_malloc(sizeof(double) * (size_t)(n ? n : 1));
+  double *ws = mem_malloc(sizeof(double) * (size_t)(n ? n : 1) * (size_t)(k + 1));
+  int rc = !Ab || !t || !ws ? -1 : 0;
+  if (rc) runtime_record(c, "sample %ld: out of memory in stage '%s'", c->sample, stage);
+  if (rc == 0 && (n < ((NpgHost *)c->host)->sparse_min_rows || q != 1)) {
+    double *M = densify(c, stage, s), *Mb = M ? mem_calloc((size_t)n * (size_t)n + 1, sizeof(double)) : NULL;
+    rc = M && Mb ? runtime_power_vjp(c, stage, op, n, M, Mb, p, q, x, ybar) : -1;
+    for (npg_idx j = 0; rc == 0 && j < n; j++) /* the cotangent of each value on the pattern */
+      for (SuiteSparse_long pp = s->Ap[j]; pp < s->Ap[j + 1]; pp++) Ab[pp] = Mb[s->Ai[pp] * n + j];
+    if (rc == 0) dentries(c, d, 1, s->ncontrib, s->map, Ab);
+    free(M), free(Mb), free(Ab), free(t), free(ws);
+    return rc;
+  }
+  SparseFactor f = {NULL, NULL};
+  if (rc == 0 && p < 0) rc = sparse_factor(c, stage, op, s, &f);
+  if (rc == 0) memcpy(ws, x, sizeof(double) * (size_t)n);
+  for (long j = 0; j < k && rc == 0; j++) { /* ws[j] = M^(±j) x */
+    double *from = ws + (size_t)j * (size_t)n, *to = from + n;
+    if (p > 0) csc_apply(s, s->Ax, false, from, to);
+    else rc = f.solve(s, f.factor, false, to, from);
+  }
+  for (long j = k - 1; j >= 0 && rc == 0; j--) {
+    const double *from = ws + (size_t)j * (size_t)n, *to = from + n;
+    if (p > 0) { /* y = M w: Mbar += ybar w^T on the pattern, ybar <- M^T ybar */
+      for (npg_idx col = 0; col < n; col++)
+        for (SuiteSparse_long pp = s->Ap[col]; pp < s->Ap[col + 1]; pp++) Ab[pp] += ybar[s->Ai[pp]] * from[col];
+      csc_apply(s, s->Ax, true, ybar, t);
+      memcpy(ybar, t, sizeof(double) * (size_t)n);
+    } else { /* y = M^-1 w: ybar <- M^-T ybar, Mbar -= ybar y^T on the pattern */
+      memcpy(t, ybar, sizeof(double) * (size_t)n);
+      rc = f.solve(s, f.factor, true, ybar, t);
+      for (npg_idx col = 0; rc == 0 && col < n; col++)
+        for (SuiteSparse_long pp = s->Ap[col]; pp < s->Ap[col + 1]; pp++) Ab[pp] -= ybar[s->Ai[pp]] * to[col];
+    }
+  }
+  if (rc > 0 || (rc < 0 && !((NpgHost *)c->host)->msg[0]))
+    runtime_record(c, "sample %ld: stage '%s': a solve with operator %s failed", c->sample, stage, op), rc = -1;
+  if (rc == 0) dentries(c, d, 1, s->ncontrib, s->map, Ab);
+  sparse_unfactor(&f);
+  free(Ab), free(t), free(ws);
+  return rc;
 }
