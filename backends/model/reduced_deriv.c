@@ -164,7 +164,21 @@ static int tensor_jacobian(const Deriv *dv, const RTensor *t, int j, double *J) 
   if (!zbuf || !P || (k > 1 && (!col || !coef))) goto out;
   tensor_z(dv, t, z, zbuf);
   if (contract_but(t, j, z, P)) goto out;
-  if (k > 1) {
+  if (k == 2) { /* z[(a,b)] = x_a x_b, a <= b: row r gains P[r,(a,b)] x_b at a and P[r,(a,b)] x_a at b */
+    const double *x = dv->x[t->in_q[j]];
+    memset(J, 0, sizeof(double) * (size_t)(rows * mq));
+    for (long r = 0; r < rows; r++) {
+      const double *pr = P + r * Lj;
+      double *jr = J + r * mq;
+      for (long a = 0, off = 0; a < mq; off += mq - a, a++) {
+        const double *seg = pr + off - a; /* seg[b] = P[r,(a,b)] for b >= a */
+        double s = 0, xa = x[a];
+        for (long b = a; b < mq; b++) s += seg[b] * x[b];
+        for (long b = a; b < mq; b++) jr[b] += seg[b] * xa;
+        jr[a] += s;
+      }
+    }
+  } else if (k > 2) {
     const double *x = dv->x[t->in_q[j]];
     long a[RT_MAX_IN] = {0};
     for (long p = 0; p < Lj; p++) {
@@ -624,7 +638,16 @@ static int galerkin_stage(Deriv *dv, const RStage *rs, bool reverse) {
 
 /* ---------------------------------------------------------------- interpolated stages */
 
-static double interp_pow(double b, long p, long q) { return q == 1 ? pow(b, (double)p) : pow(b, (double)p / (double)q); }
+/* b^(p/q): small integer and half-integer powers by multiplication and one sqrt (one per
+ * selected entry and operator, as interp.c's evaluation), others by pow(). */
+static double interp_pow(double b, long p, long q) {
+  if ((q == 1 || q == 2) && p >= -16 && p <= 16) {
+    double base = q == 2 ? sqrt(b) : b, v = 1;
+    for (long i = 0; i < labs(p); i++) v *= base;
+    return p < 0 ? 1 / v : v;
+  }
+  return pow(b, (double)p / (double)q);
+}
 
 /* Forward: d[y] += J_q d[q]; reverse: d[q] += J_qᵀ d[y], for every active quantity q the
  * formula reads, J_q = (W P B)⁺ W · ∂(P y)/∂x̂_q from its monomials (RInterp.mono). */
@@ -655,16 +678,15 @@ static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
   for (int t = 0; t < rs->nterms; t++) { /* g = ∂(P y)[s]/∂acc */
     const RTerm *rt = &rs->terms[t];
     for (long s = 0; s < k; s++) {
-      double num = acc[base[t] * k + s], all = 1;
-      for (int o = 0; o < rt->nops; o++)
-        all *= interp_pow(acc[(base[t] + o + 1) * k + s], rt->ops[o].op->p, rt->ops[o].op->q);
+      double num = acc[base[t] * k + s], all = 1, pw[RT_MAX_IN];
+      for (int o = 0; o < rt->nops && o < RT_MAX_IN; o++)
+        all *= pw[o] = interp_pow(acc[(base[t] + o + 1) * k + s], rt->ops[o].op->p, rt->ops[o].op->q);
       g[base[t] * k + s] = all;
-      for (int o = 0; o < rt->nops; o++) {
-        long p = rt->ops[o].op->p, q = rt->ops[o].op->q;
-        double d = acc[(base[t] + o + 1) * k + s], rest = num;
-        for (int o2 = 0; o2 < rt->nops; o2++)
-          if (o2 != o) rest *= interp_pow(acc[(base[t] + o2 + 1) * k + s], rt->ops[o2].op->p, rt->ops[o2].op->q);
-        g[(base[t] + o + 1) * k + s] = rest * ((double)p / (double)q) * pow(d, (double)p / (double)q - 1);
+      for (int o = 0; o < rt->nops && o < RT_MAX_IN; o++) { /* ∂(d^e)/∂d = e d^e / d, the rest's product kept */
+        double rest = num, e = (double)rt->ops[o].op->p / (double)rt->ops[o].op->q, d = acc[(base[t] + o + 1) * k + s];
+        for (int o2 = 0; o2 < rt->nops && o2 < RT_MAX_IN; o2++)
+          if (o2 != o) rest *= pw[o2];
+        g[(base[t] + o + 1) * k + s] = rest * e * (d != 0 ? pw[o] / d : pow(d, e - 1));
       }
     }
   }
@@ -692,7 +714,9 @@ static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
         double cj = gi;
         for (int l = 0; l < mo->nin; l++)
           if (l != j) cj *= val[mo->read[l]];
-        cblas_daxpy((int)mq, cj, c->B + ip->read_e[r] * mq, 1, D + mo->slot * mq, 1);
+        const double *row = c->B + ip->read_e[r] * mq; /* a loop: cblas_daxpy's call cost more at these m */
+        double *dst = D + mo->slot * mq;
+        for (long a = 0; a < mq; a++) dst[a] += cj * row[a];
       }
     }
     cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)my, (int)mq, (int)k, 1.0, ip->pinv, (int)k, D, (int)mq,
