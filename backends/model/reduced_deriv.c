@@ -104,22 +104,30 @@ static int contract_into(const RTensor *t, const double *const *z, double *out) 
   return 0;
 }
 
-/* P (rows x L_j): T contracted with every packed input but z_j. The axes
- * after j by dgemv from the last; those before j row by row against
- * z_1 ⊗ … ⊗ z_{j-1}. */
-static int contract_but(const RTensor *t, int j, const double *const *z, double *P) {
-  long before = 1, upto = t->rows;
+/* P (rows x L_j): T contracted with every packed input but z_j, into *P:
+ * the tensor itself when j is its only axis (nothing copied), else a new
+ * array (*owned, freed by the caller). The axes after j by dgemv from the
+ * last; those before j row by row against z_1 ⊗ … ⊗ z_{j-1}. */
+static int contract_but(const RTensor *t, int j, const double *const *z, const double **P, double **owned) {
+  long before = 1, upto = t->rows, Lj = t->in_len[j];
   for (int i = 0; i < j; i++) before *= t->in_len[i];
   for (int i = 0; i <= j; i++) upto *= t->in_len[i];
-  long Lj = t->in_len[j];
-  double *buf[2] = {mem_malloc(sizeof(double) * (size_t)(upto + 1)), mem_malloc(sizeof(double) * (size_t)(upto + 1))};
-  double *kron = mem_malloc(sizeof(double) * (size_t)(before + 1));
+  *owned = NULL;
+  if (j == t->nin - 1 && before == 1) {
+    *P = t->data;
+    return 0;
+  }
+  long lead = upto; /* the first trailing step's rows */
+  for (int i = j + 1; i + 1 < t->nin; i++) lead *= t->in_len[i];
+  double *buf[2] = {NULL, NULL}, *kron = NULL, *out = NULL;
   int rc = -1;
-  if (!buf[0] || !buf[1] || !kron) goto out;
+  if (j < t->nin - 1 && (!(buf[0] = mem_malloc(sizeof(double) * (size_t)(lead + 1))) ||
+                         !(buf[1] = mem_malloc(sizeof(double) * (size_t)(lead + 1)))))
+    goto done;
+  if (!(kron = mem_malloc(sizeof(double) * (size_t)(before + 1))) ||
+      !(out = mem_malloc(sizeof(double) * (size_t)(t->rows * Lj + 1))))
+    goto done;
   const double *src = t->data;
-  long lead = upto;
-  for (int i = j + 1; i < t->nin; i++) lead *= t->in_len[i];
-  lead /= t->in_len[t->nin - 1];
   int b = 0;
   for (int i = t->nin - 1; i > j; i--) {
     long cols = t->in_len[i];
@@ -136,16 +144,18 @@ static int contract_but(const RTensor *t, int j, const double *const *z, double 
       for (long c = li - 1; c >= 0; c--) kron[a * li + c] = kron[a] * z[i][c];
     len *= li;
   }
-  if (before == 1) memcpy(P, src, sizeof(double) * (size_t)(t->rows * Lj));
+  if (before == 1) memcpy(out, src, sizeof(double) * (size_t)(t->rows * Lj));
   else
     for (long r = 0; r < t->rows; r++)
       cblas_dgemv(CblasRowMajor, CblasTrans, (int)before, (int)Lj, 1.0, src + r * before * Lj, (int)Lj, kron, 1, 0.0,
-                  P + r * Lj, 1);
+                  out + r * Lj, 1);
+  *P = out, *owned = out, out = NULL;
   rc = 0;
-out:
+done:
   free(buf[0]);
   free(buf[1]);
   free(kron);
+  free(out);
   return rc;
 }
 
@@ -156,15 +166,16 @@ static int tensor_jacobian(const Deriv *dv, const RTensor *t, int j, double *J) 
   long mq = qm(dv->m, t->in_q[j]), Lj = t->in_len[j], rows = t->rows;
   int k = t->in_mult[j];
   const double *z[RT_MAX_IN];
-  double *zbuf = mem_malloc(sizeof(double) * (size_t)tensor_zlen(t));
-  double *P = k == 1 ? J : mem_malloc(sizeof(double) * (size_t)(rows * Lj + 1));
-  long *col = k == 1 ? NULL : mem_malloc(sizeof(long) * (size_t)(Lj * k + 1));
-  double *coef = k == 1 ? NULL : mem_malloc(sizeof(double) * (size_t)(Lj * k + 1));
+  double *zbuf = mem_malloc(sizeof(double) * (size_t)tensor_zlen(t)), *owned = NULL;
+  const double *P = NULL;
+  long *col = k <= 2 ? NULL : mem_malloc(sizeof(long) * (size_t)(Lj * k + 1));
+  double *coef = k <= 2 ? NULL : mem_malloc(sizeof(double) * (size_t)(Lj * k + 1));
   int rc = -1;
-  if (!zbuf || !P || (k > 1 && (!col || !coef))) goto out;
+  if (!zbuf || (k > 2 && (!col || !coef))) goto out;
   tensor_z(dv, t, z, zbuf);
-  if (contract_but(t, j, z, P)) goto out;
-  if (k == 2) { /* z[(a,b)] = x_a x_b, a <= b: row r gains P[r,(a,b)] x_b at a and P[r,(a,b)] x_a at b */
+  if (contract_but(t, j, z, &P, &owned)) goto out;
+  if (k == 1) memcpy(J, P, sizeof(double) * (size_t)(rows * mq));
+  else if (k == 2) { /* z[(a,b)] = x_a x_b, a <= b: row r gains P[r,(a,b)] x_b at a and P[r,(a,b)] x_a at b */
     const double *x = dv->x[t->in_q[j]];
     memset(J, 0, sizeof(double) * (size_t)(rows * mq));
     for (long r = 0; r < rows; r++) {
@@ -205,7 +216,7 @@ static int tensor_jacobian(const Deriv *dv, const RTensor *t, int j, double *J) 
   rc = 0;
 out:
   free(zbuf);
-  if (P != J) free(P);
+  free(owned);
   free(col);
   free(coef);
   return rc;
