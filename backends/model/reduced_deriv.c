@@ -433,11 +433,53 @@ static void dk_forward(const OpState *o, const double *E, const double *w, doubl
   cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, 1.0, o->U, n, t, 1, 0.0, out, 1);
 }
 
+/* The operator's tangent applied to one vector, without forming dM: for
+ * each active input q of its tensors, G = ∂(M̂ u)/∂x̂_q (n x m_q, folded
+ * from the tensor's local Jacobian: packed row (a,b) adds its row times
+ * u_b to G's row a, and times u_a to row b when a < b), then forward
+ * V (n x nd) += sign · G d[q], reverse d[q] += sign · Gᵀ V. */
+static int op_dM_times(Deriv *dv, const OpState *o, const double *u, double sign, bool reverse, double *V) {
+  long n = o->n, nd = dv->nd;
+  bool diag = o->ro->op->kind == OPK_DIAG;
+  long rows = diag ? n * (n + 1) / 2 : n * n;
+  for (int g = 0; g < o->ro->ntensors; g++) {
+    const RTensor *t = &o->ro->t[g];
+    for (int j = 0; j < t->nin; j++) {
+      int q = t->in_q[j];
+      long mq = qm(dv->m, q);
+      if (!dv->active[q] || mq == 0 || n == 0) continue;
+      double *J = mem_malloc(sizeof(double) * (size_t)(rows * mq)), *G = mem_calloc((size_t)(n * mq), sizeof(double));
+      if (!J || !G || tensor_jacobian(dv, t, j, J)) {
+        free(J);
+        free(G);
+        return dfail_oom(dv);
+      }
+      for (long a = 0, p = 0; a < n; a++)
+        for (long b = diag ? a : 0; b < n; b++, p++) {
+          const double *jr = J + p * mq;
+          double *ga = G + a * mq, *gb = G + b * mq, ub = u[b], ua = u[a];
+          for (long c = 0; c < mq; c++) ga[c] += jr[c] * ub;
+          if (diag && b != a)
+            for (long c = 0; c < mq; c++) gb[c] += jr[c] * ua;
+        }
+      if (reverse)
+        cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)n, sign, G, (int)mq, V, (int)nd,
+                    1.0, dv->d[q], (int)nd);
+      else
+        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)nd, (int)mq, sign, G, (int)mq, dv->d[q],
+                    (int)nd, 1.0, V, (int)nd);
+      free(J);
+      free(G);
+    }
+  }
+  return 0;
+}
+
 /* Forward through one power: dV (n x nd) <- the tangent of the result, vs its primal chain. */
 static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV) {
   long n = o->n, nd = dv->nd, steps = op_steps(o);
-  bool dm = false;
-  for (int g = 0; g < o->ro->ntensors; g++) dm = dm || tensor_active(dv, &o->ro->t[g]);
+  bool dm = false, root = o->ro->op->q != 1; /* dM formed for roots only (Daleckii–Krein) */
+  for (int g = 0; g < o->ro->ntensors; g++) dm = dm || (root && tensor_active(dv, &o->ro->t[g]));
   double *dM = dm ? mem_calloc((size_t)(nd * n * n) + 1, sizeof(double)) : NULL;
   double *tmp = mem_malloc(sizeof(double) * (size_t)(n * nd + 2 * n * n + 5 * n + 1));
   if ((dm && !dM) || !tmp) {
@@ -457,13 +499,9 @@ static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV)
       cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)nd, (int)n, 1.0, o->M, (int)n, dV, (int)nd,
                   0.0, tmp, (int)nd);
       memcpy(dV, tmp, sizeof(double) * (size_t)(n * nd));
-      for (long d = 0; dm && d < nd; d++)
-        cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)n, 1.0, dM + d * n * n, (int)n, v, 1, 1.0, dV + d,
-                    (int)nd);
+      if (op_dM_times(dv, o, v, 1.0, false, dV)) break;
     } else if (o->ro->op->q == 1) { /* dv' = M⁻¹ (dv − dM v') */
-      for (long d = 0; dm && d < nd; d++)
-        cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)n, -1.0, dM + d * n * n, (int)n, v2, 1, 1.0, dV + d,
-                    (int)nd);
+      if (op_dM_times(dv, o, v2, -1.0, false, dV)) break;
       if (nd > 0) LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', (lapack_int)n, (lapack_int)nd, o->LU, (lapack_int)n, o->piv,
                                  dV, (lapack_int)nd);
     } else { /* dv' = f(M) dv + U (F ∘ Uᵀ dM U) Uᵀ v */
@@ -481,15 +519,15 @@ static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV)
   }
   free(dM);
   free(tmp);
-  return 0;
+  return dv->err[0] ? -1 : 0;
 }
 
 /* Reverse through one power: Vb (n x nd), the cotangent of the result, becomes that of its
  * operand; the operator's cotangent goes to its inputs. */
 static int op_reverse(Deriv *dv, const OpState *o, const double *vs, double *Vb) {
   long n = o->n, nd = dv->nd, steps = op_steps(o);
-  bool dm = false;
-  for (int g = 0; g < o->ro->ntensors; g++) dm = dm || tensor_active(dv, &o->ro->t[g]);
+  bool dm = false, root = o->ro->op->q != 1; /* M̄ formed for roots only */
+  for (int g = 0; g < o->ro->ntensors; g++) dm = dm || (root && tensor_active(dv, &o->ro->t[g]));
   double *Mb = dm ? mem_calloc((size_t)(nd * n * n) + 1, sizeof(double)) : NULL;
   double *tmp = mem_malloc(sizeof(double) * (size_t)(n * nd + 2 * n * n + 2 * n + 1));
   if ((dm && !Mb) || !tmp) {
@@ -501,17 +539,15 @@ static int op_reverse(Deriv *dv, const OpState *o, const double *vs, double *Vb)
   double e = (double)o->ro->op->p / (double)o->ro->op->q;
   for (long s = steps - 1; s >= 0; s--) {
     const double *v = vs + s * n, *v2 = vs + (s + 1) * n;
-    if (o->ro->op->q == 1 && o->ro->op->p > 0) { /* M̄ += v̄' vᵀ, v̄ = Mᵀ v̄' */
-      for (long d = 0; dm && d < nd; d++)
-        cblas_dger(CblasRowMajor, (int)n, (int)n, 1.0, Vb + d, (int)nd, v, 1, Mb + d * n * n, (int)n);
+    if (o->ro->op->q == 1 && o->ro->op->p > 0) { /* M̄ = v̄' vᵀ to the inputs, v̄ = Mᵀ v̄' */
+      if (op_dM_times(dv, o, v, 1.0, true, Vb)) break;
       cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)n, (int)nd, (int)n, 1.0, o->M, (int)n, Vb, (int)nd,
                   0.0, tmp, (int)nd);
       memcpy(Vb, tmp, sizeof(double) * (size_t)(n * nd));
     } else if (o->ro->op->q == 1) { /* λ = M⁻ᵀ v̄', M̄ −= λ v'ᵀ, v̄ = λ */
       if (nd > 0) LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'T', (lapack_int)n, (lapack_int)nd, o->LU, (lapack_int)n, o->piv,
                                  Vb, (lapack_int)nd);
-      for (long d = 0; dm && d < nd; d++)
-        cblas_dger(CblasRowMajor, (int)n, (int)n, -1.0, Vb + d, (int)nd, v2, 1, Mb + d * n * n, (int)n);
+      if (op_dM_times(dv, o, v2, -1.0, true, Vb)) break;
     } else { /* ū = Uᵀ v̄': M̄ += U (F ∘ ū wᵀ) Uᵀ, w = Uᵀ v; v̄ = U f(Λ) ū */
       cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)n, 1.0, o->U, (int)n, v, 1, 0.0, w, 1);
       cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)n, (int)nd, (int)n, 1.0, o->U, (int)n, Vb, (int)nd,
@@ -530,7 +566,7 @@ static int op_reverse(Deriv *dv, const OpState *o, const double *vs, double *Vb)
                   0.0, Vb, (int)nd);
     }
   }
-  int rc = dm ? op_cotangent(dv, o, Mb) : 0;
+  int rc = dv->err[0] ? -1 : dm ? op_cotangent(dv, o, Mb) : 0;
   free(Mb);
   free(tmp);
   return rc;
@@ -796,6 +832,7 @@ static int deriv_init(Deriv *dv, Reduced *r, long nd, const int *from, int nfrom
                       size_t errlen) {
   memset(dv, 0, sizeof *dv);
   dv->m = reduced_model(r), dv->nd = nd, dv->sample = sample, dv->err = err, dv->errlen = errlen;
+  if (errlen > 0) err[0] = 0; /* a failure is known by its message */
   const Model *m = dv->m;
   double **x = mem_calloc((size_t)m->nq + 1, sizeof(double *));
   dv->d = mem_calloc((size_t)m->nq + 1, sizeof(double *));
