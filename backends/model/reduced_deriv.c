@@ -175,19 +175,13 @@ static int tensor_jacobian(const Deriv *dv, const RTensor *t, int j, double *J) 
   tensor_z(dv, t, z, zbuf);
   if (contract_but(t, j, z, &P, &owned)) goto out;
   if (k == 1) memcpy(J, P, sizeof(double) * (size_t)(rows * mq));
-  else if (k == 2) { /* z[(a,b)] = x_a x_b, a <= b: row r gains P[r,(a,b)] x_b at a and P[r,(a,b)] x_a at b */
+  else if (k == 2) { /* z[(a,b)] = x_a x_b, a <= b: row r's packed upper triangle S_r, ∂/∂x = (S_r + diag S_r) x */
     const double *x = dv->x[t->in_q[j]];
-    memset(J, 0, sizeof(double) * (size_t)(rows * mq));
     for (long r = 0; r < rows; r++) {
       const double *pr = P + r * Lj;
       double *jr = J + r * mq;
-      for (long a = 0, off = 0; a < mq; off += mq - a, a++) {
-        const double *seg = pr + off - a; /* seg[b] = P[r,(a,b)] for b >= a */
-        double s = 0, xa = x[a];
-        for (long b = a; b < mq; b++) s += seg[b] * x[b];
-        for (long b = a; b < mq; b++) jr[b] += seg[b] * xa;
-        jr[a] += s;
-      }
+      cblas_dspmv(CblasRowMajor, CblasUpper, (int)mq, 1.0, pr, x, 1, 0.0, jr, 1);
+      for (long a = 0, off = 0; a < mq; off += mq - a, a++) jr[a] += pr[off] * x[a];
     }
   } else if (k > 2) {
     const double *x = dv->x[t->in_q[j]];
