@@ -626,6 +626,24 @@ NPG_API int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t 
 /* The reduced step (DESIGN §15): npg_full_step's contract with every state kept in reduced
  * coordinates (a state and its next value share one basis: the next value's coordinates become
  * the state's, nothing lifted); energy is ‖û‖² of the state's coordinates. */
+/* Derivatives of the reduced evaluator in reduced coordinates (DESIGN §17), the contract of
+ * npg_full_jvp/vjp/jacobian with every array a quantity's m coordinates instead of its full
+ * entries: each evaluates (npg_reduced_eval at `sample`) and differentiates there, at reduced
+ * cost (nothing of the full size).
+ *   npg_reduced_jvp: out (output's m) = Σ_i J(output, inputs[i]) · directions[i] (inputs' m);
+ *   npg_reduced_vjp: out (input's m)  = Σ_i J(outputs[i], input)^T · cotangents[i];
+ *   npg_reduced_jacobian: out = J(output, input), m_output × m_input, row-major.
+ * Contractions differentiate through their pre-multiplied tensors, inverse stages as
+ * K̂⁻¹(df̂ − dK̂ ŷ), roots by the Daleckii–Krein formula on the reduced operator's
+ * eigendecomposition, interpolated stages through their formula at the selected entries.
+ * Derivatives are taken with respect to inputs; an output may be any quantity. An extern
+ * that depends on the input (its learned map has no derivative) is refused, naming it.
+ * 0, or -1 with npg_reduced_error() naming the argument or the stage. */
+NPG_API int npg_reduced_jvp(NpgReduced *r, long sample, int nin, const char *const *inputs,
+                            const double *const *directions, const char *output, double *out);
+NPG_API int npg_reduced_vjp(NpgReduced *r, long sample, int nout, const char *const *outputs,
+                            const double *const *cotangents, const char *input, double *out);
+NPG_API int npg_reduced_jacobian(NpgReduced *r, long sample, const char *output, const char *input, double *out);
 NPG_API int npg_reduced_step(NpgReduced *r, long steps, long sample);
 NPG_API long npg_reduced_steps(const NpgReduced *r);
 NPG_API int npg_reduced_set_blowup(NpgReduced *r, double factor);

@@ -45,6 +45,26 @@ const char *reduced_error(const Reduced *r);
 /* y = B ŷ of quantity q into `y` (n entries). */
 void reduced_lift(const Reduced *r, int q, double *y);
 
+/* ---------------------------------------------------------------- derivatives (reduced_deriv.c)
+ *
+ * Derivatives of the reduced evaluator in reduced coordinates (DESIGN §17),
+ * at the coordinates `r` holds after reduced_eval (the primal is not
+ * recomputed: evaluate first). Blocks of `nd` directions travel together,
+ * every block m_q x nd row-major.
+ *   reduced_jvp: out (m_out x nd) = Σ_i ∂ŷ_out/∂x̂_{seed_q[i]} · seed[i] (m x nd each);
+ *   reduced_vjp: out (m_in x nd)  = Σ_i (∂ŷ_{seed_q[i]}/∂x̂_in)ᵀ · seed[i];
+ *   reduced_jacobian: J (m_out x m_in, row-major), one forward sweep with the
+ *   identity as seed when m_in <= m_out, else one reverse sweep.
+ * Seeds of jvp are inputs (a stage seeded is not recomputed); `in_q` of vjp
+ * is an input. A stage reading a dependent extern's learned map is refused.
+ * 0, or -1 with `err` naming the stage (a singular operator, a root at a
+ * zero eigenvalue, out of memory); `out` is then undefined. */
+int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int out_q, double *out,
+                long sample, char *err, size_t errlen);
+int reduced_vjp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int in_q, double *out,
+                long sample, char *err, size_t errlen);
+int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, char *err, size_t errlen);
+
 /* ---------------------------------------------------------------- generated reduced code (emit_reduced.c)
  *
  * The reduced evaluator as C specialized to one model (DESIGN §6): one

@@ -813,6 +813,146 @@ static PyObject *reduced_outside(ReducedObject *self, PyObject *arg) {
   return res;
 }
 
+/* ---------------------------------------------------------------- derivatives in reduced coordinates (DESIGN §17) */
+
+/* The basis size of quantity `name` (its class's m), or -1 with npg.Error naming `method`. */
+static long coords_size(ReducedObject *self, const char *name, const char *method) {
+  if (!quantity(self, name)) return -1;
+  int c = npg_model_class_of(self->model->m, name);
+  NpgClassInfo ci;
+  if (c < 0 || npg_model_class(self->model->m, c, &ci) != 0) {
+    PyErr_Format(npgpy_Error, "%s: '%s' has no reduced coordinates", method, name);
+    return -1;
+  }
+  return ci.m;
+}
+
+/* The inputs given by name to a derivative method: set and evaluated as red(**inputs) does. */
+static int derivative_inputs(ReducedObject *self, PyObject *kw) {
+  if (!kw || PyDict_GET_SIZE(kw) == 0) return 0;
+  PyObject *empty = PyTuple_New(0);
+  if (!empty) return -1;
+  PyObject *res = reduced_call(self, empty, kw);
+  Py_DECREF(empty);
+  Py_XDECREF(res);
+  return res ? 0 : -1;
+}
+
+/* {name: coordinates} of a jvp or vjp: names and float64 arrays of each one's m, into
+ * names/arrs (n entries, references the caller drops). */
+static int coords_dict(ReducedObject *self, PyObject *d, const char *method, const char *what, int max,
+                       const char **names, PyArrayObject **arrs, int *n) {
+  *n = 0;
+  if (!PyDict_Check(d) || PyDict_GET_SIZE(d) == 0 || PyDict_GET_SIZE(d) > max) {
+    PyErr_Format(PyExc_TypeError, "%s: %s must be a non-empty dict {name: coordinates} (at most %d)", method, what,
+                 max);
+    return -1;
+  }
+  PyObject *key, *value;
+  Py_ssize_t pos = 0;
+  while (PyDict_Next(d, &pos, &key, &value)) {
+    const char *name = npgpy_name(key, method);
+    if (!name) return -1;
+    long m = coords_size(self, name, method);
+    if (m < 0) return -1;
+    char w[256];
+    snprintf(w, sizeof w, "%s: %s['%s']", method, what, name);
+    PyArrayObject *a = npgpy_values(value, w);
+    if (!a) return -1;
+    names[*n] = name, arrs[(*n)++] = a;
+    if (PyArray_SIZE(a) != m) {
+      PyErr_Format(npgpy_Error, "%s: %s['%s'] has %zd values; '%s' has %ld reduced coordinates", method, what, name,
+                   (Py_ssize_t)PyArray_SIZE(a), name, m);
+      return -1;
+    }
+  }
+  return 0;
+}
+
+/* red.jvp(output, {input: direction}, **inputs) -> J(output, inputs) · directions, in coordinates */
+static PyObject *reduced_jvp_method(ReducedObject *self, PyObject *args, PyObject *kw) {
+  enum { MAXD = 64 };
+  const char *out, *names[MAXD];
+  PyObject *dirs;
+  PyArrayObject *arrs[MAXD];
+  int n = 0;
+  PyObject *res = NULL;
+  if (!PyArg_ParseTuple(args, "sO:jvp", &out, &dirs)) return NULL;
+  long mo = coords_size(self, out, "jvp");
+  if (mo < 0 || coords_dict(self, dirs, "jvp", "directions", MAXD, names, arrs, &n) || derivative_inputs(self, kw))
+    goto done;
+  npy_intp dm = (npy_intp)mo;
+  if (!(res = PyArray_SimpleNew(1, &dm, NPY_DOUBLE))) goto done;
+  const double *v[MAXD];
+  for (int i = 0; i < n; i++) v[i] = PyArray_DATA(arrs[i]);
+  npgpy_busy_enter(&self->busy);
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_reduced_jvp(self->r, -1, n, names, v, out, PyArray_DATA((PyArrayObject *)res));
+  Py_END_ALLOW_THREADS
+  if (rc) {
+    rfail(self);
+    Py_CLEAR(res);
+  }
+  npgpy_busy_leave(&self->busy);
+done:
+  for (int i = 0; i < n; i++) Py_DECREF(arrs[i]);
+  return res;
+}
+
+/* red.vjp({output: cotangent}, input, **inputs) -> Σ J(output, input)ᵀ · cotangent, in coordinates */
+static PyObject *reduced_vjp_method(ReducedObject *self, PyObject *args, PyObject *kw) {
+  enum { MAXD = 64 };
+  const char *in, *names[MAXD];
+  PyObject *cots;
+  PyArrayObject *arrs[MAXD];
+  int n = 0;
+  PyObject *res = NULL;
+  if (!PyArg_ParseTuple(args, "Os:vjp", &cots, &in)) return NULL;
+  long mi = coords_size(self, in, "vjp");
+  if (mi < 0 || coords_dict(self, cots, "vjp", "cotangents", MAXD, names, arrs, &n) || derivative_inputs(self, kw))
+    goto done;
+  npy_intp dm = (npy_intp)mi;
+  if (!(res = PyArray_SimpleNew(1, &dm, NPY_DOUBLE))) goto done;
+  const double *v[MAXD];
+  for (int i = 0; i < n; i++) v[i] = PyArray_DATA(arrs[i]);
+  npgpy_busy_enter(&self->busy);
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_reduced_vjp(self->r, -1, n, names, v, in, PyArray_DATA((PyArrayObject *)res));
+  Py_END_ALLOW_THREADS
+  if (rc) {
+    rfail(self);
+    Py_CLEAR(res);
+  }
+  npgpy_busy_leave(&self->busy);
+done:
+  for (int i = 0; i < n; i++) Py_DECREF(arrs[i]);
+  return res;
+}
+
+/* red.jacobian(output, input, **inputs) -> m_output x m_input */
+static PyObject *reduced_jacobian_method(ReducedObject *self, PyObject *args, PyObject *kw) {
+  const char *out, *in;
+  if (!PyArg_ParseTuple(args, "ss:jacobian", &out, &in)) return NULL;
+  long mo = coords_size(self, out, "jacobian"), mi = mo < 0 ? -1 : coords_size(self, in, "jacobian");
+  if (mo < 0 || mi < 0 || derivative_inputs(self, kw)) return NULL;
+  npy_intp shape[2] = {mo, mi};
+  PyObject *res = PyArray_SimpleNew(2, shape, NPY_DOUBLE);
+  if (!res) return NULL;
+  npgpy_busy_enter(&self->busy);
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_reduced_jacobian(self->r, -1, out, in, PyArray_DATA((PyArrayObject *)res));
+  Py_END_ALLOW_THREADS
+  if (rc) {
+    rfail(self);
+    Py_CLEAR(res);
+  }
+  npgpy_busy_leave(&self->busy);
+  return res;
+}
+
 static PyObject *get_model(ReducedObject *self, void *unused) { return Py_NewRef(self->model); }
 
 static PyGetSetDef reduced_getset[] = {
@@ -846,6 +986,13 @@ static PyMethodDef reduced_methods[] = {
   {"simulate", (PyCFunction)(void (*)(void))reduced_simulate, METH_VARARGS | METH_KEYWORDS,
    "simulate(steps, every=1, **inputs) -> {state: array}: Full.simulate's contract, the reduced step in\n"
    "reduced coordinates: the states' initial values projected once, lifted only at the kept steps"},
+  {"jacobian", (PyCFunction)(void (*)(void))reduced_jacobian_method, METH_VARARGS | METH_KEYWORDS,
+   "jacobian(output, input, **inputs) -> m_output x m_input array: the derivative of output's reduced\n"
+   "coordinates with respect to input's, at the inputs given (or as set)"},
+  {"jvp", (PyCFunction)(void (*)(void))reduced_jvp_method, METH_VARARGS | METH_KEYWORDS,
+   "jvp(output, {input: direction}, **inputs) -> array of output's m: Σ J(output, input) · direction"},
+  {"vjp", (PyCFunction)(void (*)(void))reduced_vjp_method, METH_VARARGS | METH_KEYWORDS,
+   "vjp({output: cotangent}, input, **inputs) -> array of input's m: Σ J(output, input)ᵀ · cotangent"},
   {"lift", (PyCFunction)(void (*)(void))reduced_lift, METH_VARARGS | METH_KEYWORDS,
    "lift(name, out=None) -> array: B ŷ of any quantity, shaped like it; written into `out` when given"},
   {"coords", (PyCFunction)reduced_coords, METH_O, "coords(name) -> array: a copy of the reduced coordinates"},

@@ -1,0 +1,910 @@
+/* reduced_deriv.c — derivatives of the reduced evaluator in reduced
+ * coordinates (DESIGN §17): forward products (tangents), reverse products
+ * (cotangents) and whole Jacobians, at reduced cost (nothing of order N).
+ *
+ * Every stage is linearized from its local Jacobians, the partial
+ * derivatives of its reduced tensors' contractions with respect to each
+ * input's coordinates:
+ *
+ *     ŷ = T ·(z_1 ⊗ … ⊗ z_n),  z_j = x̂_j^⊗k_j (packed)   →
+ *     ∂ŷ/∂x̂_j = (T contracted with every z but z_j) · ∂z_j/∂x̂_j,
+ *
+ * read once per input, like an evaluation. A term's operators chain
+ * innermost first, v_{k+1} = M̂_k^{r_k} v_k, and differentiate in closed form:
+ *
+ *     integer power  v' = M v:     dv' = M dv + dM v
+ *     inverse        v' = M⁻¹ v:   dv' = M⁻¹ (dv − dM v')
+ *     root           v' = f(M) v:  dv' = f(M) dv + U (F ∘ Uᵀ dM U) Uᵀ v,
+ *                    M = U Λ Uᵀ, F_ij = (f(λ_i) − f(λ_j)) / (λ_i − λ_j) (f'(λ_i) where equal:
+ *                    Daleckii–Krein), f(λ) = λ^(p/q);
+ *
+ * reverse products apply the adjoints of the same rules (M̄ = v̄' vᵀ, −M⁻ᵀv̄' v'ᵀ,
+ * U (F ∘ Uᵀv̄' (Uᵀv)ᵀ) Uᵀ), and an operator's cotangent M̄ reaches its inputs through
+ * the transposed local Jacobians of its tensors. An interpolated stage (DESIGN §12)
+ * differentiates its formula at the selected entries, whose reads are rows of their
+ * bases: ∂ŷ/∂x̂ = (W P B)⁺ W · ∂(P y)/∂x̂. An extern's learned map (a convex
+ * combination chosen by NNLS) has no derivative: reading one is refused.
+ *
+ * The tangents (and cotangents) of `nd` directions travel together as
+ * m × nd row-major blocks, so a whole Jacobian is one forward sweep with the
+ * identity as seed (or one reverse sweep, whichever has fewer columns). */
+#include <cblas.h>
+#include <lapacke.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "interp.h"
+#include "reduced.h"
+
+typedef struct Deriv {
+  const Model *m;
+  double *const *x;     /* the primal coordinates of every quantity (reduced_eval's) */
+  long nd;              /* directions carried */
+  double **d;           /* per quantity: its tangent (forward) or cotangent (reverse), m_q x nd, or NULL */
+  bool *active;         /* quantities that depend on the differentiated inputs */
+  long sample;
+  char *err;
+  size_t errlen;
+} Deriv;
+
+static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
+
+static int dfail_oom(Deriv *dv) { return error_set(dv->err, dv->errlen, "out of memory for the reduced derivative"); }
+
+/* ---------------------------------------------------------------- tensors */
+
+/* The packed powers z_j of tensor t's inputs, one after another in `zbuf`. */
+static void tensor_z(const Deriv *dv, const RTensor *t, const double **z, double *zbuf) {
+  for (int j = 0; j < t->nin; j++) {
+    const double *x = dv->x[t->in_q[j]];
+    if (t->in_mult[j] == 1) {
+      z[j] = x;
+      continue;
+    }
+    sym_power(qm(dv->m, t->in_q[j]), t->in_mult[j], x, zbuf);
+    z[j] = zbuf;
+    zbuf += t->in_len[j];
+  }
+}
+
+static long tensor_zlen(const RTensor *t) {
+  long n = 1;
+  for (int j = 0; j < t->nin; j++) n += t->in_len[j];
+  return n;
+}
+
+/* out (rows) += T ·(z_1 ⊗ … ⊗ z_n), the last axis first. */
+static int contract_into(const RTensor *t, const double *const *z, double *out) {
+  if (t->nin == 0) {
+    cblas_daxpy((int)t->rows, 1.0, t->data, 1, out, 1);
+    return 0;
+  }
+  long lead = t->rows;
+  for (int j = 0; j + 1 < t->nin; j++) lead *= t->in_len[j];
+  double *buf[2] = {mem_malloc(sizeof(double) * (size_t)(lead + 1)), mem_malloc(sizeof(double) * (size_t)(lead + 1))};
+  if (!buf[0] || !buf[1]) {
+    free(buf[0]);
+    free(buf[1]);
+    return -1;
+  }
+  const double *src = t->data;
+  int b = 0;
+  for (int j = t->nin - 1; j >= 0; j--) {
+    long cols = t->in_len[j];
+    double *dst = j == 0 ? out : buf[b];
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)lead, (int)cols, 1.0, src, (int)cols, z[j], 1, j == 0 ? 1.0 : 0.0,
+                dst, 1);
+    src = dst;
+    b ^= 1;
+    if (j > 0) lead /= t->in_len[j - 1];
+  }
+  free(buf[0]);
+  free(buf[1]);
+  return 0;
+}
+
+/* P (rows x L_j): T contracted with every packed input but z_j, into *P:
+ * the tensor itself when j is its only axis (nothing copied), else a new
+ * array (*owned, freed by the caller). The axes after j by dgemv from the
+ * last; those before j row by row against z_1 ⊗ … ⊗ z_{j-1}. */
+static int contract_but(const RTensor *t, int j, const double *const *z, const double **P, double **owned) {
+  long before = 1, upto = t->rows, Lj = t->in_len[j];
+  for (int i = 0; i < j; i++) before *= t->in_len[i];
+  for (int i = 0; i <= j; i++) upto *= t->in_len[i];
+  *owned = NULL;
+  if (j == t->nin - 1 && before == 1) {
+    *P = t->data;
+    return 0;
+  }
+  long lead = upto; /* the first trailing step's rows */
+  for (int i = j + 1; i + 1 < t->nin; i++) lead *= t->in_len[i];
+  double *buf[2] = {NULL, NULL}, *kron = NULL, *out = NULL;
+  int rc = -1;
+  if (j < t->nin - 1 && (!(buf[0] = mem_malloc(sizeof(double) * (size_t)(lead + 1))) ||
+                         !(buf[1] = mem_malloc(sizeof(double) * (size_t)(lead + 1)))))
+    goto done;
+  if (!(kron = mem_malloc(sizeof(double) * (size_t)(before + 1))) ||
+      !(out = mem_malloc(sizeof(double) * (size_t)(t->rows * Lj + 1))))
+    goto done;
+  const double *src = t->data;
+  int b = 0;
+  for (int i = t->nin - 1; i > j; i--) {
+    long cols = t->in_len[i];
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)lead, (int)cols, 1.0, src, (int)cols, z[i], 1, 0.0, buf[b], 1);
+    src = buf[b];
+    b ^= 1;
+    lead /= t->in_len[i - 1];
+  }
+  kron[0] = 1;
+  long len = 1;
+  for (int i = 0; i < j; i++) { /* kron <- kron ⊗ z_i */
+    long li = t->in_len[i];
+    for (long a = len - 1; a >= 0; a--)
+      for (long c = li - 1; c >= 0; c--) kron[a * li + c] = kron[a] * z[i][c];
+    len *= li;
+  }
+  if (before == 1) memcpy(out, src, sizeof(double) * (size_t)(t->rows * Lj));
+  else
+    for (long r = 0; r < t->rows; r++)
+      cblas_dgemv(CblasRowMajor, CblasTrans, (int)before, (int)Lj, 1.0, src + r * before * Lj, (int)Lj, kron, 1, 0.0,
+                  out + r * Lj, 1);
+  *P = out, *owned = out, out = NULL;
+  rc = 0;
+done:
+  free(buf[0]);
+  free(buf[1]);
+  free(kron);
+  free(out);
+  return rc;
+}
+
+/* J (rows x m_q, overwritten) = ∂(T · z)/∂x̂ of input j of tensor t:
+ * P · ∂z_j/∂x̂, each packed coordinate z[α] = Π_l x[α_l] contributing
+ * Π_{l'≠l} x[α_l'] to column α_l for every position l. */
+static int tensor_jacobian(const Deriv *dv, const RTensor *t, int j, double *J) {
+  long mq = qm(dv->m, t->in_q[j]), Lj = t->in_len[j], rows = t->rows;
+  int k = t->in_mult[j];
+  const double *z[RT_MAX_IN];
+  double *zbuf = mem_malloc(sizeof(double) * (size_t)tensor_zlen(t)), *owned = NULL;
+  const double *P = NULL;
+  long *col = k <= 2 ? NULL : mem_malloc(sizeof(long) * (size_t)(Lj * k + 1));
+  double *coef = k <= 2 ? NULL : mem_malloc(sizeof(double) * (size_t)(Lj * k + 1));
+  int rc = -1;
+  if (!zbuf || (k > 2 && (!col || !coef))) goto out;
+  tensor_z(dv, t, z, zbuf);
+  if (contract_but(t, j, z, &P, &owned)) goto out;
+  if (k == 1) memcpy(J, P, sizeof(double) * (size_t)(rows * mq));
+  else if (k == 2) { /* z[(a,b)] = x_a x_b, a <= b: row r's packed upper triangle S_r, ∂/∂x = (S_r + diag S_r) x */
+    const double *x = dv->x[t->in_q[j]];
+    for (long r = 0; r < rows; r++) {
+      const double *pr = P + r * Lj;
+      double *jr = J + r * mq;
+      cblas_dspmv(CblasRowMajor, CblasUpper, (int)mq, 1.0, pr, x, 1, 0.0, jr, 1);
+      for (long a = 0, off = 0; a < mq; off += mq - a, a++) jr[a] += pr[off] * x[a];
+    }
+  } else if (k > 2) {
+    const double *x = dv->x[t->in_q[j]];
+    long a[RT_MAX_IN] = {0};
+    for (long p = 0; p < Lj; p++) {
+      for (int l = 0; l < k; l++) {
+        double c = 1;
+        for (int l2 = 0; l2 < k; l2++)
+          if (l2 != l) c *= x[a[l2]];
+        col[p * k + l] = a[l], coef[p * k + l] = c;
+      }
+      int i = k - 1; /* the next sorted multi-index (sym.c's order) */
+      while (i >= 0 && a[i] == mq - 1) i--;
+      if (i < 0) break;
+      a[i]++;
+      for (int l = i + 1; l < k; l++) a[l] = a[i];
+    }
+    memset(J, 0, sizeof(double) * (size_t)(rows * mq));
+    for (long r = 0; r < rows; r++) {
+      const double *pr = P + r * Lj;
+      double *jr = J + r * mq;
+      for (long p = 0; p < Lj; p++)
+        for (int l = 0; l < k; l++) jr[col[p * k + l]] += pr[p] * coef[p * k + l];
+    }
+  }
+  rc = 0;
+out:
+  free(zbuf);
+  free(owned);
+  free(col);
+  free(coef);
+  return rc;
+}
+
+/* Forward: out (rows x nd) += Σ_j ∂(T·z)/∂x̂_j · d[x_j]; reverse: d[x_j] += (∂(T·z)/∂x̂_j)ᵀ · bar
+ * (rows x nd), for the active inputs of t. */
+static int tensor_tangent(Deriv *dv, const RTensor *t, bool reverse, const double *bar, double *out) {
+  for (int j = 0; j < t->nin; j++) {
+    int q = t->in_q[j];
+    if (!dv->active[q]) continue;
+    long mq = qm(dv->m, q);
+    if (mq == 0 || t->rows == 0) continue;
+    double *J = mem_malloc(sizeof(double) * (size_t)(t->rows * mq));
+    if (!J || tensor_jacobian(dv, t, j, J)) {
+      free(J);
+      return dfail_oom(dv);
+    }
+    if (reverse)
+      cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)dv->nd, (int)t->rows, 1.0, J, (int)mq, bar,
+                  (int)dv->nd, 1.0, dv->d[q], (int)dv->nd);
+    else
+      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)t->rows, (int)dv->nd, (int)mq, 1.0, J, (int)mq,
+                  dv->d[q], (int)dv->nd, 1.0, out, (int)dv->nd);
+    free(J);
+  }
+  return 0;
+}
+
+static bool tensor_active(const Deriv *dv, const RTensor *t) {
+  for (int j = 0; j < t->nin; j++)
+    if (dv->active[t->in_q[j]]) return true;
+  return false;
+}
+
+/* ---------------------------------------------------------------- operators */
+
+/* One operator of a term at the current coordinates: M̂ (n x n, row-major)
+ * and what its power needs — LU factors, or the eigendecomposition. */
+typedef struct OpState {
+  const ROp *ro;
+  long n;
+  double *M, *LU, *U, *lam, *F; /* F: the divided differences of f (roots) */
+  lapack_int *piv;
+} OpState;
+
+static void op_state_free(OpState *o) {
+  free(o->M);
+  free(o->LU);
+  free(o->U);
+  free(o->lam);
+  free(o->F);
+  free(o->piv);
+}
+
+static double root_f(double l, double e) { return l > 0 ? pow(l, e) : 0.0; }
+
+/* Assemble M̂ of `ro` and factor it as its power needs. */
+static int op_state(Deriv *dv, const RStage *rs, const ROp *ro, long n, OpState *o) {
+  memset(o, 0, sizeof *o);
+  o->ro = ro, o->n = n;
+  long rows = ro->op->kind == OPK_DIAG ? n * (n + 1) / 2 : n * n;
+  double *acc = mem_calloc((size_t)rows + 1, sizeof(double));
+  o->M = mem_calloc((size_t)(n * n) + 1, sizeof(double));
+  if (!acc || !o->M) {
+    free(acc);
+    return dfail_oom(dv);
+  }
+  for (int g = 0; g < ro->ntensors; g++) {
+    const double *z[RT_MAX_IN];
+    double *zbuf = mem_malloc(sizeof(double) * (size_t)tensor_zlen(&ro->t[g]));
+    if (!zbuf) {
+      free(acc);
+      return dfail_oom(dv);
+    }
+    tensor_z(dv, &ro->t[g], z, zbuf);
+    int rc = contract_into(&ro->t[g], z, acc);
+    free(zbuf);
+    if (rc) {
+      free(acc);
+      return dfail_oom(dv);
+    }
+  }
+  if (ro->op->kind == OPK_DIAG) {
+    long p = 0;
+    for (long a = 0; a < n; a++)
+      for (long b = a; b < n; b++, p++) o->M[a * n + b] = o->M[b * n + a] = acc[p];
+  } else memcpy(o->M, acc, sizeof(double) * (size_t)(n * n));
+  free(acc);
+  const char *sn = rs->st->sym->name;
+  long p = ro->op->p, q = ro->op->q;
+  if (q == 1 && p > 0) return 0;
+  if (q == 1) {
+    o->LU = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+    o->piv = mem_malloc(sizeof(lapack_int) * (size_t)(n + 1));
+    if (!o->LU || !o->piv) return dfail_oom(dv);
+    memcpy(o->LU, o->M, sizeof(double) * (size_t)(n * n));
+    lapack_int info = LAPACKE_dgetrf(LAPACK_ROW_MAJOR, (lapack_int)n, (lapack_int)n, o->LU, (lapack_int)n, o->piv);
+    if (info != 0)
+      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator is singular (LAPACK dgetrf info %d): no "
+                       "derivative there", sn, (int)info);
+    return 0;
+  }
+  o->U = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+  o->lam = mem_malloc(sizeof(double) * (size_t)(n + 1));
+  o->F = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+  if (!o->U || !o->lam || !o->F) return dfail_oom(dv);
+  memcpy(o->U, o->M, sizeof(double) * (size_t)(n * n));
+  lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, o->U, (lapack_int)n, o->lam);
+  if (info != 0)
+    return error_set(dv->err, dv->errlen, "stage %s: eigendecomposition of its reduced operator failed (LAPACK dsyevd "
+                     "info %d)", sn, (int)info);
+  double e = (double)p / (double)q, big = 0;
+  for (long i = 0; i < n; i++) big = fmax(big, fabs(o->lam[i]));
+  double tol = 1e-12 * (big > 0 ? big : 1);
+  for (long i = 0; i < n; i++)
+    if (o->lam[i] <= tol)
+      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator has eigenvalue %.3g (largest %.3g): the "
+                       "power %ld/%ld is not differentiable there", sn, o->lam[i], big, p, q);
+  /* Daleckii–Krein: divided differences of f, its derivative where two eigenvalues are close */
+  for (long i = 0; i < n; i++)
+    for (long j = 0; j < n; j++) {
+      double li = o->lam[i], lj = o->lam[j];
+      o->F[i * n + j] = fabs(li - lj) > 1e-8 * fmax(li, lj) ? (root_f(li, e) - root_f(lj, e)) / (li - lj)
+                                                            : e * pow(0.5 * (li + lj), e - 1);
+    }
+  return 0;
+}
+
+/* out (n) = f(M) v for a root: U f(Λ) Uᵀ v. */
+static void root_apply(const OpState *o, const double *v, double *out, double *w) {
+  long n = o->n;
+  double e = (double)o->ro->op->p / (double)o->ro->op->q;
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)n, 1.0, o->U, (int)n, v, 1, 0.0, w, 1);
+  for (long i = 0; i < n; i++) w[i] *= root_f(o->lam[i], e);
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)n, 1.0, o->U, (int)n, w, 1, 0.0, out, 1);
+}
+
+/* The primal chain of one power: vs[0] = v, vs[s+1] the s-th step's result
+ * (|p| steps of M or M⁻¹, one of f(M)). Returns the step count. */
+static long op_steps(const OpState *o) {
+  if (o->ro->op->q != 1) return 1;
+  return labs(o->ro->op->p);
+}
+
+static void op_forward_primal(const OpState *o, double *vs, double *w) {
+  long n = o->n, steps = op_steps(o);
+  for (long s = 0; s < steps; s++) {
+    const double *v = vs + s * n;
+    double *v2 = vs + (s + 1) * n;
+    if (o->ro->op->q != 1) root_apply(o, v, v2, w);
+    else if (o->ro->op->p > 0) cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)n, 1.0, o->M, (int)n, v, 1, 0.0,
+                                           v2, 1);
+    else {
+      memcpy(v2, v, sizeof(double) * (size_t)n);
+      LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', (lapack_int)n, 1, o->LU, (lapack_int)n, o->piv, v2, 1);
+    }
+  }
+}
+
+/* The tangent of M̂ in each direction, unpacked: dM (nd x n x n) from
+ * Σ_g Σ_j J_g,j d[x_j] (packed rows x nd). */
+static int op_tangent(Deriv *dv, const OpState *o, double *dM) {
+  long n = o->n, nd = dv->nd, rows = o->ro->op->kind == OPK_DIAG ? n * (n + 1) / 2 : n * n;
+  double *pk = mem_calloc((size_t)(rows * nd) + 1, sizeof(double));
+  if (!pk) return dfail_oom(dv);
+  for (int g = 0; g < o->ro->ntensors; g++)
+    if (tensor_tangent(dv, &o->ro->t[g], false, NULL, pk)) {
+      free(pk);
+      return -1;
+    }
+  for (long d = 0; d < nd; d++) {
+    double *Md = dM + d * n * n;
+    if (o->ro->op->kind == OPK_DIAG) {
+      long p = 0;
+      for (long a = 0; a < n; a++)
+        for (long b = a; b < n; b++, p++) Md[a * n + b] = Md[b * n + a] = pk[p * nd + d];
+    } else
+      for (long e = 0; e < n * n; e++) Md[e] = pk[e * nd + d];
+  }
+  free(pk);
+  return 0;
+}
+
+/* The reverse of op_tangent: M̄ (nd x n x n) to the operator's inputs. */
+static int op_cotangent(Deriv *dv, const OpState *o, const double *Mbar) {
+  long n = o->n, nd = dv->nd, rows = o->ro->op->kind == OPK_DIAG ? n * (n + 1) / 2 : n * n;
+  double *pk = mem_calloc((size_t)(rows * nd) + 1, sizeof(double));
+  if (!pk) return dfail_oom(dv);
+  for (long d = 0; d < nd; d++) {
+    const double *Md = Mbar + d * n * n;
+    if (o->ro->op->kind == OPK_DIAG) {
+      long p = 0;
+      for (long a = 0; a < n; a++)
+        for (long b = a; b < n; b++, p++) pk[p * nd + d] = a == b ? Md[a * n + a] : Md[a * n + b] + Md[b * n + a];
+    } else
+      for (long e = 0; e < n * n; e++) pk[e * nd + d] = Md[e];
+  }
+  int rc = 0;
+  for (int g = 0; g < o->ro->ntensors && rc == 0; g++) rc = tensor_tangent(dv, &o->ro->t[g], true, pk, NULL);
+  free(pk);
+  return rc;
+}
+
+/* U (F ∘ (Uᵀ E U)) Uᵀ-free part: out (n) = U [F ∘ (Uᵀ E U)] w, the Daleckii–Krein
+ * derivative of f(M) v in direction E, w = Uᵀ v. `A`, `B` hold n x n. */
+static void dk_forward(const OpState *o, const double *E, const double *w, double *out, double *A, double *B,
+                       double *t) {
+  int n = (int)o->n;
+  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, n, n, n, 1.0, o->U, n, E, n, 0.0, A, n);
+  cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, n, n, n, 1.0, A, n, o->U, n, 0.0, B, n);
+  for (long e = 0; e < (long)n * n; e++) B[e] *= o->F[e];
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, 1.0, B, n, w, 1, 0.0, t, 1);
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, 1.0, o->U, n, t, 1, 0.0, out, 1);
+}
+
+/* The operator's tangent applied to one vector, without forming dM: for
+ * each active input q of its tensors, G = ∂(M̂ u)/∂x̂_q (n x m_q, folded
+ * from the tensor's local Jacobian: packed row (a,b) adds its row times
+ * u_b to G's row a, and times u_a to row b when a < b), then forward
+ * V (n x nd) += sign · G d[q], reverse d[q] += sign · Gᵀ V. */
+static int op_dM_times(Deriv *dv, const OpState *o, const double *u, double sign, bool reverse, double *V) {
+  long n = o->n, nd = dv->nd;
+  bool diag = o->ro->op->kind == OPK_DIAG;
+  long rows = diag ? n * (n + 1) / 2 : n * n;
+  for (int g = 0; g < o->ro->ntensors; g++) {
+    const RTensor *t = &o->ro->t[g];
+    for (int j = 0; j < t->nin; j++) {
+      int q = t->in_q[j];
+      long mq = qm(dv->m, q);
+      if (!dv->active[q] || mq == 0 || n == 0) continue;
+      double *J = mem_malloc(sizeof(double) * (size_t)(rows * mq)), *G = mem_calloc((size_t)(n * mq), sizeof(double));
+      if (!J || !G || tensor_jacobian(dv, t, j, J)) {
+        free(J);
+        free(G);
+        return dfail_oom(dv);
+      }
+      for (long a = 0, p = 0; a < n; a++)
+        for (long b = diag ? a : 0; b < n; b++, p++) {
+          const double *jr = J + p * mq;
+          double *ga = G + a * mq, *gb = G + b * mq, ub = u[b], ua = u[a];
+          for (long c = 0; c < mq; c++) ga[c] += jr[c] * ub;
+          if (diag && b != a)
+            for (long c = 0; c < mq; c++) gb[c] += jr[c] * ua;
+        }
+      if (reverse)
+        cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)n, sign, G, (int)mq, V, (int)nd,
+                    1.0, dv->d[q], (int)nd);
+      else
+        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)nd, (int)mq, sign, G, (int)mq, dv->d[q],
+                    (int)nd, 1.0, V, (int)nd);
+      free(J);
+      free(G);
+    }
+  }
+  return 0;
+}
+
+/* Forward through one power: dV (n x nd) <- the tangent of the result, vs its primal chain. */
+static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV) {
+  long n = o->n, nd = dv->nd, steps = op_steps(o);
+  bool dm = false, root = o->ro->op->q != 1; /* dM formed for roots only (Daleckii–Krein) */
+  for (int g = 0; g < o->ro->ntensors; g++) dm = dm || (root && tensor_active(dv, &o->ro->t[g]));
+  double *dM = dm ? mem_calloc((size_t)(nd * n * n) + 1, sizeof(double)) : NULL;
+  double *tmp = mem_malloc(sizeof(double) * (size_t)(n * nd + 2 * n * n + 5 * n + 1));
+  if ((dm && !dM) || !tmp) {
+    free(dM);
+    free(tmp);
+    return dfail_oom(dv);
+  }
+  if (dm && op_tangent(dv, o, dM)) {
+    free(dM);
+    free(tmp);
+    return -1;
+  }
+  double *A = tmp + n * nd, *B = A + n * n, *w = B + n * n, *t = w + n, *col = t + n, *t2 = col + n;
+  for (long s = 0; s < steps; s++) {
+    const double *v = vs + s * n, *v2 = vs + (s + 1) * n;
+    if (o->ro->op->q == 1 && o->ro->op->p > 0) { /* dv' = M dv + dM v */
+      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)nd, (int)n, 1.0, o->M, (int)n, dV, (int)nd,
+                  0.0, tmp, (int)nd);
+      memcpy(dV, tmp, sizeof(double) * (size_t)(n * nd));
+      if (op_dM_times(dv, o, v, 1.0, false, dV)) break;
+    } else if (o->ro->op->q == 1) { /* dv' = M⁻¹ (dv − dM v') */
+      if (op_dM_times(dv, o, v2, -1.0, false, dV)) break;
+      if (nd > 0) LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', (lapack_int)n, (lapack_int)nd, o->LU, (lapack_int)n, o->piv,
+                                 dV, (lapack_int)nd);
+    } else { /* dv' = f(M) dv + U (F ∘ Uᵀ dM U) Uᵀ v */
+      cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)n, 1.0, o->U, (int)n, v, 1, 0.0, w, 1);
+      for (long d = 0; d < nd; d++) {
+        for (long i = 0; i < n; i++) t[i] = dV[i * nd + d];
+        root_apply(o, t, col, A);
+        if (dm) {
+          dk_forward(o, dM + d * n * n, w, t, A, B, t2);
+          for (long i = 0; i < n; i++) col[i] += t[i];
+        }
+        for (long i = 0; i < n; i++) dV[i * nd + d] = col[i];
+      }
+    }
+  }
+  free(dM);
+  free(tmp);
+  return dv->err[0] ? -1 : 0;
+}
+
+/* Reverse through one power: Vb (n x nd), the cotangent of the result, becomes that of its
+ * operand; the operator's cotangent goes to its inputs. */
+static int op_reverse(Deriv *dv, const OpState *o, const double *vs, double *Vb) {
+  long n = o->n, nd = dv->nd, steps = op_steps(o);
+  bool dm = false, root = o->ro->op->q != 1; /* M̄ formed for roots only */
+  for (int g = 0; g < o->ro->ntensors; g++) dm = dm || (root && tensor_active(dv, &o->ro->t[g]));
+  double *Mb = dm ? mem_calloc((size_t)(nd * n * n) + 1, sizeof(double)) : NULL;
+  double *tmp = mem_malloc(sizeof(double) * (size_t)(n * nd + 2 * n * n + 2 * n + 1));
+  if ((dm && !Mb) || !tmp) {
+    free(Mb);
+    free(tmp);
+    return dfail_oom(dv);
+  }
+  double *A = tmp + n * nd, *B = A + n * n, *w = B + n * n;
+  double e = (double)o->ro->op->p / (double)o->ro->op->q;
+  for (long s = steps - 1; s >= 0; s--) {
+    const double *v = vs + s * n, *v2 = vs + (s + 1) * n;
+    if (o->ro->op->q == 1 && o->ro->op->p > 0) { /* M̄ = v̄' vᵀ to the inputs, v̄ = Mᵀ v̄' */
+      if (op_dM_times(dv, o, v, 1.0, true, Vb)) break;
+      cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)n, (int)nd, (int)n, 1.0, o->M, (int)n, Vb, (int)nd,
+                  0.0, tmp, (int)nd);
+      memcpy(Vb, tmp, sizeof(double) * (size_t)(n * nd));
+    } else if (o->ro->op->q == 1) { /* λ = M⁻ᵀ v̄', M̄ −= λ v'ᵀ, v̄ = λ */
+      if (nd > 0) LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'T', (lapack_int)n, (lapack_int)nd, o->LU, (lapack_int)n, o->piv,
+                                 Vb, (lapack_int)nd);
+      if (op_dM_times(dv, o, v2, -1.0, true, Vb)) break;
+    } else { /* ū = Uᵀ v̄': M̄ += U (F ∘ ū wᵀ) Uᵀ, w = Uᵀ v; v̄ = U f(Λ) ū */
+      cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)n, 1.0, o->U, (int)n, v, 1, 0.0, w, 1);
+      cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)n, (int)nd, (int)n, 1.0, o->U, (int)n, Vb, (int)nd,
+                  0.0, tmp, (int)nd);
+      for (long d = 0; dm && d < nd; d++) {
+        for (long i = 0; i < n; i++)
+          for (long j = 0; j < n; j++) A[i * n + j] = o->F[i * n + j] * tmp[i * nd + d] * w[j];
+        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)n, (int)n, 1.0, o->U, (int)n, A, (int)n,
+                    0.0, B, (int)n);
+        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)n, (int)n, (int)n, 1.0, B, (int)n, o->U, (int)n, 1.0,
+                    Mb + d * n * n, (int)n);
+      }
+      for (long i = 0; i < n; i++)
+        for (long d = 0; d < nd; d++) tmp[i * nd + d] *= root_f(o->lam[i], e);
+      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)nd, (int)n, 1.0, o->U, (int)n, tmp, (int)nd,
+                  0.0, Vb, (int)nd);
+    }
+  }
+  int rc = dv->err[0] ? -1 : dm ? op_cotangent(dv, o, Mb) : 0;
+  free(Mb);
+  free(tmp);
+  return rc;
+}
+
+/* ---------------------------------------------------------------- Galerkin stages */
+
+/* One term's primal: its numerator v0 and, per operator, its state and the
+ * chain of its steps (vs[k]: op_steps + 1 vectors of n, vs[k][0] its operand). */
+typedef struct TermState {
+  int nops;
+  OpState *ops;
+  double **vs;
+} TermState;
+
+static void term_free(TermState *ts) {
+  for (int k = 0; k < ts->nops; k++) {
+    op_state_free(&ts->ops[k]);
+    free(ts->vs[k]);
+  }
+  free(ts->ops);
+  free(ts->vs);
+}
+
+static int term_primal(Deriv *dv, const RStage *rs, const RTerm *rt, long n, TermState *ts) {
+  const Model *m = dv->m;
+  ts->nops = rt->nops;
+  ts->ops = mem_calloc((size_t)rt->nops + 1, sizeof(OpState));
+  ts->vs = mem_calloc((size_t)rt->nops + 1, sizeof(double *));
+  double *v0 = mem_calloc((size_t)n + 1, sizeof(double)), *w = mem_malloc(sizeof(double) * (size_t)(n + 1));
+  int rc = -1;
+  if (!ts->ops || !ts->vs || !v0 || !w) {
+    dfail_oom(dv);
+    goto out;
+  }
+  if (rt->named_q >= 0) {
+    if (rt->proj)
+      cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)qm(m, rt->named_q), 1.0, rt->proj, (int)qm(m, rt->named_q),
+                  dv->x[rt->named_q], 1, 0.0, v0, 1);
+    else memcpy(v0, dv->x[rt->named_q], sizeof(double) * (size_t)n);
+  } else
+    for (int g = 0; g < rt->nnum; g++) {
+      const double *z[RT_MAX_IN];
+      double *zbuf = mem_malloc(sizeof(double) * (size_t)tensor_zlen(&rt->num[g]));
+      if (!zbuf || contract_into(&rt->num[g], (tensor_z(dv, &rt->num[g], z, zbuf), z), v0)) {
+        free(zbuf);
+        dfail_oom(dv);
+        goto out;
+      }
+      free(zbuf);
+    }
+  const double *in = v0;
+  for (int k = 0; k < rt->nops; k++) {
+    if (op_state(dv, rs, &rt->ops[k], n, &ts->ops[k])) goto out;
+    long steps = op_steps(&ts->ops[k]);
+    if (!(ts->vs[k] = mem_malloc(sizeof(double) * (size_t)((steps + 1) * n + 1)))) {
+      dfail_oom(dv);
+      goto out;
+    }
+    memcpy(ts->vs[k], in, sizeof(double) * (size_t)n);
+    op_forward_primal(&ts->ops[k], ts->vs[k], w);
+    in = ts->vs[k] + steps * n;
+  }
+  rc = 0;
+out:
+  free(v0);
+  free(w);
+  return rc;
+}
+
+/* The numerator's tangent (forward, into dV) or cotangent (reverse, from Vb). */
+static int term_numerator(Deriv *dv, const RTerm *rt, long n, bool reverse, double *V) {
+  long nd = dv->nd;
+  if (rt->named_q < 0) {
+    for (int g = 0; g < rt->nnum; g++)
+      if (tensor_tangent(dv, &rt->num[g], reverse, V, V)) return -1;
+    return 0;
+  }
+  int w = rt->named_q;
+  if (!dv->active[w]) return 0;
+  long mw = qm(dv->m, w);
+  if (!rt->proj) cblas_daxpy((int)(n * nd), 1.0, reverse ? V : dv->d[w], 1, reverse ? dv->d[w] : V, 1);
+  else if (reverse)
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mw, (int)nd, (int)n, 1.0, rt->proj, (int)mw, V, (int)nd,
+                1.0, dv->d[w], (int)nd);
+  else
+    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)nd, (int)mw, 1.0, rt->proj, (int)mw, dv->d[w],
+                (int)nd, 1.0, V, (int)nd);
+  return 0;
+}
+
+static int galerkin_stage(Deriv *dv, const RStage *rs, bool reverse) {
+  long n = qm(dv->m, rs->q), nd = dv->nd;
+  double *V = mem_malloc(sizeof(double) * (size_t)(n * nd + 1));
+  if (!V) return dfail_oom(dv);
+  int rc = 0;
+  for (int t = 0; t < rs->nterms && rc == 0; t++) {
+    const RTerm *rt = &rs->terms[t];
+    TermState ts = {0};
+    rc = term_primal(dv, rs, rt, n, &ts);
+    if (rc == 0 && !reverse) {
+      memset(V, 0, sizeof(double) * (size_t)(n * nd));
+      rc = term_numerator(dv, rt, n, false, V);
+      for (int k = 0; k < rt->nops && rc == 0; k++) rc = op_forward(dv, &ts.ops[k], ts.vs[k], V);
+      if (rc == 0) cblas_daxpy((int)(n * nd), 1.0, V, 1, dv->d[rs->q], 1);
+    } else if (rc == 0) {
+      memcpy(V, dv->d[rs->q], sizeof(double) * (size_t)(n * nd));
+      for (int k = rt->nops - 1; k >= 0 && rc == 0; k--) rc = op_reverse(dv, &ts.ops[k], ts.vs[k], V);
+      if (rc == 0) rc = term_numerator(dv, rt, n, true, V);
+    }
+    term_free(&ts);
+  }
+  free(V);
+  return rc;
+}
+
+/* ---------------------------------------------------------------- interpolated stages */
+
+/* b^(p/q): small integer and half-integer powers by multiplication and one sqrt (one per
+ * selected entry and operator, as interp.c's evaluation), others by pow(). */
+static double interp_pow(double b, long p, long q) {
+  if ((q == 1 || q == 2) && p >= -16 && p <= 16) {
+    double base = q == 2 ? sqrt(b) : b, v = 1;
+    for (long i = 0; i < labs(p); i++) v *= base;
+    return p < 0 ? 1 / v : v;
+  }
+  return pow(b, (double)p / (double)q);
+}
+
+/* Forward: d[y] += J_q d[q]; reverse: d[q] += J_qᵀ d[y], for every active quantity q the
+ * formula reads, J_q = (W P B)⁺ W · ∂(P y)/∂x̂_q from its monomials (RInterp.mono). */
+static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
+  const Model *m = dv->m;
+  const RInterp *ip = rs->interp;
+  long k = ip->k, nf = 0, my = qm(m, rs->q), nd = dv->nd;
+  long *base = mem_malloc(sizeof(long) * (size_t)(rs->nterms + 1));
+  if (!base) return dfail_oom(dv);
+  for (int t = 0; t < rs->nterms; t++) base[t] = nf, nf += 1 + rs->terms[t].nops;
+  double *val = mem_malloc(sizeof(double) * (size_t)(ip->nreads + 1));
+  double *acc = mem_calloc((size_t)(k * nf) + 1, sizeof(double)), *g = mem_calloc((size_t)(k * nf) + 1, sizeof(double));
+  int rc = -1;
+  if (!val || !acc || !g) {
+    dfail_oom(dv);
+    goto out;
+  }
+  for (long r = 0; r < ip->nreads; r++) {
+    const RClass *c = &m->classes[m->qclass[ip->read_q[r]]];
+    val[r] = cblas_ddot((int)c->m, c->B + ip->read_e[r] * c->m, 1, dv->x[ip->read_q[r]], 1);
+  }
+  for (long i = 0; i < ip->nmono; i++) {
+    const RInterpMono *mo = &ip->mono[i];
+    double v = mo->coef;
+    for (int j = 0; j < mo->nin; j++) v *= val[mo->read[j]];
+    acc[(base[mo->term] + mo->factor) * k + mo->slot] += v;
+  }
+  for (int t = 0; t < rs->nterms; t++) { /* g = ∂(P y)[s]/∂acc */
+    const RTerm *rt = &rs->terms[t];
+    for (long s = 0; s < k; s++) {
+      double num = acc[base[t] * k + s], all = 1, pw[RT_MAX_IN];
+      for (int o = 0; o < rt->nops && o < RT_MAX_IN; o++)
+        all *= pw[o] = interp_pow(acc[(base[t] + o + 1) * k + s], rt->ops[o].op->p, rt->ops[o].op->q);
+      g[base[t] * k + s] = all;
+      for (int o = 0; o < rt->nops && o < RT_MAX_IN; o++) { /* ∂(d^e)/∂d = e d^e / d, the rest's product kept */
+        double rest = num, e = (double)rt->ops[o].op->p / (double)rt->ops[o].op->q, d = acc[(base[t] + o + 1) * k + s];
+        for (int o2 = 0; o2 < rt->nops && o2 < RT_MAX_IN; o2++)
+          if (o2 != o) rest *= pw[o2];
+        g[(base[t] + o + 1) * k + s] = rest * e * (d != 0 ? pw[o] / d : pow(d, e - 1));
+      }
+    }
+  }
+  rc = 0;
+  for (int q = 0; q < m->nq && rc == 0; q++) {
+    if (!dv->active[q]) continue;
+    bool reads = false;
+    for (long r = 0; r < ip->nreads && !reads; r++) reads = ip->read_q[r] == q;
+    if (!reads) continue;
+    const RClass *c = &m->classes[m->qclass[q]];
+    long mq = c->m;
+    double *D = mem_calloc((size_t)(k * mq) + 1, sizeof(double)), *J = mem_malloc(sizeof(double) * (size_t)(my * mq + 1));
+    if (!D || !J) {
+      free(D);
+      free(J);
+      rc = dfail_oom(dv);
+      break;
+    }
+    for (long i = 0; i < ip->nmono; i++) {
+      const RInterpMono *mo = &ip->mono[i];
+      double gi = g[(base[mo->term] + mo->factor) * k + mo->slot] * mo->coef;
+      for (int j = 0; j < mo->nin; j++) {
+        long r = mo->read[j];
+        if (ip->read_q[r] != q) continue;
+        double cj = gi;
+        for (int l = 0; l < mo->nin; l++)
+          if (l != j) cj *= val[mo->read[l]];
+        const double *row = c->B + ip->read_e[r] * mq; /* a loop: cblas_daxpy's call cost more at these m */
+        double *dst = D + mo->slot * mq;
+        for (long a = 0; a < mq; a++) dst[a] += cj * row[a];
+      }
+    }
+    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)my, (int)mq, (int)k, 1.0, ip->pinv, (int)k, D, (int)mq,
+                0.0, J, (int)mq);
+    if (reverse)
+      cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)my, 1.0, J, (int)mq, dv->d[rs->q],
+                  (int)nd, 1.0, dv->d[q], (int)nd);
+    else
+      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)my, (int)nd, (int)mq, 1.0, J, (int)mq, dv->d[q],
+                  (int)nd, 1.0, dv->d[rs->q], (int)nd);
+    free(D);
+    free(J);
+  }
+out:
+  free(base);
+  free(val);
+  free(acc);
+  free(g);
+  return rc;
+}
+
+/* ---------------------------------------------------------------- sweeps */
+
+/* Whether stage rs reads an active quantity. */
+static bool stage_reads_active(const Deriv *dv, const RStage *rs) {
+  const Model *m = dv->m;
+  if (rs->st->kind == ST_EXTERN) {
+    for (int k = 0; k < m->nexterns; k++)
+      if (m->externs[k].q == rs->q)
+        for (int j = 0; j < m->externs[k].nin; j++)
+          if (dv->active[m->externs[k].in_q[j]]) return true;
+    return false;
+  }
+  if (rs->interp) {
+    for (long r = 0; r < rs->interp->nreads; r++)
+      if (dv->active[rs->interp->read_q[r]]) return true;
+    return false;
+  }
+  for (int t = 0; t < rs->nterms; t++) {
+    const RTerm *rt = &rs->terms[t];
+    if (rt->named_q >= 0 && dv->active[rt->named_q]) return true;
+    RTERM_FOR_TENSORS(rt, x) {
+      if (tensor_active(dv, x)) return true;
+    }
+  }
+  return false;
+}
+
+static int stage_derivative(Deriv *dv, const RStage *rs, bool reverse) {
+  if (rs->st->kind == ST_EXTERN)
+    return error_set(dv->err, dv->errlen, "extern '%s' depends on the differentiated input, and its learned map (a "
+                     "convex combination of training samples) has no derivative", rs->st->sym->name);
+  if (rs->interp) return interp_stage(dv, rs, reverse);
+  return galerkin_stage(dv, rs, reverse);
+}
+
+static void deriv_free(Deriv *dv) {
+  for (int q = 0; dv->d && q < dv->m->nq; q++) free(dv->d[q]);
+  free(dv->d);
+  free(dv->active);
+}
+
+/* The quantities depending on `in` (one input, or the seeds' quantities), every
+ * one's block allocated (zero). */
+static int deriv_init(Deriv *dv, Reduced *r, long nd, const int *from, int nfrom, long sample, char *err,
+                      size_t errlen) {
+  memset(dv, 0, sizeof *dv);
+  dv->m = reduced_model(r), dv->nd = nd, dv->sample = sample, dv->err = err, dv->errlen = errlen;
+  if (errlen > 0) err[0] = 0; /* a failure is known by its message */
+  const Model *m = dv->m;
+  double **x = mem_calloc((size_t)m->nq + 1, sizeof(double *));
+  dv->d = mem_calloc((size_t)m->nq + 1, sizeof(double *));
+  dv->active = mem_calloc((size_t)m->nq + 1, sizeof(bool));
+  if (!x || !dv->d || !dv->active) {
+    free(x);
+    return dfail_oom(dv);
+  }
+  for (int q = 0; q < m->nq; q++) {
+    x[q] = reduced_coords(r, q);
+    if (!(dv->d[q] = mem_calloc((size_t)(qm(m, q) * nd) + 1, sizeof(double)))) {
+      free(x);
+      return dfail_oom(dv);
+    }
+  }
+  dv->x = x;
+  for (int i = 0; i < nfrom; i++) dv->active[from[i]] = true;
+  for (int i = 0; i < m->nstages; i++)
+    if (!dv->active[m->stages[i].q] && stage_reads_active(dv, &m->stages[i])) dv->active[m->stages[i].q] = true;
+  return 0;
+}
+
+int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int out_q, double *out,
+                long sample, char *err, size_t errlen) {
+  Deriv dv;
+  int rc = deriv_init(&dv, r, nd, seed_q, nseed, sample, err, errlen);
+  const Model *m = dv.m;
+  for (int i = 0; i < nseed && rc == 0; i++)
+    cblas_daxpy((int)(qm(m, seed_q[i]) * nd), 1.0, seed[i], 1, dv.d[seed_q[i]], 1);
+  for (int i = 0; i < m->nstages && rc == 0; i++) {
+    const RStage *rs = &m->stages[i];
+    bool seeded = false;
+    for (int s = 0; s < nseed; s++) seeded = seeded || seed_q[s] == rs->q;
+    if (dv.active[rs->q] && !seeded) rc = stage_derivative(&dv, rs, false);
+  }
+  if (rc == 0) memcpy(out, dv.d[out_q], sizeof(double) * (size_t)(qm(m, out_q) * nd));
+  free((void *)dv.x);
+  deriv_free(&dv);
+  return rc ? -1 : 0;
+}
+
+int reduced_vjp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int in_q, double *out,
+                long sample, char *err, size_t errlen) {
+  Deriv dv;
+  int rc = deriv_init(&dv, r, nd, &in_q, 1, sample, err, errlen);
+  const Model *m = dv.m;
+  for (int i = 0; i < nseed && rc == 0; i++)
+    if (dv.active[seed_q[i]]) cblas_daxpy((int)(qm(m, seed_q[i]) * nd), 1.0, seed[i], 1, dv.d[seed_q[i]], 1);
+  for (int i = m->nstages - 1; i >= 0 && rc == 0; i--) {
+    const RStage *rs = &m->stages[i];
+    if (dv.active[rs->q] && rs->q != in_q) rc = stage_derivative(&dv, rs, true);
+  }
+  if (rc == 0) memcpy(out, dv.d[in_q], sizeof(double) * (size_t)(qm(m, in_q) * nd));
+  free((void *)dv.x);
+  deriv_free(&dv);
+  return rc ? -1 : 0;
+}
+
+int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, char *err, size_t errlen) {
+  const Model *m = reduced_model(r);
+  long mo = qm(m, out_q), mi = qm(m, in_q);
+  bool forward = mi <= mo;
+  long nd = forward ? mi : mo;
+  double *eye = mem_calloc((size_t)(nd * nd) + 1, sizeof(double));
+  double *T = forward ? NULL : mem_malloc(sizeof(double) * (size_t)(mi * mo + 1));
+  if (!eye || (!forward && !T)) {
+    free(eye);
+    free(T);
+    return error_set(err, errlen, "out of memory for the reduced Jacobian");
+  }
+  for (long i = 0; i < nd; i++) eye[i * nd + i] = 1;
+  const double *seed = eye;
+  int rc = forward ? reduced_jvp(r, 1, &in_q, &seed, nd, out_q, J, sample, err, errlen)
+                   : reduced_vjp(r, 1, &out_q, &seed, nd, in_q, T, sample, err, errlen);
+  if (rc == 0 && !forward)
+    for (long a = 0; a < mo; a++)
+      for (long b = 0; b < mi; b++) J[a * mi + b] = T[b * mo + a];
+  free(eye);
+  free(T);
+  return rc;
+}
