@@ -381,10 +381,10 @@ static void print_val(Cse *c, FILE *out, int v, bool top) {
     else emit_double(out, x->num);
     return;
   case VAL_LEAF: fputs(x->text, out); return;
-  case VAL_LOAD:
-    fprintf(out, "%s[", x->text);
+  case VAL_LOAD: /* an int param's entry (npg_iparam, 32 bits) widened: index arithmetic in npg_idx */
+    fprintf(out, x->is_int ? "((npg_idx)%s[" : "%s[", x->text);
     print_val(c, out, x->a, true);
-    fputc(']', out);
+    fputs(x->is_int ? "])" : "]", out);
     return;
   case VAL_NEG: fputs("(-", out); print_val(c, out, x->a, false); fputc(')', out); return;
   case VAL_NOT: fputs("(!", out); print_val(c, out, x->a, false); fputc(')', out); return;
