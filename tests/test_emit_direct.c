@@ -73,6 +73,13 @@ static const Case cases[] = {
      {{NULL}},
      NULL,
      NULL},
+    {"powers_and_gathers", /* x^2 and x^(±3/2) without libm's pow; an int param's entries (32 bits) as indices */
+     "dim N\ndim P\nparam a : int[P]\ninput x : real[N]\nr[p:P] = x[a[p]]^2 + 1\n"
+     "output f[p:P] = x[a[p]] * r[p]^(-3/2) + r[p]^(3/2)\n",
+     {{"r", "f"}},
+     {{NULL}},
+     NULL,
+     "* sqrt("},
 };
 
 static int step_of(const FullPlan *plan, const char *name) {
