@@ -80,6 +80,13 @@ static const Case cases[] = {
      {{NULL}},
      NULL,
      "* sqrt("},
+    {"guarded_gather", /* a stencil's guarded reads through an int param: the function is kept scalar */
+     "dim N\nparam nbr : int[N, 2]\ninput u : real[N]\n"
+     "output v[i:N] = u[i] + sum(j = 0..1, if(nbr[i, j] >= 0, u[nbr[i, j]] - u[i], 0))\n",
+     {{NULL}},
+     {{NULL}},
+     NULL,
+     "NPG_SCALAR static int"},
 };
 
 static int step_of(const FullPlan *plan, const char *name) {

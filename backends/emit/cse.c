@@ -279,6 +279,17 @@ bool cse_reads(const Cse *c, const char *array) {
   return false;
 }
 
+bool cse_guarded_gathers(const Cse *c) {
+  bool ints = false, guarded = false;
+  for (int i = 0; i < c->n; i++) {
+    const Val *x = &c->v[i];
+    if (!x->reached || x->op != VAL_LOAD || c->nloops == 0 || x->level != c->nloops) continue;
+    ints |= x->is_int;
+    guarded |= x->unsafe;
+  }
+  return ints && guarded;
+}
+
 void cse_root(Cse *c, int v) {
   if (c->nroots == c->rcap) {
     int cap = c->rcap ? 2 * c->rcap : 16;

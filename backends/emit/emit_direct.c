@@ -446,6 +446,7 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
   e->fuse = NULL;
   e->direct_for = NULL;
   cse_plan(cs);
+  if (cse_guarded_gathers(cs)) e->scalar = true;
   /* libtcc computes the innermost loop a row at a time when it can (cse.c, rows) */
   int nst = 0;
   for (int m = 0; m < n; m++) nst += members[m]->ncomp;
