@@ -146,7 +146,7 @@ typedef struct CavityRun {
   FullStats st;
   size_t model_bytes, tensor_bytes;
   /* the test's timings (per step) */
-  double steps, t_full, t_s, t_s_median, t_s_min, t_s_rep, err_traj_mean, err_step_mean;
+  double steps, t_full, t_s, t_s_median, t_s_min, t_s_rep, t_s_rep_median, err_traj_mean, err_step_mean;
   /* the reduced step against its bytes: what it streams (red_step_bytes), the read bandwidth
    * measured over as many bytes (the cache they fit in) and over 256 MB (memory) */
   RedBytes bytes;
@@ -595,7 +595,8 @@ static int timings(CavityRun *r) {
   for (int t = 0; t < T; t++) r->t_s += r->step_times[t] / T;
   qsort(r->step_times, T, sizeof *r->step_times, cmp_double);
   r->t_s_median = r->step_times[T / 2], r->t_s_min = r->step_times[0];
-  double best = INFINITY;
+  double best = INFINITY, rep[50];
+  int nrep = 0;
   if (red_state_save(R, &r->keep) != 0) {
     fprintf(stderr, "npg-fluids: out of memory\n");
     return 1;
@@ -606,9 +607,13 @@ static int timings(CavityRun *r) {
     if (red_step(R, r->traj_g + (size_t)(T - 1) * R->mg, r->traj_gd + (size_t)(T - 2) * R->mgd, r->err,
                  sizeof r->err) != 0)
       break;
-    best = fmin(best, util_now() - a0);
+    best = fmin(best, rep[nrep++] = util_now() - a0);
   }
   r->t_s_rep = best;
+  /* the median of the repeats: steps one after the other with nothing between them (a reduced
+   * rollout alone), where the test's steps alternate with full steps that evict the tensors */
+  qsort(rep, (size_t)nrep, sizeof *rep, cmp_double);
+  r->t_s_rep_median = nrep ? rep[nrep / 2] : NAN;
   red_step_bytes(R, 1, &r->bytes);
   r->bw_step = util_read_bandwidth((size_t)r->bytes.total, 0.2);
   r->bw_mem = util_read_bandwidth((size_t)256 << 20, 0.5);
@@ -652,8 +657,10 @@ static void step_bytes_summary(const CavityRun *r) {
   for (int i = 0; i < b->n; i++) fprintf(stderr, "%s %s %.3g MB", i ? ";" : "", b->name[i], b->bytes[i] / 1e6);
   fprintf(stderr,
           "; read bandwidth %.3g GB/s over as many bytes, %.3g GB/s over 256 MB: bound %.3g ms (%.3g ms from "
-          "memory); median step %.2fx the bound, repeated %.2fx\n",
-          r->bw_step, r->bw_mem, 1e3 * bound, 1e3 * mem, bound > 0 ? r->t_s_median / bound : 0,
+          "memory); the test's median step %.3g ms, %.2fx the bound; repeated alone, median %.3g ms (%.2fx), "
+          "best %.3g ms (%.2fx)\n",
+          r->bw_step, r->bw_mem, 1e3 * bound, 1e3 * mem, 1e3 * r->t_s_median, bound > 0 ? r->t_s_median / bound : 0,
+          1e3 * r->t_s_rep_median, bound > 0 ? r->t_s_rep_median / bound : 0, 1e3 * r->t_s_rep,
           bound > 0 ? r->t_s_rep / bound : 0);
 }
 
@@ -706,6 +713,7 @@ static void report_reduced(const CavityRun *r, FILE *fp) {
   fprintf(fp, "  \"model_bytes\": %zu,\n  \"model_tensor_bytes\": %zu,\n", r->model_bytes, r->tensor_bytes);
   fprintf(fp, "  \"t_s\": %.6g,\n  \"t_s_median\": %.6g,\n  \"t_s_min\": %.6g,\n  \"t_s_repeated_min\": %.6g,\n",
           r->t_s, r->t_s_median, r->t_s_min, r->t_s_rep);
+  fprintf(fp, "  \"t_s_repeated_median\": %.6g,\n", r->t_s_rep_median);
   fprintf(fp, "  \"single_advection\": %s,\n", o->single_advection ? "true" : "false");
   fprintf(fp, "  \"step_bytes\": {");
   for (int i = 0; i < r->bytes.n; i++) fprintf(fp, "%s\"%s\": %.0f", i ? ", " : "", r->bytes.name[i], r->bytes.bytes[i]);
