@@ -617,6 +617,12 @@ NPG_API const char *npg_reduced_estimate_why(NpgReduced *r, const char *name);
  * such coordinate), 0 inside or when the model recorded no range, -1 on an error (not an
  * input, never set). */
 NPG_API int npg_reduced_outside(NpgReduced *r, const char *name, long *coord);
+/* Lift `samples` sets of coordinates of a quantity at once: coords
+ * (samples x m, row-major, finite) to out (samples x count, count the full
+ * size) = coords Bᵀ, the basis read once for all of them (one dgemm); what
+ * npg_reduced_lift gives for each, to rounding. Reads no evaluation. */
+NPG_API int npg_reduced_lift_many(NpgReduced *r, const char *name, size_t samples, size_t m, const double *coords,
+                                  double *out, size_t count);
 /* The `output op` `name` reduced at the last evaluation: out (rows x cols,
  * row-major, at most `cap` entries) = B_rowᵀ M B_col, with the bases of the
  * classes *row_class and *col_class (npg_model_class). An error before any

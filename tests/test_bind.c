@@ -143,6 +143,28 @@ static NpgFull *radiosity_failing(NpgProgram **pp, int face, int corner, long lo
   return f;
 }
 
+/* An int param holds 32-bit entries (npg_iparam): a value outside that range
+ * is refused when bound, naming the file, the entry and the range, never
+ * truncated into another index. */
+static void int_param_out_of_range(void **state) {
+  (void)state;
+  long long big[4][3];
+  memcpy(big, tri, sizeof big);
+  big[1][2] = 3000000000LL;
+  long s2[2] = {F, 3};
+  put("tri", NPY_I64, 2, s2, big);
+  NpgProgram *p;
+  NpgFull *f = radiosity(&p);
+  assert_int_equal(npg_full_bind_params(f, dir), -1);
+  const char *e = npg_full_error(f);
+  if (!strstr(e, "tri.npy") || !strstr(e, "int param 'tri' holds 3000000000 at [1, 2], outside the range of an int "
+                                         "param (-2147483648 to 2147483647)"))
+    fail_msg("unexpected message: %s", e);
+  npg_full_free(f);
+  npg_free(p);
+  good_data();
+}
+
 /* An index out of range in tri.npy: found once at bind time (the first
  * evaluation), naming the file, the entry and the dim. */
 static void gather_out_of_range(void **state) {
@@ -340,6 +362,7 @@ int main(void) {
       cmocka_unit_test(nan_in_input),         cmocka_unit_test(zero_area_triangle),
       cmocka_unit_test(singular_and_indefinite), cmocka_unit_test(operator_not_finite),
       cmocka_unit_test(unbound_dim),          cmocka_unit_test(dim_rebound_by_same_source),
+      cmocka_unit_test(int_param_out_of_range),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

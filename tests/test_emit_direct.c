@@ -73,6 +73,20 @@ static const Case cases[] = {
      {{NULL}},
      NULL,
      NULL},
+    {"powers_and_gathers", /* x^2 and x^(±3/2) without libm's pow; an int param's entries (32 bits) as indices */
+     "dim N\ndim P\nparam a : int[P]\ninput x : real[N]\nr[p:P] = x[a[p]]^2 + 1\n"
+     "output f[p:P] = x[a[p]] * r[p]^(-3/2) + r[p]^(3/2)\n",
+     {{"r", "f"}},
+     {{NULL}},
+     NULL,
+     "* sqrt("},
+    {"guarded_gather", /* a stencil's guarded reads through an int param: the function is kept scalar */
+     "dim N\nparam nbr : int[N, 2]\ninput u : real[N]\n"
+     "output v[i:N] = u[i] + sum(j = 0..1, if(nbr[i, j] >= 0, u[nbr[i, j]] - u[i], 0))\n",
+     {{NULL}},
+     {{NULL}},
+     NULL,
+     "NPG_SCALAR static int"},
 };
 
 static int step_of(const FullPlan *plan, const char *name) {

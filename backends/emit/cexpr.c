@@ -264,7 +264,7 @@ void emit_prologue(Emit *e, FILE *out, bool write_stage, const Sym *stage) {
   for (int i = 0; i < prog->params.n; i++)
     if (e->used_param[i]) {
       const Sym *p = prog->params.v[i];
-      if (p->is_int) fprintf(out, "  const npg_idx *restrict const %s = c->iparams[%d];\n", emit_name(e, p), i);
+      if (p->is_int) fprintf(out, "  const npg_iparam *restrict const %s = c->iparams[%d];\n", emit_name(e, p), i);
       else fprintf(out, "  const double *restrict const %s = c->params[%d];\n", emit_name(e, p), i);
     }
   for (int i = 0; i < prog->slots.n; i++) {

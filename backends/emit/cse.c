@@ -279,6 +279,17 @@ bool cse_reads(const Cse *c, const char *array) {
   return false;
 }
 
+bool cse_guarded_gathers(const Cse *c) {
+  bool ints = false, guarded = false;
+  for (int i = 0; i < c->n; i++) {
+    const Val *x = &c->v[i];
+    if (!x->reached || x->op != VAL_LOAD || c->nloops == 0 || x->level != c->nloops) continue;
+    ints |= x->is_int;
+    guarded |= x->unsafe;
+  }
+  return ints && guarded;
+}
+
 void cse_root(Cse *c, int v) {
   if (c->nroots == c->rcap) {
     int cap = c->rcap ? 2 * c->rcap : 16;
@@ -381,10 +392,10 @@ static void print_val(Cse *c, FILE *out, int v, bool top) {
     else emit_double(out, x->num);
     return;
   case VAL_LEAF: fputs(x->text, out); return;
-  case VAL_LOAD:
-    fprintf(out, "%s[", x->text);
+  case VAL_LOAD: /* an int param's entry (npg_iparam, 32 bits) widened: index arithmetic in npg_idx */
+    fprintf(out, x->is_int ? "((npg_idx)%s[" : "%s[", x->text);
     print_val(c, out, x->a, true);
-    fputc(']', out);
+    fputs(x->is_int ? "])" : "]", out);
     return;
   case VAL_NEG: fputs("(-", out); print_val(c, out, x->a, false); fputc(')', out); return;
   case VAL_NOT: fputs("(!", out); print_val(c, out, x->a, false); fputc(')', out); return;

@@ -34,6 +34,8 @@ typedef struct Emit {
                             its tangent or cotangent (emit_deriv.c), NULL elsewhere */
   bool box;              /* emitting the box twin of a loop nest: its loops run over
                             the boxes box_[0..nbox_) (emit_full.c) */
+  bool scalar;           /* the function being emitted gathers in its innermost loop: not
+                            vectorized (NPG_SCALAR, emit_function_sig) */
 } Emit;
 
 /* The C name of a symbol: quantities Q_<name>, params P_<name>, dims
@@ -196,6 +198,9 @@ void cse_root(Cse *c, int v);
 void cse_plan(Cse *c);
 /* After planning: is `array` read by what the nest stores? */
 bool cse_reads(const Cse *c, const char *array);
+/* The innermost loop reads an int param's entries and reads under a guard (after cse_plan):
+ * vectorized, those reads would be masked gathers. */
+bool cse_guarded_gathers(const Cse *c);
 void cse_emit_level(Cse *c, FILE *out, int level, int depth);
 /* The statement `array[offset] = v;` with the locals it reads before it;
  * when v is read again later it becomes a local in the same statement. */

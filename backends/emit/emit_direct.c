@@ -253,6 +253,14 @@ static int build(Emit *e, const Node *n, int comp, const DEnv *env) {
         int r = cse_call(cs, "sqrt", a, -1);
         return p < 0 ? cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), cured(cs, r), -1) : r;
       }
+      /* x^(±3/2) as emit_apply_diag's x·sqrt(x): libm's pow was 4x the hand-written C of
+       * n-body pairs (bench_shapes); sqrt and one product are exact or one rounding */
+      if (q == 2 && (p == 3 || p == -3)) {
+        int r = cse_op(cs, VAL_MUL, a, cse_call(cs, "sqrt", a, -1), -1);
+        return p < 0 ? cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), cured(cs, r), -1) : r;
+      }
+      /* x² as x·x: the same bits as pow(x, 2) (one rounding), and no libm call under libtcc */
+      if (q == 1 && p == 2) return cse_op(cs, VAL_MUL, a, a, -1);
       if (q == 1 && p == -1) return cse_op(cs, VAL_DIV, cse_num(cs, 1.0, false), cured(cs, a), -1);
       /* no cbrt for q = 3: a root of a negative number is NaN (emit_apply_diag) */
     }
@@ -438,6 +446,7 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
   e->fuse = NULL;
   e->direct_for = NULL;
   cse_plan(cs);
+  if (cse_guarded_gathers(cs)) e->scalar = true;
   /* libtcc computes the innermost loop a row at a time when it can (cse.c, rows) */
   int nst = 0;
   for (int m = 0; m < n; m++) nst += members[m]->ncomp;

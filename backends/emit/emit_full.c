@@ -320,10 +320,11 @@ void emit_function_sig(Emit *e, FILE *out, const char *signature, const Sym *wri
   FILE *b = open_memstream(&buf, &len);
   if (!b) error_plain(e->ctx, "out of memory");
   emit_reset_used(e);
+  e->scalar = false;
   body(e, b, arg);
   fclose(b);
   e->ctx->pending_free = buf;
-  fprintf(out, "%s {\n  (void)c;\n", signature);
+  fprintf(out, "%s%s {\n  (void)c;\n", e->scalar ? "NPG_SCALAR " : "", signature);
   emit_prologue(e, out, writes != NULL, writes);
   fputs(buf ? buf : "", out);
   fputs("  return 0;\n}\n\n", out);
@@ -358,6 +359,15 @@ void emit_header(Emit *e, const char *what) {
         "#define NPG_INDEPENDENT _Pragma(\"clang loop vectorize(assume_safety)\")\n"
         "#else\n"
         "#define NPG_INDEPENDENT\n"
+        "#endif\n"
+        "/* A function whose innermost loop reads through an int param's entries under a guard\n"
+        " * (a stencil's `if(nbr >= 0, ...)`): gcc's masked vector gathers were slower than scalar\n"
+        " * loads (AMD EPYC, -march=native: nonlinear heat 128 x 128, 33.9 -> 32.2 us; unguarded\n"
+        " * gathers, n-body pairs, gain from vectors: 252 -> 216 us; bench/README.md, bench_shapes). */\n"
+        "#if defined(__GNUC__) && !defined(__clang__) && !defined(__TINYC__)\n"
+        "#define NPG_SCALAR __attribute__((optimize(\"no-tree-vectorize\")))\n"
+        "#else\n"
+        "#define NPG_SCALAR\n"
         "#endif\n\n",
         e->out);
 }

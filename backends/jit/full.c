@@ -2,6 +2,7 @@
  * (libtcc or cc), bind params and dims, check gathers once, evaluate
  * samples, hand back every stage value. */
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -26,7 +27,7 @@ struct Full {
   npg_idx *dims;            /* -1 while unbound */
   char **dim_from;          /* which file or call bound each dim */
   double **params;          /* real params */
-  npg_idx **iparams;        /* int params */
+  npg_iparam **iparams;     /* int params (32 bits: npg_abi.h) */
   char **param_files;
   double **q;               /* every quantity */
   size_t *qcount;
@@ -268,14 +269,17 @@ int full_set_param(Full *f, const char *name, int ndim, const long *shape, const
   f->params[k] = NULL;
   f->iparams[k] = NULL;
   if (s->is_int) {
-    f->iparams[k] = mem_malloc(sizeof(npg_idx) * (n ? n : 1));
+    f->iparams[k] = mem_malloc(sizeof(npg_iparam) * (n ? n : 1));
     if (!f->iparams[k]) return fail(f, "out of memory");
     for (size_t i = 0; i < n; i++) {
       char at[128];
-      if (values[i] != (double)(npg_idx)values[i])
+      if (!(values[i] >= INT_MIN && values[i] <= INT_MAX)) /* NaN too */
+        return fail(f, "%s: int param '%s' holds %.17g at %s, outside the range of an int param (%d to %d)", from,
+                    name, values[i], index_text(f, s, i, at, sizeof at), INT_MIN, INT_MAX);
+      if (values[i] != (double)(npg_iparam)values[i])
         return fail(f, "%s: int param '%s' holds %.17g at %s, not a whole number", from, name, values[i],
                     index_text(f, s, i, at, sizeof at));
-      f->iparams[k][i] = (npg_idx)values[i];
+      f->iparams[k][i] = (npg_iparam)values[i];
     }
   } else {
     if (!(f->params[k] = alloc_entries(f, s, n))) return -1;
@@ -426,7 +430,7 @@ static NpgCtx context(Full *f, long sample) {
   NpgCtx c;
   c.dims = f->dims;
   c.params = (const double *const *)f->params;
-  c.iparams = (const npg_idx *const *)f->iparams;
+  c.iparams = (const npg_iparam *const *)f->iparams;
   c.q = f->q;
   c.rt = &npg_runtime;
   c.sample = sample;

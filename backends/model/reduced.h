@@ -44,6 +44,10 @@ void reduced_root_stats(const Reduced *r, long *roots, long *steps, long *fallba
 const char *reduced_error(const Reduced *r);
 /* y = B ŷ of quantity q into `y` (n entries). */
 void reduced_lift(const Reduced *r, int q, double *y);
+/* Y = Ŷ Bᵀ for `samples` coordinate vectors of quantity q: `coords`
+ * (samples x m, row-major) lifted into `y` (samples x n), the basis read
+ * once for all of them. One sample is reduced_lift's dgemv. */
+void reduced_lift_many(const Model *m, int q, long samples, const double *coords, double *y);
 
 /* ---------------------------------------------------------------- derivatives (reduced_deriv.c)
  *

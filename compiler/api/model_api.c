@@ -5,6 +5,7 @@
 #include <cblas.h>
 #include <cblas.h>
 #include <float.h>
+#include <limits.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdlib.h>
@@ -669,6 +670,31 @@ int npg_reduced_lift(NpgReduced *r, const char *name, double *out, size_t count)
   if (c->streamed) return rfail(r, "%s", streamed_message(c, name, "lifted"));
   if ((long)count != c->n) return rfail(r, "'%s' has %ld entries, a buffer of %zu was given", name, c->n, count);
   reduced_lift(r->r, q, out);
+  return 0;
+}
+
+int npg_reduced_lift_many(NpgReduced *r, const char *name, size_t samples, size_t m, const double *coords,
+                          double *out, size_t count) {
+  REFUSE_NULL_R(-1);
+  REFUSE_NULL(name);
+  REFUSE_NULL(coords);
+  REFUSE_NULL(out);
+  if (failed(r)) return -1;
+  const Model *mo = r->nm->m;
+  int q = api_quantity(mo->prog, name);
+  if (q < 0) return rfail(r, "the program has no quantity '%s'", name);
+  const RClass *c = &mo->classes[mo->qclass[q]];
+  if (c->streamed) return rfail(r, "%s", streamed_message(c, name, "lifted"));
+  if (samples < 1 || samples > INT_MAX / 2)
+    return rfail(r, "npg_reduced_lift_many: 'samples' is %zu: give 1 to %d sets of coordinates", samples, INT_MAX / 2);
+  if ((long)m != c->m)
+    return rfail(r, "'%s' has %ld reduced coordinates (class %s), %zu were given", name, c->m, c->label, m);
+  if ((long)count != c->n) return rfail(r, "'%s' has %ld entries, a buffer of %zu per sample was given", name, c->n, count);
+  for (size_t i = 0; i < samples * m; i++) /* as npg_reduced_set_coords refuses them */
+    if (!isfinite(coords[i]))
+      return rfail(r, "the coordinates of '%s' hold %s at sample %zu, entry %zu", name,
+                   isnan(coords[i]) ? "NaN" : "an infinity", i / m, i % m);
+  reduced_lift_many(mo, q, (long)samples, coords, out);
   return 0;
 }
 

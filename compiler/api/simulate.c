@@ -21,11 +21,15 @@ typedef struct StateView {
 /* "step 41: state 'u' ..." when the next value of state `u` (view `v`) blew up, into err; the
  * start energies are recorded at the rollout's first step. 0 when the step is sound. */
 static int blown_up(Rollout *ro, int i, const Sym *u, StateView v, char *err, size_t errlen) {
-  for (size_t k = 0; k < v.n; k++)
-    if (!isfinite(v.next[k]))
-      return snprintf(err, errlen, "step %ld: state '%s' blew up: its next value is %s at flat entry %zu",
-                      ro->steps + 1, u->name, isnan(v.next[k]) ? "NaN" : "an infinity", k), -1;
+  /* one pass over the next value when it is sound: a NaN or an infinite entry makes ‖u‖² NaN or
+   * infinite (squares are never negative), and only then are the entries searched (the full
+   * step of nonlinear heat at 128 x 128: 41 -> 36 µs, bench_shapes) */
   double e = v.n ? cblas_ddot((int)v.n, v.next, 1, v.next, 1) : 0, factor = api_rollout_blowup(ro);
+  if (!isfinite(e))
+    for (size_t k = 0; k < v.n; k++)
+      if (!isfinite(v.next[k]))
+        return snprintf(err, errlen, "step %ld: state '%s' blew up: its next value is %s at flat entry %zu",
+                        ro->steps + 1, u->name, isnan(v.next[k]) ? "NaN" : "an infinity", k), -1;
   if (factor > 0 && ro->start[i] > 0 && e > factor * ro->start[i])
     return snprintf(err, errlen,
                     "step %ld: state '%s' blew up: its energy ‖%s‖² = %.4g is %.3g× its value %.4g at the "

@@ -653,15 +653,47 @@ static const NpgSymbol *quantity(ReducedObject *self, const char *name) {
   return NULL;
 }
 
+/* red.lift(name, coords=C): the rows of C (samples x m) lifted at once
+ * (npg_reduced_lift_many), samples x the quantity's shape. */
+static PyObject *lift_many(ReducedObject *self, const NpgSymbol *s, const char *name, PyObject *coords) {
+  PyArrayObject *c = (PyArrayObject *)PyArray_FROMANY(coords, NPY_DOUBLE, 2, 2, NPY_ARRAY_IN_ARRAY);
+  if (!c) return PyErr_Format(PyExc_TypeError, "lift('%s', coords=...): coords must be a 2-D array of numbers "
+                              "(samples x reduced coordinates)", name);
+  npy_intp shape[17];
+  shape[0] = PyArray_DIM(c, 0);
+  int nd = 1 + npgpy_shape(s, model_dim, self->model->m, shape + 1);
+  PyArrayObject *a = (PyArrayObject *)PyArray_SimpleNew(nd, shape, NPY_DOUBLE);
+  if (!a) return Py_DECREF(c), NULL;
+  size_t count = shape[0] ? (size_t)(PyArray_SIZE(a) / shape[0]) : 0;
+  npgpy_busy_enter(&self->busy);
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_reduced_lift_many(self->r, name, (size_t)PyArray_DIM(c, 0), (size_t)PyArray_DIM(c, 1), PyArray_DATA(c),
+                             PyArray_DATA(a), count);
+  Py_END_ALLOW_THREADS
+  if (rc) {
+    rfail(self);
+    Py_CLEAR(a);
+  }
+  npgpy_busy_leave(&self->busy);
+  Py_DECREF(c);
+  return (PyObject *)a;
+}
+
 /* red.lift(name, out=None) -> B ŷ, shaped like the quantity, written into
- * a new array (or `out`, float64 C-contiguous of the right size). */
+ * a new array (or `out`, float64 C-contiguous of the right size); with
+ * coords=C, every row of C lifted at once (lift_many). */
 static PyObject *reduced_lift(ReducedObject *self, PyObject *args, PyObject *kw) {
-  static char *kwlist[] = {"name", "out", NULL};
+  static char *kwlist[] = {"name", "out", "coords", NULL};
   const char *name;
-  PyObject *out = Py_None;
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "s|O:lift", kwlist, &name, &out)) return NULL;
+  PyObject *out = Py_None, *coords = Py_None;
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "s|OO:lift", kwlist, &name, &out, &coords)) return NULL;
   const NpgSymbol *s = quantity(self, name);
   if (!s) return NULL;
+  if (coords != Py_None) {
+    if (out != Py_None) return PyErr_Format(PyExc_TypeError, "lift('%s'): give out= or coords=, not both", name);
+    return lift_many(self, s, name, coords);
+  }
   npy_intp shape[16];
   int nd = npgpy_shape(s, model_dim, self->model->m, shape);
   PyArrayObject *a;
@@ -994,7 +1026,8 @@ static PyMethodDef reduced_methods[] = {
   {"vjp", (PyCFunction)(void (*)(void))reduced_vjp_method, METH_VARARGS | METH_KEYWORDS,
    "vjp({output: cotangent}, input, **inputs) -> array of input's m: Σ J(output, input)ᵀ · cotangent"},
   {"lift", (PyCFunction)(void (*)(void))reduced_lift, METH_VARARGS | METH_KEYWORDS,
-   "lift(name, out=None) -> array: B ŷ of any quantity, shaped like it; written into `out` when given"},
+   "lift(name, out=None, coords=None) -> array: B ŷ of any quantity, shaped like it; written into `out` when "
+   "given; with coords (samples x m), every row lifted at once: samples x the quantity's shape"},
   {"coords", (PyCFunction)reduced_coords, METH_O, "coords(name) -> array: a copy of the reduced coordinates"},
   {"estimate", (PyCFunction)reduced_estimate, METH_O,
    "estimate(name) -> float: the online error estimate of `name` at the last evaluation, absolute, in the\n"

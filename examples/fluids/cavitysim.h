@@ -32,6 +32,7 @@ typedef struct CavityOptions {
   int sample_every; /* every K-th frame of a training run is a sample (0: cavity_sample_every_for) */
   size_t buffer_bytes; /* bound on the samples queued by runs the trainer is not taking yet (2 GB) */
   NpgBackend backend; /* the trainer's full evaluator (NPG_CC: replays 2-3x faster than libtcc's code) */
+  int single_advection; /* the reduced step's advection skew parts in single precision (red_single_advection; 0) */
 } CavityOptions;
 
 /* What the training runs did. */

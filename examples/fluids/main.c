@@ -45,6 +45,7 @@ static void usage(FILE *fp) {
         "                  [--mf N] [--mu N] [--mg N] [--dtol X] [--particles N] [--png-every K] [--vtk-every K]\n"
         "                  [--width PX] [--projection al|kkt] [--workers W] [--train-threads N]\n"
         "                  [--sample-every K] [--buffer-mb N] [--backend cc|tcc] [--particle-threads N]\n"
+        "                  [--single-advection 0|1]\n"
         "       npg-fluids cavity-mesh [--cells N]         the cavity's mesh statistics as JSON\n"
         "       npg-fluids cavity-projection [--cells N] [--steps N] [--method kkt|al|both]\n"
         "                  the full projection timed on the cavity (JSON)\n"
@@ -96,7 +97,9 @@ static void usage(FILE *fp) {
         "  by the system compiler (cc, default: its replays ran 2-3x faster here) or by libtcc (tcc).\n"
         "  --particle-threads N: threads advecting the particles (the online CPUs); the reduced\n"
         "  flow's particles also run on one thread, timed apart (t_pa_one_thread), and must move\n"
-        "  the same bit for bit; they lift only the faces of the cells they reach (paper 6.5).\n",
+        "  the same bit for bit; they lift only the faces of the cells they reach (paper 6.5).\n"
+        "  --single-advection 1: the reduced step keeps its advection tensor's skew parts in single\n"
+        "  precision (half their bytes; the errors in report.json say what it costs; default 0).\n",
         fp);
 }
 
@@ -246,6 +249,7 @@ static const Option options[] = {
     INT("--particle-threads", CAVITY, 1, PARTICLES_MAX_THREADS, cavity.particle_threads),
     INT("--train-threads", CAVITY, 1, CAVITY_MAX_WORKERS, cavity.train_threads),
     INT("--sample-every", CAVITY, 0, FLUIDS_MAX_FRAMES, cavity.sample_every),
+    INT("--single-advection", CAVITY, 0, 1, cavity.single_advection),
     INT("--buffer-mb", CAVITY, 0, 1 << 20, buffer_mb),
     {.name = "--backend", .commands = CAVITY, .kind = OPT_CHOICE, .at = AT(cavity.backend), CHOICES("cc", "tcc"), VALUES(NPG_CC, NPG_TCC)},
     {.name = "--projection", .commands = CAVITY, .kind = OPT_CHOICE, .at = AT(cavity.projection), CHOICES("al", "kkt"),

@@ -487,10 +487,41 @@ static int split_advection(RedSolver *s, char *err, size_t errlen) {
   return rc;
 }
 
+int red_single_advection(RedSolver *s, char *err, size_t errlen) {
+  long mf = s->mf, nk = s->mu * (s->mu - 1) / 2;
+  if (s->Ask32) return 0;
+  s->Ask32 = malloc((size_t)(mf * nk + 1) * sizeof *s->Ask32);
+  s->f32 = malloc((size_t)(mf + 1) * sizeof *s->f32);
+  s->sk32 = malloc((size_t)(nk + 1) * sizeof *s->sk32);
+  if (!s->Ask32 || !s->f32 || !s->sk32) {
+    free(s->Ask32), free(s->f32), free(s->sk32);
+    s->Ask32 = NULL, s->f32 = s->sk32 = NULL;
+    return fail(err, errlen, "out of memory", NULL);
+  }
+  for (long i = 0; i < mf * nk; i++) s->Ask32[i] = (float)s->Ask[i];
+  free(s->Ask);
+  s->Ask = NULL;
+  return 0;
+}
+
+/* sk = Σ_k f̂_k Ask[k] into s->work (double), from the single-precision
+ * copy when there is one. */
+static double *advection_skew(const RedSolver *s, const double *fc) {
+  int mf = (int)s->mf, nk = (int)(s->mu * (s->mu - 1) / 2);
+  double *sk = s->work;
+  if (!s->Ask32) {
+    cblas_dgemv(CblasRowMajor, CblasTrans, mf, nk, 1.0, s->Ask, nk, fc, 1, 0.0, sk, 1);
+    return sk;
+  }
+  for (int k = 0; k < mf; k++) s->f32[k] = (float)fc[k];
+  cblas_sgemv(CblasRowMajor, CblasTrans, mf, nk, 1.0f, s->Ask32, nk, s->f32, 1, 0.0f, s->sk32, 1);
+  for (int i = 0; i < nk; i++) sk[i] = s->sk32[i];
+  return sk;
+}
+
 void red_advection(const RedSolver *s, const double *fc, double *A) {
-  int mu = (int)s->mu, mf = (int)s->mf, nk = mu * (mu - 1) / 2;
-  double *sk = s->work, *sy = s->work + nk;
-  cblas_dgemv(CblasRowMajor, CblasTrans, mf, nk, 1.0, s->Ask, nk, fc, 1, 0.0, sk, 1);
+  int mu = (int)s->mu, nk = mu * (mu - 1) / 2;
+  double *sk = advection_skew(s, fc), *sy = s->work + nk;
   slices_apply(&s->Asy, fc, 0.0, sy);
   for (int i = 0; i < mu; i++) {
     A[(size_t)i * mu + i] = *sy++;
@@ -506,7 +537,7 @@ void red_free(RedSolver *s) {
   free(s->N), free(s->g), free(s->f), free(s->u);
   free(s->gmid), free(s->gdot), free(s->b), free(s->A), free(s->M), free(s->E), free(s->V0), free(s->V1);
   free(s->P1), free(s->W), free(s->K), free(s->KN), free(s->Kn), free(s->work), free(s->tmp), free(s->tmp2), free(s->tmp3);
-  free(s->Ask), free(s->PNs), free(s->Vf), free(s->Vfg), free(s->Q), free(s->H), free(s->Hx), free(s->hwork);
+  free(s->Ask), free(s->Ask32), free(s->f32), free(s->sk32), free(s->PNs), free(s->Vf), free(s->Vfg), free(s->Q), free(s->H), free(s->Hx), free(s->hwork);
   memset(s, 0, sizeof *s);
 }
 
@@ -654,6 +685,30 @@ int red_projection(RedSolver *s, const double *gc, const double *uin, char *err,
 }
 
 /* ---------------------------------------------------------------- the step */
+
+static double slices_bytes(const RedSlices *sl) {
+  return (double)(sl->n * sl->rank + sl->rank * sl->len) * sizeof(double);
+}
+
+static void bytes_add(RedBytes *b, const char *name, double bytes) {
+  b->name[b->n] = name, b->bytes[b->n++] = bytes;
+  b->total += bytes;
+}
+
+void red_step_bytes(const RedSolver *s, int moving, RedBytes *b) {
+  double d = sizeof(double);
+  long mu = s->mu, mf = s->mf, nk = mu * (mu - 1) / 2;
+  memset(b, 0, sizeof *b);
+  bytes_add(b, s->Ask32 ? "advection, skew parts (Ask, single precision)" : "advection, skew parts (Ask)",
+            (double)(mf * nk) * (s->Ask32 ? sizeof(float) : d));
+  bytes_add(b, "advection, symmetric parts (Asy slices)", slices_bytes(&s->Asy));
+  bytes_add(b, "Laplacian (L)", (double)(mu * mu) * d);
+  /* V̂'s factor: at ĝ_t kept from the last projection, at ĝ_{t+1} new: one V̂ a step */
+  bytes_add(b, "volume (Vs slices)", slices_bytes(&s->Vs));
+  bytes_add(b, "P̂ slices (Ps, PNs)", (double)(s->mg * mu * (mf + s->nn)) * d);
+  bytes_add(b, "constraints (D̂⁺, N)", (double)(mf * (s->mb + s->nn)) * d);
+  if (moving) bytes_add(b, "induced flux (Ahs slices, Bhs)", slices_bytes(&s->Ahs) + (double)(s->nmh * s->mgd * s->mb) * d);
+}
 
 int red_step(RedSolver *s, const double *gnext, const double *gdotc, char *err, size_t errlen) {
   int mu = (int)s->mu, mb = (int)s->mb;

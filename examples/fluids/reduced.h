@@ -64,6 +64,8 @@ typedef struct RedSolver {
   double *L;       /* [mu*mu] the reduced Laplacian */
   double *As;      /* [mf][mu*mu]:  Â ⊗ f̂ = Σ_k f̂_k As[k] (set-up only, then freed: the step reads the split below) */
   double *Ask;     /* [mf][mu(mu-1)/2]: the skew parts of the As[k], strict upper triangles */
+  float *Ask32;    /* the same in single precision (red_single_advection; Ask then NULL) */
+  float *f32, *sk32; /* [mf], [mu(mu-1)/2] scratch of the single-precision product */
   RedSlices Asy;   /* [mf] slices mu(mu+1)/2: their symmetric parts Σ_k f̂_k sym(As[k]), upper triangles row by row */
   long rs;         /* the rank of the symmetric parts (Asy.rank) */
   RedSlices Ahs;   /* [nmh*mgd] slices mu*mu: −Â_h ⊗ ĥ(ĝ, ĝdot) = Σ_aq m_a(ĝ) ĝdot_q Ahs[a][q] */
@@ -101,6 +103,20 @@ typedef struct RedState {
   int vf_ok;
 } RedState;
 
+/* The bytes one step streams, array by array: what red_step reads of the
+ * set-up's tensors (the mu x mu matrices it builds from them and reuses
+ * within the step, A, the factor of V̂ and the Arnoldi basis, are not
+ * counted: they stay in cache). `moving`: the step's mesh moves (ĝdot not
+ * zero), so it reads the induced flux's slices. */
+enum { RED_BYTES_MAX = 8 };
+typedef struct RedBytes {
+  int n;
+  const char *name[RED_BYTES_MAX];
+  double bytes[RED_BYTES_MAX];
+  double total;
+} RedBytes;
+void red_step_bytes(const RedSolver *s, int moving, RedBytes *b);
+
 /* Set up from a model of fluids2d.npg (dim 2) or fluids3d.npg (dim 3)
  * (classes looked up by quantity name; m_g at most 16). 0, or -1 with the
  * reason in err. */
@@ -112,6 +128,12 @@ void red_free(RedSolver *s);
  * off D̂'s range by rounding or by the truncation of ĥ would be amplified by
  * their inverse. 0, or -1. */
 int red_constraints(RedSolver *s, double tol, char *err, size_t errlen);
+/* Keep the advection's skew parts (the step's largest tensor, half its
+ * bytes at m_u 127, m_f 64) in single precision: half their bytes, the
+ * product accumulated in single precision (cblas_sgemv) and the assembled
+ * Â ⊗ f̂ within about 1e-7 of its largest entry. Off unless called
+ * (`npg-fluids cavity --single-advection 1`). 0, or -1 out of memory. */
+int red_single_advection(RedSolver *s, char *err, size_t errlen);
 /* Coordinates from full values: ĝ = B_gᵀ g, f̂ = B_fᵀ f, and the
  * energy-conserving projection û = V̂⁻¹(ĝ) B_uᵀ V(g) u (paper footnote 2),
  * where pv = V(g) u is given (full). */

@@ -521,6 +521,28 @@ static void test_cavity_reduced_step(void **state) {
     red_state_restore(&R, &st);
     if (red_step(&R, gn, gdc, err, sizeof err) != 0) fail_msg("%s", err);
     assert_memory_equal(uc, R.u, R.mu * sizeof *uc);
+    /* the advection's skew parts in single precision (red_single_advection):
+     * Â ⊗ f̂ and the step from the same state within single precision's
+     * rounding, the skew parts' bytes halved */
+    double *A64 = malloc(R.mu * R.mu * sizeof *A64), *A32 = malloc(R.mu * R.mu * sizeof *A32), da = 0, amax = 0;
+    RedBytes b64, b32;
+    red_step_bytes(&R, 1, &b64);
+    red_advection(&R, R.f, A64);
+    assert_int_equal(red_single_advection(&R, err, sizeof err), 0);
+    assert_null(R.Ask);
+    red_advection(&R, R.f, A32);
+    for (long i = 0; i < R.mu * R.mu; i++) da = fmax(da, fabs(A64[i] - A32[i])), amax = fmax(amax, fabs(A64[i]));
+    red_step_bytes(&R, 1, &b32);
+    red_state_restore(&R, &st);
+    if (red_step(&R, gn, gdc, err, sizeof err) != 0) fail_msg("%s", err);
+    for (long i = 0; i < R.mu; i++) ub[i] = uc[i] - R.u[i];
+    double du = red_energy(&R, gn, ub) / red_energy(&R, gn, uc);
+    print_message("single-precision advection: Â ⊗ f̂ within %.3g of its largest entry, the step's û within %.3g "
+                  "(energy, relative); bytes %.0f -> %.0f\n", da / amax, du, b64.total, b32.total);
+    assert_true(da > 0 && da <= 1e-6 * amax);
+    assert_true(du <= 1e-10);
+    assert_true(fabs(b64.bytes[0] - 2 * b32.bytes[0]) <= 8 && b32.total < b64.total);
+    free(A64), free(A32);
     red_state_free(&st);
   }
   free(pv), free(ub), free(uc), free(gn), free(gdc), free(G), free(Fx), free(U), free(GD), free(g);

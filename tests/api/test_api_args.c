@@ -509,6 +509,55 @@ static void train_options_refused(void **state) {
   npg_free(p);
 }
 
+/* npg_reduced_lift_many: every sample's coordinates lifted in one pass
+ * give what npg_reduced_lift gives for each (to rounding); bad arguments
+ * are refused naming the argument. */
+static void reduced_lift_many(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("eq3.npg", eq3);
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  NpgModel *m = train(f, 20, NULL);
+  NpgReduced *r = npg_reduced_new(m);
+  enum { S = 5 };
+  size_t my = 0;
+  double coords[S * 2], one[S][2], many[S * 2];
+  for (int k = 0; k < S; k++) {
+    double x[2] = {0.6 + 0.2 * k, 1.4 - 0.15 * k};
+    assert_int_equal(npg_reduced_set(r, "x", 2, x), 0);
+    assert_int_equal(npg_reduced_eval(r, k), 0);
+    const double *c = npg_reduced_coords(r, "y", &my);
+    assert_true(my >= 1 && my <= 2);
+    memcpy(coords + k * my, c, sizeof(double) * my);
+    assert_int_equal(npg_reduced_lift(r, "y", one[k], 2), 0);
+  }
+  assert_int_equal(npg_reduced_lift_many(r, "y", S, my, coords, many, 2), 0);
+  for (int k = 0; k < S; k++)
+    for (int i = 0; i < 2; i++) assert_true(fabs(many[2 * k + i] - one[k][i]) <= 1e-14 * (1 + fabs(one[k][i])));
+  /* the bad arguments */
+  assert_int_equal(npg_reduced_lift_many(r, "y", S, my, NULL, many, 2), -1);
+  refused(npg_reduced_error(r), "npg_reduced_lift_many", "coords");
+  npg_reduced_clear_error(r);
+  assert_int_equal(npg_reduced_lift_many(r, "y", 0, my, coords, many, 2), -1);
+  says(npg_reduced_error(r), "'samples' is 0");
+  npg_reduced_clear_error(r);
+  assert_int_equal(npg_reduced_lift_many(r, "y", S, my + 1, coords, many, 2), -1);
+  says(npg_reduced_error(r), "reduced coordinates");
+  npg_reduced_clear_error(r);
+  assert_int_equal(npg_reduced_lift_many(r, "y", S, my, coords, many, 3), -1);
+  says(npg_reduced_error(r), "'y' has 2 entries");
+  npg_reduced_clear_error(r);
+  assert_int_equal(npg_reduced_lift_many(r, "nosuch", S, my, coords, many, 2), -1);
+  says(npg_reduced_error(r), "no quantity 'nosuch'");
+  npg_reduced_clear_error(r);
+  coords[my * 3] = NAN;
+  assert_int_equal(npg_reduced_lift_many(r, "y", S, my, coords, many, 2), -1);
+  says(npg_reduced_error(r), "NaN at sample 3, entry 0");
+  npg_reduced_free(r);
+  npg_model_free(m);
+  npg_full_free(f);
+  npg_free(p);
+}
+
 static void reduced_order_of_calls(void **state) {
   (void)state;
   NpgProgram *p = compile_text("eq3.npg", eq3);
@@ -844,7 +893,7 @@ int main(void) {
       cmocka_unit_test(train_options_refused),  cmocka_unit_test(reduced_order_of_calls),
       cmocka_unit_test(jit_failures),           cmocka_unit_test(generated_c_robust),
       cmocka_unit_test(long_member_name),       cmocka_unit_test(roots_of_negatives),
-      cmocka_unit_test(externs_left_out),
+      cmocka_unit_test(externs_left_out),       cmocka_unit_test(reduced_lift_many),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

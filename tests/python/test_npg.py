@@ -341,6 +341,27 @@ def test_reduced_equals_npgc_eval(eq3, npgc):
     assert np.array_equal(red2()["y"], coords[-1])
 
 
+def test_lift_many_equals_lift_per_sample(eq3):
+    model = npg.load(eq3["prog"], str(eq3["dir"] / "CLI"))
+    red = model.reduced()
+    rows, one = [], []
+    for xk in eq3["xt"]:
+        red(x=xk)
+        rows.append(red.coords("y"))
+        one.append(red.lift("y").copy())
+    many = red.lift("y", coords=np.array(rows))
+    assert many.shape == (len(rows), 2)
+    assert np.allclose(many, np.array(one), rtol=1e-14, atol=1e-14)
+    with pytest.raises(npg.Error, match="reduced coordinates"):
+        red.lift("y", coords=np.ones((3, len(rows[0]) + 1)))
+    with pytest.raises(npg.Error, match="NaN at sample 1"):
+        red.lift("y", coords=np.array([rows[0], np.full(len(rows[0]), np.nan)]))
+    with pytest.raises(TypeError, match="not both"):
+        red.lift("y", out=np.empty(2), coords=np.array(rows))
+    with pytest.raises(TypeError, match="2-D array"):
+        red.lift("y", coords=rows[0])
+
+
 def test_verify(eq3):
     full = eq3["prog"].full()
     tr = npg.Trainer(full)
