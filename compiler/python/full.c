@@ -191,10 +191,18 @@ static void full_dealloc(FullObject *self) {
   PyObject_GC_Del(self);
 }
 
-/* Refuses re-entry from an extern callable of this evaluator. */
-static bool enter(FullObject *self, const char *what) {
+bool npgpy_full_enter(FullObject *self, const char *what) {
   if (npgpy_busy_mine(&self->busy)) {
     PyErr_Format(npgpy_Error, "%s: called from an extern callable of the same evaluator, which is evaluating", what);
+    return false;
+  }
+  /* in_callback changes only with the GIL held, which this thread holds: no callable starts
+   * between this test and the wait below without this thread's call already waiting */
+  if (self->in_callback > 0) {
+    PyErr_Format(npgpy_Error, "%s: called from another thread while an extern callable of the same evaluator "
+                 "runs; the evaluation waits for the callable, so a callable that waits for this call would never "
+                 "return: evaluate after the callable returns, or give the thread an evaluator of its own "
+                 "(program.full())", what);
     return false;
   }
   npgpy_busy_enter(&self->busy);
@@ -271,7 +279,7 @@ static PyObject *full_call(FullObject *self, PyObject *args, PyObject *kw) {
     PyErr_SetString(PyExc_TypeError, "Full(...) takes its inputs by name: full(x=array, ...)");
     return NULL;
   }
-  if (!enter(self, "Full.__call__")) return NULL;
+  if (!npgpy_full_enter(self, "Full.__call__")) return NULL;
   PyObject *out = NULL;
   if (set_inputs(self, kw) != 0) {
     self->evaluated = false;
@@ -331,7 +339,7 @@ static PyObject *full_dim_method(FullObject *self, PyObject *arg) {
 }
 
 static PyObject *full_bind(FullObject *self, PyObject *params) {
-  if (!enter(self, "Full.bind")) return NULL;
+  if (!npgpy_full_enter(self, "Full.bind")) return NULL;
   npg_full_unbind(self->f);
   self->evaluated = false;
   int rc = bind(self, params);
@@ -350,7 +358,7 @@ static PyObject *full_extern(FullObject *self, PyObject *args) {
     PyErr_Format(PyExc_TypeError, "extern '%s': fn(full, sample) must be callable", name);
     return NULL;
   }
-  if (!enter(self, "Full.extern")) return NULL;
+  if (!npgpy_full_enter(self, "Full.extern")) return NULL;
   ExternSlot *x = self->externs;
   while (x && strcmp(x->name, name) != 0) x = x->next;
   PyObject *res = NULL;
@@ -384,7 +392,7 @@ done:
 static PyObject *full_op(FullObject *self, PyObject *arg) {
   const char *name = npgpy_name(arg, "Full.op");
   if (!name) return NULL;
-  if (!enter(self, "Full.op")) return NULL;
+  if (!npgpy_full_enter(self, "Full.op")) return NULL;
   NpgCsr c = {0};
   int rc = npg_full_op(self->f, name, &c);
   PyObject *res = NULL;
@@ -410,7 +418,7 @@ static PyObject *full_op(FullObject *self, PyObject *arg) {
 static PyObject *full_simulate(FullObject *self, PyObject *args, PyObject *kw) {
   NpgpyRoll roll;
   if (npgpy_roll_args(self->prog, args, kw, "Full.simulate", &roll) != 0) return NULL;
-  if (!enter(self, "Full.simulate")) return npgpy_roll_free(&roll), NULL;
+  if (!npgpy_full_enter(self, "Full.simulate")) return npgpy_roll_free(&roll), NULL;
   roll.f = self->f;
   long sample = self->calls;
   int rc;
@@ -464,7 +472,8 @@ static PyMethodDef full_methods[] = {
   {"extern", (PyCFunction)full_extern, METH_VARARGS,
    "extern(name, fn): the extern's values from fn(full, sample) at every evaluation (None: from data again).\n"
    "fn reads what it needs with full.get() (from its own thread or one it starts); it may not evaluate the\n"
-   "same evaluator."},
+   "same evaluator: while fn runs, a call that evaluates with it (full(...), bind, op, simulate, its Trainers'\n"
+   "methods, verify) raises npg.Error from fn's thread and from any other (fn may be waiting for that thread)."},
   {"op", (PyCFunction)full_op, METH_O,
    "op(name) -> dict(data, indices, indptr, shape): an output op as CSR; the arrays own the library's buffers"},
   {NULL},

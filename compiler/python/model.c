@@ -354,11 +354,7 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
   NpgpySamples t;
   PyObject *res = NULL;
   if (npgpy_samples(self->prog, test, "verify", "test", &t) != 0) return NULL;
-  if (npgpy_busy_mine(&full->busy)) {
-    PyErr_SetString(npgpy_Error, "verify: called from an extern callable of the evaluator");
-    goto done;
-  }
-  npgpy_busy_enter(&full->busy);
+  if (!npgpy_full_enter(full, "Model.verify")) goto done;
   NpgVerifyReport rep;
   int rc;
   Py_BEGIN_ALLOW_THREADS

@@ -101,6 +101,11 @@ typedef struct FullObject {
 } FullObject;
 extern PyTypeObject npgpy_FullType;
 PyObject *npgpy_full_new(ProgramObject *prog, PyObject *params, const char *backend);
+/* Takes `self`'s lock for the call `what` ("Trainer.add"). false with npg.Error naming `what`
+ * when called from an extern callable of `self` (it is evaluating), or from another thread while
+ * one of its callables runs: that callable may be waiting for this thread, and waiting for the
+ * lock would then never end (issue 38). Reads (Full.get) need no lock and stay allowed. */
+bool npgpy_full_enter(FullObject *self, const char *what);
 /* After a failed call of the library on `self`: npg.Error with `msg`, its
  * __cause__ the exception an extern callable raised, if any. */
 PyObject *npgpy_full_raise(FullObject *self, const char *msg);

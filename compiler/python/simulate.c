@@ -307,11 +307,7 @@ PyObject *npgpy_verify_rollout(const ProgramObject *prog, const NpgModel *m, Ful
     npgpy_value_error("%s: test holds no trajectory", who);
     goto done;
   }
-  if (npgpy_busy_mine(&full->busy)) {
-    PyErr_SetString(npgpy_Error, "verify: called from an extern callable of the evaluator");
-    goto done;
-  }
-  npgpy_busy_enter(&full->busy);
+  if (!npgpy_full_enter(full, "Model.verify")) goto done;
   NpgRolloutReport rep;
   int rc;
   Py_BEGIN_ALLOW_THREADS

@@ -357,7 +357,7 @@ static PyObject *trainer_add(TrainerObject *self, PyObject *args, PyObject *kw) 
     return NULL;
   }
   if (!ready(self)) return NULL;
-  npgpy_busy_enter(&self->full->busy);
+  if (!npgpy_full_enter(self->full, "Trainer.add")) return NULL;
   PyObject *key, *value, *res = NULL;
   Py_ssize_t pos = 0;
   while (kw && PyDict_Next(kw, &pos, &key, &value)) {
@@ -399,7 +399,7 @@ static PyObject *trainer_weight(TrainerObject *self, PyObject *arg) {
 /* tr.add_full(): the inputs and externs the evaluator holds after full(...). */
 static PyObject *trainer_add_full(TrainerObject *self, PyObject *unused) {
   if (!ready(self)) return NULL;
-  npgpy_busy_enter(&self->full->busy);
+  if (!npgpy_full_enter(self->full, "Trainer.add_full")) return NULL;
   int rc;
   if (!self->full->evaluated) {
     npgpy_busy_leave(&self->full->busy);
@@ -422,7 +422,7 @@ static PyObject *trainer_finish(TrainerObject *self, PyObject *args, PyObject *k
   if (!PyArg_ParseTupleAndKeywords(args, kw, "|O:finish", kwlist, &dir)) return NULL;
   if (!ready(self)) return NULL;
   if (dir != Py_None && !PyUnicode_FSConverter(dir, &b)) return NULL;
-  npgpy_busy_enter(&self->full->busy);
+  if (!npgpy_full_enter(self->full, "Trainer.finish")) return Py_XDECREF(b), NULL;
   NpgModel *m;
   const char *path = b ? PyBytes_AS_STRING(b) : NULL;
   Py_BEGIN_ALLOW_THREADS
@@ -446,7 +446,7 @@ static PyObject *trainer_dots(TrainerObject *self, PyObject *args) {
   snprintf(what, sizeof what, "Trainer.dots: the values of '%s'", name);
   PyArrayObject *a = npgpy_values(obj, what);
   if (!a) return NULL;
-  npgpy_busy_enter(&self->full->busy);
+  if (!npgpy_full_enter(self->full, "Trainer.dots")) return Py_DECREF(a), NULL;
   /* sized under the lock: a tr.add on another thread adds a sample until it is taken */
   npy_intp S = npg_trainer_samples(self->t);
   PyObject *out = PyArray_SimpleNew(1, &S, NPY_DOUBLE);
@@ -477,7 +477,7 @@ static PyObject *trainer_add_trajectory(TrainerObject *self, PyObject *args, PyO
   if (!ready(self)) return NULL;
   NpgpyRoll roll;
   if (npgpy_roll_args(self->full->prog, args, kw, "Trainer.add_trajectory", &roll) != 0) return NULL;
-  npgpy_busy_enter(&self->full->busy);
+  if (!npgpy_full_enter(self->full, "Trainer.add_trajectory")) return npgpy_roll_free(&roll), NULL;
   roll.f = self->full->f, roll.t = self->t;
   long sample = self->full->calls;
   int rc;
