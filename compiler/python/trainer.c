@@ -183,6 +183,7 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   /* every default is the library's (npgc train's and npg.h's: one source, issue 38) */
   NpgTrainOptions o;
   npg_train_options_default(&o);
+  o.words = NPG_WORDS_PYTHON; /* the library's messages name Trainer's keywords (its one table of words) */
   if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|OOOOOOOO$OOOOO:Trainer", kwlist, &npgpy_FullType, &full, &energyo,
                                    &capo, &center, &mem, &joint, &progress, &basis, &keepo, &interp, &galerkin,
                                    &oversampleo, &valid, &holdouto))
@@ -279,59 +280,12 @@ static bool ready(TrainerObject *self) {
   return false;
 }
 
-/* The library's message in Python's words: npgc train's option flags, which the library's
- * training messages name, become Trainer's keywords ("--basis x: ..." is "basis x: ...",
- * "--reduce w:interp" is "interp w", "raise --mem" is "raise mem"), and the C functions it names
- * their methods (npg_trainer_weight is Trainer.weight). A new str, or NULL. */
-static char *python_words(const char *msg) {
-  static const char *const flag[][2] = {
-    {"--keep-bases", "keep_bases"}, {"--basis", "basis"}, {"--mem", "mem"}, {"--cap", "cap"},
-    {"--energy", "energy"}, {"--center", "center"}, {"--merge joint", "joint=True"}, {"--merge", "joint"},
-    {"--interp-oversample", "interp_oversample"}, {"--valid", "valid_holdout"}, {"--progress", "progress"},
-    {"npg_full_set_extern_fn", "full.extern"}, {"npg_trainer_weight", "Trainer.weight"},
-    {"npg_trainer_dots", "Trainer.dots"},
-  };
-  size_t n = strlen(msg);
-  char *out = PyMem_Malloc(2 * n + 64);
-  if (!out) return NULL;
-  size_t o = 0;
-  for (size_t i = 0; i < n;) {
-    if (strncmp(msg + i, "--reduce ", 9) == 0) { /* --reduce NAME:interp -> interp NAME */
-      const char *name = msg + i + 9, *colon = strchr(name, ':');
-      const char *kind = colon && strncmp(colon + 1, "interp", 6) == 0     ? "interp"
-                         : colon && strncmp(colon + 1, "galerkin", 8) == 0 ? "galerkin"
-                                                                           : NULL;
-      if (kind && colon - name < 256) {
-        o += (size_t)sprintf(out + o, "%s %.*s", kind, (int)(colon - name), name);
-        i = (size_t)(colon + 1 - msg) + strlen(kind);
-        continue;
-      }
-    }
-    bool done = false;
-    for (size_t k = 0; k < sizeof flag / sizeof *flag && !done; k++) {
-      size_t len = strlen(flag[k][0]);
-      if (strncmp(msg + i, flag[k][0], len) == 0 && (msg[i + len] == 0 || msg[i + len] == ' ' ||
-                                                     msg[i + len] == ':' || msg[i + len] == ',' ||
-                                                     msg[i + len] == ')' || msg[i + len] == '=')) {
-        o += (size_t)sprintf(out + o, "%s", flag[k][1]);
-        i += len;
-        done = true;
-      }
-    }
-    if (!done) out[o++] = msg[i++];
-  }
-  out[o] = 0;
-  return out;
-}
-
-/* `msg` in Python's words as npg.Error (the cause: the extern callable's exception), prefixed. */
+/* `msg` (the library's, in Python's words: NPG_WORDS_PYTHON) as npg.Error (the cause: the extern
+ * callable's exception), prefixed. */
 static PyObject *raise_words(TrainerObject *self, const char *prefix, const char *msg) {
-  char *w = python_words(msg);
-  if (!w) return PyErr_NoMemory();
-  size_t len = strlen(prefix) + strlen(w) + 1;
+  size_t len = strlen(prefix) + strlen(msg) + 1;
   char *text = PyMem_Malloc(len);
-  if (text) snprintf(text, len, "%s%s", prefix, w);
-  PyMem_Free(w);
+  if (text) snprintf(text, len, "%s%s", prefix, msg);
   if (!text) return PyErr_NoMemory();
   if (self->full) npgpy_full_raise(self->full, text);
   else npgpy_raise(npgpy_Error, text);
