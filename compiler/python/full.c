@@ -48,7 +48,14 @@ static PyObject *fail(FullObject *self) {
 static int call_extern(void *user, const NpgFull *f, long sample, double *out, size_t count) {
   ExternSlot *x = user;
   PyGILState_STATE g = PyGILState_Ensure();
-  x->owner->in_callback++; /* changed with the GIL held: while another thread holds it, the callable is running */
+  if (x->owner->in_callback++ == 0) { /* changed with the GIL held: while another thread holds it, the callable runs */
+    FullObject *o = x->owner; /* the threads that exist now: one started by the callable is none of them */
+    o->ncb_threads = 0;
+    for (PyThreadState *ts = PyInterpreterState_ThreadHead(PyThreadState_GetInterpreter(PyThreadState_Get())); ts;
+         ts = PyThreadState_Next(ts))
+      if (o->ncb_threads >= 0 && o->ncb_threads < 64) o->cb_threads[o->ncb_threads++] = ts->thread_id;
+      else o->ncb_threads = -1;
+  }
   int rc = -1;
   if (!x->fn) {
     PyErr_Format(npgpy_Error, "extern '%s': its callable was cleared (the evaluator is being collected)", x->name);
@@ -103,9 +110,9 @@ static int bind(FullObject *self, PyObject *params) {
   PyObject *key, *value;
   Py_ssize_t pos = 0;
   while (PyDict_Next(params, &pos, &key, &value)) {
-    const char *name = PyUnicode_Check(key) ? PyUnicode_AsUTF8(key) : NULL;
+    const char *name = PyUnicode_Check(key) ? npgpy_utf8(key) : NULL;
     if (!name) {
-      PyErr_SetString(PyExc_TypeError, "params: keys are param names (str)");
+      if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "params: keys are param names (str)");
       return -1;
     }
     char what[256];
@@ -196,11 +203,14 @@ bool npgpy_full_enter(FullObject *self, const char *what) {
     PyErr_Format(npgpy_Error, "%s: called from an extern callable of the same evaluator, which is evaluating", what);
     return false;
   }
-  /* in_callback changes only with the GIL held, which this thread holds: no callable starts
-   * between this test and the wait below without this thread's call already waiting */
-  if (self->in_callback > 0) {
-    PyErr_Format(npgpy_Error, "%s: called from another thread while an extern callable of the same evaluator "
-                 "runs; the evaluation waits for the callable, so a callable that waits for this call would never "
+  /* in_callback changes only with the GIL held, which this thread holds: a callable that starts
+   * after this test finds this thread waiting already, so did not start it */
+  bool started = self->in_callback > 0 && self->ncb_threads >= 0;
+  for (int i = 0; started && i < self->ncb_threads; i++)
+    if (self->cb_threads[i] == PyThread_get_thread_ident()) started = false;
+  if (started) {
+    PyErr_Format(npgpy_Error, "%s: called from a thread started while an extern callable of the same evaluator "
+                 "runs; the evaluation waits for the callable, so a callable that waits for this thread would never "
                  "return: evaluate after the callable returns, or give the thread an evaluator of its own "
                  "(program.full())", what);
     return false;
@@ -256,7 +266,7 @@ static int set_inputs(FullObject *self, PyObject *kw) {
   PyObject *key, *value;
   Py_ssize_t pos = 0;
   while (kw && PyDict_Next(kw, &pos, &key, &value)) {
-    const char *name = PyUnicode_AsUTF8(key);
+    const char *name = npgpy_utf8(key);
     if (!name) return -1;
     char what[256], from[300];
     snprintf(what, sizeof what, "argument '%s'", name);
@@ -472,8 +482,9 @@ static PyMethodDef full_methods[] = {
   {"extern", (PyCFunction)full_extern, METH_VARARGS,
    "extern(name, fn): the extern's values from fn(full, sample) at every evaluation (None: from data again).\n"
    "fn reads what it needs with full.get() (from its own thread or one it starts); it may not evaluate the\n"
-   "same evaluator: while fn runs, a call that evaluates with it (full(...), bind, op, simulate, its Trainers'\n"
-   "methods, verify) raises npg.Error from fn's thread and from any other (fn may be waiting for that thread)."},
+   "same evaluator: a call that evaluates with it (full(...), bind, op, simulate, its Trainers' methods,\n"
+   "verify) raises npg.Error from fn's thread and from a thread started while fn runs (fn may be waiting for\n"
+   "it); other threads wait their turn."},
   {"op", (PyCFunction)full_op, METH_O,
    "op(name) -> dict(data, indices, indptr, shape): an output op as CSR; the arrays own the library's buffers"},
   {NULL},

@@ -258,7 +258,7 @@ static int samples_from(const ProgramObject *prog, PyObject *dict, const char *w
                    Py_TYPE(key)->tp_name);
       return npgpy_samples_free(t), -1;
     }
-    const char *name = PyUnicode_AsUTF8(key);
+    const char *name = npgpy_utf8(key);
     if (!name) return npgpy_samples_free(t), -1;
     for (int i = 0; i < prog->nsym; i++) /* a param would rebind the evaluator for every later use (trial3) */
       if (prog->sym[i].kind == NPG_PARAM && strcmp(prog->sym[i].name, name) == 0) {

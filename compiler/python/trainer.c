@@ -51,7 +51,7 @@ static int stage_names(PyObject *v, const char *what, char ***out, int *n) {
   if (!(*out = PyMem_Calloc((size_t)k + 1, sizeof **out))) return Py_DECREF(seq), PyErr_NoMemory(), -1;
   for (Py_ssize_t i = 0; i < k; i++) {
     PyObject *e = PySequence_Fast_GET_ITEM(seq, i);
-    const char *name = PyUnicode_Check(e) ? PyUnicode_AsUTF8(e) : NULL;
+    const char *name = PyUnicode_Check(e) ? npgpy_utf8(e) : NULL;
     if (!name) {
       if (!PyErr_Occurred())
         PyErr_Format(PyExc_TypeError, "Trainer: %s[%zd] must be a stage name (str), not %s", what, i, Py_TYPE(e)->tp_name);
@@ -145,7 +145,7 @@ static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o)
   if (!self->basis_name || !self->basis_cap || !self->basis_energy || !self->basis_center) rc = -1, PyErr_NoMemory();
   for (Py_ssize_t i = 0; i < n && rc == 0; i++) {
     PyObject *item = PyTuple_GET_ITEM(list, i);
-    const char *spec = PyUnicode_Check(item) ? PyUnicode_AsUTF8(item) : NULL;
+    const char *spec = PyUnicode_Check(item) ? npgpy_utf8(item) : NULL;
     char err[1024];
     int k = self->nbasis;
     if (!spec) {
@@ -202,7 +202,7 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   if (keepo != Py_None && !PyUnicode_Check(keepo))
     return PyErr_Format(PyExc_TypeError, "Trainer: keep_bases must be a str ('h,m_r' or 'all'), not %s",
                         Py_TYPE(keepo)->tp_name), -1;
-  const char *keep = keepo == Py_None ? NULL : PyUnicode_AsUTF8(keepo);
+  const char *keep = keepo == Py_None ? NULL : npgpy_utf8(keepo);
   if (keepo != Py_None && !keep) return -1;
   if (keep && !keep[0])
     return PyErr_SetString(PyExc_ValueError, "Trainer: keep_bases is '': quantities or classes m_x separated by "
@@ -315,7 +315,7 @@ static PyObject *trainer_add(TrainerObject *self, PyObject *args, PyObject *kw) 
   PyObject *key, *value, *res = NULL;
   Py_ssize_t pos = 0;
   while (kw && PyDict_Next(kw, &pos, &key, &value)) {
-    const char *name = PyUnicode_AsUTF8(key);
+    const char *name = npgpy_utf8(key);
     if (!name) goto done;
     char what[256];
     snprintf(what, sizeof what, "Trainer.add: argument '%s'", name);

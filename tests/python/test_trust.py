@@ -162,7 +162,7 @@ def test_evaluating_from_another_thread_inside_a_callable(call):
     full.extern("v", visibility)
     out = full(g=g[0])["d"]
     assert np.allclose(out, v[0] * g[0][tri[:, 0], 0], rtol=1e-14)
-    assert seen["error"] and "from another thread while an extern callable of the same evaluator runs" in seen["error"]
+    assert seen["error"] and "from a thread started while an extern callable of the same evaluator runs" in seen["error"]
     name = {"full": "Full.__call__", "bind": "Full.bind", "op": "Full.op", "add": "Trainer.add",
             "add_full": "Trainer.add_full", "dots": "Trainer.dots", "finish": "Trainer.finish",
             "verify": "Model.verify"}[call]
@@ -170,6 +170,34 @@ def test_evaluating_from_another_thread_inside_a_callable(call):
     # after the callable returned the same calls work
     tr.add(g=g[2])
     assert tr.samples == 1
+
+
+def test_thread_from_before_a_callable_waits_its_turn():
+    """A thread that existed before an extern callable started, calling the same evaluator while the
+    callable runs (the callable does not wait for it), waits its turn and evaluates correctly."""
+    prog = npg.compile(EXTERN)
+    tri, g, v = extern_data(2)
+    full = prog.full(params={"tri": tri})
+    running, got = threading.Event(), {}
+
+    def other():
+        running.wait(20)
+        got["d"] = full(g=g[1])["d"]
+
+    def visibility(f, sample):
+        if not running.is_set():
+            running.set()
+            time.sleep(0.2)  # the other thread calls full(...) meanwhile and waits for the lock
+        return np.sin(f.get("g")[tri[:, 1], 1]) + 2
+
+    t = threading.Thread(target=other)
+    t.start()
+    full.extern("v", visibility)
+    out = full(g=g[0])["d"]
+    t.join(20)
+    assert not t.is_alive()
+    assert np.allclose(out, v[0] * g[0][tri[:, 0], 0], rtol=1e-14)
+    assert np.allclose(got["d"], v[1] * g[1][tri[:, 0], 0], rtol=1e-14)
 
 
 # ---------------------------------------------------------------- externs left out
