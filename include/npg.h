@@ -387,7 +387,12 @@ typedef struct NpgTrainOptions {
                                mean over the samples, the worst state), not one step; inputs are held.
                                0 (the default): one evaluation, the outputs' error */
   long rollout_every;       /* its states compared every this many steps (0: every step) */
+  int words;                /* how messages (npg_trainer_error, npg_tune's report) name the options:
+                               NPG_WORDS_C (the default) this struct's fields ("NpgTrainOptions.basis_name
+                               nosuch: no quantity ..."), NPG_WORDS_NPGC npgc's flags ("--basis nosuch"),
+                               NPG_WORDS_PYTHON npg.Trainer's keywords ("basis nosuch") */
 } NpgTrainOptions;
+enum { NPG_WORDS_C, NPG_WORDS_NPGC, NPG_WORDS_PYTHON };
 NPG_API void npg_train_options_default(NpgTrainOptions *o);
 /* Whether this build of libnpg has MPI (NpgTrainOptions.mpi). */
 NPG_API bool npg_mpi_available(void);

@@ -132,6 +132,11 @@ static void lower_op(Lowerer *L, Sym *op) {
   PtrVec open = {0};
   L->open_sums = &open;
   Value *v = lower_expr(L, op->body, NULL);
+  /* divisions and roots inside the entries: named elementwise, not the whole N x N entry (issue 38) */
+  if (v->terms.n > 1 || (v->terms.n == 1 && ((Term *)v->terms.v[0])->nops)) {
+    Value *e = lower_expr_op_entries(L, v, op->body);
+    if (e) v = e;
+  }
   if (v->terms.n > 1 || (v->terms.n == 1 && ((Term *)v->terms.v[0])->nops)) v = lower_expr_introduce(L, v, op->body, NULL);
   OpDef *od = arena_alloc(ctx, sizeof *od);
   od->sym = op;

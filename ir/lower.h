@@ -32,6 +32,12 @@ Value *lower_expr(Lowerer *L, Node *n, Env *env);
  * that is not one operator-free polynomial term), `at` the expression it
  * came from; the value reading it. */
 Value *lower_expr_introduce(Lowerer *L, Value *v, const Node *at, PtrVec *open_sums);
+/* lower_expr.c: the entries `v` of the op being lowered (L->cur) with each term's divisions and roots
+ * named as a stage over the index variables their base uses where the term's numerator can be nonzero
+ * (r[i] = 1 / h[i] for kappa[i] / h[i] under if(nbr[i, k] == j, …)), read by the entries: one
+ * polynomial term, so the op keeps its pattern (DESIGN §13). NULL when a term's power spans all the
+ * op's index variables (naming it saves nothing) or applies a declared op. `at`: the op's body. */
+Value *lower_expr_op_entries(Lowerer *L, Value *v, const Node *at);
 /* The note on an introduced stage that names a whole `op` entry over two or more index
  * variables: its size, that the op is dense, and the cure (name the reciprocal). */
 const char *lower_dense_entry_cure(Ctx *ctx, const Sym *s);

@@ -433,12 +433,11 @@ const char *lower_dense_entry_cure(Ctx *ctx, const Sym *s) {
   size_t len = 0;
   for (int i = 0; i < s->nivars && len + 40 < sizeof dims; i++)
     len += (size_t)snprintf(dims + len, sizeof dims - len, "%s%s", i ? " x " : "", s->dims[i]->name);
-  return arena_printf(ctx, "stage '%s' names a whole entry of op '%s' (a division or root of a stage inside it), "
-                      "so it is %s, and '%s' is dense: name the reciprocal or root as a stage over its own "
-                      "indices (e.g. `r[i:N] = 1 / h[i]`, and `a[i] * r[i]` where '%s' had `a[i] / h[i]`) to keep "
-                      "'%s' sparse",
-                      s->name, s->introduced_for->name, dims, s->introduced_for->name, s->introduced_for->name,
-                      s->introduced_for->name);
+  return arena_printf(ctx, "stage '%s' names a whole entry of op '%s' (a division or root inside it whose base "
+                      "depends on every index of the entry), so it is %s, and '%s' is dense: a base over fewer "
+                      "indices (`a[i] / h[i]`, `a[i] / (h[i] + g[i])`) is named elementwise and keeps '%s' sparse; "
+                      "divide by a quantity of the row or the column alone",
+                      s->name, s->introduced_for->name, dims, s->introduced_for->name, s->introduced_for->name);
 }
 
 /* Name a non-polynomial divisor (or root base) as a stage "cur.tN" over the
@@ -501,6 +500,128 @@ Value *lower_expr_introduce(Lowerer *L, Value *v, const Node *at, PtrVec *open_s
   }
   vec_push(ctx, &r->terms, t);
   return r;
+}
+
+/* ---------------------------------------------------------------- op entries kept sparse */
+
+/* The conjuncts of guard `g` (an && chain) into `out` as text, at most `cap`; their number. */
+static int conjuncts(Ctx *ctx, const Node *g, const char **out, int n, int cap) {
+  if (!g) return n;
+  if (g->kind == N_AND) return conjuncts(ctx, g->b, out, conjuncts(ctx, g->a, out, n, cap), cap);
+  if (n < cap) out[n] = node_str(ctx, g);
+  return n + 1;
+}
+
+static bool listed(const char *s, const char *const *list, int n) {
+  for (int i = 0; i < n; i++)
+    if (strcmp(s, list[i]) == 0) return true;
+  return false;
+}
+
+#define MAX_CONJUNCTS 32
+
+/* Base `d` of a diagonal power taken where numerator `num` can be nonzero: there every guard all of
+ * num's monomials carry holds (dropped from d's monomials) and its negation fails (a monomial guarded
+ * by it, the identity an if's other branch put in the base, dropped). NULL when a guard has more
+ * conjuncts than this reads. */
+static Field *base_on_support(Lowerer *L, const Field *num, const Field *d) {
+  Ctx *ctx = L->ctx;
+  const char *common[MAX_CONJUNCTS], *mine[MAX_CONJUNCTS];
+  int ncommon = -1;
+  for (int c = 0; c < num->ncomp; c++)
+    for (int i = 0; i < num->comp[c].n; i++) {
+      int n = conjuncts(ctx, num->comp[c].m[i]->guard, mine, 0, MAX_CONJUNCTS);
+      if (n > MAX_CONJUNCTS) return NULL;
+      if (ncommon < 0) {
+        memcpy(common, mine, sizeof(char *) * (size_t)n);
+        ncommon = n;
+        continue;
+      }
+      int k = 0;
+      for (int j = 0; j < ncommon; j++)
+        if (listed(common[j], mine, n)) common[k++] = common[j];
+      ncommon = k;
+    }
+  if (ncommon < 0) ncommon = 0;
+  Field *out = field_new(ctx, d->ncomp);
+  for (int c = 0; c < d->ncomp; c++)
+    for (int i = 0; i < d->comp[c].n; i++) {
+      const Mono *m = d->comp[c].m[i];
+      const char *part[MAX_CONJUNCTS];
+      int n = conjuncts(ctx, m->guard, part, 0, MAX_CONJUNCTS);
+      if (n > MAX_CONJUNCTS) return NULL;
+      bool contradicts = false;
+      Node *guard = NULL;
+      const Node *rest[MAX_CONJUNCTS];
+      int nrest = 0;
+      /* the conjuncts as nodes again, in the order conjuncts() read them */
+      const Node *stack[2 * MAX_CONJUNCTS + 2];
+      int top = 0;
+      if (m->guard) stack[top++] = m->guard;
+      while (top) {
+        const Node *g = stack[--top];
+        if (g->kind == N_AND && top + 2 <= 2 * MAX_CONJUNCTS + 2) {
+          stack[top++] = g->b, stack[top++] = g->a;
+          continue;
+        }
+        if (nrest < MAX_CONJUNCTS) rest[nrest++] = g;
+      }
+      for (int j = 0; j < nrest && !contradicts; j++) {
+        const char *text = node_str(ctx, rest[j]);
+        if (listed(text, common, ncommon)) continue; /* holds wherever num is nonzero */
+        if (rest[j]->kind == N_NOT && listed(node_str(ctx, rest[j]->a), common, ncommon)) contradicts = true;
+        else guard = coef_and(ctx, guard, (Node *)rest[j]);
+      }
+      if (contradicts) continue;
+      Mono *copy = arena_alloc(ctx, sizeof *copy);
+      *copy = *m;
+      copy->guard = guard;
+      poly_push(ctx, &out->comp[c], copy);
+    }
+  return out;
+}
+
+Value *lower_expr_op_entries(Lowerer *L, Value *v, const Node *at) {
+  Ctx *ctx = L->ctx;
+  /* first every term's power and whether it saves anything, then the stages: none introduced
+   * for entries that end up named whole */
+  Value **power = arena_alloc(ctx, sizeof(Value *) * (size_t)(v->terms.n + 1));
+  const char **key = arena_alloc(ctx, sizeof(char *) * (size_t)(v->terms.n + 1));
+  for (int i = 0; i < v->terms.n; i++) {
+    Term *t = v->terms.v[i];
+    if (!t->nops) continue;
+    if (has_decl(t)) return NULL;
+    Term *pt = term_new(L, v->ncomp);
+    pt->num = field_ones(ctx, v->ncomp);
+    key[i] = arena_printf(ctx, "%d", t->nops);
+    for (int k = 0; k < t->nops; k++) {
+      Field *d = base_on_support(L, t->num, t->ops[k].diag);
+      if (!d) return NULL;
+      push_op(L, pt, (OpPow){OPK_DIAG, d, NULL, t->ops[k].p, t->ops[k].q});
+      key[i] = arena_printf(ctx, "%s|%ld/%ld:%s", key[i], t->ops[k].p, t->ops[k].q, field_key(ctx, d));
+    }
+    power[i] = val_new(L, v->ncomp);
+    vec_push(ctx, &power[i]->terms, pt);
+    int uses = 0;
+    for (int k = 0; k < L->cur->nivars; k++) uses += value_uses(power[i], L->cur->ivars[k]);
+    if (uses >= L->cur->nivars) return NULL; /* the power spans the whole entry: nothing gained */
+  }
+  Value *out = val_new(L, v->ncomp);
+  Value **named = arena_alloc(ctx, sizeof(Value *) * (size_t)(v->terms.n + 1));
+  for (int i = 0; i < v->terms.n; i++) {
+    Term *t = v->terms.v[i];
+    if (!t->nops) {
+      vec_push(ctx, &out->terms, t);
+      continue;
+    }
+    for (int k = 0; k < i && !named[i]; k++) /* one stage per distinct power: the neighbours' 1 / h[i] once */
+      if (named[k] && strcmp(key[k], key[i]) == 0) named[i] = named[k];
+    if (!named[i]) named[i] = lower_expr_introduce(L, power[i], at, NULL);
+    Term *p = term_new(L, v->ncomp);
+    p->num = field_mul(L, t->num, ((Term *)named[i]->terms.v[0])->num);
+    vec_push(ctx, &out->terms, p);
+  }
+  return val_merge(L, out);
 }
 
 /* v^(p/q) for a non-integer or negative power: diag operators. */

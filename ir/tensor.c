@@ -51,6 +51,16 @@ static void coef_deltas(const Node *c, Eqs *e) {
   } else if (c->kind == N_CALL && c->builtin == B_DELTA && (is_var(c->args[0]) || is_var(c->args[1])) && e->n < 32) {
     e->a[e->n] = c->args[0];
     e->b[e->n++] = c->args[1];
+  } else if (c->kind == N_NEG) {
+    coef_deltas(c->a, e);
+  } else if (c->kind == N_IF && c->c && c->c->kind == N_NUM && c->c->num == 0) {
+    /* if(k != 0, delta(j, i + k*B), 0) * a[i]: nonzero only where the condition holds and the
+     * delta does (a block's offsets in an affine sum; it counted N^2 and made the op dense) */
+    guard_eqs(c->a, e);
+    coef_deltas(c->b, e);
+  } else if (c->kind == N_IF && c->b && c->b->kind == N_NUM && c->b->num == 0) {
+    e->other = true; /* if(c, 0, delta(...)): the delta's entries, fewer where c holds */
+    coef_deltas(c->c, e);
   }
 }
 

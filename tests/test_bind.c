@@ -300,9 +300,9 @@ static void operator_not_finite(void **state) {
   assert_int_equal(npg_full_set(f, "e", 1, s1, e, "e"), 0);
   assert_int_equal(npg_full_eval(f, 5), -1);
   /* where the infinity arises: the stage the compiler introduced for the
-   * operator's entries, then the solve it breaks */
+   * division in the operator's entries (1 / x[i], elementwise), then the solve it breaks */
   assert_string_equal(npg_full_error(f),
-                      "sample 5: stage 'M.t1' is not finite: M.t1[0, 0] is an infinity (a division by zero: x[0] is 0, "
+                      "sample 5: stage 'M.t1' is not finite: M.t1[0] is an infinity (a division by zero: x[0] is 0, "
                       "and M.t1 divides by it); then stage 'y': operator M is not finite (row 0, column "
                       "0 is inf): the sample makes it undefined (a division by zero or a root of a negative number in "
                       "its entries?)");

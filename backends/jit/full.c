@@ -556,20 +556,52 @@ uint64_t full_param_hash(const Full *f, int k, const char **from) {
 
 const Program *full_program(const Full *f) { return f->prog; }
 
+/* The value of index expression `n` of stage `s` at the stage's index `iv` into *x: a number, one of the
+ * stage's index variables, an entry of an int param indexed by such (a gather: tri[f, 1]) or a sum,
+ * difference or product of them; false otherwise (a sum variable, an entry out of range, an unbound param). */
+static bool index_value(Full *f, const Sym *s, const long *iv, const Node *n, int depth, long *x) {
+  if (depth > 16) return false;
+  long a, b;
+  switch (n->kind) {
+  case N_NUM: *x = (long)n->num; return n->num == (double)*x;
+  case N_NAME:
+    for (int j = 0; j < s->nivars; j++)
+      if (n->sym == s->ivars[j]) return *x = iv[j], true;
+    return false;
+  case N_ADD: case N_SUB: case N_MUL:
+    if (!index_value(f, s, iv, n->a, depth + 1, &a) || !index_value(f, s, iv, n->b, depth + 1, &b)) return false;
+    *x = n->kind == N_ADD ? a + b : n->kind == N_SUB ? a - b : a * b;
+    return true;
+  case N_INDEX: {
+    const Sym *t = n->sym;
+    int pk = t ? find(&f->prog->params, t->name) : -1;
+    if (pk < 0 || !f->iparams[pk] || n->nargs != t->ndims + t->nstatic) return false;
+    size_t flat = 0;
+    for (int i = 0; i < n->nargs; i++) {
+      long size = i < t->ndims ? (long)f->dims[emit_index_of(&f->prog->dims, t->dims[i])] : t->shape[i - t->ndims];
+      if (!index_value(f, s, iv, n->args[i], depth + 1, &a) || a < 0 || a >= size) return false;
+      flat = flat * (size_t)size + (size_t)a;
+    }
+    *x = (long)f->iparams[pk][flat];
+    return true;
+  }
+  default: return false;
+  }
+}
+
 /* The value of atom `a` (q[idx...]) of a monomial of stage `s` at the stage's index `iv` (one per index
- * variable), when its indices are the stage's index variables or numbers: false otherwise (a gather, a sum
- * variable), or when its quantity has no value. `where` gets the entry as "a[0]". */
-static bool atom_value(Full *f, const Sym *s, const long *iv, const Atom *a, double *v, char *where, size_t len) {
+ * variable), when its indices are numbers, the stage's index variables or gathers of them (index_value):
+ * false otherwise (a sum variable), or when its quantity has no value. `where` gets the entry as "a[0]",
+ * *flat_out its flat index. */
+static bool atom_value(Full *f, const Sym *s, const long *iv, const Atom *a, double *v, char *where, size_t len,
+                       size_t *flat_out) {
   const Sym *q = a->q;
   size_t flat = 0;
   size_t at = (size_t)snprintf(where, len, "%s[", q->name);
   for (int i = 0; i < q->ndims + q->nstatic; i++) {
     const Node *n = a->idx[i];
     long size = i < q->ndims ? (long)f->dims[emit_index_of(&f->prog->dims, q->dims[i])] : q->shape[i - q->ndims], x = -1;
-    if (n->kind == N_NUM) x = (long)n->num;
-    for (int j = 0; j < s->nivars && n->kind == N_NAME; j++)
-      if (n->sym == s->ivars[j]) x = iv[j];
-    if (x < 0 || x >= size) return false;
+    if (!index_value(f, s, iv, n, 0, &x) || x < 0 || x >= size) return false;
     flat = flat * (size_t)size + (size_t)x;
     if (at < len) at += (size_t)snprintf(where + at, len - at, "%s%ld", i ? ", " : "", x);
   }
@@ -580,55 +612,109 @@ static bool atom_value(Full *f, const Sym *s, const long *iv, const Atom *a, dou
   else if (pk >= 0 && f->params[pk]) *v = f->params[pk][flat];
   else if (pk >= 0 && f->iparams[pk]) *v = (double)f->iparams[pk][flat];
   else return false;
+  *flat_out = flat;
   return true;
 }
 
-/* Why entry `e` of stage `s` is not finite, when a diagonal power of it (a division, a negative or fractional
- * power) has a base of 0 (negative power) or below 0 (root) there: "a division by zero: a[0] is 0, and p
- * raises it to the power -1/2", into `cause`; false when no such base is found (the value arose otherwise, or
- * the base is not a plain polynomial of entries at the stage's own indices). Names the zero area or length
- * itself, not only the stage where the NaN appears. */
-static bool nonfinite_cause(Full *f, const Sym *s, size_t e, char *cause, size_t len) {
+/* The base of a diagonal power at one entry: its value, whether it is plain (a polynomial of entries
+ * atom_value reads), the entry itself when the base is one entry (a[i]^(-1/2)) and the entries that are 0. */
+typedef struct PowerBase {
+  double value;
+  bool plain, named;
+  char one[256];            /* the last entry read ("a[1]") */
+  const Sym *one_sym;       /* its quantity, and its flat index */
+  size_t one_flat;
+  char zeros[256];          /* "a[1], b[0]": the entries of the base that are 0 */
+} PowerBase;
+
+static void power_base(Full *f, const Sym *s, const long *iv, const Poly *poly, PowerBase *b) {
+  memset(b, 0, sizeof *b);
+  b->plain = true;
+  size_t zat = 0;
+  for (int m = 0; m < poly->n && b->plain; m++) {
+    const Mono *mo = poly->m[m];
+    b->plain = !mo->guard && !mo->nsums && mo->coef->kind == N_NUM;
+    double term = b->plain ? mo->coef->num : 0;
+    for (int a = 0; a < mo->natoms && b->plain; a++) {
+      double v = 0;
+      b->plain = atom_value(f, s, iv, &mo->atoms[a], &v, b->one, sizeof b->one, &b->one_flat);
+      b->one_sym = mo->atoms[a].q;
+      term *= v;
+      if (b->plain && v == 0 && !strstr(b->zeros, b->one) && zat + strlen(b->one) + 3 < sizeof b->zeros)
+        zat += (size_t)snprintf(b->zeros + zat, sizeof b->zeros - zat, "%s%s", zat ? ", " : "", b->one);
+    }
+    b->value += term;
+  }
+  b->named = b->plain && poly->n == 1 && poly->m[0]->natoms == 1 && coef_is_num(poly->m[0]->coef, 1);
+}
+
+/* The index of stage `s`'s entry `e` into `iv`, and its component; false when a dim is not bound. */
+static bool entry_index(Full *f, const Sym *s, size_t e, long *iv, size_t *comp) {
   const Stage *st = s->stage;
-  if (!st || s->kind != SYM_STAGE) return false;
-  long iv[MAX_AXES] = {0};
-  size_t comp = st->ncomp > 0 ? e % (size_t)st->ncomp : 0, rest = st->ncomp > 0 ? e / (size_t)st->ncomp : e;
+  *comp = st->ncomp > 0 ? e % (size_t)st->ncomp : 0;
+  size_t rest = st->ncomp > 0 ? e / (size_t)st->ncomp : e;
   for (int i = s->nivars - 1; i >= 0; i--) {
     long size = (long)f->dims[emit_index_of(&f->prog->dims, s->ivars[i]->range)];
     if (size <= 0) return false;
     iv[i] = (long)(rest % (size_t)size);
     rest /= (size_t)size;
   }
+  return true;
+}
+
+/* Why entry `e` of stage `s` is 0 when it is one product with a positive power of a zero base (a root
+ * r = a^(1/3) of a zero area): "a[1] is 0, and r raises it to the power 1/3" into `cause`; false otherwise. */
+static bool zero_cause(Full *f, const Sym *s, size_t e, char *cause, size_t len) {
+  const Stage *st = s->stage;
+  long iv[MAX_AXES] = {0};
+  size_t comp;
+  if (!st || s->kind != SYM_STAGE || st->nterms != 1 || !entry_index(f, s, e, iv, &comp)) return false;
+  for (int k = 0; k < st->terms[0]->nops; k++) {
+    const OpPow *op = &st->terms[0]->ops[k];
+    if (op->kind != OPK_DIAG || op->diag->ncomp < 1 || op->p <= 0) continue;
+    PowerBase b;
+    power_base(f, s, iv, &op->diag->comp[op->diag->ncomp == st->ncomp ? comp : 0], &b);
+    if (!b.plain || b.value != 0) continue;
+    char power[64];
+    snprintf(power, sizeof power, op->q == 1 ? "%ld" : "%ld/%ld", op->p, op->q);
+    if (b.named) snprintf(cause, len, "%s is 0, and %s raises it to the power %s", b.one, s->name, power);
+    else snprintf(cause, len, "%s raises a base that is 0 there to the power %s%s%s", s->name, power,
+                  b.zeros[0] ? ": " : "", b.zeros[0] ? b.zeros : "");
+    return true;
+  }
+  return false;
+}
+
+/* Why entry `e` of stage `s` is not finite, when a diagonal power of it (a division, a negative or fractional
+ * power) has a base of 0 (negative power) or below 0 (root) there: "a division by zero: a[0] is 0, and p
+ * raises it to the power -1/2", into `cause`; false when no such base is found (the value arose otherwise, or
+ * the base is not a plain polynomial of entries at the stage's own indices or gathered by them). Names the
+ * zero area or length itself, not only the stage where the NaN appears: in a base of several entries the
+ * ones that are 0, and through a stage that is a root of it (r = a^(1/3), then 1/r) the entry under the root. */
+static bool nonfinite_cause(Full *f, const Sym *s, size_t e, char *cause, size_t len) {
+  const Stage *st = s->stage;
+  long iv[MAX_AXES] = {0};
+  size_t comp;
+  if (!st || s->kind != SYM_STAGE || !entry_index(f, s, e, iv, &comp)) return false;
   for (int t = 0; t < st->nterms; t++)
     for (int k = 0; k < st->terms[t]->nops; k++) {
       const OpPow *op = &st->terms[t]->ops[k];
       if (op->kind != OPK_DIAG || op->diag->ncomp < 1) continue;
-      const Poly *poly = &op->diag->comp[op->diag->ncomp == st->ncomp ? comp : 0];
-      double base = 0;
-      char one[256] = "";
-      bool plain = true;
-      for (int m = 0; m < poly->n && plain; m++) {
-        const Mono *mo = poly->m[m];
-        plain = !mo->guard && !mo->nsums && mo->coef->kind == N_NUM;
-        double term = plain ? mo->coef->num : 0;
-        for (int a = 0; a < mo->natoms && plain; a++) {
-          double v = 0;
-          plain = atom_value(f, s, iv, &mo->atoms[a], &v, one, sizeof one);
-          term *= v;
-        }
-        base += term;
-      }
-      /* the base itself named when it is one entry (a[i]^(-1/2)), else described */
-      bool named = plain && poly->n == 1 && poly->m[0]->natoms == 1 && coef_is_num(poly->m[0]->coef, 1);
+      PowerBase b;
+      power_base(f, s, iv, &op->diag->comp[op->diag->ncomp == st->ncomp ? comp : 0], &b);
       char power[64];
       snprintf(power, sizeof power, op->q == 1 ? "%ld" : "%ld/%ld", op->p, op->q);
-      if (!plain || !((op->p < 0 && base == 0) || (op->q % 2 == 0 && base < 0))) continue;
-      char how[128];
+      if (!b.plain || !((op->p < 0 && b.value == 0) || (op->q % 2 == 0 && b.value < 0))) continue;
+      char how[128], under[512] = "";
       if (op->p == -1 && op->q == 1) snprintf(how, sizeof how, "divides by it");
       else snprintf(how, sizeof how, "raises it to the power %s", power);
-      const char *kind = base == 0 ? "a division by zero" : "a root of a negative number";
-      if (named) snprintf(cause, len, "%s: %s is %g, and %s %s", kind, one, base, s->name, how);
-      else snprintf(cause, len, "%s: the base of its power %s is %g there", kind, power, base);
+      const char *kind = b.value == 0 ? "a division by zero" : "a root of a negative number";
+      if (b.named && b.value == 0 && zero_cause(f, b.one_sym, b.one_flat, under + 2, sizeof under - 2))
+        memcpy(under, "; ", 2);
+      if (b.named) snprintf(cause, len, "%s: %s is %g, and %s %s%s", kind, b.one, b.value, s->name, how, under);
+      else snprintf(cause, len, "%s: the base of its power %s is %g there%s%s%s", kind, power, b.value,
+                    b.value == 0 && b.zeros[0] ? ", where " : "", b.value == 0 ? b.zeros : "",
+                    b.value != 0 || !b.zeros[0] ? "" : strchr(b.zeros, ',') ? " are 0" : " is 0");
       return true;
     }
   return false;

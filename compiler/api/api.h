@@ -88,4 +88,8 @@ int api_shape(const Full *f, const Sym *s, long *shape);
  * message naming the first quantity in evaluation order that is not. */
 int api_reduced_not_finite(const Model *m, Reduced *r, long sample, char *err, size_t errlen);
 
+/* words.c: `msg`, a training message in npgc's words (its flags: "--basis x: ..."), into `out` in
+ * the words of interface `words` (NpgTrainOptions.words): npg.h's fields or Python's keywords. */
+void api_words(const char *msg, int words, char *out, size_t len);
+
 #endif

@@ -85,6 +85,8 @@ static int refuse_options(NpgTrainer *t, const NpgTrainOptions *o) {
     return REFUSE("NpgTrainOptions.energy is %g (an energy fraction is in (0, 1])", o->energy);
   if (o->mem == 0) return REFUSE("NpgTrainOptions.mem is 0 (bytes of memory for training; npg_train_options_default "
                                  "gives half the RAM)");
+  if (o->words < NPG_WORDS_C || o->words > NPG_WORDS_PYTHON)
+    return REFUSE("NpgTrainOptions.words is %d (NPG_WORDS_C, NPG_WORDS_NPGC or NPG_WORDS_PYTHON)", o->words);
   if (o->nbasis < 0) return REFUSE("NpgTrainOptions.nbasis is %d (the number of basis overrides)", o->nbasis);
   if (o->nbasis > 0 && (!o->basis_name || !o->basis_cap || !o->basis_energy))
     return REFUSE("NpgTrainOptions.nbasis is %d but %s is NULL", o->nbasis,
@@ -149,7 +151,10 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
 
 
 const char *npg_trainer_error(const NpgTrainer *t) {
-  return t ? t->error : api_refusal()[0] ? api_refusal() : "out of memory";
+  if (!t) return api_refusal()[0] ? api_refusal() : "out of memory";
+  NpgTrainer *w = (NpgTrainer *)t; /* the worded copy is a cache of t->error, made on each read */
+  api_words(t->error, t->opt.words, w->worded, sizeof w->worded);
+  return w->worded;
 }
 long npg_trainer_samples(const NpgTrainer *t) {
   API_REFUSE_NULL(t, NULL, 0, -1);

@@ -44,6 +44,7 @@ struct NpgTrainer {
                                npg_trainer_clear_error keeps the error */
   uint64_t inputs_hash;     /* over ranks: of every sample's inputs, in order (every rank's too: ranks_agree) */
   char error[2048];
+  char worded[2048];        /* error in the caller's words (NpgTrainOptions.words), made by npg_trainer_error */
 };
 
 #define tfail(t, ...) error_set_first((t)->error, sizeof (t)->error, __VA_ARGS__)

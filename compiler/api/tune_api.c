@@ -100,6 +100,11 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   else if (m && !(nm = api_model_wrap(m))) snprintf(rep->error, sizeof rep->error, "out of memory");
 done:
   train_set_free(ts);
+  if (rep->error[0] && o && o->words != NPG_WORDS_NPGC) { /* training's messages in the caller's words */
+    char worded[sizeof rep->error];
+    api_words(rep->error, o->words, worded, sizeof worded);
+    memcpy(rep->error, worded, sizeof worded);
+  }
   return nm;
 }
 

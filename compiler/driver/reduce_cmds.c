@@ -111,6 +111,7 @@ static int parse(Common *c, int argc, char **argv) {
   c->backend = NPG_AUTO;
   c->threads = 1;
   npg_train_options_default(&c->train);
+  c->train.words = NPG_WORDS_NPGC; /* training's messages name npgc's flags */
   char prog[64], err[400];
   snprintf(prog, sizeof prog, "npgc %s", c->cmd);
   NpgArgs a;

@@ -146,6 +146,7 @@ static void print_streamed(const NpgModel *m) {
 int npgc_tune(int argc, char **argv) {
   NpgTrainOptions topt;
   npg_train_options_default(&topt);
+  topt.words = NPG_WORDS_NPGC; /* training's messages name npgc's flags */
   int rc = tune(argc, argv, &topt);
   npgc_free_reduce(&topt); /* the --reduce names */
   return rc;

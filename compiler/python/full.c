@@ -48,7 +48,14 @@ static PyObject *fail(FullObject *self) {
 static int call_extern(void *user, const NpgFull *f, long sample, double *out, size_t count) {
   ExternSlot *x = user;
   PyGILState_STATE g = PyGILState_Ensure();
-  x->owner->in_callback++; /* changed with the GIL held: while another thread holds it, the callable is running */
+  if (x->owner->in_callback++ == 0) { /* changed with the GIL held: while another thread holds it, the callable runs */
+    FullObject *o = x->owner; /* the threads that exist now: one started by the callable is none of them */
+    o->ncb_threads = 0;
+    for (PyThreadState *ts = PyInterpreterState_ThreadHead(PyThreadState_GetInterpreter(PyThreadState_Get())); ts;
+         ts = PyThreadState_Next(ts))
+      if (o->ncb_threads >= 0 && o->ncb_threads < 64) o->cb_threads[o->ncb_threads++] = ts->thread_id;
+      else o->ncb_threads = -1;
+  }
   int rc = -1;
   if (!x->fn) {
     PyErr_Format(npgpy_Error, "extern '%s': its callable was cleared (the evaluator is being collected)", x->name);
@@ -103,9 +110,9 @@ static int bind(FullObject *self, PyObject *params) {
   PyObject *key, *value;
   Py_ssize_t pos = 0;
   while (PyDict_Next(params, &pos, &key, &value)) {
-    const char *name = PyUnicode_Check(key) ? PyUnicode_AsUTF8(key) : NULL;
+    const char *name = PyUnicode_Check(key) ? npgpy_utf8(key) : NULL;
     if (!name) {
-      PyErr_SetString(PyExc_TypeError, "params: keys are param names (str)");
+      if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "params: keys are param names (str)");
       return -1;
     }
     char what[256];
@@ -191,10 +198,21 @@ static void full_dealloc(FullObject *self) {
   PyObject_GC_Del(self);
 }
 
-/* Refuses re-entry from an extern callable of this evaluator. */
-static bool enter(FullObject *self, const char *what) {
+bool npgpy_full_enter(FullObject *self, const char *what) {
   if (npgpy_busy_mine(&self->busy)) {
     PyErr_Format(npgpy_Error, "%s: called from an extern callable of the same evaluator, which is evaluating", what);
+    return false;
+  }
+  /* in_callback changes only with the GIL held, which this thread holds: a callable that starts
+   * after this test finds this thread waiting already, so did not start it */
+  bool started = self->in_callback > 0 && self->ncb_threads >= 0;
+  for (int i = 0; started && i < self->ncb_threads; i++)
+    if (self->cb_threads[i] == PyThread_get_thread_ident()) started = false;
+  if (started) {
+    PyErr_Format(npgpy_Error, "%s: called from a thread started while an extern callable of the same evaluator "
+                 "runs; the evaluation waits for the callable, so a callable that waits for this thread would never "
+                 "return: evaluate after the callable returns, or give the thread an evaluator of its own "
+                 "(program.full())", what);
     return false;
   }
   npgpy_busy_enter(&self->busy);
@@ -248,7 +266,7 @@ static int set_inputs(FullObject *self, PyObject *kw) {
   PyObject *key, *value;
   Py_ssize_t pos = 0;
   while (kw && PyDict_Next(kw, &pos, &key, &value)) {
-    const char *name = PyUnicode_AsUTF8(key);
+    const char *name = npgpy_utf8(key);
     if (!name) return -1;
     char what[256], from[300];
     snprintf(what, sizeof what, "argument '%s'", name);
@@ -271,7 +289,7 @@ static PyObject *full_call(FullObject *self, PyObject *args, PyObject *kw) {
     PyErr_SetString(PyExc_TypeError, "Full(...) takes its inputs by name: full(x=array, ...)");
     return NULL;
   }
-  if (!enter(self, "Full.__call__")) return NULL;
+  if (!npgpy_full_enter(self, "Full.__call__")) return NULL;
   PyObject *out = NULL;
   if (set_inputs(self, kw) != 0) {
     self->evaluated = false;
@@ -331,7 +349,7 @@ static PyObject *full_dim_method(FullObject *self, PyObject *arg) {
 }
 
 static PyObject *full_bind(FullObject *self, PyObject *params) {
-  if (!enter(self, "Full.bind")) return NULL;
+  if (!npgpy_full_enter(self, "Full.bind")) return NULL;
   npg_full_unbind(self->f);
   self->evaluated = false;
   int rc = bind(self, params);
@@ -350,7 +368,7 @@ static PyObject *full_extern(FullObject *self, PyObject *args) {
     PyErr_Format(PyExc_TypeError, "extern '%s': fn(full, sample) must be callable", name);
     return NULL;
   }
-  if (!enter(self, "Full.extern")) return NULL;
+  if (!npgpy_full_enter(self, "Full.extern")) return NULL;
   ExternSlot *x = self->externs;
   while (x && strcmp(x->name, name) != 0) x = x->next;
   PyObject *res = NULL;
@@ -384,7 +402,7 @@ done:
 static PyObject *full_op(FullObject *self, PyObject *arg) {
   const char *name = npgpy_name(arg, "Full.op");
   if (!name) return NULL;
-  if (!enter(self, "Full.op")) return NULL;
+  if (!npgpy_full_enter(self, "Full.op")) return NULL;
   NpgCsr c = {0};
   int rc = npg_full_op(self->f, name, &c);
   PyObject *res = NULL;
@@ -410,7 +428,7 @@ static PyObject *full_op(FullObject *self, PyObject *arg) {
 static PyObject *full_simulate(FullObject *self, PyObject *args, PyObject *kw) {
   NpgpyRoll roll;
   if (npgpy_roll_args(self->prog, args, kw, "Full.simulate", &roll) != 0) return NULL;
-  if (!enter(self, "Full.simulate")) return npgpy_roll_free(&roll), NULL;
+  if (!npgpy_full_enter(self, "Full.simulate")) return npgpy_roll_free(&roll), NULL;
   roll.f = self->f;
   long sample = self->calls;
   int rc;
@@ -493,7 +511,7 @@ static PyObject *derivative(FullObject *self, PyObject *args, PyObject *kw, Deri
   const char *one = npgpy_name(kind == DERIV_VJP ? a1 : a0, method[kind]);
   const char *two = kind == DERIV_JACOBIAN ? npgpy_name(a1, method[kind]) : "";
   if (!one || !two) return NULL;
-  if (!enter(self, method[kind])) return NULL;
+  if (!npgpy_full_enter(self, method[kind])) return NULL;
   PyObject *res = NULL, *shaped = NULL, *other = NULL;
   const char **names = NULL;
   PyArrayObject **arrays = NULL;
@@ -613,7 +631,9 @@ static PyMethodDef full_methods[] = {
   {"extern", (PyCFunction)full_extern, METH_VARARGS,
    "extern(name, fn): the extern's values from fn(full, sample) at every evaluation (None: from data again).\n"
    "fn reads what it needs with full.get() (from its own thread or one it starts); it may not evaluate the\n"
-   "same evaluator."},
+   "same evaluator: a call that evaluates with it (full(...), bind, op, simulate, its Trainers' methods,\n"
+   "verify) raises npg.Error from fn's thread and from a thread started while fn runs (fn may be waiting for\n"
+   "it); other threads wait their turn."},
   {"jacobian", (PyCFunction)(void (*)(void))full_jacobian, METH_VARARGS | METH_KEYWORDS,
    "jacobian(output, input, **inputs) -> array of shape output.shape + input.shape: d output / d input at the\n"
    "inputs given (the others as last set), exact (DESIGN §17)"},

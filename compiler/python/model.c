@@ -258,7 +258,7 @@ static int samples_from(const ProgramObject *prog, PyObject *dict, const char *w
                    Py_TYPE(key)->tp_name);
       return npgpy_samples_free(t), -1;
     }
-    const char *name = PyUnicode_AsUTF8(key);
+    const char *name = npgpy_utf8(key);
     if (!name) return npgpy_samples_free(t), -1;
     for (int i = 0; i < prog->nsym; i++) /* a param would rebind the evaluator for every later use (trial3) */
       if (prog->sym[i].kind == NPG_PARAM && strcmp(prog->sym[i].name, name) == 0) {
@@ -354,11 +354,7 @@ static PyObject *model_verify(ModelObject *self, PyObject *args, PyObject *kw) {
   NpgpySamples t;
   PyObject *res = NULL;
   if (npgpy_samples(self->prog, test, "verify", "test", &t) != 0) return NULL;
-  if (npgpy_busy_mine(&full->busy)) {
-    PyErr_SetString(npgpy_Error, "verify: called from an extern callable of the evaluator");
-    goto done;
-  }
-  npgpy_busy_enter(&full->busy);
+  if (!npgpy_full_enter(full, "Model.verify")) goto done;
   NpgVerifyReport rep;
   int rc;
   Py_BEGIN_ALLOW_THREADS

@@ -115,8 +115,19 @@ int npgpy_flag(PyObject *v, const char *what, bool *out) {
   return -1;
 }
 
+const char *npgpy_utf8(PyObject *str) {
+  Py_ssize_t n = 0;
+  const char *s = PyUnicode_AsUTF8AndSize(str, &n);
+  if (s && strlen(s) != (size_t)n) {
+    PyErr_Format(PyExc_ValueError, "%R holds a NUL character at %zu: a name or option ends at none (the library "
+                 "would read '%s')", str, strlen(s), s);
+    return NULL;
+  }
+  return s;
+}
+
 const char *npgpy_name(PyObject *arg, const char *method) {
-  if (PyUnicode_Check(arg)) return PyUnicode_AsUTF8(arg);
+  if (PyUnicode_Check(arg)) return npgpy_utf8(arg);
   PyErr_Format(PyExc_TypeError, "%s(name): the name must be a str, not %s", method, Py_TYPE(arg)->tp_name);
   return NULL;
 }
@@ -170,7 +181,7 @@ static PyObject *set_std_dir(PyObject *self, PyObject *arg) {
     npgpy_std_dir = NULL;
     Py_RETURN_NONE;
   }
-  const char *s = PyUnicode_AsUTF8(arg);
+  const char *s = npgpy_utf8(arg);
   if (!s) return NULL;
   char *copy = PyMem_RawMalloc(strlen(s) + 1);
   if (!copy) return PyErr_NoMemory();

@@ -63,6 +63,9 @@ int npgpy_flag(PyObject *v, const char *what, bool *out);
 int npgpy_real(PyObject *v, const char *what, double *out);
 /* A library message as npg.Error (or `type`). Returns NULL. */
 PyObject *npgpy_raise(PyObject *type, const char *msg);
+/* The UTF-8 of str `str` (PyUnicode_AsUTF8), refused with ValueError naming it when it holds a NUL
+ * character: the library would read "x\0junk" as "x" (a quiet wrong answer). NULL with the exception. */
+const char *npgpy_utf8(PyObject *str);
 /* The name a one-argument method was given, as UTF-8; NULL with a TypeError naming `method`
  * ("Model.interpolated") when it is not a str. */
 const char *npgpy_name(PyObject *arg, const char *method);
@@ -97,10 +100,18 @@ typedef struct FullObject {
   PyObject *cb_error;       /* the exception an extern callable raised (an exception instance), or NULL */
   bool evaluated;           /* one evaluation happened since the last binding */
   int in_callback;          /* extern callables running (changed with the GIL held) */
+  unsigned long cb_threads[64]; /* the Python threads that existed when the running callable started */
+  int ncb_threads;          /* their number, -1 when more than 64 */
   long calls;               /* evaluations so far: the sample number of the next (messages, extern callables) */
 } FullObject;
 extern PyTypeObject npgpy_FullType;
 PyObject *npgpy_full_new(ProgramObject *prog, PyObject *params, const char *backend);
+/* Takes `self`'s lock for the call `what` ("Trainer.add"), waiting its turn. false with npg.Error
+ * naming `what` when called from an extern callable of `self` (it is evaluating), or from a thread
+ * started while one of its callables runs: that callable may be waiting for the thread it started,
+ * and waiting for the lock would then never end (issue 38). A thread that existed before the
+ * callable started waits its turn. Reads (Full.get) need no lock and stay allowed. */
+bool npgpy_full_enter(FullObject *self, const char *what);
 /* After a failed call of the library on `self`: npg.Error with `msg`, its
  * __cause__ the exception an extern callable raised, if any. */
 PyObject *npgpy_full_raise(FullObject *self, const char *msg);

@@ -52,7 +52,7 @@ PyObject *npgpy_compile(PyObject *self, PyObject *args, PyObject *kw) {
     opt.std_dir = npgpy_std_dir;
   }
   opt.source = src;
-  const char *cpath = PyUnicode_AsUTF8(path);
+  const char *cpath = npgpy_utf8(path);
   if (!cpath) goto fail;
   NpgProgram *p;
   Py_BEGIN_ALLOW_THREADS

@@ -87,7 +87,7 @@ int npgpy_roll(const ProgramObject *prog, PyObject *kw, long steps, long every, 
   PyObject *key, *value;
   Py_ssize_t pos = 0;
   while (kw && PyDict_Next(kw, &pos, &key, &value)) {
-    const char *name = PyUnicode_AsUTF8(key);
+    const char *name = npgpy_utf8(key);
     if (!name) goto fail;
     const NpgSymbol *s = NULL;
     for (int i = 0; i < prog->nsym && !s; i++)
@@ -262,7 +262,7 @@ PyObject *npgpy_verify_rollout(const ProgramObject *prog, const NpgModel *m, Ful
   PyObject *key, *value;
   Py_ssize_t pos = 0;
   while (PyDict_Next(test, &pos, &key, &value)) {
-    const char *name = PyUnicode_Check(key) ? PyUnicode_AsUTF8(key) : NULL;
+    const char *name = PyUnicode_Check(key) ? npgpy_utf8(key) : NULL;
     if (!name) {
       if (!PyErr_Occurred()) PyErr_Format(PyExc_TypeError, "%s: the keys of test are names (str)", who);
       goto done;
@@ -307,11 +307,7 @@ PyObject *npgpy_verify_rollout(const ProgramObject *prog, const NpgModel *m, Ful
     npgpy_value_error("%s: test holds no trajectory", who);
     goto done;
   }
-  if (npgpy_busy_mine(&full->busy)) {
-    PyErr_SetString(npgpy_Error, "verify: called from an extern callable of the evaluator");
-    goto done;
-  }
-  npgpy_busy_enter(&full->busy);
+  if (!npgpy_full_enter(full, "Model.verify")) goto done;
   NpgRolloutReport rep;
   int rc;
   Py_BEGIN_ALLOW_THREADS

@@ -53,7 +53,7 @@ static int stage_names(PyObject *v, const char *what, char ***out, int *n) {
   if (!(*out = PyMem_Calloc((size_t)k + 1, sizeof **out))) return Py_DECREF(seq), PyErr_NoMemory(), -1;
   for (Py_ssize_t i = 0; i < k; i++) {
     PyObject *e = PySequence_Fast_GET_ITEM(seq, i);
-    const char *name = PyUnicode_Check(e) ? PyUnicode_AsUTF8(e) : NULL;
+    const char *name = PyUnicode_Check(e) ? npgpy_utf8(e) : NULL;
     if (!name) {
       if (!PyErr_Occurred())
         PyErr_Format(PyExc_TypeError, "Trainer: %s[%zd] must be a stage name (str), not %s", what, i, Py_TYPE(e)->tp_name);
@@ -151,7 +151,7 @@ static int parse_basis(TrainerObject *self, PyObject *basis, NpgTrainOptions *o)
     rc = -1, PyErr_NoMemory();
   for (Py_ssize_t i = 0; i < n && rc == 0; i++) {
     PyObject *item = PyTuple_GET_ITEM(list, i);
-    const char *spec = PyUnicode_Check(item) ? PyUnicode_AsUTF8(item) : NULL;
+    const char *spec = PyUnicode_Check(item) ? npgpy_utf8(item) : NULL;
     char err[1024];
     int k = self->nbasis;
     if (!spec) {
@@ -190,6 +190,7 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   /* every default is the library's (npgc train's and npg.h's: one source, issue 38) */
   NpgTrainOptions o;
   npg_train_options_default(&o);
+  o.words = NPG_WORDS_PYTHON; /* the library's messages name Trainer's keywords (its one table of words) */
   if (!PyArg_ParseTupleAndKeywords(args, kw, "O!|OOOOOOOO$OOOOO:Trainer", kwlist, &npgpy_FullType, &full, &energyo,
                                    &capo, &center, &mem, &joint, &progress, &basis, &keepo, &interp, &galerkin,
                                    &oversampleo, &valid, &holdouto))
@@ -208,7 +209,7 @@ static int trainer_init(TrainerObject *self, PyObject *args, PyObject *kw) {
   if (keepo != Py_None && !PyUnicode_Check(keepo))
     return PyErr_Format(PyExc_TypeError, "Trainer: keep_bases must be a str ('h,m_r' or 'all'), not %s",
                         Py_TYPE(keepo)->tp_name), -1;
-  const char *keep = keepo == Py_None ? NULL : PyUnicode_AsUTF8(keepo);
+  const char *keep = keepo == Py_None ? NULL : npgpy_utf8(keepo);
   if (keepo != Py_None && !keep) return -1;
   if (keep && !keep[0])
     return PyErr_SetString(PyExc_ValueError, "Trainer: keep_bases is '': quantities or classes m_x separated by "
@@ -287,59 +288,12 @@ static bool ready(TrainerObject *self) {
   return false;
 }
 
-/* The library's message in Python's words: npgc train's option flags, which the library's
- * training messages name, become Trainer's keywords ("--basis x: ..." is "basis x: ...",
- * "--reduce w:interp" is "interp w", "raise --mem" is "raise mem"), and the C functions it names
- * their methods (npg_trainer_weight is Trainer.weight). A new str, or NULL. */
-static char *python_words(const char *msg) {
-  static const char *const flag[][2] = {
-    {"--keep-bases", "keep_bases"}, {"--basis", "basis"}, {"--mem", "mem"}, {"--cap", "cap"},
-    {"--energy", "energy"}, {"--center", "center"}, {"--merge joint", "joint=True"}, {"--merge", "joint"},
-    {"--interp-oversample", "interp_oversample"}, {"--valid", "valid_holdout"}, {"--progress", "progress"},
-    {"npg_full_set_extern_fn", "full.extern"}, {"npg_trainer_weight", "Trainer.weight"},
-    {"npg_trainer_dots", "Trainer.dots"},
-  };
-  size_t n = strlen(msg);
-  char *out = PyMem_Malloc(2 * n + 64);
-  if (!out) return NULL;
-  size_t o = 0;
-  for (size_t i = 0; i < n;) {
-    if (strncmp(msg + i, "--reduce ", 9) == 0) { /* --reduce NAME:interp -> interp NAME */
-      const char *name = msg + i + 9, *colon = strchr(name, ':');
-      const char *kind = colon && strncmp(colon + 1, "interp", 6) == 0     ? "interp"
-                         : colon && strncmp(colon + 1, "galerkin", 8) == 0 ? "galerkin"
-                                                                           : NULL;
-      if (kind && colon - name < 256) {
-        o += (size_t)sprintf(out + o, "%s %.*s", kind, (int)(colon - name), name);
-        i = (size_t)(colon + 1 - msg) + strlen(kind);
-        continue;
-      }
-    }
-    bool done = false;
-    for (size_t k = 0; k < sizeof flag / sizeof *flag && !done; k++) {
-      size_t len = strlen(flag[k][0]);
-      if (strncmp(msg + i, flag[k][0], len) == 0 && (msg[i + len] == 0 || msg[i + len] == ' ' ||
-                                                     msg[i + len] == ':' || msg[i + len] == ',' ||
-                                                     msg[i + len] == ')' || msg[i + len] == '=')) {
-        o += (size_t)sprintf(out + o, "%s", flag[k][1]);
-        i += len;
-        done = true;
-      }
-    }
-    if (!done) out[o++] = msg[i++];
-  }
-  out[o] = 0;
-  return out;
-}
-
-/* `msg` in Python's words as npg.Error (the cause: the extern callable's exception), prefixed. */
+/* `msg` (the library's, in Python's words: NPG_WORDS_PYTHON) as npg.Error (the cause: the extern
+ * callable's exception), prefixed. */
 static PyObject *raise_words(TrainerObject *self, const char *prefix, const char *msg) {
-  char *w = python_words(msg);
-  if (!w) return PyErr_NoMemory();
-  size_t len = strlen(prefix) + strlen(w) + 1;
+  size_t len = strlen(prefix) + strlen(msg) + 1;
   char *text = PyMem_Malloc(len);
-  if (text) snprintf(text, len, "%s%s", prefix, w);
-  PyMem_Free(w);
+  if (text) snprintf(text, len, "%s%s", prefix, msg);
   if (!text) return PyErr_NoMemory();
   if (self->full) npgpy_full_raise(self->full, text);
   else npgpy_raise(npgpy_Error, text);
@@ -365,11 +319,11 @@ static PyObject *trainer_add(TrainerObject *self, PyObject *args, PyObject *kw) 
     return NULL;
   }
   if (!ready(self)) return NULL;
-  npgpy_busy_enter(&self->full->busy);
+  if (!npgpy_full_enter(self->full, "Trainer.add")) return NULL;
   PyObject *key, *value, *res = NULL;
   Py_ssize_t pos = 0;
   while (kw && PyDict_Next(kw, &pos, &key, &value)) {
-    const char *name = PyUnicode_AsUTF8(key);
+    const char *name = npgpy_utf8(key);
     if (!name) goto done;
     char what[256];
     snprintf(what, sizeof what, "Trainer.add: argument '%s'", name);
@@ -407,7 +361,7 @@ static PyObject *trainer_weight(TrainerObject *self, PyObject *arg) {
 /* tr.add_full(): the inputs and externs the evaluator holds after full(...). */
 static PyObject *trainer_add_full(TrainerObject *self, PyObject *unused) {
   if (!ready(self)) return NULL;
-  npgpy_busy_enter(&self->full->busy);
+  if (!npgpy_full_enter(self->full, "Trainer.add_full")) return NULL;
   int rc;
   if (!self->full->evaluated) {
     npgpy_busy_leave(&self->full->busy);
@@ -430,7 +384,7 @@ static PyObject *trainer_finish(TrainerObject *self, PyObject *args, PyObject *k
   if (!PyArg_ParseTupleAndKeywords(args, kw, "|O:finish", kwlist, &dir)) return NULL;
   if (!ready(self)) return NULL;
   if (dir != Py_None && !PyUnicode_FSConverter(dir, &b)) return NULL;
-  npgpy_busy_enter(&self->full->busy);
+  if (!npgpy_full_enter(self->full, "Trainer.finish")) return Py_XDECREF(b), NULL;
   NpgModel *m;
   const char *path = b ? PyBytes_AS_STRING(b) : NULL;
   Py_BEGIN_ALLOW_THREADS
@@ -504,7 +458,7 @@ static PyObject *trainer_dots(TrainerObject *self, PyObject *args) {
   snprintf(what, sizeof what, "Trainer.dots: the values of '%s'", name);
   PyArrayObject *a = npgpy_values(obj, what);
   if (!a) return NULL;
-  npgpy_busy_enter(&self->full->busy);
+  if (!npgpy_full_enter(self->full, "Trainer.dots")) return Py_DECREF(a), NULL;
   /* sized under the lock: a tr.add on another thread adds a sample until it is taken */
   npy_intp S = npg_trainer_samples(self->t);
   PyObject *out = PyArray_SimpleNew(1, &S, NPY_DOUBLE);
@@ -535,7 +489,7 @@ static PyObject *trainer_add_trajectory(TrainerObject *self, PyObject *args, PyO
   if (!ready(self)) return NULL;
   NpgpyRoll roll;
   if (npgpy_roll_args(self->full->prog, args, kw, "Trainer.add_trajectory", &roll) != 0) return NULL;
-  npgpy_busy_enter(&self->full->busy);
+  if (!npgpy_full_enter(self->full, "Trainer.add_trajectory")) return npgpy_roll_free(&roll), NULL;
   roll.f = self->full->f, roll.t = self->t;
   long sample = self->full->calls;
   int rc;

@@ -68,6 +68,7 @@ int reduced_train(ReducedRadiosity *r, Scene *s, const Options *opt, const char 
   NpgTrainOptions o;
   npg_train_options_default(&o);
   o.cap = opt->cap, o.energy = opt->energy, o.progress = isatty(2); /* bars on a terminal, not in a log */
+  o.words = NPG_WORDS_NPGC; /* its --cap, --basis and --mem are npgc train's: training's messages name them */
   /* g moves linearly with eight of the nine parameters (patch corners slide) and with the
    * sine and cosine of the tilt: dropping one of its few directions at 0.999 loses a
    * parameter outright, and the thin faces its areas then miss (a strip over a large

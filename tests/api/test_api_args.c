@@ -846,8 +846,35 @@ static void externs_left_out(void **state) {
   double energy[] = {-1};
   o.nbasis = 1, o.basis_name = bad, o.basis_cap = cap, o.basis_energy = energy;
   NpgTrainer *t = npg_trainer_new(f, &o);
-  says(npg_trainer_error(t), "--basis nosuch: no quantity");
+  /* an option named as the caller spells it: npg.h's field, npgc's flag, Python's keyword (one table) */
+  says(npg_trainer_error(t), "NpgTrainOptions.basis_name nosuch: no quantity");
+  assert_null(strstr(npg_trainer_error(t), "--basis"));
   assert_int_equal(npg_trainer_clear_error(t), -1); /* a refused construction stays refused */
+  npg_trainer_free(t);
+  o.words = NPG_WORDS_NPGC;
+  t = npg_trainer_new(f, &o);
+  says(npg_trainer_error(t), "--basis nosuch: no quantity");
+  npg_trainer_free(t);
+  o.words = NPG_WORDS_PYTHON;
+  t = npg_trainer_new(f, &o);
+  says(npg_trainer_error(t), "basis nosuch: no quantity");
+  assert_null(strstr(npg_trainer_error(t), "--basis"));
+  npg_trainer_free(t);
+  npg_train_options_default(&o);
+  o.keep_bases = "hh";
+  t = npg_trainer_new(f, &o);
+  says(npg_trainer_error(t), "NpgTrainOptions.keep_bases hh: no quantity or class of that name");
+  npg_trainer_free(t);
+  npg_train_options_default(&o);
+  const char *nope[] = {"nope"};
+  o.ninterp = 1, o.interp_stage = nope;
+  t = npg_trainer_new(f, &o);
+  says(npg_trainer_error(t), "NpgTrainOptions.interp_stage nope: the program has no stage 'nope'");
+  npg_trainer_free(t);
+  npg_train_options_default(&o);
+  o.words = 7;
+  t = npg_trainer_new(f, &o);
+  says(npg_trainer_error(t), "NpgTrainOptions.words is 7");
   npg_trainer_free(t);
   npg_train_options_default(&o);
   t = npg_trainer_new(f, &o);

@@ -140,6 +140,23 @@ if "$N" train "$W/un.npg" "$W/UD" -o "$W/UM" 2>"$W/err.txt" >/dev/null; then fai
 grep -qF "error: training sample 5: u is not finite (u[1, 0] is NaN): the sample makes it undefined (a division by zero: a[1] is 0, and u raises it to the power -1/2)" "$W/err.txt" ||
   fail "degenerate triangle, train: $(cat "$W/err.txt")"
 
+#    the same zero through a gather (a[pick[f]]), an odd root (^(-1/3)), a root stage divided by
+#    (r = a^(1/3), then n / r) and a base of several factors: each names a[1], where the message was
+#    the generic one
+np_pick() { /usr/bin/python3 -c "import numpy as np, sys; np.save(sys.argv[1], np.array([1, 2, 0], dtype=np.int64))" "$1"; }
+cp -r "$W/UD" "$W/UP"; np_pick "$W/UP/pick.npy"
+while IFS='|' read -r body want; do
+  { sed '$d' "$W/un.npg"; echo "param pick : int[F]"; printf '%b\n' "$body"; } > "$W/ug.npg"
+  if "$N" eval "$W/ug.npg" --full "$W/UP" "$W/UP" -o "$W/UGO" 2>"$W/err.txt"; then fail "eval of a degenerate triangle: $body"; fi
+  rm -rf "$W/UGO"
+  grep -qF "$want" "$W/err.txt" || fail "degenerate triangle through $body: $(cat "$W/err.txt")"
+done <<'CASES'
+output u[f:F] = n[f] * a[pick[f]]^(-1/2)|u[0, 0] is an infinity (a division by zero: a[1] is 0, and u raises it to the power -1/2)
+output u[f:F] = n[f] * a[f]^(-1/3)|u[1, 0] is NaN (a division by zero: a[1] is 0, and u raises it to the power -1/3)
+r[f:F] = a[pick[f]]^(1/3)\noutput u[f:F] = n[f] / r[f]|u[0, 0] is an infinity (a division by zero: r[0] is 0, and u divides by it; a[1] is 0, and r raises it to the power 1/3)
+output u[f:F] = n[f] * (2 * a[f] * a[f])^(-1/3)|u[1, 0] is NaN (a division by zero: the base of its power -1/3 is 0 there, where a[1] is 0)
+CASES
+
 # 6. --spectra DIR is all or none: on a disk that fills after two of the new spectra's files, the spectra of
 #    the last training stay there byte for byte and no temporary file is left (root, a 64 kB tmpfs)
 mkdir "$W/full2"

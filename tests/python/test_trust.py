@@ -37,32 +37,30 @@ def same_model(a, b):
 # ---------------------------------------------------------------- memory safety
 
 def test_dots_sized_under_the_lock():
-    """tr.dots from a thread while tr.add is evaluating: its result has one entry per sample the
-    trainer holds when it reads them (the array was sized before the lock: a write past it)."""
+    """tr.dots from a thread while tr.add evaluates on another: each result has one entry per sample
+    the trainer held when it read them (the array was sized before the lock: a write past it).
+    The externs are given, so no callable runs and dots waits for each add."""
     prog = npg.compile(EXTERN)
-    tri, g, v = extern_data(4)
+    tri, g, v = extern_data(12)
     full = prog.full(params={"tri": tri})
     tr = npg.Trainer(full)
-    got = {}
+    tr.add(g=g[0], v=v[0])
+    got, stop = [], threading.Event()
 
     def dots():
-        got["d"] = tr.dots("g", g[0])
+        while not stop.is_set():
+            got.append(tr.dots("g", g[0]))
 
-    def visibility(f, sample):
-        if sample == 1:
-            t = threading.Thread(target=dots)
-            t.start()
-            time.sleep(0.3)  # the thread sizes its result and waits for the trainer
-            got["thread"] = t
-        return np.sin(f.get("g")[tri[:, 1], 1]) + 2
-
-    full.extern("v", visibility)
-    tr.add(g=g[0])
-    tr.add(g=g[1])
-    got["thread"].join()
-    assert tr.samples == 2
-    assert got["d"].shape == (2,)
-    assert np.allclose(got["d"], [np.vdot(g[0], g[0]), np.vdot(g[0], g[1])], rtol=1e-14)
+    t = threading.Thread(target=dots)
+    t.start()
+    for k in range(1, 12):
+        tr.add(g=g[k], v=v[k])
+    stop.set()
+    t.join()
+    assert tr.samples == 12 and got
+    want = [np.vdot(g[0], g[k]) for k in range(12)]
+    for d in got:
+        assert 1 <= d.shape[0] <= 12 and np.allclose(d, want[:d.shape[0]], rtol=1e-14)
 
 
 def test_verify_survives_a_callable_clearing_its_test_dict():
@@ -114,6 +112,92 @@ def test_get_from_another_thread_inside_a_callable():
     tr = npg.Trainer(full)
     tr.add(g=g[1])
     assert np.array_equal(seen["g"], g[1])
+
+
+@pytest.mark.parametrize("call", ["full", "bind", "op", "add", "add_full", "dots", "finish", "verify"])
+def test_evaluating_from_another_thread_inside_a_callable(call):
+    """An extern callable whose helper thread evaluates with the same evaluator (full(...), bind,
+    a Trainer's methods, verify): npg.Error naming the call, not a deadlock (the evaluation waits
+    for the callable, which waits for the helper). The outer evaluation then completes."""
+    prog = npg.compile(EXTERN)
+    tri, g, v = extern_data(3)
+    full = prog.full(params={"tri": tri})
+    tr = npg.Trainer(full)
+    seen = {}
+    calls = {
+        "full": lambda f: f(g=g[1]),
+        "bind": lambda f: f.bind({"tri": tri}),
+        "op": lambda f: f.op("d"),
+        "add": lambda f: tr.add(g=g[1]),
+        "add_full": lambda f: tr.add_full(),
+        "dots": lambda f: tr.dots("g", g[1]),
+        "finish": lambda f: tr.finish(),
+        "verify": lambda f: model.verify(test={"g": g[:2]}, full=f),
+    }
+
+    def helper(f):
+        try:
+            calls[call](f)
+            seen["error"] = None
+        except npg.Error as e:
+            seen["error"] = str(e)
+
+    model = None
+    if call == "verify":  # a model of the same program to verify against
+        other = prog.full(params={"tri": tri})
+        other.extern("v", lambda f, k: np.sin(f.get("g")[tri[:, 1], 1]) + 2)
+        t2 = npg.Trainer(other)
+        for k in range(3):
+            t2.add(g=g[k])
+        model = t2.finish()
+
+    def visibility(f, sample):
+        if "error" not in seen:
+            t = threading.Thread(target=helper, args=(f,))
+            t.start()
+            t.join(timeout=20)
+            assert not t.is_alive(), f"{call} from a helper thread deadlocked"
+        return np.sin(f.get("g")[tri[:, 1], 1]) + 2
+
+    full.extern("v", visibility)
+    out = full(g=g[0])["d"]
+    assert np.allclose(out, v[0] * g[0][tri[:, 0], 0], rtol=1e-14)
+    assert seen["error"] and "from a thread started while an extern callable of the same evaluator runs" in seen["error"]
+    name = {"full": "Full.__call__", "bind": "Full.bind", "op": "Full.op", "add": "Trainer.add",
+            "add_full": "Trainer.add_full", "dots": "Trainer.dots", "finish": "Trainer.finish",
+            "verify": "Model.verify"}[call]
+    assert seen["error"].startswith(name + ":"), seen["error"]
+    # after the callable returned the same calls work
+    tr.add(g=g[2])
+    assert tr.samples == 1
+
+
+def test_thread_from_before_a_callable_waits_its_turn():
+    """A thread that existed before an extern callable started, calling the same evaluator while the
+    callable runs (the callable does not wait for it), waits its turn and evaluates correctly."""
+    prog = npg.compile(EXTERN)
+    tri, g, v = extern_data(2)
+    full = prog.full(params={"tri": tri})
+    running, got = threading.Event(), {}
+
+    def other():
+        running.wait(20)
+        got["d"] = full(g=g[1])["d"]
+
+    def visibility(f, sample):
+        if not running.is_set():
+            running.set()
+            time.sleep(0.2)  # the other thread calls full(...) meanwhile and waits for the lock
+        return np.sin(f.get("g")[tri[:, 1], 1]) + 2
+
+    t = threading.Thread(target=other)
+    t.start()
+    full.extern("v", visibility)
+    out = full(g=g[0])["d"]
+    t.join(20)
+    assert not t.is_alive()
+    assert np.allclose(out, v[0] * g[0][tri[:, 0], 0], rtol=1e-14)
+    assert np.allclose(got["d"], v[1] * g[1][tri[:, 0], 0], rtol=1e-14)
 
 
 # ---------------------------------------------------------------- externs left out
