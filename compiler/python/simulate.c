@@ -62,7 +62,7 @@ static int split_args(PyObject *args, PyObject *kw, const char *who, long *steps
 
 int npgpy_roll_args(const ProgramObject *prog, PyObject *args, PyObject *kw, const char *who, NpgpyRoll *r) {
   long steps, every;
-  double blowup;
+  double blowup = -1;
   PyObject *inputs = NULL;
   int rc = split_args(args, kw, who, &steps, &every, &blowup, &inputs) ? -1 : npgpy_roll(prog, inputs, steps, every, who, r);
   r->blowup = blowup;
