@@ -191,19 +191,9 @@ static int keep_output(Session *x, Out *u, long k) {
   const double *v = npg_reduced_coords(x->r, u->sym->name, &m);
   memcpy(u->coords + k * u->m, v, sizeof(double) * m);
   if (npg_reduced_estimate(x->r, u->sym->name, &u->est[k], &u->flags[k]) != 0) return -1;
-  return 0;
-}
-
-/* Every sample's coordinates of every output lifted at once: one pass
- * over each basis (npg_reduced_lift_many), not one per sample. */
-static int lift_kept(Session *x, Out *outs, int nout, long S) {
-  for (int o = 0; o < nout; o++) {
-    Out *u = &outs[o];
-    if (u->sym->kind == NPG_OP) continue;
-    if (npg_reduced_lift_many(x->r, u->sym->name, (size_t)S, (size_t)u->m, u->coords, u->lifted, (size_t)u->n) != 0)
-      return -1;
-  }
-  return 0;
+  /* one lift per sample, as npg_reduced_lift and Python's red.lift give it: the same bits (a
+   * dgemm over all the samples, npg_reduced_lift_many, differs from it in the last bits) */
+  return npg_reduced_lift(x->r, u->sym->name, u->lifted + k * u->n, (size_t)u->n);
 }
 
 /* The trust signal of sample k: a warning naming each input outside the training range. */
@@ -284,7 +274,6 @@ int cmd_eval_reduced(Common *c) {
       if (keep_output(&x, &outs[o], k) != 0) goto failed;
     npg_progress(c->train.progress && S > 1, "reduced evaluation", k + 1, S);
   }
-  if (S > 0 && lift_kept(&x, outs, nout, S) != 0) goto failed;
   print_estimates(&x, outs, nout, S);
   /* an operator's matrices were kept at the largest stride: pack them */
   for (int o = 0; o < nout; o++) {
