@@ -38,8 +38,8 @@
  * Small classes keep their snapshots in memory (collected on the first
  * pass) and go through train_member_bases as in memory. A pass holds the
  * same fraction of every streamed class's rows: the number of passes is
- * about the streamed classes' snapshot bytes over the budget, plus one Gram
- * and one basis pass at least.
+ * about the streamed classes' snapshot bytes over the budget, plus one
+ * factor and one basis pass at least.
  *
  * Over MPI ranks (opt->dist, N ranks) the rows are shared, not the
  * samples: every rank plans the same passes and takes those p ≡ rank
@@ -198,7 +198,7 @@ static int whole_sample(Ooc *o, long k) {
 }
 
 /* One pass: every sample evaluated, the rows of pass p's segments kept.
- * The first Gram pass evaluates everything (it also takes the small
+ * The first factor pass evaluates everything (it also takes the small
  * classes' snapshots and the SPD marks); every other pass evaluates only
  * the rows of its segments and what they read (full_eval_demand), so the
  * passes of a sweep together cost about one evaluation per sample. */
@@ -228,7 +228,7 @@ static int collect(Ooc *o, long p, bool gram) {
     }
   }
   if (d && demand_propagate(d)) return error_set(o->err, o->errlen, "out of memory");
-  const char *what = gram ? "snapshots (Gram, out of core)" : "snapshots (basis, out of core)";
+  const char *what = gram ? "snapshots (R factors, out of core)" : "snapshots (basis, out of core)";
   for (long k = 0; k < S; k++) {
     if (whole) {
       if (whole_sample(o, k)) return -1;
@@ -249,7 +249,7 @@ static int collect(Ooc *o, long p, bool gram) {
   return 0;
 }
 
-/* Over ranks, what the first Gram pass does on one process, divided by
+/* Over ranks, what the first factor pass does on one process, divided by
  * samples: rank r evaluates the samples k ≡ r (mod N) whole (the small
  * classes' snapshots, the SPD marks), then the small classes' columns are
  * gathered on every rank and the SPD marks combined. */
@@ -687,11 +687,11 @@ int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *op
   if (opt->progress) {
     int streamed = 0;
     for (int c = 0; c < m->nclasses; c++) streamed += o.st[c].streamed;
-    fprintf(stderr, "out of core: %d of %d classes streamed by rows, %ld passes over the %ld samples for the Gram "
-            "matrices and as many for the bases (--mem %.3g GB, %.3g GB for the rows of a pass)\n",
+    fprintf(stderr, "out of core: %d of %d classes streamed by rows, %ld passes over the %ld samples for the R "
+            "factors (a QR by row blocks) and as many for the bases (--mem %.3g GB, %.3g GB for the rows of a pass)\n",
             streamed, m->nclasses, o.npass, o.S, (double)opt->mem / 1e9, (double)o.avail / 1e9);
     if (o.avail == 0) /* the passes run a row at a time: say why, and what would help */
-      fprintf(stderr, "out of core: --mem leaves nothing for the rows of a pass (the Gram matrices of the %ld samples "
+      fprintf(stderr, "out of core: --mem leaves nothing for the rows of a pass (the R factors of the %ld samples "
               "and the small classes' snapshots need %.3g MB of it), so each pass keeps one row of each streamed class; raise "
               "--mem for fewer passes\n", o.S, (double)o.fixed / 1e6);
   }
@@ -735,7 +735,7 @@ int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *op
   if (stream_premultiply(&o)) goto done;
   t[5] = now();
   if (opt->progress)
-    fprintf(stderr, "out of core: %.2f s samples shared and whole evaluations (over ranks), %.2f s Gram passes, %.2f s "
+    fprintf(stderr, "out of core: %.2f s samples shared and whole evaluations (over ranks), %.2f s R-factor passes, %.2f s "
             "basis passes, %.2f s bases, %.2f s streamed pre-multiplication\n", t[1] - t[0], t[2] - t[1], t[3] - t[2],
             t[4] - t[3], t[5] - t[4]);
   rc = 0;

@@ -64,7 +64,7 @@ $mpirun -np 2 "$npgc" train $xprog "$scratch/xdata" -o "$scratch/x2" --mpi >/dev
 $compare "$scratch/x1" "$scratch/x2"
 
 # (c) out of core over ranks: --mem far below the bases, so the pair classes stream by rows (23
-# passes); the ranks share the passes, sum the Gram matrices and write their rows of the basis
+# passes); the ranks share the passes, fold their R factors and write their rows of the basis
 # files all ranks map, or for the bases the model drops form their blocks' rows and sum the
 # tensors' blocks. Equal to one process out of core and to in memory (the streamed members'
 # singular values to 1e-7: compare_models.py says why); through npg.h the extern's records are
@@ -104,6 +104,41 @@ $compare "$scratch/o2" "$scratch/ao2" 1e-10 1e-7
 "$npgc" train $prog "$scratch/rdata" -o "$scratch/w1" --cap 8 --mem $mem --weights "$scratch/w.npy" >/dev/null
 $mpirun -np 2 "$npgc" train $prog "$scratch/rdata" -o "$scratch/w2" --cap 8 --mem $mem --mpi --weights "$scratch/w.npy" >/dev/null
 $compare "$scratch/w1" "$scratch/w2" 1e-10 1e-7
+
+# (c2) bases to roundoff over 2 ranks out of core (issue 41): snapshots of x whose singular
+# values span 1 … 1e-14 give, from the ranks' R factors folded on every rank, a basis that
+# reproduces them at every leading size as numpy's SVD does, to 1e-12 of their norm (through
+# Gram matrices it stopped near 1e-8)
+printf 'dim N\ninput x : real[N]\noutput y[i:N] = x[i] * x[i]\n' >"$scratch/designed.npg"
+/usr/bin/python3 - "$scratch/ddata" <<'PY'
+import os, sys
+import numpy as np
+d = sys.argv[1]
+os.makedirs(d, exist_ok=True)
+rng = np.random.default_rng(3)
+n, S = 400, 29
+Q, _ = np.linalg.qr(rng.standard_normal((n, S)))
+P, _ = np.linalg.qr(rng.standard_normal((S, S)))
+s = 10.0 ** (-14.0 * np.arange(S) / (S - 1))
+np.save(f"{d}/x.npy", np.ascontiguousarray(((Q * s) @ P.T).T))
+PY
+$mpirun -np 2 "$npgc" train "$scratch/designed.npg" "$scratch/ddata" -o "$scratch/d2" --center off --cap 29 --energy 1 \
+  --mem 20000 --mpi --progress >/dev/null 2>"$scratch/d2.log"
+grep -q "out of core: 2 of 2 classes streamed by rows" "$scratch/d2.log" || fail "the designed snapshots did not go out of core"
+/usr/bin/python3 - "$scratch/ddata/x.npy" "$scratch/d2/basis_0.npy" <<'PY' || fail "x's basis over 2 ranks is not an SVD's"
+import sys
+import numpy as np
+X = np.load(sys.argv[1]).T
+B = np.load(sys.argv[2])
+s = np.linalg.svd(X, compute_uv=False)
+need = int(np.sum(s >= 1e-12 * s[0]))
+assert B.shape[1] >= need, (B.shape, need)
+worst = max(abs(np.linalg.norm(X - B[:, :j] @ (B[:, :j].T @ X)) - np.sqrt(np.sum(s[j:] ** 2)))
+            for j in range(B.shape[1] + 1)) / np.linalg.norm(s)
+print(f"mpi.sh: x's basis over 2 ranks out of core, sigma 1 ... 1e-14: {B.shape[1]} directions ({need} at >= 1e-12), "
+      f"residual at every size against numpy's SVD {worst:.2g} of |X|")
+assert worst < 1e-12, worst
+PY
 
 # (d) rank 1 fails after its first sample, then rank 1 is killed there: the job ends (no
 # rank waits forever: timeout 300 would say so), the message names the rank, no model and no
