@@ -103,6 +103,15 @@ def main():
             fail("no warning naming input mu outside the training range:\n" + p.stderr)
         if p.stdout.count("e!") != 3:
             fail("the estimates of the samples outside the range are not flagged:\n" + p.stdout)
+        # a basis orthonormal in a product: no estimate, and npgc eval says why (the tables assume BᵀB = I)
+        hprog = os.path.join(w, "product.npg")
+        with open(PROG) as f, open(hprog, "w") as g:
+            g.write(f.read().replace("output u =", "op H[i:N, j:N] = delta(i, j) * 2\noutput u ="))
+        run("train", hprog, train, "--basis", "u:product=H", "-o", os.path.join(w, "HMODEL"))
+        p = run("eval", hprog, os.path.join(w, "HMODEL"), test, "-o", os.path.join(w, "HOUT"))
+        if "u has no estimate: class {u} has a basis orthonormal in the product of H" not in p.stdout \
+                or not np.isnan(np.load(os.path.join(w, "HOUT", "u.estimate.npy"))).all():
+            fail("a product basis gave an estimate or no reason:\n" + p.stdout)
         p = run("eval", PROG, os.path.join(w, "MODEL"), test, "-o", os.path.join(w, "OUT3"))
         inside = p.stderr.count("lies outside the training range")
         if inside > 3:
