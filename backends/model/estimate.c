@@ -3,10 +3,11 @@
  * MODEL/ (estimate.h; training builds the tables: backends/train/estimate_train.c).
  *
  * Per term, ‖r_t‖² = z_tᵀ G_t z_t (estimate.h). Its floating-point value is
- * uncertain by about ε (√n Σ |z_i| ‖C_i‖)² (C_i the unprojected columns:
- * their projection by I − BBᵀ and the Gram product round at that level) plus
- * D ε (Σ |z_i| √G_ii)²; below that level the figure is the level, flagged
- * EST_ROUNDOFF, never the square root of a negative number or of noise. */
+ * uncertain by about (8 ε Σ |z_i| ‖C_i‖)² (C_i the unprojected columns: each
+ * projected column keeps about ε‖C_i‖ of what I − BBᵀ removed) plus
+ * (√n + D) ε (Σ |z_i| √G_ii)² (the Gram sums of n products, the form's D);
+ * below that level the figure is the level, flagged EST_ROUNDOFF, never the
+ * square root of a negative number or of noise. */
 #include <cblas.h>
 #include <lapacke.h>
 #include <float.h>
