@@ -108,7 +108,7 @@ bool estimate_outside(const Model *m, int q, const double *coords, long *coord) 
 
 /* The scratch of one evaluation of the estimate. */
 typedef struct Scratch {
-  double *z, *Gz, *v, *M, *sv, *pack;
+  double *z, *Gz, *v, *M, *M2, *sv, *pack;
   long svlen;
 } Scratch;
 
@@ -146,9 +146,22 @@ static double residual_norm(Reduced *r, const RTerm *rt, long n, long my, Scratc
   return sqrt(*roundoff ? level : res2);
 }
 
-/* σ_min of the my x my matrix M (destroyed), dgesvd's smallest singular value; NaN if it fails. */
+/* σ_min of the my x my matrix M (destroyed); NaN if LAPACK fails. A symmetric positive definite
+ * M̂ (an SPD operator's) by its smallest eigenvalue alone (dsyevr), else dgesvd's smallest
+ * singular value. */
 static double sigma_min(double *M, long my, Scratch *s) {
   if (my == 0) return INFINITY;
+  double big = 0, asym = 0;
+  for (long i = 0; i < my; i++)
+    for (long j = i + 1; j < my; j++) big = fmax(big, fabs(M[i * my + j])), asym = fmax(asym, fabs(M[i * my + j] - M[j * my + i]));
+  for (long i = 0; i < my; i++) big = fmax(big, fabs(M[i * my + i]));
+  if (asym <= 1e-14 * big) {
+    lapack_int found = 0, isuppz[2];
+    memcpy(s->M2, M, sizeof(double) * (size_t)(my * my)); /* dsyevr destroys it; M stays for dgesvd */
+    if (LAPACKE_dsyevr(LAPACK_ROW_MAJOR, 'N', 'I', 'U', (int)my, s->M2, (int)my, 0, 0, 1, 1, 0, &found, s->sv, NULL, 1,
+                       isuppz) == 0 && found == 1 && s->sv[0] > 0)
+      return s->sv[0];
+  }
   lapack_int info = LAPACKE_dgesvd_work(LAPACK_ROW_MAJOR, 'N', 'N', (int)my, (int)my, M, (int)my, s->sv, NULL, 1, NULL,
                                         1, s->sv + my, (lapack_int)(s->svlen - my));
   return info == 0 ? s->sv[my - 1] : NAN;
@@ -247,10 +260,14 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
   s.Gz = malloc(sizeof(double) * (size_t)(maxD > maxcols ? maxD : maxcols));
   s.v = malloc(sizeof(double) * (size_t)maxm);
   s.M = malloc(sizeof(double) * (size_t)(maxm * maxm));
+  s.M2 = malloc(sizeof(double) * (size_t)(maxm * maxm));
   s.sv = malloc(sizeof(double) * (size_t)s.svlen);
   s.pack = malloc(sizeof(double) * (size_t)maxpack);
-  int rc = s.z && s.Gz && s.v && s.M && s.sv && s.pack ? 0 : -1;
+  int rc = s.z && s.Gz && s.v && s.M && s.M2 && s.sv && s.pack ? 0 : -1;
   e->why[0] = 0;
+  /* m-sized LAPACK and D-sized BLAS: OpenBLAS's second thread only costs here (as in reduced.c) */
+  int threads = openblas_get_num_threads();
+  if (threads > 1) openblas_set_num_threads(1);
   for (int q = 0; rc == 0 && q < m->nq; q++) { /* inputs: their own error, and the trust signal */
     const Sym *sy = m->prog->quantities.v[q];
     e->err[q] = 0, e->flags[q] = EST_BOUND, e->why_q[q][0] = 0;
@@ -269,7 +286,8 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
     int q = m->stages[i].q;
     if (isnan(e->err[q]) && !e->why[0]) snprintf(e->why, sizeof e->why, "%s: %s", qname(m, q), e->why_q[q]);
   }
-  free(s.z), free(s.Gz), free(s.v), free(s.M), free(s.sv), free(s.pack);
+  if (threads > 1) openblas_set_num_threads(threads);
+  free(s.z), free(s.Gz), free(s.v), free(s.M), free(s.M2), free(s.sv), free(s.pack);
   return rc;
 }
 
