@@ -3,10 +3,11 @@
  * MODEL/ (estimate.h; training builds the tables: backends/train/estimate_train.c).
  *
  * Per term, ‖r_t‖² = z_tᵀ G_t z_t (estimate.h). Its floating-point value is
- * uncertain by about ε (√n Σ |z_i| ‖C_i‖)² (C_i the unprojected columns:
- * their projection by I − BBᵀ and the Gram product round at that level) plus
- * D ε (Σ |z_i| √G_ii)²; below that level the figure is the level, flagged
- * EST_ROUNDOFF, never the square root of a negative number or of noise. */
+ * uncertain by about (8 ε Σ |z_i| ‖C_i‖)² (C_i the unprojected columns: each
+ * projected column keeps about ε‖C_i‖ of what I − BBᵀ removed) plus
+ * (√n + D) ε (Σ |z_i| √G_ii)² (the Gram sums of n products, the form's D);
+ * below that level the figure is the level, flagged EST_ROUNDOFF, never the
+ * square root of a negative number or of noise. */
 #include <cblas.h>
 #include <lapacke.h>
 #include <float.h>
@@ -30,6 +31,10 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
   if (rt->nops == 1 && !(rt->ops[0].op->p == -1 && rt->ops[0].op->q == 1))
     return snprintf(why, n, "term %d applies a power %ld/%ld (only inverses have an estimate)", t + 1,
                     (long)rt->ops[0].op->p, (long)rt->ops[0].op->q), false;
+  const RClass *rc = &m->classes[m->qclass[rs->q]], *cw = rt->named_q >= 0 ? &m->classes[m->qclass[rt->named_q]] : rc;
+  if (rc->product || cw->product) /* the tables assume BᵀB = I: the projector I − BBᵀ, ‖Bŷ‖ = ‖ŷ‖ */
+    return snprintf(why, n, "class %s has a basis orthonormal in the product of %s: the estimate is implemented for "
+                    "Euclidean bases only", (rc->product ? rc : cw)->label, (rc->product ? rc : cw)->product->name), false;
   if (!m->classes[m->qclass[rs->q]].B && !m->classes[m->qclass[rs->q]].streamed)
     return snprintf(why, n, "class %s has no basis", m->classes[m->qclass[rs->q]].label), false;
   return true;
@@ -103,7 +108,7 @@ bool estimate_outside(const Model *m, int q, const double *coords, long *coord) 
 
 /* The scratch of one evaluation of the estimate. */
 typedef struct Scratch {
-  double *z, *Gz, *v, *M, *sv, *pack;
+  double *z, *Gz, *v, *M, *M2, *sv, *pack;
   long svlen;
 } Scratch;
 
@@ -141,9 +146,22 @@ static double residual_norm(Reduced *r, const RTerm *rt, long n, long my, Scratc
   return sqrt(*roundoff ? level : res2);
 }
 
-/* σ_min of the my x my matrix M (destroyed), dgesvd's smallest singular value; NaN if it fails. */
+/* σ_min of the my x my matrix M (destroyed); NaN if LAPACK fails. A symmetric positive definite
+ * M̂ (an SPD operator's) by its smallest eigenvalue alone (dsyevr), else dgesvd's smallest
+ * singular value. */
 static double sigma_min(double *M, long my, Scratch *s) {
   if (my == 0) return INFINITY;
+  double big = 0, asym = 0;
+  for (long i = 0; i < my; i++)
+    for (long j = i + 1; j < my; j++) big = fmax(big, fabs(M[i * my + j])), asym = fmax(asym, fabs(M[i * my + j] - M[j * my + i]));
+  for (long i = 0; i < my; i++) big = fmax(big, fabs(M[i * my + i]));
+  if (asym <= 1e-14 * big) {
+    lapack_int found = 0, isuppz[2];
+    memcpy(s->M2, M, sizeof(double) * (size_t)(my * my)); /* dsyevr destroys it; M stays for dgesvd */
+    if (LAPACKE_dsyevr(LAPACK_ROW_MAJOR, 'N', 'I', 'U', (int)my, s->M2, (int)my, 0, 0, 1, 1, 0, &found, s->sv, NULL, 1,
+                       isuppz) == 0 && found == 1 && s->sv[0] > 0)
+      return s->sv[0];
+  }
   lapack_int info = LAPACKE_dgesvd_work(LAPACK_ROW_MAJOR, 'N', 'N', (int)my, (int)my, M, (int)my, s->sv, NULL, 1, NULL,
                                         1, s->sv + my, (lapack_int)(s->svlen - my));
   return info == 0 ? s->sv[my - 1] : NAN;
@@ -242,10 +260,14 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
   s.Gz = malloc(sizeof(double) * (size_t)(maxD > maxcols ? maxD : maxcols));
   s.v = malloc(sizeof(double) * (size_t)maxm);
   s.M = malloc(sizeof(double) * (size_t)(maxm * maxm));
+  s.M2 = malloc(sizeof(double) * (size_t)(maxm * maxm));
   s.sv = malloc(sizeof(double) * (size_t)s.svlen);
   s.pack = malloc(sizeof(double) * (size_t)maxpack);
-  int rc = s.z && s.Gz && s.v && s.M && s.sv && s.pack ? 0 : -1;
+  int rc = s.z && s.Gz && s.v && s.M && s.M2 && s.sv && s.pack ? 0 : -1;
   e->why[0] = 0;
+  /* m-sized LAPACK and D-sized BLAS: OpenBLAS's second thread only costs here (as in reduced.c) */
+  int threads = openblas_get_num_threads();
+  if (threads > 1) openblas_set_num_threads(1);
   for (int q = 0; rc == 0 && q < m->nq; q++) { /* inputs: their own error, and the trust signal */
     const Sym *sy = m->prog->quantities.v[q];
     e->err[q] = 0, e->flags[q] = EST_BOUND, e->why_q[q][0] = 0;
@@ -264,7 +286,8 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
     int q = m->stages[i].q;
     if (isnan(e->err[q]) && !e->why[0]) snprintf(e->why, sizeof e->why, "%s: %s", qname(m, q), e->why_q[q]);
   }
-  free(s.z), free(s.Gz), free(s.v), free(s.M), free(s.sv), free(s.pack);
+  if (threads > 1) openblas_set_num_threads(threads);
+  free(s.z), free(s.Gz), free(s.v), free(s.M), free(s.M2), free(s.sv), free(s.pack);
   return rc;
 }
 

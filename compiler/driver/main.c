@@ -140,6 +140,16 @@ int main(int argc, char **argv) {
   errno = 0;
   bool flushed = fflush(stdout) == 0;
   int saved = errno;
+  if (flushed && ferror(stdout)) {
+    /* an earlier write failed (a report longer than stdout's buffer) and its errno is gone: one
+     * more write to the same stream finds the cause again */
+    clearerr(stdout);
+    fputc('\n', stdout);
+    errno = 0;
+    flushed = fflush(stdout) == 0;
+    saved = errno;
+    if (flushed) flushed = false, saved = 0;
+  }
   if (!flushed || ferror(stdout)) {
     fprintf(stderr, "npgc: cannot write to standard output%s%s\n", saved ? ": " : "", saved ? strerror(saved) : "");
     return rc ? rc : 1;

@@ -103,6 +103,25 @@ def main():
             fail("no warning naming input mu outside the training range:\n" + p.stderr)
         if p.stdout.count("e!") != 3:
             fail("the estimates of the samples outside the range are not flagged:\n" + p.stdout)
+        # a complete basis (4 x 4 cells, 16 vectors): the residual is roundoff, reported as its level, flagged
+        small = grid(4)
+        t4, e4 = os.path.join(w, "T4"), os.path.join(w, "E4")
+        write(t4, rng.uniform(0.1, 1, (30, 4)), *small)
+        write(e4, rng.uniform(0.1, 1, (4, 4)), *small)
+        run("train", PROG, t4, "--basis", "u:cap=200,energy=1", "-o", os.path.join(w, "M4"))
+        p = run("eval", PROG, os.path.join(w, "M4"), e4, "-o", os.path.join(w, "O4"))
+        est4 = np.load(os.path.join(w, "O4", "u.estimate.npy"))
+        if p.stdout.count(" er\n") != 4 or not (est4 < 1e-12).all() or not (est4 > 0).all():
+            fail("a complete basis: estimates %s not flagged at the roundoff level:\n%s" % (est4, p.stdout))
+        # a basis orthonormal in a product: no estimate, and npgc eval says why (the tables assume BᵀB = I)
+        hprog = os.path.join(w, "product.npg")
+        with open(PROG) as f, open(hprog, "w") as g:
+            g.write(f.read().replace("output u =", "op H[i:N, j:N] = delta(i, j) * 2\noutput u ="))
+        run("train", hprog, train, "--basis", "u:product=H", "-o", os.path.join(w, "HMODEL"))
+        p = run("eval", hprog, os.path.join(w, "HMODEL"), test, "-o", os.path.join(w, "HOUT"))
+        if "u has no estimate: class {u} has a basis orthonormal in the product of H" not in p.stdout \
+                or not np.isnan(np.load(os.path.join(w, "HOUT", "u.estimate.npy"))).all():
+            fail("a product basis gave an estimate or no reason:\n" + p.stdout)
         p = run("eval", PROG, os.path.join(w, "MODEL"), test, "-o", os.path.join(w, "OUT3"))
         inside = p.stderr.count("lies outside the training range")
         if inside > 3:
