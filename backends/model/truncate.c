@@ -7,7 +7,8 @@
  * so in the bases B' it is the block of the entries whose every basis index
  * is below the new sizes: the leading rows and columns of a plain axis, and
  * of a packed symmetric one (x ⊗ x, or the upper triangle of BᵀMB) the
- * multi-indices within (sym_leading). Projections B_yᵀB_w, an extern's
+ * multi-indices within (sym_leading). A product's dual K0B (issue 41) keeps
+ * its leading columns as the basis does. Projections B_yᵀB_w, an extern's
  * table of reduced inputs and values, and a class kept as coefficients keep
  * their leading columns likewise. No entry is recomputed: the result equals
  * pre-multiplying by B' to rounding, and training at a cap of m' wherever
@@ -105,6 +106,11 @@ static int cut_class(const RClass *s, RClass *t) {
   if (s->B) {
     if (!(t->B = mem_malloc(sizeof(double) * (size_t)(s->n * m1 + 1)))) return -1;
     for (long e = 0; e < s->n; e++) memcpy(t->B + e * m1, s->B + e * m0, sizeof(double) * (size_t)m1);
+  }
+  t->product = s->product;
+  if (s->D) { /* a product's dual K0 B: its leading columns are K0 B' */
+    if (!(t->D = mem_malloc(sizeof(double) * (size_t)(s->n * m1 + 1)))) return -1;
+    for (long e = 0; e < s->n; e++) memcpy(t->D + e * m1, s->D + e * m0, sizeof(double) * (size_t)m1);
   }
   if (s->coef) {
     if (!(t->coef = mem_malloc(sizeof(double) * (size_t)(s->coef_S * m1 + 1)))) return -1;

@@ -7,7 +7,9 @@ product K0`), end to end through npgc, checked against numpy:
    uncentered POD in the H¹ product keeps the rough ones (Eckart–Young in each norm): its
    H-norm projection error is far below the Euclidean basis's, which wins in the 2-norm; a
    reduced evaluation projects an input by the product (Dᵀx) where the model says so;
-3. --basis x:product=H (npg_parse_basis_product) equal to the statement, bit for bit;
+3. --basis x:product=H (npg_parse_basis_product) equal to the statement, bit for bit; smaller
+   sizes without retraining (--sizes) project by the leading columns of HB; no error estimate
+   for a class with a product (said, not a wrong figure);
 4. products refused with a message naming them: not SPD, not symmetric, reading an input, in
    npgc tune (not implemented there); tests/bad/basis_product_*.npg: not a name, not an op, not
    square, of another size.
@@ -76,7 +78,9 @@ def thermal_block(tmp):
     check(abs(B.T @ B - np.eye(B.shape[1])).max() > 1e-3, "thermal block: B is not Euclidean-orthonormal (the product is used)")
     report = npgc("verify", prog, model, test, "--tol", "1e-2")
     check("ok: every output within" in report, "thermal block: npgc verify passes at --tol 1e-2")
-    npgc("eval", prog, model, test, "-o", out)
+    said = npgc("eval", prog, model, test, "-o", out)
+    check("u has no estimate: class {u} is orthonormal in the inner product of H" in said,
+          "thermal block: no error estimate with a product (the residual tables assume BᵀB = I), said")
     u = np.load(os.path.join(out, "u.npy"))
     worst = 0
     for s, mu in enumerate(np.load(os.path.join(test, "mu.npy"))):
@@ -152,6 +156,12 @@ def rough(tmp):
     want = (2 * By @ (By.T @ (Bx @ (Bx.T @ H @ Xt.T)))).T
     got = np.load(os.path.join(out, "y.npy"))
     check(abs(got - want).max() < 1e-12 * abs(want).max(), "rough: the reduced y projects x by its product (BᵀH x)")
+    # at a smaller size without retraining (--sizes, model_truncate): the leading columns of B and HB
+    npgc("eval", prog, model, os.path.join(tmp, "test"), "-o", os.path.join(tmp, "out2"), "--sizes", "m_x=2")
+    B2 = Bx[:, :2]
+    want2 = (2 * By @ (By.T @ (B2 @ (B2.T @ H @ Xt.T)))).T
+    got2 = np.load(os.path.join(tmp, "out2", "y.npy"))
+    check(abs(got2 - want2).max() < 1e-12 * abs(want2).max(), "rough: --sizes m_x=2 projects by the leading columns of HB")
     # --basis x:product=H: the same basis as the statement, from the program without it, and the
     # model evaluated by that program (the manifest names the product)
     eprog = models["euclid"][0]
