@@ -235,6 +235,11 @@ static const char *const operator_programs[][2] = {
      "dim N\nparam a : real[N, N]\ninput x : real[N]\ninput u : real[N]\n"
      "op K[i:N, j:N] = delta(i, j) * (3 + x[i]) + a[i, j] * x[j]\n"
      "s[i:N] = u[i] * x[i]\noutput b = solve(K, s)\noutput c = solve(K, solve(K, u))\n"},
+    {"two_ops_in_a_term.npg", /* K^-1 M^(1/2) u and K^-1 M u: one term, two operators */
+     "dim N\nparam a : real[N, N]\ninput x : real[N]\ninput u : real[N]\n"
+     "op M[i:N, j:N] = a[i, j] + a[j, i] + delta(i, j) * (2 + x[i] * x[i])\n"
+     "op K[i:N, j:N] = delta(i, j) * (3 + x[i]) + a[i, j] * x[j]\n"
+     "output z = solve(K, root(M, 2) * u)\noutput w = solve(K, M * u)\n"},
 };
 
 static void corpus_derivatives(void **state) {

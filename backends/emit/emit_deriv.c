@@ -413,7 +413,7 @@ static void emit_decl_adjoint(Emit *e, FILE *out, const Stage *st, int t) {
   for (int k = 0; k < tm->nops; k++) nd += tm->ops[k].kind == OPK_DECL;
   fprintf(out, "  { /* term %d: declared operators, reverse */\n", t + 1);
   emit_count(e, out, s);
-  fprintf(out, "    double *w_ = c->rt->scratch(c, n_ * %d), *vb_ = c->rt->scratch(c, n_);\n", nd + 1);
+  fprintf(out, "    double *w_ = c->rt->scratch(c, n_ * %d), *vb_ = c->rt->scratch(c, n_);\n", nd);
   fputs("    if (!w_ || !vb_) { c->rt->release(c, w_); c->rt->release(c, vb_); return -1; }\n", out);
   int d = emit_open_entry_loops(e, out, s, 2);
   emit_indent(out, d);
@@ -428,6 +428,7 @@ static void emit_decl_adjoint(Emit *e, FILE *out, const Stage *st, int t) {
   for (int pass = 0; pass < 2; pass++) /* 0: forward vectors; 1: backwards */
     for (int j = 0; j < nd; j++) {
       int jj = pass ? nd - 1 - j : j, k = -1;
+      if (!pass && jj == nd - 1) continue; /* the last vector is not read: the reverse step recomputes it */
       for (int seen = -1; seen < jj;) seen += tm->ops[++k].kind == OPK_DECL;
       const OpPow *o = &tm->ops[k];
       if (o->op->opdef->sparse) {

@@ -84,7 +84,7 @@ static int cmp_pair(const void *a, const void *b) {
 /* The pairs as Deps over n entries; a row of -1 (a declared operator's term) goes to every
  * entry. 0, or -1 when out of memory. */
 static int pairs_to_deps(Pairs *p, size_t n, Deps *out) {
-  qsort(p->v, p->n, 2 * sizeof(long), cmp_pair);
+  if (p->n) qsort(p->v, p->n, 2 * sizeof(long), cmp_pair);
   size_t all = 0, nall = 0, end = 0; /* the rows -1 come first: deduplicated in place */
   while (end < p->n && p->v[2 * end] == -1) {
     if (nall == 0 || p->v[2 * (nall - 1) + 1] != p->v[2 * end + 1]) {

@@ -81,3 +81,20 @@ def test_refusals_name_the_argument(full):
     ext = npg.compile(EXTERN, name="ext.npg").full()
     with pytest.raises(npg.Error, match="extern 'v' is a black box"):
         ext.jacobian("y", "g", g=np.ones(3), v=np.ones(3))
+
+
+def test_jacobian_csr_equals_the_dense_one(full):
+    full, rng = full
+    at = point(rng)
+    for out, inp, shape in (("p", "g", (16, 8)), ("b", "x", (4, 4))):
+        c = full.jacobian_csr(out, inp, **at)
+        J = full.jacobian(out, inp, **at)
+        rows, cols = c["shape"]
+        assert (rows, cols) == shape
+        dense = np.zeros((rows, cols))
+        for r in range(rows):
+            for k in range(c["indptr"][r], c["indptr"][r + 1]):
+                dense[r, c["indices"][k]] = c["data"][k]
+        assert np.allclose(dense, J.reshape(rows, cols), rtol=1e-12, atol=1e-14)
+    # p[i, j] reads x[i] and g[j]: 4 x 8 by g, 2 entries a row
+    assert full.jacobian_csr("p", "g", **at)["indptr"][-1] == 16 * 2
