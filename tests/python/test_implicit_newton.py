@@ -48,13 +48,13 @@ def full_backward_step(u, nbr, dt):
         k = 1 / (1 + v ** 2)
         dk = -2 * v * k ** 2
         res, J = v - u, np.eye(N)
-        for i in range(N):
-            for n in nbr[i]:
-                if n >= 0:
-                    kf, d = 0.5 * (k[i] + k[n]), v[n] - v[i]
-                    res[i] -= dt * kf * d
-                    J[i, n] -= dt * (kf + 0.5 * dk[n] * d)
-                    J[i, i] -= dt * (-kf + 0.5 * dk[i] * d)
+        for j in range(4):  # the faces of each cell toward its j-th neighbour
+            i = np.nonzero(nbr[:, j] >= 0)[0]
+            n = nbr[i, j]
+            kf, d = 0.5 * (k[i] + k[n]), v[n] - v[i]
+            res[i] -= dt * kf * d
+            J[i, n] -= dt * (kf + 0.5 * dk[n] * d)
+            J[i, i] -= dt * (-kf + 0.5 * dk[i] * d)
         if np.linalg.norm(res) < 1e-11:
             return v
         v = v - np.linalg.solve(J, res)
@@ -73,7 +73,7 @@ def setup():
     rng = np.random.default_rng(11)
     prog = npg.compile(BACKWARD, name="backward.npg")
     full = prog.full(params={"nbr": nbr, "dt": np.array(DT)})
-    tr = npg.Trainer(full, cap=8)
+    tr = npg.Trainer(full, cap=3)  # {u, v, r}: 9 coordinates for 25 cells
     for _ in range(8):  # trajectories of the full implicit step
         u = bump(rng)
         for _ in range(6):
@@ -81,6 +81,7 @@ def setup():
             tr.add(u=u, v=v)
             u = v
     model = tr.finish()
+    assert model.basis_sizes["{u,v,r}"] <= N // 2
     return model, L, nbr, rng
 
 
@@ -131,7 +132,7 @@ def test_reduced_implicit_step_stable_at_100x_explicit_limit(setup):
         energies.append(np.linalg.norm(B @ c - (B @ c).mean()))
     # diffusion: the deviation from the mean decays, and the rollout stays near the full one
     assert all(b <= a * (1 + 1e-9) + 1e-12 for a, b in zip(energies, energies[1:])), energies
-    assert np.linalg.norm(B @ c - full) <= 0.05 * np.linalg.norm(full)
+    assert np.linalg.norm(B @ c - full) <= 0.02 * np.linalg.norm(full)  # measured 7.5e-4
 
 
 def test_newton_failures_are_named(setup):
