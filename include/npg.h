@@ -655,6 +655,24 @@ NPG_API int npg_reduced_jvp(NpgReduced *r, long sample, int nin, const char *con
 NPG_API int npg_reduced_vjp(NpgReduced *r, long sample, int nout, const char *const *outputs,
                             const double *const *cotangents, const char *input, double *out);
 NPG_API int npg_reduced_jacobian(NpgReduced *r, long sample, const char *output, const char *input, double *out);
+/* Newton's method on a reduced residual (DESIGN §17, implicit steps): the coordinates of input
+ * `unknown` such that the coordinates of quantity `residual` vanish, from the unknown's current
+ * coordinates (set them first: the previous state is the usual start). `residual` and `unknown`
+ * must share one basis (`share r, v` in the program), so the reduced residual is the Galerkin
+ * projection r̂ = Bᵀ r(B v̂) and its Jacobian m × m, solved by LAPACK dgesv. Stops when
+ * ‖r̂‖₂ <= tol; fails after max_iter corrections, at a singular Jacobian or at a residual that is
+ * not finite, naming the sample (a step's number), the iteration and the residual. On success
+ * the unknown holds the solution and every quantity its value there. */
+typedef struct NpgNewton {
+  double tol;               /* on ‖r̂‖₂, > 0 */
+  int max_iter;             /* corrections at most, >= 1 */
+  FILE *verbose;            /* one line per iteration (the residual's norm), or NULL */
+  double *history;          /* when not NULL: ‖r̂‖₂ of iteration i at history[i], i < history_cap */
+  int history_cap;
+  int iterations;           /* out: corrections made */
+  double residual;          /* out: the last ‖r̂‖₂ */
+} NpgNewton;
+NPG_API int npg_reduced_newton(NpgReduced *r, long sample, const char *residual, const char *unknown, NpgNewton *o);
 NPG_API int npg_reduced_step(NpgReduced *r, long steps, long sample);
 NPG_API long npg_reduced_steps(const NpgReduced *r);
 NPG_API int npg_reduced_set_blowup(NpgReduced *r, double factor);

@@ -75,6 +75,7 @@ struct Reduced {
     double *data;
   } *colmajor;
   int ncolmajor;
+  struct DerivCache *deriv_cache; /* reduced_deriv.c's, built on the first derivative (owned) */
   char error[1024];
 };
 
@@ -106,6 +107,7 @@ void reduced_free(Reduced *r) {
   free(r->root_shrink);
   for (int i = 0; i < r->ncolmajor; i++) free(r->colmajor[i].data);
   free(r->colmajor);
+  reduced_deriv_cache_free(r->deriv_cache);
   free(r);
 }
 
@@ -227,6 +229,8 @@ oom:
 double *reduced_coords(Reduced *r, int q) { return r->x[q]; }
 
 double *const *reduced_all_coords(Reduced *r) { return r->x; }
+
+struct DerivCache **reduced_deriv_cache(Reduced *r) { return &r->deriv_cache; }
 
 void reduced_project(Reduced *r, int q, const double *x) {
   const RClass *c = &r->m->classes[r->m->qclass[q]];

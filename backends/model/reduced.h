@@ -68,6 +68,11 @@ int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *s
 int reduced_vjp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int in_q, double *out,
                 long sample, char *err, size_t errlen);
 int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, char *err, size_t errlen);
+/* What the derivatives keep between calls in their evaluator (reduced_deriv.c): the
+ * evaluator's slot for it, and its release (reduced_free calls it). */
+struct DerivCache;
+struct DerivCache **reduced_deriv_cache(Reduced *r);
+void reduced_deriv_cache_free(struct DerivCache *c);
 
 /* ---------------------------------------------------------------- generated reduced code (emit_reduced.c)
  *

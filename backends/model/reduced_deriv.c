@@ -43,6 +43,7 @@ typedef struct Deriv {
   long nd;              /* directions carried */
   double **d;           /* per quantity: its tangent (forward) or cotangent (reverse), m_q x nd, or NULL */
   bool *active;         /* quantities that depend on the differentiated inputs */
+  struct DerivCache *cache, **cache_slot; /* the evaluator's (reduced_deriv_cache) */
   long sample;
   char *err;
   size_t errlen;
@@ -51,6 +52,59 @@ typedef struct Deriv {
 static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
 
 static int dfail_oom(Deriv *dv) { return error_set(dv->err, dv->errlen, "out of memory for the reduced derivative"); }
+
+/* ---------------------------------------------------------------- the evaluator's cache */
+
+/* A tensor of one input repeated twice (x ⊗ x, packed) is its own partial
+ * contraction, so its local Jacobian is Ŝ x for Ŝ (rows·m x m) its rows
+ * unpacked to whole symmetric matrices with doubled diagonals: one dgemv.
+ * Ŝ is made on the first derivative through the tensor and kept in the
+ * evaluator (twice the tensor's memory, for the tensors differentiated). */
+typedef struct DerivCache {
+  int n, cap;
+  const RTensor **t;
+  double **S;
+} DerivCache;
+
+void reduced_deriv_cache_free(DerivCache *c) {
+  if (!c) return;
+  for (int i = 0; i < c->n; i++) free(c->S[i]);
+  free(c->t);
+  free(c->S);
+  free(c);
+}
+
+/* Ŝ of tensor t (its only input packed twice, m coordinates), or NULL out of memory. */
+static const double *square_unpacked(Deriv *dv, const RTensor *t, long m) {
+  DerivCache *c = dv->cache;
+  for (int i = 0; c && i < c->n; i++)
+    if (c->t[i] == t) return c->S[i];
+  if (!c || c->n == c->cap) {
+    int cap = c ? 2 * c->cap : 8;
+    DerivCache *nc = c ? c : mem_calloc(1, sizeof *nc);
+    if (!nc) return NULL;
+    const RTensor **nt = realloc(nc->t, sizeof *nt * (size_t)cap);
+    if (nt) nc->t = nt;
+    double **ns = nt ? realloc(nc->S, sizeof *ns * (size_t)cap) : NULL;
+    if (ns) nc->S = ns;
+    if (!c) *dv->cache_slot = dv->cache = c = nc;
+    if (!nt || !ns) return NULL;
+    c->cap = cap;
+  }
+  double *S = mem_malloc(sizeof(double) * (size_t)(t->rows * m * m + 1));
+  if (!S) return NULL;
+  for (long r = 0; r < t->rows; r++) {
+    const double *pr = t->data + r * t->cols;
+    double *sr = S + r * m * m;
+    for (long a = 0, p = 0; a < m; a++)
+      for (long b = a; b < m; b++, p++) {
+        sr[a * m + b] = pr[p] * (a == b ? 2 : 1);
+        sr[b * m + a] = pr[p] * (a == b ? 2 : 1);
+      }
+  }
+  c->t[c->n] = t, c->S[c->n] = S, c->n++;
+  return S;
+}
 
 /* ---------------------------------------------------------------- tensors */
 
@@ -162,9 +216,16 @@ done:
 /* J (rows x m_q, overwritten) = ∂(T · z)/∂x̂ of input j of tensor t:
  * P · ∂z_j/∂x̂, each packed coordinate z[α] = Π_l x[α_l] contributing
  * Π_{l'≠l} x[α_l'] to column α_l for every position l. */
-static int tensor_jacobian(const Deriv *dv, const RTensor *t, int j, double *J) {
+static int tensor_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
   long mq = qm(dv->m, t->in_q[j]), Lj = t->in_len[j], rows = t->rows;
   int k = t->in_mult[j];
+  if (k == 2 && t->nin == 1) {
+    const double *S = square_unpacked(dv, t, mq);
+    if (!S) return -1;
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)(rows * mq), (int)mq, 1.0, S, (int)mq, dv->x[t->in_q[j]], 1, 0.0,
+                J, 1);
+    return 0;
+  }
   const double *z[RT_MAX_IN];
   double *zbuf = mem_malloc(sizeof(double) * (size_t)tensor_zlen(t)), *owned = NULL;
   const double *P = NULL;
@@ -175,13 +236,22 @@ static int tensor_jacobian(const Deriv *dv, const RTensor *t, int j, double *J) 
   tensor_z(dv, t, z, zbuf);
   if (contract_but(t, j, z, &P, &owned)) goto out;
   if (k == 1) memcpy(J, P, sizeof(double) * (size_t)(rows * mq));
-  else if (k == 2) { /* z[(a,b)] = x_a x_b, a <= b: row r's packed upper triangle S_r, ∂/∂x = (S_r + diag S_r) x */
+  else if (k == 2) { /* z[(a,b)] = x_a x_b, a <= b: row r gains P[r,(a,b)] x_b at a and P[r,(a,b)] x_a at b
+                        * (loops: BLAS per row and index made thousands of level-1 calls) */
     const double *x = dv->x[t->in_q[j]];
+    memset(J, 0, sizeof(double) * (size_t)(rows * mq));
     for (long r = 0; r < rows; r++) {
       const double *pr = P + r * Lj;
       double *jr = J + r * mq;
-      cblas_dspmv(CblasRowMajor, CblasUpper, (int)mq, 1.0, pr, x, 1, 0.0, jr, 1);
-      for (long a = 0, off = 0; a < mq; off += mq - a, a++) jr[a] += pr[off] * x[a];
+      for (long a = 0, off = 0; a < mq; off += mq - a, a++) {
+        const double *seg = pr + off - a; /* seg[b] = P[r,(a,b)] for b >= a */
+        double s0 = 0, s1 = 0, xa = x[a];
+        long b = a;
+        for (; b + 1 < mq; b += 2) s0 += seg[b] * x[b], s1 += seg[b + 1] * x[b + 1];
+        if (b < mq) s0 += seg[b] * x[b];
+        for (b = a; b < mq; b++) jr[b] += seg[b] * xa;
+        jr[a] += s0 + s1;
+      }
     }
   } else if (k > 2) {
     const double *x = dv->x[t->in_q[j]];
@@ -826,6 +896,7 @@ static int deriv_init(Deriv *dv, Reduced *r, long nd, const int *from, int nfrom
                       size_t errlen) {
   memset(dv, 0, sizeof *dv);
   dv->m = reduced_model(r), dv->nd = nd, dv->sample = sample, dv->err = err, dv->errlen = errlen;
+  dv->cache_slot = reduced_deriv_cache(r), dv->cache = *dv->cache_slot;
   if (errlen > 0) err[0] = 0; /* a failure is known by its message */
   const Model *m = dv->m;
   double **x = mem_calloc((size_t)m->nq + 1, sizeof(double *));

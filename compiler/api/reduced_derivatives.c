@@ -7,6 +7,9 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <lapacke.h>
+#include <stdio.h>
+
 #include "api.h"
 
 #define rfail(r, ...) error_set_first((r)->error, sizeof (r)->error, __VA_ARGS__)
@@ -97,4 +100,80 @@ int npg_reduced_jacobian(NpgReduced *r, long sample, const char *output, const c
   char err[1024];
   if (reduced_jacobian(r->r, qo, qi, out, sample, err, sizeof err)) return rfail(r, "%s", err);
   return 0;
+}
+
+/* ---------------------------------------------------------------- Newton on a reduced residual */
+
+static double norm2(const double *v, long n) {
+  double s = 0;
+  for (long i = 0; i < n; i++) s += v[i] * v[i];
+  return sqrt(s);
+}
+
+/* One Newton iteration's correction: J δ = r̂ by LAPACK dgesv, then x̂ -= δ. `J` holds m·m. */
+static int newton_update(NpgReduced *r, const char *fn, long sample, const char *residual, const char *unknown, int it,
+                         double *J, double *rhs, long m) {
+  if (npg_reduced_jacobian(r, sample, residual, unknown, J)) return -1;
+  lapack_int *piv = malloc(sizeof(lapack_int) * (size_t)(m + 1));
+  if (!piv) return rfail(r, "%s: out of memory", fn);
+  lapack_int info = LAPACKE_dgesv(LAPACK_ROW_MAJOR, (lapack_int)m, 1, J, (lapack_int)m, piv, rhs, 1);
+  free(piv);
+  if (info != 0)
+    return rfail(r, "%s: sample %ld, iteration %d: the Jacobian of '%s' by '%s' is singular (LAPACK dgesv info %d)",
+                 fn, sample, it, residual, unknown, (int)info);
+  size_t mu = 0;
+  const double *x = npg_reduced_coords(r, unknown, &mu);
+  double *next = malloc(sizeof(double) * (size_t)(m + 1));
+  if (!next) return rfail(r, "%s: out of memory", fn);
+  for (long i = 0; i < m; i++) next[i] = x[i] - rhs[i];
+  int rc = npg_reduced_set_coords(r, unknown, (size_t)m, next);
+  free(next);
+  return rc;
+}
+
+int npg_reduced_newton(NpgReduced *r, long sample, const char *residual, const char *unknown, NpgNewton *o) {
+  API_REFUSE_NULL(r, NULL, 0, -1);
+  REFUSE_NULL(o);
+  if (!r->r || npg_reduced_error(r)[0]) return -1;
+  const char *fn = __func__;
+  int qr = derivative_quantity(r, fn, "residual", residual, false), qu;
+  if (qr < 0 || (qu = derivative_quantity(r, fn, "unknown", unknown, true)) < 0) return -1;
+  long m = coords_of(r, qu);
+  if (coords_of(r, qr) != m)
+    return rfail(r, "%s: residual '%s' has %ld reduced coordinates and unknown '%s' %ld: a Newton step needs them in "
+                    "one basis (share %s, %s)", fn, residual, coords_of(r, qr), unknown, m, residual, unknown);
+  if (!(o->tol > 0) || !isfinite(o->tol)) return rfail(r, "%s: tolerance %g: it must be positive and finite", fn, o->tol);
+  if (o->max_iter < 1) return rfail(r, "%s: max_iter %d: at least one iteration", fn, o->max_iter);
+  double *J = malloc(sizeof(double) * (size_t)(m * m + 1)), *rhs = malloc(sizeof(double) * (size_t)(m + 1));
+  int rc = -1;
+  o->iterations = 0, o->residual = NAN;
+  if (!J || !rhs) {
+    rfail(r, "%s: out of memory", fn);
+    goto done;
+  }
+  for (int it = 0;; it++) {
+    if (npg_reduced_eval(r, sample)) goto done;
+    const double *res = npg_reduced_coords(r, residual, NULL);
+    double nr = norm2(res, m);
+    o->iterations = it, o->residual = nr;
+    if (o->history && it < o->history_cap) o->history[it] = nr;
+    if (o->verbose) fprintf(o->verbose, "newton sample %ld iteration %d: |%s| = %.3e\n", sample, it, residual, nr);
+    if (!isfinite(nr)) {
+      rfail(r, "%s: sample %ld, iteration %d: residual '%s' is not finite", fn, sample, it, residual);
+      goto done;
+    }
+    if (nr <= o->tol) break;
+    if (it == o->max_iter) {
+      rfail(r, "%s: Newton on residual '%s' for '%s' did not converge at sample %ld: iteration %d, residual %.3e "
+               "(tolerance %.3e)", fn, residual, unknown, sample, it, nr, o->tol);
+      goto done;
+    }
+    memcpy(rhs, res, sizeof(double) * (size_t)m);
+    if (newton_update(r, fn, sample, residual, unknown, it, J, rhs, m)) goto done;
+  }
+  rc = 0;
+done:
+  free(J);
+  free(rhs);
+  return rc;
 }

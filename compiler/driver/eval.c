@@ -273,10 +273,6 @@ int npgc_eval(int argc, char **argv) {
                                 "IN/ (the full one); one folder was given");
   if (!in) return npgc_missing("eval", "IN/ (the inputs to evaluate, a leading sample axis)");
   if (!outdir) return npgc_missing("eval", "-o OUT/ (where to write the outputs)");
-  if (!full && njac) {
-    fputs("npgc eval: --jacobian is an option of the full evaluation (--full DATA/), not of a model's\n", stderr);
-    return 2;
-  }
   if (!full) return npgc_reduce(argc, argv);
   if (exact_roots || sizes) {
     fprintf(stderr, "npgc eval: %s is an option of the reduced evaluation (with MODEL/), not of --full\n",

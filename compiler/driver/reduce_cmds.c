@@ -60,7 +60,7 @@ static int add_basis(Common *c, const char *s, char *err, size_t errlen) {
 static const char *const options_of[][2] = {
     {"train", "-o --cc --jit --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi --reduce --valid "
               "--interp-oversample --keep-bases --weights --steps --every --greedy --tol --budget"},
-    {"eval", "-o --progress --std --exact-roots --full --cc --jit --sizes"},
+    {"eval", "-o --progress --std --exact-roots --full --cc --jit --sizes --jacobian"},
     {"verify", "--tol --cc --jit --exact --exact-size --progress --std --params --steps --every --png --sizes"},
     {"bench", "--cc --jit --threads --reps --exact-roots --progress --std --params --steps --every --sizes"},
 };
@@ -139,7 +139,10 @@ static int parse(Common *c, int argc, char **argv) {
     else if (npg_args_long(&a, "--cap", 1, 1000000, &cap)) c->train.cap = (int)cap;
     else if (npg_args_double(&a, "--energy", 0, 1, true, &c->train.energy)) ;
     else if (npg_args_flag(&a, "--exact-roots")) c->exact_roots = true;
-    else if ((v = npg_args_string(&a, "--center"))) {
+    else if ((v = npg_args_string(&a, "--jacobian"))) {
+      if (c->njacobian == 16) snprintf(a.error, sizeof a.error, "%s: --jacobian given more than 16 times", prog);
+      else c->jacobian[c->njacobian++] = v;
+    }    else if ((v = npg_args_string(&a, "--center"))) {
       c->train.uncentered = strcmp(v, "off") == 0;
       if (!c->train.uncentered && strcmp(v, "on") != 0)
         snprintf(a.error, sizeof a.error, "%s: --center is on or off, not '%s'", prog, v);

@@ -237,6 +237,52 @@ static void print_estimates(Session *x, const Out *outs, int nout, long S) {
       printf("%s has no estimate: %s\n", outs[o].sym->name, npg_reduced_estimate_why(x->r, outs[o].sym->name));
 }
 
+/* One eval --jacobian OUT:IN of the reduced evaluation: ∂OUT̂/∂IN̂ in coordinates at every sample. */
+typedef struct RedJac {
+  char out[256], in[256];
+  long mo, mi;
+  double *v;                /* S x mo x mi */
+} RedJac;
+
+/* "OUT:IN" checked against the model: OUT any quantity with coordinates, IN an input. 0, or -1
+ * after a message naming the option. */
+static int red_jac_parse(const Session *x, const char *spec, RedJac *j) {
+  const char *colon = strchr(spec, ':');
+  size_t lo = colon ? (size_t)(colon - spec) : 0;
+  if (!colon || lo == 0 || !colon[1] || lo >= sizeof j->out || strlen(colon + 1) >= sizeof j->in) {
+    fprintf(stderr, "npgc eval: --jacobian '%s': expected OUT:IN (a stage or output, then an input)\n", spec);
+    return -1;
+  }
+  memcpy(j->out, spec, lo);
+  j->out[lo] = 0;
+  strcpy(j->in, colon + 1);
+  bool in_ok = false;
+  for (int i = 0; i < x->nsym; i++) in_ok = in_ok || (strcmp(x->sym[i].name, j->in) == 0 && x->sym[i].kind == NPG_INPUT);
+  int co = npg_model_class_of(x->m, j->out), ci = npg_model_class_of(x->m, j->in);
+  if (co < 0 || !in_ok || ci < 0) {
+    if (co < 0) fprintf(stderr, "npgc eval: --jacobian '%s': '%s' is not a stage or input of the program\n", spec, j->out);
+    else
+      fprintf(stderr, "npgc eval: --jacobian '%s': '%s' is not an input of the program (derivatives are taken with "
+              "respect to inputs)\n", spec, j->in);
+    return -1;
+  }
+  NpgClassInfo a, b;
+  npg_model_class(x->m, co, &a);
+  npg_model_class(x->m, ci, &b);
+  j->mo = a.m, j->mi = b.m;
+  return 0;
+}
+
+static int red_jac_write(const Common *c, const RedJac *j, long S) {
+  char path[4096], err[2048];
+  long shape[3] = {S, j->mo, j->mi};
+  if (snprintf(path, sizeof path, "%s/jacobian_%s_%s.reduced.npy", c->out, j->out, j->in) >= (int)sizeof path)
+    snprintf(err, sizeof err, "%s: the path of jacobian_%s_%s.reduced.npy is too long", c->out, j->out, j->in);
+  else if (npg_npy_write(path, 3, shape, j->v, err, sizeof err) == 0) return 0;
+  npgc_error(err);
+  return -1;
+}
+
 int cmd_eval_reduced(Common *c) {
   if (!c->prog_path || !c->a) return npgc_missing("eval", "MODEL/ (or --full DATA/)");
   if (!c->b) return npgc_missing("eval", "IN/ (the inputs to evaluate)");
@@ -246,8 +292,17 @@ int cmd_eval_reduced(Common *c) {
   Session x;
   int rc = 1, nout = 0;
   Out *outs = NULL;
+  RedJac jacs[16];
+  memset(jacs, 0, sizeof jacs);
   if (open_session(c, &x, false) != 0) goto done;
   long S = npg_samples_count(x.s);
+  for (int j = 0; j < c->njacobian; j++) {
+    if (red_jac_parse(&x, c->jacobian[j], &jacs[j]) != 0) {
+      rc = 2;
+      goto done;
+    }
+    if (!(jacs[j].v = malloc(sizeof(double) * (size_t)(S * jacs[j].mo * jacs[j].mi + 1)))) goto oom;
+  }
   if (!(outs = calloc((size_t)x.nsym + 1, sizeof *outs))) goto oom;
   for (int i = 0; i < x.nsym; i++) {
     if (!x.sym[i].output) continue;
@@ -272,6 +327,9 @@ int cmd_eval_reduced(Common *c) {
     if (reduced_sample(&x, k) != 0 || warn_outside(&x, k) != 0) goto failed;
     for (int o = 0; o < nout; o++)
       if (keep_output(&x, &outs[o], k) != 0) goto failed;
+    for (int j = 0; j < c->njacobian; j++) /* after the outputs are kept: it evaluates again */
+      if (npg_reduced_jacobian(x.r, k, jacs[j].out, jacs[j].in, jacs[j].v + k * jacs[j].mo * jacs[j].mi) != 0)
+        goto failed;
     npg_progress(c->train.progress && S > 1, "reduced evaluation", k + 1, S);
   }
   print_estimates(&x, outs, nout, S);
@@ -283,6 +341,7 @@ int cmd_eval_reduced(Common *c) {
       memmove(u->coords + k * u->rows * u->cols, u->coords + k * u->m, sizeof(double) * (size_t)(u->rows * u->cols));
   }
   rc = write_outputs(c, &x, outs, nout, S) == 0 ? 0 : 1;
+  for (int j = 0; j < c->njacobian && rc == 0 && S > 0; j++) rc = red_jac_write(c, &jacs[j], S) == 0 ? 0 : 1;
   goto done;
 failed:
   npgc_error(npg_reduced_error(x.r));
@@ -297,6 +356,7 @@ done:
     free(outs[o].flags);
   }
   free(outs);
+  for (int j = 0; j < c->njacobian; j++) free(jacs[j].v);
   close_session(&x);
   return rc;
 }

@@ -981,6 +981,68 @@ static PyObject *reduced_jacobian_method(ReducedObject *self, PyObject *args, Py
   return res;
 }
 
+/* An option of red.newton taken out of its keywords (the rest are inputs): a new reference, or NULL. */
+static PyObject *pop_option(PyObject *kw, const char *name) {
+  if (!kw) return NULL;
+  PyObject *v = PyDict_GetItemString(kw, name);
+  if (!v) return NULL;
+  Py_INCREF(v);
+  PyDict_DelItemString(kw, name);
+  return v;
+}
+
+/* red.newton(residual, unknown, tol=1e-10, max_iter=20, verbose=False, sample=-1, **inputs)
+ * -> (unknown's coordinates, [‖r̂‖ per iteration]) */
+static PyObject *reduced_newton_method(ReducedObject *self, PyObject *args, PyObject *kw) {
+  const char *res_name, *unk;
+  if (!PyArg_ParseTuple(args, "ss:newton", &res_name, &unk)) return NULL;
+  PyObject *inputs = kw ? PyDict_Copy(kw) : NULL, *out = NULL;
+  if (kw && !inputs) return NULL;
+  PyObject *tolo = pop_option(inputs, "tol"), *ito = pop_option(inputs, "max_iter");
+  PyObject *verbo = pop_option(inputs, "verbose"), *sampo = pop_option(inputs, "sample");
+  NpgNewton o = {.tol = 1e-10, .max_iter = 20};
+  bool verbose = false;
+  long sample = -1;
+  if ((tolo && (o.tol = PyFloat_AsDouble(tolo), PyErr_Occurred())) ||
+      (ito && (o.max_iter = (int)PyLong_AsLong(ito), PyErr_Occurred())) ||
+      (verbo && npgpy_flag(verbo, "newton: verbose", &verbose)) ||
+      (sampo && (sample = PyLong_AsLong(sampo), PyErr_Occurred())))
+    goto done;
+  long m = coords_size(self, unk, "newton");
+  if (m < 0 || derivative_inputs(self, inputs)) goto done;
+  double hist[1024];
+  o.history = hist, o.history_cap = 1024, o.verbose = verbose ? stderr : NULL;
+  npgpy_busy_enter(&self->busy);
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_reduced_newton(self->r, sample, res_name, unk, &o);
+  Py_END_ALLOW_THREADS
+  if (rc) rfail(self);
+  else {
+    size_t mu = 0;
+    const double *x = npg_reduced_coords(self->r, unk, &mu);
+    npy_intp dm = (npy_intp)mu;
+    PyObject *a = PyArray_SimpleNew(1, &dm, NPY_DOUBLE), *h = PyList_New(0);
+    if (a && mu) memcpy(PyArray_DATA((PyArrayObject *)a), x, sizeof(double) * mu);
+    for (int i = 0; h && i <= o.iterations && i < o.history_cap; i++) {
+      PyObject *f = PyFloat_FromDouble(hist[i]);
+      if (!f || PyList_Append(h, f) < 0) Py_CLEAR(h);
+      Py_XDECREF(f);
+    }
+    if (a && h) out = PyTuple_Pack(2, a, h);
+    Py_XDECREF(a);
+    Py_XDECREF(h);
+  }
+  npgpy_busy_leave(&self->busy);
+done:
+  Py_XDECREF(tolo);
+  Py_XDECREF(ito);
+  Py_XDECREF(verbo);
+  Py_XDECREF(sampo);
+  Py_XDECREF(inputs);
+  return out;
+}
+
 static PyObject *get_model(ReducedObject *self, void *unused) { return Py_NewRef(self->model); }
 
 static PyGetSetDef reduced_getset[] = {
@@ -1014,6 +1076,10 @@ static PyMethodDef reduced_methods[] = {
   {"simulate", (PyCFunction)(void (*)(void))reduced_simulate, METH_VARARGS | METH_KEYWORDS,
    "simulate(steps, every=1, **inputs) -> {state: array}: Full.simulate's contract, the reduced step in\n"
    "reduced coordinates: the states' initial values projected once, lifted only at the kept steps"},
+  {"newton", (PyCFunction)(void (*)(void))reduced_newton_method, METH_VARARGS | METH_KEYWORDS,
+   "newton(residual, unknown, tol=1e-10, max_iter=20, verbose=False, sample=-1, **inputs) -> (coords, residuals):\n"
+   "Newton's method on the reduced residual for the unknown input's coordinates (npg_reduced_newton),\n"
+   "from its current coordinates; residuals: ‖r̂‖ per iteration"},
   {"jacobian", (PyCFunction)(void (*)(void))reduced_jacobian_method, METH_VARARGS | METH_KEYWORDS,
    "jacobian(output, input, **inputs) -> m_output x m_input array: the derivative of output's reduced\n"
    "coordinates with respect to input's, at the inputs given (or as set)"},

@@ -2,8 +2,8 @@
 # jacobian.sh BUILD_DIR — npgc eval --full ... --jacobian OUT:IN and npgc emit --derivatives
 # (DESIGN §17): the Jacobian of rational.npg's y by x at every sample, written as
 # OUT/jacobian_y_x.npy (samples x 2 x 2), equals the analytic derivative; a bad spec, an
-# unknown or non-input name, and --jacobian with a model are refused with a message naming
-# the option; the derivatives' C has its two entry points, and is refused with --reduced.
+# unknown or non-input name are refused with a message naming the option; with a model, the
+# reduced Jacobian in coordinates (at whole bases B_yᵀ J B_x); the derivatives' C has its two entry points, and is refused with --reduced.
 set -eu
 B=$1
 W=$(mktemp -d /tmp/npg_jacobian_XXXXXX)
@@ -35,8 +35,22 @@ done
 grep -q "'y:': expected OUT:IN" "$W/err.txt" || fail "$(cat "$W/err.txt")"
 "$B/npgc" eval $P --full "$W/IN" "$W/IN" -o "$W/BAD" --jacobian x:y 2>"$W/err.txt" && fail "x:y accepted"
 grep -q "input 'y' is not an input of the program" "$W/err.txt" || fail "$(cat "$W/err.txt")"
-if "$B/npgc" eval $P "$W/M" "$W/IN" -o "$W/BAD" --jacobian y:x 2>"$W/err.txt"; then fail "with a model"; fi
-grep -q -- "--jacobian is an option of the full evaluation" "$W/err.txt" || fail "$(cat "$W/err.txt")"
+test ! -e "$W/BAD" || fail "a refused evaluation wrote OUT/"
+# with a model: the reduced Jacobian in coordinates; at whole bases (2 of 2) B_yᵀ J B_x
+"$B/npgc" train $P "$W/IN" -o "$W/M" >/dev/null || fail "train"
+"$B/npgc" eval $P "$W/M" "$W/IN" -o "$W/ROUT" --jacobian y:x >/dev/null || fail "eval MODEL/ --jacobian y:x"
+/usr/bin/python3 - "$W" <<'PY' || fail "the reduced Jacobian differs from the full one at whole bases"
+import sys, numpy as np
+w = sys.argv[1]
+J = np.load(w + "/OUT/jacobian_y_x.npy")
+R = np.load(w + "/ROUT/jacobian_y_x.reduced.npy")
+By, Bx = np.load(w + "/M/basis_1.npy"), np.load(w + "/M/basis_0.npy")
+assert R.shape == (5, 2, 2) and By.shape == Bx.shape == (2, 2), (R.shape, By.shape, Bx.shape)
+err = np.abs(R - np.einsum("ai,sab,bj->sij", By, J, Bx)).max() / np.abs(J).max()
+assert err < 1e-10, err
+PY
+if "$B/npgc" eval $P "$W/M" "$W/IN" -o "$W/BAD" --jacobian y:y 2>"$W/err.txt"; then fail "y:y with a model"; fi
+grep -q -- "--jacobian 'y:y': 'y' is not an input of the program" "$W/err.txt" || fail "$(cat "$W/err.txt")"
 test ! -e "$W/BAD" || fail "a refused evaluation wrote OUT/"
 # npgc emit --derivatives: the C of the forward and reverse products; not with --reduced
 "$B/npgc" emit $P --derivatives -o "$W/d.c" || fail "emit --derivatives"
@@ -44,4 +58,4 @@ grep -q "^int rational_npg_full_jvp(const NpgCtx \*c, const NpgCtx \*d)" "$W/d.c
 grep -q "^int rational_npg_full_vjp(const NpgCtx \*c, const NpgCtx \*d)" "$W/d.c" || fail "no vjp entry point"
 if "$B/npgc" emit $P --derivatives --reduced "$W" -o "$W/e.c" 2>"$W/err.txt"; then fail "--derivatives with --reduced"; fi
 grep -q "does not go with --reduced" "$W/err.txt" || fail "$(cat "$W/err.txt")"
-echo "ok: --jacobian y:x equals the analytic Jacobian at 5 samples; bad specs refused"
+echo "ok: --jacobian y:x equals the analytic Jacobian at 5 samples, the reduced one B_yᵀ J B_x at whole bases; bad specs refused"

@@ -150,7 +150,8 @@ def full_fd(full, out, inp, at, h=1e-3):
 
 
 def test_identity_bases_equal_the_full_jacobian():
-    """Bases holding every snapshot direction (full size): Bᵀ J B of the full evaluator."""
+    """Bases holding every snapshot direction (full size): Bᵀ J B of the full evaluator's exact
+    Jacobian (itself checked against its Richardson differences)."""
     rng = np.random.default_rng(6)
     F = 4
     pa = {"rho": 0.3 * rng.random(F), "a": 0.2 * rng.random((F, F))}
@@ -169,7 +170,9 @@ def test_identity_bases_equal_the_full_jacobian():
             Bo, Bi = model.basis(out), model.basis(inp)
             assert Bi.shape[0] == Bi.shape[1] and Bo.shape[0] == Bo.shape[1], (src, Bi.shape, Bo.shape)
             J = red.jacobian(out, inp, **test)
-            Jf = Bo.T @ full_fd(full, out, inp, test) @ Bi
+            Jfull = full.jacobian(out, inp, **test).reshape(Bo.shape[0], Bi.shape[0])  # exact (npg_full_jacobian)
+            assert np.abs(full_fd(full, out, inp, test) - Jfull).max() <= 1e-9 * max(1.0, np.abs(Jfull).max())
+            Jf = Bo.T @ Jfull @ Bi
             assert np.abs(J - Jf).max() <= 1e-10 * max(1.0, np.abs(Jf).max()), (src, out, inp, np.abs(J - Jf).max())
 
 
@@ -202,3 +205,38 @@ def test_extern_has_no_derivative():
     red = model.reduced()
     with pytest.raises(npg.Error, match="extern 'v' depends on the differentiated input"):
         red.jacobian("d", "g", g=g[0])
+
+
+def test_npgc_eval_jacobian_equals_python(tmp_path, npgc, root):
+    """npgc eval MODEL/ IN/ --jacobian OUT:IN writes the reduced Jacobian of every sample
+    (samples x m_out x m_in) as red.jacobian gives it; bad specs refused by name."""
+    rng = np.random.default_rng(9)
+    F = 4
+    for d in ("DATA", "IN"):
+        (tmp_path / d).mkdir()
+    np.save(tmp_path / "DATA" / "rho.npy", 0.3 * rng.random(F))
+    np.save(tmp_path / "DATA" / "a.npy", 0.2 * rng.random((F, F)))
+    np.save(tmp_path / "DATA" / "x.npy", rng.random((20, F)))
+    np.save(tmp_path / "DATA" / "e.npy", rng.random((20, F)))
+    for name in ("rho", "a"):
+        np.save(tmp_path / "IN" / f"{name}.npy", np.load(tmp_path / "DATA" / f"{name}.npy"))
+    xs, es = rng.random((3, F)), rng.random((3, F))
+    np.save(tmp_path / "IN" / "x.npy", xs)
+    np.save(tmp_path / "IN" / "e.npy", es)
+    npgc("train", SOLVE, tmp_path / "DATA", "-o", tmp_path / "M", "--cap", "3")
+    npgc("eval", SOLVE, tmp_path / "M", tmp_path / "IN", "-o", tmp_path / "OUT", "--jacobian", "b:x",
+         "--jacobian", "p:e")
+    red = npg.load(npg.compile(str(root / SOLVE)), str(tmp_path / "M")).reduced()
+    got_bx = np.load(tmp_path / "OUT" / "jacobian_b_x.reduced.npy")
+    got_pe = np.load(tmp_path / "OUT" / "jacobian_p_e.reduced.npy")
+    red(x=xs[0], e=es[0])
+    assert got_bx.shape == (3, len(red.coords("b")), len(red.coords("x")))
+    for k in range(3):
+        assert np.allclose(got_bx[k], red.jacobian("b", "x", x=xs[k], e=es[k]), rtol=0, atol=1e-12)
+        assert np.array_equal(got_pe[k], np.zeros_like(got_pe[k]))  # p reads x only
+    for spec, msg in (("b:p", "'p' is not an input of the program"), ("q:x", "'q' is not a stage or input"),
+                      ("bx", "expected OUT:IN")):
+        r = npgc("eval", SOLVE, tmp_path / "M", tmp_path / "IN", "-o", tmp_path / "BAD", "--jacobian", spec,
+                 check=False)
+        assert r.returncode == 2 and f"npgc eval: --jacobian '{spec}': " in r.stderr and msg in r.stderr, r.stderr
+        assert not (tmp_path / "BAD").exists()
