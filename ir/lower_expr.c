@@ -459,6 +459,8 @@ Value *lower_expr_introduce(Lowerer *L, Value *v, const Node *at, PtrVec *open_s
   s->introduced_for = L->cur;
   s->basis_max = s->basis_energy = -1;
   s->basis_center = -1;
+  /* no `basis m_x:` of its own either (0 read as center=off: introduced stages were trained uncentered) */
+  s->class_basis_max = -1, s->class_basis_energy = -1, s->class_basis_center = -1;
   s->klass = -1;
   s->id = L->cur->id;  /* evaluated just before its user */
   for (int i = 0; i < L->cur->nivars; i++)
