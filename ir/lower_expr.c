@@ -459,6 +459,8 @@ Value *lower_expr_introduce(Lowerer *L, Value *v, const Node *at, PtrVec *open_s
   s->introduced_for = L->cur;
   s->basis_max = s->basis_energy = -1;
   s->basis_center = -1;
+  /* no `basis m_x:` of its own either (0 read as center=off: introduced stages were trained uncentered) */
+  s->class_basis_max = -1, s->class_basis_energy = -1, s->class_basis_center = -1;
   s->klass = -1;
   s->id = L->cur->id;  /* evaluated just before its user */
   for (int i = 0; i < L->cur->nivars; i++)
@@ -616,7 +618,21 @@ Value *lower_expr_op_entries(Lowerer *L, Value *v, const Node *at) {
     }
     for (int k = 0; k < i && !named[i]; k++) /* one stage per distinct power: the neighbours' 1 / h[i] once */
       if (named[k] && strcmp(key[k], key[i]) == 0) named[i] = named[k];
-    if (!named[i]) named[i] = lower_expr_introduce(L, power[i], at, NULL);
+    if (!named[i]) {
+      named[i] = lower_expr_introduce(L, power[i], at, NULL);
+      /* its note says what it is: the introduced stage is the last one, its note the last */
+      const Sym *s = ((Stage *)L->prog->stages.v[L->prog->stages.n - 1])->sym;
+      char over[128] = "";
+      size_t len = 0;
+      for (int k = 0; k < s->nivars && len + 40 < sizeof over; k++)
+        len += (size_t)snprintf(over + len, sizeof over - len, "%s%s", k ? ", " : "", s->ivars[k]->name);
+      if (s->nivars < 2) /* else the last note is the dense entry's (lower_expr_introduce) */
+        L->prog->notes.v[L->prog->notes.n - 1] =
+            arena_printf(ctx, "%s:%d:%d: stage '%s' introduced for a division or root inside the entries of op '%s', "
+                         "over %s alone (its base where the entry can be nonzero), so '%s' keeps its pattern",
+                         at->loc.file ? at->loc.file->name : "?", at->loc.line, at->loc.col, s->name, L->cur->name,
+                         s->nivars ? over : "no index", L->cur->name);
+    }
     Term *p = term_new(L, v->ncomp);
     p->num = field_mul(L, t->num, ((Term *)named[i]->terms.v[0])->num);
     vec_push(ctx, &out->terms, p);

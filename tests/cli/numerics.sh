@@ -149,7 +149,12 @@ PY
 "$N" check "$W/hd.npg" >"$W/out.txt" 2>&1 || fail "check hd: $(cat "$W/out.txt")"
 grep -qF "K[i:N, j:N]  (1 row axis; sparse" "$W/out.txt" || fail "a division inside K: K not sparse: $(cat "$W/out.txt")"
 grep -qF "K.t1 : real[i:N]   inverse, introduced for K" "$W/out.txt" || fail "hd: 1 / h[i] not one stage over i: $(cat "$W/out.txt")"
-"$N" train "$W/hd.npg" "$W/HD" -o "$W/HM" --mem 8M >/dev/null 2>"$W/err.txt" || fail "train hd in 8 MB: $(cat "$W/err.txt")"
+grep -qF "stage 'K.t1' introduced for a division or root inside the entries of op 'K', over i alone" "$W/out.txt" ||
+  fail "hd: the note on K.t1: $(cat "$W/out.txt")"
+"$N" train "$W/hd.npg" "$W/HD" -o "$W/HM" --mem 8M >"$W/out.txt" 2>"$W/err.txt" || fail "train hd in 8 MB: $(cat "$W/err.txt")"
+# the introduced stage trained centered, as the defaults say and as r named by hand is (it was uncentered)
+grep -q "^{K.t1} .*K.t1 [0-9]*/60 lost" "$W/out.txt" && ! grep -q "(uncentered)" "$W/out.txt" ||
+  fail "hd: K.t1 not trained with the default centering: $(cat "$W/out.txt")"
 "$N" eval "$W/hd.npg" --full "$W/HD" "$W/HD" -o "$W/HDO" >/dev/null 2>&1 || fail "eval hd"
 "$N" eval "$W/hr.npg" --full "$W/HD" "$W/HD" -o "$W/HRO" >/dev/null 2>&1 || fail "eval hr"
 /usr/bin/python3 -c "
