@@ -37,11 +37,6 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
                     "Euclidean bases only", (rc->product ? rc : cw)->label, (rc->product ? rc : cw)->product->name), false;
   if (!m->classes[m->qclass[rs->q]].B && !m->classes[m->qclass[rs->q]].streamed)
     return snprintf(why, n, "class %s has no basis", m->classes[m->qclass[rs->q]].label), false;
-  /* the residual tables project by I − BBᵀ, which needs BᵀB = I */
-  const RClass *rc = &m->classes[m->qclass[rs->q]];
-  if (rc->product)
-    return snprintf(why, n, "class %s is orthonormal in the inner product of %s, and estimates assume BᵀB = I (not "
-                    "implemented for a product)", rc->label, rc->product->name), false;
   return true;
 }
 
