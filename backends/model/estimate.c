@@ -33,8 +33,9 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
                     (long)rt->ops[0].op->p, (long)rt->ops[0].op->q), false;
   const RClass *rc = &m->classes[m->qclass[rs->q]], *cw = rt->named_q >= 0 ? &m->classes[m->qclass[rt->named_q]] : rc;
   if (rc->product || cw->product) /* the tables assume BᵀB = I: the projector I − BBᵀ, ‖Bŷ‖ = ‖ŷ‖ */
-    return snprintf(why, n, "class %s has a basis orthonormal in the product of %s: the estimate is implemented for "
-                    "Euclidean bases only", (rc->product ? rc : cw)->label, (rc->product ? rc : cw)->product->name), false;
+    return snprintf(why, n, "class %s is orthonormal in the inner product of %s, and estimates assume BᵀB = I (not "
+                    "implemented for a product)", (rc->product ? rc : cw)->label, (rc->product ? rc : cw)->product->name),
+           false;
   if (!m->classes[m->qclass[rs->q]].B && !m->classes[m->qclass[rs->q]].streamed)
     return snprintf(why, n, "class %s has no basis", m->classes[m->qclass[rs->q]].label), false;
   return true;
