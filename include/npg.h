@@ -648,7 +648,8 @@ NPG_API int npg_reduced_op(NpgReduced *r, const char *name, double *out, size_t 
  * K̂⁻¹(df̂ − dK̂ ŷ), roots by the Daleckii–Krein formula on the reduced operator's
  * eigendecomposition, interpolated stages through their formula at the selected entries.
  * Derivatives are taken with respect to inputs; an output may be any quantity. An extern
- * that depends on the input (its learned map has no derivative) is refused, naming it.
+ * that depends on the input (its learned map has no derivative) is refused, naming it; after
+ * npg_reduced_given_externs(r, true) externs hold the caller's values and are constants.
  * 0, or -1 with npg_reduced_error() naming the argument or the stage. */
 NPG_API int npg_reduced_jvp(NpgReduced *r, long sample, int nin, const char *const *inputs,
                             const double *const *directions, const char *output, double *out);

@@ -531,6 +531,8 @@ static int eval_extern(Reduced *r, const RExtern *x, long sample) {
 
 void reduced_use_given_externs(Reduced *r, bool on) { r->given_externs = on; }
 
+bool reduced_given_externs(const Reduced *r) { return r->given_externs; }
+
 void reduced_krylov_roots(Reduced *r, bool on) { r->krylov_roots = on; }
 
 void reduced_root_stats(const Reduced *r, long *roots, long *steps, long *fallbacks) {

@@ -31,6 +31,7 @@ int reduced_term(Reduced *r, int i, int t, double *v, double *M, long sample);
 /* With `on`, externs keep the coordinates the caller set (reduced_project)
  * instead of the learned map: for tests and for verifying the rest. */
 void reduced_use_given_externs(Reduced *r, bool on);
+bool reduced_given_externs(const Reduced *r);
 /* With `on`, fractional powers (roots) of reduced operators are applied by
  * the Lanczos process (krylov.h) to an a-posteriori estimate of 1e-10
  * relative, falling back to the eigendecomposition where that would take

@@ -23,7 +23,8 @@
  * the transposed local Jacobians of its tensors. An interpolated stage (DESIGN §12)
  * differentiates its formula at the selected entries, whose reads are rows of their
  * bases: ∂ŷ/∂x̂ = (W P B)⁺ W · ∂(P y)/∂x̂. An extern's learned map (a convex
- * combination chosen by NNLS) has no derivative: reading one is refused.
+ * combination chosen by NNLS) has no derivative: reading one is refused; externs given by
+ * the caller (reduced_use_given_externs) are constants.
  *
  * The tangents (and cotangents) of `nd` directions travel together as
  * m × nd row-major blocks, so a whole Jacobian is one forward sweep with the
@@ -44,6 +45,7 @@ typedef struct Deriv {
   double **d;           /* per quantity: its tangent (forward) or cotangent (reverse), m_q x nd, or NULL */
   bool *active;         /* quantities that depend on the differentiated inputs */
   struct DerivCache *cache, **cache_slot; /* the evaluator's (reduced_deriv_cache) */
+  bool given_externs;   /* externs hold the caller's values (reduced_use_given_externs): constants */
   long sample;
   char *err;
   size_t errlen;
@@ -855,6 +857,7 @@ out:
 static bool stage_reads_active(const Deriv *dv, const RStage *rs) {
   const Model *m = dv->m;
   if (rs->st->kind == ST_EXTERN) {
+    if (dv->given_externs) return false; /* the caller's values: constants here */
     for (int k = 0; k < m->nexterns; k++)
       if (m->externs[k].q == rs->q)
         for (int j = 0; j < m->externs[k].nin; j++)
@@ -897,6 +900,7 @@ static int deriv_init(Deriv *dv, Reduced *r, long nd, const int *from, int nfrom
   memset(dv, 0, sizeof *dv);
   dv->m = reduced_model(r), dv->nd = nd, dv->sample = sample, dv->err = err, dv->errlen = errlen;
   dv->cache_slot = reduced_deriv_cache(r), dv->cache = *dv->cache_slot;
+  dv->given_externs = reduced_given_externs(r);
   if (errlen > 0) err[0] = 0; /* a failure is known by its message */
   const Model *m = dv->m;
   double **x = mem_calloc((size_t)m->nq + 1, sizeof(double *));

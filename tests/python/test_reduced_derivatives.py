@@ -194,7 +194,7 @@ def test_bad_arguments_are_named():
     assert red.jvp("y", {"x": np.ones(2)}).shape == (2,)  # usable again after each error
 
 
-def test_extern_has_no_derivative():
+def test_extern_has_no_derivative_unless_given():
     prog = npg.compile(EXTERN)
     F, V, S = 4, 6, 12
     rng = np.random.default_rng(3)
@@ -205,6 +205,11 @@ def test_extern_has_no_derivative():
     red = model.reduced()
     with pytest.raises(npg.Error, match="extern 'v' depends on the differentiated input"):
         red.jacobian("d", "g", g=g[0])
+    # externs given by the caller are constants: d = v ∘ g[tri[:, 0], 0] differentiates in g alone
+    red.given_externs(True)
+    J = red.jacobian("d", "g", g=g[0], v=v[0])
+    fd = reduced_fd(red, "d", "g", 1e-4)
+    assert np.abs(J).max() > 0.1 and np.abs(fd - J).max() <= 1e-8 * np.abs(J).max()
 
 
 def test_npgc_eval_jacobian_equals_python(tmp_path, npgc, root):
