@@ -113,7 +113,10 @@ static double norm2(const double *v, long n) {
 /* One Newton iteration's correction: J δ = r̂ by LAPACK dgesv, then x̂ -= δ. `J` holds m·m. */
 static int newton_update(NpgReduced *r, const char *fn, long sample, const char *residual, const char *unknown, int it,
                          double *J, double *rhs, long m) {
-  if (npg_reduced_jacobian(r, sample, residual, unknown, J)) return -1;
+  const Program *prog = r->nm->m->prog;
+  char err[1024]; /* at the coordinates just evaluated: not npg_reduced_jacobian, which evaluates again */
+  if (reduced_jacobian(r->r, api_quantity(prog, residual), api_quantity(prog, unknown), J, sample, err, sizeof err))
+    return rfail(r, "%s: sample %ld, iteration %d: %s", fn, sample, it, err);
   lapack_int *piv = malloc(sizeof(lapack_int) * (size_t)(m + 1));
   if (!piv) return rfail(r, "%s: out of memory", fn);
   lapack_int info = LAPACKE_dgesv(LAPACK_ROW_MAJOR, (lapack_int)m, 1, J, (lapack_int)m, piv, rhs, 1);
