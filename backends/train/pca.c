@@ -43,6 +43,12 @@
 /* A direction whose remainder after removing the previous ones is below
  * this fraction of its norm is dependent on them (pca_in_order). */
 #define PCA_DEPENDENT_TOL 1e-8
+/* Merging member bases (pca_merge), whose vectors are orthonormal and
+ * accurate to rounding: a vector whose remainder after the previous ones
+ * is below this fraction is a repeat of them. Below 1e-8, so that a
+ * direction a member resolves to 1e-12 is not dropped (it costs a vector
+ * of its rounding at most). */
+#define PCA_MERGE_TOL 1e-12
 
 /* Snapshots whose largest entry lies outside [PCA_SCALE_MIN, 1/PCA_SCALE_MIN]
  * are scaled to O(1) before a PCA: beyond it, sums of squares over up to
@@ -315,7 +321,9 @@ int pca_member(long n, long S, const double *X, int cap, double energy, double *
   return pca_core(n, S, X, cap, energy, U, k, captured, NULL, NULL, err, errlen);
 }
 
-int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int *m, char *err, size_t errlen) {
+/* pca_in_order with the dependence tolerance `tol`. */
+static int in_order(long n, int r, double *const *A, const int *k, double tol, double **Q, int *m, char *err,
+                    size_t errlen) {
   long K = 0;
   for (int i = 0; i < r; i++) K += k[i];
   double *q = mem_malloc(sizeof(double) * (size_t)(n * (K ? K : 1))), *v = mem_malloc(sizeof(double) * (size_t)(n + 1));
@@ -339,7 +347,7 @@ int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int 
         cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, kept, -1.0, q, (int)K, c, 1, 1.0, v, 1);
       }
       double norm = cblas_dnrm2((int)n, v, 1);
-      if (!(norm > PCA_DEPENDENT_TOL * norm0)) continue; /* numerically in the span of the previous ones */
+      if (!(norm > tol * norm0)) continue; /* numerically in the span of the previous ones */
       for (long e = 0; e < n; e++) q[e * K + kept] = v[e] / norm;
       kept++;
     }
@@ -355,6 +363,10 @@ int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int 
   *Q = out;
   *m = kept;
   return 0;
+}
+
+int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int *m, char *err, size_t errlen) {
+  return in_order(n, r, A, k, PCA_DEPENDENT_TOL, Q, m, err, errlen);
 }
 
 /* A plain loop, not daxpy: every entry's arithmetic is then the same
@@ -456,7 +468,7 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
       col++;
     }
   int kk = (int)K, mm = 0;
-  int rc = pca_in_order(n, 1, &A, &kk, B, &mm, err, errlen);
+  int rc = in_order(n, 1, &A, &kk, PCA_MERGE_TOL, B, &mm, err, errlen);
   free(A);
   *m = mm;
   return rc;

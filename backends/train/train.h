@@ -398,7 +398,8 @@ void pca_mean(long n, long S, const double *X, double *mu);
 /* Orthonormal basis of the span of [U_1 … U_r] (each n x k_i, row-major,
  * orthonormal columns in order): their columns interleaved — the first of
  * every U_i, then the second, … (a U_i out of columns skipped) — and
- * orthonormalized in that order by pca_in_order, dropping dependent ones:
+ * orthonormalized in that order as pca_in_order does, dropping one whose
+ * remainder is below 1e-12 of its norm:
  * n x m row-major whose first columns span the first c of every U_i (the
  * basis caps of c give), so a smaller cap is a truncation (issue 41). */
 int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m, char *err, size_t errlen);
