@@ -119,7 +119,7 @@ def main():
             g.write(f.read().replace("output u =", "op H[i:N, j:N] = delta(i, j) * 2\noutput u ="))
         run("train", hprog, train, "--basis", "u:product=H", "-o", os.path.join(w, "HMODEL"))
         p = run("eval", hprog, os.path.join(w, "HMODEL"), test, "-o", os.path.join(w, "HOUT"))
-        if "u has no estimate: class {u} has a basis orthonormal in the product of H" not in p.stdout \
+        if "u has no estimate: class {u} is orthonormal in the inner product of H" not in p.stdout \
                 or not np.isnan(np.load(os.path.join(w, "HOUT", "u.estimate.npy"))).all():
             fail("a product basis gave an estimate or no reason:\n" + p.stdout)
         p = run("eval", PROG, os.path.join(w, "MODEL"), test, "-o", os.path.join(w, "OUT3"))
