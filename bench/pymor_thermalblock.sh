@@ -7,7 +7,7 @@
 # packages as its README says (python3-scipy python3-diskcache python3-typer python3-qtpy
 # python3-matplotlib python3-threadpoolctl python3-pil); nothing else in the project needs it.
 # Writes build/bench_thermalblock/ (the matrices as .npy, the models, results.json per case).
-# Usage from the repository root after a build: sh bench/pymor_thermalblock.sh PYMOR_DIR (pyMOR 2025.2.2's source folder)
+# Usage from the repository root after a build: sh bench/pymor_thermalblock.sh PYMOR_DIR
 set -eu
 if [ $# -lt 1 ] || [ ! -f "$1/src/pymor/__init__.py" ]; then
   echo "usage: pymor_thermalblock.sh PYMOR_DIR [BUILD_DIR]: PYMOR_DIR must hold pyMOR's sources (src/pymor)" >&2
