@@ -682,6 +682,11 @@ NPG_API void npg_reduced_free(NpgReduced *r);
 /* The BLAS threads of the process (reduced evaluation, training's GEMMs):
  * `n` >= 1 sets them, 0 only asks. Returns the number before the call. */
 NPG_API int npg_blas_threads(int n);
+/* Streaming read bandwidth measured here, in GB/s: the best of repeated sums over a buffer of
+ * `bytes` (at least 64) on the calling thread for at least `min_seconds` (three sums at least).
+ * A size that fits a cache measures that cache: the bound of a reduced evaluation is the bytes of
+ * its tensors over the bandwidth at their size (`npgc bench` prints both). 0 when out of memory. */
+NPG_API double npg_read_bandwidth(size_t bytes, double min_seconds);
 
 /* ---------------------------------------------------------------- basis sizes by error
  *

@@ -11,6 +11,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <time.h>
 #include <unistd.h>
 
 #include "api.h"
@@ -827,6 +828,31 @@ void npg_reduced_free(NpgReduced *r) {
   free(r->given);
   npg_model_free(r->own);
   free(r);
+}
+
+static volatile double bandwidth_sink; /* the sums are used: the timed loops cannot be dropped */
+
+double npg_read_bandwidth(size_t bytes, double min_seconds) {
+  size_t n = bytes / sizeof(double) / 8 * 8;
+  if (n < 8) n = 8;
+  double *a = malloc(n * sizeof *a);
+  if (!a) return 0;
+  for (size_t i = 0; i < n; i++) a[i] = 1.0 / (double)(i % 97 + 1);
+  double best = INFINITY, spent = 0, keep = 0;
+  for (int r = 0; r < 3 || spent < min_seconds; r++) {
+    struct timespec t0, t1;
+    double s[8] = {0};
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    for (size_t i = 0; i < n; i += 8)
+      for (int k = 0; k < 8; k++) s[k] += a[i + k];
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    double t = (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec);
+    keep += s[0] + s[1] + s[2] + s[3] + s[4] + s[5] + s[6] + s[7];
+    best = fmin(best, t), spent += t;
+  }
+  bandwidth_sink = keep;
+  free(a);
+  return best > 0 ? (double)(n * sizeof(double)) / best / 1e9 : 0;
 }
 
 int npg_blas_threads(int n) {

@@ -510,6 +510,15 @@ static void bench_error(const Common *c, const char *msg) {
   npgc_error(msg);
 }
 
+/* The reduced evaluation against its byte bound: its tensors read once at the read bandwidth
+ * measured over as many bytes (one thread; a size that fits a cache measures that cache). */
+static void print_byte_bound(size_t tensor_bytes, double reduced_alone) {
+  double bw = npg_read_bandwidth(tensor_bytes, 0.2), bound = bw > 0 ? (double)tensor_bytes / (bw * 1e9) : 0;
+  printf("byte bound          %12.3e s: the reduced tensors read once at %.3g GB/s (read bandwidth measured over as "
+         "many bytes, one thread); reduced alone %.3gx the bound\n",
+         bound, bw, bound > 0 ? reduced_alone / bound : 0);
+}
+
 int cmd_bench(Common *c) {
   npg_blas_threads(c->threads); /* one unless asked: a loaded machine's threads slow small GEMMs down */
   if (c->steps >= 0) return cmd_bench_steps(c);
@@ -608,6 +617,7 @@ int cmd_bench(Common *c) {
   printf("  without projection and lift %.3gx [%.3gx, %.3gx]\n", qc[1], qc[0], qc[2]);
   printf("reduced model       %12.3f MB of reduced tensors, %.3f MB with bases and extern tables\n", (double)tb / 1e6,
          (double)bytes / 1e6);
+  print_byte_bound(tb, qe[1]);
   rc = 0;
 done:
   free(tf);

@@ -2,6 +2,8 @@
 #define _POSIX_C_SOURCE 200809L
 #include "util.h"
 
+#include "npg.h"
+
 #include <errno.h>
 #include <math.h>
 #include <stdbool.h>
@@ -39,27 +41,7 @@ double util_now(void) {
   return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
-static volatile double util_sink;
-
-double util_read_bandwidth(size_t bytes, double min_seconds) {
-  size_t n = bytes / sizeof(double) / 8 * 8;
-  if (n < 8) n = 8;
-  double *a = malloc(n * sizeof *a);
-  if (!a) return 0;
-  for (size_t i = 0; i < n; i++) a[i] = 1.0 / (double)(i % 97 + 1);
-  double best = INFINITY, spent = 0, keep = 0;
-  for (int r = 0; r < 3 || spent < min_seconds; r++) {
-    double t0 = util_now(), s[8] = {0};
-    for (size_t i = 0; i < n; i += 8)
-      for (int k = 0; k < 8; k++) s[k] += a[i + k];
-    double t = util_now() - t0;
-    keep += s[0] + s[1] + s[2] + s[3] + s[4] + s[5] + s[6] + s[7];
-    best = fmin(best, t), spent += t;
-  }
-  free(a);
-  util_sink = keep; /* the sums are used: the loops cannot be dropped */
-  return (double)(n * sizeof(double)) / best / 1e9;
-}
+double util_read_bandwidth(size_t bytes, double min_seconds) { return npg_read_bandwidth(bytes, min_seconds); }
 
 double util_tick_step(double range, int want) {
   double raw = range / want, mag = pow(10, floor(log10(raw))), r = raw / mag;

@@ -18,9 +18,7 @@ int util_make_dirs(const char *path, char *err, size_t errlen);
 int util_exit_status(const char *prog, int rc);
 /* Seconds on a monotonic clock. */
 double util_now(void);
-/* Streaming read bandwidth in GB/s over a buffer of `bytes` (rounded to 64): the best of
- * repeated plain sums on one thread for at least `min_seconds` (three at least), the buffer
- * touched first, so a size that fits a cache measures that cache. 0 when out of memory. */
+/* Streaming read bandwidth in GB/s over a buffer of `bytes`: npg_read_bandwidth (npg.h). */
 double util_read_bandwidth(size_t bytes, double min_seconds);
 /* A round tick step (1, 2 or 5 times a power of ten) giving about `want` ticks over
  * `range` (> 0); a chart whose axis is a count rounds it up to 1. */

@@ -54,6 +54,9 @@ grep -q "^full evaluator: \(cc (the system compiler at -O3 -march=native)\|libtc
   fail "bench names no backend: $(cat "$W/bench.txt")"
 grep -q "^  reduced alone  *[0-9.e+-]* s per sample .*coordinates in, coordinates out" "$W/bench.txt" &&
   grep -q "^  without projection and lift [0-9.e+-]*x" "$W/bench.txt" || fail "bench lacks the reduced time alone: $(cat "$W/bench.txt")"
+# the reduced evaluation against its byte bound (issue 42): tensor bytes / read bandwidth measured over as many
+grep -q "^byte bound  *[0-9.e+-]* s: the reduced tensors read once at [0-9.e+-]* GB/s (read bandwidth measured over as many bytes, one thread); reduced alone [0-9.e+-]*x the bound$" "$W/bench.txt" ||
+  fail "bench lacks the byte bound: $(cat "$W/bench.txt")"
 NPG_JIT=tcc "$N" bench "$P" "$W/M1" "$W/TEST" --reps 1 --threads 2 >"$W/bench2.txt" || fail "bench --threads 2"
 grep -q "evaluations timed, 2 BLAS threads;" "$W/bench2.txt" && grep -q "^full evaluator: libtcc, compiled in" "$W/bench2.txt" ||
   fail "bench --threads 2 under NPG_JIT=tcc: $(cat "$W/bench2.txt")"
