@@ -8,6 +8,14 @@
 #include "support/refeval.h"
 #include "testutil.h"
 
+/* A stage introduced for a division or root inside an op's entries, over fewer indices than the
+ * op (ir/lower_expr.c, lower_expr_op_entries: 1 / h[i] in K[i, j]): its value is a piece of the
+ * entries, not a source expression of its own. */
+static bool entrywise(const Sym *s) {
+  return s->introduced && s->introduced_for && s->introduced_for->kind == SYM_OP &&
+         s->nivars < s->introduced_for->nivars;
+}
+
 static int check_program(NpgProgram *p, const char *path, void *arg) {
   (void)arg;
   Program *prog = program_ir(p);
@@ -29,6 +37,11 @@ static int check_program(NpgProgram *p, const char *path, void *arg) {
       size_t n = ref_count(d, st->sym);
       double *direct = ref_values(d, st->sym);
       double *canon = malloc(sizeof(double) * (n ? n : 1));
+      if (entrywise(st->sym)) { /* no source expression of its own: its users are checked against theirs */
+        ref_eval_canonical(d, st, direct);
+        free(canon);
+        continue;
+      }
       ref_eval_direct(d, st->sym, direct);
       if (padded && ref_error(d)) {  /* unguarded gathers: padding does not apply */
         free(canon);
