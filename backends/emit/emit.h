@@ -77,8 +77,11 @@ void emit_full(Ctx *ctx, const Program *prog, FILE *out);
  * statements: sums as loops, guards evaluated before any gather they protect. */
 void emit_atom(Emit *e, FILE *out, const Atom *a);
 void emit_poly(Emit *e, FILE *out, const Poly *p, const char *acc, int depth);
-/* The entries function of every sparse declared operator ("entries_<op>", NpgOpEntriesFn). */
+/* The entries function of every sparse declared operator a stage applies ("entries_<op>", NpgOpEntriesFn). */
 void emit_sparse_ops(Emit *e);
+/* Whether a stage applies sparse operator `od`: only those get an entries function (an op only
+ * a basis's inner product names is assembled by training from its tensors). */
+bool emit_op_applied(const Program *prog, const OpDef *od);
 /* backends/emit/emit_deriv.c: the derivatives of the full evaluator (DESIGN §17),
  * "<stem>_npg_full_jvp" and "<stem>_npg_full_vjp" (NpgDerivFn in npg_abi.h), into `out`
  * after the ABI header. Refuses (error_plain) a program with an extern: a black box has

@@ -174,7 +174,7 @@ static void emit_sparse_derivs(Emit *e) {
   emit_sparse_ops(e);
   for (int i = 0; i < e->prog->opdefs.n; i++) {
     const OpDef *od = e->prog->opdefs.v[i];
-    if (!od->sparse) continue;
+    if (!od->sparse || !emit_op_applied(e->prog, od)) continue;
     fprintf(e->out, "/* derivatives of the entries of sparse operator %s */\n", od->sym->name);
     deriv_function(e, e->out,
                    arena_printf(e->ctx, "static npg_idx %s(const NpgCtx *c, const NpgCtx *d, int mode_, npg_idx cap_, "

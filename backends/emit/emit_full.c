@@ -177,10 +177,22 @@ static void op_entries_cb(Emit *e, FILE *out, const void *arg) {
   fputs("  return cnt_;\n", out);
 }
 
+/* Whether a stage applies sparse operator `od` (an op only a basis's inner product names,
+ * `basis u: product H`, is assembled by training from its tensors, not by the evaluator). */
+bool emit_op_applied(const Program *prog, const OpDef *od) {
+  for (int i = 0; i < prog->stages.n; i++) {
+    const Stage *st = prog->stages.v[i];
+    for (int t = 0; t < st->nterms; t++)
+      for (int k = 0; k < st->terms[t]->nops; k++)
+        if (st->terms[t]->ops[k].kind == OPK_DECL && st->terms[t]->ops[k].op->opdef == od) return true;
+  }
+  return false;
+}
+
 void emit_sparse_ops(Emit *e) {
   for (int i = 0; i < e->prog->opdefs.n; i++) {
     const OpDef *od = e->prog->opdefs.v[i];
-    if (!od->sparse) continue;
+    if (!od->sparse || !emit_op_applied(e->prog, od)) continue;
     fprintf(e->out, "/* entries of sparse operator %s (DESIGN §13) */\n", od->sym->name);
     emit_function_sig(e, e->out,
                       arena_printf(e->ctx, "static npg_idx %s(const NpgCtx *c, npg_idx cap_, npg_idx *rows_, npg_idx *cols_, const npg_idx *slot_, "
