@@ -1,11 +1,15 @@
 /* snapshots.c — the method of snapshots (DESIGN §5; Sirovich 1987): the
  * member bases of training when the snapshots do not fit in --mem. Only
- * S x S Gram matrices G = XᵀX are held, built by passes that recompute the
- * samples (train_gram_blocks shares the budget between a held block and a
- * batch); their eigenvectors V give U = X V Λ^(-1/2), formed in a last
- * pass. train.c's train_take_snapshots calls it instead of keeping the snapshot
- * matrices; the bases are the in-memory PCA's (pca_basis) to rounding
- * (test_reduce's snapshots_match_memory compares the projectors). */
+ * S x S Gram matrices are held, built by passes that recompute the samples
+ * (train_gram_blocks shares the budget between a held block and a batch).
+ * A Gram matrix squares the snapshots' condition number: its eigenvectors
+ * resolve directions down to about √ε of the largest only (issue 41). So a
+ * first round's basis (U = X V Λ^(-1/2)) is completed by a second round on
+ * the snapshots' residual after it, and the basis is the SVD of every
+ * snapshot's coefficients in their joint span — the in-memory PCA's
+ * (pca_basis) to rounding (test_train's snapshots_match_memory compares
+ * the projectors; test_ooc's method_of_snapshots_reaches_svd_accuracy,
+ * LAPACK's SVD at every leading size). */
 #include <cblas.h>
 #include <float.h>
 #include <lapacke.h>
@@ -423,20 +427,30 @@ static int gram_passes(Gram *g) {
 }
 
 /* The method of snapshots (DESIGN §5), for snapshots that do not fit in
- * `mem`: no snapshot matrix is held whole. Pass 1 builds every member's
- * S x S Gram matrix G = XᵀX holding a block of b samples at a time and
- * recomputing the later samples against it in batches of q (one dgemm per
- * member and batch: train_gram_blocks; one pass when the budget holds every
- * sample, ⌈S/b⌉ in general); the eigenvectors of G give the basis
- * U = X V Λ^(-1/2), formed in pass 2 by recomputing every sample once and
- * adding its rank-one contribution. U[c][i], kk[c][i] per member.
+ * `mem`: no snapshot matrix is held whole; every sample is recomputed in
+ * each pass. U[c][i], kk[c][i] per member.
+ *  1. Gram passes build every member's S x S Gram matrix G = XᵀX holding a
+ *     block of b samples at a time and recomputing the later samples
+ *     against it in batches of q (one dgemm per member and batch:
+ *     train_gram_blocks; one pass when the budget holds every sample,
+ *     ⌈S/b⌉ in general); its eigenvectors give U₁ = X V Λ^(-1/2), formed
+ *     by a basis pass (each sample's rank-one contribution), orthonormalized
+ *     into Q.
+ *  2. The same passes on the residuals X − Q Qᵀ X: their Gram matrix's
+ *     leading eigenvectors resolve what round 1 could not (below √ε of the
+ *     largest, to about ε), and their directions U₂, formed by a basis
+ *     pass, extend Q = orth[Q, U₂].
+ *  3. A coefficient pass: D = Qᵀ X (p x S); the SVD D = U_D Σ V_Dᵀ is the
+ *     snapshots' SVD to rounding, the truncation rule (pca_choose) runs on
+ *     Σ, and the basis is Q U_D's kept columns.
+ * About twice the evaluations of the Gram route alone, plus one pass.
  *
  * A centered member's snapshots are shifted by its first sample x₀ (on a
  * deforming mesh that removes the dominant rest shape before any product,
- * so nothing cancels), their mean d accumulated in pass 1; the centered
- * Gram matrix is then J G J (J = I − 11ᵀ/S: the mean of a shift is
- * removed exactly), its eigenvectors give U_c = (X − x₀1ᵀ − d1ᵀ) W, and
- * the member's basis is the orthonormalization of [μ = x₀ + d, U_c]. */
+ * so nothing cancels), their mean d accumulated in round 1, whose Gram
+ * matrix is then J G J (J = I − 11ᵀ/S: the mean of a shift is removed
+ * exactly); rounds 2 and 3 take x − x₀ − d, and the member's basis is the
+ * orthonormalization of [μ = x₀ + d, Q U_D]. */
 int train_snapshot_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, double ***U,
                          int **kk, double *tmp, char *err, size_t errlen) {
   Gram g = {m, f, src, opt, src->count, 0, 0, 1, NULL, NULL, tmp, err, errlen};
@@ -448,8 +462,7 @@ int train_snapshot_bases(Model *m, Full *f, const SampleSource *src, const Train
     error_set(err, errlen, "out of memory for the Gram matrices of %ld samples", S);
     goto done;
   }
-  Model *const mm = m;
-#define EACH for (int c = 0; c < mm->nclasses; c++) for (int i = 0; i < mm->classes[c].nmembers; i++)
+#define EACH for (int c = 0; c < m->nclasses; c++) for (int i = 0; i < m->classes[c].nmembers; i++)
   g.round = 1;
   if (gram_passes(&g)) goto done;
   EACH if (gram_eigen(&g, &g.gm[c][i], &m->classes[c], &U[c][i], &kk[c][i])) goto done;
