@@ -585,7 +585,12 @@ static long own_rows(const Ooc *o, int c, long *r) {
 }
 
 /* B = A T, this rank's rows block by block, into the class's basis file,
- * then the whole file mapped read-only on every rank. */
+ * then the whole file mapped read-only on every rank. A T is orthonormal
+ * in exact arithmetic, but a column kept for a small remainder ρ (down to
+ * PCA_MERGE_TOL) is a difference of nearly equal columns of A, formed to
+ * ε/ρ only: the rows of A T are folded into its R factor R_B first (over
+ * the ranks too), and B = (A T) R_B⁻¹, orthonormal to rounding as the
+ * in-memory Gram–Schmidt's vectors are. */
 static int write_basis(Ooc *o, int c, double *T, long m) {
   Stream *st = &o->st[c];
   RClass *rc = &o->m->classes[c];
@@ -600,20 +605,31 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
   if (rows > n) rows = n;
   double *A = mem_malloc(sizeof(double) * (size_t)(rows * K) + 8), *B = mem_malloc(sizeof(double) * (size_t)(rows * m));
   double *big = mem_calloc((size_t)m, sizeof(double)), *first = mem_malloc(sizeof(double) * (size_t)m);
+  double *RB = mem_calloc((size_t)(m * m), sizeof(double)), *Bt = mem_malloc(sizeof(double) * (size_t)(rows * m));
+  int *flip = mem_calloc((size_t)m, sizeof(int));
   long *range = mem_malloc(sizeof(long) * (size_t)(2 * o->npass + 2)), nr = range ? own_rows(o, c, range) : 0;
-  int bad = !A || !B || !big || !first || !range;
+  int bad = !A || !B || !big || !first || !range || !RB || !Bt || !flip;
   for (long j = 0; !bad && j < m; j++) first[j] = -HUGE_VAL;
-  /* three sweeps over this rank's rows of A: the largest magnitude of every
-   * column of B = A T (the largest over the ranks), the sign convention
-   * (pca_fix_signs: the sign of the first row, over all ranks, whose entry
-   * is at least half that; as −(2·row + negative), the largest over the
-   * ranks is the first row), then B written */
-  for (int sweep = 0; sweep < 3 && !bad; sweep++) {
-    if (sweep == 1) dist_allreduce_max(big, m);
-    if (sweep == 2) {
+  /* four sweeps over this rank's rows of A: R_B (the TSQR of A T's rows), the largest
+   * magnitude of every column of B = (A T) R_B⁻¹ (the largest over the ranks), the sign
+   * convention (pca_fix_signs: the sign of the first row, over all ranks, whose entry is at
+   * least half that; as −(2·row + negative), the largest over the ranks is the first row), then
+   * B written */
+  for (int sweep = 0; sweep < 4 && !bad; sweep++) {
+    if (sweep == 1) {
+      if (o->N > 1 && fold_ranks(o, m, RB)) {
+        bad = -1;
+        break;
+      }
+      for (long j = 0; j < m; j++) /* positive diagonal: B's columns keep A T's orientation */
+        if (RB[j * m + j] < 0)
+          for (long i = j; i < m; i++) RB[i * m + j] = -RB[i * m + j];
+    }
+    if (sweep == 2) dist_allreduce_max(big, m);
+    if (sweep == 3) {
       dist_allreduce_max(first, m);
       for (long j = 0; j < m; j++)
-        if (first[j] > -HUGE_VAL && fmod(-first[j], 2) == 1) cblas_dscal((int)K, -1.0, (double *)T + j * K, 1);
+        flip[j] = first[j] > -HUGE_VAL && fmod(-first[j], 2) == 1;
     }
     for (long q = 0; !bad && q < nr; q++)
       for (long r0 = range[2 * q]; !bad && r0 < range[2 * q + 1]; r0 += rows) {
@@ -622,17 +638,30 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
         if (bad) break;
         cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)R, (int)m, (int)K, 1.0, A, (int)K, T, (int)K, 0.0, B,
                     (int)m);
-        for (long e = 0; sweep < 2 && e < R; e++)
+        if (sweep == 0) {
+          for (long e = 0; e < R; e++)
+            for (long j = 0; j < m; j++) Bt[j * R + e] = B[e * m + j];
+          if (pca_fold_rows(m, RB, R, Bt, R) != 0) bad = -1;
+          continue;
+        }
+        cblas_dtrsm(CblasColMajor, CblasLeft, CblasUpper, CblasTrans, CblasNonUnit, (int)m, (int)R, 1.0, RB, (int)m, B,
+                    (int)m);
+        for (long e = 0; sweep == 3 && e < R; e++)
+          for (long j = 0; j < m; j++)
+            if (flip[j]) B[e * m + j] = -B[e * m + j];
+        for (long e = 0; sweep < 3 && e < R; e++)
           for (long j = 0; j < m; j++) {
             double v = B[e * m + j];
-            if (sweep == 0) big[j] = fmax(big[j], fabs(v));
+            if (sweep == 1) big[j] = fmax(big[j], fabs(v));
             else if (first[j] == -HUGE_VAL && big[j] > 0 && fabs(v) >= 0.5 * big[j])
               first[j] = -(2.0 * (double)(r0 + e) + (v > 0 ? 0 : 1));
           }
-        if (sweep == 2) bad = ooc_write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));
+        if (sweep == 3) bad = ooc_write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));
       }
   }
-  free(A), free(B), free(big), free(first), free(range);
+  for (long j = 0; !bad && j < m; j++) /* T's columns signed as B's (the floors read B as A T) */
+    if (flip[j]) cblas_dscal((int)K, -1.0, (double *)T + j * K, 1);
+  free(A), free(B), free(big), free(first), free(range), free(RB), free(Bt), free(flip);
   return ooc_map_basis(o, rc, fp, bad);
 }
 

@@ -93,11 +93,18 @@ bool stream_blockwise(const Ooc *o, int c);
  * RClass.streamed) gets its basis file, mapped as rc->B. 0, or -1 with o->err. */
 int stream_premultiply(Ooc *o);
 
+/* A class formed block by block and used at once (Stream.blockwise) has
+ * no sweep to take B's R factor (write_basis): B = A T is orthonormal only
+ * to ε/ρ for a column kept at a remainder ρ, so its columns are kept at
+ * remainders above this fraction, as before the in-memory rules applied. */
+#define OOC_BLOCKWISE_TOL 1e-6
+
 /* ooc_basis.c: T (K x *m column-major, malloc'd) with class c's basis
  * B = A T, its members orthonormalized, put in order and merged through
  * A's R factor (A = Q_A R_A: ⟨A x, A y⟩ = ⟨R_A x, R_A y⟩, norms of
  * remainders to rounding as from the vectors themselves), by the
- * in-memory rules (PCA_DEPENDENT_TOL, PCA_MERGE_TOL). 0, or -1 with o->err. */
+ * in-memory rules (PCA_DEPENDENT_TOL, PCA_MERGE_TOL; a blockwise class
+ * OOC_BLOCKWISE_TOL). 0, or -1 with o->err. */
 int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout);
 
 #endif

@@ -46,6 +46,8 @@ int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
   Stream *st = &o->st[c];
   RClass *rc = &o->m->classes[c];
   long K = st->K;
+  double tol_member = st->blockwise ? OOC_BLOCKWISE_TOL : PCA_DEPENDENT_TOL;
+  double tol_merge = st->blockwise ? OOC_BLOCKWISE_TOL : PCA_MERGE_TOL;
   double *C = st->RA;
   for (long j = 0; j < K; j++) /* the upper triangle only: below it dtpqrt leaves nothing of use */
     for (long i = j + 1; i < K; i++) C[j * K + i] = 0;
@@ -94,7 +96,7 @@ int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
         for (long a = q0; a < nq; a++) cblas_daxpy((int)K, -cc[a - q0], Q + a * K, 1, v, 1);
       }
       double norm = inner(C, K, v, NULL, tmp, t2);
-      if (!(norm > PCA_DEPENDENT_TOL * norm0)) continue;
+      if (!(norm > tol_member * norm0)) continue;
       cblas_dscal((int)K, 1 / norm, v, 1);
       memcpy(Q + nq * K, v, sizeof(double) * (size_t)K);
       nq++;
@@ -125,7 +127,7 @@ int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
         for (long a = 0; a < m; a++) cblas_daxpy((int)K, -cc[a], T + a * K, 1, v, 1);
       }
       double norm = inner(C, K, v, NULL, tmp, t2);
-      if (!(norm > PCA_MERGE_TOL * norm0)) continue;
+      if (!(norm > tol_merge * norm0)) continue;
       cblas_dscal((int)K, 1 / norm, v, 1);
       memcpy(T + m * K, v, sizeof(double) * (size_t)K);
       m++;
