@@ -324,6 +324,18 @@ static int gram_passes(Ooc *o) {
   return 0;
 }
 
+/* Over ranks: every rank's K x K R factor R gathered and folded in rank
+ * order alike on every rank (R replaced). 0, or -1 with o->err. */
+static int fold_ranks(Ooc *o, long K, double *R) {
+  double *all = mem_calloc((size_t)(o->N * K * K) + 1, sizeof(double));
+  if (!all) return error_set(o->err, o->errlen, "out of memory");
+  memcpy(all + (size_t)o->rank * (size_t)(K * K), R, sizeof(double) * (size_t)(K * K));
+  dist_allreduce_sum(all, o->N * K * K); /* each rank's slot from it alone: exact */
+  int bad = pca_fold_r(K, o->N, all, R);
+  free(all);
+  return bad ? error_set(o->err, o->errlen, "the QR of the ranks' basis factors failed") : 0;
+}
+
 /* Every streamed member's directions from its R factor (pca_r_basis):
  * W = V Σ⁻¹ in G's place (S x k column-major), the choice of k and the
  * member's report as pca_core makes them. */
@@ -373,7 +385,7 @@ static int eigen(Ooc *o) {
       st->col[i] = st->K;
       st->K += k + (mb->center ? 1 : 0);
     }
-    if (!(st->C = mem_calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || (!st->blockwise && !(st->A = tmpfile())))
+    if (!(st->RA = mem_calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || (!st->blockwise && !(st->A = tmpfile())))
       return error_set(o->err, o->errlen, "cannot create a scratch file for the basis of class %s", rc->label);
     if (!rc->streamed) continue; /* the model keeps its basis: no floors to take */
     if (!(st->AX = calloc((size_t)rc->nmembers, sizeof(double *))) || !(st->yy = calloc((size_t)rc->nmembers, sizeof(double *))))
@@ -485,13 +497,13 @@ static int basis_passes(Ooc *o) {
       Stream *st = &o->st[sg->c];
       RClass *rc = &o->m->classes[sg->c];
       long R = sg->r1 - sg->r0, K = st->K;
-      size_t need = (size_t)(R * K) + (size_t)R + 1; /* A, then mu: kept from pass to pass as the blocks are */
+      size_t need = 2 * (size_t)(R * K) + (size_t)R + 1; /* A, mu, Aᵀ: kept from pass to pass as the blocks are */
       if (need > o->abuf_cap) {
         free(o->abuf);
         if (!(o->abuf = mem_malloc(sizeof(double) * need))) return o->abuf_cap = 0, -1;
         o->abuf_cap = need;
       }
-      double *A = o->abuf, *mu = o->abuf + R * K;
+      double *A = o->abuf, *mu = o->abuf + R * K, *At = mu + R;
       memset(A, 0, sizeof(double) * (size_t)(R * K));
       for (int i = 0; i < rc->nmembers; i++) {
         long col = st->col[i];
@@ -504,8 +516,10 @@ static int basis_passes(Ooc *o) {
           cblas_dgemm(CblasRowMajor, CblasTrans, CblasTrans, (int)R, (int)st->k[i], (int)S, 1.0, sg->H[i], (int)R,
                       st->G[i], (int)S, 0.0, A + col, (int)K);
       }
-      if (K > 0)
-        cblas_dsyrk(CblasColMajor, CblasUpper, CblasNoTrans, (int)K, (int)R, 1.0, A, (int)K, 1.0, st->C, (int)K);
+      for (long e = 0; e < R; e++) /* the block's rows folded into A's R factor (TSQR), from a column-major copy */
+        for (long j = 0; j < K; j++) At[j * R + e] = A[e * K + j];
+      if (K > 0 && pca_fold_rows(K, st->RA, R, At, R) != 0)
+        return error_set(o->err, o->errlen, "class %s: the QR of a block of its basis rows failed", rc->label);
       if (st->AX && floor_products(o, sg, A, K)) return -1;
       int bad = !st->blockwise && ooc_write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
       if (bad) return error_set(o->err, o->errlen, "cannot write the scratch file of class %s (disk full?)", rc->label);
@@ -514,7 +528,7 @@ static int basis_passes(Ooc *o) {
   }
   for (int c = 0; o->N > 1 && c < o->m->nclasses; c++) /* every rank's rows summed */
     if (o->st[c].streamed) {
-      dist_allreduce_sum(o->st[c].C, o->st[c].K * o->st[c].K);
+      if (fold_ranks(o, o->st[c].K, o->st[c].RA)) return -1;
       for (int i = 0; o->st[c].AX && i < o->m->classes[c].nmembers; i++)
         if (o->st[c].AX[i]) dist_allreduce_sum(o->st[c].AX[i], o->st[c].K * S), dist_allreduce_sum(o->st[c].yy[i], S);
     }
@@ -571,7 +585,12 @@ static long own_rows(const Ooc *o, int c, long *r) {
 }
 
 /* B = A T, this rank's rows block by block, into the class's basis file,
- * then the whole file mapped read-only on every rank. */
+ * then the whole file mapped read-only on every rank. A T is orthonormal
+ * in exact arithmetic, but a column kept for a small remainder ρ (down to
+ * PCA_MERGE_TOL) is a difference of nearly equal columns of A, formed to
+ * ε/ρ only: the rows of A T are folded into its R factor R_B first (over
+ * the ranks too), and B = (A T) R_B⁻¹, orthonormal to rounding as the
+ * in-memory Gram–Schmidt's vectors are. */
 static int write_basis(Ooc *o, int c, double *T, long m) {
   Stream *st = &o->st[c];
   RClass *rc = &o->m->classes[c];
@@ -586,20 +605,31 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
   if (rows > n) rows = n;
   double *A = mem_malloc(sizeof(double) * (size_t)(rows * K) + 8), *B = mem_malloc(sizeof(double) * (size_t)(rows * m));
   double *big = mem_calloc((size_t)m, sizeof(double)), *first = mem_malloc(sizeof(double) * (size_t)m);
+  double *RB = mem_calloc((size_t)(m * m), sizeof(double)), *Bt = mem_malloc(sizeof(double) * (size_t)(rows * m));
+  int *flip = mem_calloc((size_t)m, sizeof(int));
   long *range = mem_malloc(sizeof(long) * (size_t)(2 * o->npass + 2)), nr = range ? own_rows(o, c, range) : 0;
-  int bad = !A || !B || !big || !first || !range;
+  int bad = !A || !B || !big || !first || !range || !RB || !Bt || !flip;
   for (long j = 0; !bad && j < m; j++) first[j] = -HUGE_VAL;
-  /* three sweeps over this rank's rows of A: the largest magnitude of every
-   * column of B = A T (the largest over the ranks), the sign convention
-   * (pca_fix_signs: the sign of the first row, over all ranks, whose entry
-   * is at least half that; as −(2·row + negative), the largest over the
-   * ranks is the first row), then B written */
-  for (int sweep = 0; sweep < 3 && !bad; sweep++) {
-    if (sweep == 1) dist_allreduce_max(big, m);
-    if (sweep == 2) {
+  /* four sweeps over this rank's rows of A: R_B (the TSQR of A T's rows), the largest
+   * magnitude of every column of B = (A T) R_B⁻¹ (the largest over the ranks), the sign
+   * convention (pca_fix_signs: the sign of the first row, over all ranks, whose entry is at
+   * least half that; as −(2·row + negative), the largest over the ranks is the first row), then
+   * B written */
+  for (int sweep = 0; sweep < 4 && !bad; sweep++) {
+    if (sweep == 1) {
+      if (o->N > 1 && fold_ranks(o, m, RB)) {
+        bad = -1;
+        break;
+      }
+      for (long j = 0; j < m; j++) /* positive diagonal: B's columns keep A T's orientation */
+        if (RB[j * m + j] < 0)
+          for (long i = j; i < m; i++) RB[i * m + j] = -RB[i * m + j];
+    }
+    if (sweep == 2) dist_allreduce_max(big, m);
+    if (sweep == 3) {
       dist_allreduce_max(first, m);
       for (long j = 0; j < m; j++)
-        if (first[j] > -HUGE_VAL && fmod(-first[j], 2) == 1) cblas_dscal((int)K, -1.0, (double *)T + j * K, 1);
+        flip[j] = first[j] > -HUGE_VAL && fmod(-first[j], 2) == 1;
     }
     for (long q = 0; !bad && q < nr; q++)
       for (long r0 = range[2 * q]; !bad && r0 < range[2 * q + 1]; r0 += rows) {
@@ -608,17 +638,30 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
         if (bad) break;
         cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)R, (int)m, (int)K, 1.0, A, (int)K, T, (int)K, 0.0, B,
                     (int)m);
-        for (long e = 0; sweep < 2 && e < R; e++)
+        if (sweep == 0) {
+          for (long e = 0; e < R; e++)
+            for (long j = 0; j < m; j++) Bt[j * R + e] = B[e * m + j];
+          if (pca_fold_rows(m, RB, R, Bt, R) != 0) bad = -1;
+          continue;
+        }
+        cblas_dtrsm(CblasColMajor, CblasLeft, CblasUpper, CblasTrans, CblasNonUnit, (int)m, (int)R, 1.0, RB, (int)m, B,
+                    (int)m);
+        for (long e = 0; sweep == 3 && e < R; e++)
+          for (long j = 0; j < m; j++)
+            if (flip[j]) B[e * m + j] = -B[e * m + j];
+        for (long e = 0; sweep < 3 && e < R; e++)
           for (long j = 0; j < m; j++) {
             double v = B[e * m + j];
-            if (sweep == 0) big[j] = fmax(big[j], fabs(v));
+            if (sweep == 1) big[j] = fmax(big[j], fabs(v));
             else if (first[j] == -HUGE_VAL && big[j] > 0 && fabs(v) >= 0.5 * big[j])
               first[j] = -(2.0 * (double)(r0 + e) + (v > 0 ? 0 : 1));
           }
-        if (sweep == 2) bad = ooc_write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));
+        if (sweep == 3) bad = ooc_write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));
       }
   }
-  free(A), free(B), free(big), free(first), free(range);
+  for (long j = 0; !bad && j < m; j++) /* T's columns signed as B's (the floors read B as A T) */
+    if (flip[j]) cblas_dscal((int)K, -1.0, (double *)T + j * K, 1);
+  free(A), free(B), free(big), free(first), free(range), free(RB), free(Bt), free(flip);
   return ooc_map_basis(o, rc, fp, bad);
 }
 
@@ -651,7 +694,7 @@ static void ooc_free(Ooc *o) {
       if (st->yy) free(st->yy[i]);
     }
     free(st->AX), free(st->yy);
-    free(st->X), free(st->G), free(st->s), free(st->k), free(st->big), free(st->col), free(st->C), free(st->T);
+    free(st->X), free(st->G), free(st->s), free(st->k), free(st->big), free(st->col), free(st->RA), free(st->T);
     if (st->A) fclose(st->A);
   }
   for (long p = 0; o->seg && p < o->npass; p++) release(o, p);

@@ -24,7 +24,7 @@ typedef struct Stream {
   double *big;              /* per member: its largest |snapshot entry| (squares underflowing to 0 leave G 0) */
   long *col;                /* per member: its first column of A (μ when centered, then k directions) */
   long K;                   /* columns of A */
-  double *C;                /* K x K column-major: AᵀA */
+  double *RA;               /* K x K column-major (upper): the R factor of A (pca_fold_rows of its row blocks) */
   FILE *A;                  /* A: n x K row-major, in an unnamed file */
   /* the training floors of a class whose basis the model drops (RClass.streamed, issue 30), from
    * the basis passes: per member AᵀX (K x S column-major) and every sample's ‖y_k‖² (S), so that
@@ -93,17 +93,18 @@ bool stream_blockwise(const Ooc *o, int c);
  * RClass.streamed) gets its basis file, mapped as rc->B. 0, or -1 with o->err. */
 int stream_premultiply(Ooc *o);
 
-/* A direction whose remainder after the previous ones is below this
- * fraction of its norm is dependent on them. In memory (pca_in_order) the
- * remainder is computed from the vectors, to 1e-8; here it comes from the
- * Gram matrix AᵀA, which resolves it only down to about √ε — a mean whose
- * centered directions are rounding noise along itself (a quantity constant
- * over the samples) would otherwise keep that noise. */
-#define OOC_DEPENDENT_TOL 1e-6
+/* A class formed block by block and used at once (Stream.blockwise) has
+ * no sweep to take B's R factor (write_basis): B = A T is orthonormal only
+ * to ε/ρ for a column kept at a remainder ρ, so its columns are kept at
+ * remainders above this fraction, as before the in-memory rules applied. */
+#define OOC_BLOCKWISE_TOL 1e-6
 
 /* ooc_basis.c: T (K x *m column-major, malloc'd) with class c's basis
  * B = A T, its members orthonormalized, put in order and merged through
- * C = AᵀA. 0, or -1 with o->err. */
+ * A's R factor (A = Q_A R_A: ⟨A x, A y⟩ = ⟨R_A x, R_A y⟩, norms of
+ * remainders to rounding as from the vectors themselves), by the
+ * in-memory rules (PCA_DEPENDENT_TOL, PCA_MERGE_TOL; a blockwise class
+ * OOC_BLOCKWISE_TOL). 0, or -1 with o->err. */
 int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout);
 
 #endif

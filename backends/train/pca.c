@@ -40,15 +40,6 @@
  * nothing the snapshots resolve. 100 ε (2.2e-14) keeps every direction of
  * test_pca's spectrum 1 … 1e-14 down to 1e-13 and drops the 1e-14 one. */
 #define PCA_ROUNDOFF_TOL (100 * DBL_EPSILON)
-/* A direction whose remainder after removing the previous ones is below
- * this fraction of its norm is dependent on them (pca_in_order). */
-#define PCA_DEPENDENT_TOL 1e-8
-/* Merging member bases (pca_merge), whose vectors are orthonormal and
- * accurate to rounding: a vector whose remainder after the previous ones
- * is below this fraction is a repeat of them. Below 1e-8, so that a
- * direction a member resolves to 1e-12 is not dropped (it costs a vector
- * of its rounding at most). */
-#define PCA_MERGE_TOL 1e-12
 
 /* Snapshots whose largest entry lies outside [PCA_SCALE_MIN, 1/PCA_SCALE_MIN]
  * are scaled to O(1) before a PCA: beyond it, sums of squares over up to

@@ -1,12 +1,18 @@
 /* snapshots.c — the method of snapshots (DESIGN §5; Sirovich 1987): the
  * member bases of training when the snapshots do not fit in --mem. Only
- * S x S Gram matrices G = XᵀX are held, built by passes that recompute the
- * samples (train_gram_blocks shares the budget between a held block and a
- * batch); their eigenvectors V give U = X V Λ^(-1/2), formed in a last
- * pass. train.c's train_take_snapshots calls it instead of keeping the snapshot
- * matrices; the bases are the in-memory PCA's (pca_basis) to rounding
- * (test_reduce's snapshots_match_memory compares the projectors). */
+ * S x S Gram matrices are held, built by passes that recompute the samples
+ * (train_gram_blocks shares the budget between a held block and a batch).
+ * A Gram matrix squares the snapshots' condition number: its eigenvectors
+ * resolve directions down to about √ε of the largest only (issue 41). So a
+ * first round's basis (U = X V Λ^(-1/2)) is completed by a second round on
+ * the snapshots' residual after it, and the basis is the SVD of every
+ * snapshot's coefficients in their joint span — the in-memory PCA's
+ * (pca_basis) to rounding (test_train's snapshots_match_memory compares
+ * the projectors; test_ooc's method_of_snapshots_reaches_svd_accuracy,
+ * LAPACK's SVD at every leading size). */
 #include <cblas.h>
+#include <float.h>
+#include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -44,8 +50,13 @@ typedef struct GramMember {
   double *H;   /* the held block: b samples of n entries */
   double *Y;   /* the batch of later samples: q of n (NULL when q is 0) */
   double *x0;  /* centered: the shift, the member's first sample (NULL: uncentered) */
-  double *d;   /* centered: the sum of the shifted snapshots, then their mean d, then μ = x₀ + d */
+  double *d;   /* centered: the sum of the shifted snapshots, then their mean d */
   double big;  /* the largest |entry| that entered G */
+  double *Q;   /* rounds 2 and 3: an orthonormal basis (n x p) the snapshots' residual is taken against */
+  double *c;   /* room for p coefficients */
+  int p;       /* Q's columns */
+  double *D;   /* round 3: Qᵀ X, S x p (row s: sample s's coefficients) */
+  double smax; /* the largest singular value round 1 saw */
 } GramMember;
 
 /* The method of snapshots under way: every member's state, [class][member]. */
@@ -55,6 +66,7 @@ typedef struct Gram {
   const SampleSource *src;
   const TrainOptions *opt;
   long S, b, q;        /* samples; the held block; the batch (train_gram_blocks) */
+  int round;           /* 1: G = XᵀX; 2: the Gram matrix of X's residual after Q; 3: Qᵀ X */
   GramMember **gm;
   double *lam;         /* S eigenvalues */
   double *tmp;         /* room for max(largest class, S) doubles */
@@ -66,7 +78,7 @@ static void gram_free(Gram *g) {
   for (int c = 0; g->gm && c < g->m->nclasses; c++) {
     for (int i = 0; g->gm[c] && i < g->m->classes[c].nmembers; i++) {
       GramMember *x = &g->gm[c][i];
-      free(x->G), free(x->H), free(x->Y), free(x->x0), free(x->d);
+      free(x->G), free(x->H), free(x->Y), free(x->x0), free(x->d), free(x->Q), free(x->c), free(x->D);
     }
     free(g->gm[c]);
   }
@@ -98,6 +110,28 @@ static int gram_alloc(Gram *g) {
   return 0;
 }
 
+/* Sample k's values of member x in v (n entries), as the round takes
+ * them: shifted by x₀ (round 1 sets x₀ at sample 0), from round 2 on
+ * centered by d as well, and in round 2 their residual after Q (removed
+ * twice: Kahan–Parlett). */
+static int member_sample(Gram *g, GramMember *x, long n, long k, double *v) {
+  if (train_member_value(g->m, g->f, x->mb, k, n, v, g->err, g->errlen)) return -1;
+  if (x->x0) {
+    if (g->round == 1 && k == 0) memcpy(x->x0, v, sizeof(double) * (size_t)n);
+    cblas_daxpy((int)n, -1.0, x->x0, 1, v, 1);
+    if (g->round > 1) cblas_daxpy((int)n, -1.0, x->d, 1, v, 1);
+  }
+  for (int pass = 0; g->round == 2 && x->p > 0 && pass < 2; pass++) {
+    cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, x->p, 1.0, x->Q, x->p, v, 1, 0.0, x->c, 1);
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, x->p, -1.0, x->Q, x->p, x->c, 1, 1.0, v, 1);
+  }
+  return 0;
+}
+
+/* Whether member x takes part in the round: in rounds 2 and 3 only a
+ * member with directions from round 1. */
+static bool member_in_round(const Gram *g, const GramMember *x) { return g->round == 1 || x->p > 0; }
+
 /* G[I, K] = X_Iᵀ X_K for the held block I = [i0, i1) and the batch
  * K = [k0, k] (one sample: a dgemv, faster than a dgemm of one column),
  * and its mirror. */
@@ -122,30 +156,30 @@ static int gram_pass(Gram *g, long i0, long i1, long *done, long work) {
   long S = g->S, nb = i1 - i0;
   for (long k = i0, k0 = i1; k < S; k++) { /* k0: the first sample of the batch */
     if (train_eval_sample(g->src, g->f, k, g->err, g->errlen)) return -1;
-    if (k < i1 && train_check_spd(m, g->f, g->tmp, g->err, g->errlen)) return -1;
+    if (g->round == 1 && k < i1 && train_check_spd(m, g->f, g->tmp, g->err, g->errlen)) return -1;
     bool full = k >= i1 && (k + 1 - k0 == g->q || k + 1 == S);
     for (int c = 0; c < m->nclasses; c++) {
       RClass *rc = &m->classes[c];
       for (int i = 0; i < rc->nmembers; i++) {
         GramMember *x = &g->gm[c][i];
         double *v = k < i1 ? x->H + (k - i0) * rc->n : x->Y + (k - k0) * rc->n;
-        if (train_member_value(m, g->f, x->mb, k, rc->n, v, g->err, g->errlen)) return -1;
-        if (x->x0) {
-          if (k == 0) memcpy(x->x0, v, sizeof(double) * (size_t)rc->n);
-          cblas_daxpy((int)rc->n, -1.0, x->x0, 1, v, 1);
-          if (k < i1) cblas_daxpy((int)rc->n, 1.0, v, 1, x->d, 1);
-        }
+        if (!member_in_round(g, x)) continue;
+        if (member_sample(g, x, rc->n, k, v)) return -1;
+        if (x->d && g->round == 1 && k < i1) cblas_daxpy((int)rc->n, 1.0, v, 1, x->d, 1);
         for (long e = 0; k < i1 && e < rc->n; e++) x->big = fmax(x->big, fabs(v[e])); /* what enters G */
         if (full) gram_cross(g, x, rc->n, i0, i1, k0, k);
       }
     }
     if (full) k0 = k + 1;
-    progress_show(g->opt->progress, g->b < S ? "snapshots (Gram, recomputing)" : "snapshots (Gram)", ++*done, work);
+    progress_show(g->opt->progress,
+                  g->round == 2 ? "snapshots (residual Gram)" : g->b < S ? "snapshots (Gram, recomputing)" : "snapshots (Gram)",
+                  ++*done, work);
   }
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     for (int i = 0; i < rc->nmembers; i++) { /* G[I, I] = X_Iᵀ X_I */
       GramMember *x = &g->gm[c][i];
+      if (!member_in_round(g, x)) continue;
       cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)nb, (int)nb, (int)rc->n, 1.0, x->H, (int)rc->n, x->H,
                   (int)rc->n, 0.0, x->G + i0 * S + i0, (int)S);
     }
@@ -225,31 +259,157 @@ static int basis_pass(Gram *g, double ***U, int **kk) {
       for (int i = 0; i < rc->nmembers; i++) {
         GramMember *x = &g->gm[c][i];
         if (!kk[c][i]) continue;
-        if (train_member_value(m, g->f, x->mb, k, rc->n, g->tmp, g->err, g->errlen)) return -1;
-        if (x->x0) cblas_daxpy((int)rc->n, -1.0, x->x0, 1, g->tmp, 1);
+        if (member_sample(g, x, rc->n, k, g->tmp)) return -1;
         cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, g->tmp, 1, x->G + k * g->S, 1, U[c][i], kk[c][i]);
       }
     }
-    progress_show(g->opt->progress, "snapshots (basis)", k + 1, g->S);
+    progress_show(g->opt->progress, g->round == 2 ? "snapshots (residual basis)" : "snapshots (basis)", k + 1, g->S);
   }
   return 0;
 }
 
-/* A centered member's basis: U_c −= d (1ᵀW), then [μ = x₀ + d, U_c]
- * orthonormalized in that order (*U replaced, *kk and the report's kept
- * set to its size). */
-static int centered_basis(Gram *g, GramMember *x, long n, double **U, int *kk) {
+/* After round 1: a member's directions U = X W (n x k) centered
+ * (U −= d (1ᵀW): the shifted snapshots' mean removed) and orthonormalized
+ * into x->Q (pca_in_order), the start of rounds 2 and 3; *U freed. */
+static int round1_basis(Gram *g, GramMember *x, long n, double **U, int k) {
   long S = g->S;
-  int k = *kk;
-  for (int a = 0; a < k; a++) {
-    double w = 0;
-    for (long s2 = 0; s2 < S; s2++) w += x->G[s2 * S + a];
-    g->tmp[a] = w;
+  if (x->x0 && k > 0) {
+    for (int a = 0; a < k; a++) {
+      double w = 0;
+      for (long s2 = 0; s2 < S; s2++) w += x->G[s2 * S + a];
+      g->tmp[a] = w;
+    }
+    cblas_dger(CblasRowMajor, (int)n, k, -1.0, x->d, 1, g->tmp, 1, *U, k);
   }
-  if (k > 0) cblas_dger(CblasRowMajor, (int)n, k, -1.0, x->d, 1, g->tmp, 1, *U, k);
+  x->smax = x->mb->nsv > 0 ? x->mb->sv[0] : 0;
+  int p = 0;
+  if (k > 0 && pca_in_order(n, 1, U, &k, &x->Q, &p, g->err, g->errlen)) return -1;
+  free(*U);
+  *U = NULL;
+  x->p = p;
+  if (p > 0 && !(x->c = mem_malloc(sizeof(double) * (size_t)(2 * S + 1))))
+    return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  return 0;
+}
+
+/* Round 2: x->G holds the Gram matrix of the snapshots' residual after Q
+ * (what round 1's Gram matrix could not resolve, below about √ε of the
+ * largest). Its leading eigenvectors (up to the member's cap) whose
+ * eigenvalues stand above its rounding (S ε of the largest) and above
+ * (ε σ_max)² give W = V Λ^(-1/2) in G's place, as gram_eigen does; *U
+ * allocated (zero) for the residual basis pass. */
+static int resid_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int *kk) {
+  long S = g->S;
+  int cap = x->mb->center ? x->mb->cap - 1 : x->mb->cap;
+  long kmax = cap < S ? cap : S;
+  *kk = 0;
+  if (!x->p || kmax <= 0) return 0;
+  double *lam = g->lam, *V = mem_malloc(sizeof(double) * (size_t)(S * kmax));
+  if (!V) return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  int info = pca_top_eigen(S, x->G, kmax, lam, V);
+  if (info != 0) {
+    free(V);
+    return error_set(g->err, g->errlen, "class %s, member %s: eigendecomposition of the residual Gram matrix failed (LAPACK info %d)",
+                     rc->label, x->mb->name, info);
+  }
+  double top = fmax(lam[S - 1], 0), eps = DBL_EPSILON * x->smax;
+  double floor = fmax((double)S * DBL_EPSILON * top, eps * eps);
+  int k = 0;
+  while (k < kmax && lam[S - 1 - k] > floor) k++;
+  for (long s2 = 0; s2 < S; s2++)
+    for (int a = 0; a < k; a++) x->G[s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
+  free(V);
+  if (!(*U = mem_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double))))
+    return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  *kk = k;
+  return 0;
+}
+
+/* After round 2: Q := the orthonormalization of [Q, U] in that order
+ * (U, the residual's directions, is orthogonal to Q to rounding); *U freed. */
+static int round2_merge(Gram *g, GramMember *x, long n, double **U, int k) {
+  double *parts[2] = {x->Q, *U}, *Q = NULL;
+  int ks[2] = {x->p, k}, p = 0;
+  if (x->p > 0 && pca_in_order(n, 2, parts, ks, &Q, &p, g->err, g->errlen)) return -1;
+  free(x->Q), free(*U);
+  *U = NULL;
+  x->Q = Q, x->p = p;
+  return 0;
+}
+
+/* Round 3: every sample recomputed once (shifted and centered), its
+ * coefficients Qᵀ x in row s of x->D. */
+static int coefficient_pass(Gram *g) {
+  Model *m = g->m;
+  for (int c = 0; c < m->nclasses; c++)
+    for (int i = 0; i < m->classes[c].nmembers; i++) {
+      GramMember *x = &g->gm[c][i];
+      if (x->p > 0 && !(x->D = mem_malloc(sizeof(double) * (size_t)(g->S * x->p))))
+        return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", g->S);
+    }
+  for (long k = 0; k < g->S; k++) {
+    if (train_eval_sample(g->src, g->f, k, g->err, g->errlen)) return -1;
+    for (int c = 0; c < m->nclasses; c++) {
+      RClass *rc = &m->classes[c];
+      for (int i = 0; i < rc->nmembers; i++) {
+        GramMember *x = &g->gm[c][i];
+        if (!x->p) continue;
+        if (member_sample(g, x, rc->n, k, g->tmp)) return -1;
+        cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, x->p, 1.0, x->Q, x->p, g->tmp, 1, 0.0, x->D + k * x->p, 1);
+      }
+    }
+    progress_show(g->opt->progress, "snapshots (coefficients)", k + 1, g->S);
+  }
+  return 0;
+}
+
+/* A member's basis from round 3: the SVD of its coefficients Dᵀ = U_D Σ
+ * V_Dᵀ (p x S, dgesdd) is the snapshots' SVD in Q's span, which holds them
+ * to rounding; the truncation rule of every route (pca_choose) on Σ, the
+ * report set, and the basis Q U_D (its kept columns) in *U. */
+static int svd_basis(Gram *g, GramMember *x, const RClass *rc, double **U, int *kk) {
+  RMember *mb = x->mb;
+  long S = g->S, p = x->p, r = p < S ? p : S, n = rc->n;
+  int cap = mb->center ? mb->cap - 1 : mb->cap, k = 0;
+  double *s = mem_malloc(sizeof(double) * (size_t)(r + 1)), *ud = mem_malloc(sizeof(double) * (size_t)(p * r + 1));
+  double *vt = mem_malloc(sizeof(double) * (size_t)(r * S + 1));
+  lapack_int info = -1;
+  *U = NULL;
+  if (!s || !ud || !vt) goto oom;
+  if (p > 0 &&
+      (info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)p, (lapack_int)S, x->D, (lapack_int)p, s, ud, (lapack_int)p,
+                             vt, (lapack_int)r)) != 0) {
+    free(s), free(ud), free(vt);
+    return error_set(g->err, g->errlen, "class %s, member %s: SVD of the snapshots' coefficients failed (LAPACK info %d)",
+                     rc->label, mb->name, (int)info);
+  }
+  if (p > 0) {
+    k = (int)pca_choose(s, r, cap, mb->energy, false);
+    double total = 0, run = 0;
+    for (long a = 0; a < r; a++) total += (s[a] / s[0]) * (s[a] / s[0]);
+    for (int a = 0; a < k; a++) run += (s[a] / s[0]) * (s[a] / s[0]);
+    free(mb->sv);
+    mb->sv = s, mb->nsv = r, s = NULL;
+    mb->captured = total > 0 ? run / total : 1;
+    mb->lost = fmax(0, 1 - mb->captured);
+  }
+  if (!(*U = mem_calloc((size_t)(n * (k ? k : 1)), sizeof(double)))) goto oom;
+  if (k > 0)
+    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)n, k, (int)p, 1.0, x->Q, (int)p, ud, (int)p, 0.0, *U, k);
+  mb->kept = *kk = k;
+  free(s), free(ud), free(vt);
+  return 0;
+oom:
+  free(s), free(ud), free(vt);
+  return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+}
+
+/* A centered member's basis: [μ = x₀ + d, U_c] orthonormalized in that
+ * order (*U replaced, *kk and the report's kept set to its size). */
+static int centered_basis(Gram *g, GramMember *x, long n, double **U, int *kk) {
   cblas_daxpy((int)n, 1.0, x->x0, 1, x->d, 1); /* μ = x₀ + d */
   double *parts[2] = {x->d, *U}, *Q = NULL;
-  int ks[2] = {1, k}, mm = 0;
+  int ks[2] = {1, *kk}, mm = 0;
   if (pca_in_order(n, 2, parts, ks, &Q, &mm, g->err, g->errlen)) return -1;
   free(*U);
   *U = Q;
@@ -257,24 +417,43 @@ static int centered_basis(Gram *g, GramMember *x, long n, double **U, int *kk) {
   return 0;
 }
 
+/* Rounds 1 and 2's Gram passes: ⌈S/b⌉ held blocks. */
+static int gram_passes(Gram *g) {
+  long done = 0, work = 0, S = g->S;
+  for (long i0 = 0; i0 < S; i0 += g->b) work += S - i0;
+  for (long i0 = 0; i0 < S; i0 += g->b)
+    if (gram_pass(g, i0, i0 + g->b < S ? i0 + g->b : S, &done, work)) return -1;
+  return 0;
+}
+
 /* The method of snapshots (DESIGN §5), for snapshots that do not fit in
- * `mem`: no snapshot matrix is held whole. Pass 1 builds every member's
- * S x S Gram matrix G = XᵀX holding a block of b samples at a time and
- * recomputing the later samples against it in batches of q (one dgemm per
- * member and batch: train_gram_blocks; one pass when the budget holds every
- * sample, ⌈S/b⌉ in general); the eigenvectors of G give the basis
- * U = X V Λ^(-1/2), formed in pass 2 by recomputing every sample once and
- * adding its rank-one contribution. U[c][i], kk[c][i] per member.
+ * `mem`: no snapshot matrix is held whole; every sample is recomputed in
+ * each pass. U[c][i], kk[c][i] per member.
+ *  1. Gram passes build every member's S x S Gram matrix G = XᵀX holding a
+ *     block of b samples at a time and recomputing the later samples
+ *     against it in batches of q (one dgemm per member and batch:
+ *     train_gram_blocks; one pass when the budget holds every sample,
+ *     ⌈S/b⌉ in general); its eigenvectors give U₁ = X V Λ^(-1/2), formed
+ *     by a basis pass (each sample's rank-one contribution), orthonormalized
+ *     into Q.
+ *  2. The same passes on the residuals X − Q Qᵀ X: their Gram matrix's
+ *     leading eigenvectors resolve what round 1 could not (below √ε of the
+ *     largest, to about ε), and their directions U₂, formed by a basis
+ *     pass, extend Q = orth[Q, U₂].
+ *  3. A coefficient pass: D = Qᵀ X (p x S); the SVD D = U_D Σ V_Dᵀ is the
+ *     snapshots' SVD to rounding, the truncation rule (pca_choose) runs on
+ *     Σ, and the basis is Q U_D's kept columns.
+ * About twice the evaluations of the Gram route alone, plus one pass.
  *
  * A centered member's snapshots are shifted by its first sample x₀ (on a
  * deforming mesh that removes the dominant rest shape before any product,
- * so nothing cancels), their mean d accumulated in pass 1; the centered
- * Gram matrix is then J G J (J = I − 11ᵀ/S: the mean of a shift is
- * removed exactly), its eigenvectors give U_c = (X − x₀1ᵀ − d1ᵀ) W, and
- * the member's basis is the orthonormalization of [μ = x₀ + d, U_c]. */
+ * so nothing cancels), their mean d accumulated in round 1, whose Gram
+ * matrix is then J G J (J = I − 11ᵀ/S: the mean of a shift is removed
+ * exactly); rounds 2 and 3 take x − x₀ − d, and the member's basis is the
+ * orthonormalization of [μ = x₀ + d, Q U_D]. */
 int train_snapshot_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, double ***U,
                          int **kk, double *tmp, char *err, size_t errlen) {
-  Gram g = {m, f, src, opt, src->count, 0, 0, NULL, NULL, tmp, err, errlen};
+  Gram g = {m, f, src, opt, src->count, 0, 0, 1, NULL, NULL, tmp, err, errlen};
   long S = g.S, per = 0;
   for (int c = 0; c < m->nclasses; c++) per += m->classes[c].n * m->classes[c].nmembers;
   train_gram_blocks(S, (long)(opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &g.b, &g.q);
@@ -283,17 +462,22 @@ int train_snapshot_bases(Model *m, Full *f, const SampleSource *src, const Train
     error_set(err, errlen, "out of memory for the Gram matrices of %ld samples", S);
     goto done;
   }
-  long done = 0, work = 0;
-  for (long i0 = 0; i0 < S; i0 += g.b) work += S - i0;
-  for (long i0 = 0; i0 < S; i0 += g.b)
-    if (gram_pass(&g, i0, i0 + g.b < S ? i0 + g.b : S, &done, work)) goto done;
-  for (int c = 0; c < m->nclasses; c++)
-    for (int i = 0; i < m->classes[c].nmembers; i++)
-      if (gram_eigen(&g, &g.gm[c][i], &m->classes[c], &U[c][i], &kk[c][i])) goto done;
+#define EACH for (int c = 0; c < m->nclasses; c++) for (int i = 0; i < m->classes[c].nmembers; i++)
+  g.round = 1;
+  if (gram_passes(&g)) goto done;
+  EACH if (gram_eigen(&g, &g.gm[c][i], &m->classes[c], &U[c][i], &kk[c][i])) goto done;
   if (basis_pass(&g, U, kk)) goto done;
-  for (int c = 0; c < m->nclasses; c++)
-    for (int i = 0; i < m->classes[c].nmembers; i++)
-      if (g.gm[c][i].x0 && centered_basis(&g, &g.gm[c][i], m->classes[c].n, &U[c][i], &kk[c][i])) goto done;
+  EACH if (round1_basis(&g, &g.gm[c][i], m->classes[c].n, &U[c][i], kk[c][i])) goto done;
+  g.round = 2;
+  if (gram_passes(&g)) goto done;
+  EACH if (resid_eigen(&g, &g.gm[c][i], &m->classes[c], &U[c][i], &kk[c][i])) goto done;
+  if (basis_pass(&g, U, kk)) goto done;
+  EACH if (round2_merge(&g, &g.gm[c][i], m->classes[c].n, &U[c][i], kk[c][i])) goto done;
+  g.round = 3;
+  if (coefficient_pass(&g)) goto done;
+  EACH if (svd_basis(&g, &g.gm[c][i], &m->classes[c], &U[c][i], &kk[c][i])) goto done;
+  EACH if (g.gm[c][i].x0 && centered_basis(&g, &g.gm[c][i], m->classes[c].n, &U[c][i], &kk[c][i])) goto done;
+#undef EACH
   rc = 0;
 done:
   gram_free(&g);

@@ -332,6 +332,16 @@ int pca_basis(long n, long S, const double *X, int cap, double energy, bool cent
  * is NULL); then column s times √w_s. X n x S column-major, in place. The PCA of the result
  * minimizes Σ_s w_s ‖x_s − BBᵀx_s‖²: weight k is sample s taken k times. */
 void pca_weigh(long n, long S, double *X, const double *w, double *mu);
+/* A direction whose remainder after removing the previous ones is below
+ * this fraction of its norm is dependent on them (pca_in_order; out of
+ * core ooc_coefficients, through the R factor of A, by the same rule). */
+#define PCA_DEPENDENT_TOL 1e-8
+/* Merging member bases (pca_merge; out of core ooc_coefficients alike),
+ * whose vectors are orthonormal and accurate to rounding: a vector whose
+ * remainder after the previous ones is below this fraction is a repeat of
+ * them. Below 1e-8, so that a direction a member resolves to 1e-12 is not
+ * dropped (it costs a vector of its rounding at most). */
+#define PCA_MERGE_TOL 1e-12
 /* Gram–Schmidt (twice) of the columns of A_0 … A_{r-1} (each n x k_i,
  * row-major) in that order, dropping a column whose remainder is below 1e-8
  * of its norm: n x m row-major whose first j columns span the first
