@@ -222,8 +222,8 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
       continue;
     }
     if (isnan(rt->est_sigma)) {
-      snprintf(why, sizeof why, "no lower bound of σ_min of term %d's operator (its rows exceed %d, the dense SVD's limit in "
-               "training)", t + 1, ESTIMATE_DENSE_MAX);
+      snprintf(why, sizeof why, "no lower bound of σ_min of term %d's operator (singular at a training sample, or its rows "
+               "exceed %d, the sparse limit in training)", t + 1, ESTIMATE_SPARSE_MAX);
       goto none;
     }
     double sig = rt->est_sigma * sigma_min(s->M, my, s);

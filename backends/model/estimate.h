@@ -18,7 +18,7 @@
  * z_t. A projection term's ‖r_t‖ is its error exactly (M = I). For an
  * inverse, σ_min(M) is estimated as c · σ_min(BᵀMB): c the smallest ratio
  * σ_min(M)/σ_min(BᵀMB) over training samples (dense SVDs in training, up to
- * ESTIMATE_DENSE_MAX rows). A stage's estimate is the sum of its terms'.
+ * ESTIMATE_DENSE_MAX rows, sparse Lanczos above). A stage's estimate is the sum of its terms'.
  *
  * Chaining: a named numerator w carries its own estimate e_w into the term
  * (plus e_w for a projection, plus e_w / σ for an inverse); an input of a
@@ -42,8 +42,11 @@
 /* Operators up to this many rows get their σ_min measured in training by a dense SVD (an SPD
  * one by its smallest eigenvalue, dsyevr): at 1444 rows that took 0.5 s of CPU a sample (26 s
  * of wall time for 12 samples on the loaded 2-core machine, training 0.2 s without), so at 800
- * rows the 8 samples take under 1 s. Larger operators leave their stage without an estimate. */
+ * rows the 8 samples take under 1 s. Larger operators are assembled sparse and measured by Lanczos
+ * on K⁻¹ (one CHOLMOD Cholesky a sample) or on (KᵀK)⁻¹ (one UMFPACK LU), up to ESTIMATE_SPARSE_MAX
+ * rows; beyond it their stage gets no estimate. */
 #define ESTIMATE_DENSE_MAX 800
+#define ESTIMATE_SPARSE_MAX 4000000
 /* Training samples whose operator σ_min is measured, spread over the set. */
 #define ESTIMATE_SIGMA_SAMPLES 8
 /* The trust signal's margin: a coordinate is outside the training range when it lies

@@ -7,7 +7,8 @@
  *     projected twice by I − BBᵀ and reduced to G_t = C'ᵀC' (dsyrk);
  *   - per inverse term, c = min over up to ESTIMATE_SIGMA_SAMPLES training
  *     samples of σ_min(M)/σ_min(BᵀMB), the full operator assembled dense
- *     from its builders (dgesvd), up to ESTIMATE_DENSE_MAX rows;
+ *     from its builders (dsyevr/dgesvd) up to ESTIMATE_DENSE_MAX rows, sparse
+ *     above (Lanczos on K⁻¹ by CHOLMOD, on (KᵀK)⁻¹ by UMFPACK);
  *   - per input, each reduced coordinate's min and max over the training
  *     samples (the trust signal).
  * In memory only: out of core and over ranks the model gets no tables (its
@@ -19,6 +20,9 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include <suitesparse/cholmod.h>
+#include <suitesparse/umfpack.h>
 
 #include "estimate.h"
 #include "train.h"
@@ -203,36 +207,221 @@ static double smallest_sv(double *A, long n, double *sv) {
   return info == 0 ? sv[n - 1] : NAN;
 }
 
+/* The full operator's entries as triplets (row, col, value), duplicates summed later. */
+typedef struct TripSink {
+  const double *in[64];
+  long n, count, cap;
+  bool diag;
+  SuiteSparse_long *ri, *ci;
+  double *x;
+} TripSink;
+
+static int trip_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
+  TripSink *s = user;
+  long c = s->diag ? (long)row : (long)col;
+  if (row < 0 || row >= s->n || c < 0 || c >= s->n || nin > 64) return -1;
+  if (s->count == s->cap) {
+    long cap = s->cap ? 2 * s->cap : 4096;
+    SuiteSparse_long *ri = realloc(s->ri, sizeof(*ri) * (size_t)cap), *ci = ri ? realloc(s->ci, sizeof(*ci) * (size_t)cap) : NULL;
+    double *x = ci ? realloc(s->x, sizeof(double) * (size_t)cap) : NULL;
+    if (ri) s->ri = ri;
+    if (ci) s->ci = ci;
+    if (!x) return -1;
+    s->x = x, s->cap = cap;
+  }
+  double v = coef;
+  for (int i = 0; i < nin; i++) v *= s->in[i][in[i]];
+  s->ri[s->count] = row, s->ci[s->count] = c, s->x[s->count++] = v;
+  return 0;
+}
+
+/* The full operator of term rt (one op) at the evaluator's current values as a CHOLMOD sparse
+ * matrix (unsymmetric storage, sorted, duplicates summed); NULL with err set on failure. */
+static cholmod_sparse *sparse_operator(Full *f, const RTerm *rt, long n, cholmod_common *cc, char *err, size_t errlen) {
+  TripSink s = {{0}, n, 0, 0, false, NULL, NULL, NULL};
+  cholmod_sparse *A = NULL;
+  for (int g = 0; g < rt->ops[0].ntensors; g++) {
+    const RTensor *t = &rt->ops[0].t[g];
+    s.diag = t->kind == RT_DIAG;
+    for (int i = 0; i < t->group->ninputs && i < 64; i++) s.in[i] = full_get(f, t->group->inputs[i]->name, NULL);
+    NpgSink sink = {&s, trip_entry, 0, 1, 0, 0};
+    if (full_build(f, t->builder, &sink) != 0) {
+      error_set(err, errlen, "estimate tables: %s", full_error(f)[0] ? full_error(f) : "out of memory for the operator");
+      goto done;
+    }
+  }
+  cholmod_triplet T = {0};
+  T.nrow = T.ncol = (size_t)n, T.nzmax = T.nnz = (size_t)s.count;
+  T.i = s.ri, T.j = s.ci, T.x = s.x, T.stype = 0;
+  T.itype = CHOLMOD_LONG, T.xtype = CHOLMOD_REAL, T.dtype = CHOLMOD_DOUBLE;
+  if (!(A = cholmod_l_triplet_to_sparse(&T, (size_t)s.count, cc)))
+    error_set(err, errlen, "estimate tables: CHOLMOD could not assemble the %ld x %ld operator (status %d)", n, n, cc->status);
+done:
+  free(s.ri), free(s.ci), free(s.x);
+  return A;
+}
+
+/* The operator Lanczos runs on: K⁻¹ (CHOLMOD's Cholesky of an SPD K) or K⁻¹K⁻ᵀ = (KᵀK)⁻¹ (UMFPACK's LU). */
+typedef struct InvOp {
+  cholmod_common *cc;
+  cholmod_factor *L;        /* SPD: the Cholesky factor */
+  const cholmod_sparse *A;  /* otherwise: the LU's matrix */
+  void *numeric;
+  double *tmp;
+} InvOp;
+
+static int inv_apply(InvOp *o, double *x, double *y, long n) {
+  if (o->L) {
+    cholmod_dense d = {0};
+    d.nrow = (size_t)n, d.ncol = 1, d.nzmax = (size_t)n, d.d = (size_t)n, d.x = x;
+    d.xtype = CHOLMOD_REAL, d.dtype = CHOLMOD_DOUBLE;
+    cholmod_dense *r = cholmod_l_solve(CHOLMOD_A, o->L, &d, o->cc);
+    if (!r) return -1;
+    memcpy(y, r->x, sizeof(double) * (size_t)n);
+    cholmod_l_free_dense(&r, o->cc);
+    return 0;
+  }
+  const SuiteSparse_long *Ap = o->A->p, *Ai = o->A->i;
+  const double *Ax = o->A->x;
+  if (umfpack_dl_solve(UMFPACK_At, Ap, Ai, Ax, o->tmp, x, o->numeric, NULL, NULL) != UMFPACK_OK) return -1;
+  return umfpack_dl_solve(UMFPACK_A, Ap, Ai, Ax, y, o->tmp, o->numeric, NULL, NULL) == UMFPACK_OK ? 0 : -1;
+}
+
+/* The largest eigenvalue of the SPD operator o by Lanczos with full reorthogonalization, from a
+ * fixed start, until the Ritz value's residual bound |β s| is below 1e-10 of it (at most
+ * SPARSE_LANCZOS_STEPS steps); returns θ + |β s| (an eigenvalue lies within |β s| of θ, so the
+ * figure errs on the large side: σ_min = 1/it errs low, the estimate high), NaN on failure. */
+#define SPARSE_LANCZOS_STEPS 60
+static double lanczos_max(InvOp *o, long n) {
+  int K = n < SPARSE_LANCZOS_STEPS ? (int)n : SPARSE_LANCZOS_STEPS;
+  double *V = malloc(sizeof(double) * (size_t)(n * (K + 1)) + 1), *w = malloc(sizeof(double) * (size_t)n + 1);
+  double al[SPARSE_LANCZOS_STEPS + 1], be[SPARSE_LANCZOS_STEPS + 1], d[SPARSE_LANCZOS_STEPS + 1],
+      e[SPARSE_LANCZOS_STEPS + 1], Z[SPARSE_LANCZOS_STEPS * SPARSE_LANCZOS_STEPS + 1], out = NAN;
+  if (!V || !w) goto done;
+  for (long i = 0; i < n; i++) V[i] = 1.0 + 0.5 * sin(0.7 * (double)i); /* fixed, not orthogonal to smooth modes */
+  cblas_dscal((int)n, 1.0 / cblas_dnrm2((int)n, V, 1), V, 1);
+  for (int j = 0; j < K; j++) {
+    double *v = V + (long)j * n;
+    if (inv_apply(o, v, w, n)) goto done;
+    al[j] = cblas_ddot((int)n, v, 1, w, 1);
+    for (int pass = 0; pass < 2; pass++) /* w -= V (Vᵀ w), twice */
+      for (int k = 0; k <= j; k++) cblas_daxpy((int)n, -cblas_ddot((int)n, V + (long)k * n, 1, w, 1), V + (long)k * n, 1, w, 1);
+    be[j] = cblas_dnrm2((int)n, w, 1);
+    memcpy(d, al, sizeof(double) * (size_t)(j + 1));
+    memcpy(e, be, sizeof(double) * (size_t)j);
+    if (LAPACKE_dstev(LAPACK_COL_MAJOR, 'V', j + 1, d, e, Z, j + 1) != 0) goto done;
+    double theta = d[j], res = fabs(be[j] * Z[(long)j * (j + 1) + j]); /* last component of the top Ritz vector */
+    out = theta + res;
+    if (res <= 1e-10 * theta || be[j] <= 1e-14 * theta || j + 1 == K) break;
+    double *vn = V + (long)(j + 1) * n;
+    for (long i = 0; i < n; i++) vn[i] = w[i] / be[j];
+  }
+done:
+  free(V), free(w);
+  return out;
+}
+
+/* σ_min of the sparse n x n operator A: an SPD A (symmetric to 1e-14 and CHOLMOD's Cholesky
+ * succeeds) by 1/λ_max(A⁻¹), anything else by 1/√λ_max((AᵀA)⁻¹) through one UMFPACK LU; each
+ * by Lanczos (lanczos_max). NaN when the factorization fails (a singular operator: no bound). */
+static double sparse_smallest_sv(cholmod_sparse *A, long n, cholmod_common *cc) {
+  double one[2] = {1, 0}, minus[2] = {-1, 0}, out = NAN;
+  cholmod_sparse *At = cholmod_l_transpose(A, 2, cc), *Dif = At ? cholmod_l_add(A, At, one, minus, 1, 0, cc) : NULL, *S = NULL;
+  InvOp o = {cc, NULL, A, NULL, malloc(sizeof(double) * (size_t)n + 1)};
+  bool sym = Dif && cholmod_l_norm_sparse(Dif, 0, cc) <= 1e-14 * cholmod_l_norm_sparse(A, 0, cc);
+  if (sym && (S = cholmod_l_copy(A, 1, 1, cc))) {
+    int super = cc->supernodal;
+    cc->supernodal = CHOLMOD_SUPERNODAL; /* LLᵀ: an indefinite matrix fails instead of factoring as LDLᵀ */
+    cholmod_factor *L = cholmod_l_analyze(S, cc);
+    if (L && cholmod_l_factorize(S, L, cc) && cc->status == CHOLMOD_OK && L->minor >= (size_t)n) {
+      o.L = L;
+      double lmax = lanczos_max(&o, n);
+      out = lmax > 0 ? 1.0 / lmax : NAN;
+    }
+    cc->supernodal = super;
+    if (L) cholmod_l_free_factor(&L, cc);
+  }
+  if (!o.L && o.tmp) { /* nonsymmetric or indefinite: (AᵀA)⁻¹ through A's LU */
+    void *sym_ = NULL;
+    const SuiteSparse_long *Ap = A->p, *Ai = A->i;
+    if (umfpack_dl_symbolic(n, n, Ap, Ai, A->x, &sym_, NULL, NULL) == UMFPACK_OK &&
+        umfpack_dl_numeric(Ap, Ai, A->x, sym_, &o.numeric, NULL, NULL) == UMFPACK_OK) {
+      double lmax = lanczos_max(&o, n);
+      out = lmax > 0 ? 1.0 / sqrt(lmax) : NAN;
+    }
+    if (sym_) umfpack_dl_free_symbolic(&sym_);
+    if (o.numeric) umfpack_dl_free_numeric(&o.numeric);
+  }
+  free(o.tmp);
+  cholmod_l_free_sparse(&At, cc), cholmod_l_free_sparse(&Dif, cc), cholmod_l_free_sparse(&S, cc);
+  return out;
+}
+
+/* σ_min(M) and σ_min(BᵀMB) of inverse term rt at the evaluator's current values: M assembled dense
+ * and decomposed by LAPACK up to ESTIMATE_DENSE_MAX rows, sparse above (sparse_smallest_sv). */
+static int term_sigmas(Full *f, const RTerm *rt, const RClass *rc, cholmod_common *cc, double *full, double *red,
+                       const char *stage, char *err, size_t errlen) {
+  long n = rc->n, my = rc->m;
+  double *M = NULL, *T = calloc((size_t)(n * my) + 1, sizeof(double)), *R = malloc(sizeof(double) * (size_t)(my * my) + 1),
+         *sv = malloc(sizeof(double) * (size_t)(2 * (n > my ? n : my) + 1));
+  cholmod_sparse *A = NULL;
+  int rc_ = -1;
+  bool dense = n <= ESTIMATE_DENSE_MAX;
+  if (!T || !R || !sv || (dense && !(M = malloc(sizeof(double) * (size_t)(n * n) + 1)))) {
+    error_set(err, errlen, "estimate tables: out of memory for the %ld x %ld operator of stage %s", n, n, stage);
+    goto done;
+  }
+  if (dense) {
+    if (full_operator(f, rt, M, n, err, errlen)) goto done;
+    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)my, (int)n, 1.0, M, (int)n, rc->B, (int)my, 0.0,
+                T, (int)my);
+  } else {
+    if (!(A = sparse_operator(f, rt, n, cc, err, errlen))) goto done;
+    const SuiteSparse_long *Ap = A->p, *Ai = A->i;
+    const double *Ax = A->x;
+    for (long j = 0; j < n; j++) /* T = A B, column j of A times row j of B */
+      for (SuiteSparse_long p = Ap[j]; p < Ap[j + 1]; p++) cblas_daxpy((int)my, Ax[p], rc->B + j * my, 1, T + Ai[p] * my, 1);
+  }
+  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, rc->B, (int)my, T, (int)my, 0.0, R,
+              (int)my);
+  *full = dense ? smallest_sv(M, n, sv) : sparse_smallest_sv(A, n, cc);
+  *red = my > 0 ? smallest_sv(R, my, sv) : INFINITY;
+  rc_ = 0;
+done:
+  free(M), free(T), free(R), free(sv);
+  if (A) cholmod_l_free_sparse(&A, cc);
+  return rc_;
+}
+
 /* c = min over spread training samples of σ_min(M)/σ_min(BᵀMB) for every inverse term with a table. */
 static int sigma_ratios(Model *m, Full *f, const SampleSource *src, char *err, size_t errlen) {
   long S = src->count, nk = S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES;
-  for (long j = 0; j < nk; j++) {
+  cholmod_common cc;
+  cholmod_l_start(&cc);
+  int out = 0;
+  for (long j = 0; j < nk && !out; j++) {
     long k = nk > 1 ? j * (S - 1) / (nk - 1) : 0;
-    if (train_eval_sample(src, f, k, err, errlen)) return -1;
-    for (int i = 0; i < m->nstages; i++)
-      for (int t = 0; t < m->stages[i].nterms; t++) {
+    if (train_eval_sample(src, f, k, err, errlen)) {
+      out = -1;
+      break;
+    }
+    for (int i = 0; i < m->nstages && !out; i++)
+      for (int t = 0; t < m->stages[i].nterms && !out; t++) {
         RTerm *rt = &m->stages[i].terms[t];
         const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
-        long n = rc->n, my = rc->m;
-        if (!rt->est_G || rt->nops != 1 || n > ESTIMATE_DENSE_MAX) continue;
-        double *M = malloc(sizeof(double) * (size_t)(n * n) + 1), *T = malloc(sizeof(double) * (size_t)(n * my) + 1),
-               *R = malloc(sizeof(double) * (size_t)(my * my) + 1), *sv = malloc(sizeof(double) * (size_t)(2 * n + 1));
-        int rc_ = M && T && R && sv ? full_operator(f, rt, M, n, err, errlen) : error_set(err, errlen, "estimate "
-                  "tables: out of memory for the %ld x %ld operator of stage %s", n, n, m->stages[i].st->sym->name);
-        if (rc_ == 0) {
-          cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)my, (int)n, 1.0, M, (int)n, rc->B,
-                      (int)my, 0.0, T, (int)my);
-          cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, rc->B, (int)my, T,
-                      (int)my, 0.0, R, (int)my);
-          double full = smallest_sv(M, n, sv), red = my > 0 ? smallest_sv(R, my, sv) : INFINITY;
-          double ratio = full / red;
-          if (!(ratio > 0)) ratio = 0; /* a singular operator or an SVD that failed: no bound */
-          if (j == 0 || isnan(rt->est_sigma) || ratio < rt->est_sigma) rt->est_sigma = ratio;
+        double full, red;
+        if (!rt->est_G || rt->nops != 1 || rc->n > ESTIMATE_SPARSE_MAX) continue;
+        if (term_sigmas(f, rt, rc, &cc, &full, &red, m->stages[i].st->sym->name, err, errlen)) {
+          out = -1;
+          break;
         }
-        free(M), free(T), free(R), free(sv);
-        if (rc_) return -1;
+        double ratio = full / red;
+        if (!(ratio > 0)) ratio = 0; /* a singular operator or a decomposition that failed: no bound */
+        if (j == 0 || isnan(rt->est_sigma) || ratio < rt->est_sigma) rt->est_sigma = ratio;
       }
   }
+  cholmod_l_finish(&cc);
+  if (out) return -1;
   for (int i = 0; i < m->nstages; i++) /* a ratio of 0 is no lower bound: the term has no estimate */
     for (int t = 0; t < m->stages[i].nterms; t++)
       if (m->stages[i].terms[t].est_sigma == 0) m->stages[i].terms[t].est_sigma = NAN;
