@@ -178,6 +178,30 @@ static const char *input_blocks(const EstimateResult *e, const Model *m, int q, 
   return NULL;
 }
 
+/* The min-θ lower bound of λ_min(M(x)) for a term whose operator is M_0 + Σ x_j M_j with every
+ * M_j positive semidefinite: max over the anchors x̄ of min(1, min_j x_j / x̄_j) · λ_min(M(x̄)), x =
+ * B x̂ the input (exact: the caller has checked it carries no error); 0 when there is no table or
+ * an x_j is not positive. */
+static double theta_bound(Reduced *r, const RTerm *rt) {
+  if (!rt->est_theta || rt->est_theta_k < 1) return 0;
+  const Model *m = reduced_model(r);
+  const RClass *c = &m->classes[m->qclass[rt->est_theta_q]];
+  const double *xh = reduced_all_coords(r)[rt->est_theta_q];
+  long n = rt->est_theta_n;
+  double x[ESTIMATE_THETA_MAX], best = 0;
+  if (c->n != n || n > ESTIMATE_THETA_MAX || !c->B) return 0;
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)c->m, 1.0, c->B, (int)c->m, xh, 1, 0.0, x, 1);
+  for (long j = 0; j < n; j++)
+    if (!(x[j] > 0)) return 0;
+  for (int k = 0; k < rt->est_theta_k; k++) {
+    const double *a = rt->est_theta + (long)k * (n + 1);
+    double rho = 1;
+    for (long j = 0; j < n; j++) rho = fmin(rho, x[j] / a[j]);
+    best = fmax(best, rho * a[n]);
+  }
+  return best;
+}
+
 /* The estimate of stage number i into e (err, flags, why_q of its quantity). */
 static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
   const Model *m = reduced_model(r);
@@ -221,17 +245,20 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
       sum += res + carried;
       continue;
     }
-    if (isnan(rt->est_sigma)) {
+    if (isnan(rt->est_sigma) && !(rt->est_theta && rt->est_theta_k > 0)) {
       snprintf(why, sizeof why, "no lower bound of σ_min of term %d's operator (singular at a training sample, or its rows "
                "exceed %d, the sparse limit in training)", t + 1, ESTIMATE_SPARSE_MAX);
       goto none;
     }
-    double sig = rt->est_sigma * sigma_min(s->M, my, s);
+    double sig = theta_bound(r, rt);
+    if (!(sig > 0)) {
+      sig = rt->est_sigma * sigma_min(s->M, my, s);
+      flags &= ~EST_BOUND; /* σ_min is estimated from the training samples */
+    }
     if (!(sig > 0)) {
       snprintf(why, sizeof why, "term %d's reduced operator has σ_min %.3g: no estimate", t + 1, sig);
       goto none;
     }
-    flags &= ~EST_BOUND; /* σ_min is estimated from the training samples */
     sum += (res + carried) / sig;
   }
   e->err[q] = sum, e->flags[q] = flags, e->why_q[q][0] = 0;
@@ -308,6 +335,11 @@ int estimate_save(const Model *m, ModelStore *s) {
       est_name(name, sizeof name, sn, t);
       long shape[2] = {rt->est_D + 1, rt->est_D};
       bad |= model_store_add(s, name, 2, shape, rt->est_G);
+      if (!rt->est_theta || rt->est_theta_k < 1) continue;
+      bad |= model_store_meta(s, "theta %s %d input %s anchors %d", sn, t, qname(m, rt->est_theta_q), rt->est_theta_k);
+      snprintf(name, sizeof name, "theta_%s_t%d", sn, t);
+      long tshape[2] = {rt->est_theta_k, rt->est_theta_n + 1};
+      bad |= model_store_add(s, name, 2, tshape, rt->est_theta);
     }
   for (int q = 0; m->in_range && q < m->nq; q++) {
     if (!m->in_range[q]) continue;
@@ -381,11 +413,39 @@ static int load_range_line(Model *m, const ModelStore *s, const char *line, cons
   return 0;
 }
 
+/* "theta STAGE T input NAME anchors K": the min-θ table of an estimate line's term (after it). */
+static int load_theta_line(Model *m, const ModelStore *s, const char *line, const char *dir, char *err, size_t errlen) {
+  char stage[512], qn[512], name[1100];
+  int t, k, used = 0, q = -1;
+  bool ok = sscanf(line, "theta %511s %d input %511s anchors %d%n", stage, &t, qn, &k, &used) == 4 && !line[used] &&
+            k > 0 && k <= ESTIMATE_SIGMA_SAMPLES;
+  for (int j = 0; ok && j < m->nq; j++)
+    if (strcmp(qname(m, j), qn) == 0 && ((Sym *)m->prog->quantities.v[j])->kind == SYM_INPUT) q = j;
+  for (int i = 0; ok && q >= 0 && i < m->nstages; i++) {
+    if (strcmp(m->stages[i].st->sym->name, stage) != 0) continue;
+    if (t < 0 || t >= m->stages[i].nterms || !m->stages[i].terms[t].est_G) break;
+    RTerm *rt = &m->stages[i].terms[t];
+    long n = m->classes[m->qclass[q]].n;
+    if (n > ESTIMATE_THETA_MAX) break;
+    snprintf(name, sizeof name, "theta_%s_t%d", stage, t);
+    free(rt->est_theta);
+    if (!(rt->est_theta = take(s, dir, name, k, n + 1, err, errlen))) return -1;
+    rt->est_theta_q = q, rt->est_theta_n = n, rt->est_theta_k = k;
+    for (long e = 0; e < (long)k * (n + 1); e++)
+      if (!(rt->est_theta[e] > 0) || !isfinite(rt->est_theta[e]))
+        return error_set(err, errlen, "%s/%s.npy: entry %ld is not positive and finite", dir, name, e);
+    return 0;
+  }
+  return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                   dir, line);
+}
+
 int estimate_load(Model *m, const ModelStore *s, const char *dir, char *err, size_t errlen) {
   for (int i = 0; i < s->nmeta; i++) {
     const char *line = s->meta[i];
     if (strncmp(line, "estimate ", 9) == 0 && load_estimate_line(m, s, line, dir, err, errlen)) return -1;
     if (strncmp(line, "range ", 6) == 0 && load_range_line(m, s, line, dir, err, errlen)) return -1;
+    if (strncmp(line, "theta ", 6) == 0 && load_theta_line(m, s, line, dir, err, errlen)) return -1;
   }
   return 0;
 }

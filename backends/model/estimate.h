@@ -18,7 +18,10 @@
  * z_t. A projection term's ‖r_t‖ is its error exactly (M = I). For an
  * inverse, σ_min(M) is estimated as c · σ_min(BᵀMB): c the smallest ratio
  * σ_min(M)/σ_min(BᵀMB) over training samples (dense SVDs in training, up to
- * ESTIMATE_DENSE_MAX rows, sparse Lanczos above). A stage's estimate is the sum of its terms'.
+ * ESTIMATE_DENSE_MAX rows, sparse Lanczos above). An operator affine in one
+ * input with semidefinite terms uses instead the min-θ lower bound of its
+ * λ_min (anchors stored in training), a rigorous bound (docs/estimates.md says
+ * exactly when). A stage's estimate is the sum of its terms'.
  *
  * Chaining: a named numerator w carries its own estimate e_w into the term
  * (plus e_w for a projection, plus e_w / σ for an inverse); an input of a
@@ -47,6 +50,8 @@
  * rows; beyond it their stage gets no estimate. */
 #define ESTIMATE_DENSE_MAX 800
 #define ESTIMATE_SPARSE_MAX 4000000
+/* The min-θ bound's input has at most this many entries (θ_j = x_j). */
+#define ESTIMATE_THETA_MAX 64
 /* Training samples whose operator σ_min is measured, spread over the set. */
 #define ESTIMATE_SIGMA_SAMPLES 8
 /* The trust signal's margin: a coordinate is outside the training range when it lies

@@ -230,6 +230,7 @@ void model_free(Model *m) {
       }
       free(rt->ops);
       free(rt->est_G);
+      free(rt->est_theta);
     }
     free(rs->terms);
     interp_free(rs->interp);

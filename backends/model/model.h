@@ -70,6 +70,12 @@ typedef struct RTerm {
   double *est_G;
   long est_D;
   double est_sigma;         /* an inverse term: min over training samples of σ_min(M)/σ_min(BᵀMB); NaN: unknown */
+  /* the min-θ lower bound (estimate.h): M(x) = M_0 + Σ x_j M_j, x input est_theta_q (est_theta_n
+   * entries), every M_j symmetric positive semidefinite; est_theta_k anchors, each x̄ then λ_min(M(x̄))
+   * (est_theta_k x (est_theta_n + 1), owned); NULL or est_theta_k = 0: no bound */
+  double *est_theta;
+  int est_theta_q, est_theta_k;
+  long est_theta_n;
 } RTerm;
 
 /* Every tensor x of term `rt`: its numerator's, then each operator's in

@@ -357,6 +357,89 @@ static double sparse_smallest_sv(cholmod_sparse *A, long n, cholmod_common *cc) 
   return out;
 }
 
+/* Is the symmetric A positive semidefinite by diagonal dominance (a nonnegative diagonal at
+ * least the sum of its row's other magnitudes, to 1e-12 of its largest entry)? */
+static bool dominant_psd(const cholmod_sparse *A, cholmod_common *cc) {
+  const SuiteSparse_long *Ap = A->p, *Ai = A->i;
+  const double *Ax = A->x;
+  double big = cholmod_l_norm_sparse((cholmod_sparse *)A, 0, cc), tol = 1e-12 * big;
+  for (long j = 0; j < (long)A->ncol; j++) { /* symmetric: column j is row j */
+    double dg = 0, off = 0;
+    for (SuiteSparse_long p = Ap[j]; p < Ap[j + 1]; p++) {
+      if (Ai[p] == j) dg += Ax[p];
+      else off += fabs(Ax[p]);
+    }
+    if (dg < -tol || dg + tol < off) return false;
+  }
+  return true;
+}
+
+/* ‖A − B‖₁ ≤ 1e-12 ‖A‖₁ (A − B into *diff when diff is not NULL, else freed). */
+static bool sparse_close(cholmod_sparse *A, cholmod_sparse *B, cholmod_common *cc) {
+  double one[2] = {1, 0}, minus[2] = {-1, 0};
+  cholmod_sparse *D = cholmod_l_add(A, B, one, minus, 1, 0, cc);
+  bool ok = D && cholmod_l_norm_sparse(D, 1, cc) <= 1e-12 * cholmod_l_norm_sparse(A, 1, cc);
+  cholmod_l_free_sparse(&D, cc);
+  return ok;
+}
+
+/* The operator of term rt with its input `name` set to x (n entries); NULL on failure. */
+static cholmod_sparse *operator_at(Full *f, const RTerm *rt, long n, const char *name, const double *x, long nx,
+                                   cholmod_common *cc) {
+  char err[256];
+  long shape[1] = {nx};
+  return full_set(f, name, 1, shape, x, "the min-θ bound") ? NULL : sparse_operator(f, rt, n, cc, err, sizeof err);
+}
+
+/* The input x of inverse term rt when its operator is M(x) = M_0 + Σ x_j M_j with every M_j
+ * symmetric positive semidefinite by diagonal dominance (the min-θ bound's case: detected by
+ * assembling M at 0 and at each unit vector, and checked affine at the current sample's x and at
+ * 2·1); -1 otherwise. Leaves the input set elsewhere: the caller sets its sample again. */
+static int affine_input(const Model *m, Full *f, const RTerm *rt, long n, cholmod_common *cc) {
+  int q = -1;
+  if (rt->nops != 1) return -1;
+  for (int g = 0; g < rt->ops[0].ntensors; g++) {
+    const RTensor *x = &rt->ops[0].t[g];
+    if (x->nin > 1 || (x->nin == 1 && q >= 0 && x->in_q[0] != q)) return -1;
+    if (x->nin == 1) q = x->in_q[0];
+  }
+  const Sym *sy = q >= 0 ? m->prog->quantities.v[q] : NULL;
+  size_t nx = 0;
+  const double *cur = sy && sy->kind == SYM_INPUT ? full_get(f, sy->name, &nx) : NULL;
+  if (!cur || nx < 1 || nx > ESTIMATE_THETA_MAX) return -1;
+  double x[ESTIMATE_THETA_MAX], xs[ESTIMATE_THETA_MAX], one[2] = {1, 0}, minus[2] = {-1, 0};
+  memcpy(xs, cur, sizeof(double) * nx);
+  cholmod_sparse *K[ESTIMATE_THETA_MAX + 1] = {0}, *sum = NULL, *Kx = NULL;
+  bool ok = true;
+  for (long j = -1; ok && j < (long)nx; j++) { /* K[0] = M(0), K[j + 1] = M(e_j) − M(0) */
+    for (size_t a = 0; a < nx; a++) x[a] = (long)a == j ? 1 : 0;
+    cholmod_sparse *A = operator_at(f, rt, n, sy->name, x, (long)nx, cc);
+    if (j >= 0 && A) K[j + 1] = cholmod_l_add(A, K[0], one, minus, 1, 1, cc), cholmod_l_free_sparse(&A, cc);
+    else K[0] = A;
+    ok = K[j + 1] && cholmod_l_drop(0, K[j + 1], cc) && cholmod_l_sort(K[j + 1], cc);
+    if (ok) { /* symmetric and diagonally dominant */
+      cholmod_sparse *T = cholmod_l_transpose(K[j + 1], 2, cc);
+      ok = T && sparse_close(K[j + 1], T, cc) && dominant_psd(K[j + 1], cc);
+      cholmod_l_free_sparse(&T, cc);
+    }
+  }
+  for (int pass = 0; ok && pass < 2; pass++) { /* affine: M(x) = M_0 + Σ x_j M_j at the sample and at 2·1 */
+    for (size_t a = 0; a < nx; a++) x[a] = pass ? 2 : xs[a];
+    sum = cholmod_l_copy_sparse(K[0], cc);
+    for (size_t j = 0; sum && j < nx; j++) {
+      double c[2] = {x[j], 0};
+      cholmod_sparse *t = cholmod_l_add(sum, K[j + 1], one, c, 1, 1, cc);
+      cholmod_l_free_sparse(&sum, cc);
+      sum = t;
+    }
+    Kx = sum ? operator_at(f, rt, n, sy->name, x, (long)nx, cc) : NULL;
+    ok = Kx && sparse_close(Kx, sum, cc);
+    cholmod_l_free_sparse(&sum, cc), cholmod_l_free_sparse(&Kx, cc);
+  }
+  for (size_t j = 0; j <= nx; j++) cholmod_l_free_sparse(&K[j], cc);
+  return ok ? q : -1;
+}
+
 /* σ_min(M) and σ_min(BᵀMB) of inverse term rt at the evaluator's current values: M assembled dense
  * and decomposed by LAPACK up to ESTIMATE_DENSE_MAX rows, sparse above (sparse_smallest_sv). */
 static int term_sigmas(Full *f, const RTerm *rt, const RClass *rc, cholmod_common *cc, double *full, double *red,
@@ -393,6 +476,35 @@ done:
   return rc_;
 }
 
+/* Term rt's min-θ table when its operator is affine with semidefinite terms (affine_input):
+ * room for nk anchors; the sample (k = 0) is set again afterwards. */
+static int theta_setup(const Model *m, Full *f, const SampleSource *src, RTerm *rt, long n, long nk, cholmod_common *cc,
+                       char *err, size_t errlen) {
+  free(rt->est_theta);
+  rt->est_theta = NULL, rt->est_theta_k = 0;
+  int q = affine_input(m, f, rt, n, cc);
+  if (q >= 0) {
+    rt->est_theta_q = q, rt->est_theta_n = m->classes[m->qclass[q]].n;
+    if (!(rt->est_theta = malloc(sizeof(double) * (size_t)(nk * (rt->est_theta_n + 1)) + 1)))
+      return error_set(err, errlen, "estimate tables: out of memory");
+  }
+  return train_eval_sample(src, f, 0, err, errlen);
+}
+
+/* One anchor of the min-θ bound: the sample's x̄ (every entry positive) and λ_min = σ_min of the SPD M(x̄). */
+static void theta_anchor(const Model *m, Full *f, RTerm *rt, double full) {
+  if (!rt->est_theta || !(full > 0)) return;
+  size_t nx = 0;
+  const double *x = full_get(f, ((const Sym *)m->prog->quantities.v[rt->est_theta_q])->name, &nx);
+  if (!x || (long)nx != rt->est_theta_n) return;
+  for (size_t a = 0; a < nx; a++)
+    if (!(x[a] > 0)) return;
+  double *row = rt->est_theta + (long)rt->est_theta_k * (rt->est_theta_n + 1);
+  memcpy(row, x, sizeof(double) * nx);
+  row[nx] = full;
+  rt->est_theta_k++;
+}
+
 /* c = min over spread training samples of σ_min(M)/σ_min(BᵀMB) for every inverse term with a table. */
 static int sigma_ratios(Model *m, Full *f, const SampleSource *src, char *err, size_t errlen) {
   long S = src->count, nk = S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES;
@@ -411,10 +523,15 @@ static int sigma_ratios(Model *m, Full *f, const SampleSource *src, char *err, s
         const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
         double full, red;
         if (!rt->est_G || rt->nops != 1 || rc->n > ESTIMATE_SPARSE_MAX) continue;
+        if (j == 0 && theta_setup(m, f, src, rt, rc->n, nk, &cc, err, errlen)) {
+          out = -1;
+          break;
+        }
         if (term_sigmas(f, rt, rc, &cc, &full, &red, m->stages[i].st->sym->name, err, errlen)) {
           out = -1;
           break;
         }
+        theta_anchor(m, f, rt, full);
         double ratio = full / red;
         if (!(ratio > 0)) ratio = 0; /* a singular operator or a decomposition that failed: no bound */
         if (j == 0 || isnan(rt->est_sigma) || ratio < rt->est_sigma) rt->est_sigma = ratio;

@@ -5,7 +5,9 @@ nonsymmetric one). The thermal block of tests/cli/thermal_block.npg on a 60 x 60
 unknowns): on every test sample the estimate is at least the true error and at most 20 times it,
 the true errors from numpy (conjugate gradients on the same operator, an independent oracle). The
 same with a convection term (nonsymmetric, 30 x 30 = 900 unknowns, beyond the dense limit of 800
-rows) against numpy's dense solve."""
+rows) against numpy's dense solve. The SPD block's operator is affine in mu with semidefinite terms:
+its estimate is the min-θ bound (flagged b, the manifest's theta line); the convective one, and one
+whose conductivities enter squared, stay estimates (e, no theta line)."""
 import os
 import subprocess
 import sys
@@ -94,7 +96,7 @@ def run(*args):
     return p
 
 
-def case(w, label, prog, G, ntrain, ntest, solve, seed):
+def case(w, label, prog, G, ntrain, ntest, solve, seed, bound):
     data = grid(G)
     rng = np.random.default_rng(seed)
     train, test, model, out = (os.path.join(w, label + n) for n in ("TRAIN", "TEST", "MODEL", "OUT"))
@@ -102,9 +104,15 @@ def case(w, label, prog, G, ntrain, ntest, solve, seed):
     mu_test = rng.uniform(0.1, 1, (ntest, 4))
     write(test, mu_test, *data)
     run("train", prog, train, "-o", model)
-    if "estimate u 0 dim" not in open(os.path.join(model, "manifest")).read():
+    manifest = open(os.path.join(model, "manifest")).read()
+    if "estimate u 0 dim" not in manifest:
         fail("%s: the model holds no estimate table" % label)
+    if ("theta u 0 input mu anchors" in manifest) != bound:
+        fail("%s: the min-theta table is %s:\n%s" % (label, "missing" if bound else "present", manifest))
     p = run("eval", prog, model, test, "-o", out)
+    flag = " b" if bound else " e"
+    if sum(1 for l in p.stdout.splitlines() if l.split()[:1] and l.split()[0].isdigit() and flag in l) != ntest:
+        fail("%s: not every estimate flagged%s:\n%s" % (label, flag, p.stdout))
     est = np.load(os.path.join(out, "u.estimate.npy"))
     if np.isnan(est).any():
         fail("%s (%d unknowns): no estimate:\n%s" % (label, G * G, p.stdout))
@@ -121,11 +129,18 @@ def case(w, label, prog, G, ntrain, ntest, solve, seed):
 
 def main():
     with tempfile.TemporaryDirectory() as w:
-        case(w, "spd", PROG, 60, 12, 10, solve_cg, 43)
+        case(w, "spd", PROG, 60, 12, 10, solve_cg, 43, True)
         conv = os.path.join(w, "conv.npg")
         with open(PROG) as f, open(conv, "w") as g:
             g.write(f.read().replace("\nbasis mu", CONV + "\nbasis mu"))
-        case(w, "conv", conv, 30, 12, 10, solve_conv, 44)
+        case(w, "conv", conv, 30, 12, 10, solve_conv, 44, False)
+        # conductivities squared: SPD still, not affine in mu, so no min-theta bound
+        sq = os.path.join(w, "square.npg")
+        with open(PROG) as f, open(sq, "w") as g:
+            g.write(f.read().replace("0.5 * (mu[blk[i]] + mu[blk[nbr[i, k]]])", "0.5 * (mu[blk[i]] * mu[blk[i]] + "
+                                     "mu[blk[nbr[i, k]]] * mu[blk[nbr[i, k]]])")
+                    .replace("0.5 * (mu[blk[i]] + mu[blk[j]])", "0.5 * (mu[blk[i]] * mu[blk[i]] + mu[blk[j]] * mu[blk[j]])"))
+        case(w, "square", sq, 8, 12, 4, lambda mu, *d: solve_cg(mu * mu, *d), 45, False)
     print("ok")
 
 
