@@ -137,14 +137,15 @@ static double residual_norm(Reduced *r, const RTerm *rt, long n, long my, Scratc
         for (long c = 0; c < t->cols; c++) s->z[off + a * t->cols + c] = s->v[a] * s->Gz[c];
       off += my * t->cols;
     }
-  const double *G = rt->est_G, *cn = rt->est_G + D * D;
-  cblas_dsymv(CblasRowMajor, CblasUpper, (int)D, 1.0, G, (int)D, s->z, 1, 0.0, s->Gz, 1);
-  double res2 = cblas_ddot((int)D, s->z, 1, s->Gz, 1), a = 0, b = 0;
-  for (long i = 0; i < D; i++) a += fabs(s->z[i]) * cn[i], b += fabs(s->z[i]) * sqrt(fmax(G[i * D + i], 0));
-  /* the projected columns carry about ε‖C_i‖ each; the Gram sums of n products and the form's D */
-  double level = (8 * DBL_EPSILON * a) * (8 * DBL_EPSILON * a) + (sqrt((double)n) + (double)D) * DBL_EPSILON * b * b;
-  *roundoff = !(res2 > level);
-  return sqrt(*roundoff ? level : res2);
+  const double *R = rt->est_G, *cn = rt->est_G + D * D;
+  memcpy(s->Gz, s->z, sizeof(double) * (size_t)D);
+  cblas_dtrmv(CblasRowMajor, CblasUpper, CblasNoTrans, CblasNonUnit, (int)D, R, (int)D, s->Gz, 1);
+  double res = cblas_dnrm2((int)D, s->Gz, 1), a = 0, b = 0;
+  for (long i = 0; i < D; i++) a += fabs(s->z[i]) * cn[i], b += fabs(s->z[i]) * cblas_dnrm2((int)(i + 1), R + i, (int)D);
+  /* the projected columns carry about ε‖C_i‖ each; the QR's backward error about (√n + D) ε of each column */
+  double level = 8 * DBL_EPSILON * a + (sqrt((double)n) + (double)D) * DBL_EPSILON * b;
+  *roundoff = !(res > level);
+  return *roundoff ? level : res;
 }
 
 /* σ_min of the my x my matrix M (destroyed); NaN if LAPACK fails. A symmetric positive definite
@@ -331,7 +332,7 @@ int estimate_save(const Model *m, ModelStore *s) {
       const RTerm *rt = &m->stages[i].terms[t];
       if (!rt->est_G) continue;
       const char *sn = m->stages[i].st->sym->name;
-      bad |= model_store_meta(s, "estimate %s %d dim %ld sigma %.17g", sn, t, rt->est_D, rt->est_sigma);
+      bad |= model_store_meta(s, "estimate %s %d dim %ld sigma %.17g qr", sn, t, rt->est_D, rt->est_sigma);
       est_name(name, sizeof name, sn, t);
       long shape[2] = {rt->est_D + 1, rt->est_D};
       bad |= model_store_add(s, name, 2, shape, rt->est_G);
@@ -372,7 +373,9 @@ static int load_estimate_line(Model *m, const ModelStore *s, const char *line, c
   int t, used = 0;
   long D;
   double sigma;
-  bool ok = sscanf(line, "estimate %511s %d dim %ld sigma %lf%n", stage, &t, &D, &sigma, &used) == 4 && !line[used];
+  bool ok = sscanf(line, "estimate %511s %d dim %ld sigma %lf%n", stage, &t, &D, &sigma, &used) == 4;
+  if (ok && !line[used]) return 0; /* a Gram table (models before the QR form): left out, the term reports no table */
+  ok = ok && strcmp(line + used, " qr") == 0;
   for (int i = 0; ok && i < m->nstages; i++) {
     if (strcmp(m->stages[i].st->sym->name, stage) != 0) continue;
     if (t < 0 || t >= m->stages[i].nterms || !estimate_term_eligible(m, i, t, why, sizeof why) ||

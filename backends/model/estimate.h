@@ -8,11 +8,11 @@
  * reduced numerator coordinates (the packed input products of its tensors,
  * or a named numerator's coordinates ŵ) followed by ŷ_t ⊗ (each operator
  * tensor's packed input product), C_t the full-space columns of those
- * monomials. Galerkin makes r_t orthogonal to B, so training stores the
- * Gram matrix of the projected columns, G_t = C'_tᵀ C'_t with C'_t =
- * (I − BBᵀ) C_t (no cancellation against ‖Bᵀ r‖), and
+ * monomials. Galerkin makes r_t orthogonal to B, so training stores R_t of
+ * the QR of the projected columns, C'_t = Q_t R_t with C'_t = (I − BBᵀ) C_t
+ * (no cancellation against ‖Bᵀ r‖, no squaring as a Gram matrix would), and
  *
- *     ‖r_t‖² = z_tᵀ G_t z_t,   ‖y_t − B ŷ_t‖ ≤ ‖r_t‖ / σ_min(M),
+ *     ‖r_t‖ = ‖R_t z_t‖,   ‖y_t − B ŷ_t‖ ≤ ‖r_t‖ / σ_min(M),
  *
  * a polynomial in the reduced inputs evaluated in O(D²), D the length of
  * z_t. A projection term's ‖r_t‖ is its error exactly (M = I). For an
@@ -95,7 +95,7 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e);
 bool estimate_outside(const Model *m, int q, const double *coords, long *coord);
 
 /* The estimate tables to and from MODEL/: lines `estimate STAGE TERM dim D
- * sigma C`, arrays est_STAGE_tTERM ((D + 1) x D: G_t, then the unprojected
+ * sigma C qr`, arrays est_STAGE_tTERM ((D + 1) x D: R_t, then the unprojected
  * columns' norms, for the roundoff level), `range Q` lines with arrays
  * range_Q (2 x m: each coordinate's min, then max). A model without them
  * has no estimates; a line that does not match the layout is refused. */

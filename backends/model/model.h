@@ -65,8 +65,9 @@ typedef struct RTerm {
   char *proj_name;
   int nops;
   ROp *ops;
-  /* the residual's Gram table of the online estimate (estimate.h, issue 41): (est_D + 1) x est_D,
-   * G then the unprojected columns' norms (owned); NULL: the term has no estimate */
+  /* the residual's table of the online estimate (estimate.h, issue 41): (est_D + 1) x est_D,
+   * R (upper triangular, of the projected columns' QR) then the unprojected columns' norms
+   * (owned); NULL: the term has no estimate */
   double *est_G;
   long est_D;
   double est_sigma;         /* an inverse term: min over training samples of σ_min(M)/σ_min(BᵀMB); NaN: unknown */
