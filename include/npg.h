@@ -674,6 +674,17 @@ typedef struct NpgNewton {
   double residual;          /* out: the last ‖r̂‖₂ */
 } NpgNewton;
 NPG_API int npg_reduced_newton(NpgReduced *r, long sample, const char *residual, const char *unknown, NpgNewton *o);
+/* Newton's method on a full residual, npg_reduced_newton's contract on the full evaluator: the
+ * values of input `unknown` such that quantity `residual` (as many entries) vanishes, from the
+ * unknown's value as set. Each iteration evaluates, stops when ‖r‖₂ <= tol, and otherwise solves
+ * J δ = r with the Jacobian on its structural pattern (npg_full_jacobian_csr's, planned once per
+ * call): by UMFPACK (the pattern analysed once, factorized at every iteration), or by LAPACK
+ * dgesv when more than a quarter of its entries are on the pattern. Verbose lines, history and
+ * failures (not converged after max_iter corrections, a singular Jacobian, a residual that is
+ * not finite: each naming the sample, the iteration and the residual) as npg_reduced_newton's.
+ * On success the unknown holds the solution and every quantity its value there. 0, or -1 with
+ * npg_full_error(). */
+NPG_API int npg_full_newton(NpgFull *f, long sample, const char *residual, const char *unknown, NpgNewton *o);
 NPG_API int npg_reduced_step(NpgReduced *r, long steps, long sample);
 NPG_API long npg_reduced_steps(const NpgReduced *r);
 NPG_API int npg_reduced_set_blowup(NpgReduced *r, double factor);

@@ -84,6 +84,24 @@ int api_quantity(const Program *prog, const char *name);
 /* Shape of quantity `s` as bound in `f`: dims then static axes; ndim. */
 int api_shape(const Full *f, const Sym *s, long *shape);
 
+/* api_deriv.c: the slot of quantity `name` in `f`'s program (Program.slots): an input
+ * (want_input), or any quantity (an output: a stage, or an input itself); -1 after refusing
+ * for `func`, naming argument `arg`. */
+int api_full_slot(NpgFull *f, const char *func, const char *arg, const char *name, bool want_input);
+/* The sparse Jacobian d output / d input of the full evaluator, planned once per pattern:
+ * its structural pattern (CSR, rows = count(output), cols = count(input)) and a greedy
+ * coloring of its columns (ncolors forward products fill it). */
+typedef struct ApiJacPlan {
+  long rows, cols, ncolors;
+  long *indptr, *indices, *color;
+} ApiJacPlan;
+/* After an evaluation: the plan, 0; or -1 with full_error(). */
+int api_jac_plan(NpgFull *f, const char *output, const char *input, ApiJacPlan *p);
+/* After an evaluation at sample `sample`: the Jacobian's values on the plan's pattern into
+ * `data` (indptr[rows] entries); ko, ki the slots of output and input. 0, or -1 with full_error(). */
+int api_jac_values(NpgFull *f, long sample, int ko, int ki, const ApiJacPlan *p, double *data);
+void api_jac_plan_free(ApiJacPlan *p);
+
 /* 0 when every reduced coordinate held by `r` is finite; else -1 with a
  * message naming the first quantity in evaluation order that is not. */
 int api_reduced_not_finite(const Model *m, Reduced *r, long sample, char *err, size_t errlen);

@@ -21,9 +21,7 @@ __attribute__((format(printf, 3, 4))) static int refuse(NpgFull *f, const char *
   return full_refuse(f->full, api_refusal());
 }
 
-/* The slot of quantity `name` in `f`'s program: an input (want_input), or any
- * quantity (an output: a stage, or an input itself); -1 after refusing. */
-static int slot_of(NpgFull *f, const char *func, const char *arg, const char *name, bool want_input) {
+int api_full_slot(NpgFull *f, const char *func, const char *arg, const char *name, bool want_input) {
   const Program *prog = full_program(f->full);
   if (!name) return refuse(f, func, "argument '%s' is NULL", arg);
   for (int k = 0; prog && k < prog->slots.n; k++) {
@@ -52,12 +50,12 @@ int npg_full_jvp(NpgFull *f, long sample, int nin, const char *const *inputs, co
   if (nin < 0) return refuse(f, __func__, "argument 'nin' is %d (a count)", nin);
   if (nin > 0 && (!inputs || !directions)) return refuse(f, __func__, "argument '%s' is NULL", !inputs ? "inputs" : "directions");
   if (!out) return refuse(f, __func__, "argument 'out' is NULL");
-  int ko = slot_of(f, __func__, "output", output, false);
+  int ko = api_full_slot(f, __func__, "output", output, false);
   if (ko < 0) return -1;
   int *ki = calloc((size_t)nin + 1, sizeof *ki);
   if (!ki) return refuse(f, __func__, "out of memory");
   for (int i = 0; i < nin; i++)
-    if ((ki[i] = slot_of(f, __func__, "inputs", inputs[i], true)) < 0 ||
+    if ((ki[i] = api_full_slot(f, __func__, "inputs", inputs[i], true)) < 0 ||
         (!directions[i] && refuse(f, __func__, "argument 'directions': entry %d (for '%s') is NULL", i, inputs[i]))) {
       free(ki);
       return -1;
@@ -83,12 +81,12 @@ int npg_full_vjp(NpgFull *f, long sample, int nout, const char *const *outputs, 
   if (nout > 0 && (!outputs || !cotangents))
     return refuse(f, __func__, "argument '%s' is NULL", !outputs ? "outputs" : "cotangents");
   if (!out) return refuse(f, __func__, "argument 'out' is NULL");
-  int ki = slot_of(f, __func__, "input", input, true);
+  int ki = api_full_slot(f, __func__, "input", input, true);
   if (ki < 0) return -1;
   int *ko = calloc((size_t)nout + 1, sizeof *ko);
   if (!ko) return refuse(f, __func__, "out of memory");
   for (int i = 0; i < nout; i++)
-    if ((ko[i] = slot_of(f, __func__, "outputs", outputs[i], false)) < 0 ||
+    if ((ko[i] = api_full_slot(f, __func__, "outputs", outputs[i], false)) < 0 ||
         (!cotangents[i] && refuse(f, __func__, "argument 'cotangents': entry %d (for '%s') is NULL", i, outputs[i]))) {
       free(ko);
       return -1;
@@ -112,7 +110,7 @@ int npg_full_vjp(NpgFull *f, long sample, int nout, const char *const *outputs, 
 int npg_full_jacobian(NpgFull *f, long sample, const char *output, const char *input, double *out) {
   API_REFUSE_NULL(f, NULL, 0, -1);
   if (!out) return refuse(f, __func__, "argument 'out' is NULL");
-  int ko = slot_of(f, __func__, "output", output, false), ki = ko < 0 ? -1 : slot_of(f, __func__, "input", input, true);
+  int ko = api_full_slot(f, __func__, "output", output, false), ki = ko < 0 ? -1 : api_full_slot(f, __func__, "input", input, true);
   if (ko < 0 || ki < 0) return -1;
   if (!prepare(f, sample)) return -1;
   size_t nout = 0, nin = 0;
@@ -158,38 +156,58 @@ static long color_columns(long rows, long ncols, const long *ptr, const long *id
   return ncolors;
 }
 
+void api_jac_plan_free(ApiJacPlan *p) {
+  free(p->indptr), free(p->indices), free(p->color);
+  memset(p, 0, sizeof *p);
+}
+
+int api_jac_plan(NpgFull *f, const char *output, const char *input, ApiJacPlan *p) {
+  memset(p, 0, sizeof *p);
+  size_t nout = 0, nin = 0;
+  full_get(f->full, output, &nout);
+  full_get(f->full, input, &nin);
+  p->rows = (long)nout, p->cols = (long)nin;
+  if (full_jacobian_pattern(f->full, output, input, &p->indptr, &p->indices) != 0) return -1;
+  p->color = malloc(sizeof(long) * (nin + 1));
+  p->ncolors = p->color ? color_columns(p->rows, p->cols, p->indptr, p->indices, p->color) : -1;
+  if (p->ncolors < 0) {
+    api_jac_plan_free(p);
+    return full_fail(f->full, "out of memory");
+  }
+  return 0;
+}
+
+int api_jac_values(NpgFull *f, long sample, int ko, int ki, const ApiJacPlan *p, double *data) {
+  const long *ptr = p->indptr, *idx = p->indices;
+  for (long c = 0; c < p->ncolors; c++) {
+    double *const *dq = full_deriv_arrays(f->full);
+    if (!dq) return -1;
+    for (long j = 0; j < p->cols; j++) dq[ki][j] = p->color[j] == c ? 1.0 : 0.0;
+    if (full_jvp(f->full, sample) != 0) return -1;
+    for (long r = 0; r < p->rows; r++) /* a row reads at most one column of each color */
+      for (long k = ptr[r]; k < ptr[r + 1]; k++)
+        if (p->color[idx[k]] == c) data[k] = ko == ki ? (idx[k] == r ? 1.0 : 0.0) : dq[ko][r];
+  }
+  return 0;
+}
+
 int npg_full_jacobian_csr(NpgFull *f, long sample, const char *output, const char *input, NpgCsr *out) {
   API_REFUSE_NULL(f, NULL, 0, -1);
   if (!out) return refuse(f, __func__, "argument 'out' is NULL");
   memset(out, 0, sizeof *out);
-  int ko = slot_of(f, __func__, "output", output, false), ki = ko < 0 ? -1 : slot_of(f, __func__, "input", input, true);
+  int ko = api_full_slot(f, __func__, "output", output, false);
+  int ki = ko < 0 ? -1 : api_full_slot(f, __func__, "input", input, true);
   if (ko < 0 || ki < 0 || !prepare(f, sample)) return -1;
-  size_t nout = 0, nin = 0;
-  full_get(f->full, output, &nout);
-  full_get(f->full, input, &nin);
-  long *ptr = NULL, *idx = NULL;
-  if (full_jacobian_pattern(f->full, output, input, &ptr, &idx) != 0) return -1;
-  long *color = malloc(sizeof(long) * (nin + 1));
-  double *data = malloc(sizeof(double) * ((size_t)ptr[nout] + 1));
-  long ncolors = color && data ? color_columns((long)nout, (long)nin, ptr, idx, color) : -1;
-  int rc = ncolors < 0 ? full_fail(f->full, "out of memory") : 0;
-  for (long c = 0; c < ncolors && rc == 0; c++) {
-    double *const *dq = full_deriv_arrays(f->full);
-    if (!dq) {
-      rc = -1;
-      break;
-    }
-    for (size_t j = 0; j < nin; j++) dq[ki][j] = color[j] == c ? 1.0 : 0.0;
-    if ((rc = full_jvp(f->full, sample)) != 0) break;
-    for (size_t r = 0; r < nout; r++) /* a row reads at most one column of each color */
-      for (long k = ptr[r]; k < ptr[r + 1]; k++)
-        if (color[idx[k]] == c) data[k] = ko == ki ? (idx[k] == (long)r ? 1.0 : 0.0) : dq[ko][r];
-  }
-  free(color);
+  ApiJacPlan p;
+  if (api_jac_plan(f, output, input, &p) != 0) return -1;
+  double *data = malloc(sizeof(double) * ((size_t)p.indptr[p.rows] + 1));
+  int rc = data ? api_jac_values(f, sample, ko, ki, &p, data) : full_fail(f->full, "out of memory");
   if (rc != 0) {
-    free(ptr), free(idx), free(data);
+    free(data);
+    api_jac_plan_free(&p);
     return -1;
   }
-  *out = (NpgCsr){(long)nout, (long)nin, ptr[nout], ptr, idx, data};
+  *out = (NpgCsr){p.rows, p.cols, p.indptr[p.rows], p.indptr, p.indices, data};
+  free(p.color);
   return 0;
 }

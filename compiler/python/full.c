@@ -627,6 +627,70 @@ done:
   return res;
 }
 
+/* An option of Full.newton taken out of its keywords (the rest are inputs): a new reference, or NULL. */
+static PyObject *pop_option(PyObject *kw, const char *name) {
+  PyObject *v = kw ? PyDict_GetItemString(kw, name) : NULL;
+  if (!v) return NULL;
+  Py_INCREF(v);
+  PyDict_DelItemString(kw, name);
+  return v;
+}
+
+/* newton(residual, unknown, tol=1e-10, max_iter=20, verbose=False, sample=None, **inputs)
+ * -> (unknown's value, shaped, [‖r‖ per iteration]): npg_full_newton, Reduced.newton's signature. */
+static PyObject *full_newton(FullObject *self, PyObject *args, PyObject *kw) {
+  PyObject *a0, *a1;
+  if (!PyArg_UnpackTuple(args, "Full.newton", 2, 2, &a0, &a1)) return NULL;
+  const char *res_name = npgpy_name(a0, "Full.newton"), *unk = res_name ? npgpy_name(a1, "Full.newton") : NULL;
+  if (!res_name || !unk) return NULL;
+  PyObject *inputs = kw ? PyDict_Copy(kw) : NULL, *out = NULL, *value = NULL, *hist_list = NULL;
+  if (kw && !inputs) return NULL;
+  PyObject *tolo = pop_option(inputs, "tol"), *ito = pop_option(inputs, "max_iter");
+  PyObject *verbo = pop_option(inputs, "verbose"), *sampo = pop_option(inputs, "sample");
+  NpgNewton o = {.tol = 1e-10, .max_iter = 20};
+  bool verbose = false, entered = false;
+  long sample = -1;
+  if ((tolo && (o.tol = PyFloat_AsDouble(tolo), PyErr_Occurred())) ||
+      (ito && (o.max_iter = (int)PyLong_AsLong(ito), PyErr_Occurred())) ||
+      (verbo && npgpy_flag(verbo, "Full.newton: verbose", &verbose)) ||
+      (sampo && sampo != Py_None && (sample = PyLong_AsLong(sampo), PyErr_Occurred())))
+    goto done;
+  if (!(entered = npgpy_full_enter(self, "Full.newton"))) goto done;
+  if (set_inputs(self, inputs) != 0) goto done;
+  self->evaluated = false;
+  if (!sampo || sampo == Py_None) sample = self->calls;
+  self->calls++;
+  double hist[1024];
+  o.history = hist, o.history_cap = 1024, o.verbose = verbose ? stderr : NULL;
+  int rc;
+  Py_BEGIN_ALLOW_THREADS
+  rc = npg_full_newton(self->f, sample, res_name, unk, &o);
+  Py_END_ALLOW_THREADS
+  if (rc) {
+    fail(self);
+    goto done;
+  }
+  self->evaluated = true;
+  if (!(value = value_of(self, unk)) || !(hist_list = PyList_New(0))) goto done;
+  for (int i = 0; i <= o.iterations && i < o.history_cap; i++) {
+    PyObject *fl = PyFloat_FromDouble(hist[i]);
+    int bad = !fl || PyList_Append(hist_list, fl) < 0;
+    Py_XDECREF(fl);
+    if (bad) goto done;
+  }
+  out = PyTuple_Pack(2, value, hist_list);
+done:
+  if (entered) npgpy_busy_leave(&self->busy);
+  Py_XDECREF(value);
+  Py_XDECREF(hist_list);
+  Py_XDECREF(tolo);
+  Py_XDECREF(ito);
+  Py_XDECREF(verbo);
+  Py_XDECREF(sampo);
+  Py_XDECREF(inputs);
+  return out;
+}
+
 static PyObject *full_jvp(FullObject *self, PyObject *args, PyObject *kw) { return derivative(self, args, kw, DERIV_JVP); }
 static PyObject *full_vjp(FullObject *self, PyObject *args, PyObject *kw) { return derivative(self, args, kw, DERIV_VJP); }
 static PyObject *full_jacobian(FullObject *self, PyObject *args, PyObject *kw) {
@@ -674,6 +738,11 @@ static PyMethodDef full_methods[] = {
   {"jacobian", (PyCFunction)(void (*)(void))full_jacobian, METH_VARARGS | METH_KEYWORDS,
    "jacobian(output, input, **inputs) -> array of shape output.shape + input.shape: d output / d input at the\n"
    "inputs given (the others as last set), exact (DESIGN §17)"},
+  {"newton", (PyCFunction)(void (*)(void))full_newton, METH_VARARGS | METH_KEYWORDS,
+   "newton(residual, unknown, tol=1e-10, max_iter=20, verbose=False, sample=None, **inputs) -> (value, residuals):\n"
+   "Newton's method on the full residual for the unknown input (npg_full_newton: the sparse Jacobian by UMFPACK,\n"
+   "LAPACK when dense), from its value as set (or given here); residuals: ‖r‖ per iteration; sample: the number\n"
+   "failures name (default: the call's)"},
   {"jacobian_csr", (PyCFunction)(void (*)(void))full_jacobian_csr, METH_VARARGS | METH_KEYWORDS,
    "jacobian_csr(output, input, **inputs) -> dict(data, indices, indptr, shape): the Jacobian flattened to\n"
    "count(output) x count(input), on its structural pattern, as CSR (scipy.sparse.csr_matrix((data, indices,\n"
