@@ -63,7 +63,7 @@ def main():
     nx = int(sys.argv[1]) if len(sys.argv) > 1 else 128
     ny = int(sys.argv[2]) if len(sys.argv) > 2 else 64
     steps = int(sys.argv[3]) if len(sys.argv) > 3 else 40
-    energy = float(sys.argv[4]) if len(sys.argv) > 4 else 1 - 1e-7
+    energy = float(sys.argv[4]) if len(sys.argv) > 4 else 0.999
     hx, hy = 2 / nx, 1 / ny
     umax = 2.0
     dt = 4 * min(hx, hy) / umax / 2  # explicit upwind: dt (1/hx + 1/hy) umax <= 1; 4x that
