@@ -76,7 +76,7 @@ static int solver_solve(NpgFull *f, NewtonSolver *s, const char *residual, const
     return 0;
   }
   const SuiteSparse_long *Ap = (const SuiteSparse_long *)ptr, *Ai = (const SuiteSparse_long *)idx;
-  double info[UMFPACK_INFO];
+  double info[UMFPACK_INFO] = {0};
   int st = UMFPACK_OK;
   if (!s->symbolic)
     st = (int)umfpack_dl_symbolic((SuiteSparse_long)n, (SuiteSparse_long)n, Ap, Ai, s->data, &s->symbolic, s->control,
