@@ -679,7 +679,7 @@ NPG_API int npg_reduced_newton(NpgReduced *r, long sample, const char *residual,
  * unknown's value as set. Each iteration evaluates, stops when ‖r‖₂ <= tol, and otherwise solves
  * J δ = r with the Jacobian on its structural pattern (npg_full_jacobian_csr's, planned once per
  * call): by UMFPACK (the pattern analysed once, factorized at every iteration), or by LAPACK
- * dgesv when more than a quarter of its entries are on the pattern. Verbose lines, history and
+ * dgesv when more than 2% of its entries are on the pattern. Verbose lines, history and
  * failures (not converged after max_iter corrections, a singular Jacobian, a residual that is
  * not finite: each naming the sample, the iteration and the residual) as npg_reduced_newton's.
  * On success the unknown holds the solution and every quantity its value there. 0, or -1 with
