@@ -423,6 +423,7 @@ static int affine_input(const Model *m, Full *f, const RTerm *rt, long n, cholmo
     if (x->nin == 1) q = x->in_q[0];
   }
   const Sym *sy = q >= 0 ? m->prog->quantities.v[q] : NULL;
+  if (sy && sy->ndims + sy->nstatic != 1) return -1; /* set below as a vector: one axis only */
   size_t nx = 0;
   const double *cur = sy && sy->kind == SYM_INPUT ? full_get(f, sy->name, &nx) : NULL;
   if (!cur || nx < 1 || nx > ESTIMATE_THETA_MAX) return -1;
