@@ -613,7 +613,7 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
   /* four sweeps over this rank's rows of A: R_B (the TSQR of A T's rows), the largest
    * magnitude of every column of B = (A T) R_B⁻¹ (the largest over the ranks), the sign
    * convention (pca_fix_signs: the sign of the first row, over all ranks, whose entry is at
-   * least half that; as −(2·row + negative), the largest over the ranks is the first row), then
+   * least PCA_SIGN_FRACTION of that; as −(2·row + negative), the largest over the ranks is the first row), then
    * B written */
   for (int sweep = 0; sweep < 4 && !bad; sweep++) {
     if (sweep == 1) {
@@ -653,7 +653,7 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
           for (long j = 0; j < m; j++) {
             double v = B[e * m + j];
             if (sweep == 1) big[j] = fmax(big[j], fabs(v));
-            else if (first[j] == -HUGE_VAL && big[j] > 0 && fabs(v) >= 0.5 * big[j])
+            else if (first[j] == -HUGE_VAL && big[j] > 0 && fabs(v) >= PCA_SIGN_FRACTION * big[j])
               first[j] = -(2.0 * (double)(r0 + e) + (v > 0 ? 0 : 1));
           }
         if (sweep == 3) bad = ooc_write_at(fp, B, sizeof(double) * (size_t)(R * m), sizeof(double) * (size_t)(r0 * m));

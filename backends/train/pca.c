@@ -468,8 +468,8 @@ oom:
   return -1;
 }
 
-/* The first entry (in row order) whose magnitude is at least half of the
- * column's largest: its sign decides the column's. Unlike the sign of the
+/* The first entry (in row order) whose magnitude is at least
+ * PCA_SIGN_FRACTION of the column's largest: its sign decides the column's. Unlike the sign of the
  * largest entry it is not a tie between mirror-image entries of a
  * symmetric mode, so two routes to one basis agreeing to rounding agree on
  * it. */
@@ -478,7 +478,7 @@ void pca_sign_scan(long n, long m, const double *B, double *big, int *sign, bool
     for (long j = 0; j < m; j++) {
       double v = B[e * m + j];
       if (!decide) big[j] = fmax(big[j], fabs(v));
-      else if (!sign[j] && big[j] > 0 && fabs(v) >= 0.5 * big[j]) sign[j] = v > 0 ? 1 : -1;
+      else if (!sign[j] && big[j] > 0 && fabs(v) >= PCA_SIGN_FRACTION * big[j]) sign[j] = v > 0 ? 1 : -1;
     }
 }
 

@@ -32,14 +32,14 @@
  * about twice a basis pass's rows for radiosity).
  *
  * The sign convention (pca_fix_signs: each column's first row of magnitude
- * at least half the column's largest is positive) needs every row of B, so
+ * at least PCA_SIGN_FRACTION of the column's largest is positive) needs every row of B, so
  * the tensors are summed with B's columns as A T gives them, and the signs
  * are fixed on the sums at the end: flipping column j of a basis multiplies
  * the reduced entries by ±1 (exactly). The row that decides a column's sign
  * is a strict running maximum of |B(·, j)| in row order (the rows before it
- * are below half the largest, so below it), and one below half the running
+ * are below that fraction of the largest, so below it), and one below it of the running
  * maximum can no longer decide: each column keeps the running maxima above
- * half the current largest (Peaks), as home rows come in ascending order.
+ * that fraction of the current largest (Peaks), as home rows come in ascending order.
  *
  * A class the model keeps has its home rows written to its basis file as
  * they are formed, the signs fixed in the file at the end (one read and
@@ -58,7 +58,7 @@
 #include "ooc.h"
 
 /* One column's running maxima of |B(r, j)| (ascending rows), those below
- * half the largest dropped. */
+ * PCA_SIGN_FRACTION of the largest dropped. */
 typedef struct Peaks {
   double big;               /* the largest |B(r, j)| so far */
   long *row;
@@ -413,7 +413,7 @@ static int take_peaks(Streamer *s, int c, long r0, long r1) {
       double a = fabs(b[j]);
       if (!(a > pk->big)) continue;
       pk->big = a;
-      while (pk->head < pk->len && fabs(pk->v[pk->head]) < 0.5 * a) pk->head++;
+      while (pk->head < pk->len && fabs(pk->v[pk->head]) < PCA_SIGN_FRACTION * a) pk->head++;
       if (pk->head > 0 && pk->head == pk->len) pk->head = pk->len = 0;
       if (pk->len == pk->cap) {
         if (pk->head > 0) { /* reclaim the dropped front */
@@ -549,7 +549,7 @@ static int decide_signs(Streamer *s) {
       const Peaks *pk = &h->peaks[j];
       first[j] = -HUGE_VAL;
       for (long q = pk->head; big[j] > 0 && q < pk->len; q++)
-        if (fabs(pk->v[q]) >= 0.5 * big[j]) {
+        if (fabs(pk->v[q]) >= PCA_SIGN_FRACTION * big[j]) {
           first[j] = -(2.0 * (double)pk->row[q] + (pk->v[q] > 0 ? 0 : 1));
           break;
         }

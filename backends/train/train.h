@@ -391,8 +391,13 @@ int pca_r_basis(long S, const double *R, int cap, double energy, double *s, doub
  * (method of snapshots, out of core) refuse them; the in-memory PCA scales
  * them instead. */
 const char *pca_gram_out_of_range(long S, const double *G, double big);
+/* The fraction of a column's largest magnitude that its sign-deciding entry
+ * reaches: 1/φ, not 1/2, since structured data (radiosity's symmetric rooms)
+ * has entries of exactly half the largest, which rounding puts on either
+ * side of a threshold of 1/2 by route (in memory or out of core). */
+#define PCA_SIGN_FRACTION 0.6180339887498949
 /* The basis sign convention: every column of B (n x m row-major) turned so
- * that its first entry of at least half its largest magnitude is positive
+ * that its first entry of at least PCA_SIGN_FRACTION of its largest magnitude is positive
  * (every route to a basis — SVD, Gram matrix, out of core — ends with it,
  * so they give the same vectors, not just the same span). 0, or -1 when
  * out of memory. */
@@ -400,7 +405,7 @@ int pca_fix_signs(long n, long m, double *B);
 /* The convention by blocks of rows (out of core): with `decide` false,
  * big[j] = max(big[j], |B[e, j]|) over the block; then, over the blocks in
  * order with `decide` true, sign[j] (0 until found) set from the first
- * entry of at least half big[j]. */
+ * entry of at least PCA_SIGN_FRACTION big[j]. */
 void pca_sign_scan(long n, long m, const double *B, double *big, int *sign, bool decide);
 /* mu[0..n) = the mean of the S columns of X (n x S column-major). */
 void pca_mean(long n, long S, const double *X, double *mu);
