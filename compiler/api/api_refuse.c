@@ -1,0 +1,20 @@
+/* api_refuse.c — the public API's refusals of bad arguments (api.h): the
+ * message in the caller's buffer and kept as this thread's last refusal. */
+#include <stdarg.h>
+#include <stdio.h>
+
+#include "api.h"
+
+static _Thread_local char refusal[512];
+
+int api_refuse(char *err, size_t errlen, const char *func, const char *fmt, ...) {
+  char why[400];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(why, sizeof why, fmt, ap);
+  va_end(ap);
+  snprintf(refusal, sizeof refusal, "%s: %s", func, why);
+  return error_set(err, errlen, "%s", refusal);
+}
+
+const char *api_refusal(void) { return refusal; }
