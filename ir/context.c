@@ -76,23 +76,25 @@ char *arena_vprintf(Ctx *ctx, const char *fmt, va_list ap) {
   return p;
 }
 
+int error_vset(char *err, size_t errlen, const char *fmt, va_list ap) {
+  if (err && errlen) vsnprintf(err, errlen, fmt, ap);
+  return -1;
+}
+
 int error_set(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
+  va_list ap;
+  va_start(ap, fmt);
+  error_vset(err, errlen, fmt, ap);
+  va_end(ap);
   return -1;
 }
 
 int error_set_first(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen && !err[0]) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
+  if (err && errlen && err[0]) return -1;
+  va_list ap;
+  va_start(ap, fmt);
+  error_vset(err, errlen, fmt, ap);
+  va_end(ap);
   return -1;
 }
 

@@ -51,6 +51,8 @@ typedef struct Arena {
 /* Library code's failures: the message formatted into `err` (when `err` and
  * `errlen` are given), and -1 to return. */
 int error_set(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+/* The same with the arguments as a va_list (npg_error_set, npg.h, is this). */
+int error_vset(char *err, size_t errlen, const char *fmt, va_list ap);
 /* The same, unless `err` already holds a message: the first error of an
  * object stays (the evaluators and the trainer refuse work after one). */
 int error_set_first(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
