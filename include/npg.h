@@ -294,6 +294,11 @@ NPG_API int npg_npy_write_i64(const char *path, int ndim, const long *shape, con
 NPG_API double *npg_npy_read(const char *path, int *ndim, long shape[NPG_NPY_MAX_DIMS], size_t *count, char *err,
                              size_t errlen);
 
+/* The library's way to fail, for a program's own functions too: printf(`fmt`, ...)
+ * into `err` (when `err` and `errlen` are given, cut at `errlen`), and -1 to return
+ * — the convention of every function here that takes `err`, `errlen`. */
+NPG_API int npg_error_set(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+
 /* Sets sample k's inputs and externs in `f` (npg_samples_set is one). */
 typedef int (*NpgSampleFn)(void *user, NpgFull *f, long k);
 

@@ -7,8 +7,9 @@
  * turns checked stages into the canonical form of ir/ir.h. Reading files and
  * the lexer's tokens belong to the front end (compiler/front/compile.h).
  *
- * Memory: everything lives in the compilation's arena (Ctx.arena) and is
- * released at once by ctx_free(). User errors longjmp back to npg_compile().
+ * Memory: every Node, Decl and Sym lives in the compilation's arena
+ * (Ctx.arena), released at once by ctx_free(). User errors longjmp to
+ * ctx->on_error (context.h).
  */
 #ifndef NPG_AST_H
 #define NPG_AST_H

@@ -1,5 +1,5 @@
 /* context.c — the compilation's context (context.h): the arena, pointer
- * vectors, library failures and refusals, and the diagnostics with their
+ * vectors, library failures (error_set), and the diagnostics with their
  * source excerpts. */
 #include "context.h"
 
@@ -76,39 +76,28 @@ char *arena_vprintf(Ctx *ctx, const char *fmt, va_list ap) {
   return p;
 }
 
+int error_vset(char *err, size_t errlen, const char *fmt, va_list ap) {
+  if (err && errlen) vsnprintf(err, errlen, fmt, ap);
+  return -1;
+}
+
 int error_set(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
+  va_list ap;
+  va_start(ap, fmt);
+  error_vset(err, errlen, fmt, ap);
+  va_end(ap);
   return -1;
 }
 
 int error_set_first(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen && !err[0]) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
+  if (err && errlen && err[0]) return -1;
+  va_list ap;
+  va_start(ap, fmt);
+  error_vset(err, errlen, fmt, ap);
+  va_end(ap);
   return -1;
 }
 
-static _Thread_local char refusal[512];
-
-int api_refuse(char *err, size_t errlen, const char *func, const char *fmt, ...) {
-  char why[400];
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(why, sizeof why, fmt, ap);
-  va_end(ap);
-  snprintf(refusal, sizeof refusal, "%s: %s", func, why);
-  return error_set(err, errlen, "%s", refusal);
-}
-
-const char *api_refusal(void) { return refusal; }
 
 const char *bytes_text(double bytes, char *buf, size_t len) {
   static const char *const units[] = {"B", "kB", "MB", "GB", "TB", "PB", "EB"};
@@ -138,6 +127,12 @@ void vec_push(Ctx *ctx, PtrVec *vec, void *p) {
     vec->cap = cap;
   }
   vec->v[vec->n++] = p;
+}
+
+int vec_position(const PtrVec *vec, const void *p) {
+  for (int i = 0; i < vec->n; i++)
+    if (vec->v[i] == p) return i;
+  return -1;
 }
 
 /* ---------------------------------------------------------------- diagnostics */

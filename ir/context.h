@@ -1,10 +1,17 @@
 /* context.h — what every layer of the compiler shares beneath the syntax
  * tree: source files and locations, the compilation's arena and pointer
  * vectors, the context (Ctx) with its diagnostics, and library code's
- * failures and the API's refusals.
+ * failures (error_set). The public API's argument refusals are the
+ * facade's (compiler/api/api.h).
  *
- * Memory: everything lives in the compilation's arena (Ctx.arena) and is
- * released at once by ctx_free(). User errors longjmp to ctx->on_error.
+ * Two ways to fail, by who calls: while compiling (the front end, the
+ * lowering, the emitters), everything lives in the compilation's arena
+ * (Ctx.arena), released at once by ctx_free(), and a user error or running
+ * out of memory longjmps to ctx->on_error, which npg_compile arms
+ * (compiler/api/npg.c; the full evaluator and the reduced emitter arm it
+ * around code generation). Library code that runs on a finished program
+ * (evaluation, training, models) does not jump: it frees what it allocated
+ * and returns -1 with the message error_set wrote.
  */
 #ifndef NPG_CONTEXT_H
 #define NPG_CONTEXT_H
@@ -44,30 +51,11 @@ typedef struct Arena {
 /* Library code's failures: the message formatted into `err` (when `err` and
  * `errlen` are given), and -1 to return. */
 int error_set(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+/* The same with the arguments as a va_list (npg_error_set, npg.h, is this). */
+int error_vset(char *err, size_t errlen, const char *fmt, va_list ap);
 /* The same, unless `err` already holds a message: the first error of an
  * object stays (the evaluators and the trainer refuse work after one). */
 int error_set_first(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-/* The public API's argument checks (STYLE: CHOLMOD's RETURN_IF_NULL):
- * every npg_ entry point refuses a NULL pointer argument, or one out of its
- * documented range, before touching anything, with "FUNC: argument 'ARG'
- * is NULL" (or the reason given). The message goes to `err` when given (the
- * object's own error, so its getter returns it) and is kept as this
- * thread's last refusal, which the error getters (npg_full_error,
- * npg_trainer_error, npg_reduced_error, npg_model_error) return when the
- * object itself is the NULL argument. It replaces a message already there:
- * a call refused is the latest thing the caller should hear about. -1. */
-int api_refuse(char *err, size_t errlen, const char *func, const char *fmt, ...) __attribute__((format(printf, 4, 5)));
-/* This thread's last refusal ("" when none). */
-const char *api_refusal(void);
-/* Return `ret` after refusing `arg` when it is NULL; `err`/`errlen` as for
- * api_refuse (NULL, 0 when the object itself is checked). */
-#define API_REFUSE_NULL(arg, err, errlen, ret)                                    \
-  do {                                                                            \
-    if (!(arg)) {                                                                 \
-      api_refuse((err), (errlen), __func__, "argument '%s' is NULL", #arg);       \
-      return ret;                                                                 \
-    }                                                                             \
-  } while (0)
 /* `bytes` for a message, in the units --mem takes (powers of 1000):
  * "800 B", "1.12 GB", "8 TB"; into `buf`, which is returned. */
 const char *bytes_text(double bytes, char *buf, size_t len);
@@ -89,6 +77,10 @@ typedef struct PtrVec {
   int n, cap;
 } PtrVec;
 void vec_push(Ctx *ctx, PtrVec *vec, void *p);
+/* The position of `p` in `vec` (the first, by a linear search), or -1 when
+ * it is not there: a symbol's number in a program's list of dims, params,
+ * quantities or slots, which the generated code and the models index by. */
+int vec_position(const PtrVec *vec, const void *p);
 
 /* ---------------------------------------------------------------- context */
 

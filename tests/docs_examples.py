@@ -24,9 +24,11 @@ Every relative link of docs/*.md and README.md must name a file that exists
 (and a heading of it, for a #fragment), and no file of the repository may
 point at the design document outside it (after `git clone` there is none).
 
-Each layer's folder (ir/, backends/*/, compiler/*/, stdlib/*/, examples/common,
-tests/support) has a README that names every file in it, and the index READMEs
-of backends/, compiler/ and stdlib/ name every sub-folder.
+Each folder of code (ir/, include/, scripts/, cmake/, docs/, bench/, tests/,
+backends/*/, compiler/*/, stdlib/*/, examples/*/) has a README that names every
+file in it (`stem.c/.h` names both), the parts of tests/ listed in
+tests/README.md; the index READMEs of backends/, compiler/, stdlib/ and
+examples/ name every sub-folder.
 """
 import glob, json, os, re, subprocess, sys, tempfile
 
@@ -256,26 +258,43 @@ for path in docs:
             {"npg": check_block, "npg-error": check_error_block, "console": check_console}[kind](path, first, text,
                                                                                                 work)
 
+# Folders whose files another folder's README lists (a test suite's parts in tests/README.md, the
+# benchmark's data in bench/README.md); data folders (tests/bad, tests/programs, pictures) are not
+# code and are left out.
+LISTED_BY = {"tests/support": "tests/README.md", "tests/api": "tests/README.md", "tests/cli": "tests/README.md",
+             "tests/python": "tests/README.md", "tests/hostile": "tests/README.md", "tests/fuzz": "tests/README.md",
+             "tests/mpi": "tests/README.md", "tests/install": "tests/README.md", "bench/interp": "bench/README.md"}
+
+
+def listed(name, text):
+    """Whether a README names file `name`: by its name, or as half of a pair `stem.c/.h`, `stem.h/.c`."""
+    stem, ext = os.path.splitext(name)
+    pair = {".c": [stem + ".h/.c"], ".h": [stem + ".c/.h"]}.get(ext, [])
+    return name in text or any(p in text for p in pair)
+
+
 def check_map():
-    """Each layer's folder opens with a README that names every file it holds (the map a
+    """Each folder of code opens with a README that names every file it holds (the map a
     newcomer reads: kept true when a file is added, moved or removed); an index README
     names each sub-folder."""
-    folders = ["ir"] + sorted(glob.glob("backends/*/")) + sorted(glob.glob("compiler/*/")) + \
-        ["stdlib/runtime", "stdlib/npg", "examples/common", "tests/support"]
-    indexes = {"backends": "backends/*/", "compiler": "compiler/*/", "stdlib": "stdlib/*/"}
+    folders = ["ir", "include", "scripts", "cmake", "docs", "bench", "tests"] + sorted(glob.glob("backends/*/")) + \
+        sorted(glob.glob("compiler/*/")) + sorted(glob.glob("stdlib/*/")) + sorted(glob.glob("examples/*/")) + \
+        sorted(LISTED_BY)
+    indexes = {"backends": "backends/*/", "compiler": "compiler/*/", "stdlib": "stdlib/*/", "examples": "examples/*/"}
     readmes = []
     for folder in (f.rstrip("/") for f in folders):
-        readme = "tests/README.md" if folder == "tests/support" else os.path.join(folder, "README.md")
+        readme = LISTED_BY.get(folder, os.path.join(folder, "README.md"))
         if not os.path.exists(readme):
             failures.append("%s: no README.md listing its files" % folder)
             continue
-        readmes.append(readme)
+        if readme not in readmes:
+            readmes.append(readme)
         with open(readme, encoding="utf-8") as f:
             text = f.read()
         for name in sorted(os.listdir(folder)):
             if name != "README.md" and os.path.isfile(os.path.join(folder, name)) and "`" not in name:
                 counts["map"] += 1
-                if name not in text:
+                if not listed(name, text):
                     failures.append("%s: %s/%s is not in the folder's list" % (readme, folder, name))
     for index, pattern in indexes.items():
         readme = os.path.join(index, "README.md")

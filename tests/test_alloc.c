@@ -1,6 +1,6 @@
 /* test_alloc.c — allocation failure in training and model loading (issue
  * 24; STYLE: one allocation hook, Lua's ltests.c). Each allocation of the
- * library (mem_alloc_hook, ir/ast.h) fails in turn — the first, then the
+ * library (mem_alloc_hook, stdlib/runtime/alloc.h; tests/support/failing_alloc.h) fails in turn — the first, then the
  * second, ... — until the whole operation succeeds: every failure must end
  * in a message that says "out of memory" (never a crash or a quiet NULL),
  * and, under the sanitizer build, leak nothing (LeakSanitizer at exit).
@@ -8,6 +8,7 @@
  */
 #include <setjmp.h>
 #include <stdarg.h>
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -15,11 +16,10 @@
 #include <string.h>
 #include <unistd.h>
 
-#include <execinfo.h>
 
 #include <cmocka.h>
 
-#include "ast.h" /* mem_alloc_hook */
+#include "support/failing_alloc.h"
 #include "npg.h"
 
 static const char *eq3 = "input  x : real[2]\n"
@@ -27,30 +27,10 @@ static const char *eq3 = "input  x : real[2]\n"
 
 enum { SAMPLES = 12, MAX_FAILURES = 20000 };
 
-static long fail_after, calls, current;
-static long trace = -1; /* NPG_ALLOC_TRACE=k: the stack of the k-th allocation's failure on stderr */
-static void *failing_alloc(size_t n) {
-  calls++;
-  if (fail_after-- > 0) return malloc(n);
-  if (trace == current && fail_after == -1) {
-    void *frames[16];
-    backtrace_symbols_fd(frames, backtrace(frames, 16), 2);
-  }
-  return NULL;
-}
-
-static void hook_on(long k) {
-  current = k;
-  fail_after = k;
-  calls = 0;
-  mem_alloc_hook = failing_alloc;
-}
-static void hook_off(void) { mem_alloc_hook = malloc; }
-
 /* A crash must not leave the hook failing for the next test. */
 static int restore_hook(void **state) {
   (void)state;
-  hook_off();
+  failing_alloc_off();
   return 0;
 }
 
@@ -95,11 +75,11 @@ static void training_fails_cleanly(void **state) {
   assert_string_equal(npg_full_error(f), "");
   long k;
   for (k = 0; k < MAX_FAILURES; k++) {
-    if (trace >= 0) fprintf(stderr, "training, allocation %ld fails\n", k);
-    hook_on(k);
+    if (failing_alloc_traced() >= 0) fprintf(stderr, "training, allocation %ld fails\n", k);
+    failing_alloc_after(k);
     const char *msg;
     NpgModel *m = train(f, dir, &msg);
-    hook_off();
+    failing_alloc_off();
     if (m) {
       npg_model_free(m);
       break;
@@ -126,8 +106,8 @@ static void loading_fails_cleanly(void **state) {
   npg_full_free(f);
   long k;
   for (k = 0; k < MAX_FAILURES; k++) {
-    if (trace >= 0) fprintf(stderr, "loading, allocation %ld fails\n", k);
-    hook_on(k);
+    if (failing_alloc_traced() >= 0) fprintf(stderr, "loading, allocation %ld fails\n", k);
+    failing_alloc_after(k);
     NpgModel *m = npg_model_load(p, dir);
     NpgReduced *r = NULL;
     const char *msg = npg_model_error(m);
@@ -138,7 +118,7 @@ static void loading_fails_cleanly(void **state) {
       else if (npg_reduced_set(r, "x", 2, xs) || npg_reduced_eval(r, 0) || npg_reduced_lift(r, "y", y, 2))
         msg = npg_reduced_error(r);
     }
-    hook_off();
+    failing_alloc_off();
     bool done = !msg[0];
     if (!done && !strstr(msg, "out of memory")) fail_msg("allocation %ld failing: \"%s\"", k, msg);
     npg_reduced_free(r);
@@ -152,7 +132,6 @@ static void loading_fails_cleanly(void **state) {
 
 static int setup(void **state) {
   (void)state;
-  trace = getenv("NPG_ALLOC_TRACE") ? atol(getenv("NPG_ALLOC_TRACE")) : -1;
   srand(5);
   for (int i = 0; i < 2 * SAMPLES; i++) xs[i] = 0.5 + (double)rand() / RAND_MAX;
   snprintf(dir, sizeof dir, "/tmp/npg_test_alloc_%d", (int)getpid());

@@ -330,7 +330,7 @@ static void backends_agree(void **state) {
  * products, and one reverse product of cotangent v (into vjp, in's count). */
 static double *internal_jacobian(Full *f, const Program *prog, const Sym *out, const Sym *in, const double *v,
                                  double *vjp, size_t *nout, size_t *nin) {
-  int ko = emit_index_of(&prog->slots, out), ki = emit_index_of(&prog->slots, in);
+  int ko = vec_position(&prog->slots, out), ki = vec_position(&prog->slots, in);
   full_get(f, out->name, nout);
   full_get(f, in->name, nin);
   double *J = malloc(sizeof(double) * (*nout * *nin + 1));

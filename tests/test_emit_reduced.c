@@ -26,7 +26,7 @@
 static void project_inputs(const Program *prog, const MemSamples *ms, long k, Reduced *const *r, int n) {
   for (int i = 0; i < ms->n; i++) {
     if (ms->sym[i]->kind != SYM_INPUT) continue;
-    int q = emit_index_of(&prog->quantities, ms->sym[i]);
+    int q = vec_position(&prog->quantities, ms->sym[i]);
     for (int j = 0; j < n; j++) reduced_project(r[j], q, ms->val[i] + (size_t)k * ms->count[i]);
   }
 }
@@ -214,7 +214,7 @@ static void singular_operator_named(void **state) {
   RedJit *jit = reduced_jit_new(tr.m, false, err, sizeof err);
   assert_non_null(jit);
   /* x = 0: the diagonal x^2 of y's denominator vanishes, and with it the reduced operator */
-  int q = emit_index_of(&tr.prog->quantities, find_quantity(tr.prog, "x"));
+  int q = vec_position(&tr.prog->quantities, find_quantity(tr.prog, "x"));
   double zero[2] = {0, 0};
   for (int j = 0; j < 2; j++) reduced_project(r[j], q, zero);
   assert_int_equal(reduced_eval(r[0], 7), -1);

@@ -66,7 +66,7 @@ static double reduced_vs_full(Model *m, Full *f, MemSamples *held, long k, const
   reduced_use_given_externs(r, true);
   if (memsamples_set(held, f, k) || full_eval(f, k)) fail_msg("%s: %s", path, full_error(f));
   for (int i = 0; i < held->n; i++)
-    reduced_project(r, emit_index_of(&prog->quantities, held->sym[i]), held->val[i] + (size_t)k * held->count[i]);
+    reduced_project(r, vec_position(&prog->quantities, held->sym[i]), held->val[i] + (size_t)k * held->count[i]);
   if (reduced_eval(r, k)) fail_msg("%s: %s", path, reduced_error(r));
   double worst = 0;
   for (int q = 0; q < m->nq; q++) {
@@ -205,7 +205,7 @@ static void truncated_obeys_bound(void **state) {
     assert_non_null(r);
     if (memsamples_set(&held, f, k) || full_eval(f, k)) fail_msg("%s", full_error(f));
     for (int i = 0; i < held.n; i++)
-      reduced_project(r, emit_index_of(&prog->quantities, held.sym[i]), held.val[i] + (size_t)k * held.count[i]);
+      reduced_project(r, vec_position(&prog->quantities, held.sym[i]), held.val[i] + (size_t)k * held.count[i]);
     for (int i = 0; i <= wi; i++)
       if (reduced_eval_stage(r, i, k)) fail_msg("%s", reduced_error(r));
     size_t cnt;
@@ -335,8 +335,8 @@ static void save_load_evaluate(void **state) {
   RedJit *j = reduced_jit_new(lm, false, err, sizeof err);
   if (!j) fail_msg("generated reduced code: %s", err);
   Reduced *r1 = reduced_new(lm, err, sizeof err), *r2 = reduced_new(lm, err, sizeof err);
-  int xq = emit_index_of(&lm->prog->quantities, find_quantity(lm->prog, "x"));
-  int aq = emit_index_of(&lm->prog->quantities, find_quantity(lm->prog, "a"));
+  int xq = vec_position(&lm->prog->quantities, find_quantity(lm->prog, "x"));
+  int aq = vec_position(&lm->prog->quantities, find_quantity(lm->prog, "a"));
   for (long k = 0; k < 3; k++) {
     reduced_project(r1, xq, x + k * N * 3);
     reduced_project(r2, xq, x + k * N * 3);

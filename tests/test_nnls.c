@@ -25,7 +25,7 @@
 
 #include <cmocka.h>
 
-#include "ast.h" /* mem_alloc_hook */
+#include "support/failing_alloc.h"
 #include "nnls.h"
 
 /* ---------------------------------------------------------------- random data */
@@ -667,8 +667,6 @@ static void bad_input(void **state) {
 
 /* Every allocation failure is reported, never a crash, and (under ASan)
  * never a leak. */
-static int fail_after;
-static void *failing_alloc(size_t n) { return fail_after-- > 0 ? malloc(n) : NULL; }
 
 static void allocation_failure(void **state) {
   (void)state;
@@ -680,10 +678,9 @@ static void allocation_failure(void **state) {
   char err[256];
   int k;
   for (k = 0; k < 100; k++) {
-    fail_after = k;
-    mem_alloc_hook = failing_alloc;
+    failing_alloc_after(k);
     int rc = nnls_convex(S, d, X, x, w, err, sizeof err);
-    mem_alloc_hook = malloc;
+    failing_alloc_off();
     if (rc == 0) break;
     if (!strstr(err, "out of memory")) fail_msg("failing allocation %d: %s", k, err);
   }

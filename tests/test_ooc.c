@@ -64,7 +64,7 @@ static void model_distance(Program *prog, Full *f, Model *a, Model *b, void *tes
   char err[1024];
   Reduced *ra = reduced_new(a, err, sizeof err), *rb = reduced_new(b, err, sizeof err);
   assert_non_null(ra), assert_non_null(rb);
-  int qo = emit_index_of(&prog->quantities, find_quantity(prog, out));
+  int qo = vec_position(&prog->quantities, find_quantity(prog, out));
   for (long k = 0; k < S; k++) {
     if (set(test, f, k) || full_eval(f, k)) fail_msg("%s", full_error(f));
     for (int q = 0; q < a->nq; q++) {

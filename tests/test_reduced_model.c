@@ -74,7 +74,7 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   int failures = 0;
   for (long k = 0; k < 3; k++) {
     if (memsamples_set(&held, f, k) || full_eval(f, k)) fail_msg("%s: %s", path, full_error(f));
-    for (int i = 0; i < held.n; i++) reduced_project(r, emit_index_of(&prog->quantities, held.sym[i]), held.val[i] + (size_t)k * held.count[i]);
+    for (int i = 0; i < held.n; i++) reduced_project(r, vec_position(&prog->quantities, held.sym[i]), held.val[i] + (size_t)k * held.count[i]);
     if (reduced_eval(r, k)) fail_msg("%s: %s", path, reduced_error(r));
     for (int q = 0; q < m->nq; q++) {
       const Sym *s = prog->quantities.v[q];

@@ -153,8 +153,8 @@ static void centered_beats_uncentered_on_deforming_mesh(void **state) {
     SampleSource src = {train.S, &train, mesh_set, NULL, NULL};
     Model *m = train_with(prog, f, &src, 60, 0.999, uncentered, 0);
     err[uncentered] = mean_error(prog, f, m, &test, mesh_set, test.S, "f");
-    mx[uncentered] = m->classes[m->qclass[emit_index_of(&prog->quantities, find_quantity(prog, "x"))]].m;
-    mf[uncentered] = m->classes[m->qclass[emit_index_of(&prog->quantities, find_quantity(prog, "f"))]].m;
+    mx[uncentered] = m->classes[m->qclass[vec_position(&prog->quantities, find_quantity(prog, "x"))]].m;
+    mf[uncentered] = m->classes[m->qclass[vec_position(&prog->quantities, find_quantity(prog, "f"))]].m;
     model_free(m);
   }
   print_message("deforming springs (%ld vertices, %ld springs), energy 0.999: mean relative error of the forces f: centered "

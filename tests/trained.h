@@ -109,7 +109,7 @@ static inline double mean_error(Program *prog, Full *f, Model *m, void *test, in
   char err[1024];
   Reduced *r = reduced_new(m, err, sizeof err);
   assert_non_null(r);
-  int qo = emit_index_of(&prog->quantities, find_quantity(prog, out));
+  int qo = vec_position(&prog->quantities, find_quantity(prog, out));
   double total = 0;
   for (long k = 0; k < S; k++) {
     if (set(test, f, k) || full_eval(f, k)) fail_msg("%s", full_error(f));

@@ -6,12 +6,6 @@
 
 #include "emit.h"
 
-int emit_index_of(const PtrVec *v, const void *p) {
-  for (int i = 0; i < v->n; i++)
-    if (v->v[i] == p) return i;
-  return -1;
-}
-
 const char *emit_name(Emit *e, const Sym *s) {
   const char *prefix = "x_";
   switch (s->kind) {
@@ -36,15 +30,15 @@ void emit_use(Emit *e, const Sym *s) {
   int k;
   switch (s->kind) {
   case SYM_DIM:
-    if ((k = emit_index_of(&e->prog->dims, s)) >= 0) e->used_dim[k] = true;
+    if ((k = vec_position(&e->prog->dims, s)) >= 0) e->used_dim[k] = true;
     break;
   case SYM_PARAM:
-    if ((k = emit_index_of(&e->prog->params, s)) >= 0) e->used_param[k] = true;
+    if ((k = vec_position(&e->prog->params, s)) >= 0) e->used_param[k] = true;
     break;
   case SYM_INPUT:
   case SYM_STAGE:
   case SYM_EXTERN:
-    if ((k = emit_index_of(&e->prog->slots, s)) >= 0) e->used_q[k] = true;
+    if ((k = vec_position(&e->prog->slots, s)) >= 0) e->used_q[k] = true;
     break;
   default: break;
   }

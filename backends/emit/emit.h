@@ -53,7 +53,6 @@ void emit_offset(Emit *e, FILE *out, const Sym *q, Node *const *idx, int nidx);
 void emit_double(FILE *out, double v);
 /* The libm function of a coefficient-only builtin (exp, fabs, ...), or NULL. */
 const char *emit_math_name(Builtin b);
-int emit_index_of(const PtrVec *v, const void *p);
 /* Prologue declaring every dim, param and quantity the body referenced. */
 void emit_prologue(Emit *e, FILE *out, bool write_stage, const Sym *stage);
 void emit_reset_used(Emit *e);

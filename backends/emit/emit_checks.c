@@ -65,7 +65,7 @@ static void emit_index_check(Emit *e, FILE *out, const Sym *q, int axis, const N
   fprintf(out, "{ const npg_idx v%d_ = ", t);
   emit_cexpr(e, out, idx);
   fprintf(out, "; if (v%d_ < 0 || v%d_ >= %s) { ", t, t, emit_name(e, dim));
-  int dim_id = emit_index_of(&e->prog->dims, dim);
+  int dim_id = vec_position(&e->prog->dims, dim);
   if (idx->kind == N_INDEX && idx->sym && idx->sym->kind == SYM_PARAM) {
     const Sym *p = idx->sym;
     fprintf(out, "npg_idx w_[%d] = {", idx->nargs);
@@ -75,7 +75,7 @@ static void emit_index_check(Emit *e, FILE *out, const Sym *q, int axis, const N
     }
     fprintf(out, "}; c->rt->gather_error(c, \"%s\", ", where->name);
     emit_use_site(e, out, idx, where);
-    fprintf(out, ", %d, %d, w_, v%d_, %d); return -1; } }\n", emit_index_of(&e->prog->params, p), idx->nargs, t, dim_id);
+    fprintf(out, ", %d, %d, w_, v%d_, %d); return -1; } }\n", vec_position(&e->prog->params, p), idx->nargs, t, dim_id);
   } else {
     fprintf(out, "npg_idx w_[%d] = {", where->nivars ? where->nivars : 1);
     for (int i = 0; i < where->nivars; i++) fprintf(out, "%s%s", i ? ", " : "", emit_name(e, where->ivars[i]));

@@ -31,7 +31,7 @@ typedef enum DerivMode {
 /* The C name of quantity q's derivative array (tangent or cotangent), dQ_<name>: a local
  * the function's prologue loads from d->q (deriv_function). */
 static const char *dname(Emit *e, const Sym *q) {
-  e->used_deriv[emit_index_of(&e->prog->slots, q)] = true;
+  e->used_deriv[vec_position(&e->prog->slots, q)] = true;
   return arena_printf(e->ctx, "d%s", emit_name(e, q));
 }
 
@@ -73,7 +73,7 @@ static void deriv_function(Emit *e, FILE *out, const char *signature, void (*bod
 /* The entry (tangent or cotangent) of atom `a`'s quantity. */
 static void emit_datom(Emit *e, FILE *out, const Atom *a) {
   fprintf(out, "%s[", dname(e, a->q));
-  int k = emit_index_of(&e->prog->slots, a->q);
+  int k = vec_position(&e->prog->slots, a->q);
   bool used = e->used_q[k]; /* the offset reads the dims, not the values */
   emit_offset(e, out, a->q, a->idx, a->nidx);
   e->used_q[k] = used;
@@ -320,7 +320,7 @@ static void emit_decl_tangent(Emit *e, FILE *out, const Stage *st, int t) {
     if (op->opdef->sparse) {
       fprintf(out, "    /* %s^(%ld/%ld), sparse, and its tangent */\n", op->name, tm->ops[k].p, tm->ops[k].q);
       fprintf(out, "    if (c->rt->sparse_power_jvp(c, d, \"%s\", \"%s\", %d, n_, %s, %s, %ld, %ld, v_, dv_)) {\n", s->name,
-              op->name, emit_index_of(&e->prog->opdefs, op->opdef), emit_fn_name(e->ctx, "entries_", op),
+              op->name, vec_position(&e->prog->opdefs, op->opdef), emit_fn_name(e->ctx, "entries_", op),
               emit_fn_name(e->ctx, "dentries_", op), tm->ops[k].p, tm->ops[k].q);
       fputs("      c->rt->release(c, v_);\n      c->rt->release(c, dv_);\n      return -1;\n    }\n", out);
       continue;
@@ -388,7 +388,7 @@ static void emit_stage_tangent(Emit *e, FILE *out, const void *arg) {
  * its derivative enumerator. */
 static void emit_sparse_adjoint(Emit *e, FILE *out, const Sym *s, const OpPow *o, int pass, int jj, bool first) {
   const char *entries = emit_fn_name(e->ctx, "entries_", o->op);
-  int opid = emit_index_of(&e->prog->opdefs, o->op->opdef);
+  int opid = vec_position(&e->prog->opdefs, o->op->opdef);
   fprintf(out, "    /* %s^(%ld/%ld), sparse%s */\n", o->op->name, o->p, o->q, pass ? ", reverse" : "");
   if (!pass) {
     fprintf(out, "    for (npg_idx e_ = 0; e_ < n_; e_++) w_[n_ * %d + e_] = w_[n_ * %d + e_];\n", jj + 1, jj);

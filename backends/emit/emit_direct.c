@@ -143,7 +143,7 @@ static int entry(Emit *e, const Sym *q, Node *const *args, int nargs, int comp, 
   int nl = cse_nloops(cs);
   if (nl >= 2 && q->ndims == 1 && q->nstatic && !q->is_int && idx[0] == e->loopvar[nl - 1] &&
       cse_in_range(cs, idx[0], q->dims[0])) {
-    if (emit_index_of(&e->soa, q) < 0) vec_push(e->ctx, &e->soa, (void *)q);
+    if (vec_position(&e->soa, q) < 0) vec_push(e->ctx, &e->soa, (void *)q);
     return cse_load(cs, soa_name(e, q, flat), false, idx[0], true);
   }
   /* the flat offset ((i0 * D1 + i1) * S0 + c0) ... */

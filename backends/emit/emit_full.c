@@ -297,7 +297,7 @@ static void emit_stage_body(Emit *e, FILE *out, const Stage *st) {
       if (op->opdef->sparse) {
         fprintf(out, "    { /* %s^(%ld/%ld), sparse */\n", op->name, tm->ops[k].p, tm->ops[k].q);
         fprintf(out, "      if (c->rt->sparse_power(c, \"%s\", \"%s\", %d, n_, %s, %ld, %ld, v_)) { c->rt->release(c, v_); return -1; }\n",
-                s->name, op->name, emit_index_of(&e->prog->opdefs, op->opdef), emit_fn_name(e->ctx, "entries_", op),
+                s->name, op->name, vec_position(&e->prog->opdefs, op->opdef), emit_fn_name(e->ctx, "entries_", op),
                 tm->ops[k].p, tm->ops[k].q);
         fputs("    }\n", out);
         continue;
@@ -573,7 +573,7 @@ static void emit_step(Emit *e, const FullStep *c) {
     }
     fputs(", fused: one pass over their common domain */\n", out);
     e->writes = arena_alloc(ctx, sizeof(bool) * (size_t)(e->prog->slots.n + 1));
-    for (int m = 0; m < c->n; m++) e->writes[emit_index_of(&e->prog->slots, c->members[m]->sym)] = true;
+    for (int m = 0; m < c->n; m++) e->writes[vec_position(&e->prog->slots, c->members[m]->sym)] = true;
     Group g = {c->members, c->n};
     emit_function_sig(e, out, arena_printf(ctx, "static int %s(const NpgCtx *c)", c->fn), NULL, group_body_cb, &g);
     e->writes = NULL;
@@ -594,7 +594,7 @@ static void emit_step(Emit *e, const FullStep *c) {
   fprintf(out, "/* %s over boxes of its domain */\n", c->fn);
   if (c->kind == STEP_FUSED) {
     e->writes = arena_alloc(ctx, sizeof(bool) * (size_t)(e->prog->slots.n + 1));
-    for (int m = 0; m < c->n; m++) e->writes[emit_index_of(&e->prog->slots, c->members[m]->sym)] = true;
+    for (int m = 0; m < c->n; m++) e->writes[vec_position(&e->prog->slots, c->members[m]->sym)] = true;
   }
   emit_function_sig(e, out,
                     arena_printf(ctx, "static int box_%s(const NpgCtx *c, int nbox_, const npg_idx *box_)", c->fn),

@@ -60,7 +60,7 @@ void demand_reset(Demand *d, const npg_idx *dims) {
   for (int i = 0; i < d->plan->n; i++) d->step[i].state = BOX_NONE, d->step[i].n = 0;
 }
 
-static npg_idx dim_size(const Demand *d, const Sym *dim) { return d->dims[emit_index_of(&d->prog->dims, dim)]; }
+static npg_idx dim_size(const Demand *d, const Sym *dim) { return d->dims[vec_position(&d->prog->dims, dim)]; }
 
 static bool contains(const npg_idx *outer, const npg_idx *inner, int nax) {
   for (int k = 0; k < nax; k++)
@@ -100,7 +100,7 @@ static void boxes_add(Demand *d, Boxes *b, int nax, const npg_idx *x) {
   b->state = BOX_SOME;
 }
 
-static int slot_of(const Demand *d, const Sym *q) { return emit_index_of(&d->prog->slots, q); }
+static int slot_of(const Demand *d, const Sym *q) { return vec_position(&d->prog->slots, q); }
 
 void demand_all(Demand *d, const Sym *q) {
   int s = slot_of(d, q);

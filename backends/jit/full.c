@@ -168,7 +168,7 @@ static int bind_shape(Full *f, const Sym *s, int ndim, const long *shape, const 
       return fail(f, "%s: axis %d of '%s' is static with size %d, but the array has %ld", from, s->ndims + i, s->name,
                   s->shape[i], shape[s->ndims + i]);
   for (int i = 0; i < s->ndims; i++) {
-    int d = emit_index_of(&f->prog->dims, s->dims[i]);
+    int d = vec_position(&f->prog->dims, s->dims[i]);
     if (shape[i] < 0)
       return fail(f, "%s: axis %d of '%s' has a negative size (%ld)", from, i, s->name, shape[i]);
     if (f->dims[d] < 0) {
@@ -193,7 +193,7 @@ static int bind_shape(Full *f, const Sym *s, int ndim, const long *shape, const 
 static const char *index_text(Full *f, const Sym *s, size_t e, char *buf, size_t len) {
   long shape[MAX_AXES + MAX_STATIC], idx[MAX_AXES + MAX_STATIC];
   int nd = 0;
-  for (int i = 0; i < s->ndims; i++) shape[nd++] = (long)f->dims[emit_index_of(&f->prog->dims, s->dims[i])];
+  for (int i = 0; i < s->ndims; i++) shape[nd++] = (long)f->dims[vec_position(&f->prog->dims, s->dims[i])];
   for (int i = 0; i < s->nstatic; i++) shape[nd++] = s->shape[i];
   for (int i = nd - 1; i >= 0; i--) {
     idx[i] = shape[i] > 0 ? (long)(e % (size_t)shape[i]) : 0;
@@ -209,7 +209,7 @@ static const char *index_text(Full *f, const Sym *s, size_t e, char *buf, size_t
 static size_t count_of(Full *f, const Sym *s) {
   size_t n = 1;
   for (int i = 0; i < s->ndims; i++)
-    if (__builtin_mul_overflow(n, (size_t)f->dims[emit_index_of(&f->prog->dims, s->dims[i])], &n)) return SIZE_MAX;
+    if (__builtin_mul_overflow(n, (size_t)f->dims[vec_position(&f->prog->dims, s->dims[i])], &n)) return SIZE_MAX;
   for (int i = 0; i < s->nstatic; i++)
     if (__builtin_mul_overflow(n, (size_t)s->shape[i], &n)) return SIZE_MAX;
   return n;
@@ -237,10 +237,10 @@ static double *alloc_entries(Full *f, const Sym *s, size_t n) {
     for (int j = 0; j < i; j++) again |= s->dims[j] == s->dims[i];
     if (!again)
       len += (size_t)snprintf(shape + len, sizeof shape - len, "%s%s = %ld", len && shape[len - 1] == ']' ? " with " : ", ",
-                              s->dims[i]->name, (long)f->dims[emit_index_of(&f->prog->dims, s->dims[i])]);
+                              s->dims[i]->name, (long)f->dims[vec_position(&f->prog->dims, s->dims[i])]);
   }
   double entries = 1; /* exact enough for a message, and never overflows */
-  for (int i = 0; i < s->ndims; i++) entries *= (double)f->dims[emit_index_of(&f->prog->dims, s->dims[i])];
+  for (int i = 0; i < s->ndims; i++) entries *= (double)f->dims[vec_position(&f->prog->dims, s->dims[i])];
   for (int i = 0; i < s->nstatic; i++) entries *= s->shape[i];
   const char *kind = s->kind == SYM_INPUT    ? "input"
                      : s->kind == SYM_EXTERN ? "extern"
@@ -578,7 +578,7 @@ static bool index_value(Full *f, const Sym *s, const long *iv, const Node *n, in
     if (pk < 0 || !f->iparams[pk] || n->nargs != t->ndims + t->nstatic) return false;
     size_t flat = 0;
     for (int i = 0; i < n->nargs; i++) {
-      long size = i < t->ndims ? (long)f->dims[emit_index_of(&f->prog->dims, t->dims[i])] : t->shape[i - t->ndims];
+      long size = i < t->ndims ? (long)f->dims[vec_position(&f->prog->dims, t->dims[i])] : t->shape[i - t->ndims];
       if (!index_value(f, s, iv, n->args[i], depth + 1, &a) || a < 0 || a >= size) return false;
       flat = flat * (size_t)size + (size_t)a;
     }
@@ -600,7 +600,7 @@ static bool atom_value(Full *f, const Sym *s, const long *iv, const Atom *a, dou
   size_t at = (size_t)snprintf(where, len, "%s[", q->name);
   for (int i = 0; i < q->ndims + q->nstatic; i++) {
     const Node *n = a->idx[i];
-    long size = i < q->ndims ? (long)f->dims[emit_index_of(&f->prog->dims, q->dims[i])] : q->shape[i - q->ndims], x = -1;
+    long size = i < q->ndims ? (long)f->dims[vec_position(&f->prog->dims, q->dims[i])] : q->shape[i - q->ndims], x = -1;
     if (!index_value(f, s, iv, n, 0, &x) || x < 0 || x >= size) return false;
     flat = flat * (size_t)size + (size_t)x;
     if (at < len) at += (size_t)snprintf(where + at, len - at, "%s%ld", i ? ", " : "", x);
@@ -654,7 +654,7 @@ static bool entry_index(Full *f, const Sym *s, size_t e, long *iv, size_t *comp)
   *comp = st->ncomp > 0 ? e % (size_t)st->ncomp : 0;
   size_t rest = st->ncomp > 0 ? e / (size_t)st->ncomp : e;
   for (int i = s->nivars - 1; i >= 0; i--) {
-    long size = (long)f->dims[emit_index_of(&f->prog->dims, s->ivars[i]->range)];
+    long size = (long)f->dims[vec_position(&f->prog->dims, s->ivars[i]->range)];
     if (size <= 0) return false;
     iv[i] = (long)(rest % (size_t)size);
     rest /= (size_t)size;
@@ -750,7 +750,7 @@ int full_advance(Full *f) {
   const Program *prog = f->prog;
   for (int i = 0; i < prog->states.n; i++) {
     const Sym *u = prog->states.v[i];
-    int a = emit_index_of(&prog->slots, u), b = emit_index_of(&prog->slots, u->next);
+    int a = vec_position(&prog->slots, u), b = vec_position(&prog->slots, u->next);
     if (a < 0 || b < 0 || !f->q[b] || f->qcount[a] != f->qcount[b])
       return fail(f, "state '%s' cannot advance: its next value '%s' was not evaluated", u->name, u->next->name);
     double *t = f->q[a];

@@ -139,7 +139,7 @@ bool full_first_nonfinite(Full *f, const Sym **sym, char *index, size_t len, dou
 int full_fail(Full *f, const char *msg);
 /* Record `msg` as the evaluator's error, replacing one already there (an
  * argument refused by the facade: the latest thing the caller should hear
- * about, api_refuse in ast.h); -1. */
+ * about: api_refuse in compiler/api/api.h); -1. */
 int full_refuse(Full *f, const char *msg);
 
 /* Derivatives (DESIGN §17; the C: backends/emit/emit_deriv.c), compiled on first use with

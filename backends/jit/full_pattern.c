@@ -128,7 +128,7 @@ static int stage_deps(Full *f, const Program *prog, const Stage *st, Deps *deps,
       const OpPow *op = field ? &tm->ops[field - 1] : NULL;
       const TensorList *tl = !op ? &tm->num_tensors : op->kind == OPK_DIAG ? &tm->op_tensors[field - 1] : &op->op->opdef->tensors;
       if (!op && tm->named_num) { /* the numerator is a quantity itself */
-        const Deps *d = &deps[emit_index_of(&prog->slots, tm->named_num)];
+        const Deps *d = &deps[vec_position(&prog->slots, tm->named_num)];
         for (size_t e = 0; e < d->n && e < n && d->ptr; e++)
           for (long k = d->ptr[e]; k < d->ptr[e + 1]; k++) pair_add(&pairs, mixed ? -1 : (long)e, d->idx[k]);
         continue;
@@ -137,7 +137,7 @@ static int stage_deps(Full *f, const Program *prog, const Stage *st, Deps *deps,
         const TensorGroup *tg = &tl->g[g];
         PatternSink s = {{NULL}, &pairs, mixed};
         for (int i = 0; i < tg->ninputs && i < 16; i++) {
-          const Deps *d = &deps[emit_index_of(&prog->slots, tg->inputs[i])];
+          const Deps *d = &deps[vec_position(&prog->slots, tg->inputs[i])];
           s.in[i] = d->ptr && d->ptr[d->n] > 0 ? d : NULL;
         }
         NpgSink sink = {&s, pattern_entry, 0, 1, 0, 0};
@@ -177,7 +177,7 @@ int full_jacobian_pattern(Full *f, const char *output, const char *input, long *
   for (int i = 0; i < prog->stages.n && rc == 0; i++) {
     const Stage *st = prog->stages.v[i];
     if (st->kind == ST_INPUT || st->kind == ST_EXTERN) continue;
-    int k = emit_index_of(&prog->slots, st->sym);
+    int k = vec_position(&prog->slots, st->sym);
     size_t n = 0;
     full_get(f, st->sym->name, &n);
     rc = stage_deps(f, prog, st, deps, n, &deps[k]);

@@ -21,7 +21,7 @@
 
 static long quantity_count(const Program *prog, const long *dims, const Sym *s) {
   long n = 1;
-  for (int i = 0; i < s->ndims; i++) n *= dims[emit_index_of(&prog->dims, s->dims[i])];
+  for (int i = 0; i < s->ndims; i++) n *= dims[vec_position(&prog->dims, s->dims[i])];
   for (int i = 0; i < s->nstatic; i++) n *= s->shape[i];
   return n;
 }
@@ -50,7 +50,7 @@ static bool tensor_inputs(const Program *prog, const TensorGroup *g, RTensor *t)
   t->group = g;
   t->nin = 0;
   for (int i = 0; i < g->ninputs; i++) {
-    int q = emit_index_of(&prog->quantities, g->inputs[i]);
+    int q = vec_position(&prog->quantities, g->inputs[i]);
     if (q < 0) return false;
     if (t->nin > 0 && t->in_q[t->nin - 1] == q) {
       t->in_mult[t->nin - 1]++;
@@ -106,7 +106,7 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
     if (!(rc->members = mem_calloc((size_t)rc->nmembers, sizeof(RMember)))) goto oom;
     for (int i = 0; i < bc->members.n; i++) {
       const Sym *s = bc->members.v[i];
-      rc->members[i].q = emit_index_of(&prog->quantities, s);
+      rc->members[i].q = vec_position(&prog->quantities, s);
       if (!(rc->members[i].name = mem_strdup(s->name))) goto oom;
       if (quantity_count(prog, dims, s) != rc->n) {
         snprintf(err, errlen, "class %s: '%s' has %ld entries but '%s' has %ld", rc->label, s->name,
@@ -128,7 +128,7 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
     RStage *rs = &m->stages[i];
     const Stage *st = prog->stages.v[i];
     rs->st = st;
-    rs->q = emit_index_of(&prog->quantities, st->sym);
+    rs->q = vec_position(&prog->quantities, st->sym);
     if (rs->q < 0) {
       snprintf(err, errlen, "stage '%s' has no basis (a bug in npg)", st->sym->name);
       model_free(m);
@@ -138,7 +138,7 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
       RExtern *x = &m->externs[m->nexterns++];
       x->q = rs->q;
       for (int k = 0; k < st->sym->nof && x->nin < RT_MAX_IN; k++)
-        x->in_q[x->nin++] = emit_index_of(&prog->quantities, st->sym->of[k]);
+        x->in_q[x->nin++] = vec_position(&prog->quantities, st->sym->of[k]);
       continue;
     }
     rs->nterms = st->nterms;
@@ -150,7 +150,7 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
       rt->term = tm;
       rt->named_q = -1;
       if (tm->named_num) {
-        rt->named_q = emit_index_of(&prog->quantities, tm->named_num);
+        rt->named_q = vec_position(&prog->quantities, tm->named_num);
         if (m->qclass[rt->named_q] != m->qclass[rs->q] && !(rt->proj_name = file_stem(dupf("proj_%s_t%d", sn, t))))
           goto oom;
       } else {

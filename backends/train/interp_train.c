@@ -232,7 +232,7 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
 static int stream_tensor(Table *tb, Full *f, const RTensor *x, const char *stage) {
   const TensorGroup *g = x->group;
   tb->nin = g->ninputs;
-  for (int i = 0; i < g->ninputs && i < RT_MAX_IN; i++) tb->in_q[i] = emit_index_of(&tb->m->prog->quantities, g->inputs[i]);
+  for (int i = 0; i < g->ninputs && i < RT_MAX_IN; i++) tb->in_q[i] = vec_position(&tb->m->prog->quantities, g->inputs[i]);
   NpgSink sink = {tb, on_entry, 0, 1, 0, 0};
   if (full_build(f, x->builder, &sink) != 0)
     return error_set(tb->err, tb->errlen, "stage %s: reading tensor %s for interpolation: %s", stage, x->name,

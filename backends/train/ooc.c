@@ -18,14 +18,18 @@
  *                 (pca_choose), and X W the left singular vectors to
  *                 ε σ_max;
  *   basis passes  A_b = [μ_b, X_b W] per member (dgemm), written to an
- *                 unnamed file at its rows' offset, and AᵀA += A_bᵀA_b;
- *   coefficients  the member's Cholesky-QR, its [μ, U] orthonormalized in
- *                 order, and the class's members merged (interleaved, in
- *                 order, as pca_merge) all act on A's columns: B = A T with T small,
- *                 computed from AᵀA alone;
- *   the basis     B_b = A_b T block by block into another unnamed file
- *                 (after two sweeps that decide the sign convention,
- *                 pca_fix_signs), then mapped read-only: pre-multiplication
+ *                 unnamed file at its rows' offset, and folded into A's R
+ *                 factor R_A (dtpqrt, as the factor passes);
+ *   coefficients  each member's R from a QR of its columns of R_A, its
+ *                 [μ, U] orthonormalized in order, and the class's members
+ *                 merged (interleaved, in order, as pca_merge) all act on
+ *                 A's columns through R_A (ooc_basis.c): B = A T with T
+ *                 small, by the in-memory tolerances (a blockwise class:
+ *                 OOC_BLOCKWISE_TOL);
+ *   the basis     B = (A T) R_B⁻¹ block by block into another unnamed file
+ *                 (R_B the TSQR of A T's rows, one sweep; then two that
+ *                 decide the sign convention, pca_fix_signs), then mapped
+ *                 read-only: pre-multiplication
  *                 and the extern fit read basis rows through rc->B as from
  *                 memory. Unless a stage may yet become interpolated (issue
  *                 30, Stream.blockwise): then A is never written, and a
@@ -48,8 +52,8 @@
  * from the rank that keeps each; npgc train's data is read on every rank).
  * The whole evaluations (the small classes' snapshots, the SPD marks) are
  * divided by samples and the small snapshots gathered (whole_sweep); the
- * ranks' R factors are gathered and folded in rank order on every rank
- * and AᵀA is summed over the ranks, so the SVDs and T are the same on
+ * ranks' R factors (the members' and R_A) are gathered and folded in rank
+ * order on every rank, so the SVDs and T are the same on
  * every rank; each rank's A file holds only its rows;
  * each rank writes its rows of B into one file all ranks open (basis_file),
  * the sign convention taken over all rows by two reductions; then every
@@ -486,7 +490,7 @@ static int take_floors(Ooc *o, int c, const double *T, long m) {
 }
 
 /* Basis passes: A_b = [μ_b, X_b W] per member, written at its rows, and
- * AᵀA accumulated. */
+ * folded into A's R factor R_A. */
 static int basis_passes(Ooc *o) {
   long S = o->S;
   for (long p = 0; p < o->npass && o->nseg > 0; p++) {

@@ -91,7 +91,7 @@ static int cache_rollouts(Search *s, Full *f, const SampleSource *valid, const M
   const Program *prog = s->prog;
   s->v.state_n = 0;
   for (int i = 0; i < prog->states.n; i++)
-    s->v.state_n += qsize(layout, emit_index_of(&prog->quantities, prog->states.v[i]));
+    s->v.state_n += qsize(layout, vec_position(&prog->quantities, prog->states.v[i]));
   s->v.saves = s->v.steps / s->v.every + 1;
   if (!(s->v.traj = mem_calloc((size_t)valid->count + 1, sizeof(double *)))) return error_set(err, errlen, "out of memory");
   for (long k = 0; k < valid->count; k++) {
@@ -137,7 +137,7 @@ static int validate_rollouts(Search *s, Model *m, double *worst, char *err, size
       if (t % s->v.every == 0) {
         const double *full = s->v.traj[k] + (t / s->v.every) * s->v.state_n;
         for (int i = 0; i < ns; i++) {
-          int q = emit_index_of(&prog->quantities, prog->states.v[i]);
+          int q = vec_position(&prog->quantities, prog->states.v[i]);
           reduced_lift(r, q, y);
           for (long j = 0; j < qsize(m, q); j++) e2[i] += (full[j] - y[j]) * (full[j] - y[j]), n2[i] += full[j] * full[j];
           full += qsize(m, q);
@@ -150,7 +150,7 @@ static int validate_rollouts(Search *s, Model *m, double *worst, char *err, size
       }
       for (int i = 0; i < ns; i++) {
         const Sym *u = prog->states.v[i];
-        int q = emit_index_of(&prog->quantities, u), qn = emit_index_of(&prog->quantities, u->next);
+        int q = vec_position(&prog->quantities, u), qn = vec_position(&prog->quantities, u->next);
         const double *next = reduced_coords(r, qn);
         long mq = m->classes[m->qclass[q]].m;
         for (long j = 0; j < mq; j++) blown |= !isfinite(next[j]);
@@ -197,7 +197,7 @@ static int validate(Search *s, Model *m, double *worst, double *floor, char *err
       break;
     }
     for (int o = 0; o < s->prog->outputs.n; o++) {
-      int q = emit_index_of(&s->prog->quantities, s->prog->outputs.v[o]);
+      int q = vec_position(&s->prog->quantities, s->prog->outputs.v[o]);
       if (q < 0) continue;
       const double *full = s->v.val[k] + qoff(m, q);
       double num = 0, den = 0;

@@ -337,7 +337,7 @@ static int held_out_differences(const Program *prog, const Model *m, Full *f, Re
       break;
     }
     for (int i = 0; i < held->n; i++)
-      reduced_project(r, emit_index_of(&prog->quantities, held->sym[i]), held->val[i] + (size_t)k * held->count[i]);
+      reduced_project(r, vec_position(&prog->quantities, held->sym[i]), held->val[i] + (size_t)k * held->count[i]);
     if (reduced_eval(r, k) != 0) {
       rc = error_set(err, errlen, "the reduced evaluator on held-out sample %ld: %s", k, reduced_error(r));
       break;

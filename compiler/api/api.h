@@ -1,5 +1,6 @@
 /* api.h — what the public API's files share inside the facade layer: the
- * structs behind NpgFull and NpgModel, and the param hashes a model records. */
+ * refusal of bad arguments, the structs behind NpgFull and NpgModel, and the
+ * param hashes a model records. */
 #ifndef NPG_API_INTERNAL_H
 #define NPG_API_INTERNAL_H
 
@@ -7,6 +8,29 @@
 #include "npg.h"
 #include "reduced.h"
 #include "train.h"
+
+/* ---------------------------------------------------------------- refusals (api_refuse.c)
+ * The public API's argument checks (STYLE: CHOLMOD's RETURN_IF_NULL):
+ * every npg_ entry point refuses a NULL pointer argument, or one out of its
+ * documented range, before touching anything, with "FUNC: argument 'ARG'
+ * is NULL" (or the reason given). The message goes to `err` when given (the
+ * object's own error, so its getter returns it) and is kept as this
+ * thread's last refusal, which the error getters (npg_full_error,
+ * npg_trainer_error, npg_reduced_error, npg_model_error) return when the
+ * object itself is the NULL argument. It replaces a message already there:
+ * a call refused is the latest thing the caller should hear about. -1. */
+int api_refuse(char *err, size_t errlen, const char *func, const char *fmt, ...) __attribute__((format(printf, 4, 5)));
+/* This thread's last refusal ("" when none). */
+const char *api_refusal(void);
+/* Return `ret` after refusing `arg` when it is NULL; `err`/`errlen` as for
+ * api_refuse (NULL, 0 when the object itself is checked). */
+#define API_REFUSE_NULL(arg, err, errlen, ret)                                    \
+  do {                                                                            \
+    if (!(arg)) {                                                                 \
+      api_refuse((err), (errlen), __func__, "argument '%s' is NULL", #arg);       \
+      return ret;                                                                 \
+    }                                                                             \
+  } while (0)
 
 /* An extern's callback as npg.h gives it, called by the internal evaluator
  * through api_full.c's trampoline with the NpgFull the caller knows. */

@@ -30,7 +30,7 @@ int api_full_slot(NpgFull *f, const char *func, const char *arg, const char *nam
     if (want_input && s->kind != SYM_INPUT)
       return refuse(f, func, "argument '%s': '%s' is not an input of the program (derivatives are taken with "
                              "respect to inputs)", arg, name);
-    if (s->kind == SYM_EXTERN || emit_index_of(&prog->temps, s) >= 0)
+    if (s->kind == SYM_EXTERN || vec_position(&prog->temps, s) >= 0)
       return refuse(f, func, "argument '%s': '%s' is %s, not a quantity derivatives can be taken of", arg, name,
                     s->kind == SYM_EXTERN ? "an extern" : "inlined");
     return k;

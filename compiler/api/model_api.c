@@ -200,7 +200,7 @@ const char *npg_model_error(const NpgModel *m) {
   return m ? m->error : api_refusal()[0] ? api_refusal() : "out of memory";
 }
 
-/* The argument checks of the npg_model_ entry points (ast.h): the model,
+/* The argument checks of the npg_model_ entry points (api.h): the model,
  * then pointer arguments into its message (or `err` where one is given). */
 #define REFUSE_NULL_M(ret) API_REFUSE_NULL(nm, NULL, 0, ret)
 
@@ -510,7 +510,7 @@ const char *npg_reduced_error(const NpgReduced *r) {
 /* The evaluator's own error (an unknown name) or the one a stage recorded. */
 static bool failed(const NpgReduced *r) { return npg_reduced_error(r)[0] != 0; }
 
-/* The argument checks of the npg_reduced_ entry points (ast.h). */
+/* The argument checks of the npg_reduced_ entry points (api.h). */
 #define REFUSE_NULL_R(ret) API_REFUSE_NULL(r, NULL, 0, ret)
 #define REFUSE_NULL(arg) API_REFUSE_NULL(arg, r->error, sizeof r->error, -1)
 

@@ -10,6 +10,7 @@
 #include <unistd.h>
 #include <stdio.h>
 
+#include "api.h"
 #include "compile.h"
 #include "full.h"
 #include "npg.h"

@@ -161,7 +161,7 @@ long npg_trainer_samples(const NpgTrainer *t) {
   return t->samples;
 }
 
-/* The argument checks of the npg_trainer_ entry points (ast.h). */
+/* The argument checks of the npg_trainer_ entry points (api.h). */
 #define REFUSE_NULL_T(ret) API_REFUSE_NULL(t, NULL, 0, ret)
 #define REFUSE_NULL(arg, ret) API_REFUSE_NULL(arg, t->error, sizeof t->error, ret)
 

@@ -421,7 +421,7 @@ static int cmd_train(Common *c) {
       goto done;
     }
   }
-  /* --weights: a float64 vector, one positive weight per sample (npg_trainer_weight) */
+  /* --weights: a float64 vector, one weight per sample; npg_trainer_weight refuses one not positive and finite */
   double *w = NULL;
   int wnd = 0;
   long wshape[NPG_NPY_MAX_DIMS];
@@ -436,12 +436,6 @@ static int cmd_train(Common *c) {
     free(w);
     goto done;
   }
-  for (size_t k = 0; k < wn; k++)
-    if (!(w[k] > 0 && isfinite(w[k]))) {
-      fprintf(stderr, "error: --weights %s: entry %zu is %g (weights are positive and finite)\n", c->weights, k, w[k]);
-      free(w);
-      goto done;
-    }
   if (c->greedy) {
     if (c->steps >= 0 || c->weights || c->valid || c->spectra) {
       fprintf(stderr, "npgc train: --greedy is not with --steps, --weights, --valid or --spectra\n");
@@ -459,11 +453,16 @@ static int cmd_train(Common *c) {
   if (c->steps >= 0) {
     if (add_trajectories(c, p, f, t) != 0) goto done_w;
   } else {
-    for (long k = 0; k < npg_samples_count(s) && !npg_trainer_error(t)[0]; k++)
-      if ((w && npg_trainer_weight(t, w[k]) != 0) || npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0)
-        break;
+    for (long k = 0; k < npg_samples_count(s) && !npg_trainer_error(t)[0]; k++) {
+      if (w && npg_trainer_weight(t, w[k]) != 0) {
+        fprintf(stderr, "error: --weights %s: %s\n", c->weights, npg_trainer_error(t));
+        goto done_w;
+      }
+      if (npg_samples_set(s, f, k) != 0 || npg_trainer_add_full(t, f) != 0) break;
+    }
   }
   free(w);
+  w = NULL;
   if (npg_trainer_error(t)[0]) npgc_error(npg_trainer_error(t));
   else if (npg_full_error(f)[0]) npgc_error(npg_full_error(f));
   else if (!(m = npg_trainer_finish(t, c->out))) npgc_error(npg_trainer_error(t));

@@ -8,6 +8,7 @@
  * are vertical, the tilted ceiling is one plane), so the triangles are too. */
 #include "util.h"
 #include "scene.h"
+#include "npg.h"
 
 #include <math.h>
 #include <stdarg.h>
@@ -254,7 +255,7 @@ int scene_new(long faces, const SceneParams *p, Scene *s, char *err, size_t errl
   Material *mat = malloc(sizeof(Material) * np);
   if (!lu || !lv || !mat) {
     free(lu), free(lv), free(mat);
-    return util_fail(err, errlen, "out of memory");
+    return npg_error_set(err, errlen, "out of memory");
   }
   w = (Walker){.quad = size_quad, .lu = lu, .lv = lv, .mat = mat};
   walk(&w, &nominal);
@@ -271,7 +272,7 @@ int scene_new(long faces, const SceneParams *p, Scene *s, char *err, size_t errl
   double h = fabs((double)count_faces(np, lu, lv, lo) - faces) < fabs((double)count_faces(np, lu, lv, hi) - faces) ? lo : hi;
   if (count_faces(np, lu, lv, h) > 200000) {
     free(lu), free(lv), free(mat);
-    return util_fail(err, errlen, "--faces %ld: more than 200000 faces", faces);
+    return npg_error_set(err, errlen, "--faces %ld: more than 200000 faces", faces);
   }
   s->npatch = np;
   s->patch = calloc(np, sizeof(Patch));
@@ -301,7 +302,7 @@ int scene_new(long faces, const SceneParams *p, Scene *s, char *err, size_t errl
   s->e = malloc(sizeof(double) * F);
   if (!s->patch || !s->g || !s->tri || !s->rho || !s->mat || !s->e) {
     scene_free(s);
-    return util_fail(err, errlen, "out of memory");
+    return npg_error_set(err, errlen, "out of memory");
   }
   /* two triangles per cell, (v00, v10, v11) and (v00, v11, v01): their area vectors point
    * along (p10 - p00) x (p01 - p00), the side walk() chose */

@@ -14,16 +14,6 @@
 #include <sys/stat.h>
 #include <time.h>
 
-int util_fail(char *err, size_t errlen, const char *fmt, ...) {
-  if (err && errlen) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, errlen, fmt, ap);
-    va_end(ap);
-  }
-  return -1;
-}
-
 int util_exit_status(const char *prog, int rc) {
   errno = 0;
   bool flushed = fflush(stdout) == 0;
@@ -50,15 +40,18 @@ double util_tick_step(double range, int want) {
 
 int util_make_dirs(const char *path, char *err, size_t errlen) {
   char buf[4096];
-  if (!path || !*path) return util_fail(err, errlen, "no folder given");
-  if (snprintf(buf, sizeof buf, "%s", path) >= (int)sizeof buf) return util_fail(err, errlen, "%.64s...: path too long", path);
+  if (!path || !*path) return npg_error_set(err, errlen, "no folder given");
+  if (snprintf(buf, sizeof buf, "%s", path) >= (int)sizeof buf)
+    return npg_error_set(err, errlen, "%.64s...: path too long", path);
   for (char *q = buf + 1;; q++) {
     bool last = *q == 0;
     if (*q != '/' && !last) continue;
     *q = 0;
     struct stat st;
-    if (mkdir(buf, 0777) != 0 && errno != EEXIST) return util_fail(err, errlen, "cannot create %s: %s", buf, strerror(errno));
-    if (stat(buf, &st) != 0 || !S_ISDIR(st.st_mode)) return util_fail(err, errlen, "%s exists and is not a folder", buf);
+    if (mkdir(buf, 0777) != 0 && errno != EEXIST)
+      return npg_error_set(err, errlen, "cannot create %s: %s", buf, strerror(errno));
+    if (stat(buf, &st) != 0 || !S_ISDIR(st.st_mode))
+      return npg_error_set(err, errlen, "%s exists and is not a folder", buf);
     if (last) break;
     *q = '/';
   }

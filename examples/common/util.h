@@ -1,13 +1,11 @@
-/* util.h — what the example's files share: a message into a caller's
- * buffer, folders made with their parents, a monotonic clock, and the step
- * of a chart's ticks. */
+/* util.h — what the example's files share: folders made with their parents,
+ * a monotonic clock, and the step of a chart's ticks. (A message into a
+ * caller's buffer is npg.h's npg_error_set.) */
 #ifndef EXAMPLES_UTIL_H
 #define EXAMPLES_UTIL_H
 
 #include <stddef.h>
 
-/* printf(`fmt`, ...) into `err` (when `err` and `errlen` are given); -1. */
-int util_fail(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 /* mkdir -p `path`: every missing parent too (a writer creates the folders
  * it writes into, as npgc -o does). 0, or -1 with "PATH: problem" in `err`. */
 int util_make_dirs(const char *path, char *err, size_t errlen);

@@ -4,6 +4,7 @@
 #include "util.h"
 #include "cavity.h"
 #include "gmshread.h"
+#include "npg.h"
 
 #include <gmshc.h>
 #include <math.h>
@@ -161,8 +162,8 @@ static int build_topology(FluidMesh *m, RawMesh *raw, char *err, size_t errlen) 
     int j = i + 1;
     while (j < nh && !memcmp(hf[j].v, hf[i].v, sizeof hf[i].v)) j++;
     if (j - i > 2) {
-      rc = util_fail(err, errlen, "mesh: triangle (%d, %d, %d) is shared by %d cells", hf[i].v[0], hf[i].v[1],
-                     hf[i].v[2], j - i);
+      rc = npg_error_set(err, errlen, "mesh: triangle (%d, %d, %d) is shared by %d cells", hf[i].v[0], hf[i].v[1],
+                         hf[i].v[2], j - i);
       break;
     }
     int f = m->nf++, c0 = hf[i].c, k0 = hf[i].k;
@@ -184,9 +185,9 @@ int cavity_mesh(Cavity *cv, const CavitySpec *spec, char *err, size_t errlen) {
   cv->spec = *spec;
   const CavitySpec *s = spec;
   if (!(s->R > 0 && s->r > 0 && s->rt > 0 && s->rt < s->r && s->rt < s->R && s->D > s->R + s->r && s->cells >= 50))
-    return util_fail(err, errlen,
-                     "cavity: radii must be positive, the tunnel thinner than the chambers, the chambers apart "
-                     "(D > R + r) and cells at least 50");
+    return npg_error_set(err, errlen,
+                         "cavity: radii must be positive, the tunnel thinner than the chambers, the chambers apart "
+                         "(D > R + r) and cells at least 50");
   cv->volume0 = cavity_volume(s);
   /* gmsh's tetrahedra of size h fill about h^3 / 6.1 each (measured), but
    * the curvature of the thin tunnels refines them further: up to two
@@ -276,9 +277,9 @@ int cavity_deform(const Cavity *cv, const double sigma[CAVITY_SIDES], double *g,
   for (int c = 0; c < m->nc; c++) {
     double v = mesh_volume(m, g, c);
     if (!(v > 0))
-      return util_fail(err, errlen,
-                       "deformation to side scales (%g, %g, %g) inverts element %d (volume %.3g, rest volume %.3g)",
-                       sigma[0], sigma[1], sigma[2], c, v, mesh_volume(m, m->g0, c));
+      return npg_error_set(err, errlen,
+                           "deformation to side scales (%g, %g, %g) inverts element %d (volume %.3g, rest volume %.3g)",
+                           sigma[0], sigma[1], sigma[2], c, v, mesh_volume(m, m->g0, c));
   }
   return 0;
 }

@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "util.h"
+#include "npg.h"
 
 void gmsh_raw_free(RawMesh *raw) {
   free(raw->x);
@@ -25,7 +26,7 @@ static int read_cells(int dim, const size_t *ntags, size_t nn, const double *coo
   raw->cell = malloc((size_t)nk * ne * sizeof *raw->cell);
   if (!index || !where || !raw->x || !raw->cell) {
     free(index), free(where);
-    return util_fail(err, errlen, "gmsh: out of memory for %zu cells", ne);
+    return npg_error_set(err, errlen, "gmsh: out of memory for %zu cells", ne);
   }
   for (size_t i = 0; i <= maxtag; i++) index[i] = -1, where[i] = -1;
   for (size_t i = 0; i < nn; i++) where[ntags[i]] = (long)i;
@@ -35,8 +36,8 @@ static int read_cells(int dim, const size_t *ntags, size_t nn, const double *coo
   for (size_t i = 0; i < nk * ne; i++) {
     size_t t = enodes[i];
     if (t > maxtag || where[t] < 0) {
-      rc = util_fail(err, errlen, "gmsh: %s %zu uses unknown node %zu", dim == 2 ? "triangle" : "tetrahedron",
-                     i / nk, t);
+      rc = npg_error_set(err, errlen, "gmsh: %s %zu uses unknown node %zu", dim == 2 ? "triangle" : "tetrahedron",
+                         i / nk, t);
       break;
     }
     if (index[t] < 0) {
@@ -54,26 +55,26 @@ int gmsh_read(const char *name, int dim, GmshBuild build, const void *ctx, RawMe
   int ierr = 0, rc = 0;
   memset(raw, 0, sizeof *raw);
   gmshInitialize(0, NULL, 0, &ierr);
-  if (ierr) return util_fail(err, errlen, "gmsh: initialization failed");
+  if (ierr) return npg_error_set(err, errlen, "gmsh: initialization failed");
   gmshOptionSetNumber("General.Terminal", 0, &ierr);
   gmshOptionSetNumber("General.Verbosity", 0, &ierr);
   gmshModelAdd(name, &ierr);
   size_t *ntags = NULL, *etags = NULL, *enodes = NULL, nn = 0, ne = 0, nen = 0, ncoord = 0, npar = 0;
   double *coord = NULL, *par = NULL;
   if (build(ctx, &ierr) != 0) {
-    rc = util_fail(err, errlen, "gmsh: building the %s geometry failed (code %d)", name, ierr);
+    rc = npg_error_set(err, errlen, "gmsh: building the %s geometry failed (code %d)", name, ierr);
     goto done;
   }
   gmshModelMeshGenerate(dim, &ierr);
   if (ierr) {
-    rc = util_fail(err, errlen, "gmsh: meshing failed (code %d)", ierr);
+    rc = npg_error_set(err, errlen, "gmsh: meshing failed (code %d)", ierr);
     goto done;
   }
   gmshModelMeshGetNodes(&ntags, &nn, &coord, &ncoord, &par, &npar, -1, -1, 0, 0, &ierr);
   /* element types 2 (3-node triangle) and 4 (4-node tetrahedron) */
   gmshModelMeshGetElementsByType(dim == 2 ? 2 : 4, &etags, &ne, &enodes, &nen, -1, 0, 1, &ierr);
   if (ierr || nn == 0 || ne == 0 || nen != (size_t)(dim + 1) * ne) {
-    rc = util_fail(err, errlen, "gmsh: no %s (code %d)", dim == 2 ? "triangles" : "tetrahedra", ierr);
+    rc = npg_error_set(err, errlen, "gmsh: no %s (code %d)", dim == 2 ? "triangles" : "tetrahedra", ierr);
     goto done;
   }
   rc = read_cells(dim, ntags, nn, coord, enodes, ne, raw, err, errlen);

@@ -3,6 +3,7 @@
 #include "util.h"
 #include "mesh.h"
 #include "gmshread.h"
+#include "npg.h"
 
 #include <gmshc.h>
 #include <math.h>
@@ -200,7 +201,8 @@ static int match_periodic(const RawMesh *raw, const TunnelSpec *s, int *master, 
     int best = -1;
     for (int i = lo - 1; i <= lo; i++)
       if (i >= 0 && i < nl && fabs(left[i].y - y) < 1e-9 * s->H) best = left[i].v;
-    if (best < 0) rc = util_fail(err, errlen, "gmsh: node at (%g, %g) on the right edge has no periodic copy", s->L, y);
+    if (best < 0) rc = npg_error_set(err, errlen,
+                                     "gmsh: node at (%g, %g) on the right edge has no periodic copy", s->L, y);
     else master[v] = best;
   }
   free(left);
@@ -245,7 +247,7 @@ static int build_topology(FluidMesh *m, const RawMesh *raw, char *err, size_t er
     int j = i + 1;
     while (j < nh && he[j].a == he[i].a && he[j].b == he[i].b) j++;
     if (j - i > 2) {
-      rc = util_fail(err, errlen, "mesh: edge (%d, %d) is shared by %d cells", he[i].a, he[i].b, j - i);
+      rc = npg_error_set(err, errlen, "mesh: edge (%d, %d) is shared by %d cells", he[i].a, he[i].b, j - i);
       break;
     }
     int f = m->nf++;
@@ -269,7 +271,7 @@ static int build_topology(FluidMesh *m, const RawMesh *raw, char *err, size_t er
       if ((fabs(ya) < tol && fabs(yb) < tol) || (fabs(ya - s->H) < tol && fabs(yb - s->H) < tol))
         m->fkind[f] = BF_WALL;
       else if ((fabs(xa) < tol && fabs(xb) < tol) || (fabs(xa - s->L) < tol && fabs(xb - s->L) < tol))
-        rc = util_fail(err, errlen, "mesh: periodic edge at x = %g, y in [%g, %g] has no partner", xa, ya, yb);
+        rc = npg_error_set(err, errlen, "mesh: periodic edge at x = %g, y in [%g, %g] has no partner", xa, ya, yb);
       else
         m->fkind[f] = BF_OBSTACLE;
       m->bface[m->nb++] = f;
@@ -284,14 +286,15 @@ static int build_topology(FluidMesh *m, const RawMesh *raw, char *err, size_t er
     m->obstacle[q] = -1;
     for (int v = 0; v < m->nv; v++)
       if (hypot(m->g0[2 * v] - corner[q][0], m->g0[2 * v + 1] - corner[q][1]) < 1e-9) m->obstacle[q] = v;
-    if (m->obstacle[q] < 0 && rc == 0) rc = util_fail(err, errlen, "mesh: obstacle corner %d not found among the nodes", q);
+    if (m->obstacle[q] < 0 && rc == 0) rc = npg_error_set(err, errlen,
+                                                          "mesh: obstacle corner %d not found among the nodes", q);
   }
   m->obstacle_area0 = sqrt(3.0) / 4 * s->size * s->size;
   double room = fmin(fmin(s->cy, s->H - s->cy), fmin(s->cx, s->L - s->cx));
   m->blend_r1 = 1.25 * R;
   m->blend_r2 = 0.9 * room;
   if (m->blend_r2 <= 1.1 * m->blend_r1 && rc == 0)
-    rc = util_fail(err, errlen, "mesh: obstacle of size %g leaves no room for the deformation blend", s->size);
+    rc = npg_error_set(err, errlen, "mesh: obstacle of size %g leaves no room for the deformation blend", s->size);
   return rc;
 }
 
@@ -301,12 +304,12 @@ int mesh_tunnel(FluidMesh *m, const TunnelSpec *spec, char *err, size_t errlen) 
   m->nk = 3;
   m->spec = *spec;
   if (!(spec->L > 0 && spec->H > 0 && spec->size > 0 && spec->cells >= 8))
-    return util_fail(err, errlen, "tunnel: L, H and size must be positive and cells at least 8");
+    return npg_error_set(err, errlen, "tunnel: L, H and size must be positive and cells at least 8");
   double R = spec->size / sqrt(3.0);
   if (spec->cx - R <= 0 || spec->cx + R >= spec->L || spec->cy - spec->size / 2 <= 0 ||
       spec->cy + spec->size / 2 >= spec->H)
-    return util_fail(err, errlen, "tunnel: an obstacle of size %g at (%g, %g) does not fit in the %g x %g tunnel",
-                spec->size, spec->cx, spec->cy, spec->L, spec->H);
+    return npg_error_set(err, errlen, "tunnel: an obstacle of size %g at (%g, %g) does not fit in the %g x %g tunnel",
+                         spec->size, spec->cx, spec->cy, spec->L, spec->H);
   RawMesh raw = {0};
   if (gmsh_mesh(spec, &raw, err, errlen) != 0) {
     gmsh_raw_free(&raw);
@@ -344,8 +347,9 @@ int mesh_deform(const FluidMesh *m, double sigma, double sigma_ref, double *g, c
   for (int c = 0; c < m->nc; c++) {
     double a = mesh_volume(m, g, c);
     if (!(a > 0))
-      return util_fail(err, errlen, "deformation to obstacle scale %g inverts element %d (area %.3g, rest area %.3g)",
-                  sigma, c, a, mesh_volume(m, m->g0, c));
+      return npg_error_set(err, errlen,
+                           "deformation to obstacle scale %g inverts element %d (area %.3g, rest area %.3g)",
+                           sigma, c, a, mesh_volume(m, m->g0, c));
   }
   return 0;
 }

@@ -2,6 +2,7 @@
 #include "util.h"
 #include "output.h"
 #include "plot.h"
+#include "npg.h"
 
 #include <errno.h>
 #include <math.h>
@@ -28,7 +29,7 @@ static int write_png(const char *path, int w, int h, unsigned char *rgb, char *e
   char tmp[4096];
   snprintf(tmp, sizeof tmp, "%s.tmp", path);
   FILE *fp = fopen(tmp, "wb");
-  if (!fp) return util_fail(err, errlen, "%s: %s", tmp, strerror(errno));
+  if (!fp) return npg_error_set(err, errlen, "%s: %s", tmp, strerror(errno));
   png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
   png_infop info = png ? png_create_info_struct(png) : NULL;
   png_bytep *rows = malloc(h * sizeof *rows);
@@ -37,7 +38,7 @@ static int write_png(const char *path, int w, int h, unsigned char *rgb, char *e
     fclose(fp);
     free(rows);
     remove(tmp);
-    return util_fail(err, errlen, "%s: libpng could not write the image", path);
+    return npg_error_set(err, errlen, "%s: libpng could not write the image", path);
   }
   png_init_io(png, fp);
   png_set_IHDR(png, info, w, h, 8, PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
@@ -49,7 +50,7 @@ static int write_png(const char *path, int w, int h, unsigned char *rgb, char *e
   free(rows);
   if (fclose(fp) != 0 || rename(tmp, path) != 0) {
     remove(tmp);
-    return util_fail(err, errlen, "%s: %s", path, strerror(errno));
+    return npg_error_set(err, errlen, "%s: %s", path, strerror(errno));
   }
   return 0;
 }
@@ -63,7 +64,7 @@ int output_png(const char *path, const FluidMesh *m, const double *g, const doub
   if (height < 1) height = 1;
   /* the flow, then a colour bar of |u| under it */
   unsigned char *img = malloc(3 * (size_t)width * (height + PLOT_COLORBAR_HEIGHT));
-  if (!img) return util_fail(err, errlen, "%s: out of memory for a %d x %d picture", path, width, height);
+  if (!img) return npg_error_set(err, errlen, "%s: out of memory for a %d x %d picture", path, width, height);
   memset(img, 96, 3 * (size_t)width * height);
   for (int c = 0; c < m->nc; c++) {
     const int *t = m->cell + 3 * c;
@@ -98,7 +99,7 @@ int output_png(const char *path, const FluidMesh *m, const double *g, const doub
     }
   if (plot_colorbar(img, width, height, colormap, vmax, "|u|, cell velocity (obstacle grey)") != 0) {
     free(img);
-    return util_fail(err, errlen, "%s: out of memory", path);
+    return npg_error_set(err, errlen, "%s: out of memory", path);
   }
   int rc = write_png(path, width, height + PLOT_COLORBAR_HEIGHT, img, err, errlen);
   free(img);
@@ -110,14 +111,14 @@ int output_png(const char *path, const FluidMesh *m, const double *g, const doub
 static FILE *open_tmp(const char *path, char *tmp, size_t n, char *err, size_t errlen) {
   snprintf(tmp, n, "%s.tmp", path);
   FILE *fp = fopen(tmp, "w");
-  if (!fp) util_fail(err, errlen, "%s: %s", tmp, strerror(errno));
+  if (!fp) npg_error_set(err, errlen, "%s: %s", tmp, strerror(errno));
   return fp;
 }
 
 static int close_rename(FILE *fp, const char *tmp, const char *path, char *err, size_t errlen) {
   if (ferror(fp) | (fclose(fp) != 0) || rename(tmp, path) != 0) {
     remove(tmp);
-    return util_fail(err, errlen, "%s: %s", path, strerror(errno));
+    return npg_error_set(err, errlen, "%s: %s", path, strerror(errno));
   }
   return 0;
 }

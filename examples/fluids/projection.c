@@ -5,6 +5,7 @@
 #include "projection.h"
 
 #include "stream.h"
+#include "npg.h"
 
 #include <math.h>
 #include <stdbool.h>
@@ -136,12 +137,13 @@ static int al_init(Projection *pr, char *err, size_t errlen) {
   al->b = cholmod_zeros(pr->ni, 1, CHOLMOD_REAL, &al->cc);
   al->lambda = malloc(m->nc * sizeof *al->lambda);
   al->res = malloc(m->nc * sizeof *al->res);
-  if (!al->T || !al->b) return util_fail(err, errlen, "projection: CHOLMOD allocation failed (status %d)", al->cc.status);
+  if (!al->T || !al->b) return npg_error_set(err, errlen,
+                                             "projection: CHOLMOD allocation failed (status %d)", al->cc.status);
   al_assemble(pr, false);
   cholmod_sparse *A = cholmod_triplet_to_sparse(al->T, al->T->nnz, &al->cc);
   al->L = A ? cholmod_analyze(A, &al->cc) : NULL;
   cholmod_free_sparse(&A, &al->cc);
-  if (!al->L) return util_fail(err, errlen, "projection: CHOLMOD analysis failed (status %d)", al->cc.status);
+  if (!al->L) return npg_error_set(err, errlen, "projection: CHOLMOD analysis failed (status %d)", al->cc.status);
   /* a solve is 4 flops per entry of L (forward and back); the factorization's
    * flops run AL_FACTOR_EFFICIENCY times faster (BLAS 3 against BLAS 2) */
   al->factor_cost = al->cc.fl / (4 * fmax(al->cc.lnz, 1)) / AL_FACTOR_EFFICIENCY;
@@ -185,12 +187,13 @@ int projection_init(Projection *pr, const Ops *o, ProjectionMethod method, char 
   pr->Ai = malloc(pr->nt * sizeof *pr->Ai);
   pr->Ax = malloc(pr->nt * sizeof *pr->Ax);
   int st = umfpack_di_triplet_to_col(pr->n, pr->n, pr->nt, pr->ti, pr->tj, pr->tx, pr->Ap, pr->Ai, pr->Ax, pr->map);
-  if (st != UMFPACK_OK) return util_fail(err, errlen, "projection: UMFPACK triplet_to_col failed (status %d)", st);
+  if (st != UMFPACK_OK) return npg_error_set(err, errlen, "projection: UMFPACK triplet_to_col failed (status %d)", st);
   /* UMFPACK's default (automatic) strategy: measured faster here than the
    * symmetric one on this KKT matrix (README) */
   umfpack_di_defaults(pr->control);
   st = umfpack_di_symbolic(pr->n, pr->n, pr->Ap, pr->Ai, pr->Ax, &pr->symbolic, pr->control, NULL);
-  if (st != UMFPACK_OK) return util_fail(err, errlen, "projection: UMFPACK symbolic analysis failed (status %d)", st);
+  if (st != UMFPACK_OK) return npg_error_set(err, errlen,
+                                             "projection: UMFPACK symbolic analysis failed (status %d)", st);
   return 0;
 }
 
@@ -327,7 +330,7 @@ static int al_iterate(Projection *pr, int *solves, char *err, size_t errlen) {
         if (fk >= 0) b[fk] += m->csign[nk * c + k] * (w * res[c] - lam[c]);
       }
     cholmod_dense *sol = cholmod_solve(CHOLMOD_A, al->L, al->b, &al->cc);
-    if (!sol) return util_fail(err, errlen, "projection: CHOLMOD solve failed (status %d)", al->cc.status);
+    if (!sol) return npg_error_set(err, errlen, "projection: CHOLMOD solve failed (status %d)", al->cc.status);
     ++*solves;
     const double *dx = sol->x;
     double dmax = 0, fmx = hmax;
@@ -350,8 +353,8 @@ static int al_iterate(Projection *pr, int *solves, char *err, size_t errlen) {
                        it + log(1e-15 * fmx / size) / log(size / prev) > al_refactor_budget(pr)))
       return 1;
     if (it == AL_MAXIT || size >= 0.5 * prev || !isfinite(size))
-      return util_fail(err, errlen, "projection: augmented Lagrangian iterations did not converge "
-                                    "(correction %.3g of the largest flux after %d)", size / fmx, it);
+      return npg_error_set(err, errlen, "projection: augmented Lagrangian iterations did not converge "
+                           "(correction %.3g of the largest flux after %d)", size / fmx, it);
     prev = size;
   }
   return 0;
@@ -371,8 +374,8 @@ static int al_factor(Projection *pr, char *err, size_t errlen) {
   pr->seconds_numeric += util_now() - t0;
   pr->factorizations++;
   if (!ok)
-    return util_fail(err, errlen, "projection: K + w D^T D is not positive definite (CHOLMOD status %d)",
-                     al->cc.status);
+    return npg_error_set(err, errlen, "projection: K + w D^T D is not positive definite (CHOLMOD status %d)",
+                         al->cc.status);
   return 0;
 }
 
@@ -420,8 +423,8 @@ int projection_solve(Projection *pr, const double *u_in, const double *h, double
     if (pr->numeric) umfpack_di_free_numeric(&pr->numeric);
     int st = umfpack_di_numeric(pr->Ap, pr->Ai, pr->Ax, pr->symbolic, &pr->numeric, pr->control, NULL);
     if (st != UMFPACK_OK)
-      return util_fail(err, errlen, "projection: UMFPACK numeric factorization failed (status %d%s)", st,
-                       st == UMFPACK_WARNING_singular_matrix ? ": singular KKT matrix" : "");
+      return npg_error_set(err, errlen, "projection: UMFPACK numeric factorization failed (status %d%s)", st,
+                           st == UMFPACK_WARNING_singular_matrix ? ": singular KKT matrix" : "");
   }
   double t1 = util_now();
   kkt_rhs(pr, u_in, h);
@@ -431,7 +434,7 @@ int projection_solve(Projection *pr, const double *u_in, const double *h, double
     t1 += pr->seconds_numeric - factor0; /* al_solve's factorizations: counted as numeric */
   } else {
     int st = umfpack_di_solve(UMFPACK_A, pr->Ap, pr->Ai, pr->Ax, pr->x, pr->rhs, pr->numeric, pr->control, NULL);
-    if (st != UMFPACK_OK) return util_fail(err, errlen, "projection: UMFPACK solve failed (status %d)", st);
+    if (st != UMFPACK_OK) return npg_error_set(err, errlen, "projection: UMFPACK solve failed (status %d)", st);
   }
   const double *fb = pr->work_f;
   for (int j = 0; j < m->nf; j++) f[j] = pr->fidx[j] >= 0 ? pr->x[pr->fidx[j]] : fb[j];

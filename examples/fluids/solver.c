@@ -1,6 +1,7 @@
 /* solver.c — the full-space step of paper Fig. 2 (see solver.h). */
 #include "util.h"
 #include "solver.h"
+#include "npg.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -82,8 +83,8 @@ int solver_step_to(FullSolver *s, const double *g_next, char *err, size_t errlen
   if (g_next != s->g_next) memcpy(s->g_next, g_next, nv * sizeof *g_next);
   s->min_quality = mesh_min_quality(m, s->g_next, &s->worst_cell);
   if (!(s->min_quality > 0))
-    return util_fail(err, errlen, "the step's geometry inverts element %d (volume %.3g, rest volume %.3g)",
-                     s->worst_cell, mesh_volume(m, s->g_next, s->worst_cell), mesh_volume(m, m->g0, s->worst_cell));
+    return npg_error_set(err, errlen, "the step's geometry inverts element %d (volume %.3g, rest volume %.3g)",
+                         s->worst_cell, mesh_volume(m, s->g_next, s->worst_cell), mesh_volume(m, m->g0, s->worst_cell));
   for (int i = 0; i < nv; i++) {
     s->gmid[i] = 0.5 * (s->g[i] + s->g_next[i]);
     s->gdot[i] = (s->g_next[i] - s->g[i]) / s->dt;
@@ -115,7 +116,8 @@ int solver_check_energy(double e0, double e, int frame, char *err, size_t errlen
   char grew[96];
   if (isfinite(e)) snprintf(grew, sizeof grew, "grew from %.3g to %.3g", e0, e);
   else snprintf(grew, sizeof grew, "is not finite");
-  return util_fail(err, errlen, "the flow's energy %s at frame %d: the run is unstable and was stopped (the explicit "
-                   "RK4 step is stable only for a small enough time step: lower --cfl, or --mu, whose diffusion is "
-                   "explicit too)", grew, frame);
+  return npg_error_set(err, errlen,
+                       "the flow's energy %s at frame %d: the run is unstable and was stopped (the explicit "
+                       "RK4 step is stable only for a small enough time step: lower --cfl, or --mu, whose diffusion is "
+                       "explicit too)", grew, frame);
 }

@@ -2,6 +2,7 @@
  * function solved by CHOLMOD (see stream.h). */
 #include "util.h"
 #include "stream.h"
+#include "npg.h"
 
 #include <stdarg.h>
 #include <stdio.h>
@@ -112,7 +113,8 @@ int stream_init(StreamProjection **out, const Ops *o, char *err, size_t errlen) 
   cholmod_free_sparse(&A, &s->cc);
   if (!ok) {
     stream_free(s);
-    return util_fail(err, errlen, "projection: the cells' graph Laplacian is not positive definite (is the mesh connected?)");
+    return npg_error_set(err, errlen,
+                         "projection: the cells' graph Laplacian is not positive definite (is the mesh connected?)");
   }
   s->bphi = cholmod_zeros(nphi, 1, CHOLMOD_REAL, &s->cc);
   s->bpsi = cholmod_zeros(s->ndof, 1, CHOLMOD_REAL, &s->cc);
@@ -124,7 +126,7 @@ int stream_init(StreamProjection **out, const Ops *o, char *err, size_t errlen) 
   cholmod_free_sparse(&A, &s->cc);
   if (!s->Lpsi) {
     stream_free(s);
-    return util_fail(err, errlen, "projection: CHOLMOD could not analyse the stream function system");
+    return npg_error_set(err, errlen, "projection: CHOLMOD could not analyse the stream function system");
   }
   *out = s;
   return 0;
@@ -153,8 +155,9 @@ int stream_solve(StreamProjection *s, const double *u_in, const double *h, doubl
   int ok = A && cholmod_factorize(A, s->Lpsi, &s->cc) && s->cc.status == CHOLMOD_OK;
   cholmod_free_sparse(&A, &s->cc);
   if (!ok)
-    return util_fail(err, errlen, "projection: C^T K C is not positive definite (CHOLMOD status %d): a degenerate cell?",
-                s->cc.status);
+    return npg_error_set(err, errlen,
+                         "projection: C^T K C is not positive definite (CHOLMOD status %d): a degenerate cell?",
+                         s->cc.status);
   double t1 = util_now();
   /* particular solution: f_p = f_b + G_i^T phi, G_i G_i^T phi = -G f_b */
   double *fp = s->fp, *bphi = s->bphi->x;
@@ -165,7 +168,7 @@ int stream_solve(StreamProjection *s, const double *u_in, const double *h, doubl
     bphi[c] = -d;
   }
   cholmod_dense *phi = cholmod_solve(CHOLMOD_A, s->Lphi, s->bphi, &s->cc);
-  if (!phi) return util_fail(err, errlen, "projection: CHOLMOD solve failed (status %d)", s->cc.status);
+  if (!phi) return npg_error_set(err, errlen, "projection: CHOLMOD solve failed (status %d)", s->cc.status);
   const double *ph = phi->x;
   for (int j = 0; j < m->nf; j++) {
     if (m->fkind[j] != BF_INTERIOR) continue;
@@ -190,7 +193,7 @@ int stream_solve(StreamProjection *s, const double *u_in, const double *h, doubl
     }
   }
   cholmod_dense *psi = cholmod_solve(CHOLMOD_A, s->Lpsi, s->bpsi, &s->cc);
-  if (!psi) return util_fail(err, errlen, "projection: CHOLMOD solve failed (status %d)", s->cc.status);
+  if (!psi) return npg_error_set(err, errlen, "projection: CHOLMOD solve failed (status %d)", s->cc.status);
   const double *p = psi->x;
   for (int j = 0; j < m->nf; j++) {
     int da = s->dof[m->face[2 * j]], db = s->dof[m->face[2 * j + 1]];

@@ -223,7 +223,7 @@ static int dump_moving(const char *dir, const FullSolver *s, const int *dof, int
   size_t gv = 2 * (size_t)m->nv;
   double *gn = malloc(((size_t)T + 1) * gv * sizeof *gn);
   if (rc || !fint || !fc0 || !fc1 || !ucomp || !gn || !cfree || !fbnd) {
-    rc = util_fail(err, errlen, "out of memory for the moving step's tables (--dump-step %s)", dir);
+    rc = npg_error_set(err, errlen, "out of memory for the moving step's tables (--dump-step %s)", dir);
     goto done;
   }
   for (int j = 0; j < F; j++) {
@@ -280,7 +280,7 @@ static int save_int(const char *dir, const char *name, int ndim, const long *sha
   size_t n = 1;
   for (int i = 0; i < ndim; i++) n *= (size_t)shape[i];
   long *w = malloc((n ? n : 1) * sizeof *w);
-  if (!w) return util_fail(err, errlen, "out of memory writing %s/%s.npy", dir, name);
+  if (!w) return npg_error_set(err, errlen, "out of memory writing %s/%s.npy", dir, name);
   for (size_t i = 0; i < n; i++) w[i] = v[i];
   char path[8192];
   snprintf(path, sizeof path, "%s/%s.npy", dir, name);
@@ -296,7 +296,7 @@ int tunnel_step_dump(const char *dir, const FullSolver *s, const double *Su, con
   char sub[4096];
   snprintf(sub, sizeof sub, "%s/driver", dir);
   if (report_make_dir("npg-fluids", dir) || report_make_dir("npg-fluids", sub))
-    return util_fail(err, errlen, "--dump-step %s: could not create the folder", dir);
+    return npg_error_set(err, errlen, "--dump-step %s: could not create the folder", dir);
   int *dof = malloc(m->nv * sizeof *dof), *ucell = malloc(U * sizeof *ucell), *unbr = malloc(3 * U * sizeof *unbr);
   int *fhead = malloc(F * sizeof *fhead), *ftail = malloc(F * sizeof *ftail);
   double *pval = malloc(3 * U * sizeof *pval), *traj = malloc((size_t)(T + 1) * (U > F ? U : F) * sizeof *traj);
@@ -304,7 +304,7 @@ int tunnel_step_dump(const char *dir, const FullSolver *s, const double *Su, con
   int rc = -1, ndof = -1;
   if (dof && ucell && unbr && fhead && ftail && pval && traj) ndof = stream_matrices(s, dof, &R, &S);
   if (ndof < 0) {
-    util_fail(err, errlen, "out of memory for the step's matrices (--dump-step %s)", dir);
+    npg_error_set(err, errlen, "out of memory for the step's matrices (--dump-step %s)", dir);
     goto done;
   }
   for (long i = 0; i < U; i++) {

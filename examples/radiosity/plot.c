@@ -6,6 +6,7 @@
 
 #include "chart.h"
 #include "util.h"
+#include "npg.h"
 
 /* the plots' colours: blue, red, green, orange first */
 static const double palette[][3] = {
@@ -27,7 +28,7 @@ int plot_series(const char *path, const char *title, const char *ylabel, const P
   ChartSeries *cs = calloc(nseries > 0 ? nseries : 1, sizeof *cs);
   if (!frame || !cs) {
     free(frame), free(cs);
-    return util_fail(err, errlen, "%s: out of memory", path);
+    return npg_error_set(err, errlen, "%s: out of memory", path);
   }
   for (int k = 0; k < nmax; k++) frame[k] = k;
   for (int s = 0; s < nseries; s++)

@@ -1,6 +1,7 @@
 /* radiosity.c — form factors and the radiosity solve (radiosity.h). */
 #include "util.h"
 #include "radiosity.h"
+#include "npg.h"
 
 #include <cblas.h>
 #include <lapacke.h>
@@ -82,7 +83,7 @@ int radiosity_solve_lu(long F, const double *rho, const double *p, const double 
   lapack_int *piv = malloc(sizeof(lapack_int) * F);
   if (!M || !piv) {
     free(M), free(piv);
-    return util_fail(err, errlen, "LU solve: out of memory for a %ld x %ld matrix", F, F);
+    return npg_error_set(err, errlen, "LU solve: out of memory for a %ld x %ld matrix", F, F);
   }
   for (long i = 0; i < F; i++) {
     for (long j = 0; j < F; j++) M[(size_t)i * F + j] = -rho[i] * p[(size_t)i * F + j];
@@ -92,8 +93,8 @@ int radiosity_solve_lu(long F, const double *rho, const double *p, const double 
   lapack_int info = LAPACKE_dgesv(LAPACK_ROW_MAJOR, (lapack_int)F, 1, M, (lapack_int)F, piv, b, 1);
   free(M);
   free(piv);
-  if (info > 0) return util_fail(err, errlen, "LU solve: I - rho F is singular (zero pivot %d)", (int)info);
-  if (info < 0) return util_fail(err, errlen, "LU solve: dgesv argument %d is invalid", (int)-info);
+  if (info > 0) return npg_error_set(err, errlen, "LU solve: I - rho F is singular (zero pivot %d)", (int)info);
+  if (info < 0) return npg_error_set(err, errlen, "LU solve: dgesv argument %d is invalid", (int)-info);
   return 0;
 }
 
@@ -112,10 +113,11 @@ int radiosity_solve_gauss_seidel(long F, const double *rho, const double *p, con
       b[i] = bi;
       big = fmax(big, fabs(bi));
     }
-    if (!isfinite(change)) return util_fail(err, errlen, "Gauss-Seidel: not finite at sweep %d", sweep);
+    if (!isfinite(change)) return npg_error_set(err, errlen, "Gauss-Seidel: not finite at sweep %d", sweep);
     if (change <= tol * big) return sweep;
   }
-  return util_fail(err, errlen, "Gauss-Seidel: no convergence to %g in %d sweeps (is every albedo < 1?)", tol, max_sweeps);
+  return npg_error_set(err, errlen,
+                       "Gauss-Seidel: no convergence to %g in %d sweeps (is every albedo < 1?)", tol, max_sweeps);
 }
 
 /* y = (I − diag(rho) p) x: one pass over p through BLAS (threaded). */
@@ -134,7 +136,7 @@ int radiosity_solve_gmres(long F, const double *rho, const double *p, const doub
   double H[M + 1][M], cs[M], sn[M], g[M + 1], y[M];
   if (!V || !w) {
     free(V), free(w);
-    return util_fail(err, errlen, "GMRES: out of memory");
+    return npg_error_set(err, errlen, "GMRES: out of memory");
   }
   double enorm = cblas_dnrm2((int)F, e, 1);
   if (enorm == 0) enorm = 1;
@@ -147,12 +149,13 @@ int radiosity_solve_gmres(long F, const double *rho, const double *p, const doub
     double beta = cblas_dnrm2((int)F, V, 1);
     if (!isfinite(beta)) {
       free(V), free(w);
-      return util_fail(err, errlen, "GMRES: residual not finite after %d products", matvecs);
+      return npg_error_set(err, errlen, "GMRES: residual not finite after %d products", matvecs);
     }
     if (beta <= tol * enorm) break;
     if (matvecs >= max_matvecs) {
       free(V), free(w);
-      return util_fail(err, errlen, "GMRES: residual %.3g above %.3g after %d products", beta / enorm, tol, matvecs);
+      return npg_error_set(err, errlen,
+                           "GMRES: residual %.3g above %.3g after %d products", beta / enorm, tol, matvecs);
     }
     cblas_dscal((int)F, 1 / beta, V, 1);
     memset(g, 0, sizeof g);

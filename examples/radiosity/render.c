@@ -1,6 +1,7 @@
 /* render.c — cutaway renders, error maps and composites (render.h). */
 #include "util.h"
 #include "render.h"
+#include "npg.h"
 
 #include <cairo.h>
 #include <embree3/rtcore.h>
@@ -87,7 +88,7 @@ int render_view(const Camera *cam, long V, long F, const double *g, const int *t
                 size_t errlen) {
   memset(view, 0, sizeof *view);
   RTCDevice dev = rtcNewDevice("threads=1");
-  if (!dev) return util_fail(err, errlen, "embree: cannot create a device");
+  if (!dev) return npg_error_set(err, errlen, "embree: cannot create a device");
   RTCScene scene = rtcNewScene(dev);
   RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
   /* only the faces whose front is towards the eye (a plane's side is the same for every
@@ -125,7 +126,7 @@ int render_view(const Camera *cam, long V, long F, const double *g, const int *t
     rtcReleaseDevice(dev);
     free(map);
     render_view_free(view);
-    return util_fail(err, errlen, "render: out of memory");
+    return npg_error_set(err, errlen, "render: out of memory");
   }
   CastJob job[2];
   pthread_t th;
@@ -345,7 +346,7 @@ int render_write_png(const char *path, const Image *img, char *err, size_t errle
   char tmp[4096];
   snprintf(tmp, sizeof tmp, "%s.tmp.%ld", path, (long)getpid());
   FILE *fp = fopen(tmp, "wb");
-  if (!fp) return util_fail(err, errlen, "%s: %s", path, strerror(errno));
+  if (!fp) return npg_error_set(err, errlen, "%s: %s", path, strerror(errno));
   png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
   png_infop info = png ? png_create_info_struct(png) : NULL;
   png_bytep *rows = malloc(sizeof(png_bytep) * (size_t)img->height);
@@ -354,14 +355,14 @@ int render_write_png(const char *path, const Image *img, char *err, size_t errle
     free(rows);
     fclose(fp);
     remove(tmp);
-    return util_fail(err, errlen, "%s: libpng: out of memory", path);
+    return npg_error_set(err, errlen, "%s: libpng: out of memory", path);
   }
   if (setjmp(png_jmpbuf(png))) {
     png_destroy_write_struct(&png, &info);
     free(rows);
     fclose(fp);
     remove(tmp);
-    return util_fail(err, errlen, "%s: libpng failed to write", path);
+    return npg_error_set(err, errlen, "%s: libpng failed to write", path);
   }
   png_init_io(png, fp);
   png_set_IHDR(png, info, (png_uint_32)img->width, (png_uint_32)img->height, 8, PNG_COLOR_TYPE_RGB,
@@ -375,11 +376,11 @@ int render_write_png(const char *path, const Image *img, char *err, size_t errle
   free(rows);
   if (fclose(fp) != 0) {
     remove(tmp);
-    return util_fail(err, errlen, "%s: %s", path, strerror(errno));
+    return npg_error_set(err, errlen, "%s: %s", path, strerror(errno));
   }
   if (rename(tmp, path) != 0) {
     remove(tmp);
-    return util_fail(err, errlen, "%s: %s", path, strerror(errno));
+    return npg_error_set(err, errlen, "%s: %s", path, strerror(errno));
   }
   return 0;
 }

@@ -1,6 +1,7 @@
 /* visibility.c — pair visibility by ray casting with Embree 3 (visibility.h). */
 #include "util.h"
 #include "visibility.h"
+#include "npg.h"
 
 #include <embree3/rtcore.h>
 #include <math.h>
@@ -44,7 +45,7 @@ static void on_error(void *user, enum RTCError code, const char *str) {
 
 Visibility *vis_new(long V, long F, const int *tri, int k, int threads, VisMode mode, char *err, size_t errlen) {
   if (k != 1 && k != 4 && k != 16) {
-    util_fail(err, errlen, "visibility samples per face must be 1, 4 or 16 (got %d)", k);
+    npg_error_set(err, errlen, "visibility samples per face must be 1, 4 or 16 (got %d)", k);
     return NULL;
   }
   Visibility *vis = calloc(1, sizeof *vis);
@@ -61,7 +62,7 @@ Visibility *vis_new(long V, long F, const int *tri, int k, int threads, VisMode 
   vis->cen = malloc(sizeof(double) * 3 * F);
   if (!vis->tri || !vis->pts || !vis->nrm || !vis->nlen || !vis->cen) {
     vis_free(vis);
-    util_fail(err, errlen, "out of memory");
+    npg_error_set(err, errlen, "out of memory");
     return NULL;
   }
   memcpy(vis->tri, tri, sizeof(int) * 3 * F);
@@ -69,7 +70,7 @@ Visibility *vis_new(long V, long F, const int *tri, int k, int threads, VisMode 
   snprintf(config, sizeof config, "threads=%d", vis->threads);
   vis->device = rtcNewDevice(config);
   if (!vis->device) {
-    util_fail(err, errlen, "embree: cannot create a device (error %d)", (int)rtcGetDeviceError(NULL));
+    npg_error_set(err, errlen, "embree: cannot create a device (error %d)", (int)rtcGetDeviceError(NULL));
     vis_free(vis);
     return NULL;
   }
@@ -80,7 +81,7 @@ Visibility *vis_new(long V, long F, const int *tri, int k, int threads, VisMode 
   vis->vert = rtcSetNewGeometryBuffer(vis->geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), V);
   unsigned *ib = rtcSetNewGeometryBuffer(vis->geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), F);
   if (!vis->vert || !ib || vis->error[0]) {
-    util_fail(err, errlen, "%s", vis->error[0] ? vis->error : "embree: cannot allocate buffers");
+    npg_error_set(err, errlen, "%s", vis->error[0] ? vis->error : "embree: cannot allocate buffers");
     vis_free(vis);
     return NULL;
   }
@@ -285,7 +286,7 @@ int vis_compute(Visibility *vis, const double *g, double *v, char *err, size_t e
   for (long a = 0; a < vis->V; a++)
     for (int d = 0; d < 3; d++) {
       double x = g[3 * a + d];
-      if (!isfinite(x)) return util_fail(err, errlen, "visibility: vertex %ld is not finite", a);
+      if (!isfinite(x)) return npg_error_set(err, errlen, "visibility: vertex %ld is not finite", a);
       vis->vert[3 * a + d] = (float)x;
       lo[d] = fmin(lo[d], x);
       hi[d] = fmax(hi[d], x);
@@ -309,7 +310,7 @@ int vis_compute(Visibility *vis, const double *g, double *v, char *err, size_t e
   rtcUpdateGeometryBuffer(vis->geom, RTC_BUFFER_TYPE_VERTEX, 0);
   rtcCommitGeometry(vis->geom);
   rtcCommitScene(vis->scene);
-  if (vis->error[0]) return util_fail(err, errlen, "%s", vis->error);
+  if (vis->error[0]) return npg_error_set(err, errlen, "%s", vis->error);
   vis->v = v;
   atomic_store(&vis->next_row, 0);
   atomic_store(&vis->rays, 0);
@@ -320,6 +321,6 @@ int vis_compute(Visibility *vis, const double *g, double *v, char *err, size_t e
   worker(vis);
   for (int t = 0; t < started; t++) pthread_join(th[t], NULL);
   vis->v = NULL;
-  if (vis->error[0]) return util_fail(err, errlen, "%s", vis->error);
+  if (vis->error[0]) return npg_error_set(err, errlen, "%s", vis->error);
   return 0;
 }

@@ -4,11 +4,13 @@
  * λ^(p/q), f(T_k) e₁ by its Chebyshev expansion on T_k's spectrum where that
  * is cheaper than T_k's eigendecomposition by LAPACK (dstedc), else by
  * that. The reduced
- * evaluator's root stages use it instead of a dense eigendecomposition of M
- * when it converges in fewer steps than that would cost; the
- * eigendecomposition stays the exact reference (reduced_exact_roots). The
- * full evaluator's roots of sparse operators use it with M given by its
- * product (stdlib/runtime/sparse.c). */
+ * evaluator's root stages (backends/model/reduced.c, apply_root) try it
+ * first, at most n/2 + 8 steps for an n × n operator, and fall back to the
+ * eigendecomposition of M (dsytrd, dstedc) where it has not converged by
+ * then; the eigendecomposition alone is the exact reference
+ * (npg_reduced_exact_roots, reduced_krylov_roots off). The full evaluator's
+ * roots of sparse operators use it with M given by its product
+ * (stdlib/runtime/sparse.c). */
 #ifndef NPG_KRYLOV_H
 #define NPG_KRYLOV_H
 

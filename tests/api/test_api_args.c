@@ -914,6 +914,18 @@ static int teardown(void **state) {
   return system(cmd) == 0 ? 0 : -1;
 }
 
+/* npg_error_set: the library's message writer, for a program's own functions (the
+ * applications' one): the message cut at the buffer, no buffer accepted, -1 always. */
+static void error_set_for_callers(void **state) {
+  (void)state;
+  char err[8] = "old";
+  assert_int_equal(npg_error_set(err, sizeof err, "%s %d", "abc", 12345), -1);
+  assert_string_equal(err, "abc 123");
+  assert_int_equal(npg_error_set(NULL, 0, "nothing %d", 1), -1);
+  assert_int_equal(npg_error_set(err, 0, "not written"), -1);
+  assert_string_equal(err, "abc 123");
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(null_program_and_full),  cmocka_unit_test(null_training_and_models),
@@ -921,6 +933,7 @@ int main(void) {
       cmocka_unit_test(jit_failures),           cmocka_unit_test(generated_c_robust),
       cmocka_unit_test(long_member_name),       cmocka_unit_test(roots_of_negatives),
       cmocka_unit_test(externs_left_out),       cmocka_unit_test(reduced_lift_many),
+      cmocka_unit_test(error_set_for_callers),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

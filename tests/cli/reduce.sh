@@ -60,7 +60,7 @@ PY
 if "$B/npgc" train $P "$W/TRAIN" -o "$W/X1" --weights "$W/short.npy" 2>"$W/err.txt" >/dev/null; then fail "short --weights accepted"; fi
 grep -q "error: --weights $W/short.npy: a vector of 199 entries, DATA/ has 200 samples" "$W/err.txt" || fail "short weights: $(cat "$W/err.txt")"
 if "$B/npgc" train $P "$W/TRAIN" -o "$W/X1" --weights "$W/neg.npy" 2>"$W/err.txt" >/dev/null; then fail "negative --weights accepted"; fi
-grep -q "entry 7 is -1 (weights are positive and finite)" "$W/err.txt" || fail "negative weight: $(cat "$W/err.txt")"
+grep -q "error: --weights $W/neg.npy: npg_trainer_weight: the weight of training sample 7 is -1: weights must be positive and finite" "$W/err.txt" || fail "negative weight: $(cat "$W/err.txt")"
 if "$B/npgc" train $P "$W/TRAIN" -o "$W/X1" --weights "$W/none.npy" 2>"$W/err.txt" >/dev/null; then fail "missing --weights accepted"; fi
 grep -q "error: --weights $W/none.npy" "$W/err.txt" || fail "missing weights file: $(cat "$W/err.txt")"
 if "$B/npgc" train $P "$W/TRAIN" -o "$W/X1" --weights "$W/weights.npy" --merge joint 2>"$W/err.txt" >/dev/null; then

@@ -13,5 +13,8 @@ void failing_alloc_after(long k);
 void failing_alloc_off(void);
 /* The allocations asked for since failing_alloc_after. */
 long failing_alloc_calls(void);
+/* NPG_ALLOC_TRACE=k in the environment: the stack of the allocation refused first after
+ * failing_alloc_after(k) is written to stderr (where a failure path goes wrong); k, or -1. */
+long failing_alloc_traced(void);
 
 #endif
