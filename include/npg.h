@@ -605,7 +605,8 @@ NPG_API const double *npg_reduced_coords(const NpgReduced *r, const char *name, 
 NPG_API int npg_reduced_lift(NpgReduced *r, const char *name, double *out, size_t count);
 /* The online error estimate of quantity `name` at the last evaluation (DESIGN §16,
  * docs/estimates.md): *estimate the estimated absolute error of its lifted values in the
- * 2-norm, ‖y − B ŷ‖, computed at reduced cost from tables training stored in the model; NaN
+ * 2-norm, ‖y − B ŷ‖ (in the norm of the product K0 when its class has one, `basis u: product
+ * K0`: ‖y − B ŷ‖_K0 = √(eᵀK0e)), computed at reduced cost from tables training stored in the model; NaN
  * when there is none (npg_reduced_estimate_why says why). *flags (may be NULL) holds
  * NPG_EST_ bits. An input's own figure is ‖x − B x̂‖ when it was set in full
  * (npg_reduced_set; 0 below its roundoff), 0 when set by coordinates (taken as exact). 0, or
