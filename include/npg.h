@@ -610,7 +610,8 @@ NPG_API const double *npg_reduced_coords(const NpgReduced *r, const char *name, 
 NPG_API int npg_reduced_lift(NpgReduced *r, const char *name, double *out, size_t count);
 /* The online error estimate of quantity `name` at the last evaluation (DESIGN §16,
  * docs/estimates.md): *estimate the estimated absolute error of its lifted values in the
- * 2-norm, ‖y − B ŷ‖, computed at reduced cost from tables training stored in the model; NaN
+ * 2-norm, ‖y − B ŷ‖ (in the norm of the product K0 when its class has one, `basis u: product
+ * K0`: ‖y − B ŷ‖_K0 = √(eᵀK0e)), computed at reduced cost from tables training stored in the model; NaN
  * when there is none (npg_reduced_estimate_why says why). *flags (may be NULL) holds
  * NPG_EST_ bits. An input's own figure is ‖x − B x̂‖ when it was set in full
  * (npg_reduced_set; 0 below its roundoff), 0 when set by coordinates (taken as exact). 0, or
@@ -747,24 +748,27 @@ NPG_API void npg_tune_free(NpgTuneReport *report);
  * The weak greedy (pyMOR's, DESIGN §16): train on the `nstart` samples `start` sets (as few as
  * one), then repeatedly evaluate the reduced model and its online estimate (npg_reduced_estimate)
  * on every candidate of the pool that `pool` sets, and add the one whose largest estimated
- * relative error over the outputs (estimate / ‖output‖) is worst to the training set, retraining;
+ * relative error over the outputs (estimate / ‖output‖; with `absolute` the estimate itself, in
+ * the product's norm for an output whose class has one, as pyMOR's greedy's atol) is worst to the
+ * training set, retraining;
  * stop when every candidate's is below `tol` or when the training set holds `budget` samples.
  * Full evaluations run only at the training samples (the start and the chosen). A candidate
  * whose input the model's basis does not hold (its own error above roundoff) counts as worst
  * (infinite): a full evaluation there adds the direction. Every output needs an estimate (the
  * reason is the error otherwise). Progress (one line an iteration) on
  * stderr with `progress`. The model is written to `model_dir` (when not NULL) with the manifest
- * line `greedy tol E budget N converged 0|1 worst X chosen k1,k2,...` (pool indices, in the
+ * line `greedy tol E relative|absolute budget N converged 0|1 worst X chosen k1,k2,...` (pool indices, in the
  * order chosen). */
 typedef struct NpgGreedyOptions {
   double tol;               /* > 0 */
   long budget;              /* at most this many training samples (start included); 0: nstart + npool */
   bool progress;
+  bool absolute;            /* tol bounds the estimate itself, not estimate / ‖output‖ */
 } NpgGreedyOptions;
 typedef struct NpgGreedyResult {
   long *chosen;             /* pool indices chosen, in order (malloc'd; free()) */
   long nchosen;
-  double worst;             /* the worst candidate's estimated relative error of the final model */
+  double worst;             /* the worst candidate's estimated error (relative, or absolute) of the final model */
   long worst_at;            /* which candidate (-1: the pool was used up) */
   bool converged;           /* worst < tol (else the budget stopped it) */
   char error[1024];
@@ -790,7 +794,8 @@ typedef struct NpgVerifyRow {
                                NaN (nothing to lift), floor and linf_floor the training samples' mean,
                                measured by training (out of core from ‖y‖² − ‖Bᵀy‖², resolved to about
                                1e-7, and linf_floor NaN: not measured) */
-  /* the online estimate (npg_reduced_estimate) against the true error, absolute 2-norm: */
+  /* the online estimate (npg_reduced_estimate) against the true error, absolute, in the 2-norm (in the norm
+   * of the product K0 for a quantity whose class has one, `basis u: product K0`: docs/estimates.md): */
   double est, err;          /* means over the samples that had an estimate (est NaN: none had one) */
   double eff_min, eff_max;  /* effectivity est / err over those samples (where err > 0) */
   long est_samples;         /* samples with an estimate */

@@ -32,9 +32,15 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
     return snprintf(why, n, "term %d applies a power %ld/%ld (only inverses have an estimate)", t + 1,
                     (long)rt->ops[0].op->p, (long)rt->ops[0].op->q), false;
   const RClass *rc = &m->classes[m->qclass[rs->q]], *cw = rt->named_q >= 0 ? &m->classes[m->qclass[rt->named_q]] : rc;
-  if (rc->product || cw->product) /* the tables assume BᵀB = I: the projector I − BBᵀ, ‖Bŷ‖ = ‖ŷ‖ */
-    return snprintf(why, n, "class %s is orthonormal in the inner product of %s, and estimates assume BᵀB = I (not "
-                    "implemented for a product)", (rc->product ? rc : cw)->label, (rc->product ? rc : cw)->product->name),
+  /* in a product K0 the figure is ‖e‖_K0 from the residual's dual norm (estimate_product.c): an inverse of an
+   * unnamed numerator only (a projection's or a numerator's error would be measured in another norm) */
+  if (cw != rc && (rc->product || cw->product))
+    return snprintf(why, n, "term %d's numerator is named, and class %s is orthonormal in the inner product of %s (an "
+                    "estimate in a product needs the numerator unnamed)", t + 1, (rc->product ? rc : cw)->label,
+                    (rc->product ? rc : cw)->product->name), false;
+  if (rc->product && rt->nops == 0)
+    return snprintf(why, n, "term %d is a projection onto class %s, orthonormal in the inner product of %s (an "
+                    "estimate in a product is implemented for inverse terms only)", t + 1, rc->label, rc->product->name),
            false;
   if (!m->classes[m->qclass[rs->q]].B && !m->classes[m->qclass[rs->q]].streamed)
     return snprintf(why, n, "class %s has no basis", m->classes[m->qclass[rs->q]].label), false;
@@ -246,12 +252,19 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
       sum += res + carried;
       continue;
     }
-    if (isnan(rt->est_sigma) && !(rt->est_theta && rt->est_theta_k > 0)) {
+    if (isnan(rt->est_sigma) && !(rt->est_theta && rt->est_theta_k > 0) && !m->classes[m->qclass[q]].product) {
       snprintf(why, sizeof why, "no lower bound of σ_min of term %d's operator (singular at a training sample, or its rows "
                "exceed %d, the sparse limit in training)", t + 1, ESTIMATE_SPARSE_MAX);
       goto none;
     }
     double sig = theta_bound(r, rt);
+    if (m->classes[m->qclass[q]].product && !(sig > 0)) { /* no Euclidean σ_min to fall back on */
+      snprintf(why, sizeof why, "no coercivity bound of term %d's operator relative to %s %s", t + 1,
+               m->classes[m->qclass[q]].product->name,
+               rt->est_theta ? "at this input (an entry is not positive)" : "(training found its operator not affine "
+               "in one input with semidefinite terms equal to the product at a positive input)");
+      goto none;
+    }
     if (!(sig > 0)) {
       sig = rt->est_sigma * sigma_min(s->M, my, s);
       flags &= ~EST_BOUND; /* σ_min is estimated from the training samples */

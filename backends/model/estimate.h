@@ -23,6 +23,11 @@
  * λ_min (anchors stored in training), a rigorous bound (docs/estimates.md says
  * exactly when). A stage's estimate is the sum of its terms'.
  *
+ * In a class orthonormal in a product K0 (BᵀK0B = I) an inverse term's figure is
+ * ‖y_t − B ŷ_t‖_K0 ≤ ‖r_t‖_{K0⁻¹} / α_LB: R_t is then of the Riesz representatives'
+ * columns (backends/train/estimate_product.c), the same ‖R_t z_t‖ online, over the min-θ
+ * bound relative to K0 (one anchor, λ = 1); no σ_min fallback there.
+ *
  * Chaining: a named numerator w carries its own estimate e_w into the term
  * (plus e_w for a projection, plus e_w / σ for an inverse); an input of a
  * tensor that carries an error leaves the stage without an estimate (the
@@ -74,7 +79,7 @@ long estimate_term_dim(const Model *m, int i, int t);
 void estimate_input_product(const Model *m, double *const *coords, const RTensor *x, double *z, double *scratch);
 
 /* Per quantity: the estimated error of the last evaluation (absolute, 2-norm of the lifted
- * values; NaN: none), its EST_ flags, and why there is none. */
+ * values, or its class's product norm; NaN: none), its EST_ flags, and why there is none. */
 typedef struct EstimateResult {
   int nq;
   double *err;

@@ -24,8 +24,7 @@
 #include <suitesparse/cholmod.h>
 #include <suitesparse/umfpack.h>
 
-#include "estimate.h"
-#include "train.h"
+#include "estimate_steps.h"
 
 /* Columns of a term no larger than this (bytes), and no more than ESTIMATE_MAX_DIM of them, are
  * built; a larger term gets no table (its G costs n D² flops: at D = 3600 and n = 16,384, the
@@ -90,15 +89,15 @@ static int fill_block(Model *m, Full *f, const RTensor *t, ColSink *s, char *err
   return 0;
 }
 
-/* C (n x D) <- (I − BBᵀ) C, twice (one projection leaves ε‖C‖ of B's span). */
-static int project_out(const RClass *rc, double *C, long D) {
-  double *T = malloc(sizeof(double) * (size_t)(rc->m * D) + 1);
+/* C (n x D) <- (I − BBᵀ) C, twice (one projection leaves ε‖C‖ of B's span); B n x m orthonormal. */
+static int project_out(const double *B, long n, long m, double *C, long D) {
+  double *T = malloc(sizeof(double) * (size_t)(m * D) + 1);
   if (!T) return -1;
-  for (int pass = 0; pass < 2 && rc->m > 0; pass++) {
-    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)rc->m, (int)D, (int)rc->n, 1.0, rc->B, (int)rc->m, C,
-                (int)D, 0.0, T, (int)D);
-    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)rc->n, (int)D, (int)rc->m, -1.0, rc->B, (int)rc->m, T,
-                (int)D, 1.0, C, (int)D);
+  for (int pass = 0; pass < 2 && m > 0; pass++) {
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)m, (int)D, (int)n, 1.0, B, (int)m, C, (int)D, 0.0, T,
+                (int)D);
+    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)D, (int)m, -1.0, B, (int)m, T, (int)D, 1.0, C,
+                (int)D);
   }
   free(T);
   return 0;
@@ -119,7 +118,9 @@ static int qr_factor(double *C, long n, long D, double *R) {
   return 0;
 }
 
-/* Term t of stage i: its columns, their norms and the projected Gram into rt->est_G. */
+/* Term t of stage i: its columns, their norms and R of the projected columns into rt->est_G. In a
+ * class with a product K0 the columns are first replaced by L⁻¹PC and B by L⁻¹P K0B
+ * (estimate_product_columns): R then gives the residual's dual norm ‖r‖_{K0⁻¹}. */
 static int term_table(Model *m, Full *f, int i, int t, char *err, size_t errlen) {
   RStage *rs = &m->stages[i];
   RTerm *rt = &rs->terms[t];
@@ -135,7 +136,7 @@ static int term_table(Model *m, Full *f, int i, int t, char *err, size_t errlen)
   if ((size_t)n * (size_t)D * sizeof(double) > ESTIMATE_MAX_BYTES || D > ESTIMATE_MAX_DIM) return 0;
   ColSink s = {m, NULL, calloc((size_t)(n * D) + 1, sizeof(double)), n, D, 0, NULL, rc->m,
                malloc(sizeof(double) * (size_t)maxcols), malloc(sizeof(double) * (size_t)maxpack)};
-  double *G = calloc((size_t)((D + 1) * D) + 1, sizeof(double));
+  double *G = calloc((size_t)((D + 1) * D) + 1, sizeof(double)), *V = NULL;
   int rc_ = -1;
   if (!s.C || !s.v || !s.pack || !G) {
     error_set(err, errlen, "estimate tables: out of memory for stage %s (%ld x %ld columns)", rs->st->sym->name, n, D);
@@ -152,8 +153,11 @@ static int term_table(Model *m, Full *f, int i, int t, char *err, size_t errlen)
   for (int k = 0; k < rt->nops; k++)
     for (int g = 0; g < rt->ops[k].ntensors; g++, s.off += rc->m * rt->ops[k].t[g - 1].cols)
       if (fill_block(m, f, &rt->ops[k].t[g], &s, err, errlen)) goto done;
+  long nnum = 0;
+  for (int g = 0; g < rt->nnum; g++) nnum += rt->num[g].cols;
+  if (rc->product && estimate_product_columns(m, f, rt, rc, s.C, D, nnum, &V, err, errlen)) goto done;
   for (long c = 0; c < D; c++) G[D * D + c] = cblas_dnrm2((int)n, s.C + c, (int)D);
-  if (project_out(rc, s.C, D)) {
+  if (project_out(V ? V : rc->B, n, rc->m, s.C, D)) {
     error_set(err, errlen, "estimate tables: out of memory projecting stage %s", rs->st->sym->name);
     goto done;
   }
@@ -165,7 +169,7 @@ static int term_table(Model *m, Full *f, int i, int t, char *err, size_t errlen)
   G = NULL;
   rc_ = 0;
 done:
-  free(s.C), free(s.v), free(s.pack), free(G);
+  free(s.C), free(s.v), free(s.pack), free(G), free(V);
   return rc_;
 }
 
@@ -393,12 +397,18 @@ static bool dominant_psd(const cholmod_sparse *A, cholmod_common *cc) {
   return true;
 }
 
-/* ‖A − B‖₁ ≤ 1e-12 ‖A‖₁ (A − B into *diff when diff is not NULL, else freed). */
-static bool sparse_close(cholmod_sparse *A, cholmod_sparse *B, cholmod_common *cc) {
+bool estimate_sparse_close(cholmod_sparse *A, cholmod_sparse *B, cholmod_common *cc) {
   double one[2] = {1, 0}, minus[2] = {-1, 0};
   cholmod_sparse *D = cholmod_l_add(A, B, one, minus, 1, 0, cc);
   bool ok = D && cholmod_l_norm_sparse(D, 1, cc) <= 1e-12 * cholmod_l_norm_sparse(A, 1, cc);
   cholmod_l_free_sparse(&D, cc);
+  return ok;
+}
+
+bool estimate_symmetric_psd(cholmod_sparse *A, cholmod_common *cc) {
+  cholmod_sparse *T = cholmod_l_transpose(A, 2, cc);
+  bool ok = T && estimate_sparse_close(A, T, cc) && dominant_psd(A, cc);
+  cholmod_l_free_sparse(&T, cc);
   return ok;
 }
 
@@ -410,11 +420,8 @@ static cholmod_sparse *operator_at(Full *f, const RTerm *rt, long n, const char 
   return full_set(f, name, 1, shape, x, "the min-θ bound") ? NULL : sparse_operator(f, rt, n, cc, err, sizeof err);
 }
 
-/* The input x of inverse term rt when its operator is M(x) = M_0 + Σ x_j M_j with every M_j
- * symmetric positive semidefinite by diagonal dominance (the min-θ bound's case: detected by
- * assembling M at 0 and at each unit vector, and checked affine at the current sample's x and at
- * 2·1); -1 otherwise. Leaves the input set elsewhere: the caller sets its sample again. */
-static int affine_input(const Model *m, Full *f, const RTerm *rt, long n, cholmod_common *cc) {
+int estimate_affine_parts(const Model *m, Full *f, const RTerm *rt, long n, cholmod_common *cc, cholmod_sparse **K,
+                          size_t *pnx) {
   int q = -1;
   if (rt->nops != 1) return -1;
   for (int g = 0; g < rt->ops[0].ntensors; g++) {
@@ -429,19 +436,15 @@ static int affine_input(const Model *m, Full *f, const RTerm *rt, long n, cholmo
   if (!cur || nx < 1 || nx > ESTIMATE_THETA_MAX) return -1;
   double x[ESTIMATE_THETA_MAX], xs[ESTIMATE_THETA_MAX], one[2] = {1, 0}, minus[2] = {-1, 0};
   memcpy(xs, cur, sizeof(double) * nx);
-  cholmod_sparse *K[ESTIMATE_THETA_MAX + 1] = {0}, *sum = NULL, *Kx = NULL;
+  cholmod_sparse *sum = NULL, *Kx = NULL;
   bool ok = true;
+  for (size_t j = 0; j <= nx; j++) K[j] = NULL;
   for (long j = -1; ok && j < (long)nx; j++) { /* K[0] = M(0), K[j + 1] = M(e_j) − M(0) */
     for (size_t a = 0; a < nx; a++) x[a] = (long)a == j ? 1 : 0;
     cholmod_sparse *A = operator_at(f, rt, n, sy->name, x, (long)nx, cc);
     if (j >= 0 && A) K[j + 1] = cholmod_l_add(A, K[0], one, minus, 1, 1, cc), cholmod_l_free_sparse(&A, cc);
     else K[0] = A;
     ok = K[j + 1] && cholmod_l_drop(0, K[j + 1], cc) && cholmod_l_sort(K[j + 1], cc);
-    if (ok) { /* symmetric and diagonally dominant */
-      cholmod_sparse *T = cholmod_l_transpose(K[j + 1], 2, cc);
-      ok = T && sparse_close(K[j + 1], T, cc) && dominant_psd(K[j + 1], cc);
-      cholmod_l_free_sparse(&T, cc);
-    }
   }
   for (int pass = 0; ok && pass < 2; pass++) { /* affine: M(x) = M_0 + Σ x_j M_j at the sample and at 2·1 */
     for (size_t a = 0; a < nx; a++) x[a] = pass ? 2 : xs[a];
@@ -453,11 +456,26 @@ static int affine_input(const Model *m, Full *f, const RTerm *rt, long n, cholmo
       sum = t;
     }
     Kx = sum ? operator_at(f, rt, n, sy->name, x, (long)nx, cc) : NULL;
-    ok = Kx && sparse_close(Kx, sum, cc);
+    ok = Kx && estimate_sparse_close(Kx, sum, cc);
     cholmod_l_free_sparse(&sum, cc), cholmod_l_free_sparse(&Kx, cc);
   }
-  for (size_t j = 0; j <= nx; j++) cholmod_l_free_sparse(&K[j], cc);
+  if (!ok)
+    for (size_t j = 0; j <= nx; j++) cholmod_l_free_sparse(&K[j], cc);
+  *pnx = nx;
   return ok ? q : -1;
+}
+
+/* The input x of inverse term rt when its operator is M(x) = M_0 + Σ x_j M_j with every M_j
+ * symmetric positive semidefinite by diagonal dominance (the min-θ bound's case); -1 otherwise.
+ * Leaves the input set elsewhere: the caller sets its sample again. */
+static int affine_input(const Model *m, Full *f, const RTerm *rt, long n, cholmod_common *cc) {
+  cholmod_sparse *K[ESTIMATE_THETA_MAX + 1];
+  size_t nx = 0;
+  int q = estimate_affine_parts(m, f, rt, n, cc, K, &nx);
+  for (size_t j = 0; q >= 0 && j <= nx; j++)
+    if (!estimate_symmetric_psd(K[j], cc)) q = -1;
+  for (size_t j = 0; j <= nx && nx > 0; j++) cholmod_l_free_sparse(&K[j], cc);
+  return q;
 }
 
 /* σ_min(M) and σ_min(BᵀMB) of inverse term rt at the evaluator's current values: M assembled dense
@@ -542,7 +560,7 @@ static int sigma_ratios(Model *m, Full *f, const SampleSource *src, char *err, s
         RTerm *rt = &m->stages[i].terms[t];
         const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
         double full, red;
-        if (!rt->est_G || rt->nops != 1 || rc->n > ESTIMATE_SPARSE_MAX) continue;
+        if (!rt->est_G || rt->nops != 1 || rc->n > ESTIMATE_SPARSE_MAX || rc->product) continue; /* a product's: its own table */
         if (j == 0 && theta_setup(m, f, src, rt, rc->n, nk, &cc, err, errlen)) {
           out = -1;
           break;

@@ -26,6 +26,7 @@
 
 #include "emit.h"
 #include "train.h"
+#include "estimate_steps.h"
 #include "train_steps.h"
 
 typedef struct ProductEntries {
@@ -57,8 +58,7 @@ static int product_entry(void *user, npg_idx row, npg_idx col, int nin, const np
 
 /* K0's entries (params only) as a CHOLMOD matrix, unsymmetric storage,
  * duplicates summed. */
-static cholmod_sparse *product_matrix(Model *m, Full *f, const RClass *rc, cholmod_common *cc, char *err,
-                                      size_t errlen) {
+cholmod_sparse *product_matrix(Model *m, Full *f, const RClass *rc, cholmod_common *cc, char *err, size_t errlen) {
   const Sym *op = rc->product;
   const OpDef *od = op->opdef;
   long rows = 1, cols = 1;
@@ -100,8 +100,7 @@ static cholmod_sparse *product_matrix(Model *m, Full *f, const RClass *rc, cholm
 }
 
 /* K0 = Pᵀ L Lᵀ P, after checking K0 symmetric; L simplicial LLᵀ. */
-static cholmod_factor *product_factor(const RClass *rc, cholmod_sparse *A, cholmod_common *cc, char *err,
-                                      size_t errlen) {
+cholmod_factor *product_factor(const RClass *rc, cholmod_sparse *A, cholmod_common *cc, char *err, size_t errlen) {
   const char *name = rc->product->name;
   double one[2] = {1, 0}, minus[2] = {-1, 0};
   cholmod_sparse *At = cholmod_l_transpose(A, 1, cc);
@@ -215,4 +214,42 @@ int train_product_basis(Model *m, Full *f, RClass *rc, long S, double *const *X,
   cholmod_l_free_sparse(&A, &cc);
   cholmod_l_finish(&cc);
   return rc_ok;
+}
+
+struct ProductNorm {
+  cholmod_common cc;
+  cholmod_sparse *A;
+};
+
+ProductNorm *product_norm_new(Model *m, Full *f, const RClass *rc, char *err, size_t errlen) {
+  ProductNorm *p = mem_calloc(1, sizeof *p);
+  if (!p) return error_set(err, errlen, "out of memory"), NULL;
+  cholmod_l_start(&p->cc);
+  p->cc.print = 0;
+  if (!(p->A = product_matrix(m, f, rc, &p->cc, err, errlen))) {
+    product_norm_free(p);
+    return NULL;
+  }
+  return p;
+}
+
+double product_norm(const ProductNorm *p, const double *v) {
+  const cholmod_sparse *A = p->A;
+  const SuiteSparse_long *Ap = A->p, *Ai = A->i;
+  const double *Ax = A->x;
+  long n = (long)A->ncol;
+  double s = 0;
+  for (long j = 0; j < n; j++) {
+    double a = 0; /* (K0 v)_j = Σ_i K0[i, j] v_i: K0 is symmetric */
+    for (SuiteSparse_long k = Ap[j]; k < Ap[j + 1]; k++) a += Ax[k] * v[Ai[k]];
+    s += a * v[j];
+  }
+  return sqrt(fmax(s, 0));
+}
+
+void product_norm_free(ProductNorm *p) {
+  if (!p) return;
+  cholmod_l_free_sparse(&p->A, &p->cc);
+  cholmod_l_finish(&p->cc);
+  free(p);
 }

@@ -161,6 +161,13 @@ int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen);
  * K0 B; K0 read from `f` (params bound). X[i]: member i's snapshots. */
 int train_product_basis(Model *m, Full *f, RClass *rc, long S, double *const *X, const double *w, bool full_rank,
                         char *err, size_t errlen);
+/* The norm of class rc's product, ‖v‖_K0 = √(vᵀK0v) (v: rc->n entries), for measuring errors in
+ * it (verify: the true error next to the estimate, which is in that norm). K0 read from `f`
+ * (params bound); NULL with `err` (as train_product_basis's messages). */
+typedef struct ProductNorm ProductNorm;
+ProductNorm *product_norm_new(Model *m, Full *f, const RClass *rc, char *err, size_t errlen);
+double product_norm(const ProductNorm *p, const double *v);
+void product_norm_free(ProductNorm *p);
 
 /* ---------------------------------------------------------------- interpolated stages (interp_train.c) */
 

@@ -33,8 +33,10 @@ static NpgModel *train_once(NpgFull *f, const NpgTrainOptions *o, long nstart, N
   return m;
 }
 
-/* Candidate c's worst estimated relative error over the outputs; NAN with res->error. */
-static double candidate_error(NpgFull *f, NpgReduced *r, NpgSampleFn pool, void *puser, long c, NpgGreedyResult *res) {
+/* Candidate c's worst estimated error over the outputs, relative (estimate / ‖output‖) or with
+ * `absolute` the estimate itself; NAN with res->error. */
+static double candidate_error(NpgFull *f, NpgReduced *r, NpgSampleFn pool, void *puser, long c, bool absolute,
+                              NpgGreedyResult *res) {
   const Model *m = r->nm->m;
   if (pool(puser, f, c) != 0) return gfail(res, "pool sample %ld: %s", c, npg_full_error(f)), NAN;
   for (int q = 0; q < m->nq; q++) {
@@ -58,9 +60,13 @@ static double candidate_error(NpgFull *f, NpgReduced *r, NpgSampleFn pool, void 
     if (isnan(e))
       return gfail(res, "greedy training needs an estimate of every output: %s has none (%s)", s->name,
                    npg_reduced_estimate_why(r, s->name)), NAN;
+    if (absolute) {
+      worst = fmax(worst, e);
+      continue;
+    }
     size_t mq = 0;
     const double *y = npg_reduced_coords(r, s->name, &mq);
-    double ny = 0; /* ‖B ŷ‖ = ‖ŷ‖: B is orthonormal */
+    double ny = 0; /* ‖B ŷ‖ = ‖ŷ‖: B is orthonormal (in the product's norm, the estimate's, for a class with one) */
     for (size_t a = 0; a < mq; a++) ny += y[a] * y[a];
     ny = sqrt(ny);
     worst = fmax(worst, ny > 0 ? e / ny : e > 0 ? INFINITY : 0);
@@ -69,7 +75,8 @@ static double candidate_error(NpgFull *f, NpgReduced *r, NpgSampleFn pool, void 
 }
 
 /* The worst candidate not chosen into res (worst, worst_at); -1 on an error. */
-static int worst_candidate(NpgFull *f, NpgModel *nm, long npool, NpgSampleFn pool, void *puser, NpgGreedyResult *res) {
+static int worst_candidate(NpgFull *f, NpgModel *nm, long npool, NpgSampleFn pool, void *puser, bool absolute,
+                           NpgGreedyResult *res) {
   NpgReduced *r = npg_reduced_new(nm);
   if (npg_reduced_error(r)[0]) {
     gfail(res, "%s", npg_reduced_error(r));
@@ -82,7 +89,7 @@ static int worst_candidate(NpgFull *f, NpgModel *nm, long npool, NpgSampleFn poo
     bool taken = false;
     for (long j = 0; j < res->nchosen; j++) taken |= res->chosen[j] == c;
     if (taken) continue;
-    double e = candidate_error(f, r, pool, puser, c, res);
+    double e = candidate_error(f, r, pool, puser, c, absolute, res);
     if (isnan(e)) rc = -1;
     else if (e > res->worst) res->worst = e, res->worst_at = c;
   }
@@ -96,8 +103,8 @@ static int record(NpgModel *nm, const NpgGreedyOptions *g, long budget, const Np
   size_t cap = 128 + 24 * (size_t)res->nchosen;
   char *line = malloc(cap);
   if (!line) return -1;
-  int n = snprintf(line, cap, "tol %.17g budget %ld converged %d worst %.17g chosen ", g->tol, budget,
-                   res->converged ? 1 : 0, res->worst);
+  int n = snprintf(line, cap, "tol %.17g %s budget %ld converged %d worst %.17g chosen ", g->tol,
+                   g->absolute ? "absolute" : "relative", budget, res->converged ? 1 : 0, res->worst);
   for (long j = 0; j < res->nchosen; j++) n += snprintf(line + n, cap - (size_t)n, "%s%ld", j ? "," : "", res->chosen[j]);
   if (res->nchosen == 0) snprintf(line + n, cap - (size_t)n, "none");
   free(nm->m->greedy);
@@ -126,15 +133,15 @@ NpgModel *npg_train_greedy(NpgFull *f, const NpgTrainOptions *o, long nstart, Np
   for (;;) {
     npg_model_free(nm);
     if (!(nm = train_once(f, o, nstart, start, suser, pool, puser, res)) ||
-        worst_candidate(f, nm, npool, pool, puser, res) != 0)
+        worst_candidate(f, nm, npool, pool, puser, g->absolute, res) != 0)
       goto fail;
     res->converged = res->worst < g->tol;
     if (g->progress && isinf(res->worst))
       fprintf(stderr, "greedy: %ld training samples, candidate %ld: an input outside its basis\n",
               nstart + res->nchosen, res->worst_at);
     else if (g->progress)
-      fprintf(stderr, "greedy: %ld training samples, worst candidate %ld: estimated relative error %.3e (tol %.3g)\n",
-              nstart + res->nchosen, res->worst_at, res->worst, g->tol);
+      fprintf(stderr, "greedy: %ld training samples, worst candidate %ld: estimated %s error %.3e (tol %.3g)\n",
+              nstart + res->nchosen, res->worst_at, g->absolute ? "absolute" : "relative", res->worst, g->tol);
     if (res->converged || res->worst_at < 0 || nstart + res->nchosen >= budget) break;
     res->chosen[res->nchosen++] = res->worst_at;
   }

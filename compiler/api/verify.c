@@ -71,10 +71,21 @@ static void sample_errors(const RClass *rc, const double *full, Reduced *r, int 
   out[3] = fl[1];
 }
 
+/* ‖v‖ in the norm quantity q's estimate is in: class rc's product K0 (pn[class], made at its first
+ * use: params are bound then) or the 2-norm. NaN when K0 cannot be made (rep->error says why). */
+static double error_norm(Model *m, const RClass *rc, NpgFull *f, ProductNorm **pn, const double *v,
+                         NpgVerifyReport *rep) {
+  if (!rc->product) return cblas_dnrm2((int)rc->n, v, 1);
+  ProductNorm **p = &pn[rc - m->classes];
+  if (!*p && !(*p = product_norm_new(m, f->full, rc, rep->error, sizeof rep->error))) return NAN;
+  return product_norm(*p, v);
+}
+
 /* Each input's own error ‖x − B x̂‖ (npg_reduced_set's), the estimates, and every quantity's
- * estimate against its true absolute error `full` − lifted, into the rows' sums. */
-static int sample_estimates(const Model *m, Reduced *r, NpgFull *f, EstimateResult *e, double *in_err, double *y,
-                            NpgVerifyReport *rep) {
+ * estimate against its true absolute error `full` − lifted (in its class's product K0's norm when
+ * it has one, as the estimate), into the rows' sums. */
+static int sample_estimates(Model *m, Reduced *r, NpgFull *f, EstimateResult *e, double *in_err, double *y,
+                            ProductNorm **pn, NpgVerifyReport *rep) {
   for (int q = 0; q < m->nq; q++) {
     const RClass *rc = &m->classes[m->qclass[q]];
     in_err[q] = 0;
@@ -92,9 +103,10 @@ static int sample_estimates(const Model *m, Reduced *r, NpgFull *f, EstimateResu
     if (rc->streamed || isnan(e->err[q])) continue;
     const double *full = npg_full_get(f, ((Sym *)m->prog->quantities.v[q])->name, NULL);
     reduced_lift(r, q, y);
-    double d = 0, fn = 0;
-    for (long i = 0; i < rc->n; i++) d += (full[i] - y[i]) * (full[i] - y[i]), fn += full[i] * full[i];
-    d = sqrt(d);
+    for (long i = 0; i < rc->n; i++) y[i] = full[i] - y[i];
+    double d = error_norm(m, rc, f, pn, y, rep), fn = error_norm(m, rc, f, pn, full, rep);
+    if (isnan(d) || isnan(fn)) return -1;
+    fn *= fn;
     /* an error within the lift's own roundoff (an input its basis holds) has no effectivity */
     if (d <= 64 * DBL_EPSILON * sqrt((double)rc->n) * sqrt(fn)) d = 0;
     if (row->est_samples == 0) row->eff_min = INFINITY, row->eff_max = 0, row->est_bound = true;
@@ -174,8 +186,9 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
   if (r) reduced_krylov_roots(r, true); /* what users run */
   EstimateResult *est = estimate_result_new(m);
   double *in_err = calloc((size_t)m->nq + 1, sizeof(double));
+  ProductNorm **pn = calloc((size_t)m->nclasses + 1, sizeof *pn);
   int rc = 0;
-  if (!sum || !y || !proj || !rep->rows || !r || !est || !in_err) rc = vfail(rep, "%s", err[0] ? err : "out of memory");
+  if (!sum || !y || !proj || !rep->rows || !r || !est || !in_err || !pn) rc = vfail(rep, "%s", err[0] ? err : "out of memory");
   rep->nrows = m->nq;
   for (long k = 0; k < S && rc == 0; k++) {
     /* only what `set` gives counts as this sample's: a value left out is refused, not the previous one's */
@@ -222,7 +235,7 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
       sum[q].floorinf += e[3];
       if (e[0] > rep->rows[q].l2_max || k == 0) rep->rows[q].l2_max = e[0], rep->rows[q].l2_max_sample = k;
     }
-    if (rc == 0 && sample_estimates(m, r, f, est, in_err, y, rep)) rc = vfail(rep, "out of memory estimating errors");
+    if (rc == 0 && sample_estimates(m, r, f, est, in_err, y, pn, rep)) rc = vfail(rep, "out of memory estimating errors");
     progress_show(progress, "verification", k + 1, S);
   }
   if (rc == 0) {
@@ -233,6 +246,8 @@ int npg_verify(const NpgModel *nm, NpgFull *f, long S, NpgSampleFn set, void *us
   free(y);
   free(proj);
   free(in_err);
+  for (int c = 0; pn && c < m->nclasses; c++) product_norm_free(pn[c]);
+  free(pn);
   estimate_result_free(est);
   reduced_free(r);
   return rc;

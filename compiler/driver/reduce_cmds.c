@@ -59,7 +59,7 @@ static int add_basis(Common *c, const char *s, char *err, size_t errlen) {
 /* Each command's options: an option of another command is named as such. */
 static const char *const options_of[][2] = {
     {"train", "-o --cc --jit --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi --reduce --valid "
-              "--interp-oversample --keep-bases --weights --steps --every --greedy --tol --budget"},
+              "--interp-oversample --keep-bases --weights --steps --every --greedy --tol --budget --absolute"},
     {"eval", "-o --progress --std --exact-roots --full --cc --jit --sizes --jacobian"},
     {"verify", "--tol --cc --jit --exact --exact-size --progress --std --params --steps --every --png --sizes"},
     {"bench", "--cc --jit --threads --reps --exact-roots --progress --std --params --steps --every --sizes"},
@@ -150,6 +150,7 @@ static int parse(Common *c, int argc, char **argv) {
     else if ((v = npg_args_string(&a, "--weights"))) c->weights = v;
     else if ((v = npg_args_string(&a, "--greedy"))) c->greedy = v;
     else if (npg_args_long(&a, "--budget", 1, 1000000000, &c->budget)) ;
+    else if (npg_args_flag(&a, "--absolute")) c->absolute = true;
     else if ((v = npg_args_string(&a, "--params"))) c->params = v;
     else if ((v = npg_args_string(&a, "--sizes"))) {
       if (!*v) snprintf(a.error, sizeof a.error, "%s: --sizes: give NAME=N,... (classes as npgc check names them)", prog);
@@ -330,10 +331,11 @@ static int train_greedy(Common *c, NpgProgram *p, NpgFull *f, NpgSamples *s) {
     goto done;
   }
   if (!c->tol_set) {
-    fprintf(stderr, "npgc train: --greedy needs --tol E, the estimated relative error every candidate must reach\n");
+    fprintf(stderr, "npgc train: --greedy needs --tol E, the estimated relative error (with --absolute: the absolute "
+            "one) every candidate must reach\n");
     goto done;
   }
-  NpgGreedyOptions g = {c->tol, c->budget, true};
+  NpgGreedyOptions g = {c->tol, c->budget, true, c->absolute};
   NpgGreedyResult res;
   double t0 = reduce_now();
   NpgModel *m = npg_train_greedy(f, &c->train, npg_samples_count(s), npg_samples_set, s, npg_samples_count(pool),
@@ -343,7 +345,7 @@ static int train_greedy(Common *c, NpgProgram *p, NpgFull *f, NpgSamples *s) {
     printf("trained %s greedily on %ld samples (%ld of DATA/, %ld chosen of %ld candidates in %s) in %.2f s -> %s\n",
            c->prog_path, npg_model_samples(m), npg_samples_count(s), res.nchosen, npg_samples_count(pool), c->greedy,
            reduce_now() - t0, c->out);
-    printf("worst candidate's estimated relative error %.3e: %s --tol %.3g\n", res.worst,
+    printf("worst candidate's estimated %s error %.3e: %s --tol %.3g\n", c->absolute ? "absolute" : "relative", res.worst,
            res.converged ? "below" : "above (the budget stopped it)", c->tol);
     npg_model_report(m, stdout);
     rc = 0;
@@ -444,8 +446,8 @@ static int cmd_train(Common *c) {
     rc = train_greedy(c, p, f, s);
     goto done_w;
   }
-  if (c->tol_set || c->budget) {
-    fprintf(stderr, "npgc train: --tol and --budget are options of greedy training (--greedy POOL/)\n");
+  if (c->tol_set || c->budget || c->absolute) {
+    fprintf(stderr, "npgc train: --tol, --budget and --absolute are options of greedy training (--greedy POOL/)\n");
     goto done_w;
   }
   double t0 = reduce_now();

@@ -20,6 +20,7 @@ typedef struct Common {
   bool tol_set;
   const char *greedy;       /* train --greedy POOL/: the candidates of greedy training (DESIGN §16) */
   long budget;              /* train --budget N: its most training samples (0: no bound but the pool) */
+  bool absolute;            /* train --absolute: greedy's --tol bounds the estimate itself, not estimate / ‖output‖ */
   long reps;                /* bench: passes over the samples */
   bool progress;            /* --progress: progress on stderr even when it is not a terminal */
   bool exact_roots;         /* eval, bench: roots by eigendecomposition, not Lanczos */

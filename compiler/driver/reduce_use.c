@@ -146,7 +146,7 @@ typedef struct Out {
   long n, m;                /* full size and coordinates (an op: rows x cols in m) */
   long rows, cols;
   double *lifted, *coords;
-  double *est;              /* per sample: the online estimate (absolute 2-norm; NaN: none) */
+  double *est;              /* per sample: the online estimate (absolute 2-norm or product norm; NaN: none) */
   unsigned *flags;          /* and its NPG_EST_ bits */
 } Out;
 
@@ -216,8 +216,8 @@ static void print_estimates(Session *x, const Out *outs, int nout, long S) {
   printf("%8s", "sample");
   for (int o = 0; o < nout; o++)
     if (outs[o].sym->kind != NPG_OP) printf(" %14s", outs[o].sym->name);
-  printf("   (online error estimate, absolute 2-norm; b: a bound, e: an estimate, !: inputs outside the training "
-         "range, r: at the roundoff level)\n");
+  printf("   (online error estimate, absolute, 2-norm or a class's product norm; b: a bound, e: an estimate, !: "
+         "inputs outside the training range, r: at the roundoff level)\n");
   for (long k = 0; k < S; k++) {
     printf("%8ld", k);
     for (int o = 0; o < nout; o++) {
@@ -380,10 +380,11 @@ static int verify_exact(Common *c) {
   return rc == 0 ? 0 : 1;
 }
 
-/* The online estimate against the true error (absolute, 2-norm; docs/estimates.md). */
+/* The online estimate against the true error (absolute, 2-norm or a class's product norm; docs/estimates.md). */
 static void print_verify_estimates(const NpgVerifyReport *rep, int wn) {
   /* each row starts "estimate", so that a row of the table above stays the only one naming a quantity first */
-  printf("online estimate (absolute 2-norm, mean over samples; effectivity = estimate / true error, min..max)\n");
+  printf("online estimate (absolute, 2-norm or a class's product norm, mean over samples; effectivity = estimate / "
+         "true error, min..max)\n");
   printf("estimate %-*s %10s %10s %21s %s\n", wn, "quantity", "estimate", "true", "effectivity", "kind");
   for (int q = 0; q < rep->nrows; q++) {
     const NpgVerifyRow *e = &rep->rows[q];

@@ -799,7 +799,8 @@ static PyObject *reduced_op(ReducedObject *self, PyObject *arg) {
 }
 
 /* red.estimate(name) -> float: the online estimate of quantity `name` at the last evaluation,
- * absolute, the 2-norm of its lifted values' error (NaN: none; npg_reduced_estimate) */
+ * absolute, the 2-norm of its lifted values' error, or its class's product norm (NaN: none;
+ * npg_reduced_estimate) */
 static PyObject *reduced_estimate(ReducedObject *self, PyObject *arg) {
   const char *name = npgpy_name(arg, "Reduced.estimate");
   if (!name || !quantity(self, name)) return NULL;
@@ -1093,7 +1094,8 @@ static PyMethodDef reduced_methods[] = {
   {"coords", (PyCFunction)reduced_coords, METH_O, "coords(name) -> array: a copy of the reduced coordinates"},
   {"estimate", (PyCFunction)reduced_estimate, METH_O,
    "estimate(name) -> float: the online error estimate of `name` at the last evaluation, absolute, in the\n"
-   "2-norm of its lifted values (NaN: none; estimate_info says why; docs/estimates.md)"},
+   "2-norm of its lifted values, or in the norm of its class's product K0 (basis u: product K0) (NaN: none;\n"
+   "estimate_info says why; docs/estimates.md)"},
   {"estimate_info", (PyCFunction)reduced_estimate_info, METH_O,
    "estimate_info(name) -> dict(estimate, bound, outside, roundoff, why): the estimate and its flags"},
   {"outside", (PyCFunction)reduced_outside, METH_O,

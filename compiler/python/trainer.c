@@ -396,17 +396,18 @@ static PyObject *trainer_finish(TrainerObject *self, PyObject *args, PyObject *k
   return npgpy_model_wrap(self->full->prog, m, self->full);
 }
 
-/* tr.greedy(start, pool, tol, budget=0, model_dir=None) -> Model: greedy training with this
- * trainer's options (npg_train_greedy; docs/estimates.md): `start` and `pool` dicts of arrays with
+/* tr.greedy(start, pool, tol, budget=0, model_dir=None, absolute=False) -> Model: greedy training
+ * with this trainer's options (npg_train_greedy; docs/estimates.md): `start` and `pool` dicts of arrays with
  * a leading sample axis; the samples added to the trainer itself are not used. The result's
  * record: model.greedy (chosen, worst, converged). */
 static PyObject *trainer_greedy(TrainerObject *self, PyObject *args, PyObject *kw) {
-  static char *kwlist[] = {"start", "pool", "tol", "budget", "model_dir", NULL};
+  static char *kwlist[] = {"start", "pool", "tol", "budget", "model_dir", "absolute", NULL};
   PyObject *start, *pool, *dir = Py_None, *b = NULL;
   double tol;
   long budget = 0;
-  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!O!d|lO:greedy", kwlist, &PyDict_Type, &start, &PyDict_Type, &pool,
-                                   &tol, &budget, &dir))
+  int absolute = 0;
+  if (!PyArg_ParseTupleAndKeywords(args, kw, "O!O!d|lOp:greedy", kwlist, &PyDict_Type, &start, &PyDict_Type, &pool,
+                                   &tol, &budget, &dir, &absolute))
     return NULL;
   if (!ready(self)) return NULL;
   if (dir != Py_None && !PyUnicode_FSConverter(dir, &b)) return NULL;
@@ -415,7 +416,7 @@ static PyObject *trainer_greedy(TrainerObject *self, PyObject *args, PyObject *k
   if (npgpy_samples(self->full->prog, start, "Trainer.greedy", "start", &s) ||
       npgpy_samples(self->full->prog, pool, "Trainer.greedy", "pool", &p))
     goto done;
-  NpgGreedyOptions g = {tol, budget, self->opt.progress};
+  NpgGreedyOptions g = {tol, budget, self->opt.progress, absolute != 0};
   NpgGreedyResult r;
   NpgModel *m;
   const char *path = b ? PyBytes_AS_STRING(b) : NULL;
@@ -510,9 +511,10 @@ static PyObject *trainer_add_trajectory(TrainerObject *self, PyObject *args, PyO
 
 static PyMethodDef trainer_methods[] = {
   {"greedy", (PyCFunction)(void (*)(void))trainer_greedy, METH_VARARGS | METH_KEYWORDS,
-   "greedy(start, pool, tol, budget=0, model_dir=None) -> (Model, {chosen, worst, converged}): greedy\n"
-   "training with this trainer's options (npgc train --greedy): start and pool are dicts of arrays with a\n"
-   "leading sample axis; full evaluations only at start and at the chosen candidates of pool"},
+   "greedy(start, pool, tol, budget=0, model_dir=None, absolute=False) -> (Model, {chosen, worst, converged}):\n"
+   "greedy training with this trainer's options (npgc train --greedy): start and pool are dicts of arrays with a\n"
+   "leading sample axis; full evaluations only at start and at the chosen candidates of pool; tol bounds the\n"
+   "estimated relative error, with absolute=True the absolute one (npgc train --absolute)"},
   {"add_trajectory", (PyCFunction)(void (*)(void))trainer_add_trajectory, METH_VARARGS | METH_KEYWORDS,
    "add_trajectory(steps, every=1, **inputs): run the full step `steps` times from the states' initial values\n"
    "(Full.simulate's arguments) and add every `every`-th visited state; nothing is kept but the samples"},

@@ -113,13 +113,14 @@ def main():
         est4 = np.load(os.path.join(w, "O4", "u.estimate.npy"))
         if p.stdout.count(" br\n") != 4 or not (est4 < 1e-12).all() or not (est4 > 0).all():
             fail("a complete basis: estimates %s not flagged at the roundoff level:\n%s" % (est4, p.stdout))
-        # a basis orthonormal in a product: no estimate, and npgc eval says why (the tables assume BᵀB = I)
+        # a basis orthonormal in a product H that is the operator at no parameter (2I against I + Σ μ_q K_q):
+        # no coercivity bound relative to it, so no estimate, and npgc eval says why
         hprog = os.path.join(w, "product.npg")
         with open(PROG) as f, open(hprog, "w") as g:
             g.write(f.read().replace("output u =", "op H[i:N, j:N] = delta(i, j) * 2\noutput u ="))
         run("train", hprog, train, "--basis", "u:product=H", "-o", os.path.join(w, "HMODEL"))
         p = run("eval", hprog, os.path.join(w, "HMODEL"), test, "-o", os.path.join(w, "HOUT"))
-        if "u has no estimate: class {u} is orthonormal in the inner product of H" not in p.stdout \
+        if "u has no estimate: no coercivity bound of term 1's operator relative to H (training found" not in p.stdout \
                 or not np.isnan(np.load(os.path.join(w, "HOUT", "u.estimate.npy"))).all():
             fail("a product basis gave an estimate or no reason:\n" + p.stdout)
         p = run("eval", PROG, os.path.join(w, "MODEL"), test, "-o", os.path.join(w, "OUT3"))
@@ -172,7 +173,7 @@ def greedy():
                 or len(line[line.index("chosen") + 1].split(",")) != 3:
             fail("a budget of 4 did not stop greedy training with a message:\n%s\n%s" % (p.stderr, " ".join(line)))
         p = run("train", PROG, start, "--tol", "1e-3", "-o", os.path.join(w, "X"), ok=False)
-        if p.returncode == 0 or "--tol and --budget are options of greedy training" not in p.stderr:
+        if p.returncode == 0 or "--tol, --budget and --absolute are options of greedy training" not in p.stderr:
             fail("--tol without --greedy was accepted:\n" + p.stderr)
 
 

@@ -91,3 +91,52 @@ def test_greedy_reaches_the_tolerance_on_its_pool(root):
     assert not budget["converged"] and len(budget["chosen"]) == 2
     with pytest.raises(npg.Error, match="tolerance -1"):
         tr.greedy({"mu": pool[:1]}, {"mu": pool}, -1)
+
+
+@pytest.fixture(scope="module")
+def product_block(root):
+    """examples/thermalblock (u's basis orthonormal in the H¹₀ product H) on a 6 x 6 grid."""
+    import sys
+    sys.path.insert(0, str(root / "examples/thermalblock"))
+    import thermalblock_data
+    kb, kq, hm, f = thermalblock_data.assemble(2, 2, 6)
+    cols, (a0, *a, h) = thermalblock_data.padded([kb, *kq, hm], f.shape[0])
+    prog = npg.compile((root / "examples/thermalblock/thermalblock.npg").read_text())
+    full = prog.full(params={"cols": cols, "a0": a0, "a": np.stack(a), "h": h, "f": f})
+    return full, (kb, kq, hm, f)
+
+
+def h_error(mu, red, mats):
+    kb, kq, hm, f = mats
+    e = np.linalg.solve(kb + sum(m * k for m, k in zip(mu, kq)), f) - red.lift("u")
+    return np.sqrt(e @ hm @ e)
+
+
+def test_estimate_in_a_product_bounds_the_error_in_its_norm(product_block):
+    """With `basis u: product H` the estimate is ‖r‖_{H⁻¹} / min(1, min μ): a bound of the true
+    error in H's norm (pyMOR's coercive estimator), within 10× of it, also outside the range."""
+    full, mats = product_block
+    rng = np.random.default_rng(5)
+    tr = npg.Trainer(full, basis=["u:cap=5"])
+    for mu in rng.uniform(0.1, 1, (12, 4)):
+        tr.add(mu=mu)
+    red = tr.finish().reduced()
+    for mu in [*rng.uniform(0.1, 1, (8, 4)), np.array([0.05, 0.3, 2.0, 0.5])]:
+        red(mu=mu)
+        err, est = h_error(mu, red, mats), red.estimate("u")
+        assert err <= est <= 10 * err, (mu, est, err)
+        assert red.estimate_info("u")["bound"]
+
+
+def test_greedy_absolute_in_a_product(product_block):
+    """Trainer.greedy(absolute=True): every candidate's true error in H's norm ends below tol."""
+    full, mats = product_block
+    rng = np.random.default_rng(9)
+    pool = rng.uniform(0.1, 1, (25, 4))
+    tr = npg.Trainer(full, basis=["u:cap=40,energy=1"], center=False)
+    model, info = tr.greedy({"mu": pool[:1]}, {"mu": pool}, 1e-4, absolute=True)
+    assert info["converged"] and info["worst"] < 1e-4 and 0 < len(info["chosen"]) < 24
+    red = model.reduced()
+    for mu in pool:
+        red(mu=mu)
+        assert h_error(mu, red, mats) <= 1e-4

@@ -1,0 +1,166 @@
+/* estimate_product.c — the estimate tables of an inverse term whose class is orthonormal in a
+ * product K0 (`basis u: product K0`, issue 41; docs/estimates.md "In a product"): the error is
+ * measured in K0's norm, as pyMOR's coercive reduced-basis estimator does,
+ *
+ *     ‖u − B û‖_K0 ≤ ‖r‖_{K0⁻¹} / α_LB(x),    r = w − M(x) B û = C z,
+ *
+ * with ‖r‖_{K0⁻¹} = √(rᵀK0⁻¹r) the residual's dual norm and α_LB(x) ≤ inf_v vᵀM(x)v / vᵀK0v the
+ * min-θ lower bound relative to K0.
+ *
+ * Dual norm. K0 = PᵀLLᵀP (CHOLMOD), so rᵀK0⁻¹r = ‖L⁻¹P C z‖²: the columns become Y = L⁻¹PC. Galerkin
+ * makes Bᵀr = 0, i.e. Y z orthogonal to V = L⁻¹P K0B (VᵀY = BᵀC, VᵀV = BᵀK0B = I), so the caller
+ * projects Y by I − VVᵀ and keeps R of its QR, as in the Euclidean case.
+ *
+ * Coercivity. M(x) = M_0 + Σ x_j M_j (estimate_affine_parts). Let S be the rows where the error is
+ * zero whatever x: rows i where every M_j (j ≥ 1) is zero, M_0 has only its diagonal (≠ 0), the
+ * numerator's columns are zero and B's are to 1e-6 of its largest entry (Dirichlet rows: u_i = w_i / M_0[i,i] = 0 = (B û)_i). On the
+ * other rows T, if every M_j restricted to T×T is symmetric positive semidefinite (by diagonal
+ * dominance) and K0 restricted to T×T equals M(x̄) restricted for an x̄ > 0 (found by least squares
+ * over the entries, then checked to 1e-12), then for e = u − B û (e_S = 0)
+ *
+ *     eᵀM(x)e = Σ θ_j(x) e_TᵀM_j e_T ≥ ρ e_TᵀM(x̄)e_T = ρ ‖e‖²_K0,   ρ = min(1, min_j x_j / x̄_j),
+ *
+ * and eᵀM(x)e = eᵀr ≤ ‖e‖_K0 ‖r‖_{K0⁻¹}: the bound above with α_LB = ρ, stored as one min-θ anchor
+ * (x̄, 1). The rows S make pyMOR's matrices (Dirichlet rows of the parameter terms cleared, columns
+ * not: nonsymmetric) qualify. */
+#include <cblas.h>
+#include <lapacke.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "estimate_steps.h"
+
+/* X (n x D row-major) <- L⁻¹ P X, L the LLᵀ factor of K0 = PᵀLLᵀP. */
+static int solve_lower(cholmod_factor *L, double *X, long n, long D, cholmod_common *cc) {
+  cholmod_dense *b = cholmod_l_allocate_dense((size_t)n, (size_t)D, (size_t)n, CHOLMOD_REAL, cc), *p = NULL, *y = NULL;
+  if (!b) return -1;
+  double *bx = b->x;
+  for (long i = 0; i < n; i++)
+    for (long c = 0; c < D; c++) bx[c * n + i] = X[i * D + c];
+  if ((p = cholmod_l_solve(CHOLMOD_P, L, b, cc)) && (y = cholmod_l_solve(CHOLMOD_L, L, p, cc))) {
+    const double *yx = y->x;
+    for (long i = 0; i < n; i++)
+      for (long c = 0; c < D; c++) X[i * D + c] = yx[c * n + i];
+  }
+  int ok = y ? 0 : -1;
+  cholmod_l_free_dense(&b, cc), cholmod_l_free_dense(&p, cc), cholmod_l_free_dense(&y, cc);
+  return ok;
+}
+
+/* Σ A_ij B_ij over the entries (w: n zeros on entry and exit). */
+static double frobenius_dot(const cholmod_sparse *A, const cholmod_sparse *B, double *w) {
+  const SuiteSparse_long *Ap = A->p, *Ai = A->i, *Bp = B->p, *Bi = B->i;
+  const double *Ax = A->x, *Bx = B->x;
+  double s = 0;
+  for (long j = 0; j < (long)A->ncol; j++) {
+    for (SuiteSparse_long k = Ap[j]; k < Ap[j + 1]; k++) w[Ai[k]] += Ax[k];
+    for (SuiteSparse_long k = Bp[j]; k < Bp[j + 1]; k++) s += w[Bi[k]] * Bx[k];
+    for (SuiteSparse_long k = Ap[j]; k < Ap[j + 1]; k++) w[Ai[k]] = 0;
+  }
+  return s;
+}
+
+/* The rows T the error can live on (every row but S, above), into T; their count. */
+static long error_rows(cholmod_sparse *const *K, size_t nx, const RClass *rc, const double *C, long D, long nnum,
+                       SuiteSparse_long *T, bool *bad, double *diag) {
+  long n = rc->n, nt = 0;
+  /* B's rows there are zero to roundoff: the full solves leave roundoff at Dirichlet rows, which the trailing
+   * directions magnify (of B's largest entry: 2.7e-12 at pyMOR's grid 19, m = 31; 4.2e-9 at m = 58), so 1e-6 */
+  double bmax = 0;
+  for (long e = 0; e < n * rc->m; e++) bmax = fmax(bmax, fabs(rc->B[e]));
+  for (long i = 0; i < n; i++) bad[i] = false, diag[i] = 0;
+  for (size_t j = 0; j <= nx; j++) {
+    const SuiteSparse_long *Ap = K[j]->p, *Ai = K[j]->i;
+    const double *Ax = K[j]->x;
+    for (long c = 0; c < n; c++)
+      for (SuiteSparse_long k = Ap[c]; k < Ap[c + 1]; k++) {
+        if (Ax[k] == 0) continue;
+        if (j == 0 && Ai[k] == c) diag[c] = Ax[k];
+        else bad[Ai[k]] = true;
+      }
+  }
+  for (long i = 0; i < n; i++) {
+    bool zero = !bad[i] && diag[i] != 0;
+    for (long c = 0; zero && c < nnum; c++) zero = C[i * D + c] == 0;
+    for (long c = 0; zero && c < rc->m; c++) zero = fabs(rc->B[i * rc->m + c]) <= 1e-6 * bmax;
+    if (!zero) T[nt++] = i;
+  }
+  return nt;
+}
+
+/* x̄ with K0 = M_0 + Σ x̄_j M_j on T×T (Kt[0..nx] and K0t restricted), each x̄_j > 0; false if none. */
+static bool anchor(cholmod_sparse *const *Kt, size_t nx, cholmod_sparse *K0t, double *xbar, double *w,
+                   cholmod_common *cc) {
+  double G[ESTIMATE_THETA_MAX * ESTIMATE_THETA_MAX], one[2] = {1, 0};
+  for (size_t a = 0; a < nx; a++) {
+    xbar[a] = frobenius_dot(Kt[a + 1], K0t, w) - frobenius_dot(Kt[a + 1], Kt[0], w);
+    for (size_t b = 0; b < nx; b++) G[a * nx + b] = frobenius_dot(Kt[a + 1], Kt[b + 1], w);
+  }
+  if (LAPACKE_dposv(LAPACK_ROW_MAJOR, 'U', (int)nx, 1, G, (int)nx, xbar, 1) != 0) return false;
+  cholmod_sparse *sum = cholmod_l_copy_sparse(Kt[0], cc);
+  for (size_t j = 0; sum && j < nx; j++) {
+    double c[2] = {xbar[j], 0};
+    cholmod_sparse *t = cholmod_l_add(sum, Kt[j + 1], one, c, 1, 1, cc);
+    cholmod_l_free_sparse(&sum, cc);
+    sum = t;
+  }
+  bool ok = sum && estimate_sparse_close(K0t, sum, cc);
+  for (size_t j = 0; ok && j < nx; j++) ok = xbar[j] > 0;
+  cholmod_l_free_sparse(&sum, cc);
+  return ok;
+}
+
+/* rt's min-θ table relative to K0 (unsymmetric storage) when it applies (the file's comment). */
+static int product_theta(const Model *m, Full *f, RTerm *rt, const RClass *rc, cholmod_sparse *K0, const double *C,
+                         long D, long nnum, cholmod_common *cc) {
+  cholmod_sparse *K[ESTIMATE_THETA_MAX + 1], *Kt[ESTIMATE_THETA_MAX + 1] = {0}, *K0t = NULL;
+  size_t nx = 0;
+  int q = estimate_affine_parts(m, f, rt, rc->n, cc, K, &nx);
+  if (q < 0) return 0;
+  long n = rc->n;
+  SuiteSparse_long *T = malloc(sizeof *T * (size_t)n + 1);
+  bool *bad = malloc(sizeof *bad * (size_t)n + 1);
+  double *w = calloc((size_t)n + 1, sizeof(double)), xbar[ESTIMATE_THETA_MAX];
+  int out = T && bad && w ? 0 : -1;
+  long nt = out ? 0 : error_rows(K, nx, rc, C, D, nnum, T, bad, w);
+  if (!out) memset(w, 0, sizeof(double) * (size_t)n);
+  bool ok = !out && nt > 0;
+  for (size_t j = 0; ok && j <= nx; j++)
+    ok = (Kt[j] = cholmod_l_submatrix(K[j], T, nt, T, nt, 1, 1, cc)) && estimate_symmetric_psd(Kt[j], cc);
+  ok = ok && (K0t = cholmod_l_submatrix(K0, T, nt, T, nt, 1, 1, cc)) && anchor(Kt, nx, K0t, xbar, w, cc);
+  if (ok && m->classes[m->qclass[q]].n == (long)nx && (rt->est_theta = malloc(sizeof(double) * (nx + 1)))) {
+    memcpy(rt->est_theta, xbar, sizeof(double) * nx);
+    rt->est_theta[nx] = 1; /* λ_min of the pencil (M(x̄), K0) on the error's rows: M(x̄) = K0 there */
+    rt->est_theta_q = q, rt->est_theta_n = (long)nx, rt->est_theta_k = 1;
+  }
+  for (size_t j = 0; j <= nx; j++) cholmod_l_free_sparse(&K[j], cc), cholmod_l_free_sparse(&Kt[j], cc);
+  cholmod_l_free_sparse(&K0t, cc);
+  free(T), free(bad), free(w);
+  return out;
+}
+
+int estimate_product_columns(Model *m, Full *f, RTerm *rt, const RClass *rc, double *C, long D, long nnum, double **V,
+                             char *err, size_t errlen) {
+  cholmod_common cc;
+  cholmod_l_start(&cc);
+  cc.print = 0;
+  free(rt->est_theta);
+  rt->est_theta = NULL, rt->est_theta_k = 0;
+  cholmod_sparse *A = product_matrix(m, f, rc, &cc, err, errlen), *K0 = A ? cholmod_l_copy_sparse(A, &cc) : NULL;
+  cholmod_factor *L = K0 ? product_factor(rc, A, &cc, err, errlen) : NULL; /* leaves A's upper triangle: K0 keeps both */
+  int out = -1;
+  *V = NULL;
+  if (L && product_theta(m, f, rt, rc, K0, C, D, nnum, &cc) == 0 &&
+      (*V = malloc(sizeof(double) * (size_t)(rc->n * rc->m) + 1))) {
+    memcpy(*V, rc->D, sizeof(double) * (size_t)(rc->n * rc->m));
+    out = solve_lower(L, C, rc->n, D, &cc) || solve_lower(L, *V, rc->n, rc->m, &cc) ? -1 : 0;
+  }
+  if (out && L) error_set(err, errlen, "estimate tables: out of memory for the dual norm of class %s's residual in %s",
+                          rc->label, rc->product->name);
+  if (A && !K0) error_set(err, errlen, "estimate tables: out of memory for product %s", rc->product->name);
+  cholmod_l_free_factor(&L, &cc);
+  cholmod_l_free_sparse(&A, &cc), cholmod_l_free_sparse(&K0, &cc);
+  cholmod_l_finish(&cc);
+  return out;
+}
