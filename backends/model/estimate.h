@@ -24,10 +24,11 @@
  * exactly when). A stage's estimate is the sum of its terms'.
  *
  * Chaining: a named numerator w carries its own estimate e_w into the term
- * (plus e_w for a projection, plus e_w / σ for an inverse); an input of a
- * tensor that carries an error leaves the stage without an estimate (the
- * propagation through polynomial tensors is not implemented), as do
- * externs, interpolated stages, roots and terms of several operators. */
+ * (plus e_w for a projection, plus e_w / σ for an inverse); an input x of a
+ * tensor that carries an error e_x adds its propagation, max(‖∂ŷ/∂x̂‖₂ e_x,
+ * the secant along the worst direction) from the stage's local reduced
+ * Jacobian (an estimate: estimate.c's propagate). Externs, interpolated
+ * stages, roots and terms of several operators have none. */
 #ifndef NPG_ESTIMATE_H
 #define NPG_ESTIMATE_H
 
