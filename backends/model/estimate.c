@@ -17,6 +17,7 @@
 #include <string.h>
 
 #include "estimate.h"
+#include "interp.h"
 
 static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
 static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quantities.v[q])->name; }
@@ -25,7 +26,7 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
   const RStage *rs = &m->stages[i];
   const RTerm *rt = &rs->terms[t];
   if (rs->st->kind == ST_EXTERN) return snprintf(why, n, "an extern's learned map has no estimate"), false;
-  if (rs->interp) return snprintf(why, n, "interpolated stages have no estimate yet"), false;
+  if (rs->interp) return snprintf(why, n, "an interpolated stage has no Galerkin terms' tables (its estimate is interp_check's)"), false;
   if (rt->nops > 1) return snprintf(why, n, "term %d applies %d operators (one inverse at most has an estimate)", t + 1,
                                     rt->nops), false;
   if (rt->nops == 1 && !(rt->ops[0].op->p == -1 && rt->ops[0].op->q == 1))
@@ -261,10 +262,76 @@ static double theta_bound(Reduced *r, const RTerm *rt) {
   return best;
 }
 
+/* Input iq of the stage being estimated: its trust flag into *flags, and, when it carries an
+ * error, noted among those the stage propagates (once for all its terms). -1 with `why` when it
+ * has no estimate. */
+static int note_input(const EstimateResult *e, const Model *m, int iq, Scratch *s, unsigned *flags, char *why,
+                      size_t n) {
+  *flags |= e->flags[iq] & EST_OUTSIDE;
+  if (isnan(e->err[iq])) return snprintf(why, n, "its input %s has no estimate", qname(m, iq)), -1;
+  if (e->err[iq] > 0 && !s->carry[iq]) s->carry[iq] = true, s->carried[s->ncarried++] = iq;
+  return 0;
+}
+
+/* The propagation of the noted inputs' errors through stage i added to *sum (an estimate:
+ * EST_BOUND cleared when there is any); the notes cleared. -1 with `why` on failure. */
+static int add_propagation(Reduced *r, int i, const EstimateResult *e, Scratch *s, double *sum, unsigned *flags,
+                           char *why, size_t n) {
+  for (int k = 0; k < s->ncarried; k++) {
+    int iq = s->carried[k];
+    double p = propagate(r, i, iq, e->err[iq], why, n);
+    if (isnan(p)) return clear_carried(s), -1;
+    *sum += p;
+    *flags &= ~EST_BOUND;
+    *flags |= e->flags[iq] & EST_ROUNDOFF;
+  }
+  clear_carried(s);
+  return 0;
+}
+
+/* Quantity q's figure into e: v with its flags, or, with `why`, none (its trust flag kept). */
+static void store(EstimateResult *e, Scratch *s, int q, double v, unsigned flags, const char *why) {
+  clear_carried(s);
+  snprintf(e->why_q[q], sizeof e->why_q[q], "%s", why ? why : "");
+  e->err[q] = why ? NAN : v;
+  e->flags[q] = why ? EST_NONE | (flags & EST_OUTSIDE) : flags;
+}
+
+/* The estimate of interpolated stage number i into e: interp_check's sampled residual (exact,
+ * flagged a bound, when its entries are all those the fit leaves out), plus the propagation of
+ * its inputs' errors. */
+static void interp_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
+  const Model *m = reduced_model(r);
+  const RStage *rs = &m->stages[i];
+  const RInterp *ip = rs->interp;
+  int q = rs->q;
+  unsigned flags = EST_BOUND;
+  char why[256] = "";
+  double est = NAN;
+  bool exact = false;
+  for (long k = 0; k < ip->nreads; k++)
+    if (note_input(e, m, ip->read_q[k], s, &flags, why, sizeof why)) goto none;
+  double *work = malloc(sizeof(double) * interp_check_work_size(rs));
+  int rc = work ? interp_check(m, rs, reduced_all_coords(r), work, &est, &exact, why, sizeof why)
+                : (snprintf(why, sizeof why, "out of memory for the estimate"), -1);
+  free(work);
+  if (rc) goto none;
+  if (!exact) flags &= ~EST_BOUND;
+  if (add_propagation(r, i, e, s, &est, &flags, why, sizeof why)) goto none;
+  store(e, s, q, est, flags, NULL);
+  return;
+none:
+  store(e, s, q, NAN, flags, why);
+}
+
 /* The estimate of stage number i into e (err, flags, why_q of its quantity). */
 static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
+  if (rs->interp) {
+    interp_estimate(r, i, e, s);
+    return;
+  }
   int q = rs->q;
   long my = qm(m, q), n = m->classes[m->qclass[q]].n;
   char why[256] = "";
@@ -279,17 +346,8 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
       goto none;
     }
     RTERM_FOR_TENSORS(rt, x)
-      for (int j = 0; j < x->nin; j++) {
-        int iq = x->in_q[j];
-        flags |= e->flags[iq] & EST_OUTSIDE;
-        if (isnan(e->err[iq])) {
-          snprintf(why, sizeof why, "its input %s has no estimate", qname(m, iq));
-          goto none;
-        }
-        if (!(e->err[iq] > 0) || s->carry[iq]) continue;
-        s->carry[iq] = true; /* an input whose error the stage propagates (below), once for all its terms */
-        s->carried[s->ncarried++] = iq;
-      }
+      for (int j = 0; j < x->nin; j++)
+        if (note_input(e, m, x->in_q[j], s, &flags, why, sizeof why)) goto none;
     double carried = 0; /* a named numerator's own error */
     if (rt->named_q >= 0) {
       if (isnan(e->err[rt->named_q])) {
@@ -327,22 +385,11 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
     }
     sum += (res + carried) / sig;
   }
-  for (int k = 0; k < s->ncarried; k++) { /* the propagation of the tensor inputs' errors (an estimate) */
-    int iq = s->carried[k];
-    double p = propagate(r, i, iq, e->err[iq], why, sizeof why);
-    if (isnan(p)) goto none;
-    sum += p;
-    flags &= ~EST_BOUND;
-    flags |= e->flags[iq] & EST_ROUNDOFF;
-  }
-  clear_carried(s);
-  e->err[q] = sum, e->flags[q] = flags, e->why_q[q][0] = 0;
+  if (add_propagation(r, i, e, s, &sum, &flags, why, sizeof why)) goto none;
+  store(e, s, q, sum, flags, NULL);
   return;
 none:
-  clear_carried(s);
-  snprintf(e->why_q[q], sizeof e->why_q[q], "%s", why);
-  e->err[q] = NAN;
-  e->flags[q] = EST_NONE | (flags & EST_OUTSIDE);
+  store(e, s, q, NAN, flags, why);
 }
 
 int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {

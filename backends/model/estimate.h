@@ -27,8 +27,10 @@
  * (plus e_w for a projection, plus e_w / σ for an inverse); an input x of a
  * tensor that carries an error e_x adds its propagation, max(‖∂ŷ/∂x̂‖₂ e_x,
  * the secant along the worst direction) from the stage's local reduced
- * Jacobian (an estimate: estimate.c's propagate). Externs, interpolated
- * stages, roots and terms of several operators have none. */
+ * Jacobian (an estimate: estimate.c's propagate). An interpolated stage's
+ * own figure is its formula's residual at the fit's entries and at check
+ * entries drawn from the others (interp_check). Externs, roots and terms of
+ * several operators of Galerkin stages have none. */
 #ifndef NPG_ESTIMATE_H
 #define NPG_ESTIMATE_H
 

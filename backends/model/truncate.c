@@ -82,6 +82,14 @@ static RInterp *copy_interp(const Model *m, const RStage *rs, const RInterp *s) 
   memcpy(ip->read_q, s->read_q, sizeof(int) * (size_t)s->nreads);
   memcpy(ip->read_e, s->read_e, sizeof(long) * (size_t)s->nreads);
   memcpy(ip->mono, s->mono, sizeof(RInterpMono) * (size_t)s->nmono);
+  if (s->check) { /* the estimate's check table; its basis rows (the fit's entries, then its own) unchanged */
+    long nb = (s->k + s->check->k) * s->m;
+    if (!(ip->check = copy_interp(m, rs, s->check)) || !(ip->check->brows = mem_malloc(sizeof(double) * (size_t)(nb + 1)))) {
+      interp_free(ip);
+      return NULL;
+    }
+    memcpy(ip->check->brows, s->check->brows, sizeof(double) * (size_t)nb);
+  }
   if (interp_pack(m, rs, ip)) {
     interp_free(ip);
     return NULL;

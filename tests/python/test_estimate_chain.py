@@ -3,7 +3,8 @@ tensor inputs carry an error reports an estimate, its residual plus the propagat
 error by the stage's local reduced Jacobian (and the secant along its worst direction). Checked
 against the full evaluation on held-out samples: effectivity (estimate / true error) within
 [1/3, 30] on programs of two and three stages, a polynomial chain and a contraction feeding a
-solve; the estimate is flagged an estimate (not a bound)."""
+solve; the estimate is flagged an estimate (not a bound). Interpolated stages: the residual of the
+formula at the fit's entries and at check entries drawn from the others (n-body gravity's w)."""
 import numpy as np
 import pytest
 
@@ -92,3 +93,47 @@ def test_input_without_estimate_still_blocks():
     red(x=inputs(rng, 1)[0])
     assert red.estimate_info("s")["bound"]
     assert np.isfinite(red.estimate("y"))
+
+
+def nbody(root, rng, n_bodies, tmp_path=None):
+    """tests/programs/nbody_gravity.npg with w = r2^(-3/2) interpolated and an output: its own
+    estimate and the acceleration's, against the full evaluation (with tmp_path, through a model
+    saved and loaded)."""
+    src = (root / "tests/programs/nbody_gravity.npg").read_text().replace("\nw[i:N", "\noutput w[i:N")
+    prog = npg.compile(src)
+    full = prog.full(params={"mass": rng.uniform(1, 2, n_bodies), "eps": 0.1})
+    base, modes = rng.normal(size=(n_bodies, 3)), rng.normal(size=(4, n_bodies, 3))
+    tr = npg.Trainer(full, interp=["w"])
+    for c in rng.uniform(-1, 1, (30, 4)):
+        tr.add(x=base + 0.2 * np.tensordot(c, modes, 1))
+    model = tr.finish(model_dir=str(tmp_path / "m")) if tmp_path else tr.finish()
+    if tmp_path:
+        model = npg.load(prog, str(tmp_path / "m"), full=full)
+    red = model.reduced()
+    rows = []
+    for c in rng.uniform(-1, 1, (6, 4)):
+        x = base + 0.2 * np.tensordot(c, modes, 1)
+        red(x=x)
+        f = full(x=x)
+        rows.append([red.estimate(q) / np.linalg.norm(f[q] - red.lift(q)) for q in ("w", "a")])
+        assert red.estimate_info("w")["why"] == "" and red.estimate_info("a")["why"] == ""
+    return np.array(rows)
+
+
+def test_interpolated_stage_exhaustive_check_is_its_error(root, tmp_path):
+    """12 bodies: w has 144 entries, and its check entries are all those the fit leaves out, so
+    the estimate is the error of the formula at the reduced inputs (r2's roundoff aside)."""
+    eff = nbody(root, np.random.default_rng(1), 12, tmp_path)
+    print("n-body 12: w effectivity %.6f .. %.6f, a %.3g .. %.3g" % (eff[:, 0].min(), eff[:, 0].max(),
+                                                                      eff[:, 1].min(), eff[:, 1].max()))
+    assert np.allclose(eff[:, 0], 1, rtol=1e-6), eff
+    assert 1 / 3 <= eff[:, 1].min() and eff[:, 1].max() <= 30, eff
+
+
+def test_interpolated_stage_sampled_check(root):
+    """40 bodies: w's 1600 entries, the residual sampled at 64 of those the fit leaves out."""
+    eff = nbody(root, np.random.default_rng(1), 40)
+    print("n-body 40: w effectivity %.3g .. %.3g, a %.3g .. %.3g" % (eff[:, 0].min(), eff[:, 0].max(),
+                                                                  eff[:, 1].min(), eff[:, 1].max()))
+    assert 0.5 <= eff[:, 0].min() and eff[:, 0].max() <= 2, eff
+    assert 1 / 3 <= eff[:, 1].min() and eff[:, 1].max() <= 30, eff
