@@ -297,20 +297,22 @@ static void store(EstimateResult *e, Scratch *s, int q, double v, unsigned flags
   e->flags[q] = why ? EST_NONE | (flags & EST_OUTSIDE) : flags;
 }
 
-/* The estimate of interpolated stage number i into e: interp_check's sampled residual (exact,
+/* The estimate of stage number i by its check entries into e (an interpolated stage, or a Galerkin
+ * one of diagonal operators whose terms have no tables): interp_check's sampled residual (exact,
  * flagged a bound, when its entries are all those the fit leaves out), plus the propagation of
  * its inputs' errors. */
-static void interp_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
+static void check_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
-  const RInterp *ip = rs->interp;
+  const RInterp *ip = rs->interp ? rs->interp : rs->check, *ck = rs->interp ? rs->interp->check : NULL;
   int q = rs->q;
   unsigned flags = EST_BOUND;
   char why[256] = "";
   double est = NAN;
   bool exact = false;
-  for (long k = 0; k < ip->nreads; k++)
-    if (note_input(e, m, ip->read_q[k], s, &flags, why, sizeof why)) goto none;
+  for (long k = 0; k < ip->nreads + (ck ? ck->nreads : 0); k++)
+    if (note_input(e, m, k < ip->nreads ? ip->read_q[k] : ck->read_q[k - ip->nreads], s, &flags, why, sizeof why))
+      goto none;
   double *work = malloc(sizeof(double) * interp_check_work_size(rs));
   int rc = work ? interp_check(m, rs, reduced_all_coords(r), work, &est, &exact, why, sizeof why)
                 : (snprintf(why, sizeof why, "out of memory for the estimate"), -1);
@@ -328,8 +330,10 @@ none:
 static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
-  if (rs->interp) {
-    interp_estimate(r, i, e, s);
+  bool tables = true; /* every term has its residual's table (exact for contractions): else the check entries */
+  for (int t = 0; t < rs->nterms; t++) tables = tables && rs->terms[t].est_G;
+  if (rs->interp || (rs->check && !tables)) {
+    check_estimate(r, i, e, s);
     return;
   }
   int q = rs->q;

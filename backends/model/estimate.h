@@ -29,8 +29,9 @@
  * the secant along the worst direction) from the stage's local reduced
  * Jacobian (an estimate: estimate.c's propagate). An interpolated stage's
  * own figure is its formula's residual at the fit's entries and at check
- * entries drawn from the others (interp_check). Externs, roots and terms of
- * several operators of Galerkin stages have none. */
+ * entries drawn from the others (interp_check), as is a Galerkin stage's of
+ * diagonal operators whose terms lack tables (roots, several operators).
+ * Externs and roots or products of declared ops have none. */
 #ifndef NPG_ESTIMATE_H
 #define NPG_ESTIMATE_H
 

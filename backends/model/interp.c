@@ -94,6 +94,7 @@ void interp_free(RInterp *ip) {
   free(ip->pk_read);
   interp_free(ip->check);
   free(ip->brows);
+  free(ip->read_rows);
   free(ip);
 }
 
@@ -146,9 +147,9 @@ static int pack_lifts(const Model *m, RInterp *ip) {
   for (int q = 0; q < m->nq; q++) {
     const RClass *c = &m->classes[m->qclass[q]];
     off[q] = -1;
-    if (count[q] == 0 || !c->B) continue; /* no basis (streamed): read row by row, as trained */
+    if (count[q] == 0 || (!c->B && !ip->read_rows)) continue; /* no basis (streamed): read row by row, as trained */
     off[q] = ip->pk_lift;
-    if (4 * count[q] >= c->n) {
+    if (4 * count[q] >= c->n && !ip->read_rows) {
       ip->pk_whole_q[ip->pk_nwhole] = q, ip->pk_whole_off[ip->pk_nwhole++] = ip->pk_lift;
       ip->pk_lift += c->n;
     } else {
@@ -160,18 +161,20 @@ static int pack_lifts(const Model *m, RInterp *ip) {
     }
   }
   if (!(ip->pk_gather_B = malloc(sizeof(double) * (size_t)(gathered + 1)))) goto done;
-  for (long r = 0; r < ip->nreads; r++) {
+  for (long r = 0, at = 0; r < ip->nreads; r++) {
     int q = ip->read_q[r];
     const RClass *c = &m->classes[m->qclass[q]];
+    const double *row = ip->read_rows ? ip->read_rows + at : c->B + ip->read_e[r] * c->m;
+    at += c->m;
     if (off[q] < 0) {
       ip->pk_src[r] = -1;
-    } else if (4 * count[q] >= c->n) {
+    } else if (4 * count[q] >= c->n && !ip->read_rows) {
       ip->pk_src[r] = off[q] + ip->read_e[r];
     } else {
       int g = 0;
       while (ip->pk_gather_q[g] != q) g++;
       long j = next[q]++;
-      memcpy(ip->pk_gather_B + ip->pk_gather_at[g] + j * c->m, c->B + ip->read_e[r] * c->m, sizeof(double) * (size_t)c->m);
+      memcpy(ip->pk_gather_B + ip->pk_gather_at[g] + j * c->m, row, sizeof(double) * (size_t)c->m);
       ip->pk_src[r] = off[q] + j;
     }
   }
@@ -307,33 +310,33 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
 }
 
 size_t interp_check_work_size(const RStage *rs) {
-  const RInterp *ip = rs->interp;
-  size_t a = work_of(rs, ip), b = ip->check ? work_of(rs, ip->check) : 0;
-  return (a > b ? a : b) + (size_t)ip->m + 1;
+  const RInterp *ip = rs->interp, *ck = ip ? ip->check : rs->check;
+  size_t a = ip ? work_of(rs, ip) : 0, b = ck ? work_of(rs, ck) : 0;
+  return (a > b ? a : b) + (size_t)(ip ? ip->m : 0) + 1;
 }
 
 int interp_check(const Model *m, const RStage *rs, double *const *x, double *work, double *est, bool *exact, char *err,
                  size_t errlen) {
-  const RInterp *ip = rs->interp, *ck = ip ? ip->check : NULL;
+  const RInterp *ip = rs->interp, *ck = ip ? ip->check : rs->check;
   if (!ck)
-    return error_set(err, errlen, "the model holds no check entries for interpolated stage %s (trained before its "
-                     "estimate: retrain)", rs->st->sym->name);
-  long mm = ip->m, n = m->classes[m->qclass[rs->q]].n;
+    return error_set(err, errlen, "the model holds no check entries for stage %s (trained before its estimate: "
+                     "retrain)", rs->st->sym->name);
+  long mm = m->classes[m->qclass[rs->q]].m, n = m->classes[m->qclass[rs->q]].n, k = ip ? ip->k : 0;
   const double *yh = x[rs->q];
-  double *fit = work, *w = work + mm, sum[2] = {0, 0};
+  double *fit = work, *w = work + (ip ? ip->m : 0), sum[2] = {0, 0};
   RStage one = *rs;
-  for (int pass = 0; pass < 2; pass++) { /* the fit's entries, then the check's */
+  for (int pass = ip ? 0 : 1; pass < 2; pass++) { /* the fit's entries, then the check's */
     const RInterp *t = pass ? ck : ip;
     one.interp = (RInterp *)t;
     if (interp_eval(m, &one, x, fit, w, -1, err, errlen)) return -1;
-    const double *py = w + t->nreads + t->k * factor_base(rs, rs->nterms), *B = ck->brows + (pass ? ip->k * mm : 0);
+    const double *py = w + t->nreads + t->k * factor_base(rs, rs->nterms), *B = ck->brows + (pass ? k * mm : 0);
     for (long j = 0; j < t->k; j++) {
       double d = py[j] - (mm > 0 ? cblas_ddot((int)mm, B + j * mm, 1, yh, 1) : 0);
       sum[pass] += d * d;
     }
   }
-  *exact = ck->k == n - ip->k;
-  *est = sqrt(sum[0] + (ck->k > 0 ? (double)(n - ip->k) / (double)ck->k * sum[1] : 0));
+  *exact = ck->k == n - k;
+  *est = sqrt(sum[0] + (ck->k > 0 ? (double)(n - k) / (double)ck->k * sum[1] : 0));
   return 0;
 }
 
@@ -354,12 +357,21 @@ int interp_check(const Model *m, const RStage *rs, double *const *x, double *wor
  *   interpcheck y k K' reads R' monos N'
  *
  * with interp_y_check_rows, _check_reads, _check_monos as above and interp_y_check_brows
- * ((K + K') x M: the basis rows at the fit's entries, then at the check's). */
+ * ((K + K') x M: the basis rows at the fit's entries, then at the check's) and
+ * interp_y_check_readrows (per read of the check, its quantity's basis row, Σ m_q). A Galerkin
+ * stage of diagonal operators has the same as `galerkincheck y k K' reads R' monos N'` (K = 0). */
 
 #define MONO_COLS (5 + RT_MAX_IN)
 
 static void stem(char *buf, size_t n, const char *stage, const char *what) {
   snprintf(buf, n, "interp_%s_%s", stage, what);
+}
+
+/* The length of a check table's read_rows: Σ over its reads of m of the quantity's class. */
+static long check_row_len(const Model *m, const RInterp *ck) {
+  long len = 0;
+  for (long r = 0; r < ck->nreads; r++) len += m->classes[m->qclass[ck->read_q[r]]].m;
+  return len;
 }
 
 /* Table ip's rows, reads and monomials as arrays interp_SN_PREFIXrows, …reads, …monos. */
@@ -414,13 +426,23 @@ int interp_save(const Model *m, ModelStore *s) {
     stem(name, sizeof name, sn, "pinv");
     bad |= model_store_add(s, name, 2, shape, ip->pinv);
     bad |= save_table(s, sn, "", ip);
-    const RInterp *ck = ip->check;
+  }
+  for (int i = 0; i < m->nstages; i++) { /* the estimate's check tables, after every interp line */
+    const RStage *rs = &m->stages[i];
+    const RInterp *ck = rs->interp ? rs->interp->check : rs->check;
     if (!ck) continue;
-    bad |= model_store_meta(s, "interpcheck %s k %ld reads %ld monos %ld", sn, ck->k, ck->nreads, ck->nmono);
+    const char *sn = rs->st->sym->name;
+    long kfit = rs->interp ? rs->interp->k : 0;
+    bad |= model_store_meta(s, "%s %s k %ld reads %ld monos %ld", rs->interp ? "interpcheck" : "galerkincheck", sn,
+                            ck->k, ck->nreads, ck->nmono);
     bad |= save_table(s, sn, "check_", ck);
-    shape[0] = ip->k + ck->k, shape[1] = ip->m;
+    char name[600];
+    long shape[2] = {kfit + ck->k, m->classes[m->qclass[rs->q]].m};
     stem(name, sizeof name, sn, "check_brows");
     bad |= model_store_add(s, name, 2, shape, ck->brows);
+    shape[0] = check_row_len(m, ck);
+    stem(name, sizeof name, sn, "check_readrows");
+    bad |= model_store_add(s, name, 1, shape, ck->read_rows);
   }
   return bad ? -1 : 0;
 }
@@ -541,29 +563,41 @@ static int load_stage(Model *m, const ModelStore *s, const char *dir, const char
   return load_table(m, s, dir, sn, "", rs, ip, err, errlen);
 }
 
-/* "interpcheck STAGE k K reads R monos N", after the stage's `interp` line: its check table. */
+/* "interpcheck STAGE k K reads R monos N", after the stage's `interp` line, or "galerkincheck …" for
+ * a Galerkin stage of diagonal operators: the stage's check table. */
 static int load_check(Model *m, const ModelStore *s, const char *dir, const char *line, char *err, size_t errlen) {
-  char sn[512];
+  char sn[512], kind[16];
   long k, nreads, nmono;
   int used = 0;
   RStage *rs = NULL;
-  if (sscanf(line, "interpcheck %511s k %ld reads %ld monos %ld%n", sn, &k, &nreads, &nmono, &used) == 4 && !line[used])
+  if (sscanf(line, "%15s %511s k %ld reads %ld monos %ld%n", kind, sn, &k, &nreads, &nmono, &used) == 5 && !line[used])
     for (int i = 0; i < m->nstages && !rs; i++)
       if (strcmp(m->stages[i].st->sym->name, sn) == 0) rs = &m->stages[i];
-  if (!rs || !rs->interp || rs->interp->check || k < 0 || k > m->classes[m->qclass[rs->q]].n - rs->interp->k ||
-      nreads < 0 || nmono < 0 || nreads > 100000000 || nmono > 100000000)
+  bool fit = rs && strcmp(kind, "interpcheck") == 0;
+  long kfit = fit && rs->interp ? rs->interp->k : 0, mm = rs ? m->classes[m->qclass[rs->q]].m : 0;
+  if (!rs || (fit ? !rs->interp || rs->interp->check : rs->interp || rs->check || !lower_interp_eligible(rs->st)) ||
+      k < 0 || k > m->classes[m->qclass[rs->q]].n - kfit || nreads < 0 || nmono < 0 || nreads > 100000000 ||
+      nmono > 100000000)
     return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
                      dir, line);
-  RInterp *ip = rs->interp, *ck = calloc(1, sizeof *ck);
+  RInterp *ck = calloc(1, sizeof *ck);
   if (!ck) return error_set(err, errlen, "%s: out of memory loading the model", dir);
-  ip->check = ck;
+  *(fit ? &rs->interp->check : &rs->check) = ck;
   ck->k = k, ck->nreads = nreads, ck->nmono = nmono;
-  const double *B = array_of(s, dir, sn, "check_brows", ip->k + k, ip->m, err, errlen);
+  const double *B = array_of(s, dir, sn, "check_brows", kfit + k, mm, err, errlen);
   if (!B) return -1;
-  if (!(ck->brows = malloc(sizeof(double) * (size_t)((ip->k + k) * ip->m + 1))))
+  if (!(ck->brows = malloc(sizeof(double) * (size_t)((kfit + k) * mm + 1))))
     return error_set(err, errlen, "%s: out of memory loading the model", dir);
-  memcpy(ck->brows, B, sizeof(double) * (size_t)((ip->k + k) * ip->m));
-  return load_table(m, s, dir, sn, "check_", rs, ck, err, errlen);
+  memcpy(ck->brows, B, sizeof(double) * (size_t)((kfit + k) * mm));
+  if (load_table(m, s, dir, sn, "check_", rs, ck, err, errlen)) return -1;
+  long len = check_row_len(m, ck);
+  const double *rows = array_of(s, dir, sn, "check_readrows", len, 0, err, errlen);
+  if (!rows) return -1;
+  if (!(ck->read_rows = malloc(sizeof(double) * (size_t)(len + 1))))
+    return error_set(err, errlen, "%s: out of memory loading the model", dir);
+  memcpy(ck->read_rows, rows, sizeof(double) * (size_t)len);
+  if (interp_pack(m, rs, ck)) return error_set(err, errlen, "%s: out of memory loading the model", dir);
+  return 0;
 }
 
 /* A `choice` line: the stage's measured errors and reason. */
@@ -587,7 +621,9 @@ int interp_load(Model *m, const ModelStore *s, const char *dir, char *err, size_
   int n = 0;
   for (int i = 0; i < s->nmeta; i++) {
     if (strncmp(s->meta[i], "choice ", 7) == 0 && load_choice(m, dir, s->meta[i], err, errlen)) return -1;
-    if (strncmp(s->meta[i], "interpcheck ", 12) == 0 && load_check(m, s, dir, s->meta[i], err, errlen)) return -1;
+    if ((strncmp(s->meta[i], "interpcheck ", 12) == 0 || strncmp(s->meta[i], "galerkincheck ", 14) == 0) &&
+        load_check(m, s, dir, s->meta[i], err, errlen))
+      return -1;
     if (strncmp(s->meta[i], "interp ", 7) != 0) continue;
     if (s->format < 2)
       return error_set(err, errlen, "%s/manifest: an 'interp' line in a model of format 1 (a damaged or forged manifest)",

@@ -91,10 +91,13 @@ typedef struct RInterp {
   struct RInterp *check;
   double *brows;            /* in a check table: the stage basis's rows at the fit's entries, then at
                              * the check's own ((k_fit + k) x m_stage, row-major) */
+  double *read_rows;        /* in a check table: per read, its quantity's basis row (Σ m_q, in read
+                             * order), which interp_eval gathers from: a class read only there may be
+                             * streamed (its basis dropped) */
 } RInterp;
 
 /* The check table's size: every entry the fit does not select up to this many, else this many
- * drawn (or the fit's k, when larger). */
+ * drawn (or the fit's k, or 2m, when larger). */
 #define INTERP_CHECK_MIN 64
 
 void interp_free(RInterp *ip);
@@ -134,15 +137,17 @@ size_t interp_work_size(const RStage *rs);
 int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, double *work, long sample, char *err,
                 size_t errlen);
 
-/* The estimated error ‖y − B ŷ‖ of interpolated stage rs at the coordinates x (its own, x[rs->q],
- * from interp_eval): with ρ = y − B ŷ the formula's residual at the fit's k entries P and at the
- * check table's k_c entries E (drawn uniformly from the n − k others),
+/* The estimated error ‖y − B ŷ‖ of stage rs at the coordinates x (its own, x[rs->q], from the
+ * evaluation): with ρ = y − B ŷ the formula's residual at the fit's k entries P and at the check
+ * table's k_c entries E (drawn uniformly from the n − k others),
  *
  *     est² = ‖ρ_P‖² + (n − k)/k_c ‖ρ_E‖²,
  *
  * whose expectation over the draw of E is ‖y − B ŷ‖²; *exact when E holds every other entry.
- * `work` holds interp_check_work_size(rs) doubles. 0, or -1 with `err` (no check table, or the
- * formula not finite at an entry). */
+ * An interpolated stage's check is rs->interp->check; a Galerkin stage of diagonal operators
+ * has rs->check, with no fit (k = 0, E drawn from all n entries). `work` holds
+ * interp_check_work_size(rs) doubles. 0, or -1 with `err` (no check table, or the formula not
+ * finite at an entry). */
 size_t interp_check_work_size(const RStage *rs);
 int interp_check(const Model *m, const RStage *rs, double *const *x, double *work, double *est, bool *exact, char *err,
                  size_t errlen);

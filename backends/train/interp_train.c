@@ -173,12 +173,13 @@ done:
 }
 
 /* The estimate's check entries of fit ip (docs/estimates.md, interp_check): every entry the fit
- * does not select up to max(INTERP_CHECK_MIN, k) of them, else that many drawn uniformly without
+ * does not select up to max(INTERP_CHECK_MIN, k, 2m) of them, else that many drawn uniformly without
  * replacement (a fixed seed: training is reproducible), in ip->check->rows and slot[] (from ip->k
  * on); their basis rows, after the fit's, in ip->check->brows. 0, or -1 out of memory. */
 static int check_rows(const RClass *c, RInterp *ip, long *slot) {
   RInterp *ck = ip->check;
-  long n = c->n, m = c->m, rest = n - ip->k, want = ip->k > INTERP_CHECK_MIN ? ip->k : INTERP_CHECK_MIN, j = 0;
+  long n = c->n, m = c->m, rest = n - ip->k, want = ip->k > 2 * m ? ip->k : 2 * m, j = 0;
+  if (want < INTERP_CHECK_MIN) want = INTERP_CHECK_MIN;
   long *pool = malloc(sizeof(long) * (size_t)(rest + 1));
   if (!pool) return -1;
   for (long e = 0; e < n; e++)
@@ -198,6 +199,24 @@ static int check_rows(const RClass *c, RInterp *ip, long *slot) {
   for (long s = 0; s < ip->k + ck->k; s++)
     memcpy(ck->brows + s * m, c->B + (s < ip->k ? ip->rows[s] : ck->rows[s - ip->k]) * m, sizeof(double) * (size_t)m);
   free(pool);
+  return 0;
+}
+
+/* A check table's read_rows from the bases of the quantities it reads: 0, 1 when one has no basis
+ * in memory (the check is then left out), -1 out of memory. */
+static int check_read_rows(const Model *m, RInterp *ck) {
+  long len = 0;
+  for (long r = 0; r < ck->nreads; r++) {
+    const RClass *c = &m->classes[m->qclass[ck->read_q[r]]];
+    if (!c->B && c->m > 0) return 1;
+    len += c->m;
+  }
+  if (!(ck->read_rows = malloc(sizeof(double) * (size_t)(len + 1)))) return -1;
+  for (long r = 0, at = 0; r < ck->nreads; r++) {
+    const RClass *c = &m->classes[m->qclass[ck->read_q[r]]];
+    if (c->m > 0) memcpy(ck->read_rows + at, c->B + ck->read_e[r] * c->m, sizeof(double) * (size_t)c->m);
+    at += c->m;
+  }
   return 0;
 }
 
@@ -271,7 +290,9 @@ static int stream_tensor(Table *tb, Full *f, const RTensor *x, const char *stage
   return 0;
 }
 
-int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen) {
+/* interp_train_stage, or with oversample 0 interp_train_check: no fit (k = 0), the check table
+ * drawn from all n entries into rs->check. */
+static int train_tables(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen) {
   RStage *rs = &m->stages[stage];
   const char *sn = rs->st->sym->name;
   const RClass *c = &m->classes[m->qclass[rs->q]];
@@ -280,7 +301,8 @@ int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *er
                      rs->st->kind == ST_INVERSE || rs->st->kind == ST_ROOT
                         ? "one of its operators is a declared op, not diagonal (npgc check says which stages can)"
                         : "it applies no diagonal operator (npgc check says which stages can)");
-  if (!(oversample >= 1)) return error_set(err, errlen, "interpolation oversampling %g: must be at least 1", oversample);
+  if (!(oversample >= 1) && oversample != 0)
+    return error_set(err, errlen, "interpolation oversampling %g: must be at least 1", oversample);
   RInterp *ip = calloc(1, sizeof *ip);
   Table tb = {.m = m, .ip = ip, .err = err, .errlen = errlen}, tbx = {.m = m, .err = err, .errlen = errlen};
   long *slot = NULL;
@@ -291,7 +313,7 @@ int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *er
   if (draws < c->m) draws = c->m;
   if (!(slot = malloc(sizeof(long) * (size_t)(c->n + 1))) || !(tb.read_of = calloc((size_t)m->nq + 1, sizeof(long *))))
     goto oom;
-  if (select_rows(c, ip, draws, err, errlen) || pseudo_inverse(c, ip, sn, err, errlen)) goto done;
+  if (oversample > 0 && (select_rows(c, ip, draws, err, errlen) || pseudo_inverse(c, ip, sn, err, errlen))) goto done;
   for (long e = 0; e < c->n; e++) slot[e] = -1;
   for (long s = 0; s < ip->k; s++) slot[ip->rows[s]] = s;
   if (!(ip->check = calloc(1, sizeof *ip->check)) || !(tbx.read_of = calloc((size_t)m->nq + 1, sizeof(long *))) ||
@@ -316,10 +338,17 @@ int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *er
         if (stream_tensor(&tb, f, &rt->ops[o].t[g], sn)) goto done;
     }
   }
-  if (interp_pack(m, rs, ip) || interp_pack(m, rs, ip->check)) goto oom;
-  interp_free(rs->interp);
-  rs->interp = ip;
-  ip = NULL;
+  int rows = check_read_rows(m, ip->check);
+  if (rows < 0 || interp_pack(m, rs, ip) || (rows == 0 && interp_pack(m, rs, ip->check))) goto oom;
+  if (rows > 0) interp_free(ip->check), ip->check = NULL; /* a read class without its basis: no check */
+  if (oversample == 0) {
+    interp_free(rs->check);
+    rs->check = ip->check, ip->check = NULL;
+  } else {
+    interp_free(rs->interp);
+    rs->interp = ip;
+    ip = NULL;
+  }
   rc = 0;
   goto done;
 oom:
@@ -397,4 +426,13 @@ done:
   free(errs);
   free(reason);
   return m;
+}
+
+int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen) {
+  if (!(oversample >= 1)) return error_set(err, errlen, "interpolation oversampling %g: must be at least 1", oversample);
+  return train_tables(m, f, stage, oversample, err, errlen);
+}
+
+int interp_train_check(Model *m, Full *f, int stage, char *err, size_t errlen) {
+  return train_tables(m, f, stage, 0, err, errlen);
 }
