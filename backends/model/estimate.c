@@ -17,6 +17,7 @@
 #include <string.h>
 
 #include "estimate.h"
+#include "interp.h"
 
 static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
 static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quantities.v[q])->name; }
@@ -25,7 +26,7 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
   const RStage *rs = &m->stages[i];
   const RTerm *rt = &rs->terms[t];
   if (rs->st->kind == ST_EXTERN) return snprintf(why, n, "an extern's learned map has no estimate"), false;
-  if (rs->interp) return snprintf(why, n, "interpolated stages have no estimate yet"), false;
+  if (rs->interp) return snprintf(why, n, "an interpolated stage has no Galerkin terms' tables (its estimate is interp_check's)"), false;
   if (rt->nops > 1) return snprintf(why, n, "term %d applies %d operators (one inverse at most has an estimate)", t + 1,
                                     rt->nops), false;
   if (rt->nops == 1 && !(rt->ops[0].op->p == -1 && rt->ops[0].op->q == 1))
@@ -117,7 +118,15 @@ bool estimate_outside(const Model *m, int q, const double *coords, long *coord) 
 typedef struct Scratch {
   double *z, *Gz, *v, *M, *M2, *sv, *pack;
   long svlen;
+  bool *carry;   /* per quantity: a tensor input of the current stage whose error it propagates */
+  int *carried;  /* those quantities, ncarried of them */
+  int ncarried;
 } Scratch;
+
+static void clear_carried(Scratch *s) {
+  for (int k = 0; k < s->ncarried; k++) s->carry[s->carried[k]] = false;
+  s->ncarried = 0;
+}
 
 /* ‖r_t‖ of term `rt` (of a stage of full size n, basis size my) with its
  * value ŷ_t in s->v; *roundoff when below the roundoff of the expansion
@@ -175,20 +184,70 @@ static double sigma_min(double *M, long my, Scratch *s) {
   return info == 0 ? s->sv[my - 1] : NAN;
 }
 
-/* Why stage `rs` has no estimate because of its input q, or NULL: q's error is known and
- * zero, or q is a named numerator (its error is carried through). */
-static const char *input_blocks(const EstimateResult *e, const Model *m, int q, char *buf, size_t n) {
-  if (isnan(e->err[q])) return snprintf(buf, n, "its input %s has no estimate", qname(m, q)), buf;
-  if (e->err[q] > 0)
-    return snprintf(buf, n, "its input %s carries an error (%.3g) whose propagation through a tensor is not "
-                    "implemented", qname(m, q), e->err[q]), buf;
-  return NULL;
+/* ŷ of stage i, the sum of its terms (contractions: reduced_term cannot fail), into y; v scratch. */
+static void stage_sum(Reduced *r, int i, double *y, double *v, long my) {
+  memset(y, 0, sizeof(double) * (size_t)my);
+  for (int t = 0; t < reduced_model(r)->stages[i].nterms; t++)
+    if (reduced_term(r, i, t, v, NULL, -1) == 0) cblas_daxpy((int)my, 1.0, v, 1, y, 1);
+}
+
+/* Stage i's propagation of input q's error e_q (DESIGN §16): the stage's local Jacobian J =
+ * ∂ŷ/∂x̂_q at the evaluated coordinates (reduced_stage_jvp, reduced cost), its largest singular value
+ * σ_1 and right singular vector v; the figure is max(σ_1 e_q, ‖ŷ(x̂_q ± e_q v) − ŷ(x̂_q)‖), the
+ * first order and, for a stage of contractions alone (their evaluation cannot fail), the secant
+ * along v both ways, which holds the higher orders of the polynomial there. An estimate: J maps
+ * B_q's span only (an error orthogonal to it is assumed to move the output as much as the worst
+ * direction inside), and the second order is sampled along v. NaN with `why` on failure. */
+static double propagate(Reduced *r, int i, int q, double eq, char *why, size_t n) {
+  const Model *m = reduced_model(r);
+  const RStage *rs = &m->stages[i];
+  long my = qm(m, rs->q), mq = qm(m, q), k = my < mq ? my : mq;
+  double *eye = calloc((size_t)(mq * mq) + 1, sizeof(double)), *J = malloc(sizeof(double) * (size_t)(my * mq + 1));
+  double *sv = malloc(sizeof(double) * (size_t)(k + 1)), *vt = malloc(sizeof(double) * (size_t)(mq * mq + 1));
+  double *sup = malloc(sizeof(double) * (size_t)(k + 1)), *y0 = calloc((size_t)(3 * my + mq) + 1, sizeof(double));
+  double out = NAN;
+  char err[256] = "";
+  if (!eye || !J || !sv || !vt || !sup || !y0) {
+    snprintf(why, n, "out of memory for the propagation of %s's error", qname(m, q));
+    goto done;
+  }
+  for (long a = 0; a < mq; a++) eye[a * mq + a] = 1;
+  if (reduced_stage_jvp(r, i, q, eye, mq, J, -1, err, sizeof err)) {
+    snprintf(why, n, "the derivative in its input %s (whose error it propagates) failed: %.150s", qname(m, q), err);
+    goto done;
+  }
+  if (k == 0) {
+    out = 0;
+    goto done;
+  }
+  if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'N', 'A', (int)my, (int)mq, J, (int)mq, sv, NULL, 1, vt, (int)mq, sup) != 0) {
+    snprintf(why, n, "the SVD of its derivative in %s did not converge", qname(m, q));
+    goto done;
+  }
+  out = sv[0] * eq;
+  bool contractions = true;
+  for (int t = 0; t < rs->nterms; t++) contractions = contractions && rs->terms[t].nops == 0;
+  if (!contractions || !(eq > 0)) goto done;
+  double *y1 = y0 + my, *v = y0 + 2 * my, *save = y0 + 3 * my, *x = reduced_all_coords(r)[q];
+  memcpy(save, x, sizeof(double) * (size_t)mq);
+  stage_sum(r, i, y0, v, my); /* the base ŷ(x̂_q), by the same sum as the perturbed values */
+  for (int sign = -1; sign <= 1; sign += 2) {
+    for (long a = 0; a < mq; a++) x[a] = save[a] + sign * eq * vt[a];
+    stage_sum(r, i, y1, v, my);
+    cblas_daxpy((int)my, -1.0, y0, 1, y1, 1);
+    out = fmax(out, cblas_dnrm2((int)my, y1, 1));
+  }
+  memcpy(x, save, sizeof(double) * (size_t)mq);
+done:
+  free(eye), free(J), free(sv), free(vt), free(sup), free(y0);
+  return out;
 }
 
 /* The min-θ lower bound of λ_min(M(x)) for a term whose operator is M_0 + Σ x_j M_j with every
  * M_j positive semidefinite: max over the anchors x̄ of min(1, min_j x_j / x̄_j) · λ_min(M(x̄)), x =
- * B x̂ the input (exact: the caller has checked it carries no error); 0 when there is no table or
- * an x_j is not positive. */
+ * B x̂ the input; 0 when there is no table or an x_j is not positive. An error of x itself is the
+ * propagation's (propagate): the bound is λ_min's at the evaluated x, whose full solve the residual
+ * measures against. */
 static double theta_bound(Reduced *r, const RTerm *rt) {
   if (!rt->est_theta || rt->est_theta_k < 1) return 0;
   const Model *m = reduced_model(r);
@@ -209,10 +268,80 @@ static double theta_bound(Reduced *r, const RTerm *rt) {
   return best;
 }
 
+/* Input iq of the stage being estimated: its trust flag into *flags, and, when it carries an
+ * error, noted among those the stage propagates (once for all its terms). -1 with `why` when it
+ * has no estimate. */
+static int note_input(const EstimateResult *e, const Model *m, int iq, Scratch *s, unsigned *flags, char *why,
+                      size_t n) {
+  *flags |= e->flags[iq] & EST_OUTSIDE;
+  if (isnan(e->err[iq])) return snprintf(why, n, "its input %s has no estimate", qname(m, iq)), -1;
+  if (e->err[iq] > 0 && !s->carry[iq]) s->carry[iq] = true, s->carried[s->ncarried++] = iq;
+  return 0;
+}
+
+/* The propagation of the noted inputs' errors through stage i added to *sum (an estimate:
+ * EST_BOUND cleared when there is any); the notes cleared. -1 with `why` on failure. */
+static int add_propagation(Reduced *r, int i, const EstimateResult *e, Scratch *s, double *sum, unsigned *flags,
+                           char *why, size_t n) {
+  for (int k = 0; k < s->ncarried; k++) {
+    int iq = s->carried[k];
+    double p = propagate(r, i, iq, e->err[iq], why, n);
+    if (isnan(p)) return clear_carried(s), -1;
+    *sum += p;
+    *flags &= ~EST_BOUND;
+    *flags |= e->flags[iq] & EST_ROUNDOFF;
+  }
+  clear_carried(s);
+  return 0;
+}
+
+/* Quantity q's figure into e: v with its flags, or, with `why`, none (its trust flag kept). */
+static void store(EstimateResult *e, Scratch *s, int q, double v, unsigned flags, const char *why) {
+  clear_carried(s);
+  snprintf(e->why_q[q], sizeof e->why_q[q], "%s", why ? why : "");
+  e->err[q] = why ? NAN : v;
+  e->flags[q] = why ? EST_NONE | (flags & EST_OUTSIDE) : flags;
+}
+
+/* The estimate of stage number i by its check entries into e (an interpolated stage, or a Galerkin
+ * one of diagonal operators whose terms have no tables): interp_check's sampled residual (exact,
+ * flagged a bound, when its entries are all those the fit leaves out), plus the propagation of
+ * its inputs' errors. */
+static void check_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
+  const Model *m = reduced_model(r);
+  const RStage *rs = &m->stages[i];
+  const RInterp *ip = rs->interp ? rs->interp : rs->check, *ck = rs->interp ? rs->interp->check : NULL;
+  int q = rs->q;
+  unsigned flags = EST_BOUND;
+  char why[256] = "";
+  double est = NAN;
+  bool exact = false;
+  for (long k = 0; k < ip->nreads + (ck ? ck->nreads : 0); k++)
+    if (note_input(e, m, k < ip->nreads ? ip->read_q[k] : ck->read_q[k - ip->nreads], s, &flags, why, sizeof why))
+      goto none;
+  double *work = malloc(sizeof(double) * interp_check_work_size(rs));
+  int rc = work ? interp_check(m, rs, reduced_all_coords(r), work, &est, &exact, why, sizeof why)
+                : (snprintf(why, sizeof why, "out of memory for the estimate"), -1);
+  free(work);
+  if (rc) goto none;
+  if (!exact) flags &= ~EST_BOUND;
+  if (add_propagation(r, i, e, s, &est, &flags, why, sizeof why)) goto none;
+  store(e, s, q, est, flags, NULL);
+  return;
+none:
+  store(e, s, q, NAN, flags, why);
+}
+
 /* The estimate of stage number i into e (err, flags, why_q of its quantity). */
 static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
+  bool tables = true; /* every term has its residual's table (exact for contractions): else the check entries */
+  for (int t = 0; t < rs->nterms; t++) tables = tables && rs->terms[t].est_G;
+  if (rs->interp || (rs->check && !tables)) {
+    check_estimate(r, i, e, s);
+    return;
+  }
   int q = rs->q;
   long my = qm(m, q), n = m->classes[m->qclass[q]].n;
   char why[256] = "";
@@ -227,10 +356,8 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
       goto none;
     }
     RTERM_FOR_TENSORS(rt, x)
-      for (int j = 0; j < x->nin; j++) {
-        flags |= e->flags[x->in_q[j]] & EST_OUTSIDE;
-        if (input_blocks(e, m, x->in_q[j], why, sizeof why)) goto none;
-      }
+      for (int j = 0; j < x->nin; j++)
+        if (note_input(e, m, x->in_q[j], s, &flags, why, sizeof why)) goto none;
     double carried = 0; /* a named numerator's own error */
     if (rt->named_q >= 0) {
       if (isnan(e->err[rt->named_q])) {
@@ -275,12 +402,11 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
     }
     sum += (res + carried) / sig;
   }
-  e->err[q] = sum, e->flags[q] = flags, e->why_q[q][0] = 0;
+  if (add_propagation(r, i, e, s, &sum, &flags, why, sizeof why)) goto none;
+  store(e, s, q, sum, flags, NULL);
   return;
 none:
-  snprintf(e->why_q[q], sizeof e->why_q[q], "%s", why);
-  e->err[q] = NAN;
-  e->flags[q] = EST_NONE | (flags & EST_OUTSIDE);
+  store(e, s, q, NAN, flags, why);
 }
 
 int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
@@ -305,7 +431,9 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
   s.M2 = malloc(sizeof(double) * (size_t)(maxm * maxm));
   s.sv = malloc(sizeof(double) * (size_t)s.svlen);
   s.pack = malloc(sizeof(double) * (size_t)maxpack);
-  int rc = s.z && s.Gz && s.v && s.M && s.M2 && s.sv && s.pack ? 0 : -1;
+  s.carry = calloc((size_t)m->nq + 1, sizeof(bool));
+  s.carried = malloc(sizeof(int) * ((size_t)m->nq + 1));
+  int rc = s.z && s.Gz && s.v && s.M && s.M2 && s.sv && s.pack && s.carry && s.carried ? 0 : -1;
   e->why[0] = 0;
   /* m-sized LAPACK and D-sized BLAS: OpenBLAS's second thread only costs here (as in reduced.c) */
   int threads = openblas_get_num_threads();
@@ -329,7 +457,7 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
     if (isnan(e->err[q]) && !e->why[0]) snprintf(e->why, sizeof e->why, "%s: %s", qname(m, q), e->why_q[q]);
   }
   if (threads > 1) openblas_set_num_threads(threads);
-  free(s.z), free(s.Gz), free(s.v), free(s.M), free(s.M2), free(s.sv), free(s.pack);
+  free(s.z), free(s.Gz), free(s.v), free(s.M), free(s.M2), free(s.sv), free(s.pack), free(s.carry), free(s.carried);
   return rc;
 }
 

@@ -29,10 +29,14 @@
  * bound relative to K0 (one anchor, λ = 1); no σ_min fallback there.
  *
  * Chaining: a named numerator w carries its own estimate e_w into the term
- * (plus e_w for a projection, plus e_w / σ for an inverse); an input of a
- * tensor that carries an error leaves the stage without an estimate (the
- * propagation through polynomial tensors is not implemented), as do
- * externs, interpolated stages, roots and terms of several operators. */
+ * (plus e_w for a projection, plus e_w / σ for an inverse); an input x of a
+ * tensor that carries an error e_x adds its propagation, max(‖∂ŷ/∂x̂‖₂ e_x,
+ * the secant along the worst direction) from the stage's local reduced
+ * Jacobian (an estimate: estimate.c's propagate). An interpolated stage's
+ * own figure is its formula's residual at the fit's entries and at check
+ * entries drawn from the others (interp_check), as is a Galerkin stage's of
+ * diagonal operators whose terms lack tables (roots, several operators).
+ * Externs and roots or products of declared ops have none. */
 #ifndef NPG_ESTIMATE_H
 #define NPG_ESTIMATE_H
 

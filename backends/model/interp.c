@@ -92,6 +92,9 @@ void interp_free(RInterp *ip) {
   free(ip->pk_coef);
   free(ip->pk_nin);
   free(ip->pk_read);
+  interp_free(ip->check);
+  free(ip->brows);
+  free(ip->read_rows);
   free(ip);
 }
 
@@ -102,9 +105,11 @@ static long factor_base(const RStage *rs, int term) {
   return f;
 }
 
-size_t interp_work_size(const RStage *rs) {
-  return (size_t)(rs->interp->nreads + rs->interp->k * (factor_base(rs, rs->nterms) + 1) + rs->interp->pk_lift + 1);
+static size_t work_of(const RStage *rs, const RInterp *ip) {
+  return (size_t)(ip->nreads + ip->k * (factor_base(rs, rs->nterms) + 1) + ip->pk_lift + 1);
 }
+
+size_t interp_work_size(const RStage *rs) { return work_of(rs, rs->interp); }
 
 /* Monomial order for interp_pack: by accumulator, then as trained (a stable sort). */
 typedef struct PackKey {
@@ -142,9 +147,9 @@ static int pack_lifts(const Model *m, RInterp *ip) {
   for (int q = 0; q < m->nq; q++) {
     const RClass *c = &m->classes[m->qclass[q]];
     off[q] = -1;
-    if (count[q] == 0 || !c->B) continue; /* no basis (streamed): read row by row, as trained */
+    if (count[q] == 0 || (!c->B && !ip->read_rows)) continue; /* no basis (streamed): read row by row, as trained */
     off[q] = ip->pk_lift;
-    if (4 * count[q] >= c->n) {
+    if (4 * count[q] >= c->n && !ip->read_rows) {
       ip->pk_whole_q[ip->pk_nwhole] = q, ip->pk_whole_off[ip->pk_nwhole++] = ip->pk_lift;
       ip->pk_lift += c->n;
     } else {
@@ -156,18 +161,20 @@ static int pack_lifts(const Model *m, RInterp *ip) {
     }
   }
   if (!(ip->pk_gather_B = malloc(sizeof(double) * (size_t)(gathered + 1)))) goto done;
-  for (long r = 0; r < ip->nreads; r++) {
+  for (long r = 0, at = 0; r < ip->nreads; r++) {
     int q = ip->read_q[r];
     const RClass *c = &m->classes[m->qclass[q]];
+    const double *row = ip->read_rows ? ip->read_rows + at : c->B + ip->read_e[r] * c->m;
+    at += c->m;
     if (off[q] < 0) {
       ip->pk_src[r] = -1;
-    } else if (4 * count[q] >= c->n) {
+    } else if (4 * count[q] >= c->n && !ip->read_rows) {
       ip->pk_src[r] = off[q] + ip->read_e[r];
     } else {
       int g = 0;
       while (ip->pk_gather_q[g] != q) g++;
       long j = next[q]++;
-      memcpy(ip->pk_gather_B + ip->pk_gather_at[g] + j * c->m, c->B + ip->read_e[r] * c->m, sizeof(double) * (size_t)c->m);
+      memcpy(ip->pk_gather_B + ip->pk_gather_at[g] + j * c->m, row, sizeof(double) * (size_t)c->m);
       ip->pk_src[r] = off[q] + j;
     }
   }
@@ -302,6 +309,37 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
   return 0;
 }
 
+size_t interp_check_work_size(const RStage *rs) {
+  const RInterp *ip = rs->interp, *ck = ip ? ip->check : rs->check;
+  size_t a = ip ? work_of(rs, ip) : 0, b = ck ? work_of(rs, ck) : 0;
+  return (a > b ? a : b) + (size_t)(ip ? ip->m : 0) + 1;
+}
+
+int interp_check(const Model *m, const RStage *rs, double *const *x, double *work, double *est, bool *exact, char *err,
+                 size_t errlen) {
+  const RInterp *ip = rs->interp, *ck = ip ? ip->check : rs->check;
+  if (!ck)
+    return error_set(err, errlen, "the model holds no check entries for stage %s (trained before its estimate: "
+                     "retrain)", rs->st->sym->name);
+  long mm = m->classes[m->qclass[rs->q]].m, n = m->classes[m->qclass[rs->q]].n, k = ip ? ip->k : 0;
+  const double *yh = x[rs->q];
+  double *fit = work, *w = work + (ip ? ip->m : 0), sum[2] = {0, 0};
+  RStage one = *rs;
+  for (int pass = ip ? 0 : 1; pass < 2; pass++) { /* the fit's entries, then the check's */
+    const RInterp *t = pass ? ck : ip;
+    one.interp = (RInterp *)t;
+    if (interp_eval(m, &one, x, fit, w, -1, err, errlen)) return -1;
+    const double *py = w + t->nreads + t->k * factor_base(rs, rs->nterms), *B = ck->brows + (pass ? k * mm : 0);
+    for (long j = 0; j < t->k; j++) {
+      double d = py[j] - (mm > 0 ? cblas_ddot((int)mm, B + j * mm, 1, yh, 1) : 0);
+      sum[pass] += d * d;
+    }
+  }
+  *exact = ck->k == n - k;
+  *est = sqrt(sum[0] + (ck->k > 0 ? (double)(n - k) / (double)ck->k * sum[1] : 0));
+  return 0;
+}
+
 /* ---------------------------------------------------------------- on disk
  *
  * Per interpolated stage y, the manifest line
@@ -312,12 +350,58 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
  *   interp_y_rows   K        the selected entries
  *   interp_y_pinv   M x K    (W P B)⁺ W (the weighted fit)
  *   interp_y_reads  R x 2    (quantity, flat entry) lifted
- *   interp_y_monos  N x (5 + RT_MAX_IN): term, factor, slot, coefficient, inputs, reads (-1 padded) */
+ *   interp_y_monos  N x (5 + RT_MAX_IN): term, factor, slot, coefficient, inputs, reads (-1 padded)
+ *
+ * then, for the error estimate's check table (interp_check), the line
+ *
+ *   interpcheck y k K' reads R' monos N'
+ *
+ * with interp_y_check_rows, _check_reads, _check_monos as above and interp_y_check_brows
+ * ((K + K') x M: the basis rows at the fit's entries, then at the check's) and
+ * interp_y_check_readrows (per read of the check, its quantity's basis row, Σ m_q). A Galerkin
+ * stage of diagonal operators has the same as `galerkincheck y k K' reads R' monos N'` (K = 0). */
 
 #define MONO_COLS (5 + RT_MAX_IN)
 
 static void stem(char *buf, size_t n, const char *stage, const char *what) {
   snprintf(buf, n, "interp_%s_%s", stage, what);
+}
+
+/* The length of a check table's read_rows: Σ over its reads of m of the quantity's class. */
+static long check_row_len(const Model *m, const RInterp *ck) {
+  long len = 0;
+  for (long r = 0; r < ck->nreads; r++) len += m->classes[m->qclass[ck->read_q[r]]].m;
+  return len;
+}
+
+/* Table ip's rows, reads and monomials as arrays interp_SN_PREFIXrows, …reads, …monos. */
+static int save_table(ModelStore *s, const char *sn, const char *pre, const RInterp *ip) {
+  char name[600], what[64];
+  int bad = 0;
+  double *t = malloc(sizeof(double) * (size_t)(ip->k + 2 * ip->nreads + MONO_COLS * ip->nmono + 1));
+  if (!t) return -1;
+  for (long j = 0; j < ip->k; j++) t[j] = (double)ip->rows[j];
+  long shape[2] = {ip->k, 0};
+  snprintf(what, sizeof what, "%srows", pre);
+  stem(name, sizeof name, sn, what);
+  bad |= model_store_add(s, name, 1, shape, t);
+  for (long r = 0; r < ip->nreads; r++) t[2 * r] = ip->read_q[r], t[2 * r + 1] = (double)ip->read_e[r];
+  shape[0] = ip->nreads, shape[1] = 2;
+  snprintf(what, sizeof what, "%sreads", pre);
+  stem(name, sizeof name, sn, what);
+  bad |= model_store_add(s, name, 2, shape, t);
+  for (long j = 0; j < ip->nmono; j++) {
+    const RInterpMono *mo = &ip->mono[j];
+    double *row = t + j * MONO_COLS;
+    row[0] = mo->term, row[1] = mo->factor, row[2] = (double)mo->slot, row[3] = mo->coef, row[4] = mo->nin;
+    for (int c = 0; c < RT_MAX_IN; c++) row[5 + c] = c < mo->nin ? (double)mo->read[c] : -1;
+  }
+  shape[0] = ip->nmono, shape[1] = MONO_COLS;
+  snprintf(what, sizeof what, "%smonos", pre);
+  stem(name, sizeof name, sn, what);
+  bad |= model_store_add(s, name, 2, shape, t);
+  free(t);
+  return bad;
 }
 
 int interp_save(const Model *m, ModelStore *s) {
@@ -338,29 +422,27 @@ int interp_save(const Model *m, ModelStore *s) {
     bad |= model_store_meta(s, "interp %s k %ld m %ld reads %ld monos %ld norm %.17g", sn, ip->k, ip->m, ip->nreads,
                             ip->nmono, ip->pinv_norm);
     char name[600];
-    double *t = malloc(sizeof(double) * (size_t)(ip->k + 2 * ip->nreads + MONO_COLS * ip->nmono + 1));
-    if (!t) return -1;
-    for (long j = 0; j < ip->k; j++) t[j] = (double)ip->rows[j];
-    long shape[2] = {ip->k, 0};
-    stem(name, sizeof name, sn, "rows");
-    bad |= model_store_add(s, name, 1, shape, t);
-    shape[0] = ip->m, shape[1] = ip->k;
+    long shape[2] = {ip->m, ip->k};
     stem(name, sizeof name, sn, "pinv");
     bad |= model_store_add(s, name, 2, shape, ip->pinv);
-    for (long r = 0; r < ip->nreads; r++) t[2 * r] = ip->read_q[r], t[2 * r + 1] = (double)ip->read_e[r];
-    shape[0] = ip->nreads, shape[1] = 2;
-    stem(name, sizeof name, sn, "reads");
-    bad |= model_store_add(s, name, 2, shape, t);
-    for (long j = 0; j < ip->nmono; j++) {
-      const RInterpMono *mo = &ip->mono[j];
-      double *row = t + j * MONO_COLS;
-      row[0] = mo->term, row[1] = mo->factor, row[2] = (double)mo->slot, row[3] = mo->coef, row[4] = mo->nin;
-      for (int c = 0; c < RT_MAX_IN; c++) row[5 + c] = c < mo->nin ? (double)mo->read[c] : -1;
-    }
-    shape[0] = ip->nmono, shape[1] = MONO_COLS;
-    stem(name, sizeof name, sn, "monos");
-    bad |= model_store_add(s, name, 2, shape, t);
-    free(t);
+    bad |= save_table(s, sn, "", ip);
+  }
+  for (int i = 0; i < m->nstages; i++) { /* the estimate's check tables, after every interp line */
+    const RStage *rs = &m->stages[i];
+    const RInterp *ck = rs->interp ? rs->interp->check : rs->check;
+    if (!ck) continue;
+    const char *sn = rs->st->sym->name;
+    long kfit = rs->interp ? rs->interp->k : 0;
+    bad |= model_store_meta(s, "%s %s k %ld reads %ld monos %ld", rs->interp ? "interpcheck" : "galerkincheck", sn,
+                            ck->k, ck->nreads, ck->nmono);
+    bad |= save_table(s, sn, "check_", ck);
+    char name[600];
+    long shape[2] = {kfit + ck->k, m->classes[m->qclass[rs->q]].m};
+    stem(name, sizeof name, sn, "check_brows");
+    bad |= model_store_add(s, name, 2, shape, ck->brows);
+    shape[0] = check_row_len(m, ck);
+    stem(name, sizeof name, sn, "check_readrows");
+    bad |= model_store_add(s, name, 1, shape, ck->read_rows);
   }
   return bad ? -1 : 0;
 }
@@ -385,6 +467,65 @@ static const double *array_of(const ModelStore *s, const char *dir, const char *
 /* An integer held as a double, in [lo, hi). */
 static bool whole_in(double v, long lo, long hi) { return v == floor(v) && v >= (double)lo && v < (double)hi; }
 
+/* Table ip's rows, reads and monomials (ip->k, nreads, nmono set) from arrays interp_SN_PREFIX…
+ * of stage rs, every entry checked against the program. 0, or -1 with `err`. */
+static int load_table(Model *m, const ModelStore *s, const char *dir, const char *sn, const char *pre, RStage *rs,
+                      RInterp *ip, char *err, size_t errlen) {
+  const RClass *c = &m->classes[m->qclass[rs->q]];
+  long k = ip->k, nreads = ip->nreads, nmono = ip->nmono;
+  char w[3][64];
+  snprintf(w[0], sizeof w[0], "%srows", pre), snprintf(w[1], sizeof w[1], "%sreads", pre);
+  snprintf(w[2], sizeof w[2], "%smonos", pre);
+  const double *rows = array_of(s, dir, sn, w[0], k, 0, err, errlen);
+  const double *reads = rows ? array_of(s, dir, sn, w[1], nreads, 2, err, errlen) : NULL;
+  const double *monos = reads ? array_of(s, dir, sn, w[2], nmono, MONO_COLS, err, errlen) : NULL;
+  if (!monos) return -1;
+  ip->rows = malloc(sizeof(long) * (size_t)(k + 1));
+  ip->read_q = malloc(sizeof(int) * (size_t)(nreads + 1));
+  ip->read_e = malloc(sizeof(long) * (size_t)(nreads + 1));
+  ip->mono = malloc(sizeof(RInterpMono) * (size_t)(nmono + 1));
+  if (!ip->rows || !ip->read_q || !ip->read_e || !ip->mono)
+    return error_set(err, errlen, "%s: out of memory loading the model", dir);
+  const char *bad = NULL;
+  for (long j = 0; j < k && !bad; j++) {
+    if (!whole_in(rows[j], 0, c->n)) bad = w[0];
+    ip->rows[j] = (long)rows[j];
+  }
+  for (long r = 0; r < nreads && !bad; r++) {
+    if (!whole_in(reads[2 * r], 0, m->nq)) {
+      bad = w[1];
+      break;
+    }
+    ip->read_q[r] = (int)reads[2 * r];
+    if (!whole_in(reads[2 * r + 1], 0, m->classes[m->qclass[ip->read_q[r]]].n)) bad = w[1];
+    ip->read_e[r] = (long)reads[2 * r + 1];
+  }
+  for (long j = 0; j < nmono && !bad; j++) {
+    const double *row = monos + j * MONO_COLS;
+    RInterpMono *mo = &ip->mono[j];
+    if (!whole_in(row[0], 0, rs->nterms) || !whole_in(row[4], 0, RT_MAX_IN + 1) || !isfinite(row[3]) ||
+        !whole_in(row[2], 0, k)) {
+      bad = w[2];
+      break;
+    }
+    mo->term = (int)row[0];
+    if (!whole_in(row[1], 0, rs->terms[mo->term].nops + 1)) {
+      bad = w[2];
+      break;
+    }
+    mo->factor = (int)row[1], mo->slot = (long)row[2], mo->coef = row[3], mo->nin = (int)row[4];
+    for (int i = 0; i < mo->nin && !bad; i++) {
+      if (!whole_in(row[5 + i], 0, nreads)) bad = w[2];
+      mo->read[i] = (long)row[5 + i];
+    }
+  }
+  if (bad)
+    return error_set(err, errlen, "%s/interp_%s_%s.npy: an entry out of range for the stage (a damaged or forged model)",
+                     dir, sn, bad);
+  if (interp_pack(m, rs, ip)) return error_set(err, errlen, "%s: out of memory loading the model", dir);
+  return 0;
+}
+
 static int load_stage(Model *m, const ModelStore *s, const char *dir, const char *line, char *err, size_t errlen) {
   char sn[512];
   long k, mm, nreads, nmono;
@@ -406,62 +547,56 @@ static int load_stage(Model *m, const ModelStore *s, const char *dir, const char
       !(norm >= 0))
     return error_set(err, errlen, "%s/manifest: '%.200s' does not fit the stage's class %s (n %ld, m %ld)", dir, line,
                      c->label, c->n, c->m);
-  const double *rows = array_of(s, dir, sn, "rows", k, 0, err, errlen);
-  const double *pinv = rows ? array_of(s, dir, sn, "pinv", mm, k, err, errlen) : NULL;
-  const double *reads = pinv ? array_of(s, dir, sn, "reads", nreads, 2, err, errlen) : NULL;
-  const double *monos = reads ? array_of(s, dir, sn, "monos", nmono, MONO_COLS, err, errlen) : NULL;
-  if (!monos) return -1;
+  const double *pinv = array_of(s, dir, sn, "pinv", mm, k, err, errlen);
+  if (!pinv) return -1;
   RInterp *ip = calloc(1, sizeof *ip);
   if (!ip) return error_set(err, errlen, "%s: out of memory loading the model", dir);
   rs->interp = ip;
   ip->k = k, ip->m = mm, ip->nreads = nreads, ip->nmono = nmono, ip->pinv_norm = norm;
-  ip->rows = malloc(sizeof(long) * (size_t)(k + 1));
-  ip->pinv = malloc(sizeof(double) * (size_t)(mm * k + 1));
-  ip->read_q = malloc(sizeof(int) * (size_t)(nreads + 1));
-  ip->read_e = malloc(sizeof(long) * (size_t)(nreads + 1));
-  ip->mono = malloc(sizeof(RInterpMono) * (size_t)(nmono + 1));
-  if (!ip->rows || !ip->pinv || !ip->read_q || !ip->read_e || !ip->mono)
+  if (!(ip->pinv = malloc(sizeof(double) * (size_t)(mm * k + 1))))
     return error_set(err, errlen, "%s: out of memory loading the model", dir);
-  const char *bad = NULL;
-  for (long j = 0; j < k && !bad; j++) {
-    if (!whole_in(rows[j], 0, c->n)) bad = "rows";
-    ip->rows[j] = (long)rows[j];
-  }
   memcpy(ip->pinv, pinv, sizeof(double) * (size_t)(mm * k));
-  for (long j = 0; j < mm * k && !bad; j++)
-    if (!isfinite(pinv[j])) bad = "pinv";
-  for (long r = 0; r < nreads && !bad; r++) {
-    if (!whole_in(reads[2 * r], 0, m->nq)) {
-      bad = "reads";
-      break;
-    }
-    ip->read_q[r] = (int)reads[2 * r];
-    if (!whole_in(reads[2 * r + 1], 0, m->classes[m->qclass[ip->read_q[r]]].n)) bad = "reads";
-    ip->read_e[r] = (long)reads[2 * r + 1];
-  }
-  for (long j = 0; j < nmono && !bad; j++) {
-    const double *row = monos + j * MONO_COLS;
-    RInterpMono *mo = &ip->mono[j];
-    if (!whole_in(row[0], 0, rs->nterms) || !whole_in(row[4], 0, RT_MAX_IN + 1) || !isfinite(row[3]) ||
-        !whole_in(row[2], 0, k)) {
-      bad = "monos";
-      break;
-    }
-    mo->term = (int)row[0];
-    if (!whole_in(row[1], 0, rs->terms[mo->term].nops + 1)) {
-      bad = "monos";
-      break;
-    }
-    mo->factor = (int)row[1], mo->slot = (long)row[2], mo->coef = row[3], mo->nin = (int)row[4];
-    for (int i = 0; i < mo->nin && !bad; i++) {
-      if (!whole_in(row[5 + i], 0, nreads)) bad = "monos";
-      mo->read[i] = (long)row[5 + i];
-    }
-  }
-  if (bad)
-    return error_set(err, errlen, "%s/interp_%s_%s.npy: an entry out of range for the stage (a damaged or forged model)",
-                     dir, sn, bad);
-  if (interp_pack(m, rs, ip)) return error_set(err, errlen, "%s: out of memory loading the model", dir);
+  for (long j = 0; j < mm * k; j++)
+    if (!isfinite(pinv[j]))
+      return error_set(err, errlen, "%s/interp_%s_pinv.npy: not finite at entry %ld (a damaged or forged model)", dir,
+                       sn, j);
+  return load_table(m, s, dir, sn, "", rs, ip, err, errlen);
+}
+
+/* "interpcheck STAGE k K reads R monos N", after the stage's `interp` line, or "galerkincheck …" for
+ * a Galerkin stage of diagonal operators: the stage's check table. */
+static int load_check(Model *m, const ModelStore *s, const char *dir, const char *line, char *err, size_t errlen) {
+  char sn[512], kind[16];
+  long k, nreads, nmono;
+  int used = 0;
+  RStage *rs = NULL;
+  if (sscanf(line, "%15s %511s k %ld reads %ld monos %ld%n", kind, sn, &k, &nreads, &nmono, &used) == 5 && !line[used])
+    for (int i = 0; i < m->nstages && !rs; i++)
+      if (strcmp(m->stages[i].st->sym->name, sn) == 0) rs = &m->stages[i];
+  bool fit = rs && strcmp(kind, "interpcheck") == 0;
+  long kfit = fit && rs->interp ? rs->interp->k : 0, mm = rs ? m->classes[m->qclass[rs->q]].m : 0;
+  if (!rs || (fit ? !rs->interp || rs->interp->check : rs->interp || rs->check || !lower_interp_eligible(rs->st)) ||
+      k < 0 || k > m->classes[m->qclass[rs->q]].n - kfit || nreads < 0 || nmono < 0 || nreads > 100000000 ||
+      nmono > 100000000)
+    return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                     dir, line);
+  RInterp *ck = calloc(1, sizeof *ck);
+  if (!ck) return error_set(err, errlen, "%s: out of memory loading the model", dir);
+  *(fit ? &rs->interp->check : &rs->check) = ck;
+  ck->k = k, ck->nreads = nreads, ck->nmono = nmono;
+  const double *B = array_of(s, dir, sn, "check_brows", kfit + k, mm, err, errlen);
+  if (!B) return -1;
+  if (!(ck->brows = malloc(sizeof(double) * (size_t)((kfit + k) * mm + 1))))
+    return error_set(err, errlen, "%s: out of memory loading the model", dir);
+  memcpy(ck->brows, B, sizeof(double) * (size_t)((kfit + k) * mm));
+  if (load_table(m, s, dir, sn, "check_", rs, ck, err, errlen)) return -1;
+  long len = check_row_len(m, ck);
+  const double *rows = array_of(s, dir, sn, "check_readrows", len, 0, err, errlen);
+  if (!rows) return -1;
+  if (!(ck->read_rows = malloc(sizeof(double) * (size_t)(len + 1))))
+    return error_set(err, errlen, "%s: out of memory loading the model", dir);
+  memcpy(ck->read_rows, rows, sizeof(double) * (size_t)len);
+  if (interp_pack(m, rs, ck)) return error_set(err, errlen, "%s: out of memory loading the model", dir);
   return 0;
 }
 
@@ -486,6 +621,9 @@ int interp_load(Model *m, const ModelStore *s, const char *dir, char *err, size_
   int n = 0;
   for (int i = 0; i < s->nmeta; i++) {
     if (strncmp(s->meta[i], "choice ", 7) == 0 && load_choice(m, dir, s->meta[i], err, errlen)) return -1;
+    if ((strncmp(s->meta[i], "interpcheck ", 12) == 0 || strncmp(s->meta[i], "galerkincheck ", 14) == 0) &&
+        load_check(m, s, dir, s->meta[i], err, errlen))
+      return -1;
     if (strncmp(s->meta[i], "interp ", 7) != 0) continue;
     if (s->format < 2)
       return error_set(err, errlen, "%s/manifest: an 'interp' line in a model of format 1 (a damaged or forged manifest)",

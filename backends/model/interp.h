@@ -85,7 +85,20 @@ typedef struct RInterp {
   double *pk_coef;
   unsigned char *pk_nin;
   int32_t *pk_read;
+  /* The error estimate's entries (interp_check, docs/estimates.md): a table of its own
+   * (rows, reads, monomials, packed; m 0 and no fit), k entries drawn uniformly from those
+   * the fit does not select; NULL: none (a model trained before it). Owned. */
+  struct RInterp *check;
+  double *brows;            /* in a check table: the stage basis's rows at the fit's entries, then at
+                             * the check's own ((k_fit + k) x m_stage, row-major) */
+  double *read_rows;        /* in a check table: per read, its quantity's basis row (Σ m_q, in read
+                             * order), which interp_eval gathers from: a class read only there may be
+                             * streamed (its basis dropped) */
 } RInterp;
+
+/* The check table's size: every entry the fit does not select up to this many, else this many
+ * drawn (or the fit's k, or 2m, when larger). */
+#define INTERP_CHECK_MIN 64
 
 void interp_free(RInterp *ip);
 /* Fill ip's packed table (pk_*) from ip->mono and ip->read_* for stage rs of m: 0, or -1 out
@@ -123,6 +136,21 @@ void interp_report_warnings(const Model *m, FILE *out);
 size_t interp_work_size(const RStage *rs);
 int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, double *work, long sample, char *err,
                 size_t errlen);
+
+/* The estimated error ‖y − B ŷ‖ of stage rs at the coordinates x (its own, x[rs->q], from the
+ * evaluation): with ρ = y − B ŷ the formula's residual at the fit's k entries P and at the check
+ * table's k_c entries E (drawn uniformly from the n − k others),
+ *
+ *     est² = ‖ρ_P‖² + (n − k)/k_c ‖ρ_E‖²,
+ *
+ * whose expectation over the draw of E is ‖y − B ŷ‖²; *exact when E holds every other entry.
+ * An interpolated stage's check is rs->interp->check; a Galerkin stage of diagonal operators
+ * has rs->check, with no fit (k = 0, E drawn from all n entries). `work` holds
+ * interp_check_work_size(rs) doubles. 0, or -1 with `err` (no check table, or the formula not
+ * finite at an entry). */
+size_t interp_check_work_size(const RStage *rs);
+int interp_check(const Model *m, const RStage *rs, double *const *x, double *work, double *est, bool *exact, char *err,
+                 size_t errlen);
 
 /* The model's interpolated stages in `s` (model_save): an `interp` line
  * per stage and its arrays; the store's format raised to 2, which builds

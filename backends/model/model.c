@@ -234,6 +234,7 @@ void model_free(Model *m) {
     }
     free(rs->terms);
     interp_free(rs->interp);
+    interp_free(rs->check);
   }
   for (int i = 0; m->externs && i < m->nexterns; i++) {
     free(m->externs[i].X);

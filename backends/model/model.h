@@ -98,6 +98,8 @@ typedef struct RStage {
   int nterms;
   RTerm *terms;
   struct RInterp *interp;   /* reduced by interpolation (interp.h, DESIGN §12), or NULL: Galerkin (owned) */
+  struct RInterp *check;    /* a Galerkin stage of diagonal operators: its estimate's check entries
+                               (interp_check, over all n entries), or NULL (owned) */
   double choice_err[2];     /* training's choice, when made (not saved): the output error on the validation
                                samples by Galerkin and by interpolation */
   const char *choice_reason; /* a static string, or NULL: no choice measured */

@@ -69,6 +69,11 @@ int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *s
 int reduced_vjp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int in_q, double *out,
                 long sample, char *err, size_t errlen);
 int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, char *err, size_t errlen);
+/* The local partial of stage number `stage` alone: out (m_stage x nd) = ∂ŷ_stage/∂x̂_in · seed
+ * (m_in x nd), every other quantity the stage reads held fixed (the chain of error estimates,
+ * estimate.c, takes each stage's own sensitivity to each input). 0, or -1 with `err`. */
+int reduced_stage_jvp(Reduced *r, int stage, int in_q, const double *seed, long nd, double *out, long sample,
+                      char *err, size_t errlen);
 /* What the derivatives keep between calls in their evaluator (reduced_deriv.c): the
  * evaluator's slot for it, and its release (reduced_free calls it). */
 struct DerivCache;

@@ -983,3 +983,18 @@ int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, ch
   free(T);
   return rc;
 }
+
+int reduced_stage_jvp(Reduced *r, int stage, int in_q, const double *seed, long nd, double *out, long sample,
+                      char *err, size_t errlen) {
+  Deriv dv;
+  int rc = deriv_init(&dv, r, nd, &in_q, 1, sample, err, errlen);
+  const Model *m = dv.m;
+  const RStage *rs = &m->stages[stage];
+  if (rc == 0) cblas_dcopy((int)(qm(m, in_q) * nd), seed, 1, dv.d[in_q], 1);
+  /* every other quantity keeps a zero tangent: stage `stage` alone is differentiated, the local partial */
+  if (rc == 0 && dv.active[rs->q] && rs->q != in_q) rc = stage_derivative(&dv, rs, false);
+  if (rc == 0) memcpy(out, dv.d[rs->q], sizeof(double) * (size_t)(qm(m, rs->q) * nd));
+  free((void *)dv.x);
+  deriv_free(&dv);
+  return rc ? -1 : 0;
+}

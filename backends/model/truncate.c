@@ -60,9 +60,36 @@ done:
   return rc;
 }
 
+static RInterp *copy_interp(const Model *src, const Model *m, const RStage *rs, const RInterp *s);
+
+/* A copy of src's check table `s` (after a fit of kfit entries) for stage rs of m, its basis rows
+ * (the stage's and each read's) cut to their first m columns of m's classes. NULL out of memory. */
+static RInterp *copy_check(const Model *src, const Model *m, const RStage *rs, const RInterp *s, long kfit) {
+  long m0 = src->classes[src->qclass[rs->q]].m, m1 = m->classes[m->qclass[rs->q]].m, len = 0;
+  for (long r = 0; r < s->nreads; r++) len += m->classes[m->qclass[s->read_q[r]]].m;
+  RInterp *ck = copy_interp(src, m, rs, s);
+  if (ck && (!(ck->brows = mem_malloc(sizeof(double) * (size_t)((kfit + s->k) * m1 + 1))) ||
+             !(ck->read_rows = mem_malloc(sizeof(double) * (size_t)(len + 1))))) {
+    interp_free(ck);
+    return NULL;
+  }
+  if (!ck) return NULL;
+  for (long r = 0; r < kfit + s->k; r++) memcpy(ck->brows + r * m1, s->brows + r * m0, sizeof(double) * (size_t)m1);
+  for (long r = 0, a = 0, b = 0; r < s->nreads; r++) {
+    long ma = src->classes[src->qclass[s->read_q[r]]].m, mb = m->classes[m->qclass[s->read_q[r]]].m;
+    memcpy(ck->read_rows + b, s->read_rows + a, sizeof(double) * (size_t)mb);
+    a += ma, b += mb;
+  }
+  if (interp_pack(m, rs, ck)) {
+    interp_free(ck);
+    return NULL;
+  }
+  return ck;
+}
+
 /* A copy of interpolated stage `s`'s fit for stage rs of m (its class the
  * same size), its packed tables rebuilt for m's bases. NULL out of memory. */
-static RInterp *copy_interp(const Model *m, const RStage *rs, const RInterp *s) {
+static RInterp *copy_interp(const Model *src, const Model *m, const RStage *rs, const RInterp *s) {
   RInterp *ip = mem_calloc(1, sizeof *ip);
   if (!ip) return NULL;
   ip->k = s->k, ip->m = s->m, ip->pinv_norm = s->pinv_norm, ip->nreads = s->nreads, ip->nmono = s->nmono;
@@ -82,6 +109,10 @@ static RInterp *copy_interp(const Model *m, const RStage *rs, const RInterp *s) 
   memcpy(ip->read_q, s->read_q, sizeof(int) * (size_t)s->nreads);
   memcpy(ip->read_e, s->read_e, sizeof(long) * (size_t)s->nreads);
   memcpy(ip->mono, s->mono, sizeof(RInterpMono) * (size_t)s->nmono);
+  if (s->check && !(ip->check = copy_check(src, m, rs, s->check, s->k))) {
+    interp_free(ip);
+    return NULL;
+  }
   if (interp_pack(m, rs, ip)) {
     interp_free(ip);
     return NULL;
@@ -131,8 +162,9 @@ static int cut_stage(const Model *src, Model *m, int i, char *err, size_t errlen
       return error_set(err, errlen, "class %s: stage '%s' is interpolated, its fit made for all %ld vectors of its "
                        "class; keep its size, or retrain at the smaller cap (--basis %s:cap=%ld)",
                        m->classes[c].bc->size_name, s->st->sym->name, my0, m->classes[c].bc->size_name, my1);
-    if (!(t->interp = copy_interp(m, t, s->interp))) return error_set(err, errlen, "out of memory");
+    if (!(t->interp = copy_interp(src, m, t, s->interp))) return error_set(err, errlen, "out of memory");
   }
+  if (s->check && !(t->check = copy_check(src, m, t, s->check, 0))) return error_set(err, errlen, "out of memory");
   for (int k = 0; k < t->nterms; k++) {
     const RTerm *a = &s->terms[k];
     RTerm *b = &t->terms[k];

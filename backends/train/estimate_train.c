@@ -612,6 +612,14 @@ static int input_ranges(Model *m, Full *f, const SampleSource *src, char *err, s
 int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen) {
   if (opt->dist || m->nexterns > 0 || src->count < 1) return 0;
   char why[256];
+  for (int i = 0; i < m->nstages; i++) { /* a Galerkin stage of diagonal operators with a term of no table: a check */
+    const RStage *rs = &m->stages[i];
+    bool tables = true;
+    for (int t = 0; t < rs->nterms; t++) tables = tables && estimate_term_eligible(m, i, t, why, sizeof why);
+    if (!rs->interp && !tables && lower_interp_eligible(rs->st) && m->classes[m->qclass[rs->q]].B &&
+        interp_train_check(m, f, i, err, errlen))
+      return -1;
+  }
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++)
       if (estimate_term_eligible(m, i, t, why, sizeof why) && m->classes[m->qclass[m->stages[i].q]].B &&

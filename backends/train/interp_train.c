@@ -172,6 +172,54 @@ done:
   return rc;
 }
 
+/* The estimate's check entries of fit ip (docs/estimates.md, interp_check): every entry the fit
+ * does not select up to max(INTERP_CHECK_MIN, k, 2m) of them, else that many drawn uniformly without
+ * replacement (a fixed seed: training is reproducible), in ip->check->rows and slot[] (from ip->k
+ * on); their basis rows, after the fit's, in ip->check->brows. 0, or -1 out of memory. */
+static int check_rows(const RClass *c, RInterp *ip, long *slot) {
+  RInterp *ck = ip->check;
+  long n = c->n, m = c->m, rest = n - ip->k, want = ip->k > 2 * m ? ip->k : 2 * m, j = 0;
+  if (want < INTERP_CHECK_MIN) want = INTERP_CHECK_MIN;
+  long *pool = malloc(sizeof(long) * (size_t)(rest + 1));
+  if (!pool) return -1;
+  for (long e = 0; e < n; e++)
+    if (slot[e] < 0) pool[j++] = e;
+  ck->k = rest < want ? rest : want;
+  uint64_t seed = 0x6e70672d63686b31ULL;
+  for (long d = 0; d < ck->k; d++) { /* a partial Fisher–Yates shuffle */
+    long pick = d + (long)(next_unit(&seed) * (double)(rest - d));
+    if (pick >= rest) pick = rest - 1;
+    long t = pool[d];
+    pool[d] = pool[pick], pool[pick] = t;
+  }
+  ck->rows = malloc(sizeof(long) * (size_t)(ck->k + 1));
+  ck->brows = malloc(sizeof(double) * (size_t)((ip->k + ck->k) * m + 1));
+  if (!ck->rows || !ck->brows) return free(pool), -1;
+  for (long d = 0; d < ck->k; d++) ck->rows[d] = pool[d], slot[pool[d]] = ip->k + d;
+  for (long s = 0; s < ip->k + ck->k; s++)
+    memcpy(ck->brows + s * m, c->B + (s < ip->k ? ip->rows[s] : ck->rows[s - ip->k]) * m, sizeof(double) * (size_t)m);
+  free(pool);
+  return 0;
+}
+
+/* A check table's read_rows from the bases of the quantities it reads: 0, 1 when one has no basis
+ * in memory (the check is then left out), -1 out of memory. */
+static int check_read_rows(const Model *m, RInterp *ck) {
+  long len = 0;
+  for (long r = 0; r < ck->nreads; r++) {
+    const RClass *c = &m->classes[m->qclass[ck->read_q[r]]];
+    if (!c->B && c->m > 0) return 1;
+    len += c->m;
+  }
+  if (!(ck->read_rows = malloc(sizeof(double) * (size_t)(len + 1)))) return -1;
+  for (long r = 0, at = 0; r < ck->nreads; r++) {
+    const RClass *c = &m->classes[m->qclass[ck->read_q[r]]];
+    if (c->m > 0) memcpy(ck->read_rows + at, c->B + ck->read_e[r] * c->m, sizeof(double) * (size_t)c->m);
+    at += c->m;
+  }
+  return 0;
+}
+
 /* The monomial table under construction. */
 typedef struct Table {
   Model *m;
@@ -180,6 +228,7 @@ typedef struct Table {
   long **read_of;           /* per quantity: per entry its read index + 1 (0: not read yet), made on first use */
   long mono_cap, read_cap;
   int term, factor;
+  struct Table *check;      /* the estimate's check table: slots from ip->k on are its entries */
   int nin;
   int in_q[RT_MAX_IN];      /* the quantity of each builder input */
   char *err;
@@ -226,6 +275,7 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
   long s = tb->slot[row];
   if (s < 0 || coef == 0) return 0;
   if (nin != tb->nin) return -1;
+  if (s >= tb->ip->k) return add_mono(tb->check, s - tb->ip->k, coef, nin, tb->in_q, in);
   return add_mono(tb, s, coef, nin, tb->in_q, in);
 }
 
@@ -240,7 +290,9 @@ static int stream_tensor(Table *tb, Full *f, const RTensor *x, const char *stage
   return 0;
 }
 
-int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen) {
+/* interp_train_stage, or with oversample 0 interp_train_check: no fit (k = 0), the check table
+ * drawn from all n entries into rs->check. */
+static int train_tables(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen) {
   RStage *rs = &m->stages[stage];
   const char *sn = rs->st->sym->name;
   const RClass *c = &m->classes[m->qclass[rs->q]];
@@ -249,9 +301,10 @@ int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *er
                      rs->st->kind == ST_INVERSE || rs->st->kind == ST_ROOT
                         ? "one of its operators is a declared op, not diagonal (npgc check says which stages can)"
                         : "it applies no diagonal operator (npgc check says which stages can)");
-  if (!(oversample >= 1)) return error_set(err, errlen, "interpolation oversampling %g: must be at least 1", oversample);
+  if (!(oversample >= 1) && oversample != 0)
+    return error_set(err, errlen, "interpolation oversampling %g: must be at least 1", oversample);
   RInterp *ip = calloc(1, sizeof *ip);
-  Table tb = {.m = m, .ip = ip, .err = err, .errlen = errlen};
+  Table tb = {.m = m, .ip = ip, .err = err, .errlen = errlen}, tbx = {.m = m, .err = err, .errlen = errlen};
   long *slot = NULL;
   int rc = -1;
   if (!ip) goto oom;
@@ -260,39 +313,50 @@ int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *er
   if (draws < c->m) draws = c->m;
   if (!(slot = malloc(sizeof(long) * (size_t)(c->n + 1))) || !(tb.read_of = calloc((size_t)m->nq + 1, sizeof(long *))))
     goto oom;
-  if (select_rows(c, ip, draws, err, errlen) || pseudo_inverse(c, ip, sn, err, errlen)) goto done;
+  if (oversample > 0 && (select_rows(c, ip, draws, err, errlen) || pseudo_inverse(c, ip, sn, err, errlen))) goto done;
   for (long e = 0; e < c->n; e++) slot[e] = -1;
   for (long s = 0; s < ip->k; s++) slot[ip->rows[s]] = s;
-  tb.slot = slot;
+  if (!(ip->check = calloc(1, sizeof *ip->check)) || !(tbx.read_of = calloc((size_t)m->nq + 1, sizeof(long *))) ||
+      check_rows(c, ip, slot))
+    goto oom;
+  tb.slot = slot, tb.check = &tbx, tbx.ip = ip->check;
   for (int t = 0; t < rs->nterms; t++) {
     RTerm *rt = &rs->terms[t];
-    tb.term = t, tb.factor = 0;
+    tb.term = tbx.term = t, tb.factor = tbx.factor = 0;
     if (rt->named_q >= 0) { /* the numerator is the named quantity itself, entry for entry */
       int q = rt->named_q;
-      for (long s = 0; s < ip->k; s++) {
-        npg_idx e = (npg_idx)ip->rows[s];
-        if (add_mono(&tb, s, 1.0, 1, &q, &e)) goto oom;
+      for (long s = 0; s < ip->k + ip->check->k; s++) {
+        npg_idx e = (npg_idx)(s < ip->k ? ip->rows[s] : ip->check->rows[s - ip->k]);
+        if (add_mono(s < ip->k ? &tb : &tbx, s < ip->k ? s : s - ip->k, 1.0, 1, &q, &e)) goto oom;
       }
     }
     for (int g = 0; g < rt->nnum; g++)
       if (stream_tensor(&tb, f, &rt->num[g], sn)) goto done;
     for (int o = 0; o < rt->nops; o++) {
-      tb.factor = o + 1;
+      tb.factor = tbx.factor = o + 1;
       for (int g = 0; g < rt->ops[o].ntensors; g++)
         if (stream_tensor(&tb, f, &rt->ops[o].t[g], sn)) goto done;
     }
   }
-  if (interp_pack(m, rs, ip)) goto oom;
-  interp_free(rs->interp);
-  rs->interp = ip;
-  ip = NULL;
+  int rows = check_read_rows(m, ip->check);
+  if (rows < 0 || interp_pack(m, rs, ip) || (rows == 0 && interp_pack(m, rs, ip->check))) goto oom;
+  if (rows > 0) interp_free(ip->check), ip->check = NULL; /* a read class without its basis: no check */
+  if (oversample == 0) {
+    interp_free(rs->check);
+    rs->check = ip->check, ip->check = NULL;
+  } else {
+    interp_free(rs->interp);
+    rs->interp = ip;
+    ip = NULL;
+  }
   rc = 0;
   goto done;
 oom:
   error_set(err, errlen, "out of memory making stage %s interpolated", sn);
 done:
   for (int q = 0; tb.read_of && q < m->nq; q++) free(tb.read_of[q]);
-  free(tb.read_of);
+  for (int q = 0; tbx.read_of && q < m->nq; q++) free(tbx.read_of[q]);
+  free(tb.read_of), free(tbx.read_of);
   free(slot);
   interp_free(ip);
   return rc;
@@ -362,4 +426,13 @@ done:
   free(errs);
   free(reason);
   return m;
+}
+
+int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen) {
+  if (!(oversample >= 1)) return error_set(err, errlen, "interpolation oversampling %g: must be at least 1", oversample);
+  return train_tables(m, f, stage, oversample, err, errlen);
+}
+
+int interp_train_check(Model *m, Full *f, int stage, char *err, size_t errlen) {
+  return train_tables(m, f, stage, 0, err, errlen);
 }

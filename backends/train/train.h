@@ -185,6 +185,10 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
  * `err` (the stage not eligible, the selected rows rank deficient, out of
  * memory). */
 int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen);
+/* The estimate's check table of Galerkin stage `stage` of diagonal operators (lower_interp_eligible,
+ * not interpolated): k_c entries drawn from all n, their monomials and basis rows, into
+ * m->stages[stage].check (interp_check). 0, or -1 with `err`. */
+int interp_train_check(Model *m, Full *f, int stage, char *err, size_t errlen);
 
 /* The stages of `prog` whose reduction is open to a choice: eligible for
  * interpolation and forced neither by the program (`reduce interp|galerkin`)
