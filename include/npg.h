@@ -199,6 +199,13 @@ NPG_API int npg_full_step(NpgFull *f, long steps, long sample);
 /* Steps taken since a state was last set. */
 NPG_API long npg_full_steps(const NpgFull *f);
 NPG_API int npg_full_set_blowup(NpgFull *f, double factor);
+/* A program whose state is stepped implicitly (`residual next u[i:N] = ...`, the next value
+ * u.next the zero of the residual u.residual) solves each step by Newton (npg_full_newton;
+ * npg_reduced_newton in coordinates), from the state as first guess, until
+ * ‖r‖₂ <= tol · max(‖r₀‖, 1e-4 ‖u‖) (r₀ the residual at the guess, u the state), at most
+ * max_iter corrections (defaults 1e-10 and 30); verbose (or NULL) gets ‖r‖ per iteration. A
+ * failure stops the step with Newton's message after "step N: ". 0, or -1 naming the argument. */
+NPG_API int npg_full_set_newton(NpgFull *f, double tol, int max_iter, FILE *verbose);
 /* A rollout of `steps` steps saving every `every`-th (steps 0, every, 2 every, …, so
  * steps/every + 1 saves): before_step (optional) runs before each step t = 0 … steps-1 to set
  * the inputs given per step; at_save runs at each saved step t, after the step that reached it
@@ -676,6 +683,7 @@ typedef struct NpgNewton {
   FILE *verbose;            /* one line per iteration (the residual's norm), or NULL */
   double *history;          /* when not NULL: ‖r̂‖₂ of iteration i at history[i], i < history_cap */
   int history_cap;
+  double rtol;              /* when > 0, Newton also stops at ‖r̂‖₂ <= rtol · ‖r̂₀‖ (the first guess's) */
   int iterations;           /* out: corrections made */
   double residual;          /* out: the last ‖r̂‖₂ */
 } NpgNewton;
@@ -694,6 +702,7 @@ NPG_API int npg_full_newton(NpgFull *f, long sample, const char *residual, const
 NPG_API int npg_reduced_step(NpgReduced *r, long steps, long sample);
 NPG_API long npg_reduced_steps(const NpgReduced *r);
 NPG_API int npg_reduced_set_blowup(NpgReduced *r, double factor);
+NPG_API int npg_reduced_set_newton(NpgReduced *r, double tol, int max_iter, FILE *verbose);
 NPG_API int npg_reduced_simulate(NpgReduced *r, long sample, const NpgRollout *ro);
 NPG_API void npg_reduced_free(NpgReduced *r);
 /* The BLAS threads of the process (reduced evaluation, training's GEMMs):

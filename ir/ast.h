@@ -169,8 +169,10 @@ struct Decl {
   int nnames;
   bool is_output;
   bool is_state;            /* D_INPUT: `state u : ...`, carried from step to step */
-  const char *next_of;      /* D_STAGE: `next u = ...` defines the state u's next value */
+  const char *next_of;      /* D_STAGE: `next u = ...` defines the state u's next value; D_INPUT: the
+                             * unknown `u.next` of an implicit step (lowered from `residual next u`) */
   Loc next_of_loc;
+  const char *residual_of;  /* D_STAGE: `residual next u = ...`, the residual whose zero is u.next */
   /* D_BASIS options (negative when not given) */
   int basis_max;
   double basis_energy;
@@ -222,6 +224,8 @@ struct Sym {
   /* a state (`state u`, SYM_INPUT) and the stage of its next value (`next u`, SYM_STAGE `u.next`) */
   Sym *next;
   Sym *state_of;
+  Sym *residual;                /* a state stepped implicitly: the residual stage `u.residual` (its next
+                                 * value `u.next` is then an input, the residual's zero) */
   bool inlined;                 /* `inline name`, or a constant definition */
   Loc inline_loc;               /* the `inline` statement naming it (line 0: constant) */
   bool introduced;              /* created by the compiler (y.t1; an implicit index variable of y = 2 * x) */

@@ -138,6 +138,9 @@ void basis_classes(Ctx *ctx, Program *prog) {
     Sym *st = prog->states.v[i];
     merge(ctx, prog, &u, st, st->next, arena_printf(ctx, "state '%s' and its next value", st->name),
           st->next->decl->next_of_loc);
+    if (st->residual) /* an implicit step: the residual projected on the unknown's basis (Galerkin) */
+      merge(ctx, prog, &u, st, st->residual, arena_printf(ctx, "state '%s' and the residual of its implicit step",
+            st->name), st->residual->decl->next_of_loc);
   }
   /* Number the classes in order of their first member. */
   int *id = arena_alloc(ctx, sizeof(int) * (size_t)(u.n + 1));

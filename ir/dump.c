@@ -209,7 +209,10 @@ void dump_program(FILE *out, const Program *prog) {
     const Sym *s = prog->inputs.v[i];
     fprintf(out, "  %s : ", s->name);
     print_shape(out, s, false);
-    if (s->next) fprintf(out, "   state (next value: %s)", s->next->name);
+    if (s->next && s->residual)
+      fprintf(out, "   state (next value: %s, the zero of %s by Newton)", s->next->name, s->residual->name);
+    else if (s->next) fprintf(out, "   state (next value: %s)", s->next->name);
+    if (s->state_of) fprintf(out, "   the unknown of state %s's implicit step", s->state_of->name);
     if (s->is_output) fputs("   output", out);
     fputc('\n', out);
   }

@@ -47,6 +47,14 @@ typedef struct Rollout {
   double blowup;            /* set: 10 by default (api_rollout_blowup) */
   bool blowup_set;
   double *start;            /* per state (Program.states): ‖u‖² when the rollout started */
+  double newton_tol;        /* an implicit step's Newton (`residual next u`): relative tolerance, */
+  int newton_max_iter;      /* corrections at most and the verbose stream; set: defaults otherwise */
+  FILE *newton_verbose;
+  bool newton_set;
+  /* an implicit step solved, before the state advances (u and u.next the step's pair, every
+   * quantity at the solution): training from trajectories records here */
+  int (*solved)(void *user, long step);
+  void *solved_user;
 } Rollout;
 /* The blow-up factor in effect. */
 double api_rollout_blowup(const Rollout *ro);

@@ -120,10 +120,13 @@ int npg_full_newton(NpgFull *f, long sample, const char *residual, const char *u
   if (kr < 0 || ku < 0) return -1;
   if (!(o->tol > 0) || !isfinite(o->tol)) return nfail(f, "%s: tolerance %g: it must be positive and finite", fn, o->tol);
   if (o->max_iter < 1) return nfail(f, "%s: max_iter %d: at least one iteration", fn, o->max_iter);
+  if (!(o->rtol >= 0) || !isfinite(o->rtol))
+    return nfail(f, "%s: relative tolerance %g: it must be 0 or positive and finite", fn, o->rtol);
   if (!full_get(f->full, unknown, NULL))
     return nfail(f, "%s: unknown '%s' has no value: set it first (the previous state is the usual start)", fn, unknown);
   NewtonSolver s = {0};
   o->iterations = 0, o->residual = NAN;
+  double tol = o->tol;
   int rc = -1;
   for (int it = 0;; it++) {
     if (npg_full_eval(f, sample) != 0) break;
@@ -145,13 +148,14 @@ int npg_full_newton(NpgFull *f, long sample, const char *residual, const char *u
       nfail(f, "%s: sample %ld, iteration %d: residual '%s' is not finite", fn, sample, it, residual);
       break;
     }
-    if (norm <= o->tol) {
+    if (it == 0) tol = fmax(o->tol, o->rtol * norm);
+    if (norm <= tol) {
       rc = 0;
       break;
     }
     if (it == o->max_iter) {
       nfail(f, "%s: Newton on residual '%s' for '%s' did not converge at sample %ld: iteration %d, residual %.3e "
-               "(tolerance %.3e)", fn, residual, unknown, sample, it, norm, o->tol);
+               "(tolerance %.3e)", fn, residual, unknown, sample, it, norm, tol);
       break;
     }
     if (newton_update(f, &s, sample, it, residual, unknown, kr, ku) != 0) break;

@@ -147,6 +147,9 @@ int npg_reduced_newton(NpgReduced *r, long sample, const char *residual, const c
                     "one basis (share %s, %s)", fn, residual, coords_of(r, qr), unknown, m, residual, unknown);
   if (!(o->tol > 0) || !isfinite(o->tol)) return rfail(r, "%s: tolerance %g: it must be positive and finite", fn, o->tol);
   if (o->max_iter < 1) return rfail(r, "%s: max_iter %d: at least one iteration", fn, o->max_iter);
+  if (!(o->rtol >= 0) || !isfinite(o->rtol))
+    return rfail(r, "%s: relative tolerance %g: it must be 0 or positive and finite", fn, o->rtol);
+  double tol = o->tol;
   double *J = malloc(sizeof(double) * (size_t)(m * m + 1)), *rhs = malloc(sizeof(double) * (size_t)(m + 1));
   int rc = -1;
   o->iterations = 0, o->residual = NAN;
@@ -165,10 +168,11 @@ int npg_reduced_newton(NpgReduced *r, long sample, const char *residual, const c
       rfail(r, "%s: sample %ld, iteration %d: residual '%s' is not finite", fn, sample, it, residual);
       goto done;
     }
-    if (nr <= o->tol) break;
+    if (it == 0) tol = fmax(o->tol, o->rtol * nr);
+    if (nr <= tol) break;
     if (it == o->max_iter) {
       rfail(r, "%s: Newton on residual '%s' for '%s' did not converge at sample %ld: iteration %d, residual %.3e "
-               "(tolerance %.3e)", fn, residual, unknown, sample, it, nr, o->tol);
+               "(tolerance %.3e)", fn, residual, unknown, sample, it, nr, tol);
       goto done;
     }
     memcpy(rhs, res, sizeof(double) * (size_t)m);

@@ -44,7 +44,7 @@ static int full_save(void *user, long t) {
 static int copy_inputs(Check *c, bool all) {
   for (int i = 0; i < c->ninputs; i++) {
     const Sym *s = c->input[i];
-    if (!all && s->next) continue;
+    if ((!all && s->next) || s->state_of) continue; /* state_of: u.next, solved by an implicit step */
     size_t n = 0;
     const double *v = full_get(c->f->full, s->name, &n);
     if (!v) return -1;
@@ -132,6 +132,8 @@ int npg_verify_rollout(const NpgModel *m, NpgFull *f, long trajectories, long st
     goto done;
   }
   rep->nstates = c.ns;
+  c.r->roll.newton_tol = f->roll.newton_tol, c.r->roll.newton_max_iter = f->roll.newton_max_iter; /* f's Newton */
+  c.r->roll.newton_verbose = f->roll.newton_verbose, c.r->roll.newton_set = f->roll.newton_set;
   size_t maxn = 1;
   for (int i = 0; i < c.ninputs; i++) c.input[i] = prog->inputs.v[i];
   for (int i = 0; i < c.ns; i++) {

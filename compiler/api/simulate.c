@@ -3,6 +3,7 @@
  * state's energy grown past the blow-up factor times its start), and rollouts that save every
  * K-th step through the caller's callbacks. */
 #include <cblas.h>
+#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -81,6 +82,66 @@ static int refuse_steps(const Program *prog, long steps, char *err, size_t errle
   return 0;
 }
 
+/* ---------------------------------------------------------------- implicit steps */
+
+/* The state stepped implicitly (`residual next u = ...`: u.next an input, the zero of
+ * u.residual), or NULL: the front end allows one per program. */
+static const Sym *implicit_state(const Program *prog) {
+  for (int i = 0; i < prog->states.n; i++)
+    if (((const Sym *)prog->states.v[i])->residual) return prog->states.v[i];
+  return NULL;
+}
+
+static int set_newton(Rollout *ro, double tol, int max_iter, FILE *verbose, char *err, size_t errlen,
+                      const char *func) {
+  if (!(tol > 0) || !isfinite(tol) || tol >= 1)
+    return api_refuse(err, errlen, func, "argument 'tol' is %g (a relative tolerance in (0, 1))", tol);
+  if (max_iter < 1) return api_refuse(err, errlen, func, "argument 'max_iter' is %d (1 or more)", max_iter);
+  ro->newton_tol = tol, ro->newton_max_iter = max_iter, ro->newton_verbose = verbose, ro->newton_set = true;
+  return 0;
+}
+
+/* Newton's options for one step from the state's norm: stop at ‖r‖ <= tol · max(‖r₀‖, 1e-4 ‖u‖)
+ * (the floor: a state near rest, whose ‖r₀‖ is near the residual's rounding). */
+static NpgNewton newton_options(const Rollout *ro, const double *u, size_t n) {
+  double tol = ro->newton_set ? ro->newton_tol : 1e-10, norm = n ? cblas_dnrm2((int)n, u, 1) : 0;
+  return (NpgNewton){.rtol = tol, .tol = fmax(1e-4 * tol * norm, DBL_MIN),
+                     .max_iter = ro->newton_set ? ro->newton_max_iter : 30,
+                     .verbose = ro->newton_set ? ro->newton_verbose : NULL};
+}
+
+/* The full implicit step: u.next from u by npg_full_newton, every quantity evaluated there. */
+static int full_implicit(NpgFull *f, const Sym *u, long sample) {
+  size_t n = 0;
+  const double *x = full_get(f->full, u->name, &n);
+  if (!x) return full_eval(f->full, sample); /* its message: the state has no value */
+  long shape[MAX_AXES + MAX_STATIC];
+  int nd = api_shape(f->full, u, shape);
+  if (full_set(f->full, u->next->name, nd, shape, x, "the implicit step's first guess") != 0) return -1;
+  NpgNewton o = newton_options(&f->roll, x, n);
+  if (npg_full_newton(f, sample, u->residual->name, u->next->name, &o) == 0) return 0;
+  char err[1200];
+  snprintf(err, sizeof err, "step %ld: %s", f->roll.steps + 1, full_error(f->full));
+  full_clear_error(f->full);
+  return full_fail(f->full, err);
+}
+
+/* The reduced implicit step: u.next's coordinates from u's by npg_reduced_newton. */
+static int reduced_implicit(NpgReduced *r, const Sym *u, long sample) {
+  const Model *m = r->nm->m;
+  int q = api_quantity(m->prog, u->name);
+  const double *x = reduced_coords(r->r, q);
+  size_t n = (size_t)m->classes[m->qclass[q]].m;
+  if (npg_reduced_set_coords(r, u->next->name, n, x) != 0) return -1;
+  NpgNewton o = newton_options(&r->roll, x, n);
+  if (npg_reduced_newton(r, sample, u->residual->name, u->next->name, &o) == 0) return 0;
+  char err[sizeof r->error + 40];
+  snprintf(err, sizeof err, "step %ld: %s", r->roll.steps + 1, r->error);
+  memcpy(r->error, err, sizeof r->error - 1);
+  r->error[sizeof r->error - 1] = 0;
+  return -1;
+}
+
 /* ---------------------------------------------------------------- the full step */
 
 static StateView full_view(void *at, const Sym *u, bool next) {
@@ -95,9 +156,12 @@ int npg_full_step(NpgFull *f, long steps, long sample) {
   char err[600];
   if (full_error(f->full)[0]) return -1;
   if (refuse_steps(prog, steps, err, sizeof err, __func__)) return full_fail(f->full, err);
+  const Sym *implicit = implicit_state(prog);
   for (long t = 0; t < steps; t++) {
-    if (full_eval(f->full, sample) != 0) return -1;
+    if ((implicit ? full_implicit(f, implicit, sample) : full_eval(f->full, sample)) != 0) return -1;
     if (check_step(&f->roll, prog, full_view, f->full, err, sizeof err)) return full_fail(f->full, err);
+    if (implicit && f->roll.solved && f->roll.solved(f->roll.solved_user, f->roll.steps) != 0)
+      return npg_full_error(f)[0] ? -1 : full_fail(f->full, "recording the solved implicit step failed");
     if (full_advance(f->full) != 0) return -1;
     f->roll.steps++;
   }
@@ -113,6 +177,13 @@ int npg_full_set_blowup(NpgFull *f, double factor) {
   API_REFUSE_NULL(f, NULL, 0, -1);
   char err[400];
   if (set_blowup(&f->roll, factor, err, sizeof err, __func__)) return full_refuse(f->full, err);
+  return 0;
+}
+
+int npg_full_set_newton(NpgFull *f, double tol, int max_iter, FILE *verbose) {
+  API_REFUSE_NULL(f, NULL, 0, -1);
+  char err[400];
+  if (set_newton(&f->roll, tol, max_iter, verbose, err, sizeof err, __func__)) return full_refuse(f->full, err);
   return 0;
 }
 
@@ -132,8 +203,9 @@ int npg_reduced_step(NpgReduced *r, long steps, long sample) {
   char err[600];
   if (refuse_steps(prog, steps, err, sizeof err, __func__))
     return error_set_first(r->error, sizeof r->error, "%s", err);
+  const Sym *implicit = implicit_state(prog);
   for (long t = 0; t < steps; t++) {
-    if (npg_reduced_eval(r, sample) != 0) return -1;
+    if ((implicit ? reduced_implicit(r, implicit, sample) : npg_reduced_eval(r, sample)) != 0) return -1;
     if (check_step(&r->roll, prog, reduced_view, r, err, sizeof err))
       return error_set_first(r->error, sizeof r->error, "%s", err);
     for (int i = 0; i < prog->states.n; i++) { /* one class, one basis: the next coordinates are the state's */
@@ -154,6 +226,11 @@ long npg_reduced_steps(const NpgReduced *r) {
 int npg_reduced_set_blowup(NpgReduced *r, double factor) {
   API_REFUSE_NULL(r, NULL, 0, -1);
   return set_blowup(&r->roll, factor, r->error, sizeof r->error, __func__);
+}
+
+int npg_reduced_set_newton(NpgReduced *r, double tol, int max_iter, FILE *verbose) {
+  API_REFUSE_NULL(r, NULL, 0, -1);
+  return set_newton(&r->roll, tol, max_iter, verbose, r->error, sizeof r->error, __func__);
 }
 
 /* ---------------------------------------------------------------- rollouts */
@@ -203,7 +280,17 @@ typedef struct AddVisited {
   NpgTrainer *t;
   NpgFull *f;
   const NpgRollout *ro;
+  long first;               /* the rollout's first step (npg_full_steps when it started) */
 } AddVisited;
+
+/* An implicit step: the pair (u, u.next) of every every-th step as solved, every quantity at the
+ * solution (the states alone would leave the unknown's value and the residual's zero unseen). */
+static int add_solved(void *user, long step) {
+  AddVisited *a = user;
+  long t = step - a->first;
+  if (t % a->ro->every != 0) return 0;
+  return npg_trainer_add_full(a->t, a->f) != 0 ? -1 : 0;
+}
 
 static int add_visited(void *user, long step) {
   AddVisited *a = user;
@@ -221,10 +308,20 @@ int npg_trainer_add_trajectory(NpgTrainer *t, NpgFull *f, long sample, const Npg
   if (npg_trainer_error(t)[0]) return -1;
   if (!f) return npg_trainer_add_full(t, NULL); /* the trainer's own refusal of a NULL evaluator */
   if (!ro) return npg_full_simulate(f, sample, NULL); /* its refusal, in f */
-  AddVisited a = {t, f, ro};
+  AddVisited a = {t, f, ro, 0};
   NpgRollout visit = *ro;
   visit.at_save = add_visited;
   visit.before_step = ro->before_step ? before_visit : NULL;
   visit.user = &a;
-  return npg_full_simulate(f, sample, &visit);
+  const Program *prog = full_program(f->full);
+  if (!prog || !implicit_state(prog)) return npg_full_simulate(f, sample, &visit);
+  visit.at_save = ro->at_save; /* the caller's own saves; the samples are the solved steps */
+  visit.user = ro->user;
+  visit.before_step = ro->before_step;
+  a.first = f->roll.steps;
+  f->roll.solved = add_solved, f->roll.solved_user = &a;
+  int rc = npg_full_simulate(f, sample, &visit);
+  f->roll.solved = NULL, f->roll.solved_user = NULL;
+  if (rc == 0 && npg_trainer_error(t)[0]) return -1;
+  return rc;
 }

@@ -26,6 +26,11 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   if (o && o->rollout_every < 0) REFUSE("NpgTrainOptions.rollout_every is %ld (0 or more)", o->rollout_every);
   if (o && o->rollout_steps > 0 && !full_program(f->full)->states.n)
     REFUSE("NpgTrainOptions.rollout_steps is %ld but the program has no state (DESIGN §15)", o->rollout_steps);
+  for (int i = 0; o && o->rollout_steps > 0 && i < full_program(f->full)->states.n; i++)
+    if (((const Sym *)full_program(f->full)->states.v[i])->residual)
+      REFUSE("NpgTrainOptions.rollout_steps: state '%s' is stepped implicitly ('residual next'), and the search's "
+             "rollouts are explicit steps: tune on its samples, or train and verify with --steps",
+             ((const Sym *)full_program(f->full)->states.v[i])->name);
   if (o && api_refuse_reduce_options(o, __func__, rep->error, sizeof rep->error) != 0) return NULL;
 #undef REFUSE
   if (npg_full_error(f)[0]) {

@@ -39,6 +39,18 @@ void npgc_quartiles(double *v, long n, double q[3]);
 /* bench's line naming the full evaluator's backend, its compile (or cache load) time
  * and whether the cache had it; reduce_use.c. */
 void npgc_print_jit(const NpgFull *f);
+/* An implicit step's Newton options (a program with `residual next u = ...`), shared by simulate,
+ * train --steps and verify --steps: --newton-tol R (relative, 1e-10), --newton-max-iter N (30),
+ * --newton-verbose (‖r‖ per iteration on stderr); npgc_util.c. */
+typedef struct NpgcNewton {
+  double tol;
+  int max_iter;
+  bool verbose;
+} NpgcNewton;
+#define NPGC_NEWTON_DEFAULT {1e-10, 30, false}
+bool npgc_newton_arg(NpgArgs *a, NpgcNewton *nw);
+void npgc_newton_full(const NpgcNewton *nw, NpgFull *f);
+void npgc_newton_reduced(const NpgcNewton *nw, NpgReduced *r);
 /* reduce_cmds.c: train, reduced eval, verify, bench. */
 int npgc_reduce(int argc, char **argv);
 

@@ -67,6 +67,7 @@ static const Usage usages[] = {
      "  -o OUT/      created with its missing parents\n"},
     {"simulate",
      "usage: npgc simulate PROG.npg DATA/ --steps T [--every K] [--model MODEL/] [--blowup F]\n"
+     "                     [--newton-tol R] [--newton-max-iter N] [--newton-verbose]\n"
      "                     -o OUT/ [--jit auto|cc|tcc] [--progress] [--std=DIR]\n"
      "\n"
      "  Run the program's time step (a program with `state u` and `next u = ...`) T\n"
@@ -79,6 +80,12 @@ static const Usage usages[] = {
      "               coordinates and lifted only at the saved steps\n"
      "  --blowup F   stop when a state's energy exceeds F times its start (10; 0: only\n"
      "               a value that is not finite stops the run); the step and state named\n"
+     "  --newton-tol R  a state stepped implicitly (`residual next u = ...`): each step's\n"
+     "               Newton stops at |r| <= R max(|r0|, 1e-4 |u|), r0 the residual at the\n"
+     "               first guess u (1e-10)\n"
+     "  --newton-max-iter N  Newton's corrections per step at most (30); a step that does\n"
+     "               not converge stops the run, naming the step, iteration and residual\n"
+     "  --newton-verbose  |r| per Newton iteration on stderr\n"
      "  --jit B      the full evaluator's compiler: auto, cc or tcc (as npgc train)\n"
      "  --progress   progress on stderr even when it is not a terminal\n"
      "  -o OUT/      created with its missing parents; written when every trajectory ran\n"},
@@ -347,6 +354,21 @@ bool npgc_under(const char *path, const char *dir) {
   size_t n = strlen(d);
   if (!strcmp(d, "/")) return true;
   return strncmp(p, d, n) == 0 && (p[n] == 0 || p[n] == '/');
+}
+
+bool npgc_newton_arg(NpgArgs *a, NpgcNewton *nw) {
+  if (npg_args_double(a, "--newton-tol", 0, 1, true, &nw->tol)) return true;
+  if (npg_args_int(a, "--newton-max-iter", 1, 100000, &nw->max_iter)) return true;
+  if (npg_args_flag(a, "--newton-verbose")) return nw->verbose = true;
+  return false;
+}
+
+void npgc_newton_full(const NpgcNewton *nw, NpgFull *f) {
+  if (f && !npg_full_error(f)[0]) npg_full_set_newton(f, nw->tol, nw->max_iter, nw->verbose ? stderr : NULL);
+}
+
+void npgc_newton_reduced(const NpgcNewton *nw, NpgReduced *r) {
+  if (r && !npg_reduced_error(r)[0]) npg_reduced_set_newton(r, nw->tol, nw->max_iter, nw->verbose ? stderr : NULL);
 }
 
 int npgc_args_error(const NpgArgs *a, const char *cmd) {

@@ -59,10 +59,13 @@ static int add_basis(Common *c, const char *s, char *err, size_t errlen) {
 /* Each command's options: an option of another command is named as such. */
 static const char *const options_of[][2] = {
     {"train", "-o --cc --jit --progress --std --cap --energy --center --spectra --basis --merge --mem --mpi --reduce --valid "
-              "--interp-oversample --keep-bases --weights --steps --every --greedy --tol --budget --absolute"},
+              "--interp-oversample --keep-bases --weights --steps --every --greedy --tol --budget --absolute "
+              "--newton-tol --newton-max-iter --newton-verbose"},
     {"eval", "-o --progress --std --exact-roots --full --cc --jit --sizes --jacobian"},
-    {"verify", "--tol --cc --jit --exact --exact-size --progress --std --params --steps --every --png --sizes"},
-    {"bench", "--cc --jit --threads --reps --exact-roots --progress --std --params --steps --every --sizes"},
+    {"verify", "--tol --cc --jit --exact --exact-size --progress --std --params --steps --every --png --sizes "
+               "--newton-tol --newton-max-iter --newton-verbose"},
+    {"bench", "--cc --jit --threads --reps --exact-roots --progress --std --params --steps --every --sizes "
+              "--newton-tol --newton-max-iter --newton-verbose"},
 };
 
 /* Whether `opt` (up to '=') is in the space-separated `list`. */
@@ -107,6 +110,7 @@ static int parse(Common *c, int argc, char **argv) {
   c->tol = 1e-2;
   c->reps = 3;
   c->steps = -1;
+  c->newton = (NpgcNewton)NPGC_NEWTON_DEFAULT;
   c->every = 1;
   c->backend = NPG_AUTO;
   c->threads = 1;
@@ -208,6 +212,7 @@ static int parse(Common *c, int argc, char **argv) {
     } else if (npg_args_long(&a, "--reps", 1, 1000000, &c->reps)) ;
     else if (npg_args_long(&a, "--steps", 1, 1000000000L, &c->steps)) ;
     else if (npg_args_long(&a, "--every", 1, 1000000000L, &c->every)) ;
+    else if (npgc_newton_arg(&a, &c->newton)) ;
     else if ((v = npg_args_string(&a, "--png"))) c->png = v;
     else npg_args_unknown(&a);
   }
@@ -397,6 +402,7 @@ static int cmd_train(Common *c) {
     npgc_error(npg_full_error(f));
     goto done;
   }
+  npgc_newton_full(&c->newton, f);
   if (c->steps >= 0 && c->weights) {
     fprintf(stderr, "npgc train: --weights weighs samples, not trajectories: not with --steps\n");
     goto done;

@@ -38,6 +38,7 @@ typedef struct Common {
   const char *weights;      /* train --weights FILE.npy: one per sample of DATA/ */
   const char *png;          /* verify --png FILE: the rollout error against time */
   long steps, every;        /* --steps T --every K: rollouts of a program with state (DESIGN §15); steps < 0: none */
+  NpgcNewton newton;        /* --newton-tol, --newton-max-iter, --newton-verbose: an implicit step's Newton */
   const char *jacobian[16]; /* eval --jacobian OUT:IN (repeatable): derivatives in reduced coordinates */
   int njacobian;
   const char *cmd;

@@ -61,6 +61,8 @@ static int open_roll(Common *c, Roll *x, const char *cmd) {
   if (npg_full_error(x->f)[0] || npg_full_bind_params(x->f, params) != 0) return npgc_error(npg_full_error(x->f)), 1;
   x->r = npg_reduced_new(x->m);
   if (npg_reduced_error(x->r)[0]) return npgc_error(npg_reduced_error(x->r)), 1;
+  npgc_newton_full(&c->newton, x->f);
+  npgc_newton_reduced(&c->newton, x->r);
   x->saves = c->steps / c->every + 1;
   x->st = calloc((size_t)x->tr.n + 1, sizeof *x->st);
   x->red = calloc((size_t)x->tr.n + 1, sizeof *x->red);

@@ -65,7 +65,7 @@ static int write_states(const Sim *s, const char *outdir) {
 }
 
 static int simulate(NpgProgram *p, const char *data, const char *model_dir, long steps, long every, double blowup,
-                    NpgBackend backend, bool progress, const char *outdir) {
+                    const NpgcNewton *nw, NpgBackend backend, bool progress, const char *outdir) {
   int rc = 1;
   char err[4400] = "";
   Trajectories t = {0};
@@ -104,10 +104,12 @@ static int simulate(NpgProgram *p, const char *data, const char *model_dir, long
     }
     s.r = npg_reduced_new(m);
     if (blowup >= 0) npg_reduced_set_blowup(s.r, blowup);
+    npgc_newton_reduced(nw, s.r);
   } else {
     s.f = npg_full_new(p, backend);
     if (!npg_full_error(s.f)[0]) npg_full_bind_params(s.f, data);
     if (blowup >= 0) npg_full_set_blowup(s.f, blowup);
+    npgc_newton_full(nw, s.f);
   }
   bool tty = progress || isatty(2);
   NpgRollout ro = {.steps = steps, .every = every, .before_step = before_step, .at_save = at_save, .user = &s};
@@ -144,6 +146,7 @@ int npgc_simulate(int argc, char **argv) {
   const char *prog_path = NULL, *data = NULL, *outdir = NULL, *model = NULL;
   long steps = -1, every = 1;
   double blowup = -1;
+  NpgcNewton nw = NPGC_NEWTON_DEFAULT;
   bool progress = false;
   NpgBackend backend = NPG_AUTO;
   NpgOptions opt = {0};
@@ -157,6 +160,7 @@ int npgc_simulate(int argc, char **argv) {
     else if (npg_args_long(&a, "--steps", 0, 1000000000L, &steps)) {}
     else if (npg_args_long(&a, "--every", 1, 1000000000L, &every)) {}
     else if (npg_args_double(&a, "--blowup", 0, 1e300, false, &blowup)) {}
+    else if (npgc_newton_arg(&a, &nw)) {}
     else if ((v = npg_args_string(&a, "--model"))) model = v;
     else if ((v = npg_args_string(&a, "-o"))) outdir = v;
     else if ((v = npg_args_string(&a, "--std"))) opt.std_dir = v;
@@ -181,7 +185,7 @@ int npgc_simulate(int argc, char **argv) {
   NpgProgram *p = npg_compile(prog_path, &opt);
   int rc = 1;
   if (!npg_ok(p)) fputs(npg_error(p), stderr);
-  else rc = simulate(p, data, model, steps, every, blowup, backend, progress, outdir);
+  else rc = simulate(p, data, model, steps, every, blowup, &nw, backend, progress, outdir);
   npg_free(p);
   return rc;
 }

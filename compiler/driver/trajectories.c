@@ -27,7 +27,7 @@ int npgc_trajectories_open(NpgProgram *p, const char *dir, long steps, Trajector
                "would be stepped outside its training states); evaluate it in the program or step with npg.h", sym.name);
       goto fail;
     }
-    if (sym.kind != NPG_INPUT) continue;
+    if (sym.kind != NPG_INPUT || sym.state_of) continue; /* u.next of an implicit step: the step solves it */
     TrajInput *in = &t->in[t->n++];
     in->sym = sym;
     snprintf(in->path, sizeof in->path, "%s/%s.npy", dir, sym.name);

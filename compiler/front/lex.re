@@ -108,6 +108,17 @@ Token *lex_file(Ctx *ctx, const SrcFile *file, int *ntok) {
         push(&lx, TK_IDENT, tok, cur);
         continue;
       }
+      ident "." ident {
+        /* u.next: a state's next value, the unknown of an implicit step (one name) */
+        if (cur - tok < 6 || memcmp(cur - 5, ".next", 5) != 0)
+          error_at(ctx, loc_at(&lx, tok), "unexpected '.' in '%.*s': the only dotted name is a state's next value, "
+                   "NAME.next", (int)(cur - tok), (const char *)tok);
+        if (cur - tok > MAX_IDENT)
+          error_at(ctx, loc_at(&lx, tok), "the name '%.20s...' is %d characters long (at most %d)", (const char *)tok,
+                   (int)(cur - tok), MAX_IDENT);
+        push(&lx, TK_IDENT, tok, cur);
+        continue;
+      }
       digits ("." digits)? expo? { push(&lx, TK_NUM, tok, cur); continue; }
       digits "." [^0-9.] {
         error_at(ctx, loc_at(&lx, tok), "malformed number '%.*s': a decimal point must be followed by digits",

@@ -503,6 +503,15 @@ static void parse_stmt(Parser *p, Decl ***tail) {
     d->next_of = n->text;
     d->next_of_loc = n->loc;
     d->is_output = true;
+  } else if (strcmp(kw, "residual") == 0 && is_ident(peek(p), "next")) {
+    /* residual next u [ivars] = expr: u.next is the zero of expr (an implicit step; sema lowers it) */
+    next(p);
+    Token *n = expect_name(p, "the state's name after 'residual next'");
+    d = parse_def(p, D_STAGE, n);
+    d->name = arena_printf(ctx, "%s.residual", n->text);
+    d->residual_of = n->text;
+    d->next_of_loc = n->loc;
+    d->is_output = true;
   } else if (strcmp(kw, "fn") == 0) {
     Token *n = expect_name(p, "a function name after 'fn'");
     d = new_decl(p, D_FN, n->loc);

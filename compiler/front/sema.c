@@ -178,6 +178,10 @@ static void declare(Checker *ck, Sym *s) {
   if (old)
     error_note(ck->ctx, s->loc, old->loc, "previous definition is here", "redefinition of '%s' (already %s)", s->name,
                sema_kind_word(old));
+  if (strchr(s->name, '.') && !(s->decl && (s->decl->next_of || s->decl->residual_of)))
+    error_at(ck->ctx, s->loc, "'%s' cannot be declared: a dotted name is a state's next value, defined by 'next %.*s = "
+             "...' or 'residual next %.*s = ...'", s->name, (int)(strchr(s->name, '.') - s->name), s->name,
+             (int)(strchr(s->name, '.') - s->name), s->name);
   if (builtin_lookup(s->name) || strcmp(s->name, "pi") == 0)
     error_at(ck->ctx, s->loc, "'%s' is a builtin and cannot be redefined", s->name);
   if (is_keyword(s->name)) error_at(ck->ctx, s->loc, "'%s' is a keyword", s->name);
@@ -310,6 +314,39 @@ static void set_axes(Checker *ck, Sym *s, Decl *d) {
   s->is_int = d->is_int;
 }
 
+/* `residual next u[i:N] = e` (an implicit step) lowered: an input `u.next` of the state's type (the
+ * unknown, declared just before the residual) and the output stage `u.residual` = e; link_states
+ * makes u.next the state's next value, and basis_classes puts u, u.next and the residual in one
+ * class, so the reduced residual is the Galerkin projection in the state's basis. */
+static void lower_implicit(Checker *ck) {
+  Ctx *ctx = ck->ctx;
+  for (Decl **pp = &ck->prog->decls; *pp; pp = &(*pp)->next) {
+    Decl *r = *pp;
+    if (r->kind != D_STAGE || !r->residual_of) continue;
+    Decl *st = NULL;
+    for (Decl *d = ck->prog->decls; d && !st; d = d->next)
+      if (d->name && strcmp(d->name, r->residual_of) == 0 && d->kind != D_DIM) st = d;
+    if (!st)
+      error_at(ctx, r->next_of_loc, "'residual next %s' names no state: declare it first with 'state %s : real[...]'",
+               r->residual_of, r->residual_of);
+    if (st->kind != D_INPUT || !st->is_state)
+      error_note(ctx, r->next_of_loc, st->name_loc, "declared here",
+                 "'%s' is not a state: only a quantity declared 'state %s : ...' has a next value to solve for",
+                 r->residual_of, r->residual_of);
+    Decl *u = arena_alloc(ctx, sizeof *u);
+    *u = *st;
+    u->is_state = false;
+    u->loc = r->loc;
+    u->name = arena_printf(ctx, "%s.next", st->name);
+    u->name_loc = r->next_of_loc;
+    u->next_of = st->name;
+    u->next_of_loc = r->next_of_loc;
+    u->next = r;
+    *pp = u;
+    pp = &u->next; /* on to r, then past it */
+  }
+}
+
 /* Pass 1: every name, so duplicates are found and fns can be used anywhere.
  * Dims first, since types refer to them. */
 static void declare_all(Checker *ck) {
@@ -380,7 +417,7 @@ static void declare_all(Checker *ck) {
 static void link_states(Checker *ck) {
   Ctx *ctx = ck->ctx;
   for (Decl *d = ck->prog->decls; d; d = d->next) {
-    if (d->kind != D_STAGE || !d->next_of) continue;
+    if ((d->kind != D_STAGE && d->kind != D_INPUT) || !d->next_of) continue; /* D_INPUT: lowered u.next */
     Sym *u = sema_find_global(ck, d->next_of);
     if (!u) error_at(ctx, d->next_of_loc, "'next %s' names no state: declare it first with 'state %s : real[...]'",
                      d->next_of, d->next_of);
@@ -392,6 +429,22 @@ static void link_states(Checker *ck) {
       error_note(ctx, d->next_of_loc, u->next->loc, "the first is here", "state '%s' has two next values", u->name);
     u->next = sema_find_global(ck, d->name);
     u->next->state_of = u;
+  }
+  Sym *implicit = NULL;
+  for (Decl *d = ck->prog->decls; d; d = d->next) {
+    if (d->kind != D_STAGE || !d->residual_of) continue;
+    Sym *u = sema_find_global(ck, d->residual_of), *next = sema_find_global(ck, d->name);
+    if (u->next && u->next->kind != SYM_INPUT) /* an explicit next value after the residual */
+      error_note(ctx, u->next->decl->next_of_loc, d->next_of_loc, "the residual is here",
+                 "state '%s' has two next values: 'next %s = ...' and 'residual next %s = ...'", u->name, u->name,
+                 u->name);
+    if (implicit)
+      error_note(ctx, d->next_of_loc, implicit->residual->decl->next_of_loc, "the first is here",
+                 "a second implicit state '%s': one state per program may be stepped by a residual (stack coupled "
+                 "unknowns into one state)", u->name);
+    u->residual = next;
+    next->state_of = u;
+    implicit = u;
   }
   for (int i = 0; i < ck->prog->states.n; i++) {
     Sym *u = ck->prog->states.v[i];
@@ -413,6 +466,52 @@ static void check_state_shapes(Checker *ck) {
       error_note(ctx, n->decl->next_of_loc, u->loc, "the state is declared here",
                  "the next value of state '%s' is %s but the state is %s", u->name, sema_sym_type_str(ctx, n),
                  sema_sym_type_str(ctx, u));
+  }
+}
+
+/* Whether quantity `s` reads `target`, directly or through the stages, ops and externs it reads;
+ * seen[] (per symbol id) visits each once. */
+static bool reads(const Node *n, const Sym *target, bool *seen, int nseen);
+
+static bool sym_reads(const Sym *s, const Sym *target, bool *seen, int nseen) {
+  if (s == target) return true;
+  if (!s || s->id < 0 || s->id >= nseen || seen[s->id]) return false;
+  if (s->kind != SYM_STAGE && s->kind != SYM_OP && s->kind != SYM_EXTERN) return false;
+  seen[s->id] = true;
+  for (int i = 0; i < s->nof; i++)
+    if (sym_reads(s->of[i], target, seen, nseen)) return true;
+  return reads(s->body, target, seen, nseen);
+}
+
+static bool reads(const Node *n, const Sym *target, bool *seen, int nseen) {
+  if (!n) return false;
+  if (n->sym && sym_reads(n->sym, target, seen, nseen)) return true;
+  if (reads(n->a, target, seen, nseen) || reads(n->b, target, seen, nseen) || reads(n->c, target, seen, nseen))
+    return true;
+  for (int i = 0; i < n->nargs; i++)
+    if (reads(n->args[i], target, seen, nseen)) return true;
+  return false;
+}
+
+/* An implicit step's residual has the state's shape and reads its unknown u.next. */
+static void check_residuals(Checker *ck) {
+  Ctx *ctx = ck->ctx;
+  for (int i = 0; i < ck->prog->states.n; i++) {
+    Sym *u = ck->prog->states.v[i], *r = u->residual;
+    if (!r) continue;
+    bool same = u->ndims == r->ndims && u->nstatic == r->nstatic;
+    for (int k = 0; same && k < u->ndims; k++) same = u->dims[k] == r->dims[k];
+    for (int k = 0; same && k < u->nstatic; k++) same = u->shape[k] == r->shape[k];
+    if (!same)
+      error_note(ctx, r->decl->next_of_loc, u->loc, "the state is declared here",
+                 "the residual of state '%s' is %s but the state is %s: Newton needs one equation per unknown entry",
+                 u->name, sema_sym_type_str(ctx, r), sema_sym_type_str(ctx, u));
+    int nseen = ck->globals.n + 1;
+    bool *seen = arena_alloc(ctx, sizeof(bool) * (size_t)nseen);
+    memset(seen, 0, sizeof(bool) * (size_t)nseen);
+    if (!reads(r->body, u->next, seen, nseen))
+      error_node(ctx, r->body, "the residual of state '%s' does not read '%s': nothing defines the next value (write "
+                 "the residual in terms of %s.next)", u->name, u->next->name, u->name);
   }
 }
 
@@ -555,10 +654,12 @@ Program *sema_program(Ctx *ctx, const SrcFile *file, Decl *decls) {
   prog->main = file;
   prog->decls = decls;
   ck.prog = prog;
+  lower_implicit(&ck);
   declare_all(&ck);
   link_states(&ck);
   check_definitions(&ck);
   check_state_shapes(&ck);
+  check_residuals(&ck);
   apply_directives(&ck);
   list_quantities(&ck);
   return prog;

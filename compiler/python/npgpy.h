@@ -151,6 +151,9 @@ typedef struct NpgpyRoll {
   NpgpyRollInput *in;
   long steps, every, saves;
   double blowup;            /* blowup=F of the call, -1 when not given (the default, 10) */
+  double newton_tol;        /* newton_tol=, newton_max_iter=, newton_verbose= of the call: an implicit */
+  int newton_max_iter;      /* step's Newton (npg_full_set_newton); 1e-10, 30, False when not given */
+  bool newton_verbose;
   NpgFull *f;               /* the full rollout's evaluator (and a trainer's: t) */
   NpgReduced *r;            /* or the reduced one's */
   NpgTrainer *t;            /* add_trajectory: the visited states added, nothing kept */

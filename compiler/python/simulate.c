@@ -33,9 +33,47 @@ static int split_blowup(PyObject *inputs, const char *who, double *blowup) {
   return PyDict_DelItemString(inputs, "blowup");
 }
 
+/* An implicit step's Newton options, keywords only (npgc simulate --newton-tol, --newton-max-iter,
+ * --newton-verbose): into o when given. 0, or -1 with an exception. */
+typedef struct RollOpts {
+  double blowup, newton_tol;
+  int newton_max_iter;
+  bool newton_verbose;
+} RollOpts;
+
+static int split_newton(PyObject *inputs, const char *who, RollOpts *o) {
+  PyObject *v = PyDict_GetItemString(inputs, "newton_tol");
+  if (v) {
+    if (PyBool_Check(v) || !(PyFloat_Check(v) || PyLong_Check(v)))
+      return PyErr_Format(PyExc_TypeError, "%s: 'newton_tol' must be a number, not %s", who, Py_TYPE(v)->tp_name), -1;
+    o->newton_tol = PyFloat_AsDouble(v);
+    if (!(o->newton_tol > 0 && o->newton_tol < 1))
+      return npgpy_value_error("%s: newton_tol is %g (a relative tolerance in (0, 1))", who, o->newton_tol), -1;
+    if (PyDict_DelItemString(inputs, "newton_tol") < 0) return -1;
+  }
+  if ((v = PyDict_GetItemString(inputs, "newton_max_iter"))) {
+    if (PyBool_Check(v) || !PyLong_Check(v))
+      return PyErr_Format(PyExc_TypeError, "%s: 'newton_max_iter' must be an int, not %s", who, Py_TYPE(v)->tp_name),
+             -1;
+    long n = PyLong_AsLong(v);
+    if (n < 1 || n > 100000)
+      return npgpy_value_error("%s: newton_max_iter is %ld (1 to 100000 corrections)", who, n), -1;
+    o->newton_max_iter = (int)n;
+    if (PyDict_DelItemString(inputs, "newton_max_iter") < 0) return -1;
+  }
+  if ((v = PyDict_GetItemString(inputs, "newton_verbose"))) {
+    if (!PyBool_Check(v))
+      return PyErr_Format(PyExc_TypeError, "%s: 'newton_verbose' must be a bool, not %s", who, Py_TYPE(v)->tp_name),
+             -1;
+    o->newton_verbose = v == Py_True;
+    if (PyDict_DelItemString(inputs, "newton_verbose") < 0) return -1;
+  }
+  return 0;
+}
+
 /* steps and every from the positional arguments or the keywords, and blowup; the other keywords, a
  * new dict, into *inputs. 0, or -1 with an exception. */
-static int split_args(PyObject *args, PyObject *kw, const char *who, long *steps, long *every, double *blowup,
+static int split_args(PyObject *args, PyObject *kw, const char *who, long *steps, long *every, RollOpts *o,
                       PyObject **inputs) {
   *steps = -1, *every = 1;
   *inputs = kw ? PyDict_Copy(kw) : PyDict_New();
@@ -57,15 +95,16 @@ static int split_args(PyObject *args, PyObject *kw, const char *who, long *steps
   }
   if (*steps < 0 && !PyErr_Occurred())
     return PyErr_Format(PyExc_TypeError, "%s: give steps, the steps to run (0 or more)", who), -1;
-  return split_blowup(*inputs, who, blowup);
+  return split_blowup(*inputs, who, &o->blowup) || split_newton(*inputs, who, o) ? -1 : 0;
 }
 
 int npgpy_roll_args(const ProgramObject *prog, PyObject *args, PyObject *kw, const char *who, NpgpyRoll *r) {
   long steps, every;
-  double blowup = -1;
+  RollOpts o = {-1, 1e-10, 30, false};
   PyObject *inputs = NULL;
-  int rc = split_args(args, kw, who, &steps, &every, &blowup, &inputs) ? -1 : npgpy_roll(prog, inputs, steps, every, who, r);
-  r->blowup = blowup;
+  int rc = split_args(args, kw, who, &steps, &every, &o, &inputs) ? -1 : npgpy_roll(prog, inputs, steps, every, who, r);
+  r->blowup = o.blowup;
+  r->newton_tol = o.newton_tol, r->newton_max_iter = o.newton_max_iter, r->newton_verbose = o.newton_verbose;
   Py_XDECREF(inputs);
   return rc;
 }
@@ -186,6 +225,11 @@ int npgpy_roll_run(NpgpyRoll *r, long sample) {
   double blowup = r->blowup >= 0 ? r->blowup : 10;
   if (r->f && npg_full_set_blowup(r->f, blowup) != 0) return -1;
   if (r->r && npg_reduced_set_blowup(r->r, blowup) != 0) return -1;
+  double tol = r->newton_tol > 0 ? r->newton_tol : 1e-10; /* 0: npgpy_roll without the options */
+  int max_iter = r->newton_max_iter > 0 ? r->newton_max_iter : 30;
+  FILE *verbose = r->newton_verbose ? stderr : NULL;
+  if (r->f && npg_full_set_newton(r->f, tol, max_iter, verbose) != 0) return -1;
+  if (r->r && npg_reduced_set_newton(r->r, tol, max_iter, verbose) != 0) return -1;
   if (r->t) return npg_trainer_add_trajectory(r->t, r->f, sample, &ro);
   return r->f ? npg_full_simulate(r->f, sample, &ro) : npg_reduced_simulate(r->r, sample, &ro);
 }

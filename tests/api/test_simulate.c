@@ -2,7 +2,7 @@
  * (examples/heat/): the full rollout against the same step written in C, with a source given
  * per step; training from trajectories with whole bases (as many random initial states as
  * cells), whose reduced rollout in coordinates then equals the full one; blow-ups named by step
- * and state in both; the refusals of the simulation calls. */
+ * and state in both; an implicit step solved by Newton; the refusals of the simulation calls. */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -228,6 +228,53 @@ static void test_blowup_named(void **state) {
   npg_free(p);
 }
 
+/* An implicit step (examples/heat/heat_backward.npg, backward Euler at 100x the explicit limit):
+ * each npg_full_step a Newton solve, the residual at the solution tiny, verbose lines written,
+ * a failure named by step; npg_full_set_newton's refusals. */
+static void test_implicit_step(void **state) {
+  (void)state;
+  NpgProgram *p;
+  NpgFull *f = heat("examples/heat/heat_backward.npg", &p, 25);
+  double u[N];
+  for (int i = 0; i < N; i++) u[i] = i == 5 ? 2.0 : 0.1 * (i % 3);
+  long n = N;
+  FILE *log = tmpfile();
+  assert_non_null(log);
+  assert_int_equal(npg_full_set_newton(f, 1e-10, 30, log), 0);
+  assert_int_equal(npg_full_set(f, "u", 1, &n, u, "u0"), 0);
+  assert_int_equal(npg_full_step(f, 5, 0), 0);
+  assert_int_equal(npg_full_steps(f), 5);
+  size_t count = 0;
+  const double *x = npg_full_get(f, "u", &count), *r = npg_full_get(f, "u.residual", NULL);
+  assert_int_equal(count, N);
+  double sum = 0, sum0 = 0, rn = 0;
+  for (int i = 0; i < N; i++) sum += x[i], sum0 += u[i], rn += r[i] * r[i];
+  assert_true(fabs(sum - sum0) <= 1e-9 * fabs(sum0)); /* conservative fluxes: the heat is kept */
+  assert_true(sqrt(rn) <= 1e-8);
+  rewind(log);
+  char line[200];
+  int lines = 0;
+  while (fgets(line, sizeof line, log)) lines += strncmp(line, "newton sample 0 iteration ", 26) == 0;
+  assert_true(lines >= 5 * 2);
+  fclose(log);
+  /* one correction cannot reach 1e-14 of the first residual: the step, iteration and residual named */
+  assert_int_equal(npg_full_set_newton(f, 1e-14, 1, NULL), 0);
+  assert_int_equal(npg_full_set(f, "u", 1, &n, u, "u0"), 0);
+  assert_int_equal(npg_full_step(f, 3, 0), -1);
+  assert_non_null(strstr(npg_full_error(f), "step 1: npg_full_newton: Newton on residual 'u.residual' for 'u.next' "
+                                            "did not converge at sample 0: iteration 1, residual "));
+  npg_full_clear_error(f);
+  assert_int_equal(npg_full_set_newton(f, 0, 30, NULL), -1);
+  assert_non_null(strstr(npg_full_error(f), "argument 'tol' is 0"));
+  npg_full_clear_error(f);
+  assert_int_equal(npg_full_set_newton(f, 1e-10, 0, NULL), -1);
+  assert_non_null(strstr(npg_full_error(f), "argument 'max_iter' is 0"));
+  assert_int_equal(npg_full_set_newton(NULL, 1e-10, 30, NULL), -1);
+  assert_int_equal(npg_reduced_set_newton(NULL, 1e-10, 30, NULL), -1);
+  npg_full_free(f);
+  npg_free(p);
+}
+
 static void test_refusals(void **state) {
   (void)state;
   NpgProgram *p;
@@ -265,6 +312,7 @@ int main(void) {
       cmocka_unit_test(test_whole_bases_reduced_equals_full),
       cmocka_unit_test(test_semi_implicit_verified_over_the_trajectory),
       cmocka_unit_test(test_blowup_named),
+      cmocka_unit_test(test_implicit_step),
       cmocka_unit_test(test_refusals),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
