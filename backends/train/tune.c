@@ -202,7 +202,7 @@ static int validate(Search *s, Model *m, double *worst, double *floor, char *err
       const double *full = s->v.val[k] + qoff(m, q), *scale = full;
       const Sym *os = s->prog->outputs.v[o];
       if (os->state_of && os->state_of->residual == os) /* an implicit step's residual, 0 at the solution: */
-        scale = s->v.val[k] + qoff(m, emit_index_of(&s->prog->quantities, os->state_of->next)); /* the unknown's */
+        scale = s->v.val[k] + qoff(m, vec_position(&s->prog->quantities, os->state_of->next)); /* the unknown's */
       double num = 0, den = 0;
       reduced_lift(r, q, y);
       for (long i = 0; i < qsize(m, q); i++) num += (full[i] - y[i]) * (full[i] - y[i]), den += scale[i] * scale[i];
