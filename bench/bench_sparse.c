@@ -4,15 +4,17 @@
  * assembles the same matrix straight into compressed columns and solves it,
  * in the same run (DESIGN §13; the peer a user would write).
  *
- *     build/bench_sparse [n ...]        (default: 100 316 1000, i.e. 1e4, 1e5, 1e6 cells)
+ *     build/bench_sparse [--reps R] [n ...]   (default: 3 rounds; 100 316 1000, i.e. 1e4, 1e5, 1e6 cells)
  *     build/bench_sparse --crossover     sparse against dense below 1,000 cells
  *     build/bench_sparse --premul [n] [S] [cap]   pre-multiplication of the operator's tensors
  *
  * For each size: the first evaluation (pattern, symbolic analysis,
  * factorization, solve) and a repeated one with a new conductivity (values
  * refilled, refactorization, solve: the analysis reused), both for npg and
- * the peer; their ratio; the two solutions' difference; the process's peak
- * memory after npg's evaluations (npg runs first; run one size a process
+ * the peer, R rounds of each (a new evaluator and a new peer a round), best
+ * and median in wall and in CPU time (the less disturbed on a shared
+ * machine); their ratios; the two solutions' difference; the process's peak
+ * memory after npg's first round (npg runs first; run one size a process
  * for the size's own peak). --premul trains the program on S conductivity
  * fields of many modes (so the bases reach `cap`), then pre-multiplies each
  * tensor of the sparse operator again alone, timed, with premultiply()'s
@@ -128,48 +130,97 @@ static Full *evaluator(NpgProgram *prog, const Grid *g, JitBackend backend, long
   return f;
 }
 
-static double npg_solve(Full *f, const Grid *g, const double *kappa, long sample) {
+/* A timed call: wall time and the process's CPU time (on a machine shared
+ * with other work the CPU time is the less disturbed of the two). */
+typedef struct Spent {
+  double wall, cpu;
+} Spent;
+
+static double cpu_now(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+static Spent npg_solve(Full *f, const Grid *g, const double *kappa, long sample) {
   long s1[1] = {g->N};
-  double t0 = now();
+  double t0 = now(), c0 = cpu_now();
   if (full_set(f, "kappa", 1, s1, kappa, "kappa") || full_eval(f, sample)) {
     fprintf(stderr, "bench_sparse: %s\n", full_error(f));
     exit(1);
   }
-  return now() - t0;
+  return (Spent){now() - t0, cpu_now() - c0};
 }
 
-static void one_size(NpgProgram *prog, long n) {
+static Spent peer_timed(Peer *p, const Grid *g, const double *kappa, bool analyze) {
+  double c0 = cpu_now(), w = peer_solve(p, g, kappa, analyze);
+  return (Spent){w, cpu_now() - c0};
+}
+
+static int by_value(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}
+
+/* best and median of v[0 .. n) (v sorted in place) */
+static void best_median(double *v, int n, double *best, double *median) {
+  qsort(v, (size_t)n, sizeof *v, by_value);
+  *best = v[0];
+  *median = n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+enum { NPG_FIRST, NPG_AGAIN, PEER_FIRST, PEER_AGAIN, MEASURES };
+
+/* One size, `reps` rounds: each a new npg evaluator (created untimed: its
+ * compile comes from the cache) evaluated twice, then a new peer (its CSC
+ * allocated untimed) solving twice. Prints best and median of each, wall
+ * and CPU, and the ratios of the bests and of the medians. */
+static void one_size(NpgProgram *prog, long n, int reps) {
   Grid g = grid(n);
-  /* npg first, so the process's peak memory up to here is npg's (with the
-     grid's data) */
-  Full *f = evaluator(prog, &g, JIT_CC, FULL_SPARSE_MIN_ROWS);
-  double npg_first = npg_solve(f, &g, g.kappa[0], 0);
-  double npg_again = npg_solve(f, &g, g.kappa[1], 1);
-  double npg_peak = peak_gb();
-  Peer p;
-  cholmod_l_start(&p.cc);
-  p.cc.supernodal = CHOLMOD_SUPERNODAL;
-  p.A = cholmod_l_allocate_sparse((size_t)g.N, (size_t)g.N, (size_t)g.N * 3, 1, 1, 1, CHOLMOD_REAL, &p.cc);
-  p.u = malloc(sizeof(double) * (size_t)g.N);
-  double peer_first = peer_solve(&p, &g, g.kappa[0], true);
-  double peer_again = peer_solve(&p, &g, g.kappa[1], false);
-  size_t cnt;
-  const double *u = full_get(f, "u", &cnt);
-  double d = 0, s = 0;
-  for (long i = 0; i < g.N; i++) d = fmax(d, fabs(u[i] - p.u[i])), s = fmax(s, fabs(p.u[i]));
-  long patterns, chol, lu;
-  full_sparse_counts(f, &patterns, &chol, &lu);
-  printf("%9ld cells: npg first %8.3f s, again %8.3f s | CHOLMOD by hand first %8.3f s, again %8.3f s | "
-         "ratio first %.2f, again %.2f | max |du|/|u| %.1e | patterns %ld, CHOLMOD %ld, UMFPACK %ld | "
-         "peak RSS after npg %.2f GB\n",
-         g.N, npg_first, npg_again, peer_first, peer_again, npg_first / peer_first, npg_again / peer_again, d / s, patterns,
-         chol, lu, npg_peak);
+  double *t[2][MEASURES]; /* [wall | cpu][measure][rep] */
+  for (int c = 0; c < 2; c++)
+    for (int k = 0; k < MEASURES; k++) t[c][k] = malloc(sizeof(double) * (size_t)reps);
+  double d = 0, s = 0, npg_peak = 0;
+  long patterns = 0, chol = 0, lu = 0;
+  for (int r = 0; r < reps; r++) {
+    /* npg first, so the process's peak memory up to here is npg's (with the grid's data) */
+    Full *f = evaluator(prog, &g, JIT_CC, FULL_SPARSE_MIN_ROWS);
+    Spent a = npg_solve(f, &g, g.kappa[0], 0), b = npg_solve(f, &g, g.kappa[1], 1);
+    if (r == 0) npg_peak = peak_gb();
+    Peer p;
+    cholmod_l_start(&p.cc);
+    p.cc.supernodal = CHOLMOD_SUPERNODAL;
+    p.A = cholmod_l_allocate_sparse((size_t)g.N, (size_t)g.N, (size_t)g.N * 3, 1, 1, 1, CHOLMOD_REAL, &p.cc);
+    p.u = malloc(sizeof(double) * (size_t)g.N);
+    Spent c = peer_timed(&p, &g, g.kappa[0], true), e = peer_timed(&p, &g, g.kappa[1], false);
+    Spent all[MEASURES] = {a, b, c, e};
+    for (int k = 0; k < MEASURES; k++) t[0][k][r] = all[k].wall, t[1][k][r] = all[k].cpu;
+    size_t cnt;
+    const double *u = full_get(f, "u", &cnt);
+    for (long i = 0; i < g.N; i++) d = fmax(d, fabs(u[i] - p.u[i])), s = fmax(s, fabs(p.u[i]));
+    full_sparse_counts(f, &patterns, &chol, &lu);
+    full_free(f);
+    cholmod_l_free_factor(&p.L, &p.cc);
+    cholmod_l_free_sparse(&p.A, &p.cc);
+    cholmod_l_finish(&p.cc);
+    free(p.u);
+  }
+  printf("%9ld cells, %d rounds (max |du|/|u| %.1e; patterns %ld, CHOLMOD %ld, UMFPACK %ld in the last round; peak "
+         "RSS after npg %.2f GB)\n",
+         g.N, reps, s > 0 ? d / s : d, patterns, chol, lu, npg_peak);
+  const char *clock[2] = {"wall", "cpu"};
+  for (int c = 0; c < 2; c++) {
+    double best[MEASURES], med[MEASURES];
+    for (int k = 0; k < MEASURES; k++) best_median(t[c][k], reps, &best[k], &med[k]);
+    printf("  %-4s best (median), s: npg first %.3f (%.3f), again %.3f (%.3f) | CHOLMOD by hand first %.3f (%.3f), "
+           "again %.3f (%.3f) | ratio first %.2f (%.2f), again %.2f (%.2f)\n",
+           clock[c], best[NPG_FIRST], med[NPG_FIRST], best[NPG_AGAIN], med[NPG_AGAIN], best[PEER_FIRST], med[PEER_FIRST],
+           best[PEER_AGAIN], med[PEER_AGAIN], best[NPG_FIRST] / best[PEER_FIRST], med[NPG_FIRST] / med[PEER_FIRST],
+           best[NPG_AGAIN] / best[PEER_AGAIN], med[NPG_AGAIN] / med[PEER_AGAIN]);
+  }
   fflush(stdout);
-  full_free(f);
-  cholmod_l_free_factor(&p.L, &p.cc);
-  cholmod_l_free_sparse(&p.A, &p.cc);
-  cholmod_l_finish(&p.cc);
-  free(p.u);
+  for (int c = 0; c < 2; c++)
+    for (int k = 0; k < MEASURES; k++) free(t[c][k]);
   free(g.nbr), free(g.inbr), free(g.src), free(g.kappa[0]), free(g.kappa[1]);
 }
 
@@ -182,8 +233,8 @@ static void crossover(NpgProgram *prog) {
     Full *sp = evaluator(prog, &g, JIT_TCC, 0), *de = evaluator(prog, &g, JIT_TCC, LONG_MAX);
     double bs = 1e30, bd = 1e30;
     for (int r = 0; r < 7; r++) {
-      bs = fmin(bs, npg_solve(sp, &g, g.kappa[r & 1], r));
-      bd = fmin(bd, npg_solve(de, &g, g.kappa[r & 1], r));
+      bs = fmin(bs, npg_solve(sp, &g, g.kappa[r & 1], r).wall);
+      bd = fmin(bd, npg_solve(de, &g, g.kappa[r & 1], r).wall);
     }
     printf("%9ld %12.2e %12.2e %8.2f\n", g.N, bs, bd, bd / bs);
     full_free(sp), full_free(de);
@@ -300,18 +351,28 @@ int main(int argc, char **argv) {
   } else if (argc > 1 && strcmp(argv[1], "--premul") == 0) {
     premul_bench(prog, argc > 2 ? strtol(argv[2], NULL, 10) : 316, argc > 3 ? strtol(argv[3], NULL, 10) : 120,
                  argc > 4 ? (int)strtol(argv[4], NULL, 10) : 60);
-  } else if (argc > 1) {
-    for (int i = 1; i < argc; i++) {
-      long n = strtol(argv[i], NULL, 10);
-      if (n < 2) {
-        fprintf(stderr, "bench_sparse: '%s' is not a grid size (cells a side, at least 2)\n", argv[i]);
+  } else {
+    int reps = 3, at = 1, sized = 0;
+    if (argc > 2 && strcmp(argv[1], "--reps") == 0) {
+      char *end;
+      long r = strtol(argv[2], &end, 10);
+      if (*end || r < 1 || r > 1000) {
+        fprintf(stderr, "bench_sparse: --reps '%s' is not a whole number of rounds from 1 to 1000\n", argv[2]);
         return 1;
       }
-      one_size(prog, n);
+      reps = (int)r, at = 3;
     }
-  } else {
+    for (int i = at; i < argc; i++) {
+      char *end;
+      long n = strtol(argv[i], &end, 10);
+      if (*end || n < 2 || n > 100000) {
+        fprintf(stderr, "bench_sparse: '%s' is not a grid size (cells a side, 2 to 100000)\n", argv[i]);
+        return 1;
+      }
+      one_size(prog, n, reps), sized++;
+    }
     long sizes[] = {100, 316, 1000};
-    for (int i = 0; i < 3; i++) one_size(prog, sizes[i]);
+    for (int i = 0; !sized && i < 3; i++) one_size(prog, sizes[i], reps);
   }
   npg_free(prog);
   return 0;

@@ -191,6 +191,56 @@ static void laplacian_cholmod_and_indefinite(void **state) {
   npg_free(p);
 }
 
+/* The pattern's placement of unordered contributions: a star (a hub in the
+ * middle joined to every other node, the edges in shuffled order, so the
+ * hub's column gathers LN rows out of order, more than the insertion sort's
+ * 16) and chords (short columns out of order, repeated entries merged).
+ * Equal to the dense path, and symmetric (CHOLMOD: every transposed slot
+ * found). */
+static void unordered_pattern_placed(void **state) {
+  (void)state;
+  NpgProgram *p = compile_text("laplacian.npg", laplacian);
+  ir_ok(p);
+  static double tab[LE * 2], rhs[LN];
+  int order[LN - 1], hub = LN / 2;
+  for (int k = 0; k < LN - 1; k++) order[k] = k < hub ? k : k + 1;
+  for (int k = LN - 2; k > 0; k--) { /* Fisher-Yates */
+    int r = (int)(uniform() * (k + 1)), t = order[k];
+    order[k] = order[r], order[r] = t;
+  }
+  for (int e = 0; e < LE; e++) {
+    bool star = e < LN - 1;
+    tab[e * 2] = star ? (e % 2 ? hub : order[e]) : (e * 13 + 5) % LN;
+    tab[e * 2 + 1] = star ? (e % 2 ? order[e] : hub) : (e * 29 + 1) % LN;
+    if (tab[e * 2] == tab[e * 2 + 1]) tab[e * 2 + 1] = ((int)tab[e * 2] + 3) % LN;
+  }
+  for (int i = 0; i < LN; i++) rhs[i] = uniform() - 0.5;
+  double shift = 0.25;
+  long st[2] = {LE, 2}, sf[1] = {LN};
+  Full *f[2];
+  for (int k = 0; k < 2; k++) {
+    f[k] = full_new(program_ir(p), JIT_TCC, NULL);
+    assert_non_null(f[k]);
+    assert_int_equal(full_set_param(f[k], "tab", 2, st, tab, "tab"), 0);
+    assert_int_equal(full_set_param(f[k], "f", 1, sf, rhs, "f"), 0);
+    assert_int_equal(full_set_param(f[k], "shift", 0, NULL, &shift, "shift"), 0);
+  }
+  full_set_sparse_min_rows(f[0], 0);
+  full_set_sparse_min_rows(f[1], LONG_MAX);
+  const char *outs[] = {"y"};
+  double w[LE];
+  for (int e = 0; e < LE; e++) w[e] = 0.1 + uniform();
+  same_outputs(f[0], f[1], "w", LE, w, outs, 1, 0);
+  long patterns, chol, lu;
+  full_sparse_counts(f[0], &patterns, &chol, &lu);
+  assert_int_equal(patterns, 1);
+  assert_int_equal(chol, 1);
+  assert_int_equal(lu, 0);
+  full_free(f[0]);
+  full_free(f[1]);
+  npg_free(p);
+}
+
 /* Square root, inverse square root and 3/2 power of a sparse SPD
  * operator by Lanczos equal the dense eigendecomposition to 1e-10; an
  * indefinite one is refused, naming the operator. */
@@ -379,6 +429,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(heat_umfpack_equals_dense),
       cmocka_unit_test(laplacian_cholmod_and_indefinite),
+      cmocka_unit_test(unordered_pattern_placed),
       cmocka_unit_test(roots_by_lanczos),
       cmocka_unit_test(singular_refused),
       cmocka_unit_test(singular_negative_roots_refused),

@@ -100,30 +100,110 @@ static SparseOp *op_slot(const NpgCtx *c, int opid) {
   return &h->sparse[opid];
 }
 
-/* out[0 .. count) = the contributions in[0 .. count) stably ordered by key[]
- * (counting sort over n keys; `start` holds n + 1 counters). */
-static void order_by(const npg_idx *key, const npg_idx *in, npg_idx *out, npg_idx count, npg_idx n, npg_idx *start) {
-  memset(start, 0, sizeof(npg_idx) * (size_t)(n + 1));
-  for (npg_idx k = 0; k < count; k++) start[key[in[k]] + 1]++;
-  for (npg_idx j = 0; j < n; j++) start[j + 1] += start[j];
-  for (npg_idx k = 0; k < count; k++) out[start[key[in[k]]]++] = in[k];
+/* A column's distinct rows Ai[0 .. len) put in increasing order; rank[r] = where
+ * the entry at r went. Columns of a stencil or a row-ordered enumeration come
+ * out of the column pass already sorted, so this is rarely more than a check. */
+typedef struct RowAt {
+  SuiteSparse_long row;
+  npg_idx at;
+} RowAt;
+
+static int by_row(const void *a, const void *b) {
+  SuiteSparse_long x = ((const RowAt *)a)->row, y = ((const RowAt *)b)->row;
+  return (x > y) - (x < y);
 }
 
-/* The pattern: contributions ordered by (col, row) — two stable counting
- * sorts, by row then by column: O(count + n), where a comparison sort of
- * the 1.3e7 contributions of a million-cell stencil took seconds —
- * duplicates merged. */
+static void sort_column(SuiteSparse_long *Ai, npg_idx len, npg_idx *rank, RowAt *scratch) {
+  for (npg_idx r = 0; r < len; r++) scratch[r] = (RowAt){Ai[r], r};
+  if (len <= 16) { /* insertion sort: the few entries of a stencil's column */
+    for (npg_idx r = 1; r < len; r++) {
+      RowAt x = scratch[r];
+      npg_idx q = r;
+      for (; q > 0 && scratch[q - 1].row > x.row; q--) scratch[q] = scratch[q - 1];
+      scratch[q] = x;
+    }
+  } else {
+    qsort(scratch, (size_t)len, sizeof *scratch, by_row);
+  }
+  for (npg_idx r = 0; r < len; r++) Ai[r] = scratch[r].row, rank[scratch[r].at] = r;
+}
+
+/* The slot of (j, i) for every slot (i, j), -1 when absent, in one pass: for
+ * each column i, next[i] walks its sorted rows as the columns j that hold
+ * row i go by in increasing order. */
+static void transpose_slots(SparseOp *s, npg_idx n, npg_idx *next) {
+  s->symmetric_pattern = true;
+  for (npg_idx i = 0; i < n; i++) next[i] = s->Ap[i];
+  for (npg_idx j = 0; j < n; j++)
+    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) {
+      npg_idx i = s->Ai[p], q = next[i];
+      while (q < s->Ap[i + 1] && s->Ai[q] < j) q++;
+      next[i] = q;
+      s->transpose[p] = q < s->Ap[i + 1] && s->Ai[q] == j ? q : -1;
+      if (s->transpose[p] < 0) s->symmetric_pattern = false;
+    }
+}
+
+/* The contributions' slots in CSC, each column's rows in increasing order
+ * and duplicates merged: the contributions counted by column and placed
+ * there (one stable pass), then each column's distinct rows found with a
+ * marker per row (last[r] >= the column's first slot) and sorted.
+ * O(count + n) for the short columns of a stencil or a mesh. On return
+ * s->Ap, Ai (nnz of them) and map are set; -1 when out of memory. */
+static int csc_slots(SparseOp *s, const npg_idx *rows, const npg_idx *cols, npg_idx count, npg_idx n, npg_idx *nnz_out) {
+  size_t m = (size_t)(count ? count : 1);
+  npg_idx *start = mem_calloc((size_t)n + 1, sizeof(npg_idx)), *last = mem_malloc(sizeof(npg_idx) * ((size_t)n + 1));
+  npg_idx *k_at = mem_malloc(sizeof(npg_idx) * m), *rank = mem_malloc(sizeof(npg_idx) * ((size_t)n + 1));
+  SuiteSparse_long *Ai = mem_malloc(sizeof(SuiteSparse_long) * m); /* at most count slots; shrunk below */
+  RowAt *scratch = mem_malloc(sizeof(RowAt) * ((size_t)n + 1));
+  int rc = -1;
+  if (!start || !last || !k_at || !rank || !Ai || !scratch) goto done;
+  for (npg_idx k = 0; k < count; k++) start[cols[k] + 1]++;
+  for (npg_idx j = 0; j < n; j++) start[j + 1] += start[j];
+  for (npg_idx k = 0; k < count; k++) k_at[start[cols[k]]++] = k; /* start[j] is now column j's end */
+  for (npg_idx r = 0; r < n; r++) last[r] = -1;
+  npg_idx nnz = 0, from = 0;
+  s->Ap[0] = 0;
+  for (npg_idx j = 0; j < n; j++) {
+    npg_idx first = nnz;
+    bool sorted = true;
+    for (npg_idx p = from; p < start[j]; p++) {
+      npg_idx k = k_at[p], r = rows[k];
+      if (last[r] < first) {
+        sorted = sorted && (nnz == first || Ai[nnz - 1] < r);
+        last[r] = nnz;
+        Ai[nnz++] = r;
+      }
+      s->map[k] = last[r];
+    }
+    if (!sorted) {
+      sort_column(Ai + first, nnz - first, rank, scratch);
+      for (npg_idx p = from; p < start[j]; p++) s->map[k_at[p]] = first + rank[s->map[k_at[p]] - first];
+    }
+    from = start[j];
+    s->Ap[j + 1] = nnz;
+  }
+  SuiteSparse_long *fit = mem_realloc(Ai, sizeof(SuiteSparse_long) * (size_t)(nnz ? nnz : 1));
+  s->Ai = fit ? fit : Ai;
+  Ai = NULL;
+  *nnz_out = nnz;
+  rc = 0;
+done:
+  free(start), free(last), free(k_at), free(rank), free(Ai), free(scratch);
+  return rc;
+}
+
+/* The pattern: every contribution's (row, col) listed by the generated
+ * enumerator, then placed in CSC (csc_slots) and the transposed slots found. */
 static int build_pattern(const NpgCtx *c, const char *stage, const char *op, SparseOp *s, npg_idx n,
                          NpgOpEntriesFn entries) {
   npg_idx count = entries(c, 0, NULL, NULL, NULL, NULL);
   size_t m = (size_t)(count ? count : 1);
-  npg_idx *rows = mem_malloc(sizeof(npg_idx) * m), *cols = mem_malloc(sizeof(npg_idx) * m);
-  npg_idx *a = mem_calloc(m, sizeof(npg_idx)), *b = mem_malloc(sizeof(npg_idx) * m); /* calloc: gcc cannot see a[] is written first */
-  npg_idx *start = mem_malloc(sizeof(npg_idx) * (size_t)(n + 1));
+  npg_idx *rows = mem_malloc(sizeof(npg_idx) * m), *cols = mem_malloc(sizeof(npg_idx) * m), nnz = 0;
   s->map = mem_malloc(sizeof(npg_idx) * m);
   s->Ap = mem_malloc(sizeof(SuiteSparse_long) * (size_t)(n + 1));
   int rc = -1;
-  if (!rows || !cols || !a || !b || !start || !s->map || !s->Ap) {
+  if (!rows || !cols || !s->map || !s->Ap) {
     runtime_record(c, "sample %ld: out of memory assembling operator %s of stage '%s' (%ld entries)", c->sample, op,
                    stage, (long)count);
     goto done;
@@ -133,53 +213,28 @@ static int build_pattern(const NpgCtx *c, const char *stage, const char *op, Spa
                    op);
     goto done;
   }
-  for (npg_idx k = 0; k < count; k++) a[k] = k;
-  order_by(rows, a, b, count, n, start);
-  order_by(cols, b, a, count, n, start);
-  npg_idx nnz = 0;
-  for (npg_idx k = 0; k < count; k++)
-    if (k == 0 || rows[a[k]] != rows[a[k - 1]] || cols[a[k]] != cols[a[k - 1]]) nnz++;
-  s->Ai = mem_malloc(sizeof(SuiteSparse_long) * (size_t)(nnz ? nnz : 1));
+  if (csc_slots(s, rows, cols, count, n, &nnz) != 0) {
+    runtime_record(c, "sample %ld: out of memory assembling operator %s of stage '%s' (%ld entries)", c->sample, op,
+                   stage, (long)count);
+    goto done;
+  }
+  free(rows), free(cols);
+  rows = cols = NULL;
   s->Ax = mem_malloc(sizeof(double) * (size_t)(nnz ? nnz : 1));
   s->transpose = mem_malloc(sizeof(npg_idx) * (size_t)(nnz ? nnz : 1));
-  if (!s->Ai || !s->Ax || !s->transpose) {
+  npg_idx *next = mem_malloc(sizeof(npg_idx) * (size_t)(n + 1));
+  if (!s->Ax || !s->transpose || !next) {
+    free(next);
     runtime_record(c, "sample %ld: out of memory assembling operator %s of stage '%s' (%ld nonzeros)", c->sample, op,
                    stage, (long)nnz);
     goto done;
   }
-  npg_idx slot = -1, col = 0;
-  s->Ap[0] = 0;
-  for (npg_idx k = 0; k < count; k++) {
-    npg_idx at = a[k];
-    if (k == 0 || rows[at] != rows[a[k - 1]] || cols[at] != cols[a[k - 1]]) {
-      slot++;
-      while (col < cols[at]) s->Ap[++col] = slot;
-      s->Ai[slot] = rows[at];
-    }
-    s->map[at] = slot;
-  }
-  while (col < n) s->Ap[++col] = nnz;
+  transpose_slots(s, n, next);
+  free(next);
   rc = 0;
 done:
-  free(rows), free(cols), free(a), free(b), free(start);
+  free(rows), free(cols);
   if (rc) return rc;
-  /* the transposed slot of every slot, by binary search in its column */
-  s->symmetric_pattern = true;
-  for (npg_idx j = 0; j < n; j++)
-    for (SuiteSparse_long p = s->Ap[j]; p < s->Ap[j + 1]; p++) {
-      npg_idx i = s->Ai[p], lo = s->Ap[i], hi = s->Ap[i + 1] - 1, at = -1;
-      while (lo <= hi) {
-        npg_idx mid = lo + (hi - lo) / 2;
-        if (s->Ai[mid] == j) {
-          at = mid;
-          break;
-        }
-        if (s->Ai[mid] < j) lo = mid + 1;
-        else hi = mid - 1;
-      }
-      s->transpose[p] = at;
-      if (at < 0) s->symmetric_pattern = false;
-    }
   s->n = n;
   s->ncontrib = count;
   s->ready = true;
