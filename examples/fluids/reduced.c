@@ -309,12 +309,11 @@ static int alloc_state(RedSolver *s) {
   s->E = malloc(uu * sizeof(double));
   s->V0 = malloc(uu * sizeof(double));
   s->V1 = malloc(uu * sizeof(double));
-  s->P1 = malloc(uf * sizeof(double));
   s->W = malloc(uf * sizeof(double));
   s->K = malloc((size_t)(mf * mf) * sizeof(double));
   s->KN = malloc((size_t)(mf * mf) * sizeof(double));
   s->Kn = malloc((size_t)(mf * mf) * sizeof(double));
-  s->work = malloc(8 * uu * sizeof(double) + 8 * (size_t)(mu + mf) * sizeof(double));
+  s->work = malloc(8 * uu * sizeof(double) + (size_t)(8 * (mu + mf) + (mg + 1) * mu) * sizeof(double));
   s->tmp = malloc((size_t)(4 * (mu + mf) + 8) * sizeof(double));
   s->tmp2 = malloc((size_t)(4 * (mu + mf) + 8) * sizeof(double));
   s->tmp3 = malloc((size_t)(4 * (mu + mf) + 8) * sizeof(double));
@@ -327,7 +326,7 @@ static int alloc_state(RedSolver *s) {
   s->Hx = malloc(kk * kk * sizeof(double));
   s->hwork = malloc(9 * kk * kk * sizeof(double) + 8 * kk * sizeof(double));
   void *all[] = {s->Ps,  s->As, s->Vp, s->Bhs, s->L,  s->Dpinv, s->N,    s->g,    s->f,  s->u,  s->gmid,
-                 s->gdot, s->wgt, s->mvals, s->b, s->A, s->M,  s->E,     s->V0,   s->V1, s->P1, s->W,
+                 s->gdot, s->wgt, s->mvals, s->b, s->A, s->M,  s->E,     s->V0,   s->V1, s->W,
                  s->K,   s->KN, s->Kn, s->work, s->tmp, s->tmp2, s->tmp3, s->Vf, s->Vfg, s->Q, s->H,
                  s->Hx,  s->hwork};
   for (size_t i = 0; i < sizeof all / sizeof *all; i++)
@@ -536,7 +535,7 @@ void red_free(RedSolver *s) {
   free(s->mono_v), free(s->mono_h), free(s->mvals), free(s->D);
   free(s->N), free(s->g), free(s->f), free(s->u);
   free(s->gmid), free(s->gdot), free(s->b), free(s->A), free(s->M), free(s->E), free(s->V0), free(s->V1);
-  free(s->P1), free(s->W), free(s->K), free(s->KN), free(s->Kn), free(s->work), free(s->tmp), free(s->tmp2), free(s->tmp3);
+  free(s->W), free(s->K), free(s->KN), free(s->Kn), free(s->work), free(s->tmp), free(s->tmp2), free(s->tmp3);
   free(s->Ask), free(s->Ask32), free(s->f32), free(s->sk32), free(s->PNs), free(s->Vf), free(s->Vfg), free(s->Q), free(s->H), free(s->Hx), free(s->hwork);
   memset(s, 0, sizeof *s);
 }
@@ -646,41 +645,56 @@ double red_energy(const RedSolver *s, const double *gc, const double *uc) {
   return e;
 }
 
+/* out = P̂(ĝ) x = Σ_l ĝ_l P̂_l x: the slices, stacked, are one (m_g m_u) × m_f matrix read
+ * once by one dgemv (into t, m_g m_u long), then combined; P̂ itself is never formed. */
+static void pmat_apply(const RedSolver *s, const double *gc, const double *x, double *out, double *t) {
+  int mu = (int)s->mu, mf = (int)s->mf;
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)s->mg * mu, mf, 1.0, s->Ps, mf, x, 1, 0.0, t, 1);
+  memset(out, 0, (size_t)mu * sizeof *out);
+  for (long l = 0; l < s->mg; l++)
+    if (gc[l] != 0) cblas_daxpy(mu, gc[l], t + l * mu, 1, out, 1);
+}
+
 /* The reduced projection (Eq. 12 with the reduced boundary constraints) at
  * ĝ = gc of the velocity coordinates uin, with the boundary fluxes s->b:
  * sets s->f and s->u. On f̂ = f_p + N y (f_p = D̂⁺ b̂) the minimizer of
  * ½‖û' − V̂⁻¹P̂ f̂‖²_V̂ solves (NᵀP̂ᵀV̂⁻¹P̂N) y = (P̂N)ᵀ(û' − V̂⁻¹P̂ f_p); with V̂ = LLᵀ
- * and X = L⁻¹P̂N its matrix is XᵀX. Then û = V̂⁻¹P̂ f̂ (Eq. 13). */
+ * and X = L⁻¹P̂N its matrix is XᵀX. Then û = V̂⁻¹P̂ f̂ (Eq. 13) = q + L⁻ᵀ X y with
+ * q = V̂⁻¹P̂ f_p, both already at hand: one triangular solve, no product with P̂. */
 int red_projection(RedSolver *s, const double *gc, const double *uin, char *err, size_t errlen) {
   int mu = (int)s->mu, mf = (int)s->mf, mb = (int)s->mb, nn = (int)s->nn;
   if (volume_factor(s, gc) != 0)
     return fail(err, errlen, "reduced volume matrix V̂(ĝ_{t+1}) is not positive definite", NULL);
-  red_pmat(s, gc, s->P1);
-  double *fp = s->work, *y = s->work + mf, *z = s->tmp3;
-  if (mb > 0)
+  double *fp = s->work, *y = s->work + mf, *q = s->work + 2 * (mu + mf), *t = q + mu, *z = s->tmp3;
+  if (mb > 0) { /* q = V̂⁻¹P̂ f_p, the velocity of the particular flux */
     cblas_dgemv(CblasRowMajor, CblasNoTrans, mf, mb, 1.0, s->Dpinv, mb, s->b, 1, 0.0, fp, 1);
-  else
+    pmat_apply(s, gc, fp, q, t);
+    volume_solve(s, q);
+  } else {
     memset(fp, 0, (size_t)mf * sizeof *fp);
+    memset(q, 0, (size_t)mu * sizeof *q);
+  }
+  memcpy(s->u, q, (size_t)mu * sizeof *q);
   if (nn > 0) {
     double *X = s->W; /* mu x nn */
     size_t un = (size_t)mu * (size_t)nn;
     memset(X, 0, un * sizeof *X);
     for (long l = 0; l < s->mg; l++)
       if (gc[l] != 0) cblas_daxpy((int)un, gc[l], s->PNs + (size_t)l * un, 1, X, 1);
-    /* z = û' − V̂⁻¹P̂ f_p; the right-hand side (P̂N)ᵀ z before X overwrites P̂N */
-    cblas_dgemv(CblasRowMajor, CblasNoTrans, mu, mf, 1.0, s->P1, mf, fp, 1, 0.0, z, 1);
-    volume_solve(s, z);
-    for (int i = 0; i < mu; i++) z[i] = uin[i] - z[i];
+    /* z = û' − q; the right-hand side (P̂N)ᵀ z before X overwrites P̂N */
+    for (int i = 0; i < mu; i++) z[i] = uin[i] - q[i];
     cblas_dgemv(CblasRowMajor, CblasTrans, mu, nn, 1.0, X, nn, z, 1, 0.0, y, 1);
     cblas_dtrsm(CblasRowMajor, CblasLeft, CblasLower, CblasNoTrans, CblasNonUnit, mu, nn, 1.0, s->Vf, mu, X, nn);
     cblas_dsyrk(CblasRowMajor, CblasLower, CblasTrans, nn, mu, 1.0, X, nn, 0.0, s->Kn, nn);
     if (LAPACKE_dposv_work(LAPACK_COL_MAJOR, 'U', nn, 1, s->Kn, nn, y, nn) != 0) /* as in volume_factor */
       return fail(err, errlen, "reduced projection matrix is not positive definite", NULL);
     cblas_dgemv(CblasRowMajor, CblasNoTrans, mf, nn, 1.0, s->N, nn, y, 1, 1.0, fp, 1);
+    /* û = q + L⁻ᵀ (X y) */
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, mu, nn, 1.0, X, nn, y, 1, 0.0, z, 1);
+    cblas_dtrsv(CblasRowMajor, CblasLower, CblasTrans, CblasNonUnit, mu, s->Vf, mu, z, 1);
+    cblas_daxpy(mu, 1.0, z, 1, s->u, 1);
   }
   memcpy(s->f, fp, (size_t)mf * sizeof *s->f);
-  cblas_dgemv(CblasRowMajor, CblasNoTrans, mu, mf, 1.0, s->P1, mf, s->f, 1, 0.0, s->u, 1); /* û = V̂⁻¹P̂ f̂ */
-  volume_solve(s, s->u);
   return 0;
 }
 

@@ -87,7 +87,7 @@ typedef struct RedSolver {
   /* state */
   double *g, *f, *u; /* coords */
   /* scratch */
-  double *A, *M, *E, *V0, *V1, *P1, *W, *K, *KN, *Kn, *work, *tmp, *tmp2, *tmp3;
+  double *A, *M, *E, *V0, *V1, *W, *K, *KN, *Kn, *work, *tmp, *tmp2, *tmp3;
   double *gmid, *gdot, *b;
   double seconds_eval, seconds_advection, seconds_projection;
   long steps;
