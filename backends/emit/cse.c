@@ -953,3 +953,9 @@ void cse_adjoint(Cse *c, int *adj, CseArrayFn fn, void *arg, CseStore *upd, int 
 }
 
 int cse_level(const Cse *c, int v) { return c->v[v].level; }
+
+bool cse_gathers(const Cse *c, int v) {
+  if (v < 0) return false;
+  const Val *x = &c->v[v];
+  return x->op == VAL_LOAD || cse_gathers(c, x->a) || cse_gathers(c, x->b) || cse_gathers(c, x->c);
+}

@@ -149,17 +149,20 @@ bool emit_fusable(const Stage *const *members, int n, const Stage *cand);
 void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n);
 typedef struct CseStore CseStore;
 /* Stage st's component values at the current entry of a new nest over its domain (e->cse),
- * for its derivatives: val[c], offset[c]; the loop variables' names in names[]. */
-void emit_direct_values(Emit *e, const Stage *st, const char **names, int *val, int *offset);
+ * for its derivatives: val[c], offset[c]; the loops' variables and dims in names[] and
+ * ranges[] (room for nivars + 1), their number returned. With `sum_loop`, a body that
+ * sums over a whole dim gives its summand, in one loop more. */
+int emit_direct_values(Emit *e, const Stage *st, bool sum_loop, const char **names, const Sym **ranges, int *val,
+                       int *offset);
 /* backends/emit/emit_ddirect.c: the tangent (forward) or cotangent (reverse) code of a
  * directly evaluated stage on its value graph, emitted as its evaluator is; false (nothing
  * emitted) where no rule applies, and the canonical form's derivative is used instead. */
 bool emit_ddirect_tangent(Emit *e, FILE *out, const Stage *st);
 bool emit_ddirect_adjoint(Emit *e, FILE *out, const Stage *st);
-/* The nest of e->cse over the domain of `first` storing st[0..nst) (comment[k] before
- * store k, or NULL) in its innermost loop. */
-void emit_direct_nest(Emit *e, FILE *out, const Sym *first, const char **names, const CseStore *st, int nst,
-                      const char *const *comment);
+/* The nest of e->cse, nl loops over ranges[] (variables names[]), storing st[0..nst)
+ * (comment[k] before store k, or NULL) in its innermost loop. */
+void emit_direct_nest(Emit *e, FILE *out, int nl, const char **names, const Sym *const *ranges, const CseStore *st,
+                      int nst, const char *const *comment);
 /* backends/emit/cse.c: the values of one loop nest of `nloops` loops, each
  * distinct subexpression once, printed in the outermost loop whose
  * variables it reads. Build values bottom-up (ids), mark what the loop body
@@ -243,6 +246,8 @@ void cse_emit_update(Cse *c, FILE *out, const char *lhs, int offset, int v, cons
  * (a libm function other than sqrt and pow, a varying exponent). */
 typedef const char *(*CseArrayFn)(void *arg, const char *array);
 int cse_count(const Cse *c);
+/* Does v read an array (an offset that gathers)? */
+bool cse_gathers(const Cse *c, int v);
 /* The innermost loop of the nest whose variable v reads (0 for none). */
 int cse_level(const Cse *c, int v);
 int cse_tangent(Cse *c, int v, int *memo, CseArrayFn tangent_array, void *arg, bool *ok);

@@ -63,9 +63,10 @@ bool emit_ddirect_tangent(Emit *e, FILE *out, const Stage *st) {
   int nl = s->nivars, nc = st->ncomp;
   Used u = save(e);
   e->deriv = true;
-  const char **names = arena_alloc(e->ctx, sizeof(char *) * (size_t)(nl + 1));
+  const char **names = arena_alloc(e->ctx, sizeof(char *) * (size_t)(nl + 2));
+  const Sym **ranges = arena_alloc(e->ctx, sizeof(Sym *) * (size_t)(nl + 2));
   int *val = arena_alloc(e->ctx, sizeof(int) * (size_t)nc), *off = arena_alloc(e->ctx, sizeof(int) * (size_t)nc);
-  emit_direct_values(e, st, names, val, off);
+  nl = emit_direct_values(e, st, false, names, ranges, val, off);
   Cse *cs = e->cse;
   int n = cse_count(cs);
   int *memo = arena_alloc(e->ctx, sizeof(int) * (size_t)n);
@@ -82,7 +83,7 @@ bool emit_ddirect_tangent(Emit *e, FILE *out, const Stage *st) {
   }
   if (!ok) return give_up(e, &u);
   e->deriv = false;
-  emit_direct_nest(e, out, s, names, stv, nc, NULL);
+  emit_direct_nest(e, out, nl, names, ranges, stv, nc, NULL);
   return true;
 }
 
@@ -92,9 +93,10 @@ bool emit_ddirect_adjoint(Emit *e, FILE *out, const Stage *st) {
   int nl = s->nivars, nc = st->ncomp;
   Used u = save(e);
   e->deriv = true;
-  const char **names = arena_alloc(e->ctx, sizeof(char *) * (size_t)(nl + 1));
+  const char **names = arena_alloc(e->ctx, sizeof(char *) * (size_t)(nl + 2));
+  const Sym **ranges = arena_alloc(e->ctx, sizeof(Sym *) * (size_t)(nl + 2));
   int *val = arena_alloc(e->ctx, sizeof(int) * (size_t)nc), *off = arena_alloc(e->ctx, sizeof(int) * (size_t)nc);
-  emit_direct_values(e, st, names, val, off);
+  nl = emit_direct_values(e, st, true, names, ranges, val, off);
   Cse *cs = e->cse;
   const char *dy = darray(e, emit_name(e, s));
   int *ybar = arena_alloc(e->ctx, sizeof(int) * (size_t)nc);
@@ -115,6 +117,6 @@ bool emit_ddirect_adjoint(Emit *e, FILE *out, const Stage *st) {
     cse_root(cs, upd[k].val);
     cse_root(cs, upd[k].offset);
   }
-  emit_direct_nest(e, out, s, names, upd, nupd, NULL);
+  emit_direct_nest(e, out, nl, names, ranges, upd, nupd, NULL);
   return true;
 }
