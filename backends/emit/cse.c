@@ -238,6 +238,9 @@ int cse_op(Cse *c, ValOp op, int a, int b, int k) {
     const Val *d = &c->v[a];
     a = b = cse_op(c, VAL_SUB, d->b, d->a, -1);
   }
+  /* a ? (a ? x : y) : z is a ? x : z, and a ? x : (a ? y : z) is a ? x : z */
+  if (op == VAL_SELECT && c->v[b].op == VAL_SELECT && c->v[b].a == a) b = c->v[b].b;
+  if (op == VAL_SELECT && c->v[k].op == VAL_SELECT && c->v[k].a == a) k = c->v[k].c;
   /* integer index arithmetic: fold constants and units */
   if (op == VAL_ADD || op == VAL_MUL) {
     bool ints = c->v[a].is_int && c->v[b].is_int;
@@ -762,6 +765,21 @@ void cse_emit_rows(Cse *c, FILE *out, const CseStore *st, int nst, const char *l
   }
 }
 
+void cse_emit_update_if(Cse *c, FILE *out, const char *lhs, int offset, int v, int cond, int depth) {
+  c->stamp++;
+  emit_deps(c, out, cond, depth);
+  emit_deps(c, out, offset, depth);
+  emit_deps(c, out, v, depth);
+  emit_indent(out, depth);
+  fputs("if (", out);
+  print_val(c, out, cond, true);
+  fprintf(out, ") %s[", lhs);
+  print_val(c, out, offset, true);
+  fputs("] += ", out);
+  print_val(c, out, v, true);
+  fputs(";\n", out);
+}
+
 void cse_emit_update(Cse *c, FILE *out, const char *lhs, int offset, int v, const char *rhs, int depth) {
   c->stamp++;
   if (v >= 0) emit_operands(c, out, v, offset, depth);
@@ -876,21 +894,44 @@ int cse_tangent(Cse *c, int v, int *memo, CseArrayFn fn, void *arg, bool *ok) {
   return memo[v] = t;
 }
 
-static void adj_add(Cse *c, int *adj, int v, int g) {
+/* g added into v's cotangent; `when` (>= 0) the condition under which the value sending
+ * it is evaluated, so the contribution is computed only there (?: evaluates one branch): a
+ * partial derivative of a branch not taken may read out of range or be infinite. */
+static void adj_add(Cse *c, int *adj, int v, int g, int when) {
   if (g < 0 || c->v[v].is_int) return;
+  if (when >= 0) g = cse_op(c, VAL_SELECT, when, g, cse_num(c, 0.0, false));
   adj[v] = d_add(c, adj[v], g);
 }
 
-/* Whether the values reached hold a choice and a division or a root: a cotangent masked by
- * the choice times an infinite partial derivative of the branch not taken is NaN. */
-static bool masked_infinity(const Cse *c, int n) {
-  bool choice = false, pole = false;
-  for (int i = 0; i < n; i++) {
-    if (!c->v[i].reached) continue;
-    choice |= c->v[i].op == VAL_SELECT && !c->v[i].is_int;
-    pole |= c->v[i].op == VAL_DIV || c->v[i].op == VAL_CALL;
+/* guard[o] widened by `g` (-1: always, -2: not yet known). */
+static void guard_or(Cse *c, int *guard, int o, int g) {
+  if (o < 0) return;
+  if (guard[o] == -2 || guard[o] == g) guard[o] = g;
+  else if (guard[o] == -1 || g == -1) guard[o] = -1;
+  else guard[o] = cse_op(c, VAL_OR, guard[o], g, -1);
+}
+
+/* The condition under which each value of the nest is evaluated (-1: always), from the
+ * choices above it, users first. */
+static int *guards(Cse *c, const int *adj, int n) {
+  int *guard = arena_alloc(c->ctx, sizeof(int) * (size_t)n);
+  for (int i = 0; i < n; i++) guard[i] = adj[i] >= 0 ? -1 : -2;
+  for (int v = n - 1; v >= 0; v--) {
+    const Val x = c->v[v];
+    if (!x.reached || guard[v] == -2) continue;
+    int g = guard[v];
+    if (x.op != VAL_SELECT) {
+      guard_or(c, guard, x.a, g);
+      guard_or(c, guard, x.b, g);
+      guard_or(c, guard, x.c, g);
+      continue;
+    }
+    int yes = x.a, no = cse_op(c, VAL_NOT, x.a, -1, -1);
+    guard_or(c, guard, x.a, g);
+    guard_or(c, guard, x.b, g < 0 ? yes : cse_op(c, VAL_AND, g, yes, -1));
+    guard_or(c, guard, x.c, g < 0 ? no : cse_op(c, VAL_AND, g, no, -1));
   }
-  return choice && pole;
+  return guard;
 }
 
 void cse_adjoint(Cse *c, int *adj, CseArrayFn fn, void *arg, CseStore *upd, int *nupd, bool *ok) {
@@ -898,11 +939,11 @@ void cse_adjoint(Cse *c, int *adj, CseArrayFn fn, void *arg, CseStore *upd, int 
   for (int i = 0; i < n; i++) c->v[i].reached = false;
   for (int i = 0; i < n; i++)
     if (adj[i] >= 0) reach(c, i);
-  if (masked_infinity(c, n)) *ok = false;
+  int *guard = guards(c, adj, n);
   *nupd = 0;
   for (int v = n - 1; v >= 0 && *ok; v--) {
     const Val x = c->v[v];
-    int g = adj[v];
+    int g = adj[v], w = guard[v];
     if (g < 0 || x.is_int) continue;
     switch (x.op) {
     case VAL_NUM:
@@ -911,39 +952,39 @@ void cse_adjoint(Cse *c, int *adj, CseArrayFn fn, void *arg, CseStore *upd, int 
     case VAL_LOAD: {
       const char *t = fn(arg, x.text);
       if (!t) break;
-      if (x.unsafe || x.pin) *ok = false;
-      upd[(*nupd)++] = (CseStore){t, x.a, g, CSE_ADD};
+      if (x.pin || (x.unsafe && w < 0)) *ok = false;
+      upd[(*nupd)++] = (CseStore){t, x.a, g, x.unsafe ? CSE_ADD_IF : CSE_ADD, w};
       break;
     }
-    case VAL_NEG: adj_add(c, adj, x.a, cse_op(c, VAL_NEG, g, -1, -1)); break;
+    case VAL_NEG: adj_add(c, adj, x.a, cse_op(c, VAL_NEG, g, -1, -1), w); break;
     case VAL_ADD:
-      adj_add(c, adj, x.a, g);
-      adj_add(c, adj, x.b, g);
+      adj_add(c, adj, x.a, g, w);
+      adj_add(c, adj, x.b, g, w);
       break;
     case VAL_SUB:
       if (x.a == x.b) break;
-      adj_add(c, adj, x.a, g);
-      adj_add(c, adj, x.b, cse_op(c, VAL_NEG, g, -1, -1));
+      adj_add(c, adj, x.a, g, w);
+      adj_add(c, adj, x.b, cse_op(c, VAL_NEG, g, -1, -1), w);
       break;
     case VAL_MUL:
-      adj_add(c, adj, x.a, cse_op(c, VAL_MUL, g, x.b, -1));
-      adj_add(c, adj, x.b, cse_op(c, VAL_MUL, g, x.a, -1));
+      adj_add(c, adj, x.a, cse_op(c, VAL_MUL, g, x.b, -1), w);
+      adj_add(c, adj, x.b, cse_op(c, VAL_MUL, g, x.a, -1), w);
       break;
     case VAL_DIV: { /* a / b: g / b into a, -(g / b) q into b */
       int gb = cse_op(c, VAL_DIV, g, x.b, -1);
-      adj_add(c, adj, x.a, gb);
-      adj_add(c, adj, x.b, cse_op(c, VAL_NEG, cse_op(c, VAL_MUL, gb, v, -1), -1, -1));
+      adj_add(c, adj, x.a, gb, w);
+      adj_add(c, adj, x.b, cse_op(c, VAL_NEG, cse_op(c, VAL_MUL, gb, v, -1), -1, -1), w);
       break;
     }
-    case VAL_SELECT: {
+    case VAL_SELECT: { /* into the branch taken (each branch masks what it sends on by its guard) */
       int zero = cse_num(c, 0.0, false);
-      adj_add(c, adj, x.b, cse_op(c, VAL_SELECT, x.a, g, zero));
-      adj_add(c, adj, x.c, cse_op(c, VAL_SELECT, x.a, zero, g));
+      adj_add(c, adj, x.b, cse_op(c, VAL_SELECT, x.a, g, zero), w);
+      adj_add(c, adj, x.c, cse_op(c, VAL_SELECT, x.a, zero, g), w);
       break;
     }
     case VAL_CALL: {
       int dd = d_call(c, v, ok);
-      if (dd >= 0) adj_add(c, adj, x.a, cse_op(c, VAL_MUL, g, dd, -1));
+      if (dd >= 0) adj_add(c, adj, x.a, cse_op(c, VAL_MUL, g, dd, -1), w);
       break;
     }
     default: *ok = false; break; /* a summation inside the nest */
@@ -958,4 +999,12 @@ bool cse_gathers(const Cse *c, int v) {
   if (v < 0) return false;
   const Val *x = &c->v[v];
   return x->op == VAL_LOAD || cse_gathers(c, x->a) || cse_gathers(c, x->b) || cse_gathers(c, x->c);
+}
+
+bool cse_mentions(const Cse *c, const char *text) {
+  for (int i = 0; i < c->n; i++)
+    if (c->v[i].reached && c->v[i].text && (c->v[i].op == VAL_LOAD || c->v[i].op == VAL_LEAF) &&
+        strcmp(c->v[i].text, text) == 0)
+      return true;
+  return false;
 }

@@ -230,15 +230,19 @@ typedef enum CseStoreKind {
   CSE_SET,    /* array[offset] = val */
   CSE_ADD,    /* array[offset] += val */
   CSE_REDUCE, /* array[offset] += the sum of val over the innermost loop (offset outside it) */
+  CSE_ADD_IF, /* if (cond) array[offset] += val (an offset in range only where cond holds) */
 } CseStoreKind;
 typedef struct CseStore {
   const char *array;
   int offset, val;
   CseStoreKind kind;
+  int cond;   /* CSE_ADD_IF */
 } CseStore;
 /* `lhs[offset] += v;` (lhs alone when offset < 0; the C text `rhs` when v < 0) with the
  * locals it reads before it. */
 void cse_emit_update(Cse *c, FILE *out, const char *lhs, int offset, int v, const char *rhs, int depth);
+/* `if (cond) lhs[offset] += v;`, nothing it reads out of range evaluated before the test. */
+void cse_emit_update_if(Cse *c, FILE *out, const char *lhs, int offset, int v, int cond, int depth);
 /* Derivatives on the graph (emit_ddirect.c). The tangent of value v: a new value, or -1
  * for zero; `memo` (cse_count entries when the first tangent is asked, filled with -2) keeps
  * what is known. `tangent_array` names the tangent (or cotangent) array of an array, or
@@ -246,6 +250,8 @@ void cse_emit_update(Cse *c, FILE *out, const char *lhs, int offset, int v, cons
  * (a libm function other than sqrt and pow, a varying exponent). */
 typedef const char *(*CseArrayFn)(void *arg, const char *array);
 int cse_count(const Cse *c);
+/* After planning: does what the nest stores read the variable or array `text`? */
+bool cse_mentions(const Cse *c, const char *text);
 /* Does v read an array (an offset that gathers)? */
 bool cse_gathers(const Cse *c, int v);
 /* The innermost loop of the nest whose variable v reads (0 for none). */
@@ -254,9 +260,10 @@ int cse_tangent(Cse *c, int v, int *memo, CseArrayFn tangent_array, void *arg, b
 /* Reverse mode: with adj[v] (cse_count entries, -1 for none) the cotangents of the roots,
  * every value's cotangent sent into its operands', from the last value down; each read of
  * an array with a cotangent array becomes an update of it in upd[] (*nupd of them, at
- * most cse_count). *ok is cleared where no rule applies (a libm function other than sqrt
- * and pow, a summation, a read that may fall outside its array, a choice around a division
- * or a root). */
+ * most cse_count; a read that may fall outside its array updated only under the choices
+ * that guard it, CSE_ADD_IF). A contribution is computed only where the value sending it
+ * is evaluated. *ok is cleared where no rule applies (a libm function other than sqrt and
+ * pow, a summation, a guarded read no choice guards). */
 void cse_adjoint(Cse *c, int *adj, CseArrayFn cotangent_array, void *arg, CseStore *upd, int *nupd, bool *ok);
 /* After planning, for libtcc: can the innermost loop, storing st[0..nst),
  * be computed a row at a time by the row kernels of NpgRt (unit-stride

@@ -8,10 +8,11 @@
  * as its value is. Reverse: the stage's cotangent enters at its components and is sent
  * from each value into its operands', last value first; every read of a quantity becomes
  * `dQ[offset] += cotangent` (summed over the innermost loop first when the offset does
- * not move in it). A stage whose graph holds what the rules do not cover (a summation
- * inside the reverse nest, a guarded read, a choice around a division or a root, a libm
- * function other than sqrt and pow) is left to the canonical form's derivative
- * (emit_deriv.c). */
+ * not move in it; under the choices that guard the read when it may fall outside its
+ * array), and what a branch sends on is computed only where the branch is taken. A body
+ * that sums over a whole dim is its summand in one loop more. A stage whose graph holds
+ * what the rules do not cover (a summation inside the reverse nest, a libm function other
+ * than sqrt and pow) is left to the canonical form's derivative (emit_deriv.c). */
 #include <string.h>
 
 #include "emit.h"
@@ -42,6 +43,26 @@ static Used save(Emit *e) {
   const Program *p = e->prog;
   return (Used){copy(e->ctx, e->used_dim, p->dims.n), copy(e->ctx, e->used_param, p->params.n),
                 copy(e->ctx, e->used_q, p->slots.n), copy(e->ctx, e->used_deriv, p->slots.n)};
+}
+
+/* `(void)name;` for what building the values declared but the derivative does not read (a
+ * value whose tangent is zero, a factor of a linear stage). */
+static void unread(Emit *e, FILE *out, const Cse *cs, int nl, const Sym *const *ranges, const CseStore *st, int nst) {
+  const Program *p = e->prog;
+  bool *looped = arena_alloc(e->ctx, sizeof(bool) * (size_t)(p->dims.n + 1)), *stored = arena_alloc(e->ctx, sizeof(bool) * (size_t)(p->slots.n + 1));
+  for (int i = 0; i < nl; i++) looped[emit_index_of(&p->dims, ranges[i])] = true;
+  for (int k = 0; k < p->slots.n; k++)
+    for (int j = 0; j < nst; j++) stored[k] |= strcmp(st[j].array, arena_printf(e->ctx, "d%s", emit_name(e, p->slots.v[k]))) == 0;
+  for (int k = 0; k < p->dims.n; k++)
+    if (e->used_dim[k] && !looped[k] && !cse_mentions(cs, emit_name(e, p->dims.v[k]))) fprintf(out, "  (void)%s;\n", emit_name(e, p->dims.v[k]));
+  for (int k = 0; k < p->params.n; k++)
+    if (e->used_param[k] && !cse_mentions(cs, emit_name(e, p->params.v[k])))
+      fprintf(out, "  (void)%s;\n", emit_name(e, p->params.v[k]));
+  for (int k = 0; k < p->slots.n; k++) {
+    const char *q = emit_name(e, p->slots.v[k]);
+    if (e->used_q[k] && !cse_mentions(cs, q)) fprintf(out, "  (void)%s;\n", q);
+    if (e->used_deriv[k] && !stored[k] && !cse_mentions(cs, arena_printf(e->ctx, "d%s", q))) fprintf(out, "  (void)d%s;\n", q);
+  }
 }
 
 /* Falling back: the uses put back, the nest dropped. */
@@ -79,11 +100,12 @@ bool emit_ddirect_tangent(Emit *e, FILE *out, const Stage *st) {
     if (t < 0) t = cse_num(cs, 0.0, false);
     cse_root(cs, t);
     cse_root(cs, off[c]);
-    stv[c] = (CseStore){dy, off[c], t, CSE_SET};
+    stv[c] = (CseStore){dy, off[c], t, CSE_SET, -1};
   }
   if (!ok) return give_up(e, &u);
   e->deriv = false;
   emit_direct_nest(e, out, nl, names, ranges, stv, nc, NULL);
+  unread(e, out, cs, nl, ranges, stv, nc);
   return true;
 }
 
@@ -113,10 +135,12 @@ bool emit_ddirect_adjoint(Emit *e, FILE *out, const Stage *st) {
   if (!ok) return give_up(e, &u);
   e->deriv = false;
   for (int k = 0; k < nupd; k++) {
-    if (nl && cse_level(cs, upd[k].offset) < nl) upd[k].kind = CSE_REDUCE;
+    if (nl && upd[k].kind == CSE_ADD && cse_level(cs, upd[k].offset) < nl) upd[k].kind = CSE_REDUCE;
     cse_root(cs, upd[k].val);
     cse_root(cs, upd[k].offset);
+    if (upd[k].kind == CSE_ADD_IF) cse_root(cs, upd[k].cond);
   }
   emit_direct_nest(e, out, nl, names, ranges, upd, nupd, NULL);
+  unread(e, out, cs, nl, ranges, upd, nupd);
   return true;
 }

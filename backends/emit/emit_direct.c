@@ -467,7 +467,7 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
     for (int c = 0; c < members[m]->ncomp; c++) {
       emit_use(e, members[m]->sym);
       comment[nst] = n > 1 && c == 0 ? members[m]->sym->name : NULL;
-      st[nst++] = (CseStore){emit_name(e, members[m]->sym), offset[m][c], e->fused_val[m][c], CSE_SET};
+      st[nst++] = (CseStore){emit_name(e, members[m]->sym), offset[m][c], e->fused_val[m][c], CSE_SET, -1};
     }
   emit_direct_nest(e, out, nl, names, ranges, st, nst, comment);
 }
@@ -527,7 +527,7 @@ void emit_direct_nest(Emit *e, FILE *out, int nl, const char **names, const Sym 
   for (int k = 0; k < nst; k++) {
     plain &= st[k].kind == CSE_SET;
     /* two entries adding into one gathered entry: the iterations depend on each other */
-    independent &= st[k].kind != CSE_ADD || !cse_gathers(cs, st[k].offset);
+    independent &= (st[k].kind != CSE_ADD && st[k].kind != CSE_ADD_IF) || !cse_gathers(cs, st[k].offset);
   }
   int nrows = nl >= 2 && plain ? cse_rows_plan(cs, st, nst) : -1;
   const char *len = nl ? emit_name(e, ranges[nl - 1]) : NULL;
@@ -585,6 +585,7 @@ void emit_direct_nest(Emit *e, FILE *out, int nl, const char **names, const Sym 
       fprintf(out, "/* %s */\n", comment[k]);
     }
     if (st[k].kind == CSE_REDUCE) cse_emit_update(cs, out, arena_printf(e->ctx, "r%d_", k), -1, st[k].val, NULL, depth);
+    else if (st[k].kind == CSE_ADD_IF) cse_emit_update_if(cs, out, st[k].array, st[k].offset, st[k].val, st[k].cond, depth);
     else if (st[k].kind == CSE_ADD) cse_emit_update(cs, out, st[k].array, st[k].offset, st[k].val, NULL, depth);
     else cse_emit_store(cs, out, st[k].array, st[k].offset, st[k].val, depth);
   }
