@@ -50,7 +50,10 @@ static Used save(Emit *e) {
 static void unread(Emit *e, FILE *out, const Cse *cs, int nl, const Sym *const *ranges, const CseStore *st, int nst) {
   const Program *p = e->prog;
   bool *looped = arena_alloc(e->ctx, sizeof(bool) * (size_t)(p->dims.n + 1)), *stored = arena_alloc(e->ctx, sizeof(bool) * (size_t)(p->slots.n + 1));
-  for (int i = 0; i < nl; i++) looped[vec_position(&p->dims, ranges[i])] = true;
+  for (int i = 0; i < nl; i++) {
+    int k = vec_position(&p->dims, ranges[i]);
+    if (k >= 0) looped[k] = true;
+  }
   for (int k = 0; k < p->slots.n; k++)
     for (int j = 0; j < nst; j++) stored[k] |= strcmp(st[j].array, arena_printf(e->ctx, "d%s", emit_name(e, p->slots.v[k]))) == 0;
   for (int k = 0; k < p->dims.n; k++)
