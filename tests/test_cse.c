@@ -261,7 +261,7 @@ static void write_cse(FILE *out, Ctx *ctx, const char *name, const Expr *e1, con
   cse_root(s.c, v2);
   cse_root(s.c, off);
   cse_plan(s.c);
-  CseStore st[2] = {{"O1", off, v1}, {"O2", off, v2}};
+  CseStore st[2] = {{"O1", off, v1, CSE_SET, -1}, {"O2", off, v2, CSE_SET, -1}};
   int nr = rows ? cse_rows_plan(s.c, st, 2) : -1;
   if (nrows) *nrows = nr;
   fprintf(out, "int %s%s {\n  (void)c;\n  (void)rows_;\n", name, signature);

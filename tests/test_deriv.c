@@ -462,9 +462,54 @@ static void allocation_failure(void **state) {
   }
 }
 
+/* Stages whose derivatives are built on the evaluator's value graph (emit_ddirect.c), one
+ * rule each: a gather guarded by a choice (its cotangent added only where the guard holds),
+ * a division infinite in the branch not taken (nothing sent from it there), a rational
+ * power, a square root, a sum of vectors over a whole dim (reversed as a loop more), entries
+ * gathered by several rows (their cotangents added up). Each is checked as the corpus is,
+ * and its derivative code must come from the graph (no canonical term, no entry-by-entry
+ * cotangent). */
+static const char *const graph_programs[][2] = {
+    {"graph_guarded_gather.npg",
+     "dim N, E\nparam ends : int[E, 2]\nparam k : real[E]\ninput s : real[N]\n"
+     "output g[j:E] = if(ends[j, 1] >= 1, k[j] * (s[ends[j, 0]] - s[ends[j, 1]])^2, (s[ends[j, 0]]^2 + 1)^(2/3))\n"},
+    {"graph_division_branch.npg",
+     "use geometry\ndim N\ninput x : real[N, 3]\ninput s : real[N]\n"
+     "f[i:N, j:N] = if(i == j, 1, s[j] / dist2(x[i], x[j]))\n"
+     "r[i:N, j:N] = sqrt(f[i, j] * f[i, j] + 1)\n"
+     "output a[i:N] = sum(j = 0..N-1, (x[j] - x[i]) * r[i, j] * s[j])\n"},
+    {"graph_shared_entries.npg",
+     "dim N, C\nparam tri : int[C, 3]\ninput g : real[N, 2]\n"
+     "output area[c:C] = (g[tri[c, 1], 0] - g[tri[c, 0], 0]) * (g[tri[c, 2], 1] - g[tri[c, 0], 1]) / "
+     "(1 + g[tri[c, 2], 0] * g[tri[c, 2], 0])\n"},
+};
+
+static void graph_derivatives(void **state) {
+  (void)state;
+  Tally t = {0};
+  int failures = 0;
+  for (size_t k = 0; k < sizeof graph_programs / sizeof graph_programs[0]; k++) {
+    NpgProgram *p = compile_text(graph_programs[k][0], graph_programs[k][1]);
+    ir_ok(p);
+    Program *prog = program_ir(p);
+    char *text = NULL;
+    size_t len = 0;
+    FILE *out = open_memstream(&text, &len);
+    emit_deriv(prog->ctx, prog, out);
+    fclose(out);
+    if (strstr(text, "/* term ") || strstr(text, "yb0_")) fail_msg("%s: a derivative from the canonical form", graph_programs[k][0]);
+    free(text);
+    failures += check_program(p, graph_programs[k][0], &t);
+    npg_free(p);
+  }
+  assert_int_equal(failures, 0);
+  assert_true(t.quadratic_order >= 4);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(corpus_derivatives),
+      cmocka_unit_test(graph_derivatives),
       cmocka_unit_test(sparse_operators),
       cmocka_unit_test(allocation_failure),
       cmocka_unit_test(detects_a_wrong_derivative),

@@ -238,6 +238,9 @@ int cse_op(Cse *c, ValOp op, int a, int b, int k) {
     const Val *d = &c->v[a];
     a = b = cse_op(c, VAL_SUB, d->b, d->a, -1);
   }
+  /* a ? (a ? x : y) : z is a ? x : z, and a ? x : (a ? y : z) is a ? x : z */
+  if (op == VAL_SELECT && c->v[b].op == VAL_SELECT && c->v[b].a == a) b = c->v[b].b;
+  if (op == VAL_SELECT && c->v[k].op == VAL_SELECT && c->v[k].a == a) k = c->v[k].c;
   /* integer index arithmetic: fold constants and units */
   if (op == VAL_ADD || op == VAL_MUL) {
     bool ints = c->v[a].is_int && c->v[b].is_int;
@@ -760,4 +763,248 @@ void cse_emit_rows(Cse *c, FILE *out, const CseStore *st, int nst, const char *l
     print_row_arg(c, out, st[k].val);
     fprintf(out, ", w%d_);\n", k);
   }
+}
+
+void cse_emit_update_if(Cse *c, FILE *out, const char *lhs, int offset, int v, int cond, int depth) {
+  c->stamp++;
+  emit_deps(c, out, cond, depth);
+  emit_deps(c, out, offset, depth);
+  emit_deps(c, out, v, depth);
+  emit_indent(out, depth);
+  fputs("if (", out);
+  print_val(c, out, cond, true);
+  fprintf(out, ") %s[", lhs);
+  print_val(c, out, offset, true);
+  fputs("] += ", out);
+  print_val(c, out, v, true);
+  fputs(";\n", out);
+}
+
+void cse_emit_update(Cse *c, FILE *out, const char *lhs, int offset, int v, const char *rhs, int depth) {
+  c->stamp++;
+  if (v >= 0) emit_operands(c, out, v, offset, depth);
+  else emit_deps(c, out, offset, depth);
+  emit_indent(out, depth);
+  fputs(lhs, out);
+  if (offset >= 0) {
+    fputc('[', out);
+    print_val(c, out, offset, true);
+    fputc(']', out);
+  }
+  fputs(" += ", out);
+  if (v >= 0) print_val(c, out, v, true);
+  else fputs(rhs, out);
+  fputs(";\n", out);
+}
+
+/* ---------------------------------------------------------------- derivatives
+ *
+ * Forward and reverse mode on the values of the nest (emit_ddirect.c): each rule is the
+ * derivative of one IEEE operation, built as values of the same graph, so derivatives
+ * share and hoist as the values do. -1 stands for a zero derivative. */
+
+int cse_count(const Cse *c) { return c->n; }
+
+static int d_add(Cse *c, int x, int y) { return x < 0 ? y : y < 0 ? x : cse_op(c, VAL_ADD, x, y, -1); }
+
+static int d_sub(Cse *c, int x, int y) {
+  if (y < 0) return x;
+  return x < 0 ? cse_op(c, VAL_NEG, y, -1, -1) : cse_op(c, VAL_SUB, x, y, -1);
+}
+
+static int d_mul(Cse *c, int s, int x) { return x < 0 ? -1 : cse_op(c, VAL_MUL, s, x, -1); }
+
+static int d_zero(Cse *c, int x) { return x < 0 ? cse_num(c, 0.0, false) : x; }
+
+/* The derivative of libm function `x` at its operand: sqrt'(a) = 0.5 / sqrt(a),
+ * pow'(a, b) = b pow(a, b - 1) for a constant b; -1 (and *ok cleared) otherwise. */
+static int d_call(Cse *c, int v, bool *ok) {
+  const Val x = c->v[v];
+  if (strcmp(x.text, "sqrt") == 0) return cse_op(c, VAL_DIV, cse_num(c, 0.5, false), v, -1);
+  if (strcmp(x.text, "pow") == 0 && c->v[x.b].op == VAL_NUM) {
+    double b = c->v[x.b].num;
+    return cse_op(c, VAL_MUL, cse_num(c, b, false), cse_call(c, "pow", x.a, cse_num(c, b - 1.0, false)), -1);
+  }
+  *ok = false;
+  return -1;
+}
+
+/* A read of the same offset from another array (a tangent's), as safe as the read it mirrors. */
+static int mirror_load(Cse *c, int v, const char *array) {
+  Val x = c->v[v];
+  Val y = blank(VAL_LOAD);
+  y.text = array;
+  y.a = x.a;
+  y.unsafe = x.unsafe;
+  y.level = x.level;
+  y.pin = x.pin;
+  return intern(c, y);
+}
+
+static int tangent_rule(Cse *c, int v, int *memo, CseArrayFn fn, void *arg, bool *ok) {
+  const Val x = c->v[v];
+  if (x.is_int) return -1;
+  switch (x.op) {
+  case VAL_NUM:
+  case VAL_LEAF: return -1;
+  case VAL_LOAD: {
+    const char *t = fn(arg, x.text);
+    return t ? mirror_load(c, v, t) : -1;
+  }
+  case VAL_NEG: {
+    int da = cse_tangent(c, x.a, memo, fn, arg, ok);
+    return da < 0 ? -1 : cse_op(c, VAL_NEG, da, -1, -1);
+  }
+  case VAL_ADD: return d_add(c, cse_tangent(c, x.a, memo, fn, arg, ok), cse_tangent(c, x.b, memo, fn, arg, ok));
+  case VAL_SUB:
+    if (x.a == x.b) return -1; /* v - v: a finite value's 0 (emit_direct.c's cured denominators) */
+    return d_sub(c, cse_tangent(c, x.a, memo, fn, arg, ok), cse_tangent(c, x.b, memo, fn, arg, ok));
+  case VAL_MUL: {
+    int da = cse_tangent(c, x.a, memo, fn, arg, ok), db = cse_tangent(c, x.b, memo, fn, arg, ok);
+    return d_add(c, d_mul(c, x.b, da), d_mul(c, x.a, db));
+  }
+  case VAL_DIV: { /* (da - q db) / b */
+    int da = cse_tangent(c, x.a, memo, fn, arg, ok), db = cse_tangent(c, x.b, memo, fn, arg, ok);
+    int num = d_sub(c, da, d_mul(c, v, db));
+    return num < 0 ? -1 : cse_op(c, VAL_DIV, num, x.b, -1);
+  }
+  case VAL_SELECT: {
+    int db = cse_tangent(c, x.b, memo, fn, arg, ok), dc = cse_tangent(c, x.c, memo, fn, arg, ok);
+    if (db < 0 && dc < 0) return -1;
+    return cse_op(c, VAL_SELECT, x.a, d_zero(c, db), d_zero(c, dc));
+  }
+  case VAL_CALL: {
+    if (x.b >= 0 && cse_tangent(c, x.b, memo, fn, arg, ok) >= 0) *ok = false; /* a varying exponent */
+    int da = cse_tangent(c, x.a, memo, fn, arg, ok);
+    return da < 0 ? -1 : d_mul(c, d_call(c, v, ok), da);
+  }
+  case VAL_SUM: {
+    int db = cse_tangent(c, x.c, memo, fn, arg, ok);
+    return db < 0 ? -1 : cse_sum(c, cse_sumvar(c, x.text), x.a, x.b, db);
+  }
+  default: return -1;
+  }
+}
+
+int cse_tangent(Cse *c, int v, int *memo, CseArrayFn fn, void *arg, bool *ok) {
+  if (memo[v] != -2) return memo[v];
+  int t = tangent_rule(c, v, memo, fn, arg, ok);
+  /* built where v was: under v's guards when v may read out of range */
+  if (t >= 0 && c->v[v].unsafe) c->v[t].unsafe = true;
+  return memo[v] = t;
+}
+
+/* g added into v's cotangent; `when` (>= 0) the condition under which the value sending
+ * it is evaluated, so the contribution is computed only there (?: evaluates one branch): a
+ * partial derivative of a branch not taken may read out of range or be infinite. */
+static void adj_add(Cse *c, int *adj, int v, int g, int when) {
+  if (g < 0 || c->v[v].is_int) return;
+  if (when >= 0) g = cse_op(c, VAL_SELECT, when, g, cse_num(c, 0.0, false));
+  adj[v] = d_add(c, adj[v], g);
+}
+
+/* guard[o] widened by `g` (-1: always, -2: not yet known). */
+static void guard_or(Cse *c, int *guard, int o, int g) {
+  if (o < 0) return;
+  if (guard[o] == -2 || guard[o] == g) guard[o] = g;
+  else if (guard[o] == -1 || g == -1) guard[o] = -1;
+  else guard[o] = cse_op(c, VAL_OR, guard[o], g, -1);
+}
+
+/* The condition under which each value of the nest is evaluated (-1: always), from the
+ * choices above it, users first. */
+static int *guards(Cse *c, const int *adj, int n) {
+  int *guard = arena_alloc(c->ctx, sizeof(int) * (size_t)n);
+  for (int i = 0; i < n; i++) guard[i] = adj[i] >= 0 ? -1 : -2;
+  for (int v = n - 1; v >= 0; v--) {
+    const Val x = c->v[v];
+    if (!x.reached || guard[v] == -2) continue;
+    int g = guard[v];
+    if (x.op != VAL_SELECT) {
+      guard_or(c, guard, x.a, g);
+      guard_or(c, guard, x.b, g);
+      guard_or(c, guard, x.c, g);
+      continue;
+    }
+    int yes = x.a, no = cse_op(c, VAL_NOT, x.a, -1, -1);
+    guard_or(c, guard, x.a, g);
+    guard_or(c, guard, x.b, g < 0 ? yes : cse_op(c, VAL_AND, g, yes, -1));
+    guard_or(c, guard, x.c, g < 0 ? no : cse_op(c, VAL_AND, g, no, -1));
+  }
+  return guard;
+}
+
+void cse_adjoint(Cse *c, int *adj, CseArrayFn fn, void *arg, CseStore *upd, int *nupd, bool *ok) {
+  int n = c->n;
+  for (int i = 0; i < n; i++) c->v[i].reached = false;
+  for (int i = 0; i < n; i++)
+    if (adj[i] >= 0) reach(c, i);
+  int *guard = guards(c, adj, n);
+  *nupd = 0;
+  for (int v = n - 1; v >= 0 && *ok; v--) {
+    const Val x = c->v[v];
+    int g = adj[v], w = guard[v];
+    if (g < 0 || x.is_int) continue;
+    switch (x.op) {
+    case VAL_NUM:
+    case VAL_LEAF:
+    case VAL_DOUBLE: break;
+    case VAL_LOAD: {
+      const char *t = fn(arg, x.text);
+      if (!t) break;
+      if (x.pin || (x.unsafe && w < 0)) *ok = false;
+      upd[(*nupd)++] = (CseStore){t, x.a, g, x.unsafe ? CSE_ADD_IF : CSE_ADD, w};
+      break;
+    }
+    case VAL_NEG: adj_add(c, adj, x.a, cse_op(c, VAL_NEG, g, -1, -1), w); break;
+    case VAL_ADD:
+      adj_add(c, adj, x.a, g, w);
+      adj_add(c, adj, x.b, g, w);
+      break;
+    case VAL_SUB:
+      if (x.a == x.b) break;
+      adj_add(c, adj, x.a, g, w);
+      adj_add(c, adj, x.b, cse_op(c, VAL_NEG, g, -1, -1), w);
+      break;
+    case VAL_MUL:
+      adj_add(c, adj, x.a, cse_op(c, VAL_MUL, g, x.b, -1), w);
+      adj_add(c, adj, x.b, cse_op(c, VAL_MUL, g, x.a, -1), w);
+      break;
+    case VAL_DIV: { /* a / b: g / b into a, -(g / b) q into b */
+      int gb = cse_op(c, VAL_DIV, g, x.b, -1);
+      adj_add(c, adj, x.a, gb, w);
+      adj_add(c, adj, x.b, cse_op(c, VAL_NEG, cse_op(c, VAL_MUL, gb, v, -1), -1, -1), w);
+      break;
+    }
+    case VAL_SELECT: { /* into the branch taken (each branch masks what it sends on by its guard) */
+      int zero = cse_num(c, 0.0, false);
+      adj_add(c, adj, x.b, cse_op(c, VAL_SELECT, x.a, g, zero), w);
+      adj_add(c, adj, x.c, cse_op(c, VAL_SELECT, x.a, zero, g), w);
+      break;
+    }
+    case VAL_CALL: {
+      int dd = d_call(c, v, ok);
+      if (dd >= 0) adj_add(c, adj, x.a, cse_op(c, VAL_MUL, g, dd, -1), w);
+      break;
+    }
+    default: *ok = false; break; /* a summation inside the nest */
+    }
+  }
+  for (int i = 0; i < n; i++) c->v[i].reached = false;
+}
+
+int cse_level(const Cse *c, int v) { return c->v[v].level; }
+
+bool cse_gathers(const Cse *c, int v) {
+  if (v < 0) return false;
+  const Val *x = &c->v[v];
+  return x->op == VAL_LOAD || cse_gathers(c, x->a) || cse_gathers(c, x->b) || cse_gathers(c, x->c);
+}
+
+bool cse_mentions(const Cse *c, const char *text) {
+  for (int i = 0; i < c->n; i++)
+    if (c->v[i].reached && c->v[i].text && (c->v[i].op == VAL_LOAD || c->v[i].op == VAL_LEAF) &&
+        strcmp(c->v[i].text, text) == 0)
+      return true;
+  return false;
 }

@@ -34,6 +34,8 @@ typedef struct Emit {
                             its tangent or cotangent (emit_deriv.c), NULL elsewhere */
   bool box;              /* emitting the box twin of a loop nest: its loops run over
                             the boxes box_[0..nbox_) (emit_full.c) */
+  bool deriv;            /* building values for derivative code: inlined definitions
+                            substituted, quantities read in place (emit_ddirect.c) */
   bool scalar;           /* the function being emitted gathers in its innermost loop: not
                             vectorized (NPG_SCALAR, emit_function_sig) */
 } Emit;
@@ -145,6 +147,22 @@ bool emit_direct_ok(const Stage *st);
 bool emit_fusable(const Stage *const *members, int n, const Stage *cand);
 /* The fused loop of members[0..n): every member at every entry. */
 void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n);
+typedef struct CseStore CseStore;
+/* Stage st's component values at the current entry of a new nest over its domain (e->cse),
+ * for its derivatives: val[c], offset[c]; the loops' variables and dims in names[] and
+ * ranges[] (room for nivars + 1), their number returned. With `sum_loop`, a body that
+ * sums over a whole dim gives its summand, in one loop more. */
+int emit_direct_values(Emit *e, const Stage *st, bool sum_loop, const char **names, const Sym **ranges, int *val,
+                       int *offset);
+/* backends/emit/emit_ddirect.c: the tangent (forward) or cotangent (reverse) code of a
+ * directly evaluated stage on its value graph, emitted as its evaluator is; false (nothing
+ * emitted) where no rule applies, and the canonical form's derivative is used instead. */
+bool emit_ddirect_tangent(Emit *e, FILE *out, const Stage *st);
+bool emit_ddirect_adjoint(Emit *e, FILE *out, const Stage *st);
+/* The nest of e->cse, nl loops over ranges[] (variables names[]), storing st[0..nst)
+ * (comment[k] before store k, or NULL) in its innermost loop. */
+void emit_direct_nest(Emit *e, FILE *out, int nl, const char **names, const Sym *const *ranges, const CseStore *st,
+                      int nst, const char *const *comment);
 /* backends/emit/cse.c: the values of one loop nest of `nloops` loops, each
  * distinct subexpression once, printed in the outermost loop whose
  * variables it reads. Build values bottom-up (ids), mark what the loop body
@@ -208,10 +226,45 @@ void cse_emit_level(Cse *c, FILE *out, int level, int depth);
  * when v is read again later it becomes a local in the same statement. */
 void cse_emit_store(Cse *c, FILE *out, const char *array, int offset, int v, int depth);
 /* A store of the innermost loop: array[offset] = val. */
+typedef enum CseStoreKind {
+  CSE_SET,    /* array[offset] = val */
+  CSE_ADD,    /* array[offset] += val */
+  CSE_REDUCE, /* array[offset] += the sum of val over the innermost loop (offset outside it) */
+  CSE_ADD_IF, /* if (cond) array[offset] += val (an offset in range only where cond holds) */
+} CseStoreKind;
 typedef struct CseStore {
   const char *array;
   int offset, val;
+  CseStoreKind kind;
+  int cond;   /* CSE_ADD_IF */
 } CseStore;
+/* `lhs[offset] += v;` (lhs alone when offset < 0; the C text `rhs` when v < 0) with the
+ * locals it reads before it. */
+void cse_emit_update(Cse *c, FILE *out, const char *lhs, int offset, int v, const char *rhs, int depth);
+/* `if (cond) lhs[offset] += v;`, nothing it reads out of range evaluated before the test. */
+void cse_emit_update_if(Cse *c, FILE *out, const char *lhs, int offset, int v, int cond, int depth);
+/* Derivatives on the graph (emit_ddirect.c). The tangent of value v: a new value, or -1
+ * for zero; `memo` (cse_count entries when the first tangent is asked, filled with -2) keeps
+ * what is known. `tangent_array` names the tangent (or cotangent) array of an array, or
+ * gives NULL for one that has none (params). *ok is cleared where a value has no rule
+ * (a libm function other than sqrt and pow, a varying exponent). */
+typedef const char *(*CseArrayFn)(void *arg, const char *array);
+int cse_count(const Cse *c);
+/* After planning: does what the nest stores read the variable or array `text`? */
+bool cse_mentions(const Cse *c, const char *text);
+/* Does v read an array (an offset that gathers)? */
+bool cse_gathers(const Cse *c, int v);
+/* The innermost loop of the nest whose variable v reads (0 for none). */
+int cse_level(const Cse *c, int v);
+int cse_tangent(Cse *c, int v, int *memo, CseArrayFn tangent_array, void *arg, bool *ok);
+/* Reverse mode: with adj[v] (cse_count entries, -1 for none) the cotangents of the roots,
+ * every value's cotangent sent into its operands', from the last value down; each read of
+ * an array with a cotangent array becomes an update of it in upd[] (*nupd of them, at
+ * most cse_count; a read that may fall outside its array updated only under the choices
+ * that guard it, CSE_ADD_IF). A contribution is computed only where the value sending it
+ * is evaluated. *ok is cleared where no rule applies (a libm function other than sqrt and
+ * pow, a summation, a guarded read no choice guards). */
+void cse_adjoint(Cse *c, int *adj, CseArrayFn cotangent_array, void *arg, CseStore *upd, int *nupd, bool *ok);
 /* After planning, for libtcc: can the innermost loop, storing st[0..nst),
  * be computed a row at a time by the row kernels of NpgRt (unit-stride
  * reads, per-row scalars, + - * /, choices on the diagonal)? Then the

@@ -344,6 +344,7 @@ static void emit_decl_tangent(Emit *e, FILE *out, const Stage *st, int t) {
  * declared operators added. */
 static void emit_stage_tangent(Emit *e, FILE *out, const void *arg) {
   const Stage *st = arg;
+  if (emit_ddirect_tangent(e, out, st)) return; /* on the evaluator's value graph */
   const Sym *s = st->sym;
   int nc = st->ncomp;
   int depth = emit_open_entry_loops(e, out, s, 1);
@@ -476,6 +477,7 @@ static void emit_decl_adjoint(Emit *e, FILE *out, const Stage *st, int t) {
  * derivatives, added into the cotangents of what the term reads. */
 static void emit_stage_adjoint(Emit *e, FILE *out, const void *arg) {
   const Stage *st = arg;
+  if (emit_ddirect_adjoint(e, out, st)) return; /* on the evaluator's value graph */
   const Sym *s = st->sym;
   int nc = st->ncomp;
   bool any_entrywise = false;

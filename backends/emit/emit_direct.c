@@ -138,10 +138,11 @@ static int entry(Emit *e, const Sym *q, Node *const *args, int nargs, int comp, 
       return substitute(e, q, idx, flat); /* another entry of a member: rematerialized */
     }
   }
-  if (q->kind == SYM_STAGE && q->inlined && !q->stage) return substitute(e, q, idx, flat); /* a constant definition */
+  if (q->kind == SYM_STAGE && q->inlined && (!q->stage || e->deriv))
+    return substitute(e, q, idx, flat); /* a constant definition; any inlined one in derivative code */
   emit_use(e, q);
   int nl = cse_nloops(cs);
-  if (nl >= 2 && q->ndims == 1 && q->nstatic && !q->is_int && idx[0] == e->loopvar[nl - 1] &&
+  if (nl >= 2 && !e->deriv && q->ndims == 1 && q->nstatic && !q->is_int && idx[0] == e->loopvar[nl - 1] &&
       cse_in_range(cs, idx[0], q->dims[0])) {
     if (vec_position(&e->soa, q) < 0) vec_push(e->ctx, &e->soa, (void *)q);
     return cse_load(cs, soa_name(e, q, flat), false, idx[0], true);
@@ -401,25 +402,37 @@ static bool emit_soa_copies(Emit *e, FILE *out) {
   return true;
 }
 
+/* A new nest of nl loops (e->cse, e->loopvar) over ranges[], the first `nflat` of them the
+ * index variables ivars[] (C names in names[]; a loop beyond them is a summation's, over its
+ * dim); the flat entry index over the first nflat returned. */
+static int open_nest(Emit *e, int nl, int nflat, const Sym *const *ranges, Sym *const *ivars, const char **names) {
+  Cse *cs = e->cse = cse_new(e->ctx, nl);
+  e->loopvar = arena_alloc(e->ctx, sizeof(int) * (size_t)(nl + 1));
+  int flat = -1;
+  for (int i = 0; i < nl; i++) {
+    const Sym *dim = ranges[i];
+    if (i < nflat) names[i] = emit_name(e, ivars[i]);
+    else names[i] = arena_printf(e->ctx, "l_%d_", i);
+    e->loopvar[i] = cse_leaf(cs, names[i], true, i + 1, dim);
+    emit_use(e, dim);
+    if (i >= nflat) continue;
+    int size = cse_leaf(cs, emit_name(e, dim), true, 0, NULL);
+    flat = i ? cse_op(cs, VAL_ADD, cse_op(cs, VAL_MUL, flat, size, -1), e->loopvar[i], -1) : e->loopvar[i];
+  }
+  return flat < 0 ? cse_num(cs, 0, true) : flat;
+}
+
 /* The values of members[0..n) at the current entry of their common
  * domain, each member's components stored at e_; a read of a member at this
  * entry is its value, at another entry its expression again. */
 void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
   const Sym *first = members[0]->sym;
   int nl = first->nivars;
-  Cse *cs = e->cse = cse_new(e->ctx, nl);
-  e->loopvar = arena_alloc(e->ctx, sizeof(int) * (size_t)(nl + 1));
   const char **names = arena_alloc(e->ctx, sizeof(char *) * (size_t)(nl + 1));
-  int flat = -1;
-  for (int i = 0; i < nl; i++) {
-    const Sym *dim = first->ivars[i]->range;
-    names[i] = emit_name(e, first->ivars[i]);
-    e->loopvar[i] = cse_leaf(cs, names[i], true, i + 1, dim);
-    emit_use(e, dim);
-    int size = cse_leaf(cs, emit_name(e, dim), true, 0, NULL);
-    flat = i ? cse_op(cs, VAL_ADD, cse_op(cs, VAL_MUL, flat, size, -1), e->loopvar[i], -1) : e->loopvar[i];
-  }
-  if (flat < 0) flat = cse_num(cs, 0, true);
+  const Sym **ranges = arena_alloc(e->ctx, sizeof(Sym *) * (size_t)(nl + 1));
+  for (int i = 0; i < nl; i++) ranges[i] = first->ivars[i]->range;
+  int flat = open_nest(e, nl, nl, ranges, first->ivars, names);
+  Cse *cs = e->cse;
   e->fuse = members;
   e->fused_val = arena_alloc(e->ctx, sizeof(int *) * (size_t)n);
   int **offset = arena_alloc(e->ctx, sizeof(int *) * (size_t)n);
@@ -445,20 +458,79 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
   }
   e->fuse = NULL;
   e->direct_for = NULL;
-  cse_plan(cs);
-  if (cse_guarded_gathers(cs)) e->scalar = true;
-  /* libtcc computes the innermost loop a row at a time when it can (cse.c, rows) */
   int nst = 0;
   for (int m = 0; m < n; m++) nst += members[m]->ncomp;
   CseStore *st = arena_alloc(e->ctx, sizeof(CseStore) * (size_t)nst);
+  const char **comment = arena_alloc(e->ctx, sizeof(char *) * (size_t)nst);
   nst = 0;
   for (int m = 0; m < n; m++)
     for (int c = 0; c < members[m]->ncomp; c++) {
       emit_use(e, members[m]->sym);
-      st[nst++] = (CseStore){emit_name(e, members[m]->sym), offset[m][c], e->fused_val[m][c]};
+      comment[nst] = n > 1 && c == 0 ? members[m]->sym->name : NULL;
+      st[nst++] = (CseStore){emit_name(e, members[m]->sym), offset[m][c], e->fused_val[m][c], CSE_SET, -1};
     }
-  int nrows = nl >= 2 ? cse_rows_plan(cs, st, nst) : -1;
-  const char *len = nl ? emit_name(e, first->ivars[nl - 1]->range) : NULL;
+  emit_direct_nest(e, out, nl, names, ranges, st, nst, comment);
+}
+
+/* The dim a summation runs over from 0 to its last entry (`sum(j = 0..N-1, ...)`), or NULL. */
+static const Sym *sum_range(const Node *n) {
+  if (n->kind != N_SUM || n->sym->body) return NULL;
+  if (n->sym->range) return n->sym->range;
+  const Node *hi = n->b;
+  if (n->a->kind != N_NUM || n->a->num != 0 || hi->kind != N_SUB || hi->b->kind != N_NUM || hi->b->num != 1) return NULL;
+  return hi->a->kind == N_NAME && hi->a->sym->kind == SYM_DIM ? hi->a->sym : NULL;
+}
+
+/* The component values of stage `st` at the current entry of a new nest over its domain
+ * (e->cse; nothing rooted), for its derivatives (emit_ddirect.c): val[c], the flat
+ * offset of component c in offset[c], the loops' variables and dims in names[] and
+ * ranges[] (room for one more than the stage's index variables), their number returned.
+ * With `sum_loop`, a body that is a summation over a whole dim is its summand in a loop
+ * more (val[c] the summand). Inlined definitions are substituted, and quantities read in
+ * place (no copies per component). */
+int emit_direct_values(Emit *e, const Stage *st, bool sum_loop, const char **names, const Sym **ranges, int *val,
+                       int *offset) {
+  const Sym *s = st->sym;
+  int nl = s->nivars;
+  const Sym *sr = sum_loop ? sum_range(s->body) : NULL;
+  for (int i = 0; i < nl; i++) ranges[i] = s->ivars[i]->range;
+  if (sr) ranges[nl] = sr;
+  int flat = open_nest(e, nl + (sr != NULL), nl, ranges, s->ivars, names);
+  Cse *cs = e->cse;
+  const DEnv *env = NULL;
+  for (int i = 0; i < nl; i++) env = bind(e, env, s->ivars[i], e->loopvar[i], false, 0);
+  e->direct_for = s;
+  for (int c = 0; c < st->ncomp; c++) {
+    if (sr) {
+      const Node *body = s->body->c;
+      val[c] = build(e, body, body->ty.nstatic ? c : 0, bind(e, env, s->body->sym, e->loopvar[nl], false, 0));
+    } else {
+      val[c] = build(e, s->body, c, env);
+    }
+    offset[c] = cse_op(cs, VAL_ADD, cse_op(cs, VAL_MUL, flat, cse_num(cs, st->ncomp, true), -1), cse_num(cs, c, true), -1);
+  }
+  e->direct_for = NULL;
+  return nl + (sr != NULL);
+}
+
+/* The loop nest of e->cse, nl loops over ranges[] (loop variables names[]), storing
+ * st[0..nst) in its innermost loop (comment[k]: a comment before store k, or NULL); the
+ * stores of kind CSE_REDUCE (an offset outside the innermost loop) summed over it in a
+ * local first. */
+void emit_direct_nest(Emit *e, FILE *out, int nl, const char **names, const Sym *const *ranges, const CseStore *st,
+                      int nst, const char *const *comment) {
+  Cse *cs = e->cse;
+  cse_plan(cs);
+  if (cse_guarded_gathers(cs)) e->scalar = true;
+  /* libtcc computes the innermost loop a row at a time when it can (cse.c, rows) */
+  bool plain = true, independent = true;
+  for (int k = 0; k < nst; k++) {
+    plain &= st[k].kind == CSE_SET;
+    /* two entries adding into one gathered entry: the iterations depend on each other */
+    independent &= (st[k].kind != CSE_ADD && st[k].kind != CSE_ADD_IF) || !cse_gathers(cs, st[k].offset);
+  }
+  int nrows = nl >= 2 && plain ? cse_rows_plan(cs, st, nst) : -1;
+  const char *len = nl ? emit_name(e, ranges[nl - 1]) : NULL;
   bool scratch = emit_soa_copies(e, out);
   if (nrows > 0) {
     fputs("#ifdef __TINYC__\n  /* scratch rows of the row kernels, 64-byte aligned, a stride apart */\n", out);
@@ -491,30 +563,39 @@ void emit_direct_group(Emit *e, FILE *out, const Stage *const *members, int n) {
         fputs("#else\n", out);
       }
     }
-    if (i == nl - 1) {
+    if (i == nl - 1)
+      for (int k = 0; k < nst; k++)
+        if (st[k].kind == CSE_REDUCE) {
+          indent(out, i + 1 + b);
+          fprintf(out, "double r%d_ = 0.0;\n", k);
+        }
+    if (i == nl - 1 && independent) {
       indent(out, i + 1 + b);
       fputs("NPG_INDEPENDENT\n", out);
     }
     indent(out, i + 1 + b);
     if (e->box) fprintf(out, "for (npg_idx %s = lo_[%d]; %s < hi_[%d]; %s++) {\n", v, i, v, i, v);
-    else fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, first->ivars[i]->range), v);
+    else fprintf(out, "for (npg_idx %s = 0; %s < %s; %s++) {\n", v, v, emit_name(e, ranges[i]), v);
     if (i + 1 < nl) cse_emit_level(cs, out, i + 1, i + 2 + b);
   }
   int depth = nl + 1 + b;
-  for (int m = 0; m < n; m++) {
-    const Stage *st = members[m];
-    if (n > 1) {
+  for (int k = 0; k < nst; k++) {
+    if (comment && comment[k]) {
       indent(out, depth);
-      fprintf(out, "/* %s */\n", st->sym->name);
+      fprintf(out, "/* %s */\n", comment[k]);
     }
-    for (int c = 0; c < st->ncomp; c++) {
-      emit_use(e, st->sym);
-      cse_emit_store(cs, out, emit_name(e, st->sym), offset[m][c], e->fused_val[m][c], depth);
-    }
+    if (st[k].kind == CSE_REDUCE) cse_emit_update(cs, out, arena_printf(e->ctx, "r%d_", k), -1, st[k].val, NULL, depth);
+    else if (st[k].kind == CSE_ADD_IF) cse_emit_update_if(cs, out, st[k].array, st[k].offset, st[k].val, st[k].cond, depth);
+    else if (st[k].kind == CSE_ADD) cse_emit_update(cs, out, st[k].array, st[k].offset, st[k].val, NULL, depth);
+    else cse_emit_store(cs, out, st[k].array, st[k].offset, st[k].val, depth);
   }
   for (int i = nl; i >= 1; i--) {
     indent(out, i + b);
     fputs("}\n", out);
+    if (i == nl)
+      for (int k = 0; k < nst; k++)
+        if (st[k].kind == CSE_REDUCE)
+          cse_emit_update(cs, out, st[k].array, st[k].offset, -1, arena_printf(e->ctx, "r%d_", k), i + b);
     if (i == nl && nrows >= 0 && !e->box) fputs("#endif\n", out);
   }
   if (e->box) fputs("  }\n", out);
