@@ -74,6 +74,20 @@ int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, ch
  * estimate.c, takes each stage's own sensitivity to each input). 0, or -1 with `err`. */
 int reduced_stage_jvp(Reduced *r, int stage, int in_q, const double *seed, long nd, double *out, long sample,
                       char *err, size_t errlen);
+/* What an evaluation keeps of each operator of a Galerkin term for the derivatives, so that
+ * they neither contract its tensors nor factor it again: M̂ as assembled (row-major n x n),
+ * the factor of an inverse power (Cholesky's L of M̂, or the LU factors of M̂ᵀ with piv,
+ * column-major: apply_inverse's), and the chain of the power's steps (its operand, then each
+ * step's result: (steps + 1) x n, steps |p| for integer powers, 1 for a root). */
+typedef struct ReducedKept {
+  double *M, *factor, *chain;
+  int *piv;               /* lapack_int */
+  bool chol;
+} ReducedKept;
+/* Operator `op` of term `term` of stage number `stage` as the last reduced_eval left it, or
+ * NULL when that evaluation failed, evaluated no such operator (an interpolated stage), or
+ * any quantity's coordinates have changed since (the derivatives then recompute it). */
+const ReducedKept *reduced_kept(const Reduced *r, int stage, int term, int op);
 /* What the derivatives keep between calls in their evaluator (reduced_deriv.c): the
  * evaluator's slot for it, and its release (reduced_free calls it). */
 struct DerivCache;

@@ -40,10 +40,12 @@
 
 typedef struct Deriv {
   const Model *m;
+  const Reduced *r;     /* the evaluator: its kept operators (reduced_kept) */
   double *const *x;     /* the primal coordinates of every quantity (reduced_eval's) */
   long nd;              /* directions carried */
   double **d;           /* per quantity: its tangent (forward) or cotangent (reverse), m_q x nd, or NULL */
   bool *active;         /* quantities that depend on the differentiated inputs */
+  int ident_q;          /* forward: the quantity whose tangent block is the identity (nd = its m), or -1 */
   struct DerivCache *cache, **cache_slot; /* the evaluator's (reduced_deriv_cache) */
   bool given_externs;   /* externs hold the caller's values (reduced_use_given_externs): constants */
   long sample;
@@ -54,6 +56,17 @@ typedef struct Deriv {
 static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
 
 static int dfail_oom(Deriv *dv) { return error_set(dv->err, dv->errlen, "out of memory for the reduced derivative"); }
+
+/* Forward: out (rows x nd) += alpha · J d[q], J rows x m_q. A Jacobian's seed is the identity:
+ * then J itself is added (a product by I cost as much as the rest of the sweep at m = 50). */
+static void forward_product(const Deriv *dv, int q, long rows, double alpha, const double *J, double *out) {
+  long mq = qm(dv->m, q), nd = dv->nd;
+  if (q == dv->ident_q)
+    for (long e = 0; e < rows * mq; e++) out[e] += alpha * J[e];
+  else
+    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)rows, (int)nd, (int)mq, alpha, J, (int)mq, dv->d[q],
+                (int)nd, 1.0, out, (int)nd);
+}
 
 /* ---------------------------------------------------------------- the evaluator's cache */
 
@@ -304,9 +317,7 @@ static int tensor_tangent(Deriv *dv, const RTensor *t, bool reverse, const doubl
     if (reverse)
       cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)dv->nd, (int)t->rows, 1.0, J, (int)mq, bar,
                   (int)dv->nd, 1.0, dv->d[q], (int)dv->nd);
-    else
-      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)t->rows, (int)dv->nd, (int)mq, 1.0, J, (int)mq,
-                  dv->d[q], (int)dv->nd, 1.0, out, (int)dv->nd);
+    else forward_product(dv, q, t->rows, 1.0, J, out);
     free(J);
   }
   return 0;
@@ -325,20 +336,83 @@ static bool tensor_active(const Deriv *dv, const RTensor *t) {
 typedef struct OpState {
   const ROp *ro;
   long n;
-  double *M, *LU, *U, *lam, *F; /* F: the divided differences of f (roots) */
+  double *M, *LU, *U, *lam, *F; /* LU: an inverse's factor (as ReducedKept's); F: f's divided differences (roots) */
   lapack_int *piv;
+  bool chol;                    /* LU holds Cholesky's L of M̂, else the LU factors of M̂ᵀ (column-major) */
+  bool kept;                    /* M, LU and piv are the evaluator's (reduced_kept), not owned */
 } OpState;
 
 static void op_state_free(OpState *o) {
-  free(o->M);
-  free(o->LU);
+  if (!o->kept) {
+    free(o->M);
+    free(o->LU);
+    free(o->piv);
+  }
   free(o->U);
   free(o->lam);
   free(o->F);
-  free(o->piv);
+}
+
+/* B (n x nrhs, row-major) <- M̂⁻¹ B, or M̂⁻ᵀ B with `trans`, by the inverse's factor; `work`
+ * holds n·nrhs (B transposed to the column-major layout LAPACK solves in) when nrhs > 1. */
+static void op_solve(const OpState *o, bool trans, double *B, long nrhs, double *work) {
+  lapack_int n = (lapack_int)o->n;
+  if (nrhs < 1 || n < 1) return;
+  double *X = nrhs == 1 ? B : work;
+  for (long i = 0; nrhs > 1 && i < n; i++)
+    for (long d = 0; d < nrhs; d++) X[d * n + i] = B[i * nrhs + d];
+  if (o->chol) LAPACKE_dpotrs_work(LAPACK_COL_MAJOR, 'L', n, (lapack_int)nrhs, o->LU, n, X, n);
+  else LAPACKE_dgetrs_work(LAPACK_COL_MAJOR, trans ? 'N' : 'T', n, (lapack_int)nrhs, o->LU, n, o->piv, X, n);
+  for (long i = 0; nrhs > 1 && i < n; i++)
+    for (long d = 0; d < nrhs; d++) B[i * nrhs + d] = X[d * n + i];
 }
 
 static double root_f(double l, double e) { return l > 0 ? pow(l, e) : 0.0; }
+
+/* Factor o->M as its power needs: an inverse's LU (unless kept), a root's eigendecomposition
+ * and divided differences. */
+static int op_factor(Deriv *dv, const RStage *rs, OpState *o) {
+  const ROp *ro = o->ro;
+  long n = o->n;
+  const char *sn = rs->st->sym->name;
+  long p = ro->op->p, q = ro->op->q;
+  if ((q == 1 && p > 0) || (q == 1 && o->kept)) return 0;
+  if (q == 1) {
+    o->LU = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+    o->piv = mem_malloc(sizeof(lapack_int) * (size_t)(n + 1));
+    if (!o->LU || !o->piv) return dfail_oom(dv);
+    memcpy(o->LU, o->M, sizeof(double) * (size_t)(n * n)); /* column-major: M̂ᵀ, as the evaluator factors it */
+    lapack_int info = LAPACKE_dgetrf_work(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)n, o->LU, (lapack_int)n, o->piv);
+    if (info != 0)
+      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator is singular (LAPACK dgetrf info %d): no "
+                       "derivative there", sn, (int)info);
+    return 0;
+  }
+  o->U = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+  o->lam = mem_malloc(sizeof(double) * (size_t)(n + 1));
+  o->F = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+  if (!o->U || !o->lam || !o->F) return dfail_oom(dv);
+  memcpy(o->U, o->M, sizeof(double) * (size_t)(n * n));
+  lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, o->U, (lapack_int)n, o->lam);
+  if (info != 0)
+    return error_set(dv->err, dv->errlen, "stage %s: eigendecomposition of its reduced operator failed (LAPACK dsyevd "
+                     "info %d)", sn, (int)info);
+  double e = (double)p / (double)q, big = 0;
+  for (long i = 0; i < n; i++) big = fmax(big, fabs(o->lam[i]));
+  double tol = 1e-12 * (big > 0 ? big : 1);
+  for (long i = 0; i < n; i++)
+    if (o->lam[i] <= tol)
+      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator has eigenvalue %.3g (largest %.3g): the "
+                       "power %ld/%ld is not differentiable there", sn, o->lam[i], big, p, q);
+  /* Daleckii–Krein: divided differences of f, its derivative where two eigenvalues are close */
+  for (long i = 0; i < n; i++)
+    for (long j = 0; j < n; j++) {
+      double li = o->lam[i], lj = o->lam[j];
+      o->F[i * n + j] = fabs(li - lj) > 1e-8 * fmax(li, lj) ? (root_f(li, e) - root_f(lj, e)) / (li - lj)
+                                                            : e * pow(0.5 * (li + lj), e - 1);
+    }
+  return 0;
+}
 
 /* Assemble M̂ of `ro` and factor it as its power needs. */
 static int op_state(Deriv *dv, const RStage *rs, const ROp *ro, long n, OpState *o) {
@@ -372,44 +446,16 @@ static int op_state(Deriv *dv, const RStage *rs, const ROp *ro, long n, OpState 
       for (long b = a; b < n; b++, p++) o->M[a * n + b] = o->M[b * n + a] = acc[p];
   } else memcpy(o->M, acc, sizeof(double) * (size_t)(n * n));
   free(acc);
-  const char *sn = rs->st->sym->name;
-  long p = ro->op->p, q = ro->op->q;
-  if (q == 1 && p > 0) return 0;
-  if (q == 1) {
-    o->LU = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
-    o->piv = mem_malloc(sizeof(lapack_int) * (size_t)(n + 1));
-    if (!o->LU || !o->piv) return dfail_oom(dv);
-    memcpy(o->LU, o->M, sizeof(double) * (size_t)(n * n));
-    lapack_int info = LAPACKE_dgetrf(LAPACK_ROW_MAJOR, (lapack_int)n, (lapack_int)n, o->LU, (lapack_int)n, o->piv);
-    if (info != 0)
-      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator is singular (LAPACK dgetrf info %d): no "
-                       "derivative there", sn, (int)info);
-    return 0;
-  }
-  o->U = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
-  o->lam = mem_malloc(sizeof(double) * (size_t)(n + 1));
-  o->F = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
-  if (!o->U || !o->lam || !o->F) return dfail_oom(dv);
-  memcpy(o->U, o->M, sizeof(double) * (size_t)(n * n));
-  lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, o->U, (lapack_int)n, o->lam);
-  if (info != 0)
-    return error_set(dv->err, dv->errlen, "stage %s: eigendecomposition of its reduced operator failed (LAPACK dsyevd "
-                     "info %d)", sn, (int)info);
-  double e = (double)p / (double)q, big = 0;
-  for (long i = 0; i < n; i++) big = fmax(big, fabs(o->lam[i]));
-  double tol = 1e-12 * (big > 0 ? big : 1);
-  for (long i = 0; i < n; i++)
-    if (o->lam[i] <= tol)
-      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator has eigenvalue %.3g (largest %.3g): the "
-                       "power %ld/%ld is not differentiable there", sn, o->lam[i], big, p, q);
-  /* Daleckii–Krein: divided differences of f, its derivative where two eigenvalues are close */
-  for (long i = 0; i < n; i++)
-    for (long j = 0; j < n; j++) {
-      double li = o->lam[i], lj = o->lam[j];
-      o->F[i * n + j] = fabs(li - lj) > 1e-8 * fmax(li, lj) ? (root_f(li, e) - root_f(lj, e)) / (li - lj)
-                                                            : e * pow(0.5 * (li + lj), e - 1);
-    }
-  return 0;
+  return op_factor(dv, rs, o);
+}
+
+/* The operator `ro` as the evaluation kept it (`kp`): M̂ and an inverse's factor borrowed, a
+ * root's eigendecomposition computed from the kept M̂ (the evaluation never forms it). */
+static int op_state_kept(Deriv *dv, const RStage *rs, const ROp *ro, long n, const ReducedKept *kp, OpState *o) {
+  memset(o, 0, sizeof *o);
+  o->ro = ro, o->n = n, o->kept = true;
+  o->M = kp->M, o->LU = kp->factor, o->piv = kp->piv, o->chol = kp->chol;
+  return op_factor(dv, rs, o);
 }
 
 /* out (n) = f(M) v for a root: U f(Λ) Uᵀ v. */
@@ -438,7 +484,7 @@ static void op_forward_primal(const OpState *o, double *vs, double *w) {
                                            v2, 1);
     else {
       memcpy(v2, v, sizeof(double) * (size_t)n);
-      LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', (lapack_int)n, 1, o->LU, (lapack_int)n, o->piv, v2, 1);
+      op_solve(o, false, v2, 1, NULL);
     }
   }
 }
@@ -531,9 +577,7 @@ static int op_dM_times(Deriv *dv, const OpState *o, const double *u, double sign
       if (reverse)
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)n, sign, G, (int)mq, V, (int)nd,
                     1.0, dv->d[q], (int)nd);
-      else
-        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)nd, (int)mq, sign, G, (int)mq, dv->d[q],
-                    (int)nd, 1.0, V, (int)nd);
+      else forward_product(dv, q, n, sign, G, V);
       free(J);
       free(G);
     }
@@ -568,8 +612,7 @@ static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV)
       if (op_dM_times(dv, o, v, 1.0, false, dV)) break;
     } else if (o->ro->op->q == 1) { /* dv' = M⁻¹ (dv − dM v') */
       if (op_dM_times(dv, o, v2, -1.0, false, dV)) break;
-      if (nd > 0) LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', (lapack_int)n, (lapack_int)nd, o->LU, (lapack_int)n, o->piv,
-                                 dV, (lapack_int)nd);
+      op_solve(o, false, dV, nd, tmp);
     } else { /* dv' = f(M) dv + U (F ∘ Uᵀ dM U) Uᵀ v */
       cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)n, 1.0, o->U, (int)n, v, 1, 0.0, w, 1);
       for (long d = 0; d < nd; d++) {
@@ -611,8 +654,7 @@ static int op_reverse(Deriv *dv, const OpState *o, const double *vs, double *Vb)
                   0.0, tmp, (int)nd);
       memcpy(Vb, tmp, sizeof(double) * (size_t)(n * nd));
     } else if (o->ro->op->q == 1) { /* λ = M⁻ᵀ v̄', M̄ −= λ v'ᵀ, v̄ = λ */
-      if (nd > 0) LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'T', (lapack_int)n, (lapack_int)nd, o->LU, (lapack_int)n, o->piv,
-                                 Vb, (lapack_int)nd);
+      op_solve(o, true, Vb, nd, tmp);
       if (op_dM_times(dv, o, v2, -1.0, true, Vb)) break;
     } else { /* ū = Uᵀ v̄': M̄ += U (F ∘ ū wᵀ) Uᵀ, w = Uᵀ v; v̄ = U f(Λ) ū */
       cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)n, 1.0, o->U, (int)n, v, 1, 0.0, w, 1);
@@ -646,17 +688,38 @@ typedef struct TermState {
   int nops;
   OpState *ops;
   double **vs;
+  bool kept; /* the chains are the evaluator's (reduced_kept) */
 } TermState;
 
 static void term_free(TermState *ts) {
   for (int k = 0; k < ts->nops; k++) {
     op_state_free(&ts->ops[k]);
-    free(ts->vs[k]);
+    if (!ts->kept) free(ts->vs[k]);
   }
   free(ts->ops);
   free(ts->vs);
 }
 
+/* Term `t` of stage rs as the evaluation kept it, or 1 when it kept none (reduced_kept). */
+static int term_kept(Deriv *dv, const RStage *rs, int t, long n, TermState *ts) {
+  const RTerm *rt = &rs->terms[t];
+  int stage = (int)(rs - dv->m->stages);
+  for (int k = 0; k < rt->nops; k++)
+    if (!reduced_kept(dv->r, stage, t, k)) return 1;
+  ts->nops = rt->nops, ts->kept = true;
+  ts->ops = mem_calloc((size_t)rt->nops + 1, sizeof(OpState));
+  ts->vs = mem_calloc((size_t)rt->nops + 1, sizeof(double *));
+  if (!ts->ops || !ts->vs) return dfail_oom(dv);
+  for (int k = 0; k < rt->nops; k++) {
+    const ReducedKept *kp = reduced_kept(dv->r, stage, t, k);
+    ts->vs[k] = kp->chain;
+    if (op_state_kept(dv, rs, &rt->ops[k], n, kp, &ts->ops[k])) return -1;
+  }
+  return 0;
+}
+
+/* Term rt's primal recomputed from the coordinates: its numerator, each operator assembled,
+ * factored and applied. */
 static int term_primal(Deriv *dv, const RStage *rs, const RTerm *rt, long n, TermState *ts) {
   const Model *m = dv->m;
   ts->nops = rt->nops;
@@ -718,9 +781,7 @@ static int term_numerator(Deriv *dv, const RTerm *rt, long n, bool reverse, doub
   else if (reverse)
     cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mw, (int)nd, (int)n, 1.0, rt->proj, (int)mw, V, (int)nd,
                 1.0, dv->d[w], (int)nd);
-  else
-    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)nd, (int)mw, 1.0, rt->proj, (int)mw, dv->d[w],
-                (int)nd, 1.0, V, (int)nd);
+  else forward_product(dv, w, n, 1.0, rt->proj, V);
   return 0;
 }
 
@@ -732,7 +793,11 @@ static int galerkin_stage(Deriv *dv, const RStage *rs, bool reverse) {
   for (int t = 0; t < rs->nterms && rc == 0; t++) {
     const RTerm *rt = &rs->terms[t];
     TermState ts = {0};
-    rc = term_primal(dv, rs, rt, n, &ts);
+    if (rt->nops > 0 && (rc = term_kept(dv, rs, t, n, &ts)) == 1) { /* not kept: recomputed */
+      term_free(&ts);
+      memset(&ts, 0, sizeof ts);
+      rc = term_primal(dv, rs, rt, n, &ts);
+    }
     if (rc == 0 && !reverse) {
       memset(V, 0, sizeof(double) * (size_t)(n * nd));
       rc = term_numerator(dv, rt, n, false, V);
@@ -837,9 +902,7 @@ static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
     if (reverse)
       cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)my, 1.0, J, (int)mq, dv->d[rs->q],
                   (int)nd, 1.0, dv->d[q], (int)nd);
-    else
-      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)my, (int)nd, (int)mq, 1.0, J, (int)mq, dv->d[q],
-                  (int)nd, 1.0, dv->d[rs->q], (int)nd);
+    else forward_product(dv, q, my, 1.0, J, dv->d[rs->q]);
     free(D);
     free(J);
   }
@@ -898,6 +961,7 @@ static void deriv_free(Deriv *dv) {
 static int deriv_init(Deriv *dv, Reduced *r, long nd, const int *from, int nfrom, long sample, char *err,
                       size_t errlen) {
   memset(dv, 0, sizeof *dv);
+  dv->r = r, dv->ident_q = -1;
   dv->m = reduced_model(r), dv->nd = nd, dv->sample = sample, dv->err = err, dv->errlen = errlen;
   dv->cache_slot = reduced_deriv_cache(r), dv->cache = *dv->cache_slot;
   dv->given_externs = reduced_given_externs(r);
@@ -924,11 +988,13 @@ static int deriv_init(Deriv *dv, Reduced *r, long nd, const int *from, int nfrom
   return 0;
 }
 
-int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int out_q, double *out,
-                long sample, char *err, size_t errlen) {
+/* reduced_jvp; with `ident`, seed[0] is the identity (reduced_jacobian's forward sweep). */
+static int forward_sweep(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int out_q,
+                         double *out, bool ident, long sample, char *err, size_t errlen) {
   Deriv dv;
   int rc = deriv_init(&dv, r, nd, seed_q, nseed, sample, err, errlen);
   const Model *m = dv.m;
+  if (ident) dv.ident_q = seed_q[0];
   for (int i = 0; i < nseed && rc == 0; i++)
     cblas_daxpy((int)(qm(m, seed_q[i]) * nd), 1.0, seed[i], 1, dv.d[seed_q[i]], 1);
   for (int i = 0; i < m->nstages && rc == 0; i++) {
@@ -941,6 +1007,11 @@ int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *s
   free((void *)dv.x);
   deriv_free(&dv);
   return rc ? -1 : 0;
+}
+
+int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int out_q, double *out,
+                long sample, char *err, size_t errlen) {
+  return forward_sweep(r, nseed, seed_q, seed, nd, out_q, out, false, sample, err, errlen);
 }
 
 int reduced_vjp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int in_q, double *out,
@@ -974,7 +1045,7 @@ int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, ch
   }
   for (long i = 0; i < nd; i++) eye[i * nd + i] = 1;
   const double *seed = eye;
-  int rc = forward ? reduced_jvp(r, 1, &in_q, &seed, nd, out_q, J, sample, err, errlen)
+  int rc = forward ? forward_sweep(r, 1, &in_q, &seed, nd, out_q, J, true, sample, err, errlen)
                    : reduced_vjp(r, 1, &out_q, &seed, nd, in_q, T, sample, err, errlen);
   if (rc == 0 && !forward)
     for (long a = 0; a < mo; a++)
