@@ -301,6 +301,13 @@ out:
   return rc;
 }
 
+/* The local Jacobian ∂(T·z)/∂x̂ of input j of t (rows x m_q): the tensor itself when j is its
+ * only input, of degree 1 (nothing copied), else tensor_jacobian's into `J`. NULL out of memory. */
+static const double *local_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
+  if (t->nin == 1 && t->in_mult[0] == 1) return t->data;
+  return tensor_jacobian(dv, t, j, J) ? NULL : J;
+}
+
 /* Forward: out (rows x nd) += Σ_j ∂(T·z)/∂x̂_j · d[x_j]; reverse: d[x_j] += (∂(T·z)/∂x̂_j)ᵀ · bar
  * (rows x nd), for the active inputs of t. */
 static int tensor_tangent(Deriv *dv, const RTensor *t, bool reverse, const double *bar, double *out) {
@@ -309,16 +316,17 @@ static int tensor_tangent(Deriv *dv, const RTensor *t, bool reverse, const doubl
     if (!dv->active[q]) continue;
     long mq = qm(dv->m, q);
     if (mq == 0 || t->rows == 0) continue;
-    double *J = mem_malloc(sizeof(double) * (size_t)(t->rows * mq));
-    if (!J || tensor_jacobian(dv, t, j, J)) {
-      free(J);
+    double *buf = mem_malloc(sizeof(double) * (size_t)(t->rows * mq));
+    const double *J = buf ? local_jacobian(dv, t, j, buf) : NULL;
+    if (!J) {
+      free(buf);
       return dfail_oom(dv);
     }
     if (reverse)
       cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)dv->nd, (int)t->rows, 1.0, J, (int)mq, bar,
                   (int)dv->nd, 1.0, dv->d[q], (int)dv->nd);
     else forward_product(dv, q, t->rows, 1.0, J, out);
-    free(J);
+    free(buf);
   }
   return 0;
 }
@@ -560,25 +568,31 @@ static int op_dM_times(Deriv *dv, const OpState *o, const double *u, double sign
       int q = t->in_q[j];
       long mq = qm(dv->m, q);
       if (!dv->active[q] || mq == 0 || n == 0) continue;
-      double *J = mem_malloc(sizeof(double) * (size_t)(rows * mq)), *G = mem_calloc((size_t)(n * mq), sizeof(double));
-      if (!J || !G || tensor_jacobian(dv, t, j, J)) {
-        free(J);
+      double *buf = mem_malloc(sizeof(double) * (size_t)(rows * mq)), *G = mem_calloc((size_t)(n * mq), sizeof(double));
+      const double *J = buf && G ? local_jacobian(dv, t, j, buf) : NULL;
+      if (!J) {
+        free(buf);
         free(G);
         return dfail_oom(dv);
       }
-      for (long a = 0, p = 0; a < n; a++)
-        for (long b = diag ? a : 0; b < n; b++, p++) {
-          const double *jr = J + p * mq;
-          double *ga = G + a * mq, *gb = G + b * mq, ub = u[b], ua = u[a];
-          for (long c = 0; c < mq; c++) ga[c] += jr[c] * ub;
-          if (diag && b != a)
-            for (long c = 0; c < mq; c++) gb[c] += jr[c] * ua;
-        }
+      if (!diag) /* G's row a = (J's rows (a, ·))ᵀ u */
+        for (long a = 0; a < n; a++)
+          cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)mq, 1.0, J + a * n * mq, (int)mq, u, 1, 0.0, G + a * mq,
+                      1);
+      else
+        for (long a = 0, p = 0; a < n; a++)
+          for (long b = a; b < n; b++, p++) {
+            const double *jr = J + p * mq;
+            double *ga = G + a * mq, *gb = G + b * mq, ub = u[b], ua = u[a];
+            for (long c = 0; c < mq; c++) ga[c] += jr[c] * ub;
+            if (b != a)
+              for (long c = 0; c < mq; c++) gb[c] += jr[c] * ua;
+          }
       if (reverse)
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)n, sign, G, (int)mq, V, (int)nd,
                     1.0, dv->d[q], (int)nd);
       else forward_product(dv, q, n, sign, G, V);
-      free(J);
+      free(buf);
       free(G);
     }
   }
