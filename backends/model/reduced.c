@@ -81,6 +81,13 @@ struct Reduced {
   bool kept_valid;        /* the last reduced_eval succeeded, and kept_x holds its coordinates */
   double *kept_x;         /* every quantity's coordinates after it, one after another */
   long kept_len;
+  bool local_jac;         /* reduced_keep_local_jacobians */
+  struct {                /* the local Jacobians of the tensors of one input taken twice */
+    const RTensor *t;
+    double *J;            /* rows x m */
+    bool kept;            /* by the last reduced_eval */
+  } *lj;
+  int nlj;
   char error[1024];
 };
 
@@ -106,6 +113,8 @@ static void kept_free(Reduced *r) {
   }
   free(r->kept);
   free(r->kept_x);
+  for (int i = 0; i < r->nlj; i++) free(r->lj[i].J);
+  free(r->lj);
 }
 
 /* The operators' kept state (ReducedKept), allocated once for every Galerkin term. */
@@ -130,6 +139,14 @@ static int kept_alloc(Reduced *r) {
       }
     }
   }
+  int n = 0;
+  FOR_TENSORS(m, t) n += t->nin == 1 && t->in_mult[0] == 2;
+  if (!(r->lj = mem_calloc((size_t)n + 1, sizeof *r->lj))) return -1;
+  FOR_TENSORS(m, t) {
+    if (t->nin != 1 || t->in_mult[0] != 2) continue;
+    r->lj[r->nlj].t = t;
+    if (!(r->lj[r->nlj++].J = mem_malloc(sizeof(double) * (size_t)(t->rows * qm(m, t->in_q[0]) + 1)))) return -1;
+  }
   r->kept_len = 0;
   for (int q = 0; q < m->nq; q++) r->kept_len += qm(m, q);
   return (r->kept_x = mem_malloc(sizeof(double) * (size_t)(r->kept_len + 1))) ? 0 : -1;
@@ -144,6 +161,30 @@ static bool kept_coords(Reduced *r, bool check) {
     if (!check) memcpy(r->kept_x + off, r->x[q], bytes);
     off += qm(r->m, q);
   }
+  return true;
+}
+
+void reduced_keep_local_jacobians(Reduced *r, bool on) { r->local_jac = on; }
+
+const double *reduced_kept_local_jacobian(const Reduced *r, const RTensor *t) {
+  for (int i = 0; i < r->nlj; i++)
+    if (r->lj[i].t == t) return r->lj[i].kept && r->kept_valid && kept_coords((Reduced *)r, true) ? r->lj[i].J : NULL;
+  return NULL;
+}
+
+/* out += T·(x̂ ⊗ x̂) = ½ J x̂ for J = Ŝ x̂ kept (reduced_keep_local_jacobians): false when t is not
+ * such a tensor or Ŝ could not be made (the plain contraction then). */
+static bool contract_keeping_jacobian(Reduced *r, const RTensor *t, double *out) {
+  if (!r->keeping || !r->local_jac || t->nin != 1 || t->in_mult[0] != 2) return false;
+  int i = 0;
+  while (i < r->nlj && r->lj[i].t != t) i++;
+  const double *S = i < r->nlj ? reduced_deriv_square(r, t) : NULL;
+  if (!S) return false;
+  long m = qm(r->m, t->in_q[0]);
+  const double *x = r->x[t->in_q[0]];
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)(t->rows * m), (int)m, 1.0, S, (int)m, x, 1, 0.0, r->lj[i].J, 1);
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)t->rows, (int)m, 0.5, r->lj[i].J, (int)m, x, 1, 1.0, out, 1);
+  r->lj[i].kept = true;
   return true;
 }
 
@@ -330,6 +371,7 @@ void reduced_lift_many(const Model *m, int q, long samples, const double *coords
 /* out[0..rows) += T ⊗ z_1 ⊗ … ⊗ z_n: the last axis first, each step one
  * dgemv; the first step reads the whole tensor once. */
 static void contract(Reduced *r, const RTensor *t, double *out) {
+  if (contract_keeping_jacobian(r, t, out)) return;
   if (t->nin == 0) {
     cblas_daxpy((int)t->rows, 1.0, t->data, 1, out, 1);
     return;
@@ -685,6 +727,7 @@ int reduced_eval(Reduced *r, long sample) {
   int threads = r->one_thread ? blas_one_thread() : 1;
   int rc = 0;
   r->kept_valid = false, r->keeping = true;
+  for (int i = 0; i < r->nlj; i++) r->lj[i].kept = false;
   for (int i = 0; i < r->m->nstages && rc == 0; i++) rc = reduced_eval_stage(r, i, sample);
   r->keeping = false;
   if (rc == 0) r->kept_valid = kept_coords(r, false);

@@ -46,7 +46,7 @@ typedef struct Deriv {
   double **d;           /* per quantity: its tangent (forward) or cotangent (reverse), m_q x nd, or NULL */
   bool *active;         /* quantities that depend on the differentiated inputs */
   int ident_q;          /* forward: the quantity whose tangent block is the identity (nd = its m), or -1 */
-  struct DerivCache *cache, **cache_slot; /* the evaluator's (reduced_deriv_cache) */
+  struct DerivCache **cache_slot; /* the evaluator's (reduced_deriv_cache) */
   bool given_externs;   /* externs hold the caller's values (reduced_use_given_externs): constants */
   long sample;
   char *err;
@@ -89,9 +89,10 @@ void reduced_deriv_cache_free(DerivCache *c) {
   free(c);
 }
 
-/* Ŝ of tensor t (its only input packed twice, m coordinates), or NULL out of memory. */
-static const double *square_unpacked(Deriv *dv, const RTensor *t, long m) {
-  DerivCache *c = dv->cache;
+/* Ŝ of tensor t (its only input packed twice, m coordinates) in the cache *slot, or NULL out
+ * of memory. */
+static const double *square_unpacked(DerivCache **slot, const RTensor *t, long m) {
+  DerivCache *c = *slot;
   for (int i = 0; c && i < c->n; i++)
     if (c->t[i] == t) return c->S[i];
   if (!c || c->n == c->cap) {
@@ -102,7 +103,7 @@ static const double *square_unpacked(Deriv *dv, const RTensor *t, long m) {
     if (nt) nc->t = nt;
     double **ns = nt ? realloc(nc->S, sizeof *ns * (size_t)cap) : NULL;
     if (ns) nc->S = ns;
-    if (!c) *dv->cache_slot = dv->cache = c = nc;
+    if (!c) *slot = c = nc;
     if (!nt || !ns) return NULL;
     c->cap = cap;
   }
@@ -119,6 +120,11 @@ static const double *square_unpacked(Deriv *dv, const RTensor *t, long m) {
   }
   c->t[c->n] = t, c->S[c->n] = S, c->n++;
   return S;
+}
+
+const double *reduced_deriv_square(Reduced *r, const RTensor *t) {
+  const Model *m = reduced_model(r);
+  return square_unpacked(reduced_deriv_cache(r), t, qm(m, t->in_q[0]));
 }
 
 /* ---------------------------------------------------------------- tensors */
@@ -235,7 +241,7 @@ static int tensor_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
   long mq = qm(dv->m, t->in_q[j]), Lj = t->in_len[j], rows = t->rows;
   int k = t->in_mult[j];
   if (k == 2 && t->nin == 1) {
-    const double *S = square_unpacked(dv, t, mq);
+    const double *S = square_unpacked(dv->cache_slot, t, mq);
     if (!S) return -1;
     cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)(rows * mq), (int)mq, 1.0, S, (int)mq, dv->x[t->in_q[j]], 1, 0.0,
                 J, 1);
@@ -302,9 +308,12 @@ out:
 }
 
 /* The local Jacobian ∂(T·z)/∂x̂ of input j of t (rows x m_q): the tensor itself when j is its
- * only input, of degree 1 (nothing copied), else tensor_jacobian's into `J`. NULL out of memory. */
+ * only input, of degree 1 (nothing copied), the evaluation's when it kept it, else
+ * tensor_jacobian's into `J`. NULL out of memory. */
 static const double *local_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
   if (t->nin == 1 && t->in_mult[0] == 1) return t->data;
+  const double *kept = t->nin == 1 && t->in_mult[0] == 2 ? reduced_kept_local_jacobian(dv->r, t) : NULL;
+  if (kept) return kept;
   return tensor_jacobian(dv, t, j, J) ? NULL : J;
 }
 
@@ -977,7 +986,7 @@ static int deriv_init(Deriv *dv, Reduced *r, long nd, const int *from, int nfrom
   memset(dv, 0, sizeof *dv);
   dv->r = r, dv->ident_q = -1;
   dv->m = reduced_model(r), dv->nd = nd, dv->sample = sample, dv->err = err, dv->errlen = errlen;
-  dv->cache_slot = reduced_deriv_cache(r), dv->cache = *dv->cache_slot;
+  dv->cache_slot = reduced_deriv_cache(r);
   dv->given_externs = reduced_given_externs(r);
   if (errlen > 0) err[0] = 0; /* a failure is known by its message */
   const Model *m = dv->m;
