@@ -850,19 +850,71 @@ static double interp_pow(double b, long p, long q) {
   return pow(b, (double)p / (double)q);
 }
 
+/* Forward: d[y] += J_q d[q]; reverse: d[q] += J_qᵀ d[y], J_q = (W P B)⁺ W · ∂(P y)/∂x̂_q for one
+ * quantity q the formula reads, g = ∂(P y)/∂acc and val the read entries (interp_stage's), pT the
+ * fit transposed (k x m_y). Each monomial's read of q adds its coefficient times the fit's
+ * column of its slot to C's row of the read (C: reads x m_y), then J_q = Cᵀ B_read, B_read the
+ * rows of q's basis read: m_y FLOPs a monomial and one dgemm, where forming ∂(P y)/∂x̂_q
+ * (k x m_q) first took m_q a monomial and a product of k·m_y·m_q (heat.npg's k: 948 monomials,
+ * k = 316, the stage's largest cost). */
+static int interp_jacobian(Deriv *dv, const RStage *rs, int q, const double *g, const double *val,
+                           const long *base, const double *pT, bool reverse) {
+  const Model *m = dv->m;
+  const RInterp *ip = rs->interp;
+  const RClass *c = &m->classes[m->qclass[q]];
+  long mq = c->m, my = qm(m, rs->q), nd = dv->nd, k = ip->k, nr = 0;
+  long *row = mem_malloc(sizeof(long) * (size_t)(ip->nreads + 1));
+  double *C = mem_calloc((size_t)(ip->nreads * my) + 1, sizeof(double));
+  double *Br = mem_malloc(sizeof(double) * (size_t)(ip->nreads * mq + 1));
+  double *J = mem_malloc(sizeof(double) * (size_t)(my * mq + 1));
+  if (!row || !C || !Br || !J) {
+    free(row), free(C), free(Br), free(J);
+    return dfail_oom(dv);
+  }
+  for (long r = 0; r < ip->nreads; r++) {
+    row[r] = ip->read_q[r] == q ? nr : -1;
+    if (row[r] >= 0) memcpy(Br + nr++ * mq, c->B + ip->read_e[r] * mq, sizeof(double) * (size_t)mq);
+  }
+  for (long i = 0; i < ip->nmono; i++) {
+    const RInterpMono *mo = &ip->mono[i];
+    double gi = g[(base[mo->term] + mo->factor) * k + mo->slot] * mo->coef;
+    for (int j = 0; j < mo->nin; j++) {
+      long r = mo->read[j];
+      if (row[r] < 0) continue;
+      double cj = gi;
+      for (int l = 0; l < mo->nin; l++)
+        if (l != j) cj *= val[mo->read[l]];
+      const double *col = pT + mo->slot * my; /* a loop: cblas_daxpy's call cost more at these m */
+      double *dst = C + row[r] * my;
+      for (long a = 0; a < my; a++) dst[a] += cj * col[a];
+    }
+  }
+  if (nr > 0)
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)mq, (int)nr, 1.0, C, (int)my, Br, (int)mq, 0.0,
+                J, (int)mq);
+  else memset(J, 0, sizeof(double) * (size_t)(my * mq));
+  if (reverse)
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)my, 1.0, J, (int)mq, dv->d[rs->q],
+                (int)nd, 1.0, dv->d[q], (int)nd);
+  else forward_product(dv, q, my, 1.0, J, dv->d[rs->q]);
+  free(row), free(C), free(Br), free(J);
+  return 0;
+}
+
 /* Forward: d[y] += J_q d[q]; reverse: d[q] += J_qᵀ d[y], for every active quantity q the
  * formula reads, J_q = (W P B)⁺ W · ∂(P y)/∂x̂_q from its monomials (RInterp.mono). */
 static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
   const Model *m = dv->m;
   const RInterp *ip = rs->interp;
-  long k = ip->k, nf = 0, my = qm(m, rs->q), nd = dv->nd;
+  long k = ip->k, nf = 0, my = qm(m, rs->q);
   long *base = mem_malloc(sizeof(long) * (size_t)(rs->nterms + 1));
   if (!base) return dfail_oom(dv);
   for (int t = 0; t < rs->nterms; t++) base[t] = nf, nf += 1 + rs->terms[t].nops;
   double *val = mem_malloc(sizeof(double) * (size_t)(ip->nreads + 1));
   double *acc = mem_calloc((size_t)(k * nf) + 1, sizeof(double)), *g = mem_calloc((size_t)(k * nf) + 1, sizeof(double));
+  double *pT = mem_malloc(sizeof(double) * (size_t)(k * my + 1));
   int rc = -1;
-  if (!val || !acc || !g) {
+  if (!val || !acc || !g || !pT) {
     dfail_oom(dv);
     goto out;
   }
@@ -892,48 +944,21 @@ static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
     }
   }
   rc = 0;
+  for (long s = 0; s < k; s++) /* the fit transposed, k x my: a slot's column contiguous */
+    for (long i = 0; i < my; i++) pT[s * my + i] = ip->pinv[i * k + s];
   for (int q = 0; q < m->nq && rc == 0; q++) {
     if (!dv->active[q]) continue;
     bool reads = false;
     for (long r = 0; r < ip->nreads && !reads; r++) reads = ip->read_q[r] == q;
     if (!reads) continue;
-    const RClass *c = &m->classes[m->qclass[q]];
-    long mq = c->m;
-    double *D = mem_calloc((size_t)(k * mq) + 1, sizeof(double)), *J = mem_malloc(sizeof(double) * (size_t)(my * mq + 1));
-    if (!D || !J) {
-      free(D);
-      free(J);
-      rc = dfail_oom(dv);
-      break;
-    }
-    for (long i = 0; i < ip->nmono; i++) {
-      const RInterpMono *mo = &ip->mono[i];
-      double gi = g[(base[mo->term] + mo->factor) * k + mo->slot] * mo->coef;
-      for (int j = 0; j < mo->nin; j++) {
-        long r = mo->read[j];
-        if (ip->read_q[r] != q) continue;
-        double cj = gi;
-        for (int l = 0; l < mo->nin; l++)
-          if (l != j) cj *= val[mo->read[l]];
-        const double *row = c->B + ip->read_e[r] * mq; /* a loop: cblas_daxpy's call cost more at these m */
-        double *dst = D + mo->slot * mq;
-        for (long a = 0; a < mq; a++) dst[a] += cj * row[a];
-      }
-    }
-    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)my, (int)mq, (int)k, 1.0, ip->pinv, (int)k, D, (int)mq,
-                0.0, J, (int)mq);
-    if (reverse)
-      cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)my, 1.0, J, (int)mq, dv->d[rs->q],
-                  (int)nd, 1.0, dv->d[q], (int)nd);
-    else forward_product(dv, q, my, 1.0, J, dv->d[rs->q]);
-    free(D);
-    free(J);
+    rc = interp_jacobian(dv, rs, q, g, val, base, pT, reverse);
   }
 out:
   free(base);
   free(val);
   free(acc);
   free(g);
+  free(pT);
   return rc;
 }
 
