@@ -53,8 +53,9 @@ void reduced_lift_many(const Model *m, int q, long samples, const double *coords
 /* ---------------------------------------------------------------- derivatives (reduced_deriv.c)
  *
  * Derivatives of the reduced evaluator in reduced coordinates (DESIGN §17),
- * at the coordinates `r` holds after reduced_eval (the primal is not
- * recomputed: evaluate first). Blocks of `nd` directions travel together,
+ * at the coordinates `r` holds after reduced_eval (evaluate first): the
+ * operators, factors and chains that evaluation kept (reduced_kept) are used,
+ * or recomputed when any coordinate has changed since. Blocks of `nd` directions travel together,
  * every block m_q x nd row-major.
  *   reduced_jvp: out (m_out x nd) = Σ_i ∂ŷ_out/∂x̂_{seed_q[i]} · seed[i] (m x nd each);
  *   reduced_vjp: out (m_in x nd)  = Σ_i (∂ŷ_{seed_q[i]}/∂x̂_in)ᵀ · seed[i];

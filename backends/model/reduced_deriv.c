@@ -26,6 +26,12 @@
  * combination chosen by NNLS) has no derivative: reading one is refused; externs given by
  * the caller (reduced_use_given_externs) are constants.
  *
+ * The primal of each term is the evaluation's (reduced_kept: every operator as assembled, an
+ * inverse's Cholesky or LU factor, the vectors of its power's steps), never contracted or
+ * factored again while the coordinates are those it evaluated at; a tensor of one input taken
+ * twice has its local Jacobian from the evaluation's read too (reduced_keep_local_jacobians).
+ * A Jacobian's identity seed is added where a product by it would be formed.
+ *
  * The tangents (and cotangents) of `nd` directions travel together as
  * m × nd row-major blocks, so a whole Jacobian is one forward sweep with the
  * identity as seed (or one reverse sweep, whichever has fewer columns). */
