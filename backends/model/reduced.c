@@ -140,10 +140,10 @@ static int kept_alloc(Reduced *r) {
     }
   }
   int n = 0;
-  FOR_TENSORS(m, t) n += t->nin == 1 && t->in_mult[0] == 2;
+  FOR_TENSORS(m, t) n += reduced_keeps_local_jacobian(t);
   if (!(r->lj = mem_calloc((size_t)n + 1, sizeof *r->lj))) return -1;
   FOR_TENSORS(m, t) {
-    if (t->nin != 1 || t->in_mult[0] != 2) continue;
+    if (!reduced_keeps_local_jacobian(t)) continue;
     r->lj[r->nlj].t = t;
     if (!(r->lj[r->nlj++].J = mem_malloc(sizeof(double) * (size_t)(t->rows * qm(m, t->in_q[0]) + 1)))) return -1;
   }
@@ -166,6 +166,18 @@ static bool kept_coords(Reduced *r, bool check) {
 
 void reduced_keep_local_jacobians(Reduced *r, bool on) { r->local_jac = on; }
 
+bool reduced_keeps_local_jacobian(const RTensor *t) {
+  return t->data && ((t->nin == 1 && t->in_mult[0] == 2) || (t->nin == 2 && t->in_mult[0] == 1));
+}
+
+/* The local Jacobian slot of t while reduced_eval keeps them, else NULL. */
+static double *local_jacobian_slot(Reduced *r, const RTensor *t) {
+  if (!r->keeping || !r->local_jac) return NULL;
+  for (int i = 0; i < r->nlj; i++)
+    if (r->lj[i].t == t) return r->lj[i].kept = true, r->lj[i].J;
+  return NULL;
+}
+
 const double *reduced_kept_local_jacobian(const Reduced *r, const RTensor *t) {
   for (int i = 0; i < r->nlj; i++)
     if (r->lj[i].t == t) return r->lj[i].kept && r->kept_valid && kept_coords((Reduced *)r, true) ? r->lj[i].J : NULL;
@@ -175,16 +187,17 @@ const double *reduced_kept_local_jacobian(const Reduced *r, const RTensor *t) {
 /* out += T·(x̂ ⊗ x̂) = ½ J x̂ for J = Ŝ x̂ kept (reduced_keep_local_jacobians): false when t is not
  * such a tensor or Ŝ could not be made (the plain contraction then). */
 static bool contract_keeping_jacobian(Reduced *r, const RTensor *t, double *out) {
-  if (!r->keeping || !r->local_jac || t->nin != 1 || t->in_mult[0] != 2) return false;
-  int i = 0;
-  while (i < r->nlj && r->lj[i].t != t) i++;
-  const double *S = i < r->nlj ? reduced_deriv_square(r, t) : NULL;
-  if (!S) return false;
+  if (t->nin != 1 || t->in_mult[0] != 2) return false;
+  double *J = local_jacobian_slot(r, t);
+  const double *S = J ? reduced_deriv_square(r, t) : NULL;
+  if (!S) {
+    for (int i = 0; J && i < r->nlj; i++) r->lj[i].kept = r->lj[i].t == t ? false : r->lj[i].kept;
+    return false;
+  }
   long m = qm(r->m, t->in_q[0]);
   const double *x = r->x[t->in_q[0]];
-  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)(t->rows * m), (int)m, 1.0, S, (int)m, x, 1, 0.0, r->lj[i].J, 1);
-  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)t->rows, (int)m, 0.5, r->lj[i].J, (int)m, x, 1, 1.0, out, 1);
-  r->lj[i].kept = true;
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)(t->rows * m), (int)m, 1.0, S, (int)m, x, 1, 0.0, J, 1);
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)t->rows, (int)m, 0.5, J, (int)m, x, 1, 1.0, out, 1);
   return true;
 }
 
@@ -398,6 +411,8 @@ static void contract(Reduced *r, const RTensor *t, double *out) {
     if (j == t->nin - 1 && colmajor)
       cblas_dgemv(CblasColMajor, CblasNoTrans, (int)lead, (int)cols, 1.0, colmajor, (int)lead, z[j], 1, beta, dst, 1);
     else cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)lead, (int)cols, 1.0, src, (int)cols, z[j], 1, beta, dst, 1);
+    double *J0 = j == 1 && t->nin == 2 ? local_jacobian_slot(r, t) : NULL; /* T·z_1 = ∂(T·z)/∂x̂_0 */
+    if (J0) memcpy(J0, dst, sizeof(double) * (size_t)lead);
     src = dst;
     b ^= 1;
     if (j > 0) lead /= t->in_len[j - 1];

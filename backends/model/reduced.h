@@ -89,15 +89,19 @@ typedef struct ReducedKept {
  * NULL when that evaluation failed, evaluated no such operator (an interpolated stage), or
  * any quantity's coordinates have changed since (the derivatives then recompute it). */
 const ReducedKept *reduced_kept(const Reduced *r, int stage, int term, int op);
-/* With `on`, reduced_eval also keeps the local Jacobian J = ∂(T·(x̂ ⊗ x̂))/∂x̂ (rows x m) of
- * every tensor T of one input taken twice (an operator's 1 + u²), from the same read of the
- * tensor as its value: J = Ŝ x̂, Ŝ the rows of T unpacked to symmetric matrices with doubled
- * diagonals (reduced_deriv_square), and T·(x̂ ⊗ x̂) = ½ J x̂. Ŝ holds twice T's entries, so the
- * evaluation costs more, and the derivative that follows less: for Jacobians and Newton's
- * iterations (compiler/api/reduced_derivatives.c), off for evaluations alone. */
+/* With `on`, reduced_eval also keeps the local Jacobian J (rows x m) of its first input of
+ * the tensors T of reduced_keeps_local_jacobian, from the evaluation's read of the tensor:
+ *   one input taken twice (an operator's 1 + u²): J = Ŝ x̂, Ŝ the rows of T unpacked to
+ *   symmetric matrices with doubled diagonals (reduced_deriv_square), and its value
+ *   T·(x̂ ⊗ x̂) = ½ J x̂ (Ŝ holds twice T's entries: the evaluation costs more, the derivative
+ *   that follows less);
+ *   two inputs, the first of degree 1 (k ⊗ u): J = T·z_2, the contraction's first step.
+ * For Jacobians and Newton's iterations (compiler/api/reduced_derivatives.c), off for
+ * evaluations alone. */
 void reduced_keep_local_jacobians(Reduced *r, bool on);
-/* T's local Jacobian as the last reduced_eval kept it, or NULL (not kept, or any coordinate
- * changed since: reduced_kept's rule). */
+bool reduced_keeps_local_jacobian(const RTensor *t);
+/* The local Jacobian of T's first input as the last reduced_eval kept it, or NULL (not kept,
+ * or any coordinate changed since: reduced_kept's rule). */
 const double *reduced_kept_local_jacobian(const Reduced *r, const RTensor *t);
 /* Ŝ of a tensor of one input taken twice (rows·m x m), made on first use and kept in the
  * evaluator's derivative cache; NULL out of memory. */

@@ -318,7 +318,7 @@ out:
  * tensor_jacobian's into `J`. NULL out of memory. */
 static const double *local_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
   if (t->nin == 1 && t->in_mult[0] == 1) return t->data;
-  const double *kept = t->nin == 1 && t->in_mult[0] == 2 ? reduced_kept_local_jacobian(dv->r, t) : NULL;
+  const double *kept = j == 0 && reduced_keeps_local_jacobian(t) ? reduced_kept_local_jacobian(dv->r, t) : NULL;
   if (kept) return kept;
   return tensor_jacobian(dv, t, j, J) ? NULL : J;
 }
