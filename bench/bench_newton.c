@@ -7,7 +7,8 @@
  * REPS: one npg_reduced_eval; one npg_reduced_jacobian(OUTPUT, INPUT) (which evaluates first, as
  * a Newton iteration must); and a Newton step: that Jacobian, I − J formed and solved for one
  * right-hand side by LAPACKE_dgesv (OUTPUT and INPUT of one size, a state and its next value).
- * Prints `newton m=<m> eval_us=<median> jacobian_us=<median> step_us=<median> ratio=<step/eval>`. */
+ * Prints `newton m=<m> eval_us=<median> jacobian_us=<median> solve_us=<median> step_us=<median>
+ * ratio=<step/eval>`, solve_us the step's I − J and dgesv alone. */
 #include <lapacke.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -67,7 +68,7 @@ int main(int argc, char **argv) {
   long mm = (long)mo;
   double *J = malloc(sizeof(double) * (size_t)(mm * mm)), *rhs = malloc(sizeof(double) * (size_t)mm);
   double *te = malloc(sizeof(double) * (size_t)reps), *tj = malloc(sizeof(double) * (size_t)reps);
-  double *ts = malloc(sizeof(double) * (size_t)reps);
+  double *ts = malloc(sizeof(double) * (size_t)reps), *tv = malloc(sizeof(double) * (size_t)reps);
   lapack_int *piv = malloc(sizeof(lapack_int) * (size_t)mm);
   for (long k = -1; k < reps; k++) { /* -1 warms up */
     double t0 = now();
@@ -76,6 +77,7 @@ int main(int argc, char **argv) {
     if (npg_reduced_jacobian(r, 0, out, in, J) != 0) return fprintf(stderr, "%s\n", npg_reduced_error(r)), 1;
     double t2 = now();
     if (npg_reduced_jacobian(r, 0, out, in, J) != 0) return fprintf(stderr, "%s\n", npg_reduced_error(r)), 1;
+    double t2s = now();
     for (long a = 0; a < mm; a++) {
       for (long b = 0; b < mm; b++) J[a * mm + b] = (a == b) - J[a * mm + b];
       rhs[a] = 1;
@@ -83,14 +85,15 @@ int main(int argc, char **argv) {
     if (LAPACKE_dgesv(LAPACK_ROW_MAJOR, (lapack_int)mm, 1, J, (lapack_int)mm, piv, rhs, 1) != 0)
       return fputs("bench_newton: I - J is singular\n", stderr), 1;
     double t3 = now();
-    if (k >= 0) te[k] = (t1 - t0) * 1e6, tj[k] = (t2 - t1) * 1e6, ts[k] = (t3 - t2) * 1e6;
+    if (k >= 0) te[k] = (t1 - t0) * 1e6, tj[k] = (t2 - t1) * 1e6, ts[k] = (t3 - t2) * 1e6, tv[k] = (t3 - t2s) * 1e6;
   }
-  double me = median(te, reps), mj = median(tj, reps), ms = median(ts, reps);
-  printf("newton m=%ld eval_us=%.2f jacobian_us=%.2f step_us=%.2f ratio=%.2f\n", mm, me, mj, ms, ms / me);
+  double me = median(te, reps), mj = median(tj, reps), ms = median(ts, reps), mv = median(tv, reps);
+  printf("newton m=%ld eval_us=%.2f jacobian_us=%.2f solve_us=%.2f step_us=%.2f ratio=%.2f\n", mm, me, mj, mv, ms,
+         ms / me);
   npg_reduced_free(r);
   npg_samples_free(s);
   npg_model_free(m);
   npg_free(p);
-  free(J), free(rhs), free(te), free(tj), free(ts), free(piv);
+  free(J), free(rhs), free(te), free(tj), free(ts), free(tv), free(piv);
   return 0;
 }

@@ -9,7 +9,9 @@
  *     1e-12 for spectra that are spread, clustered or scalar, diagonal or
  *     not, scaled near overflow or underflow; it fails naming an indefinite
  *     operator, a singular one under a negative power, and one not finite;
- *   - a corrupted, truncated or mismatched model is refused naming the file.
+ *   - a corrupted, truncated or mismatched model is refused naming the file;
+ *   - the reduced Jacobian from the operators, factors and local Jacobians an evaluation kept
+ *     equals the one recomputing them (1e-12), and a coordinate changed since voids them.
  */
 #include <cblas.h>
 #include <lapacke.h>
@@ -510,6 +512,86 @@ static void smaller_sizes_equal_retraining(void **state) {
     }
 }
 
+/* ---------------------------------------------------------------- derivatives from the evaluation's operators */
+
+/* The largest over every (output, input) of the relative difference between the Jacobian taken
+ * from what reduced_eval kept (its operators, factors and chains; the local Jacobians of the
+ * tensors of one input taken twice) and the one recomputing them (an evaluator that evaluated
+ * stage by stage keeps nothing). Counts the operators and local Jacobians kept; checks that a
+ * changed coordinate voids them. */
+static double kept_against_recomputed(const char *path, const char *text, int *nops, int *nlocal) {
+  Trained tr;
+  train(&tr, path, text, 6, 16, 3);
+  char err[1024];
+  Reduced *a = reduced_new(tr.m, err, sizeof err), *b = reduced_new(tr.m, err, sizeof err);
+  assert_non_null(a), assert_non_null(b);
+  if (memsamples_set(&tr.train, tr.f, 3) || full_eval(tr.f, 3)) fail_msg("%s", full_error(tr.f));
+  for (int q = 0; q < tr.m->nq; q++) {
+    const Sym *s = tr.prog->quantities.v[q];
+    if (s->kind == SYM_INPUT) reduced_project(a, q, full_get(tr.f, s->name, NULL)), reduced_project(b, q, full_get(tr.f, s->name, NULL));
+  }
+  reduced_keep_local_jacobians(a, true);
+  if (reduced_eval(a, 3)) fail_msg("%s", reduced_error(a));
+  reduced_keep_local_jacobians(a, false);
+  for (int i = 0; i < tr.m->nstages; i++)
+    if (reduced_eval_stage(b, i, 3)) fail_msg("%s", reduced_error(b));
+  for (int i = 0; i < tr.m->nstages; i++)
+    for (int t = 0; !tr.m->stages[i].interp && t < tr.m->stages[i].nterms; t++)
+      for (int k = 0; k < tr.m->stages[i].terms[t].nops; k++) {
+        *nops += reduced_kept(a, i, t, k) != NULL;
+        assert_null(reduced_kept(b, i, t, k));
+      }
+  FOR_TENSORS(tr.m, x) *nlocal += reduced_kept_local_jacobian(a, x) != NULL;
+  double worst = 0;
+  for (int qi = 0; qi < tr.m->nq; qi++) {
+    const Sym *si = tr.prog->quantities.v[qi];
+    long mi = tr.m->classes[tr.m->qclass[qi]].m;
+    for (int qo = 0; si->kind == SYM_INPUT && mi > 0 && qo < tr.m->nq; qo++) {
+      if (!((const Sym *)tr.prog->quantities.v[qo])->is_output) continue;
+      long mo = tr.m->classes[tr.m->qclass[qo]].m;
+      double *Ja = malloc(sizeof(double) * (size_t)(mo * mi + 1)), *Jb = malloc(sizeof(double) * (size_t)(mo * mi + 1));
+      if (reduced_jacobian(a, qo, qi, Ja, 3, err, sizeof err) || reduced_jacobian(b, qo, qi, Jb, 3, err, sizeof err))
+        fail_msg("%s: %s", path, err);
+      double big = 1, diff = 0;
+      for (long e = 0; e < mo * mi; e++) big = fmax(big, fabs(Jb[e])), diff = fmax(diff, fabs(Ja[e] - Jb[e]));
+      worst = fmax(worst, diff / big);
+      free(Ja), free(Jb);
+    }
+  }
+  for (int q = 0; q < tr.m->nq; q++) /* a coordinate changed after the evaluation voids what it kept */
+    if (((const Sym *)tr.prog->quantities.v[q])->kind == SYM_INPUT && tr.m->classes[tr.m->qclass[q]].m > 0) {
+      reduced_coords(a, q)[0] += 1;
+      for (int i = 0; i < tr.m->nstages; i++)
+        if (!tr.m->stages[i].interp && tr.m->stages[i].nterms > 0 && tr.m->stages[i].terms[0].nops > 0)
+          assert_null(reduced_kept(a, i, 0, 0));
+      FOR_TENSORS(tr.m, x) assert_null(reduced_kept_local_jacobian(a, x));
+      reduced_coords(a, q)[0] -= 1;
+      break;
+    }
+  reduced_free(a), reduced_free(b);
+  trained_free(&tr);
+  return worst;
+}
+
+/* Issue 43: the reduced Jacobian taken from the evaluation's operators equals the one that
+ * recomputes them, to 1e-12: an inverse of an operator quadratic in its input (its local
+ * Jacobian kept by the evaluation), a root, a declared operator solved. */
+static void derivatives_reuse_the_evaluation(void **state) {
+  (void)state;
+  static const char *quadratic = "dim N\ninput x : real[N]\ninput u : real[N]\nk[i:N] = u[i] / (1 + x[i]^2)\n"
+                                 "output y[i:N] = k[i] * x[i] + u[i]\n";
+  static const char *root = "dim N\ninput x : real[N]\ninput u : real[N]\nd[i:N] = x[i]^2 + 1\n"
+                            "output y[i:N] = u[i] * d[i]^(-1/2)\n";
+  int nops = 0, nlocal = 0;
+  double worst = kept_against_recomputed("quadratic.npg", quadratic, &nops, &nlocal);
+  assert_true(nops > 0 && nlocal > 0);
+  worst = fmax(worst, kept_against_recomputed("root.npg", root, &nops, &nlocal));
+  worst = fmax(worst, kept_against_recomputed("tests/programs/solve_stage.npg", NULL, &nops, &nlocal));
+  print_message("%d operators and %d local Jacobians kept, kept against recomputed: worst relative %.2g\n", nops,
+                nlocal, worst);
+  assert_true(worst <= 1e-12);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(full_rank_reproduces_full),
@@ -517,6 +599,7 @@ int main(void) {
       cmocka_unit_test(corrupted_model_named),
       cmocka_unit_test(roots_of_given_operators),
       cmocka_unit_test(smaller_sizes_equal_retraining),
+      cmocka_unit_test(derivatives_reuse_the_evaluation),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

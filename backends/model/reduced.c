@@ -76,12 +76,135 @@ struct Reduced {
   } *colmajor;
   int ncolmajor;
   struct DerivCache *deriv_cache; /* reduced_deriv.c's, built on the first derivative (owned) */
+  ReducedKept ***kept;    /* [stage][term][op]: what reduced_eval keeps for the derivatives */
+  bool keeping;           /* inside reduced_eval: eval_term fills `kept` */
+  bool kept_valid;        /* the last reduced_eval succeeded, and kept_x holds its coordinates */
+  double *kept_x;         /* every quantity's coordinates after it, one after another */
+  long kept_len;
+  bool local_jac;         /* reduced_keep_local_jacobians */
+  struct {                /* the local Jacobians of the tensors of one input taken twice */
+    const RTensor *t;
+    double *J;            /* rows x m */
+    bool kept;            /* by the last reduced_eval */
+  } *lj;
+  int nlj;
   char error[1024];
 };
 
 const char *reduced_error(const Reduced *r) { return r->error; }
 
 #define rfail(r, ...) error_set_first((r)->error, sizeof (r)->error, __VA_ARGS__)
+
+_Static_assert(sizeof(lapack_int) == sizeof(int), "ReducedKept.piv is an int array");
+
+static long kept_steps(const OpPow *op) { return op->q != 1 ? 1 : labs(op->p); }
+
+static void kept_free(Reduced *r) {
+  const Model *m = r->m;
+  for (int i = 0; r->kept && i < m->nstages; i++) {
+    for (int t = 0; r->kept[i] && t < m->stages[i].nterms; t++) {
+      for (int k = 0; r->kept[i][t] && k < m->stages[i].terms[t].nops; k++) {
+        ReducedKept *kp = &r->kept[i][t][k];
+        free(kp->M), free(kp->factor), free(kp->chain), free(kp->piv);
+      }
+      free(r->kept[i][t]);
+    }
+    free(r->kept[i]);
+  }
+  free(r->kept);
+  free(r->kept_x);
+  for (int i = 0; i < r->nlj; i++) free(r->lj[i].J);
+  free(r->lj);
+}
+
+/* The operators' kept state (ReducedKept), allocated once for every Galerkin term. */
+static int kept_alloc(Reduced *r) {
+  const Model *m = r->m;
+  if (!(r->kept = mem_calloc((size_t)m->nstages + 1, sizeof *r->kept))) return -1;
+  for (int i = 0; i < m->nstages; i++) {
+    const RStage *rs = &m->stages[i];
+    if (rs->interp || rs->st->kind == ST_EXTERN) continue;
+    long n = qm(m, rs->q);
+    if (!(r->kept[i] = mem_calloc((size_t)rs->nterms + 1, sizeof **r->kept))) return -1;
+    for (int t = 0; t < rs->nterms; t++) {
+      const RTerm *rt = &rs->terms[t];
+      if (!(r->kept[i][t] = mem_calloc((size_t)rt->nops + 1, sizeof ***r->kept))) return -1;
+      for (int k = 0; k < rt->nops; k++) {
+        ReducedKept *kp = &r->kept[i][t][k];
+        kp->M = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+        kp->factor = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+        kp->chain = mem_malloc(sizeof(double) * (size_t)((kept_steps(rt->ops[k].op) + 1) * n + 1));
+        kp->piv = mem_malloc(sizeof(int) * (size_t)(n + 1));
+        if (!kp->M || !kp->factor || !kp->chain || !kp->piv) return -1;
+      }
+    }
+  }
+  int n = 0;
+  FOR_TENSORS(m, t) n += reduced_keeps_local_jacobian(t);
+  if (!(r->lj = mem_calloc((size_t)n + 1, sizeof *r->lj))) return -1;
+  FOR_TENSORS(m, t) {
+    if (!reduced_keeps_local_jacobian(t)) continue;
+    r->lj[r->nlj].t = t;
+    if (!(r->lj[r->nlj++].J = mem_malloc(sizeof(double) * (size_t)(t->rows * qm(m, t->in_q[0]) + 1)))) return -1;
+  }
+  r->kept_len = 0;
+  for (int q = 0; q < m->nq; q++) r->kept_len += qm(m, q);
+  return (r->kept_x = mem_malloc(sizeof(double) * (size_t)(r->kept_len + 1))) ? 0 : -1;
+}
+
+/* The coordinates of every quantity, compared with (`check`) or copied to kept_x. */
+static bool kept_coords(Reduced *r, bool check) {
+  long off = 0;
+  for (int q = 0; q < r->m->nq; q++) {
+    size_t bytes = sizeof(double) * (size_t)qm(r->m, q);
+    if (check && memcmp(r->kept_x + off, r->x[q], bytes) != 0) return false;
+    if (!check) memcpy(r->kept_x + off, r->x[q], bytes);
+    off += qm(r->m, q);
+  }
+  return true;
+}
+
+void reduced_keep_local_jacobians(Reduced *r, bool on) { r->local_jac = on; }
+
+bool reduced_keeps_local_jacobian(const RTensor *t) {
+  return t->data && ((t->nin == 1 && t->in_mult[0] == 2) || (t->nin == 2 && t->in_mult[0] == 1));
+}
+
+/* The local Jacobian slot of t while reduced_eval keeps them, else NULL. */
+static double *local_jacobian_slot(Reduced *r, const RTensor *t) {
+  if (!r->keeping || !r->local_jac) return NULL;
+  for (int i = 0; i < r->nlj; i++)
+    if (r->lj[i].t == t) return r->lj[i].kept = true, r->lj[i].J;
+  return NULL;
+}
+
+const double *reduced_kept_local_jacobian(const Reduced *r, const RTensor *t) {
+  for (int i = 0; i < r->nlj; i++)
+    if (r->lj[i].t == t) return r->lj[i].kept && r->kept_valid && kept_coords((Reduced *)r, true) ? r->lj[i].J : NULL;
+  return NULL;
+}
+
+/* out += T·(x̂ ⊗ x̂) = ½ J x̂ for J = Ŝ x̂ kept (reduced_keep_local_jacobians): false when t is not
+ * such a tensor or Ŝ could not be made (the plain contraction then). */
+static bool contract_keeping_jacobian(Reduced *r, const RTensor *t, double *out) {
+  if (t->nin != 1 || t->in_mult[0] != 2) return false;
+  double *J = local_jacobian_slot(r, t);
+  const double *S = J ? reduced_deriv_square(r, t) : NULL;
+  if (!S) {
+    for (int i = 0; J && i < r->nlj; i++) r->lj[i].kept = r->lj[i].t == t ? false : r->lj[i].kept;
+    return false;
+  }
+  long m = qm(r->m, t->in_q[0]);
+  const double *x = r->x[t->in_q[0]];
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)(t->rows * m), (int)m, 1.0, S, (int)m, x, 1, 0.0, J, 1);
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)t->rows, (int)m, 0.5, J, (int)m, x, 1, 1.0, out, 1);
+  return true;
+}
+
+const ReducedKept *reduced_kept(const Reduced *r, int stage, int term, int op) {
+  if (!r->kept_valid || !r->kept[stage] || !kept_coords((Reduced *)r, true)) return NULL;
+  return &r->kept[stage][term][op];
+}
 
 void reduced_free(Reduced *r) {
   if (!r) return;
@@ -108,6 +231,7 @@ void reduced_free(Reduced *r) {
   for (int i = 0; i < r->ncolmajor; i++) free(r->colmajor[i].data);
   free(r->colmajor);
   reduced_deriv_cache_free(r->deriv_cache);
+  kept_free(r);
   free(r);
 }
 
@@ -218,7 +342,7 @@ Reduced *reduced_new(Model *m, char *err, size_t errlen) {
   r->root_start = mem_calloc((size_t)m->nstages + 1, sizeof(long));
   r->root_shrink = mem_calloc((size_t)m->nstages + 1, sizeof(double));
   if (!r->root_start || !r->root_shrink || !r->v || !r->acc || !r->buf[0] || !r->buf[1] || !r->z || !r->M || !r->M2 || !r->w || !r->piv) goto oom;
-  if (power_workspace(r) || krylov_init(&r->kr, maxm) || colmajor_copies(r)) goto oom;
+  if (power_workspace(r) || krylov_init(&r->kr, maxm) || colmajor_copies(r) || kept_alloc(r)) goto oom;
   return r;
 oom:
   snprintf(err, errlen, "out of memory for the reduced evaluator");
@@ -260,6 +384,7 @@ void reduced_lift_many(const Model *m, int q, long samples, const double *coords
 /* out[0..rows) += T ⊗ z_1 ⊗ … ⊗ z_n: the last axis first, each step one
  * dgemv; the first step reads the whole tensor once. */
 static void contract(Reduced *r, const RTensor *t, double *out) {
+  if (contract_keeping_jacobian(r, t, out)) return;
   if (t->nin == 0) {
     cblas_daxpy((int)t->rows, 1.0, t->data, 1, out, 1);
     return;
@@ -286,6 +411,8 @@ static void contract(Reduced *r, const RTensor *t, double *out) {
     if (j == t->nin - 1 && colmajor)
       cblas_dgemv(CblasColMajor, CblasNoTrans, (int)lead, (int)cols, 1.0, colmajor, (int)lead, z[j], 1, beta, dst, 1);
     else cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)lead, (int)cols, 1.0, src, (int)cols, z[j], 1, beta, dst, 1);
+    double *J0 = j == 1 && t->nin == 2 ? local_jacobian_slot(r, t) : NULL; /* T·z_1 = ∂(T·z)/∂x̂_0 */
+    if (J0) memcpy(J0, dst, sizeof(double) * (size_t)lead);
     src = dst;
     b ^= 1;
     if (j > 0) lead /= t->in_len[j - 1];
@@ -379,7 +506,7 @@ static int zero_operator(Reduced *r, const RStage *rs, const ROp *ro, int term, 
 }
 
 static int apply_inverse(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, int n, double *v,
-                         long sample) {
+                         long sample, ReducedKept *kp) {
   const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
   char lab[256], why[256], at[64];
   const char *sn = rs->st->sym->name;
@@ -410,6 +537,12 @@ static int apply_inverse(Reduced *r, const RStage *rs, const ROp *ro, int term, 
   for (long i = 0; i < -ro->op->p; i++) {
     if (chol) LAPACKE_dpotrs_work(LAPACK_COL_MAJOR, 'L', n, 1, r->M2, n, v, n);
     else LAPACKE_dgetrs_work(LAPACK_COL_MAJOR, 'T', n, 1, r->M, n, r->piv, v, n);
+    if (kp) memcpy(kp->chain + (i + 1) * n, v, sizeof(double) * (size_t)n);
+  }
+  if (kp) {
+    kp->chol = chol;
+    memcpy(kp->factor, chol ? r->M2 : r->M, sizeof(double) * (size_t)n * (size_t)n);
+    if (!chol) memcpy(kp->piv, r->piv, sizeof(lapack_int) * (size_t)n);
   }
   return 0;
 }
@@ -482,22 +615,30 @@ static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int
   return 0;
 }
 
-/* v <- M̂^(p/q) v, M̂ in r->M (destroyed). */
-static int apply_power(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, long my, double *v, long sample) {
+/* v <- M̂^(p/q) v, M̂ in r->M (destroyed); with `kp`, what the derivatives need kept there
+ * (ReducedKept: M̂ itself for integer powers and roots, an inverse's factor, the chain). */
+static int apply_power(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, long my, double *v, long sample,
+                       ReducedKept *kp) {
   const OpPow *op = ro->op;
   int n = (int)my;
   if (n == 0) return 0;
+  if (kp) {
+    memcpy(kp->chain, v, sizeof(double) * (size_t)n);
+    if (op->q != 1 || op->p > 0) memcpy(kp->M, r->M, sizeof(double) * (size_t)n * (size_t)n);
+  }
   if (op->q == 1 && op->p > 0) {
     for (long i = 0; i < op->p; i++) {
       cblas_dgemv(CblasRowMajor, CblasNoTrans, n, n, 1.0, r->M, n, v, 1, 0.0, r->w, 1);
       memcpy(v, r->w, sizeof(double) * (size_t)n);
+      if (kp) memcpy(kp->chain + (i + 1) * n, v, sizeof(double) * (size_t)n);
     }
     return 0;
   }
-  if (op->q == 1) return apply_inverse(r, rs, ro, term, k, n, v, sample);
+  if (op->q == 1) return apply_inverse(r, rs, ro, term, k, n, v, sample, kp);
   int threads = blas_one_thread();
   int rc = apply_root(r, rs, ro, term, k, n, v, sample);
   blas_restore_threads(threads);
+  if (kp && rc == 0) memcpy(kp->chain + n, v, sizeof(double) * (size_t)n);
   return rc;
 }
 
@@ -558,10 +699,11 @@ static int eval_term(Reduced *r, const RStage *rs, int t, double *v, double *M, 
     memset(v, 0, sizeof(double) * (size_t)my);
     for (int g = 0; g < rt->nnum; g++) contract(r, &rt->num[g], v);
   }
+  ReducedKept *kept = r->keeping ? r->kept[rs - m->stages][t] : NULL;
   for (int k = 0; k < rt->nops; k++) { /* innermost first (DESIGN §4) */
     assemble_op(r, &rt->ops[k], my);
     if (M) memcpy(M, r->M, sizeof(double) * (size_t)(my * my));
-    if (apply_power(r, rs, &rt->ops[k], t, k, my, v, sample)) return -1;
+    if (apply_power(r, rs, &rt->ops[k], t, k, my, v, sample, kept ? &kept[k] : NULL)) return -1;
   }
   return 0;
 }
@@ -599,7 +741,11 @@ int reduced_term(Reduced *r, int i, int t, double *v, double *M, long sample) {
 int reduced_eval(Reduced *r, long sample) {
   int threads = r->one_thread ? blas_one_thread() : 1;
   int rc = 0;
+  r->kept_valid = false, r->keeping = true;
+  for (int i = 0; i < r->nlj; i++) r->lj[i].kept = false;
   for (int i = 0; i < r->m->nstages && rc == 0; i++) rc = reduced_eval_stage(r, i, sample);
+  r->keeping = false;
+  if (rc == 0) r->kept_valid = kept_coords(r, false);
   if (r->one_thread) blas_restore_threads(threads);
   return rc;
 }
@@ -620,5 +766,5 @@ int reduced_apply_power(Reduced *r, int stage, int term, int op, long p, long q,
   const RStage *rs = &m->stages[stage];
   long my = qm(m, rs->q);
   memcpy(r->M, M, sizeof(double) * (size_t)(my * my));
-  return apply_power(r, rs, &rs->terms[term].ops[op], term, op, my, v, sample);
+  return apply_power(r, rs, &rs->terms[term].ops[op], term, op, my, v, sample, NULL);
 }

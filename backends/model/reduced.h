@@ -53,8 +53,9 @@ void reduced_lift_many(const Model *m, int q, long samples, const double *coords
 /* ---------------------------------------------------------------- derivatives (reduced_deriv.c)
  *
  * Derivatives of the reduced evaluator in reduced coordinates (DESIGN §17),
- * at the coordinates `r` holds after reduced_eval (the primal is not
- * recomputed: evaluate first). Blocks of `nd` directions travel together,
+ * at the coordinates `r` holds after reduced_eval (evaluate first): the
+ * operators, factors and chains that evaluation kept (reduced_kept) are used,
+ * or recomputed when any coordinate has changed since. Blocks of `nd` directions travel together,
  * every block m_q x nd row-major.
  *   reduced_jvp: out (m_out x nd) = Σ_i ∂ŷ_out/∂x̂_{seed_q[i]} · seed[i] (m x nd each);
  *   reduced_vjp: out (m_in x nd)  = Σ_i (∂ŷ_{seed_q[i]}/∂x̂_in)ᵀ · seed[i];
@@ -74,6 +75,37 @@ int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, ch
  * estimate.c, takes each stage's own sensitivity to each input). 0, or -1 with `err`. */
 int reduced_stage_jvp(Reduced *r, int stage, int in_q, const double *seed, long nd, double *out, long sample,
                       char *err, size_t errlen);
+/* What an evaluation keeps of each operator of a Galerkin term for the derivatives, so that
+ * they neither contract its tensors nor factor it again: M̂ as assembled (row-major n x n),
+ * the factor of an inverse power (Cholesky's L of M̂, or the LU factors of M̂ᵀ with piv,
+ * column-major: apply_inverse's), and the chain of the power's steps (its operand, then each
+ * step's result: (steps + 1) x n, steps |p| for integer powers, 1 for a root). */
+typedef struct ReducedKept {
+  double *M, *factor, *chain;
+  int *piv;               /* lapack_int */
+  bool chol;
+} ReducedKept;
+/* Operator `op` of term `term` of stage number `stage` as the last reduced_eval left it, or
+ * NULL when that evaluation failed, evaluated no such operator (an interpolated stage), or
+ * any quantity's coordinates have changed since (the derivatives then recompute it). */
+const ReducedKept *reduced_kept(const Reduced *r, int stage, int term, int op);
+/* With `on`, reduced_eval also keeps the local Jacobian J (rows x m) of its first input of
+ * the tensors T of reduced_keeps_local_jacobian, from the evaluation's read of the tensor:
+ *   one input taken twice (an operator's 1 + u²): J = Ŝ x̂, Ŝ the rows of T unpacked to
+ *   symmetric matrices with doubled diagonals (reduced_deriv_square), and its value
+ *   T·(x̂ ⊗ x̂) = ½ J x̂ (Ŝ holds twice T's entries: the evaluation costs more, the derivative
+ *   that follows less);
+ *   two inputs, the first of degree 1 (k ⊗ u): J = T·z_2, the contraction's first step.
+ * For Jacobians and Newton's iterations (compiler/api/reduced_derivatives.c), off for
+ * evaluations alone. */
+void reduced_keep_local_jacobians(Reduced *r, bool on);
+bool reduced_keeps_local_jacobian(const RTensor *t);
+/* The local Jacobian of T's first input as the last reduced_eval kept it, or NULL (not kept,
+ * or any coordinate changed since: reduced_kept's rule). */
+const double *reduced_kept_local_jacobian(const Reduced *r, const RTensor *t);
+/* Ŝ of a tensor of one input taken twice (rows·m x m), made on first use and kept in the
+ * evaluator's derivative cache; NULL out of memory. */
+const double *reduced_deriv_square(Reduced *r, const RTensor *t);
 /* What the derivatives keep between calls in their evaluator (reduced_deriv.c): the
  * evaluator's slot for it, and its release (reduced_free calls it). */
 struct DerivCache;

@@ -26,6 +26,12 @@
  * combination chosen by NNLS) has no derivative: reading one is refused; externs given by
  * the caller (reduced_use_given_externs) are constants.
  *
+ * The primal of each term is the evaluation's (reduced_kept: every operator as assembled, an
+ * inverse's Cholesky or LU factor, the vectors of its power's steps), never contracted or
+ * factored again while the coordinates are those it evaluated at; a tensor of one input taken
+ * twice has its local Jacobian from the evaluation's read too (reduced_keep_local_jacobians).
+ * A Jacobian's identity seed is added where a product by it would be formed.
+ *
  * The tangents (and cotangents) of `nd` directions travel together as
  * m × nd row-major blocks, so a whole Jacobian is one forward sweep with the
  * identity as seed (or one reverse sweep, whichever has fewer columns). */
@@ -40,11 +46,13 @@
 
 typedef struct Deriv {
   const Model *m;
+  const Reduced *r;     /* the evaluator: its kept operators (reduced_kept) */
   double *const *x;     /* the primal coordinates of every quantity (reduced_eval's) */
   long nd;              /* directions carried */
   double **d;           /* per quantity: its tangent (forward) or cotangent (reverse), m_q x nd, or NULL */
   bool *active;         /* quantities that depend on the differentiated inputs */
-  struct DerivCache *cache, **cache_slot; /* the evaluator's (reduced_deriv_cache) */
+  int ident_q;          /* forward: the quantity whose tangent block is the identity (nd = its m), or -1 */
+  struct DerivCache **cache_slot; /* the evaluator's (reduced_deriv_cache) */
   bool given_externs;   /* externs hold the caller's values (reduced_use_given_externs): constants */
   long sample;
   char *err;
@@ -54,6 +62,17 @@ typedef struct Deriv {
 static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
 
 static int dfail_oom(Deriv *dv) { return error_set(dv->err, dv->errlen, "out of memory for the reduced derivative"); }
+
+/* Forward: out (rows x nd) += alpha · J d[q], J rows x m_q. A Jacobian's seed is the identity:
+ * then J itself is added (a product by I cost as much as the rest of the sweep at m = 50). */
+static void forward_product(const Deriv *dv, int q, long rows, double alpha, const double *J, double *out) {
+  long mq = qm(dv->m, q), nd = dv->nd;
+  if (q == dv->ident_q)
+    for (long e = 0; e < rows * mq; e++) out[e] += alpha * J[e];
+  else
+    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)rows, (int)nd, (int)mq, alpha, J, (int)mq, dv->d[q],
+                (int)nd, 1.0, out, (int)nd);
+}
 
 /* ---------------------------------------------------------------- the evaluator's cache */
 
@@ -76,9 +95,10 @@ void reduced_deriv_cache_free(DerivCache *c) {
   free(c);
 }
 
-/* Ŝ of tensor t (its only input packed twice, m coordinates), or NULL out of memory. */
-static const double *square_unpacked(Deriv *dv, const RTensor *t, long m) {
-  DerivCache *c = dv->cache;
+/* Ŝ of tensor t (its only input packed twice, m coordinates) in the cache *slot, or NULL out
+ * of memory. */
+static const double *square_unpacked(DerivCache **slot, const RTensor *t, long m) {
+  DerivCache *c = *slot;
   for (int i = 0; c && i < c->n; i++)
     if (c->t[i] == t) return c->S[i];
   if (!c || c->n == c->cap) {
@@ -89,7 +109,7 @@ static const double *square_unpacked(Deriv *dv, const RTensor *t, long m) {
     if (nt) nc->t = nt;
     double **ns = nt ? realloc(nc->S, sizeof *ns * (size_t)cap) : NULL;
     if (ns) nc->S = ns;
-    if (!c) *dv->cache_slot = dv->cache = c = nc;
+    if (!c) *slot = c = nc;
     if (!nt || !ns) return NULL;
     c->cap = cap;
   }
@@ -106,6 +126,11 @@ static const double *square_unpacked(Deriv *dv, const RTensor *t, long m) {
   }
   c->t[c->n] = t, c->S[c->n] = S, c->n++;
   return S;
+}
+
+const double *reduced_deriv_square(Reduced *r, const RTensor *t) {
+  const Model *m = reduced_model(r);
+  return square_unpacked(reduced_deriv_cache(r), t, qm(m, t->in_q[0]));
 }
 
 /* ---------------------------------------------------------------- tensors */
@@ -222,7 +247,7 @@ static int tensor_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
   long mq = qm(dv->m, t->in_q[j]), Lj = t->in_len[j], rows = t->rows;
   int k = t->in_mult[j];
   if (k == 2 && t->nin == 1) {
-    const double *S = square_unpacked(dv, t, mq);
+    const double *S = square_unpacked(dv->cache_slot, t, mq);
     if (!S) return -1;
     cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)(rows * mq), (int)mq, 1.0, S, (int)mq, dv->x[t->in_q[j]], 1, 0.0,
                 J, 1);
@@ -288,6 +313,16 @@ out:
   return rc;
 }
 
+/* The local Jacobian ∂(T·z)/∂x̂ of input j of t (rows x m_q): the tensor itself when j is its
+ * only input, of degree 1 (nothing copied), the evaluation's when it kept it, else
+ * tensor_jacobian's into `J`. NULL out of memory. */
+static const double *local_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
+  if (t->nin == 1 && t->in_mult[0] == 1) return t->data;
+  const double *kept = j == 0 && reduced_keeps_local_jacobian(t) ? reduced_kept_local_jacobian(dv->r, t) : NULL;
+  if (kept) return kept;
+  return tensor_jacobian(dv, t, j, J) ? NULL : J;
+}
+
 /* Forward: out (rows x nd) += Σ_j ∂(T·z)/∂x̂_j · d[x_j]; reverse: d[x_j] += (∂(T·z)/∂x̂_j)ᵀ · bar
  * (rows x nd), for the active inputs of t. */
 static int tensor_tangent(Deriv *dv, const RTensor *t, bool reverse, const double *bar, double *out) {
@@ -296,18 +331,17 @@ static int tensor_tangent(Deriv *dv, const RTensor *t, bool reverse, const doubl
     if (!dv->active[q]) continue;
     long mq = qm(dv->m, q);
     if (mq == 0 || t->rows == 0) continue;
-    double *J = mem_malloc(sizeof(double) * (size_t)(t->rows * mq));
-    if (!J || tensor_jacobian(dv, t, j, J)) {
-      free(J);
+    double *buf = mem_malloc(sizeof(double) * (size_t)(t->rows * mq));
+    const double *J = buf ? local_jacobian(dv, t, j, buf) : NULL;
+    if (!J) {
+      free(buf);
       return dfail_oom(dv);
     }
     if (reverse)
       cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)dv->nd, (int)t->rows, 1.0, J, (int)mq, bar,
                   (int)dv->nd, 1.0, dv->d[q], (int)dv->nd);
-    else
-      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)t->rows, (int)dv->nd, (int)mq, 1.0, J, (int)mq,
-                  dv->d[q], (int)dv->nd, 1.0, out, (int)dv->nd);
-    free(J);
+    else forward_product(dv, q, t->rows, 1.0, J, out);
+    free(buf);
   }
   return 0;
 }
@@ -325,20 +359,83 @@ static bool tensor_active(const Deriv *dv, const RTensor *t) {
 typedef struct OpState {
   const ROp *ro;
   long n;
-  double *M, *LU, *U, *lam, *F; /* F: the divided differences of f (roots) */
+  double *M, *LU, *U, *lam, *F; /* LU: an inverse's factor (as ReducedKept's); F: f's divided differences (roots) */
   lapack_int *piv;
+  bool chol;                    /* LU holds Cholesky's L of M̂, else the LU factors of M̂ᵀ (column-major) */
+  bool kept;                    /* M, LU and piv are the evaluator's (reduced_kept), not owned */
 } OpState;
 
 static void op_state_free(OpState *o) {
-  free(o->M);
-  free(o->LU);
+  if (!o->kept) {
+    free(o->M);
+    free(o->LU);
+    free(o->piv);
+  }
   free(o->U);
   free(o->lam);
   free(o->F);
-  free(o->piv);
+}
+
+/* B (n x nrhs, row-major) <- M̂⁻¹ B, or M̂⁻ᵀ B with `trans`, by the inverse's factor; `work`
+ * holds n·nrhs (B transposed to the column-major layout LAPACK solves in) when nrhs > 1. */
+static void op_solve(const OpState *o, bool trans, double *B, long nrhs, double *work) {
+  lapack_int n = (lapack_int)o->n;
+  if (nrhs < 1 || n < 1) return;
+  double *X = nrhs == 1 ? B : work;
+  for (long i = 0; nrhs > 1 && i < n; i++)
+    for (long d = 0; d < nrhs; d++) X[d * n + i] = B[i * nrhs + d];
+  if (o->chol) LAPACKE_dpotrs_work(LAPACK_COL_MAJOR, 'L', n, (lapack_int)nrhs, o->LU, n, X, n);
+  else LAPACKE_dgetrs_work(LAPACK_COL_MAJOR, trans ? 'N' : 'T', n, (lapack_int)nrhs, o->LU, n, o->piv, X, n);
+  for (long i = 0; nrhs > 1 && i < n; i++)
+    for (long d = 0; d < nrhs; d++) B[i * nrhs + d] = X[d * n + i];
 }
 
 static double root_f(double l, double e) { return l > 0 ? pow(l, e) : 0.0; }
+
+/* Factor o->M as its power needs: an inverse's LU (unless kept), a root's eigendecomposition
+ * and divided differences. */
+static int op_factor(Deriv *dv, const RStage *rs, OpState *o) {
+  const ROp *ro = o->ro;
+  long n = o->n;
+  const char *sn = rs->st->sym->name;
+  long p = ro->op->p, q = ro->op->q;
+  if ((q == 1 && p > 0) || (q == 1 && o->kept)) return 0;
+  if (q == 1) {
+    o->LU = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+    o->piv = mem_malloc(sizeof(lapack_int) * (size_t)(n + 1));
+    if (!o->LU || !o->piv) return dfail_oom(dv);
+    memcpy(o->LU, o->M, sizeof(double) * (size_t)(n * n)); /* column-major: M̂ᵀ, as the evaluator factors it */
+    lapack_int info = LAPACKE_dgetrf_work(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)n, o->LU, (lapack_int)n, o->piv);
+    if (info != 0)
+      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator is singular (LAPACK dgetrf info %d): no "
+                       "derivative there", sn, (int)info);
+    return 0;
+  }
+  o->U = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+  o->lam = mem_malloc(sizeof(double) * (size_t)(n + 1));
+  o->F = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+  if (!o->U || !o->lam || !o->F) return dfail_oom(dv);
+  memcpy(o->U, o->M, sizeof(double) * (size_t)(n * n));
+  lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, o->U, (lapack_int)n, o->lam);
+  if (info != 0)
+    return error_set(dv->err, dv->errlen, "stage %s: eigendecomposition of its reduced operator failed (LAPACK dsyevd "
+                     "info %d)", sn, (int)info);
+  double e = (double)p / (double)q, big = 0;
+  for (long i = 0; i < n; i++) big = fmax(big, fabs(o->lam[i]));
+  double tol = 1e-12 * (big > 0 ? big : 1);
+  for (long i = 0; i < n; i++)
+    if (o->lam[i] <= tol)
+      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator has eigenvalue %.3g (largest %.3g): the "
+                       "power %ld/%ld is not differentiable there", sn, o->lam[i], big, p, q);
+  /* Daleckii–Krein: divided differences of f, its derivative where two eigenvalues are close */
+  for (long i = 0; i < n; i++)
+    for (long j = 0; j < n; j++) {
+      double li = o->lam[i], lj = o->lam[j];
+      o->F[i * n + j] = fabs(li - lj) > 1e-8 * fmax(li, lj) ? (root_f(li, e) - root_f(lj, e)) / (li - lj)
+                                                            : e * pow(0.5 * (li + lj), e - 1);
+    }
+  return 0;
+}
 
 /* Assemble M̂ of `ro` and factor it as its power needs. */
 static int op_state(Deriv *dv, const RStage *rs, const ROp *ro, long n, OpState *o) {
@@ -372,44 +469,16 @@ static int op_state(Deriv *dv, const RStage *rs, const ROp *ro, long n, OpState 
       for (long b = a; b < n; b++, p++) o->M[a * n + b] = o->M[b * n + a] = acc[p];
   } else memcpy(o->M, acc, sizeof(double) * (size_t)(n * n));
   free(acc);
-  const char *sn = rs->st->sym->name;
-  long p = ro->op->p, q = ro->op->q;
-  if (q == 1 && p > 0) return 0;
-  if (q == 1) {
-    o->LU = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
-    o->piv = mem_malloc(sizeof(lapack_int) * (size_t)(n + 1));
-    if (!o->LU || !o->piv) return dfail_oom(dv);
-    memcpy(o->LU, o->M, sizeof(double) * (size_t)(n * n));
-    lapack_int info = LAPACKE_dgetrf(LAPACK_ROW_MAJOR, (lapack_int)n, (lapack_int)n, o->LU, (lapack_int)n, o->piv);
-    if (info != 0)
-      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator is singular (LAPACK dgetrf info %d): no "
-                       "derivative there", sn, (int)info);
-    return 0;
-  }
-  o->U = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
-  o->lam = mem_malloc(sizeof(double) * (size_t)(n + 1));
-  o->F = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
-  if (!o->U || !o->lam || !o->F) return dfail_oom(dv);
-  memcpy(o->U, o->M, sizeof(double) * (size_t)(n * n));
-  lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, o->U, (lapack_int)n, o->lam);
-  if (info != 0)
-    return error_set(dv->err, dv->errlen, "stage %s: eigendecomposition of its reduced operator failed (LAPACK dsyevd "
-                     "info %d)", sn, (int)info);
-  double e = (double)p / (double)q, big = 0;
-  for (long i = 0; i < n; i++) big = fmax(big, fabs(o->lam[i]));
-  double tol = 1e-12 * (big > 0 ? big : 1);
-  for (long i = 0; i < n; i++)
-    if (o->lam[i] <= tol)
-      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator has eigenvalue %.3g (largest %.3g): the "
-                       "power %ld/%ld is not differentiable there", sn, o->lam[i], big, p, q);
-  /* Daleckii–Krein: divided differences of f, its derivative where two eigenvalues are close */
-  for (long i = 0; i < n; i++)
-    for (long j = 0; j < n; j++) {
-      double li = o->lam[i], lj = o->lam[j];
-      o->F[i * n + j] = fabs(li - lj) > 1e-8 * fmax(li, lj) ? (root_f(li, e) - root_f(lj, e)) / (li - lj)
-                                                            : e * pow(0.5 * (li + lj), e - 1);
-    }
-  return 0;
+  return op_factor(dv, rs, o);
+}
+
+/* The operator `ro` as the evaluation kept it (`kp`): M̂ and an inverse's factor borrowed, a
+ * root's eigendecomposition computed from the kept M̂ (the evaluation never forms it). */
+static int op_state_kept(Deriv *dv, const RStage *rs, const ROp *ro, long n, const ReducedKept *kp, OpState *o) {
+  memset(o, 0, sizeof *o);
+  o->ro = ro, o->n = n, o->kept = true;
+  o->M = kp->M, o->LU = kp->factor, o->piv = kp->piv, o->chol = kp->chol;
+  return op_factor(dv, rs, o);
 }
 
 /* out (n) = f(M) v for a root: U f(Λ) Uᵀ v. */
@@ -438,7 +507,7 @@ static void op_forward_primal(const OpState *o, double *vs, double *w) {
                                            v2, 1);
     else {
       memcpy(v2, v, sizeof(double) * (size_t)n);
-      LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', (lapack_int)n, 1, o->LU, (lapack_int)n, o->piv, v2, 1);
+      op_solve(o, false, v2, 1, NULL);
     }
   }
 }
@@ -514,27 +583,31 @@ static int op_dM_times(Deriv *dv, const OpState *o, const double *u, double sign
       int q = t->in_q[j];
       long mq = qm(dv->m, q);
       if (!dv->active[q] || mq == 0 || n == 0) continue;
-      double *J = mem_malloc(sizeof(double) * (size_t)(rows * mq)), *G = mem_calloc((size_t)(n * mq), sizeof(double));
-      if (!J || !G || tensor_jacobian(dv, t, j, J)) {
-        free(J);
+      double *buf = mem_malloc(sizeof(double) * (size_t)(rows * mq)), *G = mem_calloc((size_t)(n * mq), sizeof(double));
+      const double *J = buf && G ? local_jacobian(dv, t, j, buf) : NULL;
+      if (!J) {
+        free(buf);
         free(G);
         return dfail_oom(dv);
       }
-      for (long a = 0, p = 0; a < n; a++)
-        for (long b = diag ? a : 0; b < n; b++, p++) {
-          const double *jr = J + p * mq;
-          double *ga = G + a * mq, *gb = G + b * mq, ub = u[b], ua = u[a];
-          for (long c = 0; c < mq; c++) ga[c] += jr[c] * ub;
-          if (diag && b != a)
-            for (long c = 0; c < mq; c++) gb[c] += jr[c] * ua;
-        }
+      if (!diag) /* G's row a = (J's rows (a, ·))ᵀ u */
+        for (long a = 0; a < n; a++)
+          cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)mq, 1.0, J + a * n * mq, (int)mq, u, 1, 0.0, G + a * mq,
+                      1);
+      else
+        for (long a = 0, p = 0; a < n; a++)
+          for (long b = a; b < n; b++, p++) {
+            const double *jr = J + p * mq;
+            double *ga = G + a * mq, *gb = G + b * mq, ub = u[b], ua = u[a];
+            for (long c = 0; c < mq; c++) ga[c] += jr[c] * ub;
+            if (b != a)
+              for (long c = 0; c < mq; c++) gb[c] += jr[c] * ua;
+          }
       if (reverse)
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)n, sign, G, (int)mq, V, (int)nd,
                     1.0, dv->d[q], (int)nd);
-      else
-        cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)nd, (int)mq, sign, G, (int)mq, dv->d[q],
-                    (int)nd, 1.0, V, (int)nd);
-      free(J);
+      else forward_product(dv, q, n, sign, G, V);
+      free(buf);
       free(G);
     }
   }
@@ -568,8 +641,7 @@ static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV)
       if (op_dM_times(dv, o, v, 1.0, false, dV)) break;
     } else if (o->ro->op->q == 1) { /* dv' = M⁻¹ (dv − dM v') */
       if (op_dM_times(dv, o, v2, -1.0, false, dV)) break;
-      if (nd > 0) LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'N', (lapack_int)n, (lapack_int)nd, o->LU, (lapack_int)n, o->piv,
-                                 dV, (lapack_int)nd);
+      op_solve(o, false, dV, nd, tmp);
     } else { /* dv' = f(M) dv + U (F ∘ Uᵀ dM U) Uᵀ v */
       cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)n, 1.0, o->U, (int)n, v, 1, 0.0, w, 1);
       for (long d = 0; d < nd; d++) {
@@ -611,8 +683,7 @@ static int op_reverse(Deriv *dv, const OpState *o, const double *vs, double *Vb)
                   0.0, tmp, (int)nd);
       memcpy(Vb, tmp, sizeof(double) * (size_t)(n * nd));
     } else if (o->ro->op->q == 1) { /* λ = M⁻ᵀ v̄', M̄ −= λ v'ᵀ, v̄ = λ */
-      if (nd > 0) LAPACKE_dgetrs(LAPACK_ROW_MAJOR, 'T', (lapack_int)n, (lapack_int)nd, o->LU, (lapack_int)n, o->piv,
-                                 Vb, (lapack_int)nd);
+      op_solve(o, true, Vb, nd, tmp);
       if (op_dM_times(dv, o, v2, -1.0, true, Vb)) break;
     } else { /* ū = Uᵀ v̄': M̄ += U (F ∘ ū wᵀ) Uᵀ, w = Uᵀ v; v̄ = U f(Λ) ū */
       cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)n, 1.0, o->U, (int)n, v, 1, 0.0, w, 1);
@@ -646,17 +717,38 @@ typedef struct TermState {
   int nops;
   OpState *ops;
   double **vs;
+  bool kept; /* the chains are the evaluator's (reduced_kept) */
 } TermState;
 
 static void term_free(TermState *ts) {
   for (int k = 0; k < ts->nops; k++) {
     op_state_free(&ts->ops[k]);
-    free(ts->vs[k]);
+    if (!ts->kept) free(ts->vs[k]);
   }
   free(ts->ops);
   free(ts->vs);
 }
 
+/* Term `t` of stage rs as the evaluation kept it, or 1 when it kept none (reduced_kept). */
+static int term_kept(Deriv *dv, const RStage *rs, int t, long n, TermState *ts) {
+  const RTerm *rt = &rs->terms[t];
+  int stage = (int)(rs - dv->m->stages);
+  for (int k = 0; k < rt->nops; k++)
+    if (!reduced_kept(dv->r, stage, t, k)) return 1;
+  ts->nops = rt->nops, ts->kept = true;
+  ts->ops = mem_calloc((size_t)rt->nops + 1, sizeof(OpState));
+  ts->vs = mem_calloc((size_t)rt->nops + 1, sizeof(double *));
+  if (!ts->ops || !ts->vs) return dfail_oom(dv);
+  for (int k = 0; k < rt->nops; k++) {
+    const ReducedKept *kp = reduced_kept(dv->r, stage, t, k);
+    ts->vs[k] = kp->chain;
+    if (op_state_kept(dv, rs, &rt->ops[k], n, kp, &ts->ops[k])) return -1;
+  }
+  return 0;
+}
+
+/* Term rt's primal recomputed from the coordinates: its numerator, each operator assembled,
+ * factored and applied. */
 static int term_primal(Deriv *dv, const RStage *rs, const RTerm *rt, long n, TermState *ts) {
   const Model *m = dv->m;
   ts->nops = rt->nops;
@@ -718,9 +810,7 @@ static int term_numerator(Deriv *dv, const RTerm *rt, long n, bool reverse, doub
   else if (reverse)
     cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mw, (int)nd, (int)n, 1.0, rt->proj, (int)mw, V, (int)nd,
                 1.0, dv->d[w], (int)nd);
-  else
-    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)nd, (int)mw, 1.0, rt->proj, (int)mw, dv->d[w],
-                (int)nd, 1.0, V, (int)nd);
+  else forward_product(dv, w, n, 1.0, rt->proj, V);
   return 0;
 }
 
@@ -732,7 +822,11 @@ static int galerkin_stage(Deriv *dv, const RStage *rs, bool reverse) {
   for (int t = 0; t < rs->nterms && rc == 0; t++) {
     const RTerm *rt = &rs->terms[t];
     TermState ts = {0};
-    rc = term_primal(dv, rs, rt, n, &ts);
+    if (rt->nops > 0 && (rc = term_kept(dv, rs, t, n, &ts)) == 1) { /* not kept: recomputed */
+      term_free(&ts);
+      memset(&ts, 0, sizeof ts);
+      rc = term_primal(dv, rs, rt, n, &ts);
+    }
     if (rc == 0 && !reverse) {
       memset(V, 0, sizeof(double) * (size_t)(n * nd));
       rc = term_numerator(dv, rt, n, false, V);
@@ -762,19 +856,71 @@ static double interp_pow(double b, long p, long q) {
   return pow(b, (double)p / (double)q);
 }
 
+/* Forward: d[y] += J_q d[q]; reverse: d[q] += J_qᵀ d[y], J_q = (W P B)⁺ W · ∂(P y)/∂x̂_q for one
+ * quantity q the formula reads, g = ∂(P y)/∂acc and val the read entries (interp_stage's), pT the
+ * fit transposed (k x m_y). Each monomial's read of q adds its coefficient times the fit's
+ * column of its slot to C's row of the read (C: reads x m_y), then J_q = Cᵀ B_read, B_read the
+ * rows of q's basis read: m_y FLOPs a monomial and one dgemm, where forming ∂(P y)/∂x̂_q
+ * (k x m_q) first took m_q a monomial and a product of k·m_y·m_q (heat.npg's k: 948 monomials,
+ * k = 316, the stage's largest cost). */
+static int interp_jacobian(Deriv *dv, const RStage *rs, int q, const double *g, const double *val,
+                           const long *base, const double *pT, bool reverse) {
+  const Model *m = dv->m;
+  const RInterp *ip = rs->interp;
+  const RClass *c = &m->classes[m->qclass[q]];
+  long mq = c->m, my = qm(m, rs->q), nd = dv->nd, k = ip->k, nr = 0;
+  long *row = mem_malloc(sizeof(long) * (size_t)(ip->nreads + 1));
+  double *C = mem_calloc((size_t)(ip->nreads * my) + 1, sizeof(double));
+  double *Br = mem_malloc(sizeof(double) * (size_t)(ip->nreads * mq + 1));
+  double *J = mem_malloc(sizeof(double) * (size_t)(my * mq + 1));
+  if (!row || !C || !Br || !J) {
+    free(row), free(C), free(Br), free(J);
+    return dfail_oom(dv);
+  }
+  for (long r = 0; r < ip->nreads; r++) {
+    row[r] = ip->read_q[r] == q ? nr : -1;
+    if (row[r] >= 0) memcpy(Br + nr++ * mq, c->B + ip->read_e[r] * mq, sizeof(double) * (size_t)mq);
+  }
+  for (long i = 0; i < ip->nmono; i++) {
+    const RInterpMono *mo = &ip->mono[i];
+    double gi = g[(base[mo->term] + mo->factor) * k + mo->slot] * mo->coef;
+    for (int j = 0; j < mo->nin; j++) {
+      long r = mo->read[j];
+      if (row[r] < 0) continue;
+      double cj = gi;
+      for (int l = 0; l < mo->nin; l++)
+        if (l != j) cj *= val[mo->read[l]];
+      const double *col = pT + mo->slot * my; /* a loop: cblas_daxpy's call cost more at these m */
+      double *dst = C + row[r] * my;
+      for (long a = 0; a < my; a++) dst[a] += cj * col[a];
+    }
+  }
+  if (nr > 0)
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)mq, (int)nr, 1.0, C, (int)my, Br, (int)mq, 0.0,
+                J, (int)mq);
+  else memset(J, 0, sizeof(double) * (size_t)(my * mq));
+  if (reverse)
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)my, 1.0, J, (int)mq, dv->d[rs->q],
+                (int)nd, 1.0, dv->d[q], (int)nd);
+  else forward_product(dv, q, my, 1.0, J, dv->d[rs->q]);
+  free(row), free(C), free(Br), free(J);
+  return 0;
+}
+
 /* Forward: d[y] += J_q d[q]; reverse: d[q] += J_qᵀ d[y], for every active quantity q the
  * formula reads, J_q = (W P B)⁺ W · ∂(P y)/∂x̂_q from its monomials (RInterp.mono). */
 static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
   const Model *m = dv->m;
   const RInterp *ip = rs->interp;
-  long k = ip->k, nf = 0, my = qm(m, rs->q), nd = dv->nd;
+  long k = ip->k, nf = 0, my = qm(m, rs->q);
   long *base = mem_malloc(sizeof(long) * (size_t)(rs->nterms + 1));
   if (!base) return dfail_oom(dv);
   for (int t = 0; t < rs->nterms; t++) base[t] = nf, nf += 1 + rs->terms[t].nops;
   double *val = mem_malloc(sizeof(double) * (size_t)(ip->nreads + 1));
   double *acc = mem_calloc((size_t)(k * nf) + 1, sizeof(double)), *g = mem_calloc((size_t)(k * nf) + 1, sizeof(double));
+  double *pT = mem_malloc(sizeof(double) * (size_t)(k * my + 1));
   int rc = -1;
-  if (!val || !acc || !g) {
+  if (!val || !acc || !g || !pT) {
     dfail_oom(dv);
     goto out;
   }
@@ -804,50 +950,21 @@ static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
     }
   }
   rc = 0;
+  for (long s = 0; s < k; s++) /* the fit transposed, k x my: a slot's column contiguous */
+    for (long i = 0; i < my; i++) pT[s * my + i] = ip->pinv[i * k + s];
   for (int q = 0; q < m->nq && rc == 0; q++) {
     if (!dv->active[q]) continue;
     bool reads = false;
     for (long r = 0; r < ip->nreads && !reads; r++) reads = ip->read_q[r] == q;
     if (!reads) continue;
-    const RClass *c = &m->classes[m->qclass[q]];
-    long mq = c->m;
-    double *D = mem_calloc((size_t)(k * mq) + 1, sizeof(double)), *J = mem_malloc(sizeof(double) * (size_t)(my * mq + 1));
-    if (!D || !J) {
-      free(D);
-      free(J);
-      rc = dfail_oom(dv);
-      break;
-    }
-    for (long i = 0; i < ip->nmono; i++) {
-      const RInterpMono *mo = &ip->mono[i];
-      double gi = g[(base[mo->term] + mo->factor) * k + mo->slot] * mo->coef;
-      for (int j = 0; j < mo->nin; j++) {
-        long r = mo->read[j];
-        if (ip->read_q[r] != q) continue;
-        double cj = gi;
-        for (int l = 0; l < mo->nin; l++)
-          if (l != j) cj *= val[mo->read[l]];
-        const double *row = c->B + ip->read_e[r] * mq; /* a loop: cblas_daxpy's call cost more at these m */
-        double *dst = D + mo->slot * mq;
-        for (long a = 0; a < mq; a++) dst[a] += cj * row[a];
-      }
-    }
-    cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)my, (int)mq, (int)k, 1.0, ip->pinv, (int)k, D, (int)mq,
-                0.0, J, (int)mq);
-    if (reverse)
-      cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)my, 1.0, J, (int)mq, dv->d[rs->q],
-                  (int)nd, 1.0, dv->d[q], (int)nd);
-    else
-      cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)my, (int)nd, (int)mq, 1.0, J, (int)mq, dv->d[q],
-                  (int)nd, 1.0, dv->d[rs->q], (int)nd);
-    free(D);
-    free(J);
+    rc = interp_jacobian(dv, rs, q, g, val, base, pT, reverse);
   }
 out:
   free(base);
   free(val);
   free(acc);
   free(g);
+  free(pT);
   return rc;
 }
 
@@ -898,8 +1015,9 @@ static void deriv_free(Deriv *dv) {
 static int deriv_init(Deriv *dv, Reduced *r, long nd, const int *from, int nfrom, long sample, char *err,
                       size_t errlen) {
   memset(dv, 0, sizeof *dv);
+  dv->r = r, dv->ident_q = -1;
   dv->m = reduced_model(r), dv->nd = nd, dv->sample = sample, dv->err = err, dv->errlen = errlen;
-  dv->cache_slot = reduced_deriv_cache(r), dv->cache = *dv->cache_slot;
+  dv->cache_slot = reduced_deriv_cache(r);
   dv->given_externs = reduced_given_externs(r);
   if (errlen > 0) err[0] = 0; /* a failure is known by its message */
   const Model *m = dv->m;
@@ -924,11 +1042,13 @@ static int deriv_init(Deriv *dv, Reduced *r, long nd, const int *from, int nfrom
   return 0;
 }
 
-int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int out_q, double *out,
-                long sample, char *err, size_t errlen) {
+/* reduced_jvp; with `ident`, seed[0] is the identity (reduced_jacobian's forward sweep). */
+static int forward_sweep(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int out_q,
+                         double *out, bool ident, long sample, char *err, size_t errlen) {
   Deriv dv;
   int rc = deriv_init(&dv, r, nd, seed_q, nseed, sample, err, errlen);
   const Model *m = dv.m;
+  if (ident) dv.ident_q = seed_q[0];
   for (int i = 0; i < nseed && rc == 0; i++)
     cblas_daxpy((int)(qm(m, seed_q[i]) * nd), 1.0, seed[i], 1, dv.d[seed_q[i]], 1);
   for (int i = 0; i < m->nstages && rc == 0; i++) {
@@ -941,6 +1061,11 @@ int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *s
   free((void *)dv.x);
   deriv_free(&dv);
   return rc ? -1 : 0;
+}
+
+int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int out_q, double *out,
+                long sample, char *err, size_t errlen) {
+  return forward_sweep(r, nseed, seed_q, seed, nd, out_q, out, false, sample, err, errlen);
 }
 
 int reduced_vjp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int in_q, double *out,
@@ -974,7 +1099,7 @@ int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, ch
   }
   for (long i = 0; i < nd; i++) eye[i * nd + i] = 1;
   const double *seed = eye;
-  int rc = forward ? reduced_jvp(r, 1, &in_q, &seed, nd, out_q, J, sample, err, errlen)
+  int rc = forward ? forward_sweep(r, 1, &in_q, &seed, nd, out_q, J, true, sample, err, errlen)
                    : reduced_vjp(r, 1, &out_q, &seed, nd, in_q, T, sample, err, errlen);
   if (rc == 0 && !forward)
     for (long a = 0; a < mo; a++)

@@ -44,6 +44,15 @@ static int finite_vectors(NpgReduced *r, const char *fn, const char *what, int n
   return 0;
 }
 
+/* npg_reduced_eval, keeping the local Jacobians of the tensors of one input taken twice from the
+ * evaluation's read of them (reduced_keep_local_jacobians): a derivative follows. */
+static int eval_for_derivative(NpgReduced *r, long sample) {
+  if (r->r) reduced_keep_local_jacobians(r->r, true);
+  int rc = npg_reduced_eval(r, sample);
+  if (r->r) reduced_keep_local_jacobians(r->r, false);
+  return rc;
+}
+
 /* What the three share: the arguments named, the evaluation at `sample`. `qs` holds n + 1. */
 static int derivative_begin(NpgReduced *r, const char *fn, long sample, int n, const char *const *names,
                             bool names_inputs, const char *what, int *qs) {
@@ -55,7 +64,7 @@ static int derivative_begin(NpgReduced *r, const char *fn, long sample, int n, c
     else snprintf(arg, sizeof arg, "%s[%d]", what, i);
     if ((qs[i] = derivative_quantity(r, fn, arg, names[i], names_inputs)) < 0) return -1;
   }
-  return npg_reduced_eval(r, sample);
+  return eval_for_derivative(r, sample);
 }
 
 int npg_reduced_jvp(NpgReduced *r, long sample, int nin, const char *const *inputs, const double *const *directions,
@@ -158,7 +167,7 @@ int npg_reduced_newton(NpgReduced *r, long sample, const char *residual, const c
     goto done;
   }
   for (int it = 0;; it++) {
-    if (npg_reduced_eval(r, sample)) goto done;
+    if (eval_for_derivative(r, sample)) goto done;
     const double *res = npg_reduced_coords(r, residual, NULL);
     double nr = norm2(res, m);
     o->iterations = it, o->residual = nr;
