@@ -43,6 +43,18 @@ void npg_train_options_default(NpgTrainOptions *o) {
   o->valid_holdout = -1; /* automatic: DESIGN §12 */
 }
 
+void api_train_options(const NpgTrainOptions *o, TrainOptions *to) {
+  *to = (TrainOptions){.cap = o->cap, .energy = o->energy, .joint = o->joint, .mem = o->mem, .progress = o->progress,
+                       .dist = o->mpi, .uncentered = o->uncentered, .noverride = o->nbasis,
+                       .override_name = (const char **)o->basis_name, .override_cap = (int *)o->basis_cap,
+                       .override_energy = (double *)o->basis_energy, .override_center = (int *)o->basis_center,
+                       .override_product = (const char **)o->basis_product, .ninterp = o->ninterp,
+                       .interp_stage = o->interp_stage, .interp_oversample = o->interp_oversample,
+                       .ngalerkin = o->ngalerkin, .galerkin_stage = o->galerkin_stage,
+                       .valid_holdout = o->valid_holdout, .stream = true, .keep_bases = o->keep_bases,
+                       .rollout_steps = o->rollout_steps, .rollout_every = o->rollout_every};
+}
+
 int api_refuse_reduce_options(const NpgTrainOptions *o, const char *func, char *err, size_t errlen) {
 #define REFUSE(...) api_refuse(err, errlen, func, __VA_ARGS__)
   /* the interpolated stages' and streamed bases' fields (DESIGN §12, issue 30): a NULL list of
@@ -128,11 +140,8 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
   }
   const Program *prog = t->prog = full_program(f->full);
   /* the names the options give, refused now rather than after every sample was streamed */
-  TrainOptions names = {.noverride = t->opt.nbasis, .override_name = (const char **)t->opt.basis_name,
-                        .override_product = (const char **)t->opt.basis_product,
-                        .keep_bases = t->opt.keep_bases, .ninterp = t->opt.ninterp,
-                        .interp_stage = t->opt.interp_stage, .ngalerkin = t->opt.ngalerkin,
-                        .galerkin_stage = t->opt.galerkin_stage};
+  TrainOptions names;
+  api_train_options(&t->opt, &names);
   if (prog && train_check_names((Program *)prog, &names, t->error, sizeof t->error) != 0) return t;
   t->slot = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->slot);
   t->count = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->count);
@@ -569,44 +578,6 @@ static int ranks_agree(NpgTrainer *t) {
   return rc;
 }
 
-/* Held-out validation (NpgTrainOptions.valid_holdout, DESIGN §12): every
- * stride-th sample (k % stride == stride - 1) validates, the others train;
- * interleaved, so both cover a simulation's whole run. */
-typedef struct Holdout {
-  NpgTrainer *t;
-  long stride;
-} Holdout;
-
-static long training_index(const Holdout *h, long j) { return j + j / (h->stride - 1); }
-
-static int replay_training(void *user, Full *f, long j) {
-  const Holdout *h = user;
-  return replay(h->t, f, training_index(h, j));
-}
-
-static int replay_training_part(void *user, Full *f, long j, const Demand *d) {
-  const Holdout *h = user;
-  return replay_part(h->t, f, training_index(h, j), d);
-}
-
-static int replay_held(void *user, Full *f, long j) {
-  const Holdout *h = user;
-  return replay(h->t, f, j * h->stride + h->stride - 1);
-}
-
-/* Whether a param's value changed during training (`before`: api_param_hashes then): only a
- * validation sample can do it (valid_set setting a param with npg_full_set), and the model would
- * then be trained with one value and validated with another. Names the param in t->error. */
-static bool params_changed(NpgTrainer *t, const char *before) {
-  bool oom;
-  const char *name = api_param_changed(t->f->full, before, &oom);
-  if (oom) tfail(t, "out of memory");
-  else if (name)
-    tfail(t, "NpgTrainOptions.valid_set changed param '%s': a validation sample holds inputs and externs only (the "
-             "params are the trainer's)", name);
-  return oom || name;
-}
-
 NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   REFUSE_NULL_T(NULL);
   /* over ranks the others would wait for this one in a collective: end the job */
@@ -626,32 +597,15 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   }
   if (check_mem(t)) return NULL;
   TrainOptions o;
-  memset(&o, 0, sizeof o);
-  o.cap = t->opt.cap;
-  o.energy = t->opt.energy;
-  o.joint = t->opt.joint;
+  api_train_options(&t->opt, &o);
   /* the cache holds at most a quarter of the budget; over ranks, what it
    * holds on one process (share_samples) on every rank: the same plan */
   size_t used = t->opt.mpi && dist_size() > 1 ? shared_use(t) : t->rec.used;
   if (t->error[0]) return NULL;
   o.mem = t->opt.mem - used;
   o.progress = t->opt.progress && dist_rank() == 0;
-  o.dist = t->opt.mpi;
   o.shared_prefix = model_dir; /* out of core over ranks: the basis files next to the model */
-  o.uncentered = t->opt.uncentered;
-  o.noverride = t->opt.nbasis;
-  o.override_center = (int *)t->opt.basis_center;
-  o.override_product = (const char **)t->opt.basis_product;
-  o.override_name = (const char **)t->opt.basis_name;
-  o.override_cap = (int *)t->opt.basis_cap;
-  o.override_energy = (double *)t->opt.basis_energy;
-  o.ninterp = t->opt.ninterp;
-  o.interp_stage = t->opt.interp_stage;
-  o.interp_oversample = t->opt.interp_oversample;
-  o.ngalerkin = t->opt.ngalerkin;
-  o.galerkin_stage = t->opt.galerkin_stage;
-  o.stream = true;
-  o.keep_bases = t->opt.keep_bases;
+  o.weights = t->weights;
   SampleClosure valid_set = {t->opt.valid_set, t->opt.valid_user, t->f};
   SampleSource valid = {t->opt.valid_count, &valid_set, api_sample_set, NULL, NULL};
   if (t->opt.valid_count > 0 && !t->opt.valid_set) {
@@ -660,90 +614,14 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   }
   o.valid = t->opt.valid_count > 0 ? &valid : NULL;
   SampleSource src = {t->samples, t, replay, replay_part, share_samples};
-  Holdout hold = {t, 0};
-  SampleSource held = {0};
-  double F = t->opt.valid_holdout;
-  bool retrain = F < 0;
-  if (F < 0) /* automatic: only where a stage's reduction is open to a choice (else the model is as before) */
-    F = t->opt.valid_count == 0 && !t->opt.mpi && t->samples >= TRAIN_HOLDOUT_MIN &&
-                interp_open_choices(t->prog, t->opt.ninterp, t->opt.interp_stage, t->opt.ngalerkin,
-                                    t->opt.galerkin_stage) > 0
-            ? 1.0 / TRAIN_HOLDOUT_STRIDE
-            : 0;
-  retrain &= F != 0;
-  SampleSource all = src;
-  if (F != 0) {
-    if (!(F > 0 && F <= 0.5) || t->opt.valid_count > 0 || t->opt.mpi) {
-      tfail(t, "--valid %g (NpgTrainOptions.valid_holdout): %s", F,
-            !(F > 0 && F <= 0.5) ? "must be in (0, 0.5]"
-            : t->opt.mpi         ? "not over MPI ranks (give a folder of validation samples instead, --valid DIR)"
-                                 : "validation samples are given as well");
-      return NULL;
-    }
-    hold.stride = lround(1 / F);
-    long nheld = t->samples / hold.stride;
-    if (nheld < 1) {
-      tfail(t, "--valid %g (NpgTrainOptions.valid_holdout) holds out one sample in %ld, none of %ld: give a "
-               "fraction of at least %.3g, or more samples", F, hold.stride, t->samples, 1.0 / (double)t->samples);
-      return NULL;
-    }
-    src = (SampleSource){t->samples - nheld, &hold, replay_training, replay_training_part, NULL};
-    held = (SampleSource){nheld, &hold, replay_held, NULL, NULL};
-    o.valid = &held;
-  }
-  /* The weights divided by the largest (over every rank): only their ratios
-   * count, and 20 weights of 1.5e308 overflowed their sum to infinity, lost
-   * a basis vector and were refused out of core as "snapshot values beyond
-   * 1e154". Scaled so, equal weights give the model of weights 1, bit for bit. */
-  double *weights = NULL;
-  if (t->weights) {
-    double big = 0;
-    for (long k = 0; k < t->samples; k++) big = fmax(big, t->weights[k]);
-    if (t->opt.mpi) dist_allreduce_max(&big, 1);
-    if (!(weights = mem_malloc(sizeof(double) * (size_t)t->samples))) {
-      tfail(t, "out of memory");
-      return NULL;
-    }
-    for (long k = 0; k < t->samples; k++) weights[k] = t->weights[k] / big;
-  }
-  /* the training samples' weights (of those left when some are held out) */
-  double *train_w = weights && src.count < t->samples ? mem_malloc(sizeof(double) * (size_t)src.count) : NULL;
-  if (weights && src.count < t->samples && !train_w) {
-    free(weights);
-    tfail(t, "out of memory");
-    return NULL;
-  }
-  for (long j = 0; train_w && j < src.count; j++) train_w[j] = weights[training_index(&hold, j)];
-  o.weights = train_w ? train_w : weights;
   char err[2048] = "";
-  /* the params the samples are replayed with, recorded before any validation sample is set: a
-   * valid_set that sets a param would otherwise leave its hash in the model (trial3) */
-  char *params = api_param_hashes(t->f->full);
-  if (!params) {
-    free(train_w);
-    free(weights);
-    tfail(t, "out of memory");
-    return NULL;
-  }
   Model *m = train_model((Program *)t->prog, t->f->full, &src, &o, err, sizeof err);
-  /* the automatic choice made, every sample trains the model (DESIGN §12) */
-  o.weights = weights;
-  if (m && retrain) m = interp_train_with_choice((Program *)t->prog, t->f->full, &all, &o, m, err, sizeof err);
-  free(train_w);
-  free(weights);
-  if (m && params_changed(t, params)) {
-    model_free(m);
-    m = NULL;
-    snprintf(err, sizeof err, "%s", t->error);
-  }
   /* over ranks, the others wait for this one in a collective: end the job */
   if (!m && t->opt.mpi && dist_size() > 1) dist_abort("%s", err);
   if (!m) {
-    free(params);
     tfail(t, "%s", err);
     return NULL;
   }
-  m->param_hashes = params;
   NpgModel *nm = api_model_wrap(m);
   if (!nm) {
     tfail(t, "out of memory");
