@@ -189,7 +189,7 @@ int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1,
  * snapshots taken. */
 static int whole_sample(Ooc *o, long k) {
   Model *m = o->t->m;
-  if (train_eval_sample(o->t->src, o->t->f, k, o->t->err, o->t->errlen) || train_check_spd(m, o->t->f, o->tmp, o->t->err, o->t->errlen))
+  if (train_eval_sample(o->t->src, o->t->f, k, o->t->err, o->t->errlen) || train_check_spd(o->t, o->tmp))
     return -1;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
@@ -261,7 +261,7 @@ static int whole_sweep(Ooc *o) {
   long S = o->S;
   for (long k = o->rank; k < S; k += o->N) {
     if (whole_sample(o, k)) return -1;
-    if (train_fail_hook(o->t->opt, k, o->t->err, o->t->errlen)) return -1;
+    if (train_fail_hook(o->t, k)) return -1;
     progress_show(o->t->opt->progress, "snapshots (whole, out of core)", k + 1, S);
   }
   double ***X = mem_calloc((size_t)m->nclasses + 1, sizeof(double **));

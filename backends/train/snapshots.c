@@ -151,7 +151,7 @@ static int gram_pass(Gram *g, long i0, long i1, long *done, long work) {
   long S = g->S, nb = i1 - i0;
   for (long k = i0, k0 = i1; k < S; k++) { /* k0: the first sample of the batch */
     if (train_eval_sample(g->t->src, g->t->f, k, g->t->err, g->t->errlen)) return -1;
-    if (g->round == 1 && k < i1 && train_check_spd(m, g->t->f, g->tmp, g->t->err, g->t->errlen)) return -1;
+    if (g->round == 1 && k < i1 && train_check_spd(g->t, g->tmp)) return -1;
     bool full = k >= i1 && (k + 1 - k0 == g->q || k + 1 == S);
     for (int c = 0; c < m->nclasses; c++) {
       RClass *rc = &m->classes[c];

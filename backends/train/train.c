@@ -169,6 +169,23 @@ static int class_products(Model *m, const TrainOptions *opt, char *err, size_t e
 
 /* ---------------------------------------------------------------- training */
 
+typedef struct TrainScratch {
+  struct TrainScratch *next;
+  max_align_t data[];
+} TrainScratch;
+
+void *train_scratch(Train *t, size_t bytes) {
+  TrainScratch *s = mem_calloc(1, sizeof *s + bytes);
+  if (!s) return error_set(t->err, t->errlen, "out of memory during training"), NULL;
+  s->next = t->scratch, t->scratch = s;
+  return s->data;
+}
+
+void train_scratch_free(Train *t) {
+  for (TrainScratch *s = t->scratch, *next; s; s = next) next = s->next, free(s);
+  t->scratch = NULL;
+}
+
 void train_free_snapshots(Model *m, Snapshots *sn) {
   for (int c = 0; c < m->nclasses; c++) {
     for (int i = 0; i < m->classes[c].nmembers; i++) {
@@ -249,11 +266,12 @@ int train_member_value(Train *t, const RMember *mb, long k, long n, double *out)
 
 /* A diagonal operator stays marked SPD while every training diagonal seen is
  * positive (then BᵀDB is SPD for every basis: Cholesky). */
-int train_check_spd(Model *m, Full *f, double *tmp, char *err, size_t errlen) {
+int train_check_spd(Train *t, double *tmp) {
+  Model *m = t->m;
   FOR_DIAG_OPS(m, rs, rt, ro) {
     if (!ro->spd) continue;
     long n = m->classes[m->qclass[rs->q]].n;
-    if (field_value(f, ro->t, ro->ntensors, tmp, n, err, errlen)) return -1;
+    if (field_value(t->f, ro->t, ro->ntensors, tmp, n, t->err, t->errlen)) return -1;
     for (long e = 0; e < n && ro->spd; e++)
       if (!(tmp[e] > 0)) ro->spd = false;
   }
@@ -328,11 +346,10 @@ int train_begin(Train *t) {
   if (t->src->count < 1) return error_set(t->err, t->errlen, "no training samples");
   if (t->src->set(t->src->user, t->f, 0) != 0 || full_eval(t->f, 0) != 0) /* sample 0 binds every dim */
     return error_set(t->err, t->errlen, "%s", full_error(t->f));
-  long *dims = mem_calloc((size_t)prog->dims.n + 1, sizeof(long));
-  if (!dims) return error_set(t->err, t->errlen, "out of memory");
+  long *dims = train_scratch(t, sizeof(long) * ((size_t)prog->dims.n + 1));
+  if (!dims) return -1;
   for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(t->f, i);
   Model *m = t->m = model_layout(prog, dims, t->err, t->errlen);
-  free(dims);
   if (!m) return -1;
   m->samples = t->src->count;
   bool *powered = lower_under_powers(m->prog);
@@ -386,9 +403,9 @@ int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t 
   return rc;
 }
 
-int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {
-  if (!opt->dist || k != dist_rank() || !dist_fail_here()) return 0;
-  return error_set(err, errlen, "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)",
+int train_fail_hook(const Train *t, long k) {
+  if (!t->opt->dist || k != dist_rank() || !dist_fail_here()) return 0;
+  return error_set(t->err, t->errlen, "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)",
                    k, dist_rank());
 }
 
@@ -429,8 +446,8 @@ static int snapshots_in_memory(Train *t, double *tmp) {
       for (int i = 0; rc == 0 && i < cl->nmembers; i++)
         rc = train_member_value(t, &cl->members[i], k, cl->n, t->sn.X[c][i] + (size_t)k * (size_t)cl->n);
     }
-    if (rc == 0) rc = train_check_spd(m, t->f, tmp, t->err, t->errlen);
-    if (rc == 0) rc = train_fail_hook(opt, k, t->err, t->errlen);
+    if (rc == 0) rc = train_check_spd(t, tmp);
+    if (rc == 0) rc = train_fail_hook(t, k);
     progress_show(opt->progress, "snapshots", k + 1, S);
   }
   if (rc == 0 && N > 1 && (rc = dist_gather_snapshots(m, t->sn.X, S, t->err, t->errlen)) == 0) {
@@ -471,15 +488,11 @@ int train_take_snapshots(Train *t) {
                      "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
                      "--mem or use --merge concat (the method of snapshots)",
                      (double)need / 1e9, (double)opt->mem / 1e9);
-  double *tmp = mem_malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S));
-  if (!tmp || snapshots_alloc(m, &t->sn, S, gram)) {
-    free(tmp);
+  double *tmp = train_scratch(t, sizeof(double) * (size_t)(maxn > S ? maxn : S));
+  if (!tmp || snapshots_alloc(m, &t->sn, S, gram))
     return error_set(t->err, t->errlen, "out of memory for the snapshots of %ld samples", S);
-  }
   train_mark_spd(m);
-  int rc = gram ? train_snapshot_bases(t, tmp) : snapshots_in_memory(t, tmp);
-  free(tmp);
-  return rc;
+  return gram ? train_snapshot_bases(t, tmp) : snapshots_in_memory(t, tmp);
 }
 
 /* A class basis completed to full rank (convergence tests: the PCA
@@ -702,12 +715,10 @@ int train_fit_externs(Train *t, bool externs, bool floors) {
   for (int c = 0; floors && c < m->nclasses; c++)
     if (m->classes[c].streamed && !m->classes[c].floors_known)
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
-  double *y = floors ? malloc(sizeof(double) * (size_t)maxn) : NULL, *proj = floors ? malloc(sizeof(double) * (size_t)maxm) : NULL;
-  int rc = floors && (!y || !proj) ? error_set(t->err, t->errlen, "out of memory measuring the training floors")
-                                     : fit_externs_floors(t, externs ? m->nexterns : 0, floors, proj, y);
-  free(y);
-  free(proj);
-  return rc;
+  double *y = floors ? train_scratch(t, sizeof(double) * (size_t)maxn) : NULL;
+  double *proj = floors ? train_scratch(t, sizeof(double) * (size_t)maxm) : NULL;
+  if (floors && (!y || !proj)) return error_set(t->err, t->errlen, "out of memory measuring the training floors");
+  return fit_externs_floors(t, externs ? m->nexterns : 0, floors, proj, y);
 }
 
 static int fit_externs_floors(Train *t, int nx, bool floors, double *proj, double *y) {
@@ -953,14 +964,17 @@ static Model *train_run(Program *prog, Full *f, const SampleSource *src, const T
                         size_t errlen) {
   Train t = {.prog = prog, .f = f, .src = src, .opt = opt, .err = err, .errlen = errlen};
   err[0] = 0;
-  for (size_t i = 0; i < sizeof train_steps / sizeof *train_steps; i++)
-    if (train_steps[i](&t)) {
+  for (size_t i = 0; i < sizeof train_steps / sizeof *train_steps; i++) {
+    int rc = train_steps[i](&t);
+    train_scratch_free(&t);
+    if (rc) {
       if (t.m) train_free_snapshots(t.m, &t.sn);
       model_free(t.m);
       /* the steps name what failed; a helper that only returned NULL ran out of memory */
       if (!err[0]) error_set(err, errlen, "out of memory during training");
       return NULL;
     }
+  }
   return t.m;
 }
 

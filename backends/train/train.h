@@ -155,14 +155,8 @@ void train_set_free(TrainSet *ts);
 /* Set and evaluate training sample k. */
 int train_eval_sample(const SampleSource *src, Full *f, long k, char *err, size_t errlen);
 
-/* Over ranks (opt->dist), the test hook of dist_fail_here at rank r's
- * first sample k == r: -1 with `err` saying so; 0 otherwise. */
-int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen);
 /* Mark every diagonal operator SPD (until train_check_spd sees otherwise). */
 void train_mark_spd(Model *m);
-/* Unmark every diagonal operator whose diagonal is not positive in the
- * current evaluation (`tmp`: room for the largest class). */
-int train_check_spd(Model *m, Full *f, double *tmp, char *err, size_t errlen);
 /* The class basis from its members' snapshots X[i] (n x S column-major):
  * one PCA per member, concatenated and re-orthonormalized; `pre` (over MPI
  * ranks): the members' PCAs already made, taken over, or NULL. */

@@ -40,7 +40,7 @@ int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err,
   double *y = mem_malloc(sizeof(double) * (size_t)maxn), *proj = mem_malloc(sizeof(double) * (size_t)maxm);
   if (!y || !proj) return free(y), free(proj), error_set(err, errlen, "out of memory measuring the training floors");
   Train trial = ts->tr; /* the set's snapshots, this truncation */
-  trial.m = m;
+  trial.m = m, trial.scratch = NULL, trial.err = err, trial.errlen = errlen;
   for (long k = 0; k < ts->tr.sn.S; k++) train_take_floors(&trial, k, proj, y);
   free(y), free(proj);
   train_drop_bases(m);
@@ -75,7 +75,9 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
   ts->tr = (Train){.prog = prog, .f = f, .src = src, .opt = &ts->o, .err = err, .errlen = errlen};
   int rc = train_begin(&ts->tr);
   ts->base = ts->tr.m;
-  if (rc || train_take_snapshots(&ts->tr)) goto fail;
+  if (rc == 0) rc = train_take_snapshots(&ts->tr);
+  train_scratch_free(&ts->tr);
+  if (rc) goto fail;
   Model *m = ts->base;
   for (int c = 0; c < m->nclasses; c++)
     if (m->classes[c].product) { /* its truncations would need the weighted snapshots (product.c) */
@@ -180,8 +182,9 @@ static int cover(TrainSet *ts, const int *cap, char *err, size_t errlen) {
   }
   Model *m = set_bases(ts, want, err, errlen);
   Train trial = ts->tr; /* the set's snapshots, this model */
-  trial.opt = &ts->quiet, trial.m = m, trial.gram = false, trial.err = err, trial.errlen = errlen;
+  trial.opt = &ts->quiet, trial.m = m, trial.gram = false, trial.err = err, trial.errlen = errlen, trial.scratch = NULL;
   if (m && (train_premultiply_all(&trial) || train_fit_externs(&trial, true, false))) model_free(m), m = NULL;
+  train_scratch_free(&trial);
   if (m) {
     model_free(ts->top);
     ts->top = m;

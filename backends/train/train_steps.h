@@ -35,7 +35,15 @@ typedef struct Train {
   struct timespec clock[2]; /* the current phase's start, wall and CPU */
   char *err;                /* the error record */
   size_t errlen;
+  struct TrainScratch *scratch; /* the current step's scratch (train_scratch) */
 } Train;
+
+/* `bytes` of zeroed scratch that lives until the step that asked for it
+ * ends (train_model frees it after every step, whether the step failed or
+ * not, so a step frees none of it by hand). NULL with "out of memory" in
+ * the error record. */
+void *train_scratch(Train *t, size_t bytes);
+void train_scratch_free(Train *t);
 
 /* The steps of train_model (train.c) the tune sample set (train_set.c)
  * runs too. The model's layout for the dims sample 0 binds into t->m,
@@ -58,10 +66,18 @@ int train_fit_externs(Train *t, bool externs, bool floors);
  * S samples, and (step 5) their bases dropped. */
 bool train_mark_streamed(Model *m, const TrainOptions *opt);
 void train_take_floors(const Train *t, long k, double *proj, double *y);
+void train_drop_bases(Model *m);
+
+/* The steps of one training sample, shared with the method of snapshots and out of core: */
+/* Over ranks (t->opt->dist), the test hook of dist_fail_here at rank r's
+ * first sample k == r: -1 with `err` saying so; 0 otherwise. */
+int train_fail_hook(const Train *t, long k);
+/* Unmark every diagonal operator whose diagonal is not positive in the
+ * current evaluation of t->f (`tmp`: room for the largest class). */
+int train_check_spd(Train *t, double *tmp);
 /* Member `mb`'s value (a quantity, or an unnamed numerator) after an
  * evaluation of sample k into out[0..n); refused, naming where, when not finite. */
 int train_member_value(Train *t, const RMember *mb, long k, long n, double *out);
-void train_drop_bases(Model *m);
 
 /* The method of snapshots (snapshots.c): every member's basis of t->m from
  * S x S Gram matrices, recomputing the samples of t->src in passes within
