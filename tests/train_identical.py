@@ -1,7 +1,8 @@
 """train_identical.py — the sha256 of models `npgc train` writes for corpus programs along every
-route of training: in memory, by the method of snapshots, out of core, joint merge, weights,
-interpolation (forced, chosen on validation samples, held out, the automatic hold-out and
-retrain), an inner product (`basis u: product`), greedy, over two MPI ranks. Two builds of npgc
+route of training: in memory, by the method of snapshots, out of core (radiosity's extern and
+streamed bases too), joint merge, weights, interpolation (forced, chosen on validation samples,
+held out, the automatic hold-out and retrain), an inner product (`basis u: product`), greedy, over
+two MPI ranks. Two builds of npgc
 trained the same way give byte-identical models when training's arithmetic is unchanged, so a
 refactoring of training is checked by running this with the npgc before and after it:
 
@@ -21,8 +22,6 @@ import tempfile
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, os.path.join(ROOT, "examples", "thermalblock"))
-import thermalblock_data  # noqa: E402
 
 
 def npgc(npgc_path, *args, mpi=0):
@@ -63,30 +62,13 @@ def nbody_data(w):
     np.save(f"{w}/weights.npy", rng.uniform(0.5, 2, 40))
 
 
-def thermal_data(w):
-    """tests/cli/thermal_block.npg on an 8 x 8 grid (the greedy part of tests/cli/estimate.py)."""
-    sys.path.insert(0, os.path.join(ROOT, "tests", "cli"))
-    G = 8
-    N = G * G
-    nbr = -np.ones((N, 4), np.int32)
-    blk = np.zeros(N, np.int32)
-    for y in range(G):
-        for x in range(G):
-            i = y * G + x
-            for k, (dx, dy) in enumerate([(1, 0), (-1, 0), (0, 1), (0, -1)]):
-                if 0 <= x + dx < G and 0 <= y + dy < G:
-                    nbr[i, k] = (y + dy) * G + x + dx
-            blk[i] = (2 * y // G) * 2 + (2 * x // G)
-    xs, ys = np.arange(N) % G, np.arange(N) // G
-    src = np.exp(-((xs - G / 3) ** 2 + (ys - G / 4) ** 2) / G)
-    rng = np.random.default_rng(42)
-    for name, S in (("START", 1), ("POOL", 24)):
-        d = os.path.join(w, name)
-        os.makedirs(d)
-        np.save(os.path.join(d, "nbr.npy"), nbr)
-        np.save(os.path.join(d, "blk.npy"), blk)
-        np.save(os.path.join(d, "src.npy"), src)
-        np.save(os.path.join(d, "mu.npy"), rng.uniform(0.1, 1, (S, 4)))
+def greedy_start(w):
+    """START/: the first sample of the thermal block's TB/data (its params and one mu)."""
+    src, start = os.path.join(w, "TB", "data"), os.path.join(w, "START")
+    os.makedirs(start)
+    for name in os.listdir(src):
+        a = np.load(os.path.join(src, name))
+        np.save(os.path.join(start, name), a[:1] if name == "mu.npy" else a)
 
 
 def main():
@@ -96,14 +78,16 @@ def main():
     w = tempfile.mkdtemp(prefix="npg_identical_")
     try:
         nbody_data(w)
-        thermal_data(w)
         subprocess.run([sys.executable, os.path.join(ROOT, "tests", "cli", "deforming_springs_data.py"),
                         os.path.join(w, "SPRINGS"), "24", "3"], check=True)
         subprocess.run([sys.executable, os.path.join(ROOT, "examples", "thermalblock", "thermalblock_data.py"),
                         os.path.join(w, "TB"), "--blocks", "2x2", "--grid", "6", "--train", "16", "--test", "2"],
                        check=True, capture_output=True)
+        greedy_start(w)
+        rdata = os.path.join(os.path.dirname(exe), "radiosity_data")  # the build's, beside its npgc
+        subprocess.run([rdata, f"{w}/RT", "24", "20", "0", "1", "1"], check=True, capture_output=True)
         nb, sp = "tests/programs/nbody_gravity.npg", "tests/programs/deforming_springs.npg"
-        tb, th = "examples/thermalblock/thermalblock.npg", "tests/cli/thermal_block.npg"
+        tb = "examples/thermalblock/thermalblock.npg"
         T, S = f"{w}/TRAIN", f"{w}/SPRINGS"
         cases = [
             ("nbody_memory", [nb, T, "--valid", "none"]),
@@ -118,9 +102,13 @@ def main():
             ("springs_snapshots", [sp, S, "--cap", "8", "--mem", "300k"]),
             ("springs_out_of_core", [sp, S, "--cap", "8", "--mem", "60k"]),
             ("springs_keep_bases", [sp, S, "--cap", "8", "--keep-bases", "all"]),
+            ("radiosity_memory", ["examples/radiosity/formfactors.npg", f"{w}/RT", "--cap", "8"]),
+            ("radiosity_out_of_core", ["examples/radiosity/formfactors.npg", f"{w}/RT", "--cap", "8", "--mem", "8k"]),
+            ("radiosity_out_of_core_kept", ["examples/radiosity/formfactors.npg", f"{w}/RT", "--cap", "8", "--mem", "8k",
+                                            "--keep-bases", "all", "--center", "off"]),
             ("thermalblock_product", [tb, f"{w}/TB/data"]),
-            ("thermal_greedy", [th, f"{w}/START", "--greedy", f"{w}/POOL", "--tol", "1e-3", "--basis",
-                                "u:cap=60,energy=1"]),
+            ("thermalblock_greedy", [tb, f"{w}/START", "--greedy", f"{w}/TB/data", "--tol", "1e-3", "--basis",
+                                     "u:cap=60,energy=1"]),
         ]
         mpi_cases = [("springs_mpi2", [sp, S, "--cap", "8"]), ("springs_mpi2_out_of_core", [sp, S, "--cap", "8", "--mem", "60k"])]
         lines = []
