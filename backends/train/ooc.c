@@ -109,11 +109,11 @@ static size_t row_bytes(const RClass *rc, long S) {
 /* Which classes stream (the largest, until the others' snapshots take at
  * most a quarter of the budget), and the passes' segments. */
 static int plan(Ooc *o) {
-  Model *m = o->m;
+  Model *m = o->t->m;
   long S = o->S;
   size_t small = 0, fixed = 0;
   for (int c = 0; c < m->nclasses; c++) small += sizeof(double) * (size_t)(m->classes[c].n * m->classes[c].nmembers) * (size_t)S;
-  while (small > o->opt->mem / 4) {
+  while (small > o->t->opt->mem / 4) {
     int big = -1;
     for (int c = 0; c < m->nclasses; c++)
       if (!o->st[c].streamed && (big < 0 || m->classes[c].n * m->classes[c].nmembers > m->classes[big].n * m->classes[big].nmembers))
@@ -130,7 +130,7 @@ static int plan(Ooc *o) {
     }
   fixed += small + sizeof(double) * (size_t)o->S * 4;
   o->fixed = fixed;
-  o->avail = o->opt->mem > fixed ? o->opt->mem - fixed : 0;
+  o->avail = o->t->opt->mem > fixed ? o->t->opt->mem - fixed : 0;
   /* Pass p keeps the same fraction [p/P, (p+1)/P) of every streamed
    * class's rows: the pair classes number their rows alike, so a pass
    * demands the same entries of all of them, and each entry is computed
@@ -172,15 +172,15 @@ const Sym *ooc_member_quantity(const Model *m, const RMember *mb) {
 /* Rows [r0, r1) of member `mb` after evaluating sample k, into out. */
 int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1, double *out) {
   if (mb->q < 0) { /* an unnamed numerator: through its tensors, whole */
-    if (train_member_value(o->m, o->f, mb, k, n, o->tmp, o->err, o->errlen)) return -1;
+    if (train_member_value(o->t, mb, k, n, o->tmp)) return -1;
     memcpy(out, o->tmp + r0, sizeof(double) * (size_t)(r1 - r0));
     return 0;
   }
-  const double *v = full_get(o->f, ((Sym *)o->m->prog->quantities.v[mb->q])->name, NULL);
+  const double *v = full_get(o->t->f, ((Sym *)o->t->m->prog->quantities.v[mb->q])->name, NULL);
   for (long e = r0; e < r1; e++)
     if (!isfinite(v[e])) /* the message naming where it arises */
-      return train_member_value(o->m, o->f, mb, k, n, o->tmp, o->err, o->errlen) ? -1
-             : error_set(o->err, o->errlen, "training sample %ld: %s is not finite", k, mb->name);
+      return train_member_value(o->t, mb, k, n, o->tmp) ? -1
+             : error_set(o->t->err, o->t->errlen, "training sample %ld: %s is not finite", k, mb->name);
   memcpy(out, v + r0, sizeof(double) * (size_t)(r1 - r0));
   return 0;
 }
@@ -188,14 +188,13 @@ int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1,
 /* Sample k evaluated whole: its SPD marks checked and the small classes'
  * snapshots taken. */
 static int whole_sample(Ooc *o, long k) {
-  Model *m = o->m;
-  if (train_eval_sample(o->src, o->f, k, o->err, o->errlen) || train_check_spd(m, o->f, o->tmp, o->err, o->errlen))
+  Model *m = o->t->m;
+  if (train_eval_sample(o->t->src, o->t->f, k, o->t->err, o->t->errlen) || train_check_spd(o->t, o->tmp))
     return -1;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     for (int i = 0; !o->st[c].streamed && i < rc->nmembers; i++)
-      if (train_member_value(m, o->f, &rc->members[i], k, rc->n, o->st[c].X[i] + (size_t)k * (size_t)rc->n, o->err,
-                             o->errlen))
+      if (train_member_value(o->t, &rc->members[i], k, rc->n, o->st[c].X[i] + (size_t)k * (size_t)rc->n))
         return -1;
   }
   return 0;
@@ -207,11 +206,11 @@ static int whole_sample(Ooc *o, long k) {
  * the rows of its segments and what they read (full_eval_demand), so the
  * passes of a sweep together cost about one evaluation per sample. */
 static int collect(Ooc *o, long p, bool gram) {
-  Model *m = o->m;
+  Model *m = o->t->m;
   long S = o->S;
   bool whole = p == 0 && gram && o->N == 1; /* over ranks: whole_sweep */
-  Demand *d = whole ? NULL : full_demand(o->f);
-  if (!whole && !d) return error_set(o->err, o->errlen, "%s", full_error(o->f));
+  Demand *d = whole ? NULL : full_demand(o->t->f);
+  if (!whole && !d) return error_set(o->t->err, o->t->errlen, "%s", full_error(o->t->f));
   size_t need = 0;
   for (long g = o->first[p]; g < o->first[p + 1]; g++)
     need += (size_t)(o->seg[g].r1 - o->seg[g].r0) * (size_t)S * (size_t)m->classes[o->seg[g].c].nmembers;
@@ -231,14 +230,14 @@ static int collect(Ooc *o, long p, bool gram) {
       if (d) demand_entries(d, ooc_member_quantity(m, &rc->members[i]), (size_t)sg->r0, (size_t)sg->r1);
     }
   }
-  if (d && demand_propagate(d)) return error_set(o->err, o->errlen, "out of memory");
+  if (d && demand_propagate(d)) return error_set(o->t->err, o->t->errlen, "out of memory");
   const char *what = gram ? "snapshots (R factors, out of core)" : "snapshots (basis, out of core)";
   for (long k = 0; k < S; k++) {
     if (whole) {
       if (whole_sample(o, k)) return -1;
-    } else if ((o->src->set_part ? o->src->set_part(o->src->user, o->f, k, d) : o->src->set(o->src->user, o->f, k)) ||
-               full_eval_demand(o->f, k, d)) {
-      return error_set(o->err, o->errlen, "%s", full_error(o->f));
+    } else if ((o->t->src->set_part ? o->t->src->set_part(o->t->src->user, o->t->f, k, d) : o->t->src->set(o->t->src->user, o->t->f, k)) ||
+               full_eval_demand(o->t->f, k, d)) {
+      return error_set(o->t->err, o->t->errlen, "%s", full_error(o->t->f));
     }
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
@@ -248,7 +247,7 @@ static int collect(Ooc *o, long p, bool gram) {
         if (ooc_member_rows(o, &rc->members[i], k, rc->n, sg->r0, sg->r1, sg->H[i] + (size_t)k * (size_t)R)) return -1;
     }
     /* this rank's passes: p / N of (npass − rank) / N, rounded up */
-    progress_show(o->opt->progress, what, p / o->N * S + k + 1, (o->npass - o->rank + o->N - 1) / o->N * S);
+    progress_show(o->t->opt->progress, what, p / o->N * S + k + 1, (o->npass - o->rank + o->N - 1) / o->N * S);
   }
   return 0;
 }
@@ -258,17 +257,17 @@ static int collect(Ooc *o, long p, bool gram) {
  * classes' snapshots, the SPD marks), then the small classes' columns are
  * gathered on every rank and the SPD marks combined. */
 static int whole_sweep(Ooc *o) {
-  Model *m = o->m;
+  Model *m = o->t->m;
   long S = o->S;
   for (long k = o->rank; k < S; k += o->N) {
     if (whole_sample(o, k)) return -1;
-    if (train_fail_hook(o->opt, k, o->err, o->errlen)) return -1;
-    progress_show(o->opt->progress, "snapshots (whole, out of core)", k + 1, S);
+    if (train_fail_hook(o->t, k)) return -1;
+    progress_show(o->t->opt->progress, "snapshots (whole, out of core)", k + 1, S);
   }
   double ***X = mem_calloc((size_t)m->nclasses + 1, sizeof(double **));
-  if (!X) return error_set(o->err, o->errlen, "out of memory gathering the snapshots");
+  if (!X) return error_set(o->t->err, o->t->errlen, "out of memory gathering the snapshots");
   for (int c = 0; c < m->nclasses; c++) X[c] = o->st[c].X;
-  int rc = dist_gather_snapshots(m, X, S, o->err, o->errlen);
+  int rc = dist_gather_snapshots(m, X, S, o->t->err, o->t->errlen);
   free(X);
   if (rc == 0) dist_and_spd(m);
   return rc;
@@ -290,13 +289,13 @@ static int gram_passes(Ooc *o) {
     if (collect(o, p, true)) return -1;
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
-      RClass *rc = &o->m->classes[sg->c];
+      RClass *rc = &o->t->m->classes[sg->c];
       long R = sg->r1 - sg->r0;
       double *mu = mem_malloc(sizeof(double) * (size_t)R);
       if (!mu) return -1;
       for (int i = 0; i < rc->nmembers; i++) {
         /* pca_basis's arithmetic, row by row */
-        pca_weigh(R, S, sg->H[i], o->opt->weights, rc->members[i].center ? mu : NULL);
+        pca_weigh(R, S, sg->H[i], o->t->opt->weights, rc->members[i].center ? mu : NULL);
         double big = o->st[sg->c].big[i]; /* the largest |entry| of what enters G (fmax's NaN rule, inlined) */
         for (size_t e = 0; e < (size_t)R * (size_t)S; e++) {
           double a = fabs(sg->H[i][e]);
@@ -306,7 +305,7 @@ static int gram_passes(Ooc *o) {
         /* the block's rows folded into the member's R (TSQR), H_b overwritten: it is not read again */
         if (pca_fold_rows(S, o->st[sg->c].G[i], R, sg->H[i], R) != 0) {
           free(mu);
-          return error_set(o->err, o->errlen, "class %s, member %s: the QR of a block of snapshots failed", rc->label,
+          return error_set(o->t->err, o->t->errlen, "class %s, member %s: the QR of a block of snapshots failed", rc->label,
                            rc->members[i].name);
         }
       }
@@ -314,30 +313,30 @@ static int gram_passes(Ooc *o) {
     }
     release(o, p);
   }
-  for (int c = 0; o->N > 1 && c < o->m->nclasses; c++) /* every rank's R gathered, folded alike on every rank */
-    for (int i = 0; o->st[c].streamed && i < o->m->classes[c].nmembers; i++) {
+  for (int c = 0; o->N > 1 && c < o->t->m->nclasses; c++) /* every rank's R gathered, folded alike on every rank */
+    for (int i = 0; o->st[c].streamed && i < o->t->m->classes[c].nmembers; i++) {
       double *all = mem_calloc((size_t)(o->N * S * S) + 1, sizeof(double));
-      if (!all) return error_set(o->err, o->errlen, "out of memory");
+      if (!all) return error_set(o->t->err, o->t->errlen, "out of memory");
       memcpy(all + (size_t)o->rank * (size_t)(S * S), o->st[c].G[i], sizeof(double) * (size_t)(S * S));
       dist_allreduce_sum(all, o->N * S * S); /* each rank's slot from it alone: exact */
       int bad = pca_fold_r(S, o->N, all, o->st[c].G[i]);
       free(all);
-      if (bad) return error_set(o->err, o->errlen, "the QR of the ranks' snapshot factors failed");
+      if (bad) return error_set(o->t->err, o->t->errlen, "the QR of the ranks' snapshot factors failed");
       dist_allreduce_max(&o->st[c].big[i], 1);
     }
   return 0;
 }
 
 /* Over ranks: every rank's K x K R factor R gathered and folded in rank
- * order alike on every rank (R replaced). 0, or -1 with o->err. */
+ * order alike on every rank (R replaced). 0, or -1 with o->t->err. */
 static int fold_ranks(Ooc *o, long K, double *R) {
   double *all = mem_calloc((size_t)(o->N * K * K) + 1, sizeof(double));
-  if (!all) return error_set(o->err, o->errlen, "out of memory");
+  if (!all) return error_set(o->t->err, o->t->errlen, "out of memory");
   memcpy(all + (size_t)o->rank * (size_t)(K * K), R, sizeof(double) * (size_t)(K * K));
   dist_allreduce_sum(all, o->N * K * K); /* each rank's slot from it alone: exact */
   int bad = pca_fold_r(K, o->N, all, R);
   free(all);
-  return bad ? error_set(o->err, o->errlen, "the QR of the ranks' basis factors failed") : 0;
+  return bad ? error_set(o->t->err, o->t->errlen, "the QR of the ranks' basis factors failed") : 0;
 }
 
 /* Every streamed member's directions from its R factor (pca_r_basis):
@@ -345,9 +344,9 @@ static int fold_ranks(Ooc *o, long K, double *R) {
  * member's report as pca_core makes them. */
 static int eigen(Ooc *o) {
   long S = o->S;
-  for (int c = 0; c < o->m->nclasses; c++) {
+  for (int c = 0; c < o->t->m->nclasses; c++) {
     Stream *st = &o->st[c];
-    RClass *rc = &o->m->classes[c];
+    RClass *rc = &o->t->m->classes[c];
     if (!st->streamed) continue;
     st->K = 0;
     for (int i = 0; i < rc->nmembers; i++) {
@@ -364,14 +363,14 @@ static int eigen(Ooc *o) {
       free(Gd);
       if (range) {
         free(W);
-        return error_set(o->err, o->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
+        return error_set(o->t->err, o->t->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
       }
       double *s = st->s[i];
       long k = 0;
       int info = pca_r_basis(S, G, cap, mb->energy, s, W, &k);
       if (info != 0) {
         free(W);
-        return error_set(o->err, o->errlen, "class %s, member %s: the SVD of the snapshots' R factor failed (LAPACK info %d)",
+        return error_set(o->t->err, o->t->errlen, "class %s, member %s: the SVD of the snapshots' R factor failed (LAPACK info %d)",
                          rc->label, mb->name, (int)info);
       }
       double total = 0, run = 0;
@@ -390,14 +389,14 @@ static int eigen(Ooc *o) {
       st->K += k + (mb->center ? 1 : 0);
     }
     if (!(st->RA = mem_calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || (!st->blockwise && !(st->A = tmpfile())))
-      return error_set(o->err, o->errlen, "cannot create a scratch file for the basis of class %s", rc->label);
+      return error_set(o->t->err, o->t->errlen, "cannot create a scratch file for the basis of class %s", rc->label);
     if (!rc->streamed) continue; /* the model keeps its basis: no floors to take */
     if (!(st->AX = calloc((size_t)rc->nmembers, sizeof(double *))) || !(st->yy = calloc((size_t)rc->nmembers, sizeof(double *))))
-      return error_set(o->err, o->errlen, "out of memory");
+      return error_set(o->t->err, o->t->errlen, "out of memory");
     for (int i = 0; i < rc->nmembers; i++)
       if (rc->members[i].q >= 0 && (!(st->AX[i] = calloc((size_t)(st->K * S) + 1, sizeof(double))) ||
                                     !(st->yy[i] = calloc((size_t)S, sizeof(double)))))
-        return error_set(o->err, o->errlen, "out of memory");
+        return error_set(o->t->err, o->t->errlen, "out of memory");
   }
   return 0;
 }
@@ -429,14 +428,14 @@ int ooc_read_at(FILE *fp, void *p, size_t bytes, size_t off) {
  * are first divided by √w_k back). */
 static int floor_products(Ooc *o, const Segment *sg, const double *A, long K) {
   Stream *st = &o->st[sg->c];
-  RClass *rc = &o->m->classes[sg->c];
+  RClass *rc = &o->t->m->classes[sg->c];
   long R = sg->r1 - sg->r0, S = o->S;
   double *Amu = malloc(sizeof(double) * (size_t)(K + 1));
-  if (!Amu) return error_set(o->err, o->errlen, "out of memory");
+  if (!Amu) return error_set(o->t->err, o->t->errlen, "out of memory");
   for (int i = 0; i < rc->nmembers; i++) {
     if (rc->members[i].q < 0 || K == 0) continue;
     bool centered = rc->members[i].center;
-    const double *mu = A + st->col[i], *w = o->opt->weights;
+    const double *mu = A + st->col[i], *w = o->t->opt->weights;
     for (long k = 0; w && k < S; k++) cblas_dscal((int)R, 1 / sqrt(w[k]), sg->H[i] + k * R, 1);
     cblas_dgemm(CblasColMajor, CblasNoTrans, CblasNoTrans, (int)K, (int)S, (int)R, 1.0, A, (int)K, sg->H[i], (int)R,
                 1.0, st->AX[i], (int)K);
@@ -466,10 +465,10 @@ static int floor_products(Ooc *o, const Segment *sg, const double *A, long K) {
  * left NaN (not measured). */
 static int take_floors(Ooc *o, int c, const double *T, long m) {
   Stream *st = &o->st[c];
-  RClass *rc = &o->m->classes[c];
+  RClass *rc = &o->t->m->classes[c];
   long K = st->K, S = o->S;
   double *P = malloc(sizeof(double) * (size_t)(m * S + 1));
-  if (!P) return error_set(o->err, o->errlen, "out of memory");
+  if (!P) return error_set(o->t->err, o->t->errlen, "out of memory");
   for (int i = 0; i < rc->nmembers; i++) {
     RMember *mb = &rc->members[i];
     if (mb->q < 0) continue;
@@ -499,7 +498,7 @@ static int basis_passes(Ooc *o) {
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
       Stream *st = &o->st[sg->c];
-      RClass *rc = &o->m->classes[sg->c];
+      RClass *rc = &o->t->m->classes[sg->c];
       long R = sg->r1 - sg->r0, K = st->K;
       size_t need = 2 * (size_t)(R * K) + (size_t)R + 1; /* A, mu, Aᵀ: kept from pass to pass as the blocks are */
       if (need > o->abuf_cap) {
@@ -511,7 +510,7 @@ static int basis_passes(Ooc *o) {
       memset(A, 0, sizeof(double) * (size_t)(R * K));
       for (int i = 0; i < rc->nmembers; i++) {
         long col = st->col[i];
-        pca_weigh(R, S, sg->H[i], o->opt->weights, rc->members[i].center ? mu : NULL);
+        pca_weigh(R, S, sg->H[i], o->t->opt->weights, rc->members[i].center ? mu : NULL);
         if (rc->members[i].center) {
           for (long e = 0; e < R; e++) A[e * K + col] = mu[e];
           col++;
@@ -523,17 +522,17 @@ static int basis_passes(Ooc *o) {
       for (long e = 0; e < R; e++) /* the block's rows folded into A's R factor (TSQR), from a column-major copy */
         for (long j = 0; j < K; j++) At[j * R + e] = A[e * K + j];
       if (K > 0 && pca_fold_rows(K, st->RA, R, At, R) != 0)
-        return error_set(o->err, o->errlen, "class %s: the QR of a block of its basis rows failed", rc->label);
+        return error_set(o->t->err, o->t->errlen, "class %s: the QR of a block of its basis rows failed", rc->label);
       if (st->AX && floor_products(o, sg, A, K)) return -1;
       int bad = !st->blockwise && ooc_write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
-      if (bad) return error_set(o->err, o->errlen, "cannot write the scratch file of class %s (disk full?)", rc->label);
+      if (bad) return error_set(o->t->err, o->t->errlen, "cannot write the scratch file of class %s (disk full?)", rc->label);
     }
     release(o, p);
   }
-  for (int c = 0; o->N > 1 && c < o->m->nclasses; c++) /* every rank's rows summed */
+  for (int c = 0; o->N > 1 && c < o->t->m->nclasses; c++) /* every rank's rows summed */
     if (o->st[c].streamed) {
       if (fold_ranks(o, o->st[c].K, o->st[c].RA)) return -1;
-      for (int i = 0; o->st[c].AX && i < o->m->classes[c].nmembers; i++)
+      for (int i = 0; o->st[c].AX && i < o->t->m->classes[c].nmembers; i++)
         if (o->st[c].AX[i]) dist_allreduce_sum(o->st[c].AX[i], o->st[c].K * S), dist_allreduce_sum(o->st[c].yy[i], S);
     }
   return 0;
@@ -542,20 +541,20 @@ static int basis_passes(Ooc *o) {
 /* The file of a class basis, `bytes` long: one process, an unnamed file;
  * over ranks a file every rank opens (rank 0 creates it as
  * PREFIX.ooc.XXXXXX, opt->shared_prefix, sizes it and unlinks it once every
- * rank has it open, so no name outlives the step). NULL with o->err. */
+ * rank has it open, so no name outlives the step). NULL with o->t->err. */
 FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes) {
   if (o->N == 1) {
     FILE *fp = tmpfile();
     if (fp && ftruncate(fileno(fp), (off_t)bytes) == 0) return fp;
     if (fp) fclose(fp);
-    error_set(o->err, o->errlen, "cannot create the file of the basis of class %s (%.3g GB)", rc->label, (double)bytes / 1e9);
+    error_set(o->t->err, o->t->errlen, "cannot create the file of the basis of class %s (%.3g GB)", rc->label, (double)bytes / 1e9);
     return NULL;
   }
   char path[4096] = "";
   int fd = -1;
   if (o->rank == 0) {
     const char *tmp = getenv("TMPDIR");
-    if (o->opt->shared_prefix) snprintf(path, sizeof path, "%s.ooc.XXXXXX", o->opt->shared_prefix);
+    if (o->t->opt->shared_prefix) snprintf(path, sizeof path, "%s.ooc.XXXXXX", o->t->opt->shared_prefix);
     else snprintf(path, sizeof path, "%s/npg.ooc.XXXXXX", tmp && *tmp ? tmp : "/tmp");
     if ((fd = mkstemp(path)) < 0 || ftruncate(fd, (off_t)bytes) != 0) path[0] = 0;
   }
@@ -568,8 +567,8 @@ FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes) {
   if (opened == o->N && fp) return fp;
   if (fp) fclose(fp);
   else if (fd >= 0) close(fd);
-  error_set(o->err, o->errlen, "cannot create or open the shared file of the basis of class %s (%.3g GB) next to %s",
-            rc->label, (double)bytes / 1e9, o->opt->shared_prefix ? o->opt->shared_prefix : "$TMPDIR/npg");
+  error_set(o->t->err, o->t->errlen, "cannot create or open the shared file of the basis of class %s (%.3g GB) next to %s",
+            rc->label, (double)bytes / 1e9, o->t->opt->shared_prefix ? o->t->opt->shared_prefix : "$TMPDIR/npg");
   return NULL;
 }
 
@@ -579,7 +578,7 @@ FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes) {
 static long own_rows(const Ooc *o, int c, long *r) {
   long nr = 0;
   if (o->N == 1) {
-    r[0] = 0, r[1] = o->m->classes[c].n;
+    r[0] = 0, r[1] = o->t->m->classes[c].n;
     return 1;
   }
   for (long p = 0; p < o->npass; p++)
@@ -597,7 +596,7 @@ static long own_rows(const Ooc *o, int c, long *r) {
  * in-memory Gram–Schmidt's vectors are. */
 static int write_basis(Ooc *o, int c, double *T, long m) {
   Stream *st = &o->st[c];
-  RClass *rc = &o->m->classes[c];
+  RClass *rc = &o->t->m->classes[c];
   long n = rc->n, K = st->K;
   rc->m = m;
   if (m == 0) return 0; /* train_complete_basis gives it one direction */
@@ -677,7 +676,7 @@ int ooc_map_basis(Ooc *o, RClass *rc, FILE *fp, int bad) {
   void *map = ok == o->N ? mmap(NULL, bytes, PROT_READ, MAP_SHARED, fileno(fp), 0) : MAP_FAILED;
   fclose(fp); /* the mapping keeps the file */
   if (map == MAP_FAILED)
-    return error_set(o->err, o->errlen, "cannot write or map the basis of class %s (%.3g GB; disk full?)", rc->label,
+    return error_set(o->t->err, o->t->errlen, "cannot write or map the basis of class %s (%.3g GB; disk full?)", rc->label,
                      (double)bytes / 1e9);
   free(rc->B);
   rc->B = map;
@@ -686,14 +685,14 @@ int ooc_map_basis(Ooc *o, RClass *rc, FILE *fp, int bad) {
 }
 
 static void ooc_free(Ooc *o) {
-  for (int c = 0; o->st && c < o->m->nclasses; c++) {
+  for (int c = 0; o->st && c < o->t->m->nclasses; c++) {
     Stream *st = &o->st[c];
-    for (int i = 0; i < o->m->classes[c].nmembers; i++) {
+    for (int i = 0; i < o->t->m->classes[c].nmembers; i++) {
       if (st->X) free(st->X[i]);
       if (st->G) free(st->G[i]);
       if (st->s) free(st->s[i]);
     }
-    for (int i = 0; i < o->m->classes[c].nmembers; i++) {
+    for (int i = 0; i < o->t->m->classes[c].nmembers; i++) {
       if (st->AX) free(st->AX[i]);
       if (st->yy) free(st->yy[i]);
     }
@@ -705,8 +704,13 @@ static void ooc_free(Ooc *o) {
   free(o->st), free(o->seg), free(o->first), free(o->tmp), free(o->block), free(o->abuf);
 }
 
-int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen) {
-  Ooc o = {m, f, src, opt, src->count, NULL, NULL, 0, NULL, 0, 0, NULL, err, errlen, 0, 0, 1, NULL, NULL, 0, 0};
+int ooc_bases(Train *tr) {
+  Ooc o = {.t = tr, .S = tr->src->count, .N = 1};
+  Model *m = tr->m;
+  const SampleSource *src = tr->src;
+  const TrainOptions *opt = tr->opt;
+  char *err = tr->err;
+  size_t errlen = tr->errlen;
   if (opt->dist) o.rank = dist_rank(), o.N = dist_size();
   long maxn = 1;
   int rc = -1;

@@ -5,7 +5,7 @@
 
 #include <stdio.h>
 
-#include "train.h"
+#include "train_steps.h"
 
 /* Rows [r0, r1) of streamed class c, collected in one pass. */
 typedef struct Segment {
@@ -38,10 +38,7 @@ typedef struct Stream {
 } Stream;
 
 typedef struct Ooc {
-  Model *m;
-  Full *f;
-  const SampleSource *src;
-  const TrainOptions *opt;
+  Train *t;                 /* the training: its model, evaluator, samples, options and error record */
   long S;
   Stream *st;
   Segment *seg;
@@ -50,8 +47,6 @@ typedef struct Ooc {
   long npass;
   size_t avail;             /* bytes for the blocks of one pass */
   double *tmp;              /* one member value */
-  char *err;
-  size_t errlen;
   size_t fixed;             /* bytes of the Gram matrices, the small classes and the sample scratch */
   int rank, N;              /* over ranks (opt->dist): this rank takes the passes p ≡ rank (mod N) */
   /* the blocks of the pass being collected, and a basis pass's A and
@@ -67,17 +62,17 @@ bool ooc_mine(const Ooc *o, long p);
  * numerator the stage it is the numerator of. */
 const Sym *ooc_member_quantity(const Model *m, const RMember *mb);
 /* Rows [r0, r1) of member `mb` (of a class of n rows) after evaluating
- * sample k (restricted to a demand holding them), into out. 0, or -1 with o->err. */
+ * sample k (restricted to a demand holding them), into out. 0, or -1 with o->t->err. */
 int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1, double *out);
 /* pwrite / pread of `bytes` at offset `off` of fp, whole: 0, or -1. */
 int ooc_write_at(FILE *fp, const void *p, size_t bytes, size_t off);
 int ooc_read_at(FILE *fp, void *p, size_t bytes, size_t off);
 /* The file of a class basis, `bytes` long, unnamed (over ranks: one file
- * every rank opens, a collective). NULL with o->err. */
+ * every rank opens, a collective). NULL with o->t->err. */
 FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes);
 /* Class rc's basis file (rc->n x rc->m, every rank's rows written unless
  * `bad` on some rank) mapped read-only as rc->B on every rank, fp closed (a
- * collective). 0, or -1 with o->err. */
+ * collective). 0, or -1 with o->t->err. */
 int ooc_map_basis(Ooc *o, RClass *rc, FILE *fp, int bad);
 
 /* ---------------------------------------------------------------- streamed pre-multiplication (stream.c) */
@@ -90,7 +85,7 @@ bool stream_blockwise(const Ooc *o, int c);
 /* Every tensor that reads a blockwise class's basis, pre-multiplied by
  * passes over row blocks (t->data set; the others are left NULL for
  * train_premultiply_all); a blockwise class the model keeps (not
- * RClass.streamed) gets its basis file, mapped as rc->B. 0, or -1 with o->err. */
+ * RClass.streamed) gets its basis file, mapped as rc->B. 0, or -1 with o->t->err. */
 int stream_premultiply(Ooc *o);
 
 /* A class formed block by block and used at once (Stream.blockwise) has
@@ -104,7 +99,7 @@ int stream_premultiply(Ooc *o);
  * A's R factor (A = Q_A R_A: ⟨A x, A y⟩ = ⟨R_A x, R_A y⟩, norms of
  * remainders to rounding as from the vectors themselves), by the
  * in-memory rules (PCA_DEPENDENT_TOL, PCA_MERGE_TOL; a blockwise class
- * OOC_BLOCKWISE_TOL). 0, or -1 with o->err. */
+ * OOC_BLOCKWISE_TOL). 0, or -1 with o->t->err. */
 int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout);
 
 #endif

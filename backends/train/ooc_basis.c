@@ -44,7 +44,7 @@ static int member_r(const double *RA, long K, long cu, long k, double *R, double
  * pca_merge merges them (interleaved, in order). */
 int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
   Stream *st = &o->st[c];
-  RClass *rc = &o->m->classes[c];
+  RClass *rc = &o->t->m->classes[c];
   long K = st->K;
   double tol_member = st->blockwise ? OOC_BLOCKWISE_TOL : PCA_DEPENDENT_TOL;
   double tol_merge = st->blockwise ? OOC_BLOCKWISE_TOL : PCA_MERGE_TOL;
@@ -68,7 +68,7 @@ int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
     if (k > 0 && (member_r(C, K, cu, k, R, work) != 0 ||
                   LAPACKE_dtrtri(LAPACK_COL_MAJOR, 'U', 'N', (lapack_int)k, R, (lapack_int)k) != 0))
       return free(Q), free(tmp), free(work), free(R), free(v), free(cc), free(kept), free(first),
-             error_set(o->err, o->errlen,
+             error_set(o->t->err, o->t->errlen,
                        "class %s, member %s: its directions are numerically dependent out of core (their R factor is "
                        "singular): lower its cap or its energy fraction",
                        rc->label, mb->name);
@@ -137,5 +137,5 @@ int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
   return 0;
 oom:
   free(Q), free(tmp), free(work), free(R), free(v), free(cc), free(kept), free(first);
-  return error_set(o->err, o->errlen, "out of memory orthonormalizing the basis of class %s", rc->label);
+  return error_set(o->t->err, o->t->errlen, "out of memory orthonormalizing the basis of class %s", rc->label);
 }

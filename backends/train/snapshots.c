@@ -61,22 +61,17 @@ typedef struct GramMember {
 
 /* The method of snapshots under way: every member's state, [class][member]. */
 typedef struct Gram {
-  Model *m;
-  Full *f;
-  const SampleSource *src;
-  const TrainOptions *opt;
+  Train *t;            /* the training: its model, evaluator, samples, options and error record */
   long S, b, q;        /* samples; the held block; the batch (train_gram_blocks) */
   int round;           /* 1: G = XᵀX; 2: the Gram matrix of X's residual after Q; 3: Qᵀ X */
   GramMember **gm;
   double *lam;         /* S eigenvalues */
   double *tmp;         /* room for max(largest class, S) doubles */
-  char *err;
-  size_t errlen;
 } Gram;
 
 static void gram_free(Gram *g) {
-  for (int c = 0; g->gm && c < g->m->nclasses; c++) {
-    for (int i = 0; g->gm[c] && i < g->m->classes[c].nmembers; i++) {
+  for (int c = 0; g->gm && c < g->t->m->nclasses; c++) {
+    for (int i = 0; g->gm[c] && i < g->t->m->classes[c].nmembers; i++) {
       GramMember *x = &g->gm[c][i];
       free(x->G), free(x->H), free(x->Y), free(x->x0), free(x->d), free(x->Q), free(x->c), free(x->D);
     }
@@ -89,7 +84,7 @@ static void gram_free(Gram *g) {
 /* Every member's Gram matrix (zero), held block and batch, and for a
  * centered one its shift and sum. 0, or -1 when out of memory. */
 static int gram_alloc(Gram *g) {
-  Model *m = g->m;
+  Model *m = g->t->m;
   long S = g->S;
   if (!(g->gm = mem_calloc((size_t)m->nclasses + 1, sizeof(GramMember *))) || !(g->lam = mem_malloc(sizeof(double) * (size_t)S)))
     return -1;
@@ -115,7 +110,7 @@ static int gram_alloc(Gram *g) {
  * centered by d as well, and in round 2 their residual after Q (removed
  * twice: Kahan–Parlett). */
 static int member_sample(Gram *g, GramMember *x, long n, long k, double *v) {
-  if (train_member_value(g->m, g->f, x->mb, k, n, v, g->err, g->errlen)) return -1;
+  if (train_member_value(g->t, x->mb, k, n, v)) return -1;
   if (x->x0) {
     if (g->round == 1 && k == 0) memcpy(x->x0, v, sizeof(double) * (size_t)n);
     cblas_daxpy((int)n, -1.0, x->x0, 1, v, 1);
@@ -152,11 +147,11 @@ static void gram_cross(const Gram *g, GramMember *x, long n, long i0, long i1, l
  * it, then the block against itself. `done` counts the evaluations of all
  * passes (of `work`). */
 static int gram_pass(Gram *g, long i0, long i1, long *done, long work) {
-  Model *m = g->m;
+  Model *m = g->t->m;
   long S = g->S, nb = i1 - i0;
   for (long k = i0, k0 = i1; k < S; k++) { /* k0: the first sample of the batch */
-    if (train_eval_sample(g->src, g->f, k, g->err, g->errlen)) return -1;
-    if (g->round == 1 && k < i1 && train_check_spd(m, g->f, g->tmp, g->err, g->errlen)) return -1;
+    if (train_eval_sample(g->t->src, g->t->f, k, g->t->err, g->t->errlen)) return -1;
+    if (g->round == 1 && k < i1 && train_check_spd(g->t, g->tmp)) return -1;
     bool full = k >= i1 && (k + 1 - k0 == g->q || k + 1 == S);
     for (int c = 0; c < m->nclasses; c++) {
       RClass *rc = &m->classes[c];
@@ -171,7 +166,7 @@ static int gram_pass(Gram *g, long i0, long i1, long *done, long work) {
       }
     }
     if (full) k0 = k + 1;
-    progress_show(g->opt->progress,
+    progress_show(g->t->opt->progress,
                   g->round == 2 ? "snapshots (residual Gram)" : g->b < S ? "snapshots (Gram, recomputing)" : "snapshots (Gram)",
                   ++*done, work);
   }
@@ -212,22 +207,22 @@ static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int 
   double *lam = g->lam;
   const char *range = pca_gram_out_of_range(S, x->G, x->big);
   if (range)
-    return error_set(g->err, g->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
+    return error_set(g->t->err, g->t->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
   if (mb->center) gram_center(x, rc->n, S, lam);
   int cap = mb->center ? mb->cap - 1 : mb->cap;
   long kmax = cap < S ? cap : S;
   double *V = mem_malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1)));
-  if (!V) return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  if (!V) return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
   int info = pca_top_eigen(S, x->G, kmax, lam, V); /* G whole: either layout */
   if (info != 0) {
     free(V);
-    return error_set(g->err, g->errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
+    return error_set(g->t->err, g->t->errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
                      rc->label, mb->name, info);
   }
   free(mb->sv);
   if (!(mb->sv = mem_malloc(sizeof(double) * (size_t)S))) {
     free(V);
-    return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+    return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
   }
   mb->nsv = S;
   for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
@@ -245,15 +240,15 @@ static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int 
     for (int a = 0; a < k; a++) x->G[s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
   free(V);
   if (!(*U = mem_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double))))
-    return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+    return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
   return 0;
 }
 
 /* Pass 2: every sample recomputed once, U += x_s ⊗ W[s, :] (shifted). */
 static int basis_pass(Gram *g, double ***U, int **kk) {
-  Model *m = g->m;
+  Model *m = g->t->m;
   for (long k = 0; k < g->S; k++) {
-    if (train_eval_sample(g->src, g->f, k, g->err, g->errlen)) return -1;
+    if (train_eval_sample(g->t->src, g->t->f, k, g->t->err, g->t->errlen)) return -1;
     for (int c = 0; c < m->nclasses; c++) {
       RClass *rc = &m->classes[c];
       for (int i = 0; i < rc->nmembers; i++) {
@@ -263,7 +258,7 @@ static int basis_pass(Gram *g, double ***U, int **kk) {
         cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, g->tmp, 1, x->G + k * g->S, 1, U[c][i], kk[c][i]);
       }
     }
-    progress_show(g->opt->progress, g->round == 2 ? "snapshots (residual basis)" : "snapshots (basis)", k + 1, g->S);
+    progress_show(g->t->opt->progress, g->round == 2 ? "snapshots (residual basis)" : "snapshots (basis)", k + 1, g->S);
   }
   return 0;
 }
@@ -283,12 +278,12 @@ static int round1_basis(Gram *g, GramMember *x, long n, double **U, int k) {
   }
   x->smax = x->mb->nsv > 0 ? x->mb->sv[0] : 0;
   int p = 0;
-  if (k > 0 && pca_in_order(n, 1, U, &k, &x->Q, &p, g->err, g->errlen)) return -1;
+  if (k > 0 && pca_in_order(n, 1, U, &k, &x->Q, &p, g->t->err, g->t->errlen)) return -1;
   free(*U);
   *U = NULL;
   x->p = p;
   if (p > 0 && !(x->c = mem_malloc(sizeof(double) * (size_t)(2 * S + 1))))
-    return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+    return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
   return 0;
 }
 
@@ -305,11 +300,11 @@ static int resid_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int
   *kk = 0;
   if (!x->p || kmax <= 0) return 0;
   double *lam = g->lam, *V = mem_malloc(sizeof(double) * (size_t)(S * kmax));
-  if (!V) return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  if (!V) return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
   int info = pca_top_eigen(S, x->G, kmax, lam, V);
   if (info != 0) {
     free(V);
-    return error_set(g->err, g->errlen, "class %s, member %s: eigendecomposition of the residual Gram matrix failed (LAPACK info %d)",
+    return error_set(g->t->err, g->t->errlen, "class %s, member %s: eigendecomposition of the residual Gram matrix failed (LAPACK info %d)",
                      rc->label, x->mb->name, info);
   }
   double top = fmax(lam[S - 1], 0), eps = DBL_EPSILON * x->smax;
@@ -320,7 +315,7 @@ static int resid_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int
     for (int a = 0; a < k; a++) x->G[s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
   free(V);
   if (!(*U = mem_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double))))
-    return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+    return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
   *kk = k;
   return 0;
 }
@@ -330,7 +325,7 @@ static int resid_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int
 static int round2_merge(Gram *g, GramMember *x, long n, double **U, int k) {
   double *parts[2] = {x->Q, *U}, *Q = NULL;
   int ks[2] = {x->p, k}, p = 0;
-  if (x->p > 0 && pca_in_order(n, 2, parts, ks, &Q, &p, g->err, g->errlen)) return -1;
+  if (x->p > 0 && pca_in_order(n, 2, parts, ks, &Q, &p, g->t->err, g->t->errlen)) return -1;
   free(x->Q), free(*U);
   *U = NULL;
   x->Q = Q, x->p = p;
@@ -340,15 +335,15 @@ static int round2_merge(Gram *g, GramMember *x, long n, double **U, int k) {
 /* Round 3: every sample recomputed once (shifted and centered), its
  * coefficients Qᵀ x in row s of x->D. */
 static int coefficient_pass(Gram *g) {
-  Model *m = g->m;
+  Model *m = g->t->m;
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++) {
       GramMember *x = &g->gm[c][i];
       if (x->p > 0 && !(x->D = mem_malloc(sizeof(double) * (size_t)(g->S * x->p))))
-        return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", g->S);
+        return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", g->S);
     }
   for (long k = 0; k < g->S; k++) {
-    if (train_eval_sample(g->src, g->f, k, g->err, g->errlen)) return -1;
+    if (train_eval_sample(g->t->src, g->t->f, k, g->t->err, g->t->errlen)) return -1;
     for (int c = 0; c < m->nclasses; c++) {
       RClass *rc = &m->classes[c];
       for (int i = 0; i < rc->nmembers; i++) {
@@ -358,7 +353,7 @@ static int coefficient_pass(Gram *g) {
         cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, x->p, 1.0, x->Q, x->p, g->tmp, 1, 0.0, x->D + k * x->p, 1);
       }
     }
-    progress_show(g->opt->progress, "snapshots (coefficients)", k + 1, g->S);
+    progress_show(g->t->opt->progress, "snapshots (coefficients)", k + 1, g->S);
   }
   return 0;
 }
@@ -380,7 +375,7 @@ static int svd_basis(Gram *g, GramMember *x, const RClass *rc, double **U, int *
       (info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)p, (lapack_int)S, x->D, (lapack_int)p, s, ud, (lapack_int)p,
                              vt, (lapack_int)r)) != 0) {
     free(s), free(ud), free(vt);
-    return error_set(g->err, g->errlen, "class %s, member %s: SVD of the snapshots' coefficients failed (LAPACK info %d)",
+    return error_set(g->t->err, g->t->errlen, "class %s, member %s: SVD of the snapshots' coefficients failed (LAPACK info %d)",
                      rc->label, mb->name, (int)info);
   }
   if (p > 0) {
@@ -401,7 +396,7 @@ static int svd_basis(Gram *g, GramMember *x, const RClass *rc, double **U, int *
   return 0;
 oom:
   free(s), free(ud), free(vt);
-  return error_set(g->err, g->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
 }
 
 /* A centered member's basis: [μ = x₀ + d, U_c] orthonormalized in that
@@ -410,7 +405,7 @@ static int centered_basis(Gram *g, GramMember *x, long n, double **U, int *kk) {
   cblas_daxpy((int)n, 1.0, x->x0, 1, x->d, 1); /* μ = x₀ + d */
   double *parts[2] = {x->d, *U}, *Q = NULL;
   int ks[2] = {1, *kk}, mm = 0;
-  if (pca_in_order(n, 2, parts, ks, &Q, &mm, g->err, g->errlen)) return -1;
+  if (pca_in_order(n, 2, parts, ks, &Q, &mm, g->t->err, g->t->errlen)) return -1;
   free(*U);
   *U = Q;
   x->mb->kept = *kk = mm;
@@ -451,15 +446,17 @@ static int gram_passes(Gram *g) {
  * matrix is then J G J (J = I − 11ᵀ/S: the mean of a shift is removed
  * exactly); rounds 2 and 3 take x − x₀ − d, and the member's basis is the
  * orthonormalization of [μ = x₀ + d, Q U_D]. */
-int train_snapshot_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, double ***U,
-                         int **kk, double *tmp, char *err, size_t errlen) {
-  Gram g = {m, f, src, opt, src->count, 0, 0, 1, NULL, NULL, tmp, err, errlen};
+int train_snapshot_bases(Train *t, double *tmp) {
+  Gram g = {.t = t, .S = t->src->count, .round = 1, .tmp = tmp};
+  Model *m = t->m;
+  double ***U = t->sn.U;
+  int **kk = t->sn.k;
   long S = g.S, per = 0;
   for (int c = 0; c < m->nclasses; c++) per += m->classes[c].n * m->classes[c].nmembers;
-  train_gram_blocks(S, (long)(opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &g.b, &g.q);
+  train_gram_blocks(S, (long)(t->opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &g.b, &g.q);
   int rc = -1;
   if (gram_alloc(&g)) {
-    error_set(err, errlen, "out of memory for the Gram matrices of %ld samples", S);
+    error_set(t->err, t->errlen, "out of memory for the Gram matrices of %ld samples", S);
     goto done;
   }
 #define EACH for (int c = 0; c < m->nclasses; c++) for (int i = 0; i < m->classes[c].nmembers; i++)

@@ -113,7 +113,7 @@ static double now(void) {
  * and its training values' coordinates are BᵀX = diag(sign) Tᵀ(AᵀX), AᵀX from the basis passes (Stream.AX). */
 static int coefficients(Ooc *o, int c, const double *sign) {
   Stream *st = &o->st[c];
-  RClass *rc = &o->m->classes[c];
+  RClass *rc = &o->t->m->classes[c];
   const RMember *mb = &rc->members[0];
   long S = o->S, K = st->K, m = st->m, u = st->col[0];
   double *G0 = mem_calloc((size_t)(S * K) + 1, sizeof(double)), *P = mem_malloc(sizeof(double) * (size_t)(S * m + 1));
@@ -121,10 +121,10 @@ static int coefficients(Ooc *o, int c, const double *sign) {
   rc->train_coords = mem_malloc(sizeof(double) * (size_t)(S * m + 1));
   if (!G0 || !P || !rc->coef || !rc->train_coords || !st->AX || !st->AX[0]) {
     free(G0), free(P);
-    return error_set(o->err, o->errlen, "out of memory keeping class %s as coefficients", rc->label);
+    return error_set(o->t->err, o->t->errlen, "out of memory keeping class %s as coefficients", rc->label);
   }
   /* weighted (pca_weigh): μ = X wt/Σwt, the directions (X − μ1ᵀ) diag(√wt) W */
-  const double *wt = o->opt->weights;
+  const double *wt = o->t->opt->weights;
   double total = 0;
   for (long e = 0; e < S; e++) total += wt ? wt[e] : 1;
   if (mb->center) {
@@ -152,8 +152,8 @@ static int coefficients(Ooc *o, int c, const double *sign) {
 }
 
 bool stream_blockwise(const Ooc *o, int c) {
-  const Model *m = o->m;
-  if (!o->st[c].streamed || o->opt->ninterp > 0 || o->opt->valid) return false;
+  const Model *m = o->t->m;
+  if (!o->st[c].streamed || o->t->opt->ninterp > 0 || o->t->opt->valid) return false;
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
     if (rs->st->sym->reduce == STAGE_REDUCE_INTERP) return false; /* its class and reads become needed */
@@ -246,7 +246,7 @@ static void home_rows(long n, long u, long U, long *r0, long *r1) {
 
 static int mark_block(Streamer *s, long u, long U, size_t *need) {
   Ooc *o = s->o;
-  Model *m = o->m;
+  Model *m = o->t->m;
   for (int c = 0; c < m->nclasses; c++) {
     if (!blockwise(s, c)) continue;
     RowMap *map = &s->held[c].map;
@@ -265,12 +265,12 @@ static int mark_block(Streamer *s, long u, long U, size_t *need) {
       k.inmap[j] = blockwise(s, c) ? &s->held[c].map : NULL;
     }
     NpgSink sink = {&k, mark_entry, 0, 1, k.lo, k.hi}; /* the builder skips the other rows */
-    if (full_build(o->f, t->x->builder, &sink)) return error_set(o->err, o->errlen, "%s", full_error(o->f));
+    if (full_build(o->t->f, t->x->builder, &sink)) return error_set(o->t->err, o->t->errlen, "%s", full_error(o->t->f));
   }
   *need = 0;
   for (int c = 0; c < m->nclasses; c++) {
     if (!blockwise(s, c)) continue;
-    if (map_finish(&s->held[c])) return error_set(o->err, o->errlen, "out of memory");
+    if (map_finish(&s->held[c])) return error_set(o->t->err, o->t->errlen, "out of memory");
     const RClass *rc = &m->classes[c];
     *need += sizeof(double) * (size_t)s->held[c].map.count *
              ((size_t)o->S * (size_t)rc->nmembers + (size_t)o->st[c].K + (size_t)o->st[c].m + 1);
@@ -292,7 +292,7 @@ static int grow(double **p, size_t *cap, size_t need) {
  * (count values, ascending rows). */
 static int held_member_rows(Ooc *o, const Held *h, const RMember *mb, long k, long n, double *out) {
   if (mb->q < 0) { /* an unnamed numerator: through its tensors, whole, once */
-    if (train_member_value(o->m, o->f, mb, k, n, o->tmp, o->err, o->errlen)) return -1;
+    if (train_member_value(o->t, mb, k, n, o->tmp)) return -1;
     for (long q = 0, e = 0; q < h->nrun; e += h->run[2 * q + 1] - h->run[2 * q], q++)
       memcpy(out + e, o->tmp + h->run[2 * q], sizeof(double) * (size_t)(h->run[2 * q + 1] - h->run[2 * q]));
     return 0;
@@ -310,8 +310,8 @@ static int held_member_rows(Ooc *o, const Held *h, const RMember *mb, long k, lo
  * quantity of more than 64 boxes whole, DEMAND_MAX_BOXES). */
 static void demand_held(Ooc *o, Demand *d, const Sym *q, const Held *h) {
   long L = 0;
-  for (int k = 0; q->ndims == 2 && q->nstatic == 0 && k < o->m->prog->dims.n; k++)
-    if (o->m->prog->dims.v[k] == q->dims[1]) L = full_dim_size(o->f, k);
+  for (int k = 0; q->ndims == 2 && q->nstatic == 0 && k < o->t->m->prog->dims.n; k++)
+    if (o->t->m->prog->dims.v[k] == q->dims[1]) L = full_dim_size(o->t->f, k);
   if (L <= 0) {
     for (long r = 0; r < h->nrun; r++) demand_entries(d, q, (size_t)h->run[2 * r], (size_t)h->run[2 * r + 1]);
     return;
@@ -344,25 +344,25 @@ static void demand_held(Ooc *o, Demand *d, const Sym *q, const Held *h) {
  * class's rows of A (as basis_passes forms them) and of B = A T. */
 static int form_rows(Streamer *s) {
   Ooc *o = s->o;
-  Model *m = o->m;
+  Model *m = o->t->m;
   long S = o->S;
-  Demand *d = full_demand(o->f);
-  if (!d) return error_set(o->err, o->errlen, "%s", full_error(o->f));
+  Demand *d = full_demand(o->t->f);
+  if (!d) return error_set(o->t->err, o->t->errlen, "%s", full_error(o->t->f));
   for (int c = 0; c < m->nclasses; c++) {
     if (!blockwise(s, c)) continue;
     Held *h = &s->held[c];
     const RClass *rc = &m->classes[c];
     if (grow(&h->H[0], &h->Hcap, (size_t)h->map.count * (size_t)S * (size_t)rc->nmembers + 1))
-      return error_set(o->err, o->errlen, "out of memory forming the basis rows of class %s", rc->label);
+      return error_set(o->t->err, o->t->errlen, "out of memory forming the basis rows of class %s", rc->label);
     for (int i = 1; i < rc->nmembers; i++) h->H[i] = h->H[i - 1] + (size_t)h->map.count * (size_t)S;
     for (int i = 0; i < rc->nmembers; i++) demand_held(o, d, ooc_member_quantity(m, &rc->members[i]), h);
   }
-  if (demand_propagate(d)) return error_set(o->err, o->errlen, "out of memory");
+  if (demand_propagate(d)) return error_set(o->t->err, o->t->errlen, "out of memory");
   double t0 = now();
   for (long k = 0; k < S; k++) {
-    if ((o->src->set_part ? o->src->set_part(o->src->user, o->f, k, d) : o->src->set(o->src->user, o->f, k)) ||
-        full_eval_demand(o->f, k, d))
-      return error_set(o->err, o->errlen, "%s", full_error(o->f));
+    if ((o->t->src->set_part ? o->t->src->set_part(o->t->src->user, o->t->f, k, d) : o->t->src->set(o->t->src->user, o->t->f, k)) ||
+        full_eval_demand(o->t->f, k, d))
+      return error_set(o->t->err, o->t->errlen, "%s", full_error(o->t->f));
     for (int c = 0; c < m->nclasses; c++) {
       if (!blockwise(s, c)) continue;
       Held *h = &s->held[c];
@@ -370,7 +370,7 @@ static int form_rows(Streamer *s) {
       for (int i = 0; i < rc->nmembers; i++)
         if (held_member_rows(o, h, &rc->members[i], k, rc->n, h->H[i] + (size_t)k * (size_t)h->map.count)) return -1;
     }
-    progress_show(o->opt->progress, "pre-multiplication (streamed bases)", ++s->done, s->total);
+    progress_show(o->t->opt->progress, "pre-multiplication (streamed bases)", ++s->done, s->total);
   }
   s->sec[3] += now() - t0;
   for (int c = 0; c < m->nclasses; c++) {
@@ -380,12 +380,12 @@ static int form_rows(Streamer *s) {
     const RClass *rc = &m->classes[c];
     long R = h->map.count, K = st->K, mm = st->m;
     if (grow(&h->A, &h->Acap, (size_t)R * (size_t)(K + mm + 1) + 1))
-      return error_set(o->err, o->errlen, "out of memory forming the basis rows of class %s", rc->label);
+      return error_set(o->t->err, o->t->errlen, "out of memory forming the basis rows of class %s", rc->label);
     h->B = h->A + (size_t)R * (size_t)K, h->mu = h->B + (size_t)R * (size_t)mm;
     memset(h->A, 0, sizeof(double) * (size_t)(R * K));
     for (int i = 0; i < rc->nmembers; i++) { /* basis_passes's arithmetic, row for row */
       long col = st->col[i];
-      pca_weigh(R, S, h->H[i], o->opt->weights, rc->members[i].center ? h->mu : NULL);
+      pca_weigh(R, S, h->H[i], o->t->opt->weights, rc->members[i].center ? h->mu : NULL);
       if (rc->members[i].center) {
         for (long e = 0; e < R; e++) h->A[e * K + col] = h->mu[e];
         col++;
@@ -427,7 +427,7 @@ static int take_peaks(Streamer *s, int c, long r0, long r1) {
           if (row) pk->row = row;
           double *v = mem_realloc(pk->v, sizeof(double) * (size_t)cap);
           if (v) pk->v = v;
-          if (!row || !v) return error_set(s->o->err, s->o->errlen, "out of memory");
+          if (!row || !v) return error_set(s->o->t->err, s->o->t->errlen, "out of memory");
           pk->cap = cap;
         }
       }
@@ -446,14 +446,14 @@ static int write_home(Streamer *s, int c, long r0, long r1) {
   if (h->nown == h->owncap) {
     long cap = h->owncap ? 2 * h->owncap : 64;
     long *own = mem_realloc(h->own, sizeof(long) * (size_t)(2 * cap));
-    if (!own) return error_set(s->o->err, s->o->errlen, "out of memory");
+    if (!own) return error_set(s->o->t->err, s->o->t->errlen, "out of memory");
     h->own = own, h->owncap = cap;
   }
   h->own[2 * h->nown] = r0, h->own[2 * h->nown + 1] = r1, h->nown++;
   if (ooc_write_at(h->file, h->B + row_map_at(&h->map, r0) * mm, sizeof(double) * (size_t)((r1 - r0) * mm),
                    sizeof(double) * (size_t)(r0 * mm)))
-    return error_set(s->o->err, s->o->errlen, "cannot write the basis of class %s (disk full?)",
-                     s->o->m->classes[c].label);
+    return error_set(s->o->t->err, s->o->t->errlen, "cannot write the basis of class %s (disk full?)",
+                     s->o->t->m->classes[c].label);
   return 0;
 }
 
@@ -463,7 +463,7 @@ static int write_home(Streamer *s, int c, long r0, long r1) {
 static int map_kept(Streamer *s, int c) {
   Ooc *o = s->o;
   Held *h = &s->held[c];
-  RClass *rc = &o->m->classes[c];
+  RClass *rc = &o->t->m->classes[c];
   long mm = o->st[c].m, chunk = 4096;
   bool flip = false;
   for (long j = 0; j < mm; j++) flip |= h->sign[j] < 0;
@@ -488,7 +488,7 @@ static int map_kept(Streamer *s, int c) {
 
 static int block(Streamer *s, long u, long U, bool split) {
   Ooc *o = s->o;
-  Model *m = o->m;
+  Model *m = o->t->m;
   size_t need = 0;
   double t0 = now();
   if (mark_block(s, u, U, &need)) return -1;
@@ -524,7 +524,7 @@ static int block(Streamer *s, long u, long U, bool split) {
       b.Bin[j] = blockwise(s, c) ? s->held[c].B : m->classes[c].B;
       b.inmap[j] = blockwise(s, c) ? &s->held[c].map : NULL;
     }
-    if (premultiply_block(m, o->f, t->x, &b, &flops, o->err, o->errlen)) return -1;
+    if (premultiply_block(m, o->t->f, t->x, &b, &flops, o->t->err, o->t->errlen)) return -1;
   }
   s->sec[2] += now() - t2;
   s->flops += flops;
@@ -536,13 +536,13 @@ static int block(Streamer *s, long u, long U, bool split) {
 /* Each blockwise class's column signs, over every rank's rows (write_basis's rule). */
 static int decide_signs(Streamer *s) {
   Ooc *o = s->o;
-  for (int c = 0; c < o->m->nclasses; c++) {
+  for (int c = 0; c < o->t->m->nclasses; c++) {
     if (!blockwise(s, c)) continue;
     Held *h = &s->held[c];
     long mm = o->st[c].m;
     double *big = mem_malloc(sizeof(double) * (size_t)(mm + 1)), *first = mem_malloc(sizeof(double) * (size_t)(mm + 1));
     if (!big || !first || !(h->sign = mem_malloc(sizeof(double) * (size_t)(mm + 1))))
-      return free(big), free(first), error_set(o->err, o->errlen, "out of memory");
+      return free(big), free(first), error_set(o->t->err, o->t->errlen, "out of memory");
     for (long j = 0; j < mm; j++) big[j] = h->peaks[j].big;
     dist_allreduce_max(big, mm);
     for (long j = 0; j < mm; j++) {
@@ -577,7 +577,7 @@ static void packed_signs(long mm, int mult, const double *d, double *out) {
  * product of the inputs' packed signs, the first input slowest, as
  * pend_entry lays them out). */
 static int fix_signs(Streamer *s, const STensor *t) {
-  Model *m = s->o->m;
+  Model *m = s->o->t->m;
   RTensor *x = t->x;
   double one = 1;
   const double *dy = blockwise(s, t->cy) ? s->held[t->cy].sign : NULL;
@@ -587,7 +587,7 @@ static int fix_signs(Streamer *s, const STensor *t) {
   long maxlen = 1;
   for (int j = 0; j < x->nin; j++) maxlen = x->in_len[j] > maxlen ? x->in_len[j] : maxlen;
   pk = mem_malloc(sizeof(double) * (size_t)(maxlen + 1));
-  if (!rs || !cs || !pk) return free(rs), free(cs), free(pk), error_set(s->o->err, s->o->errlen, "out of memory");
+  if (!rs || !cs || !pk) return free(rs), free(cs), free(pk), error_set(s->o->t->err, s->o->t->errlen, "out of memory");
   long q = 0;
   if (x->kind == RT_NUM)
     for (long a = 0; a < my; a++) rs[q++] = dy ? dy[a] : one;
@@ -618,7 +618,7 @@ static int fix_signs(Streamer *s, const STensor *t) {
 /* ---------------------------------------------------------------- the sweep */
 
 static void held_free(Streamer *s) {
-  for (int c = 0; s->held && c < s->o->m->nclasses; c++) {
+  for (int c = 0; s->held && c < s->o->t->m->nclasses; c++) {
     Held *h = &s->held[c];
     free(h->map.bits), free(h->map.before), free(h->run), free(h->A), free(h->sign), free(h->own);
     if (h->file) fclose(h->file);
@@ -631,7 +631,7 @@ static void held_free(Streamer *s) {
 }
 
 int stream_premultiply(Ooc *o) {
-  Model *m = o->m;
+  Model *m = o->t->m;
   Streamer s = {.o = o};
   bool any = false;
   for (int c = 0; c < m->nclasses; c++) any |= o->st[c].blockwise;
@@ -680,7 +680,7 @@ int stream_premultiply(Ooc *o) {
     if (m->classes[c].coef_S > 0 && blockwise(&s, c) && coefficients(o, c, s.held[c].sign)) goto done;
   for (int c = 0; c < m->nclasses; c++)
     if (s.held[c].file && map_kept(&s, c)) goto done;
-  if (o->opt->progress) {
+  if (o->t->opt->progress) {
     fprintf(stderr, "out of core: bases formed block by block for the pre-multiplication, no basis file:");
     for (int c = 0; c < m->nclasses; c++)
       if (blockwise(&s, c) && m->classes[c].streamed) fprintf(stderr, " %s", m->classes[c].label);
@@ -702,7 +702,7 @@ int stream_premultiply(Ooc *o) {
   rc = 0;
   goto done;
 oom:
-  error_set(o->err, o->errlen, "out of memory pre-multiplying by the streamed bases");
+  error_set(o->t->err, o->t->errlen, "out of memory pre-multiplying by the streamed bases");
 done:
   held_free(&s);
   return rc;

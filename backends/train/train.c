@@ -13,10 +13,14 @@
  *   4. the learned map of every extern (paper §8.3): the training samples'
  *      reduced inputs and reduced values.
  *
- * train_model below is that list, one call a step, each phase timed. The
- * tune sample set (train_set.c) runs 0–1 and every member's PCA once, then
- * builds models of any caps from truncations of those bases, steps 2–4
- * only. Elsewhere: the method of snapshots (snapshots.c), --merge joint
+ * train_steps below is that list, each step a function of the training
+ * context (Train, train_steps.h: the program, the evaluator, the samples,
+ * the options, the model, the snapshots, the error record), each phase
+ * timed; train_model around it holds training's policy: the weights
+ * scaled, the params' hashes, samples held out to choose the reductions
+ * on and the model trained again with the choice fixed. The tune sample
+ * set (train_set.c) runs 0–1 and every member's PCA once, then builds
+ * models of any caps from truncations of those bases, steps 2–4 only. Elsewhere: the method of snapshots (snapshots.c), --merge joint
  * (joint.c), out of core (ooc.c), over MPI ranks (dist_train.c), the
  * progress bar (progress.c).
  */
@@ -165,6 +169,23 @@ static int class_products(Model *m, const TrainOptions *opt, char *err, size_t e
 
 /* ---------------------------------------------------------------- training */
 
+typedef struct TrainScratch {
+  struct TrainScratch *next;
+  max_align_t data[];
+} TrainScratch;
+
+void *train_scratch(Train *t, size_t bytes) {
+  TrainScratch *s = mem_calloc(1, sizeof *s + bytes);
+  if (!s) return error_set(t->err, t->errlen, "out of memory during training"), NULL;
+  s->next = t->scratch, t->scratch = s;
+  return s->data;
+}
+
+void train_scratch_free(Train *t) {
+  for (TrainScratch *s = t->scratch, *next; s; s = next) next = s->next, free(s);
+  t->scratch = NULL;
+}
+
 void train_free_snapshots(Model *m, Snapshots *sn) {
   for (int c = 0; c < m->nclasses; c++) {
     for (int i = 0; i < m->classes[c].nmembers; i++) {
@@ -210,8 +231,11 @@ int train_eval_sample(const SampleSource *src, Full *f, long k, char *err, size_
  * through its builders) at sample k into out[0..n); refused when not
  * finite, since a basis of it would be meaningless (and the SVD would fail
  * without saying why). */
-int train_member_value(Model *m, Full *f, const RMember *mb, long k, long n, double *out, char *err,
-                       size_t errlen) {
+int train_member_value(Train *t, const RMember *mb, long k, long n, double *out) {
+  Model *m = t->m;
+  Full *f = t->f;
+  char *err = t->err;
+  size_t errlen = t->errlen;
   if (mb->q >= 0) {
     memcpy(out, full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)n);
   } else {
@@ -242,11 +266,12 @@ int train_member_value(Model *m, Full *f, const RMember *mb, long k, long n, dou
 
 /* A diagonal operator stays marked SPD while every training diagonal seen is
  * positive (then BᵀDB is SPD for every basis: Cholesky). */
-int train_check_spd(Model *m, Full *f, double *tmp, char *err, size_t errlen) {
+int train_check_spd(Train *t, double *tmp) {
+  Model *m = t->m;
   FOR_DIAG_OPS(m, rs, rt, ro) {
     if (!ro->spd) continue;
     long n = m->classes[m->qclass[rs->q]].n;
-    if (field_value(f, ro->t, ro->ntensors, tmp, n, err, errlen)) return -1;
+    if (field_value(t->f, ro->t, ro->ntensors, tmp, n, t->err, t->errlen)) return -1;
     for (long e = 0; e < n && ro->spd; e++)
       if (!(tmp[e] > 0)) ro->spd = false;
   }
@@ -314,43 +339,31 @@ static bool keep_named(const Model *m, const char *list, int c, char *unknown, s
 static bool named_in(const char *const *names, int n, const char *name);
 
 /* The model's layout for the dims sample 0 binds, with every member's
- * options set and the --basis names checked. NULL with `err`. */
-Model *train_begin(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                   size_t errlen) {
-  if (src->count < 1) {
-    error_set(err, errlen, "no training samples");
-    return NULL;
-  }
-  if (src->set(src->user, f, 0) != 0 || full_eval(f, 0) != 0) { /* sample 0 binds every dim */
-    error_set(err, errlen, "%s", full_error(f));
-    return NULL;
-  }
-  long *dims = mem_calloc((size_t)prog->dims.n + 1, sizeof(long));
-  if (!dims) return error_set(err, errlen, "out of memory"), NULL;
-  for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(f, i);
-  Model *m = model_layout(prog, dims, err, errlen);
-  free(dims);
-  if (!m) return NULL;
-  m->samples = src->count;
+ * options set and the --basis names checked (t->m). */
+int train_begin(Train *t) {
+  const TrainOptions *opt = t->opt;
+  Program *prog = t->prog;
+  if (t->src->count < 1) return error_set(t->err, t->errlen, "no training samples");
+  if (t->src->set(t->src->user, t->f, 0) != 0 || full_eval(t->f, 0) != 0) /* sample 0 binds every dim */
+    return error_set(t->err, t->errlen, "%s", full_error(t->f));
+  long *dims = train_scratch(t, sizeof(long) * ((size_t)prog->dims.n + 1));
+  if (!dims) return -1;
+  for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(t->f, i);
+  Model *m = t->m = model_layout(prog, dims, t->err, t->errlen);
+  if (!m) return -1;
+  m->samples = t->src->count;
   bool *powered = lower_under_powers(m->prog);
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++)
       member_options(m, &m->classes[c], &m->classes[c].members[i], opt, powered);
   free(powered);
-  if (class_products(m, opt, err, errlen)) {
-    model_free(m);
-    return NULL;
-  }
+  if (class_products(m, opt, t->err, t->errlen)) return -1;
   char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
   if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
   if (unknown[0])
-    error_set(err, errlen, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)",
-              unknown);
-  if (unknown[0] || check_overrides(m, opt, err, errlen)) {
-    model_free(m);
-    return NULL;
-  }
-  return m;
+    return error_set(t->err, t->errlen,
+                     "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)", unknown);
+  return check_overrides(m, opt, t->err, t->errlen);
 }
 
 int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t errlen) {
@@ -390,9 +403,9 @@ int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t 
   return rc;
 }
 
-int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen) {
-  if (!opt->dist || k != dist_rank() || !dist_fail_here()) return 0;
-  return error_set(err, errlen, "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)",
+int train_fail_hook(const Train *t, long k) {
+  if (!t->opt->dist || k != dist_rank() || !dist_fail_here()) return 0;
+  return error_set(t->err, t->errlen, "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)",
                    k, dist_rank());
 }
 
@@ -421,22 +434,23 @@ static int snapshots_alloc(Model *m, Snapshots *sn, long S, bool gram) {
  * then the columns are gathered on every rank (a rank that fails returns
  * here, before the gather: its caller ends the job). Sample 0 is already
  * evaluated (train_begin). `tmp`: room for the largest class. */
-static int snapshots_in_memory(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
-                               double *tmp, char *err, size_t errlen) {
-  long S = sn->S;
+static int snapshots_in_memory(Train *t, double *tmp) {
+  Model *m = t->m;
+  const TrainOptions *opt = t->opt;
+  long S = t->sn.S;
   int rc = 0, rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1;
   for (long k = rank; rc == 0 && k < S; k += N) {
-    if (k > 0 && train_eval_sample(src, f, k, err, errlen)) rc = -1;
+    if (k > 0 && train_eval_sample(t->src, t->f, k, t->err, t->errlen)) rc = -1;
     for (int c = 0; rc == 0 && c < m->nclasses; c++) {
       RClass *cl = &m->classes[c];
       for (int i = 0; rc == 0 && i < cl->nmembers; i++)
-        rc = train_member_value(m, f, &cl->members[i], k, cl->n, sn->X[c][i] + (size_t)k * (size_t)cl->n, err, errlen);
+        rc = train_member_value(t, &cl->members[i], k, cl->n, t->sn.X[c][i] + (size_t)k * (size_t)cl->n);
     }
-    if (rc == 0) rc = train_check_spd(m, f, tmp, err, errlen);
-    if (rc == 0) rc = train_fail_hook(opt, k, err, errlen);
+    if (rc == 0) rc = train_check_spd(t, tmp);
+    if (rc == 0) rc = train_fail_hook(t, k);
     progress_show(opt->progress, "snapshots", k + 1, S);
   }
-  if (rc == 0 && N > 1 && (rc = dist_gather_snapshots(m, sn->X, S, err, errlen)) == 0) {
+  if (rc == 0 && N > 1 && (rc = dist_gather_snapshots(m, t->sn.X, S, t->err, t->errlen)) == 0) {
     dist_and_spd(m);
     progress_show(opt->progress, "snapshots", S, S); /* every rank's are in */
   }
@@ -450,39 +464,35 @@ size_t train_snapshot_bytes(const Model *m, long S) {
   return need;
 }
 
-/* Step 1: every member's snapshots in memory (sn->X), or, when they need
- * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
- * *gram set). Marks which diagonal operators stay SPD. */
-int train_take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
-                         bool *gram, char *err, size_t errlen) {
-  long S = src->count, maxn = 1;
+/* Step 1: every member's snapshots in memory (t->sn.X), or, when they need
+ * more than opt->mem, their bases by the method of snapshots (t->sn.U,
+ * t->sn.k; t->gram set). Marks which diagonal operators stay SPD. */
+int train_take_snapshots(Train *t) {
+  Model *m = t->m;
+  const TrainOptions *opt = t->opt;
+  long S = t->src->count, maxn = 1;
   size_t need = train_snapshot_bytes(m, S);
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-  *gram = opt->mem && need > opt->mem;
-  if (*gram && opt->dist && dist_size() > 1)
-    return error_set(err, errlen,
+  bool gram = t->gram = opt->mem && need > opt->mem;
+  if (gram && opt->dist && dist_size() > 1)
+    return error_set(t->err, t->errlen,
                      "the snapshots need %.3g GB, more than --mem %.3g GB: training over MPI ranks keeps them in "
                      "memory (the method of snapshots runs on one process): raise --mem",
                      (double)need / 1e9, (double)opt->mem / 1e9);
-  if (*gram && opt->weights)
-    return error_set(err, errlen,
+  if (gram && opt->weights)
+    return error_set(t->err, t->errlen,
                      "the snapshots need %.3g GB, more than --mem %.3g GB, and sample weights are not implemented in the "
                      "method of snapshots: raise --mem to keep them in memory", (double)need / 1e9, (double)opt->mem / 1e9);
-  if (*gram && opt->joint)
-    return error_set(err, errlen,
+  if (gram && opt->joint)
+    return error_set(t->err, t->errlen,
                      "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
                      "--mem or use --merge concat (the method of snapshots)",
                      (double)need / 1e9, (double)opt->mem / 1e9);
-  double *tmp = mem_malloc(sizeof(double) * (size_t)(maxn > S ? maxn : S));
-  if (!tmp || snapshots_alloc(m, sn, S, *gram)) {
-    free(tmp);
-    return error_set(err, errlen, "out of memory for the snapshots of %ld samples", S);
-  }
+  double *tmp = train_scratch(t, sizeof(double) * (size_t)(maxn > S ? maxn : S));
+  if (!tmp || snapshots_alloc(m, &t->sn, S, gram))
+    return error_set(t->err, t->errlen, "out of memory for the snapshots of %ld samples", S);
   train_mark_spd(m);
-  int rc = *gram ? train_snapshot_bases(m, f, src, opt, sn->U, sn->k, tmp, err, errlen)
-                 : snapshots_in_memory(m, f, src, opt, sn, tmp, err, errlen);
-  free(tmp);
-  return rc;
+  return gram ? train_snapshot_bases(t, tmp) : snapshots_in_memory(t, tmp);
 }
 
 /* A class basis completed to full rank (convergence tests: the PCA
@@ -513,8 +523,13 @@ int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
 }
 
 /* Step 2: one basis per class (DESIGN §5), sized into the tensors. */
-static int build_bases(Model *m, Full *f, const Snapshots *sn, bool gram, const TrainOptions *opt, char *err,
-                       size_t errlen) {
+static int build_bases(Train *t) {
+  Model *m = t->m;
+  const Snapshots *sn = &t->sn;
+  const TrainOptions *opt = t->opt;
+  bool gram = t->gram;
+  char *err = t->err;
+  size_t errlen = t->errlen;
   /* over ranks: the members' PCAs shared out, each made on one rank */
   PcaMember **pre = NULL;
   if (opt->dist && dist_size() > 1 && !gram && !opt->joint &&
@@ -532,7 +547,7 @@ static int build_bases(Model *m, Full *f, const Snapshots *sn, bool gram, const 
         return error_set(err, errlen, "basis %s: product %s is not implemented with %s", rc->bc->size_name,
                          rc->product->name, why);
       }
-      if (train_product_basis(m, f, rc, sn->S, sn->X[c], opt->weights, opt->full_rank, err, errlen))
+      if (train_product_basis(m, t->f, rc, sn->S, sn->X[c], opt->weights, opt->full_rank, err, errlen))
         return dist_free_pcas(m, pre), -1;
       continue;
     }
@@ -580,7 +595,9 @@ static void phase_end(struct timespec clock[2], Model *m, int phase) {
 /* Step 3: the projections between classes and every tensor pre-multiplied.
  * Over ranks, with progress on, rank 0 says how long its own rows took and
  * how long the sums over ranks (the wait for the slowest rank included). */
-int train_premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err, size_t errlen) {
+int train_premultiply_all(Train *tr) {
+  Model *m = tr->m;
+  bool progress = tr->opt->progress, dist = tr->opt->dist;
   long ntensors = 0, done = 0;
   int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1;
   for (int i = 0; i < m->nstages; i++)
@@ -600,7 +617,7 @@ int train_premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err
       if (rt->proj_name) {
         RClass *cw = &m->classes[m->qclass[rt->named_q]];
         if (!(rt->proj = mem_malloc(sizeof(double) * (size_t)(cy->m * cw->m))))
-          return error_set(err, errlen, "out of memory while training");
+          return error_set(tr->err, tr->errlen, "out of memory while training");
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0,
                     rt->nops ? cy->B : model_projector(cy), (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
       }
@@ -616,7 +633,7 @@ int train_premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err
         /* a term that applies operators is reduced by Galerkin (BᵀMB, Bᵀw); one that does not is
          * projected (with a product, the K0-projection Dᵀ: issue 41) */
         const double *row = rt->nops ? cy->B : model_projector(cy);
-        if (premultiply_part(m, f, x, row, cy->n, cy->m, rank, N, &flops, err, errlen)) return -1;
+        if (premultiply_part(m, tr->f, x, row, cy->n, cy->m, rank, N, &flops, tr->err, tr->errlen)) return -1;
         phase_time(t0, &d[0], &d[1]);
         own[0] += d[0], own[1] += d[1];
         x->premul_seconds = d[0];
@@ -655,14 +672,17 @@ bool train_mark_streamed(Model *m, const TrainOptions *opt) {
 /* Sample k's projection floors (model_projection_floor) of every quantity
  * of a streamed class, added to their means over the S samples: verify
  * reports them in place of the held-out floors it cannot measure without
- * the basis. `gram`: the values are the evaluator's (the sample just
- * evaluated), else the snapshots'. */
-void train_take_floors(Model *m, Full *f, const Snapshots *sn, bool gram, long k, long S, double *proj, double *y) {
+ * the basis. With t->gram the values are the evaluator's (the sample
+ * just evaluated), else the snapshots'. */
+void train_take_floors(const Train *t, long k, double *proj, double *y) {
+  Model *m = t->m;
+  const Snapshots *sn = &t->sn;
+  long S = t->src->count;
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; m->classes[c].streamed && !m->classes[c].floors_known && i < m->classes[c].nmembers; i++) {
       RMember *mb = &m->classes[c].members[i];
       if (mb->q < 0) continue; /* a numerator is no quantity verify reports */
-      const double *val = gram ? full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL)
+      const double *val = t->gram ? full_get(t->f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL)
                                : sn->X[c][i] + (size_t)k * (size_t)m->classes[c].n;
       double fl[2];
       model_projection_floor(&m->classes[c], val, proj, y, fl);
@@ -683,30 +703,30 @@ void train_drop_bases(Model *m) {
   }
 }
 
-static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, int nx,
-                              bool floors, double *proj, double *y, bool progress, bool dist, char *err, size_t errlen);
+static int fit_externs_floors(Train *t, int nx, bool floors, double *proj, double *y);
 
 /* Step 4: with `externs` every extern's learned map (paper §8.3): the
  * training samples' reduced inputs and values, from the snapshots or, after
  * the method of snapshots, recomputed; with `floors`, in the same pass the
  * streamed classes' training floors (train_take_floors). */
-int train_fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool externs, bool floors,
-                      bool progress, bool dist, char *err, size_t errlen) {
+int train_fit_externs(Train *t, bool externs, bool floors) {
+  Model *m = t->m;
   long maxn = 1, maxm = 1;
   for (int c = 0; floors && c < m->nclasses; c++)
     if (m->classes[c].streamed && !m->classes[c].floors_known)
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
-  double *y = floors ? malloc(sizeof(double) * (size_t)maxn) : NULL, *proj = floors ? malloc(sizeof(double) * (size_t)maxm) : NULL;
-  int rc = floors && (!y || !proj) ? error_set(err, errlen, "out of memory measuring the training floors")
-                                     : fit_externs_floors(m, f, src, sn, gram, externs ? m->nexterns : 0, floors, proj, y,
-                                                          progress, dist, err, errlen);
-  free(y);
-  free(proj);
-  return rc;
+  double *y = floors ? train_scratch(t, sizeof(double) * (size_t)maxn) : NULL;
+  double *proj = floors ? train_scratch(t, sizeof(double) * (size_t)maxm) : NULL;
+  if (floors && (!y || !proj)) return error_set(t->err, t->errlen, "out of memory measuring the training floors");
+  return fit_externs_floors(t, externs ? m->nexterns : 0, floors, proj, y);
 }
 
-static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, int nx,
-                              bool floors, double *proj, double *y, bool progress, bool dist, char *err, size_t errlen) {
+static int fit_externs_floors(Train *t, int nx, bool floors, double *proj, double *y) {
+  Model *m = t->m;
+  Full *f = t->f;
+  const SampleSource *src = t->src;
+  const Snapshots *sn = &t->sn;
+  bool gram = t->gram, dist = t->opt->dist;
   long S = src->count;
   /* recomputed over ranks (out of core): rank r its samples k ≡ r (mod N),
    * the others' rows zero, then summed */
@@ -716,7 +736,7 @@ static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const 
     long mz = m->classes[m->qclass[x->q]].m;
     x->S = S;
     if (!(x->X = mem_calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = mem_calloc((size_t)(S * mz) + 1, sizeof(double))))
-      return error_set(err, errlen, "out of memory while training");
+      return error_set(t->err, t->errlen, "out of memory while training");
   }
   /* an extern's map reads only what a sample gives (its inputs and externs are the program's own):
    * setting the sample is enough, no evaluation (at the paper's size each is a 5,000-face solve) */
@@ -727,8 +747,8 @@ static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const 
       given_only &= s->kind == SYM_INPUT || s->kind == SYM_EXTERN;
     }
   for (long k = rank; k < S && (nx > 0 || floors); k += N) {
-    if (gram && given_only && src->set(src->user, f, k) != 0) return error_set(err, errlen, "%s", full_error(f));
-    if (gram && !given_only && train_eval_sample(src, f, k, err, errlen)) return -1; /* recompute: no snapshot was kept */
+    if (gram && given_only && src->set(src->user, f, k) != 0) return error_set(t->err, t->errlen, "%s", full_error(f));
+    if (gram && !given_only && train_eval_sample(src, f, k, t->err, t->errlen)) return -1; /* recompute: no snapshot was kept */
     for (int i = 0; i < nx; i++) {
       RExtern *x = &m->externs[i];
       long mz = m->classes[m->qclass[x->q]].m, off = 0;
@@ -749,8 +769,8 @@ static int fit_externs_floors(Model *m, Full *f, const SampleSource *src, const 
         if (j < x->nin) off += rc->m;
       }
     }
-    if (floors) train_take_floors(m, f, sn, gram, k, S, proj, y);
-    if (gram) progress_show(progress, floors ? "extern samples, floors" : "extern samples", k + 1, S);
+    if (floors) train_take_floors(t, k, proj, y);
+    if (gram) progress_show(t->opt->progress, floors ? "extern samples, floors" : "extern samples", k + 1, S);
   }
   if (gram && given_only) full_forget_given(f); /* set, never evaluated: callbacks as before */
   for (int i = 0; N > 1 && i < nx; i++) {
@@ -816,22 +836,22 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
  * as after the method of snapshots, *gram: no snapshot is kept). Ends the
  * phase of the snapshots (out of core: the snapshots and the bases are one
  * step, timed as snapshots). */
-static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn, bool *gram,
-                 struct timespec clock[2], char *err, size_t errlen) {
-  if (ooc_needed(m, opt, src->count)) {
+static int bases(Train *t) {
+  Model *m = t->m;
+  if (ooc_needed(m, t->opt, t->src->count)) {
     for (int c = 0; c < m->nclasses; c++)
       if (m->classes[c].product)
-        return error_set(err, errlen, "basis %s: product %s is not implemented out of core (the bases exceed --mem: "
-                         "raise it)", m->classes[c].bc->size_name, m->classes[c].product->name);
-    *gram = true;
-    train_mark_streamed(m, opt); /* their floors taken in the passes (the choice is made again after interpolation) */
-    if (ooc_bases(m, f, src, opt, err, errlen)) return -1;
-    phase_end(clock, m, PHASE_SNAPSHOTS);
+        return error_set(t->err, t->errlen, "basis %s: product %s is not implemented out of core (the bases exceed "
+                         "--mem: raise it)", m->classes[c].bc->size_name, m->classes[c].product->name);
+    t->gram = true;
+    train_mark_streamed(m, t->opt); /* their floors taken in the passes (the choice is made again after interpolation) */
+    if (ooc_bases(t)) return -1;
+    phase_end(t->clock, m, PHASE_SNAPSHOTS);
     return 0;
   }
-  if (train_take_snapshots(m, f, src, opt, sn, gram, err, errlen)) return -1;
-  phase_end(clock, m, PHASE_SNAPSHOTS);
-  return build_bases(m, f, sn, *gram, opt, err, errlen);
+  if (train_take_snapshots(t)) return -1;
+  phase_end(t->clock, m, PHASE_SNAPSHOTS);
+  return build_bases(t);
 }
 
 /* Step 5: the model trained evaluated on three of its own training samples
@@ -843,8 +863,12 @@ static int bases(Model *m, Full *f, const SampleSource *src, const TrainOptions 
  * rank holds only its own samples; not with externs: setting a sample again
  * may call an extern's callback again, which runs once per sample (the
  * radiosity visibility: seconds a sample). */
-static void self_check(Model *m, Full *f, const SampleSource *src) {
+static void self_check(Train *t) {
+  Model *m = t->m;
+  Full *f = t->f;
+  const SampleSource *src = t->src;
   m->self_check_sample = -1;
+  if (t->opt->dist) return;
   char err[600];
   Reduced *r = src->count > 0 && m->nexterns == 0 ? reduced_new(m, err, sizeof err) : NULL;
   if (!r) return;
@@ -870,51 +894,232 @@ static void self_check(Model *m, Full *f, const SampleSource *src) {
   reduced_free(r);
 }
 
-/* Training as named steps (DESIGN §5), each phase's wall and CPU time kept. */
-Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                   size_t errlen) {
-  Snapshots sn = {0};
-  bool gram = false;
-  struct timespec clock[2];
-  err[0] = 0;
-  /* the weights themselves are checked where they are given (npg_trainer_weight) */
-  if (opt->weights && opt->joint) {
-    error_set(err, errlen, "sample weights are not implemented with --merge joint: use --merge concat");
-    return NULL;
-  }
-  phase_start(clock);
-  Model *m = train_begin(prog, f, src, opt, err, errlen);
-  if (!m) goto fail;
-  if (bases(m, f, src, opt, &sn, &gram, clock, err, errlen)) goto fail;
-  phase_end(clock, m, PHASE_BASES);
-  if (train_premultiply_all(m, f, opt->progress, opt->dist, err, errlen)) goto fail;
-  /* the choice on validation samples (DESIGN §12) measures the reduced model, its externs' learned
-   * maps included: with both, they are fitted first (they read the bases, not the reductions), and
-   * the streamed classes' floors, known only once the choice is made, take a pass of their own */
-  bool externs_first = opt->valid && m->nexterns > 0;
-  if (externs_first && train_fit_externs(m, f, src, &sn, gram, true, false, opt->progress, opt->dist, err, errlen)) goto fail;
-  if (train_interpolate_stages(m, f, opt, err, errlen)) goto fail;
-  if (train_estimates(m, f, src, opt, err, errlen)) goto fail;
-  phase_end(clock, m, PHASE_PREMULTIPLY);
-  bool floors = train_mark_streamed(m, opt); /* the reductions chosen: which bases are streamed is known */
-  if ((!externs_first || floors) &&
-      train_fit_externs(m, f, src, &sn, gram, !externs_first, floors, opt->progress, opt->dist, err, errlen))
-    goto fail;
-  train_drop_bases(m);
-  phase_end(clock, m, PHASE_EXTERNS);
-  if (opt->progress)
+/* The steps of train_model after the bases, each a function of the context. */
+static int premultiply_tensors(Train *t) {
+  phase_end(t->clock, t->m, PHASE_BASES);
+  return train_premultiply_all(t);
+}
+
+/* The choice on validation samples (DESIGN §12) measures the reduced model, its externs' learned
+ * maps included: with both, they are fitted first (they read the bases, not the reductions), and
+ * the streamed classes' floors, known only once the choice is made, take a pass of their own. */
+static bool externs_first(const Train *t) { return t->opt->valid && t->m->nexterns > 0; }
+
+static int fit_externs_for_choice(Train *t) { return externs_first(t) ? train_fit_externs(t, true, false) : 0; }
+
+/* Step 3b and the online estimate's tables. */
+static int reductions(Train *t) {
+  if (train_interpolate_stages(t->m, t->f, t->opt, t->err, t->errlen) ||
+      train_estimates(t->m, t->f, t->src, t->opt, t->err, t->errlen))
+    return -1;
+  phase_end(t->clock, t->m, PHASE_PREMULTIPLY);
+  return 0;
+}
+
+/* Step 4 (what fit_externs_for_choice left) and 5: the streamed bases dropped. */
+static int externs_and_floors(Train *t) {
+  bool floors = train_mark_streamed(t->m, t->opt); /* the reductions chosen: which bases are streamed is known */
+  if ((!externs_first(t) || floors) && train_fit_externs(t, !externs_first(t), floors)) return -1;
+  train_drop_bases(t->m);
+  phase_end(t->clock, t->m, PHASE_EXTERNS);
+  return 0;
+}
+
+static int report_phases(Train *t) {
+  const Model *m = t->m;
+  if (t->opt->progress)
     fprintf(stderr, "training phases: snapshots %.2f s, bases %.2f s (%s), pre-multiplication %.2f s, externs %.2f s\n",
             m->phase_seconds[PHASE_SNAPSHOTS], m->phase_seconds[PHASE_BASES],
-            ooc_needed(m, opt, src->count) ? "out of core, with the snapshots" : gram ? "method of snapshots" : "in memory",
+            ooc_needed(m, t->opt, t->src->count) ? "out of core, with the snapshots"
+            : t->gram                             ? "method of snapshots"
+                                                  : "in memory",
             m->phase_seconds[PHASE_PREMULTIPLY], m->phase_seconds[PHASE_EXTERNS]);
-  train_free_snapshots(m, &sn);
-  m->self_check_sample = -1;
-  if (!opt->dist) self_check(m, f, src);
+  train_free_snapshots(t->m, &t->sn);
+  self_check(t);
+  return 0;
+}
+
+static int refuse_options(Train *t) {
+  /* the weights themselves are checked where they are given (npg_trainer_weight) */
+  if (t->opt->weights && t->opt->joint)
+    return error_set(t->err, t->errlen, "sample weights are not implemented with --merge joint: use --merge concat");
+  phase_start(t->clock);
+  return 0;
+}
+
+/* Training's table of contents (DESIGN §5): every step a function of the
+ * context, in order; each phase's wall and CPU time kept. */
+static int (*const train_steps[])(Train *) = {
+    refuse_options,          /* 0. what the options cannot combine */
+    train_begin,             /* 0. the layout, every member's options */
+    bases,                   /* 1–2. snapshots (or the method of snapshots, or out of core) and bases */
+    premultiply_tensors,     /* 3. every tensor pre-multiplied */
+    fit_externs_for_choice,  /* 4. the externs' maps, when the choice below measures them */
+    reductions,              /* 3b. interpolated stages, the choice on validation samples, the estimate's tables */
+    externs_and_floors,      /* 4–5. the externs' maps, the streamed classes' floors, their bases dropped */
+    report_phases,           /* the phases' times; the model checked on three of its samples */
+};
+
+static Model *train_run(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                        size_t errlen) {
+  Train t = {.prog = prog, .f = f, .src = src, .opt = opt, .err = err, .errlen = errlen};
+  err[0] = 0;
+  for (size_t i = 0; i < sizeof train_steps / sizeof *train_steps; i++) {
+    int rc = train_steps[i](&t);
+    train_scratch_free(&t);
+    if (rc) {
+      if (t.m) train_free_snapshots(t.m, &t.sn);
+      model_free(t.m);
+      /* the steps name what failed; a helper that only returned NULL ran out of memory */
+      if (!err[0]) error_set(err, errlen, "out of memory during training");
+      return NULL;
+    }
+  }
+  return t.m;
+}
+
+/* ---------------------------------------------------------------- the params, the hold-out and the weights */
+
+char *train_param_hashes(const Full *f) {
+  const Program *prog = full_program(f);
+  size_t cap = 1, len = 0;
+  for (int i = 0; i < prog->params.n; i++) cap += strlen(((Sym *)prog->params.v[i])->name) + 19;
+  char *out = mem_malloc(cap);
+  if (!out) return NULL;
+  out[0] = 0;
+  for (int i = 0; i < prog->params.n; i++)
+    len += (size_t)snprintf(out + len, cap - len, "%s%s=%016llx", i ? " " : "", ((Sym *)prog->params.v[i])->name,
+                            (unsigned long long)full_param_hash(f, i, NULL));
+  return out;
+}
+
+const char *train_param_changed(const Full *f, const char *before, bool *oom) {
+  char *after = train_param_hashes(f);
+  *oom = !after;
+  if (!after) return NULL;
+  const Program *prog = full_program(f);
+  const char *changed = NULL, *a = before, *b = after;
+  /* "name=hash" per param, space-separated, in the program's order in both */
+  for (int i = 0; i < prog->params.n && !changed; i++) {
+    size_t la = strcspn(a, " "), lb = strcspn(b, " ");
+    if (la != lb || strncmp(a, b, la) != 0) changed = ((Sym *)prog->params.v[i])->name;
+    a += la + (a[la] == ' '), b += lb + (b[lb] == ' ');
+  }
+  free(after);
+  return changed;
+}
+
+
+/* Held-out validation (TrainOptions.valid_holdout, DESIGN §12): every
+ * stride-th sample (k % stride == stride - 1) validates, the others train;
+ * interleaved, so both cover a simulation's whole run. */
+typedef struct Holdout {
+  const SampleSource *all;
+  long stride;
+} Holdout;
+
+static long training_index(const Holdout *h, long j) { return j + j / (h->stride - 1); }
+
+static int holdout_training(void *user, Full *f, long j) {
+  const Holdout *h = user;
+  return h->all->set(h->all->user, f, training_index(h, j));
+}
+
+static int holdout_training_part(void *user, Full *f, long j, const Demand *d) {
+  const Holdout *h = user;
+  return h->all->set_part(h->all->user, f, training_index(h, j), d);
+}
+
+static int holdout_held(void *user, Full *f, long j) {
+  const Holdout *h = user;
+  return h->all->set(h->all->user, f, j * h->stride + h->stride - 1);
+}
+
+/* The fraction held out: opt->valid_holdout, or when negative (automatic) 1/TRAIN_HOLDOUT_STRIDE
+ * where a stage's reduction is open to a choice (else 0: the model is as before). -1 with `err`
+ * when it cannot be held out. */
+static double holdout_fraction(Program *prog, const SampleSource *src, const TrainOptions *opt, char *err,
+                               size_t errlen) {
+  double F = opt->valid_holdout;
+  if (F < 0)
+    F = !opt->valid && !opt->dist && src->count >= TRAIN_HOLDOUT_MIN &&
+                interp_open_choices(prog, opt->ninterp, opt->interp_stage, opt->ngalerkin, opt->galerkin_stage) > 0
+            ? 1.0 / TRAIN_HOLDOUT_STRIDE
+            : 0;
+  if (F != 0 && (!(F > 0 && F <= 0.5) || opt->valid || opt->dist))
+    return error_set(err, errlen, "--valid %g (NpgTrainOptions.valid_holdout): %s", F,
+                     !(F > 0 && F <= 0.5) ? "must be in (0, 0.5]"
+                     : opt->dist          ? "not over MPI ranks (give a folder of validation samples instead, --valid DIR)"
+                                          : "validation samples are given as well");
+  long stride = F != 0 ? lround(1 / F) : 0;
+  if (F != 0 && src->count / stride < 1)
+    return error_set(err, errlen, "--valid %g (NpgTrainOptions.valid_holdout) holds out one sample in %ld, none of %ld: "
+                     "give a fraction of at least %.3g, or more samples", F, stride, src->count,
+                     1.0 / (double)src->count);
+  return F;
+}
+
+/* The weights divided by the largest (over every rank): only their ratios
+ * count, and 20 weights of 1.5e308 overflowed their sum to infinity, lost
+ * a basis vector and were refused out of core as "snapshot values beyond
+ * 1e154". Scaled so, equal weights give the model of weights 1, bit for
+ * bit. NULL when out of memory. */
+static double *scale_weights(const double *weights, long S, bool dist) {
+  double *w = mem_malloc(sizeof(double) * (size_t)S), big = 0;
+  if (!w) return NULL;
+  for (long k = 0; k < S; k++) big = fmax(big, weights[k]);
+  if (dist) dist_allreduce_max(&big, 1);
+  for (long k = 0; k < S; k++) w[k] = weights[k] / big;
+  return w;
+}
+
+/* Training's policy around its steps: the weights scaled, the samples held out to choose the
+ * reductions on, and after the automatic choice the model trained again on every sample. */
+Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
+                   size_t errlen) {
+  err[0] = 0;
+  double F = holdout_fraction(prog, src, opt, err, errlen);
+  if (F < 0) return NULL;
+  Holdout hold = {src, F != 0 ? lround(1 / F) : 0};
+  long nheld = F != 0 ? src->count / hold.stride : 0;
+  SampleSource training = *src, held = {nheld, &hold, holdout_held, NULL, NULL};
+  TrainOptions o = *opt;
+  o.valid_holdout = 0;
+  if (F != 0) {
+    training = (SampleSource){src->count - nheld, &hold, holdout_training, src->set_part ? holdout_training_part : NULL,
+                              NULL};
+    o.valid = &held;
+  }
+  double *w = opt->weights ? scale_weights(opt->weights, src->count, opt->dist) : NULL;
+  /* the training samples' weights (of those left when some are held out) */
+  double *train_w = w && F != 0 ? mem_malloc(sizeof(double) * (size_t)training.count) : NULL;
+  if ((opt->weights && !w) || (w && F != 0 && !train_w)) {
+    free(w);
+    error_set(err, errlen, "out of memory");
+    return NULL;
+  }
+  for (long j = 0; train_w && j < training.count; j++) train_w[j] = w[training_index(&hold, j)];
+  o.weights = train_w ? train_w : w;
+  /* the params the samples are set with, recorded before any validation sample is set: one that
+   * sets a param would otherwise leave its hash in the model (trial3) */
+  char *params = train_param_hashes(f);
+  Model *m = params ? train_run(prog, f, &training, &o, err, errlen) : NULL;
+  /* the automatic choice made, every sample trains the model (DESIGN §12) */
+  o.weights = w;
+  o.valid = opt->valid;
+  if (m && F != 0 && opt->valid_holdout < 0) m = interp_train_with_choice(prog, f, src, &o, m, err, errlen);
+  free(train_w);
+  free(w);
+  bool oom = !params;
+  const char *changed = m ? train_param_changed(f, params, &oom) : NULL;
+  if (oom || changed) {
+    if (oom) error_set(err, errlen, "out of memory");
+    else error_set(err, errlen, "NpgTrainOptions.valid_set changed param '%s': a validation sample holds inputs and "
+                   "externs only (the params are the trainer's)", changed);
+    model_free(m);
+    m = NULL;
+  }
+  if (m) free(m->param_hashes), m->param_hashes = params;
+  else free(params);
   return m;
-fail:
-  if (m) train_free_snapshots(m, &sn);
-  model_free(m);
-  /* the steps name what failed; a helper that only returned NULL ran out of memory */
-  if (!err[0]) error_set(err, errlen, "out of memory during training");
-  return NULL;
 }

@@ -51,6 +51,9 @@ typedef struct TrainOptions {
    * ways and the lower output error kept (tune_choose_reductions); NULL: Galerkin */
   const struct SampleSource *valid;
   bool choose_strict;       /* ties keep Galerkin: the choice never raises the error on `valid` (npgc tune) */
+  double valid_holdout;     /* instead of `valid`, every round(1/F)-th sample held out of training to choose on, F
+                               in (0, 0.5]; 0: none; negative: automatic (TRAIN_HOLDOUT_*, then trained again
+                               on every sample with the choice fixed) */
   bool stream;              /* drop the streamable bases (model_class_streamable) once used (issue 30;
                                npg_trainer's default); false: every basis kept (the old layout) */
   const char *keep_bases;   /* with `stream`, the bases kept though streamable: comma-separated
@@ -98,9 +101,22 @@ int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptio
 
 /* Train: snapshots of every stage and joining numerator on every sample,
  * one basis per class, every tensor pre-multiplied, externs fitted. `f` is
- * bound to the training params. NULL with `err` on failure. */
+ * bound to the training params. The weights (opt->weights) are divided by
+ * the largest (over every rank): only their ratios count; the params'
+ * hashes recorded (Model.param_hashes), and a param that a validation
+ * sample changed refused. With
+ * opt->valid_holdout, samples held out of training to choose the
+ * reductions on (and with the automatic hold-out, the model trained again
+ * on every sample with the choice fixed). NULL with `err` on failure. */
 Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                    size_t errlen);
+/* "name=<hex> …": the hashes of the values of every param bound in `f`, as a model records them
+ * (Model.param_hashes; malloc'd; NULL when out of memory). */
+char *train_param_hashes(const Full *f);
+/* After `before` = train_param_hashes(f): the name of the first param whose value changed since (a
+ * sample function that set one: validation and test samples hold inputs and externs only), NULL if
+ * none; *oom on a failed allocation. */
+const char *train_param_changed(const Full *f, const char *before, bool *oom);
 /* The names the options give (--basis, --keep-bases, --reduce STAGE:interp|galerkin) checked
  * against the program before any sample: each names a quantity, class or stage of `prog`, and a
  * stage forced to interpolation is eligible. Training checks the same again; this lets a
@@ -138,17 +154,9 @@ void train_set_free(TrainSet *ts);
 /* The steps of training that the out-of-core bases (ooc.c) share. */
 /* Set and evaluate training sample k. */
 int train_eval_sample(const SampleSource *src, Full *f, long k, char *err, size_t errlen);
-/* Member `mb`'s value (a quantity, or an unnamed numerator) after an
- * evaluation of sample k into out[0..n); refused, naming where, when not finite. */
-int train_member_value(Model *m, Full *f, const RMember *mb, long k, long n, double *out, char *err, size_t errlen);
-/* Over ranks (opt->dist), the test hook of dist_fail_here at rank r's
- * first sample k == r: -1 with `err` saying so; 0 otherwise. */
-int train_fail_hook(const TrainOptions *opt, long k, char *err, size_t errlen);
+
 /* Mark every diagonal operator SPD (until train_check_spd sees otherwise). */
 void train_mark_spd(Model *m);
-/* Unmark every diagonal operator whose diagonal is not positive in the
- * current evaluation (`tmp`: room for the largest class). */
-int train_check_spd(Model *m, Full *f, double *tmp, char *err, size_t errlen);
 /* The class basis from its members' snapshots X[i] (n x S column-major):
  * one PCA per member, concatenated and re-orthonormalized; `pre` (over MPI
  * ranks): the members' PCAs already made, taken over, or NULL. */
@@ -224,19 +232,6 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
 bool ooc_needed(const Model *m, const TrainOptions *opt, long S);
 /* Bytes of every member's snapshots of S samples (train.c). */
 size_t train_snapshot_bytes(const Model *m, long S);
-/* Every class basis of `m` (rc->B, rc->m, member reports, SPD marks) with
- * at most opt->mem bytes of snapshots, Gram matrices and basis rows in
- * memory, by passes over the samples that keep a block of rows of the
- * large classes (DESIGN §11); large bases are left in unnamed files and
- * memory-mapped read-only (rc->B_mapped). Unless a stage may yet be made
- * interpolated (opt->valid, interpolation asked for), the large classes'
- * bases are formed block by block (stream.c) and every tensor that reads
- * one is pre-multiplied here (t->data set; train_premultiply_all does the
- * others): a class the model drops (RClass.streamed) is never stored
- * (rc->B stays NULL, rc->m its size), one it keeps is mapped. The result is the
- * in-memory training's (pca_basis, pca_merge through their Gram route) up
- * to rounding. 0, or -1 with `err`. */
-int ooc_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen);
 
 /* ---------------------------------------------------------------- basis sizes by error (tune.c) */
 

@@ -20,7 +20,9 @@ struct TrainSet {
   Full *f;
   const SampleSource *src;
   bool progress;
-  Snapshots sn;             /* in memory */
+  TrainOptions o;           /* the options of the snapshots (in memory, concatenated) */
+  TrainOptions quiet;       /* those of the trials' models: no progress, on this process */
+  Train tr;                 /* the snapshots' training: tr.sn in memory */
   PcaMember **pm;           /* [class][member]: its ordered basis at its cap */
   Model *top;               /* pre-multiplied at caps top_cap, which cover every trial's so far */
   int *top_cap;
@@ -37,7 +39,9 @@ int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err,
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
   double *y = mem_malloc(sizeof(double) * (size_t)maxn), *proj = mem_malloc(sizeof(double) * (size_t)maxm);
   if (!y || !proj) return free(y), free(proj), error_set(err, errlen, "out of memory measuring the training floors");
-  for (long k = 0; k < ts->sn.S; k++) train_take_floors(m, ts->f, &ts->sn, false, k, ts->sn.S, proj, y);
+  Train trial = ts->tr; /* the set's snapshots, this truncation */
+  trial.m = m, trial.scratch = NULL, trial.err = err, trial.errlen = errlen;
+  for (long k = 0; k < ts->tr.sn.S; k++) train_take_floors(&trial, k, proj, y);
   free(y), free(proj);
   train_drop_bases(m);
   return 0;
@@ -52,7 +56,7 @@ void train_set_free(TrainSet *ts) {
   free(ts->pm);
   model_free(ts->top);
   free(ts->top_cap);
-  if (ts->base) train_free_snapshots(ts->base, &ts->sn);
+  if (ts->base) train_free_snapshots(ts->base, &ts->tr.sn);
   model_free(ts->base);
   free(ts);
 }
@@ -60,16 +64,20 @@ void train_set_free(TrainSet *ts) {
 TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
                         size_t errlen) {
   TrainSet *ts = mem_calloc(1, sizeof *ts);
-  TrainOptions o = *opt;
-  bool gram = false;
   err[0] = 0;
-  o.mem = 0; /* truncations re-use the snapshots: they stay in memory */
-  o.joint = false;
   if (!ts) return NULL;
+  ts->o = *opt;
+  ts->o.mem = 0; /* truncations re-use the snapshots: they stay in memory */
+  ts->o.joint = false;
+  ts->quiet = ts->o;
+  ts->quiet.progress = ts->quiet.dist = false;
   ts->f = f, ts->src = src, ts->progress = opt->progress;
-  if (!(ts->base = train_begin(prog, f, src, &o, err, errlen)) ||
-      train_take_snapshots(ts->base, f, src, &o, &ts->sn, &gram, err, errlen))
-    goto fail;
+  ts->tr = (Train){.prog = prog, .f = f, .src = src, .opt = &ts->o, .err = err, .errlen = errlen};
+  int rc = train_begin(&ts->tr);
+  ts->base = ts->tr.m;
+  if (rc == 0) rc = train_take_snapshots(&ts->tr);
+  train_scratch_free(&ts->tr);
+  if (rc) goto fail;
   Model *m = ts->base;
   for (int c = 0; c < m->nclasses; c++)
     if (m->classes[c].product) { /* its truncations would need the weighted snapshots (product.c) */
@@ -83,7 +91,7 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
     if (!(ts->pm[c] = mem_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
     for (int i = 0; i < rc->nmembers; i++) {
       RMember *mb = &rc->members[i];
-      if (pca_basis(rc->n, ts->sn.S, ts->sn.X[c][i], mb->cap, mb->energy, mb->center, NULL, &ts->pm[c][i], err, errlen))
+      if (pca_basis(rc->n, ts->tr.sn.S, ts->tr.sn.X[c][i], mb->cap, mb->energy, mb->center, NULL, &ts->pm[c][i], err, errlen))
         goto fail;
     }
     progress_show(ts->progress, "member bases", c + 1, m->nclasses);
@@ -173,9 +181,10 @@ static int cover(TrainSet *ts, const int *cap, char *err, size_t errlen) {
     if (want[c] < 1) want[c] = 1;
   }
   Model *m = set_bases(ts, want, err, errlen);
-  if (m && (train_premultiply_all(m, ts->f, false, false, err, errlen) ||
-            train_fit_externs(m, ts->f, ts->src, &ts->sn, false, true, false, false, false, err, errlen)))
-    model_free(m), m = NULL;
+  Train trial = ts->tr; /* the set's snapshots, this model */
+  trial.opt = &ts->quiet, trial.m = m, trial.gram = false, trial.err = err, trial.errlen = errlen, trial.scratch = NULL;
+  if (m && (train_premultiply_all(&trial) || train_fit_externs(&trial, true, false))) model_free(m), m = NULL;
+  train_scratch_free(&trial);
   if (m) {
     model_free(ts->top);
     ts->top = m;

@@ -6,6 +6,8 @@
 #ifndef NPG_TRAIN_STEPS_H
 #define NPG_TRAIN_STEPS_H
 
+#include <time.h>
+
 #include "train.h"
 
 /* Every member's snapshots, or (method of snapshots) its basis. */
@@ -17,39 +19,86 @@ typedef struct Snapshots {
 } Snapshots;
 void train_free_snapshots(Model *m, Snapshots *sn);
 
+/* The training context (DESIGN §5): what every step of train_model reads
+ * and writes, one per training (the tune sample set keeps one for its
+ * snapshots). A step is a function of it returning 0, or -1 with the
+ * failure's message in the error record `err` (the first failure's: a
+ * step that fails returns at once). */
+typedef struct Train {
+  Program *prog;
+  Full *f;                  /* bound to the training params */
+  const SampleSource *src;  /* the training samples */
+  const TrainOptions *opt;
+  Model *m;                 /* the model trained (train_begin makes it) */
+  Snapshots sn;             /* step 1's */
+  bool gram;                /* no snapshot is kept (the method of snapshots, out of core): later passes recompute */
+  struct timespec clock[2]; /* the current phase's start, wall and CPU */
+  char *err;                /* the error record */
+  size_t errlen;
+  struct TrainScratch *scratch; /* the current step's scratch (train_scratch) */
+} Train;
+
+/* `bytes` of zeroed scratch that lives until the step that asked for it
+ * ends (train_model frees it after every step, whether the step failed or
+ * not, so a step frees none of it by hand). NULL with "out of memory" in
+ * the error record. */
+void *train_scratch(Train *t, size_t bytes);
+void train_scratch_free(Train *t);
+
 /* The steps of train_model (train.c) the tune sample set (train_set.c)
- * runs too. The model's layout for the dims sample 0 binds, every member's
- * options set and the --basis names checked: NULL with `err`. */
-Model *train_begin(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                   size_t errlen);
-/* Step 1: every member's snapshots in memory (sn->X), or, when they need
- * more than opt->mem, their bases by the method of snapshots (sn->U, sn->k;
- * *gram set). Marks which diagonal operators stay SPD. */
-int train_take_snapshots(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Snapshots *sn,
-                         bool *gram, char *err, size_t errlen);
-/* Step 3: the projections between classes and every tensor pre-multiplied. */
-int train_premultiply_all(Model *m, Full *f, bool progress, bool dist, char *err, size_t errlen);
+ * runs too. The model's layout for the dims sample 0 binds into t->m,
+ * every member's options set and the --basis names checked. */
+int train_begin(Train *t);
+/* Step 1: every member's snapshots in memory (t->sn.X), or, when they need
+ * more than opt->mem, their bases by the method of snapshots (t->sn.U,
+ * t->sn.k; t->gram set). Marks which diagonal operators stay SPD. */
+int train_take_snapshots(Train *t);
+/* Step 3: the projections between classes and every tensor of t->m pre-multiplied. */
+int train_premultiply_all(Train *t);
 /* Step 4: with `externs` every extern's learned map from the snapshots
- * (or, `gram`, recomputed), with `floors` the streamed classes' training
+ * (or, t->gram, recomputed), with `floors` the streamed classes' training
  * floors, in one pass over the samples. */
-int train_fit_externs(Model *m, Full *f, const SampleSource *src, const Snapshots *sn, bool gram, bool externs, bool floors,
-                      bool progress, bool dist, char *err, size_t errlen);
+int train_fit_externs(Train *t, bool externs, bool floors);
 
 /* Streamed bases (issue 30; train.c), shared with the tune sample set:
  * the classes streamed marked (true when some still need their training
  * floors), sample k's floors of their quantities added to the means over
  * S samples, and (step 5) their bases dropped. */
 bool train_mark_streamed(Model *m, const TrainOptions *opt);
-void train_take_floors(Model *m, Full *f, const Snapshots *sn, bool gram, long k, long S, double *proj, double *y);
+void train_take_floors(const Train *t, long k, double *proj, double *y);
 void train_drop_bases(Model *m);
 
-/* The method of snapshots (snapshots.c): every member's basis of `m` from
- * S x S Gram matrices, recomputing the samples of `src` in passes within
- * opt->mem; U[c][i] (n x kk[c][i] row-major, malloc'd) and kk[c][i] per
+/* The steps of one training sample, shared with the method of snapshots and out of core: */
+/* Over ranks (t->opt->dist), the test hook of dist_fail_here at rank r's
+ * first sample k == r: -1 with `err` saying so; 0 otherwise. */
+int train_fail_hook(const Train *t, long k);
+/* Unmark every diagonal operator whose diagonal is not positive in the
+ * current evaluation of t->f (`tmp`: room for the largest class). */
+int train_check_spd(Train *t, double *tmp);
+/* Member `mb`'s value (a quantity, or an unnamed numerator) after an
+ * evaluation of sample k into out[0..n); refused, naming where, when not finite. */
+int train_member_value(Train *t, const RMember *mb, long k, long n, double *out);
+
+/* The method of snapshots (snapshots.c): every member's basis of t->m from
+ * S x S Gram matrices, recomputing the samples of t->src in passes within
+ * opt->mem; t->sn.U[c][i] (n x t->sn.k[c][i] row-major, malloc'd) per
  * member, the member reports set, the SPD marks checked on every sample
- * (`tmp`: room for max(largest class, S) doubles). 0, or -1 with `err`. */
-int train_snapshot_bases(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, double ***U, int **kk,
-                         double *tmp, char *err, size_t errlen);
+ * (`tmp`: room for max(largest class, S) doubles). */
+int train_snapshot_bases(Train *t, double *tmp);
+
+/* Out of core (ooc.c): every class basis of t->m (rc->B, rc->m, member reports, SPD marks) with
+ * at most opt->mem bytes of snapshots, Gram matrices and basis rows in
+ * memory, by passes over the samples that keep a block of rows of the
+ * large classes (DESIGN §11); large bases are left in unnamed files and
+ * memory-mapped read-only (rc->B_mapped). Unless a stage may yet be made
+ * interpolated (opt->valid, interpolation asked for), the large classes'
+ * bases are formed block by block (stream.c) and every tensor that reads
+ * one is pre-multiplied here (t->data set; train_premultiply_all does the
+ * others): a class the model drops (RClass.streamed) is never stored
+ * (rc->B stays NULL, rc->m its size), one it keeps is mapped. The result is the
+ * in-memory training's (pca_basis, pca_merge through their Gram route) up
+ * to rounding. */
+int ooc_bases(Train *t);
 
 /* --merge joint (joint.c): class `rc`'s basis (rc->B, rc->m) and every
  * member's report from one PCA of its members' snapshots X[i] (n x S

@@ -101,13 +101,10 @@ int api_sample_set(void *closure, Full *full, long k);
 
 /* A model object owning `m` (NULL: out of memory, `m` freed). */
 NpgModel *api_model_wrap(Model *m);
-/* "name=<hex> …": the hashes of the values of every param bound in `f`
- * (malloc'd; NULL when out of memory). */
-char *api_param_hashes(const Full *f);
-/* After `before` = api_param_hashes(f): the name of the first param whose value changed since (a
- * sample function that set one: validation and test samples hold inputs and externs only), NULL if
- * none; *oom on a failed allocation. */
-const char *api_param_changed(const Full *f, const char *before, bool *oom);
+/* Training's options (train.h) as `o` gives them: the one translation of NpgTrainOptions, for
+ * npg_trainer and npg_tune (`valid`, `weights` and `shared_prefix`, which `o` does not hold,
+ * NULL). */
+void api_train_options(const NpgTrainOptions *o, TrainOptions *to);
 /* The interpolation and streaming fields of `o` (DESIGN §12, issue 30) in their documented ranges:
  * 0, or -1 with a message naming the field, for `func`, in err. */
 int api_refuse_reduce_options(const NpgTrainOptions *o, const char *func, char *err, size_t errlen);

@@ -37,35 +37,6 @@ int api_shape(const Full *f, const Sym *s, long *shape) {
   return nd;
 }
 
-char *api_param_hashes(const Full *f) {
-  const Program *prog = full_program(f);
-  size_t cap = 1, len = 0;
-  for (int i = 0; i < prog->params.n; i++) cap += strlen(((Sym *)prog->params.v[i])->name) + 19;
-  char *out = mem_malloc(cap);
-  if (!out) return NULL;
-  out[0] = 0;
-  for (int i = 0; i < prog->params.n; i++)
-    len += (size_t)snprintf(out + len, cap - len, "%s%s=%016llx", i ? " " : "", ((Sym *)prog->params.v[i])->name,
-                            (unsigned long long)full_param_hash(f, i, NULL));
-  return out;
-}
-
-const char *api_param_changed(const Full *f, const char *before, bool *oom) {
-  char *after = api_param_hashes(f);
-  *oom = !after;
-  if (!after) return NULL;
-  const Program *prog = full_program(f);
-  const char *changed = NULL, *a = before, *b = after;
-  /* "name=hash" per param, space-separated, in the program's order in both */
-  for (int i = 0; i < prog->params.n && !changed; i++) {
-    size_t la = strcspn(a, " "), lb = strcspn(b, " ");
-    if (la != lb || strncmp(a, b, la) != 0) changed = ((Sym *)prog->params.v[i])->name;
-    a += la + (a[la] == ' '), b += lb + (b[lb] == ' ');
-  }
-  free(after);
-  return changed;
-}
-
 int api_reduced_not_finite(const Model *m, Reduced *r, long sample, char *err, size_t errlen) {
   for (int q = 0; q < m->nq; q++) {
     const double *x = reduced_coords(r, q);
@@ -440,7 +411,7 @@ int npg_full_check_params_dir(const NpgFull *f, const char *dir, char *err, size
   API_REFUSE_NULL(f, err, errlen, -1);
   API_REFUSE_NULL(dir, err, errlen, -1);
   if (!full_program(f->full)) return error_set(err, errlen, "%s", npg_full_error(f));
-  char *recorded = api_param_hashes(f->full);
+  char *recorded = train_param_hashes(f->full);
   if (!recorded) {
     snprintf(err, errlen, "out of memory");
     return -1;

@@ -23,7 +23,25 @@
 #include "compile.h"
 #include "dist.h"
 #include "lower.h"
-#include "trainer_impl.h"
+#include "records.h"
+
+struct NpgTrainer {
+  NpgFull *f;
+  const Program *prog;
+  NpgTrainOptions opt;
+  SampleRecords r;          /* the samples added (records.h): their inputs and externs, kept */
+  bool *staged;             /* per slot of r: npg_trainer_set since the last add */
+  double weight;            /* the next sample's (npg_trainer_weight; 1 after every add) */
+  double *weights;          /* every sample's, in order (every rank's too); NULL while all are 1 */
+  long weights_cap;
+  bool broken;              /* a failure that may have left the records incomplete (or the construction's):
+                               npg_trainer_clear_error keeps the error */
+  uint64_t inputs_hash;     /* over ranks: of every sample's inputs, in order (every rank's too: ranks_agree) */
+  char error[2048];
+  char worded[2048];        /* error in the caller's words (NpgTrainOptions.words), made by npg_trainer_error */
+};
+
+#define tfail(t, ...) error_set_first((t)->error, sizeof (t)->error, __VA_ARGS__)
 
 static size_t half_the_ram(void) {
   size_t ram = physical_memory();
@@ -41,6 +59,18 @@ void npg_train_options_default(NpgTrainOptions *o) {
   o->energy = 0.999;
   o->mem = half_the_ram();
   o->valid_holdout = -1; /* automatic: DESIGN §12 */
+}
+
+void api_train_options(const NpgTrainOptions *o, TrainOptions *to) {
+  *to = (TrainOptions){.cap = o->cap, .energy = o->energy, .joint = o->joint, .mem = o->mem, .progress = o->progress,
+                       .dist = o->mpi, .uncentered = o->uncentered, .noverride = o->nbasis,
+                       .override_name = (const char **)o->basis_name, .override_cap = (int *)o->basis_cap,
+                       .override_energy = (double *)o->basis_energy, .override_center = (int *)o->basis_center,
+                       .override_product = (const char **)o->basis_product, .ninterp = o->ninterp,
+                       .interp_stage = o->interp_stage, .interp_oversample = o->interp_oversample,
+                       .ngalerkin = o->ngalerkin, .galerkin_stage = o->galerkin_stage,
+                       .valid_holdout = o->valid_holdout, .stream = true, .keep_bases = o->keep_bases,
+                       .rollout_steps = o->rollout_steps, .rollout_every = o->rollout_every};
 }
 
 int api_refuse_reduce_options(const NpgTrainOptions *o, const char *func, char *err, size_t errlen) {
@@ -115,6 +145,8 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
   else npg_train_options_default(&t->opt);
   t->weight = 1;
   t->f = f;
+  t->r.mpi = t->opt.mpi;
+  t->r.err = t->error, t->r.errlen = sizeof t->error;
   if (!f) {
     api_refuse(t->error, sizeof t->error, __func__, "argument 'f' is NULL");
     return t;
@@ -128,22 +160,19 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
   }
   const Program *prog = t->prog = full_program(f->full);
   /* the names the options give, refused now rather than after every sample was streamed */
-  TrainOptions names = {.noverride = t->opt.nbasis, .override_name = (const char **)t->opt.basis_name,
-                        .override_product = (const char **)t->opt.basis_product,
-                        .keep_bases = t->opt.keep_bases, .ninterp = t->opt.ninterp,
-                        .interp_stage = t->opt.interp_stage, .ngalerkin = t->opt.ngalerkin,
-                        .galerkin_stage = t->opt.galerkin_stage};
+  TrainOptions names;
+  api_train_options(&t->opt, &names);
   if (prog && train_check_names((Program *)prog, &names, t->error, sizeof t->error) != 0) return t;
-  t->slot = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->slot);
-  t->count = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->count);
+  t->r.slot = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->r.slot);
+  t->r.count = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->r.count);
   t->staged = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->staged);
-  if (!t->slot || !t->count || !t->staged) {
+  if (!t->r.slot || !t->r.count || !t->staged) {
     tfail(t, "out of memory");
     return t;
   }
   for (int i = 0; i < prog->slots.n; i++) {
     const Sym *s = prog->slots.v[i];
-    if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) t->slot[t->nslots++] = s;
+    if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) t->r.slot[t->r.nslots++] = s;
   }
   t->broken = false;
   return t;
@@ -158,7 +187,7 @@ const char *npg_trainer_error(const NpgTrainer *t) {
 }
 long npg_trainer_samples(const NpgTrainer *t) {
   API_REFUSE_NULL(t, NULL, 0, -1);
-  return t->samples;
+  return t->r.samples;
 }
 
 /* The argument checks of the npg_trainer_ entry points (api.h). */
@@ -169,7 +198,7 @@ long npg_trainer_samples(const NpgTrainer *t) {
 int npg_trainer_clear_error(NpgTrainer *t) {
   REFUSE_NULL_T(-1);
   if (t->broken || (t->opt.mpi && dist_size() > 1)) return t->error[0] ? -1 : 0;
-  if (t->staged) memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
+  if (t->staged) memset(t->staged, 0, sizeof(bool) * (size_t)t->r.nslots);
   t->weight = 1;
   npg_full_clear_error(t->f);
   full_forget_given(t->f->full);
@@ -178,8 +207,8 @@ int npg_trainer_clear_error(NpgTrainer *t) {
 }
 
 static int slot_of(const NpgTrainer *t, const char *name) {
-  for (int i = 0; i < t->nslots; i++)
-    if (strcmp(t->slot[i]->name, name) == 0) return i;
+  for (int i = 0; i < t->r.nslots; i++)
+    if (strcmp(t->r.slot[i]->name, name) == 0) return i;
   return -1;
 }
 
@@ -191,8 +220,8 @@ int npg_trainer_set(NpgTrainer *t, const char *name, int ndim, const long *shape
   if (i < 0) return tfail(t, "the program has no input or extern '%s'", name);
   char from[256];
   /* Named in a message about the value ("dim N is 5 in … but 6 in input 'x' of training sample 8"). */
-  snprintf(from, sizeof from, "%s '%.100s' of training sample %ld", t->slot[i]->kind == SYM_INPUT ? "input" : "extern",
-           name, t->samples);
+  snprintf(from, sizeof from, "%s '%.100s' of training sample %ld", t->r.slot[i]->kind == SYM_INPUT ? "input" : "extern",
+           name, t->r.samples);
   if (npg_full_set(t->f, name, ndim, shape, values, from) != 0) return tfail(t, "%s", npg_full_error(t->f));
   t->staged[i] = true;
   return 0;
@@ -203,24 +232,24 @@ int npg_trainer_weight(NpgTrainer *t, double w) {
   if (t->error[0]) return -1;
   if (!(w > 0 && isfinite(w)))
     return tfail(t, "npg_trainer_weight: the weight of training sample %ld is %g: weights must be positive and finite",
-                 t->samples, w);
+                 t->r.samples, w);
   t->weight = w;
   return 0;
 }
 
-/* Sample t->samples's weight kept (the array made at the first weight not 1), the next reset to 1. */
+/* Sample t->r.samples's weight kept (the array made at the first weight not 1), the next reset to 1. */
 static int keep_weight(NpgTrainer *t) {
   if (t->weight != 1 && !t->weights) {
-    t->weights_cap = t->samples + 64;
+    t->weights_cap = t->r.samples + 64;
     if (!(t->weights = mem_malloc(sizeof(double) * (size_t)t->weights_cap))) return tfail(t, "out of memory");
-    for (long k = 0; k < t->samples; k++) t->weights[k] = 1;
+    for (long k = 0; k < t->r.samples; k++) t->weights[k] = 1;
   }
-  if (t->weights && t->samples == t->weights_cap) {
+  if (t->weights && t->r.samples == t->weights_cap) {
     double *w = mem_realloc(t->weights, sizeof(double) * (size_t)(2 * t->weights_cap));
     if (!w) return tfail(t, "out of memory");
     t->weights = w, t->weights_cap *= 2;
   }
-  if (t->weights) t->weights[t->samples] = t->weight;
+  if (t->weights) t->weights[t->r.samples] = t->weight;
   t->weight = 1;
   return 0;
 }
@@ -231,49 +260,49 @@ static int record(NpgTrainer *t, const NpgFull *g) {
   const char *unbound = full_unbound_param(t->f->full);
   if (unbound)
     return tfail(t, "training sample %ld: param '%s' is not bound (bind the params of the trainer's evaluator first)",
-                 t->samples, unbound);
+                 t->r.samples, unbound);
   if (keep_weight(t)) return -1;
   /* over ranks every rank sees every sample: their inputs' hash, compared by ranks_agree (ranks
    * given two data folders of the same shapes trained on a mixture of them, issue 38) */
-  for (int i = 0; t->opt.mpi && i < t->nslots; i++) {
+  for (int i = 0; t->opt.mpi && i < t->r.nslots; i++) {
     size_t n = 0;
-    const double *v = t->slot[i]->kind == SYM_INPUT ? npg_full_get(g, t->slot[i]->name, &n) : NULL;
+    const double *v = t->r.slot[i]->kind == SYM_INPUT ? npg_full_get(g, t->r.slot[i]->name, &n) : NULL;
     if (v) t->inputs_hash = (t->inputs_hash ^ full_hash_values(v, n)) * 0x100000001b3ull + (uint64_t)i;
   }
-  if (!own_sample(t, t->samples)) {
-    t->samples++;
-    memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
+  if (!records_own(&t->r, t->r.samples)) {
+    t->r.samples++;
+    memset(t->staged, 0, sizeof(bool) * (size_t)t->r.nslots);
     return 0;
   }
-  long kk = kept_index(t, t->samples); /* its place among the samples this process keeps */
-  if (t->samples == 0) { /* the first sample fixes every size */
-    t->record = 0; /* again after a refused first sample */
-    for (int i = 0; i < t->nslots; i++) {
-      if (!npg_full_get(g, t->slot[i]->name, &t->count[i]))
-        return tfail(t, "training sample 0: %s '%s' has no value", t->slot[i]->kind == SYM_INPUT ? "input" : "extern",
-                     t->slot[i]->name);
-      t->record += t->count[i];
+  long kk = records_kept_index(&t->r, t->r.samples); /* its place among the samples this process keeps */
+  if (t->r.samples == 0) { /* the first sample fixes every size */
+    t->r.record = 0; /* again after a refused first sample */
+    for (int i = 0; i < t->r.nslots; i++) {
+      if (!npg_full_get(g, t->r.slot[i]->name, &t->r.count[i]))
+        return tfail(t, "training sample 0: %s '%s' has no value", t->r.slot[i]->kind == SYM_INPUT ? "input" : "extern",
+                     t->r.slot[i]->name);
+      t->r.record += t->r.count[i];
     }
-    free(t->buf), free(t->enc);
-    t->buf = NULL, t->enc = NULL;
-    t->mem_cap = t->opt.mem / 4;
-    if (!(t->buf = mem_malloc(sizeof(double) * (t->record + 1))) ||
-        !(t->enc = mem_malloc(sizeof(double) * t->record + (size_t)t->nslots + 1)))
+    free(t->r.buf), free(t->r.enc);
+    t->r.buf = NULL, t->r.enc = NULL;
+    t->r.mem_cap = t->opt.mem / 4;
+    if (!(t->r.buf = mem_malloc(sizeof(double) * (t->r.record + 1))) ||
+        !(t->r.enc = mem_malloc(sizeof(double) * t->r.record + (size_t)t->r.nslots + 1)))
       return t->broken = true, tfail(t, "out of memory");
   }
   size_t off = 0;
-  for (int i = 0; i < t->nslots; i++) {
+  for (int i = 0; i < t->r.nslots; i++) {
     size_t n = 0;
-    const double *v = npg_full_get(g, t->slot[i]->name, &n);
-    if (!v || n != t->count[i])
-      return tfail(t, "training sample %ld: '%s' has %zu entries, sample 0 had %zu", t->samples, t->slot[i]->name,
-                   v ? n : 0, t->count[i]);
-    memcpy(t->buf + off, v, sizeof(double) * n);
+    const double *v = npg_full_get(g, t->r.slot[i]->name, &n);
+    if (!v || n != t->r.count[i])
+      return tfail(t, "training sample %ld: '%s' has %zu entries, sample 0 had %zu", t->r.samples, t->r.slot[i]->name,
+                   v ? n : 0, t->r.count[i]);
+    memcpy(t->r.buf + off, v, sizeof(double) * n);
     off += n;
   }
-  if (trainer_store(t, &t->rec, kk, trainer_encode(t))) return t->broken = true, -1;
-  t->samples++;
-  memset(t->staged, 0, sizeof(bool) * (size_t)t->nslots);
+  if (records_store(&t->r, &t->r.rec, kk, records_encode(&t->r))) return t->broken = true, -1;
+  t->r.samples++;
+  memset(t->staged, 0, sizeof(bool) * (size_t)t->r.nslots);
   return 0;
 }
 
@@ -281,24 +310,24 @@ int npg_trainer_add(NpgTrainer *t) {
   REFUSE_NULL_T(-1);
   if (t->error[0]) return -1;
   bool need_eval = false;
-  for (int i = 0; i < t->nslots; i++) {
+  for (int i = 0; i < t->r.nslots; i++) {
     if (t->staged[i]) continue;
-    if (t->slot[i]->kind == SYM_INPUT)
-      return tfail(t, "training sample %ld: input '%s' is not set", t->samples, t->slot[i]->name);
+    if (t->r.slot[i]->kind == SYM_INPUT)
+      return tfail(t, "training sample %ld: input '%s' is not set", t->r.samples, t->r.slot[i]->name);
     /* without a callback the evaluator would silently reuse the previous sample's value (issue 38) */
-    if (!full_has_extern_fn(t->f->full, t->slot[i]->name))
+    if (!full_has_extern_fn(t->f->full, t->r.slot[i]->name))
       return tfail(t, "training sample %ld: extern '%s' is not given and has no callback: a sample gives every input, "
-                      "and every extern that has no callback (npg_full_set_extern_fn)", t->samples, t->slot[i]->name);
+                      "and every extern that has no callback (npg_full_set_extern_fn)", t->r.samples, t->r.slot[i]->name);
     need_eval = true;
   }
 
   /* externs not given: their callbacks fill them (for this rank's samples). They read inputs only
    * (full.h), so after the first sample no stage is evaluated: an empty demand runs the callbacks
    * alone (at radiosity's paper size a whole evaluation is a 5,000-face solve, 2 s a sample) */
-  if (need_eval && own_sample(t, t->samples)) {
-    Demand *d = t->samples > 0 ? full_demand(t->f->full) : NULL;
-    if (t->samples > 0 && !d) return tfail(t, "%s", npg_full_error(t->f));
-    if ((d ? full_eval_demand(t->f->full, t->samples, d) : npg_full_eval(t->f, t->samples)) != 0)
+  if (need_eval && records_own(&t->r, t->r.samples)) {
+    Demand *d = t->r.samples > 0 ? full_demand(t->f->full) : NULL;
+    if (t->r.samples > 0 && !d) return tfail(t, "%s", npg_full_error(t->f));
+    if ((d ? full_eval_demand(t->f->full, t->r.samples, d) : npg_full_eval(t->f, t->r.samples)) != 0)
       return tfail(t, "%s", npg_full_error(t->f));
   }
   int rc = record(t, t->f);
@@ -324,64 +353,6 @@ int npg_trainer_add_full(NpgTrainer *t, const NpgFull *g) {
   return record(t, g);
 }
 
-/* Sample k's encoded record into t->enc. */
-static int load_record(NpgTrainer *t, Full *f, long k) {
-  if (!own_sample(t, k)) return full_fail(f, "a training sample of another rank was asked for (a bug in npg)");
-  if (trainer_fetch(t, &t->rec, kept_index(t, k))) return full_fail(f, "cannot read a training sample back from the scratch file");
-  return 0;
-}
-
-/* Over ranks: the bytes the records of all the samples take in memory on
- * one process (and on every rank after share_samples), the same on every
- * rank. */
-static size_t shared_use(NpgTrainer *t) {
-  int N = dist_size(), rank = dist_rank();
-  double *len = mem_calloc((size_t)t->samples + 1, sizeof(double));
-  if (!len) return tfail(t, "out of memory"), 0;
-  for (long k = 0; k < t->samples; k++)
-    if ((k == 0 ? 0 : (int)(k % N)) == rank) len[k] = (double)t->rec.len[kept_index(t, k)];
-  dist_allreduce_sum(len, t->samples);
-  size_t used = 0;
-  for (long k = 0; k < t->samples && used + (size_t)len[k] <= t->mem_cap; k++) used += (size_t)len[k];
-  free(len);
-  return used;
-}
-
-/* SampleSource.share: out of core over ranks every rank's passes evaluate
- * every sample, so each sample's record (inputs and extern values, encoded)
- * is sent from the rank that keeps it to all: every extern callback still
- * ran once, on one rank, and afterwards every rank keeps every sample (in
- * memory up to mem_cap, the rest in its scratch file). */
-static int share_samples(void *user, char *err, size_t errlen) {
-  NpgTrainer *t = user;
-  int N = dist_size(), rank = dist_rank();
-  if (!t->opt.mpi || N == 1 || t->all) return 0;
-  Records old = t->rec;
-  memset(&t->rec, 0, sizeof t->rec);
-  int rc = 0;
-  for (long k = 0; k < t->samples; k++) {
-    int from = k == 0 ? 0 : (int)(k % N); /* sample 0: every rank has it */
-    double bytes = 0;
-    if (rank == from) {
-      if (trainer_fetch(t, &old, kept_index(t, k))) rc = error_set(err, errlen, "cannot read training sample %ld back from the scratch file", k);
-      bytes = rc ? -1 : (double)old.len[kept_index(t, k)];
-    }
-    dist_broadcast(&bytes, 1, from);
-    if (bytes < 0) {
-      if (!rc) rc = error_set(err, errlen, "rank %d could not read training sample %ld back from its scratch file", from, k);
-      break;
-    }
-    dist_broadcast_bytes(t->enc, (long)bytes, from);
-    if (trainer_store(t, &t->rec, k, (size_t)bytes)) {
-      rc = error_set(err, errlen, "%s", t->error);
-      break;
-    }
-  }
-  trainer_records_free(&old);
-  t->all = true;
-  return rc;
-}
-
 int npg_trainer_dots(NpgTrainer *t, const char *name, size_t count, const double *values, double *dots) {
   REFUSE_NULL_T(-1);
   REFUSE_NULL(name, -1);
@@ -390,78 +361,25 @@ int npg_trainer_dots(NpgTrainer *t, const char *name, size_t count, const double
   if (t->error[0]) return -1;
   int i = slot_of(t, name);
   if (i < 0) return tfail(t, "npg_trainer_dots: the program has no input or extern '%s'", name);
-  if (t->samples == 0) return tfail(t, "npg_trainer_dots: no training samples were added");
-  if (count != t->count[i])
-    return tfail(t, "npg_trainer_dots: '%s' has %zu entries a sample, %zu were given", name, t->count[i], count);
+  if (t->r.samples == 0) return tfail(t, "npg_trainer_dots: no training samples were added");
+  if (count != t->r.count[i])
+    return tfail(t, "npg_trainer_dots: '%s' has %zu entries a sample, %zu were given", name, t->r.count[i], count);
   for (size_t e = 0; e < count; e++)
     if (!isfinite(values[e]))
       return tfail(t, "npg_trainer_dots: the values of '%s' hold %s at flat entry %zu", name,
                    isnan(values[e]) ? "NaN" : "an infinity", e);
   /* over ranks each rank its own samples (sample 0, which every rank keeps, on rank 0), then summed */
-  bool split = t->opt.mpi && dist_size() > 1 && !t->all;
-  for (long k = 0; k < t->samples; k++) {
+  bool split = t->opt.mpi && dist_size() > 1 && !t->r.all;
+  for (long k = 0; k < t->r.samples; k++) {
     dots[k] = 0;
-    if (!own_sample(t, k) || (split && k == 0 && dist_rank() != 0)) continue;
-    if (trainer_fetch(t, &t->rec, kept_index(t, k)))
+    if (!records_own(&t->r, k) || (split && k == 0 && dist_rank() != 0)) continue;
+    if (records_fetch(&t->r, &t->r.rec, records_kept_index(&t->r, k)))
       return tfail(t, "npg_trainer_dots: cannot read training sample %ld back from the scratch file", k);
     size_t pos = 0;
-    for (int j = 0; j < i; j++) pos = trainer_slot_end(t, j, pos);
-    dots[k] = trainer_dot_slot(t, i, &pos, values);
+    for (int j = 0; j < i; j++) pos = records_slot_end(&t->r, j, pos);
+    dots[k] = records_dot_slot(&t->r, i, &pos, values);
   }
-  if (split) dist_allreduce_sum(dots, t->samples);
-  return 0;
-}
-
-/* SampleSource: sample k back into the evaluator. */
-static int replay(void *user, Full *f, long k) {
-  NpgTrainer *t = user;
-  if (load_record(t, f, k)) return -1;
-  trainer_decode(t);
-  const double *v = t->buf;
-  char from[64];
-  snprintf(from, sizeof from, "training sample %ld", kept_index(t, k));
-  for (int i = 0; i < t->nslots; i++) {
-    long shape[MAX_AXES + MAX_STATIC];
-    int nd = api_shape(f, t->slot[i], shape);
-    if (full_set(f, t->slot[i]->name, nd, shape, v, from) != 0) return -1;
-    v += t->count[i];
-  }
-  return 0;
-}
-
-/* SampleSource: sample k back into the evaluator, of each extern only the
- * entries the restricted evaluation `d` reads (at the paper's size the
- * visibility is 25 M entries, a pass reads a few of its rows), decoded
- * straight into the evaluator. */
-static int replay_part(void *user, Full *f, long k, const Demand *d) {
-  NpgTrainer *t = user;
-  if (load_record(t, f, k)) return -1;
-  char from[64];
-  snprintf(from, sizeof from, "training sample %ld", kept_index(t, k));
-  size_t pos = 0, off = 0;
-  for (int i = 0; i < t->nslots; i++) {
-    /* as many ranges as the demand has rows of boxes: a block of radiosity's stream sweep reads v at
-     * a stripe and its transpose, one range a face (decoding all 25 M entries instead cost as much
-     * as the evaluation) */
-    long nr = t->slot[i]->kind == SYM_EXTERN ? demand_range_bound(d, t->slot[i]) : -1;
-    if (nr > t->range_cap) {
-      size_t *r = mem_realloc(t->ranges, sizeof(size_t) * 2 * (size_t)nr);
-      if (!r) return full_fail(f, "out of memory reading a training sample back");
-      t->ranges = r, t->range_cap = nr;
-    }
-    if (nr > 0) nr = demand_ranges(d, t->slot[i], t->ranges, nr);
-    if (nr < 0) { /* whole, through the checks of npg_full_set */
-      pos = trainer_decode_slot(t, i, pos, t->buf + off, NULL, -1);
-      long shape[MAX_AXES + MAX_STATIC];
-      int nd = api_shape(f, t->slot[i], shape);
-      if (full_set(f, t->slot[i]->name, nd, shape, t->buf + off, from) != 0) return -1;
-    } else { /* recorded from values that passed those checks */
-      double *v = full_extern_values(f, t->slot[i]->name, t->count[i]);
-      if (!v) return -1;
-      pos = trainer_decode_slot(t, i, pos, v, t->ranges, nr);
-    }
-    off += t->count[i];
-  }
+  if (split) dist_allreduce_sum(dots, t->r.samples);
   return 0;
 }
 
@@ -519,7 +437,7 @@ static int ranks_agree(NpgTrainer *t) {
   for (int round = 0; round < 2; round++) {
     int from = round ? 4 : 0;
     if (round) {
-      FIGURE(t->samples, "the number of training samples%s", "");
+      FIGURE(t->r.samples, "the number of training samples%s", "");
       for (int i = 0; i < prog->dims.n; i++) {
         const char *d = ((Sym *)prog->dims.v[i])->name;
         FIGURE(npg_full_dim(t->f, d), "dim %s", d);
@@ -536,7 +454,7 @@ static int ranks_agree(NpgTrainer *t) {
       FIGURE(t->opt.joint, "--merge%s", "");
       FIGURE(t->opt.nbasis, "the number of --basis options%s", "");
       double sum = 0, moment = 0; /* the sample weights, by two sums (1 and k + 1 each when none) */
-      for (long k = 0; k < t->samples; k++)
+      for (long k = 0; k < t->r.samples; k++)
         sum += t->weights ? t->weights[k] : 1, moment += (double)(k + 1) * (t->weights ? t->weights[k] : 1);
       FIGURE(sum, "the sum of the sample weights%s", "");
       FIGURE(moment, "the sum of the sample weights times their sample's number%s", "");
@@ -569,51 +487,13 @@ static int ranks_agree(NpgTrainer *t) {
   return rc;
 }
 
-/* Held-out validation (NpgTrainOptions.valid_holdout, DESIGN §12): every
- * stride-th sample (k % stride == stride - 1) validates, the others train;
- * interleaved, so both cover a simulation's whole run. */
-typedef struct Holdout {
-  NpgTrainer *t;
-  long stride;
-} Holdout;
-
-static long training_index(const Holdout *h, long j) { return j + j / (h->stride - 1); }
-
-static int replay_training(void *user, Full *f, long j) {
-  const Holdout *h = user;
-  return replay(h->t, f, training_index(h, j));
-}
-
-static int replay_training_part(void *user, Full *f, long j, const Demand *d) {
-  const Holdout *h = user;
-  return replay_part(h->t, f, training_index(h, j), d);
-}
-
-static int replay_held(void *user, Full *f, long j) {
-  const Holdout *h = user;
-  return replay(h->t, f, j * h->stride + h->stride - 1);
-}
-
-/* Whether a param's value changed during training (`before`: api_param_hashes then): only a
- * validation sample can do it (valid_set setting a param with npg_full_set), and the model would
- * then be trained with one value and validated with another. Names the param in t->error. */
-static bool params_changed(NpgTrainer *t, const char *before) {
-  bool oom;
-  const char *name = api_param_changed(t->f->full, before, &oom);
-  if (oom) tfail(t, "out of memory");
-  else if (name)
-    tfail(t, "NpgTrainOptions.valid_set changed param '%s': a validation sample holds inputs and externs only (the "
-             "params are the trainer's)", name);
-  return oom || name;
-}
-
 NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   REFUSE_NULL_T(NULL);
   /* over ranks the others would wait for this one in a collective: end the job */
   if (t->error[0] && t->opt.mpi && dist_size() > 1) dist_abort("%s", t->error);
   if (t->error[0]) return NULL;
   if (ranks_agree(t)) return NULL;
-  if (t->samples == 0) {
+  if (t->r.samples == 0) {
     tfail(t, "no training samples were added");
     return NULL;
   }
@@ -626,32 +506,15 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   }
   if (check_mem(t)) return NULL;
   TrainOptions o;
-  memset(&o, 0, sizeof o);
-  o.cap = t->opt.cap;
-  o.energy = t->opt.energy;
-  o.joint = t->opt.joint;
+  api_train_options(&t->opt, &o);
   /* the cache holds at most a quarter of the budget; over ranks, what it
    * holds on one process (share_samples) on every rank: the same plan */
-  size_t used = t->opt.mpi && dist_size() > 1 ? shared_use(t) : t->rec.used;
+  size_t used = t->opt.mpi && dist_size() > 1 ? records_shared_use(&t->r) : t->r.rec.used;
   if (t->error[0]) return NULL;
   o.mem = t->opt.mem - used;
   o.progress = t->opt.progress && dist_rank() == 0;
-  o.dist = t->opt.mpi;
   o.shared_prefix = model_dir; /* out of core over ranks: the basis files next to the model */
-  o.uncentered = t->opt.uncentered;
-  o.noverride = t->opt.nbasis;
-  o.override_center = (int *)t->opt.basis_center;
-  o.override_product = (const char **)t->opt.basis_product;
-  o.override_name = (const char **)t->opt.basis_name;
-  o.override_cap = (int *)t->opt.basis_cap;
-  o.override_energy = (double *)t->opt.basis_energy;
-  o.ninterp = t->opt.ninterp;
-  o.interp_stage = t->opt.interp_stage;
-  o.interp_oversample = t->opt.interp_oversample;
-  o.ngalerkin = t->opt.ngalerkin;
-  o.galerkin_stage = t->opt.galerkin_stage;
-  o.stream = true;
-  o.keep_bases = t->opt.keep_bases;
+  o.weights = t->weights;
   SampleClosure valid_set = {t->opt.valid_set, t->opt.valid_user, t->f};
   SampleSource valid = {t->opt.valid_count, &valid_set, api_sample_set, NULL, NULL};
   if (t->opt.valid_count > 0 && !t->opt.valid_set) {
@@ -659,91 +522,15 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
     return NULL;
   }
   o.valid = t->opt.valid_count > 0 ? &valid : NULL;
-  SampleSource src = {t->samples, t, replay, replay_part, share_samples};
-  Holdout hold = {t, 0};
-  SampleSource held = {0};
-  double F = t->opt.valid_holdout;
-  bool retrain = F < 0;
-  if (F < 0) /* automatic: only where a stage's reduction is open to a choice (else the model is as before) */
-    F = t->opt.valid_count == 0 && !t->opt.mpi && t->samples >= TRAIN_HOLDOUT_MIN &&
-                interp_open_choices(t->prog, t->opt.ninterp, t->opt.interp_stage, t->opt.ngalerkin,
-                                    t->opt.galerkin_stage) > 0
-            ? 1.0 / TRAIN_HOLDOUT_STRIDE
-            : 0;
-  retrain &= F != 0;
-  SampleSource all = src;
-  if (F != 0) {
-    if (!(F > 0 && F <= 0.5) || t->opt.valid_count > 0 || t->opt.mpi) {
-      tfail(t, "--valid %g (NpgTrainOptions.valid_holdout): %s", F,
-            !(F > 0 && F <= 0.5) ? "must be in (0, 0.5]"
-            : t->opt.mpi         ? "not over MPI ranks (give a folder of validation samples instead, --valid DIR)"
-                                 : "validation samples are given as well");
-      return NULL;
-    }
-    hold.stride = lround(1 / F);
-    long nheld = t->samples / hold.stride;
-    if (nheld < 1) {
-      tfail(t, "--valid %g (NpgTrainOptions.valid_holdout) holds out one sample in %ld, none of %ld: give a "
-               "fraction of at least %.3g, or more samples", F, hold.stride, t->samples, 1.0 / (double)t->samples);
-      return NULL;
-    }
-    src = (SampleSource){t->samples - nheld, &hold, replay_training, replay_training_part, NULL};
-    held = (SampleSource){nheld, &hold, replay_held, NULL, NULL};
-    o.valid = &held;
-  }
-  /* The weights divided by the largest (over every rank): only their ratios
-   * count, and 20 weights of 1.5e308 overflowed their sum to infinity, lost
-   * a basis vector and were refused out of core as "snapshot values beyond
-   * 1e154". Scaled so, equal weights give the model of weights 1, bit for bit. */
-  double *weights = NULL;
-  if (t->weights) {
-    double big = 0;
-    for (long k = 0; k < t->samples; k++) big = fmax(big, t->weights[k]);
-    if (t->opt.mpi) dist_allreduce_max(&big, 1);
-    if (!(weights = mem_malloc(sizeof(double) * (size_t)t->samples))) {
-      tfail(t, "out of memory");
-      return NULL;
-    }
-    for (long k = 0; k < t->samples; k++) weights[k] = t->weights[k] / big;
-  }
-  /* the training samples' weights (of those left when some are held out) */
-  double *train_w = weights && src.count < t->samples ? mem_malloc(sizeof(double) * (size_t)src.count) : NULL;
-  if (weights && src.count < t->samples && !train_w) {
-    free(weights);
-    tfail(t, "out of memory");
-    return NULL;
-  }
-  for (long j = 0; train_w && j < src.count; j++) train_w[j] = weights[training_index(&hold, j)];
-  o.weights = train_w ? train_w : weights;
+  SampleSource src = records_source(&t->r);
   char err[2048] = "";
-  /* the params the samples are replayed with, recorded before any validation sample is set: a
-   * valid_set that sets a param would otherwise leave its hash in the model (trial3) */
-  char *params = api_param_hashes(t->f->full);
-  if (!params) {
-    free(train_w);
-    free(weights);
-    tfail(t, "out of memory");
-    return NULL;
-  }
   Model *m = train_model((Program *)t->prog, t->f->full, &src, &o, err, sizeof err);
-  /* the automatic choice made, every sample trains the model (DESIGN §12) */
-  o.weights = weights;
-  if (m && retrain) m = interp_train_with_choice((Program *)t->prog, t->f->full, &all, &o, m, err, sizeof err);
-  free(train_w);
-  free(weights);
-  if (m && params_changed(t, params)) {
-    model_free(m);
-    m = NULL;
-    snprintf(err, sizeof err, "%s", t->error);
-  }
   /* over ranks, the others wait for this one in a collective: end the job */
   if (!m && t->opt.mpi && dist_size() > 1) dist_abort("%s", err);
   if (!m) {
-    free(params);
     tfail(t, "%s", err);
     return NULL;
   }
-  m->param_hashes = params;
   NpgModel *nm = api_model_wrap(m);
   if (!nm) {
     tfail(t, "out of memory");
@@ -768,13 +555,8 @@ void npg_model_train_seconds(const NpgModel *m, double seconds[4], double cpu[4]
 
 void npg_trainer_free(NpgTrainer *t) {
   if (!t) return;
-  trainer_records_free(&t->rec);
-  free(t->slot);
-  free(t->count);
+  records_free(&t->r);
   free(t->staged);
-  free(t->buf);
-  free(t->ranges);
-  free(t->enc);
   free(t->weights);
   free(t);
 }

@@ -64,12 +64,12 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   rep->class_name = names;
   for (int c = 0; c < prog->classes.n; c++) names[c] = ((BasisClass *)prog->classes.v[c])->size_name;
   /* the params before any sample is set: a `valid` that sets one is refused after the search (trial3) */
-  char *params = api_param_hashes(f->full);
+  char *params = train_param_hashes(f->full);
   bool oom = !params;
   const char *changed = NULL;
   if (oom || !(ts = train_set_new(prog, f->full, &tsrc, &topt, rep->error, sizeof rep->error)) ||
       tune_search(ts, prog, f->full, &vsrc, tol, max_cap, &topt, r, rep->error, sizeof rep->error) != 0 ||
-      (changed = api_param_changed(f->full, params, &oom)) || oom) {
+      (changed = train_param_changed(f->full, params, &oom)) || oom) {
     if (oom) snprintf(rep->error, sizeof rep->error, "out of memory");
     else if (changed)
       snprintf(rep->error, sizeof rep->error, "npg_tune: a training or validation sample function changed param "
@@ -100,7 +100,7 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
     model_free(m);
     m = NULL;
   }
-  if (m && !(m->param_hashes = api_param_hashes(f->full))) snprintf(rep->error, sizeof rep->error, "out of memory");
+  if (m && !(m->param_hashes = train_param_hashes(f->full))) snprintf(rep->error, sizeof rep->error, "out of memory");
   if (m && !m->param_hashes) model_free(m);
   else if (m && !(nm = api_model_wrap(m))) snprintf(rep->error, sizeof rep->error, "out of memory");
 done:
