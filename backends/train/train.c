@@ -133,7 +133,7 @@ static void member_options(const Model *m, const RClass *c, RMember *mb, const T
     }
   /* An implicit step's residual is zero at every solved step up to Newton's tolerance: its
    * snapshots are rounding, whose directions would only grow the state's class (measured: 78
-   * vectors instead of 42 on bench/implicit_burgers_step.py). One vector (the mean, or the
+   * vectors instead of 19 on bench/implicit_burgers_step.py). One vector (the mean, or the
    * leading one uncentered) unless the program or --basis gives it a cap by its name. */
   const Sym *s = mb->q >= 0 ? m->prog->quantities.v[mb->q] : NULL;
   if (s && s->state_of && s->state_of->residual == s && s->basis_max <= 0 && !named) mb->cap = 1;
