@@ -59,7 +59,8 @@ def reduced_rollout(red, B, u0, steps, times):
     return np.array(out)
 
 
-def main():
+def problem():
+    """NX, NY, STEPS, ENERGY from the command line, the time step and the params."""
     nx = int(sys.argv[1]) if len(sys.argv) > 1 else 128
     ny = int(sys.argv[2]) if len(sys.argv) > 2 else 64
     steps = int(sys.argv[3]) if len(sys.argv) > 3 else 40
@@ -68,8 +69,13 @@ def main():
     umax = 2.0
     dt = 4 * min(hx, hy) / umax / 2  # explicit upwind: dt (1/hx + 1/hy) umax <= 1; 4x that
     west, south = grid(nx, ny)
-    prog = npg.compile(open(os.path.join(HERE, "implicit_burgers.npg")).read(), name="implicit_burgers.npg")
     params = {"west": west, "south": south, "lx": np.array(dt / hx), "ly": np.array(dt / hy)}
+    return nx, ny, steps, energy, dt, params
+
+
+def main():
+    nx, ny, steps, energy, dt, params = problem()
+    prog = npg.compile(open(os.path.join(HERE, "implicit_burgers.npg")).read(), name="implicit_burgers.npg")
     full = prog.full(params=params, backend="cc")
     t0 = time.perf_counter()
     tr = npg.Trainer(full, energy=energy, cap=60)

@@ -10,13 +10,12 @@ implicit_burgers.py. Times: wall clock of a whole rollout of STEPS steps saving 
 last states, divided by STEPS (the full and reduced rollouts in the same process and thread); the
 error: the worst over the steps of ‖R − F‖ / ‖F‖, from rollouts saving every step."""
 import os
-import sys
 import time
 
 import numpy as np
 
 import npg
-from implicit_burgers import grid, initial
+from implicit_burgers import initial, problem
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -28,16 +27,9 @@ def per_step(run, steps):
 
 
 def main():
-    nx = int(sys.argv[1]) if len(sys.argv) > 1 else 128
-    ny = int(sys.argv[2]) if len(sys.argv) > 2 else 64
-    steps = int(sys.argv[3]) if len(sys.argv) > 3 else 40
-    energy = float(sys.argv[4]) if len(sys.argv) > 4 else 0.999
-    hx, hy = 2 / nx, 1 / ny
-    dt = 4 * min(hx, hy) / 2.0 / 2  # as implicit_burgers.py: 4x the explicit upwind limit at speed 2
-    west, south = grid(nx, ny)
+    nx, ny, steps, energy, dt, params = problem()
     prog = npg.compile(os.path.join(HERE, "implicit_burgers_step.npg"))
-    full = prog.full(params={"west": west, "south": south, "lx": np.array(dt / hx), "ly": np.array(dt / hy)},
-                     backend="cc")
+    full = prog.full(params=params, backend="cc")
     t0 = time.perf_counter()
     tr = npg.Trainer(full, energy=energy, cap=60)
     for amp in np.linspace(0.3, 1.0, 6):

@@ -29,6 +29,8 @@ void report_training(const Model *m, FILE *out) {
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++) {
       const RMember *mb = &m->classes[c].members[i];
+      const Sym *s = mb->q >= 0 ? m->prog->quantities.v[mb->q] : NULL;
+      if (s && s->state_of && s->state_of->residual == s && mb->cap == 1) continue; /* train.c: rounding */
       if (mb->kept >= mb->cap && mb->lost > REPORT_CAP_LOST)
         fprintf(out,
                 "warning: %s (class %s) hit its cap %d with %.1e of its %senergy lost: raise it (--basis %s:cap=N) "

@@ -426,6 +426,21 @@ static Decl *parse_def(Parser *p, DeclKind kind, Token *name) {
   return d;
 }
 
+/* next u [ivars] = expr: the state u after one step, the output stage u.next; residual next u
+ * [ivars] = expr: u.next the zero of expr (an implicit step, lowered by sema), the output stage
+ * u.residual. */
+static Decl *parse_next_def(Parser *p, bool residual) {
+  if (residual) next(p); /* past `next` */
+  Token *n = expect_name(p, residual ? "the state's name after 'residual next'" : "the state's name after 'next'");
+  Decl *d = parse_def(p, D_STAGE, n);
+  d->name = arena_printf(p->ctx, "%s.%s", n->text, residual ? "residual" : "next");
+  if (residual) d->residual_of = n->text;
+  else d->next_of = n->text;
+  d->next_of_loc = n->loc;
+  d->is_output = true;
+  return d;
+}
+
 /* opdef = ident ivars "=" expr [ "on" ident "->" ident ] */
 static Decl *parse_opdef(Parser *p) {
   Token *name = expect_name(p, "the operator's name after 'op'");
@@ -496,22 +511,8 @@ static void parse_stmt(Parser *p, Decl ***tail) {
                kw, n->text, kw, n->text);
     expect(p, ":", arena_printf(ctx, "after '%s %s' (%s %s : real[N])", kw, n->text, kw, n->text));
     parse_type(p, d);
-  } else if (strcmp(kw, "next") == 0) { /* next u [ivars] = expr: the state u after one step */
-    Token *n = expect_name(p, "the state's name after 'next'");
-    d = parse_def(p, D_STAGE, n);
-    d->name = arena_printf(ctx, "%s.next", n->text);
-    d->next_of = n->text;
-    d->next_of_loc = n->loc;
-    d->is_output = true;
-  } else if (strcmp(kw, "residual") == 0 && is_ident(peek(p), "next")) {
-    /* residual next u [ivars] = expr: u.next is the zero of expr (an implicit step; sema lowers it) */
-    next(p);
-    Token *n = expect_name(p, "the state's name after 'residual next'");
-    d = parse_def(p, D_STAGE, n);
-    d->name = arena_printf(ctx, "%s.residual", n->text);
-    d->residual_of = n->text;
-    d->next_of_loc = n->loc;
-    d->is_output = true;
+  } else if (strcmp(kw, "next") == 0 || (strcmp(kw, "residual") == 0 && is_ident(peek(p), "next"))) {
+    d = parse_next_def(p, kw[0] == 'r');
   } else if (strcmp(kw, "fn") == 0) {
     Token *n = expect_name(p, "a function name after 'fn'");
     d = new_decl(p, D_FN, n->loc);

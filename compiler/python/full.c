@@ -726,7 +726,10 @@ static PyMethodDef full_methods[] = {
    "times from the states' initial values (state=array); every other input held (its shape) or given per\n"
    "step (a leading steps axis). Each state's array is [steps // every + 1, ...]: steps 0, every, 2 every, ...\n"
    "A blow-up (a state not finite, or its energy past 10x its start; blowup=F changes the factor for this\n"
-   "call, 0 checks finiteness only) raises npg.Error naming the step."},
+   "call, 0 checks finiteness only) raises npg.Error naming the step. A state stepped implicitly\n"
+   "(`residual next u = ...`) is solved by Newton at every step: newton_tol=1e-10 (relative to the first\n"
+   "guess's residual), newton_max_iter=30, newton_verbose=False (|r| per iteration on stderr); a failure\n"
+   "raises npg.Error naming the step, iteration and residual."},
   {"dim", (PyCFunction)full_dim_method, METH_O, "dim(name) -> int: the bound size of a dim (-1: unbound)"},
   {"bind", (PyCFunction)full_bind, METH_O, "bind(params): forget every binding and bind these params"},
   {"extern", (PyCFunction)full_extern, METH_VARARGS,

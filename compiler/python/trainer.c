@@ -517,7 +517,8 @@ static PyMethodDef trainer_methods[] = {
    "estimated relative error, with absolute=True the absolute one (npgc train --absolute)"},
   {"add_trajectory", (PyCFunction)(void (*)(void))trainer_add_trajectory, METH_VARARGS | METH_KEYWORDS,
    "add_trajectory(steps, every=1, **inputs): run the full step `steps` times from the states' initial values\n"
-   "(Full.simulate's arguments) and add every `every`-th visited state; nothing is kept but the samples"},
+   "(Full.simulate's arguments) and add every `every`-th visited state; nothing is kept but the samples.\n"
+   "A state stepped implicitly (`residual next u = ...`): every `every`-th solved step, the pair (u, u.next)"},
   {"add", (PyCFunction)(void (*)(void))trainer_add, METH_VARARGS | METH_KEYWORDS,
    "add(**arrays): stream one sample: every input, and externs (else computed by their callables)"},
   {"weight", (PyCFunction)trainer_weight, METH_O,

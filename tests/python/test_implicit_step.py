@@ -55,7 +55,7 @@ def test_explicit_euler_blows_up_at_this_step(setup):
 def test_reduced_rollout_stable_and_near_the_full(setup):
     _, nbr, full = setup
     rng = np.random.default_rng(11)
-    tr = npg.Trainer(full, cap=3)  # {u, u.next, u.residual}: at most 9 coordinates for 25 cells
+    tr = npg.Trainer(full, cap=3)  # {u, u.next, u.residual}: 3 + 3 + 1 at most, for 25 cells
     for _ in range(8):
         tr.add_trajectory(6, u=bump(rng))  # the pairs (u, u.next) of the full implicit steps
     model = tr.finish()
@@ -71,7 +71,6 @@ def test_reduced_rollout_stable_and_near_the_full(setup):
     B = model.basis("u")
     floor = np.linalg.norm(F - F @ B @ B.T) / np.linalg.norm(F)
     final = np.linalg.norm(R[-1] - F[-1]) / np.linalg.norm(F[-1])
-    print(f"m {m} trajectory error {err:.3e} floor {floor:.3e} final {final:.3e}")
     assert err <= 1.05 * floor and final <= 0.01, (err, floor, final)
 
 
