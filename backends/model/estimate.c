@@ -392,6 +392,8 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
                "in one input with semidefinite terms equal to the product at a positive input)");
       goto none;
     }
+    if (m->classes[m->qclass[q]].product && !isnan(rt->est_sigma))
+      flags &= ~EST_BOUND; /* B's Dirichlet rows above roundoff: the bound's premise is not checked (estimate_product.c) */
     if (!(sig > 0)) {
       sig = rt->est_sigma * sigma_min(s->M, my, s);
       flags &= ~EST_BOUND; /* σ_min is estimated from the training samples */

@@ -70,7 +70,8 @@ typedef struct RTerm {
    * (owned); NULL: the term has no estimate */
   double *est_G;
   long est_D;
-  double est_sigma;         /* an inverse term: min over training samples of σ_min(M)/σ_min(BᵀMB); NaN: unknown */
+  double est_sigma;         /* an inverse term: min over training samples of σ_min(M)/σ_min(BᵀMB); NaN: unknown; in a
+                               class with a product: NaN, or 1 when its min-θ figure is an estimate (estimate_product.c) */
   /* the min-θ lower bound (estimate.h): M(x) = M_0 + Σ x_j M_j, x input est_theta_q (est_theta_n
    * entries), every M_j symmetric positive semidefinite; est_theta_k anchors, each x̄ then λ_min(M(x̄))
    * (est_theta_k x (est_theta_n + 1), owned); NULL or est_theta_k = 0: no bound */

@@ -13,7 +13,8 @@
  *
  * Coercivity. M(x) = M_0 + Σ x_j M_j (estimate_affine_parts). Let S be the rows where the error is
  * zero whatever x: rows i where every M_j (j ≥ 1) is zero, M_0 has only its diagonal (≠ 0), the
- * numerator's columns are zero and B's are to 1e-6 of its largest entry (Dirichlet rows: u_i = w_i / M_0[i,i] = 0 = (B û)_i). On the
+ * numerator's columns are zero (Dirichlet rows: u_i = w_i / M_0[i,i] = 0, and (B û)_i = 0 when B's rows there are
+ * zero: to 1e-6 of its largest entry, else the figure is flagged an estimate, est_sigma = 1). On the
  * other rows T, if every M_j restricted to T×T is symmetric positive semidefinite (by diagonal
  * dominance) and K0 restricted to T×T equals M(x̄) restricted for an x̄ > 0 (found by least squares
  * over the entries, then checked to 1e-12), then for e = u − B û (e_S = 0)
@@ -61,12 +62,13 @@ static double frobenius_dot(const cholmod_sparse *A, const cholmod_sparse *B, do
   return s;
 }
 
-/* The rows T the error can live on (every row but S, above), into T; their count. */
+/* The rows T the error can live on (every row but S, above), into T; their count. *b_zero: B's rows S are
+ * zero to 1e-6 of its largest entry (else the figure is an estimate: the full solves leave roundoff at
+ * Dirichlet rows, which the trailing directions magnify: of B's largest entry 2.7e-12 at pyMOR's grid 19,
+ * m = 31, 4.2e-9 at m = 58, above 1e-6 at grid 100, m = 31). */
 static long error_rows(cholmod_sparse *const *K, size_t nx, const RClass *rc, const double *C, long D, long nnum,
-                       SuiteSparse_long *T, bool *bad, double *diag) {
+                       SuiteSparse_long *T, bool *bad, double *diag, bool *b_zero) {
   long n = rc->n, nt = 0;
-  /* B's rows there are zero to roundoff: the full solves leave roundoff at Dirichlet rows, which the trailing
-   * directions magnify (of B's largest entry: 2.7e-12 at pyMOR's grid 19, m = 31; 4.2e-9 at m = 58), so 1e-6 */
   double bmax = 0;
   for (long e = 0; e < n * rc->m; e++) bmax = fmax(bmax, fabs(rc->B[e]));
   for (long i = 0; i < n; i++) bad[i] = false, diag[i] = 0;
@@ -83,7 +85,7 @@ static long error_rows(cholmod_sparse *const *K, size_t nx, const RClass *rc, co
   for (long i = 0; i < n; i++) {
     bool zero = !bad[i] && diag[i] != 0;
     for (long c = 0; zero && c < nnum; c++) zero = C[i * D + c] == 0;
-    for (long c = 0; zero && c < rc->m; c++) zero = fabs(rc->B[i * rc->m + c]) <= 1e-6 * bmax;
+    for (long c = 0; zero && *b_zero && c < rc->m; c++) *b_zero = fabs(rc->B[i * rc->m + c]) <= 1e-6 * bmax;
     if (!zero) T[nt++] = i;
   }
   return nt;
@@ -123,7 +125,8 @@ static int product_theta(const Model *m, Full *f, RTerm *rt, const RClass *rc, c
   bool *bad = malloc(sizeof *bad * (size_t)n + 1);
   double *w = calloc((size_t)n + 1, sizeof(double)), xbar[ESTIMATE_THETA_MAX];
   int out = T && bad && w ? 0 : -1;
-  long nt = out ? 0 : error_rows(K, nx, rc, C, D, nnum, T, bad, w);
+  bool b_zero = true;
+  long nt = out ? 0 : error_rows(K, nx, rc, C, D, nnum, T, bad, w, &b_zero);
   if (!out) memset(w, 0, sizeof(double) * (size_t)n);
   bool ok = !out && nt > 0;
   for (size_t j = 0; ok && j <= nx; j++)
@@ -133,6 +136,7 @@ static int product_theta(const Model *m, Full *f, RTerm *rt, const RClass *rc, c
     memcpy(rt->est_theta, xbar, sizeof(double) * nx);
     rt->est_theta[nx] = 1; /* λ_min of the pencil (M(x̄), K0) on the error's rows: M(x̄) = K0 there */
     rt->est_theta_q = q, rt->est_theta_n = (long)nx, rt->est_theta_k = 1;
+    rt->est_sigma = b_zero ? NAN : 1; /* 1: the figure is an estimate (estimate.c) */
   }
   for (size_t j = 0; j <= nx; j++) cholmod_l_free_sparse(&K[j], cc), cholmod_l_free_sparse(&Kt[j], cc);
   cholmod_l_free_sparse(&K0t, cc);
@@ -146,7 +150,7 @@ int estimate_product_columns(Model *m, Full *f, RTerm *rt, const RClass *rc, dou
   cholmod_l_start(&cc);
   cc.print = 0;
   free(rt->est_theta);
-  rt->est_theta = NULL, rt->est_theta_k = 0;
+  rt->est_theta = NULL, rt->est_theta_k = 0, rt->est_sigma = NAN;
   cholmod_sparse *A = product_matrix(m, f, rc, &cc, err, errlen), *K0 = A ? cholmod_l_copy_sparse(A, &cc) : NULL;
   cholmod_factor *L = K0 ? product_factor(rc, A, &cc, err, errlen) : NULL; /* leaves A's upper triangle: K0 keeps both */
   int out = -1;

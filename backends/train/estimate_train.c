@@ -165,7 +165,8 @@ static int term_table(Model *m, Full *f, int i, int t, char *err, size_t errlen)
     error_set(err, errlen, "estimate tables: the QR of stage %s's residual columns failed (LAPACK)", rs->st->sym->name);
     goto done;
   }
-  rt->est_G = G, rt->est_D = D, rt->est_sigma = NAN;
+  rt->est_G = G, rt->est_D = D;
+  if (!rc->product) rt->est_sigma = NAN; /* a product's: estimate_product_columns's */
   G = NULL;
   rc_ = 0;
 done:
