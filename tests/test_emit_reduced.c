@@ -251,19 +251,6 @@ static bool npgc_path(char *buf, size_t n) {
   return access(buf, X_OK) == 0;
 }
 
-/* A hash per param, as npg.h's trainer records them (npgc loads only a
- * model that has one for each; emit never compares them with data). */
-static void record_param_hashes(Model *m) {
-  size_t cap = 1, len = 0;
-  for (int i = 0; i < m->prog->params.n; i++) cap += strlen(((Sym *)m->prog->params.v[i])->name) + 19;
-  m->param_hashes = malloc(cap);
-  assert_non_null(m->param_hashes);
-  m->param_hashes[0] = 0;
-  for (int i = 0; i < m->prog->params.n; i++)
-    len += (size_t)snprintf(m->param_hashes + len, cap - len, "%s%s=%016x", i ? " " : "",
-                            ((Sym *)m->prog->params.v[i])->name, 0);
-}
-
 static void npgc_emit_reduced(void **state) {
   (void)state;
   char npgc[1200];
@@ -280,7 +267,6 @@ static void npgc_emit_reduced(void **state) {
     assert_non_null(mkdtemp(dir));
     snprintf(model, sizeof model, "%s/model", dir);
     snprintf(cpath, sizeof cpath, "%s/reduced.c", dir);
-    record_param_hashes(tr.m);
     if (model_save(tr.m, model, err, sizeof err)) fail_msg("%s", err);
     snprintf(cmd, sizeof cmd, "'%s' emit %s --reduced '%s' -o '%s'", npgc, progs[i], model, cpath);
     assert_int_equal(system(cmd), 0);
