@@ -81,16 +81,37 @@ static bool give_up(Emit *e, const Used *u) {
   return false;
 }
 
+/* A derivative sweep's start: the uses saved (give_up restores them), and
+ * stage st's value graph built as the evaluator builds it (reverse: for the
+ * adjoint), its nest's loop names and ranges, each component's value and
+ * offset. */
+typedef struct Graph {
+  Used u;
+  int nl, nc;
+  const char **names;
+  const Sym **ranges;
+  int *val, *off;
+} Graph;
+
+static Graph graph_of(Emit *e, const Stage *st, bool reverse) {
+  Graph g = {save(e), st->sym->nivars, st->ncomp, NULL, NULL, NULL, NULL};
+  e->deriv = true;
+  g.names = arena_alloc(e->ctx, sizeof(char *) * (size_t)(g.nl + 2));
+  g.ranges = arena_alloc(e->ctx, sizeof(Sym *) * (size_t)(g.nl + 2));
+  g.val = arena_alloc(e->ctx, sizeof(int) * (size_t)g.nc);
+  g.off = arena_alloc(e->ctx, sizeof(int) * (size_t)g.nc);
+  g.nl = emit_direct_values(e, st, reverse, g.names, g.ranges, g.val, g.off);
+  return g;
+}
+
 bool emit_ddirect_tangent(Emit *e, FILE *out, const Stage *st) {
   if (!emit_direct_ok(st)) return false;
   const Sym *s = st->sym;
-  int nl = s->nivars, nc = st->ncomp;
-  Used u = save(e);
-  e->deriv = true;
-  const char **names = arena_alloc(e->ctx, sizeof(char *) * (size_t)(nl + 2));
-  const Sym **ranges = arena_alloc(e->ctx, sizeof(Sym *) * (size_t)(nl + 2));
-  int *val = arena_alloc(e->ctx, sizeof(int) * (size_t)nc), *off = arena_alloc(e->ctx, sizeof(int) * (size_t)nc);
-  nl = emit_direct_values(e, st, false, names, ranges, val, off);
+  Graph g = graph_of(e, st, false);
+  Used u = g.u;
+  int nl = g.nl, nc = g.nc, *val = g.val, *off = g.off;
+  const char **names = g.names;
+  const Sym **ranges = g.ranges;
   Cse *cs = e->cse;
   int n = cse_count(cs);
   int *memo = arena_alloc(e->ctx, sizeof(int) * (size_t)n);
@@ -115,13 +136,11 @@ bool emit_ddirect_tangent(Emit *e, FILE *out, const Stage *st) {
 bool emit_ddirect_adjoint(Emit *e, FILE *out, const Stage *st) {
   if (!emit_direct_ok(st)) return false;
   const Sym *s = st->sym;
-  int nl = s->nivars, nc = st->ncomp;
-  Used u = save(e);
-  e->deriv = true;
-  const char **names = arena_alloc(e->ctx, sizeof(char *) * (size_t)(nl + 2));
-  const Sym **ranges = arena_alloc(e->ctx, sizeof(Sym *) * (size_t)(nl + 2));
-  int *val = arena_alloc(e->ctx, sizeof(int) * (size_t)nc), *off = arena_alloc(e->ctx, sizeof(int) * (size_t)nc);
-  nl = emit_direct_values(e, st, true, names, ranges, val, off);
+  Graph g = graph_of(e, st, true);
+  Used u = g.u;
+  int nl = g.nl, nc = g.nc, *val = g.val, *off = g.off;
+  const char **names = g.names;
+  const Sym **ranges = g.ranges;
   Cse *cs = e->cse;
   const char *dy = darray(e, emit_name(e, s));
   int *ybar = arena_alloc(e->ctx, sizeof(int) * (size_t)nc);
