@@ -98,6 +98,28 @@ int error_set_first(char *err, size_t errlen, const char *fmt, ...) {
   return -1;
 }
 
+int err_vset(Err *e, const char *fmt, va_list ap) {
+  return e ? error_vset(e->msg, e->len, fmt, ap) : -1;
+}
+
+int err_set(Err *e, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  err_vset(e, fmt, ap);
+  va_end(ap);
+  return -1;
+}
+
+int err_set_first(Err *e, const char *fmt, ...) {
+  if (err_held(e)) return -1;
+  va_list ap;
+  va_start(ap, fmt);
+  err_vset(e, fmt, ap);
+  va_end(ap);
+  return -1;
+}
+
+bool err_held(const Err *e) { return e && e->msg && e->len && e->msg[0]; }
 
 const char *bytes_text(double bytes, char *buf, size_t len) {
   static const char *const units[] = {"B", "kB", "MB", "GB", "TB", "PB", "EB"};

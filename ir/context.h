@@ -56,6 +56,23 @@ int error_vset(char *err, size_t errlen, const char *fmt, va_list ap);
 /* The same, unless `err` already holds a message: the first error of an
  * object stays (the evaluators and the trainer refuse work after one). */
 int error_set_first(char *err, size_t errlen, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+/* The error record of the backends (DESIGN §9): where a failure's message
+ * goes. A function that can fail takes `Err *err` (NULL, or a NULL `msg`:
+ * the message is dropped) and returns err_set's -1; its caller passes the
+ * same record on. The API's `char *err, size_t errlen` becomes one with
+ * ERR_OF(err, errlen), a record that lives until the end of the enclosing
+ * block. */
+typedef struct Err {
+  char *msg;
+  size_t len;
+} Err;
+#define ERR_OF(buf, buflen) (&(Err){(buf), (buflen)})
+int err_set(Err *e, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+int err_vset(Err *e, const char *fmt, va_list ap);
+/* The same, unless the record already holds a message (the first stays). */
+int err_set_first(Err *e, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+/* Whether the record holds a message. */
+bool err_held(const Err *e);
 /* `bytes` for a message, in the units --mem takes (powers of 1000):
  * "800 B", "1.12 GB", "8 TB"; into `buf`, which is returned. */
 const char *bytes_text(double bytes, char *buf, size_t len);
