@@ -86,7 +86,7 @@ static int generated_text(const char *path, const char *text, Stats *st) {
   snprintf(cpath, sizeof cpath, "%s/npg-emit-reduced-%d.c", tmp_dir(), (int)getpid());
   FILE *out = fopen(cpath, "w");
   assert_non_null(out);
-  if (emit_reduced(m, out, err, sizeof err)) fail_msg("%s: %s", path, err);
+  if (emit_reduced(m, out, ERR_OF(err, sizeof err))) fail_msg("%s: %s", path, err);
   fclose(out);
   if (cc_clean(cpath) != 0) failures++;
   unlink(cpath);
@@ -276,7 +276,7 @@ static void npgc_emit_reduced(void **state) {
     char *mine = NULL;
     size_t len = 0;
     FILE *mem = open_memstream(&mine, &len);
-    assert_int_equal(emit_reduced(loaded, mem, err, sizeof err), 0);
+    assert_int_equal(emit_reduced(loaded, mem, ERR_OF(err, sizeof err)), 0);
     fclose(mem);
     FILE *f = fopen(cpath, "r");
     assert_non_null(f);

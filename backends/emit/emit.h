@@ -304,4 +304,78 @@ void emit_builders(Ctx *ctx, const Program *prog, FILE *out);
  * op (st NULL) the entries' tensor `group`. */
 char *emit_builder_name(Ctx *ctx, const Program *prog, const Stage *st, int term, int field, int group, const Sym *op);
 
+/* ---------------------------------------------------------------- the reduced evaluator (emit_reduced.c)
+ *
+ * The reduced evaluator as C specialized to one trained model (DESIGN §6): one function per
+ * stage, every size a literal, contractions as loops; the tensors come through NpgReducedCtx
+ * (npg_abi.h), operator powers and host stages call back into the runtime evaluator, so both
+ * agree to rounding. Its input is what the code computes, described (ReducedCode) by the
+ * model's layer (backends/model/reduced_code.c fills it from a Model). */
+
+#define RC_MAX_IN 16        /* a tensor's distinct inputs (TensorGroup.inputs) */
+/* A reduced tensor: rows x cols, row-major, passed in NpgReducedCtx.t[slot]; its columns the
+ * product of one axis per distinct input (an input taken k times: one packed symmetric axis). */
+typedef struct RcTensor {
+  const char *name;
+  long rows, cols;
+  long slot;
+  int nin;                  /* distinct inputs, at most RC_MAX_IN */
+  const int *in_q;          /* their quantities (Program.quantities) */
+  const int *in_mult;       /* multiplicity: > 1 a packed symmetric axis */
+  const long *in_len;       /* each axis's length: C(m + k - 1, k) */
+} RcTensor;
+/* An operator of a term: v <- M̂^(p/q) v, M̂ the sum of its tensors' contractions (op->kind
+ * OPK_DIAG: packed symmetric, m(m+1)/2 rows; else m·m). */
+typedef struct RcOp {
+  const OpPow *op;
+  bool spd;                 /* positive definite in training (a comment) */
+  int ntensors;
+  const RcTensor *t;
+} RcOp;
+/* A term: its numerator (a named quantity, projected when `proj_slot` >= 0, or the sum of its
+ * tensors' contractions), then its operators, innermost first. */
+typedef struct RcTerm {
+  int named_q;              /* a named numerator's quantity, or -1 */
+  long proj_slot;           /* the projection B_yᵀB_w (m_y x m_w) in NpgReducedCtx.t, or -1 */
+  int nnum;
+  const RcTensor *num;
+  int nops;
+  const RcOp *ops;
+} RcTerm;
+/* A stage, in evaluation order; an extern's (its learned map) and an interpolated one are the
+ * host's (NpgReducedRt.learned): no code of their own. */
+typedef struct RcStage {
+  const Stage *st;
+  int q;                    /* its quantity */
+  int klass;                /* its class (ReducedCode.classes) */
+  bool interp;              /* reduced by interpolation */
+  int nterms;
+  const RcTerm *terms;
+} RcStage;
+/* A basis class, for the comments. */
+typedef struct RcClass {
+  const char *label;
+  long n, m;
+} RcClass;
+/* An entry of NpgReducedCtx.t: a tensor or a projection, rows x cols. */
+typedef struct RcSlot {
+  const char *name;
+  long rows, cols;
+} RcSlot;
+typedef struct ReducedCode {
+  const Program *prog;      /* names, source lines, the symbols' stem; its arena */
+  long samples;             /* training samples (a comment) */
+  uint64_t program_hash;
+  int nclasses;
+  const RcClass *classes;
+  int nq;
+  const long *qm;           /* every quantity's basis size */
+  long nslots;              /* NpgReducedCtx.t: every tensor and projection */
+  const RcSlot *slots;
+  int nstages;
+  const RcStage *stages;
+} ReducedCode;
+/* Write the C translation unit of `rc` to `out`. 0, or -1 with `err`. */
+int emit_reduced_code(const ReducedCode *rc, FILE *out, Err *err);
+
 #endif

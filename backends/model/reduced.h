@@ -112,16 +112,17 @@ struct DerivCache;
 struct DerivCache **reduced_deriv_cache(Reduced *r);
 void reduced_deriv_cache_free(struct DerivCache *c);
 
-/* ---------------------------------------------------------------- generated reduced code (emit_reduced.c)
+/* ---------------------------------------------------------------- generated reduced code (reduced_code.c)
  *
  * The reduced evaluator as C specialized to one model (DESIGN §6): one
  * function per stage, every size a literal, contractions as loops; the
  * tensors come through NpgReducedCtx (npg_abi.h), operator powers and
  * externs call back into the runtime evaluator (reduced_apply_power,
- * reduced_eval_stage), so both agree to rounding. */
+ * reduced_eval_stage), so both agree to rounding. The model is described
+ * (ReducedCode) for the emitter, backends/emit/emit_reduced.c. */
 
 /* Write the C translation unit of `m` to `out`. 0, or -1 with `err`. */
-int emit_reduced(const Model *m, FILE *out, char *err, size_t errlen);
+int emit_reduced(const Model *m, FILE *out, Err *err);
 
 /* One entry of NpgReducedCtx.t: a reduced tensor, or the projection
  * B_yᵀB_w of a named numerator whose class differs from its stage's. */

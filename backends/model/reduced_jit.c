@@ -1,5 +1,5 @@
 /* reduced_jit.c — the generated reduced evaluator of one model
- * (emit_reduced.c) compiled (libtcc, or cc) and run on the coordinates of
+ * (backends/emit/emit_reduced.c) compiled (libtcc, or cc) and run on the coordinates of
  * a Reduced: its operator powers and learned externs call back into that
  * runtime evaluator (NpgReducedRt), which is the reference. */
 #include <stdio.h>
@@ -82,7 +82,7 @@ RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
   j->m = m;
   FILE *mem = open_memstream(&src, &len);
   if (!mem) goto oom;
-  int rc = emit_reduced(m, mem, err, errlen);
+  int rc = emit_reduced(m, mem, ERR_OF(err, errlen));
   fclose(mem);
   if (rc != 0) goto fail;
   j->jit = jit_compile(src, cc ? JIT_CC : JIT_TCC, err, errlen);

@@ -428,7 +428,7 @@ int npg_model_emit(const NpgModel *nm, FILE *out, char *err, size_t errlen) {
     snprintf(err, errlen, "%s", nm->error);
     return -1;
   }
-  return emit_reduced(nm->m, out, err, errlen);
+  return emit_reduced(nm->m, out, ERR_OF(err, errlen));
 }
 
 /* ---------------------------------------------------------------- reduced evaluation */

@@ -1,5 +1,7 @@
 /* emit_reduced.c — the reduced evaluator as C, specialized to one trained
- * model (DESIGN §6; paper §4); reduced_jit.c compiles and runs it.
+ * model (DESIGN §6; paper §4), from its description (ReducedCode, emit.h),
+ * which backends/model/reduced_code.c fills; backends/model/reduced_jit.c
+ * compiles and runs it.
  *
  * The generated code does what reduced_eval() does (backends/model/reduced.c is
  * the reference), with every size a literal: for each stage
@@ -14,46 +16,19 @@
  * LU), roots (eigendecomposition) — the externs' learned maps and the
  * interpolated stages (DESIGN §12) are not hand-rolled: they call back into the runtime evaluator through
  * NpgReducedRt (npg_abi.h), so both agree to rounding. The reduced tensors (megabytes) are not literals: the host
- * passes pointers in NpgReducedCtx.t, in the order of emit_reduced_slots(). */
+ * passes pointers in NpgReducedCtx.t, each tensor's `slot`. */
 #include <setjmp.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "emit.h"
-#include "npg_abi.h"
-#include "reduced.h"
-
-/* ---------------------------------------------------------------- the tensors the code reads */
-
-
-long emit_reduced_slots(const Model *m, ReducedSlot *s) {
-  long n = 0;
-  for (int i = 0; i < m->nstages; i++) {
-    const RStage *rs = &m->stages[i];
-    long my = m->classes[m->qclass[rs->q]].m;
-    for (int t = 0; t < rs->nterms; t++) {
-      const RTerm *rt = &rs->terms[t];
-      if (rt->named_q >= 0 && rt->proj) {
-        if (s) s[n] = (ReducedSlot){NULL, rt, my, m->classes[m->qclass[rt->named_q]].m, rt->proj};
-        n++;
-      }
-      RTERM_FOR_TENSORS(rt, x) {
-        if (s) s[n] = (ReducedSlot){x, NULL, x->rows, x->cols, x->data};
-        n++;
-      }
-    }
-  }
-  return n;
-}
 
 /* ---------------------------------------------------------------- emitter state */
 
 typedef struct RedEmit {
-  const Model *m;
+  const ReducedCode *m;
   Ctx *ctx;
   FILE *out;
-  ReducedSlot *slots;
-  long nslots;
   /* scratch (NpgReducedCtx.work) offsets, in doubles */
   long off_v, off_w, off_acc, off_M, off_buf[2], off_z, nwork;
   /* what the stage being written uses, so its prologue declares exactly that */
@@ -61,9 +36,9 @@ typedef struct RedEmit {
   bool *use_q;
 } RedEmit;
 
-static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
+static long qm(const ReducedCode *m, int q) { return m->qm[q]; }
 
-static const char *qname(const Model *m, int q) { return ((const Sym *)m->prog->quantities.v[q])->name; }
+static const char *qname(const ReducedCode *m, int q) { return ((const Sym *)m->prog->quantities.v[q])->name; }
 
 /* A C identifier: `prefix` then `name` with other characters as '_'. */
 static char *c_ident(Ctx *ctx, const char *prefix, const char *name) {
@@ -78,28 +53,29 @@ static const char *qvar(RedEmit *e, int q) {
   return c_ident(e->ctx, "Q_", qname(e->m, q));
 }
 
-static long slot_of(const RedEmit *e, const RTensor *t, const RTerm *proj_of) {
-  for (long k = 0; k < e->nslots; k++)
-    if (t ? e->slots[k].t == t : e->slots[k].proj_of == proj_of) return k;
-  iassert(e->ctx, !"every tensor has a slot");
-  return -1;
-}
-
-/* Scratch sizes, as reduced_new() sizes the runtime evaluator's buffers. */
-static void plan_work(RedEmit *e) {
-  const Model *m = e->m;
-  long maxm = 1, maxbuf = 0, maxz = 0;
-  for (int c = 0; c < m->nclasses; c++) maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
-  for (long k = 0; k < e->nslots; k++) {
-    const RTensor *x = e->slots[k].t;
-    if (!x) continue;
+/* The largest packed powers (maxz) and contraction intermediate (maxbuf) of `x`'s. */
+static void tensors_work(const RcTensor *x, int n, long *maxz, long *maxbuf) {
+  for (int g = 0; g < n; g++, x++) {
     long zs = 0, inter = x->rows;
     for (int j = 0; j < x->nin; j++)
       if (x->in_mult[j] > 1) zs += x->in_len[j];
     for (int j = 0; j + 1 < x->nin; j++) inter *= x->in_len[j];
-    maxz = zs > maxz ? zs : maxz;
-    if (x->nin > 1) maxbuf = inter > maxbuf ? inter : maxbuf;
+    *maxz = zs > *maxz ? zs : *maxz;
+    if (x->nin > 1) *maxbuf = inter > *maxbuf ? inter : *maxbuf;
   }
+}
+
+/* Scratch sizes, as reduced_new() sizes the runtime evaluator's buffers. */
+static void plan_work(RedEmit *e) {
+  const ReducedCode *m = e->m;
+  long maxm = 1, maxbuf = 0, maxz = 0;
+  for (int c = 0; c < m->nclasses; c++) maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
+  for (int i = 0; i < m->nstages; i++)
+    for (int t = 0; t < m->stages[i].nterms; t++) {
+      const RcTerm *rt = &m->stages[i].terms[t];
+      tensors_work(rt->num, rt->nnum, &maxz, &maxbuf);
+      for (int k = 0; k < rt->nops; k++) tensors_work(rt->ops[k].t, rt->ops[k].ntensors, &maxz, &maxbuf);
+    }
   e->off_v = 0;
   e->off_w = maxm;
   e->off_acc = 2 * maxm;
@@ -110,45 +86,49 @@ static void plan_work(RedEmit *e) {
   e->nwork = e->off_z + maxz;
 }
 
-static void indent(FILE *out, int depth) {
-  for (int i = 0; i < depth; i++) fputs("  ", out);
-}
-
 /* ---------------------------------------------------------------- loops */
 
-/* Partial sums s<r>_<k> of `rows` rows from row i, `acc` per row, summed as
- * a balanced tree into dst[i + r]. */
-static void emit_dot_rows(FILE *out, int d, int rows, int acc, long n, const char *A, const char *z, const char *dst,
-                          const char *op) {
+/* A product to write: dst[i] (+)= Σ_j A[i·n + j] z[j] for i < lead. */
+typedef struct Gemv {
+  long lead, n;
+  const char *A, *z, *dst;
+  bool add;                 /* += (else =) */
+} Gemv;
+
+/* Partial sums s<r>_<k> of `rows` rows of `g` from row i, `acc` per row,
+ * summed as a balanced tree into dst[i + r]. */
+static void emit_dot_rows(FILE *out, int d, const Gemv *g, int rows, int acc) {
+  long n = g->n;
+  const char *A = g->A, *z = g->z, *dst = g->dst, *op = g->add ? "+=" : "=";
   long nk = n / acc * acc;
   for (int r = 0; r < rows; r++) {
-    indent(out, d);
+    emit_indent(out, d);
     if (r) fprintf(out, "const double *const a%d = a%d + %ld;\n", r, r - 1, n);
     else fprintf(out, "const double *const a0 = %s + i * %ld;\n", A, n);
   }
   for (int r = 0; r < rows; r++) {
-    indent(out, d);
+    emit_indent(out, d);
     fputs("double ", out);
     for (int k = 0; k < acc; k++) fprintf(out, "%ss%d_%d = 0.0", k ? ", " : "", r, k);
     fputs(";\n", out);
   }
-  indent(out, d);
+  emit_indent(out, d);
   fprintf(out, "for (npg_idx j = 0; j < %ld; j += %d) {\n", nk, acc);
   for (int r = 0; r < rows; r++)
     for (int k = 0; k < acc; k++) {
-      indent(out, d + 1);
+      emit_indent(out, d + 1);
       if (k) fprintf(out, "s%d_%d += a%d[j + %d] * %s[j + %d];\n", r, k, r, k, z, k);
       else fprintf(out, "s%d_0 += a%d[j] * %s[j];\n", r, r, z);
     }
-  indent(out, d);
+  emit_indent(out, d);
   fputs("}\n", out);
   for (int r = 0; r < rows; r++)
     for (long j = nk; j < n; j++) {
-      indent(out, d);
+      emit_indent(out, d);
       fprintf(out, "s%d_%ld += a%d[%ld] * %s[%ld];\n", r, j - nk, r, j, z, j);
     }
   for (int r = 0; r < rows; r++) {
-    indent(out, d);
+    emit_indent(out, d);
     if (r) fprintf(out, "%s[i + %d] %s ", dst, r, op);
     else fprintf(out, "%s[i] %s ", dst, op);
     if (acc == 4) fprintf(out, "(s%d_0 + s%d_1) + (s%d_2 + s%d_3);\n", r, r, r, r);
@@ -162,59 +142,60 @@ static void emit_dot_rows(FILE *out, int d, int rows, int acc, long n, const cha
  * reassociating anything: four rows at once with four sums each (their
  * chains interleave, z is loaded once for four rows), or one row with
  * eight sums when rows are long (64 and more). */
-static void emit_gemv(FILE *out, int d, long lead, long n, const char *A, const char *z, const char *dst, bool add) {
-  const char *op = add ? "+=" : "=";
+static void emit_gemv(FILE *out, int d, const Gemv *g) {
+  long lead = g->lead, n = g->n;
+  const char *A = g->A, *z = g->z, *dst = g->dst, *op = g->add ? "+=" : "=";
   if (n <= 8) {
-    indent(out, d);
+    emit_indent(out, d);
     fprintf(out, "for (npg_idx i = 0; i < %ld; i++) {\n", lead);
-    indent(out, d + 1);
+    emit_indent(out, d + 1);
     if (n == 0) {
       fprintf(out, "%s[i] %s 0.0;\n", dst, op);
     } else {
       fprintf(out, "const double *const a = %s + i * %ld;\n", A, n);
-      indent(out, d + 1);
+      emit_indent(out, d + 1);
       fprintf(out, "%s[i] %s ", dst, op);
       for (long j = 0; j < n; j++) fprintf(out, "%sa[%ld] * %s[%ld]", j ? " + " : "", j, z, j);
       fputs(";\n", out);
     }
-    indent(out, d);
+    emit_indent(out, d);
     fputs("}\n", out);
     return;
   }
   int rows = n >= 64 ? 1 : 4, acc = n >= 64 ? 8 : 4;
   long full = lead / rows * rows;
   if (full > 0) {
-    indent(out, d);
+    emit_indent(out, d);
     if (rows > 1) fprintf(out, "for (npg_idx i = 0; i < %ld; i += %d) {\n", full, rows);
     else fprintf(out, "for (npg_idx i = 0; i < %ld; i++) {\n", full);
-    emit_dot_rows(out, d + 1, rows, acc, n, A, z, dst, op);
-    indent(out, d);
+    emit_dot_rows(out, d + 1, g, rows, acc);
+    emit_indent(out, d);
     fputs("}\n", out);
   }
   if (full < lead) { /* the rows left over */
-    indent(out, d);
+    emit_indent(out, d);
     fprintf(out, "for (npg_idx i = %ld; i < %ld; i++) {\n", full, lead);
-    emit_dot_rows(out, d + 1, 1, acc, n, A, z, dst, op);
-    indent(out, d);
+    emit_dot_rows(out, d + 1, g, 1, acc);
+    emit_indent(out, d);
     fputs("}\n", out);
   }
 }
 
 static void emit_fill(FILE *out, int d, long n, const char *dst, const char *value) {
-  indent(out, d);
+  emit_indent(out, d);
   fprintf(out, "for (npg_idx i = 0; i < %ld; i++) %s[i] = %s;\n", n, dst, value);
 }
 
 /* z[α] = Π_l x[α_l] over sorted multi-indices α, lexicographic (sym_power). */
 static void emit_sym_power(FILE *out, int d, long m, int k, const char *x, const char *z) {
-  indent(out, d);
+  emit_indent(out, d);
   fprintf(out, "double *p_ = %s;\n", z);
   for (int l = 0; l < k; l++) {
-    indent(out, d + l);
+    emit_indent(out, d + l);
     if (l) fprintf(out, "for (npg_idx a%d = a%d; a%d < %ld; a%d++)\n", l, l - 1, l, m, l);
     else fprintf(out, "for (npg_idx a0 = 0; a0 < %ld; a0++)\n", m);
   }
-  indent(out, d + k);
+  emit_indent(out, d + k);
   fputs("*p_++ = ", out);
   for (int l = 0; l < k; l++) fprintf(out, "%s%s[a%d]", l ? " * " : "", x, l);
   fputs(";\n", out);
@@ -222,25 +203,25 @@ static void emit_sym_power(FILE *out, int d, long m, int k, const char *x, const
 
 /* out[0..rows) += T ⊗ z_1 ⊗ … ⊗ z_n (contract() of the runtime): the last
  * axis first, alternating between two scratch buffers. */
-static void emit_contract(RedEmit *e, int d, const RTensor *t, const char *dst) {
+static void emit_contract(RedEmit *e, int d, const RcTensor *t, const char *dst) {
   FILE *out = e->out;
-  long slot = slot_of(e, t, NULL);
-  indent(out, d);
+  long slot = t->slot;
+  emit_indent(out, d);
   fprintf(out, "{ /* %s: %ld x %ld", t->name, t->rows, t->cols);
   for (int j = 0; j < t->nin; j++)
     fprintf(out, ", %s%s (%ld)", qname(e->m, t->in_q[j]),
             t->in_mult[j] > 1 ? arena_printf(e->ctx, "^%d packed", t->in_mult[j]) : "", t->in_len[j]);
   fputs(" */\n", out);
-  indent(out, d + 1);
+  emit_indent(out, d + 1);
   fprintf(out, "const double *const T = c->t[%ld];\n", slot);
   if (t->nin == 0) {
-    indent(out, d + 1);
+    emit_indent(out, d + 1);
     fprintf(out, "for (npg_idx i = 0; i < %ld; i++) %s[i] += T[i];\n", t->rows, dst);
-    indent(out, d);
+    emit_indent(out, d);
     fputs("}\n", out);
     return;
   }
-  const char *z[RT_MAX_IN];
+  const char *z[RC_MAX_IN];
   long zoff = e->off_z;
   for (int j = 0; j < t->nin; j++) {
     const char *x = qvar(e, t->in_q[j]);
@@ -249,22 +230,22 @@ static void emit_contract(RedEmit *e, int d, const RTensor *t, const char *dst) 
       continue;
     }
     z[j] = arena_printf(e->ctx, "z%d", j);
-    indent(out, d + 1);
+    emit_indent(out, d + 1);
     fprintf(out, "double *const z%d = c->work + %ld; /* %s^%d packed */\n", j, zoff, qname(e->m, t->in_q[j]),
             t->in_mult[j]);
-    indent(out, d + 1);
+    emit_indent(out, d + 1);
     fputs("{\n", out);
     emit_sym_power(out, d + 2, qm(e->m, t->in_q[j]), t->in_mult[j], x, z[j]);
-    indent(out, d + 1);
+    emit_indent(out, d + 1);
     fputs("}\n", out);
     zoff += t->in_len[j];
   }
   if (t->nin > 1) { /* intermediates: b0 after the first step, b1 after the second, ... */
-    indent(out, d + 1);
+    emit_indent(out, d + 1);
     fprintf(out, "double *const b0 = c->work + %ld;\n", e->off_buf[0]);
   }
   if (t->nin > 2) {
-    indent(out, d + 1);
+    emit_indent(out, d + 1);
     fprintf(out, "double *const b1 = c->work + %ld;\n", e->off_buf[1]);
   }
   long lead = t->rows;
@@ -273,17 +254,17 @@ static void emit_contract(RedEmit *e, int d, const RTensor *t, const char *dst) 
   int b = 0;
   for (int j = t->nin - 1; j >= 0; j--) {
     const char *to = j == 0 ? dst : b ? "b1" : "b0";
-    emit_gemv(out, d + 1, lead, t->in_len[j], src, z[j], to, j == 0);
+    emit_gemv(out, d + 1, &(Gemv){lead, t->in_len[j], src, z[j], to, j == 0});
     src = to;
     b ^= 1;
     if (j > 0) lead /= t->in_len[j - 1];
   }
-  indent(out, d);
+  emit_indent(out, d);
   fputs("}\n", out);
 }
 
 /* "M^(-1)", "(diagonal operator 1)^(-1/2)" */
-static const char *op_label(const ROp *ro, int k, char *buf, size_t n) {
+static const char *op_label(const RcOp *ro, int k, char *buf, size_t n) {
   char pw[64];
   if (ro->op->q == 1) snprintf(pw, sizeof pw, "%ld", ro->op->p);
   else snprintf(pw, sizeof pw, "%ld/%ld", ro->op->p, ro->op->q);
@@ -293,7 +274,7 @@ static const char *op_label(const ROp *ro, int k, char *buf, size_t n) {
 }
 
 /* v <- (M̂)^(p/q) v for operator k of term t of stage number i. */
-static void emit_op(RedEmit *e, int i, int t, int k, const ROp *ro, long my) {
+static void emit_op(RedEmit *e, int i, int t, int k, const RcOp *ro, long my) {
   FILE *out = e->out;
   char lab[256];
   const OpPow *op = ro->op;
@@ -321,7 +302,7 @@ static void emit_op(RedEmit *e, int i, int t, int k, const ROp *ro, long my) {
   if (op->q == 1 && op->p > 0) { /* positive integer powers: products */
     e->use_w = true;
     fprintf(out, "  for (int r_ = 0; r_ < %ld; r_++) {\n", op->p);
-    emit_gemv(out, 2, my, my, "M", "v", "w", false);
+    emit_gemv(out, 2, &(Gemv){my, my, "M", "v", "w", false});
     emit_fill(out, 2, my, "v", "w[i]");
     fputs("  }\n", out);
     return;
@@ -330,20 +311,20 @@ static void emit_op(RedEmit *e, int i, int t, int k, const ROp *ro, long my) {
 }
 
 static void emit_stage_body(RedEmit *e, int i) {
-  const Model *m = e->m;
+  const ReducedCode *m = e->m;
   FILE *out = e->out;
-  const RStage *rs = &m->stages[i];
+  const RcStage *rs = &m->stages[i];
   long my = qm(m, rs->q);
   e->use_v = true;
   emit_fill(out, 1, my, "y", "0.0");
   for (int t = 0; t < rs->nterms; t++) {
-    const RTerm *rt = &rs->terms[t];
+    const RcTerm *rt = &rs->terms[t];
     fprintf(out, "  /* term %d of %d */\n", t + 1, rs->nterms);
-    if (rt->named_q >= 0 && rt->proj) {
+    if (rt->named_q >= 0 && rt->proj_slot >= 0) {
       fprintf(out, "  { /* %s, projected: B(%s)^T B(%s), %ld x %ld */\n", qname(m, rt->named_q), qname(m, rs->q),
               qname(m, rt->named_q), my, qm(m, rt->named_q));
-      fprintf(out, "    const double *const P = c->t[%ld];\n", slot_of(e, NULL, rt));
-      emit_gemv(out, 2, my, qm(m, rt->named_q), "P", qvar(e, rt->named_q), "v", false);
+      fprintf(out, "    const double *const P = c->t[%ld];\n", rt->proj_slot);
+      emit_gemv(out, 2, &(Gemv){my, qm(m, rt->named_q), "P", qvar(e, rt->named_q), "v", false});
       fputs("  }\n", out);
     } else if (rt->named_q >= 0) {
       emit_fill(out, 1, my, "v", arena_printf(e->ctx, "%s[i]", qvar(e, rt->named_q)));
@@ -360,10 +341,10 @@ static void emit_stage_body(RedEmit *e, int i) {
 /* One stage: its body into memory first, so the prologue declares exactly
  * what it used. */
 static void emit_stage(RedEmit *e, int i, const char *fname) {
-  const Model *m = e->m;
-  const RStage *rs = &m->stages[i];
+  const ReducedCode *m = e->m;
+  const RcStage *rs = &m->stages[i];
   const Sym *s = rs->st->sym;
-  const RClass *rc = &m->classes[m->qclass[rs->q]];
+  const RcClass *rc = &m->classes[rs->klass];
   FILE *out = e->out;
   e->use_v = e->use_w = e->use_acc = e->use_M = false;
   memset(e->use_q, 0, sizeof(bool) * (size_t)m->nq);
@@ -400,7 +381,7 @@ static void emit_stage(RedEmit *e, int i, const char *fname) {
 }
 
 static void emit_unit(RedEmit *e) {
-  const Model *m = e->m;
+  const ReducedCode *m = e->m;
   FILE *out = e->out;
   fprintf(out, "/* Reduced evaluator of %s, generated by npgc: one trained model (%ld samples,\n"
                "   program hash %016llx), every size a literal.\n",
@@ -412,12 +393,8 @@ static void emit_unit(RedEmit *e) {
   fputs("\n/* What the host passes (npg_abi.h, NpgReducedCtx): c->x[q] the coordinates of\n"
         "   quantity q, c->t[k] tensor k (rows x cols, row-major):\n",
         out);
-  for (long k = 0; k < e->nslots; k++) {
-    const ReducedSlot *s = &e->slots[k];
-    fprintf(out, "     %4ld  %-28s %ld x %ld\n", k,
-            s->t ? s->t->name : arena_printf(e->ctx, "%s", s->proj_of->proj_name ? s->proj_of->proj_name : "proj"),
-            s->rows, s->cols);
-  }
+  for (long k = 0; k < m->nslots; k++)
+    fprintf(out, "     %4ld  %-28s %ld x %ld\n", k, m->slots[k].name, m->slots[k].rows, m->slots[k].cols);
   const char *coords = emit_symbol_name(e->ctx, m->prog, "reduced_coords");
   const char *tensors = emit_symbol_name(e->ctx, m->prog, "reduced_tensors");
   const char *work = emit_symbol_name(e->ctx, m->prog, "reduced_work");
@@ -425,8 +402,8 @@ static void emit_unit(RedEmit *e) {
   fprintf(out, "const npg_idx %s[] = {%d", coords, m->nq);
   for (int q = 0; q < m->nq; q++) fprintf(out, ", %ld", qm(m, q));
   fputs("};\n", out);
-  fprintf(out, "const npg_idx %s[] = {%ld", tensors, e->nslots);
-  for (long k = 0; k < e->nslots; k++) fprintf(out, ", %ld", e->slots[k].rows * e->slots[k].cols);
+  fprintf(out, "const npg_idx %s[] = {%ld", tensors, m->nslots);
+  for (long k = 0; k < m->nslots; k++) fprintf(out, ", %ld", m->slots[k].rows * m->slots[k].cols);
   fputs("};\n", out);
   fprintf(out, "const npg_idx %s = %ld;\n\n", work, e->nwork);
 
@@ -459,8 +436,8 @@ static void emit_unit(RedEmit *e) {
 }
 
 /* The arena may jump out on allocation failure: catch it here (as
- * npg_emit_full does), since emit_reduced runs outside npg_compile. */
-static int guarded_unit(RedEmit *e, char *err, size_t errlen) {
+ * npg_emit_full does), since the reduced code is written outside npg_compile. */
+static int guarded_unit(RedEmit *e, Err *err) {
   Ctx *ctx = e->ctx;
   jmp_buf env, *saved = ctx->on_error;
   ctx->on_error = &env;
@@ -468,7 +445,7 @@ static int guarded_unit(RedEmit *e, char *err, size_t errlen) {
   if (setjmp(env) == 0) {
     emit_unit(e);
   } else {
-    snprintf(err, errlen, "%s", ctx->msg ? ctx->msg : "error: generating the reduced evaluator failed");
+    err_set(err, "%s", ctx->msg ? ctx->msg : "error: generating the reduced evaluator failed");
     if (ctx->open_file) fclose(ctx->open_file);
     ctx->open_file = NULL;
     rc = -1;
@@ -479,27 +456,13 @@ static int guarded_unit(RedEmit *e, char *err, size_t errlen) {
   return rc;
 }
 
-int emit_reduced(const Model *m, FILE *out, char *err, size_t errlen) {
-  RedEmit e = {0};
-  e.m = m;
-  e.ctx = m->prog->ctx;
-  e.out = out;
-  e.nslots = emit_reduced_slots(m, NULL);
-  e.slots = calloc((size_t)e.nslots + 1, sizeof *e.slots);
-  e.use_q = calloc((size_t)m->nq + 1, sizeof *e.use_q);
-  int rc = -1;
-  if (!e.slots || !e.use_q) {
-    snprintf(err, errlen, "out of memory while generating the reduced evaluator");
-  } else {
-    emit_reduced_slots(m, e.slots);
-    plan_work(&e);
-    rc = guarded_unit(&e, err, errlen);
-    if (rc == 0 && ferror(out)) {
-      snprintf(err, errlen, "cannot write the reduced evaluator");
-      rc = -1;
-    }
-  }
-  free(e.slots);
+int emit_reduced_code(const ReducedCode *m, FILE *out, Err *err) {
+  RedEmit e = {.m = m, .ctx = m->prog->ctx, .out = out};
+  if (!(e.use_q = calloc((size_t)m->nq + 1, sizeof *e.use_q)))
+    return err_set(err, "out of memory while generating the reduced evaluator");
+  plan_work(&e);
+  int rc = guarded_unit(&e, err);
+  if (rc == 0 && ferror(out)) rc = err_set(err, "cannot write the reduced evaluator");
   free(e.use_q);
   return rc;
 }
