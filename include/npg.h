@@ -743,9 +743,12 @@ typedef struct NpgTuneReport {
 } NpgTuneReport;
 /* Train on `ntrain` samples (train(tuser, f, k) sets sample k in `f`, its
  * params bound), validate on `nvalid` (valid(vuser, f, k)), caps at most
- * `max_cap`; `o` (may be NULL) gives centering, progress, the stages forced
- * to interpolation or Galerkin (the others eligible are chosen at every
- * candidate), the oversampling, and the bases kept (keep_bases). The chosen
+ * `max_cap`; `o` (may be NULL: npg_train_options_default's) is read as
+ * npg_trainer reads it — centering, progress, the basis overrides, the stages
+ * forced to interpolation or Galerkin (the others eligible are chosen at every
+ * candidate), the oversampling, and the bases kept (keep_bases) — except what
+ * the search sets itself: caps up to `max_cap` at every energy, in one
+ * process (not mpi), concatenated members, snapshots in memory. The chosen
  * model, or NULL: report->error says why, or is "" when `tol` cannot be met
  * (report->limiting). npg_tune_free(report) either way. */
 NPG_API NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long nvalid, NpgSampleFn valid,

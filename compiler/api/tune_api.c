@@ -40,16 +40,16 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   Program *prog = (Program *)full_program(f->full);
   SampleClosure tset = {train, tuser, f}, vset = {valid, vuser, f};
   SampleSource tsrc = {ntrain, &tset, api_sample_set, NULL, NULL}, vsrc = {nvalid, &vset, api_sample_set, NULL, NULL};
-  /* the reductions as NpgTrainOptions force them (the choice of the others is part of the search), and the
-   * bases kept as npg_trainer keeps them (issue 30: the streamable ones dropped unless named) */
-  TrainOptions topt = {.cap = max_cap, .energy = 1.0, .uncentered = o && o->uncentered, .progress = o && o->progress,
-                       .stream = true};
-  if (o) {
-    topt.mem = o->mem, topt.keep_bases = o->keep_bases, topt.interp_oversample = o->interp_oversample;
-    topt.ninterp = o->ninterp, topt.interp_stage = o->interp_stage;
-    topt.ngalerkin = o->ngalerkin, topt.galerkin_stage = o->galerkin_stage;
-    topt.rollout_steps = o->rollout_steps, topt.rollout_every = o->rollout_every > 0 ? o->rollout_every : 1;
-  }
+  /* the options as the trainer takes them (api_train_options): the reductions as NpgTrainOptions force
+   * them (the choice of the others is part of the search), the bases kept as npg_trainer keeps them
+   * (issue 30: the streamable ones dropped unless named); the search's own bases at max_cap vectors
+   * of every energy, and in one process */
+  NpgTrainOptions given;
+  if (o) given = *o;
+  else npg_train_options_default(&given);
+  TrainOptions topt;
+  api_train_options(&given, &topt);
+  topt.cap = max_cap, topt.energy = 1.0, topt.dist = false;
   TuneResult *r = calloc(1, sizeof *r);
   const char **names = calloc((size_t)prog->classes.n + 1, sizeof *names);
   TrainSet *ts = NULL;
