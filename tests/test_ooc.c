@@ -102,13 +102,11 @@ static size_t largest_basis(const Model *m) {
  * pca_fix_signs), every pre-multiplied tensor and the lifted b to 1e-10. */
 static void out_of_core_matches_memory(void **state) {
   (void)state;
-  NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
-  Program *prog = ir_ok(p);
-  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
-  RoomSamples train, test;
-  room_samples(&train, f, 24, 20, 0.0, 1.0 / 19);
-  room_samples(&test, NULL, 24, 6, 0.5 / 19, 3.0 / 19);
-  SampleSource src = {train.S, &train, room_set, NULL, NULL};
+  Room room;
+  room_open(&room, 24, 20, 6);
+  Program *prog = room.prog;
+  Full *f = room.f;
+  const SampleSource src = room.src;
   /* a tenth of the largest basis: a row of each class per pass; the whole
    * of it: passes of many rows of several classes (restricted evaluation) */
   for (int run = 0; run < 3; run++) {
@@ -122,7 +120,7 @@ static void out_of_core_matches_memory(void **state) {
     for (int c = 0; c < b->nclasses; c++) mapped |= b->classes[c].B_mapped > 0;
     assert_true(mapped);
     double db, dt, dy;
-    model_distance(prog, f, a, b, &test, room_set, test.S, "b", &db, &dt, &dy);
+    model_distance(prog, f, a, b, &room.test, room_set, room.test.S, "b", &db, &dt, &dy);
     print_message("out of core (--mem %zu bytes, %s) vs in memory, radiosity, %s: bases %.2g, "
                   "tensors %.2g, lifted b %.2g\n", mem, run < 2 ? "a tenth of the largest basis" : "the largest basis", uncentered ? "uncentered" : "centered",
                   db, dt, dy);
@@ -130,10 +128,7 @@ static void out_of_core_matches_memory(void **state) {
     model_free(a);
     model_free(b);
   }
-  room_free(&train);
-  room_free(&test);
-  full_free(f);
-  npg_free(p);
+  room_close(&room);
 }
 
 /* The same on a program whose extern is the only input of its stage. */

@@ -91,18 +91,15 @@ static long blocks_of(const char *log) {
 
 static void streamed_equals_memory(void **state) {
   (void)state;
-  NpgProgram *p = compile_file("examples/radiosity/formfactors.npg");
-  Program *prog = ir_ok(p);
-  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
-  RoomSamples train, test;
-  room_samples(&train, f, 24, 20, 0.0, 1.0 / 19);
-  room_samples(&test, NULL, 24, 6, 0.5 / 19, 3.0 / 19);
-  SampleSource src = {train.S, &train, room_set, NULL, NULL};
+  Room room;
+  room_open(&room, 24, 20, 6);
+  Program *prog = room.prog;
+  Full *f = room.f;
   TrainOptions opt = {.cap = 8, .energy = 0.9999, .stream = true};
   char *log = malloc(1 << 16);
-  Model *a = train_logged(prog, f, &src, &opt, log, 1 << 16);
+  Model *a = train_logged(prog, f, &room.src, &opt, log, 1 << 16);
   assert_int_equal(blocks_of(log), -1); /* in memory: no block */
-  double ea = mean_error(prog, f, a, &test, room_set, test.S, "b");
+  double ea = mean_error(prog, f, a, &room.test, room_set, room.test.S, "b");
   size_t largest = 0;
   for (int c = 0; c < a->nclasses; c++) {
     size_t bytes = (size_t)a->classes[c].n * (size_t)a->classes[c].m * sizeof(double);
@@ -112,12 +109,12 @@ static void streamed_equals_memory(void **state) {
   for (int run = 0; run < 2; run++) {
     opt.mem = largest * (run ? 4 : 8); /* above 16x: the method of snapshots, no block */
     opt.progress = true;
-    Model *b = train_logged(prog, f, &src, &opt, log, 1 << 16);
+    Model *b = train_logged(prog, f, &room.src, &opt, log, 1 << 16);
     opt.progress = false;
     blocks[run] = blocks_of(log);
     int streamed;
     double db = basis_distance(a, b, &streamed), dt = tensor_distance(a, b);
-    double eb = mean_error(prog, f, b, &test, room_set, test.S, "b");
+    double eb = mean_error(prog, f, b, &room.test, room_set, room.test.S, "b");
     print_message("streamed (--mem %zu bytes, %ld blocks, %d classes without a basis) vs in memory: kept bases %.2g, "
                   "tensors %.2g, mean error of b %.6g vs %.6g\n",
                   opt.mem, blocks[run], streamed, db, dt, eb, ea);
@@ -129,10 +126,7 @@ static void streamed_equals_memory(void **state) {
   assert_true(blocks[1] > blocks[0]); /* measured: 8 and 78 */
   model_free(a);
   free(log);
-  room_free(&train);
-  room_free(&test);
-  full_free(f);
-  npg_free(p);
+  room_close(&room);
 }
 
 int main(void) {

@@ -103,6 +103,34 @@ static inline void room_free(RoomSamples *rs) {
   free(rs->v);
 }
 
+/* The radiosity program on the room of F faces: S training samples over deformations
+ * t in [0, 1], T test samples half a step off them (every (S / T)-th step), and the
+ * training samples as a sample source. */
+typedef struct Room {
+  NpgProgram *p;
+  Program *prog;
+  Full *f;
+  RoomSamples train, test;
+  SampleSource src;
+} Room;
+
+static inline void room_open(Room *r, long F, long S, long T) {
+  r->p = compile_file("examples/radiosity/formfactors.npg");
+  r->prog = ir_ok(r->p);
+  r->f = full_new(program_ir(r->p), JIT_TCC, NULL);
+  double step = 1.0 / (double)(S - 1);
+  room_samples(&r->train, r->f, F, S, 0.0, step);
+  room_samples(&r->test, NULL, F, T, 0.5 * step, (double)(S / T) * step);
+  r->src = (SampleSource){r->train.S, &r->train, room_set, NULL, NULL};
+}
+
+static inline void room_close(Room *r) {
+  room_free(&r->train);
+  room_free(&r->test);
+  full_free(r->f);
+  npg_free(r->p);
+}
+
 /* Mean over the test samples of ‖y − B ŷ‖ / ‖y‖ of output `out`. */
 static inline double mean_error(Program *prog, Full *f, Model *m, void *test, int (*set)(void *, Full *, long),
                                 long S, const char *out) {
