@@ -696,5 +696,7 @@ int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptio
       if (estimate_term_eligible(m, i, t, why, sizeof why) && m->classes[m->qclass[m->stages[i].q]].B &&
           term_table(m, f, i, t, err))
         return -1;
-  return sigma_ratios(m, f, src, opt->dist, err) || input_ranges(m, f, src, opt->dist, err) ? -1 : 0;
+  if (sigma_ratios(m, f, src, opt->dist, err) || input_ranges(m, f, src, opt->dist, err)) return -1;
+  if (m->nexterns > 0) full_forget_given(f); /* the ranges' samples set, never evaluated: callbacks as before */
+  return 0;
 }
