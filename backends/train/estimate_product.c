@@ -62,13 +62,24 @@ static double frobenius_dot(const cholmod_sparse *A, const cholmod_sparse *B, do
   return s;
 }
 
-/* The rows T the error can live on (every row but S, above), into T; their count. *b_zero: B's rows S are
- * zero to 1e-6 of its largest entry (else the figure is an estimate: the full solves leave roundoff at
- * Dirichlet rows, which the trailing directions magnify: of B's largest entry 2.7e-12 at pyMOR's grid 19,
- * m = 31, 4.2e-9 at m = 58, above 1e-6 at grid 100, m = 31). */
-static long error_rows(cholmod_sparse *const *K, size_t nx, const RClass *rc, const double *C, long D, long nnum,
-                       SuiteSparse_long *T, bool *bad, double *diag, bool *b_zero) {
-  long n = rc->n, nt = 0;
+/* error_rows's marks: the rows T found, scratch of n entries, and whether B is zero on the rows S. */
+typedef struct RowMarks {
+  SuiteSparse_long *T;      /* the rows T */
+  bool *bad;                /* n: a row some M_j (j ≥ 1) or M_0 off its diagonal reaches */
+  double *diag;             /* n: M_0's diagonal */
+  bool b_zero;              /* in: true */
+} RowMarks;
+
+/* The rows T the error can live on (every row but S, above), into rm->T; their count. rm->b_zero: B's
+ * rows S are zero to 1e-6 of its largest entry (else the figure is an estimate: the full solves leave
+ * roundoff at Dirichlet rows, which the trailing directions magnify: of B's largest entry 2.7e-12 at
+ * pyMOR's grid 19, m = 31, 4.2e-9 at m = 58, above 1e-6 at grid 100, m = 31). */
+
+static long error_rows(cholmod_sparse *const *K, size_t nx, const RClass *rc, const ResidualCols *cols, RowMarks *rm) {
+  long n = rc->n, nt = 0, D = cols->D;
+  const double *C = cols->C;
+  bool *bad = rm->bad;
+  double *diag = rm->diag;
   double bmax = 0;
   for (long e = 0; e < n * rc->m; e++) bmax = fmax(bmax, fabs(rc->B[e]));
   for (long i = 0; i < n; i++) bad[i] = false, diag[i] = 0;
@@ -84,9 +95,9 @@ static long error_rows(cholmod_sparse *const *K, size_t nx, const RClass *rc, co
   }
   for (long i = 0; i < n; i++) {
     bool zero = !bad[i] && diag[i] != 0;
-    for (long c = 0; zero && c < nnum; c++) zero = C[i * D + c] == 0;
-    for (long c = 0; zero && *b_zero && c < rc->m; c++) *b_zero = fabs(rc->B[i * rc->m + c]) <= 1e-6 * bmax;
-    if (!zero) T[nt++] = i;
+    for (long c = 0; zero && c < cols->nnum; c++) zero = C[i * D + c] == 0;
+    for (long c = 0; zero && rm->b_zero && c < rc->m; c++) rm->b_zero = fabs(rc->B[i * rc->m + c]) <= 1e-6 * bmax;
+    if (!zero) rm->T[nt++] = i;
   }
   return nt;
 }
@@ -114,19 +125,20 @@ static bool anchor(cholmod_sparse *const *Kt, size_t nx, cholmod_sparse *K0t, do
 }
 
 /* rt's min-θ table relative to K0 (unsymmetric storage) when it applies (the file's comment). */
-static int product_theta(const Model *m, Full *f, RTerm *rt, const RClass *rc, cholmod_sparse *K0, const double *C,
-                         long D, long nnum, cholmod_common *cc) {
+static int product_theta(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod_sparse *K0, const ResidualCols *cols) {
   cholmod_sparse *K[ESTIMATE_THETA_MAX + 1], *Kt[ESTIMATE_THETA_MAX + 1] = {0}, *K0t = NULL;
+  cholmod_common *cc = wk->cc;
+  const Model *m = wk->m;
   size_t nx = 0;
-  int q = estimate_affine_parts(m, f, rt, rc->n, cc, K, &nx);
+  int q = estimate_affine_parts(wk, rt, rc->n, K, &nx);
   if (q < 0) return 0;
   long n = rc->n;
   SuiteSparse_long *T = malloc(sizeof *T * (size_t)n + 1);
   bool *bad = malloc(sizeof *bad * (size_t)n + 1);
   double *w = calloc((size_t)n + 1, sizeof(double)), xbar[ESTIMATE_THETA_MAX];
   int out = T && bad && w ? 0 : -1;
-  bool b_zero = true;
-  long nt = out ? 0 : error_rows(K, nx, rc, C, D, nnum, T, bad, w, &b_zero);
+  RowMarks rm = {T, bad, w, true};
+  long nt = out ? 0 : error_rows(K, nx, rc, cols, &rm);
   if (!out) memset(w, 0, sizeof(double) * (size_t)n);
   bool ok = !out && nt > 0;
   for (size_t j = 0; ok && j <= nx; j++)
@@ -136,7 +148,7 @@ static int product_theta(const Model *m, Full *f, RTerm *rt, const RClass *rc, c
     memcpy(rt->est_theta, xbar, sizeof(double) * nx);
     rt->est_theta[nx] = 1; /* λ_min of the pencil (M(x̄), K0) on the error's rows: M(x̄) = K0 there */
     rt->est_theta_q = q, rt->est_theta_n = (long)nx, rt->est_theta_k = 1;
-    rt->est_sigma = b_zero ? NAN : 1; /* 1: the figure is an estimate (estimate.c) */
+    rt->est_sigma = rm.b_zero ? NAN : 1; /* 1: the figure is an estimate (estimate.c) */
   }
   for (size_t j = 0; j <= nx; j++) cholmod_l_free_sparse(&K[j], cc), cholmod_l_free_sparse(&Kt[j], cc);
   cholmod_l_free_sparse(&K0t, cc);
@@ -144,25 +156,28 @@ static int product_theta(const Model *m, Full *f, RTerm *rt, const RClass *rc, c
   return out;
 }
 
-int estimate_product_columns(Model *m, Full *f, RTerm *rt, const RClass *rc, double *C, long D, long nnum, double **V,
-                             char *err, size_t errlen) {
+int estimate_product_columns(const EstWork *w, RTerm *rt, const RClass *rc, const ResidualCols *cols, double **V) {
+  Model *m = w->m;
+  Full *f = w->f;
+  Err *err = w->err;
   cholmod_common cc;
   cholmod_l_start(&cc);
   cc.print = 0;
+  EstWork wk = {m, f, &cc, err};
   free(rt->est_theta);
   rt->est_theta = NULL, rt->est_theta_k = 0, rt->est_sigma = NAN;
-  cholmod_sparse *A = product_matrix(m, f, rc, &cc, err, errlen), *K0 = A ? cholmod_l_copy_sparse(A, &cc) : NULL;
-  cholmod_factor *L = K0 ? product_factor(rc, A, &cc, err, errlen) : NULL; /* leaves A's upper triangle: K0 keeps both */
+  cholmod_sparse *A = product_matrix(m, f, rc, &cc, err), *K0 = A ? cholmod_l_copy_sparse(A, &cc) : NULL;
+  cholmod_factor *L = K0 ? product_factor(rc, A, &cc, err) : NULL; /* leaves A's upper triangle: K0 keeps both */
   int out = -1;
   *V = NULL;
-  if (L && product_theta(m, f, rt, rc, K0, C, D, nnum, &cc) == 0 &&
+  if (L && product_theta(&wk, rt, rc, K0, cols) == 0 &&
       (*V = malloc(sizeof(double) * (size_t)(rc->n * rc->m) + 1))) {
     memcpy(*V, rc->D, sizeof(double) * (size_t)(rc->n * rc->m));
-    out = solve_lower(L, C, rc->n, D, &cc) || solve_lower(L, *V, rc->n, rc->m, &cc) ? -1 : 0;
+    out = solve_lower(L, cols->C, rc->n, cols->D, &cc) || solve_lower(L, *V, rc->n, rc->m, &cc) ? -1 : 0;
   }
-  if (out && L) error_set(err, errlen, "estimate tables: out of memory for the dual norm of class %s's residual in %s",
+  if (out && L) err_set(err, "estimate tables: out of memory for the dual norm of class %s's residual in %s",
                           rc->label, rc->product->name);
-  if (A && !K0) error_set(err, errlen, "estimate tables: out of memory for product %s", rc->product->name);
+  if (A && !K0) err_set(err, "estimate tables: out of memory for product %s", rc->product->name);
   cholmod_l_free_factor(&L, &cc);
   cholmod_l_free_sparse(&A, &cc), cholmod_l_free_sparse(&K0, &cc);
   cholmod_l_finish(&cc);

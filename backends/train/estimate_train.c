@@ -11,9 +11,17 @@
  *     above (Lanczos on K⁻¹ by CHOLMOD, on (KᵀK)⁻¹ by UMFPACK);
  *   - per input, each reduced coordinate's min and max over the training
  *     samples (the trust signal).
- * In memory only: out of core and over ranks the model gets no tables (its
- * evaluations then say so), and neither with externs, whose samples are
- * not set a second time (their callbacks may take seconds a sample). */
+ * Every route of training builds them: in memory, out of core (the bases
+ * mapped from their files are read as in memory; a class formed block by
+ * block, whose basis is never whole, gives its stages no table), over MPI
+ * ranks (the residual tables need only the bases and the params, which
+ * every rank holds: each rank builds them, the same arithmetic; the σ_min
+ * ratios and the ranges need training samples: each rank measures those
+ * it holds and the figures are combined exactly, see sigma_ratios and
+ * input_ranges), with externs (a sample set again gives the extern values
+ * training was given, from the data or the trainer's cache: no callback
+ * runs; the learned map itself has no estimate), and for the model npgc
+ * tune writes (train_set_stream). */
 #include <cblas.h>
 #include <lapacke.h>
 #include <float.h>
@@ -24,6 +32,7 @@
 #include <suitesparse/cholmod.h>
 #include <suitesparse/umfpack.h>
 
+#include "dist.h"
 #include "estimate_steps.h"
 
 /* Columns of a term no larger than this (bytes), and no more than ESTIMATE_MAX_DIM of them, are
@@ -79,11 +88,11 @@ static int col_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_id
   return 0;
 }
 
-static int fill_block(Model *m, Full *f, const RTensor *t, ColSink *s, char *err, size_t errlen) {
+static int fill_block(Model *m, Full *f, const RTensor *t, ColSink *s, Err *err) {
   s->t = t;
   NpgSink sink = {s, col_entry, 0, 1, 0, 0};
   if (full_build(f, t->builder, &sink) != 0)
-    return error_set(err, errlen, "estimate tables: tensor %s: %s", t->name, full_error(f)[0] ? full_error(f) :
+    return err_set(err, "estimate tables: tensor %s: %s", t->name, full_error(f)[0] ? full_error(f) :
                      "an entry outside its rows (a bug in npg)");
   (void)m;
   return 0;
@@ -121,7 +130,7 @@ static int qr_factor(double *C, long n, long D, double *R) {
 /* Term t of stage i: its columns, their norms and R of the projected columns into rt->est_G. In a
  * class with a product K0 the columns are first replaced by L⁻¹PC and B by L⁻¹P K0B
  * (estimate_product_columns): R then gives the residual's dual norm ‖r‖_{K0⁻¹}. */
-static int term_table(Model *m, Full *f, int i, int t, char *err, size_t errlen) {
+static int term_table(Model *m, Full *f, int i, int t, Err *err) {
   RStage *rs = &m->stages[i];
   RTerm *rt = &rs->terms[t];
   const RClass *rc = &m->classes[m->qclass[rs->q]];
@@ -139,7 +148,7 @@ static int term_table(Model *m, Full *f, int i, int t, char *err, size_t errlen)
   double *G = calloc((size_t)((D + 1) * D) + 1, sizeof(double)), *V = NULL;
   int rc_ = -1;
   if (!s.C || !s.v || !s.pack || !G) {
-    error_set(err, errlen, "estimate tables: out of memory for stage %s (%ld x %ld columns)", rs->st->sym->name, n, D);
+    err_set(err, "estimate tables: out of memory for stage %s (%ld x %ld columns)", rs->st->sym->name, n, D);
     goto done;
   }
   if (rt->named_q >= 0) {
@@ -148,21 +157,22 @@ static int term_table(Model *m, Full *f, int i, int t, char *err, size_t errlen)
     s.off = cw->m;
   }
   for (int g = 0; g < rt->nnum; g++, s.off += rt->num[g - 1].cols)
-    if (fill_block(m, f, &rt->num[g], &s, err, errlen)) goto done;
+    if (fill_block(m, f, &rt->num[g], &s, err)) goto done;
   s.By = rc->B;
   for (int k = 0; k < rt->nops; k++)
     for (int g = 0; g < rt->ops[k].ntensors; g++, s.off += rc->m * rt->ops[k].t[g - 1].cols)
-      if (fill_block(m, f, &rt->ops[k].t[g], &s, err, errlen)) goto done;
+      if (fill_block(m, f, &rt->ops[k].t[g], &s, err)) goto done;
   long nnum = 0;
   for (int g = 0; g < rt->nnum; g++) nnum += rt->num[g].cols;
-  if (rc->product && estimate_product_columns(m, f, rt, rc, s.C, D, nnum, &V, err, errlen)) goto done;
+  if (rc->product && estimate_product_columns(&(EstWork){m, f, NULL, err}, rt, rc, &(ResidualCols){s.C, D, nnum}, &V))
+    goto done;
   for (long c = 0; c < D; c++) G[D * D + c] = cblas_dnrm2((int)n, s.C + c, (int)D);
   if (project_out(V ? V : rc->B, n, rc->m, s.C, D)) {
-    error_set(err, errlen, "estimate tables: out of memory projecting stage %s", rs->st->sym->name);
+    err_set(err, "estimate tables: out of memory projecting stage %s", rs->st->sym->name);
     goto done;
   }
   if (qr_factor(s.C, n, D, G)) {
-    error_set(err, errlen, "estimate tables: the QR of stage %s's residual columns failed (LAPACK)", rs->st->sym->name);
+    err_set(err, "estimate tables: the QR of stage %s's residual columns failed (LAPACK)", rs->st->sym->name);
     goto done;
   }
   rt->est_G = G, rt->est_D = D;
@@ -193,14 +203,14 @@ static int dense_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_
 }
 
 /* The full operator of term rt (one op) at the evaluator's current values, dense n x n into M. */
-static int full_operator(Full *f, const RTerm *rt, double *M, long n, char *err, size_t errlen) {
+static int full_operator(Full *f, const RTerm *rt, double *M, long n, Err *err) {
   memset(M, 0, sizeof(double) * (size_t)(n * n));
   for (int g = 0; g < rt->ops[0].ntensors; g++) {
     const RTensor *t = &rt->ops[0].t[g];
     DenseSink s = {{0}, M, n, t->kind == RT_DIAG};
     for (int i = 0; i < t->group->ninputs && i < 64; i++) s.in[i] = full_get(f, t->group->inputs[i]->name, NULL);
     NpgSink sink = {&s, dense_entry, 0, 1, 0, 0};
-    if (full_build(f, t->builder, &sink) != 0) return error_set(err, errlen, "estimate tables: %s", full_error(f));
+    if (full_build(f, t->builder, &sink) != 0) return err_set(err, "estimate tables: %s", full_error(f));
   }
   return 0;
 }
@@ -258,7 +268,7 @@ static int trip_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_i
 
 /* The full operator of term rt (one op) at the evaluator's current values as a CHOLMOD sparse
  * matrix (unsymmetric storage, sorted, duplicates summed); NULL with err set on failure. */
-static cholmod_sparse *sparse_operator(Full *f, const RTerm *rt, long n, cholmod_common *cc, char *err, size_t errlen) {
+static cholmod_sparse *sparse_operator(Full *f, const RTerm *rt, long n, cholmod_common *cc, Err *err) {
   TripSink s = {{0}, n, 0, 0, false, NULL, NULL, NULL};
   cholmod_sparse *A = NULL;
   for (int g = 0; g < rt->ops[0].ntensors; g++) {
@@ -267,7 +277,7 @@ static cholmod_sparse *sparse_operator(Full *f, const RTerm *rt, long n, cholmod
     for (int i = 0; i < t->group->ninputs && i < 64; i++) s.in[i] = full_get(f, t->group->inputs[i]->name, NULL);
     NpgSink sink = {&s, trip_entry, 0, 1, 0, 0};
     if (full_build(f, t->builder, &sink) != 0) {
-      error_set(err, errlen, "estimate tables: %s", full_error(f)[0] ? full_error(f) : "out of memory for the operator");
+      err_set(err, "estimate tables: %s", full_error(f)[0] ? full_error(f) : "out of memory for the operator");
       goto done;
     }
   }
@@ -276,7 +286,7 @@ static cholmod_sparse *sparse_operator(Full *f, const RTerm *rt, long n, cholmod
   T.i = s.ri, T.j = s.ci, T.x = s.x, T.stype = 0;
   T.itype = CHOLMOD_LONG, T.xtype = CHOLMOD_REAL, T.dtype = CHOLMOD_DOUBLE;
   if (!(A = cholmod_l_triplet_to_sparse(&T, (size_t)s.count, cc)))
-    error_set(err, errlen, "estimate tables: CHOLMOD could not assemble the %ld x %ld operator (status %d)", n, n, cc->status);
+    err_set(err, "estimate tables: CHOLMOD could not assemble the %ld x %ld operator (status %d)", n, n, cc->status);
 done:
   free(s.ri), free(s.ci), free(s.x);
   return A;
@@ -414,15 +424,16 @@ bool estimate_symmetric_psd(cholmod_sparse *A, cholmod_common *cc) {
 }
 
 /* The operator of term rt with its input `name` set to x (n entries); NULL on failure. */
-static cholmod_sparse *operator_at(Full *f, const RTerm *rt, long n, const char *name, const double *x, long nx,
-                                   cholmod_common *cc) {
-  char err[256];
+static cholmod_sparse *operator_at(const EstWork *w, const RTerm *rt, long n, const char *name, const double *x, long nx) {
+  char buf[256];
   long shape[1] = {nx};
-  return full_set(f, name, 1, shape, x, "the min-θ bound") ? NULL : sparse_operator(f, rt, n, cc, err, sizeof err);
+  return full_set(w->f, name, 1, shape, x, "the min-θ bound") ? NULL
+                                                              : sparse_operator(w->f, rt, n, w->cc, ERR_OF(buf, sizeof buf));
 }
 
-int estimate_affine_parts(const Model *m, Full *f, const RTerm *rt, long n, cholmod_common *cc, cholmod_sparse **K,
-                          size_t *pnx) {
+int estimate_affine_parts(const EstWork *w, const RTerm *rt, long n, cholmod_sparse **K, size_t *pnx) {
+  const Model *m = w->m;
+  cholmod_common *cc = w->cc;
   int q = -1;
   if (rt->nops != 1) return -1;
   for (int g = 0; g < rt->ops[0].ntensors; g++) {
@@ -433,7 +444,7 @@ int estimate_affine_parts(const Model *m, Full *f, const RTerm *rt, long n, chol
   const Sym *sy = q >= 0 ? m->prog->quantities.v[q] : NULL;
   if (sy && sy->ndims + sy->nstatic != 1) return -1; /* set below as a vector: one axis only */
   size_t nx = 0;
-  const double *cur = sy && sy->kind == SYM_INPUT ? full_get(f, sy->name, &nx) : NULL;
+  const double *cur = sy && sy->kind == SYM_INPUT ? full_get(w->f, sy->name, &nx) : NULL;
   if (!cur || nx < 1 || nx > ESTIMATE_THETA_MAX) return -1;
   double x[ESTIMATE_THETA_MAX], xs[ESTIMATE_THETA_MAX], one[2] = {1, 0}, minus[2] = {-1, 0};
   memcpy(xs, cur, sizeof(double) * nx);
@@ -442,7 +453,7 @@ int estimate_affine_parts(const Model *m, Full *f, const RTerm *rt, long n, chol
   for (size_t j = 0; j <= nx; j++) K[j] = NULL;
   for (long j = -1; ok && j < (long)nx; j++) { /* K[0] = M(0), K[j + 1] = M(e_j) − M(0) */
     for (size_t a = 0; a < nx; a++) x[a] = (long)a == j ? 1 : 0;
-    cholmod_sparse *A = operator_at(f, rt, n, sy->name, x, (long)nx, cc);
+    cholmod_sparse *A = operator_at(w, rt, n, sy->name, x, (long)nx);
     if (j >= 0 && A) K[j + 1] = cholmod_l_add(A, K[0], one, minus, 1, 1, cc), cholmod_l_free_sparse(&A, cc);
     else K[0] = A;
     ok = K[j + 1] && cholmod_l_drop(0, K[j + 1], cc) && cholmod_l_sort(K[j + 1], cc);
@@ -456,7 +467,7 @@ int estimate_affine_parts(const Model *m, Full *f, const RTerm *rt, long n, chol
       cholmod_l_free_sparse(&sum, cc);
       sum = t;
     }
-    Kx = sum ? operator_at(f, rt, n, sy->name, x, (long)nx, cc) : NULL;
+    Kx = sum ? operator_at(w, rt, n, sy->name, x, (long)nx) : NULL;
     ok = Kx && estimate_sparse_close(Kx, sum, cc);
     cholmod_l_free_sparse(&sum, cc), cholmod_l_free_sparse(&Kx, cc);
   }
@@ -469,20 +480,20 @@ int estimate_affine_parts(const Model *m, Full *f, const RTerm *rt, long n, chol
 /* The input x of inverse term rt when its operator is M(x) = M_0 + Σ x_j M_j with every M_j
  * symmetric positive semidefinite by diagonal dominance (the min-θ bound's case); -1 otherwise.
  * Leaves the input set elsewhere: the caller sets its sample again. */
-static int affine_input(const Model *m, Full *f, const RTerm *rt, long n, cholmod_common *cc) {
+static int affine_input(const EstWork *w, const RTerm *rt, long n) {
   cholmod_sparse *K[ESTIMATE_THETA_MAX + 1];
   size_t nx = 0;
-  int q = estimate_affine_parts(m, f, rt, n, cc, K, &nx);
+  int q = estimate_affine_parts(w, rt, n, K, &nx);
   for (size_t j = 0; q >= 0 && j <= nx; j++)
-    if (!estimate_symmetric_psd(K[j], cc)) q = -1;
-  for (size_t j = 0; j <= nx && nx > 0; j++) cholmod_l_free_sparse(&K[j], cc);
+    if (!estimate_symmetric_psd(K[j], w->cc)) q = -1;
+  for (size_t j = 0; j <= nx && nx > 0; j++) cholmod_l_free_sparse(&K[j], w->cc);
   return q;
 }
 
-/* σ_min(M) and σ_min(BᵀMB) of inverse term rt at the evaluator's current values: M assembled dense
- * and decomposed by LAPACK up to ESTIMATE_DENSE_MAX rows, sparse above (sparse_smallest_sv). */
-static int term_sigmas(Full *f, const RTerm *rt, const RClass *rc, cholmod_common *cc, double *full, double *red,
-                       const char *stage, char *err, size_t errlen) {
+/* sig[0] = σ_min(M), sig[1] = σ_min(BᵀMB) of inverse term rt of `stage` at the evaluator's current values: M
+ * assembled dense and decomposed by LAPACK up to ESTIMATE_DENSE_MAX rows, sparse above (sparse_smallest_sv). */
+static int term_sigmas(const EstWork *w, const RTerm *rt, const RClass *rc, const char *stage, double sig[2]) {
+  cholmod_common *cc = w->cc;
   long n = rc->n, my = rc->m;
   double *M = NULL, *T = calloc((size_t)(n * my) + 1, sizeof(double)), *R = malloc(sizeof(double) * (size_t)(my * my) + 1),
          *sv = malloc(sizeof(double) * (size_t)(2 * (n > my ? n : my) + 1));
@@ -490,15 +501,15 @@ static int term_sigmas(Full *f, const RTerm *rt, const RClass *rc, cholmod_commo
   int rc_ = -1;
   bool dense = n <= ESTIMATE_DENSE_MAX;
   if (!T || !R || !sv || (dense && !(M = malloc(sizeof(double) * (size_t)(n * n) + 1)))) {
-    error_set(err, errlen, "estimate tables: out of memory for the %ld x %ld operator of stage %s", n, n, stage);
+    err_set(w->err, "estimate tables: out of memory for the %ld x %ld operator of stage %s", n, n, stage);
     goto done;
   }
   if (dense) {
-    if (full_operator(f, rt, M, n, err, errlen)) goto done;
+    if (full_operator(w->f, rt, M, n, w->err)) goto done;
     cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)my, (int)n, 1.0, M, (int)n, rc->B, (int)my, 0.0,
                 T, (int)my);
   } else {
-    if (!(A = sparse_operator(f, rt, n, cc, err, errlen))) goto done;
+    if (!(A = sparse_operator(w->f, rt, n, cc, w->err))) goto done;
     const SuiteSparse_long *Ap = A->p, *Ai = A->i;
     const double *Ax = A->x;
     for (long j = 0; j < n; j++) /* T = A B, column j of A times row j of B */
@@ -506,8 +517,8 @@ static int term_sigmas(Full *f, const RTerm *rt, const RClass *rc, cholmod_commo
   }
   cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, rc->B, (int)my, T, (int)my, 0.0, R,
               (int)my);
-  *full = dense ? smallest_sv(M, n, sv) : sparse_smallest_sv(A, n, cc);
-  *red = my > 0 ? smallest_sv(R, my, sv) : INFINITY;
+  sig[0] = dense ? smallest_sv(M, n, sv) : sparse_smallest_sv(A, n, cc);
+  sig[1] = my > 0 ? smallest_sv(R, my, sv) : INFINITY;
   rc_ = 0;
 done:
   free(M), free(T), free(R), free(sv);
@@ -515,68 +526,115 @@ done:
   return rc_;
 }
 
-/* Term rt's min-θ table when its operator is affine with semidefinite terms (affine_input):
- * room for nk anchors; the sample (k = 0) is set again afterwards. */
-static int theta_setup(const Model *m, Full *f, const SampleSource *src, RTerm *rt, long n, long nk, cholmod_common *cc,
-                       char *err, size_t errlen) {
-  free(rt->est_theta);
-  rt->est_theta = NULL, rt->est_theta_k = 0;
-  int q = affine_input(m, f, rt, n, cc);
-  if (q >= 0) {
-    rt->est_theta_q = q, rt->est_theta_n = m->classes[m->qclass[q]].n;
-    if (!(rt->est_theta = malloc(sizeof(double) * (size_t)(nk * (rt->est_theta_n + 1)) + 1)))
-      return error_set(err, errlen, "estimate tables: out of memory");
+/* The measurement of the σ_min ratios: its terms (inverse terms with a table, of a class within the sparse limit
+ * and without a product: a product's is its own table), the samples picked, and their records. */
+typedef struct SigmaRun {
+  EstWork w;
+  const SampleSource *src;
+  int (*terms)[2];          /* (stage, term) of each */
+  int nt;
+  long nk;                  /* picked samples: k_j = j (S − 1) / (nk − 1) */
+  int rank, N;              /* sample k is rank k mod N's (over MPI ranks, as the snapshots are taken) */
+  double *rec;              /* per term and picked sample: SIGMA_REC doubles */
+} SigmaRun;
+
+/* A record: σ_min(M), σ_min(BᵀMB), 1 when the sample's min-θ input x follows, then x. */
+#define SIGMA_REC (3 + ESTIMATE_THETA_MAX)
+
+static RTerm *run_term(const SigmaRun *s, int e) { return &s->w.m->stages[s->terms[e][0]].terms[s->terms[e][1]]; }
+static const RClass *run_class(const SigmaRun *s, int e) {
+  return &s->w.m->classes[s->w.m->qclass[s->w.m->stages[s->terms[e][0]].q]];
+}
+static long run_pick(const SigmaRun *s, long j) { return s->nk > 1 ? j * (s->src->count - 1) / (s->nk - 1) : 0; }
+
+/* Which terms' operators are affine with semidefinite terms (affine_input), found at sample 0 by the rank that
+ * holds it and sent to the others; room for nk anchors each. */
+static int theta_detect(SigmaRun *s) {
+  double *q = calloc((size_t)s->nt + 1, sizeof(double));
+  if (!q) return err_set(s->w.err, "estimate tables: out of memory");
+  int out = 0;
+  if (s->rank == 0 && s->nt > 0 && (out = train_eval_sample(s->src, s->w.f, 0, s->w.err->msg, s->w.err->len)) == 0)
+    for (int e = 0; e < s->nt; e++) q[e] = affine_input(&s->w, run_term(s, e), run_class(s, e)->n);
+  if (out == 0 && s->N > 1) dist_broadcast(q, s->nt, 0);
+  for (int e = 0; out == 0 && e < s->nt; e++) {
+    RTerm *rt = run_term(s, e);
+    free(rt->est_theta);
+    rt->est_theta = NULL, rt->est_theta_k = 0;
+    if (q[e] < 0) continue;
+    rt->est_theta_q = (int)q[e], rt->est_theta_n = s->w.m->classes[s->w.m->qclass[rt->est_theta_q]].n;
+    if (!(rt->est_theta = malloc(sizeof(double) * (size_t)(s->nk * (rt->est_theta_n + 1)) + 1)))
+      out = err_set(s->w.err, "estimate tables: out of memory");
   }
-  return train_eval_sample(src, f, 0, err, errlen);
+  free(q);
+  return out;
 }
 
-/* One anchor of the min-θ bound: the sample's x̄ (every entry positive) and λ_min = σ_min of the SPD M(x̄). */
-static void theta_anchor(const Model *m, Full *f, RTerm *rt, double full) {
-  if (!rt->est_theta || !(full > 0)) return;
-  size_t nx = 0;
-  const double *x = full_get(f, ((const Sym *)m->prog->quantities.v[rt->est_theta_q])->name, &nx);
-  if (!x || (long)nx != rt->est_theta_n) return;
-  for (size_t a = 0; a < nx; a++)
-    if (!(x[a] > 0)) return;
-  double *row = rt->est_theta + (long)rt->est_theta_k * (rt->est_theta_n + 1);
-  memcpy(row, x, sizeof(double) * nx);
-  row[nx] = full;
-  rt->est_theta_k++;
+/* This rank's picked samples evaluated, each term's record made (the others' records stay zero). */
+static int sigma_records(SigmaRun *s) {
+  for (long j = 0; j < s->nk; j++) {
+    long k = run_pick(s, j);
+    if (k % s->N != s->rank) continue;
+    if (train_eval_sample(s->src, s->w.f, k, s->w.err->msg, s->w.err->len)) return -1;
+    for (int e = 0; e < s->nt; e++) {
+      RTerm *rt = run_term(s, e);
+      double *r = s->rec + ((long)e * s->nk + j) * SIGMA_REC;
+      if (term_sigmas(&s->w, rt, run_class(s, e), s->w.m->stages[s->terms[e][0]].st->sym->name, r)) return -1;
+      size_t nx = 0;
+      const double *x =
+          rt->est_theta ? full_get(s->w.f, ((const Sym *)s->w.m->prog->quantities.v[rt->est_theta_q])->name, &nx) : NULL;
+      if (x && (long)nx == rt->est_theta_n) r[2] = 1, memcpy(r + 3, x, sizeof(double) * nx);
+    }
+  }
+  return 0;
 }
 
-/* c = min over spread training samples of σ_min(M)/σ_min(BᵀMB) for every inverse term with a table. */
-static int sigma_ratios(Model *m, Full *f, const SampleSource *src, char *err, size_t errlen) {
-  long S = src->count, nk = S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES;
+/* The records folded in the order of the samples, as on one process: c = min of σ_min(M)/σ_min(BᵀMB), and an
+ * anchor of the min-θ bound at each sample whose x̄ is positive (λ_min = σ_min of the SPD M(x̄)). */
+static void sigma_fold(SigmaRun *s) {
+  for (long j = 0; j < s->nk; j++)
+    for (int e = 0; e < s->nt; e++) {
+      RTerm *rt = run_term(s, e);
+      const double *r = s->rec + ((long)e * s->nk + j) * SIGMA_REC;
+      bool anchor = rt->est_theta && r[2] == 1 && r[0] > 0;
+      for (long a = 0; anchor && a < rt->est_theta_n; a++) anchor = r[3 + a] > 0;
+      if (anchor) {
+        double *row = rt->est_theta + (long)rt->est_theta_k++ * (rt->est_theta_n + 1);
+        memcpy(row, r + 3, sizeof(double) * (size_t)rt->est_theta_n);
+        row[rt->est_theta_n] = r[0];
+      }
+      double ratio = r[0] / r[1];
+      if (!(ratio > 0)) ratio = 0; /* a singular operator or a decomposition that failed: no bound */
+      if (j == 0 || isnan(rt->est_sigma) || ratio < rt->est_sigma) rt->est_sigma = ratio;
+    }
+}
+
+/* c = min over spread training samples of σ_min(M)/σ_min(BᵀMB) for every inverse term with a table. Over ranks
+ * each rank evaluates the picked samples it holds, and the records are summed (one rank's nonzero each): every
+ * rank folds the same records, so the tables are one process's. */
+static int sigma_ratios(Model *m, Full *f, const SampleSource *src, bool dist, Err *err) {
   cholmod_common cc;
   cholmod_l_start(&cc);
-  int out = 0;
-  for (long j = 0; j < nk && !out; j++) {
-    long k = nk > 1 ? j * (S - 1) / (nk - 1) : 0;
-    if (train_eval_sample(src, f, k, err, errlen)) {
-      out = -1;
-      break;
+  long S = src->count;
+  SigmaRun s = {{m, f, &cc, err}, src, NULL, 0, S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES,
+                dist ? dist_rank() : 0, dist ? dist_size() : 1, NULL};
+  int out = -1, n = 0;
+  for (int i = 0; i < m->nstages; i++) n += m->stages[i].nterms;
+  if (!(s.terms = malloc(sizeof *s.terms * (size_t)n + 1))) goto done;
+  for (int i = 0; i < m->nstages; i++)
+    for (int t = 0; t < m->stages[i].nterms; t++) {
+      const RTerm *rt = &m->stages[i].terms[t];
+      const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
+      if (rt->est_G && rt->nops == 1 && rc->n <= ESTIMATE_SPARSE_MAX && !rc->product) s.terms[s.nt][0] = i, s.terms[s.nt++][1] = t;
     }
-    for (int i = 0; i < m->nstages && !out; i++)
-      for (int t = 0; t < m->stages[i].nterms && !out; t++) {
-        RTerm *rt = &m->stages[i].terms[t];
-        const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
-        double full, red;
-        if (!rt->est_G || rt->nops != 1 || rc->n > ESTIMATE_SPARSE_MAX || rc->product) continue; /* a product's: its own table */
-        if (j == 0 && theta_setup(m, f, src, rt, rc->n, nk, &cc, err, errlen)) {
-          out = -1;
-          break;
-        }
-        if (term_sigmas(f, rt, rc, &cc, &full, &red, m->stages[i].st->sym->name, err, errlen)) {
-          out = -1;
-          break;
-        }
-        theta_anchor(m, f, rt, full);
-        double ratio = full / red;
-        if (!(ratio > 0)) ratio = 0; /* a singular operator or a decomposition that failed: no bound */
-        if (j == 0 || isnan(rt->est_sigma) || ratio < rt->est_sigma) rt->est_sigma = ratio;
-      }
-  }
+  if (!(s.rec = calloc((size_t)(s.nt * s.nk * SIGMA_REC) + 1, sizeof(double)))) goto done;
+  if (s.nt > 0 && (theta_detect(&s) || sigma_records(&s))) goto done;
+  if (s.nt > 0 && s.N > 1) dist_allreduce_sum(s.rec, s.nt * s.nk * SIGMA_REC);
+  sigma_fold(&s);
+  out = 0;
+done:
+  if (out && !err_held(err)) err_set(err, "estimate tables: out of memory");
   cholmod_l_finish(&cc);
+  free(s.terms), free(s.rec);
   if (out) return -1;
   for (int i = 0; i < m->nstages; i++) /* a ratio of 0 is no lower bound: the term has no estimate */
     for (int t = 0; t < m->stages[i].nterms; t++)
@@ -584,47 +642,61 @@ static int sigma_ratios(Model *m, Full *f, const SampleSource *src, char *err, s
   return 0;
 }
 
-/* Each input's reduced coordinates' min and max over the training samples. */
-static int input_ranges(Model *m, Full *f, const SampleSource *src, char *err, size_t errlen) {
-  if (!(m->in_range = calloc((size_t)m->nq + 1, sizeof(double *))))
-    return error_set(err, errlen, "estimate tables: out of memory");
-  for (long k = 0; k < src->count; k++) {
-    if (src->set(src->user, f, k) != 0) return error_set(err, errlen, "%s", full_error(f));
+/* Each input's reduced coordinates' min and max over the training samples; over ranks each rank's samples
+ * (k ≡ rank mod N), then the largest of the maxima and of the negated minima (exact: the same figures). */
+static int input_ranges(Model *m, Full *f, const SampleSource *src, bool dist, Err *err) {
+  int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1;
+  if (!(m->in_range = calloc((size_t)m->nq + 1, sizeof(double *)))) return err_set(err, "estimate tables: out of memory");
+  for (int q = 0; q < m->nq; q++) { /* -min, max: −∞ until a sample is seen */
+    const RClass *rc = &m->classes[m->qclass[q]];
+    if (((const Sym *)m->prog->quantities.v[q])->kind != SYM_INPUT || !rc->B) continue;
+    if (!(m->in_range[q] = malloc(sizeof(double) * (size_t)(2 * rc->m) + 1))) return err_set(err, "estimate tables: out of memory");
+    for (long a = 0; a < 2 * rc->m; a++) m->in_range[q][a] = -INFINITY;
+  }
+  for (long k = rank; k < src->count; k += N) {
+    if (src->set(src->user, f, k) != 0) return err_set(err, "%s", full_error(f));
     for (int q = 0; q < m->nq; q++) {
-      const Sym *sy = m->prog->quantities.v[q];
       const RClass *rc = &m->classes[m->qclass[q]];
       size_t cnt = 0;
-      const double *x = sy->kind == SYM_INPUT && rc->B ? full_get(f, sy->name, &cnt) : NULL;
+      const double *x = m->in_range[q] ? full_get(f, ((const Sym *)m->prog->quantities.v[q])->name, &cnt) : NULL;
       if (!x || (long)cnt != rc->n) continue;
       long mq = rc->m;
-      if (!m->in_range[q] && !(m->in_range[q] = malloc(sizeof(double) * (size_t)(2 * mq) + 1)))
-        return error_set(err, errlen, "estimate tables: out of memory");
       double *rg = m->in_range[q], xh[mq + 1];
       cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)mq, 1.0, rc->B, (int)mq, x, 1, 0.0, xh, 1);
-      for (long a = 0; a < mq; a++) {
-        if (k == 0 || xh[a] < rg[a]) rg[a] = xh[a];
-        if (k == 0 || xh[a] > rg[mq + a]) rg[mq + a] = xh[a];
-      }
+      for (long a = 0; a < mq; a++) rg[a] = fmax(rg[a], -xh[a]), rg[mq + a] = fmax(rg[mq + a], xh[a]);
     }
+  }
+  for (int q = 0; q < m->nq; q++) {
+    if (!m->in_range[q]) continue;
+    long mq = m->classes[m->qclass[q]].m;
+    if (N > 1) dist_allreduce_max(m->in_range[q], 2 * mq);
+    if (mq > 0 && m->in_range[q][mq] == -INFINITY) { /* no sample gave it: no range */
+      free(m->in_range[q]);
+      m->in_range[q] = NULL;
+      continue;
+    }
+    for (long a = 0; a < mq; a++) m->in_range[q][a] = -m->in_range[q][a];
   }
   return 0;
 }
 
-int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen) {
-  if (opt->dist || m->nexterns > 0 || src->count < 1) return 0;
+int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Err *err) {
+  if (src->count < 1) return 0;
   char why[256];
   for (int i = 0; i < m->nstages; i++) { /* a Galerkin stage of diagonal operators with a term of no table: a check */
     const RStage *rs = &m->stages[i];
     bool tables = true;
     for (int t = 0; t < rs->nterms; t++) tables = tables && estimate_term_eligible(m, i, t, why, sizeof why);
     if (!rs->interp && !tables && lower_interp_eligible(rs->st) && m->classes[m->qclass[rs->q]].B &&
-        interp_train_check(m, f, i, err, errlen))
+        interp_train_check(m, f, i, err))
       return -1;
   }
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++)
       if (estimate_term_eligible(m, i, t, why, sizeof why) && m->classes[m->qclass[m->stages[i].q]].B &&
-          term_table(m, f, i, t, err, errlen))
+          term_table(m, f, i, t, err))
         return -1;
-  return sigma_ratios(m, f, src, err, errlen) || input_ranges(m, f, src, err, errlen) ? -1 : 0;
+  if (sigma_ratios(m, f, src, opt->dist, err) || input_ranges(m, f, src, opt->dist, err)) return -1;
+  if (m->nexterns > 0) full_forget_given(f); /* the ranges' samples set, never evaluated: callbacks as before */
+  return 0;
 }

@@ -40,7 +40,7 @@ static double next_unit(uint64_t *s) {
  * residual is largest — the near pairs of n-body gravity — and left the
  * stage 2.8–5× above its floor at N = 1,000 with 1,056 entries, the output
  * 3–219× (bench/interp.md); the weighted draws bring both within 1.1×. */
-static int select_rows(const RClass *c, RInterp *ip, long k, char *err, size_t errlen) {
+static int select_rows(const RClass *c, RInterp *ip, long k, Err *err) {
   long n = c->n, m = c->m;
   double *A = NULL, *tau = NULL, *cum = NULL;
   lapack_int *jpvt = NULL;
@@ -58,7 +58,7 @@ static int select_rows(const RClass *c, RInterp *ip, long k, char *err, size_t e
     memcpy(A, c->B, sizeof(double) * (size_t)(n * m));
     lapack_int info = LAPACKE_dgeqp3(LAPACK_COL_MAJOR, (lapack_int)m, (lapack_int)n, A, (lapack_int)m, jpvt, tau);
     if (info != 0) {
-      rc = error_set(err, errlen, "class %s: pivoted QR of the basis failed (LAPACK dgeqp3 info %d)", c->label, (int)info);
+      rc = err_set(err, "class %s: pivoted QR of the basis failed (LAPACK dgeqp3 info %d)", c->label, (int)info);
       goto done;
     }
     for (long j = 0; j < m; j++) count[jpvt[j] - 1]++;
@@ -100,7 +100,7 @@ static int select_rows(const RClass *c, RInterp *ip, long k, char *err, size_t e
   for (long e = 0; e < n; e++) ip->rows[e] = e, ip->weight[e] = 1;
   goto done;
 oom:
-  rc = error_set(err, errlen, "out of memory selecting the interpolation entries of class %s", c->label);
+  rc = err_set(err, "out of memory selecting the interpolation entries of class %s", c->label);
 done:
   free(A);
   free(tau);
@@ -112,13 +112,13 @@ done:
 
 /* The fit (W P B)⁺ W = R⁻¹ Qᵀ W (m x k, row-major) from W P B = QR, and
  * ‖(W P B)⁺‖₂ = 1/σ_min(W P B). */
-static int pseudo_inverse(const RClass *c, RInterp *ip, const char *stage, char *err, size_t errlen) {
+static int pseudo_inverse(const RClass *c, RInterp *ip, const char *stage, Err *err) {
   long k = ip->k, m = ip->m;
   double *PB = malloc(sizeof(double) * (size_t)(k * m + 1)), *S = malloc(sizeof(double) * (size_t)(k * m + 1));
   double *tau = malloc(sizeof(double) * (size_t)(m + 1)), *sv = malloc(sizeof(double) * (size_t)(m + 1));
   int rc = 0;
   if (!PB || !S || !tau || !sv || !(ip->pinv = malloc(sizeof(double) * (size_t)(m * k + 1)))) {
-    rc = error_set(err, errlen, "out of memory factoring the interpolation of stage %s", stage);
+    rc = err_set(err, "out of memory factoring the interpolation of stage %s", stage);
     goto done;
   }
   for (long s = 0; s < k; s++) /* column-major k x m */
@@ -127,12 +127,12 @@ static int pseudo_inverse(const RClass *c, RInterp *ip, const char *stage, char 
   lapack_int info = LAPACKE_dgesvd(LAPACK_COL_MAJOR, 'N', 'N', (lapack_int)k, (lapack_int)m, S, (lapack_int)k, sv, NULL,
                                    1, NULL, 1, tau);
   if (info != 0) {
-    rc = error_set(err, errlen, "stage %s: singular values of the selected basis rows failed (LAPACK dgesvd info %d)",
+    rc = err_set(err, "stage %s: singular values of the selected basis rows failed (LAPACK dgesvd info %d)",
                    stage, (int)info);
     goto done;
   }
   if (m > 0 && !(sv[m - 1] > 1e-12 * sv[0])) {
-    rc = error_set(err, errlen,
+    rc = err_set(err,
                    "stage %s: the %ld selected entries do not determine its %ld basis coordinates (smallest singular "
                    "value %.3g of %.3g): raise the oversampling",
                    stage, k, m, sv[m - 1], sv[0]);
@@ -150,7 +150,7 @@ static int pseudo_inverse(const RClass *c, RInterp *ip, const char *stage, char 
     double *QT = ip->pinv; /* column-major m x k, transposed to row-major below */
     double *tmp = malloc(sizeof(double) * (size_t)(m * k + 1));
     if (!tmp) {
-      rc = error_set(err, errlen, "out of memory factoring the interpolation of stage %s", stage);
+      rc = err_set(err, "out of memory factoring the interpolation of stage %s", stage);
       goto done;
     }
     for (long s = 0; s < k; s++)
@@ -162,7 +162,7 @@ static int pseudo_inverse(const RClass *c, RInterp *ip, const char *stage, char 
     free(tmp);
   }
   if (info != 0)
-    rc = error_set(err, errlen, "stage %s: factoring the selected basis rows failed (LAPACK dgeqrf/dorgqr/dtrtrs info %d)",
+    rc = err_set(err, "stage %s: factoring the selected basis rows failed (LAPACK dgeqrf/dorgqr/dtrtrs info %d)",
                    stage, (int)info);
 done:
   free(PB);
@@ -231,8 +231,7 @@ typedef struct Table {
   struct Table *check;      /* the estimate's check table: slots from ip->k on are its entries */
   int nin;
   int in_q[RT_MAX_IN];      /* the quantity of each builder input */
-  char *err;
-  size_t errlen;
+  Err *err;
 } Table;
 
 static long read_index(Table *tb, int q, long e) {
@@ -285,26 +284,26 @@ static int stream_tensor(Table *tb, Full *f, const RTensor *x, const char *stage
   for (int i = 0; i < g->ninputs && i < RT_MAX_IN; i++) tb->in_q[i] = vec_position(&tb->m->prog->quantities, g->inputs[i]);
   NpgSink sink = {tb, on_entry, 0, 1, 0, 0};
   if (full_build(f, x->builder, &sink) != 0)
-    return error_set(tb->err, tb->errlen, "stage %s: reading tensor %s for interpolation: %s", stage, x->name,
+    return err_set(tb->err, "stage %s: reading tensor %s for interpolation: %s", stage, x->name,
                      full_error(f)[0] ? full_error(f) : "out of memory");
   return 0;
 }
 
 /* interp_train_stage, or with oversample 0 interp_train_check: no fit (k = 0), the check table
  * drawn from all n entries into rs->check. */
-static int train_tables(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen) {
+static int train_tables(Model *m, Full *f, int stage, double oversample, Err *err) {
   RStage *rs = &m->stages[stage];
   const char *sn = rs->st->sym->name;
   const RClass *c = &m->classes[m->qclass[rs->q]];
   if (!lower_interp_eligible(rs->st))
-    return error_set(err, errlen, "stage %s cannot be interpolated: %s", sn,
+    return err_set(err, "stage %s cannot be interpolated: %s", sn,
                      rs->st->kind == ST_INVERSE || rs->st->kind == ST_ROOT
                         ? "one of its operators is a declared op, not diagonal (npgc check says which stages can)"
                         : "it applies no diagonal operator (npgc check says which stages can)");
   if (!(oversample >= 1) && oversample != 0)
-    return error_set(err, errlen, "interpolation oversampling %g: must be at least 1", oversample);
+    return err_set(err, "interpolation oversampling %g: must be at least 1", oversample);
   RInterp *ip = calloc(1, sizeof *ip);
-  Table tb = {.m = m, .ip = ip, .err = err, .errlen = errlen}, tbx = {.m = m, .err = err, .errlen = errlen};
+  Table tb = {.m = m, .ip = ip, .err = err}, tbx = {.m = m, .err = err};
   long *slot = NULL;
   int rc = -1;
   if (!ip) goto oom;
@@ -313,7 +312,7 @@ static int train_tables(Model *m, Full *f, int stage, double oversample, char *e
   if (draws < c->m) draws = c->m;
   if (!(slot = malloc(sizeof(long) * (size_t)(c->n + 1))) || !(tb.read_of = calloc((size_t)m->nq + 1, sizeof(long *))))
     goto oom;
-  if (oversample > 0 && (select_rows(c, ip, draws, err, errlen) || pseudo_inverse(c, ip, sn, err, errlen))) goto done;
+  if (oversample > 0 && (select_rows(c, ip, draws, err) || pseudo_inverse(c, ip, sn, err))) goto done;
   for (long e = 0; e < c->n; e++) slot[e] = -1;
   for (long s = 0; s < ip->k; s++) slot[ip->rows[s]] = s;
   if (!(ip->check = calloc(1, sizeof *ip->check)) || !(tbx.read_of = calloc((size_t)m->nq + 1, sizeof(long *))) ||
@@ -352,7 +351,7 @@ static int train_tables(Model *m, Full *f, int stage, double oversample, char *e
   rc = 0;
   goto done;
 oom:
-  error_set(err, errlen, "out of memory making stage %s interpolated", sn);
+  err_set(err, "out of memory making stage %s interpolated", sn);
 done:
   for (int q = 0; tb.read_of && q < m->nq; q++) free(tb.read_of[q]);
   for (int q = 0; tbx.read_of && q < m->nq; q++) free(tbx.read_of[q]);
@@ -385,7 +384,7 @@ int interp_open_choices(const Program *prog, int ninterp, const char *const *int
 }
 
 Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all, const TrainOptions *opt,
-                                Model *chosen, char *err, size_t errlen) {
+                                Model *chosen, Err *err) {
   int n = chosen->nstages, ni = 0, ng = 0;
   const char **ilist = malloc(sizeof(char *) * (size_t)(n + opt->ninterp + 1));
   const char **glist = malloc(sizeof(char *) * (size_t)(n + opt->ngalerkin + 1));
@@ -393,7 +392,7 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
   const char **reason = calloc((size_t)n + 1, sizeof(char *));
   Model *m = NULL;
   if (!ilist || !glist || !errs || !reason) {
-    error_set(err, errlen, "out of memory");
+    err_set(err, "out of memory");
     model_free(chosen);
     goto done;
   }
@@ -413,7 +412,7 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
   o.valid = NULL;
   o.ninterp = ni, o.interp_stage = ilist;
   o.ngalerkin = ng, o.galerkin_stage = glist;
-  if (!(m = train_model(prog, f, all, &o, err, errlen))) goto done;
+  if (!(m = train_model(prog, f, all, &o, err->msg, err->len))) goto done;
   snprintf(m->choice_failure, sizeof m->choice_failure, "%s", failure);
   for (int i = 0; i < n && i < m->nstages; i++) /* the measured errors and reason, not "forced" */
     if (reason[i]) {
@@ -428,11 +427,11 @@ done:
   return m;
 }
 
-int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen) {
-  if (!(oversample >= 1)) return error_set(err, errlen, "interpolation oversampling %g: must be at least 1", oversample);
-  return train_tables(m, f, stage, oversample, err, errlen);
+int interp_train_stage(Model *m, Full *f, int stage, double oversample, Err *err) {
+  if (!(oversample >= 1)) return err_set(err, "interpolation oversampling %g: must be at least 1", oversample);
+  return train_tables(m, f, stage, oversample, err);
 }
 
-int interp_train_check(Model *m, Full *f, int stage, char *err, size_t errlen) {
-  return train_tables(m, f, stage, 0, err, errlen);
+int interp_train_check(Model *m, Full *f, int stage, Err *err) {
+  return train_tables(m, f, stage, 0, err);
 }

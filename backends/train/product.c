@@ -58,19 +58,19 @@ static int product_entry(void *user, npg_idx row, npg_idx col, int nin, const np
 
 /* K0's entries (params only) as a CHOLMOD matrix, unsymmetric storage,
  * duplicates summed. */
-cholmod_sparse *product_matrix(Model *m, Full *f, const RClass *rc, cholmod_common *cc, char *err, size_t errlen) {
+cholmod_sparse *product_matrix(Model *m, Full *f, const RClass *rc, cholmod_common *cc, Err *err) {
   const Sym *op = rc->product;
   const OpDef *od = op->opdef;
   long rows = 1, cols = 1;
   for (int a = 0; a < op->nrow; a++) rows *= full_dim(f, op->ivars[a]->range->name);
   for (int a = op->nrow; a < op->nivars; a++) cols *= full_dim(f, op->ivars[a]->range->name);
   if (rows != rc->n || cols != rc->n)
-    return error_set(err, errlen, "basis %s: product %s is %ld x %ld, but class %s has %ld entries: the product must "
+    return err_set(err, "basis %s: product %s is %ld x %ld, but class %s has %ld entries: the product must "
                      "be a square operator of the class's size", rc->bc->size_name, op->name, rows, cols, rc->label,
                      rc->n), NULL;
   for (int g = 0; g < od->tensors.n; g++)
     if (od->tensors.g[g].ninputs > 0)
-      return error_set(err, errlen, "basis %s: product %s reads '%s', which changes with the sample: an inner product "
+      return err_set(err, "basis %s: product %s reads '%s', which changes with the sample: an inner product "
                        "is a fixed operator (of params only)", rc->bc->size_name, op->name,
                        od->tensors.g[g].inputs[0]->name), NULL;
   ProductEntries s = {NULL, NULL, NULL, rc->n, 0, 0, false, false};
@@ -78,10 +78,10 @@ cholmod_sparse *product_matrix(Model *m, Full *f, const RClass *rc, cholmod_comm
   for (int g = 0; g < od->tensors.n && rc_ok == 0; g++) {
     NpgSink sink = {&s, product_entry, 0, 1, 0, 0}; /* every row */
     if (full_build(f, emit_builder_name(m->prog->ctx, m->prog, NULL, 0, 0, g, op), &sink) != 0 || s.bad || s.oom)
-      rc_ok = s.oom ? error_set(err, errlen, "out of memory for the entries of product %s", op->name)
-              : s.bad ? error_set(err, errlen, "basis %s: product %s has an entry outside %ld x %ld", rc->bc->size_name,
+      rc_ok = s.oom ? err_set(err, "out of memory for the entries of product %s", op->name)
+              : s.bad ? err_set(err, "basis %s: product %s has an entry outside %ld x %ld", rc->bc->size_name,
                                   op->name, rc->n, rc->n)
-                      : error_set(err, errlen, "basis %s: product %s: %s", rc->bc->size_name, op->name, full_error(f));
+                      : err_set(err, "basis %s: product %s: %s", rc->bc->size_name, op->name, full_error(f));
   }
   cholmod_sparse *A = NULL;
   cholmod_triplet *T = rc_ok ? NULL : cholmod_l_allocate_triplet((size_t)rc->n, (size_t)rc->n, (size_t)s.nnz + 1, 0,
@@ -94,13 +94,13 @@ cholmod_sparse *product_matrix(Model *m, Full *f, const RClass *rc, cholmod_comm
     A = cholmod_l_triplet_to_sparse(T, (size_t)s.nnz, cc);
     cholmod_l_free_triplet(&T, cc);
   }
-  if (rc_ok == 0 && !A) error_set(err, errlen, "out of memory for product %s", op->name);
+  if (rc_ok == 0 && !A) err_set(err, "out of memory for product %s", op->name);
   free(s.i), free(s.j), free(s.x);
   return A;
 }
 
 /* K0 = Pᵀ L Lᵀ P, after checking K0 symmetric; L simplicial LLᵀ. */
-cholmod_factor *product_factor(const RClass *rc, cholmod_sparse *A, cholmod_common *cc, char *err, size_t errlen) {
+cholmod_factor *product_factor(const RClass *rc, cholmod_sparse *A, cholmod_common *cc, Err *err) {
   const char *name = rc->product->name;
   double one[2] = {1, 0}, minus[2] = {-1, 0};
   cholmod_sparse *At = cholmod_l_transpose(A, 1, cc);
@@ -108,12 +108,12 @@ cholmod_factor *product_factor(const RClass *rc, cholmod_sparse *A, cholmod_comm
   double nA = cholmod_l_norm_sparse(A, 1, cc), nD = Dif ? cholmod_l_norm_sparse(Dif, 1, cc) : NAN;
   cholmod_l_free_sparse(&At, cc);
   cholmod_l_free_sparse(&Dif, cc);
-  if (isnan(nD)) return error_set(err, errlen, "out of memory for product %s", name), NULL;
+  if (isnan(nD)) return err_set(err, "out of memory for product %s", name), NULL;
   if (!(nA > 0) || !isfinite(nA))
-    return error_set(err, errlen, "basis %s: product %s is %s: an inner product is symmetric positive definite",
+    return err_set(err, "basis %s: product %s is %s: an inner product is symmetric positive definite",
                      rc->bc->size_name, name, nA == 0 ? "zero" : "not finite"), NULL;
   if (nD > 1e-12 * nA)
-    return error_set(err, errlen, "basis %s: product %s is not symmetric (‖K − Kᵀ‖₁ = %.3g ‖K‖₁): an inner product is "
+    return err_set(err, "basis %s: product %s is not symmetric (‖K − Kᵀ‖₁ = %.3g ‖K‖₁): an inner product is "
                      "symmetric positive definite", rc->bc->size_name, name, nD / nA), NULL;
   A->stype = 1; /* its upper triangle, now known to be the whole */
   cc->supernodal = CHOLMOD_SIMPLICIAL;
@@ -122,13 +122,13 @@ cholmod_factor *product_factor(const RClass *rc, cholmod_sparse *A, cholmod_comm
   if (L && cholmod_l_factorize(A, L, cc) && cc->status == CHOLMOD_NOT_POSDEF) {
     long minor = (long)L->minor;
     cholmod_l_free_factor(&L, cc);
-    return error_set(err, errlen, "basis %s: product %s is not positive definite (its Cholesky factorization breaks down "
+    return err_set(err, "basis %s: product %s is not positive definite (its Cholesky factorization breaks down "
                      "at column %ld of %ld): an inner product is symmetric positive definite", rc->bc->size_name,
                      name, minor, rc->n), NULL;
   }
   if (!L || cc->status < CHOLMOD_OK || !L->is_ll) {
     cholmod_l_free_factor(&L, cc);
-    return error_set(err, errlen, "basis %s: product %s could not be factored (CHOLMOD status %d)", rc->bc->size_name,
+    return err_set(err, "basis %s: product %s could not be factored (CHOLMOD status %d)", rc->bc->size_name,
                      name, cc->status), NULL;
   }
   return L;
@@ -188,25 +188,25 @@ static int dual(const cholmod_sparse *A, RClass *rc) {
   return 0;
 }
 
-int train_product_basis(Model *m, Full *f, RClass *rc, long S, double *const *X, const double *w, bool full_rank,
-                        char *err, size_t errlen) {
+int train_product_basis(Model *m, Full *f, RClass *rc, const ClassSnapshots *sn, bool full_rank, Err *err) {
+  long S = sn->S;
   cholmod_common cc;
   cholmod_l_start(&cc);
   cc.print = 0;
-  cholmod_sparse *A = product_matrix(m, f, rc, &cc, err, errlen);
-  cholmod_factor *L = A ? product_factor(rc, A, &cc, err, errlen) : NULL;
+  cholmod_sparse *A = product_matrix(m, f, rc, &cc, err);
+  cholmod_factor *L = A ? product_factor(rc, A, &cc, err) : NULL;
   double **Y = L ? mem_calloc((size_t)rc->nmembers, sizeof(double *)) : NULL;
   int rc_ok = Y ? 0 : -1;
-  if (L && !Y) error_set(err, errlen, "out of memory for the weighted snapshots of class %s", rc->label);
+  if (L && !Y) err_set(err, "out of memory for the weighted snapshots of class %s", rc->label);
   for (int i = 0; rc_ok == 0 && i < rc->nmembers; i++) {
     if (!(Y[i] = mem_malloc(sizeof(double) * (size_t)rc->n * (size_t)S)))
-      rc_ok = error_set(err, errlen, "out of memory for the weighted snapshots of class %s", rc->label);
-    else weigh(L, rc->n, S, X[i], Y[i]);
+      rc_ok = err_set(err, "out of memory for the weighted snapshots of class %s", rc->label);
+    else weigh(L, rc->n, S, sn->X[i], Y[i]);
   }
-  if (rc_ok == 0) rc_ok = train_member_bases(rc, S, Y, w, NULL, err, errlen);
-  if (rc_ok == 0) rc_ok = train_complete_basis(rc, full_rank, err, errlen);
+  if (rc_ok == 0) rc_ok = train_member_bases(rc, S, Y, sn->w, NULL, err->msg, err->len);
+  if (rc_ok == 0) rc_ok = train_complete_basis(rc, full_rank, err->msg, err->len);
   if (rc_ok == 0 && (unweigh(L, rc) || dual(A, rc)))
-    rc_ok = error_set(err, errlen, "out of memory for the basis of class %s", rc->label);
+    rc_ok = err_set(err, "out of memory for the basis of class %s", rc->label);
   for (int i = 0; Y && i < rc->nmembers; i++) free(Y[i]);
   free(Y);
   if (rc_ok != 0) free(rc->B), free(rc->D), rc->B = rc->D = NULL;
@@ -221,12 +221,12 @@ struct ProductNorm {
   cholmod_sparse *A;
 };
 
-ProductNorm *product_norm_new(Model *m, Full *f, const RClass *rc, char *err, size_t errlen) {
+ProductNorm *product_norm_new(Model *m, Full *f, const RClass *rc, Err *err) {
   ProductNorm *p = mem_calloc(1, sizeof *p);
-  if (!p) return error_set(err, errlen, "out of memory"), NULL;
+  if (!p) return err_set(err, "out of memory"), NULL;
   cholmod_l_start(&p->cc);
   p->cc.print = 0;
-  if (!(p->A = product_matrix(m, f, rc, &p->cc, err, errlen))) {
+  if (!(p->A = product_matrix(m, f, rc, &p->cc, err))) {
     product_norm_free(p);
     return NULL;
   }

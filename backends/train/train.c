@@ -554,7 +554,7 @@ static int build_bases(Train *t) {
         return error_set(err, errlen, "basis %s: product %s is not implemented with %s", rc->bc->size_name,
                          rc->product->name, why);
       }
-      if (train_product_basis(m, t->f, rc, sn->S, sn->X[c], opt->weights, opt->full_rank, err, errlen))
+      if (train_product_basis(m, t->f, rc, &(ClassSnapshots){sn->S, sn->X[c], opt->weights}, opt->full_rank, ERR_OF(err, errlen)))
         return dist_free_pcas(m, pre), -1;
       continue;
     }
@@ -810,7 +810,7 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
     if (s->reduce != STAGE_REDUCE_INTERP || named_in(opt->galerkin_stage, opt->ngalerkin, s->name) ||
         named_in(opt->interp_stage, opt->ninterp, s->name))
       continue;
-    if (interp_train_stage(m, f, i, over, err, errlen)) return -1;
+    if (interp_train_stage(m, f, i, over, ERR_OF(err, errlen))) return -1;
     m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
   }
   for (int j = 0; j < opt->ninterp; j++) {
@@ -819,7 +819,7 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
     if (i == m->nstages)
       return error_set(err, errlen, "--reduce %s:interp: the program has no stage '%s'", opt->interp_stage[j],
                        opt->interp_stage[j]);
-    if (interp_train_stage(m, f, i, over, err, errlen)) return -1;
+    if (interp_train_stage(m, f, i, over, ERR_OF(err, errlen))) return -1;
     m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
     if (opt->progress)
       fprintf(stderr, "stage %s interpolated: %ld of %ld entries (m %ld), ‖(WPB)⁺‖ %.3g\n", opt->interp_stage[j],
@@ -917,7 +917,7 @@ static int fit_externs_for_choice(Train *t) { return externs_first(t) ? train_fi
 /* Step 3b and the online estimate's tables. */
 static int reductions(Train *t) {
   if (train_interpolate_stages(t->m, t->f, t->opt, t->err, t->errlen) ||
-      train_estimates(t->m, t->f, t->src, t->opt, t->err, t->errlen))
+      train_estimates(t->m, t->f, t->src, t->opt, ERR_OF(t->err, t->errlen)))
     return -1;
   phase_end(t->clock, t->m, PHASE_PREMULTIPLY);
   return 0;
@@ -1114,7 +1114,7 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   /* the automatic choice made, every sample trains the model (DESIGN §12) */
   o.weights = w;
   o.valid = opt->valid;
-  if (m && F != 0 && opt->valid_holdout < 0) m = interp_train_with_choice(prog, f, src, &o, m, err, errlen);
+  if (m && F != 0 && opt->valid_holdout < 0) m = interp_train_with_choice(prog, f, src, &o, m, ERR_OF(err, errlen));
   free(train_w);
   free(w);
   bool oom = !params;

@@ -93,11 +93,11 @@ typedef struct SampleSource {
   int (*share)(void *user, char *err, size_t errlen);
 } SampleSource;
 
-/* The online estimate's tables (estimate.h, estimate_train.c): per eligible term the residual's
- * projected Gram table and, for an inverse, the σ_min ratio of the training samples; per input
- * its training range. Needs the bases (before train_drop_bases); builds nothing over ranks or
- * with externs. 0, or -1 with `err`. */
-int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, char *err, size_t errlen);
+/* The online estimate's tables (estimate.h, estimate_train.c): per eligible term R of the QR of
+ * its projected residual columns and, for an inverse, the σ_min ratio of the training samples;
+ * per input its training range. Needs the bases (before train_drop_bases); over ranks
+ * (opt->dist) a collective call, each rank measuring the samples it holds. 0, or -1 with `err`. */
+int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Err *err);
 
 /* Train: snapshots of every stage and joining numerator on every sample,
  * one basis per class, every tensor pre-multiplied, externs fitted. `f` is
@@ -142,10 +142,11 @@ int train_set_max_cap(const TrainSet *ts, int c);
 /* The model whose members of class c keep min(cap[c], what they have)
  * vectors. NULL with `err`. */
 Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen);
-/* The streamed classes of a truncation `m` (issue 30, train_model's rule:
- * model_class_streamable, opt->stream, opt->keep_bases), its reductions
- * chosen: marked, their floors measured on the set's training snapshots,
- * their bases dropped. 0, or -1 with `err` (out of memory). */
+/* The online estimate's tables of a truncation `m` (train_estimates, on
+ * the set's training samples), then its streamed classes (issue 30,
+ * train_model's rule: model_class_streamable, opt->stream, opt->keep_bases),
+ * its reductions chosen: marked, their floors measured on the set's training
+ * snapshots, their bases dropped. 0, or -1 with `err`. */
 int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err, size_t errlen);
 void train_set_free(TrainSet *ts);
 
@@ -166,14 +167,18 @@ int train_member_bases(RClass *rc, long S, double *const *X, const double *w, Pc
 int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen);
 /* Class rc's basis orthonormal in the inner product of its product op
  * (rc->product: `basis u: product K0`, --basis u:product=K0; product.c): BᵀK0B = I, rc->D =
- * K0 B; K0 read from `f` (params bound). X[i]: member i's snapshots. */
-int train_product_basis(Model *m, Full *f, RClass *rc, long S, double *const *X, const double *w, bool full_rank,
-                        char *err, size_t errlen);
+ * K0 B; K0 read from `f` (params bound); sn: the class's snapshots. */
+typedef struct ClassSnapshots {
+  long S;                   /* samples */
+  double *const *X;         /* X[i]: member i's snapshots, n x S */
+  const double *w;          /* the samples' weights, or NULL */
+} ClassSnapshots;
+int train_product_basis(Model *m, Full *f, RClass *rc, const ClassSnapshots *sn, bool full_rank, Err *err);
 /* The norm of class rc's product, ‖v‖_K0 = √(vᵀK0v) (v: rc->n entries), for measuring errors in
  * it (verify: the true error next to the estimate, which is in that norm). K0 read from `f`
  * (params bound); NULL with `err` (as train_product_basis's messages). */
 typedef struct ProductNorm ProductNorm;
-ProductNorm *product_norm_new(Model *m, Full *f, const RClass *rc, char *err, size_t errlen);
+ProductNorm *product_norm_new(Model *m, Full *f, const RClass *rc, Err *err);
 double product_norm(const ProductNorm *p, const double *v);
 void product_norm_free(ProductNorm *p);
 
@@ -192,11 +197,11 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
  * builders into m->stages[stage].interp (replacing any). 0, or -1 with
  * `err` (the stage not eligible, the selected rows rank deficient, out of
  * memory). */
-int interp_train_stage(Model *m, Full *f, int stage, double oversample, char *err, size_t errlen);
+int interp_train_stage(Model *m, Full *f, int stage, double oversample, Err *err);
 /* The estimate's check table of Galerkin stage `stage` of diagonal operators (lower_interp_eligible,
  * not interpolated): k_c entries drawn from all n, their monomials and basis rows, into
  * m->stages[stage].check (interp_check). 0, or -1 with `err`. */
-int interp_train_check(Model *m, Full *f, int stage, char *err, size_t errlen);
+int interp_train_check(Model *m, Full *f, int stage, Err *err);
 
 /* The stages of `prog` whose reduction is open to a choice: eligible for
  * interpolation and forced neither by the program (`reduce interp|galerkin`)
@@ -221,7 +226,7 @@ int interp_open_choices(const Program *prog, int ninterp, const char *const *int
  * forced the way it chose, its measured errors and reason kept for the
  * reports. Frees `chosen`. NULL with `err`. */
 Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all, const TrainOptions *opt,
-                                Model *chosen, char *err, size_t errlen);
+                                Model *chosen, Err *err);
 
 /* ---------------------------------------------------------------- out-of-core bases (ooc.c) */
 

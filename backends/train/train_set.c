@@ -28,10 +28,12 @@ struct TrainSet {
   int *top_cap;
 };
 
-/* Step 5 for a truncation (npgc tune; issue 30): as train_model does,
- * the streamable classes --keep-bases does not name marked, their
+/* Steps 3b–5 for a truncation (npgc tune; issue 30): as train_model does,
+ * the online estimate's tables (on the training samples, at the model's
+ * sizes), the streamable classes --keep-bases does not name marked, their
  * training floors taken from the snapshots, their bases dropped. */
 int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err, size_t errlen) {
+  if (train_estimates(m, ts->f, ts->src, &ts->quiet, ERR_OF(err, errlen))) return -1;
   if (!train_mark_streamed(m, opt)) return 0;
   long maxn = 1, maxm = 1;
   for (int c = 0; c < m->nclasses; c++)

@@ -490,7 +490,7 @@ static int choose(Search *s, Model *m, const TrainOptions *opt, double tol, doub
     for (int j = 0; j < opt->ngalerkin; j++) forced |= strcmp(opt->galerkin_stage[j], rs->st->sym->name) == 0;
     if (forced) continue;
     double galerkin = current, interp = INFINITY, wg = stage_work(m, rs);
-    if (interp_train_stage(m, s->f, i, over, err, errlen) != 0) return -1;
+    if (interp_train_stage(m, s->f, i, over, ERR_OF(err, errlen)) != 0) return -1;
     if (validate(s, m, &interp, NULL, why2, sizeof why2) != 0) interp = INFINITY;
     double wi = stage_work(m, rs);
     /* strict (tune): only rounding-level differences tie, so a choice never raises the error measured */

@@ -291,7 +291,7 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
   for (int i = 0; rc == 0 && i < m->nstages; i++) {
     if (!lower_interp_eligible(m->stages[i].st)) continue;
     char why[2048] = "";
-    if (interp_train_stage(m, f, i, 1.0, why, sizeof why) != 0)
+    if (interp_train_stage(m, f, i, 1.0, ERR_OF(why, sizeof why)) != 0)
       rc = error_set(err, errlen, "interpolating stage %s at full rank: %s", m->stages[i].st->sym->name, why);
     neligible++;
   }

@@ -69,7 +69,7 @@ static void sample_errors(const RClass *rc, const double *full, Reduced *r, int 
 static double error_norm(Heldout *h, const RClass *rc, Full *f, const double *v, char *err, size_t errlen) {
   if (!rc->product) return cblas_dnrm2((int)rc->n, v, 1);
   ProductNorm **p = &h->pn[rc - h->m->classes];
-  if (!*p && !(*p = product_norm_new(h->m, f, rc, err, errlen))) return NAN;
+  if (!*p && !(*p = product_norm_new(h->m, f, rc, ERR_OF(err, errlen)))) return NAN;
   return product_norm(*p, v);
 }
 

@@ -177,6 +177,7 @@ def greedy():
             fail("--tol without --greedy was accepted:\n" + p.stderr)
 
 
-main()
-greedy()
-print("ok")
+if __name__ == "__main__":
+    main()
+    greedy()
+    print("ok")

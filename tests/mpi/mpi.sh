@@ -74,7 +74,7 @@ mem=300000
 # out of core v's class is kept as coefficients of its training values (issue 30), in memory as a
 # basis: with --keep-bases v the layouts are the same
 "$npgc" train $prog "$scratch/rdata" -o "$scratch/o1k" --cap 8 --mem $mem --keep-bases v >/dev/null
-$compare "$scratch/r1" "$scratch/o1k" 1e-10 1e-7
+$compare "$scratch/r1" "$scratch/o1k" 1e-10 1e-7 --estimates-subset
 test -f "$scratch/o1/coef_6.npy" && ! test -f "$scratch/o1/basis_6.npy" || fail "out of core v is not kept as coefficients"
 for np in 2 3; do
   $mpirun -np $np "$npgc" train $prog "$scratch/rdata" -o "$scratch/o$np" --cap 8 --mem $mem --mpi --progress \
