@@ -603,11 +603,11 @@ static void part2_row(Trained *tr, const char *base, bool keep, Part2Row *row) {
   for (int c = 0; c < m->nclasses; c++)
     len += (size_t)snprintf(row->classes + len, sizeof row->classes - len, "%s%ld", c ? "," : "", m->classes[c].m);
   snprintf(dir, sizeof dir, "%s/cap%d", base, tr->cap);
-  if (model_save(m, dir, err, sizeof err)) die("model_save", err);
+  if (model_save(m, dir, ERR_OF(err, sizeof err))) die("model_save", err);
   /* the given coordinates: a held-out deformation, and the visibility 1 */
   Room test;
   room_make(&test, tr->F, 1, 0.37, 0, 7u);
-  Reduced *r = reduced_new(m, err, sizeof err);
+  Reduced *r = reduced_new(m, ERR_OF(err, sizeof err));
   if (!r) die("reduced_new", err);
   reduced_use_given_externs(r, true);
   int qg = -1, qv = -1, qp = -1, qh = -1;
@@ -737,7 +737,7 @@ static void part3_row(NpgProgram *p, Trained *tr, Part3Row *row) {
   row->tcc = best_of(eval_full, ft, 0.5);
   full_free(ft);
   /* reduced: project g, every stage (v by its learned map), no lifting */
-  Reduced *r = reduced_new(m, err, sizeof err);
+  Reduced *r = reduced_new(m, ERR_OF(err, sizeof err));
   if (!r) die("reduced_new", err);
   Part3Ctx c = {r, -1, test.g};
   int qp = -1;

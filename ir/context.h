@@ -67,6 +67,10 @@ typedef struct Err {
   size_t len;
 } Err;
 #define ERR_OF(buf, buflen) (&(Err){(buf), (buflen)})
+/* The buffer and size behind a record (NULL and 0 for none), for a function
+ * that still takes `char *err, size_t errlen` (npy.h, jit.h). */
+#define ERR_MSG(e) ((e) ? (e)->msg : NULL)
+#define ERR_LEN(e) ((e) ? (e)->len : 0)
 int err_set(Err *e, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 int err_vset(Err *e, const char *fmt, va_list ap);
 /* The same, unless the record already holds a message (the first stays). */

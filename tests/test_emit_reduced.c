@@ -94,10 +94,10 @@ static int generated_text(const char *path, const char *text, Stats *st) {
   /* runtime, libtcc, cc: three evaluators on three Reduced */
   Reduced *r[3];
   for (int j = 0; j < 3; j++)
-    if (!(r[j] = reduced_new(m, err, sizeof err))) fail_msg("%s: %s", path, err);
+    if (!(r[j] = reduced_new(m, ERR_OF(err, sizeof err)))) fail_msg("%s: %s", path, err);
   RedJit *jit[2];
   for (int j = 0; j < 2; j++)
-    if (!(jit[j] = reduced_jit_new(m, j == 1, err, sizeof err))) fail_msg("%s: %s", path, err);
+    if (!(jit[j] = reduced_jit_new(m, j == 1, ERR_OF(err, sizeof err)))) fail_msg("%s: %s", path, err);
   MemSamples held;
   if (memsamples_fill(&held, prog, NULL, st->n, 3, 977u)) fail_msg("binding random params failed");
   for (long k = 0; k < 3; k++) {
@@ -210,8 +210,8 @@ static void singular_operator_named(void **state) {
   train_small(&tr, "examples/rational/rational.npg", 3, 4);
   char err[2048] = "";
   Reduced *r[2];
-  for (int j = 0; j < 2; j++) assert_non_null(r[j] = reduced_new(tr.m, err, sizeof err));
-  RedJit *jit = reduced_jit_new(tr.m, false, err, sizeof err);
+  for (int j = 0; j < 2; j++) assert_non_null(r[j] = reduced_new(tr.m, ERR_OF(err, sizeof err)));
+  RedJit *jit = reduced_jit_new(tr.m, false, ERR_OF(err, sizeof err));
   assert_non_null(jit);
   /* x = 0: the diagonal x^2 of y's denominator vanishes, and with it the reduced operator */
   int q = vec_position(&tr.prog->quantities, find_quantity(tr.prog, "x"));
@@ -226,7 +226,7 @@ static void singular_operator_named(void **state) {
   /* coordinates of another model are refused */
   Trained other;
   train_small(&other, "tests/programs/root_of_op.npg", 3, 4);
-  Reduced *ro = reduced_new(other.m, err, sizeof err);
+  Reduced *ro = reduced_new(other.m, ERR_OF(err, sizeof err));
   assert_int_equal(reduced_jit_eval(jit, ro, 0), -1);
   assert_non_null(strstr(reduced_jit_error(jit), "another model"));
   reduced_free(ro);
@@ -267,11 +267,11 @@ static void npgc_emit_reduced(void **state) {
     assert_non_null(mkdtemp(dir));
     snprintf(model, sizeof model, "%s/model", dir);
     snprintf(cpath, sizeof cpath, "%s/reduced.c", dir);
-    if (model_save(tr.m, model, err, sizeof err)) fail_msg("%s", err);
+    if (model_save(tr.m, model, ERR_OF(err, sizeof err))) fail_msg("%s", err);
     snprintf(cmd, sizeof cmd, "'%s' emit %s --reduced '%s' -o '%s'", npgc, progs[i], model, cpath);
     assert_int_equal(system(cmd), 0);
     /* what the command wrote is what emit_reduced writes for the loaded model */
-    Model *loaded = model_load(tr.prog, model, err, sizeof err);
+    Model *loaded = model_load(tr.prog, model, ERR_OF(err, sizeof err));
     assert_non_null(loaded);
     char *mine = NULL;
     size_t len = 0;

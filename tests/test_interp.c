@@ -61,7 +61,7 @@ static void held_out(const Program *prog, MemSamples *held, const MemSamples *tr
 static double reduced_vs_full(Model *m, Full *f, MemSamples *held, long k, const char *path) {
   const Program *prog = m->prog;
   char err[1024];
-  Reduced *r = reduced_new(m, err, sizeof err);
+  Reduced *r = reduced_new(m, ERR_OF(err, sizeof err));
   assert_non_null(r);
   reduced_use_given_externs(r, true);
   if (memsamples_set(held, f, k) || full_eval(f, k)) fail_msg("%s: %s", path, full_error(f));
@@ -201,7 +201,7 @@ static void truncated_obeys_bound(void **state) {
   assert_non_null(ip->weight);
   held_out(prog, &held, &train, n, 3);
   for (long k = 0; k < 3; k++) {
-    Reduced *r = reduced_new(m, err, sizeof err);
+    Reduced *r = reduced_new(m, ERR_OF(err, sizeof err));
     assert_non_null(r);
     if (memsamples_set(&held, f, k) || full_eval(f, k)) fail_msg("%s", full_error(f));
     for (int i = 0; i < held.n; i++)
@@ -330,11 +330,11 @@ static void save_load_evaluate(void **state) {
   /* generated reduced code (npgc emit --reduced, libtcc) evaluates the
    * interpolated stage through the runtime: the runtime's result, bit for bit */
   char err[1024];
-  Model *lm = model_load(ir_ok(p), idir, err, sizeof err);
+  Model *lm = model_load(ir_ok(p), idir, ERR_OF(err, sizeof err));
   if (!lm) fail_msg("load: %s", err);
-  RedJit *j = reduced_jit_new(lm, false, err, sizeof err);
+  RedJit *j = reduced_jit_new(lm, false, ERR_OF(err, sizeof err));
   if (!j) fail_msg("generated reduced code: %s", err);
-  Reduced *r1 = reduced_new(lm, err, sizeof err), *r2 = reduced_new(lm, err, sizeof err);
+  Reduced *r1 = reduced_new(lm, ERR_OF(err, sizeof err)), *r2 = reduced_new(lm, ERR_OF(err, sizeof err));
   int xq = vec_position(&lm->prog->quantities, find_quantity(lm->prog, "x"));
   int aq = vec_position(&lm->prog->quantities, find_quantity(lm->prog, "a"));
   for (long k = 0; k < 3; k++) {
@@ -420,10 +420,10 @@ static void choice_by_validation(void **state) {
    * model that kept Galerkin stays format 1 */
   char dir[4096], line[256], err[1024];
   scratch_path(dir, "interp_choice");
-  assert_int_equal(model_save(m, dir, err, sizeof err), 0);
+  assert_int_equal(model_save(m, dir, ERR_OF(err, sizeof err)), 0);
   first_line(dir, line, sizeof line);
   assert_string_equal(line, rs->interp ? "npg-model 2" : "npg-model 1");
-  Model *l = model_load(m->prog, dir, err, sizeof err);
+  Model *l = model_load(m->prog, dir, ERR_OF(err, sizeof err));
   if (!l) fail_msg("load: %s", err);
   assert_ptr_equal(l->stages[wi].choice_reason, rs->choice_reason);
   assert_true(l->stages[wi].choice_err[0] == g && l->stages[wi].choice_err[1] == e);
@@ -460,7 +460,7 @@ static void advice_names_the_cause(void **state) {
   long dims[1] = {4};
   char err[512], *text = NULL;
   size_t len = 0;
-  Model *m = model_layout(prog, dims, err, sizeof err);
+  Model *m = model_layout(prog, dims, ERR_OF(err, sizeof err));
   assert_non_null(m);
   /* quantities: x, r2, w, a */
   assert_string_equal(((Sym *)prog->quantities.v[2])->name, "w");

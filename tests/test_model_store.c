@@ -147,14 +147,14 @@ static void assert_same_model(const ModelStore *got, const ModelStore *want) {
 
 static void write_ok(const char *dir, const ModelStore *m) {
   char err[1024];
-  if (model_store_write(dir, m, err, sizeof err) != 0) fail_msg("%s", err);
+  if (model_store_write(dir, m, ERR_OF(err, sizeof err)) != 0) fail_msg("%s", err);
 }
 
 /* `dir` reads back as `want`. */
 static void expect_model(const char *dir, const ModelStore *want) {
   ModelStore got;
   char err[1024];
-  if (model_store_read(dir, want->program_hash, &got, err, sizeof err) != 0) fail_msg("%s", err);
+  if (model_store_read(dir, want->program_hash, &got, ERR_OF(err, sizeof err)) != 0) fail_msg("%s", err);
   assert_same_model(&got, want);
   model_store_free(&got);
 }
@@ -165,7 +165,8 @@ static void expect_read_error(const char *dir, uint64_t program, const char *wan
   ModelStore m;
   char err[1024];
   memset(&m, 0x5a, sizeof m);
-  if (model_store_read(dir, program, &m, err, sizeof err) == 0) fail_msg("read succeeded, expected \"%s\"", want);
+  if (model_store_read(dir, program, &m, ERR_OF(err, sizeof err)) == 0)
+    fail_msg("read succeeded, expected \"%s\"", want);
   if (strcmp(err, want) != 0) fail_msg("\n   got \"%s\"\n  want \"%s\"", err, want);
   assert_int_equal(m.nmeta, 0);
   assert_int_equal(m.narrays, 0);
@@ -177,7 +178,7 @@ static void expect_read_error(const char *dir, uint64_t program, const char *wan
 /* model_store_write(`dir`, `m`) fails with exactly `want`. */
 static void expect_write_error(const char *dir, const ModelStore *m, const char *want) {
   char err[1024];
-  if (model_store_write(dir, m, err, sizeof err) == 0) fail_msg("write succeeded, expected \"%s\"", want);
+  if (model_store_write(dir, m, ERR_OF(err, sizeof err)) == 0) fail_msg("write succeeded, expected \"%s\"", want);
   if (strcmp(err, want) != 0) fail_msg("\n   got \"%s\"\n  want \"%s\"", err, want);
 }
 
@@ -267,7 +268,7 @@ static void round_trip(void **state) {
   /* the manifest, line for line */
   ModelStore got;
   char err[1024];
-  if (model_store_read(dir, PROGRAM, &got, err, sizeof err) != 0) fail_msg("%s", err);
+  if (model_store_read(dir, PROGRAM, &got, ERR_OF(err, sizeof err)) != 0) fail_msg("%s", err);
   assert_same_model(&got, &m);
   assert_string_equal(model_store_find(&got, "energy"), "0.999");
   size_t n;
@@ -485,7 +486,7 @@ static void refuse_to_replace(void **state) {
 static void expect_model_ok(const char *dir) {
   ModelStore m;
   char err[1024];
-  if (model_store_read(dir, PROGRAM, &m, err, sizeof err) != 0) fail_msg("%s", err);
+  if (model_store_read(dir, PROGRAM, &m, ERR_OF(err, sizeof err)) != 0) fail_msg("%s", err);
   model_store_free(&m);
 }
 
@@ -708,7 +709,7 @@ static void metadata_verbatim(void **state) {
   reseal(path);
   ModelStore m;
   char err[1024];
-  if (model_store_read(dir, PROGRAM, &m, err, sizeof err) != 0) fail_msg("%s", err);
+  if (model_store_read(dir, PROGRAM, &m, ERR_OF(err, sizeof err)) != 0) fail_msg("%s", err);
   assert_int_equal(m.nmeta, 3);
   assert_string_equal(m.meta[0], "basis_classes 2");
   assert_string_equal(m.meta[2], "note  two  spaces, tab\there");
@@ -723,15 +724,15 @@ static void small_error_buffers(void **state) {
   ModelStore m;
   scratch_path(dir, "nowhere");
   memset(err, 'x', sizeof err);
-  assert_int_equal(model_store_read(dir, PROGRAM, &m, err, sizeof err), -1);
+  assert_int_equal(model_store_read(dir, PROGRAM, &m, ERR_OF(err, sizeof err)), -1);
   assert_int_equal(strlen(err), sizeof err - 1);
-  assert_int_equal(model_store_read(dir, PROGRAM, &m, NULL, 0), -1);
+  assert_int_equal(model_store_read(dir, PROGRAM, &m, NULL), -1);
   ModelStore bad;
   example_model(&bad);
   free(bad.arrays[0].name);
   bad.arrays[0].name = strdup("..");
-  assert_int_equal(model_store_write(dir, &bad, err, sizeof err), -1);
-  assert_int_equal(model_store_write(dir, &bad, NULL, 0), -1);
+  assert_int_equal(model_store_write(dir, &bad, ERR_OF(err, sizeof err)), -1);
+  assert_int_equal(model_store_write(dir, &bad, NULL), -1);
   model_store_free(&bad);
   assert_false(exists(dir));
 }

@@ -239,13 +239,13 @@ static double convex_brute_force(int S, int d, const double *X, const double *x)
 
 static void solve_convex(int S, int d, const double *X, const double *x, double *w) {
   char err[512];
-  int rc = nnls_convex(S, d, X, x, w, err, sizeof err);
+  int rc = nnls_convex(S, d, X, x, w, ERR_OF(err, sizeof err));
   if (rc != 0) fail_msg("nnls_convex(S=%d, d=%d) failed: %s", S, d, err);
 }
 
 static void solve_nnls(int m, int n, const double *A, const double *b, double *w) {
   char err[512];
-  int rc = nnls_solve(m, n, A, b, w, err, sizeof err);
+  int rc = nnls_solve(m, n, A, b, w, ERR_OF(err, sizeof err));
   if (rc != 0) fail_msg("nnls_solve(%d × %d) failed: %s", m, n, err);
 }
 
@@ -407,11 +407,11 @@ static void nnls_qr_and_gelsy_agree(void **state) {
     if (n > m) n = m;
     double *A = gauss_matrix(m, n), *b = gauss_matrix(m, 1), *wq = zeros(n), *wg = zeros(n);
     char err[512];
-    long gq = -1, gg = -1;
-    assert_int_equal(nnls_solve_with(m, n, A, b, wq, true, &gq, err, sizeof err), 0);
-    assert_int_equal(nnls_solve_with(m, n, A, b, wg, false, &gg, err, sizeof err), 0);
-    assert_int_equal(gq, 0);
-    gelsy_total += gg;
+    NnlsMethod qr = {true, -1}, gelsy = {false, -1};
+    assert_int_equal(nnls_solve_with(&(NnlsProblem){m, n, A, b}, wq, &qr, ERR_OF(err, sizeof err)), 0);
+    assert_int_equal(nnls_solve_with(&(NnlsProblem){m, n, A, b}, wg, &gelsy, ERR_OF(err, sizeof err)), 0);
+    assert_int_equal(qr.gelsy_solves, 0);
+    gelsy_total += gelsy.gelsy_solves;
     double scale = 0;
     for (int j = 0; j < n; j++) scale = fmax(scale, fabs(wg[j]));
     for (int j = 0; j < n; j++) {
@@ -427,8 +427,9 @@ static void nnls_qr_and_gelsy_agree(void **state) {
    * a3 = e3, b = (1, 4e-9, 0.5, 0). */
   double A[4 * 3] = {1, 1, 0, 0, 1e-10, 0, 0, 0, 1, 0, -1e-9, 0}, b[4] = {1, 4e-9, 0.5, 0}, wq[3], wg[3];
   char err[512];
-  assert_int_equal(nnls_solve_with(4, 3, A, b, wq, true, NULL, err, sizeof err), 0);
-  assert_int_equal(nnls_solve_with(4, 3, A, b, wg, false, NULL, err, sizeof err), 0);
+  assert_int_equal(nnls_solve_with(&(NnlsProblem){4, 3, A, b}, wq, &(NnlsMethod){true, 0}, ERR_OF(err, sizeof err)), 0);
+  assert_int_equal(nnls_solve_with(&(NnlsProblem){4, 3, A, b}, wg, &(NnlsMethod){false, 0}, ERR_OF(err, sizeof err)),
+                   0);
   assert_true(nnls_kkt(4, 3, A, b, wq) < 1e-12);
   for (int j = 0; j < 3; j++) assert_true(fabs(wq[j] - wg[j]) <= 1e-12);
 }
@@ -642,26 +643,26 @@ static void bad_input(void **state) {
   (void)state;
   char err[256];
   double X[6] = {0, 0, 1, 0, 0, 1}, x[2] = {0.1, 0.1}, w[3];
-  assert_int_equal(nnls_convex(0, 2, X, x, w, err, sizeof err), -1);
+  assert_int_equal(nnls_convex(0, 2, X, x, w, ERR_OF(err, sizeof err)), -1);
   assert_non_null(strstr(err, "no training samples"));
   X[3] = NAN;
-  assert_int_equal(nnls_convex(3, 2, X, x, w, err, sizeof err), -1);
+  assert_int_equal(nnls_convex(3, 2, X, x, w, ERR_OF(err, sizeof err)), -1);
   assert_string_equal(err, "learned model: component 1 of training input 1 is not finite (nan)");
   X[3] = 0, x[1] = INFINITY;
-  assert_int_equal(nnls_convex(3, 2, X, x, w, err, sizeof err), -1);
+  assert_int_equal(nnls_convex(3, 2, X, x, w, ERR_OF(err, sizeof err)), -1);
   assert_non_null(strstr(err, "input to predict is not finite"));
-  assert_int_equal(nnls_convex(3, 2, X, x, w, NULL, 0), -1); /* no buffer: still just -1 */
+  assert_int_equal(nnls_convex(3, 2, X, x, w, NULL), -1); /* no buffer: still just -1 */
   char tiny[8];
-  assert_int_equal(nnls_convex(3, 2, X, x, w, tiny, sizeof tiny), -1);
+  assert_int_equal(nnls_convex(3, 2, X, x, w, ERR_OF(tiny, sizeof tiny)), -1);
   assert_int_equal(strlen(tiny), sizeof tiny - 1);
 
   double A[4] = {1, 2, 3, NAN}, b[2] = {1, 1};
-  assert_int_equal(nnls_solve(2, 2, A, b, w, err, sizeof err), -1);
+  assert_int_equal(nnls_solve(2, 2, A, b, w, ERR_OF(err, sizeof err)), -1);
   assert_string_equal(err, "nnls: A[1][1] is not finite (nan)");
-  assert_int_equal(nnls_solve(-1, 2, A, b, w, err, sizeof err), -1);
+  assert_int_equal(nnls_solve(-1, 2, A, b, w, ERR_OF(err, sizeof err)), -1);
   /* Empty problems are fine. */
-  assert_int_equal(nnls_solve(2, 0, A, b, w, err, sizeof err), 0);
-  assert_int_equal(nnls_solve(0, 2, A, b, w, err, sizeof err), 0);
+  assert_int_equal(nnls_solve(2, 0, A, b, w, ERR_OF(err, sizeof err)), 0);
+  assert_int_equal(nnls_solve(0, 2, A, b, w, ERR_OF(err, sizeof err)), 0);
   assert_true(w[0] == 0 && w[1] == 0);
 }
 
@@ -679,7 +680,7 @@ static void allocation_failure(void **state) {
   int k;
   for (k = 0; k < 100; k++) {
     failing_alloc_after(k);
-    int rc = nnls_convex(S, d, X, x, w, err, sizeof err);
+    int rc = nnls_convex(S, d, X, x, w, ERR_OF(err, sizeof err));
     failing_alloc_off();
     if (rc == 0) break;
     if (!strstr(err, "out of memory")) fail_msg("failing allocation %d: %s", k, err);

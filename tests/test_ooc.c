@@ -62,7 +62,7 @@ static void model_distance(Program *prog, Full *f, Model *a, Model *b, void *tes
     }
   if (!same_signs) *dtensor = NAN;
   char err[1024];
-  Reduced *ra = reduced_new(a, err, sizeof err), *rb = reduced_new(b, err, sizeof err);
+  Reduced *ra = reduced_new(a, ERR_OF(err, sizeof err)), *rb = reduced_new(b, ERR_OF(err, sizeof err));
   assert_non_null(ra), assert_non_null(rb);
   int qo = vec_position(&prog->quantities, find_quantity(prog, out));
   for (long k = 0; k < S; k++) {

@@ -59,7 +59,7 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
   if (!m) fail_msg("%s: training: %s", path, err);
   for (int c = 0; c < m->nclasses; c++) assert_int_equal(m->classes[c].m, m->classes[c].n);
-  Reduced *r = reduced_new(m, err, sizeof err);
+  Reduced *r = reduced_new(m, ERR_OF(err, sizeof err));
   assert_non_null(r);
   reduced_use_given_externs(r, true);
   /* held-out samples with the same params: fresh inputs only */
@@ -154,7 +154,7 @@ static int stages_program(const char *path, void *arg) {
   Model *m = tr.m;
   Program *prog = tr.prog;
   char err[1024];
-  Reduced *r = reduced_new(m, err, sizeof err);
+  Reduced *r = reduced_new(m, ERR_OF(err, sizeof err));
   RefData *rd = ref_new(prog, 4);
   int failures = 0;
   /* coordinates: the projections of a training sample's values */
@@ -241,8 +241,8 @@ static void corrupted_model_named(void **state) {
   assert_non_null(mkdtemp(dir));
   char model[600];
   snprintf(model, sizeof model, "%s/MODEL", dir);
-  assert_int_equal(model_save(tr.m, model, err, sizeof err), 0);
-  Model *ok = model_load(tr.prog, model, err, sizeof err);
+  assert_int_equal(model_save(tr.m, model, ERR_OF(err, sizeof err)), 0);
+  Model *ok = model_load(tr.prog, model, ERR_OF(err, sizeof err));
   if (!ok) fail_msg("%s", err);
   model_free(ok);
   /* a flipped byte */
@@ -254,24 +254,24 @@ static void corrupted_model_named(void **state) {
   fseek(f, 100, SEEK_SET);
   fputc(c ^ 0x10, f);
   fclose(f);
-  assert_null(model_load(tr.prog, model, err, sizeof err));
+  assert_null(model_load(tr.prog, model, ERR_OF(err, sizeof err)));
   assert_non_null(strstr(err, "t_y_t0_op1_g0.npy: checksum mismatch"));
   /* truncated */
-  assert_int_equal(model_save(tr.m, model, err, sizeof err), 0);
+  assert_int_equal(model_save(tr.m, model, ERR_OF(err, sizeof err)), 0);
   snprintf(path, sizeof path, "%s/basis_1.npy", model);
   assert_int_equal(truncate(path, 90), 0);
-  assert_null(model_load(tr.prog, model, err, sizeof err));
+  assert_null(model_load(tr.prog, model, ERR_OF(err, sizeof err)));
   assert_non_null(strstr(err, "basis_1.npy"));
   /* missing */
-  assert_int_equal(model_save(tr.m, model, err, sizeof err), 0);
+  assert_int_equal(model_save(tr.m, model, ERR_OF(err, sizeof err)), 0);
   snprintf(path, sizeof path, "%s/t_y_t0_f0_g0.npy", model);
   assert_int_equal(remove(path), 0);
-  assert_null(model_load(tr.prog, model, err, sizeof err));
+  assert_null(model_load(tr.prog, model, ERR_OF(err, sizeof err)));
   assert_non_null(strstr(err, "t_y_t0_f0_g0.npy"));
   /* another program */
-  assert_int_equal(model_save(tr.m, model, err, sizeof err), 0);
+  assert_int_equal(model_save(tr.m, model, ERR_OF(err, sizeof err)), 0);
   NpgProgram *other = compile_text("other.npg", "input x : real[2]\noutput y = [x[0] / x[1], x[1]]\n");
-  assert_null(model_load(ir_ok(other), model, err, sizeof err));
+  assert_null(model_load(ir_ok(other), model, ERR_OF(err, sizeof err)));
   assert_non_null(strstr(err, "manifest: model was trained for another program"));
   npg_free(other);
   /* clean up */
@@ -372,9 +372,9 @@ static int roots_of_program(const char *path, long n, double *worst, int *cases,
     for (int i = 0; i < my; i++) y[i] *= lam[i] > 0 ? pow(lam[i], power) : 0;
     cblas_dgemv(CblasRowMajor, CblasNoTrans, my, my, 1.0, U, my, y, 1, 0.0, want, 1);
     for (size_t i = 0; i < mm; i++) M[i] = ldexp(M[i], rc->exponent);
-    Reduced *r = reduced_new(tr.m, err, sizeof err);
+    Reduced *r = reduced_new(tr.m, ERR_OF(err, sizeof err));
     assert_non_null(r);
-    int got = reduced_apply_power(r, stage, 0, 0, op->p, op->q, M, v, 3);
+    int got = reduced_apply_power(r, &(ReducedPower){stage, 0, 0, op->p, op->q, 3}, M, v);
     (*cases)++;
     if (rc->err) {
       if (got != -1 || !strstr(reduced_error(r), rc->err)) {
@@ -397,9 +397,9 @@ static int roots_of_program(const char *path, long n, double *worst, int *cases,
     reduced_free(r);
   }
   /* not finite */
-  Reduced *r = reduced_new(tr.m, err, sizeof err);
+  Reduced *r = reduced_new(tr.m, ERR_OF(err, sizeof err));
   for (size_t i = 0; i < mm; i++) M[i] = i == (size_t)my + 1 ? NAN : 0;
-  if (reduced_apply_power(r, stage, 0, 0, op->p, op->q, M, v, 3) != -1 ||
+  if (reduced_apply_power(r, &(ReducedPower){stage, 0, 0, op->p, op->q, 3}, M, v) != -1 ||
       !strstr(reduced_error(r), "eigendecomposition of reduced operator")) {
     print_message("%s: NaN operator: '%s'\n", path, reduced_error(r));
     failures++;
@@ -428,7 +428,7 @@ static void roots_of_given_operators(void **state) {
  * reduced evaluations of models a and b. */
 static double lifted_distance(Program *prog, Full *f, Model *a, Model *b, MemSamples *test) {
   char err[1024];
-  Reduced *ra = reduced_new(a, err, sizeof err), *rb = reduced_new(b, err, sizeof err);
+  Reduced *ra = reduced_new(a, ERR_OF(err, sizeof err)), *rb = reduced_new(b, ERR_OF(err, sizeof err));
   assert_non_null(ra), assert_non_null(rb);
   double worst = 0;
   for (long k = 0; k < test->S; k++) {
@@ -490,7 +490,7 @@ static void smaller_sizes_equal_retraining(void **state) {
         if (!small) fail_msg("%s", err);
         long sizes[16];
         for (int c = 0; c < small->nclasses; c++) sizes[c] = small->classes[c].m;
-        Model *cut = model_truncate(big, sizes, err, sizeof err);
+        Model *cut = model_truncate(big, sizes, ERR_OF(err, sizeof err));
         if (!cut) fail_msg("%s", err);
         for (int c = 0; c < small->nclasses; c++) assert_int_equal(cut->classes[c].m, small->classes[c].m);
         worst = fmax(worst, lifted_distance(prog, f, small, cut, &test));
@@ -503,7 +503,7 @@ static void smaller_sizes_equal_retraining(void **state) {
       long too[16];
       for (int c = 0; c < big->nclasses; c++) too[c] = -1;
       too[0] = big->classes[0].m + 1;
-      assert_null(model_truncate(big, too, err, sizeof err));
+      assert_null(model_truncate(big, too, ERR_OF(err, sizeof err)));
       assert_non_null(strstr(err, big->classes[0].bc->size_name));
       model_free(big);
       memsamples_free(&train), memsamples_free(&test);
@@ -523,7 +523,7 @@ static double kept_against_recomputed(const char *path, const char *text, int *n
   Trained tr;
   train(&tr, path, text, 6, 16, 3);
   char err[1024];
-  Reduced *a = reduced_new(tr.m, err, sizeof err), *b = reduced_new(tr.m, err, sizeof err);
+  Reduced *a = reduced_new(tr.m, ERR_OF(err, sizeof err)), *b = reduced_new(tr.m, ERR_OF(err, sizeof err));
   assert_non_null(a), assert_non_null(b);
   if (memsamples_set(&tr.train, tr.f, 3) || full_eval(tr.f, 3)) fail_msg("%s", full_error(tr.f));
   for (int q = 0; q < tr.m->nq; q++) {
@@ -550,7 +550,8 @@ static double kept_against_recomputed(const char *path, const char *text, int *n
       if (!((const Sym *)tr.prog->quantities.v[qo])->is_output) continue;
       long mo = tr.m->classes[tr.m->qclass[qo]].m;
       double *Ja = malloc(sizeof(double) * (size_t)(mo * mi + 1)), *Jb = malloc(sizeof(double) * (size_t)(mo * mi + 1));
-      if (reduced_jacobian(a, qo, qi, Ja, 3, err, sizeof err) || reduced_jacobian(b, qo, qi, Jb, 3, err, sizeof err))
+      if (reduced_jacobian(a, qo, qi, Ja, 3, ERR_OF(err, sizeof err)) ||
+          reduced_jacobian(b, qo, qi, Jb, 3, ERR_OF(err, sizeof err)))
         fail_msg("%s: %s", path, err);
       double big = 1, diff = 0;
       for (long e = 0; e < mo * mi; e++) big = fmax(big, fabs(Jb[e])), diff = fmax(diff, fabs(Ja[e] - Jb[e]));

@@ -135,7 +135,7 @@ static inline void room_close(Room *r) {
 static inline double mean_error(Program *prog, Full *f, Model *m, void *test, int (*set)(void *, Full *, long),
                                 long S, const char *out) {
   char err[1024];
-  Reduced *r = reduced_new(m, err, sizeof err);
+  Reduced *r = reduced_new(m, ERR_OF(err, sizeof err));
   assert_non_null(r);
   int qo = vec_position(&prog->quantities, find_quantity(prog, out));
   double total = 0;

@@ -114,16 +114,19 @@ bool estimate_outside(const Model *m, int q, const double *coords, long *coord) 
   return false;
 }
 
-/* The scratch of one evaluation of the estimate. */
-typedef struct Scratch {
+/* One evaluation of the estimate: the evaluator, the figures so far, scratch, and the inputs
+ * whose errors the current stage propagates. */
+typedef struct Estimation {
+  Reduced *r;         /* the evaluator, after reduced_eval */
+  EstimateResult *e;  /* the figures so far (stages in order) */
   double *z, *Gz, *v, *M, *M2, *sv, *pack;
   long svlen;
   bool *carry;   /* per quantity: a tensor input of the current stage whose error it propagates */
   int *carried;  /* those quantities, ncarried of them */
   int ncarried;
-} Scratch;
+} Estimation;
 
-static void clear_carried(Scratch *s) {
+static void clear_carried(Estimation *s) {
   for (int k = 0; k < s->ncarried; k++) s->carry[s->carried[k]] = false;
   s->ncarried = 0;
 }
@@ -131,7 +134,7 @@ static void clear_carried(Scratch *s) {
 /* ‖r_t‖ of term `rt` (of a stage of full size n, basis size my) with its
  * value ŷ_t in s->v; *roundoff when below the roundoff of the expansion
  * (the figure is then that level). */
-static double residual_norm(Reduced *r, const RTerm *rt, long n, long my, Scratch *s, bool *roundoff) {
+static double residual_norm(Reduced *r, const RTerm *rt, long n, long my, Estimation *s, bool *roundoff) {
   const Model *m = reduced_model(r);
   double *const *x = reduced_all_coords(r);
   long D = rt->est_D, off = 0;
@@ -166,7 +169,7 @@ static double residual_norm(Reduced *r, const RTerm *rt, long n, long my, Scratc
 /* σ_min of the my x my matrix M (destroyed); NaN if LAPACK fails. A symmetric positive definite
  * M̂ (an SPD operator's) by its smallest eigenvalue alone (dsyevr), else dgesvd's smallest
  * singular value. */
-static double sigma_min(double *M, long my, Scratch *s) {
+static double sigma_min(double *M, long my, Estimation *s) {
   if (my == 0) return INFINITY;
   double big = 0, asym = 0;
   for (long i = 0; i < my; i++)
@@ -212,7 +215,8 @@ static double propagate(Reduced *r, int i, int q, double eq, char *why, size_t n
     goto done;
   }
   for (long a = 0; a < mq; a++) eye[a * mq + a] = 1;
-  if (reduced_stage_jvp(r, i, q, eye, mq, J, -1, err, sizeof err)) {
+  const double *seed = eye;
+  if (reduced_stage_jvp(r, i, &(ReducedSeeds){1, &q, &seed, mq, false}, J, -1, ERR_OF(err, sizeof err))) {
     snprintf(why, n, "the derivative in its input %s (whose error it propagates) failed: %.150s", qname(m, q), err);
     goto done;
   }
@@ -271,8 +275,9 @@ static double theta_bound(Reduced *r, const RTerm *rt) {
 /* Input iq of the stage being estimated: its trust flag into *flags, and, when it carries an
  * error, noted among those the stage propagates (once for all its terms). -1 with `why` when it
  * has no estimate. */
-static int note_input(const EstimateResult *e, const Model *m, int iq, Scratch *s, unsigned *flags, char *why,
-                      size_t n) {
+static int note_input(Estimation *s, int iq, unsigned *flags, char *why, size_t n) {
+  const EstimateResult *e = s->e;
+  const Model *m = reduced_model(s->r);
   *flags |= e->flags[iq] & EST_OUTSIDE;
   if (isnan(e->err[iq])) return snprintf(why, n, "its input %s has no estimate", qname(m, iq)), -1;
   if (e->err[iq] > 0 && !s->carry[iq]) s->carry[iq] = true, s->carried[s->ncarried++] = iq;
@@ -281,8 +286,9 @@ static int note_input(const EstimateResult *e, const Model *m, int iq, Scratch *
 
 /* The propagation of the noted inputs' errors through stage i added to *sum (an estimate:
  * EST_BOUND cleared when there is any); the notes cleared. -1 with `why` on failure. */
-static int add_propagation(Reduced *r, int i, const EstimateResult *e, Scratch *s, double *sum, unsigned *flags,
-                           char *why, size_t n) {
+static int add_propagation(Estimation *s, int i, double *sum, unsigned *flags, char *why, size_t n) {
+  Reduced *r = s->r;
+  const EstimateResult *e = s->e;
   for (int k = 0; k < s->ncarried; k++) {
     int iq = s->carried[k];
     double p = propagate(r, i, iq, e->err[iq], why, n);
@@ -296,7 +302,7 @@ static int add_propagation(Reduced *r, int i, const EstimateResult *e, Scratch *
 }
 
 /* Quantity q's figure into e: v with its flags, or, with `why`, none (its trust flag kept). */
-static void store(EstimateResult *e, Scratch *s, int q, double v, unsigned flags, const char *why) {
+static void store(EstimateResult *e, Estimation *s, int q, double v, unsigned flags, const char *why) {
   clear_carried(s);
   snprintf(e->why_q[q], sizeof e->why_q[q], "%s", why ? why : "");
   e->err[q] = why ? NAN : v;
@@ -307,25 +313,25 @@ static void store(EstimateResult *e, Scratch *s, int q, double v, unsigned flags
  * one of diagonal operators whose terms have no tables): interp_check's sampled residual (exact,
  * flagged a bound, when its entries are all those the fit leaves out), plus the propagation of
  * its inputs' errors. */
-static void check_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
+static void check_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) {
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
   const RInterp *ip = rs->interp ? rs->interp : rs->check, *ck = rs->interp ? rs->interp->check : NULL;
   int q = rs->q;
   unsigned flags = EST_BOUND;
   char why[256] = "";
-  double est = NAN;
-  bool exact = false;
+  InterpCheck ck_out = {NAN, false};
   for (long k = 0; k < ip->nreads + (ck ? ck->nreads : 0); k++)
-    if (note_input(e, m, k < ip->nreads ? ip->read_q[k] : ck->read_q[k - ip->nreads], s, &flags, why, sizeof why))
+    if (note_input(s, k < ip->nreads ? ip->read_q[k] : ck->read_q[k - ip->nreads], &flags, why, sizeof why))
       goto none;
   double *work = malloc(sizeof(double) * interp_check_work_size(rs));
-  int rc = work ? interp_check(m, rs, reduced_all_coords(r), work, &est, &exact, why, sizeof why)
+  int rc = work ? interp_check(m, rs, reduced_all_coords(r), work, &ck_out, ERR_OF(why, sizeof why))
                 : (snprintf(why, sizeof why, "out of memory for the estimate"), -1);
   free(work);
   if (rc) goto none;
-  if (!exact) flags &= ~EST_BOUND;
-  if (add_propagation(r, i, e, s, &est, &flags, why, sizeof why)) goto none;
+  double est = ck_out.est;
+  if (!ck_out.exact) flags &= ~EST_BOUND;
+  if (add_propagation(s, i, &est, &flags, why, sizeof why)) goto none;
   store(e, s, q, est, flags, NULL);
   return;
 none:
@@ -333,7 +339,7 @@ none:
 }
 
 /* The estimate of stage number i into e (err, flags, why_q of its quantity). */
-static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
+static void stage_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) {
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
   bool tables = true; /* every term has its residual's table (exact for contractions): else the check entries */
@@ -357,7 +363,7 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
     }
     RTERM_FOR_TENSORS(rt, x)
       for (int j = 0; j < x->nin; j++)
-        if (note_input(e, m, x->in_q[j], s, &flags, why, sizeof why)) goto none;
+        if (note_input(s, x->in_q[j], &flags, why, sizeof why)) goto none;
     double carried = 0; /* a named numerator's own error */
     if (rt->named_q >= 0) {
       if (isnan(e->err[rt->named_q])) {
@@ -404,7 +410,7 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Scratch *s) {
     }
     sum += (res + carried) / sig;
   }
-  if (add_propagation(r, i, e, s, &sum, &flags, why, sizeof why)) goto none;
+  if (add_propagation(s, i, &sum, &flags, why, sizeof why)) goto none;
   store(e, s, q, sum, flags, NULL);
   return;
 none:
@@ -424,7 +430,7 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++)
       maxD = m->stages[i].terms[t].est_D > maxD ? m->stages[i].terms[t].est_D : maxD;
-  Scratch s = {0};
+  Estimation s = {.r = r, .e = e};
   s.svlen = maxm + 5 * maxm + 64;
   s.z = malloc(sizeof(double) * (size_t)maxD);
   s.Gz = malloc(sizeof(double) * (size_t)(maxD > maxcols ? maxD : maxcols));
@@ -496,22 +502,20 @@ int estimate_save(const Model *m, ModelStore *s) {
 }
 
 /* The array `name` of shape rows x cols, copied; NULL with `err`. */
-static double *take(const ModelStore *s, const char *dir, const char *name, long rows, long cols, char *err,
-                    size_t errlen) {
+static double *take(const ModelStore *s, const char *dir, const char *name, long rows, long cols, Err *err) {
   const NpyArray *a = model_store_array(s, name);
   if (!a || a->ndim != 2 || a->shape[0] != rows || a->shape[1] != cols) {
-    snprintf(err, errlen, "%s/%s.npy: %s, the model's layout needs %ld x %ld (a damaged or forged model; retrain)", dir,
-             name, a ? "another shape" : "missing", rows, cols);
+    err_set(err, "%s/%s.npy: %s, the model's layout needs %ld x %ld (a damaged or forged model; retrain)", dir,
+            name, a ? "another shape" : "missing", rows, cols);
     return NULL;
   }
   double *d = malloc(sizeof(double) * (size_t)(rows * cols) + 1);
-  if (!d) snprintf(err, errlen, "%s/%s.npy: out of memory", dir, name);
+  if (!d) err_set(err, "%s/%s.npy: out of memory", dir, name);
   else memcpy(d, a->data, sizeof(double) * (size_t)(rows * cols));
   return d;
 }
 
-static int load_estimate_line(Model *m, const ModelStore *s, const char *line, const char *dir, char *err,
-                              size_t errlen) {
+static int load_estimate_line(Model *m, const ModelStore *s, const char *line, const char *dir, Err *err) {
   char stage[512], name[600], why[256];
   int t, used = 0;
   long D;
@@ -527,18 +531,17 @@ static int load_estimate_line(Model *m, const ModelStore *s, const char *line, c
     RTerm *rt = &m->stages[i].terms[t];
     est_name(name, sizeof name, stage, t);
     free(rt->est_G);
-    if (!(rt->est_G = take(s, dir, name, D + 1, D, err, errlen))) return -1;
+    if (!(rt->est_G = take(s, dir, name, D + 1, D, err))) return -1;
     rt->est_D = D, rt->est_sigma = sigma;
     for (long k = 0; k < (D + 1) * D; k++)
-      if (!isfinite(rt->est_G[k])) return error_set(err, errlen, "%s/%s.npy: not finite at entry %ld", dir, name, k);
+      if (!isfinite(rt->est_G[k])) return err_set(err, "%s/%s.npy: not finite at entry %ld", dir, name, k);
     return 0;
   }
-  return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
-                   dir, line);
+  return err_set(err, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                 dir, line);
 }
 
-static int load_range_line(Model *m, const ModelStore *s, const char *line, const char *dir, char *err,
-                           size_t errlen) {
+static int load_range_line(Model *m, const ModelStore *s, const char *line, const char *dir, Err *err) {
   char qn[512], name[600];
   int used = 0;
   int q = -1;
@@ -546,21 +549,21 @@ static int load_range_line(Model *m, const ModelStore *s, const char *line, cons
     for (int k = 0; k < m->nq; k++)
       if (strcmp(qname(m, k), qn) == 0 && ((Sym *)m->prog->quantities.v[k])->kind == SYM_INPUT) q = k;
   if (q < 0)
-    return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
-                     dir, line);
+    return err_set(err, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                   dir, line);
   if (!m->in_range && !(m->in_range = calloc((size_t)m->nq + 1, sizeof(double *))))
-    return error_set(err, errlen, "%s: out of memory", dir);
+    return err_set(err, "%s: out of memory", dir);
   snprintf(name, sizeof name, "range_%s", qn);
   free(m->in_range[q]);
-  if (!(m->in_range[q] = take(s, dir, name, 2, qm(m, q), err, errlen))) return -1;
+  if (!(m->in_range[q] = take(s, dir, name, 2, qm(m, q), err))) return -1;
   for (long a = 0; a < qm(m, q); a++)
     if (!(m->in_range[q][a] <= m->in_range[q][qm(m, q) + a]))
-      return error_set(err, errlen, "%s/%s.npy: coordinate %ld's min is not at most its max", dir, name, a);
+      return err_set(err, "%s/%s.npy: coordinate %ld's min is not at most its max", dir, name, a);
   return 0;
 }
 
 /* "theta STAGE T input NAME anchors K": the min-θ table of an estimate line's term (after it). */
-static int load_theta_line(Model *m, const ModelStore *s, const char *line, const char *dir, char *err, size_t errlen) {
+static int load_theta_line(Model *m, const ModelStore *s, const char *line, const char *dir, Err *err) {
   char stage[512], qn[512], name[1100];
   int t, k, used = 0, q = -1;
   bool ok = sscanf(line, "theta %511s %d input %511s anchors %d%n", stage, &t, qn, &k, &used) == 4 && !line[used] &&
@@ -575,23 +578,23 @@ static int load_theta_line(Model *m, const ModelStore *s, const char *line, cons
     if (n > ESTIMATE_THETA_MAX) break;
     snprintf(name, sizeof name, "theta_%s_t%d", stage, t);
     free(rt->est_theta);
-    if (!(rt->est_theta = take(s, dir, name, k, n + 1, err, errlen))) return -1;
+    if (!(rt->est_theta = take(s, dir, name, k, n + 1, err))) return -1;
     rt->est_theta_q = q, rt->est_theta_n = n, rt->est_theta_k = k;
     for (long e = 0; e < (long)k * (n + 1); e++)
       if (!(rt->est_theta[e] > 0) || !isfinite(rt->est_theta[e]))
-        return error_set(err, errlen, "%s/%s.npy: entry %ld is not positive and finite", dir, name, e);
+        return err_set(err, "%s/%s.npy: entry %ld is not positive and finite", dir, name, e);
     return 0;
   }
-  return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
-                   dir, line);
+  return err_set(err, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                 dir, line);
 }
 
-int estimate_load(Model *m, const ModelStore *s, const char *dir, char *err, size_t errlen) {
+int estimate_load(Model *m, const ModelStore *s, const char *dir, Err *err) {
   for (int i = 0; i < s->nmeta; i++) {
     const char *line = s->meta[i];
-    if (strncmp(line, "estimate ", 9) == 0 && load_estimate_line(m, s, line, dir, err, errlen)) return -1;
-    if (strncmp(line, "range ", 6) == 0 && load_range_line(m, s, line, dir, err, errlen)) return -1;
-    if (strncmp(line, "theta ", 6) == 0 && load_theta_line(m, s, line, dir, err, errlen)) return -1;
+    if (strncmp(line, "estimate ", 9) == 0 && load_estimate_line(m, s, line, dir, err)) return -1;
+    if (strncmp(line, "range ", 6) == 0 && load_range_line(m, s, line, dir, err)) return -1;
+    if (strncmp(line, "theta ", 6) == 0 && load_theta_line(m, s, line, dir, err)) return -1;
   }
   return 0;
 }

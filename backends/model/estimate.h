@@ -109,6 +109,6 @@ bool estimate_outside(const Model *m, int q, const double *coords, long *coord);
  * range_Q (2 x m: each coordinate's min, then max). A model without them
  * has no estimates; a line that does not match the layout is refused. */
 int estimate_save(const Model *m, ModelStore *s);
-int estimate_load(Model *m, const ModelStore *s, const char *dir, char *err, size_t errlen);
+int estimate_load(Model *m, const ModelStore *s, const char *dir, Err *err);
 
 #endif

@@ -244,8 +244,9 @@ static inline double mono_value(double coef, int nin, const int32_t **rd, const 
   }
 }
 
-int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, double *work, long sample, char *err,
-                size_t errlen) {
+int interp_eval(const Model *m, const RStage *rs, const InterpAt *at, double *y, Err *err) {
+  double *const *x = at->x, *work = at->work;
+  long sample = at->sample;
   const RInterp *ip = rs->interp;
   long k = ip->k, nf = factor_base(rs, rs->nterms);
   double *val = work, *acc = work + ip->nreads, *py = acc + k * nf, *lift = py + k;
@@ -295,15 +296,14 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
       py[s] += v;
     }
   }
-  char at[64];
-  if (sample >= 0) snprintf(at, sizeof at, "at sample %ld", sample);
-  else snprintf(at, sizeof at, "at these inputs"); /* no sample of a set (npg_reduced_eval) */
+  char where[64];
+  if (sample >= 0) snprintf(where, sizeof where, "at sample %ld", sample);
+  else snprintf(where, sizeof where, "at these inputs"); /* no sample of a set (npg_reduced_eval) */
   for (long s = 0; s < k; s++)
     if (!isfinite(py[s]))
-      return error_set(err, errlen,
-                       "stage %s (interpolated) is not finite at its selected entry %ld %s (a diagonal zero "
-                       "under a negative power, or a root of a negative value, from its inputs' reduced values)",
-                       rs->st->sym->name, ip->rows[s], at);
+      return err_set(err, "stage %s (interpolated) is not finite at its selected entry %ld %s (a diagonal zero "
+                     "under a negative power, or a root of a negative value, from its inputs' reduced values)",
+                     rs->st->sym->name, ip->rows[s], where);
   if (ip->m == 0 || k == 0) memset(y, 0, sizeof(double) * (size_t)ip->m); /* (a forged model: BLAS wants lda >= 1) */
   else cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)ip->m, (int)k, 1.0, ip->pinv, (int)k, py, 1, 0.0, y, 1);
   return 0;
@@ -315,12 +315,11 @@ size_t interp_check_work_size(const RStage *rs) {
   return (a > b ? a : b) + (size_t)(ip ? ip->m : 0) + 1;
 }
 
-int interp_check(const Model *m, const RStage *rs, double *const *x, double *work, double *est, bool *exact, char *err,
-                 size_t errlen) {
+int interp_check(const Model *m, const RStage *rs, double *const *x, double *work, InterpCheck *out, Err *err) {
   const RInterp *ip = rs->interp, *ck = ip ? ip->check : rs->check;
   if (!ck)
-    return error_set(err, errlen, "the model holds no check entries for stage %s (trained before its estimate: "
-                     "retrain)", rs->st->sym->name);
+    return err_set(err, "the model holds no check entries for stage %s (trained before its estimate: "
+                   "retrain)", rs->st->sym->name);
   long mm = m->classes[m->qclass[rs->q]].m, n = m->classes[m->qclass[rs->q]].n, k = ip ? ip->k : 0;
   const double *yh = x[rs->q];
   double *fit = work, *w = work + (ip ? ip->m : 0), sum[2] = {0, 0};
@@ -328,15 +327,15 @@ int interp_check(const Model *m, const RStage *rs, double *const *x, double *wor
   for (int pass = ip ? 0 : 1; pass < 2; pass++) { /* the fit's entries, then the check's */
     const RInterp *t = pass ? ck : ip;
     one.interp = (RInterp *)t;
-    if (interp_eval(m, &one, x, fit, w, -1, err, errlen)) return -1;
+    if (interp_eval(m, &one, &(InterpAt){x, w, -1}, fit, err)) return -1;
     const double *py = w + t->nreads + t->k * factor_base(rs, rs->nterms), *B = ck->brows + (pass ? k * mm : 0);
     for (long j = 0; j < t->k; j++) {
       double d = py[j] - (mm > 0 ? cblas_ddot((int)mm, B + j * mm, 1, yh, 1) : 0);
       sum[pass] += d * d;
     }
   }
-  *exact = ck->k == n - k;
-  *est = sqrt(sum[0] + (ck->k > 0 ? (double)(n - k) / (double)ck->k * sum[1] : 0));
+  out->exact = ck->k == n - k;
+  out->est = sqrt(sum[0] + (ck->k > 0 ? (double)(n - k) / (double)ck->k * sum[1] : 0));
   return 0;
 }
 
@@ -447,18 +446,28 @@ int interp_save(const Model *m, ModelStore *s) {
   return bad ? -1 : 0;
 }
 
-/* Array `what` of stage `sn`, of `rows` x `cols` (cols 0: a vector). */
-static const double *array_of(const ModelStore *s, const char *dir, const char *sn, const char *what, long rows,
-                              long cols, char *err, size_t errlen) {
+/* One stage's arrays in a store being loaded: the store, its folder (for
+ * messages), the stage's name, and where a failure's message goes. */
+typedef struct StageArrays {
+  const ModelStore *s;
+  const char *dir, *sn;
+  Err *err;
+} StageArrays;
+
+/* Array `what` of the stage, of `rows` x `cols` (cols 0: a vector). */
+static const double *array_of(const StageArrays *sa, const char *what, long rows, long cols) {
+  const ModelStore *s = sa->s;
+  const char *dir = sa->dir, *sn = sa->sn;
+  Err *err = sa->err;
   char name[600];
   stem(name, sizeof name, sn, what);
   const NpyArray *a = model_store_array(s, name);
   if (!a) {
-    error_set(err, errlen, "%s/manifest: no array '%s': the model is incomplete", dir, name);
+    err_set(err, "%s/manifest: no array '%s': the model is incomplete", dir, name);
     return NULL;
   }
   if (a->ndim != (cols ? 2 : 1) || a->shape[0] != rows || (cols && a->shape[1] != cols)) {
-    error_set(err, errlen, "%s/%s.npy: wrong shape for the manifest's 'interp %s' line", dir, name, sn);
+    err_set(err, "%s/%s.npy: wrong shape for the manifest's 'interp %s' line", dir, name, sn);
     return NULL;
   }
   return a->data;
@@ -469,23 +478,24 @@ static bool whole_in(double v, long lo, long hi) { return v == floor(v) && v >= 
 
 /* Table ip's rows, reads and monomials (ip->k, nreads, nmono set) from arrays interp_SN_PREFIX…
  * of stage rs, every entry checked against the program. 0, or -1 with `err`. */
-static int load_table(Model *m, const ModelStore *s, const char *dir, const char *sn, const char *pre, RStage *rs,
-                      RInterp *ip, char *err, size_t errlen) {
+static int load_table(Model *m, const StageArrays *sa, const char *pre, RStage *rs, RInterp *ip) {
+  const char *dir = sa->dir, *sn = sa->sn;
+  Err *err = sa->err;
   const RClass *c = &m->classes[m->qclass[rs->q]];
   long k = ip->k, nreads = ip->nreads, nmono = ip->nmono;
   char w[3][64];
   snprintf(w[0], sizeof w[0], "%srows", pre), snprintf(w[1], sizeof w[1], "%sreads", pre);
   snprintf(w[2], sizeof w[2], "%smonos", pre);
-  const double *rows = array_of(s, dir, sn, w[0], k, 0, err, errlen);
-  const double *reads = rows ? array_of(s, dir, sn, w[1], nreads, 2, err, errlen) : NULL;
-  const double *monos = reads ? array_of(s, dir, sn, w[2], nmono, MONO_COLS, err, errlen) : NULL;
+  const double *rows = array_of(sa, w[0], k, 0);
+  const double *reads = rows ? array_of(sa, w[1], nreads, 2) : NULL;
+  const double *monos = reads ? array_of(sa, w[2], nmono, MONO_COLS) : NULL;
   if (!monos) return -1;
   ip->rows = malloc(sizeof(long) * (size_t)(k + 1));
   ip->read_q = malloc(sizeof(int) * (size_t)(nreads + 1));
   ip->read_e = malloc(sizeof(long) * (size_t)(nreads + 1));
   ip->mono = malloc(sizeof(RInterpMono) * (size_t)(nmono + 1));
   if (!ip->rows || !ip->read_q || !ip->read_e || !ip->mono)
-    return error_set(err, errlen, "%s: out of memory loading the model", dir);
+    return err_set(err, "%s: out of memory loading the model", dir);
   const char *bad = NULL;
   for (long j = 0; j < k && !bad; j++) {
     if (!whole_in(rows[j], 0, c->n)) bad = w[0];
@@ -520,13 +530,13 @@ static int load_table(Model *m, const ModelStore *s, const char *dir, const char
     }
   }
   if (bad)
-    return error_set(err, errlen, "%s/interp_%s_%s.npy: an entry out of range for the stage (a damaged or forged model)",
-                     dir, sn, bad);
-  if (interp_pack(m, rs, ip)) return error_set(err, errlen, "%s: out of memory loading the model", dir);
+    return err_set(err, "%s/interp_%s_%s.npy: an entry out of range for the stage (a damaged or forged model)",
+                   dir, sn, bad);
+  if (interp_pack(m, rs, ip)) return err_set(err, "%s: out of memory loading the model", dir);
   return 0;
 }
 
-static int load_stage(Model *m, const ModelStore *s, const char *dir, const char *line, char *err, size_t errlen) {
+static int load_stage(Model *m, const ModelStore *s, const char *dir, const char *line, Err *err) {
   char sn[512];
   long k, mm, nreads, nmono;
   double norm;
@@ -534,38 +544,39 @@ static int load_stage(Model *m, const ModelStore *s, const char *dir, const char
   if (sscanf(line, "interp %511s k %ld m %ld reads %ld monos %ld norm %lf%n", sn, &k, &mm, &nreads, &nmono, &norm,
              &used) != 6 ||
       line[used])
-    return error_set(err, errlen, "%s/manifest: '%.200s' is not an 'interp' line this npgc reads", dir, line);
+    return err_set(err, "%s/manifest: '%.200s' is not an 'interp' line this npgc reads", dir, line);
   RStage *rs = NULL;
   for (int i = 0; i < m->nstages && !rs; i++)
     if (strcmp(m->stages[i].st->sym->name, sn) == 0) rs = &m->stages[i];
   if (!rs || !lower_interp_eligible(rs->st) || rs->interp)
-    return error_set(err, errlen, "%s/manifest: '%.200s': %s", dir, line,
-                     !rs ? "the program has no such stage" : rs->interp ? "the stage is named twice"
+    return err_set(err, "%s/manifest: '%.200s': %s", dir, line,
+                   !rs ? "the program has no such stage" : rs->interp ? "the stage is named twice"
                                                                      : "the stage is not eligible for interpolation");
   const RClass *c = &m->classes[m->qclass[rs->q]];
   if (mm != c->m || k < mm || k > c->n || nreads < 0 || nmono < 0 || nreads > 100000000 || nmono > 100000000 ||
       !(norm >= 0))
-    return error_set(err, errlen, "%s/manifest: '%.200s' does not fit the stage's class %s (n %ld, m %ld)", dir, line,
-                     c->label, c->n, c->m);
-  const double *pinv = array_of(s, dir, sn, "pinv", mm, k, err, errlen);
+    return err_set(err, "%s/manifest: '%.200s' does not fit the stage's class %s (n %ld, m %ld)", dir, line,
+                   c->label, c->n, c->m);
+  StageArrays sa = {s, dir, sn, err};
+  const double *pinv = array_of(&sa, "pinv", mm, k);
   if (!pinv) return -1;
   RInterp *ip = calloc(1, sizeof *ip);
-  if (!ip) return error_set(err, errlen, "%s: out of memory loading the model", dir);
+  if (!ip) return err_set(err, "%s: out of memory loading the model", dir);
   rs->interp = ip;
   ip->k = k, ip->m = mm, ip->nreads = nreads, ip->nmono = nmono, ip->pinv_norm = norm;
   if (!(ip->pinv = malloc(sizeof(double) * (size_t)(mm * k + 1))))
-    return error_set(err, errlen, "%s: out of memory loading the model", dir);
+    return err_set(err, "%s: out of memory loading the model", dir);
   memcpy(ip->pinv, pinv, sizeof(double) * (size_t)(mm * k));
   for (long j = 0; j < mm * k; j++)
     if (!isfinite(pinv[j]))
-      return error_set(err, errlen, "%s/interp_%s_pinv.npy: not finite at entry %ld (a damaged or forged model)", dir,
-                       sn, j);
-  return load_table(m, s, dir, sn, "", rs, ip, err, errlen);
+      return err_set(err, "%s/interp_%s_pinv.npy: not finite at entry %ld (a damaged or forged model)", dir,
+                     sn, j);
+  return load_table(m, &sa, "", rs, ip);
 }
 
 /* "interpcheck STAGE k K reads R monos N", after the stage's `interp` line, or "galerkincheck …" for
  * a Galerkin stage of diagonal operators: the stage's check table. */
-static int load_check(Model *m, const ModelStore *s, const char *dir, const char *line, char *err, size_t errlen) {
+static int load_check(Model *m, const ModelStore *s, const char *dir, const char *line, Err *err) {
   char sn[512], kind[16];
   long k, nreads, nmono;
   int used = 0;
@@ -578,30 +589,31 @@ static int load_check(Model *m, const ModelStore *s, const char *dir, const char
   if (!rs || (fit ? !rs->interp || rs->interp->check : rs->interp || rs->check || !lower_interp_eligible(rs->st)) ||
       k < 0 || k > m->classes[m->qclass[rs->q]].n - kfit || nreads < 0 || nmono < 0 || nreads > 100000000 ||
       nmono > 100000000)
-    return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
-                     dir, line);
+    return err_set(err, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                   dir, line);
   RInterp *ck = calloc(1, sizeof *ck);
-  if (!ck) return error_set(err, errlen, "%s: out of memory loading the model", dir);
+  if (!ck) return err_set(err, "%s: out of memory loading the model", dir);
   *(fit ? &rs->interp->check : &rs->check) = ck;
   ck->k = k, ck->nreads = nreads, ck->nmono = nmono;
-  const double *B = array_of(s, dir, sn, "check_brows", kfit + k, mm, err, errlen);
+  StageArrays sa = {s, dir, sn, err};
+  const double *B = array_of(&sa, "check_brows", kfit + k, mm);
   if (!B) return -1;
   if (!(ck->brows = malloc(sizeof(double) * (size_t)((kfit + k) * mm + 1))))
-    return error_set(err, errlen, "%s: out of memory loading the model", dir);
+    return err_set(err, "%s: out of memory loading the model", dir);
   memcpy(ck->brows, B, sizeof(double) * (size_t)((kfit + k) * mm));
-  if (load_table(m, s, dir, sn, "check_", rs, ck, err, errlen)) return -1;
+  if (load_table(m, &sa, "check_", rs, ck)) return -1;
   long len = check_row_len(m, ck);
-  const double *rows = array_of(s, dir, sn, "check_readrows", len, 0, err, errlen);
+  const double *rows = array_of(&sa, "check_readrows", len, 0);
   if (!rows) return -1;
   if (!(ck->read_rows = malloc(sizeof(double) * (size_t)(len + 1))))
-    return error_set(err, errlen, "%s: out of memory loading the model", dir);
+    return err_set(err, "%s: out of memory loading the model", dir);
   memcpy(ck->read_rows, rows, sizeof(double) * (size_t)len);
-  if (interp_pack(m, rs, ck)) return error_set(err, errlen, "%s: out of memory loading the model", dir);
+  if (interp_pack(m, rs, ck)) return err_set(err, "%s: out of memory loading the model", dir);
   return 0;
 }
 
 /* A `choice` line: the stage's measured errors and reason. */
-static int load_choice(Model *m, const char *dir, const char *line, char *err, size_t errlen) {
+static int load_choice(Model *m, const char *dir, const char *line, Err *err) {
   char sn[512];
   double g, e;
   int why, used = 0;
@@ -611,27 +623,27 @@ static int load_choice(Model *m, const char *dir, const char *line, char *err, s
     for (int i = 0; i < m->nstages && !rs; i++)
       if (strcmp(m->stages[i].st->sym->name, sn) == 0 && lower_interp_eligible(m->stages[i].st)) rs = &m->stages[i];
   if (!rs || rs->choice_reason)
-    return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
-                     dir, line);
+    return err_set(err, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                   dir, line);
   rs->choice_err[0] = g, rs->choice_err[1] = e, rs->choice_reason = interp_reasons[why];
   return 0;
 }
 
-int interp_load(Model *m, const ModelStore *s, const char *dir, char *err, size_t errlen) {
+int interp_load(Model *m, const ModelStore *s, const char *dir, Err *err) {
   int n = 0;
   for (int i = 0; i < s->nmeta; i++) {
-    if (strncmp(s->meta[i], "choice ", 7) == 0 && load_choice(m, dir, s->meta[i], err, errlen)) return -1;
+    if (strncmp(s->meta[i], "choice ", 7) == 0 && load_choice(m, dir, s->meta[i], err)) return -1;
     if ((strncmp(s->meta[i], "interpcheck ", 12) == 0 || strncmp(s->meta[i], "galerkincheck ", 14) == 0) &&
-        load_check(m, s, dir, s->meta[i], err, errlen))
+        load_check(m, s, dir, s->meta[i], err))
       return -1;
     if (strncmp(s->meta[i], "interp ", 7) != 0) continue;
     if (s->format < 2)
-      return error_set(err, errlen, "%s/manifest: an 'interp' line in a model of format 1 (a damaged or forged manifest)",
-                       dir);
-    if (load_stage(m, s, dir, s->meta[i], err, errlen)) return -1;
+      return err_set(err, "%s/manifest: an 'interp' line in a model of format 1 (a damaged or forged manifest)",
+                     dir);
+    if (load_stage(m, s, dir, s->meta[i], err)) return -1;
     n++;
   }
   if (s->format == 2 && n == 0)
-    return error_set(err, errlen, "%s/manifest: format 2 but no interpolated stage (a damaged or forged manifest)", dir);
+    return err_set(err, "%s/manifest: format 2 but no interpolated stage (a damaged or forged manifest)", dir);
   return 0;
 }

@@ -128,14 +128,19 @@ void interp_report(const Model *m, FILE *out);
  * whose output error there is over 100 %. */
 void interp_report_warnings(const Model *m, FILE *out);
 
+/* Where an interpolated formula is evaluated. */
+typedef struct InterpAt {
+  double *const *x; /* every quantity's reduced coordinates */
+  double *work;     /* interp_work_size(rs) doubles */
+  long sample;      /* named in messages; < 0: no sample of a set */
+} InterpAt;
 /* The reduced coordinates of stage `rs` (whose rs->interp is set) from the
- * coordinates x[q] of the quantities it reads, into y (m entries). `work`
- * holds interp_work_size(rs) doubles. 0, or -1 with `err`
- * naming the stage and the selected entry where the formula is not finite
- * (a diagonal zero under a negative power, a root of a negative value). */
+ * coordinates at->x[q] of the quantities it reads, into y (m entries).
+ * 0, or -1 with `err` naming the stage and the selected entry where the
+ * formula is not finite (a diagonal zero under a negative power, a root of
+ * a negative value). */
 size_t interp_work_size(const RStage *rs);
-int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, double *work, long sample, char *err,
-                size_t errlen);
+int interp_eval(const Model *m, const RStage *rs, const InterpAt *at, double *y, Err *err);
 
 /* The estimated error ‖y − B ŷ‖ of stage rs at the coordinates x (its own, x[rs->q], from the
  * evaluation): with ρ = y − B ŷ the formula's residual at the fit's k entries P and at the check
@@ -143,14 +148,17 @@ int interp_eval(const Model *m, const RStage *rs, double *const *x, double *y, d
  *
  *     est² = ‖ρ_P‖² + (n − k)/k_c ‖ρ_E‖²,
  *
- * whose expectation over the draw of E is ‖y − B ŷ‖²; *exact when E holds every other entry.
+ * whose expectation over the draw of E is ‖y − B ŷ‖²; exact when E holds every other entry.
  * An interpolated stage's check is rs->interp->check; a Galerkin stage of diagonal operators
  * has rs->check, with no fit (k = 0, E drawn from all n entries). `work` holds
  * interp_check_work_size(rs) doubles. 0, or -1 with `err` (no check table, or the formula not
  * finite at an entry). */
+typedef struct InterpCheck {
+  double est;
+  bool exact;
+} InterpCheck;
 size_t interp_check_work_size(const RStage *rs);
-int interp_check(const Model *m, const RStage *rs, double *const *x, double *work, double *est, bool *exact, char *err,
-                 size_t errlen);
+int interp_check(const Model *m, const RStage *rs, double *const *x, double *work, InterpCheck *out, Err *err);
 
 /* The model's interpolated stages in `s` (model_save): an `interp` line
  * per stage and its arrays; the store's format raised to 2, which builds
@@ -162,6 +170,6 @@ int interp_save(const Model *m, ModelStore *s);
 /* The `interp` and `choice` lines of a loaded store: every one checked against the
  * layout (stage eligible, sizes, entries in range, tables consistent) and
  * its arrays read into rs->interp. 0, or -1 with `err` naming the file. */
-int interp_load(Model *m, const ModelStore *s, const char *dir, char *err, size_t errlen);
+int interp_load(Model *m, const ModelStore *s, const char *dir, Err *err);
 
 #endif

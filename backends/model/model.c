@@ -77,7 +77,7 @@ static char *class_label(const BasisClass *bc) {
   return s;
 }
 
-Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
+Model *model_layout(Program *prog, const long *dims, Err *err) {
   Model *m = mem_calloc(1, sizeof *m);
   if (!m) goto oom;
   m->prog = prog;
@@ -109,8 +109,8 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
       rc->members[i].q = vec_position(&prog->quantities, s);
       if (!(rc->members[i].name = mem_strdup(s->name))) goto oom;
       if (quantity_count(prog, dims, s) != rc->n) {
-        snprintf(err, errlen, "class %s: '%s' has %ld entries but '%s' has %ld", rc->label, s->name,
-                 quantity_count(prog, dims, s), ((Sym *)bc->members.v[0])->name, rc->n);
+        err_set(err, "class %s: '%s' has %ld entries but '%s' has %ld", rc->label, s->name,
+                quantity_count(prog, dims, s), ((Sym *)bc->members.v[0])->name, rc->n);
         model_free(m);
         return NULL;
       }
@@ -130,7 +130,7 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
     rs->st = st;
     rs->q = vec_position(&prog->quantities, st->sym);
     if (rs->q < 0) {
-      snprintf(err, errlen, "stage '%s' has no basis (a bug in npg)", st->sym->name);
+      err_set(err, "stage '%s' has no basis (a bug in npg)", st->sym->name);
       model_free(m);
       return NULL;
     }
@@ -188,11 +188,11 @@ Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen) {
   }
   return m;
 nobasis:
-  snprintf(err, errlen, "a tensor reads a quantity without a basis (a bug in npg)");
+  err_set(err, "a tensor reads a quantity without a basis (a bug in npg)");
   model_free(m);
   return NULL;
 oom:
-  snprintf(err, errlen, "out of memory while laying out the reduced model");
+  err_set(err, "out of memory while laying out the reduced model");
   model_free(m);
   return NULL;
 }

@@ -195,7 +195,7 @@ typedef struct Model {
 /* ---------------------------------------------------------------- layout (model.c) */
 
 /* The model's structure for `prog` (no numbers yet). NULL on allocation failure. */
-Model *model_layout(Program *prog, const long *dims, char *err, size_t errlen);
+Model *model_layout(Program *prog, const long *dims, Err *err);
 void model_free(Model *m);
 /* Sizes of tensors once class sizes are known (rows, cols, in_len). */
 void model_size_tensors(Model *m);
@@ -258,26 +258,26 @@ void sym_leading(long m, int k, long m2, long *map);
  * own class keeps its size (its fit (PB)⁺ is of the whole basis; the
  * classes it reads may shrink). A new model (src unchanged), or NULL with
  * `err` naming the class: a size above the class's, or out of memory. */
-Model *model_truncate(const Model *src, const long *sizes, char *err, size_t errlen);
+Model *model_truncate(const Model *src, const long *sizes, Err *err);
 /* Class sizes from "NAME=N,NAME=N" (`npgc eval --sizes`): NAME a class as
  * `npgc check` names it (m_u), m_<member>, its label {u,v}, or a member;
  * sizes[c] set for each named class, -1 for the others. 0, or -1 with
  * `err` naming the entry (no such class, N not a whole number ≥ 0). */
-int model_parse_sizes(const Model *m, const char *spec, long *sizes, char *err, size_t errlen);
+int model_parse_sizes(const Model *m, const char *spec, long *sizes, Err *err);
 
 /* ---------------------------------------------------------------- files (model.c) */
 
-int model_save(const Model *m, const char *dir, char *err, size_t errlen);
+int model_save(const Model *m, const char *dir, Err *err);
 /* Every member's singular values as DIR/spectrum_<member>.npy and .csv
  * (k, singular value, energy lost keeping the first k), DIR created if
  * needed. The same files model_save lists in MODEL/. All or none: every
  * file is written to a temporary name and renamed when all are whole, so a
  * failure (a full disk) leaves DIR as it was, with `err` naming the file. */
-int model_write_spectra(const Model *m, const char *dir, char *err, size_t errlen);
+int model_write_spectra(const Model *m, const char *dir, Err *err);
 /* Load MODEL/ for `prog` (hash checked), every array checked. A manifest
  * without one of the lines model_save writes (dims, samples, params, bytes,
  * a class line per class, a member line per member) is refused, naming it:
  * param_hashes is then never NULL ("" when none were recorded). */
-Model *model_load(Program *prog, const char *dir, char *err, size_t errlen);
+Model *model_load(Program *prog, const char *dir, Err *err);
 
 #endif

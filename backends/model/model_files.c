@@ -44,7 +44,7 @@ static char *spectrum_csv(const RMember *mb) {
   return t;
 }
 
-int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
+int model_save(const Model *m, const char *dir, Err *err) {
   ModelStore s;
   model_store_init(&s);
   s.program_hash = m->program_hash;
@@ -139,37 +139,36 @@ int model_save(const Model *m, const char *dir, char *err, size_t errlen) {
   bad |= estimate_save(m, &s);
   if (m->greedy) bad |= model_store_meta(&s, "greedy %s", m->greedy);
   int rc = -1;
-  if (bad) snprintf(err, errlen, "%s: out of memory assembling the model", dir);
-  else rc = model_store_write(dir, &s, err, errlen);
+  if (bad) err_set(err, "%s: out of memory assembling the model", dir);
+  else rc = model_store_write(dir, &s, err);
   model_store_free(&s);
   return rc;
 }
 
-/* Copy array `name` of shape rows x cols out of the store. */
-static int take(const ModelStore *s, const char *dir, const char *name, long rows, long cols, double **out, char *err,
-                size_t errlen) {
+/* A copy of array `name` of shape rows x cols out of the store; NULL with `err`. */
+static double *take(const ModelStore *s, const char *dir, const char *name, long rows, long cols, Err *err) {
   const NpyArray *a = model_store_array(s, name);
   if (!a) {
-    snprintf(err, errlen, "%s/manifest: no array '%s': the model is incomplete", dir, name);
-    return -1;
+    err_set(err, "%s/manifest: no array '%s': the model is incomplete", dir, name);
+    return NULL;
   }
   if (a->ndim != 2 || a->shape[0] != rows || a->shape[1] != cols) {
-    snprintf(err, errlen, "%s/%s.npy: shape %ldx%ld, the program and the model's bases need %ldx%ld", dir, name,
-             a->ndim > 0 ? a->shape[0] : 0, a->ndim > 1 ? a->shape[1] : 0, rows, cols);
-    return -1;
+    err_set(err, "%s/%s.npy: shape %ldx%ld, the program and the model's bases need %ldx%ld", dir, name,
+            a->ndim > 0 ? a->shape[0] : 0, a->ndim > 1 ? a->shape[1] : 0, rows, cols);
+    return NULL;
   }
-  *out = mem_malloc(sizeof(double) * (size_t)(rows * cols) + 1);
-  if (!*out) {
-    snprintf(err, errlen, "%s/%s.npy: out of memory", dir, name);
-    return -1;
+  double *out = mem_malloc(sizeof(double) * (size_t)(rows * cols) + 1);
+  if (!out) {
+    err_set(err, "%s/%s.npy: out of memory", dir, name);
+    return NULL;
   }
-  memcpy(*out, a->data, sizeof(double) * (size_t)(rows * cols));
-  return 0;
+  memcpy(out, a->data, sizeof(double) * (size_t)(rows * cols));
+  return out;
 }
 
 /* The class, member and spd lines of a loaded manifest against the layout
  * and the bases: 0, or -1 with `err` naming the line. */
-static int check_meta(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
+static int check_meta(const ModelStore *s, Model *m, const char *dir, Err *err) {
   /* every quantity of a streamed class has its floor line (NaN until read; check_streamed refuses one
    * left NaN): verify prints it in place of a measured floor, and a missing one read as 0 claimed a
    * perfect basis (trial3) */
@@ -229,8 +228,8 @@ static int check_meta(const ModelStore *s, Model *m, const char *dir, char *err,
       continue;
     }
     if (!ok) {
-      snprintf(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)", dir,
-               line);
+      err_set(err, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)", dir,
+              line);
       return -1;
     }
   }
@@ -245,10 +244,10 @@ static const char *const REQUIRED_LINES[] = {"dims", "samples", "params", "bytes
 /* 0 if the manifest holds every required line, a 'class' line per class and
  * a 'member' line per member of the layout `m`; else -1 naming the first
  * missing. */
-static int check_required(const ModelStore *s, const Model *m, const char *dir, char *err, size_t errlen) {
+static int check_required(const ModelStore *s, const Model *m, const char *dir, Err *err) {
   for (size_t i = 0; i < sizeof REQUIRED_LINES / sizeof *REQUIRED_LINES; i++)
     if (!model_store_find(s, REQUIRED_LINES[i]))
-      return error_set(err, errlen, "%s/manifest: no '%s' line: the model is damaged; retrain", dir, REQUIRED_LINES[i]);
+      return err_set(err, "%s/manifest: no '%s' line: the model is damaged; retrain", dir, REQUIRED_LINES[i]);
   for (int c = 0; c < m->nclasses; c++) {
     const RClass *rc = &m->classes[c];
     for (int k = -1; k < rc->nmembers; k++) {
@@ -258,7 +257,7 @@ static int check_required(const ModelStore *s, const Model *m, const char *dir, 
       bool found = false;
       for (int j = 0; j < s->nmeta && !found; j++) found = strncmp(s->meta[j], want, (size_t)n) == 0;
       if (!found)
-        return error_set(err, errlen, "%s/manifest: no '%.*s' line: the model is damaged; retrain", dir, n - 1, want);
+        return err_set(err, "%s/manifest: no '%.*s' line: the model is damaged; retrain", dir, n - 1, want);
     }
   }
   return 0;
@@ -271,9 +270,9 @@ static bool has_line(const ModelStore *s, const char *line) {
 }
 
 /* The manifest's "dims" line: the size of every dim of `prog` into dims[]. */
-static int read_dims(const ModelStore *s, const Program *prog, const char *dir, long *dims, char *err, size_t errlen) {
+static int read_dims(const ModelStore *s, const Program *prog, const char *dir, long *dims, Err *err) {
   const char *d = model_store_find(s, "dims");
-  if (!d) return error_set(err, errlen, "%s/manifest: no 'dims' line", dir);
+  if (!d) return err_set(err, "%s/manifest: no 'dims' line", dir);
   for (int i = 0; i < prog->dims.n; i++) {
     const char *name = ((Sym *)prog->dims.v[i])->name;
     size_t nl = strlen(name);
@@ -286,19 +285,19 @@ static int read_dims(const ModelStore *s, const Program *prog, const char *dir, 
         dims[i] = strtol(p + nl + 1, &end, 10);
         /* every size product of the layout stays far from overflow */
         if (errno || end == p + nl + 1 || (*end && *end != ' ') || dims[i] < 0 || dims[i] > 100000000)
-          return error_set(err, errlen, "%s/manifest: dim %s has no valid size in '%.100s'", dir, name, d);
+          return err_set(err, "%s/manifest: dim %s has no valid size in '%.100s'", dir, name, d);
         break;
       }
       p += nl;
     }
-    if (dims[i] < 0) return error_set(err, errlen, "%s/manifest: no size for dim %s", dir, name);
+    if (dims[i] < 0) return err_set(err, "%s/manifest: no size for dim %s", dir, name);
   }
   return 0;
 }
 
 /* Class c's coefficients (RClass.coef) when its "coefficients C samples S" line says it has them:
  * coef_C.npy, S x m. 0 (also when it has none), or -1 with `err`. */
-static int load_coefficients(const ModelStore *s, Model *m, int c, const char *dir, char *err, size_t errlen) {
+static int load_coefficients(const ModelStore *s, Model *m, int c, const char *dir, Err *err) {
   RClass *rc = &m->classes[c];
   char prefix[64];
   int n = snprintf(prefix, sizeof prefix, "coefficients %d ", c);
@@ -308,17 +307,17 @@ static int load_coefficients(const ModelStore *s, Model *m, int c, const char *d
     long S;
     if (sscanf(s->meta[j], "coefficients %d samples %ld%n", &cc, &S, &used) != 2 || s->meta[j][used] || S < 1 ||
         S != m->samples || rc->coef)
-      return error_set(err, errlen, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
-                       dir, s->meta[j]);
+      return err_set(err, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                     dir, s->meta[j]);
     if (s->format < 3)
-      return error_set(err, errlen, "%s/manifest: a 'coefficients' line in a model of format %d (a damaged or forged "
-                       "manifest)", dir, s->format);
+      return err_set(err, "%s/manifest: a 'coefficients' line in a model of format %d (a damaged or forged "
+                     "manifest)", dir, s->format);
     char name[64];
     snprintf(name, sizeof name, "coef_%d", c);
-    if (take(s, dir, name, S, rc->m, &rc->coef, err, errlen)) return -1;
+    if (!(rc->coef = take(s, dir, name, S, rc->m, err))) return -1;
     for (long e = 0; e < S * rc->m; e++)
       if (!isfinite(rc->coef[e]))
-        return error_set(err, errlen, "%s/%s.npy: holds a value that is not finite (a damaged or forged model)", dir, name);
+        return err_set(err, "%s/%s.npy: holds a value that is not finite (a damaged or forged model)", dir, name);
     rc->coef_S = S;
   }
   return 0;
@@ -328,8 +327,7 @@ static int load_coefficients(const ModelStore *s, Model *m, int c, const char *d
  * issue 41): the manifest's `product C K0` names the op, which the program
  * must have (and declare, if it declares one for the class, the same), and
  * dual_C.npy holds K0 B. */
-static int load_dual(const ModelStore *s, const Model *m, RClass *rc, int c, const char *dir, char *err,
-                     size_t errlen) {
+static int load_dual(const ModelStore *s, const Model *m, RClass *rc, int c, const char *dir, Err *err) {
   char name[64], prefix[64];
   snprintf(name, sizeof name, "dual_%d", c);
   snprintf(prefix, sizeof prefix, "product %d ", c);
@@ -339,27 +337,27 @@ static int load_dual(const ModelStore *s, const Model *m, RClass *rc, int c, con
   const NpyArray *a = model_store_array(s, name);
   if (!a && !op && !rc->product) return 0;
   if (!op && rc->product)
-    return error_set(err, errlen, "%s: class %s has product %s in the program but the model was trained without it: "
-                     "train again", dir, rc->label, rc->product->name);
+    return err_set(err, "%s: class %s has product %s in the program but the model was trained without it: "
+                   "train again", dir, rc->label, rc->product->name);
   if (!op || !a)
-    return error_set(err, errlen, "%s/manifest: class %s has %s but not %s (a damaged model)", dir, rc->label,
-                     op ? "a product line" : name, op ? name : "its product line");
+    return err_set(err, "%s/manifest: class %s has %s but not %s (a damaged model)", dir, rc->label,
+                   op ? "a product line" : name, op ? name : "its product line");
   if (rc->product && strcmp(rc->product->name, op) != 0)
-    return error_set(err, errlen, "%s/manifest: class %s was trained with product %s, the program declares product %s: "
-                     "train again", dir, rc->label, op, rc->product->name);
+    return err_set(err, "%s/manifest: class %s was trained with product %s, the program declares product %s: "
+                   "train again", dir, rc->label, op, rc->product->name);
   for (int i = 0; i < m->prog->ops.n && !rc->product; i++)
     if (strcmp(((const Sym *)m->prog->ops.v[i])->name, op) == 0) rc->product = m->prog->ops.v[i];
   if (!rc->product)
-    return error_set(err, errlen, "%s/manifest: class %s was trained with product %s, which is no op of the program",
-                     dir, rc->label, op);
+    return err_set(err, "%s/manifest: class %s was trained with product %s, which is no op of the program",
+                   dir, rc->label, op);
   if (a->ndim != 2 || a->shape[0] != rc->n || a->shape[1] != rc->m)
-    return error_set(err, errlen, "%s/%s.npy: wrong shape, class %s needs %ld x %ld", dir, name, rc->label, rc->n, rc->m);
-  return take(s, dir, name, rc->n, rc->m, &rc->D, err, errlen);
+    return err_set(err, "%s/%s.npy: wrong shape, class %s needs %ld x %ld", dir, name, rc->label, rc->n, rc->m);
+  return (rc->D = take(s, dir, name, rc->n, rc->m, err)) ? 0 : -1;
 }
 
 /* Every class's basis: basis_C.npy, or for a streamed class (no basis kept,
  * model.h) its size from the class line (check_meta checks that line). */
-static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
+static int load_bases(const ModelStore *s, Model *m, const char *dir, Err *err) {
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     char name[64];
@@ -372,43 +370,42 @@ static int load_bases(const ModelStore *s, Model *m, const char *dir, char *err,
           rc->m = mp ? strtol(mp + 3, NULL, 10) : 0;
         }
       if (rc->m < 1 || rc->m > rc->n)
-        return error_set(err, errlen, "%s/manifest: streamed class %s has no valid basis size on its class line", dir,
-                         rc->label);
+        return err_set(err, "%s/manifest: streamed class %s has no valid basis size on its class line", dir,
+                       rc->label);
       rc->streamed = true;
-      if (load_coefficients(s, m, c, dir, err, errlen)) return -1;
+      if (load_coefficients(s, m, c, dir, err)) return -1;
       continue;
     }
     snprintf(name, sizeof name, "basis_%d", c);
     const NpyArray *a = model_store_array(s, name);
     if (!a || a->ndim != 2 || a->shape[0] != rc->n)
-      return error_set(err, errlen, "%s/%s.npy: %s, class %s needs %ld rows", dir, name, a ? "wrong shape" : "missing",
-                       rc->label, rc->n);
+      return err_set(err, "%s/%s.npy: %s, class %s needs %ld rows", dir, name, a ? "wrong shape" : "missing",
+                     rc->label, rc->n);
     rc->m = a->shape[1];
-    if (take(s, dir, name, rc->n, rc->m, &rc->B, err, errlen)) return -1;
-    if (load_dual(s, m, rc, c, dir, err, errlen)) return -1;
+    if (!(rc->B = take(s, dir, name, rc->n, rc->m, err))) return -1;
+    if (load_dual(s, m, rc, c, dir, err)) return -1;
   }
   bool coef = false;
   for (int c = 0; c < m->nclasses; c++) coef |= m->classes[c].coef != NULL;
   if (s->format == 3 && !coef)
-    return error_set(err, errlen, "%s/manifest: format 3 but no class kept as coefficients (a damaged or forged "
-                     "manifest)", dir);
+    return err_set(err, "%s/manifest: format 3 but no class kept as coefficients (a damaged or forged "
+                   "manifest)", dir);
   return 0;
 }
 
 /* Only a class the rule allows is streamed: never one whose basis is read. */
-static int check_streamed(const Model *m, const char *dir, char *err, size_t errlen) {
+static int check_streamed(const Model *m, const char *dir, Err *err) {
   for (int c = 0; c < m->nclasses; c++)
     if (m->classes[c].streamed && !model_class_streamable(m, c) &&
         !(m->classes[c].coef && model_class_by_coefficients(m, c)))
-      return error_set(err, errlen,
-                       "%s/manifest: class %s is marked streamed, but %s (a damaged or forged manifest; retrain)", dir,
-                       m->classes[c].label,
-                       model_class_needed(m, c) ? "the reduced model reads its basis" : "its rows run over one dim only");
+      return err_set(err, "%s/manifest: class %s is marked streamed, but %s (a damaged or forged manifest; retrain)", dir,
+                     m->classes[c].label,
+                     model_class_needed(m, c) ? "the reduced model reads its basis" : "its rows run over one dim only");
   /* check_meta left NaN where no floor line was read */
   for (int c = 0; c < m->nclasses; c++)
     for (int k = 0; m->classes[c].streamed && k < m->classes[c].nmembers; k++)
       if (m->classes[c].members[k].q >= 0 && isnan(m->classes[c].members[k].floor_l2))
-        return error_set(err, errlen, "%s/manifest: no floor line for %s, a quantity of the streamed class %s (a damaged or "
+        return err_set(err, "%s/manifest: no floor line for %s, a quantity of the streamed class %s (a damaged or "
                                      "forged manifest; retrain)", dir, m->classes[c].members[k].name, m->classes[c].label);
   return 0;
 }
@@ -451,20 +448,20 @@ static void read_member_stats(const ModelStore *s, Model *m) {
 
 /* The reduced tensors, the named operators' projections and the externs'
  * learned maps (inputs and values), each checked against its shape. */
-static int load_arrays(const ModelStore *s, Model *m, const char *dir, char *err, size_t errlen) {
+static int load_arrays(const ModelStore *s, Model *m, const char *dir, Err *err) {
   model_size_tensors(m);
   for (int i = 0; i < m->nstages; i++) {
     RStage *rs = &m->stages[i];
     for (int t = 0; t < rs->nterms; t++) {
       RTerm *rt = &rs->terms[t];
       if (rt->proj_name &&
-          take(s, dir, rt->proj_name, m->classes[m->qclass[rs->q]].m, m->classes[m->qclass[rt->named_q]].m,
-               &rt->proj, err, errlen))
+          !(rt->proj = take(s, dir, rt->proj_name, m->classes[m->qclass[rs->q]].m,
+                            m->classes[m->qclass[rt->named_q]].m, err)))
         return -1;
     }
   }
   FOR_TENSORS(m, x) {
-    if (take(s, dir, x->name, x->rows, x->cols, &x->data, err, errlen)) return -1;
+    if (!(x->data = take(s, dir, x->name, x->rows, x->cols, err))) return -1;
   }
   for (int i = 0; i < m->nexterns; i++) {
     RExtern *x = &m->externs[i];
@@ -478,47 +475,47 @@ static int load_arrays(const ModelStore *s, Model *m, const char *dir, char *err
     x->S = a && a->ndim == 2 ? a->shape[0] : 0;
     if (a && z && a->ndim == 2 && z->ndim == 2 && a->shape[0] != z->shape[0]) {
       bool inputs_bad = z->shape[0] == m->samples || a->shape[0] != m->samples;
-      snprintf(err, errlen, "%s/%s.npy: %ld rows, but %s.npy has %ld and the model %ld training samples: the learned "
-               "map of extern '%s' needs one row per training sample in both files", dir, inputs_bad ? name : values,
-               (long)(inputs_bad ? a : z)->shape[0], inputs_bad ? values : name, (long)(inputs_bad ? z : a)->shape[0],
-               m->samples, qname(m, x->q));
+      err_set(err, "%s/%s.npy: %ld rows, but %s.npy has %ld and the model %ld training samples: the learned "
+              "map of extern '%s' needs one row per training sample in both files", dir, inputs_bad ? name : values,
+              (long)(inputs_bad ? a : z)->shape[0], inputs_bad ? values : name, (long)(inputs_bad ? z : a)->shape[0],
+              m->samples, qname(m, x->q));
       return -1;
     }
-    if (take(s, dir, name, x->S, x->d, &x->X, err, errlen)) return -1;
-    if (take(s, dir, values, x->S, m->classes[m->qclass[x->q]].m, &x->Z, err, errlen)) return -1;
+    if (!(x->X = take(s, dir, name, x->S, x->d, err))) return -1;
+    if (!(x->Z = take(s, dir, values, x->S, m->classes[m->qclass[x->q]].m, err))) return -1;
   }
   return 0;
 }
 
-Model *model_load(Program *prog, const char *dir, char *err, size_t errlen) {
+Model *model_load(Program *prog, const char *dir, Err *err) {
   ModelStore s;
   Model *m = NULL;
-  if (model_store_read(dir, model_program_hash(prog), &s, err, errlen) != 0) return NULL;
+  if (model_store_read(dir, model_program_hash(prog), &s, err) != 0) return NULL;
   long *dims = mem_calloc((size_t)prog->dims.n + 1, sizeof(long));
   if (!dims) goto oom;
-  if (read_dims(&s, prog, dir, dims, err, errlen) || !(m = model_layout(prog, dims, err, errlen)) ||
-      check_required(&s, m, dir, err, errlen))
+  if (read_dims(&s, prog, dir, dims, err) || !(m = model_layout(prog, dims, err)) ||
+      check_required(&s, m, dir, err))
     goto fail;
   const char *ns = model_store_find(&s, "samples");
   char *end = NULL;
   m->samples = strtol(ns, &end, 10);
   if (end == ns || *end || m->samples < 1) {
-    snprintf(err, errlen, "%s/manifest: 'samples %s' is not a count of training samples", dir, ns);
+    err_set(err, "%s/manifest: 'samples %s' is not a count of training samples", dir, ns);
     goto fail;
   }
   if (!(m->param_hashes = mem_strdup(model_store_find(&s, "params")))) goto oom;
   /* every metadata line the model reads must describe this model: a line
    * it cannot use is refused, not skipped */
-  if (load_bases(&s, m, dir, err, errlen) || check_meta(&s, m, dir, err, errlen) ||
-      interp_load(m, &s, dir, err, errlen) || check_streamed(m, dir, err, errlen))
+  if (load_bases(&s, m, dir, err) || check_meta(&s, m, dir, err) ||
+      interp_load(m, &s, dir, err) || check_streamed(m, dir, err))
     goto fail;
   read_member_stats(&s, m);
-  if (load_arrays(&s, m, dir, err, errlen) || estimate_load(m, &s, dir, err, errlen)) goto fail;
+  if (load_arrays(&s, m, dir, err) || estimate_load(m, &s, dir, err)) goto fail;
   free(dims);
   model_store_free(&s);
   return m;
 oom:
-  snprintf(err, errlen, "%s: out of memory loading the model", dir);
+  err_set(err, "%s: out of memory loading the model", dir);
 fail:
   free(dims);
   model_store_free(&s);
@@ -526,16 +523,16 @@ fail:
   return NULL;
 }
 
-int model_write_spectra(const Model *m, const char *dir, char *err, size_t errlen) {
-  if (mkdir(dir, 0777) != 0 && errno != EEXIST) return error_set(err, errlen, "%s: cannot create: %s", dir, strerror(errno));
+int model_write_spectra(const Model *m, const char *dir, Err *err) {
+  if (mkdir(dir, 0777) != 0 && errno != EEXIST) return err_set(err, "%s: cannot create: %s", dir, strerror(errno));
   /* a model's spectra are files its manifest vouches for: writing another
    * model's over them would leave it unloadable (issue 24) */
   char manifest[4096];
   struct stat st;
   snprintf(manifest, sizeof manifest, "%s/manifest", dir);
   if (lstat(manifest, &st) == 0)
-    return error_set(err, errlen, "%s: holds a model (its manifest): refusing to write spectra into it; give a folder of "
-                     "its own", dir);
+    return err_set(err, "%s: holds a model (its manifest): refusing to write spectra into it; give a folder of "
+                   "its own", dir);
   /* Every name is checked before any file is written: a folder in the place
    * of the last spectrum would otherwise leave the first ones written. */
   for (int c = 0; c < m->nclasses; c++)
@@ -544,7 +541,7 @@ int model_write_spectra(const Model *m, const char *dir, char *err, size_t errle
         char path[4096];
         snprintf(path, sizeof path, "%s/spectrum_%s.%s", dir, m->classes[c].members[i].name, k ? "csv" : "npy");
         if (lstat(path, &st) == 0 && !S_ISREG(st.st_mode))
-          return error_set(err, errlen, "%s: is not a regular file: refusing to replace it", path);
+          return err_set(err, "%s: is not a regular file: refusing to replace it", path);
       }
   /* Every file is written to a temporary name first and renamed only when all of them are whole: a full
    * disk leaves the folder as it was (no spectrum_x.npy of this model beside a spectrum_y.npy of the last),
@@ -552,7 +549,7 @@ int model_write_spectra(const Model *m, const char *dir, char *err, size_t errle
   int nfiles = 0;
   for (int c = 0; c < m->nclasses; c++) nfiles += 2 * m->classes[c].nmembers;
   char(*paths)[2][4096] = mem_calloc((size_t)nfiles + 1, sizeof *paths); /* [k][0] the file, [k][1] its temporary */
-  if (!paths) return error_set(err, errlen, "%s: out of memory writing the spectra", dir);
+  if (!paths) return err_set(err, "%s: out of memory writing the spectra", dir);
   int written = 0, rc = 0;
   for (int c = 0; c < m->nclasses && !rc; c++)
     for (int i = 0; i < m->classes[c].nmembers && !rc; i++) {
@@ -567,7 +564,7 @@ int model_write_spectra(const Model *m, const char *dir, char *err, size_t errle
           if (npy_write(tmp, NPY_F64, 1, shape, mb->sv, why, sizeof why) != 0) {
             /* npy_write names its temporary file; the user's is `path` */
             const char *cause = strrchr(why, ':');
-            rc = error_set(err, errlen, "%s: cannot write: %s", path, cause ? cause + 2 : why);
+            rc = err_set(err, "%s: cannot write: %s", path, cause ? cause + 2 : why);
           }
         } else {
           char *csv = spectrum_csv(mb);
@@ -577,14 +574,14 @@ int model_write_spectra(const Model *m, const char *dir, char *err, size_t errle
           int saved = errno;
           if (f && fclose(f) != 0 && ok) ok = 0, saved = errno;
           free(csv);
-          if (!ok) rc = error_set(err, errlen, "%s: cannot write: %s", path, strerror(saved ? saved : EIO));
+          if (!ok) rc = err_set(err, "%s: cannot write: %s", path, strerror(saved ? saved : EIO));
         }
         written++;
       }
     }
   for (int k = 0; k < written && !rc; k++)
     if (rename(paths[k][1], paths[k][0]) != 0)
-      rc = error_set(err, errlen, "%s: cannot replace it with %s: %s", paths[k][0], paths[k][1], strerror(errno));
+      rc = err_set(err, "%s: cannot replace it with %s: %s", paths[k][0], paths[k][1], strerror(errno));
   if (rc)
     for (int k = 0; k < written; k++) remove(paths[k][1]); /* those renamed already are gone from here */
   free(paths);

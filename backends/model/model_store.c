@@ -29,7 +29,7 @@ __attribute__((format(printf, 4, 5))) int model_store_fail(const StoreReport *r,
                                                       const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);
-  npy_vfail(r->err, r->errlen, path, line, fmt, ap);
+  npy_vfail(ERR_MSG(r->err), ERR_LEN(r->err), path, line, fmt, ap);
   va_end(ap);
   return -1;
 }
@@ -388,13 +388,20 @@ static int parse_array_line(const StoreReport *r, const char *mpath, int ln, cha
   return 0;
 }
 
+/* What a manifest lists besides its metadata: its array and file lines
+ * (malloc'd), and the checksum line when the lines before it do not hash
+ * to it (else 0). */
+typedef struct Listing {
+  Listed *listed;
+  int nlisted;
+  int changed_line;
+} Listing;
+
 /* Parse the manifest `text` (modified in place: lines and words are cut out
- * of it) of file `mpath`: its program hash into `*program`, its metadata
- * lines into `m`, its array lines into `*listed` (malloc'd, `*nlisted`);
- * `*changed_line` is the checksum line when the lines before it do not
- * hash to it, else 0. */
-static int parse_manifest(const StoreReport *r, const char *mpath, char *text, size_t len, uint64_t *program,
-                          ModelStore *m, Listed **listed, int *nlisted, int *changed_line) {
+ * of it) of file `mpath`: its program hash and metadata lines into `m`, the
+ * rest into `out`. */
+static int parse_manifest(const StoreReport *r, const char *mpath, char *text, size_t len, ModelStore *m,
+                          Listing *out) {
   char buf[NPY_EXCERPT_SIZE];
   int program_line = 0, ln = 0, checksum_line = 0;
   /* the hash of the bytes before the last line, which must be its checksum */
@@ -402,8 +409,8 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
   while (body > 0 && text[body - 1] == '\n') body--;
   while (body > 0 && text[body - 1] != '\n') body--;
   uint64_t expect = 0, actual = model_hash_bytes(model_hash_init(), text, body);
-  *listed = NULL;
-  *nlisted = 0;
+  out->listed = NULL;
+  out->nlisted = 0;
   if (len == 0) return model_store_fail(r, mpath, 1, "empty file: not a model manifest (expected '" FORMAT_LINE "')");
   for (char *line = text; line < text + len;) {
     char *nl = memchr(line, '\n', (size_t)(text + len - line));
@@ -436,19 +443,19 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
     } else if (key_is(line, "program")) {
       char *w[2];
       if (program_line) return model_store_fail(r, mpath, ln, "second 'program' line (the first is line %d)", program_line);
-      if (split_words(line, w, 2) != 2 || model_store_parse_hex64(w[1], program) != 0)
+      if (split_words(line, w, 2) != 2 || model_store_parse_hex64(w[1], &m->program_hash) != 0)
         return model_store_fail(r, mpath, ln, "expected 'program <16 hex digits>'");
       program_line = ln;
     } else if (key_is(line, "array")) {
       Listed x;
       if (parse_array_line(r, mpath, ln, line, &x)) return -1;
-      for (int i = 0; i < *nlisted; i++)
-        if (strcmp((*listed)[i].name, x.name) == 0)
-          return model_store_fail(r, mpath, ln, "array %s.npy listed twice (first on line %d)", x.name, (*listed)[i].line);
-      Listed *grown = mem_realloc(*listed, ((size_t)*nlisted + 1) * sizeof *grown);
+      for (int i = 0; i < out->nlisted; i++)
+        if (strcmp(out->listed[i].name, x.name) == 0)
+          return model_store_fail(r, mpath, ln, "array %s.npy listed twice (first on line %d)", x.name, out->listed[i].line);
+      Listed *grown = mem_realloc(out->listed, ((size_t)out->nlisted + 1) * sizeof *grown);
       if (!grown) return model_store_fail(r, mpath, 0, "out of memory");
-      *listed = grown;
-      grown[(*nlisted)++] = x;
+      out->listed = grown;
+      grown[out->nlisted++] = x;
     } else if (key_is(line, "file")) {
       /* file <name>.csv fnv1a64 <16 hex digits>: kept as a Listed with ndim -1 */
       char *w[4];
@@ -459,13 +466,13 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
       x.name = w[1];
       x.ndim = -1;
       x.line = ln;
-      for (int i = 0; i < *nlisted; i++)
-        if (strcmp((*listed)[i].name, x.name) == 0)
-          return model_store_fail(r, mpath, ln, "file %s listed twice (first on line %d)", x.name, (*listed)[i].line);
-      Listed *grown = mem_realloc(*listed, ((size_t)*nlisted + 1) * sizeof *grown);
+      for (int i = 0; i < out->nlisted; i++)
+        if (strcmp(out->listed[i].name, x.name) == 0)
+          return model_store_fail(r, mpath, ln, "file %s listed twice (first on line %d)", x.name, out->listed[i].line);
+      Listed *grown = mem_realloc(out->listed, ((size_t)out->nlisted + 1) * sizeof *grown);
       if (!grown) return model_store_fail(r, mpath, 0, "out of memory");
-      *listed = grown;
-      grown[(*nlisted)++] = x;
+      out->listed = grown;
+      grown[out->nlisted++] = x;
     } else if (*line == '\0') {
       return model_store_fail(r, mpath, ln, "empty line");
     } else if (*line == ' ' || *line == '\t') {
@@ -481,7 +488,7 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
     return model_store_fail(r, mpath, 0, "no 'manifest' checksum line: cut short, or written by an older npg (retrain)");
   /* compared by the caller once the arrays are checked: a changed file is
    * named as such even when its manifest line was changed to match */
-  *changed_line = expect != actual ? checksum_line : 0;
+  out->changed_line = expect != actual ? checksum_line : 0;
   return 0;
 }
 
@@ -521,7 +528,7 @@ static int load_array(const StoreReport *r, const char *dir, const Listed *x, Mo
   if (rc == 0) rc = model_store_hash_file(r, path, &h);
   if (rc == 0 && h != x->checksum)
     rc = model_store_fail(r, path, 0, "checksum mismatch: the file is corrupted or was changed after training");
-  if (rc == 0) rc = npy_read(path, &a, r->err, r->errlen) != 0 ? -1 : 0;
+  if (rc == 0) rc = npy_read(path, &a, ERR_MSG(r->err), ERR_LEN(r->err)) != 0 ? -1 : 0;
   if (rc == 0 && a.type != NPY_F64)
     rc = model_store_fail(r, path, 0, "holds %s elements; a model holds float64", npy_type_name(a.type));
   if (rc == 0 && (a.ndim != x->ndim || memcmp(a.shape, x->shape, (size_t)a.ndim * sizeof *a.shape) != 0))
@@ -533,15 +540,14 @@ static int load_array(const StoreReport *r, const char *dir, const Listed *x, Mo
   return rc;
 }
 
-static int read_store(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, char *err,
-                      size_t errlen);
+static int read_store(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, Err *err);
 
-int model_store_read(const char *dir, uint64_t expect_program_hash, ModelStore *m, char *err, size_t errlen) {
-  return read_store(dir, true, expect_program_hash, m, err, errlen);
+int model_store_read(const char *dir, uint64_t expect_program_hash, ModelStore *m, Err *err) {
+  return read_store(dir, true, expect_program_hash, m, err);
 }
 
-int model_store_read_any(const char *dir, ModelStore *m, char *err, size_t errlen) {
-  return read_store(dir, false, 0, m, err, errlen);
+int model_store_read_any(const char *dir, ModelStore *m, Err *err) {
+  return read_store(dir, false, 0, m, err);
 }
 
 /* Test hook: NPG_TEST_REPLACE_DURING_LOAD=OTHER swaps the model being read
@@ -557,33 +563,30 @@ static void test_replace(const char *dir) {
   free(aside);
 }
 
-static int read_once(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, char *err,
-                     size_t errlen);
+static int read_once(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, Err *err);
 
 /* A model replaced while it is read (a training writing it: the store swaps
  * whole folders) fails its checksums half way; issue 24: that was reported
  * as a corrupted file. The folder's identity tells: read once more, and say
  * what happened if it changes again. */
-static int read_store(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, char *err,
-                      size_t errlen) {
+static int read_store(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, Err *err) {
   for (int attempt = 0;; attempt++) {
     struct stat before, after;
     bool known = dir_arg && *dir_arg && stat(dir_arg, &before) == 0;
-    int rc = read_once(dir_arg, check_program, expect_program_hash, m, err, errlen);
+    int rc = read_once(dir_arg, check_program, expect_program_hash, m, err);
     if (rc == 0 || !known || stat(dir_arg, &after) != 0 || (after.st_ino == before.st_ino && after.st_dev == before.st_dev))
       return rc;
     if (attempt > 0) {
-      StoreReport r = {err, errlen};
+      StoreReport r = {err};
       return model_store_fail(&r, dir_arg, 0, "the model was replaced while it was being read, twice (a training is "
                               "writing it): load it when that training is done");
     }
   }
 }
 
-static int read_once(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, char *err,
-                     size_t errlen) {
-  StoreReport r = {err, errlen};
-  if (err && errlen) err[0] = '\0';
+static int read_once(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, Err *err) {
+  StoreReport r = {err};
+  if (err_held(err)) err->msg[0] = '\0';
   model_store_init(m);
   if (!dir_arg || !*dir_arg) return model_store_fail(&r, "(model directory)", 0, "the directory name is empty");
   char *dir = model_store_normalize_dir(dir_arg);
@@ -591,22 +594,22 @@ static int read_once(const char *dir_arg, bool check_program, uint64_t expect_pr
   char *mpath = dir ? model_store_printf("%s/manifest", dir) : NULL;
   char *text = NULL;
   size_t len = 0;
-  Listed *listed = NULL;
-  int nlisted = 0, rc = 0, changed_line = 0;
+  Listing ls = {0};
+  int rc = 0;
   if (!mpath) rc = model_store_fail(&r, dir_arg, 0, "out of memory");
   if (rc == 0) rc = model_store_slurp(&r, mpath, &text, &len);
-  if (rc == 0) rc = parse_manifest(&r, mpath, text, len, &m->program_hash, m, &listed, &nlisted, &changed_line);
+  if (rc == 0) rc = parse_manifest(&r, mpath, text, len, m, &ls);
   if (rc == 0 && check_program && m->program_hash != expect_program_hash)
     rc = model_store_fail(&r, mpath, 0,
               "model was trained for another program (program hash %016" PRIx64 ", this program %016" PRIx64
               "): retrain",
               m->program_hash, expect_program_hash);
   if (rc == 0) test_replace(dir);
-  for (int i = 0; i < nlisted && rc == 0; i++) rc = load_array(&r, dir, &listed[i], m);
-  if (rc == 0 && changed_line)
-    rc = model_store_fail(&r, mpath, changed_line, "checksum mismatch: the manifest was changed after training");
+  for (int i = 0; i < ls.nlisted && rc == 0; i++) rc = load_array(&r, dir, &ls.listed[i], m);
+  if (rc == 0 && ls.changed_line)
+    rc = model_store_fail(&r, mpath, ls.changed_line, "checksum mismatch: the manifest was changed after training");
   if (rc) model_store_free(m);
-  free(listed);
+  free(ls.listed);
   free(text);
   free(mpath);
   free(dir);

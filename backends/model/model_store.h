@@ -37,6 +37,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "context.h" /* Err */
 #include "npy.h"
 
 typedef struct ModelArray {
@@ -119,7 +120,7 @@ const char *model_store_find(const ModelStore *m, const char *key);
  * as it was — with one exception, said in the message: when only the
  * removal of the replaced model failed, the new model is complete in `dir`
  * and "<dir>.old.<pid>" is left for the user to remove. */
-int model_store_write(const char *dir, const ModelStore *m, char *err, size_t errlen);
+int model_store_write(const char *dir, const ModelStore *m, Err *err);
 
 /* Read the model directory `dir` into `m` (which need not be initialized),
  * checking everything: the manifest's format, that the model was trained for
@@ -127,11 +128,11 @@ int model_store_write(const char *dir, const ModelStore *m, char *err, size_t er
  * file exists, hashes to the manifest's checksum, is a valid float64 .npy
  * and has the manifest's shape. 0, or -1 with `m` empty and `err` holding
  * "<file>[:<line>]: <problem>", naming the file that is wrong. */
-int model_store_read(const char *dir, uint64_t expect_program_hash, ModelStore *m, char *err, size_t errlen);
+int model_store_read(const char *dir, uint64_t expect_program_hash, ModelStore *m, Err *err);
 
 /* model_store_read without the program check: for tools that look at any
  * model (npgc plot). */
-int model_store_read_any(const char *dir, ModelStore *m, char *err, size_t errlen);
+int model_store_read_any(const char *dir, ModelStore *m, Err *err);
 
 /* Release everything `m` holds and leave it empty (model_store_init). */
 void model_store_free(ModelStore *m);

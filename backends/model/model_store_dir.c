@@ -302,7 +302,7 @@ static void arm(const char *tmp, const ModelStore *m) {
  * and matches (the manifest is written last, so the arrays are there). */
 static int is_complete(const char *path) {
   char *mpath = model_store_printf("%s/manifest", path), *text = NULL, ignored[16];
-  StoreReport quiet = {ignored, sizeof ignored};
+  StoreReport quiet = {ERR_OF(ignored, sizeof ignored)};
   size_t len = 0;
   int ok = 0;
   if (mpath && model_store_slurp(&quiet, mpath, &text, &len) == 0) {
@@ -343,7 +343,7 @@ void model_store_recover(const char *dir, int clean) {
   char *parent = parent_of(dir), ignored[16];
   const char *slash = strrchr(dir, '/');
   const char *base = slash ? slash + 1 : dir;
-  StoreReport quiet = {ignored, sizeof ignored};
+  StoreReport quiet = {ERR_OF(ignored, sizeof ignored)};
   DIR *d = parent ? opendir(parent) : NULL;
   struct stat st;
   int missing = lstat(dir, &st) != 0 && errno == ENOENT;
@@ -407,7 +407,8 @@ static int write_contents(const StoreReport *r, const char *tmp, const ModelStor
     const ModelArray *x = &m->arrays[i];
     char *path = model_store_printf("%s/%s.npy", tmp, x->name);
     if (!path) rc = model_store_fail(r, tmp, 0, "out of memory");
-    else if (npy_write(path, NPY_F64, x->a.ndim, x->a.shape, x->a.data, r->err, r->errlen) != 0) rc = -1;
+    else if (npy_write(path, NPY_F64, x->a.ndim, x->a.shape, x->a.data, ERR_MSG(r->err), ERR_LEN(r->err)) != 0)
+      rc = -1;
     /* The checksum is of the bytes on disk, read back, so it vouches for
      * what a later read will find rather than for what we meant to write. */
     else rc = model_store_hash_file(r, path, &checksums[i]);
@@ -472,9 +473,19 @@ static int write_contents(const StoreReport *r, const char *tmp, const ModelStor
   return rc == 0 ? sync_dir(r, tmp) : rc;
 }
 
-int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_t errlen) {
-  StoreReport r = {err, errlen};
-  if (err && errlen) err[0] = '\0';
+/* Adds to the message `err` holds (what the failure left behind). */
+__attribute__((format(printf, 2, 3))) static void append(Err *err, const char *fmt, ...) {
+  size_t n = err_held(err) ? strlen(err->msg) : 0;
+  if (!err || !err->msg || n >= err->len) return;
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(err->msg + n, err->len - n, fmt, ap);
+  va_end(ap);
+}
+
+int model_store_write(const char *dir_arg, const ModelStore *m, Err *err) {
+  StoreReport r = {err};
+  if (err_held(err)) err->msg[0] = '\0';
   if (!dir_arg || !*dir_arg) return model_store_fail(&r, "(model directory)", 0, "the directory name is empty");
   char *dir = model_store_normalize_dir(dir_arg);
   long pid = (long)getpid();
@@ -529,10 +540,7 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
       goto discard;
     } else if (check_replaceable(&r, dir, &exists) != 0 || !exists || mark(&r, dir, 1) != 0) {
       /* issue 24: this said "Directory not empty" */
-      size_t n = err ? strlen(err) : 0;
-      if (err && n < errlen)
-        snprintf(err + n, errlen - n, " (it appeared while this model was being written: another training of the same "
-                 "model at once?)");
+      append(err, " (it appeared while this model was being written: another training of the same model at once?)");
       rc = -1;
       goto discard;
     }
@@ -547,7 +555,7 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
     }
     test_point("cleanup");
     char ignored[16];
-    StoreReport quiet = {ignored, sizeof ignored};
+    StoreReport quiet = {ERR_OF(ignored, sizeof ignored)};
     /* the previous model, now in our `tmp`, was marked above; marked again,
      * since a concurrent training of the same model that moved it in clears
      * the marker of whatever `dir` holds when it ends, and may have done so
@@ -575,18 +583,13 @@ int model_store_write(const char *dir_arg, const ModelStore *m, char *err, size_
   /* Until the parent is synced the swap may not survive a crash, so the
    * previous model is kept if that fails. */
   if (sync_dir(&r, parent) != 0) {
-    size_t n = err ? strlen(err) : 0;
-    if (err && n < errlen)
-      snprintf(err + n, errlen - n, " (the new model is in %s%s%s)", dir,
-               exists ? "; the previous one is kept in " : "", exists ? old : "");
+    append(err, " (the new model is in %s%s%s)", dir, exists ? "; the previous one is kept in " : "", exists ? old : "");
     rc = -1;
     goto done;
   }
   if (exists) test_point("cleanup");
   if (exists && (mark(&r, old, 1) != 0 || remove_store_dir(&r, old) != 0)) { /* marked again: as above */
-    size_t n = err ? strlen(err) : 0;
-    if (err && n < errlen)
-      snprintf(err + n, errlen - n, " (the new model in %s is complete; remove %s by hand)", dir, old);
+    append(err, " (the new model in %s is complete; remove %s by hand)", dir, old);
     rc = -1;
   }
   goto done;
@@ -595,14 +598,14 @@ discard:
    * things worse, and its message is less useful than the first one. */
   {
     char ignored[16];
-    StoreReport quiet = {ignored, sizeof ignored};
+    StoreReport quiet = {ERR_OF(ignored, sizeof ignored)};
     remove_store_dir(&quiet, tmp);
   }
 done:
   /* whichever model `dir` holds now is kept: not a leftover */
   if (swapping) {
     char ignored[16];
-    StoreReport quiet = {ignored, sizeof ignored};
+    StoreReport quiet = {ERR_OF(ignored, sizeof ignored)};
     mark(&quiet, dir, 0);
   }
   free(dir);

@@ -24,10 +24,9 @@
  * their separators. */
 enum { SHAPE_TEXT = NPY_MAX_DIMS * 21 + 4 };
 
-/* Where a message goes (`err` may be NULL or `errlen` 0: no message). */
+/* Where a message goes (`err` may be NULL, or hold no buffer: no message). */
 typedef struct StoreReport {
-  char *err;
-  size_t errlen;
+  Err *err;
 } StoreReport;
 
 /* "<path>: <problem>", or "<path>:<line>: <problem>" when `line` > 0; -1. */

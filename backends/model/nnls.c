@@ -87,8 +87,7 @@ typedef struct Solver {
   bool use_qr;          /* false: every subproblem by dgelsy */
   long gelsy;           /* subproblems dgelsy solved */
   size_t nwork;
-  char *err;
-  size_t errlen;
+  Err *err;
 } Solver;
 
 /* Make the dgelsy workspace hold `nwork` doubles. */
@@ -99,7 +98,7 @@ static int reserve(Solver *s, size_t nwork) {
     s->nwork = s->work ? nwork : 0;
   }
   if (!s->work)
-    return error_set(s->err, s->errlen, "nnls: out of memory for the LAPACK workspace (%d × %d problem)", s->m, s->n);
+    return err_set(s->err, "nnls: out of memory for the LAPACK workspace (%d × %d problem)", s->m, s->n);
   return 0;
 }
 
@@ -128,13 +127,13 @@ static int solve_gelsy(Solver *s, const int *P, int k, double *z) {
     lapack_int info = LAPACKE_dgelsy_work(LAPACK_COL_MAJOR, m, n, 1, s->cols, max_int(m, 1), s->rhs,
                                           max_int(max_int(m, n), 1), s->jpvt, rcond, &rank, &wq, -1);
     if (info != 0)
-      return error_set(s->err, s->errlen, "nnls: LAPACK dgelsy rejected argument %d in its workspace query (a bug in npg)",
+      return err_set(s->err, "nnls: LAPACK dgelsy rejected argument %d in its workspace query (a bug in npg)",
                   (int)-info);
     if (reserve(s, (size_t)wq + (size_t)(4 * (m + n)) + 1)) return -1;
   }
   lapack_int info = LAPACKE_dgelsy_work(LAPACK_COL_MAJOR, m, k, 1, s->cols, max_int(m, 1), s->rhs, ld, s->jpvt, rcond,
                                         &rank, s->work, (lapack_int)s->nwork);
-  if (info != 0) return error_set(s->err, s->errlen, "nnls: LAPACK dgelsy rejected argument %d (a bug in npg)", (int)-info);
+  if (info != 0) return err_set(s->err, "nnls: LAPACK dgelsy rejected argument %d (a bug in npg)", (int)-info);
   for (int j = 0; j < n; j++) z[j] = 0;
   for (int c = 0; c < k; c++) z[P[c]] = s->rhs[c];
   return 0;
@@ -230,26 +229,27 @@ static void residual_gradient(const Solver *s, const double *w, double *r, doubl
   cblas_dgemv(CblasRowMajor, CblasTrans, s->m, s->n, 1.0, s->A, s->n, r, 1, 0.0, g, 1);
 }
 
-int nnls_solve(int m, int n, const double *A, const double *b, double *w, char *err, size_t errlen) {
-  return nnls_solve_with(m, n, A, b, w, true, NULL, err, errlen);
+int nnls_solve(int m, int n, const double *A, const double *b, double *w, Err *err) {
+  return nnls_solve_with(&(NnlsProblem){m, n, A, b}, w, &(NnlsMethod){.use_qr = true}, err);
 }
 
-int nnls_solve_with(int m, int n, const double *A, const double *b, double *w, bool use_qr, long *gelsy_solves,
-                    char *err, size_t errlen) {
-  if (err && errlen) err[0] = '\0';
-  if (gelsy_solves) *gelsy_solves = 0;
-  if (m < 0 || n < 0) return error_set(err, errlen, "nnls: bad problem size %d × %d", m, n);
-  if ((m > 0 && n > 0 && !A) || (m > 0 && !b) || (n > 0 && !w)) return error_set(err, errlen, "nnls: NULL argument");
+int nnls_solve_with(const NnlsProblem *p, double *w, NnlsMethod *how, Err *err) {
+  int m = p->m, n = p->n;
+  const double *A = p->A, *b = p->b;
+  if (err_held(err)) err->msg[0] = '\0';
+  how->gelsy_solves = 0;
+  if (m < 0 || n < 0) return err_set(err, "nnls: bad problem size %d × %d", m, n);
+  if ((m > 0 && n > 0 && !A) || (m > 0 && !b) || (n > 0 && !w)) return err_set(err, "nnls: NULL argument");
   for (int i = 0; i < m; i++) {
     for (int j = 0; j < n; j++)
       if (!isfinite(A[(size_t)i * n + j]))
-        return error_set(err, errlen, "nnls: A[%d][%d] is not finite (%g)", i, j, A[(size_t)i * n + j]);
-    if (!isfinite(b[i])) return error_set(err, errlen, "nnls: b[%d] is not finite (%g)", i, b[i]);
+        return err_set(err, "nnls: A[%d][%d] is not finite (%g)", i, j, A[(size_t)i * n + j]);
+    if (!isfinite(b[i])) return err_set(err, "nnls: b[%d] is not finite (%g)", i, b[i]);
   }
   for (int j = 0; j < n; j++) w[j] = 0;
   if (n == 0) return 0;
 
-  Solver s = {.m = m, .n = n, .b = b, .err = err, .errlen = errlen, .use_qr = use_qr};
+  Solver s = {.m = m, .n = n, .b = b, .err = err, .use_qr = how->use_qr};
   int ld = max_int(m, n);
   double *unit = alloc_array((size_t)m * (size_t)n, sizeof(double));
   s.cols = alloc_array((size_t)max_int(m, 1) * (size_t)n, sizeof(double));
@@ -269,7 +269,7 @@ int nnls_solve_with(int m, int n, const double *A, const double *b, double *w, b
   bool scaled = false; /* w holds the iterate of the scaled problem */
   if (!unit || !s.cols || !s.rhs || !s.jpvt || !s.qr || !s.tau || !s.qtb || !s.qtb0 || !z || !r || !g || !P || !colnorm ||
       !state) {
-    rc = error_set(err, errlen, "nnls: out of memory (%d × %d problem)", m, n);
+    rc = err_set(err, "nnls: out of memory (%d × %d problem)", m, n);
     goto done;
   }
   for (int j = 0; j < n; j++) state[j] = AT_ZERO;
@@ -304,8 +304,7 @@ int nnls_solve_with(int m, int n, const double *A, const double *b, double *w, b
       if (state[t] == AT_ZERO && g[t] > tol && (j < 0 || g[t] > g[j])) j = t;
     if (j < 0) break;
     if (iter == max_iter) {
-      rc = error_set(err, errlen,
-                "nnls: no convergence in %d iterations (%d × %d problem, largest gradient %.2e, tolerance %.2e)",
+      rc = err_set(err, "nnls: no convergence in %d iterations (%d × %d problem, largest gradient %.2e, tolerance %.2e)",
                 max_iter, m, n, g[j], tol);
       break;
     }
@@ -369,7 +368,7 @@ int nnls_solve_with(int m, int n, const double *A, const double *b, double *w, b
   }
 
 done:
-  if (gelsy_solves) *gelsy_solves = s.gelsy;
+  how->gelsy_solves = s.gelsy;
   if (scaled) /* back to w = D⁻¹ ŵ; a zero column has ŵ_j = 0 */
     for (int j = 0; j < n; j++) w[j] = colnorm[j] > 0 ? w[j] / colnorm[j] : 0;
   free(unit);
@@ -392,19 +391,19 @@ done:
 
 /* paper §8.3, eq. 17: w = argmin ‖Xᵀ w − x‖ over the simplex, as one NNLS
  * problem (see the top of this file). */
-int nnls_convex(int S, int d, const double *X, const double *x, double *w, char *err, size_t errlen) {
-  if (err && errlen) err[0] = '\0';
-  if (S < 1) return error_set(err, errlen, "learned model: no training samples (S = %d)", S);
-  if (d < 0) return error_set(err, errlen, "learned model: bad input dimension %d", d);
-  if ((d > 0 && (!X || !x)) || !w) return error_set(err, errlen, "learned model: NULL argument");
+int nnls_convex(int S, int d, const double *X, const double *x, double *w, Err *err) {
+  if (err_held(err)) err->msg[0] = '\0';
+  if (S < 1) return err_set(err, "learned model: no training samples (S = %d)", S);
+  if (d < 0) return err_set(err, "learned model: bad input dimension %d", d);
+  if ((d > 0 && (!X || !x)) || !w) return err_set(err, "learned model: NULL argument");
   for (int s = 0; s < S; s++)
     for (int i = 0; i < d; i++)
       if (!isfinite(X[(size_t)s * d + i]))
-        return error_set(err, errlen, "learned model: component %d of training input %d is not finite (%g)", i, s,
+        return err_set(err, "learned model: component %d of training input %d is not finite (%g)", i, s,
                     X[(size_t)s * d + i]);
   for (int i = 0; i < d; i++)
     if (!isfinite(x[i]))
-      return error_set(err, errlen, "learned model: component %d of the input to predict is not finite (%g)", i, x[i]);
+      return err_set(err, "learned model: component %d of the input to predict is not finite (%g)", i, x[i]);
 
   int m = d + 1;
   double *E = alloc_array((size_t)m * (size_t)S, sizeof(double));
@@ -412,7 +411,7 @@ int nnls_convex(int S, int d, const double *X, const double *x, double *w, char 
   if (!E || !f) {
     free(E);
     free(f);
-    return error_set(err, errlen, "learned model: out of memory for %d training samples of dimension %d", S, d);
+    return err_set(err, "learned model: out of memory for %d training samples of dimension %d", S, d);
   }
 
   /* E = [C / σ; 1ᵀ], σ the largest column norm of C = X − x (0 when every
@@ -434,7 +433,7 @@ int nnls_convex(int S, int d, const double *X, const double *x, double *w, char 
   f[d] = 1;
 
   char why[512];
-  int rc = nnls_solve(m, S, E, f, w, why, sizeof why);
+  int rc = nnls_solve(m, S, E, f, w, ERR_OF(why, sizeof why));
   free(E);
   free(f);
 
@@ -442,9 +441,9 @@ int nnls_convex(int S, int d, const double *X, const double *x, double *w, char 
   for (int s = 0; s < S; s++) t += w[s];
   if (t > 0)
     for (int s = 0; s < S; s++) w[s] /= t;
-  if (rc) return error_set(err, errlen, "learned model (%d training samples of dimension %d): %s", S, d, why);
+  if (rc) return err_set(err, "learned model (%d training samples of dimension %d): %s", S, d, why);
   if (!(t > 0)) /* Σu ≥ 1 / (1 + 1) after scaling: cannot happen */
-    return error_set(err, errlen, "learned model: the weights of the convex combination vanished (Σu = %g; a bug in npg)",
+    return err_set(err, "learned model: the weights of the convex combination vanished (Σu = %g; a bug in npg)",
                 t);
   return 0;
 }

@@ -300,7 +300,7 @@ static const double *colmajor_of(const Reduced *r, const RTensor *t) {
   return NULL;
 }
 
-Reduced *reduced_new(Model *m, char *err, size_t errlen) {
+Reduced *reduced_new(Model *m, Err *err) {
   Reduced *r = mem_calloc(1, sizeof *r);
   if (!r) goto oom;
   r->m = m;
@@ -345,7 +345,7 @@ Reduced *reduced_new(Model *m, char *err, size_t errlen) {
   if (power_workspace(r) || krylov_init(&r->kr, maxm) || colmajor_copies(r) || kept_alloc(r)) goto oom;
   return r;
 oom:
-  snprintf(err, errlen, "out of memory for the reduced evaluator");
+  err_set(err, "out of memory for the reduced evaluator");
   reduced_free(r);
   return NULL;
 }
@@ -435,9 +435,18 @@ static void assemble_op(Reduced *r, const ROp *ro, long my) {
   }
 }
 
-static const char *op_label(const ROp *ro, int term, int k, char *buf, size_t n) {
-  if (ro->op->kind == OPK_DECL) snprintf(buf, n, "%s", ro->op->op->name);
-  else snprintf(buf, n, "diag (term %d, operator %d)", term + 1, k + 1);
+/* One operator power being applied: operator `k` of term `term` of stage
+ * `rs`, on vectors of its class's size `n`, at `sample` (for messages). */
+typedef struct OpAt {
+  const RStage *rs;
+  const ROp *ro;
+  int term, k, n;
+  long sample;
+} OpAt;
+
+static const char *op_label(const OpAt *at, char *buf, size_t n) {
+  if (at->ro->op->kind == OPK_DECL) snprintf(buf, n, "%s", at->ro->op->op->name);
+  else snprintf(buf, n, "diag (term %d, operator %d)", at->term + 1, at->k + 1);
   return buf;
 }
 
@@ -495,25 +504,24 @@ static const char *at_sample(long sample, char *buf, size_t n) {
 
 /* A reduced operator that is exactly zero: the full operator vanishes at
  * these inputs (a parameter scaling it is 0), whatever the basis. */
-static int zero_operator(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, long sample,
-                         const char *what) {
-  const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
+static int zero_operator(Reduced *r, const OpAt *o, const char *what) {
+  const RClass *c = &r->m->classes[r->m->qclass[o->rs->q]];
   char lab[256], at[64];
   return rfail(r, "stage %s (class %s): reduced operator %s is zero %s: the operator itself vanishes there (every "
                   "entry 0, e.g. a factor of it that is 0 at these inputs), so its %s is undefined",
-               rs->st->sym->name, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at),
+               o->rs->st->sym->name, c->label, op_label(o, lab, sizeof lab), at_sample(o->sample, at, sizeof at),
                what);
 }
 
-static int apply_inverse(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, int n, double *v,
-                         long sample, ReducedKept *kp) {
-  const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
+static int apply_inverse(Reduced *r, const OpAt *o, double *v, ReducedKept *kp) {
+  const RClass *c = &r->m->classes[r->m->qclass[o->rs->q]];
   char lab[256], why[256], at[64];
-  const char *sn = rs->st->sym->name;
+  const char *sn = o->rs->st->sym->name;
+  int n = o->n;
   double anorm = one_norm(r->M, n, r->w), rcond = 0; /* ‖M̂‖₁ = ‖M̂ᵀ‖∞ */
-  if (n > 0 && anorm == 0) return zero_operator(r, rs, ro, term, k, sample, "inverse");
+  if (n > 0 && anorm == 0) return zero_operator(r, o, "inverse");
   bool chol = false;
-  if (ro->spd) { /* paper §4: BᵀMB of a positive definite M is positive definite */
+  if (o->ro->spd) { /* paper §4: BᵀMB of a positive definite M is positive definite */
     memcpy(r->M2, r->M, sizeof(double) * (size_t)n * (size_t)n);
     if (LAPACKE_dpotrf_work(LAPACK_COL_MAJOR, 'L', n, r->M2, n) == 0 &&
         LAPACKE_dpocon_work(LAPACK_COL_MAJOR, 'L', n, r->M2, n, anorm, &rcond, r->work, r->iwork) == 0 &&
@@ -524,17 +532,17 @@ static int apply_inverse(Reduced *r, const RStage *rs, const ROp *ro, int term, 
     lapack_int info = LAPACKE_dgetrf_work(LAPACK_COL_MAJOR, n, n, r->M, n, r->piv);
     if (info > 0)
       return rfail(r, "stage %s (class %s): reduced operator %s is singular %s (exact zero pivot %d): %s",
-                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at), (int)info,
+                   sn, c->label, op_label(o, lab, sizeof lab), at_sample(o->sample, at, sizeof at), (int)info,
                    singular_why(c, why, sizeof why));
     if (info < 0) return rfail(r, "stage %s: LAPACK dgetrf argument %d (a bug in npg)", sn, (int)-info);
     /* the ∞-norm condition of M̂ᵀ is the 1-norm condition of M̂ */
     LAPACKE_dgecon_work(LAPACK_COL_MAJOR, 'I', n, r->M, n, anorm, &rcond, r->work, r->iwork);
     if (!(rcond > 1e-15))
       return rfail(r, "stage %s (class %s): reduced operator %s is singular %s (rcond %.3g): %s", sn,
-                   c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at), rcond,
+                   c->label, op_label(o, lab, sizeof lab), at_sample(o->sample, at, sizeof at), rcond,
                    singular_why(c, why, sizeof why));
   }
-  for (long i = 0; i < -ro->op->p; i++) {
+  for (long i = 0; i < -o->ro->op->p; i++) {
     if (chol) LAPACKE_dpotrs_work(LAPACK_COL_MAJOR, 'L', n, 1, r->M2, n, v, n);
     else LAPACKE_dgetrs_work(LAPACK_COL_MAJOR, 'T', n, 1, r->M, n, r->piv, v, n);
     if (kp) memcpy(kp->chain + (i + 1) * n, v, sizeof(double) * (size_t)n);
@@ -560,16 +568,17 @@ static lapack_int reflect(Reduced *r, int n, char trans, double *v) {
  * (dstedc, Z in r->M2), v <- Q Z Λ^(p/q) Zᵀ Qᵀ v. Q stays dsytrd's
  * reflectors: M̂'s eigenvectors QZ are never formed (dsyevd's back
  * transformation, a quarter of its time at m = 120). */
-static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, int n, double *v, long sample) {
-  const OpPow *op = ro->op;
-  const RClass *c = &r->m->classes[r->m->qclass[rs->q]];
+static int apply_root(Reduced *r, const OpAt *o, double *v) {
+  const OpPow *op = o->ro->op;
+  const RClass *c = &r->m->classes[r->m->qclass[o->rs->q]];
   char lab[256], why[256], at[64];
-  const char *sn = rs->st->sym->name;
+  const char *sn = o->rs->st->sym->name;
+  int n = o->n;
   double *lam = r->diag, *Z = r->M2, *u = r->w;
   if (r->krylov_roots) { /* the eigendecomposition below only where Lanczos does not converge soon */
     int steps;
     double estimate;
-    long si = rs - r->m->stages; /* the next sample's operator is a similar one */
+    long si = o->rs - r->m->stages; /* the next sample's operator is a similar one */
     r->kr.start = r->root_start[si], r->kr.shrink = r->root_shrink[si];
     int rc = krylov_power(&r->kr, n, r->M, op->p, op->q, REDUCED_KRYLOV_TOL, n / 2 + 8, v, &steps, &estimate);
     r->root_start[si] = r->kr.start, r->root_shrink[si] = r->kr.shrink;
@@ -584,7 +593,7 @@ static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int
     if (!isfinite(r->M[i]))
       return rfail(r, "stage %s (class %s): eigendecomposition of reduced operator %s failed %s (entries "
                       "not finite)",
-                   sn, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at));
+                   sn, c->label, op_label(o, lab, sizeof lab), at_sample(o->sample, at, sizeof at));
   lapack_int info = LAPACKE_dsytrd_work(LAPACK_COL_MAJOR, 'L', n, r->M, n, lam, r->off, r->tau, r->work, r->lwork);
   if (info == 0) info = reflect(r, n, 'T', v);
   if (info != 0) return rfail(r, "stage %s: LAPACK dsytrd or dormtr argument %d (a bug in npg)", sn, (int)-info);
@@ -592,19 +601,19 @@ static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int
   if (info != 0)
     return rfail(r, "stage %s (class %s): eigendecomposition of reduced operator %s failed %s (LAPACK "
                     "dstedc info %d)",
-                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at), (int)info);
+                 sn, c->label, op_label(o, lab, sizeof lab), at_sample(o->sample, at, sizeof at), (int)info);
   double big = 0, low = lam[0];
   for (int i = 0; i < n; i++) big = fmax(big, fabs(lam[i])), low = fmin(low, lam[i]);
   double tol = 1e-12 * (big > 0 ? big : 1);
   if (low < -tol)
     return rfail(r, "stage %s (class %s): reduced operator %s is indefinite %s (eigenvalue %.3g, largest "
                     "%.3g): a root needs a positive semidefinite operator",
-                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at), low, big);
-  if (op->p < 0 && big == 0) return zero_operator(r, rs, ro, term, k, sample, "negative power");
+                 sn, c->label, op_label(o, lab, sizeof lab), at_sample(o->sample, at, sizeof at), low, big);
+  if (op->p < 0 && big == 0) return zero_operator(r, o, "negative power");
   if (op->p < 0 && low <= tol)
     return rfail(r, "stage %s (class %s): reduced operator %s is singular %s (eigenvalue %.3g, largest "
                     "%.3g, condition estimate %.3g): %s",
-                 sn, c->label, op_label(ro, term, k, lab, sizeof lab), at_sample(sample, at, sizeof at), low, big,
+                 sn, c->label, op_label(o, lab, sizeof lab), at_sample(o->sample, at, sizeof at), low, big,
                  low > 0 ? big / low : INFINITY,
                  singular_why(c, why, sizeof why));
   cblas_dgemv(CblasColMajor, CblasTrans, n, n, 1.0, Z, n, v, 1, 0.0, u, 1);
@@ -617,10 +626,9 @@ static int apply_root(Reduced *r, const RStage *rs, const ROp *ro, int term, int
 
 /* v <- M̂^(p/q) v, M̂ in r->M (destroyed); with `kp`, what the derivatives need kept there
  * (ReducedKept: M̂ itself for integer powers and roots, an inverse's factor, the chain). */
-static int apply_power(Reduced *r, const RStage *rs, const ROp *ro, int term, int k, long my, double *v, long sample,
-                       ReducedKept *kp) {
-  const OpPow *op = ro->op;
-  int n = (int)my;
+static int apply_power(Reduced *r, const OpAt *o, double *v, ReducedKept *kp) {
+  const OpPow *op = o->ro->op;
+  int n = o->n;
   if (n == 0) return 0;
   if (kp) {
     memcpy(kp->chain, v, sizeof(double) * (size_t)n);
@@ -634,9 +642,9 @@ static int apply_power(Reduced *r, const RStage *rs, const ROp *ro, int term, in
     }
     return 0;
   }
-  if (op->q == 1) return apply_inverse(r, rs, ro, term, k, n, v, sample, kp);
+  if (op->q == 1) return apply_inverse(r, o, v, kp);
   int threads = blas_one_thread();
-  int rc = apply_root(r, rs, ro, term, k, n, v, sample);
+  int rc = apply_root(r, o, v);
   blas_restore_threads(threads);
   if (kp && rc == 0) memcpy(kp->chain + n, v, sizeof(double) * (size_t)n);
   return rc;
@@ -656,7 +664,7 @@ static int eval_extern(Reduced *r, const RExtern *x, long sample) {
     off += mj;
   }
   char err[512] = "";
-  int rc = nnls_convex((int)x->S, (int)x->d, x->X, in, w, err, sizeof err);
+  int rc = nnls_convex((int)x->S, (int)x->d, x->X, in, w, ERR_OF(err, sizeof err));
   if (rc == 0) {
     long mz = qm(r->m, x->q);
     cblas_dgemv(CblasRowMajor, CblasTrans, (int)x->S, (int)mz, 1.0, x->Z, (int)mz, w, 1, 0.0, r->x[x->q], 1);
@@ -703,7 +711,8 @@ static int eval_term(Reduced *r, const RStage *rs, int t, double *v, double *M, 
   for (int k = 0; k < rt->nops; k++) { /* innermost first (DESIGN §4) */
     assemble_op(r, &rt->ops[k], my);
     if (M) memcpy(M, r->M, sizeof(double) * (size_t)(my * my));
-    if (apply_power(r, rs, &rt->ops[k], t, k, my, v, sample, kept ? &kept[k] : NULL)) return -1;
+    OpAt o = {rs, &rt->ops[k], t, k, (int)my, sample};
+    if (apply_power(r, &o, v, kept ? &kept[k] : NULL)) return -1;
   }
   return 0;
 }
@@ -722,7 +731,8 @@ int reduced_eval_stage(Reduced *r, int i, long sample) {
   double *y = r->x[rs->q];
   if (rs->interp) { /* DESIGN §12: the formula at the selected entries, fitted */
     char err[512];
-    if (interp_eval(m, rs, r->x, y, r->interp_work, sample, err, sizeof err)) return rfail(r, "%s", err);
+    InterpAt at = {r->x, r->interp_work, sample};
+    if (interp_eval(m, rs, &at, y, ERR_OF(err, sizeof err))) return rfail(r, "%s", err);
     return 0;
   }
   memset(y, 0, sizeof(double) * (size_t)my);
@@ -754,17 +764,18 @@ int reduced_eval(Reduced *r, long sample) {
 
 const Model *reduced_model(const Reduced *r) { return r->m; }
 
-int reduced_apply_power(Reduced *r, int stage, int term, int op, long p, long q, const double *M, double *v,
-                        long sample) {
+int reduced_apply_power(Reduced *r, const ReducedPower *pw, const double *M, double *v) {
   if (r->error[0]) return -1;
   const Model *m = r->m;
+  int stage = pw->stage, term = pw->term, op = pw->op;
   if (stage < 0 || stage >= m->nstages || term < 0 || term >= m->stages[stage].nterms || op < 0 ||
-      op >= m->stages[stage].terms[term].nops || m->stages[stage].terms[term].ops[op].op->p != p ||
-      m->stages[stage].terms[term].ops[op].op->q != q)
+      op >= m->stages[stage].terms[term].nops || m->stages[stage].terms[term].ops[op].op->p != pw->p ||
+      m->stages[stage].terms[term].ops[op].op->q != pw->q)
     return rfail(r, "generated reduced code asks for power %ld/%ld of operator %d of term %d of stage %d, which the "
-                    "model lacks (code generated for another model?)", p, q, op, term, stage);
+                    "model lacks (code generated for another model?)", pw->p, pw->q, op, term, stage);
   const RStage *rs = &m->stages[stage];
   long my = qm(m, rs->q);
   memcpy(r->M, M, sizeof(double) * (size_t)(my * my));
-  return apply_power(r, rs, &rs->terms[term].ops[op], term, op, my, v, sample, NULL);
+  OpAt o = {rs, &rs->terms[term].ops[op], term, op, (int)my, pw->sample};
+  return apply_power(r, &o, v, NULL);
 }

@@ -11,7 +11,7 @@
 /* ---------------------------------------------------------------- reduced evaluation (reduced.c) */
 
 typedef struct Reduced Reduced;
-Reduced *reduced_new(Model *m, char *err, size_t errlen);
+Reduced *reduced_new(Model *m, Err *err);
 void reduced_free(Reduced *r);
 /* Reduced coordinates of quantity q (set for inputs, computed for stages). */
 double *reduced_coords(Reduced *r, int q);
@@ -56,25 +56,30 @@ void reduced_lift_many(const Model *m, int q, long samples, const double *coords
  * at the coordinates `r` holds after reduced_eval (evaluate first): the
  * operators, factors and chains that evaluation kept (reduced_kept) are used,
  * or recomputed when any coordinate has changed since. Blocks of `nd` directions travel together,
- * every block m_q x nd row-major.
- *   reduced_jvp: out (m_out x nd) = Σ_i ∂ŷ_out/∂x̂_{seed_q[i]} · seed[i] (m x nd each);
- *   reduced_vjp: out (m_in x nd)  = Σ_i (∂ŷ_{seed_q[i]}/∂x̂_in)ᵀ · seed[i];
+ * every block m_q x nd row-major (ReducedSeeds).
+ *   reduced_jvp: out (m_out x nd) = Σ_i ∂ŷ_out/∂x̂_{q[i]} · block[i] (m x nd each);
+ *   reduced_vjp: out (m_in x nd)  = Σ_i (∂ŷ_{q[i]}/∂x̂_in)ᵀ · block[i];
  *   reduced_jacobian: J (m_out x m_in, row-major), one forward sweep with the
  *   identity as seed when m_in <= m_out, else one reverse sweep.
  * Seeds of jvp are inputs (a stage seeded is not recomputed); `in_q` of vjp
  * is an input. A stage reading a dependent extern's learned map is refused.
  * 0, or -1 with `err` naming the stage (a singular operator, a root at a
  * zero eigenvalue, out of memory); `out` is then undefined. */
-int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int out_q, double *out,
-                long sample, char *err, size_t errlen);
-int reduced_vjp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int in_q, double *out,
-                long sample, char *err, size_t errlen);
-int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, char *err, size_t errlen);
-/* The local partial of stage number `stage` alone: out (m_stage x nd) = ∂ŷ_stage/∂x̂_in · seed
- * (m_in x nd), every other quantity the stage reads held fixed (the chain of error estimates,
- * estimate.c, takes each stage's own sensitivity to each input). 0, or -1 with `err`. */
-int reduced_stage_jvp(Reduced *r, int stage, int in_q, const double *seed, long nd, double *out, long sample,
-                      char *err, size_t errlen);
+typedef struct ReducedSeeds {
+  int n;                      /* seeded quantities */
+  const int *q;               /* each one's quantity */
+  const double *const *block; /* each one's block, m_q x nd */
+  long nd;                    /* directions carried */
+  bool identity;              /* block[0] is the identity (nd = its m): J is added, not J·I computed */
+} ReducedSeeds;
+int reduced_jvp(Reduced *r, const ReducedSeeds *seeds, int out_q, double *out, long sample, Err *err);
+int reduced_vjp(Reduced *r, const ReducedSeeds *seeds, int in_q, double *out, long sample, Err *err);
+int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, Err *err);
+/* The local partial of stage number `stage` alone: out (m_stage x nd) = ∂ŷ_stage/∂x̂_in · seed,
+ * `in` one seed (in_q = in->q[0], seed = in->block[0], m_in x nd), every other quantity the stage
+ * reads held fixed (the chain of error estimates, estimate.c, takes each stage's own sensitivity
+ * to each input). 0, or -1 with `err`. */
+int reduced_stage_jvp(Reduced *r, int stage, const ReducedSeeds *in, double *out, long sample, Err *err);
 /* What an evaluation keeps of each operator of a Galerkin term for the derivatives, so that
  * they neither contract its tensors nor factor it again: M̂ as assembled (row-major n x n),
  * the factor of an inverse power (Cholesky's L of M̂, or the LU factors of M̂ᵀ with piv,
@@ -144,7 +149,7 @@ long emit_reduced_slots(const Model *m, ReducedSlot *s);
  * `cc`). `m` must outlive it; it holds one scratch buffer, so one
  * evaluation at a time. NULL with `err` on failure. */
 typedef struct RedJit RedJit;
-RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen);
+RedJit *reduced_jit_new(const Model *m, bool cc, Err *err);
 /* Evaluate every stage on the coordinates held in `r` (a Reduced of the
  * same model: inputs set by reduced_project, results left in
  * reduced_coords), as reduced_eval does. 0, or -1 with reduced_jit_error(j). */
@@ -157,11 +162,14 @@ void reduced_jit_free(RedJit *j);
 const char *reduced_jit_error(const RedJit *j);
 
 /* For generated code (reduced.c): the model of `r`; v <- M̂^(p/q) v for
- * operator `op` of term `term` of stage number `stage` (p/q checked
- * against the model), M̂ given (m x m) — the runtime evaluator's own
- * factorizations and messages. */
+ * the operator `pw` names (its p/q checked against the model), M̂ given
+ * (m x m) — the runtime evaluator's own factorizations and messages. */
 const Model *reduced_model(const Reduced *r);
-int reduced_apply_power(Reduced *r, int stage, int term, int op, long p, long q, const double *M, double *v,
-                        long sample);
+typedef struct ReducedPower {
+  int stage, term, op; /* operator `op` of term `term` of stage number `stage` */
+  long p, q;           /* the power asked for */
+  long sample;         /* for messages (reduced_eval's) */
+} ReducedPower;
+int reduced_apply_power(Reduced *r, const ReducedPower *pw, const double *M, double *v);
 
 #endif

@@ -55,13 +55,14 @@ typedef struct Deriv {
   struct DerivCache **cache_slot; /* the evaluator's (reduced_deriv_cache) */
   bool given_externs;   /* externs hold the caller's values (reduced_use_given_externs): constants */
   long sample;
-  char *err;
-  size_t errlen;
+  Err *err;             /* the caller's record, or `own` when it holds no buffer */
+  Err own;
+  char own_msg[256];
 } Deriv;
 
 static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
 
-static int dfail_oom(Deriv *dv) { return error_set(dv->err, dv->errlen, "out of memory for the reduced derivative"); }
+static int dfail_oom(Deriv *dv) { return err_set(dv->err, "out of memory for the reduced derivative"); }
 
 /* Forward: out (rows x nd) += alpha · J d[q], J rows x m_q. A Jacobian's seed is the identity:
  * then J itself is added (a product by I cost as much as the rest of the sweep at m = 50). */
@@ -407,8 +408,8 @@ static int op_factor(Deriv *dv, const RStage *rs, OpState *o) {
     memcpy(o->LU, o->M, sizeof(double) * (size_t)(n * n)); /* column-major: M̂ᵀ, as the evaluator factors it */
     lapack_int info = LAPACKE_dgetrf_work(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)n, o->LU, (lapack_int)n, o->piv);
     if (info != 0)
-      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator is singular (LAPACK dgetrf info %d): no "
-                       "derivative there", sn, (int)info);
+      return err_set(dv->err, "stage %s: its reduced operator is singular (LAPACK dgetrf info %d): no "
+                     "derivative there", sn, (int)info);
     return 0;
   }
   o->U = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
@@ -418,15 +419,15 @@ static int op_factor(Deriv *dv, const RStage *rs, OpState *o) {
   memcpy(o->U, o->M, sizeof(double) * (size_t)(n * n));
   lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, o->U, (lapack_int)n, o->lam);
   if (info != 0)
-    return error_set(dv->err, dv->errlen, "stage %s: eigendecomposition of its reduced operator failed (LAPACK dsyevd "
-                     "info %d)", sn, (int)info);
+    return err_set(dv->err, "stage %s: eigendecomposition of its reduced operator failed (LAPACK dsyevd "
+                   "info %d)", sn, (int)info);
   double e = (double)p / (double)q, big = 0;
   for (long i = 0; i < n; i++) big = fmax(big, fabs(o->lam[i]));
   double tol = 1e-12 * (big > 0 ? big : 1);
   for (long i = 0; i < n; i++)
     if (o->lam[i] <= tol)
-      return error_set(dv->err, dv->errlen, "stage %s: its reduced operator has eigenvalue %.3g (largest %.3g): the "
-                       "power %ld/%ld is not differentiable there", sn, o->lam[i], big, p, q);
+      return err_set(dv->err, "stage %s: its reduced operator has eigenvalue %.3g (largest %.3g): the "
+                     "power %ld/%ld is not differentiable there", sn, o->lam[i], big, p, q);
   /* Daleckii–Krein: divided differences of f, its derivative where two eigenvalues are close */
   for (long i = 0; i < n; i++)
     for (long j = 0; j < n; j++) {
@@ -557,10 +558,10 @@ static int op_cotangent(Deriv *dv, const OpState *o, const double *Mbar) {
 }
 
 /* U (F ∘ (Uᵀ E U)) Uᵀ-free part: out (n) = U [F ∘ (Uᵀ E U)] w, the Daleckii–Krein
- * derivative of f(M) v in direction E, w = Uᵀ v. `A`, `B` hold n x n. */
-static void dk_forward(const OpState *o, const double *E, const double *w, double *out, double *A, double *B,
-                       double *t) {
+ * derivative of f(M) v in direction E, w = Uᵀ v. `work` holds 2 n² + n. */
+static void dk_forward(const OpState *o, const double *E, const double *w, double *out, double *work) {
   int n = (int)o->n;
+  double *A = work, *B = A + (long)n * n, *t = B + (long)n * n;
   cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, n, n, n, 1.0, o->U, n, E, n, 0.0, A, n);
   cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, n, n, n, 1.0, A, n, o->U, n, 0.0, B, n);
   for (long e = 0; e < (long)n * n; e++) B[e] *= o->F[e];
@@ -631,7 +632,7 @@ static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV)
     free(tmp);
     return -1;
   }
-  double *A = tmp + n * nd, *B = A + n * n, *w = B + n * n, *t = w + n, *col = t + n, *t2 = col + n;
+  double *A = tmp + n * nd, *w = A + 2 * n * n + n, *t = w + n, *col = t + n; /* A: dk_forward's 2 n² + n */
   for (long s = 0; s < steps; s++) {
     const double *v = vs + s * n, *v2 = vs + (s + 1) * n;
     if (o->ro->op->q == 1 && o->ro->op->p > 0) { /* dv' = M dv + dM v */
@@ -648,7 +649,7 @@ static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV)
         for (long i = 0; i < n; i++) t[i] = dV[i * nd + d];
         root_apply(o, t, col, A);
         if (dm) {
-          dk_forward(o, dM + d * n * n, w, t, A, B, t2);
+          dk_forward(o, dM + d * n * n, w, t, A);
           for (long i = 0; i < n; i++) col[i] += t[i];
         }
         for (long i = 0; i < n; i++) dV[i * nd + d] = col[i];
@@ -657,7 +658,7 @@ static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV)
   }
   free(dM);
   free(tmp);
-  return dv->err[0] ? -1 : 0;
+  return err_held(dv->err) ? -1 : 0;
 }
 
 /* Reverse through one power: Vb (n x nd), the cotangent of the result, becomes that of its
@@ -703,7 +704,7 @@ static int op_reverse(Deriv *dv, const OpState *o, const double *vs, double *Vb)
                   0.0, Vb, (int)nd);
     }
   }
-  int rc = dv->err[0] ? -1 : dm ? op_cotangent(dv, o, Mb) : 0;
+  int rc = err_held(dv->err) ? -1 : dm ? op_cotangent(dv, o, Mb) : 0;
   free(Mb);
   free(tmp);
   return rc;
@@ -863,9 +864,21 @@ static double interp_pow(double b, long p, long q) {
  * rows of q's basis read: m_y FLOPs a monomial and one dgemm, where forming ∂(P y)/∂x̂_q
  * (k x m_q) first took m_q a monomial and a product of k·m_y·m_q (heat.npg's k: 948 monomials,
  * k = 316, the stage's largest cost). */
-static int interp_jacobian(Deriv *dv, const RStage *rs, int q, const double *g, const double *val,
-                           const long *base, const double *pT, bool reverse) {
+typedef struct InterpPartials {
+  const RStage *rs;
+  const long *base;  /* per term: the row of its numerator in g, its operators' rows after it */
+  const double *val; /* the read entries */
+  const double *g;   /* ∂(P y)[s]/∂acc: rows x k */
+  const double *pT;  /* the fit transposed, k x m_y */
+  bool reverse;
+} InterpPartials;
+
+static int interp_jacobian(Deriv *dv, const InterpPartials *pa, int q) {
   const Model *m = dv->m;
+  const RStage *rs = pa->rs;
+  const long *base = pa->base;
+  const double *g = pa->g, *val = pa->val, *pT = pa->pT;
+  bool reverse = pa->reverse;
   const RInterp *ip = rs->interp;
   const RClass *c = &m->classes[m->qclass[q]];
   long mq = c->m, my = qm(m, rs->q), nd = dv->nd, k = ip->k, nr = 0;
@@ -952,12 +965,13 @@ static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
   rc = 0;
   for (long s = 0; s < k; s++) /* the fit transposed, k x my: a slot's column contiguous */
     for (long i = 0; i < my; i++) pT[s * my + i] = ip->pinv[i * k + s];
+  InterpPartials pa = {rs, base, val, g, pT, reverse};
   for (int q = 0; q < m->nq && rc == 0; q++) {
     if (!dv->active[q]) continue;
     bool reads = false;
     for (long r = 0; r < ip->nreads && !reads; r++) reads = ip->read_q[r] == q;
     if (!reads) continue;
-    rc = interp_jacobian(dv, rs, q, g, val, base, pT, reverse);
+    rc = interp_jacobian(dv, &pa, q);
   }
 out:
   free(base);
@@ -998,8 +1012,8 @@ static bool stage_reads_active(const Deriv *dv, const RStage *rs) {
 
 static int stage_derivative(Deriv *dv, const RStage *rs, bool reverse) {
   if (rs->st->kind == ST_EXTERN)
-    return error_set(dv->err, dv->errlen, "extern '%s' depends on the differentiated input, and its learned map (a "
-                     "convex combination of training samples) has no derivative", rs->st->sym->name);
+    return err_set(dv->err, "extern '%s' depends on the differentiated input, and its learned map (a "
+                   "convex combination of training samples) has no derivative", rs->st->sym->name);
   if (rs->interp) return interp_stage(dv, rs, reverse);
   return galerkin_stage(dv, rs, reverse);
 }
@@ -1010,16 +1024,16 @@ static void deriv_free(Deriv *dv) {
   free(dv->active);
 }
 
-/* The quantities depending on `in` (one input, or the seeds' quantities), every
- * one's block allocated (zero). */
-static int deriv_init(Deriv *dv, Reduced *r, long nd, const int *from, int nfrom, long sample, char *err,
-                      size_t errlen) {
+/* Every quantity's block allocated (zero), none active yet (deriv_activate). */
+static int deriv_init(Deriv *dv, Reduced *r, long nd, long sample, Err *err) {
   memset(dv, 0, sizeof *dv);
   dv->r = r, dv->ident_q = -1;
-  dv->m = reduced_model(r), dv->nd = nd, dv->sample = sample, dv->err = err, dv->errlen = errlen;
+  dv->m = reduced_model(r), dv->nd = nd, dv->sample = sample, dv->err = err;
+  /* a failure is known by its message: a record without a buffer gets one */
+  if (!err || !err->msg || !err->len) dv->own = (Err){dv->own_msg, sizeof dv->own_msg}, dv->err = &dv->own;
   dv->cache_slot = reduced_deriv_cache(r);
   dv->given_externs = reduced_given_externs(r);
-  if (errlen > 0) err[0] = 0; /* a failure is known by its message */
+  dv->err->msg[0] = 0;
   const Model *m = dv->m;
   double **x = mem_calloc((size_t)m->nq + 1, sizeof(double *));
   dv->d = mem_calloc((size_t)m->nq + 1, sizeof(double *));
@@ -1036,25 +1050,30 @@ static int deriv_init(Deriv *dv, Reduced *r, long nd, const int *from, int nfrom
     }
   }
   dv->x = x;
-  for (int i = 0; i < nfrom; i++) dv->active[from[i]] = true;
-  for (int i = 0; i < m->nstages; i++)
-    if (!dv->active[m->stages[i].q] && stage_reads_active(dv, &m->stages[i])) dv->active[m->stages[i].q] = true;
   return 0;
 }
 
-/* reduced_jvp; with `ident`, seed[0] is the identity (reduced_jacobian's forward sweep). */
-static int forward_sweep(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int out_q,
-                         double *out, bool ident, long sample, char *err, size_t errlen) {
+/* The quantities depending on `from` (one input, or the seeds' quantities). */
+static void deriv_activate(Deriv *dv, const int *from, int nfrom) {
+  const Model *m = dv->m;
+  for (int i = 0; i < nfrom; i++) dv->active[from[i]] = true;
+  for (int i = 0; i < m->nstages; i++)
+    if (!dv->active[m->stages[i].q] && stage_reads_active(dv, &m->stages[i])) dv->active[m->stages[i].q] = true;
+}
+
+int reduced_jvp(Reduced *r, const ReducedSeeds *seeds, int out_q, double *out, long sample, Err *err) {
   Deriv dv;
-  int rc = deriv_init(&dv, r, nd, seed_q, nseed, sample, err, errlen);
+  long nd = seeds->nd;
+  int rc = deriv_init(&dv, r, nd, sample, err);
   const Model *m = dv.m;
-  if (ident) dv.ident_q = seed_q[0];
-  for (int i = 0; i < nseed && rc == 0; i++)
-    cblas_daxpy((int)(qm(m, seed_q[i]) * nd), 1.0, seed[i], 1, dv.d[seed_q[i]], 1);
+  if (rc == 0) deriv_activate(&dv, seeds->q, seeds->n);
+  if (seeds->identity) dv.ident_q = seeds->q[0];
+  for (int i = 0; i < seeds->n && rc == 0; i++)
+    cblas_daxpy((int)(qm(m, seeds->q[i]) * nd), 1.0, seeds->block[i], 1, dv.d[seeds->q[i]], 1);
   for (int i = 0; i < m->nstages && rc == 0; i++) {
     const RStage *rs = &m->stages[i];
     bool seeded = false;
-    for (int s = 0; s < nseed; s++) seeded = seeded || seed_q[s] == rs->q;
+    for (int s = 0; s < seeds->n; s++) seeded = seeded || seeds->q[s] == rs->q;
     if (dv.active[rs->q] && !seeded) rc = stage_derivative(&dv, rs, false);
   }
   if (rc == 0) memcpy(out, dv.d[out_q], sizeof(double) * (size_t)(qm(m, out_q) * nd));
@@ -1063,18 +1082,15 @@ static int forward_sweep(Reduced *r, int nseed, const int *seed_q, const double 
   return rc ? -1 : 0;
 }
 
-int reduced_jvp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int out_q, double *out,
-                long sample, char *err, size_t errlen) {
-  return forward_sweep(r, nseed, seed_q, seed, nd, out_q, out, false, sample, err, errlen);
-}
-
-int reduced_vjp(Reduced *r, int nseed, const int *seed_q, const double *const *seed, long nd, int in_q, double *out,
-                long sample, char *err, size_t errlen) {
+int reduced_vjp(Reduced *r, const ReducedSeeds *seeds, int in_q, double *out, long sample, Err *err) {
   Deriv dv;
-  int rc = deriv_init(&dv, r, nd, &in_q, 1, sample, err, errlen);
+  long nd = seeds->nd;
+  int rc = deriv_init(&dv, r, nd, sample, err);
   const Model *m = dv.m;
-  for (int i = 0; i < nseed && rc == 0; i++)
-    if (dv.active[seed_q[i]]) cblas_daxpy((int)(qm(m, seed_q[i]) * nd), 1.0, seed[i], 1, dv.d[seed_q[i]], 1);
+  if (rc == 0) deriv_activate(&dv, &in_q, 1);
+  for (int i = 0; i < seeds->n && rc == 0; i++)
+    if (dv.active[seeds->q[i]])
+      cblas_daxpy((int)(qm(m, seeds->q[i]) * nd), 1.0, seeds->block[i], 1, dv.d[seeds->q[i]], 1);
   for (int i = m->nstages - 1; i >= 0 && rc == 0; i--) {
     const RStage *rs = &m->stages[i];
     if (dv.active[rs->q] && rs->q != in_q) rc = stage_derivative(&dv, rs, true);
@@ -1085,7 +1101,7 @@ int reduced_vjp(Reduced *r, int nseed, const int *seed_q, const double *const *s
   return rc ? -1 : 0;
 }
 
-int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, char *err, size_t errlen) {
+int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, Err *err) {
   const Model *m = reduced_model(r);
   long mo = qm(m, out_q), mi = qm(m, in_q);
   bool forward = mi <= mo;
@@ -1095,12 +1111,12 @@ int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, ch
   if (!eye || (!forward && !T)) {
     free(eye);
     free(T);
-    return error_set(err, errlen, "out of memory for the reduced Jacobian");
+    return err_set(err, "out of memory for the reduced Jacobian");
   }
   for (long i = 0; i < nd; i++) eye[i * nd + i] = 1;
   const double *seed = eye;
-  int rc = forward ? forward_sweep(r, 1, &in_q, &seed, nd, out_q, J, true, sample, err, errlen)
-                   : reduced_vjp(r, 1, &out_q, &seed, nd, in_q, T, sample, err, errlen);
+  int rc = forward ? reduced_jvp(r, &(ReducedSeeds){1, &in_q, &seed, nd, true}, out_q, J, sample, err)
+                   : reduced_vjp(r, &(ReducedSeeds){1, &out_q, &seed, nd, false}, in_q, T, sample, err);
   if (rc == 0 && !forward)
     for (long a = 0; a < mo; a++)
       for (long b = 0; b < mi; b++) J[a * mi + b] = T[b * mo + a];
@@ -1109,13 +1125,15 @@ int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, ch
   return rc;
 }
 
-int reduced_stage_jvp(Reduced *r, int stage, int in_q, const double *seed, long nd, double *out, long sample,
-                      char *err, size_t errlen) {
+int reduced_stage_jvp(Reduced *r, int stage, const ReducedSeeds *in, double *out, long sample, Err *err) {
   Deriv dv;
-  int rc = deriv_init(&dv, r, nd, &in_q, 1, sample, err, errlen);
+  int in_q = in->q[0];
+  long nd = in->nd;
+  int rc = deriv_init(&dv, r, nd, sample, err);
   const Model *m = dv.m;
   const RStage *rs = &m->stages[stage];
-  if (rc == 0) cblas_dcopy((int)(qm(m, in_q) * nd), seed, 1, dv.d[in_q], 1);
+  if (rc == 0) deriv_activate(&dv, &in_q, 1);
+  if (rc == 0) cblas_dcopy((int)(qm(m, in_q) * nd), in->block[0], 1, dv.d[in_q], 1);
   /* every other quantity keeps a zero tangent: stage `stage` alone is differentiated, the local partial */
   if (rc == 0 && dv.active[rs->q] && rs->q != in_q) rc = stage_derivative(&dv, rs, false);
   if (rc == 0) memcpy(out, dv.d[rs->q], sizeof(double) * (size_t)(qm(m, rs->q) * nd));

@@ -32,7 +32,7 @@ static int host_op_power(const NpgReducedCtx *c, int stage, int term, int op, np
                          double *v) {
   RedJit *j = c->host;
   (void)m;
-  return reduced_apply_power(j->r, stage, term, op, p, q, M, v, c->sample);
+  return reduced_apply_power(j->r, &(ReducedPower){stage, term, op, p, q, c->sample}, M, v);
 }
 
 static int host_learned(const NpgReducedCtx *c, int stage) {
@@ -73,7 +73,7 @@ static bool layout_matches(RedJit *j, const ReducedSlot *slots) {
   return true;
 }
 
-RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
+RedJit *reduced_jit_new(const Model *m, bool cc, Err *err) {
   RedJit *j = mem_calloc(1, sizeof *j);
   char *src = NULL;
   size_t len = 0;
@@ -82,10 +82,10 @@ RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
   j->m = m;
   FILE *mem = open_memstream(&src, &len);
   if (!mem) goto oom;
-  int rc = emit_reduced(m, mem, ERR_OF(err, errlen));
+  int rc = emit_reduced(m, mem, err);
   fclose(mem);
   if (rc != 0) goto fail;
-  j->jit = jit_compile(src, cc ? JIT_CC : JIT_TCC, err, errlen);
+  j->jit = jit_compile(src, cc ? JIT_CC : JIT_TCC, ERR_MSG(err), ERR_LEN(err));
   free(src);
   src = NULL;
   if (!j->jit) goto fail;
@@ -99,13 +99,13 @@ RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
   if (!slots || !j->t || !j->x) goto oom;
   emit_reduced_slots(m, slots);
   if (!j->fn || !j->stage_fn || !nwork || !layout_matches(j, slots)) {
-    snprintf(err, errlen, "generated reduced code lacks its entry points or disagrees with the model (a bug in npg)");
+    err_set(err, "generated reduced code lacks its entry points or disagrees with the model (a bug in npg)");
     goto fail;
   }
   for (long k = 0; k < j->nslots; k++) {
     if (!slots[k].data) {
-      snprintf(err, errlen, "reduced tensor %s has no data: the model is not trained",
-               slots[k].t ? slots[k].t->name : "(projection)");
+      err_set(err, "reduced tensor %s has no data: the model is not trained",
+              slots[k].t ? slots[k].t->name : "(projection)");
       goto fail;
     }
     j->t[k] = slots[k].data;
@@ -114,7 +114,7 @@ RedJit *reduced_jit_new(const Model *m, bool cc, char *err, size_t errlen) {
   free(slots);
   return j;
 oom:
-  snprintf(err, errlen, "out of memory for the generated reduced evaluator");
+  err_set(err, "out of memory for the generated reduced evaluator");
 fail:
   free(src);
   free(slots);

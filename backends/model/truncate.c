@@ -151,7 +151,7 @@ static int cut_class(const RClass *s, RClass *t) {
 }
 
 /* Stage i of m from src's: tensors, projections, operator marks, fit. */
-static int cut_stage(const Model *src, Model *m, int i, char *err, size_t errlen) {
+static int cut_stage(const Model *src, Model *m, int i, Err *err) {
   const RStage *s = &src->stages[i];
   RStage *t = &m->stages[i];
   int c = m->qclass[t->q];
@@ -159,25 +159,25 @@ static int cut_stage(const Model *src, Model *m, int i, char *err, size_t errlen
   t->choice_err[0] = s->choice_err[0], t->choice_err[1] = s->choice_err[1], t->choice_reason = s->choice_reason;
   if (s->interp) {
     if (my1 != my0)
-      return error_set(err, errlen, "class %s: stage '%s' is interpolated, its fit made for all %ld vectors of its "
-                       "class; keep its size, or retrain at the smaller cap (--basis %s:cap=%ld)",
-                       m->classes[c].bc->size_name, s->st->sym->name, my0, m->classes[c].bc->size_name, my1);
-    if (!(t->interp = copy_interp(src, m, t, s->interp))) return error_set(err, errlen, "out of memory");
+      return err_set(err, "class %s: stage '%s' is interpolated, its fit made for all %ld vectors of its "
+                     "class; keep its size, or retrain at the smaller cap (--basis %s:cap=%ld)",
+                     m->classes[c].bc->size_name, s->st->sym->name, my0, m->classes[c].bc->size_name, my1);
+    if (!(t->interp = copy_interp(src, m, t, s->interp))) return err_set(err, "out of memory");
   }
-  if (s->check && !(t->check = copy_check(src, m, t, s->check, 0))) return error_set(err, errlen, "out of memory");
+  if (s->check && !(t->check = copy_check(src, m, t, s->check, 0))) return err_set(err, "out of memory");
   for (int k = 0; k < t->nterms; k++) {
     const RTerm *a = &s->terms[k];
     RTerm *b = &t->terms[k];
     for (int o = 0; o < b->nops; o++) b->ops[o].spd = a->ops[o].spd;
     if (a->proj) { /* B_yᵀB_w, m_y x m_w row-major */
       long w0 = src->classes[src->qclass[a->named_q]].m, w1 = m->classes[m->qclass[a->named_q]].m;
-      if (!(b->proj = mem_malloc(sizeof(double) * (size_t)(my1 * w1 + 1)))) return error_set(err, errlen, "out of memory");
+      if (!(b->proj = mem_malloc(sizeof(double) * (size_t)(my1 * w1 + 1)))) return err_set(err, "out of memory");
       for (long r = 0; r < my1; r++) memcpy(b->proj + r * w1, a->proj + r * w0, sizeof(double) * (size_t)w1);
     }
     for (int g = -1; g < a->nops; g++)
       for (int j = 0; j < (g < 0 ? a->nnum : a->ops[g].ntensors); j++)
         if (cut_tensor(src, m, g < 0 ? &a->num[j] : &a->ops[g].t[j], g < 0 ? &b->num[j] : &b->ops[g].t[j], my0, my1))
-          return error_set(err, errlen, "out of memory");
+          return err_set(err, "out of memory");
   }
   return 0;
 }
@@ -202,13 +202,13 @@ static int cut_extern(const Model *src, Model *m, int i) {
   return 0;
 }
 
-Model *model_truncate(const Model *src, const long *sizes, char *err, size_t errlen) {
+Model *model_truncate(const Model *src, const long *sizes, Err *err) {
   for (int c = 0; c < src->nclasses; c++)
     if (sizes[c] > src->classes[c].m || (sizes[c] == 0 && src->classes[c].m > 0))
-      return error_set(err, errlen, "class %s has %ld basis vectors: a size of %ld is not between 1 and %ld",
-                       src->classes[c].bc->size_name, src->classes[c].m, sizes[c], src->classes[c].m),
+      return err_set(err, "class %s has %ld basis vectors: a size of %ld is not between 1 and %ld",
+                     src->classes[c].bc->size_name, src->classes[c].m, sizes[c], src->classes[c].m),
              NULL;
-  Model *m = model_layout(src->prog, src->dims, err, errlen);
+  Model *m = model_layout(src->prog, src->dims, err);
   if (!m) return NULL;
   for (int c = 0; c < m->nclasses; c++) m->classes[c].m = sizes[c] < 0 ? src->classes[c].m : sizes[c];
   model_size_tensors(m);
@@ -218,7 +218,7 @@ Model *model_truncate(const Model *src, const long *sizes, char *err, size_t err
   for (int c = 0; c < m->nclasses; c++)
     if (cut_class(&src->classes[c], &m->classes[c])) goto oom;
   for (int i = 0; i < m->nstages; i++)
-    if (cut_stage(src, m, i, err, errlen)) {
+    if (cut_stage(src, m, i, err)) {
       model_free(m);
       return NULL;
     }
@@ -227,7 +227,7 @@ Model *model_truncate(const Model *src, const long *sizes, char *err, size_t err
   return m;
 oom:
   model_free(m);
-  error_set(err, errlen, "out of memory making the model at smaller sizes");
+  err_set(err, "out of memory making the model at smaller sizes");
   return NULL;
 }
 
@@ -240,7 +240,7 @@ static bool names_class(const RClass *c, const char *name) {
   return false;
 }
 
-int model_parse_sizes(const Model *m, const char *spec, long *sizes, char *err, size_t errlen) {
+int model_parse_sizes(const Model *m, const char *spec, long *sizes, Err *err) {
   for (int c = 0; c < m->nclasses; c++) sizes[c] = -1;
   const char *p = spec;
   while (*p) {
@@ -248,15 +248,15 @@ int model_parse_sizes(const Model *m, const char *spec, long *sizes, char *err, 
     size_t len = end ? (size_t)(end - p) : strlen(p);
     char name[256];
     if (!eq || eq >= p + len || (size_t)(eq - p) >= sizeof name || eq == p)
-      return error_set(err, errlen, "--sizes '%.*s': expected NAME=N (a class as `npgc check` names it, e.g. m_u)",
-                       (int)len, p);
+      return err_set(err, "--sizes '%.*s': expected NAME=N (a class as `npgc check` names it, e.g. m_u)",
+                     (int)len, p);
     memcpy(name, p, (size_t)(eq - p));
     name[eq - p] = 0;
     char *num_end;
     long v = strtol(eq + 1, &num_end, 10);
     if (num_end == eq + 1 || num_end != p + len || v < 1)
-      return error_set(err, errlen, "--sizes %s: '%.*s' is not a whole number of at least 1", name,
-                       (int)(p + len - eq - 1), eq + 1);
+      return err_set(err, "--sizes %s: '%.*s' is not a whole number of at least 1", name,
+                     (int)(p + len - eq - 1), eq + 1);
     int found = -1;
     for (int c = 0; c < m->nclasses && found < 0; c++)
       if (names_class(&m->classes[c], name)) found = c;
@@ -266,12 +266,12 @@ int model_parse_sizes(const Model *m, const char *spec, long *sizes, char *err, 
       for (int c = 0; c < m->nclasses && at < sizeof list; c++)
         at += (size_t)snprintf(list + at, sizeof list - at, "%s%s %s", c ? ", " : "", m->classes[c].bc->size_name,
                                m->classes[c].label);
-      return error_set(err, errlen, "--sizes %s: no class of that name; the classes: %s", name, list);
+      return err_set(err, "--sizes %s: no class of that name; the classes: %s", name, list);
     }
     if (v > m->classes[found].m)
-      return error_set(err, errlen, "--sizes %s=%ld: class %s has %ld basis vectors: give at most that (a smaller "
-                       "size needs no retraining, a larger one does)", name, v, m->classes[found].bc->size_name,
-                       m->classes[found].m);
+      return err_set(err, "--sizes %s=%ld: class %s has %ld basis vectors: give at most that (a smaller "
+                     "size needs no retraining, a larger one does)", name, v, m->classes[found].bc->size_name,
+                     m->classes[found].m);
     sizes[found] = v;
     p += len + (end ? 1 : 0);
   }

@@ -356,7 +356,7 @@ int train_begin(Train *t) {
   long *dims = train_scratch(t, sizeof(long) * ((size_t)prog->dims.n + 1));
   if (!dims) return -1;
   for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(t->f, i);
-  Model *m = t->m = model_layout(prog, dims, t->err, t->errlen);
+  Model *m = t->m = model_layout(prog, dims, ERR_OF(t->err, t->errlen));
   if (!m) return -1;
   m->samples = t->src->count;
   bool *powered = lower_under_powers(m->prog);
@@ -378,7 +378,7 @@ int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t 
   long *dims = mem_calloc((size_t)prog->dims.n + 1, sizeof(long));
   if (!dims) return error_set(err, errlen, "out of memory");
   for (int i = 0; i < prog->dims.n; i++) dims[i] = 1;
-  Model *m = model_layout(prog, dims, err, errlen);
+  Model *m = model_layout(prog, dims, ERR_OF(err, errlen));
   free(dims);
   if (!m) return -1;
   char unknown[256] = "";
@@ -877,7 +877,7 @@ static void self_check(Train *t) {
   m->self_check_sample = -1;
   if (t->opt->dist) return;
   char err[600];
-  Reduced *r = src->count > 0 && m->nexterns == 0 ? reduced_new(m, err, sizeof err) : NULL;
+  Reduced *r = src->count > 0 && m->nexterns == 0 ? reduced_new(m, ERR_OF(err, sizeof err)) : NULL;
   if (!r) return;
   long pick[3] = {0, src->count / 2, src->count - 1};
   for (int i = 0; i < 3 && m->self_check_sample < 0; i++) {

@@ -133,7 +133,7 @@ static int truncated_member(RMember *mb, const PcaMember *p, int cap, int k) {
 static Model *set_bases(TrainSet *ts, const int *cap, char *err, size_t errlen) {
   const Model *b = ts->base;
   err[0] = 0;
-  Model *m = model_layout(b->prog, b->dims, err, errlen);
+  Model *m = model_layout(b->prog, b->dims, ERR_OF(err, errlen));
   if (!m) return NULL;
   m->samples = b->samples;
   for (int i = 0; i < m->nstages; i++) /* the SPD marks the snapshots set */
@@ -202,7 +202,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
   if (m && !sizes) error_set(err, errlen, "out of memory");
   if (sizes && cover(ts, cap, err, errlen) == 0) {
     for (int c = 0; c < m->nclasses; c++) sizes[c] = m->classes[c].m;
-    cut = model_truncate(ts->top, sizes, err, errlen);
+    cut = model_truncate(ts->top, sizes, ERR_OF(err, errlen));
   }
   for (int c = 0; cut && c < m->nclasses; c++) /* the members' reports at these caps */
     for (int i = 0; i < m->classes[c].nmembers; i++) {

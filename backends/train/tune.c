@@ -120,7 +120,7 @@ static int cache_rollouts(Search *s, Full *f, const SampleSource *valid, const M
 static int validate_rollouts(Search *s, Model *m, double *worst, char *err, size_t errlen) {
   const Program *prog = s->prog;
   int ns = prog->states.n;
-  Reduced *r = reduced_new(m, err, errlen);
+  Reduced *r = reduced_new(m, ERR_OF(err, errlen));
   if (!r) return -1;
   long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
@@ -161,7 +161,7 @@ static int validate_rollouts(Search *s, Model *m, double *worst, char *err, size
       e[i] += blown ? INFINITY : (n2[i] > 0 ? sqrt(e2[i] / n2[i]) : sqrt(e2[i])) / (double)s->v.S;
     if (blown) { /* a fresh evaluator for the next sample: this one keeps its error */
       reduced_free(r);
-      if (!(r = reduced_new(m, err, errlen))) rc = -1;
+      if (!(r = reduced_new(m, ERR_OF(err, errlen)))) rc = -1;
     }
   }
   *worst = 0;
@@ -182,7 +182,7 @@ static long qoff(const Model *m, int q) {
  * worst into *worst), and when `floor` is given every quantity's mean
  * projection floor ‖y − BBᵀy‖/‖y‖. */
 static int validate(Search *s, Model *m, double *worst, double *floor, char *err, size_t errlen) {
-  Reduced *r = reduced_new(m, err, errlen);
+  Reduced *r = reduced_new(m, ERR_OF(err, errlen));
   if (!r) return -1;
   long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;

@@ -274,7 +274,7 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
     char why[2048] = "";
     if (!(m = train_model(prog, f, &src, &opt, why, sizeof why)))
       rc = error_set(err, errlen, "training with full-rank bases on the random data: %s", why);
-    else if (!(r = reduced_new(m, why, sizeof why))) rc = error_set(err, errlen, "%s", why);
+    else if (!(r = reduced_new(m, ERR_OF(why, sizeof why)))) rc = error_set(err, errlen, "%s", why);
     else if (!(y = malloc(sizeof(double) * (size_t)(S - 4))))
       rc = error_set(err, errlen, "out of memory");
   }
@@ -298,7 +298,7 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
   if (rc == 0 && neligible > 0) {
     char why[2048] = "";
     reduced_free(r);
-    if (!(r = reduced_new(m, why, sizeof why))) rc = error_set(err, errlen, "%s", why);
+    if (!(r = reduced_new(m, ERR_OF(why, sizeof why)))) rc = error_set(err, errlen, "%s", why);
     if (rc == 0) rc = held_out_differences(prog, m, f, r, &held, held_out, y, worst, err, errlen);
     double all = 0;
     for (int q = 0; rc == 0 && q < m->nq; q++) all = isnan(worst[q]) || isnan(all) ? NAN : fmax(all, worst[q]);

@@ -176,7 +176,7 @@ Heldout *heldout_new(Model *m, char *err, size_t errlen) {
   h->est = estimate_result_new(m);
   h->pn = calloc((size_t)m->nclasses + 1, sizeof *h->pn);
   char why[1024] = "";
-  h->r = reduced_new(m, why, sizeof why);
+  h->r = reduced_new(m, ERR_OF(why, sizeof why));
   if (h->r) reduced_krylov_roots(h->r, true); /* what users run */
   if (!h->sum || !h->y || !h->proj || !h->rows || !h->in_err || !h->est || !h->pn || !h->r) {
     error_set(err, errlen, "%s", why[0] ? why : "out of memory");

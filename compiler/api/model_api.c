@@ -158,7 +158,7 @@ NpgModel *npg_model_load(NpgProgram *p, const char *dir) {
   if (!nm) return api_refuse(NULL, 0, __func__, "out of memory"), NULL; /* what npg_model_error(NULL) says */
   if (!p || !dir) api_refuse(nm->error, sizeof nm->error, __func__, "argument '%s' is NULL", !p ? "p" : "dir");
   else if (!npg_ok(p)) snprintf(nm->error, sizeof nm->error, "%s", npg_error(p));
-  else if (!(nm->m = model_load(program_ir(p), dir, nm->error, sizeof nm->error)) && !nm->error[0])
+  else if (!(nm->m = model_load(program_ir(p), dir, ERR_OF(nm->error, sizeof nm->error))) && !nm->error[0])
     snprintf(nm->error, sizeof nm->error, "%s: cannot load the model", dir);
   else if (nm->m && (missing_param_hash(nm, dir) != 0 || nonfinite_array(nm, dir) != 0)) {
     model_free(nm->m);
@@ -179,7 +179,7 @@ int npg_model_save(NpgModel *nm, const char *dir) {
   REFUSE_NULL_M(-1);
   API_REFUSE_NULL(dir, nm->error, sizeof nm->error, -1);
   if (!nm->m) return -1;
-  return model_save(nm->m, dir, nm->error, sizeof nm->error) == 0 ? 0 : -1;
+  return model_save(nm->m, dir, ERR_OF(nm->error, sizeof nm->error)) == 0 ? 0 : -1;
 }
 
 void npg_model_free(NpgModel *nm) {
@@ -202,7 +202,7 @@ int npg_spectra_read(const char *dir, NpgSpectrum **out, int *count, char *err, 
   ModelStore st;
   *out = NULL;
   *count = 0;
-  if (model_store_read_any(dir, &st, err, errlen) != 0) return -1;
+  if (model_store_read_any(dir, &st, ERR_OF(err, errlen)) != 0) return -1;
   NpgSpectrum *sp = mem_calloc((size_t)st.nmeta + 1, sizeof *sp);
   int n = 0, rc = sp ? 0 : -1;
   if (!sp) snprintf(err, errlen, "out of memory");
@@ -264,7 +264,7 @@ int npg_model_write_spectra(const NpgModel *nm, const char *dir, char *err, size
     snprintf(err, errlen, "%s", nm->error);
     return -1;
   }
-  return model_write_spectra(nm->m, dir, err, errlen);
+  return model_write_spectra(nm->m, dir, ERR_OF(err, errlen));
 }
 
 int npg_model_class(const NpgModel *nm, int c, NpgClassInfo *out) {
@@ -444,7 +444,7 @@ NpgReduced *npg_reduced_new(const NpgModel *nm) {
   else if (!(r->given = mem_calloc((size_t)nm->m->nq + 1, sizeof *r->given)) ||
            !(r->in_err = mem_calloc((size_t)nm->m->nq + 1, sizeof *r->in_err)))
     rfail(r, "out of memory");
-  else if (!(r->r = reduced_new(nm->m, r->error, sizeof r->error)) && !r->error[0]) rfail(r, "out of memory");
+  else if (!(r->r = reduced_new(nm->m, ERR_OF(r->error, sizeof r->error))) && !r->error[0]) rfail(r, "out of memory");
   if (r->r) reduced_krylov_roots(r->r, true);
   return r;
 }
@@ -456,8 +456,8 @@ NpgModel *npg_model_at_sizes(const NpgModel *nm, const char *sizes) {
   if (!nm->m) return snprintf(out->error, sizeof out->error, "%s", nm->error[0] ? nm->error : "the model holds nothing"), out;
   long *n = mem_calloc((size_t)nm->m->nclasses + 1, sizeof(long));
   if (!n) return snprintf(out->error, sizeof out->error, "out of memory"), out;
-  if (model_parse_sizes(nm->m, sizes ? sizes : "", n, out->error, sizeof out->error) == 0)
-    out->m = model_truncate(nm->m, n, out->error, sizeof out->error);
+  if (model_parse_sizes(nm->m, sizes ? sizes : "", n, ERR_OF(out->error, sizeof out->error)) == 0)
+    out->m = model_truncate(nm->m, n, ERR_OF(out->error, sizeof out->error));
   free(n);
   return out;
 }
@@ -492,7 +492,7 @@ void npg_reduced_clear_error(NpgReduced *r) {
   if (!r->r || !reduced_error(r->r)[0]) return;
   /* a fresh evaluator with the same coordinates */
   Model *m = r->nm->m;
-  Reduced *n = reduced_new(m, r->error, sizeof r->error);
+  Reduced *n = reduced_new(m, ERR_OF(r->error, sizeof r->error));
   if (!n) return;
   for (int q = 0; q < m->nq; q++)
     memcpy(reduced_coords(n, q), reduced_coords(r->r, q), sizeof(double) * (size_t)m->classes[m->qclass[q]].m);

@@ -79,7 +79,8 @@ int npg_reduced_jvp(NpgReduced *r, long sample, int nin, const char *const *inpu
   if (derivative_begin(r, __func__, sample, nin, inputs, true, "inputs", qs)) return -1;
   if (finite_vectors(r, __func__, "directions", nin, qs, directions)) return -1;
   char err[1024];
-  if (reduced_jvp(r->r, nin, qs, directions, 1, qo, out, sample, err, sizeof err)) return rfail(r, "%s", err);
+  ReducedSeeds seeds = {nin, qs, directions, 1, false};
+  if (reduced_jvp(r->r, &seeds, qo, out, sample, ERR_OF(err, sizeof err))) return rfail(r, "%s", err);
   return 0;
 }
 
@@ -95,7 +96,8 @@ int npg_reduced_vjp(NpgReduced *r, long sample, int nout, const char *const *out
   if (derivative_begin(r, __func__, sample, nout, outputs, false, "outputs", qs)) return -1;
   if (finite_vectors(r, __func__, "cotangents", nout, qs, cotangents)) return -1;
   char err[1024];
-  if (reduced_vjp(r->r, nout, qs, cotangents, 1, qi, out, sample, err, sizeof err)) return rfail(r, "%s", err);
+  ReducedSeeds seeds = {nout, qs, cotangents, 1, false};
+  if (reduced_vjp(r->r, &seeds, qi, out, sample, ERR_OF(err, sizeof err))) return rfail(r, "%s", err);
   return 0;
 }
 
@@ -107,7 +109,7 @@ int npg_reduced_jacobian(NpgReduced *r, long sample, const char *output, const c
   if ((qi = derivative_quantity(r, __func__, "input", input, true)) < 0) return -1;
   if (derivative_begin(r, __func__, sample, 1, &output, false, "output", &qo)) return -1;
   char err[1024];
-  if (reduced_jacobian(r->r, qo, qi, out, sample, err, sizeof err)) return rfail(r, "%s", err);
+  if (reduced_jacobian(r->r, qo, qi, out, sample, ERR_OF(err, sizeof err))) return rfail(r, "%s", err);
   return 0;
 }
 
@@ -124,7 +126,8 @@ static int newton_update(NpgReduced *r, const char *fn, long sample, const char 
                          double *J, double *rhs, long m) {
   const Program *prog = r->nm->m->prog;
   char err[1024]; /* at the coordinates just evaluated: not npg_reduced_jacobian, which evaluates again */
-  if (reduced_jacobian(r->r, api_quantity(prog, residual), api_quantity(prog, unknown), J, sample, err, sizeof err))
+  if (reduced_jacobian(r->r, api_quantity(prog, residual), api_quantity(prog, unknown), J, sample,
+                       ERR_OF(err, sizeof err)))
     return rfail(r, "%s: sample %ld, iteration %d: %s", fn, sample, it, err);
   lapack_int *piv = malloc(sizeof(lapack_int) * (size_t)(m + 1));
   if (!piv) return rfail(r, "%s: out of memory", fn);

@@ -157,7 +157,7 @@ static void one_manifest(const uint8_t *data, size_t size) {
 
   ModelStore m;
   char err[1024];
-  if (model_store_read(dir, program_hash, &m, err, sizeof err) != 0) {
+  if (model_store_read(dir, program_hash, &m, ERR_OF(err, sizeof err)) != 0) {
     check(m.nmeta == 0 && m.narrays == 0 && m.meta == NULL && m.arrays == NULL, "a failed read leaves it empty");
     check(strncmp(err, dir, strlen(dir)) == 0, "a failure names a file of the folder");
     return;
@@ -165,8 +165,8 @@ static void one_manifest(const uint8_t *data, size_t size) {
   check(err[0] == '\0', "a successful read leaves no message");
   /* a manifest that reads writes back, and reads back the same */
   ModelStore back;
-  check(model_store_write(copy_dir, &m, err, sizeof err) == 0, "what was read writes back");
-  check(model_store_read(copy_dir, program_hash, &back, err, sizeof err) == 0, "what was written reads back");
+  check(model_store_write(copy_dir, &m, ERR_OF(err, sizeof err)) == 0, "what was read writes back");
+  check(model_store_read(copy_dir, program_hash, &back, ERR_OF(err, sizeof err)) == 0, "what was written reads back");
   check(same_store(&m, &back), "what reads back is what was read");
   model_store_free(&back);
   model_store_free(&m);
