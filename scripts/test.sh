@@ -11,6 +11,10 @@
 #                                     the .npy reader, the model manifest and npg.h call sequences
 #                                     for a third of that each
 #
+# ctest starts the longest tests first (cmake/test_costs.cmake). Phases 3 and 4 run side by side
+# once both are built: the ThreadSanitizer test takes about one core and each fuzzer one, so the
+# fuzzers get the time they would alone; phase 3's output follows the fuzzers'.
+#
 # Builds are incremental; delete a build directory to start it afresh.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -45,14 +49,33 @@ ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 \
 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   ctest --test-dir build-asan --output-on-failure -j2
 
-header "3/4 ThreadSanitizer: the tests labelled threads (build-tsan/)"
+header "3/4 ThreadSanitizer: the tests labelled threads (build-tsan/), beside phase 4"
 cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=Debug -DNPG_TSAN=ON
 cmake --build build-tsan -j2 --target test_api npgc radiosity_data
-TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$PWD/tests/tsan.supp" ctest --test-dir build-tsan -L threads --output-on-failure
 
 header "4/4 fuzz the front end, the .npy reader, the manifest and npg.h call sequences (build-fuzz/)"
 CC=clang cmake -S . -B build-fuzz -DCMAKE_BUILD_TYPE=Debug -DNPG_FUZZ=ON
 cmake --build build-fuzz -j2
+
+# phase 3 in the background, its output in build-tsan/tsan.log (shown when the fuzzers are done)
+tsan_log=build-tsan/tsan.log
+TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$PWD/tests/tsan.supp" \
+  ctest --test-dir build-tsan -L threads --output-on-failure >"$tsan_log" 2>&1 &
+tsan_pid=$!
+# phase 3's result: its log and status. Waited for before test.sh exits whichever way (a fuzzer
+# that fails, or any command under set -e: the trap), so no ctest outlives it.
+tsan_done() {
+  local rc=0
+  wait "$tsan_pid" || rc=$?
+  tsan_pid=
+  header "3/4 ThreadSanitizer: the tests labelled threads (build-tsan/)"
+  cat "$tsan_log"
+  if [ "$rc" != 0 ]; then
+    echo "test.sh: the ThreadSanitizer phase failed (its log: $tsan_log)" >&2
+  fi
+  return "$rc"
+}
+trap '[ -z "$tsan_pid" ] || tsan_done || true' EXIT
 
 # Seed corpus: every .npg in the tree, tracked or not. libFuzzer adds the
 # inputs it finds to the first corpus directory, so it is a scratch copy;
@@ -113,5 +136,7 @@ for target in fuzz_npy fuzz_manifest fuzz_api; do
   fi
   grep -E '^(Done|stat::number_of_executed_units|stat::new_units_added)' "$log" || true
 done
+
+tsan_done || exit 1
 
 header "all phases passed"
