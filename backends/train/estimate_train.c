@@ -15,10 +15,10 @@
  * mapped from their files are read as in memory; a class formed block by
  * block, whose basis is never whole, gives its stages no table), over MPI
  * ranks (the residual tables need only the bases and the params, which
- * every rank holds: each rank builds them, the same arithmetic; the σ_min
- * ratios and the ranges need training samples: each rank measures those
- * it holds and the figures are combined exactly, see sigma_ratios and
- * input_ranges), with externs (a sample set again gives the extern values
+ * every rank holds: each term's is built by one rank and sent to the
+ * others, term_tables; the σ_min ratios and the ranges need training
+ * samples: each rank measures those it holds and the figures are combined
+ * exactly, see sigma_ratios and input_ranges), with externs (a sample set again gives the extern values
  * training was given, from the data or the trainer's cache: no callback
  * runs; the learned map itself has no estimate), and for the model npgc
  * tune writes (train_set_stream). */
@@ -680,6 +680,39 @@ static int input_ranges(Model *m, Full *f, const SampleSource *src, bool dist, E
   return 0;
 }
 
+/* Term rt's table as rank `owner` built it (none, or R with its norms row), on every rank. */
+static int share_table(RTerm *rt, int owner, Err *err) {
+  double D = rt->est_G ? (double)rt->est_D : -1;
+  dist_broadcast(&D, 1, owner);
+  if (D < 0) return 0;
+  if (dist_rank() != owner) {
+    free(rt->est_G);
+    rt->est_D = (long)D, rt->est_sigma = NAN;
+    if (!(rt->est_G = malloc(sizeof(double) * (size_t)((rt->est_D + 1) * rt->est_D) + 1)))
+      return err_set(err, "estimate tables: out of memory");
+  }
+  dist_broadcast(rt->est_G, (rt->est_D + 1) * rt->est_D, owner);
+  return 0;
+}
+
+/* Every eligible term's residual table. Over ranks the e-th (in stage and term order) is built by rank e mod N
+ * and sent to the others: the same arithmetic as on one process, the work divided (a class with a product, which
+ * training over ranks refuses, would be built on every rank). */
+static int term_tables(Model *m, Full *f, bool dist, Err *err) {
+  int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1, e = 0;
+  char why[256];
+  for (int i = 0; i < m->nstages; i++)
+    for (int t = 0; t < m->stages[i].nterms; t++) {
+      const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
+      if (!estimate_term_eligible(m, i, t, why, sizeof why) || !rc->B) continue;
+      bool shared = N > 1 && !rc->product;
+      int owner = e++ % N;
+      if ((!shared || owner == rank) && term_table(m, f, i, t, err)) return -1;
+      if (shared && share_table(&m->stages[i].terms[t], owner, err)) return -1;
+    }
+  return 0;
+}
+
 int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptions *opt, Err *err) {
   if (src->count < 1) return 0;
   char why[256];
@@ -691,12 +724,9 @@ int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptio
         interp_train_check(m, f, i, err))
       return -1;
   }
-  for (int i = 0; i < m->nstages; i++)
-    for (int t = 0; t < m->stages[i].nterms; t++)
-      if (estimate_term_eligible(m, i, t, why, sizeof why) && m->classes[m->qclass[m->stages[i].q]].B &&
-          term_table(m, f, i, t, err))
-        return -1;
-  if (sigma_ratios(m, f, src, opt->dist, err) || input_ranges(m, f, src, opt->dist, err)) return -1;
+  if (term_tables(m, f, opt->dist, err) || sigma_ratios(m, f, src, opt->dist, err) ||
+      input_ranges(m, f, src, opt->dist, err))
+    return -1;
   if (m->nexterns > 0) full_forget_given(f); /* the ranges' samples set, never evaluated: callbacks as before */
   return 0;
 }
