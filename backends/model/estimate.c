@@ -12,6 +12,7 @@
 #include <lapacke.h>
 #include <float.h>
 #include <math.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -57,6 +58,12 @@ long estimate_term_dim(const Model *m, int i, int t) {
   for (int k = 0; k < rt->nops; k++)
     for (int g = 0; g < rt->ops[k].ntensors; g++) d += qm(m, m->stages[i].q) * rt->ops[k].t[g].cols;
   return d;
+}
+
+size_t estimate_term_bytes(const Model *m, int i, int t) {
+  double n = (double)m->classes[m->qclass[m->stages[i].q]].n, D = (double)estimate_term_dim(m, i, t);
+  double b = 8 * (n * D + D * D);
+  return b < (double)SIZE_MAX / 2 ? (size_t)b : SIZE_MAX;
 }
 
 void estimate_input_product(const Model *m, double *const *coords, const RTensor *x, double *z, double *scratch) {
@@ -357,8 +364,15 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) 
     const RTerm *rt = &rs->terms[t];
     if (!estimate_term_eligible(m, i, t, why, sizeof why)) goto none;
     if (!rt->est_G) {
-      snprintf(why, sizeof why, "the model holds no estimate table for term %d (trained without one: see npgc train's "
-               "report, or a model older than the estimates)", t + 1);
+      size_t bytes = estimate_term_bytes(m, i, t);
+      if (bytes > ESTIMATE_MAX_BYTES)
+        snprintf(why, sizeof why, "term %d's residual table (%ld x %ld columns and their R) takes %.1f MiB, above the "
+                 "estimate tables' bound of %zu MiB (ESTIMATE_MAX_BYTES): smaller bases (--basis NAME:cap=N) fit it",
+                 t + 1, m->classes[m->qclass[q]].n, estimate_term_dim(m, i, t), (double)bytes / 1048576.0,
+                 ESTIMATE_MAX_BYTES >> 20);
+      else
+        snprintf(why, sizeof why, "the model holds no estimate table for term %d (trained without one: see npgc train's "
+                 "report, or a model older than the estimates)", t + 1);
       goto none;
     }
     RTERM_FOR_TENSORS(rt, x)

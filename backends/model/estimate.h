@@ -77,6 +77,15 @@
 bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n);
 /* D, the length of z_t (above) for term `t` of stage `i`. */
 long estimate_term_dim(const Model *m, int i, int t);
+/* A term's residual table is built in training when its columns (n x D doubles, in memory while
+ * it is made) and their R (D x D, kept in the model) take at most ESTIMATE_MAX_BYTES together; a
+ * larger term gets no table, and its evaluations say so with both figures. A bound in bytes, not in
+ * columns: D grows with the basis (1 + 10 m on a 3 x 3 thermal block, past 512 at m = 52), R with
+ * D², the columns with n D, and the QR that makes R costs 2 n D² flops (the heat example's
+ * implicit step, D = 3600 and n = 16,384: 578 MB, minutes of training, stays without one). */
+#define ESTIMATE_MAX_BYTES ((size_t)256 << 20)
+/* The bytes of term `t` of stage `i`'s columns and R: 8 (n D + D²) (SIZE_MAX on overflow). */
+size_t estimate_term_bytes(const Model *m, int i, int t);
 /* The packed input product of tensor `x` (its columns' monomials) at
  * coordinates `coords` (per quantity) into z[0..x->cols); `scratch` holds
  * Σ in_len doubles. */

@@ -35,12 +35,6 @@
 #include "dist.h"
 #include "estimate_steps.h"
 
-/* Columns of a term no larger than this (bytes), and no more than ESTIMATE_MAX_DIM of them, are
- * built; a larger term gets no table (its G costs n D² flops: at D = 3600 and n = 16,384, the
- * heat example's implicit step, training took minutes longer and ran out of memory). */
-#define ESTIMATE_MAX_BYTES ((size_t)64 << 20)
-#define ESTIMATE_MAX_DIM 512
-
 /* The sink filling one tensor's block of the columns: entries arrive as
  * (row, col, input offsets, coefficient). */
 typedef struct ColSink {
@@ -142,7 +136,7 @@ static int term_table(Model *m, Full *f, int i, int t, Err *err) {
       if (!m->classes[m->qclass[x->in_q[j]]].B) return 0; /* an input's basis is not whole here */
   }
   if (rt->named_q >= 0 && (!m->classes[m->qclass[rt->named_q]].B || m->classes[m->qclass[rt->named_q]].n != n)) return 0;
-  if ((size_t)n * (size_t)D * sizeof(double) > ESTIMATE_MAX_BYTES || D > ESTIMATE_MAX_DIM) return 0;
+  if (estimate_term_bytes(m, i, t) > ESTIMATE_MAX_BYTES) return 0; /* estimate.c's message says so */
   ColSink s = {m, NULL, calloc((size_t)(n * D) + 1, sizeof(double)), n, D, 0, NULL, rc->m,
                malloc(sizeof(double) * (size_t)maxcols), malloc(sizeof(double) * (size_t)maxpack)};
   double *G = calloc((size_t)((D + 1) * D) + 1, sizeof(double)), *V = NULL;

@@ -109,13 +109,15 @@ static int check_overrides(const Model *m, const TrainOptions *opt, char *err, s
 }
 
 /* A member's cap, energy and centering: the defaults (energy 1 for a
- * quantity under a power, `powered`, whatever the default energy), then the
+ * quantity under a power, `powered`, whatever the default energy, and for
+ * an input with `inputs_whole`, greedy training's), then the
  * program's `basis` statements, then --basis from the least specific to the
  * most. */
 static void member_options(const Model *m, const RClass *c, RMember *mb, const TrainOptions *opt,
                            const bool *powered) {
   mb->cap = opt->cap > 0 ? opt->cap : 60;
   mb->energy = powered && mb->q >= 0 && powered[mb->q] ? 1 : opt->energy > 0 ? opt->energy : 0.999;
+  if (opt->inputs_whole && mb->q >= 0 && ((const Sym *)m->prog->quantities.v[mb->q])->kind == SYM_INPUT) mb->energy = 1;
   mb->center = !opt->uncentered;
   const BasisClass *bc = c->bc;
   if (bc->basis_max > 0) mb->cap = bc->basis_max;

@@ -20,6 +20,8 @@ typedef struct TrainOptions {
   double energy;            /* default energy fraction per member (0.999) */
   bool joint;               /* --merge joint */
   bool uncentered;          /* --center off: the paper's uncentered truncation (default: centered, DESIGN §5) */
+  bool inputs_whole;        /* greedy training: an input's members default to energy 1 (every direction their
+                               samples span; the program's `basis` and --basis still set it) */
   bool full_rank;           /* complete every basis to its class's full dimension (convergence tests) */
   size_t mem;               /* memory budget for snapshots, bytes */
   bool progress;            /* progress bars on stderr */

@@ -105,6 +105,9 @@ NpgModel *api_model_wrap(Model *m);
  * npg_trainer and npg_tune (`valid`, `weights` and `shared_prefix`, which `o` does not hold,
  * NULL). */
 void api_train_options(const NpgTrainOptions *o, TrainOptions *to);
+/* Greedy training's trainer: every input's basis defaults to energy 1 (TrainOptions.inputs_whole),
+ * so that it holds every direction of the samples chosen (docs/estimates.md, "Greedy training"). */
+void api_trainer_inputs_whole(NpgTrainer *t);
 /* The interpolation and streaming fields of `o` (DESIGN §12, issue 30) in their documented ranges:
  * 0, or -1 with a message naming the field, for `func`, in err. */
 int api_refuse_reduce_options(const NpgTrainOptions *o, const char *func, char *err, size_t errlen);

@@ -16,6 +16,7 @@
 static NpgModel *train_once(NpgFull *f, const NpgTrainOptions *o, long nstart, NpgSampleFn start, void *suser,
                             NpgSampleFn pool, void *puser, NpgGreedyResult *res) {
   NpgTrainer *t = npg_trainer_new(f, o);
+  api_trainer_inputs_whole(t); /* each input's basis holds every direction of the samples chosen */
   NpgModel *m = NULL;
   for (long k = 0; k < nstart + res->nchosen && !npg_trainer_error(t)[0]; k++) {
     int rc = k < nstart ? start(suser, f, k) : pool(puser, f, res->chosen[k - nstart]);
@@ -34,9 +35,10 @@ static NpgModel *train_once(NpgFull *f, const NpgTrainOptions *o, long nstart, N
 }
 
 /* Candidate c's worst estimated error over the outputs, relative (estimate / ‖output‖) or with
- * `absolute` the estimate itself; NAN with res->error. */
+ * `absolute` the estimate itself; NAN with res->error. When an input lies outside its basis,
+ * *outside and the largest such input's share outside it, ‖x − B x̂‖ / ‖x‖, in place of the outputs'. */
 static double candidate_error(NpgFull *f, NpgReduced *r, NpgSampleFn pool, void *puser, long c, bool absolute,
-                              NpgGreedyResult *res) {
+                              bool *outside, NpgGreedyResult *res) {
   const Model *m = r->nm->m;
   if (pool(puser, f, c) != 0) return gfail(res, "pool sample %ld: %s", c, npg_full_error(f)), NAN;
   for (int q = 0; q < m->nq; q++) {
@@ -47,11 +49,18 @@ static double candidate_error(NpgFull *f, NpgReduced *r, NpgSampleFn pool, void 
   }
   if (npg_reduced_eval(r, c) != 0) return gfail(res, "pool sample %ld: %s", c, npg_reduced_error(r)), NAN;
   double worst = 0;
+  *outside = false;
   for (int q = 0; q < m->nq; q++) { /* an input its basis does not hold: a full evaluation there adds the direction */
     const Sym *s = m->prog->quantities.v[q];
-    double e = 0;
-    if (s->kind == SYM_INPUT && npg_reduced_estimate(r, s->name, &e, NULL) == 0 && e > 0) return INFINITY;
+    double e = 0, nx = 0;
+    size_t n = 0;
+    if (s->kind != SYM_INPUT || npg_reduced_estimate(r, s->name, &e, NULL) != 0 || !(e > 0)) continue;
+    const double *x = npg_full_get(f, s->name, &n);
+    for (size_t k = 0; x && k < n; k++) nx += x[k] * x[k];
+    *outside = true;
+    worst = fmax(worst, nx > 0 ? e / sqrt(nx) : e);
   }
+  if (*outside) return worst;
   for (int q = 0; q < m->nq; q++) {
     const Sym *s = m->prog->quantities.v[q];
     if (!s->is_output) continue;
@@ -74,7 +83,9 @@ static double candidate_error(NpgFull *f, NpgReduced *r, NpgSampleFn pool, void 
   return worst;
 }
 
-/* The worst candidate not chosen into res (worst, worst_at); -1 on an error. */
+/* The worst candidate not chosen into res (worst, worst_at): one whose input lies outside its
+ * basis before any other (res->worst INFINITY; among them the farthest outside, so that the first
+ * choices span the inputs' space), else the largest estimate; -1 on an error. */
 static int worst_candidate(NpgFull *f, NpgModel *nm, long npool, NpgSampleFn pool, void *puser, bool absolute,
                            NpgGreedyResult *res) {
   NpgReduced *r = npg_reduced_new(nm);
@@ -85,15 +96,18 @@ static int worst_candidate(NpgFull *f, NpgModel *nm, long npool, NpgSampleFn poo
   }
   res->worst = -1, res->worst_at = -1;
   int rc = 0;
+  bool worst_outside = false;
   for (long c = 0; c < npool && rc == 0; c++) {
-    bool taken = false;
+    bool taken = false, outside;
     for (long j = 0; j < res->nchosen; j++) taken |= res->chosen[j] == c;
     if (taken) continue;
-    double e = candidate_error(f, r, pool, puser, c, absolute, res);
+    double e = candidate_error(f, r, pool, puser, c, absolute, &outside, res);
     if (isnan(e)) rc = -1;
-    else if (e > res->worst) res->worst = e, res->worst_at = c;
+    else if (outside > worst_outside || (outside == worst_outside && e > res->worst))
+      res->worst = e, res->worst_at = c, worst_outside = outside;
   }
   if (res->worst_at < 0) res->worst = 0; /* every candidate chosen */
+  if (worst_outside) res->worst = INFINITY;
   npg_reduced_free(r);
   return rc;
 }

@@ -37,6 +37,7 @@ struct NpgTrainer {
   bool broken;              /* a failure that may have left the records incomplete (or the construction's):
                                npg_trainer_clear_error keeps the error */
   uint64_t inputs_hash;     /* over ranks: of every sample's inputs, in order (every rank's too: ranks_agree) */
+  bool inputs_whole;        /* greedy training's (api_trainer_inputs_whole): TrainOptions.inputs_whole */
   char error[2048];
   char worded[2048];        /* error in the caller's words (NpgTrainOptions.words), made by npg_trainer_error */
 };
@@ -59,6 +60,10 @@ void npg_train_options_default(NpgTrainOptions *o) {
   o->energy = 0.999;
   o->mem = half_the_ram();
   o->valid_holdout = -1; /* automatic: DESIGN §12 */
+}
+
+void api_trainer_inputs_whole(NpgTrainer *t) {
+  if (t) t->inputs_whole = true;
 }
 
 void api_train_options(const NpgTrainOptions *o, TrainOptions *to) {
@@ -507,6 +512,7 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   if (check_mem(t)) return NULL;
   TrainOptions o;
   api_train_options(&t->opt, &o);
+  o.inputs_whole = t->inputs_whole;
   /* the cache holds at most a quarter of the budget; over ranks, what it
    * holds on one process (share_samples) on every rank: the same plan */
   size_t used = t->opt.mpi && dist_size() > 1 ? records_shared_use(&t->r) : t->r.rec.used;
