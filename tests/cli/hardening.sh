@@ -86,6 +86,9 @@ test -e "$W/c/d/OUT/y.npy" || fail "eval output"
 grep -q "20 samples x 2 passes, 39 evaluations timed" "$W/bench.txt" || fail "bench reps: $(cat "$W/bench.txt")"
 grep -q "^full evaluator: libtcc" "$W/bench.txt" && grep -q "^  lifting outputs" "$W/bench.txt" || fail "bench report"
 if grep -q " 0\.0x" "$W/bench.txt"; then fail "bench printed 0.0x"; fi
+# and the evaluation followed by every output's estimate, against the evaluation alone (y's: its check entries)
+grep -q "^  reduced + estimate  *[0-9.]*e[-+][0-9]* s per sample \[[0-9.e+-]*, [0-9.e+-]*\], then every output's estimate (npg_reduced_estimate, 1 of them with a figure): [0-9.]*x \[[0-9.]*x, [0-9.]*x\] the reduced alone$" "$W/bench.txt" ||
+  fail "bench estimate line: $(cat "$W/bench.txt")"
 # 14. bench shows progress on stderr with --progress (as on a terminal), nothing when not a terminal
 "$N" bench "$W/sqrt.npg" "$W/SM" "$W/TR" --reps 2 --progress >/dev/null 2>"$W/err.txt" || fail "bench --progress"
 grep -q "bench (full and reduced) *\[#*\] 40/40$" "$W/err.txt" || fail "bench progress: $(cat "$W/err.txt")"
