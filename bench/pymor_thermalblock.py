@@ -11,13 +11,14 @@ Run by bench/pymor_thermalblock.sh, which sets PYTHONPATH to pyMOR's sources:
 2. the training parameters are pyMOR's POD's (parameter_space.sample_uniformly(snapshots)),
    the test ones --test random parameters (sample_randomly, seeded): the same for both tools;
 3. pyMOR: the full solves of the training and test parameters (timed), POD in the H¹₀ product
-   at each size (CoerciveRBReductor, as its demo), the reduced solves (timed) and the errors,
-   and its weak greedy (rb_greedy with its estimator, atol --greedy-tol): the full solves it
-   needed;
+   at each size (CoerciveRBReductor, as its demo), the reduced solves (timed), the reduced solves
+   with their estimate (rom.solve(mu, return_error_estimate=True), timed) and the errors, and its
+   weak greedy (rb_greedy with its estimator, atol --greedy-tol): the full solves it needed;
 4. npg: `npgc train` on the same training parameters at the same sizes (n POD vectors of u,
    uncentered and untruncated as pyMOR's POD, and f's direction, which u's class holds too:
    class m = n + 1), `npgc eval` of the test parameters and its online estimate (in the H¹₀
-   product, as pyMOR's), `npgc bench` for the full and reduced times;
+   product, as pyMOR's), `npgc bench` for the full and reduced times, and the reduced evaluation
+   followed by u's estimate ("reduced + estimate": npg_reduced_estimate after each evaluation);
 5. both tools' errors measured here alike against pyMOR's full solutions: the H¹₀ seminorm
    of u − u_rb, absolute and relative to the solution's.
 
@@ -126,15 +127,20 @@ def pymor_side(fom, ps, train, test, sizes, greedy_tol):
         red = CoerciveRBReductor(fom, RB=modes, product=product, coercivity_estimator=coercivity,
                                  check_orthonormality=False)
         rom = red.reduce()
-        V, times, eff = [], [], []
+        V, times, times_est, eff = [], [], [], []
         for mu in test:
             t = time.perf_counter()
             u = rom.solve(mu)
             times.append(time.perf_counter() - t)
             V.append(red.reconstruct(u).to_numpy().ravel())
-            eff.append(float(rom.estimate_error(mu)[0]))
+            # the solve with its estimate in one call (pyMOR's compute: one solve, then the estimator)
+            t = time.perf_counter()
+            _, e = rom.solve(mu, return_error_estimate=True)
+            times_est.append(time.perf_counter() - t)
+            eff.append(float(e[0]))
         V = np.array(V)
-        out["sizes"][n] = {"m": len(modes), "V": V, "online_s": float(np.median(times)), "estimates": np.array(eff)}
+        out["sizes"][n] = {"m": len(modes), "V": V, "online_s": float(np.median(times)),
+                           "online_est_s": float(np.median(times_est)), "estimates": np.array(eff)}
     red = CoerciveRBReductor(fom, product=product, coercivity_estimator=coercivity, check_orthonormality=False)
     # its weak greedy over the same training parameters, as its demo (pyMOR's estimator, H¹₀ norm)
     g = rb_greedy(fom, red, train, use_error_estimator=True, error_norm=fom.h1_0_semi_norm, atol=greedy_tol,
@@ -159,7 +165,10 @@ def npg_side(npgc, out, sizes):
         bench, _ = run([npgc, "bench", PROG, model, test, "--reps", "3"])
         full = float(re.search(r"full evaluation\s+([0-9.e+-]+) s", bench).group(1))
         alone = float(re.search(r"reduced alone\s+([0-9.e+-]+) s", bench).group(1))
+        # the reduced evaluation then u's estimate (npg_reduced_estimate), timed together per sample
+        with_est = re.search(r"reduced \+ estimate\s*([0-9.e+-]+) s", bench)
         res[n] = {"m": m, "V": np.load(os.path.join(pred, "u.npy")), "train_s": train_s, "online_s": alone,
+                  "online_est_s": float(with_est.group(1)) if with_est else float("nan"),
                   "full_solve_s": full, "estimates": est}
     return res
 
@@ -255,6 +264,7 @@ def main():
             "pymor_effectivity": [float(eff.min()), float(eff.max())],
             "npg_effectivity": [float(np.nanmin(eff_npg)), float(np.nanmax(eff_npg))],
             "online_s_pymor": py["sizes"][n]["online_s"], "online_s_npg": npg[n]["online_s"],
+            "online_est_s_pymor": py["sizes"][n]["online_est_s"], "online_est_s_npg": npg[n]["online_est_s"],
             "train_s_npg": npg[n]["train_s"]}
     report.update({"full_solve_s_pymor": py["full_solve_s"], "full_solve_s_npg": npg[sizes[0]]["full_solve_s"],
                    "greedy_full_solves_pymor": py["greedy_full_solves"], "greedy_tol": a.greedy_tol,
@@ -269,6 +279,10 @@ def main():
               f"{r['max_err_pymor']:>14.3e} ({r['max_rel_pymor']:.2e})")
         print(f"{'  basis size (class m)':34s}{r['m_npg']:>28d}{r['m_pymor']:>28d}")
         print(f"{'  online solve (median)':34s}{r['online_s_npg']:>26.3e} s{r['online_s_pymor']:>26.3e} s")
+        print(f"{'  online solve + estimate (median)':34s}{r['online_est_s_npg']:>26.3e} s"
+              f"{r['online_est_s_pymor']:>26.3e} s")
+        print(f"{'    npg solve + estimate against':34s}{r['online_s_pymor'] / r['online_est_s_npg']:>7.2f}x faster than "
+              f"pyMOR's solve alone, {r['online_est_s_pymor'] / r['online_est_s_npg']:.2f}x than its solve + estimate")
         print(f"{'  estimate effectivity':34s}{'%.2f .. %.2f' % tuple(r['npg_effectivity']):>28s}"
               f"{'%.2f .. %.2f' % tuple(r['pymor_effectivity']):>28s}")
     print(f"{'full solve (median)':34s}{report['full_solve_s_npg']:>26.3e} s{report['full_solve_s_pymor']:>26.3e} s")

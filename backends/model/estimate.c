@@ -166,9 +166,15 @@ static double residual_norm(Reduced *r, const RTerm *rt, long n, long my, Estima
   memcpy(s->Gz, s->z, sizeof(double) * (size_t)D);
   cblas_dtrmv(CblasRowMajor, CblasUpper, CblasNoTrans, CblasNonUnit, (int)D, R, (int)D, s->Gz, 1);
   double res = cblas_dnrm2((int)D, s->Gz, 1), a = 0, b = 0;
-  for (long i = 0; i < D; i++) a += fabs(s->z[i]) * cn[i], b += fabs(s->z[i]) * cblas_dnrm2((int)(i + 1), R + i, (int)D);
-  /* the projected columns carry about ε‖C_i‖ each; the QR's backward error about (√n + D) ε of each column */
-  double level = 8 * DBL_EPSILON * a + (sqrt((double)n) + (double)D) * DBL_EPSILON * b;
+  for (long i = 0; i < D; i++) a += fabs(s->z[i]) * cn[i];
+  /* the projected columns carry about ε‖C_i‖ each; the QR's backward error about (√n + D) ε of each column. R's
+   * column i is the projected column's (a projection by an orthonormal basis: ‖R_i‖ ≤ ‖C_i‖), so b ≤ a, and
+   * a residual above the level with 2a for b is above the level: R's column norms (as many flops as the
+   * residual itself) are summed only near roundoff, the figure and its flag unchanged */
+  double grow = (sqrt((double)n) + (double)D) * DBL_EPSILON;
+  if (res > 8 * DBL_EPSILON * a + grow * 2 * a) return *roundoff = false, res;
+  for (long i = 0; i < D; i++) b += fabs(s->z[i]) * cblas_dnrm2((int)(i + 1), R + i, (int)D);
+  double level = 8 * DBL_EPSILON * a + grow * b;
   *roundoff = !(res > level);
   return *roundoff ? level : res;
 }
@@ -201,9 +207,25 @@ static void stage_sum(Reduced *r, int i, double *y, double *v, long my) {
     if (reduced_term(r, i, t, v, NULL, -1) == 0) cblas_daxpy((int)my, 1.0, v, 1, y, 1);
 }
 
+/* σ_1 of the my x mq matrix J and its right singular vector into v (mq entries, its sign arbitrary):
+ * the largest eigenpair of JᵀJ (dsyrk, then dsyevr for that one pair, on `G`, mq x mq scratch). Squaring
+ * loses nothing there: λ_max is found to ε λ_max, so σ_1 to ε/2 relative, and v's sensitivity is the
+ * relative gap (σ_1² − σ_2²)/σ_1² ≈ 2 (σ_1 − σ_2)/σ_1, the SVD's own. A tenth of dgesvd's time with
+ * every right singular vector at the sizes of n-body's stages (docs/estimates.md, "Cost"). NaN when
+ * LAPACK fails. */
+static double top_singular(const double *J, long my, long mq, double *G, double *v) {
+  cblas_dsyrk(CblasRowMajor, CblasUpper, CblasTrans, (int)mq, (int)my, 1.0, J, (int)mq, 0.0, G, (int)mq);
+  lapack_int found = 0, isuppz[2];
+  double w[1];
+  if (LAPACKE_dsyevr(LAPACK_ROW_MAJOR, 'V', 'I', 'U', (int)mq, G, (int)mq, 0, 0, (int)mq, (int)mq, 0, &found, w, v, 1,
+                     isuppz) != 0 || found != 1)
+    return NAN;
+  return sqrt(fmax(w[0], 0));
+}
+
 /* Stage i's propagation of input q's error e_q (DESIGN §16): the stage's local Jacobian J =
  * ∂ŷ/∂x̂_q at the evaluated coordinates (reduced_stage_jvp, reduced cost), its largest singular value
- * σ_1 and right singular vector v; the figure is max(σ_1 e_q, ‖ŷ(x̂_q ± e_q v) − ŷ(x̂_q)‖), the
+ * σ_1 and right singular vector v (top_singular); the figure is max(σ_1 e_q, ‖ŷ(x̂_q ± e_q v) − ŷ(x̂_q)‖), the
  * first order and, for a stage of contractions alone (their evaluation cannot fail), the secant
  * along v both ways, which holds the higher orders of the polynomial there. An estimate: J maps
  * B_q's span only (an error orthogonal to it is assumed to move the output as much as the worst
@@ -213,11 +235,11 @@ static double propagate(Reduced *r, int i, int q, double eq, char *why, size_t n
   const RStage *rs = &m->stages[i];
   long my = qm(m, rs->q), mq = qm(m, q), k = my < mq ? my : mq;
   double *eye = calloc((size_t)(mq * mq) + 1, sizeof(double)), *J = malloc(sizeof(double) * (size_t)(my * mq + 1));
-  double *sv = malloc(sizeof(double) * (size_t)(k + 1)), *vt = malloc(sizeof(double) * (size_t)(mq * mq + 1));
-  double *sup = malloc(sizeof(double) * (size_t)(k + 1)), *y0 = calloc((size_t)(3 * my + mq) + 1, sizeof(double));
+  double *G = malloc(sizeof(double) * (size_t)(mq * mq + 1)), *vt = malloc(sizeof(double) * (size_t)(mq + 1));
+  double *y0 = calloc((size_t)(3 * my + mq) + 1, sizeof(double));
   double out = NAN;
   char err[256] = "";
-  if (!eye || !J || !sv || !vt || !sup || !y0) {
+  if (!eye || !J || !G || !vt || !y0) {
     snprintf(why, n, "out of memory for the propagation of %s's error", qname(m, q));
     goto done;
   }
@@ -231,11 +253,12 @@ static double propagate(Reduced *r, int i, int q, double eq, char *why, size_t n
     out = 0;
     goto done;
   }
-  if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'N', 'A', (int)my, (int)mq, J, (int)mq, sv, NULL, 1, vt, (int)mq, sup) != 0) {
-    snprintf(why, n, "the SVD of its derivative in %s did not converge", qname(m, q));
+  double s1 = top_singular(J, my, mq, G, vt);
+  if (isnan(s1)) {
+    snprintf(why, n, "the largest singular value of its derivative in %s was not found (LAPACK)", qname(m, q));
     goto done;
   }
-  out = sv[0] * eq;
+  out = s1 * eq;
   bool contractions = true;
   for (int t = 0; t < rs->nterms; t++) contractions = contractions && rs->terms[t].nops == 0;
   if (!contractions || !(eq > 0)) goto done;
@@ -250,7 +273,7 @@ static double propagate(Reduced *r, int i, int q, double eq, char *why, size_t n
   }
   memcpy(x, save, sizeof(double) * (size_t)mq);
 done:
-  free(eye), free(J), free(sv), free(vt), free(sup), free(y0);
+  free(eye), free(J), free(G), free(vt), free(y0);
   return out;
 }
 
@@ -388,7 +411,10 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) 
       flags |= e->flags[rt->named_q] & (EST_OUTSIDE | EST_ROUNDOFF);
       if (!(e->flags[rt->named_q] & EST_BOUND)) flags &= ~EST_BOUND;
     }
-    if (reduced_term(r, i, t, s->v, rt->nops ? s->M : NULL, -1)) {
+    /* ŷ_t: a stage of one term holds it (the evaluation's sum of one term), not solved again here; M, when
+     * σ_min needs it, assembled below */
+    if (rs->nterms == 1) memcpy(s->v, reduced_all_coords(r)[q], sizeof(double) * (size_t)my);
+    else if (reduced_term(r, i, t, s->v, rt->nops ? s->M : NULL, -1)) {
       snprintf(why, sizeof why, "term %d failed: %.200s", t + 1, reduced_error(r));
       goto none;
     }
@@ -415,6 +441,10 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) 
     if (m->classes[m->qclass[q]].product && !isnan(rt->est_sigma))
       flags &= ~EST_BOUND; /* B's Dirichlet rows above roundoff: the bound's premise is not checked (estimate_product.c) */
     if (!(sig > 0)) {
+      if (rs->nterms == 1 && reduced_term(r, i, t, NULL, s->M, -1)) {
+        snprintf(why, sizeof why, "term %d failed: %.200s", t + 1, reduced_error(r));
+        goto none;
+      }
       sig = rt->est_sigma * sigma_min(s->M, my, s);
       flags &= ~EST_BOUND; /* σ_min is estimated from the training samples */
     }

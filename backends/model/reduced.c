@@ -745,6 +745,15 @@ int reduced_eval_stage(Reduced *r, int i, long sample) {
 
 int reduced_term(Reduced *r, int i, int t, double *v, double *M, long sample) {
   if (r->error[0]) return -1;
+  const RTerm *rt = &r->m->stages[i].terms[t];
+  if (!v) { /* the last operator's matrix alone, as eval_term assembles it, nothing applied */
+    if (M && rt->nops > 0) {
+      long my = qm(r->m, r->m->stages[i].q);
+      assemble_op(r, &rt->ops[rt->nops - 1], my);
+      memcpy(M, r->M, sizeof(double) * (size_t)(my * my));
+    }
+    return 0;
+  }
   return eval_term(r, &r->m->stages[i], t, v, M, sample);
 }
 

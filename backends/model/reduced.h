@@ -26,7 +26,9 @@ int reduced_eval_stage(Reduced *r, int i, long sample);
 /* Term `t` of stage number `i` alone into v[0..m) (its class's m), from the
  * current coordinates; with `M` (m x m, may be NULL) the reduced matrix of
  * its last operator as assembled, before it was applied (the online
- * estimate's σ_min, estimate.h). 0, or -1 with reduced_error(). */
+ * estimate's σ_min, estimate.h); with v NULL, that matrix alone, nothing
+ * applied (for a term of one operator: the estimate of a one-term stage
+ * reads the term's value from the stage's). 0, or -1 with reduced_error(). */
 int reduced_term(Reduced *r, int i, int t, double *v, double *M, long sample);
 /* With `on`, externs keep the coordinates the caller set (reduced_project)
  * instead of the learned map: for tests and for verifying the rest. */

@@ -505,6 +505,42 @@ void npgc_print_jit(const NpgFull *f) {
          ji.cache == 1 ? "loaded" : "compiled", 1e3 * ji.compile_seconds, cache);
 }
 
+/* Every output's online estimate after an evaluation (npg_reduced_estimate: the first call computes
+ * them all, the others read them), timed; *with the outputs that got a figure (not NaN). -1 on an
+ * error (npg_reduced_error). */
+static double time_estimates(Session *x, int *with) {
+  double t0 = reduce_now(), e;
+  unsigned flags;
+  *with = 0;
+  for (int i = 0; i < x->nsym; i++)
+    if (x->sym[i].output && x->sym[i].kind != NPG_OP) {
+      if (npg_reduced_estimate(x->r, x->sym[i].name, &e, &flags) != 0) return -1;
+      *with += !(flags & NPG_EST_NONE);
+    }
+  return reduce_now() - t0;
+}
+
+/* The reduced evaluation with every output's estimate against the evaluation alone (docs/estimates.md):
+ * `tes` the estimates' times, `ratio` per evaluation (alone + estimate) / alone; without any output's
+ * figure, why the first has none. */
+static void print_estimate_cost(Session *x, int with, double *tes, double *ratio, long timed) {
+  if (!with) {
+    for (int i = 0; i < x->nsym; i++)
+      if (x->sym[i].output && x->sym[i].kind != NPG_OP) {
+        printf("  + estimate        none: %s has no estimate (%s)\n", x->sym[i].name,
+               npg_reduced_estimate_why(x->r, x->sym[i].name));
+        return;
+      }
+    return;
+  }
+  double q[3], qs[3];
+  npgc_quartiles(tes, timed, q);
+  npgc_quartiles(ratio, timed, qs);
+  printf("  reduced + estimate%12.3e s per sample [%.3e, %.3e], then every output's estimate (npg_reduced_estimate, "
+         "%d of them with a figure): %.3gx [%.3gx, %.3gx] the reduced alone\n", q[1], q[0], q[2], with, qs[1], qs[0],
+         qs[2]);
+}
+
 /* An error during the timed passes: the progress line is ended first. */
 static void bench_error(const Common *c, const char *msg) {
   if (c->train.progress) fputc('\n', stderr);
@@ -539,14 +575,16 @@ int cmd_bench(Common *c) {
   }
   long total = c->reps * S, shown = -1;
   /* per timed evaluation: full; reduced (projected and lifted); projection, the reduced evaluation alone
-   * (coordinates in, coordinates out) and lifting; the ratios of full to the reduced with and without */
-  if (!(y = malloc(sizeof(double) * maxn)) || !(tf = malloc(sizeof(double) * (size_t)(7 * total + 7)))) {
+   * (coordinates in, coordinates out) and lifting; the ratios of full to the reduced with and without; the
+   * reduced alone followed by every output's estimate, and its ratio to the reduced alone */
+  if (!(y = malloc(sizeof(double) * maxn)) || !(tf = malloc(sizeof(double) * (size_t)(9 * total + 9)))) {
     fputs("error: out of memory\n", stderr);
     goto done;
   }
   double *tr = tf + total + 1, *tl = tr + total + 1, *ratio = tl + total + 1, *tp = ratio + total + 1,
-         *te = tp + total + 1, *ratio_core = te + total + 1;
+         *te = tp + total + 1, *ratio_core = te + total + 1, *tes = ratio_core + total + 1, *ratio_est = tes + total + 1;
   long timed = 0;
+  int with = 0; /* outputs with an estimate */
   for (long rep = 0; rep < c->reps; rep++)
     for (long k = 0; k < S; k++) {
       /* progress between timed evaluations, redrawn once per percent */
@@ -579,7 +617,11 @@ int cmd_bench(Common *c) {
         bench_error(c, npg_reduced_error(x.r));
         goto done;
       }
-      double t3 = reduce_now();
+      double t3 = reduce_now(), ts = time_estimates(&x, &with);
+      if (ts < 0) {
+        bench_error(c, npg_reduced_error(x.r));
+        goto done;
+      }
       if (rep == 0 && k == 0 && !(S == 1 && c->reps == 1)) continue; /* the first full evaluation also checks gathers */
       tf[timed] = t1 - t0;
       tr[timed] = t3 - t1;
@@ -588,6 +630,8 @@ int cmd_bench(Common *c) {
       te[timed] = t2 - t1p;
       ratio[timed] = (t1 - t0) / fmax(t3 - t1, 1e-12);
       ratio_core[timed] = (t1 - t0) / fmax(t2 - t1p, 1e-12);
+      tes[timed] = t2 - t1p + ts;
+      ratio_est[timed] = tes[timed] / fmax(t2 - t1p, 1e-12);
       timed++;
     }
   npg_progress(c->train.progress, "bench (full and reduced)", total, total);
@@ -612,6 +656,7 @@ int cmd_bench(Common *c) {
   printf("  projecting inputs %12.3e s per sample [%.3e, %.3e]\n", qp[1], qp[0], qp[2]);
   printf("  reduced alone     %12.3e s per sample [%.3e, %.3e], coordinates in, coordinates out\n", qe[1], qe[0],
          qe[2]);
+  print_estimate_cost(&x, with, tes, ratio_est, timed);
   printf("  lifting outputs   %12.3e s per sample [%.3e, %.3e]\n", ql[1], ql[0], ql[2]);
   printf("speedup             %12.3gx [%.3gx, %.3gx] (full time / reduced time per evaluation%s)\n", qs[1], qs[0],
          qs[2], qs[1] < 1 ? ": below 1, the reduced evaluation is slower" : "");

@@ -7,6 +7,7 @@ outside the training range are named by a warning and flagged on their estimates
 (npgc train --greedy) from one sample reaches the accuracy of the POD model of the whole pool
 with fewer full evaluations; the choice is in the manifest; a budget stops it with a message."""
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -95,6 +96,21 @@ def main():
         if not any(l.split()[:2] == ["estimate", "u"] and ".." in l and l.split()[-1] == "bound"
                    for l in v.splitlines()):
             fail("npgc verify prints no estimate with its effectivity for u, a bound (min-θ):\n" + v)
+        # npgc bench times the evaluation followed by every output's estimate: one line, the median (with its
+        # quartiles) of alone + estimate, at least the evaluation alone's (each sample's sum is), and their ratio
+        b = run("bench", PROG, os.path.join(w, "MODEL"), test, "--reps", "1").stdout
+        num = r"([0-9.]+e[+-][0-9]+)"
+        rows = [re.fullmatch(r"  reduced \+ estimate\s+%s s per sample \[%s, %s\], then every output's estimate "
+                             r"\(npg_reduced_estimate, 1 of them with a figure\): ([0-9.]+)x \[([0-9.]+)x, ([0-9.]+)x\] "
+                             r"the reduced alone" % (num, num, num), l) for l in b.splitlines()]
+        rows = [r for r in rows if r]
+        alone = re.search(r"^  reduced alone\s+%s s per sample" % num, b, re.M)
+        if len(rows) != 1 or not alone:
+            fail("npgc bench prints no line of the evaluation with its estimate (or a malformed one):\n" + b)
+        med, q1, q3, ratio, r1, r3 = (float(v) for v in rows[0].groups())
+        if not (q1 <= med <= q3 and med >= float(alone.group(1)) and 1 <= r1 <= ratio <= r3):
+            fail("npgc bench's estimate line is inconsistent (median within its quartiles, at least the evaluation "
+                 "alone's, a ratio of at least 1):\n" + b)
         # conductivities beyond the training range: the warning names the input, the estimate says so
         far = os.path.join(w, "FAR")
         write(far, rng.uniform(1.5, 2, (3, 4)), nbr, blk, src)
