@@ -857,13 +857,7 @@ static double interp_pow(double b, long p, long q) {
   return pow(b, (double)p / (double)q);
 }
 
-/* Forward: d[y] += J_q d[q]; reverse: d[q] += J_qᵀ d[y], J_q = (W P B)⁺ W · ∂(P y)/∂x̂_q for one
- * quantity q the formula reads, g = ∂(P y)/∂acc and val the read entries (interp_stage's), pT the
- * fit transposed (k x m_y). Each monomial's read of q adds its coefficient times the fit's
- * column of its slot to C's row of the read (C: reads x m_y), then J_q = Cᵀ B_read, B_read the
- * rows of q's basis read: m_y FLOPs a monomial and one dgemm, where forming ∂(P y)/∂x̂_q
- * (k x m_q) first took m_q a monomial and a product of k·m_y·m_q (heat.npg's k: 948 monomials,
- * k = 316, the stage's largest cost). */
+/* What interp_stage computes once for all the quantities its formula reads. */
 typedef struct InterpPartials {
   const RStage *rs;
   const long *base;  /* per term: the row of its numerator in g, its operators' rows after it */
@@ -873,6 +867,13 @@ typedef struct InterpPartials {
   bool reverse;
 } InterpPartials;
 
+/* Forward: d[y] += J_q d[q]; reverse: d[q] += J_qᵀ d[y], J_q = (W P B)⁺ W · ∂(P y)/∂x̂_q for one
+ * quantity q the formula reads, g = ∂(P y)/∂acc and val the read entries (interp_stage's), pT the
+ * fit transposed (k x m_y). Each monomial's read of q adds its coefficient times the fit's
+ * column of its slot to C's row of the read (C: reads x m_y), then J_q = Cᵀ B_read, B_read the
+ * rows of q's basis read: m_y FLOPs a monomial and one dgemm, where forming ∂(P y)/∂x̂_q
+ * (k x m_q) first took m_q a monomial and a product of k·m_y·m_q (heat.npg's k: 948 monomials,
+ * k = 316, the stage's largest cost). */
 static int interp_jacobian(Deriv *dv, const InterpPartials *pa, int q) {
   const Model *m = dv->m;
   const RStage *rs = pa->rs;
