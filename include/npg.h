@@ -766,7 +766,9 @@ NPG_API void npg_tune_free(NpgTuneReport *report);
  * stop when every candidate's is below `tol` or when the training set holds `budget` samples.
  * Full evaluations run only at the training samples (the start and the chosen). A candidate
  * whose input the model's basis does not hold (its own error above roundoff) counts as worst
- * (infinite): a full evaluation there adds the direction. Every output needs an estimate (the
+ * (infinite; among several, the one farthest outside, ‖x − B x̂‖ / ‖x‖): a full evaluation there
+ * adds the direction. Each input's basis defaults to energy 1 here (every direction its samples
+ * span), unless `o`'s overrides or the program's `basis` set it. Every output needs an estimate (the
  * reason is the error otherwise). Progress (one line an iteration) on
  * stderr with `progress`. The model is written to `model_dir` (when not NULL) with the manifest
  * line `greedy tol E relative|absolute budget N converged 0|1 worst X chosen k1,k2,...` (pool indices, in the

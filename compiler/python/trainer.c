@@ -514,7 +514,8 @@ static PyMethodDef trainer_methods[] = {
    "greedy(start, pool, tol, budget=0, model_dir=None, absolute=False) -> (Model, {chosen, worst, converged}):\n"
    "greedy training with this trainer's options (npgc train --greedy): start and pool are dicts of arrays with a\n"
    "leading sample axis; full evaluations only at start and at the chosen candidates of pool; tol bounds the\n"
-   "estimated relative error, with absolute=True the absolute one (npgc train --absolute)"},
+   "estimated relative error, with absolute=True the absolute one (npgc train --absolute); the inputs' bases\n"
+   "keep every direction (energy 1 unless basis= or the program sets it)"},
   {"add_trajectory", (PyCFunction)(void (*)(void))trainer_add_trajectory, METH_VARARGS | METH_KEYWORDS,
    "add_trajectory(steps, every=1, **inputs): run the full step `steps` times from the states' initial values\n"
    "(Full.simulate's arguments) and add every `every`-th visited state; nothing is kept but the samples.\n"
