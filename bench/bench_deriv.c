@@ -39,7 +39,7 @@ static int bind(Full *f, const Program *prog, long n) {
       for (int a = 0; a < s->ndims; a++) shape[a] = n, count *= (size_t)n;
       for (int a = 0; a < s->nstatic; a++) shape[s->ndims + a] = s->shape[a], count *= (size_t)s->shape[a];
       double *x = malloc(sizeof(double) * (count ? count : 1));
-      randdata_fill(prog, s, n, &seed, false, x, count);
+      randdata_fill(&(RandData){.prog = prog, .n = n, .seed = &seed}, s, x, count);
       int rc = pass ? full_set(f, s->name, s->ndims + s->nstatic, shape, x, s->name)
                     : full_set_param(f, s->name, s->ndims + s->nstatic, shape, x, s->name);
       free(x);
@@ -61,7 +61,7 @@ static int bind_public(NpgFull *f, const Program *prog, long n) {
       for (int a = 0; a < s->ndims; a++) shape[a] = n, count *= (size_t)n;
       for (int a = 0; a < s->nstatic; a++) shape[s->ndims + a] = s->shape[a], count *= (size_t)s->shape[a];
       double *x = malloc(sizeof(double) * (count ? count : 1));
-      randdata_fill(prog, s, n, &seed, false, x, count);
+      randdata_fill(&(RandData){.prog = prog, .n = n, .seed = &seed}, s, x, count);
       int rc = pass ? npg_full_set(f, s->name, s->ndims + s->nstatic, shape, x, s->name)
                     : npg_full_set_param(f, s->name, s->ndims + s->nstatic, shape, x, s->name);
       free(x);

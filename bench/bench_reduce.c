@@ -223,7 +223,8 @@ static void rerun(Trained *tr, const RStage *rs, TensorRun *run) {
   double *trained = x->data, fl = 0;
   x->data = NULL;
   double s0 = now();
-  if (premultiply(m, tr->f, x, cy->B, cy->n, cy->m, &fl, err, sizeof err)) die("premultiply", err);
+  if (premultiply(m, tr->f, x, &(PremulOut){.By = cy->B, .ny = cy->n, .my = cy->m}, &fl, ERR_OF(err, sizeof err)))
+    die("premultiply", err);
   run->rerun_seconds = now() - s0;
   run->rerun_flops = fl;
   double dn = 0, dd = 0;
@@ -256,7 +257,7 @@ static Trained *train(NpgProgram *p, long F, long S, int cap, bool rerun_all) {
   opt.energy = 1.0; /* keep every direction up to the cap (and above 1e-10 σ_max) */
   char err[2048] = "";
   double t0 = now();
-  tr->m = train_model(program_ir(p), tr->f, &src, &opt, err, sizeof err);
+  tr->m = train_model(program_ir(p), tr->f, &src, &opt, ERR_OF(err, sizeof err));
   double t1 = now();
   if (!tr->m) die("train_model", err);
   tr->t_train = t1 - t0;

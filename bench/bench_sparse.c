@@ -299,7 +299,7 @@ static void premul_bench(NpgProgram *prog, long n, long S, int cap) {
   opt.energy = 1.0;
   char err[2048] = "";
   double t0 = now();
-  Model *m = train_model(program_ir(prog), f, &src, &opt, err, sizeof err);
+  Model *m = train_model(program_ir(prog), f, &src, &opt, ERR_OF(err, sizeof err));
   if (!m) {
     fprintf(stderr, "bench_sparse: %s\n", err);
     exit(1);
@@ -317,7 +317,7 @@ static void premul_bench(NpgProgram *prog, long n, long S, int cap) {
           double *kept = x->data, fl = 0;
           x->data = NULL;
           double s0 = now();
-          if (premultiply(m, f, x, cy->B, cy->n, cy->m, &fl, err, sizeof err)) {
+          if (premultiply(m, f, x, &(PremulOut){.By = cy->B, .ny = cy->n, .my = cy->m}, &fl, ERR_OF(err, sizeof err))) {
             fprintf(stderr, "bench_sparse: %s\n", err);
             exit(1);
           }

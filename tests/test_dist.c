@@ -30,7 +30,7 @@ static void one_process_collectives_keep_data(void **state) {
   assert_memory_equal(x, want, sizeof x);
   long counts[1] = {4};
   char err[256] = "";
-  assert_int_equal(dist_allgather(x, counts, err, sizeof err), 0);
+  assert_int_equal(dist_allgather(x, counts, ERR_OF(err, sizeof err)), 0);
   assert_memory_equal(x, want, sizeof x);
   assert_string_equal(err, "");
   dist_barrier();
@@ -48,7 +48,7 @@ static void start_without_mpi_says_what_to_install(void **state) {
   (void)state;
   if (dist_available()) skip(); /* MPI_Init in a unit test: tests/mpi runs it */
   char err[512] = "";
-  assert_int_equal(dist_start(err, sizeof err), -1);
+  assert_int_equal(dist_start(ERR_OF(err, sizeof err)), -1);
   assert_non_null(strstr(err, "no MPI"));
   assert_non_null(strstr(err, "libopenmpi-dev"));
   assert_int_equal(dist_size(), 1);

@@ -51,7 +51,8 @@ static void held_out(const Program *prog, MemSamples *held, const MemSamples *tr
   for (int i = 0; i < held->n; i++) {
     held->val[i] = malloc(sizeof(double) * held->count[i] * (size_t)S);
     for (long j = 0; j < S; j++)
-      randdata_fill(prog, held->sym[i], n, &seed, false, held->val[i] + (size_t)j * held->count[i], held->count[i]);
+      randdata_fill(&(RandData){.prog = prog, .n = n, .seed = &seed}, held->sym[i], held->val[i] + (size_t)j * held->count[i],
+                    held->count[i]);
   }
   held->S = S;
 }
@@ -113,11 +114,11 @@ static int full_rank_program(const char *path, void *arg) {
   opt.energy = 1.0;
   opt.full_rank = true;
   char err[2048] = "";
-  Model *g = train_model(prog, f, &src, &opt, err, sizeof err);
+  Model *g = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
   opt.ninterp = ne;
   opt.interp_stage = names;
   opt.interp_oversample = 1;
-  Model *m = g ? train_model(prog, f, &src, &opt, err, sizeof err) : NULL;
+  Model *m = g ? train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err)) : NULL;
   if (!m) fail_msg("%s: training: %s", path, err);
   int failures = 0;
   for (int i = 0; i < m->nstages; i++) {
@@ -188,7 +189,7 @@ static void truncated_obeys_bound(void **state) {
   opt.noverride = 2, opt.override_name = over, opt.override_cap = caps, opt.override_energy = energies;
   opt.ninterp = 1, opt.interp_stage = interp, opt.interp_oversample = 1.5;
   char err[2048] = "";
-  Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
+  Model *m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
   if (!m) fail_msg("training: %s", err);
   int wi = 0;
   while (strcmp(m->stages[wi].st->sym->name, "w") != 0) wi++;
@@ -378,7 +379,7 @@ static Model *train_choosing(const char *path, NpgProgram **pp, Full **ff, MemSa
   opt.valid = &vs;
   opt.ngalerkin = ngalerkin, opt.galerkin_stage = galerkin;
   char err[2048] = "";
-  Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
+  Model *m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
   if (!m) fail_msg("%s: training: %s", path, err);
   *pp = p, *ff = f;
   return m;
@@ -546,7 +547,7 @@ static void program_states_the_reduction(void **state) {
     opt.energy = 1.0;
     opt.valid = &vs;
     char err[1024];
-    Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
+    Model *m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
     if (!m) fail_msg("%s", err);
     assert_true((m->stages[0].interp != NULL) == (v == 0));
     /* stated: forced, not measured */
@@ -555,7 +556,7 @@ static void program_states_the_reduction(void **state) {
     model_free(m);
     const char *gal[1] = {"y"};
     opt.ngalerkin = 1, opt.galerkin_stage = gal;
-    if (!(m = train_model(prog, f, &src, &opt, err, sizeof err))) fail_msg("%s", err);
+    if (!(m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err)))) fail_msg("%s", err);
     assert_null(m->stages[0].interp);
     model_free(m);
     memsamples_free(&valid);
@@ -581,11 +582,11 @@ static void ineligible_refused(void **state) {
   const char *r2[1] = {"r2"}, *none[1] = {"nope"};
   opt.ninterp = 1, opt.interp_stage = r2;
   char err[2048] = "";
-  assert_null(train_model(prog, f, &src, &opt, err, sizeof err));
+  assert_null(train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err)));
   assert_string_equal(err, "stage r2 cannot be interpolated: it applies no diagonal operator (npgc check says which "
                            "stages can)");
   opt.interp_stage = none;
-  assert_null(train_model(prog, f, &src, &opt, err, sizeof err));
+  assert_null(train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err)));
   assert_string_equal(err, "--reduce nope:interp: the program has no stage 'nope'");
   memsamples_free(&train);
   full_free(f);

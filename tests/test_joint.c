@@ -60,7 +60,7 @@ static long joint(bool center, int cap, double scale1, double *X0, double *X1, d
   for (int i = 0; i < N * S; i++) X1s[i] = X1[i] * scale1;
   double *const X[R] = {X0, X1s};
   char err[512] = "";
-  if (train_joint_basis(&rc, S, X, err, sizeof err)) fail_msg("train_joint_basis: %s", err);
+  if (train_joint_basis(&rc, S, X, ERR_OF(err, sizeof err))) fail_msg("train_joint_basis: %s", err);
   for (int i = 0; i < R; i++) {
     assert_int_equal(mb[i].kept, rc.m); /* every member reports the joint PCA */
     assert_true(mb[i].lost >= 0 && mb[i].lost <= 1 && mb[i].lost == mb[0].lost);

@@ -15,7 +15,7 @@
  *     the rest a null space of 150), repeated leading eigenvalues;
  *     k from 1 to the whole (the dsyevd branch included), and k = 0;
  *
- * and PCA of tall snapshots (pca_member, pca_merge: a QR, then an SVD):
+ * and PCA of tall snapshots (pca_basis, pca_merge: a QR, then an SVD):
  * orthonormal bases of the optimal energy, reproducing the snapshots to
  * the accuracy of LAPACK's SVD of the same matrix down to 1e-12 (issue 41:
  * a Gram matrix stopped near 1e-8). */
@@ -175,10 +175,11 @@ static void pca_gram_matches_svd(void **state) {
   int caps[] = {5, 20, 40};
   double worst_orth = 0, worst_energy = 0;
   for (int c = 0; c < 3; c++) {
-    double *U, captured;
-    int k;
+    PcaMember p;
     char err[256];
-    if (pca_member(n, S, X, caps[c], 1.0, &U, &k, &captured, err, sizeof err)) fail_msg("%s", err);
+    if (pca_basis(n, S, X, &(PcaRule){.cap = caps[c], .energy = 1.0}, &p, ERR_OF(err, sizeof err))) fail_msg("%s", err);
+    double *U = p.U;
+    int k = p.k;
     /* every σ here is above the rounding floor: energy 1 keeps them all */
     assert_int_equal(k, caps[c]);
     double opt = 0, tot = 0;
@@ -191,16 +192,15 @@ static void pca_gram_matches_svd(void **state) {
         for (long i = 0; i < n; i++) d += U[i * k + a] * U[i * k + b];
         worst_orth = fmax(worst_orth, fabs(d - (a == b)));
       }
-    assert_true(fabs(captured - (1 - opt / tot)) < 1e-12);
-    free(U);
+    assert_true(fabs(p.lost - opt / tot) < 1e-12);
+    free(U), free(p.sv);
   }
   print_message("PCA of 600 x 40 snapshots, σ from 1 to 1e-9.75, caps 5/20/40: orthonormal to %.2g, residual "
                 "energy optimal to %.2g\n", worst_orth, worst_energy);
   assert_true(worst_orth < 1e-12);
   assert_true(worst_energy < 1e-12);
   /* merging two bases that share 5 directions: 35 + 35 − 5 independent */
-  double *U1, *U2, cap1, cap2;
-  int k1, k2;
+  PcaMember p1, p2;
   char err[256];
   double flat[40];
   for (int i = 0; i < S; i++) flat[i] = 1;
@@ -208,16 +208,16 @@ static void pca_gram_matches_svd(void **state) {
   X = spectrum_matrix(n, S, flat, 9u);
   double *Y = spectrum_matrix(n, S, flat, 10u);
   for (long j = 0; j < 5; j++) memcpy(Y + j * n, X + j * n, sizeof(double) * (size_t)n);
-  if (pca_member(n, 35, X, 40, 1.0, &U1, &k1, &cap1, err, sizeof err)) fail_msg("%s", err);
-  if (pca_member(n, 35, Y, 40, 1.0, &U2, &k2, &cap2, err, sizeof err)) fail_msg("%s", err);
-  double *parts[2] = {U1, U2}, *B;
-  int ks[2] = {k1, k2};
+  if (pca_basis(n, 35, X, &(PcaRule){.cap = 40, .energy = 1.0}, &p1, ERR_OF(err, sizeof err))) fail_msg("%s", err);
+  if (pca_basis(n, 35, Y, &(PcaRule){.cap = 40, .energy = 1.0}, &p2, ERR_OF(err, sizeof err))) fail_msg("%s", err);
+  double *parts[2] = {p1.U, p2.U}, *B;
+  int ks[2] = {p1.k, p2.k};
   long m;
-  if (pca_merge(n, 2, parts, ks, &B, &m, err, sizeof err)) fail_msg("%s", err);
-  assert_int_equal(k1, 35);
-  assert_int_equal(k2, 35);
+  if (pca_merge(n, (PcaBlocks){2, parts, ks}, &B, &m, ERR_OF(err, sizeof err))) fail_msg("%s", err);
+  assert_int_equal(p1.k, 35);
+  assert_int_equal(p2.k, 35);
   assert_int_equal(m, 65);
-  free(U1), free(U2), free(B), free(X), free(Y);
+  free(p1.U), free(p1.sv), free(p2.U), free(p2.sv), free(B), free(X), free(Y);
 }
 
 /* ‖X − U_j U_jᵀ X‖_F for the first j columns of U (n x k row-major), j = 0..k, into res[j]:
@@ -269,7 +269,7 @@ static void pca_reaches_svd_accuracy(void **state) {
       PcaMember p;
       char err[256];
       double energy = 1 - 1e-24; /* == 1 in doubles */
-      if (pca_basis(n, S, X, (int)S + 1, energy, center, NULL, &p, err, sizeof err)) fail_msg("%s", err);
+      if (pca_basis(n, S, X, &(PcaRule){.cap = (int)S + 1, .energy = energy, .center = center}, &p, ERR_OF(err, sizeof err))) fail_msg("%s", err);
       /* the kept directions, of the centered snapshots when centered (the basis is [μ, U_c]) */
       int k = p.k - center, need = 0;
       while (need < r && ref[need] >= 1e-12 * ref[0]) need++;

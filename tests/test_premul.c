@@ -135,7 +135,7 @@ typedef struct PremulStats {
   int kinds[3], orders[8], packed;
 } PremulStats;
 
-/* Over ranks: the parts of premultiply_part (each rank's builder enumerating
+/* Over ranks: the parts of premultiply (PremulOut.part; each rank's builder enumerating
  * only its rows; premul refuses an entry of another's) sum to the whole, for
  * 2 and 3 parts and for more parts than the tensor has rows (ranks with
  * nothing to do). Non-zero after printing a failure. */
@@ -148,7 +148,8 @@ static int premul_split_check(Model *m, Full *f, RTensor *x, const RClass *cy, c
     for (long part = 0; part < nparts[k]; part++) {
       char err[512];
       x->data = NULL;
-      if (premultiply_part(m, f, x, cy->B, cy->n, cy->m, (int)part, (int)nparts[k], NULL, err, sizeof err))
+      if (premultiply(m, f, x, &(PremulOut){.By = cy->B, .ny = cy->n, .my = cy->m, .part = (int)part, .nparts = (int)nparts[k]}, NULL,
+                      ERR_OF(err, sizeof err)))
         fail_msg("%s", err);
       cblas_daxpy((int)len, 1.0, x->data, 1, sum, 1);
       free(x->data);
@@ -200,7 +201,8 @@ static int premul_program(const char *path, void *arg) {
           double *kept = x->data;
           x->data = NULL;
           int other = x->group->nmono >= 8 ? INT_MAX : 1;
-          if (premultiply_unpacking(m, tr.f, x, cy->B, cy->n, cy->m, other, NULL, err, sizeof err))
+          if (premultiply(m, tr.f, x, &(PremulOut){.By = cy->B, .ny = cy->n, .my = cy->m, .unpack_min_monos = other}, NULL,
+                          ERR_OF(err, sizeof err)))
             fail_msg("%s", err);
           double d2 = brute_premul(m, tr.f, x, cy);
           free(x->data);

@@ -56,7 +56,7 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   opt.full_rank = true;
   opt.uncentered = uncentered;
   char err[2048] = "";
-  Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
+  Model *m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
   if (!m) fail_msg("%s: training: %s", path, err);
   for (int c = 0; c < m->nclasses; c++) assert_int_equal(m->classes[c].m, m->classes[c].n);
   Reduced *r = reduced_new(m, ERR_OF(err, sizeof err));
@@ -70,7 +70,7 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   for (int i = 0; i < held.n; i++) {
     held.val[i] = malloc(sizeof(double) * held.count[i] * 3);
     for (long j = 0; j < 3; j++)
-      randdata_fill(prog, held.sym[i], n, &seed, false, held.val[i] + (size_t)j * held.count[i], held.count[i]);
+      randdata_fill(&(RandData){.prog = prog, .n = n, .seed = &seed}, held.sym[i], held.val[i] + (size_t)j * held.count[i], held.count[i]);
   }
   held.S = 3;
   int failures = 0;
@@ -480,13 +480,13 @@ static void smaller_sizes_equal_retraining(void **state) {
       SampleSource src = {train.S, &train, memsamples_set, NULL, NULL};
       TrainOptions opt = {.cap = 8, .energy = 1.0, .uncentered = uncentered, .joint = joint};
       char err[2048] = "";
-      Model *big = train_model(prog, f, &src, &opt, err, sizeof err);
+      Model *big = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
       if (!big) fail_msg("%s", err);
       const int caps[3] = {2, 3, 5};
       double worst = 0;
       for (int i = 0; i < 3; i++) {
         opt.cap = caps[i];
-        Model *small = train_model(prog, f, &src, &opt, err, sizeof err);
+        Model *small = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
         if (!small) fail_msg("%s", err);
         long sizes[16];
         for (int c = 0; c < small->nclasses; c++) sizes[c] = small->classes[c].m;

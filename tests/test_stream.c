@@ -67,7 +67,7 @@ static Model *train_logged(Program *prog, Full *f, const SampleSource *src, cons
   int saved = dup(2);
   assert_true(saved >= 0 && dup2(fd, 2) == 2);
   char err[2048] = "";
-  Model *m = train_model(prog, f, src, opt, err, sizeof err);
+  Model *m = train_model(prog, f, src, opt, ERR_OF(err, sizeof err));
   fflush(stderr);
   dup2(saved, 2);
   close(saved);

@@ -33,7 +33,7 @@ static void error_falls_with_caps(void **state) {
     opt.cap = caps[c];
     opt.energy = 1.0;
     char err[2048] = "";
-    Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
+    Model *m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
     if (!m) fail_msg("radiosity: %s", err);
     err_rad[c] = mean_error(prog, f, m, &test, room_set, test.S, "b");
     model_free(m);
@@ -55,7 +55,7 @@ static void error_falls_with_caps(void **state) {
     opt.cap = rat_caps[c];
     opt.energy = 1.0;
     char err[2048] = "";
-    Model *m = train_model(prog, f, &src, &opt, err, sizeof err);
+    Model *m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
     if (!m) fail_msg("rational: %s", err);
     err_rat[c] = mean_error(prog, f, m, &rtest, memsamples_set, rtest.S, "y");
     model_free(m);

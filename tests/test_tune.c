@@ -20,11 +20,11 @@ static void check_tune(const char *name, Program *prog, Full *f, SampleSource *s
   opt.cap = 60;
   opt.energy = 1.0;
   char err[2048] = "";
-  TrainSet *ts = train_set_new(prog, f, src, &opt, err, sizeof err);
+  TrainSet *ts = train_set_new(prog, f, src, &opt, ERR_OF(err, sizeof err));
   if (!ts) fail_msg("%s: %s", name, err);
   SampleSource vsrc = {Sv, valid, set, NULL, NULL};
   TuneResult r;
-  if (tune_search(ts, prog, f, &vsrc, tol, 60, NULL, &r, err, sizeof err)) fail_msg("%s: %s", name, err);
+  if (tune_search(ts, &(TuneGoal){&vsrc, tol, 60}, NULL, &r, ERR_OF(err, sizeof err))) fail_msg("%s: %s", name, err);
   assert_true(r.chosen >= 0 && r.model);
   /* the model tune returns, its reductions as chosen in the search */
   double chosen_err = mean_error(prog, f, r.model, valid, set, Sv, out), chosen_cost = r.trials[r.chosen].cost;

@@ -34,7 +34,7 @@ static inline void train(Trained *tr, const char *path, const char *text, long n
   opt.cap = cap;
   opt.energy = 1.0;
   char err[2048] = "";
-  tr->m = train_model(tr->prog, tr->f, &src, &opt, err, sizeof err);
+  tr->m = train_model(tr->prog, tr->f, &src, &opt, ERR_OF(err, sizeof err));
   if (!tr->m) fail_msg("%s: training: %s", path, err);
 }
 
@@ -176,7 +176,7 @@ static inline Model *train_with(Program *prog, Full *f, const SampleSource *src,
   opt.override_cap = nocap;
   opt.override_energy = energies;
   char err[2048] = "";
-  Model *m = train_model(prog, f, src, &opt, err, sizeof err);
+  Model *m = train_model(prog, f, src, &opt, ERR_OF(err, sizeof err));
   if (!m) fail_msg("training: %s", err);
   return m;
 }

@@ -34,13 +34,13 @@ static void finalize(void) {
 }
 #endif
 
-int dist_start(char *err, size_t errlen) {
+int dist_start(Err *err) {
   if (started) return 0;
 #ifdef NPG_HAVE_MPI
   int up = 0;
   MPI_Initialized(&up);
   if (!up) {
-    if (MPI_Init(NULL, NULL) != MPI_SUCCESS) return error_set(err, errlen, "MPI_Init failed");
+    if (MPI_Init(NULL, NULL) != MPI_SUCCESS) return err_set(err, "MPI_Init failed");
     atexit(finalize);
   }
   MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
@@ -48,9 +48,8 @@ int dist_start(char *err, size_t errlen) {
   started = true;
   return 0;
 #else
-  return error_set(err, errlen,
-                   "this build of npg has no MPI: install OpenMPI (scripts/setup.sh installs libopenmpi-dev "
-                   "openmpi-bin) and configure the build again");
+  return err_set(err, "this build of npg has no MPI: install OpenMPI (scripts/setup.sh installs libopenmpi-dev "
+                      "openmpi-bin) and configure the build again");
 #endif
 }
 
@@ -72,16 +71,16 @@ void dist_allreduce_sum(double *x, long n) { (void)x, (void)n; }
 void dist_allreduce_max(double *x, long n) { (void)x, (void)n; }
 #endif
 
-int dist_allgather(double *all, const long *counts, char *err, size_t errlen) {
+int dist_allgather(double *all, const long *counts, Err *err) {
 #ifdef NPG_HAVE_MPI
   if (!started || size_ == 1) return 0;
   int *cnt = malloc(sizeof(int) * (size_t)size_), *displ = malloc(sizeof(int) * (size_t)size_);
   long at = 0;
   int rc = 0;
-  if (!cnt || !displ) rc = error_set(err, errlen, "out of memory gathering the ranks' blocks");
+  if (!cnt || !displ) rc = err_set(err, "out of memory gathering the ranks' blocks");
   for (int r = 0; rc == 0 && r < size_; r++) {
     if (counts[r] > INT_MAX || at > INT_MAX)
-      rc = error_set(err, errlen, "a block of %ld entries is more than one MPI call gathers", counts[r]);
+      rc = err_set(err, "a block of %ld entries is more than one MPI call gathers", counts[r]);
     else cnt[r] = (int)counts[r], displ[r] = (int)at;
     at += counts[r];
   }
@@ -92,7 +91,7 @@ int dist_allgather(double *all, const long *counts, char *err, size_t errlen) {
   free(displ);
   return rc;
 #else
-  (void)all, (void)counts, (void)err, (void)errlen;
+  (void)all, (void)counts, (void)err;
   return 0;
 #endif
 }

@@ -13,12 +13,14 @@
 #include <stdbool.h>
 #include <stddef.h>
 
+#include "context.h"
+
 /* Whether this build has MPI. */
 bool dist_available(void);
 /* Join the MPI job (MPI_Init unless the program has already initialized
  * MPI; then MPI_Finalize at exit). Idempotent. 0, or -1 with `err` (no MPI
  * in this build, or MPI_Init failed). */
-int dist_start(char *err, size_t errlen);
+int dist_start(Err *err);
 /* This process's rank and the number of ranks: 0 and 1 before dist_start. */
 int dist_rank(void);
 int dist_size(void);
@@ -30,7 +32,7 @@ void dist_allreduce_max(double *x, long n);
 /* Blocks of counts[r] doubles, rank r's at all + Σ_{q<r} counts[q] (already
  * in place there on rank r), gathered on every rank. -1 with `err` when a
  * block exceeds what one MPI call takes (2^31 - 1 entries). */
-int dist_allgather(double *all, const long *counts, char *err, size_t errlen);
+int dist_allgather(double *all, const long *counts, Err *err);
 /* x[0..n) of rank `root` on every rank (in chunks: n may exceed an int). */
 void dist_broadcast(double *x, long n, int root);
 /* bytes p[0..n) of rank `root` on every rank (in chunks). */

@@ -8,7 +8,7 @@
  *   bases       every member's PCA made on one rank (the largest first,
  *               each to the least loaded rank) and broadcast;
  *   SPD marks   a diagonal operator stays SPD when it was on every rank;
- *   pre-multiplication  each rank its rows (premultiply_part: its
+ *   pre-multiplication  each rank its rows (PremulOut.part: its
  *               builders enumerate no other rank's entries), the
  *               reduced tensors summed (train.c). */
 #include <stdlib.h>
@@ -21,7 +21,7 @@
  * rank's block under 2^27 doubles (1 GB, and an int count). */
 static long rounds_per_call(long n) { return n > 0 && (1L << 27) / n > 1 ? (1L << 27) / n : 1; }
 
-int dist_gather_snapshots(Model *m, double ***X, long S, char *err, size_t errlen) {
+int dist_gather_snapshots(Model *m, double ***X, long S, Err *err) {
   int N = dist_size(), rank = dist_rank();
   long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) maxn = X[c] && m->classes[c].n > maxn ? m->classes[c].n : maxn;
@@ -32,7 +32,7 @@ int dist_gather_snapshots(Model *m, double ***X, long S, char *err, size_t errle
   if (!counts || !all) {
     free(counts);
     free(all);
-    return error_set(err, errlen, "out of memory gathering the snapshots");
+    return err_set(err, "out of memory gathering the snapshots");
   }
   int rc = 0;
   /* rounds j0 … j1−1 at a time: rank r's columns jN + r packed in order
@@ -53,7 +53,7 @@ int dist_gather_snapshots(Model *m, double ***X, long S, char *err, size_t errle
       }
       for (int i = 0; rc == 0 && i < cl->nmembers; i++) {
         for (long q = 0; q < mine; q++) memcpy(all + at + q * cl->n, X[c][i] + ((j0 + q) * N + rank) * n, sizeof(double) * n);
-        if ((rc = dist_allgather(all, counts, err, errlen))) break;
+        if ((rc = dist_allgather(all, counts, err))) break;
         for (int r = 0, off = 0; r < N; off += (int)(counts[r] / (cl->n ? cl->n : 1)), r++)
           for (long q = 0; q < counts[r] / (cl->n ? cl->n : 1); q++)
             if (r != rank) memcpy(X[c][i] + ((j0 + q) * N + r) * n, all + (off + q) * cl->n, sizeof(double) * n);
@@ -90,13 +90,13 @@ void dist_free_pcas(Model *m, PcaMember **pcas) {
   free(pcas);
 }
 
-int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember ***out, char *err, size_t errlen) {
+int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember ***out, Err *err) {
   int N = dist_size(), rank = dist_rank();
   PcaMember **p = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *));
   int *owner = NULL;
   long *size = NULL;
   double *load = NULL;
-  if (!p) return error_set(err, errlen, "out of memory for the member bases");
+  if (!p) return err_set(err, "out of memory for the member bases");
   for (int c = 0; c < m->nclasses; c++)
     if (!(p[c] = mem_calloc((size_t)m->classes[c].nmembers + 1, sizeof(PcaMember)))) goto oom;
   /* owners: the largest member first, each to the least loaded rank
@@ -123,7 +123,8 @@ int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember *
     for (int i = 0; i < m->classes[c].nmembers; i++, g++) {
       const RClass *rc = &m->classes[c];
       const RMember *mb = &rc->members[i];
-      if (owner[g] == rank && pca_basis(rc->n, S, X[c][i], mb->cap, mb->energy, mb->center, w, &p[c][i], err, errlen))
+      if (owner[g] == rank &&
+          pca_basis(rc->n, S, X[c][i], &(PcaRule){mb->cap, mb->energy, mb->center, w}, &p[c][i], err))
         goto fail;
     }
   /* share: each member from its rank, in the same order on every rank */
@@ -148,7 +149,7 @@ int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember *
   *out = p;
   return 0;
 oom:
-  error_set(err, errlen, "out of memory for the member bases");
+  err_set(err, "out of memory for the member bases");
 fail:
   free(owner);
   free(size);

@@ -547,7 +547,7 @@ static int theta_detect(SigmaRun *s) {
   double *q = calloc((size_t)s->nt + 1, sizeof(double));
   if (!q) return err_set(s->w.err, "estimate tables: out of memory");
   int out = 0;
-  if (s->rank == 0 && s->nt > 0 && (out = train_eval_sample(s->src, s->w.f, 0, s->w.err->msg, s->w.err->len)) == 0)
+  if (s->rank == 0 && s->nt > 0 && (out = train_eval_sample(s->src, s->w.f, 0, s->w.err)) == 0)
     for (int e = 0; e < s->nt; e++) q[e] = affine_input(&s->w, run_term(s, e), run_class(s, e)->n);
   if (out == 0 && s->N > 1) dist_broadcast(q, s->nt, 0);
   for (int e = 0; out == 0 && e < s->nt; e++) {
@@ -568,7 +568,7 @@ static int sigma_records(SigmaRun *s) {
   for (long j = 0; j < s->nk; j++) {
     long k = run_pick(s, j);
     if (k % s->N != s->rank) continue;
-    if (train_eval_sample(s->src, s->w.f, k, s->w.err->msg, s->w.err->len)) return -1;
+    if (train_eval_sample(s->src, s->w.f, k, s->w.err)) return -1;
     for (int e = 0; e < s->nt; e++) {
       RTerm *rt = run_term(s, e);
       double *r = s->rec + ((long)e * s->nk + j) * SIGMA_REC;

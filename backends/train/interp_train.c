@@ -412,7 +412,7 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
   o.valid = NULL;
   o.ninterp = ni, o.interp_stage = ilist;
   o.ngalerkin = ng, o.galerkin_stage = glist;
-  if (!(m = train_model(prog, f, all, &o, err->msg, err->len))) goto done;
+  if (!(m = train_model(prog, f, all, &o, err))) goto done;
   snprintf(m->choice_failure, sizeof m->choice_failure, "%s", failure);
   for (int i = 0; i < n && i < m->nstages; i++) /* the measured errors and reason, not "forced" */
     if (reason[i]) {

@@ -18,7 +18,7 @@
  * block minus its own mean, and the class basis the orthonormalization of
  * [μ_1 … μ_r, U_c], at most Σ cap vectors. Every member reports the joint
  * PCA. */
-int train_joint_basis(RClass *rc, long S, double *const *X, char *err, size_t errlen) {
+int train_joint_basis(RClass *rc, long S, double *const *X, Err *err) {
   size_t n = (size_t)rc->n * (size_t)S;
   int r = rc->nmembers, cap = 0, rc_ok = -1;
   bool center = rc->members[0].center;
@@ -43,15 +43,15 @@ int train_joint_basis(RClass *rc, long S, double *const *X, char *err, size_t er
     ks[i] = 1;
   }
   if (center) cap = cap > r ? cap - r : 0;
-  if (pca_basis(rc->n, S * r, J, cap, energy, false, NULL, &p, err, errlen)) goto done;
+  if (pca_basis(rc->n, S * r, J, &(PcaRule){.cap = cap, .energy = energy}, &p, err)) goto done;
   if (center) {
     parts[r] = p.U;
     ks[r] = p.k;
     int mm = 0;
-    rc_ok = pca_in_order(rc->n, r + 1, parts, ks, &rc->B, &mm, err, errlen);
+    rc_ok = pca_in_order(rc->n, (PcaBlocks){r + 1, parts, ks}, &rc->B, &mm, err);
     rc->m = mm;
   } else {
-    rc_ok = pca_merge(rc->n, 1, &p.U, &p.k, &rc->B, &rc->m, err, errlen);
+    rc_ok = pca_merge(rc->n, (PcaBlocks){1, &p.U, &p.k}, &rc->B, &rc->m, err);
   }
   for (int i = 0; rc_ok == 0 && i < r; i++) {
     RMember *mb = &rc->members[i];

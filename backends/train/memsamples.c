@@ -22,7 +22,7 @@ int memsamples_fill(MemSamples *ms, const Program *prog, Full *f, long n, long S
     size_t c = memsamples_count(s, n, shape);
     double *v = mem_malloc(sizeof(double) * (c ? c : 1));
     if (!v) return -2;
-    randdata_fill(prog, s, n, &seed, false, v, c);
+    randdata_fill(&(RandData){.prog = prog, .n = n, .seed = &seed}, s, v, c);
     int rc = full_set_param(f, s->name, s->ndims + s->nstatic, shape, v, s->name);
     free(v);
     if (rc) return -1;
@@ -43,7 +43,8 @@ int memsamples_fill(MemSamples *ms, const Program *prog, Full *f, long n, long S
       memsamples_free(ms);
       return -2;
     }
-    for (long j = 0; j < S; j++) randdata_fill(prog, s, n, &seed, false, ms->val[k] + (size_t)j * ms->count[k], ms->count[k]);
+    for (long j = 0; j < S; j++)
+      randdata_fill(&(RandData){.prog = prog, .n = n, .seed = &seed}, s, ms->val[k] + (size_t)j * ms->count[k], ms->count[k]);
   }
   return 0;
 }

@@ -169,8 +169,8 @@ const Sym *ooc_member_quantity(const Model *m, const RMember *mb) {
   return mb->q >= 0 ? m->prog->quantities.v[mb->q] : mb->joiner->stage->sym;
 }
 
-/* Rows [r0, r1) of member `mb` after evaluating sample k, into out. */
-int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1, double *out) {
+int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, const long rows[2], double *out) {
+  long r0 = rows[0], r1 = rows[1];
   if (mb->q < 0) { /* an unnamed numerator: through its tensors, whole */
     if (train_member_value(o->t, mb, k, n, o->tmp)) return -1;
     memcpy(out, o->tmp + r0, sizeof(double) * (size_t)(r1 - r0));
@@ -179,8 +179,9 @@ int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1,
   const double *v = full_get(o->t->f, ((Sym *)o->t->m->prog->quantities.v[mb->q])->name, NULL);
   for (long e = r0; e < r1; e++)
     if (!isfinite(v[e])) /* the message naming where it arises */
-      return train_member_value(o->t, mb, k, n, o->tmp) ? -1
-             : error_set(o->t->err, o->t->errlen, "training sample %ld: %s is not finite", k, mb->name);
+      return train_member_value(o->t, mb, k, n, o->tmp)
+                 ? -1
+                 : err_set(o->t->err, "training sample %ld: %s is not finite", k, mb->name);
   memcpy(out, v + r0, sizeof(double) * (size_t)(r1 - r0));
   return 0;
 }
@@ -189,8 +190,7 @@ int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1,
  * snapshots taken. */
 static int whole_sample(Ooc *o, long k) {
   Model *m = o->t->m;
-  if (train_eval_sample(o->t->src, o->t->f, k, o->t->err, o->t->errlen) || train_check_spd(o->t, o->tmp))
-    return -1;
+  if (train_eval_sample(o->t->src, o->t->f, k, o->t->err) || train_check_spd(o->t, o->tmp)) return -1;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     for (int i = 0; !o->st[c].streamed && i < rc->nmembers; i++)
@@ -210,7 +210,7 @@ static int collect(Ooc *o, long p, bool gram) {
   long S = o->S;
   bool whole = p == 0 && gram && o->N == 1; /* over ranks: whole_sweep */
   Demand *d = whole ? NULL : full_demand(o->t->f);
-  if (!whole && !d) return error_set(o->t->err, o->t->errlen, "%s", full_error(o->t->f));
+  if (!whole && !d) return err_set(o->t->err, "%s", full_error(o->t->f));
   size_t need = 0;
   for (long g = o->first[p]; g < o->first[p + 1]; g++)
     need += (size_t)(o->seg[g].r1 - o->seg[g].r0) * (size_t)S * (size_t)m->classes[o->seg[g].c].nmembers;
@@ -230,21 +230,22 @@ static int collect(Ooc *o, long p, bool gram) {
       if (d) demand_entries(d, ooc_member_quantity(m, &rc->members[i]), (size_t)sg->r0, (size_t)sg->r1);
     }
   }
-  if (d && demand_propagate(d)) return error_set(o->t->err, o->t->errlen, "out of memory");
+  if (d && demand_propagate(d)) return err_set(o->t->err, "out of memory");
   const char *what = gram ? "snapshots (R factors, out of core)" : "snapshots (basis, out of core)";
   for (long k = 0; k < S; k++) {
     if (whole) {
       if (whole_sample(o, k)) return -1;
     } else if ((o->t->src->set_part ? o->t->src->set_part(o->t->src->user, o->t->f, k, d) : o->t->src->set(o->t->src->user, o->t->f, k)) ||
                full_eval_demand(o->t->f, k, d)) {
-      return error_set(o->t->err, o->t->errlen, "%s", full_error(o->t->f));
+      return err_set(o->t->err, "%s", full_error(o->t->f));
     }
     for (long g = o->first[p]; g < o->first[p + 1]; g++) {
       Segment *sg = &o->seg[g];
       RClass *rc = &m->classes[sg->c];
       long R = sg->r1 - sg->r0;
       for (int i = 0; i < rc->nmembers; i++)
-        if (ooc_member_rows(o, &rc->members[i], k, rc->n, sg->r0, sg->r1, sg->H[i] + (size_t)k * (size_t)R)) return -1;
+        if (ooc_member_rows(o, &rc->members[i], k, rc->n, (long[2]){sg->r0, sg->r1}, sg->H[i] + (size_t)k * (size_t)R))
+          return -1;
     }
     /* this rank's passes: p / N of (npass − rank) / N, rounded up */
     progress_show(o->t->opt->progress, what, p / o->N * S + k + 1, (o->npass - o->rank + o->N - 1) / o->N * S);
@@ -265,9 +266,9 @@ static int whole_sweep(Ooc *o) {
     progress_show(o->t->opt->progress, "snapshots (whole, out of core)", k + 1, S);
   }
   double ***X = mem_calloc((size_t)m->nclasses + 1, sizeof(double **));
-  if (!X) return error_set(o->t->err, o->t->errlen, "out of memory gathering the snapshots");
+  if (!X) return err_set(o->t->err, "out of memory gathering the snapshots");
   for (int c = 0; c < m->nclasses; c++) X[c] = o->st[c].X;
-  int rc = dist_gather_snapshots(m, X, S, o->t->err, o->t->errlen);
+  int rc = dist_gather_snapshots(m, X, S, o->t->err);
   free(X);
   if (rc == 0) dist_and_spd(m);
   return rc;
@@ -305,8 +306,8 @@ static int gram_passes(Ooc *o) {
         /* the block's rows folded into the member's R (TSQR), H_b overwritten: it is not read again */
         if (pca_fold_rows(S, o->st[sg->c].G[i], R, sg->H[i], R) != 0) {
           free(mu);
-          return error_set(o->t->err, o->t->errlen, "class %s, member %s: the QR of a block of snapshots failed", rc->label,
-                           rc->members[i].name);
+          return err_set(o->t->err, "class %s, member %s: the QR of a block of snapshots failed", rc->label,
+                         rc->members[i].name);
         }
       }
       free(mu);
@@ -316,12 +317,12 @@ static int gram_passes(Ooc *o) {
   for (int c = 0; o->N > 1 && c < o->t->m->nclasses; c++) /* every rank's R gathered, folded alike on every rank */
     for (int i = 0; o->st[c].streamed && i < o->t->m->classes[c].nmembers; i++) {
       double *all = mem_calloc((size_t)(o->N * S * S) + 1, sizeof(double));
-      if (!all) return error_set(o->t->err, o->t->errlen, "out of memory");
+      if (!all) return err_set(o->t->err, "out of memory");
       memcpy(all + (size_t)o->rank * (size_t)(S * S), o->st[c].G[i], sizeof(double) * (size_t)(S * S));
       dist_allreduce_sum(all, o->N * S * S); /* each rank's slot from it alone: exact */
       int bad = pca_fold_r(S, o->N, all, o->st[c].G[i]);
       free(all);
-      if (bad) return error_set(o->t->err, o->t->errlen, "the QR of the ranks' snapshot factors failed");
+      if (bad) return err_set(o->t->err, "the QR of the ranks' snapshot factors failed");
       dist_allreduce_max(&o->st[c].big[i], 1);
     }
   return 0;
@@ -331,12 +332,12 @@ static int gram_passes(Ooc *o) {
  * order alike on every rank (R replaced). 0, or -1 with o->t->err. */
 static int fold_ranks(Ooc *o, long K, double *R) {
   double *all = mem_calloc((size_t)(o->N * K * K) + 1, sizeof(double));
-  if (!all) return error_set(o->t->err, o->t->errlen, "out of memory");
+  if (!all) return err_set(o->t->err, "out of memory");
   memcpy(all + (size_t)o->rank * (size_t)(K * K), R, sizeof(double) * (size_t)(K * K));
   dist_allreduce_sum(all, o->N * K * K); /* each rank's slot from it alone: exact */
   int bad = pca_fold_r(K, o->N, all, R);
   free(all);
-  return bad ? error_set(o->t->err, o->t->errlen, "the QR of the ranks' basis factors failed") : 0;
+  return bad ? err_set(o->t->err, "the QR of the ranks' basis factors failed") : 0;
 }
 
 /* Every streamed member's directions from its R factor (pca_r_basis):
@@ -363,15 +364,18 @@ static int eigen(Ooc *o) {
       free(Gd);
       if (range) {
         free(W);
-        return error_set(o->t->err, o->t->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
+        return err_set(o->t->err,
+                       "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots "
+                       "in memory (their PCA is scale-invariant)",
+                       rc->label, mb->name, range);
       }
       double *s = st->s[i];
       long k = 0;
-      int info = pca_r_basis(S, G, cap, mb->energy, s, W, &k);
+      int info = pca_r_basis(S, G, &(PcaRule){.cap = cap, .energy = mb->energy}, s, W, &k);
       if (info != 0) {
         free(W);
-        return error_set(o->t->err, o->t->errlen, "class %s, member %s: the SVD of the snapshots' R factor failed (LAPACK info %d)",
-                         rc->label, mb->name, (int)info);
+        return err_set(o->t->err, "class %s, member %s: the SVD of the snapshots' R factor failed (LAPACK info %d)",
+                       rc->label, mb->name, (int)info);
       }
       double total = 0, run = 0;
       for (long j = 0; j < S; j++) total += s[j] * s[j];
@@ -389,14 +393,14 @@ static int eigen(Ooc *o) {
       st->K += k + (mb->center ? 1 : 0);
     }
     if (!(st->RA = mem_calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || (!st->blockwise && !(st->A = tmpfile())))
-      return error_set(o->t->err, o->t->errlen, "cannot create a scratch file for the basis of class %s", rc->label);
+      return err_set(o->t->err, "cannot create a scratch file for the basis of class %s", rc->label);
     if (!rc->streamed) continue; /* the model keeps its basis: no floors to take */
     if (!(st->AX = calloc((size_t)rc->nmembers, sizeof(double *))) || !(st->yy = calloc((size_t)rc->nmembers, sizeof(double *))))
-      return error_set(o->t->err, o->t->errlen, "out of memory");
+      return err_set(o->t->err, "out of memory");
     for (int i = 0; i < rc->nmembers; i++)
       if (rc->members[i].q >= 0 && (!(st->AX[i] = calloc((size_t)(st->K * S) + 1, sizeof(double))) ||
                                     !(st->yy[i] = calloc((size_t)S, sizeof(double)))))
-        return error_set(o->t->err, o->t->errlen, "out of memory");
+        return err_set(o->t->err, "out of memory");
   }
   return 0;
 }
@@ -431,7 +435,7 @@ static int floor_products(Ooc *o, const Segment *sg, const double *A, long K) {
   RClass *rc = &o->t->m->classes[sg->c];
   long R = sg->r1 - sg->r0, S = o->S;
   double *Amu = malloc(sizeof(double) * (size_t)(K + 1));
-  if (!Amu) return error_set(o->t->err, o->t->errlen, "out of memory");
+  if (!Amu) return err_set(o->t->err, "out of memory");
   for (int i = 0; i < rc->nmembers; i++) {
     if (rc->members[i].q < 0 || K == 0) continue;
     bool centered = rc->members[i].center;
@@ -468,7 +472,7 @@ static int take_floors(Ooc *o, int c, const double *T, long m) {
   RClass *rc = &o->t->m->classes[c];
   long K = st->K, S = o->S;
   double *P = malloc(sizeof(double) * (size_t)(m * S + 1));
-  if (!P) return error_set(o->t->err, o->t->errlen, "out of memory");
+  if (!P) return err_set(o->t->err, "out of memory");
   for (int i = 0; i < rc->nmembers; i++) {
     RMember *mb = &rc->members[i];
     if (mb->q < 0) continue;
@@ -522,10 +526,10 @@ static int basis_passes(Ooc *o) {
       for (long e = 0; e < R; e++) /* the block's rows folded into A's R factor (TSQR), from a column-major copy */
         for (long j = 0; j < K; j++) At[j * R + e] = A[e * K + j];
       if (K > 0 && pca_fold_rows(K, st->RA, R, At, R) != 0)
-        return error_set(o->t->err, o->t->errlen, "class %s: the QR of a block of its basis rows failed", rc->label);
+        return err_set(o->t->err, "class %s: the QR of a block of its basis rows failed", rc->label);
       if (st->AX && floor_products(o, sg, A, K)) return -1;
       int bad = !st->blockwise && ooc_write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
-      if (bad) return error_set(o->t->err, o->t->errlen, "cannot write the scratch file of class %s (disk full?)", rc->label);
+      if (bad) return err_set(o->t->err, "cannot write the scratch file of class %s (disk full?)", rc->label);
     }
     release(o, p);
   }
@@ -547,7 +551,7 @@ FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes) {
     FILE *fp = tmpfile();
     if (fp && ftruncate(fileno(fp), (off_t)bytes) == 0) return fp;
     if (fp) fclose(fp);
-    error_set(o->t->err, o->t->errlen, "cannot create the file of the basis of class %s (%.3g GB)", rc->label, (double)bytes / 1e9);
+    err_set(o->t->err, "cannot create the file of the basis of class %s (%.3g GB)", rc->label, (double)bytes / 1e9);
     return NULL;
   }
   char path[4096] = "";
@@ -567,8 +571,8 @@ FILE *ooc_basis_file(Ooc *o, const RClass *rc, size_t bytes) {
   if (opened == o->N && fp) return fp;
   if (fp) fclose(fp);
   else if (fd >= 0) close(fd);
-  error_set(o->t->err, o->t->errlen, "cannot create or open the shared file of the basis of class %s (%.3g GB) next to %s",
-            rc->label, (double)bytes / 1e9, o->t->opt->shared_prefix ? o->t->opt->shared_prefix : "$TMPDIR/npg");
+  err_set(o->t->err, "cannot create or open the shared file of the basis of class %s (%.3g GB) next to %s", rc->label,
+          (double)bytes / 1e9, o->t->opt->shared_prefix ? o->t->opt->shared_prefix : "$TMPDIR/npg");
   return NULL;
 }
 
@@ -676,8 +680,8 @@ int ooc_map_basis(Ooc *o, RClass *rc, FILE *fp, int bad) {
   void *map = ok == o->N ? mmap(NULL, bytes, PROT_READ, MAP_SHARED, fileno(fp), 0) : MAP_FAILED;
   fclose(fp); /* the mapping keeps the file */
   if (map == MAP_FAILED)
-    return error_set(o->t->err, o->t->errlen, "cannot write or map the basis of class %s (%.3g GB; disk full?)", rc->label,
-                     (double)bytes / 1e9);
+    return err_set(o->t->err, "cannot write or map the basis of class %s (%.3g GB; disk full?)", rc->label,
+                   (double)bytes / 1e9);
   free(rc->B);
   rc->B = map;
   rc->B_mapped = bytes;
@@ -709,8 +713,7 @@ int ooc_bases(Train *tr) {
   Model *m = tr->m;
   const SampleSource *src = tr->src;
   const TrainOptions *opt = tr->opt;
-  char *err = tr->err;
-  size_t errlen = tr->errlen;
+  Err *err = tr->err;
   if (opt->dist) o.rank = dist_rank(), o.N = dist_size();
   long maxn = 1;
   int rc = -1;
@@ -755,7 +758,7 @@ int ooc_bases(Train *tr) {
   train_mark_spd(m);
   double t[6] = {now()};
   /* over ranks every rank's passes evaluate every sample */
-  if (o.N > 1 && ((src->share && src->share(src->user, err, errlen)) || whole_sweep(&o))) goto done;
+  if (o.N > 1 && ((src->share && src->share(src->user, err)) || whole_sweep(&o))) goto done;
   t[1] = now();
   if (gram_passes(&o)) goto done;
   t[2] = now();
@@ -764,7 +767,7 @@ int ooc_bases(Train *tr) {
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rcl = &m->classes[c];
     if (!o.st[c].streamed) {
-      if (train_member_bases(rcl, o.S, o.st[c].X, opt->weights, NULL, err, errlen)) goto done;
+      if (train_member_bases(rcl, o.S, o.st[c].X, opt->weights, NULL, err)) goto done;
     } else {
       double *T = NULL;
       long mm = 0;
@@ -779,7 +782,7 @@ int ooc_bases(Train *tr) {
       if (bad) goto done;
       if (st->blockwise) continue;
     }
-    if (train_complete_basis(rcl, false, err, errlen)) goto done;
+    if (train_complete_basis(rcl, false, err)) goto done;
   }
   model_size_tensors(m);
   t[4] = now();
@@ -792,9 +795,9 @@ int ooc_bases(Train *tr) {
   rc = 0;
   goto done;
 oom:
-  error_set(err, errlen, "out of memory planning out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
+  err_set(err, "out of memory planning out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
 done:
-  if (rc && !err[0]) error_set(err, errlen, "out of memory in out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
+  if (rc) err_set_first(err, "out of memory in out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
   ooc_free(&o);
   return rc;
 }

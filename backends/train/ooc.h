@@ -61,9 +61,10 @@ bool ooc_mine(const Ooc *o, long p);
 /* The quantity whose rows member `mb` is: itself, or for an unnamed
  * numerator the stage it is the numerator of. */
 const Sym *ooc_member_quantity(const Model *m, const RMember *mb);
-/* Rows [r0, r1) of member `mb` (of a class of n rows) after evaluating
- * sample k (restricted to a demand holding them), into out. 0, or -1 with o->t->err. */
-int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, long r0, long r1, double *out);
+/* Rows rows[0] <= r < rows[1] of member `mb` (of a class of n rows) after
+ * evaluating sample k (restricted to a demand holding them), into out. 0,
+ * or -1 with o->t->err. */
+int ooc_member_rows(Ooc *o, const RMember *mb, long k, long n, const long rows[2], double *out);
 /* pwrite / pread of `bytes` at offset `off` of fp, whole: 0, or -1. */
 int ooc_write_at(FILE *fp, const void *p, size_t bytes, size_t off);
 int ooc_read_at(FILE *fp, void *p, size_t bytes, size_t off);

@@ -68,10 +68,10 @@ int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
     if (k > 0 && (member_r(C, K, cu, k, R, work) != 0 ||
                   LAPACKE_dtrtri(LAPACK_COL_MAJOR, 'U', 'N', (lapack_int)k, R, (lapack_int)k) != 0))
       return free(Q), free(tmp), free(work), free(R), free(v), free(cc), free(kept), free(first),
-             error_set(o->t->err, o->t->errlen,
-                       "class %s, member %s: its directions are numerically dependent out of core (their R factor is "
-                       "singular): lower its cap or its energy fraction",
-                       rc->label, mb->name);
+             err_set(o->t->err,
+                     "class %s, member %s: its directions are numerically dependent out of core (their R factor is "
+                     "singular): lower its cap or its energy fraction",
+                     rc->label, mb->name);
     /* the member's columns in order: μ first when centered, then U R⁻¹;
      * each kept when its remainder after the previous ones (twice) is above
      * PCA_DEPENDENT_TOL of its norm, as pca_in_order keeps it */
@@ -137,5 +137,5 @@ int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
   return 0;
 oom:
   free(Q), free(tmp), free(work), free(R), free(v), free(cc), free(kept), free(first);
-  return error_set(o->t->err, o->t->errlen, "out of memory orthonormalizing the basis of class %s", rc->label);
+  return err_set(o->t->err, "out of memory orthonormalizing the basis of class %s", rc->label);
 }

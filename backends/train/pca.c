@@ -182,7 +182,7 @@ typedef struct TallSvd {
 static void tall_svd_free(TallSvd *t) { free(t->A), free(t->tau), free(t->ur); }
 
 /* s[0..r) descending; 0, or -1 with `err`. */
-static int tall_svd(TallSvd *t, long n, long S, const double *X, double *s, char *err, size_t errlen) {
+static int tall_svd(TallSvd *t, long n, long S, const double *X, double *s, Err *err) {
   memset(t, 0, sizeof *t);
   t->n = n, t->S = S, t->r = n < S ? n : S;
   long r = t->r;
@@ -218,26 +218,26 @@ done:
   free(R), free(vt);
   if (info != 0) {
     tall_svd_free(t);
-    snprintf(err, errlen, "the %s of %ld x %ld snapshots did not converge (LAPACK info %d)", what, n, S, (int)info);
+    err_set(err, "the %s of %ld x %ld snapshots did not converge (LAPACK info %d)", what, n, S, (int)info);
     return -1;
   }
   return 0;
 oom:
   free(R), free(vt);
   tall_svd_free(t);
-  snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+  err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
   return -1;
 }
 
 /* The first k left singular vectors into *U (n x k row-major, malloc'd).
  * 0, or -1 with `err`. */
-static int tall_svd_vectors(const TallSvd *t, long k, double **U, char *err, size_t errlen) {
+static int tall_svd_vectors(const TallSvd *t, long k, double **U, Err *err) {
   long n = t->n, S = t->S;
   double *out = mem_malloc(sizeof(double) * (size_t)(n * (k ? k : 1)));
   double *C = t->ur ? mem_calloc((size_t)(n * (k ? k : 1)), sizeof(double)) : NULL;
   if (!out || (t->ur && !C)) {
     free(out), free(C);
-    snprintf(err, errlen, "out of memory for a basis of %ld x %ld", n, k);
+    err_set(err, "out of memory for a basis of %ld x %ld", n, k);
     return -1;
   }
   const double *u = t->A; /* n x k column-major: the vectors */
@@ -247,7 +247,7 @@ static int tall_svd_vectors(const TallSvd *t, long k, double **U, char *err, siz
                                      (lapack_int)n, t->tau, C, (lapack_int)n);
     if (info != 0) {
       free(out), free(C);
-      snprintf(err, errlen, "applying the QR of %ld x %ld snapshots failed (LAPACK info %d)", n, S, (int)info);
+      err_set(err, "applying the QR of %ld x %ld snapshots failed (LAPACK info %d)", n, S, (int)info);
       return -1;
     }
     u = C;
@@ -259,14 +259,11 @@ static int tall_svd_vectors(const TallSvd *t, long k, double **U, char *err, siz
   return 0;
 }
 
-/* pca_member, also handing back the singular values (descending, *nsv of
- * them, malloc'd) when `sv` is not NULL. */
-static int pca_core(long n, long S, const double *X, int cap, double energy, double **U, int *k, double *captured,
-                    double **sv, long *nsv, char *err, size_t errlen) {
-  *U = NULL;
-  *k = 0;
-  *captured = 1;
-  if (sv) *sv = NULL, *nsv = 0;
+/* The uncentered, unweighted basis of X by rule's cap and energy: out->U
+ * (n x k row-major), out->k, out->lost, and the singular values out->sv
+ * (descending, out->nsv of them), all malloc'd. */
+static int pca_core(long n, long S, const double *X, const PcaRule *rule, PcaMember *out, Err *err) {
+  memset(out, 0, sizeof *out);
   /* Snapshots far from 1 (issue 24: 1e-200 or 1e200 times O(1) data): the
    * energies' squares underflow to 0 or overflow to inf, so they are
    * scaled by a power of two (exact) into [1, 2) first; the basis does not
@@ -277,44 +274,41 @@ static int pca_core(long n, long S, const double *X, int cap, double energy, dou
     int e = ilogb(big);
     double *Xs = malloc(sizeof(double) * ((size_t)n * (size_t)S + 1));
     if (!Xs) {
-      snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+      err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
       return -1;
     }
     for (size_t i = 0; i < (size_t)n * (size_t)S; i++) Xs[i] = ldexp(X[i], -e);
-    int rc = pca_core(n, S, Xs, cap, energy, U, k, captured, sv, nsv, err, errlen);
+    int rc = pca_core(n, S, Xs, rule, out, err);
     free(Xs);
-    if (rc == 0 && sv && *sv)
-      for (long i = 0; i < *nsv; i++) (*sv)[i] = ldexp((*sv)[i], e);
+    if (rc == 0 && out->sv)
+      for (long i = 0; i < out->nsv; i++) out->sv[i] = ldexp(out->sv[i], e);
     return rc;
   }
   long r = n < S ? n : S;
   double *s = mem_malloc(sizeof(double) * (size_t)(r + 1));
   TallSvd t;
   if (!s) {
-    snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+    err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
     return -1;
   }
-  if (tall_svd(&t, n, S, X, s, err, errlen)) return free(s), -1;
-  double total = energy_total(s, r);
-  int kept = (int)pca_choose(s, r, cap, energy, false);
-  if (total > 0) *captured = energy_total(s, kept) / total;
-  int rc = tall_svd_vectors(&t, kept, U, err, errlen);
+  if (tall_svd(&t, n, S, X, s, err)) return free(s), -1;
+  double total = energy_total(s, r), captured = 1;
+  int kept = (int)pca_choose(s, r, rule->cap, rule->energy, false);
+  if (total > 0) captured = energy_total(s, kept) / total;
+  int rc = tall_svd_vectors(&t, kept, &out->U, err);
   tall_svd_free(&t);
   if (rc) return free(s), -1;
-  if (sv) *sv = s, *nsv = r;
-  else free(s);
-  *k = kept;
+  out->sv = s, out->nsv = r;
+  out->k = kept;
+  out->lost = fmax(0, 1 - captured);
   return 0;
 }
 
-int pca_member(long n, long S, const double *X, int cap, double energy, double **U, int *k, double *captured,
-               char *err, size_t errlen) {
-  return pca_core(n, S, X, cap, energy, U, k, captured, NULL, NULL, err, errlen);
-}
-
 /* pca_in_order with the dependence tolerance `tol`. */
-static int in_order(long n, int r, double *const *A, const int *k, double tol, double **Q, int *m, char *err,
-                    size_t errlen) {
+static int in_order(long n, PcaBlocks a, double tol, double **Q, int *m, Err *err) {
+  int r = a.r;
+  double *const *A = a.A;
+  const int *k = a.k;
   long K = 0;
   for (int i = 0; i < r; i++) K += k[i];
   double *q = mem_malloc(sizeof(double) * (size_t)(n * (K ? K : 1))), *v = mem_malloc(sizeof(double) * (size_t)(n + 1));
@@ -323,7 +317,7 @@ static int in_order(long n, int r, double *const *A, const int *k, double tol, d
   *m = 0;
   if (!q || !v || !c) {
     free(q), free(v), free(c);
-    snprintf(err, errlen, "out of memory orthonormalizing a basis of %ld entries", n);
+    err_set(err, "out of memory orthonormalizing a basis of %ld entries", n);
     return -1;
   }
   /* q is n x K row-major with leading dimension K; its first `kept` columns are the basis so far */
@@ -346,7 +340,7 @@ static int in_order(long n, int r, double *const *A, const int *k, double tol, d
   double *out = mem_malloc(sizeof(double) * (size_t)(n * (kept ? kept : 1)));
   if (!out) {
     free(q);
-    snprintf(err, errlen, "out of memory orthonormalizing a basis of %ld entries", n);
+    err_set(err, "out of memory orthonormalizing a basis of %ld entries", n);
     return -1;
   }
   for (long e = 0; e < n; e++) memcpy(out + e * kept, q + e * K, sizeof(double) * (size_t)kept);
@@ -356,8 +350,8 @@ static int in_order(long n, int r, double *const *A, const int *k, double tol, d
   return 0;
 }
 
-int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int *m, char *err, size_t errlen) {
-  return in_order(n, r, A, k, PCA_DEPENDENT_TOL, Q, m, err, errlen);
+int pca_in_order(long n, PcaBlocks a, double **Q, int *m, Err *err) {
+  return in_order(n, a, PCA_DEPENDENT_TOL, Q, m, err);
 }
 
 /* A plain loop, not daxpy: every entry's arithmetic is then the same
@@ -386,43 +380,41 @@ void pca_weigh(long n, long S, double *X, const double *w, double *mu) {
   }
 }
 
-int pca_basis(long n, long S, const double *X, int cap, double energy, bool center, const double *w, PcaMember *out,
-              char *err, size_t errlen) {
+int pca_basis(long n, long S, const double *X, const PcaRule *rule, PcaMember *out, Err *err) {
   memset(out, 0, sizeof *out);
-  double captured = 1;
-  if (!center) {
+  const double *w = rule->w;
+  if (!rule->center) {
     double *Xw = w ? mem_malloc(sizeof(double) * (size_t)(n * S + 1)) : NULL;
     if (w && !Xw) {
-      snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+      err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
       return -1;
     }
     if (Xw) memcpy(Xw, X, sizeof(double) * (size_t)(n * S)), pca_weigh(n, S, Xw, w, NULL);
-    int rc = pca_core(n, S, Xw ? Xw : X, cap, energy, &out->U, &out->k, &captured, &out->sv, &out->nsv, err, errlen);
-    out->lost = fmax(0, 1 - captured);
+    int rc = pca_core(n, S, Xw ? Xw : X, rule, out, err);
     free(Xw);
     return rc;
   }
   /* centered: [μ, U_c] with U_c the leading directions of X − μ1ᵀ, at most cap − 1 (weighted: of
    * (X − μ1ᵀ) diag(√w), μ the weighted mean) */
   double *mu = mem_malloc(sizeof(double) * (size_t)(n + 1)), *Xc = mem_malloc(sizeof(double) * (size_t)(n * S + 1));
-  double *Uc = NULL;
-  int kc = 0, rc = -1;
+  PcaMember c = {0}; /* the centered snapshots' */
+  int rc = -1;
   if (!mu || !Xc) {
-    snprintf(err, errlen, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+    err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
     goto done;
   }
   memcpy(Xc, X, sizeof(double) * (size_t)(n * S));
   pca_weigh(n, S, Xc, w, mu);
-  if (pca_core(n, S, Xc, cap > 1 ? cap - 1 : 0, energy, &Uc, &kc, &captured, &out->sv, &out->nsv, err, errlen))
-    goto done;
-  double *parts[2] = {mu, Uc};
-  int ks[2] = {1, kc};
-  rc = pca_in_order(n, 2, parts, ks, &out->U, &out->k, err, errlen);
-  out->lost = fmax(0, 1 - captured);
+  if (pca_core(n, S, Xc, &(PcaRule){.cap = rule->cap > 1 ? rule->cap - 1 : 0, .energy = rule->energy}, &c, err)) goto done;
+  out->sv = c.sv, out->nsv = c.nsv;
+  double *parts[2] = {mu, c.U};
+  int ks[2] = {1, c.k};
+  rc = pca_in_order(n, (PcaBlocks){2, parts, ks}, &out->U, &out->k, err);
+  out->lost = c.lost;
 done:
   free(mu);
   free(Xc);
-  free(Uc);
+  free(c.U);
   if (rc) {
     free(out->sv);
     out->sv = NULL;
@@ -430,7 +422,10 @@ done:
   return rc;
 }
 
-int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m, char *err, size_t errlen) {
+int pca_merge(long n, PcaBlocks u, double **B, long *m, Err *err) {
+  int r = u.r;
+  double *const *U = u.A;
+  const int *k = u.k;
   *B = NULL;
   *m = 0;
   long K = 0;
@@ -459,12 +454,12 @@ int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m
       col++;
     }
   int kk = (int)K, mm = 0;
-  int rc = in_order(n, 1, &A, &kk, PCA_MERGE_TOL, B, &mm, err, errlen);
+  int rc = in_order(n, (PcaBlocks){1, &A, &kk}, PCA_MERGE_TOL, B, &mm, err);
   free(A);
   *m = mm;
   return rc;
 oom:
-  snprintf(err, errlen, "out of memory merging bases of %ld entries", n);
+  err_set(err, "out of memory merging bases of %ld entries", n);
   return -1;
 }
 
@@ -530,7 +525,7 @@ int pca_fold_r(long S, int nr, const double *Rs, double *R) {
   return info;
 }
 
-int pca_r_basis(long S, const double *R, int cap, double energy, double *s, double *W, long *k) {
+int pca_r_basis(long S, const double *R, const PcaRule *rule, double *s, double *W, long *k) {
   double *A = mem_malloc(sizeof(double) * (size_t)(S * S + 1)), *u = mem_malloc(sizeof(double) * (size_t)(S * S + 1));
   double *vt = mem_malloc(sizeof(double) * (size_t)(S * S + 1));
   int info = -1;
@@ -540,7 +535,7 @@ int pca_r_basis(long S, const double *R, int cap, double energy, double *s, doub
   info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)S, (lapack_int)S, A, (lapack_int)S, s, u, (lapack_int)S, vt,
                         (lapack_int)S);
   if (info != 0) goto done;
-  *k = pca_choose(s, S, cap, energy, false);
+  *k = pca_choose(s, S, rule->cap, rule->energy, false);
   for (long j = 0; j < *k; j++) /* W(:, j) = V(:, j) / σ_j, V(e, j) = vt(j, e) */
     for (long e = 0; e < S; e++) W[j * S + e] = vt[e * S + j] / s[j];
 done:

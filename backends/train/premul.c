@@ -84,7 +84,7 @@ typedef struct Premul {
   long *ent_key;
   double *ent_coef;
   npg_idx *ent_in;
-  int part, nparts;           /* the output rows ≡ part (mod nparts) only (premultiply_part):
+  int part, nparts;           /* the output rows ≡ part (mod nparts) only (PremulOut.part):
                                  the builder enumerates no other row (NpgSink) */
   long lo, hi;                /* the output rows [lo, hi) only (premultiply_block): others skipped */
   const RowMap *ymap;         /* By's row r at ymap's index of r (NULL: at r) */
@@ -93,8 +93,7 @@ typedef struct Premul {
   bool local;                 /* each worker finishes its own keys (see flush_block) */
   Worker wk[PREMUL_MAX_WORKERS];
   double flops;
-  char *err;
-  size_t errlen;
+  Err *err;
 } Premul;
 
 /* Unpacked x ⊗ x: G = Σ_e U_eᵀ V_e over the pending entries, U_e =
@@ -289,7 +288,7 @@ static int grow_entries(Premul *p) {
   npg_idx *in = mem_realloc(p->ent_in, sizeof(npg_idx) * (size_t)(cap * (p->nidx ? p->nidx : 1)));
   if (in) p->ent_in = in;
   if (!k || !c || !in) {
-    snprintf(p->err, p->errlen, "out of memory pre-multiplying %s (%ld entries in a block)", p->t->name, cap);
+    err_set(p->err, "out of memory pre-multiplying %s (%ld entries in a block)", p->t->name, cap);
     return -1;
   }
   p->capent = cap;
@@ -300,14 +299,14 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
   Premul *p = user;
   RTensor *t = p->t;
   if (row < 0 || row >= p->ny || (t->kind == RT_DECL && (col < 0 || col >= p->ny))) {
-    snprintf(p->err, p->errlen, "tensor %s: entry (%ld, %ld) outside %ld rows (a bug in npg)", t->name, (long)row,
-             (long)col, p->ny);
+    err_set(p->err, "tensor %s: entry (%ld, %ld) outside %ld rows (a bug in npg)", t->name, (long)row, (long)col,
+            p->ny);
     return -1;
   }
   for (int pos = 0, j = 0; j < t->nin; j++)
     for (int l = 0; l < t->in_mult[j]; l++, pos++)
       if (pos >= nin || in[pos] < 0 || in[pos] >= p->nin_full[j]) {
-        snprintf(p->err, p->errlen, "tensor %s: input offset out of range (a bug in npg)", t->name);
+        err_set(p->err, "tensor %s: input offset out of range (a bug in npg)", t->name);
         return -1;
       }
   if (row < p->lo || row >= p->hi) return 0; /* another block's */
@@ -315,13 +314,13 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
   for (int pos = 0, j = 0; j < t->nin; j++)
     for (int l = 0; l < t->in_mult[j]; l++, pos++) held = held && row_map_has(p->inmap[j], in[pos]);
   if (!held) {
-    snprintf(p->err, p->errlen, "tensor %s: a basis row of output row %ld is not among the block's (a bug in npg)",
-             t->name, (long)row);
+    err_set(p->err, "tensor %s: a basis row of output row %ld is not among the block's (a bug in npg)", t->name,
+            (long)row);
     return -1;
   }
   if (row % p->nparts != p->part) {
-    snprintf(p->err, p->errlen, "tensor %s: row %ld is not this rank's (%d of %d; a bug in npg)", t->name, (long)row,
-             p->part, p->nparts);
+    err_set(p->err, "tensor %s: row %ld is not this rank's (%d of %d; a bug in npg)", t->name, (long)row, p->part,
+            p->nparts);
     return -1;
   }
   /* the key of this entry */
@@ -369,46 +368,36 @@ static int workers_online(void) {
   return n < 1 ? 1 : n > PREMUL_MAX_WORKERS ? PREMUL_MAX_WORKERS : (int)n;
 }
 
-static int premultiply_rows(Model *m, Full *f, RTensor *t, const PremulBlock *b, const double *By, long ny,
-                            long my, int unpack_min_monos, int part, int nparts, double *flops, char *err,
-                            size_t errlen);
+static int premultiply_rows(Premul *p, Full *f, const PremulBlock *b, int unpack_min_monos, double *flops);
 
-int premultiply(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
-                size_t errlen) {
-  return premultiply_rows(m, f, t, NULL, By, ny, my, PREMUL_UNPACK_MONOS, 0, 1, flops, err, errlen);
+int premultiply(Model *m, Full *f, RTensor *t, const PremulOut *out, double *flops, Err *err) {
+  Premul p = {.m = m,
+              .t = t,
+              .By = out->By,
+              .ny = out->ny,
+              .my = out->my,
+              .part = out->part,
+              .nparts = out->nparts,
+              .err = err};
+  return premultiply_rows(&p, f, NULL, out->unpack_min_monos > 0 ? out->unpack_min_monos : PREMUL_UNPACK_MONOS, flops);
 }
 
-int premultiply_unpacking(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
-                          double *flops, char *err, size_t errlen) {
-  return premultiply_rows(m, f, t, NULL, By, ny, my, unpack_min_monos, 0, 1, flops, err, errlen);
+int premultiply_block(Model *m, Full *f, RTensor *t, const PremulBlock *b, double *flops, Err *err) {
+  Premul p = {.m = m, .t = t, .By = b->By, .ny = b->ny, .my = b->my, .err = err};
+  return premultiply_rows(&p, f, b, PREMUL_UNPACK_MONOS, flops);
 }
 
-int premultiply_part(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, int part, int nparts,
-                     double *flops, char *err, size_t errlen) {
-  return premultiply_rows(m, f, t, NULL, By, ny, my, PREMUL_UNPACK_MONOS, part, nparts, flops, err, errlen);
-}
-
-int premultiply_block(Model *m, Full *f, RTensor *t, const PremulBlock *b, double *flops, char *err,
-                      size_t errlen) {
-  return premultiply_rows(m, f, t, b, b->By, b->ny, b->my, PREMUL_UNPACK_MONOS, 0, 1, flops, err, errlen);
-}
-
-static int premultiply_rows(Model *m, Full *f, RTensor *t, const PremulBlock *b, const double *By, long ny,
-                            long my, int unpack_min_monos, int part, int nparts, double *flops, char *err,
-                            size_t errlen) {
-  Premul p = {0};
+/* The pre-multiplication of p->t by p->By (p's tensor, output basis, rows and
+ * error record set), of block `b`'s rows only when b is not NULL. */
+static int premultiply_rows(Premul *pp, Full *f, const PremulBlock *b, int unpack_min_monos, double *flops) {
+  Premul p = *pp;
+  const Model *m = p.m;
+  RTensor *t = p.t;
+  Err *err = p.err;
   p.lo = b ? b->lo : 0;
-  p.hi = b ? b->hi : ny;
+  p.hi = b ? b->hi : p.ny;
   p.ymap = b ? b->ymap : NULL;
-  p.part = part;
-  p.nparts = nparts > 0 ? nparts : 1;
-  p.m = m;
-  p.t = t;
-  p.By = By;
-  p.ny = ny;
-  p.my = my;
-  p.err = err;
-  p.errlen = errlen;
+  p.nparts = p.nparts > 0 ? p.nparts : 1;
   long veclen = 1;
   for (int j = 0; j < t->nin; j++) {
     const RClass *c = &m->classes[m->qclass[t->in_q[j]]];
@@ -452,10 +441,10 @@ static int premultiply_rows(Model *m, Full *f, RTensor *t, const PremulBlock *b,
   }
   int rc = -1, blas_threads;
   if (!ok) {
-    snprintf(err, errlen, "out of memory pre-multiplying %s (%ld x %ld reduced entries)", t->name, t->rows, t->cols);
+    err_set(err, "out of memory pre-multiplying %s (%ld x %ld reduced entries)", t->name, t->rows, t->cols);
     goto done;
   }
-  err[0] = 0;
+  if (err_held(err)) err->msg[0] = 0;
   /* the builder enumerates this rank's rows only, of the block's (premultiply_block) */
   NpgSink sink = {&p, on_entry, p.part, p.nparts, b ? b->lo : 0, b ? b->hi : 0};
   blas_threads = openblas_get_num_threads();
@@ -464,7 +453,7 @@ static int premultiply_rows(Model *m, Full *f, RTensor *t, const PremulBlock *b,
   if (built == 0) flush_block(&p);
   if (p.local) openblas_set_num_threads(blas_threads);
   if (built != 0) {
-    if (!err[0]) snprintf(err, errlen, "%s", full_error(f));
+    err_set_first(err, "%s", full_error(f));
     goto done;
   }
   for (int i = 1; i < p.nworkers && p.local; i++)

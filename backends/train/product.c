@@ -203,8 +203,8 @@ int train_product_basis(Model *m, Full *f, RClass *rc, const ClassSnapshots *sn,
       rc_ok = err_set(err, "out of memory for the weighted snapshots of class %s", rc->label);
     else weigh(L, rc->n, S, sn->X[i], Y[i]);
   }
-  if (rc_ok == 0) rc_ok = train_member_bases(rc, S, Y, sn->w, NULL, err->msg, err->len);
-  if (rc_ok == 0) rc_ok = train_complete_basis(rc, full_rank, err->msg, err->len);
+  if (rc_ok == 0) rc_ok = train_member_bases(rc, S, Y, sn->w, NULL, err);
+  if (rc_ok == 0) rc_ok = train_complete_basis(rc, full_rank, err);
   if (rc_ok == 0 && (unweigh(L, rc) || dual(A, rc)))
     rc_ok = err_set(err, "out of memory for the basis of class %s", rc->label);
   for (int i = 0; Y && i < rc->nmembers; i++) free(Y[i]);

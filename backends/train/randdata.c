@@ -39,8 +39,10 @@ static bool guards_read(const Program *prog, const Sym *s) {
   return false;
 }
 
-
-bool randdata_fill(const Program *prog, const Sym *s, long n, unsigned *seed, bool padded, double *v, size_t k) {
+bool randdata_fill(const RandData *rd, const Sym *s, double *v, size_t k) {
+  const Program *prog = rd->prog;
+  long n = rd->n;
+  unsigned *seed = rd->seed;
   bool did_pad = false;
   if (s->kind == SYM_INPUT || s->kind == SYM_EXTERN) {
     for (size_t j = 0; j < k; j++) v[j] = randdata_uniform(seed, 0.5, 1.5);
@@ -73,7 +75,7 @@ bool randdata_fill(const Program *prog, const Sym *s, long n, unsigned *seed, bo
     }
   }
   /* -1 padding (a missing neighbour) in params the program tests in a guard */
-  if (padded && guards_read(prog, s)) {
+  if (rd->padded && guards_read(prog, s)) {
     did_pad = true;
     for (size_t j = 0; j < k; j++)
       if (randdata_uniform(seed, 0, 1) < 0.25) v[j] = -1;

@@ -8,14 +8,23 @@
 
 #include "ir.h"
 
-/* Fill `out` (count values) for param, input or extern `s` of `prog`, every
- * dim of size n: inputs and externs in [0.5, 1.5]; real params in
+/* What the data is drawn for: a program whose every dim has size n, from
+ * *seed (advanced by every draw); `padded`: see randdata_fill. */
+typedef struct RandData {
+  const Program *prog;
+  long n;
+  unsigned *seed;
+  bool padded;
+} RandData;
+
+/* Fill `out` (count values) for param, input or extern `s` of r->prog, every
+ * dim of size r->n: inputs and externs in [0.5, 1.5]; real params in
  * [0.1, 0.3] (keeps operators like I - rho p well conditioned); int params
  * in [0, n) with distinct entries along the last axis and no two rows the
- * same set (no degenerate triangles or tetrahedra); with `padded`, int
+ * same set (no degenerate triangles or tetrahedra); with r->padded, int
  * params that some guard tests get -1 in about one entry in four. Returns
  * true when it padded. */
-bool randdata_fill(const Program *prog, const Sym *s, long n, unsigned *seed, bool padded, double *out, size_t count);
+bool randdata_fill(const RandData *r, const Sym *s, double *out, size_t count);
 double randdata_uniform(unsigned *seed, double lo, double hi);
 
 #endif

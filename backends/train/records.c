@@ -142,7 +142,7 @@ int records_store(SampleRecords *t, Records *r, long kk, size_t bytes) {
     size_t *at = mem_realloc(r->at, sizeof(size_t) * (size_t)(kk + 64));
     if (at) r->at = at;
     size_t *len = at ? mem_realloc(r->len, sizeof(size_t) * (size_t)(kk + 64)) : NULL;
-    if (!len) return error_set_first(t->err, t->errlen, "out of memory keeping training sample %ld", t->samples);
+    if (!len) return err_set_first(t->err, "out of memory keeping training sample %ld", t->samples);
     r->len = len;
   }
   r->len[kk] = bytes;
@@ -150,7 +150,7 @@ int records_store(SampleRecords *t, Records *r, long kk, size_t bytes) {
     if (r->used + bytes > r->alloc) {
       size_t want = r->alloc * 2 > r->used + bytes ? r->alloc * 2 : r->used + bytes;
       unsigned char *m = mem_realloc(r->mem, want < t->mem_cap ? want : t->mem_cap);
-      if (!m) return error_set_first(t->err, t->errlen, "out of memory keeping training sample %ld", t->samples);
+      if (!m) return err_set_first(t->err, "out of memory keeping training sample %ld", t->samples);
       r->mem = m;
       r->alloc = want < t->mem_cap ? want : t->mem_cap;
     }
@@ -160,11 +160,11 @@ int records_store(SampleRecords *t, Records *r, long kk, size_t bytes) {
     r->in_mem++;
   } else {
     if (!r->scratch && !(r->scratch = tmpfile()))
-      return error_set_first(t->err, t->errlen, "cannot create a scratch file for the training samples beyond --mem");
-    if (fseeko(r->scratch, 0, SEEK_END) != 0) return error_set_first(t->err, t->errlen, "cannot seek in the scratch file");
+      return err_set_first(t->err, "cannot create a scratch file for the training samples beyond --mem");
+    if (fseeko(r->scratch, 0, SEEK_END) != 0) return err_set_first(t->err, "cannot seek in the scratch file");
     r->at[kk] = (size_t)ftello(r->scratch);
     if (fwrite(t->enc, 1, bytes, r->scratch) != bytes)
-      return error_set_first(t->err, t->errlen, "cannot write training sample %ld to the scratch file (disk full?)", t->samples);
+      return err_set_first(t->err, "cannot write training sample %ld to the scratch file (disk full?)", t->samples);
   }
   return 0;
 }
@@ -218,7 +218,7 @@ static int load_record(SampleRecords *t, Full *f, long k) {
 size_t records_shared_use(SampleRecords *t) {
   int N = dist_size(), rank = dist_rank();
   double *len = mem_calloc((size_t)t->samples + 1, sizeof(double));
-  if (!len) return error_set_first(t->err, t->errlen, "out of memory"), 0;
+  if (!len) return err_set_first(t->err, "out of memory"), 0;
   for (long k = 0; k < t->samples; k++)
     if ((k == 0 ? 0 : (int)(k % N)) == rank) len[k] = (double)t->rec.len[records_kept_index(t, k)];
   dist_allreduce_sum(len, t->samples);
@@ -233,7 +233,7 @@ size_t records_shared_use(SampleRecords *t) {
  * is sent from the rank that keeps it to all: every extern callback still
  * ran once, on one rank, and afterwards every rank keeps every sample (in
  * memory up to mem_cap, the rest in its scratch file). */
-static int share_samples(void *user, char *err, size_t errlen) {
+static int share_samples(void *user, Err *err) {
   SampleRecords *t = user;
   int N = dist_size(), rank = dist_rank();
   if (!t->mpi || N == 1 || t->all) return 0;
@@ -244,17 +244,18 @@ static int share_samples(void *user, char *err, size_t errlen) {
     int from = k == 0 ? 0 : (int)(k % N); /* sample 0: every rank has it */
     double bytes = 0;
     if (rank == from) {
-      if (records_fetch(t, &old, records_kept_index(t, k))) rc = error_set(err, errlen, "cannot read training sample %ld back from the scratch file", k);
+      if (records_fetch(t, &old, records_kept_index(t, k)))
+        rc = err_set(err, "cannot read training sample %ld back from the scratch file", k);
       bytes = rc ? -1 : (double)old.len[records_kept_index(t, k)];
     }
     dist_broadcast(&bytes, 1, from);
     if (bytes < 0) {
-      if (!rc) rc = error_set(err, errlen, "rank %d could not read training sample %ld back from its scratch file", from, k);
+      if (!rc) rc = err_set(err, "rank %d could not read training sample %ld back from its scratch file", from, k);
       break;
     }
     dist_broadcast_bytes(t->enc, (long)bytes, from);
     if (records_store(t, &t->rec, k, (size_t)bytes)) {
-      rc = error_set(err, errlen, "%s", t->err);
+      rc = err_set(err, "%s", err_held(t->err) ? t->err->msg : "out of memory");
       break;
     }
   }

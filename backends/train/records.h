@@ -37,8 +37,7 @@ typedef struct SampleRecords {
   unsigned char *enc;       /* one record, encoded */
   size_t *ranges;           /* an extern's entries a restricted evaluation reads (replay_part) */
   long range_cap;           /* ranges' room, in ranges */
-  char *err;                /* the error record (the trainer's) */
-  size_t errlen;
+  Err *err;                 /* the error record (the trainer's) */
 } SampleRecords;
 
 /* Over MPI ranks a rank keeps sample 0 (every rank binds the dims with it)

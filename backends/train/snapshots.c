@@ -127,11 +127,11 @@ static int member_sample(Gram *g, GramMember *x, long n, long k, double *v) {
  * member with directions from round 1. */
 static bool member_in_round(const Gram *g, const GramMember *x) { return g->round == 1 || x->p > 0; }
 
-/* G[I, K] = X_Iᵀ X_K for the held block I = [i0, i1) and the batch
- * K = [k0, k] (one sample: a dgemv, faster than a dgemm of one column),
- * and its mirror. */
-static void gram_cross(const Gram *g, GramMember *x, long n, long i0, long i1, long k0, long k) {
-  long S = g->S, nb = i1 - i0, nk = k + 1 - k0;
+/* G[I, K] = X_Iᵀ X_K for the held block I = [held[0], held[1]) and the
+ * batch K = [k0, k] (one sample: a dgemv, faster than a dgemm of one
+ * column), and its mirror. */
+static void gram_cross(const Gram *g, GramMember *x, long n, const long held[2], long k0, long k) {
+  long S = g->S, i0 = held[0], i1 = held[1], nb = i1 - i0, nk = k + 1 - k0;
   double *G = x->G;
   if (nk == 1)
     cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)nb, (int)n, 1.0, x->H, (int)n, x->Y, 1, 0.0, G + i0 * S + k0, (int)S);
@@ -150,7 +150,7 @@ static int gram_pass(Gram *g, long i0, long i1, long *done, long work) {
   Model *m = g->t->m;
   long S = g->S, nb = i1 - i0;
   for (long k = i0, k0 = i1; k < S; k++) { /* k0: the first sample of the batch */
-    if (train_eval_sample(g->t->src, g->t->f, k, g->t->err, g->t->errlen)) return -1;
+    if (train_eval_sample(g->t->src, g->t->f, k, g->t->err)) return -1;
     if (g->round == 1 && k < i1 && train_check_spd(g->t, g->tmp)) return -1;
     bool full = k >= i1 && (k + 1 - k0 == g->q || k + 1 == S);
     for (int c = 0; c < m->nclasses; c++) {
@@ -162,7 +162,7 @@ static int gram_pass(Gram *g, long i0, long i1, long *done, long work) {
         if (member_sample(g, x, rc->n, k, v)) return -1;
         if (x->d && g->round == 1 && k < i1) cblas_daxpy((int)rc->n, 1.0, v, 1, x->d, 1);
         for (long e = 0; k < i1 && e < rc->n; e++) x->big = fmax(x->big, fabs(v[e])); /* what enters G */
-        if (full) gram_cross(g, x, rc->n, i0, i1, k0, k);
+        if (full) gram_cross(g, x, rc->n, (long[2]){i0, i1}, k0, k);
       }
     }
     if (full) k0 = k + 1;
@@ -207,22 +207,25 @@ static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int 
   double *lam = g->lam;
   const char *range = pca_gram_out_of_range(S, x->G, x->big);
   if (range)
-    return error_set(g->t->err, g->t->errlen, "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in memory (their PCA is scale-invariant)", rc->label, mb->name, range);
+    return err_set(g->t->err,
+                   "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in "
+                   "memory (their PCA is scale-invariant)",
+                   rc->label, mb->name, range);
   if (mb->center) gram_center(x, rc->n, S, lam);
   int cap = mb->center ? mb->cap - 1 : mb->cap;
   long kmax = cap < S ? cap : S;
   double *V = mem_malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1)));
-  if (!V) return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  if (!V) return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
   int info = pca_top_eigen(S, x->G, kmax, lam, V); /* G whole: either layout */
   if (info != 0) {
     free(V);
-    return error_set(g->t->err, g->t->errlen, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
-                     rc->label, mb->name, info);
+    return err_set(g->t->err, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
+                   rc->label, mb->name, info);
   }
   free(mb->sv);
   if (!(mb->sv = mem_malloc(sizeof(double) * (size_t)S))) {
     free(V);
-    return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
+    return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
   }
   mb->nsv = S;
   for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
@@ -240,7 +243,7 @@ static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int 
     for (int a = 0; a < k; a++) x->G[s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
   free(V);
   if (!(*U = mem_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double))))
-    return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
+    return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
   return 0;
 }
 
@@ -248,7 +251,7 @@ static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int 
 static int basis_pass(Gram *g, double ***U, int **kk) {
   Model *m = g->t->m;
   for (long k = 0; k < g->S; k++) {
-    if (train_eval_sample(g->t->src, g->t->f, k, g->t->err, g->t->errlen)) return -1;
+    if (train_eval_sample(g->t->src, g->t->f, k, g->t->err)) return -1;
     for (int c = 0; c < m->nclasses; c++) {
       RClass *rc = &m->classes[c];
       for (int i = 0; i < rc->nmembers; i++) {
@@ -278,12 +281,12 @@ static int round1_basis(Gram *g, GramMember *x, long n, double **U, int k) {
   }
   x->smax = x->mb->nsv > 0 ? x->mb->sv[0] : 0;
   int p = 0;
-  if (k > 0 && pca_in_order(n, 1, U, &k, &x->Q, &p, g->t->err, g->t->errlen)) return -1;
+  if (k > 0 && pca_in_order(n, (PcaBlocks){1, U, &k}, &x->Q, &p, g->t->err)) return -1;
   free(*U);
   *U = NULL;
   x->p = p;
   if (p > 0 && !(x->c = mem_malloc(sizeof(double) * (size_t)(2 * S + 1))))
-    return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
+    return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
   return 0;
 }
 
@@ -300,12 +303,13 @@ static int resid_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int
   *kk = 0;
   if (!x->p || kmax <= 0) return 0;
   double *lam = g->lam, *V = mem_malloc(sizeof(double) * (size_t)(S * kmax));
-  if (!V) return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  if (!V) return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
   int info = pca_top_eigen(S, x->G, kmax, lam, V);
   if (info != 0) {
     free(V);
-    return error_set(g->t->err, g->t->errlen, "class %s, member %s: eigendecomposition of the residual Gram matrix failed (LAPACK info %d)",
-                     rc->label, x->mb->name, info);
+    return err_set(g->t->err,
+                   "class %s, member %s: eigendecomposition of the residual Gram matrix failed (LAPACK info %d)",
+                   rc->label, x->mb->name, info);
   }
   double top = fmax(lam[S - 1], 0), eps = DBL_EPSILON * x->smax;
   double floor = fmax((double)S * DBL_EPSILON * top, eps * eps);
@@ -315,7 +319,7 @@ static int resid_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int
     for (int a = 0; a < k; a++) x->G[s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
   free(V);
   if (!(*U = mem_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double))))
-    return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
+    return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
   *kk = k;
   return 0;
 }
@@ -325,7 +329,7 @@ static int resid_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int
 static int round2_merge(Gram *g, GramMember *x, long n, double **U, int k) {
   double *parts[2] = {x->Q, *U}, *Q = NULL;
   int ks[2] = {x->p, k}, p = 0;
-  if (x->p > 0 && pca_in_order(n, 2, parts, ks, &Q, &p, g->t->err, g->t->errlen)) return -1;
+  if (x->p > 0 && pca_in_order(n, (PcaBlocks){2, parts, ks}, &Q, &p, g->t->err)) return -1;
   free(x->Q), free(*U);
   *U = NULL;
   x->Q = Q, x->p = p;
@@ -340,10 +344,10 @@ static int coefficient_pass(Gram *g) {
     for (int i = 0; i < m->classes[c].nmembers; i++) {
       GramMember *x = &g->gm[c][i];
       if (x->p > 0 && !(x->D = mem_malloc(sizeof(double) * (size_t)(g->S * x->p))))
-        return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", g->S);
+        return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", g->S);
     }
   for (long k = 0; k < g->S; k++) {
-    if (train_eval_sample(g->t->src, g->t->f, k, g->t->err, g->t->errlen)) return -1;
+    if (train_eval_sample(g->t->src, g->t->f, k, g->t->err)) return -1;
     for (int c = 0; c < m->nclasses; c++) {
       RClass *rc = &m->classes[c];
       for (int i = 0; i < rc->nmembers; i++) {
@@ -375,8 +379,8 @@ static int svd_basis(Gram *g, GramMember *x, const RClass *rc, double **U, int *
       (info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)p, (lapack_int)S, x->D, (lapack_int)p, s, ud, (lapack_int)p,
                              vt, (lapack_int)r)) != 0) {
     free(s), free(ud), free(vt);
-    return error_set(g->t->err, g->t->errlen, "class %s, member %s: SVD of the snapshots' coefficients failed (LAPACK info %d)",
-                     rc->label, mb->name, (int)info);
+    return err_set(g->t->err, "class %s, member %s: SVD of the snapshots' coefficients failed (LAPACK info %d)",
+                   rc->label, mb->name, (int)info);
   }
   if (p > 0) {
     k = (int)pca_choose(s, r, cap, mb->energy, false);
@@ -396,7 +400,7 @@ static int svd_basis(Gram *g, GramMember *x, const RClass *rc, double **U, int *
   return 0;
 oom:
   free(s), free(ud), free(vt);
-  return error_set(g->t->err, g->t->errlen, "out of memory for the Gram matrices of %ld samples", S);
+  return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
 }
 
 /* A centered member's basis: [μ = x₀ + d, U_c] orthonormalized in that
@@ -405,7 +409,7 @@ static int centered_basis(Gram *g, GramMember *x, long n, double **U, int *kk) {
   cblas_daxpy((int)n, 1.0, x->x0, 1, x->d, 1); /* μ = x₀ + d */
   double *parts[2] = {x->d, *U}, *Q = NULL;
   int ks[2] = {1, *kk}, mm = 0;
-  if (pca_in_order(n, 2, parts, ks, &Q, &mm, g->t->err, g->t->errlen)) return -1;
+  if (pca_in_order(n, (PcaBlocks){2, parts, ks}, &Q, &mm, g->t->err)) return -1;
   free(*U);
   *U = Q;
   x->mb->kept = *kk = mm;
@@ -456,7 +460,7 @@ int train_snapshot_bases(Train *t, double *tmp) {
   train_gram_blocks(S, (long)(t->opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &g.b, &g.q);
   int rc = -1;
   if (gram_alloc(&g)) {
-    error_set(t->err, t->errlen, "out of memory for the Gram matrices of %ld samples", S);
+    err_set(t->err, "out of memory for the Gram matrices of %ld samples", S);
     goto done;
   }
 #define EACH for (int c = 0; c < m->nclasses; c++) for (int i = 0; i < m->classes[c].nmembers; i++)

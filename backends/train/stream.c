@@ -121,7 +121,7 @@ static int coefficients(Ooc *o, int c, const double *sign) {
   rc->train_coords = mem_malloc(sizeof(double) * (size_t)(S * m + 1));
   if (!G0 || !P || !rc->coef || !rc->train_coords || !st->AX || !st->AX[0]) {
     free(G0), free(P);
-    return error_set(o->t->err, o->t->errlen, "out of memory keeping class %s as coefficients", rc->label);
+    return err_set(o->t->err, "out of memory keeping class %s as coefficients", rc->label);
   }
   /* weighted (pca_weigh): μ = X wt/Σwt, the directions (X − μ1ᵀ) diag(√wt) W */
   const double *wt = o->t->opt->weights;
@@ -265,12 +265,12 @@ static int mark_block(Streamer *s, long u, long U, size_t *need) {
       k.inmap[j] = blockwise(s, c) ? &s->held[c].map : NULL;
     }
     NpgSink sink = {&k, mark_entry, 0, 1, k.lo, k.hi}; /* the builder skips the other rows */
-    if (full_build(o->t->f, t->x->builder, &sink)) return error_set(o->t->err, o->t->errlen, "%s", full_error(o->t->f));
+    if (full_build(o->t->f, t->x->builder, &sink)) return err_set(o->t->err, "%s", full_error(o->t->f));
   }
   *need = 0;
   for (int c = 0; c < m->nclasses; c++) {
     if (!blockwise(s, c)) continue;
-    if (map_finish(&s->held[c])) return error_set(o->t->err, o->t->errlen, "out of memory");
+    if (map_finish(&s->held[c])) return err_set(o->t->err, "out of memory");
     const RClass *rc = &m->classes[c];
     *need += sizeof(double) * (size_t)s->held[c].map.count *
              ((size_t)o->S * (size_t)rc->nmembers + (size_t)o->st[c].K + (size_t)o->st[c].m + 1);
@@ -298,7 +298,7 @@ static int held_member_rows(Ooc *o, const Held *h, const RMember *mb, long k, lo
     return 0;
   }
   for (long q = 0, e = 0; q < h->nrun; e += h->run[2 * q + 1] - h->run[2 * q], q++)
-    if (ooc_member_rows(o, mb, k, n, h->run[2 * q], h->run[2 * q + 1], out + e)) return -1;
+    if (ooc_member_rows(o, mb, k, n, h->run + 2 * q, out + e)) return -1;
   return 0;
 }
 
@@ -347,22 +347,22 @@ static int form_rows(Streamer *s) {
   Model *m = o->t->m;
   long S = o->S;
   Demand *d = full_demand(o->t->f);
-  if (!d) return error_set(o->t->err, o->t->errlen, "%s", full_error(o->t->f));
+  if (!d) return err_set(o->t->err, "%s", full_error(o->t->f));
   for (int c = 0; c < m->nclasses; c++) {
     if (!blockwise(s, c)) continue;
     Held *h = &s->held[c];
     const RClass *rc = &m->classes[c];
     if (grow(&h->H[0], &h->Hcap, (size_t)h->map.count * (size_t)S * (size_t)rc->nmembers + 1))
-      return error_set(o->t->err, o->t->errlen, "out of memory forming the basis rows of class %s", rc->label);
+      return err_set(o->t->err, "out of memory forming the basis rows of class %s", rc->label);
     for (int i = 1; i < rc->nmembers; i++) h->H[i] = h->H[i - 1] + (size_t)h->map.count * (size_t)S;
     for (int i = 0; i < rc->nmembers; i++) demand_held(o, d, ooc_member_quantity(m, &rc->members[i]), h);
   }
-  if (demand_propagate(d)) return error_set(o->t->err, o->t->errlen, "out of memory");
+  if (demand_propagate(d)) return err_set(o->t->err, "out of memory");
   double t0 = now();
   for (long k = 0; k < S; k++) {
     if ((o->t->src->set_part ? o->t->src->set_part(o->t->src->user, o->t->f, k, d) : o->t->src->set(o->t->src->user, o->t->f, k)) ||
         full_eval_demand(o->t->f, k, d))
-      return error_set(o->t->err, o->t->errlen, "%s", full_error(o->t->f));
+      return err_set(o->t->err, "%s", full_error(o->t->f));
     for (int c = 0; c < m->nclasses; c++) {
       if (!blockwise(s, c)) continue;
       Held *h = &s->held[c];
@@ -380,7 +380,7 @@ static int form_rows(Streamer *s) {
     const RClass *rc = &m->classes[c];
     long R = h->map.count, K = st->K, mm = st->m;
     if (grow(&h->A, &h->Acap, (size_t)R * (size_t)(K + mm + 1) + 1))
-      return error_set(o->t->err, o->t->errlen, "out of memory forming the basis rows of class %s", rc->label);
+      return err_set(o->t->err, "out of memory forming the basis rows of class %s", rc->label);
     h->B = h->A + (size_t)R * (size_t)K, h->mu = h->B + (size_t)R * (size_t)mm;
     memset(h->A, 0, sizeof(double) * (size_t)(R * K));
     for (int i = 0; i < rc->nmembers; i++) { /* basis_passes's arithmetic, row for row */
@@ -427,7 +427,7 @@ static int take_peaks(Streamer *s, int c, long r0, long r1) {
           if (row) pk->row = row;
           double *v = mem_realloc(pk->v, sizeof(double) * (size_t)cap);
           if (v) pk->v = v;
-          if (!row || !v) return error_set(s->o->t->err, s->o->t->errlen, "out of memory");
+          if (!row || !v) return err_set(s->o->t->err, "out of memory");
           pk->cap = cap;
         }
       }
@@ -446,14 +446,13 @@ static int write_home(Streamer *s, int c, long r0, long r1) {
   if (h->nown == h->owncap) {
     long cap = h->owncap ? 2 * h->owncap : 64;
     long *own = mem_realloc(h->own, sizeof(long) * (size_t)(2 * cap));
-    if (!own) return error_set(s->o->t->err, s->o->t->errlen, "out of memory");
+    if (!own) return err_set(s->o->t->err, "out of memory");
     h->own = own, h->owncap = cap;
   }
   h->own[2 * h->nown] = r0, h->own[2 * h->nown + 1] = r1, h->nown++;
   if (ooc_write_at(h->file, h->B + row_map_at(&h->map, r0) * mm, sizeof(double) * (size_t)((r1 - r0) * mm),
                    sizeof(double) * (size_t)(r0 * mm)))
-    return error_set(s->o->t->err, s->o->t->errlen, "cannot write the basis of class %s (disk full?)",
-                     s->o->t->m->classes[c].label);
+    return err_set(s->o->t->err, "cannot write the basis of class %s (disk full?)", s->o->t->m->classes[c].label);
   return 0;
 }
 
@@ -524,7 +523,7 @@ static int block(Streamer *s, long u, long U, bool split) {
       b.Bin[j] = blockwise(s, c) ? s->held[c].B : m->classes[c].B;
       b.inmap[j] = blockwise(s, c) ? &s->held[c].map : NULL;
     }
-    if (premultiply_block(m, o->t->f, t->x, &b, &flops, o->t->err, o->t->errlen)) return -1;
+    if (premultiply_block(m, o->t->f, t->x, &b, &flops, o->t->err)) return -1;
   }
   s->sec[2] += now() - t2;
   s->flops += flops;
@@ -542,7 +541,7 @@ static int decide_signs(Streamer *s) {
     long mm = o->st[c].m;
     double *big = mem_malloc(sizeof(double) * (size_t)(mm + 1)), *first = mem_malloc(sizeof(double) * (size_t)(mm + 1));
     if (!big || !first || !(h->sign = mem_malloc(sizeof(double) * (size_t)(mm + 1))))
-      return free(big), free(first), error_set(o->t->err, o->t->errlen, "out of memory");
+      return free(big), free(first), err_set(o->t->err, "out of memory");
     for (long j = 0; j < mm; j++) big[j] = h->peaks[j].big;
     dist_allreduce_max(big, mm);
     for (long j = 0; j < mm; j++) {
@@ -587,7 +586,7 @@ static int fix_signs(Streamer *s, const STensor *t) {
   long maxlen = 1;
   for (int j = 0; j < x->nin; j++) maxlen = x->in_len[j] > maxlen ? x->in_len[j] : maxlen;
   pk = mem_malloc(sizeof(double) * (size_t)(maxlen + 1));
-  if (!rs || !cs || !pk) return free(rs), free(cs), free(pk), error_set(s->o->t->err, s->o->t->errlen, "out of memory");
+  if (!rs || !cs || !pk) return free(rs), free(cs), free(pk), err_set(s->o->t->err, "out of memory");
   long q = 0;
   if (x->kind == RT_NUM)
     for (long a = 0; a < my; a++) rs[q++] = dy ? dy[a] : one;
@@ -702,7 +701,7 @@ int stream_premultiply(Ooc *o) {
   rc = 0;
   goto done;
 oom:
-  error_set(o->t->err, o->t->errlen, "out of memory pre-multiplying by the streamed bases");
+  err_set(o->t->err, "out of memory pre-multiplying by the streamed bases");
 done:
   held_free(&s);
   return rc;

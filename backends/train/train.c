@@ -57,13 +57,13 @@ static int sum_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_id
 
 /* out[0..n) = the field whose tensors are `ts` (builders named in `ts`),
  * evaluated on the current values of the evaluator. */
-static int field_value(Full *f, const RTensor *ts, int nt, double *out, long n, char *err, size_t errlen) {
+static int field_value(Full *f, const RTensor *ts, int nt, double *out, long n, Err *err) {
   memset(out, 0, sizeof(double) * (size_t)n);
   for (int g = 0; g < nt; g++) {
     FieldSum s = {{0}, out, n};
     for (int i = 0; i < ts[g].group->ninputs; i++) s.in[i] = full_get(f, ts[g].group->inputs[i]->name, NULL);
     NpgSink sink = {&s, sum_entry, 0, 1, 0, 0}; /* every row */
-    if (full_build(f, ts[g].builder, &sink) != 0) return error_set(err, errlen, "%s", full_error(f));
+    if (full_build(f, ts[g].builder, &sink) != 0) return err_set(err, "%s", full_error(f));
   }
   return 0;
 }
@@ -85,7 +85,7 @@ static int override_level(const RClass *c, const RMember *mb, const char *name) 
 
 /* Every --basis name must name something: a misspelt one would silently
  * train with the defaults. */
-static int check_overrides(const Model *m, const TrainOptions *opt, char *err, size_t errlen) {
+static int check_overrides(const Model *m, const TrainOptions *opt, Err *err) {
   for (int i = 0; i < opt->noverride; i++) {
     bool found = false;
     for (int c = 0; c < m->nclasses && !found; c++)
@@ -101,9 +101,9 @@ static int check_overrides(const Model *m, const TrainOptions *opt, char *err, s
         len += (size_t)snprintf(list + len, sizeof list - len, "%s%s", k ? ", " : "", rc->members[k].name);
       if (len < sizeof list) len += (size_t)snprintf(list + len, sizeof list - len, ")");
     }
-    return error_set(err, errlen,
-                     "--basis %s: no quantity, class or numerator of that name; classes (members): %s, or '*' for all",
-                     opt->override_name[i], list);
+    return err_set(err,
+                   "--basis %s: no quantity, class or numerator of that name; classes (members): %s, or '*' for all",
+                   opt->override_name[i], list);
   }
   return 0;
 }
@@ -149,7 +149,7 @@ static void member_options(const Model *m, const RClass *c, RMember *mb, const T
  * then --basis NAME:product=K0 from the least specific name to the most; an
  * op of the program, square over one set of dims (its size is checked with
  * the class's in product.c). */
-static int class_products(Model *m, const TrainOptions *opt, char *err, size_t errlen) {
+static int class_products(Model *m, const TrainOptions *opt, Err *err) {
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     int best = 0;
@@ -167,9 +167,9 @@ static int class_products(Model *m, const TrainOptions *opt, char *err, size_t e
       bool square = op && op->nivars == 2 * op->nrow;
       for (int a = 0; square && a < op->nrow; a++) square = op->ivars[a]->range == op->ivars[op->nrow + a]->range;
       if (!op || !square)
-        return error_set(err, errlen, "--basis %s:product=%s: %s", opt->override_name[i], name,
-                         !op ? "the program has no op of that name (the product is an SPD op of the program)"
-                             : "not a square operator (its rows and columns must run over the same dims)");
+        return err_set(err, "--basis %s:product=%s: %s", opt->override_name[i], name,
+                       !op ? "the program has no op of that name (the product is an SPD op of the program)"
+                           : "not a square operator (its rows and columns must run over the same dims)");
       rc->product = op, best = level;
     }
   }
@@ -185,7 +185,7 @@ typedef struct TrainScratch {
 
 void *train_scratch(Train *t, size_t bytes) {
   TrainScratch *s = mem_calloc(1, sizeof *s + bytes);
-  if (!s) return error_set(t->err, t->errlen, "out of memory during training"), NULL;
+  if (!s) return err_set(t->err, "out of memory during training"), NULL;
   s->next = t->scratch, t->scratch = s;
   return s->data;
 }
@@ -231,8 +231,8 @@ static RTerm *joiner_term(Model *m, const Joiner *j) {
 
 
 /* Set and evaluate training sample k. */
-int train_eval_sample(const SampleSource *src, Full *f, long k, char *err, size_t errlen) {
-  if (src->set(src->user, f, k) != 0 || full_eval(f, k) != 0) return error_set(err, errlen, "%s", full_error(f));
+int train_eval_sample(const SampleSource *src, Full *f, long k, Err *err) {
+  if (src->set(src->user, f, k) != 0 || full_eval(f, k) != 0) return err_set(err, "%s", full_error(f));
   return 0;
 }
 
@@ -243,14 +243,13 @@ int train_eval_sample(const SampleSource *src, Full *f, long k, char *err, size_
 int train_member_value(Train *t, const RMember *mb, long k, long n, double *out) {
   Model *m = t->m;
   Full *f = t->f;
-  char *err = t->err;
-  size_t errlen = t->errlen;
+  Err *err = t->err;
   if (mb->q >= 0) {
     memcpy(out, full_get(f, ((Sym *)m->prog->quantities.v[mb->q])->name, NULL), sizeof(double) * (size_t)n);
   } else {
     RTerm *rt = joiner_term(m, mb->joiner);
-    if (!rt) return error_set(err, errlen, "a numerator without its term (a bug in npg)");
-    if (field_value(f, rt->num, rt->nnum, out, n, err, errlen)) return -1;
+    if (!rt) return err_set(err, "a numerator without its term (a bug in npg)");
+    if (field_value(f, rt->num, rt->nnum, out, n, err)) return -1;
   }
   for (long e = 0; e < n; e++)
     if (!isfinite(out[e])) {
@@ -260,15 +259,19 @@ int train_member_value(Train *t, const RMember *mb, long k, long n, double *out)
       char at[256], cause[512];
       double v;
       if (full_first_nonfinite(f, &s, at, sizeof at, &v, cause, sizeof cause))
-        return error_set(err, errlen, "training sample %ld: %s is not finite (%s%s is %s): %s%s%s", k, s->name,
-                         s->name, at, isnan(v) ? "NaN" : v > 0 ? "inf" : "-inf",
-                         cause[0] ? "the sample makes it undefined (" : "",
-                         cause[0] ? cause : "the sample makes it undefined (a division by zero or a root of a negative "
-                                            "number in the program?)", cause[0] ? ")" : "");
-      return error_set(err, errlen,
-                       "training sample %ld: %s is not finite (entry %ld is %g): the sample makes it undefined (a "
-                       "division by zero or a root of a negative number in the program?)",
-                       k, mb->name, e, out[e]);
+        return err_set(err, "training sample %ld: %s is not finite (%s%s is %s): %s%s%s", k, s->name, s->name, at,
+                       isnan(v) ? "NaN"
+                       : v > 0  ? "inf"
+                                : "-inf",
+                       cause[0] ? "the sample makes it undefined (" : "",
+                       cause[0] ? cause
+                                : "the sample makes it undefined (a division by zero or a root of a negative "
+                                  "number in the program?)",
+                       cause[0] ? ")" : "");
+      return err_set(err,
+                     "training sample %ld: %s is not finite (entry %ld is %g): the sample makes it undefined (a "
+                     "division by zero or a root of a negative number in the program?)",
+                     k, mb->name, e, out[e]);
     }
   return 0;
 }
@@ -280,7 +283,7 @@ int train_check_spd(Train *t, double *tmp) {
   FOR_DIAG_OPS(m, rs, rt, ro) {
     if (!ro->spd) continue;
     long n = m->classes[m->qclass[rs->q]].n;
-    if (field_value(t->f, ro->t, ro->ntensors, tmp, n, t->err, t->errlen)) return -1;
+    if (field_value(t->f, ro->t, ro->ntensors, tmp, n, t->err)) return -1;
     for (long e = 0; e < n && ro->spd; e++)
       if (!(tmp[e] > 0)) ro->spd = false;
   }
@@ -302,20 +305,20 @@ static void take_pca(RMember *mb, PcaMember *p) {
  * member bases concatenated and re-orthonormalized. X[i]: member i's
  * snapshots, n x S column-major; `pre` (over ranks): the members' PCAs
  * already made (dist_member_pcas), taken over. */
-int train_member_bases(RClass *rc, long S, double *const *X, const double *w, PcaMember *pre, char *err, size_t errlen) {
+int train_member_bases(RClass *rc, long S, double *const *X, const double *w, PcaMember *pre, Err *err) {
   double **U = mem_calloc((size_t)rc->nmembers + 1, sizeof(double *));
   int *kk = mem_calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
   for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
     RMember *mb = &rc->members[i];
     PcaMember p;
     if (pre) p = pre[i], memset(&pre[i], 0, sizeof pre[i]);
-    else rc_ok = pca_basis(rc->n, S, X[i], mb->cap, mb->energy, mb->center, w, &p, err, errlen);
+    else rc_ok = pca_basis(rc->n, S, X[i], &(PcaRule){mb->cap, mb->energy, mb->center, w}, &p, err);
     if (rc_ok) break;
     U[i] = p.U;
     kk[i] = p.k;
     take_pca(mb, &p);
   }
-  if (rc_ok == 0) rc_ok = pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen);
+  if (rc_ok == 0) rc_ok = pca_merge(rc->n, (PcaBlocks){rc->nmembers, U, kk}, &rc->B, &rc->m, err);
   for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
   free(U);
   free(kk);
@@ -352,13 +355,13 @@ static bool named_in(const char *const *names, int n, const char *name);
 int train_begin(Train *t) {
   const TrainOptions *opt = t->opt;
   Program *prog = t->prog;
-  if (t->src->count < 1) return error_set(t->err, t->errlen, "no training samples");
+  if (t->src->count < 1) return err_set(t->err, "no training samples");
   if (t->src->set(t->src->user, t->f, 0) != 0 || full_eval(t->f, 0) != 0) /* sample 0 binds every dim */
-    return error_set(t->err, t->errlen, "%s", full_error(t->f));
+    return err_set(t->err, "%s", full_error(t->f));
   long *dims = train_scratch(t, sizeof(long) * ((size_t)prog->dims.n + 1));
   if (!dims) return -1;
   for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(t->f, i);
-  Model *m = t->m = model_layout(prog, dims, ERR_OF(t->err, t->errlen));
+  Model *m = t->m = model_layout(prog, dims, t->err);
   if (!m) return -1;
   m->samples = t->src->count;
   bool *powered = lower_under_powers(m->prog);
@@ -366,46 +369,45 @@ int train_begin(Train *t) {
     for (int i = 0; i < m->classes[c].nmembers; i++)
       member_options(m, &m->classes[c], &m->classes[c].members[i], opt, powered);
   free(powered);
-  if (class_products(m, opt, t->err, t->errlen)) return -1;
+  if (class_products(m, opt, t->err)) return -1;
   char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
   if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
   if (unknown[0])
-    return error_set(t->err, t->errlen,
-                     "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)", unknown);
-  return check_overrides(m, opt, t->err, t->errlen);
+    return err_set(t->err, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)",
+                   unknown);
+  return check_overrides(m, opt, t->err);
 }
 
-int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t errlen) {
+int train_check_names(Program *prog, const TrainOptions *opt, Err *err) {
   /* classes and stages do not depend on the dims' sizes: the layout at size 1 names them all */
   long *dims = mem_calloc((size_t)prog->dims.n + 1, sizeof(long));
-  if (!dims) return error_set(err, errlen, "out of memory");
+  if (!dims) return err_set(err, "out of memory");
   for (int i = 0; i < prog->dims.n; i++) dims[i] = 1;
-  Model *m = model_layout(prog, dims, ERR_OF(err, errlen));
+  Model *m = model_layout(prog, dims, err);
   free(dims);
   if (!m) return -1;
   char unknown[256] = "";
   int rc = 0;
   if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
   if (unknown[0])
-    rc = error_set(err, errlen, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)",
-                   unknown);
-  if (rc == 0) rc = check_overrides(m, opt, err, errlen);
-  if (rc == 0) rc = class_products(m, opt, err, errlen);
+    rc = err_set(err, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)", unknown);
+  if (rc == 0) rc = check_overrides(m, opt, err);
+  if (rc == 0) rc = class_products(m, opt, err);
   for (int l = 0; l < 2 && rc == 0; l++) {
     const char *const *names = l ? opt->galerkin_stage : opt->interp_stage;
     for (int j = 0; j < (l ? opt->ngalerkin : opt->ninterp) && rc == 0; j++) {
       int i = 0;
       while (i < m->nstages && strcmp(m->stages[i].st->sym->name, names[j]) != 0) i++;
       if (i == m->nstages)
-        rc = error_set(err, errlen, "--reduce %s:%s: the program has no stage '%s'", names[j],
-                       l ? "galerkin" : "interp", names[j]);
+        rc = err_set(err, "--reduce %s:%s: the program has no stage '%s'", names[j], l ? "galerkin" : "interp",
+                     names[j]);
       else if (!l && !lower_interp_eligible(m->stages[i].st))
-        rc = error_set(err, errlen, "--reduce %s:interp: stage %s cannot be interpolated: %s", names[j], names[j],
-                       m->stages[i].st->kind == ST_INVERSE || m->stages[i].st->kind == ST_ROOT
-                           ? "one of its operators is a declared op, not diagonal (npgc check says which stages can)"
-                           : "it applies no diagonal operator (npgc check says which stages can)");
+        rc = err_set(err, "--reduce %s:interp: stage %s cannot be interpolated: %s", names[j], names[j],
+                     m->stages[i].st->kind == ST_INVERSE || m->stages[i].st->kind == ST_ROOT
+                         ? "one of its operators is a declared op, not diagonal (npgc check says which stages can)"
+                         : "it applies no diagonal operator (npgc check says which stages can)");
       else if (l && named_in(opt->interp_stage, opt->ninterp, names[j]))
-        rc = error_set(err, errlen, "stage %s is forced both to interpolation and to Galerkin", names[j]);
+        rc = err_set(err, "stage %s is forced both to interpolation and to Galerkin", names[j]);
     }
   }
   model_free(m);
@@ -414,8 +416,9 @@ int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t 
 
 int train_fail_hook(const Train *t, long k) {
   if (!t->opt->dist || k != dist_rank() || !dist_fail_here()) return 0;
-  return error_set(t->err, t->errlen, "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)",
-                   k, dist_rank());
+  return err_set(t->err,
+                 "training sample %ld: NPG_MPI_FAIL_RANK=%d: this rank stops after its first sample (a test hook)", k,
+                 dist_rank());
 }
 
 /* Room for every member's snapshots of S samples (sn->X, none with
@@ -449,7 +452,7 @@ static int snapshots_in_memory(Train *t, double *tmp) {
   long S = t->sn.S;
   int rc = 0, rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1;
   for (long k = rank; rc == 0 && k < S; k += N) {
-    if (k > 0 && train_eval_sample(t->src, t->f, k, t->err, t->errlen)) rc = -1;
+    if (k > 0 && train_eval_sample(t->src, t->f, k, t->err)) rc = -1;
     for (int c = 0; rc == 0 && c < m->nclasses; c++) {
       RClass *cl = &m->classes[c];
       for (int i = 0; rc == 0 && i < cl->nmembers; i++)
@@ -459,7 +462,7 @@ static int snapshots_in_memory(Train *t, double *tmp) {
     if (rc == 0) rc = train_fail_hook(t, k);
     progress_show(opt->progress, "snapshots", k + 1, S);
   }
-  if (rc == 0 && N > 1 && (rc = dist_gather_snapshots(m, t->sn.X, S, t->err, t->errlen)) == 0) {
+  if (rc == 0 && N > 1 && (rc = dist_gather_snapshots(m, t->sn.X, S, t->err)) == 0) {
     dist_and_spd(m);
     progress_show(opt->progress, "snapshots", S, S); /* every rank's are in */
   }
@@ -484,22 +487,23 @@ int train_take_snapshots(Train *t) {
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
   bool gram = t->gram = opt->mem && need > opt->mem;
   if (gram && opt->dist && dist_size() > 1)
-    return error_set(t->err, t->errlen,
-                     "the snapshots need %.3g GB, more than --mem %.3g GB: training over MPI ranks keeps them in "
-                     "memory (the method of snapshots runs on one process): raise --mem",
-                     (double)need / 1e9, (double)opt->mem / 1e9);
+    return err_set(t->err,
+                   "the snapshots need %.3g GB, more than --mem %.3g GB: training over MPI ranks keeps them in "
+                   "memory (the method of snapshots runs on one process): raise --mem",
+                   (double)need / 1e9, (double)opt->mem / 1e9);
   if (gram && opt->weights)
-    return error_set(t->err, t->errlen,
-                     "the snapshots need %.3g GB, more than --mem %.3g GB, and sample weights are not implemented in the "
-                     "method of snapshots: raise --mem to keep them in memory", (double)need / 1e9, (double)opt->mem / 1e9);
+    return err_set(t->err,
+                   "the snapshots need %.3g GB, more than --mem %.3g GB, and sample weights are not implemented in the "
+                   "method of snapshots: raise --mem to keep them in memory",
+                   (double)need / 1e9, (double)opt->mem / 1e9);
   if (gram && opt->joint)
-    return error_set(t->err, t->errlen,
-                     "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
-                     "--mem or use --merge concat (the method of snapshots)",
-                     (double)need / 1e9, (double)opt->mem / 1e9);
+    return err_set(t->err,
+                   "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
+                   "--mem or use --merge concat (the method of snapshots)",
+                   (double)need / 1e9, (double)opt->mem / 1e9);
   double *tmp = train_scratch(t, sizeof(double) * (size_t)(maxn > S ? maxn : S));
   if (!tmp || snapshots_alloc(m, &t->sn, S, gram))
-    return error_set(t->err, t->errlen, "out of memory for the snapshots of %ld samples", S);
+    return err_set(t->err, "out of memory for the snapshots of %ld samples", S);
   train_mark_spd(m);
   return gram ? train_snapshot_bases(t, tmp) : snapshots_in_memory(t, tmp);
 }
@@ -507,14 +511,14 @@ int train_take_snapshots(Train *t) {
 /* A class basis completed to full rank (convergence tests: the PCA
  * directions first, then the rest of the space), and one direction for a
  * class whose every snapshot is zero (lifting gives 0). */
-int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
+int train_complete_basis(RClass *rc, bool full_rank, Err *err) {
   if (full_rank && rc->m < rc->n) {
     double *eye = mem_calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
     double *parts[2] = {rc->B, eye};
     int ks[2] = {(int)rc->m, (int)rc->n};
-    if (!eye) return error_set(err, errlen, "out of memory completing the basis of class %s", rc->label);
+    if (!eye) return err_set(err, "out of memory completing the basis of class %s", rc->label);
     for (long e = 0; e < rc->n; e++) eye[e * rc->n + e] = 1;
-    int mm = 0, rc_ok = pca_in_order(rc->n, 2, parts, ks, &B, &mm, err, errlen); /* the PCA directions first */
+    int mm = 0, rc_ok = pca_in_order(rc->n, (PcaBlocks){2, parts, ks}, &B, &mm, err); /* the PCA directions first */
     rc->m = mm;
     free(eye);
     if (rc_ok != 0) return -1;
@@ -523,11 +527,11 @@ int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen) {
   }
   if (rc->m == 0) {
     free(rc->B);
-    if (!(rc->B = mem_calloc((size_t)rc->n, sizeof(double)))) return error_set(err, errlen, "out of memory");
+    if (!(rc->B = mem_calloc((size_t)rc->n, sizeof(double)))) return err_set(err, "out of memory");
     rc->B[0] = 1;
     rc->m = 1;
   }
-  if (!rc->B_mapped && pca_fix_signs(rc->n, rc->m, rc->B)) return error_set(err, errlen, "out of memory");
+  if (!rc->B_mapped && pca_fix_signs(rc->n, rc->m, rc->B)) return err_set(err, "out of memory");
   return 0;
 }
 
@@ -537,12 +541,11 @@ static int build_bases(Train *t) {
   const Snapshots *sn = &t->sn;
   const TrainOptions *opt = t->opt;
   bool gram = t->gram;
-  char *err = t->err;
-  size_t errlen = t->errlen;
+  Err *err = t->err;
   /* over ranks: the members' PCAs shared out, each made on one rank */
   PcaMember **pre = NULL;
   if (opt->dist && dist_size() > 1 && !gram && !opt->joint &&
-      dist_member_pcas(m, sn->S, sn->X, opt->weights, &pre, err, errlen))
+      dist_member_pcas(m, sn->S, sn->X, opt->weights, &pre, err))
     return -1;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
@@ -553,22 +556,22 @@ static int build_bases(Train *t) {
                         : pre ? "training over MPI ranks" : NULL;
       if (why) {
         dist_free_pcas(m, pre);
-        return error_set(err, errlen, "basis %s: product %s is not implemented with %s", rc->bc->size_name,
-                         rc->product->name, why);
+        return err_set(err, "basis %s: product %s is not implemented with %s", rc->bc->size_name, rc->product->name,
+                       why);
       }
-      if (train_product_basis(m, t->f, rc, &(ClassSnapshots){sn->S, sn->X[c], opt->weights}, opt->full_rank, ERR_OF(err, errlen)))
+      if (train_product_basis(m, t->f, rc, &(ClassSnapshots){sn->S, sn->X[c], opt->weights}, opt->full_rank, err))
         return dist_free_pcas(m, pre), -1;
       continue;
     }
-    if (opt->joint && rc->nmembers > 1) rc_ok = train_joint_basis(rc, sn->S, sn->X[c], err, errlen);
-    else if (gram) rc_ok = pca_merge(rc->n, rc->nmembers, sn->U[c], sn->k[c], &rc->B, &rc->m, err, errlen);
-    else rc_ok = train_member_bases(rc, sn->S, sn->X[c], opt->weights, pre ? pre[c] : NULL, err, errlen);
+    if (opt->joint && rc->nmembers > 1) rc_ok = train_joint_basis(rc, sn->S, sn->X[c], err);
+    else if (gram) rc_ok = pca_merge(rc->n, (PcaBlocks){rc->nmembers, sn->U[c], sn->k[c]}, &rc->B, &rc->m, err);
+    else rc_ok = train_member_bases(rc, sn->S, sn->X[c], opt->weights, pre ? pre[c] : NULL, err);
     if (rc_ok != 0) {
       dist_free_pcas(m, pre);
-      if (!err[0]) error_set(err, errlen, "out of memory building the basis of class %s", rc->label);
+      err_set_first(err, "out of memory building the basis of class %s", rc->label);
       return -1;
     }
-    if (train_complete_basis(rc, opt->full_rank, err, errlen)) return dist_free_pcas(m, pre), -1;
+    if (train_complete_basis(rc, opt->full_rank, err)) return dist_free_pcas(m, pre), -1;
   }
   dist_free_pcas(m, pre);
   model_size_tensors(m);
@@ -626,7 +629,7 @@ int train_premultiply_all(Train *tr) {
       if (rt->proj_name) {
         RClass *cw = &m->classes[m->qclass[rt->named_q]];
         if (!(rt->proj = mem_malloc(sizeof(double) * (size_t)(cy->m * cw->m))))
-          return error_set(tr->err, tr->errlen, "out of memory while training");
+          return err_set(tr->err, "out of memory while training");
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0,
                     rt->nops ? cy->B : model_projector(cy), (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
       }
@@ -642,7 +645,9 @@ int train_premultiply_all(Train *tr) {
         /* a term that applies operators is reduced by Galerkin (BᵀMB, Bᵀw); one that does not is
          * projected (with a product, the K0-projection Dᵀ: issue 41) */
         const double *row = rt->nops ? cy->B : model_projector(cy);
-        if (premultiply_part(m, tr->f, x, row, cy->n, cy->m, rank, N, &flops, tr->err, tr->errlen)) return -1;
+        if (premultiply(m, tr->f, x, &(PremulOut){.By = row, .ny = cy->n, .my = cy->m, .part = rank, .nparts = N},
+                        &flops, tr->err))
+          return -1;
         phase_time(t0, &d[0], &d[1]);
         own[0] += d[0], own[1] += d[1];
         x->premul_seconds = d[0];
@@ -726,7 +731,7 @@ int train_fit_externs(Train *t, bool externs, bool floors) {
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
   double *y = floors ? train_scratch(t, sizeof(double) * (size_t)maxn) : NULL;
   double *proj = floors ? train_scratch(t, sizeof(double) * (size_t)maxm) : NULL;
-  if (floors && (!y || !proj)) return error_set(t->err, t->errlen, "out of memory measuring the training floors");
+  if (floors && (!y || !proj)) return err_set(t->err, "out of memory measuring the training floors");
   return fit_externs_floors(t, externs ? m->nexterns : 0, floors, proj, y);
 }
 
@@ -745,7 +750,7 @@ static int fit_externs_floors(Train *t, int nx, bool floors, double *proj, doubl
     long mz = m->classes[m->qclass[x->q]].m;
     x->S = S;
     if (!(x->X = mem_calloc((size_t)(S * x->d + 1), sizeof(double))) || !(x->Z = mem_calloc((size_t)(S * mz) + 1, sizeof(double))))
-      return error_set(t->err, t->errlen, "out of memory while training");
+      return err_set(t->err, "out of memory while training");
   }
   /* an extern's map reads only what a sample gives (its inputs and externs are the program's own):
    * setting the sample is enough, no evaluation (at the paper's size each is a 5,000-face solve) */
@@ -756,8 +761,8 @@ static int fit_externs_floors(Train *t, int nx, bool floors, double *proj, doubl
       given_only &= s->kind == SYM_INPUT || s->kind == SYM_EXTERN;
     }
   for (long k = rank; k < S && (nx > 0 || floors); k += N) {
-    if (gram && given_only && src->set(src->user, f, k) != 0) return error_set(t->err, t->errlen, "%s", full_error(f));
-    if (gram && !given_only && train_eval_sample(src, f, k, t->err, t->errlen)) return -1; /* recompute: no snapshot was kept */
+    if (gram && given_only && src->set(src->user, f, k) != 0) return err_set(t->err, "%s", full_error(f));
+    if (gram && !given_only && train_eval_sample(src, f, k, t->err)) return -1; /* recompute: no snapshot was kept */
     for (int i = 0; i < nx; i++) {
       RExtern *x = &m->externs[i];
       long mz = m->classes[m->qclass[x->q]].m, off = 0;
@@ -804,7 +809,7 @@ static bool named_in(const char *const *names, int n, const char *name) {
   return false;
 }
 
-int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *err, size_t errlen) {
+int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, Err *err) {
   double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
   /* the program's `basis w: reduce interp`, unless the command line says galerkin */
   for (int i = 0; i < m->nstages; i++) {
@@ -812,16 +817,16 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
     if (s->reduce != STAGE_REDUCE_INTERP || named_in(opt->galerkin_stage, opt->ngalerkin, s->name) ||
         named_in(opt->interp_stage, opt->ninterp, s->name))
       continue;
-    if (interp_train_stage(m, f, i, over, ERR_OF(err, errlen))) return -1;
+    if (interp_train_stage(m, f, i, over, err)) return -1;
     m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
   }
   for (int j = 0; j < opt->ninterp; j++) {
     int i = 0;
     while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->interp_stage[j]) != 0) i++;
     if (i == m->nstages)
-      return error_set(err, errlen, "--reduce %s:interp: the program has no stage '%s'", opt->interp_stage[j],
-                       opt->interp_stage[j]);
-    if (interp_train_stage(m, f, i, over, ERR_OF(err, errlen))) return -1;
+      return err_set(err, "--reduce %s:interp: the program has no stage '%s'", opt->interp_stage[j],
+                     opt->interp_stage[j]);
+    if (interp_train_stage(m, f, i, over, err)) return -1;
     m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
     if (opt->progress)
       fprintf(stderr, "stage %s interpolated: %ld of %ld entries (m %ld), ‖(WPB)⁺‖ %.3g\n", opt->interp_stage[j],
@@ -832,12 +837,12 @@ int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *e
     int i = 0;
     while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->galerkin_stage[j]) != 0) i++;
     if (i == m->nstages)
-      return error_set(err, errlen, "--reduce %s:galerkin: the program has no stage '%s'", opt->galerkin_stage[j],
-                       opt->galerkin_stage[j]);
+      return err_set(err, "--reduce %s:galerkin: the program has no stage '%s'", opt->galerkin_stage[j],
+                     opt->galerkin_stage[j]);
     if (named_in(opt->interp_stage, opt->ninterp, opt->galerkin_stage[j]))
-      return error_set(err, errlen, "stage %s is forced both to interpolation and to Galerkin", opt->galerkin_stage[j]);
+      return err_set(err, "stage %s is forced both to interpolation and to Galerkin", opt->galerkin_stage[j]);
   }
-  return opt->valid ? tune_choose_reductions(m, f, opt->valid, opt, err, errlen) : 0;
+  return opt->valid ? tune_choose_reductions(m, f, opt->valid, opt, err) : 0;
 }
 
 /* Steps 1–2: the bases, from snapshots in memory, by the method of
@@ -850,8 +855,10 @@ static int bases(Train *t) {
   if (ooc_needed(m, t->opt, t->src->count)) {
     for (int c = 0; c < m->nclasses; c++)
       if (m->classes[c].product)
-        return error_set(t->err, t->errlen, "basis %s: product %s is not implemented out of core (the bases exceed "
-                         "--mem: raise it)", m->classes[c].bc->size_name, m->classes[c].product->name);
+        return err_set(t->err,
+                       "basis %s: product %s is not implemented out of core (the bases exceed "
+                       "--mem: raise it)",
+                       m->classes[c].bc->size_name, m->classes[c].product->name);
     t->gram = true;
     train_mark_streamed(m, t->opt); /* their floors taken in the passes (the choice is made again after interpolation) */
     if (ooc_bases(t)) return -1;
@@ -918,8 +925,7 @@ static int fit_externs_for_choice(Train *t) { return externs_first(t) ? train_fi
 
 /* Step 3b and the online estimate's tables. */
 static int reductions(Train *t) {
-  if (train_interpolate_stages(t->m, t->f, t->opt, t->err, t->errlen) ||
-      train_estimates(t->m, t->f, t->src, t->opt, ERR_OF(t->err, t->errlen)))
+  if (train_interpolate_stages(t->m, t->f, t->opt, t->err) || train_estimates(t->m, t->f, t->src, t->opt, t->err))
     return -1;
   phase_end(t->clock, t->m, PHASE_PREMULTIPLY);
   return 0;
@@ -951,7 +957,7 @@ static int report_phases(Train *t) {
 static int refuse_options(Train *t) {
   /* the weights themselves are checked where they are given (npg_trainer_weight) */
   if (t->opt->weights && t->opt->joint)
-    return error_set(t->err, t->errlen, "sample weights are not implemented with --merge joint: use --merge concat");
+    return err_set(t->err, "sample weights are not implemented with --merge joint: use --merge concat");
   phase_start(t->clock);
   return 0;
 }
@@ -969,10 +975,9 @@ static int (*const train_steps[])(Train *) = {
     report_phases,           /* the phases' times; the model checked on three of its samples */
 };
 
-static Model *train_run(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                        size_t errlen) {
-  Train t = {.prog = prog, .f = f, .src = src, .opt = opt, .err = err, .errlen = errlen};
-  err[0] = 0;
+static Model *train_run(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, Err *err) {
+  Train t = {.prog = prog, .f = f, .src = src, .opt = opt, .err = err};
+  if (err_held(err)) err->msg[0] = 0;
   for (size_t i = 0; i < sizeof train_steps / sizeof *train_steps; i++) {
     int rc = train_steps[i](&t);
     train_scratch_free(&t);
@@ -980,7 +985,7 @@ static Model *train_run(Program *prog, Full *f, const SampleSource *src, const T
       if (t.m) train_free_snapshots(t.m, &t.sn);
       model_free(t.m);
       /* the steps name what failed; a helper that only returned NULL ran out of memory */
-      if (!err[0]) error_set(err, errlen, "out of memory during training");
+      err_set_first(err, "out of memory during training");
       return NULL;
     }
   }
@@ -1047,8 +1052,7 @@ static int holdout_held(void *user, Full *f, long j) {
 /* The fraction held out: opt->valid_holdout, or when negative (automatic) 1/TRAIN_HOLDOUT_STRIDE
  * where a stage's reduction is open to a choice (else 0: the model is as before). -1 with `err`
  * when it cannot be held out. */
-static double holdout_fraction(Program *prog, const SampleSource *src, const TrainOptions *opt, char *err,
-                               size_t errlen) {
+static double holdout_fraction(Program *prog, const SampleSource *src, const TrainOptions *opt, Err *err) {
   double F = opt->valid_holdout;
   if (F < 0)
     F = !opt->valid && !opt->dist && src->count >= TRAIN_HOLDOUT_MIN &&
@@ -1056,15 +1060,16 @@ static double holdout_fraction(Program *prog, const SampleSource *src, const Tra
             ? 1.0 / TRAIN_HOLDOUT_STRIDE
             : 0;
   if (F != 0 && (!(F > 0 && F <= 0.5) || opt->valid || opt->dist))
-    return error_set(err, errlen, "--valid %g (NpgTrainOptions.valid_holdout): %s", F,
-                     !(F > 0 && F <= 0.5) ? "must be in (0, 0.5]"
-                     : opt->dist          ? "not over MPI ranks (give a folder of validation samples instead, --valid DIR)"
-                                          : "validation samples are given as well");
+    return err_set(err, "--valid %g (NpgTrainOptions.valid_holdout): %s", F,
+                   !(F > 0 && F <= 0.5) ? "must be in (0, 0.5]"
+                   : opt->dist ? "not over MPI ranks (give a folder of validation samples instead, --valid DIR)"
+                               : "validation samples are given as well");
   long stride = F != 0 ? lround(1 / F) : 0;
   if (F != 0 && src->count / stride < 1)
-    return error_set(err, errlen, "--valid %g (NpgTrainOptions.valid_holdout) holds out one sample in %ld, none of %ld: "
-                     "give a fraction of at least %.3g, or more samples", F, stride, src->count,
-                     1.0 / (double)src->count);
+    return err_set(err,
+                   "--valid %g (NpgTrainOptions.valid_holdout) holds out one sample in %ld, none of %ld: "
+                   "give a fraction of at least %.3g, or more samples",
+                   F, stride, src->count, 1.0 / (double)src->count);
   return F;
 }
 
@@ -1084,10 +1089,9 @@ static double *scale_weights(const double *weights, long S, bool dist) {
 
 /* Training's policy around its steps: the weights scaled, the samples held out to choose the
  * reductions on, and after the automatic choice the model trained again on every sample. */
-Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                   size_t errlen) {
-  err[0] = 0;
-  double F = holdout_fraction(prog, src, opt, err, errlen);
+Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, Err *err) {
+  if (err_held(err)) err->msg[0] = 0;
+  double F = holdout_fraction(prog, src, opt, err);
   if (F < 0) return NULL;
   Holdout hold = {src, F != 0 ? lround(1 / F) : 0};
   long nheld = F != 0 ? src->count / hold.stride : 0;
@@ -1104,7 +1108,7 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   double *train_w = w && F != 0 ? mem_malloc(sizeof(double) * (size_t)training.count) : NULL;
   if ((opt->weights && !w) || (w && F != 0 && !train_w)) {
     free(w);
-    error_set(err, errlen, "out of memory");
+    err_set(err, "out of memory");
     return NULL;
   }
   for (long j = 0; train_w && j < training.count; j++) train_w[j] = w[training_index(&hold, j)];
@@ -1112,19 +1116,22 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   /* the params the samples are set with, recorded before any validation sample is set: one that
    * sets a param would otherwise leave its hash in the model (trial3) */
   char *params = train_param_hashes(f);
-  Model *m = params ? train_run(prog, f, &training, &o, err, errlen) : NULL;
+  Model *m = params ? train_run(prog, f, &training, &o, err) : NULL;
   /* the automatic choice made, every sample trains the model (DESIGN §12) */
   o.weights = w;
   o.valid = opt->valid;
-  if (m && F != 0 && opt->valid_holdout < 0) m = interp_train_with_choice(prog, f, src, &o, m, ERR_OF(err, errlen));
+  if (m && F != 0 && opt->valid_holdout < 0) m = interp_train_with_choice(prog, f, src, &o, m, err);
   free(train_w);
   free(w);
   bool oom = !params;
   const char *changed = m ? train_param_changed(f, params, &oom) : NULL;
   if (oom || changed) {
-    if (oom) error_set(err, errlen, "out of memory");
-    else error_set(err, errlen, "NpgTrainOptions.valid_set changed param '%s': a validation sample holds inputs and "
-                   "externs only (the params are the trainer's)", changed);
+    if (oom) err_set(err, "out of memory");
+    else
+      err_set(err,
+              "NpgTrainOptions.valid_set changed param '%s': a validation sample holds inputs and "
+              "externs only (the params are the trainer's)",
+              changed);
     model_free(m);
     m = NULL;
   }

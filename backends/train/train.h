@@ -92,7 +92,7 @@ typedef struct SampleSource {
    * ranks): make every sample available to `set` and `set_part` on every
    * rank (a collective call). Out of core over ranks a rank's passes
    * evaluate every sample; without it the source must hold them all. */
-  int (*share)(void *user, char *err, size_t errlen);
+  int (*share)(void *user, Err *err);
 } SampleSource;
 
 /* The online estimate's tables (estimate.h, estimate_train.c): per eligible term R of the QR of
@@ -110,8 +110,7 @@ int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptio
  * opt->valid_holdout, samples held out of training to choose the
  * reductions on (and with the automatic hold-out, the model trained again
  * on every sample with the choice fixed). NULL with `err` on failure. */
-Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                   size_t errlen);
+Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, Err *err);
 /* "name=<hex> …": the hashes of the values of every param bound in `f`, as a model records them
  * (Model.param_hashes; malloc'd; NULL when out of memory). */
 char *train_param_hashes(const Full *f);
@@ -124,7 +123,7 @@ const char *train_param_changed(const Full *f, const char *before, bool *oom);
  * stage forced to interpolation is eligible. Training checks the same again; this lets a
  * trainer refuse them when it is made instead of after every sample was streamed (issue 38).
  * 0, or -1 with `err` in the words of npgc train's options. */
-int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t errlen);
+int train_check_names(Program *prog, const TrainOptions *opt, Err *err);
 
 /* ---------------------------------------------------------------- the tune sample set (train_set.c) */
 
@@ -136,37 +135,39 @@ int train_check_names(Program *prog, const TrainOptions *opt, char *err, size_t 
 typedef struct TrainSet TrainSet;
 /* `opt` as for train_model (its energy should be 1: the caps decide); NULL
  * with `err`. `f` and `src` must outlive the set. */
-TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                        size_t errlen);
+TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, Err *err);
 int train_set_classes(const TrainSet *ts);
+/* The program and the evaluator the set was made with. */
+Program *train_set_program(const TrainSet *ts);
+Full *train_set_full(const TrainSet *ts);
 /* The most vectors a member of class `c` has: caps above it change nothing. */
 int train_set_max_cap(const TrainSet *ts, int c);
 /* The model whose members of class c keep min(cap[c], what they have)
  * vectors. NULL with `err`. */
-Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen);
+Model *train_set_model(TrainSet *ts, const int *cap, Err *err);
 /* The online estimate's tables of a truncation `m` (train_estimates, on
  * the set's training samples), then its streamed classes (issue 30,
  * train_model's rule: model_class_streamable, opt->stream, opt->keep_bases),
  * its reductions chosen: marked, their floors measured on the set's training
  * snapshots, their bases dropped. 0, or -1 with `err`. */
-int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err, size_t errlen);
+int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, Err *err);
 void train_set_free(TrainSet *ts);
 
 /* ---------------------------------------------------------------- steps shared with out of core (train.c) */
 
 /* The steps of training that the out-of-core bases (ooc.c) share. */
 /* Set and evaluate training sample k. */
-int train_eval_sample(const SampleSource *src, Full *f, long k, char *err, size_t errlen);
+int train_eval_sample(const SampleSource *src, Full *f, long k, Err *err);
 
 /* Mark every diagonal operator SPD (until train_check_spd sees otherwise). */
 void train_mark_spd(Model *m);
 /* The class basis from its members' snapshots X[i] (n x S column-major):
  * one PCA per member, concatenated and re-orthonormalized; `pre` (over MPI
  * ranks): the members' PCAs already made, taken over, or NULL. */
-int train_member_bases(RClass *rc, long S, double *const *X, const double *w, PcaMember *pre, char *err, size_t errlen);
+int train_member_bases(RClass *rc, long S, double *const *X, const double *w, PcaMember *pre, Err *err);
 /* One direction for a class whose every snapshot is zero; with `full_rank`
  * the basis completed to the class's dimension. */
-int train_complete_basis(RClass *rc, bool full_rank, char *err, size_t errlen);
+int train_complete_basis(RClass *rc, bool full_rank, Err *err);
 /* Class rc's basis orthonormal in the inner product of its product op
  * (rc->product: `basis u: product K0`, --basis u:product=K0; product.c): BᵀK0B = I, rc->D =
  * K0 B; K0 read from `f` (params bound); sn: the class's snapshots. */
@@ -191,7 +192,7 @@ void product_norm_free(ProductNorm *p);
  * interpolated, the names of opt->galerkin_stage checked, and with
  * opt->valid every other eligible stage chosen (tune_choose_reductions).
  * 0, or -1 with `err`. */
-int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, char *err, size_t errlen);
+int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, Err *err);
 
 /* Make stage number `stage` of `m` (bases built, `f` bound as for
  * pre-multiplication) interpolated: its entries selected from its class
@@ -264,10 +265,17 @@ typedef struct TuneResult {
                                until taken (set to NULL) */
 } TuneResult;
 
+/* What tune_search looks for: every output's mean relative L2 error on the
+ * samples of `valid` at most `tol`, with caps at most `max_cap`. */
+typedef struct TuneGoal {
+  const SampleSource *valid;
+  double tol;
+  int max_cap;
+} TuneGoal;
 /* Choose every class's cap so that every output's mean relative L2 error
- * on the samples of `valid` (evaluated in full by `f`, bound to the
- * training params) is at most `tol` at the least reduced cost, caps at most
- * `max_cap`: uniform caps 1, 2, … up to the first that meets `tol`, then
+ * on the samples of goal->valid (evaluated in full by the set's `f`, bound
+ * to the training params) is at most goal->tol at the least reduced cost,
+ * caps at most goal->max_cap: uniform caps 1, 2, … up to the first that meets `tol`, then
  * each class bisected down with the others fixed, the costliest first. At
  * every candidate, the stages `opt` forces (interp_stage, the program's
  * `reduce`) reduced so, every other eligible stage both ways and the lower
@@ -275,8 +283,7 @@ typedef struct TuneResult {
  * excludes stages; opt may be NULL). out->model: the chosen trial's model.
  * 0 (`out` filled; out->chosen < 0 when `tol` cannot be met, naming the
  * limiting class), or -1 with `err`. tune_result_free() either way. */
-int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid, double tol, int max_cap,
-                const TrainOptions *opt, TuneResult *out, char *err, size_t errlen);
+int tune_search(TrainSet *ts, const TuneGoal *goal, const TrainOptions *opt, TuneResult *out, Err *err);
 void tune_result_free(TuneResult *r);
 
 /* Training's choice per stage (DESIGN §12): for every stage of `m` (bases
@@ -289,8 +296,7 @@ void tune_result_free(TuneResult *r);
  * configuration that fails on a validation sample counts as an infinite
  * error. The errors and the reason are left in rs->choice_err and
  * rs->choice_reason (and on stderr with opt->progress). 0, or -1 with `err`. */
-int tune_choose_reductions(Model *m, Full *f, const SampleSource *valid, const TrainOptions *opt, char *err,
-                           size_t errlen);
+int tune_choose_reductions(Model *m, Full *f, const SampleSource *valid, const TrainOptions *opt, Err *err);
 
 /* ---------------------------------------------------------------- reports (report.c) */
 
@@ -317,11 +323,16 @@ void progress_show(bool on, const char *what, long done, long total);
 
 /* ---------------------------------------------------------------- bases from snapshots (pca.c) */
 
-/* PCA of one member: X is n x S column-major (sample s at X + s*n). Keeps
- * at most `cap` left singular vectors, the fewest reaching `energy`.
- * Returns n x k row-major in *U (malloc'd), k, and the captured fraction. */
-int pca_member(long n, long S, const double *X, int cap, double energy, double **U, int *k, double *captured,
-               char *err, size_t errlen);
+/* How a member's basis is cut from its snapshots (its options, RMember):
+ * at most `cap` vectors, the fewest reaching `energy` (pca_choose);
+ * `center`ed: the mean kept and the rest by the centered energy; weighted by
+ * w (one per sample, NULL: every weight 1; pca_weigh). */
+typedef struct PcaRule {
+  int cap;
+  double energy;
+  bool center;
+  const double *w;
+} PcaRule;
 /* One member's basis (DESIGN §5). */
 struct PcaMember {
   double *U;                /* n x k row-major, orthonormal (malloc'd) */
@@ -331,15 +342,15 @@ struct PcaMember {
   long nsv;
 };
 
-/* The basis of one member, X n x S column-major: uncentered, the leading
- * left singular vectors as pca_member; `center`ed, the orthonormalization
+/* The basis of one member, X n x S column-major (sample s at X + s*n), by
+ * `rule`: uncentered, the leading left singular vectors (n x k row-major in
+ * out->U, malloc'd); `center`ed, the orthonormalization
  * of [μ, U_c,1 … U_c,r] in that order, μ the snapshots' mean (always kept),
  * U_c the left singular vectors of X − μ1ᵀ, r the fewest reaching `energy`
  * of the centered energy, at most cap − 1 (a direction dependent on the
- * previous ones dropped). Weighted (w not NULL, S positive weights): the PCA of pca_weigh's
+ * previous ones dropped). Weighted (rule->w not NULL, S positive weights): the PCA of pca_weigh's
  * snapshots, μ their weighted mean. 0, or -1 with `err` and nothing allocated. */
-int pca_basis(long n, long S, const double *X, int cap, double energy, bool center, const double *w, PcaMember *out,
-              char *err, size_t errlen);
+int pca_basis(long n, long S, const double *X, const PcaRule *rule, PcaMember *out, Err *err);
 /* Weighted snapshots (TrainOptions.weights, w NULL: every weight 1): with `mu`, the mean
  * Σ_s w_s X_s / Σ_s w_s into mu and subtracted from every column (pca_mean's arithmetic when w
  * is NULL); then column s times √w_s. X n x S column-major, in place. The PCA of the result
@@ -355,13 +366,18 @@ void pca_weigh(long n, long S, double *X, const double *w, double *mu);
  * them. Below 1e-8, so that a direction a member resolves to 1e-12 is not
  * dropped (it costs a vector of its rounding at most). */
 #define PCA_MERGE_TOL 1e-12
-/* Gram–Schmidt (twice) of the columns of A_0 … A_{r-1} (each n x k_i,
- * row-major) in that order, dropping a column whose remainder is below 1e-8
- * of its norm: n x m row-major whose first j columns span the first
- * independent columns given. */
-int pca_in_order(long n, int r, double *const *A, const int *k, double **Q, int *m, char *err, size_t errlen);
+/* Blocks of columns side by side, in order: A[i] n x k[i] row-major, i < r. */
+typedef struct PcaBlocks {
+  int r;
+  double *const *A;
+  const int *k;
+} PcaBlocks;
+/* Gram–Schmidt (twice) of the columns of the blocks A_0 … A_{r-1} in that
+ * order, dropping a column whose remainder is below 1e-8 of its norm: n x m
+ * row-major whose first j columns span the first independent columns given. */
+int pca_in_order(long n, PcaBlocks a, double **Q, int *m, Err *err);
 /* The truncation rule, one for every route to a member's basis (the SVD
- * of pca_member, the method of snapshots, out of core): how many of the
+ * of pca_basis, the method of snapshots, out of core): how many of the
  * singular values s[0..K) (descending) a member keeps — the leading ones,
  * at most `cap`, the fewest whose energy left out, Σ_{i≥k} s_i², is at most
  * (1 − energy) of the total (summed from the smallest, so tolerances far
@@ -393,11 +409,11 @@ int pca_fold_rows(long S, double *R, long rows, double *B, long ldb);
  * that order (every rank folding the same factors gets the same R). */
 int pca_fold_r(long S, int nr, const double *Rs, double *R);
 /* The right singular vectors of the snapshots from their R factor (its
- * SVD, dgesdd): s[0..S) descending, *k kept by pca_choose, and W = V_k Σ_k⁻¹
- * (S x *k column-major; room for S x min(cap, S)), so that X W holds the
- * kept left singular vectors, exact to ε σ_max in every direction. 0, or
- * LAPACK's info (-1 out of memory). */
-int pca_r_basis(long S, const double *R, int cap, double energy, double *s, double *W, long *k);
+ * SVD, dgesdd): s[0..S) descending, *k kept by pca_choose (rule's cap and
+ * energy), and W = V_k Σ_k⁻¹ (S x *k column-major; room for S x min(cap, S)),
+ * so that X W holds the kept left singular vectors, exact to ε σ_max in
+ * every direction. 0, or LAPACK's info (-1 out of memory). */
+int pca_r_basis(long S, const double *R, const PcaRule *rule, double *s, double *W, long *k);
 /* The Gram matrix G (S x S, either layout) of snapshots too large or too
  * small for their squares (issue 24: 1e200 or 1e-200 data), `big` their
  * largest |entry| (0: not known): what is wrong, else NULL. The Gram routes
@@ -423,36 +439,37 @@ void pca_sign_scan(long n, long m, const double *B, double *big, int *sign, bool
 /* mu[0..n) = the mean of the S columns of X (n x S column-major). */
 void pca_mean(long n, long S, const double *X, double *mu);
 
-/* Orthonormal basis of the span of [U_1 … U_r] (each n x k_i, row-major,
- * orthonormal columns in order): their columns interleaved — the first of
+/* Orthonormal basis of the span of the blocks [U_1 … U_r] (each n x k_i,
+ * row-major, orthonormal columns in order): their columns interleaved — the first of
  * every U_i, then the second, … (a U_i out of columns skipped) — and
  * orthonormalized in that order as pca_in_order does, dropping one whose
  * remainder is below 1e-12 of its norm:
  * n x m row-major whose first columns span the first c of every U_i (the
  * basis caps of c give), so a smaller cap is a truncation (issue 41). */
-int pca_merge(long n, int r, double *const *U, const int *k, double **B, long *m, char *err, size_t errlen);
+int pca_merge(long n, PcaBlocks U, double **B, long *m, Err *err);
 
 /* ---------------------------------------------------------------- pre-multiplication (premul.c) */
 
+/* What premultiply forms of a tensor: its product with the output basis
+ * By (ny x my row-major); only the rows r ≡ part (mod nparts) of the output
+ * (a rank's share: the others left zero, so the sum of the parts over the
+ * ranks is the whole, to rounding; the builder enumerates only those rows'
+ * entries, so the work divides; nparts 0 or 1: every row); a last x ⊗ x
+ * axis unpacked (one GEMM of full basis rows per batch, folded into packed
+ * form) when the group has at least unpack_min_monos monomials, packed per
+ * entry otherwise (0: 8; tests force each path). */
+typedef struct PremulOut {
+  const double *By;
+  long ny, my;
+  int part, nparts;
+  int unpack_min_monos;
+} PremulOut;
 /* Pre-multiply one tensor group: stream the builder's entries, accumulate
  * outer products of basis rows per output block, finish each block with a
  * GEMM against the output basis. `t` sized by model_size_tensors; fills
  * t->data. `flops` (optional) accumulates the useful arithmetic (that of
  * the packed products). */
-int premultiply(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, double *flops, char *err,
-                size_t errlen);
-/* The same, choosing the path for a last x ⊗ x axis: unpacked (one GEMM of
- * full basis rows per batch, folded into packed form) when the group has at
- * least unpack_min_monos monomials, packed per entry otherwise. premultiply
- * uses 8; tests force each path. */
-int premultiply_unpacking(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, int unpack_min_monos,
-                          double *flops, char *err, size_t errlen);
-/* The share of premultiply of rank `part` of `nparts`: the rows r ≡ part
- * (mod nparts) of the output only, the others left zero, so the sum of the
- * parts over the ranks is the whole (to rounding). The tensor's builder
- * enumerates only those rows' entries: the work divides over the ranks. */
-int premultiply_part(Model *m, Full *f, RTensor *t, const double *By, long ny, long my, int part, int nparts,
-                     double *flops, char *err, size_t errlen);
+int premultiply(Model *m, Full *f, RTensor *t, const PremulOut *out, double *flops, Err *err);
 /* A set of rows of a class (stream.c): a bit per row, and per 64 rows the
  * number held before them, so that a buffer of the held rows only, in
  * ascending order, is indexed by row_map_at. */
@@ -487,8 +504,7 @@ typedef struct PremulBlock {
   const double *Bin[RT_MAX_IN];
   const RowMap *inmap[RT_MAX_IN];
 } PremulBlock;
-int premultiply_block(Model *m, Full *f, RTensor *t, const PremulBlock *b, double *flops, char *err,
-                      size_t errlen);
+int premultiply_block(Model *m, Full *f, RTensor *t, const PremulBlock *b, double *flops, Err *err);
 /* Output keys (rows, or (row, col) pairs) pre-multiplied per block of t. */
 long premul_keys_per_block(const RTensor *t);
 
@@ -497,7 +513,7 @@ long premul_keys_per_block(const RTensor *t);
 /* After every rank r filled the columns k ≡ r (mod N = dist_size()) of
  * every member's n x S column-major X[c][i]: all columns on every rank
  * (a class whose X[c] is NULL is skipped). 0, or -1 with `err` (every rank alike). */
-int dist_gather_snapshots(Model *m, double ***X, long S, char *err, size_t errlen);
+int dist_gather_snapshots(Model *m, double ***X, long S, Err *err);
 /* Every diagonal operator's SPD mark: SPD on every rank's samples. */
 void dist_and_spd(Model *m);
 /* Every member's PCA (pca_basis of X[c][i], n x S, with its options),
@@ -505,7 +521,7 @@ void dist_and_spd(Model *m);
  * broadcast: (*out)[c][i] on every rank, bit-identical to one process's.
  * 0, or -1 with `err` (the rank that failed; the others then wait for it
  * to end the job). dist_free_pcas frees what is left of it. */
-int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember ***out, char *err, size_t errlen);
+int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember ***out, Err *err);
 void dist_free_pcas(Model *m, PcaMember **pcas);
 
 #endif

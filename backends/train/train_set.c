@@ -32,17 +32,17 @@ struct TrainSet {
  * the online estimate's tables (on the training samples, at the model's
  * sizes), the streamable classes --keep-bases does not name marked, their
  * training floors taken from the snapshots, their bases dropped. */
-int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, char *err, size_t errlen) {
-  if (train_estimates(m, ts->f, ts->src, &ts->quiet, ERR_OF(err, errlen))) return -1;
+int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, Err *err) {
+  if (train_estimates(m, ts->f, ts->src, &ts->quiet, err)) return -1;
   if (!train_mark_streamed(m, opt)) return 0;
   long maxn = 1, maxm = 1;
   for (int c = 0; c < m->nclasses; c++)
     if (m->classes[c].streamed)
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
   double *y = mem_malloc(sizeof(double) * (size_t)maxn), *proj = mem_malloc(sizeof(double) * (size_t)maxm);
-  if (!y || !proj) return free(y), free(proj), error_set(err, errlen, "out of memory measuring the training floors");
+  if (!y || !proj) return free(y), free(proj), err_set(err, "out of memory measuring the training floors");
   Train trial = ts->tr; /* the set's snapshots, this truncation */
-  trial.m = m, trial.scratch = NULL, trial.err = err, trial.errlen = errlen;
+  trial.m = m, trial.scratch = NULL, trial.err = err;
   for (long k = 0; k < ts->tr.sn.S; k++) train_take_floors(&trial, k, proj, y);
   free(y), free(proj);
   train_drop_bases(m);
@@ -63,10 +63,9 @@ void train_set_free(TrainSet *ts) {
   free(ts);
 }
 
-TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, char *err,
-                        size_t errlen) {
+TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, Err *err) {
   TrainSet *ts = mem_calloc(1, sizeof *ts);
-  err[0] = 0;
+  if (err_held(err)) err->msg[0] = 0;
   if (!ts) return NULL;
   ts->o = *opt;
   ts->o.mem = 0; /* truncations re-use the snapshots: they stay in memory */
@@ -74,17 +73,20 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
   ts->quiet = ts->o;
   ts->quiet.progress = ts->quiet.dist = false;
   ts->f = f, ts->src = src, ts->progress = opt->progress;
-  ts->tr = (Train){.prog = prog, .f = f, .src = src, .opt = &ts->o, .err = err, .errlen = errlen};
+  ts->tr = (Train){.prog = prog, .f = f, .src = src, .opt = &ts->o, .err = err};
   int rc = train_begin(&ts->tr);
   ts->base = ts->tr.m;
   if (rc == 0) rc = train_take_snapshots(&ts->tr);
   train_scratch_free(&ts->tr);
+  ts->tr.err = NULL; /* the caller's record may end with its block (ERR_OF): later calls pass theirs */
   if (rc) goto fail;
   Model *m = ts->base;
   for (int c = 0; c < m->nclasses; c++)
     if (m->classes[c].product) { /* its truncations would need the weighted snapshots (product.c) */
-      error_set(err, errlen, "basis %s: product %s is not implemented in tune (the sizes' sweep): train each size with "
-                "npgc train", m->classes[c].bc->size_name, m->classes[c].product->name);
+      err_set(err,
+              "basis %s: product %s is not implemented in tune (the sizes' sweep): train each size with "
+              "npgc train",
+              m->classes[c].bc->size_name, m->classes[c].product->name);
       goto fail;
     }
   if (!(ts->pm = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
@@ -93,19 +95,23 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
     if (!(ts->pm[c] = mem_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
     for (int i = 0; i < rc->nmembers; i++) {
       RMember *mb = &rc->members[i];
-      if (pca_basis(rc->n, ts->tr.sn.S, ts->tr.sn.X[c][i], mb->cap, mb->energy, mb->center, NULL, &ts->pm[c][i], err, errlen))
-        goto fail;
+      PcaRule rule = {.cap = mb->cap, .energy = mb->energy, .center = mb->center};
+      if (pca_basis(rc->n, ts->tr.sn.S, ts->tr.sn.X[c][i], &rule, &ts->pm[c][i], err)) goto fail;
     }
     progress_show(ts->progress, "member bases", c + 1, m->nclasses);
   }
   return ts;
 fail:
-  if (!err[0]) error_set(err, errlen, "out of memory while training");
+  err_set_first(err, "out of memory while training");
   train_set_free(ts);
   return NULL;
 }
 
 int train_set_classes(const TrainSet *ts) { return ts->base->nclasses; }
+
+Program *train_set_program(const TrainSet *ts) { return ts->tr.prog; }
+
+Full *train_set_full(const TrainSet *ts) { return ts->f; }
 
 int train_set_max_cap(const TrainSet *ts, int c) {
   int k = 1;
@@ -130,10 +136,10 @@ static int truncated_member(RMember *mb, const PcaMember *p, int cap, int k) {
 
 /* The model whose members keep the first cap[c] of their ordered bases,
  * merged, with no tensor (its layout sized). */
-static Model *set_bases(TrainSet *ts, const int *cap, char *err, size_t errlen) {
+static Model *set_bases(TrainSet *ts, const int *cap, Err *err) {
   const Model *b = ts->base;
-  err[0] = 0;
-  Model *m = model_layout(b->prog, b->dims, ERR_OF(err, errlen));
+  if (err_held(err)) err->msg[0] = 0;
+  Model *m = model_layout(b->prog, b->dims, err);
   if (!m) return NULL;
   m->samples = b->samples;
   for (int i = 0; i < m->nstages; i++) /* the SPD marks the snapshots set */
@@ -153,12 +159,12 @@ static Model *set_bases(TrainSet *ts, const int *cap, char *err, size_t errlen) 
         ok = 0;
       for (long e = 0; ok && e < rc->n; e++) memcpy(U[i] + e * kk[i], p->U + e * p->k, sizeof(double) * (size_t)kk[i]);
     }
-    int rc_ok = ok ? pca_merge(rc->n, rc->nmembers, U, kk, &rc->B, &rc->m, err, errlen) : -1;
+    int rc_ok = ok ? pca_merge(rc->n, (PcaBlocks){rc->nmembers, U, kk}, &rc->B, &rc->m, err) : -1;
     for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
     free(U);
     free(kk);
-    if (rc_ok || train_complete_basis(rc, false, err, errlen)) {
-      if (!err[0]) error_set(err, errlen, "out of memory building the basis of class %s", rc->label);
+    if (rc_ok || train_complete_basis(rc, false, err)) {
+      err_set_first(err, "out of memory building the basis of class %s", rc->label);
       model_free(m);
       return NULL;
     }
@@ -169,22 +175,21 @@ static Model *set_bases(TrainSet *ts, const int *cap, char *err, size_t errlen) 
 
 /* ts->top at caps covering `cap`: kept when it does, else made at
  * max(cap, twice its caps), at most what the members have. 0, or -1 with `err`. */
-static int cover(TrainSet *ts, const int *cap, char *err, size_t errlen) {
+static int cover(TrainSet *ts, const int *cap, Err *err) {
   int nc = ts->base->nclasses, grow = !ts->top;
-  if (!ts->top_cap && !(ts->top_cap = mem_calloc((size_t)nc + 1, sizeof(int))))
-    return error_set(err, errlen, "out of memory");
+  if (!ts->top_cap && !(ts->top_cap = mem_calloc((size_t)nc + 1, sizeof(int)))) return err_set(err, "out of memory");
   for (int c = 0; c < nc; c++) grow |= cap[c] > ts->top_cap[c] && ts->top_cap[c] < train_set_max_cap(ts, c);
   if (!grow) return 0;
   int *want = mem_calloc((size_t)nc + 1, sizeof(int));
-  if (!want) return error_set(err, errlen, "out of memory");
+  if (!want) return err_set(err, "out of memory");
   for (int c = 0; c < nc; c++) {
     want[c] = cap[c] > 2 * ts->top_cap[c] ? cap[c] : 2 * ts->top_cap[c];
     if (want[c] > train_set_max_cap(ts, c)) want[c] = train_set_max_cap(ts, c);
     if (want[c] < 1) want[c] = 1;
   }
-  Model *m = set_bases(ts, want, err, errlen);
+  Model *m = set_bases(ts, want, err);
   Train trial = ts->tr; /* the set's snapshots, this model */
-  trial.opt = &ts->quiet, trial.m = m, trial.gram = false, trial.err = err, trial.errlen = errlen, trial.scratch = NULL;
+  trial.opt = &ts->quiet, trial.m = m, trial.gram = false, trial.err = err, trial.scratch = NULL;
   if (m && (train_premultiply_all(&trial) || train_fit_externs(&trial, true, false))) model_free(m), m = NULL;
   train_scratch_free(&trial);
   if (m) {
@@ -196,13 +201,13 @@ static int cover(TrainSet *ts, const int *cap, char *err, size_t errlen) {
   return m ? 0 : -1;
 }
 
-Model *train_set_model(TrainSet *ts, const int *cap, char *err, size_t errlen) {
-  Model *m = set_bases(ts, cap, err, errlen), *cut = NULL;
+Model *train_set_model(TrainSet *ts, const int *cap, Err *err) {
+  Model *m = set_bases(ts, cap, err), *cut = NULL;
   long *sizes = m ? mem_calloc((size_t)m->nclasses + 1, sizeof(long)) : NULL;
-  if (m && !sizes) error_set(err, errlen, "out of memory");
-  if (sizes && cover(ts, cap, err, errlen) == 0) {
+  if (m && !sizes) err_set(err, "out of memory");
+  if (sizes && cover(ts, cap, err) == 0) {
     for (int c = 0; c < m->nclasses; c++) sizes[c] = m->classes[c].m;
-    cut = model_truncate(ts->top, sizes, ERR_OF(err, errlen));
+    cut = model_truncate(ts->top, sizes, err);
   }
   for (int c = 0; cut && c < m->nclasses; c++) /* the members' reports at these caps */
     for (int i = 0; i < m->classes[c].nmembers; i++) {

@@ -33,8 +33,7 @@ typedef struct Train {
   Snapshots sn;             /* step 1's */
   bool gram;                /* no snapshot is kept (the method of snapshots, out of core): later passes recompute */
   struct timespec clock[2]; /* the current phase's start, wall and CPU */
-  char *err;                /* the error record */
-  size_t errlen;
+  Err *err;                 /* the error record */
   struct TrainScratch *scratch; /* the current step's scratch (train_scratch) */
 } Train;
 
@@ -103,6 +102,6 @@ int ooc_bases(Train *t);
 /* --merge joint (joint.c): class `rc`'s basis (rc->B, rc->m) and every
  * member's report from one PCA of its members' snapshots X[i] (n x S
  * column-major), each block scaled to unit norm. 0, or -1 with `err`. */
-int train_joint_basis(RClass *rc, long S, double *const *X, char *err, size_t errlen);
+int train_joint_basis(RClass *rc, long S, double *const *X, Err *err);
 
 #endif

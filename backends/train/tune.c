@@ -63,17 +63,17 @@ typedef struct Search {
 static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
 
 /* Full values of every quantity on every validation sample. */
-static int cache_valid(Search *s, Full *f, const SampleSource *valid, const Model *layout, char *err, size_t errlen) {
+static int cache_valid(Search *s, Full *f, const SampleSource *valid, const Model *layout, Err *err) {
   s->v.S = valid->count;
   s->v.nq = layout->nq;
   if (!(s->v.val = mem_calloc((size_t)valid->count + 1, sizeof(double *))))
-    return error_set(err, errlen, "out of memory for the validation samples");
+    return err_set(err, "out of memory for the validation samples");
   long per = 0;
   for (int q = 0; q < layout->nq; q++) per += qsize(layout, q);
   for (long k = 0; k < valid->count; k++) {
     if (valid->set(valid->user, f, k) != 0 || full_eval(f, k) != 0)
-      return error_set(err, errlen, "validation sample %ld: %s", k, full_error(f));
-    if (!(s->v.val[k] = mem_malloc(sizeof(double) * (size_t)per))) return error_set(err, errlen, "out of memory");
+      return err_set(err, "validation sample %ld: %s", k, full_error(f));
+    if (!(s->v.val[k] = mem_malloc(sizeof(double) * (size_t)per))) return err_set(err, "out of memory");
     long off = 0;
     for (int q = 0; q < layout->nq; q++) {
       memcpy(s->v.val[k] + off, full_get(f, ((Sym *)s->prog->quantities.v[q])->name, NULL),
@@ -87,17 +87,17 @@ static int cache_valid(Search *s, Full *f, const SampleSource *valid, const Mode
 static long qoff(const Model *m, int q);
 
 /* Rollouts: each validation sample's full trajectory, its states every v.every steps. */
-static int cache_rollouts(Search *s, Full *f, const SampleSource *valid, const Model *layout, char *err, size_t errlen) {
+static int cache_rollouts(Search *s, Full *f, const SampleSource *valid, const Model *layout, Err *err) {
   const Program *prog = s->prog;
   s->v.state_n = 0;
   for (int i = 0; i < prog->states.n; i++)
     s->v.state_n += qsize(layout, vec_position(&prog->quantities, prog->states.v[i]));
   s->v.saves = s->v.steps / s->v.every + 1;
-  if (!(s->v.traj = mem_calloc((size_t)valid->count + 1, sizeof(double *)))) return error_set(err, errlen, "out of memory");
+  if (!(s->v.traj = mem_calloc((size_t)valid->count + 1, sizeof(double *)))) return err_set(err, "out of memory");
   for (long k = 0; k < valid->count; k++) {
     if (!(s->v.traj[k] = mem_malloc(sizeof(double) * (size_t)(s->v.saves * s->v.state_n + 1))))
-      return error_set(err, errlen, "out of memory");
-    if (valid->set(valid->user, f, k) != 0) return error_set(err, errlen, "validation sample %ld: %s", k, full_error(f));
+      return err_set(err, "out of memory");
+    if (valid->set(valid->user, f, k) != 0) return err_set(err, "validation sample %ld: %s", k, full_error(f));
     for (long t = 0; t <= s->v.steps; t++) {
       if (t % s->v.every == 0) {
         double *at = s->v.traj[k] + (t / s->v.every) * s->v.state_n;
@@ -109,7 +109,7 @@ static int cache_rollouts(Search *s, Full *f, const SampleSource *valid, const M
         }
       }
       if (t < s->v.steps && (full_eval(f, k) != 0 || full_advance(f) != 0))
-        return error_set(err, errlen, "validation sample %ld, step %ld of its full rollout: %s", k, t + 1, full_error(f));
+        return err_set(err, "validation sample %ld, step %ld of its full rollout: %s", k, t + 1, full_error(f));
     }
   }
   return 0;
@@ -117,16 +117,16 @@ static int cache_rollouts(Search *s, Full *f, const SampleSource *valid, const M
 
 /* The worst state's trajectory error of `m`'s reduced rollouts, mean over the validation samples
  * (infinite where a rollout fails or blows up: that candidate meets nothing). */
-static int validate_rollouts(Search *s, Model *m, double *worst, char *err, size_t errlen) {
+static int validate_rollouts(Search *s, Model *m, double *worst, Err *err) {
   const Program *prog = s->prog;
   int ns = prog->states.n;
-  Reduced *r = reduced_new(m, ERR_OF(err, errlen));
+  Reduced *r = reduced_new(m, err);
   if (!r) return -1;
   long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
   double *y = mem_malloc(sizeof(double) * (size_t)maxn), *e = mem_calloc((size_t)ns + 1, sizeof(double));
   double *e2 = mem_calloc((size_t)ns + 1, sizeof(double)), *n2 = mem_calloc((size_t)ns + 1, sizeof(double));
-  int rc = y && e && e2 && n2 ? 0 : error_set(err, errlen, "out of memory");
+  int rc = y && e && e2 && n2 ? 0 : err_set(err, "out of memory");
   for (long k = 0; rc == 0 && k < s->v.S; k++) {
     for (int q = 0; q < m->nq; q++)
       if (((Sym *)prog->quantities.v[q])->kind == SYM_INPUT) reduced_project(r, q, s->v.val[k] + qoff(m, q));
@@ -161,7 +161,7 @@ static int validate_rollouts(Search *s, Model *m, double *worst, char *err, size
       e[i] += blown ? INFINITY : (n2[i] > 0 ? sqrt(e2[i] / n2[i]) : sqrt(e2[i])) / (double)s->v.S;
     if (blown) { /* a fresh evaluator for the next sample: this one keeps its error */
       reduced_free(r);
-      if (!(r = reduced_new(m, ERR_OF(err, errlen)))) rc = -1;
+      if (!(r = reduced_new(m, err))) rc = -1;
     }
   }
   *worst = 0;
@@ -181,19 +181,19 @@ static long qoff(const Model *m, int q) {
 /* Mean over validation samples of every output's relative L2 error (the
  * worst into *worst), and when `floor` is given every quantity's mean
  * projection floor ‖y − BBᵀy‖/‖y‖. */
-static int validate(Search *s, Model *m, double *worst, double *floor, char *err, size_t errlen) {
-  Reduced *r = reduced_new(m, ERR_OF(err, errlen));
+static int validate(Search *s, Model *m, double *worst, double *floor, Err *err) {
+  Reduced *r = reduced_new(m, err);
   if (!r) return -1;
   long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
   double *y = mem_malloc(sizeof(double) * (size_t)maxn), *e = mem_calloc((size_t)s->prog->outputs.n + 1, sizeof(double));
-  int rc = y && e ? 0 : error_set(err, errlen, "out of memory");
+  int rc = y && e ? 0 : err_set(err, "out of memory");
   if (floor) memset(floor, 0, sizeof(double) * (size_t)m->nq);
   for (long k = 0; rc == 0 && k < s->v.S; k++) {
     for (int q = 0; q < m->nq; q++)
       if (((Sym *)s->prog->quantities.v[q])->kind == SYM_INPUT) reduced_project(r, q, s->v.val[k] + qoff(m, q));
     if (reduced_eval(r, k) != 0) {
-      rc = error_set(err, errlen, "%s", reduced_error(r));
+      rc = err_set(err, "%s", reduced_error(r));
       break;
     }
     for (int o = 0; o < s->prog->outputs.n; o++) {
@@ -230,24 +230,23 @@ static int validate(Search *s, Model *m, double *worst, double *floor, char *err
   free(y);
   free(e);
   reduced_free(r);
-  if (rc == 0 && s->v.steps > 0) return validate_rollouts(s, m, worst, err, errlen);
+  if (rc == 0 && s->v.steps > 0) return validate_rollouts(s, m, worst, err);
   return rc;
 }
 
-static int choose(Search *s, Model *m, const TrainOptions *opt, double tol, double *out, char why[static 1024],
-                  char *err, size_t errlen);
+static int choose(Search *s, Model *m, double *out, char why[static 1024], Err *err);
 static double stage_work(const Model *m, const RStage *rs);
 
 /* The model at caps `cap` with every stage reduced as forced and the
  * others chosen (choose): its sizes, cost, error and interpolated stages
  * into `tr`. NULL with `err`. */
-static Model *configure(Search *s, const int *cap, TuneTrial *tr, char *err, size_t errlen) {
-  Model *m = train_set_model(s->ts, cap, err, errlen);
+static Model *configure(Search *s, const int *cap, TuneTrial *tr, Err *err) {
+  Model *m = train_set_model(s->ts, cap, err);
   if (!m) return NULL;
   for (int c = 0; c < s->nc; c++) tr->m[c] = m->classes[c].m;
   tr->cost = cost_value(s->prog, tr->m, m->samples);
   char why[1024];
-  if (train_interpolate_stages(m, s->f, &s->copt, err, errlen) || choose(s, m, &s->copt, s->tol, &tr->err, why, err, errlen)) {
+  if (train_interpolate_stages(m, s->f, &s->copt, err) || choose(s, m, &tr->err, why, err)) {
     model_free(m);
     return NULL;
   }
@@ -259,7 +258,7 @@ static Model *configure(Search *s, const int *cap, TuneTrial *tr, char *err, siz
   free(tr->interp);
   if (!(tr->interp = mem_malloc(len))) {
     model_free(m);
-    return error_set(err, errlen, "out of memory"), NULL;
+    return err_set(err, "out of memory"), NULL;
   }
   tr->interp[0] = 0;
   for (int i = 0; i < m->nstages; i++) {
@@ -279,12 +278,12 @@ static Model *configure(Search *s, const int *cap, TuneTrial *tr, char *err, siz
 
 /* Evaluate caps `cap`: a new trial (reusing an identical one), its model
  * left in s->last. Its index, or -1. */
-static int trial(Search *s, const int *cap, bool uniform, char *err, size_t errlen) {
+static int trial(Search *s, const int *cap, bool uniform, Err *err) {
   TuneResult *out = s->out;
   for (int t = 0; t < out->ntrials; t++)
     if (memcmp(out->trials[t].cap, cap, sizeof(int) * (size_t)s->nc) == 0) return t;
   TuneTrial *grown = mem_realloc(out->trials, sizeof *grown * (size_t)(out->ntrials + 1));
-  if (!grown) return error_set(err, errlen, "out of memory");
+  if (!grown) return err_set(err, "out of memory");
   out->trials = grown;
   TuneTrial *tr = &out->trials[out->ntrials];
   memset(tr, 0, sizeof *tr);
@@ -292,12 +291,12 @@ static int trial(Search *s, const int *cap, bool uniform, char *err, size_t errl
   tr->m = mem_malloc(sizeof(long) * (size_t)s->nc);
   if (!tr->cap || !tr->m) {
     free(tr->cap), free(tr->m);
-    return error_set(err, errlen, "out of memory");
+    return err_set(err, "out of memory");
   }
   memcpy(tr->cap, cap, sizeof(int) * (size_t)s->nc);
   tr->uniform = uniform;
   out->ntrials++;
-  return (s->last = configure(s, cap, tr, err, errlen)) ? out->ntrials - 1 : -1;
+  return (s->last = configure(s, cap, tr, err)) ? out->ntrials - 1 : -1;
 }
 
 /* Trial t's model (s->last, when it was just made) becomes the one the
@@ -319,11 +318,14 @@ void tune_result_free(TuneResult *r) {
   memset(r, 0, sizeof *r);
 }
 
-int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid, double tol, int max_cap,
-                const TrainOptions *opt, TuneResult *out, char *err, size_t errlen) {
+int tune_search(TrainSet *ts, const TuneGoal *goal, const TrainOptions *opt, TuneResult *out, Err *err) {
   memset(out, 0, sizeof *out);
   out->chosen = out->limiting = -1;
-  Search s = {ts, prog, f, {0}, train_set_classes(ts), NULL, out, {0}, tol, NULL, -1, ""};
+  Full *f = train_set_full(ts);
+  const SampleSource *valid = goal->valid;
+  double tol = goal->tol;
+  int max_cap = goal->max_cap;
+  Search s = {ts, train_set_program(ts), f, {0}, train_set_classes(ts), NULL, out, {0}, tol, NULL, -1, ""};
   if (opt) s.copt = *opt;
   s.copt.valid = NULL, s.copt.progress = false, s.copt.choose_strict = true;
   out->nclasses = s.nc;
@@ -341,26 +343,26 @@ int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid,
   }
   s.v.steps = opt ? opt->rollout_steps : 0;
   s.v.every = opt && opt->rollout_every > 0 ? opt->rollout_every : 1;
-  if (!(layout = train_set_model(ts, cap, err, errlen)) || cache_valid(&s, f, valid, layout, err, errlen) ||
-      (s.v.steps > 0 && cache_rollouts(&s, f, valid, layout, err, errlen)))
+  if (!(layout = train_set_model(ts, cap, err)) || cache_valid(&s, f, valid, layout, err) ||
+      (s.v.steps > 0 && cache_rollouts(&s, f, valid, layout, err)))
     goto done;
   /* 1. the cheapest uniform cap that meets tol */
   int t = -1;
   for (int u = 1; u <= top; u++) {
     for (int c = 0; c < s.nc; c++) cap[c] = u < s.maxk[c] ? u : s.maxk[c];
-    if ((t = trial(&s, cap, true, err, errlen)) < 0) goto done;
+    if ((t = trial(&s, cap, true, err)) < 0) goto done;
     keep_model(&s, t, out->trials[t].err <= tol);
     if (out->trials[t].err <= tol) break;
   }
   if (isinf(out->trials[t].err) && s.why[0]) { /* failed at the largest caps: why is the error */
-    error_set(err, errlen, "%s", s.why);
+    err_set(err, "%s", s.why);
     goto done;
   }
   if (out->trials[t].err > tol) {
     /* unmet at the largest caps: the class whose projection floor is worst limits */
-    Model *m = train_set_model(ts, cap, err, errlen);
+    Model *m = train_set_model(ts, cap, err);
     double worst;
-    if (!m || !(floor = mem_malloc(sizeof(double) * (size_t)m->nq)) || validate(&s, m, &worst, floor, err, errlen)) {
+    if (!m || !(floor = mem_malloc(sizeof(double) * (size_t)m->nq)) || validate(&s, m, &worst, floor, err)) {
       model_free(m);
       goto done;
     }
@@ -385,7 +387,7 @@ int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid,
   for (int c = 0; c < s.nc; c++) {
     memcpy(m1, out->trials[t].m, sizeof(long) * (size_t)s.nc);
     m1[c]++;
-    gain[c] = cost_value(prog, m1, layout->samples) - out->trials[t].cost;
+    gain[c] = cost_value(s.prog, m1, layout->samples) - out->trials[t].cost;
     order[c] = c;
   }
   for (int i = 0; i < s.nc; i++) /* by gain, descending */
@@ -400,7 +402,7 @@ int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid,
     while (lo < hi) {
       int mid = (lo + hi) / 2, was = cap[c];
       cap[c] = mid;
-      int k = trial(&s, cap, false, err, errlen);
+      int k = trial(&s, cap, false, err);
       if (k < 0) {
         free(order), free(gain), free(m1);
         goto done;
@@ -417,13 +419,13 @@ int tune_search(TrainSet *ts, Program *prog, Full *f, const SampleSource *valid,
   memcpy(out->best_cap, out->trials[best].cap, sizeof(int) * (size_t)s.nc);
   if (s.model_trial != best) { /* a trial found again (trial's reuse): its model made anew */
     model_free(out->model);
-    out->model = configure(&s, out->best_cap, &out->trials[best], err, errlen);
+    out->model = configure(&s, out->best_cap, &out->trials[best], err);
     if (!out->model) goto done;
   }
   rc = 0;
   goto done;
 oom:
-  error_set(err, errlen, "out of memory");
+  err_set(err, "out of memory");
 done:
   model_free(s.last);
   for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);
@@ -472,9 +474,11 @@ static double stage_work(const Model *m, const RStage *rs) {
  * one validation.
  * A configuration that fails on a sample counts as an infinite error; the
  * all-Galerkin one's failure is left in `why` (else ""). 0, or -1 with
- * `err` (interp_train_stage failed). */
-static int choose(Search *s, Model *m, const TrainOptions *opt, double tol, double *out, char why[static 1024],
-                  char *err, size_t errlen) {
+ * `err` (interp_train_stage failed). The options are s->copt, the
+ * tolerance s->tol. */
+static int choose(Search *s, Model *m, double *out, char why[static 1024], Err *err) {
+  const TrainOptions *opt = &s->copt;
+  double tol = s->tol;
   double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
   char why2[1024] = "";
   why[0] = 0;
@@ -482,7 +486,7 @@ static int choose(Search *s, Model *m, const TrainOptions *opt, double tol, doub
   /* a configuration that fails on a validation sample (a reduced root of an
    * indefinite operator, a power of a negative interpolated value) has an
    * infinite error: the other may still work */
-  if (validate(s, m, &current, NULL, why, 1024) != 0) current = INFINITY;
+  if (validate(s, m, &current, NULL, ERR_OF(why, 1024)) != 0) current = INFINITY;
   for (int i = 0; i < m->nstages; i++) {
     RStage *rs = &m->stages[i];
     if (!lower_interp_eligible(rs->st) || rs->interp) continue; /* forced interpolated: kept */
@@ -490,8 +494,8 @@ static int choose(Search *s, Model *m, const TrainOptions *opt, double tol, doub
     for (int j = 0; j < opt->ngalerkin; j++) forced |= strcmp(opt->galerkin_stage[j], rs->st->sym->name) == 0;
     if (forced) continue;
     double galerkin = current, interp = INFINITY, wg = stage_work(m, rs);
-    if (interp_train_stage(m, s->f, i, over, ERR_OF(err, errlen)) != 0) return -1;
-    if (validate(s, m, &interp, NULL, why2, sizeof why2) != 0) interp = INFINITY;
+    if (interp_train_stage(m, s->f, i, over, err) != 0) return -1;
+    if (validate(s, m, &interp, NULL, ERR_OF(why2, sizeof why2)) != 0) interp = INFINITY;
     double wi = stage_work(m, rs);
     /* strict (tune): only rounding-level differences tie, so a choice never raises the error measured */
     bool tie = fabs(interp - galerkin) <= (opt->choose_strict ? 0 : CHOOSE_TIE * fmin(interp, galerkin)) + CHOOSE_ROUNDING;
@@ -518,17 +522,16 @@ static int choose(Search *s, Model *m, const TrainOptions *opt, double tol, doub
   return 0;
 }
 
-int tune_choose_reductions(Model *m, Full *f, const SampleSource *valid, const TrainOptions *opt, char *err,
-                           size_t errlen) {
+int tune_choose_reductions(Model *m, Full *f, const SampleSource *valid, const TrainOptions *opt, Err *err) {
   int candidates = 0;
   for (int i = 0; i < m->nstages; i++) candidates += lower_interp_eligible(m->stages[i].st) && !m->stages[i].interp;
   if (candidates == 0) return 0; /* nothing to measure: no validation pass */
   Search s = {0};
-  s.prog = m->prog, s.f = f;
+  s.prog = m->prog, s.f = f, s.copt = *opt, s.tol = -1;
   double chosen;
   char why[1024];
   /* a model whose every configuration fails on a validation sample is kept (the reasons say so) */
-  int rc = cache_valid(&s, f, valid, m, err, errlen) || choose(&s, m, opt, -1, &chosen, why, err, errlen) ? -1 : 0;
+  int rc = cache_valid(&s, f, valid, m, err) || choose(&s, m, &chosen, why, err) ? -1 : 0;
   /* kept, but never quietly: interp_report warns, naming this failure */
   if (rc == 0 && !isfinite(chosen)) snprintf(m->choice_failure, sizeof m->choice_failure, "%.590s", why);
   for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);

@@ -272,7 +272,7 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
     opt.full_rank = true;
     opt.progress = o->progress;
     char why[2048] = "";
-    if (!(m = train_model(prog, f, &src, &opt, why, sizeof why)))
+    if (!(m = train_model(prog, f, &src, &opt, ERR_OF(why, sizeof why))))
       rc = error_set(err, errlen, "training with full-rank bases on the random data: %s", why);
     else if (!(r = reduced_new(m, ERR_OF(why, sizeof why)))) rc = error_set(err, errlen, "%s", why);
     else if (!(y = malloc(sizeof(double) * (size_t)(S - 4))))

@@ -39,6 +39,7 @@ struct NpgTrainer {
   uint64_t inputs_hash;     /* over ranks: of every sample's inputs, in order (every rank's too: ranks_agree) */
   bool inputs_whole;        /* greedy training's (api_trainer_inputs_whole): TrainOptions.inputs_whole */
   char error[2048];
+  Err record;               /* error as the backends' record (the records' err points here) */
   char worded[2048];        /* error in the caller's words (NpgTrainOptions.words), made by npg_trainer_error */
 };
 
@@ -151,14 +152,15 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
   t->weight = 1;
   t->f = f;
   t->r.mpi = t->opt.mpi;
-  t->r.err = t->error, t->r.errlen = sizeof t->error;
+  t->record = (Err){t->error, sizeof t->error};
+  t->r.err = &t->record;
   if (!f) {
     api_refuse(t->error, sizeof t->error, __func__, "argument 'f' is NULL");
     return t;
   }
   t->broken = true; /* until constructed */
   if (refuse_options(t, &t->opt)) return t;
-  if (t->opt.mpi && dist_start(t->error, sizeof t->error)) return t;
+  if (t->opt.mpi && dist_start(ERR_OF(t->error, sizeof t->error))) return t;
   if (npg_full_error(f)[0]) {
     tfail(t, "%s", npg_full_error(f));
     return t;
@@ -167,7 +169,7 @@ NpgTrainer *npg_trainer_new(NpgFull *f, const NpgTrainOptions *o) {
   /* the names the options give, refused now rather than after every sample was streamed */
   TrainOptions names;
   api_train_options(&t->opt, &names);
-  if (prog && train_check_names((Program *)prog, &names, t->error, sizeof t->error) != 0) return t;
+  if (prog && train_check_names((Program *)prog, &names, ERR_OF(t->error, sizeof t->error)) != 0) return t;
   t->r.slot = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->r.slot);
   t->r.count = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->r.count);
   t->staged = mem_calloc((size_t)prog->slots.n + 1, sizeof *t->staged);
@@ -530,7 +532,7 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   o.valid = t->opt.valid_count > 0 ? &valid : NULL;
   SampleSource src = records_source(&t->r);
   char err[2048] = "";
-  Model *m = train_model((Program *)t->prog, t->f->full, &src, &o, err, sizeof err);
+  Model *m = train_model((Program *)t->prog, t->f->full, &src, &o, ERR_OF(err, sizeof err));
   /* over ranks, the others wait for this one in a collective: end the job */
   if (!m && t->opt.mpi && dist_size() > 1) dist_abort("%s", err);
   if (!m) {

@@ -67,8 +67,8 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   char *params = train_param_hashes(f->full);
   bool oom = !params;
   const char *changed = NULL;
-  if (oom || !(ts = train_set_new(prog, f->full, &tsrc, &topt, rep->error, sizeof rep->error)) ||
-      tune_search(ts, prog, f->full, &vsrc, tol, max_cap, &topt, r, rep->error, sizeof rep->error) != 0 ||
+  if (oom || !(ts = train_set_new(prog, f->full, &tsrc, &topt, ERR_OF(rep->error, sizeof rep->error))) ||
+      tune_search(ts, &(TuneGoal){&vsrc, tol, max_cap}, &topt, r, ERR_OF(rep->error, sizeof rep->error)) != 0 ||
       (changed = train_param_changed(f->full, params, &oom)) || oom) {
     if (oom) snprintf(rep->error, sizeof rep->error, "out of memory");
     else if (changed)
@@ -96,7 +96,7 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   }
   Model *m = r->model; /* its reductions chosen in the search */
   r->model = NULL;
-  if (train_set_stream(ts, m, &topt, rep->error, sizeof rep->error) != 0) {
+  if (train_set_stream(ts, m, &topt, ERR_OF(rep->error, sizeof rep->error)) != 0) {
     model_free(m);
     m = NULL;
   }

@@ -60,7 +60,7 @@ int check_programs(const char *const *dirs, ProgramCheck check, void *arg, int *
 static void given(RefData *d, const Program *prog, const Sym *s, long n, unsigned *seed, bool padded, GivenFn set,
                   void *user, int *npad) {
   double *v = ref_values(d, s);
-  *npad += randdata_fill(prog, s, n, seed, padded, v, ref_count(d, s));
+  *npad += randdata_fill(&(RandData){prog, n, seed, padded}, s, v, ref_count(d, s));
   if (!set) return;
   long shape[MAX_AXES + MAX_STATIC];
   for (int a = 0; a < s->ndims; a++) shape[a] = n;
