@@ -233,6 +233,43 @@ int nnls_solve(int m, int n, const double *A, const double *b, double *w, Err *e
   return nnls_solve_with(&(NnlsProblem){m, n, A, b}, w, &(NnlsMethod){.use_qr = true}, err);
 }
 
+/* Lawson–Hanson's inner loop: while the passive solution z leaves the
+ * feasible set, move w towards z as far as feasibility allows and drop the
+ * indices P[0..*k) that reach zero (their state back to AT_ZERO). Each pass
+ * removes at least one index, so it ends. 0, or -1 with the solve's message. */
+static int move_to_feasible(Solver *s, int *P, int *k, double *w, double *z, unsigned char *state) {
+  for (;;) {
+    double alpha = INFINITY;
+    int q = -1;
+    for (int c = 0; c < *k; c++) {
+      int i = P[c];
+      if (z[i] > 0) continue;
+      double den = w[i] - z[i];
+      double a = den > 0 ? w[i] / den : 0;
+      if (a < alpha) alpha = a, q = i;
+    }
+    if (q < 0) return 0; /* z_P > 0: feasible */
+    for (int c = 0; c < *k; c++) {
+      int i = P[c];
+      w[i] += alpha * (z[i] - w[i]);
+    }
+    w[q] = 0;
+    int kept = 0;
+    for (int c = 0; c < *k; c++) {
+      int i = P[c];
+      if (w[i] > 0) {
+        P[kept++] = i;
+      } else {
+        w[i] = 0;
+        state[i] = AT_ZERO;
+      }
+    }
+    *k = kept;
+    if (kept == 0) return 0;
+    if (solve_passive(s, P, kept, z, false)) return -1;
+  }
+}
+
 int nnls_solve_with(const NnlsProblem *p, double *w, NnlsMethod *how, Err *err) {
   int m = p->m, n = p->n;
   const double *A = p->A, *b = p->b;
@@ -328,41 +365,9 @@ int nnls_solve_with(const NnlsProblem *p, double *w, NnlsMethod *how, Err *err) 
     for (int t = 0; t < n; t++)
       if (state[t] == REJECTED) state[t] = AT_ZERO;
 
-    /* Inner loop: while z leaves the feasible set, move w towards z as far
-     * as feasibility allows and drop the indices that reach zero. Each pass
-     * removes at least one index, so it ends. */
-    for (;;) {
-      double alpha = INFINITY;
-      int q = -1;
-      for (int c = 0; c < k; c++) {
-        int i = P[c];
-        if (z[i] > 0) continue;
-        double den = w[i] - z[i];
-        double a = den > 0 ? w[i] / den : 0;
-        if (a < alpha) alpha = a, q = i;
-      }
-      if (q < 0) break; /* z_P > 0: feasible */
-      for (int c = 0; c < k; c++) {
-        int i = P[c];
-        w[i] += alpha * (z[i] - w[i]);
-      }
-      w[q] = 0;
-      int kept = 0;
-      for (int c = 0; c < k; c++) {
-        int i = P[c];
-        if (w[i] > 0) {
-          P[kept++] = i;
-        } else {
-          w[i] = 0;
-          state[i] = AT_ZERO;
-        }
-      }
-      k = kept;
-      if (k == 0) break;
-      if (solve_passive(&s, P, k, z, false)) {
-        rc = -1;
-        goto done;
-      }
+    if (move_to_feasible(&s, P, &k, w, z, state)) {
+      rc = -1;
+      goto done;
     }
     for (int c = 0; c < k; c++) w[P[c]] = z[P[c]];
   }
