@@ -19,6 +19,7 @@
 
 #include "estimate.h"
 #include "interp.h"
+#include "scratch.h"
 
 static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
 static const char *qname(const Model *m, int q) { return ((Sym *)m->prog->quantities.v[q])->name; }
@@ -230,38 +231,26 @@ static double top_singular(const double *J, long my, long mq, double *G, double 
  * along v both ways, which holds the higher orders of the polynomial there. An estimate: J maps
  * B_q's span only (an error orthogonal to it is assumed to move the output as much as the worst
  * direction inside), and the second order is sampled along v. NaN with `why` on failure. */
-static double propagate(Reduced *r, int i, int q, double eq, char *why, size_t n) {
+static double propagation(Reduced *r, int i, int q, double eq, double *eye, double *J, double *G, double *vt,
+                          double *y0, char *why, size_t n) {
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
   long my = qm(m, rs->q), mq = qm(m, q), k = my < mq ? my : mq;
-  double *eye = calloc((size_t)(mq * mq) + 1, sizeof(double)), *J = malloc(sizeof(double) * (size_t)(my * mq + 1));
-  double *G = malloc(sizeof(double) * (size_t)(mq * mq + 1)), *vt = malloc(sizeof(double) * (size_t)(mq + 1));
-  double *y0 = calloc((size_t)(3 * my + mq) + 1, sizeof(double));
-  double out = NAN;
   char err[256] = "";
-  if (!eye || !J || !G || !vt || !y0) {
-    snprintf(why, n, "out of memory for the propagation of %s's error", qname(m, q));
-    goto done;
-  }
   for (long a = 0; a < mq; a++) eye[a * mq + a] = 1;
   const double *seed = eye;
-  if (reduced_stage_jvp(r, i, &(ReducedSeeds){1, &q, &seed, mq, false}, J, -1, ERR_OF(err, sizeof err))) {
-    snprintf(why, n, "the derivative in its input %s (whose error it propagates) failed: %.150s", qname(m, q), err);
-    goto done;
-  }
-  if (k == 0) {
-    out = 0;
-    goto done;
-  }
+  if (reduced_stage_jvp(r, i, &(ReducedSeeds){1, &q, &seed, mq, false}, J, -1, ERR_OF(err, sizeof err)))
+    return snprintf(why, n, "the derivative in its input %s (whose error it propagates) failed: %.150s", qname(m, q),
+                    err), NAN;
+  if (k == 0) return 0;
   double s1 = top_singular(J, my, mq, G, vt);
-  if (isnan(s1)) {
-    snprintf(why, n, "the largest singular value of its derivative in %s was not found (LAPACK)", qname(m, q));
-    goto done;
-  }
-  out = s1 * eq;
+  if (isnan(s1))
+    return snprintf(why, n, "the largest singular value of its derivative in %s was not found (LAPACK)", qname(m, q)),
+           NAN;
+  double out = s1 * eq;
   bool contractions = true;
   for (int t = 0; t < rs->nterms; t++) contractions = contractions && rs->terms[t].nops == 0;
-  if (!contractions || !(eq > 0)) goto done;
+  if (!contractions || !(eq > 0)) return out;
   double *y1 = y0 + my, *v = y0 + 2 * my, *save = y0 + 3 * my, *x = reduced_all_coords(r)[q];
   memcpy(save, x, sizeof(double) * (size_t)mq);
   stage_sum(r, i, y0, v, my); /* the base ŷ(x̂_q), by the same sum as the perturbed values */
@@ -272,8 +261,25 @@ static double propagate(Reduced *r, int i, int q, double eq, char *why, size_t n
     out = fmax(out, cblas_dnrm2((int)my, y1, 1));
   }
   memcpy(x, save, sizeof(double) * (size_t)mq);
-done:
-  free(eye), free(J), free(G), free(vt), free(y0);
+  return out;
+}
+
+/* propagation with its buffers, from a scratch released at its one exit. */
+static double propagate(Reduced *r, int i, int q, double eq, char *why, size_t n) {
+  const Model *m = reduced_model(r);
+  long my = qm(m, m->stages[i].q), mq = qm(m, q);
+  Scratch sc = SCRATCH_OF(NULL);
+  double *eye = scratch_array(&sc, (size_t)(mq * mq) + 1, sizeof(double));
+  double *J = scratch_array(&sc, (size_t)(my * mq) + 1, sizeof(double));
+  double *G = scratch_array(&sc, (size_t)(mq * mq) + 1, sizeof(double));
+  double *vt = scratch_array(&sc, (size_t)mq + 1, sizeof(double));
+  double *y0 = scratch_array(&sc, (size_t)(3 * my + mq) + 1, sizeof(double));
+  double out = NAN;
+  if (!eye || !J || !G || !vt || !y0)
+    snprintf(why, n, "out of memory for the propagation of %s's error", qname(m, q));
+  else
+    out = propagation(r, i, q, eq, eye, J, G, vt, y0, why, n);
+  scratch_release(&sc);
   return out;
 }
 
@@ -343,69 +349,64 @@ static void store(EstimateResult *e, Estimation *s, int q, double v, unsigned fl
  * one of diagonal operators whose terms have no tables): interp_check's sampled residual (exact,
  * flagged a bound, when its entries are all those the fit leaves out), plus the propagation of
  * its inputs' errors. */
-static void check_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) {
+static int check_figure(Reduced *r, int i, Estimation *s, double *est, unsigned *flags, char *why, size_t n) {
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
   const RInterp *ip = rs->interp ? rs->interp : rs->check, *ck = rs->interp ? rs->interp->check : NULL;
-  int q = rs->q;
-  unsigned flags = EST_BOUND;
-  char why[256] = "";
   InterpCheck ck_out = {NAN, false};
   for (long k = 0; k < ip->nreads + (ck ? ck->nreads : 0); k++)
-    if (note_input(s, k < ip->nreads ? ip->read_q[k] : ck->read_q[k - ip->nreads], &flags, why, sizeof why))
-      goto none;
-  double *work = malloc(sizeof(double) * interp_check_work_size(rs));
-  int rc = work ? interp_check(m, rs, reduced_all_coords(r), work, &ck_out, ERR_OF(why, sizeof why))
-                : (snprintf(why, sizeof why, "out of memory for the estimate"), -1);
-  free(work);
-  if (rc) goto none;
-  double est = ck_out.est;
-  if (!ck_out.exact) flags &= ~EST_BOUND;
-  if (add_propagation(s, i, &est, &flags, why, sizeof why)) goto none;
-  store(e, s, q, est, flags, NULL);
-  return;
-none:
-  store(e, s, q, NAN, flags, why);
+    if (note_input(s, k < ip->nreads ? ip->read_q[k] : ck->read_q[k - ip->nreads], flags, why, n)) return -1;
+  Scratch sc = SCRATCH_OF(NULL);
+  double *work = scratch_alloc(&sc, sizeof(double) * interp_check_work_size(rs));
+  int rc = work ? interp_check(m, rs, reduced_all_coords(r), work, &ck_out, ERR_OF(why, n))
+                : (snprintf(why, n, "out of memory for the estimate"), -1);
+  scratch_release(&sc);
+  if (rc) return -1;
+  *est = ck_out.est;
+  if (!ck_out.exact) *flags &= ~EST_BOUND;
+  return add_propagation(s, i, est, flags, why, n);
+}
+
+static void check_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) {
+  unsigned flags = EST_BOUND;
+  char why[256] = "";
+  double est = NAN;
+  int rc = check_figure(r, i, s, &est, &flags, why, sizeof why);
+  store(e, s, reduced_model(r)->stages[i].q, est, flags, rc ? why : NULL);
 }
 
 /* The estimate of stage number i into e (err, flags, why_q of its quantity). */
-static void stage_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) {
+static int stage_figure(Reduced *r, int i, Estimation *s, double *sump, unsigned *flagsp, char *why, size_t whylen) {
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
-  bool tables = true; /* every term has its residual's table (exact for contractions): else the check entries */
-  for (int t = 0; t < rs->nterms; t++) tables = tables && rs->terms[t].est_G;
-  if (rs->interp || (rs->check && !tables)) {
-    check_estimate(r, i, e, s);
-    return;
-  }
+  const EstimateResult *e = s->e;
   int q = rs->q;
   long my = qm(m, q), n = m->classes[m->qclass[q]].n;
-  char why[256] = "";
   double sum = 0;
   unsigned flags = EST_BOUND;
   for (int t = 0; t < rs->nterms; t++) {
     const RTerm *rt = &rs->terms[t];
-    if (!estimate_term_eligible(m, i, t, why, sizeof why)) goto none;
+    if (!estimate_term_eligible(m, i, t, why, whylen)) return *flagsp = flags, -1;
     if (!rt->est_G) {
       size_t bytes = estimate_term_bytes(m, i, t);
       if (bytes > ESTIMATE_MAX_BYTES)
-        snprintf(why, sizeof why, "term %d's residual table (%ld x %ld columns and their R) takes %.1f MiB, above the "
+        snprintf(why, whylen, "term %d's residual table (%ld x %ld columns and their R) takes %.1f MiB, above the "
                  "estimate tables' bound of %zu MiB (ESTIMATE_MAX_BYTES): smaller bases (--basis NAME:cap=N) fit it",
                  t + 1, m->classes[m->qclass[q]].n, estimate_term_dim(m, i, t), (double)bytes / 1048576.0,
                  ESTIMATE_MAX_BYTES >> 20);
       else
-        snprintf(why, sizeof why, "the model holds no estimate table for term %d (trained without one: see npgc train's "
+        snprintf(why, whylen, "the model holds no estimate table for term %d (trained without one: see npgc train's "
                  "report, or a model older than the estimates)", t + 1);
-      goto none;
+      return *flagsp = flags, -1;
     }
     RTERM_FOR_TENSORS(rt, x)
       for (int j = 0; j < x->nin; j++)
-        if (note_input(s, x->in_q[j], &flags, why, sizeof why)) goto none;
+        if (note_input(s, x->in_q[j], &flags, why, whylen)) return *flagsp = flags, -1;
     double carried = 0; /* a named numerator's own error */
     if (rt->named_q >= 0) {
       if (isnan(e->err[rt->named_q])) {
-        snprintf(why, sizeof why, "its numerator %s has no estimate", qname(m, rt->named_q));
-        goto none;
+        snprintf(why, whylen, "its numerator %s has no estimate", qname(m, rt->named_q));
+        return *flagsp = flags, -1;
       }
       carried = e->err[rt->named_q];
       flags |= e->flags[rt->named_q] & (EST_OUTSIDE | EST_ROUNDOFF);
@@ -415,8 +416,8 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) 
      * σ_min needs it, assembled below */
     if (rs->nterms == 1) memcpy(s->v, reduced_all_coords(r)[q], sizeof(double) * (size_t)my);
     else if (reduced_term(r, i, t, s->v, rt->nops ? s->M : NULL, -1)) {
-      snprintf(why, sizeof why, "term %d failed: %.200s", t + 1, reduced_error(r));
-      goto none;
+      snprintf(why, whylen, "term %d failed: %.200s", t + 1, reduced_error(r));
+      return *flagsp = flags, -1;
     }
     bool roundoff;
     double res = residual_norm(r, rt, n, my, s, &roundoff);
@@ -426,39 +427,53 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) 
       continue;
     }
     if (isnan(rt->est_sigma) && !(rt->est_theta && rt->est_theta_k > 0) && !m->classes[m->qclass[q]].product) {
-      snprintf(why, sizeof why, "no lower bound of σ_min of term %d's operator (singular at a training sample, or its rows "
+      snprintf(why, whylen, "no lower bound of σ_min of term %d's operator (singular at a training sample, or its rows "
                "exceed %d, the sparse limit in training)", t + 1, ESTIMATE_SPARSE_MAX);
-      goto none;
+      return *flagsp = flags, -1;
     }
     double sig = theta_bound(r, rt);
     if (m->classes[m->qclass[q]].product && !(sig > 0)) { /* no Euclidean σ_min to fall back on */
-      snprintf(why, sizeof why, "no coercivity bound of term %d's operator relative to %s %s", t + 1,
+      snprintf(why, whylen, "no coercivity bound of term %d's operator relative to %s %s", t + 1,
                m->classes[m->qclass[q]].product->name,
                rt->est_theta ? "at this input (an entry is not positive)" : "(training found its operator not affine "
                "in one input with semidefinite terms equal to the product at a positive input)");
-      goto none;
+      return *flagsp = flags, -1;
     }
     if (m->classes[m->qclass[q]].product && !isnan(rt->est_sigma))
       flags &= ~EST_BOUND; /* B's Dirichlet rows above roundoff: the bound's premise is not checked (estimate_product.c) */
     if (!(sig > 0)) {
       if (rs->nterms == 1 && reduced_term(r, i, t, NULL, s->M, -1)) {
-        snprintf(why, sizeof why, "term %d failed: %.200s", t + 1, reduced_error(r));
-        goto none;
+        snprintf(why, whylen, "term %d failed: %.200s", t + 1, reduced_error(r));
+        return *flagsp = flags, -1;
       }
       sig = rt->est_sigma * sigma_min(s->M, my, s);
       flags &= ~EST_BOUND; /* σ_min is estimated from the training samples */
     }
     if (!(sig > 0)) {
-      snprintf(why, sizeof why, "term %d's reduced operator has σ_min %.3g: no estimate", t + 1, sig);
-      goto none;
+      snprintf(why, whylen, "term %d's reduced operator has σ_min %.3g: no estimate", t + 1, sig);
+      return *flagsp = flags, -1;
     }
     sum += (res + carried) / sig;
   }
-  if (add_propagation(s, i, &sum, &flags, why, sizeof why)) goto none;
-  store(e, s, q, sum, flags, NULL);
-  return;
-none:
-  store(e, s, q, NAN, flags, why);
+  *flagsp = flags;
+  int rc = add_propagation(s, i, &sum, flagsp, why, whylen);
+  *sump = sum;
+  return rc;
+}
+
+static void stage_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) {
+  const RStage *rs = &reduced_model(r)->stages[i];
+  bool tables = true; /* every term has its residual's table (exact for contractions): else the check entries */
+  for (int t = 0; t < rs->nterms; t++) tables = tables && rs->terms[t].est_G;
+  if (rs->interp || (rs->check && !tables)) {
+    check_estimate(r, i, e, s);
+    return;
+  }
+  char why[256] = "";
+  double sum = 0;
+  unsigned flags = EST_BOUND;
+  int rc = stage_figure(r, i, s, &sum, &flags, why, sizeof why);
+  store(e, s, rs->q, sum, flags, rc ? why : NULL);
 }
 
 int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
@@ -476,15 +491,16 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
       maxD = m->stages[i].terms[t].est_D > maxD ? m->stages[i].terms[t].est_D : maxD;
   Estimation s = {.r = r, .e = e};
   s.svlen = maxm + 5 * maxm + 64;
-  s.z = malloc(sizeof(double) * (size_t)maxD);
-  s.Gz = malloc(sizeof(double) * (size_t)(maxD > maxcols ? maxD : maxcols));
-  s.v = malloc(sizeof(double) * (size_t)maxm);
-  s.M = malloc(sizeof(double) * (size_t)(maxm * maxm));
-  s.M2 = malloc(sizeof(double) * (size_t)(maxm * maxm));
-  s.sv = malloc(sizeof(double) * (size_t)s.svlen);
-  s.pack = malloc(sizeof(double) * (size_t)maxpack);
-  s.carry = calloc((size_t)m->nq + 1, sizeof(bool));
-  s.carried = malloc(sizeof(int) * ((size_t)m->nq + 1));
+  Scratch sc = SCRATCH_OF(NULL);
+  s.z = scratch_array(&sc, (size_t)maxD, sizeof(double));
+  s.Gz = scratch_array(&sc, (size_t)(maxD > maxcols ? maxD : maxcols), sizeof(double));
+  s.v = scratch_array(&sc, (size_t)maxm, sizeof(double));
+  s.M = scratch_array(&sc, (size_t)(maxm * maxm), sizeof(double));
+  s.M2 = scratch_array(&sc, (size_t)(maxm * maxm), sizeof(double));
+  s.sv = scratch_array(&sc, (size_t)s.svlen, sizeof(double));
+  s.pack = scratch_array(&sc, (size_t)maxpack, sizeof(double));
+  s.carry = scratch_array(&sc, (size_t)m->nq + 1, sizeof(bool));
+  s.carried = scratch_array(&sc, (size_t)m->nq + 1, sizeof(int));
   int rc = s.z && s.Gz && s.v && s.M && s.M2 && s.sv && s.pack && s.carry && s.carried ? 0 : -1;
   e->why[0] = 0;
   /* m-sized LAPACK and D-sized BLAS: OpenBLAS's second thread only costs here (as in reduced.c) */
@@ -509,7 +525,7 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
     if (isnan(e->err[q]) && !e->why[0]) snprintf(e->why, sizeof e->why, "%s: %s", qname(m, q), e->why_q[q]);
   }
   if (threads > 1) openblas_set_num_threads(threads);
-  free(s.z), free(s.Gz), free(s.v), free(s.M), free(s.M2), free(s.sv), free(s.pack), free(s.carry), free(s.carried);
+  scratch_release(&sc);
   return rc;
 }
 

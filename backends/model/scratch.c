@@ -1,0 +1,28 @@
+/* scratch.c — the temporary memory of one model-layer operation (scratch.h): a block per
+ * allocation (so the sanitizers see each buffer's bounds), chained and freed at once. */
+#include "scratch.h"
+
+#include <stdlib.h>
+
+struct ScratchBlock {
+  ScratchBlock *next;
+  max_align_t data[];
+};
+
+void *scratch_alloc(Scratch *s, size_t bytes) {
+  ScratchBlock *b = bytes <= (size_t)-1 - sizeof *b ? mem_calloc(1, sizeof *b + bytes) : NULL;
+  if (!b) return err_set(s->err, "out of memory (%zu bytes of scratch)", bytes), NULL;
+  b->next = s->head, s->head = b;
+  return b->data;
+}
+
+void *scratch_array(Scratch *s, size_t count, size_t size) {
+  size_t n;
+  if (__builtin_mul_overflow(count, size, &n)) return err_set(s->err, "out of memory (%zu x %zu bytes of scratch)", count, size), NULL;
+  return scratch_alloc(s, n);
+}
+
+void scratch_release(Scratch *s) {
+  for (ScratchBlock *b = s->head, *next; b; b = next) next = b->next, free(b);
+  s->head = NULL;
+}

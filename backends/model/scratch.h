@@ -1,0 +1,30 @@
+/* scratch.h — the temporary memory of one operation of the model layer (issue 39, STYLE:
+ * "scratch arenas per stage, no scattered free"): a load, an estimate, a derivative sweep,
+ * a JIT build takes its buffers from a Scratch and releases them all at its one exit, so no
+ * error path frees by hand. What the operation returns (a Model, a Reduced) is not scratch:
+ * it keeps its own free function, called once on a half-built object. */
+#ifndef NPG_SCRATCH_H
+#define NPG_SCRATCH_H
+
+#include <stddef.h>
+
+#include "context.h" /* Err */
+
+typedef struct ScratchBlock ScratchBlock;
+typedef struct Scratch {
+  ScratchBlock *head; /* every block given out, newest first */
+  Err *err;           /* where "out of memory" goes (NULL: dropped) */
+} Scratch;
+
+/* An empty scratch whose failures are reported in `err`. */
+#define SCRATCH_OF(e) ((Scratch){NULL, (e)})
+
+/* `bytes` of zeroed memory (through the allocation hook, alloc.h) that lives until
+ * scratch_release; NULL with "out of memory" in the scratch's error record. */
+void *scratch_alloc(Scratch *s, size_t bytes);
+/* `count` elements of `size` bytes: scratch_alloc's, the product checked for overflow. */
+void *scratch_array(Scratch *s, size_t count, size_t size);
+/* Frees every block of the scratch; it is empty again. */
+void scratch_release(Scratch *s);
+
+#endif

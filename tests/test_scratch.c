@@ -1,0 +1,83 @@
+/* test_scratch.c — backends/model/scratch.c: a model-layer operation's temporary memory.
+ * Blocks are zeroed and distinct, a refused allocation is NULL with "out of memory" in the
+ * scratch's error record (the blocks before it still released), an overflowing size is
+ * refused without an allocation, and release empties the scratch (the sanitizers' leak check
+ * is the oracle that it freed every block). */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "support/failing_alloc.h"
+#include "scratch.h"
+
+static int teardown(void **state) {
+  (void)state;
+  failing_alloc_off();
+  return 0;
+}
+
+static void zeroed_and_distinct(void **state) {
+  (void)state;
+  Scratch sc = SCRATCH_OF(NULL);
+  unsigned char *p[8];
+  for (int k = 0; k < 8; k++) {
+    size_t n = (size_t)1 << (2 * k);
+    p[k] = scratch_alloc(&sc, n);
+    assert_non_null(p[k]);
+    assert_int_equal((uintptr_t)p[k] % _Alignof(max_align_t), 0);
+    for (size_t j = 0; j < n; j++) assert_int_equal(p[k][j], 0);
+    memset(p[k], 0xa0 + k, n);
+  }
+  for (int k = 0; k < 8; k++) /* no block overwrote another */
+    for (size_t j = 0; j < ((size_t)1 << (2 * k)); j++) assert_int_equal(p[k][j], 0xa0 + k);
+  double *d = scratch_array(&sc, 100, sizeof(double));
+  assert_non_null(d);
+  assert_true(d[99] == 0);
+  scratch_release(&sc);
+  assert_null(sc.head);
+  assert_non_null(scratch_alloc(&sc, 0)); /* usable again, and a zero size is a block too */
+  scratch_release(&sc);
+}
+
+static void refused(void **state) {
+  (void)state;
+  char msg[128] = "";
+  Scratch sc = SCRATCH_OF(ERR_OF(msg, sizeof msg));
+  failing_alloc_after(2);
+  assert_non_null(scratch_alloc(&sc, 16));
+  assert_non_null(scratch_array(&sc, 4, 8));
+  assert_null(scratch_alloc(&sc, 24));
+  failing_alloc_off();
+  assert_non_null(strstr(msg, "out of memory"));
+  assert_non_null(strstr(msg, "24 bytes"));
+  scratch_release(&sc);
+  assert_null(sc.head);
+}
+
+static void overflow(void **state) {
+  (void)state;
+  char msg[128] = "";
+  Scratch sc = SCRATCH_OF(ERR_OF(msg, sizeof msg));
+  failing_alloc_after(0); /* an overflowing size must not reach the allocator at all */
+  assert_null(scratch_array(&sc, SIZE_MAX / 2, 4));
+  assert_null(scratch_alloc(&sc, SIZE_MAX - 4));
+  assert_int_equal(failing_alloc_calls(), 0);
+  failing_alloc_off();
+  assert_non_null(strstr(msg, "out of memory"));
+  Scratch quiet = SCRATCH_OF(NULL); /* no record: the message is dropped, NULL still returned */
+  assert_null(scratch_array(&quiet, SIZE_MAX, SIZE_MAX));
+  scratch_release(&sc);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test_teardown(zeroed_and_distinct, teardown),
+      cmocka_unit_test_teardown(refused, teardown),
+      cmocka_unit_test_teardown(overflow, teardown),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
