@@ -29,6 +29,7 @@
 
 #include "model_store_impl.h"
 #include "alloc.h" /* mem_malloc: allocation through the hook */
+#include "scratch.h"
 
 /* ---------------------------------------------------------------- directories */
 
@@ -483,51 +484,21 @@ __attribute__((format(printf, 2, 3))) static void append(Err *err, const char *f
   va_end(ap);
 }
 
-int model_store_write(const char *dir_arg, const ModelStore *m, Err *err) {
-  StoreReport r = {err};
-  if (err_held(err)) err->msg[0] = '\0';
-  if (!dir_arg || !*dir_arg) return model_store_fail(&r, "(model directory)", 0, "the directory name is empty");
-  char *dir = model_store_normalize_dir(dir_arg);
-  long pid = (long)getpid();
-  char *tmp = dir ? model_store_printf("%s.tmp.%ld", dir, pid) : NULL;
-  char *old = dir ? model_store_printf("%s.old.%ld", dir, pid) : NULL;
-  char *parent = dir ? parent_of(dir) : NULL;
-  int exists = 0, rc = 0, swapping = 0;
-  if (!dir || !tmp || !old || !parent) {
-    rc = model_store_fail(&r, dir_arg, 0, "out of memory");
-    goto done;
-  }
-  model_store_recover(dir, 1);
-  /* Everything that can be refused is refused before anything is written. */
-  if (check_store(&r, dir, m) || check_replaceable(&r, dir, &exists) || remove_stale(&r, tmp) ||
-      remove_stale(&r, old)) {
-    rc = -1;
-    goto done;
-  }
-  if (mkdir(tmp, 0777) != 0) {
-    rc = model_store_fail(&r, dir, 0, "cannot create the model's temporary directory %s: %s", tmp, strerror(errno));
-    goto done;
-  }
-  if (mark(&r, tmp, 1) != 0) {
-    rmdir(tmp);
-    rc = -1;
-    goto done;
-  }
-  arm(tmp, m);
-  if (write_contents(&r, tmp, m) != 0) {
-    disarm();
-    rc = -1;
-    goto discard;
-  }
-  test_point("manifest");
-  disarm();
+/* The paths of one write: the model's directory, its temporary and set-aside names, its parent. */
+typedef struct StorePaths {
+  const char *dir, *tmp, *old, *parent;
+} StorePaths;
+
+/* The swap of the complete model in `tmp` into p->dir, whose previous model (`exists`) is
+ * removed after it. -1 on failure with *discard when `tmp` holds only our files, to be removed
+ * (else it is kept: it holds a model the message names). */
+static int swap_in(const StoreReport *r, const StorePaths *p, int exists, bool *discard) {
+  const char *dir = p->dir, *tmp = p->tmp, *old = p->old;
+  Err *err = r->err;
+  *discard = true;
   /* the previous model will be set aside (renamed or exchanged into `tmp`):
    * marked first, so that a crash leaves it removable */
-  swapping = 1;
-  if (exists && mark(&r, dir, 1) != 0) {
-    rc = -1;
-    goto discard;
-  }
+  if (exists && mark(r, dir, 1) != 0) return -1;
   /* The swap: one atomic exchange where the file system has it (the old
    * model is then in `tmp`); otherwise two renames, between which `dir` is
    * briefly absent, never half written — a crash there leaves both models
@@ -535,24 +506,20 @@ int model_store_write(const char *dir_arg, const ModelStore *m, Err *err) {
   bool moved = false;
   if (!exists) {
     if (rename(tmp, dir) == 0) moved = true;
-    else if (errno != ENOTEMPTY && errno != EEXIST) {
-      rc = model_store_fail(&r, dir, 0, "cannot move the new model in from %s: %s", tmp, strerror(errno));
-      goto discard;
-    } else if (check_replaceable(&r, dir, &exists) != 0 || !exists || mark(&r, dir, 1) != 0) {
+    else if (errno != ENOTEMPTY && errno != EEXIST)
+      return model_store_fail(r, dir, 0, "cannot move the new model in from %s: %s", tmp, strerror(errno));
+    else if (check_replaceable(r, dir, &exists) != 0 || !exists || mark(r, dir, 1) != 0) {
       /* issue 24: this said "Directory not empty" */
       append(err, " (it appeared while this model was being written: another training of the same model at once?)");
-      rc = -1;
-      goto discard;
+      return -1;
     }
     /* else another process wrote a model to `dir` while this one wrote its
      * own (two trainings of one model at once): it is replaced like any
      * model, the last one written wins */
   }
   if (!moved && !getenv("NPG_TEST_NO_EXCHANGE") && renameat2(AT_FDCWD, tmp, AT_FDCWD, dir, RENAME_EXCHANGE) == 0) {
-    if (sync_dir(&r, parent) != 0) { /* as below: keep both */
-      rc = -1;
-      goto done;
-    }
+    *discard = false;
+    if (sync_dir(r, p->parent) != 0) return -1; /* as below: keep both */
     test_point("cleanup");
     char ignored[16];
     StoreReport quiet = {ERR_OF(ignored, sizeof ignored)};
@@ -562,56 +529,77 @@ int model_store_write(const char *dir_arg, const ModelStore *m, Err *err) {
      * between our mark and the exchange (seen in CI: the previous model was
      * then refused as "not made by npg's model store") */
     if (mark(&quiet, tmp, 1) != 0 || remove_store_dir(&quiet, tmp) != 0)
-      rc = model_store_fail(&r, tmp, 0, "the new model in %s is complete, but the previous one could not be removed from here",
-                dir);
-    goto done;
+      return model_store_fail(r, tmp, 0, "the new model in %s is complete, but the previous one could not be removed from here",
+                              dir);
+    return 0;
   }
-  if (!moved && exists && rename(dir, old) != 0) {
-    rc = model_store_fail(&r, dir, 0, "cannot move the previous model aside to %s: %s", old, strerror(errno));
-    goto discard;
-  }
+  if (!moved && exists && rename(dir, old) != 0)
+    return model_store_fail(r, dir, 0, "cannot move the previous model aside to %s: %s", old, strerror(errno));
   if (exists) test_point("swap");
   if (!moved && rename(tmp, dir) != 0) {
-    rc = model_store_fail(&r, dir, 0, "cannot move the new model in from %s: %s", tmp, strerror(errno));
+    int rc = model_store_fail(r, dir, 0, "cannot move the new model in from %s: %s", tmp, strerror(errno));
     if (exists && rename(old, dir) != 0) {
-      model_store_fail(&r, dir, 0, "cannot move the new model in from %s, nor the previous one back from %s: %s", tmp, old,
-           strerror(errno));
-      goto done; /* keep `tmp`: the message names both copies */
+      *discard = false; /* keep `tmp`: the message names both copies */
+      return model_store_fail(r, dir, 0, "cannot move the new model in from %s, nor the previous one back from %s: %s", tmp,
+                              old, strerror(errno));
     }
-    goto discard;
+    return rc;
   }
+  *discard = false;
   /* Until the parent is synced the swap may not survive a crash, so the
    * previous model is kept if that fails. */
-  if (sync_dir(&r, parent) != 0) {
+  if (sync_dir(r, p->parent) != 0) {
     append(err, " (the new model is in %s%s%s)", dir, exists ? "; the previous one is kept in " : "", exists ? old : "");
-    rc = -1;
-    goto done;
+    return -1;
   }
   if (exists) test_point("cleanup");
-  if (exists && (mark(&r, old, 1) != 0 || remove_store_dir(&r, old) != 0)) { /* marked again: as above */
+  if (exists && (mark(r, old, 1) != 0 || remove_store_dir(r, old) != 0)) { /* marked again: as above */
     append(err, " (the new model in %s is complete; remove %s by hand)", dir, old);
-    rc = -1;
+    return -1;
   }
-  goto done;
-discard:
+  return 0;
+}
+
+/* model_store_write once its paths are made: refusals first, then the contents into `tmp`
+ * and the swap. */
+static int write_store(const StoreReport *r, const StorePaths *p, const ModelStore *m) {
+  int exists = 0;
+  model_store_recover(p->dir, 1);
+  /* Everything that can be refused is refused before anything is written. */
+  if (check_store(r, p->dir, m) || check_replaceable(r, p->dir, &exists) || remove_stale(r, p->tmp) ||
+      remove_stale(r, p->old))
+    return -1;
+  if (mkdir(p->tmp, 0777) != 0)
+    return model_store_fail(r, p->dir, 0, "cannot create the model's temporary directory %s: %s", p->tmp, strerror(errno));
+  if (mark(r, p->tmp, 1) != 0) return rmdir(p->tmp), -1;
+  arm(p->tmp, m);
+  int written = write_contents(r, p->tmp, m);
+  if (written == 0) test_point("manifest");
+  disarm();
+  bool discard = true;
+  int rc = written == 0 ? swap_in(r, p, exists, &discard) : -1;
+  char ignored[16];
+  StoreReport quiet = {ERR_OF(ignored, sizeof ignored)};
   /* The temporary directory holds only our files; its removal cannot make
    * things worse, and its message is less useful than the first one. */
-  {
-    char ignored[16];
-    StoreReport quiet = {ERR_OF(ignored, sizeof ignored)};
-    remove_store_dir(&quiet, tmp);
-  }
-done:
+  if (rc != 0 && discard) remove_store_dir(&quiet, p->tmp);
   /* whichever model `dir` holds now is kept: not a leftover */
-  if (swapping) {
-    char ignored[16];
-    StoreReport quiet = {ERR_OF(ignored, sizeof ignored)};
-    mark(&quiet, dir, 0);
-  }
-  free(dir);
-  free(tmp);
-  free(old);
-  free(parent);
+  if (written == 0) mark(&quiet, p->dir, 0);
   return rc;
 }
 
+int model_store_write(const char *dir_arg, const ModelStore *m, Err *err) {
+  StoreReport r = {err};
+  if (err_held(err)) err->msg[0] = '\0';
+  if (!dir_arg || !*dir_arg) return model_store_fail(&r, "(model directory)", 0, "the directory name is empty");
+  Scratch sc = SCRATCH_OF(NULL);
+  const char *dir = scratch_adopt(&sc, model_store_normalize_dir(dir_arg));
+  long pid = (long)getpid();
+  StorePaths p = {dir, dir ? scratch_adopt(&sc, model_store_printf("%s.tmp.%ld", dir, pid)) : NULL,
+                  dir ? scratch_adopt(&sc, model_store_printf("%s.old.%ld", dir, pid)) : NULL,
+                  dir ? scratch_adopt(&sc, parent_of(dir)) : NULL};
+  int rc = p.dir && p.tmp && p.old && p.parent ? write_store(&r, &p, m)
+                                               : model_store_fail(&r, dir_arg, 0, "out of memory");
+  scratch_release(&sc);
+  return rc;
+}

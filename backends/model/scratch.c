@@ -6,6 +6,7 @@
 
 struct ScratchBlock {
   ScratchBlock *next;
+  void *adopted; /* a block made elsewhere and given to the scratch (scratch_adopt), or NULL */
   max_align_t data[];
 };
 
@@ -22,7 +23,16 @@ void *scratch_array(Scratch *s, size_t count, size_t size) {
   return scratch_alloc(s, n);
 }
 
+void *scratch_adopt(Scratch *s, void *p) {
+  if (!p) return NULL;
+  ScratchBlock *b = mem_calloc(1, sizeof *b);
+  if (!b) return free(p), err_set(s->err, "out of memory (scratch)"), NULL;
+  b->adopted = p;
+  b->next = s->head, s->head = b;
+  return p;
+}
+
 void scratch_release(Scratch *s) {
-  for (ScratchBlock *b = s->head, *next; b; b = next) next = b->next, free(b);
+  for (ScratchBlock *b = s->head, *next; b; b = next) next = b->next, free(b->adopted), free(b);
   s->head = NULL;
 }

@@ -24,6 +24,10 @@ typedef struct Scratch {
 void *scratch_alloc(Scratch *s, size_t bytes);
 /* `count` elements of `size` bytes: scratch_alloc's, the product checked for overflow. */
 void *scratch_array(Scratch *s, size_t count, size_t size);
+/* `p`, memory from the allocation hook (a string a helper built, say), made the scratch's:
+ * freed by scratch_release. NULL when `p` is NULL (a failure its maker reported), or, with
+ * "out of memory", when the scratch cannot hold it (`p` is freed then). */
+void *scratch_adopt(Scratch *s, void *p);
 /* Frees every block of the scratch; it is empty again. */
 void scratch_release(Scratch *s);
 
