@@ -77,9 +77,109 @@ static char *class_label(const BasisClass *bc) {
   return s;
 }
 
+static int layout_oom(Err *err) { return err_set(err, "out of memory while laying out the reduced model"); }
+static int layout_nobasis(Err *err) { return err_set(err, "a tensor reads a quantity without a basis (a bug in npg)"); }
+
+/* The classes of the layout: their labels, sizes and members. -1 with `err`. */
+static int layout_classes(Model *m, Program *prog, const long *dims, Err *err) {
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    const BasisClass *bc = prog->classes.v[c];
+    rc->bc = bc;
+    rc->product = bc->product;
+    if (!(rc->label = class_label(bc))) return layout_oom(err);
+    rc->n = quantity_count(prog, dims, bc->members.v[0]);
+    rc->nmembers = bc->members.n + bc->joiners.n;
+    if (!(rc->members = mem_calloc((size_t)rc->nmembers, sizeof(RMember)))) return layout_oom(err);
+    for (int i = 0; i < bc->members.n; i++) {
+      const Sym *s = bc->members.v[i];
+      rc->members[i].q = vec_position(&prog->quantities, s);
+      if (!(rc->members[i].name = mem_strdup(s->name))) return layout_oom(err);
+      if (quantity_count(prog, dims, s) != rc->n)
+        return err_set(err, "class %s: '%s' has %ld entries but '%s' has %ld", rc->label, s->name,
+                       quantity_count(prog, dims, s), ((Sym *)bc->members.v[0])->name, rc->n);
+    }
+    for (int j = 0; j < bc->joiners.n; j++) {
+      const Joiner *jn = bc->joiners.v[j];
+      RMember *mb = &rc->members[bc->members.n + j];
+      mb->q = -1;
+      mb->joiner = jn;
+      if (!(mb->name = dupf("%s.num%d", jn->stage->sym->name, jn->term + 1))) return layout_oom(err);
+    }
+  }
+  return 0;
+}
+
+/* Term t of stage st (whose quantity is rs->q) into rt: its numerator and operators' tensors. -1 with `err`. */
+static int layout_term(Model *m, Program *prog, const Stage *st, const RStage *rs, int t, RTerm *rt, Err *err) {
+  const Term *tm = st->terms[t];
+  const char *sn = st->sym->name;
+  rt->term = tm;
+  rt->named_q = -1;
+  if (tm->named_num) {
+    rt->named_q = vec_position(&prog->quantities, tm->named_num);
+    if (m->qclass[rt->named_q] != m->qclass[rs->q] && !(rt->proj_name = file_stem(dupf("proj_%s_t%d", sn, t))))
+      return layout_oom(err);
+  } else {
+    rt->nnum = tm->num_tensors.n;
+    if (!(rt->num = mem_calloc((size_t)rt->nnum + 1, sizeof(RTensor)))) return layout_oom(err);
+    for (int g = 0; g < rt->nnum; g++) {
+      RTensor *rtn = &rt->num[g];
+      rtn->kind = RT_NUM;
+      if (!tensor_inputs(prog, &tm->num_tensors.g[g], rtn)) return layout_nobasis(err);
+      rtn->name = file_stem(dupf("t_%s_t%d_f0_g%d", sn, t, g));
+      rtn->builder = mem_strdup(emit_builder_name(prog->ctx, prog, st, t, 0, g, NULL));
+      if (!rtn->name || !rtn->builder) return layout_oom(err);
+    }
+  }
+  rt->nops = tm->nops;
+  if (!(rt->ops = mem_calloc((size_t)tm->nops + 1, sizeof(ROp)))) return layout_oom(err);
+  for (int k = 0; k < tm->nops; k++) {
+    ROp *ro = &rt->ops[k];
+    const OpPow *op = &tm->ops[k];
+    ro->op = op;
+    const TensorList *tl = op->kind == OPK_DIAG ? &tm->op_tensors[k] : &op->op->opdef->tensors;
+    ro->ntensors = tl->n;
+    if (!(ro->t = mem_calloc((size_t)tl->n + 1, sizeof(RTensor)))) return layout_oom(err);
+    for (int g = 0; g < tl->n; g++) {
+      RTensor *rtn = &ro->t[g];
+      rtn->kind = op->kind == OPK_DIAG ? RT_DIAG : RT_DECL;
+      if (!tensor_inputs(prog, &tl->g[g], rtn)) return layout_nobasis(err);
+      rtn->name = file_stem(dupf("t_%s_t%d_op%d_g%d", sn, t, k + 1, g));
+      rtn->builder = mem_strdup(op->kind == OPK_DIAG ? emit_builder_name(prog->ctx, prog, st, t, k + 1, g, NULL)
+                                                 : emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op));
+      if (!rtn->name || !rtn->builder) return layout_oom(err);
+    }
+  }
+  return 0;
+}
+
+/* The stages of the layout: their quantities, externs' inputs, terms. -1 with `err`. */
+static int layout_stages(Model *m, Program *prog, Err *err) {
+  for (int i = 0; i < m->nstages; i++) {
+    RStage *rs = &m->stages[i];
+    const Stage *st = prog->stages.v[i];
+    rs->st = st;
+    rs->q = vec_position(&prog->quantities, st->sym);
+    if (rs->q < 0) return err_set(err, "stage '%s' has no basis (a bug in npg)", st->sym->name);
+    if (st->kind == ST_EXTERN) {
+      RExtern *x = &m->externs[m->nexterns++];
+      x->q = rs->q;
+      for (int k = 0; k < st->sym->nof && x->nin < RT_MAX_IN; k++)
+        x->in_q[x->nin++] = vec_position(&prog->quantities, st->sym->of[k]);
+      continue;
+    }
+    rs->nterms = st->nterms;
+    if (!(rs->terms = mem_calloc((size_t)st->nterms + 1, sizeof(RTerm)))) return layout_oom(err);
+    for (int t = 0; t < st->nterms; t++)
+      if (layout_term(m, prog, st, rs, t, &rs->terms[t], err)) return -1;
+  }
+  return 0;
+}
+
 Model *model_layout(Program *prog, const long *dims, Err *err) {
   Model *m = mem_calloc(1, sizeof *m);
-  if (!m) goto oom;
+  if (!m) return layout_oom(err), NULL;
   m->prog = prog;
   m->program_hash = model_program_hash(prog);
   m->ndims = prog->dims.n;
@@ -91,109 +191,14 @@ Model *model_layout(Program *prog, const long *dims, Err *err) {
   m->nstages = prog->stages.n;
   m->stages = mem_calloc((size_t)m->nstages + 1, sizeof(RStage));
   m->externs = mem_calloc((size_t)prog->externs.n + 1, sizeof(RExtern));
-  if (!m->dims || !m->qclass || !m->classes || !m->stages || !m->externs) goto oom;
-  for (int i = 0; i < m->ndims; i++) m->dims[i] = dims[i];
-  for (int q = 0; q < m->nq; q++) m->qclass[q] = ((Sym *)prog->quantities.v[q])->klass;
-
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    const BasisClass *bc = prog->classes.v[c];
-    rc->bc = bc;
-    rc->product = bc->product;
-    if (!(rc->label = class_label(bc))) goto oom;
-    rc->n = quantity_count(prog, dims, bc->members.v[0]);
-    rc->nmembers = bc->members.n + bc->joiners.n;
-    if (!(rc->members = mem_calloc((size_t)rc->nmembers, sizeof(RMember)))) goto oom;
-    for (int i = 0; i < bc->members.n; i++) {
-      const Sym *s = bc->members.v[i];
-      rc->members[i].q = vec_position(&prog->quantities, s);
-      if (!(rc->members[i].name = mem_strdup(s->name))) goto oom;
-      if (quantity_count(prog, dims, s) != rc->n) {
-        err_set(err, "class %s: '%s' has %ld entries but '%s' has %ld", rc->label, s->name,
-                quantity_count(prog, dims, s), ((Sym *)bc->members.v[0])->name, rc->n);
-        model_free(m);
-        return NULL;
-      }
-    }
-    for (int j = 0; j < bc->joiners.n; j++) {
-      const Joiner *jn = bc->joiners.v[j];
-      RMember *mb = &rc->members[bc->members.n + j];
-      mb->q = -1;
-      mb->joiner = jn;
-      if (!(mb->name = dupf("%s.num%d", jn->stage->sym->name, jn->term + 1))) goto oom;
-    }
+  int rc = m->dims && m->qclass && m->classes && m->stages && m->externs ? 0 : layout_oom(err);
+  if (rc == 0) {
+    for (int i = 0; i < m->ndims; i++) m->dims[i] = dims[i];
+    for (int q = 0; q < m->nq; q++) m->qclass[q] = ((Sym *)prog->quantities.v[q])->klass;
+    rc = layout_classes(m, prog, dims, err) || layout_stages(m, prog, err) ? -1 : 0;
   }
-
-  for (int i = 0; i < m->nstages; i++) {
-    RStage *rs = &m->stages[i];
-    const Stage *st = prog->stages.v[i];
-    rs->st = st;
-    rs->q = vec_position(&prog->quantities, st->sym);
-    if (rs->q < 0) {
-      err_set(err, "stage '%s' has no basis (a bug in npg)", st->sym->name);
-      model_free(m);
-      return NULL;
-    }
-    if (st->kind == ST_EXTERN) {
-      RExtern *x = &m->externs[m->nexterns++];
-      x->q = rs->q;
-      for (int k = 0; k < st->sym->nof && x->nin < RT_MAX_IN; k++)
-        x->in_q[x->nin++] = vec_position(&prog->quantities, st->sym->of[k]);
-      continue;
-    }
-    rs->nterms = st->nterms;
-    if (!(rs->terms = mem_calloc((size_t)st->nterms + 1, sizeof(RTerm)))) goto oom;
-    const char *sn = st->sym->name;
-    for (int t = 0; t < st->nterms; t++) {
-      const Term *tm = st->terms[t];
-      RTerm *rt = &rs->terms[t];
-      rt->term = tm;
-      rt->named_q = -1;
-      if (tm->named_num) {
-        rt->named_q = vec_position(&prog->quantities, tm->named_num);
-        if (m->qclass[rt->named_q] != m->qclass[rs->q] && !(rt->proj_name = file_stem(dupf("proj_%s_t%d", sn, t))))
-          goto oom;
-      } else {
-        rt->nnum = tm->num_tensors.n;
-        if (!(rt->num = mem_calloc((size_t)rt->nnum + 1, sizeof(RTensor)))) goto oom;
-        for (int g = 0; g < rt->nnum; g++) {
-          RTensor *rtn = &rt->num[g];
-          rtn->kind = RT_NUM;
-          if (!tensor_inputs(prog, &tm->num_tensors.g[g], rtn)) goto nobasis;
-          rtn->name = file_stem(dupf("t_%s_t%d_f0_g%d", sn, t, g));
-          rtn->builder = mem_strdup(emit_builder_name(prog->ctx, prog, st, t, 0, g, NULL));
-          if (!rtn->name || !rtn->builder) goto oom;
-        }
-      }
-      rt->nops = tm->nops;
-      if (!(rt->ops = mem_calloc((size_t)tm->nops + 1, sizeof(ROp)))) goto oom;
-      for (int k = 0; k < tm->nops; k++) {
-        ROp *ro = &rt->ops[k];
-        const OpPow *op = &tm->ops[k];
-        ro->op = op;
-        const TensorList *tl = op->kind == OPK_DIAG ? &tm->op_tensors[k] : &op->op->opdef->tensors;
-        ro->ntensors = tl->n;
-        if (!(ro->t = mem_calloc((size_t)tl->n + 1, sizeof(RTensor)))) goto oom;
-        for (int g = 0; g < tl->n; g++) {
-          RTensor *rtn = &ro->t[g];
-          rtn->kind = op->kind == OPK_DIAG ? RT_DIAG : RT_DECL;
-          if (!tensor_inputs(prog, &tl->g[g], rtn)) goto nobasis;
-          rtn->name = file_stem(dupf("t_%s_t%d_op%d_g%d", sn, t, k + 1, g));
-          rtn->builder = mem_strdup(op->kind == OPK_DIAG ? emit_builder_name(prog->ctx, prog, st, t, k + 1, g, NULL)
-                                                     : emit_builder_name(prog->ctx, prog, NULL, 0, 0, g, op->op));
-          if (!rtn->name || !rtn->builder) goto oom;
-        }
-      }
-    }
-  }
-  return m;
-nobasis:
-  err_set(err, "a tensor reads a quantity without a basis (a bug in npg)");
-  model_free(m);
-  return NULL;
-oom:
-  err_set(err, "out of memory while laying out the reduced model");
-  model_free(m);
+  if (rc == 0) return m;
+  model_free(m); /* the half-built model, once */
   return NULL;
 }
 
