@@ -43,6 +43,7 @@
 
 #include "interp.h"
 #include "reduced.h"
+#include "scratch.h"
 
 typedef struct Deriv {
   const Model *m;
@@ -187,28 +188,26 @@ static int contract_into(const RTensor *t, const double *const *z, double *out) 
 }
 
 /* P (rows x L_j): T contracted with every packed input but z_j, into *P:
- * the tensor itself when j is its only axis (nothing copied), else a new
- * array (*owned, freed by the caller). The axes after j by dgemv from the
+ * the tensor itself when j is its only axis (nothing copied), else an
+ * array of the caller's scratch `sc`. The axes after j by dgemv from the
  * last; those before j row by row against z_1 ⊗ … ⊗ z_{j-1}. */
-static int contract_but(const RTensor *t, int j, const double *const *z, const double **P, double **owned) {
+static int contract_but(const RTensor *t, int j, const double *const *z, const double **P, Scratch *sc) {
   long before = 1, upto = t->rows, Lj = t->in_len[j];
   for (int i = 0; i < j; i++) before *= t->in_len[i];
   for (int i = 0; i <= j; i++) upto *= t->in_len[i];
-  *owned = NULL;
   if (j == t->nin - 1 && before == 1) {
     *P = t->data;
     return 0;
   }
   long lead = upto; /* the first trailing step's rows */
   for (int i = j + 1; i + 1 < t->nin; i++) lead *= t->in_len[i];
-  double *buf[2] = {NULL, NULL}, *kron = NULL, *out = NULL;
-  int rc = -1;
-  if (j < t->nin - 1 && (!(buf[0] = mem_malloc(sizeof(double) * (size_t)(lead + 1))) ||
-                         !(buf[1] = mem_malloc(sizeof(double) * (size_t)(lead + 1)))))
-    goto done;
-  if (!(kron = mem_malloc(sizeof(double) * (size_t)(before + 1))) ||
-      !(out = mem_malloc(sizeof(double) * (size_t)(t->rows * Lj + 1))))
-    goto done;
+  double *buf[2] = {NULL, NULL};
+  if (j < t->nin - 1 && (!(buf[0] = scratch_array(sc, (size_t)(lead + 1), sizeof(double))) ||
+                         !(buf[1] = scratch_array(sc, (size_t)(lead + 1), sizeof(double)))))
+    return -1;
+  double *kron = scratch_array(sc, (size_t)(before + 1), sizeof(double));
+  double *out = kron ? scratch_array(sc, (size_t)(t->rows * Lj + 1), sizeof(double)) : NULL;
+  if (!out) return -1;
   const double *src = t->data;
   int b = 0;
   for (int i = t->nin - 1; i > j; i--) {
@@ -231,42 +230,17 @@ static int contract_but(const RTensor *t, int j, const double *const *z, const d
     for (long r = 0; r < t->rows; r++)
       cblas_dgemv(CblasRowMajor, CblasTrans, (int)before, (int)Lj, 1.0, src + r * before * Lj, (int)Lj, kron, 1, 0.0,
                   out + r * Lj, 1);
-  *P = out, *owned = out, out = NULL;
-  rc = 0;
-done:
-  free(buf[0]);
-  free(buf[1]);
-  free(kron);
-  free(out);
-  return rc;
+  *P = out;
+  return 0;
 }
 
-/* J (rows x m_q, overwritten) = ∂(T · z)/∂x̂ of input j of tensor t:
- * P · ∂z_j/∂x̂, each packed coordinate z[α] = Π_l x[α_l] contributing
- * Π_{l'≠l} x[α_l'] to column α_l for every position l. */
-static int tensor_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
-  long mq = qm(dv->m, t->in_q[j]), Lj = t->in_len[j], rows = t->rows;
-  int k = t->in_mult[j];
-  if (k == 2 && t->nin == 1) {
-    const double *S = square_unpacked(dv->cache_slot, t, mq);
-    if (!S) return -1;
-    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)(rows * mq), (int)mq, 1.0, S, (int)mq, dv->x[t->in_q[j]], 1, 0.0,
-                J, 1);
-    return 0;
-  }
-  const double *z[RT_MAX_IN];
-  double *zbuf = mem_malloc(sizeof(double) * (size_t)tensor_zlen(t)), *owned = NULL;
-  const double *P = NULL;
-  long *col = k <= 2 ? NULL : mem_malloc(sizeof(long) * (size_t)(Lj * k + 1));
-  double *coef = k <= 2 ? NULL : mem_malloc(sizeof(double) * (size_t)(Lj * k + 1));
-  int rc = -1;
-  if (!zbuf || (k > 2 && (!col || !coef))) goto out;
-  tensor_z(dv, t, z, zbuf);
-  if (contract_but(t, j, z, &P, &owned)) goto out;
+/* J (rows x m_q) from P (rows x L_j, contract_but) for an input repeated k times at x (col, coef:
+ * L_j k scratch entries each when k > 2). */
+static void jacobian_of(const double *P, const double *x, long rows, long mq, long Lj, int k, long *col, double *coef,
+                        double *J) {
   if (k == 1) memcpy(J, P, sizeof(double) * (size_t)(rows * mq));
   else if (k == 2) { /* z[(a,b)] = x_a x_b, a <= b: row r gains P[r,(a,b)] x_b at a and P[r,(a,b)] x_a at b
                         * (loops: BLAS per row and index made thousands of level-1 calls) */
-    const double *x = dv->x[t->in_q[j]];
     memset(J, 0, sizeof(double) * (size_t)(rows * mq));
     for (long r = 0; r < rows; r++) {
       const double *pr = P + r * Lj;
@@ -282,7 +256,6 @@ static int tensor_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
       }
     }
   } else if (k > 2) {
-    const double *x = dv->x[t->in_q[j]];
     long a[RT_MAX_IN] = {0};
     for (long p = 0; p < Lj; p++) {
       for (int l = 0; l < k; l++) {
@@ -305,12 +278,32 @@ static int tensor_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
         for (int l = 0; l < k; l++) jr[col[p * k + l]] += pr[p] * coef[p * k + l];
     }
   }
-  rc = 0;
-out:
-  free(zbuf);
-  free(owned);
-  free(col);
-  free(coef);
+}
+
+/* J (rows x m_q, overwritten) = ∂(T · z)/∂x̂ of input j of tensor t:
+ * P · ∂z_j/∂x̂, each packed coordinate z[α] = Π_l x[α_l] contributing
+ * Π_{l'≠l} x[α_l'] to column α_l for every position l. */
+static int tensor_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
+  long mq = qm(dv->m, t->in_q[j]), Lj = t->in_len[j], rows = t->rows;
+  int k = t->in_mult[j];
+  if (k == 2 && t->nin == 1) {
+    const double *S = square_unpacked(dv->cache_slot, t, mq);
+    if (!S) return -1;
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)(rows * mq), (int)mq, 1.0, S, (int)mq, dv->x[t->in_q[j]], 1, 0.0,
+                J, 1);
+    return 0;
+  }
+  const double *z[RT_MAX_IN];
+  Scratch sc = SCRATCH_OF(NULL);
+  double *zbuf = scratch_array(&sc, (size_t)tensor_zlen(t), sizeof(double));
+  const double *P = NULL;
+  long *col = k <= 2 ? NULL : scratch_array(&sc, (size_t)(Lj * k + 1), sizeof(long));
+  double *coef = k <= 2 ? NULL : scratch_array(&sc, (size_t)(Lj * k + 1), sizeof(double));
+  int rc = zbuf && (k <= 2 || (col && coef)) ? 0 : -1;
+  if (rc == 0) tensor_z(dv, t, z, zbuf);
+  if (rc == 0) rc = contract_but(t, j, z, &P, &sc);
+  if (rc == 0) jacobian_of(P, dv->x[t->in_q[j]], rows, mq, Lj, k, col, coef, J);
+  scratch_release(&sc);
   return rc;
 }
 
@@ -750,17 +743,9 @@ static int term_kept(Deriv *dv, const RStage *rs, int t, long n, TermState *ts) 
 
 /* Term rt's primal recomputed from the coordinates: its numerator, each operator assembled,
  * factored and applied. */
-static int term_primal(Deriv *dv, const RStage *rs, const RTerm *rt, long n, TermState *ts) {
+static int term_primal_in(Deriv *dv, const RStage *rs, const RTerm *rt, long n, TermState *ts, double *v0, double *w,
+                          Scratch *sc) {
   const Model *m = dv->m;
-  ts->nops = rt->nops;
-  ts->ops = mem_calloc((size_t)rt->nops + 1, sizeof(OpState));
-  ts->vs = mem_calloc((size_t)rt->nops + 1, sizeof(double *));
-  double *v0 = mem_calloc((size_t)n + 1, sizeof(double)), *w = mem_malloc(sizeof(double) * (size_t)(n + 1));
-  int rc = -1;
-  if (!ts->ops || !ts->vs || !v0 || !w) {
-    dfail_oom(dv);
-    goto out;
-  }
   if (rt->named_q >= 0) {
     if (rt->proj)
       cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)qm(m, rt->named_q), 1.0, rt->proj, (int)qm(m, rt->named_q),
@@ -769,30 +754,30 @@ static int term_primal(Deriv *dv, const RStage *rs, const RTerm *rt, long n, Ter
   } else
     for (int g = 0; g < rt->nnum; g++) {
       const double *z[RT_MAX_IN];
-      double *zbuf = mem_malloc(sizeof(double) * (size_t)tensor_zlen(&rt->num[g]));
-      if (!zbuf || contract_into(&rt->num[g], (tensor_z(dv, &rt->num[g], z, zbuf), z), v0)) {
-        free(zbuf);
-        dfail_oom(dv);
-        goto out;
-      }
-      free(zbuf);
+      double *zbuf = scratch_array(sc, (size_t)tensor_zlen(&rt->num[g]), sizeof(double));
+      if (!zbuf || contract_into(&rt->num[g], (tensor_z(dv, &rt->num[g], z, zbuf), z), v0)) return dfail_oom(dv);
     }
   const double *in = v0;
   for (int k = 0; k < rt->nops; k++) {
-    if (op_state(dv, rs, &rt->ops[k], n, &ts->ops[k])) goto out;
+    if (op_state(dv, rs, &rt->ops[k], n, &ts->ops[k])) return -1;
     long steps = op_steps(&ts->ops[k]);
-    if (!(ts->vs[k] = mem_malloc(sizeof(double) * (size_t)((steps + 1) * n + 1)))) {
-      dfail_oom(dv);
-      goto out;
-    }
+    if (!(ts->vs[k] = mem_malloc(sizeof(double) * (size_t)((steps + 1) * n + 1)))) return dfail_oom(dv);
     memcpy(ts->vs[k], in, sizeof(double) * (size_t)n);
     op_forward_primal(&ts->ops[k], ts->vs[k], w);
     in = ts->vs[k] + steps * n;
   }
-  rc = 0;
-out:
-  free(v0);
-  free(w);
+  return 0;
+}
+
+/* term_primal_in with its numerator and work vectors from a scratch. */
+static int term_primal(Deriv *dv, const RStage *rs, const RTerm *rt, long n, TermState *ts) {
+  ts->nops = rt->nops;
+  ts->ops = mem_calloc((size_t)rt->nops + 1, sizeof(OpState));
+  ts->vs = mem_calloc((size_t)rt->nops + 1, sizeof(double *));
+  Scratch sc = SCRATCH_OF(NULL);
+  double *v0 = scratch_array(&sc, (size_t)n + 1, sizeof(double)), *w = scratch_array(&sc, (size_t)n + 1, sizeof(double));
+  int rc = ts->ops && ts->vs && v0 && w ? term_primal_in(dv, rs, rt, n, ts, v0, w, &sc) : dfail_oom(dv);
+  scratch_release(&sc);
   return rc;
 }
 
@@ -923,21 +908,12 @@ static int interp_jacobian(Deriv *dv, const InterpPartials *pa, int q) {
 
 /* Forward: d[y] += J_q d[q]; reverse: d[q] += J_qᵀ d[y], for every active quantity q the
  * formula reads, J_q = (W P B)⁺ W · ∂(P y)/∂x̂_q from its monomials (RInterp.mono). */
-static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
+static int interp_stage_in(Deriv *dv, const RStage *rs, bool reverse, const long *base, double *val, double *acc,
+                           double *g, double *pT) {
   const Model *m = dv->m;
   const RInterp *ip = rs->interp;
-  long k = ip->k, nf = 0, my = qm(m, rs->q);
-  long *base = mem_malloc(sizeof(long) * (size_t)(rs->nterms + 1));
-  if (!base) return dfail_oom(dv);
-  for (int t = 0; t < rs->nterms; t++) base[t] = nf, nf += 1 + rs->terms[t].nops;
-  double *val = mem_malloc(sizeof(double) * (size_t)(ip->nreads + 1));
-  double *acc = mem_calloc((size_t)(k * nf) + 1, sizeof(double)), *g = mem_calloc((size_t)(k * nf) + 1, sizeof(double));
-  double *pT = mem_malloc(sizeof(double) * (size_t)(k * my + 1));
-  int rc = -1;
-  if (!val || !acc || !g || !pT) {
-    dfail_oom(dv);
-    goto out;
-  }
+  long k = ip->k, my = qm(m, rs->q);
+  int rc;
   for (long r = 0; r < ip->nreads; r++) {
     const RClass *c = &m->classes[m->qclass[ip->read_q[r]]];
     val[r] = cblas_ddot((int)c->m, c->B + ip->read_e[r] * c->m, 1, dv->x[ip->read_q[r]], 1);
@@ -974,12 +950,22 @@ static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
     if (!reads) continue;
     rc = interp_jacobian(dv, &pa, q);
   }
-out:
-  free(base);
-  free(val);
-  free(acc);
-  free(g);
-  free(pT);
+  return rc;
+}
+
+/* interp_stage_in with its accumulators from a scratch. */
+static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
+  const RInterp *ip = rs->interp;
+  long k = ip->k, nf = 0, my = qm(dv->m, rs->q);
+  Scratch sc = SCRATCH_OF(NULL);
+  long *base = scratch_array(&sc, (size_t)rs->nterms + 1, sizeof(long));
+  for (int t = 0; base && t < rs->nterms; t++) base[t] = nf, nf += 1 + rs->terms[t].nops;
+  double *val = scratch_array(&sc, (size_t)ip->nreads + 1, sizeof(double));
+  double *acc = scratch_array(&sc, (size_t)(k * nf) + 1, sizeof(double));
+  double *g = scratch_array(&sc, (size_t)(k * nf) + 1, sizeof(double));
+  double *pT = scratch_array(&sc, (size_t)(k * my) + 1, sizeof(double));
+  int rc = base && val && acc && g && pT ? interp_stage_in(dv, rs, reverse, base, val, acc, g, pT) : dfail_oom(dv);
+  scratch_release(&sc);
   return rc;
 }
 
