@@ -10,6 +10,7 @@
 #include "jit.h"
 #include "npg_abi.h"
 #include "reduced.h"
+#include "scratch.h"
 
 static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
 
@@ -73,52 +74,52 @@ static bool layout_matches(RedJit *j, const ReducedSlot *slots) {
   return true;
 }
 
-RedJit *reduced_jit_new(const Model *m, bool cc, Err *err) {
-  RedJit *j = mem_calloc(1, sizeof *j);
+static int jit_oom(Err *err) { return err_set(err, "out of memory for the generated reduced evaluator"); }
+
+/* j's code generated and compiled, its entry points, tensors and work; the source and the
+ * slots from `sc`. -1 with `err`. */
+static int jit_build(RedJit *j, const Model *m, bool cc, Scratch *sc, Err *err) {
   char *src = NULL;
   size_t len = 0;
-  ReducedSlot *slots = NULL;
-  if (!j) goto oom;
-  j->m = m;
   FILE *mem = open_memstream(&src, &len);
-  if (!mem) goto oom;
+  if (!mem) return jit_oom(err);
   int rc = emit_reduced(m, mem, err);
   fclose(mem);
-  if (rc != 0) goto fail;
+  src = scratch_adopt(sc, src);
+  if (rc != 0) return -1;
+  if (!src) return jit_oom(err);
   j->jit = jit_compile(src, cc ? JIT_CC : JIT_TCC, ERR_MSG(err), ERR_LEN(err));
-  free(src);
-  src = NULL;
-  if (!j->jit) goto fail;
+  if (!j->jit) return -1;
   j->fn = (NpgReducedFn)entry(j, "reduced");
   j->stage_fn = (NpgReducedStageFn)entry(j, "reduced_stage");
   const npg_idx *nwork = entry(j, "reduced_work");
   j->nslots = emit_reduced_slots(m, NULL);
-  slots = mem_calloc((size_t)j->nslots + 1, sizeof *slots);
+  ReducedSlot *slots = scratch_array(sc, (size_t)j->nslots + 1, sizeof *slots);
   j->t = mem_calloc((size_t)j->nslots + 1, sizeof *j->t);
   j->x = mem_calloc((size_t)m->nq + 1, sizeof *j->x);
-  if (!slots || !j->t || !j->x) goto oom;
+  if (!slots || !j->t || !j->x) return jit_oom(err);
   emit_reduced_slots(m, slots);
-  if (!j->fn || !j->stage_fn || !nwork || !layout_matches(j, slots)) {
-    err_set(err, "generated reduced code lacks its entry points or disagrees with the model (a bug in npg)");
-    goto fail;
-  }
+  if (!j->fn || !j->stage_fn || !nwork || !layout_matches(j, slots))
+    return err_set(err, "generated reduced code lacks its entry points or disagrees with the model (a bug in npg)");
   for (long k = 0; k < j->nslots; k++) {
-    if (!slots[k].data) {
-      err_set(err, "reduced tensor %s has no data: the model is not trained",
-              slots[k].t ? slots[k].t->name : "(projection)");
-      goto fail;
-    }
+    if (!slots[k].data)
+      return err_set(err, "reduced tensor %s has no data: the model is not trained",
+                     slots[k].t ? slots[k].t->name : "(projection)");
     j->t[k] = slots[k].data;
   }
-  if (!(j->work = mem_calloc((size_t)*nwork + 1, sizeof(double)))) goto oom;
-  free(slots);
-  return j;
-oom:
-  err_set(err, "out of memory for the generated reduced evaluator");
-fail:
-  free(src);
-  free(slots);
-  reduced_jit_free(j);
+  if (!(j->work = mem_calloc((size_t)*nwork + 1, sizeof(double)))) return jit_oom(err);
+  return 0;
+}
+
+RedJit *reduced_jit_new(const Model *m, bool cc, Err *err) {
+  RedJit *j = mem_calloc(1, sizeof *j);
+  if (!j) return jit_oom(err), NULL;
+  j->m = m;
+  Scratch sc = SCRATCH_OF(NULL);
+  int rc = jit_build(j, m, cc, &sc, err);
+  scratch_release(&sc);
+  if (rc == 0) return j;
+  reduced_jit_free(j); /* the half-built evaluator, once */
   return NULL;
 }
 
