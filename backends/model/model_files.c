@@ -20,6 +20,7 @@
 #include "interp.h"
 #include "model.h"
 #include "model_store.h"
+#include "scratch.h"
 
 /* ---------------------------------------------------------------- files */
 
@@ -487,39 +488,39 @@ static int load_arrays(const ModelStore *s, Model *m, const char *dir, Err *err)
   return 0;
 }
 
-Model *model_load(Program *prog, const char *dir, Err *err) {
-  ModelStore s;
-  Model *m = NULL;
-  if (model_store_read(dir, model_program_hash(prog), &s, err) != 0) return NULL;
-  long *dims = mem_calloc((size_t)prog->dims.n + 1, sizeof(long));
-  if (!dims) goto oom;
-  if (read_dims(&s, prog, dir, dims, err) || !(m = model_layout(prog, dims, err)) ||
-      check_required(&s, m, dir, err))
-    goto fail;
-  const char *ns = model_store_find(&s, "samples");
+/* The model of store s into *mp (its layout, then every line and array checked and read;
+ * half built on failure, for the caller's model_free), dims its scratch. -1 with `err`. */
+static int load_model(ModelStore *s, Program *prog, const char *dir, long *dims, Model **mp, Err *err) {
+  if (read_dims(s, prog, dir, dims, err) || !(*mp = model_layout(prog, dims, err))) return -1;
+  Model *m = *mp;
+  if (check_required(s, m, dir, err)) return -1;
+  const char *ns = model_store_find(s, "samples");
   char *end = NULL;
   m->samples = strtol(ns, &end, 10);
-  if (end == ns || *end || m->samples < 1) {
-    err_set(err, "%s/manifest: 'samples %s' is not a count of training samples", dir, ns);
-    goto fail;
-  }
-  if (!(m->param_hashes = mem_strdup(model_store_find(&s, "params")))) goto oom;
+  if (end == ns || *end || m->samples < 1)
+    return err_set(err, "%s/manifest: 'samples %s' is not a count of training samples", dir, ns);
+  if (!(m->param_hashes = mem_strdup(model_store_find(s, "params"))))
+    return err_set(err, "%s: out of memory loading the model", dir);
   /* every metadata line the model reads must describe this model: a line
    * it cannot use is refused, not skipped */
-  if (load_bases(&s, m, dir, err) || check_meta(&s, m, dir, err) ||
-      interp_load(m, &s, dir, err) || check_streamed(m, dir, err))
-    goto fail;
-  read_member_stats(&s, m);
-  if (load_arrays(&s, m, dir, err) || estimate_load(m, &s, dir, err)) goto fail;
-  free(dims);
+  if (load_bases(s, m, dir, err) || check_meta(s, m, dir, err) || interp_load(m, s, dir, err) ||
+      check_streamed(m, dir, err))
+    return -1;
+  read_member_stats(s, m);
+  return load_arrays(s, m, dir, err) || estimate_load(m, s, dir, err) ? -1 : 0;
+}
+
+Model *model_load(Program *prog, const char *dir, Err *err) {
+  ModelStore s;
+  if (model_store_read(dir, model_program_hash(prog), &s, err) != 0) return NULL;
+  Model *m = NULL;
+  Scratch sc = SCRATCH_OF(NULL);
+  long *dims = scratch_array(&sc, (size_t)prog->dims.n + 1, sizeof(long));
+  int rc = dims ? load_model(&s, prog, dir, dims, &m, err) : err_set(err, "%s: out of memory loading the model", dir);
+  scratch_release(&sc);
   model_store_free(&s);
-  return m;
-oom:
-  err_set(err, "%s: out of memory loading the model", dir);
-fail:
-  free(dims);
-  model_store_free(&s);
-  model_free(m);
+  if (rc == 0) return m;
+  model_free(m); /* the half-built model, once */
   return NULL;
 }
 
