@@ -300,15 +300,14 @@ static const double *colmajor_of(const Reduced *r, const RTensor *t) {
   return NULL;
 }
 
-Reduced *reduced_new(Model *m, Err *err) {
-  Reduced *r = mem_calloc(1, sizeof *r);
-  if (!r) goto oom;
-  r->m = m;
-  if (!(r->x = mem_calloc((size_t)m->nq + 1, sizeof(double *)))) goto oom;
+/* r's coordinates and work, sized for its model. -1 when out of memory. */
+static int reduced_alloc(Reduced *r) {
+  Model *m = r->m;
+  if (!(r->x = mem_calloc((size_t)m->nq + 1, sizeof(double *)))) return -1;
   long maxm = 1, maxbuf = 1, maxz = 1;
   for (int c = 0; c < m->nclasses; c++) maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
   for (int q = 0; q < m->nq; q++)
-    if (!(r->x[q] = mem_calloc((size_t)qm(m, q) + 1, sizeof(double)))) goto oom;
+    if (!(r->x[q] = mem_calloc((size_t)qm(m, q) + 1, sizeof(double)))) return -1;
   for (int i = 0; i < m->nstages; i++) {
     RStage *rs = &m->stages[i];
     for (int t = 0; t < rs->nterms; t++) {
@@ -326,7 +325,7 @@ Reduced *reduced_new(Model *m, Err *err) {
   size_t interp_work = 1;
   for (int i = 0; i < m->nstages; i++)
     if (m->stages[i].interp && interp_work_size(&m->stages[i]) > interp_work) interp_work = interp_work_size(&m->stages[i]);
-  if (!(r->interp_work = calloc(interp_work, sizeof(double)))) goto oom;
+  if (!(r->interp_work = calloc(interp_work, sizeof(double)))) return -1;
   size_t tensor_bytes = 0;
   model_bytes(m, &tensor_bytes);
   r->one_thread = tensor_bytes < REDUCED_ONE_THREAD_BYTES;
@@ -341,12 +340,16 @@ Reduced *reduced_new(Model *m, Err *err) {
   r->piv = mem_calloc((size_t)maxm, sizeof(lapack_int));
   r->root_start = mem_calloc((size_t)m->nstages + 1, sizeof(long));
   r->root_shrink = mem_calloc((size_t)m->nstages + 1, sizeof(double));
-  if (!r->root_start || !r->root_shrink || !r->v || !r->acc || !r->buf[0] || !r->buf[1] || !r->z || !r->M || !r->M2 || !r->w || !r->piv) goto oom;
-  if (power_workspace(r) || krylov_init(&r->kr, maxm) || colmajor_copies(r) || kept_alloc(r)) goto oom;
-  return r;
-oom:
+  if (!r->root_start || !r->root_shrink || !r->v || !r->acc || !r->buf[0] || !r->buf[1] || !r->z || !r->M || !r->M2 || !r->w || !r->piv) return -1;
+  return power_workspace(r) || krylov_init(&r->kr, maxm) || colmajor_copies(r) || kept_alloc(r) ? -1 : 0;
+}
+
+Reduced *reduced_new(Model *m, Err *err) {
+  Reduced *r = mem_calloc(1, sizeof *r);
+  if (r) r->m = m;
+  if (r && reduced_alloc(r) == 0) return r;
   err_set(err, "out of memory for the reduced evaluator");
-  reduced_free(r);
+  reduced_free(r); /* the half-built evaluator, once */
   return NULL;
 }
 
