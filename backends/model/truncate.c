@@ -19,6 +19,7 @@
 
 #include "interp.h"
 #include "model.h"
+#include "scratch.h"
 
 /* The old places of the new coordinates of an axis of a basis of m cut to
  * m2, the input repeated k times (k 1: the first m2). malloc'd, NULL when
@@ -35,28 +36,26 @@ static long *axis_map(long m, int k, long m2) {
 /* t (laid out for m's sizes by model_size_tensors) the leading block of s
  * (of src), whose output class had my0 vectors (now my1). */
 static int cut_tensor(const Model *src, const Model *m, const RTensor *s, RTensor *t, long my0, long my1) {
-  long *rmap = NULL, *amap[RT_MAX_IN] = {0}, stride[RT_MAX_IN], idx[RT_MAX_IN] = {0};
-  int rc = -1;
-  if (!(t->data = mem_malloc(sizeof(double) * (size_t)(t->rows * t->cols + 1)))) goto done;
-  if (t->kind == RT_DIAG) rmap = axis_map(my0, 2, my1);
-  else if ((rmap = mem_malloc(sizeof(long) * (size_t)(t->rows + 1))))
+  long *amap[RT_MAX_IN] = {0}, stride[RT_MAX_IN], idx[RT_MAX_IN] = {0};
+  if (!(t->data = mem_malloc(sizeof(double) * (size_t)(t->rows * t->cols + 1)))) return -1;
+  Scratch sc = SCRATCH_OF(NULL); /* the maps of rows and axes */
+  long *rmap = t->kind == RT_DIAG ? scratch_adopt(&sc, axis_map(my0, 2, my1))
+                                  : scratch_array(&sc, (size_t)t->rows + 1, sizeof(long));
+  if (rmap && t->kind != RT_DIAG)
     for (long r = 0; r < t->rows; r++) rmap[r] = t->kind == RT_NUM ? r : (r / my1) * my0 + r % my1; /* RT_DECL */
-  if (!rmap) goto done;
-  for (int j = s->nin - 1; j >= 0; j--) {
+  int rc = rmap ? 0 : -1;
+  for (int j = s->nin - 1; j >= 0 && rc == 0; j--) {
     long m0 = src->classes[src->qclass[s->in_q[j]]].m, m1 = m->classes[m->qclass[s->in_q[j]]].m;
     stride[j] = j == s->nin - 1 ? 1 : stride[j + 1] * s->in_len[j + 1];
-    if (!(amap[j] = axis_map(m0, s->in_mult[j], m1))) goto done;
+    if (!(amap[j] = scratch_adopt(&sc, axis_map(m0, s->in_mult[j], m1)))) rc = -1;
   }
-  for (long c = 0; c < t->cols; c++) {
+  for (long c = 0; rc == 0 && c < t->cols; c++) {
     long old = 0;
     for (int j = 0; j < s->nin; j++) old += amap[j][idx[j]] * stride[j];
     for (long r = 0; r < t->rows; r++) t->data[r * t->cols + c] = s->data[rmap[r] * s->cols + old];
     for (int j = s->nin - 1; j >= 0 && ++idx[j] == t->in_len[j]; j--) idx[j] = 0; /* the last axis fastest */
   }
-  rc = 0;
-done:
-  free(rmap);
-  for (int j = 0; j < s->nin; j++) free(amap[j]);
+  scratch_release(&sc);
   return rc;
 }
 
@@ -202,6 +201,20 @@ static int cut_extern(const Model *src, Model *m, int i) {
   return 0;
 }
 
+static int truncate_oom(Err *err) { return err_set(err, "out of memory making the model at smaller sizes"); }
+
+/* m (laid out and sized) the leading blocks of src: bases, stages, externs. -1 with `err`. */
+static int cut_model(const Model *src, Model *m, Err *err) {
+  if (src->param_hashes && !(m->param_hashes = mem_strdup(src->param_hashes))) return truncate_oom(err);
+  for (int c = 0; c < m->nclasses; c++)
+    if (cut_class(&src->classes[c], &m->classes[c])) return truncate_oom(err);
+  for (int i = 0; i < m->nstages; i++)
+    if (cut_stage(src, m, i, err)) return -1;
+  for (int i = 0; i < m->nexterns; i++)
+    if (cut_extern(src, m, i)) return truncate_oom(err);
+  return 0;
+}
+
 Model *model_truncate(const Model *src, const long *sizes, Err *err) {
   for (int c = 0; c < src->nclasses; c++)
     if (sizes[c] > src->classes[c].m || (sizes[c] == 0 && src->classes[c].m > 0))
@@ -214,20 +227,8 @@ Model *model_truncate(const Model *src, const long *sizes, Err *err) {
   model_size_tensors(m);
   m->samples = src->samples;
   m->self_check_sample = -1;
-  if (src->param_hashes && !(m->param_hashes = mem_strdup(src->param_hashes))) goto oom;
-  for (int c = 0; c < m->nclasses; c++)
-    if (cut_class(&src->classes[c], &m->classes[c])) goto oom;
-  for (int i = 0; i < m->nstages; i++)
-    if (cut_stage(src, m, i, err)) {
-      model_free(m);
-      return NULL;
-    }
-  for (int i = 0; i < m->nexterns; i++)
-    if (cut_extern(src, m, i)) goto oom;
-  return m;
-oom:
-  model_free(m);
-  err_set(err, "out of memory making the model at smaller sizes");
+  if (cut_model(src, m, err) == 0) return m;
+  model_free(m); /* the half-built model, once */
   return NULL;
 }
 
