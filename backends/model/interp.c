@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "interp.h"
+#include "scratch.h"
 
 const char *const interp_reasons[INTERP_NREASONS] = {
     [INTERP_FORCED] = "forced (--reduce STAGE:interp, or basis STAGE: reduce interp in the program)",
@@ -121,26 +122,9 @@ static int by_acc(const void *a, const void *b) {
   return x->acc != y->acc ? (x->acc > y->acc) - (x->acc < y->acc) : (x->index > y->index) - (x->index < y->index);
 }
 
-/* Which quantities interp_eval lifts whole (RInterp.pk_whole_*) and which it reads through their
- * gathered basis rows (pk_gather_*): 0, or -1 out of memory. */
-static int pack_lifts(const Model *m, RInterp *ip) {
-  free(ip->pk_whole_q), free(ip->pk_whole_off), free(ip->pk_src);
-  free(ip->pk_gather_q), free(ip->pk_gather_rows), free(ip->pk_gather_off), free(ip->pk_gather_at);
-  free(ip->pk_gather_B);
-  ip->pk_gather_q = NULL, ip->pk_gather_rows = ip->pk_gather_off = ip->pk_gather_at = NULL, ip->pk_gather_B = NULL;
-  long *count = calloc((size_t)m->nq + 1, sizeof(long)), *off = malloc(sizeof(long) * (size_t)(m->nq + 1));
-  long *next = calloc((size_t)m->nq + 1, sizeof(long));
-  ip->pk_whole_q = malloc(sizeof(int) * (size_t)(m->nq + 1));
-  ip->pk_whole_off = malloc(sizeof(long) * (size_t)(m->nq + 1));
-  ip->pk_src = malloc(sizeof(long) * (size_t)(ip->nreads + 1));
-  ip->pk_gather_q = malloc(sizeof(int) * (size_t)(m->nq + 1));
-  ip->pk_gather_rows = malloc(sizeof(long) * (size_t)(m->nq + 1));
-  ip->pk_gather_off = malloc(sizeof(long) * (size_t)(m->nq + 1));
-  ip->pk_gather_at = malloc(sizeof(long) * (size_t)(m->nq + 1));
-  int rc = -1;
-  if (!count || !off || !next || !ip->pk_whole_q || !ip->pk_whole_off || !ip->pk_src || !ip->pk_gather_q ||
-      !ip->pk_gather_rows || !ip->pk_gather_off || !ip->pk_gather_at)
-    goto done;
+/* pack_lifts' tables of ip (allocated) filled: count, off and next its per-quantity scratch
+ * (count and next zeroed). -1 out of memory. */
+static int pack_reads(const Model *m, RInterp *ip, long *count, long *off, long *next) {
   for (long r = 0; r < ip->nreads; r++) count[ip->read_q[r]]++;
   ip->pk_nwhole = 0, ip->pk_lift = 0, ip->pk_ngather = 0;
   long gathered = 0;
@@ -160,7 +144,7 @@ static int pack_lifts(const Model *m, RInterp *ip) {
       gathered += count[q] * c->m;
     }
   }
-  if (!(ip->pk_gather_B = malloc(sizeof(double) * (size_t)(gathered + 1)))) goto done;
+  if (!(ip->pk_gather_B = malloc(sizeof(double) * (size_t)(gathered + 1)))) return -1;
   for (long r = 0, at = 0; r < ip->nreads; r++) {
     int q = ip->read_q[r];
     const RClass *c = &m->classes[m->qclass[q]];
@@ -178,9 +162,31 @@ static int pack_lifts(const Model *m, RInterp *ip) {
       ip->pk_src[r] = off[q] + j;
     }
   }
-  rc = 0;
-done:
-  free(count), free(off), free(next);
+  return 0;
+}
+
+/* Which quantities interp_eval lifts whole (RInterp.pk_whole_*) and which it reads through their
+ * gathered basis rows (pk_gather_*): 0, or -1 out of memory. */
+static int pack_lifts(const Model *m, RInterp *ip) {
+  free(ip->pk_whole_q), free(ip->pk_whole_off), free(ip->pk_src);
+  free(ip->pk_gather_q), free(ip->pk_gather_rows), free(ip->pk_gather_off), free(ip->pk_gather_at);
+  free(ip->pk_gather_B);
+  ip->pk_gather_q = NULL, ip->pk_gather_rows = ip->pk_gather_off = ip->pk_gather_at = NULL, ip->pk_gather_B = NULL;
+  Scratch sc = SCRATCH_OF(NULL);
+  long *count = scratch_array(&sc, (size_t)m->nq + 1, sizeof(long)), *off = scratch_array(&sc, (size_t)m->nq + 1, sizeof(long));
+  long *next = scratch_array(&sc, (size_t)m->nq + 1, sizeof(long));
+  ip->pk_whole_q = malloc(sizeof(int) * (size_t)(m->nq + 1));
+  ip->pk_whole_off = malloc(sizeof(long) * (size_t)(m->nq + 1));
+  ip->pk_src = malloc(sizeof(long) * (size_t)(ip->nreads + 1));
+  ip->pk_gather_q = malloc(sizeof(int) * (size_t)(m->nq + 1));
+  ip->pk_gather_rows = malloc(sizeof(long) * (size_t)(m->nq + 1));
+  ip->pk_gather_off = malloc(sizeof(long) * (size_t)(m->nq + 1));
+  ip->pk_gather_at = malloc(sizeof(long) * (size_t)(m->nq + 1));
+  int rc = count && off && next && ip->pk_whole_q && ip->pk_whole_off && ip->pk_src && ip->pk_gather_q &&
+                   ip->pk_gather_rows && ip->pk_gather_off && ip->pk_gather_at
+               ? pack_reads(m, ip, count, off, next)
+               : -1;
+  scratch_release(&sc);
   return rc;
 }
 
