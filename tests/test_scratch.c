@@ -1,7 +1,8 @@
 /* test_scratch.c — backends/model/scratch.c: a model-layer operation's temporary memory.
  * Blocks are zeroed and distinct, a refused allocation is NULL with "out of memory" in the
  * scratch's error record (the blocks before it still released), an overflowing size is
- * refused without an allocation, and release empties the scratch (the sanitizers' leak check
+ * refused without an allocation, an adopted block is the scratch's (freed with it, or at once
+ * when the scratch cannot hold it), and release empties the scratch (the sanitizers' leak check
  * is the oracle that it freed every block). */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -73,11 +74,30 @@ static void overflow(void **state) {
   scratch_release(&sc);
 }
 
+static void adopted(void **state) {
+  (void)state;
+  char msg[128] = "";
+  Scratch sc = SCRATCH_OF(ERR_OF(msg, sizeof msg));
+  assert_null(scratch_adopt(&sc, NULL)); /* a maker's failure passes through, no message added */
+  assert_string_equal(msg, "");
+  char *s = mem_strdup("kept until release");
+  assert_ptr_equal(scratch_adopt(&sc, s), s);
+  assert_string_equal(s, "kept until release");
+  char *lost = mem_strdup("freed at once");
+  failing_alloc_after(0);
+  assert_null(scratch_adopt(&sc, lost)); /* freed: the leak check says so */
+  failing_alloc_off();
+  assert_non_null(strstr(msg, "out of memory"));
+  scratch_release(&sc);
+  assert_null(sc.head);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test_teardown(zeroed_and_distinct, teardown),
       cmocka_unit_test_teardown(refused, teardown),
       cmocka_unit_test_teardown(overflow, teardown),
+      cmocka_unit_test_teardown(adopted, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
