@@ -54,6 +54,7 @@
 
 #include "ast.h" /* mem_alloc_hook, error_set */
 #include "nnls.h"
+#include "scratch.h"
 
 
 /* `count` elements of `size` bytes from the allocation hook; NULL on
@@ -270,45 +271,26 @@ static int move_to_feasible(Solver *s, int *P, int *k, double *w, double *z, uns
   }
 }
 
-int nnls_solve_with(const NnlsProblem *p, double *w, NnlsMethod *how, Err *err) {
-  int m = p->m, n = p->n;
-  const double *A = p->A, *b = p->b;
-  if (err_held(err)) err->msg[0] = '\0';
-  how->gelsy_solves = 0;
-  if (m < 0 || n < 0) return err_set(err, "nnls: bad problem size %d × %d", m, n);
-  if ((m > 0 && n > 0 && !A) || (m > 0 && !b) || (n > 0 && !w)) return err_set(err, "nnls: NULL argument");
-  for (int i = 0; i < m; i++) {
-    for (int j = 0; j < n; j++)
-      if (!isfinite(A[(size_t)i * n + j]))
-        return err_set(err, "nnls: A[%d][%d] is not finite (%g)", i, j, A[(size_t)i * n + j]);
-    if (!isfinite(b[i])) return err_set(err, "nnls: b[%d] is not finite (%g)", i, b[i]);
-  }
-  for (int j = 0; j < n; j++) w[j] = 0;
-  if (n == 0) return 0;
+/* The arrays of one solve besides the Solver's. */
+typedef struct NnlsWork {
+  double *unit, *z, *r, *g, *colnorm;
+  int *P;
+  unsigned char *state;
+} NnlsWork;
 
-  Solver s = {.m = m, .n = n, .b = b, .err = err, .use_qr = how->use_qr};
-  int ld = max_int(m, n);
-  double *unit = alloc_array((size_t)m * (size_t)n, sizeof(double));
-  s.cols = alloc_array((size_t)max_int(m, 1) * (size_t)n, sizeof(double));
-  s.rhs = alloc_array((size_t)ld, sizeof(double));
-  s.jpvt = alloc_array((size_t)n, sizeof(lapack_int));
-  s.qr = alloc_array((size_t)m * (size_t)n, sizeof(double));
-  s.tau = alloc_array((size_t)n, sizeof(double));
-  s.qtb = alloc_array((size_t)m, sizeof(double));
-  s.qtb0 = alloc_array((size_t)m, sizeof(double));
-  double *z = alloc_array((size_t)n, sizeof(double));
-  double *r = alloc_array((size_t)m, sizeof(double));
-  double *g = alloc_array((size_t)n, sizeof(double));
-  int *P = alloc_array((size_t)n, sizeof(int));
-  double *colnorm = alloc_array((size_t)n, sizeof(double));
-  unsigned char *state = alloc_array((size_t)n, 1);
+/* `count` elements (at least one) of `size` bytes from the solve's scratch. */
+static void *work_array(Scratch *sc, size_t count, size_t size) { return scratch_array(sc, count ? count : 1, size); }
+
+/* Lawson–Hanson on s (its arrays allocated) from w = 0, for the scaled problem: w is ŵ = D w
+ * on return (nnls_solve_with scales back). -1 with the Solver's error. */
+static int lawson_hanson(Solver *s, const double *A, double *w, const NnlsWork *wk) {
+  int m = s->m, n = s->n, ld = max_int(m, n);
+  const double *b = s->b;
+  Err *err = s->err;
+  double *unit = wk->unit, *z = wk->z, *r = wk->r, *g = wk->g, *colnorm = wk->colnorm;
+  int *P = wk->P;
+  unsigned char *state = wk->state;
   int rc = 0;
-  bool scaled = false; /* w holds the iterate of the scaled problem */
-  if (!unit || !s.cols || !s.rhs || !s.jpvt || !s.qr || !s.tau || !s.qtb || !s.qtb0 || !z || !r || !g || !P || !colnorm ||
-      !state) {
-    rc = err_set(err, "nnls: out of memory (%d × %d problem)", m, n);
-    goto done;
-  }
   for (int j = 0; j < n; j++) state[j] = AT_ZERO;
 
   /* Solve for ŵ = D w with unit columns Â = A D⁻¹, D = diag(‖a_j‖): the
@@ -320,15 +302,14 @@ int nnls_solve_with(const NnlsProblem *p, double *w, NnlsMethod *how, Err *err) 
     colnorm[j] = m > 0 ? cblas_dnrm2(m, &A[j], n) : 0;
     for (int i = 0; i < m; i++) unit[(size_t)i * n + j] = colnorm[j] > 0 ? A[(size_t)i * n + j] / colnorm[j] : 0;
   }
-  s.A = unit;
-  scaled = true;
-  for (int i = 0; i < m; i++) s.qtb[i] = b[i]; /* the QR of no column: Q = I */
-  s.nqr = 0;
+  s->A = unit;
+  for (int i = 0; i < m; i++) s->qtb[i] = b[i]; /* the QR of no column: Q = I */
+  s->nqr = 0;
   double bnorm = m > 0 ? cblas_dnrm2(m, b, 1) : 0;
 
   int max_iter = max_int(3 * n, 30), iter = 0, k = 0; /* k = |P| */
   for (;;) {
-    residual_gradient(&s, w, r, g);
+    residual_gradient(s, w, r, g);
     /* The rounding error of ĝ_j = â_jᵀ r is about ε · max(m, n) · (‖b‖ + Σ ŵ). */
     double wsum = 0;
     for (int t = 0; t < n; t++) wsum += w[t];
@@ -349,7 +330,7 @@ int nnls_solve_with(const NnlsProblem *p, double *w, NnlsMethod *how, Err *err) 
 
     P[k++] = j;
     state[j] = PASSIVE;
-    if (solve_passive(&s, P, k, z, true)) {
+    if (solve_passive(s, P, k, z, true)) {
       rc = -1;
       break;
     }
@@ -357,7 +338,7 @@ int nnls_solve_with(const NnlsProblem *p, double *w, NnlsMethod *how, Err *err) 
       /* In exact arithmetic g_j > 0 implies z_j > 0 (Lawson–Hanson, ch.
        * 23); here it failed by rounding. Taking j would cycle, so skip it
        * until the iterate moves. */
-      qr_drop_last(&s, k);
+      qr_drop_last(s, k);
       k--;
       state[j] = REJECTED;
       continue;
@@ -365,32 +346,57 @@ int nnls_solve_with(const NnlsProblem *p, double *w, NnlsMethod *how, Err *err) 
     for (int t = 0; t < n; t++)
       if (state[t] == REJECTED) state[t] = AT_ZERO;
 
-    if (move_to_feasible(&s, P, &k, w, z, state)) {
-      rc = -1;
-      goto done;
-    }
+    if (move_to_feasible(s, P, &k, w, z, state)) return -1;
     for (int c = 0; c < k; c++) w[P[c]] = z[P[c]];
   }
+  return rc;
+}
 
-done:
+int nnls_solve_with(const NnlsProblem *p, double *w, NnlsMethod *how, Err *err) {
+  int m = p->m, n = p->n;
+  const double *A = p->A, *b = p->b;
+  if (err_held(err)) err->msg[0] = '\0';
+  how->gelsy_solves = 0;
+  if (m < 0 || n < 0) return err_set(err, "nnls: bad problem size %d × %d", m, n);
+  if ((m > 0 && n > 0 && !A) || (m > 0 && !b) || (n > 0 && !w)) return err_set(err, "nnls: NULL argument");
+  for (int i = 0; i < m; i++) {
+    for (int j = 0; j < n; j++)
+      if (!isfinite(A[(size_t)i * n + j]))
+        return err_set(err, "nnls: A[%d][%d] is not finite (%g)", i, j, A[(size_t)i * n + j]);
+    if (!isfinite(b[i])) return err_set(err, "nnls: b[%d] is not finite (%g)", i, b[i]);
+  }
+  for (int j = 0; j < n; j++) w[j] = 0;
+  if (n == 0) return 0;
+
+  Solver s = {.m = m, .n = n, .b = b, .err = err, .use_qr = how->use_qr};
+  int ld = max_int(m, n);
+  Scratch sc = SCRATCH_OF(NULL);
+  NnlsWork wk = {.unit = work_array(&sc, (size_t)m * (size_t)n, sizeof(double))};
+  s.cols = work_array(&sc, (size_t)max_int(m, 1) * (size_t)n, sizeof(double));
+  s.rhs = work_array(&sc, (size_t)ld, sizeof(double));
+  s.jpvt = work_array(&sc, (size_t)n, sizeof(lapack_int));
+  s.qr = work_array(&sc, (size_t)m * (size_t)n, sizeof(double));
+  s.tau = work_array(&sc, (size_t)n, sizeof(double));
+  s.qtb = work_array(&sc, (size_t)m, sizeof(double));
+  s.qtb0 = work_array(&sc, (size_t)m, sizeof(double));
+  wk.z = work_array(&sc, (size_t)n, sizeof(double));
+  wk.r = work_array(&sc, (size_t)m, sizeof(double));
+  wk.g = work_array(&sc, (size_t)n, sizeof(double));
+  wk.P = work_array(&sc, (size_t)n, sizeof(int));
+  wk.colnorm = work_array(&sc, (size_t)n, sizeof(double));
+  wk.state = work_array(&sc, (size_t)n, 1);
+  int rc;
+  if (!wk.unit || !s.cols || !s.rhs || !s.jpvt || !s.qr || !s.tau || !s.qtb || !s.qtb0 || !wk.z || !wk.r || !wk.g ||
+      !wk.P || !wk.colnorm || !wk.state)
+    rc = err_set(err, "nnls: out of memory (%d × %d problem)", m, n);
+  else {
+    rc = lawson_hanson(&s, A, w, &wk);
+    for (int j = 0; j < n; j++) /* back to w = D⁻¹ ŵ; a zero column has ŵ_j = 0 */
+      w[j] = wk.colnorm[j] > 0 ? w[j] / wk.colnorm[j] : 0;
+  }
   how->gelsy_solves = s.gelsy;
-  if (scaled) /* back to w = D⁻¹ ŵ; a zero column has ŵ_j = 0 */
-    for (int j = 0; j < n; j++) w[j] = colnorm[j] > 0 ? w[j] / colnorm[j] : 0;
-  free(unit);
-  free(s.cols);
-  free(s.rhs);
-  free(s.jpvt);
-  free(s.qr);
-  free(s.tau);
-  free(s.qtb);
-  free(s.qtb0);
-  free(s.work);
-  free(z);
-  free(r);
-  free(g);
-  free(P);
-  free(colnorm);
-  free(state);
+  free(s.work); /* grown by reserve */
+  scratch_release(&sc);
   return rc;
 }
 
@@ -411,13 +417,12 @@ int nnls_convex(int S, int d, const double *X, const double *x, double *w, Err *
       return err_set(err, "learned model: component %d of the input to predict is not finite (%g)", i, x[i]);
 
   int m = d + 1;
-  double *E = alloc_array((size_t)m * (size_t)S, sizeof(double));
-  double *f = alloc_array((size_t)m, sizeof(double));
-  if (!E || !f) {
-    free(E);
-    free(f);
-    return err_set(err, "learned model: out of memory for %d training samples of dimension %d", S, d);
-  }
+  Scratch sc = SCRATCH_OF(NULL);
+  double *E = work_array(&sc, (size_t)m * (size_t)S, sizeof(double));
+  double *f = work_array(&sc, (size_t)m, sizeof(double));
+  if (!E || !f)
+    return scratch_release(&sc),
+           err_set(err, "learned model: out of memory for %d training samples of dimension %d", S, d);
 
   /* E = [C / σ; 1ᵀ], σ the largest column norm of C = X − x (0 when every
    * training input equals x: then any convex combination is exact). */
@@ -439,8 +444,7 @@ int nnls_convex(int S, int d, const double *X, const double *x, double *w, Err *
 
   char why[512];
   int rc = nnls_solve(m, S, E, f, w, ERR_OF(why, sizeof why));
-  free(E);
-  free(f);
+  scratch_release(&sc);
 
   double t = 0;
   for (int s = 0; s < S; s++) t += w[s];
