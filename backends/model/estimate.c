@@ -231,8 +231,15 @@ static double top_singular(const double *J, long my, long mq, double *G, double 
  * along v both ways, which holds the higher orders of the polynomial there. An estimate: J maps
  * B_q's span only (an error orthogonal to it is assumed to move the output as much as the worst
  * direction inside), and the second order is sampled along v. NaN with `why` on failure. */
-static double propagation(Reduced *r, int i, int q, double eq, double *eye, double *J, double *G, double *vt,
-                          double *y0, char *why, size_t n) {
+typedef struct Propagation {
+  int i, q;                      /* the stage, its input */
+  double eq;                     /* the input's error */
+  double *eye, *J, *G, *vt, *y0; /* buffers: mq × mq, my × mq, mq × mq, mq, 3·my + mq */
+} Propagation;
+
+static double propagation(Reduced *r, const Propagation *b, char *why, size_t n) {
+  int i = b->i, q = b->q;
+  double eq = b->eq, *eye = b->eye, *J = b->J, *G = b->G, *vt = b->vt, *y0 = b->y0;
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
   long my = qm(m, rs->q), mq = qm(m, q), k = my < mq ? my : mq;
@@ -269,16 +276,16 @@ static double propagate(Reduced *r, int i, int q, double eq, char *why, size_t n
   const Model *m = reduced_model(r);
   long my = qm(m, m->stages[i].q), mq = qm(m, q);
   Scratch sc = SCRATCH_OF(NULL);
-  double *eye = scratch_array(&sc, (size_t)(mq * mq) + 1, sizeof(double));
-  double *J = scratch_array(&sc, (size_t)(my * mq) + 1, sizeof(double));
-  double *G = scratch_array(&sc, (size_t)(mq * mq) + 1, sizeof(double));
-  double *vt = scratch_array(&sc, (size_t)mq + 1, sizeof(double));
-  double *y0 = scratch_array(&sc, (size_t)(3 * my + mq) + 1, sizeof(double));
+  Propagation b = {i, q, eq, scratch_array(&sc, (size_t)(mq * mq) + 1, sizeof(double)),
+                   scratch_array(&sc, (size_t)(my * mq) + 1, sizeof(double)),
+                   scratch_array(&sc, (size_t)(mq * mq) + 1, sizeof(double)),
+                   scratch_array(&sc, (size_t)mq + 1, sizeof(double)),
+                   scratch_array(&sc, (size_t)(3 * my + mq) + 1, sizeof(double))};
   double out = NAN;
-  if (!eye || !J || !G || !vt || !y0)
+  if (!b.eye || !b.J || !b.G || !b.vt || !b.y0)
     snprintf(why, n, "out of memory for the propagation of %s's error", qname(m, q));
   else
-    out = propagation(r, i, q, eq, eye, J, G, vt, y0, why, n);
+    out = propagation(r, &b, why, n);
   scratch_release(&sc);
   return out;
 }
@@ -345,11 +352,22 @@ static void store(EstimateResult *e, Estimation *s, int q, double v, unsigned fl
   e->flags[q] = why ? EST_NONE | (flags & EST_OUTSIDE) : flags;
 }
 
+/* A stage's figure as it is made: the estimate, its flags (EST_*), and why there is none. */
+typedef struct Figure {
+  double est;
+  unsigned flags;
+  char why[256];
+} Figure;
+
 /* The estimate of stage number i by its check entries into e (an interpolated stage, or a Galerkin
  * one of diagonal operators whose terms have no tables): interp_check's sampled residual (exact,
  * flagged a bound, when its entries are all those the fit leaves out), plus the propagation of
  * its inputs' errors. */
-static int check_figure(Reduced *r, int i, Estimation *s, double *est, unsigned *flags, char *why, size_t n) {
+static int check_figure(Reduced *r, int i, Estimation *s, Figure *f) {
+  double *est = &f->est;
+  unsigned *flags = &f->flags;
+  char *why = f->why;
+  size_t n = sizeof f->why;
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
   const RInterp *ip = rs->interp ? rs->interp : rs->check, *ck = rs->interp ? rs->interp->check : NULL;
@@ -368,15 +386,17 @@ static int check_figure(Reduced *r, int i, Estimation *s, double *est, unsigned 
 }
 
 static void check_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) {
-  unsigned flags = EST_BOUND;
-  char why[256] = "";
-  double est = NAN;
-  int rc = check_figure(r, i, s, &est, &flags, why, sizeof why);
-  store(e, s, reduced_model(r)->stages[i].q, est, flags, rc ? why : NULL);
+  Figure f = {NAN, EST_BOUND, ""};
+  int rc = check_figure(r, i, s, &f);
+  store(e, s, reduced_model(r)->stages[i].q, f.est, f.flags, rc ? f.why : NULL);
 }
 
 /* The estimate of stage number i into e (err, flags, why_q of its quantity). */
-static int stage_figure(Reduced *r, int i, Estimation *s, double *sump, unsigned *flagsp, char *why, size_t whylen) {
+static int stage_figure(Reduced *r, int i, Estimation *s, Figure *f) {
+  double *sump = &f->est;
+  unsigned *flagsp = &f->flags;
+  char *why = f->why;
+  size_t whylen = sizeof f->why;
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
   const EstimateResult *e = s->e;
@@ -469,11 +489,9 @@ static void stage_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) 
     check_estimate(r, i, e, s);
     return;
   }
-  char why[256] = "";
-  double sum = 0;
-  unsigned flags = EST_BOUND;
-  int rc = stage_figure(r, i, s, &sum, &flags, why, sizeof why);
-  store(e, s, rs->q, sum, flags, rc ? why : NULL);
+  Figure f = {0, EST_BOUND, ""};
+  int rc = stage_figure(r, i, s, &f);
+  store(e, s, rs->q, f.est, f.flags, rc ? f.why : NULL);
 }
 
 int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
