@@ -172,7 +172,7 @@ typedef int (*NpgDerivFn)(const NpgCtx *c, const NpgCtx *d);
 
 /* ---------------------------------------------------------------- the reduced evaluator
  *
- * `npgc emit --reduced MODEL/` (backends/model/emit_reduced.c) writes C for one
+ * `npgc emit --reduced MODEL/` (backends/emit/emit_reduced.c) writes C for one
  * trained model, every size a literal. The reduced tensors are not in the
  * code (they can be megabytes): the host passes them, with the coordinates
  * and scratch memory, in an NpgReducedCtx. The generated file says what it
