@@ -34,6 +34,7 @@
 #include "dist.h"
 #include "interp.h"
 #include "reduced.h"
+#include "scratch.h"
 #include "train.h"
 #include "train_steps.h"
 
@@ -178,22 +179,12 @@ static int class_products(Model *m, const TrainOptions *opt, Err *err) {
 
 /* ---------------------------------------------------------------- training */
 
-typedef struct TrainScratch {
-  struct TrainScratch *next;
-  max_align_t data[];
-} TrainScratch;
-
 void *train_scratch(Train *t, size_t bytes) {
-  TrainScratch *s = mem_calloc(1, sizeof *s + bytes);
-  if (!s) return err_set(t->err, "out of memory during training"), NULL;
-  s->next = t->scratch, t->scratch = s;
-  return s->data;
+  t->scratch.err = t->err; /* a context made by designated initializers holds a NULL record */
+  return scratch_alloc(&t->scratch, bytes);
 }
 
-void train_scratch_free(Train *t) {
-  for (TrainScratch *s = t->scratch, *next; s; s = next) next = s->next, free(s);
-  t->scratch = NULL;
-}
+void train_scratch_free(Train *t) { scratch_release(&t->scratch); }
 
 void train_free_snapshots(Model *m, Snapshots *sn) {
   for (int c = 0; c < m->nclasses; c++) {

@@ -42,7 +42,7 @@ int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, Err *err) 
   double *y = mem_malloc(sizeof(double) * (size_t)maxn), *proj = mem_malloc(sizeof(double) * (size_t)maxm);
   if (!y || !proj) return free(y), free(proj), err_set(err, "out of memory measuring the training floors");
   Train trial = ts->tr; /* the set's snapshots, this truncation */
-  trial.m = m, trial.scratch = NULL, trial.err = err;
+  trial.m = m, trial.scratch = SCRATCH_OF(err), trial.err = err;
   for (long k = 0; k < ts->tr.sn.S; k++) train_take_floors(&trial, k, proj, y);
   free(y), free(proj);
   train_drop_bases(m);
@@ -189,7 +189,7 @@ static int cover(TrainSet *ts, const int *cap, Err *err) {
   }
   Model *m = set_bases(ts, want, err);
   Train trial = ts->tr; /* the set's snapshots, this model */
-  trial.opt = &ts->quiet, trial.m = m, trial.gram = false, trial.err = err, trial.scratch = NULL;
+  trial.opt = &ts->quiet, trial.m = m, trial.gram = false, trial.err = err, trial.scratch = SCRATCH_OF(err);
   if (m && (train_premultiply_all(&trial) || train_fit_externs(&trial, true, false))) model_free(m), m = NULL;
   train_scratch_free(&trial);
   if (m) {

@@ -8,6 +8,7 @@
 
 #include <time.h>
 
+#include "scratch.h"
 #include "train.h"
 
 /* Every member's snapshots, or (method of snapshots) its basis. */
@@ -34,13 +35,13 @@ typedef struct Train {
   bool gram;                /* no snapshot is kept (the method of snapshots, out of core): later passes recompute */
   struct timespec clock[2]; /* the current phase's start, wall and CPU */
   Err *err;                 /* the error record */
-  struct TrainScratch *scratch; /* the current step's scratch (train_scratch) */
+  Scratch scratch;          /* the current step's (train_scratch), released after every step */
 } Train;
 
-/* `bytes` of zeroed scratch that lives until the step that asked for it
- * ends (train_model frees it after every step, whether the step failed or
- * not, so a step frees none of it by hand). NULL with "out of memory" in
- * the error record. */
+/* `bytes` of zeroed scratch (the model layer's Scratch, scratch.h) that
+ * lives until the step that asked for it ends (train_model releases it
+ * after every step, whether the step failed or not, so a step frees none
+ * of it by hand). NULL with "out of memory" in the error record. */
 void *train_scratch(Train *t, size_t bytes);
 void train_scratch_free(Train *t);
 
