@@ -32,6 +32,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "scratch.h"
 #include "train.h"
 
 /* Singular values at most this fraction of the largest are rounding, not
@@ -67,35 +68,36 @@
  * bisection and inverse iteration (dstebz, dstein), as dsyevr does. d and
  * e are left as they were. 0, or LAPACK's info (-1 when out of memory). */
 static lapack_int tridiagonal_top_vectors(long S, const double *d, const double *e, long k, double *V) {
-  double *d2 = mem_malloc(sizeof(double) * (size_t)S), *e2 = mem_malloc(sizeof(double) * (size_t)S);
-  double *w = mem_malloc(sizeof(double) * (size_t)S);
-  lapack_int *iw = mem_malloc(sizeof(lapack_int) * (size_t)(2 * S + 2)), m = 0, nsplit = 0, info = -1;
-  if (!d2 || !e2 || !w || !iw) goto done;
-  memcpy(d2, d, sizeof(double) * (size_t)S);
-  memcpy(e2, e, sizeof(double) * (size_t)S);
-  lapack_logical tryrac = 1;
-  info = LAPACKE_dstemr(LAPACK_COL_MAJOR, 'V', 'I', (lapack_int)S, d2, e2, 0, 0, (lapack_int)(S - k + 1), (lapack_int)S,
-                        &m, w, V, (lapack_int)S, (lapack_int)k, iw, &tryrac);
-  if (info == 0 && m == k) goto done;
-  /* iw: the blocks of the eigenvalues, then where T splits */
-  info = LAPACKE_dstebz('I', 'B', (lapack_int)S, 0, 0, (lapack_int)(S - k + 1), (lapack_int)S, 0, d, e, &m, &nsplit, w,
-                        iw, iw + S);
-  if (info == 0 && m != k) info = -1;
-  if (info == 0) {
-    lapack_int *ifail = mem_malloc(sizeof(lapack_int) * (size_t)k);
-    info = ifail ? LAPACKE_dstein(LAPACK_COL_MAJOR, (lapack_int)S, d, e, m, w, iw, iw + S, V, (lapack_int)S, ifail) : -1;
-    free(ifail);
+  Scratch sc = SCRATCH_OF(NULL);
+  double *d2 = scratch_array(&sc, (size_t)S, sizeof(double)), *e2 = scratch_array(&sc, (size_t)S, sizeof(double));
+  double *w = scratch_array(&sc, (size_t)S, sizeof(double));
+  lapack_int *iw = scratch_array(&sc, (size_t)(2 * S + 2), sizeof(lapack_int)), m = 0, nsplit = 0, info = -1;
+  bool room = d2 && e2 && w && iw;
+  if (room) {
+    memcpy(d2, d, sizeof(double) * (size_t)S);
+    memcpy(e2, e, sizeof(double) * (size_t)S);
+    lapack_logical tryrac = 1;
+    info = LAPACKE_dstemr(LAPACK_COL_MAJOR, 'V', 'I', (lapack_int)S, d2, e2, 0, 0, (lapack_int)(S - k + 1),
+                          (lapack_int)S, &m, w, V, (lapack_int)S, (lapack_int)k, iw, &tryrac);
   }
-  for (long j = 0; info == 0 && j < k; j++) { /* by block to ascending */
-    long lo = j;
-    for (long i = j + 1; i < k; i++) lo = w[i] < w[lo] ? i : lo;
-    if (lo == j) continue;
-    double t = w[j];
-    w[j] = w[lo], w[lo] = t;
-    cblas_dswap((int)S, V + j * S, 1, V + lo * S, 1);
+  if (room && (info != 0 || m != k)) { /* iw: the blocks of the eigenvalues, then where T splits */
+    info = LAPACKE_dstebz('I', 'B', (lapack_int)S, 0, 0, (lapack_int)(S - k + 1), (lapack_int)S, 0, d, e, &m, &nsplit,
+                          w, iw, iw + S);
+    if (info == 0 && m != k) info = -1;
+    lapack_int *ifail = info == 0 ? scratch_array(&sc, (size_t)k, sizeof(lapack_int)) : NULL;
+    if (info == 0)
+      info = ifail ? LAPACKE_dstein(LAPACK_COL_MAJOR, (lapack_int)S, d, e, m, w, iw, iw + S, V, (lapack_int)S, ifail)
+                   : -1;
+    for (long j = 0; info == 0 && j < k; j++) { /* by block to ascending */
+      long lo = j;
+      for (long i = j + 1; i < k; i++) lo = w[i] < w[lo] ? i : lo;
+      if (lo == j) continue;
+      double t = w[j];
+      w[j] = w[lo], w[lo] = t;
+      cblas_dswap((int)S, V + j * S, 1, V + lo * S, 1);
+    }
   }
-done:
-  free(d2), free(e2), free(w), free(iw);
+  scratch_release(&sc);
   return info;
 }
 
@@ -110,22 +112,23 @@ int pca_top_eigen(long S, double *G, long k, double *lam, double *V) {
   }
   /* G = Q T Qᵀ (dsytrd), T's every eigenvalue (dsterf on a copy), the top
    * k eigenvectors of T, then Q applied to them (dormtr) */
-  double *d = mem_malloc(sizeof(double) * (size_t)S), *e = mem_calloc((size_t)S, sizeof(double));
-  double *tau = mem_malloc(sizeof(double) * (size_t)S), *w = mem_malloc(sizeof(double) * (size_t)S);
-  lapack_int info = -1;
-  if (!d || !e || !tau || !w) goto done;
-  if ((info = LAPACKE_dsytrd(LAPACK_COL_MAJOR, 'U', (lapack_int)S, G, (lapack_int)S, d, e, tau)) != 0) goto done;
-  memcpy(lam, d, sizeof(double) * (size_t)S);
-  memcpy(w, e, sizeof(double) * (size_t)S);
-  if ((info = LAPACKE_dsterf((lapack_int)S, lam, w)) != 0 || k == 0) goto done;
-  if ((info = tridiagonal_top_vectors(S, d, e, k, V)) != 0) goto done;
-  if ((info = LAPACKE_dormtr(LAPACK_COL_MAJOR, 'L', 'U', 'N', (lapack_int)S, (lapack_int)k, G, (lapack_int)S, tau, V,
-                             (lapack_int)S)) != 0)
-    goto done;
-  for (long j = 0; j < k / 2; j++) /* ascending to descending */
+  Scratch sc = SCRATCH_OF(NULL);
+  double *d = scratch_array(&sc, (size_t)S, sizeof(double)), *e = scratch_array(&sc, (size_t)S, sizeof(double));
+  double *tau = scratch_array(&sc, (size_t)S, sizeof(double)), *w = scratch_array(&sc, (size_t)S, sizeof(double));
+  lapack_int info = d && e && tau && w ? LAPACKE_dsytrd(LAPACK_COL_MAJOR, 'U', (lapack_int)S, G, (lapack_int)S, d, e, tau)
+                                       : -1;
+  if (info == 0) {
+    memcpy(lam, d, sizeof(double) * (size_t)S);
+    memcpy(w, e, sizeof(double) * (size_t)S);
+    info = LAPACKE_dsterf((lapack_int)S, lam, w);
+  }
+  if (info == 0 && k > 0) info = tridiagonal_top_vectors(S, d, e, k, V);
+  if (info == 0 && k > 0)
+    info = LAPACKE_dormtr(LAPACK_COL_MAJOR, 'L', 'U', 'N', (lapack_int)S, (lapack_int)k, G, (lapack_int)S, tau, V,
+                          (lapack_int)S);
+  for (long j = 0; info == 0 && j < k / 2; j++) /* ascending to descending */
     cblas_dswap((int)S, V + j * S, 1, V + (k - 1 - j) * S, 1);
-done:
-  free(d), free(e), free(tau), free(w);
+  scratch_release(&sc);
   return (int)info;
 }
 
@@ -179,84 +182,99 @@ typedef struct TallSvd {
   double *ur;    /* S x S: R's left singular vectors (tall) */
 } TallSvd;
 
-static void tall_svd_free(TallSvd *t) { free(t->A), free(t->tau), free(t->ur); }
-
-/* s[0..r) descending; 0, or -1 with `err`. */
-static int tall_svd(TallSvd *t, long n, long S, const double *X, double *s, Err *err) {
-  memset(t, 0, sizeof *t);
-  t->n = n, t->S = S, t->r = n < S ? n : S;
+/* s[0..r) descending; t's arrays from `keep` (the caller's scratch: they
+ * live on for tall_svd_vectors), what only the SVD needs from its own.
+ * 0, or -1 with keep's error record. */
+static int tall_svd(TallSvd *t, long n, long S, const double *X, double *s, Scratch *keep) {
+  Err *err = keep->err;
+  Scratch sc = SCRATCH_OF(err);
+  *t = (TallSvd){.n = n, .S = S, .r = n < S ? n : S};
   long r = t->r;
-  double *R = NULL, *vt = mem_malloc(sizeof(double) * (size_t)(r * S + 1));
-  t->A = mem_malloc(sizeof(double) * (size_t)(n * S + 1));
+  bool wide = n < S; /* wide: the SVD whole, U beside the copy, which it overwrites */
+  double *vt = scratch_array(&sc, (size_t)(r * S + 1), sizeof(double));
+  double *A = scratch_array(wide ? &sc : keep, (size_t)(n * S + 1), sizeof(double)), *R = NULL;
+  if (wide) t->A = scratch_array(keep, (size_t)(n * r + 1), sizeof(double));
+  else {
+    t->A = A;
+    t->tau = scratch_array(keep, (size_t)(S + 1), sizeof(double));
+    R = scratch_array(&sc, (size_t)(S * S + 1), sizeof(double));
+    t->ur = scratch_array(keep, (size_t)(S * S + 1), sizeof(double));
+  }
   lapack_int info = 0;
-  const char *what = "SVD";
-  if (!t->A || !vt) goto oom;
-  memcpy(t->A, X, sizeof(double) * (size_t)(n * S));
-  if (n < S) { /* wide: the SVD whole, U in place of the copy */
-    double *A = t->A;
-    if (!(t->A = mem_malloc(sizeof(double) * (size_t)(n * r + 1)))) {
-      t->A = A;
-      goto oom;
-    }
+  const char *what = wide ? "SVD" : "QR";
+  int rc = 0;
+  if (!vt || !A || !t->A || (!wide && (!t->tau || !R || !t->ur)))
+    rc = err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+  else if (wide) {
+    memcpy(A, X, sizeof(double) * (size_t)(n * S));
     info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)n, (lapack_int)S, A, (lapack_int)n, s, t->A,
                           (lapack_int)n, vt, (lapack_int)r);
-    free(A);
-    goto done;
+  } else {
+    memcpy(A, X, sizeof(double) * (size_t)(n * S));
+    info = LAPACKE_dgeqrf(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)S, t->A, (lapack_int)n, t->tau);
+    for (long j = 0; info == 0 && j < S; j++) memcpy(R + j * S, t->A + j * n, sizeof(double) * (size_t)(j + 1));
+    if (info == 0) {
+      what = "SVD";
+      info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)S, (lapack_int)S, R, (lapack_int)S, s, t->ur,
+                            (lapack_int)S, vt, (lapack_int)S);
+    }
   }
-  t->tau = mem_malloc(sizeof(double) * (size_t)(S + 1));
-  R = mem_calloc((size_t)(S * S + 1), sizeof(double));
-  t->ur = mem_malloc(sizeof(double) * (size_t)(S * S + 1));
-  if (!t->tau || !R || !t->ur) goto oom;
-  what = "QR";
-  if ((info = LAPACKE_dgeqrf(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)S, t->A, (lapack_int)n, t->tau)) != 0)
-    goto done;
-  for (long j = 0; j < S; j++) memcpy(R + j * S, t->A + j * n, sizeof(double) * (size_t)(j + 1));
-  what = "SVD";
-  info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)S, (lapack_int)S, R, (lapack_int)S, s, t->ur,
-                        (lapack_int)S, vt, (lapack_int)S);
-done:
-  free(R), free(vt);
-  if (info != 0) {
-    tall_svd_free(t);
-    err_set(err, "the %s of %ld x %ld snapshots did not converge (LAPACK info %d)", what, n, S, (int)info);
-    return -1;
-  }
-  return 0;
-oom:
-  free(R), free(vt);
-  tall_svd_free(t);
-  err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
-  return -1;
+  if (info != 0)
+    rc = err_set(err, "the %s of %ld x %ld snapshots did not converge (LAPACK info %d)", what, n, S, (int)info);
+  scratch_release(&sc);
+  return rc;
 }
 
 /* The first k left singular vectors into *U (n x k row-major, malloc'd).
  * 0, or -1 with `err`. */
 static int tall_svd_vectors(const TallSvd *t, long k, double **U, Err *err) {
   long n = t->n, S = t->S;
-  double *out = mem_malloc(sizeof(double) * (size_t)(n * (k ? k : 1)));
-  double *C = t->ur ? mem_calloc((size_t)(n * (k ? k : 1)), sizeof(double)) : NULL;
-  if (!out || (t->ur && !C)) {
-    free(out), free(C);
-    err_set(err, "out of memory for a basis of %ld x %ld", n, k);
-    return -1;
-  }
+  Scratch sc = SCRATCH_OF(err);
+  double *C = t->ur ? scratch_array(&sc, (size_t)(n * (k ? k : 1)), sizeof(double)) : NULL;
   const double *u = t->A; /* n x k column-major: the vectors */
-  if (t->ur && k > 0) {   /* C = Q [U_R(:, 0:k); 0] */
+  lapack_int info = 0;
+  int rc = t->ur && !C ? err_set(err, "out of memory for a basis of %ld x %ld", n, k) : 0;
+  if (rc == 0 && t->ur && k > 0) { /* C = Q [U_R(:, 0:k); 0] */
     for (long j = 0; j < k; j++) memcpy(C + j * n, t->ur + j * S, sizeof(double) * (size_t)S);
-    lapack_int info = LAPACKE_dormqr(LAPACK_COL_MAJOR, 'L', 'N', (lapack_int)n, (lapack_int)k, (lapack_int)S, t->A,
-                                     (lapack_int)n, t->tau, C, (lapack_int)n);
-    if (info != 0) {
-      free(out), free(C);
-      err_set(err, "applying the QR of %ld x %ld snapshots failed (LAPACK info %d)", n, S, (int)info);
-      return -1;
-    }
+    info = LAPACKE_dormqr(LAPACK_COL_MAJOR, 'L', 'N', (lapack_int)n, (lapack_int)k, (lapack_int)S, t->A, (lapack_int)n,
+                          t->tau, C, (lapack_int)n);
+    if (info != 0) rc = err_set(err, "applying the QR of %ld x %ld snapshots failed (LAPACK info %d)", n, S, (int)info);
     u = C;
   }
-  for (long i = 0; i < n; i++)
+  double *out = rc == 0 ? mem_malloc(sizeof(double) * (size_t)(n * (k ? k : 1))) : NULL;
+  if (rc == 0 && !out) rc = err_set(err, "out of memory for a basis of %ld x %ld", n, k);
+  for (long i = 0; out && i < n; i++)
     for (long j = 0; j < k; j++) out[i * k + j] = u[(size_t)j * (size_t)n + (size_t)i];
-  free(C);
-  *U = out;
-  return 0;
+  if (out) *U = out;
+  scratch_release(&sc);
+  return rc;
+}
+
+void pca_member_free(PcaMember *p) {
+  free(p->U);
+  free(p->sv);
+  memset(p, 0, sizeof *p);
+}
+
+/* pca_core of snapshots within range: out->U, out->k, out->lost, out->sv
+ * (out->nsv), or on failure nothing. */
+static int svd_basis(long n, long S, const double *X, const PcaRule *rule, PcaMember *out, Err *err) {
+  long r = n < S ? n : S;
+  Scratch sc = SCRATCH_OF(err);
+  TallSvd t = {0};
+  out->sv = mem_malloc(sizeof(double) * (size_t)(r + 1)), out->nsv = r;
+  int rc = out->sv ? tall_svd(&t, n, S, X, out->sv, &sc)
+                   : err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+  if (rc == 0) {
+    double total = energy_total(out->sv, r), captured = 1;
+    out->k = (int)pca_choose(out->sv, r, rule->cap, rule->energy, false);
+    if (total > 0) captured = energy_total(out->sv, out->k) / total;
+    out->lost = fmax(0, 1 - captured);
+    rc = tall_svd_vectors(&t, out->k, &out->U, err);
+  }
+  if (rc) pca_member_free(out); /* the half-made basis */
+  scratch_release(&sc);
+  return rc;
 }
 
 /* The uncentered, unweighted basis of X by rule's cap and energy: out->U
@@ -270,38 +288,17 @@ static int pca_core(long n, long S, const double *X, const PcaRule *rule, PcaMem
    * change with the scale, and the singular values are scaled back. */
   double big = 0;
   for (size_t i = 0; i < (size_t)n * (size_t)S; i++) big = fmax(big, fabs(X[i]));
-  if (big > 0 && isfinite(big) && (big < PCA_SCALE_MIN || big > 1 / PCA_SCALE_MIN)) {
-    int e = ilogb(big);
-    double *Xs = malloc(sizeof(double) * ((size_t)n * (size_t)S + 1));
-    if (!Xs) {
-      err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
-      return -1;
-    }
-    for (size_t i = 0; i < (size_t)n * (size_t)S; i++) Xs[i] = ldexp(X[i], -e);
-    int rc = pca_core(n, S, Xs, rule, out, err);
-    free(Xs);
-    if (rc == 0 && out->sv)
-      for (long i = 0; i < out->nsv; i++) out->sv[i] = ldexp(out->sv[i], e);
-    return rc;
-  }
-  long r = n < S ? n : S;
-  double *s = mem_malloc(sizeof(double) * (size_t)(r + 1));
-  TallSvd t;
-  if (!s) {
-    err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
-    return -1;
-  }
-  if (tall_svd(&t, n, S, X, s, err)) return free(s), -1;
-  double total = energy_total(s, r), captured = 1;
-  int kept = (int)pca_choose(s, r, rule->cap, rule->energy, false);
-  if (total > 0) captured = energy_total(s, kept) / total;
-  int rc = tall_svd_vectors(&t, kept, &out->U, err);
-  tall_svd_free(&t);
-  if (rc) return free(s), -1;
-  out->sv = s, out->nsv = r;
-  out->k = kept;
-  out->lost = fmax(0, 1 - captured);
-  return 0;
+  if (!(big > 0 && isfinite(big) && (big < PCA_SCALE_MIN || big > 1 / PCA_SCALE_MIN)))
+    return svd_basis(n, S, X, rule, out, err);
+  int e = ilogb(big);
+  Scratch sc = SCRATCH_OF(err);
+  double *Xs = scratch_array(&sc, (size_t)n * (size_t)S + 1, sizeof(double));
+  int rc = Xs ? 0 : err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+  for (size_t i = 0; Xs && i < (size_t)n * (size_t)S; i++) Xs[i] = ldexp(X[i], -e);
+  if (rc == 0) rc = svd_basis(n, S, Xs, rule, out, err);
+  for (long i = 0; rc == 0 && i < out->nsv; i++) out->sv[i] = ldexp(out->sv[i], e);
+  scratch_release(&sc);
+  return rc;
 }
 
 /* pca_in_order with the dependence tolerance `tol`. */
@@ -311,15 +308,13 @@ static int in_order(long n, PcaBlocks a, double tol, double **Q, int *m, Err *er
   const int *k = a.k;
   long K = 0;
   for (int i = 0; i < r; i++) K += k[i];
-  double *q = mem_malloc(sizeof(double) * (size_t)(n * (K ? K : 1))), *v = mem_malloc(sizeof(double) * (size_t)(n + 1));
-  double *c = mem_malloc(sizeof(double) * (size_t)(K + 1));
+  Scratch sc = SCRATCH_OF(err);
+  double *q = scratch_array(&sc, (size_t)(n * (K ? K : 1)), sizeof(double));
+  double *v = scratch_array(&sc, (size_t)(n + 1), sizeof(double)), *c = scratch_array(&sc, (size_t)(K + 1), sizeof(double));
   *Q = NULL;
   *m = 0;
-  if (!q || !v || !c) {
-    free(q), free(v), free(c);
-    err_set(err, "out of memory orthonormalizing a basis of %ld entries", n);
-    return -1;
-  }
+  if (!q || !v || !c)
+    return scratch_release(&sc), err_set(err, "out of memory orthonormalizing a basis of %ld entries", n);
   /* q is n x K row-major with leading dimension K; its first `kept` columns are the basis so far */
   int kept = 0;
   for (int i = 0; i < r; i++)
@@ -336,15 +331,10 @@ static int in_order(long n, PcaBlocks a, double tol, double **Q, int *m, Err *er
       for (long e = 0; e < n; e++) q[e * K + kept] = v[e] / norm;
       kept++;
     }
-  free(v), free(c);
   double *out = mem_malloc(sizeof(double) * (size_t)(n * (kept ? kept : 1)));
-  if (!out) {
-    free(q);
-    err_set(err, "out of memory orthonormalizing a basis of %ld entries", n);
-    return -1;
-  }
-  for (long e = 0; e < n; e++) memcpy(out + e * kept, q + e * K, sizeof(double) * (size_t)kept);
-  free(q);
+  for (long e = 0; out && e < n; e++) memcpy(out + e * kept, q + e * K, sizeof(double) * (size_t)kept);
+  scratch_release(&sc);
+  if (!out) return err_set(err, "out of memory orthonormalizing a basis of %ld entries", n);
   *Q = out;
   *m = kept;
   return 0;
@@ -383,42 +373,37 @@ void pca_weigh(long n, long S, double *X, const double *w, double *mu) {
 int pca_basis(long n, long S, const double *X, const PcaRule *rule, PcaMember *out, Err *err) {
   memset(out, 0, sizeof *out);
   const double *w = rule->w;
+  Scratch sc = SCRATCH_OF(err);
+  int rc = 0;
   if (!rule->center) {
-    double *Xw = w ? mem_malloc(sizeof(double) * (size_t)(n * S + 1)) : NULL;
-    if (w && !Xw) {
-      err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
-      return -1;
-    }
+    double *Xw = w ? scratch_array(&sc, (size_t)(n * S + 1), sizeof(double)) : NULL;
+    if (w && !Xw) rc = err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
     if (Xw) memcpy(Xw, X, sizeof(double) * (size_t)(n * S)), pca_weigh(n, S, Xw, w, NULL);
-    int rc = pca_core(n, S, Xw ? Xw : X, rule, out, err);
-    free(Xw);
+    if (rc == 0) rc = pca_core(n, S, Xw ? Xw : X, rule, out, err);
+    scratch_release(&sc);
     return rc;
   }
   /* centered: [μ, U_c] with U_c the leading directions of X − μ1ᵀ, at most cap − 1 (weighted: of
    * (X − μ1ᵀ) diag(√w), μ the weighted mean) */
-  double *mu = mem_malloc(sizeof(double) * (size_t)(n + 1)), *Xc = mem_malloc(sizeof(double) * (size_t)(n * S + 1));
+  double *mu = scratch_array(&sc, (size_t)(n + 1), sizeof(double));
+  double *Xc = scratch_array(&sc, (size_t)(n * S + 1), sizeof(double));
   PcaMember c = {0}; /* the centered snapshots' */
-  int rc = -1;
-  if (!mu || !Xc) {
-    err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
-    goto done;
+  if (!mu || !Xc) rc = err_set(err, "out of memory for a PCA of %ld x %ld snapshots", n, S);
+  if (rc == 0) {
+    memcpy(Xc, X, sizeof(double) * (size_t)(n * S));
+    pca_weigh(n, S, Xc, w, mu);
+    rc = pca_core(n, S, Xc, &(PcaRule){.cap = rule->cap > 1 ? rule->cap - 1 : 0, .energy = rule->energy}, &c, err);
   }
-  memcpy(Xc, X, sizeof(double) * (size_t)(n * S));
-  pca_weigh(n, S, Xc, w, mu);
-  if (pca_core(n, S, Xc, &(PcaRule){.cap = rule->cap > 1 ? rule->cap - 1 : 0, .energy = rule->energy}, &c, err)) goto done;
-  out->sv = c.sv, out->nsv = c.nsv;
-  double *parts[2] = {mu, c.U};
-  int ks[2] = {1, c.k};
-  rc = pca_in_order(n, (PcaBlocks){2, parts, ks}, &out->U, &out->k, err);
-  out->lost = c.lost;
-done:
-  free(mu);
-  free(Xc);
-  free(c.U);
-  if (rc) {
-    free(out->sv);
-    out->sv = NULL;
+  if (rc == 0) {
+    out->sv = c.sv, out->nsv = c.nsv, c.sv = NULL; /* the spectrum is the centered snapshots' */
+    double *parts[2] = {mu, c.U};
+    int ks[2] = {1, c.k};
+    rc = pca_in_order(n, (PcaBlocks){2, parts, ks}, &out->U, &out->k, err);
+    out->lost = c.lost;
   }
+  pca_member_free(&c);
+  if (rc) pca_member_free(out); /* the half-made basis */
+  scratch_release(&sc);
   return rc;
 }
 
@@ -431,21 +416,18 @@ int pca_merge(long n, PcaBlocks u, double **B, long *m, Err *err) {
   long K = 0;
   int kmax = 0;
   for (int i = 0; i < r; i++) K += k[i], kmax = k[i] > kmax ? k[i] : kmax;
-  if (K == 0) {
-    *B = mem_malloc(sizeof(double));
-    return *B ? 0 : -1;
-  }
-  if (r == 1) { /* already orthonormal */
-    *B = mem_malloc(sizeof(double) * (size_t)(n * K));
-    if (!*B) goto oom;
-    memcpy(*B, U[0], sizeof(double) * (size_t)(n * K));
+  if (K == 0 || r == 1) { /* no vector, or already orthonormal */
+    if (!(*B = mem_malloc(sizeof(double) * (size_t)(K ? n * K : 1))))
+      return err_set(err, "out of memory merging bases of %ld entries", n);
+    if (K) memcpy(*B, U[0], sizeof(double) * (size_t)(n * K));
     *m = K;
     return 0;
   }
   /* the members' vectors interleaved (the first of each, then the second of each, …), then
    * Gram–Schmidt in that order: the first vectors of the result span the members' first ones */
-  double *A = mem_malloc(sizeof(double) * (size_t)(n * K));
-  if (!A) goto oom;
+  Scratch sc = SCRATCH_OF(err);
+  double *A = scratch_array(&sc, (size_t)(n * K), sizeof(double));
+  if (!A) return scratch_release(&sc), err_set(err, "out of memory merging bases of %ld entries", n);
   long col = 0;
   for (int j = 0; j < kmax; j++)
     for (int i = 0; i < r; i++) {
@@ -455,12 +437,9 @@ int pca_merge(long n, PcaBlocks u, double **B, long *m, Err *err) {
     }
   int kk = (int)K, mm = 0;
   int rc = in_order(n, (PcaBlocks){1, &A, &kk}, PCA_MERGE_TOL, B, &mm, err);
-  free(A);
+  scratch_release(&sc);
   *m = mm;
   return rc;
-oom:
-  err_set(err, "out of memory merging bases of %ld entries", n);
-  return -1;
 }
 
 /* The first entry (in row order) whose magnitude is at least
@@ -478,16 +457,18 @@ void pca_sign_scan(long n, long m, const double *B, double *big, int *sign, bool
 }
 
 int pca_fix_signs(long n, long m, double *B) {
-  double *big = mem_calloc((size_t)m + 1, sizeof(double));
-  int *sign = mem_calloc((size_t)m + 1, sizeof(int));
-  if (!big || !sign) return free(big), free(sign), -1;
-  pca_sign_scan(n, m, B, big, sign, false);
-  pca_sign_scan(n, m, B, big, sign, true);
-  for (long j = 0; j < m; j++)
+  Scratch sc = SCRATCH_OF(NULL);
+  double *big = scratch_array(&sc, (size_t)m + 1, sizeof(double));
+  int *sign = scratch_array(&sc, (size_t)m + 1, sizeof(int));
+  if (big && sign) {
+    pca_sign_scan(n, m, B, big, sign, false);
+    pca_sign_scan(n, m, B, big, sign, true);
+  }
+  for (long j = 0; big && sign && j < m; j++)
     if (sign[j] < 0)
       for (long e = 0; e < n; e++) B[e * m + j] = -B[e * m + j];
-  free(big), free(sign);
-  return 0;
+  scratch_release(&sc);
+  return big && sign ? 0 : -1;
 }
 
 const char *pca_gram_out_of_range(long S, const double *G, double big) {
@@ -505,40 +486,42 @@ const char *pca_gram_out_of_range(long S, const double *G, double big) {
 int pca_fold_rows(long S, double *R, long rows, double *B, long ldb) {
   if (S <= 0 || rows <= 0) return 0;
   long nb = S < 32 ? S : 32;
-  double *T = mem_malloc(sizeof(double) * (size_t)(nb * S));
-  if (!T) return -1;
-  lapack_int info = LAPACKE_dtpqrt(LAPACK_COL_MAJOR, (lapack_int)rows, (lapack_int)S, 0, (lapack_int)nb, R,
-                                   (lapack_int)S, B, (lapack_int)ldb, T, (lapack_int)nb);
-  free(T);
+  Scratch sc = SCRATCH_OF(NULL);
+  double *T = scratch_array(&sc, (size_t)(nb * S), sizeof(double));
+  lapack_int info = T ? LAPACKE_dtpqrt(LAPACK_COL_MAJOR, (lapack_int)rows, (lapack_int)S, 0, (lapack_int)nb, R,
+                                       (lapack_int)S, B, (lapack_int)ldb, T, (lapack_int)nb)
+                      : -1;
+  scratch_release(&sc);
   return (int)info;
 }
 
 int pca_fold_r(long S, int nr, const double *Rs, double *R) {
   memset(R, 0, sizeof(double) * (size_t)(S * S));
-  double *B = mem_malloc(sizeof(double) * (size_t)(S * S + 1));
+  Scratch sc = SCRATCH_OF(NULL);
+  double *B = scratch_array(&sc, (size_t)(S * S + 1), sizeof(double));
   int info = B ? 0 : -1;
   for (int i = 0; info == 0 && i < nr; i++) {
     memcpy(B, Rs + (size_t)i * (size_t)(S * S), sizeof(double) * (size_t)(S * S));
     info = pca_fold_rows(S, R, S, B, S);
   }
-  free(B);
+  scratch_release(&sc);
   return info;
 }
 
 int pca_r_basis(long S, const double *R, const PcaRule *rule, double *s, double *W, long *k) {
-  double *A = mem_malloc(sizeof(double) * (size_t)(S * S + 1)), *u = mem_malloc(sizeof(double) * (size_t)(S * S + 1));
-  double *vt = mem_malloc(sizeof(double) * (size_t)(S * S + 1));
+  Scratch sc = SCRATCH_OF(NULL);
+  double *A = scratch_array(&sc, (size_t)(S * S + 1), sizeof(double));
+  double *u = scratch_array(&sc, (size_t)(S * S + 1), sizeof(double));
+  double *vt = scratch_array(&sc, (size_t)(S * S + 1), sizeof(double));
   int info = -1;
-  if (!A || !u || !vt) goto done;
-  for (long j = 0; j < S; j++) /* the upper triangle only: below it dtpqrt leaves nothing of use */
+  for (long j = 0; A && j < S; j++) /* the upper triangle only: below it dtpqrt leaves nothing of use */
     for (long i = 0; i < S; i++) A[j * S + i] = i <= j ? R[j * S + i] : 0;
-  info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)S, (lapack_int)S, A, (lapack_int)S, s, u, (lapack_int)S, vt,
-                        (lapack_int)S);
-  if (info != 0) goto done;
-  *k = pca_choose(s, S, rule->cap, rule->energy, false);
-  for (long j = 0; j < *k; j++) /* W(:, j) = V(:, j) / σ_j, V(e, j) = vt(j, e) */
+  if (A && u && vt)
+    info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)S, (lapack_int)S, A, (lapack_int)S, s, u, (lapack_int)S,
+                          vt, (lapack_int)S);
+  if (info == 0) *k = pca_choose(s, S, rule->cap, rule->energy, false);
+  for (long j = 0; info == 0 && j < *k; j++) /* W(:, j) = V(:, j) / σ_j, V(e, j) = vt(j, e) */
     for (long e = 0; e < S; e++) W[j * S + e] = vt[e * S + j] / s[j];
-done:
-  free(A), free(u), free(vt);
+  scratch_release(&sc);
   return info;
 }

@@ -351,6 +351,8 @@ struct PcaMember {
  * previous ones dropped). Weighted (rule->w not NULL, S positive weights): the PCA of pca_weigh's
  * snapshots, μ their weighted mean. 0, or -1 with `err` and nothing allocated. */
 int pca_basis(long n, long S, const double *X, const PcaRule *rule, PcaMember *out, Err *err);
+/* A member's basis freed (its U and sv), *p left empty: the free function of what pca_basis returns. */
+void pca_member_free(PcaMember *p);
 /* Weighted snapshots (TrainOptions.weights, w NULL: every weight 1): with `mu`, the mean
  * Σ_s w_s X_s / Σ_s w_s into mu and subtracted from every column (pca_mean's arithmetic when w
  * is NULL); then column s times √w_s. X n x S column-major, in place. The PCA of the result
