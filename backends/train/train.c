@@ -179,10 +179,14 @@ static int class_products(Model *m, const TrainOptions *opt, Err *err) {
 
 /* ---------------------------------------------------------------- training */
 
-void *train_scratch(Train *t, size_t bytes) {
-  t->scratch.err = t->err; /* a context made by designated initializers holds a NULL record */
-  return scratch_alloc(&t->scratch, bytes);
+/* The current step's scratch, reporting into the context's error record (a
+ * context made by designated initializers starts with an empty Scratch of no record). */
+static Scratch *step_scratch(Train *t) {
+  t->scratch.err = t->err;
+  return &t->scratch;
 }
+
+void *train_scratch(Train *t, size_t bytes) { return scratch_alloc(step_scratch(t), bytes); }
 
 void train_scratch_free(Train *t) { scratch_release(&t->scratch); }
 
@@ -297,22 +301,21 @@ static void take_pca(RMember *mb, PcaMember *p) {
  * snapshots, n x S column-major; `pre` (over ranks): the members' PCAs
  * already made (dist_member_pcas), taken over. */
 int train_member_bases(RClass *rc, long S, double *const *X, const double *w, PcaMember *pre, Err *err) {
-  double **U = mem_calloc((size_t)rc->nmembers + 1, sizeof(double *));
-  int *kk = mem_calloc((size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
+  Scratch sc = SCRATCH_OF(err);
+  double **U = scratch_array(&sc, (size_t)rc->nmembers + 1, sizeof(double *));
+  int *kk = scratch_array(&sc, (size_t)rc->nmembers + 1, sizeof(int)), rc_ok = U && kk ? 0 : -1;
   for (int i = 0; i < rc->nmembers && rc_ok == 0; i++) {
     RMember *mb = &rc->members[i];
     PcaMember p;
     if (pre) p = pre[i], memset(&pre[i], 0, sizeof pre[i]);
     else rc_ok = pca_basis(rc->n, S, X[i], &(PcaRule){mb->cap, mb->energy, mb->center, w}, &p, err);
     if (rc_ok) break;
-    U[i] = p.U;
     kk[i] = p.k;
     take_pca(mb, &p);
+    if (!(U[i] = scratch_adopt(&sc, p.U))) rc_ok = -1; /* the member's basis, until merged */
   }
   if (rc_ok == 0) rc_ok = pca_merge(rc->n, (PcaBlocks){rc->nmembers, U, kk}, &rc->B, &rc->m, err);
-  for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
-  free(U);
-  free(kk);
+  scratch_release(&sc);
   return rc_ok;
 }
 
@@ -355,11 +358,11 @@ int train_begin(Train *t) {
   Model *m = t->m = model_layout(prog, dims, t->err);
   if (!m) return -1;
   m->samples = t->src->count;
-  bool *powered = lower_under_powers(m->prog);
+  bool *marked = lower_under_powers(m->prog), *powered = scratch_adopt(step_scratch(t), marked);
+  if (marked && !powered) return -1;
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++)
       member_options(m, &m->classes[c], &m->classes[c].members[i], opt, powered);
-  free(powered);
   if (class_products(m, opt, t->err)) return -1;
   char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
   if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
@@ -371,11 +374,11 @@ int train_begin(Train *t) {
 
 int train_check_names(Program *prog, const TrainOptions *opt, Err *err) {
   /* classes and stages do not depend on the dims' sizes: the layout at size 1 names them all */
-  long *dims = mem_calloc((size_t)prog->dims.n + 1, sizeof(long));
-  if (!dims) return err_set(err, "out of memory");
-  for (int i = 0; i < prog->dims.n; i++) dims[i] = 1;
-  Model *m = model_layout(prog, dims, err);
-  free(dims);
+  Scratch sc = SCRATCH_OF(err);
+  long *dims = scratch_array(&sc, (size_t)prog->dims.n + 1, sizeof(long));
+  for (int i = 0; dims && i < prog->dims.n; i++) dims[i] = 1;
+  Model *m = dims ? model_layout(prog, dims, err) : NULL;
+  scratch_release(&sc);
   if (!m) return -1;
   char unknown[256] = "";
   int rc = 0;
@@ -504,20 +507,21 @@ int train_take_snapshots(Train *t) {
  * class whose every snapshot is zero (lifting gives 0). */
 int train_complete_basis(RClass *rc, bool full_rank, Err *err) {
   if (full_rank && rc->m < rc->n) {
-    double *eye = mem_calloc((size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
+    Scratch sc = SCRATCH_OF(err);
+    double *eye = scratch_array(&sc, (size_t)(rc->n * rc->n), sizeof(double)), *B = NULL;
     double *parts[2] = {rc->B, eye};
-    int ks[2] = {(int)rc->m, (int)rc->n};
-    if (!eye) return err_set(err, "out of memory completing the basis of class %s", rc->label);
-    for (long e = 0; e < rc->n; e++) eye[e * rc->n + e] = 1;
-    int mm = 0, rc_ok = pca_in_order(rc->n, (PcaBlocks){2, parts, ks}, &B, &mm, err); /* the PCA directions first */
+    int ks[2] = {(int)rc->m, (int)rc->n}, mm = (int)rc->m;
+    int rc_ok = eye ? 0 : err_set(err, "out of memory completing the basis of class %s", rc->label);
+    for (long e = 0; eye && e < rc->n; e++) eye[e * rc->n + e] = 1;
+    if (eye) rc_ok = pca_in_order(rc->n, (PcaBlocks){2, parts, ks}, &B, &mm, err); /* the PCA directions first */
     rc->m = mm;
-    free(eye);
+    scratch_release(&sc);
     if (rc_ok != 0) return -1;
-    free(rc->B);
+    free(rc->B); /* replaced by its completion */
     rc->B = B;
   }
   if (rc->m == 0) {
-    free(rc->B);
+    free(rc->B); /* replaced by one direction */
     if (!(rc->B = mem_calloc((size_t)rc->n, sizeof(double)))) return err_set(err, "out of memory");
     rc->B[0] = 1;
     rc->m = 1;
@@ -526,47 +530,42 @@ int train_complete_basis(RClass *rc, bool full_rank, Err *err) {
   return 0;
 }
 
-/* Step 2: one basis per class (DESIGN §5), sized into the tensors. */
-static int build_bases(Train *t) {
-  Model *m = t->m;
+/* Class `rc`'s basis from the snapshots (`pre`: its members' PCAs made over ranks, or NULL). */
+static int class_basis(Train *t, RClass *rc, PcaMember *pre, bool over_ranks) {
   const Snapshots *sn = &t->sn;
   const TrainOptions *opt = t->opt;
   bool gram = t->gram;
   Err *err = t->err;
+  int c = (int)(rc - t->m->classes), rc_ok = 0;
+  if (rc->product) { /* issue 41: BᵀK0B = I, a transform around the members' PCAs (product.c) */
+    const char *why = gram ? "the snapshots do not fit in --mem (raise it)"
+                      : opt->joint && rc->nmembers > 1 ? "--merge joint (use --merge concat)"
+                      : over_ranks ? "training over MPI ranks" : NULL;
+    if (why)
+      return err_set(err, "basis %s: product %s is not implemented with %s", rc->bc->size_name, rc->product->name, why);
+    return train_product_basis(t->m, t->f, rc, &(ClassSnapshots){sn->S, sn->X[c], opt->weights}, opt->full_rank, err);
+  }
+  if (opt->joint && rc->nmembers > 1) rc_ok = train_joint_basis(rc, sn->S, sn->X[c], err);
+  else if (gram) rc_ok = pca_merge(rc->n, (PcaBlocks){rc->nmembers, sn->U[c], sn->k[c]}, &rc->B, &rc->m, err);
+  else rc_ok = train_member_bases(rc, sn->S, sn->X[c], opt->weights, pre, err);
+  if (rc_ok != 0) return err_set_first(err, "out of memory building the basis of class %s", rc->label);
+  return train_complete_basis(rc, opt->full_rank, err);
+}
+
+/* Step 2: one basis per class (DESIGN §5), sized into the tensors. */
+static int build_bases(Train *t) {
+  Model *m = t->m;
+  const TrainOptions *opt = t->opt;
   /* over ranks: the members' PCAs shared out, each made on one rank */
   PcaMember **pre = NULL;
-  if (opt->dist && dist_size() > 1 && !gram && !opt->joint &&
-      dist_member_pcas(m, sn->S, sn->X, opt->weights, &pre, err))
+  if (opt->dist && dist_size() > 1 && !t->gram && !opt->joint &&
+      dist_member_pcas(m, t->sn.S, t->sn.X, opt->weights, &pre, t->err))
     return -1;
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    int rc_ok = 0;
-    if (rc->product) { /* issue 41: BᵀK0B = I, a transform around the members' PCAs (product.c) */
-      const char *why = gram ? "the snapshots do not fit in --mem (raise it)"
-                        : opt->joint && rc->nmembers > 1 ? "--merge joint (use --merge concat)"
-                        : pre ? "training over MPI ranks" : NULL;
-      if (why) {
-        dist_free_pcas(m, pre);
-        return err_set(err, "basis %s: product %s is not implemented with %s", rc->bc->size_name, rc->product->name,
-                       why);
-      }
-      if (train_product_basis(m, t->f, rc, &(ClassSnapshots){sn->S, sn->X[c], opt->weights}, opt->full_rank, err))
-        return dist_free_pcas(m, pre), -1;
-      continue;
-    }
-    if (opt->joint && rc->nmembers > 1) rc_ok = train_joint_basis(rc, sn->S, sn->X[c], err);
-    else if (gram) rc_ok = pca_merge(rc->n, (PcaBlocks){rc->nmembers, sn->U[c], sn->k[c]}, &rc->B, &rc->m, err);
-    else rc_ok = train_member_bases(rc, sn->S, sn->X[c], opt->weights, pre ? pre[c] : NULL, err);
-    if (rc_ok != 0) {
-      dist_free_pcas(m, pre);
-      err_set_first(err, "out of memory building the basis of class %s", rc->label);
-      return -1;
-    }
-    if (train_complete_basis(rc, opt->full_rank, err)) return dist_free_pcas(m, pre), -1;
-  }
+  int rc = 0;
+  for (int c = 0; rc == 0 && c < m->nclasses; c++) rc = class_basis(t, &m->classes[c], pre ? pre[c] : NULL, pre != NULL);
   dist_free_pcas(m, pre);
-  model_size_tensors(m);
-  return 0;
+  if (rc == 0) model_size_tensors(m);
+  return rc;
 }
 
 /* Training's phases, as Model.phase_seconds and phase_cpu index them. */
@@ -999,7 +998,8 @@ char *train_param_hashes(const Full *f) {
 }
 
 const char *train_param_changed(const Full *f, const char *before, bool *oom) {
-  char *after = train_param_hashes(f);
+  Scratch sc = SCRATCH_OF(NULL);
+  const char *after = scratch_adopt(&sc, train_param_hashes(f));
   *oom = !after;
   if (!after) return NULL;
   const Program *prog = full_program(f);
@@ -1010,7 +1010,7 @@ const char *train_param_changed(const Full *f, const char *before, bool *oom) {
     if (la != lb || strncmp(a, b, la) != 0) changed = ((Sym *)prog->params.v[i])->name;
     a += la + (a[la] == ' '), b += lb + (b[lb] == ' ');
   }
-  free(after);
+  scratch_release(&sc);
   return changed;
 }
 
@@ -1068,9 +1068,9 @@ static double holdout_fraction(Program *prog, const SampleSource *src, const Tra
  * count, and 20 weights of 1.5e308 overflowed their sum to infinity, lost
  * a basis vector and were refused out of core as "snapshot values beyond
  * 1e154". Scaled so, equal weights give the model of weights 1, bit for
- * bit. NULL when out of memory. */
-static double *scale_weights(const double *weights, long S, bool dist) {
-  double *w = mem_malloc(sizeof(double) * (size_t)S), big = 0;
+ * bit. From `sc`; NULL when out of memory. */
+static double *scale_weights(Scratch *sc, const double *weights, long S, bool dist) {
+  double *w = scratch_array(sc, (size_t)S, sizeof(double)), big = 0;
   if (!w) return NULL;
   for (long k = 0; k < S; k++) big = fmax(big, weights[k]);
   if (dist) dist_allreduce_max(&big, 1);
@@ -1094,14 +1094,12 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
                               NULL};
     o.valid = &held;
   }
-  double *w = opt->weights ? scale_weights(opt->weights, src->count, opt->dist) : NULL;
+  Scratch sc = SCRATCH_OF(err);
+  double *w = opt->weights ? scale_weights(&sc, opt->weights, src->count, opt->dist) : NULL;
   /* the training samples' weights (of those left when some are held out) */
-  double *train_w = w && F != 0 ? mem_malloc(sizeof(double) * (size_t)training.count) : NULL;
-  if ((opt->weights && !w) || (w && F != 0 && !train_w)) {
-    free(w);
-    err_set(err, "out of memory");
-    return NULL;
-  }
+  double *train_w = w && F != 0 ? scratch_array(&sc, (size_t)training.count, sizeof(double)) : NULL;
+  if ((opt->weights && !w) || (w && F != 0 && !train_w))
+    return scratch_release(&sc), err_set(err, "out of memory"), NULL;
   for (long j = 0; train_w && j < training.count; j++) train_w[j] = w[training_index(&hold, j)];
   o.weights = train_w ? train_w : w;
   /* the params the samples are set with, recorded before any validation sample is set: one that
@@ -1112,8 +1110,7 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   o.weights = w;
   o.valid = opt->valid;
   if (m && F != 0 && opt->valid_holdout < 0) m = interp_train_with_choice(prog, f, src, &o, m, err);
-  free(train_w);
-  free(w);
+  scratch_release(&sc);
   bool oom = !params;
   const char *changed = m ? train_param_changed(f, params, &oom) : NULL;
   if (oom || changed) {
@@ -1126,7 +1123,10 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
     model_free(m);
     m = NULL;
   }
-  if (m) free(m->param_hashes), m->param_hashes = params;
-  else free(params);
+  if (m) { /* the model takes the hashes; what it held before goes */
+    char *before = m->param_hashes;
+    m->param_hashes = params, params = before;
+  }
+  free(params);
   return m;
 }
