@@ -10,6 +10,7 @@
 
 #include "emit.h"
 #include "interp.h"
+#include "scratch.h"
 #include "train.h"
 
 /* A fixed-seed generator (splitmix64): the same training gives the same
@@ -19,6 +20,40 @@ static double next_unit(uint64_t *s) {
   z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
   z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
   return (double)((z ^ (z >> 31)) >> 11) * 0x1.0p-53;
+}
+
+/* select_rows' counts when k < n: count[e] the times entry e is pivoted
+ * or drawn, cum[e] the leverages' running sum. 0, or -1 with `err`. */
+static int count_rows(const RClass *c, long k, long *count, double *cum, Scratch *sc) {
+  long n = c->n, m = c->m;
+  double *A = scratch_array(sc, (size_t)(n * m + 1), sizeof(double)), *tau = scratch_array(sc, (size_t)(m + 1), sizeof(double));
+  lapack_int *jpvt = scratch_array(sc, (size_t)n + 1, sizeof(lapack_int));
+  if (!A || !tau || !jpvt)
+    return err_set(sc->err, "out of memory selecting the interpolation entries of class %s", c->label);
+  /* B row-major n x m is Bᵀ column-major m x n */
+  memcpy(A, c->B, sizeof(double) * (size_t)(n * m));
+  lapack_int info = LAPACKE_dgeqp3(LAPACK_COL_MAJOR, (lapack_int)m, (lapack_int)n, A, (lapack_int)m, jpvt, tau);
+  if (info != 0)
+    return err_set(sc->err, "class %s: pivoted QR of the basis failed (LAPACK dgeqp3 info %d)", c->label, (int)info);
+  for (long j = 0; j < m; j++) count[jpvt[j] - 1]++;
+  double total = 0;
+  for (long e = 0; e < n; e++) {
+    double v = 0;
+    for (long j = 0; j < m; j++) v += c->B[e * m + j] * c->B[e * m + j];
+    cum[e] = total += v;
+  }
+  uint64_t seed = 0x6e70672d6465696dULL; /* fixed: training is reproducible */
+  for (long d = m; d < k && total > 0; d++) {
+    double u = next_unit(&seed) * total;
+    long lo = 0, hi = n - 1; /* the first e with cum[e] > u */
+    while (lo < hi) {
+      long mid = lo + (hi - lo) / 2;
+      if (cum[mid] > u) hi = mid;
+      else lo = mid + 1;
+    }
+    count[lo]++;
+  }
+  return 0;
 }
 
 /* The entries of B (n x m, row-major, orthonormal columns) to interpolate at
@@ -41,72 +76,32 @@ static double next_unit(uint64_t *s) {
  * stage 2.8–5× above its floor at N = 1,000 with 1,056 entries, the output
  * 3–219× (bench/interp.md); the weighted draws bring both within 1.1×. */
 static int select_rows(const RClass *c, RInterp *ip, long k, Err *err) {
-  long n = c->n, m = c->m;
-  double *A = NULL, *tau = NULL, *cum = NULL;
-  lapack_int *jpvt = NULL;
-  long *count = calloc((size_t)n + 1, sizeof(long));
-  int rc = 0;
-  if (!count) goto oom;
-  if (k >= n) {
-    for (long e = 0; e < n; e++) count[e] = 1;
-  } else {
-    A = malloc(sizeof(double) * (size_t)(n * m + 1)), tau = malloc(sizeof(double) * (size_t)(m + 1));
-    jpvt = calloc((size_t)n + 1, sizeof(lapack_int));
-    cum = malloc(sizeof(double) * (size_t)(n + 1));
-    if (!A || !tau || !jpvt || !cum) goto oom;
-    /* B row-major n x m is Bᵀ column-major m x n */
-    memcpy(A, c->B, sizeof(double) * (size_t)(n * m));
-    lapack_int info = LAPACKE_dgeqp3(LAPACK_COL_MAJOR, (lapack_int)m, (lapack_int)n, A, (lapack_int)m, jpvt, tau);
-    if (info != 0) {
-      rc = err_set(err, "class %s: pivoted QR of the basis failed (LAPACK dgeqp3 info %d)", c->label, (int)info);
-      goto done;
+  long n = c->n;
+  Scratch sc = SCRATCH_OF(err);
+  long *count = scratch_array(&sc, (size_t)n + 1, sizeof(long));
+  double *cum = k < n ? scratch_array(&sc, (size_t)n + 1, sizeof(double)) : NULL;
+  int rc = count && (k >= n || cum) ? 0
+                                    : err_set(err, "out of memory selecting the interpolation entries of class %s", c->label);
+  for (long e = 0; rc == 0 && k >= n && e < n; e++) count[e] = 1;
+  if (rc == 0 && k < n) rc = count_rows(c, k, count, cum, &sc);
+  ip->k = 0;
+  for (long e = 0; rc == 0 && e < n; e++) ip->k += count[e] > 0;
+  if (rc == 0 && (!(ip->rows = mem_malloc(sizeof(long) * (size_t)(ip->k + 1))) ||
+                  !(ip->weight = mem_malloc(sizeof(double) * (size_t)(ip->k + 1)))))
+    rc = err_set(err, "out of memory selecting the interpolation entries of class %s", c->label);
+  double total = rc == 0 && k < n && n > 0 ? cum[n - 1] : 0;
+  for (long e = 0, s = 0; rc == 0 && e < n; e++) {
+    if (!count[e]) continue;
+    ip->rows[s] = e;
+    if (k >= n) { /* every entry: the fit is the projection */
+      ip->weight[s++] = 1;
+      continue;
     }
-    for (long j = 0; j < m; j++) count[jpvt[j] - 1]++;
-    double total = 0;
-    for (long e = 0; e < n; e++) {
-      double v = 0;
-      for (long j = 0; j < m; j++) v += c->B[e * m + j] * c->B[e * m + j];
-      cum[e] = total += v;
-    }
-    uint64_t seed = 0x6e70672d6465696dULL; /* fixed: training is reproducible */
-    for (long d = m; d < k && total > 0; d++) {
-      double u = next_unit(&seed) * total;
-      long lo = 0, hi = n - 1; /* the first e with cum[e] > u */
-      while (lo < hi) {
-        long mid = lo + (hi - lo) / 2;
-        if (cum[mid] > u) hi = mid;
-        else lo = mid + 1;
-      }
-      count[lo]++;
-    }
-    ip->k = 0;
-    for (long e = 0; e < n; e++) ip->k += count[e] > 0;
-    if (!(ip->rows = malloc(sizeof(long) * (size_t)(ip->k + 1))) ||
-        !(ip->weight = malloc(sizeof(double) * (size_t)(ip->k + 1))))
-      goto oom;
-    long s = 0;
-    for (long e = 0; e < n; e++) {
-      if (!count[e]) continue;
-      double p = (cum[e] - (e ? cum[e - 1] : 0)) / total;
-      ip->rows[s] = e;
-      /* a pivot of zero leverage cannot occur with B of rank m; guarded */
-      ip->weight[s++] = p > 0 ? sqrt((double)count[e] / ((double)k * p)) : 1;
-    }
-    goto done;
+    double p = (cum[e] - (e ? cum[e - 1] : 0)) / total;
+    /* a pivot of zero leverage cannot occur with B of rank m; guarded */
+    ip->weight[s++] = p > 0 ? sqrt((double)count[e] / ((double)k * p)) : 1;
   }
-  ip->k = n;
-  if (!(ip->rows = malloc(sizeof(long) * (size_t)(n + 1))) || !(ip->weight = malloc(sizeof(double) * (size_t)(n + 1))))
-    goto oom;
-  for (long e = 0; e < n; e++) ip->rows[e] = e, ip->weight[e] = 1;
-  goto done;
-oom:
-  rc = err_set(err, "out of memory selecting the interpolation entries of class %s", c->label);
-done:
-  free(A);
-  free(tau);
-  free(jpvt);
-  free(cum);
-  free(count);
+  scratch_release(&sc);
   return rc;
 }
 
@@ -114,61 +109,52 @@ done:
  * ‖(W P B)⁺‖₂ = 1/σ_min(W P B). */
 static int pseudo_inverse(const RClass *c, RInterp *ip, const char *stage, Err *err) {
   long k = ip->k, m = ip->m;
-  double *PB = malloc(sizeof(double) * (size_t)(k * m + 1)), *S = malloc(sizeof(double) * (size_t)(k * m + 1));
-  double *tau = malloc(sizeof(double) * (size_t)(m + 1)), *sv = malloc(sizeof(double) * (size_t)(m + 1));
+  Scratch sc = SCRATCH_OF(err);
+  double *PB = scratch_array(&sc, (size_t)(k * m + 1), sizeof(double)), *S = scratch_array(&sc, (size_t)(k * m + 1), sizeof(double));
+  double *tau = scratch_array(&sc, (size_t)(m + 1), sizeof(double)), *sv = scratch_array(&sc, (size_t)(m + 1), sizeof(double));
   int rc = 0;
-  if (!PB || !S || !tau || !sv || !(ip->pinv = malloc(sizeof(double) * (size_t)(m * k + 1)))) {
+  lapack_int info = 0;
+  if (!PB || !S || !tau || !sv || !(ip->pinv = mem_malloc(sizeof(double) * (size_t)(m * k + 1))))
     rc = err_set(err, "out of memory factoring the interpolation of stage %s", stage);
-    goto done;
-  }
-  for (long s = 0; s < k; s++) /* column-major k x m */
-    for (long j = 0; j < m; j++) PB[j * k + s] = ip->weight[s] * c->B[ip->rows[s] * m + j];
-  memcpy(S, PB, sizeof(double) * (size_t)(k * m));
-  lapack_int info = LAPACKE_dgesvd(LAPACK_COL_MAJOR, 'N', 'N', (lapack_int)k, (lapack_int)m, S, (lapack_int)k, sv, NULL,
-                                   1, NULL, 1, tau);
-  if (info != 0) {
-    rc = err_set(err, "stage %s: singular values of the selected basis rows failed (LAPACK dgesvd info %d)",
-                   stage, (int)info);
-    goto done;
-  }
-  if (m > 0 && !(sv[m - 1] > 1e-12 * sv[0])) {
-    rc = err_set(err,
-                   "stage %s: the %ld selected entries do not determine its %ld basis coordinates (smallest singular "
-                   "value %.3g of %.3g): raise the oversampling",
-                   stage, k, m, sv[m - 1], sv[0]);
-    goto done;
-  }
-  ip->pinv_norm = m > 0 ? 1 / sv[m - 1] : 0;
-  info = LAPACKE_dgeqrf(LAPACK_COL_MAJOR, (lapack_int)k, (lapack_int)m, PB, (lapack_int)k, tau);
-  /* X = R⁻¹ Qᵀ: Qᵀ (m x k) from the reflectors, then one triangular solve */
-  if (info == 0) {
+  if (rc == 0) {
+    for (long s = 0; s < k; s++) /* column-major k x m */
+      for (long j = 0; j < m; j++) PB[j * k + s] = ip->weight[s] * c->B[ip->rows[s] * m + j];
     memcpy(S, PB, sizeof(double) * (size_t)(k * m));
-    info = LAPACKE_dorgqr(LAPACK_COL_MAJOR, (lapack_int)k, (lapack_int)m, (lapack_int)m, S, (lapack_int)k, tau);
+    info = LAPACKE_dgesvd(LAPACK_COL_MAJOR, 'N', 'N', (lapack_int)k, (lapack_int)m, S, (lapack_int)k, sv, NULL, 1, NULL,
+                          1, tau);
+    if (info != 0)
+      rc = err_set(err, "stage %s: singular values of the selected basis rows failed (LAPACK dgesvd info %d)", stage,
+                   (int)info);
   }
-  if (info == 0) {
-    /* Qᵀ column-major m x k is Q column-major k x m transposed: row-major m x k of pinv */
-    double *QT = ip->pinv; /* column-major m x k, transposed to row-major below */
-    double *tmp = malloc(sizeof(double) * (size_t)(m * k + 1));
-    if (!tmp) {
-      rc = err_set(err, "out of memory factoring the interpolation of stage %s", stage);
-      goto done;
+  if (rc == 0 && m > 0 && !(sv[m - 1] > 1e-12 * sv[0]))
+    rc = err_set(err,
+                 "stage %s: the %ld selected entries do not determine its %ld basis coordinates (smallest singular "
+                 "value %.3g of %.3g): raise the oversampling",
+                 stage, k, m, sv[m - 1], sv[0]);
+  if (rc == 0) {
+    ip->pinv_norm = m > 0 ? 1 / sv[m - 1] : 0;
+    info = LAPACKE_dgeqrf(LAPACK_COL_MAJOR, (lapack_int)k, (lapack_int)m, PB, (lapack_int)k, tau);
+    /* X = R⁻¹ Qᵀ: Qᵀ (m x k) from the reflectors, then one triangular solve */
+    if (info == 0) {
+      memcpy(S, PB, sizeof(double) * (size_t)(k * m));
+      info = LAPACKE_dorgqr(LAPACK_COL_MAJOR, (lapack_int)k, (lapack_int)m, (lapack_int)m, S, (lapack_int)k, tau);
     }
-    for (long s = 0; s < k; s++)
-      for (long j = 0; j < m; j++) tmp[s * m + j] = S[j * k + s]; /* Qᵀ column-major m x k */
-    info = LAPACKE_dtrtrs(LAPACK_COL_MAJOR, 'U', 'N', 'N', (lapack_int)m, (lapack_int)k, PB, (lapack_int)k, tmp,
-                          (lapack_int)m);
-    for (long j = 0; info == 0 && j < m; j++)
-      for (long s = 0; s < k; s++) QT[j * k + s] = tmp[s * m + j] * ip->weight[s];
-    free(tmp);
-  }
-  if (info != 0)
-    rc = err_set(err, "stage %s: factoring the selected basis rows failed (LAPACK dgeqrf/dorgqr/dtrtrs info %d)",
+    /* Qᵀ column-major m x k is Q column-major k x m transposed: row-major m x k of pinv */
+    double *QT = ip->pinv, *tmp = info == 0 ? scratch_array(&sc, (size_t)(m * k + 1), sizeof(double)) : NULL;
+    if (info == 0 && !tmp) rc = err_set(err, "out of memory factoring the interpolation of stage %s", stage);
+    if (tmp) {
+      for (long s = 0; s < k; s++)
+        for (long j = 0; j < m; j++) tmp[s * m + j] = S[j * k + s]; /* Qᵀ column-major m x k */
+      info = LAPACKE_dtrtrs(LAPACK_COL_MAJOR, 'U', 'N', 'N', (lapack_int)m, (lapack_int)k, PB, (lapack_int)k, tmp,
+                            (lapack_int)m);
+      for (long j = 0; info == 0 && j < m; j++)
+        for (long s = 0; s < k; s++) QT[j * k + s] = tmp[s * m + j] * ip->weight[s];
+    }
+    if (info != 0)
+      rc = err_set(err, "stage %s: factoring the selected basis rows failed (LAPACK dgeqrf/dorgqr/dtrtrs info %d)",
                    stage, (int)info);
-done:
-  free(PB);
-  free(S);
-  free(tau);
-  free(sv);
+  }
+  scratch_release(&sc);
   return rc;
 }
 
@@ -180,7 +166,8 @@ static int check_rows(const RClass *c, RInterp *ip, long *slot) {
   RInterp *ck = ip->check;
   long n = c->n, m = c->m, rest = n - ip->k, want = ip->k > 2 * m ? ip->k : 2 * m, j = 0;
   if (want < INTERP_CHECK_MIN) want = INTERP_CHECK_MIN;
-  long *pool = malloc(sizeof(long) * (size_t)(rest + 1));
+  Scratch sc = SCRATCH_OF(NULL);
+  long *pool = scratch_array(&sc, (size_t)(rest + 1), sizeof(long));
   if (!pool) return -1;
   for (long e = 0; e < n; e++)
     if (slot[e] < 0) pool[j++] = e;
@@ -192,14 +179,13 @@ static int check_rows(const RClass *c, RInterp *ip, long *slot) {
     long t = pool[d];
     pool[d] = pool[pick], pool[pick] = t;
   }
-  ck->rows = malloc(sizeof(long) * (size_t)(ck->k + 1));
-  ck->brows = malloc(sizeof(double) * (size_t)((ip->k + ck->k) * m + 1));
-  if (!ck->rows || !ck->brows) return free(pool), -1;
-  for (long d = 0; d < ck->k; d++) ck->rows[d] = pool[d], slot[pool[d]] = ip->k + d;
-  for (long s = 0; s < ip->k + ck->k; s++)
+  ck->rows = mem_malloc(sizeof(long) * (size_t)(ck->k + 1));
+  ck->brows = mem_malloc(sizeof(double) * (size_t)((ip->k + ck->k) * m + 1));
+  for (long d = 0; ck->rows && ck->brows && d < ck->k; d++) ck->rows[d] = pool[d], slot[pool[d]] = ip->k + d;
+  for (long s = 0; ck->rows && ck->brows && s < ip->k + ck->k; s++)
     memcpy(ck->brows + s * m, c->B + (s < ip->k ? ip->rows[s] : ck->rows[s - ip->k]) * m, sizeof(double) * (size_t)m);
-  free(pool);
-  return 0;
+  scratch_release(&sc);
+  return ck->rows && ck->brows ? 0 : -1;
 }
 
 /* A check table's read_rows from the bases of the quantities it reads: 0, 1 when one has no basis
@@ -211,7 +197,7 @@ static int check_read_rows(const Model *m, RInterp *ck) {
     if (!c->B && c->m > 0) return 1;
     len += c->m;
   }
-  if (!(ck->read_rows = malloc(sizeof(double) * (size_t)(len + 1)))) return -1;
+  if (!(ck->read_rows = mem_malloc(sizeof(double) * (size_t)(len + 1)))) return -1;
   for (long r = 0, at = 0; r < ck->nreads; r++) {
     const RClass *c = &m->classes[m->qclass[ck->read_q[r]]];
     if (c->m > 0) memcpy(ck->read_rows + at, c->B + ck->read_e[r] * c->m, sizeof(double) * (size_t)c->m);
@@ -226,6 +212,7 @@ typedef struct Table {
   RInterp *ip;
   const long *slot;         /* per entry of the stage: its selected index, or -1 */
   long **read_of;           /* per quantity: per entry its read index + 1 (0: not read yet), made on first use */
+  Scratch *sc;              /* where read_of's arrays come from (train_tables') */
   long mono_cap, read_cap;
   int term, factor;
   struct Table *check;      /* the estimate's check table: slots from ip->k on are its entries */
@@ -236,14 +223,15 @@ typedef struct Table {
 
 static long read_index(Table *tb, int q, long e) {
   RInterp *ip = tb->ip;
-  if (!tb->read_of[q] && !(tb->read_of[q] = calloc((size_t)tb->m->classes[tb->m->qclass[q]].n + 1, sizeof(long))))
+  if (!tb->read_of[q] &&
+      !(tb->read_of[q] = scratch_array(tb->sc, (size_t)tb->m->classes[tb->m->qclass[q]].n + 1, sizeof(long))))
     return -1;
   if (tb->read_of[q][e]) return tb->read_of[q][e] - 1;
   if (ip->nreads == tb->read_cap) {
     long cap = tb->read_cap ? 2 * tb->read_cap : 64;
-    int *rq = realloc(ip->read_q, sizeof(int) * (size_t)cap);
+    int *rq = mem_realloc(ip->read_q, sizeof(int) * (size_t)cap);
     if (rq) ip->read_q = rq;
-    long *re = rq ? realloc(ip->read_e, sizeof(long) * (size_t)cap) : NULL;
+    long *re = rq ? mem_realloc(ip->read_e, sizeof(long) * (size_t)cap) : NULL;
     if (!re) return -1;
     ip->read_e = re, tb->read_cap = cap;
   }
@@ -256,7 +244,7 @@ static int add_mono(Table *tb, long slot, double coef, int nin, const int *q, co
   RInterp *ip = tb->ip;
   if (ip->nmono == tb->mono_cap) {
     long cap = tb->mono_cap ? 2 * tb->mono_cap : 256;
-    RInterpMono *mo = realloc(ip->mono, sizeof(RInterpMono) * (size_t)cap);
+    RInterpMono *mo = mem_realloc(ip->mono, sizeof(RInterpMono) * (size_t)cap);
     if (!mo) return -1;
     ip->mono = mo, tb->mono_cap = cap;
   }
@@ -289,6 +277,33 @@ static int stream_tensor(Table *tb, Full *f, const RTensor *x, const char *stage
   return 0;
 }
 
+/* Every term's tensors of stage rs read into tb's table (entries at the fit's rows) and its check
+ * table's. 0, or -1 with the error record. */
+static int read_terms(Table *tb, Full *f, const RStage *rs, const char *sn) {
+  RInterp *ip = tb->ip;
+  Table *tbx = tb->check;
+  for (int t = 0; t < rs->nterms; t++) {
+    const RTerm *rt = &rs->terms[t];
+    tb->term = tbx->term = t, tb->factor = tbx->factor = 0;
+    if (rt->named_q >= 0) { /* the numerator is the named quantity itself, entry for entry */
+      int q = rt->named_q;
+      for (long s = 0; s < ip->k + ip->check->k; s++) {
+        npg_idx e = (npg_idx)(s < ip->k ? ip->rows[s] : ip->check->rows[s - ip->k]);
+        if (add_mono(s < ip->k ? tb : tbx, s < ip->k ? s : s - ip->k, 1.0, 1, &q, &e))
+          return err_set(tb->err, "out of memory making stage %s interpolated", sn);
+      }
+    }
+    for (int g = 0; g < rt->nnum; g++)
+      if (stream_tensor(tb, f, &rt->num[g], sn)) return -1;
+    for (int o = 0; o < rt->nops; o++) {
+      tb->factor = tbx->factor = o + 1;
+      for (int g = 0; g < rt->ops[o].ntensors; g++)
+        if (stream_tensor(tb, f, &rt->ops[o].t[g], sn)) return -1;
+    }
+  }
+  return 0;
+}
+
 /* interp_train_stage, or with oversample 0 interp_train_check: no fit (k = 0), the check table
  * drawn from all n entries into rs->check. */
 static int train_tables(Model *m, Full *f, int stage, double oversample, Err *err) {
@@ -302,62 +317,41 @@ static int train_tables(Model *m, Full *f, int stage, double oversample, Err *er
                         : "it applies no diagonal operator (npgc check says which stages can)");
   if (!(oversample >= 1) && oversample != 0)
     return err_set(err, "interpolation oversampling %g: must be at least 1", oversample);
-  RInterp *ip = calloc(1, sizeof *ip);
-  Table tb = {.m = m, .ip = ip, .err = err}, tbx = {.m = m, .err = err};
-  long *slot = NULL;
-  int rc = -1;
-  if (!ip) goto oom;
-  ip->m = c->m;
-  long draws = (long)ceil(oversample * (double)c->m);
-  if (draws < c->m) draws = c->m;
-  if (!(slot = malloc(sizeof(long) * (size_t)(c->n + 1))) || !(tb.read_of = calloc((size_t)m->nq + 1, sizeof(long *))))
-    goto oom;
-  if (oversample > 0 && (select_rows(c, ip, draws, err) || pseudo_inverse(c, ip, sn, err))) goto done;
-  for (long e = 0; e < c->n; e++) slot[e] = -1;
-  for (long s = 0; s < ip->k; s++) slot[ip->rows[s]] = s;
-  if (!(ip->check = calloc(1, sizeof *ip->check)) || !(tbx.read_of = calloc((size_t)m->nq + 1, sizeof(long *))) ||
-      check_rows(c, ip, slot))
-    goto oom;
-  tb.slot = slot, tb.check = &tbx, tbx.ip = ip->check;
-  for (int t = 0; t < rs->nterms; t++) {
-    RTerm *rt = &rs->terms[t];
-    tb.term = tbx.term = t, tb.factor = tbx.factor = 0;
-    if (rt->named_q >= 0) { /* the numerator is the named quantity itself, entry for entry */
-      int q = rt->named_q;
-      for (long s = 0; s < ip->k + ip->check->k; s++) {
-        npg_idx e = (npg_idx)(s < ip->k ? ip->rows[s] : ip->check->rows[s - ip->k]);
-        if (add_mono(s < ip->k ? &tb : &tbx, s < ip->k ? s : s - ip->k, 1.0, 1, &q, &e)) goto oom;
-      }
-    }
-    for (int g = 0; g < rt->nnum; g++)
-      if (stream_tensor(&tb, f, &rt->num[g], sn)) goto done;
-    for (int o = 0; o < rt->nops; o++) {
-      tb.factor = tbx.factor = o + 1;
-      for (int g = 0; g < rt->ops[o].ntensors; g++)
-        if (stream_tensor(&tb, f, &rt->ops[o].t[g], sn)) goto done;
-    }
+  Scratch sc = SCRATCH_OF(err);
+  RInterp *ip = mem_calloc(1, sizeof *ip); /* the stage's, once made; freed here until then */
+  Table tb = {.m = m, .ip = ip, .sc = &sc, .err = err}, tbx = {.m = m, .sc = &sc, .err = err};
+  long *slot = scratch_array(&sc, (size_t)c->n + 1, sizeof(long));
+  tb.read_of = scratch_array(&sc, (size_t)m->nq + 1, sizeof(long *));
+  tbx.read_of = scratch_array(&sc, (size_t)m->nq + 1, sizeof(long *));
+  int rc = ip && slot && tb.read_of && tbx.read_of ? 0 : err_set(err, "out of memory making stage %s interpolated", sn);
+  if (rc == 0) {
+    ip->m = c->m;
+    long draws = (long)ceil(oversample * (double)c->m);
+    if (draws < c->m) draws = c->m;
+    if (oversample > 0 && (select_rows(c, ip, draws, err) || pseudo_inverse(c, ip, sn, err))) rc = -1;
   }
-  int rows = check_read_rows(m, ip->check);
-  if (rows < 0 || interp_pack(m, rs, ip) || (rows == 0 && interp_pack(m, rs, ip->check))) goto oom;
-  if (rows > 0) interp_free(ip->check), ip->check = NULL; /* a read class without its basis: no check */
-  if (oversample == 0) {
+  for (long e = 0; rc == 0 && e < c->n; e++) slot[e] = -1;
+  for (long s = 0; rc == 0 && s < ip->k; s++) slot[ip->rows[s]] = s;
+  if (rc == 0 && (!(ip->check = mem_calloc(1, sizeof *ip->check)) || check_rows(c, ip, slot)))
+    rc = err_set(err, "out of memory making stage %s interpolated", sn);
+  if (rc == 0) {
+    tb.slot = slot, tb.check = &tbx, tbx.ip = ip->check;
+    rc = read_terms(&tb, f, rs, sn);
+  }
+  int rows = rc == 0 ? check_read_rows(m, ip->check) : 0;
+  if (rc == 0 && (rows < 0 || interp_pack(m, rs, ip) || (rows == 0 && interp_pack(m, rs, ip->check))))
+    rc = err_set(err, "out of memory making stage %s interpolated", sn);
+  if (rc == 0 && rows > 0) interp_free(ip->check), ip->check = NULL; /* a read class without its basis: no check */
+  if (rc == 0 && oversample == 0) { /* the check table replaces the stage's */
     interp_free(rs->check);
     rs->check = ip->check, ip->check = NULL;
-  } else {
+  } else if (rc == 0) { /* the fit replaces the stage's */
     interp_free(rs->interp);
     rs->interp = ip;
     ip = NULL;
   }
-  rc = 0;
-  goto done;
-oom:
-  err_set(err, "out of memory making stage %s interpolated", sn);
-done:
-  for (int q = 0; tb.read_of && q < m->nq; q++) free(tb.read_of[q]);
-  for (int q = 0; tbx.read_of && q < m->nq; q++) free(tbx.read_of[q]);
-  free(tb.read_of), free(tbx.read_of);
-  free(slot);
-  interp_free(ip);
+  interp_free(ip); /* a half-made fit, or the check table's shell */
+  scratch_release(&sc);
   return rc;
 }
 
@@ -386,19 +380,16 @@ int interp_open_choices(const Program *prog, int ninterp, const char *const *int
 Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all, const TrainOptions *opt,
                                 Model *chosen, Err *err) {
   int n = chosen->nstages, ni = 0, ng = 0;
-  const char **ilist = malloc(sizeof(char *) * (size_t)(n + opt->ninterp + 1));
-  const char **glist = malloc(sizeof(char *) * (size_t)(n + opt->ngalerkin + 1));
-  double *errs = malloc(sizeof(double) * (size_t)(2 * n + 1));
-  const char **reason = calloc((size_t)n + 1, sizeof(char *));
-  Model *m = NULL;
-  if (!ilist || !glist || !errs || !reason) {
-    err_set(err, "out of memory");
-    model_free(chosen);
-    goto done;
-  }
-  for (int j = 0; j < opt->ninterp; j++) ilist[ni++] = opt->interp_stage[j];
-  for (int j = 0; j < opt->ngalerkin; j++) glist[ng++] = opt->galerkin_stage[j];
-  for (int i = 0; i < n; i++) { /* stage names belong to the program, which outlives both models */
+  Scratch sc = SCRATCH_OF(err);
+  const char **ilist = scratch_array(&sc, (size_t)(n + opt->ninterp + 1), sizeof(char *));
+  const char **glist = scratch_array(&sc, (size_t)(n + opt->ngalerkin + 1), sizeof(char *));
+  double *errs = scratch_array(&sc, (size_t)(2 * n + 1), sizeof(double));
+  const char **reason = scratch_array(&sc, (size_t)n + 1, sizeof(char *));
+  bool room = ilist && glist && errs && reason;
+  if (!room) err_set(err, "out of memory");
+  for (int j = 0; room && j < opt->ninterp; j++) ilist[ni++] = opt->interp_stage[j];
+  for (int j = 0; room && j < opt->ngalerkin; j++) glist[ng++] = opt->galerkin_stage[j];
+  for (int i = 0; room && i < n; i++) { /* stage names belong to the program, which outlives both models */
     const RStage *rs = &chosen->stages[i];
     if (!rs->choice_reason || rs->choice_reason == interp_reasons[INTERP_FORCED]) continue;
     if (rs->interp) ilist[ni++] = rs->st->sym->name;
@@ -412,18 +403,14 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
   o.valid = NULL;
   o.ninterp = ni, o.interp_stage = ilist;
   o.ngalerkin = ng, o.galerkin_stage = glist;
-  if (!(m = train_model(prog, f, all, &o, err))) goto done;
-  snprintf(m->choice_failure, sizeof m->choice_failure, "%s", failure);
-  for (int i = 0; i < n && i < m->nstages; i++) /* the measured errors and reason, not "forced" */
+  Model *m = room ? train_model(prog, f, all, &o, err) : NULL;
+  if (m) snprintf(m->choice_failure, sizeof m->choice_failure, "%s", failure);
+  for (int i = 0; m && i < n && i < m->nstages; i++) /* the measured errors and reason, not "forced" */
     if (reason[i]) {
       m->stages[i].choice_err[0] = errs[2 * i], m->stages[i].choice_err[1] = errs[2 * i + 1];
       m->stages[i].choice_reason = reason[i];
     }
-done:
-  free(ilist);
-  free(glist);
-  free(errs);
-  free(reason);
+  scratch_release(&sc);
   return m;
 }
 
