@@ -41,6 +41,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "scratch.h"
 #include "train.h"
 
 #define PREMUL_PENDING 64               /* entries batched per GEMM of a key */
@@ -387,6 +388,26 @@ int premultiply_block(Model *m, Full *f, RTensor *t, const PremulBlock *b, doubl
   return premultiply_rows(&p, f, b, PREMUL_UNPACK_MONOS, flops);
 }
 
+/* The builder's entries of p's tensor streamed through the workers (of block `b`'s output rows
+ * only when b is not NULL), then the workers' own sums added up. 0, or -1 with the builder's
+ * message in p's error record. */
+static int build_entries(Premul *p, Full *f, const PremulBlock *b) {
+  RTensor *t = p->t;
+  if (err_held(p->err)) p->err->msg[0] = 0;
+  /* the builder enumerates this rank's rows only, of the block's (premultiply_block) */
+  NpgSink sink = {p, on_entry, p->part, p->nparts, b ? b->lo : 0, b ? b->hi : 0};
+  int blas_threads = openblas_get_num_threads();
+  if (p->local) openblas_set_num_threads(1);
+  int built = full_build(f, t->builder, &sink);
+  if (built == 0) flush_block(p);
+  if (p->local) openblas_set_num_threads(blas_threads);
+  if (built != 0) return err_set_first(p->err, "%s", full_error(f));
+  for (int i = 1; i < p->nworkers && p->local; i++)
+    cblas_daxpy((int)(t->rows * t->cols), 1.0, p->wk[i].acc, 1, t->data, 1);
+  for (int i = 0; i < p->nworkers; i++) p->flops += p->wk[i].flops;
+  return 0;
+}
+
 /* The pre-multiplication of p->t by p->By (p's tensor, output basis, rows and
  * error record set), of block `b`'s rows only when b is not NULL. */
 static int premultiply_rows(Premul *pp, Full *f, const PremulBlock *b, int unpack_min_monos, double *flops) {
@@ -423,62 +444,28 @@ static int premultiply_rows(Premul *pp, Full *f, const PremulBlock *b, int unpac
    * work of one worker overlapping the other's GEMM */
   p.local = p.nworkers > 1 && (double)t->rows * (double)t->cols * (double)(p.nworkers - 1) * sizeof(double) <=
                                   (double)PREMUL_LOCAL_BYTES;
+  Scratch sc = SCRATCH_OF(err);
   if (!b) t->data = mem_calloc((size_t)(t->rows * t->cols) + 1, sizeof(double)); /* a block adds to the caller's */
-  p.key_row = mem_malloc(sizeof(long) * (size_t)p.KB);
-  p.key_col = mem_malloc(sizeof(long) * (size_t)p.KB);
-  p.W = mem_malloc(sizeof(double) * (size_t)(p.KB * t->cols));
-  p.K = mem_malloc(sizeof(double) * (size_t)(p.KB * t->rows));
+  p.key_row = scratch_array(&sc, (size_t)p.KB, sizeof(long));
+  p.key_col = scratch_array(&sc, (size_t)p.KB, sizeof(long));
+  p.W = scratch_array(&sc, (size_t)(p.KB * t->cols), sizeof(double));
+  p.K = scratch_array(&sc, (size_t)(p.KB * t->rows), sizeof(double));
   bool ok = t->data && p.key_row && p.key_col && p.W && p.K;
   for (int i = 0; i < p.nworkers; i++) {
     Worker *w = &p.wk[i];
     w->p = &p;
-    w->U = mem_malloc(sizeof(double) * (size_t)(PREMUL_PENDING * p.ulen));
-    w->V = mem_malloc(sizeof(double) * (size_t)(PREMUL_PENDING * p.vlen));
-    w->G = p.unpack ? mem_malloc(sizeof(double) * (size_t)(p.ulen * p.mu)) : NULL;
-    w->vec = mem_malloc(sizeof(double) * (size_t)veclen);
-    w->acc = !p.local ? NULL : i == 0 ? t->data : mem_calloc((size_t)(t->rows * t->cols) + 1, sizeof(double));
+    w->U = scratch_array(&sc, (size_t)(PREMUL_PENDING * p.ulen), sizeof(double));
+    w->V = scratch_array(&sc, (size_t)(PREMUL_PENDING * p.vlen), sizeof(double));
+    w->G = p.unpack ? scratch_array(&sc, (size_t)(p.ulen * p.mu), sizeof(double)) : NULL;
+    w->vec = scratch_array(&sc, (size_t)veclen, sizeof(double));
+    w->acc = !p.local ? NULL : i == 0 ? t->data : scratch_array(&sc, (size_t)(t->rows * t->cols) + 1, sizeof(double));
     ok = ok && w->U && w->V && w->vec && (!p.unpack || w->G) && (!p.local || w->acc);
   }
-  int rc = -1, blas_threads;
-  if (!ok) {
-    err_set(err, "out of memory pre-multiplying %s (%ld x %ld reduced entries)", t->name, t->rows, t->cols);
-    goto done;
-  }
-  if (err_held(err)) err->msg[0] = 0;
-  /* the builder enumerates this rank's rows only, of the block's (premultiply_block) */
-  NpgSink sink = {&p, on_entry, p.part, p.nparts, b ? b->lo : 0, b ? b->hi : 0};
-  blas_threads = openblas_get_num_threads();
-  if (p.local) openblas_set_num_threads(1);
-  int built = full_build(f, t->builder, &sink);
-  if (built == 0) flush_block(&p);
-  if (p.local) openblas_set_num_threads(blas_threads);
-  if (built != 0) {
-    err_set_first(err, "%s", full_error(f));
-    goto done;
-  }
-  for (int i = 1; i < p.nworkers && p.local; i++)
-    cblas_daxpy((int)(t->rows * t->cols), 1.0, p.wk[i].acc, 1, t->data, 1);
-  for (int i = 0; i < p.nworkers; i++) p.flops += p.wk[i].flops;
-  if (flops) *flops += p.flops;
-  rc = 0;
-done:
-  free(p.key_row);
-  free(p.key_col);
-  free(p.W);
-  free(p.K);
-  free(p.ent_key);
-  free(p.ent_coef);
-  free(p.ent_in);
-  for (int i = 0; i < p.nworkers; i++) {
-    free(p.wk[i].U);
-    free(p.wk[i].V);
-    free(p.wk[i].G);
-    free(p.wk[i].vec);
-    if (i > 0) free(p.wk[i].acc);
-  }
-  if (rc != 0 && !b) {
-    free(t->data);
-    t->data = NULL;
-  }
+  int rc = ok ? build_entries(&p, f, b)
+              : err_set(err, "out of memory pre-multiplying %s (%ld x %ld reduced entries)", t->name, t->rows, t->cols);
+  if (rc == 0 && flops) *flops += p.flops;
+  free(p.ent_key), free(p.ent_coef), free(p.ent_in); /* grown by grow_entries */
+  if (rc != 0 && !b) free(t->data), t->data = NULL; /* the tensor is left without data, not half made */
+  scratch_release(&sc);
   return rc;
 }
