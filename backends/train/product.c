@@ -25,6 +25,7 @@
 #include <suitesparse/cholmod.h>
 
 #include "emit.h"
+#include "scratch.h"
 #include "train.h"
 #include "estimate_steps.h"
 #include "train_steps.h"
@@ -156,9 +157,9 @@ static int unweigh(const cholmod_factor *L, RClass *rc) {
   const SuiteSparse_long *Lp = L->p, *Li = L->i, *Lnz = L->nz, *P = L->Perm;
   const double *Lx = L->x;
   long n = rc->n, m = rc->m;
-  double *z = mem_malloc(sizeof(double) * (size_t)n);
-  if (!z) return -1;
-  for (long c = 0; c < m; c++) {
+  Scratch sc = SCRATCH_OF(NULL);
+  double *z = scratch_array(&sc, (size_t)n, sizeof(double));
+  for (long c = 0; z && c < m; c++) {
     for (long j = n - 1; j >= 0; j--) {
       double v = rc->B[j * m + c], d = 0;
       for (SuiteSparse_long p = Lp[j]; p < Lp[j] + Lnz[j]; p++)
@@ -168,8 +169,8 @@ static int unweigh(const cholmod_factor *L, RClass *rc) {
     }
     for (long i = 0; i < n; i++) rc->B[P[i] * m + c] = z[i];
   }
-  free(z);
-  return 0;
+  scratch_release(&sc);
+  return z ? 0 : -1;
 }
 
 /* rc->D = K0 B (A unsymmetric storage, n x n; B and D n x m row-major). */
@@ -195,11 +196,12 @@ int train_product_basis(Model *m, Full *f, RClass *rc, const ClassSnapshots *sn,
   cc.print = 0;
   cholmod_sparse *A = product_matrix(m, f, rc, &cc, err);
   cholmod_factor *L = A ? product_factor(rc, A, &cc, err) : NULL;
-  double **Y = L ? mem_calloc((size_t)rc->nmembers, sizeof(double *)) : NULL;
+  Scratch sc = SCRATCH_OF(err);
+  double **Y = L ? scratch_array(&sc, (size_t)rc->nmembers, sizeof(double *)) : NULL;
   int rc_ok = Y ? 0 : -1;
   if (L && !Y) err_set(err, "out of memory for the weighted snapshots of class %s", rc->label);
   for (int i = 0; rc_ok == 0 && i < rc->nmembers; i++) {
-    if (!(Y[i] = mem_malloc(sizeof(double) * (size_t)rc->n * (size_t)S)))
+    if (!(Y[i] = scratch_array(&sc, (size_t)rc->n * (size_t)S, sizeof(double))))
       rc_ok = err_set(err, "out of memory for the weighted snapshots of class %s", rc->label);
     else weigh(L, rc->n, S, sn->X[i], Y[i]);
   }
@@ -207,9 +209,8 @@ int train_product_basis(Model *m, Full *f, RClass *rc, const ClassSnapshots *sn,
   if (rc_ok == 0) rc_ok = train_complete_basis(rc, full_rank, err);
   if (rc_ok == 0 && (unweigh(L, rc) || dual(A, rc)))
     rc_ok = err_set(err, "out of memory for the basis of class %s", rc->label);
-  for (int i = 0; Y && i < rc->nmembers; i++) free(Y[i]);
-  free(Y);
-  if (rc_ok != 0) free(rc->B), free(rc->D), rc->B = rc->D = NULL;
+  scratch_release(&sc);
+  if (rc_ok != 0) free(rc->B), free(rc->D), rc->B = rc->D = NULL; /* the class is left without a basis, not half made */
   cholmod_l_free_factor(&L, &cc);
   cholmod_l_free_sparse(&A, &cc);
   cholmod_l_finish(&cc);
