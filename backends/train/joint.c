@@ -10,6 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "scratch.h"
 #include "train.h"
 #include "train_steps.h"
 
@@ -23,12 +24,14 @@ int train_joint_basis(RClass *rc, long S, double *const *X, Err *err) {
   int r = rc->nmembers, cap = 0, rc_ok = -1;
   bool center = rc->members[0].center;
   double energy = 1;
-  double *J = mem_malloc(sizeof(double) * n * (size_t)r), *mu = mem_malloc(sizeof(double) * (size_t)(rc->n * r + 1));
-  double **parts = mem_calloc((size_t)r + 1, sizeof(double *));
-  int *ks = mem_calloc((size_t)r + 1, sizeof(int));
-  PcaMember p = {0};
-  if (!J || !mu || !parts || !ks) goto done;
-  for (int i = 0; i < r; i++) {
+  Scratch sc = SCRATCH_OF(err);
+  double *J = scratch_array(&sc, n * (size_t)r, sizeof(double));
+  double *mu = scratch_array(&sc, (size_t)(rc->n * r + 1), sizeof(double));
+  double **parts = scratch_array(&sc, (size_t)r + 1, sizeof(double *));
+  int *ks = scratch_array(&sc, (size_t)r + 1, sizeof(int));
+  PcaMember p = {0}; /* the joint PCA, its report copied to every member */
+  bool room = J && mu && parts && ks;
+  for (int i = 0; room && i < r; i++) {
     double *Ji = J + (size_t)i * n, *mi = mu + (size_t)i * (size_t)rc->n;
     memcpy(Ji, X[i], sizeof(double) * n);
     if (center) {
@@ -43,8 +46,8 @@ int train_joint_basis(RClass *rc, long S, double *const *X, Err *err) {
     ks[i] = 1;
   }
   if (center) cap = cap > r ? cap - r : 0;
-  if (pca_basis(rc->n, S * r, J, &(PcaRule){.cap = cap, .energy = energy}, &p, err)) goto done;
-  if (center) {
+  if (!room || pca_basis(rc->n, S * r, J, &(PcaRule){.cap = cap, .energy = energy}, &p, err)) rc_ok = -1;
+  else if (center) {
     parts[r] = p.U;
     ks[r] = p.k;
     int mm = 0;
@@ -58,17 +61,12 @@ int train_joint_basis(RClass *rc, long S, double *const *X, Err *err) {
     mb->kept = (int)rc->m;
     mb->lost = p.lost;
     mb->captured = 1 - p.lost;
-    free(mb->sv);
+    free(mb->sv); /* replaced by the joint spectrum */
     mb->nsv = p.nsv;
     if ((mb->sv = mem_malloc(sizeof(double) * (size_t)(p.nsv + 1)))) memcpy(mb->sv, p.sv, sizeof(double) * (size_t)p.nsv);
     else rc_ok = -1;
   }
-done:
-  free(J);
-  free(mu);
-  free(parts);
-  free(ks);
-  free(p.U);
-  free(p.sv);
+  pca_member_free(&p);
+  scratch_release(&sc);
   return rc_ok;
 }
