@@ -5,6 +5,7 @@
 #include "memsamples.h"
 #include "alloc.h" /* mem_malloc */
 #include "randdata.h"
+#include "scratch.h"
 
 size_t memsamples_count(const Sym *s, long n, long *shape) {
   size_t c = 1;
@@ -20,12 +21,12 @@ int memsamples_fill(MemSamples *ms, const Program *prog, Full *f, long n, long S
     const Sym *s = prog->params.v[i];
     long shape[MAX_AXES + MAX_STATIC];
     size_t c = memsamples_count(s, n, shape);
-    double *v = mem_malloc(sizeof(double) * (c ? c : 1));
-    if (!v) return -2;
-    randdata_fill(&(RandData){.prog = prog, .n = n, .seed = &seed}, s, v, c);
-    int rc = full_set_param(f, s->name, s->ndims + s->nstatic, shape, v, s->name);
-    free(v);
-    if (rc) return -1;
+    Scratch sc = SCRATCH_OF(NULL);
+    double *v = scratch_array(&sc, c ? c : 1, sizeof(double));
+    if (v) randdata_fill(&(RandData){.prog = prog, .n = n, .seed = &seed}, s, v, c);
+    int rc = !v ? -2 : full_set_param(f, s->name, s->ndims + s->nstatic, shape, v, s->name) ? -1 : 0;
+    scratch_release(&sc);
+    if (rc) return rc;
   }
   for (int i = 0; i < prog->quantities.n; i++) {
     const Sym *s = prog->quantities.v[i];
