@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "records.h"
+#include "scratch.h"
 
 /* An entry a bit cannot hold: neither +0 nor 1. */
 static bool exceptional(double v) { return !(v == 1.0 || (v == 0.0 && !signbit(v))); }
@@ -217,14 +218,15 @@ static int load_record(SampleRecords *t, Full *f, long k) {
  * rank. */
 size_t records_shared_use(SampleRecords *t) {
   int N = dist_size(), rank = dist_rank();
-  double *len = mem_calloc((size_t)t->samples + 1, sizeof(double));
+  Scratch sc = SCRATCH_OF(NULL);
+  double *len = scratch_array(&sc, (size_t)t->samples + 1, sizeof(double));
   if (!len) return err_set_first(t->err, "out of memory"), 0;
   for (long k = 0; k < t->samples; k++)
     if ((k == 0 ? 0 : (int)(k % N)) == rank) len[k] = (double)t->rec.len[records_kept_index(t, k)];
   dist_allreduce_sum(len, t->samples);
   size_t used = 0;
   for (long k = 0; k < t->samples && used + (size_t)len[k] <= t->mem_cap; k++) used += (size_t)len[k];
-  free(len);
+  scratch_release(&sc);
   return used;
 }
 
