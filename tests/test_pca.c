@@ -18,7 +18,9 @@
  * and PCA of tall snapshots (pca_basis, pca_merge: a QR, then an SVD):
  * orthonormal bases of the optimal energy, reproducing the snapshots to
  * the accuracy of LAPACK's SVD of the same matrix down to 1e-12 (issue 41:
- * a Gram matrix stopped near 1e-8). */
+ * a Gram matrix stopped near 1e-8); and every allocation of pca_basis,
+ * pca_merge and pca_top_eigen failing in turn (issue 39): a clean failure
+ * each time, then the same basis. */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -31,6 +33,7 @@
 #include <lapacke.h>
 
 #include "randdata.h"
+#include "support/failing_alloc.h"
 #include "train.h"
 
 typedef enum Spectrum {
@@ -301,11 +304,99 @@ static void pca_reaches_svd_accuracy(void **state) {
     }
 }
 
+/* A case of pca_fails_cleanly: snapshots n x S, centered or not, weighted or not, their scale. */
+typedef struct FailCase {
+  long n, S;
+  bool center, weighted;
+  double scale;
+} FailCase;
+
+/* Every allocation of pca_basis failing in turn (support/failing_alloc.h; issue 39: its
+ * temporaries from a Scratch, nothing freed by hand on an error path), then of pca_merge and
+ * pca_top_eigen: each failure is -1 (with "out of memory" where an error record is given) and
+ * leaves nothing behind — the member empty, and under the sanitizer build nothing leaked; once
+ * every allocation succeeds the result is the one made without the hook, bit for bit. Tall and
+ * wide snapshots, centered and weighted, and at 1e200 (scaled first). */
+static void pca_fails_cleanly(void **state) {
+  (void)state;
+  const FailCase cases[] = {{60, 10, true, true, 1}, {60, 10, false, false, 1}, {8, 20, true, false, 1},
+                            {60, 10, false, true, 1e200}};
+  double w[20];
+  for (int s = 0; s < 20; s++) w[s] = 1 + s % 3;
+  for (size_t c = 0; c < sizeof cases / sizeof *cases; c++) {
+    const FailCase *fc = &cases[c];
+    double *X = malloc(sizeof(double) * (size_t)(fc->n * fc->S));
+    unsigned seed = 5u + (unsigned)c;
+    for (long i = 0; i < fc->n * fc->S; i++) X[i] = fc->scale * randdata_uniform(&seed, -1, 1);
+    PcaRule rule = {.cap = 6, .energy = 0.9999, .center = fc->center, .w = fc->weighted ? w : NULL};
+    PcaMember ref, p;
+    char err[256];
+    if (pca_basis(fc->n, fc->S, X, &rule, &ref, ERR_OF(err, sizeof err))) fail_msg("%s", err);
+    long k = 0;
+    for (int rc = -1; rc != 0; k++) {
+      failing_alloc_after(k);
+      rc = pca_basis(fc->n, fc->S, X, &rule, &p, ERR_OF(err, sizeof err));
+      failing_alloc_off();
+      if (rc != 0 && !strstr(err, "out of memory")) fail_msg("case %zu, allocation %ld failing: \"%s\"", c, k, err);
+      if (rc != 0 && (p.U || p.sv)) fail_msg("case %zu, allocation %ld failing: the member is not empty", c, k);
+      if (k > 1000) fail_msg("case %zu: still failing after 1000 allocations", c);
+    }
+    assert_int_equal(p.k, ref.k);
+    assert_int_equal(p.nsv, ref.nsv);
+    assert_memory_equal(p.U, ref.U, sizeof(double) * (size_t)(fc->n * ref.k));
+    assert_memory_equal(p.sv, ref.sv, sizeof(double) * (size_t)ref.nsv);
+    print_message("pca_basis %ld x %ld%s%s: %ld allocations, each failing in turn\n", fc->n, fc->S,
+                  fc->center ? " centered" : "", fc->weighted ? " weighted" : "", k - 1);
+    /* two members merged: the second basis is the first's directions again, in reverse */
+    double *U2 = malloc(sizeof(double) * (size_t)(fc->n * ref.k)), *parts[2] = {ref.U, U2}, *B = NULL, *B0;
+    for (long e = 0; e < fc->n; e++)
+      for (int j = 0; j < ref.k; j++) U2[e * ref.k + j] = ref.U[e * ref.k + ref.k - 1 - j];
+    int ks[2] = {ref.k, ref.k};
+    long m0, m = 0;
+    if (pca_merge(fc->n, (PcaBlocks){2, parts, ks}, &B0, &m0, ERR_OF(err, sizeof err))) fail_msg("%s", err);
+    for (int rc = -1; rc != 0; k++) {
+      failing_alloc_after(k);
+      rc = pca_merge(fc->n, (PcaBlocks){2, parts, ks}, &B, &m, ERR_OF(err, sizeof err));
+      failing_alloc_off();
+      if (rc != 0 && (!strstr(err, "out of memory") || B)) fail_msg("pca_merge, allocation %ld failing: \"%s\"", k, err);
+    }
+    assert_int_equal(m, m0);
+    assert_memory_equal(B, B0, sizeof(double) * (size_t)(fc->n * m));
+    pca_member_free(&p), pca_member_free(&ref);
+    free(X), free(U2), free(B), free(B0);
+  }
+  /* the partial eigenproblem (5 of 40 eigenvectors: dsytrd, dstemr, dormtr) */
+  long S = 40, kk = 5;
+  double *G0 = gram_matrix(SP_DECAY, S, 3u), *G = malloc(sizeof(double) * (size_t)(S * S));
+  double *lam0 = malloc(sizeof(double) * (size_t)S), *V0 = malloc(sizeof(double) * (size_t)(S * kk));
+  double *lam = malloc(sizeof(double) * (size_t)S), *V = malloc(sizeof(double) * (size_t)(S * kk));
+  memcpy(G, G0, sizeof(double) * (size_t)(S * S));
+  assert_int_equal(pca_top_eigen(S, G, kk, lam0, V0), 0);
+  for (int rc = -1, k = 0; rc != 0; k++) {
+    memcpy(G, G0, sizeof(double) * (size_t)(S * S));
+    failing_alloc_after(k);
+    rc = pca_top_eigen(S, G, kk, lam, V);
+    failing_alloc_off();
+    if (rc != 0 && rc != -1) fail_msg("pca_top_eigen, allocation %d failing: info %d, not -1", k, rc);
+  }
+  assert_memory_equal(lam, lam0, sizeof(double) * (size_t)S);
+  assert_memory_equal(V, V0, sizeof(double) * (size_t)(S * kk));
+  free(G0), free(G), free(lam0), free(V0), free(lam), free(V);
+}
+
+/* A failed assertion must not leave the hook failing for the next test. */
+static int hook_off(void **state) {
+  (void)state;
+  failing_alloc_off();
+  return 0;
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(top_eigen_matches_dsyevd),
       cmocka_unit_test(pca_gram_matches_svd),
       cmocka_unit_test(pca_reaches_svd_accuracy),
+      cmocka_unit_test_teardown(pca_fails_cleanly, hook_off),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
