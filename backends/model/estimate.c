@@ -34,17 +34,8 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
   if (rt->nops == 1 && !(rt->ops[0].op->p == -1 && rt->ops[0].op->q == 1))
     return snprintf(why, n, "term %d applies a power %ld/%ld (only inverses have an estimate)", t + 1,
                     (long)rt->ops[0].op->p, (long)rt->ops[0].op->q), false;
-  const RClass *rc = &m->classes[m->qclass[rs->q]], *cw = rt->named_q >= 0 ? &m->classes[m->qclass[rt->named_q]] : rc;
-  /* in a product K0 the figure is ‖e‖_K0 from the residual's dual norm (estimate_product.c): an inverse of an
-   * unnamed numerator only (a projection's or a numerator's error would be measured in another norm) */
-  if (cw != rc && (rc->product || cw->product))
-    return snprintf(why, n, "term %d's numerator is named, and class %s is orthonormal in the inner product of %s (an "
-                    "estimate in a product needs the numerator unnamed)", t + 1, (rc->product ? rc : cw)->label,
-                    (rc->product ? rc : cw)->product->name), false;
-  if (rc->product && rt->nops == 0)
-    return snprintf(why, n, "term %d is a projection onto class %s, orthonormal in the inner product of %s (an "
-                    "estimate in a product is implemented for inverse terms only)", t + 1, rc->label, rc->product->name),
-           false;
+  /* in a product K0 the figure is ‖e‖_K0 (estimate_product.c): an inverse's from the residual's dual norm, a
+   * projection's exactly, a named numerator's error carried across the norms (RTerm.est_carry) */
   if (!m->classes[m->qclass[rs->q]].B && !m->classes[m->qclass[rs->q]].streamed)
     return snprintf(why, n, "class %s has no basis", m->classes[m->qclass[rs->q]].label), false;
   return true;
@@ -391,6 +382,13 @@ static void check_estimate(Reduced *r, int i, EstimateResult *e, Estimation *s) 
   store(e, s, reduced_model(r)->stages[i].q, f.est, f.flags, rc ? f.why : NULL);
 }
 
+/* The factor a named numerator's error enters term rt of quantity q's figure with: 1 when neither its class
+ * nor the numerator's has a product, else training's est_carry (NaN when the model holds none). */
+static double carry_factor(const Model *m, int q, const RTerm *rt) {
+  if (!m->classes[m->qclass[q]].product && !m->classes[m->qclass[rt->named_q]].product) return 1;
+  return rt->est_carry > 0 ? rt->est_carry : NAN;
+}
+
 /* The estimate of stage number i into e (err, flags, why_q of its quantity). */
 static int stage_figure(Reduced *r, int i, Estimation *s, Figure *f) {
   double *sump = &f->est;
@@ -428,7 +426,12 @@ static int stage_figure(Reduced *r, int i, Estimation *s, Figure *f) {
         snprintf(why, whylen, "its numerator %s has no estimate", qname(m, rt->named_q));
         return *flagsp = flags, -1;
       }
-      carried = e->err[rt->named_q];
+      carried = e->err[rt->named_q] * carry_factor(m, q, rt);
+      if (!(carried >= 0)) {
+        snprintf(why, whylen, "the model holds no factor carrying numerator %s's error into the norm of term %d (a "
+                 "class with a product: retrain)", qname(m, rt->named_q), t + 1);
+        return *flagsp = flags, -1;
+      }
       flags |= e->flags[rt->named_q] & (EST_OUTSIDE | EST_ROUNDOFF);
       if (!(e->flags[rt->named_q] & EST_BOUND)) flags &= ~EST_BOUND;
     }
@@ -453,10 +456,14 @@ static int stage_figure(Reduced *r, int i, Estimation *s, Figure *f) {
     }
     double sig = theta_bound(r, rt);
     if (m->classes[m->qclass[q]].product && !(sig > 0)) { /* no Euclidean σ_min to fall back on */
-      snprintf(why, whylen, "no coercivity bound of term %d's operator relative to %s %s", t + 1,
-               m->classes[m->qclass[q]].product->name,
-               rt->est_theta ? "at this input (an entry is not positive)" : "(training found its operator not affine "
-               "in one input with semidefinite terms equal to the product at a positive input)");
+      const char *k0 = m->classes[m->qclass[q]].product->name;
+      if (rt->est_theta)
+        snprintf(why, whylen, "no coercivity bound of term %d's operator relative to %s at this input (an entry is not "
+                 "positive)", t + 1, k0);
+      else
+        snprintf(why, whylen, "no coercivity bound of term %d's operator relative to %s (training found its operator "
+                 "not affine in one input with semidefinite terms, or no positive sample, or its pencil with %s above "
+                 "%d rows)", t + 1, k0, k0, ESTIMATE_DENSE_MAX);
       return *flagsp = flags, -1;
     }
     if (m->classes[m->qclass[q]].product && !isnan(rt->est_sigma))
@@ -563,6 +570,7 @@ int estimate_save(const Model *m, ModelStore *s) {
       est_name(name, sizeof name, sn, t);
       long shape[2] = {rt->est_D + 1, rt->est_D};
       bad |= model_store_add(s, name, 2, shape, rt->est_G);
+      if (rt->est_carry > 0) bad |= model_store_meta(s, "carry %s %d factor %.17g", sn, t, rt->est_carry);
       if (!rt->est_theta || rt->est_theta_k < 1) continue;
       bad |= model_store_meta(s, "theta %s %d input %s anchors %d", sn, t, qname(m, rt->est_theta_q), rt->est_theta_k);
       snprintf(name, sizeof name, "theta_%s_t%d", sn, t);
@@ -667,12 +675,32 @@ static int load_theta_line(Model *m, const ModelStore *s, const char *line, cons
                  dir, line);
 }
 
+/* "carry STAGE T factor F": the factor of an estimate line's term carrying its named numerator's error across
+ * norms (RTerm.est_carry; after the term's estimate line). A model without it (older than the factor) leaves
+ * such a term without an estimate. */
+static int load_carry_line(Model *m, const char *line, const char *dir, Err *err) {
+  char stage[512];
+  int t, used = 0;
+  double c;
+  bool ok = sscanf(line, "carry %511s %d factor %lf%n", stage, &t, &c, &used) == 3 && !line[used] && c > 0 &&
+            isfinite(c);
+  for (int i = 0; ok && i < m->nstages; i++) {
+    if (strcmp(m->stages[i].st->sym->name, stage) != 0) continue;
+    if (t < 0 || t >= m->stages[i].nterms || !m->stages[i].terms[t].est_G || m->stages[i].terms[t].named_q < 0) break;
+    m->stages[i].terms[t].est_carry = c;
+    return 0;
+  }
+  return err_set(err, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                 dir, line);
+}
+
 int estimate_load(Model *m, const ModelStore *s, const char *dir, Err *err) {
   for (int i = 0; i < s->nmeta; i++) {
     const char *line = s->meta[i];
     if (strncmp(line, "estimate ", 9) == 0 && load_estimate_line(m, s, line, dir, err)) return -1;
     if (strncmp(line, "range ", 6) == 0 && load_range_line(m, s, line, dir, err)) return -1;
     if (strncmp(line, "theta ", 6) == 0 && load_theta_line(m, s, line, dir, err)) return -1;
+    if (strncmp(line, "carry ", 6) == 0 && load_carry_line(m, line, dir, err)) return -1;
   }
   return 0;
 }

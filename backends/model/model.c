@@ -177,6 +177,17 @@ static int layout_stages(Model *m, Program *prog, Err *err) {
   return 0;
 }
 
+int model_named_projections(Model *m, Err *err) {
+  for (int i = 0; i < m->nstages; i++)
+    for (int t = 0; t < m->stages[i].nterms; t++) {
+      RTerm *rt = &m->stages[i].terms[t];
+      const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
+      if (rt->named_q < 0 || rt->proj_name || rt->nops == 0 || !rc->product) continue;
+      if (!(rt->proj_name = file_stem(dupf("proj_%s_t%d", m->stages[i].st->sym->name, t)))) return layout_oom(err);
+    }
+  return 0;
+}
+
 Model *model_layout(Program *prog, const long *dims, Err *err) {
   Model *m = mem_calloc(1, sizeof *m);
   if (!m) return layout_oom(err), NULL;

@@ -74,10 +74,15 @@ typedef struct RTerm {
                                class with a product: NaN, or 1 when its min-θ figure is an estimate (estimate_product.c) */
   /* the min-θ lower bound (estimate.h): M(x) = M_0 + Σ x_j M_j, x input est_theta_q (est_theta_n
    * entries), every M_j symmetric positive semidefinite; est_theta_k anchors, each x̄ then λ_min(M(x̄))
+   * (in a class with a product K0: the pencil's λ_min(M(x̄), K0) on the error's rows)
    * (est_theta_k x (est_theta_n + 1), owned); NULL or est_theta_k = 0: no bound */
   double *est_theta;
   int est_theta_q, est_theta_k;
   long est_theta_n;
+  /* a named numerator's error e_w enters the term's figure as est_carry · e_w when the term's class or
+   * the numerator's has a product (the norms differ: estimate_product.c); 0: not measured (no
+   * estimate then), and unused when neither class has a product (the factor is 1) */
+  double est_carry;
 } RTerm;
 
 /* Every tensor x of term `rt`: its numerator's, then each operator's in
@@ -197,6 +202,11 @@ typedef struct Model {
 /* The model's structure for `prog` (no numbers yet). NULL on allocation failure. */
 Model *model_layout(Program *prog, const long *dims, Err *err);
 void model_free(Model *m);
+/* Once the classes' products are known (training's --basis NAME:product=, a model's product lines): a
+ * term applying an operator to a named numerator of its own class, orthonormal in a product K0, gets the
+ * projection BᵀB (RTerm.proj_name; the numerator's coordinates are BᵀK0w, its Galerkin right-hand side
+ * Bᵀw = BᵀB ŵ). -1 with `err` out of memory. */
+int model_named_projections(Model *m, Err *err);
 /* Sizes of tensors once class sizes are known (rows, cols, in_len). */
 void model_size_tensors(Model *m);
 /* Bytes of every reduced tensor, basis, extern table. */

@@ -503,7 +503,8 @@ static int load_model(ModelStore *s, Program *prog, const char *dir, long *dims,
     return err_set(err, "%s: out of memory loading the model", dir);
   /* every metadata line the model reads must describe this model: a line
    * it cannot use is refused, not skipped */
-  if (load_bases(s, m, dir, err) || check_meta(s, m, dir, err) || interp_load(m, s, dir, err) ||
+  if (load_bases(s, m, dir, err) || model_named_projections(m, err) || check_meta(s, m, dir, err) ||
+      interp_load(m, s, dir, err) ||
       check_streamed(m, dir, err))
     return -1;
   read_member_stats(s, m);

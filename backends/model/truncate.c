@@ -169,6 +169,7 @@ static int cut_stage(const Model *src, Model *m, int i, Err *err) {
     RTerm *b = &t->terms[k];
     for (int o = 0; o < b->nops; o++) b->ops[o].spd = a->ops[o].spd;
     if (a->proj) { /* B_yᵀB_w, m_y x m_w row-major */
+      if (!b->proj_name && !(b->proj_name = mem_strdup(a->proj_name))) return err_set(err, "out of memory");
       long w0 = src->classes[src->qclass[a->named_q]].m, w1 = m->classes[m->qclass[a->named_q]].m;
       if (!(b->proj = mem_malloc(sizeof(double) * (size_t)(my1 * w1 + 1)))) return err_set(err, "out of memory");
       for (long r = 0; r < my1; r++) memcpy(b->proj + r * w1, a->proj + r * w0, sizeof(double) * (size_t)w1);

@@ -23,7 +23,25 @@
  *
  * and eᵀM(x)e = eᵀr ≤ ‖e‖_K0 ‖r‖_{K0⁻¹}: the bound above with α_LB = ρ, stored as one min-θ anchor
  * (x̄, 1). The rows S make pyMOR's matrices (Dirichlet rows of the parameter terms cleared, columns
- * not: nonsymmetric) qualify. */
+ * not: nonsymmetric) qualify.
+ *
+ * The pencil. When K0 is M(x̄) at no positive x̄ on T, the same argument holds at any x̄ > 0 with
+ * α(x̄) = λ_min of the pencil (M(x̄), K0) on T×T: eᵀM(x)e ≥ ρ e_TᵀM(x̄)e_T ≥ ρ α(x̄) ‖e‖²_K0. The
+ * anchors are up to ESTIMATE_SIGMA_SAMPLES training samples with every x̄_j > 0 (spread over the
+ * set), α(x̄) by LAPACK's dsygvd on the dense T×T matrices, to its roundoff; above ESTIMATE_DENSE_MAX
+ * rows of T there is none (no sparse pencil solver here: the term keeps no estimate, said online).
+ *
+ * A projection term ŷ = BᵀK0 w (the reduced evaluator projects by the dual D = K0B): its error
+ * (I − BBᵀK0) w, in K0's norm ‖LᵀP(I − BBᵀK0)w‖ = ‖(I − VVᵀ) LᵀPw‖ with V = LᵀPB = L⁻¹P K0B
+ * (VᵀV = BᵀK0B = I): the columns become LᵀPC = L⁻¹P K0C, projected and QR'd as the Euclidean
+ * table, an exact figure.
+ *
+ * A named numerator w whose own error e_w is in its class's norm (the 2-norm, or its product K1's)
+ * enters an inverse term's residual in K0⁻¹'s norm and a projection's error in K0's:
+ * ‖v‖_{K0⁻¹} ≤ ‖v‖₂ / √λ_min(K0), ‖v‖_K0 ≤ √λ_max(K0) ‖v‖₂, ‖v‖₂ ≤ ‖v‖_K1 / √λ_min(K1) (none of
+ * these when both norms are K0's, for a projection). The factor is est_carry (estimate_product_carry). With
+ * a named numerator the rows S need its basis zero there, and the true w's values on S (not its
+ * basis's) are not seen: the figure is flagged an estimate when S is not empty. */
 #include <cblas.h>
 #include <lapacke.h>
 #include <math.h>
@@ -31,6 +49,7 @@
 #include <string.h>
 
 #include "estimate_steps.h"
+#include "scratch.h"
 
 /* X (n x D row-major) <- L⁻¹ P X, L the LLᵀ factor of K0 = PᵀLLᵀP. */
 static int solve_lower(cholmod_factor *L, double *X, long n, long D, cholmod_common *cc) {
@@ -102,29 +121,88 @@ static long error_rows(cholmod_sparse *const *K, size_t nx, const RClass *rc, co
   return nt;
 }
 
+/* M_0 + Σ x_j M_j of the parts Kt[0..nx] as one sparse matrix; NULL out of memory. */
+static cholmod_sparse *affine_sum(cholmod_sparse *const *Kt, size_t nx, const double *x, cholmod_common *cc) {
+  double one[2] = {1, 0};
+  cholmod_sparse *sum = cholmod_l_copy_sparse(Kt[0], cc);
+  for (size_t j = 0; sum && j < nx; j++) {
+    double c[2] = {x[j], 0};
+    cholmod_sparse *t = cholmod_l_add(sum, Kt[j + 1], one, c, 1, 1, cc);
+    cholmod_l_free_sparse(&sum, cc);
+    sum = t;
+  }
+  return sum;
+}
+
 /* x̄ with K0 = M_0 + Σ x̄_j M_j on T×T (Kt[0..nx] and K0t restricted), each x̄_j > 0; false if none. */
 static bool anchor(cholmod_sparse *const *Kt, size_t nx, cholmod_sparse *K0t, double *xbar, double *w,
                    cholmod_common *cc) {
-  double G[ESTIMATE_THETA_MAX * ESTIMATE_THETA_MAX], one[2] = {1, 0};
+  double G[ESTIMATE_THETA_MAX * ESTIMATE_THETA_MAX];
   for (size_t a = 0; a < nx; a++) {
     xbar[a] = frobenius_dot(Kt[a + 1], K0t, w) - frobenius_dot(Kt[a + 1], Kt[0], w);
     for (size_t b = 0; b < nx; b++) G[a * nx + b] = frobenius_dot(Kt[a + 1], Kt[b + 1], w);
   }
   if (LAPACKE_dposv(LAPACK_ROW_MAJOR, 'U', (int)nx, 1, G, (int)nx, xbar, 1) != 0) return false;
-  cholmod_sparse *sum = cholmod_l_copy_sparse(Kt[0], cc);
-  for (size_t j = 0; sum && j < nx; j++) {
-    double c[2] = {xbar[j], 0};
-    cholmod_sparse *t = cholmod_l_add(sum, Kt[j + 1], one, c, 1, 1, cc);
-    cholmod_l_free_sparse(&sum, cc);
-    sum = t;
-  }
+  cholmod_sparse *sum = affine_sum(Kt, nx, xbar, cc);
   bool ok = sum && estimate_sparse_close(K0t, sum, cc);
   for (size_t j = 0; ok && j < nx; j++) ok = xbar[j] > 0;
   cholmod_l_free_sparse(&sum, cc);
   return ok;
 }
 
-/* rt's min-θ table relative to K0 (unsymmetric storage) when it applies (the file's comment). */
+/* What the pencil's anchors read (product_theta's): the operator's parts and K0 on T×T, the input x. */
+typedef struct Pencil {
+  cholmod_sparse *const *Kt; /* M_0, M_1, …, M_nx restricted to T×T */
+  size_t nx;
+  cholmod_sparse *K0t;       /* K0 restricted to T×T */
+  const char *input;         /* x's name */
+} Pencil;
+
+/* α(x̄) = λ_min of the pencil (M(x̄), K0) on T×T, the largest α with vᵀM(x̄)v ≥ α vᵀK0v: LAPACK's dsygvd
+ * on the dense matrices (their upper triangles; both symmetric to 1e-12, K0t positive definite as a
+ * principal block of K0). NaN when LAPACK fails or memory runs out. */
+static double pencil_min(const Pencil *p, const double *xbar, cholmod_common *cc) {
+  long nt = (long)p->K0t->nrow;
+  Scratch sc = SCRATCH_OF(NULL);
+  double *w = scratch_array(&sc, (size_t)nt + 1, sizeof(double)), out = NAN;
+  cholmod_sparse *Ms = affine_sum(p->Kt, p->nx, xbar, cc);
+  cholmod_dense *M = Ms ? cholmod_l_sparse_to_dense(Ms, cc) : NULL, *K = M ? cholmod_l_sparse_to_dense(p->K0t, cc) : NULL;
+  if (w && K && LAPACKE_dsygvd(LAPACK_COL_MAJOR, 1, 'N', 'U', (int)nt, M->x, (int)M->d, K->x, (int)K->d, w) == 0)
+    out = w[0];
+  cholmod_l_free_sparse(&Ms, cc), cholmod_l_free_dense(&M, cc), cholmod_l_free_dense(&K, cc);
+  scratch_release(&sc);
+  return out;
+}
+
+/* rt's min-θ anchors relative to K0 by the pencil (the file's comment): at up to ESTIMATE_SIGMA_SAMPLES
+ * training samples spread over the set (sample j (S − 1) / (nk − 1), as the σ_min ratios pick them), those
+ * whose x̄ is positive, (x̄, α(x̄)) when α(x̄) > 0. None without samples or above ESTIMATE_DENSE_MAX rows of T.
+ * 0, or -1 with `err`. */
+static int pencil_anchors(const EstWork *wk, const Pencil *p, RTerm *rt) {
+  const SampleSource *src = wk->src;
+  long S = src ? src->count : 0, nk = S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES, nx = (long)p->nx;
+  rt->est_theta_k = 0;
+  if (nk < 1 || (long)p->K0t->nrow > ESTIMATE_DENSE_MAX) return 0;
+  if (!(rt->est_theta = malloc(sizeof(double) * (size_t)(nk * (nx + 1)) + 1)))
+    return err_set(wk->err, "estimate tables: out of memory for the pencil's anchors");
+  for (long j = 0; j < nk; j++) {
+    long k = nk > 1 ? j * (S - 1) / (nk - 1) : 0;
+    if (src->set(src->user, wk->f, k) != 0) return err_set(wk->err, "estimate tables: %s", full_error(wk->f));
+    size_t cnt = 0;
+    const double *x = full_get(wk->f, p->input, &cnt);
+    bool positive = x && (long)cnt == nx;
+    for (long a = 0; positive && a < nx; a++) positive = x[a] > 0;
+    double alpha = positive ? pencil_min(p, x, wk->cc) : NAN;
+    if (!(alpha > 0)) continue;
+    double *row = rt->est_theta + (long)rt->est_theta_k++ * (nx + 1);
+    memcpy(row, x, sizeof(double) * (size_t)nx);
+    row[nx] = alpha;
+  }
+  return 0;
+}
+
+/* rt's min-θ table relative to K0 (unsymmetric storage) when it applies (the file's comment): one anchor
+ * (x̄, 1) when K0 is M(x̄) on T×T, else the pencil's. */
 static int product_theta(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod_sparse *K0, const ResidualCols *cols) {
   cholmod_sparse *K[ESTIMATE_THETA_MAX + 1], *Kt[ESTIMATE_THETA_MAX + 1] = {0}, *K0t = NULL;
   cholmod_common *cc = wk->cc;
@@ -143,17 +221,47 @@ static int product_theta(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod
   bool ok = !out && nt > 0;
   for (size_t j = 0; ok && j <= nx; j++)
     ok = (Kt[j] = cholmod_l_submatrix(K[j], T, nt, T, nt, 1, 1, cc)) && estimate_symmetric_psd(Kt[j], cc);
-  ok = ok && (K0t = cholmod_l_submatrix(K0, T, nt, T, nt, 1, 1, cc)) && anchor(Kt, nx, K0t, xbar, w, cc);
-  if (ok && m->classes[m->qclass[q]].n == (long)nx && (rt->est_theta = malloc(sizeof(double) * (nx + 1)))) {
-    memcpy(rt->est_theta, xbar, sizeof(double) * nx);
-    rt->est_theta[nx] = 1; /* λ_min of the pencil (M(x̄), K0) on the error's rows: M(x̄) = K0 there */
-    rt->est_theta_q = q, rt->est_theta_n = (long)nx, rt->est_theta_k = 1;
-    rt->est_sigma = rm.b_zero ? NAN : 1; /* 1: the figure is an estimate (estimate.c) */
+  ok = ok && (K0t = cholmod_l_submatrix(K0, T, nt, T, nt, 1, 1, cc)) && m->classes[m->qclass[q]].n == (long)nx;
+  rt->est_theta_q = q, rt->est_theta_n = (long)nx;
+  if (ok && anchor(Kt, nx, K0t, xbar, w, cc)) {
+    if ((rt->est_theta = malloc(sizeof(double) * (nx + 1)))) {
+      memcpy(rt->est_theta, xbar, sizeof(double) * nx);
+      rt->est_theta[nx] = 1; /* λ_min of the pencil (M(x̄), K0) on the error's rows: M(x̄) = K0 there */
+      rt->est_theta_k = 1;
+    } else {
+      out = -1;
+    }
+  } else if (ok) {
+    out = pencil_anchors(wk, &(Pencil){Kt, nx, K0t, ((const Sym *)m->prog->quantities.v[q])->name}, rt);
+    if (rt->est_theta_k == 0) free(rt->est_theta), rt->est_theta = NULL;
   }
+  /* 1: the figure is an estimate (estimate.c): B's rows S above roundoff, or a named numerator's true values there unseen */
+  if (rt->est_theta_k > 0) rt->est_sigma = rm.b_zero && !(rt->named_q >= 0 && nt < n) ? NAN : 1;
   for (size_t j = 0; j <= nx; j++) cholmod_l_free_sparse(&K[j], cc), cholmod_l_free_sparse(&Kt[j], cc);
   cholmod_l_free_sparse(&K0t, cc);
   free(T), free(bad), free(w);
   return out;
+}
+
+/* X (n x D row-major) <- K0 X (K0 unsymmetric storage); 0, or -1 out of memory. */
+static int apply_product(cholmod_sparse *K0, double *X, long n, long D, cholmod_common *cc) {
+  cholmod_dense *b = cholmod_l_allocate_dense((size_t)n, (size_t)D, (size_t)n, CHOLMOD_REAL, cc);
+  cholmod_dense *y = b ? cholmod_l_zeros((size_t)n, (size_t)D, CHOLMOD_REAL, cc) : NULL;
+  double one[2] = {1, 0}, zero[2] = {0, 0};
+  int ok = y ? 0 : -1;
+  if (!ok) {
+    double *bx = b->x;
+    for (long i = 0; i < n; i++)
+      for (long c = 0; c < D; c++) bx[c * n + i] = X[i * D + c];
+    ok = cholmod_l_sdmult(K0, 0, one, zero, b, y, cc) ? 0 : -1;
+  }
+  if (!ok) {
+    const double *yx = y->x;
+    for (long i = 0; i < n; i++)
+      for (long c = 0; c < D; c++) X[i * D + c] = yx[c * n + i];
+  }
+  cholmod_l_free_dense(&b, cc), cholmod_l_free_dense(&y, cc);
+  return ok;
 }
 
 int estimate_product_columns(const EstWork *w, RTerm *rt, const RClass *rc, const ResidualCols *cols, double **V) {
@@ -163,23 +271,70 @@ int estimate_product_columns(const EstWork *w, RTerm *rt, const RClass *rc, cons
   cholmod_common cc;
   cholmod_l_start(&cc);
   cc.print = 0;
-  EstWork wk = {m, f, &cc, err};
+  EstWork wk = {m, f, &cc, err, w->src};
   free(rt->est_theta);
   rt->est_theta = NULL, rt->est_theta_k = 0, rt->est_sigma = NAN;
   cholmod_sparse *A = product_matrix(m, f, rc, &cc, err), *K0 = A ? cholmod_l_copy_sparse(A, &cc) : NULL;
   cholmod_factor *L = K0 ? product_factor(rc, A, &cc, err) : NULL; /* leaves A's upper triangle: K0 keeps both */
   int out = -1;
   *V = NULL;
-  if (L && product_theta(&wk, rt, rc, K0, cols) == 0 &&
+  bool projection = rt->nops == 0; /* its error's K0-norm: the columns K0C (the file's comment) */
+  if (L && (projection || product_theta(&wk, rt, rc, K0, cols) == 0) &&
       (*V = malloc(sizeof(double) * (size_t)(rc->n * rc->m) + 1))) {
     memcpy(*V, rc->D, sizeof(double) * (size_t)(rc->n * rc->m));
-    out = solve_lower(L, cols->C, rc->n, cols->D, &cc) || solve_lower(L, *V, rc->n, rc->m, &cc) ? -1 : 0;
+    out = (projection && apply_product(K0, cols->C, rc->n, cols->D, &cc)) || solve_lower(L, cols->C, rc->n, cols->D, &cc) ||
+                  solve_lower(L, *V, rc->n, rc->m, &cc) ? -1 : 0;
   }
-  if (out && L) err_set(err, "estimate tables: out of memory for the dual norm of class %s's residual in %s",
-                          rc->label, rc->product->name);
+  if (out && L) err_set_first(err, "estimate tables: out of memory for the norm of class %s's residual in %s",
+                              rc->label, rc->product->name);
   if (A && !K0) err_set(err, "estimate tables: out of memory for product %s", rc->product->name);
   cholmod_l_free_factor(&L, &cc);
   cholmod_l_free_sparse(&A, &cc), cholmod_l_free_sparse(&K0, &cc);
   cholmod_l_finish(&cc);
   return out;
+}
+
+/* range[0] ≤ λ_min(K) and range[1] = ‖K‖₁ ≥ λ_max(K) (Gershgorin; K symmetric) of class c's product K:
+ * λ_min by dsyevr on the dense K up to ESTIMATE_DENSE_MAX rows (to its roundoff), by Lanczos above (erring low,
+ * estimate_sparse_smallest_sv). 0, or -1 with `err`. */
+static int product_range(const EstWork *w, const RClass *c, double range[2]) {
+  cholmod_common *cc = w->cc;
+  cholmod_sparse *A = product_matrix(w->m, w->f, c, cc, w->err);
+  if (!A) return -1;
+  range[1] = cholmod_l_norm_sparse(A, 1, cc), range[0] = NAN;
+  if (c->n > ESTIMATE_DENSE_MAX) {
+    range[0] = estimate_sparse_smallest_sv(A, c->n, cc);
+  } else {
+    cholmod_dense *K = cholmod_l_sparse_to_dense(A, cc);
+    lapack_int found = 0, isuppz[2];
+    double lo[1];
+    if (K && LAPACKE_dsyevr(LAPACK_COL_MAJOR, 'N', 'I', 'U', (int)c->n, K->x, (int)K->d, 0, 0, 1, 1, 0, &found, lo,
+                            NULL, 1, isuppz) == 0 && found == 1)
+      range[0] = lo[0];
+    cholmod_l_free_dense(&K, cc);
+  }
+  cholmod_l_free_sparse(&A, cc);
+  if (!(range[0] > 0))
+    return err_set(w->err, "estimate tables: the smallest eigenvalue of product %s was not found positive",
+                   c->product->name);
+  return 0;
+}
+
+int estimate_product_carry(const EstWork *w, RTerm *rt, const RClass *rc, const RClass *cw) {
+  rt->est_carry = 0;
+  if (!rc->product && !cw->product) return 0;
+  cholmod_common cc;
+  cholmod_l_start(&cc);
+  cc.print = 0;
+  EstWork wk = {w->m, w->f, &cc, w->err, w->src};
+  double k0[2] = {1, 1}, k1[2] = {1, 1}; /* λ_min, λ_max bounds; 1: the 2-norm */
+  int out = (rc->product && product_range(&wk, rc, k0)) || (cw->product && product_range(&wk, cw, k1)) ? -1 : 0;
+  cholmod_l_finish(&cc);
+  if (out) return -1;
+  bool same = rc->product && rc->product == cw->product;
+  if (rt->nops > 0) /* into the residual's norm, K0⁻¹'s: ‖v‖_{K0⁻¹} ≤ ‖v‖₂ / √λ_min(K0), ‖v‖₂ ≤ ‖v‖_K1 / √λ_min(K1) */
+    rt->est_carry = 1 / sqrt(k0[0] * k1[0]);
+  else /* into the error's norm, K0's: ‖v‖_K0 ≤ √λ_max(K0) ‖v‖₂ */
+    rt->est_carry = same ? 1 : sqrt(k0[1] / k1[0]);
+  return 0;
 }

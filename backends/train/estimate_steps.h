@@ -11,13 +11,14 @@
 #include "estimate.h"
 #include "train.h"
 
-/* What the tables' steps share: the model, the evaluator (params bound), CHOLMOD's workspace and
- * the error record. */
+/* What the tables' steps share: the model, the evaluator (params bound), CHOLMOD's workspace, the
+ * error record and the training samples (NULL: none; the pencil's anchors in a product need them). */
 typedef struct EstWork {
   Model *m;
   Full *f;
   cholmod_common *cc;
   Err *err;
+  const SampleSource *src;
 } EstWork;
 
 /* A term's residual columns: C (n x D row-major), its first nnum the numerator's. */
@@ -36,6 +37,9 @@ int estimate_affine_parts(const EstWork *w, const RTerm *rt, long n, cholmod_spa
 bool estimate_sparse_close(cholmod_sparse *A, cholmod_sparse *B, cholmod_common *cc);
 /* A (sorted) symmetric to 1e-12 and positive semidefinite by diagonal dominance. */
 bool estimate_symmetric_psd(cholmod_sparse *A, cholmod_common *cc);
+/* σ_min of the sparse n x n A by Lanczos (estimate_train.c: 1/λ_max(A⁻¹) for an SPD A, the figure
+ * erring low); NaN when the factorization fails. */
+double estimate_sparse_smallest_sv(cholmod_sparse *A, long n, cholmod_common *cc);
 
 /* product.c: K0 of class rc's product as a CHOLMOD matrix (unsymmetric storage), and its
  * Cholesky factor (simplicial LLᵀ; sets A->stype to 1: A's upper triangle); NULL with `err`. */
@@ -43,12 +47,22 @@ cholmod_sparse *product_matrix(Model *m, Full *f, const RClass *rc, cholmod_comm
 cholmod_factor *product_factor(const RClass *rc, cholmod_sparse *A, cholmod_common *cc, Err *err);
 
 /* Term rt of a class rc with a product K0 (estimate_product.c; w->cc unused: CHOLMOD started
- * afresh). cols: the residual's columns. Replaces C by L⁻¹PC (K0 = PᵀLLᵀP, CHOLMOD),
- * so that ‖C z‖ is the dual norm ‖r‖_{K0⁻¹} of the residual r = C z, and returns in *V (n x m,
- * malloc'd) L⁻¹P K0B, orthonormal, the span the Galerkin residual's Riesz representative is
- * K0-orthogonal to. Sets rt's min-θ table relative to K0 when it applies (one anchor x̄ with
- * M(x̄) = K0 on the rows the error lives on, and λ = 1), else leaves none. 0, or -1 with `err`.
+ * afresh). cols: the residual's columns (of a named numerator: its basis's columns first, nnum
+ * of them). An inverse term's C becomes L⁻¹PC (K0 = PᵀLLᵀP, CHOLMOD), so that ‖C z‖ is the dual
+ * norm ‖r‖_{K0⁻¹} of the residual r = C z; a projection's becomes L⁻¹P K0C = LᵀPC, so that ‖C z‖
+ * is the error's K0-norm ‖(I − BBᵀK0) w‖_K0 once projected. Returns in *V (n x m, malloc'd)
+ * L⁻¹P K0B = LᵀPB, orthonormal, the span the caller projects out (the Galerkin residual's Riesz
+ * representative is K0-orthogonal to B's span; the projection's error is K0-orthogonal to it). For
+ * an inverse sets rt's min-θ table relative to K0 when it applies (one anchor x̄ with M(x̄) = K0
+ * on the rows the error lives on, λ = 1; else the pencil (M(x̄), K0)'s smallest eigenvalue at up
+ * to ESTIMATE_SIGMA_SAMPLES training samples, w->src's), else leaves none. 0, or -1 with `err`.
  * Leaves the term's input set elsewhere: the caller sets a sample again. */
 int estimate_product_columns(const EstWork *w, RTerm *rt, const RClass *rc, const ResidualCols *cols, double **V);
+/* A named numerator's error e_w in the norm of the term's residual (estimate.c): sets rt->est_carry
+ * to c with ‖δw‖ ≤ c e_w in the norm the term's figure adds it in, when class rc (the term's) or cw
+ * (the numerator's) has a product; leaves it 0 (unused) when neither has. From λ_min of each product
+ * (dense dsyevr up to ESTIMATE_DENSE_MAX rows, Lanczos above) and ‖K0‖₁ ≥ λ_max(K0) (Gershgorin).
+ * 0, or -1 with `err`. */
+int estimate_product_carry(const EstWork *w, RTerm *rt, const RClass *rc, const RClass *cw);
 
 #endif

@@ -124,7 +124,7 @@ static int qr_factor(double *C, long n, long D, double *R) {
 /* Term t of stage i: its columns, their norms and R of the projected columns into rt->est_G. In a
  * class with a product K0 the columns are first replaced by L⁻¹PC and B by L⁻¹P K0B
  * (estimate_product_columns): R then gives the residual's dual norm ‖r‖_{K0⁻¹}. */
-static int term_table(Model *m, Full *f, int i, int t, Err *err) {
+static int term_table(Model *m, Full *f, const SampleSource *src, int i, int t, Err *err) {
   RStage *rs = &m->stages[i];
   RTerm *rt = &rs->terms[t];
   const RClass *rc = &m->classes[m->qclass[rs->q]];
@@ -156,10 +156,11 @@ static int term_table(Model *m, Full *f, int i, int t, Err *err) {
   for (int k = 0; k < rt->nops; k++)
     for (int g = 0; g < rt->ops[k].ntensors; g++, s.off += rc->m * rt->ops[k].t[g - 1].cols)
       if (fill_block(m, f, &rt->ops[k].t[g], &s, err)) goto done;
-  long nnum = 0;
+  long nnum = rt->named_q >= 0 ? m->classes[m->qclass[rt->named_q]].m : 0;
   for (int g = 0; g < rt->nnum; g++) nnum += rt->num[g].cols;
-  if (rc->product && estimate_product_columns(&(EstWork){m, f, NULL, err}, rt, rc, &(ResidualCols){s.C, D, nnum}, &V))
-    goto done;
+  EstWork wk = {m, f, NULL, err, src};
+  if (rc->product && estimate_product_columns(&wk, rt, rc, &(ResidualCols){s.C, D, nnum}, &V)) goto done;
+  if (rt->named_q >= 0 && estimate_product_carry(&wk, rt, rc, &m->classes[m->qclass[rt->named_q]])) goto done;
   for (long c = 0; c < D; c++) G[D * D + c] = cblas_dnrm2((int)n, s.C + c, (int)D);
   if (project_out(V ? V : rc->B, n, rc->m, s.C, D)) {
     err_set(err, "estimate tables: out of memory projecting stage %s", rs->st->sym->name);
@@ -352,7 +353,7 @@ done:
 /* σ_min of the sparse n x n operator A: an SPD A (symmetric to 1e-14 and CHOLMOD's Cholesky
  * succeeds) by 1/λ_max(A⁻¹), anything else by 1/√λ_max((AᵀA)⁻¹) through one UMFPACK LU; each
  * by Lanczos (lanczos_max). NaN when the factorization fails (a singular operator: no bound). */
-static double sparse_smallest_sv(cholmod_sparse *A, long n, cholmod_common *cc) {
+double estimate_sparse_smallest_sv(cholmod_sparse *A, long n, cholmod_common *cc) {
   double one[2] = {1, 0}, minus[2] = {-1, 0}, out = NAN;
   cholmod_sparse *At = cholmod_l_transpose(A, 2, cc), *Dif = At ? cholmod_l_add(A, At, one, minus, 1, 0, cc) : NULL, *S = NULL;
   InvOp o = {cc, NULL, A, NULL, malloc(sizeof(double) * (size_t)n + 1)};
@@ -485,7 +486,7 @@ static int affine_input(const EstWork *w, const RTerm *rt, long n) {
 }
 
 /* sig[0] = σ_min(M), sig[1] = σ_min(BᵀMB) of inverse term rt of `stage` at the evaluator's current values: M
- * assembled dense and decomposed by LAPACK up to ESTIMATE_DENSE_MAX rows, sparse above (sparse_smallest_sv). */
+ * assembled dense and decomposed by LAPACK up to ESTIMATE_DENSE_MAX rows, sparse above (estimate_sparse_smallest_sv). */
 static int term_sigmas(const EstWork *w, const RTerm *rt, const RClass *rc, const char *stage, double sig[2]) {
   cholmod_common *cc = w->cc;
   long n = rc->n, my = rc->m;
@@ -511,7 +512,7 @@ static int term_sigmas(const EstWork *w, const RTerm *rt, const RClass *rc, cons
   }
   cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, rc->B, (int)my, T, (int)my, 0.0, R,
               (int)my);
-  sig[0] = dense ? smallest_sv(M, n, sv) : sparse_smallest_sv(A, n, cc);
+  sig[0] = dense ? smallest_sv(M, n, sv) : estimate_sparse_smallest_sv(A, n, cc);
   sig[1] = my > 0 ? smallest_sv(R, my, sv) : INFINITY;
   rc_ = 0;
 done:
@@ -609,7 +610,7 @@ static int sigma_ratios(Model *m, Full *f, const SampleSource *src, bool dist, E
   cholmod_common cc;
   cholmod_l_start(&cc);
   long S = src->count;
-  SigmaRun s = {{m, f, &cc, err}, src, NULL, 0, S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES,
+  SigmaRun s = {{m, f, &cc, err, src}, src, NULL, 0, S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES,
                 dist ? dist_rank() : 0, dist ? dist_size() : 1, NULL};
   int out = -1, n = 0;
   for (int i = 0; i < m->nstages; i++) n += m->stages[i].nterms;
@@ -692,7 +693,7 @@ static int share_table(RTerm *rt, int owner, Err *err) {
 /* Every eligible term's residual table. Over ranks the e-th (in stage and term order) is built by rank e mod N
  * and sent to the others: the same arithmetic as on one process, the work divided (a class with a product, which
  * training over ranks refuses, would be built on every rank). */
-static int term_tables(Model *m, Full *f, bool dist, Err *err) {
+static int term_tables(Model *m, Full *f, const SampleSource *src, bool dist, Err *err) {
   int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1, e = 0;
   char why[256];
   for (int i = 0; i < m->nstages; i++)
@@ -701,7 +702,7 @@ static int term_tables(Model *m, Full *f, bool dist, Err *err) {
       if (!estimate_term_eligible(m, i, t, why, sizeof why) || !rc->B) continue;
       bool shared = N > 1 && !rc->product;
       int owner = e++ % N;
-      if ((!shared || owner == rank) && term_table(m, f, i, t, err)) return -1;
+      if ((!shared || owner == rank) && term_table(m, f, src, i, t, err)) return -1;
       if (shared && share_table(&m->stages[i].terms[t], owner, err)) return -1;
     }
   return 0;
@@ -718,7 +719,7 @@ int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptio
         interp_train_check(m, f, i, err))
       return -1;
   }
-  if (term_tables(m, f, opt->dist, err) || sigma_ratios(m, f, src, opt->dist, err) ||
+  if (term_tables(m, f, src, opt->dist, err) || sigma_ratios(m, f, src, opt->dist, err) ||
       input_ranges(m, f, src, opt->dist, err))
     return -1;
   if (m->nexterns > 0) full_forget_given(f); /* the ranges' samples set, never evaluated: callbacks as before */

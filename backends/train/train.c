@@ -363,7 +363,7 @@ int train_begin(Train *t) {
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++)
       member_options(m, &m->classes[c], &m->classes[c].members[i], opt, powered);
-  if (class_products(m, opt, t->err)) return -1;
+  if (class_products(m, opt, t->err) || model_named_projections(m, t->err)) return -1;
   char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
   if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
   if (unknown[0])
