@@ -26,7 +26,10 @@
  * In a class orthonormal in a product K0 (BᵀK0B = I) an inverse term's figure is
  * ‖y_t − B ŷ_t‖_K0 ≤ ‖r_t‖_{K0⁻¹} / α_LB: R_t is then of the Riesz representatives'
  * columns (backends/train/estimate_product.c), the same ‖R_t z_t‖ online, over the min-θ
- * bound relative to K0 (one anchor, λ = 1); no σ_min fallback there.
+ * bound relative to K0 (one anchor x̄ with M(x̄) = K0, λ = 1, or the pencil's anchors,
+ * λ = λ_min(M(x̄), K0)); no σ_min fallback there. A projection term's (ŷ_t = BᵀK0 w_t) is
+ * ‖(I − BBᵀK0) w_t‖_K0 = ‖R_t z_t‖, R_t of the columns weighted by K0's Cholesky factor. A
+ * named numerator's error e_w enters as RTerm.est_carry · e_w when a product is involved.
  *
  * Chaining: a named numerator w carries its own estimate e_w into the term
  * (plus e_w for a projection, plus e_w / σ for an inverse); an input x of a
