@@ -463,7 +463,7 @@ static int stage_figure(Reduced *r, int i, Estimation *s, Figure *f) {
       else
         snprintf(why, whylen, "no coercivity bound of term %d's operator relative to %s (training found its operator "
                  "not affine in one input with semidefinite terms, or no positive sample, or its pencil with %s above "
-                 "%d rows)", t + 1, k0, k0, ESTIMATE_DENSE_MAX);
+                 "%d rows)", t + 1, k0, k0, ESTIMATE_SPARSE_MAX);
       return *flagsp = flags, -1;
     }
     if (m->classes[m->qclass[q]].product && !isnan(rt->est_sigma))

@@ -28,8 +28,9 @@
  * The pencil. When K0 is M(x̄) at no positive x̄ on T, the same argument holds at any x̄ > 0 with
  * α(x̄) = λ_min of the pencil (M(x̄), K0) on T×T: eᵀM(x)e ≥ ρ e_TᵀM(x̄)e_T ≥ ρ α(x̄) ‖e‖²_K0. The
  * anchors are up to ESTIMATE_SIGMA_SAMPLES training samples with every x̄_j > 0 (spread over the
- * set), α(x̄) by LAPACK's dsygvd on the dense T×T matrices, to its roundoff; above ESTIMATE_DENSE_MAX
- * rows of T there is none (no sparse pencil solver here: the term keeps no estimate, said online).
+ * set), α(x̄) by LAPACK's dsygvd on the dense T×T matrices, to its roundoff, up to ESTIMATE_DENSE_MAX
+ * rows of T; above, 1/λ_max(M(x̄)⁻¹K0) by Lanczos in K0's inner product (one Cholesky of M(x̄) per
+ * anchor), erring low provided Lanczos found the top eigenvalue, as estimate_train.c's σ_min.
  *
  * A projection term ŷ = BᵀK0 w (the reduced evaluator projects by the dual D = K0B): its error
  * (I − BBᵀK0) w, in K0's norm ‖LᵀP(I − BBᵀK0)w‖ = ‖(I − VVᵀ) LᵀPw‖ with V = LᵀPB = L⁻¹P K0B
@@ -158,14 +159,109 @@ typedef struct Pencil {
   const char *input;         /* x's name */
 } Pencil;
 
+/* The sparse pencil's operands: A = M(x̄) on T×T by its Cholesky factor, K0 on T×T. */
+typedef struct PencilOp {
+  cholmod_factor *LA;
+  cholmod_sparse *K;
+  cholmod_common *cc;
+  long n;
+} PencilOp;
+
+/* A vector of n doubles as a CHOLMOD dense column (no copy). */
+static cholmod_dense column(double *x, long n) {
+  cholmod_dense d = {0};
+  d.nrow = d.nzmax = d.d = (size_t)n, d.ncol = 1, d.x = x, d.xtype = CHOLMOD_REAL, d.dtype = CHOLMOD_DOUBLE;
+  return d;
+}
+
+/* y = K0 x; 0, or -1 when CHOLMOD fails. */
+static int pencil_mult(const PencilOp *o, double *x, double *y) {
+  double one[2] = {1, 0}, zero[2] = {0, 0};
+  cholmod_dense X = column(x, o->n), Y = column(y, o->n);
+  return cholmod_l_sdmult(o->K, 0, one, zero, &X, &Y, o->cc) ? 0 : -1;
+}
+
+/* w = A⁻¹ y; 0, or -1 when CHOLMOD fails. */
+static int pencil_solve(const PencilOp *o, double *y, double *w) {
+  cholmod_dense Y = column(y, o->n);
+  cholmod_dense *r = cholmod_l_solve(CHOLMOD_A, o->LA, &Y, o->cc);
+  if (!r) return -1;
+  memcpy(w, r->x, sizeof(double) * (size_t)o->n);
+  cholmod_l_free_dense(&r, o->cc);
+  return 0;
+}
+
+/* The Lanczos steps of the sparse pencil, at most (estimate_train.c's SPARSE_LANCZOS_STEPS). */
+#define PENCIL_LANCZOS_STEPS 60
+
+/* λ_max of A⁻¹K0 — self-adjoint and positive in K0's inner product, its eigenvalues 1/λ(M(x̄), K0) — by
+ * Lanczos in that inner product (K0-orthonormal vectors V, their images K0V kept) with full
+ * reorthogonalization, from a fixed start, until the top Ritz value's residual bound |β s| is below 1e-10
+ * of it: θ + |β s| (an eigenvalue lies within |β s| of θ: the figure errs high, 1/it low, as the σ_min
+ * Lanczos in estimate_train.c). NaN on failure. */
+static double pencil_lanczos(const PencilOp *o, Scratch *sc) {
+  long n = o->n;
+  int K = n < PENCIL_LANCZOS_STEPS ? (int)n : PENCIL_LANCZOS_STEPS;
+  double *V = scratch_array(sc, (size_t)(n * (K + 1)), sizeof(double)), *w = scratch_array(sc, (size_t)n, sizeof(double));
+  double *KV = scratch_array(sc, (size_t)(n * (K + 1)), sizeof(double)), al[PENCIL_LANCZOS_STEPS + 1],
+         be[PENCIL_LANCZOS_STEPS + 1], out = NAN;
+  if (!V || !w || !KV) return NAN;
+  for (long i = 0; i < n; i++) V[i] = 1.0 + 0.5 * sin(0.7 * (double)i); /* fixed, not K0-orthogonal to smooth modes */
+  if (pencil_mult(o, V, KV)) return NAN;
+  double s0 = 1 / sqrt(cblas_ddot((int)n, V, 1, KV, 1));
+  cblas_dscal((int)n, s0, V, 1), cblas_dscal((int)n, s0, KV, 1);
+  for (int j = 0; j < K; j++) {
+    double *kv = KV + (long)j * n, *vn = V + (long)(j + 1) * n, *kvn = kv + n;
+    if (pencil_solve(o, kv, w)) return NAN; /* w = A⁻¹K0 v */
+    al[j] = cblas_ddot((int)n, kv, 1, w, 1);
+    for (int pass = 0; pass < 2; pass++) /* w -= V (VᵀK0 w), twice */
+      for (int k = 0; k <= j; k++) cblas_daxpy((int)n, -cblas_ddot((int)n, KV + (long)k * n, 1, w, 1), V + (long)k * n, 1, w, 1);
+    memcpy(vn, w, sizeof(double) * (size_t)n);
+    if (pencil_mult(o, vn, kvn)) return NAN;
+    be[j] = sqrt(fmax(cblas_ddot((int)n, vn, 1, kvn, 1), 0));
+    double res, theta = estimate_ritz_top(al, be, j, &res);
+    if (isnan(theta)) return NAN;
+    out = theta + res;
+    if (res <= 1e-10 * theta || be[j] <= 1e-14 * theta || j + 1 == K) break;
+    cblas_dscal((int)n, 1 / be[j], vn, 1), cblas_dscal((int)n, 1 / be[j], kvn, 1);
+  }
+  return out;
+}
+
+/* α(x̄) above ESTIMATE_DENSE_MAX rows: 1/λ_max(A⁻¹K0) by pencil_lanczos, A = M(x̄) on T×T (`Ms`) by CHOLMOD's
+ * supernodal Cholesky (an A not positive definite fails: NaN, no anchor). */
+static double pencil_sparse(const Pencil *p, cholmod_sparse *Ms, cholmod_common *cc) {
+  long n = (long)Ms->nrow;
+  int super = cc->supernodal;
+  cc->supernodal = CHOLMOD_SUPERNODAL; /* LLᵀ: an indefinite matrix fails instead of factoring as LDLᵀ */
+  cholmod_sparse *S = cholmod_l_copy(Ms, 1, 1, cc);
+  cholmod_factor *L = S ? cholmod_l_analyze(S, cc) : NULL;
+  double out = NAN;
+  if (L && cholmod_l_factorize(S, L, cc) && cc->status == CHOLMOD_OK && L->minor >= (size_t)n) {
+    Scratch sc = SCRATCH_OF(NULL);
+    double top = pencil_lanczos(&(PencilOp){L, p->K0t, cc, n}, &sc);
+    scratch_release(&sc);
+    out = top > 0 ? 1 / top : NAN;
+  }
+  cc->supernodal = super;
+  cholmod_l_free_factor(&L, cc), cholmod_l_free_sparse(&S, cc);
+  return out;
+}
+
 /* α(x̄) = λ_min of the pencil (M(x̄), K0) on T×T, the largest α with vᵀM(x̄)v ≥ α vᵀK0v: LAPACK's dsygvd
  * on the dense matrices (their upper triangles; both symmetric to 1e-12, K0t positive definite as a
- * principal block of K0). NaN when LAPACK fails or memory runs out. */
+ * principal block of K0) up to ESTIMATE_DENSE_MAX rows, pencil_sparse above. NaN when LAPACK or CHOLMOD
+ * fails or memory runs out. */
 static double pencil_min(const Pencil *p, const double *xbar, cholmod_common *cc) {
   long nt = (long)p->K0t->nrow;
+  cholmod_sparse *Ms = affine_sum(p->Kt, p->nx, xbar, cc);
+  if (Ms && nt > ESTIMATE_DENSE_MAX) {
+    double out = pencil_sparse(p, Ms, cc);
+    cholmod_l_free_sparse(&Ms, cc);
+    return out;
+  }
   Scratch sc = SCRATCH_OF(NULL);
   double *w = scratch_array(&sc, (size_t)nt + 1, sizeof(double)), out = NAN;
-  cholmod_sparse *Ms = affine_sum(p->Kt, p->nx, xbar, cc);
   cholmod_dense *M = Ms ? cholmod_l_sparse_to_dense(Ms, cc) : NULL, *K = M ? cholmod_l_sparse_to_dense(p->K0t, cc) : NULL;
   if (w && K && LAPACKE_dsygvd(LAPACK_COL_MAJOR, 1, 'N', 'U', (int)nt, M->x, (int)M->d, K->x, (int)K->d, w) == 0)
     out = w[0];
@@ -176,13 +272,13 @@ static double pencil_min(const Pencil *p, const double *xbar, cholmod_common *cc
 
 /* rt's min-θ anchors relative to K0 by the pencil (the file's comment): at up to ESTIMATE_SIGMA_SAMPLES
  * training samples spread over the set (sample j (S − 1) / (nk − 1), as the σ_min ratios pick them), those
- * whose x̄ is positive, (x̄, α(x̄)) when α(x̄) > 0. None without samples or above ESTIMATE_DENSE_MAX rows of T.
+ * whose x̄ is positive, (x̄, α(x̄)) when α(x̄) > 0. None without samples or above ESTIMATE_SPARSE_MAX rows of T.
  * 0, or -1 with `err`. */
 static int pencil_anchors(const EstWork *wk, const Pencil *p, RTerm *rt) {
   const SampleSource *src = wk->src;
   long S = src ? src->count : 0, nk = S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES, nx = (long)p->nx;
   rt->est_theta_k = 0;
-  if (nk < 1 || (long)p->K0t->nrow > ESTIMATE_DENSE_MAX) return 0;
+  if (nk < 1 || (long)p->K0t->nrow > ESTIMATE_SPARSE_MAX) return 0;
   if (!(rt->est_theta = malloc(sizeof(double) * (size_t)(nk * (nx + 1)) + 1)))
     return err_set(wk->err, "estimate tables: out of memory for the pencil's anchors");
   for (long j = 0; j < nk; j++) {

@@ -37,6 +37,10 @@ int estimate_affine_parts(const EstWork *w, const RTerm *rt, long n, cholmod_spa
 bool estimate_sparse_close(cholmod_sparse *A, cholmod_sparse *B, cholmod_common *cc);
 /* A (sorted) symmetric to 1e-12 and positive semidefinite by diagonal dominance. */
 bool estimate_symmetric_psd(cholmod_sparse *A, cholmod_common *cc);
+/* Step j of a Lanczos run (estimate_train.c, at most 60 steps): the top Ritz value θ of the tridiagonal
+ * al[0..j], be[0..j-1] and its residual bound |be[j] s| into *res (an eigenvalue lies within it); NaN
+ * when LAPACK fails. */
+double estimate_ritz_top(const double *al, const double *be, int j, double *res);
 /* σ_min of the sparse n x n A by Lanczos (estimate_train.c: 1/λ_max(A⁻¹) for an SPD A, the figure
  * erring low); NaN when the factorization fails. */
 double estimate_sparse_smallest_sv(cholmod_sparse *A, long n, cholmod_common *cc);

@@ -321,11 +321,21 @@ static int inv_apply(InvOp *o, double *x, double *y, long n) {
  * value settles in tens of steps; 60 bounds the work of a clustered spectrum, whose figure then
  * still carries its |β s|. */
 #define SPARSE_LANCZOS_STEPS 60
+
+double estimate_ritz_top(const double *al, const double *be, int j, double *res) {
+  double d[SPARSE_LANCZOS_STEPS + 1], e[SPARSE_LANCZOS_STEPS + 1], Z[SPARSE_LANCZOS_STEPS * SPARSE_LANCZOS_STEPS + 1];
+  if (j >= SPARSE_LANCZOS_STEPS) return NAN;
+  memcpy(d, al, sizeof(double) * (size_t)(j + 1));
+  memcpy(e, be, sizeof(double) * (size_t)j);
+  if (LAPACKE_dstev(LAPACK_COL_MAJOR, 'V', j + 1, d, e, Z, j + 1) != 0) return NAN;
+  *res = fabs(be[j] * Z[(long)j * (j + 1) + j]); /* last component of the top Ritz vector */
+  return d[j];
+}
+
 static double lanczos_max(InvOp *o, long n) {
   int K = n < SPARSE_LANCZOS_STEPS ? (int)n : SPARSE_LANCZOS_STEPS;
   double *V = malloc(sizeof(double) * (size_t)(n * (K + 1)) + 1), *w = malloc(sizeof(double) * (size_t)n + 1);
-  double al[SPARSE_LANCZOS_STEPS + 1], be[SPARSE_LANCZOS_STEPS + 1], d[SPARSE_LANCZOS_STEPS + 1],
-      e[SPARSE_LANCZOS_STEPS + 1], Z[SPARSE_LANCZOS_STEPS * SPARSE_LANCZOS_STEPS + 1], out = NAN;
+  double al[SPARSE_LANCZOS_STEPS + 1], be[SPARSE_LANCZOS_STEPS + 1], out = NAN;
   if (!V || !w) goto done;
   for (long i = 0; i < n; i++) V[i] = 1.0 + 0.5 * sin(0.7 * (double)i); /* fixed, not orthogonal to smooth modes */
   cblas_dscal((int)n, 1.0 / cblas_dnrm2((int)n, V, 1), V, 1);
@@ -336,10 +346,8 @@ static double lanczos_max(InvOp *o, long n) {
     for (int pass = 0; pass < 2; pass++) /* w -= V (Vᵀ w), twice */
       for (int k = 0; k <= j; k++) cblas_daxpy((int)n, -cblas_ddot((int)n, V + (long)k * n, 1, w, 1), V + (long)k * n, 1, w, 1);
     be[j] = cblas_dnrm2((int)n, w, 1);
-    memcpy(d, al, sizeof(double) * (size_t)(j + 1));
-    memcpy(e, be, sizeof(double) * (size_t)j);
-    if (LAPACKE_dstev(LAPACK_COL_MAJOR, 'V', j + 1, d, e, Z, j + 1) != 0) goto done;
-    double theta = d[j], res = fabs(be[j] * Z[(long)j * (j + 1) + j]); /* last component of the top Ritz vector */
+    double res, theta = estimate_ritz_top(al, be, j, &res);
+    if (isnan(theta)) goto done;
     out = theta + res;
     if (res <= 1e-10 * theta || be[j] <= 1e-14 * theta || j + 1 == K) break;
     double *vn = V + (long)(j + 1) * n;
