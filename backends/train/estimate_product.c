@@ -307,9 +307,10 @@ static int product_theta(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod
   int q = estimate_affine_parts(wk, rt, rc->n, K, &nx);
   if (q < 0) return 0;
   long n = rc->n;
-  SuiteSparse_long *T = malloc(sizeof *T * (size_t)n + 1);
-  bool *bad = malloc(sizeof *bad * (size_t)n + 1);
-  double *w = calloc((size_t)n + 1, sizeof(double)), xbar[ESTIMATE_THETA_MAX];
+  Scratch sc = SCRATCH_OF(NULL); /* out of memory: the caller's message */
+  SuiteSparse_long *T = scratch_array(&sc, (size_t)n + 1, sizeof *T);
+  bool *bad = scratch_array(&sc, (size_t)n + 1, sizeof *bad);
+  double *w = scratch_array(&sc, (size_t)n + 1, sizeof(double)), xbar[ESTIMATE_THETA_MAX];
   int out = T && bad && w ? 0 : -1;
   RowMarks rm = {T, bad, w, true};
   long nt = out ? 0 : error_rows(K, nx, rc, cols, &rm);
@@ -335,7 +336,7 @@ static int product_theta(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod
   if (rt->est_theta_k > 0) rt->est_sigma = rm.b_zero && !(rt->named_q >= 0 && nt < n) ? NAN : 1;
   for (size_t j = 0; j <= nx; j++) cholmod_l_free_sparse(&K[j], cc), cholmod_l_free_sparse(&Kt[j], cc);
   cholmod_l_free_sparse(&K0t, cc);
-  free(T), free(bad), free(w);
+  scratch_release(&sc);
   return out;
 }
 
