@@ -88,6 +88,8 @@ typedef struct RowMarks {
   bool *bad;                /* n: a row some M_j (j ≥ 1) or M_0 off its diagonal reaches */
   double *diag;             /* n: M_0's diagonal */
   bool b_zero;              /* in: true */
+  bool named;               /* in: the numerator's columns are a named numerator's basis (zero to 1e-6 of its
+                               largest entry counts as zero there: full solves leave roundoff, as in B) */
 } RowMarks;
 
 /* The rows T the error can live on (every row but S, above), into rm->T; their count. rm->b_zero: B's
@@ -113,9 +115,12 @@ static long error_rows(cholmod_sparse *const *K, size_t nx, const RClass *rc, co
         else bad[Ai[k]] = true;
       }
   }
+  double ctol = 0; /* an unnamed numerator's columns: exactly zero */
+  for (long i = 0; rm->named && i < n; i++)
+    for (long c = 0; c < cols->nnum; c++) ctol = fmax(ctol, 1e-6 * fabs(C[i * D + c]));
   for (long i = 0; i < n; i++) {
     bool zero = !bad[i] && diag[i] != 0;
-    for (long c = 0; zero && c < cols->nnum; c++) zero = C[i * D + c] == 0;
+    for (long c = 0; zero && c < cols->nnum; c++) zero = fabs(C[i * D + c]) <= ctol;
     for (long c = 0; zero && rm->b_zero && c < rc->m; c++) rm->b_zero = fabs(rc->B[i * rc->m + c]) <= 1e-6 * bmax;
     if (!zero) rm->T[nt++] = i;
   }
@@ -312,7 +317,7 @@ static int product_theta(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod
   bool *bad = scratch_array(&sc, (size_t)n + 1, sizeof *bad);
   double *w = scratch_array(&sc, (size_t)n + 1, sizeof(double)), xbar[ESTIMATE_THETA_MAX];
   int out = T && bad && w ? 0 : -1;
-  RowMarks rm = {T, bad, w, true};
+  RowMarks rm = {T, bad, w, true, rt->named_q >= 0};
   long nt = out ? 0 : error_rows(K, nx, rc, cols, &rm);
   if (!out) memset(w, 0, sizeof(double) * (size_t)n);
   bool ok = !out && nt > 0;
