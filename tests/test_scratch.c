@@ -2,7 +2,8 @@
  * Blocks are zeroed and distinct, a refused allocation is NULL with "out of memory" in the
  * scratch's error record (the blocks before it still released), an overflowing size is
  * refused without an allocation, an adopted block is the scratch's (freed with it, or at once
- * when the scratch cannot hold it), and release empties the scratch (the sanitizers' leak check
+ * when the scratch cannot hold it), a formatted string is the scratch's (NULL with "out of memory"
+ * when refused), and release empties the scratch (the sanitizers' leak check
  * is the oracle that it freed every block). */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -92,12 +93,30 @@ static void adopted(void **state) {
   assert_null(sc.head);
 }
 
+static void printed(void **state) {
+  (void)state;
+  char msg[128] = "";
+  Scratch sc = SCRATCH_OF(ERR_OF(msg, sizeof msg));
+  char *path = scratch_printf(&sc, "%s/%s.npy", "MODEL", "basis_u");
+  assert_string_equal(path, "MODEL/basis_u.npy");
+  assert_string_equal(scratch_printf(&sc, "%s", ""), "");
+  assert_string_equal(msg, "");
+  failing_alloc_after(0);
+  assert_null(scratch_printf(&sc, "%s/manifest", "MODEL"));
+  failing_alloc_off();
+  assert_non_null(strstr(msg, "out of memory"));
+  assert_string_equal(path, "MODEL/basis_u.npy"); /* a refusal leaves the blocks before it */
+  scratch_release(&sc);
+  assert_null(sc.head);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test_teardown(zeroed_and_distinct, teardown),
       cmocka_unit_test_teardown(refused, teardown),
       cmocka_unit_test_teardown(overflow, teardown),
       cmocka_unit_test_teardown(adopted, teardown),
+      cmocka_unit_test_teardown(printed, teardown),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -2,6 +2,8 @@
  * allocation (so the sanitizers see each buffer's bounds), chained and freed at once. */
 #include "scratch.h"
 
+#include <stdarg.h>
+#include <stdio.h>
 #include <stdlib.h>
 
 struct ScratchBlock {
@@ -30,6 +32,19 @@ void *scratch_adopt(Scratch *s, void *p) {
   b->adopted = p;
   b->next = s->head, s->head = b;
   return p;
+}
+
+char *scratch_printf(Scratch *s, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  int n = vsnprintf(NULL, 0, fmt, ap);
+  va_end(ap);
+  char *text = n < 0 ? NULL : scratch_alloc(s, (size_t)n + 1);
+  if (!text) return n < 0 ? (err_set(s->err, "cannot format '%s'", fmt), NULL) : NULL;
+  va_start(ap, fmt);
+  vsnprintf(text, (size_t)n + 1, fmt, ap);
+  va_end(ap);
+  return text;
 }
 
 void scratch_release(Scratch *s) {

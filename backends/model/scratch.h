@@ -28,6 +28,9 @@ void *scratch_array(Scratch *s, size_t count, size_t size);
  * freed by scratch_release. NULL when `p` is NULL (a failure its maker reported), or, with
  * "out of memory", when the scratch cannot hold it (`p` is freed then). */
 void *scratch_adopt(Scratch *s, void *p);
+/* printf's text in a block of the scratch, or NULL with "out of memory" in its error record
+ * (a path built for one operation: no string to free by hand on its error paths). */
+__attribute__((format(printf, 2, 3))) char *scratch_printf(Scratch *s, const char *fmt, ...);
 /* Frees every block of the scratch; it is empty again. */
 void scratch_release(Scratch *s);
 
