@@ -59,6 +59,7 @@ typedef struct Deriv {
   Err *err;             /* the caller's record, or `own` when it holds no buffer */
   Err own;
   char own_msg[256];
+  Scratch sc;           /* x, d and active: released by deriv_free */
 } Deriv;
 
 static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
@@ -157,20 +158,17 @@ static long tensor_zlen(const RTensor *t) {
   return n;
 }
 
-/* out (rows) += T ·(z_1 ⊗ … ⊗ z_n), the last axis first. */
-static int contract_into(const RTensor *t, const double *const *z, double *out) {
+/* out (rows) += T ·(z_1 ⊗ … ⊗ z_n), the last axis first; its two buffers from the caller's
+ * scratch `sc`. */
+static int contract_into(const RTensor *t, const double *const *z, double *out, Scratch *sc) {
   if (t->nin == 0) {
     cblas_daxpy((int)t->rows, 1.0, t->data, 1, out, 1);
     return 0;
   }
   long lead = t->rows;
   for (int j = 0; j + 1 < t->nin; j++) lead *= t->in_len[j];
-  double *buf[2] = {mem_malloc(sizeof(double) * (size_t)(lead + 1)), mem_malloc(sizeof(double) * (size_t)(lead + 1))};
-  if (!buf[0] || !buf[1]) {
-    free(buf[0]);
-    free(buf[1]);
-    return -1;
-  }
+  double *buf[2] = {scratch_array(sc, (size_t)(lead + 1), sizeof(double)), NULL};
+  if (!buf[0] || !(buf[1] = scratch_array(sc, (size_t)(lead + 1), sizeof(double)))) return -1;
   const double *src = t->data;
   int b = 0;
   for (int j = t->nin - 1; j >= 0; j--) {
@@ -182,8 +180,6 @@ static int contract_into(const RTensor *t, const double *const *z, double *out) 
     b ^= 1;
     if (j > 0) lead /= t->in_len[j - 1];
   }
-  free(buf[0]);
-  free(buf[1]);
   return 0;
 }
 
@@ -234,10 +230,22 @@ static int contract_but(const RTensor *t, int j, const double *const *z, const d
   return 0;
 }
 
-/* J (rows x m_q) from P (rows x L_j, contract_but) for an input repeated k times at x (col, coef:
- * L_j k scratch entries each when k > 2). */
-static void jacobian_of(const double *P, const double *x, long rows, long mq, long Lj, int k, long *col, double *coef,
-                        double *J) {
+/* An input of a tensor repeated k times: its coordinates x (m_q), its packed length L_j, and
+ * when k > 2 the scratch of jacobian_of (col, coef: L_j k entries each). */
+typedef struct RepeatedInput {
+  const double *x;
+  long mq, Lj;
+  int k;
+  long *col;
+  double *coef;
+} RepeatedInput;
+
+/* J (rows x m_q) from P (rows x L_j, contract_but) for the repeated input `in`. */
+static void jacobian_of(const double *P, long rows, const RepeatedInput *in, double *J) {
+  const double *x = in->x;
+  long mq = in->mq, Lj = in->Lj, *col = in->col;
+  int k = in->k;
+  double *coef = in->coef;
   if (k == 1) memcpy(J, P, sizeof(double) * (size_t)(rows * mq));
   else if (k == 2) { /* z[(a,b)] = x_a x_b, a <= b: row r gains P[r,(a,b)] x_b at a and P[r,(a,b)] x_a at b
                         * (loops: BLAS per row and index made thousands of level-1 calls) */
@@ -302,7 +310,7 @@ static int tensor_jacobian(Deriv *dv, const RTensor *t, int j, double *J) {
   int rc = zbuf && (k <= 2 || (col && coef)) ? 0 : -1;
   if (rc == 0) tensor_z(dv, t, z, zbuf);
   if (rc == 0) rc = contract_but(t, j, z, &P, &sc);
-  if (rc == 0) jacobian_of(P, dv->x[t->in_q[j]], rows, mq, Lj, k, col, coef, J);
+  if (rc == 0) jacobian_of(P, rows, &(RepeatedInput){dv->x[t->in_q[j]], mq, Lj, k, col, coef}, J);
   scratch_release(&sc);
   return rc;
 }
@@ -320,24 +328,28 @@ static const double *local_jacobian(Deriv *dv, const RTensor *t, int j, double *
 /* Forward: out (rows x nd) += Σ_j ∂(T·z)/∂x̂_j · d[x_j]; reverse: d[x_j] += (∂(T·z)/∂x̂_j)ᵀ · bar
  * (rows x nd), for the active inputs of t. */
 static int tensor_tangent(Deriv *dv, const RTensor *t, bool reverse, const double *bar, double *out) {
+  long most = 0; /* the largest local Jacobian: one buffer for every input */
   for (int j = 0; j < t->nin; j++) {
+    long size = t->rows * qm(dv->m, t->in_q[j]);
+    if (dv->active[t->in_q[j]] && size > most) most = size;
+  }
+  Scratch sc = SCRATCH_OF(NULL);
+  double *buf = most > 0 ? scratch_array(&sc, (size_t)most, sizeof(double)) : NULL;
+  int rc = most > 0 && !buf ? dfail_oom(dv) : 0;
+  for (int j = 0; j < t->nin && rc == 0; j++) {
     int q = t->in_q[j];
     if (!dv->active[q]) continue;
     long mq = qm(dv->m, q);
     if (mq == 0 || t->rows == 0) continue;
-    double *buf = mem_malloc(sizeof(double) * (size_t)(t->rows * mq));
-    const double *J = buf ? local_jacobian(dv, t, j, buf) : NULL;
-    if (!J) {
-      free(buf);
-      return dfail_oom(dv);
-    }
-    if (reverse)
+    const double *J = local_jacobian(dv, t, j, buf);
+    if (!J) rc = dfail_oom(dv);
+    else if (reverse)
       cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)dv->nd, (int)t->rows, 1.0, J, (int)mq, bar,
                   (int)dv->nd, 1.0, dv->d[q], (int)dv->nd);
     else forward_product(dv, q, t->rows, 1.0, J, out);
-    free(buf);
   }
-  return 0;
+  scratch_release(&sc);
+  return rc;
 }
 
 static bool tensor_active(const Deriv *dv, const RTensor *t) {
@@ -356,19 +368,9 @@ typedef struct OpState {
   double *M, *LU, *U, *lam, *F; /* LU: an inverse's factor (as ReducedKept's); F: f's divided differences (roots) */
   lapack_int *piv;
   bool chol;                    /* LU holds Cholesky's L of M̂, else the LU factors of M̂ᵀ (column-major) */
-  bool kept;                    /* M, LU and piv are the evaluator's (reduced_kept), not owned */
+  bool kept;                    /* M, LU and piv are the evaluator's (reduced_kept), not its own */
+  Scratch *mem;                 /* where its own arrays live: its term's (TermState) */
 } OpState;
-
-static void op_state_free(OpState *o) {
-  if (!o->kept) {
-    free(o->M);
-    free(o->LU);
-    free(o->piv);
-  }
-  free(o->U);
-  free(o->lam);
-  free(o->F);
-}
 
 /* B (n x nrhs, row-major) <- M̂⁻¹ B, or M̂⁻ᵀ B with `trans`, by the inverse's factor; `work`
  * holds n·nrhs (B transposed to the column-major layout LAPACK solves in) when nrhs > 1. */
@@ -395,8 +397,8 @@ static int op_factor(Deriv *dv, const RStage *rs, OpState *o) {
   long p = ro->op->p, q = ro->op->q;
   if ((q == 1 && p > 0) || (q == 1 && o->kept)) return 0;
   if (q == 1) {
-    o->LU = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
-    o->piv = mem_malloc(sizeof(lapack_int) * (size_t)(n + 1));
+    o->LU = scratch_array(o->mem, (size_t)(n * n + 1), sizeof(double));
+    o->piv = scratch_array(o->mem, (size_t)(n + 1), sizeof(lapack_int));
     if (!o->LU || !o->piv) return dfail_oom(dv);
     memcpy(o->LU, o->M, sizeof(double) * (size_t)(n * n)); /* column-major: M̂ᵀ, as the evaluator factors it */
     lapack_int info = LAPACKE_dgetrf_work(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)n, o->LU, (lapack_int)n, o->piv);
@@ -405,9 +407,9 @@ static int op_factor(Deriv *dv, const RStage *rs, OpState *o) {
                      "derivative there", sn, (int)info);
     return 0;
   }
-  o->U = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
-  o->lam = mem_malloc(sizeof(double) * (size_t)(n + 1));
-  o->F = mem_malloc(sizeof(double) * (size_t)(n * n + 1));
+  o->U = scratch_array(o->mem, (size_t)(n * n + 1), sizeof(double));
+  o->lam = scratch_array(o->mem, (size_t)(n + 1), sizeof(double));
+  o->F = scratch_array(o->mem, (size_t)(n * n + 1), sizeof(double));
   if (!o->U || !o->lam || !o->F) return dfail_oom(dv);
   memcpy(o->U, o->M, sizeof(double) * (size_t)(n * n));
   lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, o->U, (lapack_int)n, o->lam);
@@ -431,46 +433,33 @@ static int op_factor(Deriv *dv, const RStage *rs, OpState *o) {
   return 0;
 }
 
-/* Assemble M̂ of `ro` and factor it as its power needs. */
+/* Assemble M̂ of `ro` (its packed rows and each tensor's buffers from a scratch) and factor it
+ * as its power needs, into `o` (whose `mem` is set). */
 static int op_state(Deriv *dv, const RStage *rs, const ROp *ro, long n, OpState *o) {
-  memset(o, 0, sizeof *o);
-  o->ro = ro, o->n = n;
+  *o = (OpState){.ro = ro, .n = n, .mem = o->mem};
   long rows = ro->op->kind == OPK_DIAG ? n * (n + 1) / 2 : n * n;
-  double *acc = mem_calloc((size_t)rows + 1, sizeof(double));
-  o->M = mem_calloc((size_t)(n * n) + 1, sizeof(double));
-  if (!acc || !o->M) {
-    free(acc);
-    return dfail_oom(dv);
-  }
-  for (int g = 0; g < ro->ntensors; g++) {
+  Scratch sc = SCRATCH_OF(NULL);
+  double *acc = scratch_array(&sc, (size_t)rows + 1, sizeof(double));
+  int rc = acc && (o->M = scratch_array(o->mem, (size_t)(n * n) + 1, sizeof(double))) ? 0 : -1;
+  for (int g = 0; g < ro->ntensors && rc == 0; g++) {
     const double *z[RT_MAX_IN];
-    double *zbuf = mem_malloc(sizeof(double) * (size_t)tensor_zlen(&ro->t[g]));
-    if (!zbuf) {
-      free(acc);
-      return dfail_oom(dv);
-    }
-    tensor_z(dv, &ro->t[g], z, zbuf);
-    int rc = contract_into(&ro->t[g], z, acc);
-    free(zbuf);
-    if (rc) {
-      free(acc);
-      return dfail_oom(dv);
-    }
+    double *zbuf = scratch_array(&sc, (size_t)tensor_zlen(&ro->t[g]), sizeof(double));
+    rc = zbuf ? contract_into(&ro->t[g], (tensor_z(dv, &ro->t[g], z, zbuf), z), acc, &sc) : -1;
   }
-  if (ro->op->kind == OPK_DIAG) {
+  if (rc == 0 && ro->op->kind == OPK_DIAG) {
     long p = 0;
     for (long a = 0; a < n; a++)
       for (long b = a; b < n; b++, p++) o->M[a * n + b] = o->M[b * n + a] = acc[p];
-  } else memcpy(o->M, acc, sizeof(double) * (size_t)(n * n));
-  free(acc);
-  return op_factor(dv, rs, o);
+  } else if (rc == 0) memcpy(o->M, acc, sizeof(double) * (size_t)(n * n));
+  scratch_release(&sc);
+  return rc ? dfail_oom(dv) : op_factor(dv, rs, o);
 }
 
 /* The operator `ro` as the evaluation kept it (`kp`): M̂ and an inverse's factor borrowed, a
- * root's eigendecomposition computed from the kept M̂ (the evaluation never forms it). */
+ * root's eigendecomposition computed from the kept M̂ (the evaluation never forms it), into `o`
+ * (whose `mem` is set). */
 static int op_state_kept(Deriv *dv, const RStage *rs, const ROp *ro, long n, const ReducedKept *kp, OpState *o) {
-  memset(o, 0, sizeof *o);
-  o->ro = ro, o->n = n, o->kept = true;
+  *o = (OpState){.ro = ro, .n = n, .kept = true, .mem = o->mem};
   o->M = kp->M, o->LU = kp->factor, o->piv = kp->piv, o->chol = kp->chol;
   return op_factor(dv, rs, o);
 }
@@ -510,14 +499,11 @@ static void op_forward_primal(const OpState *o, double *vs, double *w) {
  * Σ_g Σ_j J_g,j d[x_j] (packed rows x nd). */
 static int op_tangent(Deriv *dv, const OpState *o, double *dM) {
   long n = o->n, nd = dv->nd, rows = o->ro->op->kind == OPK_DIAG ? n * (n + 1) / 2 : n * n;
-  double *pk = mem_calloc((size_t)(rows * nd) + 1, sizeof(double));
-  if (!pk) return dfail_oom(dv);
-  for (int g = 0; g < o->ro->ntensors; g++)
-    if (tensor_tangent(dv, &o->ro->t[g], false, NULL, pk)) {
-      free(pk);
-      return -1;
-    }
-  for (long d = 0; d < nd; d++) {
+  Scratch sc = SCRATCH_OF(NULL);
+  double *pk = scratch_array(&sc, (size_t)(rows * nd) + 1, sizeof(double));
+  int rc = pk ? 0 : dfail_oom(dv);
+  for (int g = 0; g < o->ro->ntensors && rc == 0; g++) rc = tensor_tangent(dv, &o->ro->t[g], false, NULL, pk);
+  for (long d = 0; d < nd && rc == 0; d++) {
     double *Md = dM + d * n * n;
     if (o->ro->op->kind == OPK_DIAG) {
       long p = 0;
@@ -526,16 +512,17 @@ static int op_tangent(Deriv *dv, const OpState *o, double *dM) {
     } else
       for (long e = 0; e < n * n; e++) Md[e] = pk[e * nd + d];
   }
-  free(pk);
-  return 0;
+  scratch_release(&sc);
+  return rc;
 }
 
 /* The reverse of op_tangent: M̄ (nd x n x n) to the operator's inputs. */
 static int op_cotangent(Deriv *dv, const OpState *o, const double *Mbar) {
   long n = o->n, nd = dv->nd, rows = o->ro->op->kind == OPK_DIAG ? n * (n + 1) / 2 : n * n;
-  double *pk = mem_calloc((size_t)(rows * nd) + 1, sizeof(double));
-  if (!pk) return dfail_oom(dv);
-  for (long d = 0; d < nd; d++) {
+  Scratch sc = SCRATCH_OF(NULL);
+  double *pk = scratch_array(&sc, (size_t)(rows * nd) + 1, sizeof(double));
+  int rc = pk ? 0 : dfail_oom(dv);
+  for (long d = 0; d < nd && rc == 0; d++) {
     const double *Md = Mbar + d * n * n;
     if (o->ro->op->kind == OPK_DIAG) {
       long p = 0;
@@ -544,9 +531,8 @@ static int op_cotangent(Deriv *dv, const OpState *o, const double *Mbar) {
     } else
       for (long e = 0; e < n * n; e++) pk[e * nd + d] = Md[e];
   }
-  int rc = 0;
   for (int g = 0; g < o->ro->ntensors && rc == 0; g++) rc = tensor_tangent(dv, &o->ro->t[g], true, pk, NULL);
-  free(pk);
+  scratch_release(&sc);
   return rc;
 }
 
@@ -568,22 +554,30 @@ static void dk_forward(const OpState *o, const double *E, const double *w, doubl
  * u_b to G's row a, and times u_a to row b when a < b), then forward
  * V (n x nd) += sign · G d[q], reverse d[q] += sign · Gᵀ V. */
 static int op_dM_times(Deriv *dv, const OpState *o, const double *u, double sign, bool reverse, double *V) {
-  long n = o->n, nd = dv->nd;
+  long n = o->n, nd = dv->nd, most = 0; /* the largest m_q: buffers for every input */
   bool diag = o->ro->op->kind == OPK_DIAG;
   long rows = diag ? n * (n + 1) / 2 : n * n;
-  for (int g = 0; g < o->ro->ntensors; g++) {
+  for (int g = 0; g < o->ro->ntensors; g++)
+    for (int j = 0; j < o->ro->t[g].nin; j++)
+      if (dv->active[o->ro->t[g].in_q[j]] && qm(dv->m, o->ro->t[g].in_q[j]) > most) most = qm(dv->m, o->ro->t[g].in_q[j]);
+  Scratch sc = SCRATCH_OF(NULL);
+  double *buf = NULL, *G = NULL;
+  int rc = most > 0 && n > 0 && (!(buf = scratch_array(&sc, (size_t)(rows * most), sizeof(double))) ||
+                                 !(G = scratch_array(&sc, (size_t)(n * most), sizeof(double))))
+               ? dfail_oom(dv)
+               : 0;
+  for (int g = 0; g < o->ro->ntensors && rc == 0; g++) {
     const RTensor *t = &o->ro->t[g];
-    for (int j = 0; j < t->nin; j++) {
+    for (int j = 0; j < t->nin && rc == 0; j++) {
       int q = t->in_q[j];
       long mq = qm(dv->m, q);
       if (!dv->active[q] || mq == 0 || n == 0) continue;
-      double *buf = mem_malloc(sizeof(double) * (size_t)(rows * mq)), *G = mem_calloc((size_t)(n * mq), sizeof(double));
-      const double *J = buf && G ? local_jacobian(dv, t, j, buf) : NULL;
+      const double *J = local_jacobian(dv, t, j, buf);
       if (!J) {
-        free(buf);
-        free(G);
-        return dfail_oom(dv);
+        rc = dfail_oom(dv);
+        continue;
       }
+      memset(G, 0, sizeof(double) * (size_t)(n * mq));
       if (!diag) /* G's row a = (J's rows (a, ·))ᵀ u */
         for (long a = 0; a < n; a++)
           cblas_dgemv(CblasRowMajor, CblasTrans, (int)n, (int)mq, 1.0, J + a * n * mq, (int)mq, u, 1, 0.0, G + a * mq,
@@ -601,11 +595,10 @@ static int op_dM_times(Deriv *dv, const OpState *o, const double *u, double sign
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)n, sign, G, (int)mq, V, (int)nd,
                     1.0, dv->d[q], (int)nd);
       else forward_product(dv, q, n, sign, G, V);
-      free(buf);
-      free(G);
     }
   }
-  return 0;
+  scratch_release(&sc);
+  return rc;
 }
 
 /* Forward through one power: dV (n x nd) <- the tangent of the result, vs its primal chain. */
@@ -613,20 +606,13 @@ static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV)
   long n = o->n, nd = dv->nd, steps = op_steps(o);
   bool dm = false, root = o->ro->op->q != 1; /* dM formed for roots only (Daleckii–Krein) */
   for (int g = 0; g < o->ro->ntensors; g++) dm = dm || (root && tensor_active(dv, &o->ro->t[g]));
-  double *dM = dm ? mem_calloc((size_t)(nd * n * n) + 1, sizeof(double)) : NULL;
-  double *tmp = mem_malloc(sizeof(double) * (size_t)(n * nd + 2 * n * n + 5 * n + 1));
-  if ((dm && !dM) || !tmp) {
-    free(dM);
-    free(tmp);
-    return dfail_oom(dv);
-  }
-  if (dm && op_tangent(dv, o, dM)) {
-    free(dM);
-    free(tmp);
-    return -1;
-  }
-  double *A = tmp + n * nd, *w = A + 2 * n * n + n, *t = w + n, *col = t + n; /* A: dk_forward's 2 n² + n */
-  for (long s = 0; s < steps; s++) {
+  Scratch sc = SCRATCH_OF(NULL);
+  double *dM = dm ? scratch_array(&sc, (size_t)(nd * n * n) + 1, sizeof(double)) : NULL;
+  double *tmp = scratch_array(&sc, (size_t)(n * nd + 2 * n * n + 5 * n + 1), sizeof(double));
+  int rc = (dm && !dM) || !tmp ? dfail_oom(dv) : dm ? op_tangent(dv, o, dM) : 0;
+  double *A = NULL, *w = NULL, *t = NULL, *col = NULL; /* A: dk_forward's 2 n² + n */
+  if (tmp) A = tmp + n * nd, w = A + 2 * n * n + n, t = w + n, col = t + n;
+  for (long s = 0; s < steps && rc == 0; s++) {
     const double *v = vs + s * n, *v2 = vs + (s + 1) * n;
     if (o->ro->op->q == 1 && o->ro->op->p > 0) { /* dv' = M dv + dM v */
       cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)nd, (int)n, 1.0, o->M, (int)n, dV, (int)nd,
@@ -649,9 +635,8 @@ static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV)
       }
     }
   }
-  free(dM);
-  free(tmp);
-  return err_held(dv->err) ? -1 : 0;
+  scratch_release(&sc);
+  return rc || err_held(dv->err) ? -1 : 0;
 }
 
 /* Reverse through one power: Vb (n x nd), the cotangent of the result, becomes that of its
@@ -660,16 +645,14 @@ static int op_reverse(Deriv *dv, const OpState *o, const double *vs, double *Vb)
   long n = o->n, nd = dv->nd, steps = op_steps(o);
   bool dm = false, root = o->ro->op->q != 1; /* M̄ formed for roots only */
   for (int g = 0; g < o->ro->ntensors; g++) dm = dm || (root && tensor_active(dv, &o->ro->t[g]));
-  double *Mb = dm ? mem_calloc((size_t)(nd * n * n) + 1, sizeof(double)) : NULL;
-  double *tmp = mem_malloc(sizeof(double) * (size_t)(n * nd + 2 * n * n + 2 * n + 1));
-  if ((dm && !Mb) || !tmp) {
-    free(Mb);
-    free(tmp);
-    return dfail_oom(dv);
-  }
-  double *A = tmp + n * nd, *B = A + n * n, *w = B + n * n;
+  Scratch sc = SCRATCH_OF(NULL);
+  double *Mb = dm ? scratch_array(&sc, (size_t)(nd * n * n) + 1, sizeof(double)) : NULL;
+  double *tmp = scratch_array(&sc, (size_t)(n * nd + 2 * n * n + 2 * n + 1), sizeof(double));
+  int rc = (dm && !Mb) || !tmp ? dfail_oom(dv) : 0;
+  double *A = NULL, *B = NULL, *w = NULL;
+  if (tmp) A = tmp + n * nd, B = A + n * n, w = B + n * n;
   double e = (double)o->ro->op->p / (double)o->ro->op->q;
-  for (long s = steps - 1; s >= 0; s--) {
+  for (long s = steps - 1; s >= 0 && rc == 0; s--) {
     const double *v = vs + s * n, *v2 = vs + (s + 1) * n;
     if (o->ro->op->q == 1 && o->ro->op->p > 0) { /* M̄ = v̄' vᵀ to the inputs, v̄ = Mᵀ v̄' */
       if (op_dM_times(dv, o, v, 1.0, true, Vb)) break;
@@ -697,9 +680,8 @@ static int op_reverse(Deriv *dv, const OpState *o, const double *vs, double *Vb)
                   0.0, Vb, (int)nd);
     }
   }
-  int rc = err_held(dv->err) ? -1 : dm ? op_cotangent(dv, o, Mb) : 0;
-  free(Mb);
-  free(tmp);
+  if (rc == 0) rc = err_held(dv->err) ? -1 : dm ? op_cotangent(dv, o, Mb) : 0;
+  scratch_release(&sc);
   return rc;
 }
 
@@ -711,16 +693,19 @@ typedef struct TermState {
   int nops;
   OpState *ops;
   double **vs;
-  bool kept; /* the chains are the evaluator's (reduced_kept) */
+  bool kept;  /* the chains are the evaluator's (reduced_kept) */
+  Scratch mem; /* its arrays and its operators' own (zero: empty) */
 } TermState;
 
-static void term_free(TermState *ts) {
-  for (int k = 0; k < ts->nops; k++) {
-    op_state_free(&ts->ops[k]);
-    if (!ts->kept) free(ts->vs[k]);
-  }
-  free(ts->ops);
-  free(ts->vs);
+static void term_free(TermState *ts) { scratch_release(&ts->mem); }
+
+/* ts->ops and ts->vs for `nops` operators, each operator's arrays in ts->mem. */
+static int term_alloc(TermState *ts, int nops) {
+  ts->nops = nops;
+  ts->ops = scratch_array(&ts->mem, (size_t)nops + 1, sizeof(OpState));
+  ts->vs = scratch_array(&ts->mem, (size_t)nops + 1, sizeof(double *));
+  for (int k = 0; ts->ops && k < nops; k++) ts->ops[k].mem = &ts->mem;
+  return ts->ops && ts->vs ? 0 : -1;
 }
 
 /* Term `t` of stage rs as the evaluation kept it, or 1 when it kept none (reduced_kept). */
@@ -729,10 +714,8 @@ static int term_kept(Deriv *dv, const RStage *rs, int t, long n, TermState *ts) 
   int stage = (int)(rs - dv->m->stages);
   for (int k = 0; k < rt->nops; k++)
     if (!reduced_kept(dv->r, stage, t, k)) return 1;
-  ts->nops = rt->nops, ts->kept = true;
-  ts->ops = mem_calloc((size_t)rt->nops + 1, sizeof(OpState));
-  ts->vs = mem_calloc((size_t)rt->nops + 1, sizeof(double *));
-  if (!ts->ops || !ts->vs) return dfail_oom(dv);
+  ts->kept = true;
+  if (term_alloc(ts, rt->nops)) return dfail_oom(dv);
   for (int k = 0; k < rt->nops; k++) {
     const ReducedKept *kp = reduced_kept(dv->r, stage, t, k);
     ts->vs[k] = kp->chain;
@@ -742,10 +725,11 @@ static int term_kept(Deriv *dv, const RStage *rs, int t, long n, TermState *ts) 
 }
 
 /* Term rt's primal recomputed from the coordinates: its numerator, each operator assembled,
- * factored and applied. */
-static int term_primal_in(Deriv *dv, const RStage *rs, const RTerm *rt, long n, TermState *ts, double *v0, double *w,
-                          Scratch *sc) {
+ * factored and applied; the numerator and work vectors from `sc`. */
+static int term_primal_in(Deriv *dv, const RStage *rs, const RTerm *rt, long n, TermState *ts, Scratch *sc) {
   const Model *m = dv->m;
+  double *v0 = scratch_array(sc, (size_t)n + 1, sizeof(double)), *w = scratch_array(sc, (size_t)n + 1, sizeof(double));
+  if (!v0 || !w) return dfail_oom(dv);
   if (rt->named_q >= 0) {
     if (rt->proj)
       cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)n, (int)qm(m, rt->named_q), 1.0, rt->proj, (int)qm(m, rt->named_q),
@@ -755,13 +739,13 @@ static int term_primal_in(Deriv *dv, const RStage *rs, const RTerm *rt, long n, 
     for (int g = 0; g < rt->nnum; g++) {
       const double *z[RT_MAX_IN];
       double *zbuf = scratch_array(sc, (size_t)tensor_zlen(&rt->num[g]), sizeof(double));
-      if (!zbuf || contract_into(&rt->num[g], (tensor_z(dv, &rt->num[g], z, zbuf), z), v0)) return dfail_oom(dv);
+      if (!zbuf || contract_into(&rt->num[g], (tensor_z(dv, &rt->num[g], z, zbuf), z), v0, sc)) return dfail_oom(dv);
     }
   const double *in = v0;
   for (int k = 0; k < rt->nops; k++) {
     if (op_state(dv, rs, &rt->ops[k], n, &ts->ops[k])) return -1;
     long steps = op_steps(&ts->ops[k]);
-    if (!(ts->vs[k] = mem_malloc(sizeof(double) * (size_t)((steps + 1) * n + 1)))) return dfail_oom(dv);
+    if (!(ts->vs[k] = scratch_array(&ts->mem, (size_t)((steps + 1) * n + 1), sizeof(double)))) return dfail_oom(dv);
     memcpy(ts->vs[k], in, sizeof(double) * (size_t)n);
     op_forward_primal(&ts->ops[k], ts->vs[k], w);
     in = ts->vs[k] + steps * n;
@@ -769,14 +753,10 @@ static int term_primal_in(Deriv *dv, const RStage *rs, const RTerm *rt, long n, 
   return 0;
 }
 
-/* term_primal_in with its numerator and work vectors from a scratch. */
+/* term_primal_in with a scratch released at its end; `ts` (term_free's) holds the primal. */
 static int term_primal(Deriv *dv, const RStage *rs, const RTerm *rt, long n, TermState *ts) {
-  ts->nops = rt->nops;
-  ts->ops = mem_calloc((size_t)rt->nops + 1, sizeof(OpState));
-  ts->vs = mem_calloc((size_t)rt->nops + 1, sizeof(double *));
   Scratch sc = SCRATCH_OF(NULL);
-  double *v0 = scratch_array(&sc, (size_t)n + 1, sizeof(double)), *w = scratch_array(&sc, (size_t)n + 1, sizeof(double));
-  int rc = ts->ops && ts->vs && v0 && w ? term_primal_in(dv, rs, rt, n, ts, v0, w, &sc) : dfail_oom(dv);
+  int rc = term_alloc(ts, rt->nops) == 0 ? term_primal_in(dv, rs, rt, n, ts, &sc) : dfail_oom(dv);
   scratch_release(&sc);
   return rc;
 }
@@ -802,9 +782,9 @@ static int term_numerator(Deriv *dv, const RTerm *rt, long n, bool reverse, doub
 
 static int galerkin_stage(Deriv *dv, const RStage *rs, bool reverse) {
   long n = qm(dv->m, rs->q), nd = dv->nd;
-  double *V = mem_malloc(sizeof(double) * (size_t)(n * nd + 1));
-  if (!V) return dfail_oom(dv);
-  int rc = 0;
+  Scratch sc = SCRATCH_OF(NULL);
+  double *V = scratch_array(&sc, (size_t)(n * nd + 1), sizeof(double));
+  int rc = V ? 0 : dfail_oom(dv);
   for (int t = 0; t < rs->nterms && rc == 0; t++) {
     const RTerm *rt = &rs->terms[t];
     TermState ts = {0};
@@ -825,7 +805,7 @@ static int galerkin_stage(Deriv *dv, const RStage *rs, bool reverse) {
     }
     term_free(&ts);
   }
-  free(V);
+  scratch_release(&sc);
   return rc;
 }
 
@@ -868,19 +848,17 @@ static int interp_jacobian(Deriv *dv, const InterpPartials *pa, int q) {
   const RInterp *ip = rs->interp;
   const RClass *c = &m->classes[m->qclass[q]];
   long mq = c->m, my = qm(m, rs->q), nd = dv->nd, k = ip->k, nr = 0;
-  long *row = mem_malloc(sizeof(long) * (size_t)(ip->nreads + 1));
-  double *C = mem_calloc((size_t)(ip->nreads * my) + 1, sizeof(double));
-  double *Br = mem_malloc(sizeof(double) * (size_t)(ip->nreads * mq + 1));
-  double *J = mem_malloc(sizeof(double) * (size_t)(my * mq + 1));
-  if (!row || !C || !Br || !J) {
-    free(row), free(C), free(Br), free(J);
-    return dfail_oom(dv);
-  }
-  for (long r = 0; r < ip->nreads; r++) {
+  Scratch sc = SCRATCH_OF(NULL);
+  long *row = scratch_array(&sc, (size_t)(ip->nreads + 1), sizeof(long));
+  double *C = scratch_array(&sc, (size_t)(ip->nreads * my) + 1, sizeof(double));
+  double *Br = scratch_array(&sc, (size_t)(ip->nreads * mq + 1), sizeof(double));
+  double *J = scratch_array(&sc, (size_t)(my * mq + 1), sizeof(double));
+  int rc = row && C && Br && J ? 0 : dfail_oom(dv);
+  for (long r = 0; r < ip->nreads && rc == 0; r++) {
     row[r] = ip->read_q[r] == q ? nr : -1;
     if (row[r] >= 0) memcpy(Br + nr++ * mq, c->B + ip->read_e[r] * mq, sizeof(double) * (size_t)mq);
   }
-  for (long i = 0; i < ip->nmono; i++) {
+  for (long i = 0; i < ip->nmono && rc == 0; i++) {
     const RInterpMono *mo = &ip->mono[i];
     double gi = g[(base[mo->term] + mo->factor) * k + mo->slot] * mo->coef;
     for (int j = 0; j < mo->nin; j++) {
@@ -894,23 +872,32 @@ static int interp_jacobian(Deriv *dv, const InterpPartials *pa, int q) {
       for (long a = 0; a < my; a++) dst[a] += cj * col[a];
     }
   }
-  if (nr > 0)
+  if (rc == 0 && nr > 0)
     cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)mq, (int)nr, 1.0, C, (int)my, Br, (int)mq, 0.0,
                 J, (int)mq);
-  else memset(J, 0, sizeof(double) * (size_t)(my * mq));
-  if (reverse)
+  else if (rc == 0) memset(J, 0, sizeof(double) * (size_t)(my * mq));
+  if (rc == 0 && reverse)
     cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)mq, (int)nd, (int)my, 1.0, J, (int)mq, dv->d[rs->q],
                 (int)nd, 1.0, dv->d[q], (int)nd);
-  else forward_product(dv, q, my, 1.0, J, dv->d[rs->q]);
-  free(row), free(C), free(Br), free(J);
-  return 0;
+  else if (rc == 0) forward_product(dv, q, my, 1.0, J, dv->d[rs->q]);
+  scratch_release(&sc);
+  return rc;
 }
+
+/* interp_stage's buffers: per term the row of its numerator (then its operators') in acc and g,
+ * the read entries, the formula's sums (acc, k per row), their partials (g) and the fit
+ * transposed (pT, k x m_y). */
+typedef struct InterpWork {
+  long *base;
+  double *val, *acc, *g, *pT;
+} InterpWork;
 
 /* Forward: d[y] += J_q d[q]; reverse: d[q] += J_qᵀ d[y], for every active quantity q the
  * formula reads, J_q = (W P B)⁺ W · ∂(P y)/∂x̂_q from its monomials (RInterp.mono). */
-static int interp_stage_in(Deriv *dv, const RStage *rs, bool reverse, const long *base, double *val, double *acc,
-                           double *g, double *pT) {
+static int interp_stage_in(Deriv *dv, const RStage *rs, bool reverse, const InterpWork *wk) {
   const Model *m = dv->m;
+  const long *base = wk->base;
+  double *val = wk->val, *acc = wk->acc, *g = wk->g, *pT = wk->pT;
   const RInterp *ip = rs->interp;
   long k = ip->k, my = qm(m, rs->q);
   int rc;
@@ -964,7 +951,8 @@ static int interp_stage(Deriv *dv, const RStage *rs, bool reverse) {
   double *acc = scratch_array(&sc, (size_t)(k * nf) + 1, sizeof(double));
   double *g = scratch_array(&sc, (size_t)(k * nf) + 1, sizeof(double));
   double *pT = scratch_array(&sc, (size_t)(k * my) + 1, sizeof(double));
-  int rc = base && val && acc && g && pT ? interp_stage_in(dv, rs, reverse, base, val, acc, g, pT) : dfail_oom(dv);
+  int rc = base && val && acc && g && pT ? interp_stage_in(dv, rs, reverse, &(InterpWork){base, val, acc, g, pT})
+                                         : dfail_oom(dv);
   scratch_release(&sc);
   return rc;
 }
@@ -1005,11 +993,7 @@ static int stage_derivative(Deriv *dv, const RStage *rs, bool reverse) {
   return galerkin_stage(dv, rs, reverse);
 }
 
-static void deriv_free(Deriv *dv) {
-  for (int q = 0; dv->d && q < dv->m->nq; q++) free(dv->d[q]);
-  free(dv->d);
-  free(dv->active);
-}
+static void deriv_free(Deriv *dv) { scratch_release(&dv->sc); }
 
 /* Every quantity's block allocated (zero), none active yet (deriv_activate). */
 static int deriv_init(Deriv *dv, Reduced *r, long nd, long sample, Err *err) {
@@ -1021,20 +1005,15 @@ static int deriv_init(Deriv *dv, Reduced *r, long nd, long sample, Err *err) {
   dv->cache_slot = reduced_deriv_cache(r);
   dv->given_externs = reduced_given_externs(r);
   dv->err->msg[0] = 0;
+  dv->sc = SCRATCH_OF(NULL);
   const Model *m = dv->m;
-  double **x = mem_calloc((size_t)m->nq + 1, sizeof(double *));
-  dv->d = mem_calloc((size_t)m->nq + 1, sizeof(double *));
-  dv->active = mem_calloc((size_t)m->nq + 1, sizeof(bool));
-  if (!x || !dv->d || !dv->active) {
-    free(x);
-    return dfail_oom(dv);
-  }
+  double **x = scratch_array(&dv->sc, (size_t)m->nq + 1, sizeof(double *));
+  dv->d = scratch_array(&dv->sc, (size_t)m->nq + 1, sizeof(double *));
+  dv->active = scratch_array(&dv->sc, (size_t)m->nq + 1, sizeof(bool));
+  if (!x || !dv->d || !dv->active) return dfail_oom(dv);
   for (int q = 0; q < m->nq; q++) {
     x[q] = reduced_coords(r, q);
-    if (!(dv->d[q] = mem_calloc((size_t)(qm(m, q) * nd) + 1, sizeof(double)))) {
-      free(x);
-      return dfail_oom(dv);
-    }
+    if (!(dv->d[q] = scratch_array(&dv->sc, (size_t)(qm(m, q) * nd) + 1, sizeof(double)))) return dfail_oom(dv);
   }
   dv->x = x;
   return 0;
@@ -1064,7 +1043,6 @@ int reduced_jvp(Reduced *r, const ReducedSeeds *seeds, int out_q, double *out, l
     if (dv.active[rs->q] && !seeded) rc = stage_derivative(&dv, rs, false);
   }
   if (rc == 0) memcpy(out, dv.d[out_q], sizeof(double) * (size_t)(qm(m, out_q) * nd));
-  free((void *)dv.x);
   deriv_free(&dv);
   return rc ? -1 : 0;
 }
@@ -1083,7 +1061,6 @@ int reduced_vjp(Reduced *r, const ReducedSeeds *seeds, int in_q, double *out, lo
     if (dv.active[rs->q] && rs->q != in_q) rc = stage_derivative(&dv, rs, true);
   }
   if (rc == 0) memcpy(out, dv.d[in_q], sizeof(double) * (size_t)(qm(m, in_q) * nd));
-  free((void *)dv.x);
   deriv_free(&dv);
   return rc ? -1 : 0;
 }
@@ -1093,22 +1070,19 @@ int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, Er
   long mo = qm(m, out_q), mi = qm(m, in_q);
   bool forward = mi <= mo;
   long nd = forward ? mi : mo;
-  double *eye = mem_calloc((size_t)(nd * nd) + 1, sizeof(double));
-  double *T = forward ? NULL : mem_malloc(sizeof(double) * (size_t)(mi * mo + 1));
-  if (!eye || (!forward && !T)) {
-    free(eye);
-    free(T);
-    return err_set(err, "out of memory for the reduced Jacobian");
-  }
-  for (long i = 0; i < nd; i++) eye[i * nd + i] = 1;
+  Scratch sc = SCRATCH_OF(NULL);
+  double *eye = scratch_array(&sc, (size_t)(nd * nd) + 1, sizeof(double));
+  double *T = forward ? NULL : scratch_array(&sc, (size_t)(mi * mo + 1), sizeof(double));
   const double *seed = eye;
-  int rc = forward ? reduced_jvp(r, &(ReducedSeeds){1, &in_q, &seed, nd, true}, out_q, J, sample, err)
-                   : reduced_vjp(r, &(ReducedSeeds){1, &out_q, &seed, nd, false}, in_q, T, sample, err);
+  int rc = !eye || (!forward && !T) ? err_set(err, "out of memory for the reduced Jacobian") : 0;
+  for (long i = 0; i < nd && rc == 0; i++) eye[i * nd + i] = 1;
+  if (rc == 0)
+    rc = forward ? reduced_jvp(r, &(ReducedSeeds){1, &in_q, &seed, nd, true}, out_q, J, sample, err)
+                 : reduced_vjp(r, &(ReducedSeeds){1, &out_q, &seed, nd, false}, in_q, T, sample, err);
   if (rc == 0 && !forward)
     for (long a = 0; a < mo; a++)
       for (long b = 0; b < mi; b++) J[a * mi + b] = T[b * mo + a];
-  free(eye);
-  free(T);
+  scratch_release(&sc);
   return rc;
 }
 
@@ -1124,7 +1098,6 @@ int reduced_stage_jvp(Reduced *r, int stage, const ReducedSeeds *in, double *out
   /* every other quantity keeps a zero tangent: stage `stage` alone is differentiated, the local partial */
   if (rc == 0 && dv.active[rs->q] && rs->q != in_q) rc = stage_derivative(&dv, rs, false);
   if (rc == 0) memcpy(out, dv.d[rs->q], sizeof(double) * (size_t)(qm(m, rs->q) * nd));
-  free((void *)dv.x);
   deriv_free(&dv);
   return rc ? -1 : 0;
 }
