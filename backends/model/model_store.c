@@ -10,6 +10,7 @@
 
 #include "model_store_impl.h"
 #include "alloc.h" /* mem_malloc: allocation through the hook */
+#include "scratch.h"
 
 #include <errno.h>
 #include <inttypes.h>
@@ -197,9 +198,10 @@ void model_store_free(ModelStore *m) {
   model_store_init(m);
 }
 
-/* Append the malloc'd line `line` (taken over, freed on failure). */
+/* Append the malloc'd metadata line `line` (taken over: freed when it is no metadata line,
+ * model_store_valid_meta, or on failure). */
 static int append_meta(ModelStore *m, char *line) {
-  char **grown = mem_realloc(m->meta, ((size_t)m->nmeta + 1) * sizeof *grown);
+  char **grown = model_store_valid_meta(line) ? mem_realloc(m->meta, ((size_t)m->nmeta + 1) * sizeof *grown) : NULL;
   if (!grown) {
     free(line);
     return -1;
@@ -214,12 +216,7 @@ int model_store_meta(ModelStore *m, const char *fmt, ...) {
   va_start(ap, fmt);
   char *line = str_vprintf(fmt, ap);
   va_end(ap);
-  if (!line) return -1;
-  if (!model_store_valid_meta(line)) {
-    free(line);
-    return -1;
-  }
-  return append_meta(m, line);
+  return line ? append_meta(m, line) : -1;
 }
 
 static int find_array(const ModelStore *m, const char *name) {
@@ -228,16 +225,16 @@ static int find_array(const ModelStore *m, const char *name) {
   return -1;
 }
 
-/* Append `name` with the array `a` (taken over: freed on failure). */
+/* Append `name` with the array `a` (taken over: freed on failure). The list grows first, so
+ * the name's copy is the last thing that can fail. */
 static int append_array(ModelStore *m, const char *name, NpyArray *a, uint64_t checksum) {
-  char *copy = mem_strdup(name);
-  ModelArray *grown = copy ? mem_realloc(m->arrays, ((size_t)m->narrays + 1) * sizeof *grown) : NULL;
-  if (!grown) {
-    free(copy);
+  ModelArray *grown = mem_realloc(m->arrays, ((size_t)m->narrays + 1) * sizeof *grown);
+  if (grown) m->arrays = grown;
+  char *copy = grown ? mem_strdup(name) : NULL;
+  if (!copy) {
     npy_free(a);
     return -1;
   }
-  m->arrays = grown;
   m->arrays[m->narrays++] = (ModelArray){copy, *a, checksum, false};
   memset(a, 0, sizeof *a);
   return 0;
@@ -389,17 +386,24 @@ static int parse_array_line(const StoreReport *r, const char *mpath, int ln, cha
 }
 
 /* What a manifest lists besides its metadata: its array and file lines
- * (malloc'd), and the checksum line when the lines before it do not hash
- * to it (else 0). */
+ * (room for one a line, listing_room), and the checksum line when the lines
+ * before it do not hash to it (else 0). */
 typedef struct Listing {
   Listed *listed;
   int nlisted;
   int changed_line;
 } Listing;
 
+/* Room in `sc` for a Listed per line of the manifest `text` (NULL: out of memory). */
+static Listed *listing_room(Scratch *sc, const char *text, size_t len) {
+  size_t lines = 1;
+  for (const char *p = text; (p = memchr(p, '\n', (size_t)(text + len - p))); p++) lines++;
+  return scratch_array(sc, lines, sizeof(Listed));
+}
+
 /* Parse the manifest `text` (modified in place: lines and words are cut out
  * of it) of file `mpath`: its program hash and metadata lines into `m`, the
- * rest into `out`. */
+ * rest into `out` (whose `listed` has room for a line each). */
 static int parse_manifest(const StoreReport *r, const char *mpath, char *text, size_t len, ModelStore *m,
                           Listing *out) {
   char buf[NPY_EXCERPT_SIZE];
@@ -409,7 +413,6 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
   while (body > 0 && text[body - 1] == '\n') body--;
   while (body > 0 && text[body - 1] != '\n') body--;
   uint64_t expect = 0, actual = model_hash_bytes(model_hash_init(), text, body);
-  out->listed = NULL;
   out->nlisted = 0;
   if (len == 0) return model_store_fail(r, mpath, 1, "empty file: not a model manifest (expected '" FORMAT_LINE "')");
   for (char *line = text; line < text + len;) {
@@ -452,10 +455,7 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
       for (int i = 0; i < out->nlisted; i++)
         if (strcmp(out->listed[i].name, x.name) == 0)
           return model_store_fail(r, mpath, ln, "array %s.npy listed twice (first on line %d)", x.name, out->listed[i].line);
-      Listed *grown = mem_realloc(out->listed, ((size_t)out->nlisted + 1) * sizeof *grown);
-      if (!grown) return model_store_fail(r, mpath, 0, "out of memory");
-      out->listed = grown;
-      grown[out->nlisted++] = x;
+      out->listed[out->nlisted++] = x;
     } else if (key_is(line, "file")) {
       /* file <name>.csv fnv1a64 <16 hex digits>: kept as a Listed with ndim -1 */
       char *w[4];
@@ -469,10 +469,7 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
       for (int i = 0; i < out->nlisted; i++)
         if (strcmp(out->listed[i].name, x.name) == 0)
           return model_store_fail(r, mpath, ln, "file %s listed twice (first on line %d)", x.name, out->listed[i].line);
-      Listed *grown = mem_realloc(out->listed, ((size_t)out->nlisted + 1) * sizeof *grown);
-      if (!grown) return model_store_fail(r, mpath, 0, "out of memory");
-      out->listed = grown;
-      grown[out->nlisted++] = x;
+      out->listed[out->nlisted++] = x;
     } else if (*line == '\0') {
       return model_store_fail(r, mpath, ln, "empty line");
     } else if (*line == ' ' || *line == '\t') {
@@ -494,25 +491,25 @@ static int parse_manifest(const StoreReport *r, const char *mpath, char *text, s
 
 /* Check and load the text file `x` of directory `dir` into `m`. */
 static int load_text(const StoreReport *r, const char *dir, const Listed *x, ModelStore *m) {
-  char *path = model_store_printf("%s/%s", dir, x->name), *text = NULL;
-  if (!path) return model_store_fail(r, dir, 0, "out of memory");
+  Scratch sc = SCRATCH_OF(NULL);
+  char *path = scratch_printf(&sc, "%s/%s", dir, x->name), *text = NULL;
   uint64_t h;
   size_t len = 0;
-  int rc = model_store_hash_file(r, path, &h);
+  int rc = path ? model_store_hash_file(r, path, &h) : model_store_fail(r, dir, 0, "out of memory");
   if (rc == 0 && h != x->checksum)
     rc = model_store_fail(r, path, 0, "checksum mismatch: the file is corrupted or was changed after training");
   if (rc == 0) rc = model_store_slurp(r, path, &text, &len);
+  if (rc == 0 && !scratch_adopt(&sc, text)) rc = model_store_fail(r, path, 0, "out of memory");
   if (rc == 0 && append_text(m, x->name, text, len, h) != 0) rc = model_store_fail(r, path, 0, "out of memory");
-  free(text);
-  free(path);
+  scratch_release(&sc);
   return rc;
 }
 
 /* Check and load the array file `x` of directory `dir` into `m`. */
 static int load_array(const StoreReport *r, const char *dir, const Listed *x, ModelStore *m) {
   if (x->ndim < 0) return load_text(r, dir, x, m);
-  char *path = model_store_printf("%s/%s.npy", dir, x->name);
-  if (!path) return model_store_fail(r, dir, 0, "out of memory");
+  Scratch sc = SCRATCH_OF(NULL);
+  char *path = scratch_printf(&sc, "%s/%s.npy", dir, x->name);
   uint64_t h;
   NpyArray a = {0};
   char got[SHAPE_TEXT], want[SHAPE_TEXT];
@@ -520,8 +517,8 @@ static int load_array(const StoreReport *r, const char *dir, const Listed *x, Mo
    * before it is hashed: hashing it would take minutes */
   struct stat st;
   size_t count = 0;
-  int rc = 0;
-  if (stat(path, &st) == 0 && S_ISREG(st.st_mode) && model_store_shape_count(x->ndim, x->shape, &count) == 0 &&
+  int rc = path ? 0 : model_store_fail(r, dir, 0, "out of memory");
+  if (rc == 0 && stat(path, &st) == 0 && S_ISREG(st.st_mode) && model_store_shape_count(x->ndim, x->shape, &count) == 0 &&
       (uintmax_t)st.st_size > (uintmax_t)count * sizeof(double) + NPY_HEADER_MAX + 16)
     rc = model_store_fail(r, path, 0, "%jd bytes, more than an array of shape %s can take: the file is damaged or not "
                                       "the model's", (intmax_t)st.st_size, model_store_format_shape(want, x->ndim, x->shape));
@@ -536,7 +533,7 @@ static int load_array(const StoreReport *r, const char *dir, const Listed *x, Mo
               model_store_format_shape(want, x->ndim, x->shape));
   if (rc == 0 && append_array(m, x->name, &a, h) != 0) rc = model_store_fail(r, path, 0, "out of memory");
   npy_free(&a);
-  free(path);
+  scratch_release(&sc);
   return rc;
 }
 
@@ -558,9 +555,10 @@ static void test_replace(const char *dir) {
   const char *other = getenv("NPG_TEST_REPLACE_DURING_LOAD");
   if (done || !other || !*other) return;
   done = true;
-  char *aside = model_store_printf("%s.swap", dir);
+  Scratch sc = SCRATCH_OF(NULL);
+  char *aside = scratch_printf(&sc, "%s.swap", dir);
   if (aside && rename(dir, aside) == 0 && rename(other, dir) == 0) rename(aside, other);
-  free(aside);
+  scratch_release(&sc);
 }
 
 static int read_once(const char *dir_arg, bool check_program, uint64_t expect_program_hash, ModelStore *m, Err *err);
@@ -589,15 +587,18 @@ static int read_once(const char *dir_arg, bool check_program, uint64_t expect_pr
   if (err_held(err)) err->msg[0] = '\0';
   model_store_init(m);
   if (!dir_arg || !*dir_arg) return model_store_fail(&r, "(model directory)", 0, "the directory name is empty");
-  char *dir = model_store_normalize_dir(dir_arg);
+  Scratch sc = SCRATCH_OF(NULL);
+  char *dir = scratch_adopt(&sc, model_store_normalize_dir(dir_arg));
   if (dir) model_store_recover(dir, 0);
-  char *mpath = dir ? model_store_printf("%s/manifest", dir) : NULL;
+  char *mpath = dir ? scratch_printf(&sc, "%s/manifest", dir) : NULL;
   char *text = NULL;
   size_t len = 0;
   Listing ls = {0};
   int rc = 0;
   if (!mpath) rc = model_store_fail(&r, dir_arg, 0, "out of memory");
   if (rc == 0) rc = model_store_slurp(&r, mpath, &text, &len);
+  if (rc == 0 && (!scratch_adopt(&sc, text) || !(ls.listed = listing_room(&sc, text, len))))
+    rc = model_store_fail(&r, mpath, 0, "out of memory");
   if (rc == 0) rc = parse_manifest(&r, mpath, text, len, m, &ls);
   if (rc == 0 && check_program && m->program_hash != expect_program_hash)
     rc = model_store_fail(&r, mpath, 0,
@@ -609,9 +610,6 @@ static int read_once(const char *dir_arg, bool check_program, uint64_t expect_pr
   if (rc == 0 && ls.changed_line)
     rc = model_store_fail(&r, mpath, ls.changed_line, "checksum mismatch: the manifest was changed after training");
   if (rc) model_store_free(m);
-  free(ls.listed);
-  free(text);
-  free(mpath);
-  free(dir);
+  scratch_release(&sc);
   return rc;
 }
