@@ -73,7 +73,8 @@ static int scan_store_dir(const StoreReport *r, const char *path, const char *wh
   struct dirent *e;
   while (rc == 0 && (e = readdir(d))) {
     if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0) continue;
-    char *file = model_store_printf("%s/%s", path, e->d_name);
+    Scratch sc = SCRATCH_OF(NULL); /* an entry's path */
+    char *file = scratch_printf(&sc, "%s/%s", path, e->d_name);
     struct stat st;
     char buf[NPY_EXCERPT_SIZE];
     if (!file) rc = model_store_fail(r, path, 0, "out of memory");
@@ -82,7 +83,7 @@ static int scan_store_dir(const StoreReport *r, const char *path, const char *wh
       rc = model_store_fail(r, path, 0, "holds '%s', which a model store never writes: %s", model_store_excerpt(buf, e->d_name), what);
     else if (strcmp(e->d_name, "manifest") == 0) *model = is_model_manifest(file);
     ++*entries;
-    free(file);
+    scratch_release(&sc);
   }
   closedir(d);
   return rc;
@@ -90,20 +91,23 @@ static int scan_store_dir(const StoreReport *r, const char *path, const char *wh
 
 /* Whether the folder `path` holds the marker of a model store's leftover. */
 static int has_marker(const char *path) {
-  char *file = model_store_printf("%s/" MARKER, path);
+  Scratch sc = SCRATCH_OF(NULL);
+  char *file = scratch_printf(&sc, "%s/" MARKER, path);
   struct stat st;
   int yes = file && lstat(file, &st) == 0 && S_ISREG(st.st_mode);
-  free(file);
+  scratch_release(&sc);
   return yes;
 }
 
 /* Put the marker into the folder `path` (saying what it is, for a person
  * who finds it), or take it out (`put` 0; a missing marker is no error). */
 static int mark(const StoreReport *r, const char *path, int put) {
-  char *file = model_store_printf("%s/" MARKER, path);
-  if (!file) return model_store_fail(r, path, 0, "out of memory");
+  Scratch sc = SCRATCH_OF(NULL);
+  char *file = scratch_printf(&sc, "%s/" MARKER, path);
   int rc = 0;
-  if (!put) {
+  if (!file) {
+    rc = model_store_fail(r, path, 0, "out of memory");
+  } else if (!put) {
     if (unlink(file) != 0 && errno != ENOENT) rc = model_store_fail(r, file, 0, "cannot remove: %s", strerror(errno));
   } else {
     FILE *f = fopen(file, "w");
@@ -111,7 +115,7 @@ static int mark(const StoreReport *r, const char *path, int put) {
     if (f && fclose(f) != 0) ok = 0;
     if (!ok) rc = model_store_fail(r, file, 0, "cannot create: %s", strerror(errno));
   }
-  free(file);
+  scratch_release(&sc);
   return rc;
 }
 
@@ -130,10 +134,11 @@ static int remove_store_dir(const StoreReport *r, const char *path) {
   struct dirent *e;
   while (rc == 0 && (e = readdir(d))) {
     if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0 || !is_store_file(e->d_name)) continue;
-    char *file = model_store_printf("%s/%s", path, e->d_name);
+    Scratch sc = SCRATCH_OF(NULL); /* an entry's path */
+    char *file = scratch_printf(&sc, "%s/%s", path, e->d_name);
     if (!file) rc = model_store_fail(r, path, 0, "out of memory");
     else if (unlink(file) != 0 && errno != ENOENT) rc = model_store_fail(r, file, 0, "cannot remove: %s", strerror(errno));
-    free(file);
+    scratch_release(&sc);
   }
   closedir(d);
   if (rc == 0 && rmdir(path) != 0) rc = model_store_fail(r, path, 0, "cannot remove the directory: %s", strerror(errno));
@@ -155,27 +160,29 @@ static int remove_stale(const StoreReport *r, const char *path) {
  * replacing the model removes those (and the .csv files it lists), so a
  * file the user put there is refused rather than lost. */
 static int check_listed(const StoreReport *r, const char *dir) {
-  char *mpath = model_store_printf("%s/manifest", dir), *text = NULL;
+  Scratch sc = SCRATCH_OF(NULL);
+  char *mpath = scratch_printf(&sc, "%s/manifest", dir), *text = NULL;
   size_t len = 0;
   DIR *d = NULL;
   int rc = mpath ? model_store_slurp(r, mpath, &text, &len) : model_store_fail(r, dir, 0, "out of memory");
+  if (rc == 0 && !scratch_adopt(&sc, text)) rc = model_store_fail(r, dir, 0, "out of memory");
   if (rc == 0 && !(d = opendir(dir))) rc = model_store_fail(r, dir, 0, "cannot open the directory: %s", strerror(errno));
   struct dirent *e;
   while (rc == 0 && (e = readdir(d))) {
     size_t n = strlen(e->d_name);
     int csv = n > 4 && strcmp(e->d_name + n - 4, ".csv") == 0;
     if (!csv && (n <= 4 || strcmp(e->d_name + n - 4, ".npy") != 0)) continue;
-    char *line = model_store_printf(csv ? "\nfile %s " : "\narray %s ", e->d_name);
+    Scratch entry = SCRATCH_OF(NULL); /* its manifest line */
+    char *line = scratch_printf(&entry, csv ? "\nfile %s " : "\narray %s ", e->d_name);
     char buf[NPY_EXCERPT_SIZE];
     if (!line) rc = model_store_fail(r, dir, 0, "out of memory");
     else if (!strstr(text, line))
       rc = model_store_fail(r, dir, 0, "holds '%s', which its manifest does not list: refusing to replace the model (move the "
                            "file elsewhere first)", model_store_excerpt(buf, e->d_name));
-    free(line);
+    scratch_release(&entry);
   }
   if (d) closedir(d);
-  free(text);
-  free(mpath);
+  scratch_release(&sc);
   return rc;
 }
 
@@ -302,11 +309,12 @@ static void arm(const char *tmp, const ModelStore *m) {
 /* A model directory whose manifest is whole: its last line is its checksum
  * and matches (the manifest is written last, so the arrays are there). */
 static int is_complete(const char *path) {
-  char *mpath = model_store_printf("%s/manifest", path), *text = NULL, ignored[16];
+  Scratch sc = SCRATCH_OF(NULL);
+  char *mpath = scratch_printf(&sc, "%s/manifest", path), *text = NULL, ignored[16];
   StoreReport quiet = {ERR_OF(ignored, sizeof ignored)};
   size_t len = 0;
   int ok = 0;
-  if (mpath && model_store_slurp(&quiet, mpath, &text, &len) == 0) {
+  if (mpath && model_store_slurp(&quiet, mpath, &text, &len) == 0 && scratch_adopt(&sc, text)) {
     char *last = len > 1 ? memrchr(text, '\n', len - 1) : NULL;
     uint64_t want;
     if (last && strncmp(last + 1, "manifest " CHECKSUM_KIND " ", strlen("manifest " CHECKSUM_KIND " ")) == 0) {
@@ -316,8 +324,7 @@ static int is_complete(const char *path) {
            model_hash_bytes(model_hash_init(), text, (size_t)(last - text) + 1) == want;
     }
   }
-  free(text);
-  free(mpath);
+  scratch_release(&sc);
   return ok;
 }
 
@@ -331,9 +338,10 @@ static int dead_leftover(const char *parent, const char *name, const char *base)
   if (!*digits || strspn(digits, "0123456789") != strlen(digits) || strlen(digits) > 9) return 0;
   long pid = strtol(digits, NULL, 10);
   if (pid == (long)getpid() || kill((pid_t)pid, 0) == 0 || errno != ESRCH) return 0;
-  char *path = model_store_printf("%s/%s", parent, name);
+  Scratch sc = SCRATCH_OF(NULL);
+  char *path = scratch_printf(&sc, "%s/%s", parent, name);
   int ours = path && has_marker(path);
-  free(path);
+  scratch_release(&sc);
   return ours ? name[n + 1] : 0;
 }
 
@@ -341,7 +349,8 @@ static int dead_leftover(const char *parent, const char *name, const char *base)
  * previous one) moved into a missing `dir`, saying so on stderr; with
  * `clean`, the rest removed. Failures here are not errors of the caller. */
 void model_store_recover(const char *dir, int clean) {
-  char *parent = parent_of(dir), ignored[16];
+  Scratch sc = SCRATCH_OF(NULL);
+  char *parent = scratch_adopt(&sc, parent_of(dir)), ignored[16];
   const char *slash = strrchr(dir, '/');
   const char *base = slash ? slash + 1 : dir;
   StoreReport quiet = {ERR_OF(ignored, sizeof ignored)};
@@ -353,23 +362,22 @@ void model_store_recover(const char *dir, int clean) {
     struct dirent *e;
     while ((e = readdir(d))) {
       int kind = dead_leftover(parent, e->d_name, base);
-      if (!kind) continue;
-      char *path = model_store_printf("%s/%s", parent, e->d_name);
-      if (!path) continue;
-      if (pass < 2 && missing && (pass == 0 ? kind == 't' && is_complete(path) : kind == 'o') &&
+      Scratch entry = SCRATCH_OF(NULL); /* a leftover's path */
+      char *path = kind ? scratch_printf(&entry, "%s/%s", parent, e->d_name) : NULL;
+      if (path && pass < 2 && missing && (pass == 0 ? kind == 't' && is_complete(path) : kind == 'o') &&
           rename(path, dir) == 0) {
         mark(&quiet, dir, 0);
         fprintf(stderr, "npg: %s was missing after an interrupted training: moved in the %s model from %s\n", dir,
                 pass == 0 ? "new (complete)" : "previous", path);
         missing = 0;
-      } else if (pass == 2 && clean) {
+      } else if (path && pass == 2 && clean) {
         remove_store_dir(&quiet, path);
       }
-      free(path);
+      scratch_release(&entry);
     }
   }
   if (d) closedir(d);
-  free(parent);
+  scratch_release(&sc);
 }
 
 /* ---------------------------------------------------------------- writing */
@@ -401,25 +409,27 @@ static int check_store(const StoreReport *r, const char *dir, const ModelStore *
 /* Write the arrays of `m`, then the manifest with their checksums, into the
  * existing empty directory `tmp`, and sync it all. */
 static int write_contents(const StoreReport *r, const char *tmp, const ModelStore *m) {
-  uint64_t *checksums = mem_calloc((size_t)m->narrays + 1, sizeof *checksums);
-  if (!checksums) return model_store_fail(r, tmp, 0, "out of memory");
-  int rc = 0;
+  Scratch sc = SCRATCH_OF(NULL);
+  uint64_t *checksums = scratch_array(&sc, (size_t)m->narrays + 1, sizeof *checksums);
+  int rc = checksums ? 0 : model_store_fail(r, tmp, 0, "out of memory");
   for (int i = 0; i < m->narrays && rc == 0; i++) {
     const ModelArray *x = &m->arrays[i];
-    char *path = model_store_printf("%s/%s.npy", tmp, x->name);
+    Scratch entry = SCRATCH_OF(NULL); /* the array's path */
+    char *path = scratch_printf(&entry, "%s/%s.npy", tmp, x->name);
     if (!path) rc = model_store_fail(r, tmp, 0, "out of memory");
     else if (npy_write(path, NPY_F64, x->a.ndim, x->a.shape, x->a.data, ERR_MSG(r->err), ERR_LEN(r->err)) != 0)
       rc = -1;
     /* The checksum is of the bytes on disk, read back, so it vouches for
      * what a later read will find rather than for what we meant to write. */
     else rc = model_store_hash_file(r, path, &checksums[i]);
-    free(path);
+    scratch_release(&entry);
     if (i == m->narrays / 2) test_point("arrays");
   }
-  uint64_t *text_sums = rc == 0 ? mem_calloc((size_t)m->ntexts + 1, sizeof *text_sums) : NULL;
+  uint64_t *text_sums = rc == 0 ? scratch_array(&sc, (size_t)m->ntexts + 1, sizeof *text_sums) : NULL;
   if (rc == 0 && !text_sums) rc = model_store_fail(r, tmp, 0, "out of memory");
   for (int i = 0; i < m->ntexts && rc == 0; i++) {
-    char *tpath = model_store_printf("%s/%s", tmp, m->texts[i].name);
+    Scratch entry = SCRATCH_OF(NULL); /* the file's path */
+    char *tpath = scratch_printf(&entry, "%s/%s", tmp, m->texts[i].name);
     FILE *tf = tpath ? fopen(tpath, "wb") : NULL;
     if (!tpath) rc = model_store_fail(r, tmp, 0, "out of memory");
     else if (!tf) rc = model_store_fail(r, tpath, 0, "cannot create: %s", strerror(errno));
@@ -430,9 +440,9 @@ static int write_contents(const StoreReport *r, const char *tmp, const ModelStor
       if (fclose(tf) != 0) ok = 0;
       rc = ok ? model_store_hash_file(r, tpath, &text_sums[i]) : model_store_fail(r, tpath, 0, "cannot write: %s", strerror(errno));
     }
-    free(tpath);
+    scratch_release(&entry);
   }
-  char *path = rc == 0 ? model_store_printf("%s/manifest", tmp) : NULL;
+  char *path = rc == 0 ? scratch_printf(&sc, "%s/manifest", tmp) : NULL;
   if (rc == 0 && !path) rc = model_store_fail(r, tmp, 0, "out of memory");
   char *text = NULL;
   size_t len = 0;
@@ -449,7 +459,8 @@ static int write_contents(const StoreReport *r, const char *tmp, const ModelStor
     }
     for (int i = 0; i < m->ntexts; i++)
       fprintf(mem, "file %s " CHECKSUM_KIND " %016" PRIx64 "\n", m->texts[i].name, text_sums[i]);
-    if (fclose(mem) != 0 || !text) rc = model_store_fail(r, tmp, 0, "out of memory");
+    int closed = fclose(mem); /* `text` is the stream's buffer even when closing failed */
+    if (!scratch_adopt(&sc, text) || closed != 0) rc = model_store_fail(r, tmp, 0, "out of memory");
   }
   FILE *f = rc == 0 ? fopen(path, "wb") : NULL;
   if (rc == 0 && !f) rc = model_store_fail(r, path, 0, "cannot create: %s", strerror(errno));
@@ -467,10 +478,7 @@ static int write_contents(const StoreReport *r, const char *tmp, const ModelStor
     }
     if (!ok) rc = model_store_fail(r, path, 0, "cannot write: %s", strerror(saved));
   }
-  free(text);
-  free(path);
-  free(checksums);
-  free(text_sums);
+  scratch_release(&sc);
   return rc == 0 ? sync_dir(r, tmp) : rc;
 }
 
