@@ -195,22 +195,20 @@ int interp_pack(const Model *m, const RStage *rs, RInterp *ip) {
   long nread = 0, n = ip->nmono;
   for (long i = 0; i < n; i++) nread += ip->mono[i].nin;
   free(ip->pk_run_acc), free(ip->pk_run_end), free(ip->pk_coef), free(ip->pk_nin), free(ip->pk_read);
-  PackKey *key = malloc(sizeof(PackKey) * (size_t)(n + 1));
+  Scratch sc = SCRATCH_OF(NULL);
+  PackKey *key = scratch_array(&sc, (size_t)(n + 1), sizeof(PackKey));
   ip->pk_run_acc = malloc(sizeof(long) * (size_t)(n + 1));
   ip->pk_run_end = malloc(sizeof(long) * (size_t)(n + 1));
   ip->pk_coef = malloc(sizeof(double) * (size_t)(n + 1));
   ip->pk_nin = malloc((size_t)n + 1);
   ip->pk_read = malloc(sizeof(int32_t) * (size_t)(nread + 1));
-  if (!key || !ip->pk_run_acc || !ip->pk_run_end || !ip->pk_coef || !ip->pk_nin || !ip->pk_read) {
-    free(key);
-    return -1;
-  }
-  for (long i = 0; i < n; i++)
+  int rc = key && ip->pk_run_acc && ip->pk_run_end && ip->pk_coef && ip->pk_nin && ip->pk_read ? 0 : -1;
+  for (long i = 0; i < n && rc == 0; i++)
     key[i] = (PackKey){(factor_base(rs, ip->mono[i].term) + ip->mono[i].factor) * ip->k + ip->mono[i].slot, i};
-  qsort(key, (size_t)n, sizeof *key, by_acc);
+  if (rc == 0) qsort(key, (size_t)n, sizeof *key, by_acc);
   int32_t *rd = ip->pk_read;
   ip->pk_nrun = 0;
-  for (long i = 0; i < n; i++) {
+  for (long i = 0; i < n && rc == 0; i++) {
     const RInterpMono *mo = &ip->mono[key[i].index];
     if (i == 0 || key[i].acc != key[i - 1].acc) ip->pk_run_acc[ip->pk_nrun++] = key[i].acc;
     ip->pk_run_end[ip->pk_nrun - 1] = i + 1;
@@ -218,8 +216,8 @@ int interp_pack(const Model *m, const RStage *rs, RInterp *ip) {
     ip->pk_nin[i] = (unsigned char)mo->nin;
     for (int j = 0; j < mo->nin; j++) *rd++ = (int32_t)mo->read[j];
   }
-  free(key);
-  return 0;
+  scratch_release(&sc);
+  return rc;
 }
 
 /* b^(p/q): integer powers by multiplication and half-integer ones through one sqrt (an
@@ -379,12 +377,11 @@ static long check_row_len(const Model *m, const RInterp *ck) {
   return len;
 }
 
-/* Table ip's rows, reads and monomials as arrays interp_SN_PREFIXrows, …reads, …monos. */
-static int save_table(ModelStore *s, const char *sn, const char *pre, const RInterp *ip) {
+/* Table ip's rows, reads and monomials as arrays interp_SN_PREFIXrows, …reads, …monos, each
+ * staged in `t` (room for the largest). */
+static int save_table_in(ModelStore *s, const char *sn, const char *pre, const RInterp *ip, double *t) {
   char name[600], what[64];
   int bad = 0;
-  double *t = malloc(sizeof(double) * (size_t)(ip->k + 2 * ip->nreads + MONO_COLS * ip->nmono + 1));
-  if (!t) return -1;
   for (long j = 0; j < ip->k; j++) t[j] = (double)ip->rows[j];
   long shape[2] = {ip->k, 0};
   snprintf(what, sizeof what, "%srows", pre);
@@ -405,7 +402,15 @@ static int save_table(ModelStore *s, const char *sn, const char *pre, const RInt
   snprintf(what, sizeof what, "%smonos", pre);
   stem(name, sizeof name, sn, what);
   bad |= model_store_add(s, name, 2, shape, t);
-  free(t);
+  return bad;
+}
+
+/* save_table_in with its table (`t`) from a scratch. */
+static int save_table(ModelStore *s, const char *sn, const char *pre, const RInterp *ip) {
+  Scratch sc = SCRATCH_OF(NULL);
+  double *t = scratch_array(&sc, (size_t)(ip->k + 2 * ip->nreads + MONO_COLS * ip->nmono + 1), sizeof(double));
+  int bad = t ? save_table_in(s, sn, pre, ip, t) : -1;
+  scratch_release(&sc);
   return bad;
 }
 
