@@ -110,8 +110,11 @@ static int layout_classes(Model *m, Program *prog, const long *dims, Err *err) {
   return 0;
 }
 
-/* Term t of stage st (whose quantity is rs->q) into rt: its numerator and operators' tensors. -1 with `err`. */
-static int layout_term(Model *m, Program *prog, const Stage *st, const RStage *rs, int t, RTerm *rt, Err *err) {
+/* Term t of stage rs (its Stage rs->st, its quantity rs->q) into rs->terms[t]: its numerator and
+ * operators' tensors. -1 with `err`. */
+static int layout_term(Model *m, Program *prog, const RStage *rs, int t, Err *err) {
+  const Stage *st = rs->st;
+  RTerm *rt = &rs->terms[t];
   const Term *tm = st->terms[t];
   const char *sn = st->sym->name;
   rt->term = tm;
@@ -172,7 +175,7 @@ static int layout_stages(Model *m, Program *prog, Err *err) {
     rs->nterms = st->nterms;
     if (!(rs->terms = mem_calloc((size_t)st->nterms + 1, sizeof(RTerm)))) return layout_oom(err);
     for (int t = 0; t < st->nterms; t++)
-      if (layout_term(m, prog, st, rs, t, &rs->terms[t], err)) return -1;
+      if (layout_term(m, prog, rs, t, err)) return -1;
   }
   return 0;
 }
