@@ -26,6 +26,7 @@
 #include "krylov.h"
 #include "nnls.h"
 #include "reduced.h"
+#include "scratch.h"
 
 /* ---------------------------------------------------------------- reduced evaluation */
 
@@ -654,31 +655,25 @@ static int apply_power(Reduced *r, const OpAt *o, double *v, ReducedKept *kp) {
 }
 
 static int eval_extern(Reduced *r, const RExtern *x, long sample) {
-  double *in = mem_malloc(sizeof(double) * (size_t)(x->d + 1)), *w = mem_malloc(sizeof(double) * (size_t)(x->S + 1));
-  if (!in || !w) {
-    free(in);
-    free(w);
-    return rfail(r, "out of memory in extern '%s'", ((Sym *)r->m->prog->quantities.v[x->q])->name);
-  }
+  Scratch sc = SCRATCH_OF(NULL);
+  double *in = scratch_array(&sc, (size_t)(x->d + 1), sizeof(double)), *w = scratch_array(&sc, (size_t)(x->S + 1), sizeof(double));
+  const char *name = ((Sym *)r->m->prog->quantities.v[x->q])->name;
+  char err[512] = "", at[64];
+  int rc = in && w ? 0 : rfail(r, "out of memory in extern '%s'", name);
   long off = 0;
-  for (int j = 0; j < x->nin; j++) {
+  for (int j = 0; j < x->nin && rc == 0; j++) {
     long mj = qm(r->m, x->in_q[j]);
     memcpy(in + off, r->x[x->in_q[j]], sizeof(double) * (size_t)mj);
     off += mj;
   }
-  char err[512] = "";
-  int rc = nnls_convex((int)x->S, (int)x->d, x->X, in, w, ERR_OF(err, sizeof err));
-  if (rc == 0) {
+  if (rc == 0 && nnls_convex((int)x->S, (int)x->d, x->X, in, w, ERR_OF(err, sizeof err)) != 0)
+    rc = rfail(r, "extern '%s' %s: %s", name, at_sample(sample, at, sizeof at), err);
+  else if (rc == 0) {
     long mz = qm(r->m, x->q);
     cblas_dgemv(CblasRowMajor, CblasTrans, (int)x->S, (int)mz, 1.0, x->Z, (int)mz, w, 1, 0.0, r->x[x->q], 1);
   }
-  free(in);
-  free(w);
-  char at[64];
-  if (rc != 0)
-    return rfail(r, "extern '%s' %s: %s", ((Sym *)r->m->prog->quantities.v[x->q])->name,
-                 at_sample(sample, at, sizeof at), err);
-  return 0;
+  scratch_release(&sc);
+  return rc;
 }
 
 void reduced_use_given_externs(Reduced *r, bool on) { r->given_externs = on; }
