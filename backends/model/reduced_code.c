@@ -6,6 +6,7 @@
 
 #include "emit.h"
 #include "reduced.h"
+#include "scratch.h"
 
 long emit_reduced_slots(const Model *m, ReducedSlot *s) {
   long n = 0;
@@ -29,7 +30,7 @@ long emit_reduced_slots(const Model *m, ReducedSlot *s) {
 
 _Static_assert(RT_MAX_IN <= RC_MAX_IN, "the emitter takes every input of a reduced tensor");
 
-/* The description's arrays, one allocation each (freed by code_free). */
+/* The description's arrays, from the scratch `mem` of the emission. */
 typedef struct Code {
   ReducedCode rc;
   RcStage *stages;
@@ -39,17 +40,8 @@ typedef struct Code {
   RcClass *classes;
   RcSlot *slots;
   long *qm;
+  Scratch *mem;
 } Code;
-
-static void code_free(Code *c) {
-  free(c->stages);
-  free(c->terms);
-  free(c->ops);
-  free(c->tensors);
-  free(c->classes);
-  free(c->slots);
-  free(c->qm);
-}
 
 /* Tensor `x` into `*next`, its slot the next one. */
 static void tensor(RcTensor **next, const RTensor *x, long *slot) {
@@ -84,18 +76,15 @@ static int describe(const Model *m, Code *c) {
       nops += rt->nops;
       RTERM_FOR_TENSORS(rt, x) ntensors++;
     }
-  c->stages = calloc((size_t)m->nstages + 1, sizeof *c->stages);
-  c->terms = calloc((size_t)nterms + 1, sizeof *c->terms);
-  c->ops = calloc((size_t)nops + 1, sizeof *c->ops);
-  c->tensors = calloc((size_t)ntensors + 1, sizeof *c->tensors);
-  c->classes = calloc((size_t)m->nclasses + 1, sizeof *c->classes);
-  c->slots = calloc((size_t)nslots + 1, sizeof *c->slots);
-  c->qm = calloc((size_t)m->nq + 1, sizeof *c->qm);
-  ReducedSlot *slots = calloc((size_t)nslots + 1, sizeof *slots);
-  if (!c->stages || !c->terms || !c->ops || !c->tensors || !c->classes || !c->slots || !c->qm || !slots) {
-    free(slots);
-    return -1;
-  }
+  c->stages = scratch_array(c->mem, (size_t)m->nstages + 1, sizeof *c->stages);
+  c->terms = scratch_array(c->mem, (size_t)nterms + 1, sizeof *c->terms);
+  c->ops = scratch_array(c->mem, (size_t)nops + 1, sizeof *c->ops);
+  c->tensors = scratch_array(c->mem, (size_t)ntensors + 1, sizeof *c->tensors);
+  c->classes = scratch_array(c->mem, (size_t)m->nclasses + 1, sizeof *c->classes);
+  c->slots = scratch_array(c->mem, (size_t)nslots + 1, sizeof *c->slots);
+  c->qm = scratch_array(c->mem, (size_t)m->nq + 1, sizeof *c->qm);
+  ReducedSlot *slots = scratch_array(c->mem, (size_t)nslots + 1, sizeof *slots);
+  if (!c->stages || !c->terms || !c->ops || !c->tensors || !c->classes || !c->slots || !c->qm || !slots) return -1;
   for (int k = 0; k < m->nclasses; k++)
     c->classes[k] = (RcClass){m->classes[k].label, m->classes[k].n, m->classes[k].m};
   for (int q = 0; q < m->nq; q++) c->qm[q] = m->classes[m->qclass[q]].m;
@@ -105,7 +94,6 @@ static int describe(const Model *m, Code *c) {
     c->slots[k] = (RcSlot){slots[k].t ? slots[k].t->name : p->proj_name ? p->proj_name : "proj", slots[k].rows,
                            slots[k].cols};
   }
-  free(slots);
   long at[3] = {0, 0, 0}, t0 = 0; /* tensors, operators, slots taken */
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
@@ -119,9 +107,10 @@ static int describe(const Model *m, Code *c) {
 }
 
 int emit_reduced(const Model *m, FILE *out, Err *err) {
-  Code c = {0};
+  Scratch sc = SCRATCH_OF(NULL);
+  Code c = {.mem = &sc};
   int rc = describe(m, &c) ? err_set(err, "out of memory while generating the reduced evaluator")
                            : emit_reduced_code(&c.rc, out, err);
-  code_free(&c);
+  scratch_release(&sc);
   return rc;
 }
