@@ -49,6 +49,7 @@ int model_save(const Model *m, const char *dir, Err *err) {
   ModelStore s;
   model_store_init(&s);
   s.program_hash = m->program_hash;
+  Scratch sc = SCRATCH_OF(NULL); /* the dims line, the spectra's text */
   int bad = 0;
   /* the dims line grows with the names: a fixed buffer cut a long name and
    * the model could not be loaded (issue 24) */
@@ -59,9 +60,9 @@ int model_save(const Model *m, const char *dir, Err *err) {
     fputs("dims", mem);
     for (int i = 0; i < m->ndims; i++) fprintf(mem, " %s=%ld", ((Sym *)m->prog->dims.v[i])->name, m->dims[i]);
   }
-  if (!mem || fclose(mem) != 0 || !line) bad = -1;
+  int closed = mem ? fclose(mem) : -1; /* `line` is the stream's buffer even when closing failed */
+  if (!scratch_adopt(&sc, line) || closed != 0) bad = -1;
   else bad |= model_store_meta(&s, "%s", line);
-  free(line);
   bad |= model_store_meta(&s, "samples %ld", m->samples);
   /* always written, empty when none were recorded: loading requires it */
   bad |= model_store_meta(&s, "params%s%s", m->param_hashes && *m->param_hashes ? " " : "",
@@ -79,10 +80,9 @@ int model_save(const Model *m, const char *dir, Err *err) {
       long shape[1] = {mb->nsv};
       snprintf(name, sizeof name, "spectrum_%s", mb->name);
       bad |= model_store_add(&s, name, 1, shape, mb->sv);
-      char *csv = spectrum_csv(mb);
+      char *csv = scratch_adopt(&sc, spectrum_csv(mb));
       snprintf(name, sizeof name, "spectrum_%s.csv", mb->name);
       bad |= csv ? model_store_add_text(&s, name, csv) : -1;
-      free(csv);
     }
     if (rc->streamed) { /* no basis file: its quantities' training floors instead (issue 30) */
       bad |= model_store_meta(&s, "streamed %d", c);
@@ -143,6 +143,7 @@ int model_save(const Model *m, const char *dir, Err *err) {
   if (bad) err_set(err, "%s: out of memory assembling the model", dir);
   else rc = model_store_write(dir, &s, err);
   model_store_free(&s);
+  scratch_release(&sc);
   return rc;
 }
 
@@ -550,9 +551,9 @@ int model_write_spectra(const Model *m, const char *dir, Err *err) {
    * not a partial set or a partial file (issue 38). */
   int nfiles = 0;
   for (int c = 0; c < m->nclasses; c++) nfiles += 2 * m->classes[c].nmembers;
-  char(*paths)[2][4096] = mem_calloc((size_t)nfiles + 1, sizeof *paths); /* [k][0] the file, [k][1] its temporary */
-  if (!paths) return err_set(err, "%s: out of memory writing the spectra", dir);
-  int written = 0, rc = 0;
+  Scratch sc = SCRATCH_OF(NULL);
+  char(*paths)[2][4096] = scratch_array(&sc, (size_t)nfiles + 1, sizeof *paths); /* [k][0] the file, [k][1] its temporary */
+  int written = 0, rc = paths ? 0 : err_set(err, "%s: out of memory writing the spectra", dir);
   for (int c = 0; c < m->nclasses && !rc; c++)
     for (int i = 0; i < m->classes[c].nmembers && !rc; i++) {
       const RMember *mb = &m->classes[c].members[i];
@@ -569,13 +570,12 @@ int model_write_spectra(const Model *m, const char *dir, Err *err) {
             rc = err_set(err, "%s: cannot write: %s", path, cause ? cause + 2 : why);
           }
         } else {
-          char *csv = spectrum_csv(mb);
+          char *csv = scratch_adopt(&sc, spectrum_csv(mb));
           FILE *f = csv ? fopen(tmp, "w") : NULL;
           errno = csv ? errno : ENOMEM;
           int ok = f && fputs(csv, f) >= 0 && fflush(f) == 0;
           int saved = errno;
           if (f && fclose(f) != 0 && ok) ok = 0, saved = errno;
-          free(csv);
           if (!ok) rc = err_set(err, "%s: cannot write: %s", path, strerror(saved ? saved : EIO));
         }
         written++;
@@ -586,6 +586,6 @@ int model_write_spectra(const Model *m, const char *dir, Err *err) {
       rc = err_set(err, "%s: cannot replace it with %s: %s", paths[k][0], paths[k][1], strerror(errno));
   if (rc)
     for (int k = 0; k < written; k++) remove(paths[k][1]); /* those renamed already are gone from here */
-  free(paths);
+  scratch_release(&sc);
   return rc;
 }
