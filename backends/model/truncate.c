@@ -67,23 +67,18 @@ static RInterp *copy_check(const Model *src, const Model *m, const RStage *rs, c
   long m0 = src->classes[src->qclass[rs->q]].m, m1 = m->classes[m->qclass[rs->q]].m, len = 0;
   for (long r = 0; r < s->nreads; r++) len += m->classes[m->qclass[s->read_q[r]]].m;
   RInterp *ck = copy_interp(src, m, rs, s);
-  if (ck && (!(ck->brows = mem_malloc(sizeof(double) * (size_t)((kfit + s->k) * m1 + 1))) ||
-             !(ck->read_rows = mem_malloc(sizeof(double) * (size_t)(len + 1))))) {
-    interp_free(ck);
-    return NULL;
-  }
   if (!ck) return NULL;
-  for (long r = 0; r < kfit + s->k; r++) memcpy(ck->brows + r * m1, s->brows + r * m0, sizeof(double) * (size_t)m1);
-  for (long r = 0, a = 0, b = 0; r < s->nreads; r++) {
+  bool ok = (ck->brows = mem_malloc(sizeof(double) * (size_t)((kfit + s->k) * m1 + 1))) &&
+            (ck->read_rows = mem_malloc(sizeof(double) * (size_t)(len + 1)));
+  for (long r = 0; ok && r < kfit + s->k; r++) memcpy(ck->brows + r * m1, s->brows + r * m0, sizeof(double) * (size_t)m1);
+  for (long r = 0, a = 0, b = 0; ok && r < s->nreads; r++) {
     long ma = src->classes[src->qclass[s->read_q[r]]].m, mb = m->classes[m->qclass[s->read_q[r]]].m;
     memcpy(ck->read_rows + b, s->read_rows + a, sizeof(double) * (size_t)mb);
     a += ma, b += mb;
   }
-  if (interp_pack(m, rs, ck)) {
-    interp_free(ck);
-    return NULL;
-  }
-  return ck;
+  if (ok && interp_pack(m, rs, ck) == 0) return ck;
+  interp_free(ck); /* the half-built table, once */
+  return NULL;
 }
 
 /* A copy of interpolated stage `s`'s fit for stage rs of m (its class the
@@ -99,24 +94,18 @@ static RInterp *copy_interp(const Model *src, const Model *m, const RStage *rs, 
   ip->mono = mem_malloc(sizeof(RInterpMono) * (size_t)(s->nmono + 1));
   if (s->weight && (ip->weight = mem_malloc(sizeof(double) * (size_t)(s->k + 1))))
     memcpy(ip->weight, s->weight, sizeof(double) * (size_t)s->k);
-  if (!ip->rows || !ip->pinv || !ip->read_q || !ip->read_e || !ip->mono || (s->weight && !ip->weight)) {
-    interp_free(ip);
-    return NULL;
+  bool ok = ip->rows && ip->pinv && ip->read_q && ip->read_e && ip->mono && (!s->weight || ip->weight);
+  if (ok) {
+    memcpy(ip->rows, s->rows, sizeof(long) * (size_t)s->k);
+    memcpy(ip->pinv, s->pinv, sizeof(double) * (size_t)(s->m * s->k));
+    memcpy(ip->read_q, s->read_q, sizeof(int) * (size_t)s->nreads);
+    memcpy(ip->read_e, s->read_e, sizeof(long) * (size_t)s->nreads);
+    memcpy(ip->mono, s->mono, sizeof(RInterpMono) * (size_t)s->nmono);
   }
-  memcpy(ip->rows, s->rows, sizeof(long) * (size_t)s->k);
-  memcpy(ip->pinv, s->pinv, sizeof(double) * (size_t)(s->m * s->k));
-  memcpy(ip->read_q, s->read_q, sizeof(int) * (size_t)s->nreads);
-  memcpy(ip->read_e, s->read_e, sizeof(long) * (size_t)s->nreads);
-  memcpy(ip->mono, s->mono, sizeof(RInterpMono) * (size_t)s->nmono);
-  if (s->check && !(ip->check = copy_check(src, m, rs, s->check, s->k))) {
-    interp_free(ip);
-    return NULL;
-  }
-  if (interp_pack(m, rs, ip)) {
-    interp_free(ip);
-    return NULL;
-  }
-  return ip;
+  if (ok && s->check) ok = (ip->check = copy_check(src, m, rs, s->check, s->k)) != NULL;
+  if (ok && interp_pack(m, rs, ip) == 0) return ip;
+  interp_free(ip); /* the half-built table, once */
+  return NULL;
 }
 
 /* Class c of m: the first m->classes[c].m columns of src's, the members'
