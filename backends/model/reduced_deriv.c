@@ -59,7 +59,7 @@ typedef struct Deriv {
   Err *err;             /* the caller's record, or `own` when it holds no buffer */
   Err own;
   char own_msg[256];
-  Scratch sc;           /* x, d and active: released by deriv_free */
+  Scratch sc;           /* x, d and active: released at the operation's end */
 } Deriv;
 
 static long qm(const Model *m, int q) { return m->classes[m->qclass[q]].m; }
@@ -694,10 +694,8 @@ typedef struct TermState {
   OpState *ops;
   double **vs;
   bool kept;  /* the chains are the evaluator's (reduced_kept) */
-  Scratch mem; /* its arrays and its operators' own (zero: empty) */
+  Scratch mem; /* its arrays and its operators' own (zero: empty), released with the term */
 } TermState;
-
-static void term_free(TermState *ts) { scratch_release(&ts->mem); }
 
 /* ts->ops and ts->vs for `nops` operators, each operator's arrays in ts->mem. */
 static int term_alloc(TermState *ts, int nops) {
@@ -753,7 +751,7 @@ static int term_primal_in(Deriv *dv, const RStage *rs, const RTerm *rt, long n, 
   return 0;
 }
 
-/* term_primal_in with a scratch released at its end; `ts` (term_free's) holds the primal. */
+/* term_primal_in with a scratch released at its end; `ts` (its own scratch) holds the primal. */
 static int term_primal(Deriv *dv, const RStage *rs, const RTerm *rt, long n, TermState *ts) {
   Scratch sc = SCRATCH_OF(NULL);
   int rc = term_alloc(ts, rt->nops) == 0 ? term_primal_in(dv, rs, rt, n, ts, &sc) : dfail_oom(dv);
@@ -789,7 +787,7 @@ static int galerkin_stage(Deriv *dv, const RStage *rs, bool reverse) {
     const RTerm *rt = &rs->terms[t];
     TermState ts = {0};
     if (rt->nops > 0 && (rc = term_kept(dv, rs, t, n, &ts)) == 1) { /* not kept: recomputed */
-      term_free(&ts);
+      scratch_release(&ts.mem);
       memset(&ts, 0, sizeof ts);
       rc = term_primal(dv, rs, rt, n, &ts);
     }
@@ -803,7 +801,7 @@ static int galerkin_stage(Deriv *dv, const RStage *rs, bool reverse) {
       for (int k = rt->nops - 1; k >= 0 && rc == 0; k--) rc = op_reverse(dv, &ts.ops[k], ts.vs[k], V);
       if (rc == 0) rc = term_numerator(dv, rt, n, true, V);
     }
-    term_free(&ts);
+    scratch_release(&ts.mem);
   }
   scratch_release(&sc);
   return rc;
@@ -993,8 +991,6 @@ static int stage_derivative(Deriv *dv, const RStage *rs, bool reverse) {
   return galerkin_stage(dv, rs, reverse);
 }
 
-static void deriv_free(Deriv *dv) { scratch_release(&dv->sc); }
-
 /* Every quantity's block allocated (zero), none active yet (deriv_activate). */
 static int deriv_init(Deriv *dv, Reduced *r, long nd, long sample, Err *err) {
   memset(dv, 0, sizeof *dv);
@@ -1043,7 +1039,7 @@ int reduced_jvp(Reduced *r, const ReducedSeeds *seeds, int out_q, double *out, l
     if (dv.active[rs->q] && !seeded) rc = stage_derivative(&dv, rs, false);
   }
   if (rc == 0) memcpy(out, dv.d[out_q], sizeof(double) * (size_t)(qm(m, out_q) * nd));
-  deriv_free(&dv);
+  scratch_release(&dv.sc);
   return rc ? -1 : 0;
 }
 
@@ -1061,7 +1057,7 @@ int reduced_vjp(Reduced *r, const ReducedSeeds *seeds, int in_q, double *out, lo
     if (dv.active[rs->q] && rs->q != in_q) rc = stage_derivative(&dv, rs, true);
   }
   if (rc == 0) memcpy(out, dv.d[in_q], sizeof(double) * (size_t)(qm(m, in_q) * nd));
-  deriv_free(&dv);
+  scratch_release(&dv.sc);
   return rc ? -1 : 0;
 }
 
@@ -1098,6 +1094,6 @@ int reduced_stage_jvp(Reduced *r, int stage, const ReducedSeeds *in, double *out
   /* every other quantity keeps a zero tangent: stage `stage` alone is differentiated, the local partial */
   if (rc == 0 && dv.active[rs->q] && rs->q != in_q) rc = stage_derivative(&dv, rs, false);
   if (rc == 0) memcpy(out, dv.d[rs->q], sizeof(double) * (size_t)(qm(m, rs->q) * nd));
-  deriv_free(&dv);
+  scratch_release(&dv.sc);
   return rc ? -1 : 0;
 }
