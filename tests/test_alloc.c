@@ -5,6 +5,9 @@
  * in a message that says "out of memory" (never a crash or a quiet NULL),
  * and, under the sanitizer build, leak nothing (LeakSanitizer at exit).
  * The program is small (Eq. 3 of the paper) so the count stays bounded.
+ * Derivatives of the reduced evaluator too (their temporaries from Scratch, issue 39): after a
+ * failure the same evaluator gives, once memory is back, the Jacobian and the reverse product
+ * of an evaluator that never failed.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -94,16 +97,21 @@ static void training_fails_cleanly(void **state) {
   npg_free(p);
 }
 
+/* A model of `p` trained (memory never failing) and written to `dir`. */
+static NpgModel *trained(NpgProgram *p) {
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  const char *why;
+  NpgModel *m = train(f, dir, &why);
+  if (!m) fail_msg("%s", why);
+  npg_full_free(f);
+  return m;
+}
+
 /* Loading a model, and evaluating with it. */
 static void loading_fails_cleanly(void **state) {
   (void)state;
   NpgProgram *p = program();
-  NpgFull *f = npg_full_new(p, NPG_TCC);
-  const char *why;
-  NpgModel *trained = train(f, dir, &why);
-  if (!trained) fail_msg("%s", why);
-  npg_model_free(trained);
-  npg_full_free(f);
+  npg_model_free(trained(p));
   long k;
   for (k = 0; k < MAX_FAILURES; k++) {
     if (failing_alloc_traced() >= 0) fprintf(stderr, "loading, allocation %ld fails\n", k);
@@ -130,6 +138,43 @@ static void loading_fails_cleanly(void **state) {
   npg_free(p);
 }
 
+/* npg_reduced_jacobian and npg_reduced_vjp (forward and reverse sweeps through every stage) on
+ * one evaluator, the k-th allocation failing, until both succeed; their values then equal those
+ * computed before any failure. */
+static void derivatives_fail_cleanly(void **state) {
+  (void)state;
+  NpgProgram *p = program();
+  NpgModel *m = trained(p);
+  NpgReduced *r = npg_reduced_new(m);
+  assert_non_null(r);
+  assert_int_equal(npg_reduced_set(r, "x", 2, xs), 0);
+  const char *y = "y";
+  const double cot[2] = {0.7, -1.3}, *cots = cot;
+  double J0[4] = {0}, g0[2] = {0}; /* m_y x m_x, each at most 2 */
+  if (npg_reduced_jacobian(r, 0, "y", "x", J0) || npg_reduced_vjp(r, 0, 1, &y, &cots, "x", g0))
+    fail_msg("%s", npg_reduced_error(r));
+  long k;
+  for (k = 0; k < MAX_FAILURES; k++) {
+    if (failing_alloc_traced() >= 0) fprintf(stderr, "derivatives, allocation %ld fails\n", k);
+    double J[4] = {0}, g[2] = {0};
+    failing_alloc_after(k);
+    int rc = npg_reduced_jacobian(r, 0, "y", "x", J) || npg_reduced_vjp(r, 0, 1, &y, &cots, "x", g);
+    failing_alloc_off();
+    if (rc == 0) {
+      assert_memory_equal(J, J0, sizeof J);
+      assert_memory_equal(g, g0, sizeof g);
+      break;
+    }
+    if (!strstr(npg_reduced_error(r), "out of memory")) fail_msg("allocation %ld failing: \"%s\"", k, npg_reduced_error(r));
+    npg_reduced_clear_error(r);
+  }
+  print_message("derivatives: %ld allocations, each failing in turn\n", k);
+  assert_true(k > 5 && k < MAX_FAILURES);
+  npg_reduced_free(r);
+  npg_model_free(m);
+  npg_free(p);
+}
+
 static int setup(void **state) {
   (void)state;
   srand(5);
@@ -149,6 +194,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test_teardown(training_fails_cleanly, restore_hook),
       cmocka_unit_test_teardown(loading_fails_cleanly, restore_hook),
+      cmocka_unit_test_teardown(derivatives_fail_cleanly, restore_hook),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
