@@ -1,7 +1,7 @@
 /* test_scratch.c — backends/model/scratch.c: a model-layer operation's temporary memory.
  * Blocks are zeroed and distinct, a refused allocation is NULL with "out of memory" in the
  * scratch's error record (the blocks before it still released), an overflowing size is
- * refused without an allocation, an adopted block is the scratch's (freed with it, or at once
+ * refused without an allocation (unzeroed blocks too), an adopted block is the scratch's (freed with it, or at once
  * when the scratch cannot hold it), a formatted string is the scratch's (NULL with "out of memory"
  * when refused), and release empties the scratch (the sanitizers' leak check
  * is the oracle that it freed every block). */
@@ -39,6 +39,11 @@ static void zeroed_and_distinct(void **state) {
   double *d = scratch_array(&sc, 100, sizeof(double));
   assert_non_null(d);
   assert_true(d[99] == 0);
+  double *u = scratch_array_unzeroed(&sc, 100, sizeof(double)); /* a block of its own, not zeroed */
+  assert_non_null(u);
+  assert_int_equal((uintptr_t)u % _Alignof(max_align_t), 0);
+  for (int i = 0; i < 100; i++) u[i] = i;
+  assert_true(d[99] == 0 && u[99] == 99);
   scratch_release(&sc);
   assert_null(sc.head);
   assert_non_null(scratch_alloc(&sc, 0)); /* usable again, and a zero size is a block too */
@@ -70,6 +75,10 @@ static void overflow(void **state) {
   assert_int_equal(failing_alloc_calls(), 0);
   failing_alloc_off();
   assert_non_null(strstr(msg, "out of memory"));
+  failing_alloc_after(0);
+  assert_null(scratch_array_unzeroed(&sc, SIZE_MAX / 2, 4));
+  assert_int_equal(failing_alloc_calls(), 0);
+  failing_alloc_off();
   Scratch quiet = SCRATCH_OF(NULL); /* no record: the message is dropped, NULL still returned */
   assert_null(scratch_array(&quiet, SIZE_MAX, SIZE_MAX));
   scratch_release(&sc);

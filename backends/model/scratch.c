@@ -3,6 +3,7 @@
 #include "scratch.h"
 
 #include <stdarg.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 
@@ -12,17 +13,34 @@ struct ScratchBlock {
   max_align_t data[];
 };
 
-void *scratch_alloc(Scratch *s, size_t bytes) {
-  ScratchBlock *b = bytes <= (size_t)-1 - sizeof *b ? mem_calloc(1, sizeof *b + bytes) : NULL;
+/* A block of `bytes` chained into `s`, zeroed when `zeroed`. */
+static void *block(Scratch *s, size_t bytes, bool zeroed) {
+  ScratchBlock *b = NULL;
+  if (bytes <= (size_t)-1 - sizeof *b) b = zeroed ? mem_calloc(1, sizeof *b + bytes) : mem_malloc(sizeof *b + bytes);
   if (!b) return err_set(s->err, "out of memory (%zu bytes of scratch)", bytes), NULL;
+  b->adopted = NULL;
   b->next = s->head, s->head = b;
   return b->data;
 }
 
-void *scratch_array(Scratch *s, size_t count, size_t size) {
+/* count x size, or (size_t)-1 with the refusal in `s` when it overflows. */
+static size_t array_bytes(Scratch *s, size_t count, size_t size) {
   size_t n;
-  if (__builtin_mul_overflow(count, size, &n)) return err_set(s->err, "out of memory (%zu x %zu bytes of scratch)", count, size), NULL;
-  return scratch_alloc(s, n);
+  if (!__builtin_mul_overflow(count, size, &n) && n != (size_t)-1) return n;
+  err_set(s->err, "out of memory (%zu x %zu bytes of scratch)", count, size);
+  return (size_t)-1;
+}
+
+void *scratch_alloc(Scratch *s, size_t bytes) { return block(s, bytes, true); }
+
+void *scratch_array(Scratch *s, size_t count, size_t size) {
+  size_t n = array_bytes(s, count, size);
+  return n == (size_t)-1 ? NULL : block(s, n, true);
+}
+
+void *scratch_array_unzeroed(Scratch *s, size_t count, size_t size) {
+  size_t n = array_bytes(s, count, size);
+  return n == (size_t)-1 ? NULL : block(s, n, false);
 }
 
 void *scratch_adopt(Scratch *s, void *p) {

@@ -24,6 +24,9 @@ typedef struct Scratch {
 void *scratch_alloc(Scratch *s, size_t bytes);
 /* `count` elements of `size` bytes: scratch_alloc's, the product checked for overflow. */
 void *scratch_array(Scratch *s, size_t count, size_t size);
+/* scratch_array's block, not zeroed: for a buffer written whole before it is read, on a path
+ * where zeroing costs (a derivative sweep's work arrays, a reduced Jacobian's tens of µs). */
+void *scratch_array_unzeroed(Scratch *s, size_t count, size_t size);
 /* `p`, memory from the allocation hook (a string a helper built, say), made the scratch's:
  * freed by scratch_release. NULL when `p` is NULL (a failure its maker reported), or, with
  * "out of memory", when the scratch cannot hold it (`p` is freed then). */
