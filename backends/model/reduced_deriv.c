@@ -167,8 +167,8 @@ static int contract_into(const RTensor *t, const double *const *z, double *out, 
   }
   long lead = t->rows;
   for (int j = 0; j + 1 < t->nin; j++) lead *= t->in_len[j];
-  double *buf[2] = {scratch_array(sc, (size_t)(lead + 1), sizeof(double)), NULL};
-  if (!buf[0] || !(buf[1] = scratch_array(sc, (size_t)(lead + 1), sizeof(double)))) return -1;
+  double *buf[2] = {scratch_array_unzeroed(sc, (size_t)(lead + 1), sizeof(double)), NULL};
+  if (!buf[0] || !(buf[1] = scratch_array_unzeroed(sc, (size_t)(lead + 1), sizeof(double)))) return -1;
   const double *src = t->data;
   int b = 0;
   for (int j = t->nin - 1; j >= 0; j--) {
@@ -334,7 +334,7 @@ static int tensor_tangent(Deriv *dv, const RTensor *t, bool reverse, const doubl
     if (dv->active[t->in_q[j]] && size > most) most = size;
   }
   Scratch sc = SCRATCH_OF(NULL);
-  double *buf = most > 0 ? scratch_array(&sc, (size_t)most, sizeof(double)) : NULL;
+  double *buf = most > 0 ? scratch_array_unzeroed(&sc, (size_t)most, sizeof(double)) : NULL;
   int rc = most > 0 && !buf ? dfail_oom(dv) : 0;
   for (int j = 0; j < t->nin && rc == 0; j++) {
     int q = t->in_q[j];
@@ -397,8 +397,8 @@ static int op_factor(Deriv *dv, const RStage *rs, OpState *o) {
   long p = ro->op->p, q = ro->op->q;
   if ((q == 1 && p > 0) || (q == 1 && o->kept)) return 0;
   if (q == 1) {
-    o->LU = scratch_array(o->mem, (size_t)(n * n + 1), sizeof(double));
-    o->piv = scratch_array(o->mem, (size_t)(n + 1), sizeof(lapack_int));
+    o->LU = scratch_array_unzeroed(o->mem, (size_t)(n * n + 1), sizeof(double));
+    o->piv = scratch_array_unzeroed(o->mem, (size_t)(n + 1), sizeof(lapack_int));
     if (!o->LU || !o->piv) return dfail_oom(dv);
     memcpy(o->LU, o->M, sizeof(double) * (size_t)(n * n)); /* column-major: M̂ᵀ, as the evaluator factors it */
     lapack_int info = LAPACKE_dgetrf_work(LAPACK_COL_MAJOR, (lapack_int)n, (lapack_int)n, o->LU, (lapack_int)n, o->piv);
@@ -407,9 +407,9 @@ static int op_factor(Deriv *dv, const RStage *rs, OpState *o) {
                      "derivative there", sn, (int)info);
     return 0;
   }
-  o->U = scratch_array(o->mem, (size_t)(n * n + 1), sizeof(double));
-  o->lam = scratch_array(o->mem, (size_t)(n + 1), sizeof(double));
-  o->F = scratch_array(o->mem, (size_t)(n * n + 1), sizeof(double));
+  o->U = scratch_array_unzeroed(o->mem, (size_t)(n * n + 1), sizeof(double));
+  o->lam = scratch_array_unzeroed(o->mem, (size_t)(n + 1), sizeof(double));
+  o->F = scratch_array_unzeroed(o->mem, (size_t)(n * n + 1), sizeof(double));
   if (!o->U || !o->lam || !o->F) return dfail_oom(dv);
   memcpy(o->U, o->M, sizeof(double) * (size_t)(n * n));
   lapack_int info = LAPACKE_dsyevd(LAPACK_ROW_MAJOR, 'V', 'U', (lapack_int)n, o->U, (lapack_int)n, o->lam);
@@ -443,7 +443,7 @@ static int op_state(Deriv *dv, const RStage *rs, const ROp *ro, long n, OpState 
   int rc = acc && (o->M = scratch_array(o->mem, (size_t)(n * n) + 1, sizeof(double))) ? 0 : -1;
   for (int g = 0; g < ro->ntensors && rc == 0; g++) {
     const double *z[RT_MAX_IN];
-    double *zbuf = scratch_array(&sc, (size_t)tensor_zlen(&ro->t[g]), sizeof(double));
+    double *zbuf = scratch_array_unzeroed(&sc, (size_t)tensor_zlen(&ro->t[g]), sizeof(double));
     rc = zbuf ? contract_into(&ro->t[g], (tensor_z(dv, &ro->t[g], z, zbuf), z), acc, &sc) : -1;
   }
   if (rc == 0 && ro->op->kind == OPK_DIAG) {
@@ -562,8 +562,8 @@ static int op_dM_times(Deriv *dv, const OpState *o, const double *u, double sign
       if (dv->active[o->ro->t[g].in_q[j]] && qm(dv->m, o->ro->t[g].in_q[j]) > most) most = qm(dv->m, o->ro->t[g].in_q[j]);
   Scratch sc = SCRATCH_OF(NULL);
   double *buf = NULL, *G = NULL;
-  int rc = most > 0 && n > 0 && (!(buf = scratch_array(&sc, (size_t)(rows * most), sizeof(double))) ||
-                                 !(G = scratch_array(&sc, (size_t)(n * most), sizeof(double))))
+  int rc = most > 0 && n > 0 && (!(buf = scratch_array_unzeroed(&sc, (size_t)(rows * most), sizeof(double))) ||
+                                 !(G = scratch_array_unzeroed(&sc, (size_t)(n * most), sizeof(double))))
                ? dfail_oom(dv)
                : 0;
   for (int g = 0; g < o->ro->ntensors && rc == 0; g++) {
@@ -608,7 +608,7 @@ static int op_forward(Deriv *dv, const OpState *o, const double *vs, double *dV)
   for (int g = 0; g < o->ro->ntensors; g++) dm = dm || (root && tensor_active(dv, &o->ro->t[g]));
   Scratch sc = SCRATCH_OF(NULL);
   double *dM = dm ? scratch_array(&sc, (size_t)(nd * n * n) + 1, sizeof(double)) : NULL;
-  double *tmp = scratch_array(&sc, (size_t)(n * nd + 2 * n * n + 5 * n + 1), sizeof(double));
+  double *tmp = scratch_array_unzeroed(&sc, (size_t)(n * nd + 2 * n * n + 5 * n + 1), sizeof(double));
   int rc = (dm && !dM) || !tmp ? dfail_oom(dv) : dm ? op_tangent(dv, o, dM) : 0;
   double *A = NULL, *w = NULL, *t = NULL, *col = NULL; /* A: dk_forward's 2 n² + n */
   if (tmp) A = tmp + n * nd, w = A + 2 * n * n + n, t = w + n, col = t + n;
@@ -647,7 +647,7 @@ static int op_reverse(Deriv *dv, const OpState *o, const double *vs, double *Vb)
   for (int g = 0; g < o->ro->ntensors; g++) dm = dm || (root && tensor_active(dv, &o->ro->t[g]));
   Scratch sc = SCRATCH_OF(NULL);
   double *Mb = dm ? scratch_array(&sc, (size_t)(nd * n * n) + 1, sizeof(double)) : NULL;
-  double *tmp = scratch_array(&sc, (size_t)(n * nd + 2 * n * n + 2 * n + 1), sizeof(double));
+  double *tmp = scratch_array_unzeroed(&sc, (size_t)(n * nd + 2 * n * n + 2 * n + 1), sizeof(double));
   int rc = (dm && !Mb) || !tmp ? dfail_oom(dv) : 0;
   double *A = NULL, *B = NULL, *w = NULL;
   if (tmp) A = tmp + n * nd, B = A + n * n, w = B + n * n;
@@ -743,7 +743,8 @@ static int term_primal_in(Deriv *dv, const RStage *rs, const RTerm *rt, long n, 
   for (int k = 0; k < rt->nops; k++) {
     if (op_state(dv, rs, &rt->ops[k], n, &ts->ops[k])) return -1;
     long steps = op_steps(&ts->ops[k]);
-    if (!(ts->vs[k] = scratch_array(&ts->mem, (size_t)((steps + 1) * n + 1), sizeof(double)))) return dfail_oom(dv);
+    if (!(ts->vs[k] = scratch_array_unzeroed(&ts->mem, (size_t)((steps + 1) * n + 1), sizeof(double))))
+      return dfail_oom(dv);
     memcpy(ts->vs[k], in, sizeof(double) * (size_t)n);
     op_forward_primal(&ts->ops[k], ts->vs[k], w);
     in = ts->vs[k] + steps * n;
@@ -781,7 +782,7 @@ static int term_numerator(Deriv *dv, const RTerm *rt, long n, bool reverse, doub
 static int galerkin_stage(Deriv *dv, const RStage *rs, bool reverse) {
   long n = qm(dv->m, rs->q), nd = dv->nd;
   Scratch sc = SCRATCH_OF(NULL);
-  double *V = scratch_array(&sc, (size_t)(n * nd + 1), sizeof(double));
+  double *V = scratch_array_unzeroed(&sc, (size_t)(n * nd + 1), sizeof(double));
   int rc = V ? 0 : dfail_oom(dv);
   for (int t = 0; t < rs->nterms && rc == 0; t++) {
     const RTerm *rt = &rs->terms[t];
@@ -847,10 +848,10 @@ static int interp_jacobian(Deriv *dv, const InterpPartials *pa, int q) {
   const RClass *c = &m->classes[m->qclass[q]];
   long mq = c->m, my = qm(m, rs->q), nd = dv->nd, k = ip->k, nr = 0;
   Scratch sc = SCRATCH_OF(NULL);
-  long *row = scratch_array(&sc, (size_t)(ip->nreads + 1), sizeof(long));
+  long *row = scratch_array_unzeroed(&sc, (size_t)(ip->nreads + 1), sizeof(long));
   double *C = scratch_array(&sc, (size_t)(ip->nreads * my) + 1, sizeof(double));
-  double *Br = scratch_array(&sc, (size_t)(ip->nreads * mq + 1), sizeof(double));
-  double *J = scratch_array(&sc, (size_t)(my * mq + 1), sizeof(double));
+  double *Br = scratch_array_unzeroed(&sc, (size_t)(ip->nreads * mq + 1), sizeof(double));
+  double *J = scratch_array_unzeroed(&sc, (size_t)(my * mq + 1), sizeof(double));
   int rc = row && C && Br && J ? 0 : dfail_oom(dv);
   for (long r = 0; r < ip->nreads && rc == 0; r++) {
     row[r] = ip->read_q[r] == q ? nr : -1;
@@ -1068,7 +1069,7 @@ int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, Er
   long nd = forward ? mi : mo;
   Scratch sc = SCRATCH_OF(NULL);
   double *eye = scratch_array(&sc, (size_t)(nd * nd) + 1, sizeof(double));
-  double *T = forward ? NULL : scratch_array(&sc, (size_t)(mi * mo + 1), sizeof(double));
+  double *T = forward ? NULL : scratch_array_unzeroed(&sc, (size_t)(mi * mo + 1), sizeof(double));
   const double *seed = eye;
   int rc = !eye || (!forward && !T) ? err_set(err, "out of memory for the reduced Jacobian") : 0;
   for (long i = 0; i < nd && rc == 0; i++) eye[i * nd + i] = 1;
