@@ -273,7 +273,7 @@ static NpgModel *train_api(NpgProgram *p, NpgFull *f, const double *x, long N, l
 }
 
 static void first_line(const char *dir, char *line, size_t n) {
-  char path[4096];
+  char path[4096 + 16]; /* dir (at most 4096 bytes) and the name */
   snprintf(path, sizeof path, "%s/manifest", dir);
   FILE *fp = fopen(path, "r");
   assert_non_null(fp);

@@ -272,17 +272,17 @@ static int valid_text_name(const char *name) {
 }
 
 static int append_text(ModelStore *m, const char *name, const char *text, size_t len, uint64_t checksum) {
-  char *n = mem_strdup(name), *t = mem_malloc(len + 1);
+  Scratch sc = SCRATCH_OF(NULL);
+  char *n = scratch_adopt(&sc, mem_strdup(name)), *t = scratch_adopt(&sc, mem_malloc(len + 1));
   ModelText *grown = n && t ? mem_realloc(m->texts, ((size_t)m->ntexts + 1) * sizeof *grown) : NULL;
-  if (!grown) {
-    free(n), free(t);
-    return -1;
+  if (grown) {
+    memcpy(t, text, len);
+    t[len] = '\0';
+    m->texts = grown;
+    m->texts[m->ntexts++] = (ModelText){scratch_keep(&sc, n), scratch_keep(&sc, t), checksum}; /* the store's now */
   }
-  memcpy(t, text, len);
-  t[len] = '\0';
-  m->texts = grown;
-  m->texts[m->ntexts++] = (ModelText){n, t, checksum};
-  return 0;
+  scratch_release(&sc);
+  return grown ? 0 : -1;
 }
 
 int model_store_add_text(ModelStore *m, const char *name, const char *text) {

@@ -52,6 +52,15 @@ void *scratch_adopt(Scratch *s, void *p) {
   return p;
 }
 
+void *scratch_keep(Scratch *s, void *p) {
+  for (ScratchBlock *b = s->head; p && b; b = b->next)
+    if (b->adopted == p) {
+      b->adopted = NULL;
+      break;
+    }
+  return p;
+}
+
 char *scratch_printf(Scratch *s, const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);

@@ -34,6 +34,10 @@ void *scratch_adopt(Scratch *s, void *p);
 /* printf's text in a block of the scratch, or NULL with "out of memory" in its error record
  * (a path built for one operation: no string to free by hand on its error paths). */
 __attribute__((format(printf, 2, 3))) char *scratch_printf(Scratch *s, const char *fmt, ...);
+/* `p`, a pointer the scratch adopted (scratch_adopt), handed back: scratch_release no longer
+ * frees it (what an operation built in its scratch and returns once it succeeded). `p` itself
+ * when NULL or not adopted by `s` (nothing changes then). */
+void *scratch_keep(Scratch *s, void *p);
 /* Frees every block of the scratch; it is empty again. */
 void scratch_release(Scratch *s);
 

@@ -445,7 +445,8 @@ static int premultiply_rows(Premul *pp, Full *f, const PremulBlock *b, int unpac
   p.local = p.nworkers > 1 && (double)t->rows * (double)t->cols * (double)(p.nworkers - 1) * sizeof(double) <=
                                   (double)PREMUL_LOCAL_BYTES;
   Scratch sc = SCRATCH_OF(err);
-  if (!b) t->data = mem_calloc((size_t)(t->rows * t->cols) + 1, sizeof(double)); /* a block adds to the caller's */
+  if (!b) /* the tensor's data, the scratch's until it is whole (a block adds to the caller's) */
+    t->data = scratch_adopt(&sc, mem_calloc((size_t)(t->rows * t->cols) + 1, sizeof(double)));
   p.key_row = scratch_array(&sc, (size_t)p.KB, sizeof(long));
   p.key_col = scratch_array(&sc, (size_t)p.KB, sizeof(long));
   p.W = scratch_array(&sc, (size_t)(p.KB * t->cols), sizeof(double));
@@ -465,7 +466,7 @@ static int premultiply_rows(Premul *pp, Full *f, const PremulBlock *b, int unpac
               : err_set(err, "out of memory pre-multiplying %s (%ld x %ld reduced entries)", t->name, t->rows, t->cols);
   if (rc == 0 && flops) *flops += p.flops;
   free(p.ent_key), free(p.ent_coef), free(p.ent_in); /* grown by grow_entries */
-  if (rc != 0 && !b) free(t->data), t->data = NULL; /* the tensor is left without data, not half made */
+  if (!b) t->data = rc == 0 ? scratch_keep(&sc, t->data) : NULL; /* the tensor's on success; else left without data, not half made */
   scratch_release(&sc);
   return rc;
 }

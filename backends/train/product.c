@@ -209,8 +209,9 @@ int train_product_basis(Model *m, Full *f, RClass *rc, const ClassSnapshots *sn,
   if (rc_ok == 0) rc_ok = train_complete_basis(rc, full_rank, err);
   if (rc_ok == 0 && (unweigh(L, rc) || dual(A, rc)))
     rc_ok = err_set(err, "out of memory for the basis of class %s", rc->label);
+  if (rc_ok != 0) /* the class is left without a basis, not half made: what was made goes with the scratch */
+    scratch_adopt(&sc, rc->B), scratch_adopt(&sc, rc->D), rc->B = rc->D = NULL;
   scratch_release(&sc);
-  if (rc_ok != 0) free(rc->B), free(rc->D), rc->B = rc->D = NULL; /* the class is left without a basis, not half made */
   cholmod_l_free_factor(&L, &cc);
   cholmod_l_free_sparse(&A, &cc);
   cholmod_l_finish(&cc);
