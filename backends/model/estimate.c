@@ -50,15 +50,16 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
 }
 
 bool estimate_term_chains(const RTerm *rt) {
-  const OpPow *op0 = rt->ops[0].op;
-  if (rt->nops == 1) /* an application, or a root of power |p/q| < 1 (root_step) */
-    return op0->kind == OPK_DECL && ((op0->q == 1 && op0->p >= 1) || (op0->q > 1 && labs(op0->p) < op0->q));
-  if (rt->nops > ESTIMATE_OPS_MAX) return false;
+  if (rt->nops == 1) { /* an application, or a root of power |p/q| < 1 (root_step) */
+    const OpPow *op = rt->ops[0].op;
+    return op->kind == OPK_DECL && ((op->q == 1 && op->p >= 1) || (op->q > 1 && labs(op->p) < op->q));
+  }
+  if (rt->nops < 2 || rt->nops > ESTIMATE_OPS_MAX) return false;
   for (int k = 0; k < rt->nops; k++) {
     const OpPow *op = rt->ops[k].op;
     if (op->kind != OPK_DECL || op->q != 1 || !(op->p >= 1 || op->p == -1)) return false;
   }
-  return rt->nops > 1;
+  return true;
 }
 
 void estimate_chain_layout(const Model *m, int i, int t, ChainLayout *L) {
