@@ -29,11 +29,19 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
   const RTerm *rt = &rs->terms[t];
   if (rs->st->kind == ST_EXTERN) return snprintf(why, n, "an extern's learned map has no estimate"), false;
   if (rs->interp) return snprintf(why, n, "an interpolated stage has no Galerkin terms' tables (its estimate is interp_check's)"), false;
-  if (rt->nops > 1) return snprintf(why, n, "term %d applies %d operators (one inverse at most has an estimate)", t + 1,
-                                    rt->nops), false;
-  if (rt->nops == 1 && !(rt->ops[0].op->p == -1 && rt->ops[0].op->q == 1))
-    return snprintf(why, n, "term %d applies a power %ld/%ld (only inverses have an estimate)", t + 1,
-                    (long)rt->ops[0].op->p, (long)rt->ops[0].op->q), false;
+  if (rt->nops > 1 && !estimate_term_chains(rt))
+    return snprintf(why, n, "term %d applies %d operators (a root or a diagonal operator among them: only declared "
+                    "operators' positive powers and inverses have an estimate)", t + 1, rt->nops), false;
+  if (rt->nops == 1 && !(rt->ops[0].op->p == -1 && rt->ops[0].op->q == 1) && !estimate_term_chains(rt))
+    return snprintf(why, n, "term %d applies a power %ld/%ld (%s)", t + 1, (long)rt->ops[0].op->p,
+                    (long)rt->ops[0].op->q, rt->ops[0].op->q != 1 ? "a root has an estimate for a declared operator "
+                    "and |p/q| < 1 only" : "only inverses and positive powers of declared operators have an estimate"),
+           false;
+  const RClass *rc = &m->classes[m->qclass[rs->q]];
+  if (rc->product && estimate_term_chains(rt))
+    return snprintf(why, n, "term %d applies operators in class %s, orthonormal in the inner product of %s (its "
+                    "figure is Euclidean: in a product projections and inverses have an estimate)", t + 1, rc->label,
+                    rc->product->name), false;
   /* in a product K0 the figure is ‖e‖_K0 (estimate_product.c): an inverse's from the residual's dual norm, a
    * projection's exactly, a named numerator's error carried across the norms (RTerm.est_carry) */
   if (!m->classes[m->qclass[rs->q]].B && !m->classes[m->qclass[rs->q]].streamed)
@@ -41,12 +49,44 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
   return true;
 }
 
-long estimate_term_dim(const Model *m, int i, int t) {
+bool estimate_term_chains(const RTerm *rt) {
+  if (rt->nops == 1) { /* an application, or a root of power |p/q| < 1 (root_step) */
+    const OpPow *op = rt->ops[0].op;
+    return op->kind == OPK_DECL && ((op->q == 1 && op->p >= 1) || (op->q > 1 && labs(op->p) < op->q));
+  }
+  if (rt->nops < 2 || rt->nops > ESTIMATE_OPS_MAX) return false;
+  for (int k = 0; k < rt->nops; k++) {
+    const OpPow *op = rt->ops[k].op;
+    if (op->kind != OPK_DECL || op->q != 1 || !(op->p >= 1 || op->p == -1)) return false;
+  }
+  return true;
+}
+
+void estimate_chain_layout(const Model *m, int i, int t, ChainLayout *L) {
+  const RTerm *rt = &m->stages[i].terms[t];
+  long my = qm(m, m->stages[i].q), off = L->nnum = estimate_term_num_dim(m, i, t);
+  for (int k = -1; k < rt->nops; k++) /* the numerator or an applied M^1 right before an inverse: its operand's producer */
+    L->joins[k + 1] = (k < 0 || rt->ops[k].op->p == 1) && k + 1 < rt->nops && rt->ops[k + 1].op->p < 0 &&
+                      rt->ops[k + 1].op->q == 1;
+  for (int k = 0; k < rt->nops; k++) {
+    L->off[k] = off, L->len[k] = 0;
+    for (int g = 0; g < rt->ops[k].ntensors; g++) L->len[k] += my * rt->ops[k].t[g].cols;
+    off += L->len[k];
+    L->start[k] = rt->ops[k].op->p > 0 || !L->joins[k] ? L->off[k] : k == 0 ? 0 : L->off[k - 1];
+  }
+}
+
+long estimate_term_num_dim(const Model *m, int i, int t) {
   const RTerm *rt = &m->stages[i].terms[t];
   long d = 0;
-  if (rt->named_q >= 0) d = qm(m, rt->named_q);
-  else
-    for (int g = 0; g < rt->nnum; g++) d += rt->num[g].cols;
+  if (rt->named_q >= 0) return qm(m, rt->named_q);
+  for (int g = 0; g < rt->nnum; g++) d += rt->num[g].cols;
+  return d;
+}
+
+long estimate_term_dim(const Model *m, int i, int t) {
+  const RTerm *rt = &m->stages[i].terms[t];
+  long d = estimate_term_num_dim(m, i, t);
   for (int k = 0; k < rt->nops; k++)
     for (int g = 0; g < rt->ops[k].ntensors; g++) d += qm(m, m->stages[i].q) * rt->ops[k].t[g].cols;
   return d;
@@ -130,45 +170,68 @@ static void clear_carried(Estimation *s) {
   s->ncarried = 0;
 }
 
+/* ‖R_b z_b‖ for the diagonal block b = [off, off + len) of term rt's table (the whole of it: 0, est_D), z
+ * in s->z, s->Gz its scratch (the same entries); *roundoff when below the roundoff of the expansion (the
+ * figure is then that level). n: the stage's full size. */
+static double table_norm(const RTerm *rt, long off, long len, long n, Estimation *s, bool *roundoff) {
+  long D = rt->est_D;
+  const double *R = rt->est_G + off * D + off, *cn = rt->est_G + D * D + off, *z = s->z + off;
+  double *Rz = s->Gz + off;
+  memcpy(Rz, z, sizeof(double) * (size_t)len);
+  cblas_dtrmv(CblasRowMajor, CblasUpper, CblasNoTrans, CblasNonUnit, (int)len, R, (int)D, Rz, 1);
+  double res = cblas_dnrm2((int)len, Rz, 1), a = 0, b = 0;
+  for (long i = 0; i < len; i++) a += fabs(z[i]) * cn[i];
+  /* the projected columns carry about ε‖C_i‖ each; the QR's backward error about (√n + D) ε of each column. R's
+   * column i is the projected column's (a projection by an orthonormal basis: ‖R_i‖ ≤ ‖C_i‖), so b ≤ a, and
+   * a residual above the level with 2a for b is above the level: R's column norms (as many flops as the
+   * residual itself) are summed only near roundoff, the figure and its flag unchanged */
+  double grow = (sqrt((double)n) + (double)len) * DBL_EPSILON;
+  if (res > 8 * DBL_EPSILON * a + grow * 2 * a) return *roundoff = false, res;
+  for (long i = 0; i < len; i++) b += fabs(z[i]) * cblas_dnrm2((int)(i + 1), R + i, (int)D);
+  double level = 8 * DBL_EPSILON * a + grow * b;
+  *roundoff = !(res > level);
+  return *roundoff ? level : res;
+}
+
+/* The numerator's part of z_t (its first estimate_term_num_dim entries) into s->z. */
+static void numerator_monomials(Reduced *r, const RTerm *rt, Estimation *s) {
+  const Model *m = reduced_model(r);
+  double *const *x = reduced_all_coords(r);
+  long off = 0;
+  if (rt->named_q >= 0) {
+    memcpy(s->z, x[rt->named_q], sizeof(double) * (size_t)qm(m, rt->named_q));
+    return;
+  }
+  for (int g = 0; g < rt->nnum; g++) {
+    estimate_input_product(m, x, &rt->num[g], s->z + off, s->pack);
+    off += rt->num[g].cols;
+  }
+}
+
+/* The part of z_t of operator k of term rt, v ⊗ each tensor's packed input product (v: my entries), into
+ * s->z from entry `off`; returns the entry after it. */
+static long operator_monomials(Reduced *r, const RTerm *rt, int k, const double *v, long my, long off, Estimation *s) {
+  const Model *m = reduced_model(r);
+  for (int g = 0; g < rt->ops[k].ntensors; g++) {
+    const RTensor *t = &rt->ops[k].t[g];
+    estimate_input_product(m, reduced_all_coords(r), t, s->Gz, s->pack);
+    for (long a = 0; a < my; a++)
+      for (long c = 0; c < t->cols; c++) s->z[off + a * t->cols + c] = v[a] * s->Gz[c];
+    off += my * t->cols;
+  }
+  return off;
+}
+
 /* ‖r_t‖ of term `rt` (of a stage of full size n, basis size my) with its
  * value ŷ_t in s->v; *roundoff when below the roundoff of the expansion
  * (the figure is then that level). */
 static double residual_norm(Reduced *r, const RTerm *rt, long n, long my, Estimation *s, bool *roundoff) {
   const Model *m = reduced_model(r);
-  double *const *x = reduced_all_coords(r);
-  long D = rt->est_D, off = 0;
-  if (rt->named_q >= 0) {
-    memcpy(s->z, x[rt->named_q], sizeof(double) * (size_t)qm(m, rt->named_q));
-    off = qm(m, rt->named_q);
-  } else {
-    for (int g = 0; g < rt->nnum; g++) {
-      estimate_input_product(m, x, &rt->num[g], s->z + off, s->pack);
-      off += rt->num[g].cols;
-    }
-  }
-  for (int k = 0; k < rt->nops; k++)
-    for (int g = 0; g < rt->ops[k].ntensors; g++) {
-      const RTensor *t = &rt->ops[k].t[g];
-      estimate_input_product(m, x, t, s->Gz, s->pack);
-      for (long a = 0; a < my; a++)
-        for (long c = 0; c < t->cols; c++) s->z[off + a * t->cols + c] = s->v[a] * s->Gz[c];
-      off += my * t->cols;
-    }
-  const double *R = rt->est_G, *cn = rt->est_G + D * D;
-  memcpy(s->Gz, s->z, sizeof(double) * (size_t)D);
-  cblas_dtrmv(CblasRowMajor, CblasUpper, CblasNoTrans, CblasNonUnit, (int)D, R, (int)D, s->Gz, 1);
-  double res = cblas_dnrm2((int)D, s->Gz, 1), a = 0, b = 0;
-  for (long i = 0; i < D; i++) a += fabs(s->z[i]) * cn[i];
-  /* the projected columns carry about ε‖C_i‖ each; the QR's backward error about (√n + D) ε of each column. R's
-   * column i is the projected column's (a projection by an orthonormal basis: ‖R_i‖ ≤ ‖C_i‖), so b ≤ a, and
-   * a residual above the level with 2a for b is above the level: R's column norms (as many flops as the
-   * residual itself) are summed only near roundoff, the figure and its flag unchanged */
-  double grow = (sqrt((double)n) + (double)D) * DBL_EPSILON;
-  if (res > 8 * DBL_EPSILON * a + grow * 2 * a) return *roundoff = false, res;
-  for (long i = 0; i < D; i++) b += fabs(s->z[i]) * cblas_dnrm2((int)(i + 1), R + i, (int)D);
-  double level = 8 * DBL_EPSILON * a + grow * b;
-  *roundoff = !(res > level);
-  return *roundoff ? level : res;
+  numerator_monomials(r, rt, s);
+  long off = rt->named_q >= 0 ? qm(m, rt->named_q) : 0;
+  for (int g = 0; rt->named_q < 0 && g < rt->nnum; g++) off += rt->num[g].cols;
+  for (int k = 0; k < rt->nops; k++) off = operator_monomials(r, rt, k, s->v, my, off, s);
+  return table_norm(rt, 0, rt->est_D, n, s, roundoff);
 }
 
 /* σ_min of the my x my matrix M (destroyed); NaN if LAPACK fails. A symmetric positive definite
@@ -389,6 +452,149 @@ static double carry_factor(const Model *m, int q, const RTerm *rt) {
   return rt->est_carry > 0 ? rt->est_carry : NAN;
 }
 
+/* Operator k of a chained term (estimate_term_chains) as the evaluation applied it. */
+typedef struct ChainOp {
+  const RTerm *rt;
+  int t, k;               /* the term's number (for messages), the operator's */
+  const ReducedKept *kp;  /* its M̂ and chain of steps, kept by reduced_eval */
+  long my, n;             /* the stage's basis size and full size */
+} ChainOp;
+
+/* The figure of the operator that multiplies the error before it (an applied M: ‖M‖₂ ≈ c ‖M̂‖₂, c ≥ 1 since
+ * ‖BᵀMB‖₂ ≤ ‖M‖₂ for an orthonormal B) or divides it (an inverse: σ_min(M) ≈ c σ_min(M̂)), c the ratio at
+ * training samples (estimate_term_chains). NaN with f->why when training measured none or LAPACK failed. */
+static double operator_figure(const ChainOp *o, Estimation *s, Figure *f) {
+  const RTerm *rt = o->rt;
+  bool inverse = rt->ops[o->k].op->p < 0;
+  double c = rt->nops == 1 ? rt->est_sigma : rt->est_opc ? rt->est_opc[o->k] : NAN, v;
+  if (isnan(c))
+    return snprintf(f->why, sizeof f->why, "no measure of %s for operator %d of term %d (training found it %s at a "
+                    "sample, or its rows exceed %d, the sparse limit)", inverse ? "σ_min" : "‖M‖", o->k + 1, o->t + 1,
+                    inverse ? "singular" : "zero", ESTIMATE_SPARSE_MAX), NAN;
+  if (o->my == 0) return inverse ? INFINITY : 0;
+  if (inverse) {
+    memcpy(s->M, o->kp->M, sizeof(double) * (size_t)(o->my * o->my)); /* sigma_min destroys it */
+    v = sigma_min(s->M, o->my, s);
+  } else {
+    v = top_singular(o->kp->M, o->my, o->my, s->M2, s->sv);
+  }
+  if (!(inverse ? v > 0 : v >= 0))
+    return snprintf(f->why, sizeof f->why, "operator %d of term %d: its reduced matrix's %s is %.3g (LAPACK)",
+                    o->k + 1, o->t + 1, inverse ? "σ_min" : "norm", v), NAN;
+  return c * v;
+}
+
+/* Nodes per unit of ln s in root_step's quadrature, and the decades it covers beyond M̂'s spectrum on each side
+ * (the tails beyond from the limits of ‖r(s)‖). The integrand is smooth in ln s, and the trapezoidal rule
+ * converges geometrically there: on tests/cli/estimate_apply.py's roots (κ(M̂) about 10) these figures agree
+ * with 16 nodes a unit over 8 decades to 1.2e-4 of the figure (2 nodes a unit: 2.2e-4), at 65 nodes. */
+#define ROOT_NODES_PER_UNIT 4
+#define ROOT_DECADES 3
+
+/* The step of a root (estimate_term_chains: M declared, symmetric positive definite as a root's must be, α =
+ * p/q, 0 < |α| < 1) from v to M̂^α v, e the error of v. The integral representations (Balakrishnan's)
+ *   M^α = (sin απ/π) ∫₀^∞ s^{α−1} M (s + M)⁻¹ ds  (0 < α < 1),   M^α = (sin |α|π/π) ∫₀^∞ s^α (s + M)⁻¹ ds  (−1 < α < 0)
+ * hold for M̂ as well, so that (with M(s + M)⁻¹ = I − s(s + M)⁻¹ for the first) in both cases
+ *   M^α B v − B M̂^α v = ∓ (sin |α|π/π) ∫₀^∞ s^α (s + M)⁻¹ r(s) ds,   r(s) = B v − (s + M) B ŷ_s,
+ * ŷ_s = (s + M̂)⁻¹ v the Galerkin solution of the shifted system: Bᵀr(s) = 0, so r(s) = −(I − BBᵀ) M B ŷ_s, the
+ * operator's block of the table at ŷ_s, and ‖(s + M)⁻¹‖ ≤ 1/(s + λ_min(M)). The figure is
+ *   ‖M^α‖ e + (sin |α|π/π) ∫₀^∞ s^α ‖r(s)‖ / (s + λ) ds,
+ * λ the min-θ bound or c λ_min(M̂) (the term's ratio), ‖M^α‖ = λ^α (α < 0) or λ_max(M̂)^α (α > 0: the reduced
+ * Jacobian's, as the propagation's), the integral by the trapezoidal rule in ln s over M̂'s spectrum widened by
+ * ROOT_DECADES each side, ŷ_s from M̂'s eigendecomposition (O(m²) a node), the tails beyond from ‖r(s)‖'s limits
+ * (constant as s → 0, ‖(I − BBᵀ) M B v‖ / s as s → ∞). NaN with f->why. */
+static double root_step(Reduced *r, const ChainOp *o, const ChainLayout *L, double e, Estimation *s, Figure *f) {
+  const RTerm *rt = o->rt;
+  long my = o->my;
+  double alpha = (double)rt->ops[0].op->p / (double)rt->ops[0].op->q, *lam = s->sv, *vt = s->sv + my, lmin;
+  f->flags &= ~EST_BOUND; /* a ratio and a quadrature enter */
+  if (my == 0) return alpha < 0 ? 0 : e;
+  memcpy(s->M, o->kp->M, sizeof(double) * (size_t)(my * my));
+  if (LAPACKE_dsyev(LAPACK_ROW_MAJOR, 'V', 'U', (int)my, s->M, (int)my, lam) != 0 || !(lam[0] > 0))
+    return snprintf(f->why, sizeof f->why, "term %d's reduced operator is not positive definite (LAPACK's smallest "
+                    "eigenvalue %.3g): a root's estimate needs it", o->t + 1, lam[0]), NAN;
+  double theta = theta_bound(r, rt);
+  if (!(theta > 0) && isnan(rt->est_sigma))
+    return snprintf(f->why, sizeof f->why, "no measure of σ_min for term %d's operator (training found it singular "
+                    "at a sample, or its rows exceed %d, the sparse limit)", o->t + 1, ESTIMATE_SPARSE_MAX), NAN;
+  lmin = theta > 0 ? theta : rt->est_sigma * lam[0];
+  double out = e > 0 ? e * pow(alpha < 0 ? lmin : lam[my - 1], alpha) : 0, sum = 0, rho = 0;
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)my, (int)my, 1.0, s->M, (int)my, o->kp->chain, 1, 0.0, vt, 1);
+  double ulo = log(fmin(lmin, lam[0])) - ROOT_DECADES * M_LN10, uhi = log(lam[my - 1]) + ROOT_DECADES * M_LN10;
+  long K = (long)ceil((uhi - ulo) * ROOT_NODES_PER_UNIT);
+  double h = (uhi - ulo) / (double)K, rho_lo = 0;
+  bool part;
+  for (long k = 0; k <= K; k++) {
+    double u = ulo + h * (double)k, sn = exp(u);
+    for (long a = 0; a < my; a++) s->Gz[a] = vt[a] / (lam[a] + sn); /* ŷ_s = Q (Λ + s)⁻¹ Qᵀ v */
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)my, (int)my, 1.0, s->M, (int)my, s->Gz, 1, 0.0, s->v, 1);
+    operator_monomials(r, rt, 0, s->v, my, L->off[0], s);
+    rho = table_norm(rt, L->off[0], L->len[0], o->n, s, &part);
+    if (k == 0) rho_lo = rho;
+    sum += (k == 0 || k == K ? 0.5 : 1.0) * exp((alpha + 1) * u) * rho / (sn + lmin);
+  }
+  double slo = exp(ulo), shi = exp(uhi); /* the tails: ‖r‖ constant below s_lo, ∝ 1/s above s_hi */
+  double tails = rho_lo * pow(slo, alpha + 1) / ((alpha + 1) * lmin) + rho * pow(shi, alpha) / (1 - alpha);
+  return out + sin(fabs(alpha) * M_PI) / M_PI * (h * sum + tails);
+}
+
+/* Term t of stage i, chained operator by operator (estimate_term_chains, its ChainLayout): e = the numerator's
+ * own projection error (its block; none for a named numerator of the class: its coordinates are exact) plus
+ * `carried` (a named numerator's estimate), then, innermost operator first, each step of an applied M from v
+ * gives e ← ‖M‖ e + ‖(I − BBᵀ) M B v‖ and an inverse to v' gives e ← (e + ‖r‖) / σ_min(M), r its operand's
+ * Galerkin residual (the producer's columns joined), v and v' the evaluation's kept chain. The figure into
+ * f->est; f->flags loses EST_BOUND where a ratio (an estimate) enters and gains EST_ROUNDOFF when every residual
+ * is at roundoff. -1 with f->why. */
+static int chain_figure(Reduced *r, int i, int t, Estimation *s, double carried, Figure *f) {
+  const Model *m = reduced_model(r);
+  const RStage *rs = &m->stages[i];
+  const RTerm *rt = &rs->terms[t];
+  long my = qm(m, rs->q), n = m->classes[m->qclass[rs->q]].n;
+  ChainLayout L;
+  estimate_chain_layout(m, i, t, &L);
+  bool roundoff = true, part;
+  double e = carried;
+  if (!L.joins[0] && (rt->named_q < 0 || rt->proj)) {
+    numerator_monomials(r, rt, s);
+    e += table_norm(rt, 0, L.nnum, n, s, &part);
+    roundoff = part;
+  }
+  const ReducedKept *prev = NULL;
+  for (int k = 0; k < rt->nops; k++) {
+    ChainOp o = {rt, t, k, reduced_kept(r, i, t, k), my, n};
+    if (!o.kp)
+      return snprintf(f->why, sizeof f->why, "term %d's reduced operators are not kept from the evaluation (its "
+                      "inputs changed since?)", t + 1), -1;
+    if (rt->ops[k].op->q != 1) { /* a root: the term's one operator */
+      if (isnan(e = root_step(r, &o, &L, e, s, f))) return -1;
+      roundoff = false;
+      continue;
+    }
+    long p = rt->ops[k].op->p;
+    double c = NAN;
+    for (long j = 0; j < (p > 0 ? p : 1); j++) {
+      if ((p < 0 || e > 0) && isnan(c) && isnan(c = operator_figure(&o, s, f))) return -1;
+      if (p < 0 || e > 0) f->flags &= ~EST_BOUND; /* a ratio measured at training samples enters */
+      double res = 0;
+      if (p < 0 || !L.joins[k + 1]) { /* an applied M joined with the inverse after it has its residual there */
+        if (p < 0 && L.start[k] == 0) numerator_monomials(r, rt, s);
+        if (p < 0 && k > 0 && L.start[k] == L.off[k - 1]) { /* g = M B v_prev: +, against the block's −M B */
+          operator_monomials(r, rt, k - 1, prev->chain, my, L.off[k - 1], s);
+          cblas_dscal((int)L.len[k - 1], -1.0, s->z + L.off[k - 1], 1);
+        }
+        operator_monomials(r, rt, k, o.kp->chain + (p > 0 ? j : 1) * my, my, L.off[k], s);
+        res = table_norm(rt, L.start[k], L.off[k] + L.len[k] - L.start[k], n, s, &part);
+        roundoff = roundoff && part;
+      }
+      e = p < 0 ? (e + res) / c : (e > 0 ? c * e : 0) + res;
+    }
+    prev = o.kp;
+  }
+  if (roundoff) f->flags |= EST_ROUNDOFF;
+  f->est = e;
+  return 0;
+}
+
 /* The estimate of stage number i into e (err, flags, why_q of its quantity). */
 static int stage_figure(Reduced *r, int i, Estimation *s, Figure *f) {
   double *sump = &f->est;
@@ -434,6 +640,12 @@ static int stage_figure(Reduced *r, int i, Estimation *s, Figure *f) {
       }
       flags |= e->flags[rt->named_q] & (EST_OUTSIDE | EST_ROUNDOFF);
       if (!(e->flags[rt->named_q] & EST_BOUND)) flags &= ~EST_BOUND;
+    }
+    if (estimate_term_chains(rt)) {
+      Figure a = {0, flags, ""};
+      if (chain_figure(r, i, t, s, carried, &a)) return snprintf(why, whylen, "%s", a.why), *flagsp = flags, -1;
+      sum += a.est, flags = a.flags;
+      continue;
     }
     /* ŷ_t: a stage of one term holds it (the evaluation's sum of one term), not solved again here; M, when
      * σ_min needs it, assembled below */
@@ -558,6 +770,15 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
 
 static void est_name(char *buf, size_t n, const char *stage, int t) { snprintf(buf, n, "est_%s_t%d", stage, t); }
 
+/* "estops STAGE T c_1 … c_K": a term of several operators' ratios (RTerm.est_opc), after its estimate line. */
+static int save_opc(const RTerm *rt, const char *stage, int t, ModelStore *s) {
+  if (!rt->est_opc || rt->nops > ESTIMATE_OPS_MAX) return 0; /* training measures none above */
+  char line[32 * (ESTIMATE_OPS_MAX + 1)];
+  int used = 0;
+  for (int k = 0; k < rt->nops; k++) used += snprintf(line + used, sizeof line - (size_t)used, " %.17g", rt->est_opc[k]);
+  return model_store_meta(s, "estops %s %d%s", stage, t, line);
+}
+
 int estimate_save(const Model *m, ModelStore *s) {
   int bad = 0;
   char name[600];
@@ -571,6 +792,7 @@ int estimate_save(const Model *m, ModelStore *s) {
       long shape[2] = {rt->est_D + 1, rt->est_D};
       bad |= model_store_add(s, name, 2, shape, rt->est_G);
       if (rt->est_carry > 0) bad |= model_store_meta(s, "carry %s %d factor %.17g", sn, t, rt->est_carry);
+      bad |= save_opc(rt, sn, t, s);
       if (!rt->est_theta || rt->est_theta_k < 1) continue;
       bad |= model_store_meta(s, "theta %s %d input %s anchors %d", sn, t, qname(m, rt->est_theta_q), rt->est_theta_k);
       snprintf(name, sizeof name, "theta_%s_t%d", sn, t);
@@ -694,6 +916,31 @@ static int load_carry_line(Model *m, const char *line, const char *dir, Err *err
                  dir, line);
 }
 
+/* "estops STAGE T c_1 … c_K": the ratios of a chained term of K ≥ 2 operators with a table (after its line). */
+static int load_opc_line(Model *m, const char *line, const char *dir, Err *err) {
+  char stage[512];
+  int t, used = 0;
+  bool ok = sscanf(line, "estops %511s %d%n", stage, &t, &used) == 2;
+  for (int i = 0; ok && i < m->nstages; i++) {
+    if (strcmp(m->stages[i].st->sym->name, stage) != 0) continue;
+    RTerm *rt = t >= 0 && t < m->stages[i].nterms ? &m->stages[i].terms[t] : NULL;
+    if (!rt || !rt->est_G || rt->nops < 2 || !estimate_term_chains(rt)) break;
+    free(rt->est_opc);
+    if (!(rt->est_opc = malloc(sizeof(double) * (size_t)rt->nops))) return err_set(err, "%s: out of memory", dir);
+    const char *p = line + used;
+    for (int k = 0; k < rt->nops; k++) {
+      char *end;
+      rt->est_opc[k] = strtod(p, &end);
+      if (end == p || !(isnan(rt->est_opc[k]) || rt->est_opc[k] > 0)) ok = false;
+      p = end;
+    }
+    if (!ok || *p) break;
+    return 0;
+  }
+  return err_set(err, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
+                 dir, line);
+}
+
 int estimate_load(Model *m, const ModelStore *s, const char *dir, Err *err) {
   for (int i = 0; i < s->nmeta; i++) {
     const char *line = s->meta[i];
@@ -701,6 +948,7 @@ int estimate_load(Model *m, const ModelStore *s, const char *dir, Err *err) {
     if (strncmp(line, "range ", 6) == 0 && load_range_line(m, s, line, dir, err)) return -1;
     if (strncmp(line, "theta ", 6) == 0 && load_theta_line(m, s, line, dir, err)) return -1;
     if (strncmp(line, "carry ", 6) == 0 && load_carry_line(m, line, dir, err)) return -1;
+    if (strncmp(line, "estops ", 7) == 0 && load_opc_line(m, line, dir, err)) return -1;
   }
   return 0;
 }

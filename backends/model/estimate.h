@@ -39,7 +39,12 @@
  * own figure is its formula's residual at the fit's entries and at check
  * entries drawn from the others (interp_check), as is a Galerkin stage's of
  * diagonal operators whose terms lack tables (roots, several operators).
- * Externs and roots or products of declared ops have none. */
+ * An operator application y = M^p w, or a term of several declared operators (estimate_term_chains),
+ * chains each operator's projection residual ‖(I − BBᵀ) M B v‖ (exact, its own block of the table)
+ * through the steps, the error before each step multiplied by ‖M‖ or divided by σ_min(M)
+ * (estimated from training samples). A root M^α w (0 < |α| < 1) integrates the same residual of the
+ * shifted systems (s + M̂)⁻¹ŵ over s (estimate.c's root_step). Externs, other roots of declared ops
+ * and terms of several operators with a root among them have none. */
 #ifndef NPG_ESTIMATE_H
 #define NPG_ESTIMATE_H
 
@@ -64,6 +69,9 @@
  * block, 30 samples) the estimate's tables took 2 s of training's CPU time (1.6 s → 3.5 s). */
 #define ESTIMATE_DENSE_MAX 800
 #define ESTIMATE_SPARSE_MAX 500000
+/* A term of several operators gets its ratios (one manifest line, estops) for at most this many: one of more has
+ * no estimate. */
+#define ESTIMATE_OPS_MAX 64
 /* The min-θ bound's input has at most this many entries (θ_j = x_j). */
 #define ESTIMATE_THETA_MAX 64
 /* Training samples whose operator σ_min is measured, spread over the set. */
@@ -80,6 +88,33 @@
 bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n);
 /* D, the length of z_t (above) for term `t` of stage `i`. */
 long estimate_term_dim(const Model *m, int i, int t);
+/* Whether term `rt`'s figure is chained operator by operator: one declared operator applied to a
+ * positive integer power, y_t = M^p w_t (an operator application), or to a power p/q with 0 < |p/q|
+ * < 1 (a root: its step is root_step's quadrature, its ratio σ_min's), or up to ESTIMATE_OPS_MAX
+ * declared operators, each to a positive integer power or inverted (M^p K⁻¹ w_t, applied right to
+ * left). Its table is block diagonal (ChainLayout): R of the QR of each block of projected columns
+ * apart — the numerator's (w_t's own projection error), each applied operator's ((I − BBᵀ) M B ⊗
+ * its tensors' monomials), and each inverse's, joined with what produced its operand (the
+ * numerator, or an applied operator of power 1): the Galerkin residual of that operand, as an
+ * inverse term's. Per operator a ratio c_k at training samples: the largest ‖M‖₂/‖BᵀMB‖₂ of an
+ * applied one, the smallest σ_min(M)/σ_min(BᵀMB) of an inverted one (est_sigma for a term of one
+ * operator, est_opc for several; NaN: not measured). Online, from e = the numerator's error, each
+ * step of an applied M from v to M̂v gives e ← ‖M‖ e + ‖(I − BBᵀ) M B v‖ (the second part in the
+ * next inverse's residual when joined), ‖M‖ ≈ c ‖M̂‖₂, and each inverse from v to v' = M̂⁻¹v gives
+ * e ← (e + ‖r‖) / σ_min(M), r = (I − BBᵀ)(g − M B v'), g the operand's full-space producer, σ_min ≈
+ * c σ_min(M̂): an estimate, exact only for y = M w of an exact numerator (no ratio enters). */
+bool estimate_term_chains(const RTerm *rt);
+/* A chained term's columns: the numerator's [0, nnum), operator k's [off[k], off[k] + len[k]); an
+ * inverse's block starts at start[k] (0: the numerator's, off[k − 1]: the applied operator of power
+ * 1 before it, whose columns it joins; else off[k]); `joins[k + 1]`: the numerator (k = −1) or
+ * applied operator k is joined with the inverse after it, and has no block of its own. */
+typedef struct ChainLayout {
+  long nnum, off[ESTIMATE_OPS_MAX], len[ESTIMATE_OPS_MAX], start[ESTIMATE_OPS_MAX];
+  bool joins[ESTIMATE_OPS_MAX + 1];
+} ChainLayout;
+void estimate_chain_layout(const Model *m, int i, int t, ChainLayout *L);
+/* The numerator's part of z_t: a named numerator's m, or the numerator tensors' columns. */
+long estimate_term_num_dim(const Model *m, int i, int t);
 /* A term's residual table is built in training when its columns (n x D doubles, in memory while
  * it is made) and their R (D x D, kept in the model) take at most ESTIMATE_MAX_BYTES together; a
  * larger term gets no table, and its evaluations say so with both figures. A bound in bytes, not in
@@ -117,7 +152,8 @@ bool estimate_outside(const Model *m, int q, const double *coords, long *coord);
 
 /* The estimate tables to and from MODEL/: lines `estimate STAGE TERM dim D
  * sigma C qr`, arrays est_STAGE_tTERM ((D + 1) x D: R_t, then the unprojected
- * columns' norms, for the roundoff level), `range Q` lines with arrays
+ * columns' norms, for the roundoff level), for a term of several operators `estops STAGE TERM c_1 …
+ * c_K` (its ratios, estimate_term_chains), `range Q` lines with arrays
  * range_Q (2 x m: each coordinate's min, then max). A model without them
  * has no estimates; a line that does not match the layout is refused. */
 int estimate_save(const Model *m, ModelStore *s);

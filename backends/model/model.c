@@ -250,6 +250,7 @@ void model_free(Model *m) {
       free(rt->ops);
       free(rt->est_G);
       free(rt->est_theta);
+      free(rt->est_opc);
     }
     free(rs->terms);
     interp_free(rs->interp);

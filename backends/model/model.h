@@ -83,6 +83,10 @@ typedef struct RTerm {
    * the numerator's has a product (the norms differ: estimate_product.c); 0: not measured (no
    * estimate then), and unused when neither class has a product (the factor is 1) */
   double est_carry;
+  /* a term of several operators (estimate_term_chains): per operator, c = the largest ‖M‖/‖BᵀMB‖ (an
+   * application) or the smallest σ_min(M)/σ_min(BᵀMB) (an inverse) at training samples; NaN: unknown
+   * (nops entries, owned; NULL for a term of one operator, whose c is est_sigma) */
+  double *est_opc;
 } RTerm;
 
 /* Every tensor x of term `rt`: its numerator's, then each operator's in

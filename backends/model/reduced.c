@@ -636,7 +636,7 @@ static int apply_power(Reduced *r, const OpAt *o, double *v, ReducedKept *kp) {
   if (n == 0) return 0;
   if (kp) {
     memcpy(kp->chain, v, sizeof(double) * (size_t)n);
-    if (op->q != 1 || op->p > 0) memcpy(kp->M, r->M, sizeof(double) * (size_t)n * (size_t)n);
+    memcpy(kp->M, r->M, sizeof(double) * (size_t)n * (size_t)n); /* an inverse's too: the estimate's σ_min */
   }
   if (op->q == 1 && op->p > 0) {
     for (long i = 0; i < op->p; i++) {

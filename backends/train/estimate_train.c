@@ -34,6 +34,7 @@
 
 #include "dist.h"
 #include "estimate_steps.h"
+#include "scratch.h"
 
 /* The sink filling one tensor's block of the columns: entries arrive as
  * (row, col, input offsets, coefficient). */
@@ -121,6 +122,35 @@ static int qr_factor(double *C, long n, long D, double *R) {
   return 0;
 }
 
+/* A chained term's table (estimate_term_chains): R (D x D, row-major, zero off its diagonal blocks) of the QRs
+ * of C's column blocks apart (term t of stage i's ChainLayout: the numerator's, each applied operator's, each
+ * inverse's joined with its operand's producer), so that
+ * each part's norm ‖R_b z_b‖ is found alone: online they are chained with ‖M‖ or σ_min(M) between them, not
+ * summed in one residual. C (n x D row-major) is left as is. 0, or -1 when LAPACK fails or memory runs out. */
+static int qr_blocks(const Model *m, int i, int t, const double *C, long n, double *R) {
+  const RTerm *rt = &m->stages[i].terms[t];
+  long D = estimate_term_dim(m, i, t), b[2 * ESTIMATE_OPS_MAX + 2];
+  int nb = 0;
+  ChainLayout L;
+  estimate_chain_layout(m, i, t, &L);
+  if (!L.joins[0]) b[nb++] = 0, b[nb++] = L.nnum;
+  for (int k = 0; k < rt->nops; k++)
+    if (rt->ops[k].op->p < 0 || !L.joins[k + 1]) b[nb++] = L.start[k], b[nb++] = L.off[k] + L.len[k];
+  Scratch sc = SCRATCH_OF(NULL);
+  double *T = scratch_array(&sc, (size_t)(n * D) + 1, sizeof(double)), *Rb = scratch_array(&sc, (size_t)(D * D) + 1,
+                                                                                           sizeof(double));
+  int out = T && Rb ? 0 : -1;
+  for (int k = 0; out == 0 && k < nb; k += 2) {
+    long off = b[k], len = b[k + 1] - b[k];
+    if (len == 0) continue;
+    for (long row = 0; row < n; row++) memcpy(T + row * len, C + row * D + off, sizeof(double) * (size_t)len);
+    out = qr_factor(T, n, len, Rb);
+    for (long a = 0; out == 0 && a < len; a++) memcpy(R + (off + a) * D + off, Rb + a * len, sizeof(double) * (size_t)len);
+  }
+  scratch_release(&sc);
+  return out;
+}
+
 /* Term t of stage i: its columns, their norms and R of the projected columns into rt->est_G. In a
  * class with a product K0 the columns are first replaced by L⁻¹PC and B by L⁻¹P K0B
  * (estimate_product_columns): R then gives the residual's dual norm ‖r‖_{K0⁻¹}. */
@@ -166,7 +196,7 @@ static int term_table(Model *m, Full *f, const SampleSource *src, int i, int t, 
     err_set(err, "estimate tables: out of memory projecting stage %s", rs->st->sym->name);
     goto done;
   }
-  if (qr_factor(s.C, n, D, G)) {
+  if (estimate_term_chains(rt) ? qr_blocks(m, i, t, s.C, n, G) : qr_factor(s.C, n, D, G)) {
     err_set(err, "estimate tables: the QR of stage %s's residual columns failed (LAPACK)", rs->st->sym->name);
     goto done;
   }
@@ -233,6 +263,21 @@ static double smallest_sv(double *A, long n, double *sv) {
   return info == 0 ? sv[n - 1] : NAN;
 }
 
+/* ‖A‖₂ of the n x n row-major A (destroyed): a symmetric A's largest eigenvalue magnitude (dsyevr, values
+ * alone), anything else dgesvd's largest singular value; NaN if LAPACK fails. `sv` holds 2n doubles. */
+static double largest_sv(double *A, long n, double *sv) {
+  double big = 0, asym = 0;
+  for (long i = 0; i < n; i++)
+    for (long j = 0; j < n; j++) big = fmax(big, fabs(A[i * n + j])), asym = fmax(asym, fabs(A[i * n + j] - A[j * n + i]));
+  lapack_int found = 0, isuppz[2];
+  if (asym <= 1e-14 * big && LAPACKE_dsyevr(LAPACK_ROW_MAJOR, 'N', 'A', 'U', (int)n, A, (int)n, 0, 0, 0, 0, 0, &found,
+                                            sv, NULL, 1, isuppz) == 0 && found == n)
+    return n > 0 ? fmax(fabs(sv[0]), fabs(sv[n - 1])) : 0;
+  lapack_int info = LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'N', 'N', (int)n, (int)n, A, (int)n, sv, NULL, 1, NULL, 1,
+                                   sv + n);
+  return info == 0 ? (n > 0 ? sv[0] : 0) : NAN;
+}
+
 /* The full operator's entries as triplets (row, col, value), duplicates summed later. */
 typedef struct TripSink {
   const double *in[64];
@@ -287,16 +332,31 @@ done:
   return A;
 }
 
+/* y = AᵀA x for the sparse n x n A (CHOLMOD's compressed columns); tmp: n doubles. */
+static void forward_apply(const cholmod_sparse *A, const double *x, double *y, double *tmp, long n) {
+  const SuiteSparse_long *Ap = A->p, *Ai = A->i;
+  const double *Ax = A->x;
+  memset(tmp, 0, sizeof(double) * (size_t)n);
+  for (long j = 0; j < n; j++)
+    for (SuiteSparse_long p = Ap[j]; p < Ap[j + 1]; p++) tmp[Ai[p]] += Ax[p] * x[j];
+  for (long j = 0; j < n; j++) {
+    double v = 0;
+    for (SuiteSparse_long p = Ap[j]; p < Ap[j + 1]; p++) v += Ax[p] * tmp[Ai[p]];
+    y[j] = v;
+  }
+}
+
 /* The operator Lanczos runs on: K⁻¹ (CHOLMOD's Cholesky of an SPD K) or K⁻¹K⁻ᵀ = (KᵀK)⁻¹ (UMFPACK's LU). */
 typedef struct InvOp {
   cholmod_common *cc;
   cholmod_factor *L;        /* SPD: the Cholesky factor */
-  const cholmod_sparse *A;  /* otherwise: the LU's matrix */
+  const cholmod_sparse *A;  /* otherwise: the LU's matrix (without an LU, numeric NULL: AᵀA itself, forward_apply) */
   void *numeric;
   double *tmp;
 } InvOp;
 
 static int inv_apply(InvOp *o, double *x, double *y, long n) {
+  if (!o->L && !o->numeric) return forward_apply(o->A, x, y, o->tmp, n), 0;
   if (o->L) {
     cholmod_dense d = {0};
     d.nrow = (size_t)n, d.ncol = 1, d.nzmax = (size_t)n, d.d = (size_t)n, d.x = x;
@@ -392,6 +452,16 @@ double estimate_sparse_smallest_sv(cholmod_sparse *A, long n, cholmod_common *cc
   free(o.tmp);
   cholmod_l_free_sparse(&At, cc), cholmod_l_free_sparse(&Dif, cc), cholmod_l_free_sparse(&S, cc);
   return out;
+}
+
+/* ‖A‖₂ of the sparse n x n A: √λ_max(AᵀA) by Lanczos on AᵀA (lanczos_max: it errs high, as a norm that
+ * multiplies an error should). NaN on failure. */
+static double sparse_largest_sv(const cholmod_sparse *A, long n, cholmod_common *cc) {
+  Scratch sc = SCRATCH_OF(NULL);
+  InvOp o = {cc, NULL, A, NULL, scratch_array(&sc, (size_t)n + 1, sizeof(double))};
+  double lmax = o.tmp ? lanczos_max(&o, n) : NAN;
+  scratch_release(&sc);
+  return lmax >= 0 ? sqrt(lmax) : NAN;
 }
 
 /* Is the symmetric A positive semidefinite by diagonal dominance (a nonnegative diagonal at
@@ -494,8 +564,11 @@ static int affine_input(const EstWork *w, const RTerm *rt, long n) {
 }
 
 /* sig[0] = σ_min(M), sig[1] = σ_min(BᵀMB) of inverse term rt of `stage` at the evaluator's current values: M
- * assembled dense and decomposed by LAPACK up to ESTIMATE_DENSE_MAX rows, sparse above (estimate_sparse_smallest_sv). */
+ * assembled dense and decomposed by LAPACK up to ESTIMATE_DENSE_MAX rows, sparse above (estimate_sparse_smallest_sv).
+ * An applied operator's (a positive integer power): ‖M‖₂ and ‖BᵀMB‖₂ instead (largest_sv, sparse_largest_sv). rt's first
+ * operator is measured (a term of several operators is measured through a view of each, run_view). */
 static int term_sigmas(const EstWork *w, const RTerm *rt, const RClass *rc, const char *stage, double sig[2]) {
+  bool norm = rt->ops[0].op->p > 0 && rt->ops[0].op->q == 1;
   cholmod_common *cc = w->cc;
   long n = rc->n, my = rc->m;
   double *M = NULL, *T = calloc((size_t)(n * my) + 1, sizeof(double)), *R = malloc(sizeof(double) * (size_t)(my * my) + 1),
@@ -520,8 +593,13 @@ static int term_sigmas(const EstWork *w, const RTerm *rt, const RClass *rc, cons
   }
   cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, rc->B, (int)my, T, (int)my, 0.0, R,
               (int)my);
-  sig[0] = dense ? smallest_sv(M, n, sv) : estimate_sparse_smallest_sv(A, n, cc);
-  sig[1] = my > 0 ? smallest_sv(R, my, sv) : INFINITY;
+  if (norm) {
+    sig[0] = dense ? largest_sv(M, n, sv) : sparse_largest_sv(A, n, cc);
+    sig[1] = largest_sv(R, my, sv);
+  } else {
+    sig[0] = dense ? smallest_sv(M, n, sv) : estimate_sparse_smallest_sv(A, n, cc);
+    sig[1] = my > 0 ? smallest_sv(R, my, sv) : INFINITY;
+  }
   rc_ = 0;
 done:
   free(M), free(T), free(R), free(sv);
@@ -529,12 +607,13 @@ done:
   return rc_;
 }
 
-/* The measurement of the σ_min ratios: its terms (inverse terms with a table, of a class within the sparse limit
- * and without a product: a product's is its own table), the samples picked, and their records. */
+/* The measurement of the σ_min ratios: its terms (terms of one operator with a table, of a class within the sparse
+ * limit and without a product: a product's is its own table; and each operator of a term of several, chained:
+ * estimate_term_chains), the samples picked, and their records. */
 typedef struct SigmaRun {
   EstWork w;
   const SampleSource *src;
-  int (*terms)[2];          /* (stage, term) of each */
+  int (*terms)[3];          /* (stage, term, operator) of each: operator -1 for a term of one (its est_sigma) */
   int nt;
   long nk;                  /* picked samples: k_j = j (S − 1) / (nk − 1) */
   int rank, N;              /* sample k is rank k mod N's (over MPI ranks, as the snapshots are taken) */
@@ -545,6 +624,19 @@ typedef struct SigmaRun {
 #define SIGMA_REC (3 + ESTIMATE_THETA_MAX)
 
 static RTerm *run_term(const SigmaRun *s, int e) { return &s->w.m->stages[s->terms[e][0]].terms[s->terms[e][1]]; }
+/* The term measured by record e: the term itself, or a view of its one operator (into `view`). */
+static const RTerm *run_view(const SigmaRun *s, int e, RTerm *view) {
+  const RTerm *rt = run_term(s, e);
+  if (s->terms[e][2] < 0) return rt;
+  *view = *rt;
+  view->ops = &rt->ops[s->terms[e][2]], view->nops = 1;
+  return view;
+}
+/* Where record e's ratio goes: the term's est_sigma, or its operator's est_opc entry. */
+static double *run_ratio(const SigmaRun *s, int e) {
+  RTerm *rt = run_term(s, e);
+  return s->terms[e][2] < 0 ? &rt->est_sigma : &rt->est_opc[s->terms[e][2]];
+}
 static const RClass *run_class(const SigmaRun *s, int e) {
   return &s->w.m->classes[s->w.m->qclass[s->w.m->stages[s->terms[e][0]].q]];
 }
@@ -557,7 +649,9 @@ static int theta_detect(SigmaRun *s) {
   if (!q) return err_set(s->w.err, "estimate tables: out of memory");
   int out = 0;
   if (s->rank == 0 && s->nt > 0 && (out = train_eval_sample(s->src, s->w.f, 0, s->w.err)) == 0)
-    for (int e = 0; e < s->nt; e++) q[e] = affine_input(&s->w, run_term(s, e), run_class(s, e)->n);
+    for (int e = 0; e < s->nt; e++)
+      q[e] = s->terms[e][2] >= 0 || (estimate_term_chains(run_term(s, e)) && run_term(s, e)->ops[0].op->q == 1) ? -1
+                                                                         : affine_input(&s->w, run_term(s, e), run_class(s, e)->n);
   if (out == 0 && s->N > 1) dist_broadcast(q, s->nt, 0);
   for (int e = 0; out == 0 && e < s->nt; e++) {
     RTerm *rt = run_term(s, e);
@@ -579,7 +673,8 @@ static int sigma_records(SigmaRun *s) {
     if (k % s->N != s->rank) continue;
     if (train_eval_sample(s->src, s->w.f, k, s->w.err)) return -1;
     for (int e = 0; e < s->nt; e++) {
-      RTerm *rt = run_term(s, e);
+      RTerm view;
+      const RTerm *rt = run_view(s, e, &view);
       double *r = s->rec + ((long)e * s->nk + j) * SIGMA_REC;
       if (term_sigmas(&s->w, rt, run_class(s, e), s->w.m->stages[s->terms[e][0]].st->sym->name, r)) return -1;
       size_t nx = 0;
@@ -591,12 +686,14 @@ static int sigma_records(SigmaRun *s) {
   return 0;
 }
 
-/* The records folded in the order of the samples, as on one process: c = min of σ_min(M)/σ_min(BᵀMB), and an
- * anchor of the min-θ bound at each sample whose x̄ is positive (λ_min = σ_min of the SPD M(x̄)). */
+/* The records folded in the order of the samples, as on one process: c = min of σ_min(M)/σ_min(BᵀMB) (an
+ * applied operator's: the max of ‖M‖/‖BᵀMB‖), and an anchor of the min-θ bound at each sample whose x̄ is
+ * positive (λ_min = σ_min of the SPD M(x̄)). */
 static void sigma_fold(SigmaRun *s) {
   for (long j = 0; j < s->nk; j++)
     for (int e = 0; e < s->nt; e++) {
-      RTerm *rt = run_term(s, e);
+      RTerm *rt = run_term(s, e), view;
+      double *c = run_ratio(s, e);
       const double *r = s->rec + ((long)e * s->nk + j) * SIGMA_REC;
       bool anchor = rt->est_theta && r[2] == 1 && r[0] > 0;
       for (long a = 0; anchor && a < rt->est_theta_n; a++) anchor = r[3 + a] > 0;
@@ -606,9 +703,38 @@ static void sigma_fold(SigmaRun *s) {
         row[rt->est_theta_n] = r[0];
       }
       double ratio = r[0] / r[1];
+      const OpPow *op = run_view(s, e, &view)->ops[0].op;
+      if (op->p > 0 && op->q == 1) { /* the largest ‖M‖/‖BᵀMB‖ (M = 0: no ratio); a failed one: none */
+        if (r[0] == 0 && r[1] == 0) continue;
+        if (!(ratio > 0 && isfinite(ratio))) *c = 0;
+        else if (isnan(*c) || (*c > 0 && ratio > *c)) *c = ratio;
+        continue;
+      }
       if (!(ratio > 0)) ratio = 0; /* a singular operator or a decomposition that failed: no bound */
-      if (j == 0 || isnan(rt->est_sigma) || ratio < rt->est_sigma) rt->est_sigma = ratio;
+      if (j == 0 || isnan(*c) || ratio < *c) *c = ratio;
     }
+}
+
+/* The records of run s: every term of one operator with a table (its class within the sparse limit, without a
+ * product), and each operator of a chained term of several (its est_opc made, NaN until measured). */
+static int sigma_terms(SigmaRun *s) {
+  Model *m = s->w.m;
+  for (int i = 0; i < m->nstages; i++)
+    for (int t = 0; t < m->stages[i].nterms; t++) {
+      RTerm *rt = &m->stages[i].terms[t];
+      const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
+      if (!rt->est_G || rc->n > ESTIMATE_SPARSE_MAX || rc->product) continue;
+      bool several = rt->nops > 1 && estimate_term_chains(rt) && rt->nops <= ESTIMATE_OPS_MAX;
+      if (rt->nops != 1 && !several) continue;
+      free(rt->est_opc);
+      rt->est_opc = several ? malloc(sizeof(double) * (size_t)rt->nops) : NULL;
+      if (several && !rt->est_opc) return -1;
+      for (int k = several ? 0 : -1; k < (several ? rt->nops : 0); k++) {
+        if (k >= 0) rt->est_opc[k] = NAN;
+        s->terms[s->nt][0] = i, s->terms[s->nt][1] = t, s->terms[s->nt++][2] = k;
+      }
+    }
+  return 0;
 }
 
 /* c = min over spread training samples of σ_min(M)/σ_min(BᵀMB) for every inverse term with a table. Over ranks
@@ -621,14 +747,9 @@ static int sigma_ratios(Model *m, Full *f, const SampleSource *src, bool dist, E
   SigmaRun s = {{m, f, &cc, err, src}, src, NULL, 0, S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES,
                 dist ? dist_rank() : 0, dist ? dist_size() : 1, NULL};
   int out = -1, n = 0;
-  for (int i = 0; i < m->nstages; i++) n += m->stages[i].nterms;
-  if (!(s.terms = malloc(sizeof *s.terms * (size_t)n + 1))) goto done;
   for (int i = 0; i < m->nstages; i++)
-    for (int t = 0; t < m->stages[i].nterms; t++) {
-      const RTerm *rt = &m->stages[i].terms[t];
-      const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
-      if (rt->est_G && rt->nops == 1 && rc->n <= ESTIMATE_SPARSE_MAX && !rc->product) s.terms[s.nt][0] = i, s.terms[s.nt++][1] = t;
-    }
+    for (int t = 0; t < m->stages[i].nterms; t++) n += m->stages[i].terms[t].nops > 1 ? m->stages[i].terms[t].nops : 1;
+  if (!(s.terms = malloc(sizeof *s.terms * (size_t)n + 1)) || sigma_terms(&s)) goto done;
   if (!(s.rec = calloc((size_t)(s.nt * s.nk * SIGMA_REC) + 1, sizeof(double)))) goto done;
   if (s.nt > 0 && (theta_detect(&s) || sigma_records(&s))) goto done;
   if (s.nt > 0 && s.N > 1) dist_allreduce_sum(s.rec, s.nt * s.nk * SIGMA_REC);
@@ -640,8 +761,12 @@ done:
   free(s.terms), free(s.rec);
   if (out) return -1;
   for (int i = 0; i < m->nstages; i++) /* a ratio of 0 is no lower bound: the term has no estimate */
-    for (int t = 0; t < m->stages[i].nterms; t++)
-      if (m->stages[i].terms[t].est_sigma == 0) m->stages[i].terms[t].est_sigma = NAN;
+    for (int t = 0; t < m->stages[i].nterms; t++) {
+      RTerm *rt = &m->stages[i].terms[t];
+      if (rt->est_sigma == 0) rt->est_sigma = NAN;
+      for (int k = 0; rt->est_opc && k < rt->nops; k++)
+        if (rt->est_opc[k] == 0) rt->est_opc[k] = NAN;
+    }
   return 0;
 }
 

@@ -1,0 +1,209 @@
+"""estimate_apply.py BUILD_DIR — the online error estimate of operator applications (issue 41):
+y = M(w) x (tests/programs/op_application.npg, M_ij = a_ij w_i w_j, a symmetric positive definite),
+its square M² x, M applied to an unnamed numerator x + v, terms of two operators, K⁻¹ M x and
+M K⁻¹ x (K = a + diag(w)), roots K^(1/2) x, K^(-1/2) x, K^(2/3) (x + v), and beyond the dense limit
+the thermal block's K x, K² x, K^(1/2) x (900 unknowns), as a user runs them: npgc train, npgc eval
+(OUT/NAME.estimate.npy). The true errors come from numpy's own products (an independent oracle).
+With inputs in their bases (x and w in three-dimensional families) the figure of y = M x is the
+projection residual ‖(I − BBᵀ) M B x̂‖ itself: effectivity 1 to rounding, flagged a bound. Where
+‖M‖ or σ_min enters (an input x off its basis, a second power, a numerator's own projection error:
+v's family of 8 decaying modes is truncated in the numerator's basis; an inverse; a root's
+quadrature) the figure is an estimate: at least the true error and at most 20 times it on every
+test sample (30 for M K⁻¹ x, whose chain multiplies ‖M‖ by 1/σ_min(K), five times ‖M K⁻¹‖ here)."""
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+B = sys.argv[1]
+N = 40
+PROG = "tests/programs/op_application.npg"
+CHAIN = """dim N
+param  a : real[N, N]
+input  w : real[N]
+input  x : real[N]
+input  v : real[N]
+op M[i:N, j:N] = a[i, j] * w[i] * w[j]
+op K[i:N, j:N] = a[i, j] + delta(i, j) * w[i]
+output s = M^2 * x
+output z = M * (x + v)
+output u = K^-1 * (M * x)
+output q = M * (K^-1 * x)
+"""
+ROOTS = """dim N
+param  a : real[N, N]
+input  w : real[N]
+input  x : real[N]
+input  v : real[N]
+op K[i:N, j:N] = a[i, j] + delta(i, j) * w[i]
+output r = root(K, 2) * x
+output h = K^(-1/2) * x
+output g = K^(2/3) * (x + v)
+"""
+
+
+def fail(msg):
+    print("FAIL: " + msg)
+    sys.exit(1)
+
+
+def run(*args):
+    p = subprocess.run([os.path.join(B, "npgc")] + list(args), capture_output=True, text=True)
+    if p.returncode != 0:
+        fail("npgc %s: %s%s" % (" ".join(args), p.stdout, p.stderr))
+    return p
+
+
+def data(rng):
+    t = np.linspace(0, 1, N)
+    g = rng.standard_normal((N, N)) / np.sqrt(N)
+    a = g @ g.T + 0.5 * np.eye(N)  # symmetric positive definite, so is every M(w) with w > 0
+    phi = np.array([np.sin(np.pi * (k + 1) * t) for k in range(3)])
+    psi = np.array([np.cos(np.pi * k * t) * 0.5 ** k for k in range(8)])
+    return a, phi, psi
+
+
+def samples(rng, phi, psi, S, noise=0.0):
+    w = 1 + 0.3 * rng.uniform(-1, 1, (S, 3)) @ phi
+    x = rng.uniform(-1, 1, (S, 3)) @ phi + noise * rng.standard_normal((S, N))
+    v = rng.uniform(-1, 1, (S, 8)) @ psi
+    return {"w": w, "x": x, "v": v}
+
+
+def write(d, arrays):
+    """A data folder: each array as NAME.npy."""
+    os.makedirs(d)
+    [np.save(os.path.join(d, name + ".npy"), arr) for name, arr in arrays.items()]
+
+
+def effectivity(out, name, truth):
+    est = np.load(os.path.join(out, name + ".estimate.npy"))
+    red = np.load(os.path.join(out, name + ".npy"))
+    err = np.linalg.norm(truth - red, axis=1)
+    return est / err, err
+
+
+def check(label, eff, err, lo, hi):
+    print("%s: effectivity %.6g .. %.6g (true errors %.2e .. %.2e)" % (label, eff.min(), eff.max(), err.min(),
+                                                                      err.max()))
+    if not (eff >= lo).all() or not (eff <= hi).all():
+        fail("%s: effectivity outside [%g, %g] at samples %s" % (label, lo, hi,
+                                                                 np.nonzero((eff < lo) | (eff > hi))[0]))
+
+
+def main():
+    rng = np.random.default_rng(41)
+    a, phi, psi = data(rng)
+    M = lambda w: a * np.outer(w, w)
+    K = lambda w: a + np.diag(w)
+    with tempfile.TemporaryDirectory() as d:
+        train, test, noisy = (os.path.join(d, n) for n in ("TRAIN", "TEST", "NOISY"))
+        write(train, dict(samples(rng, phi, psi, 20), a=a))
+        st, sn = samples(rng, phi, psi, 10), samples(rng, phi, psi, 10, noise=1e-3)
+        write(test, dict(st, a=a))
+        write(noisy, dict(sn, a=a))
+        (wt, xt, vt), (wn, xn) = (st[k] for k in "wxv"), (sn[k] for k in "wx")
+        model = os.path.join(d, "MODEL")
+        run("train", PROG, train, "--basis", "x:cap=8", "-o", model)
+        manifest = open(os.path.join(model, "manifest")).read()
+        if "estimate y 0 dim" not in manifest:
+            fail("the model holds no estimate table for y = M x:\n" + manifest)
+        out = os.path.join(d, "OUT")
+        p = run("eval", PROG, model, test, "-o", out)
+        truth = np.array([M(wt[k]) @ xt[k] for k in range(len(wt))])
+        eff, err = effectivity(out, "y", truth)
+        check("y = M x, inputs in their bases", eff, err, 1 - 1e-6, 1 + 1e-6)
+        if p.stdout.count(" b\n") + p.stdout.count(" b!\n") != len(wt):
+            fail("the figures of y = M x with exact inputs are not flagged bounds:\n" + p.stdout)
+        out = os.path.join(d, "OUTN")
+        p = run("eval", PROG, model, noisy, "-o", out)
+        truth = np.array([M(wn[k]) @ xn[k] for k in range(len(wn))])
+        eff, err = effectivity(out, "y", truth)
+        check("y = M x, x off its basis (noise 1e-3)", eff, err, 1, 20)
+        if " b\n" in p.stdout:
+            fail("a figure with ‖M‖ estimated is flagged a bound:\n" + p.stdout)
+        prog = os.path.join(d, "chain.npg")
+        open(prog, "w").write(CHAIN)
+        model = os.path.join(d, "CHAIN")
+        run("train", prog, train, "--basis", "x:cap=8", "--basis", "v:energy=1", "-o", model)
+        out = os.path.join(d, "OUTC")
+        run("eval", prog, model, test, "-o", out)
+        truth = np.array([M(wt[k]) @ M(wt[k]) @ xt[k] for k in range(len(wt))])
+        check("s = M² x", *effectivity(out, "s", truth), 1, 20)
+        truth = np.array([M(wt[k]) @ (xt[k] + vt[k]) for k in range(len(wt))])
+        check("z = M (x + v)", *effectivity(out, "z", truth), 1, 20)
+        truth = np.array([np.linalg.solve(K(wt[k]), M(wt[k]) @ xt[k]) for k in range(len(wt))])
+        check("u = K⁻¹ M x", *effectivity(out, "u", truth), 1, 20)
+        truth = np.array([M(wt[k]) @ np.linalg.solve(K(wt[k]), xt[k]) for k in range(len(wt))])
+        # the inverse's error then M: ‖M‖ / σ_min(K) ≈ 5 times ‖M K⁻¹‖ here (a ≈ M, K ≈ a + I), a factor the
+        # chain of one figure per operator cannot see: up to 30
+        check("q = M K⁻¹ x", *effectivity(out, "q", truth), 1, 30)
+        if "\nestops u 0 " not in open(os.path.join(model, "manifest")).read():
+            fail("the model holds no ratios per operator (an estops line) for u = K⁻¹ M x")
+        roots(d, a, train, test, st)
+
+
+def roots(d, a, train, test, st):
+    """Roots of K, each figure a quadrature of the shifted systems' residuals (docs/estimates.md, Roots)."""
+    K = lambda w: a + np.diag(w)
+
+    def power(A, alpha):
+        lam, Q = np.linalg.eigh(A)
+        return Q @ np.diag(lam ** alpha) @ Q.T
+
+    prog, model, out = (os.path.join(d, n) for n in ("roots.npg", "ROOTS", "OUTR"))
+    open(prog, "w").write(ROOTS)
+    run("train", prog, train, "--basis", "x:cap=8", "-o", model)
+    run("eval", prog, model, test, "-o", out)
+    w, x, v = st["w"], st["x"], st["v"]
+    for name, alpha, label, rhs in (("r", 0.5, "K^(1/2) x", x), ("h", -0.5, "K^(-1/2) x", x),
+                                    ("g", 2 / 3, "K^(2/3) (x + v)", x + v)):
+        truth = np.array([power(K(w[k]), alpha) @ rhs[k] for k in range(len(w))])
+        check(label, *effectivity(out, name, truth), 1, 20)
+
+
+def sparse():
+    """Beyond the dense limit of 800 rows: the thermal block's K(mu) (tests/cli/thermal_block.npg, 30 x 30 cells)
+    applied to an input x of three smooth modes, its square and its root; ‖K‖ and σ_min(K) measured in training
+    by Lanczos on the sparse operator (K's on KᵀK, the root's on K⁻¹), the root's λ_min by the min-θ bound."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import estimate_sparse as sp
+    G = 30
+    nbr, blk, src = sp.grid(G)
+    cx, cy = np.arange(G * G) % G / G, np.arange(G * G) // G / G
+    phi = np.array([np.sin(np.pi * (i + 1) * cx) * np.sin(np.pi * (j + 1) * cy) for i, j in ((0, 0), (1, 0), (0, 1))])
+    prog = open(sp.PROG).read().replace("basis u: max 8\n", "").replace(
+        "output u = solve(K, src)\n", "input x : real[N]\noutput v = K * x\noutput s = K^2 * x\noutput r = root(K, 2) * x\n")
+    rng = np.random.default_rng(5)
+    with tempfile.TemporaryDirectory() as d:
+        open(os.path.join(d, "block.npg"), "w").write(prog)
+        train, test, model, out = (os.path.join(d, n) for n in ("TRAIN", "TEST", "MODEL", "OUT"))
+        sp.write(train, rng.uniform(0.1, 1, (12, 4)), nbr, blk, src)
+        np.save(os.path.join(train, "x.npy"), rng.uniform(-1, 1, (12, 3)) @ phi)
+        mu, x = rng.uniform(0.1, 1, (6, 4)), rng.uniform(-1, 1, (6, 3)) @ phi
+        sp.write(test, mu, nbr, blk, src)
+        np.save(os.path.join(test, "x.npy"), x)
+        run("train", os.path.join(d, "block.npg"), train, "-o", model)
+        manifest = open(os.path.join(model, "manifest")).read()
+        if "sigma nan" in manifest or "\ntheta r 0 input mu" not in manifest:
+            fail("a ratio of the sparse operator was not measured, or the root's operator, affine in mu with "
+                 "semidefinite terms, has no min-θ anchors:\n" + manifest)
+        run("eval", os.path.join(d, "block.npg"), model, test, "-o", out)
+        truth = {"v": [], "s": [], "r": []}
+        for k in range(len(mu)):
+            c = sp.faces(mu[k], nbr, blk)
+            K = np.column_stack([sp.apply_spd(e, c, nbr) for e in np.eye(G * G)])
+            lam, Q = np.linalg.eigh(K)
+            truth["v"].append(K @ x[k]), truth["s"].append(K @ K @ x[k])
+            truth["r"].append(Q @ (np.sqrt(lam) * (Q.T @ x[k])))
+        check("sparse K x", *effectivity(out, "v", np.array(truth["v"])), 1 - 1e-6, 1 + 1e-6)
+        check("sparse K² x", *effectivity(out, "s", np.array(truth["s"])), 1, 20)
+        check("sparse K^(1/2) x", *effectivity(out, "r", np.array(truth["r"])), 1, 20)
+
+
+if __name__ == "__main__":
+    main()
+    sparse()
+    print("ok")
