@@ -785,6 +785,9 @@ typedef struct NpgGreedyResult {
   double worst;             /* the worst candidate's estimated error (relative, or absolute) of the final model */
   long worst_at;            /* which candidate (-1: the pool was used up) */
   bool converged;           /* worst < tol (else the budget stopped it) */
+  long evaluations;         /* full evaluations the run made: one per training sample (each retraining takes the
+                               earlier samples' snapshots from the last one), more where training keeps no
+                               snapshot or measures samples again (docs/estimates.md, "Greedy training") */
   char error[1024];
 } NpgGreedyResult;
 NPG_API NpgModel *npg_train_greedy(NpgFull *f, const NpgTrainOptions *o, long nstart, NpgSampleFn start, void *suser,
