@@ -1,7 +1,9 @@
 /* greedy.c — greedy training through npg.h (npg_train_greedy; DESIGN §16, issue 41): the weak
  * greedy of reduced-basis methods (pyMOR's), driven by the online estimate (estimate.h). Each
  * iteration is one training (npg_trainer) on the start samples and the candidates chosen so far,
- * then one reduced evaluation and estimate per remaining candidate; the worst joins. */
+ * then one reduced evaluation and estimate per remaining candidate; the worst joins. The trainings
+ * share one SnapshotCache (train.h): each takes the earlier samples' snapshots from the last and
+ * evaluates its new sample alone, so every training sample is evaluated in full once. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
