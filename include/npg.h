@@ -764,7 +764,9 @@ NPG_API void npg_tune_free(NpgTuneReport *report);
  * the product's norm for an output whose class has one, as pyMOR's greedy's atol) is worst to the
  * training set, retraining;
  * stop when every candidate's is below `tol` or when the training set holds `budget` samples.
- * Full evaluations run only at the training samples (the start and the chosen). A candidate
+ * Full evaluations run only at the training samples (the start and the chosen), once each: a
+ * retraining takes the earlier samples' snapshots from the last (NpgGreedyResult.evaluations
+ * counts them; docs/estimates.md says where training keeps none and replays). A candidate
  * whose input the model's basis does not hold (its own error above roundoff) counts as worst
  * (infinite; among several, the one farthest outside, ‖x − B x̂‖ / ‖x‖): a full evaluation there
  * adds the direction. Each input's basis defaults to energy 1 here (every direction its samples
