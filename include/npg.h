@@ -764,7 +764,9 @@ NPG_API void npg_tune_free(NpgTuneReport *report);
  * the product's norm for an output whose class has one, as pyMOR's greedy's atol) is worst to the
  * training set, retraining;
  * stop when every candidate's is below `tol` or when the training set holds `budget` samples.
- * Full evaluations run only at the training samples (the start and the chosen). A candidate
+ * Full evaluations run only at the training samples (the start and the chosen), once each: a
+ * retraining takes the earlier samples' snapshots from the last (NpgGreedyResult.evaluations
+ * counts them; docs/estimates.md says where training keeps none and replays). A candidate
  * whose input the model's basis does not hold (its own error above roundoff) counts as worst
  * (infinite; among several, the one farthest outside, ‖x − B x̂‖ / ‖x‖): a full evaluation there
  * adds the direction. Each input's basis defaults to energy 1 here (every direction its samples
@@ -785,6 +787,9 @@ typedef struct NpgGreedyResult {
   double worst;             /* the worst candidate's estimated error (relative, or absolute) of the final model */
   long worst_at;            /* which candidate (-1: the pool was used up) */
   bool converged;           /* worst < tol (else the budget stopped it) */
+  long evaluations;         /* full evaluations the run made: one per training sample (each retraining takes the
+                               earlier samples' snapshots from the last one), more where training keeps no
+                               snapshot or measures samples again (docs/estimates.md, "Greedy training") */
   char error[1024];
 } NpgGreedyResult;
 NPG_API NpgModel *npg_train_greedy(NpgFull *f, const NpgTrainOptions *o, long nstart, NpgSampleFn start, void *suser,

@@ -10,6 +10,10 @@
  *     at) greedy runs past the residual table's former limit of 512 columns (D = 1 + 17 m on 4 x 4
  *     blocks): every model along the way keeps its estimate, which bounds the true error on
  *     held-out parameters.
+ *
+ * In both, every training sample is evaluated in full once over the whole run (a retraining takes
+ * the earlier samples' snapshots from the last, and the σ_min ratios' operators, which read μ
+ * only, are built without an evaluation).
  */
 #include <math.h>
 #include <stdio.h>
@@ -122,6 +126,8 @@ static void inputs_keep_every_direction(void **state) {
   assert_int_equal(ci.m, b.Q); /* every direction of the 1 % variations */
   assert_true(res.converged);
   assert_true(res.nchosen < POOL - 5);
+  /* each sample evaluated in full once: a retraining takes the earlier ones' snapshots from the last */
+  assert_int_equal(res.evaluations, 1 + res.nchosen);
   NpgReduced *r = npg_reduced_new(m);
   for (long k = 0; k < POOL; k++) {
     double nu, est, e = true_error(&b, r, mu + k * b.Q, &nu, &est);
@@ -167,6 +173,7 @@ static void past_512_columns_keeps_the_estimate(void **state) {
   NpgModel *m = npg_train_greedy(b.f, &o, 1, set_mu, &start, POOL, set_mu, &pool, &g, dir, &res);
   if (!m) fail_msg("%s", res.error);
   assert_int_equal(res.nchosen, 35);
+  assert_int_equal(res.evaluations, 1 + res.nchosen);
   long D = manifest_dim(dir);
   if (D <= 512) fail_msg("the final model's residual table has %ld columns (the test needs more than 512)", D);
   NpgReduced *r = npg_reduced_new(m);

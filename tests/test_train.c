@@ -4,6 +4,10 @@
  *     Eq. 3);
  *   - on a deforming mesh at energy 0.999, centered truncation (the default)
  *     is at least 5x more accurate than the paper's uncentered one.
+ *   - snapshots kept between trainings (TrainOptions.cache, greedy training):
+ *     a training on more samples takes those of the samples held and
+ *     evaluates the others alone, and its model is the one replaying every
+ *     sample gives, bit for bit; a cache of other samples is not used.
  * The method of snapshots: test_snapshots.c.
  */
 #include "emit.h"
@@ -166,10 +170,97 @@ static void centered_beats_uncentered_on_deforming_mesh(void **state) {
   npg_free(p);
 }
 
+/* ---------------------------------------------------------------- snapshots kept between trainings */
+
+/* Every basis, SPD mark, reduced tensor and estimate table of `a` and `b` equal, bit for bit. */
+static void assert_same_model(const Model *a, const Model *b) {
+  assert_int_equal(a->nclasses, b->nclasses);
+  for (int c = 0; c < a->nclasses; c++) {
+    const RClass *x = &a->classes[c], *y = &b->classes[c];
+    assert_int_equal(x->m, y->m);
+    assert_int_equal(x->n, y->n);
+    assert_memory_equal(x->B, y->B, sizeof(double) * (size_t)(x->n * x->m));
+  }
+  assert_int_equal(a->nstages, b->nstages);
+  for (int i = 0; i < a->nstages; i++)
+    for (int t = 0; t < a->stages[i].nterms; t++) {
+      const RTerm *x = &a->stages[i].terms[t], *y = &b->stages[i].terms[t];
+      for (int k = 0; k < x->nops; k++) assert_int_equal(x->ops[k].spd, y->ops[k].spd);
+      assert_int_equal(x->est_D, y->est_D);
+      if (x->est_G) assert_memory_equal(x->est_G, y->est_G, sizeof(double) * (size_t)((x->est_D + 1) * x->est_D));
+    }
+  long n = 0;
+  const RTensor *ys[256];
+  FOR_TENSORS(b, y) ys[n < 256 ? n++ : n] = y;
+  long j = 0;
+  FOR_TENSORS(a, x) {
+    assert_true(j < n);
+    assert_int_equal(x->rows * x->cols, ys[j]->rows * ys[j]->cols);
+    assert_memory_equal(x->data, ys[j]->data, sizeof(double) * (size_t)(x->rows * x->cols));
+    j++;
+  }
+  assert_int_equal(j, n);
+}
+
+/* The whole evaluations of `f` training `count` of the samples of `ms` with `cache` made: *m the model. */
+static long evaluations_training(Program *prog, Full *f, MemSamples *ms, long count, SnapshotCache *cache, Model **m) {
+  SampleSource src = {count, ms, memsamples_set, NULL, NULL};
+  TrainOptions opt = {0};
+  opt.cap = 8, opt.energy = 1, opt.cache = cache;
+  char err[2048] = "";
+  long before, after;
+  full_evaluations(f, &before, NULL);
+  *m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
+  if (!*m) fail_msg("rational, %ld samples: %s", count, err);
+  full_evaluations(f, &after, NULL);
+  return after - before;
+}
+
+static void kept_snapshots_give_the_replayed_model(void **state) {
+  (void)state;
+  /* the paper's Eq. 3: a diagonal operator (its SPD mark) inverted on a numerator (a member of y's class) */
+  NpgProgram *p = compile_file("examples/rational/rational.npg");
+  Program *prog = ir_ok(p);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
+  MemSamples ms, other;
+  if (memsamples_fill(&ms, prog, f, 2, 40, 5u) || memsamples_fill(&other, prog, NULL, 2, 20, 6u))
+    fail_msg("binding random params failed");
+  Model *replayed, *m;
+  assert_int_equal(evaluations_training(prog, f, &ms, 40, NULL, &replayed), 40);
+  SnapshotCache *cache = snapshot_cache_new();
+  assert_non_null(cache);
+  /* 20, then 21, then 40 samples: each training evaluates the samples the last did not hold (and its last) */
+  assert_int_equal(evaluations_training(prog, f, &ms, 20, cache, &m), 20);
+  model_free(m);
+  assert_int_equal(snapshot_cache_samples(cache), 20);
+  assert_int_equal(evaluations_training(prog, f, &ms, 21, cache, &m), 1);
+  model_free(m);
+  assert_int_equal(evaluations_training(prog, f, &ms, 40, cache, &m), 19);
+  assert_same_model(m, replayed);
+  model_free(m);
+  /* the same samples again: only the last is evaluated (the evaluator ends on its values, as replayed) */
+  assert_int_equal(evaluations_training(prog, f, &ms, 40, cache, &m), 1);
+  assert_same_model(m, replayed);
+  model_free(m);
+  /* a cache of other samples: not used, every sample evaluated, the model the replayed one */
+  assert_int_equal(evaluations_training(prog, f, &other, 20, cache, &m), 20);
+  model_free(m);
+  assert_int_equal(evaluations_training(prog, f, &ms, 40, cache, &m), 40);
+  assert_same_model(m, replayed);
+  model_free(m);
+  model_free(replayed);
+  snapshot_cache_free(cache);
+  memsamples_free(&ms);
+  memsamples_free(&other);
+  full_free(f);
+  npg_free(p);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(error_falls_with_caps),
       cmocka_unit_test(centered_beats_uncentered_on_deforming_mesh),
+      cmocka_unit_test(kept_snapshots_give_the_replayed_model),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -43,6 +43,7 @@ struct Full {
   NpgDerivFn jvp, vjp;
   double **dq;              /* per slot: its tangent or cotangent */
   size_t *dqcount;
+  long evaluations[2];      /* whole evaluations and restricted ones (full_evaluations) */
 };
 
 static int fail(Full *f, const char *fmt, ...) {
@@ -150,6 +151,11 @@ Full *full_new(Program *prog, JitBackend backend, const char *refusal) {
 }
 
 void full_set_sparse_min_rows(Full *f, long rows) { f->host.sparse_min_rows = rows; }
+
+void full_evaluations(const Full *f, long *whole, long *restricted) {
+  *whole = f->evaluations[0];
+  if (restricted) *restricted = f->evaluations[1];
+}
 
 void full_sparse_counts(const Full *f, long *patterns, long *cholesky, long *lu) {
   *patterns = f->host.sparse_patterns;
@@ -473,6 +479,7 @@ static int evaluate(Full *f, long sample, Demand *d) {
     }
   }
   if (call_externs(f, sample) != 0) return -1;
+  f->evaluations[d != NULL]++;
   memset(f->fresh, 0, sizeof(bool) * (size_t)prog->slots.n);
   NpgCtx c = context(f, sample);
   f->host.msg[0] = 0;

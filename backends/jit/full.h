@@ -114,6 +114,10 @@ int full_build(Full *f, const char *name, NpgSink *sink);
  * --crossover`: 1.3x at 16, 3.4x at 256, 46x at 1,024). */
 #define FULL_SPARSE_MIN_ROWS 16
 void full_set_sparse_min_rows(Full *f, long rows);
+/* How many evaluations ran since the evaluator was made (those that reached the stages): whole
+ * (full_eval) and restricted (full_eval_demand; `restricted` may be NULL). What a caller that
+ * avoids evaluating again counts (greedy training, its test). */
+void full_evaluations(const Full *f, long *whole, long *restricted);
 /* How many sparse patterns were built, and factorizations made by CHOLMOD
  * and by UMFPACK, since the evaluator was made. */
 void full_sparse_counts(const Full *f, long *patterns, long *cholesky, long *lu);

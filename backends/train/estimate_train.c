@@ -642,13 +642,29 @@ static const RClass *run_class(const SigmaRun *s, int e) {
 }
 static long run_pick(const SigmaRun *s, long j) { return s->nk > 1 ? j * (s->src->count - 1) / (s->nk - 1) : 0; }
 
+/* Sample k set for the terms' operators, and evaluated unless every tensor of each reads given values only
+ * (inputs and externs: a thermal block's K(μ)), which the tensor builders read as set: the same operators, no
+ * full evaluation (a solve at every picked sample of every greedy retraining). */
+static int sigma_sample(const SigmaRun *s, long k) {
+  bool given_only = true;
+  for (int e = 0; e < s->nt && given_only; e++)
+    for (int o = 0; o < run_term(s, e)->nops && given_only; o++) { /* every operator of a chained term */
+      const ROp *ro = &run_term(s, e)->ops[o];
+      for (int g = 0; g < ro->ntensors && given_only; g++)
+        for (int i = 0; i < ro->t[g].group->ninputs; i++)
+          given_only &= ro->t[g].group->inputs[i]->kind == SYM_INPUT || ro->t[g].group->inputs[i]->kind == SYM_EXTERN;
+    }
+  if (!given_only) return train_eval_sample(s->src, s->w.f, k, s->w.err);
+  return s->src->set(s->src->user, s->w.f, k) != 0 ? err_set(s->w.err, "%s", full_error(s->w.f)) : 0;
+}
+
 /* Which terms' operators are affine with semidefinite terms (affine_input), found at sample 0 by the rank that
  * holds it and sent to the others; room for nk anchors each. */
 static int theta_detect(SigmaRun *s) {
   double *q = calloc((size_t)s->nt + 1, sizeof(double));
   if (!q) return err_set(s->w.err, "estimate tables: out of memory");
   int out = 0;
-  if (s->rank == 0 && s->nt > 0 && (out = train_eval_sample(s->src, s->w.f, 0, s->w.err)) == 0)
+  if (s->rank == 0 && s->nt > 0 && (out = sigma_sample(s, 0)) == 0)
     for (int e = 0; e < s->nt; e++)
       q[e] = s->terms[e][2] >= 0 || (estimate_term_chains(run_term(s, e)) && run_term(s, e)->ops[0].op->q == 1) ? -1
                                                                          : affine_input(&s->w, run_term(s, e), run_class(s, e)->n);
@@ -671,7 +687,7 @@ static int sigma_records(SigmaRun *s) {
   for (long j = 0; j < s->nk; j++) {
     long k = run_pick(s, j);
     if (k % s->N != s->rank) continue;
-    if (train_eval_sample(s->src, s->w.f, k, s->w.err)) return -1;
+    if (sigma_sample(s, k)) return -1;
     for (int e = 0; e < s->nt; e++) {
       RTerm view;
       const RTerm *rt = run_view(s, e, &view);

@@ -218,6 +218,18 @@ void train_mark_spd(Model *m) {
   FOR_DIAG_OPS(m, rs, rt, ro) ro->spd = true;
 }
 
+/* The SPD marks of the diagonal operators into spd[] (`apply`: from it), in FOR_DIAG_OPS order;
+ * their number (spd NULL: counted only). */
+static int spd_marks(Model *m, bool *spd, bool apply) {
+  int j = 0;
+  FOR_DIAG_OPS(m, rs, rt, ro) {
+    if (spd && apply) ro->spd = spd[j];
+    else if (spd) spd[j] = ro->spd;
+    j++;
+  }
+  return j;
+}
+
 static RTerm *joiner_term(Model *m, const Joiner *j) {
   for (int i = 0; i < m->nstages; i++)
     if (m->stages[i].st == j->stage) return &m->stages[i].terms[j->term];
@@ -350,8 +362,9 @@ int train_begin(Train *t) {
   const TrainOptions *opt = t->opt;
   Program *prog = t->prog;
   if (t->src->count < 1) return err_set(t->err, "no training samples");
-  if (t->src->set(t->src->user, t->f, 0) != 0 || full_eval(t->f, 0) != 0) /* sample 0 binds every dim */
-    return err_set(t->err, "%s", full_error(t->f));
+  if (t->src->set(t->src->user, t->f, 0) != 0) return err_set(t->err, "%s", full_error(t->f)); /* it binds every dim */
+  t->sample0_set_only = snapshot_cache_holds(t, 0); /* its snapshots kept: evaluated only if the pass needs it */
+  if (!t->sample0_set_only && full_eval(t->f, 0) != 0) return err_set(t->err, "%s", full_error(t->f));
   long *dims = train_scratch(t, sizeof(long) * ((size_t)prog->dims.n + 1));
   if (!dims) return -1;
   for (int i = 0; i < prog->dims.n; i++) dims[i] = full_dim_size(t->f, i);
@@ -444,15 +457,23 @@ static int snapshots_in_memory(Train *t, double *tmp) {
   Model *m = t->m;
   const TrainOptions *opt = t->opt;
   long S = t->sn.S;
-  int rc = 0, rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1;
+  int rc = 0, rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1, nspd = spd_marks(m, NULL, false);
+  bool *spd = train_scratch(t, sizeof(bool) * (size_t)(nspd + 1));
+  if (!spd) return -1;
+  spd_marks(m, spd, false);
+  long held = snapshot_cache_take(t, spd, nspd); /* the first `held` samples' snapshots and marks, kept */
+  spd_marks(m, spd, true);
   for (long k = rank; rc == 0 && k < S; k += N) {
-    if (k > 0 && train_eval_sample(t->src, t->f, k, t->err)) rc = -1;
-    for (int c = 0; rc == 0 && c < m->nclasses; c++) {
+    /* the last sample evaluated though kept: the evaluator ends on its values, as without the cache */
+    bool kept = k < held && k != S - 1;
+    if (!kept && (k > 0 || t->sample0_set_only) && train_eval_sample(t->src, t->f, k, t->err)) rc = -1;
+    if (rc == 0 && !kept) snapshot_cache_note(t, k);
+    for (int c = 0; rc == 0 && !kept && c < m->nclasses; c++) {
       RClass *cl = &m->classes[c];
       for (int i = 0; rc == 0 && i < cl->nmembers; i++)
         rc = train_member_value(t, &cl->members[i], k, cl->n, t->sn.X[c][i] + (size_t)k * (size_t)cl->n);
     }
-    if (rc == 0) rc = train_check_spd(t, tmp);
+    if (rc == 0 && !kept) rc = train_check_spd(t, tmp);
     if (rc == 0) rc = train_fail_hook(t, k);
     progress_show(opt->progress, "snapshots", k + 1, S);
   }
@@ -468,6 +489,14 @@ size_t train_snapshot_bytes(const Model *m, long S) {
   for (int c = 0; c < m->nclasses; c++)
     need += sizeof(double) * (size_t)m->classes[c].n * (size_t)S * (size_t)m->classes[c].nmembers;
   return need;
+}
+
+/* Sample 0 evaluated when train_begin only set it (the cache held it) but a route that keeps no
+ * snapshot follows: what it finds in the evaluator is what it found without the cache. */
+static int evaluate_sample0(Train *t) {
+  if (!t->sample0_set_only) return 0;
+  t->sample0_set_only = false;
+  return train_eval_sample(t->src, t->f, 0, t->err);
 }
 
 /* Step 1: every member's snapshots in memory (t->sn.X), or, when they need
@@ -498,6 +527,7 @@ int train_take_snapshots(Train *t) {
   double *tmp = train_scratch(t, sizeof(double) * (size_t)(maxn > S ? maxn : S));
   if (!tmp || snapshots_alloc(m, &t->sn, S, gram))
     return err_set(t->err, "out of memory for the snapshots of %ld samples", S);
+  if (gram && evaluate_sample0(t)) return -1;
   train_mark_spd(m);
   return gram ? train_snapshot_bases(t, tmp) : snapshots_in_memory(t, tmp);
 }
@@ -851,7 +881,7 @@ static int bases(Train *t) {
                        m->classes[c].bc->size_name, m->classes[c].product->name);
     t->gram = true;
     train_mark_streamed(m, t->opt); /* their floors taken in the passes (the choice is made again after interpolation) */
-    if (ooc_bases(t)) return -1;
+    if (evaluate_sample0(t) || ooc_bases(t)) return -1;
     phase_end(t->clock, m, PHASE_SNAPSHOTS);
     return 0;
   }
@@ -939,6 +969,11 @@ static int report_phases(Train *t) {
             : t->gram                             ? "method of snapshots"
                                                   : "in memory",
             m->phase_seconds[PHASE_PREMULTIPLY], m->phase_seconds[PHASE_EXTERNS]);
+  if (snapshot_cache_usable(t)) { /* this training's snapshots kept for the next (greedy training) */
+    int nspd = spd_marks(t->m, NULL, false);
+    bool *spd = train_scratch(t, sizeof(bool) * (size_t)(nspd + 1));
+    if (spd) spd_marks(t->m, spd, false), snapshot_cache_keep(t, spd, nspd);
+  }
   train_free_snapshots(t->m, &t->sn);
   self_check(t);
   return 0;
@@ -1093,6 +1128,7 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
     training = (SampleSource){src->count - nheld, &hold, holdout_training, src->set_part ? holdout_training_part : NULL,
                               NULL};
     o.valid = &held;
+    o.cache = NULL; /* the samples are numbered otherwise: replayed */
   }
   Scratch sc = SCRATCH_OF(err);
   double *w = opt->weights ? scale_weights(&sc, opt->weights, src->count, opt->dist) : NULL;

@@ -65,7 +65,26 @@ typedef struct TrainOptions {
                                The floors and reports stay per sample, unweighted */
   long rollout_steps;       /* tune: candidates judged by reduced rollouts of this many steps (DESIGN §15); 0: one step */
   long rollout_every;       /* their states compared every this many steps */
+  struct SnapshotCache *cache; /* the snapshots of an earlier training whose samples this one's begin with (greedy
+                               training): theirs taken from it, not evaluated again, and this training's left in
+                               it (snapshot_cache.c); unused out of core, by the method of snapshots, over ranks
+                               and with a hold-out (the samples replayed). NULL: none */
 } TrainOptions;
+
+/* ---------------------------------------------------------------- snapshots kept between trainings (snapshot_cache.c) */
+
+/* A training's snapshots kept for the next one on the same samples and more (greedy training,
+ * issue 41, retrains after each sample it adds): every member's values at each sample and which
+ * diagonal operators stayed SPD, what training's first pass takes from a full evaluation. Given
+ * as TrainOptions.cache, a training takes the snapshots of the samples it holds (a sample held when
+ * its inputs and externs, the program, params and layout are the same), evaluates the others (and
+ * its last sample: the evaluator ends on the values it ended on without the cache), and leaves all
+ * of its own in it; the model is the one replaying them gives, bit for bit. The snapshots stay in
+ * memory between trainings (the bytes training's in-memory route takes: within --mem). */
+typedef struct SnapshotCache SnapshotCache;
+SnapshotCache *snapshot_cache_new(void); /* empty; NULL when out of memory */
+long snapshot_cache_samples(const SnapshotCache *c); /* the samples it holds */
+void snapshot_cache_free(SnapshotCache *c);
 
 /* Whether training keeps class c's basis whatever the rule (no opt->stream, or --keep-bases
  * names it; train.c). */

@@ -36,6 +36,7 @@ typedef struct Train {
   struct timespec clock[2]; /* the current phase's start, wall and CPU */
   Err *err;                 /* the error record */
   Scratch scratch;          /* the current step's (train_scratch), released after every step */
+  bool sample0_set_only;    /* train_begin set sample 0 without evaluating it (opt->cache holds it) */
 } Train;
 
 /* `bytes` of zeroed scratch (the model layer's Scratch, scratch.h) that
@@ -78,6 +79,21 @@ int train_check_spd(Train *t, double *tmp);
 /* Member `mb`'s value (a quantity, or an unnamed numerator) after an
  * evaluation of sample k into out[0..n); refused, naming where, when not finite. */
 int train_member_value(Train *t, const RMember *mb, long k, long n, double *out);
+
+/* Snapshots kept between trainings (snapshot_cache.c, TrainOptions.cache). Whether the cache can
+ * serve t (one given, not over ranks); whether sample k, as set in t->f, is the cache's sample k. */
+bool snapshot_cache_usable(const Train *t);
+bool snapshot_cache_holds(Train *t, long k);
+/* Before the in-memory pass (t->sn allocated for S samples): when the cache's program, params and
+ * layout are t's and its samples the first of t's (each set to compare), its snapshots moved into
+ * t->sn.X and its SPD marks and-ed into spd[0..nspd) (FOR_DIAG_OPS order); the samples taken (0:
+ * none, the cache emptied). */
+long snapshot_cache_take(Train *t, bool *spd, int nspd);
+/* Sample k, set in t->f by the pass, noted as the cache's sample k. */
+void snapshot_cache_note(Train *t, long k);
+/* At the end of training: t->sn.X moved into the cache (t->sn.X[c][i] NULL) with the SPD marks
+ * of all its samples; out of core or by the method of snapshots, the cache emptied. */
+void snapshot_cache_keep(Train *t, const bool *spd, int nspd);
 
 /* The method of snapshots (snapshots.c): every member's basis of t->m from
  * S x S Gram matrices, recomputing the samples of t->src in passes within

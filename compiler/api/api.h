@@ -108,6 +108,9 @@ void api_train_options(const NpgTrainOptions *o, TrainOptions *to);
 /* Greedy training's trainer: every input's basis defaults to energy 1 (TrainOptions.inputs_whole),
  * so that it holds every direction of the samples chosen (docs/estimates.md, "Greedy training"). */
 void api_trainer_inputs_whole(NpgTrainer *t);
+/* Greedy training's trainer: the snapshots of its samples taken from `cache` where it holds them,
+ * and left in it (TrainOptions.cache; the caller owns the cache). */
+void api_trainer_cache(NpgTrainer *t, SnapshotCache *cache);
 /* The interpolation and streaming fields of `o` (DESIGN §12, issue 30) in their documented ranges:
  * 0, or -1 with a message naming the field, for `func`, in err. */
 int api_refuse_reduce_options(const NpgTrainOptions *o, const char *func, char *err, size_t errlen);

@@ -1,7 +1,9 @@
 /* greedy.c — greedy training through npg.h (npg_train_greedy; DESIGN §16, issue 41): the weak
  * greedy of reduced-basis methods (pyMOR's), driven by the online estimate (estimate.h). Each
  * iteration is one training (npg_trainer) on the start samples and the candidates chosen so far,
- * then one reduced evaluation and estimate per remaining candidate; the worst joins. */
+ * then one reduced evaluation and estimate per remaining candidate; the worst joins. The trainings
+ * share one SnapshotCache (train.h): each takes the earlier samples' snapshots from the last and
+ * evaluates its new sample alone, so every training sample is evaluated in full once. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -12,14 +14,28 @@
 
 #define gfail(res, ...) error_set_first((res)->error, sizeof (res)->error, __VA_ARGS__)
 
+/* What every iteration of greedy training reads: the evaluator, the options, the start samples and
+ * the pool, the snapshots kept between trainings. */
+typedef struct Greedy {
+  NpgFull *f;
+  const NpgTrainOptions *o;
+  long nstart, npool;
+  NpgSampleFn start, pool;
+  void *suser, *puser;
+  const NpgGreedyOptions *g;
+  SnapshotCache *cache;     /* the last training's snapshots: a retraining evaluates its new sample alone */
+} Greedy;
+
 /* One training on the start samples and the chosen ones; NULL with res->error. */
-static NpgModel *train_once(NpgFull *f, const NpgTrainOptions *o, long nstart, NpgSampleFn start, void *suser,
-                            NpgSampleFn pool, void *puser, NpgGreedyResult *res) {
-  NpgTrainer *t = npg_trainer_new(f, o);
+static NpgModel *train_once(const Greedy *gr, NpgGreedyResult *res) {
+  NpgFull *f = gr->f;
+  NpgTrainer *t = npg_trainer_new(f, gr->o);
   api_trainer_inputs_whole(t); /* each input's basis holds every direction of the samples chosen */
+  api_trainer_cache(t, gr->cache);
   NpgModel *m = NULL;
+  long nstart = gr->nstart;
   for (long k = 0; k < nstart + res->nchosen && !npg_trainer_error(t)[0]; k++) {
-    int rc = k < nstart ? start(suser, f, k) : pool(puser, f, res->chosen[k - nstart]);
+    int rc = k < nstart ? gr->start(gr->suser, f, k) : gr->pool(gr->puser, f, res->chosen[k - nstart]);
     if (rc != 0) {
       gfail(res, "%s sample %ld: %s", k < nstart ? "start" : "pool", k < nstart ? k : res->chosen[k - nstart],
             npg_full_error(f));
@@ -126,6 +142,36 @@ static int record(NpgModel *nm, const NpgGreedyOptions *g, long budget, const Np
   return 0;
 }
 
+/* The loop: train, find the worst candidate, add it, until it is below the tolerance or the
+ * budget is spent; the last model, NULL with res->error. */
+static NpgModel *greedy_loop(const Greedy *gr, long budget, NpgGreedyResult *res) {
+  const NpgGreedyOptions *g = gr->g;
+  long before, after;
+  full_evaluations(gr->f->full, &before, NULL);
+  NpgModel *nm = NULL;
+  for (;;) {
+    npg_model_free(nm);
+    if (!(nm = train_once(gr, res))) return NULL;
+    if (worst_candidate(gr->f, nm, gr->npool, gr->pool, gr->puser, g->absolute, res) != 0) {
+      npg_model_free(nm);
+      return NULL;
+    }
+    full_evaluations(gr->f->full, &after, NULL);
+    res->evaluations = after - before;
+    res->converged = res->worst < g->tol;
+    long samples = gr->nstart + res->nchosen;
+    if (g->progress && isinf(res->worst))
+      fprintf(stderr, "greedy: %ld training samples (%ld full evaluations), candidate %ld: an input outside its basis\n",
+              samples, res->evaluations, res->worst_at);
+    else if (g->progress)
+      fprintf(stderr, "greedy: %ld training samples (%ld full evaluations), worst candidate %ld: estimated %s error "
+              "%.3e (tol %.3g)\n", samples, res->evaluations, res->worst_at, g->absolute ? "absolute" : "relative",
+              res->worst, g->tol);
+    if (res->converged || res->worst_at < 0 || samples >= budget) return nm;
+    res->chosen[res->nchosen++] = res->worst_at;
+  }
+}
+
 NpgModel *npg_train_greedy(NpgFull *f, const NpgTrainOptions *o, long nstart, NpgSampleFn start, void *suser,
                            long npool, NpgSampleFn pool, void *puser, const NpgGreedyOptions *g,
                            const char *model_dir, NpgGreedyResult *res) {
@@ -143,35 +189,22 @@ NpgModel *npg_train_greedy(NpgFull *f, const NpgTrainOptions *o, long nstart, Np
     return gfail(res, "greedy training: budget %ld below the %ld start samples", g->budget, nstart), NULL;
   long budget = g->budget ? g->budget : nstart + npool;
   if (!(res->chosen = calloc((size_t)npool + 1, sizeof(long)))) return gfail(res, "out of memory"), NULL;
-  NpgModel *nm = NULL;
-  for (;;) {
-    npg_model_free(nm);
-    if (!(nm = train_once(f, o, nstart, start, suser, pool, puser, res)) ||
-        worst_candidate(f, nm, npool, pool, puser, g->absolute, res) != 0)
-      goto fail;
-    res->converged = res->worst < g->tol;
-    if (g->progress && isinf(res->worst))
-      fprintf(stderr, "greedy: %ld training samples, candidate %ld: an input outside its basis\n",
-              nstart + res->nchosen, res->worst_at);
-    else if (g->progress)
-      fprintf(stderr, "greedy: %ld training samples, worst candidate %ld: estimated %s error %.3e (tol %.3g)\n",
-              nstart + res->nchosen, res->worst_at, g->absolute ? "absolute" : "relative", res->worst, g->tol);
-    if (res->converged || res->worst_at < 0 || nstart + res->nchosen >= budget) break;
-    res->chosen[res->nchosen++] = res->worst_at;
-  }
-  if (!res->converged && g->progress)
+  Greedy gr = {f, o, nstart, npool, start, pool, suser, puser, g, snapshot_cache_new()};
+  if (!gr.cache) return gfail(res, "out of memory"), NULL;
+  NpgModel *nm = greedy_loop(&gr, budget, res);
+  snapshot_cache_free(gr.cache);
+  if (nm && !res->converged && g->progress)
     fprintf(stderr, "greedy: stopped at the budget of %ld training samples with the worst candidate's estimate %.3e "
             "above --tol %.3g\n", budget, res->worst, g->tol);
-  if (record(nm, g, budget, res) != 0) {
+  if (nm && record(nm, g, budget, res) != 0) {
     gfail(res, "out of memory");
-    goto fail;
+    npg_model_free(nm);
+    return NULL;
   }
-  if (model_dir && npg_model_save(nm, model_dir) != 0) {
+  if (nm && model_dir && npg_model_save(nm, model_dir) != 0) {
     gfail(res, "%s", npg_model_error(nm));
-    goto fail;
+    npg_model_free(nm);
+    return NULL;
   }
   return nm;
-fail:
-  npg_model_free(nm);
-  return NULL;
 }

@@ -38,6 +38,7 @@ struct NpgTrainer {
                                npg_trainer_clear_error keeps the error */
   uint64_t inputs_hash;     /* over ranks: of every sample's inputs, in order (every rank's too: ranks_agree) */
   bool inputs_whole;        /* greedy training's (api_trainer_inputs_whole): TrainOptions.inputs_whole */
+  SnapshotCache *cache;     /* greedy training's (api_trainer_cache): TrainOptions.cache */
   char error[2048];
   Err record;               /* error as the backends' record (the records' err points here) */
   char worded[2048];        /* error in the caller's words (NpgTrainOptions.words), made by npg_trainer_error */
@@ -65,6 +66,10 @@ void npg_train_options_default(NpgTrainOptions *o) {
 
 void api_trainer_inputs_whole(NpgTrainer *t) {
   if (t) t->inputs_whole = true;
+}
+
+void api_trainer_cache(NpgTrainer *t, SnapshotCache *cache) {
+  if (t) t->cache = cache;
 }
 
 void api_train_options(const NpgTrainOptions *o, TrainOptions *to) {
@@ -515,6 +520,7 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
   TrainOptions o;
   api_train_options(&t->opt, &o);
   o.inputs_whole = t->inputs_whole;
+  o.cache = t->cache;
   /* the cache holds at most a quarter of the budget; over ranks, what it
    * holds on one process (share_samples) on every rank: the same plan */
   size_t used = t->opt.mpi && dist_size() > 1 ? records_shared_use(&t->r) : t->r.rec.used;

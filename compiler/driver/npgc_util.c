@@ -176,7 +176,7 @@ static const Usage usages[] = {
      "  --progress   progress on stderr even when it is not a terminal\n"},
     {"bench",
      "usage: npgc bench PROG.npg MODEL/ TEST/ [--jit auto|cc|tcc] [--threads N] [--reps N] [--params DIR]\n"
-     "                  [--sizes NAME=N,...] [--exact-roots] [--progress]\n"
+     "                  [--sizes NAME=N,...] [--exact-roots] [--steps T] [--progress]\n"
      "\n"
      "  Time the full and the reduced evaluation of every sample of TEST/, N passes\n"
      "  (3): the full evaluator (its backend named, with its compile time and whether\n"
@@ -194,6 +194,11 @@ static const Usage usages[] = {
      "  --sizes NAME=N,...  evaluate at smaller basis sizes, without retraining: class\n"
      "               NAME (as npgc check names it: m_u) keeps the first N vectors of\n"
      "               its basis and every tensor its leading block\n"
+     "  --steps T    a program with state (DESIGN §15): T steps of every trajectory\n"
+     "               of TEST/, the full step against the reduced step in coordinates,\n"
+     "               the lift of the states, and each step's reduced evaluation then\n"
+     "               every output's and next state's estimate (\"reduced + estimate\",\n"
+     "               per step) against the evaluation alone\n"
      "  --progress   a progress bar on stderr even when it is not a terminal (on a\n"
      "               terminal it is always shown)\n"},
     {"plot",

@@ -347,9 +347,9 @@ static int train_greedy(Common *c, NpgProgram *p, NpgFull *f, NpgSamples *s) {
                                  npg_samples_set, pool, &g, c->out, &res);
   if (!m) npgc_error(res.error);
   else {
-    printf("trained %s greedily on %ld samples (%ld of DATA/, %ld chosen of %ld candidates in %s) in %.2f s -> %s\n",
-           c->prog_path, npg_model_samples(m), npg_samples_count(s), res.nchosen, npg_samples_count(pool), c->greedy,
-           reduce_now() - t0, c->out);
+    printf("trained %s greedily on %ld samples (%ld of DATA/, %ld chosen of %ld candidates in %s; %ld full "
+           "evaluations) in %.2f s -> %s\n", c->prog_path, npg_model_samples(m), npg_samples_count(s), res.nchosen,
+           npg_samples_count(pool), c->greedy, res.evaluations, reduce_now() - t0, c->out);
     printf("worst candidate's estimated %s error %.3e: %s --tol %.3g\n", c->absolute ? "absolute" : "relative", res.worst,
            res.converged ? "below" : "above (the budget stopped it)", c->tol);
     npg_model_report(m, stdout);

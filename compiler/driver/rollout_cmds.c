@@ -30,9 +30,12 @@ typedef struct Roll {
   TrajInput **st;           /* the states */
   long saves, k;
   double **red;             /* per state: one lifted value (bench) */
+  const char **est;         /* the outputs and the states' next values, whose estimates bench times */
+  int nest;
 } Roll;
 
 static void close_roll(Roll *x) {
+  free(x->est);
   for (int i = 0; x->red && i < x->ns; i++) free(x->red[i]);
   free(x->red);
   free(x->st);
@@ -73,6 +76,11 @@ static int open_roll(Common *c, Roll *x, const char *cmd) {
       if (!(x->red[x->ns++] = malloc(sizeof(double) * (x->tr.in[i].each + 1))))
         return fputs("error: out of memory\n", stderr), 1;
     }
+  if (!(x->est = calloc((size_t)npg_nsymbols(x->p) + 1, sizeof *x->est))) return fputs("error: out of memory\n", stderr), 1;
+  for (int i = 0; i < npg_nsymbols(x->p); i++) {
+    NpgSymbol s;
+    if (npg_symbol(x->p, i, &s) == 0 && s.kind != NPG_OP && (s.output || s.state_of)) x->est[x->nest++] = s.name;
+  }
   if (x->ns == 0) {
     fprintf(stderr, "error: %s has no state: --steps judges a rollout of a program with 'state u' and 'next u = "
                     "...'; without --steps, %s judges one evaluation\n", c->prog_path, cmd);
@@ -189,17 +197,66 @@ done:
 
 /* ---------------------------------------------------------------- bench --steps */
 
+/* Every output's and every state's next value's estimate after an evaluation (npg_reduced_estimate: the first
+ * call computes them all, the others read them), timed; *with those that got a figure. -1 on an error. */
+static double step_estimates(Roll *x, int *with) {
+  double t0 = reduce_now(), e;
+  unsigned flags;
+  *with = 0;
+  for (int i = 0; i < x->nest; i++) {
+    if (npg_reduced_estimate(x->r, x->est[i], &e, &flags) != 0) return -1;
+    *with += !(flags & NPG_EST_NONE);
+  }
+  return reduce_now() - t0;
+}
+
+/* Trajectory x->k's reduced rollout with each step's estimates: at every step the reduced evaluation at its
+ * inputs, then the estimates, timed (the step then advances the states, untimed); their means per step in
+ * alone_est[0] (the evaluation) and alone_est[1] (the evaluation and the estimates). -1 on an error. */
+static int time_step_estimates(Roll *x, double alone_est[2], int *with) {
+  long steps = x->c->steps;
+  double sum[2] = {0, 0};
+  if (npgc_trajectories_set_reduced(&x->tr, x->r, x->k, 0, true) != 0) return -1;
+  for (long t = 0; t < steps; t++) {
+    if (t && npgc_trajectories_set_reduced(&x->tr, x->r, x->k, t, false) != 0) return -1;
+    double t0 = reduce_now();
+    if (npg_reduced_eval(x->r, x->k) != 0) return -1;
+    double t1 = reduce_now(), ts = step_estimates(x, with);
+    if (ts < 0 || npg_reduced_step(x->r, 1, x->k) != 0) return -1;
+    sum[0] += t1 - t0, sum[1] += t1 - t0 + ts;
+  }
+  alone_est[0] = sum[0] / (double)(steps ? steps : 1), alone_est[1] = sum[1] / (double)(steps ? steps : 1);
+  return 0;
+}
+
+/* The line of the reduced evaluation with its estimates (npgc bench's "reduced + estimate", per step);
+ * without any figure, why the first quantity has none. */
+static void print_step_estimates(Roll *x, int with, double *te, double *ratio, long timed) {
+  if (!with) {
+    if (x->nest) printf("reduced + estimate  none: %s has no estimate (%s)\n", x->est[0],
+                        npg_reduced_estimate_why(x->r, x->est[0]));
+    return;
+  }
+  double q[3], qs[3];
+  npgc_quartiles(te, timed, q);
+  npgc_quartiles(ratio, timed, qs);
+  printf("reduced + estimate  %12.3e s [%.3e, %.3e] per step: the reduced evaluation at the step's inputs, then every "
+         "output's and next state's estimate (npg_reduced_estimate, %d of them with a figure): %.3gx [%.3gx, %.3gx] "
+         "the evaluation alone\n", q[1], q[0], q[2], with, qs[1], qs[0], qs[2]);
+}
+
 int cmd_bench_steps(Common *c) {
   Roll x;
   int rc = 1;
   double *tf = NULL;
   if (open_roll(c, &x, "bench") != 0) goto done;
   long S = x.tr.samples, n = S * c->reps;
-  if (!(tf = malloc(sizeof(double) * (size_t)(4 * n + 4)))) {
+  if (!(tf = malloc(sizeof(double) * (size_t)(6 * n + 6)))) {
     fputs("error: out of memory\n", stderr);
     goto done;
   }
-  double *tr = tf + n + 1, *tl = tr + n + 1, *ratio = tl + n + 1;
+  double *tr = tf + n + 1, *tl = tr + n + 1, *ratio = tl + n + 1, *te = ratio + n + 1, *ratio_est = te + n + 1;
+  int with = 0; /* quantities with an estimate */
   NpgRollout fro = {.steps = c->steps, .every = c->steps, .before_step = full_before, .user = &x};
   NpgRollout rro = {.steps = c->steps, .every = c->steps, .before_step = reduced_before, .user = &x};
   long timed = 0;
@@ -216,7 +273,10 @@ int cmd_bench_steps(Common *c) {
       double t3 = reduce_now();
       for (int i = 0; i < x.ns; i++)
         if (npg_reduced_lift(x.r, x.st[i]->sym.name, x.red[i], x.st[i]->each) != 0) goto reduced_failed;
-      double t4 = reduce_now();
+      double t4 = reduce_now(), alone_est[2];
+      if (time_step_estimates(&x, alone_est, &with) != 0) goto reduced_failed;
+      te[timed] = alone_est[1];
+      ratio_est[timed] = alone_est[1] / fmax(alone_est[0], 1e-15);
       tf[timed] = (t1 - t0) / (double)c->steps;
       tr[timed] = (t3 - t2) / (double)c->steps;
       tl[timed] = t4 - t3;
@@ -248,6 +308,7 @@ int cmd_bench_steps(Common *c) {
   printf("lift of the states  %12.3e s [%.3e, %.3e], once per saved frame\n", ql[1], ql[0], ql[2]);
   printf("speedup             %12.3gx [%.3gx, %.3gx] (full step / reduced step%s)\n", qs[1], qs[0], qs[2],
          qs[1] < 1 ? ": below 1, the reduced step is slower" : "");
+  print_step_estimates(&x, with, te, ratio_est, timed);
   rc = 0;
 done:
   free(tf);

@@ -399,7 +399,7 @@ static PyObject *trainer_finish(TrainerObject *self, PyObject *args, PyObject *k
 /* tr.greedy(start, pool, tol, budget=0, model_dir=None, absolute=False) -> Model: greedy training
  * with this trainer's options (npg_train_greedy; docs/estimates.md): `start` and `pool` dicts of arrays with
  * a leading sample axis; the samples added to the trainer itself are not used. The result's
- * record: model.greedy (chosen, worst, converged). */
+ * record: model.greedy (chosen, worst, converged); the dict adds the run's full evaluations. */
 static PyObject *trainer_greedy(TrainerObject *self, PyObject *args, PyObject *kw) {
   static char *kwlist[] = {"start", "pool", "tol", "budget", "model_dir", "absolute", NULL};
   PyObject *start, *pool, *dir = Py_None, *b = NULL;
@@ -437,8 +437,8 @@ static PyObject *trainer_greedy(TrainerObject *self, PyObject *args, PyObject *k
   free(r.chosen);
   PyObject *model = chosen ? npgpy_model_wrap(self->full->prog, m, self->full) : NULL;
   if (model)
-    res = Py_BuildValue("(N{s:N,s:d,s:O})", model, "chosen", chosen, "worst", r.worst, "converged",
-                        r.converged ? Py_True : Py_False);
+    res = Py_BuildValue("(N{s:N,s:d,s:O,s:l})", model, "chosen", chosen, "worst", r.worst, "converged",
+                        r.converged ? Py_True : Py_False, "evaluations", r.evaluations);
   else Py_XDECREF(chosen);
 done:
   npgpy_samples_free(&s);
@@ -511,9 +511,9 @@ static PyObject *trainer_add_trajectory(TrainerObject *self, PyObject *args, PyO
 
 static PyMethodDef trainer_methods[] = {
   {"greedy", (PyCFunction)(void (*)(void))trainer_greedy, METH_VARARGS | METH_KEYWORDS,
-   "greedy(start, pool, tol, budget=0, model_dir=None, absolute=False) -> (Model, {chosen, worst, converged}):\n"
+   "greedy(start, pool, tol, budget=0, model_dir=None, absolute=False) -> (Model, {chosen, worst, converged, evaluations}):\n"
    "greedy training with this trainer's options (npgc train --greedy): start and pool are dicts of arrays with a\n"
-   "leading sample axis; full evaluations only at start and at the chosen candidates of pool; tol bounds the\n"
+   "leading sample axis; full evaluations only at start and at the chosen candidates of pool, once each; tol bounds the\n"
    "estimated relative error, with absolute=True the absolute one (npgc train --absolute); the inputs' bases\n"
    "keep every direction (energy 1 unless basis= or the program sets it)"},
   {"add_trajectory", (PyCFunction)(void (*)(void))trainer_add_trajectory, METH_VARARGS | METH_KEYWORDS,

@@ -5,13 +5,15 @@ u.num1:cap=1 --absolute`):
 
 1. `--basis mu:energy=1` given (the run that was refused once u's class passed 51 vectors: its
    residual table, D = 1 + 17 m columns here, exceeded the former limit of 512 columns): greedy
-   runs to its budget of 36 samples, the final model's table has more than 512 columns, and
+   runs to its budget of 36 samples with 36 full evaluations (one per sample: each retraining takes
+   the earlier samples' snapshots from the last), the final model's table has more than 512 columns, and
    `npgc eval`'s estimate of u bounds the true error in H's norm (numpy's dense solve) on
    held-out parameters, within 20x;
 2. without it, μ's basis keeps all 16 directions (greedy training's default energy 1 for inputs;
    the uncentered default 0.999 kept fewer) and the manifest's chosen candidates are the pool
    indices farthest outside μ's basis first, not the pool's order."""
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -53,8 +55,11 @@ def main():
         os.makedirs(pool)
         np.save(os.path.join(pool, "mu.npy"), pool_mu)  # POOL/ holds the inputs only
         m1, m2 = os.path.join(w, "M1"), os.path.join(w, "M2")
-        run("train", PROG, start, "--greedy", pool, "--tol", "1e-14", "--budget", "36", "-o", m1, *COMMON,
-            "--basis", "mu:energy=1")
+        p = run("train", PROG, start, "--greedy", pool, "--tol", "1e-14", "--budget", "36", "-o", m1, *COMMON,
+                "--basis", "mu:energy=1")
+        evals = re.search(r"greedily on (\d+) samples .*; (\d+) full evaluations\)", p.stdout)
+        if not evals or evals.group(1) != "36" or evals.group(2) != "36":
+            fail("greedy training on 36 samples did not evaluate each once in full:\n" + p.stdout)
         dims = [int(l.split()[4]) for l in manifest(m1) if l.startswith("estimate u 0 dim ")]
         if not dims or dims[0] <= 512:
             fail("the greedy model's residual table has %s columns (the test needs more than 512)" % dims)

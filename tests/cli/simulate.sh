@@ -75,6 +75,9 @@ grep -q "^reduced step .* in reduced coordinates" "$W/bench.txt" || fail "bench 
 grep -q "^full evaluator: \(cc (the system compiler at -O3 -march=native)\|libtcc\), \(compiled\|loaded\) in" "$W/bench.txt" &&
   grep -q "steps, 1 BLAS thread (--threads N for more);" "$W/bench.txt" || fail "bench --steps names no backend or threads: $(cat "$W/bench.txt")"
 grep -q "^speedup  *[0-9.e+-]*x" "$W/bench.txt" || fail "bench --steps speedup: $(cat "$W/bench.txt")"
+# the reduced evaluation with its estimates per step: a time against the evaluation alone, or why none
+grep -q "^reduced + estimate  *\([0-9.e+-]* s \[.*\] per step: .* the evaluation alone\|none: .* has no estimate\)" "$W/bench.txt" ||
+  fail "bench --steps: no line of the reduced evaluation with its estimates: $(cat "$W/bench.txt")"
 
 # tune --steps: sizes chosen by the rollout error, which verify --steps then confirms
 "$B/npgc" tune $H/heat.npg "$W/train" "$W/test" --steps 60 --every 3 --tol 0.02 -o "$W/tuned" >"$W/tune.txt" ||

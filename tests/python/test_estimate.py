@@ -72,7 +72,7 @@ def test_outside_the_training_range_is_flagged(block):
 
 def test_greedy_reaches_the_tolerance_on_its_pool(root):
     """Trainer.greedy from one sample: every candidate's true relative error ends below tol (the
-    estimate bounds it), with fewer full evaluations than the pool holds."""
+    estimate bounds it), with fewer full evaluations than the pool holds, one per training sample."""
     nbr, blk, src = grid()
     prog = npg.compile((root / "tests/cli/thermal_block.npg").read_text())
     full = prog.full(params={"nbr": nbr, "blk": blk, "src": src})
@@ -82,6 +82,7 @@ def test_greedy_reaches_the_tolerance_on_its_pool(root):
     model, info = tr.greedy({"mu": rng.uniform(0.1, 1, (1, 4))}, {"mu": pool}, 1e-3)
     assert info["converged"] and info["worst"] < 1e-3
     assert 0 < len(info["chosen"]) < 30 and len(set(info["chosen"])) == len(info["chosen"])
+    assert info["evaluations"] == 1 + len(info["chosen"])  # each training sample evaluated in full once
     red = model.reduced()
     for mu in pool:
         red(mu=mu)
