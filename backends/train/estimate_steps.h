@@ -27,6 +27,31 @@ typedef struct ResidualCols {
   long D, nnum;
 } ResidualCols;
 
+/* Where a term's residual columns read basis rows (estimate_term_columns): class c's rows from
+ * B[c] through map[c] (B NULL or B[c] NULL: its whole basis rc->B; map NULL or map[c] NULL: every
+ * row at its index), for the stage's output rows [lo, hi) of its n. */
+typedef struct ColRows {
+  long lo, hi, n;
+  const double *const *B;
+  const RowMap *const *map;
+} ColRows;
+/* Rows [lo, hi) of term t of stage i's residual columns C (the numerator's full-space monomials,
+ * then −M B_y ⊗ each operator tensor's: (hi − lo) x D row-major, D = estimate_term_dim, zeroed by
+ * the caller), from the tensor builders restricted to those rows. 0, or -1 with w->err (an entry
+ * reading a basis row `rows` does not hold among them). */
+int estimate_term_columns(const EstWork *w, int i, int t, const ColRows *rows, double *C);
+/* Row r of class c's basis as `rows` holds it; NULL when it does not. */
+const double *estimate_basis_row(const Model *m, const ColRows *rows, int c, long r);
+/* norms[c] = ‖C(:, c)‖ of the n x D row-major C. */
+void estimate_column_norms(const double *C, long n, long D, double *norms);
+/* σ_min of the n x n row-major A (destroyed; `sv` 2n doubles): an SPD one by dsyevr, any other by
+ * dgesvd; NaN when LAPACK fails. */
+double estimate_smallest_sv(double *A, long n, double *sv);
+/* *sigma = σ_min(M) of inverse term rt's operator at the evaluator's current values (dense up to
+ * ESTIMATE_DENSE_MAX rows, sparse by Lanczos above; w->cc started by the caller); NaN when it is
+ * singular. 0, or -1 with w->err (the operator not built, or out of memory). */
+int estimate_operator_sigma(const EstWork *w, const RTerm *rt, long n, double *sigma);
+
 /* The affine parts of inverse term rt's operator in its one input x (at most ESTIMATE_THETA_MAX
  * entries, one axis): K[0] = M(0), K[j + 1] = M(e_j) − M(0) (sorted, explicit zeros dropped),
  * checked affine, M(x) = K[0] + Σ x_j K[j + 1], at the current sample's x and at 2·1. Returns x's

@@ -12,8 +12,9 @@
  *   - per input, each reduced coordinate's min and max over the training
  *     samples (the trust signal).
  * Every route of training builds them: in memory, out of core (the bases
- * mapped from their files are read as in memory; a class formed block by
- * block, whose basis is never whole, gives its stages no table), over MPI
+ * mapped from their files are read as in memory; the terms of a class formed
+ * block by block, whose basis is never whole, get theirs in that sweep:
+ * estimate_stream.c, through estimate_term_columns), over MPI
  * ranks (the residual tables need only the bases and the params, which
  * every rank holds: each term's is built by one rank and sent to the
  * others, term_tables; the σ_min ratios and the ranges need training
@@ -37,32 +38,38 @@
 #include "scratch.h"
 
 /* The sink filling one tensor's block of the columns: entries arrive as
- * (row, col, input offsets, coefficient). */
+ * (row, col, input offsets, coefficient); rows outside [rows->lo, rows->hi) are skipped. */
 typedef struct ColSink {
   const Model *m;
   const RTensor *t;
-  double *C;                /* n x D row-major */
-  long n, D, off;           /* the block starts at column off */
-  const double *By;         /* an operator's: the stage basis (n x my); NULL for a numerator */
-  long my;
+  const ColRows *rows;
+  double *C;                /* (hi − lo) x D row-major */
+  long D, off;              /* the block starts at column off */
+  int cy;                   /* an operator's: the stage's class; -1 for a numerator */
   double *v, *pack;         /* the entry's monomials (cols), a packed power's scratch */
 } ColSink;
+
+const double *estimate_basis_row(const Model *m, const ColRows *rows, int c, long r) {
+  const RClass *rc = &m->classes[c];
+  const RowMap *map = rows->map ? rows->map[c] : NULL;
+  const double *B = rows->B && rows->B[c] ? rows->B[c] : rc->B;
+  if (r < 0 || r >= rc->n || !B || !row_map_has(map, r)) return NULL;
+  return B + row_map_at(map, r) * rc->m;
+}
 
 static int col_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
   ColSink *s = user;
   const RTensor *t = s->t;
   const Model *m = s->m;
-  if (row < 0 || row >= s->n) return -1;
+  if (row < s->rows->lo || row >= s->rows->hi) return row >= 0 && row < s->rows->n ? 0 : -1;
   s->v[0] = coef;
   long len = 1;
   for (int pos = 0, j = 0; j < t->nin; j++) {
-    const RClass *c = &m->classes[m->qclass[t->in_q[j]]];
+    int c = m->qclass[t->in_q[j]];
     const double *rows[RT_MAX_IN];
-    for (int l = 0; l < t->in_mult[j]; l++, pos++) {
-      if (pos >= nin || in[pos] < 0 || in[pos] >= c->n) return -1;
-      rows[l] = c->B + (long)in[pos] * c->m;
-    }
-    sym_outer(c->m, t->in_mult[j], rows, s->pack);
+    for (int l = 0; l < t->in_mult[j]; l++, pos++)
+      if (pos >= nin || !(rows[l] = estimate_basis_row(m, s->rows, c, in[pos]))) return -1;
+    sym_outer(m->classes[c].m, t->in_mult[j], rows, s->pack);
     long lj = t->in_len[j];
     for (long a = len - 1; a >= 0; a--) {
       double va = s->v[a];
@@ -70,27 +77,57 @@ static int col_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_id
     }
     len *= lj;
   }
-  double *Cr = s->C + (long)row * s->D + s->off;
-  if (!s->By) {
+  double *Cr = s->C + (long)(row - s->rows->lo) * s->D + s->off;
+  if (s->cy < 0) {
     for (long c = 0; c < t->cols; c++) Cr[c] += s->v[c];
     return 0;
   }
-  long k = t->kind == RT_DIAG ? (long)row : (long)col;
-  if (k < 0 || k >= s->n) return -1;
-  const double *b = s->By + k * s->my;
-  for (long a = 0; a < s->my; a++)
+  const double *b = estimate_basis_row(m, s->rows, s->cy, t->kind == RT_DIAG ? (long)row : (long)col);
+  if (!b) return -1;
+  for (long a = 0, my = m->classes[s->cy].m; a < my; a++)
     for (long c = 0; c < t->cols; c++) Cr[a * t->cols + c] -= b[a] * s->v[c];
   return 0;
 }
 
-static int fill_block(Model *m, Full *f, const RTensor *t, ColSink *s, Err *err) {
+static int fill_block(Full *f, const RTensor *t, ColSink *s, Err *err) {
   s->t = t;
-  NpgSink sink = {s, col_entry, 0, 1, 0, 0};
+  NpgSink sink = {s, col_entry, 0, 1, s->rows->lo, s->rows->hi};
   if (full_build(f, t->builder, &sink) != 0)
     return err_set(err, "estimate tables: tensor %s: %s", t->name, full_error(f)[0] ? full_error(f) :
-                     "an entry outside its rows (a bug in npg)");
-  (void)m;
+                     "an entry outside its rows, or reading a basis row not held (a bug in npg)");
   return 0;
+}
+
+int estimate_term_columns(const EstWork *w, int i, int t, const ColRows *rows, double *C) {
+  Model *m = w->m;
+  RStage *rs = &m->stages[i];
+  RTerm *rt = &rs->terms[t];
+  long D = estimate_term_dim(m, i, t), maxcols = 1, maxpack = 1;
+  RTERM_FOR_TENSORS(rt, x) {
+    maxcols = x->cols > maxcols ? x->cols : maxcols;
+    for (int j = 0; j < x->nin; j++) maxpack = x->in_len[j] > maxpack ? x->in_len[j] : maxpack;
+  }
+  Scratch sc = SCRATCH_OF(w->err);
+  ColSink s = {m, NULL, rows, C, D, 0, -1, scratch_array(&sc, (size_t)maxcols, sizeof(double)),
+               scratch_array(&sc, (size_t)maxpack, sizeof(double))};
+  int out = s.v && s.pack ? 0 : -1;
+  if (out == 0 && rt->named_q >= 0) {
+    int cw = m->qclass[rt->named_q];
+    for (long row = rows->lo; out == 0 && row < rows->hi; row++) {
+      const double *b = estimate_basis_row(m, rows, cw, row);
+      if (b) memcpy(C + (row - rows->lo) * D, b, sizeof(double) * (size_t)m->classes[cw].m);
+      else out = err_set(w->err, "estimate tables: stage %s: row %ld of its numerator's basis not held (a bug in npg)",
+                         rs->st->sym->name, row);
+    }
+    s.off = m->classes[cw].m;
+  }
+  for (int g = 0; out == 0 && g < rt->nnum; s.off += rt->num[g++].cols) out = fill_block(w->f, &rt->num[g], &s, w->err);
+  s.cy = m->qclass[rs->q];
+  for (int k = 0; out == 0 && k < rt->nops; k++)
+    for (int g = 0; out == 0 && g < rt->ops[k].ntensors; s.off += m->classes[s.cy].m * rt->ops[k].t[g++].cols)
+      out = fill_block(w->f, &rt->ops[k].t[g], &s, w->err);
+  scratch_release(&sc);
+  return out;
 }
 
 /* C (n x D) <- (I − BBᵀ) C, twice (one projection leaves ε‖C‖ of B's span); B n x m orthonormal. */
@@ -158,55 +195,43 @@ static int term_table(Model *m, Full *f, const SampleSource *src, int i, int t, 
   RStage *rs = &m->stages[i];
   RTerm *rt = &rs->terms[t];
   const RClass *rc = &m->classes[m->qclass[rs->q]];
-  long n = rc->n, D = estimate_term_dim(m, i, t), maxcols = 1, maxpack = 1;
+  long n = rc->n, D = estimate_term_dim(m, i, t);
   RTERM_FOR_TENSORS(rt, x) {
-    maxcols = x->cols > maxcols ? x->cols : maxcols;
-    for (int j = 0; j < x->nin; j++) maxpack = x->in_len[j] > maxpack ? x->in_len[j] : maxpack;
     for (int j = 0; j < x->nin; j++)
       if (!m->classes[m->qclass[x->in_q[j]]].B) return 0; /* an input's basis is not whole here */
   }
   if (rt->named_q >= 0 && (!m->classes[m->qclass[rt->named_q]].B || m->classes[m->qclass[rt->named_q]].n != n)) return 0;
   if (estimate_term_bytes(m, i, t) > ESTIMATE_MAX_BYTES) return 0; /* estimate.c's message says so */
-  ColSink s = {m, NULL, calloc((size_t)(n * D) + 1, sizeof(double)), n, D, 0, NULL, rc->m,
-               malloc(sizeof(double) * (size_t)maxcols), malloc(sizeof(double) * (size_t)maxpack)};
-  double *G = calloc((size_t)((D + 1) * D) + 1, sizeof(double)), *V = NULL;
-  int rc_ = -1;
-  if (!s.C || !s.v || !s.pack || !G) {
-    err_set(err, "estimate tables: out of memory for stage %s (%ld x %ld columns)", rs->st->sym->name, n, D);
-    goto done;
-  }
-  if (rt->named_q >= 0) {
-    const RClass *cw = &m->classes[m->qclass[rt->named_q]];
-    for (long row = 0; row < n; row++) memcpy(s.C + row * D, cw->B + row * cw->m, sizeof(double) * (size_t)cw->m);
-    s.off = cw->m;
-  }
-  for (int g = 0; g < rt->nnum; g++, s.off += rt->num[g - 1].cols)
-    if (fill_block(m, f, &rt->num[g], &s, err)) goto done;
-  s.By = rc->B;
-  for (int k = 0; k < rt->nops; k++)
-    for (int g = 0; g < rt->ops[k].ntensors; g++, s.off += rc->m * rt->ops[k].t[g - 1].cols)
-      if (fill_block(m, f, &rt->ops[k].t[g], &s, err)) goto done;
+  Scratch sc = SCRATCH_OF(err);
+  double *C = scratch_array(&sc, (size_t)(n * D) + 1, sizeof(double)), *V = NULL;
+  double *G = scratch_array(&sc, (size_t)((D + 1) * D) + 1, sizeof(double));
+  EstWork w = {m, f, NULL, err, src};
   long nnum = rt->named_q >= 0 ? m->classes[m->qclass[rt->named_q]].m : 0;
   for (int g = 0; g < rt->nnum; g++) nnum += rt->num[g].cols;
-  EstWork wk = {m, f, NULL, err, src};
-  if (rc->product && estimate_product_columns(&wk, rt, rc, &(ResidualCols){s.C, D, nnum}, &V)) goto done;
-  if (rt->named_q >= 0 && estimate_product_carry(&wk, rt, rc, &m->classes[m->qclass[rt->named_q]])) goto done;
-  for (long c = 0; c < D; c++) G[D * D + c] = cblas_dnrm2((int)n, s.C + c, (int)D);
-  if (project_out(V ? V : rc->B, n, rc->m, s.C, D)) {
-    err_set(err, "estimate tables: out of memory projecting stage %s", rs->st->sym->name);
-    goto done;
+  int bad = !C || !G || estimate_term_columns(&w, i, t, &(ColRows){0, n, n, NULL, NULL}, C);
+  if (!bad && rc->product)
+    bad = estimate_product_columns(&w, rt, rc, &(ResidualCols){C, D, nnum}, &V) || !scratch_adopt(&sc, V);
+  if (!bad && rt->named_q >= 0) bad = estimate_product_carry(&w, rt, rc, &m->classes[m->qclass[rt->named_q]]);
+  if (!bad) {
+    estimate_column_norms(C, n, D, G + D * D);
+    if (project_out(V ? V : rc->B, n, rc->m, C, D))
+      bad = err_set(err, "estimate tables: out of memory projecting stage %s", rs->st->sym->name);
   }
-  if (estimate_term_chains(rt) ? qr_blocks(m, i, t, s.C, n, G) : qr_factor(s.C, n, D, G)) {
-    err_set(err, "estimate tables: the QR of stage %s's residual columns failed (LAPACK)", rs->st->sym->name);
-    goto done;
+  if (!bad && (estimate_term_chains(rt) ? qr_blocks(m, i, t, C, n, G) : qr_factor(C, n, D, G)))
+    bad = err_set(err, "estimate tables: the QR of stage %s's residual columns failed (LAPACK)", rs->st->sym->name);
+  if (!bad && !(rt->est_G = malloc(sizeof(double) * (size_t)((D + 1) * D) + 1)))
+    bad = err_set(err, "estimate tables: out of memory for stage %s", rs->st->sym->name);
+  if (!bad) {
+    memcpy(rt->est_G, G, sizeof(double) * (size_t)((D + 1) * D));
+    rt->est_D = D;
+    if (!rc->product) rt->est_sigma = NAN; /* a product's: estimate_product_columns's */
   }
-  rt->est_G = G, rt->est_D = D;
-  if (!rc->product) rt->est_sigma = NAN; /* a product's: estimate_product_columns's */
-  G = NULL;
-  rc_ = 0;
-done:
-  free(s.C), free(s.v), free(s.pack), free(G), free(V);
-  return rc_;
+  scratch_release(&sc);
+  return bad ? -1 : 0;
+}
+
+void estimate_column_norms(const double *C, long n, long D, double *norms) {
+  for (long c = 0; c < D; c++) norms[c] = cblas_dnrm2((int)n, C + c, (int)D);
 }
 
 /* The dense full operator's sink: value coef · Π input entries at (row, col), or (row, row) for a diagonal one. */
@@ -243,7 +268,7 @@ static int full_operator(Full *f, const RTerm *rt, double *M, long n, Err *err) 
 /* Smallest singular value of the n x n row-major A (destroyed); NaN if LAPACK fails. A symmetric
  * positive definite A (the usual inverse: Cholesky's) by its smallest eigenvalue alone (dsyevr,
  * about a quarter of the SVD's time), anything else by dgesvd. `sv` holds 2n doubles. */
-static double smallest_sv(double *A, long n, double *sv) {
+double estimate_smallest_sv(double *A, long n, double *sv) {
   double big = 0, asym = 0;
   for (long i = 0; i < n; i++)
     for (long j = 0; j < n; j++) big = fmax(big, fabs(A[i * n + j])), asym = fmax(asym, fabs(A[i * n + j] - A[j * n + i]));
@@ -563,6 +588,22 @@ static int affine_input(const EstWork *w, const RTerm *rt, long n) {
   return q;
 }
 
+int estimate_operator_sigma(const EstWork *w, const RTerm *rt, long n, double *sigma) {
+  Scratch sc = SCRATCH_OF(w->err);
+  int out = -1;
+  *sigma = NAN;
+  if (n <= ESTIMATE_DENSE_MAX) {
+    double *M = scratch_array(&sc, (size_t)(n * n) + 1, sizeof(double)), *sv = scratch_array(&sc, (size_t)(2 * n) + 1, sizeof(double));
+    if (M && sv && (out = full_operator(w->f, rt, M, n, w->err)) == 0) *sigma = estimate_smallest_sv(M, n, sv);
+  } else {
+    cholmod_sparse *A = sparse_operator(w->f, rt, n, w->cc, w->err);
+    if (A) *sigma = estimate_sparse_smallest_sv(A, n, w->cc), out = 0;
+    cholmod_l_free_sparse(&A, w->cc);
+  }
+  scratch_release(&sc);
+  return out;
+}
+
 /* sig[0] = σ_min(M), sig[1] = σ_min(BᵀMB) of inverse term rt of `stage` at the evaluator's current values: M
  * assembled dense and decomposed by LAPACK up to ESTIMATE_DENSE_MAX rows, sparse above (estimate_sparse_smallest_sv).
  * An applied operator's (a positive integer power): ‖M‖₂ and ‖BᵀMB‖₂ instead (largest_sv, sparse_largest_sv). rt's first
@@ -597,8 +638,8 @@ static int term_sigmas(const EstWork *w, const RTerm *rt, const RClass *rc, cons
     sig[0] = dense ? largest_sv(M, n, sv) : sparse_largest_sv(A, n, cc);
     sig[1] = largest_sv(R, my, sv);
   } else {
-    sig[0] = dense ? smallest_sv(M, n, sv) : estimate_sparse_smallest_sv(A, n, cc);
-    sig[1] = my > 0 ? smallest_sv(R, my, sv) : INFINITY;
+    sig[0] = dense ? estimate_smallest_sv(M, n, sv) : estimate_sparse_smallest_sv(A, n, cc);
+    sig[1] = my > 0 ? estimate_smallest_sv(R, my, sv) : INFINITY;
   }
   rc_ = 0;
 done:
@@ -739,7 +780,8 @@ static int sigma_terms(SigmaRun *s) {
     for (int t = 0; t < m->stages[i].nterms; t++) {
       RTerm *rt = &m->stages[i].terms[t];
       const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
-      if (!rt->est_G || rc->n > ESTIMATE_SPARSE_MAX || rc->product) continue;
+      /* a class whose basis is never whole (out of core, RClass.streamed): estimate_stream.c's */
+      if (!rt->est_G || rc->n > ESTIMATE_SPARSE_MAX || rc->product || !rc->B) continue;
       bool several = rt->nops > 1 && estimate_term_chains(rt) && rt->nops <= ESTIMATE_OPS_MAX;
       if (rt->nops != 1 && !several) continue;
       free(rt->est_opc);

@@ -5,6 +5,7 @@
 
 #include <stdio.h>
 
+#include "scratch.h"
 #include "train_steps.h"
 
 /* Rows [r0, r1) of streamed class c, collected in one pass. */
@@ -88,6 +89,36 @@ bool stream_blockwise(const Ooc *o, int c);
  * train_premultiply_all); a blockwise class the model keeps (not
  * RClass.streamed) gets its basis file, mapped as rc->B. 0, or -1 with o->t->err. */
 int stream_premultiply(Ooc *o);
+
+/* Rows [r0, r1) of a class of n rows at the fraction [u/U, (u+1)/U) the sweep's block u of U
+ * takes (of every class the same fraction: the blocks partition each class's rows). */
+void stream_fraction(long n, long u, long U, long *r0, long *r1);
+/* The signs of term rt's residual columns (estimate_term_columns's D, into cs) given each
+ * class's column signs (sign[c] NULL: +1; cy the stage's class): a numerator tensor's columns
+ * those of its inputs' packed products, an operator tensor's a of the output times them. 0, or
+ * -1 when `sc` runs out of memory. */
+int stream_column_signs(const Ooc *o, const RTerm *rt, int cy, const double *const *sign, double *cs, Scratch *sc);
+
+/* ---------------------------------------------------------------- the estimate tables of the streamed (estimate_stream.c) */
+
+/* The online estimate's tables of the terms that read a basis never whole (a class the model
+ * drops, formed block by block: residual tables by a tall-skinny QR over the blocks, an inverse
+ * term's σ_min ratio from B_yᵀM_kB_y summed over them), made along stream_premultiply's sweep. */
+typedef struct EstStream EstStream;
+/* *out NULL when no term needs it. 0, or -1 with o->t->err (*out then for estimate_stream_free). */
+int estimate_stream_begin(Ooc *o, EstStream **out);
+/* A block's demand: the whole of an operator's inputs whose rows are not held by the block. */
+void estimate_stream_demand(const EstStream *e, Demand *d);
+/* After sample k's evaluation restricted to block u of U: a picked sample's operator entries kept. */
+int estimate_stream_sample(EstStream *e, long k, long u, long U);
+/* Once block u of U's basis rows are formed (per class B[c] through map[c], NULL: whole): its
+ * rows of each term's columns factored into its R, its operators' entries reduced. */
+int estimate_stream_block(EstStream *e, const double *const *B, const RowMap *const *map, long u, long U);
+/* After every block and the columns' signs (per class, NULL: +1): every term's table set in the
+ * model (rt->est_G; an inverse term of a dropped class its est_sigma, from whole evaluations of
+ * the picked samples). 0, or -1 with o->t->err. */
+int estimate_stream_finish(EstStream *e, const double *const *sign);
+void estimate_stream_free(EstStream *e);
 
 /* A class formed block by block and used at once (Stream.blockwise) has
  * no sweep to take B's R factor (write_basis): B = A T is orthonormal only

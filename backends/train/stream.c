@@ -56,6 +56,7 @@
 
 #include "dist.h"
 #include "ooc.h"
+#include "scratch.h"
 
 /* One column's running maxima of |B(r, j)| (ascending rows), those below
  * PCA_SIGN_FRACTION of the largest dropped. */
@@ -99,6 +100,13 @@ typedef struct Streamer {
   double sec[4];            /* wall seconds: dry runs, evaluations, A and B, pre-multiplying */
   double flops;             /* the pre-multiplication's (premultiply_block's count: the packed products) */
   size_t peak;              /* the largest block's bytes of held rows */
+  long u, U;                /* the current block: the fraction [u/U, (u+1)/U) of every class's rows */
+  /* per class: a blockwise one's held rows of B, its row map and (after decide_signs) its columns'
+   * signs; NULL for one whose basis is whole */
+  const double **B;
+  const RowMap **map;
+  const double **sign;
+  EstStream *est;           /* the estimate tables of the terms reading a basis never whole (estimate_stream.c) */
 } Streamer;
 
 static double now(void) {
@@ -232,17 +240,17 @@ static int mark_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_i
   return 0;
 }
 
+void stream_fraction(long n, long u, long U, long *r0, long *r1) {
+  *r0 = (long)((double)n * (double)u / (double)U), *r1 = u + 1 == U ? n : (long)((double)n * (double)(u + 1) / (double)U);
+}
+
 /* Output rows [lo, hi) of tensor x at the fraction [u/U, (u+1)/U). */
 static void block_rows(const Model *m, const STensor *t, long u, long U, long *lo, long *hi) {
-  long n = m->classes[t->cy].n;
-  *lo = (long)((double)n * (double)u / (double)U), *hi = (long)((double)n * (double)(u + 1) / (double)U);
-  if (u + 1 == U) *hi = n;
+  stream_fraction(m->classes[t->cy].n, u, U, lo, hi);
 }
 
 /* A class's home rows at the fraction [u/U, (u+1)/U): the same formula, so the homes partition its rows. */
-static void home_rows(long n, long u, long U, long *r0, long *r1) {
-  *r0 = (long)((double)n * (double)u / (double)U), *r1 = u + 1 == U ? n : (long)((double)n * (double)(u + 1) / (double)U);
-}
+static void home_rows(long n, long u, long U, long *r0, long *r1) { stream_fraction(n, u, U, r0, r1); }
 
 static int mark_block(Streamer *s, long u, long U, size_t *need) {
   Ooc *o = s->o;
@@ -357,12 +365,14 @@ static int form_rows(Streamer *s) {
     for (int i = 1; i < rc->nmembers; i++) h->H[i] = h->H[i - 1] + (size_t)h->map.count * (size_t)S;
     for (int i = 0; i < rc->nmembers; i++) demand_held(o, d, ooc_member_quantity(m, &rc->members[i]), h);
   }
+  estimate_stream_demand(s->est, d);
   if (demand_propagate(d)) return err_set(o->t->err, "out of memory");
   double t0 = now();
   for (long k = 0; k < S; k++) {
     if ((o->t->src->set_part ? o->t->src->set_part(o->t->src->user, o->t->f, k, d) : o->t->src->set(o->t->src->user, o->t->f, k)) ||
         full_eval_demand(o->t->f, k, d))
       return err_set(o->t->err, "%s", full_error(o->t->f));
+    if (estimate_stream_sample(s->est, k, s->u, s->U)) return -1;
     for (int c = 0; c < m->nclasses; c++) {
       if (!blockwise(s, c)) continue;
       Held *h = &s->held[c];
@@ -502,7 +512,11 @@ static int block(Streamer *s, long u, long U, bool split) {
   }
   s->nblocks++;
   s->peak = need > s->peak ? need : s->peak;
+  s->u = u, s->U = U;
   if (form_rows(s)) return -1;
+  for (int c = 0; c < m->nclasses; c++)
+    s->B[c] = blockwise(s, c) ? s->held[c].B : NULL, s->map[c] = blockwise(s, c) ? &s->held[c].map : NULL;
+  if (estimate_stream_block(s->est, s->B, s->map, u, U)) return -1;
   double t2 = now();
   s->sec[1] += t2 - t1;
   for (int c = 0; c < m->nclasses; c++) {
@@ -571,46 +585,82 @@ static void packed_signs(long mm, int mult, const double *d, double *out) {
   for (long a = 0; a < len; a++) out[a] = out[a] < 0 ? -1.0 : 1.0;
 }
 
-/* Tensor x's sums as if B's columns had had their signs: entry (a, b) times
- * the sign of output coordinate a and of input coordinate b (Kronecker
- * product of the inputs' packed signs, the first input slowest, as
- * pend_entry lays them out). */
-static int fix_signs(Streamer *s, const STensor *t) {
-  Model *m = s->o->t->m;
-  RTensor *x = t->x;
-  double one = 1;
-  const double *dy = blockwise(s, t->cy) ? s->held[t->cy].sign : NULL;
-  long my = m->classes[t->cy].m;
-  double *rs = mem_malloc(sizeof(double) * (size_t)(x->rows + 1)), *cs = mem_malloc(sizeof(double) * (size_t)(x->cols + 1));
-  double *pk = NULL;
-  long maxlen = 1;
-  for (int j = 0; j < x->nin; j++) maxlen = x->in_len[j] > maxlen ? x->in_len[j] : maxlen;
-  pk = mem_malloc(sizeof(double) * (size_t)(maxlen + 1));
-  if (!rs || !cs || !pk) return free(rs), free(cs), free(pk), err_set(s->o->t->err, "out of memory");
-  long q = 0;
-  if (x->kind == RT_NUM)
-    for (long a = 0; a < my; a++) rs[q++] = dy ? dy[a] : one;
-  else if (x->kind == RT_DIAG)
-    for (long a = 0; a < my; a++)
-      for (long c = a; c < my; c++) rs[q++] = dy ? dy[a] * dy[c] : one;
-  else
-    for (long a = 0; a < my; a++)
-      for (long c = 0; c < my; c++) rs[q++] = dy ? dy[a] * dy[c] : one;
+/* The signs of tensor x's columns given each class's column signs (`sign` NULL, or sign[c] NULL
+ * for a class: +1): the Kronecker product of its inputs' packed signs, the first input slowest,
+ * as pend_entry lays them out. `pk` holds the largest input's packed length. */
+static void tensor_col_signs(const Model *m, const RTensor *x, const double *const *sign, double *cs, double *pk) {
   cs[0] = 1;
   long len = 1;
   for (int j = 0; j < x->nin; j++) {
     int c = m->qclass[x->in_q[j]];
     long lj = x->in_len[j];
-    if (blockwise(s, c)) packed_signs(m->classes[c].m, x->in_mult[j], s->held[c].sign, pk);
+    if (sign && sign[c]) packed_signs(m->classes[c].m, x->in_mult[j], sign[c], pk);
     else
       for (long b = 0; b < lj; b++) pk[b] = 1;
     for (long a = len - 1; a >= 0; a--) /* in place from the back, as pend_entry expands */
       for (long b = lj - 1; b >= 0; b--) cs[a * lj + b] = cs[a] * pk[b];
     len *= lj;
   }
-  for (long a = 0; a < x->rows; a++)
+}
+
+static long max_in_len(const RTensor *x) {
+  long len = 1;
+  for (int j = 0; j < x->nin; j++) len = x->in_len[j] > len ? x->in_len[j] : len;
+  return len;
+}
+
+/* Tensor x's sums as if B's columns had had their signs: entry (a, b) times
+ * the sign of output coordinate a and of input coordinate b. */
+static int fix_signs(Streamer *s, const STensor *t) {
+  Model *m = s->o->t->m;
+  RTensor *x = t->x;
+  const double *dy = s->sign[t->cy];
+  long my = m->classes[t->cy].m;
+  Scratch sc = SCRATCH_OF(s->o->t->err);
+  double *rs = scratch_array(&sc, (size_t)x->rows + 1, sizeof(double)), *cs = scratch_array(&sc, (size_t)x->cols + 1, sizeof(double));
+  double *pk = scratch_array(&sc, (size_t)max_in_len(x) + 1, sizeof(double));
+  int out = rs && cs && pk ? 0 : -1;
+  long q = 0;
+  if (out == 0 && x->kind == RT_NUM)
+    for (long a = 0; a < my; a++) rs[q++] = dy ? dy[a] : 1;
+  else if (out == 0 && x->kind == RT_DIAG)
+    for (long a = 0; a < my; a++)
+      for (long c = a; c < my; c++) rs[q++] = dy ? dy[a] * dy[c] : 1;
+  else if (out == 0)
+    for (long a = 0; a < my; a++)
+      for (long c = 0; c < my; c++) rs[q++] = dy ? dy[a] * dy[c] : 1;
+  if (out == 0) tensor_col_signs(m, x, s->sign, cs, pk);
+  for (long a = 0; out == 0 && a < x->rows; a++)
     for (long b = 0; b < x->cols; b++) x->data[a * x->cols + b] *= rs[a] * cs[b];
-  free(rs), free(cs), free(pk);
+  scratch_release(&sc);
+  return out;
+}
+
+int stream_column_signs(const Ooc *o, const RTerm *rt, int cy, const double *const *sign, double *cs, Scratch *sc) {
+  const Model *m = o->t->m;
+  long maxlen = 1, maxcols = 1, off = 0, my = m->classes[cy].m;
+  for (int k = -1; k < rt->nops; k++)
+    for (int g = 0; g < (k < 0 ? rt->nnum : rt->ops[k].ntensors); g++) {
+      const RTensor *x = k < 0 ? &rt->num[g] : &rt->ops[k].t[g];
+      maxcols = x->cols > maxcols ? x->cols : maxcols, maxlen = max_in_len(x) > maxlen ? max_in_len(x) : maxlen;
+    }
+  double *pk = scratch_array(sc, (size_t)maxlen + 1, sizeof(double)), *ct = scratch_array(sc, (size_t)maxcols + 1, sizeof(double));
+  if (!pk || !ct) return -1;
+  if (rt->named_q >= 0) {
+    int cw = m->qclass[rt->named_q];
+    for (long a = 0; a < m->classes[cw].m; a++) cs[off++] = sign && sign[cw] ? sign[cw][a] : 1;
+  }
+  for (int g = 0; g < rt->nnum; g++) {
+    tensor_col_signs(m, &rt->num[g], sign, ct, pk);
+    for (long c = 0; c < rt->num[g].cols; c++) cs[off++] = ct[c];
+  }
+  const double *dy = sign ? sign[cy] : NULL;
+  for (int k = 0; k < rt->nops; k++)
+    for (int g = 0; g < rt->ops[k].ntensors; g++) {
+      tensor_col_signs(m, &rt->ops[k].t[g], sign, ct, pk);
+      for (long a = 0; a < my; a++)
+        for (long c = 0; c < rt->ops[k].t[g].cols; c++) cs[off++] = (dy ? dy[a] : 1) * ct[c];
+    }
   return 0;
 }
 
@@ -626,7 +676,8 @@ static void held_free(Streamer *s) {
     for (long j = 0; h->peaks && j < s->o->st[c].m; j++) free(h->peaks[j].row), free(h->peaks[j].v);
     free(h->peaks);
   }
-  free(s->held), free(s->t);
+  free(s->held), free(s->t), free(s->B), free(s->map), free(s->sign);
+  estimate_stream_free(s->est);
 }
 
 int stream_premultiply(Ooc *o) {
@@ -642,7 +693,9 @@ int stream_premultiply(Ooc *o) {
       RTERM_FOR_TENSORS(rt, x) ntensors++;
     }
   int rc = -1;
-  if (!(s.held = mem_calloc((size_t)m->nclasses, sizeof(Held))) || !(s.t = mem_calloc((size_t)ntensors + 1, sizeof(STensor))))
+  if (!(s.held = mem_calloc((size_t)m->nclasses, sizeof(Held))) || !(s.t = mem_calloc((size_t)ntensors + 1, sizeof(STensor))) ||
+      !(s.B = mem_calloc((size_t)m->nclasses, sizeof(double *))) || !(s.map = mem_calloc((size_t)m->nclasses, sizeof(RowMap *))) ||
+      !(s.sign = mem_calloc((size_t)m->nclasses, sizeof(double *))))
     goto oom;
   for (int i = 0; i < m->nstages; i++) {
     int cy = m->qclass[m->stages[i].q];
@@ -668,6 +721,7 @@ int stream_premultiply(Ooc *o) {
     if (blockwise(&s, c) && !m->classes[c].streamed &&
         !(s.held[c].file = ooc_basis_file(o, &m->classes[c], sizeof(double) * (size_t)m->classes[c].n * (size_t)o->st[c].m)))
       goto done;
+  if (estimate_stream_begin(o, &s.est)) goto done;
   /* the passes' buffers are done with: their bytes are this sweep's */
   free(o->block), free(o->abuf);
   o->block = o->abuf = NULL, o->block_cap = o->abuf_cap = 0;
@@ -675,6 +729,7 @@ int stream_premultiply(Ooc *o) {
   for (long p = 0; p < o->npass; p++)
     if (ooc_mine(o, p) && block(&s, p, o->npass, true)) goto done;
   if (decide_signs(&s)) goto done;
+  for (int c = 0; c < m->nclasses; c++) s.sign[c] = blockwise(&s, c) ? s.held[c].sign : NULL;
   for (int c = 0; c < m->nclasses; c++)
     if (m->classes[c].coef_S > 0 && blockwise(&s, c) && coefficients(o, c, s.held[c].sign)) goto done;
   for (int c = 0; c < m->nclasses; c++)
@@ -698,6 +753,7 @@ int stream_premultiply(Ooc *o) {
     if (o->N > 1) dist_allreduce_sum(x->data, x->rows * x->cols); /* every rank's blocks summed */
     if (fix_signs(&s, &s.t[i])) goto done;
   }
+  if (estimate_stream_finish(s.est, s.sign)) goto done;
   rc = 0;
   goto done;
 oom:

@@ -36,7 +36,7 @@ same_arrays() {
   done
 }
 # every array of model $1 is in $2 with the same numbers to 1e-10 (relative to the largest
-# entry, at least 1); the bases $1 keeps bit for bit; a class $1 keeps as coefficients C of its
+# entry, at least 1; a residual table R of the estimate by RᵀR); the bases $1 keeps bit for bit; a class $1 keeps as coefficients C of its
 # training values X (v's out of core, issue 30: coef_C.npy; X from the samples $3, RT by default)
 # has X C equal to $2's basis to 1e-10
 same_numbers() {
@@ -58,6 +58,12 @@ for f in os.listdir(a):
     assert x.shape == y.shape, f
     if f.startswith("basis_"):
         assert np.array_equal(x, y), f
+    elif f.startswith("est_") and x.shape[0] == x.shape[1] + 1:
+        # a residual table R (then its columns' norms): made block by block (estimate_stream.c) or whole, its rows
+        # are R's up to an orthogonal factor; ‖R z‖, so RᵀR, is what the two share
+        D, big = x.shape[1], max(1.0, np.max(y[-1]) ** 2)
+        d = max(np.max(np.abs(x[:D].T @ x[:D] - y[:D].T @ y[:D])) / big, np.max(np.abs(x[D] - y[D])) / np.sqrt(big))
+        assert d <= 1e-10, "%s: RᵀR and the norms: %g" % (f, d)
     elif x.size:
         d = np.max(np.abs(x - y)) / max(1.0, np.max(np.abs(y)))
         assert d <= 1e-10, "%s: %g" % (f, d)
@@ -129,8 +135,9 @@ done
 # pair basis's size (rows x basis size) is written, v's neither (kept as coefficients of its training
 # values). Under a file-size limit of 200 kB, below the smallest of them ({r}: 9,216 x 3 doubles),
 # streamed training succeeds where keeping every basis cannot; the model is the old layout's to
-# 1e-10 and gives the same reduced outputs on held-out samples
-opts="--mem 4M --energy 0.9999999"
+# 1e-10 and gives the same reduced outputs on held-out samples. The caps of {e,b} keep the residual
+# table of b (D x D, D about 10 x its size: b's operator reads {d,p}'s 8 directions) below the limit
+opts="--mem 4M --energy 0.9999999 --basis e:cap=6 --basis b:cap=6"
 (ulimit -f 400 && exec "$N" train $R "$W/RT" -o "$W/F" $opts --progress >/dev/null 2>"$W/f.err") ||
   fail "streamed training under a 200 kB file-size limit: $(tr '\r' '\n' <"$W/f.err" | tail -3)"
 grep -aq '^out of core: bases formed block by block for the pre-multiplication, no basis file: {s,h} {r} {c} {v} {d,p}; {v} kept as coefficients of its training values; kept, written as formed (no scratch A): (' \

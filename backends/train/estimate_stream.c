@@ -1,0 +1,369 @@
+/* estimate_stream.c — the online estimate's tables (estimate_train.c, docs/estimates.md) of the
+ * terms that read a basis the model drops out of core (RClass.streamed, formed block by block in
+ * stream.c's sweep and never whole: radiosity's pair classes at --mem below their bases).
+ *
+ * The residual table of a term is R of the QR of C' = (I − B_yB_yᵀ)C, C (n x D) its residual's
+ * full-space columns. Row block by row block, as the sweep forms the basis rows a block reads,
+ * the block's rows of [B_y C] are stacked under the R so far and factored again (LAPACK dgeqrf:
+ * a tall-skinny QR, one block at a time). At the end R = [R11 R12; 0 R22] with Q1 = B_y R11⁻¹ a
+ * basis of B_y's span, and R22 is R of C − Q1Q1ᵀC = (I − B_yB_yᵀ)C: ‖R22 z‖ = ‖C' z‖, the
+ * in-memory table's figure to rounding, without the columns ever held whole (the block's rows
+ * only, in chunks of TSQR_CHUNK_BYTES). The columns are made with the bases' columns as the
+ * sweep forms them (B = A T, signs not yet fixed: stream.c's fix_signs), so C's columns are
+ * those of the model times ±1: R22's columns are multiplied by those signs at the end
+ * (stream_column_signs), which makes R22ᵀR22 the model's.
+ *
+ * An inverse term's σ_min ratio c = min over picked training samples of σ_min(M)/σ_min(B_yᵀMB_y)
+ * (estimate_train.c's sigma_ratios: the same samples) needs B_yᵀM_kB_y: while the sweep evaluates
+ * a picked sample restricted to a block's rows, M_k's entries of the block's output rows are kept
+ * (their input values read from that evaluation), and once the block's basis rows are formed,
+ * B_y[row]ᵀ M_k(row, col) B_y[col] is added up (σ_min is unchanged by the columns' signs). σ_min(M_k)
+ * itself is measured as in memory, on the operator assembled from a whole evaluation of the sample
+ * (the one full evaluation --mem leaves room for).
+ *
+ * Over MPI ranks each rank factors its own blocks; the ranks' R are stacked in rank order on every
+ * rank and factored once more (the same bytes everywhere), the norms and B_yᵀM_kB_y summed. */
+#include <lapacke.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <suitesparse/cholmod.h>
+
+#include "dist.h"
+#include "estimate_steps.h"
+#include "ooc.h"
+#include "scratch.h"
+
+/* A block's rows of [B_y C] are factored in chunks of about this many bytes (at least 64 rows). */
+#define TSQR_CHUNK_BYTES ((size_t)1 << 20)
+
+/* One picked sample's entries of M on the current block's output rows: (row, col, value). */
+typedef struct Trip {
+  long *rc;                 /* row, col pairs */
+  double *v;
+  long count, cap;
+} Trip;
+
+/* A term whose table is made in the sweep. */
+typedef struct EstTerm {
+  int i, t, cy;             /* stage, term, the stage's class */
+  long my, D, W;            /* W = my + D columns of [B_y C] */
+  double *R;                /* W x W row-major, upper: R of [B_y C] over this rank's rows so far */
+  double *norms;            /* D: Σ of the squares of C's columns */
+  bool sigma;               /* an inverse term of a class never whole: its σ_min ratio made here */
+  double *G;                /* nk x my x my: B_yᵀ M_k B_y of the picked samples */
+  Trip *trip;               /* nk: this block's entries of M_k */
+} EstTerm;
+
+struct EstStream {
+  Ooc *o;
+  EstWork w;
+  EstTerm *term;
+  int nt;
+  long nk;                  /* picked samples, as sigma_ratios picks them */
+  Scratch sc;               /* everything above, released by estimate_stream_free */
+};
+
+static bool dropped(const Ooc *o, int c) { return o->st[c].blockwise && o->t->m->classes[c].streamed; }
+
+/* Picked sample j of nk: j (S − 1) / (nk − 1), as estimate_train.c's run_pick. */
+static long pick(const EstStream *e, long j) { return e->nk > 1 ? j * (e->o->t->src->count - 1) / (e->nk - 1) : 0; }
+
+/* Whether term t of stage i reads a basis never whole (its class's, or an input's) and every
+ * other basis it reads is whole now; its table then is the sweep's. */
+static bool streamed_term(const Ooc *o, int i, int t) {
+  Model *m = o->t->m;
+  const RStage *rs = &m->stages[i];
+  const RTerm *rt = &rs->terms[t];
+  char why[256];
+  int cy = m->qclass[rs->q];
+  /* a kept class formed block by block is mapped only after the sweep: eligible as if streamed
+   * (estimate_term_eligible asks for a basis, whole or streamed) */
+  bool was = m->classes[cy].streamed, eligible;
+  m->classes[cy].streamed |= o->st[cy].blockwise;
+  eligible = estimate_term_eligible(m, i, t, why, sizeof why) && estimate_term_bytes(m, i, t) <= ESTIMATE_MAX_BYTES;
+  m->classes[cy].streamed = was;
+  /* a chained term (operator applications, roots of a declared op, several operators: block QRs and
+   * per-operator ratios, estimate_train.c's qr_blocks) is not made here: it has no table out of core */
+  if (!eligible || estimate_term_chains(rt) || (rt->nops == 1 && rt->ops[0].op->p > 0)) return false;
+  bool never = dropped(o, cy), whole = o->st[cy].blockwise || m->classes[cy].B;
+  RTERM_FOR_TENSORS(rt, x)
+    for (int j = 0; j < x->nin; j++) {
+      int c = m->qclass[x->in_q[j]];
+      never |= dropped(o, c), whole &= o->st[c].blockwise || m->classes[c].B != NULL;
+    }
+  if (rt->named_q >= 0) { /* a named numerator's rows: the stage's own class's, or a whole basis of as many rows */
+    int c = m->qclass[rt->named_q];
+    whole &= c == cy || (!o->st[c].blockwise && m->classes[c].B && m->classes[c].n == m->classes[cy].n);
+  }
+  return never && whole;
+}
+
+static int term_init(EstStream *e, EstTerm *x, int i, int t) {
+  const Model *m = e->o->t->m;
+  const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
+  *x = (EstTerm){i, t, m->qclass[m->stages[i].q], rc->m, estimate_term_dim(m, i, t), 0, NULL, NULL, false, NULL, NULL};
+  x->W = x->my + x->D;
+  x->sigma = dropped(e->o, x->cy) && m->stages[i].terms[t].nops == 1 && rc->n <= ESTIMATE_SPARSE_MAX;
+  x->R = scratch_array(&e->sc, (size_t)(x->W * x->W) + 1, sizeof(double));
+  x->norms = scratch_array(&e->sc, (size_t)x->D + 1, sizeof(double));
+  if (x->sigma) {
+    x->G = scratch_array(&e->sc, (size_t)(e->nk * x->my * x->my) + 1, sizeof(double));
+    x->trip = scratch_array(&e->sc, (size_t)e->nk, sizeof(Trip));
+  }
+  return x->R && x->norms && (!x->sigma || (x->G && x->trip)) ? 0 : -1;
+}
+
+int estimate_stream_begin(Ooc *o, EstStream **out) {
+  Model *m = o->t->m;
+  *out = NULL;
+  long S = o->t->src->count;
+  int n = 0;
+  for (int i = 0; i < m->nstages; i++)
+    for (int t = 0; t < m->stages[i].nterms; t++) n += streamed_term(o, i, t);
+  if (n == 0 || S < 1) return 0;
+  EstStream *e = calloc(1, sizeof *e);
+  if (!e) return err_set(o->t->err, "out of memory for the estimate tables of the streamed bases");
+  *e = (EstStream){o, {m, o->t->f, NULL, o->t->err, o->t->src}, NULL, 0, S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES,
+                   SCRATCH_OF(o->t->err)};
+  *out = e;
+  if (!(e->term = scratch_array(&e->sc, (size_t)n, sizeof(EstTerm)))) return -1;
+  for (int i = 0; i < m->nstages; i++)
+    for (int t = 0; t < m->stages[i].nterms; t++)
+      if (streamed_term(o, i, t) && term_init(e, &e->term[e->nt++], i, t)) return -1;
+  return 0;
+}
+
+void estimate_stream_free(EstStream *e) {
+  if (!e) return;
+  for (int k = 0; k < e->nt; k++)
+    for (long j = 0; e->term[k].trip && j < e->nk; j++) free(e->term[k].trip[j].rc), free(e->term[k].trip[j].v);
+  scratch_release(&e->sc);
+  free(e);
+}
+
+void estimate_stream_demand(const EstStream *e, Demand *d) {
+  if (!e) return;
+  const Model *m = e->o->t->m;
+  for (int k = 0; k < e->nt; k++) { /* an operator's inputs of a class not held by rows: whole */
+    const RTerm *rt = &m->stages[e->term[k].i].terms[e->term[k].t];
+    for (int g = 0; e->term[k].sigma && g < rt->ops[0].ntensors; g++)
+      for (int j = 0; j < rt->ops[0].t[g].nin; j++)
+        if (!e->o->st[m->qclass[rt->ops[0].t[g].in_q[j]]].blockwise)
+          demand_all(d, m->prog->quantities.v[rt->ops[0].t[g].in_q[j]]);
+  }
+}
+
+/* ---------------------------------------------------------------- M_k's entries of a block */
+
+/* The sink of M_k's entries: coef · Π input values at (row, col), or (row, row) for a diagonal one. */
+typedef struct TripSink {
+  const double *in[64];
+  long lo, hi, n;
+  bool diag;
+  Trip *trip;
+} TripSink;
+
+static int trip_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx *in, double coef) {
+  TripSink *s = user;
+  long c = s->diag ? (long)row : (long)col;
+  if (row < s->lo || row >= s->hi) return row >= 0 && row < s->n ? 0 : -1;
+  if (c < 0 || c >= s->n || nin > 64) return -1;
+  Trip *tp = s->trip;
+  if (tp->count == tp->cap) {
+    long cap = tp->cap ? 2 * tp->cap : 1024;
+    long *rc = mem_realloc(tp->rc, sizeof(long) * (size_t)(2 * cap));
+    if (rc) tp->rc = rc;
+    double *v = mem_realloc(tp->v, sizeof(double) * (size_t)cap);
+    if (v) tp->v = v;
+    if (!rc || !v) return -1;
+    tp->cap = cap;
+  }
+  double v = coef;
+  for (int i = 0; i < nin; i++) v *= s->in[i][in[i]];
+  tp->rc[2 * tp->count] = row, tp->rc[2 * tp->count + 1] = c, tp->v[tp->count++] = v;
+  return 0;
+}
+
+int estimate_stream_sample(EstStream *e, long k, long u, long U) {
+  if (!e) return 0;
+  long j = 0;
+  while (j < e->nk && pick(e, j) != k) j++;
+  if (j == e->nk) return 0;
+  const Model *m = e->o->t->m;
+  Full *f = e->o->t->f;
+  for (int q = 0; q < e->nt; q++) {
+    EstTerm *x = &e->term[q];
+    if (!x->sigma) continue;
+    const RTerm *rt = &m->stages[x->i].terms[x->t];
+    TripSink s = {{0}, 0, 0, m->classes[x->cy].n, false, &x->trip[j]};
+    stream_fraction(s.n, u, U, &s.lo, &s.hi);
+    for (int g = 0; s.lo < s.hi && g < rt->ops[0].ntensors; g++) {
+      const RTensor *t = &rt->ops[0].t[g];
+      s.diag = t->kind == RT_DIAG;
+      for (int i = 0; i < t->group->ninputs && i < 64; i++) s.in[i] = full_get(f, t->group->inputs[i]->name, NULL);
+      NpgSink sink = {&s, trip_entry, 0, 1, s.lo, s.hi};
+      if (full_build(f, t->builder, &sink) != 0)
+        return err_set(e->w.err, "estimate tables: the operator of stage %s at training sample %ld: %s",
+                       m->stages[x->i].st->sym->name, k, full_error(f)[0] ? full_error(f) : "out of memory");
+    }
+  }
+  return 0;
+}
+
+/* ---------------------------------------------------------------- a block's rows */
+
+/* Rows [lo, hi) of [B_y C] stacked under x's R and factored again: R of every row so far. */
+static int tsqr_rows(EstStream *e, EstTerm *x, const ColRows *rows, Scratch *sc) {
+  long nb = rows->hi - rows->lo, W = x->W, D = x->D, my = x->my;
+  double *Z = scratch_array(sc, (size_t)((W + nb) * W) + 1, sizeof(double)),
+         *C = scratch_array(sc, (size_t)(nb * D) + 1, sizeof(double)), *tau = scratch_array(sc, (size_t)W + 1, sizeof(double));
+  if (!Z || !C || !tau || estimate_term_columns(&e->w, x->i, x->t, rows, C)) return -1;
+  memcpy(Z, x->R, sizeof(double) * (size_t)(W * W));
+  for (long r = 0; r < nb; r++) {
+    const double *b = estimate_basis_row(e->w.m, rows, x->cy, rows->lo + r);
+    if (!b) return err_set(e->w.err, "estimate tables: row %ld of class %s's basis not held (a bug in npg)", rows->lo + r,
+                           e->w.m->classes[x->cy].label);
+    memcpy(Z + (W + r) * W, b, sizeof(double) * (size_t)my);
+    memcpy(Z + (W + r) * W + my, C + r * D, sizeof(double) * (size_t)D);
+    for (long c = 0; c < D; c++) x->norms[c] += C[r * D + c] * C[r * D + c];
+  }
+  if (LAPACKE_dgeqrf(LAPACK_ROW_MAJOR, (int)(W + nb), (int)W, Z, (int)W, tau) != 0)
+    return err_set(e->w.err, "estimate tables: the QR of stage %s's residual rows failed (LAPACK)",
+                   e->w.m->stages[x->i].st->sym->name);
+  for (long a = 0; a < W; a++)
+    for (long b = 0; b < W; b++) x->R[a * W + b] = b >= a ? Z[a * W + b] : 0;
+  return 0;
+}
+
+/* The block's entries of every picked M_k into B_yᵀ M_k B_y; the entries forgotten. */
+static int reduce_operator(EstStream *e, EstTerm *x, const ColRows *rows) {
+  long my = x->my;
+  for (long j = 0; j < e->nk; j++) {
+    Trip *tp = &x->trip[j];
+    double *G = x->G + j * my * my;
+    for (long p = 0; p < tp->count; p++) {
+      const double *br = estimate_basis_row(e->w.m, rows, x->cy, tp->rc[2 * p]),
+                   *bc = estimate_basis_row(e->w.m, rows, x->cy, tp->rc[2 * p + 1]);
+      if (!br || !bc) return err_set(e->w.err, "estimate tables: a basis row of class %s not held (a bug in npg)",
+                                     e->w.m->classes[x->cy].label);
+      for (long a = 0; a < my; a++)
+        for (long b = 0; b < my; b++) G[a * my + b] += br[a] * tp->v[p] * bc[b];
+    }
+    tp->count = 0;
+  }
+  return 0;
+}
+
+int estimate_stream_block(EstStream *e, const double *const *B, const RowMap *const *map, long u, long U) {
+  if (!e) return 0;
+  int out = 0;
+  for (int q = 0; out == 0 && q < e->nt; q++) {
+    EstTerm *x = &e->term[q];
+    long n = e->w.m->classes[x->cy].n, lo, hi, chunk = (long)(TSQR_CHUNK_BYTES / sizeof(double) / (size_t)x->W);
+    chunk = chunk > 64 ? chunk : 64;
+    stream_fraction(n, u, U, &lo, &hi);
+    for (long r = lo; out == 0 && r < hi; r += chunk) {
+      Scratch sc = SCRATCH_OF(e->w.err);
+      out = tsqr_rows(e, x, &(ColRows){r, r + chunk < hi ? r + chunk : hi, n, B, map}, &sc);
+      scratch_release(&sc);
+    }
+    if (out == 0 && x->sigma) out = reduce_operator(e, x, &(ColRows){lo, hi, n, B, map});
+  }
+  return out;
+}
+
+/* ---------------------------------------------------------------- the tables */
+
+/* Over ranks: every rank's R stacked in rank order and factored (the same on every rank). */
+static int combine_ranks(EstStream *e, EstTerm *x) {
+  int N = e->o->N, rank = e->o->rank;
+  long W = x->W;
+  dist_allreduce_sum(x->norms, x->D);
+  if (x->sigma) dist_allreduce_sum(x->G, e->nk * x->my * x->my);
+  Scratch sc = SCRATCH_OF(e->w.err);
+  double *Z = scratch_array(&sc, (size_t)(N * W * W) + 1, sizeof(double)), *tau = scratch_array(&sc, (size_t)W + 1, sizeof(double));
+  int out = Z && tau ? 0 : -1;
+  if (out == 0) {
+    memcpy(Z + (long)rank * W * W, x->R, sizeof(double) * (size_t)(W * W));
+    dist_allreduce_sum(Z, N * W * W); /* every other rank's block zero: exact */
+    if (LAPACKE_dgeqrf(LAPACK_ROW_MAJOR, (int)(N * W), (int)W, Z, (int)W, tau) != 0)
+      out = err_set(e->w.err, "estimate tables: the QR of the ranks' residual factors failed (LAPACK)");
+    for (long a = 0; out == 0 && a < W; a++)
+      for (long b = 0; b < W; b++) x->R[a * W + b] = b >= a ? Z[a * W + b] : 0;
+  }
+  scratch_release(&sc);
+  return out;
+}
+
+/* Term x's table into the model: R22 with its columns' signs, then the columns' norms. */
+static int store_table(EstStream *e, EstTerm *x, const double *const *sign) {
+  RTerm *rt = &e->w.m->stages[x->i].terms[x->t];
+  long D = x->D, W = x->W, my = x->my;
+  Scratch sc = SCRATCH_OF(e->w.err);
+  double *cs = scratch_array(&sc, (size_t)D + 1, sizeof(double));
+  double *G = mem_malloc(sizeof(double) * (size_t)((D + 1) * D) + 1);
+  int out = cs && G && stream_column_signs(e->o, rt, x->cy, sign, cs, &sc) == 0 ? 0 : -1;
+  if (out == 0) {
+    for (long a = 0; a < D; a++)
+      for (long b = 0; b < D; b++) G[a * D + b] = x->R[(my + a) * W + my + b] * cs[b];
+    for (long c = 0; c < D; c++) G[D * D + c] = sqrt(x->norms[c]);
+    free(rt->est_G);
+    rt->est_G = G, rt->est_D = D, rt->est_sigma = NAN;
+    G = NULL;
+  } else if (!err_held(e->w.err)) {
+    err_set(e->w.err, "out of memory for the estimate tables of the streamed bases");
+  }
+  free(G);
+  scratch_release(&sc);
+  return out;
+}
+
+/* x's σ_min ratio: min over the picked samples of σ_min(M_k)/σ_min(B_yᵀM_kB_y), M_k measured on
+ * the rank that holds sample k (k mod N, as sigma_ratios) and the figures summed; a ratio not
+ * positive (a singular operator, LAPACK failing) is 0, which estimate_train.c makes NaN. */
+static int sigma_ratio(EstStream *e, EstTerm *x, double *sig) {
+  RTerm *rt = &e->w.m->stages[x->i].terms[x->t];
+  long my = x->my;
+  Scratch sc = SCRATCH_OF(e->w.err);
+  double *A = scratch_array(&sc, (size_t)(my * my) + 1, sizeof(double)), *sv = scratch_array(&sc, (size_t)(2 * my) + 1, sizeof(double));
+  int out = A && sv ? 0 : -1;
+  for (long j = 0; out == 0 && j < e->nk; j++) {
+    long k = pick(e, j);
+    if (k % e->o->N != e->o->rank) continue;
+    out = train_eval_sample(e->o->t->src, e->w.f, k, e->w.err) ||
+          estimate_operator_sigma(&e->w, rt, e->w.m->classes[x->cy].n, &sig[j]);
+  }
+  if (e->o->N > 1) dist_allreduce_sum(sig, e->nk); /* each sample's figure on one rank, 0 elsewhere */
+  for (long j = 0; out == 0 && j < e->nk; j++) {
+    memcpy(A, x->G + j * my * my, sizeof(double) * (size_t)(my * my));
+    double ratio = sig[j] / (my > 0 ? estimate_smallest_sv(A, my, sv) : INFINITY);
+    if (!(ratio > 0)) ratio = 0;
+    if (j == 0 || ratio < rt->est_sigma) rt->est_sigma = ratio;
+  }
+  scratch_release(&sc);
+  return out;
+}
+
+int estimate_stream_finish(EstStream *e, const double *const *sign) {
+  if (!e) return 0;
+  int out = 0;
+  for (int q = 0; out == 0 && q < e->nt; q++)
+    out = (e->o->N > 1 && combine_ranks(e, &e->term[q])) || store_table(e, &e->term[q], sign);
+  cholmod_common cc;
+  cholmod_l_start(&cc);
+  e->w.cc = &cc;
+  Scratch sc = SCRATCH_OF(e->w.err);
+  double *sig = scratch_array(&sc, (size_t)e->nk + 1, sizeof(double));
+  if (!sig) out = -1;
+  for (int q = 0; out == 0 && q < e->nt; q++) {
+    if (!e->term[q].sigma) continue;
+    memset(sig, 0, sizeof(double) * (size_t)e->nk);
+    out = sigma_ratio(e, &e->term[q], sig);
+  }
+  scratch_release(&sc);
+  cholmod_l_finish(&cc);
+  e->w.cc = NULL;
+  return out;
+}

@@ -1,0 +1,107 @@
+"""estimate_stream.py BUILD_DIR — the online estimate's tables of the stages that read a basis the model drops
+out of core (issue 41; backends/train/estimate_stream.c): radiosity's 24-face room (20 training samples, 6 test
+samples of another seed), trained in memory and out of core at --mem 8k, where the pair classes {s,h} {r} {c}
+{v} {d,p} are formed block by block and never whole. The out-of-core model must hold a residual table for every
+term the in-memory model has one for (manifest lines `estimate`), each the in-memory table to rounding (RᵀR, the
+form ‖R z‖ depends on, to 1e-10 of the largest column norm squared; the columns' norms to 1e-10 relative), the
+inverse terms' σ_min ratios to 1e-10 relative, and on the test samples every stage's estimate the in-memory
+model's to 1e-9 relative (the two routes' bases themselves differ by rounding, which moves even a stage whose
+basis is whole in both: n's estimates differ by up to 2e-12). The effectivity (estimate / true error) of both
+models is printed per stage, the true error from the full evaluator and the bases of a model trained with
+--keep-bases all: every estimate at least half of its true error."""
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+B = sys.argv[1]
+sys.path.insert(0, os.path.join(B, "python"))
+import npg  # noqa: E402  (the build's module)
+
+PROG = "examples/radiosity/formfactors.npg"
+STAGES = "nsrhca"  # the stages with an estimate (d, p and b read the extern v, whose learned map has none)
+
+
+def fail(msg):
+    print("FAIL: " + msg)
+    sys.exit(1)
+
+
+def run(*args):
+    p = subprocess.run([os.path.join(B, "npgc")] + list(args), capture_output=True, text=True)
+    if p.returncode != 0:
+        fail("npgc %s: %s%s" % (" ".join(args), p.stdout, p.stderr))
+    return p
+
+
+def estimate_lines(model):
+    """{stage: sigma} of the manifest's `estimate` lines."""
+    out = {}
+    for line in open(os.path.join(model, "manifest")):
+        f = line.split()
+        if f and f[0] == "estimate":
+            out[f[1]] = float(f[f.index("sigma") + 1])
+    return out
+
+
+def compare_tables(mem, ooc):
+    want, got = estimate_lines(mem), estimate_lines(ooc)
+    if set(want) != set(got):
+        fail("out of core the model holds tables for %s, in memory for %s" % (sorted(got), sorted(want)))
+    for q, sig in want.items():
+        if not (np.isnan(sig) and np.isnan(got[q])) and not abs(got[q] - sig) <= 1e-10 * abs(sig):
+            fail("stage %s: σ_min ratio %.17g out of core, %.17g in memory" % (q, got[q], sig))
+        a, b = (np.load(os.path.join(d, "est_%s_t0.npy" % q)) for d in (mem, ooc))
+        D = a.shape[1]
+        if b.shape != a.shape:
+            fail("stage %s: table %s out of core, %s in memory" % (q, b.shape, a.shape))
+        gram = np.abs(a[:D].T @ a[:D] - b[:D].T @ b[:D]).max() / np.max(a[D]) ** 2
+        norms = np.abs(a[D] - b[D]).max() / np.max(a[D])
+        if not gram <= 1e-10 or not norms <= 1e-10:
+            fail("stage %s: RᵀR differs by %.3g of the largest column norm squared, the norms by %.3g" % (q, gram, norms))
+    print("tables: %d stages (%s), RᵀR and norms within 1e-10, σ_min ratios %s" %
+          (len(want), " ".join(sorted(want)), ", ".join("%s %.6g" % (q, s) for q, s in want.items() if not np.isnan(s))))
+
+
+def main():
+    rdata = os.path.join(B, "radiosity_data")
+    with tempfile.TemporaryDirectory() as w:
+        subprocess.run([rdata, w + "/RT", "24", "20", "0", "1", "1"], check=True, capture_output=True)
+        subprocess.run([rdata, w + "/TEST", "24", "6", "0", "1", "7"], check=True, capture_output=True)
+        run("train", PROG, w + "/RT", "--cap", "8", "-o", w + "/MEM")
+        run("train", PROG, w + "/RT", "--cap", "8", "--mem", "8k", "-o", w + "/OOC")
+        run("train", PROG, w + "/RT", "--cap", "8", "--keep-bases", "all", "-o", w + "/KEEP")
+        if "{s,h}" not in open(os.path.join(w, "OOC", "manifest")).read():
+            fail("no class named {s,h} in the manifest")
+        compare_tables(w + "/MEM", w + "/OOC")
+        prog = npg.compile(PROG)
+        full = prog.full(params={n: np.load("%s/RT/%s.npy" % (w, n)) for n in ("tri", "rho")})
+        g, e, v = (np.load("%s/TEST/%s.npy" % (w, n)) for n in "gev")
+        keep = npg.load(prog, w + "/KEEP")
+        reds = {r: npg.load(prog, w + "/" + r).reduced() for r in ("MEM", "OOC")}
+        eff = {(r, q): [] for r in reds for q in STAGES}
+        worst = 0.0
+        for k in range(len(g)):
+            full(g=g[k], e=e[k], v=v[k])
+            est = {}
+            for r, red in reds.items():
+                red(g=g[k], e=e[k])
+                for q in STAGES:
+                    est[r, q] = red.estimate(q)
+                    err = np.linalg.norm(np.asarray(full.get(q)).ravel() - keep.basis(q) @ red.coords(q))
+                    if not est[r, q] >= 0.5 * err:
+                        fail("%s, sample %d, stage %s: estimate %.3g, true error %.3g" % (r, k, q, est[r, q], err))
+                    eff[r, q].append(est[r, q] / err)
+            for q in STAGES:
+                worst = max(worst, abs(est["OOC", q] - est["MEM", q]) / est["MEM", q])
+        for r in reds:
+            print("%s: effectivity %s" % (r, ", ".join("%s %.3g .. %.3g" % (q, min(eff[r, q]), max(eff[r, q])) for q in STAGES)))
+        print("estimates out of core within %.2g of the in-memory model's (relative)" % worst)
+        if not worst <= 1e-9:
+            fail("the out-of-core estimates differ from the in-memory ones by %.3g (relative)" % worst)
+    print("ok")
+
+
+main()
