@@ -1,9 +1,10 @@
-"""estimate_stream.py BUILD_DIR — the online estimate's tables of the stages that read a basis the model drops
-out of core (issue 41; backends/train/estimate_stream.c): radiosity's 24-face room (20 training samples, 6 test
-samples of another seed), trained in memory and out of core at --mem 8k, where the pair classes {s,h} {r} {c}
-{v} {d,p} are formed block by block and never whole. The out-of-core model must hold a residual table for every
-term the in-memory model has one for (manifest lines `estimate`), each the in-memory table to rounding (RᵀR, the
-form ‖R z‖ depends on, to 1e-10 of the largest column norm squared; the columns' norms to 1e-10 relative), the
+"""estimate_stream.py BUILD_DIR [--mpi] — the online estimate's tables of the stages that read a basis the
+model drops out of core (issue 41; backends/train/estimate_stream.c): radiosity's 24-face room (20 training
+samples, 6 test samples of another seed), trained in memory and out of core at --mem 8k, where the pair classes
+{s,h} {r} {c} {v} {d,p} are formed block by block and never whole (with --mpi, which ctest gives in a build with
+MPI, also out of core over 2 ranks). The out-of-core model must hold a residual table for every term the
+in-memory model has one for (manifest lines `estimate`), each the in-memory table to rounding (RᵀR, the form
+‖R z‖ depends on, to 1e-10 of the largest column norm squared; the columns' norms to 1e-10 relative), the
 inverse terms' σ_min ratios to 1e-10 relative, and on the test samples every stage's estimate the in-memory
 model's to 1e-9 relative (the two routes' bases themselves differ by rounding, which moves even a stage whose
 basis is whole in both: n's estimates differ by up to 2e-12). The effectivity (estimate / true error) of both
@@ -46,6 +47,21 @@ def estimate_lines(model):
     return out
 
 
+def train_over_ranks(data, model):
+    """npgc train out of core over 2 MPI ranks (loopback; OpenMPI's own leaks suppressed under the sanitizers, as
+    tests/mpi/mpi.sh does): each rank factors the blocks of its passes, the ranks' R stacked and factored once more."""
+    asan = os.environ.get("ASAN_OPTIONS", "")
+    env = dict(os.environ, OMPI_MCA_btl="self,vader", OMPI_MCA_btl_vader_single_copy_mechanism="none",
+               OMPI_MCA_oob_tcp_if_include="lo", OPENBLAS_NUM_THREADS="1", OMPI_MCA_mca_base_component_disable_dlclose="1",
+               ASAN_OPTIONS=(asan + ":" if asan else "") + "fast_unwind_on_malloc=0",
+               LSAN_OPTIONS="suppressions=%s/tests/mpi/lsan.supp" % os.getcwd())
+    cmd = ["timeout", "300", "mpirun", "--allow-run-as-root", "--oversubscribe", "-x", "ASAN_OPTIONS", "-x", "LSAN_OPTIONS",
+           "-np", "2", os.path.join(B, "npgc"), "train", PROG, data, "--cap", "8", "--mem", "8k", "-o", model, "--mpi"]
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if p.returncode != 0:
+        fail("out of core over 2 ranks: %s%s" % (p.stdout, p.stderr))
+
+
 def compare_tables(mem, ooc):
     want, got = estimate_lines(mem), estimate_lines(ooc)
     if set(want) != set(got):
@@ -76,6 +92,9 @@ def main():
         if "{s,h}" not in open(os.path.join(w, "OOC", "manifest")).read():
             fail("no class named {s,h} in the manifest")
         compare_tables(w + "/MEM", w + "/OOC")
+        if "--mpi" in sys.argv[2:]:  # ctest passes it in a build with MPI
+            train_over_ranks(w + "/RT", w + "/MPI")
+            compare_tables(w + "/MEM", w + "/MPI")
         prog = npg.compile(PROG)
         full = prog.full(params={n: np.load("%s/RT/%s.npy" % (w, n)) for n in ("tri", "rho")})
         g, e, v = (np.load("%s/TEST/%s.npy" % (w, n)) for n in "gev")
