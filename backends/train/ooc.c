@@ -708,96 +708,114 @@ static void ooc_free(Ooc *o) {
   free(o->st), free(o->seg), free(o->first), free(o->tmp), free(o->block), free(o->abuf);
 }
 
-int ooc_bases(Train *tr) {
-  Ooc o = {.t = tr, .S = tr->src->count, .N = 1};
-  Model *m = tr->m;
-  const SampleSource *src = tr->src;
-  const TrainOptions *opt = tr->opt;
-  Err *err = tr->err;
-  if (opt->dist) o.rank = dist_rank(), o.N = dist_size();
+/* Every class's state for the passes: the plan, the small classes' snapshots, the streamed ones' R
+ * factors and singular values. 0, or -1 with "out of memory planning". */
+static int ooc_setup(Ooc *o) {
+  Model *m = o->t->m;
   long maxn = 1;
-  int rc = -1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-  if (!(o.st = mem_calloc((size_t)m->nclasses, sizeof(Stream))) || !(o.tmp = mem_malloc(sizeof(double) * (size_t)maxn)) ||
-      plan(&o))
-    goto oom;
-  for (int c = 0; c < m->nclasses; c++) {
-    Stream *st = &o.st[c];
+  int bad = !(o->st = mem_calloc((size_t)m->nclasses, sizeof(Stream))) || !(o->tmp = mem_malloc(sizeof(double) * (size_t)maxn)) ||
+            plan(o);
+  for (int c = 0; !bad && c < m->nclasses; c++) {
+    Stream *st = &o->st[c];
     int r = m->classes[c].nmembers;
     if (!st->streamed) {
-      if (!(st->X = mem_calloc((size_t)r, sizeof(double *)))) goto oom;
-      for (int i = 0; i < r; i++)
-        if (!(st->X[i] = mem_malloc(sizeof(double) * (size_t)m->classes[c].n * (size_t)o.S))) goto oom;
+      bad = !(st->X = mem_calloc((size_t)r, sizeof(double *)));
+      for (int i = 0; !bad && i < r; i++) bad = !(st->X[i] = mem_malloc(sizeof(double) * (size_t)m->classes[c].n * (size_t)o->S));
       continue;
     }
-    if (!(st->G = mem_calloc((size_t)r, sizeof(double *))) || !(st->s = mem_calloc((size_t)r, sizeof(double *))) ||
-        !(st->k = mem_calloc((size_t)r, sizeof(long))) || !(st->big = mem_calloc((size_t)r, sizeof(double))) ||
-        !(st->col = mem_calloc((size_t)r, sizeof(long))))
-      goto oom;
-    for (int i = 0; i < r; i++)
-      if (!(st->G[i] = mem_calloc((size_t)(o.S * o.S), sizeof(double))) || !(st->s[i] = mem_malloc(sizeof(double) * (size_t)o.S)))
-        goto oom;
+    bad = !(st->G = mem_calloc((size_t)r, sizeof(double *))) || !(st->s = mem_calloc((size_t)r, sizeof(double *))) ||
+          !(st->k = mem_calloc((size_t)r, sizeof(long))) || !(st->big = mem_calloc((size_t)r, sizeof(double))) ||
+          !(st->col = mem_calloc((size_t)r, sizeof(long)));
+    for (int i = 0; !bad && i < r; i++)
+      bad = !(st->G[i] = mem_calloc((size_t)(o->S * o->S), sizeof(double))) || !(st->s[i] = mem_malloc(sizeof(double) * (size_t)o->S));
   }
-  if (opt->progress) {
-    int streamed = 0;
-    for (int c = 0; c < m->nclasses; c++) streamed += o.st[c].streamed;
-    fprintf(stderr, "out of core: %d of %d classes streamed by rows, %ld passes over the %ld samples for the R "
-            "factors (a QR by row blocks) and as many for the bases (--mem %.3g GB, %.3g GB for the rows of a pass)\n",
-            streamed, m->nclasses, o.npass, o.S, (double)opt->mem / 1e9, (double)o.avail / 1e9);
-    if (o.avail == 0) /* the passes run a row at a time: say why, and what would help */
-      fprintf(stderr, "out of core: --mem leaves nothing for the rows of a pass (the R factors of the %ld samples "
-              "and the small classes' snapshots need %.3g MB of it), so each pass keeps one row of each streamed class; raise "
-              "--mem for fewer passes\n", o.S, (double)o.fixed / 1e6);
-  }
-  for (int c = 0; c < m->nclasses; c++) o.st[c].blockwise = stream_blockwise(&o, c);
-  /* an extern's pair class formed block by block: kept as coefficients of its training values, its
-   * basis never whole (issue 30: radiosity's v, 12 GB at the paper's size) */
-  for (int c = 0; c < m->nclasses; c++)
-    if (o.st[c].blockwise && !m->classes[c].streamed && !train_keeps_basis(m, opt, c) && model_class_by_coefficients(m, c))
-      m->classes[c].streamed = true, m->classes[c].coef_S = o.S;
-  train_mark_spd(m);
-  double t[6] = {now()};
-  /* over ranks every rank's passes evaluate every sample */
-  if (o.N > 1 && ((src->share && src->share(src->user, err)) || whole_sweep(&o))) goto done;
-  t[1] = now();
-  if (gram_passes(&o)) goto done;
-  t[2] = now();
-  if (eigen(&o) || basis_passes(&o)) goto done;
-  t[3] = now();
+  return bad ? err_set(o->t->err, "out of memory planning out-of-core training (--mem %.3g GB)", (double)o->t->opt->mem / 1e9)
+             : 0;
+}
+
+/* The plan on stderr (--progress): the classes streamed, the passes, and when --mem leaves no rows for a pass. */
+static void report_plan(const Ooc *o) {
+  const Model *m = o->t->m;
+  const TrainOptions *opt = o->t->opt;
+  if (!opt->progress) return;
+  int streamed = 0;
+  for (int c = 0; c < m->nclasses; c++) streamed += o->st[c].streamed;
+  fprintf(stderr, "out of core: %d of %d classes streamed by rows, %ld passes over the %ld samples for the R "
+          "factors (a QR by row blocks) and as many for the bases (--mem %.3g GB, %.3g GB for the rows of a pass)\n",
+          streamed, m->nclasses, o->npass, o->S, (double)opt->mem / 1e9, (double)o->avail / 1e9);
+  if (o->avail == 0) /* the passes run a row at a time: say why, and what would help */
+    fprintf(stderr, "out of core: --mem leaves nothing for the rows of a pass (the R factors of the %ld samples "
+            "and the small classes' snapshots need %.3g MB of it), so each pass keeps one row of each streamed class; raise "
+            "--mem for fewer passes\n", o->S, (double)o->fixed / 1e6);
+}
+
+/* Every class's basis from the passes' results: a small class's from its snapshots, a streamed one's
+ * written to its file, or (blockwise) its T kept for stream_premultiply. */
+static int class_bases(Ooc *o) {
+  Model *m = o->t->m;
+  Err *err = o->t->err;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rcl = &m->classes[c];
-    if (!o.st[c].streamed) {
-      if (train_member_bases(rcl, o.S, o.st[c].X, opt->weights, NULL, err)) goto done;
+    if (!o->st[c].streamed) {
+      if (train_member_bases(rcl, o->S, o->st[c].X, o->t->opt->weights, NULL, err)) return -1;
     } else {
       double *T = NULL;
       long mm = 0;
-      Stream *st = &o.st[c];
-      if (ooc_coefficients(&o, c, &T, &mm)) goto done;
+      Stream *st = &o->st[c];
+      if (ooc_coefficients(o, c, &T, &mm)) return -1;
       if (st->blockwise && mm == 0) st->blockwise = false; /* train_complete_basis gives it one direction */
       if (!st->blockwise && rcl->coef_S > 0) rcl->streamed = false, rcl->coef_S = 0; /* kept as a basis after all */
       /* the floors need only ‖Tᵀ(AᵀX)‖, whatever the columns' signs */
-      int bad = (!st->blockwise && write_basis(&o, c, T, mm)) || (st->AX && take_floors(&o, c, T, mm));
+      int bad = (!st->blockwise && write_basis(o, c, T, mm)) || (st->AX && take_floors(o, c, T, mm));
       if (st->blockwise) st->T = T, st->m = rcl->m = mm; /* its basis formed block by block: stream_premultiply */
       else free(T);
-      if (bad) goto done;
+      if (bad) return -1;
       if (st->blockwise) continue;
     }
-    if (train_complete_basis(rcl, false, err)) goto done;
+    if (train_complete_basis(rcl, false, err)) return -1;
   }
+  return 0;
+}
+
+/* The passes, the bases and the streamed pre-multiplication, timed. */
+static int ooc_run(Ooc *o) {
+  Model *m = o->t->m;
+  const TrainOptions *opt = o->t->opt;
+  const SampleSource *src = o->t->src;
+  report_plan(o);
+  for (int c = 0; c < m->nclasses; c++) o->st[c].blockwise = stream_blockwise(o, c);
+  /* an extern's pair class formed block by block: kept as coefficients of its training values, its
+   * basis never whole (issue 30: radiosity's v, 12 GB at the paper's size) */
+  for (int c = 0; c < m->nclasses; c++)
+    if (o->st[c].blockwise && !m->classes[c].streamed && !train_keeps_basis(m, opt, c) && model_class_by_coefficients(m, c))
+      m->classes[c].streamed = true, m->classes[c].coef_S = o->S;
+  train_mark_spd(m);
+  double t[6] = {now()};
+  /* over ranks every rank's passes evaluate every sample */
+  if (o->N > 1 && ((src->share && src->share(src->user, o->t->err)) || whole_sweep(o))) return -1;
+  t[1] = now();
+  if (gram_passes(o)) return -1;
+  t[2] = now();
+  if (eigen(o) || basis_passes(o)) return -1;
+  t[3] = now();
+  if (class_bases(o)) return -1;
   model_size_tensors(m);
   t[4] = now();
-  if (stream_premultiply(&o)) goto done;
+  if (stream_premultiply(o)) return -1;
   t[5] = now();
   if (opt->progress)
     fprintf(stderr, "out of core: %.2f s samples shared and whole evaluations (over ranks), %.2f s R-factor passes, %.2f s "
             "basis passes, %.2f s bases, %.2f s streamed pre-multiplication\n", t[1] - t[0], t[2] - t[1], t[3] - t[2],
             t[4] - t[3], t[5] - t[4]);
-  rc = 0;
-  goto done;
-oom:
-  err_set(err, "out of memory planning out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
-done:
-  if (rc) err_set_first(err, "out of memory in out-of-core training (--mem %.3g GB)", (double)opt->mem / 1e9);
+  return 0;
+}
+
+int ooc_bases(Train *tr) {
+  Ooc o = {.t = tr, .S = tr->src->count, .N = 1};
+  if (tr->opt->dist) o.rank = dist_rank(), o.N = dist_size();
+  int rc = ooc_setup(&o) || ooc_run(&o) ? -1 : 0;
+  if (rc) err_set_first(tr->err, "out of memory in out-of-core training (--mem %.3g GB)", (double)tr->opt->mem / 1e9);
   ooc_free(&o);
   return rc;
 }

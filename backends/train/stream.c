@@ -680,85 +680,95 @@ static void held_free(Streamer *s) {
   estimate_stream_free(s->est);
 }
 
-int stream_premultiply(Ooc *o) {
+/* The sweep's state: the tensors that read a blockwise class (their sums zeroed), every blockwise
+ * class's row map, peaks and (kept by the model) basis file, the estimate tables' terms. 0, or -1
+ * with o->t->err. */
+static int streamer_setup(Streamer *s) {
+  Ooc *o = s->o;
   Model *m = o->t->m;
-  Streamer s = {.o = o};
-  bool any = false;
-  for (int c = 0; c < m->nclasses; c++) any |= o->st[c].blockwise;
-  if (!any) return 0;
   long ntensors = 0;
-  for (int i = 0; i < m->nstages; i++)
-    for (int t = 0; t < m->stages[i].nterms; t++) {
-      RTerm *rt = &m->stages[i].terms[t];
-      RTERM_FOR_TENSORS(rt, x) ntensors++;
-    }
-  int rc = -1;
-  if (!(s.held = mem_calloc((size_t)m->nclasses, sizeof(Held))) || !(s.t = mem_calloc((size_t)ntensors + 1, sizeof(STensor))) ||
-      !(s.B = mem_calloc((size_t)m->nclasses, sizeof(double *))) || !(s.map = mem_calloc((size_t)m->nclasses, sizeof(RowMap *))) ||
-      !(s.sign = mem_calloc((size_t)m->nclasses, sizeof(double *))))
-    goto oom;
-  for (int i = 0; i < m->nstages; i++) {
+  FOR_TENSORS(m, x) ntensors++;
+  int bad = !(s->held = mem_calloc((size_t)m->nclasses, sizeof(Held))) || !(s->t = mem_calloc((size_t)ntensors + 1, sizeof(STensor))) ||
+            !(s->B = mem_calloc((size_t)m->nclasses, sizeof(double *))) || !(s->map = mem_calloc((size_t)m->nclasses, sizeof(RowMap *))) ||
+            !(s->sign = mem_calloc((size_t)m->nclasses, sizeof(double *)));
+  for (int i = 0; !bad && i < m->nstages; i++) {
     int cy = m->qclass[m->stages[i].q];
-    for (int t = 0; t < m->stages[i].nterms; t++) {
+    for (int t = 0; !bad && t < m->stages[i].nterms; t++) {
       RTerm *rt = &m->stages[i].terms[t];
       RTERM_FOR_TENSORS(rt, x) {
-        bool reads = blockwise(&s, cy);
-        for (int j = 0; j < x->nin; j++) reads |= blockwise(&s, m->qclass[x->in_q[j]]);
-        if (!reads) continue; /* train_premultiply_all's */
-        if (!(x->data = mem_calloc((size_t)(x->rows * x->cols) + 1, sizeof(double)))) goto oom;
-        s.t[s.nt++] = (STensor){x, cy};
+        bool reads = blockwise(s, cy);
+        for (int j = 0; j < x->nin; j++) reads |= blockwise(s, m->qclass[x->in_q[j]]);
+        if (!reads || bad) continue; /* train_premultiply_all's */
+        bad = !(x->data = mem_calloc((size_t)(x->rows * x->cols) + 1, sizeof(double)));
+        s->t[s->nt++] = (STensor){x, cy};
       }
     }
   }
-  for (int c = 0; c < m->nclasses; c++) {
-    if (!blockwise(&s, c)) continue;
-    Held *h = &s.held[c];
-    if (map_alloc(&h->map, m->classes[c].n) || !(h->H = mem_calloc((size_t)m->classes[c].nmembers, sizeof(double *))) ||
-        !(h->peaks = mem_calloc((size_t)o->st[c].m + 1, sizeof(Peaks))))
-      goto oom;
+  for (int c = 0; !bad && c < m->nclasses; c++) {
+    if (!blockwise(s, c)) continue;
+    Held *h = &s->held[c];
+    bad = map_alloc(&h->map, m->classes[c].n) || !(h->H = mem_calloc((size_t)m->classes[c].nmembers, sizeof(double *))) ||
+          !(h->peaks = mem_calloc((size_t)o->st[c].m + 1, sizeof(Peaks)));
   }
+  if (bad) return err_set(o->t->err, "out of memory pre-multiplying by the streamed bases");
   for (int c = 0; c < m->nclasses; c++) /* every rank in the same order: over ranks a collective */
-    if (blockwise(&s, c) && !m->classes[c].streamed &&
-        !(s.held[c].file = ooc_basis_file(o, &m->classes[c], sizeof(double) * (size_t)m->classes[c].n * (size_t)o->st[c].m)))
-      goto done;
-  if (estimate_stream_begin(o, &s.est)) goto done;
+    if (blockwise(s, c) && !m->classes[c].streamed &&
+        !(s->held[c].file = ooc_basis_file(o, &m->classes[c], sizeof(double) * (size_t)m->classes[c].n * (size_t)o->st[c].m)))
+      return -1;
+  return estimate_stream_begin(o, &s->est);
+}
+
+/* What the sweep did, on stderr (--progress). */
+static void report_sweep(const Streamer *s) {
+  const Model *m = s->o->t->m;
+  if (!s->o->t->opt->progress) return;
+  fprintf(stderr, "out of core: bases formed block by block for the pre-multiplication, no basis file:");
+  for (int c = 0; c < m->nclasses; c++)
+    if (blockwise(s, c) && m->classes[c].streamed) fprintf(stderr, " %s", m->classes[c].label);
+  for (int c = 0; c < m->nclasses; c++)
+    if (m->classes[c].coef) fprintf(stderr, "; %s kept as coefficients of its training values", m->classes[c].label);
+  fprintf(stderr, "; kept, written as formed (no scratch A):");
+  for (int c = 0; c < m->nclasses; c++)
+    if (blockwise(s, c) && !m->classes[c].streamed) fprintf(stderr, " %s", m->classes[c].label);
+  fprintf(stderr, " (%ld blocks on this rank, at most %.3g MB of rows held, %ld tensors; %.2f s finding the rows, "
+          "%.2f s forming them (%.2f s of it evaluating), %.2f s pre-multiplying: %.3g flops, %.3g GFLOP/s)\n", s->nblocks,
+          (double)s->peak / 1e6, s->nt, s->sec[0], s->sec[1], s->sec[3], s->sec[2], s->flops,
+          s->sec[2] > 0 ? s->flops / s->sec[2] / 1e9 : 0.0);
+}
+
+/* The blocks of this rank's passes, then the signs: the coefficients and kept files fixed, the
+ * tensors' sums added over the ranks and fixed, the estimate tables made. */
+static int sweep(Streamer *s) {
+  Ooc *o = s->o;
+  Model *m = o->t->m;
   /* the passes' buffers are done with: their bytes are this sweep's */
   free(o->block), free(o->abuf);
   o->block = o->abuf = NULL, o->block_cap = o->abuf_cap = 0;
-  s.total = (o->npass - o->rank + o->N - 1) / o->N * o->S; /* this rank's passes, before any split */
+  s->total = (o->npass - o->rank + o->N - 1) / o->N * o->S; /* this rank's passes, before any split */
   for (long p = 0; p < o->npass; p++)
-    if (ooc_mine(o, p) && block(&s, p, o->npass, true)) goto done;
-  if (decide_signs(&s)) goto done;
-  for (int c = 0; c < m->nclasses; c++) s.sign[c] = blockwise(&s, c) ? s.held[c].sign : NULL;
+    if (ooc_mine(o, p) && block(s, p, o->npass, true)) return -1;
+  if (decide_signs(s)) return -1;
+  for (int c = 0; c < m->nclasses; c++) s->sign[c] = blockwise(s, c) ? s->held[c].sign : NULL;
   for (int c = 0; c < m->nclasses; c++)
-    if (m->classes[c].coef_S > 0 && blockwise(&s, c) && coefficients(o, c, s.held[c].sign)) goto done;
+    if (m->classes[c].coef_S > 0 && blockwise(s, c) && coefficients(o, c, s->held[c].sign)) return -1;
   for (int c = 0; c < m->nclasses; c++)
-    if (s.held[c].file && map_kept(&s, c)) goto done;
-  if (o->t->opt->progress) {
-    fprintf(stderr, "out of core: bases formed block by block for the pre-multiplication, no basis file:");
-    for (int c = 0; c < m->nclasses; c++)
-      if (blockwise(&s, c) && m->classes[c].streamed) fprintf(stderr, " %s", m->classes[c].label);
-    for (int c = 0; c < m->nclasses; c++)
-      if (m->classes[c].coef) fprintf(stderr, "; %s kept as coefficients of its training values", m->classes[c].label);
-    fprintf(stderr, "; kept, written as formed (no scratch A):");
-    for (int c = 0; c < m->nclasses; c++)
-      if (blockwise(&s, c) && !m->classes[c].streamed) fprintf(stderr, " %s", m->classes[c].label);
-    fprintf(stderr, " (%ld blocks on this rank, at most %.3g MB of rows held, %ld tensors; %.2f s finding the rows, "
-            "%.2f s forming them (%.2f s of it evaluating), %.2f s pre-multiplying: %.3g flops, %.3g GFLOP/s)\n", s.nblocks,
-            (double)s.peak / 1e6, s.nt, s.sec[0], s.sec[1], s.sec[3], s.sec[2], s.flops,
-            s.sec[2] > 0 ? s.flops / s.sec[2] / 1e9 : 0.0);
-  }
-  for (long i = 0; i < s.nt; i++) {
-    RTensor *x = s.t[i].x;
+    if (s->held[c].file && map_kept(s, c)) return -1;
+  report_sweep(s);
+  for (long i = 0; i < s->nt; i++) {
+    RTensor *x = s->t[i].x;
     if (o->N > 1) dist_allreduce_sum(x->data, x->rows * x->cols); /* every rank's blocks summed */
-    if (fix_signs(&s, &s.t[i])) goto done;
+    if (fix_signs(s, &s->t[i])) return -1;
   }
-  if (estimate_stream_finish(s.est, s.sign)) goto done;
-  rc = 0;
-  goto done;
-oom:
-  err_set(o->t->err, "out of memory pre-multiplying by the streamed bases");
-done:
+  return estimate_stream_finish(s->est, s->sign);
+}
+
+int stream_premultiply(Ooc *o) {
+  Model *m = o->t->m;
+  bool any = false;
+  for (int c = 0; c < m->nclasses; c++) any |= o->st[c].blockwise;
+  if (!any) return 0;
+  Streamer s = {.o = o};
+  int rc = streamer_setup(&s) || sweep(&s) ? -1 : 0;
   held_free(&s);
   return rc;
 }
