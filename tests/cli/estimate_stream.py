@@ -30,8 +30,17 @@ def fail(msg):
     sys.exit(1)
 
 
+def child_env():
+    """The programs this script runs: without the module's LD_PRELOAD of the sanitizers' runtime (npgc links it
+    itself in a sanitized build), their leaks fatal again (the module's interpreter runs with leaks off)."""
+    env = {k: v for k, v in os.environ.items() if k != "LD_PRELOAD"}
+    if "ASAN_OPTIONS" in env:
+        env["ASAN_OPTIONS"] = env["ASAN_OPTIONS"].replace("detect_leaks=0", "detect_leaks=1")
+    return env
+
+
 def run(*args):
-    p = subprocess.run([os.path.join(B, "npgc")] + list(args), capture_output=True, text=True)
+    p = subprocess.run([os.path.join(B, "npgc")] + list(args), capture_output=True, text=True, env=child_env())
     if p.returncode != 0:
         fail("npgc %s: %s%s" % (" ".join(args), p.stdout, p.stderr))
     return p
@@ -50,8 +59,8 @@ def estimate_lines(model):
 def train_over_ranks(data, model):
     """npgc train out of core over 2 MPI ranks (loopback; OpenMPI's own leaks suppressed under the sanitizers, as
     tests/mpi/mpi.sh does): each rank factors the blocks of its passes, the ranks' R stacked and factored once more."""
-    asan = os.environ.get("ASAN_OPTIONS", "")
-    env = dict(os.environ, OMPI_MCA_btl="self,vader", OMPI_MCA_btl_vader_single_copy_mechanism="none",
+    asan = child_env().get("ASAN_OPTIONS", "")
+    env = dict(child_env(), OMPI_MCA_btl="self,vader", OMPI_MCA_btl_vader_single_copy_mechanism="none",
                OMPI_MCA_oob_tcp_if_include="lo", OPENBLAS_NUM_THREADS="1", OMPI_MCA_mca_base_component_disable_dlclose="1",
                ASAN_OPTIONS=(asan + ":" if asan else "") + "fast_unwind_on_malloc=0",
                LSAN_OPTIONS="suppressions=%s/tests/mpi/lsan.supp" % os.getcwd())
@@ -84,8 +93,8 @@ def compare_tables(mem, ooc):
 def main():
     rdata = os.path.join(B, "radiosity_data")
     with tempfile.TemporaryDirectory() as w:
-        subprocess.run([rdata, w + "/RT", "24", "20", "0", "1", "1"], check=True, capture_output=True)
-        subprocess.run([rdata, w + "/TEST", "24", "6", "0", "1", "7"], check=True, capture_output=True)
+        subprocess.run([rdata, w + "/RT", "24", "20", "0", "1", "1"], check=True, capture_output=True, env=child_env())
+        subprocess.run([rdata, w + "/TEST", "24", "6", "0", "1", "7"], check=True, capture_output=True, env=child_env())
         run("train", PROG, w + "/RT", "--cap", "8", "-o", w + "/MEM")
         run("train", PROG, w + "/RT", "--cap", "8", "--mem", "8k", "-o", w + "/OOC")
         run("train", PROG, w + "/RT", "--cap", "8", "--keep-bases", "all", "-o", w + "/KEEP")
