@@ -132,7 +132,8 @@ int estimate_term_columns(const EstWork *w, int i, int t, const ColRows *rows, d
 
 /* C (n x D) <- (I − BBᵀ) C, twice (one projection leaves ε‖C‖ of B's span); B n x m orthonormal. */
 static int project_out(const double *B, long n, long m, double *C, long D) {
-  double *T = malloc(sizeof(double) * (size_t)(m * D) + 1);
+  Scratch sc = SCRATCH_OF(NULL);
+  double *T = scratch_array_unzeroed(&sc, (size_t)(m * D) + 1, sizeof(double));
   if (!T) return -1;
   for (int pass = 0; pass < 2 && m > 0; pass++) {
     cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)m, (int)D, (int)n, 1.0, B, (int)m, C, (int)D, 0.0, T,
@@ -140,20 +141,20 @@ static int project_out(const double *B, long n, long m, double *C, long D) {
     cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)D, (int)m, -1.0, B, (int)m, T, (int)D, 1.0, C,
                 (int)D);
   }
-  free(T);
+  scratch_release(&sc);
   return 0;
 }
 
 /* R (D x D, upper, row-major, zero below) of the QR of the n x D row-major C (destroyed): ‖C z‖ =
  * ‖R z‖ without the Gram matrix's squaring, so a residual is resolved down to ε, not √ε, of its
  * columns (on pyMOR's thermal block the Gram form floored the estimate at 1e-4 of the solution
- * while the true error was 1e-13). 0, or -1 when LAPACK fails or memory runs out. */
+ * while the true error was 1e-13). 0, -1 when LAPACK fails, -2 when memory runs out. */
 static int qr_factor(double *C, long n, long D, double *R) {
-  double *tau = malloc(sizeof(double) * (size_t)D + 1);
-  if (!tau) return -1;
-  lapack_int info = LAPACKE_dgeqrf(LAPACK_ROW_MAJOR, (int)n, (int)D, C, (int)D, tau);
-  free(tau);
-  if (info != 0) return -1;
+  Scratch sc = SCRATCH_OF(NULL);
+  double *tau = scratch_array_unzeroed(&sc, (size_t)D + 1, sizeof(double));
+  lapack_int info = tau ? LAPACKE_dgeqrf(LAPACK_ROW_MAJOR, (int)n, (int)D, C, (int)D, tau) : -1;
+  scratch_release(&sc);
+  if (info != 0) return tau ? -1 : -2;
   for (long a = 0; a < D; a++)
     for (long b = 0; b < D; b++) R[a * D + b] = a < n && b >= a ? C[a * D + b] : 0;
   return 0;
@@ -163,7 +164,7 @@ static int qr_factor(double *C, long n, long D, double *R) {
  * of C's column blocks apart (term t of stage i's ChainLayout: the numerator's, each applied operator's, each
  * inverse's joined with its operand's producer), so that
  * each part's norm ‖R_b z_b‖ is found alone: online they are chained with ‖M‖ or σ_min(M) between them, not
- * summed in one residual. C (n x D row-major) is left as is. 0, or -1 when LAPACK fails or memory runs out. */
+ * summed in one residual. C (n x D row-major) is left as is. 0, -1 when LAPACK fails, -2 when memory runs out. */
 static int qr_blocks(const Model *m, int i, int t, const double *C, long n, double *R) {
   const RTerm *rt = &m->stages[i].terms[t];
   long D = estimate_term_dim(m, i, t), b[2 * ESTIMATE_OPS_MAX + 2];
@@ -176,7 +177,7 @@ static int qr_blocks(const Model *m, int i, int t, const double *C, long n, doub
   Scratch sc = SCRATCH_OF(NULL);
   double *T = scratch_array(&sc, (size_t)(n * D) + 1, sizeof(double)), *Rb = scratch_array(&sc, (size_t)(D * D) + 1,
                                                                                            sizeof(double));
-  int out = T && Rb ? 0 : -1;
+  int out = T && Rb ? 0 : -2;
   for (int k = 0; out == 0 && k < nb; k += 2) {
     long off = b[k], len = b[k + 1] - b[k];
     if (len == 0) continue;
@@ -217,8 +218,10 @@ static int term_table(Model *m, Full *f, const SampleSource *src, int i, int t, 
     if (project_out(V ? V : rc->B, n, rc->m, C, D))
       bad = err_set(err, "estimate tables: out of memory projecting stage %s", rs->st->sym->name);
   }
-  if (!bad && (estimate_term_chains(rt) ? qr_blocks(m, i, t, C, n, G) : qr_factor(C, n, D, G)))
-    bad = err_set(err, "estimate tables: the QR of stage %s's residual columns failed (LAPACK)", rs->st->sym->name);
+  int qr = bad ? 0 : estimate_term_chains(rt) ? qr_blocks(m, i, t, C, n, G) : qr_factor(C, n, D, G);
+  if (qr)
+    bad = err_set(err, "estimate tables: %s the QR of stage %s's residual columns", qr == -2 ? "out of memory for" : "LAPACK failed in",
+                  rs->st->sym->name);
   if (!bad && !(rt->est_G = malloc(sizeof(double) * (size_t)((D + 1) * D) + 1)))
     bad = err_set(err, "estimate tables: out of memory for stage %s", rs->st->sym->name);
   if (!bad) {
@@ -274,14 +277,16 @@ double estimate_smallest_sv(double *A, long n, double *sv) {
     for (long j = 0; j < n; j++) big = fmax(big, fabs(A[i * n + j])), asym = fmax(asym, fabs(A[i * n + j] - A[j * n + i]));
   if (asym <= 1e-14 * big) {
     lapack_int found = 0, isuppz[2];
-    double *copy = malloc(sizeof(double) * (size_t)(n * n) + 1);
+    Scratch sc = SCRATCH_OF(NULL);
+    double *copy = scratch_array_unzeroed(&sc, (size_t)(n * n) + 1, sizeof(double));
+    lapack_int info = -1;
     if (copy) {
       memcpy(copy, A, sizeof(double) * (size_t)(n * n));
-      lapack_int info = LAPACKE_dsyevr(LAPACK_ROW_MAJOR, 'N', 'I', 'U', (int)n, copy, (int)n, 0, 0, 1, 1, 0, &found, sv,
-                                       NULL, 1, isuppz);
-      free(copy);
-      if (info == 0 && found == 1 && sv[0] > 0) return sv[0];
+      info = LAPACKE_dsyevr(LAPACK_ROW_MAJOR, 'N', 'I', 'U', (int)n, copy, (int)n, 0, 0, 1, 1, 0, &found, sv, NULL, 1,
+                            isuppz);
     }
+    scratch_release(&sc);
+    if (info == 0 && found == 1 && sv[0] > 0) return sv[0];
   }
   lapack_int info = LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'N', 'N', (int)n, (int)n, A, (int)n, sv, NULL, 1, NULL, 1,
                                    sv + n);
@@ -336,24 +341,22 @@ static int trip_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_i
 static cholmod_sparse *sparse_operator(Full *f, const RTerm *rt, long n, cholmod_common *cc, Err *err) {
   TripSink s = {{0}, n, 0, 0, false, NULL, NULL, NULL};
   cholmod_sparse *A = NULL;
-  for (int g = 0; g < rt->ops[0].ntensors; g++) {
+  bool built = true;
+  for (int g = 0; g < rt->ops[0].ntensors && built; g++) {
     const RTensor *t = &rt->ops[0].t[g];
     s.diag = t->kind == RT_DIAG;
     for (int i = 0; i < t->group->ninputs && i < 64; i++) s.in[i] = full_get(f, t->group->inputs[i]->name, NULL);
     NpgSink sink = {&s, trip_entry, 0, 1, 0, 0};
-    if (full_build(f, t->builder, &sink) != 0) {
-      err_set(err, "estimate tables: %s", full_error(f)[0] ? full_error(f) : "out of memory for the operator");
-      goto done;
-    }
+    if (full_build(f, t->builder, &sink) != 0)
+      built = false, err_set(err, "estimate tables: %s", full_error(f)[0] ? full_error(f) : "out of memory for the operator");
   }
   cholmod_triplet T = {0};
   T.nrow = T.ncol = (size_t)n, T.nzmax = T.nnz = (size_t)s.count;
   T.i = s.ri, T.j = s.ci, T.x = s.x, T.stype = 0;
   T.itype = CHOLMOD_LONG, T.xtype = CHOLMOD_REAL, T.dtype = CHOLMOD_DOUBLE;
-  if (!(A = cholmod_l_triplet_to_sparse(&T, (size_t)s.count, cc)))
+  if (built && !(A = cholmod_l_triplet_to_sparse(&T, (size_t)s.count, cc)))
     err_set(err, "estimate tables: CHOLMOD could not assemble the %ld x %ld operator (status %d)", n, n, cc->status);
-done:
-  free(s.ri), free(s.ci), free(s.x);
+  free(s.ri), free(s.ci), free(s.x); /* grown by trip_entry (realloc), freed at the one exit */
   return A;
 }
 
@@ -419,27 +422,29 @@ double estimate_ritz_top(const double *al, const double *be, int j, double *res)
 
 static double lanczos_max(InvOp *o, long n) {
   int K = n < SPARSE_LANCZOS_STEPS ? (int)n : SPARSE_LANCZOS_STEPS;
-  double *V = malloc(sizeof(double) * (size_t)(n * (K + 1)) + 1), *w = malloc(sizeof(double) * (size_t)n + 1);
+  Scratch sc = SCRATCH_OF(NULL);
+  double *V = scratch_array_unzeroed(&sc, (size_t)(n * (K + 1)) + 1, sizeof(double)),
+         *w = scratch_array_unzeroed(&sc, (size_t)n + 1, sizeof(double));
   double al[SPARSE_LANCZOS_STEPS + 1], be[SPARSE_LANCZOS_STEPS + 1], out = NAN;
-  if (!V || !w) goto done;
-  for (long i = 0; i < n; i++) V[i] = 1.0 + 0.5 * sin(0.7 * (double)i); /* fixed, not orthogonal to smooth modes */
-  cblas_dscal((int)n, 1.0 / cblas_dnrm2((int)n, V, 1), V, 1);
-  for (int j = 0; j < K; j++) {
+  if (V && w) {
+    for (long i = 0; i < n; i++) V[i] = 1.0 + 0.5 * sin(0.7 * (double)i); /* fixed, not orthogonal to smooth modes */
+    cblas_dscal((int)n, 1.0 / cblas_dnrm2((int)n, V, 1), V, 1);
+  }
+  for (int j = 0; V && w && j < K; j++) {
     double *v = V + (long)j * n;
-    if (inv_apply(o, v, w, n)) goto done;
+    if (inv_apply(o, v, w, n)) break; /* the last figure stands */
     al[j] = cblas_ddot((int)n, v, 1, w, 1);
     for (int pass = 0; pass < 2; pass++) /* w -= V (Vᵀ w), twice */
       for (int k = 0; k <= j; k++) cblas_daxpy((int)n, -cblas_ddot((int)n, V + (long)k * n, 1, w, 1), V + (long)k * n, 1, w, 1);
     be[j] = cblas_dnrm2((int)n, w, 1);
     double res, theta = estimate_ritz_top(al, be, j, &res);
-    if (isnan(theta)) goto done;
+    if (isnan(theta)) break;
     out = theta + res;
     if (res <= 1e-10 * theta || be[j] <= 1e-14 * theta || j + 1 == K) break;
     double *vn = V + (long)(j + 1) * n;
     for (long i = 0; i < n; i++) vn[i] = w[i] / be[j];
   }
-done:
-  free(V), free(w);
+  scratch_release(&sc);
   return out;
 }
 
@@ -449,7 +454,8 @@ done:
 double estimate_sparse_smallest_sv(cholmod_sparse *A, long n, cholmod_common *cc) {
   double one[2] = {1, 0}, minus[2] = {-1, 0}, out = NAN;
   cholmod_sparse *At = cholmod_l_transpose(A, 2, cc), *Dif = At ? cholmod_l_add(A, At, one, minus, 1, 0, cc) : NULL, *S = NULL;
-  InvOp o = {cc, NULL, A, NULL, malloc(sizeof(double) * (size_t)n + 1)};
+  Scratch sc = SCRATCH_OF(NULL);
+  InvOp o = {cc, NULL, A, NULL, scratch_array(&sc, (size_t)n + 1, sizeof(double))};
   bool sym = Dif && cholmod_l_norm_sparse(Dif, 0, cc) <= 1e-14 * cholmod_l_norm_sparse(A, 0, cc);
   if (sym && (S = cholmod_l_copy(A, 1, 1, cc))) {
     int super = cc->supernodal;
@@ -474,7 +480,7 @@ double estimate_sparse_smallest_sv(cholmod_sparse *A, long n, cholmod_common *cc
     if (sym_) umfpack_dl_free_symbolic(&sym_);
     if (o.numeric) umfpack_dl_free_numeric(&o.numeric);
   }
-  free(o.tmp);
+  scratch_release(&sc);
   cholmod_l_free_sparse(&At, cc), cholmod_l_free_sparse(&Dif, cc), cholmod_l_free_sparse(&S, cc);
   return out;
 }
@@ -612,38 +618,39 @@ static int term_sigmas(const EstWork *w, const RTerm *rt, const RClass *rc, cons
   bool norm = rt->ops[0].op->p > 0 && rt->ops[0].op->q == 1;
   cholmod_common *cc = w->cc;
   long n = rc->n, my = rc->m;
-  double *M = NULL, *T = calloc((size_t)(n * my) + 1, sizeof(double)), *R = malloc(sizeof(double) * (size_t)(my * my) + 1),
-         *sv = malloc(sizeof(double) * (size_t)(2 * (n > my ? n : my) + 1));
-  cholmod_sparse *A = NULL;
-  int rc_ = -1;
+  Scratch sc = SCRATCH_OF(NULL);
   bool dense = n <= ESTIMATE_DENSE_MAX;
-  if (!T || !R || !sv || (dense && !(M = malloc(sizeof(double) * (size_t)(n * n) + 1)))) {
-    err_set(w->err, "estimate tables: out of memory for the %ld x %ld operator of stage %s", n, n, stage);
-    goto done;
+  double *T = scratch_array(&sc, (size_t)(n * my) + 1, sizeof(double)),
+         *R = scratch_array_unzeroed(&sc, (size_t)(my * my) + 1, sizeof(double)),
+         *sv = scratch_array_unzeroed(&sc, (size_t)(2 * (n > my ? n : my) + 1), sizeof(double)),
+         *M = dense ? scratch_array_unzeroed(&sc, (size_t)(n * n) + 1, sizeof(double)) : NULL;
+  cholmod_sparse *A = NULL;
+  if (!T || !R || !sv || (dense && !M)) {
+    scratch_release(&sc);
+    return err_set(w->err, "estimate tables: out of memory for the %ld x %ld operator of stage %s", n, n, stage);
   }
-  if (dense) {
-    if (full_operator(w->f, rt, M, n, w->err)) goto done;
+  int rc_ = dense ? full_operator(w->f, rt, M, n, w->err) : (A = sparse_operator(w->f, rt, n, cc, w->err)) ? 0 : -1;
+  if (rc_ == 0 && dense)
     cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)my, (int)n, 1.0, M, (int)n, rc->B, (int)my, 0.0,
                 T, (int)my);
-  } else {
-    if (!(A = sparse_operator(w->f, rt, n, cc, w->err))) goto done;
+  else if (rc_ == 0) {
     const SuiteSparse_long *Ap = A->p, *Ai = A->i;
     const double *Ax = A->x;
     for (long j = 0; j < n; j++) /* T = A B, column j of A times row j of B */
       for (SuiteSparse_long p = Ap[j]; p < Ap[j + 1]; p++) cblas_daxpy((int)my, Ax[p], rc->B + j * my, 1, T + Ai[p] * my, 1);
   }
-  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, rc->B, (int)my, T, (int)my, 0.0, R,
-              (int)my);
-  if (norm) {
-    sig[0] = dense ? largest_sv(M, n, sv) : sparse_largest_sv(A, n, cc);
-    sig[1] = largest_sv(R, my, sv);
-  } else {
-    sig[0] = dense ? estimate_smallest_sv(M, n, sv) : estimate_sparse_smallest_sv(A, n, cc);
-    sig[1] = my > 0 ? estimate_smallest_sv(R, my, sv) : INFINITY;
+  if (rc_ == 0) {
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, rc->B, (int)my, T, (int)my, 0.0,
+                R, (int)my);
+    if (norm) {
+      sig[0] = dense ? largest_sv(M, n, sv) : sparse_largest_sv(A, n, cc);
+      sig[1] = largest_sv(R, my, sv);
+    } else {
+      sig[0] = dense ? estimate_smallest_sv(M, n, sv) : estimate_sparse_smallest_sv(A, n, cc);
+      sig[1] = my > 0 ? estimate_smallest_sv(R, my, sv) : INFINITY;
+    }
   }
-  rc_ = 0;
-done:
-  free(M), free(T), free(R), free(sv);
+  scratch_release(&sc);
   if (A) cholmod_l_free_sparse(&A, cc);
   return rc_;
 }
@@ -702,8 +709,9 @@ static int sigma_sample(const SigmaRun *s, long k) {
 /* Which terms' operators are affine with semidefinite terms (affine_input), found at sample 0 by the rank that
  * holds it and sent to the others; room for nk anchors each. */
 static int theta_detect(SigmaRun *s) {
-  double *q = calloc((size_t)s->nt + 1, sizeof(double));
-  if (!q) return err_set(s->w.err, "estimate tables: out of memory");
+  Scratch sc = SCRATCH_OF(s->w.err);
+  double *q = scratch_array(&sc, (size_t)s->nt + 1, sizeof(double));
+  if (!q) return -1;
   int out = 0;
   if (s->rank == 0 && s->nt > 0 && (out = sigma_sample(s, 0)) == 0)
     for (int e = 0; e < s->nt; e++)
@@ -719,7 +727,7 @@ static int theta_detect(SigmaRun *s) {
     if (!(rt->est_theta = malloc(sizeof(double) * (size_t)(s->nk * (rt->est_theta_n + 1)) + 1)))
       out = err_set(s->w.err, "estimate tables: out of memory");
   }
-  free(q);
+  scratch_release(&sc);
   return out;
 }
 
@@ -804,19 +812,20 @@ static int sigma_ratios(Model *m, Full *f, const SampleSource *src, bool dist, E
   long S = src->count;
   SigmaRun s = {{m, f, &cc, err, src}, src, NULL, 0, S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES,
                 dist ? dist_rank() : 0, dist ? dist_size() : 1, NULL};
-  int out = -1, n = 0;
+  int n = 0;
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) n += m->stages[i].terms[t].nops > 1 ? m->stages[i].terms[t].nops : 1;
-  if (!(s.terms = malloc(sizeof *s.terms * (size_t)n + 1)) || sigma_terms(&s)) goto done;
-  if (!(s.rec = calloc((size_t)(s.nt * s.nk * SIGMA_REC) + 1, sizeof(double)))) goto done;
-  if (s.nt > 0 && (theta_detect(&s) || sigma_records(&s))) goto done;
-  if (s.nt > 0 && s.N > 1) dist_allreduce_sum(s.rec, s.nt * s.nk * SIGMA_REC);
-  sigma_fold(&s);
-  out = 0;
-done:
+  Scratch sc = SCRATCH_OF(NULL);
+  int out = (s.terms = scratch_array_unzeroed(&sc, (size_t)n + 1, sizeof *s.terms)) && !sigma_terms(&s) &&
+                    (s.rec = scratch_array(&sc, (size_t)(s.nt * s.nk * SIGMA_REC) + 1, sizeof(double))) &&
+                    (s.nt == 0 || (!theta_detect(&s) && !sigma_records(&s)))
+                ? 0
+                : -1;
+  if (out == 0 && s.nt > 0 && s.N > 1) dist_allreduce_sum(s.rec, s.nt * s.nk * SIGMA_REC);
+  if (out == 0) sigma_fold(&s);
   if (out && !err_held(err)) err_set(err, "estimate tables: out of memory");
   cholmod_l_finish(&cc);
-  free(s.terms), free(s.rec);
+  scratch_release(&sc);
   if (out) return -1;
   for (int i = 0; i < m->nstages; i++) /* a ratio of 0 is no lower bound: the term has no estimate */
     for (int t = 0; t < m->stages[i].nterms; t++) {
