@@ -74,10 +74,12 @@ static int member_pcas(TrainSet *ts, Err *err) {
                      "basis %s: product %s is not implemented in tune (the sizes' sweep): train each size with "
                      "npgc train",
                      m->classes[c].bc->size_name, m->classes[c].product->name);
-  if (!(ts->pm = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) return err_set(err, "out of memory while training");
+  if (!(ts->pm = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *))))
+    return err_set(err, "out of memory while training");
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(ts->pm[c] = mem_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) return err_set(err, "out of memory while training");
+    if (!(ts->pm[c] = mem_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember))))
+      return err_set(err, "out of memory while training");
     for (int i = 0; i < rc->nmembers; i++) {
       RMember *mb = &rc->members[i];
       PcaRule rule = {.cap = mb->cap, .energy = mb->energy, .center = mb->center};
@@ -152,7 +154,8 @@ static int class_basis(const TrainSet *ts, Model *m, int c, int cap, Err *err) {
     mb->energy = bc->members[i].energy;
     mb->center = bc->members[i].center;
     kk[i] = cap < p->k ? cap : p->k;
-    if (!(U[i] = scratch_array(&s, (size_t)(rc->n * (kk[i] ? kk[i] : 1)), sizeof(double))) || truncated_member(mb, p, cap, kk[i]))
+    if (!(U[i] = scratch_array(&s, (size_t)(rc->n * (kk[i] ? kk[i] : 1)), sizeof(double))) ||
+        truncated_member(mb, p, cap, kk[i]))
       ok = 0;
     for (long e = 0; ok && e < rc->n; e++) memcpy(U[i] + e * kk[i], p->U + e * p->k, sizeof(double) * (size_t)kk[i]);
   }

@@ -96,7 +96,8 @@ static int cache_rollouts(Search *s, Full *f, const SampleSource *valid, const M
   for (int i = 0; i < prog->states.n; i++)
     s->v.state_n += qsize(layout, vec_position(&prog->quantities, prog->states.v[i]));
   s->v.saves = s->v.steps / s->v.every + 1;
-  if (!(s->v.traj = scratch_array(&s->mem, (size_t)valid->count + 1, sizeof(double *)))) return err_set(err, "out of memory");
+  if (!(s->v.traj = scratch_array(&s->mem, (size_t)valid->count + 1, sizeof(double *))))
+    return err_set(err, "out of memory");
   for (long k = 0; k < valid->count; k++) {
     if (!(s->v.traj[k] = scratch_array(&s->mem, (size_t)(s->v.saves * s->v.state_n + 1), sizeof(double))))
       return err_set(err, "out of memory");
@@ -191,7 +192,8 @@ static int validate(Search *s, Model *m, double *worst, double *floor, Err *err)
   long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
   Scratch sc = SCRATCH_OF(err);
-  double *y = scratch_array(&sc, (size_t)maxn, sizeof(double)), *e = scratch_array(&sc, (size_t)s->prog->outputs.n + 1, sizeof(double));
+  double *y = scratch_array(&sc, (size_t)maxn, sizeof(double));
+  double *e = scratch_array(&sc, (size_t)s->prog->outputs.n + 1, sizeof(double));
   int rc = y && e ? 0 : err_set(err, "out of memory");
   if (floor) memset(floor, 0, sizeof(double) * (size_t)m->nq);
   for (long k = 0; rc == 0 && k < s->v.S; k++) {
@@ -405,7 +407,8 @@ static int search_caps(Search *s, int *cap, const Model *layout, Err *err) {
   TuneResult *out = s->out;
   int t = uniform_trial(s, cap, err);
   if (t < 0) return -1;
-  if (isinf(out->trials[t].err) && s->why[0]) return err_set(err, "%s", s->why); /* failed at the largest caps: why is the error */
+  if (isinf(out->trials[t].err) && s->why[0]) /* failed at the largest caps: why is the error */
+    return err_set(err, "%s", s->why);
   if (out->trials[t].err > s->tol) { /* unmet at the largest caps */
     if (limiting_class(s, cap, err)) return -1;
     memcpy(out->best_cap, cap, sizeof(int) * (size_t)s->nc);
