@@ -430,7 +430,7 @@ static int centered_basis(Gram *g, GramMember *x, long n, double **U, int *kk) {
   double *parts[2] = {x->d, *U}, *Q = NULL;
   int ks[2] = {1, *kk}, mm = 0;
   if (pca_in_order(n, (PcaBlocks){2, parts, ks}, &Q, &mm, g->t->err)) return -1;
-  free(*U);
+  free(*U); /* the Snapshots' slot: replaced by the basis with its mean */
   *U = Q;
   x->mb->kept = *kk = mm;
   return 0;
