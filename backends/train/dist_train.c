@@ -81,7 +81,7 @@ void dist_and_spd(Model *m) {
 
 void dist_free_pcas(Model *m, PcaMember **pcas) {
   for (int c = 0; pcas && c < m->nclasses; c++) {
-    for (int i = 0; pcas[c] && i < m->classes[c].nmembers; i++) free(pcas[c][i].U), free(pcas[c][i].sv);
+    for (int i = 0; pcas[c] && i < m->classes[c].nmembers; i++) pca_member_free(&pcas[c][i]);
     free(pcas[c]);
   }
   free(pcas);

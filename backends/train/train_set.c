@@ -54,7 +54,7 @@ int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, Err *err) 
 void train_set_free(TrainSet *ts) {
   if (!ts) return;
   for (int c = 0; ts->pm && c < ts->base->nclasses; c++) {
-    for (int i = 0; ts->pm[c] && i < ts->base->classes[c].nmembers; i++) free(ts->pm[c][i].U), free(ts->pm[c][i].sv);
+    for (int i = 0; ts->pm[c] && i < ts->base->classes[c].nmembers; i++) pca_member_free(&ts->pm[c][i]);
     free(ts->pm[c]);
   }
   free(ts->pm);
