@@ -48,12 +48,10 @@ static NpgProgram *program(void) {
   return p;
 }
 
-/* Train through `f` on SAMPLES samples, writing `model_dir` when non-NULL:
- * the model, or NULL with the message in `msg`. */
-static NpgModel *train(NpgFull *f, const char *model_dir, const char **msg) {
-  NpgTrainOptions o;
-  npg_train_options_default(&o);
-  NpgTrainer *t = npg_trainer_new(f, &o);
+/* Train through `f` on SAMPLES samples with options `o`, writing
+ * `model_dir` when non-NULL: the model, or NULL with the message in `msg`. */
+static NpgModel *train_with(NpgFull *f, const NpgTrainOptions *o, const char *model_dir, const char **msg) {
+  NpgTrainer *t = npg_trainer_new(f, o);
   const long shape[1] = {2};
   NpgModel *m = NULL;
   int rc = 0;
@@ -69,32 +67,60 @@ static NpgModel *train(NpgFull *f, const char *model_dir, const char **msg) {
   return m;
 }
 
-/* The evaluator, the trainer, training itself and writing the model: the
- * k-th allocation fails, for every k until training succeeds. */
-static void training_fails_cleanly(void **state) {
-  (void)state;
+/* The same with the default options. */
+static NpgModel *train(NpgFull *f, const char *model_dir, const char **msg) {
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  return train_with(f, &o, model_dir, msg);
+}
+
+/* Training with options `o` (`route` names it), the k-th allocation
+ * failing, for every k until training succeeds: every failure says "out of
+ * memory". The allocations counted. */
+static long train_fails_cleanly(const NpgTrainOptions *o, const char *route, const char *model_dir) {
   NpgProgram *p = program();
   NpgFull *f = npg_full_new(p, NPG_TCC); /* the JIT's own memory is libtcc's */
   assert_string_equal(npg_full_error(f), "");
   long k;
   for (k = 0; k < MAX_FAILURES; k++) {
-    if (failing_alloc_traced() >= 0) fprintf(stderr, "training, allocation %ld fails\n", k);
+    if (failing_alloc_traced() >= 0) fprintf(stderr, "%s, allocation %ld fails\n", route, k);
     failing_alloc_after(k);
     const char *msg;
-    NpgModel *m = train(f, dir, &msg);
+    NpgModel *m = train_with(f, o, model_dir, &msg);
     failing_alloc_off();
     if (m) {
       npg_model_free(m);
       break;
     }
-    if (!strstr(msg, "out of memory")) fail_msg("allocation %ld failing: \"%s\"", k, msg);
+    if (!strstr(msg, "out of memory")) fail_msg("%s, allocation %ld failing: \"%s\"", route, k, msg);
     npg_full_clear_error(f);
     npg_full_unbind(f);
   }
-  print_message("training: %ld allocations, each failing in turn\n", k);
-  assert_true(k > 20 && k < MAX_FAILURES);
+  print_message("%s: %ld allocations, each failing in turn\n", route, k);
   npg_full_free(f);
   npg_free(p);
+  return k;
+}
+
+/* The evaluator, the trainer, training itself and writing the model. */
+static void training_fails_cleanly(void **state) {
+  (void)state;
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  long k = train_fails_cleanly(&o, "training", dir);
+  assert_true(k > 20 && k < MAX_FAILURES);
+}
+
+/* Training by the method of snapshots (backends/train/snapshots.c): the
+ * snapshots (12 samples of 2 entries per member) exceed `mem`, the bases
+ * (cap 2) do not. */
+static void snapshots_fail_cleanly(void **state) {
+  (void)state;
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  o.cap = 2, o.mem = 150;
+  long k = train_fails_cleanly(&o, "method of snapshots", NULL);
+  assert_true(k > 20 && k < MAX_FAILURES);
 }
 
 /* A model of `p` trained (memory never failing) and written to `dir`. */
@@ -195,6 +221,7 @@ int main(void) {
       cmocka_unit_test_teardown(training_fails_cleanly, restore_hook),
       cmocka_unit_test_teardown(loading_fails_cleanly, restore_hook),
       cmocka_unit_test_teardown(derivatives_fail_cleanly, restore_hook),
+      cmocka_unit_test_teardown(snapshots_fail_cleanly, restore_hook),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

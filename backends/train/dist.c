@@ -10,6 +10,7 @@
 
 #include "ast.h"
 #include "dist.h"
+#include "scratch.h"
 
 #ifdef NPG_HAVE_MPI
 #include <mpi.h>
@@ -74,7 +75,8 @@ void dist_allreduce_max(double *x, long n) { (void)x, (void)n; }
 int dist_allgather(double *all, const long *counts, Err *err) {
 #ifdef NPG_HAVE_MPI
   if (!started || size_ == 1) return 0;
-  int *cnt = malloc(sizeof(int) * (size_t)size_), *displ = malloc(sizeof(int) * (size_t)size_);
+  Scratch s = SCRATCH_OF(err);
+  int *cnt = scratch_array(&s, (size_t)size_, sizeof(int)), *displ = scratch_array(&s, (size_t)size_, sizeof(int));
   long at = 0;
   int rc = 0;
   if (!cnt || !displ) rc = err_set(err, "out of memory gathering the ranks' blocks");
@@ -87,8 +89,7 @@ int dist_allgather(double *all, const long *counts, Err *err) {
   /* every rank reaches the collective, even one whose counts were refused,
    * so that no other rank waits for it: all refuse alike */
   if (rc == 0) MPI_Allgatherv(MPI_IN_PLACE, 0, MPI_DATATYPE_NULL, all, cnt, displ, MPI_DOUBLE, MPI_COMM_WORLD);
-  free(cnt);
-  free(displ);
+  scratch_release(&s);
   return rc;
 #else
   (void)all, (void)counts, (void)err;

@@ -15,6 +15,7 @@
 #include <string.h>
 
 #include "dist.h"
+#include "scratch.h"
 #include "train.h"
 
 /* Rounds of columns gathered per collective call: as many as keep a
@@ -27,14 +28,10 @@ int dist_gather_snapshots(Model *m, double ***X, long S, Err *err) {
   for (int c = 0; c < m->nclasses; c++) maxn = X[c] && m->classes[c].n > maxn ? m->classes[c].n : maxn;
   long R = rounds_per_call(maxn), rounds = (S + N - 1) / N;
   if (R > rounds) R = rounds;
-  long *counts = mem_malloc(sizeof(long) * (size_t)N);
-  double *all = mem_malloc(sizeof(double) * (size_t)maxn * (size_t)(R * N));
-  if (!counts || !all) {
-    free(counts);
-    free(all);
-    return err_set(err, "out of memory gathering the snapshots");
-  }
-  int rc = 0;
+  Scratch s = SCRATCH_OF(err);
+  long *counts = scratch_array(&s, (size_t)N, sizeof(long));
+  double *all = scratch_array(&s, (size_t)maxn * (size_t)(R * N), sizeof(double));
+  int rc = counts && all ? 0 : err_set(err, "out of memory gathering the snapshots");
   /* rounds j0 … j1−1 at a time: rank r's columns jN + r packed in order
    * as its block (one collective call per member), then put in place */
   for (long j0 = 0; rc == 0 && j0 < rounds; j0 += R) {
@@ -60,8 +57,7 @@ int dist_gather_snapshots(Model *m, double ***X, long S, Err *err) {
       }
     }
   }
-  free(counts);
-  free(all);
+  scratch_release(&s);
   return rc;
 }
 
@@ -69,7 +65,8 @@ void dist_and_spd(Model *m) {
   long n = 0, at = 0;
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) n += m->stages[i].terms[t].nops;
-  double *not_spd = mem_calloc((size_t)n + 1, sizeof(double));
+  Scratch s = SCRATCH_OF(NULL);
+  double *not_spd = scratch_array(&s, (size_t)n + 1, sizeof(double));
   if (!not_spd) dist_abort("out of memory combining the SPD marks");
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++)
@@ -79,34 +76,28 @@ void dist_and_spd(Model *m) {
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++)
       for (int k = 0; k < m->stages[i].terms[t].nops; k++) m->stages[i].terms[t].ops[k].spd = not_spd[at++] == 0;
-  free(not_spd);
+  scratch_release(&s);
 }
 
 void dist_free_pcas(Model *m, PcaMember **pcas) {
   for (int c = 0; pcas && c < m->nclasses; c++) {
-    for (int i = 0; pcas[c] && i < m->classes[c].nmembers; i++) free(pcas[c][i].U), free(pcas[c][i].sv);
+    for (int i = 0; pcas[c] && i < m->classes[c].nmembers; i++) pca_member_free(&pcas[c][i]);
     free(pcas[c]);
   }
   free(pcas);
 }
 
-int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember ***out, Err *err) {
-  int N = dist_size(), rank = dist_rank();
-  PcaMember **p = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *));
-  int *owner = NULL;
-  long *size = NULL;
-  double *load = NULL;
-  if (!p) return err_set(err, "out of memory for the member bases");
-  for (int c = 0; c < m->nclasses; c++)
-    if (!(p[c] = mem_calloc((size_t)m->classes[c].nmembers + 1, sizeof(PcaMember)))) goto oom;
-  /* owners: the largest member first, each to the least loaded rank
-   * (a PCA costs about n S² either way); the same on every rank */
+/* The rank that makes every member's PCA, the members numbered class by
+ * class: the largest first, each to the least loaded rank (a PCA costs
+ * about n S² either way); the same on every rank. NULL when out of memory. */
+static int *pca_owners(const Model *m, Scratch *s) {
+  int N = dist_size();
   long nm = 0;
   for (int c = 0; c < m->nclasses; c++) nm += m->classes[c].nmembers;
-  owner = mem_malloc(sizeof(int) * (size_t)(nm + 1));
-  size = mem_malloc(sizeof(long) * (size_t)(nm + 1));
-  load = mem_calloc((size_t)N, sizeof(double));
-  if (!owner || !size || !load) goto oom;
+  int *owner = scratch_array(s, (size_t)(nm + 1), sizeof(int));
+  long *size = scratch_array(s, (size_t)(nm + 1), sizeof(long));
+  double *load = scratch_array(s, (size_t)N, sizeof(double));
+  if (!owner || !size || !load) return NULL;
   for (int c = 0, g = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++, g++) owner[g] = -1, size[g] = m->classes[c].n;
   for (long done = 0; done < nm; done++) {
@@ -118,16 +109,32 @@ int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember *
     owner[best] = r;
     load[r] += (double)size[best];
   }
-  /* map: this rank's members */
+  return owner;
+}
+
+/* The members' PCAs under way: their snapshots, and where each is made. */
+typedef struct PcaShare {
+  long S;
+  double ***X;      /* [class][member]: n x S column-major */
+  const double *w;  /* the samples' weights, or NULL */
+  const int *owner; /* the rank of each member, numbered class by class (pca_owners) */
+  PcaMember **p;    /* [class][member], allocated: the PCAs */
+} PcaShare;
+
+/* Every member's PCA made by its owner (map) and broadcast from it, in the
+ * same order on every rank (share). */
+static int make_and_share(Model *m, const PcaShare *sh, Err *err) {
+  int rank = dist_rank();
+  const int *owner = sh->owner;
+  PcaMember **p = sh->p;
   for (int c = 0, g = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++, g++) {
       const RClass *rc = &m->classes[c];
       const RMember *mb = &rc->members[i];
       if (owner[g] == rank &&
-          pca_basis(rc->n, S, X[c][i], &(PcaRule){mb->cap, mb->energy, mb->center, w}, &p[c][i], err))
-        goto fail;
+          pca_basis(rc->n, sh->S, sh->X[c][i], &(PcaRule){mb->cap, mb->energy, mb->center, sh->w}, &p[c][i], err))
+        return -1;
     }
-  /* share: each member from its rank, in the same order on every rank */
   for (int c = 0, g = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++, g++) {
       PcaMember *q = &p[c][i];
@@ -138,22 +145,25 @@ int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember *
         q->k = (int)head[0], q->nsv = (long)head[1], q->lost = head[2];
         if (!(q->U = mem_malloc(sizeof(double) * (size_t)(n * (q->k ? q->k : 1)))) ||
             !(q->sv = mem_malloc(sizeof(double) * (size_t)(q->nsv + 1))))
-          goto oom;
+          return err_set(err, "out of memory for the member bases");
       }
       dist_broadcast(q->U, n * q->k, owner[g]);
       dist_broadcast(q->sv, q->nsv, owner[g]);
     }
-  free(owner);
-  free(size);
-  free(load);
-  *out = p;
   return 0;
-oom:
-  err_set(err, "out of memory for the member bases");
-fail:
-  free(owner);
-  free(size);
-  free(load);
-  dist_free_pcas(m, p);
-  return -1;
+}
+
+int dist_member_pcas(Model *m, long S, double ***X, const double *w, PcaMember ***out, Err *err) {
+  Scratch s = SCRATCH_OF(err);
+  PcaMember **p = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *));
+  int rc = p ? 0 : -1;
+  for (int c = 0; rc == 0 && c < m->nclasses; c++)
+    if (!(p[c] = mem_calloc((size_t)m->classes[c].nmembers + 1, sizeof(PcaMember)))) rc = -1;
+  const int *owner = rc == 0 ? pca_owners(m, &s) : NULL;
+  if (!owner) rc = err_set(err, "out of memory for the member bases");
+  else rc = make_and_share(m, &(PcaShare){S, X, w, owner, p}, err);
+  scratch_release(&s);
+  if (rc) dist_free_pcas(m, p); /* what was made of it: its own free */
+  else *out = p;
+  return rc;
 }

@@ -13,6 +13,7 @@
 #include <string.h>
 
 #include "ooc.h"
+#include "scratch.h"
 
 /* ⟨A x, A y⟩ = ⟨R x, R y⟩ (R upper K x K column-major); t1, t2: room for
  * K. y NULL: ‖A x‖. */
@@ -38,37 +39,38 @@ static int member_r(const double *RA, long K, long cu, long k, double *R, double
   return 0;
 }
 
-/* T (K x *m column-major, malloc'd): the class basis is B = A T, by the
- * in-memory steps acting on A's columns through C = AᵀA: each member's
- * Cholesky-QR, its [μ, U] in order (pca_in_order), the members merged as
- * pca_merge merges them (interleaved, in order). */
-int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
+/* The arrays of one ooc_coefficients (its scratch's) and what they hold. */
+typedef struct Coef {
+  const double *C; /* R_A: K x K upper triangular, column-major */
+  long K;
+  double *Q;       /* K x K: every member's orthonormal columns, member after member */
+  double *tmp, *t2; /* room for K each (inner) */
+  double *work;    /* room for K K + K (member_r) */
+  double *R;       /* room for K x K: a member's R factor, then its inverse */
+  double *v, *cc;  /* room for K each: the column under way, its coefficients */
+  int *kept;       /* per member: its columns in Q */
+  long *first;     /* per member: its first column in Q */
+} Coef;
+
+/* Every member's columns of A orthonormalized in order into w->Q (their
+ * count in *nq; the member's report's kept set): each member's
+ * Cholesky-QR, its [μ, U] in order (pca_in_order). 0, or -1 with the
+ * training's error. */
+static int member_columns(Ooc *o, int c, Coef *w, long *nq_out) {
   Stream *st = &o->st[c];
   RClass *rc = &o->t->m->classes[c];
-  long K = st->K;
+  long K = w->K, nq = 0;
+  const double *C = w->C;
   double tol_member = st->blockwise ? OOC_BLOCKWISE_TOL : PCA_DEPENDENT_TOL;
-  double tol_merge = st->blockwise ? OOC_BLOCKWISE_TOL : PCA_MERGE_TOL;
-  double *C = st->RA;
-  for (long j = 0; j < K; j++) /* the upper triangle only: below it dtpqrt leaves nothing of use */
-    for (long i = j + 1; i < K; i++) C[j * K + i] = 0;
-  double *Q = mem_calloc((size_t)(K * K) + 1, sizeof(double)), *tmp = mem_malloc(sizeof(double) * (size_t)(2 * K + 1));
-  double *work = mem_malloc(sizeof(double) * (size_t)(K * K + K + 1)), *t2 = NULL;
-  double *R = mem_malloc(sizeof(double) * (size_t)(K * K) + 8), *v = mem_malloc(sizeof(double) * (size_t)(K + 1));
-  double *cc = mem_malloc(sizeof(double) * (size_t)(K + 1));
-  long nq = 0;
-  int *kept = mem_calloc((size_t)rc->nmembers + 1, sizeof(int));
-  long *first = mem_calloc((size_t)rc->nmembers + 1, sizeof(long));
-  if (!Q || !tmp || !work || !R || !v || !cc || !kept || !first) goto oom;
-  t2 = tmp + K;
+  double *Q = w->Q, *R = w->R, *v = w->v, *cc = w->cc, *tmp = w->tmp, *t2 = w->t2;
   for (int i = 0; i < rc->nmembers; i++) {
     RMember *mb = &rc->members[i];
     long k = st->k[i], cu = st->col[i] + (mb->center ? 1 : 0), q0 = nq;
-    first[i] = q0;
+    w->first[i] = q0;
     /* QR of U: U R⁻¹, R from the QR of R_A's block of U */
-    if (k > 0 && (member_r(C, K, cu, k, R, work) != 0 ||
+    if (k > 0 && (member_r(C, K, cu, k, R, w->work) != 0 ||
                   LAPACKE_dtrtri(LAPACK_COL_MAJOR, 'U', 'N', (lapack_int)k, R, (lapack_int)k) != 0))
-      return free(Q), free(tmp), free(work), free(R), free(v), free(cc), free(kept), free(first),
-             err_set(o->t->err,
+      return err_set(o->t->err,
                      "class %s, member %s: its directions are numerically dependent out of core (their R factor is "
                      "singular): lower its cap or its energy fraction",
                      rc->label, mb->name);
@@ -101,41 +103,67 @@ int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
       memcpy(Q + nq * K, v, sizeof(double) * (size_t)K);
       nq++;
     }
-    kept[i] = (int)(nq - q0);
-    mb->kept = kept[i];
+    w->kept[i] = (int)(nq - q0);
+    mb->kept = w->kept[i];
   }
-  if (rc->nmembers == 1 || nq == 0) {
-    free(tmp), free(work), free(R), free(kept), free(first), free(v), free(cc);
-    *Tout = Q, *mout = nq;
-    return 0;
-  }
-  /* merged as pca_merge merges: the members' columns interleaved (the first of every member,
-   * then the second, …) and orthonormalized in that order, twice, each kept when its remainder
-   * is above PCA_MERGE_TOL of its norm, and at most n kept */
-  double *T = mem_malloc(sizeof(double) * (size_t)(K * nq + 1));
-  long m = 0, kmax = 0;
-  if (!T) goto oom;
-  for (int i = 0; i < rc->nmembers; i++) kmax = kept[i] > kmax ? kept[i] : kmax;
+  *nq_out = nq;
+  return 0;
+}
+
+/* The members' columns of w->Q merged into T (K x nq room) as pca_merge
+ * merges: interleaved (the first of every member, then the second, …) and
+ * orthonormalized in that order, twice, each kept when its remainder is
+ * above `tol` of its norm, and at most n kept. Their count. */
+static long merge_columns(const RClass *rc, const Coef *w, double tol, double *T) {
+  long K = w->K, m = 0, kmax = 0;
+  double *v = w->v, *cc = w->cc, *tmp = w->tmp, *t2 = w->t2;
+  for (int i = 0; i < rc->nmembers; i++) kmax = w->kept[i] > kmax ? w->kept[i] : kmax;
   for (long j = 0; j < kmax; j++)
     for (int i = 0; i < rc->nmembers && m < rc->n; i++) {
-      if (j >= kept[i]) continue;
-      memcpy(v, Q + (first[i] + j) * K, sizeof(double) * (size_t)K);
-      double norm0 = inner(C, K, v, NULL, tmp, t2);
+      if (j >= w->kept[i]) continue;
+      memcpy(v, w->Q + (w->first[i] + j) * K, sizeof(double) * (size_t)K);
+      double norm0 = inner(w->C, K, v, NULL, tmp, t2);
       if (!(norm0 > 0)) continue;
       for (int pass = 0; pass < 2 && m > 0; pass++) {
-        for (long a = 0; a < m; a++) cc[a] = inner(C, K, T + a * K, v, tmp, t2);
+        for (long a = 0; a < m; a++) cc[a] = inner(w->C, K, T + a * K, v, tmp, t2);
         for (long a = 0; a < m; a++) cblas_daxpy((int)K, -cc[a], T + a * K, 1, v, 1);
       }
-      double norm = inner(C, K, v, NULL, tmp, t2);
-      if (!(norm > tol_merge * norm0)) continue;
+      double norm = inner(w->C, K, v, NULL, tmp, t2);
+      if (!(norm > tol * norm0)) continue;
       cblas_dscal((int)K, 1 / norm, v, 1);
       memcpy(T + m * K, v, sizeof(double) * (size_t)K);
       m++;
     }
-  free(Q), free(tmp), free(work), free(R), free(kept), free(first), free(v), free(cc);
-  *Tout = T, *mout = m;
-  return 0;
-oom:
-  free(Q), free(tmp), free(work), free(R), free(v), free(cc), free(kept), free(first);
-  return err_set(o->t->err, "out of memory orthonormalizing the basis of class %s", rc->label);
+  return m;
+}
+
+/* T (K x *m column-major, malloc'd): the class basis is B = A T, by the
+ * in-memory steps acting on A's columns through C = AᵀA: each member's
+ * Cholesky-QR, its [μ, U] in order (pca_in_order), the members merged as
+ * pca_merge merges them (interleaved, in order). */
+int ooc_coefficients(Ooc *o, int c, double **Tout, long *mout) {
+  Stream *st = &o->st[c];
+  const RClass *rc = &o->t->m->classes[c];
+  long K = st->K, nq = 0, m = 0;
+  double *C = st->RA;
+  for (long j = 0; j < K; j++) /* the upper triangle only: below it dtpqrt leaves nothing of use */
+    for (long i = j + 1; i < K; i++) C[j * K + i] = 0;
+  Scratch s = SCRATCH_OF(o->t->err);
+  size_t k = (size_t)K;
+  Coef w = {.C = C, .K = K, .Q = scratch_array(&s, k * k + 1, sizeof(double)),
+            .tmp = scratch_array(&s, 2 * k + 1, sizeof(double)), .work = scratch_array(&s, k * k + k + 1, sizeof(double)),
+            .R = scratch_array(&s, k * k + 1, sizeof(double)), .v = scratch_array(&s, k + 1, sizeof(double)),
+            .cc = scratch_array(&s, k + 1, sizeof(double)), .kept = scratch_array(&s, (size_t)rc->nmembers + 1, sizeof(int)),
+            .first = scratch_array(&s, (size_t)rc->nmembers + 1, sizeof(long))};
+  w.t2 = w.tmp ? w.tmp + K : NULL;
+  bool room = w.Q && w.tmp && w.work && w.R && w.v && w.cc && w.kept && w.first;
+  int status = room ? member_columns(o, c, &w, &nq) : -1;
+  double *T = status == 0 ? mem_malloc(sizeof(double) * (k * (size_t)nq + 1)) : NULL; /* the caller's */
+  if (!room || (status == 0 && !T))
+    status = err_set(o->t->err, "out of memory orthonormalizing the basis of class %s", rc->label);
+  else if (status == 0 && (rc->nmembers == 1 || nq == 0)) memcpy(T, w.Q, sizeof(double) * k * (size_t)nq), m = nq;
+  else if (status == 0) m = merge_columns(rc, &w, st->blockwise ? OOC_BLOCKWISE_TOL : PCA_MERGE_TOL, T);
+  scratch_release(&s);
+  if (status == 0) *Tout = T, *mout = m;
+  return status;
 }

@@ -17,6 +17,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "scratch.h"
 #include "train.h"
 #include "train_steps.h"
 
@@ -52,7 +53,8 @@ typedef struct GramMember {
   double *x0;  /* centered: the shift, the member's first sample (NULL: uncentered) */
   double *d;   /* centered: the sum of the shifted snapshots, then their mean d */
   double big;  /* the largest |entry| that entered G */
-  double *Q;   /* rounds 2 and 3: an orthonormal basis (n x p) the snapshots' residual is taken against */
+  double *Q;   /* rounds 2 and 3: an orthonormal basis (n x p) the snapshots' residual is taken against
+                  (round 1's in Gram.round1, round 2's in Gram.mem) */
   double *c;   /* room for p coefficients */
   int p;       /* Q's columns */
   double *D;   /* round 3: Qᵀ X, S x p (row s: sample s's coefficients) */
@@ -67,38 +69,31 @@ typedef struct Gram {
   GramMember **gm;
   double *lam;         /* S eigenvalues */
   double *tmp;         /* room for max(largest class, S) doubles */
+  Scratch mem;         /* the method's memory: every array above, released at its end */
+  Scratch round1;      /* round 1's Q of every member, released once round 2's replaced them */
 } Gram;
 
-static void gram_free(Gram *g) {
-  for (int c = 0; g->gm && c < g->t->m->nclasses; c++) {
-    for (int i = 0; g->gm[c] && i < g->t->m->classes[c].nmembers; i++) {
-      GramMember *x = &g->gm[c][i];
-      free(x->G), free(x->H), free(x->Y), free(x->x0), free(x->d), free(x->Q), free(x->c), free(x->D);
-    }
-    free(g->gm[c]);
-  }
-  free(g->gm);
-  free(g->lam);
-}
-
 /* Every member's Gram matrix (zero), held block and batch, and for a
- * centered one its shift and sum. 0, or -1 when out of memory. */
+ * centered one its shift and sum (zero), from g->mem. 0, or -1 when out of memory. */
 static int gram_alloc(Gram *g) {
   Model *m = g->t->m;
-  long S = g->S;
-  if (!(g->gm = mem_calloc((size_t)m->nclasses + 1, sizeof(GramMember *))) || !(g->lam = mem_malloc(sizeof(double) * (size_t)S)))
+  size_t S = (size_t)g->S;
+  if (!(g->gm = scratch_array(&g->mem, (size_t)m->nclasses + 1, sizeof(GramMember *))) ||
+      !(g->lam = scratch_array(&g->mem, S, sizeof(double))))
     return -1;
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
-    if (!(g->gm[c] = mem_calloc((size_t)rc->nmembers + 1, sizeof(GramMember)))) return -1;
+    size_t n = (size_t)rc->n;
+    if (!(g->gm[c] = scratch_array(&g->mem, (size_t)rc->nmembers + 1, sizeof(GramMember)))) return -1;
     for (int i = 0; i < rc->nmembers; i++) {
       GramMember *x = &g->gm[c][i];
       x->mb = &rc->members[i];
-      if (!(x->G = mem_calloc((size_t)(S * S), sizeof(double))) || !(x->H = mem_malloc(sizeof(double) * (size_t)(rc->n * g->b))) ||
-          (g->q > 0 && !(x->Y = mem_malloc(sizeof(double) * (size_t)(rc->n * g->q)))))
+      if (!(x->G = scratch_array(&g->mem, S * S, sizeof(double))) ||
+          !(x->H = scratch_array(&g->mem, n * (size_t)g->b, sizeof(double))) ||
+          (g->q > 0 && !(x->Y = scratch_array(&g->mem, n * (size_t)g->q, sizeof(double)))))
         return -1;
       if (x->mb->center &&
-          (!(x->x0 = mem_malloc(sizeof(double) * (size_t)rc->n)) || !(x->d = mem_calloc((size_t)rc->n, sizeof(double)))))
+          (!(x->x0 = scratch_array(&g->mem, n, sizeof(double))) || !(x->d = scratch_array(&g->mem, n, sizeof(double)))))
         return -1;
     }
   }
@@ -198,35 +193,19 @@ static void gram_center(GramMember *x, long n, long S, double *rows) {
   cblas_dscal((int)n, 1.0 / (double)S, x->d, 1);
 }
 
-/* The member's eigenvectors: how many it keeps (its cap and energy; its
- * report set), and W = V Λ^(-1/2) for them in G's place (S x k, row-major
- * with leading dimension S); *U allocated (zero) for pass 2. */
-static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int *kk) {
+/* The member's eigenvectors V (S x kmax, of the eigenvalues in g->lam,
+ * ascending): how many it keeps (its cap and energy; its report set), and
+ * W = V Λ^(-1/2) for them in G's place (S x k, row-major with leading
+ * dimension S); *U allocated (zero) for pass 2. */
+static int keep_eigen(Gram *g, GramMember *x, const RClass *rc, const double *V, double **U, int *kk) {
   RMember *mb = x->mb;
   long S = g->S;
-  double *lam = g->lam;
-  const char *range = pca_gram_out_of_range(S, x->G, x->big);
-  if (range)
-    return err_set(g->t->err,
-                   "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in "
-                   "memory (their PCA is scale-invariant)",
-                   rc->label, mb->name, range);
-  if (mb->center) gram_center(x, rc->n, S, lam);
+  const double *lam = g->lam;
   int cap = mb->center ? mb->cap - 1 : mb->cap;
-  long kmax = cap < S ? cap : S;
-  double *V = mem_malloc(sizeof(double) * (size_t)(S * (kmax ? kmax : 1)));
-  if (!V) return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
-  int info = pca_top_eigen(S, x->G, kmax, lam, V); /* G whole: either layout */
-  if (info != 0) {
-    free(V);
-    return err_set(g->t->err, "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
-                   rc->label, mb->name, info);
-  }
-  free(mb->sv);
-  if (!(mb->sv = mem_malloc(sizeof(double) * (size_t)S))) {
-    free(V);
-    return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
-  }
+  double *sv = mem_malloc(sizeof(double) * (size_t)S); /* the member's report's */
+  if (!sv) return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
+  free(mb->sv); /* replaced by these */
+  mb->sv = sv;
   mb->nsv = S;
   for (long a = 0; a < S; a++) mb->sv[a] = sqrt(fmax(lam[S - 1 - a], 0));
   /* the truncation rule of every route (a centered Gram matrix's null
@@ -241,10 +220,36 @@ static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int 
   /* column a of W = V[:, a] / sqrt(λ), kept in G's place (S x k, row-major with leading dimension S) */
   for (long s2 = 0; s2 < S; s2++)
     for (int a = 0; a < k; a++) x->G[s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
-  free(V);
   if (!(*U = mem_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double))))
     return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
   return 0;
+}
+
+/* Round 1 for one member: its Gram matrix checked (and centered), its
+ * leading eigenvectors (up to its cap) kept as keep_eigen keeps them. */
+static int gram_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int *kk) {
+  RMember *mb = x->mb;
+  long S = g->S;
+  const char *range = pca_gram_out_of_range(S, x->G, x->big);
+  if (range)
+    return err_set(g->t->err,
+                   "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots in "
+                   "memory (their PCA is scale-invariant)",
+                   rc->label, mb->name, range);
+  if (mb->center) gram_center(x, rc->n, S, g->lam);
+  int cap = mb->center ? mb->cap - 1 : mb->cap;
+  long kmax = cap < S ? cap : S;
+  Scratch sc = SCRATCH_OF(g->t->err);
+  double *V = scratch_array(&sc, (size_t)(S * (kmax ? kmax : 1)), sizeof(double));
+  int info = V ? pca_top_eigen(S, x->G, kmax, g->lam, V) : 0; /* G whole: either layout */
+  int status = !V || info == -1 /* pca_top_eigen's "out of memory" */
+                   ? err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S)
+               : info ? err_set(g->t->err,
+                                "class %s, member %s: eigendecomposition of the Gram matrix failed (LAPACK info %d)",
+                                rc->label, mb->name, info)
+                      : keep_eigen(g, x, rc, V, U, kk);
+  scratch_release(&sc);
+  return status;
 }
 
 /* Pass 2: every sample recomputed once, U += x_s ⊗ W[s, :] (shifted). */
@@ -281,12 +286,34 @@ static int round1_basis(Gram *g, GramMember *x, long n, double **U, int k) {
   }
   x->smax = x->mb->nsv > 0 ? x->mb->sv[0] : 0;
   int p = 0;
-  if (k > 0 && pca_in_order(n, (PcaBlocks){1, U, &k}, &x->Q, &p, g->t->err)) return -1;
-  free(*U);
+  double *Q = NULL;
+  if (k > 0 && (pca_in_order(n, (PcaBlocks){1, U, &k}, &Q, &p, g->t->err) || !(x->Q = scratch_adopt(&g->round1, Q))))
+    return -1;
+  free(*U); /* the Snapshots' slot: its directions are in Q now */
   *U = NULL;
   x->p = p;
-  if (p > 0 && !(x->c = mem_malloc(sizeof(double) * (size_t)(2 * S + 1))))
+  if (p > 0 && !(x->c = scratch_array(&g->mem, (size_t)(2 * S + 1), sizeof(double))))
     return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
+  return 0;
+}
+
+/* Round 2's directions from the residual Gram matrix's eigenvectors V
+ * (S x kmax, their eigenvalues in g->lam, ascending): those above the
+ * rounding floors, as W = V Λ^(-1/2) in G's place; *U allocated (zero). */
+static int resid_directions(Gram *g, GramMember *x, long n, const double *V, double **U, int *kk) {
+  long S = g->S;
+  const double *lam = g->lam;
+  int cap = x->mb->center ? x->mb->cap - 1 : x->mb->cap;
+  long kmax = cap < S ? cap : S;
+  double top = fmax(lam[S - 1], 0), eps = DBL_EPSILON * x->smax;
+  double floor = fmax((double)S * DBL_EPSILON * top, eps * eps);
+  int k = 0;
+  while (k < kmax && lam[S - 1 - k] > floor) k++;
+  for (long s2 = 0; s2 < S; s2++)
+    for (int a = 0; a < k; a++) x->G[s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
+  if (!(*U = mem_calloc((size_t)(n * (k ? k : 1)), sizeof(double))))
+    return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
+  *kk = k;
   return 0;
 }
 
@@ -295,33 +322,24 @@ static int round1_basis(Gram *g, GramMember *x, long n, double **U, int k) {
  * largest). Its leading eigenvectors (up to the member's cap) whose
  * eigenvalues stand above its rounding (S ε of the largest) and above
  * (ε σ_max)² give W = V Λ^(-1/2) in G's place, as gram_eigen does; *U
- * allocated (zero) for the residual basis pass. */
+ * allocated (zero) for the residual basis pass (resid_directions). */
 static int resid_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int *kk) {
   long S = g->S;
   int cap = x->mb->center ? x->mb->cap - 1 : x->mb->cap;
   long kmax = cap < S ? cap : S;
   *kk = 0;
   if (!x->p || kmax <= 0) return 0;
-  double *lam = g->lam, *V = mem_malloc(sizeof(double) * (size_t)(S * kmax));
-  if (!V) return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
-  int info = pca_top_eigen(S, x->G, kmax, lam, V);
-  if (info != 0) {
-    free(V);
-    return err_set(g->t->err,
-                   "class %s, member %s: eigendecomposition of the residual Gram matrix failed (LAPACK info %d)",
-                   rc->label, x->mb->name, info);
-  }
-  double top = fmax(lam[S - 1], 0), eps = DBL_EPSILON * x->smax;
-  double floor = fmax((double)S * DBL_EPSILON * top, eps * eps);
-  int k = 0;
-  while (k < kmax && lam[S - 1 - k] > floor) k++;
-  for (long s2 = 0; s2 < S; s2++)
-    for (int a = 0; a < k; a++) x->G[s2 * S + a] = V[a * S + s2] / sqrt(lam[S - 1 - a]);
-  free(V);
-  if (!(*U = mem_calloc((size_t)(rc->n * (k ? k : 1)), sizeof(double))))
-    return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
-  *kk = k;
-  return 0;
+  Scratch sc = SCRATCH_OF(g->t->err);
+  double *V = scratch_array(&sc, (size_t)(S * kmax), sizeof(double));
+  int info = V ? pca_top_eigen(S, x->G, kmax, g->lam, V) : 0;
+  int status = !V || info == -1 /* pca_top_eigen's "out of memory" */
+                   ? err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S)
+               : info ? err_set(g->t->err,
+                                "class %s, member %s: eigendecomposition of the residual Gram matrix failed (LAPACK info %d)",
+                                rc->label, x->mb->name, info)
+                      : resid_directions(g, x, rc->n, V, U, kk);
+  scratch_release(&sc);
+  return status;
 }
 
 /* After round 2: Q := the orthonormalization of [Q, U] in that order
@@ -329,10 +347,11 @@ static int resid_eigen(Gram *g, GramMember *x, const RClass *rc, double **U, int
 static int round2_merge(Gram *g, GramMember *x, long n, double **U, int k) {
   double *parts[2] = {x->Q, *U}, *Q = NULL;
   int ks[2] = {x->p, k}, p = 0;
-  if (x->p > 0 && pca_in_order(n, (PcaBlocks){2, parts, ks}, &Q, &p, g->t->err)) return -1;
-  free(x->Q), free(*U);
+  if (x->p > 0 && (pca_in_order(n, (PcaBlocks){2, parts, ks}, &Q, &p, g->t->err) || !scratch_adopt(&g->mem, Q)))
+    return -1;
+  free(*U); /* the Snapshots' slot: its directions are in Q now */
   *U = NULL;
-  x->Q = Q, x->p = p;
+  x->Q = Q, x->p = p; /* round 1's stays in g->round1 until every member's is replaced */
   return 0;
 }
 
@@ -343,7 +362,7 @@ static int coefficient_pass(Gram *g) {
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++) {
       GramMember *x = &g->gm[c][i];
-      if (x->p > 0 && !(x->D = mem_malloc(sizeof(double) * (size_t)(g->S * x->p))))
+      if (x->p > 0 && !(x->D = scratch_array(&g->mem, (size_t)(g->S * x->p), sizeof(double))))
         return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", g->S);
     }
   for (long k = 0; k < g->S; k++) {
@@ -370,37 +389,38 @@ static int svd_basis(Gram *g, GramMember *x, const RClass *rc, double **U, int *
   RMember *mb = x->mb;
   long S = g->S, p = x->p, r = p < S ? p : S, n = rc->n;
   int cap = mb->center ? mb->cap - 1 : mb->cap, k = 0;
-  double *s = mem_malloc(sizeof(double) * (size_t)(r + 1)), *ud = mem_malloc(sizeof(double) * (size_t)(p * r + 1));
-  double *vt = mem_malloc(sizeof(double) * (size_t)(r * S + 1));
-  lapack_int info = -1;
+  Scratch sc = SCRATCH_OF(g->t->err);
+  double *s = scratch_array(&sc, (size_t)(r + 1), sizeof(double));
+  double *ud = scratch_array(&sc, (size_t)(p * r + 1), sizeof(double));
+  double *vt = scratch_array(&sc, (size_t)(r * S + 1), sizeof(double));
+  bool room = s && ud && vt;
+  lapack_int info = room && p > 0 ? LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)p, (lapack_int)S, x->D,
+                                                   (lapack_int)p, s, ud, (lapack_int)p, vt, (lapack_int)r)
+                                  : 0;
+  double *sv = room && info == 0 && p > 0 ? mem_malloc(sizeof(double) * (size_t)(r + 1)) : NULL; /* the member's report's */
+  int status = info ? err_set(g->t->err, "class %s, member %s: SVD of the snapshots' coefficients failed (LAPACK info %d)",
+                              rc->label, mb->name, (int)info)
+               : !room || (p > 0 && !sv) ? err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S)
+                                        : 0;
   *U = NULL;
-  if (!s || !ud || !vt) goto oom;
-  if (p > 0 &&
-      (info = LAPACKE_dgesdd(LAPACK_COL_MAJOR, 'S', (lapack_int)p, (lapack_int)S, x->D, (lapack_int)p, s, ud, (lapack_int)p,
-                             vt, (lapack_int)r)) != 0) {
-    free(s), free(ud), free(vt);
-    return err_set(g->t->err, "class %s, member %s: SVD of the snapshots' coefficients failed (LAPACK info %d)",
-                   rc->label, mb->name, (int)info);
-  }
-  if (p > 0) {
+  if (status == 0 && p > 0) {
     k = (int)pca_choose(s, r, cap, mb->energy, false);
     double total = 0, run = 0;
     for (long a = 0; a < r; a++) total += (s[a] / s[0]) * (s[a] / s[0]);
     for (int a = 0; a < k; a++) run += (s[a] / s[0]) * (s[a] / s[0]);
-    free(mb->sv);
-    mb->sv = s, mb->nsv = r, s = NULL;
+    memcpy(sv, s, sizeof(double) * (size_t)r);
+    free(mb->sv); /* round 1's values: these replace them */
+    mb->sv = sv, mb->nsv = r;
     mb->captured = total > 0 ? run / total : 1;
     mb->lost = fmax(0, 1 - mb->captured);
   }
-  if (!(*U = mem_calloc((size_t)(n * (k ? k : 1)), sizeof(double)))) goto oom;
-  if (k > 0)
+  if (status == 0 && !(*U = mem_calloc((size_t)(n * (k ? k : 1)), sizeof(double))))
+    status = err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
+  if (status == 0 && k > 0)
     cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)n, k, (int)p, 1.0, x->Q, (int)p, ud, (int)p, 0.0, *U, k);
-  mb->kept = *kk = k;
-  free(s), free(ud), free(vt);
-  return 0;
-oom:
-  free(s), free(ud), free(vt);
-  return err_set(g->t->err, "out of memory for the Gram matrices of %ld samples", S);
+  if (status == 0) mb->kept = *kk = k;
+  scratch_release(&sc);
+  return status;
 }
 
 /* A centered member's basis: [μ = x₀ + d, U_c] orthonormalized in that
@@ -410,7 +430,7 @@ static int centered_basis(Gram *g, GramMember *x, long n, double **U, int *kk) {
   double *parts[2] = {x->d, *U}, *Q = NULL;
   int ks[2] = {1, *kk}, mm = 0;
   if (pca_in_order(n, (PcaBlocks){2, parts, ks}, &Q, &mm, g->t->err)) return -1;
-  free(*U);
+  free(*U); /* the Snapshots' slot: replaced by the basis with its mean */
   *U = Q;
   x->mb->kept = *kk = mm;
   return 0;
@@ -424,6 +444,39 @@ static int gram_passes(Gram *g) {
     if (gram_pass(g, i0, i0 + g->b < S ? i0 + g->b : S, &done, work)) return -1;
   return 0;
 }
+
+/* Every member of the model, class by class (i of class c). */
+#define EACH_MEMBER(m) for (int c = 0; c < (m)->nclasses; c++) for (int i = 0; i < (m)->classes[c].nmembers; i++)
+
+/* Rounds 1 and 2: the Gram passes (of the snapshots, then of their
+ * residuals after Q), every member's eigenvectors (gram_eigen, then
+ * resid_eigen), their directions U = X W formed by a basis pass, then
+ * orthonormalized into Q (round1_basis) or extending it (round2_merge). */
+static int gram_round(Gram *g, int round) {
+  Model *m = g->t->m;
+  double ***U = g->t->sn.U;
+  int **kk = g->t->sn.k;
+  g->round = round;
+  if (gram_passes(g)) return -1;
+  EACH_MEMBER(m) if ((round == 1 ? gram_eigen : resid_eigen)(g, &g->gm[c][i], &m->classes[c], &U[c][i], &kk[c][i])) return -1;
+  if (basis_pass(g, U, kk)) return -1;
+  EACH_MEMBER(m) if ((round == 1 ? round1_basis : round2_merge)(g, &g->gm[c][i], m->classes[c].n, &U[c][i], kk[c][i])) return -1;
+  return 0;
+}
+
+/* Round 3: the coefficient pass, every member's basis from their SVD (a
+ * centered one's mean put first). */
+static int gram_round3(Gram *g) {
+  Model *m = g->t->m;
+  double ***U = g->t->sn.U;
+  int **kk = g->t->sn.k;
+  g->round = 3;
+  if (coefficient_pass(g)) return -1;
+  EACH_MEMBER(m) if (svd_basis(g, &g->gm[c][i], &m->classes[c], &U[c][i], &kk[c][i])) return -1;
+  EACH_MEMBER(m) if (g->gm[c][i].x0 && centered_basis(g, &g->gm[c][i], m->classes[c].n, &U[c][i], &kk[c][i])) return -1;
+  return 0;
+}
+#undef EACH_MEMBER
 
 /* The method of snapshots (DESIGN §5), for snapshots that do not fit in
  * `mem`: no snapshot matrix is held whole; every sample is recomputed in
@@ -451,36 +504,16 @@ static int gram_passes(Gram *g) {
  * exactly); rounds 2 and 3 take x − x₀ − d, and the member's basis is the
  * orthonormalization of [μ = x₀ + d, Q U_D]. */
 int train_snapshot_bases(Train *t, double *tmp) {
-  Gram g = {.t = t, .S = t->src->count, .round = 1, .tmp = tmp};
+  Gram g = {.t = t, .S = t->src->count, .round = 1, .tmp = tmp, .mem = SCRATCH_OF(t->err), .round1 = SCRATCH_OF(t->err)};
   Model *m = t->m;
-  double ***U = t->sn.U;
-  int **kk = t->sn.k;
   long S = g.S, per = 0;
   for (int c = 0; c < m->nclasses; c++) per += m->classes[c].n * m->classes[c].nmembers;
   train_gram_blocks(S, (long)(t->opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &g.b, &g.q);
-  int rc = -1;
-  if (gram_alloc(&g)) {
-    err_set(t->err, "out of memory for the Gram matrices of %ld samples", S);
-    goto done;
-  }
-#define EACH for (int c = 0; c < m->nclasses; c++) for (int i = 0; i < m->classes[c].nmembers; i++)
-  g.round = 1;
-  if (gram_passes(&g)) goto done;
-  EACH if (gram_eigen(&g, &g.gm[c][i], &m->classes[c], &U[c][i], &kk[c][i])) goto done;
-  if (basis_pass(&g, U, kk)) goto done;
-  EACH if (round1_basis(&g, &g.gm[c][i], m->classes[c].n, &U[c][i], kk[c][i])) goto done;
-  g.round = 2;
-  if (gram_passes(&g)) goto done;
-  EACH if (resid_eigen(&g, &g.gm[c][i], &m->classes[c], &U[c][i], &kk[c][i])) goto done;
-  if (basis_pass(&g, U, kk)) goto done;
-  EACH if (round2_merge(&g, &g.gm[c][i], m->classes[c].n, &U[c][i], kk[c][i])) goto done;
-  g.round = 3;
-  if (coefficient_pass(&g)) goto done;
-  EACH if (svd_basis(&g, &g.gm[c][i], &m->classes[c], &U[c][i], &kk[c][i])) goto done;
-  EACH if (g.gm[c][i].x0 && centered_basis(&g, &g.gm[c][i], m->classes[c].n, &U[c][i], &kk[c][i])) goto done;
-#undef EACH
-  rc = 0;
-done:
-  gram_free(&g);
+  int rc = gram_alloc(&g) ? err_set(t->err, "out of memory for the Gram matrices of %ld samples", S) : 0;
+  if (rc == 0) rc = gram_round(&g, 1);
+  if (rc == 0) rc = gram_round(&g, 2);
+  scratch_release(&g.round1); /* every member's Q is round 2's now */
+  if (rc == 0) rc = gram_round3(&g);
+  scratch_release(&g.mem);
   return rc;
 }

@@ -12,6 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "scratch.h"
 #include "train.h"
 #include "train_steps.h"
 
@@ -39,20 +40,21 @@ int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, Err *err) 
   for (int c = 0; c < m->nclasses; c++)
     if (m->classes[c].streamed)
       maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn, maxm = m->classes[c].m > maxm ? m->classes[c].m : maxm;
-  double *y = mem_malloc(sizeof(double) * (size_t)maxn), *proj = mem_malloc(sizeof(double) * (size_t)maxm);
-  if (!y || !proj) return free(y), free(proj), err_set(err, "out of memory measuring the training floors");
+  Scratch s = SCRATCH_OF(err);
+  double *y = scratch_array(&s, (size_t)maxn, sizeof(double)), *proj = scratch_array(&s, (size_t)maxm, sizeof(double));
+  int rc = y && proj ? 0 : err_set(err, "out of memory measuring the training floors");
   Train trial = ts->tr; /* the set's snapshots, this truncation */
   trial.m = m, trial.scratch = SCRATCH_OF(err), trial.err = err;
-  for (long k = 0; k < ts->tr.sn.S; k++) train_take_floors(&trial, k, proj, y);
-  free(y), free(proj);
-  train_drop_bases(m);
-  return 0;
+  for (long k = 0; rc == 0 && k < ts->tr.sn.S; k++) train_take_floors(&trial, k, proj, y);
+  if (rc == 0) train_drop_bases(m);
+  scratch_release(&s);
+  return rc;
 }
 
 void train_set_free(TrainSet *ts) {
   if (!ts) return;
   for (int c = 0; ts->pm && c < ts->base->nclasses; c++) {
-    for (int i = 0; ts->pm[c] && i < ts->base->classes[c].nmembers; i++) free(ts->pm[c][i].U), free(ts->pm[c][i].sv);
+    for (int i = 0; ts->pm[c] && i < ts->base->classes[c].nmembers; i++) pca_member_free(&ts->pm[c][i]);
     free(ts->pm[c]);
   }
   free(ts->pm);
@@ -63,10 +65,35 @@ void train_set_free(TrainSet *ts) {
   free(ts);
 }
 
+/* Every member's PCA at its cap (ts->pm) from the set's snapshots. 0, or -1 with `err`. */
+static int member_pcas(TrainSet *ts, Err *err) {
+  Model *m = ts->base;
+  for (int c = 0; c < m->nclasses; c++)
+    if (m->classes[c].product) /* its truncations would need the weighted snapshots (product.c) */
+      return err_set(err,
+                     "basis %s: product %s is not implemented in tune (the sizes' sweep): train each size with "
+                     "npgc train",
+                     m->classes[c].bc->size_name, m->classes[c].product->name);
+  if (!(ts->pm = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *))))
+    return err_set(err, "out of memory while training");
+  for (int c = 0; c < m->nclasses; c++) {
+    RClass *rc = &m->classes[c];
+    if (!(ts->pm[c] = mem_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember))))
+      return err_set(err, "out of memory while training");
+    for (int i = 0; i < rc->nmembers; i++) {
+      RMember *mb = &rc->members[i];
+      PcaRule rule = {.cap = mb->cap, .energy = mb->energy, .center = mb->center};
+      if (pca_basis(rc->n, ts->tr.sn.S, ts->tr.sn.X[c][i], &rule, &ts->pm[c][i], err)) return -1;
+    }
+    progress_show(ts->progress, "member bases", c + 1, m->nclasses);
+  }
+  return 0;
+}
+
 TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, Err *err) {
   TrainSet *ts = mem_calloc(1, sizeof *ts);
   if (err_held(err)) err->msg[0] = 0;
-  if (!ts) return NULL;
+  if (!ts) return err_set(err, "out of memory while training"), NULL;
   ts->o = *opt;
   ts->o.mem = 0; /* truncations re-use the snapshots: they stay in memory */
   ts->o.joint = false;
@@ -79,31 +106,10 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
   if (rc == 0) rc = train_take_snapshots(&ts->tr);
   train_scratch_free(&ts->tr);
   ts->tr.err = NULL; /* the caller's record may end with its block (ERR_OF): later calls pass theirs */
-  if (rc) goto fail;
-  Model *m = ts->base;
-  for (int c = 0; c < m->nclasses; c++)
-    if (m->classes[c].product) { /* its truncations would need the weighted snapshots (product.c) */
-      err_set(err,
-              "basis %s: product %s is not implemented in tune (the sizes' sweep): train each size with "
-              "npgc train",
-              m->classes[c].bc->size_name, m->classes[c].product->name);
-      goto fail;
-    }
-  if (!(ts->pm = mem_calloc((size_t)m->nclasses + 1, sizeof(PcaMember *)))) goto fail;
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    if (!(ts->pm[c] = mem_calloc((size_t)rc->nmembers + 1, sizeof(PcaMember)))) goto fail;
-    for (int i = 0; i < rc->nmembers; i++) {
-      RMember *mb = &rc->members[i];
-      PcaRule rule = {.cap = mb->cap, .energy = mb->energy, .center = mb->center};
-      if (pca_basis(rc->n, ts->tr.sn.S, ts->tr.sn.X[c][i], &rule, &ts->pm[c][i], err)) goto fail;
-    }
-    progress_show(ts->progress, "member bases", c + 1, m->nclasses);
-  }
-  return ts;
-fail:
+  if (rc == 0) rc = member_pcas(ts, err);
+  if (rc == 0) return ts;
   err_set_first(err, "out of memory while training");
-  train_set_free(ts);
+  train_set_free(ts); /* the half-built set: its own free */
   return NULL;
 }
 
@@ -134,6 +140,30 @@ static int truncated_member(RMember *mb, const PcaMember *p, int cap, int k) {
   return 0;
 }
 
+/* Class c of `m` (a layout of the set's) with its members' ordered bases cut at `cap`, merged:
+ * its basis and every member's report. 0, or -1 (with `err` unless out of memory). */
+static int class_basis(const TrainSet *ts, Model *m, int c, int cap, Err *err) {
+  const RClass *bc = &ts->base->classes[c];
+  RClass *rc = &m->classes[c];
+  Scratch s = SCRATCH_OF(err);
+  double **U = scratch_array(&s, (size_t)rc->nmembers + 1, sizeof(double *));
+  int *kk = scratch_array(&s, (size_t)rc->nmembers + 1, sizeof(int)), ok = U && kk;
+  for (int i = 0; ok && i < rc->nmembers; i++) {
+    const PcaMember *p = &ts->pm[c][i];
+    RMember *mb = &rc->members[i];
+    mb->energy = bc->members[i].energy;
+    mb->center = bc->members[i].center;
+    kk[i] = cap < p->k ? cap : p->k;
+    if (!(U[i] = scratch_array(&s, (size_t)(rc->n * (kk[i] ? kk[i] : 1)), sizeof(double))) ||
+        truncated_member(mb, p, cap, kk[i]))
+      ok = 0;
+    for (long e = 0; ok && e < rc->n; e++) memcpy(U[i] + e * kk[i], p->U + e * p->k, sizeof(double) * (size_t)kk[i]);
+  }
+  int rc_ok = ok ? pca_merge(rc->n, (PcaBlocks){rc->nmembers, U, kk}, &rc->B, &rc->m, err) : -1;
+  scratch_release(&s);
+  return rc_ok || train_complete_basis(rc, false, err) ? -1 : 0;
+}
+
 /* The model whose members keep the first cap[c] of their ordered bases,
  * merged, with no tensor (its layout sized). */
 static Model *set_bases(TrainSet *ts, const int *cap, Err *err) {
@@ -145,30 +175,12 @@ static Model *set_bases(TrainSet *ts, const int *cap, Err *err) {
   for (int i = 0; i < m->nstages; i++) /* the SPD marks the snapshots set */
     for (int t = 0; t < m->stages[i].nterms; t++)
       for (int k = 0; k < m->stages[i].terms[t].nops; k++) m->stages[i].terms[t].ops[k].spd = b->stages[i].terms[t].ops[k].spd;
-  for (int c = 0; c < m->nclasses; c++) {
-    RClass *rc = &m->classes[c];
-    double **U = mem_calloc((size_t)rc->nmembers + 1, sizeof(double *));
-    int *kk = mem_calloc((size_t)rc->nmembers + 1, sizeof(int)), ok = U && kk;
-    for (int i = 0; ok && i < rc->nmembers; i++) {
-      const PcaMember *p = &ts->pm[c][i];
-      RMember *mb = &rc->members[i];
-      mb->energy = b->classes[c].members[i].energy;
-      mb->center = b->classes[c].members[i].center;
-      kk[i] = cap[c] < p->k ? cap[c] : p->k;
-      if (!(U[i] = mem_malloc(sizeof(double) * (size_t)(rc->n * (kk[i] ? kk[i] : 1)))) || truncated_member(mb, p, cap[c], kk[i]))
-        ok = 0;
-      for (long e = 0; ok && e < rc->n; e++) memcpy(U[i] + e * kk[i], p->U + e * p->k, sizeof(double) * (size_t)kk[i]);
-    }
-    int rc_ok = ok ? pca_merge(rc->n, (PcaBlocks){rc->nmembers, U, kk}, &rc->B, &rc->m, err) : -1;
-    for (int i = 0; U && i < rc->nmembers; i++) free(U[i]);
-    free(U);
-    free(kk);
-    if (rc_ok || train_complete_basis(rc, false, err)) {
-      err_set_first(err, "out of memory building the basis of class %s", rc->label);
-      model_free(m);
+  for (int c = 0; c < m->nclasses; c++)
+    if (class_basis(ts, m, c, cap[c], err)) {
+      err_set_first(err, "out of memory building the basis of class %s", m->classes[c].label);
+      model_free(m); /* the half-built model: its own free */
       return NULL;
     }
-  }
   model_size_tensors(m);
   return m;
 }
@@ -180,14 +192,14 @@ static int cover(TrainSet *ts, const int *cap, Err *err) {
   if (!ts->top_cap && !(ts->top_cap = mem_calloc((size_t)nc + 1, sizeof(int)))) return err_set(err, "out of memory");
   for (int c = 0; c < nc; c++) grow |= cap[c] > ts->top_cap[c] && ts->top_cap[c] < train_set_max_cap(ts, c);
   if (!grow) return 0;
-  int *want = mem_calloc((size_t)nc + 1, sizeof(int));
-  if (!want) return err_set(err, "out of memory");
-  for (int c = 0; c < nc; c++) {
+  Scratch s = SCRATCH_OF(err);
+  int *want = scratch_array(&s, (size_t)nc + 1, sizeof(int));
+  for (int c = 0; want && c < nc; c++) {
     want[c] = cap[c] > 2 * ts->top_cap[c] ? cap[c] : 2 * ts->top_cap[c];
     if (want[c] > train_set_max_cap(ts, c)) want[c] = train_set_max_cap(ts, c);
     if (want[c] < 1) want[c] = 1;
   }
-  Model *m = set_bases(ts, want, err);
+  Model *m = want ? set_bases(ts, want, err) : NULL;
   Train trial = ts->tr; /* the set's snapshots, this model */
   trial.opt = &ts->quiet, trial.m = m, trial.gram = false, trial.err = err, trial.scratch = SCRATCH_OF(err);
   if (m && (train_premultiply_all(&trial) || train_fit_externs(&trial, true, false))) model_free(m), m = NULL;
@@ -197,13 +209,14 @@ static int cover(TrainSet *ts, const int *cap, Err *err) {
     ts->top = m;
     memcpy(ts->top_cap, want, sizeof(int) * (size_t)nc);
   }
-  free(want);
+  scratch_release(&s);
   return m ? 0 : -1;
 }
 
 Model *train_set_model(TrainSet *ts, const int *cap, Err *err) {
+  Scratch s = SCRATCH_OF(err);
   Model *m = set_bases(ts, cap, err), *cut = NULL;
-  long *sizes = m ? mem_calloc((size_t)m->nclasses + 1, sizeof(long)) : NULL;
+  long *sizes = m ? scratch_array(&s, (size_t)m->nclasses + 1, sizeof(long)) : NULL;
   if (m && !sizes) err_set(err, "out of memory");
   if (sizes && cover(ts, cap, err) == 0) {
     for (int c = 0; c < m->nclasses; c++) sizes[c] = m->classes[c].m;
@@ -214,7 +227,7 @@ Model *train_set_model(TrainSet *ts, const int *cap, Err *err) {
       RMember *a = &cut->classes[c].members[i], *b = &m->classes[c].members[i];
       a->cap = b->cap, a->kept = b->kept, a->lost = b->lost, a->captured = b->captured;
     }
-  free(sizes);
+  scratch_release(&s);
   model_free(m);
   return cut;
 }

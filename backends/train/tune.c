@@ -34,6 +34,7 @@
 #include "emit.h"
 #include "interp.h"
 #include "reduced.h"
+#include "scratch.h"
 #include "train.h"
 
 typedef struct Valid {
@@ -51,6 +52,7 @@ typedef struct Search {
   Full *f;
   Valid v;
   int nc;
+  int max_cap;              /* the largest cap a class may have */
   int *maxk;                /* per class: the most vectors its members have, at most max_cap */
   TuneResult *out;
   TrainOptions copt;        /* the reductions forced and the choice's settings; no output, no valid */
@@ -58,6 +60,7 @@ typedef struct Search {
   Model *last;              /* the model of the trial made last, until kept (keep_model) or dropped */
   int model_trial;          /* the trial whose model out->model is, or -1 */
   char why[1024];           /* why the last candidate that failed on a validation sample failed */
+  Scratch mem;              /* the search's memory: the validation samples cached, the caps */
 } Search;
 
 static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
@@ -66,14 +69,14 @@ static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
 static int cache_valid(Search *s, Full *f, const SampleSource *valid, const Model *layout, Err *err) {
   s->v.S = valid->count;
   s->v.nq = layout->nq;
-  if (!(s->v.val = mem_calloc((size_t)valid->count + 1, sizeof(double *))))
+  if (!(s->v.val = scratch_array(&s->mem, (size_t)valid->count + 1, sizeof(double *))))
     return err_set(err, "out of memory for the validation samples");
   long per = 0;
   for (int q = 0; q < layout->nq; q++) per += qsize(layout, q);
   for (long k = 0; k < valid->count; k++) {
     if (valid->set(valid->user, f, k) != 0 || full_eval(f, k) != 0)
       return err_set(err, "validation sample %ld: %s", k, full_error(f));
-    if (!(s->v.val[k] = mem_malloc(sizeof(double) * (size_t)per))) return err_set(err, "out of memory");
+    if (!(s->v.val[k] = scratch_array(&s->mem, (size_t)per, sizeof(double)))) return err_set(err, "out of memory");
     long off = 0;
     for (int q = 0; q < layout->nq; q++) {
       memcpy(s->v.val[k] + off, full_get(f, ((Sym *)s->prog->quantities.v[q])->name, NULL),
@@ -93,9 +96,10 @@ static int cache_rollouts(Search *s, Full *f, const SampleSource *valid, const M
   for (int i = 0; i < prog->states.n; i++)
     s->v.state_n += qsize(layout, vec_position(&prog->quantities, prog->states.v[i]));
   s->v.saves = s->v.steps / s->v.every + 1;
-  if (!(s->v.traj = mem_calloc((size_t)valid->count + 1, sizeof(double *)))) return err_set(err, "out of memory");
+  if (!(s->v.traj = scratch_array(&s->mem, (size_t)valid->count + 1, sizeof(double *))))
+    return err_set(err, "out of memory");
   for (long k = 0; k < valid->count; k++) {
-    if (!(s->v.traj[k] = mem_malloc(sizeof(double) * (size_t)(s->v.saves * s->v.state_n + 1))))
+    if (!(s->v.traj[k] = scratch_array(&s->mem, (size_t)(s->v.saves * s->v.state_n + 1), sizeof(double))))
       return err_set(err, "out of memory");
     if (valid->set(valid->user, f, k) != 0) return err_set(err, "validation sample %ld: %s", k, full_error(f));
     for (long t = 0; t <= s->v.steps; t++) {
@@ -124,8 +128,9 @@ static int validate_rollouts(Search *s, Model *m, double *worst, Err *err) {
   if (!r) return -1;
   long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-  double *y = mem_malloc(sizeof(double) * (size_t)maxn), *e = mem_calloc((size_t)ns + 1, sizeof(double));
-  double *e2 = mem_calloc((size_t)ns + 1, sizeof(double)), *n2 = mem_calloc((size_t)ns + 1, sizeof(double));
+  Scratch sc = SCRATCH_OF(err);
+  double *y = scratch_array(&sc, (size_t)maxn, sizeof(double)), *e = scratch_array(&sc, (size_t)ns + 1, sizeof(double));
+  double *e2 = scratch_array(&sc, (size_t)ns + 1, sizeof(double)), *n2 = scratch_array(&sc, (size_t)ns + 1, sizeof(double));
   int rc = y && e && e2 && n2 ? 0 : err_set(err, "out of memory");
   for (long k = 0; rc == 0 && k < s->v.S; k++) {
     for (int q = 0; q < m->nq; q++)
@@ -166,7 +171,7 @@ static int validate_rollouts(Search *s, Model *m, double *worst, Err *err) {
   }
   *worst = 0;
   for (int i = 0; rc == 0 && i < ns; i++) *worst = fmax(*worst, e[i]);
-  free(y), free(e), free(e2), free(n2);
+  scratch_release(&sc);
   reduced_free(r);
   return rc;
 }
@@ -186,7 +191,9 @@ static int validate(Search *s, Model *m, double *worst, double *floor, Err *err)
   if (!r) return -1;
   long maxn = 1;
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-  double *y = mem_malloc(sizeof(double) * (size_t)maxn), *e = mem_calloc((size_t)s->prog->outputs.n + 1, sizeof(double));
+  Scratch sc = SCRATCH_OF(err);
+  double *y = scratch_array(&sc, (size_t)maxn, sizeof(double));
+  double *e = scratch_array(&sc, (size_t)s->prog->outputs.n + 1, sizeof(double));
   int rc = y && e ? 0 : err_set(err, "out of memory");
   if (floor) memset(floor, 0, sizeof(double) * (size_t)m->nq);
   for (long k = 0; rc == 0 && k < s->v.S; k++) {
@@ -227,8 +234,7 @@ static int validate(Search *s, Model *m, double *worst, double *floor, Err *err)
   }
   *worst = 0;
   for (int o = 0; rc == 0 && o < s->prog->outputs.n; o++) *worst = fmax(*worst, e[o]);
-  free(y);
-  free(e);
+  scratch_release(&sc);
   reduced_free(r);
   if (rc == 0 && s->v.steps > 0) return validate_rollouts(s, m, worst, err);
   return rc;
@@ -255,11 +261,13 @@ static Model *configure(Search *s, const int *cap, TuneTrial *tr, Err *err) {
   if (isinf(tr->err) && why[0]) snprintf(s->why, sizeof s->why, "%s", why);
   size_t len = 1;
   for (int i = 0; i < m->nstages; i++) len += m->stages[i].interp ? strlen(m->stages[i].st->sym->name) + 1 : 0;
-  free(tr->interp);
-  if (!(tr->interp = mem_malloc(len))) {
-    model_free(m);
+  char *names = mem_malloc(len); /* the trial's (tune_result_free) */
+  if (!names) {
+    model_free(m); /* the half-made model: its own free */
     return err_set(err, "out of memory"), NULL;
   }
+  free(tr->interp); /* a trial configured again (its model made anew): these names replace its last */
+  tr->interp = names;
   tr->interp[0] = 0;
   for (int i = 0; i < m->nstages; i++) {
     RStage *rs = &m->stages[i];
@@ -285,17 +293,13 @@ static int trial(Search *s, const int *cap, bool uniform, Err *err) {
   TuneTrial *grown = mem_realloc(out->trials, sizeof *grown * (size_t)(out->ntrials + 1));
   if (!grown) return err_set(err, "out of memory");
   out->trials = grown;
-  TuneTrial *tr = &out->trials[out->ntrials];
+  TuneTrial *tr = &out->trials[out->ntrials++]; /* the result's from here on, made or not (tune_result_free) */
   memset(tr, 0, sizeof *tr);
   tr->cap = mem_malloc(sizeof(int) * (size_t)s->nc);
   tr->m = mem_malloc(sizeof(long) * (size_t)s->nc);
-  if (!tr->cap || !tr->m) {
-    free(tr->cap), free(tr->m);
-    return err_set(err, "out of memory");
-  }
+  if (!tr->cap || !tr->m) return err_set(err, "out of memory");
   memcpy(tr->cap, cap, sizeof(int) * (size_t)s->nc);
   tr->uniform = uniform;
-  out->ntrials++;
   return (s->last = configure(s, cap, tr, err)) ? out->ntrials - 1 : -1;
 }
 
@@ -318,124 +322,136 @@ void tune_result_free(TuneResult *r) {
   memset(r, 0, sizeof *r);
 }
 
-int tune_search(TrainSet *ts, const TuneGoal *goal, const TrainOptions *opt, TuneResult *out, Err *err) {
-  memset(out, 0, sizeof *out);
-  out->chosen = out->limiting = -1;
-  Full *f = train_set_full(ts);
-  const SampleSource *valid = goal->valid;
-  double tol = goal->tol;
-  int max_cap = goal->max_cap;
-  Search s = {ts, train_set_program(ts), f, {0}, train_set_classes(ts), NULL, out, {0}, tol, NULL, -1, ""};
-  if (opt) s.copt = *opt;
-  s.copt.valid = NULL, s.copt.progress = false, s.copt.choose_strict = true;
-  out->nclasses = s.nc;
-  int *cap = mem_calloc((size_t)s.nc + 1, sizeof(int)), rc = -1;
-  s.maxk = mem_calloc((size_t)s.nc + 1, sizeof(int));
-  out->best_cap = mem_calloc((size_t)s.nc + 1, sizeof(int));
-  Model *layout = NULL;
-  double *floor = NULL;
-  if (!cap || !s.maxk || !out->best_cap) goto oom;
-  int top = 1;
-  for (int c = 0; c < s.nc; c++) {
-    s.maxk[c] = train_set_max_cap(ts, c) < max_cap ? train_set_max_cap(ts, c) : max_cap;
-    top = s.maxk[c] > top ? s.maxk[c] : top;
-    cap[c] = 1;
-  }
-  s.v.steps = opt ? opt->rollout_steps : 0;
-  s.v.every = opt && opt->rollout_every > 0 ? opt->rollout_every : 1;
-  if (!(layout = train_set_model(ts, cap, err)) || cache_valid(&s, f, valid, layout, err) ||
-      (s.v.steps > 0 && cache_rollouts(&s, f, valid, layout, err)))
-    goto done;
-  /* 1. the cheapest uniform cap that meets tol */
-  int t = -1;
+/* 1. The first uniform cap, 1, 2, … (each class's at most s->maxk), that
+ * meets the tolerance, or the largest: its trial (caps in `cap`), or -1
+ * with `err`. */
+static int uniform_trial(Search *s, int *cap, Err *err) {
+  int top = 1, t = -1;
+  for (int c = 0; c < s->nc; c++) top = s->maxk[c] > top ? s->maxk[c] : top;
   for (int u = 1; u <= top; u++) {
-    for (int c = 0; c < s.nc; c++) cap[c] = u < s.maxk[c] ? u : s.maxk[c];
-    if ((t = trial(&s, cap, true, err)) < 0) goto done;
-    keep_model(&s, t, out->trials[t].err <= tol);
-    if (out->trials[t].err <= tol) break;
+    for (int c = 0; c < s->nc; c++) cap[c] = u < s->maxk[c] ? u : s->maxk[c];
+    if ((t = trial(s, cap, true, err)) < 0) return -1;
+    keep_model(s, t, s->out->trials[t].err <= s->tol);
+    if (s->out->trials[t].err <= s->tol) break;
   }
-  if (isinf(out->trials[t].err) && s.why[0]) { /* failed at the largest caps: why is the error */
-    err_set(err, "%s", s.why);
-    goto done;
+  return t;
+}
+
+/* The tolerance unmet at the largest caps `cap`: the class whose
+ * projection floor is worst limits (out->limiting, its floor, whether it
+ * is saturated). 0, or -1 with `err`. */
+static int limiting_class(Search *s, const int *cap, Err *err) {
+  TuneResult *out = s->out;
+  Scratch sc = SCRATCH_OF(err);
+  Model *m = train_set_model(s->ts, cap, err);
+  double *floor = m ? scratch_array(&sc, (size_t)m->nq + 1, sizeof(double)) : NULL;
+  double worst;
+  int rc = floor ? validate(s, m, &worst, floor, err) : -1;
+  for (int q = 0; rc == 0 && q < m->nq; q++) {
+    int c = m->qclass[q];
+    if (out->limiting < 0 || floor[q] > out->limiting_floor) out->limiting = c, out->limiting_floor = floor[q];
   }
-  if (out->trials[t].err > tol) {
-    /* unmet at the largest caps: the class whose projection floor is worst limits */
-    Model *m = train_set_model(ts, cap, err);
-    double worst;
-    if (!m || !(floor = mem_malloc(sizeof(double) * (size_t)m->nq)) || validate(&s, m, &worst, floor, err)) {
-      model_free(m);
-      goto done;
-    }
-    for (int q = 0; q < m->nq; q++) {
-      int c = m->qclass[q];
-      if (out->limiting < 0 || floor[q] > out->limiting_floor) out->limiting = c, out->limiting_floor = floor[q];
-    }
-    out->limiting_saturated = out->limiting >= 0 && s.maxk[out->limiting] < max_cap;
-    model_free(m);
-    memcpy(out->best_cap, cap, sizeof(int) * (size_t)s.nc);
-    rc = 0;
-    goto done;
-  }
-  /* 2. each class bisected down, the costliest to grow first */
-  int *order = mem_malloc(sizeof(int) * (size_t)s.nc);
-  double *gain = mem_malloc(sizeof(double) * (size_t)s.nc);
-  long *m1 = mem_malloc(sizeof(long) * (size_t)s.nc);
-  if (!order || !gain || !m1) {
-    free(order), free(gain), free(m1);
-    goto oom;
-  }
-  for (int c = 0; c < s.nc; c++) {
-    memcpy(m1, out->trials[t].m, sizeof(long) * (size_t)s.nc);
+  if (rc == 0) out->limiting_saturated = out->limiting >= 0 && s->maxk[out->limiting] < s->max_cap;
+  model_free(m);
+  scratch_release(&sc);
+  return rc;
+}
+
+/* 2. From trial t (caps `cap`, which meet the tolerance), each class
+ * bisected down with the others fixed, the costliest to grow first: the
+ * cheapest trial that still meets it, or -1 with `err`. */
+static int bisect_classes(Search *s, int *cap, int t, const Model *layout, Err *err) {
+  TuneResult *out = s->out;
+  int nc = s->nc;
+  Scratch sc = SCRATCH_OF(err);
+  int *order = scratch_array(&sc, (size_t)nc, sizeof(int));
+  double *gain = scratch_array(&sc, (size_t)nc, sizeof(double));
+  long *m1 = scratch_array(&sc, (size_t)nc, sizeof(long));
+  int best = order && gain && m1 ? t : -1;
+  for (int c = 0; best >= 0 && c < nc; c++) {
+    memcpy(m1, out->trials[t].m, sizeof(long) * (size_t)nc);
     m1[c]++;
-    gain[c] = cost_value(s.prog, m1, layout->samples) - out->trials[t].cost;
+    gain[c] = cost_value(s->prog, m1, layout->samples) - out->trials[t].cost;
     order[c] = c;
   }
-  for (int i = 0; i < s.nc; i++) /* by gain, descending */
-    for (int j = i + 1; j < s.nc; j++)
+  for (int i = 0; best >= 0 && i < nc; i++) /* by gain, descending */
+    for (int j = i + 1; j < nc; j++)
       if (gain[order[j]] > gain[order[i]]) {
         int x = order[i];
         order[i] = order[j], order[j] = x;
       }
-  int best = t;
-  for (int i = 0; i < s.nc; i++) {
+  for (int i = 0; best >= 0 && i < nc; i++) {
     int c = order[i], lo = 1, hi = cap[c];
-    while (lo < hi) {
+    while (best >= 0 && lo < hi) {
       int mid = (lo + hi) / 2, was = cap[c];
       cap[c] = mid;
-      int k = trial(&s, cap, false, err);
+      int k = trial(s, cap, false, err);
       if (k < 0) {
-        free(order), free(gain), free(m1);
-        goto done;
+        best = -1;
+        break;
       }
-      bool ok = out->trials[k].err <= tol && out->trials[k].cost <= out->trials[best].cost;
-      keep_model(&s, k, ok);
+      bool ok = out->trials[k].err <= s->tol && out->trials[k].cost <= out->trials[best].cost;
+      keep_model(s, k, ok);
       if (ok) hi = mid, best = k;
       else lo = mid + 1, cap[c] = was;
       cap[c] = hi;
     }
   }
-  free(order), free(gain), free(m1);
-  out->chosen = best;
-  memcpy(out->best_cap, out->trials[best].cap, sizeof(int) * (size_t)s.nc);
-  if (s.model_trial != best) { /* a trial found again (trial's reuse): its model made anew */
-    model_free(out->model);
-    out->model = configure(&s, out->best_cap, &out->trials[best], err);
-    if (!out->model) goto done;
+  scratch_release(&sc);
+  return best;
+}
+
+/* The search from the validation samples cached (steps 1 and 2), `cap`
+ * room for the caps: out filled. 0, or -1 with `err`. */
+static int search_caps(Search *s, int *cap, const Model *layout, Err *err) {
+  TuneResult *out = s->out;
+  int t = uniform_trial(s, cap, err);
+  if (t < 0) return -1;
+  if (isinf(out->trials[t].err) && s->why[0]) /* failed at the largest caps: why is the error */
+    return err_set(err, "%s", s->why);
+  if (out->trials[t].err > s->tol) { /* unmet at the largest caps */
+    if (limiting_class(s, cap, err)) return -1;
+    memcpy(out->best_cap, cap, sizeof(int) * (size_t)s->nc);
+    return 0;
   }
-  rc = 0;
-  goto done;
-oom:
-  err_set(err, "out of memory");
-done:
+  int best = bisect_classes(s, cap, t, layout, err);
+  if (best < 0) return -1;
+  out->chosen = best;
+  memcpy(out->best_cap, out->trials[best].cap, sizeof(int) * (size_t)s->nc);
+  if (s->model_trial != best) { /* a trial found again (trial's reuse): its model made anew */
+    model_free(out->model);
+    out->model = configure(s, out->best_cap, &out->trials[best], err);
+    if (!out->model) return -1;
+  }
+  return 0;
+}
+
+int tune_search(TrainSet *ts, const TuneGoal *goal, const TrainOptions *opt, TuneResult *out, Err *err) {
+  memset(out, 0, sizeof *out);
+  out->chosen = out->limiting = -1;
+  Full *f = train_set_full(ts);
+  Search s = {.ts = ts, .prog = train_set_program(ts), .f = f, .nc = train_set_classes(ts), .max_cap = goal->max_cap,
+              .out = out, .tol = goal->tol, .model_trial = -1, .mem = SCRATCH_OF(err)};
+  if (opt) s.copt = *opt;
+  s.copt.valid = NULL, s.copt.progress = false, s.copt.choose_strict = true;
+  out->nclasses = s.nc;
+  int *cap = scratch_array(&s.mem, (size_t)s.nc + 1, sizeof(int));
+  s.maxk = scratch_array(&s.mem, (size_t)s.nc + 1, sizeof(int));
+  out->best_cap = mem_calloc((size_t)s.nc + 1, sizeof(int)); /* the result's (tune_result_free) */
+  int rc = cap && s.maxk && out->best_cap ? 0 : err_set(err, "out of memory");
+  for (int c = 0; rc == 0 && c < s.nc; c++) {
+    s.maxk[c] = train_set_max_cap(ts, c) < s.max_cap ? train_set_max_cap(ts, c) : s.max_cap;
+    cap[c] = 1;
+  }
+  s.v.steps = opt ? opt->rollout_steps : 0;
+  s.v.every = opt && opt->rollout_every > 0 ? opt->rollout_every : 1;
+  Model *layout = rc == 0 ? train_set_model(ts, cap, err) : NULL;
+  if (!layout || cache_valid(&s, f, goal->valid, layout, err) ||
+      (s.v.steps > 0 && cache_rollouts(&s, f, goal->valid, layout, err)) || search_caps(&s, cap, layout, err))
+    rc = -1;
   model_free(s.last);
-  for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);
-  free(s.v.val);
-  for (long k = 0; s.v.traj && k < s.v.S; k++) free(s.v.traj[k]);
-  free(s.v.traj);
-  free(s.maxk);
-  free(cap);
-  free(floor);
   model_free(layout);
+  scratch_release(&s.mem);
   return rc;
 }
 
@@ -526,17 +542,13 @@ int tune_choose_reductions(Model *m, Full *f, const SampleSource *valid, const T
   int candidates = 0;
   for (int i = 0; i < m->nstages; i++) candidates += lower_interp_eligible(m->stages[i].st) && !m->stages[i].interp;
   if (candidates == 0) return 0; /* nothing to measure: no validation pass */
-  Search s = {0};
-  s.prog = m->prog, s.f = f, s.copt = *opt, s.tol = -1;
+  Search s = {.prog = m->prog, .f = f, .copt = *opt, .tol = -1, .mem = SCRATCH_OF(err)};
   double chosen;
   char why[1024];
   /* a model whose every configuration fails on a validation sample is kept (the reasons say so) */
   int rc = cache_valid(&s, f, valid, m, err) || choose(&s, m, &chosen, why, err) ? -1 : 0;
   /* kept, but never quietly: interp_report warns, naming this failure */
   if (rc == 0 && !isfinite(chosen)) snprintf(m->choice_failure, sizeof m->choice_failure, "%.590s", why);
-  for (long k = 0; s.v.val && k < s.v.S; k++) free(s.v.val[k]);
-  free(s.v.val);
-  for (long k = 0; s.v.traj && k < s.v.S; k++) free(s.v.traj[k]);
-  free(s.v.traj);
+  scratch_release(&s.mem);
   return rc;
 }
