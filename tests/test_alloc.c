@@ -123,6 +123,51 @@ static void snapshots_fail_cleanly(void **state) {
   assert_true(k > 20 && k < MAX_FAILURES);
 }
 
+/* Sample k of the tune test: the k-th of xs (the training samples), or
+ * with `user` the k-th from its end (the validation samples). */
+static int set_sample(void *user, NpgFull *f, long k) {
+  const long shape[1] = {2};
+  const double *x = user ? xs + 2 * (SAMPLES - 1 - k) : xs + 2 * k;
+  return npg_full_set(f, "x", 1, shape, x, "sample");
+}
+
+/* npgc tune's search (backends/train/tune.c, train_set.c): the sample set,
+ * every trial's model and validation. Every allocation fails in turn: the
+ * search fails saying "out of memory", or returns the model. The stage is
+ * forced to Galerkin: reading a tensor for interpolation (interp_train.c)
+ * still fails there with "the tensor sink refused an entry". */
+static void tune_fails_cleanly(void **state) {
+  (void)state;
+  NpgProgram *p = program();
+  NpgFull *f = npg_full_new(p, NPG_TCC);
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  static const char *const galerkin[] = {"y"};
+  o.ngalerkin = 1, o.galerkin_stage = galerkin;
+  long k;
+  for (k = 0; k < MAX_FAILURES; k++) {
+    if (failing_alloc_traced() >= 0) fprintf(stderr, "tune, allocation %ld fails\n", k);
+    failing_alloc_after(k);
+    NpgTuneReport report;
+    NpgModel *m = npg_tune(f, SAMPLES, set_sample, NULL, SAMPLES / 2, set_sample, (void *)xs, 1e-6, 3, &o, &report);
+    failing_alloc_off();
+    char msg[sizeof report.error];
+    snprintf(msg, sizeof msg, "%s", report.error);
+    npg_tune_free(&report);
+    if (m) {
+      npg_model_free(m);
+      break;
+    }
+    if (!strstr(msg, "out of memory")) fail_msg("allocation %ld failing: \"%s\"", k, msg);
+    npg_full_clear_error(f);
+    npg_full_unbind(f);
+  }
+  print_message("tune: %ld allocations, each failing in turn\n", k);
+  assert_true(k > 20 && k < MAX_FAILURES);
+  npg_full_free(f);
+  npg_free(p);
+}
+
 /* A model of `p` trained (memory never failing) and written to `dir`. */
 static NpgModel *trained(NpgProgram *p) {
   NpgFull *f = npg_full_new(p, NPG_TCC);
@@ -222,6 +267,7 @@ int main(void) {
       cmocka_unit_test_teardown(loading_fails_cleanly, restore_hook),
       cmocka_unit_test_teardown(derivatives_fail_cleanly, restore_hook),
       cmocka_unit_test_teardown(snapshots_fail_cleanly, restore_hook),
+      cmocka_unit_test_teardown(tune_fails_cleanly, restore_hook),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }
