@@ -3,6 +3,7 @@
 #include <errno.h>
 #include <cblas.h>
 #include <math.h>
+#include <setjmp.h>
 #include <stdarg.h>
 #include <stdbool.h>
 #include <stdio.h>
@@ -191,6 +192,22 @@ int model_named_projections(Model *m, Err *err) {
   return 0;
 }
 
+/* layout_classes and layout_stages name the builders in the program's arena (emit_builder_name), whose
+ * out of memory longjmps to ctx->on_error — the compile's jump buffer, long gone by training: armed here,
+ * so that a failure returns -1 with "out of memory" and leaves the program's state as it was. */
+static int layout_parts(Model *m, Program *prog, const long *dims, Err *err) {
+  Ctx *ctx = prog->ctx;
+  jmp_buf here, *outer = ctx->on_error;
+  char *msg = ctx->msg;
+  bool failed = ctx->failed;
+  int rc;
+  ctx->on_error = &here;
+  if (setjmp(here) == 0) rc = layout_classes(m, prog, dims, err) || layout_stages(m, prog, err) ? -1 : 0;
+  else rc = layout_oom(err), ctx->msg = msg, ctx->failed = failed;
+  ctx->on_error = outer;
+  return rc;
+}
+
 Model *model_layout(Program *prog, const long *dims, Err *err) {
   Model *m = mem_calloc(1, sizeof *m);
   if (!m) return layout_oom(err), NULL;
@@ -209,7 +226,7 @@ Model *model_layout(Program *prog, const long *dims, Err *err) {
   if (rc == 0) {
     for (int i = 0; i < m->ndims; i++) m->dims[i] = dims[i];
     for (int q = 0; q < m->nq; q++) m->qclass[q] = ((Sym *)prog->quantities.v[q])->klass;
-    rc = layout_classes(m, prog, dims, err) || layout_stages(m, prog, err) ? -1 : 0;
+    rc = layout_parts(m, prog, dims, err);
   }
   if (rc == 0) return m;
   model_free(m); /* the half-built model, once */
