@@ -208,12 +208,12 @@ static void numerator_monomials(Reduced *r, const RTerm *rt, Estimation *s) {
   }
 }
 
-/* The part of z_t of operator k of term rt, v ⊗ each tensor's packed input product (v: my entries), into
+/* The part of z_t of operator `op` of a term, v ⊗ each tensor's packed input product (v: my entries), into
  * s->z from entry `off`; returns the entry after it. */
-static long operator_monomials(Reduced *r, const RTerm *rt, int k, const double *v, long my, long off, Estimation *s) {
+static long operator_monomials(Reduced *r, const ROp *op, const double *v, long my, long off, Estimation *s) {
   const Model *m = reduced_model(r);
-  for (int g = 0; g < rt->ops[k].ntensors; g++) {
-    const RTensor *t = &rt->ops[k].t[g];
+  for (int g = 0; g < op->ntensors; g++) {
+    const RTensor *t = &op->t[g];
     estimate_input_product(m, reduced_all_coords(r), t, s->Gz, s->pack);
     for (long a = 0; a < my; a++)
       for (long c = 0; c < t->cols; c++) s->z[off + a * t->cols + c] = v[a] * s->Gz[c];
@@ -230,7 +230,7 @@ static double residual_norm(Reduced *r, const RTerm *rt, long n, long my, Estima
   numerator_monomials(r, rt, s);
   long off = rt->named_q >= 0 ? qm(m, rt->named_q) : 0;
   for (int g = 0; rt->named_q < 0 && g < rt->nnum; g++) off += rt->num[g].cols;
-  for (int k = 0; k < rt->nops; k++) off = operator_monomials(r, rt, k, s->v, my, off, s);
+  for (int k = 0; k < rt->nops; k++) off = operator_monomials(r, &rt->ops[k], s->v, my, off, s);
   return table_norm(rt, 0, rt->est_D, n, s, roundoff);
 }
 
@@ -528,7 +528,7 @@ static double root_step(Reduced *r, const ChainOp *o, const ChainLayout *L, doub
     double u = ulo + h * (double)k, sn = exp(u);
     for (long a = 0; a < my; a++) s->Gz[a] = vt[a] / (lam[a] + sn); /* ŷ_s = Q (Λ + s)⁻¹ Qᵀ v */
     cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)my, (int)my, 1.0, s->M, (int)my, s->Gz, 1, 0.0, s->v, 1);
-    operator_monomials(r, rt, 0, s->v, my, L->off[0], s);
+    operator_monomials(r, &rt->ops[0], s->v, my, L->off[0], s);
     rho = table_norm(rt, L->off[0], L->len[0], o->n, s, &part);
     if (k == 0) rho_lo = rho;
     sum += (k == 0 || k == K ? 0.5 : 1.0) * exp((alpha + 1) * u) * rho / (sn + lmin);
@@ -579,10 +579,10 @@ static int chain_figure(Reduced *r, int i, int t, Estimation *s, double carried,
       if (p < 0 || !L.joins[k + 1]) { /* an applied M joined with the inverse after it has its residual there */
         if (p < 0 && L.start[k] == 0) numerator_monomials(r, rt, s);
         if (p < 0 && k > 0 && L.start[k] == L.off[k - 1]) { /* g = M B v_prev: +, against the block's −M B */
-          operator_monomials(r, rt, k - 1, prev->chain, my, L.off[k - 1], s);
+          operator_monomials(r, &rt->ops[k - 1], prev->chain, my, L.off[k - 1], s);
           cblas_dscal((int)L.len[k - 1], -1.0, s->z + L.off[k - 1], 1);
         }
-        operator_monomials(r, rt, k, o.kp->chain + (p > 0 ? j : 1) * my, my, L.off[k], s);
+        operator_monomials(r, &rt->ops[k], o.kp->chain + (p > 0 ? j : 1) * my, my, L.off[k], s);
         res = table_norm(rt, L.start[k], L.off[k] + L.len[k] - L.start[k], n, s, &part);
         roundoff = roundoff && part;
       }
