@@ -381,14 +381,14 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
                                 Model *chosen, Err *err) {
   int n = chosen->nstages, ni = 0, ng = 0;
   Scratch sc = SCRATCH_OF(err);
-  const char **ilist = scratch_array(&sc, (size_t)(n + opt->ninterp + 1), sizeof(char *));
-  const char **glist = scratch_array(&sc, (size_t)(n + opt->ngalerkin + 1), sizeof(char *));
+  const char **ilist = scratch_array(&sc, (size_t)(n + opt->user->ninterp + 1), sizeof(char *));
+  const char **glist = scratch_array(&sc, (size_t)(n + opt->user->ngalerkin + 1), sizeof(char *));
   double *errs = scratch_array(&sc, (size_t)(2 * n + 1), sizeof(double));
   const char **reason = scratch_array(&sc, (size_t)n + 1, sizeof(char *));
   bool room = ilist && glist && errs && reason;
   if (!room) err_set(err, "out of memory");
-  for (int j = 0; room && j < opt->ninterp; j++) ilist[ni++] = opt->interp_stage[j];
-  for (int j = 0; room && j < opt->ngalerkin; j++) glist[ng++] = opt->galerkin_stage[j];
+  for (int j = 0; room && j < opt->user->ninterp; j++) ilist[ni++] = opt->user->interp_stage[j];
+  for (int j = 0; room && j < opt->user->ngalerkin; j++) glist[ng++] = opt->user->galerkin_stage[j];
   for (int i = 0; room && i < n; i++) { /* stage names belong to the program, which outlives both models */
     const RStage *rs = &chosen->stages[i];
     if (!rs->choice_reason || rs->choice_reason == interp_reasons[INTERP_FORCED]) continue;

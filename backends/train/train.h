@@ -126,7 +126,7 @@ int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptio
  * the largest (over every rank): only their ratios count; the params'
  * hashes recorded (Model.param_hashes), and a param that a validation
  * sample changed refused. With
- * opt->valid_holdout, samples held out of training to choose the
+ * opt->user->valid_holdout, samples held out of training to choose the
  * reductions on (and with the automatic hold-out, the model trained again
  * on every sample with the choice fixed). NULL with `err` on failure. */
 Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, Err *err);
@@ -166,7 +166,7 @@ int train_set_max_cap(const TrainSet *ts, int c);
 Model *train_set_model(TrainSet *ts, const int *cap, Err *err);
 /* The online estimate's tables of a truncation `m` (train_estimates, on
  * the set's training samples), then its streamed classes (issue 30,
- * train_model's rule: model_class_streamable, opt->stream, opt->keep_bases),
+ * train_model's rule: model_class_streamable, opt->stream, opt->user->keep_bases),
  * its reductions chosen: marked, their floors measured on the set's training
  * snapshots, their bases dropped. 0, or -1 with `err`. */
 int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, Err *err);
@@ -207,8 +207,8 @@ void product_norm_free(ProductNorm *p);
 /* ---------------------------------------------------------------- interpolated stages (interp_train.c) */
 
 /* Training's step 3b (train.c), on `m` pre-multiplied: the stages forced to
- * interpolation (the program's `reduce interp`, opt->interp_stage) made
- * interpolated, the names of opt->galerkin_stage checked, and with
+ * interpolation (the program's `reduce interp`, opt->user->interp_stage) made
+ * interpolated, the names of opt->user->galerkin_stage checked, and with
  * opt->valid every other eligible stage chosen (tune_choose_reductions).
  * 0, or -1 with `err`. */
 int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, Err *err);
@@ -253,7 +253,7 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
 /* ---------------------------------------------------------------- out-of-core bases (ooc.c) */
 
 /* Whether the member bases of `m` at their caps (Σ n × cap doubles) exceed
- * opt->mem, so that training must keep them out of core; with sample weights
+ * opt->user->mem, so that training must keep them out of core; with sample weights
  * (opt->weights), also when the snapshots of the S samples exceed it (the
  * method of snapshots does not take weights). */
 bool ooc_needed(const Model *m, const TrainOptions *opt, long S);
@@ -298,7 +298,7 @@ typedef struct TuneGoal {
  * each class bisected down with the others fixed, the costliest first. At
  * every candidate, the stages `opt` forces (interp_stage, the program's
  * `reduce`) reduced so, every other eligible stage both ways and the lower
- * error kept, the cheaper when both meet `tol` (DESIGN §12; opt->ngalerkin
+ * error kept, the cheaper when both meet `tol` (DESIGN §12; opt->user->ngalerkin
  * excludes stages; opt may be NULL). out->model: the chosen trial's model.
  * 0 (`out` filled; out->chosen < 0 when `tol` cannot be met, naming the
  * limiting class), or -1 with `err`. tune_result_free() either way. */
@@ -314,7 +314,7 @@ void tune_result_free(TuneResult *r);
  * multiply-adds. A
  * configuration that fails on a validation sample counts as an infinite
  * error. The errors and the reason are left in rs->choice_err and
- * rs->choice_reason (and on stderr with opt->progress). 0, or -1 with `err`. */
+ * rs->choice_reason (and on stderr with opt->user->progress). 0, or -1 with `err`. */
 int tune_choose_reductions(Model *m, Full *f, const SampleSource *valid, const TrainOptions *opt, Err *err);
 
 /* ---------------------------------------------------------------- reports (report.c) */

@@ -99,7 +99,7 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
   ts->o.joint = false;
   ts->quiet = ts->o;
   ts->quiet.progress = ts->quiet.dist = false;
-  ts->f = f, ts->src = src, ts->progress = opt->progress;
+  ts->f = f, ts->src = src, ts->progress = opt->user->progress;
   ts->tr = (Train){.prog = prog, .f = f, .src = src, .opt = &ts->o, .err = err};
   int rc = train_begin(&ts->tr);
   ts->base = ts->tr.m;
