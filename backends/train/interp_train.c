@@ -399,10 +399,12 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
   char failure[sizeof chosen->choice_failure];
   snprintf(failure, sizeof failure, "%s", chosen->choice_failure);
   model_free(chosen); /* before the second training: never both in memory */
+  NpgTrainOptions user = *opt->user; /* the choice fixed: every stage it made forced its way */
+  user.ninterp = ni, user.interp_stage = ilist;
+  user.ngalerkin = ng, user.galerkin_stage = glist;
   TrainOptions o = *opt;
+  o.user = &user;
   o.valid = NULL;
-  o.ninterp = ni, o.interp_stage = ilist;
-  o.ngalerkin = ng, o.galerkin_stage = glist;
   Model *m = room ? train_model(prog, f, all, &o, err) : NULL;
   if (m) snprintf(m->choice_failure, sizeof m->choice_failure, "%s", failure);
   for (int i = 0; m && i < n && i < m->nstages; i++) /* the measured errors and reason, not "forced" */

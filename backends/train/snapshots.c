@@ -266,7 +266,8 @@ static int basis_pass(Gram *g, double ***U, int **kk) {
         cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, g->tmp, 1, x->G + k * g->S, 1, U[c][i], kk[c][i]);
       }
     }
-    progress_show(g->t->opt->user->progress, g->round == 2 ? "snapshots (residual basis)" : "snapshots (basis)", k + 1, g->S);
+    progress_show(g->t->opt->user->progress, g->round == 2 ? "snapshots (residual basis)" : "snapshots (basis)", k + 1,
+                  g->S);
   }
   return 0;
 }

@@ -1082,7 +1082,8 @@ static double holdout_fraction(Program *prog, const SampleSource *src, const Tra
   double F = opt->user->valid_holdout;
   if (F < 0)
     F = !opt->valid && !opt->dist && src->count >= TRAIN_HOLDOUT_MIN &&
-                interp_open_choices(prog, opt->user->ninterp, opt->user->interp_stage, opt->user->ngalerkin, opt->user->galerkin_stage) > 0
+                interp_open_choices(prog, opt->user->ninterp, opt->user->interp_stage, opt->user->ngalerkin,
+                                    opt->user->galerkin_stage) > 0
             ? 1.0 / TRAIN_HOLDOUT_STRIDE
             : 0;
   if (F != 0 && (!(F > 0 && F <= 0.5) || opt->valid || opt->dist))
@@ -1122,8 +1123,10 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   Holdout hold = {src, F != 0 ? lround(1 / F) : 0};
   long nheld = F != 0 ? src->count / hold.stride : 0;
   SampleSource training = *src, held = {nheld, &hold, holdout_held, NULL, NULL};
+  NpgTrainOptions user = *opt->user; /* the fraction decided: none again in train_run or the retraining */
+  user.valid_holdout = 0;
   TrainOptions o = *opt;
-  o.valid_holdout = 0;
+  o.user = &user;
   if (F != 0) {
     training = (SampleSource){src->count - nheld, &hold, holdout_training, src->set_part ? holdout_training_part : NULL,
                               NULL};

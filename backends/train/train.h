@@ -10,61 +10,44 @@
 
 #include "full.h"
 #include "model.h"
+#include "npg.h"
 
 typedef struct PcaMember PcaMember;
 
 /* ---------------------------------------------------------------- training (train.c) */
 
+/* Training's options: the user's NpgTrainOptions (npg.h), the one options type, read as given
+ * (cap, energy, joint, uncentered, mem, progress, the basis overrides, the forced reductions,
+ * valid_holdout, keep_bases, the rollouts), and the few things the facade derives from it or
+ * from the trainer's records, or that training's own callers set and the user never does.
+ * Training never writes through `user`: where it trains with other values (the hold-out's
+ * retraining, a tune set's truncations, the facade's memory left after the records) it points a
+ * copy's `user` at a changed copy of the NpgTrainOptions. */
 typedef struct TrainOptions {
-  int cap;                  /* default cap per member (60) */
-  double energy;            /* default energy fraction per member (0.999) */
-  bool joint;               /* --merge joint */
-  bool uncentered;          /* --center off: the paper's uncentered truncation (default: centered, DESIGN §5) */
-  bool inputs_whole;        /* greedy training: an input's members default to energy 1 (every direction their
-                               samples span; the program's `basis` and --basis still set it) */
-  bool full_rank;           /* complete every basis to its class's full dimension (convergence tests) */
-  size_t mem;               /* memory budget for snapshots, bytes */
-  bool progress;            /* progress bars on stderr */
-  bool dist;                /* over the ranks of dist.h (after dist_start): rank r takes the samples
-                               k ≡ r (mod ranks) and every ranks-th row of each tensor; every rank
-                               ends with the same model. Out of core (ooc.c), rank r takes its
-                               share of the row passes instead. */
+  const NpgTrainOptions *user; /* the options as given, read as they are (never NULL) */
+  bool dist;                /* over the ranks of dist.h (after dist_start; NpgTrainOptions.mpi once the
+                               facade started them): rank r takes the samples k ≡ r (mod ranks) and every
+                               ranks-th row of each tensor; every rank ends with the same model. Out of
+                               core (ooc.c), rank r takes its share of the row passes instead. False
+                               where one rank trains alone (a tune set's trials) */
   const char *shared_prefix; /* out of core over ranks: the basis files all ranks map are named
                                PREFIX.ooc.XXXXXX (unlinked once every rank has opened them), so
                                PREFIX must be on a filesystem every rank sees (the model's path;
                                NULL: $TMPDIR/npg, or /tmp/npg) */
-  /* overrides from the command line (--basis NAME:cap=N,energy=E,center=on|off), NAME a
-   * quantity, a class as `npgc check` names it (m_f), a numerator (f.num1) or '*';
-   * the more specific wins ('*' < class < member); an unknown NAME fails training */
-  int noverride;
-  const char **override_name;
-  int *override_cap;
-  double *override_energy;
-  int *override_center;     /* 1 on, 0 off, -1 not given (may be NULL: not given) */
-  const char **override_product; /* an op's name (product=OP), NULL not given (may be NULL: none) */
-  /* interpolated stages (DESIGN §12, interp.h): the stages named are reduced by interpolation
-   * (each must be eligible: lower_interp_eligible), at k = ceil(oversample · m) entries */
-  int ninterp;
-  const char *const *interp_stage;
-  double interp_oversample; /* 0: the default (TRAIN_INTERP_OVERSAMPLE) */
-  int ngalerkin;            /* the stages named are reduced by Galerkin, whatever `valid` measures */
-  const char *const *galerkin_stage;
-  /* validation samples (same params): every eligible stage neither list names is reduced both
-   * ways and the lower output error kept (tune_choose_reductions); NULL: Galerkin */
+  /* validation samples (same params; the facade's from valid_count, valid_set, valid_user, or
+   * the samples held out by valid_holdout): every eligible stage neither user->interp_stage nor
+   * user->galerkin_stage names is reduced both ways and the lower output error kept
+   * (tune_choose_reductions); NULL: Galerkin */
   const struct SampleSource *valid;
-  bool choose_strict;       /* ties keep Galerkin: the choice never raises the error on `valid` (npgc tune) */
-  double valid_holdout;     /* instead of `valid`, every round(1/F)-th sample held out of training to choose on, F
-                               in (0, 0.5]; 0: none; negative: automatic (TRAIN_HOLDOUT_*, then trained again
-                               on every sample with the choice fixed) */
+  const double *weights;    /* per sample (src->count, each > 0; the trainer's npg_trainer_weight): the PCA
+                               minimizes Σ_k w_k ‖x_k − BBᵀx_k‖² (pca_weigh), weight 2 a sample taken
+                               twice; NULL: every weight 1. The floors and reports stay per sample, unweighted */
   bool stream;              /* drop the streamable bases (model_class_streamable) once used (issue 30;
-                               npg_trainer's default); false: every basis kept (the old layout) */
-  const char *keep_bases;   /* with `stream`, the bases kept though streamable: comma-separated
-                               quantities or classes, "all" for every one; NULL: none */
-  const double *weights;    /* per sample (src->count, each > 0): the PCA minimizes Σ_k w_k ‖x_k − BBᵀx_k‖²
-                               (pca_weigh), weight 2 a sample taken twice; NULL: every weight 1.
-                               The floors and reports stay per sample, unweighted */
-  long rollout_steps;       /* tune: candidates judged by reduced rollouts of this many steps (DESIGN §15); 0: one step */
-  long rollout_every;       /* their states compared every this many steps */
+                               npg_trainer's always); false: every basis kept (the old layout; tests) */
+  bool inputs_whole;        /* greedy training: an input's members default to energy 1 (every direction their
+                               samples span; the program's `basis` and --basis still set it) */
+  bool full_rank;           /* complete every basis to its class's full dimension (convergence tests) */
+  bool choose_strict;       /* ties keep Galerkin: the choice never raises the error on `valid` (npgc tune) */
   struct SnapshotCache *cache; /* the snapshots of an earlier training whose samples this one's begin with (greedy
                                training): theirs taken from it, not evaluated again, and this training's left in
                                it (snapshot_cache.c); unused out of core, by the method of snapshots, over ranks

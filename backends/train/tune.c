@@ -61,6 +61,7 @@ typedef struct Search {
   int model_trial;          /* the trial whose model out->model is, or -1 */
   char why[1024];           /* why the last candidate that failed on a validation sample failed */
   Scratch mem;              /* the search's memory: the validation samples cached, the caps */
+  NpgTrainOptions cuser;    /* tune_search's copt.user: the caller's options, quiet */
 } Search;
 
 static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
@@ -432,8 +433,9 @@ int tune_search(TrainSet *ts, const TuneGoal *goal, const TrainOptions *opt, Tun
   Full *f = train_set_full(ts);
   Search s = {.ts = ts, .prog = train_set_program(ts), .f = f, .nc = train_set_classes(ts), .max_cap = goal->max_cap,
               .out = out, .tol = goal->tol, .model_trial = -1, .mem = SCRATCH_OF(err)};
-  if (opt) s.copt = *opt;
-  s.copt.valid = NULL, s.copt.progress = false, s.copt.choose_strict = true;
+  if (opt) s.copt = *opt, s.cuser = *opt->user;
+  s.cuser.progress = false;
+  s.copt.user = &s.cuser, s.copt.valid = NULL, s.copt.choose_strict = true;
   out->nclasses = s.nc;
   int *cap = scratch_array(&s.mem, (size_t)s.nc + 1, sizeof(int));
   s.maxk = scratch_array(&s.mem, (size_t)s.nc + 1, sizeof(int));
@@ -507,7 +509,8 @@ static int choose(Search *s, Model *m, double *out, char why[static 1024], Err *
     RStage *rs = &m->stages[i];
     if (!lower_interp_eligible(rs->st) || rs->interp) continue; /* forced interpolated: kept */
     bool forced = rs->st->sym->reduce == STAGE_REDUCE_GALERKIN; /* `basis w: reduce galerkin` */
-    for (int j = 0; j < opt->user->ngalerkin; j++) forced |= strcmp(opt->user->galerkin_stage[j], rs->st->sym->name) == 0;
+    for (int j = 0; j < opt->user->ngalerkin; j++)
+      forced |= strcmp(opt->user->galerkin_stage[j], rs->st->sym->name) == 0;
     if (forced) continue;
     double galerkin = current, interp = INFINITY, wg = stage_work(m, rs);
     if (interp_train_stage(m, s->f, i, over, err) != 0) return -1;
