@@ -18,6 +18,8 @@
  *     dominates while its inputs sit at their floors;
  *   - the program may state the reduction (`basis y: reduce interp|galerkin`),
  *     the command line overriding it;
+ *   - the automatic hold-out and its retraining leave the caller's
+ *     NpgTrainOptions as they were (training reads them through a view);
  *   - a stage that is not eligible, or not a stage, is refused by name.
  */
 #include <cblas.h>
@@ -570,6 +572,37 @@ static void program_states_the_reduction(void **state) {
   }
 }
 
+/* ---------------------------------------------------------------- the options read as given */
+
+/* Training reads the user's NpgTrainOptions through TrainOptions.user and never writes through it
+ * (issue 39): the automatic hold-out (valid_holdout -1, 40 samples, y's reduction open) trains on
+ * copies with valid_holdout 0 and then with the choice forced, and the caller's struct is the same,
+ * byte for byte, afterwards; the choice was measured, so that path ran. */
+static void options_read_as_given(void **state) {
+  (void)state;
+  const char *text = "dim N\ninput x : real[N]\noutput y[i:N] = (x[i] * x[i] + 1)^(-3/2)\n";
+  NpgProgram *p = compile_text("given.npg", text);
+  Program *prog = ir_ok(p);
+  Full *f = full_new(program_ir(p), JIT_TCC, NULL);
+  MemSamples train;
+  if (memsamples_fill(&train, prog, f, 6, 40, 9u)) fail_msg("binding random params failed");
+  SampleSource src = {40, &train, memsamples_set, NULL, NULL};
+  NpgTrainOptions user = {.cap = 3, .energy = 1.0, .valid_holdout = -1};
+  NpgTrainOptions before;
+  memcpy(&before, &user, sizeof user);
+  TrainOptions opt = {.user = &user};
+  char err[1024];
+  Model *m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
+  if (!m) fail_msg("%s", err);
+  assert_non_null(m->stages[0].choice_reason);
+  assert_ptr_not_equal(m->stages[0].choice_reason, interp_reasons[INTERP_FORCED]);
+  assert_memory_equal(&user, &before, sizeof user);
+  model_free(m);
+  memsamples_free(&train);
+  full_free(f);
+  npg_free(p);
+}
+
 /* ---------------------------------------------------------------- refusals */
 
 static void ineligible_refused(void **state) {
@@ -607,6 +640,7 @@ int main(void) {
       cmocka_unit_test(choice_by_validation),
       cmocka_unit_test(advice_names_the_cause),
       cmocka_unit_test(program_states_the_reduction),
+      cmocka_unit_test(options_read_as_given),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
