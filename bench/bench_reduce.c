@@ -252,9 +252,10 @@ static Trained *train(NpgProgram *p, long F, long S, int cap, bool rerun_all) {
   if (full_error(tr->f)[0]) die("npg_full_new", full_error(tr->f));
   room_bind(&tr->room, tr->f);
   SampleSource src = {S, &tr->room, room_set, NULL, NULL};
-  TrainOptions opt = {0};
-  opt.cap = cap;
-  opt.energy = 1.0; /* keep every direction up to the cap (and above 1e-10 σ_max) */
+  NpgTrainOptions opt_user = {0};
+  TrainOptions opt = {.user = &opt_user};
+  opt_user.cap = cap;
+  opt_user.energy = 1.0; /* keep every direction up to the cap (and above 1e-10 σ_max) */
   char err[2048] = "";
   double t0 = now();
   tr->m = train_model(program_ir(p), tr->f, &src, &opt, ERR_OF(err, sizeof err));

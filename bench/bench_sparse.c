@@ -294,9 +294,10 @@ static void premul_bench(NpgProgram *prog, long n, long S, int cap) {
   }
   Full *f = evaluator(prog, &g, JIT_CC, FULL_SPARSE_MIN_ROWS);
   SampleSource src = {S, &fs, fields_set, NULL, NULL};
-  TrainOptions opt = {0};
-  opt.cap = cap;
-  opt.energy = 1.0;
+  NpgTrainOptions opt_user = {0};
+  TrainOptions opt = {.user = &opt_user};
+  opt_user.cap = cap;
+  opt_user.energy = 1.0;
   char err[2048] = "";
   double t0 = now();
   Model *m = train_model(program_ir(prog), f, &src, &opt, ERR_OF(err, sizeof err));

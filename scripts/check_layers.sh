@@ -9,7 +9,8 @@
 # The library, libnpg (DESIGN §9): stdlib/runtime <- ir <- backends (emit <-
 # jit <- model <- train <- verify) <- compiler/api, the npg.h facade, which
 # also sits on the front end (compiler/front, itself on ir alone) and on
-# include/, the public header npg.h. Its clients see npg.h and nothing under
+# include/, the public header npg.h. train sits on include/ too: its options
+# are a view of npg.h's NpgTrainOptions (train.h), the one options type. Its clients see npg.h and nothing under
 # it: compiler/chart (the charts, cairo) <- compiler/driver (npgc),
 # compiler/python (the module npg) and examples/common <- every other folder
 # of examples/, an application each (found, not listed).
@@ -31,7 +32,7 @@ ir         ir                runtime
 emit       backends/emit     ir
 jit        backends/jit      emit
 model      backends/model    jit
-train      backends/train    model
+train      backends/train    model public
 verify     backends/verify   train
 front      compiler/front    ir
 public     include           -

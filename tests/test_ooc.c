@@ -113,7 +113,8 @@ static void out_of_core_matches_memory(void **state) {
     int uncentered = run == 1;
     Model *a = train_with(prog, f, &src, 8, 0.9999, uncentered, 0);
     size_t mem = run < 2 ? largest_basis(a) / 10 : largest_basis(a);
-    TrainOptions o = {.cap = 8, .energy = 0.9999, .uncentered = uncentered, .mem = mem};
+    NpgTrainOptions o_user = {.cap = 8, .energy = 0.9999, .uncentered = uncentered, .mem = mem};
+    TrainOptions o = {.user = &o_user};
     assert_true(ooc_needed(a, &o, src.count));
     Model *b = train_with(prog, f, &src, 8, 0.9999, uncentered, mem);
     bool mapped = false;
@@ -295,7 +296,8 @@ static void method_of_snapshots_reaches_svd_accuracy(void **state) {
   for (int centered = 0; centered < 2; centered++) {
     Model *a = train_with(prog, f, &src, cap, 1.0, !centered, 0);
     size_t mem = train_snapshot_bytes(a, S) - sizeof(double);
-    TrainOptions o = {.cap = cap, .energy = 1.0, .uncentered = !centered, .mem = mem};
+    NpgTrainOptions o_user = {.cap = cap, .energy = 1.0, .uncentered = !centered, .mem = mem};
+    TrainOptions o = {.user = &o_user};
     assert_false(ooc_needed(a, &o, S));
     Model *m = train_with(prog, f, &src, cap, 1.0, !centered, mem);
     long ka, k;

@@ -50,11 +50,12 @@ static int full_rank_check(const char *path, double *worst, bool uncentered) {
   MemSamples train;
   if (memsamples_fill(&train, prog, f, n, S, 11u)) fail_msg("binding random params failed");
   SampleSource src = {S, &train, memsamples_set, NULL, NULL};
-  TrainOptions opt = {0};
-  opt.cap = 1 << 20;
-  opt.energy = 1.0;
+  NpgTrainOptions opt_user = {0};
+  TrainOptions opt = {.user = &opt_user};
+  opt_user.cap = 1 << 20;
+  opt_user.energy = 1.0;
   opt.full_rank = true;
-  opt.uncentered = uncentered;
+  opt_user.uncentered = uncentered;
   char err[2048] = "";
   Model *m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
   if (!m) fail_msg("%s: training: %s", path, err);
@@ -478,14 +479,15 @@ static void smaller_sizes_equal_retraining(void **state) {
       if (memsamples_fill(&train, prog, f, 30, 14, 3u) || memsamples_fill(&test, prog, f, 30, 5, 4u))
         fail_msg("binding random params failed");
       SampleSource src = {train.S, &train, memsamples_set, NULL, NULL};
-      TrainOptions opt = {.cap = 8, .energy = 1.0, .uncentered = uncentered, .joint = joint};
+      NpgTrainOptions opt_user = {.cap = 8, .energy = 1.0, .uncentered = uncentered, .joint = joint};
+      TrainOptions opt = {.user = &opt_user};
       char err[2048] = "";
       Model *big = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
       if (!big) fail_msg("%s", err);
       const int caps[3] = {2, 3, 5};
       double worst = 0;
       for (int i = 0; i < 3; i++) {
-        opt.cap = caps[i];
+        opt_user.cap = caps[i];
         Model *small = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
         if (!small) fail_msg("%s", err);
         long sizes[16];

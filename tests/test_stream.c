@@ -95,7 +95,8 @@ static void streamed_equals_memory(void **state) {
   room_open(&room, 24, 20, 6);
   Program *prog = room.prog;
   Full *f = room.f;
-  TrainOptions opt = {.cap = 8, .energy = 0.9999, .stream = true};
+  NpgTrainOptions opt_user = {.cap = 8, .energy = 0.9999};
+  TrainOptions opt = {.user = &opt_user, .stream = true};
   char *log = malloc(1 << 16);
   Model *a = train_logged(prog, f, &room.src, &opt, log, 1 << 16);
   assert_int_equal(blocks_of(log), -1); /* in memory: no block */
@@ -107,17 +108,17 @@ static void streamed_equals_memory(void **state) {
   }
   long blocks[2];
   for (int run = 0; run < 2; run++) {
-    opt.mem = largest * (run ? 4 : 8); /* above 16x: the method of snapshots, no block */
-    opt.progress = true;
+    opt_user.mem = largest * (run ? 4 : 8); /* above 16x: the method of snapshots, no block */
+    opt_user.progress = true;
     Model *b = train_logged(prog, f, &room.src, &opt, log, 1 << 16);
-    opt.progress = false;
+    opt_user.progress = false;
     blocks[run] = blocks_of(log);
     int streamed;
     double db = basis_distance(a, b, &streamed), dt = tensor_distance(a, b);
     double eb = mean_error(prog, f, b, &room.test, room_set, room.test.S, "b");
     print_message("streamed (--mem %zu bytes, %ld blocks, %d classes without a basis) vs in memory: kept bases %.2g, "
                   "tensors %.2g, mean error of b %.6g vs %.6g\n",
-                  opt.mem, blocks[run], streamed, db, dt, eb, ea);
+                  opt_user.mem, blocks[run], streamed, db, dt, eb, ea);
     assert_true(blocks[run] > 0);
     assert_true(streamed > 0);
     assert_true(db < 1e-10 && dt < 1e-10 && fabs(eb - ea) <= 1e-10 * ea);

@@ -33,9 +33,10 @@ static void error_falls_with_caps(void **state) {
   room_samples(&test, NULL, 48, 12, 0.5 / 47, 4.0 / 47);
   for (int c = 0; c < 5; c++) {
     SampleSource src = {train.S, &train, room_set, NULL, NULL};
-    TrainOptions opt = {0};
-    opt.cap = caps[c];
-    opt.energy = 1.0;
+    NpgTrainOptions opt_user = {0};
+    TrainOptions opt = {.user = &opt_user};
+    opt_user.cap = caps[c];
+    opt_user.energy = 1.0;
     char err[2048] = "";
     Model *m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
     if (!m) fail_msg("radiosity: %s", err);
@@ -55,9 +56,10 @@ static void error_falls_with_caps(void **state) {
   if (memsamples_fill(&rtest, prog, f, 2, 20, 4u)) fail_msg("binding random params failed");
   for (int c = 0; c < 2; c++) {
     SampleSource src = {rtrain.S, &rtrain, memsamples_set, NULL, NULL};
-    TrainOptions opt = {0};
-    opt.cap = rat_caps[c];
-    opt.energy = 1.0;
+    NpgTrainOptions opt_user = {0};
+    TrainOptions opt = {.user = &opt_user};
+    opt_user.cap = rat_caps[c];
+    opt_user.energy = 1.0;
     char err[2048] = "";
     Model *m = train_model(prog, f, &src, &opt, ERR_OF(err, sizeof err));
     if (!m) fail_msg("rational: %s", err);
@@ -205,8 +207,9 @@ static void assert_same_model(const Model *a, const Model *b) {
 /* The whole evaluations of `f` training `count` of the samples of `ms` with `cache` made: *m the model. */
 static long evaluations_training(Program *prog, Full *f, MemSamples *ms, long count, SnapshotCache *cache, Model **m) {
   SampleSource src = {count, ms, memsamples_set, NULL, NULL};
-  TrainOptions opt = {0};
-  opt.cap = 8, opt.energy = 1, opt.cache = cache;
+  NpgTrainOptions opt_user = {0};
+  TrainOptions opt = {.user = &opt_user};
+  opt_user.cap = 8, opt_user.energy = 1, opt.cache = cache;
   char err[2048] = "";
   long before, after;
   full_evaluations(f, &before, NULL);

@@ -16,9 +16,10 @@
  * (trained from scratch by train_model) costs less than its choice. */
 static void check_tune(const char *name, Program *prog, Full *f, SampleSource *src, void *valid,
                        int (*set)(void *, Full *, long), long Sv, const char *out, double tol, int umax) {
-  TrainOptions opt = {0};
-  opt.cap = 60;
-  opt.energy = 1.0;
+  NpgTrainOptions opt_user = {0};
+  TrainOptions opt = {.user = &opt_user};
+  opt_user.cap = 60;
+  opt_user.energy = 1.0;
   char err[2048] = "";
   TrainSet *ts = train_set_new(prog, f, src, &opt, ERR_OF(err, sizeof err));
   if (!ts) fail_msg("%s: %s", name, err);

@@ -30,9 +30,10 @@ static inline void train(Trained *tr, const char *path, const char *text, long n
   tr->f = full_new(program_ir(tr->p), JIT_TCC, NULL);
   if (memsamples_fill(&tr->train, tr->prog, tr->f, n, S, 5u)) fail_msg("binding random params failed");
   SampleSource src = {S, &tr->train, memsamples_set, NULL, NULL};
-  TrainOptions opt = {0};
-  opt.cap = cap;
-  opt.energy = 1.0;
+  NpgTrainOptions opt_user = {0};
+  TrainOptions opt = {.user = &opt_user};
+  opt_user.cap = cap;
+  opt_user.energy = 1.0;
   char err[2048] = "";
   tr->m = train_model(tr->prog, tr->f, &src, &opt, ERR_OF(err, sizeof err));
   if (!tr->m) fail_msg("%s: training: %s", path, err);
@@ -162,19 +163,20 @@ static inline double mean_error(Program *prog, Full *f, Model *m, void *test, in
  * bytes of snapshots (0: no limit); the test fails if training does. */
 static inline Model *train_with(Program *prog, Full *f, const SampleSource *src, int cap, double energy,
                                 bool uncentered, size_t mem) {
-  TrainOptions opt = {0};
-  opt.cap = cap;
-  opt.energy = energy;
-  opt.uncentered = uncentered;
-  opt.mem = mem;
+  NpgTrainOptions opt_user = {0};
+  TrainOptions opt = {.user = &opt_user};
+  opt_user.cap = cap;
+  opt_user.energy = energy;
+  opt_user.uncentered = uncentered;
+  opt_user.mem = mem;
   /* `energy` for every member, those under a power too (DESIGN §12: whole by default), as --basis '*':energy=E */
   const char *every[1] = {"*"};
   int nocap[1] = {0};
   double energies[1] = {energy};
-  opt.noverride = 1;
-  opt.override_name = every;
-  opt.override_cap = nocap;
-  opt.override_energy = energies;
+  opt_user.nbasis = 1;
+  opt_user.basis_name = every;
+  opt_user.basis_cap = nocap;
+  opt_user.basis_energy = energies;
   char err[2048] = "";
   Model *m = train_model(prog, f, src, &opt, ERR_OF(err, sizeof err));
   if (!m) fail_msg("training: %s", err);

@@ -381,14 +381,14 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
                                 Model *chosen, Err *err) {
   int n = chosen->nstages, ni = 0, ng = 0;
   Scratch sc = SCRATCH_OF(err);
-  const char **ilist = scratch_array(&sc, (size_t)(n + opt->ninterp + 1), sizeof(char *));
-  const char **glist = scratch_array(&sc, (size_t)(n + opt->ngalerkin + 1), sizeof(char *));
+  const char **ilist = scratch_array(&sc, (size_t)(n + opt->user->ninterp + 1), sizeof(char *));
+  const char **glist = scratch_array(&sc, (size_t)(n + opt->user->ngalerkin + 1), sizeof(char *));
   double *errs = scratch_array(&sc, (size_t)(2 * n + 1), sizeof(double));
   const char **reason = scratch_array(&sc, (size_t)n + 1, sizeof(char *));
   bool room = ilist && glist && errs && reason;
   if (!room) err_set(err, "out of memory");
-  for (int j = 0; room && j < opt->ninterp; j++) ilist[ni++] = opt->interp_stage[j];
-  for (int j = 0; room && j < opt->ngalerkin; j++) glist[ng++] = opt->galerkin_stage[j];
+  for (int j = 0; room && j < opt->user->ninterp; j++) ilist[ni++] = opt->user->interp_stage[j];
+  for (int j = 0; room && j < opt->user->ngalerkin; j++) glist[ng++] = opt->user->galerkin_stage[j];
   for (int i = 0; room && i < n; i++) { /* stage names belong to the program, which outlives both models */
     const RStage *rs = &chosen->stages[i];
     if (!rs->choice_reason || rs->choice_reason == interp_reasons[INTERP_FORCED]) continue;
@@ -399,10 +399,12 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
   char failure[sizeof chosen->choice_failure];
   snprintf(failure, sizeof failure, "%s", chosen->choice_failure);
   model_free(chosen); /* before the second training: never both in memory */
+  NpgTrainOptions user = *opt->user; /* the choice fixed: every stage it made forced its way */
+  user.ninterp = ni, user.interp_stage = ilist;
+  user.ngalerkin = ng, user.galerkin_stage = glist;
   TrainOptions o = *opt;
+  o.user = &user;
   o.valid = NULL;
-  o.ninterp = ni, o.interp_stage = ilist;
-  o.ngalerkin = ng, o.galerkin_stage = glist;
   Model *m = room ? train_model(prog, f, all, &o, err) : NULL;
   if (m) snprintf(m->choice_failure, sizeof m->choice_failure, "%s", failure);
   for (int i = 0; m && i < n && i < m->nstages; i++) /* the measured errors and reason, not "forced" */

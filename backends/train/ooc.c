@@ -91,11 +91,11 @@ static size_t basis_bytes(const RClass *rc) {
 }
 
 bool ooc_needed(const Model *m, const TrainOptions *opt, long S) {
-  if (!opt->mem || opt->joint || opt->full_rank) return false;
+  if (!opt->user->mem || opt->user->joint || opt->full_rank) return false;
   size_t need = 0;
   for (int c = 0; c < m->nclasses; c++) need += basis_bytes(&m->classes[c]);
   /* weighted samples: out of core rather than by the method of snapshots, which does not take them */
-  return need > opt->mem || (opt->weights && train_snapshot_bytes(m, S) > opt->mem);
+  return need > opt->user->mem || (opt->weights && train_snapshot_bytes(m, S) > opt->user->mem);
 }
 
 /* Bytes a row of streamed class `rc` needs in a pass: every member's S
@@ -113,7 +113,7 @@ static int plan(Ooc *o) {
   long S = o->S;
   size_t small = 0, fixed = 0;
   for (int c = 0; c < m->nclasses; c++) small += sizeof(double) * (size_t)(m->classes[c].n * m->classes[c].nmembers) * (size_t)S;
-  while (small > o->t->opt->mem / 4) {
+  while (small > o->t->opt->user->mem / 4) {
     int big = -1;
     for (int c = 0; c < m->nclasses; c++)
       if (!o->st[c].streamed && (big < 0 || m->classes[c].n * m->classes[c].nmembers > m->classes[big].n * m->classes[big].nmembers))
@@ -130,7 +130,7 @@ static int plan(Ooc *o) {
     }
   fixed += small + sizeof(double) * (size_t)o->S * 4;
   o->fixed = fixed;
-  o->avail = o->t->opt->mem > fixed ? o->t->opt->mem - fixed : 0;
+  o->avail = o->t->opt->user->mem > fixed ? o->t->opt->user->mem - fixed : 0;
   /* Pass p keeps the same fraction [p/P, (p+1)/P) of every streamed
    * class's rows: the pair classes number their rows alike, so a pass
    * demands the same entries of all of them, and each entry is computed
@@ -248,7 +248,7 @@ static int collect(Ooc *o, long p, bool gram) {
           return -1;
     }
     /* this rank's passes: p / N of (npass − rank) / N, rounded up */
-    progress_show(o->t->opt->progress, what, p / o->N * S + k + 1, (o->npass - o->rank + o->N - 1) / o->N * S);
+    progress_show(o->t->opt->user->progress, what, p / o->N * S + k + 1, (o->npass - o->rank + o->N - 1) / o->N * S);
   }
   return 0;
 }
@@ -263,7 +263,7 @@ static int whole_sweep(Ooc *o) {
   for (long k = o->rank; k < S; k += o->N) {
     if (whole_sample(o, k)) return -1;
     if (train_fail_hook(o->t, k)) return -1;
-    progress_show(o->t->opt->progress, "snapshots (whole, out of core)", k + 1, S);
+    progress_show(o->t->opt->user->progress, "snapshots (whole, out of core)", k + 1, S);
   }
   double ***X = mem_calloc((size_t)m->nclasses + 1, sizeof(double **));
   if (!X) return err_set(o->t->err, "out of memory gathering the snapshots");
@@ -730,7 +730,7 @@ static int ooc_setup(Ooc *o) {
     for (int i = 0; !bad && i < r; i++)
       bad = !(st->G[i] = mem_calloc((size_t)(o->S * o->S), sizeof(double))) || !(st->s[i] = mem_malloc(sizeof(double) * (size_t)o->S));
   }
-  return bad ? err_set(o->t->err, "out of memory planning out-of-core training (--mem %.3g GB)", (double)o->t->opt->mem / 1e9)
+  return bad ? err_set(o->t->err, "out of memory planning out-of-core training (--mem %.3g GB)", (double)o->t->opt->user->mem / 1e9)
              : 0;
 }
 
@@ -738,12 +738,12 @@ static int ooc_setup(Ooc *o) {
 static void report_plan(const Ooc *o) {
   const Model *m = o->t->m;
   const TrainOptions *opt = o->t->opt;
-  if (!opt->progress) return;
+  if (!opt->user->progress) return;
   int streamed = 0;
   for (int c = 0; c < m->nclasses; c++) streamed += o->st[c].streamed;
   fprintf(stderr, "out of core: %d of %d classes streamed by rows, %ld passes over the %ld samples for the R "
           "factors (a QR by row blocks) and as many for the bases (--mem %.3g GB, %.3g GB for the rows of a pass)\n",
-          streamed, m->nclasses, o->npass, o->S, (double)opt->mem / 1e9, (double)o->avail / 1e9);
+          streamed, m->nclasses, o->npass, o->S, (double)opt->user->mem / 1e9, (double)o->avail / 1e9);
   if (o->avail == 0) /* the passes run a row at a time: say why, and what would help */
     fprintf(stderr, "out of core: --mem leaves nothing for the rows of a pass (the R factors of the %ld samples "
             "and the small classes' snapshots need %.3g MB of it), so each pass keeps one row of each streamed class; raise "
@@ -804,7 +804,7 @@ static int ooc_run(Ooc *o) {
   t[4] = now();
   if (stream_premultiply(o)) return -1;
   t[5] = now();
-  if (opt->progress)
+  if (opt->user->progress)
     fprintf(stderr, "out of core: %.2f s samples shared and whole evaluations (over ranks), %.2f s R-factor passes, %.2f s "
             "basis passes, %.2f s bases, %.2f s streamed pre-multiplication\n", t[1] - t[0], t[2] - t[1], t[3] - t[2],
             t[4] - t[3], t[5] - t[4]);
@@ -815,7 +815,7 @@ int ooc_bases(Train *tr) {
   Ooc o = {.t = tr, .S = tr->src->count, .N = 1};
   if (tr->opt->dist) o.rank = dist_rank(), o.N = dist_size();
   int rc = ooc_setup(&o) || ooc_run(&o) ? -1 : 0;
-  if (rc) err_set_first(tr->err, "out of memory in out-of-core training (--mem %.3g GB)", (double)tr->opt->mem / 1e9);
+  if (rc) err_set_first(tr->err, "out of memory in out-of-core training (--mem %.3g GB)", (double)tr->opt->user->mem / 1e9);
   ooc_free(&o);
   return rc;
 }

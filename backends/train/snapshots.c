@@ -161,7 +161,7 @@ static int gram_pass(Gram *g, long i0, long i1, long *done, long work) {
       }
     }
     if (full) k0 = k + 1;
-    progress_show(g->t->opt->progress,
+    progress_show(g->t->opt->user->progress,
                   g->round == 2 ? "snapshots (residual Gram)" : g->b < S ? "snapshots (Gram, recomputing)" : "snapshots (Gram)",
                   ++*done, work);
   }
@@ -266,7 +266,8 @@ static int basis_pass(Gram *g, double ***U, int **kk) {
         cblas_dger(CblasRowMajor, (int)rc->n, kk[c][i], 1.0, g->tmp, 1, x->G + k * g->S, 1, U[c][i], kk[c][i]);
       }
     }
-    progress_show(g->t->opt->progress, g->round == 2 ? "snapshots (residual basis)" : "snapshots (basis)", k + 1, g->S);
+    progress_show(g->t->opt->user->progress, g->round == 2 ? "snapshots (residual basis)" : "snapshots (basis)", k + 1,
+                  g->S);
   }
   return 0;
 }
@@ -376,7 +377,7 @@ static int coefficient_pass(Gram *g) {
         cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, x->p, 1.0, x->Q, x->p, g->tmp, 1, 0.0, x->D + k * x->p, 1);
       }
     }
-    progress_show(g->t->opt->progress, "snapshots (coefficients)", k + 1, g->S);
+    progress_show(g->t->opt->user->progress, "snapshots (coefficients)", k + 1, g->S);
   }
   return 0;
 }
@@ -508,7 +509,7 @@ int train_snapshot_bases(Train *t, double *tmp) {
   Model *m = t->m;
   long S = g.S, per = 0;
   for (int c = 0; c < m->nclasses; c++) per += m->classes[c].n * m->classes[c].nmembers;
-  train_gram_blocks(S, (long)(t->opt->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &g.b, &g.q);
+  train_gram_blocks(S, (long)(t->opt->user->mem / 2 / sizeof(double) / (size_t)(per ? per : 1)), &g.b, &g.q);
   int rc = gram_alloc(&g) ? err_set(t->err, "out of memory for the Gram matrices of %ld samples", S) : 0;
   if (rc == 0) rc = gram_round(&g, 1);
   if (rc == 0) rc = gram_round(&g, 2);

@@ -161,7 +161,7 @@ static int coefficients(Ooc *o, int c, const double *sign) {
 
 bool stream_blockwise(const Ooc *o, int c) {
   const Model *m = o->t->m;
-  if (!o->st[c].streamed || o->t->opt->ninterp > 0 || o->t->opt->valid) return false;
+  if (!o->st[c].streamed || o->t->opt->user->ninterp > 0 || o->t->opt->valid) return false;
   for (int i = 0; i < m->nstages; i++) {
     const RStage *rs = &m->stages[i];
     if (rs->st->sym->reduce == STAGE_REDUCE_INTERP) return false; /* its class and reads become needed */
@@ -380,7 +380,7 @@ static int form_rows(Streamer *s) {
       for (int i = 0; i < rc->nmembers; i++)
         if (held_member_rows(o, h, &rc->members[i], k, rc->n, h->H[i] + (size_t)k * (size_t)h->map.count)) return -1;
     }
-    progress_show(o->t->opt->progress, "pre-multiplication (streamed bases)", ++s->done, s->total);
+    progress_show(o->t->opt->user->progress, "pre-multiplication (streamed bases)", ++s->done, s->total);
   }
   s->sec[3] += now() - t0;
   for (int c = 0; c < m->nclasses; c++) {
@@ -721,7 +721,7 @@ static int streamer_setup(Streamer *s) {
 /* What the sweep did, on stderr (--progress). */
 static void report_sweep(const Streamer *s) {
   const Model *m = s->o->t->m;
-  if (!s->o->t->opt->progress) return;
+  if (!s->o->t->opt->user->progress) return;
   fprintf(stderr, "out of core: bases formed block by block for the pre-multiplication, no basis file:");
   for (int c = 0; c < m->nclasses; c++)
     if (blockwise(s, c) && m->classes[c].streamed) fprintf(stderr, " %s", m->classes[c].label);

@@ -87,11 +87,11 @@ static int override_level(const RClass *c, const RMember *mb, const char *name) 
 /* Every --basis name must name something: a misspelt one would silently
  * train with the defaults. */
 static int check_overrides(const Model *m, const TrainOptions *opt, Err *err) {
-  for (int i = 0; i < opt->noverride; i++) {
+  for (int i = 0; i < opt->user->nbasis; i++) {
     bool found = false;
     for (int c = 0; c < m->nclasses && !found; c++)
       for (int k = 0; k < m->classes[c].nmembers && !found; k++)
-        found = override_level(&m->classes[c], &m->classes[c].members[k], opt->override_name[i]) > 0;
+        found = override_level(&m->classes[c], &m->classes[c].members[k], opt->user->basis_name[i]) > 0;
     if (found) continue;
     char list[1024] = "";
     size_t len = 0;
@@ -104,7 +104,7 @@ static int check_overrides(const Model *m, const TrainOptions *opt, Err *err) {
     }
     return err_set(err,
                    "--basis %s: no quantity, class or numerator of that name; classes (members): %s, or '*' for all",
-                   opt->override_name[i], list);
+                   opt->user->basis_name[i], list);
   }
   return 0;
 }
@@ -116,10 +116,10 @@ static int check_overrides(const Model *m, const TrainOptions *opt, Err *err) {
  * most. */
 static void member_options(const Model *m, const RClass *c, RMember *mb, const TrainOptions *opt,
                            const bool *powered) {
-  mb->cap = opt->cap > 0 ? opt->cap : 60;
-  mb->energy = powered && mb->q >= 0 && powered[mb->q] ? 1 : opt->energy > 0 ? opt->energy : 0.999;
+  mb->cap = opt->user->cap > 0 ? opt->user->cap : 60;
+  mb->energy = powered && mb->q >= 0 && powered[mb->q] ? 1 : opt->user->energy > 0 ? opt->user->energy : 0.999;
   if (opt->inputs_whole && mb->q >= 0 && ((const Sym *)m->prog->quantities.v[mb->q])->kind == SYM_INPUT) mb->energy = 1;
-  mb->center = !opt->uncentered;
+  mb->center = !opt->user->uncentered;
   const BasisClass *bc = c->bc;
   if (bc->basis_max > 0) mb->cap = bc->basis_max;
   if (bc->basis_energy > 0) mb->energy = bc->basis_energy;
@@ -132,11 +132,11 @@ static void member_options(const Model *m, const RClass *c, RMember *mb, const T
   }
   bool named = false; /* a cap for this member by its own name */
   for (int level = 1; level <= 3; level++)
-    for (int i = 0; i < opt->noverride; i++) {
-      if (override_level(c, mb, opt->override_name[i]) != level) continue;
-      if (opt->override_cap[i] > 0) mb->cap = opt->override_cap[i], named |= level == 3;
-      if (opt->override_energy[i] > 0) mb->energy = opt->override_energy[i];
-      if (opt->override_center && opt->override_center[i] >= 0) mb->center = opt->override_center[i];
+    for (int i = 0; i < opt->user->nbasis; i++) {
+      if (override_level(c, mb, opt->user->basis_name[i]) != level) continue;
+      if (opt->user->basis_cap[i] > 0) mb->cap = opt->user->basis_cap[i], named |= level == 3;
+      if (opt->user->basis_energy[i] > 0) mb->energy = opt->user->basis_energy[i];
+      if (opt->user->basis_center && opt->user->basis_center[i] >= 0) mb->center = opt->user->basis_center[i];
     }
   /* An implicit step's residual is zero at every solved step up to Newton's tolerance: its
    * snapshots are rounding, whose directions would only grow the state's class (measured: 78
@@ -154,11 +154,11 @@ static int class_products(Model *m, const TrainOptions *opt, Err *err) {
   for (int c = 0; c < m->nclasses; c++) {
     RClass *rc = &m->classes[c];
     int best = 0;
-    for (int i = 0; opt->override_product && i < opt->noverride; i++) {
-      const char *name = opt->override_product[i];
+    for (int i = 0; opt->user->basis_product && i < opt->user->nbasis; i++) {
+      const char *name = opt->user->basis_product[i];
       int level = 0;
       for (int k = 0; name && k < rc->nmembers; k++) {
-        int l = override_level(rc, &rc->members[k], opt->override_name[i]);
+        int l = override_level(rc, &rc->members[k], opt->user->basis_name[i]);
         level = l > level ? l : level;
       }
       if (!name || level == 0 || level < best) continue;
@@ -168,7 +168,7 @@ static int class_products(Model *m, const TrainOptions *opt, Err *err) {
       bool square = op && op->nivars == 2 * op->nrow;
       for (int a = 0; square && a < op->nrow; a++) square = op->ivars[a]->range == op->ivars[op->nrow + a]->range;
       if (!op || !square)
-        return err_set(err, "--basis %s:product=%s: %s", opt->override_name[i], name,
+        return err_set(err, "--basis %s:product=%s: %s", opt->user->basis_name[i], name,
                        !op ? "the program has no op of that name (the product is an SPD op of the program)"
                            : "not a square operator (its rows and columns must run over the same dims)");
       rc->product = op, best = level;
@@ -378,7 +378,7 @@ int train_begin(Train *t) {
       member_options(m, &m->classes[c], &m->classes[c].members[i], opt, powered);
   if (class_products(m, opt, t->err) || model_named_projections(m, t->err)) return -1;
   char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
-  if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
+  if (m->nclasses > 0) keep_named(m, opt->user->keep_bases, 0, unknown, sizeof unknown);
   if (unknown[0])
     return err_set(t->err, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)",
                    unknown);
@@ -395,14 +395,14 @@ int train_check_names(Program *prog, const TrainOptions *opt, Err *err) {
   if (!m) return -1;
   char unknown[256] = "";
   int rc = 0;
-  if (m->nclasses > 0) keep_named(m, opt->keep_bases, 0, unknown, sizeof unknown);
+  if (m->nclasses > 0) keep_named(m, opt->user->keep_bases, 0, unknown, sizeof unknown);
   if (unknown[0])
     rc = err_set(err, "--keep-bases %s: no quantity or class of that name (a quantity, a class m_x, or all)", unknown);
   if (rc == 0) rc = check_overrides(m, opt, err);
   if (rc == 0) rc = class_products(m, opt, err);
   for (int l = 0; l < 2 && rc == 0; l++) {
-    const char *const *names = l ? opt->galerkin_stage : opt->interp_stage;
-    for (int j = 0; j < (l ? opt->ngalerkin : opt->ninterp) && rc == 0; j++) {
+    const char *const *names = l ? opt->user->galerkin_stage : opt->user->interp_stage;
+    for (int j = 0; j < (l ? opt->user->ngalerkin : opt->user->ninterp) && rc == 0; j++) {
       int i = 0;
       while (i < m->nstages && strcmp(m->stages[i].st->sym->name, names[j]) != 0) i++;
       if (i == m->nstages)
@@ -413,7 +413,7 @@ int train_check_names(Program *prog, const TrainOptions *opt, Err *err) {
                      m->stages[i].st->kind == ST_INVERSE || m->stages[i].st->kind == ST_ROOT
                          ? "one of its operators is a declared op, not diagonal (npgc check says which stages can)"
                          : "it applies no diagonal operator (npgc check says which stages can)");
-      else if (l && named_in(opt->interp_stage, opt->ninterp, names[j]))
+      else if (l && named_in(opt->user->interp_stage, opt->user->ninterp, names[j]))
         rc = err_set(err, "stage %s is forced both to interpolation and to Galerkin", names[j]);
     }
   }
@@ -475,11 +475,11 @@ static int snapshots_in_memory(Train *t, double *tmp) {
     }
     if (rc == 0 && !kept) rc = train_check_spd(t, tmp);
     if (rc == 0) rc = train_fail_hook(t, k);
-    progress_show(opt->progress, "snapshots", k + 1, S);
+    progress_show(opt->user->progress, "snapshots", k + 1, S);
   }
   if (rc == 0 && N > 1 && (rc = dist_gather_snapshots(m, t->sn.X, S, t->err)) == 0) {
     dist_and_spd(m);
-    progress_show(opt->progress, "snapshots", S, S); /* every rank's are in */
+    progress_show(opt->user->progress, "snapshots", S, S); /* every rank's are in */
   }
   return rc;
 }
@@ -500,7 +500,7 @@ static int evaluate_sample0(Train *t) {
 }
 
 /* Step 1: every member's snapshots in memory (t->sn.X), or, when they need
- * more than opt->mem, their bases by the method of snapshots (t->sn.U,
+ * more than opt->user->mem, their bases by the method of snapshots (t->sn.U,
  * t->sn.k; t->gram set). Marks which diagonal operators stay SPD. */
 int train_take_snapshots(Train *t) {
   Model *m = t->m;
@@ -508,22 +508,22 @@ int train_take_snapshots(Train *t) {
   long S = t->src->count, maxn = 1;
   size_t need = train_snapshot_bytes(m, S);
   for (int c = 0; c < m->nclasses; c++) maxn = m->classes[c].n > maxn ? m->classes[c].n : maxn;
-  bool gram = t->gram = opt->mem && need > opt->mem;
+  bool gram = t->gram = opt->user->mem && need > opt->user->mem;
   if (gram && opt->dist && dist_size() > 1)
     return err_set(t->err,
                    "the snapshots need %.3g GB, more than --mem %.3g GB: training over MPI ranks keeps them in "
                    "memory (the method of snapshots runs on one process): raise --mem",
-                   (double)need / 1e9, (double)opt->mem / 1e9);
+                   (double)need / 1e9, (double)opt->user->mem / 1e9);
   if (gram && opt->weights)
     return err_set(t->err,
                    "the snapshots need %.3g GB, more than --mem %.3g GB, and sample weights are not implemented in the "
                    "method of snapshots: raise --mem to keep them in memory",
-                   (double)need / 1e9, (double)opt->mem / 1e9);
-  if (gram && opt->joint)
+                   (double)need / 1e9, (double)opt->user->mem / 1e9);
+  if (gram && opt->user->joint)
     return err_set(t->err,
                    "the snapshots need %.3g GB, more than --mem %.3g GB, and --merge joint needs them in memory: raise "
                    "--mem or use --merge concat (the method of snapshots)",
-                   (double)need / 1e9, (double)opt->mem / 1e9);
+                   (double)need / 1e9, (double)opt->user->mem / 1e9);
   double *tmp = train_scratch(t, sizeof(double) * (size_t)(maxn > S ? maxn : S));
   if (!tmp || snapshots_alloc(m, &t->sn, S, gram))
     return err_set(t->err, "out of memory for the snapshots of %ld samples", S);
@@ -569,13 +569,13 @@ static int class_basis(Train *t, RClass *rc, PcaMember *pre, bool over_ranks) {
   int c = (int)(rc - t->m->classes), rc_ok = 0;
   if (rc->product) { /* issue 41: BᵀK0B = I, a transform around the members' PCAs (product.c) */
     const char *why = gram ? "the snapshots do not fit in --mem (raise it)"
-                      : opt->joint && rc->nmembers > 1 ? "--merge joint (use --merge concat)"
+                      : opt->user->joint && rc->nmembers > 1 ? "--merge joint (use --merge concat)"
                       : over_ranks ? "training over MPI ranks" : NULL;
     if (why)
       return err_set(err, "basis %s: product %s is not implemented with %s", rc->bc->size_name, rc->product->name, why);
     return train_product_basis(t->m, t->f, rc, &(ClassSnapshots){sn->S, sn->X[c], opt->weights}, opt->full_rank, err);
   }
-  if (opt->joint && rc->nmembers > 1) rc_ok = train_joint_basis(rc, sn->S, sn->X[c], err);
+  if (opt->user->joint && rc->nmembers > 1) rc_ok = train_joint_basis(rc, sn->S, sn->X[c], err);
   else if (gram) rc_ok = pca_merge(rc->n, (PcaBlocks){rc->nmembers, sn->U[c], sn->k[c]}, &rc->B, &rc->m, err);
   else rc_ok = train_member_bases(rc, sn->S, sn->X[c], opt->weights, pre, err);
   if (rc_ok != 0) return err_set_first(err, "out of memory building the basis of class %s", rc->label);
@@ -588,7 +588,7 @@ static int build_bases(Train *t) {
   const TrainOptions *opt = t->opt;
   /* over ranks: the members' PCAs shared out, each made on one rank */
   PcaMember **pre = NULL;
-  if (opt->dist && dist_size() > 1 && !t->gram && !opt->joint &&
+  if (opt->dist && dist_size() > 1 && !t->gram && !opt->user->joint &&
       dist_member_pcas(m, t->sn.S, t->sn.X, opt->weights, &pre, t->err))
     return -1;
   int rc = 0;
@@ -629,7 +629,7 @@ static void phase_end(struct timespec clock[2], Model *m, int phase) {
  * how long the sums over ranks (the wait for the slowest rank included). */
 int train_premultiply_all(Train *tr) {
   Model *m = tr->m;
-  bool progress = tr->opt->progress, dist = tr->opt->dist;
+  bool progress = tr->opt->user->progress, dist = tr->opt->dist;
   long ntensors = 0, done = 0;
   int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1;
   for (int i = 0; i < m->nstages; i++)
@@ -686,7 +686,7 @@ int train_premultiply_all(Train *tr) {
 }
 
 bool train_keeps_basis(const Model *m, const TrainOptions *opt, int c) {
-  return !opt->stream || keep_named(m, opt->keep_bases, c, NULL, 0);
+  return !opt->stream || keep_named(m, opt->user->keep_bases, c, NULL, 0);
 }
 
 /* Issue 30: the classes whose bases are streamed — used in training, then
@@ -804,7 +804,7 @@ static int fit_externs_floors(Train *t, int nx, bool floors, double *proj, doubl
       }
     }
     if (floors) train_take_floors(t, k, proj, y);
-    if (gram) progress_show(t->opt->progress, floors ? "extern samples, floors" : "extern samples", k + 1, S);
+    if (gram) progress_show(t->opt->user->progress, floors ? "extern samples, floors" : "extern samples", k + 1, S);
   }
   if (gram && given_only) full_forget_given(f); /* set, never evaluated: callbacks as before */
   for (int i = 0; N > 1 && i < nx; i++) {
@@ -820,7 +820,7 @@ static int fit_externs_floors(Train *t, int nx, bool floors, double *proj, doubl
   return 0;
 }
 
-/* Step 3b: the stages opt->interp_stage names made interpolated, and with
+/* Step 3b: the stages opt->user->interp_stage names made interpolated, and with
  * validation samples every other eligible stage reduced the way that
  * measures better there (DESIGN §12). */
 static bool named_in(const char *const *names, int n, const char *name) {
@@ -830,43 +830,43 @@ static bool named_in(const char *const *names, int n, const char *name) {
 }
 
 int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, Err *err) {
-  double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
+  double over = opt->user->interp_oversample > 0 ? opt->user->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
   /* the program's `basis w: reduce interp`, unless the command line says galerkin */
   for (int i = 0; i < m->nstages; i++) {
     const Sym *s = m->stages[i].st->sym;
-    if (s->reduce != STAGE_REDUCE_INTERP || named_in(opt->galerkin_stage, opt->ngalerkin, s->name) ||
-        named_in(opt->interp_stage, opt->ninterp, s->name))
+    if (s->reduce != STAGE_REDUCE_INTERP || named_in(opt->user->galerkin_stage, opt->user->ngalerkin, s->name) ||
+        named_in(opt->user->interp_stage, opt->user->ninterp, s->name))
       continue;
     if (interp_train_stage(m, f, i, over, err)) return -1;
     m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
   }
-  for (int j = 0; j < opt->ninterp; j++) {
+  for (int j = 0; j < opt->user->ninterp; j++) {
     int i = 0;
-    while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->interp_stage[j]) != 0) i++;
+    while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->user->interp_stage[j]) != 0) i++;
     if (i == m->nstages)
-      return err_set(err, "--reduce %s:interp: the program has no stage '%s'", opt->interp_stage[j],
-                     opt->interp_stage[j]);
+      return err_set(err, "--reduce %s:interp: the program has no stage '%s'", opt->user->interp_stage[j],
+                     opt->user->interp_stage[j]);
     if (interp_train_stage(m, f, i, over, err)) return -1;
     m->stages[i].choice_reason = interp_reasons[INTERP_FORCED];
-    if (opt->progress)
-      fprintf(stderr, "stage %s interpolated: %ld of %ld entries (m %ld), ‖(WPB)⁺‖ %.3g\n", opt->interp_stage[j],
+    if (opt->user->progress)
+      fprintf(stderr, "stage %s interpolated: %ld of %ld entries (m %ld), ‖(WPB)⁺‖ %.3g\n", opt->user->interp_stage[j],
               m->stages[i].interp->k, m->classes[m->qclass[m->stages[i].q]].n, m->stages[i].interp->m,
               m->stages[i].interp->pinv_norm);
   }
-  for (int j = 0; j < opt->ngalerkin; j++) {
+  for (int j = 0; j < opt->user->ngalerkin; j++) {
     int i = 0;
-    while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->galerkin_stage[j]) != 0) i++;
+    while (i < m->nstages && strcmp(m->stages[i].st->sym->name, opt->user->galerkin_stage[j]) != 0) i++;
     if (i == m->nstages)
-      return err_set(err, "--reduce %s:galerkin: the program has no stage '%s'", opt->galerkin_stage[j],
-                     opt->galerkin_stage[j]);
-    if (named_in(opt->interp_stage, opt->ninterp, opt->galerkin_stage[j]))
-      return err_set(err, "stage %s is forced both to interpolation and to Galerkin", opt->galerkin_stage[j]);
+      return err_set(err, "--reduce %s:galerkin: the program has no stage '%s'", opt->user->galerkin_stage[j],
+                     opt->user->galerkin_stage[j]);
+    if (named_in(opt->user->interp_stage, opt->user->ninterp, opt->user->galerkin_stage[j]))
+      return err_set(err, "stage %s is forced both to interpolation and to Galerkin", opt->user->galerkin_stage[j]);
   }
   return opt->valid ? tune_choose_reductions(m, f, opt->valid, opt, err) : 0;
 }
 
 /* Steps 1–2: the bases, from snapshots in memory, by the method of
- * snapshots, or out of core when the bases exceed opt->mem (ooc.c; then,
+ * snapshots, or out of core when the bases exceed opt->user->mem (ooc.c; then,
  * as after the method of snapshots, *gram: no snapshot is kept). Ends the
  * phase of the snapshots (out of core: the snapshots and the bases are one
  * step, timed as snapshots). */
@@ -962,7 +962,7 @@ static int externs_and_floors(Train *t) {
 
 static int report_phases(Train *t) {
   const Model *m = t->m;
-  if (t->opt->progress)
+  if (t->opt->user->progress)
     fprintf(stderr, "training phases: snapshots %.2f s, bases %.2f s (%s), pre-multiplication %.2f s, externs %.2f s\n",
             m->phase_seconds[PHASE_SNAPSHOTS], m->phase_seconds[PHASE_BASES],
             ooc_needed(m, t->opt, t->src->count) ? "out of core, with the snapshots"
@@ -981,7 +981,7 @@ static int report_phases(Train *t) {
 
 static int refuse_options(Train *t) {
   /* the weights themselves are checked where they are given (npg_trainer_weight) */
-  if (t->opt->weights && t->opt->joint)
+  if (t->opt->weights && t->opt->user->joint)
     return err_set(t->err, "sample weights are not implemented with --merge joint: use --merge concat");
   phase_start(t->clock);
   return 0;
@@ -1050,7 +1050,7 @@ const char *train_param_changed(const Full *f, const char *before, bool *oom) {
 }
 
 
-/* Held-out validation (TrainOptions.valid_holdout, DESIGN §12): every
+/* Held-out validation (NpgTrainOptions.valid_holdout, DESIGN §12): every
  * stride-th sample (k % stride == stride - 1) validates, the others train;
  * interleaved, so both cover a simulation's whole run. */
 typedef struct Holdout {
@@ -1075,14 +1075,15 @@ static int holdout_held(void *user, Full *f, long j) {
   return h->all->set(h->all->user, f, j * h->stride + h->stride - 1);
 }
 
-/* The fraction held out: opt->valid_holdout, or when negative (automatic) 1/TRAIN_HOLDOUT_STRIDE
+/* The fraction held out: opt->user->valid_holdout, or when negative (automatic) 1/TRAIN_HOLDOUT_STRIDE
  * where a stage's reduction is open to a choice (else 0: the model is as before). -1 with `err`
  * when it cannot be held out. */
 static double holdout_fraction(Program *prog, const SampleSource *src, const TrainOptions *opt, Err *err) {
-  double F = opt->valid_holdout;
+  double F = opt->user->valid_holdout;
   if (F < 0)
     F = !opt->valid && !opt->dist && src->count >= TRAIN_HOLDOUT_MIN &&
-                interp_open_choices(prog, opt->ninterp, opt->interp_stage, opt->ngalerkin, opt->galerkin_stage) > 0
+                interp_open_choices(prog, opt->user->ninterp, opt->user->interp_stage, opt->user->ngalerkin,
+                                    opt->user->galerkin_stage) > 0
             ? 1.0 / TRAIN_HOLDOUT_STRIDE
             : 0;
   if (F != 0 && (!(F > 0 && F <= 0.5) || opt->valid || opt->dist))
@@ -1122,8 +1123,10 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   Holdout hold = {src, F != 0 ? lround(1 / F) : 0};
   long nheld = F != 0 ? src->count / hold.stride : 0;
   SampleSource training = *src, held = {nheld, &hold, holdout_held, NULL, NULL};
+  NpgTrainOptions user = *opt->user; /* the fraction decided: none again in train_run or the retraining */
+  user.valid_holdout = 0;
   TrainOptions o = *opt;
-  o.valid_holdout = 0;
+  o.user = &user;
   if (F != 0) {
     training = (SampleSource){src->count - nheld, &hold, holdout_training, src->set_part ? holdout_training_part : NULL,
                               NULL};
@@ -1145,7 +1148,7 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   /* the automatic choice made, every sample trains the model (DESIGN §12) */
   o.weights = w;
   o.valid = opt->valid;
-  if (m && F != 0 && opt->valid_holdout < 0) m = interp_train_with_choice(prog, f, src, &o, m, err);
+  if (m && F != 0 && opt->user->valid_holdout < 0) m = interp_train_with_choice(prog, f, src, &o, m, err);
   scratch_release(&sc);
   bool oom = !params;
   const char *changed = m ? train_param_changed(f, params, &oom) : NULL;

@@ -10,61 +10,44 @@
 
 #include "full.h"
 #include "model.h"
+#include "npg.h"
 
 typedef struct PcaMember PcaMember;
 
 /* ---------------------------------------------------------------- training (train.c) */
 
+/* Training's options: the user's NpgTrainOptions (npg.h), the one options type, read as given
+ * (cap, energy, joint, uncentered, mem, progress, the basis overrides, the forced reductions,
+ * valid_holdout, keep_bases, the rollouts), and the few things the facade derives from it or
+ * from the trainer's records, or that training's own callers set and the user never does.
+ * Training never writes through `user`: where it trains with other values (the hold-out's
+ * retraining, a tune set's truncations, the facade's memory left after the records) it points a
+ * copy's `user` at a changed copy of the NpgTrainOptions. */
 typedef struct TrainOptions {
-  int cap;                  /* default cap per member (60) */
-  double energy;            /* default energy fraction per member (0.999) */
-  bool joint;               /* --merge joint */
-  bool uncentered;          /* --center off: the paper's uncentered truncation (default: centered, DESIGN §5) */
-  bool inputs_whole;        /* greedy training: an input's members default to energy 1 (every direction their
-                               samples span; the program's `basis` and --basis still set it) */
-  bool full_rank;           /* complete every basis to its class's full dimension (convergence tests) */
-  size_t mem;               /* memory budget for snapshots, bytes */
-  bool progress;            /* progress bars on stderr */
-  bool dist;                /* over the ranks of dist.h (after dist_start): rank r takes the samples
-                               k ≡ r (mod ranks) and every ranks-th row of each tensor; every rank
-                               ends with the same model. Out of core (ooc.c), rank r takes its
-                               share of the row passes instead. */
+  const NpgTrainOptions *user; /* the options as given, read as they are (never NULL) */
+  bool dist;                /* over the ranks of dist.h (after dist_start; NpgTrainOptions.mpi once the
+                               facade started them): rank r takes the samples k ≡ r (mod ranks) and every
+                               ranks-th row of each tensor; every rank ends with the same model. Out of
+                               core (ooc.c), rank r takes its share of the row passes instead. False
+                               where one rank trains alone (a tune set's trials) */
   const char *shared_prefix; /* out of core over ranks: the basis files all ranks map are named
                                PREFIX.ooc.XXXXXX (unlinked once every rank has opened them), so
                                PREFIX must be on a filesystem every rank sees (the model's path;
                                NULL: $TMPDIR/npg, or /tmp/npg) */
-  /* overrides from the command line (--basis NAME:cap=N,energy=E,center=on|off), NAME a
-   * quantity, a class as `npgc check` names it (m_f), a numerator (f.num1) or '*';
-   * the more specific wins ('*' < class < member); an unknown NAME fails training */
-  int noverride;
-  const char **override_name;
-  int *override_cap;
-  double *override_energy;
-  int *override_center;     /* 1 on, 0 off, -1 not given (may be NULL: not given) */
-  const char **override_product; /* an op's name (product=OP), NULL not given (may be NULL: none) */
-  /* interpolated stages (DESIGN §12, interp.h): the stages named are reduced by interpolation
-   * (each must be eligible: lower_interp_eligible), at k = ceil(oversample · m) entries */
-  int ninterp;
-  const char *const *interp_stage;
-  double interp_oversample; /* 0: the default (TRAIN_INTERP_OVERSAMPLE) */
-  int ngalerkin;            /* the stages named are reduced by Galerkin, whatever `valid` measures */
-  const char *const *galerkin_stage;
-  /* validation samples (same params): every eligible stage neither list names is reduced both
-   * ways and the lower output error kept (tune_choose_reductions); NULL: Galerkin */
+  /* validation samples (same params; the facade's from valid_count, valid_set, valid_user, or
+   * the samples held out by valid_holdout): every eligible stage neither user->interp_stage nor
+   * user->galerkin_stage names is reduced both ways and the lower output error kept
+   * (tune_choose_reductions); NULL: Galerkin */
   const struct SampleSource *valid;
-  bool choose_strict;       /* ties keep Galerkin: the choice never raises the error on `valid` (npgc tune) */
-  double valid_holdout;     /* instead of `valid`, every round(1/F)-th sample held out of training to choose on, F
-                               in (0, 0.5]; 0: none; negative: automatic (TRAIN_HOLDOUT_*, then trained again
-                               on every sample with the choice fixed) */
+  const double *weights;    /* per sample (src->count, each > 0; the trainer's npg_trainer_weight): the PCA
+                               minimizes Σ_k w_k ‖x_k − BBᵀx_k‖² (pca_weigh), weight 2 a sample taken
+                               twice; NULL: every weight 1. The floors and reports stay per sample, unweighted */
   bool stream;              /* drop the streamable bases (model_class_streamable) once used (issue 30;
-                               npg_trainer's default); false: every basis kept (the old layout) */
-  const char *keep_bases;   /* with `stream`, the bases kept though streamable: comma-separated
-                               quantities or classes, "all" for every one; NULL: none */
-  const double *weights;    /* per sample (src->count, each > 0): the PCA minimizes Σ_k w_k ‖x_k − BBᵀx_k‖²
-                               (pca_weigh), weight 2 a sample taken twice; NULL: every weight 1.
-                               The floors and reports stay per sample, unweighted */
-  long rollout_steps;       /* tune: candidates judged by reduced rollouts of this many steps (DESIGN §15); 0: one step */
-  long rollout_every;       /* their states compared every this many steps */
+                               npg_trainer's always); false: every basis kept (the old layout; tests) */
+  bool inputs_whole;        /* greedy training: an input's members default to energy 1 (every direction their
+                               samples span; the program's `basis` and --basis still set it) */
+  bool full_rank;           /* complete every basis to its class's full dimension (convergence tests) */
+  bool choose_strict;       /* ties keep Galerkin: the choice never raises the error on `valid` (npgc tune) */
   struct SnapshotCache *cache; /* the snapshots of an earlier training whose samples this one's begin with (greedy
                                training): theirs taken from it, not evaluated again, and this training's left in
                                it (snapshot_cache.c); unused out of core, by the method of snapshots, over ranks
@@ -126,7 +109,7 @@ int train_estimates(Model *m, Full *f, const SampleSource *src, const TrainOptio
  * the largest (over every rank): only their ratios count; the params'
  * hashes recorded (Model.param_hashes), and a param that a validation
  * sample changed refused. With
- * opt->valid_holdout, samples held out of training to choose the
+ * opt->user->valid_holdout, samples held out of training to choose the
  * reductions on (and with the automatic hold-out, the model trained again
  * on every sample with the choice fixed). NULL with `err` on failure. */
 Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainOptions *opt, Err *err);
@@ -166,7 +149,7 @@ int train_set_max_cap(const TrainSet *ts, int c);
 Model *train_set_model(TrainSet *ts, const int *cap, Err *err);
 /* The online estimate's tables of a truncation `m` (train_estimates, on
  * the set's training samples), then its streamed classes (issue 30,
- * train_model's rule: model_class_streamable, opt->stream, opt->keep_bases),
+ * train_model's rule: model_class_streamable, opt->stream, opt->user->keep_bases),
  * its reductions chosen: marked, their floors measured on the set's training
  * snapshots, their bases dropped. 0, or -1 with `err`. */
 int train_set_stream(TrainSet *ts, Model *m, const TrainOptions *opt, Err *err);
@@ -207,8 +190,8 @@ void product_norm_free(ProductNorm *p);
 /* ---------------------------------------------------------------- interpolated stages (interp_train.c) */
 
 /* Training's step 3b (train.c), on `m` pre-multiplied: the stages forced to
- * interpolation (the program's `reduce interp`, opt->interp_stage) made
- * interpolated, the names of opt->galerkin_stage checked, and with
+ * interpolation (the program's `reduce interp`, opt->user->interp_stage) made
+ * interpolated, the names of opt->user->galerkin_stage checked, and with
  * opt->valid every other eligible stage chosen (tune_choose_reductions).
  * 0, or -1 with `err`. */
 int train_interpolate_stages(Model *m, Full *f, const TrainOptions *opt, Err *err);
@@ -253,7 +236,7 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
 /* ---------------------------------------------------------------- out-of-core bases (ooc.c) */
 
 /* Whether the member bases of `m` at their caps (Σ n × cap doubles) exceed
- * opt->mem, so that training must keep them out of core; with sample weights
+ * opt->user->mem, so that training must keep them out of core; with sample weights
  * (opt->weights), also when the snapshots of the S samples exceed it (the
  * method of snapshots does not take weights). */
 bool ooc_needed(const Model *m, const TrainOptions *opt, long S);
@@ -298,7 +281,7 @@ typedef struct TuneGoal {
  * each class bisected down with the others fixed, the costliest first. At
  * every candidate, the stages `opt` forces (interp_stage, the program's
  * `reduce`) reduced so, every other eligible stage both ways and the lower
- * error kept, the cheaper when both meet `tol` (DESIGN §12; opt->ngalerkin
+ * error kept, the cheaper when both meet `tol` (DESIGN §12; opt->user->ngalerkin
  * excludes stages; opt may be NULL). out->model: the chosen trial's model.
  * 0 (`out` filled; out->chosen < 0 when `tol` cannot be met, naming the
  * limiting class), or -1 with `err`. tune_result_free() either way. */
@@ -314,7 +297,7 @@ void tune_result_free(TuneResult *r);
  * multiply-adds. A
  * configuration that fails on a validation sample counts as an infinite
  * error. The errors and the reason are left in rs->choice_err and
- * rs->choice_reason (and on stderr with opt->progress). 0, or -1 with `err`. */
+ * rs->choice_reason (and on stderr with opt->user->progress). 0, or -1 with `err`. */
 int tune_choose_reductions(Model *m, Full *f, const SampleSource *valid, const TrainOptions *opt, Err *err);
 
 /* ---------------------------------------------------------------- reports (report.c) */

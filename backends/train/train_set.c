@@ -21,8 +21,9 @@ struct TrainSet {
   Full *f;
   const SampleSource *src;
   bool progress;
-  TrainOptions o;           /* the options of the snapshots (in memory, concatenated) */
-  TrainOptions quiet;       /* those of the trials' models: no progress, on this process */
+  TrainOptions o;           /* the options of the snapshots (in memory, concatenated): o.user = &user */
+  TrainOptions quiet;       /* those of the trials' models: no progress, on this process (quiet_user) */
+  NpgTrainOptions user, quiet_user; /* the caller's, changed so */
   Train tr;                 /* the snapshots' training: tr.sn in memory */
   PcaMember **pm;           /* [class][member]: its ordered basis at its cap */
   Model *top;               /* pre-multiplied at caps top_cap, which cover every trial's so far */
@@ -94,12 +95,17 @@ TrainSet *train_set_new(Program *prog, Full *f, const SampleSource *src, const T
   TrainSet *ts = mem_calloc(1, sizeof *ts);
   if (err_held(err)) err->msg[0] = 0;
   if (!ts) return err_set(err, "out of memory while training"), NULL;
+  ts->user = *opt->user;
+  ts->user.mem = 0; /* truncations re-use the snapshots: they stay in memory */
+  ts->user.joint = false;
+  ts->quiet_user = ts->user;
+  ts->quiet_user.progress = false;
   ts->o = *opt;
-  ts->o.mem = 0; /* truncations re-use the snapshots: they stay in memory */
-  ts->o.joint = false;
+  ts->o.user = &ts->user;
   ts->quiet = ts->o;
-  ts->quiet.progress = ts->quiet.dist = false;
-  ts->f = f, ts->src = src, ts->progress = opt->progress;
+  ts->quiet.user = &ts->quiet_user;
+  ts->quiet.dist = false;
+  ts->f = f, ts->src = src, ts->progress = opt->user->progress;
   ts->tr = (Train){.prog = prog, .f = f, .src = src, .opt = &ts->o, .err = err};
   int rc = train_begin(&ts->tr);
   ts->base = ts->tr.m;

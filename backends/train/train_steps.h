@@ -51,7 +51,7 @@ void train_scratch_free(Train *t);
  * every member's options set and the --basis names checked. */
 int train_begin(Train *t);
 /* Step 1: every member's snapshots in memory (t->sn.X), or, when they need
- * more than opt->mem, their bases by the method of snapshots (t->sn.U,
+ * more than opt->user->mem, their bases by the method of snapshots (t->sn.U,
  * t->sn.k; t->gram set). Marks which diagonal operators stay SPD. */
 int train_take_snapshots(Train *t);
 /* Step 3: the projections between classes and every tensor of t->m pre-multiplied. */
@@ -97,13 +97,13 @@ void snapshot_cache_keep(Train *t, const bool *spd, int nspd);
 
 /* The method of snapshots (snapshots.c): every member's basis of t->m from
  * S x S Gram matrices, recomputing the samples of t->src in passes within
- * opt->mem; t->sn.U[c][i] (n x t->sn.k[c][i] row-major, malloc'd) per
+ * opt->user->mem; t->sn.U[c][i] (n x t->sn.k[c][i] row-major, malloc'd) per
  * member, the member reports set, the SPD marks checked on every sample
  * (`tmp`: room for max(largest class, S) doubles). */
 int train_snapshot_bases(Train *t, double *tmp);
 
 /* Out of core (ooc.c): every class basis of t->m (rc->B, rc->m, member reports, SPD marks) with
- * at most opt->mem bytes of snapshots, Gram matrices and basis rows in
+ * at most opt->user->mem bytes of snapshots, Gram matrices and basis rows in
  * memory, by passes over the samples that keep a block of rows of the
  * large classes (DESIGN §11); large bases are left in unnamed files and
  * memory-mapped read-only (rc->B_mapped). Unless a stage may yet be made

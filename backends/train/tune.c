@@ -41,7 +41,7 @@ typedef struct Valid {
   long S;
   int nq;
   double **val;             /* [sample][q]: the full value of every quantity */
-  long steps, every, saves; /* rollouts (TrainOptions.rollout_steps): their length, the states compared every */
+  long steps, every, saves; /* rollouts (NpgTrainOptions.rollout_steps): their length, the states compared every */
   double **traj;            /* [sample]: saves x (every state's entries): the full trajectory */
   long state_n;             /* the entries of every state */
 } Valid;
@@ -61,6 +61,7 @@ typedef struct Search {
   int model_trial;          /* the trial whose model out->model is, or -1 */
   char why[1024];           /* why the last candidate that failed on a validation sample failed */
   Scratch mem;              /* the search's memory: the validation samples cached, the caps */
+  NpgTrainOptions cuser;    /* tune_search's copt.user: the caller's options, quiet */
 } Search;
 
 static long qsize(const Model *m, int q) { return m->classes[m->qclass[q]].n; }
@@ -432,8 +433,9 @@ int tune_search(TrainSet *ts, const TuneGoal *goal, const TrainOptions *opt, Tun
   Full *f = train_set_full(ts);
   Search s = {.ts = ts, .prog = train_set_program(ts), .f = f, .nc = train_set_classes(ts), .max_cap = goal->max_cap,
               .out = out, .tol = goal->tol, .model_trial = -1, .mem = SCRATCH_OF(err)};
-  if (opt) s.copt = *opt;
-  s.copt.valid = NULL, s.copt.progress = false, s.copt.choose_strict = true;
+  if (opt) s.copt = *opt, s.cuser = *opt->user;
+  s.cuser.progress = false;
+  s.copt.user = &s.cuser, s.copt.valid = NULL, s.copt.choose_strict = true;
   out->nclasses = s.nc;
   int *cap = scratch_array(&s.mem, (size_t)s.nc + 1, sizeof(int));
   s.maxk = scratch_array(&s.mem, (size_t)s.nc + 1, sizeof(int));
@@ -443,8 +445,8 @@ int tune_search(TrainSet *ts, const TuneGoal *goal, const TrainOptions *opt, Tun
     s.maxk[c] = train_set_max_cap(ts, c) < s.max_cap ? train_set_max_cap(ts, c) : s.max_cap;
     cap[c] = 1;
   }
-  s.v.steps = opt ? opt->rollout_steps : 0;
-  s.v.every = opt && opt->rollout_every > 0 ? opt->rollout_every : 1;
+  s.v.steps = opt ? opt->user->rollout_steps : 0;
+  s.v.every = opt && opt->user->rollout_every > 0 ? opt->user->rollout_every : 1;
   Model *layout = rc == 0 ? train_set_model(ts, cap, err) : NULL;
   if (!layout || cache_valid(&s, f, goal->valid, layout, err) ||
       (s.v.steps > 0 && cache_rollouts(&s, f, goal->valid, layout, err)) || search_caps(&s, cap, layout, err))
@@ -495,7 +497,7 @@ static double stage_work(const Model *m, const RStage *rs) {
 static int choose(Search *s, Model *m, double *out, char why[static 1024], Err *err) {
   const TrainOptions *opt = &s->copt;
   double tol = s->tol;
-  double over = opt->interp_oversample > 0 ? opt->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
+  double over = opt->user->interp_oversample > 0 ? opt->user->interp_oversample : TRAIN_INTERP_OVERSAMPLE;
   char why2[1024] = "";
   why[0] = 0;
   double current = INFINITY;
@@ -507,7 +509,8 @@ static int choose(Search *s, Model *m, double *out, char why[static 1024], Err *
     RStage *rs = &m->stages[i];
     if (!lower_interp_eligible(rs->st) || rs->interp) continue; /* forced interpolated: kept */
     bool forced = rs->st->sym->reduce == STAGE_REDUCE_GALERKIN; /* `basis w: reduce galerkin` */
-    for (int j = 0; j < opt->ngalerkin; j++) forced |= strcmp(opt->galerkin_stage[j], rs->st->sym->name) == 0;
+    for (int j = 0; j < opt->user->ngalerkin; j++)
+      forced |= strcmp(opt->user->galerkin_stage[j], rs->st->sym->name) == 0;
     if (forced) continue;
     double galerkin = current, interp = INFINITY, wg = stage_work(m, rs);
     if (interp_train_stage(m, s->f, i, over, err) != 0) return -1;
@@ -530,7 +533,7 @@ static int choose(Search *s, Model *m, double *out, char why[static 1024], Err *
       interp_free(rs->interp);
       rs->interp = NULL;
     }
-    if (opt->progress)
+    if (opt->user->progress)
       fprintf(stderr, "stage %s: output error by Galerkin %.3e, by interpolation %.3e: %s\n", rs->st->sym->name,
               galerkin, interp, rs->choice_reason);
   }

@@ -265,12 +265,8 @@ static int check_full_rank(Program *prog, const ExactOptions *o, FILE *out, bool
     rc = error_set(err, errlen, "%s", rc == -1 ? full_error(f) : "out of memory for the random samples");
   if (rc == 0) {
     SampleSource src = {S, &train, memsamples_set, NULL, NULL};
-    TrainOptions opt;
-    memset(&opt, 0, sizeof opt);
-    opt.cap = 1 << 20;
-    opt.energy = 1.0;
-    opt.full_rank = true;
-    opt.progress = o->progress;
+    NpgTrainOptions user = {.cap = 1 << 20, .energy = 1.0, .progress = o->progress};
+    TrainOptions opt = {.user = &user, .full_rank = true};
     char why[2048] = "";
     if (!(m = train_model(prog, f, &src, &opt, ERR_OF(why, sizeof why))))
       rc = error_set(err, errlen, "training with full-rank bases on the random data: %s", why);

@@ -101,9 +101,9 @@ int api_sample_set(void *closure, Full *full, long k);
 
 /* A model object owning `m` (NULL: out of memory, `m` freed). */
 NpgModel *api_model_wrap(Model *m);
-/* Training's options (train.h) as `o` gives them: the one translation of NpgTrainOptions, for
- * npg_trainer and npg_tune (`valid`, `weights` and `shared_prefix`, which `o` does not hold,
- * NULL). */
+/* Training's options (train.h): a view of `o`, which must outlive it (read as given, never
+ * copied), with what the facade derives: dist from o->mpi, the bases streamed; for npg_trainer
+ * and npg_tune (`valid`, `weights` and `shared_prefix`, which `o` does not hold, NULL). */
 void api_train_options(const NpgTrainOptions *o, TrainOptions *to);
 /* Greedy training's trainer: every input's basis defaults to energy 1 (TrainOptions.inputs_whole),
  * so that it holds every direction of the samples chosen (docs/estimates.md, "Greedy training"). */

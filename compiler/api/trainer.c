@@ -73,15 +73,7 @@ void api_trainer_cache(NpgTrainer *t, SnapshotCache *cache) {
 }
 
 void api_train_options(const NpgTrainOptions *o, TrainOptions *to) {
-  *to = (TrainOptions){.cap = o->cap, .energy = o->energy, .joint = o->joint, .mem = o->mem, .progress = o->progress,
-                       .dist = o->mpi, .uncentered = o->uncentered, .noverride = o->nbasis,
-                       .override_name = (const char **)o->basis_name, .override_cap = (int *)o->basis_cap,
-                       .override_energy = (double *)o->basis_energy, .override_center = (int *)o->basis_center,
-                       .override_product = (const char **)o->basis_product, .ninterp = o->ninterp,
-                       .interp_stage = o->interp_stage, .interp_oversample = o->interp_oversample,
-                       .ngalerkin = o->ngalerkin, .galerkin_stage = o->galerkin_stage,
-                       .valid_holdout = o->valid_holdout, .stream = true, .keep_bases = o->keep_bases,
-                       .rollout_steps = o->rollout_steps, .rollout_every = o->rollout_every};
+  *to = (TrainOptions){.user = o, .dist = o->mpi, .stream = true};
 }
 
 int api_refuse_reduce_options(const NpgTrainOptions *o, const char *func, char *err, size_t errlen) {
@@ -517,16 +509,17 @@ NpgModel *npg_trainer_finish(NpgTrainer *t, const char *model_dir) {
     }
   }
   if (check_mem(t)) return NULL;
-  TrainOptions o;
-  api_train_options(&t->opt, &o);
-  o.inputs_whole = t->inputs_whole;
-  o.cache = t->cache;
   /* the cache holds at most a quarter of the budget; over ranks, what it
    * holds on one process (share_samples) on every rank: the same plan */
   size_t used = t->opt.mpi && dist_size() > 1 ? records_shared_use(&t->r) : t->r.rec.used;
   if (t->error[0]) return NULL;
-  o.mem = t->opt.mem - used;
-  o.progress = t->opt.progress && dist_rank() == 0;
+  NpgTrainOptions user = t->opt; /* training's budget is what the records leave; one rank reports */
+  user.mem = t->opt.mem - used;
+  user.progress = t->opt.progress && dist_rank() == 0;
+  TrainOptions o;
+  api_train_options(&user, &o);
+  o.inputs_whole = t->inputs_whole;
+  o.cache = t->cache;
   o.shared_prefix = model_dir; /* out of core over ranks: the basis files next to the model */
   o.weights = t->weights;
   SampleClosure valid_set = {t->opt.valid_set, t->opt.valid_user, t->f};

@@ -47,9 +47,10 @@ NpgModel *npg_tune(NpgFull *f, long ntrain, NpgSampleFn train, void *tuser, long
   NpgTrainOptions given;
   if (o) given = *o;
   else npg_train_options_default(&given);
+  given.cap = max_cap, given.energy = 1.0;
   TrainOptions topt;
   api_train_options(&given, &topt);
-  topt.cap = max_cap, topt.energy = 1.0, topt.dist = false;
+  topt.dist = false;
   TuneResult *r = calloc(1, sizeof *r);
   const char **names = calloc((size_t)prog->classes.n + 1, sizeof *names);
   TrainSet *ts = NULL;
