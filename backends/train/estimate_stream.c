@@ -303,19 +303,17 @@ static int store_table(EstStream *e, EstTerm *x, const double *const *sign) {
   long D = x->D, W = x->W, my = x->my;
   Scratch sc = SCRATCH_OF(e->w.err);
   double *cs = scratch_array(&sc, (size_t)D + 1, sizeof(double));
-  double *G = mem_malloc(sizeof(double) * (size_t)((D + 1) * D) + 1);
+  double *G = scratch_adopt(&sc, mem_malloc(sizeof(double) * (size_t)((D + 1) * D) + 1)); /* the term's once whole */
   int out = cs && G && stream_column_signs(e->o, rt, x->cy, sign, cs, &sc) == 0 ? 0 : -1;
   if (out == 0) {
     for (long a = 0; a < D; a++)
       for (long b = 0; b < D; b++) G[a * D + b] = x->R[(my + a) * W + my + b] * cs[b];
     for (long c = 0; c < D; c++) G[D * D + c] = sqrt(x->norms[c]);
-    free(rt->est_G);
-    rt->est_G = G, rt->est_D = D, rt->est_sigma = NAN;
-    G = NULL;
+    free(rt->est_G); /* the table it replaces */
+    rt->est_G = scratch_keep(&sc, G), rt->est_D = D, rt->est_sigma = NAN;
   } else if (!err_held(e->w.err)) {
     err_set(e->w.err, "out of memory for the estimate tables of the streamed bases");
   }
-  free(G);
   scratch_release(&sc);
   return out;
 }
