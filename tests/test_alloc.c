@@ -123,6 +123,16 @@ static void snapshots_fail_cleanly(void **state) {
   assert_true(k > 20 && k < MAX_FAILURES);
 }
 
+/* Out of core (backends/train/ooc.c): bases by row blocks within a budget below the snapshots'. */
+static void out_of_core_fails_cleanly(void **state) {
+  (void)state;
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  o.cap = 2, o.mem = 40;
+  long k = train_fails_cleanly(&o, "out of core", NULL);
+  assert_true(k > 20 && k < MAX_FAILURES);
+}
+
 /* Sample k of the tune test: the k-th of xs (the training samples), or
  * with `user` the k-th from its end (the validation samples). */
 static int set_sample(void *user, NpgFull *f, long k) {
@@ -267,6 +277,7 @@ int main(void) {
       cmocka_unit_test_teardown(loading_fails_cleanly, restore_hook),
       cmocka_unit_test_teardown(derivatives_fail_cleanly, restore_hook),
       cmocka_unit_test_teardown(snapshots_fail_cleanly, restore_hook),
+      cmocka_unit_test_teardown(out_of_core_fails_cleanly, restore_hook),
       cmocka_unit_test_teardown(tune_fails_cleanly, restore_hook),
   };
   return cmocka_run_group_tests(tests, setup, teardown);

@@ -281,6 +281,31 @@ static void release(Ooc *o, long p) {
   }
 }
 
+/* Segment sg's rows of every member of its class folded into the member's R (TSQR), after
+ * pca_basis's arithmetic row by row; H_b overwritten: it is not read again. */
+static int fold_segment(Ooc *o, Segment *sg) {
+  long S = o->S, R = sg->r1 - sg->r0;
+  RClass *rc = &o->t->m->classes[sg->c];
+  Scratch sc = SCRATCH_OF(o->t->err);
+  double *mu = scratch_array_unzeroed(&sc, (size_t)R + 1, sizeof(double));
+  int out = mu ? 0 : -1;
+  for (int i = 0; out == 0 && i < rc->nmembers; i++) {
+    pca_weigh(R, S, sg->H[i], o->t->opt->weights, rc->members[i].center ? mu : NULL);
+    double big = o->st[sg->c].big[i]; /* the largest |entry| of what enters G (fmax's NaN rule, inlined) */
+    for (size_t e = 0; e < (size_t)R * (size_t)S; e++) {
+      double a = fabs(sg->H[i][e]);
+      big = a > big ? a : big;
+    }
+    o->st[sg->c].big[i] = big;
+    int info = pca_fold_rows(S, o->st[sg->c].G[i], R, sg->H[i], R); /* -1: its workspace (LAPACKE's -1 is the layout) */
+    if (info != 0)
+      out = err_set(o->t->err, "class %s, member %s: %s", rc->label, rc->members[i].name,
+                    info == -1 ? "out of memory for the QR of a block of snapshots" : "the QR of a block of snapshots failed");
+  }
+  scratch_release(&sc);
+  return out;
+}
+
 /* Factor passes: every streamed member's R (in G's place) the R of the QR
  * of [R; X_b], block by block (TSQR: never the Gram matrix, issue 41). */
 static int gram_passes(Ooc *o) {
@@ -288,30 +313,8 @@ static int gram_passes(Ooc *o) {
   for (long p = 0; p < o->npass; p++) {
     if (!ooc_mine(o, p)) continue;
     if (collect(o, p, true)) return -1;
-    for (long g = o->first[p]; g < o->first[p + 1]; g++) {
-      Segment *sg = &o->seg[g];
-      RClass *rc = &o->t->m->classes[sg->c];
-      long R = sg->r1 - sg->r0;
-      double *mu = mem_malloc(sizeof(double) * (size_t)R);
-      if (!mu) return -1;
-      for (int i = 0; i < rc->nmembers; i++) {
-        /* pca_basis's arithmetic, row by row */
-        pca_weigh(R, S, sg->H[i], o->t->opt->weights, rc->members[i].center ? mu : NULL);
-        double big = o->st[sg->c].big[i]; /* the largest |entry| of what enters G (fmax's NaN rule, inlined) */
-        for (size_t e = 0; e < (size_t)R * (size_t)S; e++) {
-          double a = fabs(sg->H[i][e]);
-          big = a > big ? a : big;
-        }
-        o->st[sg->c].big[i] = big;
-        /* the block's rows folded into the member's R (TSQR), H_b overwritten: it is not read again */
-        if (pca_fold_rows(S, o->st[sg->c].G[i], R, sg->H[i], R) != 0) {
-          free(mu);
-          return err_set(o->t->err, "class %s, member %s: the QR of a block of snapshots failed", rc->label,
-                         rc->members[i].name);
-        }
-      }
-      free(mu);
-    }
+    for (long g = o->first[p]; g < o->first[p + 1]; g++)
+      if (fold_segment(o, &o->seg[g])) return -1;
     release(o, p);
   }
   for (int c = 0; o->N > 1 && c < o->t->m->nclasses; c++) /* every rank's R gathered, folded alike on every rank */
@@ -340,6 +343,51 @@ static int fold_ranks(Ooc *o, long K, double *R) {
   return bad ? err_set(o->t->err, "the QR of the ranks' basis factors failed") : 0;
 }
 
+/* Member i of class rc (streamed, st): its directions from its R factor (pca_r_basis), W = V Σ⁻¹ in G's
+ * place (S x k column-major), k chosen and the member's report made as pca_core makes them. */
+static int member_directions(Ooc *o, Stream *st, RClass *rc, int i) {
+  long S = o->S;
+  RMember *mb = &rc->members[i];
+  int cap = mb->center ? (mb->cap > 1 ? mb->cap - 1 : 0) : mb->cap;
+  long kmax = cap < S ? cap : S;
+  Scratch sc = SCRATCH_OF(o->t->err);
+  double *G = st->G[i], *W = scratch_array_unzeroed(&sc, (size_t)S * (size_t)(kmax ? kmax : 1), sizeof(double));
+  /* snapshots whose squares leave the range of doubles: AᵀA below would lose them */
+  double *Gd = scratch_array(&sc, (size_t)(S * S) + 1, sizeof(double)), *sv = scratch_adopt(&sc, mem_malloc(sizeof(double) * (size_t)S + 1));
+  int out = W && Gd && sv ? 0 : err_set(o->t->err, "out of memory for the basis of class %s", rc->label);
+  for (long j = 0; out == 0 && j < S; j++) Gd[j * S + j] = cblas_ddot((int)(j + 1), G + j * S, 1, G + j * S, 1);
+  const char *range = out == 0 ? pca_gram_out_of_range(S, Gd, st->big[i]) : NULL;
+  if (range)
+    out = err_set(o->t->err,
+                  "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots "
+                  "in memory (their PCA is scale-invariant)",
+                  rc->label, mb->name, range);
+  double *s = st->s[i];
+  long k = 0;
+  int info = out == 0 ? pca_r_basis(S, G, &(PcaRule){.cap = cap, .energy = mb->energy}, s, W, &k) : 0;
+  if (info != 0) /* -1: its workspace (LAPACKE's -1 is the layout) */
+    out = info == -1 ? err_set(o->t->err, "class %s, member %s: out of memory for the SVD of the snapshots' R factor",
+                               rc->label, mb->name)
+                     : err_set(o->t->err, "class %s, member %s: the SVD of the snapshots' R factor failed (LAPACK info %d)",
+                               rc->label, mb->name, (int)info);
+  if (out == 0) {
+    double total = 0, run = 0;
+    for (long j = 0; j < S; j++) total += s[j] * s[j];
+    for (long j = 0; j < k; j++) run += s[j] * s[j];
+    mb->captured = total > 0 ? run / total : 1;
+    mb->lost = fmax(0, 1 - mb->captured);
+    free(mb->sv); /* replaced */
+    memcpy(sv, s, sizeof(double) * (size_t)S);
+    mb->sv = scratch_keep(&sc, sv), mb->nsv = S; /* the member's now */
+    memcpy(G, W, sizeof(double) * (size_t)(k * S));
+    st->k[i] = k;
+    st->col[i] = st->K;
+    st->K += k + (mb->center ? 1 : 0);
+  }
+  scratch_release(&sc);
+  return out;
+}
+
 /* Every streamed member's directions from its R factor (pca_r_basis):
  * W = V Σ⁻¹ in G's place (S x k column-major), the choice of k and the
  * member's report as pca_core makes them. */
@@ -350,49 +398,11 @@ static int eigen(Ooc *o) {
     RClass *rc = &o->t->m->classes[c];
     if (!st->streamed) continue;
     st->K = 0;
-    for (int i = 0; i < rc->nmembers; i++) {
-      RMember *mb = &rc->members[i];
-      int cap = mb->center ? (mb->cap > 1 ? mb->cap - 1 : 0) : mb->cap;
-      long kmax = cap < S ? cap : S;
-      double *G = st->G[i], *W = mem_malloc(sizeof(double) * (size_t)S * (size_t)(kmax ? kmax : 1));
-      if (!W) return -1;
-      /* snapshots whose squares leave the range of doubles: AᵀA below would lose them */
-      double *Gd = mem_calloc((size_t)(S * S) + 1, sizeof(double));
-      if (!Gd) return free(W), -1;
-      for (long j = 0; j < S; j++) Gd[j * S + j] = cblas_ddot((int)(j + 1), G + j * S, 1, G + j * S, 1);
-      const char *range = pca_gram_out_of_range(S, Gd, st->big[i]);
-      free(Gd);
-      if (range) {
-        free(W);
-        return err_set(o->t->err,
-                       "class %s, member %s: snapshot %s; rescale the data, or give --mem enough to keep the snapshots "
-                       "in memory (their PCA is scale-invariant)",
-                       rc->label, mb->name, range);
-      }
-      double *s = st->s[i];
-      long k = 0;
-      int info = pca_r_basis(S, G, &(PcaRule){.cap = cap, .energy = mb->energy}, s, W, &k);
-      if (info != 0) {
-        free(W);
-        return err_set(o->t->err, "class %s, member %s: the SVD of the snapshots' R factor failed (LAPACK info %d)",
-                       rc->label, mb->name, (int)info);
-      }
-      double total = 0, run = 0;
-      for (long j = 0; j < S; j++) total += s[j] * s[j];
-      for (long j = 0; j < k; j++) run += s[j] * s[j];
-      mb->captured = total > 0 ? run / total : 1;
-      mb->lost = fmax(0, 1 - mb->captured);
-      free(mb->sv);
-      if (!(mb->sv = mem_malloc(sizeof(double) * (size_t)S))) return free(W), -1;
-      memcpy(mb->sv, s, sizeof(double) * (size_t)S);
-      mb->nsv = S;
-      memcpy(G, W, sizeof(double) * (size_t)(k * S));
-      free(W);
-      st->k[i] = k;
-      st->col[i] = st->K;
-      st->K += k + (mb->center ? 1 : 0);
-    }
-    if (!(st->RA = mem_calloc((size_t)(st->K * st->K) + 1, sizeof(double))) || (!st->blockwise && !(st->A = tmpfile())))
+    for (int i = 0; i < rc->nmembers; i++)
+      if (member_directions(o, st, rc, i)) return -1;
+    if (!(st->RA = mem_calloc((size_t)(st->K * st->K) + 1, sizeof(double))))
+      return err_set(o->t->err, "out of memory for the basis of class %s", rc->label);
+    if (!st->blockwise && !(st->A = tmpfile()))
       return err_set(o->t->err, "cannot create a scratch file for the basis of class %s", rc->label);
     if (!rc->streamed) continue; /* the model keeps its basis: no floors to take */
     if (!(st->AX = calloc((size_t)rc->nmembers, sizeof(double *))) || !(st->yy = calloc((size_t)rc->nmembers, sizeof(double *))))
@@ -525,8 +535,10 @@ static int basis_passes(Ooc *o) {
       }
       for (long e = 0; e < R; e++) /* the block's rows folded into A's R factor (TSQR), from a column-major copy */
         for (long j = 0; j < K; j++) At[j * R + e] = A[e * K + j];
-      if (K > 0 && pca_fold_rows(K, st->RA, R, At, R) != 0)
-        return err_set(o->t->err, "class %s: the QR of a block of its basis rows failed", rc->label);
+      int info = K > 0 ? pca_fold_rows(K, st->RA, R, At, R) : 0; /* -1: its workspace */
+      if (info != 0)
+        return err_set(o->t->err, "class %s: %s a block of its basis rows", rc->label,
+                       info == -1 ? "out of memory for the QR of" : "the QR failed on");
       if (st->AX && floor_products(o, sg, A, K)) return -1;
       int bad = !st->blockwise && ooc_write_at(st->A, A, sizeof(double) * (size_t)(R * K), sizeof(double) * (size_t)(sg->r0 * K));
       if (bad) return err_set(o->t->err, "cannot write the scratch file of class %s (disk full?)", rc->label);
@@ -610,12 +622,15 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
   long rows = (long)(o->avail / (sizeof(double) * (size_t)(K + m)));
   if (rows < 1) rows = 1;
   if (rows > n) rows = n;
-  double *A = mem_malloc(sizeof(double) * (size_t)(rows * K) + 8), *B = mem_malloc(sizeof(double) * (size_t)(rows * m));
-  double *big = mem_calloc((size_t)m, sizeof(double)), *first = mem_malloc(sizeof(double) * (size_t)m);
-  double *RB = mem_calloc((size_t)(m * m), sizeof(double)), *Bt = mem_malloc(sizeof(double) * (size_t)(rows * m));
-  int *flip = mem_calloc((size_t)m, sizeof(int));
-  long *range = mem_malloc(sizeof(long) * (size_t)(2 * o->npass + 2)), nr = range ? own_rows(o, c, range) : 0;
-  int bad = !A || !B || !big || !first || !range || !RB || !Bt || !flip;
+  Scratch sc = SCRATCH_OF(o->t->err);
+  double *A = scratch_array_unzeroed(&sc, (size_t)(rows * K) + 1, sizeof(double)),
+         *B = scratch_array_unzeroed(&sc, (size_t)(rows * m), sizeof(double));
+  double *big = scratch_array(&sc, (size_t)m, sizeof(double)), *first = scratch_array_unzeroed(&sc, (size_t)m, sizeof(double));
+  double *RB = scratch_array(&sc, (size_t)(m * m), sizeof(double)),
+         *Bt = scratch_array_unzeroed(&sc, (size_t)(rows * m), sizeof(double));
+  int *flip = scratch_array(&sc, (size_t)m, sizeof(int));
+  long *range = scratch_array_unzeroed(&sc, (size_t)(2 * o->npass + 2), sizeof(long)), nr = range ? own_rows(o, c, range) : 0;
+  int bad = !A || !B || !big || !first || !range || !RB || !Bt || !flip ? -1 : 0; /* the scratch said so */
   for (long j = 0; !bad && j < m; j++) first[j] = -HUGE_VAL;
   /* four sweeps over this rank's rows of A: R_B (the TSQR of A T's rows), the largest
    * magnitude of every column of B = (A T) R_B⁻¹ (the largest over the ranks), the sign
@@ -648,7 +663,8 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
         if (sweep == 0) {
           for (long e = 0; e < R; e++)
             for (long j = 0; j < m; j++) Bt[j * R + e] = B[e * m + j];
-          if (pca_fold_rows(m, RB, R, Bt, R) != 0) bad = -1;
+          if (pca_fold_rows(m, RB, R, Bt, R) != 0) /* -1: its workspace */
+            bad = err_set(o->t->err, "class %s: out of memory (or LAPACK failed) in the QR of its basis rows", rc->label);
           continue;
         }
         cblas_dtrsm(CblasColMajor, CblasLeft, CblasUpper, CblasTrans, CblasNonUnit, (int)m, (int)R, 1.0, RB, (int)m, B,
@@ -668,7 +684,7 @@ static int write_basis(Ooc *o, int c, double *T, long m) {
   }
   for (long j = 0; !bad && j < m; j++) /* T's columns signed as B's (the floors read B as A T) */
     if (flip[j]) cblas_dscal((int)K, -1.0, (double *)T + j * K, 1);
-  free(A), free(B), free(big), free(first), free(range), free(RB), free(Bt), free(flip);
+  scratch_release(&sc);
   return ooc_map_basis(o, rc, fp, bad);
 }
 
@@ -679,9 +695,10 @@ int ooc_map_basis(Ooc *o, RClass *rc, FILE *fp, int bad) {
   dist_allreduce_sum(&ok, 1);
   void *map = ok == o->N ? mmap(NULL, bytes, PROT_READ, MAP_SHARED, fileno(fp), 0) : MAP_FAILED;
   fclose(fp); /* the mapping keeps the file */
-  if (map == MAP_FAILED)
-    return err_set(o->t->err, "cannot write or map the basis of class %s (%.3g GB; disk full?)", rc->label,
-                   (double)bytes / 1e9);
+  if (map == MAP_FAILED) /* the failure's own message when its maker gave one */
+    return err_held(o->t->err) ? -1
+                               : err_set(o->t->err, "cannot write or map the basis of class %s (%.3g GB; disk full?)",
+                                         rc->label, (double)bytes / 1e9);
   free(rc->B);
   rc->B = map;
   rc->B_mapped = bytes;

@@ -476,8 +476,9 @@ static int map_kept(Streamer *s, int c) {
   long mm = o->st[c].m, chunk = 4096;
   bool flip = false;
   for (long j = 0; j < mm; j++) flip |= h->sign[j] < 0;
-  double *buf = flip ? mem_malloc(sizeof(double) * (size_t)(chunk * mm)) : NULL;
-  int bad = flip && !buf;
+  Scratch sc = SCRATCH_OF(o->t->err);
+  double *buf = flip ? scratch_array_unzeroed(&sc, (size_t)(chunk * mm), sizeof(double)) : NULL;
+  int bad = flip && !buf; /* the scratch said so */
   for (long q = 0; flip && !bad && q < h->nown; q++)
     for (long r0 = h->own[2 * q]; !bad && r0 < h->own[2 * q + 1]; r0 += chunk) {
       long R = r0 + chunk < h->own[2 * q + 1] ? chunk : h->own[2 * q + 1] - r0;
@@ -487,7 +488,7 @@ static int map_kept(Streamer *s, int c) {
         for (long j = 0; j < mm; j++) buf[e * mm + j] *= h->sign[j];
       bad = bad || ooc_write_at(h->file, buf, len, off);
     }
-  free(buf);
+  scratch_release(&sc);
   FILE *fp = h->file;
   h->file = NULL;
   return ooc_map_basis(o, rc, fp, bad);
