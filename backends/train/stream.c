@@ -124,11 +124,13 @@ static int coefficients(Ooc *o, int c, const double *sign) {
   RClass *rc = &o->t->m->classes[c];
   const RMember *mb = &rc->members[0];
   long S = o->S, K = st->K, m = st->m, u = st->col[0];
-  double *G0 = mem_calloc((size_t)(S * K) + 1, sizeof(double)), *P = mem_malloc(sizeof(double) * (size_t)(S * m + 1));
+  Scratch sc = SCRATCH_OF(NULL);
+  double *G0 = scratch_array(&sc, (size_t)(S * K) + 1, sizeof(double)),
+         *P = scratch_array_unzeroed(&sc, (size_t)(S * m + 1), sizeof(double));
   rc->coef = mem_malloc(sizeof(double) * (size_t)(S * m + 1));
   rc->train_coords = mem_malloc(sizeof(double) * (size_t)(S * m + 1));
   if (!G0 || !P || !rc->coef || !rc->train_coords || !st->AX || !st->AX[0]) {
-    free(G0), free(P);
+    scratch_release(&sc);
     return err_set(o->t->err, "out of memory keeping class %s as coefficients", rc->label);
   }
   /* weighted (pca_weigh): μ = X wt/Σwt, the directions (X − μ1ᵀ) diag(√wt) W */
@@ -155,7 +157,7 @@ static int coefficients(Ooc *o, int c, const double *sign) {
               rc->train_coords, (int)m);
   for (long e = 0; e < S; e++)
     for (long j = 0; j < m; j++) rc->train_coords[e * m + j] *= sign[j];
-  free(G0), free(P);
+  scratch_release(&sc);
   return 0;
 }
 
@@ -554,9 +556,11 @@ static int decide_signs(Streamer *s) {
     if (!blockwise(s, c)) continue;
     Held *h = &s->held[c];
     long mm = o->st[c].m;
-    double *big = mem_malloc(sizeof(double) * (size_t)(mm + 1)), *first = mem_malloc(sizeof(double) * (size_t)(mm + 1));
+    Scratch sc = SCRATCH_OF(NULL);
+    double *big = scratch_array_unzeroed(&sc, (size_t)(mm + 1), sizeof(double)),
+           *first = scratch_array_unzeroed(&sc, (size_t)(mm + 1), sizeof(double));
     if (!big || !first || !(h->sign = mem_malloc(sizeof(double) * (size_t)(mm + 1))))
-      return free(big), free(first), err_set(o->t->err, "out of memory");
+      return scratch_release(&sc), err_set(o->t->err, "out of memory");
     for (long j = 0; j < mm; j++) big[j] = h->peaks[j].big;
     dist_allreduce_max(big, mm);
     for (long j = 0; j < mm; j++) {
@@ -570,7 +574,7 @@ static int decide_signs(Streamer *s) {
     }
     dist_allreduce_max(first, mm);
     for (long j = 0; j < mm; j++) h->sign[j] = first[j] > -HUGE_VAL && fmod(-first[j], 2) == 1 ? -1.0 : 1.0;
-    free(big), free(first);
+    scratch_release(&sc);
   }
   return 0;
 }
