@@ -98,6 +98,18 @@ size_t estimate_term_bytes(const Model *m, int i, int t) {
   return b < (double)SIZE_MAX / 2 ? (size_t)b : SIZE_MAX;
 }
 
+long estimate_test_chunk_rows(void) {
+  const char *v = getenv("NPG_TEST_ESTIMATE_CHUNKS");
+  return v && atol(v) > 0 ? atol(v) : 0;
+}
+
+EstMake estimate_term_make(const Model *m, int i, int t) {
+  double D = (double)estimate_term_dim(m, i, t);
+  bool chunks = !m->classes[m->qclass[m->stages[i].q]].product && 8 * D * D <= (double)ESTIMATE_MAX_TABLE_BYTES;
+  if (estimate_term_bytes(m, i, t) <= ESTIMATE_MAX_BYTES && !(chunks && estimate_test_chunk_rows())) return EST_MAKE_WHOLE;
+  return chunks ? EST_MAKE_CHUNKS : EST_MAKE_NONE;
+}
+
 void estimate_input_product(const Model *m, double *const *coords, const RTensor *x, double *z, double *scratch) {
   z[0] = 1;
   long len = 1;
@@ -612,12 +624,16 @@ static int stage_figure(Reduced *r, int i, Estimation *s, Figure *f) {
     const RTerm *rt = &rs->terms[t];
     if (!estimate_term_eligible(m, i, t, why, whylen)) return *flagsp = flags, -1;
     if (!rt->est_G) {
-      size_t bytes = estimate_term_bytes(m, i, t);
-      if (bytes > ESTIMATE_MAX_BYTES)
-        snprintf(why, whylen, "term %d's residual table (%ld x %ld columns and their R) takes %.1f MiB, above the "
-                 "estimate tables' bound of %zu MiB (ESTIMATE_MAX_BYTES): smaller bases (--basis NAME:cap=N) fit it",
-                 t + 1, m->classes[m->qclass[q]].n, estimate_term_dim(m, i, t), (double)bytes / 1048576.0,
-                 ESTIMATE_MAX_BYTES >> 20);
+      double D = (double)estimate_term_dim(m, i, t);
+      if (estimate_term_make(m, i, t) == EST_MAKE_NONE && m->classes[m->qclass[q]].product)
+        snprintf(why, whylen, "term %d's residual table (%ld x %.0f columns, whole in a class with a product, and their R) "
+                 "takes %.1f MiB, above the estimate tables' bound of %zu MiB (ESTIMATE_MAX_BYTES): smaller bases "
+                 "(--basis NAME:cap=N) fit it", t + 1, m->classes[m->qclass[q]].n, D,
+                 (double)estimate_term_bytes(m, i, t) / 1048576.0, ESTIMATE_MAX_BYTES >> 20);
+      else if (estimate_term_make(m, i, t) == EST_MAKE_NONE)
+        snprintf(why, whylen, "term %d's residual table (R of %.0f columns) takes %.1f MiB, above the bound of %zu MiB "
+                 "(ESTIMATE_MAX_TABLE_BYTES): smaller bases (--basis NAME:cap=N) fit it", t + 1, D,
+                 8 * D * D / 1048576.0, ESTIMATE_MAX_TABLE_BYTES >> 20);
       else
         snprintf(why, whylen, "the model holds no estimate table for term %d (trained without one: see npgc train's "
                  "report, or a model older than the estimates)", t + 1);

@@ -115,13 +115,25 @@ typedef struct ChainLayout {
 void estimate_chain_layout(const Model *m, int i, int t, ChainLayout *L);
 /* The numerator's part of z_t: a named numerator's m, or the numerator tensors' columns. */
 long estimate_term_num_dim(const Model *m, int i, int t);
-/* A term's residual table is built in training when its columns (n x D doubles, in memory while
- * it is made) and their R (D x D, kept in the model) take at most ESTIMATE_MAX_BYTES together; a
- * larger term gets no table, and its evaluations say so with both figures. A bound in bytes, not in
- * columns: D grows with the basis (1 + 10 m on a 3 x 3 thermal block, past 512 at m = 52), R with
- * D², the columns with n D, and the QR that makes R costs 2 n D² flops (the heat example's
- * implicit step, D = 3600 and n = 16,384: 578 MB, minutes of training, stays without one). */
+/* How training makes a term's residual table. Whole when its columns (n x D doubles) and their R
+ * (D x D, kept in the model) take at most ESTIMATE_MAX_BYTES together: the columns projected and
+ * factored at once (estimate_train.c qr_factor). Else, in a class without a product, by row chunks
+ * (estimate_train.c chunked_table: a tall-skinny QR of [B C], about ESTIMATE_CHUNK_BYTES of C at a
+ * time) when R alone takes at most ESTIMATE_MAX_TABLE_BYTES: the memory is then R, the working
+ * factor (D + m)² and a chunk, and the cost 2 n (D + m)² flops. A class with a product needs its
+ * columns whole (they are weighted by K0's Cholesky factor), and a larger R gets no table: its
+ * evaluations say so with the figures. D grows with the basis (1 + 10 m on a 3 x 3 thermal
+ * block: 1,901 at m = 190, 20,201 x 1,901 columns = 293 MiB made by chunks, R 27.6 MiB), R with
+ * D² (the heat example's implicit step, D = 3600 and n = 16,384: R 99 MiB, stays without one). */
 #define ESTIMATE_MAX_BYTES ((size_t)256 << 20)
+#define ESTIMATE_MAX_TABLE_BYTES ((size_t)64 << 20)
+#define ESTIMATE_CHUNK_BYTES ((size_t)16 << 20)
+typedef enum { EST_MAKE_NONE, EST_MAKE_WHOLE, EST_MAKE_CHUNKS } EstMake;
+EstMake estimate_term_make(const Model *m, int i, int t);
+/* Tests only: NPG_TEST_ESTIMATE_CHUNKS=ROWS in the environment makes every table that could be made
+ * by chunks made so, ROWS rows a chunk (tests/cli/estimate_chunks.py compares it with the whole
+ * route); 0 when unset. */
+long estimate_test_chunk_rows(void);
 /* The bytes of term `t` of stage `i`'s columns and R: 8 (n D + D²) (SIZE_MAX on overflow). */
 size_t estimate_term_bytes(const Model *m, int i, int t);
 /* The packed input product of tensor `x` (its columns' monomials) at

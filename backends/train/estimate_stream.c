@@ -82,7 +82,7 @@ static bool streamed_term(const Ooc *o, int i, int t) {
    * (estimate_term_eligible asks for a basis, whole or streamed) */
   bool was = m->classes[cy].streamed, eligible;
   m->classes[cy].streamed |= o->st[cy].blockwise;
-  eligible = estimate_term_eligible(m, i, t, why, sizeof why) && estimate_term_bytes(m, i, t) <= ESTIMATE_MAX_BYTES;
+  eligible = estimate_term_eligible(m, i, t, why, sizeof why) && estimate_term_make(m, i, t) != EST_MAKE_NONE;
   m->classes[cy].streamed = was;
   /* a chained term (operator applications, roots of a declared op, several operators: block QRs and
    * per-operator ratios, estimate_train.c's qr_blocks) is not made here: it has no table out of core */

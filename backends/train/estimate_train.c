@@ -160,20 +160,32 @@ static int qr_factor(double *C, long n, long D, double *R) {
   return 0;
 }
 
-/* A chained term's table (estimate_term_chains): R (D x D, row-major, zero off its diagonal blocks) of the QRs
- * of C's column blocks apart (term t of stage i's ChainLayout: the numerator's, each applied operator's, each
- * inverse's joined with its operand's producer), so that
- * each part's norm ‖R_b z_b‖ is found alone: online they are chained with ‖M‖ or σ_min(M) between them, not
- * summed in one residual. C (n x D row-major) is left as is. 0, -1 when LAPACK fails, -2 when memory runs out. */
-static int qr_blocks(const Model *m, int i, int t, const double *C, long n, double *R) {
+/* The column blocks [b[2k], b[2k+1]) whose residuals are factored apart: one, [0, D), for a term
+ * that is not chained; a chained term's (estimate_term_chains) ChainLayout blocks — the numerator's,
+ * each applied operator's, each inverse's joined with its operand's producer —, so that each part's
+ * norm ‖R_b z_b‖ is found alone: online they are chained with ‖M‖ or σ_min(M) between them, not
+ * summed in one residual. Returns the count of entries of b (twice the blocks'). */
+static int table_blocks(const Model *m, int i, int t, long b[2 * ESTIMATE_OPS_MAX + 2]) {
   const RTerm *rt = &m->stages[i].terms[t];
-  long D = estimate_term_dim(m, i, t), b[2 * ESTIMATE_OPS_MAX + 2];
   int nb = 0;
+  if (!estimate_term_chains(rt)) {
+    b[nb++] = 0, b[nb++] = estimate_term_dim(m, i, t);
+    return nb;
+  }
   ChainLayout L;
   estimate_chain_layout(m, i, t, &L);
   if (!L.joins[0]) b[nb++] = 0, b[nb++] = L.nnum;
   for (int k = 0; k < rt->nops; k++)
     if (rt->ops[k].op->p < 0 || !L.joins[k + 1]) b[nb++] = L.start[k], b[nb++] = L.off[k] + L.len[k];
+  return nb;
+}
+
+/* A chained term's table: R (D x D, row-major, zero off its diagonal blocks) of the QRs of C's
+ * column blocks apart (table_blocks). C (n x D row-major) is left as is. 0, -1 when LAPACK fails,
+ * -2 when memory runs out. */
+static int qr_blocks(const Model *m, int i, int t, const double *C, long n, double *R) {
+  long D = estimate_term_dim(m, i, t), b[2 * ESTIMATE_OPS_MAX + 2];
+  int nb = table_blocks(m, i, t, b);
   Scratch sc = SCRATCH_OF(NULL);
   double *T = scratch_array(&sc, (size_t)(n * D) + 1, sizeof(double)), *Rb = scratch_array(&sc, (size_t)(D * D) + 1,
                                                                                            sizeof(double));
@@ -185,6 +197,70 @@ static int qr_blocks(const Model *m, int i, int t, const double *C, long n, doub
     out = qr_factor(T, n, len, Rb);
     for (long a = 0; out == 0 && a < len; a++) memcpy(R + (off + a) * D + off, Rb + a * len, sizeof(double) * (size_t)len);
   }
+  scratch_release(&sc);
+  return out;
+}
+
+/* ---------------------------------------------------------------- a table by row chunks */
+
+/* A block's factor while its rows arrive: R (W x W, column-major, upper) of [B C_b] over the rows so far. */
+typedef struct ChunkQR {
+  long off, len, W;         /* the block's columns [off, off + len) of C; W = m + len */
+  double *R;
+} ChunkQR;
+
+/* Rows [lo, hi) of [B C_b] (C's chunk: (hi − lo) x D row-major) stacked under the block's R and
+ * factored again (LAPACK dtpqrt: the triangle on the rows, 2 (hi − lo) W² flops, no more). */
+static int chunk_rows(const Model *m, int cy, ChunkQR *q, const double *C, long D, const ColRows *rows, Scratch *sc) {
+  long nr = rows->hi - rows->lo, W = q->W, my = m->classes[cy].m, nb = W < 32 ? W : 32;
+  double *Z = scratch_array_unzeroed(sc, (size_t)(nr * W) + 1, sizeof(double));
+  double *T = scratch_array_unzeroed(sc, (size_t)(nb * W) + 1, sizeof(double));
+  if (!Z || !T) return -2;
+  for (long r = 0; r < nr; r++) {
+    const double *b = estimate_basis_row(m, rows, cy, rows->lo + r);
+    for (long c = 0; c < my; c++) Z[c * nr + r] = b[c];
+    for (long c = 0; c < q->len; c++) Z[(my + c) * nr + r] = C[r * D + q->off + c];
+  }
+  return LAPACKE_dtpqrt(LAPACK_COL_MAJOR, (int)nr, (int)W, 0, (int)nb, q->R, (int)W, Z, (int)nr, T, (int)nb) ? -1 : 0;
+}
+
+/* Term t of stage i's table when its columns do not fit whole (estimate_term_whole): R of each
+ * block's (I − BBᵀ)C_b as the R22 of [B C_b] = [Q1 Q2][R11 R12; 0 R22] — Q1 spans B, so R22 is R of
+ * C_b − Q1Q1ᵀC_b —, made row chunk by row chunk (about ESTIMATE_CHUNK_BYTES of C), each chunk
+ * stacked under the R so far; C's column norms summed over the chunks. The columns are never
+ * whole: the memory is the blocks' R and one chunk. G: (D + 1) x D as term_table's. 0, -1 when
+ * LAPACK fails, -2 when memory runs out, -3 with w->err when a column is not made. */
+static int chunked_table(const EstWork *w, int i, int t, double *G) {
+  const Model *m = w->m;
+  int cy = m->qclass[m->stages[i].q], nb;
+  long n = m->classes[cy].n, my = m->classes[cy].m, D = estimate_term_dim(m, i, t), b[2 * ESTIMATE_OPS_MAX + 2];
+  long rows = (long)(ESTIMATE_CHUNK_BYTES / sizeof(double) / (size_t)(my + D));
+  rows = estimate_test_chunk_rows() ? estimate_test_chunk_rows() : rows < 64 ? 64 : rows;
+  nb = table_blocks(m, i, t, b);
+  Scratch sc = SCRATCH_OF(NULL);
+  ChunkQR *q = scratch_array(&sc, (size_t)nb / 2 + 1, sizeof(ChunkQR));
+  double *C = scratch_array_unzeroed(&sc, (size_t)(rows * D) + 1, sizeof(double));
+  int out = q && C ? 0 : -2;
+  for (int k = 0; out == 0 && k < nb / 2; k++) {
+    q[k] = (ChunkQR){b[2 * k], b[2 * k + 1] - b[2 * k], my + b[2 * k + 1] - b[2 * k], NULL};
+    if (!(q[k].R = scratch_array(&sc, (size_t)(q[k].W * q[k].W) + 1, sizeof(double)))) out = -2;
+  }
+  for (long lo = 0; out == 0 && lo < n; lo += rows) {
+    ColRows cr = {lo, lo + rows < n ? lo + rows : n, n, NULL, NULL};
+    memset(C, 0, sizeof(double) * (size_t)((cr.hi - lo) * D));
+    if (estimate_term_columns(w, i, t, &cr, C)) out = -3;
+    for (long r = 0; out == 0 && r < cr.hi - lo; r++)
+      for (long c = 0; c < D; c++) G[D * D + c] += C[r * D + c] * C[r * D + c];
+    for (int k = 0; out == 0 && k < nb / 2; k++) {
+      Scratch cs = SCRATCH_OF(NULL);
+      if (q[k].len > 0) out = chunk_rows(m, cy, &q[k], C, D, &cr, &cs);
+      scratch_release(&cs);
+    }
+  }
+  for (long c = 0; out == 0 && c < D; c++) G[D * D + c] = sqrt(G[D * D + c]);
+  for (int k = 0; out == 0 && k < nb / 2; k++) /* R22: rows and columns my.. of the column-major R */
+    for (long a = 0; a < q[k].len; a++)
+      for (long c = a; c < q[k].len; c++) G[(q[k].off + a) * D + q[k].off + c] = q[k].R[(my + c) * q[k].W + my + a];
   scratch_release(&sc);
   return out;
 }
@@ -202,26 +278,29 @@ static int term_table(Model *m, Full *f, const SampleSource *src, int i, int t, 
       if (!m->classes[m->qclass[x->in_q[j]]].B) return 0; /* an input's basis is not whole here */
   }
   if (rt->named_q >= 0 && (!m->classes[m->qclass[rt->named_q]].B || m->classes[m->qclass[rt->named_q]].n != n)) return 0;
-  if (estimate_term_bytes(m, i, t) > ESTIMATE_MAX_BYTES) return 0; /* estimate.c's message says so */
+  EstMake make = estimate_term_make(m, i, t);
+  if (make == EST_MAKE_NONE) return 0; /* estimate.c's message says so */
   Scratch sc = SCRATCH_OF(err);
-  double *C = scratch_array(&sc, (size_t)(n * D) + 1, sizeof(double)), *V = NULL;
+  double *C = make == EST_MAKE_WHOLE ? scratch_array(&sc, (size_t)(n * D) + 1, sizeof(double)) : NULL, *V = NULL;
   double *G = scratch_array(&sc, (size_t)((D + 1) * D) + 1, sizeof(double));
   EstWork w = {m, f, NULL, err, src};
   long nnum = rt->named_q >= 0 ? m->classes[m->qclass[rt->named_q]].m : 0;
   for (int g = 0; g < rt->nnum; g++) nnum += rt->num[g].cols;
-  int bad = !C || !G || estimate_term_columns(&w, i, t, &(ColRows){0, n, n, NULL, NULL}, C);
+  int bad = !G || (make == EST_MAKE_WHOLE && (!C || estimate_term_columns(&w, i, t, &(ColRows){0, n, n, NULL, NULL}, C)));
   if (!bad && rc->product)
     bad = estimate_product_columns(&w, rt, rc, &(ResidualCols){C, D, nnum}, &V) || !scratch_adopt(&sc, V);
   if (!bad && rt->named_q >= 0) bad = estimate_product_carry(&w, rt, rc, &m->classes[m->qclass[rt->named_q]]);
-  if (!bad) {
+  if (!bad && make == EST_MAKE_WHOLE) {
     estimate_column_norms(C, n, D, G + D * D);
     if (project_out(V ? V : rc->B, n, rc->m, C, D))
       bad = err_set(err, "estimate tables: out of memory projecting stage %s", rs->st->sym->name);
   }
-  int qr = bad ? 0 : estimate_term_chains(rt) ? qr_blocks(m, i, t, C, n, G) : qr_factor(C, n, D, G);
-  if (qr)
+  int qr = bad ? 0 : make == EST_MAKE_CHUNKS ? chunked_table(&w, i, t, G)
+                   : estimate_term_chains(rt) ? qr_blocks(m, i, t, C, n, G) : qr_factor(C, n, D, G);
+  if (qr && qr != -3)
     bad = err_set(err, "estimate tables: %s the QR of stage %s's residual columns", qr == -2 ? "out of memory for" : "LAPACK failed in",
                   rs->st->sym->name);
+  bad = bad || qr;
   if (!bad && !(rt->est_G = malloc(sizeof(double) * (size_t)((D + 1) * D) + 1)))
     bad = err_set(err, "estimate tables: out of memory for stage %s", rs->st->sym->name);
   if (!bad) {
