@@ -30,12 +30,13 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
   if (rs->st->kind == ST_EXTERN) return snprintf(why, n, "an extern's learned map has no estimate"), false;
   if (rs->interp) return snprintf(why, n, "an interpolated stage has no Galerkin terms' tables (its estimate is interp_check's)"), false;
   if (rt->nops > 1 && !estimate_term_chains(rt))
-    return snprintf(why, n, "term %d applies %d operators (a root or a diagonal operator among them: only declared "
-                    "operators' positive powers and inverses have an estimate)", t + 1, rt->nops), false;
+    return snprintf(why, n, "term %d applies %d operators (a power below -1 among them, or diagonal operators alone: "
+                    "positive powers, inverses and roots with a declared operator among them have an estimate)", t + 1,
+                    rt->nops), false;
   if (rt->nops == 1 && !(rt->ops[0].op->p == -1 && rt->ops[0].op->q == 1) && !estimate_term_chains(rt))
     return snprintf(why, n, "term %d applies a power %ld/%ld (%s)", t + 1, (long)rt->ops[0].op->p,
                     (long)rt->ops[0].op->q, rt->ops[0].op->q != 1 ? "a root has an estimate for a declared operator "
-                    "and |p/q| < 1 only" : "only inverses and positive powers of declared operators have an estimate"),
+                    "only" : "only inverses and positive powers of declared operators have an estimate"),
            false;
   const RClass *rc = &m->classes[m->qclass[rs->q]];
   if (rc->product && estimate_term_chains(rt))
@@ -50,24 +51,43 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
 }
 
 bool estimate_term_chains(const RTerm *rt) {
-  if (rt->nops == 1) { /* an application, or a root of power |p/q| < 1 (root_step) */
+  if (rt->nops == 1) { /* an application, or a root (root_step) */
     const OpPow *op = rt->ops[0].op;
-    return op->kind == OPK_DECL && ((op->q == 1 && op->p >= 1) || (op->q > 1 && labs(op->p) < op->q));
+    return op->kind == OPK_DECL && ((op->q == 1 && op->p >= 1) || op->q > 1);
   }
   if (rt->nops < 2 || rt->nops > ESTIMATE_OPS_MAX) return false;
+  bool declared = false; /* diagonal operators alone keep their stage's sampled check (galerkincheck) */
   for (int k = 0; k < rt->nops; k++) {
     const OpPow *op = rt->ops[k].op;
-    if (op->kind != OPK_DECL || op->q != 1 || !(op->p >= 1 || op->p == -1)) return false;
+    if (op->q == 1 && !(op->p >= 1 || op->p == -1)) return false;
+    declared = declared || op->kind == OPK_DECL;
   }
-  return true;
+  return declared;
+}
+
+/* A root of power above 1: its integer part applied after its fractional part needs ‖M‖'s ratio. */
+static bool root_above_one(const OpPow *op) { return op->q > 1 && op->p > op->q; }
+
+int estimate_term_ratios(const RTerm *rt) {
+  if (!estimate_term_chains(rt)) return 0;
+  int n = rt->nops > 1 ? rt->nops : 0;
+  for (int k = 0; k < rt->nops; k++) n += root_above_one(rt->ops[k].op);
+  return n;
+}
+
+int estimate_norm_slot(const RTerm *rt, int k) {
+  if (k < 0 || k >= rt->nops || !root_above_one(rt->ops[k].op) || !estimate_term_chains(rt)) return -1;
+  int slot = rt->nops > 1 ? rt->nops : 0;
+  for (int j = 0; j < k; j++) slot += root_above_one(rt->ops[j].op);
+  return slot;
 }
 
 void estimate_chain_layout(const Model *m, int i, int t, ChainLayout *L) {
   const RTerm *rt = &m->stages[i].terms[t];
   long my = qm(m, m->stages[i].q), off = L->nnum = estimate_term_num_dim(m, i, t);
   for (int k = -1; k < rt->nops; k++) /* the numerator or an applied M^1 right before an inverse: its operand's producer */
-    L->joins[k + 1] = (k < 0 || rt->ops[k].op->p == 1) && k + 1 < rt->nops && rt->ops[k + 1].op->p < 0 &&
-                      rt->ops[k + 1].op->q == 1;
+    L->joins[k + 1] = (k < 0 || (rt->ops[k].op->p == 1 && rt->ops[k].op->q == 1)) && k + 1 < rt->nops &&
+                      rt->ops[k + 1].op->p < 0 && rt->ops[k + 1].op->q == 1;
   for (int k = 0; k < rt->nops; k++) {
     L->off[k] = off, L->len[k] = 0;
     for (int g = 0; g < rt->ops[k].ntensors; g++) L->len[k] += my * rt->ops[k].t[g].cols;
@@ -503,51 +523,114 @@ static double operator_figure(const ChainOp *o, Estimation *s, Figure *f) {
 #define ROOT_NODES_PER_UNIT 4
 #define ROOT_DECADES 3
 
-/* The step of a root (estimate_term_chains: M declared, symmetric positive definite as a root's must be, α =
- * p/q, 0 < |α| < 1) from v to M̂^α v, e the error of v. The integral representations (Balakrishnan's)
- *   M^α = (sin απ/π) ∫₀^∞ s^{α−1} M (s + M)⁻¹ ds  (0 < α < 1),   M^α = (sin |α|π/π) ∫₀^∞ s^α (s + M)⁻¹ ds  (−1 < α < 0)
- * hold for M̂ as well, so that (with M(s + M)⁻¹ = I − s(s + M)⁻¹ for the first) in both cases
- *   M^α B v − B M̂^α v = ∓ (sin |α|π/π) ∫₀^∞ s^α (s + M)⁻¹ r(s) ds,   r(s) = B v − (s + M) B ŷ_s,
- * ŷ_s = (s + M̂)⁻¹ v the Galerkin solution of the shifted system: Bᵀr(s) = 0, so r(s) = −(I − BBᵀ) M B ŷ_s, the
- * operator's block of the table at ŷ_s, and ‖(s + M)⁻¹‖ ≤ 1/(s + λ_min(M)). The figure is
- *   ‖M^α‖ e + (sin |α|π/π) ∫₀^∞ s^α ‖r(s)‖ / (s + λ) ds,
- * λ the min-θ bound or c λ_min(M̂) (the term's ratio), ‖M^α‖ = λ^α (α < 0) or λ_max(M̂)^α (α > 0: the reduced
- * Jacobian's, as the propagation's), the integral by the trapezoidal rule in ln s over M̂'s spectrum widened by
- * ROOT_DECADES each side, ŷ_s from M̂'s eigendecomposition (O(m²) a node), the tails beyond from ‖r(s)‖'s limits
- * (constant as s → 0, ‖(I − BBᵀ) M B v‖ / s as s → ∞). NaN with f->why. */
-static double root_step(Reduced *r, const ChainOp *o, const ChainLayout *L, double e, Estimation *s, Figure *f) {
-  const RTerm *rt = o->rt;
-  long my = o->my;
-  double alpha = (double)rt->ops[0].op->p / (double)rt->ops[0].op->q, *lam = s->sv, *vt = s->sv + my, lmin;
-  f->flags &= ~EST_BOUND; /* a ratio and a quadrature enter */
-  if (my == 0) return alpha < 0 ? 0 : e;
-  memcpy(s->M, o->kp->M, sizeof(double) * (size_t)(my * my));
-  if (LAPACKE_dsyev(LAPACK_ROW_MAJOR, 'V', 'U', (int)my, s->M, (int)my, lam) != 0 || !(lam[0] > 0))
-    return snprintf(f->why, sizeof f->why, "term %d's reduced operator is not positive definite (LAPACK's smallest "
-                    "eigenvalue %.3g): a root's estimate needs it", o->t + 1, lam[0]), NAN;
-  double theta = theta_bound(r, rt);
-  if (!(theta > 0) && isnan(rt->est_sigma))
-    return snprintf(f->why, sizeof f->why, "no measure of σ_min for term %d's operator (training found it singular "
-                    "at a sample, or its rows exceed %d, the sparse limit)", o->t + 1, ESTIMATE_SPARSE_MAX), NAN;
-  lmin = theta > 0 ? theta : rt->est_sigma * lam[0];
-  double out = e > 0 ? e * pow(alpha < 0 ? lmin : lam[my - 1], alpha) : 0, sum = 0, rho = 0;
-  cblas_dgemv(CblasRowMajor, CblasTrans, (int)my, (int)my, 1.0, s->M, (int)my, o->kp->chain, 1, 0.0, vt, 1);
-  double ulo = log(fmin(lmin, lam[0])) - ROOT_DECADES * M_LN10, uhi = log(lam[my - 1]) + ROOT_DECADES * M_LN10;
+/* A root's step as root_step finds it: operator o->k = M^α of the term, α = k + β (k the integer part toward
+ * zero, 0 < |β| < 1: M^(3/2) = M · M^(1/2), M^(-3/2) = M⁻¹ · M^(-1/2)), M̂'s eigendecomposition (Q in s->M's
+ * columns, its eigenvalues ascending in lam), the operand's coordinates Qᵀv in vt, λ_min's figure (the min-θ
+ * bound, or c λ_min(M̂)) and ‖M‖'s (c' λ_max(M̂), c' the ratio of ‖M‖ at training samples; k ≥ 1 only). */
+typedef struct RootParts {
+  const ChainOp *o;
+  const ChainLayout *L;
+  double *lam, *vt;
+  long k;
+  double beta, lmin, lmax;
+} RootParts;
+
+/* ‖(I − BBᵀ) M B u‖, u = Q coef (my entries; consumed before s->Gz is written): the operator's block of the
+ * table at u, exact and O(D²). */
+static double root_residual(Reduced *r, const RootParts *p, const double *coef, Estimation *s, bool *roundoff) {
+  long my = p->o->my;
+  cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)my, (int)my, 1.0, s->M, (int)my, coef, 1, 0.0, s->v, 1);
+  operator_monomials(r, &p->o->rt->ops[p->o->k], s->v, my, p->L->off[p->o->k], s);
+  return table_norm(p->o->rt, p->L->off[p->o->k], p->L->len[p->o->k], p->o->n, s, roundoff);
+}
+
+/* The fractional part's error carried through M^k: with Balakrishnan's representation (root_step) M^k (M^β B v −
+ * B M̂^β v) = ∓ (sin |β|π/π) ∫₀^∞ s^β M^k (s + M)⁻¹ r(s) ds, and ‖M^k (s + M)⁻¹‖ = max over M's spectrum of
+ * λ^k / (s + λ) = μ^k / (s + μ), μ = ‖M‖ for k ≥ 1 (λ^k / (s + λ) grows with λ), μ = λ_min for k ≤ 0. The
+ * trapezoidal rule in ln s over M̂'s spectrum (and μ) widened by ROOT_DECADES each side, ŷ_s = Q (Λ + s)⁻¹ Qᵀv
+ * (O(m²) a node), the tails beyond from ‖r(s)‖'s limits (constant as s → 0, ‖(I − BBᵀ) M B v‖ / s as s → ∞). */
+static double root_quadrature(Reduced *r, const RootParts *p, Estimation *s) {
+  long my = p->o->my;
+  double beta = p->beta, mu = p->k >= 1 ? p->lmax : p->lmin, scale = pow(mu, (double)p->k);
+  double ulo = log(fmin(p->lmin, p->lam[0])) - ROOT_DECADES * M_LN10,
+         uhi = log(fmax(mu, p->lam[my - 1])) + ROOT_DECADES * M_LN10;
   long K = (long)ceil((uhi - ulo) * ROOT_NODES_PER_UNIT);
-  double h = (uhi - ulo) / (double)K, rho_lo = 0;
+  double h = (uhi - ulo) / (double)K, rho_lo = 0, rho = 0, sum = 0;
   bool part;
   for (long k = 0; k <= K; k++) {
     double u = ulo + h * (double)k, sn = exp(u);
-    for (long a = 0; a < my; a++) s->Gz[a] = vt[a] / (lam[a] + sn); /* ŷ_s = Q (Λ + s)⁻¹ Qᵀ v */
-    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)my, (int)my, 1.0, s->M, (int)my, s->Gz, 1, 0.0, s->v, 1);
-    operator_monomials(r, &rt->ops[0], s->v, my, L->off[0], s);
-    rho = table_norm(rt, L->off[0], L->len[0], o->n, s, &part);
+    for (long a = 0; a < my; a++) s->Gz[a] = p->vt[a] / (p->lam[a] + sn);
+    rho = root_residual(r, p, s->Gz, s, &part);
     if (k == 0) rho_lo = rho;
-    sum += (k == 0 || k == K ? 0.5 : 1.0) * exp((alpha + 1) * u) * rho / (sn + lmin);
+    sum += (k == 0 || k == K ? 0.5 : 1.0) * exp((beta + 1) * u) * rho * scale / (sn + mu);
   }
   double slo = exp(ulo), shi = exp(uhi); /* the tails: ‖r‖ constant below s_lo, ∝ 1/s above s_hi */
-  double tails = rho_lo * pow(slo, alpha + 1) / ((alpha + 1) * lmin) + rho * pow(shi, alpha) / (1 - alpha);
-  return out + sin(fabs(alpha) * M_PI) / M_PI * (h * sum + tails);
+  double tails = scale * (rho_lo * pow(slo, beta + 1) / ((beta + 1) * mu) + rho * pow(shi, beta) / (1 - beta));
+  return sin(fabs(beta) * M_PI) / M_PI * (h * sum + tails);
+}
+
+/* The integer part's error on ẑ = M̂^β v, taken exact: (M^k B − B M̂^k) ẑ chained as an application's (k ≥ 1:
+ * e_j = ‖M‖ e_{j−1} + ‖(I − BBᵀ) M B M̂^{j−1} ẑ‖, e_0 = 0, so M^(3/2)'s needs no ‖M‖) or an inverse's (k ≤ −1:
+ * e_j = (e_{j−1} + ‖(I − BBᵀ) M B M̂^{−j} ẑ‖) / λ_min, the residual of the Galerkin solve), the intermediate
+ * vectors Q Λ^γ Qᵀ v from the eigendecomposition. */
+static double root_integer_part(Reduced *r, const RootParts *p, Estimation *s) {
+  long my = p->o->my;
+  double e = 0, *coef = s->sv + 2 * my;
+  bool part;
+  for (long j = 1; j <= labs(p->k); j++) {
+    double g = p->k > 0 ? p->beta + (double)(j - 1) : p->beta - (double)j;
+    for (long a = 0; a < my; a++) coef[a] = p->vt[a] * pow(p->lam[a], g);
+    double res = root_residual(r, p, coef, s, &part);
+    e = p->k > 0 ? (j > 1 ? p->lmax * e : 0) + res : (e + res) / p->lmin;
+  }
+  return e;
+}
+
+/* Operator k's ratio of σ_min (`norm` false: a root's λ_min) or of ‖M‖ (a root of power above 1) at training
+ * samples: est_sigma for a term of one operator, else est_opc (estimate_norm_slot); NaN when not measured. */
+static double root_ratio(const RTerm *rt, int k, bool norm) {
+  if (!norm) return rt->nops == 1 ? rt->est_sigma : rt->est_opc ? rt->est_opc[k] : NAN;
+  int slot = estimate_norm_slot(rt, k);
+  return rt->est_opc && slot >= 0 ? rt->est_opc[slot] : NAN;
+}
+
+/* The step of a root (estimate_term_chains: M declared, symmetric positive definite as a root's must be, α =
+ * p/q not an integer) from v to M̂^α v, e the error of v. The integral representations (Balakrishnan's)
+ *   M^β = (sin βπ/π) ∫₀^∞ s^{β−1} M (s + M)⁻¹ ds  (0 < β < 1),   M^β = (sin |β|π/π) ∫₀^∞ s^β (s + M)⁻¹ ds  (−1 < β < 0)
+ * hold for M̂ as well, so that (with M(s + M)⁻¹ = I − s(s + M)⁻¹ for the first) in both cases
+ *   M^β B v − B M̂^β v = ∓ (sin |β|π/π) ∫₀^∞ s^β (s + M)⁻¹ r(s) ds,   r(s) = B v − (s + M) B ŷ_s,
+ * ŷ_s = (s + M̂)⁻¹ v the Galerkin solution of the shifted system: Bᵀr(s) = 0, so r(s) = −(I − BBᵀ) M B ŷ_s, the
+ * operator's block of the table at ŷ_s. With α = k + β and M̂^α = M̂^k M̂^β,
+ *   M^α B v − B M̂^α v = M^k (M^β B v − B M̂^β v) + (M^k B − B M̂^k) M̂^β v,
+ * so the figure is ‖M^α‖ e + root_quadrature + root_integer_part: ‖M^α‖ = λ^α (α < 0), λ_max(M̂)^α (0 < α < 1:
+ * the reduced Jacobian's, as the propagation's) or ‖M‖^α (α > 1), λ the min-θ bound or c λ_min(M̂) (the term's
+ * ratio). NaN with f->why. */
+static double root_step(Reduced *r, const ChainOp *o, const ChainLayout *L, double e, Estimation *s, Figure *f) {
+  const RTerm *rt = o->rt;
+  const OpPow *op = rt->ops[o->k].op;
+  long my = o->my;
+  double alpha = (double)op->p / (double)op->q;
+  RootParts p = {o, L, s->sv, s->sv + my, op->p / op->q, 0, NAN, NAN};
+  p.beta = alpha - (double)p.k;
+  f->flags &= ~EST_BOUND; /* a ratio and a quadrature enter */
+  if (my == 0) return alpha < 0 ? 0 : e;
+  memcpy(s->M, o->kp->M, sizeof(double) * (size_t)(my * my));
+  if (LAPACKE_dsyev(LAPACK_ROW_MAJOR, 'V', 'U', (int)my, s->M, (int)my, p.lam) != 0 || !(p.lam[0] > 0))
+    return snprintf(f->why, sizeof f->why, "term %d's reduced operator %d is not positive definite (LAPACK's "
+                    "smallest eigenvalue %.3g): a root's estimate needs it", o->t + 1, o->k + 1, p.lam[0]), NAN;
+  double theta = rt->nops == 1 ? theta_bound(r, rt) : 0, c = root_ratio(rt, o->k, false);
+  if (!(theta > 0) && isnan(c))
+    return snprintf(f->why, sizeof f->why, "no measure of σ_min for operator %d of term %d (training found it "
+                    "singular at a sample, or its rows exceed %d, the sparse limit)", o->k + 1, o->t + 1,
+                    ESTIMATE_SPARSE_MAX), NAN;
+  p.lmin = theta > 0 ? theta : c * p.lam[0];
+  if (p.k >= 1 && isnan(p.lmax = root_ratio(rt, o->k, true) * p.lam[my - 1]))
+    return snprintf(f->why, sizeof f->why, "no measure of ‖M‖ for operator %d of term %d, a root of power above 1 "
+                    "(training found it zero at a sample, or its rows exceed %d, the sparse limit)", o->k + 1,
+                    o->t + 1, ESTIMATE_SPARSE_MAX), NAN;
+  double out = e > 0 ? e * pow(alpha < 0 ? p.lmin : alpha > 1 ? p.lmax : p.lam[my - 1], alpha) : 0;
+  cblas_dgemv(CblasRowMajor, CblasTrans, (int)my, (int)my, 1.0, s->M, (int)my, o->kp->chain, 1, 0.0, p.vt, 1);
+  return out + root_quadrature(r, &p, s) + root_integer_part(r, &p, s);
 }
 
 /* Term t of stage i, chained operator by operator (estimate_term_chains, its ChainLayout): e = the numerator's
@@ -577,9 +660,10 @@ static int chain_figure(Reduced *r, int i, int t, Estimation *s, double carried,
     if (!o.kp)
       return snprintf(f->why, sizeof f->why, "term %d's reduced operators are not kept from the evaluation (its "
                       "inputs changed since?)", t + 1), -1;
-    if (rt->ops[k].op->q != 1) { /* a root: the term's one operator */
+    if (rt->ops[k].op->q != 1) { /* a root: never joined with an inverse after it (its result is in the class) */
       if (isnan(e = root_step(r, &o, &L, e, s, f))) return -1;
       roundoff = false;
+      prev = o.kp;
       continue;
     }
     long p = rt->ops[k].op->p;
@@ -786,12 +870,14 @@ int estimate_eval(Reduced *r, const double *input_err, EstimateResult *e) {
 
 static void est_name(char *buf, size_t n, const char *stage, int t) { snprintf(buf, n, "est_%s_t%d", stage, t); }
 
-/* "estops STAGE T c_1 … c_K": a term of several operators' ratios (RTerm.est_opc), after its estimate line. */
+/* "estops STAGE T c_1 … c_K": a chained term's ratios (RTerm.est_opc, estimate_term_ratios of them), after its
+ * estimate line. */
 static int save_opc(const RTerm *rt, const char *stage, int t, ModelStore *s) {
-  if (!rt->est_opc || rt->nops > ESTIMATE_OPS_MAX) return 0; /* training measures none above */
-  char line[32 * (ESTIMATE_OPS_MAX + 1)];
+  int K = estimate_term_ratios(rt);
+  if (!rt->est_opc || K < 1) return 0; /* training measures none above ESTIMATE_OPS_MAX */
+  char line[32 * (2 * ESTIMATE_OPS_MAX + 1)];
   int used = 0;
-  for (int k = 0; k < rt->nops; k++) used += snprintf(line + used, sizeof line - (size_t)used, " %.17g", rt->est_opc[k]);
+  for (int k = 0; k < K; k++) used += snprintf(line + used, sizeof line - (size_t)used, " %.17g", rt->est_opc[k]);
   return model_store_meta(s, "estops %s %d%s", stage, t, line);
 }
 
@@ -932,7 +1018,8 @@ static int load_carry_line(Model *m, const char *line, const char *dir, Err *err
                  dir, line);
 }
 
-/* "estops STAGE T c_1 … c_K": the ratios of a chained term of K ≥ 2 operators with a table (after its line). */
+/* "estops STAGE T c_1 … c_K": the ratios of a chained term with a table (after its line): K = estimate_term_ratios,
+ * one per operator of a term of several, then one ‖M‖ ratio per root of power above 1. */
 static int load_opc_line(Model *m, const char *line, const char *dir, Err *err) {
   char stage[512];
   int t, used = 0;
@@ -940,11 +1027,12 @@ static int load_opc_line(Model *m, const char *line, const char *dir, Err *err) 
   for (int i = 0; ok && i < m->nstages; i++) {
     if (strcmp(m->stages[i].st->sym->name, stage) != 0) continue;
     RTerm *rt = t >= 0 && t < m->stages[i].nterms ? &m->stages[i].terms[t] : NULL;
-    if (!rt || !rt->est_G || rt->nops < 2 || !estimate_term_chains(rt)) break;
+    int K = rt ? estimate_term_ratios(rt) : 0;
+    if (!rt || !rt->est_G || K < 1) break;
     free(rt->est_opc);
-    if (!(rt->est_opc = malloc(sizeof(double) * (size_t)rt->nops))) return err_set(err, "%s: out of memory", dir);
+    if (!(rt->est_opc = malloc(sizeof(double) * (size_t)K))) return err_set(err, "%s: out of memory", dir);
     const char *p = line + used;
-    for (int k = 0; k < rt->nops; k++) {
+    for (int k = 0; k < K; k++) {
       char *end;
       rt->est_opc[k] = strtod(p, &end);
       if (end == p || !(isnan(rt->est_opc[k]) || rt->est_opc[k] > 0)) ok = false;

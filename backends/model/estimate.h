@@ -42,9 +42,10 @@
  * An operator application y = M^p w, or a term of several declared operators (estimate_term_chains),
  * chains each operator's projection residual ‖(I − BBᵀ) M B v‖ (exact, its own block of the table)
  * through the steps, the error before each step multiplied by ‖M‖ or divided by σ_min(M)
- * (estimated from training samples). A root M^α w (0 < |α| < 1) integrates the same residual of the
- * shifted systems (s + M̂)⁻¹ŵ over s (estimate.c's root_step). Externs, other roots of declared ops
- * and terms of several operators with a root among them have none. */
+ * (estimated from training samples). A root M^α w integrates the same residual of the shifted systems
+ * (s + M̂)⁻¹ŵ over s for its fractional part β (α = k + β, 0 < |β| < 1), carried through M^k, and chains
+ * its integer part k as an application's or an inverse's (estimate.c's root_step), alone or among the
+ * operators of a term. Externs, and terms with a diagonal operator among several, have none. */
 #ifndef NPG_ESTIMATE_H
 #define NPG_ESTIMATE_H
 
@@ -89,10 +90,10 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n);
 /* D, the length of z_t (above) for term `t` of stage `i`. */
 long estimate_term_dim(const Model *m, int i, int t);
 /* Whether term `rt`'s figure is chained operator by operator: one declared operator applied to a
- * positive integer power, y_t = M^p w_t (an operator application), or to a power p/q with 0 < |p/q|
- * < 1 (a root: its step is root_step's quadrature, its ratio σ_min's), or up to ESTIMATE_OPS_MAX
- * declared operators, each to a positive integer power or inverted (M^p K⁻¹ w_t, applied right to
- * left). Its table is block diagonal (ChainLayout): R of the QR of each block of projected columns
+ * positive integer power, y_t = M^p w_t (an operator application), or to a power p/q, q > 1 (a root:
+ * its step is root_step's quadrature with its integer part chained, its ratio σ_min's, and for p/q > 1
+ * also ‖M‖'s), or up to ESTIMATE_OPS_MAX declared operators, each to a positive integer power,
+ * inverted, or a root (M^p K⁻¹ L^(1/2) w_t, applied right to left). Its table is block diagonal (ChainLayout): R of the QR of each block of projected columns
  * apart — the numerator's (w_t's own projection error), each applied operator's ((I − BBᵀ) M B ⊗
  * its tensors' monomials), and each inverse's, joined with what produced its operand (the
  * numerator, or an applied operator of power 1): the Galerkin residual of that operand, as an
@@ -104,6 +105,12 @@ long estimate_term_dim(const Model *m, int i, int t);
  * e ← (e + ‖r‖) / σ_min(M), r = (I − BBᵀ)(g − M B v'), g the operand's full-space producer, σ_min ≈
  * c σ_min(M̂): an estimate, exact only for y = M w of an exact numerator (no ratio enters). */
 bool estimate_term_chains(const RTerm *rt);
+/* The ratios a chained term keeps in RTerm.est_opc (the manifest's estops line): one per operator for a term of
+ * several (as above; a root's is σ_min's), then one ‖M‖ ratio (the largest ‖M‖₂/‖BᵀMB‖₂) per root of power p/q >
+ * 1, in the order of the operators; 0 for a term of one operator and no such root (its ratio is est_sigma). */
+int estimate_term_ratios(const RTerm *rt);
+/* Where operator k's ‖M‖ ratio is in est_opc (a root of power above 1 of a chained term), else -1. */
+int estimate_norm_slot(const RTerm *rt, int k);
 /* A chained term's columns: the numerator's [0, nnum), operator k's [off[k], off[k] + len[k]); an
  * inverse's block starts at start[k] (0: the numerator's, off[k − 1]: the applied operator of power
  * 1 before it, whose columns it joins; else off[k]); `joins[k + 1]`: the numerator (k = −1) or

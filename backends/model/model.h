@@ -83,9 +83,10 @@ typedef struct RTerm {
    * the numerator's has a product (the norms differ: estimate_product.c); 0: not measured (no
    * estimate then), and unused when neither class has a product (the factor is 1) */
   double est_carry;
-  /* a term of several operators (estimate_term_chains): per operator, c = the largest ‖M‖/‖BᵀMB‖ (an
-   * application) or the smallest σ_min(M)/σ_min(BᵀMB) (an inverse) at training samples; NaN: unknown
-   * (nops entries, owned; NULL for a term of one operator, whose c is est_sigma) */
+  /* a chained term (estimate_term_chains): for several operators, per operator, c = the largest ‖M‖/‖BᵀMB‖
+   * (an application) or the smallest σ_min(M)/σ_min(BᵀMB) (an inverse, a root) at training samples, then
+   * the ‖M‖ ratio of each root of power above 1; NaN: unknown (estimate_term_ratios entries, owned; NULL
+   * when there are none: a term of one operator's c is est_sigma) */
   double *est_opc;
 } RTerm;
 

@@ -691,10 +691,10 @@ int estimate_operator_sigma(const EstWork *w, const RTerm *rt, long n, double *s
 
 /* sig[0] = σ_min(M), sig[1] = σ_min(BᵀMB) of inverse term rt of `stage` at the evaluator's current values: M
  * assembled dense and decomposed by LAPACK up to ESTIMATE_DENSE_MAX rows, sparse above (estimate_sparse_smallest_sv).
- * An applied operator's (a positive integer power): ‖M‖₂ and ‖BᵀMB‖₂ instead (largest_sv, sparse_largest_sv). rt's first
- * operator is measured (a term of several operators is measured through a view of each, run_view). */
-static int term_sigmas(const EstWork *w, const RTerm *rt, const RClass *rc, const char *stage, double sig[2]) {
-  bool norm = rt->ops[0].op->p > 0 && rt->ops[0].op->q == 1;
+ * With `norm` (an applied operator's, or a root's of power above 1): ‖M‖₂ and ‖BᵀMB‖₂ instead (largest_sv,
+ * sparse_largest_sv). rt's first operator is measured (a term of several operators is measured through a view of
+ * each, run_view). */
+static int term_sigmas(const EstWork *w, const RTerm *rt, const RClass *rc, const char *stage, bool norm, double sig[2]) {
   cholmod_common *cc = w->cc;
   long n = rc->n, my = rc->m;
   Scratch sc = SCRATCH_OF(NULL);
@@ -740,7 +740,8 @@ static int term_sigmas(const EstWork *w, const RTerm *rt, const RClass *rc, cons
 typedef struct SigmaRun {
   EstWork w;
   const SampleSource *src;
-  int (*terms)[3];          /* (stage, term, operator) of each: operator -1 for a term of one (its est_sigma) */
+  int (*terms)[4];          /* (stage, term, operator, ‖M‖ of a root) of each: operator -1 for a term of one (its
+                             * est_sigma); the fourth 1 for the ‖M‖ ratio of a root of power above 1 (est_opc) */
   int nt;
   long nk;                  /* picked samples: k_j = j (S − 1) / (nk − 1) */
   int rank, N;              /* sample k is rank k mod N's (over MPI ranks, as the snapshots are taken) */
@@ -751,18 +752,28 @@ typedef struct SigmaRun {
 #define SIGMA_REC (3 + ESTIMATE_THETA_MAX)
 
 static RTerm *run_term(const SigmaRun *s, int e) { return &s->w.m->stages[s->terms[e][0]].terms[s->terms[e][1]]; }
-/* The term measured by record e: the term itself, or a view of its one operator (into `view`). */
+/* The term measured by record e: the term itself, or a view of its one operator (into `view`; a root's ‖M‖ record's
+ * without the min-θ table, whose anchors are λ_min's). */
 static const RTerm *run_view(const SigmaRun *s, int e, RTerm *view) {
   const RTerm *rt = run_term(s, e);
   if (s->terms[e][2] < 0) return rt;
   *view = *rt;
   view->ops = &rt->ops[s->terms[e][2]], view->nops = 1;
+  if (s->terms[e][3]) view->est_theta = NULL, view->est_theta_k = 0;
   return view;
 }
-/* Where record e's ratio goes: the term's est_sigma, or its operator's est_opc entry. */
+/* Where record e's ratio goes: the term's est_sigma, or its operator's est_opc entry (a root's ‖M‖ ratio: its
+ * estimate_norm_slot). */
 static double *run_ratio(const SigmaRun *s, int e) {
   RTerm *rt = run_term(s, e);
+  if (s->terms[e][3]) return &rt->est_opc[estimate_norm_slot(rt, s->terms[e][2])];
   return s->terms[e][2] < 0 ? &rt->est_sigma : &rt->est_opc[s->terms[e][2]];
+}
+/* Whether record e measures ‖M‖ (the largest ratio kept) rather than σ_min (the smallest). */
+static bool run_norm(const SigmaRun *s, int e) {
+  RTerm view;
+  const OpPow *op = run_view(s, e, &view)->ops[0].op;
+  return s->terms[e][3] || (op->p > 0 && op->q == 1);
 }
 static const RClass *run_class(const SigmaRun *s, int e) {
   return &s->w.m->classes[s->w.m->qclass[s->w.m->stages[s->terms[e][0]].q]];
@@ -799,6 +810,7 @@ static int theta_detect(SigmaRun *s) {
   if (out == 0 && s->N > 1) dist_broadcast(q, s->nt, 0);
   for (int e = 0; out == 0 && e < s->nt; e++) {
     RTerm *rt = run_term(s, e);
+    if (s->terms[e][3]) continue; /* a root's ‖M‖ record: its term's λ_min record decides */
     free(rt->est_theta);
     rt->est_theta = NULL, rt->est_theta_k = 0;
     if (q[e] < 0) continue;
@@ -820,7 +832,8 @@ static int sigma_records(SigmaRun *s) {
       RTerm view;
       const RTerm *rt = run_view(s, e, &view);
       double *r = s->rec + ((long)e * s->nk + j) * SIGMA_REC;
-      if (term_sigmas(&s->w, rt, run_class(s, e), s->w.m->stages[s->terms[e][0]].st->sym->name, r)) return -1;
+      if (term_sigmas(&s->w, rt, run_class(s, e), s->w.m->stages[s->terms[e][0]].st->sym->name, run_norm(s, e), r))
+        return -1;
       size_t nx = 0;
       const double *x =
           rt->est_theta ? full_get(s->w.f, ((const Sym *)s->w.m->prog->quantities.v[rt->est_theta_q])->name, &nx) : NULL;
@@ -836,10 +849,10 @@ static int sigma_records(SigmaRun *s) {
 static void sigma_fold(SigmaRun *s) {
   for (long j = 0; j < s->nk; j++)
     for (int e = 0; e < s->nt; e++) {
-      RTerm *rt = run_term(s, e), view;
+      RTerm *rt = run_term(s, e);
       double *c = run_ratio(s, e);
       const double *r = s->rec + ((long)e * s->nk + j) * SIGMA_REC;
-      bool anchor = rt->est_theta && r[2] == 1 && r[0] > 0;
+      bool anchor = rt->est_theta && !s->terms[e][3] && r[2] == 1 && r[0] > 0;
       for (long a = 0; anchor && a < rt->est_theta_n; a++) anchor = r[3 + a] > 0;
       if (anchor) {
         double *row = rt->est_theta + (long)rt->est_theta_k++ * (rt->est_theta_n + 1);
@@ -847,8 +860,7 @@ static void sigma_fold(SigmaRun *s) {
         row[rt->est_theta_n] = r[0];
       }
       double ratio = r[0] / r[1];
-      const OpPow *op = run_view(s, e, &view)->ops[0].op;
-      if (op->p > 0 && op->q == 1) { /* the largest ‖M‖/‖BᵀMB‖ (M = 0: no ratio); a failed one: none */
+      if (run_norm(s, e)) { /* the largest ‖M‖/‖BᵀMB‖ (M = 0: no ratio); a failed one: none */
         if (r[0] == 0 && r[1] == 0) continue;
         if (!(ratio > 0 && isfinite(ratio))) *c = 0;
         else if (isnan(*c) || (*c > 0 && ratio > *c)) *c = ratio;
@@ -860,7 +872,8 @@ static void sigma_fold(SigmaRun *s) {
 }
 
 /* The records of run s: every term of one operator with a table (its class within the sparse limit, without a
- * product), and each operator of a chained term of several (its est_opc made, NaN until measured). */
+ * product), each operator of a chained term of several, and the ‖M‖ of each root of power above 1 (its est_opc
+ * made, estimate_term_ratios entries, NaN until measured). */
 static int sigma_terms(SigmaRun *s) {
   Model *m = s->w.m;
   for (int i = 0; i < m->nstages; i++)
@@ -871,12 +884,19 @@ static int sigma_terms(SigmaRun *s) {
       if (!rt->est_G || rc->n > ESTIMATE_SPARSE_MAX || rc->product || !rc->B) continue;
       bool several = rt->nops > 1 && estimate_term_chains(rt) && rt->nops <= ESTIMATE_OPS_MAX;
       if (rt->nops != 1 && !several) continue;
+      int K = estimate_term_ratios(rt);
       free(rt->est_opc);
-      rt->est_opc = several ? malloc(sizeof(double) * (size_t)rt->nops) : NULL;
-      if (several && !rt->est_opc) return -1;
+      rt->est_opc = K > 0 ? malloc(sizeof(double) * (size_t)K) : NULL;
+      if (K > 0 && !rt->est_opc) return -1;
+      for (int k = 0; k < K; k++) rt->est_opc[k] = NAN;
       for (int k = several ? 0 : -1; k < (several ? rt->nops : 0); k++) {
-        if (k >= 0) rt->est_opc[k] = NAN;
-        s->terms[s->nt][0] = i, s->terms[s->nt][1] = t, s->terms[s->nt++][2] = k;
+        int *rec = s->terms[s->nt++];
+        rec[0] = i, rec[1] = t, rec[2] = k, rec[3] = 0;
+      }
+      for (int k = 0; k < rt->nops; k++) {
+        if (estimate_norm_slot(rt, k) < 0) continue;
+        int *rec = s->terms[s->nt++];
+        rec[0] = i, rec[1] = t, rec[2] = k, rec[3] = 1;
       }
     }
   return 0;
@@ -893,7 +913,7 @@ static int sigma_ratios(Model *m, Full *f, const SampleSource *src, bool dist, E
                 dist ? dist_rank() : 0, dist ? dist_size() : 1, NULL};
   int n = 0;
   for (int i = 0; i < m->nstages; i++)
-    for (int t = 0; t < m->stages[i].nterms; t++) n += m->stages[i].terms[t].nops > 1 ? m->stages[i].terms[t].nops : 1;
+    for (int t = 0; t < m->stages[i].nterms; t++) n += 1 + m->stages[i].terms[t].nops + estimate_term_ratios(&m->stages[i].terms[t]);
   Scratch sc = SCRATCH_OF(NULL);
   int out = (s.terms = scratch_array_unzeroed(&sc, (size_t)n + 1, sizeof *s.terms)) && !sigma_terms(&s) &&
                     (s.rec = scratch_array(&sc, (size_t)(s.nt * s.nk * SIGMA_REC) + 1, sizeof(double))) &&
@@ -910,7 +930,7 @@ static int sigma_ratios(Model *m, Full *f, const SampleSource *src, bool dist, E
     for (int t = 0; t < m->stages[i].nterms; t++) {
       RTerm *rt = &m->stages[i].terms[t];
       if (rt->est_sigma == 0) rt->est_sigma = NAN;
-      for (int k = 0; rt->est_opc && k < rt->nops; k++)
+      for (int k = 0; rt->est_opc && k < estimate_term_ratios(rt); k++)
         if (rt->est_opc[k] == 0) rt->est_opc[k] = NAN;
     }
   return 0;

@@ -1,8 +1,9 @@
 """estimate_apply.py BUILD_DIR — the online error estimate of operator applications (issue 41):
 y = M(w) x (tests/programs/op_application.npg, M_ij = a_ij w_i w_j, a symmetric positive definite),
 its square M² x, M applied to an unnamed numerator x + v, terms of two operators, K⁻¹ M x and
-M K⁻¹ x (K = a + diag(w)), roots K^(1/2) x, K^(-1/2) x, K^(2/3) (x + v), and beyond the dense limit
-the thermal block's K x, K² x, K^(1/2) x (900 unknowns), as a user runs them: npgc train, npgc eval
+M K⁻¹ x (K = a + diag(w)), roots K^(1/2) x, K^(-1/2) x, K^(2/3) (x + v), roots of power above 1 K^(3/2) x,
+K^(-3/2) x, K^(5/3) x, roots among several operators K⁻¹ M^(1/2) x and M^(1/2) K⁻¹ x, a diagonal operator
+among them K⁻¹ diag(w)⁻¹ x and K diag(w)⁻¹ x (x / w), and beyond the dense limit the thermal block's K x, K² x, K^(1/2) x, K^(3/2) x, K^(-3/2) x (900 unknowns), as a user runs them: npgc train, npgc eval
 (OUT/NAME.estimate.npy). The true errors come from numpy's own products (an independent oracle).
 With inputs in their bases (x and w in three-dimensional families) the figure of y = M x is the
 projection residual ‖(I − BBᵀ) M B x̂‖ itself: effectivity 1 to rounding, flagged a bound. Where
@@ -41,6 +42,29 @@ op K[i:N, j:N] = a[i, j] + delta(i, j) * w[i]
 output r = root(K, 2) * x
 output h = K^(-1/2) * x
 output g = K^(2/3) * (x + v)
+"""
+# roots of power above 1 (the fractional part's quadrature carried through the integer part) and roots among
+# several operators, then a diagonal operator (diag(w)⁻¹, from x / w) among them: programs of their own, so that
+# each class stays below the full space (x's class takes up to 8 vectors a member)
+ROOTSX = """dim N
+param  a : real[N, N]
+input  w : real[N]
+input  x : real[N]
+op K[i:N, j:N] = a[i, j] + delta(i, j) * w[i]
+op M[i:N, j:N] = a[i, j] * w[i] * w[j]
+output p = K^(3/2) * x
+output n = K^(-3/2) * x
+output f = K^(5/3) * x
+output c = K^-1 * (M^(1/2) * x)
+output l = M^(1/2) * (K^-1 * x)
+"""
+DIAGX = """dim N
+param  a : real[N, N]
+input  w : real[N]
+input  x : real[N]
+op K[i:N, j:N] = a[i, j] + delta(i, j) * w[i]
+output dv = K^-1 * (x / w)
+output da = K * (x / w)
 """
 
 
@@ -162,12 +186,38 @@ def roots(d, a, train, test, st):
                                     ("g", 2 / 3, "K^(2/3) (x + v)", x + v)):
         truth = np.array([power(K(w[k]), alpha) @ rhs[k] for k in range(len(w))])
         check(label, *effectivity(out, name, truth), 1, 20)
+    prog, model, out = (os.path.join(d, n) for n in ("rootsx.npg", "ROOTSX", "OUTX"))
+    open(prog, "w").write(ROOTSX)
+    run("train", prog, train, "--basis", "x:cap=8", "-o", model)
+    manifest = open(os.path.join(model, "manifest")).read()
+    for line in ("\nestops p 0 ", "\nestops f 0 ", "\nestops c 0 ", "\nestops l 0 ", "\nestimate n 0 dim "):
+        if line not in manifest:
+            fail("the model holds no '%s' line (a root's table or its ‖M‖ ratio):\n%s" % (line.strip(), manifest))
+    run("eval", prog, model, test, "-o", out)
+    M = lambda w: a * np.outer(w, w)
+    for name, label, truth in (
+            ("p", "K^(3/2) x", lambda k: power(K(w[k]), 1.5) @ x[k]),
+            ("n", "K^(-3/2) x", lambda k: power(K(w[k]), -1.5) @ x[k]),
+            ("f", "K^(5/3) x", lambda k: power(K(w[k]), 5 / 3) @ x[k]),
+            ("c", "K⁻¹ M^(1/2) x", lambda k: np.linalg.solve(K(w[k]), power(M(w[k]), 0.5) @ x[k])),
+            ("l", "M^(1/2) K⁻¹ x", lambda k: power(M(w[k]), 0.5) @ np.linalg.solve(K(w[k]), x[k]))):
+        check(label, *effectivity(out, name, np.array([truth(k) for k in range(len(w))])), 1, 20)
+    prog, model, out = (os.path.join(d, n) for n in ("diagx.npg", "DIAGX", "OUTD"))
+    open(prog, "w").write(DIAGX)
+    run("train", prog, train, "--basis", "x:cap=8", "-o", model)
+    if "\nestops dv 0 " not in open(os.path.join(model, "manifest")).read():
+        fail("the model holds no ratios per operator for K⁻¹ diag(w)⁻¹ x")
+    run("eval", prog, model, test, "-o", out)
+    for name, label, truth in (("dv", "K⁻¹ diag(w)⁻¹ x", lambda k: np.linalg.solve(K(w[k]), x[k] / w[k])),
+                               ("da", "K diag(w)⁻¹ x", lambda k: K(w[k]) @ (x[k] / w[k]))):
+        check(label, *effectivity(out, name, np.array([truth(k) for k in range(len(w))])), 1, 20)
 
 
 def sparse():
     """Beyond the dense limit of 800 rows: the thermal block's K(mu) (tests/cli/thermal_block.npg, 30 x 30 cells)
     applied to an input x of three smooth modes, its square and its root; ‖K‖ and σ_min(K) measured in training
-    by Lanczos on the sparse operator (K's on KᵀK, the root's on K⁻¹), the root's λ_min by the min-θ bound."""
+    by Lanczos on the sparse operator (K's on KᵀK, the root's on K⁻¹), the root's λ_min by the min-θ bound. Then
+    K^(3/2) x and K^(-3/2) x in a model of their own (‖K‖'s ratio by Lanczos for the first)."""
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import estimate_sparse as sp
     G = 30
@@ -191,16 +241,28 @@ def sparse():
             fail("a ratio of the sparse operator was not measured, or the root's operator, affine in mu with "
                  "semidefinite terms, has no min-θ anchors:\n" + manifest)
         run("eval", os.path.join(d, "block.npg"), model, test, "-o", out)
-        truth = {"v": [], "s": [], "r": []}
+        truth = {"v": [], "s": [], "r": [], "p": [], "n": []}
         for k in range(len(mu)):
             c = sp.faces(mu[k], nbr, blk)
             K = np.column_stack([sp.apply_spd(e, c, nbr) for e in np.eye(G * G)])
             lam, Q = np.linalg.eigh(K)
             truth["v"].append(K @ x[k]), truth["s"].append(K @ K @ x[k])
             truth["r"].append(Q @ (np.sqrt(lam) * (Q.T @ x[k])))
+            truth["p"].append(Q @ (lam ** 1.5 * (Q.T @ x[k]))), truth["n"].append(Q @ (lam ** -1.5 * (Q.T @ x[k])))
         check("sparse K x", *effectivity(out, "v", np.array(truth["v"])), 1 - 1e-6, 1 + 1e-6)
         check("sparse K² x", *effectivity(out, "s", np.array(truth["s"])), 1, 20)
         check("sparse K^(1/2) x", *effectivity(out, "r", np.array(truth["r"])), 1, 20)
+        prog = open(sp.PROG).read().replace("basis u: max 8\n", "").replace(
+            "output u = solve(K, src)\n", "input x : real[N]\noutput p = K^(3/2) * x\noutput n = K^(-3/2) * x\n")
+        open(os.path.join(d, "blockx.npg"), "w").write(prog)
+        model, out = os.path.join(d, "MODELX"), os.path.join(d, "OUTX")
+        run("train", os.path.join(d, "blockx.npg"), train, "-o", model)
+        manifest = open(os.path.join(model, "manifest")).read()
+        if "\nestops p 0 " not in manifest or "\ntheta n 0 input mu" not in manifest:
+            fail("K^(3/2) has no ‖K‖ ratio, or K^(-3/2) no min-θ anchors:\n" + manifest)
+        run("eval", os.path.join(d, "blockx.npg"), model, test, "-o", out)
+        check("sparse K^(3/2) x", *effectivity(out, "p", np.array(truth["p"])), 1, 20)
+        check("sparse K^(-3/2) x", *effectivity(out, "n", np.array(truth["n"])), 1, 20)
 
 
 if __name__ == "__main__":
