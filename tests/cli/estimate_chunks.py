@@ -5,8 +5,9 @@ whole. NPG_TEST_ESTIMATE_CHUNKS=ROWS makes every table that route, ROWS rows a c
 both ways and the two models must hold the same tables to rounding (RᵀR, what ‖R z‖ depends on, to 1e-10 of the
 largest column norm squared; the columns' norms to 1e-12 relative) and give the same estimates on test samples (to
 1e-9 relative, the same flags). The programs cover every table kind: a contraction and an inverse (the thermal
-block's u = K⁻¹ src, 900 unknowns, with its sparse σ_min), applications, powers, chains and roots (block tables
-apart per column block: tests/cli/estimate_apply.py's programs)."""
+block's u = K⁻¹ src, 900 unknowns, with its sparse σ_min), applications, powers, chains and roots (of powers above 1, among
+several operators, a diagonal operator among them: block tables apart per column block: tests/cli/estimate_apply.py's
+programs)."""
 import os
 import subprocess
 import sys
@@ -86,10 +87,11 @@ def main():
         ap.write(train, dict(ap.samples(rng, phi, psi, 20), a=a))
         ap.write(test, dict(ap.samples(rng, phi, psi, 6, noise=1e-3), a=a))
         compare("apply", ap.PROG, train, test, d, ("--basis", "x:cap=8"))
-        for label, text in (("chain", ap.CHAIN), ("roots", ap.ROOTS)):
+        for label, text in (("chain", ap.CHAIN), ("roots", ap.ROOTS), ("rootsx", ap.ROOTSX), ("diagx", ap.DIAGX)):
             prog = os.path.join(d, label + ".npg")
             open(prog, "w").write(text)
-            compare(label, prog, train, test, d, ("--basis", "x:cap=8", "--basis", "v:energy=1"))
+            v = ("--basis", "v:energy=1") if "input  v" in text else ()
+            compare(label, prog, train, test, d, ("--basis", "x:cap=8") + v)
         G = 30
         nbr, blk, src = sp.grid(G)
         tb_train, tb_test = os.path.join(d, "TB"), os.path.join(d, "TBTEST")
