@@ -39,12 +39,14 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
                     "only" : "only inverses and positive powers of declared operators have an estimate"),
            false;
   const RClass *rc = &m->classes[m->qclass[rs->q]];
-  if (rc->product && estimate_term_chains(rt))
-    return snprintf(why, n, "term %d applies operators in class %s, orthonormal in the inner product of %s (its "
-                    "figure is Euclidean: in a product projections and inverses have an estimate)", t + 1, rc->label,
-                    rc->product->name), false;
+  if (rc->product && estimate_term_chains(rt) && !estimate_term_applies(rt))
+    return snprintf(why, n, "term %d %s in class %s, orthonormal in the inner product of %s (there projections, "
+                    "inverses and operators applied to positive powers have an estimate)", t + 1,
+                    rt->nops == 1 ? "takes a root, reduced as (BᵀMB)^α Bᵀw, no approximation in K0's norm,"
+                                  : "chains a solve with other operators", rc->label, rc->product->name), false;
   /* in a product K0 the figure is ‖e‖_K0 (estimate_product.c): an inverse's from the residual's dual norm, a
-   * projection's exactly, a named numerator's error carried across the norms (RTerm.est_carry) */
+   * projection's and an application's residuals exactly, ‖M‖_K0 estimated, a named numerator's error carried
+   * across the norms (RTerm.est_carry) */
   if (!m->classes[m->qclass[rs->q]].B && !m->classes[m->qclass[rs->q]].streamed)
     return snprintf(why, n, "class %s has no basis", m->classes[m->qclass[rs->q]].label), false;
   return true;
@@ -80,6 +82,12 @@ int estimate_norm_slot(const RTerm *rt, int k) {
   int slot = rt->nops > 1 ? rt->nops : 0;
   for (int j = 0; j < k; j++) slot += root_above_one(rt->ops[j].op);
   return slot;
+}
+
+bool estimate_term_applies(const RTerm *rt) {
+  for (int k = 0; k < rt->nops; k++)
+    if (rt->ops[k].op->kind != OPK_DECL || rt->ops[k].op->q != 1 || rt->ops[k].op->p < 1) return false;
+  return rt->nops > 0 && rt->nops <= ESTIMATE_OPS_MAX;
 }
 
 void estimate_chain_layout(const Model *m, int i, int t, ChainLayout *L) {

@@ -28,7 +28,8 @@
  * columns (backends/train/estimate_product.c), the same ‖R_t z_t‖ online, over the min-θ
  * bound relative to K0 (one anchor x̄ with M(x̄) = K0, λ = 1, or the pencil's anchors,
  * λ = λ_min(M(x̄), K0)); no σ_min fallback there. A projection term's (ŷ_t = BᵀK0 w_t) is
- * ‖(I − BBᵀK0) w_t‖_K0 = ‖R_t z_t‖, R_t of the columns weighted by K0's Cholesky factor. A
+ * ‖(I − BBᵀK0) w_t‖_K0 = ‖R_t z_t‖, R_t of the columns weighted by K0's Cholesky factor; an operator
+ * application's (ŷ_t = (DᵀMB)^p Dᵀw_t) the chain below in K0's norm (estimate_term_applies). A
  * named numerator's error e_w enters as RTerm.est_carry · e_w when a product is involved.
  *
  * Chaining: a named numerator w carries its own estimate e_w into the term
@@ -111,6 +112,11 @@ bool estimate_term_chains(const RTerm *rt);
 int estimate_term_ratios(const RTerm *rt);
 /* Where operator k's ‖M‖ ratio is in est_opc (a root of power above 1 of a chained term), else -1. */
 int estimate_norm_slot(const RTerm *rt, int k);
+/* Whether term rt only applies declared operators, each to a positive integer power (M^p N^q w): in a class with a
+ * product K0 it is then reduced by K0-projections, (DᵀMB)^p Dᵀw (model_term_projects), and its figure is the chain
+ * above in K0's norm: each residual ‖(I − BBᵀK0) M B v‖_K0 (the table's columns weighted by K0's Cholesky factor,
+ * as a projection's: backends/train/estimate_product.c), ‖M‖_K0 ≈ c ‖DᵀMB‖₂. */
+bool estimate_term_applies(const RTerm *rt);
 /* A chained term's columns: the numerator's [0, nnum), operator k's [off[k], off[k] + len[k]); an
  * inverse's block starts at start[k] (0: the numerator's, off[k − 1]: the applied operator of power
  * 1 before it, whose columns it joins; else off[k]); `joins[k + 1]`: the numerator (k = −1) or

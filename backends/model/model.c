@@ -181,12 +181,20 @@ static int layout_stages(Model *m, Program *prog, Err *err) {
   return 0;
 }
 
+const double *model_tensor_rows(const RClass *rc, const RTerm *rt, const RTensor *x) {
+  int k = -1;
+  for (int o = 0; o < rt->nops; o++)
+    if (x >= rt->ops[o].t && x < rt->ops[o].t + rt->ops[o].ntensors) k = o;
+  return model_term_projects(rt, k) ? model_projector(rc) : rc->B;
+}
+
 int model_named_projections(Model *m, Err *err) {
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) {
       RTerm *rt = &m->stages[i].terms[t];
       const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
-      if (rt->named_q < 0 || rt->proj_name || rt->nops == 0 || !rc->product) continue;
+      /* in its own class, projected by Dᵀ (model_term_projects) w's coordinates are exact: DᵀB = I */
+      if (rt->named_q < 0 || rt->proj_name || model_term_projects(rt, -1) || !rc->product) continue;
       if (!(rt->proj_name = file_stem(dupf("proj_%s_t%d", m->stages[i].st->sym->name, t)))) return layout_oom(err);
     }
   return 0;

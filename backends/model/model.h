@@ -71,7 +71,8 @@ typedef struct RTerm {
   double *est_G;
   long est_D;
   double est_sigma;         /* an inverse term: min over training samples of σ_min(M)/σ_min(BᵀMB); NaN: unknown; in a
-                               class with a product: NaN, or 1 when its min-θ figure is an estimate (estimate_product.c) */
+                               class with a product: NaN, or 1 when its min-θ figure is an estimate (estimate_product.c); an
+                               application's (estimate_term_chains): its ratio c (in a product ‖M‖_K0/‖DᵀMB‖₂) */
   /* the min-θ lower bound (estimate.h): M(x) = M_0 + Σ x_j M_j, x input est_theta_q (est_theta_n
    * entries), every M_j symmetric positive semidefinite; est_theta_k anchors, each x̄ then λ_min(M(x̄))
    * (in a class with a product K0: the pencil's λ_min(M(x̄), K0) on the error's rows)
@@ -84,9 +85,9 @@ typedef struct RTerm {
    * estimate then), and unused when neither class has a product (the factor is 1) */
   double est_carry;
   /* a chained term (estimate_term_chains): for several operators, per operator, c = the largest ‖M‖/‖BᵀMB‖
-   * (an application) or the smallest σ_min(M)/σ_min(BᵀMB) (an inverse, a root) at training samples, then
-   * the ‖M‖ ratio of each root of power above 1; NaN: unknown (estimate_term_ratios entries, owned; NULL
-   * when there are none: a term of one operator's c is est_sigma) */
+   * (an application; in a class with a product ‖M‖_K0/‖DᵀMB‖₂) or the smallest σ_min(M)/σ_min(BᵀMB) (an
+   * inverse, a root) at training samples, then the ‖M‖ ratio of each root of power above 1; NaN: unknown
+   * (estimate_term_ratios entries, owned; NULL when there are none: a term of one operator's c is est_sigma) */
   double *est_opc;
 } RTerm;
 
@@ -245,6 +246,20 @@ void model_projection_floor(const RClass *rc, const double *full, double *proj, 
 /* What projects a value onto class rc's basis, coordinates = Pᵀx: D with a
  * product (BᵀK0 = Dᵀ), else B. */
 static inline const double *model_projector(const RClass *rc) { return rc->D ? rc->D : rc->B; }
+/* Whether term rt's numerator (k = -1) or operator k reduces to coordinates, whose lift B ŷ approximates its
+ * value (a projection, an operator applied to a positive integer power whose result no solve takes next), rather
+ * than to a Galerkin right-hand side Bᵀg (what an inverse or a root after it takes). Without a product both are
+ * Bᵀ; with a product K0 coordinates are the K0-projection's, Dᵀ = BᵀK0, so that an application reduces to
+ * (DᵀMB)^p Dᵀw, the K0-orthogonal projection of each step (issue 41; BᵀMB BᵀB ŵ was no approximation of M w there:
+ * BᵀB ≠ I). */
+static inline bool model_term_projects(const RTerm *rt, int k) {
+  const OpPow *next = k + 1 < rt->nops ? rt->ops[k + 1].op : NULL;
+  bool applied = k < 0 || (rt->ops[k].op->kind == OPK_DECL && rt->ops[k].op->q == 1 && rt->ops[k].op->p > 0);
+  return applied && (!next || (next->kind == OPK_DECL && next->q == 1 && next->p > 0));
+}
+/* What pre-multiplies the output axis of term rt's tensor x in class rc: model_projector when the part of the term
+ * x belongs to projects (model_term_projects), else B. */
+const double *model_tensor_rows(const RClass *rc, const RTerm *rt, const RTensor *x);
 /* FNV-1a 64 of the program's source files (main file and used modules). */
 uint64_t model_program_hash(const Program *prog);
 

@@ -35,7 +35,11 @@
  * A projection term ŷ = BᵀK0 w (the reduced evaluator projects by the dual D = K0B): its error
  * (I − BBᵀK0) w, in K0's norm ‖LᵀP(I − BBᵀK0)w‖ = ‖(I − VVᵀ) LᵀPw‖ with V = LᵀPB = L⁻¹P K0B
  * (VᵀV = BᵀK0B = I): the columns become LᵀPC = L⁻¹P K0C, projected and QR'd as the Euclidean
- * table, an exact figure.
+ * table, an exact figure. So is an application's (a term that only applies operators to positive powers, reduced as
+ * ŷ = (DᵀMB)^p Dᵀw: estimate_term_applies): each block of its columns (the numerator's, M B ⊗ each operator's
+ * monomials) is the error of a K0-projection, weighted the same way and QR'd block by block by the caller; and per
+ * operator the ratio c = max ‖LᵀML⁻ᵀ‖₂ / ‖DᵀMB‖₂ over training samples (‖M‖_K0 ≈ c ‖DᵀMB‖₂ online, dense K0 = LLᵀ
+ * up to ESTIMATE_DENSE_MAX rows: application_ratios).
  *
  * A named numerator w whose own error e_w is in its class's norm (the 2-norm, or its product K1's)
  * enters an inverse term's residual in K0⁻¹'s norm and a projection's error in K0's:
@@ -366,6 +370,80 @@ static int apply_product(cholmod_sparse *K0, double *X, long n, long D, cholmod_
   return ok;
 }
 
+/* What application_ratio reads and writes: K0's dense Cholesky factor L (lower, n x n row-major), the operator M
+ * (n x n), M B (n x m), DᵀMB (m x m) and LAPACK's singular values (2n). */
+typedef struct NormBufs {
+  const double *L;
+  double *M, *T, *R, *sv;
+} NormBufs;
+
+/* ‖M‖_K0 / ‖DᵀMB‖₂ of operator view->ops[0] of class rc at the evaluator's current values: ‖M‖_K0 = ‖LᵀML⁻ᵀ‖₂ (K0
+ * = LLᵀ; the norm of M from K0's norm to itself), and DᵀMB = VᵀLᵀML⁻ᵀV with V = LᵀB orthonormal, so the ratio is at
+ * least 1 (the Euclidean chains' ‖M‖₂/‖BᵀMB‖₂ in K0's norm). 0 when M is zero, NaN when LAPACK fails; -1 with
+ * `err` when the operator is not built. */
+static double application_ratio(const EstWork *wk, const RTerm *view, const RClass *rc, const NormBufs *b) {
+  long n = rc->n, my = rc->m;
+  if (estimate_dense_operator(wk->f, view, b->M, n, wk->err)) return -1;
+  cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)my, (int)n, 1.0, b->M, (int)n, rc->B, (int)my, 0.0,
+              b->T, (int)my);
+  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, rc->D, (int)my, b->T, (int)my, 0.0,
+              b->R, (int)my);
+  cblas_dtrsm(CblasRowMajor, CblasRight, CblasLower, CblasTrans, CblasNonUnit, (int)n, (int)n, 1.0, b->L, (int)n, b->M,
+              (int)n);
+  cblas_dtrmm(CblasRowMajor, CblasLeft, CblasLower, CblasTrans, CblasNonUnit, (int)n, (int)n, 1.0, b->L, (int)n, b->M,
+              (int)n);
+  if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'N', 'N', (int)my, (int)my, b->R, (int)my, b->sv, NULL, 1, NULL, 1, b->sv + n))
+    return NAN;
+  double reduced = my > 0 ? b->sv[0] : 0;
+  if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'N', 'N', (int)n, (int)n, b->M, (int)n, b->sv, NULL, 1, NULL, 1, b->sv + n))
+    return NAN;
+  return b->sv[0] == 0 ? 0 : b->sv[0] / reduced;
+}
+
+/* Term rt's ratios c_k = the largest ‖M_k‖_K0 / ‖DᵀM_kB‖₂ over up to ESTIMATE_SIGMA_SAMPLES training samples spread
+ * over the set (as the σ_min ratios pick them), each evaluated: est_sigma for a term of one operator, est_opc for
+ * several (NaN: none, a ratio not finite at a sample). Dense, up to ESTIMATE_DENSE_MAX rows (above: none, and a figure
+ * that needs ‖M‖ reports so). 0, or -1 with `err`. */
+static int application_ratios(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod_sparse *K0) {
+  const SampleSource *src = wk->src;
+  long n = rc->n, S = src ? src->count : 0, nk = S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES;
+  free(rt->est_opc);
+  rt->est_opc = NULL;
+  if (nk < 1 || n > ESTIMATE_DENSE_MAX) return 0;
+  Scratch sc = SCRATCH_OF(wk->err);
+  double *c = scratch_array(&sc, (size_t)rt->nops + 1, sizeof(double)), *L = scratch_array(&sc, (size_t)(n * n) + 1, sizeof(double));
+  NormBufs b = {L, scratch_array(&sc, (size_t)(n * n) + 1, sizeof(double)), scratch_array(&sc, (size_t)(n * rc->m) + 1, sizeof(double)),
+                scratch_array(&sc, (size_t)(rc->m * rc->m) + 1, sizeof(double)), scratch_array(&sc, (size_t)(4 * n) + 1, sizeof(double))};
+  cholmod_dense *K = c && L && b.M && b.T && b.R && b.sv ? cholmod_l_sparse_to_dense(K0, wk->cc) : NULL;
+  int out = K ? 0 : err_set(wk->err, "estimate tables: out of memory for the norms of class %s's operators in %s",
+                            rc->label, rc->product->name);
+  if (!out) memcpy(L, K->x, sizeof(double) * (size_t)(n * n)); /* symmetric: its column-major entries are its rows */
+  cholmod_l_free_dense(&K, wk->cc);
+  if (!out && LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'L', (int)n, L, (int)n) != 0)
+    out = err_set(wk->err, "estimate tables: product %s's dense Cholesky failed (LAPACK)", rc->product->name);
+  for (int k = 0; k < rt->nops; k++) c[k] = NAN;
+  for (long j = 0; !out && j < nk; j++) {
+    if ((out = train_eval_sample(src, wk->f, nk > 1 ? j * (S - 1) / (nk - 1) : 0, wk->err))) break;
+    for (int k = 0; !out && k < rt->nops; k++) {
+      RTerm view = *rt;
+      view.ops = &rt->ops[k], view.nops = 1;
+      double r = application_ratio(wk, &view, rc, &b);
+      if (r < 0) out = -1;
+      else if (!(r >= 0 && isfinite(r))) c[k] = 0; /* a ratio not found: none */
+      else if (r > 0 && (isnan(c[k]) || (c[k] > 0 && r > c[k]))) c[k] = r;
+    }
+  }
+  for (int k = 0; k < rt->nops; k++)
+    if (!(c[k] > 0)) c[k] = NAN;
+  if (!out && rt->nops == 1) rt->est_sigma = c[0];
+  else if (!out && (rt->est_opc = malloc(sizeof(double) * (size_t)rt->nops)))
+    memcpy(rt->est_opc, c, sizeof(double) * (size_t)rt->nops);
+  else if (!out)
+    out = err_set(wk->err, "estimate tables: out of memory for the norms of class %s's operators", rc->label);
+  scratch_release(&sc);
+  return out;
+}
+
 int estimate_product_columns(const EstWork *w, RTerm *rt, const RClass *rc, const ResidualCols *cols, double **V) {
   Model *m = w->m;
   Full *f = w->f;
@@ -380,8 +458,10 @@ int estimate_product_columns(const EstWork *w, RTerm *rt, const RClass *rc, cons
   cholmod_factor *L = K0 ? product_factor(rc, A, &cc, err) : NULL; /* leaves A's upper triangle: K0 keeps both */
   int out = -1;
   *V = NULL;
-  bool projection = rt->nops == 0; /* its error's K0-norm: the columns K0C (the file's comment) */
+  /* a projection's or an application's error in K0's norm: the columns K0C (the file's comment) */
+  bool projection = rt->nops == 0 || estimate_term_applies(rt);
   if (L && (projection || product_theta(&wk, rt, rc, K0, cols) == 0) &&
+      (rt->nops == 0 || !projection || application_ratios(&wk, rt, rc, K0) == 0) &&
       (*V = malloc(sizeof(double) * (size_t)(rc->n * rc->m) + 1))) {
     memcpy(*V, rc->D, sizeof(double) * (size_t)(rc->n * rc->m));
     out = (projection && apply_product(K0, cols->C, rc->n, cols->D, &cc)) || solve_lower(L, cols->C, rc->n, cols->D, &cc) ||
@@ -434,7 +514,7 @@ int estimate_product_carry(const EstWork *w, RTerm *rt, const RClass *rc, const 
   cholmod_l_finish(&cc);
   if (out) return -1;
   bool same = rc->product && rc->product == cw->product;
-  if (rt->nops > 0) /* into the residual's norm, K0⁻¹'s: ‖v‖_{K0⁻¹} ≤ ‖v‖₂ / √λ_min(K0), ‖v‖₂ ≤ ‖v‖_K1 / √λ_min(K1) */
+  if (rt->nops > 0 && !estimate_term_applies(rt)) /* into the residual's norm, K0⁻¹'s: ‖v‖_{K0⁻¹} ≤ ‖v‖₂ / √λ_min(K0), ‖v‖₂ ≤ ‖v‖_K1 / √λ_min(K1) */
     rt->est_carry = 1 / sqrt(k0[0] * k1[0]);
   else /* into the error's norm, K0's: ‖v‖_K0 ≤ √λ_max(K0) ‖v‖₂ */
     rt->est_carry = same ? 1 : sqrt(k0[1] / k1[0]);

@@ -44,6 +44,8 @@ int estimate_term_columns(const EstWork *w, int i, int t, const ColRows *rows, d
 const double *estimate_basis_row(const Model *m, const ColRows *rows, int c, long r);
 /* norms[c] = ‖C(:, c)‖ of the n x D row-major C. */
 void estimate_column_norms(const double *C, long n, long D, double *norms);
+/* Term rt's first operator at the evaluator's current values, dense n x n row-major into M. 0, or -1 with `err`. */
+int estimate_dense_operator(Full *f, const RTerm *rt, double *M, long n, Err *err);
 /* σ_min of the n x n row-major A (destroyed; `sv` 2n doubles): an SPD one by dsyevr, any other by
  * dgesvd; NaN when LAPACK fails. */
 double estimate_smallest_sv(double *A, long n, double *sv);
@@ -78,8 +80,9 @@ cholmod_factor *product_factor(const RClass *rc, cholmod_sparse *A, cholmod_comm
 /* Term rt of a class rc with a product K0 (estimate_product.c; w->cc unused: CHOLMOD started
  * afresh). cols: the residual's columns (of a named numerator: its basis's columns first, nnum
  * of them). An inverse term's C becomes L⁻¹PC (K0 = PᵀLLᵀP, CHOLMOD), so that ‖C z‖ is the dual
- * norm ‖r‖_{K0⁻¹} of the residual r = C z; a projection's becomes L⁻¹P K0C = LᵀPC, so that ‖C z‖
- * is the error's K0-norm ‖(I − BBᵀK0) w‖_K0 once projected. Returns in *V (n x m, malloc'd)
+ * norm ‖r‖_{K0⁻¹} of the residual r = C z; a projection's or an application's (estimate_term_applies) becomes
+ * L⁻¹P K0C = LᵀPC, so that ‖C z‖ is the error's K0-norm ‖(I − BBᵀK0) w‖_K0 once projected; an application's ratios
+ * ‖M‖_K0 / ‖DᵀMB‖₂ are measured at training samples (est_sigma, or est_opc for several operators). Returns in *V (n x m, malloc'd)
  * L⁻¹P K0B = LᵀPB, orthonormal, the span the caller projects out (the Galerkin residual's Riesz
  * representative is K0-orthogonal to B's span; the projection's error is K0-orthogonal to it). For
  * an inverse sets rt's min-θ table relative to K0 when it applies (one anchor x̄ with M(x̄) = K0

@@ -347,6 +347,8 @@ static int full_operator(Full *f, const RTerm *rt, double *M, long n, Err *err) 
   return 0;
 }
 
+int estimate_dense_operator(Full *f, const RTerm *rt, double *M, long n, Err *err) { return full_operator(f, rt, M, n, err); }
+
 /* Smallest singular value of the n x n row-major A (destroyed); NaN if LAPACK fails. A symmetric
  * positive definite A (the usual inverse: Cholesky's) by its smallest eigenvalue alone (dsyevr,
  * about a quarter of the SVD's time), anything else by dgesvd. `sv` holds 2n doubles. */
@@ -956,7 +958,7 @@ static int input_ranges(Model *m, Full *f, const SampleSource *src, bool dist, E
       if (!x || (long)cnt != rc->n) continue;
       long mq = rc->m;
       double *rg = m->in_range[q], xh[mq + 1];
-      cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)mq, 1.0, rc->B, (int)mq, x, 1, 0.0, xh, 1);
+      cblas_dgemv(CblasRowMajor, CblasTrans, (int)rc->n, (int)mq, 1.0, model_projector(rc), (int)mq, x, 1, 0.0, xh, 1);
       for (long a = 0; a < mq; a++) rg[a] = fmax(rg[a], -xh[a]), rg[mq + a] = fmax(rg[mq + a], xh[a]);
     }
   }

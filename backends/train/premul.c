@@ -68,6 +68,7 @@ typedef struct Premul {
   const Model *m;
   RTensor *t;
   const double *By;
+  const double *Bcol;         /* a declared operator's column basis (PremulOut.Bcol; NULL: By) */
   long ny, my;
   const double *Bin[RT_MAX_IN];
   long min[RT_MAX_IN], nin_full[RT_MAX_IN];
@@ -143,7 +144,7 @@ static void key_row(const Premul *p, long k) {
     for (long a = 0; a < my; a++)
       for (long c = a; c < my; c++) Kk[q++] = b[a] * b[c];
   } else {
-    const double *bc = p->By + row_map_at(p->ymap, p->key_col[k]) * my;
+    const double *bc = (p->Bcol ? p->Bcol : p->By) + row_map_at(p->ymap, p->key_col[k]) * my;
     for (long a = 0; a < my; a++)
       for (long c = 0; c < my; c++) Kk[a * my + c] = b[a] * bc[c];
   }
@@ -375,6 +376,7 @@ int premultiply(Model *m, Full *f, RTensor *t, const PremulOut *out, double *flo
   Premul p = {.m = m,
               .t = t,
               .By = out->By,
+              .Bcol = out->Bcol,
               .ny = out->ny,
               .my = out->my,
               .part = out->part,

@@ -651,7 +651,8 @@ int train_premultiply_all(Train *tr) {
         if (!(rt->proj = mem_malloc(sizeof(double) * (size_t)(cy->m * cw->m))))
           return err_set(tr->err, "out of memory while training");
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0,
-                    rt->nops ? cy->B : model_projector(cy), (int)cy->m, cw->B, (int)cw->m, 0.0, rt->proj, (int)cw->m);
+                    model_term_projects(rt, -1) ? model_projector(cy) : cy->B, (int)cy->m, cw->B, (int)cw->m, 0.0,
+                    rt->proj, (int)cw->m);
       }
       RTERM_FOR_TENSORS(rt, x) {
         if (x->data) { /* pre-multiplied out of core by the streamed bases (stream.c) */
@@ -662,10 +663,10 @@ int train_premultiply_all(Train *tr) {
         }
         /* over ranks: every rank its share of the rows, summed on all */
         phase_time(t0, &d[0], &d[1]); /* from here: this tensor's own time */
-        /* a term that applies operators is reduced by Galerkin (BᵀMB, Bᵀw); one that does not is
-         * projected (with a product, the K0-projection Dᵀ: issue 41) */
-        const double *row = rt->nops ? cy->B : model_projector(cy);
-        if (premultiply(m, tr->f, x, &(PremulOut){.By = row, .ny = cy->n, .my = cy->m, .part = rank, .nparts = N},
+        /* a term that solves is reduced by Galerkin (BᵀMB, Bᵀw); a projection and an operator's application are
+         * projected (with a product, the K0-projection Dᵀ: issue 41; model_term_projects) */
+        const double *row = model_tensor_rows(cy, rt, x);
+        if (premultiply(m, tr->f, x, &(PremulOut){.By = row, .Bcol = cy->B, .ny = cy->n, .my = cy->m, .part = rank, .nparts = N},
                         &flops, tr->err))
           return -1;
         phase_time(t0, &d[0], &d[1]);

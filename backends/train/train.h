@@ -464,6 +464,7 @@ int pca_merge(long n, PcaBlocks U, double **B, long *m, Err *err);
  * entry otherwise (0: 8; tests force each path). */
 typedef struct PremulOut {
   const double *By;
+  const double *Bcol;       /* a declared operator's column axis (NULL: By): B where By is a product's dual D = K0B */
   long ny, my;
   int part, nparts;
   int unpack_min_monos;

@@ -1,0 +1,170 @@
+"""estimate_product_apply.py BUILD_DIR — operator applications in a class orthonormal in a product H (`basis x:
+product H`, the 1-D H¹ product on 40 points; issue 41, docs/estimates.md "In a product"), as a user runs them:
+npgc train, npgc eval (OUT/NAME.estimate.npy), the true errors in H's norm √(eᵀHe) from numpy's own products.
+
+An application reduces by H-projections, ŷ = (DᵀMB)^p Dᵀw with D = HB (model_term_projects): y = M x equals numpy's
+B BᵀH M B BᵀH x; with x in its basis its figure is the projection residual ‖(I − BBᵀH) M B x̂‖_H itself,
+effectivity 1 to rounding, flagged a bound. Where ‖M‖_H enters (a second power, two operators applied, a numerator's
+own projection error: v's 8 decaying modes truncated) the figure is an estimate, at least the true error and at most
+20 times it on every test sample. u = K⁻¹ (M x) is reduced as Galerkin's B (BᵀKB)⁻¹ BᵀM B x̂, x̂ = BᵀHx (its
+numerator projected, M's result the solve's right-hand side), and has no estimate, saying why."""
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+N = 40
+HEAD = """dim N, W
+param cols : int[N, W]
+param h : real[N, W]
+param a : real[N, N]
+input w : real[N]
+input x : real[N]
+input v : real[N]
+op H[i:N, j:N] = sum(k = 0..W-1, h[i, k] * delta(j, cols[i, k]))
+op M[i:N, j:N] = a[i, j] * w[i] * w[j]
+op K[i:N, j:N] = a[i, j] + delta(i, j) * w[i]
+"""
+APPLY = HEAD + "output y = M * x\nbasis x: product H\n"
+CHAIN = HEAD + """output s = M^2 * x
+output z = M * (x + v)
+output q = K * (M * x)
+output u = K^-1 * (M * x)
+basis x: product H
+basis z: product H
+"""
+
+
+def fail(msg):
+    print("FAIL: " + msg)
+    sys.exit(1)
+
+
+def run(*args):
+    p = subprocess.run([os.path.join(sys.argv[1], "npgc")] + list(args), capture_output=True, text=True)
+    if p.returncode != 0:
+        fail("npgc %s: %s%s" % (" ".join(args), p.stdout, p.stderr))
+    return p
+
+
+def h1(n):
+    """The 1-D H¹ product on n points of [0, 1] as padded rows (cols, h) and as a dense matrix."""
+    cols, h, H = -np.ones((n, 3), dtype=np.int64), np.zeros((n, 3)), np.zeros((n, n))
+    dx2 = 1.0 / (n - 1) ** 2
+    for i in range(n):
+        for k, j in enumerate((i - 1, i, i + 1)):
+            if 0 <= j < n:
+                cols[i, k], h[i, k] = j, 1 + 2 / dx2 if i == j else -1 / dx2
+                H[i, j] = h[i, k]
+    return cols, h, H
+
+
+def write(d, arrays):
+    os.makedirs(d)
+    [np.save(os.path.join(d, name + ".npy"), arr) for name, arr in arrays.items()]
+
+
+def class_basis(model, name):
+    for line in open(os.path.join(model, "manifest")):
+        w = line.split()
+        if len(w) > 2 and w[0] == "class" and name in w[2].strip("{}").split(","):
+            return np.load(os.path.join(model, "basis_%s.npy" % w[1]))
+    fail("%s/manifest: no class holds %s" % (model, name))
+
+
+def check(label, est, truth, red, H, lo, hi):
+    e = truth - red
+    err = np.sqrt(np.einsum("si,ij,sj->s", e, H, e))
+    eff = est.ravel() / err
+    print("%s: effectivity %.6g .. %.6g (true errors in H's norm %.2e .. %.2e)" % (label, eff.min(), eff.max(),
+                                                                                   err.min(), err.max()))
+    if not (eff >= lo).all() or not (eff <= hi).all():
+        fail("%s: effectivity outside [%g, %g] at samples %s" % (label, lo, hi, np.nonzero((eff < lo) | (eff > hi))[0]))
+
+
+def flags(said, column):
+    """The flag of every sample's figure in `npgc eval`'s table, column `column` (0: the first output)."""
+    rows = [ln.split() for ln in said.splitlines() if ln.split() and ln.split()[0].isdigit()]
+    return [r[2 + 2 * column] if len(r) > 2 + 2 * column else "" for r in rows]
+
+
+def main():
+    rng = np.random.default_rng(41)
+    cols, h, H = h1(N)
+    t = np.linspace(0, 1, N)
+    g = rng.standard_normal((N, N)) / np.sqrt(N)
+    a = g @ g.T + 0.5 * np.eye(N)
+    phi = np.array([np.sin(np.pi * (k + 1) * t) for k in range(3)])
+    psi = np.array([np.cos(np.pi * k * t) * 0.5 ** k for k in range(8)])
+    M = lambda w: a * np.outer(w, w)
+    K = lambda w: a + np.diag(w)
+
+    def samples(S):
+        return {"w": 1 + 0.3 * rng.uniform(-1, 1, (S, 3)) @ phi, "x": rng.uniform(-1, 1, (S, 3)) @ phi,
+                "v": rng.uniform(-1, 1, (S, 8)) @ psi}
+    params = {"cols": cols, "h": h, "a": a}
+    with tempfile.TemporaryDirectory() as d:
+        train, test = os.path.join(d, "TRAIN"), os.path.join(d, "TEST")
+        st = samples(10)
+        write(train, dict(samples(20), **params))
+        write(test, dict(st, **params))
+        w, x, v = st["w"], st["x"], st["v"]
+        prog, model, out = (os.path.join(d, n) for n in ("apply.npg", "APPLY", "OUT"))
+        open(prog, "w").write(APPLY)
+        run("train", prog, train, "--basis", "x:cap=8", "-o", model)
+        if "estimate y 0 dim" not in open(os.path.join(model, "manifest")).read():
+            fail("the model holds no estimate table for y = M x in the product H")
+        said = run("eval", prog, model, test, "-o", out).stdout
+        B = class_basis(model, "y")
+        y = np.load(os.path.join(out, "y.npy"))
+        P = B @ B.T @ H
+        want = np.array([P @ M(w[k]) @ P @ x[k] for k in range(len(w))])
+        dev = abs(y - want).max() / abs(want).max()
+        print("y = M x: the reduced value is the H-projections' B BᵀH M B BᵀH x to %.1e" % dev)
+        if dev > 1e-10:
+            fail("y = M x in the product H is not reduced by H-projections (%.1e)" % dev)
+        truth = np.array([M(w[k]) @ x[k] for k in range(len(w))])
+        check("y = M x, inputs in their bases", np.load(os.path.join(out, "y.estimate.npy")), truth, y, H,
+              1 - 1e-6, 1 + 1e-6)
+        if not all(f.startswith("b") for f in flags(said, 0)) or len(flags(said, 0)) != len(w):
+            fail("the figures of y = M x with exact inputs are not flagged bounds:\n" + said)
+        chain(d, train, test, st, H, M, K)
+
+
+def chain(d, train, test, st, H, M, K):
+    """Powers, a numerator's own projection error, two operators applied, and an inverse after an application."""
+    prog, model, out = (os.path.join(d, n) for n in ("chain.npg", "CHAIN", "OUTC"))
+    open(prog, "w").write(CHAIN)
+    run("train", prog, train, "--basis", "x:cap=8", "--basis", "v:energy=1", "-o", model)
+    manifest = open(os.path.join(model, "manifest")).read()
+    if "\nestops q 0 " not in manifest:
+        fail("the model holds no ratios per operator (an estops line) for q = K M x:\n" + manifest)
+    said = run("eval", prog, model, test, "-o", out)
+    said = said.stdout + said.stderr
+    w, x, v = st["w"], st["x"], st["v"]
+    est = lambda n: np.load(os.path.join(out, n + ".estimate.npy"))
+    red = lambda n: np.load(os.path.join(out, n + ".npy"))
+    truth = np.array([M(w[k]) @ M(w[k]) @ x[k] for k in range(len(w))])
+    check("s = M² x", est("s"), truth, red("s"), H, 1, 20)
+    truth = np.array([M(w[k]) @ (x[k] + v[k]) for k in range(len(w))])
+    check("z = M (x + v)", est("z"), truth, red("z"), H, 1, 20)
+    truth = np.array([K(w[k]) @ M(w[k]) @ x[k] for k in range(len(w))])
+    check("q = K M x", est("q"), truth, red("q"), H, 1, 20)
+    if any(f.startswith("b") for f in flags(said, 0)):
+        fail("a figure with ‖M‖_H estimated is flagged a bound:\n" + said)
+    B = class_basis(model, "u")
+    u = red("u")
+    want = np.array([B @ np.linalg.solve(B.T @ K(w[k]) @ B, B.T @ M(w[k]) @ B @ (B.T @ H @ x[k])) for k in range(len(w))])
+    dev = abs(u - want).max() / abs(want).max()
+    print("u = K⁻¹ M x: Galerkin's B (BᵀKB)⁻¹ BᵀM B BᵀH x to %.1e" % dev)
+    if dev > 1e-10:
+        fail("u = K⁻¹ (M x) in the product H is not Galerkin's on the projected x (%.1e)" % dev)
+    if not np.isnan(est("u")).all() or "chains a solve with other operators" not in said:
+        fail("u = K⁻¹ (M x) in a product has an estimate, or no reason for none:\n" + said)
+
+
+if __name__ == "__main__":
+    main()
+    print("ok")
