@@ -39,11 +39,12 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
                     "only" : "only inverses and positive powers of declared operators have an estimate"),
            false;
   const RClass *rc = &m->classes[m->qclass[rs->q]];
-  if (rc->product && estimate_term_chains(rt) && !estimate_term_applies(rt))
+  if (rc->product && estimate_term_chains(rt) && !estimate_product_chains(rt))
     return snprintf(why, n, "term %d %s in class %s, orthonormal in the inner product of %s (there projections, "
-                    "inverses and operators applied to positive powers have an estimate)", t + 1,
+                    "inverses, operators applied to positive powers and one solve right after the numerator or an "
+                    "operator applied once have an estimate)", t + 1,
                     rt->nops == 1 ? "takes a root, reduced as (BᵀMB)^α Bᵀw, no approximation in K0's norm,"
-                                  : "chains a solve with other operators", rc->label, rc->product->name), false;
+                                  : "chains solves otherwise", rc->label, rc->product->name), false;
   /* in a product K0 the figure is ‖e‖_K0 (estimate_product.c): an inverse's from the residual's dual norm, a
    * projection's and an application's residuals exactly, ‖M‖_K0 estimated, a named numerator's error carried
    * across the norms (RTerm.est_carry) */
@@ -87,6 +88,17 @@ int estimate_norm_slot(const RTerm *rt, int k) {
 bool estimate_term_applies(const RTerm *rt) {
   for (int k = 0; k < rt->nops; k++)
     if (rt->ops[k].op->kind != OPK_DECL || rt->ops[k].op->q != 1 || rt->ops[k].op->p < 1) return false;
+  return rt->nops > 0 && rt->nops <= ESTIMATE_OPS_MAX;
+}
+
+bool estimate_product_chains(const RTerm *rt) {
+  int solves = 0;
+  for (int k = 0; k < rt->nops; k++) {
+    const OpPow *op = rt->ops[k].op;
+    if (op->kind != OPK_DECL || op->q != 1 || !(op->p >= 1 || op->p == -1)) return false;
+    /* a solve takes Bᵀg, g its operand's full-space producer: the numerator, or an operator applied once */
+    if (op->p == -1 && (++solves > 1 || (k > 0 && rt->ops[k - 1].op->p != 1))) return false;
+  }
   return rt->nops > 0 && rt->nops <= ESTIMATE_OPS_MAX;
 }
 
@@ -498,7 +510,21 @@ typedef struct ChainOp {
   int t, k;               /* the term's number (for messages), the operator's */
   const ReducedKept *kp;  /* its M̂ and chain of steps, kept by reduced_eval */
   long my, n;             /* the stage's basis size and full size */
+  bool product;           /* the stage's class has a product K0: an inverse divides by product_alpha */
 } ChainOp;
+
+/* The divisor of an inverse in a chained term of a class with a product K0 (estimate_product_chains): α_LB, the
+ * min-θ bound of its operator relative to K0 (theta_bound, the anchors training stored: M(x̄) = K0 or the pencil's
+ * λ_min), so that ‖K⁻¹ r‖_K0 ≤ ‖r‖_{K0⁻¹} / α_LB, a bound; its operand's error e comes in K0⁻¹'s norm (a named
+ * numerator's carried there, or an applied M's ratio ‖L⁻¹ML⁻ᵀ‖₂ / ‖BᵀMB‖₂). NaN with f->why when there is none. */
+static double product_alpha(const ChainOp *o, Estimation *s, Figure *f) {
+  double a = theta_bound(s->r, o->rt);
+  if (!(a > 0))
+    snprintf(f->why, sizeof f->why, "no coercivity bound of operator %d of term %d relative to the class's product %s",
+             o->k + 1, o->t + 1, o->rt->est_theta ? "at this input (an entry is not positive)" : "(training found it not "
+             "affine in one input with semidefinite terms, or no positive sample)");
+  return a > 0 ? a : NAN;
+}
 
 /* The figure of the operator that multiplies the error before it (an applied M: ‖M‖₂ ≈ c ‖M̂‖₂, c ≥ 1 since
  * ‖BᵀMB‖₂ ≤ ‖M‖₂ for an orthonormal B) or divides it (an inverse: σ_min(M) ≈ c σ_min(M̂)), c the ratio at
@@ -506,6 +532,7 @@ typedef struct ChainOp {
 static double operator_figure(const ChainOp *o, Estimation *s, Figure *f) {
   const RTerm *rt = o->rt;
   bool inverse = rt->ops[o->k].op->p < 0;
+  if (inverse && o->product) return product_alpha(o, s, f);
   double c = rt->nops == 1 ? rt->est_sigma : rt->est_opc ? rt->est_opc[o->k] : NAN, v;
   if (isnan(c))
     return snprintf(f->why, sizeof f->why, "no measure of %s for operator %d of term %d (training found it %s at a "
@@ -664,7 +691,7 @@ static int chain_figure(Reduced *r, int i, int t, Estimation *s, double carried,
   }
   const ReducedKept *prev = NULL;
   for (int k = 0; k < rt->nops; k++) {
-    ChainOp o = {rt, t, k, reduced_kept(r, i, t, k), my, n};
+    ChainOp o = {rt, t, k, reduced_kept(r, i, t, k), my, n, m->classes[m->qclass[rs->q]].product != NULL};
     if (!o.kp)
       return snprintf(f->why, sizeof f->why, "term %d's reduced operators are not kept from the evaluation (its "
                       "inputs changed since?)", t + 1), -1;
@@ -678,7 +705,9 @@ static int chain_figure(Reduced *r, int i, int t, Estimation *s, double carried,
     double c = NAN;
     for (long j = 0; j < (p > 0 ? p : 1); j++) {
       if ((p < 0 || e > 0) && isnan(c) && isnan(c = operator_figure(&o, s, f))) return -1;
-      if (p < 0 || e > 0) f->flags &= ~EST_BOUND; /* a ratio measured at training samples enters */
+      /* a ratio measured at training samples enters (in a product an inverse's α is a bound: est_sigma 1 when its
+       * premise is not checked, estimate_product.c) */
+      if (p < 0 ? !(o.product && isnan(rt->est_sigma)) : e > 0) f->flags &= ~EST_BOUND;
       double res = 0;
       if (p < 0 || !L.joins[k + 1]) { /* an applied M joined with the inverse after it has its residual there */
         if (p < 0 && L.start[k] == 0) numerator_monomials(r, rt, s);

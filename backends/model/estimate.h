@@ -117,6 +117,11 @@ int estimate_norm_slot(const RTerm *rt, int k);
  * above in K0's norm: each residual ‖(I − BBᵀK0) M B v‖_K0 (the table's columns weighted by K0's Cholesky factor,
  * as a projection's: backends/train/estimate_product.c), ‖M‖_K0 ≈ c ‖DᵀMB‖₂. */
 bool estimate_term_applies(const RTerm *rt);
+/* Whether chained term rt has an estimate in a class with a product K0: declared operators each applied to a positive
+ * integer power or inverted, at most one inverse, right after the numerator or after an operator applied once (its
+ * operand's producer g, whose Galerkin right-hand side Bᵀg the reduction gives it: model_term_projects). The inverse
+ * divides by the min-θ bound relative to K0 (estimate_product.c's anchors), an error entering it is in K0⁻¹'s norm. */
+bool estimate_product_chains(const RTerm *rt);
 /* A chained term's columns: the numerator's [0, nnum), operator k's [off[k], off[k] + len[k]); an
  * inverse's block starts at start[k] (0: the numerator's, off[k − 1]: the applied operator of power
  * 1 before it, whose columns it joins; else off[k]); `joins[k + 1]`: the numerator (k = −1) or

@@ -39,7 +39,10 @@
  * ŷ = (DᵀMB)^p Dᵀw: estimate_term_applies): each block of its columns (the numerator's, M B ⊗ each operator's
  * monomials) is the error of a K0-projection, weighted the same way and QR'd block by block by the caller; and per
  * operator the ratio c = max ‖LᵀML⁻ᵀ‖₂ / ‖DᵀMB‖₂ over training samples (‖M‖_K0 ≈ c ‖DᵀMB‖₂ online, dense K0 = LLᵀ
- * up to ESTIMATE_DENSE_MAX rows: application_ratios).
+ * up to ESTIMATE_DENSE_MAX rows: application_ratios). A term of several operators with one solve (K⁻¹ M w, M K⁻¹ w:
+ * estimate_product_chains) keeps the solve's block (its operand's producer's columns joined with its own) a residual,
+ * L⁻¹P-weighted for its dual norm, gets the solve's min-θ table relative to K0 (chain_columns), and the ratio of an
+ * operator applied before it is into K0⁻¹'s norm, ‖L⁻¹ML⁻ᵀ‖₂ / ‖BᵀMB‖₂.
  *
  * A named numerator w whose own error e_w is in its class's norm (the 2-norm, or its product K1's)
  * enters an inverse term's residual in K0⁻¹'s norm and a projection's error in K0's:
@@ -349,8 +352,9 @@ static int product_theta(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod
   return out;
 }
 
-/* X (n x D row-major) <- K0 X (K0 unsymmetric storage); 0, or -1 out of memory. */
-static int apply_product(cholmod_sparse *K0, double *X, long n, long D, cholmod_common *cc) {
+/* The len columns at X of an n-row row-major array of leading dimension ld <- K0 times them (K0 unsymmetric storage); 0,
+ * or -1 out of memory. */
+static int apply_product(cholmod_sparse *K0, double *X, long n, long ld, long D, cholmod_common *cc) {
   cholmod_dense *b = cholmod_l_allocate_dense((size_t)n, (size_t)D, (size_t)n, CHOLMOD_REAL, cc);
   cholmod_dense *y = b ? cholmod_l_zeros((size_t)n, (size_t)D, CHOLMOD_REAL, cc) : NULL;
   double one[2] = {1, 0}, zero[2] = {0, 0};
@@ -358,40 +362,48 @@ static int apply_product(cholmod_sparse *K0, double *X, long n, long D, cholmod_
   if (!ok) {
     double *bx = b->x;
     for (long i = 0; i < n; i++)
-      for (long c = 0; c < D; c++) bx[c * n + i] = X[i * D + c];
+      for (long c = 0; c < D; c++) bx[c * n + i] = X[i * ld + c];
     ok = cholmod_l_sdmult(K0, 0, one, zero, b, y, cc) ? 0 : -1;
   }
   if (!ok) {
     const double *yx = y->x;
     for (long i = 0; i < n; i++)
-      for (long c = 0; c < D; c++) X[i * D + c] = yx[c * n + i];
+      for (long c = 0; c < D; c++) X[i * ld + c] = yx[c * n + i];
   }
   cholmod_l_free_dense(&b, cc), cholmod_l_free_dense(&y, cc);
   return ok;
 }
 
 /* What application_ratio reads and writes: K0's dense Cholesky factor L (lower, n x n row-major), the operator M
- * (n x n), M B (n x m), DᵀMB (m x m) and LAPACK's singular values (2n). */
+ * (n x n), M B (n x m), the reduced operator (m x m) and LAPACK's singular values (2n); `dual`: M's result is taken by
+ * a solve next (model_term_projects false), so its norm is into K0⁻¹'s. */
 typedef struct NormBufs {
   const double *L;
   double *M, *T, *R, *sv;
+  bool dual;
 } NormBufs;
 
 /* ‖M‖_K0 / ‖DᵀMB‖₂ of operator view->ops[0] of class rc at the evaluator's current values: ‖M‖_K0 = ‖LᵀML⁻ᵀ‖₂ (K0
  * = LLᵀ; the norm of M from K0's norm to itself), and DᵀMB = VᵀLᵀML⁻ᵀV with V = LᵀB orthonormal, so the ratio is at
- * least 1 (the Euclidean chains' ‖M‖₂/‖BᵀMB‖₂ in K0's norm). 0 when M is zero, NaN when LAPACK fails; -1 with
- * `err` when the operator is not built. */
+ * least 1 (the Euclidean chains' ‖M‖₂/‖BᵀMB‖₂ in K0's norm). With b->dual, M from K0's norm into K0⁻¹'s (the error
+ * it carries into the solve after it, whose residual is in K0⁻¹'s norm): ‖L⁻¹ML⁻ᵀ‖₂ / ‖BᵀMB‖₂, BᵀMB = Vᵀ(L⁻¹ML⁻ᵀ)V
+ * the reduced operator the solve's right-hand side takes. 0 when M is zero, NaN when LAPACK fails; -1 with `err` when
+ * the operator is not built. */
 static double application_ratio(const EstWork *wk, const RTerm *view, const RClass *rc, const NormBufs *b) {
   long n = rc->n, my = rc->m;
   if (estimate_dense_operator(wk->f, view, b->M, n, wk->err)) return -1;
   cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)my, (int)n, 1.0, b->M, (int)n, rc->B, (int)my, 0.0,
               b->T, (int)my);
-  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, rc->D, (int)my, b->T, (int)my, 0.0,
-              b->R, (int)my);
+  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, b->dual ? rc->B : rc->D, (int)my,
+              b->T, (int)my, 0.0, b->R, (int)my);
   cblas_dtrsm(CblasRowMajor, CblasRight, CblasLower, CblasTrans, CblasNonUnit, (int)n, (int)n, 1.0, b->L, (int)n, b->M,
               (int)n);
-  cblas_dtrmm(CblasRowMajor, CblasLeft, CblasLower, CblasTrans, CblasNonUnit, (int)n, (int)n, 1.0, b->L, (int)n, b->M,
-              (int)n);
+  if (b->dual)
+    cblas_dtrsm(CblasRowMajor, CblasLeft, CblasLower, CblasNoTrans, CblasNonUnit, (int)n, (int)n, 1.0, b->L, (int)n, b->M,
+                (int)n);
+  else
+    cblas_dtrmm(CblasRowMajor, CblasLeft, CblasLower, CblasTrans, CblasNonUnit, (int)n, (int)n, 1.0, b->L, (int)n, b->M,
+                (int)n);
   if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'N', 'N', (int)my, (int)my, b->R, (int)my, b->sv, NULL, 1, NULL, 1, b->sv + n))
     return NAN;
   double reduced = my > 0 ? b->sv[0] : 0;
@@ -400,9 +412,10 @@ static double application_ratio(const EstWork *wk, const RTerm *view, const RCla
   return b->sv[0] == 0 ? 0 : b->sv[0] / reduced;
 }
 
-/* Term rt's ratios c_k = the largest ‖M_k‖_K0 / ‖DᵀM_kB‖₂ over up to ESTIMATE_SIGMA_SAMPLES training samples spread
- * over the set (as the σ_min ratios pick them), each evaluated: est_sigma for a term of one operator, est_opc for
- * several (NaN: none, a ratio not finite at a sample). Dense, up to ESTIMATE_DENSE_MAX rows (above: none, and a figure
+/* Term rt's ratios c_k = the largest ‖M_k‖_K0 / ‖DᵀM_kB‖₂ (application_ratio; into K0⁻¹'s norm for an operator a solve
+ * follows) over up to ESTIMATE_SIGMA_SAMPLES training samples spread over the set (as the σ_min ratios pick them), each
+ * evaluated: est_sigma for a term of one operator, est_opc for several (NaN: none, a ratio not finite at a sample, and
+ * an inverse's: it divides by its min-θ bound, chain_theta). Dense, up to ESTIMATE_DENSE_MAX rows (above: none, and a figure
  * that needs ‖M‖ reports so). 0, or -1 with `err`. */
 static int application_ratios(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod_sparse *K0) {
   const SampleSource *src = wk->src;
@@ -413,7 +426,8 @@ static int application_ratios(const EstWork *wk, RTerm *rt, const RClass *rc, ch
   Scratch sc = SCRATCH_OF(wk->err);
   double *c = scratch_array(&sc, (size_t)rt->nops + 1, sizeof(double)), *L = scratch_array(&sc, (size_t)(n * n) + 1, sizeof(double));
   NormBufs b = {L, scratch_array(&sc, (size_t)(n * n) + 1, sizeof(double)), scratch_array(&sc, (size_t)(n * rc->m) + 1, sizeof(double)),
-                scratch_array(&sc, (size_t)(rc->m * rc->m) + 1, sizeof(double)), scratch_array(&sc, (size_t)(4 * n) + 1, sizeof(double))};
+                scratch_array(&sc, (size_t)(rc->m * rc->m) + 1, sizeof(double)), scratch_array(&sc, (size_t)(4 * n) + 1, sizeof(double)),
+                false};
   cholmod_dense *K = c && L && b.M && b.T && b.R && b.sv ? cholmod_l_sparse_to_dense(K0, wk->cc) : NULL;
   int out = K ? 0 : err_set(wk->err, "estimate tables: out of memory for the norms of class %s's operators in %s",
                             rc->label, rc->product->name);
@@ -427,6 +441,8 @@ static int application_ratios(const EstWork *wk, RTerm *rt, const RClass *rc, ch
     for (int k = 0; !out && k < rt->nops; k++) {
       RTerm view = *rt;
       view.ops = &rt->ops[k], view.nops = 1;
+      if (rt->ops[k].op->p < 0) continue;
+      b.dual = !model_term_projects(rt, k);
       double r = application_ratio(wk, &view, rc, &b);
       if (r < 0) out = -1;
       else if (!(r >= 0 && isfinite(r))) c[k] = 0; /* a ratio not found: none */
@@ -444,6 +460,37 @@ static int application_ratios(const EstWork *wk, RTerm *rt, const RClass *rc, ch
   return out;
 }
 
+/* The chained term rt's stage and term numbers in m (estimate_chain_layout takes them). */
+static void term_position(const Model *m, const RTerm *rt, int *i, int *t) {
+  for (int a = 0; a < m->nstages; a++)
+    if (rt >= m->stages[a].terms && rt < m->stages[a].terms + m->stages[a].nterms) *i = a, *t = (int)(rt - m->stages[a].terms);
+}
+
+/* The columns of chained term rt (estimate_term_chains, in a product: estimate_product_chains) whose blocks are errors
+ * of K0-projections (the numerator's and each applied operator's, unless joined with the solve after them) weighted
+ * by K0 (apply_product); the solve's joined block stays a residual, whose dual norm the caller's L⁻¹P gives. And the
+ * solve's min-θ table relative to K0 (product_theta on a view of its operator alone, the rows S checked on its
+ * operand's producer's columns). 0, or -1 with `err`. */
+static int chain_columns(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod_sparse *K0, const ResidualCols *cols) {
+  int i = 0, t = 0, out = 0;
+  term_position(wk->m, rt, &i, &t);
+  ChainLayout L;
+  estimate_chain_layout(wk->m, i, t, &L);
+  if (!L.joins[0] && L.nnum > 0) out = apply_product(K0, cols->C, rc->n, cols->D, L.nnum, wk->cc);
+  for (int k = 0; !out && k < rt->nops; k++) {
+    if (rt->ops[k].op->p > 0) {
+      if (!L.joins[k + 1]) out = apply_product(K0, cols->C + L.off[k], rc->n, cols->D, L.len[k], wk->cc);
+      continue;
+    }
+    RTerm view = *rt;
+    view.ops = &rt->ops[k], view.nops = 1, view.est_theta = NULL;
+    out = product_theta(wk, &view, rc, K0, &(ResidualCols){cols->C + L.start[k], cols->D, L.off[k] - L.start[k]});
+    rt->est_theta = view.est_theta, rt->est_theta_k = view.est_theta_k, rt->est_theta_q = view.est_theta_q;
+    rt->est_theta_n = view.est_theta_n, rt->est_sigma = view.est_sigma;
+  }
+  return out;
+}
+
 int estimate_product_columns(const EstWork *w, RTerm *rt, const RClass *rc, const ResidualCols *cols, double **V) {
   Model *m = w->m;
   Full *f = w->f;
@@ -458,14 +505,13 @@ int estimate_product_columns(const EstWork *w, RTerm *rt, const RClass *rc, cons
   cholmod_factor *L = K0 ? product_factor(rc, A, &cc, err) : NULL; /* leaves A's upper triangle: K0 keeps both */
   int out = -1;
   *V = NULL;
-  /* a projection's or an application's error in K0's norm: the columns K0C (the file's comment) */
-  bool projection = rt->nops == 0 || estimate_term_applies(rt);
-  if (L && (projection || product_theta(&wk, rt, rc, K0, cols) == 0) &&
-      (rt->nops == 0 || !projection || application_ratios(&wk, rt, rc, K0) == 0) &&
-      (*V = malloc(sizeof(double) * (size_t)(rc->n * rc->m) + 1))) {
+  /* a projection's error in K0's norm: the columns K0C (the file's comment); a chained term's blocks each as theirs */
+  bool chain = rt->nops > 0 && estimate_term_chains(rt), projection = rt->nops == 0;
+  if (L && (chain ? chain_columns(&wk, rt, rc, K0, cols) : projection ? 0 : product_theta(&wk, rt, rc, K0, cols)) == 0 &&
+      (!chain || application_ratios(&wk, rt, rc, K0) == 0) && (*V = malloc(sizeof(double) * (size_t)(rc->n * rc->m) + 1))) {
     memcpy(*V, rc->D, sizeof(double) * (size_t)(rc->n * rc->m));
-    out = (projection && apply_product(K0, cols->C, rc->n, cols->D, &cc)) || solve_lower(L, cols->C, rc->n, cols->D, &cc) ||
-                  solve_lower(L, *V, rc->n, rc->m, &cc) ? -1 : 0;
+    out = (projection && apply_product(K0, cols->C, rc->n, cols->D, cols->D, &cc)) ||
+                  solve_lower(L, cols->C, rc->n, cols->D, &cc) || solve_lower(L, *V, rc->n, rc->m, &cc) ? -1 : 0;
   }
   if (out && L) err_set_first(err, "estimate tables: out of memory for the norm of class %s's residual in %s",
                               rc->label, rc->product->name);
@@ -514,7 +560,7 @@ int estimate_product_carry(const EstWork *w, RTerm *rt, const RClass *rc, const 
   cholmod_l_finish(&cc);
   if (out) return -1;
   bool same = rc->product && rc->product == cw->product;
-  if (rt->nops > 0 && !estimate_term_applies(rt)) /* into the residual's norm, K0⁻¹'s: ‖v‖_{K0⁻¹} ≤ ‖v‖₂ / √λ_min(K0), ‖v‖₂ ≤ ‖v‖_K1 / √λ_min(K1) */
+  if (rt->nops > 0 && !model_term_projects(rt, -1)) /* into a solve's residual's norm, K0⁻¹'s: ‖v‖_{K0⁻¹} ≤ ‖v‖₂ / √λ_min(K0), ‖v‖₂ ≤ ‖v‖_K1 / √λ_min(K1) */
     rt->est_carry = 1 / sqrt(k0[0] * k1[0]);
   else /* into the error's norm, K0's: ‖v‖_K0 ≤ √λ_max(K0) ‖v‖₂ */
     rt->est_carry = same ? 1 : sqrt(k0[1] / k1[0]);
