@@ -38,8 +38,8 @@
  * table, an exact figure. So is an application's (a term that only applies operators to positive powers, reduced as
  * ŷ = (DᵀMB)^p Dᵀw: estimate_term_applies): each block of its columns (the numerator's, M B ⊗ each operator's
  * monomials) is the error of a K0-projection, weighted the same way and QR'd block by block by the caller; and per
- * operator the ratio c = max ‖LᵀML⁻ᵀ‖₂ / ‖DᵀMB‖₂ over training samples (‖M‖_K0 ≈ c ‖DᵀMB‖₂ online, dense K0 = LLᵀ
- * up to ESTIMATE_DENSE_MAX rows: application_ratios). A term of several operators with one solve (K⁻¹ M w, M K⁻¹ w:
+ * operator the ratio c = max ‖LᵀML⁻ᵀ‖₂ / ‖DᵀMB‖₂ over training samples (‖M‖_K0 ≈ c ‖DᵀMB‖₂ online; dense K0 = LLᵀ
+ * up to ESTIMATE_DENSE_MAX rows, Lanczos in K0's inner product above: application_ratios). A term of several operators with one solve (K⁻¹ M w, M K⁻¹ w:
  * estimate_product_chains) keeps the solve's block (its operand's producer's columns joined with its own) a residual,
  * L⁻¹P-weighted for its dual norm, gets the solve's min-θ table relative to K0 (chain_columns), and the ratio of an
  * operator applied before it is into K0⁻¹'s norm, ‖L⁻¹ML⁻ᵀ‖₂ / ‖BᵀMB‖₂.
@@ -171,12 +171,17 @@ typedef struct Pencil {
   const char *input;         /* x's name */
 } Pencil;
 
-/* The sparse pencil's operands: A = M(x̄) on T×T by its Cholesky factor, K0 on T×T. */
+/* The sparse pencil's operands: A = M(x̄) on T×T by its Cholesky factor, K0 on T×T; or, for an operator's norm in
+ * K0's (norm_step: `step` set), LA K0's factor, K K0, M the operator, `dual` its norm into K0⁻¹'s, tmp n doubles. */
 typedef struct PencilOp {
   cholmod_factor *LA;
   cholmod_sparse *K;
   cholmod_common *cc;
   long n;
+  cholmod_sparse *M;
+  bool dual;
+  double *tmp;
+  int (*step)(const struct PencilOp *o, double *v, double *w); /* w = the operator at v; NULL: A⁻¹K0 v */
 } PencilOp;
 
 /* A vector of n doubles as a CHOLMOD dense column (no copy). */
@@ -203,6 +208,17 @@ static int pencil_solve(const PencilOp *o, double *y, double *w) {
   return 0;
 }
 
+/* w = K0⁻¹ Mᵀ X M v, X = K0, or K0⁻¹ with o->dual: self-adjoint and positive in K0's inner product, its largest
+ * eigenvalue ‖M‖²_K0 (the norm from K0's norm to itself), or ‖M‖² from K0's norm into K0⁻¹'s. 0, or -1 when CHOLMOD
+ * fails. */
+static int norm_step(const PencilOp *o, double *v, double *w) {
+  double one[2] = {1, 0}, zero[2] = {0, 0};
+  cholmod_dense V = column(v, o->n), T = column(o->tmp, o->n), W = column(w, o->n);
+  if (!cholmod_l_sdmult(o->M, 0, one, zero, &V, &T, o->cc) || (o->dual ? pencil_solve(o, o->tmp, w) : pencil_mult(o, o->tmp, w)))
+    return -1;
+  return cholmod_l_sdmult(o->M, 1, one, zero, &W, &T, o->cc) ? pencil_solve(o, o->tmp, w) : -1;
+}
+
 /* The Lanczos steps of the sparse pencil, at most (estimate_train.c's SPARSE_LANCZOS_STEPS). */
 #define PENCIL_LANCZOS_STEPS 60
 
@@ -224,7 +240,7 @@ static double pencil_lanczos(const PencilOp *o, Scratch *sc) {
   cblas_dscal((int)n, s0, V, 1), cblas_dscal((int)n, s0, KV, 1);
   for (int j = 0; j < K; j++) {
     double *kv = KV + (long)j * n, *vn = V + (long)(j + 1) * n, *kvn = kv + n;
-    if (pencil_solve(o, kv, w)) return NAN; /* w = A⁻¹K0 v */
+    if (o->step ? o->step(o, V + (long)j * n, w) : pencil_solve(o, kv, w)) return NAN; /* w = A⁻¹K0 v */
     al[j] = cblas_ddot((int)n, kv, 1, w, 1);
     for (int pass = 0; pass < 2; pass++) /* w -= V (VᵀK0 w), twice */
       for (int k = 0; k <= j; k++) cblas_daxpy((int)n, -cblas_ddot((int)n, KV + (long)k * n, 1, w, 1), V + (long)k * n, 1, w, 1);
@@ -251,7 +267,7 @@ static double pencil_sparse(const Pencil *p, cholmod_sparse *Ms, cholmod_common 
   double out = NAN;
   if (L && cholmod_l_factorize(S, L, cc) && cc->status == CHOLMOD_OK && L->minor >= (size_t)n) {
     Scratch sc = SCRATCH_OF(NULL);
-    double top = pencil_lanczos(&(PencilOp){L, p->K0t, cc, n}, &sc);
+    double top = pencil_lanczos(&(PencilOp){L, p->K0t, cc, n, NULL, false, NULL, NULL}, &sc);
     scratch_release(&sc);
     out = top > 0 ? 1 / top : NAN;
   }
@@ -381,7 +397,39 @@ typedef struct NormBufs {
   const double *L;
   double *M, *T, *R, *sv;
   bool dual;
+  cholmod_factor *LK;       /* above ESTIMATE_DENSE_MAX rows (L and M NULL): K0's sparse factor, and K0 */
+  cholmod_sparse *K0;
 } NormBufs;
+
+/* The reduced operator's ‖·‖₂ for application_ratio: (DᵀMB) or, b->dual, BᵀMB, from b->T = M B; NaN when LAPACK fails. */
+static double reduced_norm(const RClass *rc, const NormBufs *b) {
+  long n = rc->n, my = rc->m;
+  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, b->dual ? rc->B : rc->D, (int)my,
+              b->T, (int)my, 0.0, b->R, (int)my);
+  if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'N', 'N', (int)my, (int)my, b->R, (int)my, b->sv, NULL, 1, NULL, 1, b->sv + n))
+    return NAN;
+  return my > 0 ? b->sv[0] : 0;
+}
+
+/* application_ratio above ESTIMATE_DENSE_MAX rows: M assembled sparse, M B by its columns, ‖M‖ by Lanczos in K0's inner
+ * product on K0⁻¹MᵀXM (norm_step; θ + |β s| errs high, as a norm that multiplies an error should). */
+static double sparse_ratio(const EstWork *wk, const RTerm *view, const RClass *rc, const NormBufs *b) {
+  long n = rc->n, my = rc->m;
+  cholmod_sparse *A = estimate_sparse_operator(wk->f, view, n, wk->cc, wk->err);
+  if (!A) return -1;
+  const SuiteSparse_long *Ap = A->p, *Ai = A->i;
+  const double *Ax = A->x;
+  memset(b->T, 0, sizeof(double) * (size_t)(n * my));
+  for (long j = 0; j < n; j++) /* T = A B, column j of A times row j of B */
+    for (SuiteSparse_long p = Ap[j]; p < Ap[j + 1]; p++) cblas_daxpy((int)my, Ax[p], rc->B + j * my, 1, b->T + Ai[p] * my, 1);
+  double reduced = reduced_norm(rc, b), top = NAN;
+  Scratch sc = SCRATCH_OF(NULL);
+  double *tmp = scratch_array(&sc, (size_t)n + 1, sizeof(double));
+  if (tmp) top = pencil_lanczos(&(PencilOp){b->LK, b->K0, wk->cc, n, A, b->dual, tmp, norm_step}, &sc);
+  scratch_release(&sc);
+  cholmod_l_free_sparse(&A, wk->cc);
+  return top == 0 ? 0 : sqrt(top) / reduced;
+}
 
 /* ‖M‖_K0 / ‖DᵀMB‖₂ of operator view->ops[0] of class rc at the evaluator's current values: ‖M‖_K0 = ‖LᵀML⁻ᵀ‖₂ (K0
  * = LLᵀ; the norm of M from K0's norm to itself), and DᵀMB = VᵀLᵀML⁻ᵀV with V = LᵀB orthonormal, so the ratio is at
@@ -391,11 +439,11 @@ typedef struct NormBufs {
  * the operator is not built. */
 static double application_ratio(const EstWork *wk, const RTerm *view, const RClass *rc, const NormBufs *b) {
   long n = rc->n, my = rc->m;
+  if (!b->M) return sparse_ratio(wk, view, rc, b);
   if (estimate_dense_operator(wk->f, view, b->M, n, wk->err)) return -1;
   cblas_dgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, (int)n, (int)my, (int)n, 1.0, b->M, (int)n, rc->B, (int)my, 0.0,
               b->T, (int)my);
-  cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)my, (int)my, (int)n, 1.0, b->dual ? rc->B : rc->D, (int)my,
-              b->T, (int)my, 0.0, b->R, (int)my);
+  double reduced = reduced_norm(rc, b);
   cblas_dtrsm(CblasRowMajor, CblasRight, CblasLower, CblasTrans, CblasNonUnit, (int)n, (int)n, 1.0, b->L, (int)n, b->M,
               (int)n);
   if (b->dual)
@@ -404,9 +452,6 @@ static double application_ratio(const EstWork *wk, const RTerm *view, const RCla
   else
     cblas_dtrmm(CblasRowMajor, CblasLeft, CblasLower, CblasTrans, CblasNonUnit, (int)n, (int)n, 1.0, b->L, (int)n, b->M,
                 (int)n);
-  if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'N', 'N', (int)my, (int)my, b->R, (int)my, b->sv, NULL, 1, NULL, 1, b->sv + n))
-    return NAN;
-  double reduced = my > 0 ? b->sv[0] : 0;
   if (LAPACKE_dgesvd(LAPACK_ROW_MAJOR, 'N', 'N', (int)n, (int)n, b->M, (int)n, b->sv, NULL, 1, NULL, 1, b->sv + n))
     return NAN;
   return b->sv[0] == 0 ? 0 : b->sv[0] / reduced;
@@ -415,25 +460,29 @@ static double application_ratio(const EstWork *wk, const RTerm *view, const RCla
 /* Term rt's ratios c_k = the largest ‖M_k‖_K0 / ‖DᵀM_kB‖₂ (application_ratio; into K0⁻¹'s norm for an operator a solve
  * follows) over up to ESTIMATE_SIGMA_SAMPLES training samples spread over the set (as the σ_min ratios pick them), each
  * evaluated: est_sigma for a term of one operator, est_opc for several (NaN: none, a ratio not finite at a sample, and
- * an inverse's: it divides by its min-θ bound, chain_theta). Dense, up to ESTIMATE_DENSE_MAX rows (above: none, and a figure
- * that needs ‖M‖ reports so). 0, or -1 with `err`. */
-static int application_ratios(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod_sparse *K0) {
+ * an inverse's: it divides by its min-θ bound, chain_theta). Dense up to ESTIMATE_DENSE_MAX rows, by Lanczos on the
+ * sparse operator through K0's factor LK above (sparse_ratio), none above ESTIMATE_SPARSE_MAX (a figure that needs
+ * ‖M‖ reports so). 0, or -1 with `err`. */
+static int application_ratios(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod_sparse *K0, cholmod_factor *LK) {
   const SampleSource *src = wk->src;
   long n = rc->n, S = src ? src->count : 0, nk = S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES;
+  bool dense = n <= ESTIMATE_DENSE_MAX;
   free(rt->est_opc);
   rt->est_opc = NULL;
-  if (nk < 1 || n > ESTIMATE_DENSE_MAX) return 0;
+  if (nk < 1 || n > ESTIMATE_SPARSE_MAX) return 0;
   Scratch sc = SCRATCH_OF(wk->err);
-  double *c = scratch_array(&sc, (size_t)rt->nops + 1, sizeof(double)), *L = scratch_array(&sc, (size_t)(n * n) + 1, sizeof(double));
-  NormBufs b = {L, scratch_array(&sc, (size_t)(n * n) + 1, sizeof(double)), scratch_array(&sc, (size_t)(n * rc->m) + 1, sizeof(double)),
-                scratch_array(&sc, (size_t)(rc->m * rc->m) + 1, sizeof(double)), scratch_array(&sc, (size_t)(4 * n) + 1, sizeof(double)),
-                false};
-  cholmod_dense *K = c && L && b.M && b.T && b.R && b.sv ? cholmod_l_sparse_to_dense(K0, wk->cc) : NULL;
-  int out = K ? 0 : err_set(wk->err, "estimate tables: out of memory for the norms of class %s's operators in %s",
-                            rc->label, rc->product->name);
-  if (!out) memcpy(L, K->x, sizeof(double) * (size_t)(n * n)); /* symmetric: its column-major entries are its rows */
+  double *c = scratch_array(&sc, (size_t)rt->nops + 1, sizeof(double)),
+         *L = dense ? scratch_array(&sc, (size_t)(n * n) + 1, sizeof(double)) : NULL;
+  NormBufs b = {L, dense ? scratch_array(&sc, (size_t)(n * n) + 1, sizeof(double)) : NULL,
+                scratch_array(&sc, (size_t)(n * rc->m) + 1, sizeof(double)), scratch_array(&sc, (size_t)(rc->m * rc->m) + 1, sizeof(double)),
+                scratch_array(&sc, (size_t)(4 * n) + 1, sizeof(double)), false, LK, K0};
+  bool room = c && (!dense || (L && b.M)) && b.T && b.R && b.sv;
+  cholmod_dense *K = room && dense ? cholmod_l_sparse_to_dense(K0, wk->cc) : NULL;
+  int out = room && (K || !dense) ? 0 : err_set(wk->err, "estimate tables: out of memory for the norms of class %s's "
+                                                         "operators in %s", rc->label, rc->product->name);
+  if (!out && K) memcpy(L, K->x, sizeof(double) * (size_t)(n * n)); /* symmetric: its column-major entries are its rows */
   cholmod_l_free_dense(&K, wk->cc);
-  if (!out && LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'L', (int)n, L, (int)n) != 0)
+  if (!out && dense && LAPACKE_dpotrf(LAPACK_ROW_MAJOR, 'L', (int)n, L, (int)n) != 0)
     out = err_set(wk->err, "estimate tables: product %s's dense Cholesky failed (LAPACK)", rc->product->name);
   for (int k = 0; k < rt->nops; k++) c[k] = NAN;
   for (long j = 0; !out && j < nk; j++) {
@@ -508,7 +557,7 @@ int estimate_product_columns(const EstWork *w, RTerm *rt, const RClass *rc, cons
   /* a projection's error in K0's norm: the columns K0C (the file's comment); a chained term's blocks each as theirs */
   bool chain = rt->nops > 0 && estimate_term_chains(rt), projection = rt->nops == 0;
   if (L && (chain ? chain_columns(&wk, rt, rc, K0, cols) : projection ? 0 : product_theta(&wk, rt, rc, K0, cols)) == 0 &&
-      (!chain || application_ratios(&wk, rt, rc, K0) == 0) && (*V = malloc(sizeof(double) * (size_t)(rc->n * rc->m) + 1))) {
+      (!chain || application_ratios(&wk, rt, rc, K0, L) == 0) && (*V = malloc(sizeof(double) * (size_t)(rc->n * rc->m) + 1))) {
     memcpy(*V, rc->D, sizeof(double) * (size_t)(rc->n * rc->m));
     out = (projection && apply_product(K0, cols->C, rc->n, cols->D, cols->D, &cc)) ||
                   solve_lower(L, cols->C, rc->n, cols->D, &cc) || solve_lower(L, *V, rc->n, rc->m, &cc) ? -1 : 0;

@@ -46,6 +46,8 @@ const double *estimate_basis_row(const Model *m, const ColRows *rows, int c, lon
 void estimate_column_norms(const double *C, long n, long D, double *norms);
 /* Term rt's first operator at the evaluator's current values, dense n x n row-major into M. 0, or -1 with `err`. */
 int estimate_dense_operator(Full *f, const RTerm *rt, double *M, long n, Err *err);
+/* The same as a CHOLMOD sparse matrix (unsymmetric storage, sorted, duplicates summed); NULL with `err`. */
+cholmod_sparse *estimate_sparse_operator(Full *f, const RTerm *rt, long n, cholmod_common *cc, Err *err);
 /* σ_min of the n x n row-major A (destroyed; `sv` 2n doubles): an SPD one by dsyevr, any other by
  * dgesvd; NaN when LAPACK fails. */
 double estimate_smallest_sv(double *A, long n, double *sv);

@@ -347,7 +347,6 @@ static int full_operator(Full *f, const RTerm *rt, double *M, long n, Err *err) 
   return 0;
 }
 
-int estimate_dense_operator(Full *f, const RTerm *rt, double *M, long n, Err *err) { return full_operator(f, rt, M, n, err); }
 
 /* Smallest singular value of the n x n row-major A (destroyed); NaN if LAPACK fails. A symmetric
  * positive definite A (the usual inverse: Cholesky's) by its smallest eigenvalue alone (dsyevr,
@@ -439,6 +438,11 @@ static cholmod_sparse *sparse_operator(Full *f, const RTerm *rt, long n, cholmod
     err_set(err, "estimate tables: CHOLMOD could not assemble the %ld x %ld operator (status %d)", n, n, cc->status);
   free(s.ri), free(s.ci), free(s.x); /* grown by trip_entry (realloc), freed at the one exit */
   return A;
+}
+
+int estimate_dense_operator(Full *f, const RTerm *rt, double *M, long n, Err *err) { return full_operator(f, rt, M, n, err); }
+cholmod_sparse *estimate_sparse_operator(Full *f, const RTerm *rt, long n, cholmod_common *cc, Err *err) {
+  return sparse_operator(f, rt, n, cc, err);
 }
 
 /* y = AᵀA x for the sparse n x n A (CHOLMOD's compressed columns); tmp: n doubles. */

@@ -222,19 +222,12 @@ def sparse():
     import estimate_sparse as sp
     G = 30
     nbr, blk, src = sp.grid(G)
-    cx, cy = np.arange(G * G) % G / G, np.arange(G * G) // G / G
-    phi = np.array([np.sin(np.pi * (i + 1) * cx) * np.sin(np.pi * (j + 1) * cy) for i, j in ((0, 0), (1, 0), (0, 1))])
     prog = open(sp.PROG).read().replace("basis u: max 8\n", "").replace(
         "output u = solve(K, src)\n", "input x : real[N]\noutput v = K * x\noutput s = K^2 * x\noutput r = root(K, 2) * x\n")
-    rng = np.random.default_rng(5)
     with tempfile.TemporaryDirectory() as d:
         open(os.path.join(d, "block.npg"), "w").write(prog)
-        train, test, model, out = (os.path.join(d, n) for n in ("TRAIN", "TEST", "MODEL", "OUT"))
-        sp.write(train, rng.uniform(0.1, 1, (12, 4)), nbr, blk, src)
-        np.save(os.path.join(train, "x.npy"), rng.uniform(-1, 1, (12, 3)) @ phi)
-        mu, x = rng.uniform(0.1, 1, (6, 4)), rng.uniform(-1, 1, (6, 3)) @ phi
-        sp.write(test, mu, nbr, blk, src)
-        np.save(os.path.join(test, "x.npy"), x)
+        model, out = os.path.join(d, "MODEL"), os.path.join(d, "OUT")
+        train, test, mu, x = sp.block_inputs(d, G, np.random.default_rng(5))
         run("train", os.path.join(d, "block.npg"), train, "-o", model)
         manifest = open(os.path.join(model, "manifest")).read()
         if "sigma nan" in manifest or "\ntheta r 0 input mu" not in manifest:

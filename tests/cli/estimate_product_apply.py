@@ -197,6 +197,37 @@ def solves(d, train, test, st, H, M):
         fail("u = G⁻¹ M x with x exact: its figure is not flagged a bound:\n" + said)
 
 
+def sparse():
+    """Beyond the dense limit of 800 rows: the thermal block's K(mu) (tests/cli/thermal_block.npg, 30 x 30 cells) applied
+    to x of three smooth modes, and its square, x's class orthonormal in H = K(1, 1, 1, 1); ‖K‖_H's ratio measured by
+    Lanczos in H's inner product on the sparse operator."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import estimate_sparse as sp
+    G = 30
+    nbr, blk, src = sp.grid(G)
+    prog = open(sp.PROG).read().replace("basis u: max 8\n", "").replace(
+        "output u = solve(K, src)\n", "op H[i:N, j:N] = delta(i, j) * (1 + sum(k = 0..3, if(nbr[i, k] >= 0, 1, 0))) - "
+        "sum(k = 0..3, if(nbr[i, k] == j, 1, 0))\ninput x : real[N]\noutput v = K * x\noutput s = K^2 * x\n"
+        "basis x: product H\n")
+    stiff = lambda mu: np.column_stack([sp.apply_spd(e, sp.faces(mu, nbr, blk), nbr) for e in np.eye(G * G)])
+    H = stiff(np.ones(4))
+    with tempfile.TemporaryDirectory() as d:
+        open(os.path.join(d, "block.npg"), "w").write(prog)
+        model, out = os.path.join(d, "MODEL"), os.path.join(d, "OUT")
+        train, test, mu, x = sp.block_inputs(d, G, np.random.default_rng(5))
+        run("train", os.path.join(d, "block.npg"), train, "-o", model)
+        if "estimate s 0 dim" not in open(os.path.join(model, "manifest")).read() or "sigma nan" in open(
+                os.path.join(model, "manifest")).read():
+            fail("K² x beyond the dense limit in a product has no table or no ratio")
+        run("eval", os.path.join(d, "block.npg"), model, test, "-o", out)
+        Ks = [stiff(mu[k]) for k in range(len(mu))]
+        est = lambda n: np.load(os.path.join(out, n + ".estimate.npy"))
+        red = lambda n: np.load(os.path.join(out, n + ".npy"))
+        check("sparse K x", est("v"), np.array([Ks[k] @ x[k] for k in range(len(mu))]), red("v"), H, 1 - 1e-6, 1 + 1e-6)
+        check("sparse K² x", est("s"), np.array([Ks[k] @ Ks[k] @ x[k] for k in range(len(mu))]), red("s"), H, 1, 20)
+
+
 if __name__ == "__main__":
     main()
+    sparse()
     print("ok")

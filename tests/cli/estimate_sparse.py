@@ -50,6 +50,21 @@ def write(d, mu, nbr, blk, src):
         np.save(os.path.join(d, name + ".npy"), a)
 
 
+def block_inputs(d, G, rng):
+    """TRAIN/ (12 samples) and TEST/ (6) under d for the G x G block (mu uniform in [0.1, 1]) with an input x of three
+    smooth modes (tests/cli/estimate_apply.py, estimate_product_apply.py); returns (train, test, the test mu and x)."""
+    nbr, blk, src = grid(G)
+    cx, cy = np.arange(G * G) % G / G, np.arange(G * G) // G / G
+    phi = np.array([np.sin(np.pi * (i + 1) * cx) * np.sin(np.pi * (j + 1) * cy) for i, j in ((0, 0), (1, 0), (0, 1))])
+    train, test = os.path.join(d, "TRAIN"), os.path.join(d, "TEST")
+    write(train, rng.uniform(0.1, 1, (12, 4)), nbr, blk, src)
+    np.save(os.path.join(train, "x.npy"), rng.uniform(-1, 1, (12, 3)) @ phi)
+    mu, x = rng.uniform(0.1, 1, (6, 4)), rng.uniform(-1, 1, (6, 3)) @ phi
+    write(test, mu, nbr, blk, src)
+    np.save(os.path.join(test, "x.npy"), x)
+    return train, test, mu, x
+
+
 def faces(mu, nbr, blk):
     """Each (cell, neighbour slot)'s conductance, 0 where there is no neighbour."""
     c = 0.5 * (mu[blk][:, None] + mu[blk[np.maximum(nbr, 0)]])
