@@ -456,6 +456,11 @@ static int load_arrays(const ModelStore *s, Model *m, const char *dir, Err *err)
     RStage *rs = &m->stages[i];
     for (int t = 0; t < rs->nterms; t++) {
       RTerm *rt = &rs->terms[t];
+      char old[512];
+      snprintf(old, sizeof old, "proj_%s_t%d", rs->st->sym->name, t);
+      if (!rt->proj_name && rt->named_q >= 0 && model_store_array(s, old)) /* issue 41: DᵀB = I, no projection now */
+        return err_set(err, "%s/%s.npy: the model reduced stage %s's application in a product as in the 2-norm (trained "
+                       "before applications in a product were projected): retrain it", dir, old, rs->st->sym->name);
       if (rt->proj_name &&
           !(rt->proj = take(s, dir, rt->proj_name, m->classes[m->qclass[rs->q]].m,
                             m->classes[m->qclass[rt->named_q]].m, err)))
