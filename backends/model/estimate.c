@@ -44,7 +44,7 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
                     "inverses, operators applied to positive powers and one solve right after the numerator or an "
                     "operator applied once have an estimate)", t + 1,
                     rt->nops == 1 ? "takes a root, reduced as (BᵀMB)^α Bᵀw, no approximation in K0's norm,"
-                                  : "chains solves otherwise", rc->label, rc->product->name), false;
+                                  : "chains solves, roots or diagonal operators otherwise", rc->label, rc->product->name), false;
   /* in a product K0 the figure is ‖e‖_K0 (estimate_product.c): an inverse's from the residual's dual norm, a
    * projection's and an application's residuals exactly, ‖M‖_K0 estimated, a named numerator's error carried
    * across the norms (RTerm.est_carry) */
