@@ -39,10 +39,11 @@
  * ŷ = (DᵀMB)^p Dᵀw: estimate_term_applies): each block of its columns (the numerator's, M B ⊗ each operator's
  * monomials) is the error of a K0-projection, weighted the same way and QR'd block by block by the caller; and per
  * operator the ratio c = max ‖LᵀML⁻ᵀ‖₂ / ‖DᵀMB‖₂ over training samples (‖M‖_K0 ≈ c ‖DᵀMB‖₂ online; dense K0 = LLᵀ
- * up to ESTIMATE_DENSE_MAX rows, Lanczos in K0's inner product above: application_ratios). A term of several operators with one solve (K⁻¹ M w, M K⁻¹ w:
- * estimate_product_chains) keeps the solve's block (its operand's producer's columns joined with its own) a residual,
- * L⁻¹P-weighted for its dual norm, gets the solve's min-θ table relative to K0 (chain_columns), and the ratio of an
- * operator applied before it is into K0⁻¹'s norm, ‖L⁻¹ML⁻ᵀ‖₂ / ‖BᵀMB‖₂.
+ * up to ESTIMATE_DENSE_MAX rows, Lanczos in K0's inner product above: application_ratios). A term of several
+ * operators with one solve (K⁻¹ M w, M K⁻¹ w: estimate_product_chains) keeps the solve's block (its operand's
+ * producer's columns joined with its own) a residual, L⁻¹P-weighted for its dual norm, gets the solve's min-θ table
+ * relative to K0 (chain_columns), and the ratio of an operator applied before it is into K0⁻¹'s norm,
+ * ‖L⁻¹ML⁻ᵀ‖₂ / ‖BᵀMB‖₂.
  *
  * A named numerator w whose own error e_w is in its class's norm (the 2-norm, or its product K1's)
  * enters an inverse term's residual in K0⁻¹'s norm and a projection's error in K0's:
@@ -460,7 +461,7 @@ static double application_ratio(const EstWork *wk, const RTerm *view, const RCla
 /* Term rt's ratios c_k = the largest ‖M_k‖_K0 / ‖DᵀM_kB‖₂ (application_ratio; into K0⁻¹'s norm for an operator a solve
  * follows) over up to ESTIMATE_SIGMA_SAMPLES training samples spread over the set (as the σ_min ratios pick them), each
  * evaluated: est_sigma for a term of one operator, est_opc for several (NaN: none, a ratio not finite at a sample, and
- * an inverse's: it divides by its min-θ bound, chain_theta). Dense up to ESTIMATE_DENSE_MAX rows, by Lanczos on the
+ * an inverse's: it divides by its min-θ bound, chain_columns). Dense up to ESTIMATE_DENSE_MAX rows, by Lanczos on the
  * sparse operator through K0's factor LK above (sparse_ratio), none above ESTIMATE_SPARSE_MAX (a figure that needs
  * ‖M‖ reports so). 0, or -1 with `err`. */
 static int application_ratios(const EstWork *wk, RTerm *rt, const RClass *rc, cholmod_sparse *K0, cholmod_factor *LK) {
@@ -474,7 +475,8 @@ static int application_ratios(const EstWork *wk, RTerm *rt, const RClass *rc, ch
   double *c = scratch_array(&sc, (size_t)rt->nops + 1, sizeof(double)),
          *L = dense ? scratch_array(&sc, (size_t)(n * n) + 1, sizeof(double)) : NULL;
   NormBufs b = {L, dense ? scratch_array(&sc, (size_t)(n * n) + 1, sizeof(double)) : NULL,
-                scratch_array(&sc, (size_t)(n * rc->m) + 1, sizeof(double)), scratch_array(&sc, (size_t)(rc->m * rc->m) + 1, sizeof(double)),
+                scratch_array(&sc, (size_t)(n * rc->m) + 1, sizeof(double)),
+                scratch_array(&sc, (size_t)(rc->m * rc->m) + 1, sizeof(double)),
                 scratch_array(&sc, (size_t)(4 * n) + 1, sizeof(double)), false, LK, K0};
   bool room = c && (!dense || (L && b.M)) && b.T && b.R && b.sv;
   cholmod_dense *K = room && dense ? cholmod_l_sparse_to_dense(K0, wk->cc) : NULL;
@@ -609,7 +611,9 @@ int estimate_product_carry(const EstWork *w, RTerm *rt, const RClass *rc, const 
   cholmod_l_finish(&cc);
   if (out) return -1;
   bool same = rc->product && rc->product == cw->product;
-  if (rt->nops > 0 && !model_term_projects(rt, -1)) /* into a solve's residual's norm, K0⁻¹'s: ‖v‖_{K0⁻¹} ≤ ‖v‖₂ / √λ_min(K0), ‖v‖₂ ≤ ‖v‖_K1 / √λ_min(K1) */
+  /* into a solve's residual's norm (a solve takes the numerator first), K0⁻¹'s: ‖v‖_{K0⁻¹} ≤ ‖v‖₂ / √λ_min(K0),
+   * ‖v‖₂ ≤ ‖v‖_K1 / √λ_min(K1) */
+  if (rt->nops > 0 && !model_term_projects(rt, -1))
     rt->est_carry = 1 / sqrt(k0[0] * k1[0]);
   else /* into the error's norm, K0's: ‖v‖_K0 ≤ √λ_max(K0) ‖v‖₂ */
     rt->est_carry = same ? 1 : sqrt(k0[1] / k1[0]);

@@ -85,7 +85,8 @@ cholmod_factor *product_factor(const RClass *rc, cholmod_sparse *A, cholmod_comm
  * norm ‖r‖_{K0⁻¹} of the residual r = C z; a projection's or an application's (estimate_term_applies) becomes
  * L⁻¹P K0C = LᵀPC, so that ‖C z‖ is the error's K0-norm ‖(I − BBᵀK0) w‖_K0 once projected; an application's ratios
  * ‖M‖_K0 / ‖DᵀMB‖₂ are measured at training samples (est_sigma, or est_opc for several operators); a term of several
- * operators with one solve gets each block as its part needs (the solve's a residual) and the solve's min-θ table. Returns in *V (n x m, malloc'd)
+ * operators with one solve gets each block as its part needs (the solve's a residual) and the solve's min-θ table.
+ * Returns in *V (n x m, malloc'd)
  * L⁻¹P K0B = LᵀPB, orthonormal, the span the caller projects out (the Galerkin residual's Riesz
  * representative is K0-orthogonal to B's span; the projection's error is K0-orthogonal to it). For
  * an inverse sets rt's min-θ table relative to K0 when it applies (one anchor x̄ with M(x̄) = K0
