@@ -145,9 +145,11 @@ long estimate_test_chunk_rows(void) {
 
 EstMake estimate_term_make(const Model *m, int i, int t) {
   double D = (double)estimate_term_dim(m, i, t);
-  bool chunks = !m->classes[m->qclass[m->stages[i].q]].product && 8 * D * D <= (double)ESTIMATE_MAX_TABLE_BYTES;
-  if (estimate_term_bytes(m, i, t) <= ESTIMATE_MAX_BYTES && !(chunks && estimate_test_chunk_rows())) return EST_MAKE_WHOLE;
-  return chunks ? EST_MAKE_CHUNKS : EST_MAKE_NONE;
+  bool product = m->classes[m->qclass[m->stages[i].q]].product, small = 8 * D * D <= (double)ESTIMATE_MAX_TABLE_BYTES;
+  size_t bytes = estimate_term_bytes(m, i, t);
+  if (bytes <= ESTIMATE_MAX_BYTES && !(small && !product && estimate_test_chunk_rows())) return EST_MAKE_WHOLE;
+  if (!small) return EST_MAKE_NONE;
+  return !product ? EST_MAKE_CHUNKS : bytes <= ESTIMATE_MAX_PRODUCT_BYTES ? EST_MAKE_WHOLE : EST_MAKE_NONE;
 }
 
 void estimate_input_product(const Model *m, double *const *coords, const RTensor *x, double *z, double *scratch) {
@@ -746,11 +748,12 @@ static int stage_figure(Reduced *r, int i, Estimation *s, Figure *f) {
     if (!estimate_term_eligible(m, i, t, why, whylen)) return *flagsp = flags, -1;
     if (!rt->est_G) {
       double D = (double)estimate_term_dim(m, i, t);
-      if (estimate_term_make(m, i, t) == EST_MAKE_NONE && m->classes[m->qclass[q]].product)
+      if (estimate_term_make(m, i, t) == EST_MAKE_NONE && m->classes[m->qclass[q]].product &&
+          8 * D * D <= (double)ESTIMATE_MAX_TABLE_BYTES)
         snprintf(why, whylen, "term %d's residual table (%ld x %.0f columns, whole in a class with a product, and their R) "
-                 "takes %.1f MiB, above the estimate tables' bound of %zu MiB (ESTIMATE_MAX_BYTES): smaller bases "
+                 "takes %.1f MiB, above the bound of %zu MiB (ESTIMATE_MAX_PRODUCT_BYTES): smaller bases "
                  "(--basis NAME:cap=N) fit it", t + 1, m->classes[m->qclass[q]].n, D,
-                 (double)estimate_term_bytes(m, i, t) / 1048576.0, ESTIMATE_MAX_BYTES >> 20);
+                 (double)estimate_term_bytes(m, i, t) / 1048576.0, ESTIMATE_MAX_PRODUCT_BYTES >> 20);
       else if (estimate_term_make(m, i, t) == EST_MAKE_NONE)
         snprintf(why, whylen, "term %d's residual table (R of %.0f columns) takes %.1f MiB, above the bound of %zu MiB "
                  "(ESTIMATE_MAX_TABLE_BYTES): smaller bases (--basis NAME:cap=N) fit it", t + 1, D,

@@ -135,16 +135,18 @@ void estimate_chain_layout(const Model *m, int i, int t, ChainLayout *L);
 long estimate_term_num_dim(const Model *m, int i, int t);
 /* How training makes a term's residual table. Whole when its columns (n x D doubles) and their R
  * (D x D, kept in the model) take at most ESTIMATE_MAX_BYTES together: the columns projected and
- * factored at once (estimate_train.c qr_factor). Else, in a class without a product, by row chunks
- * (estimate_train.c chunked_table: a tall-skinny QR of [B C], about ESTIMATE_CHUNK_BYTES of C at a
- * time) when R alone takes at most ESTIMATE_MAX_TABLE_BYTES: the memory is then R, the working
- * factor (D + m)² and a chunk, and the cost 2 n (D + m)² flops. A class with a product needs its
- * columns whole (they are weighted by K0's Cholesky factor), and a larger R gets no table: its
- * evaluations say so with the figures. D grows with the basis (1 + 10 m on a 3 x 3 thermal
- * block: 1,901 at m = 190, 20,201 x 1,901 columns = 293 MiB made by chunks, R 27.6 MiB), R with
- * D² (the heat example's implicit step, D = 3600 and n = 16,384: R 99 MiB, stays without one). */
+ * factored at once (estimate_train.c qr_factor). Beyond, only R must fit ESTIMATE_MAX_TABLE_BYTES
+ * (the model's size, and the online O(D²)): in a class without a product the table is made by row
+ * chunks (estimate_train.c chunked_table: a tall-skinny QR of [B C], about ESTIMATE_CHUNK_BYTES of C
+ * at a time; memory R, the working factor (D + m)² and a chunk); in a class with a product the
+ * columns are weighted by K0's Cholesky factor, which mixes rows, so they are made whole up to
+ * ESTIMATE_MAX_PRODUCT_BYTES. The cost is 2 n D² flops either way. A term beyond gets no table, and
+ * its evaluations say so with the figures. D grows with the basis (1 + 10 m on a 3 x 3 thermal
+ * block: 1,901 at m = 190, 20,201 x 1,901 columns = 293 MiB, R 27.6 MiB), R with D² (the heat
+ * example's implicit step, D = 3600 and n = 16,384: R 99 MiB, stays without one). */
 #define ESTIMATE_MAX_BYTES ((size_t)256 << 20)
 #define ESTIMATE_MAX_TABLE_BYTES ((size_t)64 << 20)
+#define ESTIMATE_MAX_PRODUCT_BYTES ((size_t)1 << 30)
 #define ESTIMATE_CHUNK_BYTES ((size_t)16 << 20)
 typedef enum { EST_MAKE_NONE, EST_MAKE_WHOLE, EST_MAKE_CHUNKS } EstMake;
 EstMake estimate_term_make(const Model *m, int i, int t);
