@@ -21,8 +21,17 @@
  * itself is measured as in memory, on the operator assembled from a whole evaluation of the sample
  * (the one full evaluation --mem leaves room for).
  *
+ * A Galerkin stage of diagonal operators of a dropped class whose terms have no table (a diagonal
+ * root: radiosity's p = d a^(-1/2) in a room without the extern) is estimated by its check table
+ * (interp_check: the formula's residual at k_c sampled entries). Its entries and monomials need
+ * no basis (interp_train_check_rows, before the sweep); the basis rows it keeps — the stage's class
+ * at the entries (brows), each read quantity's at the entry read (read_rows) — are copied from the
+ * blocks as the sweep forms them, each from the one block whose home rows hold it, and multiplied
+ * by the columns' signs at the end: the in-memory check table to rounding.
+ *
  * Over MPI ranks each rank factors its own blocks; the ranks' R are stacked in rank order on every
- * rank and factored once more (the same bytes everywhere), the norms and B_yᵀM_kB_y summed. */
+ * rank and factored once more (the same bytes everywhere), the norms, B_yᵀM_kB_y and the check
+ * tables' rows summed (every row from one rank, zero on the others). */
 #include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
@@ -32,6 +41,7 @@
 
 #include "dist.h"
 #include "estimate_steps.h"
+#include "interp.h"
 #include "ooc.h"
 #include "scratch.h"
 
@@ -56,11 +66,20 @@ typedef struct EstTerm {
   Trip *trip;               /* nk: this block's entries of M_k */
 } EstTerm;
 
+/* A Galerkin stage of diagonal operators of a dropped class: its estimate's check table. */
+typedef struct EstCheck {
+  int i;                    /* stage */
+  RInterp *ck;              /* interp_train_check_rows's: brows and read_rows filled by the blocks */
+  long *at;                 /* per read: its row's offset in ck->read_rows */
+} EstCheck;
+
 struct EstStream {
   Ooc *o;
   EstWork w;
   EstTerm *term;
   int nt;
+  EstCheck *check;
+  int nc;
   long nk;                  /* picked samples, as sigma_ratios picks them */
   Scratch sc;               /* everything above, released by estimate_stream_free */
 };
@@ -115,23 +134,66 @@ static int term_init(EstStream *e, EstTerm *x, int i, int t) {
   return x->R && x->norms && (!x->sigma || (x->G && x->trip)) ? 0 : -1;
 }
 
+/* Whether stage i is a Galerkin stage of diagonal operators of a dropped class with a term of no table: its
+ * estimate is a check table (train_estimates's rule, which skips the class: it has no basis there). */
+static bool checked_stage(const Ooc *o, int i) {
+  Model *m = o->t->m;
+  const RStage *rs = &m->stages[i];
+  char why[256];
+  bool tables = true;
+  for (int t = 0; t < rs->nterms; t++) tables = tables && estimate_term_eligible(m, i, t, why, sizeof why);
+  return !rs->interp && !tables && lower_interp_eligible(rs->st) && dropped(o, m->qclass[rs->q]);
+}
+
+/* Stage i's check table without its rows (the blocks copy them), kept when every class it reads is
+ * blockwise or whole (as in memory, where a read class without its basis leaves the check out). */
+static int check_init(EstStream *e, int i) {
+  Model *m = e->w.m;
+  RInterp *ck = NULL;
+  if (interp_train_check_rows(m, e->w.f, i, &ck, e->w.err)) return -1;
+  EstCheck *x = &e->check[e->nc];
+  *x = (EstCheck){i, ck, scratch_array(&e->sc, (size_t)ck->nreads + 1, sizeof(long))};
+  long len = 0;
+  bool rows = true;
+  for (long r = 0; r < ck->nreads; r++) {
+    int c = m->qclass[ck->read_q[r]];
+    rows &= e->o->st[c].blockwise || m->classes[c].B || m->classes[c].m == 0;
+    if (x->at) x->at[r] = len;
+    len += m->classes[c].m;
+  }
+  if (!rows) { /* no check, as in memory */
+    interp_free(ck);
+    return 0;
+  }
+  e->nc++;
+  if (!x->at || !(ck->read_rows = mem_calloc((size_t)len + 1, sizeof(double))))
+    return err_set(e->w.err, "out of memory for the check table of stage %s", m->stages[i].st->sym->name);
+  return 0;
+}
+
 int estimate_stream_begin(Ooc *o, EstStream **out) {
   Model *m = o->t->m;
   *out = NULL;
   long S = o->t->src->count;
-  int n = 0;
-  for (int i = 0; i < m->nstages; i++)
+  int n = 0, nc = 0;
+  for (int i = 0; i < m->nstages; i++) {
+    nc += checked_stage(o, i);
     for (int t = 0; t < m->stages[i].nterms; t++) n += streamed_term(o, i, t);
-  if (n == 0 || S < 1) return 0;
+  }
+  if (n + nc == 0 || S < 1) return 0;
   EstStream *e = calloc(1, sizeof *e);
   if (!e) return err_set(o->t->err, "out of memory for the estimate tables of the streamed bases");
-  *e = (EstStream){o, {m, o->t->f, NULL, o->t->err, o->t->src}, NULL, 0, S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES,
-                   SCRATCH_OF(o->t->err)};
+  *e = (EstStream){o, {m, o->t->f, NULL, o->t->err, o->t->src}, NULL, 0, NULL, 0,
+                   S < ESTIMATE_SIGMA_SAMPLES ? S : ESTIMATE_SIGMA_SAMPLES, SCRATCH_OF(o->t->err)};
   *out = e;
-  if (!(e->term = scratch_array(&e->sc, (size_t)n, sizeof(EstTerm)))) return -1;
-  for (int i = 0; i < m->nstages; i++)
+  if (!(e->term = scratch_array(&e->sc, (size_t)n + 1, sizeof(EstTerm))) ||
+      !(e->check = scratch_array(&e->sc, (size_t)nc + 1, sizeof(EstCheck))))
+    return -1;
+  for (int i = 0; i < m->nstages; i++) {
+    if (checked_stage(o, i) && check_init(e, i)) return -1;
     for (int t = 0; t < m->stages[i].nterms; t++)
       if (streamed_term(o, i, t) && term_init(e, &e->term[e->nt++], i, t)) return -1;
+  }
   return 0;
 }
 
@@ -139,6 +201,7 @@ void estimate_stream_free(EstStream *e) {
   if (!e) return;
   for (int k = 0; k < e->nt; k++)
     for (long j = 0; e->term[k].trip && j < e->nk; j++) free(e->term[k].trip[j].rc), free(e->term[k].trip[j].v);
+  for (int k = 0; k < e->nc; k++) interp_free(e->check[k].ck); /* NULL once the stage holds it */
   scratch_release(&e->sc);
   free(e);
 }
@@ -256,9 +319,42 @@ static int reduce_operator(EstStream *e, EstTerm *x, const ColRows *rows) {
   return 0;
 }
 
+/* The basis rows of block u of U as the sweep formed them (signs not fixed), each class's by its map. */
+typedef struct BlockRows {
+  const double *const *B;
+  const RowMap *const *map;
+  long u, U;
+} BlockRows;
+
+/* Row r of class c into `out` when c is blockwise and r one of the block's home rows (every row is one
+ * block's home: each row copied once over the blocks and the ranks). */
+static int home_row(const EstStream *e, const BlockRows *b, int c, long r, double *out) {
+  const Model *m = e->w.m;
+  long n = m->classes[c].n, lo, hi;
+  if (!e->o->st[c].blockwise) return 0;
+  stream_fraction(n, b->u, b->U, &lo, &hi);
+  if (r < lo || r >= hi) return 0;
+  const double *row = estimate_basis_row(m, &(ColRows){lo, hi, n, b->B, b->map}, c, r);
+  if (!row) return err_set(e->w.err, "estimate tables: row %ld of class %s's basis not held (a bug in npg)", r, m->classes[c].label);
+  memcpy(out, row, sizeof(double) * (size_t)m->classes[c].m);
+  return 0;
+}
+
+/* The check table's rows held by the block: the stage's class at its entries, each read's class at the entry read. */
+static int check_rows_of_block(const EstStream *e, const EstCheck *x, const BlockRows *b) {
+  const Model *m = e->w.m;
+  const RInterp *ck = x->ck;
+  int cy = m->qclass[m->stages[x->i].q], out = 0;
+  for (long s = 0; out == 0 && s < ck->k; s++) out = home_row(e, b, cy, ck->rows[s], ck->brows + s * m->classes[cy].m);
+  for (long r = 0; out == 0 && r < ck->nreads; r++)
+    out = home_row(e, b, m->qclass[ck->read_q[r]], ck->read_e[r], ck->read_rows + x->at[r]);
+  return out;
+}
+
 int estimate_stream_block(EstStream *e, const double *const *B, const RowMap *const *map, long u, long U) {
   if (!e) return 0;
   int out = 0;
+  for (int k = 0; out == 0 && k < e->nc; k++) out = check_rows_of_block(e, &e->check[k], &(BlockRows){B, map, u, U});
   for (int q = 0; out == 0 && q < e->nt; q++) {
     EstTerm *x = &e->term[q];
     long n = e->w.m->classes[x->cy].n, lo, hi, chunk = (long)(TSQR_CHUNK_BYTES / sizeof(double) / (size_t)x->W);
@@ -344,9 +440,37 @@ static int sigma_ratio(EstStream *e, EstTerm *x, double *sig) {
   return out;
 }
 
+/* Check x's rows summed over the ranks, the blockwise classes' columns multiplied by their signs, a whole
+ * class's rows read from its basis; packed, the stage's check table. */
+static int check_finish(EstStream *e, EstCheck *x, const double *const *sign) {
+  Model *m = e->w.m;
+  RInterp *ck = x->ck;
+  RStage *rs = &m->stages[x->i];
+  int cy = m->qclass[rs->q];
+  long my = m->classes[cy].m, len = 0;
+  for (long r = 0; r < ck->nreads; r++) len += m->classes[m->qclass[ck->read_q[r]]].m;
+  if (e->o->N > 1) dist_allreduce_sum(ck->brows, ck->k * my), dist_allreduce_sum(ck->read_rows, len);
+  for (long s = 0; s < ck->k; s++)
+    for (long a = 0; a < my; a++) ck->brows[s * my + a] *= sign[cy][a];
+  for (long r = 0; r < ck->nreads; r++) {
+    const RClass *rc = &m->classes[m->qclass[ck->read_q[r]]];
+    double *row = ck->read_rows + x->at[r];
+    if (!e->o->st[m->qclass[ck->read_q[r]]].blockwise) {
+      if (rc->m > 0) memcpy(row, rc->B + ck->read_e[r] * rc->m, sizeof(double) * (size_t)rc->m);
+      continue;
+    }
+    for (long a = 0; a < rc->m; a++) row[a] *= sign[m->qclass[ck->read_q[r]]][a];
+  }
+  if (interp_pack(m, rs, ck)) return err_set(e->w.err, "out of memory for the check table of stage %s", rs->st->sym->name);
+  interp_free(rs->check);
+  rs->check = ck, x->ck = NULL;
+  return 0;
+}
+
 int estimate_stream_finish(EstStream *e, const double *const *sign) {
   if (!e) return 0;
   int out = 0;
+  for (int k = 0; out == 0 && k < e->nc; k++) out = check_finish(e, &e->check[k], sign);
   for (int q = 0; out == 0 && q < e->nt; q++)
     out = (e->o->N > 1 && combine_ranks(e, &e->term[q])) || store_table(e, &e->term[q], sign);
   cholmod_common cc;

@@ -161,7 +161,8 @@ static int pseudo_inverse(const RClass *c, RInterp *ip, const char *stage, Err *
 /* The estimate's check entries of fit ip (docs/estimates.md, interp_check): every entry the fit
  * does not select up to max(INTERP_CHECK_MIN, k, 2m) of them, else that many drawn uniformly without
  * replacement (a fixed seed: training is reproducible), in ip->check->rows and slot[] (from ip->k
- * on); their basis rows, after the fit's, in ip->check->brows. 0, or -1 out of memory. */
+ * on); their basis rows, after the fit's, in ip->check->brows (zero when c has no basis in memory:
+ * out of core the sweep fills them, estimate_stream.c). 0, or -1 out of memory. */
 static int check_rows(const RClass *c, RInterp *ip, long *slot) {
   RInterp *ck = ip->check;
   long n = c->n, m = c->m, rest = n - ip->k, want = ip->k > 2 * m ? ip->k : 2 * m, j = 0;
@@ -180,9 +181,9 @@ static int check_rows(const RClass *c, RInterp *ip, long *slot) {
     pool[d] = pool[pick], pool[pick] = t;
   }
   ck->rows = mem_malloc(sizeof(long) * (size_t)(ck->k + 1));
-  ck->brows = mem_malloc(sizeof(double) * (size_t)((ip->k + ck->k) * m + 1));
+  ck->brows = mem_calloc((size_t)((ip->k + ck->k) * m + 1), sizeof(double));
   for (long d = 0; ck->rows && ck->brows && d < ck->k; d++) ck->rows[d] = pool[d], slot[pool[d]] = ip->k + d;
-  for (long s = 0; ck->rows && ck->brows && s < ip->k + ck->k; s++)
+  for (long s = 0; c->B && ck->rows && ck->brows && s < ip->k + ck->k; s++) /* no basis (out of core): the sweep's */
     memcpy(ck->brows + s * m, c->B + (s < ip->k ? ip->rows[s] : ck->rows[s - ip->k]) * m, sizeof(double) * (size_t)m);
   scratch_release(&sc);
   return ck->rows && ck->brows ? 0 : -1;
@@ -305,8 +306,9 @@ static int read_terms(Table *tb, Full *f, const RStage *rs, const char *sn) {
 }
 
 /* interp_train_stage, or with oversample 0 interp_train_check: no fit (k = 0), the check table
- * drawn from all n entries into rs->check. */
-static int train_tables(Model *m, Full *f, int stage, double oversample, Err *err) {
+ * drawn from all n entries into rs->check; with `defer` too (interp_train_check_rows) the check
+ * table handed out in *defer before its basis rows are read and it is packed. */
+static int train_tables(Model *m, Full *f, int stage, double oversample, RInterp **defer, Err *err) {
   RStage *rs = &m->stages[stage];
   const char *sn = rs->st->sym->name;
   const RClass *c = &m->classes[m->qclass[rs->q]];
@@ -337,6 +339,12 @@ static int train_tables(Model *m, Full *f, int stage, double oversample, Err *er
   if (rc == 0) {
     tb.slot = slot, tb.check = &tbx, tbx.ip = ip->check;
     rc = read_terms(&tb, f, rs, sn);
+  }
+  if (rc == 0 && defer) { /* out of core: the basis rows come from the sweep */
+    *defer = ip->check, ip->check = NULL;
+    interp_free(ip);
+    scratch_release(&sc);
+    return 0;
   }
   int rows = rc == 0 ? check_read_rows(m, ip->check) : 0;
   if (rc == 0 && (rows < 0 || interp_pack(m, rs, ip) || (rows == 0 && interp_pack(m, rs, ip->check))))
@@ -418,9 +426,14 @@ Model *interp_train_with_choice(Program *prog, Full *f, const SampleSource *all,
 
 int interp_train_stage(Model *m, Full *f, int stage, double oversample, Err *err) {
   if (!(oversample >= 1)) return err_set(err, "interpolation oversampling %g: must be at least 1", oversample);
-  return train_tables(m, f, stage, oversample, err);
+  return train_tables(m, f, stage, oversample, NULL, err);
 }
 
 int interp_train_check(Model *m, Full *f, int stage, Err *err) {
-  return train_tables(m, f, stage, 0, err);
+  return train_tables(m, f, stage, 0, NULL, err);
+}
+
+int interp_train_check_rows(Model *m, Full *f, int stage, RInterp **check, Err *err) {
+  *check = NULL;
+  return train_tables(m, f, stage, 0, check, err);
 }

@@ -207,6 +207,11 @@ int interp_train_stage(Model *m, Full *f, int stage, double oversample, Err *err
  * not interpolated): k_c entries drawn from all n, their monomials and basis rows, into
  * m->stages[stage].check (interp_check). 0, or -1 with `err`. */
 int interp_train_check(Model *m, Full *f, int stage, Err *err);
+/* interp_train_check's table without the bases' rows, for a stage whose class or reads have no basis
+ * in memory (out of core: estimate_stream.c): entries and monomials made, brows zero where the
+ * stage's class has no basis, read_rows NULL, not packed (interp_pack), into *check (the caller's
+ * to free, interp_free). 0, or -1 with `err` (*check NULL). */
+int interp_train_check_rows(Model *m, Full *f, int stage, struct RInterp **check, Err *err);
 
 /* The stages of `prog` whose reduction is open to a choice: eligible for
  * interpolation and forced neither by the program (`reduce interp|galerkin`)
