@@ -40,6 +40,10 @@ typedef struct ColRows {
  * the caller), from the tensor builders restricted to those rows. 0, or -1 with w->err (an entry
  * reading a basis row `rows` does not hold among them). */
 int estimate_term_columns(const EstWork *w, int i, int t, const ColRows *rows, double *C);
+/* The column blocks of term t of stage i whose residuals are factored apart (estimate_train.c): b[2j], b[2j + 1]
+ * the first and one past the last column of block j — [0, D) for a term not chained, a chained term's
+ * ChainLayout blocks —; returns 2 × the blocks. */
+int estimate_table_blocks(const Model *m, int i, int t, long b[2 * ESTIMATE_OPS_MAX + 2]);
 /* Row r of class c's basis as `rows` holds it; NULL when it does not. */
 const double *estimate_basis_row(const Model *m, const ColRows *rows, int c, long r);
 /* norms[c] = ‖C(:, c)‖ of the n x D row-major C. */

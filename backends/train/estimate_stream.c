@@ -55,11 +55,15 @@ typedef struct Trip {
   long count, cap;
 } Trip;
 
-/* A term whose table is made in the sweep. */
+/* A term whose table is made in the sweep. A chained term's (estimate_term_chains) column blocks are
+ * factored apart, as estimate_train.c's qr_blocks does: one R per block b, of [B_y C_b]. */
 typedef struct EstTerm {
   int i, t, cy;             /* stage, term, the stage's class */
-  long my, D, W;            /* W = my + D columns of [B_y C] */
-  double *R;                /* W x W row-major, upper: R of [B_y C] over this rank's rows so far */
+  long my, D;
+  int nb;                   /* blocks: C's columns [cols[2b], cols[2b + 1]), all D of them for a term not chained */
+  long cols[2 * ESTIMATE_OPS_MAX + 2];
+  double *R[ESTIMATE_OPS_MAX + 1]; /* per block, W x W row-major (W = my + its columns), upper: R of [B_y C_b] over
+                                      this rank's rows so far */
   double *norms;            /* D: Σ of the squares of C's columns */
   bool sigma;               /* an inverse term of a class never whole: its σ_min ratio made here */
   double *G;                /* nk x my x my: B_yᵀ M_k B_y of the picked samples */
@@ -103,10 +107,11 @@ static bool streamed_term(const Ooc *o, int i, int t) {
   m->classes[cy].streamed |= o->st[cy].blockwise;
   eligible = estimate_term_eligible(m, i, t, why, sizeof why) && estimate_term_make(m, i, t) != EST_MAKE_NONE;
   m->classes[cy].streamed = was;
-  /* a chained term (operator applications, roots of a declared op, several operators: block QRs and
-   * per-operator ratios, estimate_train.c's qr_blocks) is not made here: it has no table out of core */
-  if (!eligible || estimate_term_chains(rt) || (rt->nops == 1 && rt->ops[0].op->p > 0)) return false;
+  /* a chained term (operator applications, roots of a declared op, several operators) of a class whose
+   * basis is never whole would need its per-operator ratios from B_yᵀMB_y too: no table out of core;
+   * of a class kept, whose operator reads a dropped basis, its blocks' R here, its ratios in memory */
   bool never = dropped(o, cy), whole = o->st[cy].blockwise || m->classes[cy].B;
+  if (!eligible || (never && (estimate_term_chains(rt) || (rt->nops == 1 && rt->ops[0].op->p > 0)))) return false;
   RTERM_FOR_TENSORS(rt, x)
     for (int j = 0; j < x->nin; j++) {
       int c = m->qclass[x->in_q[j]];
@@ -119,19 +124,25 @@ static bool streamed_term(const Ooc *o, int i, int t) {
   return never && whole;
 }
 
+/* Columns of x's block b, and W, the columns of [B_y C_b]. */
+static long block_len(const EstTerm *x, int b) { return x->cols[2 * b + 1] - x->cols[2 * b]; }
+static long block_w(const EstTerm *x, int b) { return x->my + block_len(x, b); }
+
 static int term_init(EstStream *e, EstTerm *x, int i, int t) {
   const Model *m = e->o->t->m;
   const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
-  *x = (EstTerm){i, t, m->qclass[m->stages[i].q], rc->m, estimate_term_dim(m, i, t), 0, NULL, NULL, false, NULL, NULL};
-  x->W = x->my + x->D;
+  *x = (EstTerm){.i = i, .t = t, .cy = m->qclass[m->stages[i].q], .my = rc->m, .D = estimate_term_dim(m, i, t)};
+  x->nb = estimate_table_blocks(m, i, t, x->cols) / 2;
   x->sigma = dropped(e->o, x->cy) && m->stages[i].terms[t].nops == 1 && rc->n <= ESTIMATE_SPARSE_MAX;
-  x->R = scratch_array(&e->sc, (size_t)(x->W * x->W) + 1, sizeof(double));
+  bool room = true;
+  for (int b = 0; b < x->nb; b++)
+    room &= (x->R[b] = scratch_array(&e->sc, (size_t)(block_w(x, b) * block_w(x, b)) + 1, sizeof(double))) != NULL;
   x->norms = scratch_array(&e->sc, (size_t)x->D + 1, sizeof(double));
   if (x->sigma) {
     x->G = scratch_array(&e->sc, (size_t)(e->nk * x->my * x->my) + 1, sizeof(double));
     x->trip = scratch_array(&e->sc, (size_t)e->nk, sizeof(Trip));
   }
-  return x->R && x->norms && (!x->sigma || (x->G && x->trip)) ? 0 : -1;
+  return room && x->norms && (!x->sigma || (x->G && x->trip)) ? 0 : -1;
 }
 
 /* Whether stage i is a Galerkin stage of diagonal operators of a dropped class with a term of no table: its
@@ -277,26 +288,39 @@ int estimate_stream_sample(EstStream *e, long k, long u, long U) {
 
 /* ---------------------------------------------------------------- a block's rows */
 
-/* Rows [lo, hi) of [B_y C] stacked under x's R and factored again: R of every row so far. */
-static int tsqr_rows(EstStream *e, EstTerm *x, const ColRows *rows, Scratch *sc) {
-  long nb = rows->hi - rows->lo, W = x->W, D = x->D, my = x->my;
-  double *Z = scratch_array(sc, (size_t)((W + nb) * W) + 1, sizeof(double)),
-         *C = scratch_array(sc, (size_t)(nb * D) + 1, sizeof(double)), *tau = scratch_array(sc, (size_t)W + 1, sizeof(double));
-  if (!Z || !C || !tau || estimate_term_columns(&e->w, x->i, x->t, rows, C)) return -1;
-  memcpy(Z, x->R, sizeof(double) * (size_t)(W * W));
-  for (long r = 0; r < nb; r++) {
-    const double *b = estimate_basis_row(e->w.m, rows, x->cy, rows->lo + r);
-    if (!b) return err_set(e->w.err, "estimate tables: row %ld of class %s's basis not held (a bug in npg)", rows->lo + r,
+/* Rows [lo, hi) of [B_y C_b] stacked under block b's R (C's rows in C, nr x D) and factored again: R of every
+ * row so far. */
+static int tsqr_block(EstStream *e, EstTerm *x, int b, const ColRows *rows, const double *C) {
+  long nr = rows->hi - rows->lo, W = block_w(x, b), D = x->D, my = x->my, c0 = x->cols[2 * b];
+  Scratch sc = SCRATCH_OF(e->w.err);
+  double *Z = scratch_array(&sc, (size_t)((W + nr) * W) + 1, sizeof(double)), *tau = scratch_array(&sc, (size_t)W + 1, sizeof(double));
+  int out = Z && tau ? 0 : -1;
+  if (out == 0) memcpy(Z, x->R[b], sizeof(double) * (size_t)(W * W));
+  for (long r = 0; out == 0 && r < nr; r++) {
+    const double *br = estimate_basis_row(e->w.m, rows, x->cy, rows->lo + r);
+    if (!br) out = err_set(e->w.err, "estimate tables: row %ld of class %s's basis not held (a bug in npg)", rows->lo + r,
                            e->w.m->classes[x->cy].label);
-    memcpy(Z + (W + r) * W, b, sizeof(double) * (size_t)my);
-    memcpy(Z + (W + r) * W + my, C + r * D, sizeof(double) * (size_t)D);
-    for (long c = 0; c < D; c++) x->norms[c] += C[r * D + c] * C[r * D + c];
+    else memcpy(Z + (W + r) * W, br, sizeof(double) * (size_t)my);
+    if (out == 0) memcpy(Z + (W + r) * W + my, C + r * D + c0, sizeof(double) * (size_t)(W - my));
   }
-  if (LAPACKE_dgeqrf(LAPACK_ROW_MAJOR, (int)(W + nb), (int)W, Z, (int)W, tau) != 0)
-    return err_set(e->w.err, "estimate tables: the QR of stage %s's residual rows failed (LAPACK)",
-                   e->w.m->stages[x->i].st->sym->name);
-  for (long a = 0; a < W; a++)
-    for (long b = 0; b < W; b++) x->R[a * W + b] = b >= a ? Z[a * W + b] : 0;
+  if (out == 0 && LAPACKE_dgeqrf(LAPACK_ROW_MAJOR, (int)(W + nr), (int)W, Z, (int)W, tau) != 0)
+    out = err_set(e->w.err, "estimate tables: the QR of stage %s's residual rows failed (LAPACK)",
+                  e->w.m->stages[x->i].st->sym->name);
+  for (long a = 0; out == 0 && a < W; a++)
+    for (long c = 0; c < W; c++) x->R[b][a * W + c] = c >= a ? Z[a * W + c] : 0;
+  scratch_release(&sc);
+  return out;
+}
+
+/* Rows [lo, hi) of x's columns made, their squares added to the norms, each block's R updated. */
+static int tsqr_rows(EstStream *e, EstTerm *x, const ColRows *rows, Scratch *sc) {
+  long nr = rows->hi - rows->lo, D = x->D;
+  double *C = scratch_array(sc, (size_t)(nr * D) + 1, sizeof(double));
+  if (!C || estimate_term_columns(&e->w, x->i, x->t, rows, C)) return -1;
+  for (long r = 0; r < nr; r++)
+    for (long c = 0; c < D; c++) x->norms[c] += C[r * D + c] * C[r * D + c];
+  for (int b = 0; b < x->nb; b++)
+    if (block_len(x, b) > 0 && tsqr_block(e, x, b, rows, C)) return -1;
   return 0;
 }
 
@@ -357,7 +381,7 @@ int estimate_stream_block(EstStream *e, const double *const *B, const RowMap *co
   for (int k = 0; out == 0 && k < e->nc; k++) out = check_rows_of_block(e, &e->check[k], &(BlockRows){B, map, u, U});
   for (int q = 0; out == 0 && q < e->nt; q++) {
     EstTerm *x = &e->term[q];
-    long n = e->w.m->classes[x->cy].n, lo, hi, chunk = (long)(TSQR_CHUNK_BYTES / sizeof(double) / (size_t)x->W);
+    long n = e->w.m->classes[x->cy].n, lo, hi, chunk = (long)(TSQR_CHUNK_BYTES / sizeof(double) / (size_t)(x->my + x->D));
     chunk = chunk > 64 ? chunk : 64;
     stream_fraction(n, u, U, &lo, &hi);
     for (long r = lo; out == 0 && r < hi; r += chunk) {
@@ -372,38 +396,47 @@ int estimate_stream_block(EstStream *e, const double *const *B, const RowMap *co
 
 /* ---------------------------------------------------------------- the tables */
 
-/* Over ranks: every rank's R stacked in rank order and factored (the same on every rank). */
-static int combine_ranks(EstStream *e, EstTerm *x) {
+/* Over ranks: every rank's R of block b stacked in rank order and factored (the same on every rank). */
+static int combine_block(EstStream *e, EstTerm *x, int b) {
   int N = e->o->N, rank = e->o->rank;
-  long W = x->W;
-  dist_allreduce_sum(x->norms, x->D);
-  if (x->sigma) dist_allreduce_sum(x->G, e->nk * x->my * x->my);
+  long W = block_w(x, b);
   Scratch sc = SCRATCH_OF(e->w.err);
   double *Z = scratch_array(&sc, (size_t)(N * W * W) + 1, sizeof(double)), *tau = scratch_array(&sc, (size_t)W + 1, sizeof(double));
   int out = Z && tau ? 0 : -1;
   if (out == 0) {
-    memcpy(Z + (long)rank * W * W, x->R, sizeof(double) * (size_t)(W * W));
+    memcpy(Z + (long)rank * W * W, x->R[b], sizeof(double) * (size_t)(W * W));
     dist_allreduce_sum(Z, N * W * W); /* every other rank's block zero: exact */
     if (LAPACKE_dgeqrf(LAPACK_ROW_MAJOR, (int)(N * W), (int)W, Z, (int)W, tau) != 0)
       out = err_set(e->w.err, "estimate tables: the QR of the ranks' residual factors failed (LAPACK)");
     for (long a = 0; out == 0 && a < W; a++)
-      for (long b = 0; b < W; b++) x->R[a * W + b] = b >= a ? Z[a * W + b] : 0;
+      for (long c = 0; c < W; c++) x->R[b][a * W + c] = c >= a ? Z[a * W + c] : 0;
   }
   scratch_release(&sc);
   return out;
 }
 
-/* Term x's table into the model: R22 with its columns' signs, then the columns' norms. */
+/* Over ranks: the norms and B_yᵀM_kB_y summed, each block's R combined. */
+static int combine_ranks(EstStream *e, EstTerm *x) {
+  dist_allreduce_sum(x->norms, x->D);
+  if (x->sigma) dist_allreduce_sum(x->G, e->nk * x->my * x->my);
+  for (int b = 0; b < x->nb; b++)
+    if (block_len(x, b) > 0 && combine_block(e, x, b)) return -1;
+  return 0;
+}
+
+/* Term x's table into the model: each block's R22 with its columns' signs on the diagonal (zero off it:
+ * qr_blocks's layout), then the columns' norms. */
 static int store_table(EstStream *e, EstTerm *x, const double *const *sign) {
   RTerm *rt = &e->w.m->stages[x->i].terms[x->t];
-  long D = x->D, W = x->W, my = x->my;
+  long D = x->D, my = x->my;
   Scratch sc = SCRATCH_OF(e->w.err);
   double *cs = scratch_array(&sc, (size_t)D + 1, sizeof(double));
-  double *G = scratch_adopt(&sc, mem_malloc(sizeof(double) * (size_t)((D + 1) * D) + 1)); /* the term's once whole */
+  double *G = scratch_adopt(&sc, mem_calloc((size_t)((D + 1) * D) + 1, sizeof(double))); /* the term's once whole */
   int out = cs && G && stream_column_signs(e->o, rt, x->cy, sign, cs, &sc) == 0 ? 0 : -1;
   if (out == 0) {
-    for (long a = 0; a < D; a++)
-      for (long b = 0; b < D; b++) G[a * D + b] = x->R[(my + a) * W + my + b] * cs[b];
+    for (int b = 0; b < x->nb; b++)
+      for (long W = block_w(x, b), c0 = x->cols[2 * b], a = 0; a < block_len(x, b); a++)
+        for (long c = 0; c < block_len(x, b); c++) G[(c0 + a) * D + c0 + c] = x->R[b][(my + a) * W + my + c] * cs[c0 + c];
     for (long c = 0; c < D; c++) G[D * D + c] = sqrt(x->norms[c]);
     free(rt->est_G); /* the table it replaces */
     rt->est_G = scratch_keep(&sc, G), rt->est_D = D, rt->est_sigma = NAN;

@@ -165,7 +165,7 @@ static int qr_factor(double *C, long n, long D, double *R) {
  * each applied operator's, each inverse's joined with its operand's producer —, so that each part's
  * norm ‖R_b z_b‖ is found alone: online they are chained with ‖M‖ or σ_min(M) between them, not
  * summed in one residual. Returns the count of entries of b (twice the blocks'). */
-static int table_blocks(const Model *m, int i, int t, long b[2 * ESTIMATE_OPS_MAX + 2]) {
+int estimate_table_blocks(const Model *m, int i, int t, long b[2 * ESTIMATE_OPS_MAX + 2]) {
   const RTerm *rt = &m->stages[i].terms[t];
   int nb = 0;
   if (!estimate_term_chains(rt)) {
@@ -181,11 +181,11 @@ static int table_blocks(const Model *m, int i, int t, long b[2 * ESTIMATE_OPS_MA
 }
 
 /* A chained term's table: R (D x D, row-major, zero off its diagonal blocks) of the QRs of C's
- * column blocks apart (table_blocks). C (n x D row-major) is left as is. 0, -1 when LAPACK fails,
+ * column blocks apart (estimate_table_blocks). C (n x D row-major) is left as is. 0, -1 when LAPACK fails,
  * -2 when memory runs out. */
 static int qr_blocks(const Model *m, int i, int t, const double *C, long n, double *R) {
   long D = estimate_term_dim(m, i, t), b[2 * ESTIMATE_OPS_MAX + 2];
-  int nb = table_blocks(m, i, t, b);
+  int nb = estimate_table_blocks(m, i, t, b);
   Scratch sc = SCRATCH_OF(NULL);
   double *T = scratch_array(&sc, (size_t)(n * D) + 1, sizeof(double)), *Rb = scratch_array(&sc, (size_t)(D * D) + 1,
                                                                                            sizeof(double));
@@ -236,7 +236,7 @@ static int chunked_table(const EstWork *w, int i, int t, double *G) {
   long n = m->classes[cy].n, my = m->classes[cy].m, D = estimate_term_dim(m, i, t), b[2 * ESTIMATE_OPS_MAX + 2];
   long rows = (long)(ESTIMATE_CHUNK_BYTES / sizeof(double) / (size_t)(my + D));
   rows = estimate_test_chunk_rows() ? estimate_test_chunk_rows() : rows < 64 ? 64 : rows;
-  nb = table_blocks(m, i, t, b);
+  nb = estimate_table_blocks(m, i, t, b);
   Scratch sc = SCRATCH_OF(NULL);
   ChunkQR *q = scratch_array(&sc, (size_t)nb / 2 + 1, sizeof(ChunkQR));
   double *C = scratch_array_unzeroed(&sc, (size_t)(rows * D) + 1, sizeof(double));
