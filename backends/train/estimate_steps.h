@@ -66,6 +66,13 @@ int estimate_operator_sigma(const EstWork *w, const RTerm *rt, long n, double *s
  * quantity with *nx its entries, or -1 (K all NULL): an operator of several inputs or of a
  * stage, or not affine. Leaves x set elsewhere: the caller sets a sample again. */
 int estimate_affine_parts(const EstWork *w, const RTerm *rt, long n, cholmod_sparse **K, size_t *nx);
+/* The input x of inverse term rt (its operator of n rows) when the operator is M(x) = M_0 + Σ x_j M_j with
+ * every M_j symmetric positive semidefinite by diagonal dominance (the min-θ bound's case); -1 otherwise.
+ * Leaves the input set elsewhere: the caller sets its sample again. */
+int estimate_affine_input(const EstWork *w, const RTerm *rt, long n);
+/* An anchor of inverse term rt's min-θ bound appended to rt->est_theta (room made by the caller): the input x̄
+ * (rt->est_theta_n entries; NULL: not measured) and λ_min(M(x̄)) = lmin, when x̄ and lmin are positive. */
+void estimate_theta_anchor(RTerm *rt, const double *x, double lmin);
 /* ‖A − B‖₁ ≤ 1e-12 ‖A‖₁. */
 bool estimate_sparse_close(cholmod_sparse *A, cholmod_sparse *B, cholmod_common *cc);
 /* A (sorted) symmetric to 1e-12 and positive semidefinite by diagonal dominance. */

@@ -447,27 +447,73 @@ static int store_table(EstStream *e, EstTerm *x, const double *const *sign) {
   return out;
 }
 
+/* A picked sample's record: σ_min(M_k), 1 when the min-θ input x̄ follows, then x̄. */
+#define STREAM_REC (2 + ESTIMATE_THETA_MAX)
+
+/* Which σ terms' operators are affine in one input with semidefinite parts (estimate_affine_input: the
+ * operator assembled whole at unit inputs, as σ_min(M_k) is), found at sample 0's inputs by rank 0 and sent
+ * to the others, as estimate_train.c's theta_detect; room for nk anchors each. */
+static int theta_detect(EstStream *e) {
+  Model *m = e->w.m;
+  const SampleSource *src = e->o->t->src;
+  Scratch sc = SCRATCH_OF(e->w.err);
+  double *q = scratch_array(&sc, (size_t)e->nt + 1, sizeof(double));
+  int out = q ? 0 : -1;
+  if (out == 0 && e->o->rank == 0 && src->set(src->user, e->w.f, 0) != 0) out = err_set(e->w.err, "%s", full_error(e->w.f));
+  for (int k = 0; out == 0 && e->o->rank == 0 && k < e->nt; k++) {
+    const EstTerm *x = &e->term[k];
+    q[k] = x->sigma ? estimate_affine_input(&e->w, &m->stages[x->i].terms[x->t], m->classes[x->cy].n) : -1;
+  }
+  if (out == 0 && e->o->N > 1) dist_broadcast(q, e->nt, 0);
+  for (int k = 0; out == 0 && k < e->nt; k++) {
+    RTerm *rt = &m->stages[e->term[k].i].terms[e->term[k].t];
+    if (!e->term[k].sigma) continue;
+    free(rt->est_theta);
+    rt->est_theta = NULL, rt->est_theta_k = 0;
+    if (q[k] < 0) continue;
+    rt->est_theta_q = (int)q[k], rt->est_theta_n = m->classes[m->qclass[rt->est_theta_q]].n;
+    if (!(rt->est_theta = malloc(sizeof(double) * (size_t)(e->nk * (rt->est_theta_n + 1)) + 1)))
+      out = err_set(e->w.err, "estimate tables: out of memory");
+  }
+  scratch_release(&sc);
+  return out;
+}
+
+/* Sample j's record r folded into rt: an anchor of the min-θ bound when its x̄ is positive (λ_min = σ_min of
+ * the SPD M(x̄)), and the σ_min ratio against B_yᵀM_kB_y's (G, destroyed; sv 2 my doubles). */
+static void fold_record(RTerm *rt, long j, const double *r, double *G, long my, double *sv) {
+  estimate_theta_anchor(rt, r[1] == 1 ? r + 2 : NULL, r[0]);
+  double ratio = r[0] / (my > 0 ? estimate_smallest_sv(G, my, sv) : INFINITY);
+  if (!(ratio > 0)) ratio = 0;
+  if (j == 0 || ratio < rt->est_sigma) rt->est_sigma = ratio;
+}
+
 /* x's σ_min ratio: min over the picked samples of σ_min(M_k)/σ_min(B_yᵀM_kB_y), M_k measured on
- * the rank that holds sample k (k mod N, as sigma_ratios) and the figures summed; a ratio not
- * positive (a singular operator, LAPACK failing) is 0, which estimate_train.c makes NaN. */
-static int sigma_ratio(EstStream *e, EstTerm *x, double *sig) {
-  RTerm *rt = &e->w.m->stages[x->i].terms[x->t];
+ * the rank that holds sample k (k mod N, as sigma_ratios) with the sample's min-θ input, and the records
+ * summed (nk x STREAM_REC, zero on entry); a ratio not positive (a singular operator, LAPACK failing) is 0,
+ * which estimate_train.c makes NaN. */
+static int sigma_ratio(EstStream *e, EstTerm *x, double *rec) {
+  const Model *m = e->w.m;
+  RTerm *rt = &m->stages[x->i].terms[x->t];
   long my = x->my;
   Scratch sc = SCRATCH_OF(e->w.err);
   double *A = scratch_array(&sc, (size_t)(my * my) + 1, sizeof(double)), *sv = scratch_array(&sc, (size_t)(2 * my) + 1, sizeof(double));
   int out = A && sv ? 0 : -1;
   for (long j = 0; out == 0 && j < e->nk; j++) {
     long k = pick(e, j);
+    double *r = rec + j * STREAM_REC;
     if (k % e->o->N != e->o->rank) continue;
     out = train_eval_sample(e->o->t->src, e->w.f, k, e->w.err) ||
-          estimate_operator_sigma(&e->w, rt, e->w.m->classes[x->cy].n, &sig[j]);
+          estimate_operator_sigma(&e->w, rt, m->classes[x->cy].n, &r[0]);
+    size_t nx = 0;
+    const double *xb =
+        out == 0 && rt->est_theta ? full_get(e->w.f, ((const Sym *)m->prog->quantities.v[rt->est_theta_q])->name, &nx) : NULL;
+    if (xb && (long)nx == rt->est_theta_n) r[1] = 1, memcpy(r + 2, xb, sizeof(double) * nx);
   }
-  if (e->o->N > 1) dist_allreduce_sum(sig, e->nk); /* each sample's figure on one rank, 0 elsewhere */
+  if (e->o->N > 1) dist_allreduce_sum(rec, e->nk * STREAM_REC); /* each sample's figures on one rank, 0 elsewhere */
   for (long j = 0; out == 0 && j < e->nk; j++) {
     memcpy(A, x->G + j * my * my, sizeof(double) * (size_t)(my * my));
-    double ratio = sig[j] / (my > 0 ? estimate_smallest_sv(A, my, sv) : INFINITY);
-    if (!(ratio > 0)) ratio = 0;
-    if (j == 0 || ratio < rt->est_sigma) rt->est_sigma = ratio;
+    fold_record(rt, j, rec + j * STREAM_REC, A, my, sv);
   }
   scratch_release(&sc);
   return out;
@@ -510,12 +556,15 @@ int estimate_stream_finish(EstStream *e, const double *const *sign) {
   cholmod_l_start(&cc);
   e->w.cc = &cc;
   Scratch sc = SCRATCH_OF(e->w.err);
-  double *sig = scratch_array(&sc, (size_t)e->nk + 1, sizeof(double));
-  if (!sig) out = -1;
+  double *rec = scratch_array(&sc, (size_t)(e->nk * STREAM_REC) + 1, sizeof(double));
+  bool sigma = false;
+  for (int q = 0; q < e->nt; q++) sigma |= e->term[q].sigma;
+  if (!rec) out = -1;
+  if (out == 0 && sigma) out = theta_detect(e);
   for (int q = 0; out == 0 && q < e->nt; q++) {
     if (!e->term[q].sigma) continue;
-    memset(sig, 0, sizeof(double) * (size_t)e->nk);
-    out = sigma_ratio(e, &e->term[q], sig);
+    memset(rec, 0, sizeof(double) * (size_t)(e->nk * STREAM_REC));
+    out = sigma_ratio(e, &e->term[q], rec);
   }
   scratch_release(&sc);
   cholmod_l_finish(&cc);

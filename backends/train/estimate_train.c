@@ -666,10 +666,7 @@ int estimate_affine_parts(const EstWork *w, const RTerm *rt, long n, cholmod_spa
   return ok ? q : -1;
 }
 
-/* The input x of inverse term rt when its operator is M(x) = M_0 + Σ x_j M_j with every M_j
- * symmetric positive semidefinite by diagonal dominance (the min-θ bound's case); -1 otherwise.
- * Leaves the input set elsewhere: the caller sets its sample again. */
-static int affine_input(const EstWork *w, const RTerm *rt, long n) {
+int estimate_affine_input(const EstWork *w, const RTerm *rt, long n) {
   cholmod_sparse *K[ESTIMATE_THETA_MAX + 1];
   size_t nx = 0;
   int q = estimate_affine_parts(w, rt, n, K, &nx);
@@ -802,7 +799,7 @@ static int sigma_sample(const SigmaRun *s, long k) {
   return s->src->set(s->src->user, s->w.f, k) != 0 ? err_set(s->w.err, "%s", full_error(s->w.f)) : 0;
 }
 
-/* Which terms' operators are affine with semidefinite terms (affine_input), found at sample 0 by the rank that
+/* Which terms' operators are affine with semidefinite terms (estimate_affine_input), found at sample 0 by the rank that
  * holds it and sent to the others; room for nk anchors each. */
 static int theta_detect(SigmaRun *s) {
   Scratch sc = SCRATCH_OF(s->w.err);
@@ -812,7 +809,7 @@ static int theta_detect(SigmaRun *s) {
   if (s->rank == 0 && s->nt > 0 && (out = sigma_sample(s, 0)) == 0)
     for (int e = 0; e < s->nt; e++)
       q[e] = s->terms[e][2] >= 0 || (estimate_term_chains(run_term(s, e)) && run_term(s, e)->ops[0].op->q == 1) ? -1
-                                                                         : affine_input(&s->w, run_term(s, e), run_class(s, e)->n);
+                                                                         : estimate_affine_input(&s->w, run_term(s, e), run_class(s, e)->n);
   if (out == 0 && s->N > 1) dist_broadcast(q, s->nt, 0);
   for (int e = 0; out == 0 && e < s->nt; e++) {
     RTerm *rt = run_term(s, e);
@@ -849,6 +846,15 @@ static int sigma_records(SigmaRun *s) {
   return 0;
 }
 
+void estimate_theta_anchor(RTerm *rt, const double *x, double lmin) {
+  bool anchor = rt->est_theta && x && lmin > 0;
+  for (long a = 0; anchor && a < rt->est_theta_n; a++) anchor = x[a] > 0;
+  if (!anchor) return;
+  double *row = rt->est_theta + (long)rt->est_theta_k++ * (rt->est_theta_n + 1);
+  memcpy(row, x, sizeof(double) * (size_t)rt->est_theta_n);
+  row[rt->est_theta_n] = lmin;
+}
+
 /* The records folded in the order of the samples, as on one process: c = min of σ_min(M)/σ_min(BᵀMB) (an
  * applied operator's: the max of ‖M‖/‖BᵀMB‖), and an anchor of the min-θ bound at each sample whose x̄ is
  * positive (λ_min = σ_min of the SPD M(x̄)). */
@@ -858,13 +864,7 @@ static void sigma_fold(SigmaRun *s) {
       RTerm *rt = run_term(s, e);
       double *c = run_ratio(s, e);
       const double *r = s->rec + ((long)e * s->nk + j) * SIGMA_REC;
-      bool anchor = rt->est_theta && !s->terms[e][3] && r[2] == 1 && r[0] > 0;
-      for (long a = 0; anchor && a < rt->est_theta_n; a++) anchor = r[3 + a] > 0;
-      if (anchor) {
-        double *row = rt->est_theta + (long)rt->est_theta_k++ * (rt->est_theta_n + 1);
-        memcpy(row, r + 3, sizeof(double) * (size_t)rt->est_theta_n);
-        row[rt->est_theta_n] = r[0];
-      }
+      estimate_theta_anchor(rt, !s->terms[e][3] && r[2] == 1 ? r + 3 : NULL, r[0]);
       double ratio = r[0] / r[1];
       if (run_norm(s, e)) { /* the largest ‖M‖/‖BᵀMB‖ (M = 0: no ratio); a failed one: none */
         if (r[0] == 0 && r[1] == 0) continue;

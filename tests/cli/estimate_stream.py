@@ -11,14 +11,18 @@ basis is whole in both: n's estimates differ by up to 2e-12). The effectivity (e
 models is printed per stage, the true error from the full evaluator and the bases of a model trained with
 --keep-bases all: every estimate at least half of its true error.
 
-Then the same room without the extern (a convex room: d = c ρ_j, no visibility) and with y = M e added,
-where out of core, beyond the tables, p = d a^(-1/2) (a Galerkin stage of a diagonal root, in the dropped
-class {d,p}) gets its check table from the sweep (manifest line `galerkincheck`: its entries, reads and
-monomials equal to in memory's, its basis rows within 1e-10) and y's chained table (an operator application
-whose operator reads the dropped p: one R per column block) is made: p, b and y get estimates out of core
-(none before), the in-memory model's to 1e-8 relative, on one process and over 2 ranks (b and y within 6.2e-10:
-the routes' bases of {e,b,y} and {a}, whole on both, differ by 2.8e-12 and 1.1e-11 relative, which their
-figures carry through M̂⁻¹ and the input's error; h c d p within 1e-11)."""
+Then the same room without the extern (a convex room: d = c ρ_j, no visibility), with y = M e and
+k = c / (μ0 + μ1 ρ_i ρ_j) added (μ an input of 2 entries), where out of core, beyond the tables, p = d a^(-1/2)
+(a Galerkin stage of a diagonal root, in the dropped class {d,p}) gets its check table from the sweep
+(manifest line `galerkincheck`: its entries, reads and monomials equal to in memory's, its basis rows within
+1e-10), y's chained table (an operator application whose operator reads the dropped p: one R per column
+block) is made, and k (an inverse of a diagonal operator affine in μ with semidefinite parts, in the dropped
+class {c,k}) gets the min-θ anchors (manifest line `theta`, within 1e-10): p, b and y get estimates out of
+core (none before), k its σ_min through the min-θ bound (the σ_min-ratio estimate before; its figure stays
+an estimate: it carries c's error); every figure the in-memory model's to 1e-8 relative with the same flags
+(bound, outside, roundoff), on one process and over 2 ranks (h c k within 2e-11; d p b y within 1.2e-9: the
+routes' bases of {e,b,y} and {a}, whole on both, differ by up to 1.1e-11 relative, which those figures carry
+through M̂⁻¹ and the propagated input errors)."""
 import os
 import subprocess
 import sys
@@ -32,7 +36,7 @@ import npg  # noqa: E402  (the build's module)
 
 PROG = "examples/radiosity/formfactors.npg"
 STAGES = "nsrhca"  # the stages with an estimate (d, p and b read the extern v, whose learned map has none)
-CONVEX_STAGES = "hcdpby"  # the convex room's compared stages (n s r a are reproduced to roundoff: their figures are noise)
+CONVEX_STAGES = "hcdkpby"  # the convex room's compared stages (n s r a are reproduced to roundoff: their figures are noise)
 
 
 def fail(msg):
@@ -100,14 +104,27 @@ def compare_tables(mem, ooc):
           (len(want), " ".join(sorted(want)), ", ".join("%s %.6g" % (q, s) for q, s in want.items() if not np.isnan(s))))
 
 
-def check_lines(model):
-    return sorted(line for line in open(os.path.join(model, "manifest")) if line.startswith("galerkincheck "))
+def manifest_lines(model, word):
+    return sorted(line for line in open(os.path.join(model, "manifest")) if line.startswith(word + " "))
+
+
+def compare_theta(mem, ooc):
+    """The min-θ anchors of the inverse terms: the same lines, the anchors within 1e-10 of their largest entry."""
+    want, got = manifest_lines(mem, "theta"), manifest_lines(ooc, "theta")
+    if want != got:
+        fail("min-θ lines out of core %s, in memory %s" % (got, want))
+    for line in want:
+        f = line.split()
+        a, b = (np.load(os.path.join(d, "theta_%s_t%s.npy" % (f[1], f[2]))) for d in (mem, ooc))
+        if a.shape != b.shape or not np.abs(a - b).max() <= 1e-10 * np.abs(a).max():
+            fail("stage %s: min-θ anchors %s out of core, %s in memory" % (f[1], b, a))
+    print("min-θ anchors: %s equal (within 1e-10)" % ", ".join(l.split()[1] for l in want))
 
 
 def compare_checks(mem, ooc):
     """The check tables of the Galerkin stages of diagonal operators: the same lines, entries, reads and
     monomials, the basis rows within 1e-10 of their largest entry."""
-    want, got = check_lines(mem), check_lines(ooc)
+    want, got = manifest_lines(mem, "galerkincheck"), manifest_lines(ooc, "galerkincheck")
     if want != got:
         fail("check tables out of core %s, in memory %s" % (got, want))
     for line in want:
@@ -123,13 +140,18 @@ def compare_checks(mem, ooc):
 
 
 def convex(rt, test, w):
-    """The convex room (no extern) with y = M e: p's check table and y's chained table out of core."""
+    """The convex room (no extern) with y = M e and k = c / (μ0 + μ1 ρ_i ρ_j): p's check table, y's chained
+    table and k's min-θ anchors out of core."""
     prog = os.path.join(w, "convex.npg")
     text = open(PROG).read()
     text = "".join(l for l in text.splitlines(True) if not l.startswith("extern v"))
     text = text.replace("d[i:F, j:F] = c[i,j] * v[i,j]", "d[i:F, j:F] = c[i,j] * rho[j]")
-    if "v[" in text:
-        fail("the convex room still reads v")
+    text = text.replace("a[i:F]", "input mu : real[2]\nk[i:F, j:F] = c[i,j] / (mu[0] + mu[1] * rho[i] * rho[j])\na[i:F]")
+    if "v[" in text or "k[i:F" not in text:
+        fail("the convex room's program not made: still reads v, or no k")
+    rng = np.random.default_rng(3)
+    for d, S in ((rt, 20), (test, 6)):
+        np.save(os.path.join(d, "mu.npy"), rng.uniform(0.5, 2, (S, 2)))
     open(prog, "w").write(text + "output y = M * e\n")
     for r, extra in (("CMEM", []), ("COOC", ["--mem", "8k"]), ("CKEEP", ["--keep-bases", "all"])):
         run("train", prog, rt, "--cap", "8", "-o", os.path.join(w, r), *extra)
@@ -140,20 +162,23 @@ def convex(rt, test, w):
     for r in routes:
         compare_tables(os.path.join(w, "CMEM"), os.path.join(w, r))
         compare_checks(os.path.join(w, "CMEM"), os.path.join(w, r))
+        compare_theta(os.path.join(w, "CMEM"), os.path.join(w, r))
     p = npg.compile(prog)
     full = p.full(params={n: np.load("%s/%s.npy" % (rt, n)) for n in ("tri", "rho")})
-    g, e = (np.load("%s/%s.npy" % (test, n)) for n in "ge")
+    g, e, mu = (np.load("%s/%s.npy" % (test, n)) for n in ("g", "e", "mu"))
     keep = npg.load(p, os.path.join(w, "CKEEP"))
     reds = {r: npg.load(p, os.path.join(w, r)).reduced() for r in ["CMEM"] + routes}
     eff = {q: [] for q in CONVEX_STAGES}
     worst = {q: 0.0 for q in CONVEX_STAGES}
     for k in range(len(g)):
-        full(g=g[k], e=e[k])
-        ests = {}
+        full(g=g[k], e=e[k], mu=mu[k])
+        ests, flags = {}, {}
         for r, red in reds.items():
-            red(g=g[k], e=e[k])
+            red(g=g[k], e=e[k], mu=mu[k])
             for q in CONVEX_STAGES:
-                ests[r, q] = red.estimate(q)
+                info = red.estimate_info(q)
+                ests[r, q] = info["estimate"]
+                flags[r, q] = (info["bound"], info["outside"], info["roundoff"])
                 err = np.linalg.norm(np.asarray(full.get(q)).ravel() - keep.basis(q) @ red.coords(q))
                 if not ests[r, q] >= 0.5 * err:
                     fail("convex room, %s, sample %d, stage %s: estimate %.3g, true error %.3g" % (r, k, q, ests[r, q], err))
@@ -162,6 +187,10 @@ def convex(rt, test, w):
         for r in routes:
             for q in CONVEX_STAGES:
                 worst[q] = max(worst[q], abs(ests[r, q] - ests["CMEM", q]) / ests["CMEM", q])
+                if flags[r, q] != flags["CMEM", q]:
+                    fail("convex room, %s, sample %d, stage %s: flags (bound, outside, roundoff) %s, in memory %s" %
+                         (r, k, q, flags[r, q], flags["CMEM", q]))
+    print("convex room: bounds: %s" % (" ".join(q for q in CONVEX_STAGES if flags["CMEM", q][0]) or "none"))
     print("convex room: effectivity %s" % ", ".join("%s %.3g .. %.3g" % (q, min(eff[q]), max(eff[q])) for q in CONVEX_STAGES))
     print("convex room: estimates out of core (%s) within %s of the in-memory model's (relative)" %
           (" ".join(routes), ", ".join("%s %.2g" % (q, worst[q]) for q in CONVEX_STAGES)))
