@@ -30,21 +30,22 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
   if (rs->st->kind == ST_EXTERN) return snprintf(why, n, "an extern's learned map has no estimate"), false;
   if (rs->interp) return snprintf(why, n, "an interpolated stage has no Galerkin terms' tables (its estimate is interp_check's)"), false;
   if (rt->nops > 1 && !estimate_term_chains(rt))
-    return snprintf(why, n, "term %d applies %d operators (a power below -1 among them, or diagonal operators alone: "
-                    "positive powers, inverses and roots with a declared operator among them have an estimate)", t + 1,
-                    rt->nops), false;
+    return snprintf(why, n, "term %d applies %d operators (diagonal operators alone, or more than %d: integer powers "
+                    "and roots with a declared operator among them have an estimate)", t + 1, rt->nops,
+                    ESTIMATE_OPS_MAX), false;
   if (rt->nops == 1 && !(rt->ops[0].op->p == -1 && rt->ops[0].op->q == 1) && !estimate_term_chains(rt))
     return snprintf(why, n, "term %d applies a power %ld/%ld (%s)", t + 1, (long)rt->ops[0].op->p,
                     (long)rt->ops[0].op->q, rt->ops[0].op->q != 1 ? "a root has an estimate for a declared operator "
-                    "only" : "only inverses and positive powers of declared operators have an estimate"),
+                    "only" : "of a diagonal operator only an inverse has an estimate"),
            false;
   const RClass *rc = &m->classes[m->qclass[rs->q]];
   if (rc->product && estimate_term_chains(rt) && !estimate_product_chains(rt))
     return snprintf(why, n, "term %d %s in class %s, orthonormal in the inner product of %s (there projections, "
                     "inverses, operators applied to positive powers and one solve right after the numerator or an "
                     "operator applied once have an estimate)", t + 1,
-                    rt->nops == 1 ? "takes a root, reduced as (BᵀMB)^α Bᵀw, no approximation in K0's norm,"
-                                  : "chains solves, roots or diagonal operators otherwise", rc->label, rc->product->name), false;
+                    rt->nops > 1            ? "chains solves, roots or diagonal operators otherwise"
+                    : rt->ops[0].op->q != 1 ? "takes a root, reduced as (BᵀMB)^α Bᵀw, no approximation in K0's norm,"
+                                            : "chains solves (a power below -1)", rc->label, rc->product->name), false;
   /* in a product K0 the figure is ‖e‖_K0 (estimate_product.c): an inverse's from the residual's dual norm, a
    * projection's and an application's residuals exactly, ‖M‖_K0 estimated, a named numerator's error carried
    * across the norms (RTerm.est_carry) */
@@ -56,13 +57,13 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n) {
 bool estimate_term_chains(const RTerm *rt) {
   if (rt->nops == 1) { /* an application, or a root (root_step) */
     const OpPow *op = rt->ops[0].op;
-    return op->kind == OPK_DECL && ((op->q == 1 && op->p >= 1) || op->q > 1);
+    return op->kind == OPK_DECL && ((op->q == 1 && (op->p >= 1 || op->p <= -2)) || op->q > 1);
   }
   if (rt->nops < 2 || rt->nops > ESTIMATE_OPS_MAX) return false;
   bool declared = false; /* diagonal operators alone keep their stage's sampled check (galerkincheck) */
   for (int k = 0; k < rt->nops; k++) {
     const OpPow *op = rt->ops[k].op;
-    if (op->q == 1 && !(op->p >= 1 || op->p == -1)) return false;
+    if (op->q == 1 && op->p == 0) return false;
     declared = declared || op->kind == OPK_DECL;
   }
   return declared;
@@ -513,6 +514,8 @@ typedef struct ChainOp {
   const ReducedKept *kp;  /* its M̂ and chain of steps, kept by reduced_eval */
   long my, n;             /* the stage's basis size and full size */
   bool product;           /* the stage's class has a product K0: an inverse divides by product_alpha */
+  const ChainLayout *L;   /* the term's columns */
+  const ReducedKept *prev; /* operator k − 1's, NULL for the innermost */
 } ChainOp;
 
 /* The divisor of an inverse in a chained term of a class with a product K0 (estimate_product_chains): α_LB, the
@@ -670,11 +673,50 @@ static double root_step(Reduced *r, const ChainOp *o, const ChainLayout *L, doub
   return out + root_quadrature(r, &p, s) + root_integer_part(r, &p, s);
 }
 
+/* The step of an inverse power M^p (p ≤ −1: M^-2 w is |p| solves by one factorization, reduced.c's apply_inverse)
+ * from v_0 to v_|p| = M̂^p v_0 (the kept chain), e the error of v_0. Each solve chains as an inverse: with z_j =
+ * M⁻¹ z_{j−1} and v_j = M̂⁻¹ v_{j−1},
+ *   z_j − B v_j = M⁻¹ (z_{j−1} − g_j) + M⁻¹ r_j,   r_j = g_j − M B v_j,
+ * g_j the full-space producer of v_{j−1} (Bᵀ g_j = v_{j−1}, so Bᵀ r_j = 0 and r_j = (I − BBᵀ) r_j), so e_j =
+ * (e_{j−1} + ‖r_j‖) / σ_min(M). The first solve's producer is the numerator or the applied M^1 before it
+ * (L->joins: its columns joined in the block); a later one's is B v_{j−1} itself, r_j = −(I − BBᵀ) M B v_j: the same
+ * block with the producer's entries zero (R is upper triangular: ‖R [0; z]‖ = ‖C' [0; z]‖, the operator's
+ * projected columns alone). σ_min(M) is the min-θ bound for a term of this operator alone (each step a bound,
+ * so is the chain), else c σ_min(M̂) (operator_figure: an estimate). *roundoff cleared unless every residual
+ * is at roundoff. NaN with f->why. */
+static double inverse_steps(Reduced *r, const ChainOp *o, double e, Estimation *s, Figure *f, bool *roundoff) {
+  const RTerm *rt = o->rt;
+  const ChainLayout *L = o->L;
+  long k = o->k, my = o->my, start = L->start[k], end = L->off[k] + L->len[k];
+  double sig = rt->nops == 1 && !o->product ? theta_bound(r, rt) : 0;
+  if (!(sig > 0)) {
+    if (isnan(sig = operator_figure(o, s, f))) return NAN;
+    /* a ratio measured at training samples enters (in a product an inverse's α is a bound: est_sigma 1 when its
+     * premise is not checked, estimate_product.c) */
+    if (!(o->product && isnan(rt->est_sigma))) f->flags &= ~EST_BOUND;
+  }
+  bool part;
+  for (long j = 1; j <= -rt->ops[k].op->p; j++) {
+    memset(s->z + start, 0, sizeof(double) * (size_t)(L->off[k] - start));
+    if (j == 1 && start == 0) numerator_monomials(r, rt, s);
+    if (j == 1 && k > 0 && start == L->off[k - 1]) { /* g = M B v_prev: +, against the block's −M B */
+      operator_monomials(r, &rt->ops[k - 1], o->prev->chain, my, L->off[k - 1], s);
+      cblas_dscal((int)L->len[k - 1], -1.0, s->z + L->off[k - 1], 1);
+    }
+    operator_monomials(r, &rt->ops[k], o->kp->chain + j * my, my, L->off[k], s);
+    double res = table_norm(rt, start, end - start, o->n, s, &part);
+    *roundoff = *roundoff && part;
+    e = (e + res) / sig;
+  }
+  return e;
+}
+
 /* Term t of stage i, chained operator by operator (estimate_term_chains, its ChainLayout): e = the numerator's
  * own projection error (its block; none for a named numerator of the class: its coordinates are exact) plus
  * `carried` (a named numerator's estimate), then, innermost operator first, each step of an applied M from v
- * gives e ← ‖M‖ e + ‖(I − BBᵀ) M B v‖ and an inverse to v' gives e ← (e + ‖r‖) / σ_min(M), r its operand's
- * Galerkin residual (the producer's columns joined), v and v' the evaluation's kept chain. The figure into
+ * gives e ← ‖M‖ e + ‖(I − BBᵀ) M B v‖ and each solve of an inverse power to v' (inverse_steps) gives e ←
+ * (e + ‖r‖) / σ_min(M), r its operand's Galerkin residual (the producer's columns joined), v and v' the
+ * evaluation's kept chain. The figure into
  * f->est; f->flags loses EST_BOUND where a ratio (an estimate) enters and gains EST_ROUNDOFF when every residual
  * is at roundoff. -1 with f->why. */
 static int chain_figure(Reduced *r, int i, int t, Estimation *s, double carried, Figure *f) {
@@ -693,7 +735,7 @@ static int chain_figure(Reduced *r, int i, int t, Estimation *s, double carried,
   }
   const ReducedKept *prev = NULL;
   for (int k = 0; k < rt->nops; k++) {
-    ChainOp o = {rt, t, k, reduced_kept(r, i, t, k), my, n, m->classes[m->qclass[rs->q]].product != NULL};
+    ChainOp o = {rt, t, k, reduced_kept(r, i, t, k), my, n, m->classes[m->qclass[rs->q]].product != NULL, &L, prev};
     if (!o.kp)
       return snprintf(f->why, sizeof f->why, "term %d's reduced operators are not kept from the evaluation (its "
                       "inputs changed since?)", t + 1), -1;
@@ -704,24 +746,18 @@ static int chain_figure(Reduced *r, int i, int t, Estimation *s, double carried,
       continue;
     }
     long p = rt->ops[k].op->p;
+    if (p < 0 && isnan(e = inverse_steps(r, &o, e, s, f, &roundoff))) return -1;
     double c = NAN;
-    for (long j = 0; j < (p > 0 ? p : 1); j++) {
-      if ((p < 0 || e > 0) && isnan(c) && isnan(c = operator_figure(&o, s, f))) return -1;
-      /* a ratio measured at training samples enters (in a product an inverse's α is a bound: est_sigma 1 when its
-       * premise is not checked, estimate_product.c) */
-      if (p < 0 ? !(o.product && isnan(rt->est_sigma)) : e > 0) f->flags &= ~EST_BOUND;
+    for (long j = 0; j < (p > 0 ? p : 0); j++) {
+      if (e > 0 && isnan(c) && isnan(c = operator_figure(&o, s, f))) return -1;
+      if (e > 0) f->flags &= ~EST_BOUND; /* a ratio measured at training samples enters */
       double res = 0;
-      if (p < 0 || !L.joins[k + 1]) { /* an applied M joined with the inverse after it has its residual there */
-        if (p < 0 && L.start[k] == 0) numerator_monomials(r, rt, s);
-        if (p < 0 && k > 0 && L.start[k] == L.off[k - 1]) { /* g = M B v_prev: +, against the block's −M B */
-          operator_monomials(r, &rt->ops[k - 1], prev->chain, my, L.off[k - 1], s);
-          cblas_dscal((int)L.len[k - 1], -1.0, s->z + L.off[k - 1], 1);
-        }
-        operator_monomials(r, &rt->ops[k], o.kp->chain + (p > 0 ? j : 1) * my, my, L.off[k], s);
-        res = table_norm(rt, L.start[k], L.off[k] + L.len[k] - L.start[k], n, s, &part);
+      if (!L.joins[k + 1]) { /* an applied M joined with the inverse after it has its residual there */
+        operator_monomials(r, &rt->ops[k], o.kp->chain + j * my, my, L.off[k], s);
+        res = table_norm(rt, L.off[k], L.len[k], n, s, &part);
         roundoff = roundoff && part;
       }
-      e = p < 0 ? (e + res) / c : (e > 0 ? c * e : 0) + res;
+      e = (e > 0 ? c * e : 0) + res;
     }
     prev = o.kp;
   }

@@ -91,10 +91,11 @@ bool estimate_term_eligible(const Model *m, int i, int t, char *why, size_t n);
 /* D, the length of z_t (above) for term `t` of stage `i`. */
 long estimate_term_dim(const Model *m, int i, int t);
 /* Whether term `rt`'s figure is chained operator by operator: one declared operator applied to a
- * positive integer power, y_t = M^p w_t (an operator application), or to a power p/q, q > 1 (a root:
+ * positive integer power, y_t = M^p w_t (an operator application), to a power p ≤ −2 (|p| solves, each
+ * step an inverse's: estimate.c's inverse_steps, σ_min the min-θ bound where it applies), or to a power p/q, q > 1 (a root:
  * its step is root_step's quadrature with its integer part chained, its ratio σ_min's, and for p/q > 1
  * also ‖M‖'s), or up to ESTIMATE_OPS_MAX declared operators, each to a positive integer power,
- * inverted, or a root (M^p K⁻¹ L^(1/2) w_t, applied right to left). Its table is block diagonal (ChainLayout): R of the QR of each block of projected columns
+ * inverted (to any power), or a root (M^p K⁻¹ L^(1/2) w_t, applied right to left). Its table is block diagonal (ChainLayout): R of the QR of each block of projected columns
  * apart — the numerator's (w_t's own projection error), each applied operator's ((I − BBᵀ) M B ⊗
  * its tensors' monomials), and each inverse's, joined with what produced its operand (the
  * numerator, or an applied operator of power 1): the Galerkin residual of that operand, as an

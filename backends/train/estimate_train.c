@@ -799,6 +799,13 @@ static int sigma_sample(const SigmaRun *s, long k) {
   return s->src->set(s->src->user, s->w.f, k) != 0 ? err_set(s->w.err, "%s", full_error(s->w.f)) : 0;
 }
 
+/* Whether the min-θ bound enters term rt of one operator: an inverse's σ_min (of a power −1, or below: M^-2's chain
+ * of solves, estimate.c's inverse_steps) or a root's λ_min; an application's ‖M‖ has no lower bound to take. */
+static bool theta_applies(const RTerm *rt) {
+  const OpPow *op = rt->ops[0].op;
+  return !estimate_term_chains(rt) || op->q != 1 || op->p < 0;
+}
+
 /* Which terms' operators are affine with semidefinite terms (estimate_affine_input), found at sample 0 by the rank that
  * holds it and sent to the others; room for nk anchors each. */
 static int theta_detect(SigmaRun *s) {
@@ -808,8 +815,8 @@ static int theta_detect(SigmaRun *s) {
   int out = 0;
   if (s->rank == 0 && s->nt > 0 && (out = sigma_sample(s, 0)) == 0)
     for (int e = 0; e < s->nt; e++)
-      q[e] = s->terms[e][2] >= 0 || (estimate_term_chains(run_term(s, e)) && run_term(s, e)->ops[0].op->q == 1) ? -1
-                                                                         : estimate_affine_input(&s->w, run_term(s, e), run_class(s, e)->n);
+      q[e] = s->terms[e][2] >= 0 || !theta_applies(run_term(s, e)) ? -1
+                                                                : estimate_affine_input(&s->w, run_term(s, e), run_class(s, e)->n);
   if (out == 0 && s->N > 1) dist_broadcast(q, s->nt, 0);
   for (int e = 0; out == 0 && e < s->nt; e++) {
     RTerm *rt = run_term(s, e);

@@ -3,7 +3,9 @@ y = M(w) x (tests/programs/op_application.npg, M_ij = a_ij w_i w_j, a symmetric 
 its square M² x, M applied to an unnamed numerator x + v, terms of two operators, K⁻¹ M x and
 M K⁻¹ x (K = a + diag(w)), roots K^(1/2) x, K^(-1/2) x, K^(2/3) (x + v), roots of power above 1 K^(3/2) x,
 K^(-3/2) x, K^(5/3) x, roots among several operators K⁻¹ M^(1/2) x and M^(1/2) K⁻¹ x, a diagonal operator
-among them K⁻¹ diag(w)⁻¹ x and K diag(w)⁻¹ x (x / w), and beyond the dense limit the thermal block's K x, K² x, K^(1/2) x, K^(3/2) x, K^(-3/2) x (900 unknowns), as a user runs them: npgc train, npgc eval
+among them K⁻¹ diag(w)⁻¹ x and K diag(w)⁻¹ x (x / w), powers below −1 K^-2 x, M K^-2 x and K^-2 M x, and beyond
+the dense limit the thermal block's K x, K² x, K^(1/2) x, K^(3/2) x, K^(-3/2) x, K^-2 x (900 unknowns; the last a
+bound by the min-θ bound), as a user runs them: npgc train, npgc eval
 (OUT/NAME.estimate.npy). The true errors come from numpy's own products (an independent oracle).
 With inputs in their bases (x and w in three-dimensional families) the figure of y = M x is the
 projection residual ‖(I − BBᵀ) M B x̂‖ itself: effectivity 1 to rounding, flagged a bound. Where
@@ -65,6 +67,12 @@ input  x : real[N]
 op K[i:N, j:N] = a[i, j] + delta(i, j) * w[i]
 output dv = K^-1 * (x / w)
 output da = K * (x / w)
+"""
+# powers below −1 (two Galerkin solves by one factorization, each chained as an inverse), alone and among several
+# operators (the applied M joined with the first solve's residual in K⁻² M x): ROOTSX's declarations
+NEGPOW = ROOTSX[:ROOTSX.index("output")] + """output n2 = K^-2 * x
+output mk = M * (K^-2 * x)
+output km = K^-2 * (M * x)
 """
 
 
@@ -167,6 +175,7 @@ def main():
         if "\nestops u 0 " not in open(os.path.join(model, "manifest")).read():
             fail("the model holds no ratios per operator (an estops line) for u = K⁻¹ M x")
         roots(d, a, train, test, st)
+        negative_powers(d, a, train, test, st)
 
 
 def roots(d, a, train, test, st):
@@ -213,6 +222,29 @@ def roots(d, a, train, test, st):
         check(label, *effectivity(out, name, np.array([truth(k) for k in range(len(w))])), 1, 20)
 
 
+def negative_powers(d, a, train, test, st):
+    """Powers below −1 of K, alone and beside M (docs/estimates.md, Powers below −1): each solve's error divided by
+    σ_min(K) ≈ c σ_min(K̂) (K is not diagonally dominant here: no min-θ bound), an estimate."""
+    K = lambda w: a + np.diag(w)
+    M = lambda w: a * np.outer(w, w)
+    solve2 = lambda A, b: np.linalg.solve(A, np.linalg.solve(A, b))
+    prog, model, out = (os.path.join(d, n) for n in ("negpow.npg", "NEGPOW", "OUTP"))
+    open(prog, "w").write(NEGPOW)
+    run("train", prog, train, "--basis", "x:cap=8", "-o", model)
+    manifest = open(os.path.join(model, "manifest")).read()
+    for line in ("\nestimate n2 0 dim ", "\nestops mk 0 ", "\nestops km 0 "):
+        if line not in manifest:
+            fail("the model holds no '%s' line (a power below -1's table or its ratios):\n%s" % (line.strip(), manifest))
+    p = run("eval", prog, model, test, "-o", out)
+    if " b\n" in p.stdout or " b!\n" in p.stdout:
+        fail("a figure with σ_min's ratio is flagged a bound:\n" + p.stdout)
+    w, x = st["w"], st["x"]
+    for name, label, truth in (("n2", "K^-2 x", lambda k: solve2(K(w[k]), x[k])),
+                               ("mk", "M K^-2 x", lambda k: M(w[k]) @ solve2(K(w[k]), x[k])),
+                               ("km", "K^-2 M x", lambda k: solve2(K(w[k]), M(w[k]) @ x[k]))):
+        check(label, *effectivity(out, name, np.array([truth(k) for k in range(len(w))])), 1, 20)
+
+
 def sparse():
     """Beyond the dense limit of 800 rows: the thermal block's K(mu) (tests/cli/thermal_block.npg, 30 x 30 cells)
     applied to an input x of three smooth modes, its square and its root; ‖K‖ and σ_min(K) measured in training
@@ -234,7 +266,7 @@ def sparse():
             fail("a ratio of the sparse operator was not measured, or the root's operator, affine in mu with "
                  "semidefinite terms, has no min-θ anchors:\n" + manifest)
         run("eval", os.path.join(d, "block.npg"), model, test, "-o", out)
-        truth = {"v": [], "s": [], "r": [], "p": [], "n": []}
+        truth = {"v": [], "s": [], "r": [], "p": [], "n": [], "m": []}
         for k in range(len(mu)):
             c = sp.faces(mu[k], nbr, blk)
             K = np.column_stack([sp.apply_spd(e, c, nbr) for e in np.eye(G * G)])
@@ -242,6 +274,7 @@ def sparse():
             truth["v"].append(K @ x[k]), truth["s"].append(K @ K @ x[k])
             truth["r"].append(Q @ (np.sqrt(lam) * (Q.T @ x[k])))
             truth["p"].append(Q @ (lam ** 1.5 * (Q.T @ x[k]))), truth["n"].append(Q @ (lam ** -1.5 * (Q.T @ x[k])))
+            truth["m"].append(Q @ (lam ** -2.0 * (Q.T @ x[k])))
         check("sparse K x", *effectivity(out, "v", np.array(truth["v"])), 1 - 1e-6, 1 + 1e-6)
         check("sparse K² x", *effectivity(out, "s", np.array(truth["s"])), 1, 20)
         check("sparse K^(1/2) x", *effectivity(out, "r", np.array(truth["r"])), 1, 20)
@@ -256,6 +289,25 @@ def sparse():
         run("eval", os.path.join(d, "blockx.npg"), model, test, "-o", out)
         check("sparse K^(3/2) x", *effectivity(out, "p", np.array(truth["p"])), 1, 20)
         check("sparse K^(-3/2) x", *effectivity(out, "n", np.array(truth["n"])), 1, 20)
+        sparse_negative_power(d, train, test, mu, x, np.array(truth["m"]))
+
+
+def sparse_negative_power(d, train, test, mu, x, truth):
+    """K^-2 x on the thermal block (a model of its own): K(mu) is affine in mu with semidefinite terms, so each
+    solve's σ_min is the min-θ bound and, x being exact, the figure a bound (flagged b) on every test sample."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import estimate_sparse as sp
+    prog = open(sp.PROG).read().replace("basis u: max 8\n", "").replace(
+        "output u = solve(K, src)\n", "input x : real[N]\noutput m = K^-2 * x\n")
+    open(os.path.join(d, "blockm.npg"), "w").write(prog)
+    model, out = os.path.join(d, "MODELM"), os.path.join(d, "OUTM")
+    run("train", os.path.join(d, "blockm.npg"), train, "-o", model)
+    if "\ntheta m 0 input mu" not in open(os.path.join(model, "manifest")).read():
+        fail("K^-2 has no min-θ anchors:\n" + open(os.path.join(model, "manifest")).read())
+    p = run("eval", os.path.join(d, "blockm.npg"), model, test, "-o", out)
+    if p.stdout.count(" b\n") + p.stdout.count(" b!\n") != len(mu):
+        fail("the figures of K^-2 x by the min-θ bound with exact inputs are not flagged bounds:\n" + p.stdout)
+    check("sparse K^-2 x", *effectivity(out, "m", truth), 1, 20)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ both ways and the two models must hold the same tables to rounding (RᵀR, what 
 largest column norm squared; the columns' norms to 1e-12 relative) and give the same estimates on test samples (to
 1e-9 relative, the same flags). The programs cover every table kind: a contraction and an inverse (the thermal
 block's u = K⁻¹ src, 900 unknowns, with its sparse σ_min), applications, powers, chains and roots (of powers above 1, among
-several operators, a diagonal operator among them: block tables apart per column block: tests/cli/estimate_apply.py's
+several operators, a diagonal operator among them, powers below −1: block tables apart per column block: tests/cli/estimate_apply.py's
 programs)."""
 import os
 import subprocess
@@ -87,7 +87,8 @@ def main():
         ap.write(train, dict(ap.samples(rng, phi, psi, 20), a=a))
         ap.write(test, dict(ap.samples(rng, phi, psi, 6, noise=1e-3), a=a))
         compare("apply", ap.PROG, train, test, d, ("--basis", "x:cap=8"))
-        for label, text in (("chain", ap.CHAIN), ("roots", ap.ROOTS), ("rootsx", ap.ROOTSX), ("diagx", ap.DIAGX)):
+        for label, text in (("chain", ap.CHAIN), ("roots", ap.ROOTS), ("rootsx", ap.ROOTSX), ("diagx", ap.DIAGX),
+                            ("negpow", ap.NEGPOW)):
             prog = os.path.join(d, label + ".npg")
             open(prog, "w").write(text)
             v = ("--basis", "v:energy=1") if "input  v" in text else ()
