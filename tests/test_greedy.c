@@ -32,14 +32,20 @@ static const char *PROG =
     "0))) - sum(k = 0..3, if(nbr[i, k] == j, 0.5 * (mu[blk[i]] + mu[blk[j]]), 0))\n"
     "output u = solve(K, src)\n";
 
+/* The block with a stage whose reduction is open to the automatic choice (interpolation or
+ * Galerkin): at 30 samples and more training holds every 10th out to choose on. */
+static const char *PROG_CHOICE_TAIL = "output w[i:N] = (u[i] * u[i] + 1)^(-1/2)\n";
+
 typedef struct Block {
   NpgProgram *p;
   NpgFull *f;
   long N, Q;
 } Block;
 
-static void block_new(Block *b, long G, long B) {
-  b->p = compile_text("greedy_block.npg", PROG);
+static void block_new(Block *b, long G, long B, const char *tail) {
+  char text[2048];
+  snprintf(text, sizeof text, "%s%s", PROG, tail);
+  b->p = compile_text("greedy_block.npg", text);
   ir_ok(b->p);
   b->f = npg_full_new(b->p, NPG_TCC);
   b->N = G * G, b->Q = B * B;
@@ -106,7 +112,7 @@ static void options(NpgTrainOptions *o, int nbasis, const char *const *names, co
 static void inputs_keep_every_direction(void **state) {
   (void)state;
   Block b;
-  block_new(&b, 6, 3);
+  block_new(&b, 6, 3, "");
   enum { POOL = 30 };
   double mu[POOL * 9];
   unsigned seed = 7;
@@ -155,7 +161,7 @@ static long manifest_dim(const char *dir) {
 static void past_512_columns_keeps_the_estimate(void **state) {
   (void)state;
   Block b;
-  block_new(&b, 10, 4);
+  block_new(&b, 10, 4, "");
   enum { POOL = 50, TEST = 5 };
   double mu[(POOL + TEST) * 16];
   unsigned seed = 3;
@@ -187,6 +193,94 @@ static void past_512_columns_keeps_the_estimate(void **state) {
   block_free(&b);
 }
 
+/* The manifest's greedy, timing and checksum lines taken out of text (in place); its new length. */
+static size_t drop_lines(char *text) {
+  char *to = text;
+  for (char *l = text; *l;) {
+    size_t len = strcspn(l, "\n") + (l[strcspn(l, "\n")] != 0);
+    if (strncmp(l, "greedy", 6) && strncmp(l, "manifest ", 9) && strncmp(l, "seconds", 7) && strncmp(l, "timing", 6) && strncmp(l, "cpu", 3))
+      memmove(to, l, len), to += len;
+    l += len;
+  }
+  *to = 0;
+  return (size_t)(to - text);
+}
+
+/* Every file of model a the same as b's, the manifest's greedy and timing lines left out. */
+static void models_same(const char *a, const char *b) {
+  DIR *d = opendir(a);
+  assert_non_null(d);
+  struct dirent *e;
+  int files = 0;
+  while ((e = readdir(d))) {
+    if (e->d_name[0] == '.') continue;
+    char pa[1024], pb[1024];
+    snprintf(pa, sizeof pa, "%s/%s", a, e->d_name), snprintf(pb, sizeof pb, "%s/%s", b, e->d_name);
+    size_t na, nb;
+    char *x = slurp(pa, &na), *y = slurp(pb, &nb);
+    if (strcmp(e->d_name, "manifest") == 0) na = drop_lines(x), nb = drop_lines(y);
+    size_t at = 0;
+    while (at < na && at < nb && x[at] == y[at]) at++;
+    if (na != nb || at < na)
+      fail_msg("model file %s differs from the fresh training's at byte %zu: %.60s | %.60s", e->d_name, at,
+               x + (at > 20 ? at - 20 : 0), y + (at > 20 ? at - 20 : 0));
+    free(x), free(y);
+    files++;
+  }
+  closedir(d);
+  assert_true(files > 3);
+}
+
+/* The automatic hold-out (w's reduction open, 30 samples and more) with the snapshot cache, which
+ * finds the samples by their hashes: the hold-out's training takes its samples from the last
+ * retraining on all, the retraining on all takes them back, with the held-out ones left from the
+ * training before. Each training evaluates its new sample and its last one (the evaluator ends as
+ * it did), each validation its held-out samples: far below replaying every sample twice per
+ * iteration; the final model is, file for file, the one training on the chosen samples afresh. */
+static void hold_out_keeps_the_snapshots(void **state) {
+  (void)state;
+  Block b;
+  block_new(&b, 6, 2, PROG_CHOICE_TAIL);
+  enum { POOL = 60, BUDGET = 36 };
+  double mu[POOL * 4];
+  unsigned seed = 11;
+  for (long i = 0; i < POOL * b.Q; i++) mu[i] = 0.1 + 0.9 * lcg(&seed);
+  Mus pool = {mu, b.Q}, start = {mu, b.Q};
+  const char *names[3] = {"u", "mu", "w"};
+  int caps[3] = {60, -1, 60};
+  double energies[3] = {1, 1, 1};
+  NpgTrainOptions o;
+  options(&o, 3, names, caps, energies);
+  NpgGreedyOptions g = {.tol = 1e-14, .budget = BUDGET, .absolute = true};
+  NpgGreedyResult res;
+  char dir[512], again[512];
+  scratch_path(dir, "holdout"), scratch_path(again, "holdout_again");
+  NpgModel *m = npg_train_greedy(b.f, &o, 1, set_mu, &start, POOL, set_mu, &pool, &g, dir, &res);
+  if (!m) fail_msg("%s", res.error);
+  assert_int_equal(res.nchosen, BUDGET - 1);
+  /* replayed (the hold-out's training, its validation and the retraining evaluating every sample):
+   * 2 S per iteration from 30 samples, 491 in all; with the cache one per iteration below 30, then
+   * the new sample, the S/10 held out and the retraining's last (64) */
+  long replayed = 0, bound = 0;
+  for (long S = 1; S <= BUDGET; S++) replayed += S < 30 ? 1 : 2 * S, bound += S < 30 ? 1 : 3 + S / 10;
+  print_message("hold-out: %ld full evaluations (%ld replayed, at most %ld)\n", res.evaluations, replayed, bound);
+  assert_true(res.evaluations <= bound);
+  assert_true(res.evaluations >= BUDGET);
+  NpgTrainer *t = npg_trainer_new(b.f, &o); /* the chosen samples trained afresh */
+  for (long k = 0; k <= res.nchosen; k++) {
+    if (set_mu(&pool, b.f, k ? res.chosen[k - 1] : 0) != 0) fail_msg("%s", npg_full_error(b.f));
+    npg_trainer_add_full(t, b.f);
+  }
+  NpgModel *m2 = npg_trainer_finish(t, again);
+  if (!m2) fail_msg("%s", npg_trainer_error(t));
+  models_same(dir, again);
+  npg_model_free(m2);
+  npg_trainer_free(t);
+  npg_model_free(m);
+  free(res.chosen);
+  block_free(&b);
+}
+
 static int setup(void **state) {
   (void)state;
   return scratch_make("npg_test_greedy");
@@ -202,6 +296,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(inputs_keep_every_direction),
       cmocka_unit_test(past_512_columns_keeps_the_estimate),
+      cmocka_unit_test(hold_out_keeps_the_snapshots),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

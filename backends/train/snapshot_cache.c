@@ -7,49 +7,80 @@
  * its last sample, so that the evaluator ends on the values it ended on before: the same
  * arithmetic, only not repeated).
  *
- * The arrays move, not copied: training takes the cache's snapshots as its own (grown to its S
- * samples), and the cache takes them back when training ends; a training that fails frees them
- * and leaves the cache empty. A sample counts as held when its inputs and externs hash as the
- * cache's sample of that number did, under the same program, params and layout. */
+ * The cache is keyed by the samples' hashes (their inputs and externs as set), not by position:
+ * the automatic hold-out numbers a training's samples otherwise than the retraining on all of them
+ * that follows, and both take what the other left. A column holds one sample's values, and its own
+ * SPD marks (each sample checked alone, so that any subset's marks are the and of its samples').
+ * The columns a training did not take stay for one more training (the held-out samples, between
+ * the training that validated on them and the retraining on all). Over MPI ranks each rank notes
+ * only the samples it evaluated (k ≡ rank mod N, its share): the gathered columns of the others
+ * are kept unmarked, never taken, so a retraining evaluates a new sample on the rank that owns it.
+ *
+ * Training's arrays move into the cache when it ends; a retraining copies the columns it holds
+ * into its own. A sample counts as held when its inputs and externs hash as a column's did, under
+ * the same program, params and layout. */
 #include <stdlib.h>
 #include <string.h>
 
+#include "dist.h"
 #include "train_steps.h"
+
+/* Per sample of the training in progress: its hash, whether this process knows it (set and
+ * checked, or taken), the column taken from (-1: evaluated), its own SPD marks. */
+typedef struct Pass {
+  long S;
+  uint64_t *hash;
+  bool *known;
+  long *from;
+  bool *spd;                /* S x nspd */
+} Pass;
 
 struct SnapshotCache {
   const Program *prog;
   char *params;             /* train_param_hashes of the evaluator the snapshots were taken with */
-  long S;                   /* samples held: their snapshots and marks */
+  long S;                   /* columns held */
   int nclasses;
   int *nmembers;            /* per class: its members, and */
   long *n;                  /*   their rows */
   double ***X;              /* [class][member] n x S column-major, as Snapshots.X */
-  uint64_t *given;          /* per sample: the hash of its inputs and externs as set (room for `room`) */
-  long room;
-  bool lost;                /* a hash not noted (out of memory): the next training keeps nothing */
-  bool *spd;                /* per diagonal operator (FOR_DIAG_OPS order): positive at every sample held */
+  uint64_t *given;          /* per column: the hash of its sample's inputs and externs as set */
+  bool *known;              /* per column: noted by this process (else another rank's, never taken) */
+  bool *fresh;              /* per column: the last training's (else left over once: dropped next) */
+  bool *spd;                /* per column: its sample's own marks, nspd each (FOR_DIAG_OPS order) */
   int nspd;
+  Pass pass;
+  bool lost;                /* a hash not noted (out of memory): the next training keeps nothing */
 };
 
 SnapshotCache *snapshot_cache_new(void) { return mem_calloc(1, sizeof(SnapshotCache)); }
 
-long snapshot_cache_samples(const SnapshotCache *c) { return c ? c->S : 0; }
+long snapshot_cache_samples(const SnapshotCache *c) {
+  long n = 0;
+  for (long j = 0; c && j < c->S; j++) n += c->known[j];
+  return n;
+}
 
-/* Everything held dropped (the cache stays usable, empty). */
+static void pass_free(Pass *p) {
+  free(p->hash), free(p->known), free(p->from), free(p->spd);
+  *p = (Pass){0};
+}
+
+/* The columns dropped (the cache stays usable, empty). */
 static void forget(SnapshotCache *c) {
   for (int k = 0; c->X && k < c->nclasses; k++) {
     for (int i = 0; c->X[k] && i < c->nmembers[k]; i++) free(c->X[k][i]);
     free(c->X[k]);
   }
-  free(c->X), free(c->nmembers), free(c->n), free(c->spd), free(c->params);
-  c->X = NULL, c->nmembers = NULL, c->n = NULL, c->spd = NULL, c->params = NULL;
-  c->S = 0, c->nclasses = 0, c->nspd = 0;
+  free(c->X), free(c->nmembers), free(c->n), free(c->spd), free(c->params), free(c->given), free(c->known);
+  free(c->fresh);
+  c->X = NULL, c->nmembers = NULL, c->n = NULL, c->spd = NULL, c->params = NULL, c->given = NULL, c->known = NULL;
+  c->fresh = NULL, c->S = 0, c->nclasses = 0;
 }
 
 void snapshot_cache_free(SnapshotCache *c) {
   if (!c) return;
   forget(c);
-  free(c->given);
+  pass_free(&c->pass);
   free(c);
 }
 
@@ -66,96 +97,201 @@ static uint64_t given_hash(const Full *f) {
   return h;
 }
 
-/* Room for sample k's hash; false when out of memory. */
-static bool note_room(SnapshotCache *c, long k) {
-  if (k < c->room) return true;
-  long room = 2 * k + 16;
-  uint64_t *g = mem_realloc(c->given, sizeof(uint64_t) * (size_t)room);
-  if (!g) return false;
-  c->given = g, c->room = room;
-  return true;
-}
+bool snapshot_cache_usable(const Train *t) { return t->opt->cache != NULL; }
 
-bool snapshot_cache_usable(const Train *t) { return t->opt->cache && !t->opt->dist; }
+/* Whether sample k is this process's (over ranks: k ≡ rank mod N, as the pass shares them). */
+static bool owned(const Train *t, long k) { return !t->opt->dist || k % dist_size() == dist_rank(); }
+
+/* The column holding the sample of hash h, or -1. */
+static long column_of(const SnapshotCache *c, uint64_t h) {
+  for (long j = 0; j < c->S; j++)
+    if (c->known[j] && c->given[j] == h) return j;
+  return -1;
+}
 
 bool snapshot_cache_holds(Train *t, long k) {
   SnapshotCache *c = t->opt->cache;
-  if (!snapshot_cache_usable(t) || k >= c->S || c->prog != t->prog) return false;
-  return given_hash(t->f) == c->given[k];
+  if (!c || c->prog != t->prog) return false;
+  if (!owned(t, k)) /* another rank's: this one evaluates its own share before the evaluator is read */
+    return dist_rank() < t->src->count;
+  return column_of(c, given_hash(t->f)) >= 0;
 }
 
-void snapshot_cache_note(Train *t, long k) {
-  SnapshotCache *c = t->opt->cache;
-  if (!snapshot_cache_usable(t)) return;
-  if (note_room(c, k)) c->given[k] = given_hash(t->f);
-  else c->lost = true;
-}
-
-/* Whether the cache's snapshots are of t's program, params and layout, and its samples the first of
- * t's, each set to be compared (the last left set: the pass sets it again). */
-static bool matches(Train *t) {
+/* Whether the cache's columns are of t's program, params and layout. */
+static bool matches(Train *t, int nspd) {
   SnapshotCache *c = t->opt->cache;
   const Model *m = t->m;
-  if (c->S == 0 || c->S > t->sn.S || c->prog != t->prog || c->nclasses != m->nclasses) return false;
+  if (c->S == 0 || c->prog != t->prog || c->nclasses != m->nclasses || c->nspd != nspd) return false;
   for (int k = 0; k < m->nclasses; k++)
     if (c->nmembers[k] != m->classes[k].nmembers || c->n[k] != m->classes[k].n) return false;
   char *params = train_param_hashes(t->f);
   bool same = params && strcmp(params, c->params) == 0;
   free(params);
-  for (long k = 0; same && k < c->S; k++) {
-    if (t->src->set(t->src->user, t->f, k) != 0) return false;
-    same = given_hash(t->f) == c->given[k];
-  }
   return same;
+}
+
+/* The pass's per-sample records for S samples; false when out of memory. */
+static bool pass_new(Pass *p, long S, int nspd) {
+  pass_free(p);
+  p->S = S;
+  if (!(p->hash = mem_calloc((size_t)S + 1, sizeof(uint64_t))) || !(p->known = mem_calloc((size_t)S + 1, sizeof(bool))) ||
+      !(p->from = mem_calloc((size_t)S + 1, sizeof(long))) ||
+      !(p->spd = mem_calloc((size_t)S * (size_t)nspd + 1, sizeof(bool)))) {
+    pass_free(p);
+    return false;
+  }
+  for (long k = 0; k < S; k++) p->from[k] = -1;
+  return true;
+}
+
+/* The columns no training sample took and not left over before, moved to the front (the others
+ * freed); left over now. */
+static void keep_leftovers(SnapshotCache *c, const bool *taken) {
+  long L = 0;
+  for (long j = 0; j < c->S; j++) {
+    if (taken[j] || !c->fresh[j] || !c->known[j]) continue;
+    for (int k = 0; k < c->nclasses; k++)
+      for (int i = 0; i < c->nmembers[k]; i++)
+        memmove(c->X[k][i] + (size_t)L * (size_t)c->n[k], c->X[k][i] + (size_t)j * (size_t)c->n[k],
+                sizeof(double) * (size_t)c->n[k]);
+    memmove(c->spd + (size_t)L * (size_t)c->nspd, c->spd + (size_t)j * (size_t)c->nspd, sizeof(bool) * (size_t)c->nspd);
+    c->given[L] = c->given[j], c->known[L] = true, c->fresh[L] = false;
+    L++;
+  }
+  c->S = L;
+}
+
+/* Sample k of t taken from column j: its columns copied into t->sn.X, its marks and-ed into spd. */
+static void take_column(Train *t, long k, long j, bool *spd) {
+  SnapshotCache *c = t->opt->cache;
+  for (int q = 0; q < c->nclasses; q++)
+    for (int i = 0; i < c->nmembers[q]; i++)
+      memcpy(t->sn.X[q][i] + (size_t)k * (size_t)c->n[q], c->X[q][i] + (size_t)j * (size_t)c->n[q],
+             sizeof(double) * (size_t)c->n[q]);
+  const bool *own = c->spd + (size_t)j * (size_t)c->nspd;
+  memcpy(c->pass.spd + (size_t)k * (size_t)c->nspd, own, sizeof(bool) * (size_t)c->nspd);
+  for (int q = 0; q < c->nspd; q++) spd[q] = spd[q] && own[q];
+  c->pass.hash[k] = c->given[j], c->pass.known[k] = true, c->pass.from[k] = j;
 }
 
 long snapshot_cache_take(Train *t, bool *spd, int nspd) {
   SnapshotCache *c = t->opt->cache;
   if (!snapshot_cache_usable(t)) return 0;
-  if (!matches(t) || c->nspd != nspd) {
+  long S = t->sn.S, held = 0;
+  if (!pass_new(&c->pass, S, nspd)) {
+    c->lost = true; /* nothing noted: this training's snapshots are not kept */
+    return 0;
+  }
+  if (!matches(t, nspd)) {
+    forget(c);
+    c->nspd = nspd;
+    return 0;
+  }
+  bool *taken = mem_calloc((size_t)c->S + 1, sizeof(bool));
+  if (!taken) {
     forget(c);
     return 0;
   }
-  long S = t->sn.S, held = c->S;
-  for (int k = 0; k < c->nclasses; k++)
-    for (int i = 0; i < c->nmembers[k]; i++) { /* the columns of the samples held, then room for the others */
-      double *X = mem_realloc(c->X[k][i], sizeof(double) * (size_t)c->n[k] * (size_t)S);
-      if (!X) {
-        forget(c);
-        return 0;
-      }
-      free(t->sn.X[k][i]);
-      t->sn.X[k][i] = X, c->X[k][i] = NULL;
-    }
-  for (int j = 0; j < nspd; j++) spd[j] = spd[j] && c->spd[j];
-  forget(c); /* the arrays are training's now; the hashes stay, noted again as the pass goes */
+  for (long k = 0; k < S; k++) {
+    if (!owned(t, k)) continue;
+    if (t->src->set(t->src->user, t->f, k) != 0) break; /* the pass sets it again and says why */
+    long j = column_of(c, given_hash(t->f));
+    if (j < 0) continue;
+    take_column(t, k, j, spd);
+    taken[j] = true, held++;
+  }
+  keep_leftovers(c, taken);
+  free(taken);
   return held;
 }
 
-void snapshot_cache_keep(Train *t, const bool *spd, int nspd) {
+bool snapshot_cache_kept(const Train *t, long k) {
+  const SnapshotCache *c = t->opt->cache;
+  return c && k < c->pass.S && c->pass.from[k] >= 0;
+}
+
+void snapshot_cache_note(Train *t, long k, const bool *spd, int nspd) {
   SnapshotCache *c = t->opt->cache;
-  const Model *m = t->m;
   if (!snapshot_cache_usable(t)) return;
-  forget(c);
-  if (!t->sn.X || t->gram || c->lost) return (void)(c->lost = false);
+  if (k >= c->pass.S || nspd != c->nspd) return (void)(c->lost = true);
+  c->pass.hash[k] = given_hash(t->f), c->pass.known[k] = true;
+  memcpy(c->pass.spd + (size_t)k * (size_t)nspd, spd, sizeof(bool) * (size_t)nspd);
+}
+
+/* Room for the layout of t's model and L + S columns; false when out of memory (the cache
+ * emptied). */
+static bool layout_room(SnapshotCache *c, const Train *t, long total) {
+  const Model *m = t->m;
   c->prog = t->prog;
   c->nclasses = m->nclasses;
-  if (!(c->params = train_param_hashes(t->f)) || !(c->nmembers = mem_calloc((size_t)m->nclasses + 1, sizeof(int))) ||
-      !(c->n = mem_calloc((size_t)m->nclasses + 1, sizeof(long))) ||
-      !(c->X = mem_calloc((size_t)m->nclasses + 1, sizeof(double **))) ||
-      !(c->spd = mem_calloc((size_t)nspd + 1, sizeof(bool))) || !note_room(c, t->sn.S)) {
-    forget(c); /* out of memory: the next training replays its samples */
+  free(c->params);
+  c->params = NULL;
+  uint64_t *given = mem_realloc(c->given, sizeof(uint64_t) * (size_t)(total + 1));
+  if (given) c->given = given;
+  bool *known = given ? mem_realloc(c->known, (size_t)total + 1) : NULL;
+  if (known) c->known = known;
+  bool *fresh = known ? mem_realloc(c->fresh, (size_t)total + 1) : NULL;
+  if (fresh) c->fresh = fresh;
+  bool *spd = fresh ? mem_realloc(c->spd, (size_t)total * (size_t)c->nspd + 1) : NULL;
+  if (spd) c->spd = spd;
+  if (!spd || !(c->params = train_param_hashes(t->f))) return false;
+  return true;
+}
+
+/* Training's snapshots of class k, member i, with the L columns left over after them. */
+static double *join_member(SnapshotCache *c, Train *t, int k, int i, long L) {
+  long S = t->sn.S, n = t->m->classes[k].n;
+  double *X = L ? mem_realloc(t->sn.X[k][i], sizeof(double) * (size_t)n * (size_t)(S + L)) : t->sn.X[k][i];
+  if (!X) return NULL;
+  t->sn.X[k][i] = NULL;
+  if (L) memcpy(X + (size_t)S * (size_t)n, c->X[k][i], sizeof(double) * (size_t)n * (size_t)L);
+  return X;
+}
+
+/* t's columns as the cache's first, the leftovers after them; false when out of memory. */
+static bool join(SnapshotCache *c, Train *t) {
+  const Model *m = t->m;
+  long S = t->sn.S, L = c->S;
+  if (L && (c->nclasses != m->nclasses || c->prog != t->prog)) return false;
+  double ***X = mem_calloc((size_t)m->nclasses + 1, sizeof(double **));
+  int *nmembers = X ? mem_calloc((size_t)m->nclasses + 1, sizeof(int)) : NULL;
+  long *n = nmembers ? mem_calloc((size_t)m->nclasses + 1, sizeof(long)) : NULL;
+  bool room = n && layout_room(c, t, S + L), ok = room;
+  for (int k = 0; ok && k < m->nclasses; k++) {
+    nmembers[k] = m->classes[k].nmembers, n[k] = m->classes[k].n;
+    ok = (X[k] = mem_calloc((size_t)nmembers[k] + 1, sizeof(double *))) != NULL;
+    for (int i = 0; ok && i < nmembers[k]; i++) ok = (X[k][i] = join_member(c, t, k, i, L)) != NULL;
+  }
+  if (room) { /* the leftovers' marks after t's */
+    memmove(c->given + S, c->given, sizeof(uint64_t) * (size_t)L);
+    memmove(c->known + S, c->known, (size_t)L);
+    memmove(c->fresh + S, c->fresh, (size_t)L);
+    memmove(c->spd + (size_t)S * (size_t)c->nspd, c->spd, (size_t)L * (size_t)c->nspd);
+  }
+  for (int k = 0; c->X && k < c->nclasses; k++) { /* the leftovers' own arrays, copied */
+    for (int i = 0; c->X[k] && i < c->nmembers[k]; i++) free(c->X[k][i]);
+    free(c->X[k]);
+  }
+  free(c->X), free(c->nmembers), free(c->n);
+  c->X = X, c->nmembers = nmembers, c->n = n, c->S = S + L;
+  return ok;
+}
+
+void snapshot_cache_keep(Train *t) {
+  SnapshotCache *c = t->opt->cache;
+  if (!snapshot_cache_usable(t)) return;
+  Pass p = c->pass;
+  c->pass = (Pass){0};
+  bool whole = t->sn.X && !t->gram && !c->lost && p.S == t->sn.S && p.S > 0;
+  if (!whole || !join(c, t)) {
+    forget(c); /* out of core, by the method of snapshots or out of memory: the next training replays */
+    c->lost = false;
+    pass_free(&p);
     return;
   }
-  for (int k = 0; k < m->nclasses; k++) {
-    c->nmembers[k] = m->classes[k].nmembers, c->n[k] = m->classes[k].n;
-    if (!(c->X[k] = mem_calloc((size_t)c->nmembers[k] + 1, sizeof(double *)))) {
-      forget(c);
-      return;
-    }
-    for (int i = 0; i < c->nmembers[k]; i++) c->X[k][i] = t->sn.X[k][i], t->sn.X[k][i] = NULL;
+  for (long k = 0; k < p.S; k++) {
+    c->given[k] = p.hash[k], c->known[k] = p.known[k], c->fresh[k] = true;
+    memcpy(c->spd + (size_t)k * (size_t)c->nspd, p.spd + (size_t)k * (size_t)c->nspd, (size_t)c->nspd);
   }
-  memcpy(c->spd, spd, sizeof(bool) * (size_t)nspd);
-  c->nspd = nspd;
-  c->S = t->sn.S;
+  pass_free(&p);
 }

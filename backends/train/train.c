@@ -448,6 +448,22 @@ static int snapshots_alloc(Model *m, Snapshots *sn, long S, bool gram) {
   return 0;
 }
 
+/* Sample k's SPD marks checked (train_check_spd); with the cache, checked alone as well (every
+ * mark set first, then and-ed with those before: the same marks) and noted with its snapshots.
+ * `before`: room for the marks. */
+static int check_spd_noted(Train *t, double *tmp, bool *before, long k) {
+  if (!snapshot_cache_usable(t)) return train_check_spd(t, tmp);
+  int nspd = spd_marks(t->m, before, false);
+  train_mark_spd(t->m);
+  if (train_check_spd(t, tmp)) return -1;
+  bool *own = before + nspd;
+  spd_marks(t->m, own, false);
+  snapshot_cache_note(t, k, own, nspd);
+  for (int j = 0; j < nspd; j++) own[j] = own[j] && before[j];
+  spd_marks(t->m, own, true);
+  return 0;
+}
+
 /* Every member's snapshots into sn->X, the SPD marks checked on every
  * sample. Over ranks (opt->dist): rank r takes the samples k ≡ r (mod N),
  * then the columns are gathered on every rank (a rank that fails returns
@@ -458,22 +474,22 @@ static int snapshots_in_memory(Train *t, double *tmp) {
   const TrainOptions *opt = t->opt;
   long S = t->sn.S;
   int rc = 0, rank = opt->dist ? dist_rank() : 0, N = opt->dist ? dist_size() : 1, nspd = spd_marks(m, NULL, false);
-  bool *spd = train_scratch(t, sizeof(bool) * (size_t)(nspd + 1));
+  bool *spd = train_scratch(t, sizeof(bool) * (size_t)(2 * nspd + 1));
   if (!spd) return -1;
   spd_marks(m, spd, false);
-  long held = snapshot_cache_take(t, spd, nspd); /* the first `held` samples' snapshots and marks, kept */
+  snapshot_cache_take(t, spd, nspd); /* the snapshots and marks of the samples it holds */
   spd_marks(m, spd, true);
+  long last = rank < S ? rank + (S - 1 - rank) / N * N : -1; /* this rank's last sample */
   for (long k = rank; rc == 0 && k < S; k += N) {
     /* the last sample evaluated though kept: the evaluator ends on its values, as without the cache */
-    bool kept = k < held && k != S - 1;
+    bool kept = snapshot_cache_kept(t, k) && k != last;
     if (!kept && (k > 0 || t->sample0_set_only) && train_eval_sample(t->src, t->f, k, t->err)) rc = -1;
-    if (rc == 0 && !kept) snapshot_cache_note(t, k);
     for (int c = 0; rc == 0 && !kept && c < m->nclasses; c++) {
       RClass *cl = &m->classes[c];
       for (int i = 0; rc == 0 && i < cl->nmembers; i++)
         rc = train_member_value(t, &cl->members[i], k, cl->n, t->sn.X[c][i] + (size_t)k * (size_t)cl->n);
     }
-    if (rc == 0 && !kept) rc = train_check_spd(t, tmp);
+    if (rc == 0 && !kept) rc = check_spd_noted(t, tmp, spd, k);
     if (rc == 0) rc = train_fail_hook(t, k);
     progress_show(opt->user->progress, "snapshots", k + 1, S);
   }
@@ -970,11 +986,7 @@ static int report_phases(Train *t) {
             : t->gram                             ? "method of snapshots"
                                                   : "in memory",
             m->phase_seconds[PHASE_PREMULTIPLY], m->phase_seconds[PHASE_EXTERNS]);
-  if (snapshot_cache_usable(t)) { /* this training's snapshots kept for the next (greedy training) */
-    int nspd = spd_marks(t->m, NULL, false);
-    bool *spd = train_scratch(t, sizeof(bool) * (size_t)(nspd + 1));
-    if (spd) spd_marks(t->m, spd, false), snapshot_cache_keep(t, spd, nspd);
-  }
+  snapshot_cache_keep(t); /* this training's snapshots kept for the next (greedy training) */
   train_free_snapshots(t->m, &t->sn);
   self_check(t);
   return 0;
@@ -1131,8 +1143,7 @@ Model *train_model(Program *prog, Full *f, const SampleSource *src, const TrainO
   if (F != 0) {
     training = (SampleSource){src->count - nheld, &hold, holdout_training, src->set_part ? holdout_training_part : NULL,
                               NULL};
-    o.valid = &held;
-    o.cache = NULL; /* the samples are numbered otherwise: replayed */
+    o.valid = &held; /* the cache finds the samples by their hashes, however numbered */
   }
   Scratch sc = SCRATCH_OF(err);
   double *w = opt->weights ? scale_weights(&sc, opt->weights, src->count, opt->dist) : NULL;

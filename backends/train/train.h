@@ -48,10 +48,10 @@ typedef struct TrainOptions {
                                samples span; the program's `basis` and --basis still set it) */
   bool full_rank;           /* complete every basis to its class's full dimension (convergence tests) */
   bool choose_strict;       /* ties keep Galerkin: the choice never raises the error on `valid` (npgc tune) */
-  struct SnapshotCache *cache; /* the snapshots of an earlier training whose samples this one's begin with (greedy
-                               training): theirs taken from it, not evaluated again, and this training's left in
-                               it (snapshot_cache.c); unused out of core, by the method of snapshots, over ranks
-                               and with a hold-out (the samples replayed). NULL: none */
+  struct SnapshotCache *cache; /* the snapshots of earlier trainings (greedy training): the samples it holds, by
+                               their hashes, taken from it, not evaluated again, and this training's left in it
+                               (snapshot_cache.c); with a hold-out as well, over ranks each rank's share; unused
+                               out of core and by the method of snapshots (the samples replayed). NULL: none */
 } TrainOptions;
 
 /* ---------------------------------------------------------------- snapshots kept between trainings (snapshot_cache.c) */
@@ -60,10 +60,12 @@ typedef struct TrainOptions {
  * issue 41, retrains after each sample it adds): every member's values at each sample and which
  * diagonal operators stayed SPD, what training's first pass takes from a full evaluation. Given
  * as TrainOptions.cache, a training takes the snapshots of the samples it holds (a sample held when
- * its inputs and externs, the program, params and layout are the same), evaluates the others (and
- * its last sample: the evaluator ends on the values it ended on without the cache), and leaves all
- * of its own in it; the model is the one replaying them gives, bit for bit. The snapshots stay in
- * memory between trainings (the bytes training's in-memory route takes: within --mem). */
+ * its inputs and externs hash as one it holds, the program, params and layout the same: whatever
+ * its position, so the automatic hold-out's trainings share them), evaluates the others (and its
+ * last sample: the evaluator ends on the values it ended on without the cache), and leaves all of
+ * its own in it; the model is the one replaying them gives, bit for bit. Over MPI ranks each rank
+ * holds its share's. The snapshots stay in memory between trainings (the bytes training's
+ * in-memory route takes, and the held-out samples' until the next training). */
 typedef struct SnapshotCache SnapshotCache;
 SnapshotCache *snapshot_cache_new(void); /* empty; NULL when out of memory */
 long snapshot_cache_samples(const SnapshotCache *c); /* the samples it holds */

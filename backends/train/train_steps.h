@@ -80,20 +80,24 @@ int train_check_spd(Train *t, double *tmp);
  * evaluation of sample k into out[0..n); refused, naming where, when not finite. */
 int train_member_value(Train *t, const RMember *mb, long k, long n, double *out);
 
-/* Snapshots kept between trainings (snapshot_cache.c, TrainOptions.cache). Whether the cache can
- * serve t (one given, not over ranks); whether sample k, as set in t->f, is the cache's sample k. */
+/* Snapshots kept between trainings (snapshot_cache.c, TrainOptions.cache), found by the hashes of
+ * the samples' inputs and externs. Whether the cache can serve t (one given); whether train_begin
+ * may leave sample k, as set in t->f, unevaluated (the cache holds it, or over ranks another rank
+ * owns it: this one evaluates its own share before anything reads the evaluator). */
 bool snapshot_cache_usable(const Train *t);
 bool snapshot_cache_holds(Train *t, long k);
 /* Before the in-memory pass (t->sn allocated for S samples): when the cache's program, params and
- * layout are t's and its samples the first of t's (each set to compare), its snapshots moved into
- * t->sn.X and its SPD marks and-ed into spd[0..nspd) (FOR_DIAG_OPS order); the samples taken (0:
- * none, the cache emptied). */
+ * layout are t's, the snapshots of every sample of this process's share it holds (each set to
+ * hash it) copied into t->sn.X and their SPD marks and-ed into spd[0..nspd) (FOR_DIAG_OPS order);
+ * the samples taken (0: none, the cache emptied). Whether sample k was taken. */
 long snapshot_cache_take(Train *t, bool *spd, int nspd);
-/* Sample k, set in t->f by the pass, noted as the cache's sample k. */
-void snapshot_cache_note(Train *t, long k);
-/* At the end of training: t->sn.X moved into the cache (t->sn.X[c][i] NULL) with the SPD marks
- * of all its samples; out of core or by the method of snapshots, the cache emptied. */
-void snapshot_cache_keep(Train *t, const bool *spd, int nspd);
+bool snapshot_cache_kept(const Train *t, long k);
+/* Sample k, set in t->f and evaluated by the pass, noted with its own SPD marks spd[0..nspd). */
+void snapshot_cache_note(Train *t, long k, const bool *spd, int nspd);
+/* At the end of training: t->sn.X moved into the cache (t->sn.X[c][i] NULL) with the samples'
+ * hashes and marks, the columns it did not take kept once more; out of core or by the method of
+ * snapshots, the cache emptied. */
+void snapshot_cache_keep(Train *t);
 
 /* The method of snapshots (snapshots.c): every member's basis of t->m from
  * S x S Gram matrices, recomputing the samples of t->src in passes within
