@@ -3,13 +3,16 @@
  * iteration is one training (npg_trainer) on the start samples and the candidates chosen so far,
  * then one reduced evaluation and estimate per remaining candidate; the worst joins. The trainings
  * share one SnapshotCache (train.h): each takes the earlier samples' snapshots from the last and
- * evaluates its new sample alone, so every training sample is evaluated in full once. */
+ * evaluates its new sample alone, so every training sample is evaluated in full once (with the
+ * automatic hold-out, also found by their hashes; over MPI ranks each rank holds its share's and
+ * estimates its share of the candidates). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "api.h"
+#include "dist.h"
 #include "estimate.h"
 
 #define gfail(res, ...) error_set_first((res)->error, sizeof (res)->error, __VA_ARGS__)
@@ -99,11 +102,32 @@ static double candidate_error(NpgFull *f, NpgReduced *r, NpgSampleFn pool, void 
   return worst;
 }
 
+/* Whether the candidates are shared among MPI ranks: training over them (the first training
+ * joined the job). */
+static bool split(const Greedy *gr) { return gr->o->mpi && dist_size() > 1; }
+
+/* The ranks' worst candidates (res->worst, worst_at, *outside: each rank's of its share) reduced to
+ * the job's on every rank: outside a basis first, then the largest estimate, then the first in the
+ * pool's order, as one process finds it. `rc`: this rank's; -1 on every rank when one failed. */
+static int reduce_worst(NpgGreedyResult *res, bool *outside, int rc) {
+  double any[2] = {*outside ? 1 : 0, rc != 0 ? 1 : 0};
+  dist_allreduce_max(any, 2);
+  if (any[1] > 0) return rc ? rc : gfail(res, "greedy training: another MPI rank failed estimating its candidates");
+  bool mine = res->worst_at >= 0 && *outside == (any[0] > 0); /* this rank's worst among the job's kind */
+  double e = mine ? res->worst : -INFINITY;
+  dist_allreduce_max(&e, 1);
+  double c = mine && res->worst == e ? -(double)res->worst_at : -INFINITY; /* the first: the largest -c */
+  dist_allreduce_max(&c, 1);
+  *outside = any[0] > 0;
+  res->worst = isinf(c) ? -1 : e, res->worst_at = isinf(c) ? -1 : (long)-c;
+  return 0;
+}
+
 /* The worst candidate not chosen into res (worst, worst_at): one whose input lies outside its
  * basis before any other (res->worst INFINITY; among them the farthest outside, so that the first
- * choices span the inputs' space), else the largest estimate; -1 on an error. */
-static int worst_candidate(NpgFull *f, NpgModel *nm, long npool, NpgSampleFn pool, void *puser, bool absolute,
-                           NpgGreedyResult *res) {
+ * choices span the inputs' space), else the largest estimate; -1 on an error. Over MPI ranks each
+ * rank estimates the candidates c ≡ rank (mod ranks), the worst reduced over them. */
+static int worst_candidate(const Greedy *gr, NpgModel *nm, NpgGreedyResult *res) {
   NpgReduced *r = npg_reduced_new(nm);
   if (npg_reduced_error(r)[0]) {
     gfail(res, "%s", npg_reduced_error(r));
@@ -111,17 +135,18 @@ static int worst_candidate(NpgFull *f, NpgModel *nm, long npool, NpgSampleFn poo
     return -1;
   }
   res->worst = -1, res->worst_at = -1;
-  int rc = 0;
+  int rc = 0, step = split(gr) ? dist_size() : 1;
   bool worst_outside = false;
-  for (long c = 0; c < npool && rc == 0; c++) {
+  for (long c = split(gr) ? dist_rank() : 0; c < gr->npool && rc == 0; c += step) {
     bool taken = false, outside;
     for (long j = 0; j < res->nchosen; j++) taken |= res->chosen[j] == c;
     if (taken) continue;
-    double e = candidate_error(f, r, pool, puser, c, absolute, &outside, res);
+    double e = candidate_error(gr->f, r, gr->pool, gr->puser, c, gr->g->absolute, &outside, res);
     if (isnan(e)) rc = -1;
     else if (outside > worst_outside || (outside == worst_outside && e > res->worst))
       res->worst = e, res->worst_at = c, worst_outside = outside;
   }
+  if (split(gr)) rc = reduce_worst(res, &worst_outside, rc);
   if (res->worst_at < 0) res->worst = 0; /* every candidate chosen */
   if (worst_outside) res->worst = INFINITY;
   npg_reduced_free(r);
@@ -152,18 +177,21 @@ static NpgModel *greedy_loop(const Greedy *gr, long budget, NpgGreedyResult *res
   for (;;) {
     npg_model_free(nm);
     if (!(nm = train_once(gr, res))) return NULL;
-    if (worst_candidate(gr->f, nm, gr->npool, gr->pool, gr->puser, g->absolute, res) != 0) {
+    if (worst_candidate(gr, nm, res) != 0) {
       npg_model_free(nm);
       return NULL;
     }
     full_evaluations(gr->f->full, &after, NULL);
-    res->evaluations = after - before;
+    double done = (double)(after - before); /* over MPI ranks, the job's */
+    if (split(gr)) dist_allreduce_sum(&done, 1);
+    res->evaluations = (long)done;
     res->converged = res->worst < g->tol;
     long samples = gr->nstart + res->nchosen;
-    if (g->progress && isinf(res->worst))
+    bool progress = g->progress && dist_rank() == 0; /* one rank reports */
+    if (progress && isinf(res->worst))
       fprintf(stderr, "greedy: %ld training samples (%ld full evaluations), candidate %ld: an input outside its basis\n",
               samples, res->evaluations, res->worst_at);
-    else if (g->progress)
+    else if (progress)
       fprintf(stderr, "greedy: %ld training samples (%ld full evaluations), worst candidate %ld: estimated %s error "
               "%.3e (tol %.3g)\n", samples, res->evaluations, res->worst_at, g->absolute ? "absolute" : "relative",
               res->worst, g->tol);
@@ -193,7 +221,7 @@ NpgModel *npg_train_greedy(NpgFull *f, const NpgTrainOptions *o, long nstart, Np
   if (!gr.cache) return gfail(res, "out of memory"), NULL;
   NpgModel *nm = greedy_loop(&gr, budget, res);
   snapshot_cache_free(gr.cache);
-  if (nm && !res->converged && g->progress)
+  if (nm && !res->converged && g->progress && dist_rank() == 0)
     fprintf(stderr, "greedy: stopped at the budget of %ld training samples with the worst candidate's estimate %.3e "
             "above --tol %.3g\n", budget, res->worst, g->tol);
   if (nm && record(nm, g, budget, res) != 0) {

@@ -346,6 +346,8 @@ static int train_greedy(Common *c, NpgProgram *p, NpgFull *f, NpgSamples *s) {
   NpgModel *m = npg_train_greedy(f, &c->train, npg_samples_count(s), npg_samples_set, s, npg_samples_count(pool),
                                  npg_samples_set, pool, &g, c->out, &res);
   if (!m) npgc_error(res.error);
+  else if (npg_mpi_rank() > 0) /* rank 0 reports */
+    rc = 0;
   else {
     printf("trained %s greedily on %ld samples (%ld of DATA/, %ld chosen of %ld candidates in %s; %ld full "
            "evaluations) in %.2f s -> %s\n", c->prog_path, npg_model_samples(m), npg_samples_count(s), res.nchosen,
