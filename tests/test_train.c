@@ -245,12 +245,43 @@ static void kept_snapshots_give_the_replayed_model(void **state) {
   assert_int_equal(evaluations_training(prog, f, &ms, 40, cache, &m), 1);
   assert_same_model(m, replayed);
   model_free(m);
-  /* a cache of other samples: not used, every sample evaluated, the model the replayed one */
+  /* other samples: every one evaluated, and the columns not taken kept for one more training (the
+   * hold-out's samples, between its training and the retraining on all) */
   assert_int_equal(evaluations_training(prog, f, &other, 20, cache, &m), 20);
+  model_free(m);
+  assert_int_equal(evaluations_training(prog, f, &ms, 40, cache, &m), 1);
+  assert_same_model(m, replayed);
+  model_free(m);
+  /* left unused by two trainings: dropped, every sample evaluated, the model the replayed one */
+  assert_int_equal(evaluations_training(prog, f, &other, 20, cache, &m), 1);
+  model_free(m);
+  assert_int_equal(evaluations_training(prog, f, &other, 20, cache, &m), 1);
   model_free(m);
   assert_int_equal(evaluations_training(prog, f, &ms, 40, cache, &m), 40);
   assert_same_model(m, replayed);
   model_free(m);
+  /* samples numbered otherwise (the last 20 of the 40, first): found by their hashes */
+  MemSamples last = ms;
+  for (int q = 0; q < ms.n; q++) last.val[q] = ms.val[q] + (size_t)20 * ms.count[q];
+  last.S = 20;
+  assert_int_equal(evaluations_training(prog, f, &last, 20, cache, &m), 1);
+  model_free(m);
+  /* a new first sample before held ones: evaluated by the pass, after the samples set to be found */
+  MemSamples mixed = ms;
+  for (int q = 0; q < ms.n; q++) {
+    mixed.val[q] = malloc(sizeof(double) * 20 * ms.count[q]);
+    assert_non_null(mixed.val[q]);
+    memcpy(mixed.val[q], other.val[q], sizeof(double) * ms.count[q]);
+    memcpy(mixed.val[q] + ms.count[q], last.val[q] + ms.count[q], sizeof(double) * 19 * ms.count[q]);
+  }
+  mixed.S = 20;
+  Model *fresh;
+  assert_int_equal(evaluations_training(prog, f, &mixed, 20, NULL, &fresh), 20);
+  assert_int_equal(evaluations_training(prog, f, &mixed, 20, cache, &m), 2);
+  assert_same_model(m, fresh);
+  model_free(m);
+  model_free(fresh);
+  for (int q = 0; q < ms.n; q++) free(mixed.val[q]);
   model_free(replayed);
   snapshot_cache_free(cache);
   memsamples_free(&ms);

@@ -109,12 +109,10 @@ static long column_of(const SnapshotCache *c, uint64_t h) {
   return -1;
 }
 
-bool snapshot_cache_holds(Train *t, long k) {
-  SnapshotCache *c = t->opt->cache;
-  if (!c || c->prog != t->prog) return false;
-  if (!owned(t, k)) /* another rank's: this one evaluates its own share before the evaluator is read */
-    return dist_rank() < t->src->count;
-  return column_of(c, given_hash(t->f)) >= 0;
+bool snapshot_cache_defers(const Train *t) {
+  const SnapshotCache *c = t->opt->cache;
+  if (!c || c->prog != t->prog || c->S == 0) return false;
+  return owned(t, 0) || dist_rank() < t->src->count; /* another rank's: this one evaluates its share first */
 }
 
 /* Whether the cache's columns are of t's program, params and layout. */
