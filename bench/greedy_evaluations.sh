@@ -56,15 +56,5 @@ while [ $i -lt "$RUNS" ]; do
   i=$((i + 1))
 done
 for case in d3 d2; do
-  same=yes
-  for f in "$W/model_${case}_before"/*; do
-    g="$W/model_${case}_after/$(basename "$f")"
-    if [ "$(basename "$f")" = manifest ]; then # its timing lines left out, as tests/train_identical.py does
-      grep -v -E '^(seconds|timing|cpu)' "$f" >"$W/m1" || true
-      grep -v -E '^(seconds|timing|cpu)' "$g" >"$W/m2" || true
-      f="$W/m1" g="$W/m2"
-    fi
-    cmp -s "$f" "$g" || same="no: $(basename "$g")"
-  done
-  echo "$case: the two builds' models the same byte for byte: $same"
+  echo "$case: the two builds' models the same byte for byte: $(sh bench/same_models.sh "$W/model_${case}_before" "$W/model_${case}_after")"
 done

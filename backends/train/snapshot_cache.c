@@ -109,8 +109,9 @@ static long column_of(const SnapshotCache *c, uint64_t h) {
   return -1;
 }
 
-bool snapshot_cache_defers(const Train *t) {
-  const SnapshotCache *c = t->opt->cache;
+bool snapshot_cache_begin(Train *t) {
+  SnapshotCache *c = t->opt->cache;
+  if (c) pass_free(&c->pass); /* a training that failed after its take left its own */
   if (!c || c->prog != t->prog || c->S == 0) return false;
   return owned(t, 0) || dist_rank() < t->src->count; /* another rank's: this one evaluates its share first */
 }

@@ -363,7 +363,7 @@ int train_begin(Train *t) {
   Program *prog = t->prog;
   if (t->src->count < 1) return err_set(t->err, "no training samples");
   if (t->src->set(t->src->user, t->f, 0) != 0) return err_set(t->err, "%s", full_error(t->f)); /* it binds every dim */
-  t->sample0_set_only = snapshot_cache_defers(t); /* the cache's pass evaluates it if it does not hold it */
+  t->sample0_set_only = snapshot_cache_begin(t); /* the cache's pass evaluates it if it does not hold it */
   if (!t->sample0_set_only && full_eval(t->f, 0) != 0) return err_set(t->err, "%s", full_error(t->f));
   long *dims = train_scratch(t, sizeof(long) * ((size_t)prog->dims.n + 1));
   if (!dims) return -1;

@@ -81,12 +81,13 @@ int train_check_spd(Train *t, double *tmp);
 int train_member_value(Train *t, const RMember *mb, long k, long n, double *out);
 
 /* Snapshots kept between trainings (snapshot_cache.c, TrainOptions.cache), found by the hashes of
- * the samples' inputs and externs. Whether the cache can serve t (one given); whether train_begin
- * leaves sample 0 set, unevaluated: the cache holds columns, so the pass sets every sample to find
- * them, then evaluates those it does not hold, sample 0 as well (over ranks, one owned by another
- * rank is never evaluated here: this one evaluates its own share before the evaluator is read). */
+ * the samples' inputs and externs. Whether the cache can serve t (one given). A training begins
+ * (train_begin, sample 0 set): whether to leave sample 0 unevaluated, as the cache holds columns,
+ * so the pass sets every sample to find them, then evaluates those it does not hold, sample 0 as
+ * well (over ranks, one owned by another rank is never evaluated here: this one evaluates its own
+ * share before the evaluator is read). */
 bool snapshot_cache_usable(const Train *t);
-bool snapshot_cache_defers(const Train *t);
+bool snapshot_cache_begin(Train *t);
 /* Before the in-memory pass (t->sn allocated for S samples): when the cache's program, params and
  * layout are t's, the snapshots of every sample of this process's share it holds (each set to
  * hash it) copied into t->sn.X and their SPD marks and-ed into spd[0..nspd) (FOR_DIAG_OPS order);
