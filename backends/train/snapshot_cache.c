@@ -294,3 +294,22 @@ void snapshot_cache_keep(Train *t) {
   }
   pass_free(&p);
 }
+
+bool snapshot_cache_values(SnapshotCache *c, Full *f, const Model *m, double *out) {
+  if (!c || c->S == 0 || c->prog != m->prog || c->nclasses != m->nclasses) return false;
+  for (int k = 0; k < m->nclasses; k++)
+    if (c->nmembers[k] != m->classes[k].nmembers || c->n[k] != m->classes[k].n) return false;
+  long j = column_of(c, given_hash(f)), off = 0;
+  char *params = j >= 0 ? train_param_hashes(f) : NULL;
+  bool same = params && strcmp(params, c->params) == 0;
+  free(params);
+  for (int q = 0; same && q < m->nq; q++) { /* each quantity a member of its class (else evaluated) */
+    const RClass *rc = &m->classes[m->qclass[q]];
+    int i = 0;
+    while (i < rc->nmembers && rc->members[i].q != q) i++;
+    if (i == rc->nmembers) return false;
+    memcpy(out + off, c->X[m->qclass[q]][i] + (size_t)j * (size_t)rc->n, sizeof(double) * (size_t)rc->n);
+    off += rc->n;
+  }
+  return same;
+}

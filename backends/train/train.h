@@ -70,6 +70,11 @@ typedef struct SnapshotCache SnapshotCache;
 SnapshotCache *snapshot_cache_new(void); /* empty; NULL when out of memory */
 long snapshot_cache_samples(const SnapshotCache *c); /* the samples it holds */
 void snapshot_cache_free(SnapshotCache *c);
+/* Every quantity's values (m's order, each its class's n entries) at the sample set in f, from the
+ * column holding it, into out: false when the cache (NULL: none) does not hold it under m's program,
+ * layout and f's params, or a quantity is no member of its class (the validation samples of the
+ * automatic hold-out: held from the retraining before). */
+bool snapshot_cache_values(SnapshotCache *c, Full *f, const Model *m, double *out);
 
 /* Whether training keeps class c's basis whatever the rule (no opt->stream, or --keep-bases
  * names it; train.c). */

@@ -75,9 +75,11 @@ static int cache_valid(Search *s, Full *f, const SampleSource *valid, const Mode
   long per = 0;
   for (int q = 0; q < layout->nq; q++) per += qsize(layout, q);
   for (long k = 0; k < valid->count; k++) {
-    if (valid->set(valid->user, f, k) != 0 || full_eval(f, k) != 0)
-      return err_set(err, "validation sample %ld: %s", k, full_error(f));
     if (!(s->v.val[k] = scratch_array(&s->mem, (size_t)per, sizeof(double)))) return err_set(err, "out of memory");
+    if (valid->set(valid->user, f, k) != 0) return err_set(err, "validation sample %ld: %s", k, full_error(f));
+    /* greedy training's snapshots (not the last: the evaluator ends on its values, as without them) */
+    if (k < valid->count - 1 && snapshot_cache_values(s->copt.cache, f, layout, s->v.val[k])) continue;
+    if (full_eval(f, k) != 0) return err_set(err, "validation sample %ld: %s", k, full_error(f));
     long off = 0;
     for (int q = 0; q < layout->nq; q++) {
       memcpy(s->v.val[k] + off, full_get(f, ((Sym *)s->prog->quantities.v[q])->name, NULL),
