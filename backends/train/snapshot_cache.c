@@ -12,7 +12,8 @@
  * that follows, and both take what the other left. A column holds one sample's values, and its own
  * SPD marks (each sample checked alone, so that any subset's marks are the and of its samples').
  * The columns a training did not take stay for one more training (the held-out samples, between
- * the training that validated on them and the retraining on all). Over MPI ranks each rank notes
+ * the training that validated on them and the retraining on all; the validation reads their values
+ * from them, snapshot_cache_values). Over MPI ranks each rank notes
  * only the samples it evaluated (k ≡ rank mod N, its share): the gathered columns of the others
  * are kept unmarked, never taken, so a retraining evaluates a new sample on the rank that owns it.
  *
@@ -49,7 +50,7 @@ struct SnapshotCache {
   bool *spd;                /* per column: its sample's own marks, nspd each (FOR_DIAG_OPS order) */
   int nspd;
   Pass pass;
-  bool lost;                /* a hash not noted (out of memory): the next training keeps nothing */
+  bool lost;                /* the pass's records not made (out of memory): this training's columns not kept */
 };
 
 SnapshotCache *snapshot_cache_new(void) { return mem_calloc(1, sizeof(SnapshotCache)); }
