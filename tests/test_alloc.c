@@ -143,17 +143,15 @@ static int set_sample(void *user, NpgFull *f, long k) {
 
 /* npgc tune's search (backends/train/tune.c, train_set.c): the sample set,
  * every trial's model and validation. Every allocation fails in turn: the
- * search fails saying "out of memory", or returns the model. The stage is
- * forced to Galerkin: reading a tensor for interpolation (interp_train.c)
- * still fails there with "the tensor sink refused an entry". */
+ * search fails saying "out of memory", or returns the model. Its stage is
+ * eligible for interpolation, so the choice trains both (interp_train.c, and
+ * the interpolated model's tables loaded back by interp.c). */
 static void tune_fails_cleanly(void **state) {
   (void)state;
   NpgProgram *p = program();
   NpgFull *f = npg_full_new(p, NPG_TCC);
   NpgTrainOptions o;
   npg_train_options_default(&o);
-  static const char *const galerkin[] = {"y"};
-  o.ngalerkin = 1, o.galerkin_stage = galerkin;
   long k;
   for (k = 0; k < MAX_FAILURES; k++) {
     if (failing_alloc_traced() >= 0) fprintf(stderr, "tune, allocation %ld fails\n", k);
@@ -188,16 +186,14 @@ static NpgModel *trained(NpgProgram *p) {
   return m;
 }
 
-/* Loading a model, and evaluating with it. */
-static void loading_fails_cleanly(void **state) {
-  (void)state;
-  NpgProgram *p = program();
-  npg_model_free(trained(p));
+/* Loading the model of `p` in `model_dir` and evaluating with it, the k-th allocation failing, for
+ * every k until both succeed: every failure says "out of memory". The allocations counted. */
+static long load_fails_cleanly(NpgProgram *p, const char *model_dir, const char *route) {
   long k;
   for (k = 0; k < MAX_FAILURES; k++) {
-    if (failing_alloc_traced() >= 0) fprintf(stderr, "loading, allocation %ld fails\n", k);
+    if (failing_alloc_traced() >= 0) fprintf(stderr, "%s, allocation %ld fails\n", route, k);
     failing_alloc_after(k);
-    NpgModel *m = npg_model_load(p, dir);
+    NpgModel *m = npg_model_load(p, model_dir);
     NpgReduced *r = NULL;
     const char *msg = npg_model_error(m);
     double y[2];
@@ -209,12 +205,44 @@ static void loading_fails_cleanly(void **state) {
     }
     failing_alloc_off();
     bool done = !msg[0];
-    if (!done && !strstr(msg, "out of memory")) fail_msg("allocation %ld failing: \"%s\"", k, msg);
+    if (!done && !strstr(msg, "out of memory")) fail_msg("%s, allocation %ld failing: \"%s\"", route, k, msg);
     npg_reduced_free(r);
     npg_model_free(m);
     if (done) break;
   }
-  print_message("loading and evaluating: %ld allocations, each failing in turn\n", k);
+  print_message("%s: %ld allocations, each failing in turn\n", route, k);
+  return k;
+}
+
+/* Loading a model, and evaluating with it. */
+static void loading_fails_cleanly(void **state) {
+  (void)state;
+  NpgProgram *p = program();
+  npg_model_free(trained(p));
+  long k = load_fails_cleanly(p, dir, "loading and evaluating");
+  assert_true(k > 5 && k < MAX_FAILURES);
+  npg_free(p);
+}
+
+/* An interpolated stage (backends/train/interp_train.c, backends/model/interp.c): trained with y
+ * forced to interpolation, its monomial tables read from the tensor builders, then the model
+ * loaded back and evaluated, each allocation failing in turn. */
+static void interpolated_fails_cleanly(void **state) {
+  (void)state;
+  NpgTrainOptions o;
+  npg_train_options_default(&o);
+  static const char *const interp[] = {"y"};
+  o.ninterp = 1, o.interp_stage = interp;
+  char model_dir[300];
+  snprintf(model_dir, sizeof model_dir, "%s.interp", dir);
+  long k = train_fails_cleanly(&o, "interpolated", model_dir);
+  assert_true(k > 20 && k < MAX_FAILURES);
+  NpgProgram *p = program();
+  NpgModel *m = npg_model_load(p, model_dir);
+  long entries = 0;
+  assert_int_equal(npg_model_stage_interpolated(m, "y", &entries), 1);
+  npg_model_free(m);
+  k = load_fails_cleanly(p, model_dir, "loading an interpolated model");
   assert_true(k > 5 && k < MAX_FAILURES);
   npg_free(p);
 }
@@ -279,6 +307,7 @@ int main(void) {
       cmocka_unit_test_teardown(snapshots_fail_cleanly, restore_hook),
       cmocka_unit_test_teardown(out_of_core_fails_cleanly, restore_hook),
       cmocka_unit_test_teardown(tune_fails_cleanly, restore_hook),
+      cmocka_unit_test_teardown(interpolated_fails_cleanly, restore_hook),
   };
   return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -11,7 +11,9 @@
  *     operator, a singular one under a negative power, and one not finite;
  *   - a corrupted, truncated or mismatched model is refused naming the file;
  *   - the reduced Jacobian from the operators, factors and local Jacobians an evaluation kept
- *     equals the one recomputing them (1e-12), and a coordinate changed since voids them.
+ *     equals the one recomputing them (1e-12), and a coordinate changed since voids them;
+ *   - a stage's local partial by reverse directions (reduced_stage_vjp) is the forward one
+ *     (reduced_stage_jvp) transposed (1e-12), an interpolated stage's too.
  */
 #include <cblas.h>
 #include <lapacke.h>
@@ -595,6 +597,73 @@ static void derivatives_reuse_the_evaluation(void **state) {
   assert_true(worst <= 1e-12);
 }
 
+/* ---------------------------------------------------------------- one stage's partials */
+
+/* The largest over every stage and every quantity it reads of the relative difference between the stage's
+ * local partial by reverse directions (reduced_stage_vjp, the identity seeded on the stage) and the forward
+ * one (reduced_stage_jvp, the identity seeded on the input) transposed. Counts the pairs compared and the
+ * interpolated stages among them. */
+static double stage_vjp_against_jvp(const char *path, const char *text, int *pairs, int *interpolated) {
+  Trained tr;
+  train(&tr, path, text, 6, 16, 3);
+  char err[1024];
+  Reduced *r = reduced_new(tr.m, ERR_OF(err, sizeof err));
+  assert_non_null(r);
+  if (memsamples_set(&tr.train, tr.f, 3) || full_eval(tr.f, 3)) fail_msg("%s", full_error(tr.f));
+  for (int q = 0; q < tr.m->nq; q++) {
+    const Sym *s = tr.prog->quantities.v[q];
+    if (s->kind == SYM_INPUT) reduced_project(r, q, full_get(tr.f, s->name, NULL));
+  }
+  if (reduced_eval(r, 3)) fail_msg("%s", reduced_error(r));
+  double worst = 0;
+  for (int i = 0; i < tr.m->nstages; i++)
+    for (int q = 0; q < tr.m->nq; q++) {
+      int qy = tr.m->stages[i].q;
+      long my = tr.m->classes[tr.m->qclass[qy]].m, mq = tr.m->classes[tr.m->qclass[q]].m;
+      if (q == qy || my == 0 || mq == 0) continue;
+      double *ey = calloc((size_t)(my * my), sizeof(double)), *eq = calloc((size_t)(mq * mq), sizeof(double));
+      double *J = malloc(sizeof(double) * (size_t)(my * mq)), *Jt = malloc(sizeof(double) * (size_t)(my * mq));
+      for (long a = 0; a < my; a++) ey[a * my + a] = 1;
+      for (long a = 0; a < mq; a++) eq[a * mq + a] = 1;
+      const double *sy = ey, *sq = eq;
+      if (reduced_stage_jvp(r, i, &(ReducedSeeds){1, &q, &sq, mq, false}, J, -1, ERR_OF(err, sizeof err)) ||
+          reduced_stage_vjp(r, i, &(ReducedSeeds){1, &q, &sy, my, false}, Jt, -1, ERR_OF(err, sizeof err)))
+        fail_msg("%s: stage %d: %s", path, i, err);
+      double big = 0, diff = 0;
+      for (long a = 0; a < my; a++)
+        for (long b = 0; b < mq; b++)
+          big = fmax(big, fabs(J[a * mq + b])), diff = fmax(diff, fabs(J[a * mq + b] - Jt[b * my + a]));
+      if (big > 0) worst = fmax(worst, diff / big), ++*pairs, *interpolated += tr.m->stages[i].interp != NULL;
+      else assert_true(diff == 0);
+      free(ey), free(eq), free(J), free(Jt);
+    }
+  reduced_free(r);
+  trained_free(&tr);
+  return worst;
+}
+
+/* reduced_stage_vjp (which the propagation of an input's error takes when the stage's basis is smaller
+ * than its input's, estimate.c) is reduced_stage_jvp transposed, to 1e-12: contractions, an inverse of an
+ * operator quadratic in its input, a root, a declared operator solved, an interpolated stage. */
+static void stage_partials_transpose(void **state) {
+  (void)state;
+  static const char *quadratic = "dim N\ninput x : real[N]\ninput u : real[N]\nk[i:N] = u[i] / (1 + x[i]^2)\n"
+                                 "output y[i:N] = k[i] * x[i] + u[i]\n";
+  static const char *interp = "dim N\ninput x : real[N]\ninput u : real[N]\nk[i:N] = u[i] / (1 + x[i]^2)\n"
+                              "basis k: reduce interp\noutput y[i:N] = k[i] * x[i] + u[i]\n";
+  static const char *root = "dim N\ninput x : real[N]\ninput u : real[N]\nd[i:N] = x[i]^2 + 1\n"
+                            "output y[i:N] = u[i] * d[i]^(-1/2)\n";
+  int pairs = 0, interpolated = 0;
+  double worst = stage_vjp_against_jvp("quadratic.npg", quadratic, &pairs, &interpolated);
+  worst = fmax(worst, stage_vjp_against_jvp("interp.npg", interp, &pairs, &interpolated));
+  worst = fmax(worst, stage_vjp_against_jvp("root.npg", root, &pairs, &interpolated));
+  worst = fmax(worst, stage_vjp_against_jvp("tests/programs/solve_stage.npg", NULL, &pairs, &interpolated));
+  print_message("%d (stage, input) pairs, %d of an interpolated stage: the stage's reverse partial against its "
+                "forward one transposed, worst relative %.2g\n", pairs, interpolated, worst);
+  assert_true(pairs >= 8 && interpolated >= 2);
+  assert_true(worst <= 1e-12);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(full_rank_reproduces_full),
@@ -603,6 +672,7 @@ int main(void) {
       cmocka_unit_test(roots_of_given_operators),
       cmocka_unit_test(smaller_sizes_equal_retraining),
       cmocka_unit_test(derivatives_reuse_the_evaluation),
+      cmocka_unit_test(stage_partials_transpose),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -289,22 +289,32 @@ static double residual_norm(Reduced *r, const RTerm *rt, long n, long my, Estima
   return table_norm(rt, 0, rt->est_D, n, s, roundoff);
 }
 
+/* λ_min of the symmetric my x my matrix G (its upper triangle; destroyed) by dsyevr, NaN if LAPACK fails. */
+static double smallest_eigenvalue(double *G, long my, Estimation *s) {
+  lapack_int found = 0, isuppz[2];
+  return LAPACKE_dsyevr(LAPACK_ROW_MAJOR, 'N', 'I', 'U', (int)my, G, (int)my, 0, 0, 1, 1, 0, &found, s->sv, NULL, 1,
+                        isuppz) == 0 && found == 1 ? s->sv[0] : NAN;
+}
+
 /* σ_min of the my x my matrix M (destroyed); NaN if LAPACK fails. A symmetric positive definite
- * M̂ (an SPD operator's) by its smallest eigenvalue alone (dsyevr), else dgesvd's smallest
- * singular value. */
+ * M̂ (an SPD operator's) by its smallest eigenvalue alone (dsyevr); any other by √λ_min(M̂ᵀM̂) (dsyrk,
+ * dsyevr: half of dgesvd's time, whose bidiagonalization is most of it) when the Gram matrix's
+ * roundoff, (my + 8) ε ‖M̂‖_F² absolute, is below 1e-10 of λ_min (σ_min then within 1e-10 relative
+ * of dgesvd's; the semi-implicit heat step's M̂ takes this route, its estimates unchanged to 4e-16);
+ * else dgesvd's smallest singular value. */
 static double sigma_min(double *M, long my, Estimation *s) {
   if (my == 0) return INFINITY;
-  double big = 0, asym = 0;
+  double big = 0, asym = 0, fro2 = 0, lam;
   for (long i = 0; i < my; i++)
     for (long j = i + 1; j < my; j++) big = fmax(big, fabs(M[i * my + j])), asym = fmax(asym, fabs(M[i * my + j] - M[j * my + i]));
   for (long i = 0; i < my; i++) big = fmax(big, fabs(M[i * my + i]));
   if (asym <= 1e-14 * big) {
-    lapack_int found = 0, isuppz[2];
     memcpy(s->M2, M, sizeof(double) * (size_t)(my * my)); /* dsyevr destroys it; M stays for dgesvd */
-    if (LAPACKE_dsyevr(LAPACK_ROW_MAJOR, 'N', 'I', 'U', (int)my, s->M2, (int)my, 0, 0, 1, 1, 0, &found, s->sv, NULL, 1,
-                       isuppz) == 0 && found == 1 && s->sv[0] > 0)
-      return s->sv[0];
+    if ((lam = smallest_eigenvalue(s->M2, my, s)) > 0) return lam;
   }
+  for (long i = 0; i < my * my; i++) fro2 += M[i] * M[i];
+  cblas_dsyrk(CblasRowMajor, CblasUpper, CblasTrans, (int)my, (int)my, 1.0, M, (int)my, 0.0, s->M2, (int)my);
+  if ((double)(my + 8) * DBL_EPSILON * fro2 <= 1e-10 * (lam = smallest_eigenvalue(s->M2, my, s))) return sqrt(lam);
   lapack_int info = LAPACKE_dgesvd_work(LAPACK_ROW_MAJOR, 'N', 'N', (int)my, (int)my, M, (int)my, s->sv, NULL, 1, NULL,
                                         1, s->sv + my, (lapack_int)(s->svlen - my));
   return info == 0 ? s->sv[my - 1] : NAN;
@@ -334,8 +344,9 @@ static double top_singular(const double *J, long my, long mq, double *G, double 
 }
 
 /* Stage i's propagation of input q's error e_q (DESIGN §16): the stage's local Jacobian J =
- * ∂ŷ/∂x̂_q at the evaluated coordinates (reduced_stage_jvp, reduced cost), its largest singular value
- * σ_1 and right singular vector v (top_singular); the figure is max(σ_1 e_q, ‖ŷ(x̂_q ± e_q v) − ŷ(x̂_q)‖), the
+ * ∂ŷ/∂x̂_q at the evaluated coordinates (reduced_stage_jvp, or its transpose by reduced_stage_vjp when the
+ * stage's basis is the smaller: reduced cost), its largest singular value σ_1 and right singular vector v
+ * (top_singular); the figure is max(σ_1 e_q, ‖ŷ(x̂_q ± e_q v) − ŷ(x̂_q)‖), the
  * first order and, for a stage of contractions alone (their evaluation cannot fail), the secant
  * along v both ways, which holds the higher orders of the polynomial there. An estimate: J maps
  * B_q's span only (an error orthogonal to it is assumed to move the output as much as the worst
@@ -343,23 +354,35 @@ static double top_singular(const double *J, long my, long mq, double *G, double 
 typedef struct Propagation {
   int i, q;                      /* the stage, its input */
   double eq;                     /* the input's error */
-  double *eye, *J, *G, *vt, *y0; /* buffers: mq × mq, my × mq, mq × mq, mq, 3·my + mq */
+  double *eye, *J, *G, *vt, *y0; /* buffers: mq × mq, my × mq, mq × mq, mq + my, 3·my + mq */
 } Propagation;
+
+/* J = ∂ŷ/∂x̂_q of propagation `b` into b->J by forward directions (my x mq, one direction per input
+ * coordinate), or, `reverse`, Jᵀ (mq x my) by reverse ones (one per output coordinate). */
+static int stage_partial(Reduced *r, const Propagation *b, bool reverse, Err *err) {
+  const Model *m = reduced_model(r);
+  long nd = reverse ? qm(m, m->stages[b->i].q) : qm(m, b->q);
+  memset(b->eye, 0, sizeof(double) * (size_t)(nd * nd));
+  for (long a = 0; a < nd; a++) b->eye[a * nd + a] = 1;
+  const double *seed = b->eye;
+  ReducedSeeds sd = {1, &b->q, &seed, nd, false};
+  return reverse ? reduced_stage_vjp(r, b->i, &sd, b->J, -1, err) : reduced_stage_jvp(r, b->i, &sd, b->J, -1, err);
+}
 
 static double propagation(Reduced *r, const Propagation *b, char *why, size_t n) {
   int i = b->i, q = b->q;
-  double eq = b->eq, *eye = b->eye, *J = b->J, *G = b->G, *vt = b->vt, *y0 = b->y0;
+  double eq = b->eq, *J = b->J, *G = b->G, *vt = b->vt, *y0 = b->y0;
   const Model *m = reduced_model(r);
   const RStage *rs = &m->stages[i];
   long my = qm(m, rs->q), mq = qm(m, q), k = my < mq ? my : mq;
   char err[256] = "";
-  for (long a = 0; a < mq; a++) eye[a * mq + a] = 1;
-  const double *seed = eye;
-  if (reduced_stage_jvp(r, i, &(ReducedSeeds){1, &q, &seed, mq, false}, J, -1, ERR_OF(err, sizeof err)))
+  /* the fewer directions, and the smaller Gram matrix: J's top left singular vector u, then v = Jᵀu / σ_1 */
+  bool reverse = my < mq;
+  if (stage_partial(r, b, reverse, ERR_OF(err, sizeof err)))
     return snprintf(why, n, "the derivative in its input %s (whose error it propagates) failed: %.150s", qname(m, q),
                     err), NAN;
   if (k == 0) return 0;
-  double s1 = top_singular(J, my, mq, G, vt);
+  double s1 = reverse ? top_singular(J, mq, my, G, vt + mq) : top_singular(J, my, mq, G, vt);
   if (isnan(s1))
     return snprintf(why, n, "the largest singular value of its derivative in %s was not found (LAPACK)", qname(m, q)),
            NAN;
@@ -367,6 +390,10 @@ static double propagation(Reduced *r, const Propagation *b, char *why, size_t n)
   bool contractions = true;
   for (int t = 0; t < rs->nterms; t++) contractions = contractions && rs->terms[t].nops == 0;
   if (!contractions || !(eq > 0)) return out;
+  if (reverse && s1 > 0)
+    cblas_dgemv(CblasRowMajor, CblasNoTrans, (int)mq, (int)my, 1 / s1, J, (int)my, vt + mq, 1, 0.0, vt, 1);
+  else if (reverse && (stage_partial(r, b, false, ERR_OF(err, sizeof err)) || isnan(top_singular(J, my, mq, G, vt))))
+    return out; /* J = 0: v is any direction, the forward pass's as before (should it fail: the first order, 0) */
   double *y1 = y0 + my, *v = y0 + 2 * my, *save = y0 + 3 * my, *x = reduced_all_coords(r)[q];
   memcpy(save, x, sizeof(double) * (size_t)mq);
   stage_sum(r, i, y0, v, my); /* the base ŷ(x̂_q), by the same sum as the perturbed values */
@@ -388,7 +415,7 @@ static double propagate(Reduced *r, int i, int q, double eq, char *why, size_t n
   Propagation b = {i, q, eq, scratch_array(&sc, (size_t)(mq * mq) + 1, sizeof(double)),
                    scratch_array(&sc, (size_t)(my * mq) + 1, sizeof(double)),
                    scratch_array(&sc, (size_t)(mq * mq) + 1, sizeof(double)),
-                   scratch_array(&sc, (size_t)mq + 1, sizeof(double)),
+                   scratch_array(&sc, (size_t)(mq + my) + 1, sizeof(double)),
                    scratch_array(&sc, (size_t)(3 * my + mq) + 1, sizeof(double))};
   double out = NAN;
   if (!b.eye || !b.J || !b.G || !b.vt || !b.y0)

@@ -144,7 +144,7 @@ static int pack_reads(const Model *m, RInterp *ip, long *count, long *off, long 
       gathered += count[q] * c->m;
     }
   }
-  if (!(ip->pk_gather_B = malloc(sizeof(double) * (size_t)(gathered + 1)))) return -1;
+  if (!(ip->pk_gather_B = mem_malloc(sizeof(double) * (size_t)(gathered + 1)))) return -1;
   for (long r = 0, at = 0; r < ip->nreads; r++) {
     int q = ip->read_q[r];
     const RClass *c = &m->classes[m->qclass[q]];
@@ -175,13 +175,13 @@ static int pack_lifts(const Model *m, RInterp *ip) {
   Scratch sc = SCRATCH_OF(NULL);
   long *count = scratch_array(&sc, (size_t)m->nq + 1, sizeof(long)), *off = scratch_array(&sc, (size_t)m->nq + 1, sizeof(long));
   long *next = scratch_array(&sc, (size_t)m->nq + 1, sizeof(long));
-  ip->pk_whole_q = malloc(sizeof(int) * (size_t)(m->nq + 1));
-  ip->pk_whole_off = malloc(sizeof(long) * (size_t)(m->nq + 1));
-  ip->pk_src = malloc(sizeof(long) * (size_t)(ip->nreads + 1));
-  ip->pk_gather_q = malloc(sizeof(int) * (size_t)(m->nq + 1));
-  ip->pk_gather_rows = malloc(sizeof(long) * (size_t)(m->nq + 1));
-  ip->pk_gather_off = malloc(sizeof(long) * (size_t)(m->nq + 1));
-  ip->pk_gather_at = malloc(sizeof(long) * (size_t)(m->nq + 1));
+  ip->pk_whole_q = mem_malloc(sizeof(int) * (size_t)(m->nq + 1));
+  ip->pk_whole_off = mem_malloc(sizeof(long) * (size_t)(m->nq + 1));
+  ip->pk_src = mem_malloc(sizeof(long) * (size_t)(ip->nreads + 1));
+  ip->pk_gather_q = mem_malloc(sizeof(int) * (size_t)(m->nq + 1));
+  ip->pk_gather_rows = mem_malloc(sizeof(long) * (size_t)(m->nq + 1));
+  ip->pk_gather_off = mem_malloc(sizeof(long) * (size_t)(m->nq + 1));
+  ip->pk_gather_at = mem_malloc(sizeof(long) * (size_t)(m->nq + 1));
   int rc = count && off && next && ip->pk_whole_q && ip->pk_whole_off && ip->pk_src && ip->pk_gather_q &&
                    ip->pk_gather_rows && ip->pk_gather_off && ip->pk_gather_at
                ? pack_reads(m, ip, count, off, next)
@@ -197,11 +197,11 @@ int interp_pack(const Model *m, const RStage *rs, RInterp *ip) {
   free(ip->pk_run_acc), free(ip->pk_run_end), free(ip->pk_coef), free(ip->pk_nin), free(ip->pk_read);
   Scratch sc = SCRATCH_OF(NULL);
   PackKey *key = scratch_array(&sc, (size_t)(n + 1), sizeof(PackKey));
-  ip->pk_run_acc = malloc(sizeof(long) * (size_t)(n + 1));
-  ip->pk_run_end = malloc(sizeof(long) * (size_t)(n + 1));
-  ip->pk_coef = malloc(sizeof(double) * (size_t)(n + 1));
-  ip->pk_nin = malloc((size_t)n + 1);
-  ip->pk_read = malloc(sizeof(int32_t) * (size_t)(nread + 1));
+  ip->pk_run_acc = mem_malloc(sizeof(long) * (size_t)(n + 1));
+  ip->pk_run_end = mem_malloc(sizeof(long) * (size_t)(n + 1));
+  ip->pk_coef = mem_malloc(sizeof(double) * (size_t)(n + 1));
+  ip->pk_nin = mem_malloc((size_t)n + 1);
+  ip->pk_read = mem_malloc(sizeof(int32_t) * (size_t)(nread + 1));
   int rc = key && ip->pk_run_acc && ip->pk_run_end && ip->pk_coef && ip->pk_nin && ip->pk_read ? 0 : -1;
   for (long i = 0; i < n && rc == 0; i++)
     key[i] = (PackKey){(factor_base(rs, ip->mono[i].term) + ip->mono[i].factor) * ip->k + ip->mono[i].slot, i};
@@ -501,10 +501,10 @@ static int load_table(Model *m, const StageArrays *sa, const char *pre, RStage *
   const double *reads = rows ? array_of(sa, w[1], nreads, 2) : NULL;
   const double *monos = reads ? array_of(sa, w[2], nmono, MONO_COLS) : NULL;
   if (!monos) return -1;
-  ip->rows = malloc(sizeof(long) * (size_t)(k + 1));
-  ip->read_q = malloc(sizeof(int) * (size_t)(nreads + 1));
-  ip->read_e = malloc(sizeof(long) * (size_t)(nreads + 1));
-  ip->mono = malloc(sizeof(RInterpMono) * (size_t)(nmono + 1));
+  ip->rows = mem_malloc(sizeof(long) * (size_t)(k + 1));
+  ip->read_q = mem_malloc(sizeof(int) * (size_t)(nreads + 1));
+  ip->read_e = mem_malloc(sizeof(long) * (size_t)(nreads + 1));
+  ip->mono = mem_malloc(sizeof(RInterpMono) * (size_t)(nmono + 1));
   if (!ip->rows || !ip->read_q || !ip->read_e || !ip->mono)
     return err_set(err, "%s: out of memory loading the model", dir);
   const char *bad = NULL;
@@ -571,11 +571,11 @@ static int load_stage(Model *m, const ModelStore *s, const char *dir, const char
   StageArrays sa = {s, dir, sn, err};
   const double *pinv = array_of(&sa, "pinv", mm, k);
   if (!pinv) return -1;
-  RInterp *ip = calloc(1, sizeof *ip);
+  RInterp *ip = mem_calloc(1, sizeof *ip);
   if (!ip) return err_set(err, "%s: out of memory loading the model", dir);
   rs->interp = ip;
   ip->k = k, ip->m = mm, ip->nreads = nreads, ip->nmono = nmono, ip->pinv_norm = norm;
-  if (!(ip->pinv = malloc(sizeof(double) * (size_t)(mm * k + 1))))
+  if (!(ip->pinv = mem_malloc(sizeof(double) * (size_t)(mm * k + 1))))
     return err_set(err, "%s: out of memory loading the model", dir);
   memcpy(ip->pinv, pinv, sizeof(double) * (size_t)(mm * k));
   for (long j = 0; j < mm * k; j++)
@@ -602,21 +602,21 @@ static int load_check(Model *m, const ModelStore *s, const char *dir, const char
       nmono > 100000000)
     return err_set(err, "%s/manifest: '%.200s' does not describe this model (a damaged or forged manifest)",
                    dir, line);
-  RInterp *ck = calloc(1, sizeof *ck);
+  RInterp *ck = mem_calloc(1, sizeof *ck);
   if (!ck) return err_set(err, "%s: out of memory loading the model", dir);
   *(fit ? &rs->interp->check : &rs->check) = ck;
   ck->k = k, ck->nreads = nreads, ck->nmono = nmono;
   StageArrays sa = {s, dir, sn, err};
   const double *B = array_of(&sa, "check_brows", kfit + k, mm);
   if (!B) return -1;
-  if (!(ck->brows = malloc(sizeof(double) * (size_t)((kfit + k) * mm + 1))))
+  if (!(ck->brows = mem_malloc(sizeof(double) * (size_t)((kfit + k) * mm + 1))))
     return err_set(err, "%s: out of memory loading the model", dir);
   memcpy(ck->brows, B, sizeof(double) * (size_t)((kfit + k) * mm));
   if (load_table(m, &sa, "check_", rs, ck)) return -1;
   long len = check_row_len(m, ck);
   const double *rows = array_of(&sa, "check_readrows", len, 0);
   if (!rows) return -1;
-  if (!(ck->read_rows = malloc(sizeof(double) * (size_t)(len + 1))))
+  if (!(ck->read_rows = mem_malloc(sizeof(double) * (size_t)(len + 1))))
     return err_set(err, "%s: out of memory loading the model", dir);
   memcpy(ck->read_rows, rows, sizeof(double) * (size_t)len);
   if (interp_pack(m, rs, ck)) return err_set(err, "%s: out of memory loading the model", dir);

@@ -82,6 +82,10 @@ int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, Er
  * reads held fixed (the chain of error estimates, estimate.c, takes each stage's own sensitivity
  * to each input). 0, or -1 with `err`. */
 int reduced_stage_jvp(Reduced *r, int stage, const ReducedSeeds *in, double *out, long sample, Err *err);
+/* Its transpose: out (m_in x nd) = (∂ŷ_stage/∂x̂_in)ᵀ · seed, in_q = in->q[0] the input, seed =
+ * in->block[0] on the stage's quantity (m_stage x nd); one reverse pass through the stage alone, fewer
+ * directions than the forward one when the stage's basis is smaller than its input's. 0, or -1 with `err`. */
+int reduced_stage_vjp(Reduced *r, int stage, const ReducedSeeds *in, double *out, long sample, Err *err);
 /* What an evaluation keeps of each operator of a Galerkin term for the derivatives, so that
  * they neither contract its tensors nor factor it again: M̂ as assembled (row-major n x n),
  * the factor of an inverse power (Cholesky's L of M̂, or the LU factors of M̂ᵀ with piv,

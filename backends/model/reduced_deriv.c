@@ -1083,18 +1083,36 @@ int reduced_jacobian(Reduced *r, int out_q, int in_q, double *J, long sample, Er
   return rc;
 }
 
-int reduced_stage_jvp(Reduced *r, int stage, const ReducedSeeds *in, double *out, long sample, Err *err) {
+/* One stage's local partial (reduced_stage_jvp, reduced_stage_vjp): the stage, the sample, the direction. */
+typedef struct StageSweep {
+  int stage;
+  long sample;
+  bool reverse;
+} StageSweep;
+
+/* Forward: the seed on input in->q[0], the stage's tangent out; reverse: the seed on the stage's quantity, the
+ * input's adjoint out. Every other quantity keeps a zero block: stage `stage` alone is differentiated (in
+ * reverse the adjoints it adds to its other inputs are not read). */
+static int stage_sweep(Reduced *r, const StageSweep *sw, const ReducedSeeds *in, double *out, Err *err) {
   Deriv dv;
   int in_q = in->q[0];
   long nd = in->nd;
-  int rc = deriv_init(&dv, r, nd, sample, err);
+  int rc = deriv_init(&dv, r, nd, sw->sample, err);
   const Model *m = dv.m;
-  const RStage *rs = &m->stages[stage];
+  const RStage *rs = &m->stages[sw->stage];
+  int seeded = sw->reverse ? rs->q : in_q, read = sw->reverse ? in_q : rs->q;
   if (rc == 0) deriv_activate(&dv, &in_q, 1);
-  if (rc == 0) cblas_dcopy((int)(qm(m, in_q) * nd), in->block[0], 1, dv.d[in_q], 1);
-  /* every other quantity keeps a zero tangent: stage `stage` alone is differentiated, the local partial */
-  if (rc == 0 && dv.active[rs->q] && rs->q != in_q) rc = stage_derivative(&dv, rs, false);
-  if (rc == 0) memcpy(out, dv.d[rs->q], sizeof(double) * (size_t)(qm(m, rs->q) * nd));
+  if (rc == 0) cblas_dcopy((int)(qm(m, seeded) * nd), in->block[0], 1, dv.d[seeded], 1);
+  if (rc == 0 && dv.active[rs->q] && rs->q != in_q) rc = stage_derivative(&dv, rs, sw->reverse);
+  if (rc == 0) memcpy(out, dv.d[read], sizeof(double) * (size_t)(qm(m, read) * nd));
   scratch_release(&dv.sc);
   return rc ? -1 : 0;
+}
+
+int reduced_stage_jvp(Reduced *r, int stage, const ReducedSeeds *in, double *out, long sample, Err *err) {
+  return stage_sweep(r, &(StageSweep){stage, sample, false}, in, out, err);
+}
+
+int reduced_stage_vjp(Reduced *r, int stage, const ReducedSeeds *in, double *out, long sample, Err *err) {
+  return stage_sweep(r, &(StageSweep){stage, sample, true}, in, out, err);
 }

@@ -219,6 +219,7 @@ typedef struct Table {
   struct Table *check;      /* the estimate's check table: slots from ip->k on are its entries */
   int nin;
   int in_q[RT_MAX_IN];      /* the quantity of each builder input */
+  bool oom;                 /* an entry refused because an allocation failed (not a malformed entry) */
   Err *err;
 } Table;
 
@@ -263,8 +264,10 @@ static int on_entry(void *user, npg_idx row, npg_idx col, int nin, const npg_idx
   long s = tb->slot[row];
   if (s < 0 || coef == 0) return 0;
   if (nin != tb->nin) return -1;
-  if (s >= tb->ip->k) return add_mono(tb->check, s - tb->ip->k, coef, nin, tb->in_q, in);
-  return add_mono(tb, s, coef, nin, tb->in_q, in);
+  if (add_mono(s >= tb->ip->k ? tb->check : tb, s >= tb->ip->k ? s - tb->ip->k : s, coef, nin, tb->in_q, in) == 0)
+    return 0;
+  tb->oom = true;
+  return -1;
 }
 
 static int stream_tensor(Table *tb, Full *f, const RTensor *x, const char *stage) {
@@ -272,9 +275,10 @@ static int stream_tensor(Table *tb, Full *f, const RTensor *x, const char *stage
   tb->nin = g->ninputs;
   for (int i = 0; i < g->ninputs && i < RT_MAX_IN; i++) tb->in_q[i] = vec_position(&tb->m->prog->quantities, g->inputs[i]);
   NpgSink sink = {tb, on_entry, 0, 1, 0, 0};
+  tb->oom = false;
   if (full_build(f, x->builder, &sink) != 0)
     return err_set(tb->err, "stage %s: reading tensor %s for interpolation: %s", stage, x->name,
-                     full_error(f)[0] ? full_error(f) : "out of memory");
+                     tb->oom || !full_error(f)[0] ? "out of memory" : full_error(f));
   return 0;
 }
 

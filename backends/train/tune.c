@@ -28,6 +28,7 @@
  * search; the snapshots and SVDs, which dominate, are made once either way.
  * The choice is greedy in evaluation order, not over all 2^E combinations. */
 #include <math.h>
+#include <setjmp.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -246,6 +247,22 @@ static int validate(Search *s, Model *m, double *worst, double *floor, Err *err)
 static int choose(Search *s, Model *m, double *out, char why[static 1024], Err *err);
 static double stage_work(const Model *m, const RStage *rs);
 
+/* cost_value at sizes `m` into *cost: its polynomial is built in the program's arena, whose out of memory
+ * longjmps to ctx->on_error (the compile's jump buffer, long gone by tuning): armed here, so that a failure
+ * returns -1 ("out of memory" for the caller to say) and leaves the program's state as it was. */
+static int cost_at(Program *prog, const long *m, long samples, double *cost) {
+  Ctx *ctx = prog->ctx;
+  jmp_buf here, *outer = ctx->on_error;
+  char *msg = ctx->msg;
+  bool failed = ctx->failed;
+  int rc = 0;
+  ctx->on_error = &here;
+  if (setjmp(here) == 0) *cost = cost_value(prog, m, samples);
+  else rc = -1, ctx->msg = msg, ctx->failed = failed;
+  ctx->on_error = outer;
+  return rc;
+}
+
 /* The model at caps `cap` with every stage reduced as forced and the
  * others chosen (choose): its sizes, cost, error and interpolated stages
  * into `tr`. NULL with `err`. */
@@ -253,7 +270,10 @@ static Model *configure(Search *s, const int *cap, TuneTrial *tr, Err *err) {
   Model *m = train_set_model(s->ts, cap, err);
   if (!m) return NULL;
   for (int c = 0; c < s->nc; c++) tr->m[c] = m->classes[c].m;
-  tr->cost = cost_value(s->prog, tr->m, m->samples);
+  if (cost_at(s->prog, tr->m, m->samples, &tr->cost)) {
+    model_free(m);
+    return err_set(err, "out of memory pricing the trial"), NULL;
+  }
   char why[1024];
   if (train_interpolate_stages(m, s->f, &s->copt, err) || choose(s, m, &tr->err, why, err)) {
     model_free(m);
@@ -374,7 +394,8 @@ static int bisect_classes(Search *s, int *cap, int t, const Model *layout, Err *
   for (int c = 0; best >= 0 && c < nc; c++) {
     memcpy(m1, out->trials[t].m, sizeof(long) * (size_t)nc);
     m1[c]++;
-    gain[c] = cost_value(s->prog, m1, layout->samples) - out->trials[t].cost;
+    if (cost_at(s->prog, m1, layout->samples, &gain[c])) best = err_set(err, "out of memory pricing the trials");
+    gain[c] -= out->trials[t].cost;
     order[c] = c;
   }
   for (int i = 0; best >= 0 && i < nc; i++) /* by gain, descending */
