@@ -148,6 +148,9 @@ typedef struct RClass {
                                --basis u:product=K0; the manifest's `product C K0`), or NULL */
   double *D;                /* with a product: K0 B, n x m row-major (owned), so the coordinates
                                of a value x are Dᵀx (its K0-projection); NULL otherwise */
+  double k0_norm1;          /* with a product: ‖K0‖₁ ≥ λ_max(K0) (Gershgorin, K0 symmetric), so an input set in
+                               full has ‖x − B x̂‖_K0 ≤ √k0_norm1 ‖x − B x̂‖₂ (npg_reduced_set); the manifest's
+                               `productnorm C v`; 0: not stored (a model trained before it) */
   size_t B_mapped;          /* when non-zero, B is a read-only mapping of that many bytes of an
                                unnamed file (out-of-core training), unmapped instead of freed */
   bool streamed;            /* the basis is not kept (B NULL, m its size when trained): model_class_streamable */

@@ -9,7 +9,9 @@ own projection error: v's 8 decaying modes truncated) the figure is an estimate,
 20 times it on every test sample. A solve after an application or before one, u = G⁻¹ (M x) and r = M (G⁻¹ x) with
 G = H + diag(w) (affine in w, semidefinite terms), is Galerkin's on the projected x (x̂ = BᵀHx; M's result the solve's
 right-hand side BᵀMB x̂), and its figure divides by the pencil's α of (G(w̄), H): u's a bound (x exact, no ratio
-enters), r's an estimate, each in [1, 20]. A solve after a power above 1 has no estimate, saying why."""
+enters), r's an estimate, each in [1, 20]. A solve after a power above 1 has no estimate, saying why. With x set in
+full off its basis (noise), its error enters y's figure in H's norm (npg_reduced_set's bound √‖H‖₁ ‖x − B x̂‖₂):
+y's effectivity in [1, 50]."""
 import os
 import subprocess
 import sys
@@ -137,7 +139,20 @@ def main():
               1 - 1e-6, 1 + 1e-6)
         if not all(f.startswith("b") for f in flags(said, 0)) or len(flags(said, 0)) != len(w):
             fail("the figures of y = M x with exact inputs are not flagged bounds:\n" + said)
+        noisy(d, prog, model, dict(st, x=x + 0.1 * rng.standard_normal(x.shape), **params), B, H, M)
         chain(d, train, test, st, H, M, K)
+
+
+def noisy(d, prog, model, st, B, H, M):
+    """x set in full off its basis (noise): its own error enters in H's norm, ‖x − B BᵀHx‖_H ≤ √‖H‖₁ ‖x − B BᵀHx‖₂
+    (npg_reduced_set's bound, ‖H‖₁ stored at training): y's figure at least its true error in H's norm."""
+    test, out = os.path.join(d, "NOISY"), os.path.join(d, "OUTN")
+    write(test, st)
+    run("eval", prog, model, test, "-o", out)
+    w, x = st["w"], st["x"]
+    est = lambda n: np.load(os.path.join(out, n + ".estimate.npy"))
+    check("y = M x, x set off its basis", est("y"), np.array([M(w[k]) @ x[k] for k in range(len(w))]),
+          np.load(os.path.join(out, "y.npy")), H, 1, 50)
 
 
 def chain(d, train, test, st, H, M, K):
