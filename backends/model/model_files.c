@@ -361,6 +361,13 @@ static int load_dual(const ModelStore *s, const Model *m, RClass *rc, int c, con
         !(sscanf(s->meta[j] + strlen(prefix), "%lf", &rc->k0_norm1) == 1 && rc->k0_norm1 > 0 && isfinite(rc->k0_norm1)))
       return err_set(err, "%s/manifest: class %s's productnorm line is not a positive number (a damaged model)", dir,
                      rc->label);
+  for (int i = 0; i < m->nstages && !(rc->k0_norm1 > 0); i++) /* trained before model_term_coords' rows (issue 41) */
+    for (int t = 0; m->qclass[m->stages[i].q] == c && t < m->stages[i].nterms; t++)
+      for (int k = 0; k < m->stages[i].terms[t].nops; k++)
+        if (model_term_coords(&m->stages[i].terms[t], k))
+          return err_set(err, "%s: stage %s chains a solve after a solve or after a power above 1 in class %s (product "
+                         "%s), which models trained before were reduced wrongly for (B's rows where coordinates pass, "
+                         "BᵀB ≠ I): retrain", dir, m->stages[i].st->sym->name, rc->label, rc->product->name);
   return (rc->D = take(s, dir, name, rc->n, rc->m, err)) ? 0 : -1;
 }
 
