@@ -185,7 +185,7 @@ const double *model_tensor_rows(const RClass *rc, const RTerm *rt, const RTensor
   int k = -1;
   for (int o = 0; o < rt->nops; o++)
     if (x >= rt->ops[o].t && x < rt->ops[o].t + rt->ops[o].ntensors) k = o;
-  return model_term_projects(rt, k) ? model_projector(rc) : rc->B;
+  return model_term_projects(rt, k) ? model_projector(rc) : rc->R && model_term_coords(rt, k) ? rc->R : rc->B;
 }
 
 int model_named_projections(Model *m, Err *err) {
@@ -255,6 +255,7 @@ void model_free(Model *m) {
     if (rc->B_mapped) munmap(rc->B, rc->B_mapped);
     else free(rc->B);
     free(rc->D);
+    free(rc->R);
     free(rc->coef);
     free(rc->train_coords);
     for (int i = 0; rc->members && i < rc->nmembers; i++) free(rc->members[i].name), free(rc->members[i].sv);

@@ -148,6 +148,10 @@ typedef struct RClass {
                                --basis u:product=K0; the manifest's `product C K0`), or NULL */
   double *D;                /* with a product: K0 B, n x m row-major (owned), so the coordinates
                                of a value x are Dᵀx (its K0-projection); NULL otherwise */
+  double *R;                /* training only, with a product: B (BᵀB)⁻¹, n x m row-major (owned; model_term_coords) */
+  double k0_norm1;          /* with a product: ‖K0‖₁ ≥ λ_max(K0) (Gershgorin, K0 symmetric), so an input set in
+                               full has ‖x − B x̂‖_K0 ≤ √k0_norm1 ‖x − B x̂‖₂ (npg_reduced_set); the manifest's
+                               `productnorm C v`; 0: not stored (a model trained before it) */
   size_t B_mapped;          /* when non-zero, B is a read-only mapping of that many bytes of an
                                unnamed file (out-of-core training), unmapped instead of freed */
   bool streamed;            /* the basis is not kept (B NULL, m its size when trained): model_class_streamable */
@@ -257,8 +261,23 @@ static inline bool model_term_projects(const RTerm *rt, int k) {
   bool applied = k < 0 || (rt->ops[k].op->kind == OPK_DECL && rt->ops[k].op->q == 1 && rt->ops[k].op->p > 0);
   return applied && (!next || (next->kind == OPK_DECL && next->q == 1 && next->p > 0));
 }
+/* The power p of a declared operator to an integer power (p/1), else 0. */
+static inline long model_op_power(const OpPow *o) { return o->kind == OPK_DECL && o->q == 1 ? o->p : 0; }
+/* Whether operator k of term rt passes coordinates where Galerkin's B rows would pass a right-hand side Bᵀg (issue 41):
+ * an operator applied to a power ≥ 2 whose result a solve takes next, and a solve (power -1) right after one or after
+ * another solve. In a class with a product their rows are R = B (BᵀB)⁻¹ (RClass.R): the power's steps are
+ * least-squares coordinates (RᵀMB)^p ŵ, and the solve (RᵀKB)⁻¹ = (BᵀKB)⁻¹ BᵀB takes coordinates ĉ as Galerkin's
+ * right-hand side Bᵀ(B ĉ). With B rows (BᵀMB)² ŵ and (BᵀKB)⁻¹ v̂ were no approximation there (BᵀB ≠ I); without a
+ * product R = B. */
+static inline bool model_term_coords(const RTerm *rt, int k) {
+  if (k < 0 || k >= rt->nops) return false;
+  long p = model_op_power(rt->ops[k].op);
+  long prev = k > 0 ? model_op_power(rt->ops[k - 1].op) : 0, next = k + 1 < rt->nops ? model_op_power(rt->ops[k + 1].op) : 0;
+  return p >= 2 ? next == -1 : p == -1 && (prev == -1 || prev >= 2);
+}
 /* What pre-multiplies the output axis of term rt's tensor x in class rc: model_projector when the part of the term
- * x belongs to projects (model_term_projects), else B. */
+ * x belongs to projects (model_term_projects), RClass.R in a product where it passes coordinates to a solve
+ * (model_term_coords), else B. */
 const double *model_tensor_rows(const RClass *rc, const RTerm *rt, const RTensor *x);
 /* FNV-1a 64 of the program's source files (main file and used modules). */
 uint64_t model_program_hash(const Program *prog);

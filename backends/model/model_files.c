@@ -107,6 +107,7 @@ int model_save(const Model *m, const char *dir, Err *err) {
     if (rc->D) { /* `basis u: product K0`: the dual K0 B that projects (issue 41) */
       snprintf(name, sizeof name, "dual_%d", c);
       bad |= model_store_meta(&s, "product %d %s", c, rc->product->name);
+      if (rc->k0_norm1 > 0) bad |= model_store_meta(&s, "productnorm %d %.17g", c, rc->k0_norm1);
       bad |= model_store_add(&s, name, 2, shape, rc->D);
     }
   }
@@ -354,6 +355,19 @@ static int load_dual(const ModelStore *s, const Model *m, RClass *rc, int c, con
                    dir, rc->label, op);
   if (a->ndim != 2 || a->shape[0] != rc->n || a->shape[1] != rc->m)
     return err_set(err, "%s/%s.npy: wrong shape, class %s needs %ld x %ld", dir, name, rc->label, rc->n, rc->m);
+  snprintf(prefix, sizeof prefix, "productnorm %d ", c); /* absent before it was stored: 0, input errors unknown */
+  for (int j = 0; j < s->nmeta; j++)
+    if (strncmp(s->meta[j], prefix, strlen(prefix)) == 0 &&
+        !(sscanf(s->meta[j] + strlen(prefix), "%lf", &rc->k0_norm1) == 1 && rc->k0_norm1 > 0 && isfinite(rc->k0_norm1)))
+      return err_set(err, "%s/manifest: class %s's productnorm line is not a positive number (a damaged model)", dir,
+                     rc->label);
+  for (int i = 0; i < m->nstages && !(rc->k0_norm1 > 0); i++) /* trained before model_term_coords' rows (issue 41) */
+    for (int t = 0; m->qclass[m->stages[i].q] == c && t < m->stages[i].nterms; t++)
+      for (int k = 0; k < m->stages[i].terms[t].nops; k++)
+        if (model_term_coords(&m->stages[i].terms[t], k))
+          return err_set(err, "%s: stage %s chains a solve after a solve or after a power above 1 in class %s (product "
+                         "%s), which models trained before were reduced wrongly for (B's rows where coordinates pass, "
+                         "BᵀB ≠ I): retrain", dir, m->stages[i].st->sym->name, rc->label, rc->product->name);
   return (rc->D = take(s, dir, name, rc->n, rc->m, err)) ? 0 : -1;
 }
 

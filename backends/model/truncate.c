@@ -126,7 +126,7 @@ static int cut_class(const RClass *s, RClass *t) {
     if (!(t->B = mem_malloc(sizeof(double) * (size_t)(s->n * m1 + 1)))) return -1;
     for (long e = 0; e < s->n; e++) memcpy(t->B + e * m1, s->B + e * m0, sizeof(double) * (size_t)m1);
   }
-  t->product = s->product;
+  t->product = s->product, t->k0_norm1 = s->k0_norm1;
   if (s->D) { /* a product's dual K0 B: its leading columns are K0 B' */
     if (!(t->D = mem_malloc(sizeof(double) * (size_t)(s->n * m1 + 1)))) return -1;
     for (long e = 0; e < s->n; e++) memcpy(t->D + e * m1, s->D + e * m0, sizeof(double) * (size_t)m1);

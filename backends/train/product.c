@@ -195,6 +195,7 @@ int train_product_basis(Model *m, Full *f, RClass *rc, const ClassSnapshots *sn,
   cholmod_l_start(&cc);
   cc.print = 0;
   cholmod_sparse *A = product_matrix(m, f, rc, &cc, err);
+  rc->k0_norm1 = A ? cholmod_l_norm_sparse(A, 1, &cc) : 0; /* whole A: product_factor leaves its upper triangle */
   cholmod_factor *L = A ? product_factor(rc, A, &cc, err) : NULL;
   Scratch sc = SCRATCH_OF(err);
   double **Y = L ? scratch_array(&sc, (size_t)rc->nmembers, sizeof(double *)) : NULL;

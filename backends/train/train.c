@@ -25,6 +25,7 @@
  * progress bar (progress.c).
  */
 #include <cblas.h>
+#include <lapacke.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -640,6 +641,40 @@ static void phase_end(struct timespec clock[2], Model *m, int phase) {
   phase_time(clock, &m->phase_seconds[phase], &m->phase_cpu[phase]);
 }
 
+/* rc->R = B (BᵀB)⁻¹ (model_term_coords): Rᵀ = (BᵀB)⁻¹ Bᵀ by BᵀB's Cholesky factor. 0, or -1 (out of memory, or
+ * BᵀB not positive definite: B's columns dependent). */
+static int coords_rows(RClass *rc) {
+  long n = rc->n, m = rc->m;
+  Scratch sc = SCRATCH_OF(NULL);
+  double *G = scratch_array(&sc, (size_t)(m * m), sizeof(double));
+  double *R = scratch_adopt(&sc, mem_malloc(sizeof(double) * (size_t)(n * m) + 1)); /* kept: the class owns it */
+  int out = G && R ? 0 : -1;
+  if (out == 0) {
+    cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)m, (int)m, (int)n, 1.0, rc->B, (int)m, rc->B, (int)m,
+                0.0, G, (int)m);
+    memcpy(R, rc->B, sizeof(double) * (size_t)(n * m)); /* row-major n x m: column-major Bᵀ, m x n */
+    out = LAPACKE_dpotrf(LAPACK_COL_MAJOR, 'U', (int)m, G, (int)m) ||
+          LAPACKE_dpotrs(LAPACK_COL_MAJOR, 'U', (int)m, (int)n, G, (int)m, R, (int)m) ? -1 : 0;
+  }
+  if (out == 0) rc->R = scratch_keep(&sc, R);
+  scratch_release(&sc);
+  return out;
+}
+
+/* RClass.R of every class with a product whose terms pass coordinates to a solve (model_term_coords). 0, or -1 with
+ * `err`. */
+static int train_coords_rows(Model *m, Err *err) {
+  for (int i = 0; i < m->nstages; i++) {
+    RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
+    for (int t = 0; t < m->stages[i].nterms; t++)
+      for (int k = 0; rc->D && rc->B && !rc->R && k < m->stages[i].terms[t].nops; k++)
+        if (model_term_coords(&m->stages[i].terms[t], k) && coords_rows(rc))
+          return err_set(err, "class %s: out of memory, or its basis's Gram matrix BᵀB is singular, for the rows of "
+                         "stage %s's solve", rc->label, m->stages[i].st->sym->name);
+  }
+  return 0;
+}
+
 /* Step 3: the projections between classes and every tensor pre-multiplied.
  * Over ranks, with progress on, rank 0 says how long its own rows took and
  * how long the sums over ranks (the wait for the slowest rank included). */
@@ -648,6 +683,7 @@ int train_premultiply_all(Train *tr) {
   bool progress = tr->opt->user->progress, dist = tr->opt->dist;
   long ntensors = 0, done = 0;
   int rank = dist ? dist_rank() : 0, N = dist ? dist_size() : 1;
+  if (train_coords_rows(m, tr->err)) return -1;
   for (int i = 0; i < m->nstages; i++)
     for (int t = 0; t < m->stages[i].nterms; t++) {
       RTerm *rt = &m->stages[i].terms[t];

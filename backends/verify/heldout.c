@@ -73,7 +73,8 @@ static double error_norm(Heldout *h, const RClass *rc, Full *f, const double *v,
   return product_norm(*p, v);
 }
 
-/* Each input's own error ‖x − B x̂‖ (npg_reduced_set's), the estimates, and every quantity's
+/* Each input's own error ‖x − B x̂‖ (npg_reduced_set's; in a product K0's norm exactly, where
+ * npg_reduced_set bounds it by √‖K0‖₁ ‖x − B x̂‖₂), the estimates, and every quantity's
  * estimate against its true absolute error `full` − lifted (in its class's product K0's norm when
  * it has one, as the estimate), into the rows' sums. */
 static int sample_estimates(Heldout *h, Full *f, const double *const *fulls, char *err, size_t errlen) {
@@ -90,6 +91,9 @@ static int sample_estimates(Heldout *h, Full *f, const double *const *fulls, cha
     double d = 0, xn = 0;
     for (long i = 0; i < rc->n; i++) d += (x[i] - y[i]) * (x[i] - y[i]), xn += x[i] * x[i];
     in_err[q] = sqrt(d) <= 64 * DBL_EPSILON * sqrt((double)rc->n) * sqrt(xn) ? 0 : sqrt(d);
+    if (in_err[q] == 0 || !rc->product) continue;
+    for (long i = 0; i < rc->n; i++) y[i] = x[i] - y[i]; /* in K0's norm, exactly: K0 is at hand here */
+    if (isnan(in_err[q] = error_norm(h, rc, f, y, err, errlen))) return -1;
   }
   if (estimate_eval(r, in_err, e)) return -1;
   for (int q = 0; q < m->nq; q++) {

@@ -531,7 +531,9 @@ static const char *streamed_message(const RClass *c, const char *name, const cha
 }
 
 /* ‖x − B x̂‖ of input q just projected (O(n m), as the projection), 0 within its roundoff
- * (64 ε √n ‖x‖): a basis that holds x is exact; NaN when out of memory. */
+ * (64 ε √n ‖x‖): a basis that holds x is exact; NaN when out of memory. In a class with a product K0 the
+ * estimates are in K0's norm: the bound √‖K0‖₁ ‖x − B x̂‖₂ ≥ ‖x − B x̂‖_K0 (K0 is not in the model; ‖K0‖₁ ≥
+ * λ_max(K0) stored at training, RClass.k0_norm1), NaN off the basis in a model trained before it was stored. */
 static double input_error(NpgReduced *r, int q, const RClass *c, const double *x) {
   double *y = mem_malloc(sizeof(double) * (size_t)c->n + 1);
   if (!y) return NAN;
@@ -540,7 +542,8 @@ static double input_error(NpgReduced *r, int q, const RClass *c, const double *x
   for (long i = 0; i < c->n; i++) d += (x[i] - y[i]) * (x[i] - y[i]), xn += x[i] * x[i];
   free(y);
   d = sqrt(d);
-  return d <= 64 * DBL_EPSILON * sqrt((double)c->n) * sqrt(xn) ? 0 : d;
+  if (d <= 64 * DBL_EPSILON * sqrt((double)c->n) * sqrt(xn)) return 0;
+  return !c->product ? d : c->k0_norm1 > 0 ? sqrt(c->k0_norm1) * d : NAN;
 }
 
 int npg_reduced_set(NpgReduced *r, const char *name, size_t count, const double *values) {
