@@ -21,6 +21,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <cmocka.h>
@@ -336,6 +337,45 @@ static void write_replaces_model(void **state) {
   assert_no_leftovers("empty_dir");
   model_store_free(&first);
   model_store_free(&second);
+}
+
+/* What a training killed at any moment leaves beside a model is removed by the next write: a
+ * temporary folder with the marker and some files (killed while it removed them: the marker goes
+ * last), an empty one (killed between its mkdir and its marker); a folder of a dead process's name
+ * without the marker holding a file is someone's, and stays. */
+static void dead_leftovers(void **state) {
+  (void)state;
+  ModelStore m;
+  example_model(&m);
+  char dir[512], tmp[1024], old[1100], path[1200];
+  scratch_path(dir, "dead");
+  write_ok(dir, &m);
+  pid_t child = fork();
+  if (child == 0) _exit(0);
+  assert_true(child > 0 && waitpid(child, NULL, 0) == child); /* its pid is no process now */
+  snprintf(tmp, sizeof tmp, "%s.tmp.%ld", dir, (long)child);
+  snprintf(old, sizeof old, "%s.old.%ld", dir, (long)child);
+  assert_int_equal(mkdir(tmp, 0777), 0);
+  write_ok(dir, &m);
+  assert_false(exists(tmp));
+  assert_int_equal(mkdir(tmp, 0777), 0);
+  snprintf(path, sizeof path, "%s/npg-model-store-leftover", tmp);
+  FILE *f = fopen(path, "w");
+  assert_non_null(f);
+  fclose(f);
+  snprintf(path, sizeof path, "%s/a.npy", tmp);
+  assert_non_null(f = fopen(path, "w"));
+  fclose(f);
+  write_ok(dir, &m);
+  assert_false(exists(tmp));
+  assert_int_equal(mkdir(old, 0777), 0);
+  snprintf(path, sizeof path, "%s/notes.txt", old);
+  assert_non_null(f = fopen(path, "w"));
+  fclose(f);
+  write_ok(dir, &m);
+  assert_true(exists(path));
+  expect_model(dir, &m);
+  model_store_free(&m);
 }
 
 /* Every failed write leaves the previous model in "<scratch>/keep" whole and
@@ -743,6 +783,7 @@ int main(void) {
       cmocka_unit_test(add_and_find),
       cmocka_unit_test(round_trip),
       cmocka_unit_test(write_replaces_model),
+      cmocka_unit_test(dead_leftovers),
       cmocka_unit_test(failed_write_keeps_model),
       cmocka_unit_test(refuse_to_replace),
       cmocka_unit_test(read_errors),

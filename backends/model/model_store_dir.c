@@ -133,7 +133,9 @@ static int remove_store_dir(const StoreReport *r, const char *path) {
   int rc = 0;
   struct dirent *e;
   while (rc == 0 && (e = readdir(d))) {
-    if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0 || !is_store_file(e->d_name)) continue;
+    if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0 || !is_store_file(e->d_name) ||
+        strcmp(e->d_name, MARKER) == 0)
+      continue; /* the marker goes last: a process killed in this loop leaves a folder still removable */
     Scratch sc = SCRATCH_OF(NULL); /* an entry's path */
     char *file = scratch_printf(&sc, "%s/%s", path, e->d_name);
     if (!file) rc = model_store_fail(r, path, 0, "out of memory");
@@ -141,6 +143,7 @@ static int remove_store_dir(const StoreReport *r, const char *path) {
     scratch_release(&sc);
   }
   closedir(d);
+  if (rc == 0) rc = mark(r, path, 0);
   if (rc == 0 && rmdir(path) != 0) rc = model_store_fail(r, path, 0, "cannot remove the directory: %s", strerror(errno));
   return rc;
 }
@@ -341,6 +344,7 @@ static int dead_leftover(const char *parent, const char *name, const char *base)
   Scratch sc = SCRATCH_OF(NULL);
   char *path = scratch_printf(&sc, "%s/%s", parent, name);
   int ours = path && has_marker(path);
+  if (path && !ours) rmdir(path); /* empty (rmdir takes nothing else): killed between its mkdir and its marker */
   scratch_release(&sc);
   return ours ? name[n + 1] : 0;
 }
