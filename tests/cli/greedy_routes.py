@@ -24,6 +24,8 @@ sys.path.insert(0, "examples/thermalblock")
 import thermalblock_data  # noqa: E402
 
 B = sys.argv[1]
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from mpi_env import mpi_launch  # noqa: E402
 MPI = "--mpi" in sys.argv[2:]
 BASES = ["--center", "off", "--basis", "u:cap=60,energy=1", "--basis", "u.num1:cap=1", "--basis", "mu:energy=1"]
 
@@ -34,8 +36,8 @@ def fail(msg):
 
 
 def run(args, ranks=0):
-    launch = ["timeout", "300", "mpirun", "--allow-run-as-root", "--oversubscribe", "-np", str(ranks)] if ranks else []
-    p = subprocess.run([*launch, os.path.join(B, "npgc"), *args], capture_output=True, text=True)
+    launch, env = mpi_launch(ranks) if ranks else ([], None)
+    p = subprocess.run([*launch, os.path.join(B, "npgc"), *args], capture_output=True, text=True, env=env)
     if p.returncode != 0:
         fail("npgc %s: exit %d\n%s%s" % (" ".join(args), p.returncode, p.stdout, p.stderr))
     return p
