@@ -185,7 +185,7 @@ const double *model_tensor_rows(const RClass *rc, const RTerm *rt, const RTensor
   int k = -1;
   for (int o = 0; o < rt->nops; o++)
     if (x >= rt->ops[o].t && x < rt->ops[o].t + rt->ops[o].ntensors) k = o;
-  return model_term_projects(rt, k) ? model_projector(rc) : rc->R && model_term_coords(rt, k) ? rc->R : rc->B;
+  return model_term_rows(rc, rt, k);
 }
 
 int model_named_projections(Model *m, Err *err) {

@@ -263,21 +263,37 @@ static inline bool model_term_projects(const RTerm *rt, int k) {
 }
 /* The power p of a declared operator to an integer power (p/1), else 0. */
 static inline long model_op_power(const OpPow *o) { return o->kind == OPK_DECL && o->q == 1 ? o->p : 0; }
-/* Whether operator k of term rt passes coordinates where Galerkin's B rows would pass a right-hand side Bᵀg (issue 41):
- * an operator applied to a power ≥ 2 whose result a solve takes next, and a solve (power -1) right after one or after
- * another solve. In a class with a product their rows are R = B (BᵀB)⁻¹ (RClass.R): the power's steps are
- * least-squares coordinates (RᵀMB)^p ŵ, and the solve (RᵀKB)⁻¹ = (BᵀKB)⁻¹ BᵀB takes coordinates ĉ as Galerkin's
- * right-hand side Bᵀ(B ĉ). With B rows (BᵀMB)² ŵ and (BᵀKB)⁻¹ v̂ were no approximation there (BᵀB ≠ I); without a
- * product R = B. */
+/* Whether term rt's numerator (k = -1) or operator k passes coordinates where Galerkin's B rows would pass a
+ * right-hand side Bᵀg (issue 41): an operator applied to a power ≥ 2 whose result a solve takes next, a solve (power
+ * -1) right after one or after another solve, an inverse power ≤ -2 (each of its solves after a solve), and the
+ * numerator or an operator applied once that such a power takes. In a class with a product their rows are
+ * R = B (BᵀB)⁻¹ (RClass.R): the power's steps are least-squares coordinates (RᵀMB)^p ŵ, and a solve
+ * (RᵀKB)⁻¹ = (BᵀKB)⁻¹ BᵀB takes coordinates ĉ as Galerkin's right-hand side Bᵀ(B ĉ), so K^-p takes Rᵀg and solves
+ * BᵀKB ẑ = Bᵀg, then BᵀKB ŷ = BᵀB ẑ, ... With B rows (BᵀMB)² ŵ, (BᵀKB)⁻¹ v̂ and (BᵀKB)^-p Bᵀg were no
+ * approximation there (BᵀB ≠ I); without a product R = B. */
 static inline bool model_term_coords(const RTerm *rt, int k) {
-  if (k < 0 || k >= rt->nops) return false;
-  long p = model_op_power(rt->ops[k].op);
-  long prev = k > 0 ? model_op_power(rt->ops[k - 1].op) : 0, next = k + 1 < rt->nops ? model_op_power(rt->ops[k + 1].op) : 0;
-  return p >= 2 ? next == -1 : p == -1 && (prev == -1 || prev >= 2);
+  if (k < -1 || k >= rt->nops) return false;
+  long next = k + 1 < rt->nops ? model_op_power(rt->ops[k + 1].op) : 0;
+  if (k < 0) return next <= -2;
+  long p = model_op_power(rt->ops[k].op), prev = k > 0 ? model_op_power(rt->ops[k - 1].op) : 0;
+  if (p >= 1) return p >= 2 ? next <= -1 : next <= -2;
+  return p <= -2 || (p == -1 && (prev <= -1 || prev >= 2));
 }
-/* What pre-multiplies the output axis of term rt's tensor x in class rc: model_projector when the part of the term
- * x belongs to projects (model_term_projects), RClass.R in a product where it passes coordinates to a solve
+/* The rows that pre-multiply the output axis of term rt's numerator (k = -1) or operator k in class rc:
+ * model_projector where it projects (model_term_projects), RClass.R in a product where it passes coordinates
  * (model_term_coords), else B. */
+static inline const double *model_term_rows(const RClass *rc, const RTerm *rt, int k) {
+  return model_term_projects(rt, k) ? model_projector(rc) : rc->R && model_term_coords(rt, k) ? rc->R : rc->B;
+}
+/* Whether term rt holds an inverse power ≤ -2 (its rows changed with issue 41's model_term_coords: the manifest's
+ * `productpowers C` line tells a model of such a term in a product trained after). */
+static inline bool model_term_inverse_power(const RTerm *rt) {
+  for (int k = 0; k < rt->nops; k++)
+    if (model_op_power(rt->ops[k].op) <= -2) return true;
+  return false;
+}
+/* What pre-multiplies the output axis of term rt's tensor x in class rc: model_term_rows of the part of the term x
+ * belongs to. */
 const double *model_tensor_rows(const RClass *rc, const RTerm *rt, const RTensor *x);
 /* FNV-1a 64 of the program's source files (main file and used modules). */
 uint64_t model_program_hash(const Program *prog);

@@ -45,6 +45,15 @@ static char *spectrum_csv(const RMember *mb) {
   return t;
 }
 
+/* 1 + the first stage of class c (with a product) whose terms take an inverse power ≤ -2
+ * (model_term_inverse_power: the manifest's `productpowers C 1` line), or 0. */
+static int class_inverse_power(const Model *m, int c) {
+  for (int i = 0; m->classes[c].product && i < m->nstages; i++)
+    for (int t = 0; m->qclass[m->stages[i].q] == c && t < m->stages[i].nterms; t++)
+      if (model_term_inverse_power(&m->stages[i].terms[t])) return i + 1;
+  return 0;
+}
+
 int model_save(const Model *m, const char *dir, Err *err) {
   ModelStore s;
   model_store_init(&s);
@@ -108,6 +117,7 @@ int model_save(const Model *m, const char *dir, Err *err) {
       snprintf(name, sizeof name, "dual_%d", c);
       bad |= model_store_meta(&s, "product %d %s", c, rc->product->name);
       if (rc->k0_norm1 > 0) bad |= model_store_meta(&s, "productnorm %d %.17g", c, rc->k0_norm1);
+      if (class_inverse_power(m, c)) bad |= model_store_meta(&s, "productpowers %d 1", c);
       bad |= model_store_add(&s, name, 2, shape, rc->D);
     }
   }
@@ -368,6 +378,13 @@ static int load_dual(const ModelStore *s, const Model *m, RClass *rc, int c, con
           return err_set(err, "%s: stage %s chains a solve after a solve or after a power above 1 in class %s (product "
                          "%s), which models trained before were reduced wrongly for (B's rows where coordinates pass, "
                          "BᵀB ≠ I): retrain", dir, m->stages[i].st->sym->name, rc->label, rc->product->name);
+  snprintf(prefix, sizeof prefix, "productpowers %d 1", c);
+  int i = class_inverse_power(m, c);
+  for (int j = 0; i && j < s->nmeta; j++) i = strcmp(s->meta[j], prefix) == 0 ? 0 : i;
+  if (i) /* trained before an inverse power's rows were model_term_coords' (issue 41) */
+    return err_set(err, "%s: stage %s takes an inverse power (K^-2 and below) in class %s (product %s), which models "
+                   "trained before were reduced wrongly for ((BᵀKB)^-p, BᵀB ≠ I): retrain", dir,
+                   m->stages[i - 1].st->sym->name, rc->label, rc->product->name);
   return (rc->D = take(s, dir, name, rc->n, rc->m, err)) ? 0 : -1;
 }
 

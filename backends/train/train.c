@@ -357,6 +357,29 @@ static bool keep_named(const Model *m, const char *list, int c, char *unknown, s
 
 static bool named_in(const char *const *names, int n, const char *name);
 
+/* A root (p/q, q > 1) in a class with a product is refused (issue 41), unless --reduce names its stage interp: its
+ * Galerkin value on B's span is B f(RᵀMB) ĉ (R = B (BᵀB)⁻¹), f of an operator similar to the symmetric
+ * (BᵀB)^-½ BᵀMB (BᵀB)^-½ but not symmetric itself, which the reduced code's symmetric root cannot take, and the
+ * symmetric (BᵀMB)^α Bᵀw of the 2-norm is no approximation there (BᵀB ≠ I: 100% off on the test's data). */
+static int product_roots(const Model *m, const TrainOptions *opt, Err *err) {
+  for (int i = 0; i < m->nstages; i++) {
+    const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
+    const char *name = m->stages[i].st->sym->name;
+    if (!rc->product || named_in(opt->user->interp_stage, opt->user->ninterp, name)) continue;
+    for (int t = 0; t < m->stages[i].nterms; t++)
+      for (int k = 0; k < m->stages[i].terms[t].nops; k++) {
+        const OpPow *o = m->stages[i].terms[t].ops[k].op;
+        if (o->q != 1)
+          return err_set(err, "stage %s: a root (power %ld/%ld) in class %s, orthonormal in the product %s, has no "
+                         "Galerkin reduction in npg (its reduced operator (BᵀB)⁻¹BᵀMB is not symmetric; the "
+                         "2-norm's (BᵀMB)^α Bᵀw is no approximation where BᵀB ≠ I): drop the product from the basis "
+                         "of %s, or reduce the stage by interpolation (--reduce %s:interp)", name, o->p, o->q,
+                         rc->label, rc->product->name, name, name);
+      }
+  }
+  return 0;
+}
+
 /* The model's layout for the dims sample 0 binds, with every member's
  * options set and the --basis names checked (t->m). */
 int train_begin(Train *t) {
@@ -377,7 +400,8 @@ int train_begin(Train *t) {
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++)
       member_options(m, &m->classes[c], &m->classes[c].members[i], opt, powered);
-  if (class_products(m, opt, t->err) || model_named_projections(m, t->err)) return -1;
+  if (class_products(m, opt, t->err) || product_roots(m, opt, t->err) || model_named_projections(m, t->err))
+    return -1;
   char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
   if (m->nclasses > 0) keep_named(m, opt->user->keep_bases, 0, unknown, sizeof unknown);
   if (unknown[0])
@@ -667,7 +691,7 @@ static int train_coords_rows(Model *m, Err *err) {
   for (int i = 0; i < m->nstages; i++) {
     RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
     for (int t = 0; t < m->stages[i].nterms; t++)
-      for (int k = 0; rc->D && rc->B && !rc->R && k < m->stages[i].terms[t].nops; k++)
+      for (int k = -1; rc->D && rc->B && !rc->R && k < m->stages[i].terms[t].nops; k++)
         if (model_term_coords(&m->stages[i].terms[t], k) && coords_rows(rc))
           return err_set(err, "class %s: out of memory, or its basis's Gram matrix BᵀB is singular, for the rows of "
                          "stage %s's solve", rc->label, m->stages[i].st->sym->name);
@@ -703,7 +727,7 @@ int train_premultiply_all(Train *tr) {
         if (!(rt->proj = mem_malloc(sizeof(double) * (size_t)(cy->m * cw->m))))
           return err_set(tr->err, "out of memory while training");
         cblas_dgemm(CblasRowMajor, CblasTrans, CblasNoTrans, (int)cy->m, (int)cw->m, (int)cy->n, 1.0,
-                    model_term_projects(rt, -1) ? model_projector(cy) : cy->B, (int)cy->m, cw->B, (int)cw->m, 0.0,
+                    model_term_rows(cy, rt, -1), (int)cy->m, cw->B, (int)cw->m, 0.0,
                     rt->proj, (int)cw->m);
       }
       RTERM_FOR_TENSORS(rt, x) {

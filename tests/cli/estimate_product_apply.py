@@ -10,7 +10,8 @@ own projection error: v's 8 decaying modes truncated) the figure is an estimate,
 G = H + diag(w) (affine in w, semidefinite terms), is Galerkin's on the projected x (x̂ = BᵀHx; M's result the solve's
 right-hand side BᵀMB x̂), and its figure divides by the pencil's α of (G(w̄), H): u's a bound (x exact, no ratio
 enters), r's an estimate, each in [1, 20]. A solve after a power above 1 has no estimate, saying why. Two solves and a
-solve after a power reduce as Galerkin's at each step (two(): values against numpy, an old model refused). With x set in
+solve after a power reduce as Galerkin's at each step (two(): values against numpy, an old model refused), and so do
+powers of an inverse G⁻² x, G⁻³ x (powers()); a root in the product is refused at training. With x set in
 full off its basis (noise), its error enters y's figure in H's norm (npg_reduced_set's bound √‖H‖₁ ‖x − B x̂‖₂):
 y's effectivity in [1, 50]."""
 import os
@@ -45,6 +46,12 @@ TWO = HEAD + """output t = K^-1 * (G^-1 * x)
 output p = G^-1 * (M^2 * x)
 basis x: product H
 """
+POWERS = HEAD + """output e = G^-2 * x
+output c = G^-3 * x
+output f = K^-1 * (G^-2 * (M * x))
+basis x: product H
+"""
+ROOT = HEAD + "output r = G^(1/2) * x\nbasis x: product H\n"
 SOLVE = HEAD + """output u = G^-1 * (M * x)
 output r = M * (G^-1 * x)
 basis x: product H
@@ -258,15 +265,72 @@ def two(d, train, test, st, H, M, K):
     for lab, tr, now, old in (("t", true_t, red("t"), old_t), ("p", true_p, red("p"), old_p)):
         print("%s: errors in H's norm %.2e .. %.2e (with B rows, before: %.2e .. %.2e)" % (
             lab, norm(tr - now).min(), norm(tr - now).max(), norm(tr - old).min(), norm(tr - old).max()))
-    mf = os.path.join(model, "manifest")
-    body = b"".join(ln + b"\n" for ln in open(mf, "rb").read().split(b"\n")[:-1]
-                    if not ln.startswith((b"manifest ", b"productnorm ")))
-    open(mf, "wb").write(body + b"manifest fnv1a64 %016x\n" % fnv1a64(body))
+    strip_line(model, b"productnorm ")
     p = subprocess.run([os.path.join(sys.argv[1], "npgc"), "eval", prog, model, test, "-o", out + "2"], capture_output=True,
                        text=True)
     if p.returncode == 0 or "retrain" not in p.stderr:
         fail("a model of t = K⁻¹ G⁻¹ x trained before the rows of model_term_coords is not refused:\n" + p.stdout + p.stderr)
     print("an old model of t = K⁻¹ G⁻¹ x is refused: " + p.stderr.strip().splitlines()[-1][:160])
+    powers(d, train, test, st, H, M, K)
+
+
+def strip_line(model, prefix):
+    """Model `model` resealed without its manifest lines starting with `prefix` (as a model trained before them)."""
+    mf = os.path.join(model, "manifest")
+    body = b"".join(ln + b"\n" for ln in open(mf, "rb").read().split(b"\n")[:-1]
+                    if not ln.startswith((b"manifest ", prefix)))
+    open(mf, "wb").write(body + b"manifest fnv1a64 %016x\n" % fnv1a64(body))
+
+
+def powers(d, train, test, st, H, M, K):
+    """Powers of an inverse, e = G⁻² x, c = G⁻³ x and f = K⁻¹ G⁻² M x: each solve after a solve takes coordinates
+    (model_term_coords: the power's rows and those of what it takes, B (BᵀB)⁻¹), so e is Galerkin's step by step,
+    BᵀGB ẑ = BᵀB x̂, BᵀGB ê = BᵀB ẑ; with B rows it was (BᵀGB)⁻² BᵀB x̂, no approximation (its error in H's norm,
+    printed). A model of such a term without its productpowers line (trained before) is refused: retrain. A root in the
+    product is refused at training, naming the stage and why."""
+    prog, model, out = (os.path.join(d, n) for n in ("powers.npg", "POWERS", "OUTP"))
+    open(prog, "w").write(POWERS)
+    run("train", prog, train, "--basis", "x:cap=8", "-o", model)
+    run("eval", prog, model, test, "-o", out)
+    w, x = st["w"], st["x"]
+    S = len(w)
+    red = lambda n: np.load(os.path.join(out, n + ".npy"))
+    B = class_basis(model, "e")
+    BB = B.T @ B
+    G = lambda k: H + np.diag(w[k])
+    Gr = lambda k: B.T @ G(k) @ B
+    xh = [B.T @ H @ x[k] for k in range(S)]
+
+    def steps(k, z, p):
+        for i in range(p):
+            z = np.linalg.solve(Gr(k), BB @ z if i else z)
+        return z
+    want = {"e": np.array([B @ steps(k, BB @ xh[k], 2) for k in range(S)]),
+            "c": np.array([B @ steps(k, BB @ xh[k], 3) for k in range(S)]),
+            "f": np.array([B @ np.linalg.solve(B.T @ K(w[k]) @ B, BB @ steps(k, B.T @ M(w[k]) @ B @ xh[k], 2))
+                           for k in range(S)])}
+    dev = max(abs(red(n) - v).max() / abs(v).max() for n, v in want.items())
+    print("e = G⁻² x, c = G⁻³ x, f = K⁻¹ G⁻² M x: Galerkin's at each step to %.1e" % dev)
+    if dev > 1e-10:
+        fail("G⁻² x, G⁻³ x or K⁻¹ G⁻² M x in the product H is not reduced as Galerkin's at each step (%.1e)" % dev)
+    norm = lambda e: np.sqrt(np.einsum("si,ij,sj->s", e, H, e))
+    for n, p in (("e", 2), ("c", 3)):
+        true = np.array([np.linalg.matrix_power(np.linalg.inv(G(k)), p) @ x[k] for k in range(S)])
+        old = np.array([B @ np.linalg.matrix_power(np.linalg.inv(Gr(k)), p) @ BB @ xh[k] for k in range(S)])
+        print("%s = G^-%d x: errors in H's norm %.2e .. %.2e (with B rows, before: %.2e .. %.2e)" % (
+            n, p, norm(true - red(n)).min(), norm(true - red(n)).max(), norm(true - old).min(), norm(true - old).max()))
+    strip_line(model, b"productpowers ")
+    p = subprocess.run([os.path.join(sys.argv[1], "npgc"), "eval", prog, model, test, "-o", out + "2"],
+                       capture_output=True, text=True)
+    if p.returncode == 0 or "retrain" not in p.stderr:
+        fail("a model of e = G⁻² x trained before its rows is not refused:\n" + p.stdout + p.stderr)
+    print("an old model of e = G⁻² x is refused: " + p.stderr.strip().splitlines()[-1][:160])
+    open(prog, "w").write(ROOT)
+    p = subprocess.run([os.path.join(sys.argv[1], "npgc"), "train", prog, train, "-o", model + "R"], capture_output=True,
+                       text=True)
+    if p.returncode == 0 or "stage r: a root (power 1/2)" not in p.stderr or "product H" not in p.stderr:
+        fail("a root in the product H is not refused at training with its reason:\n" + p.stdout + p.stderr)
+    print("a root in the product is refused: " + p.stderr.strip().splitlines()[-1][:200])
 
 
 def sparse():
