@@ -357,11 +357,13 @@ static bool keep_named(const Model *m, const char *list, int c, char *unknown, s
 
 static bool named_in(const char *const *names, int n, const char *name);
 
-/* A root (p/q, q > 1) in a class with a product is refused (issue 41), unless --reduce names its stage interp: its
- * Galerkin value on B's span is B f(RᵀMB) ĉ (R = B (BᵀB)⁻¹), f of an operator similar to the symmetric
- * (BᵀB)^-½ BᵀMB (BᵀB)^-½ but not symmetric itself, which the reduced code's symmetric root cannot take, and the
- * symmetric (BᵀMB)^α Bᵀw of the 2-norm is no approximation there (BᵀB ≠ I: 100% off on the test's data). */
-static int product_roots(const Model *m, const TrainOptions *opt, Err *err) {
+/* A root (p/q, q > 1) in a class with a product is refused (issue 41), and so is a diagonal operator to a power ≤ -2,
+ * unless --reduce names the stage interp. A root's Galerkin value on B's span is B f(RᵀMB) ĉ (R = B (BᵀB)⁻¹), f of
+ * an operator similar to the symmetric (BᵀB)^-½ BᵀMB (BᵀB)^-½ but not symmetric itself, which the reduced code's
+ * symmetric root cannot take; a diagonal operator's reduced matrix is stored packed symmetric, so it cannot take the
+ * rows R that pass coordinates between its solves (model_term_coords); and the 2-norm's (BᵀMB)^α Bᵀw, (BᵀDB)^-p Bᵀw
+ * are no approximation there (BᵀB ≠ I: 100% off and more on the test's data). */
+static int product_powers(const Model *m, const TrainOptions *opt, Err *err) {
   for (int i = 0; i < m->nstages; i++) {
     const RClass *rc = &m->classes[m->qclass[m->stages[i].q]];
     const char *name = m->stages[i].st->sym->name;
@@ -369,12 +371,16 @@ static int product_roots(const Model *m, const TrainOptions *opt, Err *err) {
     for (int t = 0; t < m->stages[i].nterms; t++)
       for (int k = 0; k < m->stages[i].terms[t].nops; k++) {
         const OpPow *o = m->stages[i].terms[t].ops[k].op;
-        if (o->q != 1)
-          return err_set(err, "stage %s: a root (power %ld/%ld) in class %s, orthonormal in the product %s, has no "
-                         "Galerkin reduction in npg (its reduced operator (BᵀB)⁻¹BᵀMB is not symmetric; the "
-                         "2-norm's (BᵀMB)^α Bᵀw is no approximation where BᵀB ≠ I): drop the product from the basis "
-                         "of %s, or reduce the stage by interpolation (--reduce %s:interp)", name, o->p, o->q,
-                         rc->label, rc->product->name, name, name);
+        bool root = o->q != 1;
+        if (root || (o->kind == OPK_DIAG && o->p <= -2))
+          return err_set(err, "stage %s: %s (power %ld/%ld) in class %s, orthonormal in the product %s, has no "
+                         "Galerkin reduction in npg (%s; the 2-norm's reduction is no approximation where BᵀB ≠ I): "
+                         "drop the product from the basis of %s, or reduce the stage by interpolation (--reduce "
+                         "%s:interp)", name, root ? "a root" : "a diagonal operator's inverse power", o->p, o->q,
+                         rc->label, rc->product->name,
+                         root ? "its reduced operator (BᵀB)⁻¹BᵀMB is not symmetric"
+                              : "its packed symmetric reduced matrix cannot pass coordinates between its solves",
+                         name, name);
       }
   }
   return 0;
@@ -400,7 +406,7 @@ int train_begin(Train *t) {
   for (int c = 0; c < m->nclasses; c++)
     for (int i = 0; i < m->classes[c].nmembers; i++)
       member_options(m, &m->classes[c], &m->classes[c].members[i], opt, powered);
-  if (class_products(m, opt, t->err) || product_roots(m, opt, t->err) || model_named_projections(m, t->err))
+  if (class_products(m, opt, t->err) || product_powers(m, opt, t->err) || model_named_projections(m, t->err))
     return -1;
   char unknown[256] = ""; /* a misspelt --keep-bases name is refused before training, not after */
   if (m->nclasses > 0) keep_named(m, opt->user->keep_bases, 0, unknown, sizeof unknown);

@@ -52,6 +52,7 @@ output f = K^-1 * (G^-2 * (M * x))
 basis x: product H
 """
 ROOT = HEAD + "output r = G^(1/2) * x\nbasis x: product H\n"
+DIAG = HEAD + "output r[i:N] = w[i]^(-2) * x[i]\nbasis x: product H\n"
 SOLVE = HEAD + """output u = G^-1 * (M * x)
 output r = M * (G^-1 * x)
 basis x: product H
@@ -287,7 +288,8 @@ def powers(d, train, test, st, H, M, K):
     (model_term_coords: the power's rows and those of what it takes, B (BᵀB)⁻¹), so e is Galerkin's step by step,
     BᵀGB ẑ = BᵀB x̂, BᵀGB ê = BᵀB ẑ; with B rows it was (BᵀGB)⁻² BᵀB x̂, no approximation (its error in H's norm,
     printed). A model of such a term without its productpowers line (trained before) is refused: retrain. A root in the
-    product is refused at training, naming the stage and why."""
+    product is refused at training, naming the stage and why, and so is a diagonal operator's inverse power w⁻² x
+    (its reduced matrix packed symmetric: no R rows; with B rows 100× Galerkin's error)."""
     prog, model, out = (os.path.join(d, n) for n in ("powers.npg", "POWERS", "OUTP"))
     open(prog, "w").write(POWERS)
     run("train", prog, train, "--basis", "x:cap=8", "-o", model)
@@ -331,6 +333,12 @@ def powers(d, train, test, st, H, M, K):
     if p.returncode == 0 or "stage r: a root (power 1/2)" not in p.stderr or "product H" not in p.stderr:
         fail("a root in the product H is not refused at training with its reason:\n" + p.stdout + p.stderr)
     print("a root in the product is refused: " + p.stderr.strip().splitlines()[-1][:200])
+    open(prog, "w").write(DIAG)
+    p = subprocess.run([os.path.join(sys.argv[1], "npgc"), "train", prog, train, "-o", model + "D"], capture_output=True,
+                       text=True)
+    if p.returncode == 0 or "stage r: a diagonal operator's inverse power (power -2/1)" not in p.stderr:
+        fail("w⁻² x (a diagonal operator) in the product H is not refused at training with its reason:\n" + p.stdout +
+             p.stderr)
 
 
 def sparse():
