@@ -358,7 +358,7 @@ static bool keep_named(const Model *m, const char *list, int c, char *unknown, s
 static bool named_in(const char *const *names, int n, const char *name);
 
 /* A root (p/q, q > 1) in a class with a product is refused (issue 41), and so is a diagonal operator to a power ≤ -2,
- * unless --reduce names the stage interp. A root's Galerkin value on B's span is B f(RᵀMB) ĉ (R = B (BᵀB)⁻¹), f of
+ * unless --reduce names the stage interp (diagonal operators only). A root's Galerkin value on B's span is B f(RᵀMB) ĉ (R = B (BᵀB)⁻¹), f of
  * an operator similar to the symmetric (BᵀB)^-½ BᵀMB (BᵀB)^-½ but not symmetric itself, which the reduced code's
  * symmetric root cannot take; a diagonal operator's reduced matrix is stored packed symmetric, so it cannot take the
  * rows R that pass coordinates between its solves (model_term_coords); and the 2-norm's (BᵀMB)^α Bᵀw, (BᵀDB)^-p Bᵀw
@@ -375,9 +375,9 @@ static int product_powers(const Model *m, const TrainOptions *opt, Err *err) {
         if (root || (o->kind == OPK_DIAG && o->p <= -2))
           return err_set(err, "stage %s: %s (power %ld/%ld) in class %s, orthonormal in the product %s, has no "
                          "Galerkin reduction in npg (%s; the 2-norm's reduction is no approximation where BᵀB ≠ I): "
-                         "drop the product from the basis of %s, or reduce the stage by interpolation (--reduce "
-                         "%s:interp)", name, root ? "a root" : "a diagonal operator's inverse power", o->p, o->q,
-                         rc->label, rc->product->name,
+                         "drop the product from the basis of %s (a stage of diagonal operators only may instead be "
+                         "interpolated: --reduce %s:interp)", name, root ? "a root" : "a diagonal operator's inverse "
+                         "power", o->p, o->q, rc->label, rc->product->name,
                          root ? "its reduced operator (BᵀB)⁻¹BᵀMB is not symmetric"
                               : "its packed symmetric reduced matrix cannot pass coordinates between its solves",
                          name, name);
